@@ -1,0 +1,2 @@
+//! The `odocal` command-line tool.
+fn main() {}

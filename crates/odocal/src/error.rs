@@ -1,0 +1,99 @@
+//! The library's error type.
+
+use std::path::PathBuf;
+
+/// Everything that can go wrong in the odocal library.
+///
+/// Messages name the file, line, column, option or parameter concerned and,
+/// where there is one, what to do about it.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum Error {
+    /// A file could not be opened, read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The underlying I/O error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A CSV file is malformed at a given place.
+    #[error("{path}: line {line}{}: {reason}", column.as_ref().map(|c| format!(", column '{c}'")).unwrap_or_default())]
+    Csv {
+        /// The file.
+        path: PathBuf,
+        /// 1-based line number in the file (the header is line 1).
+        line: u64,
+        /// The column, when the problem is in one.
+        column: Option<String>,
+        /// What is wrong.
+        reason: String,
+    },
+    /// Required columns are missing from a CSV header.
+    #[error("{path}: missing column(s) {}; columns found: {}", missing.join(", "), found.join(", "))]
+    MissingColumns {
+        /// The file.
+        path: PathBuf,
+        /// The required columns that were not found.
+        missing: Vec<String>,
+        /// The columns that were found.
+        found: Vec<String>,
+    },
+    /// The data are not usable as a drive (too short, empty, ...).
+    #[error("{context}: {reason}")]
+    InvalidDrive {
+        /// Where the data came from (a path or a description).
+        context: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// An option has a value outside its valid range.
+    #[error("invalid option `{field}`: {reason}")]
+    InvalidOption {
+        /// The option (field) name.
+        field: &'static str,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// A parameter vector is invalid (not finite, non-positive track width...).
+    #[error("invalid parameters: {0}")]
+    InvalidTheta(String),
+    /// No segment was usable for the requested computation.
+    #[error("no usable segments: {0}")]
+    NoSegments(String),
+    /// Parameters cannot be identified from the data.
+    #[error("parameter(s) {} not observable from these data: {reason}", params.join(", "))]
+    NotObservable {
+        /// The parameters that cannot be identified.
+        params: Vec<&'static str>,
+        /// Why.
+        reason: String,
+    },
+    /// A numerical method diverged or produced non-finite numbers.
+    #[error("numerical failure: {0}")]
+    Numerical(String),
+    /// A QP solver failed on a problem.
+    #[error("QP solver: {0}")]
+    Qp(String),
+    /// A drive manifest is invalid.
+    #[error("{path}: {reason}")]
+    Manifest {
+        /// The manifest file.
+        path: PathBuf,
+        /// What is wrong, naming the key.
+        reason: String,
+    },
+    /// JSON (de)serialisation failed.
+    #[error("{context}: {source}")]
+    Json {
+        /// What was being read or written.
+        context: String,
+        /// The underlying error.
+        #[source]
+        source: serde_json::Error,
+    },
+}
+
+/// The library's result type.
+pub type Result<T, E = Error> = std::result::Result<T, E>;

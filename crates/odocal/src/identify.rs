@@ -1,0 +1,412 @@
+//! Gauss-Newton identification of θ (SPEC §4, paper §3).
+//!
+//! For each segment the model is run from the reference start pose with the
+//! given inputs; the residual `r_k = ỹ_k − ŷ_k(θ)` (heading wrapped) and the
+//! sensitivity `S_k = ∂ŷ_k/∂θ` are propagated together,
+//! `S_0 = 0, S_{k+1} = F_x,k S_k + F_θ,k`. One step is
+//!
+//! ```text
+//! θ_i = θ_{i−1} + (JᵀWJ)⁻¹ JᵀW R
+//! ```
+//!
+//! with `W = diag([1, 1, 40²])` per sample. *Batch* Gauss-Newton accumulates
+//! `JᵀWJ` and `JᵀWR` over many segments (in parallel, summed in a fixed
+//! order so the result does not depend on the thread count). Steps that
+//! increase the weighted cost are rejected.
+//!
+//! ## References
+//! G. Fazekas, P. Gáspár, B. Németh, "Wheel Odometry Model Calibration with
+//! Input Compensation by Optimal Control", IFAC-PapersOnLine, 2022.
+
+use nalgebra::{Matrix3, Matrix3x4, Matrix4, SymmetricEigen, Vector3, Vector4};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::model::{step_jacobians, wrap_angle, Theta, THETA_NAMES};
+use crate::segment::SegmentData;
+
+/// Options of the Gauss-Newton identification.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IdentifyOptions {
+    /// Maximum number of Gauss-Newton iterations i_max. Default 5 (paper).
+    pub max_iterations: usize,
+    /// Residual weights `[w_px, w_py, w_ψ]` per sample. Default `[1, 1, 40²]`.
+    pub weights: [f64; 3],
+    /// Which parameters are estimated (`[c_e, c_d, t_r, d]`); the others
+    /// stay at their initial value. Default: all four.
+    pub free: [bool; 4],
+    /// Stop when the relative step `‖Δθ/θ_scale‖∞` falls below this. Default 1e-12.
+    pub step_tolerance: f64,
+    /// Parameter resolutions used by the observability check, `[c_e, c_d,
+    /// t_r, d]` in SI units. Default `[0.01 m, 0.001 m, 0.015 m, 0.0005
+    /// m/(m/s²)]` (0.5 % of c_e, 1 mm, 1 % of t_r, 0.5 mm per m/s²).
+    pub resolution: [f64; 4],
+    /// A parameter (or combination) is *not observable* when moving it by
+    /// its resolution changes the predicted poses by less than this RMS,
+    /// in weighted metres. Default 0.01 m.
+    pub min_sensitivity_m: f64,
+}
+
+impl Default for IdentifyOptions {
+    fn default() -> Self {
+        IdentifyOptions {
+            max_iterations: 5,
+            weights: [1.0, 1.0, 1600.0],
+            free: [true; 4],
+            step_tolerance: 1e-12,
+            resolution: [0.01, 0.001, 0.015, 0.0005],
+            min_sensitivity_m: 0.01,
+        }
+    }
+}
+
+impl IdentifyOptions {
+    /// Checks the options, naming the offending field.
+    pub fn validate(&self) -> Result<()> {
+        if self.weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) {
+            return Err(Error::InvalidOption { field: "weights", reason: "must be finite and non-negative".into() });
+        }
+        if !self.free.iter().any(|f| *f) {
+            return Err(Error::InvalidOption { field: "free", reason: "at least one parameter must be free".into() });
+        }
+        if self.resolution.iter().any(|r| !(r.is_finite() && *r > 0.0)) {
+            return Err(Error::InvalidOption { field: "resolution", reason: "must be positive".into() });
+        }
+        Ok(())
+    }
+}
+
+/// Why the iteration stopped. Reaching the iteration limit is an outcome, not an error.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "reason", rename_all = "snake_case")]
+pub enum Termination {
+    /// `max_iterations` accepted steps were taken.
+    MaxIterations {
+        /// The limit.
+        iterations: usize,
+    },
+    /// The next step would have increased the weighted cost; it was rejected.
+    CostIncreased {
+        /// Cost after the rejected step.
+        cost: f64,
+        /// Cost before it (kept).
+        previous: f64,
+    },
+    /// The relative step fell below the tolerance.
+    StepTolerance {
+        /// The relative step size.
+        rel_step: f64,
+        /// The tolerance.
+        threshold: f64,
+    },
+}
+
+impl std::fmt::Display for Termination {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Termination::MaxIterations { iterations } => write!(f, "iteration limit: {iterations}"),
+            Termination::CostIncreased { cost, previous } => {
+                write!(f, "cost increased: {cost:.6e} > {previous:.6e} (step rejected)")
+            }
+            Termination::StepTolerance { rel_step, threshold } => {
+                write!(f, "step tolerance: {rel_step:.1e} <= {threshold:.0e}")
+            }
+        }
+    }
+}
+
+/// One accepted iteration.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct IterationRecord {
+    /// θ after the step.
+    pub theta: Theta,
+    /// Weighted cost at that θ.
+    pub cost: f64,
+}
+
+/// Observability diagnostics of `JᵀWJ` at the estimate.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Observability {
+    /// Reciprocal condition number of the equilibrated `D^{-½} JᵀWJ D^{-½}`
+    /// over the free parameters (1 is perfect, near 0 means collinear columns).
+    pub rcond: f64,
+    /// RMS change of the predicted poses (weighted metres per residual pose)
+    /// when each parameter moves by its resolution (`[c_e, c_d, t_r, d]`;
+    /// 0 for fixed parameters).
+    pub sensitivity_m: [f64; 4],
+    /// Parameters that are not observable from these data (alone or in a
+    /// combination): their estimate is not to be trusted.
+    pub unobservable: Vec<String>,
+}
+
+/// The result of a Gauss-Newton identification.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IdentifyReport {
+    /// Initial θ.
+    pub initial_theta: Theta,
+    /// Estimated θ.
+    pub theta: Theta,
+    /// Weighted cost at the initial θ.
+    pub initial_cost: f64,
+    /// Weighted cost at the estimate.
+    pub final_cost: f64,
+    /// Accepted iterations.
+    pub iterations: usize,
+    /// Why it stopped.
+    pub termination: Termination,
+    /// Accepted iterations in order.
+    pub history: Vec<IterationRecord>,
+    /// Covariance estimate `σ² (JᵀWJ)⁻¹` of θ (4×4, row-major, zero rows for
+    /// fixed parameters), with `σ² = cost / (m − p)`.
+    pub covariance: [[f64; 4]; 4],
+    /// Observability diagnostics.
+    pub observability: Observability,
+    /// Segments used.
+    pub segments: usize,
+    /// Residual poses used (Σ K).
+    pub residual_poses: usize,
+}
+
+impl std::fmt::Display for IdentifyReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} | cost {:.4e} -> {:.4e} in {} it ({}), rcond {:.2e}",
+            self.theta, self.initial_cost, self.final_cost, self.iterations, self.termination, self.observability.rcond
+        )
+    }
+}
+
+/// Normal equations of one or more segments at one θ.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NormalEquations {
+    /// `JᵀWJ`.
+    pub jtwj: Matrix4<f64>,
+    /// `JᵀWR`.
+    pub jtwr: Vector4<f64>,
+    /// Weighted cost `RᵀWR`.
+    pub cost: f64,
+    /// Residual poses.
+    pub poses: usize,
+}
+
+impl NormalEquations {
+    fn zero() -> Self {
+        NormalEquations { jtwj: Matrix4::zeros(), jtwr: Vector4::zeros(), cost: 0.0, poses: 0 }
+    }
+    fn add(&mut self, o: &NormalEquations) {
+        self.jtwj += o.jtwj;
+        self.jtwr += o.jtwr;
+        self.cost += o.cost;
+        self.poses += o.poses;
+    }
+}
+
+/// Residual of a predicted pose against the reference, heading wrapped.
+#[inline]
+pub fn pose_residual(reference: &Vector3<f64>, predicted: &Vector3<f64>) -> Vector3<f64> {
+    let r = reference - predicted;
+    Vector3::new(r[0], r[1], wrap_angle(r[2]))
+}
+
+/// Weighted cost of one segment at θ (no Jacobian).
+pub fn segment_cost(seg: &SegmentData<'_>, theta: &Theta, weights: &[f64; 3]) -> f64 {
+    let mut x = seg.reference(0);
+    let mut cost = 0.0;
+    for k in 0..seg.steps() {
+        x = crate::model::step(&x, &seg.input(k), theta, seg.sample_time_s);
+        let r = pose_residual(&seg.reference(k + 1), &x);
+        cost += weights[0] * r[0] * r[0] + weights[1] * r[1] * r[1] + weights[2] * r[2] * r[2];
+    }
+    cost
+}
+
+/// Normal equations of one segment at θ, propagating the sensitivity.
+pub fn segment_normal_equations(seg: &SegmentData<'_>, theta: &Theta, weights: &[f64; 3]) -> NormalEquations {
+    let w = Matrix3::from_diagonal(&Vector3::from(*weights));
+    let mut x = seg.reference(0);
+    let mut s = Matrix3x4::<f64>::zeros();
+    let mut ne = NormalEquations::zero();
+    for k in 0..seg.steps() {
+        let j = step_jacobians(&x, &seg.input(k), theta, seg.sample_time_s);
+        s = j.f_x * s + j.f_theta;
+        x = j.next;
+        let r = pose_residual(&seg.reference(k + 1), &x);
+        let ws = w * s;
+        ne.jtwj += s.transpose() * ws;
+        ne.jtwr += ws.transpose() * r;
+        ne.cost += r.dot(&(w * r));
+    }
+    ne.poses = seg.steps();
+    ne
+}
+
+/// Normal equations summed over segments, computed in parallel and summed in
+/// segment order (deterministic whatever the thread count).
+pub fn batch_normal_equations(segments: &[SegmentData<'_>], theta: &Theta, weights: &[f64; 3]) -> NormalEquations {
+    let parts: Vec<NormalEquations> =
+        segments.par_iter().map(|s| segment_normal_equations(s, theta, weights)).collect();
+    let mut total = NormalEquations::zero();
+    for p in &parts {
+        total.add(p);
+    }
+    total
+}
+
+fn batch_cost(segments: &[SegmentData<'_>], theta: &Theta, weights: &[f64; 3]) -> f64 {
+    let costs: Vec<f64> = segments.par_iter().map(|s| segment_cost(s, theta, weights)).collect();
+    costs.iter().sum()
+}
+
+/// Reduced system over the free parameters.
+fn reduce(m: &Matrix4<f64>, v: &Vector4<f64>, free: &[usize]) -> (nalgebra::DMatrix<f64>, nalgebra::DVector<f64>) {
+    let p = free.len();
+    let mut a = nalgebra::DMatrix::zeros(p, p);
+    let mut b = nalgebra::DVector::zeros(p);
+    for (i, &fi) in free.iter().enumerate() {
+        b[i] = v[fi];
+        for (j, &fj) in free.iter().enumerate() {
+            a[(i, j)] = m[(fi, fj)];
+        }
+    }
+    (a, b)
+}
+
+/// Observability diagnostics of the free block of `JᵀWJ`.
+pub fn observability(ne: &NormalEquations, free: &[bool; 4], opts: &IdentifyOptions) -> Observability {
+    let idx: Vec<usize> = (0..4).filter(|i| free[*i]).collect();
+    let poses = ne.poses.max(1) as f64;
+    let mut sensitivity = [0.0; 4];
+    for &i in &idx {
+        sensitivity[i] = (ne.jtwj[(i, i)].max(0.0) / poses).sqrt() * opts.resolution[i];
+    }
+    // Physically scaled matrix: Hs = S H S / poses (S = resolutions).
+    let p = idx.len();
+    let mut hs = nalgebra::DMatrix::zeros(p, p);
+    let mut he = nalgebra::DMatrix::zeros(p, p);
+    for (a, &i) in idx.iter().enumerate() {
+        for (b, &j) in idx.iter().enumerate() {
+            hs[(a, b)] = ne.jtwj[(i, j)] * opts.resolution[i] * opts.resolution[j] / poses;
+            let dd = (ne.jtwj[(i, i)] * ne.jtwj[(j, j)]).sqrt();
+            he[(a, b)] = if dd > 0.0 { ne.jtwj[(i, j)] / dd } else { 0.0 };
+        }
+    }
+    let eig_e = SymmetricEigen::new(he);
+    let (mn, mx) = eig_e.eigenvalues.iter().fold((f64::INFINITY, 0.0f64), |(a, b), &l| (a.min(l), b.max(l)));
+    let rcond = if mx > 0.0 { (mn / mx).max(0.0) } else { 0.0 };
+    // A direction of the scaled matrix with RMS effect below the threshold is
+    // unobservable; name the parameters that make it up.
+    let mut weak = [false; 4];
+    let eig = SymmetricEigen::new(hs);
+    for (e, lambda) in eig.eigenvalues.iter().enumerate() {
+        if lambda.max(0.0).sqrt() < opts.min_sensitivity_m {
+            let v = eig.eigenvectors.column(e);
+            for (a, &i) in idx.iter().enumerate() {
+                if v[a].abs() > 0.3 {
+                    weak[i] = true;
+                }
+            }
+        }
+    }
+    let unobservable = (0..4).filter(|i| weak[*i]).map(|i| THETA_NAMES[i].to_string()).collect();
+    Observability { rcond, sensitivity_m: sensitivity, unobservable }
+}
+
+/// Batch Gauss-Newton over segments from `theta0` (SPEC §4). With one
+/// segment this is the paper's *pure* Gauss-Newton.
+///
+/// Parameters that the data cannot determine are listed in
+/// [`Observability::unobservable`] of the report; callers decide whether
+/// that is a warning or an error (the CLI warns, naming them).
+///
+/// ```
+/// # fn main() -> Result<(), odocal::Error> {
+/// use odocal::{sim, segment, identify, Theta};
+/// let drive = sim::simulate(&sim::SimOptions { length_km: 2.0, ..sim::SimOptions::noise_free(7) })?.drive;
+/// let sel = segment::calibration_segments(&drive, &Default::default())?;
+/// let data: Vec<_> = sel.selected.iter().map(|s| segment::SegmentData::new(&drive, s)).collect();
+/// let report = identify::batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &Default::default())?;
+/// assert!((report.theta.c_e - 1.95).abs() < 1e-3);
+/// # Ok(()) }
+/// ```
+pub fn batch_gauss_newton(
+    segments: &[SegmentData<'_>],
+    theta0: &Theta,
+    opts: &IdentifyOptions,
+) -> Result<IdentifyReport> {
+    opts.validate()?;
+    theta0.validate()?;
+    if segments.is_empty() {
+        return Err(Error::NoSegments("Gauss-Newton needs at least one segment".into()));
+    }
+    let free: Vec<usize> = (0..4).filter(|i| opts.free[*i]).collect();
+    let w = &opts.weights;
+    let mut theta = *theta0;
+    let mut ne = batch_normal_equations(segments, &theta, w);
+    if !ne.cost.is_finite() {
+        return Err(Error::Numerical(format!("the cost at the initial θ ({theta}) is not finite")));
+    }
+    let initial_cost = ne.cost;
+    let mut history = Vec::new();
+    let scale = Vector4::new(theta0.c_e.abs().max(1.0), 1e-3, theta0.t_r.abs().max(1.0), 1e-3);
+    let mut termination = Termination::MaxIterations { iterations: opts.max_iterations };
+    for _ in 0..opts.max_iterations {
+        let (a, b) = reduce(&ne.jtwj, &ne.jtwr, &free);
+        let Some(chol) = a.clone().cholesky() else {
+            let names: Vec<&'static str> = free.iter().map(|i| THETA_NAMES[*i]).collect();
+            return Err(Error::NotObservable {
+                params: names,
+                reason: "JᵀWJ is singular at the current θ (no excitation of these parameters)".into(),
+            });
+        };
+        let dx = chol.solve(&b);
+        let mut step = Vector4::zeros();
+        for (i, &fi) in free.iter().enumerate() {
+            step[fi] = dx[i];
+        }
+        let cand = Theta::from_vector(&(theta.to_vector() + step));
+        let rel_step = step.component_div(&scale).amax();
+        if cand.validate().is_err() {
+            termination = Termination::CostIncreased { cost: f64::INFINITY, previous: ne.cost };
+            break;
+        }
+        let cand_cost = batch_cost(segments, &cand, w);
+        if !(cand_cost <= ne.cost) {
+            termination = Termination::CostIncreased { cost: cand_cost, previous: ne.cost };
+            break;
+        }
+        theta = cand;
+        ne = batch_normal_equations(segments, &theta, w);
+        history.push(IterationRecord { theta, cost: ne.cost });
+        if rel_step <= opts.step_tolerance {
+            termination = Termination::StepTolerance { rel_step, threshold: opts.step_tolerance };
+            break;
+        }
+    }
+    let obs = observability(&ne, &opts.free, opts);
+    let (a, _) = reduce(&ne.jtwj, &ne.jtwr, &free);
+    let m = 3 * ne.poses;
+    let sigma2 = if m > free.len() { ne.cost / (m - free.len()) as f64 } else { f64::NAN };
+    let mut covariance = [[0.0; 4]; 4];
+    if let Some(inv) = a.try_inverse() {
+        for (i, &fi) in free.iter().enumerate() {
+            for (j, &fj) in free.iter().enumerate() {
+                covariance[fi][fj] = sigma2 * inv[(i, j)];
+            }
+        }
+    }
+    Ok(IdentifyReport {
+        initial_theta: *theta0,
+        theta,
+        initial_cost,
+        final_cost: ne.cost,
+        iterations: history.len(),
+        termination,
+        history,
+        covariance,
+        observability: obs,
+        segments: segments.len(),
+        residual_poses: ne.poses,
+    })
+}

@@ -1,0 +1,52 @@
+//! # odocal — wheel-odometry model calibration
+//!
+//! odocal calibrates the wheel-odometry model of a car or robot — effective
+//! rear wheel circumference `c_e`, circumference difference `c_d`, rear track
+//! width `t_r` and load-transfer coefficient `d` — from an ordinary logged
+//! drive: rear wheel rotation speeds, lateral acceleration, sideslip and a
+//! GNSS/INS reference pose.
+//!
+//! ## The model
+//!
+//! ```text
+//! c_rl = c_e + c_d/2 + d·a_y          c_rr = c_e − c_d/2 − d·a_y
+//! v    = (n_rl·c_rl + n_rr·c_rr)/2    ω    = (n_rr·c_rr − n_rl·c_rl)/t_r
+//! p_x' = p_x + v·t_s·cos(ψ + ω·t_s/2 + β)
+//! p_y' = p_y + v·t_s·sin(ψ + ω·t_s/2 + β)
+//! ψ'   = ψ + ω·t_s
+//! ```
+//!
+//! ## The method
+//!
+//! Plain least squares on this nonlinear model is biased by noise on the
+//! wheel inputs. The 3-step method removes most of that bias:
+//! 1. batch Gauss-Newton ([`identify`]) on random batches of turning
+//!    segments gives several initial estimates θ_B,I;
+//! 2. for each θ_B,I a box-constrained optimal-control QP ([`compensate`])
+//!    estimates noise-free wheel rotations of every segment;
+//! 3. batch Gauss-Newton with the compensated inputs gives θ_B,F.
+//!
+//! Results are judged by dead-reckoning error on validation segments
+//! ([`validate`]). The exact statement, with every default, is the
+//! project's SPEC.md.
+//!
+//! ## References
+//! G. Fazekas, P. Gáspár, B. Németh, "Wheel Odometry Model Calibration with
+//! Input Compensation by Optimal Control", IFAC-PapersOnLine, 2022.
+
+#![deny(clippy::float_cmp)]
+
+pub mod drive;
+pub mod error;
+pub mod identify;
+pub mod model;
+pub mod qp;
+pub mod segment;
+pub mod validate;
+
+pub use drive::Drive;
+pub use error::{Error, Result};
+pub use identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport, Termination};
+pub use model::{Input, State, Theta};
+pub use segment::{Segment, SegmentData, SegmentOptions, ValidationSegmentOptions};
+pub use validate::{mean_position_error, ValidationReport};

@@ -1,0 +1,255 @@
+//! Cutting a drive into calibration and validation segments (SPEC §3).
+//!
+//! A segment of K steps starting at sample `i0` starts from the reference
+//! pose `ỹ_{i0}`, uses the inputs `u_{i0} … u_{i0+K−1}` and is compared with
+//! the reference at samples `i0+1 … i0+K`. Starts are `offset, offset +
+//! stride, …` within each continuous part of the drive while `i0 + K ≤ N − 1`
+//! (N samples in the part). Segments never span two parts.
+
+use serde::{Deserialize, Serialize};
+
+use crate::drive::Drive;
+use crate::error::{Error, Result};
+use crate::model::{Input, State};
+
+/// How calibration segments are cut and selected.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SegmentOptions {
+    /// Steps K per segment. Default 650 (16.25 s at 40 Hz).
+    pub length_steps: usize,
+    /// Steps between the starts of consecutive segments. Default 100.
+    pub stride_steps: usize,
+    /// First start, in samples from the start of each part. Default 0.
+    pub offset_steps: usize,
+    /// A segment is selected when its peak absolute yaw rate (from the
+    /// reference heading) exceeds this, rad/s. Default 0.15.
+    pub min_peak_yaw_rate_rad_per_s: f64,
+}
+
+impl Default for SegmentOptions {
+    fn default() -> Self {
+        SegmentOptions { length_steps: 650, stride_steps: 100, offset_steps: 0, min_peak_yaw_rate_rad_per_s: 0.15 }
+    }
+}
+
+impl SegmentOptions {
+    /// Checks the options, naming the offending field.
+    pub fn validate(&self) -> Result<()> {
+        if self.length_steps < 2 {
+            return Err(Error::InvalidOption { field: "length_steps", reason: "must be at least 2".into() });
+        }
+        if self.stride_steps == 0 {
+            return Err(Error::InvalidOption { field: "stride_steps", reason: "must be at least 1".into() });
+        }
+        if !(self.min_peak_yaw_rate_rad_per_s >= 0.0) {
+            return Err(Error::InvalidOption {
+                field: "min_peak_yaw_rate_rad_per_s",
+                reason: "must be a non-negative number".into(),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// How validation segments are cut (all are used, whatever their yaw rate).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ValidationSegmentOptions {
+    /// Steps K_v per segment. Default 1300.
+    pub length_steps: usize,
+    /// Steps between starts. Default 650.
+    pub stride_steps: usize,
+    /// First start within each part, samples. Default 50.
+    pub offset_steps: usize,
+}
+
+impl Default for ValidationSegmentOptions {
+    fn default() -> Self {
+        ValidationSegmentOptions { length_steps: 1300, stride_steps: 650, offset_steps: 50 }
+    }
+}
+
+impl ValidationSegmentOptions {
+    /// Checks the options, naming the offending field.
+    pub fn validate(&self) -> Result<()> {
+        if self.length_steps < 2 {
+            return Err(Error::InvalidOption { field: "length_steps", reason: "must be at least 2".into() });
+        }
+        if self.stride_steps == 0 {
+            return Err(Error::InvalidOption { field: "stride_steps", reason: "must be at least 1".into() });
+        }
+        Ok(())
+    }
+}
+
+/// One segment of a drive.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Segment {
+    /// Index of the first sample (the start pose).
+    pub start: usize,
+    /// Number of steps K (residual poses).
+    pub steps: usize,
+    /// Peak |ψ̃_{k+1} − ψ̃_k| / t_s over the segment, rad/s.
+    pub peak_yaw_rate_rad_per_s: f64,
+}
+
+/// Cuts segments of `length` steps every `stride` samples from `offset` in every part.
+pub fn cut(drive: &Drive, offset: usize, length: usize, stride: usize) -> Vec<Segment> {
+    let mut out = Vec::new();
+    if length == 0 || stride == 0 {
+        return out;
+    }
+    for part in &drive.parts {
+        let mut i0 = part.start + offset;
+        while i0 + length < part.end {
+            let peak = (i0..i0 + length).map(|k| (drive.psi[k + 1] - drive.psi[k]).abs()).fold(0.0, f64::max)
+                / drive.sample_time_s;
+            out.push(Segment { start: i0, steps: length, peak_yaw_rate_rad_per_s: peak });
+            i0 += stride;
+        }
+    }
+    out
+}
+
+/// All calibration segments of a drive and those selected by yaw rate.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SegmentSelection {
+    /// Every segment cut.
+    pub all: Vec<Segment>,
+    /// The segments whose peak yaw rate exceeds the threshold.
+    pub selected: Vec<Segment>,
+}
+
+/// Cuts calibration segments and selects those that turn enough.
+pub fn calibration_segments(drive: &Drive, opts: &SegmentOptions) -> Result<SegmentSelection> {
+    opts.validate()?;
+    let all = cut(drive, opts.offset_steps, opts.length_steps, opts.stride_steps);
+    let selected =
+        all.iter().copied().filter(|s| s.peak_yaw_rate_rad_per_s > opts.min_peak_yaw_rate_rad_per_s).collect();
+    Ok(SegmentSelection { all, selected })
+}
+
+/// Cuts validation segments.
+pub fn validation_segments(drive: &Drive, opts: &ValidationSegmentOptions) -> Result<Vec<Segment>> {
+    opts.validate()?;
+    Ok(cut(drive, opts.offset_steps, opts.length_steps, opts.stride_steps))
+}
+
+/// The data of one segment, borrowed column-wise from a drive, with the
+/// wheel rotations optionally replaced (by compensated ones).
+#[derive(Debug, Clone, Copy)]
+pub struct SegmentData<'a> {
+    /// Index of the first sample in the drive.
+    pub start: usize,
+    /// Sample time, s.
+    pub sample_time_s: f64,
+    /// Rear-left wheel rotation, rev/s, K values.
+    pub n_rl: &'a [f64],
+    /// Rear-right wheel rotation, rev/s, K values.
+    pub n_rr: &'a [f64],
+    /// Sideslip, rad, K values.
+    pub beta: &'a [f64],
+    /// Lateral acceleration, m/s², K values.
+    pub a_y: &'a [f64],
+    /// Reference x, m, K+1 values (index 0 is the start pose).
+    pub px: &'a [f64],
+    /// Reference y, m, K+1 values.
+    pub py: &'a [f64],
+    /// Reference heading, rad, K+1 values.
+    pub psi: &'a [f64],
+}
+
+impl<'a> SegmentData<'a> {
+    /// Borrows a segment's data from a drive.
+    pub fn new(drive: &'a Drive, seg: &Segment) -> Self {
+        let (a, k) = (seg.start, seg.steps);
+        SegmentData {
+            start: a,
+            sample_time_s: drive.sample_time_s,
+            n_rl: &drive.n_rl[a..a + k],
+            n_rr: &drive.n_rr[a..a + k],
+            beta: &drive.beta[a..a + k],
+            a_y: &drive.a_y[a..a + k],
+            px: &drive.px[a..=a + k],
+            py: &drive.py[a..=a + k],
+            psi: &drive.psi[a..=a + k],
+        }
+    }
+
+    /// The same segment with other wheel rotations (K values each).
+    pub fn with_wheels<'b>(&self, n_rl: &'b [f64], n_rr: &'b [f64]) -> SegmentData<'b>
+    where
+        'a: 'b,
+    {
+        assert_eq!(n_rl.len(), self.steps(), "with_wheels: n_rl length");
+        assert_eq!(n_rr.len(), self.steps(), "with_wheels: n_rr length");
+        SegmentData { n_rl, n_rr, ..*self }
+    }
+
+    /// Number of steps K.
+    #[inline]
+    pub fn steps(&self) -> usize {
+        self.n_rl.len()
+    }
+
+    /// Input at step k (0 ≤ k < K).
+    #[inline]
+    pub fn input(&self, k: usize) -> Input {
+        Input { n_rl: self.n_rl[k], n_rr: self.n_rr[k], beta: self.beta[k], a_y: self.a_y[k] }
+    }
+
+    /// Reference pose at k (0 ≤ k ≤ K); k = 0 is the start pose x_0.
+    #[inline]
+    pub fn reference(&self, k: usize) -> State {
+        State::new(self.px[k], self.py[k], self.psi[k])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn drive(n: usize, turn_from: usize) -> Drive {
+        let t: Vec<f64> = (0..n).map(|i| i as f64 * 0.025).collect();
+        let psi: Vec<f64> = (0..n).map(|i| if i > turn_from { (i - turn_from) as f64 * 0.01 } else { 0.0 }).collect();
+        let z = vec![0.0; n];
+        Drive::from_columns("test", t, z.clone(), z.clone(), psi, z.clone(), z.clone(), z.clone(), z).expect("valid")
+    }
+
+    #[test]
+    fn indexing_matches_spec() {
+        let d = drive(1000, 2000);
+        let s = cut(&d, 0, 650, 100);
+        // starts 0,100,200,300: 300+650 = 950 ≤ 999; 400+650 = 1050 > 999
+        assert_eq!(s.iter().map(|s| s.start).collect::<Vec<_>>(), vec![0, 100, 200, 300]);
+        let s = cut(&d, 0, 999, 1);
+        assert_eq!(s.len(), 1, "i0 + K ≤ N − 1 admits exactly K = N − 1");
+    }
+
+    #[test]
+    fn selection_by_peak_yaw_rate() {
+        // yaw rate 0.01 rad / 0.025 s = 0.4 rad/s after sample 700
+        let d = drive(1500, 700);
+        let sel = calibration_segments(&d, &SegmentOptions::default()).expect("valid");
+        for s in &sel.all {
+            let turns = s.start + s.steps > 701;
+            assert_eq!(sel.selected.contains(s), turns, "{s:?}");
+        }
+        assert!(!sel.selected.is_empty());
+    }
+
+    #[test]
+    fn segments_stay_within_parts() {
+        let mut d = drive(2000, 5000);
+        d.parts = vec![0..900, 900..2000];
+        for s in cut(&d, 0, 650, 100) {
+            let p = d.parts.iter().find(|p| p.contains(&s.start)).expect("in a part");
+            assert!(s.start + s.steps < p.end);
+        }
+    }
+
+    #[test]
+    fn invalid_options_name_the_field() {
+        let e = SegmentOptions { stride_steps: 0, ..Default::default() }.validate().expect_err("bad");
+        assert!(e.to_string().contains("stride_steps"));
+    }
+}

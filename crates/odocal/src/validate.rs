@@ -1,0 +1,60 @@
+//! Validation of a calibrated θ by dead reckoning (SPEC §7).
+//!
+//! On each validation segment the model runs with the *measured* wheel
+//! rotations from the reference start pose, and the mean position error is
+//!
+//! ```text
+//! E_p,s = (1/K_v) Σ_k sqrt((p̃_x,k − p_x,k(θ))² + (p̃_y,k − p_y,k(θ))²)
+//! ```
+//!
+//! `Ē_p` is the mean over segments.
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::drive::Drive;
+use crate::error::{Error, Result};
+use crate::model::{step, Theta};
+use crate::segment::{Segment, SegmentData};
+
+/// Mean position error of θ on the validation segments.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ValidationReport {
+    /// The θ validated.
+    pub theta: Theta,
+    /// Ē_p, the mean over segments of the per-segment mean position error, m.
+    pub mean_position_error_m: f64,
+    /// Number of validation segments.
+    pub segments: usize,
+    /// E_p,s per segment, m, in segment order.
+    pub per_segment_m: Vec<f64>,
+}
+
+/// Mean position error E_p,s of one segment at θ.
+pub fn segment_position_error(seg: &SegmentData<'_>, theta: &Theta) -> f64 {
+    let mut x = seg.reference(0);
+    let mut sum = 0.0;
+    for k in 0..seg.steps() {
+        x = step(&x, &seg.input(k), theta, seg.sample_time_s);
+        sum += (seg.px[k + 1] - x[0]).hypot(seg.py[k + 1] - x[1]);
+    }
+    sum / seg.steps() as f64
+}
+
+/// Ē_p of θ over `segments` of `drive`, parallel over segments, deterministic.
+pub fn mean_position_error(drive: &Drive, segments: &[Segment], theta: &Theta) -> Result<ValidationReport> {
+    theta.validate()?;
+    if segments.is_empty() {
+        return Err(Error::NoSegments(format!(
+            "the drive ({} samples) is too short for one validation segment",
+            drive.len()
+        )));
+    }
+    let per_segment_m: Vec<f64> =
+        segments.par_iter().map(|s| segment_position_error(&SegmentData::new(drive, s), theta)).collect();
+    let mean = per_segment_m.iter().sum::<f64>() / per_segment_m.len() as f64;
+    if !mean.is_finite() {
+        return Err(Error::Numerical(format!("validation error is not finite at θ = {theta}")));
+    }
+    Ok(ValidationReport { theta: *theta, mean_position_error_m: mean, segments: segments.len(), per_segment_m })
+}
