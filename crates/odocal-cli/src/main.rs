@@ -1,2 +1,443 @@
-//! The `odocal` command-line tool.
-fn main() {}
+//! The `odocal` command-line tool: a thin layer over the `odocal` library.
+//!
+//! Human-readable output goes to stdout, progress bars and warnings to
+//! stderr; errors are one line on stderr and a non-zero exit code.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Parser, Subcommand};
+use odocal::pipeline::{calibrate, CalibrationOptions, CalibrationReport, FinalSegments, Method};
+use odocal::qp::SolverKind;
+use odocal::sim::{self, NoiseOptions, SimOptions, SimSidecar};
+use odocal::{segment, Drive, Theta};
+
+mod progress;
+mod report;
+
+#[derive(Parser)]
+#[command(name = "odocal", version, about = "Wheel-odometry model calibration with input compensation by optimal control")]
+struct Cli {
+    /// No progress bars.
+    #[arg(long, short, global = true)]
+    quiet: bool,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Simulate a drive with known true parameters (writes DRIVE.csv and DRIVE.json).
+    Simulate(SimulateArgs),
+    /// Calibrate θ from a drive (canonical CSV).
+    Calibrate(CalibrateArgs),
+    /// Mean position error Ē_p of a θ on a drive's validation segments.
+    Validate(ValidateArgs),
+    /// Write a drive with compensated wheel rotations beside the measured ones.
+    Compensate(CompensateArgs),
+    /// Simulate the default 24 km drive, calibrate it and compare with the truth.
+    Demo(DemoArgs),
+}
+
+#[derive(Args)]
+struct SimulateArgs {
+    /// Random seed.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Route length, km.
+    #[arg(long, default_value_t = 24.0)]
+    length_km: f64,
+    /// Output CSV; the sidecar JSON is written beside it.
+    #[arg(long)]
+    out: PathBuf,
+    /// Noise preset: paper, off, white (white wheel noise only) or high.
+    #[arg(long, default_value = "paper")]
+    noise: String,
+    /// True θ as c_e,c_d,t_r,d in SI units (c_d in m, d in m per m/s²).
+    #[arg(long, allow_hyphen_values = true)]
+    theta: Option<Theta>,
+    /// Integration substeps per output sample (1 makes the model exact).
+    #[arg(long)]
+    substeps: Option<usize>,
+}
+
+#[derive(Args, Clone)]
+struct CalibrationArgs {
+    /// Calibration method.
+    #[arg(long, default_value = "three-step")]
+    method: Method,
+    /// Seed of the random batches.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// QP solver for input compensation: structured or clarabel.
+    #[arg(long, default_value = "structured")]
+    qp_solver: SolverKind,
+    /// Initial guess θ_0 as c_e,c_d,t_r,d (SI).
+    #[arg(long, allow_hyphen_values = true)]
+    theta0: Option<Theta>,
+    /// Parameters held fixed at θ_0, comma separated (e.g. c_d,t_r,d).
+    #[arg(long, value_delimiter = ',')]
+    fix: Vec<String>,
+    /// Minimum peak yaw rate for a segment to be selected, rad/s.
+    #[arg(long)]
+    min_yaw_rate: Option<f64>,
+    /// Calibration segment length K, samples.
+    #[arg(long)]
+    segment_length: Option<usize>,
+    /// Calibration segment stride, samples.
+    #[arg(long)]
+    segment_stride: Option<usize>,
+    /// Validation segment length K_v, samples.
+    #[arg(long)]
+    validation_length: Option<usize>,
+    /// Step 1: number of random batches.
+    #[arg(long)]
+    batches: Option<usize>,
+    /// Step 1: segments per batch.
+    #[arg(long)]
+    batch_size: Option<usize>,
+    /// Step 1: number of θ_B,I picked.
+    #[arg(long)]
+    picks: Option<usize>,
+    /// Step 3: "all" selected segments or a number of random ones.
+    #[arg(long)]
+    final_segments: Option<String>,
+    /// Maximum Gauss-Newton iterations.
+    #[arg(long)]
+    max_iterations: Option<usize>,
+}
+
+impl CalibrationArgs {
+    fn options(&self) -> Result<CalibrationOptions> {
+        let mut o = CalibrationOptions { method: self.method, seed: self.seed, qp_solver: self.qp_solver, ..Default::default() };
+        if let Some(t) = self.theta0 {
+            o.theta0 = t;
+        }
+        for name in &self.fix {
+            let i = odocal::model::THETA_NAMES
+                .iter()
+                .position(|n| n == name)
+                .with_context(|| format!("--fix: unknown parameter '{name}' (use c_e, c_d, t_r, d)"))?;
+            o.identify.free[i] = false;
+        }
+        if let Some(v) = self.min_yaw_rate {
+            o.segments.min_peak_yaw_rate_rad_per_s = v;
+        }
+        if let Some(v) = self.segment_length {
+            o.segments.length_steps = v;
+        }
+        if let Some(v) = self.segment_stride {
+            o.segments.stride_steps = v;
+        }
+        if let Some(v) = self.validation_length {
+            o.validation.length_steps = v;
+            o.validation.stride_steps = (v / 2).max(1);
+        }
+        if let Some(v) = self.batches {
+            o.initial_batches = v;
+        }
+        if let Some(v) = self.batch_size {
+            o.initial_batch_size = v;
+        }
+        if let Some(v) = self.picks {
+            o.picks = v;
+        }
+        if let Some(v) = &self.final_segments {
+            o.final_segments = if v == "all" {
+                FinalSegments::All
+            } else {
+                FinalSegments::Random(v.parse().with_context(|| format!("--final-segments: '{v}' is not 'all' or a number"))?)
+            };
+        }
+        if let Some(v) = self.max_iterations {
+            o.identify.max_iterations = v;
+        }
+        o.validate()?;
+        Ok(o)
+    }
+}
+
+#[derive(Args)]
+struct CalibrateArgs {
+    /// The drive: a canonical CSV (SPEC §2).
+    drive: PathBuf,
+    #[command(flatten)]
+    calibration: CalibrationArgs,
+    /// Write the JSON report here ("-" for stdout, which replaces the human output).
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+#[derive(Args)]
+struct ValidateArgs {
+    /// The drive: a canonical CSV.
+    drive: PathBuf,
+    /// θ as c_e,c_d,t_r,d (SI).
+    #[arg(long, allow_hyphen_values = true)]
+    theta: Theta,
+    /// Validation segment length K_v, samples (stride K_v/2).
+    #[arg(long)]
+    validation_length: Option<usize>,
+    /// Write the JSON report here ("-" for stdout).
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+#[derive(Args)]
+struct CompensateArgs {
+    /// The drive: a canonical CSV.
+    drive: PathBuf,
+    /// θ as c_e,c_d,t_r,d (SI).
+    #[arg(long, allow_hyphen_values = true)]
+    theta: Theta,
+    /// Output CSV (the drive plus n_rl_comp, n_rr_comp, compensated columns).
+    #[arg(long)]
+    out: PathBuf,
+    /// QP solver: structured or clarabel.
+    #[arg(long, default_value = "structured")]
+    qp_solver: SolverKind,
+    /// Segment length, samples (the drive is cut into consecutive segments).
+    #[arg(long, default_value_t = 650)]
+    segment_length: usize,
+}
+
+#[derive(Args)]
+struct DemoArgs {
+    /// Simulation seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Route length, km.
+    #[arg(long, default_value_t = 24.0)]
+    length_km: f64,
+    /// Noise preset: paper, off, white or high.
+    #[arg(long, default_value = "paper")]
+    noise: String,
+    /// Also write the simulated drive here.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    #[command(flatten)]
+    calibration: CalibrationArgs,
+    /// Write the JSON report here ("-" for stdout).
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    let bars = progress::Bars::new(cli.quiet);
+    match cli.command {
+        Command::Simulate(a) => simulate_cmd(a, &bars),
+        Command::Calibrate(a) => calibrate_cmd(a, &bars),
+        Command::Validate(a) => validate_cmd(a, &bars),
+        Command::Compensate(a) => compensate_cmd(a, &bars),
+        Command::Demo(a) => demo_cmd(a, &bars),
+    }
+}
+
+/// Reads a drive.
+fn load_drive(path: &Path) -> Result<Drive> {
+    Ok(Drive::read_csv(path)?)
+}
+
+/// The simulator's sidecar beside a drive, when there is one.
+fn load_truth(drive_path: &Path) -> Option<SimSidecar> {
+    let p = sim::sidecar_path(drive_path);
+    p.exists().then(|| SimSidecar::read_json(&p).ok()).flatten()
+}
+
+fn write_json(path: &Path, value: &serde_json::Value) -> Result<()> {
+    let text = serde_json::to_string_pretty(value)?;
+    if path == Path::new("-") {
+        println!("{text}");
+    } else {
+        std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
+}
+
+fn sim_options(seed: u64, length_km: f64, noise: &str) -> Result<SimOptions> {
+    let noise = NoiseOptions::by_name(noise)?;
+    Ok(SimOptions { seed, length_km, noise, ..SimOptions::paper(seed) })
+}
+
+fn simulate_cmd(a: SimulateArgs, bars: &progress::Bars) -> Result<()> {
+    let mut o = sim_options(a.seed, a.length_km, &a.noise)?;
+    if let Some(t) = a.theta {
+        o.theta_true = t;
+    }
+    if let Some(s) = a.substeps {
+        o.substeps = s;
+    }
+    bars.stage("simulating");
+    let out = sim::simulate(&o)?;
+    bars.finish();
+    out.drive.write_csv(&a.out)?;
+    let side = sim::sidecar_path(&a.out);
+    out.sidecar.write_json(&side)?;
+    let s = &out.sidecar.stats;
+    println!(
+        "wrote {} ({} samples, {:.2} km, {:.0} s, max yaw rate {:.2} rad/s, max |a_y| {:.2} m/s², wheel error {:.2} % rms) and {}",
+        a.out.display(),
+        s.samples,
+        s.distance_m / 1e3,
+        s.duration_s,
+        s.max_yaw_rate_rad_per_s,
+        s.max_abs_lateral_acceleration_m_per_s2,
+        s.wheel_rotation_rel_error_rms * 100.0,
+        side.display()
+    );
+    Ok(())
+}
+
+fn report_json(r: &CalibrationReport, truth: Option<(&Theta, f64)>) -> Result<serde_json::Value> {
+    let mut v = serde_json::to_value(r)?;
+    if let (Some((t, e)), Some(obj)) = (truth, v.as_object_mut()) {
+        obj.insert("truth".into(), serde_json::json!({"theta": t, "mean_position_error_m": e}));
+    }
+    Ok(v)
+}
+
+fn run_calibration(
+    drive: &Drive,
+    args: &CalibrationArgs,
+    json: Option<&Path>,
+    truth_theta: Option<Theta>,
+    bars: &progress::Bars,
+) -> Result<()> {
+    let opts = args.options()?;
+    let cb = |e| bars.event(e);
+    let r = calibrate(drive, &opts, Some(&cb))?;
+    bars.finish();
+    let truth = match truth_theta {
+        Some(t) => {
+            let val = segment::validation_segments(drive, &opts.validation)?;
+            Some((t, odocal::mean_position_error(drive, &val, &t)?.mean_position_error_m))
+        }
+        None => None,
+    };
+    let truth_ref = truth.as_ref().map(|(t, e)| (t, *e));
+    for w in &r.warnings {
+        eprintln!("warning: {w}");
+    }
+    if let Some(p) = json {
+        write_json(p, &report_json(&r, truth_ref)?)?;
+        if p == Path::new("-") {
+            return Ok(());
+        }
+    }
+    print!("{}", report::calibration(&r, truth_ref));
+    std::io::stdout().flush()?;
+    Ok(())
+}
+
+fn calibrate_cmd(a: CalibrateArgs, bars: &progress::Bars) -> Result<()> {
+    let drive = load_drive(&a.drive)?;
+    let truth = load_truth(&a.drive).map(|s| s.theta_true);
+    run_calibration(&drive, &a.calibration, a.json.as_deref(), truth, bars)
+}
+
+fn demo_cmd(a: DemoArgs, bars: &progress::Bars) -> Result<()> {
+    let o = sim_options(a.seed, a.length_km, &a.noise)?;
+    bars.stage("simulating");
+    let sim = sim::simulate(&o)?;
+    bars.finish();
+    if let Some(p) = &a.out {
+        sim.drive.write_csv(p)?;
+        sim.sidecar.write_json(&sim::sidecar_path(p))?;
+    }
+    if a.json.as_deref() != Some(Path::new("-")) {
+        let s = &sim.sidecar.stats;
+        println!(
+            "simulated {:.1} km, {:.0} s, seed {}, noise '{}' ({:.2} % rms wheel error); true θ: {}\n",
+            s.distance_m / 1e3,
+            s.duration_s,
+            a.seed,
+            a.noise,
+            s.wheel_rotation_rel_error_rms * 100.0,
+            sim.sidecar.theta_true
+        );
+    }
+    run_calibration(&sim.drive, &a.calibration, a.json.as_deref(), Some(sim.sidecar.theta_true), bars)
+}
+
+fn validate_cmd(a: ValidateArgs, _bars: &progress::Bars) -> Result<()> {
+    let drive = load_drive(&a.drive)?;
+    let mut vo = segment::ValidationSegmentOptions::default();
+    if let Some(v) = a.validation_length {
+        vo.length_steps = v;
+        vo.stride_steps = (v / 2).max(1);
+    }
+    let segs = segment::validation_segments(&drive, &vo)?;
+    let r = odocal::mean_position_error(&drive, &segs, &a.theta)?;
+    let v = serde_json::json!({
+        "theta": r.theta,
+        "mean_position_error_m": r.mean_position_error_m,
+        "segments": r.segments,
+        "per_segment_m": r.per_segment_m,
+    });
+    if let Some(p) = &a.json {
+        write_json(p, &v)?;
+        if p == Path::new("-") {
+            return Ok(());
+        }
+    }
+    println!("θ: {}", a.theta);
+    println!("mean position error Ē_p: {:.4} m over {} validation segments", r.mean_position_error_m, r.segments);
+    Ok(())
+}
+
+fn compensate_cmd(a: CompensateArgs, bars: &progress::Bars) -> Result<()> {
+    let mut drive = load_drive(&a.drive)?;
+    if a.segment_length < 2 {
+        bail!("--segment-length must be at least 2");
+    }
+    let segs = segment::cut(&drive, 0, a.segment_length, a.segment_length);
+    if segs.is_empty() {
+        bail!("{}: too short for one segment of {} steps", a.drive.display(), a.segment_length);
+    }
+    let cb = |e| bars.event(e);
+    let comp = odocal::pipeline::compensate_segments(
+        &drive,
+        &segs,
+        &[a.theta],
+        &odocal::compensate::CompensateOptions::default(),
+        a.qp_solver,
+        Some(&cb),
+    )?;
+    bars.finish();
+    for w in &comp.warnings {
+        eprintln!("warning: {w}");
+    }
+    let (mut c_rl, mut c_rr, mut flag) = (drive.n_rl.clone(), drive.n_rr.clone(), vec![0.0; drive.len()]);
+    for (i, s) in comp.segments.iter().enumerate() {
+        c_rl[s.start..s.start + s.steps].copy_from_slice(&comp.n_rl[i]);
+        c_rr[s.start..s.start + s.steps].copy_from_slice(&comp.n_rr[i]);
+        flag[s.start..s.start + s.steps].fill(1.0);
+    }
+    drive.extra.retain(|(n, _)| n != "n_rl_comp" && n != "n_rr_comp" && n != "compensated");
+    drive.extra.push(("n_rl_comp".into(), c_rl));
+    drive.extra.push(("n_rr_comp".into(), c_rr));
+    drive.extra.push(("compensated".into(), flag));
+    drive.write_csv(&a.out)?;
+    println!(
+        "wrote {}: {} of {} segments compensated ({} QP solves, rms input change {:.3} %)",
+        a.out.display(),
+        comp.step.segments,
+        segs.len(),
+        comp.step.qp_solves,
+        comp.step.rms_relative_input_change * 100.0
+    );
+    Ok(())
+}

@@ -1,0 +1,119 @@
+//! Human-readable output of reports.
+
+use std::fmt::Write as _;
+
+use odocal::pipeline::CalibrationReport;
+use odocal::Theta;
+
+fn row(out: &mut String, name: &str, unit: &str, values: &[Option<f64>], scale: f64, prec: usize) {
+    let _ = write!(out, "  {name:<4} {unit:<14}");
+    for v in values {
+        match v {
+            Some(v) => {
+                let _ = write!(out, " {:>13.*}", prec, v * scale);
+            }
+            None => {
+                let _ = write!(out, " {:>13}", "-");
+            }
+        }
+    }
+    out.push('\n');
+}
+
+/// A θ table with one column per entry (c_d and d also in mm, as the paper prints them).
+pub fn theta_table(columns: &[(&str, Option<Theta>)]) -> String {
+    let mut out = String::new();
+    let _ = write!(out, "  {:<4} {:<14}", "", "");
+    for (name, _) in columns {
+        let _ = write!(out, " {name:>13}");
+    }
+    out.push('\n');
+    let get = |f: fn(&Theta) -> f64| columns.iter().map(|(_, t)| t.as_ref().map(f)).collect::<Vec<_>>();
+    row(&mut out, "c_e", "m", &get(|t| t.c_e), 1.0, 6);
+    row(&mut out, "c_d", "mm", &get(|t| t.c_d), 1e3, 4);
+    row(&mut out, "t_r", "m", &get(|t| t.t_r), 1.0, 6);
+    row(&mut out, "d", "mm/(m/s²)", &get(|t| t.d), 1e3, 4);
+    out
+}
+
+/// Relative error of each parameter against the truth (c_d, d: absolute in mm).
+pub fn error_line(est: &Theta, truth: &Theta) -> String {
+    format!(
+        "c_e {:+.4} %, c_d {:+.4} mm, t_r {:+.4} %, d {:+.4} mm/(m/s²)",
+        (est.c_e / truth.c_e - 1.0) * 100.0,
+        (est.c_d - truth.c_d) * 1e3,
+        (est.t_r / truth.t_r - 1.0) * 100.0,
+        (est.d - truth.d) * 1e3
+    )
+}
+
+/// The calibration report for humans.
+pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>) -> String {
+    let mut out = String::new();
+    let _ = writeln!(out, "odocal calibrate — method {}", r.method);
+    let _ = writeln!(
+        out,
+        "segments: {} cut, {} selected (peak yaw rate > {} rad/s), {} validation",
+        r.segments.cut, r.segments.selected, r.options.segments.min_peak_yaw_rate_rad_per_s, r.segments.validation
+    );
+    if let Some(s) = &r.initial_step {
+        let _ = writeln!(
+            out,
+            "step 1: {} batch G-N runs of {} segments; picked θ_B,I (Ē_p, m): {}",
+            s.batches.len(),
+            r.options.initial_batch_size,
+            s.picked.iter().map(|p| format!("{:.3}", p.mean_position_error_m)).collect::<Vec<_>>().join(", ")
+        );
+    }
+    if let Some(c) = &r.compensation {
+        let _ = writeln!(
+            out,
+            "step 2: {} segments compensated ({} QP jobs, {} failed, {} solves, {:.1} solver it/solve, {}), rms input change {:.3} %",
+            c.segments,
+            c.jobs,
+            c.failed_jobs,
+            c.qp_solves,
+            c.mean_qp_iterations,
+            c.solver,
+            c.rms_relative_input_change * 100.0
+        );
+    }
+    let id = &r.identification;
+    let _ = writeln!(
+        out,
+        "{}: {} segments, {} it, {}; rcond {:.2e}",
+        if r.initial_step.is_some() { "step 3" } else { "batch G-N" },
+        id.segments,
+        id.iterations,
+        id.termination,
+        id.observability.rcond
+    );
+    out.push('\n');
+    let mut cols = vec![("θ_0", Some(r.initial.theta)), ("calibrated", Some(r.theta))];
+    let std: Theta = Theta {
+        c_e: id.covariance[0][0].sqrt(),
+        c_d: id.covariance[1][1].sqrt(),
+        t_r: id.covariance[2][2].sqrt(),
+        d: id.covariance[3][3].sqrt(),
+    };
+    cols.push(("± 1σ (model)", Some(std)));
+    if let Some((t, _)) = truth {
+        cols.push(("truth", Some(*t)));
+    }
+    out.push_str(&theta_table(&cols));
+    out.push('\n');
+    let _ = writeln!(out, "mean position error Ē_p on {} validation segments:", r.validation.segments);
+    let _ = writeln!(out, "  θ_0          {:>9.3} m", r.initial.mean_position_error_m);
+    let _ = writeln!(out, "  calibrated   {:>9.3} m", r.validation.mean_position_error_m);
+    if let Some((t, e)) = truth {
+        let _ = writeln!(out, "  truth        {e:>9.3} m");
+        let _ = writeln!(out, "error against truth: {}", error_line(&r.theta, t));
+    }
+    let t = &r.timing_s;
+    let _ = writeln!(
+        out,
+        "\ntime: {:.2} s total (setup {:.2}, initial {:.2}, compensation {:.2}, final {:.2}, validation {:.2})",
+        t.total, t.setup, t.initial_identification, t.compensation, t.final_identification, t.validation
+    );
+    out
+}

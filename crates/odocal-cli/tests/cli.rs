@@ -1,0 +1,182 @@
+//! End-to-end tests of the `odocal` binary: contract (SPEC §9), bad input,
+//! determinism.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn odocal(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_odocal")).args(args).arg("--quiet").output().expect("run odocal")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+/// Asserts a failed run with exit code 1 and one error line containing all `needles`.
+fn assert_error(o: &Output, needles: &[&str]) {
+    assert_eq!(o.status.code(), Some(1), "stderr: {}", stderr(o));
+    let e = stderr(o);
+    assert!(e.starts_with("error: "), "{e}");
+    assert_eq!(e.trim_end().lines().count(), 1, "one line: {e}");
+    for n in needles {
+        assert!(e.contains(n), "expected '{n}' in: {e}");
+    }
+}
+
+fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, text).expect("write fixture");
+    p
+}
+
+fn good_rows(n: usize) -> String {
+    let mut s = String::from("t,px,py,psi,n_rl,n_rr,beta,a_y\n");
+    for i in 0..n {
+        s.push_str(&format!("{},{},0,0,5,5,0,0\n", i as f64 * 0.025, i as f64 * 0.25));
+    }
+    s
+}
+
+#[test]
+fn missing_column_lists_columns_found() {
+    let d = tempfile::tempdir().expect("tmp");
+    let p = write(d.path(), "d.csv", "t,px,py,psi,n_rl,beta\n0,0,0,0,1,0\n");
+    let o = odocal(&["calibrate", p.to_str().expect("utf8")]);
+    assert_error(&o, &["d.csv", "missing column(s) n_rr, a_y", "columns found: t, px, py, psi, n_rl, beta"]);
+}
+
+#[test]
+fn nan_names_line_and_column() {
+    let d = tempfile::tempdir().expect("tmp");
+    let p = write(d.path(), "d.csv", &good_rows(10).replacen("0.05,0.5,", "0.05,nan,", 1));
+    let o = odocal(&["calibrate", p.to_str().expect("utf8")]);
+    assert_error(&o, &["d.csv: line 4, column 'px'", "not finite"]);
+}
+
+#[test]
+fn text_value_names_line_and_column() {
+    let d = tempfile::tempdir().expect("tmp");
+    let p = write(d.path(), "d.csv", &good_rows(10).replacen("0.05,0.5,0,0,5", "0.05,0.5,0,0,five", 1));
+    let o = odocal(&["validate", p.to_str().expect("utf8"), "--theta", "2,0,1.6,0"]);
+    assert_error(&o, &["line 4, column 'n_rl'", "'five' is not a number"]);
+}
+
+#[test]
+fn non_monotonic_time_names_line() {
+    let d = tempfile::tempdir().expect("tmp");
+    let p = write(d.path(), "d.csv", &good_rows(10).replacen("0.075,", "0.02,", 1));
+    let o = odocal(&["calibrate", p.to_str().expect("utf8")]);
+    assert_error(&o, &["line 5, column 't'", "not strictly increasing"]);
+}
+
+#[test]
+fn non_uniform_time_names_line() {
+    let d = tempfile::tempdir().expect("tmp");
+    let p = write(d.path(), "d.csv", &good_rows(10).replacen("0.1,", "0.11,", 1));
+    let o = odocal(&["calibrate", p.to_str().expect("utf8")]);
+    assert_error(&o, &["line 6, column 't'", "uniform"]);
+}
+
+#[test]
+fn too_few_samples() {
+    let d = tempfile::tempdir().expect("tmp");
+    let p = write(d.path(), "d.csv", &good_rows(100));
+    let o = odocal(&["calibrate", p.to_str().expect("utf8")]);
+    assert_error(&o, &["100 samples", "a calibration segment needs 651"]);
+    let o = odocal(&["validate", p.to_str().expect("utf8"), "--theta", "2,0,1.6,0"]);
+    assert_error(&o, &["too short for one validation segment"]);
+}
+
+#[test]
+fn empty_and_header_only_files() {
+    let d = tempfile::tempdir().expect("tmp");
+    let p = write(d.path(), "e.csv", "");
+    assert_error(&odocal(&["calibrate", p.to_str().expect("utf8")]), &["e.csv", "the file is empty"]);
+    let p = write(d.path(), "h.csv", "t,px,py,psi,n_rl,n_rr,beta,a_y\n");
+    assert_error(&odocal(&["calibrate", p.to_str().expect("utf8")]), &["h.csv", "no data rows"]);
+}
+
+#[test]
+fn unreadable_file() {
+    let o = odocal(&["calibrate", "/nonexistent/drive.csv"]);
+    assert_error(&o, &["/nonexistent/drive.csv", "No such file"]);
+}
+
+#[test]
+fn bad_theta_argument() {
+    let d = tempfile::tempdir().expect("tmp");
+    let p = write(d.path(), "d.csv", &good_rows(10));
+    let o = odocal(&["validate", p.to_str().expect("utf8"), "--theta", "2,0,-1,0"]);
+    assert_eq!(o.status.code(), Some(2), "clap usage error: {}", stderr(&o));
+    assert!(stderr(&o).contains("t_r = -1 m must be positive"), "{}", stderr(&o));
+}
+
+#[test]
+fn straight_drive_reports_unobservable_parameters() {
+    let d = tempfile::tempdir().expect("tmp");
+    let p = write(d.path(), "d.csv", &good_rows(3000));
+    let o = odocal(&["calibrate", p.to_str().expect("utf8"), "--method", "batch-gn"]);
+    assert_error(&o, &["c_d, t_r, d not observable", "none of the", "--fix"]);
+}
+
+#[test]
+fn simulate_calibrate_validate_contract_and_determinism() {
+    let d = tempfile::tempdir().expect("tmp");
+    let drive = d.path().join("drive.csv");
+    let dstr = drive.to_str().expect("utf8");
+    let o = odocal(&["simulate", "--seed", "3", "--length-km", "3", "--out", dstr]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let first = std::fs::read(&drive).expect("csv");
+    let side: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.path().join("drive.json")).expect("sidecar")).expect("json");
+    for k in ["c_e", "c_d", "t_r", "d"] {
+        assert!(side["theta_true"][k].is_f64(), "sidecar theta_true.{k}");
+    }
+    // Same seed: byte-identical.
+    let again = d.path().join("again.csv");
+    let o = odocal(&["simulate", "--seed", "3", "--length-km", "3", "--out", again.to_str().expect("utf8")]);
+    assert!(o.status.success());
+    assert!(first == std::fs::read(&again).expect("csv"), "same seed must give identical bytes");
+
+    let report = d.path().join("r.json");
+    let o = odocal(&["calibrate", dstr, "--method", "batch-gn", "--json", report.to_str().expect("utf8")]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("calibrated"), "{}", stdout(&o));
+    let r: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&report).expect("r")).expect("json");
+    assert_eq!(r["method"], "batch-gn");
+    for k in ["c_e", "c_d", "t_r", "d"] {
+        assert!(r["theta"][k].is_f64() && r["initial"]["theta"][k].is_f64());
+    }
+    assert!(r["validation"]["mean_position_error_m"].is_f64());
+    assert!(r["validation"]["segments"].as_u64().expect("count") > 0);
+    assert!(r["initial"]["mean_position_error_m"].is_f64());
+    assert!(r["timing_s"]["total"].is_f64());
+    // It improves on θ_0 and lands near the truth.
+    assert!(r["validation"]["mean_position_error_m"].as_f64() < r["initial"]["mean_position_error_m"].as_f64());
+    let c_e = r["theta"]["c_e"].as_f64().expect("c_e");
+    assert!((c_e - side["theta_true"]["c_e"].as_f64().expect("true")).abs() < 0.01, "c_e {c_e}");
+
+    // Same input, same result.
+    let o2 = odocal(&["calibrate", dstr, "--method", "batch-gn", "--json", "-"]);
+    assert!(o2.status.success());
+    let r2: serde_json::Value = serde_json::from_slice(&o2.stdout).expect("json on stdout");
+    assert_eq!(r["theta"], r2["theta"]);
+    assert_eq!(r["validation"], r2["validation"]);
+
+    let th = format!(
+        "{},{},{},{}",
+        r["theta"]["c_e"], r["theta"]["c_d"], r["theta"]["t_r"], r["theta"]["d"]
+    );
+    let o = odocal(&["validate", dstr, "--theta", &th, "--json", "-"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    assert!(v["mean_position_error_m"].is_f64() && v["segments"].is_u64() && v["theta"]["c_e"].is_f64());
+    let diff = (v["mean_position_error_m"].as_f64().expect("e")
+        - r["validation"]["mean_position_error_m"].as_f64().expect("e"))
+    .abs();
+    assert!(diff < 1e-9, "validate agrees with calibrate's validation: {diff}");
+}

@@ -1,0 +1,219 @@
+//! Input compensation by optimal control (SPEC §5, paper §4.1).
+//!
+//! For one segment and one fixed θ, estimate noise-free wheel rotations
+//! `n̂_rl, n̂_rr`. The model is linearized around the trajectory `x̄` run with
+//! the current input estimate `n̄` (first the measured `ñ`):
+//!
+//! ```text
+//! x_k = Â_k x_{k−1} + B̂_k n_{k−1} + ĝ_k,   Â_k = ∂f/∂x,  B̂_k = ∂f/∂[n_rl, n_rr]
+//! ```
+//!
+//! β and a_y stay measured. The QP
+//!
+//! ```text
+//! min Σ_k ‖ỹ_k − x_k‖²_Q + Σ_k ‖n_k − n_{k−1}‖²_R
+//! s.t. linearized dynamics, x_0 = ỹ_0,
+//!      ỹ_k − [5, 5, 0.5] ≤ x_k ≤ ỹ_k + [5, 5, 0.5],   n_k within ±5 % of ñ_k
+//! ```
+//!
+//! with `Q = diag(1, 1, 10)`, `R = diag(1000, 1000)` is posed in deviation
+//! variables `z = x − ỹ`, `w = n − ñ` ([`crate::qp::StageQp`]) and solved; the
+//! model is re-linearized around the solution until the inputs change by
+//! less than a tolerance (at most 5 linearizations).
+//!
+//! ## References
+//! G. Fazekas, P. Gáspár, B. Németh, "Wheel Odometry Model Calibration with
+//! Input Compensation by Optimal Control", IFAC-PapersOnLine, 2022, §4.1.
+
+use nalgebra::{Vector2, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::model::{step_jacobians, Input, Theta};
+use crate::qp::{QpError, QpSolution, QpSolver, StageQp};
+use crate::segment::SegmentData;
+
+/// Options of the input-compensation QP.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CompensateOptions {
+    /// Half-width of the pose box around the reference `[p_x m, p_y m, ψ rad]`.
+    /// Default `[5, 5, 0.5]`.
+    pub pose_box: [f64; 3],
+    /// Relative half-width of the wheel-rotation box around the measurement.
+    /// Default 0.05 (±5 %).
+    pub input_box_rel: f64,
+    /// Diagonal of the pose weight Q. Default `[1, 1, 10]`.
+    pub q: [f64; 3],
+    /// Diagonal of the input-rate weight R. Default `[1000, 1000]`.
+    pub r: [f64; 2],
+    /// Maximum number of linearizations (QP solves). Default 5.
+    pub max_linearizations: usize,
+    /// Stop re-linearizing when the inputs change by less than this
+    /// (max absolute change, rev/s). Default 1e-6.
+    pub input_tolerance_rev_per_s: f64,
+}
+
+impl Default for CompensateOptions {
+    fn default() -> Self {
+        CompensateOptions {
+            pose_box: [5.0, 5.0, 0.5],
+            input_box_rel: 0.05,
+            q: [1.0, 1.0, 10.0],
+            r: [1000.0, 1000.0],
+            max_linearizations: 5,
+            input_tolerance_rev_per_s: 1e-6,
+        }
+    }
+}
+
+impl CompensateOptions {
+    /// Checks the options, naming the offending field.
+    pub fn validate(&self) -> Result<()> {
+        if self.pose_box.iter().any(|b| !(b.is_finite() && *b > 0.0)) {
+            return Err(Error::InvalidOption { field: "pose_box", reason: "must be positive".into() });
+        }
+        if !(self.input_box_rel.is_finite() && self.input_box_rel >= 0.0) {
+            return Err(Error::InvalidOption { field: "input_box_rel", reason: "must be non-negative".into() });
+        }
+        if self.q.iter().chain(self.r.iter()).any(|w| !(w.is_finite() && *w >= 0.0)) {
+            return Err(Error::InvalidOption { field: "q/r", reason: "weights must be finite and non-negative".into() });
+        }
+        if self.max_linearizations == 0 {
+            return Err(Error::InvalidOption { field: "max_linearizations", reason: "must be at least 1".into() });
+        }
+        Ok(())
+    }
+}
+
+/// The compensated inputs of one segment and how they were obtained.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Compensation {
+    /// First sample of the segment in the drive.
+    pub start: usize,
+    /// Compensated rear-left wheel rotation, rev/s (K values).
+    pub n_rl: Vec<f64>,
+    /// Compensated rear-right wheel rotation, rev/s (K values).
+    pub n_rr: Vec<f64>,
+    /// QP solves (linearizations) done.
+    pub linearizations: usize,
+    /// Total QP solver iterations.
+    pub qp_iterations: usize,
+    /// Objective of the last QP.
+    pub objective: f64,
+    /// Bounds active at the last solution.
+    pub active_bounds: usize,
+    /// Max absolute input change (rev/s) made by each solve relative to the
+    /// previous linearization point.
+    pub input_change: Vec<f64>,
+    /// True when the inputs settled within the tolerance.
+    pub converged: bool,
+}
+
+/// Builds the deviation-variable QP of a segment linearized around the inputs
+/// `(n_rl_lin, n_rr_lin)` (K values each).
+pub fn build_qp(
+    seg: &SegmentData<'_>,
+    theta: &Theta,
+    n_rl_lin: &[f64],
+    n_rr_lin: &[f64],
+    opts: &CompensateOptions,
+) -> StageQp {
+    let k_steps = seg.steps();
+    let ts = seg.sample_time_s;
+    let mut qp = StageQp {
+        a: Vec::with_capacity(k_steps),
+        b: Vec::with_capacity(k_steps),
+        c: Vec::with_capacity(k_steps),
+        q: Vector3::from(opts.q),
+        r: Vector2::from(opts.r),
+        delta: Vec::with_capacity(k_steps.saturating_sub(1)),
+        z_lo: vec![-Vector3::from(opts.pose_box); k_steps],
+        z_hi: vec![Vector3::from(opts.pose_box); k_steps],
+        w_lo: Vec::with_capacity(k_steps),
+        w_hi: Vec::with_capacity(k_steps),
+    };
+    let mut x_lin = seg.reference(0);
+    for k in 0..k_steps {
+        let u_lin = Input { n_rl: n_rl_lin[k], n_rr: n_rr_lin[k], beta: seg.beta[k], a_y: seg.a_y[k] };
+        let j = step_jacobians(&x_lin, &u_lin, theta, ts);
+        let n_meas = Vector2::new(seg.n_rl[k], seg.n_rr[k]);
+        let n_lin = Vector2::new(n_rl_lin[k], n_rr_lin[k]);
+        // z_k = A z_{k−1} + B w_{k−1} + c_k with
+        // c_k = f(x̄, ū) + A (ỹ_{k−1} − x̄_{k−1}) + B (ñ_{k−1} − n̄_{k−1}) − ỹ_k.
+        let c = j.next + j.f_x * (seg.reference(k) - x_lin) + j.f_n * (n_meas - n_lin) - seg.reference(k + 1);
+        qp.a.push(j.f_x);
+        qp.b.push(j.f_n);
+        qp.c.push(c);
+        let half = n_meas.abs() * opts.input_box_rel;
+        qp.w_lo.push(-half);
+        qp.w_hi.push(half);
+        if k > 0 {
+            qp.delta.push(n_meas - Vector2::new(seg.n_rl[k - 1], seg.n_rr[k - 1]));
+        }
+        x_lin = j.next;
+    }
+    qp
+}
+
+/// Compensates one segment at θ (SPEC §5): solves, re-linearizes around the
+/// solution and solves again until the inputs settle (at most
+/// `max_linearizations` solves). A QP failure is returned as an error for
+/// this segment; callers leave the segment out with a warning.
+pub fn compensate_segment(
+    seg: &SegmentData<'_>,
+    theta: &Theta,
+    solver: &dyn QpSolver,
+    opts: &CompensateOptions,
+) -> Result<Compensation> {
+    opts.validate()?;
+    let k_steps = seg.steps();
+    let mut n_rl = seg.n_rl.to_vec();
+    let mut n_rr = seg.n_rr.to_vec();
+    let mut out = Compensation {
+        start: seg.start,
+        n_rl: Vec::new(),
+        n_rr: Vec::new(),
+        linearizations: 0,
+        qp_iterations: 0,
+        objective: f64::NAN,
+        active_bounds: 0,
+        input_change: Vec::new(),
+        converged: false,
+    };
+    let mut warm: Option<QpSolution> = None;
+    for _ in 0..opts.max_linearizations {
+        let qp = build_qp(seg, theta, &n_rl, &n_rr, opts);
+        let sol = solver.solve(&qp, warm.as_ref()).map_err(|e: QpError| {
+            Error::Qp(format!(
+                "segment at sample {} (linearization {}), solver {}: {e}",
+                seg.start,
+                out.linearizations + 1,
+                solver.name()
+            ))
+        })?;
+        out.linearizations += 1;
+        out.qp_iterations += sol.iterations;
+        out.objective = sol.objective;
+        out.active_bounds = sol.active_bounds;
+        let mut change: f64 = 0.0;
+        for k in 0..k_steps {
+            let a = seg.n_rl[k] + sol.w[k][0];
+            let b = seg.n_rr[k] + sol.w[k][1];
+            change = change.max((a - n_rl[k]).abs()).max((b - n_rr[k]).abs());
+            n_rl[k] = a;
+            n_rr[k] = b;
+        }
+        if !change.is_finite() {
+            return Err(Error::Qp(format!("segment at sample {}: non-finite compensated inputs", seg.start)));
+        }
+        out.input_change.push(change);
+        warm = Some(sol);
+        if change < opts.input_tolerance_rev_per_s {
+            out.converged = true;
+            break;
+        }
+    }
+    out.n_rl = n_rl;
+    out.n_rr = n_rr;
+    Ok(out)
+}
