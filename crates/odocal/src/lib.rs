@@ -42,6 +42,7 @@ pub mod identify;
 pub mod model;
 pub mod qp;
 pub mod segment;
+pub mod sim;
 pub mod validate;
 
 pub use drive::Drive;
