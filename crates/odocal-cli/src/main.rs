@@ -18,7 +18,11 @@ mod progress;
 mod report;
 
 #[derive(Parser)]
-#[command(name = "odocal", version, about = "Wheel-odometry model calibration with input compensation by optimal control")]
+#[command(
+    name = "odocal",
+    version,
+    about = "Wheel-odometry model calibration with input compensation by optimal control"
+)]
 struct Cli {
     /// No progress bars.
     #[arg(long, short, global = true)]
@@ -111,7 +115,12 @@ struct CalibrationArgs {
 
 impl CalibrationArgs {
     fn options(&self) -> Result<CalibrationOptions> {
-        let mut o = CalibrationOptions { method: self.method, seed: self.seed, qp_solver: self.qp_solver, ..Default::default() };
+        let mut o = CalibrationOptions {
+            method: self.method,
+            seed: self.seed,
+            qp_solver: self.qp_solver,
+            ..Default::default()
+        };
         if let Some(t) = self.theta0 {
             o.theta0 = t;
         }
@@ -148,7 +157,9 @@ impl CalibrationArgs {
             o.final_segments = if v == "all" {
                 FinalSegments::All
             } else {
-                FinalSegments::Random(v.parse().with_context(|| format!("--final-segments: '{v}' is not 'all' or a number"))?)
+                FinalSegments::Random(
+                    v.parse().with_context(|| format!("--final-segments: '{v}' is not 'all' or a number"))?,
+                )
             };
         }
         if let Some(v) = self.max_iterations {

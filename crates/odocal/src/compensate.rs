@@ -76,7 +76,10 @@ impl CompensateOptions {
             return Err(Error::InvalidOption { field: "input_box_rel", reason: "must be non-negative".into() });
         }
         if self.q.iter().chain(self.r.iter()).any(|w| !(w.is_finite() && *w >= 0.0)) {
-            return Err(Error::InvalidOption { field: "q/r", reason: "weights must be finite and non-negative".into() });
+            return Err(Error::InvalidOption {
+                field: "q/r",
+                reason: "weights must be finite and non-negative".into(),
+            });
         }
         if self.max_linearizations == 0 {
             return Err(Error::InvalidOption { field: "max_linearizations", reason: "must be at least 1".into() });

@@ -372,7 +372,7 @@ pub fn batch_gauss_newton(
             break;
         }
         let cand_cost = batch_cost(segments, &cand, w);
-        if !(cand_cost <= ne.cost) {
+        if cand_cost.is_nan() || cand_cost > ne.cost {
             termination = Termination::CostIncreased { cost: cand_cost, previous: ne.cost };
             break;
         }

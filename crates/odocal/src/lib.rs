@@ -35,11 +35,17 @@
 //! Input Compensation by Optimal Control", IFAC-PapersOnLine, 2022.
 
 #![deny(clippy::float_cmp)]
+// A drive of one continuous part is `vec![0..n]`: one range is the intent.
+#![allow(clippy::single_range_in_vec_init)]
+// Numerical loops index several parallel arrays at once; index loops read like the maths.
+#![allow(clippy::needless_range_loop)]
 
+pub mod compensate;
 pub mod drive;
 pub mod error;
 pub mod identify;
 pub mod model;
+pub mod pipeline;
 pub mod qp;
 pub mod segment;
 pub mod sim;
@@ -49,5 +55,6 @@ pub use drive::Drive;
 pub use error::{Error, Result};
 pub use identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport, Termination};
 pub use model::{Input, State, Theta};
+pub use pipeline::{calibrate, CalibrationOptions, CalibrationReport, Method};
 pub use segment::{Segment, SegmentData, SegmentOptions, ValidationSegmentOptions};
 pub use validate::{mean_position_error, ValidationReport};

@@ -450,7 +450,11 @@ fn unobservable_warning(report: &IdentifyReport, what: &str) -> Option<String> {
 /// assert!(report.validation.mean_position_error_m < report.initial.mean_position_error_m);
 /// # Ok(()) }
 /// ```
-pub fn calibrate(drive: &Drive, opts: &CalibrationOptions, progress: Option<ProgressFn<'_>>) -> Result<CalibrationReport> {
+pub fn calibrate(
+    drive: &Drive,
+    opts: &CalibrationOptions,
+    progress: Option<ProgressFn<'_>>,
+) -> Result<CalibrationReport> {
     opts.validate()?;
     let t_start = Instant::now();
     let mut timing = Timing::default();
@@ -467,8 +471,11 @@ pub fn calibrate(drive: &Drive, opts: &CalibrationOptions, progress: Option<Prog
         )));
     }
     if selection.selected.is_empty() {
-        let free_yaw: Vec<&'static str> =
-            [(1, "c_d"), (2, "t_r"), (3, "d")].iter().filter(|(i, _)| opts.identify.free[*i]).map(|(_, n)| *n).collect();
+        let free_yaw: Vec<&'static str> = [(1, "c_d"), (2, "t_r"), (3, "d")]
+            .iter()
+            .filter(|(i, _)| opts.identify.free[*i])
+            .map(|(_, n)| *n)
+            .collect();
         if !free_yaw.is_empty() {
             let peak = selection.all.iter().map(|s| s.peak_yaw_rate_rad_per_s).fold(0.0, f64::max);
             return Err(Error::NotObservable {
@@ -494,7 +501,8 @@ pub fn calibrate(drive: &Drive, opts: &CalibrationOptions, progress: Option<Prog
     let initial_val = mean_position_error(drive, &validation, &opts.theta0)?;
     timing.setup = t_start.elapsed().as_secs_f64();
 
-    let counts = SegmentCounts { cut: selection.all.len(), selected: selection.selected.len(), validation: validation.len() };
+    let counts =
+        SegmentCounts { cut: selection.all.len(), selected: selection.selected.len(), validation: validation.len() };
     let (identification, initial_step, compensation) = match opts.method {
         Method::BatchGn => {
             let t = Instant::now();

@@ -41,7 +41,7 @@ impl SegmentOptions {
         if self.stride_steps == 0 {
             return Err(Error::InvalidOption { field: "stride_steps", reason: "must be at least 1".into() });
         }
-        if !(self.min_peak_yaw_rate_rad_per_s >= 0.0) {
+        if self.min_peak_yaw_rate_rad_per_s.is_nan() || self.min_peak_yaw_rate_rad_per_s < 0.0 {
             return Err(Error::InvalidOption {
                 field: "min_peak_yaw_rate_rad_per_s",
                 reason: "must be a non-negative number".into(),
