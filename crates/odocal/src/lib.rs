@@ -41,6 +41,7 @@ pub mod error;
 pub mod identify;
 pub mod model;
 pub mod qp;
+pub mod reachable;
 pub mod segment;
 pub mod validate;
 
@@ -48,5 +49,6 @@ pub use drive::Drive;
 pub use error::{Error, Result};
 pub use identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport, Termination};
 pub use model::{Input, State, Theta};
+pub use reachable::{reachable_minimum, ReachableOptions, ReachableReport};
 pub use segment::{Segment, SegmentData, SegmentOptions, ValidationSegmentOptions};
 pub use validate::{mean_position_error, ValidationReport};
