@@ -191,6 +191,16 @@ struct ValidateArgs {
     /// Validation segment length K_v, samples (stride K_v/2).
     #[arg(long)]
     validation_length: Option<usize>,
+    /// Also search the reachable minimum of Ē_p (global particle swarm over a
+    /// box around θ_0, refined by Nelder-Mead).
+    #[arg(long)]
+    reachable_minimum: bool,
+    /// Centre of the reachable-minimum search box (default the paper's θ_0).
+    #[arg(long, allow_hyphen_values = true)]
+    theta0: Option<Theta>,
+    /// Seed of the reachable-minimum search.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
     /// Write the JSON report here ("-" for stdout).
     #[arg(long)]
     json: Option<PathBuf>,
@@ -383,7 +393,7 @@ fn demo_cmd(a: DemoArgs, bars: &progress::Bars) -> Result<()> {
     run_calibration(&sim.drive, &a.calibration, a.json.as_deref(), Some(sim.sidecar.theta_true), bars)
 }
 
-fn validate_cmd(a: ValidateArgs, _bars: &progress::Bars) -> Result<()> {
+fn validate_cmd(a: ValidateArgs, bars: &progress::Bars) -> Result<()> {
     let drive = load_drive(&a.drive)?;
     let mut vo = segment::ValidationSegmentOptions::default();
     if let Some(v) = a.validation_length {
@@ -392,12 +402,25 @@ fn validate_cmd(a: ValidateArgs, _bars: &progress::Bars) -> Result<()> {
     }
     let segs = segment::validation_segments(&drive, &vo)?;
     let r = odocal::mean_position_error(&drive, &segs, &a.theta)?;
-    let v = serde_json::json!({
+    let mut v = serde_json::json!({
         "theta": r.theta,
         "mean_position_error_m": r.mean_position_error_m,
         "segments": r.segments,
         "per_segment_m": r.per_segment_m,
     });
+    let reach = if a.reachable_minimum {
+        let centre = a.theta0.unwrap_or(Theta::PAPER_INITIAL);
+        let opts = odocal::ReachableOptions { seed: a.seed, starts: vec![a.theta], ..odocal::ReachableOptions::around(&centre) };
+        bars.stage("reachable minimum");
+        let rm = odocal::reachable_minimum(&drive, &segs, &opts)?;
+        bars.finish();
+        if let Some(obj) = v.as_object_mut() {
+            obj.insert("reachable_minimum".into(), serde_json::to_value(&rm)?);
+        }
+        Some(rm)
+    } else {
+        None
+    };
     if let Some(p) = &a.json {
         write_json(p, &v)?;
         if p == Path::new("-") {
@@ -406,6 +429,12 @@ fn validate_cmd(a: ValidateArgs, _bars: &progress::Bars) -> Result<()> {
     }
     println!("θ: {}", a.theta);
     println!("mean position error Ē_p: {:.4} m over {} validation segments", r.mean_position_error_m, r.segments);
+    if let Some(rm) = reach {
+        println!(
+            "reachable minimum: Ē_p {:.4} m at θ = {} ({} evaluations, {:.1} s)",
+            rm.mean_position_error_m, rm.theta, rm.evaluations, rm.time_s
+        );
+    }
     Ok(())
 }
 
