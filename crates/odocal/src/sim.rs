@@ -1020,3 +1020,256 @@ pub fn simulate(opts: &SimOptions) -> Result<SimOutput> {
     drive.truth = Some(truth);
     Ok(SimOutput { drive, sidecar: SimSidecar { theta_true: theta, settings: opts.clone(), stats } })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::identify::{batch_gauss_newton, IdentifyOptions};
+    use crate::segment::{calibration_segments, SegmentData};
+
+    /// Rounding over one f64 model step of ~0.5 m at coordinates up to ~2 km.
+    const STEP_REPRODUCTION_TOL_M: f64 = 1e-9;
+    /// Noise-free, substeps = 1: the model is exact, G-N converges to rounding.
+    const EXACT_RECOVERY_REL_TOL: f64 = 1e-8;
+    /// Noise-free, 10 substeps: the one-step model's midpoint-rule error.
+    const SUBSTEP_RECOVERY_REL_TOL: f64 = 1e-4;
+
+    fn short(opts: SimOptions, km: f64) -> SimOutput {
+        simulate(&SimOptions { length_km: km, ..opts }).expect("simulate")
+    }
+
+    fn csv_bytes(d: &Drive) -> Vec<u8> {
+        let mut buf = Vec::new();
+        d.write_csv_to(&mut buf).expect("write csv");
+        buf
+    }
+
+    fn truth(d: &Drive) -> &Truth {
+        d.truth.as_ref().expect("simulated drives carry the truth")
+    }
+
+    #[test]
+    fn same_seed_same_bytes_other_seed_differs() {
+        let a = short(SimOptions::paper(5), 1.5);
+        let b = short(SimOptions::paper(5), 1.5);
+        assert_eq!(a, b);
+        assert_eq!(csv_bytes(&a.drive), csv_bytes(&b.drive));
+        let c = short(SimOptions::paper(6), 1.5);
+        assert_ne!(a.drive, c.drive);
+        assert_ne!(csv_bytes(&a.drive), csv_bytes(&c.drive));
+    }
+
+    #[test]
+    fn noise_sources_do_not_change_the_truth() {
+        let a = short(SimOptions::paper(3), 1.0);
+        let b = short(SimOptions::noise_free(3), 1.0);
+        assert_eq!(a.drive.truth, b.drive.truth);
+        assert_ne!(a.drive.n_rl, b.drive.n_rl);
+    }
+
+    #[test]
+    fn noise_off_measured_equals_truth_and_model_reproduces_truth() {
+        let out = short(SimOptions { substeps: 1, ..SimOptions::noise_free(11) }, 2.0);
+        let d = &out.drive;
+        let tr = truth(d);
+        assert_eq!(d.px, tr.px);
+        assert_eq!(d.py, tr.py);
+        assert_eq!(d.psi, tr.psi);
+        assert_eq!(d.n_rl, tr.n_rl);
+        assert_eq!(d.n_rr, tr.n_rr);
+        assert_eq!(d.beta, tr.beta);
+        assert_eq!(d.a_y, tr.a_y);
+        assert_eq!(d.parts, vec![0..d.len()]);
+        approx::assert_relative_eq!(d.sample_time_s, 0.025, max_relative = 1e-15);
+        let theta = out.sidecar.theta_true;
+        let mut worst = 0.0f64;
+        for k in 0..d.len() - 1 {
+            let next = model::step(&d.pose(k), &d.input(k), &theta, d.sample_time_s);
+            worst = worst.max((next - d.pose(k + 1)).abs().max());
+        }
+        assert!(worst <= STEP_REPRODUCTION_TOL_M, "one-step model error {worst:e}");
+        // With substeps the one-step model is close but no longer exact.
+        let out = short(SimOptions::noise_free(11), 2.0);
+        let d = &out.drive;
+        let mut worst = 0.0f64;
+        for k in 0..d.len() - 1 {
+            let next = model::step(&d.pose(k), &d.input(k), &theta, d.sample_time_s);
+            worst = worst.max((next - d.pose(k + 1)).abs().max());
+        }
+        assert!(worst > 0.0 && worst < 1e-5, "substep model error {worst:e}");
+    }
+
+    fn identify(out: &SimOutput) -> (Theta, usize) {
+        let d = &out.drive;
+        let sel = calibration_segments(d, &Default::default()).expect("segments");
+        assert!(sel.selected.len() >= 5, "too few turning segments: {}", sel.selected.len());
+        let data: Vec<_> = sel.selected.iter().map(|s| SegmentData::new(d, s)).collect();
+        let opts = IdentifyOptions { max_iterations: 20, ..Default::default() };
+        let report = batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &opts).expect("identify");
+        (report.theta, data.len())
+    }
+
+    fn rel_errors(est: &Theta, truth: &Theta) -> [f64; 4] {
+        let (e, t) = (est.to_array(), truth.to_array());
+        [0, 1, 2, 3].map(|i| ((e[i] - t[i]) / t[i]).abs())
+    }
+
+    #[test]
+    fn noise_free_calibration_recovers_theta() {
+        let truth_theta = Theta::SIM_DEFAULT_TRUE;
+        // The start is off by more than 1 % in every parameter.
+        for r in rel_errors(&Theta::PAPER_INITIAL, &truth_theta) {
+            assert!(r > 0.01, "start too close: {r}");
+        }
+        let out = short(SimOptions { substeps: 1, ..SimOptions::noise_free(21) }, 3.0);
+        let (est, _) = identify(&out);
+        for (name, r) in crate::model::THETA_NAMES.iter().zip(rel_errors(&est, &truth_theta)) {
+            assert!(r <= EXACT_RECOVERY_REL_TOL, "substeps 1: {name} off by {r:e} ({est})");
+        }
+        let out = short(SimOptions::noise_free(21), 3.0);
+        let (est, _) = identify(&out);
+        for (name, r) in crate::model::THETA_NAMES.iter().zip(rel_errors(&est, &truth_theta)) {
+            assert!(r <= SUBSTEP_RECOVERY_REL_TOL, "substeps 10: {name} off by {r:e} ({est})");
+        }
+    }
+
+    #[test]
+    fn paper_noise_has_the_paper_size() {
+        let out = short(SimOptions::paper(4), 3.0);
+        let d = &out.drive;
+        let tr = truth(d);
+        let rms = out.sidecar.stats.wheel_rotation_rel_error_rms;
+        assert!((0.005..0.02).contains(&rms), "wheel rms relative error {rms}");
+        let n = d.len() as f64;
+        let pos_rms = (d.px.iter().zip(&tr.px).zip(d.py.iter().zip(&tr.py)))
+            .map(|((a, b), (c, e))| (a - b).powi(2) + (c - e).powi(2))
+            .sum::<f64>()
+            / n;
+        let pos_rms = pos_rms.sqrt();
+        assert!((0.05..1.0).contains(&pos_rms), "reference position error rms {pos_rms} m");
+        let psi_rms = (d.psi.iter().zip(&tr.psi).map(|(a, b)| (a - b).powi(2)).sum::<f64>() / n).sqrt();
+        assert!((2e-4..0.02).contains(&psi_rms), "reference heading error rms {psi_rms} rad");
+        // Measured wheels differ from the truth, and standstill reads zero.
+        assert!(d.n_rl.iter().zip(&tr.n_rl).any(|(a, b)| (a - b).abs() > 1e-3));
+        for (m, t) in d.n_rr.iter().zip(&tr.n_rr) {
+            if *t == 0.0 {
+                assert_eq!(*m, 0.0);
+            }
+        }
+    }
+
+    #[test]
+    fn presets_are_ordered() {
+        let white = short(SimOptions { noise: NoiseOptions::white_wheel_only(), ..SimOptions::paper(8) }, 1.0);
+        let paper = short(SimOptions::paper(8), 1.0);
+        let high = short(SimOptions { noise: NoiseOptions::high(), ..SimOptions::paper(8) }, 1.0);
+        let (w, p, h) = (
+            white.sidecar.stats.wheel_rotation_rel_error_rms,
+            paper.sidecar.stats.wheel_rotation_rel_error_rms,
+            high.sidecar.stats.wheel_rotation_rel_error_rms,
+        );
+        assert!(w > 0.0 && w < p && p * 1.8 < h, "white {w}, paper {p}, high {h}");
+        let tr = truth(&white.drive);
+        assert_eq!(white.drive.px, tr.px);
+        assert_eq!(white.drive.a_y, tr.a_y);
+        assert_eq!(NoiseOptions::by_name("white").expect("preset"), NoiseOptions::white_wheel_only());
+        assert_eq!(NoiseOptions::by_name("off").expect("preset"), NoiseOptions::off());
+        let e = NoiseOptions::by_name("loud").expect_err("unknown preset");
+        assert!(e.to_string().contains("loud") && e.to_string().contains("paper"), "{e}");
+    }
+
+    #[test]
+    fn stats_are_sane_and_sidecar_round_trips() {
+        let opts = SimOptions { length_km: 2.0, ..SimOptions::paper(9) };
+        let out = simulate(&opts).expect("simulate");
+        let st = &out.sidecar.stats;
+        let d = &out.drive;
+        assert_eq!(st.samples, d.len());
+        approx::assert_relative_eq!(st.duration_s, d.t[d.len() - 1], max_relative = 1e-12);
+        assert!((st.distance_m - 2000.0).abs() < 10.0, "distance {}", st.distance_m);
+        let mean_speed = st.distance_m / st.duration_s;
+        assert!((5.0..25.0).contains(&mean_speed), "mean speed {mean_speed} m/s");
+        assert!((0.15..2.0).contains(&st.max_yaw_rate_rad_per_s), "yaw rate {}", st.max_yaw_rate_rad_per_s);
+        let ay_max = opts.speed.max_lateral_acceleration_m_per_s2;
+        assert!(
+            (0.5 * ay_max..1.1 * ay_max).contains(&st.max_abs_lateral_acceleration_m_per_s2),
+            "lateral acceleration {}",
+            st.max_abs_lateral_acceleration_m_per_s2
+        );
+        let tr = truth(d);
+        let truth_ay = tr.a_y.iter().fold(0.0f64, |m, a| m.max(a.abs()));
+        assert!(truth_ay <= st.max_abs_lateral_acceleration_m_per_s2 * (1.0 + 1e-12));
+        // Heading unwrapped, time uniform.
+        assert!(tr.psi.windows(2).all(|w| (w[1] - w[0]).abs() < 0.1));
+        assert!(d.t.windows(2).all(|w| ((w[1] - w[0]) - 0.025).abs() < 1e-9));
+        assert_eq!(out.sidecar.theta_true, opts.theta_true);
+        assert_eq!(out.sidecar.settings, opts);
+
+        let dir = std::env::temp_dir().join(format!("odocal-sim-test-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("temp dir");
+        let csv = dir.join("drive.csv");
+        let json = sidecar_path(&csv);
+        assert_eq!(json, dir.join("drive.json"));
+        out.sidecar.write_json(&json).expect("write sidecar");
+        let back = SimSidecar::read_json(&json).expect("read sidecar");
+        assert_eq!(back, out.sidecar);
+        let text = std::fs::read_to_string(&json).expect("read");
+        assert!(text.contains("\"theta_true\"") && text.contains("\"c_e\""), "{text}");
+        let e = SimSidecar::read_json(&dir.join("missing.json")).expect_err("missing file");
+        assert!(e.to_string().contains("missing.json"), "{e}");
+        std::fs::remove_dir_all(&dir).expect("clean up");
+    }
+
+    #[test]
+    fn route_turns_enough() {
+        let out = short(SimOptions::paper(13), 5.0);
+        let sel = calibration_segments(&out.drive, &Default::default()).expect("segments");
+        let frac = sel.selected.len() as f64 / sel.all.len() as f64;
+        assert!((0.25..0.8).contains(&frac), "selected {} of {} segments", sel.selected.len(), sel.all.len());
+        // And it also has straight stretches and stops.
+        assert!(sel.selected.len() < sel.all.len());
+        let tr = truth(&out.drive);
+        let stopped = tr.px.windows(2).zip(tr.py.windows(2)).filter(|(x, y)| x[0] == x[1] && y[0] == y[1]).count();
+        assert!(stopped > 40, "no standstill: {stopped} samples");
+    }
+
+    #[test]
+    fn invalid_options_name_the_field() {
+        let cases: Vec<(SimOptions, &str)> = vec![
+            (SimOptions { length_km: 0.0, ..Default::default() }, "length_km"),
+            (SimOptions { sample_rate_hz: f64::NAN, ..Default::default() }, "sample_rate_hz"),
+            (SimOptions { substeps: 0, ..Default::default() }, "substeps"),
+            (
+                SimOptions { theta_true: Theta { t_r: -1.0, ..Theta::SIM_DEFAULT_TRUE }, ..Default::default() },
+                "theta_true",
+            ),
+            (
+                SimOptions {
+                    route: RouteOptions { bend_radius_m: [50.0, 10.0], ..Default::default() },
+                    ..Default::default()
+                },
+                "route.bend_radius_m",
+            ),
+            (
+                SimOptions {
+                    noise: NoiseOptions { wheel_white_rel_sigma: -0.1, ..NoiseOptions::paper() },
+                    ..Default::default()
+                },
+                "noise.wheel_white_rel_sigma",
+            ),
+            (
+                SimOptions {
+                    speed: SpeedOptions { stop_probability: 1.5, ..Default::default() },
+                    ..Default::default()
+                },
+                "speed.stop_probability",
+            ),
+        ];
+        for (opts, field) in cases {
+            let e = simulate(&opts).expect_err(field);
+            assert!(matches!(&e, Error::InvalidOption { field: f, .. } if *f == field), "{field}: {e}");
+        }
+        assert!(SimOptions::default().validate().is_ok());
+        assert_eq!(SimOptions::default(), SimOptions::paper(0));
+    }
+}
