@@ -262,9 +262,10 @@ pub struct KktResidual {
     pub dynamics: f64,
     /// Largest bound violation (m, rad, rev/s).
     pub bounds: f64,
-    /// Natural (projected-gradient) residual `max |x − Π_box(x − ν)|`, in
-    /// the variables' units: 0 exactly when stationarity and
-    /// complementarity hold.
+    /// Scaled natural (projected-gradient) residual
+    /// `max |x − Π_box(x − ν/h)|`, with `h` the diagonal of `∇²f`: roughly
+    /// the distance to the optimum in the variables' units (m, rad, rev/s);
+    /// 0 exactly when stationarity and complementarity hold.
     pub stationarity: f64,
     /// Largest `μ·gap` over all bounds, in objective units.
     pub complementarity: f64,
@@ -289,8 +290,8 @@ pub fn kkt_residual(qp: &StageQp, sol: &QpSolution) -> Result<KktResidual, QpErr
     let (gw, gz) = qp.gradient(&sol.w, &sol.z);
     let mut stationarity: f64 = 0.0;
     let mut complementarity: f64 = 0.0;
-    let mut check = |x: f64, lo: f64, hi: f64, nu: f64| {
-        stationarity = stationarity.max((x - (x - nu).clamp(lo, hi)).abs());
+    let mut check = |x: f64, lo: f64, hi: f64, nu: f64, h: f64| {
+        stationarity = stationarity.max((x - (x - nu / h).clamp(lo, hi)).abs());
         complementarity = complementarity.max(nu.max(0.0) * (x - lo).abs()).max((-nu).max(0.0) * (hi - x).abs());
     };
     for i in 0..k {
@@ -301,11 +302,15 @@ pub fn kkt_residual(qp: &StageQp, sol: &QpSolution) -> Result<KktResidual, QpErr
         }
         // ν_w_k = ∂f/∂w_k − B_{k+1}ᵀ λ_{k+1}
         let nw = gw[i] - qp.b[i].transpose() * lam[i];
+        // Diagonal of ∇²f: 2q for z, 2r per rate term touching w_i (1 for
+        // K = 1, where w has no curvature of its own).
+        let terms = usize::from(i > 0) + usize::from(i + 1 < k);
         for j in 0..3 {
-            check(sol.z[i][j], qp.z_lo[i][j], qp.z_hi[i][j], nz[j]);
+            check(sol.z[i][j], qp.z_lo[i][j], qp.z_hi[i][j], nz[j], 2.0 * qp.q[j]);
         }
         for j in 0..2 {
-            check(sol.w[i][j], qp.w_lo[i][j], qp.w_hi[i][j], nw[j]);
+            let h = if terms == 0 { 1.0 } else { 2.0 * qp.r[j] * terms as f64 };
+            check(sol.w[i][j], qp.w_lo[i][j], qp.w_hi[i][j], nw[j], h);
         }
     }
     Ok(KktResidual {
