@@ -39,6 +39,7 @@
 pub mod drive;
 pub mod error;
 pub mod identify;
+pub mod import;
 pub mod model;
 pub mod qp;
 pub mod segment;
@@ -47,6 +48,7 @@ pub mod validate;
 pub use drive::Drive;
 pub use error::{Error, Result};
 pub use identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport, Termination};
+pub use import::{import, load_drive, ImportReport, ImportedDrive, Manifest};
 pub use model::{Input, State, Theta};
 pub use segment::{Segment, SegmentData, SegmentOptions, ValidationSegmentOptions};
 pub use validate::{mean_position_error, ValidationReport};
