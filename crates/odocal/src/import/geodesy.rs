@@ -52,13 +52,13 @@ impl Enu {
     }
 
     /// Geodetic to ENU `[e, n, u]`, m.
-    pub(crate) fn from_geodetic(&self, lat_deg: f64, lon_deg: f64, h_m: f64) -> Vector3<f64> {
+    pub(crate) fn enu_of(&self, lat_deg: f64, lon_deg: f64, h_m: f64) -> Vector3<f64> {
         self.rot * (geodetic_to_ecef(lat_deg, lon_deg, h_m) - self.origin)
     }
 
     /// ENU to geodetic (lat, lon deg, h m).
     #[cfg_attr(not(test), allow(dead_code))]
-    pub(crate) fn to_geodetic(&self, enu: &Vector3<f64>) -> (f64, f64, f64) {
+    pub(crate) fn geodetic_of(self, enu: &Vector3<f64>) -> (f64, f64, f64) {
         ecef_to_geodetic(&(self.origin + self.rot.transpose() * enu))
     }
 }
@@ -75,15 +75,15 @@ mod tests {
         let enu = Enu::new(40.442130345, -79.760361018, 322.692);
         for p in [[0.0, 0.0, 0.0], [1000.0, -2000.0, 5.0], [-10954.0, -1691.0, -30.0]] {
             let v = Vector3::new(p[0], p[1], p[2]);
-            let (lat, lon, h) = enu.to_geodetic(&v);
-            let back = enu.from_geodetic(lat, lon, h);
+            let (lat, lon, h) = enu.geodetic_of(&v);
+            let back = enu.enu_of(lat, lon, h);
             assert!((back - v).norm() < ROUND_TRIP_TOL_M, "{v} -> {back}");
         }
         // 0.001° of latitude north is ~111 m north, ~0 east.
-        let p = enu.from_geodetic(40.443130345, -79.760361018, 322.692);
+        let p = enu.enu_of(40.443130345, -79.760361018, 322.692);
         assert!((p.y - 111.04).abs() < 0.1 && p.x.abs() < 1e-6, "{p}");
         // Longitude east is +x.
-        let p = enu.from_geodetic(40.442130345, -79.759361018, 322.692);
+        let p = enu.enu_of(40.442130345, -79.759361018, 322.692);
         assert!((p.x - 84.8).abs() < 0.2 && p.y.abs() < 0.01, "{p}");
     }
 }

@@ -447,7 +447,7 @@ impl Manifest {
         positive("output.rate_hz", o.rate_hz)?;
         positive("output.max_gap_s", o.max_gap_s)?;
         positive("output.max_clock_offset_s", o.max_clock_offset_s)?;
-        if !(o.min_part_s >= 0.0) {
+        if !non_negative(o.min_part_s) {
             return Err(self.error("output.min_part_s", format!("must be >= 0, found {}", o.min_part_s)));
         }
         if let ClockOffset::Seconds(v) = o.clock_offset {
@@ -477,7 +477,7 @@ impl Manifest {
             }
         };
         let sign = |key: &str, v: f64| -> Result<()> {
-            if v == 1.0 || v == -1.0 {
+            if (v.abs() - 1.0).abs() < f64::EPSILON {
                 Ok(())
             } else {
                 Err(self.error(key, format!("must be 1 or -1, found {v}")))
@@ -506,7 +506,7 @@ impl Manifest {
             }
         }
         stream_ref("pose.stream", &self.pose.stream)?;
-        if !(self.pose.derive_heading_min_speed_m_per_s >= 0.0) {
+        if !non_negative(self.pose.derive_heading_min_speed_m_per_s) {
             return Err(self.error("pose.derive_heading_min_speed_m_per_s", "must be >= 0"));
         }
         if let PositionSpec::LatLon { origin: Some(o), .. } = &self.pose.position {
@@ -525,7 +525,7 @@ impl Manifest {
                 sign("lateral_acceleration.sign", *s)?;
             }
             LateralAccelerationSpec::FromWheels { smoothing_s } | LateralAccelerationSpec::FromPose { smoothing_s } => {
-                if !(*smoothing_s >= 0.0) {
+                if !non_negative(*smoothing_s) {
                     return Err(self.error("lateral_acceleration.smoothing_s", "must be >= 0"));
                 }
             }
@@ -536,6 +536,11 @@ impl Manifest {
         }
         Ok(())
     }
+}
+
+/// `v ≥ 0` (false for NaN).
+fn non_negative(v: f64) -> bool {
+    v >= 0.0
 }
 
 /// A one-line message for a TOML error: `key: message (line L)`.

@@ -262,6 +262,11 @@ pub struct ClockOffsetReport {
     pub correlation: Option<f64>,
     /// Sample pairs (at the output rate) in the correlation at the peak.
     pub correlation_pairs: Option<usize>,
+    /// Cross-check, not applied: the same estimate from the wheel yaw rate
+    /// at θ_0 against the reference yaw rate, s (sharper where the drive turns).
+    pub yaw_rate_estimate_s: Option<f64>,
+    /// Pearson correlation of the yaw-rate cross-check.
+    pub yaw_rate_correlation: Option<f64>,
     /// The offset applied, s.
     pub applied_s: f64,
     /// `"auto"` or `"fixed"`.
@@ -323,6 +328,9 @@ impl std::fmt::Display for ImportReport {
                 e, c.applied_s, c.mode
             )?,
             _ => writeln!(f, "  clock offset: not estimated, applied {:+.4} s ({})", c.applied_s, c.mode)?,
+        }
+        if let (Some(e), Some(r)) = (c.yaw_rate_estimate_s, c.yaw_rate_correlation) {
+            writeln!(f, "  clock offset cross-check from yaw rates: {e:+.4} s (correlation {r:.4}), not applied")?;
         }
         if let Some(j) = &self.jitter {
             writeln!(
@@ -470,7 +478,7 @@ fn read_stream(m: &Manifest, name: &str, needs: &[(String, String)]) -> Result<S
                 ),
             });
         }
-        if time[i] == last {
+        if time[i] <= last {
             keep[i] = false;
             repeated += 1;
         } else {
@@ -559,7 +567,7 @@ fn build_pose(m: &Manifest, s: &Stream) -> Result<Pose> {
             let h: Vec<f64> = alt.as_ref().map(|a| s.col(a).to_vec()).unwrap_or_else(|| vec![0.0; n]);
             let o = origin.unwrap_or([lat[first_good], lon[first_good], h[first_good]]);
             let enu = geodesy::Enu::new(o[0], o[1], o[2]);
-            (0..n).map(|i| enu.from_geodetic(lat[i], lon[i], h[i])).map(|v| (v.x, v.y)).unzip()
+            (0..n).map(|i| enu.enu_of(lat[i], lon[i], h[i])).map(|v| (v.x, v.y)).unzip()
         }
     };
     // Keep good samples; remember rejected runs between them.
@@ -802,36 +810,43 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
         mark(&mut valid, ws.t[0], h, &wheel_bad, true, 0.0);
         let nl = signal::interval_rates(&ws.t, &cum_l, &grid, h);
         let nr = signal::interval_rates(&ws.t, &cum_r, &grid, h);
-        let vw: Vec<f64> = (0..grid.len())
+        let kin: Vec<Option<crate::model::Kinematics>> = (0..grid.len())
             .map(|k| {
-                if valid[k].is_some() {
-                    return f64::NAN;
-                }
-                kinematics(&Input { n_rl: nl[k], n_rr: nr[k], beta: 0.0, a_y: 0.0 }, &theta0).speed_m_per_s
+                valid[k]
+                    .is_none()
+                    .then(|| kinematics(&Input { n_rl: nl[k], n_rr: nr[k], beta: 0.0, a_y: 0.0 }, &theta0))
             })
             .collect();
+        let vw: Vec<f64> = kin.iter().map(|k| k.map_or(f64::NAN, |k| k.speed_m_per_s)).collect();
+        let ww: Vec<f64> = kin.iter().map(|k| k.map_or(f64::NAN, |k| k.yaw_rate_rad_per_s)).collect();
         let mut tm = Vec::new();
         let mut vp = Vec::new();
+        let mut wp = Vec::new();
         for j in 0..pose.t.len() - 1 {
             let (t0, t1) = (pose.t[j], pose.t[j + 1]);
             let bad = pose.bad.iter().any(|b| b.from < t1 && b.to > t0);
             tm.push(0.5 * (t0 + t1));
-            vp.push(if bad {
-                f64::NAN
-            } else {
-                (pose.x[j + 1] - pose.x[j]).hypot(pose.y[j + 1] - pose.y[j]) / (t1 - t0)
-            });
+            let dt = t1 - t0;
+            vp.push(if bad { f64::NAN } else { (pose.x[j + 1] - pose.x[j]).hypot(pose.y[j + 1] - pose.y[j]) / dt });
+            wp.push(if bad { f64::NAN } else { (pose.psi[j + 1] - pose.psi[j]) / dt });
         }
         let centres: Vec<f64> = grid.iter().map(|g| g + 0.5 * h).collect();
-        let mut vpg = signal::interp_sorted(&tm, &vp, &centres);
-        for (v, c) in vpg.iter_mut().zip(&centres) {
-            if tm.is_empty() || *c < tm[0] || *c > tm[tm.len() - 1] {
-                *v = f64::NAN;
+        let on_grid = |y: &[f64]| {
+            let mut v = signal::interp_sorted(&tm, y, &centres);
+            for (v, c) in v.iter_mut().zip(&centres) {
+                if tm.is_empty() || *c < tm[0] || *c > tm[tm.len() - 1] {
+                    *v = f64::NAN;
+                }
             }
-        }
+            v
+        };
         let max_lag = (o.max_clock_offset_s / h).ceil() as usize;
-        signal::cross_correlate(&vw, &vpg, h, max_lag)
+        (
+            signal::cross_correlate(&vw, &on_grid(&vp), h, max_lag),
+            signal::cross_correlate(&ww, &on_grid(&wp), h, max_lag),
+        )
     };
+    let (est, est_yaw) = est;
     let applied = match o.clock_offset {
         ClockOffset::Seconds(v) => v,
         ClockOffset::Auto => match est {
@@ -1101,6 +1116,8 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
             estimated_s: est.map(|c| c.offset_s),
             correlation: est.map(|c| c.peak),
             correlation_pairs: est.map(|c| c.pairs),
+            yaw_rate_estimate_s: est_yaw.map(|c| c.offset_s),
+            yaw_rate_correlation: est_yaw.map(|c| c.peak),
             applied_s: applied,
             mode: match o.clock_offset {
                 ClockOffset::Auto => "auto".into(),

@@ -184,12 +184,12 @@ pub(crate) fn cross_correlate(a: &[f64], b: &[f64], h: f64, max_lag: usize) -> O
         .iter()
         .map(|&m| {
             let (mut sa, mut sb, mut saa, mut sbb, mut sab, mut c) = (0.0, 0.0, 0.0, 0.0, 0.0, 0usize);
-            for k in 0..n {
+            for (k, &x) in a.iter().enumerate().take(n) {
                 let j = k as i64 - m;
                 if j < 0 || j >= n as i64 {
                     continue;
                 }
-                let (x, y) = (a[k], b[j as usize]);
+                let y = b[j as usize];
                 if !(x.is_finite() && y.is_finite()) {
                     continue;
                 }
