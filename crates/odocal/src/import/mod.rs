@@ -946,7 +946,7 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
     let mut parts = Vec::new();
     let mut kept_ranges = Vec::new();
     for (r, ok) in &runs {
-        let (t0, t1) = (grid[r.start] - start, grid[r.end - 1] - start);
+        let (t0, t1) = (r.start as f64 * h, (r.end - 1) as f64 * h);
         if *ok {
             let keep = r.len() >= min_samples;
             parts.push(PartRecord {
@@ -1066,7 +1066,7 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
     for r in &kept_ranges {
         let s0 = d.t.len();
         for k in r.clone() {
-            d.t.push(grid[k] - start);
+            d.t.push(k as f64 * h);
             d.px.push(px[k]);
             d.py.push(py[k]);
             d.psi.push(psi[k]);
