@@ -16,7 +16,9 @@ use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use odocal::identify::{batch_gauss_newton, batch_normal_equations, IdentifyOptions};
 use odocal::model::{step_jacobians, Input, State, Theta};
 use odocal::pipeline::{calibrate, CalibrationOptions};
-use odocal::segment::{calibration_segments, validation_segments, SegmentData, SegmentOptions, ValidationSegmentOptions};
+use odocal::segment::{
+    calibration_segments, validation_segments, SegmentData, SegmentOptions, ValidationSegmentOptions,
+};
 use odocal::sim::{simulate, SimOptions};
 
 fn drive(km: f64) -> odocal::Drive {
