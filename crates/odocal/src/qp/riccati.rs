@@ -338,11 +338,16 @@ impl StructuredSolver {
             if i > 0 {
                 huu += r2;
             }
-            huu = 0.5 * (huu + huu.transpose());
-            let chol = huu.cholesky().ok_or_else(|| {
-                QpError::Numerical(format!("Riccati recursion: input Hessian not positive definite at stage {i}"))
-            })?;
-            let huu_inv = chol.inverse();
+            // Closed-form inverse of the symmetric 2×2 H_uu; positive
+            // definiteness checked on the leading minors.
+            let (h00, h01, h11) = (huu[(0, 0)], 0.5 * (huu[(0, 1)] + huu[(1, 0)]), huu[(1, 1)]);
+            let det = h00 * h11 - h01 * h01;
+            if !(h00 > 0.0 && det > f64::EPSILON * h00 * h11) {
+                return Err(QpError::Numerical(format!(
+                    "Riccati recursion: input Hessian not positive definite at stage {i} (det {det:.3e})"
+                )));
+            }
+            let huu_inv = Matrix2::new(h11, -h01, -h01, h00) / det;
             wk.huu_inv[i] = huu_inv;
             if i == 0 {
                 break; // s_0 = 0: P_0 is never used.
@@ -418,22 +423,23 @@ impl StructuredSolver {
     }
 
     /// Largest α ≤ 1 keeping all slacks and multipliers non-negative.
+    ///
+    /// Branch-free: with every `a > 0`, `α_max = 1 / max(1, max(−d/a))`.
     fn max_step(wk: &Work) -> f64 {
-        let mut alpha: f64 = 1.0;
-        let mut limit = |v: &[V5], dv: &[V5]| {
+        fn worst(v: &[V5], dv: &[V5]) -> f64 {
+            let mut m = [0.0f64; 5];
             for (a, d) in v.iter().zip(dv) {
                 for j in 0..5 {
-                    if d[j] < 0.0 {
-                        alpha = alpha.min(-a[j] / d[j]);
-                    }
+                    m[j] = m[j].max(-d[j] / a[j]);
                 }
             }
-        };
-        limit(&wk.t_lo, &wk.dt_lo);
-        limit(&wk.t_hi, &wk.dt_hi);
-        limit(&wk.l_lo, &wk.dl_lo);
-        limit(&wk.l_hi, &wk.dl_hi);
-        alpha
+            m.iter().fold(0.0f64, |x, &y| x.max(y))
+        }
+        let r = worst(&wk.t_lo, &wk.dt_lo)
+            .max(worst(&wk.t_hi, &wk.dt_hi))
+            .max(worst(&wk.l_lo, &wk.dl_lo))
+            .max(worst(&wk.l_hi, &wk.dl_hi));
+        1.0 / r.max(1.0)
     }
 
     /// Multiplier step from stationarity in z (backward recursion):
