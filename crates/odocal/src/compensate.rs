@@ -241,7 +241,7 @@ mod tests {
         let u =
             Input { n_rl: (v - omega * th.t_r / 2.0) / c_rl, n_rr: (v + omega * th.t_r / 2.0) / c_rr, beta: 0.0, a_y };
         let mut x = State::zeros();
-        let mut cols = vec![Vec::with_capacity(n); 4];
+        let mut cols: Vec<Vec<f64>> = (0..4).map(|_| Vec::with_capacity(n)).collect();
         for i in 0..n {
             cols[0].push(i as f64 * ts);
             cols[1].push(x[0]);
