@@ -209,7 +209,7 @@ fn auto_fix_calibrates_the_scale_of_a_straight_real_drive() {
     assert!((2.0 * 1.005..2.0 * 1.015).contains(&c_e), "c_e = {c_e}");
     assert_eq!(v["theta"]["t_r"].as_f64(), Some(1.6), "t_r held at θ_0");
     assert!(v["wheel_scale"].as_str().expect("wheel_scale").contains("nominal circumference 2 m"));
-    let o = odocal(&args);
+    let o = odocal(&[&args[..], &["--validation-length", "400"]].concat());
     assert!(stdout(&o).contains("held at θ_0 (--auto-fix, not observable): c_d, t_r, d"), "{}", stdout(&o));
 }
 
