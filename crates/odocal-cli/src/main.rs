@@ -129,6 +129,11 @@ struct CalibrationArgs {
     /// the other half: first-half or second-half (the half held out).
     #[arg(long)]
     holdout: Option<Holdout>,
+    /// Hold at θ_0 the parameters the data cannot determine (named by the
+    /// observability check) instead of estimating them; with no turning
+    /// segment, hold c_d, t_r, d and use every segment.
+    #[arg(long)]
+    auto_fix: bool,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -143,6 +148,7 @@ impl CalibrationArgs {
             method: self.method,
             seed: self.seed,
             qp_solver: self.qp_solver,
+            auto_fix: self.auto_fix,
             ..Default::default()
         };
         if let Some(t) = self.theta0 {
@@ -295,6 +301,12 @@ fn run(cli: Cli) -> Result<()> {
 /// Reads a drive: a canonical CSV, or a `.toml` manifest of a multi-stream log
 /// (its import summary goes to stderr).
 fn load_drive(path: &Path) -> Result<Drive> {
+    Ok(load_drive_with_scale(path)?.0)
+}
+
+/// [`load_drive`], also returning how to read c_e when the drive came from a
+/// manifest (e.g. "c_e is metres per 40360 ticks").
+fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>)> {
     let (drive, report) = odocal::load_drive(path)?;
     if report.is_some() {
         eprintln!(
@@ -305,7 +317,7 @@ fn load_drive(path: &Path) -> Result<Drive> {
             drive.distance_m() / 1e3
         );
     }
-    Ok(drive)
+    Ok((drive, report.map(|r| r.wheel_scale)))
 }
 
 fn import_cmd(a: ImportArgs) -> Result<()> {
@@ -373,16 +385,38 @@ fn simulate_cmd(a: SimulateArgs, bars: &progress::Bars) -> Result<()> {
     Ok(())
 }
 
-fn report_json(r: &CalibrationReport, truth: Option<(&Theta, f64)>) -> Result<serde_json::Value> {
+fn report_json(
+    r: &CalibrationReport,
+    truth: Option<(&Theta, f64)>,
+    wheel_scale: Option<&str>,
+) -> Result<serde_json::Value> {
     let mut v = serde_json::to_value(r)?;
     if let (Some((t, e)), Some(obj)) = (truth, v.as_object_mut()) {
         obj.insert("truth".into(), serde_json::json!({"theta": t, "mean_position_error_m": e}));
     }
+    if let (Some(w), Some(obj)) = (wheel_scale, v.as_object_mut()) {
+        obj.insert("wheel_scale".into(), serde_json::json!(w));
+    }
     Ok(v)
+}
+
+/// The command line that calibrates c_e alone on `path`, with the user's
+/// other settings, for the error when c_d, t_r, d are not observable.
+fn c_e_only_command(path: &Path, args: &CalibrationArgs) -> String {
+    let mut cmd = format!("odocal calibrate {} --method {}", path.display(), args.method);
+    if let Some(h) = args.holdout {
+        cmd.push_str(match h {
+            Holdout::FirstHalf => " --holdout first-half",
+            Holdout::SecondHalf => " --holdout second-half",
+        });
+    }
+    cmd.push_str(" --fix c_d,t_r,d --min-yaw-rate 0");
+    cmd
 }
 
 fn run_calibration(
     drive: &Drive,
+    source: Option<(&Path, Option<&str>)>,
     args: &CalibrationArgs,
     json: Option<&Path>,
     truth_theta: Option<Theta>,
@@ -402,7 +436,19 @@ fn run_calibration(
             }
         }
     };
-    let r = odocal::pipeline::calibrate_held_out(&fit, held.as_ref(), &opts, Some(&cb))?;
+    let r = match odocal::pipeline::calibrate_held_out(&fit, held.as_ref(), &opts, Some(&cb)) {
+        Ok(r) => r,
+        Err(e @ odocal::Error::NotObservable { .. }) => {
+            bars.finish();
+            let hint = match source {
+                Some((p, _)) => format!("; run: {} (or add --auto-fix)", c_e_only_command(p, args)),
+                None => "; or add --auto-fix".into(),
+            };
+            bail!("{e}{hint}");
+        }
+        Err(e) => return Err(e.into()),
+    };
+    let wheel_scale = source.and_then(|(_, w)| w);
     let drive = held.as_ref().unwrap_or(drive);
     bars.finish();
     let truth = match truth_theta {
@@ -417,20 +463,20 @@ fn run_calibration(
         eprintln!("warning: {w}");
     }
     if let Some(p) = json {
-        write_json(p, &report_json(&r, truth_ref)?)?;
+        write_json(p, &report_json(&r, truth_ref, wheel_scale)?)?;
         if p == Path::new("-") {
             return Ok(());
         }
     }
-    print!("{}", report::calibration(&r, truth_ref));
+    print!("{}", report::calibration(&r, truth_ref, wheel_scale));
     std::io::stdout().flush()?;
     Ok(())
 }
 
 fn calibrate_cmd(a: CalibrateArgs, bars: &progress::Bars) -> Result<()> {
-    let drive = load_drive(&a.drive)?;
+    let (drive, wheel_scale) = load_drive_with_scale(&a.drive)?;
     let truth = load_truth(&a.drive).map(|s| s.theta_true);
-    run_calibration(&drive, &a.calibration, a.json.as_deref(), truth, bars)
+    run_calibration(&drive, Some((&a.drive, wheel_scale.as_deref())), &a.calibration, a.json.as_deref(), truth, bars)
 }
 
 fn demo_cmd(a: DemoArgs, bars: &progress::Bars) -> Result<()> {
@@ -454,7 +500,7 @@ fn demo_cmd(a: DemoArgs, bars: &progress::Bars) -> Result<()> {
             sim.sidecar.theta_true
         );
     }
-    run_calibration(&sim.drive, &a.calibration, a.json.as_deref(), Some(sim.sidecar.theta_true), bars)
+    run_calibration(&sim.drive, None, &a.calibration, a.json.as_deref(), Some(sim.sidecar.theta_true), bars)
 }
 
 fn validate_cmd(a: ValidateArgs, bars: &progress::Bars) -> Result<()> {

@@ -48,7 +48,10 @@ pub fn error_line(est: &Theta, truth: &Theta) -> String {
 }
 
 /// The calibration report for humans.
-pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>) -> String {
+///
+/// `wheel_scale` says how to read c_e for an imported drive (ticks per
+/// revolution or nominal circumference); it is printed under the θ table.
+pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_scale: Option<&str>) -> String {
     let mut out = String::new();
     let _ = writeln!(out, "odocal calibrate — method {}", r.method);
     let _ = writeln!(
@@ -101,6 +104,16 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>) -> Strin
         cols.push(("truth", Some(*t)));
     }
     out.push_str(&theta_table(&cols));
+    if let Some(w) = wheel_scale {
+        let _ = writeln!(out, "  wheels: {w}");
+    }
+    if !r.auto_fixed.is_empty() {
+        let _ = writeln!(out, "  held at θ_0 (--auto-fix, not observable): {}", r.auto_fixed.join(", "));
+    }
+    let unobs = &r.identification.observability.unobservable;
+    if !unobs.is_empty() {
+        let _ = writeln!(out, "  NOT OBSERVABLE from these data (estimates not to be trusted): {}", unobs.join(", "));
+    }
     out.push('\n');
     let _ = writeln!(
         out,

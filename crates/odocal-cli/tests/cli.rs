@@ -192,3 +192,50 @@ fn demo_runs_and_compares_with_truth() {
     let out = stdout(&o);
     assert!(out.contains("simulated 3.0 km") && out.contains("error against truth"), "{out}");
 }
+
+/// A fixture manifest of the library crate's real-drive slices.
+fn slice_manifest(name: &str) -> String {
+    format!("{}/../odocal/tests/data/{name}/manifest.toml", env!("CARGO_MANIFEST_DIR"))
+}
+
+#[test]
+fn straight_real_drive_names_unobservable_parameters_and_the_command_to_run() {
+    let m = slice_manifest("comma2k19-rav4");
+    let o = odocal(&["calibrate", &m, "--method", "batch-gn"]);
+    assert_eq!(o.status.code(), Some(1), "stderr: {}", stderr(&o));
+    let e = stderr(&o);
+    let last = e.trim_end().lines().last().expect("an error line");
+    for n in ["error: ", "c_d, t_r, d not observable", "--fix c_d,t_r,d --min-yaw-rate 0", "--auto-fix"] {
+        assert!(last.contains(n), "expected '{n}' in: {last}");
+    }
+}
+
+#[test]
+fn auto_fix_calibrates_the_scale_of_a_straight_real_drive() {
+    let m = slice_manifest("comma2k19-rav4");
+    let args = ["calibrate", &m, "--method", "batch-gn", "--auto-fix", "--segment-length", "400"];
+    let o = odocal(&[&args[..], &["--validation-length", "400", "--json", "-"]].concat());
+    assert!(o.status.success(), "stderr: {}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("json");
+    assert_eq!(v["auto_fixed"], serde_json::json!(["c_d", "t_r", "d"]));
+    // The slice's rear wheels integrate ~0.97 % short of the pose path
+    // (the full 60 s: 0.90 %); nominal circumference 2.0 m.
+    let c_e = v["theta"]["c_e"].as_f64().expect("c_e");
+    assert!((2.0 * 1.005..2.0 * 1.015).contains(&c_e), "c_e = {c_e}");
+    assert_eq!(v["theta"]["t_r"].as_f64(), Some(1.6), "t_r held at θ_0");
+    assert!(v["wheel_scale"].as_str().expect("wheel_scale").contains("nominal circumference 2 m"));
+    let o = odocal(&[&args[..], &["--validation-length", "400"]].concat());
+    assert!(stdout(&o).contains("held at θ_0 (--auto-fix, not observable): c_d, t_r, d"), "{}", stdout(&o));
+}
+
+#[test]
+fn calibrate_report_says_what_c_e_means_for_ticks() {
+    let m = slice_manifest("psu-mapping-van");
+    let args = ["calibrate", &m, "--method", "batch-gn", "--min-yaw-rate", "0", "--segment-length", "400"];
+    let o = odocal(&[&args[..], &["--validation-length", "400"]].concat());
+    assert!(o.status.success(), "stderr: {}", stderr(&o));
+    let out = stdout(&o);
+    assert!(out.contains("wheels: ticks, one model revolution = ticks_per_rev = 40360 ticks"), "{out}");
+    // 130 s of highway: t_r and d are named (near-collinear with c_d).
+    assert!(out.contains("NOT OBSERVABLE from these data (estimates not to be trusted): t_r, d"), "{out}");
+}

@@ -25,8 +25,8 @@ use serde::{Deserialize, Serialize};
 use crate::compensate::{compensate_segment, CompensateOptions};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
-use crate::identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport};
-use crate::model::Theta;
+use crate::identify::{batch_gauss_newton, batch_normal_equations, observability, IdentifyOptions, IdentifyReport};
+use crate::model::{Theta, THETA_NAMES};
 use crate::qp::SolverKind;
 use crate::segment::{
     calibration_segments, validation_segments, Segment, SegmentData, SegmentOptions, ValidationSegmentOptions,
@@ -100,6 +100,16 @@ pub struct CalibrationOptions {
     pub final_segments: FinalSegments,
     /// Seed of every random choice. Default 0.
     pub seed: u64,
+    /// Hold at θ_0 the parameters these data cannot determine, instead of
+    /// estimating them (not in the paper; default false, the SPEC
+    /// behaviour). When no segment turns enough, c_d, t_r and d are held and
+    /// every segment is used; otherwise the observability check
+    /// ([`crate::identify::observability`]) runs on the selected segments at
+    /// θ_0 and the named parameter with the smallest sensitivity is held,
+    /// repeatedly, until none is named (c_e is never held). What was held is
+    /// listed in [`CalibrationReport::auto_fixed`].
+    #[serde(default)]
+    pub auto_fix: bool,
 }
 
 impl Default for CalibrationOptions {
@@ -117,6 +127,7 @@ impl Default for CalibrationOptions {
             picks: 5,
             final_segments: FinalSegments::All,
             seed: 0,
+            auto_fix: false,
         }
     }
 }
@@ -277,6 +288,9 @@ pub struct CalibrationReport {
     pub identification: IdentifyReport,
     /// Things the user should know (unobservable parameters, dropped segments).
     pub warnings: Vec<String>,
+    /// Parameters held at θ_0 by [`CalibrationOptions::auto_fix`], in the
+    /// order they were held (`options.identify.free` shows the final set).
+    pub auto_fixed: Vec<String>,
     /// The options used.
     pub options: CalibrationOptions,
 }
@@ -474,6 +488,8 @@ pub fn calibrate_held_out(
     let t_start = Instant::now();
     let mut timing = Timing::default();
     let mut warnings = Vec::new();
+    let mut effective = opts.clone();
+    let mut auto_fixed: Vec<String> = Vec::new();
 
     let selection = calibration_segments(drive, &opts.segments)?;
     let validation = validation_segments(drive, &opts.validation)?;
@@ -491,8 +507,20 @@ pub fn calibrate_held_out(
             .filter(|(i, _)| opts.identify.free[*i])
             .map(|(_, n)| *n)
             .collect();
-        if !free_yaw.is_empty() {
-            let peak = selection.all.iter().map(|s| s.peak_yaw_rate_rad_per_s).fold(0.0, f64::max);
+        let peak = selection.all.iter().map(|s| s.peak_yaw_rate_rad_per_s).fold(0.0, f64::max);
+        if !free_yaw.is_empty() && opts.auto_fix {
+            for i in 1..4 {
+                effective.identify.free[i] = false;
+            }
+            auto_fixed.extend(free_yaw.iter().map(|n| n.to_string()));
+            warnings.push(format!(
+                "auto-fix: {} held at θ_0 and all {} segments used: none turns faster than {} rad/s (the fastest: \
+                 {peak:.3} rad/s), so only c_e is observable",
+                free_yaw.join(", "),
+                selection.all.len(),
+                opts.segments.min_peak_yaw_rate_rad_per_s
+            ));
+        } else if !free_yaw.is_empty() {
             return Err(Error::NotObservable {
                 params: free_yaw,
                 reason: format!(
@@ -513,6 +541,19 @@ pub fn calibrate_held_out(
         )));
     }
     let selected = if selection.selected.is_empty() { selection.all.clone() } else { selection.selected.clone() };
+    if opts.auto_fix && auto_fixed.is_empty() {
+        let data: Vec<SegmentData> = selected.iter().map(|s| SegmentData::new(drive, s)).collect();
+        let held = hold_unobservable(&data, &mut effective);
+        if !held.is_empty() {
+            warnings.push(format!(
+                "auto-fix: {} held at θ_0 (not observable from the {} selected segments at θ_0)",
+                held.join(", "),
+                selected.len()
+            ));
+        }
+        auto_fixed.extend(held);
+    }
+    let opts = &effective;
     let (report_drive, report_segments) = match held_out {
         Some(h) => {
             let segs = validation_segments(h, &opts.validation)?;
@@ -642,8 +683,33 @@ pub fn calibrate_held_out(
         compensation,
         identification,
         warnings,
+        auto_fixed,
         options: opts.clone(),
     })
+}
+
+/// Holds at θ_0, one at a time, the parameter (never c_e) with the smallest
+/// sensitivity among those the observability check names on `segments` at
+/// θ_0, until none is named. Returns the names held, in order.
+fn hold_unobservable(segments: &[SegmentData<'_>], opts: &mut CalibrationOptions) -> Vec<String> {
+    let ne = batch_normal_equations(segments, &opts.theta0, &opts.identify.weights);
+    let mut held = Vec::new();
+    loop {
+        let o = observability(&ne, &opts.identify.free, &opts.identify);
+        let pick = o
+            .unobservable
+            .iter()
+            .filter_map(|n| THETA_NAMES.iter().position(|t| t == n))
+            .filter(|&i| i != 0 && opts.identify.free[i])
+            .min_by(|&a, &b| o.sensitivity_m[a].total_cmp(&o.sensitivity_m[b]));
+        match pick {
+            Some(i) => {
+                opts.identify.free[i] = false;
+                held.push(THETA_NAMES[i].to_string());
+            }
+            None => return held,
+        }
+    }
 }
 
 #[cfg(test)]
