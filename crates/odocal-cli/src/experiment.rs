@@ -244,7 +244,7 @@ pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
     let opts =
         CalibrationOptions { seed: a.seed, qp_solver: a.qp_solver, initial_batches: a.batches, ..Default::default() };
     let cb = |e| bars.event(e);
-    let det: DetailedCalibration = calibrate_detailed(&drive, &opts, Some(&cb))?;
+    let det: DetailedCalibration = calibrate_detailed(&drive, None, &opts, Some(&cb))?;
     bars.finish();
     timing.calibrate = t.elapsed().as_secs_f64();
     let r = &det.report;

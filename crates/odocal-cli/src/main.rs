@@ -9,7 +9,7 @@ use std::process::ExitCode;
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
-use odocal::pipeline::{calibrate, CalibrationOptions, CalibrationReport, FinalSegments, Method};
+use odocal::pipeline::{CalibrationOptions, CalibrationReport, FinalSegments, Method};
 use odocal::qp::SolverKind;
 use odocal::sim::{self, NoiseOptions, SimOptions, SimSidecar};
 use odocal::{segment, Drive, Theta};
@@ -47,6 +47,20 @@ enum Command {
     Demo(DemoArgs),
     /// Reproduce the paper's §6 on a simulated (or given) drive: report.md, SVG figures, experiment.json.
     Experiment(ExperimentArgs),
+    /// Import a multi-stream real log described by a TOML manifest into a canonical drive CSV.
+    Import(ImportArgs),
+}
+
+#[derive(Args)]
+struct ImportArgs {
+    /// The drive manifest (TOML; see examples/README.md).
+    manifest: PathBuf,
+    /// Output canonical CSV.
+    #[arg(long)]
+    out: PathBuf,
+    /// Write the import report as JSON here ("-" for stdout).
+    #[arg(long)]
+    json: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -115,6 +129,16 @@ struct CalibrationArgs {
     /// Maximum Gauss-Newton iterations.
     #[arg(long)]
     max_iterations: Option<usize>,
+    /// Hold out half of the drive (by time) for validation and calibrate on
+    /// the other half: first-half or second-half (the half held out).
+    #[arg(long)]
+    holdout: Option<Holdout>,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum Holdout {
+    FirstHalf,
+    SecondHalf,
 }
 
 impl CalibrationArgs {
@@ -176,7 +200,7 @@ impl CalibrationArgs {
 
 #[derive(Args)]
 struct CalibrateArgs {
-    /// The drive: a canonical CSV (SPEC §2).
+    /// The drive: a canonical CSV (SPEC §2) or a drive manifest (.toml).
     drive: PathBuf,
     #[command(flatten)]
     calibration: CalibrationArgs,
@@ -187,7 +211,7 @@ struct CalibrateArgs {
 
 #[derive(Args)]
 struct ValidateArgs {
-    /// The drive: a canonical CSV.
+    /// The drive: a canonical CSV or a drive manifest (.toml).
     drive: PathBuf,
     /// θ as c_e,c_d,t_r,d (SI).
     #[arg(long, allow_hyphen_values = true)]
@@ -212,7 +236,7 @@ struct ValidateArgs {
 
 #[derive(Args)]
 struct CompensateArgs {
-    /// The drive: a canonical CSV.
+    /// The drive: a canonical CSV or a drive manifest (.toml).
     drive: PathBuf,
     /// θ as c_e,c_d,t_r,d (SI).
     #[arg(long, allow_hyphen_values = true)]
@@ -296,12 +320,39 @@ fn run(cli: Cli) -> Result<()> {
         Command::Compensate(a) => compensate_cmd(a, &bars),
         Command::Demo(a) => demo_cmd(a, &bars),
         Command::Experiment(a) => experiment::run(a, &bars),
+        Command::Import(a) => import_cmd(a),
     }
 }
 
-/// Reads a drive.
+/// Reads a drive: a canonical CSV, or a `.toml` manifest of a multi-stream log
+/// (its import summary goes to stderr).
 fn load_drive(path: &Path) -> Result<Drive> {
-    Ok(Drive::read_csv(path)?)
+    let (drive, report) = odocal::load_drive(path)?;
+    if report.is_some() {
+        eprintln!(
+            "imported {}: {} samples in {} part(s), {:.2} km (run `odocal import` for the full import report)",
+            path.display(),
+            drive.len(),
+            drive.parts.len(),
+            drive.distance_m() / 1e3
+        );
+    }
+    Ok(drive)
+}
+
+fn import_cmd(a: ImportArgs) -> Result<()> {
+    let m = odocal::Manifest::from_path(&a.manifest)?;
+    let imported = odocal::import(&m)?;
+    imported.drive.write_csv(&a.out)?;
+    if let Some(p) = &a.json {
+        write_json(p, &serde_json::to_value(&imported.report)?)?;
+        if p == Path::new("-") {
+            return Ok(());
+        }
+    }
+    println!("{}", imported.report.to_string().trim_end());
+    println!("wrote {}", a.out.display());
+    Ok(())
 }
 
 /// The simulator's sidecar beside a drive, when there is one.
@@ -371,7 +422,20 @@ fn run_calibration(
 ) -> Result<()> {
     let opts = args.options()?;
     let cb = |e| bars.event(e);
-    let r = calibrate(drive, &opts, Some(&cb))?;
+    let (fit, held) = match args.holdout {
+        None => (drive.clone(), None),
+        Some(h) => {
+            let (t0, t1) = (drive.t[0], drive.t[drive.len() - 1] + drive.sample_time_s);
+            let mid = 0.5 * (t0 + t1);
+            let (a, b) = (drive.window(t0, mid)?, drive.window(mid, t1)?);
+            match h {
+                Holdout::FirstHalf => (b, Some(a)),
+                Holdout::SecondHalf => (a, Some(b)),
+            }
+        }
+    };
+    let r = odocal::pipeline::calibrate_held_out(&fit, held.as_ref(), &opts, Some(&cb))?;
+    let drive = held.as_ref().unwrap_or(drive);
     bars.finish();
     let truth = match truth_theta {
         Some(t) => {

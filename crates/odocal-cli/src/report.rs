@@ -102,7 +102,12 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>) -> Strin
     }
     out.push_str(&theta_table(&cols));
     out.push('\n');
-    let _ = writeln!(out, "mean position error Ē_p on {} validation segments:", r.validation.segments);
+    let _ = writeln!(
+        out,
+        "mean position error Ē_p on {} validation segments{}:",
+        r.validation.segments,
+        if r.validation.held_out { " of the held-out half" } else { "" }
+    );
     let _ = writeln!(out, "  θ_0          {:>9.3} m", r.initial.mean_position_error_m);
     let _ = writeln!(out, "  calibrated   {:>9.3} m", r.validation.mean_position_error_m);
     if let Some((t, e)) = truth {

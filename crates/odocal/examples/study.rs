@@ -137,7 +137,7 @@ fn study_drive(noise: &str, seed: u64, a: &Args) -> Res<DriveResult> {
     let drive = &sim.drive;
     let truth = sim.sidecar.theta_true;
     let opts = CalibrationOptions { seed, qp_solver: a.solver, ..Default::default() };
-    let det = calibrate_detailed(drive, &opts, None)?;
+    let det = calibrate_detailed(drive, None, &opts, None)?;
     let (val, sel) = (&det.validation, &det.selected);
     let comp = det.compensated.as_ref().ok_or("3-step returned no compensated inputs")?;
     let init = det.report.initial_step.as_ref().ok_or("3-step returned no step 1")?;

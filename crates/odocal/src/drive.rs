@@ -99,6 +99,55 @@ impl Drive {
             .sum()
     }
 
+    /// The samples with `t_start_s ≤ t < t_end_s` as a new drive; parts are
+    /// clipped to the window (extra columns and truth come along).
+    pub fn window(&self, t_start_s: f64, t_end_s: f64) -> Result<Drive> {
+        let idx: Vec<usize> = (0..self.len()).filter(|&i| self.t[i] >= t_start_s && self.t[i] < t_end_s).collect();
+        let (Some(&a), Some(&b)) = (idx.first(), idx.last()) else {
+            return Err(Error::InvalidDrive {
+                context: "time window".into(),
+                reason: format!(
+                    "no samples in [{t_start_s}, {t_end_s}) s; the drive spans {:.3} … {:.3} s",
+                    self.t.first().copied().unwrap_or(f64::NAN),
+                    self.t.last().copied().unwrap_or(f64::NAN)
+                ),
+            });
+        };
+        let r = a..b + 1;
+        let cut = |v: &Vec<f64>| v[r.clone()].to_vec();
+        let truth = self.truth.as_ref().map(|t| Truth {
+            px: cut(&t.px),
+            py: cut(&t.py),
+            psi: cut(&t.psi),
+            n_rl: cut(&t.n_rl),
+            n_rr: cut(&t.n_rr),
+            beta: cut(&t.beta),
+            a_y: cut(&t.a_y),
+        });
+        let parts = self
+            .parts
+            .iter()
+            .filter_map(|p| {
+                let (s, e) = (p.start.max(a), p.end.min(b + 1));
+                (s < e).then(|| s - a..e - a)
+            })
+            .collect();
+        Ok(Drive {
+            t: cut(&self.t),
+            px: cut(&self.px),
+            py: cut(&self.py),
+            psi: cut(&self.psi),
+            n_rl: cut(&self.n_rl),
+            n_rr: cut(&self.n_rr),
+            beta: cut(&self.beta),
+            a_y: cut(&self.a_y),
+            truth,
+            extra: self.extra.iter().map(|(n, v)| (n.clone(), cut(v))).collect(),
+            parts,
+            sample_time_s: self.sample_time_s,
+        })
+    }
+
     /// Builds a single-part drive from columns, inferring and checking t_s and
     /// unwrapping the heading. `context` names the source in error messages.
     #[allow(clippy::too_many_arguments)]
@@ -481,6 +530,16 @@ mod tests {
         d.write_csv_to(&mut buf).expect("write");
         let d2 = Drive::parse_csv(&buf, Path::new("y.csv")).expect("valid");
         assert_eq!(d, d2);
+    }
+
+    #[test]
+    fn window_clips_parts() {
+        let s = "t,px,py,psi,n_rl,n_rr,beta,a_y,part\n0,0,0,0,1,1,0,0,0\n0.1,0,0,0,1,1,0,0,0\n0.2,0,0,0,1,1,0,0,0\n5.0,0,0,0,1,1,0,0,1\n5.1,0,0,0,1,1,0,0,1\n";
+        let d = Drive::parse_csv(s.as_bytes(), Path::new("x.csv")).expect("valid");
+        let w = d.window(0.15, 5.05).expect("window");
+        assert_eq!(w.len(), 2);
+        assert_eq!(w.parts, vec![0..1, 1..2]);
+        assert!(d.window(10.0, 11.0).is_err());
     }
 
     #[test]

@@ -38,6 +38,10 @@ pub struct IdentifyOptions {
     pub free: [bool; 4],
     /// Stop when the relative step `‖Δθ/θ_scale‖∞` falls below this. Default 1e-12.
     pub step_tolerance: f64,
+    /// A step whose relative cost change `|ΔC|/C` is at most this counts as
+    /// converged (the cost is flat to round-off) rather than as a cost
+    /// increase. Default 1e-12.
+    pub cost_tolerance: f64,
     /// Parameter resolutions used by the observability check, `[c_e, c_d,
     /// t_r, d]` in SI units. Default `[0.01 m, 0.001 m, 0.015 m, 0.0005
     /// m/(m/s²)]` (0.5 % of c_e, 1 mm, 1 % of t_r, 0.5 mm per m/s²).
@@ -55,6 +59,7 @@ impl Default for IdentifyOptions {
             weights: [1.0, 1.0, 1600.0],
             free: [true; 4],
             step_tolerance: 1e-12,
+            cost_tolerance: 1e-12,
             resolution: [0.01, 0.001, 0.015, 0.0005],
             min_sensitivity_m: 0.01,
         }
@@ -93,6 +98,14 @@ pub enum Termination {
         /// Cost before it (kept).
         previous: f64,
     },
+    /// The next step changed the cost by no more than round-off (relative
+    /// change at most [`IdentifyOptions::cost_tolerance`]): converged.
+    Converged {
+        /// Relative cost change of the last step tried.
+        rel_change: f64,
+        /// The tolerance.
+        threshold: f64,
+    },
     /// The relative step fell below the tolerance.
     StepTolerance {
         /// The relative step size.
@@ -108,6 +121,9 @@ impl std::fmt::Display for Termination {
             Termination::MaxIterations { iterations } => write!(f, "iteration limit: {iterations}"),
             Termination::CostIncreased { cost, previous } => {
                 write!(f, "cost increased: {cost:.6e} > {previous:.6e} (step rejected)")
+            }
+            Termination::Converged { rel_change, threshold } => {
+                write!(f, "converged: relative cost change {rel_change:.1e} <= {threshold:.0e}")
             }
             Termination::StepTolerance { rel_step, threshold } => {
                 write!(f, "step tolerance: {rel_step:.1e} <= {threshold:.0e}")
@@ -372,8 +388,13 @@ pub fn batch_gauss_newton(
             break;
         }
         let cand_cost = batch_cost(segments, &cand, w);
+        let rel_change = (cand_cost - ne.cost).abs() / ne.cost.max(f64::MIN_POSITIVE);
         if cand_cost.is_nan() || cand_cost > ne.cost {
-            termination = Termination::CostIncreased { cost: cand_cost, previous: ne.cost };
+            termination = if rel_change <= opts.cost_tolerance {
+                Termination::Converged { rel_change, threshold: opts.cost_tolerance }
+            } else {
+                Termination::CostIncreased { cost: cand_cost, previous: ne.cost }
+            };
             break;
         }
         theta = cand;

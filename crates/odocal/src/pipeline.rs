@@ -249,6 +249,9 @@ pub struct ValidationSummary {
     pub mean_position_error_m: f64,
     /// Validation segments.
     pub segments: usize,
+    /// True when the validation ran on held-out data that the calibration
+    /// did not see (see [`calibrate_held_out`]).
+    pub held_out: bool,
 }
 
 /// The calibration report (SPEC §9 and more).
@@ -526,12 +529,26 @@ pub fn calibrate(
     opts: &CalibrationOptions,
     progress: Option<ProgressFn<'_>>,
 ) -> Result<CalibrationReport> {
-    calibrate_detailed(drive, opts, progress).map(|d| d.report)
+    calibrate_held_out(drive, None, opts, progress)
 }
 
-/// [`calibrate`], also returning the segments and step 2's compensated inputs.
+/// Runs a calibration on `drive` and, when `held_out` is given, reports
+/// `validation` and `initial` Ē_p on the held-out drive instead (the
+/// calibration, including the choice of θ_B,I in step 1, sees only `drive`).
+pub fn calibrate_held_out(
+    drive: &Drive,
+    held_out: Option<&Drive>,
+    opts: &CalibrationOptions,
+    progress: Option<ProgressFn<'_>>,
+) -> Result<CalibrationReport> {
+    calibrate_detailed(drive, held_out, opts, progress).map(|d| d.report)
+}
+
+/// [`calibrate_held_out`], also returning the segments and step 2's
+/// compensated inputs.
 pub fn calibrate_detailed(
     drive: &Drive,
+    held_out: Option<&Drive>,
     opts: &CalibrationOptions,
     progress: Option<ProgressFn<'_>>,
 ) -> Result<DetailedCalibration> {
@@ -578,11 +595,28 @@ pub fn calibrate_detailed(
         )));
     }
     let selected = if selection.selected.is_empty() { selection.all.clone() } else { selection.selected.clone() };
-    let initial_val = mean_position_error(drive, &validation, &opts.theta0)?;
+    let (report_drive, report_segments) = match held_out {
+        Some(h) => {
+            let segs = validation_segments(h, &opts.validation)?;
+            if segs.is_empty() {
+                return Err(Error::NoSegments(format!(
+                    "the held-out drive ({} samples) is too short for one validation segment of {} steps",
+                    h.len(),
+                    opts.validation.length_steps
+                )));
+            }
+            (h, segs)
+        }
+        None => (drive, validation.clone()),
+    };
+    let initial_val = mean_position_error(report_drive, &report_segments, &opts.theta0)?;
     timing.setup = t_start.elapsed().as_secs_f64();
 
-    let counts =
-        SegmentCounts { cut: selection.all.len(), selected: selection.selected.len(), validation: validation.len() };
+    let counts = SegmentCounts {
+        cut: selection.all.len(),
+        selected: selection.selected.len(),
+        validation: report_segments.len(),
+    };
     let (identification, initial_step, compensated) = match opts.method {
         Method::BatchGn => {
             let t = Instant::now();
@@ -656,13 +690,17 @@ pub fn calibrate_detailed(
     };
     warnings.extend(unobservable_warning(&identification, "final identification"));
     let t = Instant::now();
-    let val = mean_position_error(drive, &validation, &identification.theta)?;
+    let val = mean_position_error(report_drive, &report_segments, &identification.theta)?;
     timing.validation = t.elapsed().as_secs_f64();
     timing.total = t_start.elapsed().as_secs_f64();
     let report = CalibrationReport {
         method: opts.method,
         theta: identification.theta,
-        validation: ValidationSummary { mean_position_error_m: val.mean_position_error_m, segments: val.segments },
+        validation: ValidationSummary {
+            mean_position_error_m: val.mean_position_error_m,
+            segments: val.segments,
+            held_out: held_out.is_some(),
+        },
         initial: ThetaScore { theta: opts.theta0, mean_position_error_m: initial_val.mean_position_error_m },
         timing_s: timing,
         segments: counts,

@@ -30,9 +30,10 @@ use super::{QpError, QpSolution, QpSolver, StageQp, ACTIVE_BOUND_TOL};
 #[derive(Debug, Clone, PartialEq)]
 pub struct ClarabelOptions {
     /// Absolute and relative duality-gap tolerance (Clarabel `tol_gap_abs`,
-    /// `tol_gap_rel`). Default 1e-9: this solver is the reference.
+    /// `tol_gap_rel`). Default 1e-10: this solver is the reference, and
+    /// Clarabel's criteria are relative to the data scale (R = 1000).
     pub tol_gap: f64,
-    /// Primal/dual feasibility tolerance (Clarabel `tol_feas`). Default 1e-9.
+    /// Primal/dual feasibility tolerance (Clarabel `tol_feas`). Default 1e-10.
     pub tol_feas: f64,
     /// Iteration limit (Clarabel `max_iter`). Default 200.
     pub max_iterations: u32,
@@ -43,7 +44,7 @@ pub struct ClarabelOptions {
 
 impl Default for ClarabelOptions {
     fn default() -> Self {
-        Self { tol_gap: 1e-9, tol_feas: 1e-9, max_iterations: 200, accept_almost_solved: true }
+        Self { tol_gap: 1e-10, tol_feas: 1e-10, max_iterations: 200, accept_almost_solved: true }
     }
 }
 

@@ -449,8 +449,9 @@ impl FromStr for SolverKind {
 /// - Q = diag(1, 1, 10), R = diag(1000, 1000) (SPEC §5); bounds
 ///   `|z| ≤ [5, 5, 0.5]·s` and `|w| ≤ 0.05·|ñ_k|·s` with `s = 1 − tightness`.
 ///
-/// `tightness = 0` gives the SPEC boxes (no bound active in practice);
-/// `tightness ≈ 0.9` activates input bounds, `≈ 0.99` state bounds too.
+/// `tightness = 0` gives the SPEC boxes (rarely a bound active);
+/// `tightness ≈ 0.9` activates many input bounds, `≈ 0.97` state bounds
+/// too; from about 0.98 on, some instances have no feasible point.
 /// Values of `tightness` are clamped to [0, 0.999].
 pub fn random_instance(seed: u64, stages: usize, tightness: f64) -> StageQp {
     const T_S: f64 = 0.025;
@@ -498,3 +499,7 @@ pub fn random_instance(seed: u64, stages: usize, tightness: f64) -> StageQp {
     }
     qp
 }
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests;

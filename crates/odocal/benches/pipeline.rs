@@ -1,0 +1,81 @@
+//! Benchmarks of the calibration pipeline on seeded simulated drives.
+//!
+//! `cargo bench -p odocal --bench pipeline` — groups:
+//! - `model`: one model step with all Jacobians;
+//! - `simulate`: the default 24 km paper-noise drive;
+//! - `identify`: one batch Gauss-Newton iteration (normal equations) and a
+//!   full batch G-N over all selected segments of the 24 km drive;
+//! - `validate`: Ē_p of one θ on all validation segments;
+//! - `three_step`: the full default 3-step calibration on 6/12/24/48 km
+//!   (linear growth expected).
+
+use std::hint::black_box;
+use std::time::Duration;
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use odocal::identify::{batch_gauss_newton, batch_normal_equations, IdentifyOptions};
+use odocal::model::{step_jacobians, Input, State, Theta};
+use odocal::pipeline::{calibrate, CalibrationOptions};
+use odocal::segment::{
+    calibration_segments, validation_segments, SegmentData, SegmentOptions, ValidationSegmentOptions,
+};
+use odocal::sim::{simulate, SimOptions};
+
+fn drive(km: f64) -> odocal::Drive {
+    simulate(&SimOptions { length_km: km, ..SimOptions::paper(1) }).expect("simulate").drive
+}
+
+fn bench_model(c: &mut Criterion) {
+    let x = State::new(10.0, -3.0, 0.3);
+    let u = Input { n_rl: 5.1, n_rr: 5.3, beta: 0.01, a_y: 1.2 };
+    c.bench_function("model/step_jacobians", |b| {
+        b.iter(|| step_jacobians(black_box(&x), black_box(&u), black_box(&Theta::SIM_DEFAULT_TRUE), 0.025))
+    });
+}
+
+fn bench_simulate(c: &mut Criterion) {
+    let mut g = c.benchmark_group("simulate");
+    g.sample_size(10);
+    g.bench_function("paper_24km", |b| b.iter(|| simulate(&SimOptions::paper(1)).expect("simulate")));
+    g.finish();
+}
+
+fn bench_identify(c: &mut Criterion) {
+    let d = drive(24.0);
+    let sel = calibration_segments(&d, &SegmentOptions::default()).expect("segments");
+    let data: Vec<SegmentData> = sel.selected.iter().map(|s| SegmentData::new(&d, s)).collect();
+    let mut g = c.benchmark_group("identify_24km");
+    g.sample_size(10);
+    let w = IdentifyOptions::default().weights;
+    g.bench_function("gn_iteration_all_selected", |b| {
+        b.iter(|| batch_normal_equations(black_box(&data), &Theta::PAPER_INITIAL, &w))
+    });
+    g.bench_function("batch_gn_all_selected", |b| {
+        b.iter(|| batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &IdentifyOptions::default()).expect("gn"))
+    });
+    g.finish();
+    let val = validation_segments(&d, &ValidationSegmentOptions::default()).expect("validation");
+    let mut g = c.benchmark_group("validate_24km");
+    g.sample_size(10);
+    g.bench_function("one_theta", |b| {
+        b.iter(|| odocal::mean_position_error(&d, &val, &Theta::SIM_DEFAULT_TRUE).expect("validate"))
+    });
+    g.finish();
+}
+
+fn bench_three_step(c: &mut Criterion) {
+    let mut g = c.benchmark_group("three_step");
+    g.sample_size(10);
+    g.warm_up_time(Duration::from_millis(100));
+    g.measurement_time(Duration::from_secs(5));
+    for km in [6.0, 12.0, 24.0, 48.0] {
+        let d = drive(km);
+        g.bench_with_input(BenchmarkId::from_parameter(format!("{km}km")), &d, |b, d| {
+            b.iter(|| calibrate(d, &CalibrationOptions::default(), None).expect("calibrate"))
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench_model, bench_simulate, bench_identify, bench_three_step);
+criterion_main!(benches);

@@ -1,0 +1,268 @@
+//! Signal helpers of the import: de-jittering, interpolation, interval means,
+//! smoothing and the clock-offset cross-correlation.
+
+/// Result of de-jittering one stream's time stamps.
+#[derive(Debug, Clone)]
+pub(crate) struct Dejittered {
+    /// The corrected stamps, s (strictly increasing).
+    pub t: Vec<f64>,
+    /// RMS of the correction (corrected − raw), s.
+    pub rms_correction_s: f64,
+    /// Largest absolute correction, s.
+    pub max_correction_s: f64,
+    /// Samples missing from the nominal sequence (skipped indices) inside runs.
+    pub missing_samples: u64,
+}
+
+/// Removes time-stamp jitter of a stream sampled at a nominal period.
+///
+/// Runs of samples are split where the stamps jump by more than `max_gap_s`.
+/// Within a run each sample gets an integer index `k` (a missing sample skips
+/// an index): a tracker predicts the next stamp from the smoothed previous one,
+/// so that one late stamp followed by an early one does not skip an index.
+/// Each stamp is then replaced by a local least-squares line `t = a + b·k`
+/// fitted over the samples within ±`half_window` indices, which follows slow
+/// clock drift and removes the jitter. Falls back to the raw stamps of a run
+/// when the corrected stamps would not increase strictly.
+pub(crate) fn dejitter(t: &[f64], period_s: f64, half_window: usize, max_gap_s: f64) -> Dejittered {
+    let n = t.len();
+    let mut out = t.to_vec();
+    let mut missing = 0u64;
+    let mut start = 0;
+    while start < n {
+        let mut end = start + 1;
+        while end < n && t[end] - t[end - 1] <= max_gap_s {
+            end += 1;
+        }
+        // Index assignment with a smoothed tracker (gain 0.1).
+        let run = &t[start..end];
+        let mut k = vec![0i64; run.len()];
+        let mut s = run[0];
+        for i in 1..run.len() {
+            let m = ((run[i] - s) / period_s).round().max(1.0);
+            k[i] = k[i - 1] + m as i64;
+            missing += (m as u64).saturating_sub(1);
+            s += m * period_s;
+            s += 0.1 * (run[i] - s);
+        }
+        // Local linear fits, centred on each sample's window.
+        let fitted: Vec<f64> = (0..run.len())
+            .map(|i| {
+                let lo = i.saturating_sub(half_window);
+                let hi = (i + half_window + 1).min(run.len());
+                let cnt = (hi - lo) as f64;
+                if hi - lo < 3 {
+                    return run[i];
+                }
+                let (mut mk, mut mt) = (0.0, 0.0);
+                for j in lo..hi {
+                    mk += k[j] as f64;
+                    mt += run[j] - run[i];
+                }
+                mk /= cnt;
+                mt /= cnt;
+                let (mut skk, mut skt) = (0.0, 0.0);
+                for j in lo..hi {
+                    let dk = k[j] as f64 - mk;
+                    skk += dk * dk;
+                    skt += dk * (run[j] - run[i] - mt);
+                }
+                if skk <= 0.0 {
+                    return run[i];
+                }
+                let b = skt / skk;
+                run[i] + mt + b * (k[i] as f64 - mk)
+            })
+            .collect();
+        if fitted.windows(2).all(|w| w[1] > w[0]) && fitted.iter().all(|v| v.is_finite()) {
+            out[start..end].copy_from_slice(&fitted);
+        }
+        start = end;
+    }
+    // Joins between runs must stay increasing too.
+    if !out.windows(2).all(|w| w[1] > w[0]) {
+        out = t.to_vec();
+    }
+    let (mut ss, mut mx) = (0.0, 0.0f64);
+    for (a, b) in out.iter().zip(t) {
+        let d = a - b;
+        ss += d * d;
+        mx = mx.max(d.abs());
+    }
+    Dejittered {
+        t: out,
+        rms_correction_s: (ss / n.max(1) as f64).sqrt(),
+        max_correction_s: mx,
+        missing_samples: missing,
+    }
+}
+
+/// Linear interpolation of `(ts, ys)` at sorted query times `tq`, clamped at
+/// the ends (validity is checked separately).
+pub(crate) fn interp_sorted(ts: &[f64], ys: &[f64], tq: &[f64]) -> Vec<f64> {
+    let mut j = 0;
+    let n = ts.len();
+    tq.iter()
+        .map(|&q| {
+            if n == 0 {
+                return f64::NAN;
+            }
+            if q <= ts[0] {
+                return ys[0];
+            }
+            if q >= ts[n - 1] {
+                return ys[n - 1];
+            }
+            while j + 1 < n && ts[j + 1] < q {
+                j += 1;
+            }
+            let (t0, t1) = (ts[j], ts[j + 1]);
+            let w = (q - t0) / (t1 - t0);
+            ys[j] + w * (ys[j + 1] - ys[j])
+        })
+        .collect()
+}
+
+/// Cumulative trapezoid integral of `(ts, ys)`, starting at 0.
+pub(crate) fn cumulative_integral(ts: &[f64], ys: &[f64]) -> Vec<f64> {
+    let mut out = Vec::with_capacity(ts.len());
+    let mut acc = 0.0;
+    for i in 0..ts.len() {
+        if i > 0 {
+            acc += 0.5 * (ys[i] + ys[i - 1]) * (ts[i] - ts[i - 1]);
+        }
+        out.push(acc);
+    }
+    out
+}
+
+/// Means over the output intervals `[g_k, g_k + h]` of a signal whose
+/// cumulative value (integral, or count) is `cum` at times `ts`.
+pub(crate) fn interval_rates(ts: &[f64], cum: &[f64], grid: &[f64], h: f64) -> Vec<f64> {
+    let ends: Vec<f64> = grid.iter().map(|g| g + h).collect();
+    let a = interp_sorted(ts, cum, grid);
+    let b = interp_sorted(ts, cum, &ends);
+    a.iter().zip(&b).map(|(a, b)| (b - a) / h).collect()
+}
+
+/// Centred moving average over `width` samples (odd, ≥ 1) within `range`.
+pub(crate) fn moving_average(x: &mut [f64], range: std::ops::Range<usize>, width: usize) {
+    let half = width / 2;
+    if half == 0 || range.len() < 2 {
+        return;
+    }
+    let src: Vec<f64> = x[range.clone()].to_vec();
+    let mut pre = vec![0.0; src.len() + 1];
+    for (i, v) in src.iter().enumerate() {
+        pre[i + 1] = pre[i] + v;
+    }
+    for i in 0..src.len() {
+        let lo = i.saturating_sub(half);
+        let hi = (i + half + 1).min(src.len());
+        x[range.start + i] = (pre[hi] - pre[lo]) / (hi - lo) as f64;
+    }
+}
+
+/// The clock offset found by cross-correlation.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Correlation {
+    /// Offset τ, s: `a(t) ≈ b(t − τ)`.
+    pub offset_s: f64,
+    /// Pearson correlation at the integer peak.
+    pub peak: f64,
+    /// Sample pairs at the peak.
+    pub pairs: usize,
+}
+
+/// Finds τ maximizing the Pearson correlation of `a[k]` and `b[k − m]`,
+/// `|m| ≤ max_lag`, with sub-sample resolution from a parabola through the
+/// peak and its neighbours. NaN entries are skipped. `h` is the sample step.
+pub(crate) fn cross_correlate(a: &[f64], b: &[f64], h: f64, max_lag: usize) -> Option<Correlation> {
+    let n = a.len().min(b.len());
+    let lags: Vec<i64> = (-(max_lag as i64)..=max_lag as i64).collect();
+    let r: Vec<(f64, usize)> = lags
+        .iter()
+        .map(|&m| {
+            let (mut sa, mut sb, mut saa, mut sbb, mut sab, mut c) = (0.0, 0.0, 0.0, 0.0, 0.0, 0usize);
+            for (k, &x) in a.iter().enumerate().take(n) {
+                let j = k as i64 - m;
+                if j < 0 || j >= n as i64 {
+                    continue;
+                }
+                let y = b[j as usize];
+                if !(x.is_finite() && y.is_finite()) {
+                    continue;
+                }
+                sa += x;
+                sb += y;
+                saa += x * x;
+                sbb += y * y;
+                sab += x * y;
+                c += 1;
+            }
+            if c < 10 {
+                return (f64::NAN, c);
+            }
+            let cf = c as f64;
+            let cov = sab - sa * sb / cf;
+            let va = saa - sa * sa / cf;
+            let vb = sbb - sb * sb / cf;
+            if va <= 0.0 || vb <= 0.0 {
+                return (f64::NAN, c);
+            }
+            (cov / (va * vb).sqrt(), c)
+        })
+        .collect();
+    let (best, _) = r.iter().enumerate().filter(|(_, v)| v.0.is_finite()).max_by(|x, y| x.1 .0.total_cmp(&y.1 .0))?;
+    let mut frac = 0.0;
+    if best > 0 && best + 1 < r.len() {
+        let (y0, y1, y2) = (r[best - 1].0, r[best].0, r[best + 1].0);
+        let den = y0 - 2.0 * y1 + y2;
+        if y0.is_finite() && y2.is_finite() && den < 0.0 {
+            frac = (0.5 * (y0 - y2) / den).clamp(-0.5, 0.5);
+        }
+    }
+    Some(Correlation { offset_s: (lags[best] as f64 + frac) * h, peak: r[best].0, pairs: r[best].1 })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dejitter_recovers_uniform_stamps_with_drops() {
+        // 100 Hz, a dropped sample, ±1.5 ms deterministic jitter.
+        let mut truth = Vec::new();
+        for i in 0..3000 {
+            if i != 1234 {
+                truth.push(10.0 + i as f64 * 0.010_001);
+            }
+        }
+        let jit: Vec<f64> = truth.iter().enumerate().map(|(i, t)| t + 0.0015 * ((i as f64 * 1.7).sin())).collect();
+        let d = dejitter(&jit, 0.01, 100, 0.5);
+        assert_eq!(d.missing_samples, 1);
+        let worst = d.t.iter().zip(&truth).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        // The local fit over ±100 samples averages the jitter down to ~0.2 ms.
+        assert!(worst < 2e-4, "worst {worst}");
+        assert!(d.rms_correction_s > 5e-4);
+    }
+
+    #[test]
+    fn correlation_finds_sub_sample_offset() {
+        let h = 0.025;
+        let tau = 0.137;
+        let f = |t: f64| (0.3 * t).sin() + 0.5 * (0.71 * t).sin();
+        let a: Vec<f64> = (0..4000).map(|k| f(k as f64 * h)).collect();
+        let b: Vec<f64> = (0..4000).map(|k| f(k as f64 * h + tau)).collect();
+        let c = cross_correlate(&a, &b, h, 80).expect("corr");
+        assert!((c.offset_s - tau).abs() < 0.2 * h, "{}", c.offset_s);
+    }
+
+    #[test]
+    fn interval_rates_of_linear_count() {
+        let ts: Vec<f64> = (0..100).map(|i| i as f64 * 0.01).collect();
+        let cum: Vec<f64> = ts.iter().map(|t| 3.0 * t).collect();
+        let r = interval_rates(&ts, &cum, &[0.1, 0.5], 0.025);
+        assert!(r.iter().all(|v| (v - 3.0).abs() < 1e-9), "{r:?}");
+    }
+}

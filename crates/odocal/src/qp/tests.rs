@@ -1,0 +1,188 @@
+//! Cross-checks of the structured solver against Clarabel and a direct
+//! dense KKT solve.
+
+use nalgebra::Vector3;
+use proptest::prelude::*;
+
+use super::clarabel::ClarabelSolver;
+use super::riccati::StructuredSolver;
+use super::*;
+
+/// Relative objective agreement of two solvers stopping at 1e-9-ish
+/// relative tolerances.
+const OBJ_RTOL: f64 = 1e-7;
+/// Input agreement, rev/s (inputs are O(0.01..0.25)).
+const W_ATOL: f64 = 1e-6;
+/// Bound violation allowed: interior-point iterates stay strictly inside,
+/// up to rounding.
+const BOUND_TOL: f64 = 1e-9;
+
+fn max_w_diff(a: &QpSolution, b: &QpSolution) -> f64 {
+    a.w.iter().zip(&b.w).map(|(x, y)| (x - y).amax()).fold(0.0, f64::max)
+}
+
+fn assert_agree(qp: &StageQp, s: &QpSolution, c: &QpSolution) {
+    let rel = (s.objective - c.objective).abs() / c.objective.abs().max(1e-12);
+    assert!(rel <= OBJ_RTOL, "objective {} vs {} (rel {rel:.1e})", s.objective, c.objective);
+    let dw = max_w_diff(s, c);
+    assert!(dw <= W_ATOL, "inputs differ by {dw:.1e}");
+    assert!(qp.max_bound_violation(&s.w, &s.z) <= BOUND_TOL);
+    assert!(qp.max_bound_violation(&c.w, &c.z) <= BOUND_TOL);
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
+
+    #[test]
+    fn structured_agrees_with_clarabel(seed in 0u64..10_000, k in 5usize..60, tight in prop::sample::select(vec![0.0, 0.9, 0.97])) {
+        let qp = random_instance(seed, k, tight);
+        let s = StructuredSolver::default().solve(&qp, None).unwrap();
+        let c = ClarabelSolver::default().solve(&qp, None).unwrap();
+        assert_agree(&qp, &s, &c);
+        prop_assert!((s.objective - qp.objective(&s.w, &s.z)).abs() <= 1e-12 * s.objective.max(1.0));
+    }
+}
+
+#[test]
+fn tight_instances_activate_bounds_and_still_agree() {
+    for seed in 0..4 {
+        let qp = random_instance(seed, 60, 0.97);
+        let s = StructuredSolver::default().solve(&qp, None).unwrap();
+        let c = ClarabelSolver::default().solve(&qp, None).unwrap();
+        assert!(s.active_bounds > 0 && c.active_bounds > 0, "seed {seed}: no active bound");
+        assert_agree(&qp, &s, &c);
+    }
+}
+
+#[test]
+fn structured_solution_satisfies_kkt() {
+    for (seed, k, tight) in [(11, 200, 0.0), (12, 200, 0.9), (13, 120, 0.97)] {
+        let qp = random_instance(seed, k, tight);
+        let s = StructuredSolver::default().solve(&qp, None).unwrap();
+        let r = kkt_residual(&qp, &s).unwrap();
+        // Converged to 1e-9 relative: dynamics exact to rounding, distance
+        // to the optimum (scaled natural residual) ~1e-9 of O(0.1) values,
+        // complementarity ≤ tol_gap·f.
+        assert!(r.dynamics < 1e-10, "{r:?}");
+        assert!(r.bounds <= BOUND_TOL, "{r:?}");
+        assert!(r.stationarity < 1e-8, "{r:?}");
+        assert!(r.complementarity < 1e-8 * s.objective.max(1.0), "{r:?}");
+    }
+}
+
+#[test]
+fn kkt_residual_detects_wrong_duals() {
+    let qp = random_instance(14, 30, 0.0);
+    let mut s = StructuredSolver::default().solve(&qp, None).unwrap();
+    if let Some(l) = s.dynamics_duals.as_mut() {
+        l[10] += Vector3::new(0.0, 1e-3, 0.0);
+    }
+    assert!(kkt_residual(&qp, &s).unwrap().stationarity > 1e-6);
+}
+
+#[test]
+fn without_active_bounds_both_equal_the_direct_kkt_solve() {
+    for seed in 20..24 {
+        let qp = random_instance(seed, 25, 0.0);
+        let d = solve_equality_constrained(&qp).unwrap();
+        assert_eq!(d.active_bounds, 0, "seed {seed}: test needs an instance without active bounds");
+        assert!(qp.max_bound_violation(&d.w, &d.z) <= 0.0);
+        for s in
+            [StructuredSolver::default().solve(&qp, None).unwrap(), ClarabelSolver::default().solve(&qp, None).unwrap()]
+        {
+            assert_agree(&qp, &s, &d);
+            let (ls, ld) = (s.dynamics_duals.as_ref().unwrap(), d.dynamics_duals.as_ref().unwrap());
+            for (a, b) in ls.iter().zip(ld) {
+                assert!((a - b).amax() <= 1e-5 * (1.0 + b.amax()), "λ {a} vs {b}");
+            }
+        }
+    }
+}
+
+fn assert_both_infeasible(qp: &StageQp) {
+    for solver in [SolverKind::Structured.solver(), SolverKind::Clarabel.solver()] {
+        match solver.solve(qp, None) {
+            Err(QpError::Infeasible(why)) => assert!(!why.is_empty()),
+            other => panic!("{}: expected Infeasible, got {other:?}", solver.name()),
+        }
+    }
+}
+
+#[test]
+fn state_offset_no_input_can_fix_is_infeasible() {
+    let mut qp = random_instance(30, 40, 0.0);
+    // A 20 m jump in p_x at step 15; inputs move z by ~1 mm per step and
+    // the box is ±5 m.
+    qp.c[15][0] = 20.0;
+    assert_both_infeasible(&qp);
+}
+
+#[test]
+fn heading_drift_beyond_box_is_infeasible() {
+    let mut qp = random_instance(31, 80, 0.0);
+    // 0.05 rad per step for 40 steps; the inputs turn by at most ~0.016 rad
+    // per step, leaving > 1.3 rad against a 0.5 rad box.
+    for c in qp.c.iter_mut().skip(20).take(40) {
+        c[2] += 0.05;
+    }
+    assert_both_infeasible(&qp);
+}
+
+#[test]
+fn empty_input_box_is_infeasible() {
+    let mut qp = random_instance(32, 10, 0.0);
+    qp.w_lo[3][1] = qp.w_hi[3][1] + 0.01;
+    assert_both_infeasible(&qp);
+}
+
+/// The same instance with every `c_k` and `δ_k` moved by ~1 % of its size,
+/// as between two re-linearisations.
+fn perturbed(qp: &StageQp, seed: u64) -> StageQp {
+    let other = random_instance(seed, qp.stages(), 0.0);
+    let mut p = qp.clone();
+    for (c, o) in p.c.iter_mut().zip(&other.c) {
+        *c += 0.01 * o;
+    }
+    for (d, o) in p.delta.iter_mut().zip(&other.delta) {
+        *d += 0.01 * o;
+    }
+    p
+}
+
+#[test]
+fn warm_start_needs_no_more_iterations_and_gives_the_same_answer() {
+    let solver = StructuredSolver::default();
+    for (seed, k, tight) in [(40, 650, 0.0), (41, 300, 0.9), (42, 200, 0.97)] {
+        let qp0 = random_instance(seed, k, tight);
+        let prev = solver.solve(&qp0, None).unwrap();
+        let qp = perturbed(&qp0, seed + 100);
+        let cold = solver.solve(&qp, None).unwrap();
+        let warm = solver.solve(&qp, Some(&prev)).unwrap();
+        assert!(warm.iterations <= cold.iterations, "seed {seed}: warm {} > cold {}", warm.iterations, cold.iterations);
+        assert_agree(&qp, &warm, &cold);
+        eprintln!("seed {seed} K {k} tightness {tight}: cold {} warm {} iterations", cold.iterations, warm.iterations);
+    }
+}
+
+#[test]
+fn solver_kind_parses_and_builds() {
+    assert_eq!("structured".parse::<SolverKind>().unwrap(), SolverKind::Structured);
+    assert_eq!("Clarabel".parse::<SolverKind>().unwrap(), SolverKind::Clarabel);
+    assert!("osqp".parse::<SolverKind>().unwrap_err().contains("expected 'structured' or 'clarabel'"));
+    assert_eq!(SolverKind::Structured.solver().name(), "structured");
+    assert_eq!(SolverKind::Clarabel.solver().name(), "clarabel");
+    assert_eq!(SolverKind::default().to_string(), "structured");
+}
+
+#[test]
+fn random_instance_is_reproducible_and_realistic() {
+    let a = random_instance(7, 50, 0.0);
+    assert_eq!(a, random_instance(7, 50, 0.0));
+    assert_ne!(a, random_instance(8, 50, 0.0));
+    a.check().unwrap();
+    for (m, b) in a.a.iter().zip(&a.b) {
+        assert!((m[(2, 2)] - 1.0).abs() < 1e-12 && m[(0, 2)].hypot(m[(1, 2)]) < 0.5);
+        assert!(b.amax() > 0.005 && b.amax() < 0.05, "B magnitude {}", b.amax());
+    }
+    assert!(a.w_hi.iter().all(|w| w.min() > 0.1 && w.max() < 0.4));
+}
