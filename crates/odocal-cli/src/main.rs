@@ -254,9 +254,9 @@ struct CompensateArgs {
 
 #[derive(Args)]
 struct DemoArgs {
-    /// Simulation seed.
+    /// Simulation seed (`--seed` seeds the calibration's random batches).
     #[arg(long, default_value_t = 1)]
-    seed: u64,
+    sim_seed: u64,
     /// Route length, km.
     #[arg(long, default_value_t = 24.0)]
     length_km: f64,
@@ -466,7 +466,7 @@ fn calibrate_cmd(a: CalibrateArgs, bars: &progress::Bars) -> Result<()> {
 }
 
 fn demo_cmd(a: DemoArgs, bars: &progress::Bars) -> Result<()> {
-    let o = sim_options(a.seed, a.length_km, &a.noise)?;
+    let o = sim_options(a.sim_seed, a.length_km, &a.noise)?;
     bars.stage("simulating");
     let sim = sim::simulate(&o)?;
     bars.finish();
@@ -480,7 +480,7 @@ fn demo_cmd(a: DemoArgs, bars: &progress::Bars) -> Result<()> {
             "simulated {:.1} km, {:.0} s, seed {}, noise '{}' ({:.2} % rms wheel error); true θ: {}\n",
             s.distance_m / 1e3,
             s.duration_s,
-            a.seed,
+            a.sim_seed,
             a.noise,
             s.wheel_rotation_rel_error_rms * 100.0,
             sim.sidecar.theta_true

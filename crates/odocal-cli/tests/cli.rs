@@ -177,3 +177,18 @@ fn simulate_calibrate_validate_contract_and_determinism() {
     .abs();
     assert!(diff < 1e-9, "validate agrees with calibrate's validation: {diff}");
 }
+
+#[test]
+fn demo_runs_and_compares_with_truth() {
+    let o = odocal(&["demo", "--length-km", "3", "--batches", "4", "--final-segments", "6", "--json", "-"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    assert_eq!(r["method"], "three-step");
+    assert!(r["truth"]["theta"]["c_e"].is_f64());
+    assert_eq!(r["initial_step"]["batches"].as_array().map(Vec::len), Some(4));
+    assert!(r["compensation"]["segments"].as_u64().expect("count") > 0);
+    let o = odocal(&["demo", "--length-km", "3", "--method", "batch-gn"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = stdout(&o);
+    assert!(out.contains("simulated 3.0 km") && out.contains("error against truth"), "{out}");
+}

@@ -220,3 +220,98 @@ pub fn compensate_segment(
     out.n_rr = n_rr;
     Ok(out)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::drive::Drive;
+    use crate::model::{step, State};
+    use crate::qp::SolverKind;
+    use crate::segment::{cut, SegmentData};
+    use crate::sim::{simulate, NoiseOptions, SimOptions};
+
+    /// Circle at constant wheel speeds, reference = exact model trajectory.
+    fn circle(n: usize) -> Drive {
+        let th = Theta::SIM_DEFAULT_TRUE;
+        let ts = 0.025;
+        let (v, omega) = (8.0, 0.2);
+        let a_y = v * omega;
+        let c_rl = th.c_e + th.c_d / 2.0 + th.d * a_y;
+        let c_rr = th.c_e - th.c_d / 2.0 - th.d * a_y;
+        let u =
+            Input { n_rl: (v - omega * th.t_r / 2.0) / c_rl, n_rr: (v + omega * th.t_r / 2.0) / c_rr, beta: 0.0, a_y };
+        let mut x = State::zeros();
+        let mut cols: Vec<Vec<f64>> = (0..4).map(|_| Vec::with_capacity(n)).collect();
+        for i in 0..n {
+            cols[0].push(i as f64 * ts);
+            cols[1].push(x[0]);
+            cols[2].push(x[1]);
+            cols[3].push(x[2]);
+            x = step(&x, &u, &th, ts);
+        }
+        Drive::from_columns(
+            "circle",
+            cols[0].clone(),
+            cols[1].clone(),
+            cols[2].clone(),
+            cols[3].clone(),
+            vec![u.n_rl; n],
+            vec![u.n_rr; n],
+            vec![0.0; n],
+            vec![a_y; n],
+        )
+        .expect("valid")
+    }
+
+    /// Noise-free, constant inputs: the measured inputs are optimal (zero
+    /// pose error, zero input change), so compensation leaves them unchanged.
+    /// (With varying true inputs the SPEC's R‖Δn‖² term rounds off speed
+    /// changes even without noise: see the white-noise test below.)
+    #[test]
+    fn noise_free_constant_inputs_are_unchanged() {
+        let d = circle(700);
+        let seg = cut(&d, 0, 650, 650)[0];
+        let data = SegmentData::new(&d, &seg);
+        for kind in [SolverKind::Structured, SolverKind::Clarabel] {
+            let c = compensate_segment(&data, &Theta::SIM_DEFAULT_TRUE, kind.solver().as_ref(), &Default::default())
+                .expect("solves");
+            for k in 0..seg.steps {
+                let rl = (c.n_rl[k] - d.n_rl[k]).abs() / d.n_rl[k].abs();
+                let rr = (c.n_rr[k] - d.n_rr[k]).abs() / d.n_rr[k].abs();
+                assert!(rl <= 1e-9 && rr <= 1e-9, "{kind}: step {k}: {rl:.2e} {rr:.2e}");
+            }
+            assert!(c.converged, "{kind}");
+        }
+    }
+
+    /// White wheel noise only, compensated at θ_true: the left-right
+    /// (yaw-relevant) error of the inputs shrinks several-fold. Measured on
+    /// seed 1, 3 km: 0.0866 → 0.0092 rev/s rms.
+    #[test]
+    fn white_noise_differential_error_shrinks() {
+        let o = SimOptions { length_km: 1.5, noise: NoiseOptions::white_wheel_only(), ..SimOptions::paper(1) };
+        let d = simulate(&o).expect("sim").drive;
+        let truth = d.truth.as_ref().expect("truth");
+        let solver = SolverKind::Clarabel.solver();
+        let (mut before, mut after, mut n) = (0.0, 0.0, 0usize);
+        for seg in cut(&d, 0, 650, 650).iter().take(3) {
+            let c = compensate_segment(&SegmentData::new(&d, seg), &o.theta_true, solver.as_ref(), &Default::default())
+                .expect("solves");
+            for k in 0..seg.steps {
+                let i = seg.start + k;
+                let t = truth.n_rr[i] - truth.n_rl[i];
+                before += (d.n_rr[i] - d.n_rl[i] - t).powi(2);
+                after += (c.n_rr[k] - c.n_rl[k] - t).powi(2);
+                n += 1;
+            }
+        }
+        let (before, after) = ((before / n as f64).sqrt(), (after / n as f64).sqrt());
+        assert!(after < before / 3.0, "differential error {before:.4} -> {after:.4} rev/s");
+    }
+
+    #[test]
+    fn invalid_options_name_the_field() {
+        let e = CompensateOptions { max_linearizations: 0, ..Default::default() }.validate().expect_err("bad");
+        assert!(e.to_string().contains("max_linearizations"));
+    }
+}

@@ -30,6 +30,22 @@
 //! ([`validate`]). The exact statement, with every default, is the
 //! project's SPEC.md.
 //!
+//! ## Example
+//!
+//! ```
+//! # fn main() -> Result<(), odocal::Error> {
+//! use odocal::{identify, segment, sim, Theta};
+//! // A noise-free simulated drive: batch Gauss-Newton recovers the true θ.
+//! let sim = sim::simulate(&sim::SimOptions { length_km: 2.0, substeps: 1, ..sim::SimOptions::noise_free(1) })?;
+//! let drive = &sim.drive;
+//! let sel = segment::calibration_segments(drive, &Default::default())?;
+//! let data: Vec<_> = sel.selected.iter().map(|s| segment::SegmentData::new(drive, s)).collect();
+//! let opts = identify::IdentifyOptions { max_iterations: 20, ..Default::default() };
+//! let report = identify::batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &opts)?;
+//! assert!((report.theta.t_r - sim.sidecar.theta_true.t_r).abs() < 1e-9);
+//! # Ok(()) }
+//! ```
+//!
 //! ## References
 //! G. Fazekas, P. Gáspár, B. Németh, "Wheel Odometry Model Calibration with
 //! Input Compensation by Optimal Control", IFAC-PapersOnLine, 2022.
@@ -52,6 +68,11 @@ pub mod reachable;
 pub mod segment;
 pub mod sim;
 pub mod validate;
+
+/// The README's code examples, compiled and run as doc-tests.
+#[cfg(doctest)]
+#[doc = include_str!("../../../README.md")]
+pub struct ReadmeDoctests;
 
 pub use drive::Drive;
 pub use error::{Error, Result};

@@ -35,12 +35,7 @@ impl Default for SegmentOptions {
 impl SegmentOptions {
     /// Checks the options, naming the offending field.
     pub fn validate(&self) -> Result<()> {
-        if self.length_steps < 2 {
-            return Err(Error::InvalidOption { field: "length_steps", reason: "must be at least 2".into() });
-        }
-        if self.stride_steps == 0 {
-            return Err(Error::InvalidOption { field: "stride_steps", reason: "must be at least 1".into() });
-        }
+        check_length_and_stride(self.length_steps, self.stride_steps)?;
         if self.min_peak_yaw_rate_rad_per_s.is_nan() || self.min_peak_yaw_rate_rad_per_s < 0.0 {
             return Err(Error::InvalidOption {
                 field: "min_peak_yaw_rate_rad_per_s",
@@ -49,6 +44,17 @@ impl SegmentOptions {
         }
         Ok(())
     }
+}
+
+/// Segment length and stride checks shared by both option structs.
+fn check_length_and_stride(length_steps: usize, stride_steps: usize) -> Result<()> {
+    if length_steps < 2 {
+        return Err(Error::InvalidOption { field: "length_steps", reason: "must be at least 2".into() });
+    }
+    if stride_steps == 0 {
+        return Err(Error::InvalidOption { field: "stride_steps", reason: "must be at least 1".into() });
+    }
+    Ok(())
 }
 
 /// How validation segments are cut (all are used, whatever their yaw rate).
@@ -71,13 +77,7 @@ impl Default for ValidationSegmentOptions {
 impl ValidationSegmentOptions {
     /// Checks the options, naming the offending field.
     pub fn validate(&self) -> Result<()> {
-        if self.length_steps < 2 {
-            return Err(Error::InvalidOption { field: "length_steps", reason: "must be at least 2".into() });
-        }
-        if self.stride_steps == 0 {
-            return Err(Error::InvalidOption { field: "stride_steps", reason: "must be at least 1".into() });
-        }
-        Ok(())
+        check_length_and_stride(self.length_steps, self.stride_steps)
     }
 }
 
