@@ -751,12 +751,6 @@ mod tests {
         let e = out[1].as_ref().expect_err("index out of range");
         assert!(e.to_string().contains(&format!("index {}", data.len())), "{e}");
     }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::sim::{simulate, SimOptions};
 
     #[test]
     fn picks_at_equal_steps() {
