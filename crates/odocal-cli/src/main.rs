@@ -14,6 +14,8 @@ use odocal::qp::SolverKind;
 use odocal::sim::{self, NoiseOptions, SimOptions, SimSidecar};
 use odocal::{segment, Drive, Theta};
 
+mod experiment;
+mod plots;
 mod progress;
 mod report;
 
@@ -43,6 +45,8 @@ enum Command {
     Compensate(CompensateArgs),
     /// Simulate the default 24 km drive, calibrate it and compare with the truth.
     Demo(DemoArgs),
+    /// Reproduce the paper's §6 on a simulated (or given) drive: report.md, SVG figures, experiment.json.
+    Experiment(ExperimentArgs),
     /// Import a multi-stream real log described by a TOML manifest into a canonical drive CSV.
     Import(ImportArgs),
 }
@@ -275,6 +279,33 @@ struct DemoArgs {
     json: Option<PathBuf>,
 }
 
+/// Arguments of `odocal experiment`.
+#[derive(Args)]
+struct ExperimentArgs {
+    /// Seed of the simulation and of the random batches.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Simulated route length, km.
+    #[arg(long, default_value_t = 24.0)]
+    pub length_km: f64,
+    /// Noise preset of the simulation: paper, off, white (wheel white noise only) or high.
+    #[arg(long, default_value = "paper")]
+    pub noise: String,
+    /// Run on this drive (canonical CSV) instead of simulating one; the truth
+    /// is taken from its sidecar JSON when there is one.
+    #[arg(long)]
+    pub drive: Option<PathBuf>,
+    /// QP solver for input compensation: structured or clarabel.
+    #[arg(long, default_value = "structured")]
+    pub qp_solver: SolverKind,
+    /// Step 1: number of random batches of N = 10 segments.
+    #[arg(long, default_value_t = 50)]
+    pub batches: usize,
+    /// Output directory (created if missing).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match run(cli) {
@@ -294,6 +325,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Validate(a) => validate_cmd(a, &bars),
         Command::Compensate(a) => compensate_cmd(a, &bars),
         Command::Demo(a) => demo_cmd(a, &bars),
+        Command::Experiment(a) => experiment::run(a, &bars),
         Command::Import(a) => import_cmd(a),
     }
 }

@@ -456,6 +456,77 @@ fn unobservable_warning(report: &IdentifyReport, what: &str) -> Option<String> {
     ))
 }
 
+/// Batch Gauss-Newton from `theta0` on each batch of `data` (indices into
+/// `data`), each result validated on `validation` (SPEC §6 step 1, and the
+/// same on compensated inputs). Batches run in parallel; results come back in
+/// batch order whatever the thread count. A failed batch is an `Err` in its
+/// place, so callers decide whether to leave it out.
+pub fn score_batches(
+    drive: &Drive,
+    data: &[SegmentData<'_>],
+    batches: &[Vec<usize>],
+    validation: &[Segment],
+    theta0: &Theta,
+    opts: &IdentifyOptions,
+    progress: Option<ProgressFn<'_>>,
+) -> Vec<Result<BatchResult>> {
+    batches
+        .par_iter()
+        .map(|b| {
+            let r = if let Some(&bad) = b.iter().find(|&&i| i >= data.len()) {
+                Err(Error::InvalidOption {
+                    field: "batches",
+                    reason: format!("index {bad} out of range for {} segments", data.len()),
+                })
+            } else {
+                let batch: Vec<SegmentData> = b.iter().map(|&i| data[i]).collect();
+                batch_gauss_newton(&batch, theta0, opts).and_then(|rep| {
+                    let v = mean_position_error(drive, validation, &rep.theta)?;
+                    Ok(BatchResult {
+                        segment_starts: b.iter().map(|&i| data[i].start).collect(),
+                        score: ThetaScore { theta: rep.theta, mean_position_error_m: v.mean_position_error_m },
+                        iterations: rep.iterations,
+                    })
+                })
+            };
+            if let Some(p) = progress {
+                p(Progress::Advance(1));
+            }
+            r
+        })
+        .collect()
+}
+
+/// Pure Gauss-Newton on every segment of `data` alone (a batch of one), each
+/// result validated on `validation` — the per-segment estimates of the
+/// paper's Fig. 7/8. Pass compensated segment data
+/// ([`CompensatedInputs::segment_data`]) to get the compensated-input
+/// estimates. Results are in segment order.
+pub fn per_segment_identification(
+    drive: &Drive,
+    data: &[SegmentData<'_>],
+    validation: &[Segment],
+    theta0: &Theta,
+    opts: &IdentifyOptions,
+) -> Vec<Result<BatchResult>> {
+    let singles: Vec<Vec<usize>> = (0..data.len()).map(|i| vec![i]).collect();
+    score_batches(drive, data, &singles, validation, theta0, opts, None)
+}
+
+/// A calibration with the intermediate data an experiment needs: the report,
+/// the segments used and (three-step only) the compensated inputs of step 2.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DetailedCalibration {
+    /// The report [`calibrate`] returns.
+    pub report: CalibrationReport,
+    /// The selected calibration segments (all segments when none turns enough).
+    pub selected: Vec<Segment>,
+    /// The validation segments.
+    pub validation: Vec<Segment>,
+    /// Step 2's compensated inputs (three-step only).
+    pub compensated: Option<CompensatedInputs>,
+}
+
 /// Runs a calibration of `drive` with `opts` (SPEC §6).
 ///
 /// ```
@@ -484,6 +555,17 @@ pub fn calibrate_held_out(
     opts: &CalibrationOptions,
     progress: Option<ProgressFn<'_>>,
 ) -> Result<CalibrationReport> {
+    calibrate_detailed(drive, held_out, opts, progress).map(|d| d.report)
+}
+
+/// [`calibrate_held_out`], also returning the segments and step 2's
+/// compensated inputs.
+pub fn calibrate_detailed(
+    drive: &Drive,
+    held_out: Option<&Drive>,
+    opts: &CalibrationOptions,
+    progress: Option<ProgressFn<'_>>,
+) -> Result<DetailedCalibration> {
     opts.validate()?;
     let t_start = Instant::now();
     let mut timing = Timing::default();
@@ -576,7 +658,7 @@ pub fn calibrate_held_out(
         selected: selection.selected.len(),
         validation: report_segments.len(),
     };
-    let (identification, initial_step, compensation) = match opts.method {
+    let (identification, initial_step, compensated) = match opts.method {
         Method::BatchGn => {
             let t = Instant::now();
             if let Some(p) = progress {
@@ -597,24 +679,8 @@ pub fn calibrate_held_out(
             if let Some(p) = progress {
                 p(Progress::Stage { name: "initial identification", total: batches.len() as u64 });
             }
-            let results: Vec<Result<BatchResult>> = batches
-                .par_iter()
-                .map(|b| {
-                    let data: Vec<SegmentData> = b.iter().map(|&i| SegmentData::new(drive, &selected[i])).collect();
-                    let r = batch_gauss_newton(&data, &opts.theta0, &opts.identify).and_then(|rep| {
-                        let v = mean_position_error(drive, &validation, &rep.theta)?;
-                        Ok(BatchResult {
-                            segment_starts: b.iter().map(|&i| selected[i].start).collect(),
-                            score: ThetaScore { theta: rep.theta, mean_position_error_m: v.mean_position_error_m },
-                            iterations: rep.iterations,
-                        })
-                    });
-                    if let Some(p) = progress {
-                        p(Progress::Advance(1));
-                    }
-                    r
-                })
-                .collect();
+            let data: Vec<SegmentData> = selected.iter().map(|s| SegmentData::new(drive, s)).collect();
+            let results = score_batches(drive, &data, &batches, &validation, &opts.theta0, &opts.identify, progress);
             let mut ok = Vec::new();
             for (i, r) in results.into_iter().enumerate() {
                 match r {
@@ -660,7 +726,7 @@ pub fn calibrate_held_out(
                 p(Progress::Advance(1));
             }
             timing.final_identification = t.elapsed().as_secs_f64();
-            (report, Some(InitialStep { batches: ok, picked, picked_batches }), Some(comp.step))
+            (report, Some(InitialStep { batches: ok, picked, picked_batches }), Some(comp))
         }
     };
     warnings.extend(unobservable_warning(&identification, "final identification"));
@@ -668,7 +734,7 @@ pub fn calibrate_held_out(
     let val = mean_position_error(report_drive, &report_segments, &identification.theta)?;
     timing.validation = t.elapsed().as_secs_f64();
     timing.total = t_start.elapsed().as_secs_f64();
-    Ok(CalibrationReport {
+    let report = CalibrationReport {
         method: opts.method,
         theta: identification.theta,
         validation: ValidationSummary {
@@ -680,12 +746,13 @@ pub fn calibrate_held_out(
         timing_s: timing,
         segments: counts,
         initial_step,
-        compensation,
+        compensation: compensated.as_ref().map(|c| c.step.clone()),
         identification,
         warnings,
         auto_fixed,
         options: opts.clone(),
-    })
+    };
+    Ok(DetailedCalibration { report, selected, validation, compensated })
 }
 
 /// Holds at θ_0, one at a time, the parameter (never c_e) with the smallest
@@ -716,6 +783,40 @@ fn hold_unobservable(segments: &[SegmentData<'_>], opts: &mut CalibrationOptions
 mod tests {
     use super::*;
     use crate::sim::{simulate, SimOptions};
+
+    /// Relative error to which a noise-free, exact-model (1 substep) drive
+    /// gives θ back from a batch of all its turning segments.
+    const EXACT_REL_TOL: f64 = 1e-6;
+
+    #[test]
+    fn per_segment_and_batch_helpers() {
+        let sim = simulate(&SimOptions { length_km: 2.0, substeps: 1, ..SimOptions::noise_free(4) }).expect("sim");
+        let drive = &sim.drive;
+        let sel = calibration_segments(drive, &SegmentOptions::default()).expect("segments");
+        let val = validation_segments(drive, &ValidationSegmentOptions::default()).expect("validation");
+        let segs: Vec<Segment> = sel.selected.clone();
+        assert!(segs.len() >= 3, "the drive turns");
+        let data: Vec<SegmentData> = segs.iter().map(|s| SegmentData::new(drive, s)).collect();
+        let (theta0, id) = (Theta::PAPER_INITIAL, IdentifyOptions::default());
+
+        // One result per segment, in segment order.
+        let out = per_segment_identification(drive, &data[..3], &val, &theta0, &id);
+        assert_eq!(out.len(), 3);
+        for (s, r) in segs.iter().zip(&out) {
+            assert_eq!(r.as_ref().expect("identified").segment_starts, vec![s.start]);
+        }
+
+        // A batch of every segment recovers the truth; a bad index fails in place.
+        let all: Vec<usize> = (0..data.len()).collect();
+        let out = score_batches(drive, &data, &[all, vec![0, data.len()]], &val, &theta0, &id, None);
+        let est = out[0].as_ref().expect("identified").score.theta;
+        let truth = sim.sidecar.theta_true;
+        for (e, t) in est.to_array().iter().zip(truth.to_array()) {
+            assert!(((e - t) / t).abs() < EXACT_REL_TOL, "{est} vs {truth}");
+        }
+        let e = out[1].as_ref().expect_err("index out of range");
+        assert!(e.to_string().contains(&format!("index {}", data.len())), "{e}");
+    }
 
     #[test]
     fn picks_at_equal_steps() {
