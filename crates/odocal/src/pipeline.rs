@@ -22,7 +22,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::compensate::{compensate_segment, CompensateOptions};
+use crate::compensate::{compensate_segment_with_fallback, CompensateOptions};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
 use crate::identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport};
@@ -202,6 +202,10 @@ pub struct CompensationStep {
     pub jobs: usize,
     /// Jobs that failed (left out).
     pub failed_jobs: usize,
+    /// QP solves that the configured solver did not finish (iteration limit
+    /// or numerical failure) and the Clarabel fallback solved.
+    #[serde(default)]
+    pub fallback_solves: usize,
     /// Total QP solves (linearizations).
     pub qp_solves: usize,
     /// Mean QP solver iterations per solve.
@@ -325,7 +329,9 @@ pub struct CompensatedInputs {
 
 /// Compensates every segment once per θ in `thetas` and averages (step 2).
 /// Jobs run in parallel; a failed job is left out with a warning; a segment
-/// with no successful job is dropped.
+/// with no successful job is dropped. With the structured solver, a QP it
+/// does not finish (iteration limit, numerical failure) is solved again by
+/// Clarabel; such fallbacks are counted and reported as warnings.
 pub fn compensate_segments(
     drive: &Drive,
     segments: &[Segment],
@@ -336,6 +342,10 @@ pub fn compensate_segments(
 ) -> Result<CompensatedInputs> {
     opts.validate()?;
     let solver = solver_kind.solver();
+    let fallback = match solver_kind {
+        SolverKind::Structured => Some(SolverKind::Clarabel.solver()),
+        SolverKind::Clarabel => None,
+    };
     let jobs: Vec<(usize, usize)> = (0..segments.len()).flat_map(|s| (0..thetas.len()).map(move |t| (s, t))).collect();
     if let Some(p) = progress {
         p(Progress::Stage { name: "compensation", total: jobs.len() as u64 });
@@ -343,7 +353,13 @@ pub fn compensate_segments(
     let results: Vec<_> = jobs
         .par_iter()
         .map(|&(s, t)| {
-            let r = compensate_segment(&SegmentData::new(drive, &segments[s]), &thetas[t], solver.as_ref(), opts);
+            let r = compensate_segment_with_fallback(
+                &SegmentData::new(drive, &segments[s]),
+                &thetas[t],
+                solver.as_ref(),
+                fallback.as_deref(),
+                opts,
+            );
             if let Some(p) = progress {
                 p(Progress::Advance(1));
             }
@@ -358,6 +374,7 @@ pub fn compensate_segments(
             segments: 0,
             jobs: jobs.len(),
             failed_jobs: 0,
+            fallback_solves: 0,
             qp_solves: 0,
             mean_qp_iterations: 0.0,
             unconverged_jobs: 0,
@@ -383,6 +400,14 @@ pub fn compensate_segments(
                     qp_iters += c.qp_iterations;
                     if !c.converged {
                         out.step.unconverged_jobs += 1;
+                    }
+                    out.step.fallback_solves += c.fallbacks.len();
+                    for f in &c.fallbacks {
+                        out.warnings.push(format!(
+                            "compensation of the segment at sample {} (θ_B,I {}): {f}",
+                            seg.start,
+                            t + 1
+                        ));
                     }
                 }
                 Err(e) => {
