@@ -670,3 +670,69 @@ pub fn calibrate_held_out(
         options: opts.clone(),
     })
 }
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use super::*;
+    use crate::sim::{simulate, SimOptions};
+
+    /// θ from the structured solver and from Clarabel, relative: both QP
+    /// solvers stop ~1e-9 relative from the optimum, compensated inputs
+    /// agree to ~1e-8 rev/s, and step 3 maps that to θ well below 1e-6.
+    const THETA_RTOL: f64 = 1e-6;
+
+    fn short_drive() -> Drive {
+        simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).unwrap().drive
+    }
+
+    fn short_opts(solver: SolverKind) -> CalibrationOptions {
+        CalibrationOptions {
+            initial_batches: 8,
+            final_segments: FinalSegments::Random(8),
+            qp_solver: solver,
+            ..Default::default()
+        }
+    }
+
+    /// The report as JSON without wall times: equal strings mean every
+    /// number is bitwise equal (serde_json writes f64 round-trip exactly).
+    fn without_timing(r: &CalibrationReport) -> String {
+        let mut r = r.clone();
+        r.timing_s = Timing::default();
+        serde_json::to_string(&r).unwrap()
+    }
+
+    #[test]
+    fn three_step_same_theta_with_either_qp_solver() {
+        let drive = short_drive();
+        let s = calibrate(&drive, &short_opts(SolverKind::Structured), None).unwrap();
+        let c = calibrate(&drive, &short_opts(SolverKind::Clarabel), None).unwrap();
+        let (sc, cc) = (s.compensation.as_ref().unwrap(), c.compensation.as_ref().unwrap());
+        assert_eq!((sc.failed_jobs, cc.failed_jobs), (0, 0));
+        assert_eq!(sc.fallback_solves, 0);
+        assert_eq!(sc.segments, 8);
+        let (a, b) = (s.theta.to_array(), c.theta.to_array());
+        for i in 0..4 {
+            // c_d and d are near 0: relative to the θ scale [c_e, c_e, t_r, t_r].
+            let scale = [a[0], a[0], a[2], a[2]][i].abs();
+            assert!((a[i] - b[i]).abs() <= THETA_RTOL * scale, "θ[{i}]: structured {} vs clarabel {}", a[i], b[i]);
+        }
+        // And the compensation did something: θ moved from step 1's.
+        assert!(s.theta != s.initial_step.as_ref().unwrap().picked[0].theta);
+    }
+
+    #[test]
+    fn report_does_not_depend_on_thread_count() {
+        let drive = short_drive();
+        let opts = short_opts(SolverKind::Structured);
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| calibrate(&drive, &opts, None).unwrap())
+        };
+        let one = without_timing(&run(1));
+        for threads in [2, 4] {
+            assert_eq!(one, without_timing(&run(threads)), "{threads} threads");
+        }
+    }
+}
