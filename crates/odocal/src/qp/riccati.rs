@@ -634,19 +634,36 @@ impl QpSolver for StructuredSolver {
     fn solve(&self, qp: &StageQp, warm_start: Option<&QpSolution>) -> Result<QpSolution, QpError> {
         qp.check()?;
         self.options.validate()?;
+        let k = qp.stages();
+        // Reuse this thread's buffers when the size matches (every solve
+        // overwrites each buffer before reading it): the compensation runs
+        // thousands of same-K solves per thread.
+        let mut wk = WORK.with(|c| c.borrow_mut().take()).filter(|w| w.x.len() == k).unwrap_or_else(|| Work::new(k));
+        let result = self.solve_in(qp, warm_start, &mut wk);
+        WORK.with(|c| *c.borrow_mut() = Some(wk));
+        result
+    }
+}
+
+thread_local! {
+    /// Per-thread solver buffers, kept between solves.
+    static WORK: std::cell::RefCell<Option<Work>> = const { std::cell::RefCell::new(None) };
+}
+
+impl StructuredSolver {
+    fn solve_in(&self, qp: &StageQp, warm_start: Option<&QpSolution>, wk: &mut Work) -> Result<QpSolution, QpError> {
         let opt = &self.options;
         let k = qp.stages();
-        let mut wk = Work::new(k);
-        self.initialize(qp, &mut wk, warm_start)?;
+        self.initialize(qp, wk, warm_start)?;
 
         let mut scale_p: f64 = 1.0;
         for i in 0..k {
             scale_p = scale_p.max(1.0 + qp.c[i].amax()).max(1.0 + wk.lo[i].amax()).max(1.0 + wk.hi[i].amax());
         }
-        let mut last = Self::residuals(qp, &mut wk);
+        let mut last_residual = f64::NAN;
         for iteration in 0..=opt.max_iterations {
-            let res = Self::residuals(qp, &mut wk);
-            last = res;
+            let res = Self::residuals(qp, wk);
+            last_residual = res.primal.max(res.dual).max(res.dual_z);
             if !(res.primal.is_finite() && res.dual.is_finite() && res.dual_z.is_finite() && res.gap.is_finite()) {
                 return Err(QpError::Numerical(format!("non-finite residuals at iteration {iteration}")));
             }
@@ -655,7 +672,7 @@ impl QpSolver for StructuredSolver {
                 && res.dual_z <= opt.tol_dual * (1.0 + res.grad_scale_z);
             let gap_ok = res.gap <= opt.tol_gap * res.objective.max(1.0);
             if primal_ok && dual_ok && gap_ok {
-                return Ok(self.finish(qp, &wk, iteration));
+                return Ok(self.finish(qp, wk, iteration));
             }
             if iteration == opt.max_iterations {
                 break;
@@ -673,13 +690,13 @@ impl QpSolver for StructuredSolver {
             for i in 0..k {
                 wk.sigma[i] = wk.l_lo[i].component_div(&wk.t_lo[i]) + wk.l_hi[i].component_div(&wk.t_hi[i]);
             }
-            Self::factorize(qp, &mut wk)?;
+            Self::factorize(qp, wk)?;
 
             // Predictor (affine scaling): target t·μ = 0.
-            Self::newton_direction(qp, &mut wk, |w, i| {
+            Self::newton_direction(qp, wk, |w, i| {
                 (w.t_lo[i].component_mul(&w.l_lo[i]), w.t_hi[i].component_mul(&w.l_hi[i]))
             });
-            let alpha_aff = Self::max_step(&wk);
+            let alpha_aff = Self::max_step(wk);
             let mut gap_aff = 0.0;
             for i in 0..k {
                 gap_aff += (wk.t_lo[i] + alpha_aff * wk.dt_lo[i]).dot(&(wk.l_lo[i] + alpha_aff * wk.dl_lo[i]))
@@ -693,7 +710,7 @@ impl QpSolver for StructuredSolver {
             std::mem::swap(&mut wk.aff_l_hi, &mut wk.dl_hi);
 
             // Corrector: target t·μ = σμ, with the second-order term.
-            Self::newton_direction(qp, &mut wk, |w, i| {
+            Self::newton_direction(qp, wk, |w, i| {
                 (
                     w.t_lo[i].component_mul(&w.l_lo[i]) + w.aff_t_lo[i].component_mul(&w.aff_l_lo[i])
                         - V5::repeat(target),
@@ -701,8 +718,8 @@ impl QpSolver for StructuredSolver {
                         - V5::repeat(target),
                 )
             });
-            Self::dual_direction(qp, &mut wk);
-            let alpha = (opt.step_fraction * Self::max_step(&wk)).min(1.0);
+            Self::dual_direction(qp, wk);
+            let alpha = (opt.step_fraction * Self::max_step(wk)).min(1.0);
             for i in 0..k {
                 wk.x[i] += alpha * wk.dx[i];
                 wk.y[i] += alpha * wk.dy[i];
@@ -712,10 +729,7 @@ impl QpSolver for StructuredSolver {
                 wk.l_hi[i] += alpha * wk.dl_hi[i];
             }
         }
-        Err(QpError::MaxIterations {
-            iterations: opt.max_iterations,
-            residual: last.primal.max(last.dual).max(last.dual_z),
-        })
+        Err(QpError::MaxIterations { iterations: opt.max_iterations, residual: last_residual })
     }
 }
 
