@@ -71,11 +71,12 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
     if let Some(c) = &r.compensation {
         let _ = writeln!(
             out,
-            "step 2: {} segments compensated ({} QP jobs, {} failed, {} solves, {:.1} solver it/solve, {}), rms input change {:.3} %",
+            "step 2: {} segments compensated ({} QP jobs, {} failed, {} solves, {} by the Clarabel fallback, {:.1} solver it/solve, {}), rms input change {:.3} %",
             c.segments,
             c.jobs,
             c.failed_jobs,
             c.qp_solves,
+            c.fallback_solves,
             c.mean_qp_iterations,
             c.solver,
             c.rms_relative_input_change * 100.0

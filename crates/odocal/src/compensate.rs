@@ -110,6 +110,11 @@ pub struct Compensation {
     pub input_change: Vec<f64>,
     /// True when the inputs settled within the tolerance.
     pub converged: bool,
+    /// One line per QP that the primary solver did not solve
+    /// ([`QpError::MaxIterations`] or [`QpError::Numerical`]) and the
+    /// fallback solver did: linearization, both solvers and the reason.
+    #[serde(default)]
+    pub fallbacks: Vec<String>,
 }
 
 /// Builds the deviation-variable QP of a segment linearized around the inputs
@@ -168,6 +173,21 @@ pub fn compensate_segment(
     solver: &dyn QpSolver,
     opts: &CompensateOptions,
 ) -> Result<Compensation> {
+    compensate_segment_with_fallback(seg, theta, solver, None, opts)
+}
+
+/// [`compensate_segment`] with a fallback: a QP on which `solver` stops at
+/// its iteration limit or fails numerically is solved again by `fallback`
+/// (typically [`crate::qp::clarabel::ClarabelSolver`]), and the event is
+/// recorded in [`Compensation::fallbacks`]. An infeasible or malformed QP is
+/// not retried (no solver can do better); it is returned as an error.
+pub fn compensate_segment_with_fallback(
+    seg: &SegmentData<'_>,
+    theta: &Theta,
+    solver: &dyn QpSolver,
+    fallback: Option<&dyn QpSolver>,
+    opts: &CompensateOptions,
+) -> Result<Compensation> {
     opts.validate()?;
     let k_steps = seg.steps();
     let mut n_rl = seg.n_rl.to_vec();
@@ -182,18 +202,31 @@ pub fn compensate_segment(
         active_bounds: 0,
         input_change: Vec::new(),
         converged: false,
+        fallbacks: Vec::new(),
     };
     let mut warm: Option<QpSolution> = None;
     for _ in 0..opts.max_linearizations {
         let qp = build_qp(seg, theta, &n_rl, &n_rr, opts);
-        let sol = solver.solve(&qp, warm.as_ref()).map_err(|e: QpError| {
-            Error::Qp(format!(
-                "segment at sample {} (linearization {}), solver {}: {e}",
-                seg.start,
-                out.linearizations + 1,
-                solver.name()
-            ))
-        })?;
+        let lin = out.linearizations + 1;
+        let fail = |name: &str, e: &QpError| {
+            Error::Qp(format!("segment at sample {} (linearization {lin}), solver {name}: {e}", seg.start))
+        };
+        let sol = match (solver.solve(&qp, warm.as_ref()), fallback) {
+            (Ok(sol), _) => sol,
+            (Err(e @ (QpError::MaxIterations { .. } | QpError::Numerical(_))), Some(fb)) => {
+                let sol = fb.solve(&qp, warm.as_ref()).map_err(|e2| {
+                    Error::Qp(format!(
+                        "segment at sample {} (linearization {lin}): solver {}: {e}; fallback {}: {e2}",
+                        seg.start,
+                        solver.name(),
+                        fb.name()
+                    ))
+                })?;
+                out.fallbacks.push(format!("linearization {lin}: {} → {}: {e}", solver.name(), fb.name()));
+                sol
+            }
+            (Err(e), _) => return Err(fail(solver.name(), &e)),
+        };
         out.linearizations += 1;
         out.qp_iterations += sol.iterations;
         out.objective = sol.objective;
@@ -313,5 +346,101 @@ mod tests {
     fn invalid_options_name_the_field() {
         let e = CompensateOptions { max_linearizations: 0, ..Default::default() }.validate().expect_err("bad");
         assert!(e.to_string().contains("max_linearizations"));
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod solver_tests {
+    use super::*;
+    use crate::qp::clarabel::ClarabelSolver;
+    use crate::qp::riccati::StructuredSolver;
+    use crate::segment::{calibration_segments, SegmentOptions};
+    use crate::sim::{simulate, SimOptions};
+
+    /// Relative objective agreement of the two solvers (both stop at ~1e-9
+    /// relative tolerances).
+    const OBJ_RTOL: f64 = 1e-7;
+    /// Input agreement, rev/s.
+    const W_ATOL: f64 = 1e-6;
+
+    /// `odocal simulate --seed 2 --length-km 4`: the segment starting at
+    /// sample 6700 contains a stop (236 samples with ñ = 0), so the input
+    /// boxes have zero width there. Before the structured solver pinned such
+    /// inputs it hit its iteration limit on this QP.
+    #[test]
+    fn standstill_segment_structured_equals_clarabel() {
+        let drive = simulate(&SimOptions { length_km: 4.0, ..SimOptions::paper(2) }).unwrap().drive;
+        let sel = calibration_segments(&drive, &SegmentOptions::default()).unwrap();
+        let seg = sel.all.iter().find(|s| s.start == 6700).expect("segment at 6700");
+        let data = SegmentData::new(&drive, seg);
+        let stopped = (0..data.steps()).filter(|&k| data.n_rl[k] == 0.0 && data.n_rr[k] == 0.0).count();
+        assert!(stopped > 100, "only {stopped} standstill samples");
+        let opts = CompensateOptions::default();
+        for theta in [Theta::PAPER_INITIAL, Theta::SIM_DEFAULT_TRUE] {
+            let qp = build_qp(&data, &theta, data.n_rl, data.n_rr, &opts);
+            let zero_width = qp.w_lo.iter().zip(&qp.w_hi).filter(|(lo, hi)| (*hi - *lo).amax() == 0.0).count();
+            assert_eq!(zero_width, stopped);
+            let s = StructuredSolver::default().solve(&qp, None).unwrap();
+            let c = ClarabelSolver::default().solve(&qp, None).unwrap();
+            let rel = (s.objective - c.objective).abs() / c.objective.abs();
+            assert!(rel <= OBJ_RTOL, "objective {} vs {} (rel {rel:.1e})", s.objective, c.objective);
+            let dw = s.w.iter().zip(&c.w).map(|(a, b)| (a - b).amax()).fold(0.0, f64::max);
+            assert!(dw <= W_ATOL, "inputs differ by {dw:.1e}");
+
+            // The whole re-linearization loop (warm starts included) agrees
+            // and needs no fallback.
+            let fb = ClarabelSolver::default();
+            let cs = compensate_segment_with_fallback(&data, &theta, &StructuredSolver::default(), Some(&fb), &opts)
+                .unwrap();
+            let cc = compensate_segment(&data, &theta, &fb, &opts).unwrap();
+            assert!(cs.fallbacks.is_empty(), "{:?}", cs.fallbacks);
+            let dn = cs.n_rl.iter().chain(&cs.n_rr).zip(cc.n_rl.iter().chain(&cc.n_rr)).map(|(a, b)| (a - b).abs());
+            let dn = dn.fold(0.0, f64::max);
+            assert!(dn <= W_ATOL, "compensated inputs differ by {dn:.1e}");
+        }
+    }
+
+    /// A solver that always stops at its iteration limit, to exercise the
+    /// fallback.
+    struct Stalls;
+    impl QpSolver for Stalls {
+        fn name(&self) -> &'static str {
+            "stalls"
+        }
+        fn solve(&self, _: &StageQp, _: Option<&QpSolution>) -> std::result::Result<QpSolution, QpError> {
+            Err(QpError::MaxIterations { iterations: 50, residual: 1e-7 })
+        }
+    }
+
+    /// A solver that always finds the problem infeasible.
+    struct Infeasible;
+    impl QpSolver for Infeasible {
+        fn name(&self) -> &'static str {
+            "infeasible"
+        }
+        fn solve(&self, _: &StageQp, _: Option<&QpSolution>) -> std::result::Result<QpSolution, QpError> {
+            Err(QpError::Infeasible("test".into()))
+        }
+    }
+
+    #[test]
+    fn fallback_is_recorded_and_infeasible_is_not_retried() {
+        let drive = simulate(&SimOptions { length_km: 1.0, ..SimOptions::paper(3) }).unwrap().drive;
+        let sel = calibration_segments(&drive, &SegmentOptions::default()).unwrap();
+        let data = SegmentData::new(&drive, &sel.all[0]);
+        let opts = CompensateOptions::default();
+        let fb = StructuredSolver::default();
+        let c = compensate_segment_with_fallback(&data, &Theta::PAPER_INITIAL, &Stalls, Some(&fb), &opts).unwrap();
+        assert_eq!(c.fallbacks.len(), c.linearizations);
+        assert!(c.fallbacks[0].contains("stalls → structured: iteration limit"), "{}", c.fallbacks[0]);
+        let direct = compensate_segment(&data, &Theta::PAPER_INITIAL, &fb, &opts).unwrap();
+        assert_eq!(c.n_rl, direct.n_rl);
+        // Without a fallback the failure is the segment's error.
+        assert!(compensate_segment(&data, &Theta::PAPER_INITIAL, &Stalls, &opts).is_err());
+        // Infeasible: no retry.
+        let e =
+            compensate_segment_with_fallback(&data, &Theta::PAPER_INITIAL, &Infeasible, Some(&fb), &opts).unwrap_err();
+        assert!(e.to_string().contains("infeasible"), "{e}");
     }
 }

@@ -78,6 +78,14 @@ pub struct StructuredOptions {
     /// Warm start: target mean complementarity `t·μ` of the starting point,
     /// in objective units. Default 1e-3.
     pub warm_start_mu: f64,
+    /// A box narrower than this (`hi − lo ≤ fixed_width`, in the variable's
+    /// unit: rev/s for inputs) pins its variable at the box midpoint: the
+    /// variable is eliminated from the interior-point iteration instead of
+    /// being squeezed between two slacks that cannot both stay positive
+    /// (standstill: `ñ = 0` gives `0.95ñ ≤ n ≤ 1.05ñ` zero width). Pinning
+    /// at the midpoint moves it at most `fixed_width / 2` from any point of
+    /// the box, far inside [`ACTIVE_BOUND_TOL`]. Default 1e-10.
+    pub fixed_width: f64,
 }
 
 impl Default for StructuredOptions {
@@ -91,6 +99,7 @@ impl Default for StructuredOptions {
             infeasibility_multiplier: 1e8,
             warm_start_shift: 1e-3,
             warm_start_mu: 1e-3,
+            fixed_width: 1e-10,
         }
     }
 }
@@ -120,6 +129,12 @@ impl StructuredOptions {
             return Err(QpError::Malformed(format!(
                 "StructuredOptions::warm_start_shift must be in [0, 0.5), got {}",
                 self.warm_start_shift
+            )));
+        }
+        if !(self.fixed_width.is_finite() && self.fixed_width >= 0.0) {
+            return Err(QpError::Malformed(format!(
+                "StructuredOptions::fixed_width must be non-negative and finite, got {}",
+                self.fixed_width
             )));
         }
         if self.max_iterations == 0 {
@@ -160,6 +175,11 @@ fn pack(w: &Vector2<f64>, z: &Vector3<f64>) -> V5 {
 
 /// Buffers of one solve, allocated once.
 struct Work {
+    /// 1 for a variable of the interior-point iteration, 0 for one pinned
+    /// by a zero-width box (see [`StructuredOptions::fixed_width`]).
+    free: Vec<V5>,
+    /// Number of free variables (each has two bounds).
+    n_free: usize,
     /// Primal iterate per stage.
     x: Vec<V5>,
     /// Dynamics multipliers λ_{i+1}.
@@ -205,6 +225,8 @@ impl Work {
         let v5 = || vec![V5::zeros(); k];
         let v3 = || vec![Vector3::zeros(); k];
         Self {
+            free: vec![V5::repeat(1.0); k],
+            n_free: 5 * k,
             x: v5(),
             y: v3(),
             lo: v5(),
@@ -305,16 +327,20 @@ impl StructuredSolver {
             }
             let gy_w = -(qp.b[i].transpose() * wk.y[i]);
             wk.r_d[i] += pack(&gy_w, &gy_z) - wk.l_lo[i] + wk.l_hi[i];
+            // A pinned variable's stationarity is absorbed by the multiplier
+            // of its equality `x = v`.
+            wk.r_d[i].component_mul_assign(&wk.free[i]);
             dual = dual.max(wpart(&wk.r_d[i]).amax());
             dual_z = dual_z.max(zpart(&wk.r_d[i]).amax());
             wk.r_p[i] = z - qp.a[i] * zprev - qp.b[i] * w - qp.c[i];
             zprev = z;
-            wk.r_lo[i] = wk.x[i] - wk.lo[i] - wk.t_lo[i];
-            wk.r_hi[i] = wk.hi[i] - wk.x[i] - wk.t_hi[i];
+            wk.r_lo[i] = (wk.x[i] - wk.lo[i] - wk.t_lo[i]).component_mul(&wk.free[i]);
+            wk.r_hi[i] = (wk.hi[i] - wk.x[i] - wk.t_hi[i]).component_mul(&wk.free[i]);
             primal = primal.max(wk.r_p[i].amax()).max(wk.r_lo[i].amax()).max(wk.r_hi[i].amax());
             gap += wk.t_lo[i].dot(&wk.l_lo[i]) + wk.t_hi[i].dot(&wk.l_hi[i]);
         }
-        Residuals { primal, dual, gap, mu: gap / (10 * k) as f64, objective, grad_scale, dual_z, grad_scale_z }
+        let mu = if wk.n_free > 0 { gap / (2 * wk.n_free) as f64 } else { 0.0 };
+        Residuals { primal, dual, gap, mu, objective, grad_scale, dual_z, grad_scale_z }
     }
 
     /// Backward Riccati factorisation of the Newton LQ problem for the
@@ -339,15 +365,36 @@ impl StructuredSolver {
                 huu += r2;
             }
             // Closed-form inverse of the symmetric 2×2 H_uu; positive
-            // definiteness checked on the leading minors.
-            let (h00, h01, h11) = (huu[(0, 0)], 0.5 * (huu[(0, 1)] + huu[(1, 0)]), huu[(1, 1)]);
-            let det = h00 * h11 - h01 * h01;
-            if !(h00 > 0.0 && det > f64::EPSILON * h00 * h11) {
-                return Err(QpError::Numerical(format!(
-                    "Riccati recursion: input Hessian not positive definite at stage {i} (det {det:.3e})"
-                )));
-            }
-            let huu_inv = Matrix2::new(h11, -h01, -h01, h00) / det;
+            // definiteness checked on the leading minors. A pinned input is
+            // no decision variable: H_uu is inverted on the free inputs only
+            // and padded with zeros, so its step (and feedback) is 0.
+            let huu_inv = match (wk.free[i][0] > 0.0, wk.free[i][1] > 0.0) {
+                (true, true) => {
+                    let (h00, h01, h11) = (huu[(0, 0)], 0.5 * (huu[(0, 1)] + huu[(1, 0)]), huu[(1, 1)]);
+                    let det = h00 * h11 - h01 * h01;
+                    if !(h00 > 0.0 && det > f64::EPSILON * h00 * h11) {
+                        return Err(QpError::Numerical(format!(
+                            "Riccati recursion: input Hessian not positive definite at stage {i} (det {det:.3e})"
+                        )));
+                    }
+                    Matrix2::new(h11, -h01, -h01, h00) / det
+                }
+                (f0, f1) => {
+                    let mut inv = Matrix2::zeros();
+                    for (j, free) in [(0, f0), (1, f1)] {
+                        if free {
+                            let h = huu[(j, j)];
+                            if h.is_nan() || h <= 0.0 {
+                                return Err(QpError::Numerical(format!(
+                                    "Riccati recursion: input Hessian not positive at stage {i} (h {h:.3e})"
+                                )));
+                            }
+                            inv[(j, j)] = 1.0 / h;
+                        }
+                    }
+                    inv
+                }
+            };
             wk.huu_inv[i] = huu_inv;
             if i == 0 {
                 break; // s_0 = 0: P_0 is never used.
@@ -417,8 +464,10 @@ impl StructuredSolver {
             let dx = wk.dx[i];
             wk.dt_lo[i] = dx + wk.r_lo[i];
             wk.dt_hi[i] = wk.r_hi[i] - dx;
-            wk.dl_lo[i] = -(rc_lo + wk.l_lo[i].component_mul(&wk.dt_lo[i])).component_div(&wk.t_lo[i]);
-            wk.dl_hi[i] = -(rc_hi + wk.l_hi[i].component_mul(&wk.dt_hi[i])).component_div(&wk.t_hi[i]);
+            // Pinned variables keep slacks and (zero) multipliers unchanged.
+            let f = &wk.free[i];
+            wk.dl_lo[i] = -(rc_lo + wk.l_lo[i].component_mul(&wk.dt_lo[i])).component_div(&wk.t_lo[i]).component_mul(f);
+            wk.dl_hi[i] = -(rc_hi + wk.l_hi[i].component_mul(&wk.dt_hi[i])).component_div(&wk.t_hi[i]).component_mul(f);
         }
     }
 
@@ -459,13 +508,56 @@ impl StructuredSolver {
         }
     }
 
-    /// Cold or warm starting point.
-    fn initialize(&self, qp: &StageQp, wk: &mut Work, warm: Option<&QpSolution>) {
+    /// Marks the variables pinned by a zero-width box (inputs only; a
+    /// pinned state component is an equality constraint on the dynamics,
+    /// which the Riccati recursion does not eliminate).
+    fn mark_fixed(&self, qp: &StageQp, wk: &mut Work) -> Result<(), QpError> {
         let k = qp.stages();
+        let tol = self.options.fixed_width;
+        wk.n_free = 5 * k;
         for i in 0..k {
             wk.lo[i] = pack(&qp.w_lo[i], &qp.z_lo[i]);
             wk.hi[i] = pack(&qp.w_hi[i], &qp.z_hi[i]);
+            for j in 0..5 {
+                let fixed = wk.hi[i][j] - wk.lo[i][j] <= tol;
+                if fixed && j >= 2 {
+                    return Err(QpError::Numerical(format!(
+                        "zero-width state box at stage {i}, component {}: pinned states are not supported by \
+                         the structured solver (use Clarabel)",
+                        j - 2
+                    )));
+                }
+                wk.free[i][j] = if fixed { 0.0 } else { 1.0 };
+                wk.n_free -= usize::from(fixed);
+            }
         }
+        Ok(())
+    }
+
+    /// Puts pinned variables at their box midpoint `v` with a unit fake box
+    /// `[v − 1, v + 1]`, unit slacks and zero multipliers: their slack
+    /// residuals are 0 and stay so, and they add nothing to the gap.
+    fn pin_fixed(wk: &mut Work) {
+        for i in 0..wk.x.len() {
+            for j in 0..5 {
+                if wk.free[i][j] == 0.0 {
+                    let v = 0.5 * (wk.lo[i][j] + wk.hi[i][j]);
+                    wk.x[i][j] = v;
+                    wk.lo[i][j] = v - 1.0;
+                    wk.hi[i][j] = v + 1.0;
+                    wk.t_lo[i][j] = 1.0;
+                    wk.t_hi[i][j] = 1.0;
+                    wk.l_lo[i][j] = 0.0;
+                    wk.l_hi[i][j] = 0.0;
+                }
+            }
+        }
+    }
+
+    /// Cold or warm starting point.
+    fn initialize(&self, qp: &StageQp, wk: &mut Work, warm: Option<&QpSolution>) -> Result<(), QpError> {
+        let k = qp.stages();
+        self.mark_fixed(qp, wk)?;
         let warm = warm.filter(|s| s.w.len() == k && s.z.len() == k);
         match warm {
             Some(sol) => {
@@ -509,7 +601,11 @@ impl StructuredSolver {
                     let mut w = Vector2::zeros();
                     for j in 0..2 {
                         let (lo, hi) = (qp.w_lo[i][j], qp.w_hi[i][j]);
-                        w[j] = 0.0f64.clamp(lo + 0.25 * (hi - lo), hi - 0.25 * (hi - lo));
+                        w[j] = if wk.free[i][j] == 0.0 {
+                            0.5 * (lo + hi)
+                        } else {
+                            0.0f64.clamp(lo + 0.25 * (hi - lo), hi - 0.25 * (hi - lo))
+                        };
                     }
                     let z = qp.a[i] * zprev + qp.b[i] * w + qp.c[i];
                     zprev = z;
@@ -525,6 +621,8 @@ impl StructuredSolver {
                 }
             }
         }
+        Self::pin_fixed(wk);
+        Ok(())
     }
 }
 
@@ -536,19 +634,36 @@ impl QpSolver for StructuredSolver {
     fn solve(&self, qp: &StageQp, warm_start: Option<&QpSolution>) -> Result<QpSolution, QpError> {
         qp.check()?;
         self.options.validate()?;
+        let k = qp.stages();
+        // Reuse this thread's buffers when the size matches (every solve
+        // overwrites each buffer before reading it): the compensation runs
+        // thousands of same-K solves per thread.
+        let mut wk = WORK.with(|c| c.borrow_mut().take()).filter(|w| w.x.len() == k).unwrap_or_else(|| Work::new(k));
+        let result = self.solve_in(qp, warm_start, &mut wk);
+        WORK.with(|c| *c.borrow_mut() = Some(wk));
+        result
+    }
+}
+
+thread_local! {
+    /// Per-thread solver buffers, kept between solves.
+    static WORK: std::cell::RefCell<Option<Work>> = const { std::cell::RefCell::new(None) };
+}
+
+impl StructuredSolver {
+    fn solve_in(&self, qp: &StageQp, warm_start: Option<&QpSolution>, wk: &mut Work) -> Result<QpSolution, QpError> {
         let opt = &self.options;
         let k = qp.stages();
-        let mut wk = Work::new(k);
-        self.initialize(qp, &mut wk, warm_start);
+        self.initialize(qp, wk, warm_start)?;
 
         let mut scale_p: f64 = 1.0;
         for i in 0..k {
             scale_p = scale_p.max(1.0 + qp.c[i].amax()).max(1.0 + wk.lo[i].amax()).max(1.0 + wk.hi[i].amax());
         }
-        let mut last = Self::residuals(qp, &mut wk);
+        let mut last_residual = f64::NAN;
         for iteration in 0..=opt.max_iterations {
-            let res = Self::residuals(qp, &mut wk);
-            last = res;
+            let res = Self::residuals(qp, wk);
+            last_residual = res.primal.max(res.dual).max(res.dual_z);
             if !(res.primal.is_finite() && res.dual.is_finite() && res.dual_z.is_finite() && res.gap.is_finite()) {
                 return Err(QpError::Numerical(format!("non-finite residuals at iteration {iteration}")));
             }
@@ -557,7 +672,7 @@ impl QpSolver for StructuredSolver {
                 && res.dual_z <= opt.tol_dual * (1.0 + res.grad_scale_z);
             let gap_ok = res.gap <= opt.tol_gap * res.objective.max(1.0);
             if primal_ok && dual_ok && gap_ok {
-                return Ok(self.finish(qp, &wk, iteration));
+                return Ok(self.finish(qp, wk, iteration));
             }
             if iteration == opt.max_iterations {
                 break;
@@ -575,13 +690,13 @@ impl QpSolver for StructuredSolver {
             for i in 0..k {
                 wk.sigma[i] = wk.l_lo[i].component_div(&wk.t_lo[i]) + wk.l_hi[i].component_div(&wk.t_hi[i]);
             }
-            Self::factorize(qp, &mut wk)?;
+            Self::factorize(qp, wk)?;
 
             // Predictor (affine scaling): target t·μ = 0.
-            Self::newton_direction(qp, &mut wk, |w, i| {
+            Self::newton_direction(qp, wk, |w, i| {
                 (w.t_lo[i].component_mul(&w.l_lo[i]), w.t_hi[i].component_mul(&w.l_hi[i]))
             });
-            let alpha_aff = Self::max_step(&wk);
+            let alpha_aff = Self::max_step(wk);
             let mut gap_aff = 0.0;
             for i in 0..k {
                 gap_aff += (wk.t_lo[i] + alpha_aff * wk.dt_lo[i]).dot(&(wk.l_lo[i] + alpha_aff * wk.dl_lo[i]))
@@ -595,7 +710,7 @@ impl QpSolver for StructuredSolver {
             std::mem::swap(&mut wk.aff_l_hi, &mut wk.dl_hi);
 
             // Corrector: target t·μ = σμ, with the second-order term.
-            Self::newton_direction(qp, &mut wk, |w, i| {
+            Self::newton_direction(qp, wk, |w, i| {
                 (
                     w.t_lo[i].component_mul(&w.l_lo[i]) + w.aff_t_lo[i].component_mul(&w.aff_l_lo[i])
                         - V5::repeat(target),
@@ -603,8 +718,8 @@ impl QpSolver for StructuredSolver {
                         - V5::repeat(target),
                 )
             });
-            Self::dual_direction(qp, &mut wk);
-            let alpha = (opt.step_fraction * Self::max_step(&wk)).min(1.0);
+            Self::dual_direction(qp, wk);
+            let alpha = (opt.step_fraction * Self::max_step(wk)).min(1.0);
             for i in 0..k {
                 wk.x[i] += alpha * wk.dx[i];
                 wk.y[i] += alpha * wk.dy[i];
@@ -614,10 +729,7 @@ impl QpSolver for StructuredSolver {
                 wk.l_hi[i] += alpha * wk.dl_hi[i];
             }
         }
-        Err(QpError::MaxIterations {
-            iterations: opt.max_iterations,
-            residual: last.primal.max(last.dual).max(last.dual_z),
-        })
+        Err(QpError::MaxIterations { iterations: opt.max_iterations, residual: last_residual })
     }
 }
 
