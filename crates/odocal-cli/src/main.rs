@@ -417,6 +417,19 @@ fn simulate_cmd(a: SimulateArgs, bars: &progress::Bars) -> Result<()> {
     Ok(())
 }
 
+/// Warnings to stderr, at most [`MAX_WARNINGS`] lines; the rest are in the JSON report.
+fn print_warnings(warnings: &[String]) {
+    for w in warnings.iter().take(MAX_WARNINGS) {
+        eprintln!("warning: {w}");
+    }
+    if warnings.len() > MAX_WARNINGS {
+        eprintln!("warning: … and {} more (the --json report of calibrate lists all)", warnings.len() - MAX_WARNINGS);
+    }
+}
+
+/// Warning lines printed before the rest are summarised.
+const MAX_WARNINGS: usize = 5;
+
 fn report_json(
     r: &CalibrationReport,
     truth: Option<(&Theta, f64)>,
@@ -491,9 +504,7 @@ fn run_calibration(
         None => None,
     };
     let truth_ref = truth.as_ref().map(|(t, e)| (t, *e));
-    for w in &r.warnings {
-        eprintln!("warning: {w}");
-    }
+    print_warnings(&r.warnings);
     if let Some(p) = json {
         write_json(p, &report_json(&r, truth_ref, wheel_scale)?)?;
         if p == Path::new("-") {
@@ -603,9 +614,7 @@ fn compensate_cmd(a: CompensateArgs, bars: &progress::Bars) -> Result<()> {
         Some(&cb),
     )?;
     bars.finish();
-    for w in &comp.warnings {
-        eprintln!("warning: {w}");
-    }
+    print_warnings(&comp.warnings);
     let (mut c_rl, mut c_rr, mut flag) = (drive.n_rl.clone(), drive.n_rr.clone(), vec![0.0; drive.len()]);
     for (i, s) in comp.segments.iter().enumerate() {
         c_rl[s.start..s.start + s.steps].copy_from_slice(&comp.n_rl[i]);
