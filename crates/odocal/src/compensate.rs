@@ -49,7 +49,12 @@ pub struct CompensateOptions {
     /// Maximum number of linearizations (QP solves). Default 5.
     pub max_linearizations: usize,
     /// Stop re-linearizing when the inputs change by less than this
-    /// (max absolute change, rev/s). Default 1e-6.
+    /// (max absolute change, rev/s). Default 1e-4: the iteration converges
+    /// quadratically (typically 0.3 → 4e-3 → 2e-5 → 9e-7 rev/s), and a
+    /// further solve changes the inputs by ~2e-5 rev/s, 2 000× below the
+    /// wheel noise; on the 24 km paper drive 1e-4 instead of 1e-6 takes 30 %
+    /// fewer QP solves (6 703 vs 9 552) and moves the 3-step θ by ~1e-9
+    /// relative.
     pub input_tolerance_rev_per_s: f64,
 }
 
@@ -61,7 +66,7 @@ impl Default for CompensateOptions {
             q: [1.0, 1.0, 10.0],
             r: [1000.0, 1000.0],
             max_linearizations: 5,
-            input_tolerance_rev_per_s: 1e-6,
+            input_tolerance_rev_per_s: 1e-4,
         }
     }
 }
