@@ -469,19 +469,24 @@ fn run_calibration(
 ) -> Result<()> {
     let opts = args.options()?;
     let cb = |e| bars.event(e);
-    let (fit, held) = match args.holdout {
-        None => (drive.clone(), None),
+    // The halves are copies only when a hold-out is asked for.
+    let halves = match args.holdout {
+        None => None,
         Some(h) => {
             let (t0, t1) = (drive.t[0], drive.t[drive.len() - 1] + drive.sample_time_s);
             let mid = 0.5 * (t0 + t1);
             let (a, b) = (drive.window(t0, mid)?, drive.window(mid, t1)?);
-            match h {
-                Holdout::FirstHalf => (b, Some(a)),
-                Holdout::SecondHalf => (a, Some(b)),
-            }
+            Some(match h {
+                Holdout::FirstHalf => (b, a),
+                Holdout::SecondHalf => (a, b),
+            })
         }
     };
-    let r = match odocal::pipeline::calibrate_held_out(&fit, held.as_ref(), &opts, Some(&cb)) {
+    let (fit, held) = match &halves {
+        None => (drive, None),
+        Some((fit, held)) => (fit, Some(held)),
+    };
+    let r = match odocal::pipeline::calibrate_held_out(fit, held, &opts, Some(&cb)) {
         Ok(r) => r,
         Err(e @ odocal::Error::NotObservable { .. }) => {
             bars.finish();
@@ -494,7 +499,7 @@ fn run_calibration(
         Err(e) => return Err(e.into()),
     };
     let wheel_scale = source.and_then(|(_, w)| w);
-    let drive = held.as_ref().unwrap_or(drive);
+    let drive = held.unwrap_or(drive);
     bars.finish();
     let truth = match truth_theta {
         Some(t) => {
