@@ -133,6 +133,10 @@ struct CalibrationArgs {
     /// the other half: first-half or second-half (the half held out).
     #[arg(long)]
     holdout: Option<Holdout>,
+    /// Validate on another drive of the same vehicle (CSV or manifest)
+    /// instead of the calibration drive.
+    #[arg(long, conflicts_with = "holdout")]
+    validate_on: Option<PathBuf>,
     /// Hold at θ_0 the parameters the data cannot determine (named by the
     /// observability check) instead of estimating them; with no turning
     /// segment, hold c_d, t_r, d and use every segment.
@@ -482,9 +486,14 @@ fn run_calibration(
             })
         }
     };
-    let (fit, held) = match &halves {
-        None => (drive, None),
-        Some((fit, held)) => (fit, Some(held)),
+    let other = match &args.validate_on {
+        Some(p) => Some(load_drive(p).with_context(|| format!("--validate-on {}", p.display()))?),
+        None => None,
+    };
+    let (fit, held) = match (&halves, &other) {
+        (Some((fit, held)), _) => (fit, Some(held)),
+        (None, Some(other)) => (drive, Some(other)),
+        (None, None) => (drive, None),
     };
     let r = match odocal::pipeline::calibrate_held_out(fit, held, &opts, Some(&cb)) {
         Ok(r) => r,

@@ -120,7 +120,7 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
         out,
         "mean position error Ē_p on {} validation segments{}:",
         r.validation.segments,
-        if r.validation.held_out { " of the held-out half" } else { "" }
+        if r.validation.held_out { " of held-out data (not used for calibration)" } else { "" }
     );
     let _ = writeln!(out, "  θ_0          {:>9.3} m", r.initial.mean_position_error_m);
     let _ = writeln!(out, "  calibrated   {:>9.3} m", r.validation.mean_position_error_m);

@@ -239,3 +239,31 @@ fn calibrate_report_says_what_c_e_means_for_ticks() {
     // 130 s of highway: t_r and d are named (near-collinear with c_d).
     assert!(out.contains("NOT OBSERVABLE from these data (estimates not to be trusted): t_r, d"), "{out}");
 }
+
+#[test]
+fn validate_on_another_drive() {
+    let d = tempfile::tempdir().expect("tmp");
+    let (a, b) = (d.path().join("a.csv"), d.path().join("b.csv"));
+    for (p, seed) in [(&a, "4"), (&b, "5")] {
+        let o = odocal(&["simulate", "--seed", seed, "--length-km", "3", "--out", p.to_str().expect("utf8")]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    let (astr, bstr) = (a.to_str().expect("utf8"), b.to_str().expect("utf8"));
+    let o = odocal(&["calibrate", astr, "--method", "batch-gn", "--validate-on", bstr, "--json", "-"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    assert_eq!(r["validation"]["held_out"], true);
+    // The reported Ē_p is that of drive b: validate agrees.
+    let th = format!("{},{},{},{}", r["theta"]["c_e"], r["theta"]["c_d"], r["theta"]["t_r"], r["theta"]["d"]);
+    let v = odocal(&["validate", bstr, "--theta", &th, "--json", "-"]);
+    let v: serde_json::Value = serde_json::from_slice(&v.stdout).expect("json");
+    let diff = (v["mean_position_error_m"].as_f64().expect("e")
+        - r["validation"]["mean_position_error_m"].as_f64().expect("e"))
+    .abs();
+    assert!(diff < 1e-9, "{diff}");
+    // Conflicts with --holdout; a missing file names the flag.
+    let o = odocal(&["calibrate", astr, "--validate-on", bstr, "--holdout", "first-half"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let o = odocal(&["calibrate", astr, "--validate-on", "/nonexistent.csv"]);
+    assert_error(&o, &["--validate-on /nonexistent.csv", "No such file"]);
+}
