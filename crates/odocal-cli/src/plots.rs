@@ -176,9 +176,27 @@ where
             }
         }
     }
+    // The legend goes into the corner that covers the fewest points.
+    let in_corner = |left: bool, top: bool| {
+        all.iter()
+            .filter(|q| inside(q))
+            .filter(|&&(x, y)| {
+                let fx = (x - x_lo) / (x_hi - x_lo);
+                let fy = (y - y_lo) / (y_hi - y_lo);
+                (if left { fx < 0.4 } else { fx > 0.6 }) && (if top { fy > 0.6 } else { fy < 0.4 })
+            })
+            .count()
+    };
+    let corners = [
+        (in_corner(false, true), SeriesLabelPosition::UpperRight),
+        (in_corner(true, true), SeriesLabelPosition::UpperLeft),
+        (in_corner(false, false), SeriesLabelPosition::LowerRight),
+        (in_corner(true, false), SeriesLabelPosition::LowerLeft),
+    ];
+    let position = corners.into_iter().min_by_key(|c| c.0).map(|c| c.1).unwrap_or(SeriesLabelPosition::UpperRight);
     chart
         .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
+        .position(position)
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)
         .label_font(("sans-serif", 13))
