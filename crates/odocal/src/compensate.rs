@@ -274,10 +274,8 @@ mod tests {
         let ts = 0.025;
         let (v, omega) = (8.0, 0.2);
         let a_y = v * omega;
-        let c_rl = th.c_e + th.c_d / 2.0 + th.d * a_y;
-        let c_rr = th.c_e - th.c_d / 2.0 - th.d * a_y;
-        let u =
-            Input { n_rl: (v - omega * th.t_r / 2.0) / c_rl, n_rr: (v + omega * th.t_r / 2.0) / c_rr, beta: 0.0, a_y };
+        let (n_rl, n_rr) = crate::model::wheel_rotations(v, omega, a_y, &th);
+        let u = Input { n_rl, n_rr, beta: 0.0, a_y };
         let mut x = State::zeros();
         let mut cols: Vec<Vec<f64>> = (0..4).map(|_| Vec::with_capacity(n)).collect();
         for i in 0..n {

@@ -485,9 +485,10 @@ mod tests {
         let mut x = crate::model::State::zeros();
         let (mut t, mut px, mut py, mut psi, mut nl, mut nr) = (vec![], vec![], vec![], vec![], vec![], vec![]);
         for i in 0..n {
-            // Wheel speeds for straight motion: n_rl·c_rl = n_rr·c_rr = v.
+            // Straight motion (ω = 0, a_y = 0) at a varying speed.
             let v = 10.0 + 3.0 * (i as f64 * 0.01).sin();
-            let u = Input { n_rl: v / (th.c_e + th.c_d / 2.0), n_rr: v / (th.c_e - th.c_d / 2.0), beta: 0.0, a_y: 0.0 };
+            let (n_rl, n_rr) = crate::model::wheel_rotations(v, 0.0, 0.0, &th);
+            let u = Input { n_rl, n_rr, beta: 0.0, a_y: 0.0 };
             t.push(i as f64 * ts);
             px.push(x[0]);
             py.push(x[1]);

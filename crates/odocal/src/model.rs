@@ -64,6 +64,13 @@ impl Theta {
         [self.c_e, self.c_d, self.t_r, self.d]
     }
 
+    /// Effective rear wheel circumferences `(c_rl, c_rr)` at lateral
+    /// acceleration `a_y` (3a, 3b), m.
+    #[inline]
+    pub fn wheel_circumferences(&self, a_y: f64) -> (f64, f64) {
+        (self.c_e + self.c_d / 2.0 + self.d * a_y, self.c_e - self.c_d / 2.0 - self.d * a_y)
+    }
+
     /// Checks that θ is usable: all finite, `c_e > 0` and `t_r > 0`.
     pub fn validate(&self) -> Result<()> {
         for (name, v) in THETA_NAMES.iter().zip(self.to_array()) {
@@ -142,12 +149,21 @@ pub struct Kinematics {
 /// Speed and yaw rate (2a, 2b) for one input and θ.
 #[inline]
 pub fn kinematics(u: &Input, theta: &Theta) -> Kinematics {
-    let c_rl = theta.c_e + theta.c_d / 2.0 + theta.d * u.a_y;
-    let c_rr = theta.c_e - theta.c_d / 2.0 - theta.d * u.a_y;
+    let (c_rl, c_rr) = theta.wheel_circumferences(u.a_y);
     Kinematics {
         speed_m_per_s: (u.n_rl * c_rl + u.n_rr * c_rr) / 2.0,
         yaw_rate_rad_per_s: (u.n_rr * c_rr - u.n_rl * c_rl) / theta.t_r,
     }
+}
+
+/// The wheel rotations `(n_rl, n_rr)`, rev/s, that give speed `v` and yaw
+/// rate `ω` at lateral acceleration `a_y` under θ: the inverse of (2a, 2b),
+/// `n_rl = (v − ω·t_r/2)/c_rl`, `n_rr = (v + ω·t_r/2)/c_rr`.
+#[inline]
+pub fn wheel_rotations(speed_m_per_s: f64, yaw_rate_rad_per_s: f64, a_y: f64, theta: &Theta) -> (f64, f64) {
+    let (c_rl, c_rr) = theta.wheel_circumferences(a_y);
+    let half = yaw_rate_rad_per_s * theta.t_r / 2.0;
+    ((speed_m_per_s - half) / c_rl, (speed_m_per_s + half) / c_rr)
 }
 
 /// One step of the model (1): the state after `t_s` seconds.
@@ -175,8 +191,7 @@ pub struct StepJacobians {
 /// One model step with all analytic Jacobians (state, wheel rotations, θ).
 #[inline]
 pub fn step_jacobians(x: &State, u: &Input, theta: &Theta, t_s: f64) -> StepJacobians {
-    let c_rl = theta.c_e + theta.c_d / 2.0 + theta.d * u.a_y;
-    let c_rr = theta.c_e - theta.c_d / 2.0 - theta.d * u.a_y;
+    let (c_rl, c_rr) = theta.wheel_circumferences(u.a_y);
     let v = (u.n_rl * c_rl + u.n_rr * c_rr) / 2.0;
     let num = u.n_rr * c_rr - u.n_rl * c_rl;
     let omega = num / theta.t_r;
@@ -305,6 +320,17 @@ mod tests {
             let km = kinematics(&um, &th);
             prop_assert!((k.speed_m_per_s - km.speed_m_per_s).abs() < 1e-9);
             prop_assert!((k.yaw_rate_rad_per_s + km.yaw_rate_rad_per_s).abs() < 1e-9);
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn wheel_rotations_invert_kinematics(v in -5.0..30.0f64, omega in -1.0..1.0f64, ay in -6.0..6.0f64) {
+            let th = Theta::SIM_DEFAULT_TRUE;
+            let (n_rl, n_rr) = wheel_rotations(v, omega, ay, &th);
+            let k = kinematics(&Input { n_rl, n_rr, beta: 0.0, a_y: ay }, &th);
+            prop_assert!((k.speed_m_per_s - v).abs() < 1e-12);
+            prop_assert!((k.yaw_rate_rad_per_s - omega).abs() < 1e-12);
         }
     }
 

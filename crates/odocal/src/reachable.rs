@@ -427,10 +427,7 @@ mod tests {
             let omega = v * kappa;
             let a_y = v * omega;
             let beta = -0.002 * a_y;
-            let c_rl = theta.c_e + theta.c_d / 2.0 + theta.d * a_y;
-            let c_rr = theta.c_e - theta.c_d / 2.0 - theta.d * a_y;
-            let n_rl = (v - omega * theta.t_r / 2.0) / c_rl;
-            let n_rr = (v + omega * theta.t_r / 2.0) / c_rr;
+            let (n_rl, n_rr) = crate::model::wheel_rotations(v, omega, a_y, theta);
             for (c, val) in cols.iter_mut().zip([t, x[0], x[1], x[2], n_rl, n_rr, beta, a_y]) {
                 c.push(val);
             }

@@ -953,14 +953,8 @@ pub fn simulate(opts: &SimOptions) -> Result<SimOutput> {
             let omega = m.v * kappa;
             let a_y = m.v * omega;
             let beta = beta_gain * a_y;
-            let c_rl = theta.c_e + theta.c_d / 2.0 + theta.d * a_y;
-            let c_rr = theta.c_e - theta.c_d / 2.0 - theta.d * a_y;
-            let u = Input {
-                n_rl: (m.v - omega * theta.t_r / 2.0) / c_rl,
-                n_rr: (m.v + omega * theta.t_r / 2.0) / c_rr,
-                beta,
-                a_y,
-            };
+            let (n_rl, n_rr) = model::wheel_rotations(m.v, omega, a_y, &theta);
+            let u = Input { n_rl, n_rr, beta, a_y };
             x = model::step(&x, &u, &theta, dtf);
             for (acc, v) in sum.iter_mut().zip([u.n_rl, u.n_rr, u.beta, u.a_y, m.a]) {
                 *acc += v;

@@ -60,14 +60,8 @@ impl Truth {
             let kappa = if (15.0..45.0).contains(&t) { 1.0 / 40.0 } else { 0.0 };
             let om = v * kappa;
             let a_y = v * om;
-            let c_rl = theta.c_e + theta.c_d / 2.0 + theta.d * a_y;
-            let c_rr = theta.c_e - theta.c_d / 2.0 - theta.d * a_y;
-            let u = Input {
-                n_rl: (v - om * theta.t_r / 2.0) / c_rl,
-                n_rr: (v + om * theta.t_r / 2.0) / c_rr,
-                beta: 0.0,
-                a_y,
-            };
+            let (n_rl, n_rr) = crate::model::wheel_rotations(v, om, a_y, &theta);
+            let u = Input { n_rl, n_rr, beta: 0.0, a_y };
             tr.x[i] = x[0];
             tr.y[i] = x[1];
             tr.psi[i] = x[2];
