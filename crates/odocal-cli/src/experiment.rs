@@ -211,7 +211,7 @@ pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
                 source: path.display().to_string(),
                 samples: drive.len(),
                 distance_km: drive.distance_m() / 1e3,
-                sample_time_s: drive.sample_time_s,
+                sample_time_s: drive.sample_time_s(),
                 seed: sidecar.as_ref().map(|s| s.settings.seed),
                 noise: None,
                 wheel_rotation_rel_error_rms: sidecar.as_ref().map(|s| s.stats.wheel_rotation_rel_error_rms),
@@ -229,7 +229,7 @@ pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
                 source: format!("simulated (seed {}, {} km, noise '{}')", a.seed, a.length_km, a.noise),
                 samples: s.samples,
                 distance_km: s.distance_m / 1e3,
-                sample_time_s: out.drive.sample_time_s,
+                sample_time_s: out.drive.sample_time_s(),
                 seed: Some(a.seed),
                 noise: Some(a.noise.clone()),
                 wheel_rotation_rel_error_rms: Some(s.wheel_rotation_rel_error_rms),
@@ -456,10 +456,10 @@ fn position_errors(seg: &SegmentData<'_>, theta: &Theta) -> Vec<(f64, f64)> {
 }
 
 fn figure6_data(drive: &Drive, comp: &SegmentData<'_>, raw: &SegmentData<'_>, theta: &Theta) -> Fig6 {
-    let ts = drive.sample_time_s;
+    let ts = drive.sample_time_s();
     let series = |v: &[f64]| -> Vec<(f64, f64)> { v.iter().enumerate().map(|(k, &n)| (k as f64 * ts, n)).collect() };
     let (a, k) = (raw.start, raw.steps());
-    let truth = drive.truth.as_ref().filter(|t| t.n_rl.len() >= a + k);
+    let truth = drive.truth().filter(|t| t.n_rl.len() >= a + k);
     let rms = |x: &[f64], y: &[f64], tx: &[f64], ty: &[f64]| {
         let s: f64 = (0..x.len()).map(|i| (x[i] - tx[i]).powi(2) + (y[i] - ty[i]).powi(2)).sum();
         (s / (2 * x.len()) as f64).sqrt()

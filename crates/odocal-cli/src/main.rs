@@ -9,6 +9,7 @@ use std::process::ExitCode;
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
+use odocal::drive::ExtraColumn;
 use odocal::pipeline::{CalibrationOptions, CalibrationReport, FinalSegments, Method};
 use odocal::qp::SolverKind;
 use odocal::sim::{self, NoiseOptions, SimOptions, SimSidecar};
@@ -349,7 +350,7 @@ fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>)> {
             "imported {}: {} samples in {} part(s), {:.2} km (run `odocal import` for the full import report)",
             path.display(),
             drive.len(),
-            drive.parts.len(),
+            drive.parts().len(),
             drive.distance_m() / 1e3
         );
     }
@@ -477,7 +478,7 @@ fn run_calibration(
     let halves = match args.holdout {
         None => None,
         Some(h) => {
-            let (t0, t1) = (drive.t[0], drive.t[drive.len() - 1] + drive.sample_time_s);
+            let (t0, t1) = (drive.t()[0], drive.t()[drive.len() - 1] + drive.sample_time_s());
             let mid = 0.5 * (t0 + t1);
             let (a, b) = (drive.window(t0, mid)?, drive.window(mid, t1)?);
             Some(match h {
@@ -610,7 +611,7 @@ fn validate_cmd(a: ValidateArgs, bars: &progress::Bars) -> Result<()> {
 }
 
 fn compensate_cmd(a: CompensateArgs, bars: &progress::Bars) -> Result<()> {
-    let mut drive = load_drive(&a.drive)?;
+    let drive = load_drive(&a.drive)?;
     if a.segment_length < 2 {
         bail!("--segment-length must be at least 2");
     }
@@ -629,16 +630,16 @@ fn compensate_cmd(a: CompensateArgs, bars: &progress::Bars) -> Result<()> {
     )?;
     bars.finish();
     print_warnings(&comp.warnings);
-    let (mut c_rl, mut c_rr, mut flag) = (drive.n_rl.clone(), drive.n_rr.clone(), vec![0.0; drive.len()]);
+    let (mut c_rl, mut c_rr, mut flag) = (drive.n_rl().to_vec(), drive.n_rr().to_vec(), vec![0.0; drive.len()]);
     for (i, s) in comp.segments.iter().enumerate() {
         c_rl[s.start..s.start + s.steps].copy_from_slice(&comp.n_rl[i]);
         c_rr[s.start..s.start + s.steps].copy_from_slice(&comp.n_rr[i]);
         flag[s.start..s.start + s.steps].fill(1.0);
     }
-    drive.extra.retain(|(n, _)| n != "n_rl_comp" && n != "n_rr_comp" && n != "compensated");
-    drive.extra.push(("n_rl_comp".into(), c_rl));
-    drive.extra.push(("n_rr_comp".into(), c_rr));
-    drive.extra.push(("compensated".into(), flag));
+    let drive = drive
+        .with_extra(ExtraColumn::numbers("n_rl_comp", c_rl))?
+        .with_extra(ExtraColumn::numbers("n_rr_comp", c_rr))?
+        .with_extra(ExtraColumn::numbers("compensated", flag))?;
     drive.write_csv(&a.out)?;
     println!(
         "wrote {}: {} of {} segments compensated ({} QP solves, rms input change {:.3} %)",

@@ -262,7 +262,7 @@ pub fn compensate_segment_with_fallback(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::drive::Drive;
+    use crate::drive::{Drive, Signals};
     use crate::model::{step, State};
     use crate::qp::SolverKind;
     use crate::segment::{cut, SegmentData};
@@ -285,18 +285,16 @@ mod tests {
             cols[3].push(x[2]);
             x = step(&x, &u, &th, ts);
         }
-        Drive::from_columns(
-            "circle",
-            cols[0].clone(),
-            cols[1].clone(),
-            cols[2].clone(),
-            cols[3].clone(),
-            vec![u.n_rl; n],
-            vec![u.n_rr; n],
-            vec![0.0; n],
-            vec![a_y; n],
-        )
-        .expect("valid")
+        let sig = Signals {
+            px: cols[1].clone(),
+            py: cols[2].clone(),
+            psi: cols[3].clone(),
+            n_rl: vec![u.n_rl; n],
+            n_rr: vec![u.n_rr; n],
+            beta: vec![0.0; n],
+            a_y: vec![a_y; n],
+        };
+        Drive::builder(cols[0].clone(), sig).context("circle").build().expect("valid")
     }
 
     /// Noise-free, constant inputs: the measured inputs are optimal (zero
@@ -312,8 +310,8 @@ mod tests {
             let c = compensate_segment(&data, &Theta::SIM_DEFAULT_TRUE, kind.solver().as_ref(), &Default::default())
                 .expect("solves");
             for k in 0..seg.steps {
-                let rl = (c.n_rl[k] - d.n_rl[k]).abs() / d.n_rl[k].abs();
-                let rr = (c.n_rr[k] - d.n_rr[k]).abs() / d.n_rr[k].abs();
+                let rl = (c.n_rl[k] - d.n_rl()[k]).abs() / d.n_rl()[k].abs();
+                let rr = (c.n_rr[k] - d.n_rr()[k]).abs() / d.n_rr()[k].abs();
                 assert!(rl <= 1e-9 && rr <= 1e-9, "{kind}: step {k}: {rl:.2e} {rr:.2e}");
             }
             assert!(c.converged, "{kind}");
@@ -327,7 +325,7 @@ mod tests {
     fn white_noise_differential_error_shrinks() {
         let o = SimOptions { length_km: 1.5, noise: NoiseOptions::white_wheel_only(), ..SimOptions::paper(1) };
         let d = simulate(&o).expect("sim").drive;
-        let truth = d.truth.as_ref().expect("truth");
+        let truth = d.truth().expect("truth");
         let solver = SolverKind::Clarabel.solver();
         let (mut before, mut after, mut n) = (0.0, 0.0, 0usize);
         for seg in cut(&d, 0, 650, 650).iter().take(3) {
@@ -336,7 +334,7 @@ mod tests {
             for k in 0..seg.steps {
                 let i = seg.start + k;
                 let t = truth.n_rr[i] - truth.n_rl[i];
-                before += (d.n_rr[i] - d.n_rl[i] - t).powi(2);
+                before += (d.n_rr()[i] - d.n_rl()[i] - t).powi(2);
                 after += (c.n_rr[k] - c.n_rl[k] - t).powi(2);
                 n += 1;
             }

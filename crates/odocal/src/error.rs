@@ -31,7 +31,8 @@ pub enum Error {
         reason: String,
     },
     /// Required columns are missing from a CSV header.
-    #[error("{path}: missing column(s) {}; columns found: {}", missing.join(", "), found.join(", "))]
+    #[error("{path}: missing column(s) {}; columns found: {}{}", missing.join(", "), found.join(", "),
+        hint.as_ref().map(|h| format!(" ({h})")).unwrap_or_default())]
     MissingColumns {
         /// The file.
         path: PathBuf,
@@ -39,6 +40,20 @@ pub enum Error {
         missing: Vec<String>,
         /// The columns that were found.
         found: Vec<String>,
+        /// What probably went wrong (a wrong separator, say).
+        hint: Option<String>,
+    },
+    /// One value of a drive column is unusable.
+    #[error("{context}: column '{column}', sample {sample}: {reason}")]
+    InvalidSample {
+        /// Where the data came from (a path or a description).
+        context: String,
+        /// The column.
+        column: String,
+        /// 0-based sample index.
+        sample: usize,
+        /// What is wrong.
+        reason: String,
     },
     /// The data are not usable as a drive (too short, empty, ...).
     #[error("{context}: {reason}")]
@@ -93,6 +108,14 @@ pub enum Error {
         #[source]
         source: serde_json::Error,
     },
+}
+
+impl Error {
+    /// An I/O error on `path`. The OS message is kept once (not repeated in
+    /// the source chain when printed with `{:#}`).
+    pub fn io(path: &std::path::Path, source: std::io::Error) -> Error {
+        Error::Io { path: path.to_path_buf(), source }
+    }
 }
 
 /// The library's result type.

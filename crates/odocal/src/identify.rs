@@ -473,7 +473,7 @@ pub fn batch_gauss_newton(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::drive::Drive;
+    use crate::drive::{Drive, Signals};
     use crate::model::{step, Input};
     use crate::segment::{cut, SegmentData};
 
@@ -498,7 +498,10 @@ mod tests {
             x = step(&x, &u, &th, ts);
         }
         let z = vec![0.0; n];
-        Drive::from_columns("straight", t, px, py, psi, nl, nr, z.clone(), z).expect("valid")
+        Drive::builder(t, Signals { px: px, py: py, psi: psi, n_rl: nl, n_rr: nr, beta: z.clone(), a_y: z })
+            .context("straight")
+            .build()
+            .expect("valid")
     }
 
     #[test]

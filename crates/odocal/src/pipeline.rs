@@ -436,7 +436,7 @@ pub fn compensate_segments(
         for i in 0..k {
             a[i] /= count as f64;
             b[i] /= count as f64;
-            for (m, c) in [(drive.n_rl[seg.start + i], a[i]), (drive.n_rr[seg.start + i], b[i])] {
+            for (m, c) in [(drive.n_rl()[seg.start + i], a[i]), (drive.n_rr()[seg.start + i], b[i])] {
                 if m.abs() > 1e-3 {
                     rel_sq += ((c - m) / m).powi(2);
                     rel_n += 1;
@@ -604,7 +604,7 @@ pub fn calibrate_detailed(
         return Err(Error::NoSegments(format!(
             "the drive has {} samples in {} part(s); a calibration segment needs {} steps",
             drive.len(),
-            drive.parts.len(),
+            drive.parts().len(),
             opts.segments.length_steps + 1
         )));
     }

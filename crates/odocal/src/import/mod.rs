@@ -158,7 +158,7 @@ pub use manifest::{
     PositionSpec, QualitySpec, SideslipSpec, StreamSpec, TimeUnit, WheelColumn, WheelSignal, WheelSpec,
 };
 
-use crate::drive::{unwrap_in_place, Drive};
+use crate::drive::{unwrap_in_place, Drive, Signals};
 use crate::error::{Error, Result};
 use crate::model::{kinematics, Input, Theta};
 
@@ -1061,35 +1061,31 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
         }
     });
 
-    // Assemble the drive from the kept parts.
-    let mut d = Drive { sample_time_s: h, ..Default::default() };
+    // Assemble the drive from the kept parts, through the checked constructor.
+    let mut sig = Signals::with_capacity(kept_ranges.iter().map(|r| r.len()).sum());
+    let mut t_out = Vec::with_capacity(sig.px.capacity());
+    let mut part_ranges = Vec::with_capacity(kept_ranges.len());
     for r in &kept_ranges {
-        let s0 = d.t.len();
+        let s0 = t_out.len();
         for k in r.clone() {
-            d.t.push(k as f64 * h);
-            d.px.push(px[k]);
-            d.py.push(py[k]);
-            d.psi.push(psi[k]);
-            d.n_rl.push(n_rl[k]);
-            d.n_rr.push(n_rr[k]);
-            d.beta.push(beta[k]);
-            d.a_y.push(a_y[k]);
+            t_out.push(k as f64 * h);
+            sig.push([px[k], py[k], psi[k], n_rl[k], n_rr[k], beta[k], a_y[k]]);
         }
-        d.parts.push(s0..d.t.len());
+        part_ranges.push(s0..t_out.len());
     }
-    for (name, col) in [
-        ("px", &d.px),
-        ("py", &d.py),
-        ("psi", &d.psi),
-        ("n_rl", &d.n_rl),
-        ("n_rr", &d.n_rr),
-        ("beta", &d.beta),
-        ("a_y", &d.a_y),
-    ] {
-        if let Some(i) = col.iter().position(|v| !v.is_finite()) {
-            return Err(Error::Numerical(format!("import: {name} is not finite at t = {:.3} s", d.t[i])));
-        }
-    }
+    let t_of = t_out.clone();
+    let d = Drive::builder(t_out, sig)
+        .parts(part_ranges)
+        .sample_time_s(h)
+        .context(format!("import of {}", m.path.display()))
+        .build()
+        .map_err(|e| match e {
+            Error::InvalidSample { context, column, sample, reason } => Error::InvalidDrive {
+                context,
+                reason: format!("{column} at t = {:.3} s: {reason}", t_of.get(sample).copied().unwrap_or(f64::NAN)),
+            },
+            e => e,
+        })?;
 
     let wheel_scale = match w.signal {
         WheelSignal::TicksCumulative | WheelSignal::TicksRaw => format!(

@@ -189,9 +189,9 @@ fn synthetic_round_trip() {
 
     // The offset is recovered within one output sample (it is far better).
     let off = report.clock_offset.applied_s;
-    assert!((off - TRUE_CLOCK_OFFSET_S).abs() < drive.sample_time_s, "offset {off}");
+    assert!((off - TRUE_CLOCK_OFFSET_S).abs() < drive.sample_time_s(), "offset {off}");
     // The dropout (pose clock 30–32 s) splits the drive into two parts.
-    assert_eq!(drive.parts.len(), 2, "{report}");
+    assert_eq!(drive.parts().len(), 2, "{report}");
     assert!(report.gaps.iter().any(|g| g.reasons.iter().any(|r| r.contains("pose gap"))), "{report}");
     let gap = &report.gaps[0];
     let gap_truth = 30.0 + TRUE_CLOCK_OFFSET_S - 1.0; // in truth time
@@ -200,20 +200,20 @@ fn synthetic_round_trip() {
     let j = report.jitter.as_ref().expect("jitter report");
     assert!(j.wheel_speed_noise_dejittered_pct < 0.5 * j.wheel_speed_noise_raw_pct, "{j:?}");
 
-    let h = drive.sample_time_s;
+    let h = drive.sample_time_s();
     let shift = TRUE_CLOCK_OFFSET_S - off; // the pose is placed with the estimated offset
     let (mut ep, mut eh, mut en, mut ea) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
     for k in 0..drive.len() {
-        let t = report.time_origin_s + drive.t[k] - 1.0; // truth time
+        let t = report.time_origin_s + drive.t()[k] - 1.0; // truth time
         let tp = t + shift;
-        ep = ep.max((drive.px[k] - tr.at(&tr.x, tp)).hypot(drive.py[k] - tr.at(&tr.y, tp)));
-        eh = eh.max((drive.psi[k] - tr.at(&tr.psi, tp)).abs());
+        ep = ep.max((drive.px()[k] - tr.at(&tr.x, tp)).hypot(drive.py()[k] - tr.at(&tr.y, tp)));
+        eh = eh.max((drive.psi()[k] - tr.at(&tr.psi, tp)).abs());
         let nl = (tr.at(&tr.rev_l, t + h) - tr.at(&tr.rev_l, t)) / h;
         let nr = (tr.at(&tr.rev_r, t + h) - tr.at(&tr.rev_r, t)) / h;
-        en = en.max((drive.n_rl[k] - nl).abs()).max((drive.n_rr[k] - nr).abs());
+        en = en.max((drive.n_rl()[k] - nl).abs()).max((drive.n_rr()[k] - nr).abs());
         // a_y truth: mean over the interval.
         let m: f64 = (0..25).map(|q| tr.at(&tr.a_y, t + (q as f64 + 0.5) * h / 25.0)).sum::<f64>() / 25.0;
-        ea = ea.max((drive.a_y[k] - m).abs());
+        ea = ea.max((drive.a_y()[k] - m).abs());
     }
     eprintln!("offset {off:.4} s (true {TRUE_CLOCK_OFFSET_S}); max errors: position {ep:.4} m, heading {eh:.5} rad, wheels {en:.4} rev/s, a_y {ea:.4} m/s²");
     assert!(ep < POSITION_TOL_M + 13.0 * shift.abs(), "position error {ep} m (offset error {shift} s)");
@@ -224,7 +224,7 @@ fn synthetic_round_trip() {
     let mut buf = Vec::new();
     drive.write_csv_to(&mut buf).expect("write");
     let back = Drive::parse_csv(&buf, Path::new("x.csv")).expect("read back");
-    assert_eq!(back.parts, drive.parts);
+    assert_eq!(back.parts(), drive.parts());
 }
 
 #[test]
@@ -298,9 +298,9 @@ fn error_of(dir: &Path, edit: impl Fn(String) -> String) -> String {
 fn small_case_imports_and_derives_heading() {
     let dir = tempfile::tempdir().expect("tempdir");
     let (d, r) = load_drive(&small_case(dir.path())).expect("import");
-    assert_eq!(d.parts.len(), 1);
-    assert!(d.psi.iter().all(|p| p.abs() < 1e-9), "heading along +x is 0");
-    assert!(d.n_rl.iter().all(|n| (n - 5.0).abs() < 1e-9));
+    assert_eq!(d.parts().len(), 1);
+    assert!(d.psi().iter().all(|p| p.abs() < 1e-9), "heading along +x is 0");
+    assert!(d.n_rl().iter().all(|n| (n - 5.0).abs() < 1e-9));
     let r = r.expect("report");
     assert!(r.to_string().contains("1 of 1 parts kept"), "{r}");
 }
@@ -374,9 +374,9 @@ fn quality_rejection_splits_and_short_parts_are_dropped() {
         r.parts.iter().any(|p| !p.kept && p.dropped_because.as_deref().is_some_and(|w| w.contains("min_part_s"))),
         "{r}"
     );
-    assert_eq!(d.parts.len(), r.parts.iter().filter(|p| p.kept).count());
+    assert_eq!(d.parts().len(), r.parts.iter().filter(|p| p.kept).count());
     // No sample of the drive lies within a rejected stretch.
-    assert!(d.t.iter().all(|t| !(0.9..1.1).contains(t)));
+    assert!(d.t().iter().all(|t| !(0.9..1.1).contains(t)));
 }
 
 #[test]
@@ -431,7 +431,7 @@ fn van_slice_imports() {
     let (d, r) = load_drive(&data("psu-mapping-van")).expect("van slice");
     let r = r.expect("report");
     // Two RTK-fixed losses in the slice split it.
-    assert!(d.parts.len() >= 2 && r.gaps.iter().any(|g| g.reasons[0].contains("both_fix6")), "{r}");
+    assert!(d.parts().len() >= 2 && r.gaps.iter().any(|g| g.reasons[0].contains("both_fix6")), "{r}");
     // Highway: ~30 m/s over most of 130 s.
     assert!(r.distance_m > 2000.0, "{r}");
     // On top of the README's 0.105 s, the full drive's speed correlation gives
@@ -444,11 +444,11 @@ fn van_slice_imports() {
     assert!(j.wheel_speed_noise_dejittered_pct < 0.5 * j.wheel_speed_noise_raw_pct, "{r}");
     assert!(r.wheel_scale.contains("40360 ticks"), "{r}");
     // c_e ≈ 2 m per 40360 ticks: wheel speed at θ_0 ≈ reference speed.
-    let (mut sw, mut sp) = (0.0, 0.0);
-    for p in &d.parts {
+    let (mut sw, mut sp) = (0.0f64, 0.0f64);
+    for p in d.parts() {
         for k in p.start..p.end - 1 {
-            sw += (d.n_rl[k] + d.n_rr[k]) * 0.5 * 2.0 * d.sample_time_s;
-            sp += (d.px[k + 1] - d.px[k]).hypot(d.py[k + 1] - d.py[k]);
+            sw += (d.n_rl()[k] + d.n_rr()[k]) * 0.5 * 2.0 * d.sample_time_s();
+            sp += (d.px()[k + 1] - d.px()[k]).hypot(d.py()[k + 1] - d.py()[k]);
         }
     }
     assert!((sw / sp - 1.0).abs() < 0.02, "wheel/pose distance {}", sw / sp);
@@ -465,8 +465,13 @@ fn van_raw_counters_match_cumulative_columns() {
     let a = import(&Manifest::parse(&text, &path).expect("m")).expect("cum").drive;
     let b = import(&Manifest::parse(&raw, &path).expect("m")).expect("raw").drive;
     assert_eq!(a.len(), b.len());
-    let worst =
-        a.n_rl.iter().zip(&b.n_rl).chain(a.n_rr.iter().zip(&b.n_rr)).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
+    let worst = a
+        .n_rl()
+        .iter()
+        .zip(b.n_rl())
+        .chain(a.n_rr().iter().zip(b.n_rr()))
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max);
     assert!(worst < 1e-9, "{worst}");
 }
 
@@ -474,10 +479,10 @@ fn van_raw_counters_match_cumulative_columns() {
 fn rav4_slice_imports() {
     let (d, r) = load_drive(&data("comma2k19-rav4")).expect("rav4 slice");
     let r = r.expect("report");
-    assert_eq!(d.parts.len(), 1, "{r}");
+    assert_eq!(d.parts().len(), 1, "{r}");
     assert!((18.0..20.5).contains(&r.duration_s), "{r}");
     assert!(r.clock_offset.applied_s.abs() < 0.1, "{r}");
     // Nearly straight: |a_y| stays small, and is left-positive on average ~0.
-    let mean_ay = d.a_y.iter().sum::<f64>() / d.len() as f64;
+    let mean_ay = d.a_y().iter().sum::<f64>() / d.len() as f64;
     assert!(mean_ay.abs() < 1.0, "{mean_ay}");
 }
