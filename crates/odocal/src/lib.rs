@@ -61,6 +61,7 @@ pub mod drive;
 pub mod error;
 pub mod identify;
 pub mod import;
+pub mod limits;
 pub mod model;
 pub mod pipeline;
 pub mod qp;
