@@ -69,7 +69,10 @@ impl Drive {
             let line = e.position().map(|p| p.line()).unwrap_or(0);
             let reason = match e.kind() {
                 ::csv::ErrorKind::Utf8 { .. } => "invalid UTF-8 (the file must be UTF-8 text)".to_string(),
-                _ => echo(&e.to_string()),
+                ::csv::ErrorKind::UnequalLengths { expected_len, len, .. } => {
+                    format!("{len} fields, the header has {expected_len}")
+                }
+                _ => e.to_string(),
             };
             csv_error(line, None, reason)
         };
