@@ -190,10 +190,11 @@ impl Drive {
         if let Some(j) = find(MASK_COLUMN) {
             let mut mask = Vec::with_capacity(nums[j].len());
             for (i, &v) in nums[j].iter().enumerate() {
-                if v != 0.0 && v != 1.0 {
+                let one = v.to_bits() == 1.0f64.to_bits();
+                if v != 0.0 && !one {
                     return Err(csv_error(line_of(i), Some(MASK_COLUMN), format!("{v} is not 0 or 1")));
                 }
-                mask.push(v == 1.0);
+                mask.push(one);
             }
             b = b.reference_measured(mask);
         }

@@ -73,7 +73,10 @@ pub fn import_bundle(data: &[u8]) -> Outcome {
         let (name, body) = section.split_once('\n').unwrap_or((section, ""));
         let name = name.trim();
         // Only plain file names inside the folder.
-        if name.is_empty() || name.len() > 64 || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '.' || c == '_') {
+        if name.is_empty()
+            || name.len() > 64
+            || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '.' || c == '_')
+        {
             continue;
         }
         let path = dir.path().join(name);
