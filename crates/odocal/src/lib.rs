@@ -63,6 +63,7 @@ pub mod identify;
 pub mod import;
 pub mod limits;
 pub mod model;
+pub mod params;
 pub mod pipeline;
 pub mod qp;
 pub mod reachable;
