@@ -18,6 +18,15 @@ use serde_json::{json, Value};
 /// writes f64 round-trip exactly); 1e-12 leaves room for a reordered sum.
 const REL_TOL: f64 = 1e-12;
 
+/// [`REL_TOL`], or 0 (bitwise equality) with `ODOCAL_GOLDEN_EXACT=1`.
+fn tolerance() -> f64 {
+    if std::env::var_os("ODOCAL_GOLDEN_EXACT").is_some() {
+        0.0
+    } else {
+        REL_TOL
+    }
+}
+
 fn golden_path() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/golden/cli.json")
 }
@@ -92,6 +101,9 @@ fn current(dir: &Path) -> Value {
     let held = run_json(&["calibrate", d, "--method", "batch-gn", "--holdout", "first-half", "--json", "-"]);
     let th = theta_arg(&ts["theta"]);
     let val = run_json(&["validate", d, "--theta", &th, "--reachable-minimum", "--seed", "3", "--json", "-"]);
+    for (name, v) in [("batch-gn", &gn), ("three-step", &ts), ("hold-out", &held), ("validate", &val)] {
+        assert_eq!(v["schema_version"], 1, "{name} report: schema_version");
+    }
     json!({
         "calibrate_batch_gn": pin_calibrate(&gn),
         "calibrate_three_step": pin_calibrate(&ts),
@@ -127,7 +139,7 @@ fn compare(want: &Value, got: &Value, path: &str, out: &mut Vec<String>) {
         }
         (Value::Number(a), Value::Number(b)) => {
             let (x, y) = (a.as_f64().unwrap_or(f64::NAN), b.as_f64().unwrap_or(f64::NAN));
-            if !((x - y).abs() <= REL_TOL * x.abs().max(y.abs())) {
+            if !((x - y).abs() <= tolerance() * x.abs().max(y.abs())) {
                 out.push(format!("{path}: {x:e} vs {y:e}"));
             }
         }
