@@ -64,6 +64,7 @@ pub mod error;
 pub mod experiment;
 pub mod identify;
 pub mod import;
+pub mod limits;
 pub mod model;
 pub mod param;
 pub mod progress;
