@@ -2,6 +2,9 @@
 
 use std::path::PathBuf;
 
+use crate::param::ParamSet;
+use crate::qp::QpError;
+
 /// Everything that can go wrong in the odocal library.
 ///
 /// Messages name the file, line, column, option or parameter concerned and,
@@ -77,20 +80,47 @@ pub enum Error {
     /// No segment was usable for the requested computation.
     #[error("no usable segments: {0}")]
     NoSegments(String),
+    /// A value given as text (a parameter name, a method, a solver…) is not
+    /// one of the accepted ones.
+    #[error("invalid {what} '{input}': use {expected}")]
+    Parse {
+        /// What was being parsed (`"parameter"`, `"method"`, …).
+        what: &'static str,
+        /// The text given.
+        input: String,
+        /// The accepted values.
+        expected: &'static str,
+    },
     /// Parameters cannot be identified from the data.
-    #[error("parameter(s) {} not observable from these data: {reason}", params.join(", "))]
+    #[error("parameter(s) {params} not observable from these data: {reason}")]
     NotObservable {
         /// The parameters that cannot be identified.
-        params: Vec<&'static str>,
+        params: ParamSet,
         /// Why.
         reason: String,
     },
     /// A numerical method diverged or produced non-finite numbers.
     #[error("numerical failure: {0}")]
     Numerical(String),
-    /// A QP solver failed on a problem.
+    /// A QP solver failed on a problem, or its options are invalid.
     #[error("QP solver: {0}")]
-    Qp(String),
+    Qp(#[from] QpError),
+    /// The compensation QP of one segment could not be solved (SPEC §5).
+    #[error("compensation of the segment at sample {segment_start} (linearization {linearization}): solver {solver}: {source}{}",
+        fallback.as_ref().map(|(n, e)| format!("; fallback {n}: {e}")).unwrap_or_default())]
+    Compensation {
+        /// First sample of the segment.
+        segment_start: usize,
+        /// The linearization (1-based) whose QP failed.
+        linearization: usize,
+        /// The solver that failed.
+        solver: &'static str,
+        /// Its error.
+        #[source]
+        source: QpError,
+        /// The fallback solver and its error, when one was tried.
+        fallback: Option<(&'static str, QpError)>,
+    },
     /// A drive manifest is invalid.
     #[error("{path}: {reason}")]
     Manifest {
