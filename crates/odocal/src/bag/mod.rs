@@ -22,7 +22,7 @@
 //!   name the joint is an error listing the names it has. Joint order may
 //!   change between messages; each message is looked up by name.
 //! - **yaw** is the rotation about z of the quaternion's ZYX decomposition,
-//!   `atan2(2(wz + xy), 1 − 2(y² + z²))` in (−π, π]: counter-clockwise from
+//!   `atan2(2(wz + xy), 1 − 2(y² + z²))` in [−π, π]: counter-clockwise from
 //!   the frame's x axis, i.e. from east in an ENU `map` frame (REP-103).
 //! - **Covariances** are diagonal entries: `cov_x`, `cov_y`, `cov_yaw` are
 //!   elements 0, 7 and 35 of the row-major 6×6 pose covariance over

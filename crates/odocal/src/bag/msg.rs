@@ -58,7 +58,7 @@ impl Default for Quaternion {
 impl Quaternion {
     /// Yaw (rotation about z, counter-clockwise, rad) of the ZYX Euler
     /// decomposition: `atan2(2(wz + xy), 1 − 2(y² + z²))`. For a yaw-only
-    /// quaternion `(0, 0, sin(ψ/2), cos(ψ/2))` this is ψ wrapped to (−π, π].
+    /// quaternion `(0, 0, sin(ψ/2), cos(ψ/2))` this is ψ wrapped to [−π, π].
     pub fn yaw_rad(&self) -> f64 {
         let siny_cosp = 2.0 * (self.w * self.z + self.x * self.y);
         let cosy_cosp = 1.0 - 2.0 * (self.y * self.y + self.z * self.z);
