@@ -156,7 +156,8 @@ fn slice_wheels_are_the_encoder_ticks_in_radians() {
 #[test]
 fn slice_pose_and_gnss_match_their_csvs() {
     let p = fixture("drive-slice.mcap");
-    let pose = bag::read_topic(&p, POSE, &["x", "y", "yaw", "cov_x", "cov_yaw"], TimeSource::HeaderStamp).expect("pose");
+    let pose =
+        bag::read_topic(&p, POSE, &["x", "y", "yaw", "cov_x", "cov_yaw"], TimeSource::HeaderStamp).expect("pose");
     assert_eq!(check_pose(&pose, &shared("pose_rear_antenna_mid.csv")), 1063);
 
     for (topic, file, n) in [

@@ -101,10 +101,7 @@ fn pose_msgs() -> Vec<Topic> {
         };
         let h = header(T0 + 1, i * 100_000_000, "map");
         let pc = msg::PoseWithCovariance { pose, covariance: cov6(0.0004 * f, 0.0005, 2.5e-5) };
-        pwc.push((
-            u64::from(i) * 100_000_000,
-            encode(&msg::PoseWithCovarianceStamped { header: h.clone(), pose: pc }),
-        ));
+        pwc.push((u64::from(i) * 100_000_000, encode(&msg::PoseWithCovarianceStamped { header: h.clone(), pose: pc })));
         ps.push((u64::from(i) * 100_000_000, encode(&msg::PoseStamped { header: h.clone(), pose })));
         let twist = msg::TwistWithCovariance {
             twist: msg::Twist {
@@ -201,7 +198,8 @@ fn every_type_reads_back_exactly_with_each_compression() {
             assert_eq!(bits(j.column("position.left").expect("col")), bits(&p_left), "{ctx}");
             assert_eq!(bits(j.column("position.right").expect("col")), bits(&p_right), "{ctx}");
             assert!(j.column("velocity.right").expect("col").iter().all(|v| v.to_bits() == (-2.0f64).to_bits()));
-            let t: Vec<f64> = (0..50).map(|i| format!("{T0}.{:09}", i * 10_000_000 + 123).parse().expect("f64")).collect();
+            let t: Vec<f64> =
+                (0..50).map(|i| format!("{T0}.{:09}", i * 10_000_000 + 123).parse().expect("f64")).collect();
             assert_eq!(bits(&j.t_s), bits(&t), "{ctx}");
             assert_eq!(j.columns.len(), 3);
             assert!(j.source.ends_with(&format!("{label}-{summary}.mcap:/joints")), "{}", j.source);
@@ -237,9 +235,15 @@ fn every_type_reads_back_exactly_with_each_compression() {
             let fix = read_topic(&p, "/fix", &[], TimeSource::HeaderStamp).expect(&ctx);
             let lat: Vec<f64> = (0..10).map(|i| 40.442130345 + f64::from(i) * 1e-6).collect();
             assert_eq!(bits(fix.column("latitude").expect("lat")), bits(&lat));
-            assert_eq!(bits(fix.column("status").expect("s")), bits(&[-2.0, -1.0, 0.0, 1.0, -2.0, -1.0, 0.0, 1.0, -2.0, -1.0]));
+            assert_eq!(
+                bits(fix.column("status").expect("s")),
+                bits(&[-2.0, -1.0, 0.0, 1.0, -2.0, -1.0, 0.0, 1.0, -2.0, -1.0])
+            );
             assert!(fix.column("altitude").expect("alt")[3].is_nan());
-            assert_eq!(bits(&[fix.columns["cov_e"][0], fix.columns["cov_n"][0], fix.columns["cov_u"][0]]), bits(&[0.0004, 0.0009, 0.0016]));
+            assert_eq!(
+                bits(&[fix.columns["cov_e"][0], fix.columns["cov_n"][0], fix.columns["cov_u"][0]]),
+                bits(&[0.0004, 0.0009, 0.0016])
+            );
 
             let imu = read_topic(&p, "/imu", &["acc_y", "gyro_z", "acc_z"], TimeSource::LogTime).expect(&ctx);
             for i in 0..10 {
@@ -294,7 +298,8 @@ fn rows_are_sorted_by_the_chosen_time() {
 fn times_are_the_nearest_f64_to_the_exact_decimal() {
     for ns in [0i128, 1, 999_999_999, 1_720_717_537_428_161_000, 1_720_717_700_006_053_000, -1_500_000_000] {
         let s = ns_to_s(ns);
-        let text = format!("{}{}.{:09}", if ns < 0 { "-" } else { "" }, ns.abs() / 1_000_000_000, ns.abs() % 1_000_000_000);
+        let text =
+            format!("{}{}.{:09}", if ns < 0 { "-" } else { "" }, ns.abs() / 1_000_000_000, ns.abs() % 1_000_000_000);
         assert_eq!(s.to_bits(), text.parse::<f64>().expect("f64").to_bits(), "{ns}");
     }
     assert_eq!(ns_to_s(-1_500_000_000).to_bits(), (-1.5f64).to_bits());
@@ -317,7 +322,10 @@ fn unknown_topic_lists_the_topics_with_summary_or_without() {
     for summary in [true, false] {
         let p = dir.path().join(format!("s{summary}.mcap"));
         write_bag(&p, Some(mcap::Compression::Zstd), summary, &all_topics());
-        assert_eq!(err(&p, "/wheels", &[]), format!("{}: no topic '/wheels' in the bag; its topics: {topics}", p.display()));
+        assert_eq!(
+            err(&p, "/wheels", &[]),
+            format!("{}: no topic '/wheels' in the bag; its topics: {topics}", p.display())
+        );
     }
 }
 
@@ -382,7 +390,12 @@ fn short_joint_arrays_non_cdr_and_bad_messages_are_errors() {
             },
             Topic { name: "/g", ty: "sensor_msgs/msg/JointState", encoding: "cdr", messages: vec![(7, garbled)] },
             Topic { name: "/e", ty: "sensor_msgs/msg/Imu", encoding: "json", messages: vec![(1, b"{}".to_vec())] },
-            Topic { name: "/x", ty: "sensor_msgs/msg/Imu", encoding: "cdr", messages: vec![(1, vec![0x00, 0x03, 0, 0])] },
+            Topic {
+                name: "/x",
+                ty: "sensor_msgs/msg/Imu",
+                encoding: "cdr",
+                messages: vec![(1, vec![0x00, 0x03, 0, 0])],
+            },
             Topic { name: "/none", ty: "sensor_msgs/msg/Imu", encoding: "cdr", messages: vec![] },
         ],
     );
@@ -404,7 +417,9 @@ fn short_joint_arrays_non_cdr_and_bad_messages_are_errors() {
     );
     assert_eq!(
         err(&p, "/e", &[]),
-        format!("{d}: topic '/e': message encoding 'json' (sensor_msgs/msg/Imu); odocal reads 'cdr' (ROS 2) messages only")
+        format!(
+            "{d}: topic '/e': message encoding 'json' (sensor_msgs/msg/Imu); odocal reads 'cdr' (ROS 2) messages only"
+        )
     );
     assert_eq!(
         err(&p, "/x", &[]),
@@ -419,7 +434,8 @@ fn short_joint_arrays_non_cdr_and_bad_messages_are_errors() {
 #[test]
 fn sqlite_bags_non_mcap_and_truncated_files_are_refused_clearly() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let hint = "a ROS 2 sqlite3 (.db3) bag; odocal reads MCAP bags: convert it with `ros2 bag convert -i BAG -o out.yaml`, \
+    let hint =
+        "a ROS 2 sqlite3 (.db3) bag; odocal reads MCAP bags: convert it with `ros2 bag convert -i BAG -o out.yaml`, \
                 out.yaml being `output_bags: [{uri: BAG_mcap, storage_id: mcap, all_topics: true}]`";
     // A sqlite file, whatever its name.
     let db = dir.path().join("rosbag2_2024_07_11-13_05_37_0.db3");
@@ -467,7 +483,10 @@ fn sqlite_bags_non_mcap_and_truncated_files_are_refused_clearly() {
     let cut = dir.path().join("cut.mcap");
     std::fs::write(&cut, &bytes[..bytes.len() / 2]).expect("write");
     let e = err(&cut, "/joints", &["position.left"]);
-    assert_eq!(e, format!("{}: corrupt or truncated MCAP file: MCAP file ended in the middle of a record", cut.display()));
+    assert_eq!(
+        e,
+        format!("{}: corrupt or truncated MCAP file: MCAP file ended in the middle of a record", cut.display())
+    );
     assert_eq!(inspect(&cut).expect_err("truncated").to_string(), e);
 }
 
