@@ -57,6 +57,8 @@
 // Numerical loops index several parallel arrays at once; index loops read like the maths.
 #![allow(clippy::needless_range_loop)]
 
+#[cfg(feature = "mcap")]
+pub mod bag;
 pub mod calibrate;
 pub mod compensate;
 pub mod drive;

@@ -161,7 +161,8 @@ fn compare(want: &Value, got: &Value, path: &str, out: &mut Vec<String>) {
         (Value::Number(a), Value::Number(b)) => {
             let (x, y) = (a.as_f64().unwrap_or(f64::NAN), b.as_f64().unwrap_or(f64::NAN));
             let scale = x.abs().max(y.abs());
-            if !((x - y).abs() <= tolerance() * scale) {
+            let close = (x - y).abs() <= tolerance() * scale;
+            if !close {
                 out.push(format!("{path}: {x:e} vs {y:e}"));
             }
         }
