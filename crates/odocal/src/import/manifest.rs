@@ -153,30 +153,145 @@ impl TimeUnit {
     }
 }
 
-/// One recorded stream: a CSV file with a header row and a time column.
+/// One recorded stream: where its rows come from ([`SourceSpec`], tagged by
+/// `format`, CSV by default) and how to read its time.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(try_from = "RawStreamSpec", into = "RawStreamSpec")]
 pub struct StreamSpec {
-    /// The CSV file, relative to the manifest's folder.
-    pub file: PathBuf,
-    /// The time column.
-    pub time_column: String,
+    /// The file and its format.
+    pub source: SourceSpec,
+    /// The time column. Required for CSV and Parquet; for MCAP, `None` uses
+    /// the message time stamps the bag reader returns.
+    pub time_column: Option<String>,
     /// Unit of the time column. Default `"s"`.
-    #[serde(default)]
     pub time_unit: TimeUnit,
     /// Added to the stream's time (after the unit conversion), s. Default 0.
-    #[serde(default)]
     pub time_offset_s: f64,
     /// The stream's nominal sample rate, Hz. When given, time-stamp jitter is
     /// removed: each sample gets an integer sample index (missing samples
     /// skip indices) and its stamp is replaced by a local least-squares fit
     /// `t = t0 + k·T` over `dejitter_window_s`. Give it only for streams that
     /// are sampled at a fixed rate and stamped on arrival (encoders).
-    #[serde(default)]
     pub nominal_rate_hz: Option<f64>,
     /// Length of the local fit window for de-jittering, s. Default 2.
-    #[serde(default = "default_dejitter_window")]
     pub dejitter_window_s: f64,
+}
+
+/// Where a stream's rows come from (`streams.<name>.format`, default `"csv"`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "format", rename_all = "lowercase")]
+pub enum SourceSpec {
+    /// A CSV file with a header row (`format = "csv"`, the default).
+    Csv {
+        /// The file, relative to the manifest's folder.
+        file: PathBuf,
+    },
+    /// One topic of a ROS 2 bag in MCAP (`format = "mcap"`, `topic = "/x"`).
+    Mcap {
+        /// The bag, relative to the manifest's folder.
+        file: PathBuf,
+        /// The topic.
+        topic: String,
+    },
+    /// A Parquet table (`format = "parquet"`).
+    Parquet {
+        /// The file, relative to the manifest's folder.
+        file: PathBuf,
+    },
+}
+
+impl SourceSpec {
+    /// The file, relative to the manifest's folder.
+    pub fn file(&self) -> &Path {
+        match self {
+            SourceSpec::Csv { file } | SourceSpec::Mcap { file, .. } | SourceSpec::Parquet { file } => file,
+        }
+    }
+
+    /// The `format` value.
+    pub fn format(&self) -> &'static str {
+        match self {
+            SourceSpec::Csv { .. } => "csv",
+            SourceSpec::Mcap { .. } => "mcap",
+            SourceSpec::Parquet { .. } => "parquet",
+        }
+    }
+}
+
+/// The format of a stream as written in the manifest.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+enum Format {
+    #[default]
+    Csv,
+    Mcap,
+    Parquet,
+}
+
+/// A stream table as written: flat keys, `format` defaulting to CSV.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawStreamSpec {
+    #[serde(default)]
+    format: Format,
+    file: PathBuf,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    topic: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    time_column: Option<String>,
+    #[serde(default)]
+    time_unit: TimeUnit,
+    #[serde(default)]
+    time_offset_s: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    nominal_rate_hz: Option<f64>,
+    #[serde(default = "default_dejitter_window")]
+    dejitter_window_s: f64,
+}
+
+impl TryFrom<RawStreamSpec> for StreamSpec {
+    type Error = String;
+
+    fn try_from(r: RawStreamSpec) -> std::result::Result<Self, String> {
+        let source = match (r.format, r.topic) {
+            (Format::Csv, None) => SourceSpec::Csv { file: r.file },
+            (Format::Parquet, None) => SourceSpec::Parquet { file: r.file },
+            (Format::Mcap, Some(topic)) => SourceSpec::Mcap { file: r.file, topic },
+            (Format::Mcap, None) => return Err("`topic` is required for format = \"mcap\"".into()),
+            (f, Some(_)) => return Err(format!("`topic` is only for format = \"mcap\", not {f:?}").to_lowercase()),
+        };
+        if r.time_column.is_none() && !matches!(source, SourceSpec::Mcap { .. }) {
+            return Err(format!("`time_column` is required for format = \"{}\"", source.format()));
+        }
+        Ok(StreamSpec {
+            source,
+            time_column: r.time_column,
+            time_unit: r.time_unit,
+            time_offset_s: r.time_offset_s,
+            nominal_rate_hz: r.nominal_rate_hz,
+            dejitter_window_s: r.dejitter_window_s,
+        })
+    }
+}
+
+impl From<StreamSpec> for RawStreamSpec {
+    fn from(s: StreamSpec) -> Self {
+        let (format, file, topic) = match s.source {
+            SourceSpec::Csv { file } => (Format::Csv, file, None),
+            SourceSpec::Mcap { file, topic } => (Format::Mcap, file, Some(topic)),
+            SourceSpec::Parquet { file } => (Format::Parquet, file, None),
+        };
+        RawStreamSpec {
+            format,
+            file,
+            topic,
+            time_column: s.time_column,
+            time_unit: s.time_unit,
+            time_offset_s: s.time_offset_s,
+            nominal_rate_hz: s.nominal_rate_hz,
+            dejitter_window_s: s.dejitter_window_s,
+        }
+    }
 }
 
 fn default_dejitter_window() -> f64 {

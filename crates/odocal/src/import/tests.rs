@@ -7,8 +7,10 @@ use std::path::{Path, PathBuf};
 use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
 
+use super::source::Stream;
+use super::wheels::wheel_revolutions;
 use super::*;
-use crate::model::{step, State};
+use crate::model::{step, Input, State};
 
 /// Pose interpolation of 10 Hz samples on a 40 m circle at ≤ 13 m/s: chord
 /// error v²·Δt²/(8R) ≈ 5 mm; 2 cm leaves room for the ENU round trip.
@@ -389,6 +391,7 @@ fn raw_counter_wraps() {
         cols: [("c".to_string(), (0..100).map(|i| ((100 - 5 * i) as i64).rem_euclid(4096) as f64).collect())]
             .into_iter()
             .collect(),
+        lines: None,
         report: StreamReport {
             name: "w".into(),
             file: PathBuf::new(),
@@ -485,4 +488,55 @@ fn rav4_slice_imports() {
     // Nearly straight: |a_y| stays small, and is left-positive on average ~0.
     let mean_ay = d.a_y().iter().sum::<f64>() / d.len() as f64;
     assert!(mean_ay.abs() < 1.0, "{mean_ay}");
+}
+
+#[test]
+fn stream_format_is_tagged_with_csv_by_default() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = small_case(dir.path());
+    let text = std::fs::read_to_string(&path).expect("read");
+    let m = Manifest::parse(&text, &path).expect("manifest");
+    assert_eq!(m.streams["wheels"].source, SourceSpec::Csv { file: "w.csv".into() });
+    let explicit = text.replacen("file = \"w.csv\"", "format = \"csv\"\nfile = \"w.csv\"", 1);
+    assert_eq!(Manifest::parse(&explicit, &path).expect("explicit csv").streams, m.streams);
+    // MCAP needs a topic; the topic is only for MCAP.
+    let mcap = text.replacen("file = \"w.csv\"", "format = \"mcap\"\nfile = \"w.mcap\"", 1);
+    let e = Manifest::parse(&mcap, &path).expect_err("no topic").to_string();
+    assert!(e.contains("streams.wheels") && e.contains("`topic` is required for format = \"mcap\""), "{e}");
+    let e = Manifest::parse(&text.replacen("file = \"w.csv\"", "file = \"w.csv\"\ntopic = \"/w\"", 1), &path)
+        .expect_err("topic on csv")
+        .to_string();
+    assert!(e.contains("`topic` is only for format = \"mcap\""), "{e}");
+    let e = Manifest::parse(&text.replacen("file = \"w.csv\"", "format = \"hdf5\"\nfile = \"w.csv\"", 1), &path)
+        .expect_err("unknown format")
+        .to_string();
+    assert!(e.contains("streams.wheels.format") && e.contains("hdf5"), "{e}");
+    // A parsed MCAP stream (time column optional) is answered by the reader seam.
+    let mcap = mcap.replacen("format = \"mcap\"", "format = \"mcap\"\ntopic = \"/wheels\"", 1);
+    let m = Manifest::parse(&mcap, &path).expect("mcap manifest");
+    assert_eq!(m.streams["wheels"].source, SourceSpec::Mcap { file: "w.mcap".into(), topic: "/wheels".into() });
+    let e = import(&m).map(|_| ()).expect_err("no mcap reader").to_string();
+    assert!(e.contains("streams.wheels.format: \"mcap\""), "{e}");
+}
+
+#[test]
+fn reference_measured_marks_the_sample_nearest_each_pose_sample() {
+    let duration = 40.0;
+    let tr = Truth::new(duration);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = write_synthetic(dir.path(), &tr, duration);
+    let ImportedDrive { drive, report } = import(&Manifest::from_path(&path).expect("m")).expect("import");
+    let mask = drive.reference_measured().expect("an imported drive has the mask");
+    let h = drive.sample_time_s();
+    // Pose times on the drive's clock: 10 Hz on the pose clock, shifted.
+    let shift = report.clock_offset.applied_s - report.time_origin_s;
+    let pose_t: Vec<f64> = (0..1000).map(|j| j as f64 * 0.1 + shift).collect();
+    for (k, &m) in mask.iter().enumerate() {
+        let t = drive.t()[k];
+        let nearest = pose_t.iter().map(|p| (p - t).abs()).fold(f64::INFINITY, f64::min);
+        assert_eq!(m, nearest <= 0.5 * h + 1e-9, "sample {k} t = {t}: nearest pose sample {nearest} s away");
+    }
+    // 40 Hz output, 10 Hz pose: one in four.
+    let frac = mask.iter().filter(|m| **m).count() as f64 / mask.len() as f64;
+    assert!((frac - 0.25).abs() < 0.01, "{frac}");
 }
