@@ -34,6 +34,7 @@ pub(crate) fn estimate(
 ) -> (Option<Correlation>, Option<Correlation>) {
     let o = &m.output;
     let n_grid = ((w.t[w.t.len() - 1] - w.t[0]) / h).floor() as usize;
+    super::limits::note_grid(n_grid);
     let grid: Vec<f64> = (0..n_grid).map(|k| w.t[0] + k as f64 * h).collect();
     let mut valid: Vec<Option<String>> = vec![None; grid.len()];
     mark(&mut valid, w.t[0], h, w.bad, true);

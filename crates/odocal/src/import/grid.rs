@@ -56,6 +56,13 @@ pub(crate) struct Span {
     pub end: f64,
 }
 
+impl Span {
+    /// The span of the stamps `t` (not empty).
+    pub fn of(name: &str, t: &[f64]) -> Span {
+        Span { name: name.to_string(), start: t[0], end: t[t.len() - 1] }
+    }
+}
+
 /// The common span `[latest start, earliest end]` of `spans`, or the error
 /// naming the two streams that do not overlap, with their spans.
 pub(crate) fn common_span(m: &Manifest, spans: &[Span], h: f64) -> Result<(f64, f64)> {
@@ -66,8 +73,8 @@ pub(crate) fn common_span(m: &Manifest, spans: &[Span], h: f64) -> Result<(f64, 
         (Some(a), Some(b)) => Err(Error::Manifest {
             path: m.path.clone(),
             reason: format!(
-                "{}: no time overlap with {}: t = {:.3} … {:.3} s vs {:.3} … {:.3} s; check time_column, \
-                 time_unit and time_offset_s",
+                "the streams do not overlap in time: {}: no time overlap with {}: t = {:.3} … {:.3} s vs \
+                 {:.3} … {:.3} s; check time_column, time_unit and time_offset_s",
                 a.name, b.name, a.start, a.end, b.start, b.end
             ),
         }),
@@ -104,6 +111,7 @@ impl Grid {
     /// The grid over `[start, end)`, all samples valid.
     pub fn new(start: f64, end: f64, h: f64) -> Grid {
         let n = ((end - start) / h).floor() as usize;
+        super::limits::note_grid(n);
         Grid { start, h, t: (0..n).map(|k| start + k as f64 * h).collect(), invalid: vec![None; n] }
     }
 

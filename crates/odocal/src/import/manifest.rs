@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use super::limits::{self, echo_num};
 use crate::error::{Error, Result};
 use crate::model::Theta;
 
@@ -34,6 +35,30 @@ pub struct Manifest {
     /// Sideslip β. Default: zero.
     #[serde(default)]
     pub sideslip: SideslipSpec,
+    /// Physical limits the imported signals must respect. All fields have
+    /// defaults; raise them for a vehicle that really exceeds them.
+    #[serde(default)]
+    pub limits: LimitsSpec,
+}
+
+/// Physical limits (`[limits]`): an imported signal beyond one is an error
+/// naming the time, because it means a wrong unit, sign, column or a
+/// corrupt sample rather than a real motion.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LimitsSpec {
+    /// Largest plausible vehicle speed, m/s: each wheel's speed at θ_0 and
+    /// the reference pose's speed between samples. Default 100 (360 km/h).
+    pub max_speed_m_per_s: f64,
+    /// Largest plausible |a_y|, m/s² (a_y from the wheels, the pose or an
+    /// IMU). Default 15 (about 1.5 g; racing cars reach 3–5 g).
+    pub max_lateral_acceleration_m_per_s2: f64,
+}
+
+impl Default for LimitsSpec {
+    fn default() -> Self {
+        LimitsSpec { max_speed_m_per_s: 100.0, max_lateral_acceleration_m_per_s2: 15.0 }
+    }
 }
 
 /// Output settings (`[output]`).
@@ -559,9 +584,40 @@ impl Manifest {
                 Err(self.error(key, format!("must be a positive number, found {v}")))
             }
         };
+        let at_most = |key: &str, v: f64, max: f64, why: &str| -> Result<()> {
+            if v <= max {
+                Ok(())
+            } else {
+                Err(self.error(key, format!("{} is above the limit of {max}; {why}", echo_num(v))))
+            }
+        };
         positive("output.rate_hz", o.rate_hz)?;
+        at_most(
+            "output.rate_hz",
+            o.rate_hz,
+            limits::MAX_OUTPUT_RATE_HZ,
+            "the model runs at tens of Hz (40 in the paper)",
+        )?;
+        if o.rate_hz < limits::MIN_OUTPUT_RATE_HZ {
+            return Err(self.error(
+                "output.rate_hz",
+                format!(
+                    "{} Hz is below {} Hz: give the rate in Hz, not the step",
+                    o.rate_hz,
+                    limits::MIN_OUTPUT_RATE_HZ
+                ),
+            ));
+        }
         positive("output.max_gap_s", o.max_gap_s)?;
         positive("output.max_clock_offset_s", o.max_clock_offset_s)?;
+        at_most(
+            "output.max_clock_offset_s",
+            o.max_clock_offset_s,
+            limits::MAX_CLOCK_OFFSET_S,
+            "clocks further apart mean a wrong time_column, time_unit or time_offset_s: fix those instead",
+        )?;
+        positive("limits.max_speed_m_per_s", self.limits.max_speed_m_per_s)?;
+        positive("limits.max_lateral_acceleration_m_per_s2", self.limits.max_lateral_acceleration_m_per_s2)?;
         if !non_negative(o.min_part_s) {
             return Err(self.error("output.min_part_s", format!("must be >= 0, found {}", o.min_part_s)));
         }
@@ -576,9 +632,28 @@ impl Manifest {
         }
         for (name, s) in &self.streams {
             if let Some(r) = s.nominal_rate_hz {
-                positive(&format!("streams.{name}.nominal_rate_hz"), r)?;
+                let key = format!("streams.{name}.nominal_rate_hz");
+                positive(&key, r)?;
+                at_most(&key, r, limits::MAX_NOMINAL_RATE_HZ, "give the sensor's sample rate in Hz")?;
             }
-            positive(&format!("streams.{name}.dejitter_window_s"), s.dejitter_window_s)?;
+            let key = format!("streams.{name}.dejitter_window_s");
+            positive(&key, s.dejitter_window_s)?;
+            at_most(&key, s.dejitter_window_s, limits::MAX_DEJITTER_WINDOW_S, "a few seconds follow clock drift")?;
+            if let Some(r) = s.nominal_rate_hz {
+                let half = s.dejitter_window_s * r / 2.0;
+                if half > limits::MAX_DEJITTER_HALF_WINDOW as f64 {
+                    return Err(self.error(
+                        &key,
+                        format!(
+                            "{} s at nominal_rate_hz = {r} is {} samples each side, above the limit of {}; \
+                             shorten the window",
+                            s.dejitter_window_s,
+                            echo_num(half.round()),
+                            limits::MAX_DEJITTER_HALF_WINDOW
+                        ),
+                    ));
+                }
+            }
             if !s.time_offset_s.is_finite() {
                 return Err(self.error(&format!("streams.{name}.time_offset_s"), "must be finite"));
             }

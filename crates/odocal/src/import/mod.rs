@@ -155,10 +155,12 @@
 //! # Ok(()) }
 //! ```
 
+mod checks;
 mod clock;
 mod geodesy;
 mod grid;
 mod lateral;
+pub mod limits;
 mod manifest;
 mod pose;
 mod report;
@@ -216,17 +218,33 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
     let h = 1.0 / o.rate_hz;
     let theta0: Theta = o.theta0();
 
-    let streams = read_streams(m)?;
-    let (ws, ps) = (&streams[&m.wheels.stream], &streams[&m.pose.stream]);
-    let wheels = Wheels::new(m, ws)?;
+    let mut warnings = Vec::new();
+    let mut streams = read_streams(m)?;
+    let wheels = Wheels::new(m, &streams[&m.wheels.stream], &mut warnings)?;
+    if let Some(ws) = streams.get_mut(&m.wheels.stream) {
+        *ws = wheels.stream.clone();
+    }
+    let (ws, ps) = (&wheels.stream, &streams[&m.pose.stream]);
     let wheel_bad = grid::gaps_of(&ws.t, o.max_gap_s, "wheel");
-    let mut pose = pose::build_pose(m, ps)?;
+    let mut pose = pose::build_pose(m, ps, &mut warnings)?;
+
+    // Budgets before anything is allocated from the spans.
+    let wheel_span = grid::Span::of(&format!("streams.{}", m.wheels.stream), &ws.t);
+    limits::check_overlap(m, &wheel_span, &grid::Span::of(&format!("streams.{} (pose)", m.pose.stream), &pose.t))?;
+    let clock_samples = ((wheel_span.end - wheel_span.start) / h).floor();
+    limits::check_samples(
+        m,
+        &format!("{} (the clock-offset search grid)", wheel_span.name),
+        wheel_span.end - wheel_span.start,
+    )?;
+    limits::check_correlation(m, clock_samples as usize)?;
 
     let track = clock::WheelTrack { t: &ws.t, cum_l: &wheels.cum_l, cum_r: &wheels.cum_r, bad: &wheel_bad };
     let clock_offset = clock::align(m, &track, &pose, h, &theta0)?;
     pose.shift(clock_offset.applied_s);
 
     let (start, end) = grid::common_span(m, &spans(m, &streams, &pose), h)?;
+    limits::check_samples(m, "the common span of the streams", end - start)?;
     let mut g = Grid::new(start, end, h);
     g.mark(&wheel_bad, true);
     g.mark(&pose.bad, false);
@@ -245,9 +263,14 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
     let measured = g.measured(&pose.t);
 
     let grid::Parts { gaps, parts, kept } = g.parts(m)?;
+    let resampled =
+        checks::Resampled { h, origin_s: start, kept: &kept, n_rl: &n_rl, n_rr: &n_rr, px: &px, py: &py, psi: &psi };
+    checks::wheel_speeds(m, &resampled, &theta0)?;
+    checks::conventions(m, &resampled, &theta0, &mut warnings)?;
     let inputs = lateral::Inputs { grid: &g.t, h, n_rl: &n_rl, n_rr: &n_rr, px: &px, py: &py, psi: &psi, kept: &kept };
     let (a_y, a_y_desc) = lateral::lateral_acceleration(m, &streams, &inputs, &theta0);
-    let jitter = wheels::jitter_report(m, ws, &g.t, h, &kept, &n_rl, &n_rr)?;
+    checks::lateral_acceleration(m, &resampled, &a_y)?;
+    let jitter = wheels::jitter_report(m, &wheels, &g.t, h, &kept, &n_rl, &n_rr)?;
 
     // Assemble the drive from the kept parts, through the checked constructor.
     let mut sig = Signals::with_capacity(kept.iter().map(|r| r.len()).sum());
@@ -293,6 +316,7 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
         wheel_scale: wheels::wheel_scale(m),
         lateral_acceleration: a_y_desc,
         jitter,
+        warnings,
         elapsed_s: started.elapsed().as_secs_f64(),
     };
     Ok(ImportedDrive { drive: d, report })

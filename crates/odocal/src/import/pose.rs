@@ -3,6 +3,7 @@
 
 use super::geodesy;
 use super::grid::{gaps_of, BadInterval};
+use super::limits::echo_num;
 use super::manifest::{HeadingConvention, Manifest, PositionSpec};
 use super::source::Stream;
 use crate::drive::unwrap_in_place;
@@ -40,7 +41,7 @@ impl Pose {
 /// local frame (lat/lon converted to ENU), the heading in ENU and unwrapped
 /// (or derived from the track), rejected and missing stretches as
 /// [`BadInterval`]s.
-pub(crate) fn build_pose(m: &Manifest, s: &Stream) -> Result<Pose> {
+pub(crate) fn build_pose(m: &Manifest, s: &Stream, warnings: &mut Vec<String>) -> Result<Pose> {
     let p = &m.pose;
     let n = s.t.len();
     let good: Vec<bool> = match &p.quality {
@@ -56,8 +57,23 @@ pub(crate) fn build_pose(m: &Manifest, s: &Stream) -> Result<Pose> {
     })?;
     let (x, y): (Vec<f64>, Vec<f64>) = match &p.position {
         PositionSpec::Local { x, y } => (s.col(x).to_vec(), s.col(y).to_vec()),
-        PositionSpec::LatLon { lat, lon, alt, origin } => {
-            let (lat, lon) = (s.col(lat), s.col(lon));
+        PositionSpec::LatLon { lat: lat_col, lon: lon_col, alt, origin } => {
+            let (lat, lon) = (s.col(lat_col), s.col(lon_col));
+            for (col, v, max, key) in
+                [(lat_col, lat, 90.0, "pose.position.lat"), (lon_col, lon, 180.0, "pose.position.lon")]
+            {
+                if let Some(i) = (0..n).find(|&i| good[i] && !(v[i].abs() <= max)) {
+                    return Err(s.error_at(
+                        i,
+                        Some(col),
+                        format!(
+                            "{key}: {} is outside ±{max}°; the column must hold WGS84 degrees (ECEF or local \
+                             metres? use kind = \"local\" with x and y)",
+                            echo_num(v[i])
+                        ),
+                    ));
+                }
+            }
             let h: Vec<f64> = alt.as_ref().map(|a| s.col(a).to_vec()).unwrap_or_else(|| vec![0.0; n]);
             let o = origin.unwrap_or([lat[first_good], lon[first_good], h[first_good]]);
             let enu = geodesy::Enu::new(o[0], o[1], o[2]);
@@ -111,6 +127,7 @@ pub(crate) fn build_pose(m: &Manifest, s: &Stream) -> Result<Pose> {
     if out.t.len() < 2 {
         return Err(m.error("pose.quality.accept", "fewer than two pose samples of accepted quality"));
     }
+    check_speed(m, &out, warnings)?;
     out.bad.extend(gaps_of(&out.t, m.output.max_gap_s, "pose"));
     out.bad.sort_by(|a, b| a.from.total_cmp(&b.from));
     if p.heading.is_some() {
@@ -151,3 +168,39 @@ fn derive_heading(t: &[f64], x: &[f64], y: &[f64], min_speed: f64) -> Vec<f64> {
         })
         .collect()
 }
+
+/// Pose steps faster than `limits.max_speed_m_per_s`: a few are glitches (a
+/// warning); more than [`MAX_FAST_STEPS_FRACTION`] of the steps mean wrong
+/// position columns or units (an error naming the key).
+fn check_speed(m: &Manifest, p: &Pose, warnings: &mut Vec<String>) -> Result<()> {
+    let vmax = m.limits.max_speed_m_per_s;
+    let fast: Vec<(usize, f64)> = (1..p.t.len())
+        .map(|j| (j, (p.x[j] - p.x[j - 1]).hypot(p.y[j] - p.y[j - 1]) / (p.t[j] - p.t[j - 1])))
+        .filter(|(_, v)| !(*v <= vmax))
+        .collect();
+    let Some(&(j, v)) = fast.first() else { return Ok(()) };
+    let steps = p.t.len() - 1;
+    let key = match &m.pose.position {
+        PositionSpec::Local { .. } => "pose.position.x",
+        PositionSpec::LatLon { .. } => "pose.position.lat",
+    };
+    let what = format!(
+        "{} of {steps} pose steps are faster than limits.max_speed_m_per_s = {vmax} (first at pose time {:.3} s: {} m/s)",
+        fast.len(),
+        p.t[j],
+        echo_num(v)
+    );
+    if fast.len() as f64 > MAX_FAST_STEPS_FRACTION * steps as f64 && fast.len() > 2 {
+        let hint = match &m.pose.position {
+            PositionSpec::Local { .. } => "are x and y in metres?",
+            PositionSpec::LatLon { .. } => "do the lat/lon columns hold degrees (not ECEF or local metres)?",
+        };
+        return Err(m.error(key, format!("{what}; {hint}")));
+    }
+    warnings.push(format!("{what}: position glitches in the reference"));
+    Ok(())
+}
+
+/// Largest fraction of pose steps faster than the speed limit that is
+/// taken for glitches rather than wrong columns or units.
+const MAX_FAST_STEPS_FRACTION: f64 = 0.01;

@@ -36,6 +36,8 @@ pub struct ImportReport {
     pub lateral_acceleration: String,
     /// Effect of de-jittering the wheel stream, when it was de-jittered.
     pub jitter: Option<JitterReport>,
+    /// What looked wrong but did not stop the import.
+    pub warnings: Vec<String>,
     /// Wall time of the import, s.
     pub elapsed_s: f64,
 }
@@ -51,6 +53,9 @@ pub struct StreamReport {
     pub rows: usize,
     /// Rows dropped because their time stamp repeated the previous one.
     pub repeated_stamps_dropped: usize,
+    /// Wheel rows dropped as corrupt: a counter jump beyond
+    /// `limits.max_speed_m_per_s` that returns within a few rows.
+    pub corrupt_rows_dropped: usize,
     /// First and last time, s (after `time_offset_s`, before the clock offset).
     pub time_span_s: [f64; 2],
     /// Mean sample rate, Hz.
@@ -144,6 +149,9 @@ impl std::fmt::Display for ImportReport {
             if s.repeated_stamps_dropped > 0 {
                 write!(f, ", {} repeated stamps dropped", s.repeated_stamps_dropped)?;
             }
+            if s.corrupt_rows_dropped > 0 {
+                write!(f, ", {} corrupt rows dropped", s.corrupt_rows_dropped)?;
+            }
             if let Some(d) = &s.dejitter {
                 write!(
                     f,
@@ -199,6 +207,9 @@ impl std::fmt::Display for ImportReport {
             self.output_rate_hz
         )?;
         writeln!(f, "  wheels: {}", self.wheel_scale)?;
+        for w in &self.warnings {
+            writeln!(f, "  warning: {w}")?;
+        }
         write!(f, "  lateral acceleration: {}", self.lateral_acceleration)
     }
 }

@@ -39,10 +39,29 @@ pub(crate) fn wheel_revolutions(m: &Manifest, s: &Stream, wheel: &WheelColumn, k
             let mut acc: i128 = 0;
             let mut out = Vec::with_capacity(col.len());
             out.push(0.0);
+            let mut wide = 0usize;
             for pair in col.windows(2) {
                 let d = ((pair[1] as i128) - (pair[0] as i128)).rem_euclid(modulus);
-                acc += if d >= half { d - modulus } else { d };
+                let d = if d >= half { d - modulus } else { d };
+                wide += usize::from(d.abs() > half / 2);
+                acc += d;
                 out.push(sign * acc as f64 / tpr);
+            }
+            // A counter sampled often enough moves far less than a quarter
+            // of its range per sample; steps spread over the whole range
+            // mean the counter is wider than counter_bits (aliasing).
+            if col.len() > 10 && wide as f64 > MAX_WIDE_STEP_FRACTION * (col.len() - 1) as f64 {
+                return Err(m.error(
+                    "wheels.counter_bits",
+                    format!(
+                        "{bits}: {wide} of {} steps of column '{}' in {} are above a quarter of the {bits}-bit \
+                         range, so the counter wraps between samples or is wider; set counter_bits to the \
+                         counter's width (e.g. 32)",
+                        col.len() - 1,
+                        wheel.column,
+                        s.path.display()
+                    ),
+                ));
             }
             out
         }
@@ -68,8 +87,22 @@ pub(crate) fn speed_noise_pct(n: &[f64], parts: &[std::ops::Range<usize>]) -> f6
     100.0 * (s2 / sn).sqrt()
 }
 
-/// Both wheels' cumulative rotation on the wheel stream's stamps.
+/// Largest fraction of counter steps above a quarter of the counter range
+/// for a `ticks_raw` counter of the declared width.
+const MAX_WIDE_STEP_FRACTION: f64 = 0.05;
+
+/// Rows a corrupt counter value may span (a jump out and back).
+const MAX_CORRUPT_ROWS: usize = 5;
+/// Stamp slack of the corrupt-row test, s: a jump is impossible when it
+/// needs more than `limits.max_speed_m_per_s` over the stamp difference
+/// plus this.
+const CORRUPT_SLACK_S: f64 = 0.05;
+
+/// Both wheels' cumulative rotation on the wheel stream's stamps, corrupt
+/// rows removed.
 pub(crate) struct Wheels {
+    /// The wheel stream without its corrupt rows.
+    pub stream: Stream,
     /// Rear-left, rev.
     pub cum_l: Vec<f64>,
     /// Rear-right, rev.
@@ -77,28 +110,99 @@ pub(crate) struct Wheels {
 }
 
 impl Wheels {
-    /// Reads both wheels of the wheel stream `s`.
-    pub fn new(m: &Manifest, s: &Stream) -> Result<Wheels> {
+    /// Reads both wheels of the wheel stream `s` and drops its corrupt
+    /// rows: a row whose count jumps further than the vehicle can drive
+    /// (`limits.max_speed_m_per_s` at θ_0) and whose following rows, within
+    /// [`MAX_CORRUPT_ROWS`], return to a reachable count (e.g. a counter
+    /// read as 0 for one sample). Such a row, kept, makes two output wheel
+    /// speeds of ± thousands of rev/s. A jump that does not return is left
+    /// for the speed check to report.
+    pub fn new(m: &Manifest, s: &Stream, warnings: &mut Vec<String>) -> Result<Wheels> {
         let w = &m.wheels;
-        Ok(Wheels {
-            cum_l: wheel_revolutions(m, s, &w.rear_left, "wheels.rear_left")?,
-            cum_r: wheel_revolutions(m, s, &w.rear_right, "wheels.rear_right")?,
-        })
+        let cum_l = wheel_revolutions(m, s, &w.rear_left, "wheels.rear_left")?;
+        let cum_r = wheel_revolutions(m, s, &w.rear_right, "wheels.rear_right")?;
+        let keep = corrupt_rows(m, &s.t, &cum_l, &cum_r);
+        let dropped: Vec<usize> = (0..keep.len()).filter(|&i| !keep[i]).collect();
+        if dropped.is_empty() {
+            return Ok(Wheels { stream: s.clone(), cum_l, cum_r });
+        }
+        let at: Vec<String> = dropped
+            .iter()
+            .take(3)
+            .map(|&i| match &s.lines {
+                Some(l) => format!("line {} (t = {:.3} s)", l[i], s.t[i]),
+                None => format!("row {i} (t = {:.3} s)", s.t[i]),
+            })
+            .collect();
+        warnings.push(format!(
+            "streams.{}: {} corrupt wheel row(s) dropped (a count jump beyond limits.max_speed_m_per_s that \
+             returns), at {}{}",
+            w.stream,
+            dropped.len(),
+            at.join(", "),
+            if dropped.len() > 3 { ", …" } else { "" }
+        ));
+        let mut stream = s.without_rows(&keep);
+        stream.report.corrupt_rows_dropped = dropped.len();
+        let cum_l = wheel_revolutions(m, &stream, &w.rear_left, "wheels.rear_left")?;
+        let cum_r = wheel_revolutions(m, &stream, &w.rear_right, "wheels.rear_right")?;
+        Ok(Wheels { stream, cum_l, cum_r })
     }
+}
+
+/// `keep[i]` false for the corrupt rows (see [`Wheels::new`]).
+fn corrupt_rows(m: &Manifest, t: &[f64], cum_l: &[f64], cum_r: &[f64]) -> Vec<bool> {
+    let n = t.len();
+    let c_e = m.output.theta0[0];
+    let vmax = m.limits.max_speed_m_per_s;
+    let reachable = |a: usize, b: usize| {
+        let d = vmax * ((t[b] - t[a]).abs() + CORRUPT_SLACK_S);
+        (cum_l[b] - cum_l[a]).abs() * c_e <= d && (cum_r[b] - cum_r[a]).abs() * c_e <= d
+    };
+    let mut keep = vec![true; n];
+    if n < 3 {
+        return keep;
+    }
+    let (mut a, mut i) = (0, 1);
+    if !reachable(0, 1) && reachable(1, 2) {
+        keep[0] = false;
+        (a, i) = (1, 2);
+    }
+    while i < n {
+        if reachable(a, i) {
+            a = i;
+            i += 1;
+            continue;
+        }
+        match (i + 1..(i + 1 + MAX_CORRUPT_ROWS).min(n)).find(|&j| reachable(a, j)) {
+            Some(j) => {
+                keep[i..j].iter_mut().for_each(|k| *k = false);
+                a = j;
+                i = j + 1;
+            }
+            None => {
+                a = i;
+                i += 1;
+            }
+        }
+    }
+    keep
 }
 
 /// The wheel speed noise with the raw stamps against the de-jittered ones
 /// (`n_rl`, `n_rr`), on the same grid and parts; `None` when the stream was
-/// not de-jittered.
+/// not de-jittered. A noise that cannot be computed (no wheel faster than
+/// 1 rev/s) is an error naming the stream.
 pub(crate) fn jitter_report(
     m: &Manifest,
-    ws: &Stream,
+    wheels: &Wheels,
     grid: &[f64],
     h: f64,
     kept: &[Range<usize>],
     n_rl: &[f64],
     n_rr: &[f64],
 ) -> Result<Option<JitterReport>> {
+    let ws = &wheels.stream;
     if ws.report.dejitter.is_none() {
         return Ok(None);
     }
@@ -115,10 +219,18 @@ pub(crate) fn jitter_report(
         let y = speed_noise_pct(b, kept);
         ((x * x + y * y) / 2.0).sqrt()
     };
-    Ok(Some(JitterReport {
+    let r = JitterReport {
         wheel_speed_noise_raw_pct: both(&nl_raw, &nr_raw),
         wheel_speed_noise_dejittered_pct: both(n_rl, n_rr),
-    }))
+    };
+    if !(r.wheel_speed_noise_raw_pct.is_finite() && r.wheel_speed_noise_dejittered_pct.is_finite()) {
+        return Err(m.error(
+            &format!("streams.{}", w.stream),
+            "the wheel speed noise is not finite: no wheel turns faster than 1 rev/s in the kept parts; check \
+             wheels.signal, ticks_per_rev and counter_bits",
+        ));
+    }
+    Ok(Some(r))
 }
 
 /// What one model "revolution" is, i.e. how to read c_e.

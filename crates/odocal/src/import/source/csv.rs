@@ -6,6 +6,7 @@ use std::path::Path;
 
 use super::{Table, Wanted};
 use crate::error::{Error, Result};
+use crate::import::limits::echo;
 use crate::import::manifest::Manifest;
 
 /// Reads the time column `time` and the `wanted` columns of `path`.
@@ -34,7 +35,7 @@ pub(super) fn read(m: &Manifest, name: &str, path: &Path, time: &str, wanted: &[
                         "column '{}' not found in {}; columns found: {}",
                         w.column,
                         path.display(),
-                        headers.join(", ")
+                        list_headers(&headers)
                     ),
                 ))
             }
@@ -52,7 +53,7 @@ pub(super) fn read(m: &Manifest, name: &str, path: &Path, time: &str, wanted: &[
                 path: path.to_path_buf(),
                 line,
                 column: Some(headers[j].clone()),
-                reason: format!("'{field}' is not a number"),
+                reason: format!("'{}' is not a number", echo(field)),
             })?;
             data[c].push(v);
         }
@@ -64,4 +65,13 @@ pub(super) fn read(m: &Manifest, name: &str, path: &Path, time: &str, wanted: &[
         columns.insert(w.column.clone(), std::mem::take(&mut data[c]));
     }
     Ok(Table { t_s, columns, source: path.display().to_string(), lines: Some(lines) })
+}
+
+/// The header for a message: at most 30 names, each echoed short.
+fn list_headers(headers: &[String]) -> String {
+    let mut out: Vec<String> = headers.iter().take(30).map(|h| echo(h)).collect();
+    if headers.len() > 30 {
+        out.push(format!("… ({} columns)", headers.len()));
+    }
+    out.join(", ")
 }

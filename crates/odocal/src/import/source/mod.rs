@@ -27,7 +27,7 @@ use std::path::{Path, PathBuf};
 
 use super::manifest::{Manifest, SourceSpec};
 use super::report::{DejitterReport, StreamReport};
-use super::signal;
+use super::{limits, signal};
 use crate::error::{Error, Result};
 
 /// A column a reader must return: the column name and the manifest key that
@@ -104,6 +104,19 @@ pub(crate) struct Stream {
 }
 
 impl Stream {
+    /// The stream without the rows whose `keep` is false.
+    pub fn without_rows(&self, keep: &[bool]) -> Stream {
+        let f = |v: &[f64]| v.iter().zip(keep).filter(|(_, k)| **k).map(|(x, _)| *x).collect::<Vec<f64>>();
+        Stream {
+            path: self.path.clone(),
+            t: f(&self.t),
+            t_raw: f(&self.t_raw),
+            cols: self.cols.iter().map(|(c, v)| (c.clone(), f(v))).collect(),
+            lines: self.lines.as_ref().map(|l| l.iter().zip(keep).filter(|(_, k)| **k).map(|(x, _)| *x).collect()),
+            report: self.report.clone(),
+        }
+    }
+
     /// Column `name` (empty when it was not read).
     pub fn col(&self, name: &str) -> &[f64] {
         self.cols.get(name).map(Vec::as_slice).unwrap_or(&[])
@@ -181,6 +194,17 @@ pub(crate) fn read_stream(m: &Manifest, name: &str, wanted: &[Wanted]) -> Result
     let span = [t_raw[0], t_raw[n - 1]];
     let mean_rate_hz = if n > 1 { (n - 1) as f64 / (span[1] - span[0]) } else { 0.0 };
     let (t, dejitter) = match spec.nominal_rate_hz {
+        Some(rate) if rate > limits::MAX_NOMINAL_OVER_MEAN_RATE * mean_rate_hz => {
+            return Err(m.error(
+                &format!("streams.{name}.nominal_rate_hz"),
+                format!(
+                    "{} Hz is more than {} × the stream's mean rate of {mean_rate_hz:.3} Hz; give the sensor's \
+                     sample rate",
+                    limits::echo_num(rate),
+                    limits::MAX_NOMINAL_OVER_MEAN_RATE
+                ),
+            ))
+        }
         Some(rate) => {
             let half = ((spec.dejitter_window_s * rate) / 2.0).round().max(1.0) as usize;
             let d = signal::dejitter(&t_raw, 1.0 / rate, half, m.output.max_gap_s);
@@ -199,6 +223,7 @@ pub(crate) fn read_stream(m: &Manifest, name: &str, wanted: &[Wanted]) -> Result
         file: path.clone(),
         rows,
         repeated_stamps_dropped: repeated,
+        corrupt_rows_dropped: 0,
         time_span_s: span,
         mean_rate_hz,
         dejitter,
