@@ -6,7 +6,7 @@
 
 use std::ops::Range;
 
-use super::limits::echo_num;
+use super::limits::{echo_num, within};
 use super::manifest::{LateralAccelerationSpec, Manifest, WheelSignal};
 use super::signal;
 use crate::error::Result;
@@ -55,7 +55,7 @@ pub(crate) fn wheel_speeds(m: &Manifest, x: &Resampled<'_>, theta0: &Theta) -> R
     for (n, key) in [(x.n_rl, "wheels.rear_left"), (x.n_rr, "wheels.rear_right")] {
         for k in x.kept.iter().flat_map(|r| r.clone()) {
             let v = n[k] * theta0.c_e;
-            if !(v.abs() <= max) {
+            if !within(v, max) {
                 let hint = match m.wheels.signal {
                     WheelSignal::RevPerS | WheelSignal::RadPerS | WheelSignal::MPerS => {
                         "; if the column counts ticks, use signal = \"ticks_cumulative\" or \"ticks_raw\""
@@ -83,7 +83,7 @@ pub(crate) fn wheel_speeds(m: &Manifest, x: &Resampled<'_>, theta0: &Theta) -> R
 pub(crate) fn lateral_acceleration(m: &Manifest, x: &Resampled<'_>, a_y: &[f64]) -> Result<()> {
     let max = m.limits.max_lateral_acceleration_m_per_s2;
     for k in x.kept.iter().flat_map(|r| r.clone()) {
-        if !(a_y[k].abs() <= max) {
+        if !within(a_y[k], max) {
             let (key, hint) = match &m.lateral_acceleration {
                 LateralAccelerationSpec::Imu { .. } => {
                     ("lateral_acceleration.column", "; is the column in g or the wrong axis?")
@@ -199,7 +199,7 @@ pub(crate) fn conventions(m: &Manifest, x: &Resampled<'_>, theta0: &Theta, warni
     let c = moving.len() as f64;
     let (va, vb, cov) = (saa - sa * sa / c, sbb - sb * sb / c, sab - sa * sb / c);
     let corr = cov / (va * vb).sqrt();
-    if !(corr.abs() >= MIN_YAW_CORRELATION) || !(va / c).sqrt().is_finite() || (va / c).sqrt() < TURNING_RAD_PER_S {
+    if !within(MIN_YAW_CORRELATION, corr.abs()) || !(va / c).sqrt().is_finite() || (va / c).sqrt() < TURNING_RAD_PER_S {
         warnings.push(format!(
             "heading unit and convention not checked: the drive turns too little (RMS wheel yaw rate {:.3} rad/s, \
              needs {TURNING_RAD_PER_S}) or the yaw rates correlate too little (r = {corr:.2}, needs \

@@ -60,6 +60,11 @@ pub(crate) fn echo_num(v: f64) -> String {
     }
 }
 
+/// `|v| ≤ max` and finite (false for NaN).
+pub(crate) fn within(v: f64, max: f64) -> bool {
+    v.is_finite() && v.abs() <= max
+}
+
 /// Output samples of `span_s` at `rate_hz` must stay within the budget.
 pub(crate) fn check_samples(m: &Manifest, what: &str, span_s: f64) -> Result<()> {
     let n = span_s * m.output.rate_hz;

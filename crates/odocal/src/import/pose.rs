@@ -3,7 +3,7 @@
 
 use super::geodesy;
 use super::grid::{gaps_of, BadInterval};
-use super::limits::echo_num;
+use super::limits::{echo_num, within};
 use super::manifest::{HeadingConvention, Manifest, PositionSpec};
 use super::source::Stream;
 use crate::drive::unwrap_in_place;
@@ -62,7 +62,7 @@ pub(crate) fn build_pose(m: &Manifest, s: &Stream, warnings: &mut Vec<String>) -
             for (col, v, max, key) in
                 [(lat_col, lat, 90.0, "pose.position.lat"), (lon_col, lon, 180.0, "pose.position.lon")]
             {
-                if let Some(i) = (0..n).find(|&i| good[i] && !(v[i].abs() <= max)) {
+                if let Some(i) = (0..n).find(|&i| good[i] && !within(v[i], max)) {
                     return Err(s.error_at(
                         i,
                         Some(col),
@@ -176,7 +176,7 @@ fn check_speed(m: &Manifest, p: &Pose, warnings: &mut Vec<String>) -> Result<()>
     let vmax = m.limits.max_speed_m_per_s;
     let fast: Vec<(usize, f64)> = (1..p.t.len())
         .map(|j| (j, (p.x[j] - p.x[j - 1]).hypot(p.y[j] - p.y[j - 1]) / (p.t[j] - p.t[j - 1])))
-        .filter(|(_, v)| !(*v <= vmax))
+        .filter(|(_, v)| !within(*v, vmax))
         .collect();
     let Some(&(j, v)) = fast.first() else { return Ok(()) };
     let steps = p.t.len() - 1;
