@@ -9,6 +9,7 @@ use super::pose::Pose;
 use super::report::ClockOffsetReport;
 use super::signal::{self, Correlation};
 use crate::error::Result;
+
 use crate::model::{kinematics, Input, Kinematics, Theta};
 
 /// The wheel stream as the clock estimate needs it.
@@ -72,37 +73,85 @@ pub(crate) fn estimate(
     (signal::cross_correlate(&vw, &on_grid(&vp), h, max_lag), signal::cross_correlate(&ww, &on_grid(&wp), h, max_lag))
 }
 
-/// Estimates the offset, decides which offset to apply (the estimate for
-/// `"auto"`, else the manifest's), and reports both.
+/// Lowest speed correlation at which `"auto"` applies its estimate.
+pub const MIN_CLOCK_CORRELATION: f64 = 0.5;
+/// A second correlation peak within this of the best makes the estimate
+/// ambiguous.
+pub const MIN_PEAK_MARGIN: f64 = 0.02;
+/// The yaw-rate cross-check counts when its correlation reaches this.
+pub const MIN_YAW_CHECK_CORRELATION: f64 = 0.8;
+
+/// Why the speed estimate is not clearly better than the manifest's offset
+/// (the streams' `time_offset_s` alone), or `None` when it is: the speed
+/// correlation is below [`MIN_CLOCK_CORRELATION`], a second peak comes
+/// within [`MIN_PEAK_MARGIN`] of it, or the yaw-rate cross-check (when its
+/// correlation reaches [`MIN_YAW_CHECK_CORRELATION`]) disagrees by more
+/// than one output sample `h`.
+pub(crate) fn doubt(est: Option<Correlation>, yaw: Option<Correlation>, h: f64) -> Option<String> {
+    let Some(c) = est else {
+        return Some("no moving wheel and pose data overlap within ±max_clock_offset_s".into());
+    };
+    if !(c.peak >= MIN_CLOCK_CORRELATION) {
+        return Some(format!("the speed correlation {:.3} is below {MIN_CLOCK_CORRELATION}", c.peak));
+    }
+    if let Some((t2, r2)) = c.second {
+        if r2 >= c.peak - MIN_PEAK_MARGIN {
+            return Some(format!(
+                "a second correlation peak at {t2:+.3} s ({r2:.4}) is within {MIN_PEAK_MARGIN} of the best ({:.4})",
+                c.peak
+            ));
+        }
+    }
+    if let Some(y) = yaw {
+        if y.peak >= MIN_YAW_CHECK_CORRELATION && (y.offset_s - c.offset_s).abs() > h {
+            return Some(format!(
+                "the yaw-rate cross-check gives {:+.4} s (correlation {:.3}), more than one sample from {:+.4} s",
+                y.offset_s, y.peak, c.offset_s
+            ));
+        }
+    }
+    None
+}
+
+/// Estimates the offset, decides which offset to apply (for `"auto"`, the
+/// estimate unless [`doubt`] finds it not clearly better than the
+/// manifest's, then 0 s on top of the streams' `time_offset_s`, with a
+/// warning; a number is applied as given), and reports both.
 pub(crate) fn align(
     m: &Manifest,
     w: &WheelTrack<'_>,
     pose: &Pose,
     h: f64,
     theta0: &Theta,
+    warnings: &mut Vec<String>,
 ) -> Result<ClockOffsetReport> {
     let o = &m.output;
     let (est, est_yaw) = estimate(m, w, pose, h, theta0);
-    let applied = match o.clock_offset {
-        ClockOffset::Seconds(v) => v,
-        ClockOffset::Auto => match est {
-            Some(c) => c.offset_s,
-            None => {
-                return Err(m.error(
-                    "output.clock_offset",
-                    "\"auto\": the clock offset could not be estimated (no overlapping moving wheel and pose \
-                     data within ±max_clock_offset_s); give the offset in seconds",
-                ))
-            }
-        },
+    let doubt = doubt(est, est_yaw, h);
+    let applied = match (o.clock_offset, &doubt) {
+        (ClockOffset::Seconds(v), _) => v,
+        (ClockOffset::Auto, None) => est.map_or(0.0, |c| c.offset_s),
+        (ClockOffset::Auto, Some(why)) => {
+            warnings.push(format!(
+                "output.clock_offset = \"auto\": the estimate is not clearly better than the manifest's offset \
+                 ({why}); kept the streams' time_offset_s (0 s added). Give output.clock_offset in seconds to \
+                 fix it"
+            ));
+            0.0
+        }
     };
     Ok(ClockOffsetReport {
         estimated_s: est.map(|c| c.offset_s),
         correlation: est.map(|c| c.peak),
         correlation_pairs: est.map(|c| c.pairs),
+        peak_curvature_per_s2: est.map(|c| c.curvature).filter(|v| v.is_finite()),
+        uncertainty_s: est.map(|c| (2.0 * (1.0 - c.peak) / c.curvature).sqrt()).filter(|v| v.is_finite()),
+        second_peak_s: est.and_then(|c| c.second).map(|s| s.0),
+        second_peak_correlation: est.and_then(|c| c.second).map(|s| s.1),
         yaw_rate_estimate_s: est_yaw.map(|c| c.offset_s),
         yaw_rate_correlation: est_yaw.map(|c| c.peak),
         applied_s: applied,
+        doubt,
         mode: match o.clock_offset {
             ClockOffset::Auto => "auto".into(),
             ClockOffset::Seconds(_) => "fixed".into(),

@@ -27,8 +27,13 @@
 //! 4. **Clock offset** τ (pose time + τ = wheel time) is estimated by
 //!    cross-correlating the wheel speed at θ_0 with the speed differenced from
 //!    the pose, over ±`max_clock_offset_s`, with sub-sample resolution from a
-//!    parabola through the correlation peak. It is always reported; it is
-//!    applied when `clock_offset = "auto"`.
+//!    parabola through the correlation peak. It is always reported, with the
+//!    peak's sharpness (curvature) and the second-best peak. With
+//!    `clock_offset = "auto"` it is applied unless it is not clearly better
+//!    than the manifest's offset (the streams' `time_offset_s` alone): speed
+//!    correlation below 0.5, a second peak within 0.02 of the best, or the
+//!    yaw-rate cross-check (correlation ≥ 0.8) more than one output sample
+//!    away; then 0 s is added and the report warns. A number fixes it.
 //! 5. **Gaps**: a wheel, pose or IMU gap longer than `max_gap_s`, or pose
 //!    samples of rejected quality, make the affected output samples invalid;
 //!    the valid samples form the continuous parts of the drive
@@ -240,7 +245,7 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
     limits::check_correlation(m, clock_samples as usize)?;
 
     let track = clock::WheelTrack { t: &ws.t, cum_l: &wheels.cum_l, cum_r: &wheels.cum_r, bad: &wheel_bad };
-    let clock_offset = clock::align(m, &track, &pose, h, &theta0)?;
+    let clock_offset = clock::align(m, &track, &pose, h, &theta0, &mut warnings)?;
     pose.shift(clock_offset.applied_s);
 
     let (start, end) = grid::common_span(m, &spans(m, &streams, &pose), h)?;

@@ -100,6 +100,17 @@ pub struct ClockOffsetReport {
     pub correlation: Option<f64>,
     /// Sample pairs (at the output rate) in the correlation at the peak.
     pub correlation_pairs: Option<usize>,
+    /// Sharpness of the speed-correlation peak, −d²r/dτ², 1/s²: a
+    /// confidence (a peak of width w has about 2·(1 − r_edge)/w²).
+    pub peak_curvature_per_s2: Option<f64>,
+    /// Half-width of the offsets the peak cannot tell apart from its top,
+    /// `sqrt(2·(1 − r)/curvature)`, s: how far the correlation's own misfit
+    /// (1 − r) reaches down the peak. Informational.
+    pub uncertainty_s: Option<f64>,
+    /// The best other local maximum of the speed correlation, s.
+    pub second_peak_s: Option<f64>,
+    /// Its correlation.
+    pub second_peak_correlation: Option<f64>,
     /// Cross-check, not applied: the same estimate from the wheel yaw rate
     /// at θ_0 against the reference yaw rate, s (sharper where the drive turns).
     pub yaw_rate_estimate_s: Option<f64>,
@@ -107,6 +118,8 @@ pub struct ClockOffsetReport {
     pub yaw_rate_correlation: Option<f64>,
     /// The offset applied, s.
     pub applied_s: f64,
+    /// Why `"auto"` did not apply its estimate (see the import docs), if so.
+    pub doubt: Option<String>,
     /// `"auto"` or `"fixed"`.
     pub mode: String,
 }
@@ -169,6 +182,16 @@ impl std::fmt::Display for ImportReport {
                 e, c.applied_s, c.mode
             )?,
             _ => writeln!(f, "  clock offset: not estimated, applied {:+.4} s ({})", c.applied_s, c.mode)?,
+        }
+        if let Some(k) = c.peak_curvature_per_s2 {
+            write!(f, "  clock offset peak sharpness {k:.3} /s²")?;
+            if let Some(u) = c.uncertainty_s {
+                write!(f, " (± {u:.3} s)")?;
+            }
+            match (c.second_peak_s, c.second_peak_correlation) {
+                (Some(t), Some(r)) => writeln!(f, ", second peak {t:+.3} s (correlation {r:.4})")?,
+                _ => writeln!(f, ", no second peak")?,
+            }
         }
         if let (Some(e), Some(r)) = (c.yaw_rate_estimate_s, c.yaw_rate_correlation) {
             writeln!(f, "  clock offset cross-check from yaw rates: {e:+.4} s (correlation {r:.4}), not applied")?;

@@ -745,3 +745,55 @@ fn a_corrupt_wheel_row_is_dropped_not_turned_into_a_speed_spike() {
     let worst = d.n_rl().iter().chain(d.n_rr()).map(|n| (n - 5.0).abs()).fold(0.0, f64::max);
     assert!(worst < 1e-9, "wheel speeds stay 5 rev/s: worst deviation {worst}");
 }
+
+// ---- Issue 10 item 6: robust clock offset. ----
+
+fn corr(offset_s: f64, peak: f64, second: Option<(f64, f64)>) -> signal::Correlation {
+    signal::Correlation { offset_s, peak, pairs: 1000, curvature: 1.0, second }
+}
+
+#[test]
+fn clock_estimate_is_doubted_when_not_clearly_better() {
+    let h = 0.025;
+    assert!(clock::doubt(Some(corr(0.1, 0.99, Some((1.0, 0.5)))), None, h).is_none());
+    let d = clock::doubt(Some(corr(-1.09, 0.004, None)), None, h).expect("low correlation");
+    assert!(d.contains("0.004 is below 0.5"), "{d}");
+    let d = clock::doubt(Some(corr(0.1, 0.95, Some((0.9, 0.94)))), None, h).expect("ambiguous");
+    assert!(d.contains("second correlation peak at +0.900 s"), "{d}");
+    // A confident yaw-rate cross-check more than a sample away doubts it; a
+    // weak one does not.
+    assert!(clock::doubt(Some(corr(0.1, 0.99, None)), Some(corr(0.2, 0.9, None)), h).is_some());
+    assert!(clock::doubt(Some(corr(0.1, 0.99, None)), Some(corr(0.2, 0.5, None)), h).is_none());
+    assert!(clock::doubt(Some(corr(0.1, 0.99, None)), Some(corr(0.11, 0.9, None)), h).is_none());
+    assert!(clock::doubt(None, None, h).is_some());
+}
+
+#[test]
+fn auto_offset_keeps_the_manifest_offset_and_warns_when_in_doubt() {
+    // Constant wheel speeds: nothing to correlate.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = small_case(dir.path());
+    let text = std::fs::read_to_string(&path).expect("read").replace("clock_offset = 0.0", "clock_offset = \"auto\"");
+    let r = import(&Manifest::parse(&text, &path).expect("m")).expect("import").report;
+    assert_eq!(r.clock_offset.applied_s, 0.0);
+    assert!(r.clock_offset.doubt.is_some(), "{r}");
+    assert!(r.warnings.iter().any(|w| w.contains("kept the streams' time_offset_s")), "{r}");
+}
+
+#[test]
+fn a_known_offset_is_applied_with_its_confidence() {
+    let duration = 70.0;
+    let tr = Truth::new(duration);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = write_synthetic(dir.path(), &tr, duration);
+    let c = import(&Manifest::from_path(&path).expect("m")).expect("import").report.clock_offset;
+    assert!(c.doubt.is_none(), "{c:?}");
+    assert!((c.applied_s - TRUE_CLOCK_OFFSET_S).abs() < 0.025, "{c:?}");
+    let k = c.peak_curvature_per_s2.expect("curvature");
+    let u = c.uncertainty_s.expect("uncertainty");
+    eprintln!(
+        "simulated offset {TRUE_CLOCK_OFFSET_S}: estimated {:.4} s, curvature {k:.3} /s², ± {u:.4} s",
+        c.applied_s
+    );
+    assert!(k > 0.0 && u < 0.1, "{c:?}");
+}
