@@ -91,7 +91,7 @@ pub(crate) fn doubt(est: Option<Correlation>, yaw: Option<Correlation>, h: f64) 
     let Some(c) = est else {
         return Some("no moving wheel and pose data overlap within ±max_clock_offset_s".into());
     };
-    if !(c.peak >= MIN_CLOCK_CORRELATION) {
+    if c.peak.is_nan() || c.peak < MIN_CLOCK_CORRELATION {
         return Some(format!("the speed correlation {:.3} is below {MIN_CLOCK_CORRELATION}", c.peak));
     }
     if let Some((t2, r2)) = c.second {

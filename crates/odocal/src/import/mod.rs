@@ -146,7 +146,17 @@
 //! [sideslip]
 //! source = "zero"             # zero (default) | column
 //! # stream = "ins", column = "beta", unit = "rad", sign = 1
+//!
+//! [limits]                    # physical limits; beyond them is an error naming the time
+//! max_speed_m_per_s = 100.0   # each wheel at θ_0 and the pose (default 100)
+//! max_lateral_acceleration_m_per_s2 = 15.0  # |a_y| (default 15; derived a_y judged over 0.5 s)
 //! ```
+//!
+//! Resource budgets (output samples, clock search, de-jitter window) are
+//! fixed and documented in [`limits`]; settings beyond them are rejected
+//! before anything is allocated. Corrupt wheel rows (a count jump the
+//! vehicle cannot drive that returns within a few rows, e.g. a counter read
+//! as 0) are dropped and reported.
 //!
 //! ## Example
 //!
@@ -180,7 +190,7 @@ use std::path::Path;
 use std::time::Instant;
 
 pub use manifest::{
-    AngleUnit, ClockOffset, HeadingConvention, HeadingSpec, LateralAccelerationSpec, Manifest, OutputSpec,
+    AngleUnit, ClockOffset, HeadingConvention, HeadingSpec, LateralAccelerationSpec, LimitsSpec, Manifest, OutputSpec,
     PositionSpec, QualitySpec, SideslipSpec, SourceSpec, StreamSpec, TimeUnit, WheelColumn, WheelSignal, WheelSpec,
 };
 pub use report::{ClockOffsetReport, DejitterReport, GapRecord, ImportReport, JitterReport, PartRecord, StreamReport};

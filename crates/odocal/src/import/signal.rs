@@ -244,7 +244,10 @@ pub(crate) fn cross_correlate(a: &[f64], b: &[f64], h: f64, max_lag: usize) -> O
     let second = (0..r.len())
         .filter(|&i| i < lo || i > hi)
         .filter(|&i| r[i].0.is_finite())
-        .filter(|&i| (i == 0 || !(r[i - 1].0 > r[i].0)) && (i + 1 == r.len() || !(r[i + 1].0 > r[i].0)))
+        .filter(|&i| {
+            (i == 0 || r[i - 1].0 <= r[i].0 || r[i - 1].0.is_nan())
+                && (i + 1 == r.len() || r[i + 1].0 <= r[i].0 || r[i + 1].0.is_nan())
+        })
         .max_by(|&a, &b| r[a].0.total_cmp(&r[b].0))
         .map(|i| (lags[i] as f64 * h, r[i].0));
     Some(Correlation { offset_s: (lags[best] as f64 + frac) * h, peak: r[best].0, pairs: r[best].1, curvature, second })
