@@ -28,6 +28,22 @@ pub(crate) fn echo(field: &str) -> String {
     }
 }
 
+/// At most this many names are listed in an error message.
+const LIST_NAMES: usize = 12;
+
+/// The first [`LIST_NAMES`] names, then "… (N more)".
+fn listed(names: &[String]) -> Vec<String> {
+    let mut v: Vec<String> = names.iter().take(LIST_NAMES).cloned().collect();
+    if names.len() > LIST_NAMES {
+        v.push(format!("… ({} more)", names.len() - LIST_NAMES));
+    }
+    v
+}
+
+fn list(names: &[String]) -> String {
+    listed(names).join(", ")
+}
+
 impl Drive {
     /// Reads a canonical drive CSV (SPEC §2). Accepts a UTF-8 BOM, CRLF line
     /// endings, extra columns (numbers or text, kept in [`Drive::extra`];
@@ -69,7 +85,10 @@ impl Drive {
             let line = e.position().map(|p| p.line()).unwrap_or(0);
             let reason = match e.kind() {
                 ::csv::ErrorKind::Utf8 { .. } => "invalid UTF-8 (the file must be UTF-8 text)".to_string(),
-                _ => echo(&e.to_string()),
+                ::csv::ErrorKind::UnequalLengths { expected_len, len, .. } => {
+                    format!("{len} fields, the header has {expected_len}")
+                }
+                _ => e.to_string(),
             };
             csv_error(line, None, reason)
         };
@@ -80,7 +99,7 @@ impl Drive {
             return Err(csv_error(
                 1,
                 None,
-                format!("duplicate column name(s) {}: every column must be named once", dups.join(", ")),
+                format!("duplicate column name(s) {}: every column must be named once", list(&dups)),
             ));
         }
         let find = |name: &str| headers.iter().position(|h| h == name);
@@ -95,7 +114,7 @@ impl Drive {
             return Err(Error::MissingColumns {
                 path: path.to_path_buf(),
                 missing,
-                found: headers.iter().map(|h| echo(h)).collect(),
+                found: listed(&headers.iter().map(|h| echo(h)).collect::<Vec<_>>()),
                 hint,
             });
         }
@@ -187,10 +206,11 @@ impl Drive {
         if let Some(j) = find(MASK_COLUMN) {
             let mut mask = Vec::with_capacity(nums[j].len());
             for (i, &v) in nums[j].iter().enumerate() {
-                if v != 0.0 && v != 1.0 {
+                let one = v.to_bits() == 1.0f64.to_bits();
+                if v != 0.0 && !one {
                     return Err(csv_error(line_of(i), Some(MASK_COLUMN), format!("{v} is not 0 or 1")));
                 }
-                mask.push(v == 1.0);
+                mask.push(one);
             }
             b = b.reference_measured(mask);
         }

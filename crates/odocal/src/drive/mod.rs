@@ -48,6 +48,7 @@ use std::ops::Range;
 
 pub use self::csv::REQUIRED_COLUMNS;
 use crate::error::{Error, Result};
+use crate::limits::PhysicalLimits;
 use crate::model::{Input, State};
 
 /// Relative tolerance on the uniformity of the sample step (SPEC/issue: 1 %).
@@ -215,6 +216,7 @@ pub struct DriveBuilder {
     extra: Vec<ExtraColumn>,
     parts: PartSpec,
     sample_time_s: Option<f64>,
+    limits: PhysicalLimits,
 }
 
 impl DriveBuilder {
@@ -230,6 +232,13 @@ impl DriveBuilder {
     /// in error messages. Default `"drive"`.
     pub fn context(mut self, context: impl Into<String>) -> Self {
         self.context = context.into();
+        self
+    }
+
+    /// The physical limits the drive is checked against (default
+    /// [`PhysicalLimits::default`], the table in [`crate::limits`]).
+    pub fn limits(mut self, limits: PhysicalLimits) -> Self {
+        self.limits = limits;
         self
     }
 
@@ -266,15 +275,26 @@ impl DriveBuilder {
 
     /// Checks everything and makes the drive: equal column lengths, finite
     /// values, strictly increasing time, a uniform step within each part
-    /// (within [`STEP_UNIFORMITY_TOL`]); infers t_s and unwraps the heading.
+    /// (within [`STEP_UNIFORMITY_TOL`]); infers t_s and unwraps the heading;
+    /// then checks the [`PhysicalLimits`].
     ///
     /// # Errors
     /// [`Error::InvalidSample`] naming the column and sample index, or
     /// [`Error::InvalidDrive`] for whole-drive problems (no samples, too few
     /// to infer t_s, bad part ranges).
     pub fn build(self) -> Result<Drive> {
-        let DriveBuilder { context, t, mut measured, mut truth, reference_measured, extra, parts, sample_time_s } =
-            self;
+        let DriveBuilder {
+            context,
+            t,
+            mut measured,
+            mut truth,
+            reference_measured,
+            extra,
+            parts,
+            sample_time_s,
+            limits,
+        } = self;
+        limits.validate()?;
         let n = t.len();
         let invalid = |reason: String| Error::InvalidDrive { context: context.clone(), reason };
         let bad = |column: &str, sample: usize, reason: String| Error::InvalidSample {
@@ -387,7 +407,9 @@ impl DriveBuilder {
         if let Some(tr) = truth.as_mut() {
             unwrap_in_place(&mut tr.psi);
         }
-        Ok(Drive { t, measured, truth, reference_measured, extra, parts, sample_time_s: ts })
+        let drive = Drive { t, measured, truth, reference_measured, extra, parts, sample_time_s: ts };
+        limits.check(&drive, &context)?;
+        Ok(drive)
     }
 }
 
@@ -404,6 +426,7 @@ impl Drive {
             extra: Vec::new(),
             parts: PartSpec::One,
             sample_time_s: None,
+            limits: PhysicalLimits::default(),
         }
     }
 
@@ -589,6 +612,8 @@ impl Drive {
             .collect();
         // Keep the parent's t_s: a sub-drive is sampled like the drive it came from.
         let mut b = Drive::builder(t, measured).context("drive").parts(parts).sample_time_s(self.sample_time_s);
+        // Samples of a drive that passed its limits: no need to check again.
+        b.limits = PhysicalLimits::NONE;
         b.truth = truth;
         b.reference_measured = self.reference_measured.as_ref().map(|m| m[r.clone()].to_vec());
         b.extra = self
