@@ -144,6 +144,21 @@ struct CalibrationArgs {
     /// segment, hold c_d, t_r, d and use every segment.
     #[arg(long)]
     auto_fix: bool,
+    /// Write the calibrated parameters with their 1σ, units, verdict and
+    /// provenance to this file: a ROS 2 parameter file (.yaml/.yml) or JSON (.json).
+    #[arg(long)]
+    params_out: Option<PathBuf>,
+    /// ROS node name of the parameter file.
+    #[arg(long, default_value = "odocal")]
+    params_node: String,
+    /// Also write the parameters under a consumer's keys: odocal (none) or
+    /// diff_drive_controller (wheel_separation, wheel_radius, radius multipliers).
+    #[arg(long, default_value = "odocal")]
+    params_mapping: odocal::param_file::ParamMapping,
+    /// Write a self-contained HTML report (verdict, θ, map, per-segment errors,
+    /// residuals, warnings) to this file.
+    #[arg(long)]
+    report: Option<PathBuf>,
 }
 
 /// The half of the drive `--holdout` holds out.
@@ -339,10 +354,27 @@ fn main() -> ExitCode {
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", one_line(&e));
             ExitCode::FAILURE
         }
     }
+}
+
+/// The error and its causes on one line, leaving out a cause whose text the
+/// line already holds (the library's I/O errors name the OS error once).
+fn one_line(e: &anyhow::Error) -> String {
+    let mut line = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if line.contains(&text) {
+            continue;
+        }
+        if !line.is_empty() {
+            line.push_str(": ");
+        }
+        line.push_str(&text);
+    }
+    line.replace('\n', " ")
 }
 
 fn run(cli: Cli) -> Result<()> {
@@ -543,6 +575,31 @@ fn run_calibration(
     };
     let truth_ref = truth.as_ref().map(|(t, e)| (t, *e));
     print_warnings(&r.warnings);
+    let input = source.map(|(p, _)| p.display().to_string()).unwrap_or_else(|| "simulated drive".into());
+    if let Some(p) = &args.params_out {
+        let mut f = odocal::param_file::ParamFile::from_theta(&r.theta, sigma_or_held(&r), &input, &r.method);
+        f.node = args.params_node.clone();
+        f.mapping = args.params_mapping;
+        f.write(p)?;
+    }
+    if let Some(p) = &args.report {
+        let val = segment::validation_segments(drive, &opts.validation)?;
+        let batches = r.initial_step().map(|s| s.batches.iter().map(|b| (b.score.theta, b.score.mean_position_error_m)).collect()).unwrap_or_default();
+        let html = odocal_report::ReportInput {
+            provenance: vec![
+                ("method".into(), r.method.clone()),
+                ("input".into(), input.clone()),
+                ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
+                ("date".into(), odocal::param_file::utc_date_today()),
+            ],
+            params: odocal_report::ParamRow::theta_rows(&r.initial.theta, &r.theta, Some(sigma_or_held(&r)), truth_ref.map(|t| t.0)),
+            truth: truth_ref.map(|t| *t.0),
+            batches,
+            warnings: r.warnings.iter().map(|w| w.to_string()).collect(),
+            ..odocal_report::ReportInput::new(input.clone(), drive, &val, r.initial.theta, r.theta)
+        };
+        odocal_report::write_html(p, &html)?;
+    }
     if let Some(p) = json {
         write_json(p, report_json(&r, truth_ref, wheel_scale)?)?;
         if p == Path::new("-") {
@@ -552,6 +609,13 @@ fn run_calibration(
     print!("{}", report::calibration(&r, truth_ref, wheel_scale));
     std::io::stdout().flush()?;
     Ok(())
+}
+
+/// 1σ per θ entry, `None` for a parameter held at θ_0.
+fn sigma_or_held(r: &odocal::CalibrationReport) -> [Option<f64>; 4] {
+    let sd = r.std_dev().to_array();
+    let free = r.options.identify.free;
+    std::array::from_fn(|i| odocal::Param::from_index(i).filter(|p| free.contains(*p)).map(|_| sd[i]))
 }
 
 fn calibrate_cmd(a: CalibrateArgs, bars: &progress::Bars) -> Result<()> {

@@ -483,6 +483,10 @@ pub fn calibrate_detailed(
 ) -> Result<DetailedCalibration> {
     opts.validate()?;
     let t_start = Instant::now();
+    crate::limits::check_conventions(drive, &opts.theta0, "drive")?;
+    if let Some(h) = held_out {
+        crate::limits::check_conventions(h, &opts.theta0, "held-out drive")?;
+    }
     let prep = Prepared { drive, options: opts, validation: validation_segments(drive, &opts.validation)? };
     let method = opts.method.estimator();
     let selection = method.select(&prep)?;
