@@ -584,7 +584,10 @@ fn run_calibration(
     }
     if let Some(p) = &args.report {
         let val = segment::validation_segments(drive, &opts.validation)?;
-        let batches = r.initial_step().map(|s| s.batches.iter().map(|b| (b.score.theta, b.score.mean_position_error_m)).collect()).unwrap_or_default();
+        let batches = r
+            .initial_step()
+            .map(|s| s.batches.iter().map(|b| (b.score.theta, b.score.mean_position_error_m)).collect())
+            .unwrap_or_default();
         let html = odocal_report::ReportInput {
             provenance: vec![
                 ("method".into(), r.method.clone()),
@@ -592,7 +595,12 @@ fn run_calibration(
                 ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
                 ("date".into(), odocal::param_file::utc_date_today()),
             ],
-            params: odocal_report::ParamRow::theta_rows(&r.initial.theta, &r.theta, Some(sigma_or_held(&r)), truth_ref.map(|t| t.0)),
+            params: odocal_report::ParamRow::theta_rows(
+                &r.initial.theta,
+                &r.theta,
+                Some(sigma_or_held(&r)),
+                truth_ref.map(|t| t.0),
+            ),
             truth: truth_ref.map(|t| *t.0),
             batches,
             warnings: r.warnings.iter().map(|w| w.to_string()).collect(),

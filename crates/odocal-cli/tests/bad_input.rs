@@ -70,9 +70,7 @@ fn text_in_extra_columns_is_accepted() {
 #[test]
 fn absurd_theta_is_a_usage_error() {
     let d = corpus("csv_drive", "valid.csv");
-    for (theta, needle) in
-        [("2,5,1.6,0", "c_d"), ("2,0,1e308,0", "t_r"), ("2,0,1.6,1", "|d|"), ("-2,0,1.6,0", "c_e")]
-    {
+    for (theta, needle) in [("2,5,1.6,0", "c_d"), ("2,0,1e308,0", "t_r"), ("2,0,1.6,1", "|d|"), ("-2,0,1.6,0", "c_e")] {
         let o = odocal(&["validate", path_str(&d), "--theta", theta]);
         assert_fails(&o, 2, &[needle]);
         assert!(stderr(&o).contains("SI units") || stderr(&o).contains("positive"), "{}", stderr(&o));
