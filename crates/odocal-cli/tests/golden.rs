@@ -27,6 +27,11 @@ fn tolerance() -> f64 {
     }
 }
 
+/// `x` and `y` agree to [`tolerance`] relative (NaN never agrees).
+fn close(x: f64, y: f64) -> bool {
+    (x - y).abs() <= tolerance() * x.abs().max(y.abs())
+}
+
 fn golden_path() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/golden/cli.json")
 }
@@ -139,7 +144,7 @@ fn compare(want: &Value, got: &Value, path: &str, out: &mut Vec<String>) {
         }
         (Value::Number(a), Value::Number(b)) => {
             let (x, y) = (a.as_f64().unwrap_or(f64::NAN), b.as_f64().unwrap_or(f64::NAN));
-            if !((x - y).abs() <= tolerance() * x.abs().max(y.abs())) {
+            if !close(x, y) {
                 out.push(format!("{path}: {x:e} vs {y:e}"));
             }
         }

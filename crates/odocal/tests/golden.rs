@@ -36,6 +36,11 @@ fn tolerance() -> f64 {
     }
 }
 
+/// `x` and `y` agree to [`tolerance`] relative (NaN never agrees).
+fn close(x: f64, y: f64) -> bool {
+    (x - y).abs() <= tolerance() * x.abs().max(y.abs())
+}
+
 fn golden_path() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/golden/library.json")
 }
@@ -160,8 +165,7 @@ fn compare(want: &Value, got: &Value, path: &str, out: &mut Vec<String>) {
         }
         (Value::Number(a), Value::Number(b)) => {
             let (x, y) = (a.as_f64().unwrap_or(f64::NAN), b.as_f64().unwrap_or(f64::NAN));
-            let scale = x.abs().max(y.abs());
-            if !((x - y).abs() <= tolerance() * scale) {
+            if !close(x, y) {
                 out.push(format!("{path}: {x:e} vs {y:e}"));
             }
         }
