@@ -17,7 +17,6 @@ use odocal::{
 };
 
 mod experiment;
-mod plots;
 mod progress;
 mod report;
 

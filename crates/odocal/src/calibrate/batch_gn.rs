@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use super::{turning_segments, Estimator, MethodDetail, MethodOutcome, Prepared, Selection, Timing};
+use super::{Estimator, MethodDetail, MethodOutcome, Prepared, Selection, Timing};
 use crate::error::Result;
 use crate::identify::{batch_gauss_newton, IdentifyReport};
 use crate::progress::{emit, Progress, ProgressFn};
@@ -32,10 +32,6 @@ impl Estimator for BatchGnOptions {
 
     fn validate(&self) -> Result<()> {
         Ok(())
-    }
-
-    fn select(&self, prep: &Prepared<'_>) -> Result<Selection> {
-        turning_segments(prep)
     }
 
     fn run(

@@ -23,9 +23,9 @@
 //! A method is one file and one variant. In `calibrate/my_method.rs`:
 //! `MyMethodOptions` (public fields, `Default`, `validate()`), its report
 //! detail `MyMethodDetail`, and `impl Estimator for MyMethodOptions` (a
-//! crate-internal trait) with `select` (often the shared
-//! `turning_segments`) and `run(&self, prep, selection, progress) ->
-//! Result<MethodOutcome>`. Then add `Method::MyMethod(MyMethodOptions)` and
+//! crate-internal trait) with `name`, `validate` and `run(&self, prep,
+//! selection, progress) -> Result<MethodOutcome>`, and `select` when the
+//! method does not fit the turning segments (the default). Then add `Method::MyMethod(MyMethodOptions)` and
 //! `MethodDetail::MyMethod(MyMethodDetail)`, and one arm in
 //! `Method::estimator`, `Method::from_name` and [`Method::NAMES`]. The shared
 //! preparation, validation, report, JSON and CLI (`--method my-method`) need
@@ -462,8 +462,12 @@ pub(crate) trait Estimator {
     fn name(&self) -> &'static str;
     /// Checks the method's settings.
     fn validate(&self) -> Result<()>;
-    /// Chooses the data to fit and the parameters to estimate.
-    fn select(&self, prep: &Prepared<'_>) -> Result<Selection>;
+    /// Chooses the data to fit and the parameters to estimate. Default:
+    /// the segment-based selection ([`turning_segments`]); a method over
+    /// whole drive parts overrides it.
+    fn select(&self, prep: &Prepared<'_>) -> Result<Selection> {
+        turning_segments(prep)
+    }
     /// Estimates θ.
     fn run(
         &self,

@@ -18,7 +18,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::{turning_segments, Estimator, MethodDetail, MethodOutcome, Prepared, Selection, ThetaScore, Timing};
+use super::{Estimator, MethodDetail, MethodOutcome, Prepared, Selection, ThetaScore, Timing};
 use crate::compensate::{compensate_segments, CompensateOptions, CompensationStep, QpOptions};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
@@ -224,10 +224,6 @@ impl Estimator for ThreeStepOptions {
             return Err(Error::InvalidOption { field: "final_segments", reason: "must be at least 1".into() });
         }
         Ok(())
-    }
-
-    fn select(&self, prep: &Prepared<'_>) -> Result<Selection> {
-        turning_segments(prep)
     }
 
     fn run(
