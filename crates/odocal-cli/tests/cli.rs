@@ -291,3 +291,31 @@ fn three_step_flags_are_rejected_with_batch_gn() {
     let o = odocal(&["calibrate", p.to_str().expect("utf8"), "--fix", "c_d,tr"]);
     assert!(stderr(&o).contains("invalid parameter 'tr': use c_e, c_d, t_r or d"), "{}", stderr(&o));
 }
+
+#[test]
+fn rejected_calibration_exits_3_and_still_writes_the_report() {
+    let d = tempfile::tempdir().expect("tmp");
+    let (a, b) = (d.path().join("a.csv"), d.path().join("b.csv"));
+    let (astr, bstr) = (a.to_str().expect("utf8"), b.to_str().expect("utf8"));
+    assert!(odocal(&["simulate", "--seed", "4", "--length-km", "3", "--out", astr]).status.success());
+    // Another vehicle, [2.1, 1 mm, 1.66, 0]: θ_0 is closer in every parameter
+    // than the calibrated ≈ [1.95, −2 mm, 1.53, 0.8 mm], so it wins on this drive.
+    let o = odocal(&["simulate", "--seed", "5", "--length-km", "3", "--theta", "2.1,0.001,1.66,0", "--out", bstr]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let report = d.path().join("r.json");
+    let args = ["calibrate", astr, "--method", "batch-gn", "--validate-on", bstr];
+    let o = odocal(&[&args[..], &["--json", report.to_str().expect("utf8")]].concat());
+    assert_eq!(o.status.code(), Some(3), "stderr: {}", stderr(&o));
+    let out = stdout(&o);
+    let after_table = out.split("d    mm/(m/s²)").nth(1).expect("θ table");
+    let first = after_table.lines().nth(1).expect("a line after the table");
+    assert_eq!(first, "  verdict: REJECTED", "{out}");
+    assert!(out.contains("on the held-out data: dead reckoning gets worse"), "{out}");
+    let r: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&report).expect("r")).expect("json");
+    assert_eq!(r["verdict"]["level"], "rejected");
+    assert_eq!(r["verdict"]["reasons"][0]["kind"], "worse_than_initial");
+    // On its own drive the same calibration is accepted: exit 0.
+    let o = odocal(&["calibrate", astr, "--method", "batch-gn"]);
+    assert_eq!(o.status.code(), Some(0), "stderr: {}", stderr(&o));
+    assert!(stdout(&o).contains("  verdict: ACCEPTED"), "{}", stdout(&o));
+}

@@ -47,6 +47,7 @@ impl Estimator for BatchGnOptions {
         emit(progress, Progress::Advance(1));
         Ok(MethodOutcome {
             theta: report.theta,
+            iterations: Some(report.iterations),
             covariance: report.covariance,
             observability: report.observability.clone(),
             detail: MethodDetail::BatchGn(BatchGnDetail { identification: report }),
