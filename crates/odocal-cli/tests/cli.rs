@@ -319,3 +319,44 @@ fn rejected_calibration_exits_3_and_still_writes_the_report() {
     assert_eq!(o.status.code(), Some(0), "stderr: {}", stderr(&o));
     assert!(stdout(&o).contains("  verdict: ACCEPTED"), "{}", stdout(&o));
 }
+
+/// The shipped van log (issue 10): on each half-split, default `calibrate`
+/// either improves Ē_p over θ_0 on the held-out half or ends `rejected`
+/// (exit code 3) saying why. Measured: holding out the first half gives
+/// Ē_p 325 m against θ_0's 66 m (rejected), the second half 45.7 m against
+/// 73.1 m (doubtful: t_r, d not observable). Needs the shared data set;
+/// without it the test says so and passes.
+#[test]
+fn shipped_van_log_is_improved_or_rejected_on_both_half_splits() {
+    let m = format!("{}/../../examples/psu-mapping-van/manifest.toml", env!("CARGO_MANIFEST_DIR"));
+    let data = format!("{}/../../../shared/data/psu-mapping-van-2024-07-11", env!("CARGO_MANIFEST_DIR"));
+    if !Path::new(&data).exists() {
+        eprintln!("skipped: {data} not present");
+        return;
+    }
+    let mut rejected = 0;
+    for half in ["first-half", "second-half"] {
+        let o = odocal(&["calibrate", &m, "--holdout", half, "--json", "-"]);
+        let r: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+        let (e, e0) = (
+            r["validation"]["mean_position_error_m"].as_f64().expect("Ē_p"),
+            r["initial"]["mean_position_error_m"].as_f64().expect("Ē_p θ_0"),
+        );
+        assert_eq!(r["validation"]["held_out"], true);
+        if e < e0 {
+            assert_eq!(o.status.code(), Some(0), "{half}: improved, not rejected: {}", r["verdict"]);
+        } else {
+            rejected += 1;
+            assert_eq!(o.status.code(), Some(3), "{half}: worse than θ_0 must exit 3");
+            assert_eq!(r["verdict"]["level"], "rejected", "{half}");
+            let kinds: Vec<&str> = r["verdict"]["reasons"]
+                .as_array()
+                .expect("reasons")
+                .iter()
+                .filter_map(|x| x["kind"].as_str())
+                .collect();
+            assert!(kinds.contains(&"worse_than_initial"), "{half}: {kinds:?}");
+        }
+    }
+    assert_eq!(rejected, 1, "measured: the first-half hold-out is rejected, the second improves");
+}
