@@ -138,6 +138,89 @@ pub enum Error {
         #[source]
         source: serde_json::Error,
     },
+    /// A ROS 2 bag has no topic of the requested name.
+    #[error("{path}: no topic '{topic}' in the bag; its topics: {}", fmt_topics(available))]
+    BagTopicNotFound {
+        /// The bag file.
+        path: PathBuf,
+        /// The topic asked for.
+        topic: String,
+        /// The bag's topics with their message types, sorted by topic.
+        available: Vec<(String, String)>,
+    },
+    /// A bag topic's message type is not one odocal reads.
+    #[error("{path}: topic '{topic}' has message type '{found}', which odocal cannot read; supported types: {}", supported.join(", "))]
+    BagMessageType {
+        /// The bag file.
+        path: PathBuf,
+        /// The topic.
+        topic: String,
+        /// Its message type (schema name), `(no schema)` when it has none.
+        found: String,
+        /// The types odocal reads.
+        supported: Vec<&'static str>,
+    },
+    /// A column was asked for that the topic's message type does not have.
+    #[error("{path}: topic '{topic}' ({message_type}) has no column '{column}'; valid columns: {}", valid.join(", "))]
+    BagColumn {
+        /// The bag file.
+        path: PathBuf,
+        /// The topic.
+        topic: String,
+        /// The topic's message type.
+        message_type: &'static str,
+        /// The column asked for.
+        column: String,
+        /// The columns of that type.
+        valid: Vec<String>,
+    },
+    /// A `sensor_msgs/msg/JointState` message does not name a requested joint.
+    #[error("{path}: topic '{topic}': no joint named '{joint}' in message {index} (log time {} s); joint names present: {}", fmt_ns(*log_time_ns), present.join(", "))]
+    BagJoint {
+        /// The bag file.
+        path: PathBuf,
+        /// The topic.
+        topic: String,
+        /// The joint asked for.
+        joint: String,
+        /// 0-based index of the message within the topic, in file order.
+        index: u64,
+        /// The message's log time (ns since the epoch).
+        log_time_ns: u64,
+        /// The joint names the message has.
+        present: Vec<String>,
+    },
+    /// A ROS 2 bag in sqlite3 storage (`.db3`), which odocal does not read.
+    #[error("{path}: a ROS 2 sqlite3 (.db3) bag; odocal reads MCAP bags: convert it with `ros2 bag convert -i BAG -o out.yaml`, out.yaml being `output_bags: [{{uri: BAG_mcap, storage_id: mcap, all_topics: true}}]`")]
+    BagSqlite {
+        /// The `.db3` file or the bag directory.
+        path: PathBuf,
+    },
+    /// A bag file is not MCAP, is corrupt or truncated, or a message does
+    /// not decode.
+    #[error("{path}{}: {reason}", topic.as_ref().map(|t| format!(": topic '{t}'")).unwrap_or_default())]
+    Bag {
+        /// The bag file.
+        path: PathBuf,
+        /// The topic, when the problem is in one.
+        topic: Option<String>,
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+/// Nanoseconds as exact decimal seconds: `1720717537428161000` →
+/// `1720717537.428161000`.
+pub(crate) fn fmt_ns(ns: u64) -> String {
+    format!("{}.{:09}", ns / 1_000_000_000, ns % 1_000_000_000)
+}
+
+/// `/a (type), /b (type)` for the topic-not-found message.
+fn fmt_topics(topics: &[(String, String)]) -> String {
+    if topics.is_empty() {
+        return "none".to_string();
+    }
+    topics.iter().map(|(t, ty)| format!("{t} ({ty})")).collect::<Vec<_>>().join(", ")
 }
 
 impl Error {

@@ -57,6 +57,8 @@
 // Numerical loops index several parallel arrays at once; index loops read like the maths.
 #![allow(clippy::needless_range_loop)]
 
+#[cfg(feature = "mcap")]
+pub mod bag;
 pub mod calibrate;
 pub mod compensate;
 pub mod drive;
@@ -67,6 +69,7 @@ pub mod import;
 pub mod limits;
 pub mod model;
 pub mod param;
+pub mod param_file;
 pub mod progress;
 pub mod qp;
 pub mod reachable;
