@@ -1,7 +1,9 @@
 //! The `odocal` command-line tool: a thin layer over the `odocal` library.
 //!
 //! Human-readable output goes to stdout, progress bars and warnings to
-//! stderr; errors are one line on stderr and a non-zero exit code.
+//! stderr; errors are one line on stderr and exit code 1 (2 for usage
+//! errors). `calibrate` exits with [`EXIT_REJECTED`] when the verdict is
+//! `rejected` (the report is still written).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -13,11 +15,10 @@ use odocal::drive::ExtraColumn;
 use odocal::sim::{self, NoiseOptions, SimOptions, SimSidecar};
 use odocal::{
     segment, CalibrationOptions, CalibrationReport, Drive, FinalSegments, Holdout, Method, ParamSet, QpOptions,
-    SolverKind, Theta, ThreeStepOptions, Warning,
+    SolverKind, Theta, ThreeStepOptions, VerdictLevel, Warning,
 };
 
 mod experiment;
-mod plots;
 mod progress;
 mod report;
 
@@ -349,10 +350,22 @@ struct ExperimentArgs {
     pub out: PathBuf,
 }
 
+/// Exit code of `calibrate` when the verdict is `rejected`.
+const EXIT_REJECTED: u8 = 3;
+
+/// How a successful command ends.
+enum Outcome {
+    /// Exit code 0.
+    Done,
+    /// The calibration was rejected: exit code [`EXIT_REJECTED`].
+    Rejected,
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match run(cli) {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(Outcome::Done) => ExitCode::SUCCESS,
+        Ok(Outcome::Rejected) => ExitCode::from(EXIT_REJECTED),
         Err(e) => {
             eprintln!("error: {}", one_line(&e));
             ExitCode::FAILURE
@@ -377,16 +390,18 @@ fn one_line(e: &anyhow::Error) -> String {
     line.replace('\n', " ")
 }
 
-fn run(cli: Cli) -> Result<()> {
+fn run(cli: Cli) -> Result<Outcome> {
     let bars = progress::Bars::new(cli.quiet);
+    let done = |r: Result<()>| r.map(|()| Outcome::Done);
     match cli.command {
-        Command::Simulate(a) => simulate_cmd(a, &bars),
+        Command::Simulate(a) => done(simulate_cmd(a, &bars)),
         Command::Calibrate(a) => calibrate_cmd(a, &bars),
-        Command::Validate(a) => validate_cmd(a, &bars),
-        Command::Compensate(a) => compensate_cmd(a, &bars),
-        Command::Demo(a) => demo_cmd(a, &bars),
-        Command::Experiment(a) => experiment::run(a, &bars),
-        Command::Import(a) => import_cmd(a),
+        Command::Validate(a) => done(validate_cmd(a, &bars)),
+        Command::Compensate(a) => done(compensate_cmd(a, &bars)),
+        // The demo shows a calibration; it is not one to deploy.
+        Command::Demo(a) => demo_cmd(a, &bars).map(|_| Outcome::Done),
+        Command::Experiment(a) => done(experiment::run(a, &bars)),
+        Command::Import(a) => done(import_cmd(a)),
     }
 }
 
@@ -534,7 +549,7 @@ fn run_calibration(
     json: Option<&Path>,
     truth_theta: Option<Theta>,
     bars: &progress::Bars,
-) -> Result<()> {
+) -> Result<Outcome> {
     let opts = args.options()?;
     let cb = |e| bars.event(e);
     let holdout = match (args.holdout, &args.validate_on) {
@@ -580,6 +595,8 @@ fn run_calibration(
         let mut f = odocal::param_file::ParamFile::from_theta(&r.theta, sigma_or_held(&r), &input, &r.method);
         f.node = args.params_node.clone();
         f.mapping = args.params_mapping;
+        f.verdict = Some(r.verdict.level.to_string());
+        f.verdict_reasons = r.verdict.reasons.iter().map(|x| x.to_string()).collect();
         f.write(p)?;
     }
     if let Some(p) = &args.report {
@@ -602,21 +619,23 @@ fn run_calibration(
                 truth_ref.map(|t| t.0),
             ),
             truth: truth_ref.map(|t| *t.0),
+            verdict: Some((r.verdict.level.to_string(), r.verdict.reasons.iter().map(|x| x.to_string()).collect())),
             batches,
             warnings: r.warnings.iter().map(|w| w.to_string()).collect(),
             ..odocal_report::ReportInput::new(input.clone(), drive, &val, r.initial.theta, r.theta)
         };
         odocal_report::write_html(p, &html)?;
     }
+    let outcome = if r.verdict.level == VerdictLevel::Rejected { Outcome::Rejected } else { Outcome::Done };
     if let Some(p) = json {
         write_json(p, report_json(&r, truth_ref, wheel_scale)?)?;
         if p == Path::new("-") {
-            return Ok(());
+            return Ok(outcome);
         }
     }
     print!("{}", report::calibration(&r, truth_ref, wheel_scale));
     std::io::stdout().flush()?;
-    Ok(())
+    Ok(outcome)
 }
 
 /// 1σ per θ entry, `None` for a parameter held at θ_0.
@@ -626,13 +645,13 @@ fn sigma_or_held(r: &odocal::CalibrationReport) -> [Option<f64>; 4] {
     std::array::from_fn(|i| odocal::Param::from_index(i).filter(|p| free.contains(*p)).map(|_| sd[i]))
 }
 
-fn calibrate_cmd(a: CalibrateArgs, bars: &progress::Bars) -> Result<()> {
+fn calibrate_cmd(a: CalibrateArgs, bars: &progress::Bars) -> Result<Outcome> {
     let (drive, wheel_scale) = load_drive_with_scale(&a.drive)?;
     let truth = load_truth(&a.drive).map(|s| s.theta_true);
     run_calibration(&drive, Some((&a.drive, wheel_scale.as_deref())), &a.calibration, a.json.as_deref(), truth, bars)
 }
 
-fn demo_cmd(a: DemoArgs, bars: &progress::Bars) -> Result<()> {
+fn demo_cmd(a: DemoArgs, bars: &progress::Bars) -> Result<Outcome> {
     let o = sim_options(a.sim_seed, a.length_km, &a.noise)?;
     bars.stage("simulating");
     let sim = sim::simulate(&o)?;
