@@ -68,10 +68,6 @@ def test_ray_equals_serial(local_ray, fleet_dir, tmp_path):
         assert float(row["sigma_t_r"]) == rep.sigma["t_r"]
         assert float(row["mean_position_error_m"]) == rep.mean_position_error_m
 
-    # The library function: rows in input order, one task per drive, 1 thread each.
-    rows = fleet.calibrate_fleet(paths, options=OPTIONS)
-    assert [r["c_e"] for r in rows] == [rep.theta["c_e"] for rep in serial]
-
 
 def test_bad_drive_gives_error_row(local_ray, fleet_dir, tmp_path):
     bad = tmp_path / "bad.csv"
