@@ -498,7 +498,7 @@ mod tests {
             x = step(&x, &u, &th, ts);
         }
         let z = vec![0.0; n];
-        Drive::builder(t, Signals { px: px, py: py, psi: psi, n_rl: nl, n_rr: nr, beta: z.clone(), a_y: z })
+        Drive::builder(t, Signals { px, py, psi, n_rl: nl, n_rr: nr, beta: z.clone(), a_y: z })
             .context("straight")
             .build()
             .expect("valid")

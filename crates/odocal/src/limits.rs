@@ -168,7 +168,7 @@ impl PhysicalLimits {
         for r in drive.parts() {
             for i in r.start + 1..r.end {
                 let v = (px[i] - px[i - 1]).hypot(py[i] - py[i - 1]) / ts;
-                if !(v <= self.max_speed_m_per_s) {
+                if v.is_nan() || v > self.max_speed_m_per_s {
                     return Err(bad(
                         if (px[i] - px[i - 1]).abs() >= (py[i] - py[i - 1]).abs() { "px" } else { "py" },
                         i,
@@ -181,7 +181,7 @@ impl PhysicalLimits {
                     ));
                 }
                 let w = (psi[i] - psi[i - 1]).abs() / ts;
-                if !(w <= self.max_yaw_rate_rad_per_s) {
+                if w.is_nan() || w > self.max_yaw_rate_rad_per_s {
                     return Err(bad(
                         "psi",
                         i,

@@ -435,7 +435,7 @@ mod tests {
             x = step(&x, &Input { n_rl, n_rr, beta, a_y }, theta, TS);
         }
         let [t, px, py, psi, n_rl, n_rr, beta, a_y] = cols;
-        Drive::builder(t, Signals { px: px, py: py, psi: psi, n_rl: n_rl, n_rr: n_rr, beta: beta, a_y: a_y })
+        Drive::builder(t, Signals { px, py, psi, n_rl, n_rr, beta, a_y })
             .context("synthetic")
             .build()
             .expect("valid drive")

@@ -69,7 +69,10 @@ impl Drive {
             let line = e.position().map(|p| p.line()).unwrap_or(0);
             let reason = match e.kind() {
                 ::csv::ErrorKind::Utf8 { .. } => "invalid UTF-8 (the file must be UTF-8 text)".to_string(),
-                _ => echo(&e.to_string()),
+                ::csv::ErrorKind::UnequalLengths { expected_len, len, .. } => {
+                    format!("{len} fields, the header has {expected_len}")
+                }
+                _ => e.to_string(),
             };
             csv_error(line, None, reason)
         };
@@ -187,10 +190,11 @@ impl Drive {
         if let Some(j) = find(MASK_COLUMN) {
             let mut mask = Vec::with_capacity(nums[j].len());
             for (i, &v) in nums[j].iter().enumerate() {
-                if v != 0.0 && v != 1.0 {
+                let one = v.to_bits() == 1.0f64.to_bits();
+                if v != 0.0 && !one {
                     return Err(csv_error(line_of(i), Some(MASK_COLUMN), format!("{v} is not 0 or 1")));
                 }
-                mask.push(v == 1.0);
+                mask.push(one);
             }
             b = b.reference_measured(mask);
         }
