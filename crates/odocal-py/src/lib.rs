@@ -85,7 +85,7 @@ fn f64_bytes(v: &[f64]) -> Vec<u8> {
 }
 
 fn f64_from_bytes(b: &[u8], what: &str) -> PyResult<Vec<f64>> {
-    if b.len() % 8 != 0 {
+    if !b.len().is_multiple_of(8) {
         return Err(PyValueError::new_err(format!("drive state: {what} is not a whole number of f64")));
     }
     Ok(b.chunks_exact(8)
@@ -494,6 +494,14 @@ fn invalid_option(field: &'static str, reason: String) -> PyErr {
     lib_err(odocal::Error::InvalidOption { field, reason })
 }
 
+fn parse_holdout(s: &str) -> PyResult<Holdout> {
+    match s {
+        "first-half" | "first_half" => Ok(Holdout::FirstHalf),
+        "second-half" | "second_half" => Ok(Holdout::SecondHalf),
+        s => Err(invalid_option("holdout", format!("'{s}': use first-half or second-half (the half held out)"))),
+    }
+}
+
 /// θ from a dict `{"c_e", "c_d", "t_r", "d"}`, a sequence of four numbers
 /// or the CLI's text `"c_e,c_d,t_r,d"`; checked by the library.
 fn extract_theta(v: &Bound<'_, PyAny>) -> PyResult<Theta> {
@@ -579,18 +587,7 @@ fn calibration_plan(method: &str, kwargs: Option<&Bound<'_, PyDict>>) -> PyResul
                     }
                 }
                 "max_iterations" => o.identify.max_iterations = v.extract()?,
-                "holdout" => {
-                    plan_holdout = Some(match v.extract::<String>()?.as_str() {
-                        "first-half" | "first_half" => Holdout::FirstHalf,
-                        "second-half" | "second_half" => Holdout::SecondHalf,
-                        s => {
-                            return Err(invalid_option(
-                                "holdout",
-                                format!("'{s}': use first-half or second-half (the half held out)"),
-                            ))
-                        }
-                    })
-                }
+                "holdout" => plan_holdout = Some(parse_holdout(&v.extract::<String>()?)?),
                 "validate_on" => {
                     let d =
                         v.cast::<PyDrive>().map_err(|_| PyTypeError::new_err("validate_on: give an odocal.Drive"))?;
@@ -707,6 +704,18 @@ fn run_detached<T: Send>(
     }
 }
 
+/// `(calibration half, held-out half)` of a drive split at its middle time,
+/// as the CLI's `--holdout`.
+fn holdout_halves(drive: &Drive, h: Holdout) -> odocal::Result<(Drive, Drive)> {
+    let (t0, t1) = (drive.t()[0], drive.t()[drive.len() - 1] + drive.sample_time_s());
+    let mid = 0.5 * (t0 + t1);
+    let (a, b) = (drive.window(t0, mid)?, drive.window(mid, t1)?);
+    Ok(match h {
+        Holdout::FirstHalf => (b, a),
+        Holdout::SecondHalf => (a, b),
+    })
+}
+
 /// The CLI's JSON report: the library report plus `truth` (simulated
 /// drives) and `wheel_scale` (manifest imports), as `odocal calibrate --json`.
 fn calibrate_json(
@@ -715,18 +724,7 @@ fn calibrate_json(
     plan: &CalibrationPlan,
     progress: Option<&(dyn Fn(Progress) + Sync)>,
 ) -> odocal::Result<serde_json::Value> {
-    let halves = match plan.holdout {
-        None => None,
-        Some(h) => {
-            let (t0, t1) = (drive.t()[0], drive.t()[drive.len() - 1] + drive.sample_time_s());
-            let mid = 0.5 * (t0 + t1);
-            let (a, b) = (drive.window(t0, mid)?, drive.window(mid, t1)?);
-            Some(match h {
-                Holdout::FirstHalf => (b, a),
-                Holdout::SecondHalf => (a, b),
-            })
-        }
-    };
+    let halves = plan.holdout.map(|h| holdout_halves(drive, h)).transpose()?;
     let (fit, held): (&Drive, Option<&Drive>) = match (&halves, &plan.validate_on) {
         (Some((fit, held)), _) => (fit, Some(held)),
         (None, Some(other)) => (drive, Some(other)),
@@ -772,6 +770,65 @@ fn calibrate<'py>(
     })?;
     let text = serde_json::to_string_pretty(&value).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
     Ok((to_py(py, &value)?, text))
+}
+
+/// Writes the HTML report (odocal-report) of a calibration report (its
+/// JSON text) on the drive it was validated on: `drive`, its held-out half
+/// (`holdout`), or `validate_on`. Maps the JSON report to the renderer's
+/// input in this one place.
+#[pyfunction]
+#[pyo3(signature = (drive, report_json, path, *, holdout=None, validate_on=None, title=None))]
+fn _report_html(
+    py: Python<'_>,
+    drive: &Bound<'_, PyDrive>,
+    report_json: &str,
+    path: PathBuf,
+    holdout: Option<&str>,
+    validate_on: Option<&Bound<'_, PyDrive>>,
+    title: Option<String>,
+) -> PyResult<()> {
+    let bad_report = |e: serde_json::Error| PyValueError::new_err(format!("not a calibration report: {e}"));
+    let value: serde_json::Value = serde_json::from_str(report_json).map_err(bad_report)?;
+    let truth: Option<Theta> = value
+        .get("truth")
+        .and_then(|t| t.get("theta"))
+        .map(|t| serde_json::from_value(t.clone()))
+        .transpose()
+        .map_err(bad_report)?;
+    let report: odocal::CalibrationReport = serde_json::from_value(value).map_err(bad_report)?;
+    let holdout = holdout.map(parse_holdout).transpose()?;
+    let (inner, other) = (Arc::clone(&drive.get().drive), validate_on.map(|d| Arc::clone(&d.get().drive)));
+    let title = title.unwrap_or_else(|| "odocal calibration".into());
+    py.detach(move || -> Result<(), String> {
+        let held = holdout.map(|h| holdout_halves(&inner, h)).transpose().map_err(|e| e.to_string())?;
+        let scored: &Drive = match (&held, &other) {
+            (Some((_, h)), _) => h,
+            (None, Some(o)) => o,
+            (None, None) => &inner,
+        };
+        let segs =
+            odocal::segment::validation_segments(scored, &report.options.validation).map_err(|e| e.to_string())?;
+        let cov = report.identification.covariance;
+        let free = report.options.identify.free;
+        let sigma: [Option<f64>; 4] = std::array::from_fn(|i| free[i].then(|| cov[i][i].max(0.0).sqrt()));
+        let theta0 = report.options.theta0;
+        let mut input = odocal_report::ReportInput {
+            provenance: vec![
+                ("method".into(), report.method.to_string()),
+                ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
+                ("from".into(), "Python (odocal.CalibrationReport.to_html)".into()),
+            ],
+            params: odocal_report::ParamRow::theta_rows(&theta0, &report.theta, Some(sigma), truth.as_ref()),
+            truth,
+            warnings: report.warnings.clone(),
+            ..odocal_report::ReportInput::new(title, scored, &segs, theta0, report.theta)
+        };
+        if let Some(step) = &report.initial_step {
+            input.batches = step.batches.iter().map(|b| (b.score.theta, b.score.mean_position_error_m)).collect();
+        }
+        odocal_report::write_html(&path, &input).map_err(|e| e.to_string())
+    })
+    .map_err(OdocalError::new_err)
 }
 
 /// Mean position error Ē_p of θ on the validation segments of `drive`
@@ -847,6 +904,7 @@ fn _odocal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(validate, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(_drive_from_state, m)?)?;
+    m.add_function(wrap_pyfunction!(_report_html, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("COLUMNS", COLUMNS.to_vec())?;
     Ok(())

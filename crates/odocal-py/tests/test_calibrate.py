@@ -180,3 +180,17 @@ def test_gil_released_during_calibration(small_drive):
         stop.set()
         th.join()
     assert after > before, "no other Python thread ran during the calibration: the GIL was held"
+
+
+def test_to_html(small_drive, tmp_path):
+    r = odocal.calibrate(small_drive, **QUICK)
+    out = tmp_path / "report.html"
+    r.to_html(out, title="car 3")
+    html = out.read_text()
+    assert html.startswith("<!DOCTYPE html>")
+    assert "car 3" in html and "<svg" in html and 'id="map"' in html
+    held = odocal.calibrate(small_drive, "batch-gn", holdout="second-half")
+    held.to_html(tmp_path / "held.html")
+    assert (tmp_path / "held.html").stat().st_size > 1000
+    with pytest.raises(ValueError, match="no drive"):
+        odocal.CalibrationReport(r.to_dict(), r.to_json()).to_html(tmp_path / "x.html")

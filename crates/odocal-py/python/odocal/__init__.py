@@ -21,6 +21,7 @@ running; a ``progress`` callback is only ever called on the calling thread.
 from __future__ import annotations
 
 import json
+import os
 from typing import Any, Callable, Mapping, Optional, Sequence, Union
 
 import numpy as np
@@ -55,11 +56,14 @@ class CalibrationReport:
     time). The properties below are shortcuts into that dict.
     """
 
-    __slots__ = ("_dict", "_json")
+    __slots__ = ("_dict", "_json", "_drive", "_scored_on")
 
-    def __init__(self, report: dict, text: str) -> None:
+    def __init__(self, report: dict, text: str, drive: Optional[Drive] = None,
+                 scored_on: Optional[dict] = None) -> None:
         self._dict = report
         self._json = text
+        self._drive = drive
+        self._scored_on = scored_on or {}
 
     # -- the whole report -------------------------------------------------
     def to_dict(self) -> dict:
@@ -127,9 +131,16 @@ class CalibrationReport:
         """For a simulated drive: the true θ and its Ē_p (as the CLI reports), else None."""
         return self._dict.get("truth")
 
-    def to_html(self, path: str) -> None:
-        """Writes the HTML report (not available yet in this version of the library)."""
-        raise NotImplementedError("the HTML report is not part of this odocal version yet")
+    def to_html(self, path: Union[str, "os.PathLike[str]"], title: Optional[str] = None) -> None:
+        """Writes the self-contained HTML report (verdict, θ table, Ē_p, map,
+        per-segment errors, step-1 spread, residuals, warnings) to ``path``.
+
+        Needs the drive the report was made from (reports from
+        :func:`calibrate` keep it); ``title`` defaults to "odocal calibration".
+        """
+        if self._drive is None:
+            raise ValueError("this report has no drive to draw (make it with odocal.calibrate)")
+        _odocal._report_html(self._drive, self._json, os.fspath(path), title=title, **self._scored_on)
 
     def __repr__(self) -> str:
         t = self._dict["theta"]
@@ -188,7 +199,8 @@ def calibrate(
     for an unknown option.
     """
     report, text = _odocal.calibrate(drive, method, progress=progress, threads=threads, **options)
-    return CalibrationReport(report, text)
+    scored_on = {k: options[k] for k in ("holdout", "validate_on") if options.get(k) is not None}
+    return CalibrationReport(report, text, drive, scored_on)
 
 
 def validate(

@@ -116,3 +116,12 @@ def simulate(
     """Simulates a drive with known true θ (noise: paper, off, white or high)."""
 
 def _drive_from_state(state: dict[str, Any]) -> Drive: ...
+def _report_html(
+    drive: Drive,
+    report_json: str,
+    path: _Path,
+    *,
+    holdout: Optional[str] = None,
+    validate_on: Optional[Drive] = None,
+    title: Optional[str] = None,
+) -> None: ...
