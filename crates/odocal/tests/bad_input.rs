@@ -34,6 +34,7 @@ fn csv_reproducers_name_their_cause() {
         ("bom_crlf.csv", &[]),
         ("duplicate_t.csv", &["line 1", "duplicate column name(s) t"]),
         ("empty.csv", &["the file is empty"]),
+        ("fuzz_many_duplicates.csv", &["line 1: duplicate column name(s)", "more)"]),
         ("header_only.csv", &["no data rows"]),
         ("heading_degrees.csv", &["line 3, column 'psi'", "degrees"]),
         ("heading_jump_pi.csv", &["line 102, column 'psi'", "jump"]),

@@ -28,6 +28,22 @@ pub(crate) fn echo(field: &str) -> String {
     }
 }
 
+/// At most this many names are listed in an error message.
+const LIST_NAMES: usize = 12;
+
+/// The first [`LIST_NAMES`] names, then "… (N more)".
+fn listed(names: &[String]) -> Vec<String> {
+    let mut v: Vec<String> = names.iter().take(LIST_NAMES).cloned().collect();
+    if names.len() > LIST_NAMES {
+        v.push(format!("… ({} more)", names.len() - LIST_NAMES));
+    }
+    v
+}
+
+fn list(names: &[String]) -> String {
+    listed(names).join(", ")
+}
+
 impl Drive {
     /// Reads a canonical drive CSV (SPEC §2). Accepts a UTF-8 BOM, CRLF line
     /// endings, extra columns (numbers or text, kept in [`Drive::extra`];
@@ -83,7 +99,7 @@ impl Drive {
             return Err(csv_error(
                 1,
                 None,
-                format!("duplicate column name(s) {}: every column must be named once", dups.join(", ")),
+                format!("duplicate column name(s) {}: every column must be named once", list(&dups)),
             ));
         }
         let find = |name: &str| headers.iter().position(|h| h == name);
@@ -98,7 +114,7 @@ impl Drive {
             return Err(Error::MissingColumns {
                 path: path.to_path_buf(),
                 missing,
-                found: headers.iter().map(|h| echo(h)).collect(),
+                found: listed(&headers.iter().map(|h| echo(h)).collect::<Vec<_>>()),
                 hint,
             });
         }
