@@ -24,11 +24,12 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList, PyString};
 
 use odocal::drive::{Drive, ExtraColumn, ExtraValues, Signals};
-use odocal::model::{Theta, THETA_NAMES};
-use odocal::pipeline::{CalibrationOptions, FinalSegments, Method, Progress};
+use odocal::model::Theta;
+use odocal::param::{Param, ParamSet};
 use odocal::qp::SolverKind;
 use odocal::segment::ValidationSegmentOptions;
 use odocal::sim::{NoiseOptions, SimOptions, SimSidecar};
+use odocal::{CalibrationOptions, FinalSegments, Holdout, Method, Progress};
 
 #[allow(unsafe_code)] // pyo3's exception boilerplate implements an unsafe trait
 mod exception {
@@ -456,18 +457,11 @@ fn to_py<'py>(py: Python<'py>, v: &serde_json::Value) -> PyResult<Bound<'py, PyA
 // ---------------------------------------------------------------------------
 // Options: the one place that maps Python keyword arguments to library options.
 
-/// Which half of the drive `holdout` keeps for validation.
-#[derive(Debug, Clone, Copy)]
-enum Holdout {
-    FirstHalf,
-    SecondHalf,
-}
-
 /// What to run: the library options plus the CLI's run settings.
 struct CalibrationPlan {
     opts: CalibrationOptions,
+    /// The CLI's `--holdout` or `--validate-on`.
     holdout: Option<Holdout>,
-    validate_on: Option<Arc<Drive>>,
 }
 
 /// The keyword options of `odocal.calibrate`, named like the CLI's flags.
@@ -509,7 +503,7 @@ fn extract_theta(v: &Bound<'_, PyAny>) -> PyResult<Theta> {
         s.to_str()?.parse::<Theta>().map_err(lib_err)?
     } else if let Ok(d) = v.cast::<PyDict>() {
         let mut a = [0.0; 4];
-        for (i, name) in THETA_NAMES.iter().enumerate() {
+        for (i, name) in odocal::model::THETA_NAMES.iter().enumerate() {
             a[i] = d
                 .get_item(name)?
                 .ok_or_else(|| PyKeyError::new_err(format!("θ: missing '{name}' (give c_e, c_d, t_r, d)")))?
@@ -533,14 +527,19 @@ fn extract_theta(v: &Bound<'_, PyAny>) -> PyResult<Theta> {
 }
 
 /// Builds the calibration from `method` and the keyword options, exactly as
-/// the CLI's `calibrate` flags do (`--min-yaw-rate` is `min_yaw_rate=`, …).
-/// Unknown keywords raise `TypeError`; invalid values `OdocalError`.
+/// the CLI's `calibrate` flags do (`--min-yaw-rate` is `min_yaw_rate=`, …):
+/// the three-step options (`batches`, `batch_size`, `picks`,
+/// `final_segments`, `qp_solver`) go into [`Method::ThreeStep`] and are an
+/// error with another method. Unknown keywords raise `TypeError`; invalid
+/// values `OdocalError`.
 ///
 /// This is the only function that knows the shape of [`CalibrationOptions`].
 fn calibration_plan(method: &str, kwargs: Option<&Bound<'_, PyDict>>) -> PyResult<CalibrationPlan> {
     let mut o = CalibrationOptions { method: method.parse::<Method>().map_err(lib_err)?, ..Default::default() };
-    let mut plan_holdout = None;
+    let mut holdout = None;
     let mut validate_on = None;
+    // Three-step settings, applied to the method below.
+    let (mut batches, mut batch_size, mut picks, mut final_segments, mut qp_solver) = (None, None, None, None, None);
     if let Some(kwargs) = kwargs {
         for (key, v) in kwargs.iter() {
             let key: String = key.extract()?;
@@ -549,21 +548,15 @@ fn calibration_plan(method: &str, kwargs: Option<&Bound<'_, PyDict>>) -> PyResul
             }
             match key.as_str() {
                 "seed" => o.seed = v.extract()?,
-                "qp_solver" => {
-                    o.qp_solver =
-                        v.extract::<String>()?.parse::<SolverKind>().map_err(|r| invalid_option("qp_solver", r))?
-                }
+                "qp_solver" => qp_solver = Some(v.extract::<String>()?.parse::<SolverKind>().map_err(lib_err)?),
                 "theta0" => o.theta0 = extract_theta(&v)?,
                 "fix" => {
-                    let names: Vec<String> = match v.cast::<PyString>() {
-                        Ok(s) => s.to_str()?.split(',').map(|x| x.trim().to_string()).collect(),
-                        Err(_) => v.extract()?,
+                    let text = match v.cast::<PyString>() {
+                        Ok(s) => s.to_str()?.to_string(),
+                        Err(_) => v.extract::<Vec<String>>()?.join(","),
                     };
-                    for name in names {
-                        let i = THETA_NAMES.iter().position(|n| *n == name).ok_or_else(|| {
-                            invalid_option("fix", format!("unknown parameter '{name}' (use c_e, c_d, t_r, d)"))
-                        })?;
-                        o.identify.free[i] = false;
+                    for p in text.parse::<ParamSet>().map_err(lib_err)?.iter() {
+                        o.identify.free.remove(p);
                     }
                 }
                 "min_yaw_rate" => o.segments.min_peak_yaw_rate_rad_per_s = v.extract()?,
@@ -574,24 +567,21 @@ fn calibration_plan(method: &str, kwargs: Option<&Bound<'_, PyDict>>) -> PyResul
                     o.validation.length_steps = k;
                     o.validation.stride_steps = (k / 2).max(1);
                 }
-                "batches" => o.initial_batches = v.extract()?,
-                "batch_size" => o.initial_batch_size = v.extract()?,
-                "picks" => o.picks = v.extract()?,
+                "batches" => batches = Some(v.extract::<usize>()?),
+                "batch_size" => batch_size = Some(v.extract::<usize>()?),
+                "picks" => picks = Some(v.extract::<usize>()?),
                 "final_segments" => {
-                    o.final_segments = match v.extract::<String>() {
-                        Ok(s) if s == "all" => FinalSegments::All,
-                        Ok(s) => FinalSegments::Random(s.parse().map_err(|_| {
-                            invalid_option("final_segments", format!("'{s}' is not 'all' or a number"))
-                        })?),
+                    final_segments = Some(match v.extract::<String>() {
+                        Ok(s) => s.parse::<FinalSegments>().map_err(lib_err)?,
                         Err(_) => FinalSegments::Random(v.extract()?),
-                    }
+                    })
                 }
                 "max_iterations" => o.identify.max_iterations = v.extract()?,
-                "holdout" => plan_holdout = Some(parse_holdout(&v.extract::<String>()?)?),
+                "holdout" => holdout = Some(parse_holdout(&v.extract::<String>()?)?),
                 "validate_on" => {
                     let d =
                         v.cast::<PyDrive>().map_err(|_| PyTypeError::new_err("validate_on: give an odocal.Drive"))?;
-                    validate_on = Some(Arc::clone(&d.get().drive));
+                    validate_on = Some(Holdout::Other(Drive::clone(&d.get().drive)));
                 }
                 "auto_fix" => o.auto_fix = v.extract()?,
                 _ => {
@@ -603,11 +593,43 @@ fn calibration_plan(method: &str, kwargs: Option<&Bound<'_, PyDict>>) -> PyResul
             }
         }
     }
-    if plan_holdout.is_some() && validate_on.is_some() {
+    match &mut o.method {
+        Method::ThreeStep(t) => {
+            t.initial_batches = batches.unwrap_or(t.initial_batches);
+            t.initial_batch_size = batch_size.unwrap_or(t.initial_batch_size);
+            t.picks = picks.unwrap_or(t.picks);
+            t.final_segments = final_segments.unwrap_or(t.final_segments);
+            t.qp.solver = qp_solver.unwrap_or(t.qp.solver);
+        }
+        other => {
+            let given: Vec<&str> = [
+                ("batches", batches.is_some()),
+                ("batch_size", batch_size.is_some()),
+                ("picks", picks.is_some()),
+                ("final_segments", final_segments.is_some()),
+                ("qp_solver", qp_solver.is_some()),
+            ]
+            .iter()
+            .filter(|g| g.1)
+            .map(|g| g.0)
+            .collect();
+            if !given.is_empty() {
+                return Err(invalid_option(
+                    "method",
+                    format!(
+                        "{} appl{} to method three-step only, not to {other}",
+                        given.join(", "),
+                        if given.len() == 1 { "ies" } else { "y" }
+                    ),
+                ));
+            }
+        }
+    }
+    if holdout.is_some() && validate_on.is_some() {
         return Err(invalid_option("validate_on", "give holdout or validate_on, not both".into()));
     }
     o.validate().map_err(lib_err)?;
-    Ok(CalibrationPlan { opts: o, holdout: plan_holdout, validate_on })
+    Ok(CalibrationPlan { opts: o, holdout: holdout.or(validate_on) })
 }
 
 // ---------------------------------------------------------------------------
@@ -704,18 +726,6 @@ fn run_detached<T: Send>(
     }
 }
 
-/// `(calibration half, held-out half)` of a drive split at its middle time,
-/// as the CLI's `--holdout`.
-fn holdout_halves(drive: &Drive, h: Holdout) -> odocal::Result<(Drive, Drive)> {
-    let (t0, t1) = (drive.t()[0], drive.t()[drive.len() - 1] + drive.sample_time_s());
-    let mid = 0.5 * (t0 + t1);
-    let (a, b) = (drive.window(t0, mid)?, drive.window(mid, t1)?);
-    Ok(match h {
-        Holdout::FirstHalf => (b, a),
-        Holdout::SecondHalf => (a, b),
-    })
-}
-
 /// The CLI's JSON report: the library report plus `truth` (simulated
 /// drives) and `wheel_scale` (manifest imports), as `odocal calibrate --json`.
 fn calibrate_json(
@@ -724,13 +734,12 @@ fn calibrate_json(
     plan: &CalibrationPlan,
     progress: Option<&(dyn Fn(Progress) + Sync)>,
 ) -> odocal::Result<serde_json::Value> {
-    let halves = plan.holdout.map(|h| holdout_halves(drive, h)).transpose()?;
-    let (fit, held): (&Drive, Option<&Drive>) = match (&halves, &plan.validate_on) {
-        (Some((fit, held)), _) => (fit, Some(held)),
-        (None, Some(other)) => (drive, Some(other)),
-        (None, None) => (drive, None),
+    let split = plan.holdout.as_ref().map(|h| h.split(drive)).transpose()?;
+    let (fit, held): (&Drive, Option<&Drive>) = match &split {
+        Some((fit, held)) => (fit.as_ref(), Some(held.as_ref())),
+        None => (drive, None),
     };
-    let report = odocal::pipeline::calibrate_held_out(fit, held, &plan.opts, progress)?;
+    let report = odocal::calibrate_held_out(fit, held, &plan.opts, progress)?;
     let json_err = |source| odocal::Error::Json { context: "calibration report".into(), source };
     let mut v = serde_json::to_value(&report).map_err(json_err)?;
     let scored = held.unwrap_or(drive);
@@ -796,21 +805,25 @@ fn _report_html(
         .transpose()
         .map_err(bad_report)?;
     let report: odocal::CalibrationReport = serde_json::from_value(value).map_err(bad_report)?;
-    let holdout = holdout.map(parse_holdout).transpose()?;
-    let (inner, other) = (Arc::clone(&drive.get().drive), validate_on.map(|d| Arc::clone(&d.get().drive)));
+    let holdout = match (holdout, validate_on) {
+        (Some(h), _) => Some(parse_holdout(h)?),
+        (None, Some(d)) => Some(Holdout::Other(Drive::clone(&d.get().drive))),
+        (None, None) => None,
+    };
+    let inner = Arc::clone(&drive.get().drive);
     let title = title.unwrap_or_else(|| "odocal calibration".into());
     py.detach(move || -> Result<(), String> {
-        let held = holdout.map(|h| holdout_halves(&inner, h)).transpose().map_err(|e| e.to_string())?;
-        let scored: &Drive = match (&held, &other) {
-            (Some((_, h)), _) => h,
-            (None, Some(o)) => o,
-            (None, None) => &inner,
-        };
+        let split = holdout.as_ref().map(|h| h.split(&inner)).transpose().map_err(|e| e.to_string())?;
+        let scored: &Drive = split.as_ref().map_or(&inner, |(_, h)| h.as_ref());
         let segs =
             odocal::segment::validation_segments(scored, &report.options.validation).map_err(|e| e.to_string())?;
-        let cov = report.identification.covariance;
         let free = report.options.identify.free;
-        let sigma: [Option<f64>; 4] = std::array::from_fn(|i| free[i].then(|| cov[i][i].max(0.0).sqrt()));
+        let sigma: Option<[Option<f64>; 4]> = report.identification().map(|id| {
+            std::array::from_fn(|i| {
+                let held = Param::from_index(i).is_none_or(|p| !free.contains(p));
+                (!held).then(|| id.covariance[i][i].max(0.0).sqrt())
+            })
+        });
         let theta0 = report.options.theta0;
         let mut input = odocal_report::ReportInput {
             provenance: vec![
@@ -818,12 +831,12 @@ fn _report_html(
                 ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
                 ("from".into(), "Python (odocal.CalibrationReport.to_html)".into()),
             ],
-            params: odocal_report::ParamRow::theta_rows(&theta0, &report.theta, Some(sigma), truth.as_ref()),
+            params: odocal_report::ParamRow::theta_rows(&theta0, &report.theta, sigma, truth.as_ref()),
             truth,
-            warnings: report.warnings.clone(),
+            warnings: report.warnings.iter().map(|w| w.to_string()).collect(),
             ..odocal_report::ReportInput::new(title, scored, &segs, theta0, report.theta)
         };
-        if let Some(step) = &report.initial_step {
+        if let Some(step) = report.initial_step() {
             input.batches = step.batches.iter().map(|b| (b.score.theta, b.score.mean_position_error_m)).collect();
         }
         odocal_report::write_html(&path, &input).map_err(|e| e.to_string())
