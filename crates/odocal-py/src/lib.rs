@@ -818,11 +818,9 @@ fn _report_html(
         let segs =
             odocal::segment::validation_segments(scored, &report.options.validation).map_err(|e| e.to_string())?;
         let free = report.options.identify.free;
-        let sigma: Option<[Option<f64>; 4]> = report.identification().map(|id| {
-            std::array::from_fn(|i| {
-                let held = Param::from_index(i).is_none_or(|p| !free.contains(p));
-                (!held).then(|| id.covariance[i][i].max(0.0).sqrt())
-            })
+        let sigma: [Option<f64>; 4] = std::array::from_fn(|i| {
+            let held = Param::from_index(i).is_none_or(|p| !free.contains(p));
+            (!held).then(|| report.covariance[i][i].max(0.0).sqrt())
         });
         let theta0 = report.options.theta0;
         let mut input = odocal_report::ReportInput {
@@ -831,7 +829,7 @@ fn _report_html(
                 ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
                 ("from".into(), "Python (odocal.CalibrationReport.to_html)".into()),
             ],
-            params: odocal_report::ParamRow::theta_rows(&theta0, &report.theta, sigma, truth.as_ref()),
+            params: odocal_report::ParamRow::theta_rows(&theta0, &report.theta, Some(sigma), truth.as_ref()),
             truth,
             warnings: report.warnings.iter().map(|w| w.to_string()).collect(),
             ..odocal_report::ReportInput::new(title, scored, &segs, theta0, report.theta)

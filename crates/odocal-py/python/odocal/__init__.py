@@ -93,7 +93,10 @@ class CalibrationReport:
     @property
     def covariance(self) -> np.ndarray:
         """The 4×4 model covariance ``σ²(JᵀWJ)⁻¹`` of θ (zero rows for fixed parameters)."""
-        return np.array(self._dict["identification"]["covariance"], dtype=np.float64)
+        cov = self._dict.get("covariance")
+        if cov is None:  # reports of odocal before the covariance moved to the top level
+            cov = self._dict["identification"]["covariance"]
+        return np.array(cov, dtype=np.float64)
 
     @property
     def sigma(self) -> dict:
