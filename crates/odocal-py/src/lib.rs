@@ -27,7 +27,6 @@ use odocal::drive::{Drive, ExtraColumn, ExtraValues, Signals};
 use odocal::model::Theta;
 use odocal::param::{Param, ParamSet};
 use odocal::qp::SolverKind;
-use odocal::segment::ValidationSegmentOptions;
 use odocal::sim::{NoiseOptions, SimOptions, SimSidecar};
 use odocal::{CalibrationOptions, FinalSegments, Holdout, Method, Progress};
 
@@ -752,6 +751,7 @@ fn calibrate_json(
     if let (Some(w), Some(obj)) = (&prov.wheel_scale, v.as_object_mut()) {
         obj.insert("wheel_scale".into(), serde_json::json!(w));
     }
+    with_schema_version(&mut v);
     Ok(v)
 }
 
@@ -855,28 +855,23 @@ fn validate<'py>(
     threads: Option<usize>,
 ) -> PyResult<Bound<'py, PyAny>> {
     let theta = extract_theta(theta)?;
-    let mut vo = ValidationSegmentOptions::default();
+    let mut opts = odocal::ValidateOptions::default();
     if let Some(k) = validation_length {
-        vo.length_steps = k;
-        vo.stride_steps = (k / 2).max(1);
+        opts.segments.length_steps = k;
+        opts.segments.stride_steps = (k / 2).max(1);
     }
     let inner = Arc::clone(&drive.get().drive);
-    let r = py
-        .detach(|| {
-            with_threads(threads, || {
-                vo.validate()?;
-                let segs = odocal::segment::validation_segments(&inner, &vo)?;
-                odocal::mean_position_error(&inner, &segs, &theta)
-            })
-        })?
-        .map_err(lib_err)?;
-    let v = serde_json::json!({
-        "theta": r.theta,
-        "mean_position_error_m": r.mean_position_error_m,
-        "segments": r.segments,
-        "per_segment_m": r.per_segment_m,
-    });
+    let report = py.detach(|| with_threads(threads, || odocal::validate(&inner, &theta, &opts)))?.map_err(lib_err)?;
+    let mut v = json(&report)?;
+    with_schema_version(&mut v);
     to_py(py, &v)
+}
+
+/// Adds the `schema_version` that the CLI writes into every JSON report.
+fn with_schema_version(v: &mut serde_json::Value) {
+    if let Some(obj) = v.as_object_mut() {
+        obj.insert("schema_version".into(), odocal::REPORT_SCHEMA_VERSION.into());
+    }
 }
 
 /// Simulates a drive with known true θ (the CLI's `simulate`).
