@@ -91,13 +91,15 @@ def test_option_errors(small_drive):
         odocal.calibrate(small_drive, batchez=3)
     with pytest.raises(odocal.OdocalError, match=r"^invalid option `initial_batches`: must be at least 1$"):
         odocal.calibrate(small_drive, batches=0)
-    with pytest.raises(odocal.OdocalError, match=r"^invalid option `method`: 'newton'"):
+    with pytest.raises(odocal.OdocalError, match=r"'newton': use three-step or batch-gn"):
         odocal.calibrate(small_drive, "newton")
-    with pytest.raises(odocal.OdocalError, match="unknown parameter 'c_x'"):
+    with pytest.raises(odocal.OdocalError, match="batches, picks apply to method three-step only, not to batch-gn"):
+        odocal.calibrate(small_drive, "batch-gn", batches=3, picks=2)
+    with pytest.raises(odocal.OdocalError, match="invalid parameter 'c_x': use c_e, c_d, t_r or d"):
         odocal.calibrate(small_drive, fix="c_x")
     with pytest.raises(odocal.OdocalError, match="t_r = -1 m must be positive"):
         odocal.calibrate(small_drive, theta0={"c_e": 2.0, "c_d": 0.0, "t_r": -1.0, "d": 0.0})
-    with pytest.raises(odocal.OdocalError, match="qp_solver"):
+    with pytest.raises(odocal.OdocalError, match="invalid QP solver .osqp.: use structured or clarabel"):
         odocal.calibrate(small_drive, qp_solver="osqp")
     with pytest.raises(ValueError, match="threads"):
         odocal.calibrate(small_drive, "batch-gn", threads=0)

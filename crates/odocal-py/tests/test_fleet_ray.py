@@ -10,6 +10,9 @@ import odocal
 from conftest import REPO
 
 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+# On a busy 2-core machine the local raylet can take more than Ray's default
+# wait to register (seen: "The current node timed out during startup").
+os.environ.setdefault("RAY_raylet_start_wait_time_s", "300")
 try:
     import ray  # noqa: F401
 except ImportError as e:  # pragma: no cover - depends on the environment

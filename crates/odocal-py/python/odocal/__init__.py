@@ -216,7 +216,7 @@ def validate(
     """Mean position error Ē_p of ``theta`` by dead reckoning on the validation segments of ``drive``.
 
     Returns the CLI's ``validate --json``: ``{"theta", "mean_position_error_m",
-    "segments", "per_segment_m"}``. ``theta`` is a dict, four numbers, the
+    "segments", "per_segment_m", "schema_version"}``. ``theta`` is a dict, four numbers, the
     text ``"c_e,c_d,t_r,d"`` or a :class:`CalibrationReport`.
     """
     return _odocal.validate(drive, _theta_arg(theta), validation_length=validation_length, threads=threads)
