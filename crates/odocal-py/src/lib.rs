@@ -831,6 +831,10 @@ fn _report_html(
             ],
             params: odocal_report::ParamRow::theta_rows(&theta0, &report.theta, Some(sigma), truth.as_ref()),
             truth,
+            verdict: Some((
+                report.verdict.level.to_string(),
+                report.verdict.reasons.iter().map(|r| r.to_string()).collect(),
+            )),
             warnings: report.warnings.iter().map(|w| w.to_string()).collect(),
             ..odocal_report::ReportInput::new(title, scored, &segs, theta0, report.theta)
         };
