@@ -240,34 +240,39 @@ where
     Ok(())
 }
 
+/// Draws the panels (row-major in a `grid`) under a title on an SVG area;
+/// `what` names the figure in errors.
+fn draw_figure(
+    root: DrawingArea<SVGBackend<'_>, plotters::coord::Shift>,
+    what: &str,
+    title: &str,
+    grid: (usize, usize),
+    panels: &[Panel],
+) -> Result<()> {
+    let err = |e: DrawingAreaErrorKind<std::io::Error>| anyhow_like(format!("{what}: {e:?}"));
+    root.fill(&WHITE).map_err(err)?;
+    let root = root.titled(title, ("sans-serif", 22)).map_err(err)?;
+    for (area, p) in root.split_evenly(grid).iter().zip(panels) {
+        draw_panel(area, p)?;
+    }
+    root.present().map_err(err)
+}
+
 /// An SVG figure of `rows × cols` panels (row-major) under a title, as a
 /// string (for inline use in HTML).
 pub fn figure_svg(title: &str, size: (u32, u32), grid: (usize, usize), panels: &[Panel]) -> Result<String> {
     let mut out = String::new();
-    {
-        let root = SVGBackend::with_string(&mut out, size).into_drawing_area();
-        let err = |e: DrawingAreaErrorKind<std::io::Error>| anyhow_like(format!("'{title}': {e:?}"));
-        root.fill(&WHITE).map_err(err)?;
-        let root = root.titled(title, ("sans-serif", 22)).map_err(err)?;
-        let areas = root.split_evenly(grid);
-        for (area, p) in areas.iter().zip(panels) {
-            draw_panel(area, p)?;
-        }
-        root.present().map_err(err)?;
-    }
+    draw_figure(
+        SVGBackend::with_string(&mut out, size).into_drawing_area(),
+        &format!("'{title}'"),
+        title,
+        grid,
+        panels,
+    )?;
     Ok(out)
 }
 
 /// Writes an SVG figure of `rows × cols` panels (row-major) under a title.
 pub fn figure(path: &Path, title: &str, size: (u32, u32), grid: (usize, usize), panels: &[Panel]) -> Result<()> {
-    let root = SVGBackend::new(path, size).into_drawing_area();
-    let err = |e: DrawingAreaErrorKind<std::io::Error>| anyhow_like(format!("{}: {e:?}", path.display()));
-    root.fill(&WHITE).map_err(err)?;
-    let root = root.titled(title, ("sans-serif", 22)).map_err(err)?;
-    let areas = root.split_evenly(grid);
-    for (area, p) in areas.iter().zip(panels) {
-        draw_panel(area, p)?;
-    }
-    root.present().map_err(err)?;
-    Ok(())
+    draw_figure(SVGBackend::new(path, size).into_drawing_area(), &path.display().to_string(), title, grid, panels)
 }

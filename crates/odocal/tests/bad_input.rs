@@ -54,21 +54,7 @@ fn csv_reproducers_name_their_cause() {
         ("valid.csv", &[]),
         ("wheels_1e300.csv", &["line 2, column 'n_rl'", "rev/s"]),
     ];
-    let files = corpus("csv_drive");
-    assert_eq!(files.len(), expect.len(), "every corpus file has an expectation");
-    for (path, (name, needles)) in files.iter().zip(expect) {
-        assert_eq!(path.file_name().and_then(|n| n.to_str()), Some(*name));
-        let o = harness::csv_drive(&std::fs::read(path).expect("read"));
-        if needles.is_empty() {
-            assert!(matches!(o, Outcome::Drive(_)), "{name}: {o:?}");
-            continue;
-        }
-        let Outcome::Error(m) = &o else { panic!("{name}: expected an error, got {o:?}") };
-        assert_eq!(m.lines().count(), 1, "{name}: one line: {m}");
-        for n in *needles {
-            assert!(m.contains(n), "{name}: expected '{n}' in: {m}");
-        }
-    }
+    harness::replay(&corpus("csv_drive"), expect, harness::csv_drive);
 }
 
 /// A 10 MB field and a 200 MB header are not echoed whole.
@@ -93,49 +79,12 @@ fn manifest_corpus_never_panics() {
     }
 }
 
-/// One mutation of a text: replace, insert or delete bytes, or duplicate,
-/// drop or swap lines.
+/// Tokens the mutations insert: the numbers and characters that break readers.
+const TOKENS: [&str; 14] =
+    ["nan", "inf", "-", ",", "\n", "\"", "1e308", "-1e308", "0", ";", "=", "[", "9223372036854775807", "1e-300"];
+
 fn mutate(base: &str, ops: &[(u8, usize, usize)]) -> Vec<u8> {
-    const TOKENS: [&str; 14] =
-        ["nan", "inf", "-", ",", "\n", "\"", "1e308", "-1e308", "0", ";", "=", "[", "9223372036854775807", "1e-300"];
-    let mut lines: Vec<Vec<u8>> = base.split('\n').map(|l| l.as_bytes().to_vec()).collect();
-    for &(op, a, b) in ops {
-        let n = lines.len();
-        let (i, j) = (a % n, b % n);
-        match op % 6 {
-            0 => {
-                let t = TOKENS[b % TOKENS.len()].as_bytes();
-                let l = &mut lines[i];
-                let at = b % (l.len() + 1);
-                l.splice(at..at, t.iter().copied());
-            }
-            1 => {
-                let l = &mut lines[i];
-                if !l.is_empty() {
-                    let at = b % l.len();
-                    l.drain(at..(at + 1 + b % 7).min(l.len()));
-                }
-            }
-            2 => {
-                let l = lines[i].clone();
-                lines.insert(j, l);
-            }
-            3 => {
-                if n > 1 {
-                    lines.remove(i);
-                }
-            }
-            4 => lines.swap(i, j),
-            _ => {
-                let l = &mut lines[i];
-                if !l.is_empty() {
-                    let at = b % l.len();
-                    l[at] = (b % 256) as u8;
-                }
-            }
-        }
-    }
-    lines.join(&b'\n')
+    harness::mutate(base, ops, &TOKENS)
 }
 
 fn valid(kind: &str, name: &str) -> String {

@@ -37,66 +37,14 @@ fn import_reproducers_name_their_cause() {
         ("wheel_time_x1000.bundle", &["min_part_s"]),
         ("wheels_negated.bundle", &["wheels.rear_left.sign", "backwards"]),
     ];
-    let files = corpus();
-    assert_eq!(files.len(), expect.len(), "every corpus file has an expectation");
-    for (path, (name, needles)) in files.iter().zip(expect) {
-        assert_eq!(path.file_name().and_then(|n| n.to_str()), Some(*name));
-        let o = harness::import_bundle(&std::fs::read(path).expect("read"));
-        if needles.is_empty() {
-            assert!(matches!(o, Outcome::Drive(_)), "{name}: {o:?}");
-            continue;
-        }
-        let Outcome::Error(m) = &o else { panic!("{name}: expected an error, got {o:?}") };
-        assert_eq!(m.lines().count(), 1, "{name}: one line: {m}");
-        for n in *needles {
-            assert!(m.contains(n), "{name}: expected '{n}' in: {m}");
-        }
-    }
+    harness::replay(&corpus(), expect, harness::import_bundle);
 }
 
-/// Same mutations as the CSV test (tokens like `1e308`, `nan`, line drops and
-/// duplicates) applied to the whole bundle: manifest and stream files.
+/// Same mutations as the CSV test, with tokens for manifests too; the
+/// `=== NAME` section markers are left intact so the bundle stays a bundle.
 fn mutate(base: &str, ops: &[(u8, usize, usize)]) -> Vec<u8> {
     const TOKENS: [&str; 12] = ["nan", "inf", "-", ",", "\n", "1e308", "-1e308", "0", "=", "1e9", "9e15", "1e-300"];
-    let mut lines: Vec<Vec<u8>> = base.split('\n').map(|l| l.as_bytes().to_vec()).collect();
-    for &(op, a, b) in ops {
-        let n = lines.len();
-        let (i, j) = (a % n, b % n);
-        // Keep the section markers intact so the bundle stays a bundle.
-        if lines[i].starts_with(b"=== ") {
-            continue;
-        }
-        match op % 5 {
-            0 => {
-                let t = TOKENS[b % TOKENS.len()].as_bytes();
-                let l = &mut lines[i];
-                let at = b % (l.len() + 1);
-                l.splice(at..at, t.iter().copied());
-            }
-            1 => {
-                let l = &mut lines[i];
-                if !l.is_empty() {
-                    let at = b % l.len();
-                    l.drain(at..(at + 1 + b % 5).min(l.len()));
-                }
-            }
-            2 => {
-                let l = lines[i].clone();
-                lines.insert(j.max(1), l);
-            }
-            3 => {
-                lines.remove(i);
-            }
-            _ => {
-                let l = &mut lines[i];
-                if !l.is_empty() {
-                    let at = b % l.len();
-                    l[at] = b"0123456789.-e,"[b % 14];
-                }
-            }
-        }
-    }
-    lines.join(&b'\n')
+    harness::mutate(base, ops, &TOKENS)
 }
 
 proptest! {

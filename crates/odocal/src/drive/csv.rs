@@ -15,9 +15,10 @@ const MASK_COLUMN: &str = "ref_measured";
 const PART_COLUMN: &str = "part";
 
 /// Longest echo of a field in an error message, characters.
-const ECHO_CHARS: usize = 40;
+pub(crate) const ECHO_CHARS: usize = 40;
 
-/// A field as echoed in an error message: at most [`ECHO_CHARS`] characters.
+/// A value as echoed in an error message: at most [`ECHO_CHARS`]
+/// characters, then "…" and the full length (every reader uses this one).
 pub(crate) fn echo(field: &str) -> String {
     let mut it = field.chars();
     let head: String = it.by_ref().take(ECHO_CHARS).collect();

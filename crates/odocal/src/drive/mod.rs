@@ -46,6 +46,7 @@ mod csv;
 
 use std::ops::Range;
 
+pub(crate) use self::csv::echo;
 pub use self::csv::REQUIRED_COLUMNS;
 use crate::error::{Error, Result};
 use crate::limits::PhysicalLimits;

@@ -37,19 +37,7 @@ pub const MAX_DEJITTER_WINDOW_S: f64 = 60.0;
 /// Most samples each side of the de-jitter window.
 pub const MAX_DEJITTER_HALF_WINDOW: usize = 5_000;
 /// Characters of a value echoed in a message.
-pub(crate) const ECHO_CHARS: usize = 40;
-
-/// A value as echoed in a message: at most [`ECHO_CHARS`] characters, then
-/// "…" and the full length.
-pub(crate) fn echo(value: &str) -> String {
-    let mut it = value.chars();
-    let head: String = it.by_ref().take(ECHO_CHARS).collect();
-    if it.next().is_some() {
-        format!("{head}… ({} bytes)", value.len())
-    } else {
-        head
-    }
-}
+pub(crate) use crate::drive::echo;
 
 /// A number as echoed in a message (`1e300` stays short).
 pub(crate) fn echo_num(v: f64) -> String {

@@ -99,3 +99,74 @@ pub fn import_manifest(m: &Manifest) -> Outcome {
         Err(e) => check_message(e.to_string()),
     }
 }
+
+/// One mutation of a text: insert a token, delete bytes, duplicate, drop or
+/// swap lines, or overwrite a byte, for each `(op, a, b)`. Lines starting
+/// with `=== ` (bundle section markers) are never touched.
+pub fn mutate(base: &str, ops: &[(u8, usize, usize)], tokens: &[&str]) -> Vec<u8> {
+    let mut lines: Vec<Vec<u8>> = base.split('\n').map(|l| l.as_bytes().to_vec()).collect();
+    for &(op, a, b) in ops {
+        let n = lines.len();
+        let (i, j) = (a % n, b % n);
+        if lines[i].starts_with(b"=== ") {
+            continue;
+        }
+        match op % 6 {
+            0 => {
+                let t = tokens[b % tokens.len()].as_bytes();
+                let l = &mut lines[i];
+                let at = b % (l.len() + 1);
+                l.splice(at..at, t.iter().copied());
+            }
+            1 => {
+                let l = &mut lines[i];
+                if !l.is_empty() {
+                    let at = b % l.len();
+                    l.drain(at..(at + 1 + b % 7).min(l.len()));
+                }
+            }
+            2 => {
+                let l = lines[i].clone();
+                lines.insert(j.max(1), l);
+            }
+            3 => {
+                if n > 1 {
+                    lines.remove(i);
+                }
+            }
+            4 => {
+                if !lines[j].starts_with(b"=== ") {
+                    lines.swap(i, j);
+                }
+            }
+            _ => {
+                let l = &mut lines[i];
+                if !l.is_empty() {
+                    let at = b % l.len();
+                    l[at] = (b % 256) as u8;
+                }
+            }
+        }
+    }
+    lines.join(&b'\n')
+}
+
+/// Replays corpus `files` (sorted by name) through `reader` and checks each
+/// against `expect` (file name, substrings of the one-line error; no
+/// substrings: the input must be accepted as a drive).
+pub fn replay(files: &[std::path::PathBuf], expect: &[(&str, &[&str])], reader: fn(&[u8]) -> Outcome) {
+    assert_eq!(files.len(), expect.len(), "every corpus file has an expectation");
+    for (path, (name, needles)) in files.iter().zip(expect) {
+        assert_eq!(path.file_name().and_then(|n| n.to_str()), Some(*name));
+        let o = reader(&std::fs::read(path).expect("read"));
+        if needles.is_empty() {
+            assert!(matches!(o, Outcome::Drive(_)), "{name}: {o:?}");
+            continue;
+        }
+        let Outcome::Error(m) = &o else { panic!("{name}: expected an error, got {o:?}") };
+        assert_eq!(m.lines().count(), 1, "{name}: one line: {m}");
+        for n in *needles {
+            assert!(m.contains(n), "{name}: expected '{n}' in: {m}");
+        }
+    }
+}
