@@ -190,7 +190,7 @@ use std::path::Path;
 use std::time::Instant;
 
 pub use manifest::{
-    AngleUnit, ClockOffset, HeadingConvention, HeadingSpec, LateralAccelerationSpec, LimitsSpec, Manifest, OutputSpec,
+    AngleUnit, BagTime, ClockOffset, HeadingConvention, HeadingSpec, LateralAccelerationSpec, LimitsSpec, Manifest, OutputSpec,
     PositionSpec, QualitySpec, SideslipSpec, SourceSpec, StreamSpec, TimeUnit, WheelColumn, WheelSignal, WheelSpec,
 };
 pub use report::{ClockOffsetReport, DejitterReport, GapRecord, ImportReport, JitterReport, PartRecord, StreamReport};
