@@ -17,6 +17,7 @@ use odocal::{
 };
 
 mod experiment;
+mod inspect;
 mod plots;
 mod progress;
 mod report;
@@ -51,6 +52,8 @@ enum Command {
     Experiment(ExperimentArgs),
     /// Import a multi-stream real log described by a TOML manifest into a canonical drive CSV.
     Import(ImportArgs),
+    /// List a ROS 2 bag's (MCAP) topics, types, counts and rates, and the manifest columns of each.
+    Inspect(inspect::InspectArgs),
 }
 
 #[derive(Args)]
@@ -355,6 +358,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Demo(a) => demo_cmd(a, &bars),
         Command::Experiment(a) => experiment::run(a, &bars),
         Command::Import(a) => import_cmd(a),
+        Command::Inspect(a) => inspect::run(a),
     }
 }
 

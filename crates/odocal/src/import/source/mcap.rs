@@ -16,7 +16,14 @@ use crate::error::{Error, Result};
 use crate::import::manifest::{BagTime, Manifest};
 
 /// Reads the `wanted` columns of `topic` in the bag at `path`.
-pub(super) fn read(m: &Manifest, name: &str, path: &Path, topic: &str, time: BagTime, wanted: &[Wanted]) -> Result<Table> {
+pub(super) fn read(
+    m: &Manifest,
+    name: &str,
+    path: &Path,
+    topic: &str,
+    time: BagTime,
+    wanted: &[Wanted],
+) -> Result<Table> {
     let time = match time {
         BagTime::Header => TimeSource::HeaderStamp,
         BagTime::Log => TimeSource::LogTime,
