@@ -19,6 +19,7 @@ use odocal::{
 };
 
 mod experiment;
+mod inspect;
 mod progress;
 mod report;
 
@@ -52,6 +53,8 @@ enum Command {
     Experiment(ExperimentArgs),
     /// Import a multi-stream real log described by a TOML manifest into a canonical drive CSV.
     Import(ImportArgs),
+    /// List a ROS 2 bag's (MCAP) topics, types, counts and rates, and the manifest columns of each.
+    Inspect(inspect::InspectArgs),
 }
 
 #[derive(Args)]
@@ -402,6 +405,7 @@ fn run(cli: Cli) -> Result<Outcome> {
         Command::Demo(a) => demo_cmd(a, &bars).map(|_| Outcome::Done),
         Command::Experiment(a) => done(experiment::run(a, &bars)),
         Command::Import(a) => done(import_cmd(a)),
+        Command::Inspect(a) => done(inspect::run(a)),
     }
 }
 

@@ -62,6 +62,7 @@ pub(crate) fn wheel_speeds(m: &Manifest, x: &Resampled<'_>, theta0: &Theta) -> R
                     }
                     WheelSignal::TicksRaw => "; check wheels.counter_bits and wheels.ticks_per_rev",
                     WheelSignal::TicksCumulative => "; check wheels.ticks_per_rev",
+                    WheelSignal::RadCumulative => "; check that the column is an angle in rad (not ticks)",
                 };
                 return Err(m.error(
                     key,

@@ -211,12 +211,16 @@ pub enum SourceSpec {
         /// The file, relative to the manifest's folder.
         file: PathBuf,
     },
-    /// One topic of a ROS 2 bag in MCAP (`format = "mcap"`, `topic = "/x"`).
+    /// One topic of a ROS 2 bag in MCAP (`format = "mcap"`, `topic = "/x"`,
+    /// optional `time = "header" | "log"`). Columns are named as
+    /// [`crate::bag`] names them (`position.<joint>`, `x`, `yaw`, `cov_x`, …).
     Mcap {
         /// The bag, relative to the manifest's folder.
         file: PathBuf,
         /// The topic.
         topic: String,
+        /// Which message time becomes the stream's time. Default the header stamp.
+        time: BagTime,
     },
     /// A Parquet table (`format = "parquet"`).
     Parquet {
@@ -243,6 +247,18 @@ impl SourceSpec {
     }
 }
 
+/// Which time of a bag message a `format = "mcap"` stream uses
+/// (`streams.<name>.time`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BagTime {
+    /// `header.stamp` (when the data were measured, on the publisher's clock).
+    #[default]
+    Header,
+    /// The MCAP log time (when the recorder received the message).
+    Log,
+}
+
 /// The format of a stream as written in the manifest.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -263,6 +279,8 @@ struct RawStreamSpec {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     topic: Option<String>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    time: Option<BagTime>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     time_column: Option<String>,
     #[serde(default)]
     time_unit: TimeUnit,
@@ -281,12 +299,24 @@ impl TryFrom<RawStreamSpec> for StreamSpec {
         let source = match (r.format, r.topic) {
             (Format::Csv, None) => SourceSpec::Csv { file: r.file },
             (Format::Parquet, None) => SourceSpec::Parquet { file: r.file },
-            (Format::Mcap, Some(topic)) => SourceSpec::Mcap { file: r.file, topic },
+            (Format::Mcap, Some(topic)) => SourceSpec::Mcap { file: r.file, topic, time: r.time.unwrap_or_default() },
             (Format::Mcap, None) => return Err("`topic` is required for format = \"mcap\"".into()),
             (f, Some(_)) => return Err(format!("`topic` is only for format = \"mcap\", not {f:?}").to_lowercase()),
         };
-        if r.time_column.is_none() && !matches!(source, SourceSpec::Mcap { .. }) {
+        let mcap = matches!(source, SourceSpec::Mcap { .. });
+        if r.time_column.is_none() && !mcap {
             return Err(format!("`time_column` is required for format = \"{}\"", source.format()));
+        }
+        if r.time_column.is_some() && mcap {
+            return Err("`time_column` is not for format = \"mcap\": bag messages carry their time; choose it with \
+                        `time = \"header\"` (the default) or `time = \"log\"`"
+                .into());
+        }
+        if r.time.is_some() && !mcap {
+            return Err(format!(
+                "`time` is only for format = \"mcap\"; format = \"{}\" takes `time_column`",
+                source.format()
+            ));
         }
         Ok(StreamSpec {
             source,
@@ -301,15 +331,16 @@ impl TryFrom<RawStreamSpec> for StreamSpec {
 
 impl From<StreamSpec> for RawStreamSpec {
     fn from(s: StreamSpec) -> Self {
-        let (format, file, topic) = match s.source {
-            SourceSpec::Csv { file } => (Format::Csv, file, None),
-            SourceSpec::Mcap { file, topic } => (Format::Mcap, file, Some(topic)),
-            SourceSpec::Parquet { file } => (Format::Parquet, file, None),
+        let (format, file, topic, time) = match s.source {
+            SourceSpec::Csv { file } => (Format::Csv, file, None, None),
+            SourceSpec::Mcap { file, topic, time } => (Format::Mcap, file, Some(topic), Some(time)),
+            SourceSpec::Parquet { file } => (Format::Parquet, file, None, None),
         };
         RawStreamSpec {
             format,
             file,
             topic,
+            time,
             time_column: s.time_column,
             time_unit: s.time_unit,
             time_offset_s: s.time_offset_s,
@@ -339,6 +370,9 @@ pub enum WheelSignal {
     TicksCumulative,
     /// A raw encoder counter that wraps around at `counter_bits` bits.
     TicksRaw,
+    /// A cumulative wheel angle, rad (e.g. a ROS `JointState` position):
+    /// revolutions = rad / 2π.
+    RadCumulative,
 }
 
 /// The rear wheel rotation (`[wheels]`).
@@ -472,14 +506,42 @@ pub struct HeadingSpec {
     pub unit: AngleUnit,
 }
 
-/// Pose quality (`[pose.quality]`).
+/// Pose quality (`[pose.quality]`): a sample is accepted when its value is
+/// one of `accept` (when given) and within `min`..=`max` (when given); at
+/// least one of them is required.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct QualitySpec {
     /// The column.
     pub column: String,
-    /// Accepted values (e.g. `[6]` for RTK fixed).
+    /// Accepted values (e.g. `[6]` for RTK fixed). Default: any value.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub accept: Vec<f64>,
+    /// Largest accepted value (e.g. `max = 0.01` on a covariance `cov_x`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max: Option<f64>,
+    /// Smallest accepted value (e.g. `min = 2` on a NavSatFix `status`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min: Option<f64>,
+}
+
+impl QualitySpec {
+    /// True when `v` passes every test given (NaN passes none).
+    pub fn accepts(&self, v: f64) -> bool {
+        (self.accept.is_empty() || self.accept.iter().any(|a| (a - v).abs() < 1e-9))
+            && self.max.is_none_or(|max| v <= max)
+            && self.min.is_none_or(|min| v >= min)
+            && !v.is_nan()
+    }
+
+    /// The manifest key naming the test(s), for messages.
+    pub(crate) fn key(&self) -> &'static str {
+        match (self.accept.is_empty(), self.max.is_some() || self.min.is_some()) {
+            (false, false) => "pose.quality.accept",
+            (true, _) => "pose.quality.max",
+            (false, true) => "pose.quality",
+        }
+    }
 }
 
 /// Lateral acceleration source (`[lateral_acceleration]`, tagged by `source`).
@@ -686,7 +748,7 @@ impl Manifest {
                 Some(c) => positive("wheels.ticks_per_rev", c)?,
                 None => return Err(self.error("wheels.ticks_per_rev", "required for tick signals")),
             },
-            WheelSignal::RevPerS | WheelSignal::RadPerS => {}
+            WheelSignal::RevPerS | WheelSignal::RadPerS | WheelSignal::RadCumulative => {}
         }
         if w.signal == WheelSignal::TicksRaw {
             match w.counter_bits {
@@ -705,8 +767,16 @@ impl Manifest {
             }
         }
         if let Some(q) = &self.pose.quality {
-            if q.accept.is_empty() {
-                return Err(self.error("pose.quality.accept", "no accepted values given"));
+            if q.accept.is_empty() && q.max.is_none() && q.min.is_none() {
+                return Err(self.error(
+                    "pose.quality.accept",
+                    "no accepted values given (give `accept = [...]`, a threshold `max = ...` / `min = ...`, or both)",
+                ));
+            }
+            for (key, v) in [("pose.quality.max", q.max), ("pose.quality.min", q.min)] {
+                if v.is_some_and(|v| !v.is_finite()) {
+                    return Err(self.error(key, "must be a finite number"));
+                }
             }
         }
         match &self.lateral_acceleration {

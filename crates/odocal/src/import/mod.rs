@@ -190,8 +190,9 @@ use std::path::Path;
 use std::time::Instant;
 
 pub use manifest::{
-    AngleUnit, ClockOffset, HeadingConvention, HeadingSpec, LateralAccelerationSpec, LimitsSpec, Manifest, OutputSpec,
-    PositionSpec, QualitySpec, SideslipSpec, SourceSpec, StreamSpec, TimeUnit, WheelColumn, WheelSignal, WheelSpec,
+    AngleUnit, BagTime, ClockOffset, HeadingConvention, HeadingSpec, LateralAccelerationSpec, LimitsSpec, Manifest,
+    OutputSpec, PositionSpec, QualitySpec, SideslipSpec, SourceSpec, StreamSpec, TimeUnit, WheelColumn, WheelSignal,
+    WheelSpec,
 };
 pub use report::{ClockOffsetReport, DejitterReport, GapRecord, ImportReport, JitterReport, PartRecord, StreamReport};
 

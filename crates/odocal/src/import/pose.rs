@@ -45,7 +45,7 @@ pub(crate) fn build_pose(m: &Manifest, s: &Stream, warnings: &mut Vec<String>) -
     let p = &m.pose;
     let n = s.t.len();
     let good: Vec<bool> = match &p.quality {
-        Some(q) => s.col(&q.column).iter().map(|v| q.accept.iter().any(|a| (a - v).abs() < 1e-9)).collect(),
+        Some(q) => s.col(&q.column).iter().map(|v| q.accepts(*v)).collect(),
         None => vec![true; n],
     };
     let first_good = good.iter().position(|g| *g).ok_or_else(|| {
@@ -53,7 +53,8 @@ pub(crate) fn build_pose(m: &Manifest, s: &Stream, warnings: &mut Vec<String>) -
         seen.sort_by(f64::total_cmp);
         seen.dedup();
         seen.truncate(10);
-        m.error("pose.quality.accept", format!("no pose sample has an accepted quality value (values found: {seen:?})"))
+        let key = p.quality.as_ref().map_or("pose.quality.accept", |q| q.key());
+        m.error(key, format!("no pose sample has an accepted quality value (values found: {seen:?})"))
     })?;
     let (x, y): (Vec<f64>, Vec<f64>) = match &p.position {
         PositionSpec::Local { x, y } => (s.col(x).to_vec(), s.col(y).to_vec()),
@@ -125,7 +126,8 @@ pub(crate) fn build_pose(m: &Manifest, s: &Stream, warnings: &mut Vec<String>) -
         }
     }
     if out.t.len() < 2 {
-        return Err(m.error("pose.quality.accept", "fewer than two pose samples of accepted quality"));
+        let key = p.quality.as_ref().map_or("pose.quality.accept", |q| q.key());
+        return Err(m.error(key, "fewer than two pose samples of accepted quality"));
     }
     check_speed(m, &out, warnings)?;
     out.bad.extend(gaps_of(&out.t, m.output.max_gap_s, "pose"));

@@ -31,6 +31,7 @@ pub(crate) fn wheel_revolutions(m: &Manifest, s: &Stream, wheel: &WheelColumn, k
             let tpr = per_rev(w.ticks_per_rev);
             col.iter().map(|v| sign * (v - col[0]) / tpr).collect()
         }
+        WheelSignal::RadCumulative => col.iter().map(|v| sign * (v - col[0]) / std::f64::consts::TAU).collect(),
         WheelSignal::TicksRaw => {
             let tpr = per_rev(w.ticks_per_rev);
             let bits = w.counter_bits.unwrap_or(32);
@@ -250,5 +251,6 @@ pub(crate) fn wheel_scale(m: &Manifest) -> String {
         ),
         WheelSignal::RevPerS => "rev/s: c_e is the effective circumference, m".into(),
         WheelSignal::RadPerS => "rad/s / 2π: c_e is the effective circumference, m".into(),
+        WheelSignal::RadCumulative => "rad / 2π: c_e is the effective circumference, m".into(),
     }
 }

@@ -16,11 +16,14 @@
 //! 3. one arm in [`read_table`]'s `match`, behind the format's cargo feature
 //!    where it needs a dependency.
 //!
-//! `format = "mcap"` (a ROS 2 bag topic, `topic = "/wheels"`) and
-//! `format = "parquet"` are accepted by the manifest and answered with an
-//! error naming the key until their readers land.
+//! `format = "mcap"` (a ROS 2 bag topic, `topic = "/wheels"`, read by
+//! `source/mcap.rs` when the `mcap` feature is on, the default) is the
+//! example. `format = "parquet"` is accepted by the manifest and answered
+//! with an error naming the key until its reader lands.
 
 mod csv;
+#[cfg(feature = "mcap")]
+mod mcap;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -73,10 +76,13 @@ pub(crate) fn read_table(m: &Manifest, name: &str, wanted: &[Wanted]) -> Result<
             let time = spec.time_column.as_deref().unwrap_or_default();
             csv::read(m, name, &m.base_dir().join(file), time, wanted)
         }
+        #[cfg(feature = "mcap")]
+        SourceSpec::Mcap { file, topic, time } => mcap::read(m, name, &m.base_dir().join(file), topic, *time, wanted),
+        #[cfg(not(feature = "mcap"))]
         SourceSpec::Mcap { .. } => Err(m.error(
             &format!("streams.{name}.format"),
-            "\"mcap\" streams are not readable by this build yet (the ROS 2 bag reader is not part of it); \
-             export the topic to CSV",
+            "\"mcap\" streams need odocal built with the cargo feature `mcap` (on by default), which this \
+             build lacks; rebuild with `--features mcap` or export the topic to CSV",
         )),
         SourceSpec::Parquet { .. } => Err(m.error(
             &format!("streams.{name}.format"),

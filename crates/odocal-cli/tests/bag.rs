@@ -1,0 +1,162 @@
+//! ROS 2 bags through the CLI: `odocal inspect` on the shipped slice bag, and
+//! every bag error of a `format = "mcap"` manifest through `odocal import`,
+//! with its exact one-line message (exit code 1).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+const WHEELS: &str = "/vehicle/wheel_joint_states";
+const POSE: &str = "/localization/pose_with_covariance";
+/// The slice bag's topics as the errors list them.
+const TOPICS: &str = "/localization/pose_with_covariance (geometry_msgs/msg/PoseWithCovarianceStamped), \
+                      /sensing/gnss/front/nav_sat_fix (sensor_msgs/msg/NavSatFix), \
+                      /sensing/gnss/rear_left/nav_sat_fix (sensor_msgs/msg/NavSatFix), \
+                      /sensing/gnss/rear_right/nav_sat_fix (sensor_msgs/msg/NavSatFix), \
+                      /vehicle/wheel_joint_states (sensor_msgs/msg/JointState)";
+
+fn odocal(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_odocal")).args(args).arg("--quiet").output().expect("run odocal")
+}
+
+fn slice() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../odocal/tests/data/psu-mapping-van/drive-slice.mcap")
+}
+
+/// A manifest reading the wheels from `wheels_topic` (column `left`) and the
+/// pose from the slice bag's pose topic.
+fn manifest(dir: &Path, bag: &Path, wheels_topic: &str, left: &str) -> PathBuf {
+    let bag = bag.display();
+    let text = format!(
+        r#"
+[streams.wheels]
+format = "mcap"
+file = "{bag}"
+topic = "{wheels_topic}"
+
+[streams.pose]
+format = "mcap"
+file = "{slice}"
+topic = "{POSE}"
+
+[wheels]
+stream = "wheels"
+signal = "rad_cumulative"
+rear_left = {{ column = "{left}" }}
+rear_right = {{ column = "position.rear_right_wheel_joint" }}
+
+[pose]
+stream = "pose"
+position = {{ kind = "local", x = "x", y = "y" }}
+quality = {{ column = "cov_x", max = 0.01 }}
+"#,
+        slice = slice().display()
+    );
+    let p = dir.join("m.toml");
+    std::fs::write(&p, text).expect("write manifest");
+    p
+}
+
+/// Runs `odocal import` on the manifest and asserts exit code 1 and exactly
+/// `error: <manifest>: <message>`.
+fn assert_import_error(m: &Path, message: &str) {
+    let out = m.with_extension("csv");
+    let o = odocal(&["import", m.to_str().expect("utf8"), "--out", out.to_str().expect("utf8")]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "stderr: {stderr}");
+    assert_eq!(stderr.trim_end(), format!("error: {}: {message}", m.display()));
+    assert!(!out.exists(), "no output on error");
+}
+
+#[test]
+fn inspect_lists_topics_types_counts_and_rates() {
+    let o = odocal(&["inspect", slice().to_str().expect("utf8")]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for needle in [
+        "Files:             drive-slice.mcap",
+        "Storage id:        mcap (profile 'ros2', written by 'rosbags-0.11.9')",
+        "Compression:       zstd (3 chunks)",
+        "Messages:          16224",
+        "Topic: /vehicle/wheel_joint_states          | Type: sensor_msgs/msg/JointState",
+        "| Count: 11832 |",
+        "Topic: /localization/pose_with_covariance   | Type: geometry_msgs/msg/PoseWithCovarianceStamped | Count:  1063",
+        "Serialization Format: cdr",
+        "  /vehicle/wheel_joint_states: position.<joint name>, velocity.<joint name>",
+        "  /sensing/gnss/front/nav_sat_fix: latitude, longitude, altitude, status, cov_e, cov_n, cov_u",
+    ] {
+        assert!(text.contains(needle), "expected '{needle}' in:\n{text}");
+    }
+    assert_eq!(text.matches(" Hz | ").count(), 5, "a rate per topic:\n{text}");
+}
+
+#[test]
+fn unknown_topic_names_it_and_lists_the_bags_topics() {
+    let d = tempfile::tempdir().expect("tmp");
+    let m = manifest(d.path(), &slice(), "/wheels", "position.rear_left_wheel_joint");
+    let msg =
+        format!("streams.wheels.topic: {}: no topic '/wheels' in the bag; its topics: {TOPICS}", slice().display());
+    assert_import_error(&m, &msg);
+}
+
+#[test]
+fn topic_of_another_type_names_it_and_lists_its_columns() {
+    let d = tempfile::tempdir().expect("tmp");
+    let m = manifest(d.path(), &slice(), POSE, "position.rear_left_wheel_joint");
+    let msg = format!(
+        "wheels.rear_left.column: {}: topic '{POSE}' (geometry_msgs/msg/PoseWithCovarianceStamped) has no column \
+         'position.rear_left_wheel_joint'; valid columns: x, y, z, yaw, cov_x, cov_y, cov_yaw",
+        slice().display()
+    );
+    assert_import_error(&m, &msg);
+}
+
+#[test]
+fn unsupported_message_type_names_it_and_lists_the_readable_types() {
+    let d = tempfile::tempdir().expect("tmp");
+    let bag = d.path().join("strings.mcap");
+    let mut w = mcap::WriteOptions::new()
+        .profile("ros2")
+        .create(std::io::BufWriter::new(std::fs::File::create(&bag).expect("create")))
+        .expect("writer");
+    let schema = w.add_schema("std_msgs/msg/String", "ros2msg", b"string data").expect("schema");
+    let ch = w.add_channel(schema, WHEELS, "cdr", &Default::default()).expect("channel");
+    let h = mcap::records::MessageHeader { channel_id: ch, sequence: 0, log_time: 1, publish_time: 1 };
+    w.write_to_known_channel(&h, &[0, 1, 0, 0, 1, 0, 0, 0, 0]).expect("write");
+    w.finish().expect("finish");
+    drop(w);
+    let m = manifest(d.path(), &bag, WHEELS, "position.rear_left_wheel_joint");
+    let msg = format!(
+        "streams.wheels.topic: {}: topic '{WHEELS}' has message type 'std_msgs/msg/String', which odocal cannot \
+         read; supported types: sensor_msgs/msg/JointState, geometry_msgs/msg/PoseWithCovarianceStamped, \
+         geometry_msgs/msg/PoseStamped, nav_msgs/msg/Odometry, sensor_msgs/msg/NavSatFix, sensor_msgs/msg/Imu",
+        bag.display()
+    );
+    assert_import_error(&m, &msg);
+}
+
+#[test]
+fn missing_joint_names_it_and_lists_the_joints_present() {
+    let d = tempfile::tempdir().expect("tmp");
+    let m = manifest(d.path(), &slice(), WHEELS, "position.rear_left_wheel");
+    let msg = format!(
+        "wheels.rear_left.column: {}: topic '{WHEELS}': no joint named 'rear_left_wheel' in message 0 (log time \
+         1720717537.428161000 s); joint names present: rear_left_wheel_joint, rear_right_wheel_joint",
+        slice().display()
+    );
+    assert_import_error(&m, &msg);
+}
+
+#[test]
+fn sqlite_bag_gets_the_convert_hint() {
+    let d = tempfile::tempdir().expect("tmp");
+    let bag = d.path().join("drive_0.db3");
+    std::fs::write(&bag, b"SQLite format 3\0rest of the database").expect("write");
+    let m = manifest(d.path(), &bag, WHEELS, "position.rear_left_wheel_joint");
+    let msg = format!(
+        "streams.wheels.file: {}: a ROS 2 sqlite3 (.db3) bag; odocal reads MCAP bags: convert it with `ros2 bag \
+         convert -i BAG -o out.yaml`, out.yaml being `output_bags: [{{uri: BAG_mcap, storage_id: mcap, \
+         all_topics: true}}]`",
+        bag.display()
+    );
+    assert_import_error(&m, &msg);
+}
