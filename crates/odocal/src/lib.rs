@@ -58,6 +58,7 @@
 
 pub mod compensate;
 pub mod drive;
+pub mod eiv;
 pub mod error;
 pub mod identify;
 pub mod import;
