@@ -193,6 +193,19 @@ fn h_cols(b: &M3x9) -> Matrix3<f64> {
     out
 }
 
+/// `(I − K H) A (I − K H)ᵀ` for `H = [I₃ 0 I₃]`.
+#[inline]
+fn joseph(a: &M9, k: &M9x3) -> M9 {
+    let x = a - k * h_rows(a);
+    let mut xh = M9x3::zeros();
+    for r in 0..NZ {
+        for c in 0..3 {
+            xh[(r, c)] = x[(r, c)] + x[(r, c + 6)];
+        }
+    }
+    x - xh * k.transpose()
+}
+
 /// The initial covariance of a window and its η-derivatives (SPEC §10):
 /// `P_xx = R + Σ_b, P_bb = Σ_b, P_xb = −Σ_b, P_ss = diag(σ²)`.
 fn initial_covariance(v: &Variances, r_floor: &[f64; 3]) -> (M9, [M9; NETA]) {
@@ -457,13 +470,21 @@ pub(crate) fn run_window(
                     d[(r, 4 + jj)] += col[r];
                 }
             }
+            // Joseph form (I−KH)∂P(I−KH)ᵀ + K ∂R Kᵀ: the algebraically equal
+            // ∂P − KH∂P − (KH∂P)ᵀ + K ∂S Kᵀ is numerically unstable here.
             for jj in 0..NETA {
-                let khdp = k * h_rows(&dp[jj]);
-                dp[jj] = dp[jj] - khdp - khdp.transpose() + k * ds[jj] * k.transpose();
+                dp[jj] = joseph(&dp[jj], &k);
+                if jj == 3 {
+                    dp[jj] += k * dr3 * k.transpose();
+                }
             }
         }
-        p -= k * hp;
+        p = joseph(&p, &k) + k * r * k.transpose();
         p = (p + p.transpose()) * 0.5;
+        #[cfg(test)]
+        if std::env::var("EIV_DEBUG").is_ok() && (dp.iter().any(|m| !m.iter().all(|x| x.is_finite())) || !out.i_eta.iter().all(|x| x.is_finite())) {
+            panic!("non-finite at {i}: dp {:?} ds {:?} dk {:?} p {}", dp.iter().map(|m| m.iter().all(|x| x.is_finite())).collect::<Vec<_>>(), ds, dk[0], p);
+        }
     }
     Ok(out)
 }
