@@ -17,7 +17,7 @@
 //! innovation:  ∂ν_k/∂p = −H D⁻_k,   ∂S_k/∂θ = 0.
 //! ```
 
-use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
+use nalgebra::{Matrix3, Matrix3x4, SMatrix, SVector, Vector3};
 
 use super::{EivInput, Window};
 use crate::error::{Error, Result};
@@ -88,6 +88,9 @@ pub(crate) struct WindowSums {
     pub lag1: [f64; 3],
     /// Per component: Σ e_k².
     pub e2: [f64; 3],
+    /// Expected gradient of the profile cost caused by the input noise,
+    /// `Σ_k −tr(S_k⁻¹ H X_k,i Hᵀ)` (the corrected-score term, see [`run_window`]).
+    pub bias: nalgebra::Vector4<f64>,
 }
 
 impl WindowSums {
@@ -102,6 +105,7 @@ impl WindowSums {
             updates: 0,
             lag1: [0.0; 3],
             e2: [0.0; 3],
+            bias: nalgebra::Vector4::zeros(),
         }
     }
 
@@ -113,6 +117,7 @@ impl WindowSums {
         self.h_theta += o.h_theta;
         self.i_eta += o.i_eta;
         self.updates += o.updates;
+        self.bias += o.bias;
         for c in 0..3 {
             self.lag1[c] += o.lag1[c];
             self.e2[c] += o.e2[c];
@@ -122,6 +127,13 @@ impl WindowSums {
     /// The objective `M = ½ Σ(νᵀS⁻¹ν + log det S) − Σ m log(1 − ŝ)`.
     pub(crate) fn merit(&self) -> f64 {
         0.5 * (self.quad + self.logdet) + self.correction
+    }
+
+    /// The objective whose θ-gradient is the corrected score:
+    /// `M − biasᵀ(θ − θ_ref)` (the bias term is evaluated at θ_ref).
+    pub(crate) fn corrected_merit(&self, theta: &Theta, theta_ref: &Theta) -> f64 {
+        let d = theta.to_vector() - theta_ref.to_vector();
+        self.merit() - self.bias.dot(&d)
     }
 }
 
@@ -191,6 +203,59 @@ fn h_cols(b: &M3x9) -> Matrix3<f64> {
         }
     }
     out
+}
+
+/// `∂(∂f/∂θ)/∂u` (3×4) for the noisy inputs `u = [n_rl, n_rr, a_y]` at
+/// `(ψ, u, θ)`: how the noise on an input moves the θ-sensitivity of a step.
+fn theta_jacobian_input_derivatives(psi: f64, u: &Input, th: &Theta, ts: f64) -> [Matrix3x4<f64>; 3] {
+    let (c_rl, c_rr) = th.wheel_circumferences(u.a_y);
+    let (nl, nr, tr) = (u.n_rl, u.n_rr, th.t_r);
+    let v = (nl * c_rl + nr * c_rr) / 2.0;
+    let num = nr * c_rr - nl * c_rl;
+    let omega = num / tr;
+    let h = ts / 2.0;
+    let phi = psi + omega * h + u.beta;
+    let (s, c) = phi.sin_cos();
+    let dcrl = [1.0, 0.5, 0.0, u.a_y];
+    let dcrr = [1.0, -0.5, 0.0, -u.a_y];
+    let dv: [f64; 4] = std::array::from_fn(|j| (nl * dcrl[j] + nr * dcrr[j]) / 2.0);
+    let dw: [f64; 4] = std::array::from_fn(|j| (nr * dcrr[j] - nl * dcrl[j]) / tr - if j == 2 { num / (tr * tr) } else { 0.0 });
+    // Per input: (∂v/∂u, ∂ω/∂u, ∂dv_j/∂u, ∂dω_j/∂u).
+    let d = th.d;
+    let inputs: [(f64, f64, [f64; 4], [f64; 4]); 3] = [
+        (
+            c_rl / 2.0,
+            -c_rl / tr,
+            std::array::from_fn(|j| dcrl[j] / 2.0),
+            std::array::from_fn(|j| -dcrl[j] / tr + if j == 2 { c_rl / (tr * tr) } else { 0.0 }),
+        ),
+        (
+            c_rr / 2.0,
+            c_rr / tr,
+            std::array::from_fn(|j| dcrr[j] / 2.0),
+            std::array::from_fn(|j| dcrr[j] / tr - if j == 2 { c_rr / (tr * tr) } else { 0.0 }),
+        ),
+        (
+            (nl * d - nr * d) / 2.0,
+            (-nr * d - nl * d) / tr,
+            std::array::from_fn(|j| if j == 3 { (nl - nr) / 2.0 } else { 0.0 }),
+            std::array::from_fn(|j| match j {
+                3 => (-nr - nl) / tr,
+                2 => (nr * d + nl * d) / (tr * tr),
+                _ => 0.0,
+            }),
+        ),
+    ];
+    inputs.map(|(v_u, w_u, dv_u, dw_u)| {
+        let phi_u = w_u * h;
+        let mut a = Matrix3x4::zeros();
+        for j in 0..4 {
+            a[(0, j)] = ts * (-s * phi_u * dv[j] + c * dv_u[j] - (v_u * s + v * c * phi_u) * h * dw[j] - v * s * h * dw_u[j]);
+            a[(1, j)] = ts * (c * phi_u * dv[j] + s * dv_u[j] + (v_u * c - v * s * phi_u) * h * dw[j] + v * c * h * dw_u[j]);
+            a[(2, j)] = ts * dw_u[j];
+        }
+        a
+    })
 }
 
 /// `(I − K H) A (I − K H)ᵀ` for `H = [I₃ 0 I₃]`.
@@ -264,6 +329,9 @@ pub(crate) fn run_window(
         v.wheel * (1.0 - v.a_wheel * v.a_wheel),
     ];
     let q_b: [f64; 3] = std::array::from_fn(|a| v.drift[a] * (1.0 - v.a_drift * v.a_drift));
+    // X_i = E[ε⁻ D̃_iᵀ]: cross-covariance of the estimation error and the
+    // noise-driven part of the θ-sensitivity (corrected score).
+    let mut xcov = [M9::zeros(); 4];
     let mut out = WindowSums::zero();
     let mut prev_e: Option<Vector3<f64>> = None;
 
@@ -381,6 +449,22 @@ pub(crate) fn run_window(
             }
         }
 
+        // Corrected score: X⁻ = F̄ X⁺ F̄ᵀ − Σ_u var(u) (∂f/∂u)(∂f_θ/∂u)ᵀ.
+        let a_u = theta_jacobian_input_derivatives(input.psi[i], &uref, theta_ref, ts);
+        let g_u = [(fn_l, white(nl)), (fn_r, white(nr)), (f_a, v.a_y)];
+        for (ci, xi) in xcov.iter_mut().enumerate() {
+            *xi = propagate(xi, f02, f12, &fxs_ref, &diag);
+            for (u, (g, var)) in g_u.iter().enumerate() {
+                if *var > 0.0 {
+                    for r in 0..3 {
+                        for c in 0..3 {
+                            xi[(r, c)] -= var * g[r] * a_u[u][(c, ci)];
+                        }
+                    }
+                }
+            }
+        }
+
         // --- Measurement update where the reference was really measured.
         let k1 = i + 1;
         if let Some(m) = input.reference_measured {
@@ -428,6 +512,10 @@ pub(crate) fn run_window(
         let hd_t = hd.fixed_columns::<4>(0).into_owned();
         out.h_theta += hd_t.transpose() * sinv * hd_t;
         let k: M9x3 = hp.transpose() * sinv;
+        for (ci, xi) in xcov.iter_mut().enumerate() {
+            out.bias[ci] -= (sinv * h_cols(&h_rows(xi))).trace();
+            *xi = joseph(xi, &k);
+        }
 
         let mut ds = [Matrix3::zeros(); NETA];
         let mut dk = [M9x3::zeros(); NETA];
@@ -481,10 +569,6 @@ pub(crate) fn run_window(
         }
         p = joseph(&p, &k) + k * r * k.transpose();
         p = (p + p.transpose()) * 0.5;
-        #[cfg(test)]
-        if std::env::var("EIV_DEBUG").is_ok() && (dp.iter().any(|m| !m.iter().all(|x| x.is_finite())) || !out.i_eta.iter().all(|x| x.is_finite())) {
-            panic!("non-finite at {i}: dp {:?} ds {:?} dk {:?} p {}", dp.iter().map(|m| m.iter().all(|x| x.is_finite())).collect::<Vec<_>>(), ds, dk[0], p);
-        }
     }
     Ok(out)
 }

@@ -903,7 +903,8 @@ fn theta_step(sums: &WindowSums, free: &[bool; 4]) -> Result<([f64; 4], [f64; 4]
             reason: "the EIV information matrix H_θ is singular; hold them fixed (EivOptions::free)".into(),
         });
     };
-    let g = nalgebra::Vector4::new(sums.grad[0], sums.grad[1], sums.grad[2], sums.grad[3]);
+    // Corrected score: the gradient minus its expectation under the input noise.
+    let g = nalgebra::Vector4::new(sums.grad[0], sums.grad[1], sums.grad[2], sums.grad[3]) - sums.bias;
     let step = -(inv * g);
     Ok((std::array::from_fn(|i| step[i]), std::array::from_fn(|i| inv[(i, i)].max(0.0).sqrt())))
 }
@@ -1043,7 +1044,7 @@ fn scoring_pass(
     let mut ev = prob.evaluate(&theta, &theta_ref, &eta, eta_derivs)?;
     let (free, unobservable) =
         if check_observability && opts.fix_unobservable { fix_unobservable(&ev.total.h_theta, &free0, opts) } else { (free0, Vec::new()) };
-    let initial_cost = ev.total.merit();
+    let initial_cost = ev.total.corrected_merit(&theta, &theta_ref);
     let mut history = Vec::new();
     let mut termination = Termination::MaxIterations { iterations: opts.max_iterations, step_over_sigma: f64::NAN };
     let mut eta_sigma = [0.0; 5];
@@ -1067,7 +1068,7 @@ fn scoring_pass(
                 }
             }
         }
-        let previous = ev.total.merit();
+        let previous = ev.total.corrected_merit(&theta, &theta_ref);
         let mut lambda = 1.0;
         let mut accepted = None;
         let mut last_cost = f64::NAN;
@@ -1077,8 +1078,8 @@ fn scoring_pass(
                 let et = eta_add(&eta, &deta, lambda, opts.eta_bounds);
                 let trial = prob.evaluate(&th, &theta_ref, &et, eta_derivs);
                 match trial {
-                    Ok(t) if t.total.merit().is_finite() => {
-                        last_cost = t.total.merit();
+                    Ok(t) if t.total.corrected_merit(&th, &theta_ref).is_finite() => {
+                        last_cost = t.total.corrected_merit(&th, &theta_ref);
                         if last_cost <= previous + 1e-12 * previous.abs().max(1.0) {
                             accepted = Some((th, et, t));
                             break;
@@ -1096,7 +1097,7 @@ fn scoring_pass(
         theta = th;
         eta = et;
         ev = t;
-        history.push(IterationRecord { theta, eta, cost: ev.total.merit(), step_over_sigma: ratio, step_factor: lambda });
+        history.push(IterationRecord { theta, eta, cost: ev.total.corrected_merit(&theta, &theta_ref), step_over_sigma: ratio, step_factor: lambda });
         if ratio < opts.step_tolerance {
             termination = Termination::StepTolerance { step_over_sigma: ratio, threshold: opts.step_tolerance };
             break;
@@ -1105,7 +1106,7 @@ fn scoring_pass(
             termination = Termination::MaxIterations { iterations: opts.max_iterations, step_over_sigma: ratio };
         }
     }
-    let report = PassReport { theta_reference: theta_ref, theta, initial_cost, final_cost: ev.total.merit(), termination, history };
+    let report = PassReport { theta_reference: theta_ref, theta, initial_cost, final_cost: ev.total.corrected_merit(&theta, &theta_ref), termination, history };
     Ok(PassOutcome { theta, eta, eval: ev, report, free, unobservable, eta_sigma })
 }
 

@@ -81,7 +81,7 @@ fn innovation_derivatives_match_central_differences() {
         check(fd, 4 + j, "η");
     }
     for p in 0..4 {
-        let h = 1e-6 * [th.c_e, 1e-3, th.t_r, 1e-3][p];
+        let h = 1e-6 * [th.c_e, 1.0, th.t_r, 1.0][p];
         let rp = records(&input, &w, &perturb(&th, p, h), &th_ref, &eta);
         let rm = records(&input, &w, &perturb(&th, p, -h), &th_ref, &eta);
         let fd = picks
@@ -110,7 +110,7 @@ fn objective_gradient_matches_central_differences() {
     let base = merit(&th, &eta);
     for p in 0..9 {
         let (mp, mm, h) = if p < 4 {
-            let h = 1e-6 * [th.c_e, 1e-3, th.t_r, 1e-3][p];
+            let h = 1e-6 * [th.c_e, 1.0, th.t_r, 1.0][p];
             (merit(&perturb(&th, p, h), &eta).merit(), merit(&perturb(&th, p, -h), &eta).merit(), h)
         } else {
             let h = 1e-5;
@@ -245,13 +245,19 @@ fn updates_only_where_the_reference_was_measured() {
 #[test]
 #[ignore]
 fn debug_print() {
-    let out = simulate(&SimOptions { length_km: 3.0, substeps: 1, ..SimOptions::noise_free(11) }).expect("sim");
+    let out = simulate(&SimOptions {
+        length_km: 8.0,
+        noise: NoiseOptions { wheel_white_rel_sigma: 0.02, ..NoiseOptions::white_wheel_only() },
+        ..SimOptions::paper(3)
+    })
+    .expect("sim");
     let input = input_of(&out.drive);
-    let start = Theta { c_e: 1.96, c_d: -0.001, t_r: 1.55, d: 0.0005 };
+    let start = batch_gn_all(&out.drive);
     for fix in [true, false] {
-        let opts = EivOptions { fix_noise: fix, ..Default::default() };
+        let opts = EivOptions { fix_noise: fix, noise: NoiseModel { wheel_white_rel_sigma: 0.02, ..Default::default() }, ..Default::default() };
         let r = estimate(&input, &start, &opts).expect("eiv");
-        println!("fix {fix}: {r}\n eta {:?}\n{}", r.eta, serde_json::to_string(&r.passes).unwrap());
+        println!("fix {fix}: {r}\n eta {:?}", r.eta);
+        for p in &r.passes { for h in &p.history { println!("   {} eta {:?} cost {} ratio {} lam {}", h.theta, h.eta, h.cost, h.step_over_sigma, h.step_factor); } }
         for w in &r.warnings { println!("  {w}"); }
     }
 }
