@@ -207,7 +207,7 @@ fn h_cols(b: &M3x9) -> Matrix3<f64> {
 
 /// `∂(∂f/∂θ)/∂u` (3×4) for the noisy inputs `u = [n_rl, n_rr, a_y]` at
 /// `(ψ, u, θ)`: how the noise on an input moves the θ-sensitivity of a step.
-fn theta_jacobian_input_derivatives(psi: f64, u: &Input, th: &Theta, ts: f64) -> [Matrix3x4<f64>; 3] {
+fn theta_jacobian_input_derivatives(psi: f64, u: &Input, th: &Theta, ts: f64) -> [(Matrix3x4<f64>, f64, f64); 3] {
     let (c_rl, c_rr) = th.wheel_circumferences(u.a_y);
     let (nl, nr, tr) = (u.n_rl, u.n_rr, th.t_r);
     let v = (nl * c_rl + nr * c_rr) / 2.0;
@@ -254,7 +254,8 @@ fn theta_jacobian_input_derivatives(psi: f64, u: &Input, th: &Theta, ts: f64) ->
             a[(1, j)] = ts * (c * phi_u * dv[j] + s * dv_u[j] + (v_u * c - v * s * phi_u) * h * dw[j] + v * c * h * dw_u[j]);
             a[(2, j)] = ts * dw_u[j];
         }
-        a
+        // ∂F_x[0,2]/∂u and ∂F_x[1,2]/∂u.
+        (a, -ts * (v_u * s + v * c * phi_u), ts * (v_u * c - v * s * phi_u))
     })
 }
 
@@ -360,6 +361,7 @@ pub(crate) fn run_window(
         let q_white = fn_l * fn_l.transpose() * white(nl) + fn_r * fn_r.transpose() * white(nr);
         let q_x = q_white + f_b * f_b.transpose() * v.beta + f_a * f_a.transpose() * v.a_y;
 
+        let d_post = d;
         // --- Mean prediction at θ, with its exact Jacobians.
         let (m_c, m_l, m_r) = (
             f64::from(u8::from(nl != 0.0 || nr != 0.0)),
@@ -428,9 +430,10 @@ pub(crate) fn run_window(
                 *dpj = propagate(dpj, f02, f12, &fxs_ref, &diag);
                 match jj {
                     0 => {
+                        // η_0 scales the white wheel, a_y and β noise together.
                         for r in 0..3 {
                             for c in 0..3 {
-                                dpj[(r, c)] += q_white[(r, c)];
+                                dpj[(r, c)] += q_x[(r, c)];
                             }
                         }
                     }
@@ -451,14 +454,21 @@ pub(crate) fn run_window(
 
         // Corrected score: X⁻ = F̄ X⁺ F̄ᵀ − Σ_u var(u) (∂f/∂u)(∂f_θ/∂u)ᵀ.
         let a_u = theta_jacobian_input_derivatives(input.psi[i], &uref, theta_ref, ts);
+        // The noise moves the θ-sensitivity through ∂f/∂θ, through F_x (speed
+        // in the heading column) and through the s-columns of F (−F_n ñ).
         let g_u = [(fn_l, white(nl)), (fn_r, white(nr)), (f_a, v.a_y)];
+        let fs_u = [Matrix3::from_columns(&[-fn_l, -fn_l, Vector3::zeros()]), Matrix3::from_columns(&[-fn_r, Vector3::zeros(), -fn_r]), Matrix3::zeros()];
         for (ci, xi) in xcov.iter_mut().enumerate() {
             *xi = propagate(xi, f02, f12, &fxs_ref, &diag);
+            let dx = Vector3::new(d_post[(0, ci)], d_post[(1, ci)], d_post[(2, ci)]);
+            let ds_ = Vector3::new(d_post[(3, ci)], d_post[(4, ci)], d_post[(5, ci)]);
             for (u, (g, var)) in g_u.iter().enumerate() {
                 if *var > 0.0 {
+                    let (a, df02, df12) = &a_u[u];
+                    let col = a.column(ci) + Vector3::new(df02 * dx[2], df12 * dx[2], 0.0) + fs_u[u] * ds_;
                     for r in 0..3 {
                         for c in 0..3 {
-                            xi[(r, c)] -= var * g[r] * a_u[u][(c, ci)];
+                            xi[(r, c)] -= var * g[r] * col[c];
                         }
                     }
                 }

@@ -19,8 +19,9 @@
 //!
 //! (`f_β = ∂f/∂β`, `f_a = ∂f/∂a_y`; the sideslip error, Gauss-Markov with
 //! correlation time τ_β, enters as the white variance with the same long-run
-//! sum, `σ_β,eq² = σ_β²·(1 + a_β)/(1 − a_β)`). σ_a and σ_β are **fixed**
-//! (settable in [`NoiseModel`]), not estimated.
+//! sum, `σ_β,eq² = σ_β²·(1 + a_β)/(1 − a_β)`). σ_a and σ_β are settable in
+//! [`NoiseModel`] and scaled together with the white wheel noise (η_0, the
+//! "white input noise" group); they have no scale factor of their own.
 //!
 //! Measurement updates happen only at samples where the reference was really
 //! measured ([`EivInput::reference_measured`]); between them the filter only
@@ -214,8 +215,8 @@ fn make_windows(parts: &[Range<usize>], target: usize) -> Vec<Window> {
 ///
 /// Scale factor groups η: 0 = white + quantisation, 1 = common wheel
 /// Gauss-Markov, 2 = per-wheel Gauss-Markov, 3 = pose white (position and
-/// heading), 4 = pose drift (position and heading). σ_a, σ_β and all time
-/// constants are fixed.
+/// heading), 4 = pose drift (position and heading). σ_a and σ_β scale with
+/// η_0 (white input noise); all time constants are fixed.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct NoiseModel {
@@ -243,9 +244,9 @@ pub struct NoiseModel {
     pub heading_drift_sigma_rad: f64,
     /// Correlation time of the drift, s. Default 100.
     pub drift_time_constant_s: f64,
-    /// White noise of the lateral acceleration input σ_a, m/s². Default 0.05. Fixed.
+    /// White noise of the lateral acceleration input σ_a, m/s². Default 0.05 (scaled by η_0).
     pub lateral_acceleration_sigma_m_per_s2: f64,
-    /// Error of the sideslip input (Gauss-Markov) σ_β, rad. Default 0.002. Fixed.
+    /// Error of the sideslip input (Gauss-Markov) σ_β, rad. Default 0.002 (scaled by η_0).
     pub sideslip_sigma_rad: f64,
     /// Correlation time τ_β of the sideslip error, s. Default 1.
     pub sideslip_time_constant_s: f64,
@@ -333,6 +334,8 @@ impl NoiseModel {
         NoiseModel {
             wheel_white_rel_sigma: self.wheel_white_rel_sigma * f[0],
             quantisation_step_rev_per_s: self.quantisation_step_rev_per_s * f[0],
+            lateral_acceleration_sigma_m_per_s2: self.lateral_acceleration_sigma_m_per_s2 * f[0],
+            sideslip_sigma_rad: self.sideslip_sigma_rad * f[0],
             wheel_common_rel_sigma: self.wheel_common_rel_sigma * f[1],
             wheel_differential_rel_sigma: self.wheel_differential_rel_sigma * f[2],
             position_white_sigma_m: self.position_white_sigma_m * f[3],
@@ -396,8 +399,8 @@ impl NoiseModel {
                 sq(self.position_drift_sigma_m) * e[4],
                 sq(self.heading_drift_sigma_rad) * e[4],
             ],
-            a_y: sq(self.lateral_acceleration_sigma_m_per_s2),
-            beta: sq(self.sideslip_sigma_rad) * (1.0 + a_beta) / (1.0 - a_beta),
+            a_y: sq(self.lateral_acceleration_sigma_m_per_s2) * e[0],
+            beta: sq(self.sideslip_sigma_rad) * (1.0 + a_beta) / (1.0 - a_beta) * e[0],
             a_common: gm(self.wheel_common_time_constant_s),
             a_wheel: gm(self.wheel_differential_time_constant_s),
             a_drift: gm(self.drift_time_constant_s),
@@ -459,8 +462,8 @@ pub struct EivOptions {
     pub noise: NoiseModel,
     /// Use [`EivOptions::noise`] as is (do not estimate η). Default false.
     pub fix_noise: bool,
-    /// Clamp range of the log-scale factors η. Default [−16, 6]: variances
-    /// between 1e-7 and 400 times the starting model's.
+    /// Clamp range of the log-scale factors η. Default [−20, 6]: variances
+    /// between 2e-9 and 400 times the starting model's.
     pub eta_bounds: [f64; 2],
     /// Parameter resolutions `[c_e, c_d, t_r, d]`, SI units: a parameter
     /// whose standard deviation exceeds its resolution is not observable.
@@ -493,7 +496,7 @@ impl Default for EivOptions {
             fix_unobservable: true,
             noise: NoiseModel::PRODUCTION_CAR,
             fix_noise: false,
-            eta_bounds: [-16.0, 6.0],
+            eta_bounds: [-20.0, 6.0],
             resolution: [0.01, 0.001, 0.015, 0.0005],
             min_rcond: 1e-2,
             nis_band: [0.5, 2.0],
@@ -909,6 +912,17 @@ fn theta_step(sums: &WindowSums, free: &[bool; 4]) -> Result<([f64; 4], [f64; 4]
     Ok((std::array::from_fn(|i| step[i]), std::array::from_fn(|i| inv[(i, i)].max(0.0).sqrt())))
 }
 
+/// `g_cᵀ H_θ⁻¹ g_c` of the corrected θ-score over the free parameters (∞ when singular).
+fn score_norm(sums: &WindowSums, free: &[bool; 4]) -> f64 {
+    match theta_step(sums, free) {
+        Ok((step, _)) => {
+            let g = nalgebra::Vector4::new(sums.grad[0], sums.grad[1], sums.grad[2], sums.grad[3]) - sums.bias;
+            -(0..4).filter(|i| free[*i]).map(|i| step[i] * g[i]).sum::<f64>()
+        }
+        Err(_) => f64::INFINITY,
+    }
+}
+
 /// The scoring step of η (log-transformed, clamped; see the module docs),
 /// its standard deviations and which η are held at a clamp.
 fn eta_step(sums: &WindowSums, eta: &[f64; 5], bounds: [f64; 2]) -> ([f64; 5], [f64; 5]) {
@@ -1069,6 +1083,7 @@ fn scoring_pass(
             }
         }
         let previous = ev.total.corrected_merit(&theta, &theta_ref);
+        let previous_q = score_norm(&ev.total, &free);
         let mut lambda = 1.0;
         let mut accepted = None;
         let mut last_cost = f64::NAN;
@@ -1080,7 +1095,12 @@ fn scoring_pass(
                 match trial {
                     Ok(t) if t.total.corrected_merit(&th, &theta_ref).is_finite() => {
                         last_cost = t.total.corrected_merit(&th, &theta_ref);
-                        if last_cost <= previous + 1e-12 * previous.abs().max(1.0) {
+                        // Accept when the objective falls, or when the corrected score
+                        // (whose root is the estimate; the bias term is not an exact
+                        // gradient) shrinks in the Fisher metric.
+                        if last_cost <= previous + 1e-12 * previous.abs().max(1.0)
+                            || score_norm(&t.total, &free) < previous_q
+                        {
                             accepted = Some((th, et, t));
                             break;
                         }
