@@ -219,7 +219,8 @@ fn theta_jacobian_input_derivatives(psi: f64, u: &Input, th: &Theta, ts: f64) ->
     let dcrl = [1.0, 0.5, 0.0, u.a_y];
     let dcrr = [1.0, -0.5, 0.0, -u.a_y];
     let dv: [f64; 4] = std::array::from_fn(|j| (nl * dcrl[j] + nr * dcrr[j]) / 2.0);
-    let dw: [f64; 4] = std::array::from_fn(|j| (nr * dcrr[j] - nl * dcrl[j]) / tr - if j == 2 { num / (tr * tr) } else { 0.0 });
+    let dw: [f64; 4] =
+        std::array::from_fn(|j| (nr * dcrr[j] - nl * dcrl[j]) / tr - if j == 2 { num / (tr * tr) } else { 0.0 });
     // Per input: (∂v/∂u, ∂ω/∂u, ∂dv_j/∂u, ∂dω_j/∂u).
     let d = th.d;
     let inputs: [(f64, f64, [f64; 4], [f64; 4]); 3] = [
@@ -250,8 +251,10 @@ fn theta_jacobian_input_derivatives(psi: f64, u: &Input, th: &Theta, ts: f64) ->
         let phi_u = w_u * h;
         let mut a = Matrix3x4::zeros();
         for j in 0..4 {
-            a[(0, j)] = ts * (-s * phi_u * dv[j] + c * dv_u[j] - (v_u * s + v * c * phi_u) * h * dw[j] - v * s * h * dw_u[j]);
-            a[(1, j)] = ts * (c * phi_u * dv[j] + s * dv_u[j] + (v_u * c - v * s * phi_u) * h * dw[j] + v * c * h * dw_u[j]);
+            a[(0, j)] =
+                ts * (-s * phi_u * dv[j] + c * dv_u[j] - (v_u * s + v * c * phi_u) * h * dw[j] - v * s * h * dw_u[j]);
+            a[(1, j)] =
+                ts * (c * phi_u * dv[j] + s * dv_u[j] + (v_u * c - v * s * phi_u) * h * dw[j] + v * c * h * dw_u[j]);
             a[(2, j)] = ts * dw_u[j];
         }
         // ∂F_x[0,2]/∂u and ∂F_x[1,2]/∂u.
@@ -312,7 +315,11 @@ pub(crate) fn run_window(
 ) -> Result<WindowSums> {
     let ts = input.sample_time_s;
     let mut record = record;
-    let r_floor = [POSITION_FLOOR_M * POSITION_FLOOR_M, POSITION_FLOOR_M * POSITION_FLOOR_M, HEADING_FLOOR_RAD * HEADING_FLOOR_RAD];
+    let r_floor = [
+        POSITION_FLOOR_M * POSITION_FLOOR_M,
+        POSITION_FLOOR_M * POSITION_FLOOR_M,
+        HEADING_FLOOR_RAD * HEADING_FLOOR_RAD,
+    ];
     let r_white = Vector3::new(v.pose[0], v.pose[1], v.pose[2]);
     let r = Matrix3::from_diagonal(&(r_white + Vector3::from(r_floor)));
     let dr3 = Matrix3::from_diagonal(&r_white);
@@ -457,7 +464,11 @@ pub(crate) fn run_window(
         // The noise moves the θ-sensitivity through ∂f/∂θ, through F_x (speed
         // in the heading column) and through the s-columns of F (−F_n ñ).
         let g_u = [(fn_l, white(nl)), (fn_r, white(nr)), (f_a, v.a_y)];
-        let fs_u = [Matrix3::from_columns(&[-fn_l, -fn_l, Vector3::zeros()]), Matrix3::from_columns(&[-fn_r, Vector3::zeros(), -fn_r]), Matrix3::zeros()];
+        let fs_u = [
+            Matrix3::from_columns(&[-fn_l, -fn_l, Vector3::zeros()]),
+            Matrix3::from_columns(&[-fn_r, Vector3::zeros(), -fn_r]),
+            Matrix3::zeros(),
+        ];
         for (ci, xi) in xcov.iter_mut().enumerate() {
             *xi = propagate(xi, f02, f12, &fxs_ref, &diag);
             let dx = Vector3::new(d_post[(0, ci)], d_post[(1, ci)], d_post[(2, ci)]);
@@ -517,7 +528,7 @@ pub(crate) fn run_window(
         prev_e = Some(e);
 
         let hd = h_rows(&d); // ∂ν/∂p = −H D⁻
-        // Gradient of ½νᵀS⁻¹ν: νᵀS⁻¹ ∂ν = −(HD)ᵀ S⁻¹ ν.
+                             // Gradient of ½νᵀS⁻¹ν: νᵀS⁻¹ ∂ν = −(HD)ᵀ S⁻¹ ν.
         out.grad -= hd.transpose() * sinv_nu;
         let hd_t = hd.fixed_columns::<4>(0).into_owned();
         out.h_theta += hd_t.transpose() * sinv * hd_t;

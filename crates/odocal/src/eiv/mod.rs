@@ -893,14 +893,18 @@ fn free_inverse(h: &Matrix4<f64>, free: &[bool; 4]) -> Option<Matrix4<f64>> {
 
 fn theta_add(theta: &Theta, step: &[f64; 4], lambda: f64) -> Theta {
     let a = theta.to_array();
-    Theta { c_e: a[0] + lambda * step[0], c_d: a[1] + lambda * step[1], t_r: a[2] + lambda * step[2], d: a[3] + lambda * step[3] }
+    Theta {
+        c_e: a[0] + lambda * step[0],
+        c_d: a[1] + lambda * step[1],
+        t_r: a[2] + lambda * step[2],
+        d: a[3] + lambda * step[3],
+    }
 }
 
 /// The scoring step of θ over the free parameters and the standard deviations.
 fn theta_step(sums: &WindowSums, free: &[bool; 4]) -> Result<([f64; 4], [f64; 4])> {
     let Some(inv) = free_inverse(&sums.h_theta, free) else {
-        let params: Vec<&'static str> =
-            (0..4).filter(|i| free[*i]).map(|i| crate::model::THETA_NAMES[i]).collect();
+        let params: Vec<&'static str> = (0..4).filter(|i| free[*i]).map(|i| crate::model::THETA_NAMES[i]).collect();
         return Err(Error::NotObservable {
             params,
             reason: "the EIV information matrix H_θ is singular; hold them fixed (EivOptions::free)".into(),
@@ -968,7 +972,12 @@ fn eta_add(eta: &[f64; 5], step: &[f64; 5], lambda: f64, bounds: [f64; 2]) -> [f
 }
 
 /// Observability from `H_θ` over `free`: σ/resolution, rcond, collinear names.
-fn observability_of(h: &Matrix4<f64>, free: &[bool; 4], unobservable: Vec<Parameter>, opts: &EivOptions) -> EivObservability {
+fn observability_of(
+    h: &Matrix4<f64>,
+    free: &[bool; 4],
+    unobservable: Vec<Parameter>,
+    opts: &EivOptions,
+) -> EivObservability {
     let idx: Vec<usize> = (0..4).filter(|i| free[*i]).collect();
     let mut ratio = [0.0; 4];
     let inv = free_inverse(h, free);
@@ -1056,8 +1065,11 @@ fn scoring_pass(
     let eta_derivs = !opts.fix_noise;
     let (mut theta, mut eta) = (theta0, eta0);
     let mut ev = prob.evaluate(&theta, &theta_ref, &eta, eta_derivs)?;
-    let (free, unobservable) =
-        if check_observability && opts.fix_unobservable { fix_unobservable(&ev.total.h_theta, &free0, opts) } else { (free0, Vec::new()) };
+    let (free, unobservable) = if check_observability && opts.fix_unobservable {
+        fix_unobservable(&ev.total.h_theta, &free0, opts)
+    } else {
+        (free0, Vec::new())
+    };
     let initial_cost = ev.total.corrected_merit(&theta, &theta_ref);
     let mut history = Vec::new();
     let mut termination = Termination::MaxIterations { iterations: opts.max_iterations, step_over_sigma: f64::NAN };
@@ -1117,7 +1129,13 @@ fn scoring_pass(
         theta = th;
         eta = et;
         ev = t;
-        history.push(IterationRecord { theta, eta, cost: ev.total.corrected_merit(&theta, &theta_ref), step_over_sigma: ratio, step_factor: lambda });
+        history.push(IterationRecord {
+            theta,
+            eta,
+            cost: ev.total.corrected_merit(&theta, &theta_ref),
+            step_over_sigma: ratio,
+            step_factor: lambda,
+        });
         if ratio < opts.step_tolerance {
             termination = Termination::StepTolerance { step_over_sigma: ratio, threshold: opts.step_tolerance };
             break;
@@ -1126,7 +1144,14 @@ fn scoring_pass(
             termination = Termination::MaxIterations { iterations: opts.max_iterations, step_over_sigma: ratio };
         }
     }
-    let report = PassReport { theta_reference: theta_ref, theta, initial_cost, final_cost: ev.total.corrected_merit(&theta, &theta_ref), termination, history };
+    let report = PassReport {
+        theta_reference: theta_ref,
+        theta,
+        initial_cost,
+        final_cost: ev.total.corrected_merit(&theta, &theta_ref),
+        termination,
+        history,
+    };
     Ok(PassOutcome { theta, eta, eval: ev, report, free, unobservable, eta_sigma })
 }
 
@@ -1185,10 +1210,10 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
     let Some((ev, eta_sigma)) = last else {
         return Err(Error::Numerical("no EIV pass ran".into()));
     };
-    let termination = passes.last().map(|p| p.termination).unwrap_or(Termination::MaxIterations {
-        iterations: 0,
-        step_over_sigma: f64::NAN,
-    });
+    let termination = passes
+        .last()
+        .map(|p| p.termination)
+        .unwrap_or(Termination::MaxIterations { iterations: 0, step_over_sigma: f64::NAN });
     let cov = free_inverse(&ev.total.h_theta, &free).unwrap_or_else(|| Matrix4::from_element(f64::NAN));
     let sigma: [f64; 4] = std::array::from_fn(|i| if free[i] { cov[(i, i)].max(0.0).sqrt() } else { 0.0 });
     let observability = observability_of(&ev.total.h_theta, &free, unobservable.clone(), opts);
@@ -1235,7 +1260,11 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
     if let Some(h) = &halves {
         for i in 0..4 {
             if h.z[i].abs() > opts.max_half_z {
-                warnings.push(EivWarning::UnstableAcrossHalves { parameter: PARAMETERS[i], z: h.z[i], threshold: opts.max_half_z });
+                warnings.push(EivWarning::UnstableAcrossHalves {
+                    parameter: PARAMETERS[i],
+                    z: h.z[i],
+                    threshold: opts.max_half_z,
+                });
             }
         }
     }
@@ -1306,7 +1335,12 @@ fn halves_check(ev: &Evaluation, theta: &Theta, free: &[bool; 4]) -> Option<Halv
 /// ## References
 /// R. H. Shumway, D. S. Stoffer, *Time Series Analysis and Its
 /// Applications*, §6.3 (innovations form of the Fisher information).
-pub fn cramer_rao_bound(input: &EivInput<'_>, theta: &Theta, noise: &NoiseModel, opts: &EivOptions) -> Result<CrbReport> {
+pub fn cramer_rao_bound(
+    input: &EivInput<'_>,
+    theta: &Theta,
+    noise: &NoiseModel,
+    opts: &EivOptions,
+) -> Result<CrbReport> {
     opts.validate()?;
     noise.validate()?;
     input.validate()?;

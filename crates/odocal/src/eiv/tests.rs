@@ -59,7 +59,8 @@ fn innovation_derivatives_match_central_differences() {
     let check = |fd: Vec<(usize, nalgebra::Vector3<f64>, nalgebra::Matrix3<f64>)>, p: usize, what: &str| {
         // Scale: the largest derivative of this column over the window.
         let scale_nu = base.iter().map(|r| r.dnu.column(p).amax()).fold(0.0f64, f64::max).max(1e-12);
-        let scale_s = if p >= 4 { base.iter().map(|r| r.ds[p - 4].amax()).fold(0.0f64, f64::max).max(1e-300) } else { 1.0 };
+        let scale_s =
+            if p >= 4 { base.iter().map(|r| r.ds[p - 4].amax()).fold(0.0f64, f64::max).max(1e-300) } else { 1.0 };
         for (k, dnu, ds) in fd {
             let a = base[k].dnu.column(p).into_owned();
             assert!((a - dnu).amax() <= FD_REL_TOL * scale_nu, "{what}: ∂ν/∂p{p} at update {k}: {a} vs {dnu}");
@@ -77,7 +78,8 @@ fn innovation_derivatives_match_central_differences() {
         em[j] -= h;
         let rp = records(&input, &w, &th, &th_ref, &ep);
         let rm = records(&input, &w, &th, &th_ref, &em);
-        let fd = picks.iter().map(|&k| (k, (rp[k].nu - rm[k].nu) / (2.0 * h), (rp[k].s - rm[k].s) / (2.0 * h))).collect();
+        let fd =
+            picks.iter().map(|&k| (k, (rp[k].nu - rm[k].nu) / (2.0 * h), (rp[k].s - rm[k].s) / (2.0 * h))).collect();
         check(fd, 4 + j, "η");
     }
     for p in 0..4 {
@@ -164,7 +166,10 @@ fn white_noise_drive_beats_batch_gauss_newton_on_t_r() {
     let r = estimate(&input, &gn, &EivOptions::default()).expect("eiv");
     let gn_err = (gn.t_r - truth.t_r).abs();
     let eiv_err = (r.theta.t_r - truth.t_r).abs();
-    eprintln!("t_r: G-N {:.5} (err {gn_err:.2e}), EIV {:.5} ± {:.1e} (err {eiv_err:.2e}); {r}", gn.t_r, r.theta.t_r, r.sigma[2]);
+    eprintln!(
+        "t_r: G-N {:.5} (err {gn_err:.2e}), EIV {:.5} ± {:.1e} (err {eiv_err:.2e}); {r}",
+        gn.t_r, r.theta.t_r, r.sigma[2]
+    );
     // G-N is measurably off: more than 3 of EIV's σ.
     assert!(gn_err > 3.0 * r.sigma[2], "G-N t_r error {gn_err:.2e} not measurable against σ {:.2e}", r.sigma[2]);
     assert!(eiv_err <= 3.0 * r.sigma[2], "EIV t_r error {eiv_err:.2e} > 3σ = {:.2e}", 3.0 * r.sigma[2]);
