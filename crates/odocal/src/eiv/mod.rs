@@ -55,6 +55,16 @@
 //! marginal-likelihood gradient plus the (small) η-derivative of the
 //! correction, so that one objective governs step halving.
 //!
+//! **Corrected score.** With S held at the reference, the θ-gradient of the
+//! profile cost is biased by the white input noise (wheels, quantisation,
+//! a_y): the noise e_k enters both ν_{k+1} and the sensitivity ∂ν/∂θ
+//! (attenuation, as in any errors-in-variables regression). Its expectation
+//! `b = Σ_k −tr(S_k⁻¹ H X_k Hᵀ)`, with `X = E[ε D̃ᵀ]` propagated like P
+//! (`X⁻ = F̄ X⁺ F̄ᵀ − Σ_u var(u)·(∂f/∂u)(∂(F D + f_θ)/∂u)ᵀ`,
+//! `X⁺ = (I − KH) X⁻ (I − KH)ᵀ`), is subtracted: θ solves `∂M/∂θ − b = 0`
+//! (Nakamura 1990). This removed the collapse of t_r under white wheel
+//! noise but leaves a bias of several per cent on t_r (see the branch report).
+//!
 //! ## Fisher scoring
 //!
 //! Exact derivatives come from a hand-written sensitivity recursion through
@@ -88,6 +98,8 @@
 //!   Applications*, ch. 6 (innovations likelihood of a state-space model).
 //! - R. K. Mehra, "On the identification of variances and adaptive Kalman
 //!   filtering", IEEE TAC 15(2), 1970.
+//! - T. Nakamura, "Corrected score function for errors-in-variables models",
+//!   Biometrika 77(1), 1990.
 //! - N. K. Gupta, R. K. Mehra, "Computational aspects of maximum likelihood
 //!   estimation and reduction in sensitivity function calculations", IEEE
 //!   TAC 19(6), 1974 (filter sensitivity recursions, Fisher scoring).
