@@ -78,6 +78,11 @@ pub(crate) struct WindowSums {
     pub correction: f64,
     /// Gradient of `M = ½ quad + ½ logdet + correction` over p.
     pub grad: V9,
+    /// Gradient of the profile cost `J = ½ quad + correction` over p.
+    pub grad_profile: V9,
+    /// Outer products of the per-update θ-scores of `½ νᵀS⁻¹ν`, Σ g_k g_kᵀ
+    /// (the "meat" of a sandwich covariance).
+    pub opg: nalgebra::Matrix4<f64>,
     /// Fisher information of θ, Σ (∂ν/∂θ)ᵀ S⁻¹ (∂ν/∂θ).
     pub h_theta: nalgebra::Matrix4<f64>,
     /// Fisher information of η: Σ (∂ν/∂η)ᵀS⁻¹(∂ν/∂η) + ½ tr(S⁻¹∂S S⁻¹∂S).
@@ -100,6 +105,8 @@ impl WindowSums {
             logdet: 0.0,
             correction: 0.0,
             grad: V9::zeros(),
+            grad_profile: V9::zeros(),
+            opg: nalgebra::Matrix4::zeros(),
             h_theta: nalgebra::Matrix4::zeros(),
             i_eta: M5::zeros(),
             updates: 0,
@@ -114,6 +121,8 @@ impl WindowSums {
         self.logdet += o.logdet;
         self.correction += o.correction;
         self.grad += o.grad;
+        self.grad_profile += o.grad_profile;
+        self.opg += o.opg;
         self.h_theta += o.h_theta;
         self.i_eta += o.i_eta;
         self.updates += o.updates;
@@ -127,6 +136,11 @@ impl WindowSums {
     /// The objective `M = ½ Σ(νᵀS⁻¹ν + log det S) − Σ m log(1 − ŝ)`.
     pub(crate) fn merit(&self) -> f64 {
         0.5 * (self.quad + self.logdet) + self.correction
+    }
+
+    /// The profile cost `J = ½ Σ νᵀS⁻¹ν − Σ m log(1 − ŝ)` (SPEC §10).
+    pub(crate) fn profile(&self) -> f64 {
+        0.5 * self.quad + self.correction
     }
 
     /// The objective whose θ-gradient is the corrected score:
@@ -145,8 +159,8 @@ pub(crate) struct InnovationRecord {
     pub s: Matrix3<f64>,
     /// ∂ν/∂p (3×9).
     pub dnu: SMatrix<f64, 3, NP>,
-    /// ∂S/∂η_j.
-    pub ds: [Matrix3<f64>; NETA],
+    /// ∂S/∂p_j (zero where not propagated).
+    pub ds: [Matrix3<f64>; NP],
 }
 
 /// `F P Fᵀ` for the structured transition
@@ -275,46 +289,199 @@ fn joseph(a: &M9, k: &M9x3) -> M9 {
     x - xh * k.transpose()
 }
 
-/// The initial covariance of a window and its η-derivatives (SPEC §10):
-/// `P_xx = R + Σ_b, P_bb = Σ_b, P_xb = −Σ_b, P_ss = diag(σ²)`.
-fn initial_covariance(v: &Variances, r_floor: &[f64; 3]) -> (M9, [M9; NETA]) {
+/// The initial covariance of a window and its derivatives over
+/// `p = [θ, η]` (SPEC §10): `P_xx = R + Σ_b, P_bb = Σ_b, P_xb = −Σ_b,
+/// P_ss = diag(σ²)`; it does not depend on θ.
+fn initial_covariance(v: &Variances, r_floor: &[f64; 3]) -> (M9, [M9; NP]) {
     let mut p = M9::zeros();
-    let mut dp = [M9::zeros(); NETA];
+    let mut dp = [M9::zeros(); NP];
     p[(3, 3)] = v.common;
-    dp[1][(3, 3)] = v.common;
+    dp[5][(3, 3)] = v.common;
     for i in 4..6 {
         p[(i, i)] = v.wheel;
-        dp[2][(i, i)] = v.wheel;
+        dp[6][(i, i)] = v.wheel;
     }
     for a in 0..3 {
         let (w, dr) = (v.pose[a], v.drift[a]);
         p[(a, a)] = w + r_floor[a] + dr;
-        dp[3][(a, a)] = w;
-        for m in [&mut p, &mut dp[4]] {
+        dp[7][(a, a)] = w;
+        for m in [&mut p, &mut dp[8]] {
             m[(a + 6, a + 6)] = dr;
             m[(a, a + 6)] = -dr;
             m[(a + 6, a)] = -dr;
         }
-        dp[4][(a, a)] = dr;
+        dp[8][(a, a)] = dr;
     }
     (p, dp)
 }
 
-/// Runs the filter over one window at θ (mean) with the covariance
-/// linearised at `theta_ref`, accumulating the objective, its gradient and
-/// the Fisher information. With `eta_derivs` false the η parts are zero.
-/// With `record`, every innovation and its derivatives are returned.
+/// A number with its gradient over θ (forward-mode differentiation of the
+/// covariance-recursion terms; exact to rounding).
+#[derive(Debug, Clone, Copy)]
+struct Dual {
+    v: f64,
+    d: [f64; 4],
+}
+
+impl Dual {
+    fn cst(v: f64) -> Self {
+        Dual { v, d: [0.0; 4] }
+    }
+    fn var(v: f64, i: usize) -> Self {
+        let mut d = [0.0; 4];
+        d[i] = 1.0;
+        Dual { v, d }
+    }
+    fn sin_cos(self) -> (Dual, Dual) {
+        let (s, c) = self.v.sin_cos();
+        (Dual { v: s, d: self.d.map(|x| c * x) }, Dual { v: c, d: self.d.map(|x| -s * x) })
+    }
+}
+
+impl std::ops::Add for Dual {
+    type Output = Dual;
+    fn add(self, o: Dual) -> Dual {
+        Dual { v: self.v + o.v, d: std::array::from_fn(|i| self.d[i] + o.d[i]) }
+    }
+}
+impl std::ops::Sub for Dual {
+    type Output = Dual;
+    fn sub(self, o: Dual) -> Dual {
+        Dual { v: self.v - o.v, d: std::array::from_fn(|i| self.d[i] - o.d[i]) }
+    }
+}
+impl std::ops::Mul for Dual {
+    type Output = Dual;
+    fn mul(self, o: Dual) -> Dual {
+        Dual { v: self.v * o.v, d: std::array::from_fn(|i| self.d[i] * o.v + self.v * o.d[i]) }
+    }
+}
+impl std::ops::Mul<f64> for Dual {
+    type Output = Dual;
+    fn mul(self, o: f64) -> Dual {
+        Dual { v: self.v * o, d: self.d.map(|x| x * o) }
+    }
+}
+impl std::ops::Div for Dual {
+    type Output = Dual;
+    fn div(self, o: Dual) -> Dual {
+        let inv = 1.0 / o.v;
+        let q = self.v * inv;
+        Dual { v: q, d: std::array::from_fn(|i| (self.d[i] - q * o.d[i]) * inv) }
+    }
+}
+impl std::ops::Neg for Dual {
+    type Output = Dual;
+    fn neg(self) -> Dual {
+        Dual { v: -self.v, d: self.d.map(|x| -x) }
+    }
+}
+
+/// The terms of the covariance recursion at one step, evaluated on the
+/// reference (reference heading ψ, measured inputs) at θ, with their
+/// θ-gradients: `F̄[0,2], F̄[1,2]`, `∂f/∂n_l`, `∂f/∂n_r`, `∂f/∂a_y` (as
+/// [`step_jacobians`] and the module docs).
+struct ReferenceTerms {
+    f02: Dual,
+    f12: Dual,
+    fn_l: [Dual; 3],
+    fn_r: [Dual; 3],
+    f_a: [Dual; 3],
+}
+
+fn reference_terms(psi: f64, u: &Input, th: &Theta, ts: f64) -> ReferenceTerms {
+    let (c_e, c_d, t_r, d) = (Dual::var(th.c_e, 0), Dual::var(th.c_d, 1), Dual::var(th.t_r, 2), Dual::var(th.d, 3));
+    let (nl, nr) = (u.n_rl, u.n_rr);
+    let c_rl = c_e + c_d * 0.5 + d * u.a_y;
+    let c_rr = c_e - c_d * 0.5 - d * u.a_y;
+    let v = (c_rl * nl + c_rr * nr) * 0.5;
+    let num = c_rr * nr - c_rl * nl;
+    let omega = num / t_r;
+    let phi = omega * (ts / 2.0) + Dual::cst(psi + u.beta);
+    let (s, c) = phi.sin_cos();
+    let row = |dv: Dual, domega: Dual| -> [Dual; 3] {
+        let dphi = domega * (ts / 2.0);
+        [(c * dv - v * s * dphi) * ts, (s * dv + v * c * dphi) * ts, domega * ts]
+    };
+    let fn_l = row(c_rl * 0.5, -(c_rl / t_r));
+    let fn_r = row(c_rr * 0.5, c_rr / t_r);
+    // ∂f/∂a_y = ∂f/∂c_rl·d − ∂f/∂c_rr·d with ∂f/∂c_w = (∂v/∂c_w, ∂ω/∂c_w) through `row`.
+    let f_a = {
+        let a = row(Dual::cst(nl * 0.5), Dual::cst(-nl) / t_r);
+        let b = row(Dual::cst(nr * 0.5), Dual::cst(nr) / t_r);
+        std::array::from_fn(|r| (a[r] - b[r]) * d)
+    };
+    ReferenceTerms { f02: -(v * s) * ts, f12: v * c * ts, fn_l, fn_r, f_a }
+}
+
+fn vec_of(a: &[Dual; 3]) -> Vector3<f64> {
+    Vector3::new(a[0].v, a[1].v, a[2].v)
+}
+
+fn dvec_of(a: &[Dual; 3], j: usize) -> Vector3<f64> {
+    Vector3::new(a[0].d[j], a[1].d[j], a[2].d[j])
+}
+
+/// How the filter runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Mode {
+    /// The covariance recursion is evaluated at θ (S depends on θ; `∂P/∂θ`
+    /// is propagated); otherwise at the reference θ (`∂S/∂θ = 0`).
+    pub follows_theta: bool,
+    /// Compute the sensitivities (gradient and information); `false` gives
+    /// the objective only.
+    pub derivs: bool,
+    /// With `derivs`: also the η derivatives.
+    pub eta: bool,
+}
+
+impl Mode {
+    /// Objective only.
+    pub(crate) fn cost(follows_theta: bool) -> Self {
+        Mode { follows_theta, derivs: false, eta: false }
+    }
+    /// Objective and derivatives (η derivatives when `eta`).
+    pub(crate) fn full(follows_theta: bool, eta: bool) -> Self {
+        Mode { follows_theta, derivs: true, eta }
+    }
+}
+
+/// `A + Aᵀ` added to `dst` for a 3×9 `A` occupying rows 0..3.
+#[inline]
+fn add_sym_rows(dst: &mut M9, a: &M3x9) {
+    for r in 0..3 {
+        for c in 0..NZ {
+            dst[(r, c)] += a[(r, c)];
+            dst[(c, r)] += a[(r, c)];
+        }
+    }
+}
+
+/// Runs the filter over one window at θ (mean). The covariance recursion
+/// is linearised along the reference (reference heading, measured wheel
+/// rotations) at `theta_ref`, or at θ when `mode.follows_theta` (then
+/// `theta_ref` is ignored). Accumulates the objective and, with
+/// `mode.derivs`, its gradient and the Fisher information. With `record`,
+/// every innovation and its derivatives are returned.
 pub(crate) fn run_window(
     input: &EivInput<'_>,
     window: &Window,
     theta: &Theta,
     theta_ref: &Theta,
     v: &Variances,
-    eta_derivs: bool,
+    mode: Mode,
     record: Option<&mut Vec<InnovationRecord>>,
 ) -> Result<WindowSums> {
     let ts = input.sample_time_s;
     let mut record = record;
+    let follows = mode.follows_theta;
+    let theta_cov = if follows { theta } else { theta_ref };
+    // Sensitivity columns whose covariance derivatives are propagated.
+    let cols: Vec<usize> = (0..NP)
+        .filter(|&c| mode.derivs && if c < 4 { follows } else { mode.eta })
+        .collect();
+    // The corrected score (X recursion) is needed only with the covariance held.
+    let corrected = mode.derivs && !follows;
     let r_floor = [
         POSITION_FLOOR_M * POSITION_FLOOR_M,
         POSITION_FLOOR_M * POSITION_FLOOR_M,
@@ -347,17 +514,15 @@ pub(crate) fn run_window(
         let (nl, nr) = (input.n_rl[i], input.n_rr[i]);
         let (beta, a_y) = (input.beta[i], input.a_y[i]);
 
-        // --- Reference linearisation: covariance Jacobians and Q (θ_ref).
+        // --- Covariance linearisation along the reference (at θ_cov).
         let uref = Input { n_rl: nl, n_rr: nr, beta, a_y };
-        let jr = step_jacobians(&State::new(0.0, 0.0, input.psi[i]), &uref, theta_ref, ts);
-        let (f02, f12) = (jr.f_x[(0, 2)], jr.f_x[(1, 2)]);
-        let fn_l = jr.f_n.column(0).into_owned();
-        let fn_r = jr.f_n.column(1).into_owned();
-        let (crl, crr) = theta_ref.wheel_circumferences(a_y);
-        let f_a = fn_l * (nl * theta_ref.d / crl) - fn_r * (nr * theta_ref.d / crr);
+        let rt = reference_terms(input.psi[i], &uref, theta_cov, ts);
+        let (f02, f12) = (rt.f02.v, rt.f12.v);
+        let fn_l = vec_of(&rt.fn_l);
+        let fn_r = vec_of(&rt.fn_r);
+        let f_a = vec_of(&rt.f_a);
         let f_b = Vector3::new(f02, f12, 0.0);
-        let (cl, cr) = (fn_l * nl, fn_r * nr);
-        let fxs_ref = Matrix3::from_columns(&[-(cl + cr), -cl, -cr]);
+        let fxs_ref = Matrix3::from_columns(&[-fn_l * nl - fn_r * nr, -fn_l * nl, -fn_r * nr]);
         let white = |n: f64| {
             if n == 0.0 {
                 0.0
@@ -365,7 +530,8 @@ pub(crate) fn run_window(
                 v.white_rel * n * n + v.quant
             }
         };
-        let q_white = fn_l * fn_l.transpose() * white(nl) + fn_r * fn_r.transpose() * white(nr);
+        let (wl, wr) = (white(nl), white(nr));
+        let q_white = fn_l * fn_l.transpose() * wl + fn_r * fn_r.transpose() * wr;
         let q_x = q_white + f_b * f_b.transpose() * v.beta + f_a * f_a.transpose() * v.a_y;
 
         let d_post = d;
@@ -384,46 +550,97 @@ pub(crate) fn run_window(
             )));
         }
         out.correction -= m_c * one_minus[0].ln() + m_l * one_minus[1].ln() + m_r * one_minus[2].ln();
-        for (row, m) in [(3usize, m_c), (4, m_l), (5, m_r)] {
-            if m > 0.0 {
-                let w = m / one_minus[row - 3];
-                for c in 0..NP {
-                    out.grad[c] += w * d[(row, c)];
+        let ueff = Input { n_rl: nl * (1.0 - s[0] - s[1]), n_rr: nr * (1.0 - s[0] - s[2]), beta, a_y };
+        if mode.derivs {
+            for (row, m) in [(3usize, m_c), (4, m_l), (5, m_r)] {
+                if m > 0.0 {
+                    let w = m / one_minus[row - 3];
+                    for c in 0..NP {
+                        out.grad[c] += w * d[(row, c)];
+                        out.grad_profile[c] += w * d[(row, c)];
+                    }
                 }
             }
-        }
-        let ueff = Input { n_rl: nl * (1.0 - s[0] - s[1]), n_rr: nr * (1.0 - s[0] - s[2]), beta, a_y };
-        let j = step_jacobians(&x, &ueff, theta, ts);
-        let (gl, gr) = (j.f_n.column(0) * nl, j.f_n.column(1) * nr);
-        let fxs = Matrix3::from_columns(&[-(gl + gr), -gl, -gr]);
-        // D⁻ = F D⁺ + [f_θ | 0].
-        let mut dn = D9::zeros();
-        for c in 0..NP {
-            let (d0, d1, d2) = (d[(0, c)], d[(1, c)], d[(2, c)]);
-            let (d3, d4, d5) = (d[(3, c)], d[(4, c)], d[(5, c)]);
-            for r in 0..3 {
-                dn[(r, c)] = j.f_x[(r, 0)] * d0
-                    + j.f_x[(r, 1)] * d1
-                    + j.f_x[(r, 2)] * d2
-                    + fxs[(r, 0)] * d3
-                    + fxs[(r, 1)] * d4
-                    + fxs[(r, 2)] * d5;
+            let j = step_jacobians(&x, &ueff, theta, ts);
+            let (gl, gr) = (j.f_n.column(0) * nl, j.f_n.column(1) * nr);
+            let fxs = Matrix3::from_columns(&[-(gl + gr), -gl, -gr]);
+            // D⁻ = F D⁺ + [f_θ | 0].
+            let mut dn = D9::zeros();
+            for c in 0..NP {
+                let (d0, d1, d2) = (d[(0, c)], d[(1, c)], d[(2, c)]);
+                let (d3, d4, d5) = (d[(3, c)], d[(4, c)], d[(5, c)]);
+                for r in 0..3 {
+                    dn[(r, c)] = j.f_x[(r, 0)] * d0
+                        + j.f_x[(r, 1)] * d1
+                        + j.f_x[(r, 2)] * d2
+                        + fxs[(r, 0)] * d3
+                        + fxs[(r, 1)] * d4
+                        + fxs[(r, 2)] * d5;
+                }
+                for r in 3..NZ {
+                    dn[(r, c)] = diag[r] * d[(r, c)];
+                }
             }
-            for r in 3..NZ {
-                dn[(r, c)] = diag[r] * d[(r, c)];
+            for c in 0..4 {
+                for r in 0..3 {
+                    dn[(r, c)] += j.f_theta[(r, c)];
+                }
             }
+            d = dn;
+            x = j.next;
+        } else {
+            x = crate::model::step(&x, &ueff, theta, ts);
         }
-        for c in 0..4 {
-            for r in 0..3 {
-                dn[(r, c)] += j.f_theta[(r, c)];
-            }
-        }
-        d = dn;
-        x = j.next;
         s = Vector3::new(v.a_common * s[0], v.a_wheel * s[1], v.a_wheel * s[2]);
         b *= v.a_drift;
 
-        // --- Covariance prediction (reference Jacobians).
+        // --- Covariance prediction and its derivatives.
+        // ∂P⁻/∂θ_j = F̄ ∂P⁺ F̄ᵀ + (∂F̄ P⁺ F̄ᵀ + F̄ P⁺ ∂F̄ᵀ) + ∂Q/∂θ_j.
+        let mut theta_terms: [M3x9; 4] = [M3x9::zeros(); 4];
+        if follows && mode.derivs {
+            for (jt, tt) in theta_terms.iter_mut().enumerate() {
+                let dfl = dvec_of(&rt.fn_l, jt);
+                let dfr = dvec_of(&rt.fn_r, jt);
+                let dfxs = Matrix3::from_columns(&[-dfl * nl - dfr * nr, -dfl * nl, -dfr * nr]);
+                let (d02, d12) = (rt.f02.d[jt], rt.f12.d[jt]);
+                // G = ∂F̄ P⁺ (rows 0..3 only).
+                let mut g = M3x9::zeros();
+                for c in 0..NZ {
+                    let (p2, p3, p4, p5) = (p[(2, c)], p[(3, c)], p[(4, c)], p[(5, c)]);
+                    let dfr2 = [d02, d12, 0.0];
+                    for rr in 0..3 {
+                        g[(rr, c)] = dfr2[rr] * p2 + dfxs[(rr, 0)] * p3 + dfxs[(rr, 1)] * p4 + dfxs[(rr, 2)] * p5;
+                    }
+                }
+                // G F̄ᵀ.
+                for rr in 0..3 {
+                    for ci in 0..NZ {
+                        tt[(rr, ci)] = if ci < 3 {
+                            let fr = [f02, f12, 0.0];
+                            g[(rr, ci)]
+                                + fr[ci] * g[(rr, 2)]
+                                + fxs_ref[(ci, 0)] * g[(rr, 3)]
+                                + fxs_ref[(ci, 1)] * g[(rr, 4)]
+                                + fxs_ref[(ci, 2)] * g[(rr, 5)]
+                        } else {
+                            diag[ci] * g[(rr, ci)]
+                        };
+                    }
+                }
+                // ∂Q_x/∂θ_j (symmetric part added as half of A + Aᵀ).
+                let dfa = dvec_of(&rt.f_a, jt);
+                let dfb = Vector3::new(d02, d12, 0.0);
+                let half_dq = fn_l * dfl.transpose() * wl
+                    + fn_r * dfr.transpose() * wr
+                    + f_b * dfb.transpose() * v.beta
+                    + f_a * dfa.transpose() * v.a_y;
+                for rr in 0..3 {
+                    for ci in 0..3 {
+                        tt[(rr, ci)] += half_dq[(ci, rr)];
+                    }
+                }
+            }
+        }
         p = propagate(&p, f02, f12, &fxs_ref, &diag);
         for r in 0..3 {
             for c in 0..3 {
@@ -432,54 +649,56 @@ pub(crate) fn run_window(
             p[(r + 3, r + 3)] += q_s[r];
             p[(r + 6, r + 6)] += q_b[r];
         }
-        if eta_derivs {
-            for (jj, dpj) in dp.iter_mut().enumerate() {
-                *dpj = propagate(dpj, f02, f12, &fxs_ref, &diag);
-                match jj {
-                    0 => {
-                        // η_0 scales the white wheel, a_y and β noise together.
-                        for r in 0..3 {
-                            for c in 0..3 {
-                                dpj[(r, c)] += q_x[(r, c)];
-                            }
+        for &jj in &cols {
+            let dpj = &mut dp[jj];
+            *dpj = propagate(dpj, f02, f12, &fxs_ref, &diag);
+            match jj {
+                0..=3 => add_sym_rows(dpj, &theta_terms[jj]),
+                4 => {
+                    // η_0 scales the white wheel, a_y and β noise together.
+                    for r in 0..3 {
+                        for c in 0..3 {
+                            dpj[(r, c)] += q_x[(r, c)];
                         }
                     }
-                    1 => dpj[(3, 3)] += q_s[0],
-                    2 => {
-                        dpj[(4, 4)] += q_s[1];
-                        dpj[(5, 5)] += q_s[2];
-                    }
-                    3 => {}
-                    _ => {
-                        for r in 0..3 {
-                            dpj[(r + 6, r + 6)] += q_b[r];
-                        }
+                }
+                5 => dpj[(3, 3)] += q_s[0],
+                6 => {
+                    dpj[(4, 4)] += q_s[1];
+                    dpj[(5, 5)] += q_s[2];
+                }
+                7 => {}
+                _ => {
+                    for r in 0..3 {
+                        dpj[(r + 6, r + 6)] += q_b[r];
                     }
                 }
             }
         }
 
-        // Corrected score: X⁻ = F̄ X⁺ F̄ᵀ − Σ_u var(u) (∂f/∂u)(∂f_θ/∂u)ᵀ.
-        let a_u = theta_jacobian_input_derivatives(input.psi[i], &uref, theta_ref, ts);
-        // The noise moves the θ-sensitivity through ∂f/∂θ, through F_x (speed
-        // in the heading column) and through the s-columns of F (−F_n ñ).
-        let g_u = [(fn_l, white(nl)), (fn_r, white(nr)), (f_a, v.a_y)];
-        let fs_u = [
-            Matrix3::from_columns(&[-fn_l, -fn_l, Vector3::zeros()]),
-            Matrix3::from_columns(&[-fn_r, Vector3::zeros(), -fn_r]),
-            Matrix3::zeros(),
-        ];
-        for (ci, xi) in xcov.iter_mut().enumerate() {
-            *xi = propagate(xi, f02, f12, &fxs_ref, &diag);
-            let dx = Vector3::new(d_post[(0, ci)], d_post[(1, ci)], d_post[(2, ci)]);
-            let ds_ = Vector3::new(d_post[(3, ci)], d_post[(4, ci)], d_post[(5, ci)]);
-            for (u, (g, var)) in g_u.iter().enumerate() {
-                if *var > 0.0 {
-                    let (a, df02, df12) = &a_u[u];
-                    let col = a.column(ci) + Vector3::new(df02 * dx[2], df12 * dx[2], 0.0) + fs_u[u] * ds_;
-                    for r in 0..3 {
-                        for c in 0..3 {
-                            xi[(r, c)] -= var * g[r] * col[c];
+        if corrected {
+            // Corrected score: X⁻ = F̄ X⁺ F̄ᵀ − Σ_u var(u) (∂f/∂u)(∂f_θ/∂u)ᵀ.
+            let a_u = theta_jacobian_input_derivatives(input.psi[i], &uref, theta_ref, ts);
+            // The noise moves the θ-sensitivity through ∂f/∂θ, through F_x (speed
+            // in the heading column) and through the s-columns of F (−F_n ñ).
+            let g_u = [(fn_l, wl), (fn_r, wr), (f_a, v.a_y)];
+            let fs_u = [
+                Matrix3::from_columns(&[-fn_l, -fn_l, Vector3::zeros()]),
+                Matrix3::from_columns(&[-fn_r, Vector3::zeros(), -fn_r]),
+                Matrix3::zeros(),
+            ];
+            for (ci, xi) in xcov.iter_mut().enumerate() {
+                *xi = propagate(xi, f02, f12, &fxs_ref, &diag);
+                let dx = Vector3::new(d_post[(0, ci)], d_post[(1, ci)], d_post[(2, ci)]);
+                let ds_ = Vector3::new(d_post[(3, ci)], d_post[(4, ci)], d_post[(5, ci)]);
+                for (u, (g, var)) in g_u.iter().enumerate() {
+                    if *var > 0.0 {
+                        let (a, df02, df12) = &a_u[u];
+                        let col = a.column(ci) + Vector3::new(df02 * dx[2], df12 * dx[2], 0.0) + fs_u[u] * ds_;
+                        for r in 0..3 {
+                            for c in 0..3 {
+                                xi[(r, c)] -= var * g[r] * col[c];
+                            }
                         }
                     }
                 }
@@ -526,67 +745,80 @@ pub(crate) fn run_window(
             }
         }
         prev_e = Some(e);
-
-        let hd = h_rows(&d); // ∂ν/∂p = −H D⁻
-                             // Gradient of ½νᵀS⁻¹ν: νᵀS⁻¹ ∂ν = −(HD)ᵀ S⁻¹ ν.
-        out.grad -= hd.transpose() * sinv_nu;
-        let hd_t = hd.fixed_columns::<4>(0).into_owned();
-        out.h_theta += hd_t.transpose() * sinv * hd_t;
         let k: M9x3 = hp.transpose() * sinv;
-        for (ci, xi) in xcov.iter_mut().enumerate() {
-            out.bias[ci] -= (sinv * h_cols(&h_rows(xi))).trace();
-            *xi = joseph(xi, &k);
-        }
 
-        let mut ds = [Matrix3::zeros(); NETA];
-        let mut dk = [M9x3::zeros(); NETA];
-        if eta_derivs {
-            let hd_e = hd.fixed_columns::<NETA>(4).into_owned();
-            out.i_eta += hd_e.transpose() * sinv * hd_e;
-            let mut a = [Matrix3::zeros(); NETA];
-            for jj in 0..NETA {
+        if mode.derivs {
+            let hd = h_rows(&d); // ∂ν/∂p = −H D⁻
+            // Gradient of ½νᵀS⁻¹ν through ν: νᵀS⁻¹ ∂ν = −(HD)ᵀ S⁻¹ ν.
+            let gnu = hd.transpose() * sinv_nu;
+            out.grad -= gnu;
+            out.grad_profile -= gnu;
+            let sh = sinv * hd;
+            let mut info = hd.transpose() * sh;
+            let mut ds = [Matrix3::zeros(); NP];
+            let mut a = [Matrix3::zeros(); NP];
+            let mut g_t = nalgebra::Vector4::<f64>::zeros();
+            for c in 0..4 {
+                g_t[c] = -gnu[c];
+            }
+            for &jj in &cols {
                 let hdp: M3x9 = h_rows(&dp[jj]);
                 ds[jj] = h_cols(&hdp);
-                if jj == 3 {
+                if jj == 7 {
                     ds[jj] += dr3;
                 }
                 a[jj] = sinv * ds[jj];
-                out.grad[4 + jj] += -0.5 * sinv_nu.dot(&(ds[jj] * sinv_nu)) + 0.5 * a[jj].trace();
-                dk[jj] = (hdp.transpose() - k * ds[jj]) * sinv;
+                let gq = -0.5 * sinv_nu.dot(&(ds[jj] * sinv_nu));
+                let gl = 0.5 * a[jj].trace();
+                out.grad[jj] += gq + gl;
+                out.grad_profile[jj] += gq;
+                if jj < 4 {
+                    g_t[jj] += gq;
+                }
             }
-            for i1 in 0..NETA {
-                for i2 in 0..NETA {
-                    out.i_eta[(i1, i2)] += 0.5 * (a[i1] * a[i2]).trace();
+            for &i1 in &cols {
+                for &i2 in &cols {
+                    info[(i1, i2)] += 0.5 * (a[i1] * a[i2]).trace();
+                }
+            }
+            out.h_theta += info.fixed_view::<4, 4>(0, 0);
+            out.i_eta += info.fixed_view::<NETA, NETA>(4, 4);
+            out.opg += g_t * g_t.transpose();
+            if corrected {
+                for (ci, xi) in xcov.iter_mut().enumerate() {
+                    out.bias[ci] -= (sinv * h_cols(&h_rows(xi))).trace();
+                    *xi = joseph(xi, &k);
+                }
+            }
+            if let Some(rec) = record.as_deref_mut() {
+                rec.push(InnovationRecord { nu, s: s_mat, dnu: -hd, ds });
+            }
+            // Sensitivity update: D⁺ = (I − KH) D⁻ + ∂K ν with
+            // ∂K = (∂P⁻Hᵀ − K ∂S) S⁻¹.
+            let mut dkn = SMatrix::<f64, NZ, NP>::zeros();
+            for &jj in &cols {
+                let hdp: M3x9 = h_rows(&dp[jj]);
+                let col = (hdp.transpose() - k * ds[jj]) * sinv_nu;
+                dkn.set_column(jj, &col);
+            }
+            d -= k * hd;
+            d += dkn;
+            // Joseph form (I−KH)∂P(I−KH)ᵀ + K ∂R Kᵀ: the algebraically equal
+            // ∂P − KH∂P − (KH∂P)ᵀ + K ∂S Kᵀ is numerically unstable here.
+            for &jj in &cols {
+                dp[jj] = joseph(&dp[jj], &k);
+                if jj == 7 {
+                    dp[jj] += k * dr3 * k.transpose();
                 }
             }
         }
-        if let Some(rec) = record.as_deref_mut() {
-            rec.push(InnovationRecord { nu, s: s_mat, dnu: -hd, ds });
-        }
 
-        // State, sensitivity and covariance updates.
+        // State and covariance updates.
         let dz = k * nu;
         for r in 0..3 {
             x[r] += dz[r];
             s[r] += dz[r + 3];
             b[r] += dz[r + 6];
-        }
-        d -= k * hd;
-        if eta_derivs {
-            for jj in 0..NETA {
-                let col = dk[jj] * nu;
-                for r in 0..NZ {
-                    d[(r, 4 + jj)] += col[r];
-                }
-            }
-            // Joseph form (I−KH)∂P(I−KH)ᵀ + K ∂R Kᵀ: the algebraically equal
-            // ∂P − KH∂P − (KH∂P)ᵀ + K ∂S Kᵀ is numerically unstable here.
-            for jj in 0..NETA {
-                dp[jj] = joseph(&dp[jj], &k);
-                if jj == 3 {
-                    dp[jj] += k * dr3 * k.transpose();
-                }
-            }
         }
         p = joseph(&p, &k) + k * r * k.transpose();
         p = (p + p.transpose()) * 0.5;

@@ -117,7 +117,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::model::Theta;
-use filter::{run_window, Variances, WindowSums, NETA};
+use filter::{run_window, Mode, Variances, WindowSums, NETA};
 
 /// The data of a drive as plain slices (all of length N, samples).
 #[derive(Debug, Clone, Copy)]
@@ -447,6 +447,25 @@ impl std::fmt::Display for Parameter {
     }
 }
 
+/// How the filter's covariance recursion (P, S, K) depends on θ.
+///
+/// SPEC §10 asks for both the profile cost `½ Σ νᵀS(θ)⁻¹ν` with S depending
+/// on θ through `F_n Σ_n F_nᵀ` and for Q held at a reference θ; the two
+/// differ exactly in whether `∂S/∂θ` is zero. See the module docs for the
+/// measured consequences.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CovarianceMode {
+    /// The covariance recursion is linearised at a reference θ (batch G-N's
+    /// result, then each pass's result): `∂S/∂θ = 0` and θ solves the
+    /// corrected score of the module docs.
+    HeldAtReference,
+    /// The covariance recursion is evaluated at θ: S depends on θ, `∂P/∂θ`
+    /// is propagated exactly, and θ minimises the profile (joint-MAP over
+    /// the latent true inputs; Deming / total least squares) cost.
+    FollowsTheta,
+}
+
 /// Options of the EIV calibration. Defaults follow SPEC §10.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
@@ -494,6 +513,9 @@ pub struct EivOptions {
     /// Largest acceptable |z| of the difference between θ from the two
     /// halves of the windows. Default 4.
     pub max_half_z: f64,
+    /// How the covariance recursion depends on θ. Default
+    /// [`CovarianceMode::FollowsTheta`].
+    pub covariance: CovarianceMode,
 }
 
 impl Default for EivOptions {
@@ -515,6 +537,7 @@ impl Default for EivOptions {
             divergence_nis: 10.0,
             max_lag1: 0.5,
             max_half_z: 4.0,
+            covariance: CovarianceMode::FollowsTheta,
         }
     }
 }
@@ -789,6 +812,9 @@ pub struct EivReport {
     pub covariance: [[f64; 4]; 4],
     /// Standard deviations `sqrt(diag H_θ⁻¹)`.
     pub sigma: [f64; 4],
+    /// Standard deviations of the sandwich `H_θ⁻¹ B H_θ⁻¹`, B the sum of the
+    /// outer products of the per-update θ-scores (robust to a wrong noise scale).
+    pub sigma_sandwich: [f64; 4],
     /// Estimated log-scale factors η (0 with `fix_noise`).
     pub eta: [f64; 5],
     /// Standard deviations of η (0 when fixed or at a clamp).
@@ -857,6 +883,7 @@ pub struct CrbReport {
 struct Evaluation {
     total: WindowSums,
     windows: Vec<WindowSums>,
+    mode: Mode,
 }
 
 struct Problem<'a> {
@@ -866,12 +893,12 @@ struct Problem<'a> {
 }
 
 impl Problem<'_> {
-    fn evaluate(&self, theta: &Theta, theta_ref: &Theta, eta: &[f64; 5], eta_derivs: bool) -> Result<Evaluation> {
+    fn evaluate(&self, theta: &Theta, theta_ref: &Theta, eta: &[f64; 5], mode: Mode) -> Result<Evaluation> {
         let v = self.noise.variances(eta, self.input.sample_time_s);
         let parts: Vec<Result<WindowSums>> = self
             .windows
             .par_iter()
-            .map(|w| run_window(self.input, w, theta, theta_ref, &v, eta_derivs, None))
+            .map(|w| run_window(self.input, w, theta, theta_ref, &v, mode, None))
             .collect();
         let mut total = WindowSums::zero();
         let mut windows = Vec::with_capacity(parts.len());
@@ -880,7 +907,7 @@ impl Problem<'_> {
             total.add(&p);
             windows.push(p);
         }
-        Ok(Evaluation { total, windows })
+        Ok(Evaluation { total, windows, mode })
     }
 }
 
@@ -914,7 +941,7 @@ fn theta_add(theta: &Theta, step: &[f64; 4], lambda: f64) -> Theta {
 }
 
 /// The scoring step of θ over the free parameters and the standard deviations.
-fn theta_step(sums: &WindowSums, free: &[bool; 4]) -> Result<([f64; 4], [f64; 4])> {
+fn theta_step(sums: &WindowSums, free: &[bool; 4], follows: bool) -> Result<([f64; 4], [f64; 4])> {
     let Some(inv) = free_inverse(&sums.h_theta, free) else {
         let params: Vec<&'static str> = (0..4).filter(|i| free[*i]).map(|i| crate::model::THETA_NAMES[i]).collect();
         return Err(Error::NotObservable {
@@ -922,21 +949,38 @@ fn theta_step(sums: &WindowSums, free: &[bool; 4]) -> Result<([f64; 4], [f64; 4]
             reason: "the EIV information matrix H_θ is singular; hold them fixed (EivOptions::free)".into(),
         });
     };
-    // Corrected score: the gradient minus its expectation under the input noise.
-    let g = nalgebra::Vector4::new(sums.grad[0], sums.grad[1], sums.grad[2], sums.grad[3]) - sums.bias;
+    let g = theta_score(sums, follows);
     let step = -(inv * g);
     Ok((std::array::from_fn(|i| step[i]), std::array::from_fn(|i| inv[(i, i)].max(0.0).sqrt())))
 }
 
-/// `g_cᵀ H_θ⁻¹ g_c` of the corrected θ-score over the free parameters (∞ when singular).
-fn score_norm(sums: &WindowSums, free: &[bool; 4]) -> f64 {
-    match theta_step(sums, free) {
+/// The θ-score whose root is the estimate: the profile-cost gradient when
+/// the covariance follows θ; with the covariance held, the gradient minus
+/// its expectation under the input noise (corrected score).
+fn theta_score(sums: &WindowSums, follows: bool) -> nalgebra::Vector4<f64> {
+    if follows {
+        nalgebra::Vector4::new(sums.grad_profile[0], sums.grad_profile[1], sums.grad_profile[2], sums.grad_profile[3])
+    } else {
+        nalgebra::Vector4::new(sums.grad[0], sums.grad[1], sums.grad[2], sums.grad[3]) - sums.bias
+    }
+}
+
+/// `gᵀ H_θ⁻¹ g` of the θ-score over the free parameters (∞ when singular).
+fn score_norm(sums: &WindowSums, free: &[bool; 4], follows: bool) -> f64 {
+    match theta_step(sums, free, follows) {
         Ok((step, _)) => {
-            let g = nalgebra::Vector4::new(sums.grad[0], sums.grad[1], sums.grad[2], sums.grad[3]) - sums.bias;
+            let g = theta_score(sums, follows);
             -(0..4).filter(|i| free[*i]).map(|i| step[i] * g[i]).sum::<f64>()
         }
         Err(_) => f64::INFINITY,
     }
+}
+
+/// `gᵀ I_η⁻¹ g` of the η-score over the η that move (0 when none).
+fn eta_score_norm(sums: &WindowSums, eta: &[f64; 5], bounds: [f64; 2]) -> f64 {
+    let (step, _) = eta_step(sums, eta, bounds);
+    // d = −I⁻¹g; Δη = ln(1 + d) — use the linear step for the norm.
+    (0..NETA).map(|j| -(step[j].exp() - 1.0) * sums.grad[4 + j]).sum::<f64>().max(0.0)
 }
 
 /// The scoring step of η (log-transformed, clamped; see the module docs),
@@ -1064,7 +1108,8 @@ struct PassOutcome {
     eta_sigma: [f64; 5],
 }
 
-/// One scoring pass at a fixed covariance reference.
+/// One scoring pass (with [`CovarianceMode::HeldAtReference`], at a fixed
+/// covariance reference).
 fn scoring_pass(
     prob: &Problem<'_>,
     theta0: Theta,
@@ -1074,20 +1119,33 @@ fn scoring_pass(
     check_observability: bool,
     opts: &EivOptions,
 ) -> Result<PassOutcome> {
+    let follows = opts.covariance == CovarianceMode::FollowsTheta;
     let eta_derivs = !opts.fix_noise;
+    let full = Mode::full(follows, eta_derivs);
+    // The objective that governs step halving: the profile cost J when the
+    // covariance follows θ and η is fixed (a cost-only pass suffices);
+    // otherwise the merit and the score norm (derivatives needed).
+    let cost_only_halving = follows && !eta_derivs;
+    let objective = |ev: &Evaluation, th: &Theta| -> f64 {
+        if follows {
+            ev.total.profile()
+        } else {
+            ev.total.corrected_merit(th, &theta_ref)
+        }
+    };
     let (mut theta, mut eta) = (theta0, eta0);
-    let mut ev = prob.evaluate(&theta, &theta_ref, &eta, eta_derivs)?;
+    let mut ev = prob.evaluate(&theta, &theta_ref, &eta, full)?;
     let (free, unobservable) = if check_observability && opts.fix_unobservable {
         fix_unobservable(&ev.total.h_theta, &free0, opts)
     } else {
         (free0, Vec::new())
     };
-    let initial_cost = ev.total.corrected_merit(&theta, &theta_ref);
+    let initial_cost = objective(&ev, &theta);
     let mut history = Vec::new();
     let mut termination = Termination::MaxIterations { iterations: opts.max_iterations, step_over_sigma: f64::NAN };
     let mut eta_sigma = [0.0; 5];
     for it in 0..opts.max_iterations {
-        let (dth, sth) = theta_step(&ev.total, &free)?;
+        let (dth, sth) = theta_step(&ev.total, &free, follows)?;
         let (deta, seta) = if eta_derivs { eta_step(&ev.total, &eta, opts.eta_bounds) } else { ([0.0; 5], [0.0; 5]) };
         eta_sigma = seta;
         let mut ratio = 0.0f64;
@@ -1106,25 +1164,40 @@ fn scoring_pass(
                 }
             }
         }
-        let previous = ev.total.corrected_merit(&theta, &theta_ref);
-        let previous_q = score_norm(&ev.total, &free);
+        let previous = objective(&ev, &theta);
+        let previous_m = ev.total.merit();
+        let previous_q = score_norm(&ev.total, &free, follows)
+            + if eta_derivs { eta_score_norm(&ev.total, &eta, opts.eta_bounds) } else { 0.0 };
         let mut lambda = 1.0;
         let mut accepted = None;
         let mut last_cost = f64::NAN;
-        for _ in 0..=opts.max_halvings {
+        for h in 0..=opts.max_halvings {
             let th = theta_add(&theta, &dth, lambda);
             if th.validate().is_ok() {
                 let et = eta_add(&eta, &deta, lambda, opts.eta_bounds);
-                let trial = prob.evaluate(&th, &theta_ref, &et, eta_derivs);
+                // The full step is tried with derivatives (it is usually accepted).
+                let mode = if h == 0 || !cost_only_halving { full } else { Mode::cost(follows) };
+                let trial = prob.evaluate(&th, &theta_ref, &et, mode);
                 match trial {
-                    Ok(t) if t.total.corrected_merit(&th, &theta_ref).is_finite() => {
-                        last_cost = t.total.corrected_merit(&th, &theta_ref);
-                        // Accept when the objective falls, or when the corrected score
-                        // (whose root is the estimate; the bias term is not an exact
-                        // gradient) shrinks in the Fisher metric.
-                        if last_cost <= previous + 1e-12 * previous.abs().max(1.0)
-                            || score_norm(&t.total, &free) < previous_q
-                        {
+                    Ok(t) if objective(&t, &th).is_finite() => {
+                        last_cost = objective(&t, &th);
+                        let tol = 1e-12 * previous.abs().max(1.0);
+                        let ok = if cost_only_halving {
+                            last_cost <= previous + tol
+                        } else {
+                            // Accept when the objective falls (with η estimated: both the
+                            // profile cost and the merit M), or when the score — whose root
+                            // is the estimate; with the covariance held the bias term is not
+                            // an exact gradient — shrinks in the Fisher metric.
+                            let falls = last_cost <= previous + tol
+                                && (!follows || !eta_derivs || t.total.merit() <= previous_m + tol);
+                            falls || {
+                                let q = score_norm(&t.total, &free, follows)
+                                    + if eta_derivs { eta_score_norm(&t.total, &et, opts.eta_bounds) } else { 0.0 };
+                                q < previous_q
+                            }
+                        };
+                        if ok {
                             accepted = Some((th, et, t));
                             break;
                         }
@@ -1140,14 +1213,8 @@ fn scoring_pass(
         };
         theta = th;
         eta = et;
-        ev = t;
-        history.push(IterationRecord {
-            theta,
-            eta,
-            cost: ev.total.corrected_merit(&theta, &theta_ref),
-            step_over_sigma: ratio,
-            step_factor: lambda,
-        });
+        ev = if t.mode == full { t } else { prob.evaluate(&theta, &theta_ref, &eta, full)? };
+        history.push(IterationRecord { theta, eta, cost: objective(&ev, &theta), step_over_sigma: ratio, step_factor: lambda });
         if ratio < opts.step_tolerance {
             termination = Termination::StepTolerance { step_over_sigma: ratio, threshold: opts.step_tolerance };
             break;
@@ -1160,7 +1227,7 @@ fn scoring_pass(
         theta_reference: theta_ref,
         theta,
         initial_cost,
-        final_cost: ev.total.corrected_merit(&theta, &theta_ref),
+        final_cost: objective(&ev, &theta),
         termination,
         history,
     };
@@ -1208,7 +1275,9 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
     let mut unobservable = Vec::new();
     let mut passes = Vec::new();
     let mut last: Option<(Evaluation, [f64; 5])> = None;
-    for pass in 0..opts.passes {
+    // With the covariance following θ there is no reference to update: one pass.
+    let passes_to_run = if opts.covariance == CovarianceMode::FollowsTheta { 1 } else { opts.passes };
+    for pass in 0..passes_to_run {
         let out = scoring_pass(&prob, theta, eta, theta, free, pass == 0, opts)?;
         if pass == 0 {
             unobservable = out.unobservable.clone();
@@ -1228,6 +1297,9 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         .unwrap_or(Termination::MaxIterations { iterations: 0, step_over_sigma: f64::NAN });
     let cov = free_inverse(&ev.total.h_theta, &free).unwrap_or_else(|| Matrix4::from_element(f64::NAN));
     let sigma: [f64; 4] = std::array::from_fn(|i| if free[i] { cov[(i, i)].max(0.0).sqrt() } else { 0.0 });
+    let sandwich = cov * ev.total.opg * cov;
+    let sigma_sandwich: [f64; 4] =
+        std::array::from_fn(|i| if free[i] { sandwich[(i, i)].max(0.0).sqrt() } else { 0.0 });
     let observability = observability_of(&ev.total.h_theta, &free, unobservable.clone(), opts);
 
     let mut warnings = Vec::new();
@@ -1268,7 +1340,7 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         }
         diags.push(WindowDiagnostics { window: *w, updates: s.updates, nis, lag1 });
     }
-    let halves = halves_check(&ev, &theta, &free);
+    let halves = halves_check(&ev, &theta, &free, opts.covariance == CovarianceMode::FollowsTheta);
     if let Some(h) = &halves {
         for i in 0..4 {
             if h.z[i].abs() > opts.max_half_z {
@@ -1287,6 +1359,7 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         free,
         covariance: to_array(&cov),
         sigma,
+        sigma_sandwich,
         eta,
         eta_sigma,
         noise: opts.noise.scaled(&eta),
@@ -1305,7 +1378,7 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
 
 /// θ from each half of the windows (split by measurement updates), one
 /// scoring step from the joint estimate.
-fn halves_check(ev: &Evaluation, theta: &Theta, free: &[bool; 4]) -> Option<HalvesCheck> {
+fn halves_check(ev: &Evaluation, theta: &Theta, free: &[bool; 4], follows: bool) -> Option<HalvesCheck> {
     if ev.windows.len() < 2 {
         return None;
     }
@@ -1321,8 +1394,8 @@ fn halves_check(ev: &Evaluation, theta: &Theta, free: &[bool; 4]) -> Option<Halv
         }
         acc += w.updates;
     }
-    let (s1, sd1) = theta_step(&first, free).ok()?;
-    let (s2, sd2) = theta_step(&second, free).ok()?;
+    let (s1, sd1) = theta_step(&first, free, follows).ok()?;
+    let (s2, sd2) = theta_step(&second, free, follows).ok()?;
     let t1 = theta_add(theta, &s1, 1.0);
     let t2 = theta_add(theta, &s2, 1.0);
     let (a1, a2) = (t1.to_array(), t2.to_array());
@@ -1362,7 +1435,7 @@ pub fn cramer_rao_bound(
         return Err(Error::NoSegments("the Cramér–Rao bound needs a drive part of at least two samples".into()));
     }
     let prob = Problem { input, windows, noise: *noise };
-    let ev = prob.evaluate(theta, theta, &[0.0; 5], false)?;
+    let ev = prob.evaluate(theta, theta, &[0.0; 5], Mode::full(false, false))?;
     let h = ev.total.h_theta;
     let cov = free_inverse(&h, &opts.free).ok_or_else(|| Error::NotObservable {
         params: (0..4).filter(|i| opts.free[*i]).map(|i| crate::model::THETA_NAMES[i]).collect(),

@@ -29,10 +29,17 @@ fn batch_gn_all(d: &Drive) -> Theta {
     batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &opts).expect("batch G-N").theta
 }
 
-fn records(input: &EivInput<'_>, w: &Window, th: &Theta, th_ref: &Theta, eta: &[f64; 5]) -> Vec<InnovationRecord> {
+fn records(
+    input: &EivInput<'_>,
+    w: &Window,
+    th: &Theta,
+    th_ref: &Theta,
+    eta: &[f64; 5],
+    follows: bool,
+) -> Vec<InnovationRecord> {
     let v = NoiseModel::default().variances(eta, input.sample_time_s);
     let mut rec = Vec::new();
-    run_window(input, w, th, th_ref, &v, true, Some(&mut rec)).expect("window");
+    run_window(input, w, th, th_ref, &v, filter::Mode::full(follows, true), Some(&mut rec)).expect("window");
     rec
 }
 
@@ -47,51 +54,53 @@ fn perturb(th: &Theta, i: usize, h: f64) -> Theta {
 /// recursion stays below ~1e-6 of the column scale.
 const FD_REL_TOL: f64 = 2e-5;
 
-#[test]
-fn innovation_derivatives_match_central_differences() {
+fn check_innovation_derivatives(follows: bool) {
     let out = simulate(&SimOptions { length_km: 0.6, ..SimOptions::paper(5) }).expect("sim");
     let input = input_of(&out.drive);
     let w = Window { index: 0, part: 0, start: 0, end: 1200.min(input.len() - 1) };
     let th = Theta { c_e: 1.953, c_d: -0.0015, t_r: 1.52, d: 0.0009 };
     let th_ref = Theta { c_e: 1.96, ..th };
     let eta = [0.3, -0.5, 0.2, -0.2, 0.4];
-    let base = records(&input, &w, &th, &th_ref, &eta);
+    let base = records(&input, &w, &th, &th_ref, &eta, follows);
     let check = |fd: Vec<(usize, nalgebra::Vector3<f64>, nalgebra::Matrix3<f64>)>, p: usize, what: &str| {
         // Scale: the largest derivative of this column over the window.
         let scale_nu = base.iter().map(|r| r.dnu.column(p).amax()).fold(0.0f64, f64::max).max(1e-12);
-        let scale_s =
-            if p >= 4 { base.iter().map(|r| r.ds[p - 4].amax()).fold(0.0f64, f64::max).max(1e-300) } else { 1.0 };
+        let scale_s = base.iter().map(|r| r.ds[p].amax()).fold(0.0f64, f64::max).max(1e-300);
         for (k, dnu, ds) in fd {
             let a = base[k].dnu.column(p).into_owned();
             assert!((a - dnu).amax() <= FD_REL_TOL * scale_nu, "{what}: ∂ν/∂p{p} at update {k}: {a} vs {dnu}");
-            if p >= 4 {
-                let a = base[k].ds[p - 4];
-                assert!((a - ds).amax() <= FD_REL_TOL * scale_s, "{what}: ∂S/∂η{} at update {k}: {a} vs {ds}", p - 4);
-            }
+            let a = base[k].ds[p];
+            assert!((a - ds).amax() <= FD_REL_TOL * scale_s, "{what}: ∂S/∂p{p} at update {k}: {a} vs {ds}");
         }
     };
     let picks = [1usize, 2, 10, 300, 700, base.len() - 1];
     for j in 0..5 {
-        let h = 1e-5;
+        // ν is a difference of positions of ~1 km: its rounding (~1e-13 m)
+        // over 2h must stay well below the tolerance, so h is not tiny.
+        let h = 1e-4;
         let (mut ep, mut em) = (eta, eta);
         ep[j] += h;
         em[j] -= h;
-        let rp = records(&input, &w, &th, &th_ref, &ep);
-        let rm = records(&input, &w, &th, &th_ref, &em);
+        let rp = records(&input, &w, &th, &th_ref, &ep, follows);
+        let rm = records(&input, &w, &th, &th_ref, &em, follows);
         let fd =
             picks.iter().map(|&k| (k, (rp[k].nu - rm[k].nu) / (2.0 * h), (rp[k].s - rm[k].s) / (2.0 * h))).collect();
         check(fd, 4 + j, "η");
     }
     for p in 0..4 {
         let h = 1e-6 * [th.c_e, 1.0, th.t_r, 1.0][p];
-        let rp = records(&input, &w, &perturb(&th, p, h), &th_ref, &eta);
-        let rm = records(&input, &w, &perturb(&th, p, -h), &th_ref, &eta);
+        let rp = records(&input, &w, &perturb(&th, p, h), &th_ref, &eta, follows);
+        let rm = records(&input, &w, &perturb(&th, p, -h), &th_ref, &eta, follows);
         let fd = picks
             .iter()
             .map(|&k| {
-                // ∂S/∂θ is exactly zero by construction (covariance at θ_ref).
-                assert!((rp[k].s - rm[k].s).amax() == 0.0, "S depends on θ");
-                (k, (rp[k].nu - rm[k].nu) / (2.0 * h), nalgebra::Matrix3::zeros())
+                if !follows {
+                    // ∂S/∂θ is exactly zero by construction (covariance at θ_ref).
+                    assert!((rp[k].s - rm[k].s).amax() == 0.0, "S depends on θ");
+                } else {
+                    assert!((rp[k].s - rm[k].s).amax() > 0.0, "S does not depend on θ");
+                }
+                (k, (rp[k].nu - rm[k].nu) / (2.0 * h), (rp[k].s - rm[k].s) / (2.0 * h))
             })
             .collect();
         check(fd, p, "θ");
@@ -99,32 +108,62 @@ fn innovation_derivatives_match_central_differences() {
 }
 
 #[test]
-fn objective_gradient_matches_central_differences() {
+fn innovation_derivatives_match_central_differences_covariance_held() {
+    check_innovation_derivatives(false);
+}
+
+#[test]
+fn innovation_derivatives_match_central_differences_covariance_follows_theta() {
+    check_innovation_derivatives(true);
+}
+
+fn check_objective_gradient(follows: bool) {
     let out = simulate(&SimOptions { length_km: 0.6, ..SimOptions::paper(6) }).expect("sim");
     let input = input_of(&out.drive);
     let w = Window { index: 0, part: 0, start: 0, end: 1500.min(input.len() - 1) };
     let th = Theta { c_e: 1.953, c_d: -0.0015, t_r: 1.52, d: 0.0009 };
     let eta = [0.3, -0.5, 0.2, -0.2, 0.4];
-    let merit = |t: &Theta, e: &[f64; 5]| {
+    let sums = |t: &Theta, e: &[f64; 5]| {
         let v = NoiseModel::default().variances(e, input.sample_time_s);
-        run_window(&input, &w, t, &th, &v, true, None).expect("window")
+        run_window(&input, &w, t, &th, &v, filter::Mode::full(follows, true), None).expect("window")
     };
-    let base = merit(&th, &eta);
+    let cost_only = |t: &Theta, e: &[f64; 5]| {
+        let v = NoiseModel::default().variances(e, input.sample_time_s);
+        run_window(&input, &w, t, &th, &v, filter::Mode::cost(follows), None).expect("window")
+    };
+    let base = sums(&th, &eta);
+    // The cost-only pass gives the same objective.
+    let c = cost_only(&th, &eta);
+    assert_eq!((c.quad, c.logdet, c.correction), (base.quad, base.logdet, base.correction));
     for p in 0..9 {
-        let (mp, mm, h) = if p < 4 {
+        let (tp, tm, ep, em, h) = if p < 4 {
             let h = 1e-6 * [th.c_e, 1.0, th.t_r, 1.0][p];
-            (merit(&perturb(&th, p, h), &eta).merit(), merit(&perturb(&th, p, -h), &eta).merit(), h)
+            (perturb(&th, p, h), perturb(&th, p, -h), eta, eta, h)
         } else {
             let h = 1e-5;
             let (mut ep, mut em) = (eta, eta);
             ep[p - 4] += h;
             em[p - 4] -= h;
-            (merit(&th, &ep).merit(), merit(&th, &em).merit(), h)
+            (th, th, ep, em, h)
         };
-        let fd = (mp - mm) / (2.0 * h);
-        let g = base.grad[p];
-        assert!((g - fd).abs() <= 1e-4 * g.abs().max(fd.abs()).max(1e-6), "∂M/∂p{p}: {g} vs {fd}");
+        let (sp, sm) = (cost_only(&tp, &ep), cost_only(&tm, &em));
+        for (what, fd, g) in [
+            ("M", (sp.merit() - sm.merit()) / (2.0 * h), base.grad[p]),
+            ("J", (sp.profile() - sm.profile()) / (2.0 * h), base.grad_profile[p]),
+        ] {
+            assert!((g - fd).abs() <= 1e-4 * g.abs().max(fd.abs()).max(1e-6), "∂{what}/∂p{p}: {g} vs {fd}");
+        }
     }
+}
+
+#[test]
+fn objective_gradient_matches_central_differences_covariance_held() {
+    check_objective_gradient(false);
+}
+
+#[test]
+fn objective_gradient_matches_central_differences_covariance_follows_theta() {
+    check_objective_gradient(true);
 }
 
 /// Noise-free, one substep: the model is exact; EIV must return θ_true to
@@ -244,6 +283,6 @@ fn updates_only_where_the_reference_was_measured() {
     let w = Window { index: 0, part: 0, start: 0, end: input.len() - 1 };
     let v = NoiseModel::default().variances(&[0.0; 5], input.sample_time_s);
     let th = Theta::SIM_DEFAULT_TRUE;
-    let s = run_window(&input, &w, &th, &th, &v, false, None).expect("window");
+    let s = run_window(&input, &w, &th, &th, &v, filter::Mode::full(false, false), None).expect("window");
     assert_eq!(s.updates, (1..input.len()).filter(|k| k % 4 == 0).count());
 }
