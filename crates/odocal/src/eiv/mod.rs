@@ -819,6 +819,8 @@ pub struct EivReport {
     pub eta: [f64; 5],
     /// Standard deviations of η (0 when fixed or at a clamp).
     pub eta_sigma: [f64; 5],
+    /// Filter passes over the drive: `[with derivatives, objective only]`.
+    pub evaluations: [usize; 2],
     /// The estimated noise model in physical units.
     pub noise: NoiseModel,
     /// Objective M at the start and the end of the last pass.
@@ -890,10 +892,15 @@ struct Problem<'a> {
     input: &'a EivInput<'a>,
     windows: Vec<Window>,
     noise: NoiseModel,
+    /// Filter passes over the drive: with derivatives, objective only.
+    evaluations: std::cell::Cell<[usize; 2]>,
 }
 
 impl Problem<'_> {
     fn evaluate(&self, theta: &Theta, theta_ref: &Theta, eta: &[f64; 5], mode: Mode) -> Result<Evaluation> {
+        let mut count = self.evaluations.get();
+        count[usize::from(!mode.derivs)] += 1;
+        self.evaluations.set(count);
         let v = self.noise.variances(eta, self.input.sample_time_s);
         let parts: Vec<Result<WindowSums>> = self
             .windows
@@ -974,13 +981,6 @@ fn score_norm(sums: &WindowSums, free: &[bool; 4], follows: bool) -> f64 {
         }
         Err(_) => f64::INFINITY,
     }
-}
-
-/// `gᵀ I_η⁻¹ g` of the η-score over the η that move (0 when none).
-fn eta_score_norm(sums: &WindowSums, eta: &[f64; 5], bounds: [f64; 2]) -> f64 {
-    let (step, _) = eta_step(sums, eta, bounds);
-    // d = −I⁻¹g; Δη = ln(1 + d) — use the linear step for the norm.
-    (0..NETA).map(|j| -(step[j].exp() - 1.0) * sums.grad[4 + j]).sum::<f64>().max(0.0)
 }
 
 /// The scoring step of η (log-transformed, clamped; see the module docs),
@@ -1108,8 +1108,89 @@ struct PassOutcome {
     eta_sigma: [f64; 5],
 }
 
+/// Result of a line search: the accepted point, or the last cost tried.
+enum Search {
+    Accepted { theta: Theta, eta: [f64; 5], ev: Evaluation, lambda: f64 },
+    Rejected { cost: f64 },
+}
+
+/// Step halving along `(dθ, dη)` from `(θ, η)`. The full step is evaluated
+/// with derivatives (it is usually accepted); shorter steps with the
+/// objective only, unless `accept` needs the derivatives (`needs_derivs`).
+/// The accepted point is returned with derivatives.
+#[allow(clippy::too_many_arguments)]
+fn line_search(
+    prob: &Problem<'_>,
+    theta: &Theta,
+    eta: &[f64; 5],
+    dth: &[f64; 4],
+    deta: &[f64; 5],
+    theta_ref: &Theta,
+    full: Mode,
+    needs_derivs: bool,
+    opts: &EivOptions,
+    accept: &dyn Fn(&Evaluation, &Theta, &[f64; 5]) -> (bool, f64),
+) -> Result<Search> {
+    let mut lambda = 1.0;
+    let mut last_cost = f64::NAN;
+    for h in 0..=opts.max_halvings {
+        let th = theta_add(theta, dth, lambda);
+        if th.validate().is_ok() {
+            let et = eta_add(eta, deta, lambda, opts.eta_bounds);
+            let mode = if h == 0 || needs_derivs { full } else { Mode::cost(full.follows_theta) };
+            if let Ok(t) = prob.evaluate(&th, theta_ref, &et, mode) {
+                let (ok, cost) = accept(&t, &th, &et);
+                if cost.is_finite() {
+                    last_cost = cost;
+                    if ok {
+                        let ev = if t.mode == full { t } else { prob.evaluate(&th, theta_ref, &et, full)? };
+                        return Ok(Search::Accepted { theta: th, eta: et, ev, lambda });
+                    }
+                }
+            }
+        }
+        lambda *= 0.5;
+    }
+    Ok(Search::Rejected { cost: last_cost })
+}
+
+/// `max |step_i|/σ_i` over the free θ and the η that move.
+fn step_ratio(
+    dth: &[f64; 4],
+    sth: &[f64; 4],
+    free: &[bool; 4],
+    eta: &[f64; 5],
+    deta: &[f64; 5],
+    seta: &[f64; 5],
+    bounds: [f64; 2],
+) -> f64 {
+    let mut ratio = 0.0f64;
+    for i in 0..4 {
+        if free[i] && sth[i] > 0.0 {
+            ratio = ratio.max(dth[i].abs() / sth[i]);
+        }
+    }
+    for j in 0..NETA {
+        if seta[j] > 0.0 {
+            // A step that lands on a clamp counts by its size, not its σ.
+            let at_clamp =
+                (eta[j] + deta[j] - bounds[0]).abs() < 1e-12 || (eta[j] + deta[j] - bounds[1]).abs() < 1e-12;
+            if !at_clamp || deta[j].abs() > 1e-12 {
+                ratio = ratio.max(deta[j].abs() / seta[j]);
+            }
+        }
+    }
+    ratio
+}
+
 /// One scoring pass (with [`CovarianceMode::HeldAtReference`], at a fixed
 /// covariance reference).
+///
+/// With the covariance following θ, θ and η have different objectives (the
+/// profile cost J for θ, the marginal likelihood M for η), so each
+/// iteration takes a θ step halved on J at fixed η, then an η step halved
+/// on M at fixed θ (block coordinate). With the covariance held, one joint
+/// step on M (corrected score for θ) as before.
 fn scoring_pass(
     prob: &Problem<'_>,
     theta0: Theta,
@@ -1122,10 +1203,7 @@ fn scoring_pass(
     let follows = opts.covariance == CovarianceMode::FollowsTheta;
     let eta_derivs = !opts.fix_noise;
     let full = Mode::full(follows, eta_derivs);
-    // The objective that governs step halving: the profile cost J when the
-    // covariance follows θ and η is fixed (a cost-only pass suffices);
-    // otherwise the merit and the score norm (derivatives needed).
-    let cost_only_halving = follows && !eta_derivs;
+    let bounds = opts.eta_bounds;
     let objective = |ev: &Evaluation, th: &Theta| -> f64 {
         if follows {
             ev.total.profile()
@@ -1144,77 +1222,84 @@ fn scoring_pass(
     let mut history = Vec::new();
     let mut termination = Termination::MaxIterations { iterations: opts.max_iterations, step_over_sigma: f64::NAN };
     let mut eta_sigma = [0.0; 5];
+    let tol = |c: f64| 1e-12 * c.abs().max(1.0);
     for it in 0..opts.max_iterations {
         let (dth, sth) = theta_step(&ev.total, &free, follows)?;
-        let (deta, seta) = if eta_derivs { eta_step(&ev.total, &eta, opts.eta_bounds) } else { ([0.0; 5], [0.0; 5]) };
+        let (deta, seta) = if eta_derivs { eta_step(&ev.total, &eta, bounds) } else { ([0.0; 5], [0.0; 5]) };
         eta_sigma = seta;
-        let mut ratio = 0.0f64;
-        for i in 0..4 {
-            if free[i] && sth[i] > 0.0 {
-                ratio = ratio.max(dth[i].abs() / sth[i]);
-            }
-        }
-        for j in 0..NETA {
-            if seta[j] > 0.0 {
-                // A step that lands on a clamp counts by its size, not its σ.
-                let at_clamp = (eta[j] + deta[j] - opts.eta_bounds[0]).abs() < 1e-12
-                    || (eta[j] + deta[j] - opts.eta_bounds[1]).abs() < 1e-12;
-                if !at_clamp || deta[j].abs() > 1e-12 {
-                    ratio = ratio.max(deta[j].abs() / seta[j]);
+        let mut ratio = step_ratio(&dth, &sth, &free, &eta, &deta, &seta, bounds);
+        let previous = objective(&ev, &theta);
+        let lambda;
+        if follows {
+            // θ step on the profile cost J at fixed η (cost-only halvings).
+            let accept_j = |t: &Evaluation, th: &Theta, _: &[f64; 5]| {
+                let c = objective(t, th);
+                (c <= previous + tol(previous), c)
+            };
+            match line_search(prob, &theta, &eta, &dth, &[0.0; 5], &theta_ref, full, false, opts, &accept_j)? {
+                Search::Accepted { theta: th, ev: e, lambda: l, .. } => {
+                    theta = th;
+                    ev = e;
+                    lambda = l;
+                }
+                Search::Rejected { cost } => {
+                    termination = Termination::CostIncreased { cost, previous, halvings: opts.max_halvings };
+                    break;
                 }
             }
-        }
-        let previous = objective(&ev, &theta);
-        let previous_m = ev.total.merit();
-        let previous_q = score_norm(&ev.total, &free, follows)
-            + if eta_derivs { eta_score_norm(&ev.total, &eta, opts.eta_bounds) } else { 0.0 };
-        let mut lambda = 1.0;
-        let mut accepted = None;
-        let mut last_cost = f64::NAN;
-        for h in 0..=opts.max_halvings {
-            let th = theta_add(&theta, &dth, lambda);
-            if th.validate().is_ok() {
-                let et = eta_add(&eta, &deta, lambda, opts.eta_bounds);
-                // The full step is tried with derivatives (it is usually accepted).
-                let mode = if h == 0 || !cost_only_halving { full } else { Mode::cost(follows) };
-                let trial = prob.evaluate(&th, &theta_ref, &et, mode);
-                match trial {
-                    Ok(t) if objective(&t, &th).is_finite() => {
-                        last_cost = objective(&t, &th);
-                        let tol = 1e-12 * previous.abs().max(1.0);
-                        let ok = if cost_only_halving {
-                            last_cost <= previous + tol
-                        } else {
-                            // Accept when the objective falls (with η estimated: both the
-                            // profile cost and the merit M), or when the score — whose root
-                            // is the estimate; with the covariance held the bias term is not
-                            // an exact gradient — shrinks in the Fisher metric.
-                            let falls = last_cost <= previous + tol
-                                && (!follows || !eta_derivs || t.total.merit() <= previous_m + tol);
-                            falls || {
-                                let q = score_norm(&t.total, &free, follows)
-                                    + if eta_derivs { eta_score_norm(&t.total, &et, opts.eta_bounds) } else { 0.0 };
-                                q < previous_q
-                            }
-                        };
-                        if ok {
-                            accepted = Some((th, et, t));
+            if eta_derivs {
+                // η step on the marginal likelihood M at fixed θ (cost-only halvings).
+                let (deta, seta) = eta_step(&ev.total, &eta, bounds);
+                eta_sigma = seta;
+                ratio = ratio.max(step_ratio(&[0.0; 4], &sth, &[false; 4], &eta, &deta, &seta, bounds));
+                if deta.iter().any(|x| *x != 0.0) {
+                    let previous_m = ev.total.merit();
+                    let accept_m = |t: &Evaluation, _: &Theta, _: &[f64; 5]| {
+                        let c = t.total.merit();
+                        (c <= previous_m + tol(previous_m), c)
+                    };
+                    match line_search(prob, &theta, &eta, &[0.0; 4], &deta, &theta_ref, full, false, opts, &accept_m)? {
+                        Search::Accepted { eta: et, ev: e, .. } => {
+                            eta = et;
+                            ev = e;
+                        }
+                        Search::Rejected { cost } => {
+                            termination =
+                                Termination::CostIncreased { cost, previous: previous_m, halvings: opts.max_halvings };
                             break;
                         }
-                    }
-                    _ => {}
+                            }
                 }
             }
-            lambda *= 0.5;
+        } else {
+            // Joint step. Accept when the objective falls, or when the corrected
+            // score (whose root is the estimate; the bias term is not an exact
+            // gradient) shrinks in the Fisher metric.
+            let previous_q = score_norm(&ev.total, &free, follows);
+            let accept = |t: &Evaluation, th: &Theta, _: &[f64; 5]| {
+                let c = objective(t, th);
+                (c <= previous + tol(previous) || score_norm(&t.total, &free, follows) < previous_q, c)
+            };
+            match line_search(prob, &theta, &eta, &dth, &deta, &theta_ref, full, true, opts, &accept)? {
+                Search::Accepted { theta: th, eta: et, ev: e, lambda: l } => {
+                    theta = th;
+                    eta = et;
+                    ev = e;
+                    lambda = l;
+                }
+                Search::Rejected { cost } => {
+                    termination = Termination::CostIncreased { cost, previous, halvings: opts.max_halvings };
+                    break;
+                }
+            }
         }
-        let Some((th, et, t)) = accepted else {
-            termination = Termination::CostIncreased { cost: last_cost, previous, halvings: opts.max_halvings };
-            break;
-        };
-        theta = th;
-        eta = et;
-        ev = if t.mode == full { t } else { prob.evaluate(&theta, &theta_ref, &eta, full)? };
-        history.push(IterationRecord { theta, eta, cost: objective(&ev, &theta), step_over_sigma: ratio, step_factor: lambda });
+        history.push(IterationRecord {
+            theta,
+            eta,
+            cost: objective(&ev, &theta),
+            step_over_sigma: ratio,
+            step_factor: lambda,
+        });
         if ratio < opts.step_tolerance {
             termination = Termination::StepTolerance { step_over_sigma: ratio, threshold: opts.step_tolerance };
             break;
@@ -1268,7 +1353,7 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
     if windows.is_empty() {
         return Err(Error::NoSegments("EIV needs a drive part of at least two samples".into()));
     }
-    let prob = Problem { input, windows, noise: opts.noise };
+    let prob = Problem { input, windows, noise: opts.noise, evaluations: std::cell::Cell::new([0; 2]) };
     let mut theta = *theta_start;
     let mut eta = [0.0; 5];
     let mut free = opts.free;
@@ -1362,6 +1447,7 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         sigma_sandwich,
         eta,
         eta_sigma,
+        evaluations: prob.evaluations.get(),
         noise: opts.noise.scaled(&eta),
         final_cost: ev.total.merit(),
         iterations,
@@ -1434,7 +1520,7 @@ pub fn cramer_rao_bound(
     if windows.is_empty() {
         return Err(Error::NoSegments("the Cramér–Rao bound needs a drive part of at least two samples".into()));
     }
-    let prob = Problem { input, windows, noise: *noise };
+    let prob = Problem { input, windows, noise: *noise, evaluations: std::cell::Cell::new([0; 2]) };
     let ev = prob.evaluate(theta, theta, &[0.0; 5], Mode::full(false, false))?;
     let h = ev.total.h_theta;
     let cov = free_inverse(&h, &opts.free).ok_or_else(|| Error::NotObservable {
