@@ -8,7 +8,9 @@
 //! Variants (comma separated; default all): `held` (covariance held at a
 //! reference, η estimated from the production-car start), `follows`
 //! (covariance follows θ, η estimated), `held-known` and `follows-known`
-//! (the simulator's true noise model, `NoiseModel::from_sim`, fixed).
+//! (the simulator's true noise model, `NoiseModel::from_sim`, fixed),
+//! `held-simstart` and `follows-simstart` (η estimated, starting from the
+//! true model: right time constants).
 //! Per run: errors `[c_e %, c_d mm, t_r %, d mm/(m/s²)]`, reported σ,
 //! wall time; then mean ± sd over seeds per preset and variant, and the
 //! 24 km timing side by side with batch G-N.
@@ -50,6 +52,8 @@ fn options(variant: &str, noise: &NoiseOptions, ts: f64) -> EivOptions {
         if variant.starts_with("held") { CovarianceMode::HeldAtReference } else { CovarianceMode::FollowsTheta };
     if variant.ends_with("known") {
         EivOptions { covariance, noise: NoiseModel::from_sim(noise, ts), fix_noise: true, ..Default::default() }
+    } else if variant.ends_with("simstart") {
+        EivOptions { covariance, noise: NoiseModel::from_sim(noise, ts), ..Default::default() }
     } else {
         EivOptions { covariance, ..Default::default() }
     }

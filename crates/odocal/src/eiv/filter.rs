@@ -83,7 +83,9 @@ pub(crate) struct WindowSums {
     /// Outer products of the per-update θ-scores of `½ νᵀS⁻¹ν`, Σ g_k g_kᵀ
     /// (the "meat" of a sandwich covariance).
     pub opg: nalgebra::Matrix4<f64>,
-    /// Fisher information of θ, Σ (∂ν/∂θ)ᵀ S⁻¹ (∂ν/∂θ).
+    /// Scoring metric of θ: with the covariance held, the Fisher information
+    /// Σ (∂ν/∂θ)ᵀ S⁻¹ (∂ν/∂θ); with the covariance following θ, the
+    /// Gauss-Newton matrix Σ (∂r/∂θ)ᵀ(∂r/∂θ) of the whitened innovations.
     pub h_theta: nalgebra::Matrix4<f64>,
     /// Fisher information of η: Σ (∂ν/∂η)ᵀS⁻¹(∂ν/∂η) + ½ tr(S⁻¹∂S S⁻¹∂S).
     pub i_eta: M5,
@@ -161,6 +163,10 @@ pub(crate) struct InnovationRecord {
     pub dnu: SMatrix<f64, 3, NP>,
     /// ∂S/∂p_j (zero where not propagated).
     pub ds: [Matrix3<f64>; NP],
+    /// Whitened innovation `r = L⁻¹ν` (S = LLᵀ).
+    pub r: Vector3<f64>,
+    /// ∂r/∂θ (3×4; zero with the covariance held).
+    pub dr: SMatrix<f64, 3, 4>,
 }
 
 /// `F P Fᵀ` for the structured transition
@@ -758,6 +764,7 @@ pub(crate) fn run_window(
             let mut ds = [Matrix3::zeros(); NP];
             let mut a = [Matrix3::zeros(); NP];
             let mut g_t = nalgebra::Vector4::<f64>::zeros();
+            let mut dr = SMatrix::<f64, 3, 4>::zeros();
             for c in 0..4 {
                 g_t[c] = -gnu[c];
             }
@@ -781,7 +788,29 @@ pub(crate) fn run_window(
                     info[(i1, i2)] += 0.5 * (a[i1] * a[i2]).trace();
                 }
             }
-            out.h_theta += info.fixed_view::<4, 4>(0, 0);
+            if follows {
+                // Gauss-Newton metric of the profile cost J = ½Σ‖r‖², r = L⁻¹ν
+                // (S = LLᵀ): ∂r_j = L⁻¹∂ν_j − Φ(L⁻¹ ∂S_j L⁻ᵀ) r, Φ the lower triangle
+                // with halved diagonal (the derivative of the Cholesky factor).
+                // It is the expected Hessian of J, not the Fisher information of
+                // the marginal likelihood, which overstates the curvature when the
+                // input noise is comparable to the turning signal.
+                let r_w = e;
+                for jt in 0..4 {
+                    let dnu_j = -Vector3::new(hd[(0, jt)], hd[(1, jt)], hd[(2, jt)]);
+                    let a1 = l.solve_lower_triangular(&dnu_j).unwrap_or_else(Vector3::zeros);
+                    let m1 = l.solve_lower_triangular(&ds[jt]).unwrap_or_else(Matrix3::zeros);
+                    let m = l.solve_lower_triangular(&m1.transpose()).unwrap_or_else(Matrix3::zeros);
+                    let mut phi = m.lower_triangle();
+                    for q in 0..3 {
+                        phi[(q, q)] *= 0.5;
+                    }
+                    dr.set_column(jt, &(a1 - phi * r_w));
+                }
+                out.h_theta += dr.transpose() * dr;
+            } else {
+                out.h_theta += info.fixed_view::<4, 4>(0, 0);
+            }
             out.i_eta += info.fixed_view::<NETA, NETA>(4, 4);
             out.opg += g_t * g_t.transpose();
             if corrected {
@@ -791,7 +820,7 @@ pub(crate) fn run_window(
                 }
             }
             if let Some(rec) = record.as_deref_mut() {
-                rec.push(InnovationRecord { nu, s: s_mat, dnu: -hd, ds });
+                rec.push(InnovationRecord { nu, s: s_mat, dnu: -hd, ds, r: e, dr });
             }
             // Sensitivity update: D⁺ = (I − KH) D⁻ + ∂K ν with
             // ∂K = (∂P⁻Hᵀ − K ∂S) S⁻¹.

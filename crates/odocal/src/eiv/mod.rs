@@ -579,7 +579,7 @@ impl EivOptions {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "reason", rename_all = "snake_case")]
 pub enum Termination {
-    /// The last accepted step was small against the standard errors.
+    /// The proposed step was small against the standard errors (it is not taken).
     StepTolerance {
         /// `max |step_i|/σ_i` of the last step.
         step_over_sigma: f64,
@@ -1228,6 +1228,12 @@ fn scoring_pass(
         let (deta, seta) = if eta_derivs { eta_step(&ev.total, &eta, bounds) } else { ([0.0; 5], [0.0; 5]) };
         eta_sigma = seta;
         let mut ratio = step_ratio(&dth, &sth, &free, &eta, &deta, &seta, bounds);
+        if ratio < opts.step_tolerance {
+            // Converged: the remaining step is negligible against σ, so it is not
+            // taken (the estimate is the point the derivatives were evaluated at).
+            termination = Termination::StepTolerance { step_over_sigma: ratio, threshold: opts.step_tolerance };
+            break;
+        }
         let previous = objective(&ev, &theta);
         let lambda;
         if follows {

@@ -107,6 +107,35 @@ fn check_innovation_derivatives(follows: bool) {
     }
 }
 
+/// The whitened-innovation derivatives behind the Gauss-Newton metric
+/// (covariance following θ): `Σ (∂r/∂θ)ᵀ r` is the gradient of ½Σ νᵀS⁻¹ν,
+/// and each ∂r matches central differences of r.
+#[test]
+fn whitened_innovation_derivatives_match_central_differences() {
+    let out = simulate(&SimOptions { length_km: 0.6, ..SimOptions::paper(5) }).expect("sim");
+    let input = input_of(&out.drive);
+    let w = Window { index: 0, part: 0, start: 0, end: 1200.min(input.len() - 1) };
+    let th = Theta { c_e: 1.953, c_d: -0.0015, t_r: 1.52, d: 0.0009 };
+    let eta = [0.3, -0.5, 0.2, -0.2, 0.4];
+    let base = records(&input, &w, &th, &th, &eta, true);
+    let picks = [1usize, 10, 300, 700, base.len() - 1];
+    for p in 0..4 {
+        let h = 1e-6 * [th.c_e, 1.0, th.t_r, 1.0][p];
+        let rp = records(&input, &w, &perturb(&th, p, h), &th, &eta, true);
+        let rm = records(&input, &w, &perturb(&th, p, -h), &th, &eta, true);
+        let scale = base.iter().map(|r| r.dr.column(p).amax()).fold(0.0f64, f64::max);
+        for &k in &picks {
+            let fd = (rp[k].r - rm[k].r) / (2.0 * h);
+            let a = base[k].dr.column(p).into_owned();
+            assert!((a - fd).amax() <= FD_REL_TOL * scale, "∂r/∂θ{p} at update {k}: {a} vs {fd}");
+        }
+        let g: f64 = base.iter().map(|r| r.dr.column(p).dot(&r.r)).sum();
+        let q = |rs: &[InnovationRecord]| rs.iter().map(|r| 0.5 * r.r.norm_squared()).sum::<f64>();
+        let fd = (q(&rp) - q(&rm)) / (2.0 * h);
+        assert!((g - fd).abs() <= 1e-4 * g.abs().max(fd.abs()), "Σ ∂rᵀr over θ{p}: {g} vs {fd}");
+    }
+}
+
 #[test]
 fn innovation_derivatives_match_central_differences_covariance_held() {
     check_innovation_derivatives(false);
