@@ -1,38 +1,23 @@
 //! `odocal experiment`: the paper's §6 on a simulated (or given) drive in one
-//! command — batch calibrations (Fig. 4), picked θ_B,I (Fig. 5), compensated
-//! inputs (Fig. 6), per-segment and batch estimates with raw vs compensated
-//! inputs (Fig. 7/8, Table 1), θ_nom and the reachable minimum — written as
-//! `report.md`, SVG figures and `experiment.json`.
+//! command. The numbers come from [`odocal::experiment::run`]; this module
+//! loads or simulates the drive and writes them as `report.md`, SVG figures
+//! and `experiment.json`.
 
 use std::fmt::Write as _;
 use std::path::Path;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use odocal::model::{step, Theta};
-use odocal::pipeline::{
-    calibrate_detailed, per_segment_identification, score_batches, BatchResult, CalibrationOptions, CompensationStep,
-    DetailedCalibration, SegmentCounts,
-};
-use odocal::segment::SegmentData;
+use odocal::experiment::{self, Experiment, ExperimentOptions, ExperimentTiming, Figure6Curves, Scored, Summary};
 use odocal::sim::{self, NoiseOptions, SimOptions};
-use odocal::{mean_position_error, reachable_minimum, Drive, ReachableOptions};
+use odocal::{CalibrationOptions, Drive, Method, QpOptions, ReachableOptions, Theta, ThreeStepOptions};
 use serde::Serialize;
 
 use crate::plots::{self, figure, HLine, Panel, Series};
 use crate::progress::Bars;
 use crate::ExperimentArgs;
 
-/// A θ with its validation error and, when the truth is known, its error.
-#[derive(Debug, Clone, Copy, Serialize)]
-struct Scored {
-    theta: Theta,
-    /// Ē_p, m.
-    mean_position_error_m: f64,
-    /// θ − θ_true, SI units (None without truth).
-    error_vs_true: Option<Theta>,
-}
-
+/// Where the drive came from.
 #[derive(Debug, Clone, Serialize)]
 struct DriveInfo {
     source: String,
@@ -44,153 +29,27 @@ struct DriveInfo {
     wheel_rotation_rel_error_rms: Option<f64>,
 }
 
-#[derive(Debug, Clone, Serialize)]
-struct BatchRow {
-    segment_starts: Vec<usize>,
-    raw: Scored,
-    /// G-N from θ_0 on the same segments with compensated inputs (segments
-    /// whose compensation failed are left out).
-    compensated: Option<Scored>,
-    compensated_segments: usize,
-}
-
-#[derive(Debug, Clone, Serialize)]
-struct SegmentRow {
-    start: usize,
-    peak_yaw_rate_rad_per_s: f64,
-    raw: Option<Scored>,
-    compensated: Option<Scored>,
-}
-
-#[derive(Debug, Clone, Serialize)]
-struct Table1 {
-    segment_start: usize,
-    segment_raw: Scored,
-    segment_compensated: Scored,
-    batch_index: usize,
-    batch_starts: Vec<usize>,
-    batch_raw: Scored,
-    batch_compensated: Scored,
-}
-
-/// Summary statistics of a set of estimates.
-#[derive(Debug, Clone, Serialize)]
-struct Summary {
-    count: usize,
-    min_mean_position_error_m: f64,
-    median_mean_position_error_m: f64,
-    max_mean_position_error_m: f64,
-    /// Median |θ − θ_true| per parameter, SI.
-    median_abs_error_vs_true: Option<Theta>,
-}
-
-#[derive(Debug, Clone, Serialize)]
-struct Figure6 {
-    segment_start: usize,
-    /// θ of the dead reckoning (θ_B,F).
-    theta: Theta,
-    /// RMS of measured − true wheel rotations, rev/s (simulated drives).
-    rms_measured_input_error_rev_per_s: Option<f64>,
-    /// RMS of compensated − true wheel rotations, rev/s.
-    rms_compensated_input_error_rev_per_s: Option<f64>,
-    /// Mean position error of dead reckoning with measured inputs, m.
-    mean_position_error_measured_m: f64,
-    /// Mean position error of dead reckoning with compensated inputs, m.
-    mean_position_error_compensated_m: f64,
-}
-
+/// Wall time, s: the library's stages plus simulation and figures.
 #[derive(Debug, Clone, Default, Serialize)]
-struct ExperimentTiming {
+struct Timing {
     simulate: f64,
-    calibrate: f64,
-    per_segment: f64,
-    compensated_batches: f64,
-    reachable_minimum: f64,
+    #[serde(flatten)]
+    stages: ExperimentTiming,
     figures: f64,
     total: f64,
 }
 
-#[derive(Debug, Clone, Serialize)]
-struct ReachableSummary {
-    #[serde(flatten)]
-    scored: Scored,
-    evaluations: usize,
-    time_s: f64,
-    termination: String,
-}
-
-/// Every number of the report.
-#[derive(Debug, Clone, Serialize)]
-struct Experiment {
+/// What the command adds to the library's numbers.
+struct Outputs {
     drive: DriveInfo,
-    segments: SegmentCounts,
-    qp_solver: String,
-    truth: Option<Scored>,
-    nominal: Scored,
-    initial_guess: Scored,
-    batch_size: usize,
-    batches: Vec<BatchRow>,
-    picked_batches: Vec<usize>,
-    picked: Vec<Scored>,
-    final_estimate: Scored,
-    final_identification: String,
-    reachable_minimum: ReachableSummary,
-    table1: Table1,
-    per_segment: Vec<SegmentRow>,
-    summary_batches_raw: Summary,
-    summary_batches_compensated: Summary,
-    summary_segments_raw: Summary,
-    summary_segments_compensated: Summary,
-    compensation: CompensationStep,
-    figure6: Figure6,
     figures: Vec<String>,
-    warnings: Vec<String>,
-    timing_s: ExperimentTiming,
-}
-
-fn diff(a: &Theta, b: &Theta) -> Theta {
-    Theta { c_e: a.c_e - b.c_e, c_d: a.c_d - b.c_d, t_r: a.t_r - b.t_r, d: a.d - b.d }
-}
-
-fn median(v: &mut [f64]) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
-
-fn summarize<'a>(items: impl Iterator<Item = &'a Scored>) -> Summary {
-    let items: Vec<&Scored> = items.collect();
-    let mut e: Vec<f64> = items.iter().map(|s| s.mean_position_error_m).collect();
-    let med = median(&mut e);
-    let err = if items.iter().all(|s| s.error_vs_true.is_some()) && !items.is_empty() {
-        let col = |f: fn(&Theta) -> f64| {
-            let mut v: Vec<f64> = items.iter().filter_map(|s| s.error_vs_true.as_ref().map(|t| f(t).abs())).collect();
-            median(&mut v)
-        };
-        Some(Theta { c_e: col(|t| t.c_e), c_d: col(|t| t.c_d), t_r: col(|t| t.t_r), d: col(|t| t.d) })
-    } else {
-        None
-    };
-    Summary {
-        count: items.len(),
-        min_mean_position_error_m: e.first().copied().unwrap_or(f64::NAN),
-        median_mean_position_error_m: med,
-        max_mean_position_error_m: e.last().copied().unwrap_or(f64::NAN),
-        median_abs_error_vs_true: err,
-    }
+    timing: Timing,
 }
 
 /// Runs the experiment.
 pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
     let t_total = Instant::now();
-    let mut timing = ExperimentTiming::default();
+    let mut timing = Timing::default();
     if a.batches == 0 {
         bail!("--batches must be at least 1");
     }
@@ -211,7 +70,7 @@ pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
                 source: path.display().to_string(),
                 samples: drive.len(),
                 distance_km: drive.distance_m() / 1e3,
-                sample_time_s: drive.sample_time_s,
+                sample_time_s: drive.sample_time_s(),
                 seed: sidecar.as_ref().map(|s| s.settings.seed),
                 noise: None,
                 wheel_rotation_rel_error_rms: sidecar.as_ref().map(|s| s.stats.wheel_rotation_rel_error_rms),
@@ -229,7 +88,7 @@ pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
                 source: format!("simulated (seed {}, {} km, noise '{}')", a.seed, a.length_km, a.noise),
                 samples: s.samples,
                 distance_km: s.distance_m / 1e3,
-                sample_time_s: out.drive.sample_time_s,
+                sample_time_s: out.drive.sample_time_s(),
                 seed: Some(a.seed),
                 noise: Some(a.noise.clone()),
                 wheel_rotation_rel_error_rms: Some(s.wheel_rotation_rel_error_rms),
@@ -239,182 +98,39 @@ pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
     };
     timing.simulate = t.elapsed().as_secs_f64();
 
-    // The 3-step calibration (steps 1–3), keeping the compensated inputs.
-    let t = Instant::now();
-    let opts =
-        CalibrationOptions { seed: a.seed, qp_solver: a.qp_solver, initial_batches: a.batches, ..Default::default() };
+    let method = Method::ThreeStep(ThreeStepOptions {
+        initial_batches: a.batches,
+        qp: QpOptions { solver: a.qp_solver, ..Default::default() },
+        ..Default::default()
+    });
+    let calibration = CalibrationOptions { method, seed: a.seed, ..Default::default() };
+    let reachable = ReachableOptions { seed: a.seed, ..ReachableOptions::around(&calibration.theta0) };
     let cb = |e| bars.event(e);
-    let det: DetailedCalibration = calibrate_detailed(&drive, None, &opts, Some(&cb))?;
+    let exp = experiment::run(&drive, theta_true.as_ref(), &ExperimentOptions { calibration, reachable }, Some(&cb))?;
     bars.finish();
-    timing.calibrate = t.elapsed().as_secs_f64();
-    let r = &det.report;
-    let (init, comp) = match (&r.initial_step, &det.compensated) {
-        (Some(i), Some(c)) => (i, c),
-        _ => bail!("the 3-step calibration returned no step 1/2 results"),
-    };
-    let validation = &det.validation;
-    let score = |theta: &Theta| -> Result<Scored> {
-        let v = mean_position_error(&drive, validation, theta)?;
-        Ok(Scored {
-            theta: *theta,
-            mean_position_error_m: v.mean_position_error_m,
-            error_vs_true: theta_true.as_ref().map(|t| diff(theta, t)),
-        })
-    };
-    let of = |b: &BatchResult| Scored {
-        theta: b.score.theta,
-        mean_position_error_m: b.score.mean_position_error_m,
-        error_vs_true: theta_true.as_ref().map(|t| diff(&b.score.theta, t)),
-    };
-
-    // Per-segment G-N, raw and compensated.
-    let t = Instant::now();
-    bars.stage("per-segment G-N");
-    let raw_data: Vec<SegmentData> = det.selected.iter().map(|s| SegmentData::new(&drive, s)).collect();
-    let comp_data = comp.segment_data(&drive);
-    let raw_seg = per_segment_identification(&drive, &raw_data, validation, &opts.theta0, &opts.identify);
-    let comp_seg = per_segment_identification(&drive, &comp_data, validation, &opts.theta0, &opts.identify);
-    let comp_index = |start: usize| comp.segments.iter().position(|s| s.start == start);
-    let per_segment: Vec<SegmentRow> = det
-        .selected
-        .iter()
-        .zip(&raw_seg)
-        .map(|(s, rr)| SegmentRow {
-            start: s.start,
-            peak_yaw_rate_rad_per_s: s.peak_yaw_rate_rad_per_s,
-            raw: rr.as_ref().ok().map(of),
-            compensated: comp_index(s.start).and_then(|i| comp_seg[i].as_ref().ok().map(of)),
-        })
-        .collect();
-    bars.finish();
-    timing.per_segment = t.elapsed().as_secs_f64();
-
-    // The step-1 batches again, with compensated inputs.
-    let t = Instant::now();
-    let comp_batches: Vec<Vec<usize>> =
-        init.batches.iter().map(|b| b.segment_starts.iter().filter_map(|&s| comp_index(s)).collect()).collect();
-    let comp_results = score_batches(&drive, &comp_data, &comp_batches, validation, &opts.theta0, &opts.identify, None);
-    let batches: Vec<BatchRow> = init
-        .batches
-        .iter()
-        .zip(&comp_results)
-        .zip(&comp_batches)
-        .map(|((b, c), cb)| BatchRow {
-            segment_starts: b.segment_starts.clone(),
-            raw: of(b),
-            compensated: if cb.is_empty() { None } else { c.as_ref().ok().map(of) },
-            compensated_segments: cb.len(),
-        })
-        .collect();
-    timing.compensated_batches = t.elapsed().as_secs_f64();
-
-    // Reference points: truth, θ_nom, θ_0, θ_B,F and the reachable minimum.
-    let truth = theta_true.as_ref().map(&score).transpose()?;
-    let nominal = score(&Theta::PAPER_NOMINAL)?;
-    let initial_guess = score(&opts.theta0)?;
-    let final_estimate = score(&r.theta)?;
-    let picked: Vec<Scored> = init.picked_batches.iter().map(|&i| of(&init.batches[i])).collect();
-    let t = Instant::now();
-    let mut starts: Vec<Theta> = picked.iter().map(|p| p.theta).collect();
-    starts.push(r.theta);
-    let ro = ReachableOptions { seed: a.seed, starts, ..ReachableOptions::around(&opts.theta0) };
-    bars.stage("reachable minimum");
-    let rm = reachable_minimum(&drive, validation, &ro)?;
-    bars.finish();
-    timing.reachable_minimum = t.elapsed().as_secs_f64();
-    let reach = ReachableSummary {
-        scored: Scored {
-            theta: rm.theta,
-            mean_position_error_m: rm.mean_position_error_m,
-            error_vs_true: theta_true.as_ref().map(|t| diff(&rm.theta, t)),
-        },
-        evaluations: rm.evaluations,
-        time_s: rm.time_s,
-        termination: rm.termination.clone(),
-    };
-
-    // Table 1: the compensated segment turning hardest, and the middle picked batch.
-    let seg_i = (0..comp.segments.len())
-        .filter(|&i| comp_seg[i].is_ok())
-        .max_by(|&x, &y| comp.segments[x].peak_yaw_rate_rad_per_s.total_cmp(&comp.segments[y].peak_yaw_rate_rad_per_s))
-        .context("no compensated segment could be identified on its own")?;
-    let seg = comp.segments[seg_i];
-    let raw_i = det.selected.iter().position(|s| s.start == seg.start).context("segment not among the selected")?;
-    let batch_index = init
-        .picked_batches
-        .get(init.picked_batches.len() / 2)
-        .copied()
-        .filter(|&i| batches[i].compensated.is_some())
-        .or_else(|| batches.iter().position(|b| b.compensated.is_some()))
-        .context("no batch could be identified with compensated inputs")?;
-    let table1 = Table1 {
-        segment_start: seg.start,
-        segment_raw: raw_seg[raw_i].as_ref().map(of).map_err(|e| anyhow::anyhow!("{e}"))?,
-        segment_compensated: comp_seg[seg_i].as_ref().map(of).map_err(|e| anyhow::anyhow!("{e}"))?,
-        batch_index,
-        batch_starts: batches[batch_index].segment_starts.clone(),
-        batch_raw: batches[batch_index].raw,
-        batch_compensated: batches[batch_index].compensated.context("batch without compensated result")?,
-    };
-
-    // Figure 6 numbers: the Table 1 segment, dead reckoning at θ_B,F.
-    let fig6 = figure6_data(&drive, &comp_data[seg_i], &raw_data[raw_i], &r.theta);
-
-    let summary_batches_raw = summarize(batches.iter().map(|b| &b.raw));
-    let summary_batches_compensated = summarize(batches.iter().filter_map(|b| b.compensated.as_ref()));
-    let summary_segments_raw = summarize(per_segment.iter().filter_map(|s| s.raw.as_ref()));
-    let summary_segments_compensated = summarize(per_segment.iter().filter_map(|s| s.compensated.as_ref()));
-
-    let mut exp = Experiment {
-        drive: info,
-        segments: r.segments,
-        qp_solver: a.qp_solver.to_string(),
-        truth,
-        nominal,
-        initial_guess,
-        batch_size: opts.initial_batch_size,
-        batches,
-        picked_batches: init.picked_batches.clone(),
-        picked,
-        final_estimate,
-        final_identification: format!(
-            "{} segments, {} iterations, {}, rcond {:.2e}",
-            r.identification.segments,
-            r.identification.iterations,
-            r.identification.termination,
-            r.identification.observability.rcond
-        ),
-        reachable_minimum: reach,
-        table1,
-        per_segment,
-        summary_batches_raw,
-        summary_batches_compensated,
-        summary_segments_raw,
-        summary_segments_compensated,
-        compensation: comp.step.clone(),
-        figure6: fig6.numbers,
-        figures: Vec::new(),
-        warnings: r.warnings.clone(),
-        timing_s: timing,
-    };
+    timing.stages = exp.timing_s.clone();
 
     let t = Instant::now();
-    exp.figures = write_figures(&a.out, &exp, &fig6.curves)?;
-    exp.timing_s.figures = t.elapsed().as_secs_f64();
-    exp.timing_s.total = t_total.elapsed().as_secs_f64();
+    let figures = write_figures(&a.out, &exp, &exp.figure6_curves)?;
+    timing.figures = t.elapsed().as_secs_f64();
+    timing.total = t_total.elapsed().as_secs_f64();
+    let outputs = Outputs { drive: info, figures, timing };
 
     let json_path = a.out.join("experiment.json");
-    let text = serde_json::to_string_pretty(&exp)?;
+    let mut json = serde_json::to_value(&exp)?;
+    if let Some(obj) = json.as_object_mut() {
+        obj.insert("schema_version".into(), odocal::REPORT_SCHEMA_VERSION.into());
+        obj.insert("drive".into(), serde_json::to_value(&outputs.drive)?);
+        obj.insert("figures".into(), serde_json::to_value(&outputs.figures)?);
+        obj.insert("timing_s".into(), serde_json::to_value(&outputs.timing)?);
+    }
+    let text = serde_json::to_string_pretty(&json)?;
     std::fs::write(&json_path, text + "\n").with_context(|| format!("writing {}", json_path.display()))?;
     let md_path = a.out.join("report.md");
-    std::fs::write(&md_path, report_md(&exp)).with_context(|| format!("writing {}", md_path.display()))?;
+    std::fs::write(&md_path, report_md(&exp, &outputs)).with_context(|| format!("writing {}", md_path.display()))?;
 
-    const SHOWN_WARNINGS: usize = 3;
-    for w in exp.warnings.iter().take(SHOWN_WARNINGS) {
-        eprintln!("warning: {w}");
-    }
-    if exp.warnings.len() > SHOWN_WARNINGS {
-        eprintln!("warning: … and {} more (listed in {})", exp.warnings.len() - SHOWN_WARNINGS, md_path.display());
+    for l in odocal::warning::summarize(&exp.warnings, SHOWN_WARNINGS) {
+        eprintln!("warning: {l}");
     }
     println!(
         "θ_B,F Ē_p {:.3} m; reachable minimum {:.3} m; θ_nom {:.3} m{}",
@@ -423,75 +139,12 @@ pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
         exp.nominal.mean_position_error_m,
         exp.truth.map(|t| format!("; θ_true {:.3} m", t.mean_position_error_m)).unwrap_or_default()
     );
-    println!("wrote {} and {} ({:.1} s)", md_path.display(), json_path.display(), exp.timing_s.total);
+    println!("wrote {} and {} ({:.1} s)", md_path.display(), json_path.display(), outputs.timing.total);
     Ok(())
 }
 
-/// Curves of Fig. 6 (time in s from the segment start).
-struct Fig6Curves {
-    n_rl_measured: Vec<(f64, f64)>,
-    n_rl_compensated: Vec<(f64, f64)>,
-    n_rl_true: Option<Vec<(f64, f64)>>,
-    n_rr_measured: Vec<(f64, f64)>,
-    n_rr_compensated: Vec<(f64, f64)>,
-    n_rr_true: Option<Vec<(f64, f64)>>,
-    pos_err_measured: Vec<(f64, f64)>,
-    pos_err_compensated: Vec<(f64, f64)>,
-}
-
-struct Fig6 {
-    numbers: Figure6,
-    curves: Fig6Curves,
-}
-
-/// Position error along a segment of dead reckoning at θ with the segment's inputs.
-fn position_errors(seg: &SegmentData<'_>, theta: &Theta) -> Vec<(f64, f64)> {
-    let mut x = seg.reference(0);
-    (0..seg.steps())
-        .map(|k| {
-            x = step(&x, &seg.input(k), theta, seg.sample_time_s);
-            ((k + 1) as f64 * seg.sample_time_s, (seg.px[k + 1] - x[0]).hypot(seg.py[k + 1] - x[1]))
-        })
-        .collect()
-}
-
-fn figure6_data(drive: &Drive, comp: &SegmentData<'_>, raw: &SegmentData<'_>, theta: &Theta) -> Fig6 {
-    let ts = drive.sample_time_s;
-    let series = |v: &[f64]| -> Vec<(f64, f64)> { v.iter().enumerate().map(|(k, &n)| (k as f64 * ts, n)).collect() };
-    let (a, k) = (raw.start, raw.steps());
-    let truth = drive.truth.as_ref().filter(|t| t.n_rl.len() >= a + k);
-    let rms = |x: &[f64], y: &[f64], tx: &[f64], ty: &[f64]| {
-        let s: f64 = (0..x.len()).map(|i| (x[i] - tx[i]).powi(2) + (y[i] - ty[i]).powi(2)).sum();
-        (s / (2 * x.len()) as f64).sqrt()
-    };
-    let (tl, tr) = match truth {
-        Some(t) => (Some(&t.n_rl[a..a + k]), Some(&t.n_rr[a..a + k])),
-        None => (None, None),
-    };
-    let pm = position_errors(raw, theta);
-    let pc = position_errors(comp, theta);
-    let mean = |v: &[(f64, f64)]| v.iter().map(|p| p.1).sum::<f64>() / v.len().max(1) as f64;
-    Fig6 {
-        numbers: Figure6 {
-            segment_start: a,
-            theta: *theta,
-            rms_measured_input_error_rev_per_s: tl.zip(tr).map(|(l, r)| rms(raw.n_rl, raw.n_rr, l, r)),
-            rms_compensated_input_error_rev_per_s: tl.zip(tr).map(|(l, r)| rms(comp.n_rl, comp.n_rr, l, r)),
-            mean_position_error_measured_m: mean(&pm),
-            mean_position_error_compensated_m: mean(&pc),
-        },
-        curves: Fig6Curves {
-            n_rl_measured: series(raw.n_rl),
-            n_rl_compensated: series(comp.n_rl),
-            n_rl_true: tl.map(series),
-            n_rr_measured: series(raw.n_rr),
-            n_rr_compensated: series(comp.n_rr),
-            n_rr_true: tr.map(series),
-            pos_err_measured: pm,
-            pos_err_compensated: pc,
-        },
-    }
-}
+/// Warnings of one kind printed on stderr (report.md lists all).
+const SHOWN_WARNINGS: usize = 3;
 
 /// Parameter accessors with plot units (c_d and d in mm).
 /// A parameter's name, plot unit and value in that unit.
@@ -504,7 +157,7 @@ const PARAMS: [Param; 4] = [
     ("d", "mm/(m/s²)", |t| t.d * 1e3),
 ];
 
-fn write_figures(dir: &Path, e: &Experiment, c: &Fig6Curves) -> Result<Vec<String>> {
+fn write_figures(dir: &Path, e: &Experiment, c: &Figure6Curves) -> Result<Vec<String>> {
     let mut names = Vec::new();
     let truth_line = |y: f64| HLine { name: "θ_true".into(), y, color: plots::GREEN };
     let ep_lines = || {
@@ -772,18 +425,18 @@ fn summary_row(out: &mut String, name: &str, s: &Summary) {
     );
 }
 
-fn report_md(e: &Experiment) -> String {
+fn report_md(e: &Experiment, out: &Outputs) -> String {
     let mut o = String::new();
     let e_min = e.reachable_minimum.scored.mean_position_error_m;
     let _ = writeln!(o, "# odocal experiment — the paper's §6 on one drive\n");
     let _ = writeln!(
         o,
         "Drive: {} — {} samples, {:.2} km, t_s = {} s{}.  \nSegments: {} cut, {} selected, {} validation. QP solver: {}.\n",
-        e.drive.source,
-        e.drive.samples,
-        e.drive.distance_km,
-        e.drive.sample_time_s,
-        e.drive.wheel_rotation_rel_error_rms.map(|w| format!(", wheel error {:.2} % rms", w * 100.0)).unwrap_or_default(),
+        out.drive.source,
+        out.drive.samples,
+        out.drive.distance_km,
+        out.drive.sample_time_s,
+        out.drive.wheel_rotation_rel_error_rms.map(|w| format!(", wheel error {:.2} % rms", w * 100.0)).unwrap_or_default(),
         e.segments.cut,
         e.segments.selected,
         e.segments.validation,
@@ -885,7 +538,7 @@ fn report_md(e: &Experiment) -> String {
         "Fig. 7 — per-segment θ, raw vs compensated inputs",
         "Fig. 8 — per-segment and per-batch Ē_p, raw vs compensated inputs",
     ];
-    for (cap, file) in captions.iter().zip(&e.figures) {
+    for (cap, file) in captions.iter().zip(&out.figures) {
         let _ = writeln!(o, "### {cap}\n\n![{cap}]({file})\n");
     }
     if !e.warnings.is_empty() {
@@ -895,11 +548,17 @@ fn report_md(e: &Experiment) -> String {
         }
         o.push('\n');
     }
-    let t = &e.timing_s;
+    let (t, st) = (&out.timing, &out.timing.stages);
     let _ = writeln!(
         o,
         "## Timing\n\n{:.1} s total: simulate {:.1}, calibrate {:.1}, per-segment {:.1}, compensated batches {:.1}, reachable minimum {:.1}, figures {:.1}.",
-        t.total, t.simulate, t.calibrate, t.per_segment, t.compensated_batches, t.reachable_minimum, t.figures
+        t.total,
+        t.simulate,
+        st.calibrate,
+        st.per_segment,
+        st.compensated_batches,
+        st.reachable_minimum,
+        t.figures
     );
     o
 }

@@ -9,10 +9,12 @@ use std::process::ExitCode;
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
-use odocal::pipeline::{CalibrationOptions, CalibrationReport, FinalSegments, Method};
-use odocal::qp::SolverKind;
+use odocal::drive::ExtraColumn;
 use odocal::sim::{self, NoiseOptions, SimOptions, SimSidecar};
-use odocal::{segment, Drive, Theta};
+use odocal::{
+    segment, CalibrationOptions, CalibrationReport, Drive, FinalSegments, Holdout, Method, ParamSet, QpOptions,
+    SolverKind, Theta, ThreeStepOptions, Warning,
+};
 
 mod experiment;
 mod plots;
@@ -87,21 +89,21 @@ struct SimulateArgs {
 
 #[derive(Args, Clone)]
 struct CalibrationArgs {
-    /// Calibration method.
+    /// Calibration method: three-step or batch-gn.
     #[arg(long, default_value = "three-step")]
     method: Method,
     /// Seed of the random batches.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// QP solver for input compensation: structured or clarabel.
-    #[arg(long, default_value = "structured")]
-    qp_solver: SolverKind,
+    /// Three-step: QP solver for input compensation, structured (default) or clarabel.
+    #[arg(long)]
+    qp_solver: Option<SolverKind>,
     /// Initial guess θ_0 as c_e,c_d,t_r,d (SI).
     #[arg(long, allow_hyphen_values = true)]
     theta0: Option<Theta>,
     /// Parameters held fixed at θ_0, comma separated (e.g. c_d,t_r,d).
-    #[arg(long, value_delimiter = ',')]
-    fix: Vec<String>,
+    #[arg(long)]
+    fix: Option<ParamSet>,
     /// Minimum peak yaw rate for a segment to be selected, rad/s.
     #[arg(long)]
     min_yaw_rate: Option<f64>,
@@ -114,25 +116,25 @@ struct CalibrationArgs {
     /// Validation segment length K_v, samples.
     #[arg(long)]
     validation_length: Option<usize>,
-    /// Step 1: number of random batches.
+    /// Three-step, step 1: number of random batches.
     #[arg(long)]
     batches: Option<usize>,
-    /// Step 1: segments per batch.
+    /// Three-step, step 1: segments per batch.
     #[arg(long)]
     batch_size: Option<usize>,
-    /// Step 1: number of θ_B,I picked.
+    /// Three-step, step 1: number of θ_B,I picked.
     #[arg(long)]
     picks: Option<usize>,
-    /// Step 3: "all" selected segments or a number of random ones.
+    /// Three-step, step 3: "all" selected segments or a number of random ones.
     #[arg(long)]
-    final_segments: Option<String>,
+    final_segments: Option<FinalSegments>,
     /// Maximum Gauss-Newton iterations.
     #[arg(long)]
     max_iterations: Option<usize>,
     /// Hold out half of the drive (by time) for validation and calibrate on
     /// the other half: first-half or second-half (the half held out).
     #[arg(long)]
-    holdout: Option<Holdout>,
+    holdout: Option<HalfArg>,
     /// Validate on another drive of the same vehicle (CSV or manifest)
     /// instead of the calibration drive.
     #[arg(long, conflicts_with = "holdout")]
@@ -144,30 +146,70 @@ struct CalibrationArgs {
     auto_fix: bool,
 }
 
+/// The half of the drive `--holdout` holds out.
 #[derive(Clone, Copy, clap::ValueEnum)]
-enum Holdout {
+enum HalfArg {
     FirstHalf,
     SecondHalf,
 }
 
 impl CalibrationArgs {
+    /// The method with the flags that belong to it; a flag of another
+    /// method is an error (batch-gn would otherwise ignore it silently).
+    fn method(&self) -> Result<Method> {
+        let three_step_flags = [
+            ("--batches", self.batches.is_some()),
+            ("--batch-size", self.batch_size.is_some()),
+            ("--picks", self.picks.is_some()),
+            ("--final-segments", self.final_segments.is_some()),
+            ("--qp-solver", self.qp_solver.is_some()),
+        ];
+        Ok(match &self.method {
+            Method::ThreeStep(defaults) => {
+                let mut o: ThreeStepOptions = defaults.clone();
+                if let Some(v) = self.batches {
+                    o.initial_batches = v;
+                }
+                if let Some(v) = self.batch_size {
+                    o.initial_batch_size = v;
+                }
+                if let Some(v) = self.picks {
+                    o.picks = v;
+                }
+                if let Some(v) = self.final_segments {
+                    o.final_segments = v;
+                }
+                if let Some(v) = self.qp_solver {
+                    o.qp.solver = v;
+                }
+                Method::ThreeStep(o)
+            }
+            other => {
+                let given: Vec<&str> = three_step_flags.iter().filter(|f| f.1).map(|f| f.0).collect();
+                if !given.is_empty() {
+                    bail!(
+                        "{} appl{} to --method three-step only, not to --method {other}",
+                        given.join(", "),
+                        if given.len() == 1 { "ies" } else { "y" }
+                    );
+                }
+                other.clone()
+            }
+        })
+    }
+
     fn options(&self) -> Result<CalibrationOptions> {
         let mut o = CalibrationOptions {
-            method: self.method,
+            method: self.method()?,
             seed: self.seed,
-            qp_solver: self.qp_solver,
             auto_fix: self.auto_fix,
             ..Default::default()
         };
         if let Some(t) = self.theta0 {
             o.theta0 = t;
         }
-        for name in &self.fix {
-            let i = odocal::model::THETA_NAMES
-                .iter()
-                .position(|n| n == name)
-                .with_context(|| format!("--fix: unknown parameter '{name}' (use c_e, c_d, t_r, d)"))?;
-            o.identify.free[i] = false;
+        for p in self.fix.unwrap_or_default().iter() {
+            o.identify.free.remove(p);
         }
         if let Some(v) = self.min_yaw_rate {
             o.segments.min_peak_yaw_rate_rad_per_s = v;
@@ -181,24 +223,6 @@ impl CalibrationArgs {
         if let Some(v) = self.validation_length {
             o.validation.length_steps = v;
             o.validation.stride_steps = (v / 2).max(1);
-        }
-        if let Some(v) = self.batches {
-            o.initial_batches = v;
-        }
-        if let Some(v) = self.batch_size {
-            o.initial_batch_size = v;
-        }
-        if let Some(v) = self.picks {
-            o.picks = v;
-        }
-        if let Some(v) = &self.final_segments {
-            o.final_segments = if v == "all" {
-                FinalSegments::All
-            } else {
-                FinalSegments::Random(
-                    v.parse().with_context(|| format!("--final-segments: '{v}' is not 'all' or a number"))?,
-                )
-            };
         }
         if let Some(v) = self.max_iterations {
             o.identify.max_iterations = v;
@@ -349,7 +373,7 @@ fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>)> {
             "imported {}: {} samples in {} part(s), {:.2} km (run `odocal import` for the full import report)",
             path.display(),
             drive.len(),
-            drive.parts.len(),
+            drive.parts().len(),
             drive.distance_m() / 1e3
         );
     }
@@ -361,7 +385,7 @@ fn import_cmd(a: ImportArgs) -> Result<()> {
     let imported = odocal::import(&m)?;
     imported.drive.write_csv(&a.out)?;
     if let Some(p) = &a.json {
-        write_json(p, &serde_json::to_value(&imported.report)?)?;
+        write_json(p, serde_json::to_value(&imported.report)?)?;
         if p == Path::new("-") {
             return Ok(());
         }
@@ -377,8 +401,12 @@ fn load_truth(drive_path: &Path) -> Option<SimSidecar> {
     p.exists().then(|| SimSidecar::read_json(&p).ok()).flatten()
 }
 
-fn write_json(path: &Path, value: &serde_json::Value) -> Result<()> {
-    let text = serde_json::to_string_pretty(value)?;
+/// Writes a JSON report with its `schema_version` ("-": stdout).
+fn write_json(path: &Path, mut value: serde_json::Value) -> Result<()> {
+    if let Some(obj) = value.as_object_mut() {
+        obj.insert("schema_version".into(), odocal::REPORT_SCHEMA_VERSION.into());
+    }
+    let text = serde_json::to_string_pretty(&value)?;
     if path == Path::new("-") {
         println!("{text}");
     } else {
@@ -421,18 +449,21 @@ fn simulate_cmd(a: SimulateArgs, bars: &progress::Bars) -> Result<()> {
     Ok(())
 }
 
-/// Warnings to stderr, at most [`MAX_WARNINGS`] lines; the rest are in the JSON report.
-fn print_warnings(warnings: &[String]) {
-    for w in warnings.iter().take(MAX_WARNINGS) {
-        eprintln!("warning: {w}");
+/// Warnings to stderr, grouped by kind: at most [`WARNINGS_PER_KIND`] of
+/// each and a count of the rest (the JSON report lists all).
+fn print_warnings(warnings: &[Warning]) {
+    let lines = odocal::warning::summarize(warnings, WARNINGS_PER_KIND);
+    let collapsed = lines.iter().any(|l| l.starts_with('…'));
+    for l in lines {
+        eprintln!("warning: {l}");
     }
-    if warnings.len() > MAX_WARNINGS {
-        eprintln!("warning: … and {} more (the --json report of calibrate lists all)", warnings.len() - MAX_WARNINGS);
+    if collapsed {
+        eprintln!("warning: (the --json report lists every warning)");
     }
 }
 
-/// Warning lines printed before the rest are summarised.
-const MAX_WARNINGS: usize = 5;
+/// Warnings of one kind printed before the rest are counted.
+const WARNINGS_PER_KIND: usize = 3;
 
 fn report_json(
     r: &CalibrationReport,
@@ -440,6 +471,7 @@ fn report_json(
     wheel_scale: Option<&str>,
 ) -> Result<serde_json::Value> {
     let mut v = serde_json::to_value(r)?;
+    // The `method` of the report (SPEC §9) is the name; its settings are in `options.method`.
     if let (Some((t, e)), Some(obj)) = (truth, v.as_object_mut()) {
         obj.insert("truth".into(), serde_json::json!({"theta": t, "mean_position_error_m": e}));
     }
@@ -455,8 +487,8 @@ fn c_e_only_command(path: &Path, args: &CalibrationArgs) -> String {
     let mut cmd = format!("odocal calibrate {} --method {}", path.display(), args.method);
     if let Some(h) = args.holdout {
         cmd.push_str(match h {
-            Holdout::FirstHalf => " --holdout first-half",
-            Holdout::SecondHalf => " --holdout second-half",
+            HalfArg::FirstHalf => " --holdout first-half",
+            HalfArg::SecondHalf => " --holdout second-half",
         });
     }
     cmd.push_str(" --fix c_d,t_r,d --min-yaw-rate 0");
@@ -473,29 +505,21 @@ fn run_calibration(
 ) -> Result<()> {
     let opts = args.options()?;
     let cb = |e| bars.event(e);
-    // The halves are copies only when a hold-out is asked for.
-    let halves = match args.holdout {
-        None => None,
-        Some(h) => {
-            let (t0, t1) = (drive.t[0], drive.t[drive.len() - 1] + drive.sample_time_s);
-            let mid = 0.5 * (t0 + t1);
-            let (a, b) = (drive.window(t0, mid)?, drive.window(mid, t1)?);
-            Some(match h {
-                Holdout::FirstHalf => (b, a),
-                Holdout::SecondHalf => (a, b),
-            })
+    let holdout = match (args.holdout, &args.validate_on) {
+        (Some(HalfArg::FirstHalf), _) => Some(Holdout::FirstHalf),
+        (Some(HalfArg::SecondHalf), _) => Some(Holdout::SecondHalf),
+        (None, Some(p)) => {
+            Some(Holdout::Other(load_drive(p).with_context(|| format!("--validate-on {}", p.display()))?))
         }
+        (None, None) => None,
     };
-    let other = match &args.validate_on {
-        Some(p) => Some(load_drive(p).with_context(|| format!("--validate-on {}", p.display()))?),
-        None => None,
+    // The halves are copies only when a hold-out is asked for.
+    let split = holdout.as_ref().map(|h| h.split(drive)).transpose()?;
+    let (fit, held) = match &split {
+        Some((fit, held)) => (fit.as_ref(), Some(held.as_ref())),
+        None => (drive, None),
     };
-    let (fit, held) = match (&halves, &other) {
-        (Some((fit, held)), _) => (fit, Some(held)),
-        (None, Some(other)) => (drive, Some(other)),
-        (None, None) => (drive, None),
-    };
-    let r = match odocal::pipeline::calibrate_held_out(fit, held, &opts, Some(&cb)) {
+    let r = match odocal::calibrate_held_out(fit, held, &opts, Some(&cb)) {
         Ok(r) => r,
         Err(e @ odocal::Error::NotObservable { .. }) => {
             bars.finish();
@@ -520,7 +544,7 @@ fn run_calibration(
     let truth_ref = truth.as_ref().map(|(t, e)| (t, *e));
     print_warnings(&r.warnings);
     if let Some(p) = json {
-        write_json(p, &report_json(&r, truth_ref, wheel_scale)?)?;
+        write_json(p, report_json(&r, truth_ref, wheel_scale)?)?;
         if p == Path::new("-") {
             return Ok(());
         }
@@ -562,45 +586,32 @@ fn demo_cmd(a: DemoArgs, bars: &progress::Bars) -> Result<()> {
 
 fn validate_cmd(a: ValidateArgs, bars: &progress::Bars) -> Result<()> {
     let drive = load_drive(&a.drive)?;
-    let mut vo = segment::ValidationSegmentOptions::default();
+    let mut opts = odocal::ValidateOptions::default();
     if let Some(v) = a.validation_length {
-        vo.length_steps = v;
-        vo.stride_steps = (v / 2).max(1);
+        opts.segments.length_steps = v;
+        opts.segments.stride_steps = (v / 2).max(1);
     }
-    let segs = segment::validation_segments(&drive, &vo)?;
-    let r = odocal::mean_position_error(&drive, &segs, &a.theta)?;
-    let mut v = serde_json::json!({
-        "theta": r.theta,
-        "mean_position_error_m": r.mean_position_error_m,
-        "segments": r.segments,
-        "per_segment_m": r.per_segment_m,
-    });
-    let reach = if a.reachable_minimum {
+    if a.reachable_minimum {
         let centre = a.theta0.unwrap_or(Theta::PAPER_INITIAL);
-        let opts = odocal::ReachableOptions {
+        opts.reachable = Some(odocal::ReachableOptions {
             seed: a.seed,
             starts: vec![a.theta],
             ..odocal::ReachableOptions::around(&centre)
-        };
+        });
         bars.stage("reachable minimum");
-        let rm = odocal::reachable_minimum(&drive, &segs, &opts)?;
-        bars.finish();
-        if let Some(obj) = v.as_object_mut() {
-            obj.insert("reachable_minimum".into(), serde_json::to_value(&rm)?);
-        }
-        Some(rm)
-    } else {
-        None
-    };
+    }
+    let report = odocal::validate(&drive, &a.theta, &opts)?;
+    bars.finish();
     if let Some(p) = &a.json {
-        write_json(p, &v)?;
+        write_json(p, serde_json::to_value(&report)?)?;
         if p == Path::new("-") {
             return Ok(());
         }
     }
+    let r = &report.validation;
     println!("θ: {}", a.theta);
     println!("mean position error Ē_p: {:.4} m over {} validation segments", r.mean_position_error_m, r.segments);
-    if let Some(rm) = reach {
+    if let Some(rm) = &report.reachable_minimum {
         println!(
             "reachable minimum: Ē_p {:.4} m at θ = {} ({} evaluations, {:.1} s)",
             rm.mean_position_error_m, rm.theta, rm.evaluations, rm.time_s
@@ -610,7 +621,7 @@ fn validate_cmd(a: ValidateArgs, bars: &progress::Bars) -> Result<()> {
 }
 
 fn compensate_cmd(a: CompensateArgs, bars: &progress::Bars) -> Result<()> {
-    let mut drive = load_drive(&a.drive)?;
+    let drive = load_drive(&a.drive)?;
     if a.segment_length < 2 {
         bail!("--segment-length must be at least 2");
     }
@@ -619,26 +630,26 @@ fn compensate_cmd(a: CompensateArgs, bars: &progress::Bars) -> Result<()> {
         bail!("{}: too short for one segment of {} steps", a.drive.display(), a.segment_length);
     }
     let cb = |e| bars.event(e);
-    let comp = odocal::pipeline::compensate_segments(
+    let comp = odocal::compensate::compensate_segments(
         &drive,
         &segs,
         &[a.theta],
-        &odocal::compensate::CompensateOptions::default(),
-        a.qp_solver,
+        &odocal::CompensateOptions::default(),
+        &QpOptions { solver: a.qp_solver, ..Default::default() },
         Some(&cb),
     )?;
     bars.finish();
     print_warnings(&comp.warnings);
-    let (mut c_rl, mut c_rr, mut flag) = (drive.n_rl.clone(), drive.n_rr.clone(), vec![0.0; drive.len()]);
+    let (mut c_rl, mut c_rr, mut flag) = (drive.n_rl().to_vec(), drive.n_rr().to_vec(), vec![0.0; drive.len()]);
     for (i, s) in comp.segments.iter().enumerate() {
         c_rl[s.start..s.start + s.steps].copy_from_slice(&comp.n_rl[i]);
         c_rr[s.start..s.start + s.steps].copy_from_slice(&comp.n_rr[i]);
         flag[s.start..s.start + s.steps].fill(1.0);
     }
-    drive.extra.retain(|(n, _)| n != "n_rl_comp" && n != "n_rr_comp" && n != "compensated");
-    drive.extra.push(("n_rl_comp".into(), c_rl));
-    drive.extra.push(("n_rr_comp".into(), c_rr));
-    drive.extra.push(("compensated".into(), flag));
+    let drive = drive
+        .with_extra(ExtraColumn::numbers("n_rl_comp", c_rl))?
+        .with_extra(ExtraColumn::numbers("n_rr_comp", c_rr))?
+        .with_extra(ExtraColumn::numbers("compensated", flag))?;
     drive.write_csv(&a.out)?;
     println!(
         "wrote {}: {} of {} segments compensated ({} QP solves, rms input change {:.3} %)",

@@ -3,7 +3,7 @@
 use std::sync::Mutex;
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use odocal::pipeline::Progress;
+use odocal::Progress;
 
 /// A progress display fed by the library's progress events.
 pub struct Bars {

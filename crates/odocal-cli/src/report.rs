@@ -2,8 +2,7 @@
 
 use std::fmt::Write as _;
 
-use odocal::pipeline::CalibrationReport;
-use odocal::Theta;
+use odocal::{CalibrationReport, Method, Theta};
 
 fn row(out: &mut String, name: &str, unit: &str, values: &[Option<f64>], scale: f64, prec: usize) {
     let _ = write!(out, "  {name:<4} {unit:<14}");
@@ -59,16 +58,16 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
         "segments: {} cut, {} selected (peak yaw rate > {} rad/s), {} validation",
         r.segments.cut, r.segments.selected, r.options.segments.min_peak_yaw_rate_rad_per_s, r.segments.validation
     );
-    if let Some(s) = &r.initial_step {
+    if let (Some(s), Method::ThreeStep(o)) = (r.initial_step(), &r.options.method) {
         let _ = writeln!(
             out,
             "step 1: {} batch G-N runs of {} segments; picked θ_B,I (Ē_p, m): {}",
             s.batches.len(),
-            r.options.initial_batch_size,
+            o.initial_batch_size,
             s.picked.iter().map(|p| format!("{:.3}", p.mean_position_error_m)).collect::<Vec<_>>().join(", ")
         );
     }
-    if let Some(c) = &r.compensation {
+    if let Some(c) = r.compensation() {
         let _ = writeln!(
             out,
             "step 2: {} segments compensated ({} QP jobs, {} failed, {} solves, {} by the Clarabel fallback, {:.1} solver it/solve, {}), rms input change {:.3} %",
@@ -82,25 +81,20 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
             c.rms_relative_input_change * 100.0
         );
     }
-    let id = &r.identification;
-    let _ = writeln!(
-        out,
-        "{}: {} segments, {} it, {}; rcond {:.2e}",
-        if r.initial_step.is_some() { "step 3" } else { "batch G-N" },
-        id.segments,
-        id.iterations,
-        id.termination,
-        id.observability.rcond
-    );
+    if let Some(id) = r.identification() {
+        let _ = writeln!(
+            out,
+            "{}: {} segments, {} it, {}; rcond {:.2e}",
+            if r.initial_step().is_some() { "step 3" } else { "batch G-N" },
+            id.segments,
+            id.iterations,
+            id.termination,
+            id.observability.rcond
+        );
+    }
     out.push('\n');
     let mut cols = vec![("θ_0", Some(r.initial.theta)), ("calibrated", Some(r.theta))];
-    let std: Theta = Theta {
-        c_e: id.covariance[0][0].sqrt(),
-        c_d: id.covariance[1][1].sqrt(),
-        t_r: id.covariance[2][2].sqrt(),
-        d: id.covariance[3][3].sqrt(),
-    };
-    cols.push(("± 1σ (model)", Some(std)));
+    cols.push(("± 1σ (model)", Some(r.std_dev())));
     if let Some((t, _)) = truth {
         cols.push(("truth", Some(*t)));
     }
@@ -109,11 +103,12 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
         let _ = writeln!(out, "  wheels: {w}");
     }
     if !r.auto_fixed.is_empty() {
-        let _ = writeln!(out, "  held at θ_0 (--auto-fix, not observable): {}", r.auto_fixed.join(", "));
+        let held: Vec<&str> = r.auto_fixed.iter().map(|p| p.name()).collect();
+        let _ = writeln!(out, "  held at θ_0 (--auto-fix, not observable): {}", held.join(", "));
     }
-    let unobs = &r.identification.observability.unobservable;
+    let unobs = r.observability.unobservable;
     if !unobs.is_empty() {
-        let _ = writeln!(out, "  NOT OBSERVABLE from these data (estimates not to be trusted): {}", unobs.join(", "));
+        let _ = writeln!(out, "  NOT OBSERVABLE from these data (estimates not to be trusted): {unobs}");
     }
     out.push('\n');
     let _ = writeln!(

@@ -267,3 +267,27 @@ fn validate_on_another_drive() {
     let o = odocal(&["calibrate", astr, "--validate-on", "/nonexistent.csv"]);
     assert_error(&o, &["--validate-on /nonexistent.csv", "No such file"]);
 }
+
+#[test]
+fn three_step_flags_are_rejected_with_batch_gn() {
+    let d = tempfile::tempdir().expect("tmp");
+    let p = write(d.path(), "d.csv", &good_rows(10));
+    let o = odocal(&["calibrate", p.to_str().expect("utf8"), "--method", "batch-gn", "--batches", "4"]);
+    assert_error(&o, &["--batches applies to --method three-step only, not to --method batch-gn"]);
+    let o = odocal(&[
+        "calibrate",
+        p.to_str().expect("utf8"),
+        "--method",
+        "batch-gn",
+        "--picks",
+        "3",
+        "--qp-solver",
+        "clarabel",
+    ]);
+    assert_error(&o, &["--picks, --qp-solver apply to --method three-step only"]);
+    let o = odocal(&["calibrate", p.to_str().expect("utf8"), "--method", "batchgn"]);
+    assert_eq!(o.status.code(), Some(2), "clap usage error: {}", stderr(&o));
+    assert!(stderr(&o).contains("invalid method 'batchgn': use three-step or batch-gn"), "{}", stderr(&o));
+    let o = odocal(&["calibrate", p.to_str().expect("utf8"), "--fix", "c_d,tr"]);
+    assert!(stderr(&o).contains("invalid parameter 'tr': use c_e, c_d, t_r or d"), "{}", stderr(&o));
+}

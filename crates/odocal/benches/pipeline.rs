@@ -15,11 +15,11 @@ use std::time::Duration;
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use odocal::identify::{batch_gauss_newton, batch_normal_equations, IdentifyOptions};
 use odocal::model::{step_jacobians, Input, State, Theta};
-use odocal::pipeline::{calibrate, CalibrationOptions};
 use odocal::segment::{
     calibration_segments, validation_segments, SegmentData, SegmentOptions, ValidationSegmentOptions,
 };
 use odocal::sim::{simulate, SimOptions};
+use odocal::{calibrate, CalibrationOptions};
 
 fn drive(km: f64) -> odocal::Drive {
     simulate(&SimOptions { length_km: km, ..SimOptions::paper(1) }).expect("simulate").drive

@@ -24,18 +24,20 @@ use std::error::Error;
 use std::fmt::Write as _;
 use std::time::Instant;
 
-use odocal::compensate::CompensateOptions;
+use odocal::calibrate::{calibrate_detailed, random_batches, score_batches};
+use odocal::compensate::{compensate_segments, CompensateOptions, CompensatedInputs, QpOptions};
 use odocal::identify::IdentifyOptions;
-use odocal::pipeline::{
-    calibrate_detailed, compensate_segments, random_batches, score_batches, CalibrationOptions, CompensatedInputs,
-};
 use odocal::qp::SolverKind;
 use odocal::segment::SegmentData;
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{mean_position_error, reachable_minimum, Drive, ReachableOptions, Segment, Theta};
+use odocal::{CalibrationOptions, Method, ThreeStepOptions};
 use serde::Serialize;
 
 type Res<T> = Result<T, Box<dyn Error>>;
+
+/// Mixed into a drive's seed to draw the random batches of the study.
+const RANDOM_BATCH_SEED_SALT: u64 = 0xa5;
 
 /// One estimate's errors: |Δθ| per parameter (SI) and Ē_p − Ē_p,min (m).
 #[derive(Debug, Clone, Copy, Serialize)]
@@ -136,22 +138,26 @@ fn study_drive(noise: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         simulate(&SimOptions { length_km: a.km, noise: NoiseOptions::by_name(noise)?, ..SimOptions::paper(seed) })?;
     let drive = &sim.drive;
     let truth = sim.sidecar.theta_true;
-    let opts = CalibrationOptions { seed, qp_solver: a.solver, ..Default::default() };
+    let qp = QpOptions { solver: a.solver, ..Default::default() };
+    let method = Method::ThreeStep(ThreeStepOptions { qp: qp.clone(), ..Default::default() });
+    let opts = CalibrationOptions { method, seed, ..Default::default() };
     let det = calibrate_detailed(drive, None, &opts, None)?;
     let (val, sel) = (&det.validation, &det.selected);
     let comp = det.compensated.as_ref().ok_or("3-step returned no compensated inputs")?;
-    let init = det.report.initial_step.as_ref().ok_or("3-step returned no step 1")?;
+    let init = det.report.initial_step().ok_or("3-step returned no step 1")?;
     let (theta0, id) = (opts.theta0, opts.identify.clone());
     let raw: Vec<SegmentData> = sel.iter().map(|s| SegmentData::new(drive, s)).collect();
     let cdata = comp.segment_data(drive);
 
     let mut estimates: Vec<(String, Vec<Theta>)> = Vec::new();
     for n in [5usize, 10] {
-        estimates
-            .push((format!("raw G-N, N = {n}"), runs(drive, &raw, Some(n), a.batches, seed ^ 0xa5, val, &theta0, &id)));
+        estimates.push((
+            format!("raw G-N, N = {n}"),
+            runs(drive, &raw, Some(n), a.batches, seed ^ RANDOM_BATCH_SEED_SALT, val, &theta0, &id),
+        ));
         estimates.push((
             format!("3-step, final N = {n}"),
-            runs(drive, &cdata, Some(n), a.batches, seed ^ 0xa5, val, &theta0, &id),
+            runs(drive, &cdata, Some(n), a.batches, seed ^ RANDOM_BATCH_SEED_SALT, val, &theta0, &id),
         ));
     }
     estimates.push(("raw G-N, all selected".into(), runs(drive, &raw, None, 1, 0, val, &theta0, &id)));
@@ -159,7 +165,7 @@ fn study_drive(noise: &str, seed: u64, a: &Args) -> Res<DriveResult> {
 
     // Step 2 + 3 with inputs compensated at one given θ.
     let comp_at = |theta: &Theta| -> Res<(Theta, CompensatedInputs)> {
-        let c = compensate_segments(drive, sel, &[*theta], &CompensateOptions::default(), a.solver, None)?;
+        let c = compensate_segments(drive, sel, &[*theta], &CompensateOptions::default(), &qp, None)?;
         let d = c.segment_data(drive);
         let t = runs(drive, &d, None, 1, 0, val, &theta0, &id).first().copied().ok_or("final G-N failed")?;
         Ok((t, c))

@@ -21,17 +21,66 @@
 //! model is re-linearized around the solution until the inputs change by
 //! less than a tolerance (at most 5 linearizations).
 //!
+//! [`compensate_segments`] runs step 2 of the 3-step method: every segment
+//! compensated once per θ_B,I (in parallel), the results averaged.
+//!
 //! ## References
 //! G. Fazekas, P. Gáspár, B. Németh, "Wheel Odometry Model Calibration with
 //! Input Compensation by Optimal Control", IFAC-PapersOnLine, 2022, §4.1.
 
 use nalgebra::{Vector2, Vector3};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::drive::Drive;
 use crate::error::{Error, Result};
 use crate::model::{step_jacobians, Input, Theta};
-use crate::qp::{QpError, QpSolution, QpSolver, StageQp};
-use crate::segment::SegmentData;
+use crate::progress::{Progress, ProgressFn};
+use crate::qp::clarabel::{ClarabelOptions, ClarabelSolver};
+use crate::qp::riccati::{StructuredOptions, StructuredSolver};
+use crate::qp::{QpError, QpSolution, QpSolver, SolverKind, StageQp};
+use crate::segment::{Segment, SegmentData};
+use crate::warning::Warning;
+
+/// Which QP solver compensation uses, and the settings of each.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct QpOptions {
+    /// The solver. Default structured (Riccati interior point).
+    pub solver: SolverKind,
+    /// Settings of the structured solver.
+    #[serde(default)]
+    pub structured: StructuredOptions,
+    /// Settings of Clarabel (the solver itself, or the structured solver's
+    /// fallback).
+    #[serde(default)]
+    pub clarabel: ClarabelOptions,
+}
+
+impl QpOptions {
+    /// Checks both solvers' settings.
+    pub fn validate(&self) -> Result<()> {
+        self.structured.validate()?;
+        self.clarabel.validate()?;
+        Ok(())
+    }
+
+    /// The configured solver.
+    pub fn primary(&self) -> Box<dyn QpSolver> {
+        match self.solver {
+            SolverKind::Structured => Box::new(StructuredSolver { options: self.structured.clone() }),
+            SolverKind::Clarabel => Box::new(ClarabelSolver { settings: self.clarabel.clone() }),
+        }
+    }
+
+    /// The fallback for QPs the primary solver does not finish: Clarabel
+    /// behind the structured solver, none behind Clarabel.
+    pub fn fallback(&self) -> Option<Box<dyn QpSolver>> {
+        match self.solver {
+            SolverKind::Structured => Some(Box::new(ClarabelSolver { settings: self.clarabel.clone() })),
+            SolverKind::Clarabel => None,
+        }
+    }
+}
 
 /// Options of the input-compensation QP.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -115,16 +164,35 @@ pub struct Compensation {
     pub input_change: Vec<f64>,
     /// True when the inputs settled within the tolerance.
     pub converged: bool,
-    /// One line per QP that the primary solver did not solve
+    /// Every QP that the primary solver did not solve
     /// ([`QpError::MaxIterations`] or [`QpError::Numerical`]) and the
-    /// fallback solver did: linearization, both solvers and the reason.
+    /// fallback solver did.
     #[serde(default)]
-    pub fallbacks: Vec<String>,
+    pub fallbacks: Vec<QpFallback>,
+}
+
+/// A QP solved by the fallback solver after the primary one stopped.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct QpFallback {
+    /// The linearization (1-based).
+    pub linearization: usize,
+    /// The primary solver.
+    pub solver: String,
+    /// The fallback solver.
+    pub fallback: String,
+    /// Why the primary solver stopped.
+    pub reason: QpError,
+}
+
+impl std::fmt::Display for QpFallback {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "linearization {}: {} → {}: {}", self.linearization, self.solver, self.fallback, self.reason)
+    }
 }
 
 /// Builds the deviation-variable QP of a segment linearized around the inputs
 /// `(n_rl_lin, n_rr_lin)` (K values each).
-pub fn build_qp(
+pub(crate) fn build_qp(
     seg: &SegmentData<'_>,
     theta: &Theta,
     n_rl_lin: &[f64],
@@ -213,24 +281,26 @@ pub fn compensate_segment_with_fallback(
     for _ in 0..opts.max_linearizations {
         let qp = build_qp(seg, theta, &n_rl, &n_rr, opts);
         let lin = out.linearizations + 1;
-        let fail = |name: &str, e: &QpError| {
-            Error::Qp(format!("segment at sample {} (linearization {lin}), solver {name}: {e}", seg.start))
+        let fail = |source: QpError, fallback: Option<(&'static str, QpError)>| Error::Compensation {
+            segment_start: seg.start,
+            linearization: lin,
+            solver: solver.name(),
+            source,
+            fallback,
         };
         let sol = match (solver.solve(&qp, warm.as_ref()), fallback) {
             (Ok(sol), _) => sol,
             (Err(e @ (QpError::MaxIterations { .. } | QpError::Numerical(_))), Some(fb)) => {
-                let sol = fb.solve(&qp, warm.as_ref()).map_err(|e2| {
-                    Error::Qp(format!(
-                        "segment at sample {} (linearization {lin}): solver {}: {e}; fallback {}: {e2}",
-                        seg.start,
-                        solver.name(),
-                        fb.name()
-                    ))
-                })?;
-                out.fallbacks.push(format!("linearization {lin}: {} → {}: {e}", solver.name(), fb.name()));
+                let sol = fb.solve(&qp, warm.as_ref()).map_err(|e2| fail(e.clone(), Some((fb.name(), e2))))?;
+                out.fallbacks.push(QpFallback {
+                    linearization: lin,
+                    solver: solver.name().to_string(),
+                    fallback: fb.name().to_string(),
+                    reason: e,
+                });
                 sol
             }
-            (Err(e), _) => return Err(fail(solver.name(), &e)),
+            (Err(e), _) => return Err(fail(e, None)),
         };
         out.linearizations += 1;
         out.qp_iterations += sol.iterations;
@@ -245,7 +315,7 @@ pub fn compensate_segment_with_fallback(
             n_rr[k] = b;
         }
         if !change.is_finite() {
-            return Err(Error::Qp(format!("segment at sample {}: non-finite compensated inputs", seg.start)));
+            return Err(fail(QpError::Numerical("non-finite compensated inputs".into()), None));
         }
         out.input_change.push(change);
         warm = Some(sol);
@@ -259,10 +329,175 @@ pub fn compensate_segment_with_fallback(
     Ok(out)
 }
 
+/// Step 2 of the 3-step method: what compensation did.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CompensationStep {
+    /// Segments compensated (with at least one successful QP).
+    pub segments: usize,
+    /// QP compensation jobs (segment × θ_B,I) run.
+    pub jobs: usize,
+    /// Jobs that failed (left out).
+    pub failed_jobs: usize,
+    /// QP solves that the configured solver did not finish (iteration limit
+    /// or numerical failure) and the Clarabel fallback solved.
+    #[serde(default)]
+    pub fallback_solves: usize,
+    /// Total QP solves (linearizations).
+    pub qp_solves: usize,
+    /// Mean QP solver iterations per solve.
+    pub mean_qp_iterations: f64,
+    /// Jobs whose inputs did not settle within the linearization limit.
+    pub unconverged_jobs: usize,
+    /// RMS relative change of the wheel rotations made by compensation.
+    pub rms_relative_input_change: f64,
+    /// The solver used.
+    pub solver: String,
+}
+
+/// Compensated inputs of a set of segments: per segment, the mean of the
+/// compensations over several θ (SPEC §6 step 2).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CompensatedInputs {
+    /// The segments, in order.
+    pub segments: Vec<Segment>,
+    /// Compensated `n_rl` per segment.
+    pub n_rl: Vec<Vec<f64>>,
+    /// Compensated `n_rr` per segment.
+    pub n_rr: Vec<Vec<f64>>,
+    /// Statistics.
+    pub step: CompensationStep,
+    /// One per failed job and per fallback solve.
+    pub warnings: Vec<Warning>,
+}
+
+impl CompensatedInputs {
+    /// Segment data with the compensated wheel rotations.
+    pub fn segment_data<'a>(&'a self, drive: &'a Drive) -> Vec<SegmentData<'a>> {
+        self.segments
+            .iter()
+            .enumerate()
+            .map(|(i, s)| SegmentData::new(drive, s).with_wheels(&self.n_rl[i], &self.n_rr[i]))
+            .collect()
+    }
+}
+
+/// Compensates every segment once per θ in `thetas` and averages (step 2).
+/// Jobs run in parallel and are collected in a fixed order; a failed job is
+/// left out with a warning; a segment with no successful job is dropped. A
+/// QP the configured solver does not finish (iteration limit, numerical
+/// failure) is solved again by the fallback ([`QpOptions::fallback`]); such
+/// fallbacks are counted and reported as warnings.
+pub fn compensate_segments(
+    drive: &Drive,
+    segments: &[Segment],
+    thetas: &[Theta],
+    opts: &CompensateOptions,
+    qp: &QpOptions,
+    progress: Option<ProgressFn<'_>>,
+) -> Result<CompensatedInputs> {
+    opts.validate()?;
+    qp.validate()?;
+    let solver = qp.primary();
+    let fallback = qp.fallback();
+    let jobs: Vec<(usize, usize)> = (0..segments.len()).flat_map(|s| (0..thetas.len()).map(move |t| (s, t))).collect();
+    if let Some(p) = progress {
+        p(Progress::Stage { name: "compensation", total: jobs.len() as u64 });
+    }
+    let results: Vec<_> = jobs
+        .par_iter()
+        .map(|&(s, t)| {
+            let r = compensate_segment_with_fallback(
+                &SegmentData::new(drive, &segments[s]),
+                &thetas[t],
+                solver.as_ref(),
+                fallback.as_deref(),
+                opts,
+            );
+            if let Some(p) = progress {
+                p(Progress::Advance(1));
+            }
+            r
+        })
+        .collect();
+    let mut out = CompensatedInputs {
+        segments: Vec::new(),
+        n_rl: Vec::new(),
+        n_rr: Vec::new(),
+        step: CompensationStep {
+            segments: 0,
+            jobs: jobs.len(),
+            failed_jobs: 0,
+            fallback_solves: 0,
+            qp_solves: 0,
+            mean_qp_iterations: 0.0,
+            unconverged_jobs: 0,
+            rms_relative_input_change: 0.0,
+            solver: solver.name().to_string(),
+        },
+        warnings: Vec::new(),
+    };
+    let mut qp_iters = 0usize;
+    let (mut rel_sq, mut rel_n) = (0.0, 0usize);
+    for (s, seg) in segments.iter().enumerate() {
+        let k = seg.steps;
+        let (mut a, mut b, mut count) = (vec![0.0; k], vec![0.0; k], 0usize);
+        for t in 0..thetas.len() {
+            match &results[s * thetas.len() + t] {
+                Ok(c) => {
+                    for i in 0..k {
+                        a[i] += c.n_rl[i];
+                        b[i] += c.n_rr[i];
+                    }
+                    count += 1;
+                    out.step.qp_solves += c.linearizations;
+                    qp_iters += c.qp_iterations;
+                    if !c.converged {
+                        out.step.unconverged_jobs += 1;
+                    }
+                    out.step.fallback_solves += c.fallbacks.len();
+                    out.warnings.extend(c.fallbacks.iter().map(|f| Warning::SolverFallback {
+                        segment_start: seg.start,
+                        theta_index: t + 1,
+                        linearization: f.linearization,
+                        solver: f.solver.clone(),
+                        fallback: f.fallback.clone(),
+                        reason: f.reason.to_string(),
+                    }));
+                }
+                Err(e) => {
+                    out.step.failed_jobs += 1;
+                    out.warnings.push(Warning::CompensationFailed { segment_start: seg.start, reason: e.to_string() });
+                }
+            }
+        }
+        if count == 0 {
+            continue;
+        }
+        for i in 0..k {
+            a[i] /= count as f64;
+            b[i] /= count as f64;
+            for (m, c) in [(drive.n_rl()[seg.start + i], a[i]), (drive.n_rr()[seg.start + i], b[i])] {
+                if m.abs() > 1e-3 {
+                    rel_sq += ((c - m) / m).powi(2);
+                    rel_n += 1;
+                }
+            }
+        }
+        out.segments.push(*seg);
+        out.n_rl.push(a);
+        out.n_rr.push(b);
+    }
+    out.step.segments = out.segments.len();
+    out.step.mean_qp_iterations =
+        if out.step.qp_solves > 0 { qp_iters as f64 / out.step.qp_solves as f64 } else { 0.0 };
+    out.step.rms_relative_input_change = if rel_n > 0 { (rel_sq / rel_n as f64).sqrt() } else { 0.0 };
+    Ok(out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::drive::Drive;
+    use crate::drive::{Drive, Signals};
     use crate::model::{step, State};
     use crate::qp::SolverKind;
     use crate::segment::{cut, SegmentData};
@@ -285,18 +520,16 @@ mod tests {
             cols[3].push(x[2]);
             x = step(&x, &u, &th, ts);
         }
-        Drive::from_columns(
-            "circle",
-            cols[0].clone(),
-            cols[1].clone(),
-            cols[2].clone(),
-            cols[3].clone(),
-            vec![u.n_rl; n],
-            vec![u.n_rr; n],
-            vec![0.0; n],
-            vec![a_y; n],
-        )
-        .expect("valid")
+        let sig = Signals {
+            px: cols[1].clone(),
+            py: cols[2].clone(),
+            psi: cols[3].clone(),
+            n_rl: vec![u.n_rl; n],
+            n_rr: vec![u.n_rr; n],
+            beta: vec![0.0; n],
+            a_y: vec![a_y; n],
+        };
+        Drive::builder(cols[0].clone(), sig).context("circle").build().expect("valid")
     }
 
     /// Noise-free, constant inputs: the measured inputs are optimal (zero
@@ -312,8 +545,8 @@ mod tests {
             let c = compensate_segment(&data, &Theta::SIM_DEFAULT_TRUE, kind.solver().as_ref(), &Default::default())
                 .expect("solves");
             for k in 0..seg.steps {
-                let rl = (c.n_rl[k] - d.n_rl[k]).abs() / d.n_rl[k].abs();
-                let rr = (c.n_rr[k] - d.n_rr[k]).abs() / d.n_rr[k].abs();
+                let rl = (c.n_rl[k] - d.n_rl()[k]).abs() / d.n_rl()[k].abs();
+                let rr = (c.n_rr[k] - d.n_rr()[k]).abs() / d.n_rr()[k].abs();
                 assert!(rl <= 1e-9 && rr <= 1e-9, "{kind}: step {k}: {rl:.2e} {rr:.2e}");
             }
             assert!(c.converged, "{kind}");
@@ -327,7 +560,7 @@ mod tests {
     fn white_noise_differential_error_shrinks() {
         let o = SimOptions { length_km: 1.5, noise: NoiseOptions::white_wheel_only(), ..SimOptions::paper(1) };
         let d = simulate(&o).expect("sim").drive;
-        let truth = d.truth.as_ref().expect("truth");
+        let truth = d.truth().expect("truth");
         let solver = SolverKind::Clarabel.solver();
         let (mut before, mut after, mut n) = (0.0, 0.0, 0usize);
         for seg in cut(&d, 0, 650, 650).iter().take(3) {
@@ -336,7 +569,7 @@ mod tests {
             for k in 0..seg.steps {
                 let i = seg.start + k;
                 let t = truth.n_rr[i] - truth.n_rl[i];
-                before += (d.n_rr[i] - d.n_rl[i] - t).powi(2);
+                before += (d.n_rr()[i] - d.n_rl()[i] - t).powi(2);
                 after += (c.n_rr[k] - c.n_rl[k] - t).powi(2);
                 n += 1;
             }
@@ -436,7 +669,8 @@ mod solver_tests {
         let fb = StructuredSolver::default();
         let c = compensate_segment_with_fallback(&data, &Theta::PAPER_INITIAL, &Stalls, Some(&fb), &opts).unwrap();
         assert_eq!(c.fallbacks.len(), c.linearizations);
-        assert!(c.fallbacks[0].contains("stalls → structured: iteration limit"), "{}", c.fallbacks[0]);
+        let first = c.fallbacks[0].to_string();
+        assert!(first.contains("stalls → structured: iteration limit"), "{first}");
         let direct = compensate_segment(&data, &Theta::PAPER_INITIAL, &fb, &opts).unwrap();
         assert_eq!(c.n_rl, direct.n_rl);
         // Without a fallback the failure is the segment's error.

@@ -2,6 +2,9 @@
 
 use std::path::PathBuf;
 
+use crate::param::ParamSet;
+use crate::qp::QpError;
+
 /// Everything that can go wrong in the odocal library.
 ///
 /// Messages name the file, line, column, option or parameter concerned and,
@@ -31,7 +34,8 @@ pub enum Error {
         reason: String,
     },
     /// Required columns are missing from a CSV header.
-    #[error("{path}: missing column(s) {}; columns found: {}", missing.join(", "), found.join(", "))]
+    #[error("{path}: missing column(s) {}; columns found: {}{}", missing.join(", "), found.join(", "),
+        hint.as_ref().map(|h| format!(" ({h})")).unwrap_or_default())]
     MissingColumns {
         /// The file.
         path: PathBuf,
@@ -39,6 +43,20 @@ pub enum Error {
         missing: Vec<String>,
         /// The columns that were found.
         found: Vec<String>,
+        /// What probably went wrong (a wrong separator, say).
+        hint: Option<String>,
+    },
+    /// One value of a drive column is unusable.
+    #[error("{context}: column '{column}', sample {sample}: {reason}")]
+    InvalidSample {
+        /// Where the data came from (a path or a description).
+        context: String,
+        /// The column.
+        column: String,
+        /// 0-based sample index.
+        sample: usize,
+        /// What is wrong.
+        reason: String,
     },
     /// The data are not usable as a drive (too short, empty, ...).
     #[error("{context}: {reason}")]
@@ -62,20 +80,47 @@ pub enum Error {
     /// No segment was usable for the requested computation.
     #[error("no usable segments: {0}")]
     NoSegments(String),
+    /// A value given as text (a parameter name, a method, a solver…) is not
+    /// one of the accepted ones.
+    #[error("invalid {what} '{input}': use {expected}")]
+    Parse {
+        /// What was being parsed (`"parameter"`, `"method"`, …).
+        what: &'static str,
+        /// The text given.
+        input: String,
+        /// The accepted values.
+        expected: &'static str,
+    },
     /// Parameters cannot be identified from the data.
-    #[error("parameter(s) {} not observable from these data: {reason}", params.join(", "))]
+    #[error("parameter(s) {params} not observable from these data: {reason}")]
     NotObservable {
         /// The parameters that cannot be identified.
-        params: Vec<&'static str>,
+        params: ParamSet,
         /// Why.
         reason: String,
     },
     /// A numerical method diverged or produced non-finite numbers.
     #[error("numerical failure: {0}")]
     Numerical(String),
-    /// A QP solver failed on a problem.
+    /// A QP solver failed on a problem, or its options are invalid.
     #[error("QP solver: {0}")]
-    Qp(String),
+    Qp(#[from] QpError),
+    /// The compensation QP of one segment could not be solved (SPEC §5).
+    #[error("compensation of the segment at sample {segment_start} (linearization {linearization}): solver {solver}: {source}{}",
+        fallback.as_ref().map(|(n, e)| format!("; fallback {n}: {e}")).unwrap_or_default())]
+    Compensation {
+        /// First sample of the segment.
+        segment_start: usize,
+        /// The linearization (1-based) whose QP failed.
+        linearization: usize,
+        /// The solver that failed.
+        solver: &'static str,
+        /// Its error.
+        #[source]
+        source: QpError,
+        /// The fallback solver and its error, when one was tried.
+        fallback: Option<(&'static str, QpError)>,
+    },
     /// A drive manifest is invalid.
     #[error("{path}: {reason}")]
     Manifest {
@@ -93,6 +138,97 @@ pub enum Error {
         #[source]
         source: serde_json::Error,
     },
+    /// A ROS 2 bag has no topic of the requested name.
+    #[error("{path}: no topic '{topic}' in the bag; its topics: {}", fmt_topics(available))]
+    BagTopicNotFound {
+        /// The bag file.
+        path: PathBuf,
+        /// The topic asked for.
+        topic: String,
+        /// The bag's topics with their message types, sorted by topic.
+        available: Vec<(String, String)>,
+    },
+    /// A bag topic's message type is not one odocal reads.
+    #[error("{path}: topic '{topic}' has message type '{found}', which odocal cannot read; supported types: {}", supported.join(", "))]
+    BagMessageType {
+        /// The bag file.
+        path: PathBuf,
+        /// The topic.
+        topic: String,
+        /// Its message type (schema name), `(no schema)` when it has none.
+        found: String,
+        /// The types odocal reads.
+        supported: Vec<&'static str>,
+    },
+    /// A column was asked for that the topic's message type does not have.
+    #[error("{path}: topic '{topic}' ({message_type}) has no column '{column}'; valid columns: {}", valid.join(", "))]
+    BagColumn {
+        /// The bag file.
+        path: PathBuf,
+        /// The topic.
+        topic: String,
+        /// The topic's message type.
+        message_type: &'static str,
+        /// The column asked for.
+        column: String,
+        /// The columns of that type.
+        valid: Vec<String>,
+    },
+    /// A `sensor_msgs/msg/JointState` message does not name a requested joint.
+    #[error("{path}: topic '{topic}': no joint named '{joint}' in message {index} (log time {} s); joint names present: {}", fmt_ns(*log_time_ns), present.join(", "))]
+    BagJoint {
+        /// The bag file.
+        path: PathBuf,
+        /// The topic.
+        topic: String,
+        /// The joint asked for.
+        joint: String,
+        /// 0-based index of the message within the topic, in file order.
+        index: u64,
+        /// The message's log time (ns since the epoch).
+        log_time_ns: u64,
+        /// The joint names the message has.
+        present: Vec<String>,
+    },
+    /// A ROS 2 bag in sqlite3 storage (`.db3`), which odocal does not read.
+    #[error("{path}: a ROS 2 sqlite3 (.db3) bag; odocal reads MCAP bags: convert it with `ros2 bag convert -i BAG -o out.yaml`, out.yaml being `output_bags: [{{uri: BAG_mcap, storage_id: mcap, all_topics: true}}]`")]
+    BagSqlite {
+        /// The `.db3` file or the bag directory.
+        path: PathBuf,
+    },
+    /// A bag file is not MCAP, is corrupt or truncated, or a message does
+    /// not decode.
+    #[error("{path}{}: {reason}", topic.as_ref().map(|t| format!(": topic '{t}'")).unwrap_or_default())]
+    Bag {
+        /// The bag file.
+        path: PathBuf,
+        /// The topic, when the problem is in one.
+        topic: Option<String>,
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+/// Nanoseconds as exact decimal seconds: `1720717537428161000` →
+/// `1720717537.428161000`.
+pub(crate) fn fmt_ns(ns: u64) -> String {
+    format!("{}.{:09}", ns / 1_000_000_000, ns % 1_000_000_000)
+}
+
+/// `/a (type), /b (type)` for the topic-not-found message.
+fn fmt_topics(topics: &[(String, String)]) -> String {
+    if topics.is_empty() {
+        return "none".to_string();
+    }
+    topics.iter().map(|(t, ty)| format!("{t} ({ty})")).collect::<Vec<_>>().join(", ")
+}
+
+impl Error {
+    /// An I/O error on `path`. The OS message is kept once (not repeated in
+    /// the source chain when printed with `{:#}`).
+    pub fn io(path: &std::path::Path, source: std::io::Error) -> Error {
+        Error::Io { path: path.to_path_buf(), source }
+    }
 }
 
 /// The library's result type.

@@ -23,7 +23,8 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::model::{step_jacobians, wrap_angle, Theta, THETA_NAMES};
+use crate::model::{step_jacobians, wrap_angle, Theta};
+use crate::param::{Param, ParamSet};
 use crate::segment::SegmentData;
 
 /// Options of the Gauss-Newton identification.
@@ -33,9 +34,9 @@ pub struct IdentifyOptions {
     pub max_iterations: usize,
     /// Residual weights `[w_px, w_py, w_ψ]` per sample. Default `[1, 1, 40²]`.
     pub weights: [f64; 3],
-    /// Which parameters are estimated (`[c_e, c_d, t_r, d]`); the others
-    /// stay at their initial value. Default: all four.
-    pub free: [bool; 4],
+    /// Which parameters are estimated; the others stay at their initial
+    /// value. Default: all four of θ (`["c_e", "c_d", "t_r", "d"]` in JSON).
+    pub free: ParamSet,
     /// Stop when the relative step `‖Δθ/θ_scale‖∞` falls below this. Default 1e-12.
     pub step_tolerance: f64,
     /// A step whose relative cost change `|ΔC|/C` is at most this counts as
@@ -70,7 +71,7 @@ impl Default for IdentifyOptions {
         IdentifyOptions {
             max_iterations: 5,
             weights: [1.0, 1.0, 1600.0],
-            free: [true; 4],
+            free: ParamSet::THETA,
             step_tolerance: 1e-12,
             cost_tolerance: 1e-12,
             resolution: [0.01, 0.001, 0.015, 0.0005],
@@ -86,7 +87,7 @@ impl IdentifyOptions {
         if self.weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) {
             return Err(Error::InvalidOption { field: "weights", reason: "must be finite and non-negative".into() });
         }
-        if !self.free.iter().any(|f| *f) {
+        if self.free.is_empty() {
             return Err(Error::InvalidOption { field: "free", reason: "at least one parameter must be free".into() });
         }
         if self.resolution.iter().any(|r| !(r.is_finite() && *r > 0.0)) {
@@ -107,6 +108,16 @@ pub enum Termination {
     MaxIterations {
         /// The limit.
         iterations: usize,
+    },
+    /// The next step gave a θ with a non-finite component; it was rejected.
+    NonFiniteCandidate {
+        /// Cost before it (kept).
+        previous: f64,
+    },
+    /// The next step gave a θ with `c_e ≤ 0` or `t_r ≤ 0`; it was rejected.
+    NonPhysicalCandidate {
+        /// Cost before it (kept).
+        previous: f64,
     },
     /// The next step would have increased the weighted cost; it was rejected.
     CostIncreased {
@@ -136,6 +147,12 @@ impl std::fmt::Display for Termination {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Termination::MaxIterations { iterations } => write!(f, "iteration limit: {iterations}"),
+            Termination::NonFiniteCandidate { previous } => {
+                write!(f, "non-finite candidate θ at cost {previous:.6e} (step rejected)")
+            }
+            Termination::NonPhysicalCandidate { previous } => {
+                write!(f, "candidate θ with c_e or t_r not positive at cost {previous:.6e} (step rejected)")
+            }
             Termination::CostIncreased { cost, previous } => {
                 write!(f, "cost increased: {cost:.6e} > {previous:.6e} (step rejected)")
             }
@@ -170,7 +187,7 @@ pub struct Observability {
     pub sensitivity_m: [f64; 4],
     /// Parameters that are not observable from these data (alone or in a
     /// combination): their estimate is not to be trusted.
-    pub unobservable: Vec<String>,
+    pub unobservable: ParamSet,
 }
 
 /// The result of a Gauss-Newton identification.
@@ -238,13 +255,13 @@ impl NormalEquations {
 
 /// Residual of a predicted pose against the reference, heading wrapped.
 #[inline]
-pub fn pose_residual(reference: &Vector3<f64>, predicted: &Vector3<f64>) -> Vector3<f64> {
+pub(crate) fn pose_residual(reference: &Vector3<f64>, predicted: &Vector3<f64>) -> Vector3<f64> {
     let r = reference - predicted;
     Vector3::new(r[0], r[1], wrap_angle(r[2]))
 }
 
 /// Weighted cost of one segment at θ (no Jacobian).
-pub fn segment_cost(seg: &SegmentData<'_>, theta: &Theta, weights: &[f64; 3]) -> f64 {
+pub(crate) fn segment_cost(seg: &SegmentData<'_>, theta: &Theta, weights: &[f64; 3]) -> f64 {
     let mut x = seg.reference(0);
     let mut cost = 0.0;
     for k in 0..seg.steps() {
@@ -307,8 +324,8 @@ fn reduce(m: &Matrix4<f64>, v: &Vector4<f64>, free: &[usize]) -> (nalgebra::DMat
 }
 
 /// Observability diagnostics of the free block of `JᵀWJ`.
-pub fn observability(ne: &NormalEquations, free: &[bool; 4], opts: &IdentifyOptions) -> Observability {
-    let idx: Vec<usize> = (0..4).filter(|i| free[*i]).collect();
+pub fn observability(ne: &NormalEquations, free: ParamSet, opts: &IdentifyOptions) -> Observability {
+    let idx = free.indices();
     let poses = ne.poses.max(1) as f64;
     let mut sensitivity = [0.0; 4];
     for &i in &idx {
@@ -356,7 +373,7 @@ pub fn observability(ne: &NormalEquations, free: &[bool; 4], opts: &IdentifyOpti
             }
         }
     }
-    let unobservable = (0..4).filter(|i| weak[*i]).map(|i| THETA_NAMES[i].to_string()).collect();
+    let unobservable = (0..4).filter(|i| weak[*i]).filter_map(Param::from_index).collect();
     Observability { rcond, sensitivity_m: sensitivity, unobservable }
 }
 
@@ -387,7 +404,7 @@ pub fn batch_gauss_newton(
     if segments.is_empty() {
         return Err(Error::NoSegments("Gauss-Newton needs at least one segment".into()));
     }
-    let free: Vec<usize> = (0..4).filter(|i| opts.free[*i]).collect();
+    let free = opts.free.indices();
     let w = &opts.weights;
     let mut theta = *theta0;
     let mut ne = batch_normal_equations(segments, &theta, w);
@@ -401,14 +418,9 @@ pub fn batch_gauss_newton(
     for _ in 0..opts.max_iterations {
         let (a, b) = reduce(&ne.jtwj, &ne.jtwr, &free);
         let Some(chol) = a.clone().cholesky() else {
-            let weak = observability(&ne, &opts.free, opts).unobservable;
-            let names: Vec<&'static str> = if weak.is_empty() {
-                free.iter().map(|i| THETA_NAMES[*i]).collect()
-            } else {
-                THETA_NAMES.iter().copied().filter(|n| weak.iter().any(|w| w == n)).collect()
-            };
+            let weak = observability(&ne, opts.free, opts).unobservable;
             return Err(Error::NotObservable {
-                params: names,
+                params: if weak.is_empty() { opts.free } else { weak },
                 reason: "JᵀWJ is singular at the current θ (the data do not excite these parameters); \
                          hold them fixed at θ_0"
                     .into(),
@@ -421,8 +433,12 @@ pub fn batch_gauss_newton(
         }
         let cand = Theta::from_vector(&(theta.to_vector() + step));
         let rel_step = step.component_div(&scale).amax();
+        if !cand.to_array().iter().all(|v| v.is_finite()) {
+            termination = Termination::NonFiniteCandidate { previous: ne.cost };
+            break;
+        }
         if cand.validate().is_err() {
-            termination = Termination::CostIncreased { cost: f64::INFINITY, previous: ne.cost };
+            termination = Termination::NonPhysicalCandidate { previous: ne.cost };
             break;
         }
         let cand_cost = batch_cost(segments, &cand, w);
@@ -443,7 +459,7 @@ pub fn batch_gauss_newton(
             break;
         }
     }
-    let obs = observability(&ne, &opts.free, opts);
+    let obs = observability(&ne, opts.free, opts);
     let (a, _) = reduce(&ne.jtwj, &ne.jtwr, &free);
     let m = 3 * ne.poses;
     let sigma2 = if m > free.len() { ne.cost / (m - free.len()) as f64 } else { f64::NAN };
@@ -473,7 +489,7 @@ pub fn batch_gauss_newton(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::drive::Drive;
+    use crate::drive::{Drive, Signals};
     use crate::model::{step, Input};
     use crate::segment::{cut, SegmentData};
 
@@ -498,7 +514,10 @@ mod tests {
             x = step(&x, &u, &th, ts);
         }
         let z = vec![0.0; n];
-        Drive::from_columns("straight", t, px, py, psi, nl, nr, z.clone(), z).expect("valid")
+        Drive::builder(t, Signals { px, py, psi, n_rl: nl, n_rr: nr, beta: z.clone(), a_y: z })
+            .context("straight")
+            .build()
+            .expect("valid")
     }
 
     #[test]
@@ -516,9 +535,9 @@ mod tests {
                 assert!(!m.contains("c_e"), "c_e is observable on a straight drive: {m}");
             }
             Ok(r) => {
-                let u = &r.observability.unobservable;
-                assert!(u.iter().any(|p| p == "t_r") && u.iter().any(|p| p == "d"), "{:?}", r.observability);
-                assert!(!u.iter().any(|p| p == "c_e"), "{:?}", r.observability);
+                let u = r.observability.unobservable;
+                assert!(u.contains(Param::TR) && u.contains(Param::D), "{:?}", r.observability);
+                assert!(!u.contains(Param::CE), "{:?}", r.observability);
             }
         };
         check(batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &IdentifyOptions::default()));
@@ -527,7 +546,7 @@ mod tests {
         let data: Vec<SegmentData> = cut(&d, 0, 650, 100).iter().map(|s| SegmentData::new(&d, s)).collect();
         check(batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &IdentifyOptions::default()));
         // Holding them fixed leaves c_e and c_d, which are identified.
-        let opts = IdentifyOptions { free: [true, true, false, false], ..Default::default() };
+        let opts = IdentifyOptions { free: "c_e,c_d".parse().expect("params"), ..Default::default() };
         let r = batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &opts).expect("fixed");
         assert!(r.observability.unobservable.is_empty(), "{:?}", r.observability);
         assert!((r.theta.c_e - 1.95).abs() < 1e-3, "{}", r.theta);
@@ -538,7 +557,8 @@ mod tests {
     fn accepted_steps_never_increase_cost() {
         let d = straight(2000, 2e-3);
         let data: Vec<SegmentData> = cut(&d, 0, 650, 100).iter().map(|s| SegmentData::new(&d, s)).collect();
-        let opts = IdentifyOptions { free: [true, true, false, false], max_iterations: 10, ..Default::default() };
+        let opts =
+            IdentifyOptions { free: "c_e,c_d".parse().expect("params"), max_iterations: 10, ..Default::default() };
         let r = batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &opts).expect("ok");
         let mut prev = r.initial_cost;
         for h in &r.history {
@@ -569,21 +589,21 @@ mod tests {
     #[test]
     fn collinear_parameters_are_named_even_when_each_is_sensitive() {
         let opts = IdentifyOptions::default();
-        let o = observability(&normal_equations(true), &[true; 4], &opts);
+        let o = observability(&normal_equations(true), ParamSet::THETA, &opts);
         assert!(o.sensitivity_m.iter().all(|s| *s > opts.min_sensitivity_m), "{o:?}");
         assert!(o.rcond < opts.min_rcond, "{o:?}");
-        assert_eq!(o.unobservable, vec!["c_d".to_string(), "d".to_string()]);
+        assert_eq!(o.unobservable, ParamSet::from_iter([Param::CD, Param::D]));
     }
 
     #[test]
     fn well_conditioned_parameters_are_not_named() {
-        let o = observability(&normal_equations(false), &[true; 4], &IdentifyOptions::default());
+        let o = observability(&normal_equations(false), ParamSet::THETA, &IdentifyOptions::default());
         assert!(o.unobservable.is_empty(), "{o:?}");
     }
 
     #[test]
     fn fixing_one_of_a_collinear_pair_clears_it() {
-        let o = observability(&normal_equations(true), &[true, true, true, false], &IdentifyOptions::default());
+        let o = observability(&normal_equations(true), ParamSet::THETA.without(Param::D), &IdentifyOptions::default());
         assert!(o.unobservable.is_empty(), "{o:?}");
     }
 

@@ -27,8 +27,9 @@
 //! 3. batch Gauss-Newton with the compensated inputs gives θ_B,F.
 //!
 //! Results are judged by dead-reckoning error on validation segments
-//! ([`validate`]). The exact statement, with every default, is the
-//! project's SPEC.md.
+//! ([`mod@validate`]). The exact statement, with every default, is the
+//! project's SPEC.md. [`calibrate()`] runs a whole calibration with either
+//! method ([`mod@calibrate`]); [`experiment::run`] reproduces the paper's §6.
 //!
 //! ## Example
 //!
@@ -56,31 +57,53 @@
 // Numerical loops index several parallel arrays at once; index loops read like the maths.
 #![allow(clippy::needless_range_loop)]
 
+#[cfg(feature = "mcap")]
+pub mod bag;
+pub mod calibrate;
 pub mod compensate;
 pub mod drive;
 pub mod eiv;
 pub mod error;
+pub mod experiment;
 pub mod identify;
 pub mod import;
+pub mod limits;
 pub mod model;
-pub mod pipeline;
+pub mod param;
+pub mod param_file;
+pub mod progress;
 pub mod qp;
 pub mod reachable;
 pub mod segment;
 pub mod sim;
 pub mod validate;
+pub mod warning;
+
+/// The `schema_version` of every JSON report the `odocal` tool writes
+/// (calibrate, validate, import, experiment). Raised when a field is
+/// renamed, moved or removed; adding a field does not raise it.
+pub const REPORT_SCHEMA_VERSION: u32 = 1;
 
 /// The README's code examples, compiled and run as doc-tests.
 #[cfg(doctest)]
 #[doc = include_str!("../../../README.md")]
 pub struct ReadmeDoctests;
 
-pub use drive::Drive;
+pub use calibrate::{
+    calibrate, calibrate_held_out, calibrate_with_holdout, BatchGnOptions, CalibrationOptions, CalibrationReport,
+    FinalSegments, Holdout, Method, MethodDetail, ThreeStepOptions,
+};
+pub use compensate::{CompensateOptions, QpOptions};
+pub use drive::{Drive, Signals};
 pub use error::{Error, Result};
-pub use identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport, Termination};
+pub use experiment::{Experiment, ExperimentOptions};
+pub use identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport, Observability, Termination};
 pub use import::{import, load_drive, ImportReport, ImportedDrive, Manifest};
 pub use model::{Input, State, Theta};
-pub use pipeline::{calibrate, CalibrationOptions, CalibrationReport, Method};
+pub use param::{Param, ParamSet};
+pub use progress::{Progress, ProgressFn};
+pub use qp::SolverKind;
 pub use reachable::{reachable_minimum, ReachableOptions, ReachableReport};
 pub use segment::{Segment, SegmentData, SegmentOptions, ValidationSegmentOptions};
-pub use validate::{mean_position_error, ValidationReport};
+pub use validate::{mean_position_error, validate, ValidateOptions, ValidateReport, ValidationReport};
+pub use warning::Warning;

@@ -103,7 +103,8 @@ impl std::fmt::Display for Theta {
 
 impl std::str::FromStr for Theta {
     type Err = Error;
-    /// Parses `c_e,c_d,t_r,d` in SI units (the CLI's `--theta`).
+    /// Parses `c_e,c_d,t_r,d` in SI units (the CLI's `--theta`) and checks
+    /// its absolute physical sanity ([`crate::limits::check_theta`]).
     fn from_str(s: &str) -> Result<Self> {
         let parts: Vec<&str> = s.split(',').map(str::trim).collect();
         if parts.len() != 4 {
@@ -119,7 +120,7 @@ impl std::str::FromStr for Theta {
                 .map_err(|_| Error::InvalidTheta(format!("{} = '{p}' is not a number", THETA_NAMES[i])))?;
         }
         let theta = Theta { c_e: v[0], c_d: v[1], t_r: v[2], d: v[3] };
-        theta.validate()?;
+        crate::limits::check_theta(&theta)?;
         Ok(theta)
     }
 }

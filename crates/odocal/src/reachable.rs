@@ -403,6 +403,7 @@ pub fn reachable_minimum(drive: &Drive, segments: &[Segment], opts: &ReachableOp
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::drive::Signals;
     use crate::model::{step, Input, State};
     use crate::segment::{validation_segments, ValidationSegmentOptions};
 
@@ -434,7 +435,10 @@ mod tests {
             x = step(&x, &Input { n_rl, n_rr, beta, a_y }, theta, TS);
         }
         let [t, px, py, psi, n_rl, n_rr, beta, a_y] = cols;
-        Drive::from_columns("synthetic", t, px, py, psi, n_rl, n_rr, beta, a_y).expect("valid drive")
+        Drive::builder(t, Signals { px, py, psi, n_rl, n_rr, beta, a_y })
+            .context("synthetic")
+            .build()
+            .expect("valid drive")
     }
 
     fn setup() -> (Drive, Vec<Segment>) {

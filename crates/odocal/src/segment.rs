@@ -98,11 +98,11 @@ pub fn cut(drive: &Drive, offset: usize, length: usize, stride: usize) -> Vec<Se
     if length == 0 || stride == 0 {
         return out;
     }
-    for part in &drive.parts {
+    for part in drive.parts() {
         let mut i0 = part.start + offset;
         while i0 + length < part.end {
-            let peak = (i0..i0 + length).map(|k| (drive.psi[k + 1] - drive.psi[k]).abs()).fold(0.0, f64::max)
-                / drive.sample_time_s;
+            let peak = (i0..i0 + length).map(|k| (drive.psi()[k + 1] - drive.psi()[k]).abs()).fold(0.0, f64::max)
+                / drive.sample_time_s();
             out.push(Segment { start: i0, steps: length, peak_yaw_rate_rad_per_s: peak });
             i0 += stride;
         }
@@ -164,14 +164,14 @@ impl<'a> SegmentData<'a> {
         let (a, k) = (seg.start, seg.steps);
         SegmentData {
             start: a,
-            sample_time_s: drive.sample_time_s,
-            n_rl: &drive.n_rl[a..a + k],
-            n_rr: &drive.n_rr[a..a + k],
-            beta: &drive.beta[a..a + k],
-            a_y: &drive.a_y[a..a + k],
-            px: &drive.px[a..=a + k],
-            py: &drive.py[a..=a + k],
-            psi: &drive.psi[a..=a + k],
+            sample_time_s: drive.sample_time_s(),
+            n_rl: &drive.n_rl()[a..a + k],
+            n_rr: &drive.n_rr()[a..a + k],
+            beta: &drive.beta()[a..a + k],
+            a_y: &drive.a_y()[a..a + k],
+            px: &drive.px()[a..=a + k],
+            py: &drive.py()[a..=a + k],
+            psi: &drive.psi()[a..=a + k],
         }
     }
 
@@ -207,12 +207,24 @@ impl<'a> SegmentData<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::drive::Signals;
 
     fn drive(n: usize, turn_from: usize) -> Drive {
+        drive_with_parts(n, turn_from, vec![0..n])
+    }
+
+    fn drive_with_parts(n: usize, turn_from: usize, parts: Vec<std::ops::Range<usize>>) -> Drive {
         let t: Vec<f64> = (0..n).map(|i| i as f64 * 0.025).collect();
         let psi: Vec<f64> = (0..n).map(|i| if i > turn_from { (i - turn_from) as f64 * 0.01 } else { 0.0 }).collect();
         let z = vec![0.0; n];
-        Drive::from_columns("test", t, z.clone(), z.clone(), psi, z.clone(), z.clone(), z.clone(), z).expect("valid")
+        Drive::builder(
+            t,
+            Signals { px: z.clone(), py: z.clone(), psi, n_rl: z.clone(), n_rr: z.clone(), beta: z.clone(), a_y: z },
+        )
+        .context("test")
+        .parts(parts)
+        .build()
+        .expect("valid")
     }
 
     #[test]
@@ -239,10 +251,9 @@ mod tests {
 
     #[test]
     fn segments_stay_within_parts() {
-        let mut d = drive(2000, 5000);
-        d.parts = vec![0..900, 900..2000];
+        let d = drive_with_parts(2000, 5000, vec![0..900, 900..2000]);
         for s in cut(&d, 0, 650, 100) {
-            let p = d.parts.iter().find(|p| p.contains(&s.start)).expect("in a part");
+            let p = d.parts().iter().find(|p| p.contains(&s.start)).expect("in a part");
             assert!(s.start + s.steps < p.end);
         }
     }

@@ -60,7 +60,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
-use crate::drive::{Drive, Truth};
+use crate::drive::{Drive, Signals};
 use crate::error::{Error, Result};
 use crate::model::{self, Input, State, Theta};
 
@@ -907,7 +907,7 @@ impl Encoder {
 /// let drive = &out.drive;
 /// assert_eq!(drive.len(), out.sidecar.stats.samples);
 /// assert!((out.sidecar.stats.distance_m - 1000.0).abs() < 20.0);
-/// assert!(drive.truth.is_some());
+/// assert!(drive.truth().is_some());
 /// # Ok(()) }
 /// ```
 pub fn simulate(opts: &SimOptions) -> Result<SimOutput> {
@@ -928,15 +928,7 @@ pub fn simulate(opts: &SimOptions) -> Result<SimOutput> {
     let beta_gain = opts.vehicle.sideslip_gain_rad_per_m_per_s2();
 
     // Truth, integrated at the fine step.
-    let mut truth = Truth {
-        px: Vec::with_capacity(n),
-        py: Vec::with_capacity(n),
-        psi: Vec::with_capacity(n),
-        n_rl: Vec::with_capacity(n),
-        n_rr: Vec::with_capacity(n),
-        beta: Vec::with_capacity(n),
-        a_y: Vec::with_capacity(n),
-    };
+    let mut truth = Signals::with_capacity(n);
     let mut a_x = Vec::with_capacity(n);
     let mut x = State::new(0.0, 0.0, psi0);
     let (mut pcur, mut kcur) = (0usize, 0usize);
@@ -992,20 +984,7 @@ pub fn simulate(opts: &SimOptions) -> Result<SimOutput> {
     let mut white_ay = White { rng: stream(seed, 10), sigma: no.lateral_acceleration_white_sigma_m_per_s2 };
     let mut beta_err = GaussMarkov::new(stream(seed, 11), no.sideslip_sigma_rad, no.sideslip_time_constant_s, ts);
 
-    let mut drive = Drive {
-        t: (0..n).map(|k| k as f64 / opts.sample_rate_hz).collect(),
-        px: Vec::with_capacity(n),
-        py: Vec::with_capacity(n),
-        psi: Vec::with_capacity(n),
-        n_rl: Vec::with_capacity(n),
-        n_rr: Vec::with_capacity(n),
-        beta: Vec::with_capacity(n),
-        a_y: Vec::with_capacity(n),
-        truth: None,
-        extra: Vec::new(),
-        parts: std::iter::once(0..n).collect(),
-        sample_time_s: ts,
-    };
+    let mut measured = Signals::with_capacity(n);
     let (mut sq, mut count) = (0.0f64, 0usize);
     for (k, &ax) in a_x.iter().enumerate() {
         let slip = no.wheel_slip_per_m_per_s2 * ax + gm_common.next();
@@ -1013,8 +992,8 @@ pub fn simulate(opts: &SimOptions) -> Result<SimOutput> {
         let rel_rr = slip + gm_rr.next() + white_wheel.next();
         let n_rl = enc_rl.measure(truth.n_rl[k] * (1.0 + rel_rl), ts);
         let n_rr = enc_rr.measure(truth.n_rr[k] * (1.0 + rel_rr), ts);
-        drive.n_rl.push(n_rl);
-        drive.n_rr.push(n_rr);
+        measured.n_rl.push(n_rl);
+        measured.n_rr.push(n_rr);
         let tu = Input { n_rl: truth.n_rl[k], n_rr: truth.n_rr[k], beta: truth.beta[k], a_y: truth.a_y[k] };
         if model::kinematics(&tu, &theta).speed_m_per_s > MOVING_SPEED_M_PER_S {
             for (m, t) in [(n_rl, tu.n_rl), (n_rr, tu.n_rr)] {
@@ -1023,11 +1002,11 @@ pub fn simulate(opts: &SimOptions) -> Result<SimOutput> {
                 count += 1;
             }
         }
-        drive.px.push(truth.px[k] + drift_x.next() + white_pos.next());
-        drive.py.push(truth.py[k] + drift_y.next() + white_pos.next());
-        drive.psi.push(truth.psi[k] + drift_psi.next() + white_psi.next());
-        drive.a_y.push(truth.a_y[k] + white_ay.next());
-        drive.beta.push(truth.beta[k] + beta_err.next());
+        measured.px.push(truth.px[k] + drift_x.next() + white_pos.next());
+        measured.py.push(truth.py[k] + drift_y.next() + white_pos.next());
+        measured.psi.push(truth.psi[k] + drift_psi.next() + white_psi.next());
+        measured.a_y.push(truth.a_y[k] + white_ay.next());
+        measured.beta.push(truth.beta[k] + beta_err.next());
     }
     let distance_m = (1..n).map(|k| (truth.px[k] - truth.px[k - 1]).hypot(truth.py[k] - truth.py[k - 1])).sum::<f64>();
     let stats = SimStats {
@@ -1038,7 +1017,8 @@ pub fn simulate(opts: &SimOptions) -> Result<SimOutput> {
         max_abs_lateral_acceleration_m_per_s2: max_ay,
         wheel_rotation_rel_error_rms: if count > 0 { (sq / count as f64).sqrt() } else { 0.0 },
     };
-    drive.truth = Some(truth);
+    let t = (0..n).map(|k| k as f64 / opts.sample_rate_hz).collect();
+    let drive = Drive::builder(t, measured).truth(truth).sample_time_s(ts).context("simulator").build()?;
     Ok(SimOutput { drive, sidecar: SimSidecar { theta_true: theta, settings: opts.clone(), stats } })
 }
 
@@ -1065,8 +1045,8 @@ mod tests {
         buf
     }
 
-    fn truth(d: &Drive) -> &Truth {
-        d.truth.as_ref().expect("simulated drives carry the truth")
+    fn truth(d: &Drive) -> &Signals {
+        d.truth().as_ref().expect("simulated drives carry the truth")
     }
 
     #[test]
@@ -1084,8 +1064,8 @@ mod tests {
     fn noise_sources_do_not_change_the_truth() {
         let a = short(SimOptions::paper(3), 1.0);
         let b = short(SimOptions::noise_free(3), 1.0);
-        assert_eq!(a.drive.truth, b.drive.truth);
-        assert_ne!(a.drive.n_rl, b.drive.n_rl);
+        assert_eq!(a.drive.truth(), b.drive.truth());
+        assert_ne!(a.drive.n_rl(), b.drive.n_rl());
     }
 
     #[test]
@@ -1093,19 +1073,19 @@ mod tests {
         let out = short(SimOptions { substeps: 1, ..SimOptions::noise_free(11) }, 2.0);
         let d = &out.drive;
         let tr = truth(d);
-        assert_eq!(d.px, tr.px);
-        assert_eq!(d.py, tr.py);
-        assert_eq!(d.psi, tr.psi);
-        assert_eq!(d.n_rl, tr.n_rl);
-        assert_eq!(d.n_rr, tr.n_rr);
-        assert_eq!(d.beta, tr.beta);
-        assert_eq!(d.a_y, tr.a_y);
-        assert_eq!(d.parts, vec![0..d.len()]);
-        approx::assert_relative_eq!(d.sample_time_s, 0.025, max_relative = 1e-15);
+        assert_eq!(d.px(), tr.px);
+        assert_eq!(d.py(), tr.py);
+        assert_eq!(d.psi(), tr.psi);
+        assert_eq!(d.n_rl(), tr.n_rl);
+        assert_eq!(d.n_rr(), tr.n_rr);
+        assert_eq!(d.beta(), tr.beta);
+        assert_eq!(d.a_y(), tr.a_y);
+        assert_eq!(d.parts(), vec![0..d.len()]);
+        approx::assert_relative_eq!(d.sample_time_s(), 0.025, max_relative = 1e-15);
         let theta = out.sidecar.theta_true;
         let mut worst = 0.0f64;
         for k in 0..d.len() - 1 {
-            let next = model::step(&d.pose(k), &d.input(k), &theta, d.sample_time_s);
+            let next = model::step(&d.pose(k), &d.input(k), &theta, d.sample_time_s());
             worst = worst.max((next - d.pose(k + 1)).abs().max());
         }
         assert!(worst <= STEP_REPRODUCTION_TOL_M, "one-step model error {worst:e}");
@@ -1114,7 +1094,7 @@ mod tests {
         let d = &out.drive;
         let mut worst = 0.0f64;
         for k in 0..d.len() - 1 {
-            let next = model::step(&d.pose(k), &d.input(k), &theta, d.sample_time_s);
+            let next = model::step(&d.pose(k), &d.input(k), &theta, d.sample_time_s());
             worst = worst.max((next - d.pose(k + 1)).abs().max());
         }
         assert!(worst > 0.0 && worst < 1e-5, "substep model error {worst:e}");
@@ -1162,19 +1142,19 @@ mod tests {
         let rms = out.sidecar.stats.wheel_rotation_rel_error_rms;
         assert!((0.005..0.02).contains(&rms), "wheel rms relative error {rms}");
         let n = d.len() as f64;
-        let pos_rms = (d.px.iter().zip(&tr.px).zip(d.py.iter().zip(&tr.py)))
+        let pos_rms = (d.px().iter().zip(&tr.px).zip(d.py().iter().zip(&tr.py)))
             .map(|((a, b), (c, e))| (a - b).powi(2) + (c - e).powi(2))
             .sum::<f64>()
             / n;
         let pos_rms = pos_rms.sqrt();
         assert!((0.05..1.0).contains(&pos_rms), "reference position error rms {pos_rms} m");
-        let psi_rms = (d.psi.iter().zip(&tr.psi).map(|(a, b)| (a - b).powi(2)).sum::<f64>() / n).sqrt();
+        let psi_rms = (d.psi().iter().zip(&tr.psi).map(|(a, b)| (a - b).powi(2)).sum::<f64>() / n).sqrt();
         assert!((2e-4..0.02).contains(&psi_rms), "reference heading error rms {psi_rms} rad");
         // Measured wheels differ from the truth, and standstill reads zero.
-        assert!(d.n_rl.iter().zip(&tr.n_rl).any(|(a, b)| (a - b).abs() > 1e-3));
+        assert!(d.n_rl().iter().zip(&tr.n_rl).any(|(a, b)| (a - b).abs() > 1e-3));
         // At standstill the true rotation is exactly 0 (v = ω = 0) and so is the encoder count.
         #[allow(clippy::float_cmp)]
-        for (m, t) in d.n_rr.iter().zip(&tr.n_rr) {
+        for (m, t) in d.n_rr().iter().zip(&tr.n_rr) {
             if *t == 0.0 {
                 assert_eq!(*m, 0.0);
             }
@@ -1193,8 +1173,8 @@ mod tests {
         );
         assert!(w > 0.0 && w < p && p * 1.8 < h, "white {w}, paper {p}, high {h}");
         let tr = truth(&white.drive);
-        assert_eq!(white.drive.px, tr.px);
-        assert_eq!(white.drive.a_y, tr.a_y);
+        assert_eq!(white.drive.px(), tr.px);
+        assert_eq!(white.drive.a_y(), tr.a_y);
         assert_eq!(NoiseOptions::by_name("white").expect("preset"), NoiseOptions::white_wheel_only());
         assert_eq!(NoiseOptions::by_name("off").expect("preset"), NoiseOptions::off());
         let e = NoiseOptions::by_name("loud").expect_err("unknown preset");
@@ -1208,7 +1188,7 @@ mod tests {
         let st = &out.sidecar.stats;
         let d = &out.drive;
         assert_eq!(st.samples, d.len());
-        approx::assert_relative_eq!(st.duration_s, d.t[d.len() - 1], max_relative = 1e-12);
+        approx::assert_relative_eq!(st.duration_s, d.t()[d.len() - 1], max_relative = 1e-12);
         assert!((st.distance_m - 2000.0).abs() < 10.0, "distance {}", st.distance_m);
         let mean_speed = st.distance_m / st.duration_s;
         assert!((5.0..25.0).contains(&mean_speed), "mean speed {mean_speed} m/s");
@@ -1224,7 +1204,7 @@ mod tests {
         assert!(truth_ay <= st.max_abs_lateral_acceleration_m_per_s2 * (1.0 + 1e-12));
         // Heading unwrapped, time uniform.
         assert!(tr.psi.windows(2).all(|w| (w[1] - w[0]).abs() < 0.1));
-        assert!(d.t.windows(2).all(|w| ((w[1] - w[0]) - 0.025).abs() < 1e-9));
+        assert!(d.t().windows(2).all(|w| ((w[1] - w[0]) - 0.025).abs() < 1e-9));
         assert_eq!(out.sidecar.theta_true, opts.theta_true);
         assert_eq!(out.sidecar.settings, opts);
 

@@ -7,7 +7,9 @@
 //! E_p,s = (1/K_v) Σ_k sqrt((p̃_x,k − p_x,k(θ))² + (p̃_y,k − p_y,k(θ))²)
 //! ```
 //!
-//! `Ē_p` is the mean over segments.
+//! `Ē_p` is the mean over segments. [`validate`] is the `validate` command:
+//! Ē_p of a θ and, optionally, the reachable minimum
+//! ([`crate::reachable`]) on the same segments.
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -15,7 +17,8 @@ use serde::{Deserialize, Serialize};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
 use crate::model::{step, Theta};
-use crate::segment::{Segment, SegmentData};
+use crate::reachable::{reachable_minimum, ReachableOptions, ReachableReport};
+use crate::segment::{validation_segments, Segment, SegmentData, ValidationSegmentOptions};
 
 /// Mean position error of θ on the validation segments.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -57,4 +60,46 @@ pub fn mean_position_error(drive: &Drive, segments: &[Segment], theta: &Theta) -
         return Err(Error::Numerical(format!("validation error is not finite at θ = {theta}")));
     }
     Ok(ValidationReport { theta: *theta, mean_position_error_m: mean, segments: segments.len(), per_segment_m })
+}
+
+/// Settings of [`validate`].
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct ValidateOptions {
+    /// Validation segments. Default K_v = 1300, stride 650, offset 50.
+    pub segments: ValidationSegmentOptions,
+    /// Also search the reachable minimum of Ē_p with these settings. Default none.
+    pub reachable: Option<ReachableOptions>,
+}
+
+/// The `validate` report (SPEC §9): Ē_p of θ and, when asked, the reachable
+/// minimum. In JSON the [`ValidationReport`] fields stand at the top level.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ValidateReport {
+    /// Ē_p of θ.
+    #[serde(flatten)]
+    pub validation: ValidationReport,
+    /// The reachable minimum, when asked for.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reachable_minimum: Option<ReachableReport>,
+}
+
+/// Ē_p of θ on the validation segments of `drive` and, with
+/// [`ValidateOptions::reachable`], the reachable minimum on the same segments.
+///
+/// ```
+/// # fn main() -> Result<(), odocal::Error> {
+/// use odocal::{sim, validate, Theta, ValidateOptions};
+/// let s = sim::simulate(&sim::SimOptions { length_km: 2.0, substeps: 1, ..sim::SimOptions::noise_free(1) })?;
+/// let r = validate(&s.drive, &s.sidecar.theta_true, &ValidateOptions::default())?;
+/// assert!(r.validation.mean_position_error_m < 1e-6);
+/// # Ok(()) }
+/// ```
+pub fn validate(drive: &Drive, theta: &Theta, opts: &ValidateOptions) -> Result<ValidateReport> {
+    let segs = validation_segments(drive, &opts.segments)?;
+    let validation = mean_position_error(drive, &segs, theta)?;
+    let reachable_minimum = match &opts.reachable {
+        Some(r) => Some(reachable_minimum(drive, &segs, r)?),
+        None => None,
+    };
+    Ok(ValidateReport { validation, reachable_minimum })
 }

@@ -1,8 +1,8 @@
 //! The real-drive slices in `tests/data/` import and calibrate to plausible
 //! values (fast: batch Gauss-Newton on ~2 min and 20 s of data).
 
-use odocal::pipeline::{calibrate, CalibrationOptions, Method};
 use odocal::segment::{SegmentOptions, ValidationSegmentOptions};
+use odocal::{calibrate, CalibrationOptions, Method, Param};
 use odocal::{import, Manifest};
 
 fn manifest(name: &str) -> Manifest {
@@ -13,7 +13,7 @@ fn manifest(name: &str) -> Manifest {
 /// All segments of 400 steps (10 s), validation segments of 400 steps.
 fn options() -> CalibrationOptions {
     CalibrationOptions {
-        method: Method::BatchGn,
+        method: Method::BatchGn(Default::default()),
         segments: SegmentOptions { length_steps: 400, min_peak_yaw_rate_rad_per_s: 0.0, ..Default::default() },
         validation: ValidationSegmentOptions { length_steps: 400, stride_steps: 200, ..Default::default() },
         ..Default::default()
@@ -30,8 +30,8 @@ fn van_slice_imports_and_calibrates_c_e_near_the_tick_scale() {
     assert!((1.99..2.005).contains(&r.theta.c_e), "c_e = {}", r.theta.c_e);
     assert!(r.validation.mean_position_error_m < r.initial.mean_position_error_m, "{:?}", r.validation);
     // 130 s of highway cannot separate t_r and d from c_d.
-    let unobs = &r.identification.observability.unobservable;
-    assert!(unobs.contains(&"t_r".to_string()) && unobs.contains(&"d".to_string()), "{unobs:?}");
+    let unobs = r.observability.unobservable;
+    assert!(unobs.contains(Param::TR) && unobs.contains(Param::D), "{unobs:?}");
 }
 
 #[test]
@@ -39,10 +39,9 @@ fn van_slice_auto_fix_holds_what_the_check_names() {
     let imported = import(&manifest("psu-mapping-van")).expect("import");
     let r = calibrate(&imported.drive, &CalibrationOptions { auto_fix: true, ..options() }, None).expect("calibrate");
     assert!(!r.auto_fixed.is_empty());
-    assert!(r.identification.observability.unobservable.is_empty(), "{:?}", r.identification.observability);
-    for name in &r.auto_fixed {
-        let i = odocal::model::THETA_NAMES.iter().position(|n| n == name).expect("a θ name");
-        assert!(!r.options.identify.free[i], "{name} is held");
+    assert!(r.observability.unobservable.is_empty(), "{:?}", r.observability);
+    for p in &r.auto_fixed {
+        assert!(!r.options.identify.free.contains(*p), "{p} is held");
     }
 }
 
@@ -54,6 +53,6 @@ fn rav4_slice_without_turns_is_an_error_naming_the_parameters() {
     assert!(e.to_string().contains("c_d, t_r, d not observable"), "{e}");
     let r =
         calibrate(&imported.drive, &CalibrationOptions { auto_fix: true, ..opts.clone() }, None).expect("c_e alone");
-    assert_eq!(r.auto_fixed, vec!["c_d", "t_r", "d"]);
+    assert_eq!(r.auto_fixed, vec![Param::CD, Param::TR, Param::D]);
     assert!((2.0 * 1.005..2.0 * 1.015).contains(&r.theta.c_e), "c_e = {}", r.theta.c_e);
 }

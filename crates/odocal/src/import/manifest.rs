@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use super::limits::{self, echo_num};
 use crate::error::{Error, Result};
 use crate::model::Theta;
 
@@ -34,6 +35,30 @@ pub struct Manifest {
     /// Sideslip β. Default: zero.
     #[serde(default)]
     pub sideslip: SideslipSpec,
+    /// Physical limits the imported signals must respect. All fields have
+    /// defaults; raise them for a vehicle that really exceeds them.
+    #[serde(default)]
+    pub limits: LimitsSpec,
+}
+
+/// Physical limits (`[limits]`): an imported signal beyond one is an error
+/// naming the time, because it means a wrong unit, sign, column or a
+/// corrupt sample rather than a real motion.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LimitsSpec {
+    /// Largest plausible vehicle speed, m/s: each wheel's speed at θ_0 and
+    /// the reference pose's speed between samples. Default 100 (360 km/h).
+    pub max_speed_m_per_s: f64,
+    /// Largest plausible |a_y|, m/s² (a_y from the wheels, the pose or an
+    /// IMU). Default 15 (about 1.5 g; racing cars reach 3–5 g).
+    pub max_lateral_acceleration_m_per_s2: f64,
+}
+
+impl Default for LimitsSpec {
+    fn default() -> Self {
+        LimitsSpec { max_speed_m_per_s: 100.0, max_lateral_acceleration_m_per_s2: 15.0 }
+    }
 }
 
 /// Output settings (`[output]`).
@@ -153,30 +178,145 @@ impl TimeUnit {
     }
 }
 
-/// One recorded stream: a CSV file with a header row and a time column.
+/// One recorded stream: where its rows come from ([`SourceSpec`], tagged by
+/// `format`, CSV by default) and how to read its time.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(try_from = "RawStreamSpec", into = "RawStreamSpec")]
 pub struct StreamSpec {
-    /// The CSV file, relative to the manifest's folder.
-    pub file: PathBuf,
-    /// The time column.
-    pub time_column: String,
+    /// The file and its format.
+    pub source: SourceSpec,
+    /// The time column. Required for CSV and Parquet; for MCAP, `None` uses
+    /// the message time stamps the bag reader returns.
+    pub time_column: Option<String>,
     /// Unit of the time column. Default `"s"`.
-    #[serde(default)]
     pub time_unit: TimeUnit,
     /// Added to the stream's time (after the unit conversion), s. Default 0.
-    #[serde(default)]
     pub time_offset_s: f64,
     /// The stream's nominal sample rate, Hz. When given, time-stamp jitter is
     /// removed: each sample gets an integer sample index (missing samples
     /// skip indices) and its stamp is replaced by a local least-squares fit
     /// `t = t0 + k·T` over `dejitter_window_s`. Give it only for streams that
     /// are sampled at a fixed rate and stamped on arrival (encoders).
-    #[serde(default)]
     pub nominal_rate_hz: Option<f64>,
     /// Length of the local fit window for de-jittering, s. Default 2.
-    #[serde(default = "default_dejitter_window")]
     pub dejitter_window_s: f64,
+}
+
+/// Where a stream's rows come from (`streams.<name>.format`, default `"csv"`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "format", rename_all = "lowercase")]
+pub enum SourceSpec {
+    /// A CSV file with a header row (`format = "csv"`, the default).
+    Csv {
+        /// The file, relative to the manifest's folder.
+        file: PathBuf,
+    },
+    /// One topic of a ROS 2 bag in MCAP (`format = "mcap"`, `topic = "/x"`).
+    Mcap {
+        /// The bag, relative to the manifest's folder.
+        file: PathBuf,
+        /// The topic.
+        topic: String,
+    },
+    /// A Parquet table (`format = "parquet"`).
+    Parquet {
+        /// The file, relative to the manifest's folder.
+        file: PathBuf,
+    },
+}
+
+impl SourceSpec {
+    /// The file, relative to the manifest's folder.
+    pub fn file(&self) -> &Path {
+        match self {
+            SourceSpec::Csv { file } | SourceSpec::Mcap { file, .. } | SourceSpec::Parquet { file } => file,
+        }
+    }
+
+    /// The `format` value.
+    pub fn format(&self) -> &'static str {
+        match self {
+            SourceSpec::Csv { .. } => "csv",
+            SourceSpec::Mcap { .. } => "mcap",
+            SourceSpec::Parquet { .. } => "parquet",
+        }
+    }
+}
+
+/// The format of a stream as written in the manifest.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+enum Format {
+    #[default]
+    Csv,
+    Mcap,
+    Parquet,
+}
+
+/// A stream table as written: flat keys, `format` defaulting to CSV.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawStreamSpec {
+    #[serde(default)]
+    format: Format,
+    file: PathBuf,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    topic: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    time_column: Option<String>,
+    #[serde(default)]
+    time_unit: TimeUnit,
+    #[serde(default)]
+    time_offset_s: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    nominal_rate_hz: Option<f64>,
+    #[serde(default = "default_dejitter_window")]
+    dejitter_window_s: f64,
+}
+
+impl TryFrom<RawStreamSpec> for StreamSpec {
+    type Error = String;
+
+    fn try_from(r: RawStreamSpec) -> std::result::Result<Self, String> {
+        let source = match (r.format, r.topic) {
+            (Format::Csv, None) => SourceSpec::Csv { file: r.file },
+            (Format::Parquet, None) => SourceSpec::Parquet { file: r.file },
+            (Format::Mcap, Some(topic)) => SourceSpec::Mcap { file: r.file, topic },
+            (Format::Mcap, None) => return Err("`topic` is required for format = \"mcap\"".into()),
+            (f, Some(_)) => return Err(format!("`topic` is only for format = \"mcap\", not {f:?}").to_lowercase()),
+        };
+        if r.time_column.is_none() && !matches!(source, SourceSpec::Mcap { .. }) {
+            return Err(format!("`time_column` is required for format = \"{}\"", source.format()));
+        }
+        Ok(StreamSpec {
+            source,
+            time_column: r.time_column,
+            time_unit: r.time_unit,
+            time_offset_s: r.time_offset_s,
+            nominal_rate_hz: r.nominal_rate_hz,
+            dejitter_window_s: r.dejitter_window_s,
+        })
+    }
+}
+
+impl From<StreamSpec> for RawStreamSpec {
+    fn from(s: StreamSpec) -> Self {
+        let (format, file, topic) = match s.source {
+            SourceSpec::Csv { file } => (Format::Csv, file, None),
+            SourceSpec::Mcap { file, topic } => (Format::Mcap, file, Some(topic)),
+            SourceSpec::Parquet { file } => (Format::Parquet, file, None),
+        };
+        RawStreamSpec {
+            format,
+            file,
+            topic,
+            time_column: s.time_column,
+            time_unit: s.time_unit,
+            time_offset_s: s.time_offset_s,
+            nominal_rate_hz: s.nominal_rate_hz,
+            dejitter_window_s: s.dejitter_window_s,
+        }
+    }
 }
 
 fn default_dejitter_window() -> f64 {
@@ -444,9 +584,40 @@ impl Manifest {
                 Err(self.error(key, format!("must be a positive number, found {v}")))
             }
         };
+        let at_most = |key: &str, v: f64, max: f64, why: &str| -> Result<()> {
+            if v <= max {
+                Ok(())
+            } else {
+                Err(self.error(key, format!("{} is above the limit of {max}; {why}", echo_num(v))))
+            }
+        };
         positive("output.rate_hz", o.rate_hz)?;
+        at_most(
+            "output.rate_hz",
+            o.rate_hz,
+            limits::MAX_OUTPUT_RATE_HZ,
+            "the model runs at tens of Hz (40 in the paper)",
+        )?;
+        if o.rate_hz < limits::MIN_OUTPUT_RATE_HZ {
+            return Err(self.error(
+                "output.rate_hz",
+                format!(
+                    "{} Hz is below {} Hz: give the rate in Hz, not the step",
+                    o.rate_hz,
+                    limits::MIN_OUTPUT_RATE_HZ
+                ),
+            ));
+        }
         positive("output.max_gap_s", o.max_gap_s)?;
         positive("output.max_clock_offset_s", o.max_clock_offset_s)?;
+        at_most(
+            "output.max_clock_offset_s",
+            o.max_clock_offset_s,
+            limits::MAX_CLOCK_OFFSET_S,
+            "clocks further apart mean a wrong time_column, time_unit or time_offset_s: fix those instead",
+        )?;
+        positive("limits.max_speed_m_per_s", self.limits.max_speed_m_per_s)?;
+        positive("limits.max_lateral_acceleration_m_per_s2", self.limits.max_lateral_acceleration_m_per_s2)?;
         if !non_negative(o.min_part_s) {
             return Err(self.error("output.min_part_s", format!("must be >= 0, found {}", o.min_part_s)));
         }
@@ -461,9 +632,28 @@ impl Manifest {
         }
         for (name, s) in &self.streams {
             if let Some(r) = s.nominal_rate_hz {
-                positive(&format!("streams.{name}.nominal_rate_hz"), r)?;
+                let key = format!("streams.{name}.nominal_rate_hz");
+                positive(&key, r)?;
+                at_most(&key, r, limits::MAX_NOMINAL_RATE_HZ, "give the sensor's sample rate in Hz")?;
             }
-            positive(&format!("streams.{name}.dejitter_window_s"), s.dejitter_window_s)?;
+            let key = format!("streams.{name}.dejitter_window_s");
+            positive(&key, s.dejitter_window_s)?;
+            at_most(&key, s.dejitter_window_s, limits::MAX_DEJITTER_WINDOW_S, "a few seconds follow clock drift")?;
+            if let Some(r) = s.nominal_rate_hz {
+                let half = s.dejitter_window_s * r / 2.0;
+                if half > limits::MAX_DEJITTER_HALF_WINDOW as f64 {
+                    return Err(self.error(
+                        &key,
+                        format!(
+                            "{} s at nominal_rate_hz = {r} is {} samples each side, above the limit of {}; \
+                             shorten the window",
+                            s.dejitter_window_s,
+                            echo_num(half.round()),
+                            limits::MAX_DEJITTER_HALF_WINDOW
+                        ),
+                    ));
+                }
+            }
             if !s.time_offset_s.is_finite() {
                 return Err(self.error(&format!("streams.{name}.time_offset_s"), "must be finite"));
             }

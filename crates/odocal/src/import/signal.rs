@@ -172,6 +172,12 @@ pub(crate) struct Correlation {
     pub peak: f64,
     /// Sample pairs at the peak.
     pub pairs: usize,
+    /// Sharpness of the peak: −d²r/dτ² from the peak and its neighbours,
+    /// 1/s² (NaN at the edge of the search range).
+    pub curvature: f64,
+    /// The best other local maximum outside the peak's lobe (where r falls
+    /// monotonically from the peak): offset, s, and correlation.
+    pub second: Option<(f64, f64)>,
 }
 
 /// Finds τ maximizing the Pearson correlation of `a[k]` and `b[k − m]`,
@@ -207,7 +213,8 @@ pub(crate) fn cross_correlate(a: &[f64], b: &[f64], h: f64, max_lag: usize) -> O
             let cov = sab - sa * sb / cf;
             let va = saa - sa * sa / cf;
             let vb = sbb - sb * sb / cf;
-            if va <= 0.0 || vb <= 0.0 {
+            // A variance at rounding level is a constant signal: nothing to correlate.
+            if va <= 1e-12 * saa || vb <= 1e-12 * sbb {
                 return (f64::NAN, c);
             }
             (cov / (va * vb).sqrt(), c)
@@ -222,7 +229,28 @@ pub(crate) fn cross_correlate(a: &[f64], b: &[f64], h: f64, max_lag: usize) -> O
             frac = (0.5 * (y0 - y2) / den).clamp(-0.5, 0.5);
         }
     }
-    Some(Correlation { offset_s: (lags[best] as f64 + frac) * h, peak: r[best].0, pairs: r[best].1 })
+    let mut curvature = f64::NAN;
+    if best > 0 && best + 1 < r.len() {
+        curvature = -(r[best - 1].0 - 2.0 * r[best].0 + r[best + 1].0) / (h * h);
+    }
+    // The main lobe: r falls monotonically on both sides of the peak.
+    let (mut lo, mut hi) = (best, best);
+    while lo > 0 && r[lo - 1].0.is_finite() && r[lo - 1].0 <= r[lo].0 {
+        lo -= 1;
+    }
+    while hi + 1 < r.len() && r[hi + 1].0.is_finite() && r[hi + 1].0 <= r[hi].0 {
+        hi += 1;
+    }
+    let second = (0..r.len())
+        .filter(|&i| i < lo || i > hi)
+        .filter(|&i| r[i].0.is_finite())
+        .filter(|&i| {
+            (i == 0 || r[i - 1].0 <= r[i].0 || r[i - 1].0.is_nan())
+                && (i + 1 == r.len() || r[i + 1].0 <= r[i].0 || r[i + 1].0.is_nan())
+        })
+        .max_by(|&a, &b| r[a].0.total_cmp(&r[b].0))
+        .map(|i| (lags[i] as f64 * h, r[i].0));
+    Some(Correlation { offset_s: (lags[best] as f64 + frac) * h, peak: r[best].0, pairs: r[best].1, curvature, second })
 }
 
 #[cfg(test)]

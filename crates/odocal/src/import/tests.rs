@@ -7,8 +7,10 @@ use std::path::{Path, PathBuf};
 use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
 
+use super::source::Stream;
+use super::wheels::wheel_revolutions;
 use super::*;
-use crate::model::{step, State};
+use crate::model::{step, Input, State};
 
 /// Pose interpolation of 10 Hz samples on a 40 m circle at ≤ 13 m/s: chord
 /// error v²·Δt²/(8R) ≈ 5 mm; 2 cm leaves room for the ENU round trip.
@@ -189,9 +191,9 @@ fn synthetic_round_trip() {
 
     // The offset is recovered within one output sample (it is far better).
     let off = report.clock_offset.applied_s;
-    assert!((off - TRUE_CLOCK_OFFSET_S).abs() < drive.sample_time_s, "offset {off}");
+    assert!((off - TRUE_CLOCK_OFFSET_S).abs() < drive.sample_time_s(), "offset {off}");
     // The dropout (pose clock 30–32 s) splits the drive into two parts.
-    assert_eq!(drive.parts.len(), 2, "{report}");
+    assert_eq!(drive.parts().len(), 2, "{report}");
     assert!(report.gaps.iter().any(|g| g.reasons.iter().any(|r| r.contains("pose gap"))), "{report}");
     let gap = &report.gaps[0];
     let gap_truth = 30.0 + TRUE_CLOCK_OFFSET_S - 1.0; // in truth time
@@ -200,20 +202,20 @@ fn synthetic_round_trip() {
     let j = report.jitter.as_ref().expect("jitter report");
     assert!(j.wheel_speed_noise_dejittered_pct < 0.5 * j.wheel_speed_noise_raw_pct, "{j:?}");
 
-    let h = drive.sample_time_s;
+    let h = drive.sample_time_s();
     let shift = TRUE_CLOCK_OFFSET_S - off; // the pose is placed with the estimated offset
     let (mut ep, mut eh, mut en, mut ea) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
     for k in 0..drive.len() {
-        let t = report.time_origin_s + drive.t[k] - 1.0; // truth time
+        let t = report.time_origin_s + drive.t()[k] - 1.0; // truth time
         let tp = t + shift;
-        ep = ep.max((drive.px[k] - tr.at(&tr.x, tp)).hypot(drive.py[k] - tr.at(&tr.y, tp)));
-        eh = eh.max((drive.psi[k] - tr.at(&tr.psi, tp)).abs());
+        ep = ep.max((drive.px()[k] - tr.at(&tr.x, tp)).hypot(drive.py()[k] - tr.at(&tr.y, tp)));
+        eh = eh.max((drive.psi()[k] - tr.at(&tr.psi, tp)).abs());
         let nl = (tr.at(&tr.rev_l, t + h) - tr.at(&tr.rev_l, t)) / h;
         let nr = (tr.at(&tr.rev_r, t + h) - tr.at(&tr.rev_r, t)) / h;
-        en = en.max((drive.n_rl[k] - nl).abs()).max((drive.n_rr[k] - nr).abs());
+        en = en.max((drive.n_rl()[k] - nl).abs()).max((drive.n_rr()[k] - nr).abs());
         // a_y truth: mean over the interval.
         let m: f64 = (0..25).map(|q| tr.at(&tr.a_y, t + (q as f64 + 0.5) * h / 25.0)).sum::<f64>() / 25.0;
-        ea = ea.max((drive.a_y[k] - m).abs());
+        ea = ea.max((drive.a_y()[k] - m).abs());
     }
     eprintln!("offset {off:.4} s (true {TRUE_CLOCK_OFFSET_S}); max errors: position {ep:.4} m, heading {eh:.5} rad, wheels {en:.4} rev/s, a_y {ea:.4} m/s²");
     assert!(ep < POSITION_TOL_M + 13.0 * shift.abs(), "position error {ep} m (offset error {shift} s)");
@@ -224,7 +226,7 @@ fn synthetic_round_trip() {
     let mut buf = Vec::new();
     drive.write_csv_to(&mut buf).expect("write");
     let back = Drive::parse_csv(&buf, Path::new("x.csv")).expect("read back");
-    assert_eq!(back.parts, drive.parts);
+    assert_eq!(back.parts(), drive.parts());
 }
 
 #[test]
@@ -298,9 +300,9 @@ fn error_of(dir: &Path, edit: impl Fn(String) -> String) -> String {
 fn small_case_imports_and_derives_heading() {
     let dir = tempfile::tempdir().expect("tempdir");
     let (d, r) = load_drive(&small_case(dir.path())).expect("import");
-    assert_eq!(d.parts.len(), 1);
-    assert!(d.psi.iter().all(|p| p.abs() < 1e-9), "heading along +x is 0");
-    assert!(d.n_rl.iter().all(|n| (n - 5.0).abs() < 1e-9));
+    assert_eq!(d.parts().len(), 1);
+    assert!(d.psi().iter().all(|p| p.abs() < 1e-9), "heading along +x is 0");
+    assert!(d.n_rl().iter().all(|n| (n - 5.0).abs() < 1e-9));
     let r = r.expect("report");
     assert!(r.to_string().contains("1 of 1 parts kept"), "{r}");
 }
@@ -374,9 +376,9 @@ fn quality_rejection_splits_and_short_parts_are_dropped() {
         r.parts.iter().any(|p| !p.kept && p.dropped_because.as_deref().is_some_and(|w| w.contains("min_part_s"))),
         "{r}"
     );
-    assert_eq!(d.parts.len(), r.parts.iter().filter(|p| p.kept).count());
+    assert_eq!(d.parts().len(), r.parts.iter().filter(|p| p.kept).count());
     // No sample of the drive lies within a rejected stretch.
-    assert!(d.t.iter().all(|t| !(0.9..1.1).contains(t)));
+    assert!(d.t().iter().all(|t| !(0.9..1.1).contains(t)));
 }
 
 #[test]
@@ -389,11 +391,13 @@ fn raw_counter_wraps() {
         cols: [("c".to_string(), (0..100).map(|i| ((100 - 5 * i) as i64).rem_euclid(4096) as f64).collect())]
             .into_iter()
             .collect(),
+        lines: None,
         report: StreamReport {
             name: "w".into(),
             file: PathBuf::new(),
             rows: 100,
             repeated_stamps_dropped: 0,
+            corrupt_rows_dropped: 0,
             time_span_s: [0.0, 1.0],
             mean_rate_hz: 100.0,
             dejitter: None,
@@ -431,7 +435,7 @@ fn van_slice_imports() {
     let (d, r) = load_drive(&data("psu-mapping-van")).expect("van slice");
     let r = r.expect("report");
     // Two RTK-fixed losses in the slice split it.
-    assert!(d.parts.len() >= 2 && r.gaps.iter().any(|g| g.reasons[0].contains("both_fix6")), "{r}");
+    assert!(d.parts().len() >= 2 && r.gaps.iter().any(|g| g.reasons[0].contains("both_fix6")), "{r}");
     // Highway: ~30 m/s over most of 130 s.
     assert!(r.distance_m > 2000.0, "{r}");
     // On top of the README's 0.105 s, the full drive's speed correlation gives
@@ -444,11 +448,11 @@ fn van_slice_imports() {
     assert!(j.wheel_speed_noise_dejittered_pct < 0.5 * j.wheel_speed_noise_raw_pct, "{r}");
     assert!(r.wheel_scale.contains("40360 ticks"), "{r}");
     // c_e ≈ 2 m per 40360 ticks: wheel speed at θ_0 ≈ reference speed.
-    let (mut sw, mut sp) = (0.0, 0.0);
-    for p in &d.parts {
+    let (mut sw, mut sp) = (0.0f64, 0.0f64);
+    for p in d.parts() {
         for k in p.start..p.end - 1 {
-            sw += (d.n_rl[k] + d.n_rr[k]) * 0.5 * 2.0 * d.sample_time_s;
-            sp += (d.px[k + 1] - d.px[k]).hypot(d.py[k + 1] - d.py[k]);
+            sw += (d.n_rl()[k] + d.n_rr()[k]) * 0.5 * 2.0 * d.sample_time_s();
+            sp += (d.px()[k + 1] - d.px()[k]).hypot(d.py()[k + 1] - d.py()[k]);
         }
     }
     assert!((sw / sp - 1.0).abs() < 0.02, "wheel/pose distance {}", sw / sp);
@@ -465,8 +469,13 @@ fn van_raw_counters_match_cumulative_columns() {
     let a = import(&Manifest::parse(&text, &path).expect("m")).expect("cum").drive;
     let b = import(&Manifest::parse(&raw, &path).expect("m")).expect("raw").drive;
     assert_eq!(a.len(), b.len());
-    let worst =
-        a.n_rl.iter().zip(&b.n_rl).chain(a.n_rr.iter().zip(&b.n_rr)).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
+    let worst = a
+        .n_rl()
+        .iter()
+        .zip(b.n_rl())
+        .chain(a.n_rr().iter().zip(b.n_rr()))
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max);
     assert!(worst < 1e-9, "{worst}");
 }
 
@@ -474,10 +483,317 @@ fn van_raw_counters_match_cumulative_columns() {
 fn rav4_slice_imports() {
     let (d, r) = load_drive(&data("comma2k19-rav4")).expect("rav4 slice");
     let r = r.expect("report");
-    assert_eq!(d.parts.len(), 1, "{r}");
+    assert_eq!(d.parts().len(), 1, "{r}");
     assert!((18.0..20.5).contains(&r.duration_s), "{r}");
     assert!(r.clock_offset.applied_s.abs() < 0.1, "{r}");
     // Nearly straight: |a_y| stays small, and is left-positive on average ~0.
-    let mean_ay = d.a_y.iter().sum::<f64>() / d.len() as f64;
+    let mean_ay = d.a_y().iter().sum::<f64>() / d.len() as f64;
     assert!(mean_ay.abs() < 1.0, "{mean_ay}");
+}
+
+#[test]
+fn stream_format_is_tagged_with_csv_by_default() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = small_case(dir.path());
+    let text = std::fs::read_to_string(&path).expect("read");
+    let m = Manifest::parse(&text, &path).expect("manifest");
+    assert_eq!(m.streams["wheels"].source, SourceSpec::Csv { file: "w.csv".into() });
+    let explicit = text.replacen("file = \"w.csv\"", "format = \"csv\"\nfile = \"w.csv\"", 1);
+    assert_eq!(Manifest::parse(&explicit, &path).expect("explicit csv").streams, m.streams);
+    // MCAP needs a topic; the topic is only for MCAP.
+    let mcap = text.replacen("file = \"w.csv\"", "format = \"mcap\"\nfile = \"w.mcap\"", 1);
+    let e = Manifest::parse(&mcap, &path).expect_err("no topic").to_string();
+    assert!(e.contains("streams.wheels") && e.contains("`topic` is required for format = \"mcap\""), "{e}");
+    let e = Manifest::parse(&text.replacen("file = \"w.csv\"", "file = \"w.csv\"\ntopic = \"/w\"", 1), &path)
+        .expect_err("topic on csv")
+        .to_string();
+    assert!(e.contains("`topic` is only for format = \"mcap\""), "{e}");
+    let e = Manifest::parse(&text.replacen("file = \"w.csv\"", "format = \"hdf5\"\nfile = \"w.csv\"", 1), &path)
+        .expect_err("unknown format")
+        .to_string();
+    assert!(e.contains("streams.wheels.format") && e.contains("hdf5"), "{e}");
+    // A parsed MCAP stream (time column optional) is answered by the reader seam.
+    let mcap = mcap.replacen("format = \"mcap\"", "format = \"mcap\"\ntopic = \"/wheels\"", 1);
+    let m = Manifest::parse(&mcap, &path).expect("mcap manifest");
+    assert_eq!(m.streams["wheels"].source, SourceSpec::Mcap { file: "w.mcap".into(), topic: "/wheels".into() });
+    let e = import(&m).map(|_| ()).expect_err("no mcap reader").to_string();
+    assert!(e.contains("streams.wheels.format: \"mcap\""), "{e}");
+}
+
+#[test]
+fn reference_measured_marks_the_sample_nearest_each_pose_sample() {
+    let duration = 40.0;
+    let tr = Truth::new(duration);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = write_synthetic(dir.path(), &tr, duration);
+    let ImportedDrive { drive, report } = import(&Manifest::from_path(&path).expect("m")).expect("import");
+    let mask = drive.reference_measured().expect("an imported drive has the mask");
+    let h = drive.sample_time_s();
+    // Pose times on the drive's clock: 10 Hz on the pose clock, shifted.
+    let shift = report.clock_offset.applied_s - report.time_origin_s;
+    let pose_t: Vec<f64> = (0..1000).map(|j| j as f64 * 0.1 + shift).collect();
+    for (k, &m) in mask.iter().enumerate() {
+        let t = drive.t()[k];
+        let nearest = pose_t.iter().map(|p| (p - t).abs()).fold(f64::INFINITY, f64::min);
+        assert_eq!(m, nearest <= 0.5 * h + 1e-9, "sample {k} t = {t}: nearest pose sample {nearest} s away");
+    }
+    // 40 Hz output, 10 Hz pose: one in four.
+    let frac = mask.iter().filter(|m| **m).count() as f64 / mask.len() as f64;
+    assert!((frac - 0.25).abs() < 0.01, "{frac}");
+}
+
+// ---- Issue 11: bounded resources and physical plausibility. ----
+
+/// Imports the small case after `edit` of the manifest and `edit_w` of the
+/// wheel CSV; returns the error text and the largest grid allocated.
+fn small_case_error(edit: impl Fn(String) -> String, edit_w: impl Fn(String) -> String) -> (String, usize) {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = small_case(dir.path());
+    let text = edit(std::fs::read_to_string(&path).expect("read"));
+    let w = edit_w(std::fs::read_to_string(dir.path().join("w.csv")).expect("read"));
+    std::fs::write(dir.path().join("w.csv"), w).expect("write");
+    limits::LARGEST_GRID.with(|c| c.set(0));
+    let e = Manifest::parse(&text, &path).and_then(|m| import(&m)).map(|_| ()).expect_err("an error").to_string();
+    (e, limits::LARGEST_GRID.with(|c| c.get()))
+}
+
+fn manifest_error(edit: impl Fn(String) -> String) -> String {
+    small_case_error(edit, |w| w).0
+}
+
+#[test]
+fn absurd_output_rates_are_rejected_naming_the_key() {
+    for rate in ["9223372036854775807", "1e9", "1e6", "0.001"] {
+        let e = manifest_error(|t| t.replace("min_part_s = 1.0", &format!("min_part_s = 1.0\nrate_hz = {rate}")));
+        assert!(e.contains("output.rate_hz"), "{rate}: {e}");
+        assert!(e.len() < 400, "{e}");
+    }
+    // Within the rate limit but beyond the sample budget for the span: a
+    // 10 kHz output of a 2000 s log.
+    let (e, largest) = small_case_error(
+        |t| t.replace("min_part_s = 1.0", "min_part_s = 1.0\nrate_hz = 10000"),
+        |w| w.replace("\n3.99,", "\n2000,"),
+    );
+    assert!(e.contains("output.rate_hz") && e.contains("budget"), "{e}");
+    assert_eq!(largest, 0, "nothing allocated before the budget check");
+}
+
+#[test]
+fn search_and_dejitter_settings_beyond_their_limits_are_rejected() {
+    let e = manifest_error(|t| t.replace("clock_offset = 0.0", "clock_offset = \"auto\"\nmax_clock_offset_s = 1e5"));
+    assert!(e.contains("output.max_clock_offset_s") && e.contains("above the limit of 60"), "{e}");
+    let e = manifest_error(|t| t.replacen("time_column = \"t\"", "time_column = \"t\"\ndejitter_window_s = 1e9", 1));
+    assert!(e.contains("streams.wheels.dejitter_window_s"), "{e}");
+    let e = manifest_error(|t| t.replacen("time_column = \"t\"", "time_column = \"t\"\nnominal_rate_hz = 1e7", 1));
+    assert!(e.contains("streams.wheels.nominal_rate_hz"), "{e}");
+    // Below the absolute limit but far above the stream's own rate (100 Hz).
+    let e = manifest_error(|t| t.replacen("time_column = \"t\"", "time_column = \"t\"\nnominal_rate_hz = 5e3", 1));
+    assert!(e.contains("streams.wheels.nominal_rate_hz") && e.contains("mean rate of 100"), "{e}");
+}
+
+#[test]
+fn a_time_unit_mistake_is_a_no_overlap_error_before_any_grid() {
+    // Wheel stamps in µs, declared as seconds, against the pose in seconds.
+    let (e, largest) = small_case_error(
+        |t| t.replace("clock_offset = 0.0", "clock_offset = \"auto\""),
+        |w| {
+            let mut out = String::from("t,left,right\n");
+            for l in w.lines().skip(1) {
+                let (t, rest) = l.split_once(',').expect("row");
+                let t: f64 = t.parse().expect("t");
+                out.push_str(&format!("{},{rest}\n", (t * 1e6 + 1.7e15).round()));
+            }
+            out
+        },
+    );
+    assert!(e.contains("the streams do not overlap in time"), "{e}");
+    assert!(e.contains("streams.wheels") && e.contains("streams.pose"), "{e}");
+    assert!(e.contains("time_unit"), "{e}");
+    assert_eq!(largest, 0, "the overlap is checked before the clock grid: {largest} samples allocated");
+    // Encoder stamps × 1000 (ms read as s): same error, with the hint.
+    let (e, largest) = small_case_error(
+        |t| t,
+        |w| {
+            let mut out = String::from("t,left,right\n");
+            for l in w.lines().skip(1) {
+                let (t, rest) = l.split_once(',').expect("row");
+                let t: f64 = t.parse().expect("t");
+                out.push_str(&format!("{},{rest}\n", 1000.0 * (t + 1000.0)));
+            }
+            out
+        },
+    );
+    assert!(e.contains("do not overlap") && e.contains("time_unit"), "{e}");
+    assert_eq!(largest, 0);
+}
+
+#[test]
+fn wheel_speed_beyond_the_limit_names_the_wheel_and_time() {
+    // 60 rev/s = 120 m/s at θ_0 (the pose moves at 10 m/s).
+    let fast = |w: String| w.replace(",5,5", ",60,60");
+    let (e, _) = small_case_error(|t| t, fast);
+    assert!(e.contains("wheels.rear_left") && e.contains("at t = 0.000 s") && e.contains("max_speed_m_per_s"), "{e}");
+    // The limit is a setting: a vehicle that is that fast raises it (the
+    // wheel/pose mismatch is then a warning).
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = small_case(dir.path());
+    let w = fast(std::fs::read_to_string(dir.path().join("w.csv")).expect("read"));
+    std::fs::write(dir.path().join("w.csv"), w).expect("write");
+    let text = std::fs::read_to_string(&path).expect("read") + "\n[limits]\nmax_speed_m_per_s = 150.0\n";
+    let r = import(&Manifest::parse(&text, &path).expect("m")).expect("raised limit").report;
+    assert!(r.warnings.iter().any(|w| w.contains("wheels.rear_left: the wheel's speed at θ_0 is 12")), "{r}");
+    // Cumulative ticks declared as rev/s.
+    let (e, _) = small_case_error(
+        |t| t,
+        |w| {
+            let mut out = String::from("t,left,right\n");
+            for (i, l) in w.lines().skip(1).enumerate() {
+                let t = l.split(',').next().expect("t");
+                out.push_str(&format!("{t},{},{}\n", 2000 * i, 2000 * i));
+            }
+            out
+        },
+    );
+    assert!(e.contains("wheels.rear_left") && e.contains("ticks_cumulative"), "{e}");
+}
+
+#[test]
+fn pose_columns_holding_ecef_or_metres_are_named() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = small_case(dir.path());
+    let text = std::fs::read_to_string(&path).expect("read");
+    let latlon = text.replace(
+        "position = { kind = \"local\", x = \"x\", y = \"y\" }",
+        "position = { kind = \"lat_lon\", lat = \"x\", lon = \"y\" }",
+    );
+    // Metres in the lat column (0 … 39, all within ±90): 111 km per step.
+    let e = Manifest::parse(&latlon, &path).and_then(|m| import(&m)).map(|_| ()).expect_err("metres").to_string();
+    assert!(e.contains("pose.position.lat") && e.contains("max_speed_m_per_s"), "{e}");
+    // ECEF metres: outside ±90.
+    let p = std::fs::read_to_string(dir.path().join("p.csv")).expect("read");
+    let ecef: String = p
+        .lines()
+        .enumerate()
+        .map(|(i, l)| if i == 0 { l.to_string() } else { l.replacen(",0,", ",4510000,", 1) })
+        .collect::<Vec<_>>()
+        .join("\n");
+    std::fs::write(dir.path().join("p.csv"), ecef).expect("write");
+    let e = Manifest::parse(&latlon, &path).and_then(|m| import(&m)).map(|_| ()).expect_err("ecef").to_string();
+    assert!(e.contains("pose.position.lat") && e.contains("4510000") && e.contains("outside ±90"), "{e}");
+}
+
+/// The synthetic drive's manifest after `edit`; the error text.
+fn synthetic_error(edit: impl Fn(String) -> String) -> String {
+    let duration = 40.0;
+    let tr = Truth::new(duration);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = write_synthetic(dir.path(), &tr, duration);
+    let text = edit(std::fs::read_to_string(&path).expect("read"));
+    let m = Manifest::parse(&text, &path).expect("manifest");
+    import(&m).map(|_| ()).expect_err("an error").to_string()
+}
+
+#[test]
+fn flipped_wheel_sign_and_heading_unit_and_convention_are_named() {
+    let e = synthetic_error(|t| t.replace("{ column = \"right\", sign = -1 }", "{ column = \"right\" }"));
+    assert!(e.contains("wheels.rear_right.sign") && e.contains("backwards"), "{e}");
+    let e = synthetic_error(|t| t.replace("unit = \"deg\"", "unit = \"rad\""));
+    assert!(e.contains("pose.heading.unit") && e.contains("degrees"), "{e}");
+    let e = synthetic_error(|t| t.replace("convention = \"ned\"", "convention = \"enu\""));
+    assert!(e.contains("pose.heading.convention"), "{e}");
+}
+
+#[test]
+fn a_counter_narrower_than_declared_is_detected() {
+    // The van's raw counters are 32-bit.
+    let path = data("psu-mapping-van");
+    let text = std::fs::read_to_string(&path)
+        .expect("read")
+        .replace("signal = \"ticks_cumulative\"", "signal = \"ticks_raw\"\ncounter_bits = 8")
+        .replace("{ column = \"left_ticks_cum\" }", "{ column = \"c1_raw\", sign = -1 }")
+        .replace("{ column = \"right_ticks_cum\" }", "{ column = \"c2_raw\" }");
+    let e = import(&Manifest::parse(&text, &path).expect("m")).map(|_| ()).expect_err("8 bits").to_string();
+    assert!(e.contains("wheels.counter_bits") && e.contains("8-bit"), "{e}");
+    assert!(!e.contains("NaN"), "{e}");
+}
+
+#[test]
+fn long_fields_are_echoed_truncated() {
+    let (e, _) = small_case_error(|t| t, |w| w.replacen("\n0.01,5,5", &format!("\n0.01,{},5", "x".repeat(10_000)), 1));
+    assert!(e.contains("is not a number") && e.contains("(10000 bytes)") && e.len() < 300, "{e}");
+}
+
+#[test]
+fn a_corrupt_wheel_row_is_dropped_not_turned_into_a_speed_spike() {
+    // A cumulative count read as 0 for one row (as on the 2024-08-05 test track).
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = small_case(dir.path());
+    let text = std::fs::read_to_string(&path)
+        .expect("read")
+        .replace("signal = \"rev_per_s\"", "signal = \"ticks_cumulative\"\nticks_per_rev = 1000");
+    std::fs::write(&path, text).expect("write");
+    let mut w = String::from("t,left,right\n");
+    for i in 0..400 {
+        let c = if i == 200 { 0 } else { 5000 + 50 * i };
+        writeln!(w, "{},{c},{c}", i as f64 / 100.0).expect("write");
+    }
+    std::fs::write(dir.path().join("w.csv"), w).expect("write");
+    let (d, r) = load_drive(&path).expect("import");
+    let r = r.expect("report");
+    assert_eq!(r.streams.iter().map(|s| s.corrupt_rows_dropped).sum::<usize>(), 1, "{r}");
+    assert!(r.warnings.iter().any(|w| w.contains("line 202")), "{r}");
+    let worst = d.n_rl().iter().chain(d.n_rr()).map(|n| (n - 5.0).abs()).fold(0.0, f64::max);
+    assert!(worst < 1e-9, "wheel speeds stay 5 rev/s: worst deviation {worst}");
+}
+
+// ---- Issue 10 item 6: robust clock offset. ----
+
+fn corr(offset_s: f64, peak: f64, second: Option<(f64, f64)>) -> signal::Correlation {
+    signal::Correlation { offset_s, peak, pairs: 1000, curvature: 1.0, second }
+}
+
+#[test]
+fn clock_estimate_is_doubted_when_not_clearly_better() {
+    let h = 0.025;
+    assert!(clock::doubt(Some(corr(0.1, 0.99, Some((1.0, 0.5)))), None, h).is_none());
+    let d = clock::doubt(Some(corr(-1.09, 0.004, None)), None, h).expect("low correlation");
+    assert!(d.contains("0.004 is below 0.5"), "{d}");
+    let d = clock::doubt(Some(corr(0.1, 0.95, Some((0.9, 0.94)))), None, h).expect("ambiguous");
+    assert!(d.contains("second correlation peak at +0.900 s"), "{d}");
+    // A confident yaw-rate cross-check more than a sample away doubts it; a
+    // weak one does not.
+    assert!(clock::doubt(Some(corr(0.1, 0.99, None)), Some(corr(0.2, 0.9, None)), h).is_some());
+    assert!(clock::doubt(Some(corr(0.1, 0.99, None)), Some(corr(0.2, 0.5, None)), h).is_none());
+    assert!(clock::doubt(Some(corr(0.1, 0.99, None)), Some(corr(0.11, 0.9, None)), h).is_none());
+    assert!(clock::doubt(None, None, h).is_some());
+}
+
+#[test]
+fn auto_offset_keeps_the_manifest_offset_and_warns_when_in_doubt() {
+    // Constant wheel speeds: nothing to correlate.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = small_case(dir.path());
+    let text = std::fs::read_to_string(&path).expect("read").replace("clock_offset = 0.0", "clock_offset = \"auto\"");
+    let r = import(&Manifest::parse(&text, &path).expect("m")).expect("import").report;
+    assert!(r.clock_offset.applied_s.abs() < 1e-15, "{r}");
+    assert!(r.clock_offset.doubt.is_some(), "{r}");
+    assert!(r.warnings.iter().any(|w| w.contains("kept the streams' time_offset_s")), "{r}");
+}
+
+#[test]
+fn a_known_offset_is_applied_with_its_confidence() {
+    let duration = 70.0;
+    let tr = Truth::new(duration);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = write_synthetic(dir.path(), &tr, duration);
+    let c = import(&Manifest::from_path(&path).expect("m")).expect("import").report.clock_offset;
+    assert!(c.doubt.is_none(), "{c:?}");
+    assert!((c.applied_s - TRUE_CLOCK_OFFSET_S).abs() < 0.025, "{c:?}");
+    let k = c.peak_curvature_per_s2.expect("curvature");
+    let u = c.uncertainty_s.expect("uncertainty");
+    eprintln!(
+        "simulated offset {TRUE_CLOCK_OFFSET_S}: estimated {:.4} s, curvature {k:.3} /s², ± {u:.4} s",
+        c.applied_s
+    );
+    assert!(k > 0.0 && u < 0.1, "{c:?}");
 }

@@ -27,7 +27,7 @@ use nalgebra::{Vector2, Vector3};
 use super::{QpError, QpSolution, QpSolver, StageQp, ACTIVE_BOUND_TOL};
 
 /// Settings of [`ClarabelSolver`].
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ClarabelOptions {
     /// Absolute and relative duality-gap tolerance (Clarabel `tol_gap_abs`,
     /// `tol_gap_rel`). Default 1e-10: this solver is the reference, and
@@ -45,6 +45,23 @@ pub struct ClarabelOptions {
 impl Default for ClarabelOptions {
     fn default() -> Self {
         Self { tol_gap: 1e-10, tol_feas: 1e-10, max_iterations: 200, accept_almost_solved: true }
+    }
+}
+
+impl ClarabelOptions {
+    /// Checks every field; the error names the field.
+    pub fn validate(&self) -> Result<(), QpError> {
+        for (v, name) in [(self.tol_gap, "tol_gap"), (self.tol_feas, "tol_feas")] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(QpError::Malformed(format!(
+                    "ClarabelOptions::{name} must be positive and finite, got {v}"
+                )));
+            }
+        }
+        if self.max_iterations == 0 {
+            return Err(QpError::Malformed("ClarabelOptions::max_iterations must be at least 1".into()));
+        }
+        Ok(())
     }
 }
 

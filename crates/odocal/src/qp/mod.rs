@@ -42,8 +42,6 @@ use std::fmt;
 use std::str::FromStr;
 
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix3x2, Vector2, Vector3};
-use rand::SeedableRng;
-use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
 use crate::model::{step_jacobians, Input, Theta};
@@ -423,12 +421,16 @@ impl fmt::Display for SolverKind {
 }
 
 impl FromStr for SolverKind {
-    type Err = String;
+    type Err = crate::error::Error;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         match s.trim().to_ascii_lowercase().as_str() {
             "structured" => Ok(SolverKind::Structured),
             "clarabel" => Ok(SolverKind::Clarabel),
-            other => Err(format!("unknown QP solver '{other}'; expected 'structured' or 'clarabel'")),
+            _ => Err(crate::error::Error::Parse {
+                what: "QP solver",
+                input: s.to_string(),
+                expected: "structured or clarabel",
+            }),
         }
     }
 }
@@ -453,7 +455,10 @@ impl FromStr for SolverKind {
 /// `tightness ≈ 0.9` activates many input bounds, `≈ 0.97` state bounds
 /// too; from about 0.98 on, some instances have no feasible point.
 /// Values of `tightness` are clamped to [0, 0.999].
+#[cfg(any(test, feature = "test-fixtures"))]
 pub fn random_instance(seed: u64, stages: usize, tightness: f64) -> StageQp {
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, StandardNormal};
     const T_S: f64 = 0.025;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let mut g = || -> f64 { StandardNormal.sample(&mut rng) };

@@ -49,7 +49,7 @@ use nalgebra::{Matrix2, Matrix3, Matrix3x2, Matrix5, SMatrix, Vector2, Vector3, 
 use super::{QpError, QpSolution, QpSolver, StageQp, ACTIVE_BOUND_TOL};
 
 /// Options of [`StructuredSolver`].
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct StructuredOptions {
     /// Relative tolerance on the primal residuals (dynamics and slack
     /// definitions), scaled by `1 + max|c_k|, |bounds|`. Default 1e-9.

@@ -1,0 +1,62 @@
+//! Raw batch Gauss-Newton: one identification from θ_0 over every selected
+//! segment with the measured wheel rotations (SPEC §4). Biased by input
+//! noise (SPEC §10), but fast and the reference the other methods are
+//! judged against.
+
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use super::{turning_segments, Estimator, MethodDetail, MethodOutcome, Prepared, Selection, Timing};
+use crate::error::Result;
+use crate::identify::{batch_gauss_newton, IdentifyReport};
+use crate::progress::{emit, Progress, ProgressFn};
+use crate::segment::SegmentData;
+
+/// Settings of batch Gauss-Newton beyond the shared ones (none yet: the
+/// Gauss-Newton settings are [`super::CalibrationOptions::identify`]).
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct BatchGnOptions {}
+
+/// What batch Gauss-Newton reports.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BatchGnDetail {
+    /// The identification.
+    pub identification: IdentifyReport,
+}
+
+impl Estimator for BatchGnOptions {
+    fn name(&self) -> &'static str {
+        "batch-gn"
+    }
+
+    fn validate(&self) -> Result<()> {
+        Ok(())
+    }
+
+    fn select(&self, prep: &Prepared<'_>) -> Result<Selection> {
+        turning_segments(prep)
+    }
+
+    fn run(
+        &self,
+        prep: &Prepared<'_>,
+        selection: &Selection,
+        progress: Option<ProgressFn<'_>>,
+    ) -> Result<MethodOutcome> {
+        let t = Instant::now();
+        emit(progress, Progress::Stage { name: "batch Gauss-Newton", total: 1 });
+        let data: Vec<SegmentData> = selection.segments.iter().map(|s| SegmentData::new(prep.drive, s)).collect();
+        let report = batch_gauss_newton(&data, &prep.options.theta0, &selection.identify(prep.options))?;
+        emit(progress, Progress::Advance(1));
+        Ok(MethodOutcome {
+            theta: report.theta,
+            covariance: report.covariance,
+            observability: report.observability.clone(),
+            detail: MethodDetail::BatchGn(BatchGnDetail { identification: report }),
+            timing: Timing { initial_identification: t.elapsed().as_secs_f64(), ..Timing::default() },
+            warnings: Vec::new(),
+            compensated: None,
+        })
+    }
+}

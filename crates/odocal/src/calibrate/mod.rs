@@ -1,0 +1,647 @@
+//! Calibration: the methods that turn a drive into θ, and what they share
+//! (SPEC §6).
+//!
+//! A calibration runs in three parts:
+//! 1. *shared preparation* (this module): options checked, validation
+//!    segments cut, and Ē_p of θ_0 on the report's validation data (the
+//!    drive itself or held-out data, [`Holdout`]);
+//! 2. the method's own *selection* of the data it fits and of the
+//!    parameters it can estimate: the segment-based methods cut calibration
+//!    segments, keep those turning faster than the threshold and apply the
+//!    observability rules ([`CalibrationOptions::auto_fix`]); a method that
+//!    fits whole drive parts is not held to the yaw-rate rule;
+//! 3. the method's *estimate*, then the shared validation of the result
+//!    and the [`CalibrationReport`]: θ, covariance, observability, validation
+//!    and a per-method [`MethodDetail`].
+//!
+//! The methods:
+//! - [`batch_gn`]: raw batch Gauss-Newton over all selected segments;
+//! - [`three_step`]: the paper's 3-step method with input compensation.
+//!
+//! ## Adding a method
+//!
+//! A method is one file and one variant. In `calibrate/my_method.rs`:
+//! `MyMethodOptions` (public fields, `Default`, `validate()`), its report
+//! detail `MyMethodDetail`, and `impl Estimator for MyMethodOptions` (a
+//! crate-internal trait) with `select` (often the shared
+//! `turning_segments`) and `run(&self, prep, selection, progress) ->
+//! Result<MethodOutcome>`. Then add `Method::MyMethod(MyMethodOptions)` and
+//! `MethodDetail::MyMethod(MyMethodDetail)`, and one arm in
+//! `Method::estimator`, `Method::from_name` and [`Method::NAMES`]. The shared
+//! preparation, validation, report, JSON and CLI (`--method my-method`) need
+//! no change.
+//!
+//! Every random choice takes [`CalibrationOptions::seed`]; work runs in
+//! parallel (rayon) and results are collected in a fixed order, so the
+//! output does not depend on the thread count.
+
+use std::borrow::Cow;
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use crate::compensate::{CompensatedInputs, CompensationStep};
+use crate::drive::Drive;
+use crate::error::{Error, Result};
+use crate::identify::{batch_normal_equations, observability, IdentifyOptions, IdentifyReport, Observability};
+use crate::model::Theta;
+use crate::param::{Param, ParamSet};
+use crate::progress::ProgressFn;
+use crate::segment::{
+    calibration_segments, validation_segments, Segment, SegmentData, SegmentOptions, ValidationSegmentOptions,
+};
+use crate::validate::mean_position_error;
+use crate::warning::Warning;
+
+pub mod batch_gn;
+pub mod three_step;
+
+pub use batch_gn::{BatchGnDetail, BatchGnOptions};
+pub use three_step::{
+    per_segment_identification, random_batches, score_batches, BatchResult, FinalSegments, InitialStep,
+    ThreeStepDetail, ThreeStepOptions,
+};
+
+/// Which calibration method to run, with its settings.
+///
+/// Serialised as `{"name": "three-step", …settings}`; the report's `method`
+/// is the name alone (SPEC §9).
+// Options are built once per calibration and borrowed: boxing the large
+// variant would only make `Method::ThreeStep(ThreeStepOptions { .. })` harder to write.
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "name", rename_all = "kebab-case")]
+pub enum Method {
+    /// The 3-step method with input compensation (default).
+    ThreeStep(ThreeStepOptions),
+    /// Raw batch Gauss-Newton over all selected segments.
+    BatchGn(BatchGnOptions),
+}
+
+impl Default for Method {
+    fn default() -> Self {
+        Method::ThreeStep(ThreeStepOptions::default())
+    }
+}
+
+impl Method {
+    /// The names of the methods, as `--method` takes them.
+    pub const NAMES: [&'static str; 2] = ["three-step", "batch-gn"];
+
+    /// The method's name (`"three-step"`, `"batch-gn"`).
+    pub fn name(&self) -> &'static str {
+        self.estimator().name()
+    }
+
+    /// The named method with its default settings.
+    pub fn from_name(name: &str) -> Result<Method> {
+        match name.trim() {
+            "three-step" => Ok(Method::ThreeStep(ThreeStepOptions::default())),
+            "batch-gn" => Ok(Method::BatchGn(BatchGnOptions::default())),
+            _ => Err(Error::Parse { what: "method", input: name.to_string(), expected: "three-step or batch-gn" }),
+        }
+    }
+
+    /// Checks the method's settings, naming the offending field.
+    pub fn validate(&self) -> Result<()> {
+        self.estimator().validate()
+    }
+
+    fn estimator(&self) -> &dyn Estimator {
+        match self {
+            Method::ThreeStep(o) => o,
+            Method::BatchGn(o) => o,
+        }
+    }
+}
+
+impl std::fmt::Display for Method {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Method {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        Method::from_name(s)
+    }
+}
+
+/// All settings of a calibration. `Default` holds the SPEC defaults.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationOptions {
+    /// The method and its own settings. Default three-step.
+    pub method: Method,
+    /// Initial guess θ_0. Default the paper's `[2.0, 0, 1.6, 0]`.
+    pub theta0: Theta,
+    /// Calibration segments (segment-based methods). Default K = 650,
+    /// stride 100, yaw rate > 0.15 rad/s.
+    pub segments: SegmentOptions,
+    /// Validation segments. Default K_v = 1300, stride 650, offset 50.
+    pub validation: ValidationSegmentOptions,
+    /// Gauss-Newton settings (every identification), including which
+    /// parameters are free.
+    pub identify: IdentifyOptions,
+    /// Seed of every random choice. Default 0.
+    pub seed: u64,
+    /// Hold at θ_0 the parameters these data cannot determine, instead of
+    /// estimating them (not in the paper; default false, the SPEC
+    /// behaviour). When no segment turns enough, c_d, t_r and d are held and
+    /// every segment is used; otherwise the observability check
+    /// ([`crate::identify::observability`]) runs on the selected segments at
+    /// θ_0 and the named parameter with the smallest sensitivity is held,
+    /// repeatedly, until none is named (c_e is never held). What was held is
+    /// listed in [`CalibrationReport::auto_fixed`].
+    #[serde(default)]
+    pub auto_fix: bool,
+}
+
+impl Default for CalibrationOptions {
+    fn default() -> Self {
+        CalibrationOptions {
+            method: Method::default(),
+            theta0: Theta::PAPER_INITIAL,
+            segments: SegmentOptions::default(),
+            validation: ValidationSegmentOptions::default(),
+            identify: IdentifyOptions::default(),
+            seed: 0,
+            auto_fix: false,
+        }
+    }
+}
+
+impl CalibrationOptions {
+    /// Checks all options, naming the offending field.
+    pub fn validate(&self) -> Result<()> {
+        self.theta0.validate()?;
+        self.segments.validate()?;
+        self.validation.validate()?;
+        self.identify.validate()?;
+        self.method.validate()
+    }
+}
+
+/// θ with its mean validation position error.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ThetaScore {
+    /// Parameters.
+    pub theta: Theta,
+    /// Ē_p on the validation segments, m.
+    pub mean_position_error_m: f64,
+}
+
+/// Counts of segments.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SegmentCounts {
+    /// Calibration segments cut.
+    pub cut: usize,
+    /// Calibration segments selected (turning enough).
+    pub selected: usize,
+    /// Validation segments.
+    pub validation: usize,
+}
+
+/// Wall time per stage, s.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Timing {
+    /// Whole calibration.
+    pub total: f64,
+    /// Preparation, segment selection and validation of θ_0.
+    pub setup: f64,
+    /// Step 1 (or the single batch G-N of batch-gn).
+    pub initial_identification: f64,
+    /// Step 2.
+    pub compensation: f64,
+    /// Step 3.
+    pub final_identification: f64,
+    /// Validation of the result.
+    pub validation: f64,
+}
+
+/// Validation summary of the result (SPEC §9 `validation`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ValidationSummary {
+    /// Ē_p of the result, m.
+    pub mean_position_error_m: f64,
+    /// Validation segments.
+    pub segments: usize,
+    /// True when the validation ran on held-out data that the calibration
+    /// did not see (see [`calibrate_held_out`]).
+    pub held_out: bool,
+}
+
+/// What a method reports beyond the shared estimate. In JSON its fields
+/// stand at the top level of the report (`initial_step`, `compensation`,
+/// `identification`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum MethodDetail {
+    /// The 3-step method's steps 1–3.
+    ThreeStep(ThreeStepDetail),
+    /// Batch Gauss-Newton's identification.
+    BatchGn(BatchGnDetail),
+}
+
+/// The calibration report (SPEC §9 and more).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationReport {
+    /// The method run (`"three-step"`, `"batch-gn"`).
+    pub method: String,
+    /// The calibrated θ.
+    pub theta: Theta,
+    /// Covariance of θ (4×4, row-major, zero rows for parameters not
+    /// estimated), SI units squared.
+    pub covariance: [[f64; 4]; 4],
+    /// Observability of the parameters at the estimate.
+    pub observability: Observability,
+    /// Ē_p of the result.
+    pub validation: ValidationSummary,
+    /// θ_0 and its Ē_p.
+    pub initial: ThetaScore,
+    /// Wall time per stage.
+    pub timing_s: Timing,
+    /// Segment counts.
+    pub segments: SegmentCounts,
+    /// The method's own results.
+    #[serde(flatten)]
+    pub detail: MethodDetail,
+    /// Things the user should know (unobservable parameters, dropped
+    /// segments, solver fallbacks).
+    pub warnings: Vec<Warning>,
+    /// Parameters held at θ_0 by [`CalibrationOptions::auto_fix`], in the
+    /// order they were held (`options.identify.free` shows the final set).
+    pub auto_fixed: Vec<Param>,
+    /// The options used.
+    pub options: CalibrationOptions,
+}
+
+impl CalibrationReport {
+    /// The final Gauss-Newton identification (batch-gn: the only one;
+    /// three-step: step 3).
+    pub fn identification(&self) -> Option<&IdentifyReport> {
+        match &self.detail {
+            MethodDetail::ThreeStep(d) => Some(&d.identification),
+            MethodDetail::BatchGn(d) => Some(&d.identification),
+        }
+    }
+
+    /// Step 1 of the 3-step method.
+    pub fn initial_step(&self) -> Option<&InitialStep> {
+        match &self.detail {
+            MethodDetail::ThreeStep(d) => Some(&d.initial_step),
+            MethodDetail::BatchGn(_) => None,
+        }
+    }
+
+    /// Step 2 of the 3-step method.
+    pub fn compensation(&self) -> Option<&CompensationStep> {
+        match &self.detail {
+            MethodDetail::ThreeStep(d) => Some(&d.compensation),
+            MethodDetail::BatchGn(_) => None,
+        }
+    }
+
+    /// One-σ model standard deviations of θ (square roots of the covariance diagonal).
+    pub fn std_dev(&self) -> Theta {
+        let c = &self.covariance;
+        Theta { c_e: c[0][0].sqrt(), c_d: c[1][1].sqrt(), t_r: c[2][2].sqrt(), d: c[3][3].sqrt() }
+    }
+}
+
+/// Where the report's validation runs: on part of the drive the calibration
+/// does not see, or on another drive of the same vehicle.
+// One per calibration; `Other` owns its drive so callers need not keep it alive.
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone, PartialEq)]
+pub enum Holdout {
+    /// Hold out the first half (by time); calibrate on the second.
+    FirstHalf,
+    /// Hold out the second half; calibrate on the first.
+    SecondHalf,
+    /// Calibrate on the whole drive; validate on this one.
+    Other(Drive),
+}
+
+impl Holdout {
+    /// The drive to calibrate on and the held-out drive. The halves are
+    /// split at the middle of `[t_0, t_last + t_s)` ([`Drive::split_at_time`]).
+    pub fn split<'a>(&'a self, drive: &'a Drive) -> Result<(Cow<'a, Drive>, Cow<'a, Drive>)> {
+        let halves = || -> Result<(Drive, Drive)> {
+            if drive.is_empty() {
+                return Err(Error::InvalidDrive { context: "hold-out".into(), reason: "the drive is empty".into() });
+            }
+            let (t0, t1) = (drive.t()[0], drive.t()[drive.len() - 1] + drive.sample_time_s());
+            drive.split_at_time(0.5 * (t0 + t1))
+        };
+        Ok(match self {
+            Holdout::FirstHalf => {
+                let (first, second) = halves()?;
+                (Cow::Owned(second), Cow::Owned(first))
+            }
+            Holdout::SecondHalf => {
+                let (first, second) = halves()?;
+                (Cow::Owned(first), Cow::Owned(second))
+            }
+            Holdout::Other(other) => (Cow::Borrowed(drive), Cow::Borrowed(other)),
+        })
+    }
+}
+
+/// Runs a calibration of `drive` with `opts` (SPEC §6).
+///
+/// ```
+/// # fn main() -> Result<(), odocal::Error> {
+/// use odocal::{calibrate, sim, CalibrationOptions, Method, ThreeStepOptions};
+/// let drive = sim::simulate(&sim::SimOptions { length_km: 3.0, ..sim::SimOptions::paper(1) })?.drive;
+/// let method = Method::ThreeStep(ThreeStepOptions { initial_batches: 8, ..Default::default() });
+/// let report = calibrate(&drive, &CalibrationOptions { method, ..Default::default() }, None)?;
+/// assert!(report.validation.mean_position_error_m < report.initial.mean_position_error_m);
+/// # Ok(()) }
+/// ```
+pub fn calibrate(
+    drive: &Drive,
+    opts: &CalibrationOptions,
+    progress: Option<ProgressFn<'_>>,
+) -> Result<CalibrationReport> {
+    calibrate_held_out(drive, None, opts, progress)
+}
+
+/// Runs a calibration on `drive` and, when `held_out` is given, reports
+/// `validation` and `initial` Ē_p on the held-out drive instead (the
+/// calibration, including the choice of θ_B,I in step 1, sees only `drive`).
+pub fn calibrate_held_out(
+    drive: &Drive,
+    held_out: Option<&Drive>,
+    opts: &CalibrationOptions,
+    progress: Option<ProgressFn<'_>>,
+) -> Result<CalibrationReport> {
+    calibrate_detailed(drive, held_out, opts, progress).map(|d| d.report)
+}
+
+/// [`calibrate_held_out`] with the fit and held-out drives chosen by `holdout`.
+pub fn calibrate_with_holdout(
+    drive: &Drive,
+    holdout: &Holdout,
+    opts: &CalibrationOptions,
+    progress: Option<ProgressFn<'_>>,
+) -> Result<CalibrationReport> {
+    let (fit, held) = holdout.split(drive)?;
+    calibrate_held_out(&fit, Some(&held), opts, progress)
+}
+
+/// A calibration with the intermediate data an experiment needs: the report,
+/// the segments used and (three-step only) the compensated inputs of step 2.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DetailedCalibration {
+    /// The report [`calibrate`] returns.
+    pub report: CalibrationReport,
+    /// The calibration segments fitted (all segments when none turns
+    /// enough and `auto_fix` is on).
+    pub selected: Vec<Segment>,
+    /// The validation segments of the calibration drive.
+    pub validation: Vec<Segment>,
+    /// Step 2's compensated inputs (three-step only).
+    pub compensated: Option<CompensatedInputs>,
+}
+
+/// What the shared preparation hands to a method.
+pub(crate) struct Prepared<'a> {
+    /// The drive to calibrate on.
+    pub drive: &'a Drive,
+    /// The options as given.
+    pub options: &'a CalibrationOptions,
+    /// Validation segments of `drive` (step 1 scores its batches on them).
+    pub validation: Vec<Segment>,
+}
+
+/// The data and parameters a method fits, chosen by the method.
+pub(crate) struct Selection {
+    /// Calibration segments to fit (empty for a method over whole parts).
+    pub segments: Vec<Segment>,
+    /// Segments cut and segments that turn enough (report counts).
+    pub cut: usize,
+    /// See `cut`.
+    pub selected: usize,
+    /// The parameters to estimate (the options' free set less those held).
+    pub free: ParamSet,
+    /// Parameters held at θ_0 by auto-fix, in order.
+    pub auto_fixed: Vec<Param>,
+    /// Warnings of the selection (auto-fix).
+    pub warnings: Vec<Warning>,
+}
+
+impl Selection {
+    /// The options' Gauss-Newton settings with the selected free set.
+    pub fn identify(&self, opts: &CalibrationOptions) -> IdentifyOptions {
+        IdentifyOptions { free: self.free, ..opts.identify.clone() }
+    }
+}
+
+/// What a method returns to the shared part.
+pub(crate) struct MethodOutcome {
+    /// The estimate.
+    pub theta: Theta,
+    /// Its covariance.
+    pub covariance: [[f64; 4]; 4],
+    /// Observability at the estimate.
+    pub observability: Observability,
+    /// The method's own results.
+    pub detail: MethodDetail,
+    /// Stage times (the method's stages only).
+    pub timing: Timing,
+    /// The method's warnings.
+    pub warnings: Vec<Warning>,
+    /// Step 2's compensated inputs, for methods that compensate.
+    pub compensated: Option<CompensatedInputs>,
+}
+
+/// A calibration method (crate-internal seam; see the module docs).
+pub(crate) trait Estimator {
+    /// The method's name in reports and on the command line.
+    fn name(&self) -> &'static str;
+    /// Checks the method's settings.
+    fn validate(&self) -> Result<()>;
+    /// Chooses the data to fit and the parameters to estimate.
+    fn select(&self, prep: &Prepared<'_>) -> Result<Selection>;
+    /// Estimates θ.
+    fn run(
+        &self,
+        prep: &Prepared<'_>,
+        selection: &Selection,
+        progress: Option<ProgressFn<'_>>,
+    ) -> Result<MethodOutcome>;
+}
+
+/// [`calibrate_held_out`], also returning the segments and step 2's
+/// compensated inputs.
+pub fn calibrate_detailed(
+    drive: &Drive,
+    held_out: Option<&Drive>,
+    opts: &CalibrationOptions,
+    progress: Option<ProgressFn<'_>>,
+) -> Result<DetailedCalibration> {
+    opts.validate()?;
+    let t_start = Instant::now();
+    let prep = Prepared { drive, options: opts, validation: validation_segments(drive, &opts.validation)? };
+    let method = opts.method.estimator();
+    let selection = method.select(&prep)?;
+    if prep.validation.is_empty() {
+        return Err(Error::NoSegments(format!(
+            "the drive ({} samples) is too short for one validation segment of {} steps",
+            drive.len(),
+            opts.validation.length_steps
+        )));
+    }
+    let (report_drive, report_segments) = match held_out {
+        Some(h) => {
+            let segs = validation_segments(h, &opts.validation)?;
+            if segs.is_empty() {
+                return Err(Error::NoSegments(format!(
+                    "the held-out drive ({} samples) is too short for one validation segment of {} steps",
+                    h.len(),
+                    opts.validation.length_steps
+                )));
+            }
+            (h, segs)
+        }
+        None => (drive, prep.validation.clone()),
+    };
+    let initial_val = mean_position_error(report_drive, &report_segments, &opts.theta0)?;
+    let setup = t_start.elapsed().as_secs_f64();
+
+    let outcome = method.run(&prep, &selection, progress)?;
+    let mut warnings = selection.warnings.clone();
+    warnings.extend(outcome.warnings);
+    if !outcome.observability.unobservable.is_empty() {
+        let o = &outcome.observability;
+        warnings.push(Warning::Unobservable {
+            stage: "final identification".into(),
+            params: o.unobservable,
+            sensitivity_m: o.sensitivity_m,
+            rcond: o.rcond,
+        });
+    }
+    let t = Instant::now();
+    let val = mean_position_error(report_drive, &report_segments, &outcome.theta)?;
+    let timing = Timing {
+        setup,
+        validation: t.elapsed().as_secs_f64(),
+        total: t_start.elapsed().as_secs_f64(),
+        ..outcome.timing
+    };
+    let mut options = opts.clone();
+    options.identify.free = selection.free;
+    let report = CalibrationReport {
+        method: method.name().to_string(),
+        theta: outcome.theta,
+        covariance: outcome.covariance,
+        observability: outcome.observability,
+        validation: ValidationSummary {
+            mean_position_error_m: val.mean_position_error_m,
+            segments: val.segments,
+            held_out: held_out.is_some(),
+        },
+        initial: ThetaScore { theta: opts.theta0, mean_position_error_m: initial_val.mean_position_error_m },
+        timing_s: timing,
+        segments: SegmentCounts { cut: selection.cut, selected: selection.selected, validation: report_segments.len() },
+        detail: outcome.detail,
+        warnings,
+        auto_fixed: selection.auto_fixed.clone(),
+        options,
+    };
+    Ok(DetailedCalibration {
+        report,
+        selected: selection.segments,
+        validation: prep.validation,
+        compensated: outcome.compensated,
+    })
+}
+
+/// The segment-based methods' selection (SPEC §3, §6): calibration segments
+/// turning faster than the threshold; with none, an error naming the
+/// yaw-only parameters, or (auto-fix) those held and every segment used;
+/// with auto-fix, parameters the observability check names at θ_0 held.
+pub(crate) fn turning_segments(prep: &Prepared<'_>) -> Result<Selection> {
+    let (drive, opts) = (prep.drive, prep.options);
+    let selection = calibration_segments(drive, &opts.segments)?;
+    if selection.all.is_empty() {
+        return Err(Error::NoSegments(format!(
+            "the drive has {} samples in {} part(s); a calibration segment needs {} steps",
+            drive.len(),
+            drive.parts().len(),
+            opts.segments.length_steps + 1
+        )));
+    }
+    let mut free = opts.identify.free;
+    let mut auto_fixed = Vec::new();
+    let mut warnings = Vec::new();
+    if selection.selected.is_empty() {
+        let free_yaw = free.intersection(YAW_ONLY);
+        let peak = selection.all.iter().map(|s| s.peak_yaw_rate_rad_per_s).fold(0.0, f64::max);
+        if !free_yaw.is_empty() && opts.auto_fix {
+            free = free.intersection(ParamSet::EMPTY.with(Param::CE));
+            auto_fixed.extend(free_yaw.iter());
+            warnings.push(Warning::AutoFixNoTurns {
+                params: free_yaw,
+                segments: selection.all.len(),
+                min_peak_yaw_rate_rad_per_s: opts.segments.min_peak_yaw_rate_rad_per_s,
+                peak_yaw_rate_rad_per_s: peak,
+            });
+        } else if !free_yaw.is_empty() {
+            return Err(Error::NotObservable {
+                params: free_yaw,
+                reason: format!(
+                    "none of the {} segments turns faster than {} rad/s (the fastest: {peak:.3} rad/s); these \
+                     parameters act only through the yaw equation. Hold them at θ_0 (--fix c_d,t_r,d) and \
+                     select every segment (--min-yaw-rate 0) to calibrate c_e alone",
+                    selection.all.len(),
+                    opts.segments.min_peak_yaw_rate_rad_per_s
+                ),
+            });
+        }
+    }
+    let segments = if selection.selected.is_empty() { selection.all.clone() } else { selection.selected.clone() };
+    if opts.auto_fix && auto_fixed.is_empty() {
+        let data: Vec<SegmentData> = segments.iter().map(|s| SegmentData::new(drive, s)).collect();
+        let held = hold_unobservable(&data, &opts.theta0, &IdentifyOptions { free, ..opts.identify.clone() });
+        if !held.is_empty() {
+            warnings.push(Warning::AutoFixUnobservable { params: held.clone(), segments: segments.len() });
+            for p in &held {
+                free.remove(*p);
+            }
+        }
+        auto_fixed.extend(held);
+    }
+    Ok(Selection { segments, cut: selection.all.len(), selected: selection.selected.len(), free, auto_fixed, warnings })
+}
+
+/// The parameters that act only through the yaw equation.
+const YAW_ONLY: ParamSet = ParamSet::EMPTY.with(Param::CD).with(Param::TR).with(Param::D);
+
+/// Holds at θ_0, one at a time, the parameter (never c_e) with the smallest
+/// sensitivity among those the observability check names on `segments` at
+/// θ_0, until none is named. Returns the parameters held, in order.
+fn hold_unobservable(segments: &[SegmentData<'_>], theta0: &Theta, identify: &IdentifyOptions) -> Vec<Param> {
+    let ne = batch_normal_equations(segments, theta0, &identify.weights);
+    let mut free = identify.free;
+    let mut held = Vec::new();
+    loop {
+        let o = observability(&ne, free, identify);
+        let pick = o
+            .unobservable
+            .iter()
+            .filter(|&p| p != Param::CE && free.contains(p))
+            .min_by(|&a, &b| o.sensitivity_m[a.index()].total_cmp(&o.sensitivity_m[b.index()]));
+        match pick {
+            Some(p) => {
+                free.remove(p);
+                held.push(p);
+            }
+            None => return held,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,305 @@
+//! The 3-step method with input compensation (SPEC §6, paper §4.2, Fig. 2).
+//!
+//! 1. *Initial identification*: batch G-N from θ_0 on `initial_batches`
+//!    random batches of `initial_batch_size` selected segments, with the
+//!    measured wheel rotations. Each result is validated; sorted by
+//!    validation error, `picks` results are taken at equal steps through the
+//!    sorted list: θ_B,I(1..picks).
+//! 2. *Input compensation* ([`crate::compensate::compensate_segments`]):
+//!    every segment used in step 3 is compensated once per θ_B,I; its
+//!    compensated input is the mean of those.
+//! 3. *Final identification*: batch G-N from θ_0 with the compensated inputs.
+
+use std::time::Instant;
+
+use rand::seq::SliceRandom;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::{turning_segments, Estimator, MethodDetail, MethodOutcome, Prepared, Selection, ThetaScore, Timing};
+use crate::compensate::{compensate_segments, CompensateOptions, CompensationStep, QpOptions};
+use crate::drive::Drive;
+use crate::error::{Error, Result};
+use crate::identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport};
+use crate::model::Theta;
+use crate::progress::{emit, Progress, ProgressFn};
+use crate::segment::{Segment, SegmentData};
+use crate::validate::mean_position_error;
+use crate::warning::Warning;
+
+/// Mixed into [`super::CalibrationOptions::seed`] to draw step 3's random
+/// batch ([`FinalSegments::Random`]) independently of step 1's batches.
+pub const FINAL_SEGMENTS_SEED_SALT: u64 = 0x5eed_f1a1;
+
+/// Which segments the final identification (step 3) uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FinalSegments {
+    /// Every selected segment (default: lowest variance).
+    All,
+    /// A random batch of this many selected segments (the paper shows 5 suffice).
+    Random(usize),
+}
+
+impl std::str::FromStr for FinalSegments {
+    type Err = Error;
+    /// `"all"` or a number of segments.
+    fn from_str(s: &str) -> Result<Self> {
+        match s.trim() {
+            "all" => Ok(FinalSegments::All),
+            n => n.parse().map(FinalSegments::Random).map_err(|_| Error::Parse {
+                what: "final segments",
+                input: s.to_string(),
+                expected: "'all' or a number of segments",
+            }),
+        }
+    }
+}
+
+/// Settings of the 3-step method. `Default` holds the SPEC defaults.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ThreeStepOptions {
+    /// Step 1: number of random batches. Default 50.
+    pub initial_batches: usize,
+    /// Step 1: segments per batch N. Default 10.
+    pub initial_batch_size: usize,
+    /// Step 1: number of θ_B,I picked at equal steps through the sorted list. Default 5.
+    pub picks: usize,
+    /// Step 3: segments of the final identification. Default all selected.
+    pub final_segments: FinalSegments,
+    /// Step 2: the compensation QP.
+    pub compensate: CompensateOptions,
+    /// Step 2: the QP solver and its settings. Default structured, with
+    /// Clarabel as fallback.
+    pub qp: QpOptions,
+}
+
+impl Default for ThreeStepOptions {
+    fn default() -> Self {
+        ThreeStepOptions {
+            initial_batches: 50,
+            initial_batch_size: 10,
+            picks: 5,
+            final_segments: FinalSegments::All,
+            compensate: CompensateOptions::default(),
+            qp: QpOptions::default(),
+        }
+    }
+}
+
+/// Step 1 of the 3-step method.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct InitialStep {
+    /// Every batch result, in batch order, with the segment starts used.
+    pub batches: Vec<BatchResult>,
+    /// The picked θ_B,I (best first).
+    pub picked: Vec<ThetaScore>,
+    /// Indices into `batches` of the picked results.
+    pub picked_batches: Vec<usize>,
+}
+
+/// One batch Gauss-Newton result of step 1.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BatchResult {
+    /// First samples of the segments in the batch.
+    pub segment_starts: Vec<usize>,
+    /// The estimate and its validation error.
+    pub score: ThetaScore,
+    /// Gauss-Newton iterations.
+    pub iterations: usize,
+}
+
+/// What the 3-step method reports.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ThreeStepDetail {
+    /// Step 1.
+    pub initial_step: InitialStep,
+    /// Step 2.
+    pub compensation: CompensationStep,
+    /// Step 3.
+    pub identification: IdentifyReport,
+}
+
+/// Random batches of `size` distinct indices out of `n` (all when n ≤ size).
+pub fn random_batches(n: usize, size: usize, count: usize, seed: u64) -> Vec<Vec<usize>> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut idx: Vec<usize> = (0..n).collect();
+    (0..count)
+        .map(|_| {
+            idx.shuffle(&mut rng);
+            let mut b: Vec<usize> = idx.iter().copied().take(size.min(n)).collect();
+            b.sort_unstable();
+            b
+        })
+        .collect()
+}
+
+/// Indices of `picks` entries at equal steps through a list of length `n`
+/// (first, …, last), rounding to the nearest.
+pub(crate) fn equal_step_picks(n: usize, picks: usize) -> Vec<usize> {
+    if n == 0 {
+        return Vec::new();
+    }
+    if picks == 1 {
+        return vec![0];
+    }
+    (0..picks).map(|i| ((i * (n - 1)) as f64 / (picks - 1) as f64).round() as usize).collect()
+}
+
+/// Batch Gauss-Newton from `theta0` on each batch of `data` (indices into
+/// `data`), each result validated on `validation` (SPEC §6 step 1, and the
+/// same on compensated inputs). Batches run in parallel; results come back in
+/// batch order whatever the thread count. A failed batch is an `Err` in its
+/// place, so callers decide whether to leave it out.
+pub fn score_batches(
+    drive: &Drive,
+    data: &[SegmentData<'_>],
+    batches: &[Vec<usize>],
+    validation: &[Segment],
+    theta0: &Theta,
+    opts: &IdentifyOptions,
+    progress: Option<ProgressFn<'_>>,
+) -> Vec<Result<BatchResult>> {
+    batches
+        .par_iter()
+        .map(|b| {
+            let r = if let Some(&bad) = b.iter().find(|&&i| i >= data.len()) {
+                Err(Error::InvalidOption {
+                    field: "batches",
+                    reason: format!("index {bad} out of range for {} segments", data.len()),
+                })
+            } else {
+                let batch: Vec<SegmentData> = b.iter().map(|&i| data[i]).collect();
+                batch_gauss_newton(&batch, theta0, opts).and_then(|rep| {
+                    let v = mean_position_error(drive, validation, &rep.theta)?;
+                    Ok(BatchResult {
+                        segment_starts: b.iter().map(|&i| data[i].start).collect(),
+                        score: ThetaScore { theta: rep.theta, mean_position_error_m: v.mean_position_error_m },
+                        iterations: rep.iterations,
+                    })
+                })
+            };
+            emit(progress, Progress::Advance(1));
+            r
+        })
+        .collect()
+}
+
+/// Pure Gauss-Newton on every segment of `data` alone (a batch of one), each
+/// result validated on `validation` — the per-segment estimates of the
+/// paper's Fig. 7/8. Pass compensated segment data
+/// ([`crate::compensate::CompensatedInputs::segment_data`]) to get the
+/// compensated-input estimates. Results are in segment order.
+pub fn per_segment_identification(
+    drive: &Drive,
+    data: &[SegmentData<'_>],
+    validation: &[Segment],
+    theta0: &Theta,
+    opts: &IdentifyOptions,
+) -> Vec<Result<BatchResult>> {
+    let singles: Vec<Vec<usize>> = (0..data.len()).map(|i| vec![i]).collect();
+    score_batches(drive, data, &singles, validation, theta0, opts, None)
+}
+
+impl Estimator for ThreeStepOptions {
+    fn name(&self) -> &'static str {
+        "three-step"
+    }
+
+    fn validate(&self) -> Result<()> {
+        self.compensate.validate()?;
+        self.qp.validate()?;
+        if self.initial_batches == 0 {
+            return Err(Error::InvalidOption { field: "initial_batches", reason: "must be at least 1".into() });
+        }
+        if self.initial_batch_size == 0 {
+            return Err(Error::InvalidOption { field: "initial_batch_size", reason: "must be at least 1".into() });
+        }
+        if self.picks == 0 {
+            return Err(Error::InvalidOption { field: "picks", reason: "must be at least 1".into() });
+        }
+        if self.final_segments == FinalSegments::Random(0) {
+            return Err(Error::InvalidOption { field: "final_segments", reason: "must be at least 1".into() });
+        }
+        Ok(())
+    }
+
+    fn select(&self, prep: &Prepared<'_>) -> Result<Selection> {
+        turning_segments(prep)
+    }
+
+    fn run(
+        &self,
+        prep: &Prepared<'_>,
+        selection: &Selection,
+        progress: Option<ProgressFn<'_>>,
+    ) -> Result<MethodOutcome> {
+        let (drive, opts) = (prep.drive, prep.options);
+        let identify = selection.identify(opts);
+        let selected = &selection.segments;
+        let mut timing = Timing::default();
+        let mut warnings = Vec::new();
+
+        // Step 1.
+        let t = Instant::now();
+        let batches = random_batches(selected.len(), self.initial_batch_size, self.initial_batches, opts.seed);
+        emit(progress, Progress::Stage { name: "initial identification", total: batches.len() as u64 });
+        let data: Vec<SegmentData> = selected.iter().map(|s| SegmentData::new(drive, s)).collect();
+        let results = score_batches(drive, &data, &batches, &prep.validation, &opts.theta0, &identify, progress);
+        let mut ok = Vec::new();
+        for (i, r) in results.into_iter().enumerate() {
+            match r {
+                Ok(b) => ok.push(b),
+                Err(e) => warnings.push(Warning::BatchFailed { batch: i, reason: e.to_string() }),
+            }
+        }
+        if ok.is_empty() {
+            return Err(Error::Numerical("every initial batch identification failed".into()));
+        }
+        let mut order: Vec<usize> = (0..ok.len()).collect();
+        order.sort_by(|&a, &b| ok[a].score.mean_position_error_m.total_cmp(&ok[b].score.mean_position_error_m));
+        let picked_batches: Vec<usize> =
+            equal_step_picks(order.len(), self.picks).into_iter().map(|i| order[i]).collect();
+        let picked: Vec<ThetaScore> = picked_batches.iter().map(|&i| ok[i].score).collect();
+        timing.initial_identification = t.elapsed().as_secs_f64();
+
+        // Step 2.
+        let t = Instant::now();
+        let final_segs: Vec<Segment> = match self.final_segments {
+            FinalSegments::All => selected.clone(),
+            FinalSegments::Random(n) => random_batches(selected.len(), n, 1, opts.seed ^ FINAL_SEGMENTS_SEED_SALT)[0]
+                .iter()
+                .map(|&i| selected[i])
+                .collect(),
+        };
+        let thetas: Vec<Theta> = picked.iter().map(|p| p.theta).collect();
+        let comp = compensate_segments(drive, &final_segs, &thetas, &self.compensate, &self.qp, progress)?;
+        warnings.extend(comp.warnings.iter().cloned());
+        if comp.segments.is_empty() {
+            return Err(Error::NoSegments("input compensation failed on every segment".into()));
+        }
+        timing.compensation = t.elapsed().as_secs_f64();
+
+        // Step 3.
+        let t = Instant::now();
+        emit(progress, Progress::Stage { name: "final identification", total: 1 });
+        let report = batch_gauss_newton(&comp.segment_data(drive), &opts.theta0, &identify)?;
+        emit(progress, Progress::Advance(1));
+        timing.final_identification = t.elapsed().as_secs_f64();
+        Ok(MethodOutcome {
+            theta: report.theta,
+            covariance: report.covariance,
+            observability: report.observability.clone(),
+            detail: MethodDetail::ThreeStep(ThreeStepDetail {
+                initial_step: InitialStep { batches: ok, picked, picked_batches },
+                compensation: comp.step.clone(),
+                identification: report,
+            }),
+            timing,
+            warnings,
+            compensated: Some(comp),
+        })
+    }
+}

@@ -1,0 +1,432 @@
+//! The canonical drive CSV (SPEC §2): reader and writer.
+
+use std::io::Read;
+use std::path::Path;
+
+use super::{Drive, ExtraColumn, ExtraValues, Signals, SIGNAL_NAMES};
+use crate::error::{Error, Result};
+
+/// The columns a canonical drive CSV must have.
+pub const REQUIRED_COLUMNS: [&str; 8] = ["t", "px", "py", "psi", "n_rl", "n_rr", "beta", "a_y"];
+const TRUTH_COLUMNS: [&str; 7] = ["px_true", "py_true", "psi_true", "n_rl_true", "n_rr_true", "beta_true", "a_y_true"];
+/// Optional column: 1 where the reference was really measured.
+const MASK_COLUMN: &str = "ref_measured";
+/// Optional column: integer part ids.
+const PART_COLUMN: &str = "part";
+
+/// Longest echo of a field in an error message, characters.
+const ECHO_CHARS: usize = 40;
+
+/// A field as echoed in an error message: at most [`ECHO_CHARS`] characters.
+pub(crate) fn echo(field: &str) -> String {
+    let mut it = field.chars();
+    let head: String = it.by_ref().take(ECHO_CHARS).collect();
+    if it.next().is_some() {
+        format!("{head}… ({} bytes)", field.len())
+    } else {
+        head
+    }
+}
+
+/// At most this many names are listed in an error message.
+const LIST_NAMES: usize = 12;
+
+/// The first [`LIST_NAMES`] names, then "… (N more)".
+fn listed(names: &[String]) -> Vec<String> {
+    let mut v: Vec<String> = names.iter().take(LIST_NAMES).cloned().collect();
+    if names.len() > LIST_NAMES {
+        v.push(format!("… ({} more)", names.len() - LIST_NAMES));
+    }
+    v
+}
+
+fn list(names: &[String]) -> String {
+    listed(names).join(", ")
+}
+
+impl Drive {
+    /// Reads a canonical drive CSV (SPEC §2). Accepts a UTF-8 BOM, CRLF line
+    /// endings, extra columns (numbers or text, kept in [`Drive::extra`];
+    /// truth columns in [`Drive::truth`]) and any column order. An optional
+    /// integer `part` column marks continuous parts of a drive with gaps; an
+    /// optional 0/1 `ref_measured` column marks where the reference was
+    /// really measured.
+    ///
+    /// # Errors
+    /// [`Error::Io`], [`Error::Csv`] naming the line and column,
+    /// [`Error::MissingColumns`] listing what was found.
+    pub fn read_csv(path: impl AsRef<Path>) -> Result<Drive> {
+        let path = path.as_ref();
+        let mut bytes = Vec::new();
+        std::fs::File::open(path)
+            .and_then(|mut f| f.read_to_end(&mut bytes))
+            .map_err(|source| Error::io(path, source))?;
+        Self::parse_csv(&bytes, path)
+    }
+
+    /// Parses canonical CSV from bytes; `path` is used in error messages.
+    pub fn parse_csv(bytes: &[u8], path: &Path) -> Result<Drive> {
+        let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF".as_slice()).unwrap_or(bytes);
+        let csv_error = |line: u64, column: Option<&str>, reason: String| Error::Csv {
+            path: path.to_path_buf(),
+            line,
+            column: column.map(echo),
+            reason,
+        };
+        if bytes.iter().all(|b| b.is_ascii_whitespace()) {
+            return Err(Error::InvalidDrive {
+                context: path.display().to_string(),
+                reason: "the file is empty (expected a header row with columns t, px, py, psi, n_rl, n_rr, beta, a_y)"
+                    .into(),
+            });
+        }
+        let mut rdr = ::csv::ReaderBuilder::new().has_headers(true).trim(::csv::Trim::All).from_reader(bytes);
+        let from_csv = |e: ::csv::Error| {
+            let line = e.position().map(|p| p.line()).unwrap_or(0);
+            let reason = match e.kind() {
+                ::csv::ErrorKind::Utf8 { .. } => "invalid UTF-8 (the file must be UTF-8 text)".to_string(),
+                ::csv::ErrorKind::UnequalLengths { expected_len, len, .. } => {
+                    format!("{len} fields, the header has {expected_len}")
+                }
+                _ => e.to_string(),
+            };
+            csv_error(line, None, reason)
+        };
+        let headers: Vec<String> = rdr.headers().map_err(from_csv)?.iter().map(|h| h.to_string()).collect();
+        let mut seen = std::collections::BTreeSet::new();
+        let dups: Vec<String> = headers.iter().filter(|h| !seen.insert(h.as_str())).map(|h| echo(h)).collect();
+        if !dups.is_empty() {
+            return Err(csv_error(
+                1,
+                None,
+                format!("duplicate column name(s) {}: every column must be named once", list(&dups)),
+            ));
+        }
+        let find = |name: &str| headers.iter().position(|h| h == name);
+        let missing: Vec<String> =
+            REQUIRED_COLUMNS.iter().filter(|c| find(c).is_none()).map(|c| c.to_string()).collect();
+        if !missing.is_empty() {
+            let hint = if headers.len() == 1 && (headers[0].contains(';') || headers[0].contains('\t')) {
+                Some("the header looks separated by ';' or tabs: the canonical CSV is comma-separated".to_string())
+            } else {
+                None
+            };
+            return Err(Error::MissingColumns {
+                path: path.to_path_buf(),
+                missing,
+                found: listed(&headers.iter().map(|h| echo(h)).collect::<Vec<_>>()),
+                hint,
+            });
+        }
+        // Columns odocal uses must be numbers; others may hold text.
+        let numeric: Vec<bool> = headers
+            .iter()
+            .map(|h| {
+                REQUIRED_COLUMNS.contains(&h.as_str())
+                    || TRUTH_COLUMNS.contains(&h.as_str())
+                    || h == MASK_COLUMN
+                    || h == PART_COLUMN
+            })
+            .collect();
+        let mut nums: Vec<Vec<f64>> = vec![Vec::new(); headers.len()];
+        let mut text: Vec<Option<Vec<String>>> = vec![None; headers.len()];
+        let mut lines: Vec<u64> = Vec::new();
+        let mut record = ::csv::StringRecord::new();
+        let mut line = 1u64;
+        while rdr.read_record(&mut record).map_err(from_csv)? {
+            line = record.position().map(|p| p.line()).unwrap_or(line + 1);
+            if record.len() != headers.len() {
+                return Err(csv_error(
+                    line,
+                    None,
+                    format!("{} fields, the header has {}", record.len(), headers.len()),
+                ));
+            }
+            for (j, field) in record.iter().enumerate() {
+                if let Some(tx) = text[j].as_mut() {
+                    tx.push(field.to_string());
+                    continue;
+                }
+                match field.parse::<f64>() {
+                    Ok(v) if v.is_finite() || !numeric[j] => nums[j].push(v),
+                    Ok(_) => {
+                        return Err(csv_error(
+                            line,
+                            Some(&headers[j]),
+                            format!("value '{}' is not finite", echo(field)),
+                        ))
+                    }
+                    Err(_) if numeric[j] => {
+                        return Err(csv_error(line, Some(&headers[j]), format!("'{}' is not a number", echo(field))))
+                    }
+                    Err(_) => {
+                        // An extra column with text: keep it as text from here on.
+                        let mut tx: Vec<String> = std::mem::take(&mut nums[j]).iter().map(|v| v.to_string()).collect();
+                        tx.push(field.to_string());
+                        text[j] = Some(tx);
+                    }
+                }
+            }
+            lines.push(line);
+        }
+        if lines.is_empty() {
+            return Err(Error::InvalidDrive {
+                context: path.display().to_string(),
+                reason: "the file has a header but no data rows".into(),
+            });
+        }
+        let line_of = |sample: usize| lines.get(sample).copied().unwrap_or(0);
+        let mut take =
+            |name: &str| -> Vec<f64> { find(name).map(|j| std::mem::take(&mut nums[j])).unwrap_or_default() };
+        let mut signals = |suffix: &str| -> Signals {
+            let [px, py, psi, n_rl, n_rr, beta, a_y] = SIGNAL_NAMES.map(|c| take(&format!("{c}{suffix}")));
+            Signals { px, py, psi, n_rl, n_rr, beta, a_y }
+        };
+        let measured = signals("");
+        let truth = TRUTH_COLUMNS.iter().all(|c| find(c).is_some()).then(|| signals("_true"));
+        let t = take("t");
+        let mut b = Drive::builder(t, measured).context(path.display().to_string());
+        if let Some(tr) = truth {
+            b = b.truth(tr);
+        }
+        if let Some(j) = find(PART_COLUMN) {
+            let mut ids = Vec::with_capacity(nums[j].len());
+            for (i, &v) in nums[j].iter().enumerate() {
+                if v.fract() != 0.0 || !(0.0..=1e15).contains(&v) {
+                    return Err(csv_error(
+                        line_of(i),
+                        Some(PART_COLUMN),
+                        format!("part id {v} is not a non-negative integer (parts are numbered 0, 1, 2, …)"),
+                    ));
+                }
+                ids.push(v as i64);
+            }
+            b = b.part_ids(ids);
+        }
+        if let Some(j) = find(MASK_COLUMN) {
+            let mut mask = Vec::with_capacity(nums[j].len());
+            for (i, &v) in nums[j].iter().enumerate() {
+                let one = v.to_bits() == 1.0f64.to_bits();
+                if v != 0.0 && !one {
+                    return Err(csv_error(line_of(i), Some(MASK_COLUMN), format!("{v} is not 0 or 1")));
+                }
+                mask.push(one);
+            }
+            b = b.reference_measured(mask);
+        }
+        for (j, h) in headers.iter().enumerate() {
+            let values = match text[j].take() {
+                Some(tx) => ExtraValues::Text(tx),
+                None if !numeric[j] => ExtraValues::Numbers(std::mem::take(&mut nums[j])),
+                None => continue,
+            };
+            b = b.extra(ExtraColumn { name: h.clone(), values });
+        }
+        b.build().map_err(|e| match e {
+            Error::InvalidSample { column, sample, reason, .. } => csv_error(line_of(sample), Some(&column), reason),
+            e => e,
+        })
+    }
+
+    /// Writes the canonical CSV (with truth, `ref_measured` when present,
+    /// `part` when there are several parts, and extra columns). Numbers are
+    /// written in full precision (shortest round-trip form), so a write/read
+    /// round trip is exact.
+    pub fn write_csv(&self, path: impl AsRef<Path>) -> Result<()> {
+        let path = path.as_ref();
+        let file = std::fs::File::create(path).map_err(|source| Error::io(path, source))?;
+        self.write_csv_to(std::io::BufWriter::new(file)).map_err(|source| Error::io(path, source))
+    }
+
+    /// Writes the canonical CSV to any writer.
+    pub fn write_csv_to<W: std::io::Write>(&self, w: W) -> std::io::Result<()> {
+        let mut wtr = ::csv::WriterBuilder::new().from_writer(w);
+        let mut header: Vec<String> = std::iter::once("t".to_string())
+            .chain(self.measured.columns().iter().map(|(n, _)| n.to_string()))
+            .collect();
+        if self.truth.is_some() {
+            header.extend(TRUTH_COLUMNS.iter().map(|c| c.to_string()));
+        }
+        header.extend(self.extra.iter().map(|c| c.name.clone()));
+        if self.reference_measured.is_some() {
+            header.push(MASK_COLUMN.into());
+        }
+        let with_parts = self.parts.len() > 1;
+        if with_parts {
+            header.push(PART_COLUMN.into());
+        }
+        wtr.write_record(&header)?;
+        let mut part_of = vec![0usize; self.len()];
+        for (p, r) in self.parts.iter().enumerate() {
+            part_of[r.clone()].fill(p);
+        }
+        let mut row: Vec<String> = Vec::with_capacity(header.len());
+        for i in 0..self.len() {
+            row.clear();
+            row.push(format!("{}", self.t[i]));
+            row.extend(self.measured.columns().iter().map(|(_, c)| format!("{}", c[i])));
+            if let Some(tr) = &self.truth {
+                row.extend(tr.columns().iter().map(|(_, c)| format!("{}", c[i])));
+            }
+            for c in &self.extra {
+                row.push(match &c.values {
+                    ExtraValues::Numbers(v) => format!("{}", v[i]),
+                    ExtraValues::Text(v) => v[i].clone(),
+                });
+            }
+            if let Some(m) = &self.reference_measured {
+                row.push(if m[i] { "1" } else { "0" }.into());
+            }
+            if with_parts {
+                row.push(part_of[i].to_string());
+            }
+            wtr.write_record(&row)?;
+        }
+        wtr.flush()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn csv_text(rows: usize, ts: f64) -> String {
+        let mut s = String::from("t,px,py,psi,n_rl,n_rr,beta,a_y\n");
+        for i in 0..rows {
+            s.push_str(&format!("{},{},0,0,5,5,0,0\n", i as f64 * ts, i as f64 * 0.25));
+        }
+        s
+    }
+
+    fn parse(s: &str) -> Result<Drive> {
+        Drive::parse_csv(s.as_bytes(), Path::new("d.csv"))
+    }
+
+    #[test]
+    fn parses_and_infers_sample_time() {
+        let d = parse(&csv_text(10, 0.025)).expect("valid");
+        assert_eq!(d.len(), 10);
+        approx::assert_relative_eq!(d.sample_time_s(), 0.025, max_relative = 1e-12);
+    }
+
+    #[test]
+    fn accepts_bom_crlf_extra_columns_any_order() {
+        let s = "\u{feff}a_y,extra,beta,n_rr,n_rl,psi,py,px,t\r\n0,7,0,5,5,0,0,0,0\r\n0,8,0,5,5,0,0,0.25,0.025\r\n0,9,0,5,5,0,0,0.5,0.05\r\n";
+        let d = parse(s).expect("valid");
+        assert_eq!(d.len(), 3);
+        assert_eq!(d.extra().len(), 1);
+        assert_eq!(d.extra()[0].name, "extra");
+        approx::assert_relative_eq!(d.px()[2], 0.5);
+    }
+
+    #[test]
+    fn text_in_extra_columns_is_kept() {
+        let s = "t,px,py,psi,n_rl,n_rr,beta,a_y,note\n0,0,0,0,5,5,0,0,1\n0.025,0.25,0,0,5,5,0,0,ramp\n0.05,0.5,0,0,5,5,0,0,\"a, b\"\n";
+        let d = parse(s).expect("valid");
+        let note = d.extra_column("note").expect("note");
+        assert_eq!(note.values, ExtraValues::Text(vec!["1".into(), "ramp".into(), "a, b".into()]));
+        let mut buf = Vec::new();
+        d.write_csv_to(&mut buf).expect("write");
+        assert_eq!(Drive::parse_csv(&buf, Path::new("y.csv")).expect("valid"), d);
+    }
+
+    #[test]
+    fn missing_columns_are_listed() {
+        let m = parse("t,px,py\n0,0,0\n").expect_err("missing").to_string();
+        assert!(m.contains("missing column(s) psi, n_rl, n_rr, beta, a_y"), "{m}");
+        assert!(m.contains("columns found: t, px, py"), "{m}");
+        let m = parse("t;px;py;psi;n_rl;n_rr;beta;a_y\n0;0;0;0;0;0;0;0\n").expect_err("semicolons").to_string();
+        assert!(m.contains("separated by ';'"), "{m}");
+    }
+
+    #[test]
+    fn duplicate_columns_are_rejected() {
+        let m = parse("t,px,py,psi,n_rl,n_rr,beta,a_y,t\n0,0,0,0,0,0,0,0,1\n").expect_err("dup").to_string();
+        assert_eq!(m, "d.csv: line 1: duplicate column name(s) t: every column must be named once");
+    }
+
+    #[test]
+    fn long_fields_are_truncated_in_errors() {
+        let big = "x".repeat(10_000);
+        let s = csv_text(5, 0.025).replacen("0.05,0.5", &format!("0.05,{big}"), 1);
+        let m = parse(&s).expect_err("text").to_string();
+        assert!(m.len() < 200, "{} chars", m.len());
+        assert!(m.contains("… (10000 bytes)"), "{m}");
+    }
+
+    #[test]
+    fn nan_and_text_name_line_and_column() {
+        let s = csv_text(5, 0.025).replacen("0.05,0.5", "0.05,NaN", 1);
+        let m = parse(&s).expect_err("nan").to_string();
+        assert!(m.contains("line 4") && m.contains("column 'px'") && m.contains("not finite"), "{m}");
+        let s = csv_text(5, 0.025).replacen("0.05,0.5", "0.05,abc", 1);
+        let m = parse(&s).expect_err("text").to_string();
+        assert!(m.contains("line 4") && m.contains("'abc' is not a number"), "{m}");
+    }
+
+    #[test]
+    fn time_errors_name_line() {
+        let s = csv_text(6, 0.025).replacen("0.05,", "0.01,", 1);
+        let m = parse(&s).expect_err("nonmono").to_string();
+        assert!(m.contains("line 4") && m.contains("not strictly increasing"), "{m}");
+        let s = csv_text(6, 0.025).replacen("0.1,", "0.11,", 1);
+        let m = parse(&s).expect_err("nonuni").to_string();
+        assert!(m.contains("uniform") && m.contains("line 6"), "{m}");
+    }
+
+    #[test]
+    fn bad_part_ids_name_the_cause() {
+        let s = "t,px,py,psi,n_rl,n_rr,beta,a_y,part\n0,0,0,0,1,1,0,0,0\n0.1,0,0,0,1,1,0,0,0.5\n";
+        let m = parse(s).expect_err("float id").to_string();
+        assert!(m.contains("line 3") && m.contains("not a non-negative integer"), "{m}");
+        let s = "t,px,py,psi,n_rl,n_rr,beta,a_y,part\n0,0,0,0,1,1,0,0,-1\n0.1,0,0,0,1,1,0,0,-1\n";
+        assert!(parse(s).expect_err("negative").to_string().contains("line 2"));
+    }
+
+    #[test]
+    fn empty_inputs() {
+        let m = parse("").expect_err("empty").to_string();
+        assert!(m.contains("empty"), "{m}");
+        let m = parse("t,px,py,psi,n_rl,n_rr,beta,a_y\n").expect_err("no rows").to_string();
+        assert!(m.contains("no data rows"), "{m}");
+    }
+
+    #[test]
+    fn round_trip_is_exact() {
+        let d = parse(&csv_text(20, 0.025)).expect("valid");
+        let mut buf = Vec::new();
+        d.write_csv_to(&mut buf).expect("write");
+        let d2 = Drive::parse_csv(&buf, Path::new("y.csv")).expect("valid");
+        assert_eq!(d, d2);
+    }
+
+    #[test]
+    fn mask_round_trips() {
+        let s = "t,px,py,psi,n_rl,n_rr,beta,a_y,ref_measured\n0,0,0,0,1,1,0,0,1\n0.1,0,0,0,1,1,0,0,0\n0.2,0,0,0,1,1,0,0,1\n";
+        let d = parse(s).expect("valid");
+        assert_eq!(d.reference_measured(), Some(&[true, false, true][..]));
+        let mut buf = Vec::new();
+        d.write_csv_to(&mut buf).expect("write");
+        assert_eq!(Drive::parse_csv(&buf, Path::new("y.csv")).expect("valid"), d);
+        let bad = s.replacen(",0\n0.2", ",2\n0.2", 1);
+        assert!(parse(&bad).expect_err("2").to_string().contains("is not 0 or 1"));
+    }
+
+    #[test]
+    fn window_clips_parts() {
+        let s = "t,px,py,psi,n_rl,n_rr,beta,a_y,part\n0,0,0,0,1,1,0,0,0\n0.1,0,0,0,1,1,0,0,0\n0.2,0,0,0,1,1,0,0,0\n5.0,0,0,0,1,1,0,0,1\n5.1,0,0,0,1,1,0,0,1\n5.2,0,0,0,1,1,0,0,1\n";
+        let d = parse(s).expect("valid");
+        let w = d.window(0.15, 5.15).expect("window");
+        assert_eq!(w.len(), 3);
+        assert_eq!(w.parts(), &[0..1, 1..3]);
+        assert!(d.window(10.0, 11.0).is_err());
+    }
+
+    #[test]
+    fn parts_allow_gaps() {
+        let s = "t,px,py,psi,n_rl,n_rr,beta,a_y,part\n0,0,0,0,1,1,0,0,0\n0.1,0,0,0,1,1,0,0,0\n0.2,0,0,0,1,1,0,0,0\n5.0,0,0,0,1,1,0,0,1\n5.1,0,0,0,1,1,0,0,1\n";
+        let d = parse(s).expect("valid");
+        assert_eq!(d.parts(), &[0..3, 3..5]);
+        approx::assert_relative_eq!(d.sample_time_s(), 0.1, max_relative = 1e-9);
+    }
+}

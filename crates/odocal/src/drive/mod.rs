@@ -1,0 +1,720 @@
+//! A drive: one uniformly sampled time series of reference poses and model
+//! inputs (SPEC §2), its checked constructor and its canonical CSV reader and
+//! writer ([`csv`](self#canonical-csv)).
+//!
+//! A drive may consist of several continuous *parts* (after a gap in a real
+//! log, say); time is uniform within each part and segments never span two.
+//!
+//! Every path that makes a [`Drive`] — the CSV reader, the multi-stream
+//! importer, the simulator, numpy arrays in the Python package — goes through
+//! one checked constructor, [`DriveBuilder::build`]. It rejects a column of
+//! the wrong length, a non-finite value, time that does not increase and a
+//! non-uniform sample step, naming the column and the sample index
+//! ([`Error::InvalidSample`]); the CSV reader turns the sample index into
+//! the file's line.
+//!
+//! # Canonical CSV
+//!
+//! [`Drive::read_csv`] / [`Drive::write_csv`]: columns `t, px, py, psi, n_rl,
+//! n_rr, beta, a_y` in any order, optional `ref_measured` (0/1) and `part`
+//! (integer), truth columns `*_true` for simulated drives, and any extra
+//! columns (numbers or text), carried along unchanged.
+//!
+//! # Example
+//!
+//! ```
+//! # fn main() -> Result<(), odocal::Error> {
+//! use odocal::drive::{Drive, Signals};
+//! let n = 100;
+//! let t: Vec<f64> = (0..n).map(|k| k as f64 * 0.025).collect();
+//! let mut s = Signals::with_capacity(n);
+//! for k in 0..n {
+//!     s.push([k as f64 * 0.25, 0.0, 0.0, 5.0, 5.0, 0.0, 0.0]);
+//! }
+//! let drive = Drive::builder(t, s).context("my arrays").build()?;
+//! assert_eq!(drive.len(), 100);
+//! assert!((drive.sample_time_s() - 0.025).abs() < 1e-12);
+//! // Bad data is rejected, naming the column and the sample.
+//! let mut bad = drive.measured().clone();
+//! bad.n_rl[7] = f64::NAN;
+//! let e = Drive::builder(drive.t().to_vec(), bad).context("my arrays").build().unwrap_err();
+//! assert_eq!(e.to_string(), "my arrays: column 'n_rl', sample 7: value NaN is not finite");
+//! # Ok(()) }
+//! ```
+
+mod csv;
+
+use std::ops::Range;
+
+pub use self::csv::REQUIRED_COLUMNS;
+use crate::error::{Error, Result};
+use crate::limits::PhysicalLimits;
+use crate::model::{Input, State};
+
+/// Relative tolerance on the uniformity of the sample step (SPEC/issue: 1 %).
+pub const STEP_UNIFORMITY_TOL: f64 = 0.01;
+
+/// Names of the seven signal columns of [`Signals`], in [`Signals::columns`] order.
+pub const SIGNAL_NAMES: [&str; 7] = ["px", "py", "psi", "n_rl", "n_rr", "beta", "a_y"];
+
+/// The seven signals of a drive sample by sample: reference pose and model
+/// inputs. The same type holds the measured columns and, for simulated
+/// drives, the noise-free truth.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Signals {
+    /// Reference x position, m (local metric frame).
+    pub px: Vec<f64>,
+    /// Reference y position, m.
+    pub py: Vec<f64>,
+    /// Reference heading, rad (unwrapped by the constructor).
+    pub psi: Vec<f64>,
+    /// Rear-left wheel rotation speed, rev/s.
+    pub n_rl: Vec<f64>,
+    /// Rear-right wheel rotation speed, rev/s.
+    pub n_rr: Vec<f64>,
+    /// Sideslip angle, rad (0 when unknown).
+    pub beta: Vec<f64>,
+    /// Lateral acceleration, m/s², positive to the left.
+    pub a_y: Vec<f64>,
+}
+
+impl Signals {
+    /// Empty signals with room for `n` samples.
+    pub fn with_capacity(n: usize) -> Signals {
+        let v = || Vec::with_capacity(n);
+        Signals { px: v(), py: v(), psi: v(), n_rl: v(), n_rr: v(), beta: v(), a_y: v() }
+    }
+
+    /// Appends one sample `[px, py, psi, n_rl, n_rr, beta, a_y]`.
+    pub fn push(&mut self, v: [f64; 7]) {
+        for (col, x) in self.columns_mut().into_iter().zip(v) {
+            col.push(x);
+        }
+    }
+
+    /// The columns with their names, in [`SIGNAL_NAMES`] order.
+    pub fn columns(&self) -> [(&'static str, &[f64]); 7] {
+        [
+            ("px", &self.px),
+            ("py", &self.py),
+            ("psi", &self.psi),
+            ("n_rl", &self.n_rl),
+            ("n_rr", &self.n_rr),
+            ("beta", &self.beta),
+            ("a_y", &self.a_y),
+        ]
+    }
+
+    fn columns_mut(&mut self) -> [&mut Vec<f64>; 7] {
+        [&mut self.px, &mut self.py, &mut self.psi, &mut self.n_rl, &mut self.n_rr, &mut self.beta, &mut self.a_y]
+    }
+
+    /// The samples in `r` as new signals.
+    pub fn slice(&self, r: Range<usize>) -> Signals {
+        let c = |v: &Vec<f64>| v[r.clone()].to_vec();
+        Signals {
+            px: c(&self.px),
+            py: c(&self.py),
+            psi: c(&self.psi),
+            n_rl: c(&self.n_rl),
+            n_rr: c(&self.n_rr),
+            beta: c(&self.beta),
+            a_y: c(&self.a_y),
+        }
+    }
+}
+
+/// The values of an extra column: numbers, or text when any field of the
+/// column is not a number (a label, a status string).
+#[derive(Debug, Clone, PartialEq)]
+pub enum ExtraValues {
+    /// A numeric column.
+    Numbers(Vec<f64>),
+    /// A text column, kept as read.
+    Text(Vec<String>),
+}
+
+impl ExtraValues {
+    /// Number of values.
+    pub fn len(&self) -> usize {
+        match self {
+            ExtraValues::Numbers(v) => v.len(),
+            ExtraValues::Text(v) => v.len(),
+        }
+    }
+
+    /// True when there are no values.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    fn slice(&self, r: Range<usize>) -> ExtraValues {
+        match self {
+            ExtraValues::Numbers(v) => ExtraValues::Numbers(v[r].to_vec()),
+            ExtraValues::Text(v) => ExtraValues::Text(v[r].to_vec()),
+        }
+    }
+}
+
+/// A named column odocal does not use, carried along (written after the
+/// standard ones).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExtraColumn {
+    /// Column name.
+    pub name: String,
+    /// Its values, one per sample.
+    pub values: ExtraValues,
+}
+
+impl ExtraColumn {
+    /// A numeric extra column.
+    pub fn numbers(name: impl Into<String>, values: Vec<f64>) -> ExtraColumn {
+        ExtraColumn { name: name.into(), values: ExtraValues::Numbers(values) }
+    }
+
+    /// The numbers of a numeric column (`None` for text).
+    pub fn as_numbers(&self) -> Option<&[f64]> {
+        match &self.values {
+            ExtraValues::Numbers(v) => Some(v),
+            ExtraValues::Text(_) => None,
+        }
+    }
+}
+
+/// One drive, stored column by column; made only by [`DriveBuilder::build`]
+/// (or the readers that call it), so every `Drive` has passed its checks.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Drive {
+    t: Vec<f64>,
+    measured: Signals,
+    truth: Option<Signals>,
+    reference_measured: Option<Vec<bool>>,
+    extra: Vec<ExtraColumn>,
+    parts: Vec<Range<usize>>,
+    sample_time_s: f64,
+}
+
+/// How the parts of a drive are given to the [`DriveBuilder`].
+#[derive(Debug, Clone, PartialEq)]
+enum PartSpec {
+    One,
+    Ids(Vec<i64>),
+    Ranges(Vec<Range<usize>>),
+}
+
+/// The checked constructor of a [`Drive`]: give the time and the measured
+/// signals, optionally the truth, parts, a reference mask and extra columns,
+/// then [`build`](DriveBuilder::build).
+#[derive(Debug, Clone)]
+#[must_use = "a builder does nothing until .build()"]
+pub struct DriveBuilder {
+    context: String,
+    t: Vec<f64>,
+    measured: Signals,
+    truth: Option<Signals>,
+    reference_measured: Option<Vec<bool>>,
+    extra: Vec<ExtraColumn>,
+    parts: PartSpec,
+    sample_time_s: Option<f64>,
+    limits: PhysicalLimits,
+}
+
+impl DriveBuilder {
+    /// The nominal sample time, s, when the source knows it (a simulator, a
+    /// resampler): steps are checked against it instead of their mean, and
+    /// it is kept exactly as given.
+    pub fn sample_time_s(mut self, t_s: f64) -> Self {
+        self.sample_time_s = Some(t_s);
+        self
+    }
+
+    /// Where the data come from (a path, "simulator", "numpy arrays"), used
+    /// in error messages. Default `"drive"`.
+    pub fn context(mut self, context: impl Into<String>) -> Self {
+        self.context = context.into();
+        self
+    }
+
+    /// The physical limits the drive is checked against (default
+    /// [`PhysicalLimits::default`], the table in [`crate::limits`]).
+    pub fn limits(mut self, limits: PhysicalLimits) -> Self {
+        self.limits = limits;
+        self
+    }
+
+    /// The noise-free truth (simulated drives).
+    pub fn truth(mut self, truth: Signals) -> Self {
+        self.truth = Some(truth);
+        self
+    }
+
+    /// Per-sample part ids: a new part starts wherever the id changes.
+    pub fn part_ids(mut self, ids: Vec<i64>) -> Self {
+        self.parts = PartSpec::Ids(ids);
+        self
+    }
+
+    /// Parts as consecutive index ranges that cover every sample in order.
+    pub fn parts(mut self, parts: Vec<Range<usize>>) -> Self {
+        self.parts = PartSpec::Ranges(parts);
+        self
+    }
+
+    /// Per-sample flag: true where the reference pose was really measured
+    /// (not interpolated or held). Absent means every sample is measured.
+    pub fn reference_measured(mut self, mask: Vec<bool>) -> Self {
+        self.reference_measured = Some(mask);
+        self
+    }
+
+    /// Adds an extra column carried along with the drive.
+    pub fn extra(mut self, column: ExtraColumn) -> Self {
+        self.extra.push(column);
+        self
+    }
+
+    /// Checks everything and makes the drive: equal column lengths, finite
+    /// values, strictly increasing time, a uniform step within each part
+    /// (within [`STEP_UNIFORMITY_TOL`]); infers t_s and unwraps the heading;
+    /// then checks the [`PhysicalLimits`].
+    ///
+    /// # Errors
+    /// [`Error::InvalidSample`] naming the column and sample index, or
+    /// [`Error::InvalidDrive`] for whole-drive problems (no samples, too few
+    /// to infer t_s, bad part ranges).
+    pub fn build(self) -> Result<Drive> {
+        let DriveBuilder {
+            context,
+            t,
+            mut measured,
+            mut truth,
+            reference_measured,
+            extra,
+            parts,
+            sample_time_s,
+            limits,
+        } = self;
+        limits.validate()?;
+        let n = t.len();
+        let invalid = |reason: String| Error::InvalidDrive { context: context.clone(), reason };
+        let bad = |column: &str, sample: usize, reason: String| Error::InvalidSample {
+            context: context.clone(),
+            column: column.to_string(),
+            sample,
+            reason,
+        };
+        if n == 0 {
+            return Err(invalid("no samples".into()));
+        }
+        if let Some(i) = t.iter().position(|v| !v.is_finite()) {
+            return Err(bad("t", i, format!("value {} is not finite", t[i])));
+        }
+        let check = |sig: &Signals, suffix: &str| -> Result<()> {
+            for (name, col) in sig.columns() {
+                let name = format!("{name}{suffix}");
+                if col.len() != n {
+                    return Err(invalid(format!("column {name} has {} samples, t has {n}", col.len())));
+                }
+                if let Some(i) = col.iter().position(|v| !v.is_finite()) {
+                    return Err(bad(&name, i, format!("value {} is not finite", col[i])));
+                }
+            }
+            Ok(())
+        };
+        check(&measured, "")?;
+        if let Some(tr) = &truth {
+            check(tr, "_true")?;
+        }
+        if let Some(m) = &reference_measured {
+            if m.len() != n {
+                return Err(invalid(format!("column ref_measured has {} samples, t has {n}", m.len())));
+            }
+        }
+        for c in &extra {
+            if c.values.len() != n {
+                return Err(invalid(format!("column {} has {} samples, t has {n}", c.name, c.values.len())));
+            }
+        }
+        let parts = match parts {
+            PartSpec::One => vec![0..n],
+            PartSpec::Ids(ids) => {
+                if ids.len() != n {
+                    return Err(invalid(format!("column part has {} samples, t has {n}", ids.len())));
+                }
+                let mut parts = Vec::new();
+                let mut start = 0;
+                for i in 1..=n {
+                    if i == n || ids[i] != ids[i - 1] {
+                        parts.push(start..i);
+                        start = i;
+                    }
+                }
+                parts
+            }
+            PartSpec::Ranges(r) => {
+                let mut next = 0;
+                for p in &r {
+                    if p.start != next || p.end <= p.start {
+                        return Err(invalid(format!(
+                            "parts must be non-empty consecutive ranges covering every sample; got {r:?}"
+                        )));
+                    }
+                    next = p.end;
+                }
+                if next != n {
+                    return Err(invalid(format!("parts cover {next} samples, the drive has {n}")));
+                }
+                r
+            }
+        };
+        // Time strictly increasing everywhere.
+        for i in 1..n {
+            if t[i].partial_cmp(&t[i - 1]) != Some(std::cmp::Ordering::Greater) {
+                return Err(bad("t", i, format!("time is not strictly increasing ({} after {})", t[i], t[i - 1])));
+            }
+        }
+        // t_s: mean step over all parts; every step within 1 %.
+        let (mut span, mut steps) = (0.0, 0usize);
+        for r in &parts {
+            if r.len() >= 2 {
+                span += t[r.end - 1] - t[r.start];
+                steps += r.len() - 1;
+            }
+        }
+        let ts = match sample_time_s {
+            Some(ts) if ts.is_finite() && ts > 0.0 => ts,
+            Some(ts) => return Err(invalid(format!("sample time {ts} s is not a positive number"))),
+            None if steps == 0 => return Err(invalid(format!("{n} sample(s): too few to infer the sample time"))),
+            None => span / steps as f64,
+        };
+        for r in &parts {
+            for i in r.start + 1..r.end {
+                let dt = t[i] - t[i - 1];
+                if (dt - ts).abs() > STEP_UNIFORMITY_TOL * ts {
+                    return Err(bad(
+                        "t",
+                        i,
+                        format!(
+                            "sample step {dt:.6} s differs from the {} step {ts:.6} s by more than 1 %; \
+                             the time must be uniform (resample the log, or mark gaps with a 'part' column)",
+                            if sample_time_s.is_some() { "nominal" } else { "mean" }
+                        ),
+                    ));
+                }
+            }
+        }
+        unwrap_in_place(&mut measured.psi);
+        if let Some(tr) = truth.as_mut() {
+            unwrap_in_place(&mut tr.psi);
+        }
+        let drive = Drive { t, measured, truth, reference_measured, extra, parts, sample_time_s: ts };
+        limits.check(&drive, &context)?;
+        Ok(drive)
+    }
+}
+
+impl Drive {
+    /// Starts the checked constructor with the time stamps (s) and the
+    /// measured signals. See [`DriveBuilder`].
+    pub fn builder(t: Vec<f64>, measured: Signals) -> DriveBuilder {
+        DriveBuilder {
+            context: "drive".into(),
+            t,
+            measured,
+            truth: None,
+            reference_measured: None,
+            extra: Vec::new(),
+            parts: PartSpec::One,
+            sample_time_s: None,
+            limits: PhysicalLimits::default(),
+        }
+    }
+
+    /// Number of samples.
+    pub fn len(&self) -> usize {
+        self.t.len()
+    }
+
+    /// True when the drive has no samples (never, for a built drive).
+    pub fn is_empty(&self) -> bool {
+        self.t.is_empty()
+    }
+
+    /// Time stamps, s.
+    pub fn t(&self) -> &[f64] {
+        &self.t
+    }
+    /// Reference x position, m.
+    pub fn px(&self) -> &[f64] {
+        &self.measured.px
+    }
+    /// Reference y position, m.
+    pub fn py(&self) -> &[f64] {
+        &self.measured.py
+    }
+    /// Reference heading, rad, unwrapped.
+    pub fn psi(&self) -> &[f64] {
+        &self.measured.psi
+    }
+    /// Measured rear-left wheel rotation speed, rev/s.
+    pub fn n_rl(&self) -> &[f64] {
+        &self.measured.n_rl
+    }
+    /// Measured rear-right wheel rotation speed, rev/s.
+    pub fn n_rr(&self) -> &[f64] {
+        &self.measured.n_rr
+    }
+    /// Sideslip angle, rad.
+    pub fn beta(&self) -> &[f64] {
+        &self.measured.beta
+    }
+    /// Lateral acceleration, m/s², positive to the left.
+    pub fn a_y(&self) -> &[f64] {
+        &self.measured.a_y
+    }
+    /// All measured signals.
+    pub fn measured(&self) -> &Signals {
+        &self.measured
+    }
+    /// The noise-free truth of a simulated drive.
+    pub fn truth(&self) -> Option<&Signals> {
+        self.truth.as_ref()
+    }
+    /// Per-sample flag: true where the reference was really measured; `None`
+    /// means every sample is.
+    pub fn reference_measured(&self) -> Option<&[bool]> {
+        self.reference_measured.as_deref()
+    }
+    /// True when the reference pose was really measured at sample `i`.
+    pub fn is_reference_measured(&self, i: usize) -> bool {
+        self.reference_measured.as_ref().is_none_or(|m| m[i])
+    }
+    /// Extra columns carried along.
+    pub fn extra(&self) -> &[ExtraColumn] {
+        &self.extra
+    }
+    /// The extra column `name`, if present.
+    pub fn extra_column(&self, name: &str) -> Option<&ExtraColumn> {
+        self.extra.iter().find(|c| c.name == name)
+    }
+    /// Continuous parts as index ranges, in order, covering every sample.
+    pub fn parts(&self) -> &[Range<usize>] {
+        &self.parts
+    }
+    /// Sample time t_s, s.
+    pub fn sample_time_s(&self) -> f64 {
+        self.sample_time_s
+    }
+
+    /// Reference pose at sample `i`.
+    #[inline]
+    pub fn pose(&self, i: usize) -> State {
+        State::new(self.measured.px[i], self.measured.py[i], self.measured.psi[i])
+    }
+
+    /// Measured inputs at sample `i`.
+    #[inline]
+    pub fn input(&self, i: usize) -> Input {
+        let m = &self.measured;
+        Input { n_rl: m.n_rl[i], n_rr: m.n_rr[i], beta: m.beta[i], a_y: m.a_y[i] }
+    }
+
+    /// Total path length of the reference, m (sum of position increments within parts).
+    pub fn distance_m(&self) -> f64 {
+        let (px, py) = (self.px(), self.py());
+        self.parts.iter().flat_map(|r| (r.start + 1..r.end).map(|i| (px[i] - px[i - 1]).hypot(py[i] - py[i - 1]))).sum()
+    }
+
+    /// The same drive with the extra column `column` added, replacing one of
+    /// the same name.
+    ///
+    /// # Errors
+    /// [`Error::InvalidDrive`] when its length differs from the drive's.
+    pub fn with_extra(mut self, column: ExtraColumn) -> Result<Drive> {
+        if column.values.len() != self.len() {
+            return Err(Error::InvalidDrive {
+                context: format!("extra column {}", column.name),
+                reason: format!("{} values, the drive has {} samples", column.values.len(), self.len()),
+            });
+        }
+        self.extra.retain(|c| c.name != column.name);
+        self.extra.push(column);
+        Ok(self)
+    }
+
+    /// The same drive with the measured wheel rotations replaced (compensated
+    /// inputs, say), checked like any other drive.
+    ///
+    /// # Errors
+    /// As [`DriveBuilder::build`].
+    pub fn with_wheel_rotations(&self, n_rl: Vec<f64>, n_rr: Vec<f64>) -> Result<Drive> {
+        let mut measured = self.measured.clone();
+        measured.n_rl = n_rl;
+        measured.n_rr = n_rr;
+        self.rebuild(self.t.clone(), measured, self.truth.clone(), 0..self.len())
+    }
+
+    /// The samples with `t_start_s ≤ t < t_end_s` as a new drive; parts are
+    /// clipped to the window (extra columns, the reference mask and the truth
+    /// come along).
+    pub fn window(&self, t_start_s: f64, t_end_s: f64) -> Result<Drive> {
+        let a = self.t.partition_point(|&t| t < t_start_s);
+        let b = self.t.partition_point(|&t| t < t_end_s);
+        if a >= b {
+            return Err(Error::InvalidDrive {
+                context: "time window".into(),
+                reason: format!(
+                    "no samples in [{t_start_s}, {t_end_s}) s; the drive spans {:.3} … {:.3} s",
+                    self.t.first().copied().unwrap_or(f64::NAN),
+                    self.t.last().copied().unwrap_or(f64::NAN)
+                ),
+            });
+        }
+        self.slice(a..b)
+    }
+
+    /// Splits the drive at time `t_split_s`: samples before it and from it on.
+    ///
+    /// # Errors
+    /// [`Error::InvalidDrive`] when either side would be empty or too short to
+    /// infer the sample time.
+    pub fn split_at_time(&self, t_split_s: f64) -> Result<(Drive, Drive)> {
+        let k = self.t.partition_point(|&t| t < t_split_s);
+        if k == 0 || k >= self.len() {
+            return Err(Error::InvalidDrive {
+                context: "split".into(),
+                reason: format!(
+                    "t = {t_split_s} s is outside the drive ({:.3} … {:.3} s)",
+                    self.t[0],
+                    self.t[self.len() - 1]
+                ),
+            });
+        }
+        Ok((self.slice(0..k)?, self.slice(k..self.len())?))
+    }
+
+    /// The samples in `r` as a new drive (parts clipped).
+    fn slice(&self, r: Range<usize>) -> Result<Drive> {
+        let truth = self.truth.as_ref().map(|t| t.slice(r.clone()));
+        self.rebuild(self.t[r.clone()].to_vec(), self.measured.slice(r.clone()), truth, r)
+    }
+
+    /// A drive of samples `r` of this one with new columns; parts, mask and
+    /// extra columns are taken from `r`.
+    fn rebuild(&self, t: Vec<f64>, measured: Signals, truth: Option<Signals>, r: Range<usize>) -> Result<Drive> {
+        let parts = self
+            .parts
+            .iter()
+            .filter_map(|p| {
+                let (s, e) = (p.start.max(r.start), p.end.min(r.end));
+                (s < e).then(|| s - r.start..e - r.start)
+            })
+            .collect();
+        // Keep the parent's t_s: a sub-drive is sampled like the drive it came from.
+        let mut b = Drive::builder(t, measured).context("drive").parts(parts).sample_time_s(self.sample_time_s);
+        // Samples of a drive that passed its limits: no need to check again.
+        b.limits = PhysicalLimits::NONE;
+        b.truth = truth;
+        b.reference_measured = self.reference_measured.as_ref().map(|m| m[r.clone()].to_vec());
+        b.extra = self
+            .extra
+            .iter()
+            .map(|c| ExtraColumn { name: c.name.clone(), values: c.values.slice(r.clone()) })
+            .collect();
+        b.build()
+    }
+}
+
+/// Unwraps an angle series in place: every step larger than π in magnitude
+/// is taken as a 2π wrap.
+pub fn unwrap_in_place(a: &mut [f64]) {
+    let two_pi = 2.0 * std::f64::consts::PI;
+    let mut offset = 0.0;
+    let mut prev_raw = match a.first() {
+        Some(v) => *v,
+        None => return,
+    };
+    for v in a.iter_mut().skip(1) {
+        let raw = *v;
+        let d = raw - prev_raw;
+        if d > std::f64::consts::PI {
+            offset -= two_pi * ((d + std::f64::consts::PI) / two_pi).floor();
+        } else if d < -std::f64::consts::PI {
+            offset += two_pi * ((-d + std::f64::consts::PI) / two_pi).floor();
+        }
+        prev_raw = raw;
+        *v = raw + offset;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn signals(n: usize) -> Signals {
+        let mut s = Signals::with_capacity(n);
+        for k in 0..n {
+            s.push([k as f64 * 0.25, 0.0, 0.0, 5.0, 5.0, 0.0, 0.0]);
+        }
+        s
+    }
+
+    fn times(n: usize) -> Vec<f64> {
+        (0..n).map(|k| k as f64 * 0.025).collect()
+    }
+
+    #[test]
+    fn builder_names_column_and_sample() {
+        let mut s = signals(10);
+        s.a_y[4] = f64::INFINITY;
+        let e = Drive::builder(times(10), s).context("arrays").build().expect_err("inf");
+        assert_eq!(e.to_string(), "arrays: column 'a_y', sample 4: value inf is not finite");
+        let mut t = times(10);
+        t[6] = t[5];
+        let e = Drive::builder(t, signals(10)).context("arrays").build().expect_err("time");
+        assert!(e.to_string().starts_with("arrays: column 't', sample 6: time is not strictly increasing"), "{e}");
+        let mut tr = signals(10);
+        tr.px[2] = f64::NAN;
+        let e = Drive::builder(times(10), signals(10)).truth(tr).context("sim").build().expect_err("truth");
+        assert_eq!(e.to_string(), "sim: column 'px_true', sample 2: value NaN is not finite");
+        let e = Drive::builder(times(9), signals(10)).build().expect_err("length");
+        assert!(e.to_string().contains("column px has 10 samples, t has 9"), "{e}");
+    }
+
+    #[test]
+    fn builder_checks_parts_and_mask() {
+        let d = Drive::builder(times(10), signals(10)).parts(vec![0..4, 4..10]).build().expect("ok");
+        assert_eq!(d.parts(), &[0..4, 4..10]);
+        assert!(Drive::builder(times(10), signals(10)).parts(vec![0..4, 5..10]).build().is_err());
+        assert!(Drive::builder(times(10), signals(10)).parts(vec![0..4]).build().is_err());
+        assert!(Drive::builder(times(10), signals(10)).reference_measured(vec![true; 9]).build().is_err());
+        let mask: Vec<bool> = (0..10).map(|k| k % 4 == 0).collect();
+        let d = Drive::builder(times(10), signals(10)).reference_measured(mask).build().expect("ok");
+        assert!(d.is_reference_measured(4) && !d.is_reference_measured(5));
+        let w = d.window(0.1, 1.0).expect("window");
+        assert!(w.is_reference_measured(0) && !w.is_reference_measured(1));
+    }
+
+    #[test]
+    fn split_at_time_keeps_everything() {
+        let d = Drive::builder(times(10), signals(10))
+            .extra(ExtraColumn::numbers("x", (0..10).map(f64::from).collect()))
+            .build()
+            .expect("ok");
+        let (a, b) = d.split_at_time(0.1).expect("split");
+        assert_eq!((a.len(), b.len()), (4, 6));
+        assert_eq!(b.extra_column("x").and_then(ExtraColumn::as_numbers), Some(&[4.0, 5.0, 6.0, 7.0, 8.0, 9.0][..]));
+        assert!(d.split_at_time(-1.0).is_err());
+        let (a, _) = d.split_at_time(0.025).expect("one sample keeps the parent's t_s");
+        assert_eq!((a.len(), a.sample_time_s()), (1, d.sample_time_s()));
+    }
+
+    #[test]
+    fn heading_is_unwrapped() {
+        let mut a = vec![3.0, 3.1, -3.1, -3.0, 3.1];
+        unwrap_in_place(&mut a);
+        for w in a.windows(2) {
+            assert!((w[1] - w[0]).abs() < 0.5, "{a:?}");
+        }
+    }
+}

@@ -1,0 +1,538 @@
+//! The paper's §6 on one drive: batch calibrations (Fig. 4), picked θ_B,I
+//! (Fig. 5), compensated inputs (Fig. 6), per-segment and batch estimates
+//! with raw vs compensated inputs (Fig. 7/8, Table 1), θ_nom and the
+//! reachable minimum.
+//!
+//! [`run`] computes every number; the `odocal experiment` command renders
+//! them as `report.md`, SVG figures and `experiment.json`.
+
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::calibrate::{
+    calibrate_detailed, per_segment_identification, score_batches, BatchResult, CalibrationOptions, Method,
+    SegmentCounts, ThreeStepOptions,
+};
+use crate::compensate::CompensationStep;
+use crate::drive::Drive;
+use crate::error::{Error, Result};
+use crate::model::{step, Theta};
+use crate::progress::{emit, Progress, ProgressFn};
+use crate::reachable::{reachable_minimum, ReachableOptions};
+use crate::segment::SegmentData;
+use crate::validate::mean_position_error;
+use crate::warning::Warning;
+
+/// Settings of an experiment.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExperimentOptions {
+    /// The calibration; its method must be the 3-step method. Default the SPEC's.
+    pub calibration: CalibrationOptions,
+    /// The reachable-minimum search (the estimates are added to its starts).
+    /// Default the box around the paper's θ_0, seed 0.
+    pub reachable: ReachableOptions,
+}
+
+impl Default for ExperimentOptions {
+    fn default() -> Self {
+        let calibration = CalibrationOptions::default();
+        let reachable = ReachableOptions::around(&calibration.theta0);
+        ExperimentOptions { calibration, reachable }
+    }
+}
+
+/// A θ with its validation error and, when the truth is known, its error.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Scored {
+    /// The parameters.
+    pub theta: Theta,
+    /// Ē_p, m.
+    pub mean_position_error_m: f64,
+    /// θ − θ_true, SI units (None without truth).
+    pub error_vs_true: Option<Theta>,
+}
+
+/// One step-1 batch, raw and compensated.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BatchRow {
+    /// First samples of the batch's segments.
+    pub segment_starts: Vec<usize>,
+    /// G-N from θ_0 with the measured inputs (step 1's result).
+    pub raw: Scored,
+    /// G-N from θ_0 on the same segments with compensated inputs (segments
+    /// whose compensation failed are left out).
+    pub compensated: Option<Scored>,
+    /// Segments of the batch with compensated inputs.
+    pub compensated_segments: usize,
+}
+
+/// One selected segment, identified alone, raw and compensated.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SegmentRow {
+    /// First sample.
+    pub start: usize,
+    /// Peak yaw rate, rad/s.
+    pub peak_yaw_rate_rad_per_s: f64,
+    /// Pure G-N with the measured inputs.
+    pub raw: Option<Scored>,
+    /// Pure G-N with the compensated inputs.
+    pub compensated: Option<Scored>,
+}
+
+/// Table 1: one segment and one batch, raw vs compensated inputs.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Table1 {
+    /// The compensated segment turning hardest.
+    pub segment_start: usize,
+    /// Its raw estimate.
+    pub segment_raw: Scored,
+    /// Its compensated estimate.
+    pub segment_compensated: Scored,
+    /// The middle picked step-1 batch (or the first with a compensated result).
+    pub batch_index: usize,
+    /// Its segments' first samples.
+    pub batch_starts: Vec<usize>,
+    /// Its raw estimate.
+    pub batch_raw: Scored,
+    /// Its compensated estimate.
+    pub batch_compensated: Scored,
+}
+
+/// Summary statistics of a set of estimates.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Summary {
+    /// Estimates.
+    pub count: usize,
+    /// Smallest Ē_p, m.
+    pub min_mean_position_error_m: f64,
+    /// Median Ē_p, m.
+    pub median_mean_position_error_m: f64,
+    /// Largest Ē_p, m.
+    pub max_mean_position_error_m: f64,
+    /// Median |θ − θ_true| per parameter, SI.
+    pub median_abs_error_vs_true: Option<Theta>,
+}
+
+/// Fig. 6 numbers: the Table 1 segment, dead reckoning at θ_B,F.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Figure6 {
+    /// First sample of the segment.
+    pub segment_start: usize,
+    /// θ of the dead reckoning (θ_B,F).
+    pub theta: Theta,
+    /// RMS of measured − true wheel rotations, rev/s (simulated drives).
+    pub rms_measured_input_error_rev_per_s: Option<f64>,
+    /// RMS of compensated − true wheel rotations, rev/s.
+    pub rms_compensated_input_error_rev_per_s: Option<f64>,
+    /// Mean position error of dead reckoning with measured inputs, m.
+    pub mean_position_error_measured_m: f64,
+    /// Mean position error of dead reckoning with compensated inputs, m.
+    pub mean_position_error_compensated_m: f64,
+}
+
+/// Fig. 6 curves, `(time from the segment start in s, value)`.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Figure6Curves {
+    /// Measured n_rl, rev/s.
+    pub n_rl_measured: Vec<(f64, f64)>,
+    /// Compensated n_rl, rev/s.
+    pub n_rl_compensated: Vec<(f64, f64)>,
+    /// True n_rl (simulated drives), rev/s.
+    pub n_rl_true: Option<Vec<(f64, f64)>>,
+    /// Measured n_rr, rev/s.
+    pub n_rr_measured: Vec<(f64, f64)>,
+    /// Compensated n_rr, rev/s.
+    pub n_rr_compensated: Vec<(f64, f64)>,
+    /// True n_rr, rev/s.
+    pub n_rr_true: Option<Vec<(f64, f64)>>,
+    /// Dead-reckoning position error with the measured inputs, m.
+    pub pos_err_measured: Vec<(f64, f64)>,
+    /// Dead-reckoning position error with the compensated inputs, m.
+    pub pos_err_compensated: Vec<(f64, f64)>,
+}
+
+/// Wall time of the experiment's stages, s.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct ExperimentTiming {
+    /// The 3-step calibration.
+    pub calibrate: f64,
+    /// Per-segment G-N, raw and compensated.
+    pub per_segment: f64,
+    /// The step-1 batches again with compensated inputs.
+    pub compensated_batches: f64,
+    /// The reachable-minimum search.
+    pub reachable_minimum: f64,
+}
+
+/// The reachable minimum and how it was found.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ReachableSummary {
+    /// The minimum.
+    #[serde(flatten)]
+    pub scored: Scored,
+    /// Ē_p evaluations.
+    pub evaluations: usize,
+    /// Search time, s.
+    pub time_s: f64,
+    /// Why the search stopped.
+    pub termination: String,
+}
+
+/// Every number of the experiment.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Experiment {
+    /// Segment counts.
+    pub segments: SegmentCounts,
+    /// The QP solver used.
+    pub qp_solver: String,
+    /// θ_true, when known.
+    pub truth: Option<Scored>,
+    /// The paper's θ_nom.
+    pub nominal: Scored,
+    /// θ_0.
+    pub initial_guess: Scored,
+    /// Step 1 batch size N.
+    pub batch_size: usize,
+    /// Every step-1 batch, raw and compensated.
+    pub batches: Vec<BatchRow>,
+    /// Indices into `batches` of the picked θ_B,I.
+    pub picked_batches: Vec<usize>,
+    /// The picked θ_B,I.
+    pub picked: Vec<Scored>,
+    /// θ_B,F.
+    pub final_estimate: Scored,
+    /// One line on the final identification.
+    pub final_identification: String,
+    /// The reachable minimum.
+    pub reachable_minimum: ReachableSummary,
+    /// Table 1.
+    pub table1: Table1,
+    /// Every selected segment alone, raw and compensated.
+    pub per_segment: Vec<SegmentRow>,
+    /// Step-1 batches, raw.
+    pub summary_batches_raw: Summary,
+    /// Step-1 batches, compensated.
+    pub summary_batches_compensated: Summary,
+    /// Single segments, raw.
+    pub summary_segments_raw: Summary,
+    /// Single segments, compensated.
+    pub summary_segments_compensated: Summary,
+    /// Step 2.
+    pub compensation: CompensationStep,
+    /// Fig. 6 numbers.
+    pub figure6: Figure6,
+    /// Fig. 6 curves (not serialised).
+    #[serde(skip)]
+    pub figure6_curves: Figure6Curves,
+    /// The calibration's warnings.
+    pub warnings: Vec<Warning>,
+    /// Wall time per stage.
+    pub timing_s: ExperimentTiming,
+}
+
+fn diff(a: &Theta, b: &Theta) -> Theta {
+    Theta { c_e: a.c_e - b.c_e, c_d: a.c_d - b.c_d, t_r: a.t_r - b.t_r, d: a.d - b.d }
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+fn summarize<'a>(items: impl Iterator<Item = &'a Scored>) -> Summary {
+    let items: Vec<&Scored> = items.collect();
+    let mut e: Vec<f64> = items.iter().map(|s| s.mean_position_error_m).collect();
+    let med = median(&mut e);
+    let err = if items.iter().all(|s| s.error_vs_true.is_some()) && !items.is_empty() {
+        let col = |f: fn(&Theta) -> f64| {
+            let mut v: Vec<f64> = items.iter().filter_map(|s| s.error_vs_true.as_ref().map(|t| f(t).abs())).collect();
+            median(&mut v)
+        };
+        Some(Theta { c_e: col(|t| t.c_e), c_d: col(|t| t.c_d), t_r: col(|t| t.t_r), d: col(|t| t.d) })
+    } else {
+        None
+    };
+    Summary {
+        count: items.len(),
+        min_mean_position_error_m: e.first().copied().unwrap_or(f64::NAN),
+        median_mean_position_error_m: med,
+        max_mean_position_error_m: e.last().copied().unwrap_or(f64::NAN),
+        median_abs_error_vs_true: err,
+    }
+}
+
+/// Runs the experiment on `drive` (θ_true when known).
+///
+/// # Errors
+/// Those of the calibration; [`Error::InvalidOption`] when the method is not
+/// the 3-step method; [`Error::NoSegments`] when no compensated segment or
+/// batch can be identified (Table 1 needs one of each).
+pub fn run(
+    drive: &Drive,
+    theta_true: Option<&Theta>,
+    opts: &ExperimentOptions,
+    progress: Option<ProgressFn<'_>>,
+) -> Result<Experiment> {
+    let mut timing = ExperimentTiming::default();
+    let copts = &opts.calibration;
+    let three: &ThreeStepOptions = match &copts.method {
+        Method::ThreeStep(o) => o,
+        other => {
+            return Err(Error::InvalidOption {
+                field: "method",
+                reason: format!("the experiment runs the three-step method, not {other}"),
+            })
+        }
+    };
+
+    // The 3-step calibration (steps 1–3), keeping the compensated inputs.
+    let t = Instant::now();
+    let det = calibrate_detailed(drive, None, copts, progress)?;
+    timing.calibrate = t.elapsed().as_secs_f64();
+    let r = &det.report;
+    let (init, comp) = match (r.initial_step(), &det.compensated) {
+        (Some(i), Some(c)) => (i, c),
+        _ => return Err(Error::Numerical("the 3-step calibration returned no step 1/2 results".into())),
+    };
+    let identify = &r.options.identify;
+    let validation = &det.validation;
+    let score = |theta: &Theta| -> Result<Scored> {
+        let v = mean_position_error(drive, validation, theta)?;
+        Ok(Scored {
+            theta: *theta,
+            mean_position_error_m: v.mean_position_error_m,
+            error_vs_true: theta_true.map(|t| diff(theta, t)),
+        })
+    };
+    let of = |b: &BatchResult| Scored {
+        theta: b.score.theta,
+        mean_position_error_m: b.score.mean_position_error_m,
+        error_vs_true: theta_true.map(|t| diff(&b.score.theta, t)),
+    };
+
+    // Per-segment G-N, raw and compensated.
+    let t = Instant::now();
+    emit(progress, Progress::Stage { name: "per-segment G-N", total: 1 });
+    let raw_data: Vec<SegmentData> = det.selected.iter().map(|s| SegmentData::new(drive, s)).collect();
+    let comp_data = comp.segment_data(drive);
+    let raw_seg = per_segment_identification(drive, &raw_data, validation, &copts.theta0, identify);
+    let comp_seg = per_segment_identification(drive, &comp_data, validation, &copts.theta0, identify);
+    let comp_index = |start: usize| comp.segments.iter().position(|s| s.start == start);
+    let per_segment: Vec<SegmentRow> = det
+        .selected
+        .iter()
+        .zip(&raw_seg)
+        .map(|(s, rr)| SegmentRow {
+            start: s.start,
+            peak_yaw_rate_rad_per_s: s.peak_yaw_rate_rad_per_s,
+            raw: rr.as_ref().ok().map(of),
+            compensated: comp_index(s.start).and_then(|i| comp_seg[i].as_ref().ok().map(of)),
+        })
+        .collect();
+    emit(progress, Progress::Advance(1));
+    timing.per_segment = t.elapsed().as_secs_f64();
+
+    // The step-1 batches again, with compensated inputs.
+    let t = Instant::now();
+    let comp_batches: Vec<Vec<usize>> =
+        init.batches.iter().map(|b| b.segment_starts.iter().filter_map(|&s| comp_index(s)).collect()).collect();
+    let comp_results = score_batches(drive, &comp_data, &comp_batches, validation, &copts.theta0, identify, None);
+    let batches: Vec<BatchRow> = init
+        .batches
+        .iter()
+        .zip(&comp_results)
+        .zip(&comp_batches)
+        .map(|((b, c), cb)| BatchRow {
+            segment_starts: b.segment_starts.clone(),
+            raw: of(b),
+            compensated: if cb.is_empty() { None } else { c.as_ref().ok().map(of) },
+            compensated_segments: cb.len(),
+        })
+        .collect();
+    timing.compensated_batches = t.elapsed().as_secs_f64();
+
+    // Reference points: truth, θ_nom, θ_0, θ_B,F and the reachable minimum.
+    let truth = theta_true.map(&score).transpose()?;
+    let nominal = score(&Theta::PAPER_NOMINAL)?;
+    let initial_guess = score(&copts.theta0)?;
+    let final_estimate = score(&r.theta)?;
+    let picked: Vec<Scored> = init.picked_batches.iter().map(|&i| of(&init.batches[i])).collect();
+    let t = Instant::now();
+    let mut ro = opts.reachable.clone();
+    ro.starts.extend(picked.iter().map(|p| p.theta));
+    ro.starts.push(r.theta);
+    emit(progress, Progress::Stage { name: "reachable minimum", total: 1 });
+    let rm = reachable_minimum(drive, validation, &ro)?;
+    emit(progress, Progress::Advance(1));
+    timing.reachable_minimum = t.elapsed().as_secs_f64();
+    let reach = ReachableSummary {
+        scored: Scored {
+            theta: rm.theta,
+            mean_position_error_m: rm.mean_position_error_m,
+            error_vs_true: theta_true.map(|t| diff(&rm.theta, t)),
+        },
+        evaluations: rm.evaluations,
+        time_s: rm.time_s,
+        termination: rm.termination.clone(),
+    };
+
+    // Table 1: the compensated segment turning hardest, and the middle picked batch.
+    let seg_i = (0..comp.segments.len())
+        .filter(|&i| comp_seg[i].is_ok())
+        .max_by(|&x, &y| comp.segments[x].peak_yaw_rate_rad_per_s.total_cmp(&comp.segments[y].peak_yaw_rate_rad_per_s))
+        .ok_or_else(|| Error::NoSegments("no compensated segment could be identified on its own".into()))?;
+    let seg = comp.segments[seg_i];
+    let raw_i =
+        det.selected.iter().position(|s| s.start == seg.start).ok_or_else(|| {
+            Error::NoSegments(format!("the segment at sample {} is not among the selected", seg.start))
+        })?;
+    let batch_index = init
+        .picked_batches
+        .get(init.picked_batches.len() / 2)
+        .copied()
+        .filter(|&i| batches[i].compensated.is_some())
+        .or_else(|| batches.iter().position(|b| b.compensated.is_some()))
+        .ok_or_else(|| Error::NoSegments("no batch could be identified with compensated inputs".into()))?;
+    let no_batch = || Error::NoSegments("batch without compensated result".into());
+    let table1 = Table1 {
+        segment_start: seg.start,
+        segment_raw: raw_seg[raw_i].as_ref().map(of).map_err(|e| Error::Numerical(e.to_string()))?,
+        segment_compensated: comp_seg[seg_i].as_ref().map(of).map_err(|e| Error::Numerical(e.to_string()))?,
+        batch_index,
+        batch_starts: batches[batch_index].segment_starts.clone(),
+        batch_raw: batches[batch_index].raw,
+        batch_compensated: batches[batch_index].compensated.ok_or_else(no_batch)?,
+    };
+
+    // Figure 6: the Table 1 segment, dead reckoning at θ_B,F.
+    let (figure6, figure6_curves) = figure6_data(drive, &comp_data[seg_i], &raw_data[raw_i], &r.theta);
+    let identification = r
+        .identification()
+        .map(|id| {
+            format!(
+                "{} segments, {} iterations, {}, rcond {:.2e}",
+                id.segments, id.iterations, id.termination, id.observability.rcond
+            )
+        })
+        .unwrap_or_default();
+
+    Ok(Experiment {
+        segments: r.segments,
+        qp_solver: three.qp.solver.to_string(),
+        truth,
+        nominal,
+        initial_guess,
+        batch_size: three.initial_batch_size,
+        summary_batches_raw: summarize(batches.iter().map(|b| &b.raw)),
+        summary_batches_compensated: summarize(batches.iter().filter_map(|b| b.compensated.as_ref())),
+        summary_segments_raw: summarize(per_segment.iter().filter_map(|s| s.raw.as_ref())),
+        summary_segments_compensated: summarize(per_segment.iter().filter_map(|s| s.compensated.as_ref())),
+        batches,
+        picked_batches: init.picked_batches.clone(),
+        picked,
+        final_estimate,
+        final_identification: identification,
+        reachable_minimum: reach,
+        table1,
+        per_segment,
+        compensation: comp.step.clone(),
+        figure6,
+        figure6_curves,
+        warnings: r.warnings.clone(),
+        timing_s: timing,
+    })
+}
+
+/// Position error along a segment of dead reckoning at θ with the segment's inputs.
+fn position_errors(seg: &SegmentData<'_>, theta: &Theta) -> Vec<(f64, f64)> {
+    let mut x = seg.reference(0);
+    (0..seg.steps())
+        .map(|k| {
+            x = step(&x, &seg.input(k), theta, seg.sample_time_s);
+            ((k + 1) as f64 * seg.sample_time_s, (seg.px[k + 1] - x[0]).hypot(seg.py[k + 1] - x[1]))
+        })
+        .collect()
+}
+
+fn figure6_data(
+    drive: &Drive,
+    comp: &SegmentData<'_>,
+    raw: &SegmentData<'_>,
+    theta: &Theta,
+) -> (Figure6, Figure6Curves) {
+    let ts = drive.sample_time_s();
+    let series = |v: &[f64]| -> Vec<(f64, f64)> { v.iter().enumerate().map(|(k, &n)| (k as f64 * ts, n)).collect() };
+    let (a, k) = (raw.start, raw.steps());
+    let truth = drive.truth().filter(|t| t.n_rl.len() >= a + k);
+    let rms = |x: &[f64], y: &[f64], tx: &[f64], ty: &[f64]| {
+        let s: f64 = (0..x.len()).map(|i| (x[i] - tx[i]).powi(2) + (y[i] - ty[i]).powi(2)).sum();
+        (s / (2 * x.len()) as f64).sqrt()
+    };
+    let (tl, tr) = match truth {
+        Some(t) => (Some(&t.n_rl[a..a + k]), Some(&t.n_rr[a..a + k])),
+        None => (None, None),
+    };
+    let pm = position_errors(raw, theta);
+    let pc = position_errors(comp, theta);
+    let mean = |v: &[(f64, f64)]| v.iter().map(|p| p.1).sum::<f64>() / v.len().max(1) as f64;
+    (
+        Figure6 {
+            segment_start: a,
+            theta: *theta,
+            rms_measured_input_error_rev_per_s: tl.zip(tr).map(|(l, r)| rms(raw.n_rl, raw.n_rr, l, r)),
+            rms_compensated_input_error_rev_per_s: tl.zip(tr).map(|(l, r)| rms(comp.n_rl, comp.n_rr, l, r)),
+            mean_position_error_measured_m: mean(&pm),
+            mean_position_error_compensated_m: mean(&pc),
+        },
+        Figure6Curves {
+            n_rl_measured: series(raw.n_rl),
+            n_rl_compensated: series(comp.n_rl),
+            n_rl_true: tl.map(series),
+            n_rr_measured: series(raw.n_rr),
+            n_rr_compensated: series(comp.n_rr),
+            n_rr_true: tr.map(series),
+            pos_err_measured: pm,
+            pos_err_compensated: pc,
+        },
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::{simulate, SimOptions};
+
+    #[test]
+    fn experiment_on_a_short_drive_is_consistent() {
+        let sim = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(3) }).expect("sim");
+        let method = Method::ThreeStep(ThreeStepOptions { initial_batches: 4, ..Default::default() });
+        let calibration = CalibrationOptions { method, seed: 3, ..Default::default() };
+        let reachable = ReachableOptions { particles: 10, iterations: 5, refine_iterations: 20, ..Default::default() };
+        let opts = ExperimentOptions { calibration, reachable };
+        let e = run(&sim.drive, Some(&sim.sidecar.theta_true), &opts, None).expect("experiment");
+        assert_eq!(e.batches.len(), 4);
+        assert_eq!(e.picked.len(), 5);
+        let e_min = e.reachable_minimum.scored.mean_position_error_m;
+        assert!(e.final_estimate.mean_position_error_m >= e_min - 1e-9, "the minimum is seeded with θ_B,F");
+        assert!(e.per_segment.iter().any(|s| s.compensated.is_some()));
+        assert_eq!(e.figure6.segment_start, e.table1.segment_start);
+        assert_eq!(e.figure6_curves.pos_err_measured.len(), e.figure6_curves.n_rl_measured.len());
+        let err = e.final_estimate.error_vs_true.expect("truth known");
+        assert!(err.c_e.abs() < 0.05, "{err:?}");
+        let batch_gn = ExperimentOptions {
+            calibration: CalibrationOptions { method: Method::BatchGn(Default::default()), ..Default::default() },
+            ..ExperimentOptions::default()
+        };
+        let e = run(&sim.drive, None, &batch_gn, None).expect_err("three-step only");
+        assert!(e.to_string().contains("three-step"), "{e}");
+    }
+}

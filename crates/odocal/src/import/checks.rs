@@ -1,0 +1,274 @@
+//! Physical plausibility of the imported signals: wheel speeds, lateral
+//! acceleration, and the sign and unit conventions of the wheels and the
+//! heading (checked against each other). Limits are in the manifest's
+//! `[limits]` table; each failure is an error naming the manifest key to
+//! change and the drive time.
+
+use std::ops::Range;
+
+use super::limits::{echo_num, within};
+use super::manifest::{LateralAccelerationSpec, Manifest, WheelSignal};
+use super::signal;
+use crate::error::Result;
+use crate::model::{kinematics, Input, Theta};
+
+/// The resampled signals the checks look at (full grid, kept parts).
+pub(crate) struct Resampled<'a> {
+    /// Output step, s.
+    pub h: f64,
+    /// Wheel-clock time of sample 0, s.
+    pub origin_s: f64,
+    /// The kept parts.
+    pub kept: &'a [Range<usize>],
+    /// Rear-left rotation speed, rev/s.
+    pub n_rl: &'a [f64],
+    /// Rear-right rotation speed, rev/s.
+    pub n_rr: &'a [f64],
+    /// Reference east, m.
+    pub px: &'a [f64],
+    /// Reference north, m.
+    pub py: &'a [f64],
+    /// Reference heading, rad.
+    pub psi: &'a [f64],
+}
+
+impl Resampled<'_> {
+    fn at(&self, k: usize) -> String {
+        let t = k as f64 * self.h;
+        format!("t = {t:.3} s (wheel clock {:.3} s)", self.origin_s + t)
+    }
+
+    /// Samples of the kept parts with a central difference: `(k0, k, k1)`.
+    fn inner(&self) -> impl Iterator<Item = usize> + '_ {
+        self.kept.iter().flat_map(|r| r.start + 1..r.end.saturating_sub(1))
+    }
+
+    /// Reference speed by central difference at `k`, m/s.
+    fn pose_speed(&self, k: usize) -> f64 {
+        (self.px[k + 1] - self.px[k - 1]).hypot(self.py[k + 1] - self.py[k - 1]) / (2.0 * self.h)
+    }
+}
+
+/// Each wheel's speed at θ_0 within `limits.max_speed_m_per_s`.
+pub(crate) fn wheel_speeds(m: &Manifest, x: &Resampled<'_>, theta0: &Theta) -> Result<()> {
+    let max = m.limits.max_speed_m_per_s;
+    for (n, key) in [(x.n_rl, "wheels.rear_left"), (x.n_rr, "wheels.rear_right")] {
+        for k in x.kept.iter().flat_map(|r| r.clone()) {
+            let v = n[k] * theta0.c_e;
+            if !within(v, max) {
+                let hint = match m.wheels.signal {
+                    WheelSignal::RevPerS | WheelSignal::RadPerS | WheelSignal::MPerS => {
+                        "; if the column counts ticks, use signal = \"ticks_cumulative\" or \"ticks_raw\""
+                    }
+                    WheelSignal::TicksRaw => "; check wheels.counter_bits and wheels.ticks_per_rev",
+                    WheelSignal::TicksCumulative => "; check wheels.ticks_per_rev",
+                };
+                return Err(m.error(
+                    key,
+                    format!(
+                        "{} rev/s at {} is {} m/s at θ_0 (c_e = {} m), above limits.max_speed_m_per_s = {max}{hint}",
+                        echo_num(n[k]),
+                        x.at(k),
+                        echo_num(v),
+                        theta0.c_e
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Window of the moving average a derived a_y is judged on, s: the
+/// limit is about motion, and the wheel-derived a_y of a highway drive has
+/// single-sample noise of ±10 m/s² (speed noise × yaw-rate noise at 30 m/s).
+const A_Y_CHECK_SMOOTHING_S: f64 = 0.5;
+
+/// |a_y| within `limits.max_lateral_acceleration_m_per_s2`: an IMU's
+/// interval means as they are, a derived a_y after a centred moving average
+/// over [`A_Y_CHECK_SMOOTHING_S`] (a corrupt wheel sample still gives
+/// thousands of m/s²).
+pub(crate) fn lateral_acceleration(m: &Manifest, x: &Resampled<'_>, a_y: &[f64]) -> Result<()> {
+    let max = m.limits.max_lateral_acceleration_m_per_s2;
+    let mut judged = a_y.to_vec();
+    if !matches!(m.lateral_acceleration, LateralAccelerationSpec::Imu { .. }) {
+        let width = 2 * ((A_Y_CHECK_SMOOTHING_S / x.h / 2.0).round() as usize) + 1;
+        for r in x.kept {
+            signal::moving_average(&mut judged, r.clone(), width);
+        }
+    }
+    let a_y = &judged;
+    for k in x.kept.iter().flat_map(|r| r.clone()) {
+        if !within(a_y[k], max) {
+            let (key, hint) = match &m.lateral_acceleration {
+                LateralAccelerationSpec::Imu { .. } => {
+                    ("lateral_acceleration.column", "; is the column in g or the wrong axis?")
+                }
+                LateralAccelerationSpec::FromWheels { .. } => {
+                    ("lateral_acceleration", "; the wheel speeds jump there (a corrupt encoder sample?)")
+                }
+                LateralAccelerationSpec::FromPose { .. } => {
+                    ("lateral_acceleration", "; the reference pose or heading jumps there")
+                }
+            };
+            return Err(m.error(
+                key,
+                format!(
+                    "a_y = {} m/s² at {} (judged over {A_Y_CHECK_SMOOTHING_S} s unless from an IMU) is above \
+                     limits.max_lateral_acceleration_m_per_s2 = {max}{hint}",
+                    echo_num(a_y[k]),
+                    x.at(k)
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Moving samples (reference faster than this, m/s) the convention checks use.
+const MOVING_M_PER_S: f64 = 2.0;
+/// Fewest samples a convention check needs (else it is skipped and said so).
+const MIN_CHECK_SAMPLES: usize = 80;
+/// Least RMS wheel yaw rate for the heading check, rad/s.
+const TURNING_RAD_PER_S: f64 = 0.02;
+/// Smoothing of both yaw rates for the heading check, s.
+const YAW_SMOOTHING_S: f64 = 1.0;
+/// Least |correlation| of the yaw rates for the heading check to judge.
+const MIN_YAW_CORRELATION: f64 = 0.7;
+
+/// Median of `v` (sorted in place); `None` when empty.
+fn median(v: &mut [f64]) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    Some(v[v.len() / 2])
+}
+
+/// The wheels' signs against the reference speed, then the heading's unit
+/// and convention against the wheels' yaw rate at θ_0. Errors name the key
+/// to change; weaker disagreements become warnings.
+pub(crate) fn conventions(m: &Manifest, x: &Resampled<'_>, theta0: &Theta, warnings: &mut Vec<String>) -> Result<()> {
+    let moving: Vec<usize> = x.inner().filter(|&k| x.pose_speed(k) > MOVING_M_PER_S).collect();
+    if moving.len() < MIN_CHECK_SAMPLES {
+        warnings.push(format!(
+            "wheel and heading conventions not checked: fewer than {MIN_CHECK_SAMPLES} samples faster than \
+             {MOVING_M_PER_S} m/s"
+        ));
+        return Ok(());
+    }
+    // Each wheel's speed over the (unsigned) reference speed: ≈ +1 when the
+    // vehicle mostly drives forwards and the sign is right.
+    let mut flipped = Vec::new();
+    for (n, key) in [(x.n_rl, "wheels.rear_left.sign"), (x.n_rr, "wheels.rear_right.sign")] {
+        let mut r: Vec<f64> = moving.iter().map(|&k| n[k] * theta0.c_e / x.pose_speed(k)).collect();
+        let med = median(&mut r).unwrap_or(f64::NAN);
+        if med < -0.3 {
+            flipped.push((key, med));
+        } else if !(0.5..=2.0).contains(&med) {
+            warnings.push(format!(
+                "{}: the wheel's speed at θ_0 is {med:.3} × the reference speed (median); check the column, \
+                 ticks_per_rev or output.theta0",
+                key.trim_end_matches(".sign")
+            ));
+        }
+    }
+    if !flipped.is_empty() {
+        let keys: Vec<&str> = flipped.iter().map(|f| f.0).collect();
+        let both = if flipped.len() == 2 { " (or the vehicle drove backwards throughout)" } else { "" };
+        return Err(m.error(
+            keys[0],
+            format!(
+                "the wheel turns backwards while the reference moves (wheel speed / reference speed, median {:.3}); \
+                 flip {}{both}",
+                flipped[0].1,
+                keys.join(" and ")
+            ),
+        ));
+    }
+    // Yaw rates, smoothed over YAW_SMOOTHING_S within the parts: reference
+    // (heading differences) against wheels (model at θ_0). Their ratio is
+    // sign(r)·sd(ref)/sd(wheels) (symmetric in the noise of both), judged
+    // only where they correlate.
+    let n = x.n_rl.len();
+    let (mut ww, mut wr) = (vec![0.0; n], vec![0.0; n]);
+    for k in x.inner() {
+        ww[k] = kinematics(&Input { n_rl: x.n_rl[k], n_rr: x.n_rr[k], beta: 0.0, a_y: 0.0 }, theta0).yaw_rate_rad_per_s;
+        wr[k] = (x.psi[k + 1] - x.psi[k - 1]) / (2.0 * x.h);
+    }
+    let width = 2 * ((YAW_SMOOTHING_S / x.h / 2.0).round() as usize) + 1;
+    for part in x.kept {
+        let inner = part.start + 1..part.end.saturating_sub(1);
+        if inner.len() > 1 {
+            signal::moving_average(&mut ww, inner.clone(), width);
+            signal::moving_average(&mut wr, inner, width);
+        }
+    }
+    let (mut sa, mut sb, mut saa, mut sbb, mut sab) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for &k in &moving {
+        let (a, b) = (ww[k], wr[k]);
+        sa += a;
+        sb += b;
+        saa += a * a;
+        sbb += b * b;
+        sab += a * b;
+    }
+    let c = moving.len() as f64;
+    let (va, vb, cov) = (saa - sa * sa / c, sbb - sb * sb / c, sab - sa * sb / c);
+    let corr = cov / (va * vb).sqrt();
+    if !within(MIN_YAW_CORRELATION, corr.abs()) || !(va / c).sqrt().is_finite() || (va / c).sqrt() < TURNING_RAD_PER_S {
+        warnings.push(format!(
+            "heading unit and convention not checked: the drive turns too little (RMS wheel yaw rate {:.3} rad/s, \
+             needs {TURNING_RAD_PER_S}) or the yaw rates correlate too little (r = {corr:.2}, needs \
+             {MIN_YAW_CORRELATION})",
+            (va / c).sqrt()
+        ));
+        return Ok(());
+    }
+    let r = corr.signum() * (vb / va).sqrt();
+    let derived = m.pose.heading.is_none();
+    let deg = 180.0 / std::f64::consts::PI;
+    let swapped = "or the wheel columns are swapped (wheels.rear_left.column / wheels.rear_right.column)";
+    let fail = |key: &str, what: String| Err(m.error(key, what));
+    if (0.5..=2.0).contains(&r) {
+        Ok(())
+    } else if (-2.0..=-0.5).contains(&r) && derived {
+        fail(
+            "wheels.rear_left.column",
+            format!(
+                "the wheels' yaw rate has the opposite sign of the track's (ratio {r:.3}): the wheel columns \
+                 are swapped (wheels.rear_left.column / wheels.rear_right.column)"
+            ),
+        )
+    } else if (-2.0..=-0.5).contains(&r) {
+        fail(
+            "pose.heading.convention",
+            format!(
+                "the reference heading turns the other way than the wheels (yaw-rate ratio {r:.3}): enu is \
+                 counter-clockwise from east, ned clockwise from north; {swapped}"
+            ),
+        )
+    } else if (deg / 3.0..=deg * 3.0).contains(&r.abs()) && !derived {
+        fail(
+            "pose.heading.unit",
+            format!(
+                "the reference yaw rate is {r:.1} × the wheels' (≈ 180/π): the heading column is in degrees; \
+                 set unit = \"deg\""
+            ),
+        )
+    } else if (1.0 / deg / 3.0..=3.0 / deg).contains(&r.abs()) && !derived {
+        fail(
+            "pose.heading.unit",
+            format!(
+                "the reference yaw rate is {r:.4} × the wheels' (≈ π/180): the heading column is in radians; \
+                 set unit = \"rad\""
+            ),
+        )
+    } else {
+        warnings.push(format!(
+            "the reference yaw rate is {r:.3} × the wheels' at θ_0 (median over turns); check pose.heading, \
+             the wheel columns and output.theta0 (t_r)"
+        ));
+        Ok(())
+    }
+}

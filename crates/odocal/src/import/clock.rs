@@ -1,0 +1,160 @@
+//! Clock alignment: the offset τ between the pose and the wheel clocks
+//! (pose time + τ = wheel time), estimated by cross-correlating the wheel
+//! speed at θ_0 with the speed differenced from the pose, and the yaw rates
+//! as a cross-check.
+
+use super::grid::{mark, BadInterval};
+use super::manifest::{ClockOffset, Manifest};
+use super::pose::Pose;
+use super::report::ClockOffsetReport;
+use super::signal::{self, Correlation};
+use crate::error::Result;
+
+use crate::model::{kinematics, Input, Kinematics, Theta};
+
+/// The wheel stream as the clock estimate needs it.
+pub(crate) struct WheelTrack<'a> {
+    /// Stamps, s.
+    pub t: &'a [f64],
+    /// Cumulative rotation of the rear-left wheel, rev.
+    pub cum_l: &'a [f64],
+    /// Cumulative rotation of the rear-right wheel, rev.
+    pub cum_r: &'a [f64],
+    /// Wheel gaps.
+    pub bad: &'a [BadInterval],
+}
+
+/// The speed and yaw-rate cross-correlations over ±`max_clock_offset_s`, on
+/// a grid of step `h` over the wheel stream's span.
+pub(crate) fn estimate(
+    m: &Manifest,
+    w: &WheelTrack<'_>,
+    pose: &Pose,
+    h: f64,
+    theta0: &Theta,
+) -> (Option<Correlation>, Option<Correlation>) {
+    let o = &m.output;
+    let n_grid = ((w.t[w.t.len() - 1] - w.t[0]) / h).floor() as usize;
+    super::limits::note_grid(n_grid);
+    let grid: Vec<f64> = (0..n_grid).map(|k| w.t[0] + k as f64 * h).collect();
+    let mut valid: Vec<Option<String>> = vec![None; grid.len()];
+    mark(&mut valid, w.t[0], h, w.bad, true);
+    let nl = signal::interval_rates(w.t, w.cum_l, &grid, h);
+    let nr = signal::interval_rates(w.t, w.cum_r, &grid, h);
+    let kin: Vec<Option<Kinematics>> = (0..grid.len())
+        .map(|k| {
+            valid[k].is_none().then(|| kinematics(&Input { n_rl: nl[k], n_rr: nr[k], beta: 0.0, a_y: 0.0 }, theta0))
+        })
+        .collect();
+    let vw: Vec<f64> = kin.iter().map(|k| k.map_or(f64::NAN, |k| k.speed_m_per_s)).collect();
+    let ww: Vec<f64> = kin.iter().map(|k| k.map_or(f64::NAN, |k| k.yaw_rate_rad_per_s)).collect();
+    let mut tm = Vec::new();
+    let mut vp = Vec::new();
+    let mut wp = Vec::new();
+    for j in 0..pose.t.len() - 1 {
+        let (t0, t1) = (pose.t[j], pose.t[j + 1]);
+        let bad = pose.bad.iter().any(|b| b.from < t1 && b.to > t0);
+        tm.push(0.5 * (t0 + t1));
+        let dt = t1 - t0;
+        vp.push(if bad { f64::NAN } else { (pose.x[j + 1] - pose.x[j]).hypot(pose.y[j + 1] - pose.y[j]) / dt });
+        wp.push(if bad { f64::NAN } else { (pose.psi[j + 1] - pose.psi[j]) / dt });
+    }
+    let centres: Vec<f64> = grid.iter().map(|g| g + 0.5 * h).collect();
+    let on_grid = |y: &[f64]| {
+        let mut v = signal::interp_sorted(&tm, y, &centres);
+        for (v, c) in v.iter_mut().zip(&centres) {
+            if tm.is_empty() || *c < tm[0] || *c > tm[tm.len() - 1] {
+                *v = f64::NAN;
+            }
+        }
+        v
+    };
+    let max_lag = (o.max_clock_offset_s / h).ceil() as usize;
+    (signal::cross_correlate(&vw, &on_grid(&vp), h, max_lag), signal::cross_correlate(&ww, &on_grid(&wp), h, max_lag))
+}
+
+/// Lowest speed correlation at which `"auto"` applies its estimate.
+pub const MIN_CLOCK_CORRELATION: f64 = 0.5;
+/// A second correlation peak within this of the best makes the estimate
+/// ambiguous.
+pub const MIN_PEAK_MARGIN: f64 = 0.02;
+/// The yaw-rate cross-check counts when its correlation reaches this.
+pub const MIN_YAW_CHECK_CORRELATION: f64 = 0.8;
+
+/// Why the speed estimate is not clearly better than the manifest's offset
+/// (the streams' `time_offset_s` alone), or `None` when it is: the speed
+/// correlation is below [`MIN_CLOCK_CORRELATION`], a second peak comes
+/// within [`MIN_PEAK_MARGIN`] of it, or the yaw-rate cross-check (when its
+/// correlation reaches [`MIN_YAW_CHECK_CORRELATION`]) disagrees by more
+/// than one output sample `h`.
+pub(crate) fn doubt(est: Option<Correlation>, yaw: Option<Correlation>, h: f64) -> Option<String> {
+    let Some(c) = est else {
+        return Some("no moving wheel and pose data overlap within ±max_clock_offset_s".into());
+    };
+    if c.peak.is_nan() || c.peak < MIN_CLOCK_CORRELATION {
+        return Some(format!("the speed correlation {:.3} is below {MIN_CLOCK_CORRELATION}", c.peak));
+    }
+    if let Some((t2, r2)) = c.second {
+        if r2 >= c.peak - MIN_PEAK_MARGIN {
+            return Some(format!(
+                "a second correlation peak at {t2:+.3} s ({r2:.4}) is within {MIN_PEAK_MARGIN} of the best ({:.4})",
+                c.peak
+            ));
+        }
+    }
+    if let Some(y) = yaw {
+        if y.peak >= MIN_YAW_CHECK_CORRELATION && (y.offset_s - c.offset_s).abs() > h {
+            return Some(format!(
+                "the yaw-rate cross-check gives {:+.4} s (correlation {:.3}), more than one sample from {:+.4} s",
+                y.offset_s, y.peak, c.offset_s
+            ));
+        }
+    }
+    None
+}
+
+/// Estimates the offset, decides which offset to apply (for `"auto"`, the
+/// estimate unless [`doubt`] finds it not clearly better than the
+/// manifest's, then 0 s on top of the streams' `time_offset_s`, with a
+/// warning; a number is applied as given), and reports both.
+pub(crate) fn align(
+    m: &Manifest,
+    w: &WheelTrack<'_>,
+    pose: &Pose,
+    h: f64,
+    theta0: &Theta,
+    warnings: &mut Vec<String>,
+) -> Result<ClockOffsetReport> {
+    let o = &m.output;
+    let (est, est_yaw) = estimate(m, w, pose, h, theta0);
+    let doubt = doubt(est, est_yaw, h);
+    let applied = match (o.clock_offset, &doubt) {
+        (ClockOffset::Seconds(v), _) => v,
+        (ClockOffset::Auto, None) => est.map_or(0.0, |c| c.offset_s),
+        (ClockOffset::Auto, Some(why)) => {
+            warnings.push(format!(
+                "output.clock_offset = \"auto\": the estimate is not clearly better than the manifest's offset \
+                 ({why}); kept the streams' time_offset_s (0 s added). Give output.clock_offset in seconds to \
+                 fix it"
+            ));
+            0.0
+        }
+    };
+    Ok(ClockOffsetReport {
+        estimated_s: est.map(|c| c.offset_s),
+        correlation: est.map(|c| c.peak),
+        correlation_pairs: est.map(|c| c.pairs),
+        peak_curvature_per_s2: est.map(|c| c.curvature).filter(|v| v.is_finite()),
+        uncertainty_s: est.map(|c| (2.0 * (1.0 - c.peak) / c.curvature).sqrt()).filter(|v| v.is_finite()),
+        second_peak_s: est.and_then(|c| c.second).map(|s| s.0),
+        second_peak_correlation: est.and_then(|c| c.second).map(|s| s.1),
+        yaw_rate_estimate_s: est_yaw.map(|c| c.offset_s),
+        yaw_rate_correlation: est_yaw.map(|c| c.peak),
+        applied_s: applied,
+        doubt,
+        mode: match o.clock_offset {
+            ClockOffset::Auto => "auto".into(),
+            ClockOffset::Seconds(_) => "fixed".into(),
+        },
+    })
+}

@@ -1,0 +1,180 @@
+//! Resource budgets of the import, checked before anything is allocated
+//! from a user's number.
+//!
+//! | what | limit | why |
+//! |---|---|---|
+//! | output samples (common span × `rate_hz`, and the wheel span × `rate_hz` of the clock estimate) | [`MAX_OUTPUT_SAMPLES`] = 10⁷ | about 20 f64 columns per sample: ≤ 2 GB; 69 h at 40 Hz |
+//! | `output.rate_hz` | [`MIN_OUTPUT_RATE_HZ`] … [`MAX_OUTPUT_RATE_HZ`] = 1 … 10,000 Hz | the model runs at tens of Hz |
+//! | `output.max_clock_offset_s` | [`MAX_CLOCK_OFFSET_S`] = 60 s | larger means a wrong time column, unit or offset |
+//! | clock search work (grid samples × lags) | [`MAX_CORRELATION_WORK`] = 4·10⁹ | seconds, not hours |
+//! | `streams.*.nominal_rate_hz` | [`MAX_NOMINAL_RATE_HZ`] = 100 kHz, and at most [`MAX_NOMINAL_OVER_MEAN_RATE`] × the stream's mean rate | de-jittering assigns one index per nominal period |
+//! | `streams.*.dejitter_window_s` | [`MAX_DEJITTER_WINDOW_S`] = 60 s and [`MAX_DEJITTER_HALF_WINDOW`] = 5,000 samples each side | the local fit costs the window per sample |
+//!
+//! The physical limits (speed, lateral acceleration) are in the manifest's
+//! `[limits]` table ([`super::LimitsSpec`]), because a real vehicle may
+//! exceed them.
+
+use super::grid::Span;
+use super::manifest::Manifest;
+use crate::error::{Error, Result};
+
+/// Most output samples an import may allocate.
+pub const MAX_OUTPUT_SAMPLES: usize = 10_000_000;
+/// Lowest output rate, Hz.
+pub const MIN_OUTPUT_RATE_HZ: f64 = 1.0;
+/// Highest output rate, Hz.
+pub const MAX_OUTPUT_RATE_HZ: f64 = 10_000.0;
+/// Largest clock-offset search range, ± s.
+pub const MAX_CLOCK_OFFSET_S: f64 = 60.0;
+/// Most multiply-adds of the clock-offset search (grid samples × lags × 2).
+pub const MAX_CORRELATION_WORK: f64 = 4e9;
+/// Highest nominal stream rate, Hz.
+pub const MAX_NOMINAL_RATE_HZ: f64 = 100_000.0;
+/// Highest nominal rate relative to a stream's mean rate.
+pub const MAX_NOMINAL_OVER_MEAN_RATE: f64 = 20.0;
+/// Longest de-jitter window, s.
+pub const MAX_DEJITTER_WINDOW_S: f64 = 60.0;
+/// Most samples each side of the de-jitter window.
+pub const MAX_DEJITTER_HALF_WINDOW: usize = 5_000;
+/// Characters of a value echoed in a message.
+pub(crate) const ECHO_CHARS: usize = 40;
+
+/// A value as echoed in a message: at most [`ECHO_CHARS`] characters, then
+/// "…" and the full length.
+pub(crate) fn echo(value: &str) -> String {
+    let mut it = value.chars();
+    let head: String = it.by_ref().take(ECHO_CHARS).collect();
+    if it.next().is_some() {
+        format!("{head}… ({} bytes)", value.len())
+    } else {
+        head
+    }
+}
+
+/// A number as echoed in a message (`1e300` stays short).
+pub(crate) fn echo_num(v: f64) -> String {
+    if v.is_finite() && v.abs() >= 1e9 {
+        format!("{v:e}")
+    } else {
+        echo(&v.to_string())
+    }
+}
+
+/// `|v| ≤ max` and finite (false for NaN).
+pub(crate) fn within(v: f64, max: f64) -> bool {
+    v.is_finite() && v.abs() <= max
+}
+
+/// Output samples of `span_s` at `rate_hz` must stay within the budget.
+pub(crate) fn check_samples(m: &Manifest, what: &str, span_s: f64) -> Result<()> {
+    let n = span_s * m.output.rate_hz;
+    if n.is_finite() && n <= MAX_OUTPUT_SAMPLES as f64 {
+        return Ok(());
+    }
+    let hint = if span_s > 1e6 {
+        format!(
+            " {} s is {:.0} days: are the times in ms, µs or ns? Set time_unit.",
+            echo_num(span_s),
+            span_s / 86_400.0
+        )
+    } else {
+        String::new()
+    };
+    Err(m.error(
+        "output.rate_hz",
+        format!(
+            "{what} spans {} s: at {} Hz that is {} output samples, above the budget of {MAX_OUTPUT_SAMPLES}; lower \
+             rate_hz or split the log.{hint}",
+            echo_num(span_s),
+            echo_num(m.output.rate_hz),
+            echo_num(n.round())
+        ),
+    ))
+}
+
+/// The clock-offset search over `grid_samples` samples must stay within
+/// [`MAX_CORRELATION_WORK`].
+pub(crate) fn check_correlation(m: &Manifest, grid_samples: usize) -> Result<()> {
+    let lags = 2.0 * (m.output.max_clock_offset_s * m.output.rate_hz).ceil() + 1.0;
+    let work = 2.0 * lags * grid_samples as f64;
+    if work <= MAX_CORRELATION_WORK {
+        return Ok(());
+    }
+    Err(m.error(
+        "output.max_clock_offset_s",
+        format!(
+            "searching ±{} s at {} Hz over {grid_samples} samples is {} multiply-adds, above the budget of \
+             {MAX_CORRELATION_WORK:e}; narrow the search or give the offset in seconds",
+            m.output.max_clock_offset_s,
+            m.output.rate_hz,
+            echo_num(work)
+        ),
+    ))
+}
+
+/// Checks, before any resampling, that the wheel and pose streams can
+/// overlap: the pose span is widened by the clock-offset search range
+/// (`"auto"`) or shifted by the fixed offset. The error names both spans
+/// and, when their times differ by a power of 1000, the likely unit mistake.
+pub(crate) fn check_overlap(m: &Manifest, wheels: &Span, pose: &Span) -> Result<()> {
+    let (lo, hi) = match m.output.clock_offset {
+        super::ClockOffset::Auto => (-m.output.max_clock_offset_s, m.output.max_clock_offset_s),
+        super::ClockOffset::Seconds(v) => (v, v),
+    };
+    let (p0, p1) = (pose.start + lo, pose.end + hi);
+    if p0.max(wheels.start) < p1.min(wheels.end) {
+        return Ok(());
+    }
+    let search = match m.output.clock_offset {
+        super::ClockOffset::Auto => format!(" (with the ±{} s clock offset search)", m.output.max_clock_offset_s),
+        super::ClockOffset::Seconds(v) => format!(" (with the clock offset {v} s)"),
+    };
+    Err(Error::Manifest {
+        path: m.path.clone(),
+        reason: format!(
+            "the streams do not overlap in time (no time overlap): {} t = {} … {} s, {} t = {} … {} s{search}; \
+             {}check time_column, time_unit and time_offset_s",
+            wheels.name,
+            echo_num(wheels.start),
+            echo_num(wheels.end),
+            pose.name,
+            echo_num(pose.start),
+            echo_num(pose.end),
+            unit_hint(wheels, pose)
+        ),
+    })
+}
+
+/// "streams.a's times are about 10⁶ × those of streams.b: µs?" when the
+/// middles of two spans differ by a factor near 10³, 10⁶ or 10⁹.
+fn unit_hint(a: &Span, b: &Span) -> String {
+    let (ma, mb) = ((0.5 * (a.start + a.end)).abs(), (0.5 * (b.start + b.end)).abs());
+    let (big, small, r) = if ma >= mb { (a, b, ma / mb) } else { (b, a, mb / ma) };
+    if !(r.is_finite() && r > 100.0) {
+        return String::new();
+    }
+    let decades = r.log10();
+    let unit = [(3.0, "ms", "ms"), (6.0, "µs", "us"), (9.0, "ns", "ns")]
+        .into_iter()
+        .find(|(d, _, _)| (decades - d).abs() < 0.7);
+    match unit {
+        Some((d, name, key)) => format!(
+            "{}'s times are about 1e{d} × those of {}: are they in {name} (time_unit = \"{key}\")? ",
+            big.name, small.name
+        ),
+        None => format!("{}'s times are {} × those of {}; ", big.name, echo_num(r.round()), small.name),
+    }
+}
+
+#[cfg(test)]
+thread_local! {
+    /// The largest grid (samples) the import allocated on this thread.
+    pub(crate) static LARGEST_GRID: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+}
+
+/// Records a grid allocation of `n` samples (test builds only).
+pub(crate) fn note_grid(n: usize) {
+    #[cfg(test)]
+    LARGEST_GRID.with(|c| c.set(c.get().max(n)));
+    let _ = n;
+}

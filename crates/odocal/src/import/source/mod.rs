@@ -1,0 +1,237 @@
+//! Reading one recorded stream: the format-specific readers return a
+//! [`Table`] (raw time plus the columns asked for); [`read_stream`] then does
+//! what is common to every format: the time unit and offset, time that goes
+//! backwards, repeated stamps and de-jittering.
+//!
+//! ## Adding a format
+//!
+//! A new format is one new file and one enum variant:
+//!
+//! 1. a variant of [`SourceSpec`] (tagged by `format` in the manifest, e.g.
+//!    `format = "parquet"`), with the keys the format needs;
+//! 2. a file `source/<format>.rs` with
+//!    `pub(super) fn read(m: &Manifest, name: &str, file: &Path, wanted: &[Wanted]) -> Result<Table>`
+//!    returning the raw time and the wanted columns, reporting a missing
+//!    column with [`Manifest::error`] under the column's manifest key;
+//! 3. one arm in [`read_table`]'s `match`, behind the format's cargo feature
+//!    where it needs a dependency.
+//!
+//! `format = "mcap"` (a ROS 2 bag topic, `topic = "/wheels"`) and
+//! `format = "parquet"` are accepted by the manifest and answered with an
+//! error naming the key until their readers land.
+
+mod csv;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use super::manifest::{Manifest, SourceSpec};
+use super::report::{DejitterReport, StreamReport};
+use super::{limits, signal};
+use crate::error::{Error, Result};
+
+/// A column a reader must return: the column name and the manifest key that
+/// asked for it (named when the column is missing).
+#[derive(Debug, Clone)]
+pub(crate) struct Wanted {
+    /// The column.
+    pub column: String,
+    /// The manifest key, e.g. `wheels.rear_left.column`.
+    pub key: String,
+}
+
+/// One stream as a format reader returns it: one row per sample.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Table {
+    /// Raw time of each row, in the stream's `time_unit`.
+    pub t_s: Vec<f64>,
+    /// The wanted columns, by name.
+    pub columns: BTreeMap<String, Vec<f64>>,
+    /// Where the rows come from (a file, a file and topic), for messages.
+    pub source: String,
+    /// The file line of each row, when the format has lines (CSV).
+    pub lines: Option<Vec<u64>>,
+}
+
+impl Table {
+    /// Where row `i` is, for messages: `line L` or `row i`.
+    fn row_error(&self, file: &Path, i: usize, column: &str, reason: String) -> Error {
+        match &self.lines {
+            Some(lines) => Error::Csv { path: file.to_path_buf(), line: lines[i], column: Some(column.into()), reason },
+            None => {
+                Error::InvalidDrive { context: self.source.clone(), reason: format!("row {i}, '{column}': {reason}") }
+            }
+        }
+    }
+}
+
+/// Reads the raw table of stream `name` with the format its spec names.
+pub(crate) fn read_table(m: &Manifest, name: &str, wanted: &[Wanted]) -> Result<Table> {
+    let spec = &m.streams[name];
+    match &spec.source {
+        SourceSpec::Csv { file } => {
+            let time = spec.time_column.as_deref().unwrap_or_default();
+            csv::read(m, name, &m.base_dir().join(file), time, wanted)
+        }
+        SourceSpec::Mcap { .. } => Err(m.error(
+            &format!("streams.{name}.format"),
+            "\"mcap\" streams are not readable by this build yet (the ROS 2 bag reader is not part of it); \
+             export the topic to CSV",
+        )),
+        SourceSpec::Parquet { .. } => Err(m.error(
+            &format!("streams.{name}.format"),
+            "\"parquet\" streams are not readable by this build yet; export the table to CSV",
+        )),
+    }
+}
+
+/// One stream as used by the import: time (s, after offset and
+/// de-jittering) and the columns asked for.
+#[derive(Debug, Clone)]
+pub(crate) struct Stream {
+    /// The file.
+    pub path: PathBuf,
+    /// Time, s: unit converted, offset, de-jittered when asked.
+    pub t: Vec<f64>,
+    /// Time, s, before de-jittering.
+    pub t_raw: Vec<f64>,
+    /// The columns, by name (rows of repeated stamps removed).
+    pub cols: BTreeMap<String, Vec<f64>>,
+    /// File lines of the rows kept, when the format has lines.
+    pub lines: Option<Vec<u64>>,
+    /// What was read.
+    pub report: StreamReport,
+}
+
+impl Stream {
+    /// The stream without the rows whose `keep` is false.
+    pub fn without_rows(&self, keep: &[bool]) -> Stream {
+        let f = |v: &[f64]| v.iter().zip(keep).filter(|(_, k)| **k).map(|(x, _)| *x).collect::<Vec<f64>>();
+        Stream {
+            path: self.path.clone(),
+            t: f(&self.t),
+            t_raw: f(&self.t_raw),
+            cols: self.cols.iter().map(|(c, v)| (c.clone(), f(v))).collect(),
+            lines: self.lines.as_ref().map(|l| l.iter().zip(keep).filter(|(_, k)| **k).map(|(x, _)| *x).collect()),
+            report: self.report.clone(),
+        }
+    }
+
+    /// Column `name` (empty when it was not read).
+    pub fn col(&self, name: &str) -> &[f64] {
+        self.cols.get(name).map(Vec::as_slice).unwrap_or(&[])
+    }
+
+    /// An error about row `i` of column `column`: the file line where the
+    /// format has lines, else the row and its time.
+    pub fn error_at(&self, i: usize, column: Option<&str>, reason: impl Into<String>) -> Error {
+        let reason = reason.into();
+        match &self.lines {
+            Some(lines) => Error::Csv {
+                path: self.path.clone(),
+                line: lines.get(i).copied().unwrap_or(0),
+                column: column.map(str::to_string),
+                reason,
+            },
+            None => Error::InvalidDrive {
+                context: self.path.display().to_string(),
+                reason: format!(
+                    "row {i} (t = {:.3} s){}: {reason}",
+                    self.t.get(i).copied().unwrap_or(f64::NAN),
+                    column.map(|c| format!(", column '{c}'")).unwrap_or_default()
+                ),
+            },
+        }
+    }
+}
+
+/// Reads the columns `wanted` of stream `name`: its table, the time in
+/// seconds plus `time_offset_s`, time that goes backwards rejected, repeated
+/// stamps dropped (and counted), de-jittered when the stream has a
+/// `nominal_rate_hz`.
+pub(crate) fn read_stream(m: &Manifest, name: &str, wanted: &[Wanted]) -> Result<Stream> {
+    let spec = &m.streams[name];
+    let path = m.base_dir().join(spec.source.file());
+    let key = format!("streams.{name}.file");
+    let table = read_table(m, name, wanted)?;
+    if table.t_s.is_empty() {
+        return Err(m.error(&key, format!("{} has no data rows", table.source)));
+    }
+    let time_column = spec.time_column.clone().unwrap_or_else(|| "time".into());
+    let scale = spec.time_unit.seconds();
+    let mut time: Vec<f64> = table.t_s.clone();
+    for (i, t) in time.iter_mut().enumerate() {
+        if !t.is_finite() {
+            return Err(table.row_error(&path, i, &time_column, "time is not finite".into()));
+        }
+        *t = *t * scale + spec.time_offset_s;
+    }
+    // Backwards time is an error; repeated stamps are dropped.
+    let mut keep = vec![true; time.len()];
+    let mut repeated = 0;
+    let mut last = time[0];
+    for i in 1..time.len() {
+        if time[i] < last {
+            return Err(table.row_error(
+                &path,
+                i,
+                &time_column,
+                format!("time goes backwards ({} after {} s); the stream must be sorted by time", time[i], last),
+            ));
+        }
+        if time[i] <= last {
+            keep[i] = false;
+            repeated += 1;
+        } else {
+            last = time[i];
+        }
+    }
+    let rows = time.len();
+    let t_raw = filter(time, &keep);
+    let lines = table.lines.map(|l| filter(l, &keep));
+    let cols: BTreeMap<String, Vec<f64>> = table.columns.into_iter().map(|(c, v)| (c, filter(v, &keep))).collect();
+    let n = t_raw.len();
+    let span = [t_raw[0], t_raw[n - 1]];
+    let mean_rate_hz = if n > 1 { (n - 1) as f64 / (span[1] - span[0]) } else { 0.0 };
+    let (t, dejitter) = match spec.nominal_rate_hz {
+        Some(rate) if rate > limits::MAX_NOMINAL_OVER_MEAN_RATE * mean_rate_hz => {
+            return Err(m.error(
+                &format!("streams.{name}.nominal_rate_hz"),
+                format!(
+                    "{} Hz is more than {} × the stream's mean rate of {mean_rate_hz:.3} Hz; give the sensor's \
+                     sample rate",
+                    limits::echo_num(rate),
+                    limits::MAX_NOMINAL_OVER_MEAN_RATE
+                ),
+            ))
+        }
+        Some(rate) => {
+            let half = ((spec.dejitter_window_s * rate) / 2.0).round().max(1.0) as usize;
+            let d = signal::dejitter(&t_raw, 1.0 / rate, half, m.output.max_gap_s);
+            let rep = DejitterReport {
+                nominal_rate_hz: rate,
+                rms_correction_ms: d.rms_correction_s * 1e3,
+                max_correction_ms: d.max_correction_s * 1e3,
+                missing_samples: d.missing_samples,
+            };
+            (d.t, Some(rep))
+        }
+        None => (t_raw.clone(), None),
+    };
+    let report = StreamReport {
+        name: name.to_string(),
+        file: path.clone(),
+        rows,
+        repeated_stamps_dropped: repeated,
+        corrupt_rows_dropped: 0,
+        time_span_s: span,
+        mean_rate_hz,
+        dejitter,
+    };
+    Ok(Stream { path, t, t_raw, cols, lines, report })
+}
+
+/// The elements of `v` whose `keep` is true.
+fn filter<T>(v: Vec<T>, keep: &[bool]) -> Vec<T> {
+    v.into_iter().zip(keep).filter(|(_, k)| **k).map(|(x, _)| x).collect()
+}

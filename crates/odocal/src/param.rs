@@ -1,0 +1,243 @@
+//! Named model parameters and sets of them.
+//!
+//! [`Param`] names one estimated quantity; [`ParamSet`] is a set of them
+//! (which are free, which are not observable, which were held). Both
+//! serialise as names (`"c_e"`, `["c_d", "t_r"]`), so JSON reports read the
+//! same as the paper's symbols.
+//!
+//! Today the parameters are the four of θ. Later entries (the reference
+//! sensor's lever arm x/y and heading offset, noise scales) join as new
+//! variants *after* `D`: [`Param::index`] is the position in the full
+//! parameter vector, θ's four first, and [`ParamSet`] is a bit set with room
+//! for 32 entries.
+
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+use crate::error::{Error, Result};
+use crate::model::Theta;
+
+/// One estimated parameter.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+pub enum Param {
+    /// Effective rear wheel circumference c_e, m.
+    #[serde(rename = "c_e")]
+    CE,
+    /// Circumference difference c_d (left minus right), m.
+    #[serde(rename = "c_d")]
+    CD,
+    /// Rear track width t_r, m.
+    #[serde(rename = "t_r")]
+    TR,
+    /// Load-transfer coefficient d, m per m/s².
+    #[serde(rename = "d")]
+    D,
+}
+
+impl Param {
+    /// The four parameters of θ, in vector order `[c_e, c_d, t_r, d]`.
+    pub const THETA: [Param; 4] = [Param::CE, Param::CD, Param::TR, Param::D];
+
+    /// The name used in reports and on the command line (`"c_e"`, …).
+    pub const fn name(self) -> &'static str {
+        match self {
+            Param::CE => "c_e",
+            Param::CD => "c_d",
+            Param::TR => "t_r",
+            Param::D => "d",
+        }
+    }
+
+    /// Position in the parameter vector (θ's four first).
+    pub const fn index(self) -> usize {
+        self as usize
+    }
+
+    /// The parameter at vector position `i`, if there is one.
+    pub fn from_index(i: usize) -> Option<Param> {
+        Param::THETA.get(i).copied()
+    }
+
+    /// This parameter's value in θ.
+    pub fn value(self, theta: &Theta) -> f64 {
+        match self {
+            Param::CE => theta.c_e,
+            Param::CD => theta.c_d,
+            Param::TR => theta.t_r,
+            Param::D => theta.d,
+        }
+    }
+}
+
+impl std::fmt::Display for Param {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Param {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        Param::THETA.into_iter().find(|p| p.name() == s.trim()).ok_or_else(|| Error::Parse {
+            what: "parameter",
+            input: s.to_string(),
+            expected: "c_e, c_d, t_r or d",
+        })
+    }
+}
+
+/// A set of [`Param`]s, iterated in vector order.
+///
+/// ```
+/// use odocal::{Param, ParamSet};
+/// let free = ParamSet::THETA.without(Param::D);
+/// assert_eq!(free.to_string(), "c_e, c_d, t_r");
+/// assert_eq!("c_d,t_r".parse::<ParamSet>().unwrap(), ParamSet::from_iter([Param::CD, Param::TR]));
+/// ```
+#[derive(Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub struct ParamSet(u32);
+
+impl ParamSet {
+    /// No parameter.
+    pub const EMPTY: ParamSet = ParamSet(0);
+    /// The four parameters of θ.
+    pub const THETA: ParamSet = ParamSet(0b1111);
+
+    /// True when `p` is in the set.
+    pub const fn contains(self, p: Param) -> bool {
+        self.0 & (1 << p as u32) != 0
+    }
+
+    /// The set with `p` added.
+    #[must_use]
+    pub const fn with(self, p: Param) -> ParamSet {
+        ParamSet(self.0 | 1 << p as u32)
+    }
+
+    /// The set with `p` removed.
+    #[must_use]
+    pub const fn without(self, p: Param) -> ParamSet {
+        ParamSet(self.0 & !(1 << p as u32))
+    }
+
+    /// Adds `p`.
+    pub fn insert(&mut self, p: Param) {
+        *self = self.with(p);
+    }
+
+    /// Removes `p`.
+    pub fn remove(&mut self, p: Param) {
+        *self = self.without(p);
+    }
+
+    /// The parameters in both sets.
+    #[must_use]
+    pub const fn intersection(self, other: ParamSet) -> ParamSet {
+        ParamSet(self.0 & other.0)
+    }
+
+    /// Number of parameters.
+    pub const fn len(self) -> usize {
+        self.0.count_ones() as usize
+    }
+
+    /// True when the set is empty.
+    pub const fn is_empty(self) -> bool {
+        self.0 == 0
+    }
+
+    /// The parameters in vector order.
+    pub fn iter(self) -> impl Iterator<Item = Param> {
+        Param::THETA.into_iter().filter(move |p| self.contains(*p))
+    }
+
+    /// Vector positions of the parameters, ascending.
+    pub fn indices(self) -> Vec<usize> {
+        self.iter().map(Param::index).collect()
+    }
+}
+
+impl FromIterator<Param> for ParamSet {
+    fn from_iter<I: IntoIterator<Item = Param>>(iter: I) -> Self {
+        iter.into_iter().fold(ParamSet::EMPTY, ParamSet::with)
+    }
+}
+
+impl std::fmt::Display for ParamSet {
+    /// Names joined by ", " (`"c_d, t_r, d"`).
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        for (i, p) in self.iter().enumerate() {
+            if i > 0 {
+                f.write_str(", ")?;
+            }
+            f.write_str(p.name())?;
+        }
+        Ok(())
+    }
+}
+
+impl std::fmt::Debug for ParamSet {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_set().entries(self.iter()).finish()
+    }
+}
+
+impl std::str::FromStr for ParamSet {
+    type Err = Error;
+    /// Comma-separated names (`"c_d,t_r,d"`); the empty string is the empty set.
+    fn from_str(s: &str) -> Result<Self> {
+        s.split(',').map(str::trim).filter(|n| !n.is_empty()).map(str::parse::<Param>).collect()
+    }
+}
+
+impl Serialize for ParamSet {
+    fn serialize<S: Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        s.collect_seq(self.iter())
+    }
+}
+
+impl<'de> Deserialize<'de> for ParamSet {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        Ok(Vec::<Param>::deserialize(d)?.into_iter().collect())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_round_trip_in_json_and_text() {
+        let s = ParamSet::THETA.without(Param::CE);
+        let j = serde_json::to_string(&s).expect("json");
+        assert_eq!(j, r#"["c_d","t_r","d"]"#);
+        assert_eq!(serde_json::from_str::<ParamSet>(&j).expect("back"), s);
+        assert_eq!(s.to_string(), "c_d, t_r, d");
+        assert_eq!("c_d, t_r,d".parse::<ParamSet>().expect("parse"), s);
+        assert_eq!(serde_json::to_string(&Param::TR).expect("json"), r#""t_r""#);
+        for (i, p) in Param::THETA.into_iter().enumerate() {
+            assert_eq!(p.index(), i);
+            assert_eq!(Param::from_index(i), Some(p));
+            assert_eq!(p.name(), crate::model::THETA_NAMES[i]);
+        }
+    }
+
+    #[test]
+    fn unknown_name_is_a_parse_error_naming_the_choices() {
+        let e = "c_e,tr".parse::<ParamSet>().expect_err("tr is not a parameter");
+        assert_eq!(e.to_string(), "invalid parameter 'tr': use c_e, c_d, t_r or d");
+    }
+
+    #[test]
+    fn set_operations() {
+        let mut s = ParamSet::EMPTY;
+        assert!(s.is_empty());
+        s.insert(Param::D);
+        s.insert(Param::CE);
+        assert_eq!(s.iter().collect::<Vec<_>>(), vec![Param::CE, Param::D], "vector order");
+        assert_eq!(s.len(), 2);
+        assert_eq!(s.indices(), vec![0, 3]);
+        s.remove(Param::CE);
+        assert!(!s.contains(Param::CE) && s.contains(Param::D));
+        assert_eq!(ParamSet::THETA.intersection(s), s);
+    }
+}

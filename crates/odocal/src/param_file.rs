@@ -1,0 +1,351 @@
+//! Parameter files out: the calibrated parameters as a ROS 2 parameter file
+//! (YAML, `ros__parameters` layout) or JSON, with their 1σ, units, the
+//! verdict and provenance, so a robot stack can load them directly.
+//!
+//! Under odocal's own names the file holds, for node `odocal` (configurable):
+//!
+//! ```yaml
+//! odocal:
+//!   ros__parameters:
+//!     c_e: 1.951448          # m, effective rear wheel circumference
+//!     c_e_sigma: 2.1e-05
+//!     ...
+//!     verdict: "accepted"
+//!     provenance:
+//!       input: "drive.csv"
+//!       method: "batch-gn"
+//!       odocal_version: "0.1.0"
+//!       date: "2026-11-23"
+//! ```
+//!
+//! With [`ParamMapping::DiffDriveController`] the wheel parameters are also
+//! written under the keys of ROS 2 `diff_drive_controller`:
+//! `wheel_separation` = t_r, `wheel_radius` = c_e / 2π,
+//! `left_wheel_radius_multiplier` = (c_e + c_d/2) / c_e and
+//! `right_wheel_radius_multiplier` = (c_e − c_d/2) / c_e (d, the load
+//! transfer, has no counterpart there and is only under odocal's name). The
+//! radius is physical only when one model revolution is one wheel revolution
+//! (wheel speeds in rev/s or rad/s, or ticks with `ticks_per_rev` the true
+//! encoder resolution).
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::model::{Theta, THETA_NAMES};
+
+/// Onto which consumer's keys the parameters are also written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ParamMapping {
+    /// odocal's own names only (default).
+    #[default]
+    Odocal,
+    /// Also ROS 2 `diff_drive_controller`'s keys.
+    DiffDriveController,
+}
+
+impl std::str::FromStr for ParamMapping {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "odocal" => Ok(ParamMapping::Odocal),
+            "diff_drive_controller" | "diff-drive-controller" => Ok(ParamMapping::DiffDriveController),
+            _ => Err(Error::InvalidOption {
+                field: "params_mapping",
+                reason: format!("'{s}': use odocal or diff_drive_controller"),
+            }),
+        }
+    }
+}
+
+/// One parameter of the file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ParamEntry {
+    /// Name (`c_e`, …).
+    pub name: String,
+    /// Value, SI.
+    pub value: f64,
+    /// 1σ, SI; `None` when the parameter was held.
+    pub sigma: Option<f64>,
+    /// SI unit.
+    pub unit: String,
+    /// What it is.
+    pub description: String,
+}
+
+/// The content of a parameter file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ParamFile {
+    /// ROS node name the parameters belong to. Default `odocal`.
+    pub node: String,
+    /// The parameters.
+    pub params: Vec<ParamEntry>,
+    /// The verdict (`accepted`, `doubtful`, `rejected`), when there is one.
+    pub verdict: Option<String>,
+    /// Reasons for the verdict.
+    pub verdict_reasons: Vec<String>,
+    /// Provenance: input, method, odocal version, date (key–value).
+    pub provenance: Vec<(String, String)>,
+    /// Extra keys for a consumer.
+    pub mapping: ParamMapping,
+}
+
+const UNITS: [&str; 4] = ["m", "m", "m", "m/(m/s^2)"];
+const DESCRIPTIONS: [&str; 4] = [
+    "effective rear wheel circumference (per model revolution)",
+    "rear wheel circumference difference, left minus right",
+    "rear track width",
+    "load-transfer coefficient: circumference change per m/s^2 of lateral acceleration",
+];
+
+impl ParamFile {
+    /// A file for θ with 1σ per entry (`None` = held), provenance filled with
+    /// `input`, `method`, the odocal version and today's UTC date.
+    pub fn from_theta(theta: &Theta, sigma: [Option<f64>; 4], input: &str, method: &str) -> ParamFile {
+        let params = (0..4)
+            .map(|i| ParamEntry {
+                name: THETA_NAMES[i].into(),
+                value: theta.to_array()[i],
+                sigma: sigma[i],
+                unit: UNITS[i].into(),
+                description: DESCRIPTIONS[i].into(),
+            })
+            .collect();
+        ParamFile {
+            node: "odocal".into(),
+            params,
+            verdict: None,
+            verdict_reasons: Vec::new(),
+            provenance: vec![
+                ("input".into(), input.into()),
+                ("method".into(), method.into()),
+                ("odocal_version".into(), env!("CARGO_PKG_VERSION").into()),
+                ("date".into(), utc_date_today()),
+            ],
+            mapping: ParamMapping::Odocal,
+        }
+    }
+
+    fn value(&self, name: &str) -> Option<f64> {
+        self.params.iter().find(|p| p.name == name).map(|p| p.value)
+    }
+
+    /// The consumer keys of [`ParamFile::mapping`] with their values.
+    pub fn mapped(&self) -> Vec<(&'static str, f64)> {
+        match self.mapping {
+            ParamMapping::Odocal => Vec::new(),
+            ParamMapping::DiffDriveController => {
+                let (Some(c_e), Some(c_d), Some(t_r)) = (self.value("c_e"), self.value("c_d"), self.value("t_r"))
+                else {
+                    return Vec::new();
+                };
+                vec![
+                    ("wheel_separation", t_r),
+                    ("wheel_radius", c_e / std::f64::consts::TAU),
+                    ("left_wheel_radius_multiplier", (c_e + c_d / 2.0) / c_e),
+                    ("right_wheel_radius_multiplier", (c_e - c_d / 2.0) / c_e),
+                ]
+            }
+        }
+    }
+
+    /// The ROS 2 parameter file (YAML). Numbers are written in shortest
+    /// round-trip form, so reading them back gives the same f64.
+    pub fn to_ros2_yaml(&self) -> String {
+        let mut y = String::new();
+        let _ = writeln!(y, "# odocal calibration; units: SI (m, m/(m/s^2)); *_sigma = 1 standard deviation");
+        let _ = writeln!(y, "{}:", yaml_key(&self.node));
+        let _ = writeln!(y, "  ros__parameters:");
+        for p in &self.params {
+            let _ = writeln!(y, "    {}: {}  # {}, {}", yaml_key(&p.name), yaml_f64(p.value), p.unit, p.description);
+            match p.sigma {
+                Some(s) => {
+                    let _ = writeln!(y, "    {}_sigma: {}", yaml_key(&p.name), yaml_f64(s));
+                }
+                None => {
+                    let _ = writeln!(y, "    {}_held: true", yaml_key(&p.name));
+                }
+            }
+        }
+        for (k, v) in self.mapped() {
+            let _ = writeln!(y, "    {k}: {}", yaml_f64(v));
+        }
+        if let Some(v) = &self.verdict {
+            let _ = writeln!(y, "    verdict: {}", yaml_str(v));
+            let reasons: Vec<String> = self.verdict_reasons.iter().map(|r| yaml_str(r)).collect();
+            let _ = writeln!(y, "    verdict_reasons: [{}]", reasons.join(", "));
+        }
+        let _ = writeln!(y, "    provenance:");
+        for (k, v) in &self.provenance {
+            let _ = writeln!(y, "      {}: {}", yaml_key(k), yaml_str(v));
+        }
+        y
+    }
+
+    /// The same content as JSON.
+    pub fn to_json(&self) -> serde_json::Value {
+        let mut params = serde_json::Map::new();
+        for p in &self.params {
+            params.insert(p.name.clone(), serde_json::json!(p.value));
+            match p.sigma {
+                Some(s) => params.insert(format!("{}_sigma", p.name), serde_json::json!(s)),
+                None => params.insert(format!("{}_held", p.name), serde_json::json!(true)),
+            };
+        }
+        for (k, v) in self.mapped() {
+            params.insert(k.into(), serde_json::json!(v));
+        }
+        let prov: serde_json::Map<String, serde_json::Value> =
+            self.provenance.iter().map(|(k, v)| (k.clone(), serde_json::json!(v))).collect();
+        serde_json::json!({
+            "schema_version": 1,
+            "node": self.node,
+            "parameters": params,
+            "units": self.params.iter().map(|p| (p.name.clone(), serde_json::json!(p.unit))).collect::<serde_json::Map<_, _>>(),
+            "verdict": self.verdict,
+            "verdict_reasons": self.verdict_reasons,
+            "provenance": prov,
+        })
+    }
+
+    /// Writes YAML for a `.yaml`/`.yml` path, JSON for `.json`.
+    ///
+    /// # Errors
+    /// [`Error::InvalidOption`] for another extension, [`Error::Io`].
+    pub fn write(&self, path: &Path) -> Result<()> {
+        let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+        let text = match ext.as_deref() {
+            Some("yaml" | "yml") => self.to_ros2_yaml(),
+            Some("json") => {
+                let mut s = serde_json::to_string_pretty(&self.to_json())
+                    .map_err(|source| Error::Json { context: path.display().to_string(), source })?;
+                s.push('\n');
+                s
+            }
+            _ => {
+                return Err(Error::InvalidOption {
+                    field: "params_out",
+                    reason: format!("{}: use a .yaml, .yml or .json file name", path.display()),
+                })
+            }
+        };
+        std::fs::write(path, text).map_err(|source| Error::io(path, source))
+    }
+}
+
+fn yaml_f64(v: f64) -> String {
+    if v.is_finite() {
+        let s = format!("{v:?}");
+        // `1e-5` is a float in YAML 1.2 but a string in YAML 1.1 readers; write `1.0e-5`.
+        match s.split_once('e') {
+            Some((m, e)) if !m.contains('.') => format!("{m}.0e{e}"),
+            _ => s,
+        }
+    } else {
+        ".nan".into()
+    }
+}
+
+fn yaml_key(k: &str) -> String {
+    if !k.is_empty() && k.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '/') {
+        k.to_string()
+    } else {
+        yaml_str(k)
+    }
+}
+
+/// A double-quoted YAML string.
+fn yaml_str(s: &str) -> String {
+    let mut o = String::from("\"");
+    for c in s.chars() {
+        match c {
+            '"' => o.push_str("\\\""),
+            '\\' => o.push_str("\\\\"),
+            '\n' => o.push_str("\\n"),
+            c if c.is_control() => {
+                let _ = write!(o, "\\u{:04x}", c as u32);
+            }
+            c => o.push(c),
+        }
+    }
+    o.push('"');
+    o
+}
+
+/// Today's date (UTC) as `YYYY-MM-DD`, from the system clock.
+pub fn utc_date_today() -> String {
+    let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
+    let (y, m, d) = civil_from_days((secs / 86_400) as i64);
+    format!("{y:04}-{m:02}-{d:02}")
+}
+
+/// Proleptic Gregorian date of a day count since 1970-01-01 (H. Hinnant's algorithm).
+fn civil_from_days(z: i64) -> (i64, u32, u32) {
+    let z = z + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = (doy - (153 * mp + 2) / 5 + 1) as u32;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
+    (yoe + era * 400 + i64::from(m <= 2), m, d)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn civil_dates() {
+        assert_eq!(civil_from_days(0), (1970, 1, 1));
+        assert_eq!(civil_from_days(20_415), (2025, 11, 23));
+        assert_eq!(civil_from_days(11_016), (2000, 2, 29));
+    }
+
+    fn sample() -> ParamFile {
+        let th = Theta { c_e: 1.951448, c_d: -0.002130942, t_r: 1.564853, d: 0.000396481 };
+        let mut f =
+            ParamFile::from_theta(&th, [Some(2.1e-5), Some(3e-7), Some(4.7e-5), None], "drive \"a\".csv", "batch-gn");
+        f.verdict = Some("accepted".into());
+        f.verdict_reasons = vec!["Ē_p 9.3 m < θ_0's 26.9 m".into()];
+        f.mapping = ParamMapping::DiffDriveController;
+        f
+    }
+
+    #[test]
+    fn yaml_parses_back_to_the_same_numbers() {
+        let f = sample();
+        let text = f.to_ros2_yaml();
+        let docs = yaml_rust2::YamlLoader::load_from_str(&text).expect("valid YAML");
+        let p = &docs[0]["odocal"]["ros__parameters"];
+        for e in &f.params {
+            assert_eq!(p[e.name.as_str()].as_f64().map(f64::to_bits), Some(e.value.to_bits()), "{}", e.name);
+        }
+        assert_eq!(p["c_e_sigma"].as_f64(), Some(2.1e-5));
+        assert_eq!(p["d_held"].as_bool(), Some(true));
+        let sep = p["wheel_separation"].as_f64().expect("mapped");
+        assert_eq!(sep.to_bits(), 1.564853f64.to_bits());
+        let left = p["left_wheel_radius_multiplier"].as_f64().expect("mapped");
+        assert!((left - (1.951448 - 0.002130942 / 2.0) / 1.951448).abs() < 1e-15);
+        assert_eq!(p["verdict"].as_str(), Some("accepted"));
+        assert_eq!(p["provenance"]["input"].as_str(), Some("drive \"a\".csv"));
+        assert_eq!(p["provenance"]["method"].as_str(), Some("batch-gn"));
+    }
+
+    #[test]
+    fn json_and_extension() {
+        let f = sample();
+        let j = f.to_json();
+        assert_eq!(j["parameters"]["t_r"].as_f64(), Some(1.564853));
+        assert_eq!(j["parameters"]["d_held"].as_bool(), Some(true));
+        let dir = tempfile::tempdir().expect("tmp");
+        f.write(&dir.path().join("p.yaml")).expect("yaml");
+        f.write(&dir.path().join("p.json")).expect("json");
+        let e = f.write(&dir.path().join("p.txt")).expect_err("txt").to_string();
+        assert!(e.contains(".yaml, .yml or .json"), "{e}");
+    }
+}

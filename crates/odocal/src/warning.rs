@@ -1,0 +1,185 @@
+//! Typed warnings of a calibration: what the user should know about a
+//! result that is not an error.
+//!
+//! Each [`Warning`] carries its numbers as fields (in the JSON report, tagged
+//! by `"kind"`) and reads as one sentence through `Display`. Human output can
+//! group them by [`Warning::kind`]: a noisy drive gives hundreds of
+//! [`Warning::CompensationFailed`] and the CLI prints a count and the first
+//! few ([`summarize`]).
+
+use serde::{Deserialize, Serialize};
+
+use crate::param::{Param, ParamSet};
+
+/// Something the user should know about a calibration result.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+#[non_exhaustive]
+pub enum Warning {
+    /// An identification ended with parameters the data cannot determine
+    /// (alone, or in a near-collinear combination): their estimates are not
+    /// to be trusted.
+    Unobservable {
+        /// Which identification (`"final identification"`).
+        stage: String,
+        /// The parameters.
+        params: ParamSet,
+        /// RMS pose change per resolution step of each θ parameter, m.
+        sensitivity_m: [f64; 4],
+        /// Reciprocal condition number of the equilibrated `JᵀWJ`.
+        rcond: f64,
+    },
+    /// `auto_fix`: no segment turns enough, so the yaw-only parameters were
+    /// held at θ_0 and every segment was used.
+    AutoFixNoTurns {
+        /// The parameters held.
+        params: ParamSet,
+        /// Segments used (all cut).
+        segments: usize,
+        /// The selection threshold, rad/s.
+        min_peak_yaw_rate_rad_per_s: f64,
+        /// The fastest segment's peak yaw rate, rad/s.
+        peak_yaw_rate_rad_per_s: f64,
+    },
+    /// `auto_fix`: parameters the observability check named at θ_0 were held.
+    AutoFixUnobservable {
+        /// The parameters held, in the order they were held.
+        params: Vec<Param>,
+        /// Selected segments the check ran on.
+        segments: usize,
+    },
+    /// A step-1 batch identification failed and was left out.
+    BatchFailed {
+        /// Batch index (0-based, in batch order).
+        batch: usize,
+        /// Why.
+        reason: String,
+    },
+    /// A compensation job (one segment at one θ_B,I) failed and was left out.
+    CompensationFailed {
+        /// First sample of the segment.
+        segment_start: usize,
+        /// Why.
+        reason: String,
+    },
+    /// A QP the configured solver did not finish was solved by the fallback.
+    SolverFallback {
+        /// First sample of the segment.
+        segment_start: usize,
+        /// Which θ_B,I (1-based).
+        theta_index: usize,
+        /// The linearization (1-based).
+        linearization: usize,
+        /// The solver that did not finish.
+        solver: String,
+        /// The solver that did.
+        fallback: String,
+        /// Why the first one stopped.
+        reason: String,
+    },
+}
+
+impl Warning {
+    /// A short name of the kind of warning (the JSON `"kind"`), for grouping.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Warning::Unobservable { .. } => "unobservable",
+            Warning::AutoFixNoTurns { .. } => "auto_fix_no_turns",
+            Warning::AutoFixUnobservable { .. } => "auto_fix_unobservable",
+            Warning::BatchFailed { .. } => "batch_failed",
+            Warning::CompensationFailed { .. } => "compensation_failed",
+            Warning::SolverFallback { .. } => "solver_fallback",
+        }
+    }
+}
+
+impl std::fmt::Display for Warning {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Warning::Unobservable { stage, params, sensitivity_m: s, rcond } => write!(
+                f,
+                "{stage}: {params} not observable from these data (sensitivity [c_e, c_d, t_r, d] = [{:.3}, {:.3}, \
+                 {:.3}, {:.3}] m per resolution step, rcond {rcond:.1e}); their estimates are not to be trusted — \
+                 hold them fixed at θ_0 (--fix) or use a drive with more turns",
+                s[0], s[1], s[2], s[3]
+            ),
+            Warning::AutoFixNoTurns { params, segments, min_peak_yaw_rate_rad_per_s, peak_yaw_rate_rad_per_s } => {
+                write!(
+                    f,
+                    "auto-fix: {params} held at θ_0 and all {segments} segments used: none turns faster than \
+                     {min_peak_yaw_rate_rad_per_s} rad/s (the fastest: {peak_yaw_rate_rad_per_s:.3} rad/s), so only \
+                     c_e is observable"
+                )
+            }
+            Warning::AutoFixUnobservable { params, segments } => {
+                let names: Vec<&str> = params.iter().map(|p| p.name()).collect();
+                write!(
+                    f,
+                    "auto-fix: {} held at θ_0 (not observable from the {segments} selected segments at θ_0)",
+                    names.join(", ")
+                )
+            }
+            Warning::BatchFailed { batch, reason } => write!(f, "initial batch {batch} left out: {reason}"),
+            Warning::CompensationFailed { reason, .. } => write!(f, "compensation left out: {reason}"),
+            Warning::SolverFallback { segment_start, theta_index, linearization, solver, fallback, reason } => write!(
+                f,
+                "compensation of the segment at sample {segment_start} (θ_B,I {theta_index}): linearization \
+                 {linearization}: {solver} → {fallback}: {reason}"
+            ),
+        }
+    }
+}
+
+/// Lines for a human reader: warnings grouped by kind (in order of first
+/// appearance), at most `per_kind` of each, then `"… and N more <kind>
+/// warnings"` for the rest.
+pub fn summarize(warnings: &[Warning], per_kind: usize) -> Vec<String> {
+    let mut kinds: Vec<&'static str> = Vec::new();
+    for w in warnings {
+        if !kinds.contains(&w.kind()) {
+            kinds.push(w.kind());
+        }
+    }
+    let mut out = Vec::new();
+    for k in kinds {
+        let of_kind: Vec<&Warning> = warnings.iter().filter(|w| w.kind() == k).collect();
+        out.extend(of_kind.iter().take(per_kind).map(|w| w.to_string()));
+        if of_kind.len() > per_kind {
+            out.push(format!("… and {} more {} warnings", of_kind.len() - per_kind, k.replace('_', " ")));
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn repeated_warnings_collapse_to_a_count() {
+        let mut w: Vec<Warning> = (0..500)
+            .map(|i| Warning::CompensationFailed { segment_start: i * 100, reason: format!("job {i}") })
+            .collect();
+        w.insert(1, Warning::BatchFailed { batch: 3, reason: "singular".into() });
+        let lines = summarize(&w, 3);
+        assert_eq!(lines.len(), 5, "{lines:?}");
+        assert_eq!(lines[0], "compensation left out: job 0");
+        assert_eq!(lines[3], "… and 497 more compensation failed warnings");
+        assert_eq!(lines[4], "initial batch 3 left out: singular");
+    }
+
+    #[test]
+    fn json_is_tagged_by_kind_with_named_parameters() {
+        let w = Warning::AutoFixNoTurns {
+            params: "c_d,t_r,d".parse().expect("params"),
+            segments: 4,
+            min_peak_yaw_rate_rad_per_s: 0.15,
+            peak_yaw_rate_rad_per_s: 0.01,
+        };
+        let v = serde_json::to_value(&w).expect("json");
+        assert_eq!(v["kind"], "auto_fix_no_turns");
+        assert_eq!(v["params"], serde_json::json!(["c_d", "t_r", "d"]));
+        assert_eq!(serde_json::from_value::<Warning>(v).expect("back"), w);
+        assert!(w.to_string().starts_with("auto-fix: c_d, t_r, d held at θ_0 and all 4 segments used"), "{w}");
+    }
+}
