@@ -27,16 +27,16 @@ use odocal::{Drive, Theta};
 /// The one place that reads a Drive's columns.
 fn input_of(d: &Drive) -> EivInput<'_> {
     EivInput {
-        sample_time_s: d.sample_time_s,
-        parts: &d.parts,
-        px: &d.px,
-        py: &d.py,
-        psi: &d.psi,
-        n_rl: &d.n_rl,
-        n_rr: &d.n_rr,
-        beta: &d.beta,
-        a_y: &d.a_y,
-        reference_measured: None,
+        sample_time_s: d.sample_time_s(),
+        parts: d.parts(),
+        px: d.px(),
+        py: d.py(),
+        psi: d.psi(),
+        n_rl: d.n_rl(),
+        n_rr: d.n_rr(),
+        beta: d.beta(),
+        a_y: d.a_y(),
+        reference_measured: d.reference_measured(),
     }
 }
 
@@ -77,16 +77,18 @@ fn main() -> Result<(), odocal::Error> {
     let args: Vec<String> = std::env::args().collect();
     let km: f64 = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(12.0);
     let seeds: u64 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(3);
-    let presets: Vec<String> =
-        args.get(3).map_or_else(|| vec!["white".into(), "paper".into(), "high".into()], |s| {
-            s.split(',').map(String::from).collect()
-        });
+    let presets: Vec<String> = args.get(3).map_or_else(
+        || vec!["white".into(), "paper".into(), "high".into()],
+        |s| s.split(',').map(String::from).collect(),
+    );
     let variants: Vec<String> = args.get(4).map_or_else(
         || ["held", "follows", "held-known", "follows-known"].iter().map(|s| s.to_string()).collect(),
         |s| s.split(',').map(String::from).collect(),
     );
     let mut acc: BTreeMap<(String, String), Acc> = BTreeMap::new();
-    println!("preset seed variant | err [c_e %, c_d mm, t_r %, d mm/(m/s²)] | σ (sandwich t_r) | s | termination, warnings");
+    println!(
+        "preset seed variant | err [c_e %, c_d mm, t_r %, d mm/(m/s²)] | σ (sandwich t_r) | s | termination, warnings"
+    );
     for preset in &presets {
         for seed in 1..=seeds {
             let noise = NoiseOptions::by_name(preset)?;
@@ -108,13 +110,13 @@ fn main() -> Result<(), odocal::Error> {
             a.err.push(err(&gn));
             a.time.push(t_gn);
             let input = input_of(d);
-            let true_noise = NoiseModel::from_sim(&noise, d.sample_time_s);
+            let true_noise = NoiseModel::from_sim(&noise, d.sample_time_s());
             if let Ok(c) = cramer_rao_bound(&input, &truth, &true_noise, &EivOptions::default()) {
                 println!("{preset:5} {seed} CRB | | {}", fmt(&sc(&c.sigma)));
                 acc.entry((preset.clone(), "CRB".into())).or_default().sigma.push(sc(&c.sigma));
             }
             for v in &variants {
-                let r = estimate(&input, &gn, &options(v, &noise, d.sample_time_s))?;
+                let r = estimate(&input, &gn, &options(v, &noise, d.sample_time_s()))?;
                 println!(
                     "{preset:5} {seed} {v} | {} | {} ({:.3}) | {:.2} | {}, evals {:?}, {} warnings, η {:?}",
                     fmt(&err(&r.theta)),
@@ -163,7 +165,7 @@ fn main() -> Result<(), odocal::Error> {
         let t_gn = t.elapsed().as_secs_f64();
         print!("24 km ({} samples): batch G-N {t_gn:.2} s", d.len());
         for v in &variants {
-            let r = estimate(&input_of(d), &gn, &options(v, &NoiseOptions::paper(), d.sample_time_s))?;
+            let r = estimate(&input_of(d), &gn, &options(v, &NoiseOptions::paper(), d.sample_time_s()))?;
             print!("; EIV {v} {:.2} s ({} iterations, evals {:?})", r.timing_s, r.iterations, r.evaluations);
         }
         println!();

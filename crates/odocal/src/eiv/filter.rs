@@ -483,9 +483,7 @@ pub(crate) fn run_window(
     let follows = mode.follows_theta;
     let theta_cov = if follows { theta } else { theta_ref };
     // Sensitivity columns whose covariance derivatives are propagated.
-    let cols: Vec<usize> = (0..NP)
-        .filter(|&c| mode.derivs && if c < 4 { follows } else { mode.eta })
-        .collect();
+    let cols: Vec<usize> = (0..NP).filter(|&c| mode.derivs && if c < 4 { follows } else { mode.eta }).collect();
     // The corrected score (X recursion) is needed only with the covariance held.
     let corrected = mode.derivs && !follows;
     let r_floor = [
@@ -755,7 +753,7 @@ pub(crate) fn run_window(
 
         if mode.derivs {
             let hd = h_rows(&d); // ∂ν/∂p = −H D⁻
-            // Gradient of ½νᵀS⁻¹ν through ν: νᵀS⁻¹ ∂ν = −(HD)ᵀ S⁻¹ ν.
+                                 // Gradient of ½νᵀS⁻¹ν through ν: νᵀS⁻¹ ∂ν = −(HD)ᵀ S⁻¹ ν.
             let gnu = hd.transpose() * sinv_nu;
             out.grad -= gnu;
             out.grad_profile -= gnu;

@@ -8,16 +8,16 @@ use crate::sim::{simulate, NoiseOptions, SimOptions};
 /// The one place that reads a Drive's columns (Drive is being refactored).
 fn input_of(d: &Drive) -> EivInput<'_> {
     EivInput {
-        sample_time_s: d.sample_time_s,
-        parts: &d.parts,
-        px: &d.px,
-        py: &d.py,
-        psi: &d.psi,
-        n_rl: &d.n_rl,
-        n_rr: &d.n_rr,
-        beta: &d.beta,
-        a_y: &d.a_y,
-        reference_measured: None,
+        sample_time_s: d.sample_time_s(),
+        parts: d.parts(),
+        px: d.px(),
+        py: d.py(),
+        psi: d.psi(),
+        n_rl: d.n_rl(),
+        n_rr: d.n_rr(),
+        beta: d.beta(),
+        a_y: d.a_y(),
+        reference_measured: d.reference_measured(),
     }
 }
 
@@ -219,8 +219,12 @@ fn noise_free_recovers_theta_true_and_eta_at_lower_clamp() {
     assert!(!r.warnings.iter().any(|w| matches!(w, EivWarning::NoiseAtUpperClamp { .. })), "{:?}", r.warnings);
 }
 
+/// Measured (covariance following θ, η estimated from the production-car
+/// start): G-N t_r error 7.1e-2 m (+4.7 %), EIV 4.5e-4 m with σ 1.2e-2 m.
+/// (With the covariance held at a reference this failed: +13 % … +19 %.)
+/// The η block did not meet the step tolerance in 10 iterations here
+/// (a `NotConverged` warning); θ had settled.
 #[test]
-#[ignore = "known failure: under strong white wheel noise the corrected score still leaves a t_r bias (see the branch report)"]
 fn white_noise_drive_beats_batch_gauss_newton_on_t_r() {
     let out = simulate(&SimOptions {
         length_km: 8.0,
