@@ -358,6 +358,8 @@ impl std::ops::Sub for Dual {
 }
 impl std::ops::Mul for Dual {
     type Output = Dual;
+    // The product rule adds.
+    #[allow(clippy::suspicious_arithmetic_impl)]
     fn mul(self, o: Dual) -> Dual {
         Dual { v: self.v * o.v, d: std::array::from_fn(|i| self.d[i] * o.v + self.v * o.d[i]) }
     }

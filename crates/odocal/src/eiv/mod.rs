@@ -1118,7 +1118,7 @@ fn fix_unobservable(h: &Matrix4<f64>, free: &[bool; 4], opts: &EivOptions) -> ([
             let r = inv.map_or(f64::INFINITY, |m| m[(i, i)].max(0.0).sqrt() / opts.resolution[i]);
             // With a singular matrix rank the diagonal of H itself.
             let r = if r.is_finite() { r } else { 1.0 / (h[(i, i)].max(0.0).sqrt() * opts.resolution[i]).max(1e-300) };
-            if r > 1.0 && worst.map_or(true, |(_, w)| r > w) {
+            if r > 1.0 && worst.is_none_or(|(_, w)| r > w) {
                 worst = Some((i, r));
             }
         }
@@ -1146,9 +1146,12 @@ struct PassOutcome {
 
 /// Result of a line search: the accepted point, or the last cost tried.
 enum Search {
-    Accepted { theta: Theta, eta: [f64; 5], ev: Evaluation, lambda: f64 },
+    Accepted { theta: Theta, eta: [f64; 5], ev: Box<Evaluation>, lambda: f64 },
     Rejected { cost: f64 },
 }
+
+/// Whether a trial point is accepted, and its objective.
+type Acceptance<'a> = dyn Fn(&Evaluation, &Theta, &[f64; 5]) -> (bool, f64) + 'a;
 
 /// Step halving along `(dθ, dη)` from `(θ, η)`. The full step is evaluated
 /// with derivatives (it is usually accepted); shorter steps with the
@@ -1165,7 +1168,7 @@ fn line_search(
     full: Mode,
     needs_derivs: bool,
     opts: &EivOptions,
-    accept: &dyn Fn(&Evaluation, &Theta, &[f64; 5]) -> (bool, f64),
+    accept: &Acceptance<'_>,
 ) -> Result<Search> {
     let mut lambda = 1.0;
     let mut last_cost = f64::NAN;
@@ -1180,7 +1183,7 @@ fn line_search(
                     last_cost = cost;
                     if ok {
                         let ev = if t.mode == full { t } else { prob.evaluate(&th, theta_ref, &et, full)? };
-                        return Ok(Search::Accepted { theta: th, eta: et, ev, lambda });
+                        return Ok(Search::Accepted { theta: th, eta: et, ev: Box::new(ev), lambda });
                     }
                 }
             }
@@ -1280,7 +1283,7 @@ fn scoring_pass(
             match line_search(prob, &theta, &eta, &dth, &[0.0; 5], &theta_ref, full, false, opts, &accept_j)? {
                 Search::Accepted { theta: th, ev: e, lambda: l, .. } => {
                     theta = th;
-                    ev = e;
+                    ev = *e;
                     lambda = l;
                 }
                 Search::Rejected { cost } => {
@@ -1302,7 +1305,7 @@ fn scoring_pass(
                     match line_search(prob, &theta, &eta, &[0.0; 4], &deta, &theta_ref, full, false, opts, &accept_m)? {
                         Search::Accepted { eta: et, ev: e, .. } => {
                             eta = et;
-                            ev = e;
+                            ev = *e;
                         }
                         Search::Rejected { cost } => {
                             termination =
@@ -1325,7 +1328,7 @@ fn scoring_pass(
                 Search::Accepted { theta: th, eta: et, ev: e, lambda: l } => {
                     theta = th;
                     eta = et;
-                    ev = e;
+                    ev = *e;
                     lambda = l;
                 }
                 Search::Rejected { cost } => {
