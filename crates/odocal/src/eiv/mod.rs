@@ -53,11 +53,11 @@
 //! from [`NoiseModel::from_sim`], fixed; "est." = η estimated from
 //! [`NoiseModel::PRODUCTION_CAR`]):
 //!
-//! | preset | batch G-N t_r % | held, known | follows, known | follows, est. | CRB | follows, known c_e % [CRB] |
+//! | preset | batch G-N t_r % | held, known | follows, known | follows, est. | CRB | follows, known c_e % (CRB) |
 //! |---|---|---|---|---|---|---|
-//! | white | +1.58 ± 0.84 | +0.60 ± 0.49 | +0.19 ± 0.22 | +0.13 ± 0.23 | 0.26 | +0.009 ± 0.003 [0.003] |
-//! | paper | +1.93 ± 0.96 | +1.29 ± 0.58 | +0.38 ± 0.31 | +3.66 ± 1.10 | 0.28 | +0.093 ± 0.028 [0.024] |
-//! | high  | +10.4 ± 3.9  | +11.1 ± 3.1  | +3.08 ± 1.06 | +105 ± 44    | 0.44 | +0.57 ± 0.07 [0.06] |
+//! | white | +1.58 ± 0.84 | +0.60 ± 0.49 | +0.19 ± 0.22 | +0.13 ± 0.23 | 0.26 | +0.009 ± 0.003 (0.003) |
+//! | paper | +1.93 ± 0.96 | +1.29 ± 0.58 | +0.38 ± 0.31 | +3.66 ± 1.10 | 0.28 | +0.093 ± 0.028 (0.024) |
+//! | high  | +10.4 ± 3.9  | +11.1 ± 3.1  | +3.08 ± 1.06 | +105 ± 44    | 0.44 | +0.57 ± 0.07 (0.06) |
 //!
 //! Following θ removes most of the t_r bias when the noise model is right
 //! (white, paper), but leaves +3 % under high noise and adds a c_e bias of
