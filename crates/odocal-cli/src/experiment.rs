@@ -13,9 +13,9 @@ use odocal::sim::{self, NoiseOptions, SimOptions};
 use odocal::{CalibrationOptions, Drive, Method, QpOptions, ReachableOptions, Theta, ThreeStepOptions};
 use serde::Serialize;
 
-use crate::plots::{self, figure, HLine, Panel, Series};
 use crate::progress::Bars;
 use crate::ExperimentArgs;
+use odocal_report::plots::{self, figure, HLine, Panel, Series};
 
 /// Where the drive came from.
 #[derive(Debug, Clone, Serialize)]
@@ -187,6 +187,7 @@ fn write_figures(dir: &Path, e: &Experiment, c: &Figure6Curves) -> Result<Vec<St
         (900, 520),
         (1, 1),
         &[Panel {
+            equal_aspect: false,
             title: "raw inputs, from θ_0".into(),
             x_label: "rank of batch result".into(),
             y_label: "Ē_p (m)".into(),
@@ -218,6 +219,7 @@ fn write_figures(dir: &Path, e: &Experiment, c: &Figure6Curves) -> Result<Vec<St
                 hl.push(truth_line(f(&t.theta)));
             }
             Panel {
+                equal_aspect: false,
                 title: p.to_string(),
                 x_label: "pick (1 = lowest Ē_p)".into(),
                 y_label: format!("{p} ({unit})"),
@@ -245,6 +247,7 @@ fn write_figures(dir: &Path, e: &Experiment, c: &Figure6Curves) -> Result<Vec<St
             s.push(Series::line("true", t.clone(), plots::GREEN));
         }
         Panel {
+            equal_aspect: false,
             title: title.into(),
             x_label: "time from segment start (s)".into(),
             y_label: "wheel rotation (rev/s)".into(),
@@ -262,6 +265,7 @@ fn write_figures(dir: &Path, e: &Experiment, c: &Figure6Curves) -> Result<Vec<St
     ];
     if let Some(t) = &c.n_rl_true {
         panels.push(Panel {
+            equal_aspect: false,
             title: "n_rl input error against the truth".into(),
             x_label: "time from segment start (s)".into(),
             y_label: "n_rl − n_rl,true (rev/s)".into(),
@@ -274,6 +278,7 @@ fn write_figures(dir: &Path, e: &Experiment, c: &Figure6Curves) -> Result<Vec<St
         });
     }
     panels.push(Panel {
+        equal_aspect: false,
         title: "dead-reckoning position error at θ_B,F".into(),
         x_label: "time from segment start (s)".into(),
         y_label: "position error (m)".into(),
@@ -314,6 +319,7 @@ fn write_figures(dir: &Path, e: &Experiment, c: &Figure6Curves) -> Result<Vec<St
             let vals: Vec<f64> = raw.iter().chain(&cmp).map(|q| q.1).collect();
             let keep: Vec<f64> = hl.iter().map(|h| h.y).collect();
             Panel {
+                equal_aspect: false,
                 title: p.to_string(),
                 x_label: "selected segment index".into(),
                 y_label: format!("{p} ({unit})"),
@@ -358,6 +364,7 @@ fn write_figures(dir: &Path, e: &Experiment, c: &Figure6Curves) -> Result<Vec<St
     let keep: Vec<f64> = ep_lines().iter().map(|h| h.y).collect();
     let panels = vec![
         Panel {
+            equal_aspect: false,
             title: "per segment (G-N on one segment)".into(),
             x_label: "selected segment index".into(),
             y_label: "Ē_p (m)".into(),
@@ -369,6 +376,7 @@ fn write_figures(dir: &Path, e: &Experiment, c: &Figure6Curves) -> Result<Vec<St
             hlines: ep_lines(),
         },
         Panel {
+            equal_aspect: false,
             title: format!("per batch (N = {}), sorted", e.batch_size),
             x_label: "rank of batch result".into(),
             y_label: "Ē_p (m)".into(),

@@ -1,7 +1,9 @@
 //! The `odocal` command-line tool: a thin layer over the `odocal` library.
 //!
 //! Human-readable output goes to stdout, progress bars and warnings to
-//! stderr; errors are one line on stderr and a non-zero exit code.
+//! stderr; errors are one line on stderr and exit code 1 (2 for usage
+//! errors). `calibrate` exits with [`EXIT_REJECTED`] when the verdict is
+//! `rejected` (the report is still written).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -13,11 +15,10 @@ use odocal::drive::ExtraColumn;
 use odocal::sim::{self, NoiseOptions, SimOptions, SimSidecar};
 use odocal::{
     segment, CalibrationOptions, CalibrationReport, Drive, FinalSegments, Holdout, Method, ParamSet, QpOptions,
-    SolverKind, Theta, ThreeStepOptions, Warning,
+    SolverKind, Theta, ThreeStepOptions, VerdictLevel, Warning,
 };
 
 mod experiment;
-mod plots;
 mod progress;
 mod report;
 
@@ -144,6 +145,21 @@ struct CalibrationArgs {
     /// segment, hold c_d, t_r, d and use every segment.
     #[arg(long)]
     auto_fix: bool,
+    /// Write the calibrated parameters with their 1σ, units, verdict and
+    /// provenance to this file: a ROS 2 parameter file (.yaml/.yml) or JSON (.json).
+    #[arg(long)]
+    params_out: Option<PathBuf>,
+    /// ROS node name of the parameter file.
+    #[arg(long, default_value = "odocal")]
+    params_node: String,
+    /// Also write the parameters under a consumer's keys: odocal (none) or
+    /// diff_drive_controller (wheel_separation, wheel_radius, radius multipliers).
+    #[arg(long, default_value = "odocal")]
+    params_mapping: odocal::param_file::ParamMapping,
+    /// Write a self-contained HTML report (verdict, θ, map, per-segment errors,
+    /// residuals, warnings) to this file.
+    #[arg(long)]
+    report: Option<PathBuf>,
 }
 
 /// The half of the drive `--holdout` holds out.
@@ -334,27 +350,58 @@ struct ExperimentArgs {
     pub out: PathBuf,
 }
 
+/// Exit code of `calibrate` when the verdict is `rejected`.
+const EXIT_REJECTED: u8 = 3;
+
+/// How a successful command ends.
+enum Outcome {
+    /// Exit code 0.
+    Done,
+    /// The calibration was rejected: exit code [`EXIT_REJECTED`].
+    Rejected,
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match run(cli) {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(Outcome::Done) => ExitCode::SUCCESS,
+        Ok(Outcome::Rejected) => ExitCode::from(EXIT_REJECTED),
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", one_line(&e));
             ExitCode::FAILURE
         }
     }
 }
 
-fn run(cli: Cli) -> Result<()> {
+/// The error and its causes on one line, leaving out a cause whose text the
+/// line already holds (the library's I/O errors name the OS error once).
+fn one_line(e: &anyhow::Error) -> String {
+    let mut line = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if line.contains(&text) {
+            continue;
+        }
+        if !line.is_empty() {
+            line.push_str(": ");
+        }
+        line.push_str(&text);
+    }
+    line.replace('\n', " ")
+}
+
+fn run(cli: Cli) -> Result<Outcome> {
     let bars = progress::Bars::new(cli.quiet);
+    let done = |r: Result<()>| r.map(|()| Outcome::Done);
     match cli.command {
-        Command::Simulate(a) => simulate_cmd(a, &bars),
+        Command::Simulate(a) => done(simulate_cmd(a, &bars)),
         Command::Calibrate(a) => calibrate_cmd(a, &bars),
-        Command::Validate(a) => validate_cmd(a, &bars),
-        Command::Compensate(a) => compensate_cmd(a, &bars),
-        Command::Demo(a) => demo_cmd(a, &bars),
-        Command::Experiment(a) => experiment::run(a, &bars),
-        Command::Import(a) => import_cmd(a),
+        Command::Validate(a) => done(validate_cmd(a, &bars)),
+        Command::Compensate(a) => done(compensate_cmd(a, &bars)),
+        // The demo shows a calibration; it is not one to deploy.
+        Command::Demo(a) => demo_cmd(a, &bars).map(|_| Outcome::Done),
+        Command::Experiment(a) => done(experiment::run(a, &bars)),
+        Command::Import(a) => done(import_cmd(a)),
     }
 }
 
@@ -502,7 +549,7 @@ fn run_calibration(
     json: Option<&Path>,
     truth_theta: Option<Theta>,
     bars: &progress::Bars,
-) -> Result<()> {
+) -> Result<Outcome> {
     let opts = args.options()?;
     let cb = |e| bars.event(e);
     let holdout = match (args.holdout, &args.validate_on) {
@@ -543,24 +590,68 @@ fn run_calibration(
     };
     let truth_ref = truth.as_ref().map(|(t, e)| (t, *e));
     print_warnings(&r.warnings);
+    let input = source.map(|(p, _)| p.display().to_string()).unwrap_or_else(|| "simulated drive".into());
+    if let Some(p) = &args.params_out {
+        let mut f = odocal::param_file::ParamFile::from_theta(&r.theta, sigma_or_held(&r), &input, &r.method);
+        f.node = args.params_node.clone();
+        f.mapping = args.params_mapping;
+        f.verdict = Some(r.verdict.level.to_string());
+        f.verdict_reasons = r.verdict.reasons.iter().map(|x| x.to_string()).collect();
+        f.write(p)?;
+    }
+    if let Some(p) = &args.report {
+        let val = segment::validation_segments(drive, &opts.validation)?;
+        let batches = r
+            .initial_step()
+            .map(|s| s.batches.iter().map(|b| (b.score.theta, b.score.mean_position_error_m)).collect())
+            .unwrap_or_default();
+        let html = odocal_report::ReportInput {
+            provenance: vec![
+                ("method".into(), r.method.clone()),
+                ("input".into(), input.clone()),
+                ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
+                ("date".into(), odocal::param_file::utc_date_today()),
+            ],
+            params: odocal_report::ParamRow::theta_rows(
+                &r.initial.theta,
+                &r.theta,
+                Some(sigma_or_held(&r)),
+                truth_ref.map(|t| t.0),
+            ),
+            truth: truth_ref.map(|t| *t.0),
+            verdict: Some((r.verdict.level.to_string(), r.verdict.reasons.iter().map(|x| x.to_string()).collect())),
+            batches,
+            warnings: r.warnings.iter().map(|w| w.to_string()).collect(),
+            ..odocal_report::ReportInput::new(input.clone(), drive, &val, r.initial.theta, r.theta)
+        };
+        odocal_report::write_html(p, &html)?;
+    }
+    let outcome = if r.verdict.level == VerdictLevel::Rejected { Outcome::Rejected } else { Outcome::Done };
     if let Some(p) = json {
         write_json(p, report_json(&r, truth_ref, wheel_scale)?)?;
         if p == Path::new("-") {
-            return Ok(());
+            return Ok(outcome);
         }
     }
     print!("{}", report::calibration(&r, truth_ref, wheel_scale));
     std::io::stdout().flush()?;
-    Ok(())
+    Ok(outcome)
 }
 
-fn calibrate_cmd(a: CalibrateArgs, bars: &progress::Bars) -> Result<()> {
+/// 1σ per θ entry, `None` for a parameter held at θ_0.
+fn sigma_or_held(r: &odocal::CalibrationReport) -> [Option<f64>; 4] {
+    let sd = r.std_dev().to_array();
+    let free = r.options.identify.free;
+    std::array::from_fn(|i| odocal::Param::from_index(i).filter(|p| free.contains(*p)).map(|_| sd[i]))
+}
+
+fn calibrate_cmd(a: CalibrateArgs, bars: &progress::Bars) -> Result<Outcome> {
     let (drive, wheel_scale) = load_drive_with_scale(&a.drive)?;
     let truth = load_truth(&a.drive).map(|s| s.theta_true);
     run_calibration(&drive, Some((&a.drive, wheel_scale.as_deref())), &a.calibration, a.json.as_deref(), truth, bars)
 }
 
-fn demo_cmd(a: DemoArgs, bars: &progress::Bars) -> Result<()> {
+fn demo_cmd(a: DemoArgs, bars: &progress::Bars) -> Result<Outcome> {
     let o = sim_options(a.sim_seed, a.length_km, &a.noise)?;
     bars.stage("simulating");
     let sim = sim::simulate(&o)?;

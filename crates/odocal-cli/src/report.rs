@@ -2,7 +2,7 @@
 
 use std::fmt::Write as _;
 
-use odocal::{CalibrationReport, Method, Theta};
+use odocal::{CalibrationReport, Method, Theta, Verdict, VerdictLevel};
 
 fn row(out: &mut String, name: &str, unit: &str, values: &[Option<f64>], scale: f64, prec: usize) {
     let _ = write!(out, "  {name:<4} {unit:<14}");
@@ -44,6 +44,22 @@ pub fn error_line(est: &Theta, truth: &Theta) -> String {
         (est.t_r / truth.t_r - 1.0) * 100.0,
         (est.d - truth.d) * 1e3
     )
+}
+
+/// The verdict line and one line per reason.
+pub fn verdict(v: &Verdict) -> String {
+    let mut out = format!("  verdict: {}", v.level.to_string().to_uppercase());
+    if v.reasons.is_empty() {
+        out.push_str(" (no reason for doubt found)");
+    }
+    out.push('\n');
+    for r in &v.reasons {
+        let _ = writeln!(out, "    - {r}");
+    }
+    if v.level == VerdictLevel::Rejected {
+        out.push_str("    (do not deploy this calibration; exit code 3)\n");
+    }
+    out
 }
 
 /// The calibration report for humans.
@@ -99,6 +115,7 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
         cols.push(("truth", Some(*t)));
     }
     out.push_str(&theta_table(&cols));
+    out.push_str(&verdict(&r.verdict));
     if let Some(w) = wheel_scale {
         let _ = writeln!(out, "  wheels: {w}");
     }

@@ -291,3 +291,72 @@ fn three_step_flags_are_rejected_with_batch_gn() {
     let o = odocal(&["calibrate", p.to_str().expect("utf8"), "--fix", "c_d,tr"]);
     assert!(stderr(&o).contains("invalid parameter 'tr': use c_e, c_d, t_r or d"), "{}", stderr(&o));
 }
+
+#[test]
+fn rejected_calibration_exits_3_and_still_writes_the_report() {
+    let d = tempfile::tempdir().expect("tmp");
+    let (a, b) = (d.path().join("a.csv"), d.path().join("b.csv"));
+    let (astr, bstr) = (a.to_str().expect("utf8"), b.to_str().expect("utf8"));
+    assert!(odocal(&["simulate", "--seed", "4", "--length-km", "3", "--out", astr]).status.success());
+    // Another vehicle, [2.1, 1 mm, 1.66, 0]: θ_0 is closer in every parameter
+    // than the calibrated ≈ [1.95, −2 mm, 1.53, 0.8 mm], so it wins on this drive.
+    let o = odocal(&["simulate", "--seed", "5", "--length-km", "3", "--theta", "2.1,0.001,1.66,0", "--out", bstr]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let report = d.path().join("r.json");
+    let args = ["calibrate", astr, "--method", "batch-gn", "--validate-on", bstr];
+    let o = odocal(&[&args[..], &["--json", report.to_str().expect("utf8")]].concat());
+    assert_eq!(o.status.code(), Some(3), "stderr: {}", stderr(&o));
+    let out = stdout(&o);
+    let after_table = out.split("d    mm/(m/s²)").nth(1).expect("θ table");
+    let first = after_table.lines().nth(1).expect("a line after the table");
+    assert_eq!(first, "  verdict: REJECTED", "{out}");
+    assert!(out.contains("on the held-out data: dead reckoning gets worse"), "{out}");
+    let r: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&report).expect("r")).expect("json");
+    assert_eq!(r["verdict"]["level"], "rejected");
+    assert_eq!(r["verdict"]["reasons"][0]["kind"], "worse_than_initial");
+    // On its own drive the same calibration is accepted: exit 0.
+    let o = odocal(&["calibrate", astr, "--method", "batch-gn"]);
+    assert_eq!(o.status.code(), Some(0), "stderr: {}", stderr(&o));
+    assert!(stdout(&o).contains("  verdict: ACCEPTED"), "{}", stdout(&o));
+}
+
+/// The shipped van log (issue 10): on each half-split, default `calibrate`
+/// either improves Ē_p over θ_0 on the held-out half or ends `rejected`
+/// (exit code 3) saying why. Measured: holding out the first half gives
+/// Ē_p 325 m against θ_0's 66 m (rejected), the second half 45.7 m against
+/// 73.1 m (doubtful: t_r, d not observable). Needs the shared data set;
+/// without it the test says so and passes.
+#[test]
+fn shipped_van_log_is_improved_or_rejected_on_both_half_splits() {
+    let m = format!("{}/../../examples/psu-mapping-van/manifest.toml", env!("CARGO_MANIFEST_DIR"));
+    let data = format!("{}/../../../shared/data/psu-mapping-van-2024-07-11", env!("CARGO_MANIFEST_DIR"));
+    if !Path::new(&data).exists() {
+        eprintln!("skipped: {data} not present");
+        return;
+    }
+    let mut rejected = 0;
+    for half in ["first-half", "second-half"] {
+        let o = odocal(&["calibrate", &m, "--holdout", half, "--json", "-"]);
+        let r: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+        let (e, e0) = (
+            r["validation"]["mean_position_error_m"].as_f64().expect("Ē_p"),
+            r["initial"]["mean_position_error_m"].as_f64().expect("Ē_p θ_0"),
+        );
+        assert_eq!(r["validation"]["held_out"], true);
+        if e < e0 {
+            assert_eq!(o.status.code(), Some(0), "{half}: improved, not rejected: {}", r["verdict"]);
+        } else {
+            rejected += 1;
+            assert_eq!(o.status.code(), Some(3), "{half}: worse than θ_0 must exit 3");
+            assert_eq!(r["verdict"]["level"], "rejected", "{half}");
+            let kinds: Vec<&str> = r["verdict"]["reasons"]
+                .as_array()
+                .expect("reasons")
+                .iter()
+                .filter_map(|x| x["kind"].as_str())
+                .collect();
+            assert!(kinds.contains(&"worse_than_initial"), "{half}: {kinds:?}");
+        }
+    }
+    assert_eq!(rejected, 1, "measured: the first-half hold-out is rejected, the second improves");
+}

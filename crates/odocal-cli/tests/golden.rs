@@ -14,18 +14,9 @@ use std::process::Command;
 
 use serde_json::{json, Value};
 
-/// Relative tolerance: the numbers are expected bitwise equal (serde_json
-/// writes f64 round-trip exactly); 1e-12 leaves room for a reordered sum.
-const REL_TOL: f64 = 1e-12;
-
-/// [`REL_TOL`], or 0 (bitwise equality) with `ODOCAL_GOLDEN_EXACT=1`.
-fn tolerance() -> f64 {
-    if std::env::var_os("ODOCAL_GOLDEN_EXACT").is_some() {
-        0.0
-    } else {
-        REL_TOL
-    }
-}
+#[path = "../../odocal/tests/support/json_compare.rs"]
+mod json_compare;
+use json_compare::check_or_bless;
 
 fn golden_path() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/golden/cli.json")
@@ -119,51 +110,9 @@ fn current(dir: &Path) -> Value {
     })
 }
 
-fn compare(want: &Value, got: &Value, path: &str, out: &mut Vec<String>) {
-    match (want, got) {
-        (Value::Object(a), Value::Object(b)) => {
-            for (k, av) in a {
-                match b.get(k) {
-                    Some(bv) => compare(av, bv, &format!("{path}/{k}"), out),
-                    None => out.push(format!("{path}/{k}: missing")),
-                }
-            }
-        }
-        (Value::Array(a), Value::Array(b)) => {
-            if a.len() != b.len() {
-                out.push(format!("{path}: length {} vs {}", a.len(), b.len()));
-            }
-            for (i, (av, bv)) in a.iter().zip(b).enumerate() {
-                compare(av, bv, &format!("{path}/{i}"), out);
-            }
-        }
-        (Value::Number(a), Value::Number(b)) => {
-            let (x, y) = (a.as_f64().unwrap_or(f64::NAN), b.as_f64().unwrap_or(f64::NAN));
-            let close = (x - y).abs() <= tolerance() * x.abs().max(y.abs());
-            if !close {
-                out.push(format!("{path}: {x:e} vs {y:e}"));
-            }
-        }
-        _ => {
-            if want != got {
-                out.push(format!("{path}: {want} vs {got}"));
-            }
-        }
-    }
-}
-
 #[test]
 fn cli_json_matches_the_golden_file() {
     let dir = tempfile::tempdir().expect("tmp");
     let got = current(dir.path());
-    let path = golden_path();
-    if std::env::var_os("ODOCAL_BLESS").is_some() {
-        std::fs::create_dir_all(path.parent().expect("dir")).expect("mkdir");
-        std::fs::write(&path, serde_json::to_string_pretty(&got).expect("json") + "\n").expect("write golden");
-        return;
-    }
-    let want: Value = serde_json::from_str(&std::fs::read_to_string(&path).expect("golden file")).expect("json");
-    let mut diffs = Vec::new();
-    compare(&want, &got, "", &mut diffs);
-    assert!(diffs.is_empty(), "{} differences from {}:\n{}", diffs.len(), path.display(), diffs.join("\n"));
+    check_or_bless(&golden_path(), &got);
 }

@@ -26,6 +26,7 @@ use std::time::Instant;
 
 use odocal::calibrate::{calibrate_detailed, random_batches, score_batches};
 use odocal::compensate::{compensate_segments, CompensateOptions, CompensatedInputs, QpOptions};
+use odocal::experiment::median;
 use odocal::identify::IdentifyOptions;
 use odocal::qp::SolverKind;
 use odocal::segment::SegmentData;
@@ -225,20 +226,6 @@ fn study_drive(noise: &str, seed: u64, a: &Args) -> Res<DriveResult> {
 
 fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len().max(1) as f64
-}
-
-fn median(v: &[f64]) -> f64 {
-    let mut v: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
 }
 
 /// Markdown tables for one noise preset.

@@ -235,7 +235,9 @@ fn diff(a: &Theta, b: &Theta) -> Theta {
     Theta { c_e: a.c_e - b.c_e, c_d: a.c_d - b.c_d, t_r: a.t_r - b.t_r, d: a.d - b.d }
 }
 
-fn median(v: &mut [f64]) -> f64 {
+/// Median of the finite values (NaN when there are none).
+pub fn median(values: &[f64]) -> f64 {
+    let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
     if v.is_empty() {
         return f64::NAN;
     }
@@ -251,11 +253,12 @@ fn median(v: &mut [f64]) -> f64 {
 fn summarize<'a>(items: impl Iterator<Item = &'a Scored>) -> Summary {
     let items: Vec<&Scored> = items.collect();
     let mut e: Vec<f64> = items.iter().map(|s| s.mean_position_error_m).collect();
-    let med = median(&mut e);
+    let med = median(&e);
+    e.sort_by(f64::total_cmp);
     let err = if items.iter().all(|s| s.error_vs_true.is_some()) && !items.is_empty() {
         let col = |f: fn(&Theta) -> f64| {
-            let mut v: Vec<f64> = items.iter().filter_map(|s| s.error_vs_true.as_ref().map(|t| f(t).abs())).collect();
-            median(&mut v)
+            let v: Vec<f64> = items.iter().filter_map(|s| s.error_vs_true.as_ref().map(|t| f(t).abs())).collect();
+            median(&v)
         };
         Some(Theta { c_e: col(|t| t.c_e), c_d: col(|t| t.c_d), t_r: col(|t| t.t_r), d: col(|t| t.d) })
     } else {

@@ -76,6 +76,7 @@ pub mod qp;
 pub mod reachable;
 pub mod segment;
 pub mod sim;
+pub mod trust;
 pub mod validate;
 pub mod warning;
 
@@ -105,5 +106,6 @@ pub use progress::{Progress, ProgressFn};
 pub use qp::SolverKind;
 pub use reachable::{reachable_minimum, ReachableOptions, ReachableReport};
 pub use segment::{Segment, SegmentData, SegmentOptions, ValidationSegmentOptions};
+pub use trust::{GuardViolation, Guards, TrustOptions, Verdict, VerdictLevel, VerdictReason};
 pub use validate::{mean_position_error, validate, ValidateOptions, ValidateReport, ValidationReport};
 pub use warning::Warning;

@@ -199,6 +199,82 @@ impl PhysicalLimits {
     }
 }
 
+/// Checks the wheel and heading conventions of a drive against its own
+/// reference at θ_0, so that a wrong sign or convention is named instead of
+/// calibrated into a confident wrong θ:
+///
+/// - the wheel speed at θ_0 must move the same way as the reference and be
+///   within ×0.5 … ×2 of its speed (negated wheels, one wheel's sign flipped,
+///   wheel speeds in the wrong unit);
+/// - the heading must point along the direction of travel within 0.3 rad
+///   (a heading measured clockwise from north, in degrees, or with a large
+///   mounting offset);
+/// - the wheel-derived yaw rate must turn the same way as the reference's
+///   (left and right wheels swapped, a clockwise heading).
+///
+/// Only samples where the reference moves faster than 2 m/s count; a drive
+/// with too few of them is not judged (returns `Ok`).
+///
+/// # Errors
+/// [`Error::InvalidDrive`] naming the convention to check.
+pub fn check_conventions(drive: &Drive, theta0: &Theta, context: &str) -> Result<()> {
+    use crate::model::{kinematics, wrap_angle};
+    let ts = drive.sample_time_s();
+    let (px, py, psi) = (drive.px(), drive.py(), drive.psi());
+    let (mut ratios, mut offsets, mut yaw) = (Vec::new(), Vec::new(), Vec::new());
+    for r in drive.parts() {
+        for i in r.start..r.end.saturating_sub(1) {
+            let (dx, dy) = (px[i + 1] - px[i], py[i + 1] - py[i]);
+            let v_ref = dx.hypot(dy) / ts;
+            if v_ref < 2.0 {
+                continue;
+            }
+            let k = kinematics(&drive.input(i), theta0);
+            ratios.push(k.speed_m_per_s / v_ref);
+            offsets.push(wrap_angle(psi[i] - dy.atan2(dx)));
+            let w_ref = (psi[i + 1] - psi[i]) / ts;
+            if w_ref.abs() > 0.05 {
+                yaw.push((k.yaw_rate_rad_per_s, w_ref));
+            }
+        }
+    }
+    if ratios.len() < 200 {
+        return Ok(());
+    }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let fail = |reason: String| Err(Error::InvalidDrive { context: context.to_string(), reason });
+    let ratio = median(&mut ratios);
+    if ratio < 0.0 {
+        return fail(format!(
+            "the wheels turn backwards while the reference moves (wheel speed / reference speed, median {ratio:.3}):              flip the sign of n_rl and n_rr"
+        ));
+    }
+    if !(0.5..=2.0).contains(&ratio) {
+        return fail(format!(
+            "the wheel speed at θ_0 is {ratio:.3} × the reference speed (median): one wheel's sign flipped, wheel              speeds not in rev/s, or θ_0's c_e far off"
+        ));
+    }
+    let offset = median(&mut offsets);
+    if offset.abs() > 0.3 {
+        return fail(format!(
+            "the heading differs from the direction of travel by {offset:.3} rad (median): psi must be radians,              counter-clockwise from the x axis (ENU), pointing forward"
+        ));
+    }
+    if yaw.len() >= 100 {
+        let agree = yaw.iter().filter(|(a, b)| a * b > 0.0).count() as f64 / yaw.len() as f64;
+        if agree < 0.25 {
+            return fail(format!(
+                "the wheel-derived yaw rate turns against the reference's on {:.0} % of turning samples: left and                  right wheels swapped, or the heading is clockwise",
+                100.0 * (1.0 - agree)
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Absolute physical sanity of a θ given by a user (the CLI's `--theta`, a
 /// Python call): c_e and t_r positive and within 0.05 … 20 m and
 /// 0.05 … 10 m, |c_d| at most 5 % of c_e, |d| at most 0.05 m per m/s². A
@@ -270,6 +346,35 @@ mod tests {
         assert!(m.contains("column 'psi', sample 30") && m.contains("degrees"), "{m}");
         let m = drive_with(0.025, |s| s.a_y[3] = 100.0).expect_err("a_y").to_string();
         assert!(m.contains("column 'a_y', sample 3"), "{m}");
+    }
+
+    #[test]
+    fn conventions_are_checked_against_the_reference() {
+        let sim = crate::sim::simulate(&crate::sim::SimOptions { length_km: 2.0, ..crate::sim::SimOptions::paper(4) })
+            .expect("sim");
+        let d = &sim.drive;
+        let th = Theta::PAPER_INITIAL;
+        check_conventions(d, &th, "sim").expect("a simulated drive is consistent");
+        let edit = |f: &dyn Fn(&mut Signals)| {
+            let mut s = d.measured().clone();
+            f(&mut s);
+            Drive::builder(d.t().to_vec(), s).build().expect("drive")
+        };
+        let neg = edit(&|s| {
+            s.n_rl.iter_mut().for_each(|v| *v = -*v);
+            s.n_rr.iter_mut().for_each(|v| *v = -*v);
+        });
+        let m = check_conventions(&neg, &th, "d").expect_err("negated").to_string();
+        assert!(m.contains("backwards"), "{m}");
+        let one = edit(&|s| s.n_rr.iter_mut().for_each(|v| *v = -*v));
+        let m = check_conventions(&one, &th, "d").expect_err("one flipped").to_string();
+        assert!(m.contains("one wheel's sign"), "{m}");
+        let swapped = edit(&|s| std::mem::swap(&mut s.n_rl, &mut s.n_rr));
+        let m = check_conventions(&swapped, &th, "d").expect_err("swapped").to_string();
+        assert!(m.contains("swapped"), "{m}");
+        let ned = edit(&|s| s.psi.iter_mut().for_each(|v| *v = std::f64::consts::FRAC_PI_2 - *v));
+        let m = check_conventions(&ned, &th, "d").expect_err("ned").to_string();
+        assert!(m.contains("direction of travel"), "{m}");
     }
 
     #[test]

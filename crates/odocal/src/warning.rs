@@ -10,6 +10,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::param::{Param, ParamSet};
+use crate::trust::GuardViolation;
 
 /// Something the user should know about a calibration result.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -55,6 +56,20 @@ pub enum Warning {
         /// Why.
         reason: String,
     },
+    /// A step-1 batch result failed a plausibility guard and was not picked.
+    BatchRejected {
+        /// Batch index (0-based, in batch order).
+        batch: usize,
+        /// The guards it failed.
+        violations: Vec<GuardViolation>,
+    },
+    /// Fewer step-1 results passed the guards than θ_B,I are to be picked.
+    FewUsableBatches {
+        /// Results that passed.
+        usable: usize,
+        /// θ_B,I asked for.
+        picks: usize,
+    },
     /// A compensation job (one segment at one θ_B,I) failed and was left out.
     CompensationFailed {
         /// First sample of the segment.
@@ -87,6 +102,8 @@ impl Warning {
             Warning::AutoFixNoTurns { .. } => "auto_fix_no_turns",
             Warning::AutoFixUnobservable { .. } => "auto_fix_unobservable",
             Warning::BatchFailed { .. } => "batch_failed",
+            Warning::BatchRejected { .. } => "batch_rejected",
+            Warning::FewUsableBatches { .. } => "few_usable_batches",
             Warning::CompensationFailed { .. } => "compensation_failed",
             Warning::SolverFallback { .. } => "solver_fallback",
         }
@@ -120,6 +137,14 @@ impl std::fmt::Display for Warning {
                 )
             }
             Warning::BatchFailed { batch, reason } => write!(f, "initial batch {batch} left out: {reason}"),
+            Warning::BatchRejected { batch, violations } => {
+                let v: Vec<String> = violations.iter().map(ToString::to_string).collect();
+                write!(f, "initial batch {batch} not picked (implausible): {}", v.join("; "))
+            }
+            Warning::FewUsableBatches { usable, picks } => write!(
+                f,
+                "only {usable} step-1 results passed the plausibility guards; {usable} θ_B,I picked instead of {picks}"
+            ),
             Warning::CompensationFailed { reason, .. } => write!(f, "compensation left out: {reason}"),
             Warning::SolverFallback { segment_start, theta_index, linearization, solver, fallback, reason } => write!(
                 f,

@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use super::{turning_segments, Estimator, MethodDetail, MethodOutcome, Prepared, Selection, Timing};
+use super::{Estimator, MethodDetail, MethodOutcome, Prepared, Selection, Timing};
 use crate::error::Result;
 use crate::identify::{batch_gauss_newton, IdentifyReport};
 use crate::progress::{emit, Progress, ProgressFn};
@@ -34,10 +34,6 @@ impl Estimator for BatchGnOptions {
         Ok(())
     }
 
-    fn select(&self, prep: &Prepared<'_>) -> Result<Selection> {
-        turning_segments(prep)
-    }
-
     fn run(
         &self,
         prep: &Prepared<'_>,
@@ -51,6 +47,7 @@ impl Estimator for BatchGnOptions {
         emit(progress, Progress::Advance(1));
         Ok(MethodOutcome {
             theta: report.theta,
+            iterations: Some(report.iterations),
             covariance: report.covariance,
             observability: report.observability.clone(),
             detail: MethodDetail::BatchGn(BatchGnDetail { identification: report }),

@@ -23,9 +23,9 @@
 //! A method is one file and one variant. In `calibrate/my_method.rs`:
 //! `MyMethodOptions` (public fields, `Default`, `validate()`), its report
 //! detail `MyMethodDetail`, and `impl Estimator for MyMethodOptions` (a
-//! crate-internal trait) with `select` (often the shared
-//! `turning_segments`) and `run(&self, prep, selection, progress) ->
-//! Result<MethodOutcome>`. Then add `Method::MyMethod(MyMethodOptions)` and
+//! crate-internal trait) with `name`, `validate` and `run(&self, prep,
+//! selection, progress) -> Result<MethodOutcome>`, and `select` when the
+//! method does not fit the turning segments (the default). Then add `Method::MyMethod(MyMethodOptions)` and
 //! `MethodDetail::MyMethod(MyMethodDetail)`, and one arm in
 //! `Method::estimator`, `Method::from_name` and [`Method::NAMES`]. The shared
 //! preparation, validation, report, JSON and CLI (`--method my-method`) need
@@ -50,6 +50,7 @@ use crate::progress::ProgressFn;
 use crate::segment::{
     calibration_segments, validation_segments, Segment, SegmentData, SegmentOptions, ValidationSegmentOptions,
 };
+use crate::trust::{judge, Evidence, TrustOptions, Verdict};
 use crate::validate::mean_position_error;
 use crate::warning::Warning;
 
@@ -58,7 +59,7 @@ pub mod three_step;
 
 pub use batch_gn::{BatchGnDetail, BatchGnOptions};
 pub use three_step::{
-    per_segment_identification, random_batches, score_batches, BatchResult, FinalSegments, InitialStep,
+    per_segment_identification, random_batches, score_batches, BatchResult, FinalSegments, InitialStep, RejectedBatch,
     ThreeStepDetail, ThreeStepOptions,
 };
 
@@ -145,6 +146,10 @@ pub struct CalibrationOptions {
     pub identify: IdentifyOptions,
     /// Seed of every random choice. Default 0.
     pub seed: u64,
+    /// Plausibility guards (applied to every step-1 batch and to the final
+    /// θ) and the verdict's thresholds.
+    #[serde(default)]
+    pub trust: TrustOptions,
     /// Hold at θ_0 the parameters these data cannot determine, instead of
     /// estimating them (not in the paper; default false, the SPEC
     /// behaviour). When no segment turns enough, c_d, t_r and d are held and
@@ -166,6 +171,7 @@ impl Default for CalibrationOptions {
             validation: ValidationSegmentOptions::default(),
             identify: IdentifyOptions::default(),
             seed: 0,
+            trust: TrustOptions::default(),
             auto_fix: false,
         }
     }
@@ -178,6 +184,7 @@ impl CalibrationOptions {
         self.segments.validate()?;
         self.validation.validate()?;
         self.identify.validate()?;
+        self.trust.validate()?;
         self.method.validate()
     }
 }
@@ -257,6 +264,9 @@ pub struct CalibrationReport {
     pub observability: Observability,
     /// Ē_p of the result.
     pub validation: ValidationSummary,
+    /// Whether to trust the result: accepted, doubtful or rejected, with
+    /// the reasons ([`crate::trust`]).
+    pub verdict: Verdict,
     /// θ_0 and its Ē_p.
     pub initial: ThetaScore,
     /// Wall time per stage.
@@ -442,6 +452,9 @@ impl Selection {
 pub(crate) struct MethodOutcome {
     /// The estimate.
     pub theta: Theta,
+    /// Accepted iterations of the final identification (for the "did not
+    /// move" guard), when the method iterates.
+    pub iterations: Option<usize>,
     /// Its covariance.
     pub covariance: [[f64; 4]; 4],
     /// Observability at the estimate.
@@ -462,8 +475,12 @@ pub(crate) trait Estimator {
     fn name(&self) -> &'static str;
     /// Checks the method's settings.
     fn validate(&self) -> Result<()>;
-    /// Chooses the data to fit and the parameters to estimate.
-    fn select(&self, prep: &Prepared<'_>) -> Result<Selection>;
+    /// Chooses the data to fit and the parameters to estimate. Default:
+    /// the segment-based selection ([`turning_segments`]); a method over
+    /// whole drive parts overrides it.
+    fn select(&self, prep: &Prepared<'_>) -> Result<Selection> {
+        turning_segments(prep)
+    }
     /// Estimates θ.
     fn run(
         &self,
@@ -483,6 +500,10 @@ pub fn calibrate_detailed(
 ) -> Result<DetailedCalibration> {
     opts.validate()?;
     let t_start = Instant::now();
+    crate::limits::check_conventions(drive, &opts.theta0, "drive")?;
+    if let Some(h) = held_out {
+        crate::limits::check_conventions(h, &opts.theta0, "held-out drive")?;
+    }
     let prep = Prepared { drive, options: opts, validation: validation_segments(drive, &opts.validation)? };
     let method = opts.method.estimator();
     let selection = method.select(&prep)?;
@@ -524,6 +545,25 @@ pub fn calibrate_detailed(
     }
     let t = Instant::now();
     let val = mean_position_error(report_drive, &report_segments, &outcome.theta)?;
+    let fit_m = match held_out {
+        Some(_) => Some(mean_position_error(drive, &prep.validation, &outcome.theta)?.mean_position_error_m),
+        None => None,
+    };
+    let verdict = judge(
+        &Evidence {
+            theta: &outcome.theta,
+            theta0: &opts.theta0,
+            free: selection.free,
+            iterations: outcome.iterations,
+            rcond: outcome.observability.rcond,
+            unobservable: outcome.observability.unobservable,
+            covariance: &outcome.covariance,
+            calibrated_m: val.mean_position_error_m,
+            initial_m: initial_val.mean_position_error_m,
+            fit_m,
+        },
+        &opts.trust,
+    );
     let timing = Timing {
         setup,
         validation: t.elapsed().as_secs_f64(),
@@ -542,6 +582,7 @@ pub fn calibrate_detailed(
             segments: val.segments,
             held_out: held_out.is_some(),
         },
+        verdict,
         initial: ThetaScore { theta: opts.theta0, mean_position_error_m: initial_val.mean_position_error_m },
         timing_s: timing,
         segments: SegmentCounts { cut: selection.cut, selected: selection.selected, validation: report_segments.len() },

@@ -153,6 +153,70 @@ fn method_names_parse_and_bad_settings_name_the_field() {
     assert!("some".parse::<FinalSegments>().is_err());
 }
 
+#[test]
+fn implausible_step1_batches_are_never_picked() {
+    // A guard region on t_r of [1.53, 1.67] m (θ_0 = 1.6 m, truth 1.53 m)
+    // puts about half of the step-1 results of this drive outside it.
+    let sim = simulate(&SimOptions { length_km: 4.0, ..SimOptions::paper(7) }).expect("sim");
+    let mut opts = CalibrationOptions {
+        method: Method::ThreeStep(ThreeStepOptions {
+            initial_batches: 12,
+            final_segments: FinalSegments::Random(8),
+            ..Default::default()
+        }),
+        ..Default::default()
+    };
+    opts.trust.guards.t_r_rel = 0.07 / 1.6;
+    let r = calibrate(&sim.drive, &opts, None).expect("calibrate");
+    let init = r.initial_step().expect("three-step");
+    assert!(!init.rejected.is_empty(), "some batches fall outside the guard");
+    assert!(init.rejected.len() < init.batches.len(), "and some inside");
+    for rej in &init.rejected {
+        assert!(!init.picked_batches.contains(&rej.index), "batch {} was picked", rej.index);
+        let t_r = init.batches[rej.index].score.theta.t_r;
+        assert!(!(1.53..=1.67).contains(&t_r), "rejected t_r {t_r} is inside the region");
+        assert!(matches!(rej.violations[0], crate::trust::GuardViolation::OutOfRange { param: Param::TR, .. }));
+    }
+    for p in &init.picked {
+        assert!((1.53..=1.67).contains(&p.theta.t_r), "picked t_r {}", p.theta.t_r);
+    }
+    assert!(r.warnings.iter().any(|w| w.kind() == "batch_rejected"));
+    // Fewer plausible results than picks: said, and distinct results picked.
+    let usable = init.batches.len() - init.rejected.len();
+    if usable < 5 {
+        assert_eq!(init.picked.len(), usable);
+        assert!(r.warnings.iter().any(|w| w.kind() == "few_usable_batches"));
+    }
+    // The result is still a good calibration.
+    assert!(r.validation.mean_position_error_m < r.initial.mean_position_error_m);
+    assert!((r.theta.c_e / sim.sidecar.theta_true.c_e - 1.0).abs() < 2e-3, "{}", r.theta);
+
+    // With every result outside the region the calibration stops with a clear error.
+    opts.trust.guards.c_e_rel = 1e-6;
+    let e = calibrate(&sim.drive, &opts, None).expect_err("nothing plausible");
+    assert!(e.to_string().contains("failed the plausibility guards"), "{e}");
+}
+
+#[test]
+fn every_report_has_a_verdict() {
+    let sim = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim");
+    let opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
+    let r = calibrate(&sim.drive, &opts, None).expect("batch-gn");
+    assert_eq!(r.verdict.level, crate::trust::VerdictLevel::Accepted, "{:?}", r.verdict);
+    // Validated on a drive of another vehicle (θ = [2.1, 1 mm, 1.66, 0]):
+    // θ_0 = [2.0, 0, 1.6, 0] is closer in every parameter than the
+    // calibrated ≈ [1.95, −2 mm, 1.53, 0.8 mm], so the calibration is rejected.
+    let other = simulate(&SimOptions {
+        length_km: 3.0,
+        theta_true: Theta { c_e: 2.1, c_d: 0.001, t_r: 1.66, d: 0.0 },
+        ..SimOptions::paper(2)
+    })
+    .expect("sim");
+    let r = calibrate_held_out(&sim.drive, Some(&other.drive), &opts, None).expect("held out");
+    assert_eq!(r.verdict.level, crate::trust::VerdictLevel::Rejected, "{:?}", r.verdict);
+    assert!(matches!(r.verdict.reasons[0], crate::trust::VerdictReason::WorseThanInitial { held_out: true, .. }));
+}
+
 #[allow(clippy::unwrap_used)]
 mod solver_tests {
     use super::*;

@@ -18,7 +18,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::{turning_segments, Estimator, MethodDetail, MethodOutcome, Prepared, Selection, ThetaScore, Timing};
+use super::{Estimator, MethodDetail, MethodOutcome, Prepared, Selection, ThetaScore, Timing};
 use crate::compensate::{compensate_segments, CompensateOptions, CompensationStep, QpOptions};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
@@ -26,6 +26,7 @@ use crate::identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport};
 use crate::model::Theta;
 use crate::progress::{emit, Progress, ProgressFn};
 use crate::segment::{Segment, SegmentData};
+use crate::trust::{check_theta, GuardViolation};
 use crate::validate::mean_position_error;
 use crate::warning::Warning;
 
@@ -98,6 +99,9 @@ pub struct InitialStep {
     pub picked: Vec<ThetaScore>,
     /// Indices into `batches` of the picked results.
     pub picked_batches: Vec<usize>,
+    /// Results that failed a plausibility guard (never picked).
+    #[serde(default)]
+    pub rejected: Vec<RejectedBatch>,
 }
 
 /// One batch Gauss-Newton result of step 1.
@@ -109,6 +113,18 @@ pub struct BatchResult {
     pub score: ThetaScore,
     /// Gauss-Newton iterations.
     pub iterations: usize,
+    /// Reciprocal condition number of `JᵀWJ` at the estimate.
+    #[serde(default)]
+    pub rcond: f64,
+}
+
+/// A step-1 result that failed a plausibility guard.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RejectedBatch {
+    /// Index into [`InitialStep::batches`].
+    pub index: usize,
+    /// The guards it failed.
+    pub violations: Vec<GuardViolation>,
 }
 
 /// What the 3-step method reports.
@@ -178,6 +194,7 @@ pub fn score_batches(
                         segment_starts: b.iter().map(|&i| data[i].start).collect(),
                         score: ThetaScore { theta: rep.theta, mean_position_error_m: v.mean_position_error_m },
                         iterations: rep.iterations,
+                        rcond: rep.observability.rcond,
                     })
                 })
             };
@@ -226,10 +243,6 @@ impl Estimator for ThreeStepOptions {
         Ok(())
     }
 
-    fn select(&self, prep: &Prepared<'_>) -> Result<Selection> {
-        turning_segments(prep)
-    }
-
     fn run(
         &self,
         prep: &Prepared<'_>,
@@ -249,19 +262,49 @@ impl Estimator for ThreeStepOptions {
         let data: Vec<SegmentData> = selected.iter().map(|s| SegmentData::new(drive, s)).collect();
         let results = score_batches(drive, &data, &batches, &prep.validation, &opts.theta0, &identify, progress);
         let mut ok = Vec::new();
+        let mut rejected = Vec::new();
         for (i, r) in results.into_iter().enumerate() {
             match r {
-                Ok(b) => ok.push(b),
+                Ok(b) => {
+                    let violations = check_theta(
+                        &b.score.theta,
+                        &opts.theta0,
+                        identify.free,
+                        Some(b.iterations),
+                        b.rcond,
+                        &opts.trust.guards,
+                    );
+                    if !violations.is_empty() {
+                        warnings.push(Warning::BatchRejected { batch: i, violations: violations.clone() });
+                        rejected.push(RejectedBatch { index: ok.len(), violations });
+                    }
+                    ok.push(b);
+                }
                 Err(e) => warnings.push(Warning::BatchFailed { batch: i, reason: e.to_string() }),
             }
         }
         if ok.is_empty() {
             return Err(Error::Numerical("every initial batch identification failed".into()));
         }
-        let mut order: Vec<usize> = (0..ok.len()).collect();
+        // Only plausible results are sorted and picked.
+        let mut order: Vec<usize> = (0..ok.len()).filter(|i| !rejected.iter().any(|r| r.index == *i)).collect();
+        if order.is_empty() {
+            let first = rejected.first().map(|r| r.violations.iter().map(ToString::to_string).collect::<Vec<_>>());
+            return Err(Error::Numerical(format!(
+                "every one of the {} step-1 results failed the plausibility guards (the first: {}); the data do \
+                 not determine θ near θ_0 — check θ_0, hold parameters (--fix) or use a drive with more turns",
+                ok.len(),
+                first.map(|v| v.join("; ")).unwrap_or_default()
+            )));
+        }
         order.sort_by(|&a, &b| ok[a].score.mean_position_error_m.total_cmp(&ok[b].score.mean_position_error_m));
-        let picked_batches: Vec<usize> =
-            equal_step_picks(order.len(), self.picks).into_iter().map(|i| order[i]).collect();
+        let picks = if order.len() < self.picks && !rejected.is_empty() {
+            warnings.push(Warning::FewUsableBatches { usable: order.len(), picks: self.picks });
+            order.len()
+        } else {
+            self.picks
+        };
+        let picked_batches: Vec<usize> = equal_step_picks(order.len(), picks).into_iter().map(|i| order[i]).collect();
         let picked: Vec<ThetaScore> = picked_batches.iter().map(|&i| ok[i].score).collect();
         timing.initial_identification = t.elapsed().as_secs_f64();
 
@@ -290,10 +333,11 @@ impl Estimator for ThreeStepOptions {
         timing.final_identification = t.elapsed().as_secs_f64();
         Ok(MethodOutcome {
             theta: report.theta,
+            iterations: Some(report.iterations),
             covariance: report.covariance,
             observability: report.observability.clone(),
             detail: MethodDetail::ThreeStep(ThreeStepDetail {
-                initial_step: InitialStep { batches: ok, picked, picked_batches },
+                initial_step: InitialStep { batches: ok, picked, picked_batches, rejected },
                 compensation: comp.step.clone(),
                 identification: report,
             }),

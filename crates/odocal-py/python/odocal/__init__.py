@@ -1,0 +1,222 @@
+"""odocal: wheel-odometry model calibration, numpy in, plain Python objects out.
+
+odocal calibrates a vehicle's wheel-odometry model θ = [c_e, c_d, t_r, d]
+(effective rear wheel circumference, circumference difference, rear track
+width, load-transfer coefficient) from a logged drive, by the 3-step method
+of Fazekas, Gáspár and Németh (IFAC-PapersOnLine 2022) or raw batch
+Gauss-Newton. This package is a thin layer over the Rust library that the
+``odocal`` command-line tool also uses: the same checks, the same numbers,
+the same JSON report.
+
+>>> import odocal
+>>> drive = odocal.simulate(seed=1, length_km=3.0)
+>>> report = odocal.calibrate(drive, method="batch-gn")
+>>> sorted(report.theta)
+['c_d', 'c_e', 'd', 't_r']
+
+Numeric work runs with the GIL released, so other Python threads keep
+running; a ``progress`` callback is only ever called on the calling thread.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Any, Callable, Mapping, Optional, Sequence, Union
+
+import numpy as np
+
+from . import _odocal
+from ._odocal import COLUMNS, Drive, OdocalError, __version__, simulate
+
+__all__ = [
+    "COLUMNS",
+    "THETA_NAMES",
+    "CalibrationReport",
+    "Drive",
+    "OdocalError",
+    "calibrate",
+    "simulate",
+    "validate",
+    "__version__",
+]
+
+#: The parameter names, in vector order.
+THETA_NAMES = ("c_e", "c_d", "t_r", "d")
+
+ThetaLike = Union[Mapping[str, float], Sequence[float], str, "CalibrationReport"]
+ProgressCallback = Callable[[str, int, int], Any]
+
+
+class CalibrationReport:
+    """The result of :func:`calibrate`: the library's report as plain Python objects.
+
+    ``to_dict()`` / ``to_json()`` are exactly what ``odocal calibrate --json``
+    writes for the same drive and options (``timing_s`` aside, which is wall
+    time). The properties below are shortcuts into that dict.
+    """
+
+    __slots__ = ("_dict", "_json", "_drive", "_scored_on")
+
+    def __init__(self, report: dict, text: str, drive: Optional[Drive] = None,
+                 scored_on: Optional[dict] = None) -> None:
+        self._dict = report
+        self._json = text
+        self._drive = drive
+        self._scored_on = scored_on or {}
+
+    # -- the whole report -------------------------------------------------
+    def to_dict(self) -> dict:
+        """The full report as nested dicts and lists (a deep copy)."""
+        return json.loads(self._json)
+
+    def to_json(self) -> str:
+        """The full report as the CLI's pretty JSON text."""
+        return self._json
+
+    # -- shortcuts ----------------------------------------------------------
+    @property
+    def method(self) -> str:
+        """The method run: ``"three-step"`` or ``"batch-gn"``."""
+        return self._dict["method"]
+
+    @property
+    def theta(self) -> dict:
+        """The calibrated θ: ``{"c_e": m, "c_d": m, "t_r": m, "d": m per m/s²}``."""
+        return dict(self._dict["theta"])
+
+    @property
+    def theta_array(self) -> np.ndarray:
+        """The calibrated θ as a float64 array ``[c_e, c_d, t_r, d]``."""
+        return np.array([self._dict["theta"][k] for k in THETA_NAMES], dtype=np.float64)
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """The 4×4 model covariance ``σ²(JᵀWJ)⁻¹`` of θ (zero rows for fixed parameters)."""
+        cov = self._dict.get("covariance")
+        if cov is None:  # reports of odocal before the covariance moved to the top level
+            cov = self._dict["identification"]["covariance"]
+        return np.array(cov, dtype=np.float64)
+
+    @property
+    def sigma(self) -> dict:
+        """1σ of each parameter (square root of the covariance diagonal), same keys as ``theta``."""
+        c = self.covariance
+        return {k: float(np.sqrt(max(c[i, i], 0.0))) for i, k in enumerate(THETA_NAMES)}
+
+    @property
+    def validation(self) -> dict:
+        """Ē_p of the result: ``{"mean_position_error_m", "segments", "held_out"}``."""
+        return dict(self._dict["validation"])
+
+    @property
+    def mean_position_error_m(self) -> float:
+        """Ē_p of the calibrated θ on the validation segments, m."""
+        return float(self._dict["validation"]["mean_position_error_m"])
+
+    @property
+    def initial(self) -> dict:
+        """θ_0 and its Ē_p: ``{"theta": {...}, "mean_position_error_m": m}``."""
+        return dict(self._dict["initial"])
+
+    @property
+    def verdict(self) -> Optional[Any]:
+        """The library's verdict on the result, when the report carries one (else None)."""
+        return self._dict.get("verdict")
+
+    @property
+    def warnings(self) -> list:
+        """Things the user should know (unobservable parameters, dropped segments)."""
+        return list(self._dict.get("warnings", []))
+
+    @property
+    def truth(self) -> Optional[dict]:
+        """For a simulated drive: the true θ and its Ē_p (as the CLI reports), else None."""
+        return self._dict.get("truth")
+
+    def to_html(self, path: Union[str, "os.PathLike[str]"], title: Optional[str] = None) -> None:
+        """Writes the self-contained HTML report (verdict, θ table, Ē_p, map,
+        per-segment errors, step-1 spread, residuals, warnings) to ``path``.
+
+        Needs the drive the report was made from (reports from
+        :func:`calibrate` keep it); ``title`` defaults to "odocal calibration".
+        """
+        if self._drive is None:
+            raise ValueError("this report has no drive to draw (make it with odocal.calibrate)")
+        _odocal._report_html(self._drive, self._json, os.fspath(path), title=title, **self._scored_on)
+
+    def __repr__(self) -> str:
+        t = self._dict["theta"]
+        return (
+            f"<odocal.CalibrationReport {self.method}: c_e={t['c_e']:.6f} m, c_d={t['c_d'] * 1e3:.4f} mm, "
+            f"t_r={t['t_r']:.6f} m, d={t['d'] * 1e3:.4f} mm/(m/s²); "
+            f"Ē_p {self.mean_position_error_m:.3f} m>"
+        )
+
+
+def _theta_arg(theta: ThetaLike) -> Any:
+    if isinstance(theta, CalibrationReport):
+        return theta.theta
+    if isinstance(theta, np.ndarray):
+        return [float(x) for x in theta]
+    return theta
+
+
+def calibrate(
+    drive: Drive,
+    method: str = "three-step",
+    *,
+    progress: Optional[ProgressCallback] = None,
+    threads: Optional[int] = None,
+    **options: Any,
+) -> CalibrationReport:
+    """Calibrates θ on ``drive`` and returns a :class:`CalibrationReport`.
+
+    ``method`` is ``"three-step"`` (default, with input compensation) or
+    ``"batch-gn"`` (raw batch Gauss-Newton over all selected segments).
+
+    Options are keyword arguments named like the CLI's flags (``--min-yaw-rate``
+    is ``min_yaw_rate=``); None means the default:
+
+    - ``seed`` (int, 0): seed of the random batches;
+    - ``qp_solver`` (``"structured"`` | ``"clarabel"``);
+    - ``theta0``: initial guess (dict, 4 numbers or ``"c_e,c_d,t_r,d"``);
+    - ``fix``: parameters held at θ_0 (list of names or ``"c_d,t_r,d"``);
+    - ``min_yaw_rate`` (rad/s), ``segment_length``, ``segment_stride``,
+      ``validation_length`` (samples);
+    - ``batches``, ``batch_size``, ``picks``: step 1 of the 3-step method;
+    - ``final_segments``: ``"all"`` or a number of random segments;
+    - ``max_iterations``: Gauss-Newton iterations;
+    - ``holdout`` (``"first-half"`` | ``"second-half"``: the half held out
+      for validation) or ``validate_on`` (another :class:`Drive`);
+    - ``auto_fix`` (bool): hold the parameters the data cannot determine.
+
+    ``threads`` runs the calibration on that many threads (default: all
+    cores); the result does not depend on it. ``progress(stage, done,
+    total)`` is called on the calling thread, with the GIL, at most about
+    ten times a second. An exception it raises (or Ctrl-C) is re-raised once
+    the calibration has finished.
+
+    Raises :class:`OdocalError` (a ``ValueError``) with the library's
+    message for bad options or data the method cannot use, ``TypeError``
+    for an unknown option.
+    """
+    report, text = _odocal.calibrate(drive, method, progress=progress, threads=threads, **options)
+    scored_on = {k: options[k] for k in ("holdout", "validate_on") if options.get(k) is not None}
+    return CalibrationReport(report, text, drive, scored_on)
+
+
+def validate(
+    drive: Drive,
+    theta: ThetaLike,
+    *,
+    validation_length: Optional[int] = None,
+    threads: Optional[int] = None,
+) -> dict:
+    """Mean position error Ē_p of ``theta`` by dead reckoning on the validation segments of ``drive``.
+
+    Returns the CLI's ``validate --json``: ``{"theta", "mean_position_error_m",
+    "segments", "per_segment_m", "schema_version"}``. ``theta`` is a dict, four numbers, the
+    text ``"c_e,c_d,t_r,d"`` or a :class:`CalibrationReport`.
+    """
+    return _odocal.validate(drive, _theta_arg(theta), validation_length=validation_length, threads=threads)

@@ -1,0 +1,127 @@
+"""Type stubs of the native module odocal._odocal (Rust, pyo3)."""
+
+from os import PathLike
+from typing import Any, Callable, Mapping, Optional, Sequence, Union
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+#: Columns of ``Drive.to_numpy()``, in order.
+COLUMNS: list[str]
+
+_ArrayLike = npt.ArrayLike
+_Path = Union[str, PathLike[str]]
+_ThetaLike = Union[Mapping[str, float], Sequence[float], str]
+
+class OdocalError(ValueError):
+    """An error of the odocal library (bad data, a bad option, a calibration
+    that cannot run); the message is the library's."""
+
+class Drive:
+    """A drive: one uniformly sampled time series of reference poses and
+    model inputs, checked by the library's constructor.
+
+    Drives pickle exactly (columns, parts, sample time), so they can be sent
+    to Ray tasks or multiprocessing workers.
+    """
+
+    @staticmethod
+    def from_arrays(
+        t: _ArrayLike,
+        px: _ArrayLike,
+        py: _ArrayLike,
+        psi: _ArrayLike,
+        n_rl: _ArrayLike,
+        n_rr: _ArrayLike,
+        a_y: _ArrayLike,
+        beta: Optional[_ArrayLike] = None,
+        part: Optional[_ArrayLike] = None,
+        sample_time_s: Optional[float] = None,
+    ) -> Drive:
+        """Makes a drive from 1-D arrays (converted to float64): time t (s),
+        reference pose px, py (m), psi (rad), rear wheel speeds n_rl, n_rr
+        (rev/s), lateral acceleration a_y (m/s², positive left), sideslip
+        beta (rad, default zeros) and per-sample integer part ids.
+
+        Raises OdocalError naming the column and the sample (NaN, a length
+        mismatch, time that does not increase, a non-uniform step, ...)."""
+    @staticmethod
+    def from_csv(path: _Path) -> Drive:
+        """Reads a canonical CSV; a simulator sidecar beside it gives the true θ."""
+    @staticmethod
+    def from_manifest(path: _Path) -> Drive:
+        """Imports a multi-stream log described by a drive manifest (.toml)."""
+    @staticmethod
+    def load(path: _Path) -> Drive:
+        """A canonical CSV, or a manifest when the path ends in .toml."""
+    @property
+    def columns(self) -> list[str]:
+        """Names of the columns of ``to_numpy()``: t, px, py, psi, n_rl, n_rr, beta, a_y."""
+    def to_numpy(self) -> npt.NDArray[np.float64]:
+        """The measured columns as a (samples, 8) float64 array in ``columns`` order (psi unwrapped)."""
+    def column(self, name: str) -> npt.NDArray[np.float64]:
+        """One column: a name of ``columns``, a truth column (``px_true``, ...) or a numeric extra column."""
+    def part_ids(self) -> npt.NDArray[np.int64]:
+        """Per-sample part index 0, 1, ..."""
+    @property
+    def parts(self) -> list[tuple[int, int]]:
+        """Continuous parts as (start, stop) sample indices."""
+    @property
+    def sample_time_s(self) -> float:
+        """Sample time t_s, s."""
+    @property
+    def distance_m(self) -> float:
+        """Reference path length, m."""
+    @property
+    def theta_true(self) -> Optional[dict[str, float]]:
+        """The true θ of a simulated drive, else None."""
+    @property
+    def simulation(self) -> Optional[dict[str, Any]]:
+        """The simulator sidecar (true θ, settings, statistics), else None."""
+    @property
+    def import_report(self) -> Optional[dict[str, Any]]:
+        """The import report of a drive read from a manifest, else None."""
+    def to_csv(self, path: _Path) -> None:
+        """Writes the canonical CSV (and the sidecar JSON of a simulated drive)."""
+    def __len__(self) -> int: ...
+
+def calibrate(
+    drive: Drive,
+    method: str = "three-step",
+    *,
+    progress: Optional[Callable[[str, int, int], Any]] = None,
+    threads: Optional[int] = None,
+    **options: Any,
+) -> tuple[dict[str, Any], str]:
+    """Calibrates; returns (report dict, report JSON text). Use odocal.calibrate."""
+
+def validate(
+    drive: Drive,
+    theta: _ThetaLike,
+    *,
+    validation_length: Optional[int] = None,
+    threads: Optional[int] = None,
+) -> dict[str, Any]:
+    """Ē_p of θ on the validation segments of the drive."""
+
+def simulate(
+    seed: int = 0,
+    length_km: float = 24.0,
+    noise: str = "paper",
+    *,
+    theta: Optional[_ThetaLike] = None,
+    substeps: Optional[int] = None,
+) -> Drive:
+    """Simulates a drive with known true θ (noise: paper, off, white or high)."""
+
+def _drive_from_state(state: dict[str, Any]) -> Drive: ...
+def _report_html(
+    drive: Drive,
+    report_json: str,
+    path: _Path,
+    *,
+    holdout: Optional[str] = None,
+    validate_on: Optional[Drive] = None,
+    title: Optional[str] = None,
+) -> None: ...

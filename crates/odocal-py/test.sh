@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# Builds the Python package (maturin, release) into a virtualenv it creates
+# and runs its pytest suite, including the Ray fleet example on a local Ray.
+# Run from anywhere: crates/odocal-py/test.sh   (extra arguments go to pytest)
+#
+#   ODOCAL_VENV  the virtualenv (default target/venv-py, created when missing)
+#   PYTHON       the interpreter that creates it (default python3)
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+
+venv=${ODOCAL_VENV:-target/venv-py}
+if [ ! -x "$venv/bin/python" ]; then
+  "${PYTHON:-python3}" -m venv "$venv"
+fi
+pip=("$venv/bin/python" -m pip install --quiet --disable-pip-version-check)
+"${pip[@]}" maturin pytest numpy
+# Ray is large and optional: without it the fleet test is skipped, saying why.
+"${pip[@]}" ray || echo "warning: could not install ray; the Ray fleet test will be skipped" >&2
+
+# pytest compares the package's reports with the CLI's JSON.
+cargo build --release -p odocal-cli
+rm -f target/wheels/odocal-*.whl
+"$venv/bin/maturin" build --release --quiet -m crates/odocal-py/Cargo.toml -o target/wheels
+"${pip[@]}" --force-reinstall --no-deps target/wheels/odocal-*.whl
+
+status=0
+ODOCAL_BIN=target/release/odocal RAY_USAGE_STATS_ENABLED=0 \
+  "$venv/bin/python" -m pytest crates/odocal-py/tests -q -rs "$@" || status=$?
+if [ "$status" -eq 5 ]; then
+  # pytest's "no tests collected": the suite is missing or was filtered away.
+  echo "error: pytest collected no tests in crates/odocal-py/tests" >&2
+  exit 1
+fi
+exit "$status"

@@ -1,0 +1,198 @@
+"""calibrate / validate: the CLI's JSON, options, threads, progress and the GIL."""
+
+import json
+import subprocess
+import sys
+import threading
+
+import numpy as np
+import pytest
+
+import odocal
+from conftest import REPO
+
+# A quick 3-step calibration (the defaults run 50 batches).
+QUICK = {"batches": 6, "picks": 3, "seed": 2}
+
+
+def without_timing(d):
+    d = dict(d)
+    d.pop("timing_s")
+    return d
+
+
+def cli_json(odocal_bin, *args):
+    out = subprocess.run([str(odocal_bin), *map(str, args), "--json", "-"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout)
+
+
+@pytest.mark.parametrize(
+    "method, flags, kwargs",
+    [
+        ("batch-gn", [], {}),
+        ("three-step", ["--batches", "6", "--picks", "3", "--seed", "2"], QUICK),
+        (
+            "batch-gn",
+            ["--fix", "d", "--min-yaw-rate", "0.1", "--theta0", "1.9,0,1.5,0", "--max-iterations", "8",
+             "--holdout", "first-half"],
+            {"fix": ["d"], "min_yaw_rate": 0.1, "theta0": [1.9, 0, 1.5, 0], "max_iterations": 8,
+             "holdout": "first-half"},
+        ),
+    ],
+)
+def test_equals_cli_json(odocal_bin, drive_csv, method, flags, kwargs):
+    cli = cli_json(odocal_bin, "calibrate", drive_csv, "--method", method, *flags)
+    report = odocal.calibrate(odocal.Drive.from_csv(drive_csv), method, **kwargs)
+    assert "truth" in cli  # the sidecar is read on both sides
+    assert without_timing(report.to_dict()) == without_timing(cli)
+    assert without_timing(json.loads(report.to_json())) == without_timing(cli)
+
+
+def test_manifest_equals_cli_json(odocal_bin):
+    manifest = REPO / "examples" / "psu-mapping-van" / "manifest.toml"
+    if not (REPO.parent / "shared" / "data" / "psu-mapping-van-2024-07-11").is_dir():
+        pytest.skip("the real drive's data are not here")
+    cli = cli_json(odocal_bin, "calibrate", manifest, "--method", "batch-gn", "--holdout", "second-half")
+    report = odocal.calibrate(odocal.Drive.from_manifest(manifest), "batch-gn", holdout="second-half")
+    assert "wheel_scale" in cli and report.validation["held_out"]
+    assert without_timing(report.to_dict()) == without_timing(cli)
+
+
+def test_validate_equals_cli_json(odocal_bin, drive_csv):
+    cli = cli_json(odocal_bin, "validate", drive_csv, "--theta", "1.95,-0.002,1.53,0.0008")
+    py = odocal.validate(odocal.Drive.from_csv(drive_csv), "1.95,-0.002,1.53,0.0008")
+    assert py == cli
+    assert odocal.validate(odocal.Drive.from_csv(drive_csv), [1.95, -0.002, 1.53, 0.0008]) == cli
+
+
+def test_report_shortcuts(small_drive):
+    r = odocal.calibrate(small_drive, "batch-gn")
+    d = r.to_dict()
+    assert r.method == "batch-gn"
+    assert r.theta == d["theta"]
+    np.testing.assert_array_equal(r.theta_array, [d["theta"][k] for k in odocal.THETA_NAMES])
+    c = r.covariance
+    assert c.shape == (4, 4)
+    np.testing.assert_allclose(c, c.T, rtol=1e-12, atol=0)
+    assert all(r.sigma[k] == pytest.approx(np.sqrt(c[i, i])) and r.sigma[k] > 0 for i, k in enumerate(odocal.THETA_NAMES))
+    assert r.validation == d["validation"] and r.mean_position_error_m == d["validation"]["mean_position_error_m"]
+    assert r.mean_position_error_m < r.initial["mean_position_error_m"]
+    assert r.truth["theta"] == small_drive.theta_true
+    assert r.verdict == d.get("verdict")
+    assert r.warnings == d["warnings"]
+    assert "batch-gn" in repr(r)
+    # validate takes a report's θ and agrees with the report's Ē_p
+    assert odocal.validate(small_drive, r)["mean_position_error_m"] == r.mean_position_error_m
+
+
+def test_option_errors(small_drive):
+    with pytest.raises(TypeError, match="unknown option 'batchez'"):
+        odocal.calibrate(small_drive, batchez=3)
+    with pytest.raises(odocal.OdocalError, match=r"^invalid option `initial_batches`: must be at least 1$"):
+        odocal.calibrate(small_drive, batches=0)
+    with pytest.raises(odocal.OdocalError, match=r"'newton': use three-step or batch-gn"):
+        odocal.calibrate(small_drive, "newton")
+    with pytest.raises(odocal.OdocalError, match="batches, picks apply to method three-step only, not to batch-gn"):
+        odocal.calibrate(small_drive, "batch-gn", batches=3, picks=2)
+    with pytest.raises(odocal.OdocalError, match="invalid parameter 'c_x': use c_e, c_d, t_r or d"):
+        odocal.calibrate(small_drive, fix="c_x")
+    with pytest.raises(odocal.OdocalError, match="t_r = -1 m must be positive"):
+        odocal.calibrate(small_drive, theta0={"c_e": 2.0, "c_d": 0.0, "t_r": -1.0, "d": 0.0})
+    with pytest.raises(odocal.OdocalError, match="invalid QP solver .osqp.: use structured or clarabel"):
+        odocal.calibrate(small_drive, qp_solver="osqp")
+    with pytest.raises(ValueError, match="threads"):
+        odocal.calibrate(small_drive, "batch-gn", threads=0)
+
+
+def test_not_observable_is_library_error():
+    straight = odocal.simulate(seed=1, length_km=1.0)
+    with pytest.raises(odocal.OdocalError, match="not observable"):
+        odocal.calibrate(straight, "batch-gn", min_yaw_rate=5.0)
+    r = odocal.calibrate(straight, "batch-gn", min_yaw_rate=5.0, auto_fix=True)
+    assert r.to_dict()["auto_fixed"] == ["c_d", "t_r", "d"]
+
+
+def test_thread_count_independent(small_drive):
+    one = odocal.calibrate(small_drive, threads=1, **QUICK).to_dict()
+    two = odocal.calibrate(small_drive, threads=2, **QUICK).to_dict()
+    assert without_timing(one) == without_timing(two)
+
+
+def test_progress_on_calling_thread(small_drive):
+    calls = []
+    me = threading.get_ident()
+
+    def progress(stage, done, total):
+        calls.append((threading.get_ident(), stage, done, total))
+
+    r = odocal.calibrate(small_drive, progress=progress, **QUICK)
+    assert calls, "the progress callback was never called"
+    assert {c[0] for c in calls} == {me}
+    stages = [c[1] for c in calls]
+    assert "compensation" in stages
+    for _, stage, done, total in calls:
+        assert 0 <= done <= total
+    last_comp = [c for c in calls if c[1] == "compensation"][-1]
+    assert last_comp[2] == last_comp[3] == r.to_dict()["compensation"]["jobs"]
+
+
+def test_progress_exception_is_raised(small_drive):
+    class Stop(Exception):
+        pass
+
+    def progress(stage, done, total):
+        raise Stop(stage)
+
+    with pytest.raises(Stop):
+        odocal.calibrate(small_drive, "batch-gn", progress=progress)
+
+
+def test_gil_released_during_calibration(small_drive):
+    """Another Python thread keeps running while a calibration runs.
+
+    The switch interval is raised so that the calling thread never hands the
+    GIL over on its own: the counter can then only advance during the call
+    if the binding released the GIL. The counting thread gives the GIL back
+    at every step (sleep(0)), so the calling thread gets it back at once.
+    """
+    counter = [0]
+    started = threading.Event()
+    stop = threading.Event()
+
+    def count():
+        import time
+
+        while not stop.is_set():
+            counter[0] += 1
+            started.set()
+            time.sleep(0)
+
+    old = sys.getswitchinterval()
+    th = threading.Thread(target=count, daemon=True)
+    th.start()
+    try:
+        assert started.wait(10)
+        sys.setswitchinterval(100.0)
+        before = counter[0]
+        odocal.calibrate(small_drive, **QUICK)
+        after = counter[0]
+    finally:
+        sys.setswitchinterval(old)
+        stop.set()
+        th.join()
+    assert after > before, "no other Python thread ran during the calibration: the GIL was held"
+
+
+def test_to_html(small_drive, tmp_path):
+    r = odocal.calibrate(small_drive, **QUICK)
+    out = tmp_path / "report.html"
+    r.to_html(out, title="car 3")
+    html = out.read_text()
+    assert html.startswith("<!DOCTYPE html>")
+    assert "car 3" in html and "<svg" in html and 'id="map"' in html
+    held = odocal.calibrate(small_drive, "batch-gn", holdout="second-half")
+    held.to_html(tmp_path / "held.html")
+    assert (tmp_path / "held.html").stat().st_size > 1000
+    with pytest.raises(ValueError, match="no drive"):
+        odocal.CalibrationReport(r.to_dict(), r.to_json()).to_html(tmp_path / "x.html")

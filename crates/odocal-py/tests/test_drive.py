@@ -1,0 +1,154 @@
+"""Drive: arrays <-> Drive round trips and the library's checks on bad arrays."""
+
+import pickle
+import re
+
+import numpy as np
+import pytest
+
+import odocal
+
+
+def columns(drive):
+    a = drive.to_numpy()
+    return {name: a[:, i].copy() for i, name in enumerate(drive.columns)}
+
+
+def from_columns(c, **kw):
+    return odocal.Drive.from_arrays(
+        c["t"], c["px"], c["py"], c["psi"], c["n_rl"], c["n_rr"], c["a_y"], beta=c["beta"], **kw
+    )
+
+
+def test_columns_and_shape(small_drive):
+    a = small_drive.to_numpy()
+    assert small_drive.columns == ["t", "px", "py", "psi", "n_rl", "n_rr", "beta", "a_y"] == odocal.COLUMNS
+    assert a.shape == (len(small_drive), 8)
+    assert a.dtype == np.float64
+    np.testing.assert_array_equal(a[:, 4], small_drive.column("n_rl"))
+    assert small_drive.column("n_rl_true").shape == (len(small_drive),)
+    with pytest.raises(KeyError, match="no numeric column 'nope'"):
+        small_drive.column("nope")
+
+
+def test_round_trip_arrays(small_drive):
+    c = columns(small_drive)
+    back = from_columns(c)
+    np.testing.assert_array_equal(back.to_numpy(), small_drive.to_numpy())
+    assert back.sample_time_s == pytest.approx(small_drive.sample_time_s, rel=1e-12)
+    assert back.parts == [(0, len(small_drive))]
+    assert back.theta_true is None  # arrays carry no truth
+    # With the nominal sample time the drive is the same to the bit, so it calibrates the same.
+    exact = from_columns(c, sample_time_s=small_drive.sample_time_s)
+    assert exact.sample_time_s == small_drive.sample_time_s
+    a = odocal.calibrate(exact, method="batch-gn").theta
+    b = odocal.calibrate(small_drive, method="batch-gn").theta
+    assert a == b
+
+
+def test_lists_ints_default_beta_and_parts():
+    n = 200
+    t = [k * 0.025 for k in range(n)]
+    x = np.arange(n) * 0.25  # 10 m/s
+    ones = [1] * n  # integers are converted to float64
+    part = [7] * 120 + [9] * 80
+    d = odocal.Drive.from_arrays(t, x, np.zeros(n), np.zeros(n), [5] * n, [5] * n, np.zeros(n), part=part)
+    assert len(d) == n
+    np.testing.assert_array_equal(d.column("beta"), np.zeros(n))
+    np.testing.assert_array_equal(d.column("n_rl"), np.asarray(ones) * 5.0)
+    assert d.parts == [(0, 120), (120, 200)]
+    np.testing.assert_array_equal(d.part_ids(), [0] * 120 + [1] * 80)
+    back = from_columns(columns(d), part=d.part_ids())
+    assert back.parts == d.parts
+
+
+def test_heading_is_unwrapped(small_drive):
+    c = columns(small_drive)
+    wrapped = np.angle(np.exp(1j * c["psi"]))
+    assert np.abs(wrapped - c["psi"]).max() > 1.0  # the route turns more than π
+    back = from_columns({**c, "psi": wrapped})
+    np.testing.assert_allclose(back.column("psi"), c["psi"], rtol=0, atol=1e-9)
+
+
+def _bad(c, **changes):
+    return from_columns({**c, **changes})
+
+
+def test_nan_names_column_and_sample(small_drive):
+    c = columns(small_drive)
+    n_rl = c["n_rl"].copy()
+    n_rl[7] = np.nan
+    with pytest.raises(odocal.OdocalError) as e:
+        _bad(c, n_rl=n_rl)
+    assert str(e.value) == "numpy arrays: column 'n_rl', sample 7: value NaN is not finite"
+    assert isinstance(e.value, ValueError)
+
+
+def test_length_mismatch(small_drive):
+    c = columns(small_drive)
+    with pytest.raises(odocal.OdocalError, match=r"^numpy arrays: column n_rr has \d+ samples, t has \d+$"):
+        _bad(c, n_rr=c["n_rr"][:-1])
+
+
+def test_time_not_increasing(small_drive):
+    c = columns(small_drive)
+    t = c["t"].copy()
+    t[5] = t[4]
+    with pytest.raises(odocal.OdocalError, match=r"^numpy arrays: column 't', sample 5: time is not strictly increasing"):
+        _bad(c, t=t)
+
+
+def test_non_uniform_time(small_drive):
+    c = columns(small_drive)
+    t = c["t"].copy()
+    t[100:] += 0.01
+    with pytest.raises(odocal.OdocalError, match=re.escape("numpy arrays: column 't', sample 100: sample step")):
+        _bad(c, t=t)
+
+
+def test_not_one_dimensional(small_drive):
+    c = columns(small_drive)
+    with pytest.raises(TypeError):
+        _bad(c, px=np.stack([c["px"], c["px"]]))
+
+
+def test_csv_round_trip(small_drive, drive_csv):
+    back = odocal.Drive.from_csv(drive_csv)
+    np.testing.assert_array_equal(back.to_numpy(), small_drive.to_numpy())
+    assert back.theta_true == small_drive.theta_true == {"c_e": 1.95, "c_d": -0.002, "t_r": 1.53, "d": 0.0008}
+    assert odocal.Drive.load(drive_csv).parts == back.parts
+
+
+def test_csv_errors_are_library_errors(tmp_path):
+    with pytest.raises(odocal.OdocalError, match="nope.csv"):
+        odocal.Drive.from_csv(tmp_path / "nope.csv")
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,px,py,psi,n_rl,n_rr,beta,a_y\n0,0,0,0,5,5,0,0\n0.025,0.25,0,0,x,5,0,0\n")
+    with pytest.raises(odocal.OdocalError, match=r"bad.csv: line 3, column 'n_rl'"):
+        odocal.Drive.from_csv(bad)
+
+
+def test_pickle_is_exact(small_drive):
+    back = pickle.loads(pickle.dumps(small_drive))
+    np.testing.assert_array_equal(back.to_numpy(), small_drive.to_numpy())
+    np.testing.assert_array_equal(back.column("px_true"), small_drive.column("px_true"))
+    assert back.sample_time_s == small_drive.sample_time_s
+    assert back.theta_true == small_drive.theta_true
+    assert back.simulation == small_drive.simulation
+    a = odocal.calibrate(back, method="batch-gn").to_dict()
+    b = odocal.calibrate(small_drive, method="batch-gn").to_dict()
+    a.pop("timing_s"), b.pop("timing_s")
+    assert a == b
+
+
+def test_manifest():
+    from conftest import REPO
+
+    manifest = REPO / "examples" / "psu-mapping-van" / "manifest.toml"
+    data = REPO.parent / "shared" / "data" / "psu-mapping-van-2024-07-11"
+    if not data.is_dir():
+        pytest.skip(f"the real drive's data are not here ({data})")
+    d = odocal.Drive.from_manifest(manifest)
+    assert len(d) > 1000 and len(d.parts) >= 1
+    assert d.import_report["samples"] == len(d)
+    assert d.theta_true is None

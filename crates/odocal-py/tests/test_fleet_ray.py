@@ -1,0 +1,80 @@
+"""examples/fleet_ray.py on a local Ray of 2 CPUs: the same θ as serial calls."""
+
+import csv
+import importlib.util
+import os
+
+import pytest
+
+import odocal
+from conftest import REPO
+
+os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+# On a busy 2-core machine the local raylet can take more than Ray's default
+# wait to register (seen: "The current node timed out during startup").
+os.environ.setdefault("RAY_raylet_start_wait_time_s", "300")
+try:
+    import ray  # noqa: F401
+except ImportError as e:  # pragma: no cover - depends on the environment
+    pytest.skip(f"ray is not installed ({e}); pip install ray to run the fleet example test", allow_module_level=True)
+
+OPTIONS = {"batches": 6, "picks": 3}
+
+
+def load_example():
+    spec = importlib.util.spec_from_file_location("fleet_ray", REPO / "examples" / "fleet_ray.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.fixture(scope="module")
+def fleet_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("fleet")
+    for seed in range(1, 5):
+        odocal.simulate(seed=seed, length_km=2.0).to_csv(d / f"car{seed}.csv")
+    (d / "notes.txt").write_text("not a drive\n")
+    return d
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    fleet = load_example()
+    fleet.init_ray(num_cpus=2, object_store_memory=100 * 1024 * 1024)
+    yield fleet
+    ray.shutdown()
+
+
+def test_find_drives(fleet_dir):
+    fleet = load_example()
+    paths = fleet.find_drives([fleet_dir])
+    assert [p.name for p in paths] == ["car1.csv", "car2.csv", "car3.csv", "car4.csv"]
+    with pytest.raises(FileNotFoundError):
+        fleet.find_drives([fleet_dir / "missing"])
+
+
+def test_ray_equals_serial(local_ray, fleet_dir, tmp_path):
+    fleet = local_ray
+    paths = fleet.find_drives([fleet_dir])
+    serial = [odocal.calibrate(odocal.Drive.from_csv(p), **OPTIONS) for p in paths]
+
+    # The example's command line, unchanged, on the running local Ray.
+    out = tmp_path / "fleet.csv"
+    opts = [f"-o{k}={v}" for k, v in OPTIONS.items()]
+    assert fleet.main([str(fleet_dir), "--out", str(out), *opts]) == 0
+    with out.open() as f:
+        rows = list(csv.DictReader(f))
+    assert [r["drive"] for r in rows] == [str(p) for p in paths]
+    for row, rep in zip(rows, serial):
+        assert row["status"] == "ok", row["error"]
+        assert {k: float(row[k]) for k in odocal.THETA_NAMES} == rep.theta
+        assert float(row["sigma_t_r"]) == rep.sigma["t_r"]
+        assert float(row["mean_position_error_m"]) == rep.mean_position_error_m
+
+
+def test_bad_drive_gives_error_row(local_ray, fleet_dir, tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,px\n0,0\n")
+    rows = local_ray.calibrate_fleet([bad, fleet_dir / "car1.csv"], method="batch-gn")
+    assert rows[0]["status"] == "error" and "missing column" in rows[0]["error"]
+    assert rows[1]["status"] == "ok"

@@ -1,0 +1,489 @@
+//! Whether a calibration can be trusted: plausibility guards on θ and a
+//! verdict on every calibration report.
+//!
+//! ## Guards
+//! A θ is *plausible* ([`check_theta`]) when it is finite, every free
+//! parameter lies in a region around θ_0 that a vehicle engineer would
+//! accept ([`Guards`]), the identification took at least one step ("did not
+//! move" otherwise: the result is θ_0 itself, not an estimate) and `JᵀWJ` is
+//! not near-singular (reciprocal condition number at least
+//! [`Guards::min_rcond`]). The 3-step method leaves out step-1 batches that
+//! fail a guard; every method's final θ is checked the same way.
+//!
+//! ## Verdict
+//! [`Verdict`] sums up a calibration as `accepted`, `doubtful` or
+//! `rejected`, with typed [`VerdictReason`]s:
+//! - *rejected*: the final θ fails a guard, or its Ē_p on the validation (or
+//!   held-out) data is above θ_0's (dead reckoning gets worse);
+//! - *doubtful*: a free parameter is not observable, lies in the outer tenth
+//!   of its guard region, has a model σ above [`TrustOptions::max_sigma_fraction`]
+//!   of its guard half-width, or the held-out Ē_p is more than
+//!   [`TrustOptions::max_held_out_ratio`] times the Ē_p on the fitting data.
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::model::Theta;
+use crate::param::{Param, ParamSet};
+
+/// The plausible region of θ around θ_0, and the numerical guards.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Guards {
+    /// c_e within this fraction of θ_0's c_e. Default 0.10 (±10 %: tyre
+    /// wear, pressure and a wrong nominal size stay well inside).
+    pub c_e_rel: f64,
+    /// c_d within this fraction of θ_0's c_e from θ_0's c_d. Default 0.01
+    /// (±20 mm on a 2 m wheel; real differences are a few mm).
+    pub c_d_rel_c_e: f64,
+    /// t_r within this fraction of θ_0's t_r. Default 0.30 (a track width
+    /// is known from the datasheet to a few cm).
+    pub t_r_rel: f64,
+    /// |d − θ_0's d| at most this, m per m/s². Default 0.005 (5 mm per
+    /// m/s²): load transfer of a 1.5 t car (centre of gravity 0.55 m high,
+    /// 1.55 m track) moves about 0.27 kN per m/s² onto each rear wheel; a
+    /// 200 kN/m tyre and an effective rolling radius that changes about a
+    /// third as much as the loaded radius give ≈ 0.5 mm of radius, ≈ 3 mm of
+    /// circumference per m/s²; the simulator's 0.8 mm per m/s² sits well
+    /// inside, the run-aways seen on real drives (−266 mm) far outside. It
+    /// is also the half-width of the reachable-minimum box in d.
+    pub d_abs_m_per_m_s2: f64,
+    /// Reciprocal condition number of the equilibrated `JᵀWJ` below which the
+    /// estimate is not trusted. Default 1e-4: two orders below the
+    /// observability check's `min_rcond` (which only names parameters),
+    /// where the normal equations no longer determine a combination of
+    /// parameters at all.
+    pub min_rcond: f64,
+}
+
+impl Default for Guards {
+    fn default() -> Self {
+        Guards { c_e_rel: 0.10, c_d_rel_c_e: 0.01, t_r_rel: 0.30, d_abs_m_per_m_s2: 0.005, min_rcond: 1e-4 }
+    }
+}
+
+impl Guards {
+    /// Checks the settings, naming the offending field.
+    pub fn validate(&self) -> Result<()> {
+        for (v, field) in [
+            (self.c_e_rel, "guards.c_e_rel"),
+            (self.c_d_rel_c_e, "guards.c_d_rel_c_e"),
+            (self.t_r_rel, "guards.t_r_rel"),
+            (self.d_abs_m_per_m_s2, "guards.d_abs_m_per_m_s2"),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(Error::InvalidOption { field, reason: format!("must be positive, got {v}") });
+            }
+        }
+        if !(self.min_rcond.is_finite() && (0.0..1.0).contains(&self.min_rcond)) {
+            return Err(Error::InvalidOption { field: "guards.min_rcond", reason: "must be in [0, 1)".into() });
+        }
+        Ok(())
+    }
+
+    /// Half-width of the plausible region of `p` around `theta0`, SI units.
+    pub fn half_width(&self, p: Param, theta0: &Theta) -> f64 {
+        match p {
+            Param::CE => self.c_e_rel * theta0.c_e.abs(),
+            Param::CD => self.c_d_rel_c_e * theta0.c_e.abs(),
+            Param::TR => self.t_r_rel * theta0.t_r.abs(),
+            Param::D => self.d_abs_m_per_m_s2,
+        }
+    }
+}
+
+/// Why a θ failed a guard.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "guard", rename_all = "snake_case")]
+pub enum GuardViolation {
+    /// A component of θ (or the cost) is not finite.
+    NonFinite,
+    /// The identification accepted no step: the result is θ_0.
+    DidNotMove,
+    /// A free parameter lies outside its plausible region.
+    OutOfRange {
+        /// The parameter.
+        param: Param,
+        /// Its value, SI.
+        value: f64,
+        /// The region's lower end.
+        lower: f64,
+        /// The region's upper end.
+        upper: f64,
+    },
+    /// `JᵀWJ` is near-singular.
+    IllConditioned {
+        /// Its reciprocal condition number.
+        rcond: f64,
+        /// The threshold.
+        min_rcond: f64,
+    },
+}
+
+impl std::fmt::Display for GuardViolation {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            GuardViolation::NonFinite => f.write_str("θ is not finite"),
+            GuardViolation::DidNotMove => f.write_str("did not move from θ_0 (no accepted Gauss-Newton step)"),
+            GuardViolation::OutOfRange { param, value, lower, upper } => {
+                write!(f, "{param} = {value:.6} outside the plausible range [{lower:.6}, {upper:.6}]")
+            }
+            GuardViolation::IllConditioned { rcond, min_rcond } => {
+                write!(f, "normal equations near-singular (rcond {rcond:.1e} < {min_rcond:.0e})")
+            }
+        }
+    }
+}
+
+/// Every guard `theta` fails: finite, each parameter of `free` in its region
+/// around `theta0`, at least one accepted step (`iterations`, when known),
+/// rcond at least [`Guards::min_rcond`].
+pub fn check_theta(
+    theta: &Theta,
+    theta0: &Theta,
+    free: ParamSet,
+    iterations: Option<usize>,
+    rcond: f64,
+    guards: &Guards,
+) -> Vec<GuardViolation> {
+    if !theta.to_array().iter().all(|v| v.is_finite()) {
+        return vec![GuardViolation::NonFinite];
+    }
+    let mut out = Vec::new();
+    if iterations == Some(0) && !free.is_empty() {
+        out.push(GuardViolation::DidNotMove);
+    }
+    for p in free.iter() {
+        let (c, h, v) = (p.value(theta0), guards.half_width(p, theta0), p.value(theta));
+        if (v - c).abs() > h {
+            out.push(GuardViolation::OutOfRange { param: p, value: v, lower: c - h, upper: c + h });
+        }
+    }
+    if rcond.is_nan() || rcond < guards.min_rcond {
+        out.push(GuardViolation::IllConditioned { rcond, min_rcond: guards.min_rcond });
+    }
+    out
+}
+
+/// Settings of the guards and the verdict.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct TrustOptions {
+    /// The plausibility guards.
+    pub guards: Guards,
+    /// Held-out Ē_p above this multiple of the Ē_p on the fitting data
+    /// makes the result doubtful. Default 3 (different roads give
+    /// different Ē_p; three times is more than route alone explains on the
+    /// half-splits measured).
+    pub max_held_out_ratio: f64,
+    /// A model σ above this fraction of the parameter's guard half-width
+    /// makes the result doubtful. Default 0.1.
+    pub max_sigma_fraction: f64,
+    /// A parameter farther than this fraction of its guard half-width from
+    /// θ_0 is "at a guard bound" (doubtful). Default 0.9.
+    pub near_bound_fraction: f64,
+}
+
+impl Default for TrustOptions {
+    fn default() -> Self {
+        TrustOptions {
+            guards: Guards::default(),
+            max_held_out_ratio: 3.0,
+            max_sigma_fraction: 0.1,
+            near_bound_fraction: 0.9,
+        }
+    }
+}
+
+impl TrustOptions {
+    /// Checks the settings, naming the offending field.
+    pub fn validate(&self) -> Result<()> {
+        self.guards.validate()?;
+        for (v, field) in [
+            (self.max_held_out_ratio, "trust.max_held_out_ratio"),
+            (self.max_sigma_fraction, "trust.max_sigma_fraction"),
+            (self.near_bound_fraction, "trust.near_bound_fraction"),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(Error::InvalidOption { field, reason: format!("must be positive, got {v}") });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// How far a calibration can be trusted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VerdictLevel {
+    /// No reason for doubt was found.
+    Accepted,
+    /// Usable with care: read the reasons.
+    Doubtful,
+    /// Do not deploy: dead reckoning gets worse, or θ is implausible.
+    Rejected,
+}
+
+impl std::fmt::Display for VerdictLevel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            VerdictLevel::Accepted => "accepted",
+            VerdictLevel::Doubtful => "doubtful",
+            VerdictLevel::Rejected => "rejected",
+        })
+    }
+}
+
+/// One reason of a verdict.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum VerdictReason {
+    /// The final θ fails a guard (rejected).
+    Implausible {
+        /// Which guard.
+        violation: GuardViolation,
+    },
+    /// The calibrated Ē_p is above θ_0's (rejected).
+    WorseThanInitial {
+        /// Ē_p of the calibrated θ, m.
+        calibrated_m: f64,
+        /// Ē_p of θ_0, m.
+        initial_m: f64,
+        /// True when on held-out data.
+        held_out: bool,
+    },
+    /// Free parameters the data cannot determine (doubtful).
+    Unobservable {
+        /// The parameters.
+        params: ParamSet,
+    },
+    /// A parameter lies in the outer part of its guard region (doubtful).
+    AtGuardBound {
+        /// The parameter.
+        param: Param,
+        /// Its value, SI.
+        value: f64,
+        /// Its distance from θ_0 as a fraction of the half-width.
+        fraction: f64,
+    },
+    /// A parameter's model σ is large against its guard half-width (doubtful).
+    LargeUncertainty {
+        /// The parameter.
+        param: Param,
+        /// Its σ, SI.
+        sigma: f64,
+        /// σ over the guard half-width.
+        fraction: f64,
+    },
+    /// Held-out Ē_p much above the fitting data's (doubtful).
+    HeldOutMuchWorse {
+        /// Ē_p on the held-out data, m.
+        held_out_m: f64,
+        /// Ē_p on the fitting data's validation segments, m.
+        fit_m: f64,
+        /// The allowed ratio.
+        max_ratio: f64,
+    },
+}
+
+impl VerdictReason {
+    /// The level this reason alone implies.
+    pub fn level(&self) -> VerdictLevel {
+        match self {
+            VerdictReason::Implausible { .. } | VerdictReason::WorseThanInitial { .. } => VerdictLevel::Rejected,
+            _ => VerdictLevel::Doubtful,
+        }
+    }
+}
+
+impl std::fmt::Display for VerdictReason {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            VerdictReason::Implausible { violation } => write!(f, "implausible result: {violation}"),
+            VerdictReason::WorseThanInitial { calibrated_m, initial_m, held_out } => write!(
+                f,
+                "Ē_p {calibrated_m:.3} m is above θ_0's {initial_m:.3} m on the {} data: dead reckoning gets worse",
+                if *held_out { "held-out" } else { "validation" }
+            ),
+            VerdictReason::Unobservable { params } => write!(f, "{params} not observable from these data"),
+            VerdictReason::AtGuardBound { param, value, fraction } => {
+                write!(f, "{param} = {value:.6} is at {:.0} % of its plausible half-width from θ_0", fraction * 100.0)
+            }
+            VerdictReason::LargeUncertainty { param, sigma, fraction } => write!(
+                f,
+                "{param} has a model σ of {sigma:.3e} ({:.0} % of its plausible half-width)",
+                fraction * 100.0
+            ),
+            VerdictReason::HeldOutMuchWorse { held_out_m, fit_m, max_ratio } => {
+                write!(f, "held-out Ē_p {held_out_m:.3} m is more than {max_ratio} × the fitting data's {fit_m:.3} m")
+            }
+        }
+    }
+}
+
+/// The verdict on a calibration: the most severe level of its reasons.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Verdict {
+    /// `accepted`, `doubtful` or `rejected`.
+    pub level: VerdictLevel,
+    /// Why (empty when accepted).
+    pub reasons: Vec<VerdictReason>,
+}
+
+impl Verdict {
+    /// The verdict of these reasons.
+    pub fn from_reasons(reasons: Vec<VerdictReason>) -> Verdict {
+        let level = reasons.iter().map(VerdictReason::level).max().unwrap_or(VerdictLevel::Accepted);
+        Verdict { level, reasons }
+    }
+}
+
+/// What the verdict looks at.
+pub(crate) struct Evidence<'a> {
+    pub theta: &'a Theta,
+    pub theta0: &'a Theta,
+    pub free: ParamSet,
+    pub iterations: Option<usize>,
+    pub rcond: f64,
+    pub unobservable: ParamSet,
+    pub covariance: &'a [[f64; 4]; 4],
+    pub calibrated_m: f64,
+    pub initial_m: f64,
+    /// Ē_p of θ on the fitting data, when the report's data are held out.
+    pub fit_m: Option<f64>,
+}
+
+/// The verdict on a calibration (see the module docs).
+pub(crate) fn judge(e: &Evidence<'_>, opts: &TrustOptions) -> Verdict {
+    let g = &opts.guards;
+    let mut reasons: Vec<VerdictReason> = check_theta(e.theta, e.theta0, e.free, e.iterations, e.rcond, g)
+        .into_iter()
+        .map(|violation| VerdictReason::Implausible { violation })
+        .collect();
+    if e.calibrated_m.is_nan() || e.calibrated_m > e.initial_m {
+        reasons.push(VerdictReason::WorseThanInitial {
+            calibrated_m: e.calibrated_m,
+            initial_m: e.initial_m,
+            held_out: e.fit_m.is_some(),
+        });
+    }
+    let unobservable = e.unobservable.intersection(e.free);
+    if !unobservable.is_empty() {
+        reasons.push(VerdictReason::Unobservable { params: unobservable });
+    }
+    for p in e.free.iter() {
+        let h = g.half_width(p, e.theta0);
+        let fraction = (p.value(e.theta) - p.value(e.theta0)).abs() / h;
+        if fraction.is_finite() && fraction > opts.near_bound_fraction && fraction <= 1.0 {
+            reasons.push(VerdictReason::AtGuardBound { param: p, value: p.value(e.theta), fraction });
+        }
+        let sigma = e.covariance[p.index()][p.index()].sqrt();
+        if sigma.is_finite() && sigma > opts.max_sigma_fraction * h {
+            reasons.push(VerdictReason::LargeUncertainty { param: p, sigma, fraction: sigma / h });
+        }
+    }
+    if let Some(fit_m) = e.fit_m {
+        if e.calibrated_m > opts.max_held_out_ratio * fit_m {
+            reasons.push(VerdictReason::HeldOutMuchWorse {
+                held_out_m: e.calibrated_m,
+                fit_m,
+                max_ratio: opts.max_held_out_ratio,
+            });
+        }
+    }
+    Verdict::from_reasons(reasons)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const TH0: Theta = Theta::PAPER_INITIAL;
+
+    #[test]
+    fn guards_name_what_fails() {
+        let g = Guards::default();
+        let ok = Theta { c_e: 1.95, c_d: -0.002, t_r: 1.53, d: 0.0008 };
+        assert!(check_theta(&ok, &TH0, ParamSet::THETA, Some(3), 0.05, &g).is_empty());
+        // The van's run-away batch: t_r 86 m, c_d 3 m.
+        let wild = Theta { c_e: 1.99, c_d: 3.0, t_r: 86.0, d: 0.0 };
+        let v = check_theta(&wild, &TH0, ParamSet::THETA, Some(5), 0.05, &g);
+        assert_eq!(v.len(), 2, "{v:?}");
+        assert!(matches!(v[0], GuardViolation::OutOfRange { param: Param::CD, .. }));
+        assert!(v[1].to_string().starts_with("t_r = 86.000000 outside the plausible range [1.120000, 2.080000]"));
+        // A held parameter is not checked; d = −266 mm/(m/s²) is.
+        let d = Theta { d: -0.266, ..ok };
+        assert!(check_theta(&d, &TH0, ParamSet::THETA.without(Param::D), Some(1), 0.05, &g).is_empty());
+        assert_eq!(check_theta(&d, &TH0, ParamSet::THETA, Some(1), 0.05, &g).len(), 1);
+        assert_eq!(check_theta(&TH0, &TH0, ParamSet::THETA, Some(0), 0.05, &g), vec![GuardViolation::DidNotMove]);
+        assert_eq!(
+            check_theta(&ok, &TH0, ParamSet::THETA, Some(2), 1e-6, &g),
+            vec![GuardViolation::IllConditioned { rcond: 1e-6, min_rcond: 1e-4 }]
+        );
+        assert_eq!(
+            check_theta(&Theta { t_r: f64::NAN, ..ok }, &TH0, ParamSet::THETA, Some(2), f64::NAN, &g),
+            vec![GuardViolation::NonFinite]
+        );
+    }
+
+    fn evidence<'a>(theta: &'a Theta, cov: &'a [[f64; 4]; 4]) -> Evidence<'a> {
+        Evidence {
+            theta,
+            theta0: &TH0,
+            free: ParamSet::THETA,
+            iterations: Some(5),
+            rcond: 0.07,
+            unobservable: ParamSet::EMPTY,
+            covariance: cov,
+            calibrated_m: 2.0,
+            initial_m: 20.0,
+            fit_m: None,
+        }
+    }
+
+    #[test]
+    fn verdict_levels_follow_the_worst_reason() {
+        let th = Theta { c_e: 1.95, c_d: -0.002, t_r: 1.53, d: 0.0008 };
+        let cov = [[1e-8, 0.0, 0.0, 0.0], [0.0, 1e-11, 0.0, 0.0], [0.0, 0.0, 1e-7, 0.0], [0.0, 0.0, 0.0, 1e-11]];
+        let opts = TrustOptions::default();
+        assert_eq!(judge(&evidence(&th, &cov), &opts), Verdict { level: VerdictLevel::Accepted, reasons: vec![] });
+
+        let e = Evidence { unobservable: ParamSet::EMPTY.with(Param::TR), ..evidence(&th, &cov) };
+        let v = judge(&e, &opts);
+        assert_eq!(v.level, VerdictLevel::Doubtful);
+        assert_eq!(v.reasons, vec![VerdictReason::Unobservable { params: ParamSet::EMPTY.with(Param::TR) }]);
+
+        let e = Evidence { calibrated_m: 104.3, initial_m: 68.7, fit_m: Some(30.0), ..evidence(&th, &cov) };
+        let v = judge(&e, &opts);
+        assert_eq!(v.level, VerdictLevel::Rejected);
+        assert!(matches!(v.reasons[0], VerdictReason::WorseThanInitial { held_out: true, .. }), "{v:?}");
+        assert!(matches!(v.reasons[1], VerdictReason::HeldOutMuchWorse { .. }), "{v:?}");
+        assert!(v.reasons[0].to_string().contains("above θ_0's 68.700 m on the held-out data"));
+
+        // t_r 15.4 m with σ 0.035 m: rejected by the guard whatever its σ.
+        let wild = Theta { t_r: 15.4, ..th };
+        let v = judge(&evidence(&wild, &cov), &opts);
+        assert_eq!(v.level, VerdictLevel::Rejected);
+
+        // Near a bound and uncertain: doubtful.
+        let edge = Theta { t_r: 1.6 * 1.29, ..th };
+        let wide = [[1e-8, 0.0, 0.0, 0.0], [0.0, 1e-11, 0.0, 0.0], [0.0, 0.0, 0.01, 0.0], [0.0, 0.0, 0.0, 1e-11]];
+        let v = judge(&evidence(&edge, &wide), &opts);
+        assert_eq!(v.level, VerdictLevel::Doubtful);
+        assert!(matches!(v.reasons[0], VerdictReason::AtGuardBound { param: Param::TR, .. }), "{v:?}");
+        assert!(matches!(v.reasons[1], VerdictReason::LargeUncertainty { param: Param::TR, .. }), "{v:?}");
+    }
+
+    #[test]
+    fn json_names_the_level_and_reason_kinds() {
+        let v = Verdict::from_reasons(vec![VerdictReason::Implausible {
+            violation: GuardViolation::OutOfRange { param: Param::TR, value: 15.4, lower: 1.12, upper: 2.08 },
+        }]);
+        let j = serde_json::to_value(&v).expect("json");
+        assert_eq!(j["level"], "rejected");
+        assert_eq!(j["reasons"][0]["kind"], "implausible");
+        assert_eq!(j["reasons"][0]["violation"]["guard"], "out_of_range");
+        assert_eq!(j["reasons"][0]["violation"]["param"], "t_r");
+        assert_eq!(serde_json::from_value::<Verdict>(j).expect("back"), v);
+    }
+}

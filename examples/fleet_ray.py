@@ -1,0 +1,214 @@
+#!/usr/bin/env python3
+"""Calibrate a fleet's drives on Ray: one Ray task per drive, one table out.
+
+    python examples/fleet_ray.py DRIVES_DIR_OR_FILES... --out fleet.csv
+    python examples/fleet_ray.py drives/ --out fleet.parquet --address auto --cpus-per-task 2
+
+Every input is a drive (a canonical CSV or a `.toml` manifest) or a
+directory of them. Each drive is calibrated by `odocal.calibrate` in its own
+Ray task, on the node where the task runs (the task receives the path, so
+the drives must be readable there: a shared file system or object store);
+the rows come back in input order and are written as CSV or, for a
+`.parquet` path, Parquet (needs pyarrow). A drive that fails gives a row
+with `status = error` and the library's message instead of stopping the run.
+
+Without `--address` a local Ray is started (usage statistics and the
+dashboard off: it needs no network); with `--address auto` or
+`--address ray://HOST:10001` the script joins an existing cluster. See
+docs/fleet.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import socket
+import sys
+import time
+from pathlib import Path
+from typing import Any, Iterable, Optional
+
+#: Columns of the fleet table, in order.
+FIELDS = [
+    "drive",
+    "status",
+    "method",
+    "samples",
+    "distance_km",
+    "c_e",
+    "c_d",
+    "t_r",
+    "d",
+    "sigma_c_e",
+    "sigma_c_d",
+    "sigma_t_r",
+    "sigma_d",
+    "verdict",
+    "mean_position_error_m",
+    "initial_mean_position_error_m",
+    "validation_segments",
+    "warnings",
+    "error",
+    "wall_s",
+    "node",
+]
+
+DRIVE_SUFFIXES = (".csv", ".toml")
+
+
+def find_drives(inputs: Iterable[str | os.PathLike]) -> list[Path]:
+    """The drives named by `inputs`: files as given, directories searched
+    (not recursively) for `*.csv` and `*.toml`, sorted by name."""
+    found: list[Path] = []
+    for item in inputs:
+        p = Path(item)
+        if p.is_dir():
+            found.extend(sorted(q for q in p.iterdir() if q.suffix.lower() in DRIVE_SUFFIXES and q.is_file()))
+        elif p.exists():
+            found.append(p)
+        else:
+            raise FileNotFoundError(f"{p}: no such drive or directory")
+    return found
+
+
+def _verdict_text(verdict: Any) -> str:
+    if verdict is None:
+        return ""
+    if isinstance(verdict, str):
+        return verdict
+    if isinstance(verdict, dict):
+        for key in ("status", "verdict", "level"):
+            if isinstance(verdict.get(key), str):
+                return verdict[key]
+    return json.dumps(verdict, sort_keys=True)
+
+
+def calibrate_one(path: str, method: str = "three-step", options: Optional[dict] = None,
+                  threads: Optional[int] = None) -> dict:
+    """Calibrates one drive and returns its table row (never raises for a
+    bad drive: the row says `status = error`). Runs inside a Ray task, or
+    directly for a serial run."""
+    import odocal
+
+    row: dict[str, Any] = {k: "" for k in FIELDS}
+    row.update(drive=str(path), method=method, node=socket.gethostname())
+    t0 = time.perf_counter()
+    try:
+        drive = odocal.Drive.load(path)
+        row.update(samples=len(drive), distance_km=drive.distance_m / 1e3)
+        report = odocal.calibrate(drive, method, threads=threads, **(options or {}))
+        sigma = report.sigma
+        row.update(
+            status="ok",
+            **report.theta,
+            **{f"sigma_{k}": v for k, v in sigma.items()},
+            verdict=_verdict_text(report.verdict),
+            mean_position_error_m=report.mean_position_error_m,
+            initial_mean_position_error_m=report.initial["mean_position_error_m"],
+            validation_segments=report.validation["segments"],
+            warnings=len(report.warnings),
+        )
+    except (odocal.OdocalError, OSError) as e:
+        row.update(status="error", error=str(e))
+    row["wall_s"] = time.perf_counter() - t0
+    return row
+
+
+def calibrate_serial(paths: Iterable[str | os.PathLike], method: str = "three-step",
+                     options: Optional[dict] = None, threads: Optional[int] = None) -> list[dict]:
+    """The same rows as `calibrate_fleet`, one drive after the other in this process."""
+    return [calibrate_one(str(p), method, options, threads) for p in paths]
+
+
+def init_ray(address: Optional[str] = None, num_cpus: Optional[int] = None, **kwargs: Any) -> None:
+    """Starts a local Ray (address None) or joins a cluster. Usage statistics
+    and the dashboard are off: a local Ray then needs no network."""
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    import ray
+
+    if ray.is_initialized():
+        return
+    if address is None:
+        ray.init(num_cpus=num_cpus, include_dashboard=False, **kwargs)
+    else:
+        ray.init(address=address, **kwargs)
+
+
+def calibrate_fleet(paths: Iterable[str | os.PathLike], method: str = "three-step",
+                    options: Optional[dict] = None, cpus_per_task: int = 1) -> list[dict]:
+    """Calibrates every drive in its own Ray task (Ray must be initialised,
+    see `init_ray`) and returns the rows in input order.
+
+    Each task reserves `cpus_per_task` CPUs and runs odocal on that many
+    threads, so the tasks of one node do not oversubscribe its cores; the
+    numbers do not depend on it (odocal is thread-count independent)."""
+    import ray
+
+    task = ray.remote(num_cpus=cpus_per_task)(calibrate_one)
+    refs = [task.remote(str(p), method, options, cpus_per_task) for p in paths]
+    return ray.get(refs)
+
+
+def write_table(rows: list[dict], out: str | os.PathLike) -> None:
+    """Writes the rows as CSV, or as Parquet for a `.parquet` path (pyarrow)."""
+    out = Path(out)
+    if out.suffix.lower() == ".parquet":
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        cols = {k: [r.get(k) if r.get(k) != "" else None for r in rows] for k in FIELDS}
+        pq.write_table(pa.table(cols), out)
+        return
+    with out.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=FIELDS)
+        w.writeheader()
+        w.writerows(rows)
+
+
+def _option(text: str) -> tuple[str, Any]:
+    key, sep, value = text.partition("=")
+    if not sep:
+        raise argparse.ArgumentTypeError(f"'{text}': give KEY=VALUE, e.g. batches=20")
+    try:
+        return key.strip(), json.loads(value)
+    except json.JSONDecodeError:
+        return key.strip(), value
+
+
+def main(argv: Optional[list[str]] = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("inputs", nargs="+", help="drives (CSV or .toml manifest) or directories of them")
+    ap.add_argument("--out", required=True, help="the table: .csv or .parquet")
+    ap.add_argument("--method", default="three-step", help="three-step (default) or batch-gn")
+    ap.add_argument("--option", "-o", action="append", type=_option, default=[], metavar="KEY=VALUE",
+                    help="an odocal.calibrate option, named like the CLI flag (batches=20, fix=c_d,t_r,d, ...)")
+    ap.add_argument("--address", help="join this Ray cluster ('auto', 'ray://host:10001'); default: a local Ray")
+    ap.add_argument("--num-cpus", type=int, help="CPUs of the local Ray (default: all)")
+    ap.add_argument("--cpus-per-task", type=int, default=1, help="CPUs (odocal threads) per drive, default 1")
+    ap.add_argument("--serial", action="store_true", help="no Ray: calibrate one drive after the other here")
+    a = ap.parse_args(argv)
+
+    paths = find_drives(a.inputs)
+    if not paths:
+        print("no drives found (looked for *.csv and *.toml)", file=sys.stderr)
+        return 1
+    options = dict(a.option)
+    t0 = time.perf_counter()
+    if a.serial:
+        rows = calibrate_serial(paths, a.method, options)
+    else:
+        init_ray(a.address, a.num_cpus)
+        rows = calibrate_fleet(paths, a.method, options, a.cpus_per_task)
+    wall = time.perf_counter() - t0
+    write_table(rows, a.out)
+    failed = [r for r in rows if r["status"] != "ok"]
+    print(f"{len(rows)} drive(s) in {wall:.1f} s, {len(failed)} failed; wrote {a.out}")
+    for r in failed:
+        print(f"  {r['drive']}: {r['error']}", file=sys.stderr)
+    return 0 if not failed else 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
