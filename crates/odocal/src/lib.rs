@@ -62,6 +62,7 @@ pub mod bag;
 pub mod calibrate;
 pub mod compensate;
 pub mod drive;
+pub mod eiv;
 pub mod error;
 pub mod experiment;
 pub mod identify;

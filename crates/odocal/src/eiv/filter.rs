@@ -1,0 +1,856 @@
+//! The augmented extended Kalman filter of SPEC §10 over one window, with
+//! its exact sensitivity recursion.
+//!
+//! State `z = [p_x, p_y, ψ, s_c, s_l, s_r, b_x, b_y, b_ψ]`. The covariance
+//! recursion (P, S, K) is linearised along the *reference* (the reference
+//! heading, the measured wheel rotations and the reference θ of the pass),
+//! so it depends on the noise scales η but not on θ; the mean recursion runs
+//! the nonlinear model at the current θ. The parameter vector of the
+//! sensitivities is `p = [c_e, c_d, t_r, d, η_0 … η_4]`:
+//!
+//! ```text
+//! mean:        D⁻_{k+1} = F_k D⁺_k + [∂f/∂θ | 0]        (F_k at the current mean)
+//!              D⁺_k     = (I − K_k H) D⁻_k + [0 | ∂K_k/∂η · ν_k]
+//! covariance:  ∂P⁻_{k+1}/∂η_j = F̄_k ∂P⁺_k F̄_kᵀ + ∂Q_k/∂η_j   (F̄_k: reference)
+//!              ∂S_k = H ∂P⁻_k Hᵀ + ∂R,  ∂K_k = (∂P⁻_k Hᵀ − K_k ∂S_k) S_k⁻¹
+//!              ∂P⁺_k = ∂P⁻_k − K_k H ∂P⁻_k − (K_k H ∂P⁻_k)ᵀ + K_k ∂S_k K_kᵀ
+//! innovation:  ∂ν_k/∂p = −H D⁻_k,   ∂S_k/∂θ = 0.
+//! ```
+
+use nalgebra::{Matrix3, Matrix3x4, SMatrix, SVector, Vector3};
+
+use super::{EivInput, Window};
+use crate::error::{Error, Result};
+use crate::model::{step_jacobians, wrap_angle, Input, State, Theta};
+
+/// Number of filter states.
+pub(crate) const NZ: usize = 9;
+/// Number of sensitivity parameters: 4 θ + 5 η.
+pub(crate) const NP: usize = 9;
+/// Number of noise scale factors η.
+pub(crate) const NETA: usize = 5;
+
+pub(crate) type M9 = SMatrix<f64, NZ, NZ>;
+type D9 = SMatrix<f64, NZ, NP>;
+pub(crate) type V9 = SVector<f64, NP>;
+pub(crate) type M5 = SMatrix<f64, NETA, NETA>;
+type M3x9 = SMatrix<f64, 3, NZ>;
+type M9x3 = SMatrix<f64, NZ, 3>;
+
+/// Measurement noise floors (SPEC §10): keep S regular on a perfect reference.
+const POSITION_FLOOR_M: f64 = 1e-3;
+const HEADING_FLOOR_RAD: f64 = 1e-5;
+
+/// Per-sample noise quantities of one filter pass: the base variances of the
+/// noise model already multiplied by `exp(η)`.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Variances {
+    /// Relative white wheel variance σ_white² · e^{η0}.
+    pub white_rel: f64,
+    /// Quantisation variance q²/12 · e^{η0}, (rev/s)².
+    pub quant: f64,
+    /// Stationary variance of s_c, σ_c² · e^{η1}.
+    pub common: f64,
+    /// Stationary variance of s_l and s_r, σ_w² · e^{η2}.
+    pub wheel: f64,
+    /// Pose white variances `[σ_p², σ_p², σ_ψ²] · e^{η3}` (floors not included).
+    pub pose: [f64; 3],
+    /// Drift stationary variances `[σ_d², σ_d², σ_dψ²] · e^{η4}`.
+    pub drift: [f64; 3],
+    /// Lateral acceleration variance (fixed), (m/s²)².
+    pub a_y: f64,
+    /// Equivalent white sideslip variance (fixed), rad².
+    pub beta: f64,
+    /// Gauss-Markov coefficients `a = exp(−t_s/τ)`: common, per-wheel, drift.
+    pub a_common: f64,
+    pub a_wheel: f64,
+    pub a_drift: f64,
+}
+
+/// Everything one window contributes to the objective and its derivatives.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct WindowSums {
+    /// Σ νᵀS⁻¹ν.
+    pub quad: f64,
+    /// Σ log det S.
+    pub logdet: f64,
+    /// −Σ m log(1 − ŝ) (the coloured-noise correction).
+    pub correction: f64,
+    /// Gradient of `M = ½ quad + ½ logdet + correction` over p.
+    pub grad: V9,
+    /// Gradient of the profile cost `J = ½ quad + correction` over p.
+    pub grad_profile: V9,
+    /// Outer products of the per-update θ-scores of `½ νᵀS⁻¹ν`, Σ g_k g_kᵀ
+    /// (the "meat" of a sandwich covariance).
+    pub opg: nalgebra::Matrix4<f64>,
+    /// Scoring metric of θ: with the covariance held, the Fisher information
+    /// Σ (∂ν/∂θ)ᵀ S⁻¹ (∂ν/∂θ); with the covariance following θ, the
+    /// Gauss-Newton matrix Σ (∂r/∂θ)ᵀ(∂r/∂θ) of the whitened innovations.
+    pub h_theta: nalgebra::Matrix4<f64>,
+    /// Fisher information of η: Σ (∂ν/∂η)ᵀS⁻¹(∂ν/∂η) + ½ tr(S⁻¹∂S S⁻¹∂S).
+    pub i_eta: M5,
+    /// Measurement updates.
+    pub updates: usize,
+    /// Per component of the whitened innovation: Σ e_k e_{k−1}.
+    pub lag1: [f64; 3],
+    /// Per component: Σ e_k².
+    pub e2: [f64; 3],
+    /// Expected gradient of the profile cost caused by the input noise,
+    /// `Σ_k −tr(S_k⁻¹ H X_k,i Hᵀ)` (the corrected-score term, see [`run_window`]).
+    pub bias: nalgebra::Vector4<f64>,
+}
+
+impl WindowSums {
+    pub(crate) fn zero() -> Self {
+        WindowSums {
+            quad: 0.0,
+            logdet: 0.0,
+            correction: 0.0,
+            grad: V9::zeros(),
+            grad_profile: V9::zeros(),
+            opg: nalgebra::Matrix4::zeros(),
+            h_theta: nalgebra::Matrix4::zeros(),
+            i_eta: M5::zeros(),
+            updates: 0,
+            lag1: [0.0; 3],
+            e2: [0.0; 3],
+            bias: nalgebra::Vector4::zeros(),
+        }
+    }
+
+    pub(crate) fn add(&mut self, o: &WindowSums) {
+        self.quad += o.quad;
+        self.logdet += o.logdet;
+        self.correction += o.correction;
+        self.grad += o.grad;
+        self.grad_profile += o.grad_profile;
+        self.opg += o.opg;
+        self.h_theta += o.h_theta;
+        self.i_eta += o.i_eta;
+        self.updates += o.updates;
+        self.bias += o.bias;
+        for c in 0..3 {
+            self.lag1[c] += o.lag1[c];
+            self.e2[c] += o.e2[c];
+        }
+    }
+
+    /// The objective `M = ½ Σ(νᵀS⁻¹ν + log det S) − Σ m log(1 − ŝ)`.
+    pub(crate) fn merit(&self) -> f64 {
+        0.5 * (self.quad + self.logdet) + self.correction
+    }
+
+    /// The profile cost `J = ½ Σ νᵀS⁻¹ν − Σ m log(1 − ŝ)` (SPEC §10).
+    pub(crate) fn profile(&self) -> f64 {
+        0.5 * self.quad + self.correction
+    }
+
+    /// The objective whose θ-gradient is the corrected score:
+    /// `M − biasᵀ(θ − θ_ref)` (the bias term is evaluated at θ_ref).
+    pub(crate) fn corrected_merit(&self, theta: &Theta, theta_ref: &Theta) -> f64 {
+        let d = theta.to_vector() - theta_ref.to_vector();
+        self.merit() - self.bias.dot(&d)
+    }
+}
+
+/// One innovation of a window, kept only for the derivative tests.
+#[cfg_attr(not(test), allow(dead_code))]
+#[derive(Debug, Clone)]
+pub(crate) struct InnovationRecord {
+    pub nu: Vector3<f64>,
+    pub s: Matrix3<f64>,
+    /// ∂ν/∂p (3×9).
+    pub dnu: SMatrix<f64, 3, NP>,
+    /// ∂S/∂p_j (zero where not propagated).
+    pub ds: [Matrix3<f64>; NP],
+    /// Whitened innovation `r = L⁻¹ν` (S = LLᵀ).
+    pub r: Vector3<f64>,
+    /// ∂r/∂θ (3×4; zero with the covariance held).
+    pub dr: SMatrix<f64, 3, 4>,
+}
+
+/// `F P Fᵀ` for the structured transition
+/// `F = [[F_x, F_xs, 0], [0, diag(a_s), 0], [0, 0, a_b I]]`,
+/// `F_x = I + e_0 f02 e_2ᵀ + e_1 f12 e_2ᵀ`.
+#[inline]
+fn propagate(p: &M9, f02: f64, f12: f64, fxs: &Matrix3<f64>, diag: &[f64; 9]) -> M9 {
+    // M = F P (row operations).
+    let mut m = M9::zeros();
+    for j in 0..NZ {
+        let (p0, p1, p2) = (p[(0, j)], p[(1, j)], p[(2, j)]);
+        let (p3, p4, p5) = (p[(3, j)], p[(4, j)], p[(5, j)]);
+        m[(0, j)] = p0 + f02 * p2 + fxs[(0, 0)] * p3 + fxs[(0, 1)] * p4 + fxs[(0, 2)] * p5;
+        m[(1, j)] = p1 + f12 * p2 + fxs[(1, 0)] * p3 + fxs[(1, 1)] * p4 + fxs[(1, 2)] * p5;
+        m[(2, j)] = p2 + fxs[(2, 0)] * p3 + fxs[(2, 1)] * p4 + fxs[(2, 2)] * p5;
+        for r in 3..NZ {
+            m[(r, j)] = diag[r] * p[(r, j)];
+        }
+    }
+    // F P Fᵀ = M Fᵀ (column operations).
+    let mut out = M9::zeros();
+    for i in 0..NZ {
+        let (m0, m1, m2) = (m[(i, 0)], m[(i, 1)], m[(i, 2)]);
+        let (m3, m4, m5) = (m[(i, 3)], m[(i, 4)], m[(i, 5)]);
+        out[(i, 0)] = m0 + f02 * m2 + fxs[(0, 0)] * m3 + fxs[(0, 1)] * m4 + fxs[(0, 2)] * m5;
+        out[(i, 1)] = m1 + f12 * m2 + fxs[(1, 0)] * m3 + fxs[(1, 1)] * m4 + fxs[(1, 2)] * m5;
+        out[(i, 2)] = m2 + fxs[(2, 0)] * m3 + fxs[(2, 1)] * m4 + fxs[(2, 2)] * m5;
+        for c in 3..NZ {
+            out[(i, c)] = diag[c] * m[(i, c)];
+        }
+    }
+    out
+}
+
+/// `H A` for `H = [I₃ 0 I₃]`: rows 0..3 plus rows 6..9.
+#[inline]
+fn h_rows<const C: usize>(a: &SMatrix<f64, NZ, C>) -> SMatrix<f64, 3, C> {
+    let mut out = SMatrix::<f64, 3, C>::zeros();
+    for r in 0..3 {
+        for c in 0..C {
+            out[(r, c)] = a[(r, c)] + a[(r + 6, c)];
+        }
+    }
+    out
+}
+
+/// `B Hᵀ` for a 3×9 `B`: columns 0..3 plus columns 6..9.
+#[inline]
+fn h_cols(b: &M3x9) -> Matrix3<f64> {
+    let mut out = Matrix3::zeros();
+    for r in 0..3 {
+        for c in 0..3 {
+            out[(r, c)] = b[(r, c)] + b[(r, c + 6)];
+        }
+    }
+    out
+}
+
+/// `∂(∂f/∂θ)/∂u` (3×4) for the noisy inputs `u = [n_rl, n_rr, a_y]` at
+/// `(ψ, u, θ)`: how the noise on an input moves the θ-sensitivity of a step.
+fn theta_jacobian_input_derivatives(psi: f64, u: &Input, th: &Theta, ts: f64) -> [(Matrix3x4<f64>, f64, f64); 3] {
+    let (c_rl, c_rr) = th.wheel_circumferences(u.a_y);
+    let (nl, nr, tr) = (u.n_rl, u.n_rr, th.t_r);
+    let v = (nl * c_rl + nr * c_rr) / 2.0;
+    let num = nr * c_rr - nl * c_rl;
+    let omega = num / tr;
+    let h = ts / 2.0;
+    let phi = psi + omega * h + u.beta;
+    let (s, c) = phi.sin_cos();
+    let dcrl = [1.0, 0.5, 0.0, u.a_y];
+    let dcrr = [1.0, -0.5, 0.0, -u.a_y];
+    let dv: [f64; 4] = std::array::from_fn(|j| (nl * dcrl[j] + nr * dcrr[j]) / 2.0);
+    let dw: [f64; 4] =
+        std::array::from_fn(|j| (nr * dcrr[j] - nl * dcrl[j]) / tr - if j == 2 { num / (tr * tr) } else { 0.0 });
+    // Per input: (∂v/∂u, ∂ω/∂u, ∂dv_j/∂u, ∂dω_j/∂u).
+    let d = th.d;
+    let inputs: [(f64, f64, [f64; 4], [f64; 4]); 3] = [
+        (
+            c_rl / 2.0,
+            -c_rl / tr,
+            std::array::from_fn(|j| dcrl[j] / 2.0),
+            std::array::from_fn(|j| -dcrl[j] / tr + if j == 2 { c_rl / (tr * tr) } else { 0.0 }),
+        ),
+        (
+            c_rr / 2.0,
+            c_rr / tr,
+            std::array::from_fn(|j| dcrr[j] / 2.0),
+            std::array::from_fn(|j| dcrr[j] / tr - if j == 2 { c_rr / (tr * tr) } else { 0.0 }),
+        ),
+        (
+            (nl * d - nr * d) / 2.0,
+            (-nr * d - nl * d) / tr,
+            std::array::from_fn(|j| if j == 3 { (nl - nr) / 2.0 } else { 0.0 }),
+            std::array::from_fn(|j| match j {
+                3 => (-nr - nl) / tr,
+                2 => (nr * d + nl * d) / (tr * tr),
+                _ => 0.0,
+            }),
+        ),
+    ];
+    inputs.map(|(v_u, w_u, dv_u, dw_u)| {
+        let phi_u = w_u * h;
+        let mut a = Matrix3x4::zeros();
+        for j in 0..4 {
+            a[(0, j)] =
+                ts * (-s * phi_u * dv[j] + c * dv_u[j] - (v_u * s + v * c * phi_u) * h * dw[j] - v * s * h * dw_u[j]);
+            a[(1, j)] =
+                ts * (c * phi_u * dv[j] + s * dv_u[j] + (v_u * c - v * s * phi_u) * h * dw[j] + v * c * h * dw_u[j]);
+            a[(2, j)] = ts * dw_u[j];
+        }
+        // ∂F_x[0,2]/∂u and ∂F_x[1,2]/∂u.
+        (a, -ts * (v_u * s + v * c * phi_u), ts * (v_u * c - v * s * phi_u))
+    })
+}
+
+/// `(I − K H) A (I − K H)ᵀ` for `H = [I₃ 0 I₃]`.
+#[inline]
+fn joseph(a: &M9, k: &M9x3) -> M9 {
+    let x = a - k * h_rows(a);
+    let mut xh = M9x3::zeros();
+    for r in 0..NZ {
+        for c in 0..3 {
+            xh[(r, c)] = x[(r, c)] + x[(r, c + 6)];
+        }
+    }
+    x - xh * k.transpose()
+}
+
+/// The initial covariance of a window and its derivatives over
+/// `p = [θ, η]` (SPEC §10): `P_xx = R + Σ_b, P_bb = Σ_b, P_xb = −Σ_b,
+/// P_ss = diag(σ²)`; it does not depend on θ.
+fn initial_covariance(v: &Variances, r_floor: &[f64; 3]) -> (M9, [M9; NP]) {
+    let mut p = M9::zeros();
+    let mut dp = [M9::zeros(); NP];
+    p[(3, 3)] = v.common;
+    dp[5][(3, 3)] = v.common;
+    for i in 4..6 {
+        p[(i, i)] = v.wheel;
+        dp[6][(i, i)] = v.wheel;
+    }
+    for a in 0..3 {
+        let (w, dr) = (v.pose[a], v.drift[a]);
+        p[(a, a)] = w + r_floor[a] + dr;
+        dp[7][(a, a)] = w;
+        for m in [&mut p, &mut dp[8]] {
+            m[(a + 6, a + 6)] = dr;
+            m[(a, a + 6)] = -dr;
+            m[(a + 6, a)] = -dr;
+        }
+        dp[8][(a, a)] = dr;
+    }
+    (p, dp)
+}
+
+/// A number with its gradient over θ (forward-mode differentiation of the
+/// covariance-recursion terms; exact to rounding).
+#[derive(Debug, Clone, Copy)]
+struct Dual {
+    v: f64,
+    d: [f64; 4],
+}
+
+impl Dual {
+    fn cst(v: f64) -> Self {
+        Dual { v, d: [0.0; 4] }
+    }
+    fn var(v: f64, i: usize) -> Self {
+        let mut d = [0.0; 4];
+        d[i] = 1.0;
+        Dual { v, d }
+    }
+    fn sin_cos(self) -> (Dual, Dual) {
+        let (s, c) = self.v.sin_cos();
+        (Dual { v: s, d: self.d.map(|x| c * x) }, Dual { v: c, d: self.d.map(|x| -s * x) })
+    }
+}
+
+impl std::ops::Add for Dual {
+    type Output = Dual;
+    fn add(self, o: Dual) -> Dual {
+        Dual { v: self.v + o.v, d: std::array::from_fn(|i| self.d[i] + o.d[i]) }
+    }
+}
+impl std::ops::Sub for Dual {
+    type Output = Dual;
+    fn sub(self, o: Dual) -> Dual {
+        Dual { v: self.v - o.v, d: std::array::from_fn(|i| self.d[i] - o.d[i]) }
+    }
+}
+impl std::ops::Mul for Dual {
+    type Output = Dual;
+    // The product rule adds.
+    #[allow(clippy::suspicious_arithmetic_impl)]
+    fn mul(self, o: Dual) -> Dual {
+        Dual { v: self.v * o.v, d: std::array::from_fn(|i| self.d[i] * o.v + self.v * o.d[i]) }
+    }
+}
+impl std::ops::Mul<f64> for Dual {
+    type Output = Dual;
+    fn mul(self, o: f64) -> Dual {
+        Dual { v: self.v * o, d: self.d.map(|x| x * o) }
+    }
+}
+impl std::ops::Div for Dual {
+    type Output = Dual;
+    fn div(self, o: Dual) -> Dual {
+        let inv = 1.0 / o.v;
+        let q = self.v * inv;
+        Dual { v: q, d: std::array::from_fn(|i| (self.d[i] - q * o.d[i]) * inv) }
+    }
+}
+impl std::ops::Neg for Dual {
+    type Output = Dual;
+    fn neg(self) -> Dual {
+        Dual { v: -self.v, d: self.d.map(|x| -x) }
+    }
+}
+
+/// The terms of the covariance recursion at one step, evaluated on the
+/// reference (reference heading ψ, measured inputs) at θ, with their
+/// θ-gradients: `F̄[0,2], F̄[1,2]`, `∂f/∂n_l`, `∂f/∂n_r`, `∂f/∂a_y` (as
+/// [`step_jacobians`] and the module docs).
+struct ReferenceTerms {
+    f02: Dual,
+    f12: Dual,
+    fn_l: [Dual; 3],
+    fn_r: [Dual; 3],
+    f_a: [Dual; 3],
+}
+
+fn reference_terms(psi: f64, u: &Input, th: &Theta, ts: f64) -> ReferenceTerms {
+    let (c_e, c_d, t_r, d) = (Dual::var(th.c_e, 0), Dual::var(th.c_d, 1), Dual::var(th.t_r, 2), Dual::var(th.d, 3));
+    let (nl, nr) = (u.n_rl, u.n_rr);
+    let c_rl = c_e + c_d * 0.5 + d * u.a_y;
+    let c_rr = c_e - c_d * 0.5 - d * u.a_y;
+    let v = (c_rl * nl + c_rr * nr) * 0.5;
+    let num = c_rr * nr - c_rl * nl;
+    let omega = num / t_r;
+    let phi = omega * (ts / 2.0) + Dual::cst(psi + u.beta);
+    let (s, c) = phi.sin_cos();
+    let row = |dv: Dual, domega: Dual| -> [Dual; 3] {
+        let dphi = domega * (ts / 2.0);
+        [(c * dv - v * s * dphi) * ts, (s * dv + v * c * dphi) * ts, domega * ts]
+    };
+    let fn_l = row(c_rl * 0.5, -(c_rl / t_r));
+    let fn_r = row(c_rr * 0.5, c_rr / t_r);
+    // ∂f/∂a_y = ∂f/∂c_rl·d − ∂f/∂c_rr·d with ∂f/∂c_w = (∂v/∂c_w, ∂ω/∂c_w) through `row`.
+    let f_a = {
+        let a = row(Dual::cst(nl * 0.5), Dual::cst(-nl) / t_r);
+        let b = row(Dual::cst(nr * 0.5), Dual::cst(nr) / t_r);
+        std::array::from_fn(|r| (a[r] - b[r]) * d)
+    };
+    ReferenceTerms { f02: -(v * s) * ts, f12: v * c * ts, fn_l, fn_r, f_a }
+}
+
+fn vec_of(a: &[Dual; 3]) -> Vector3<f64> {
+    Vector3::new(a[0].v, a[1].v, a[2].v)
+}
+
+fn dvec_of(a: &[Dual; 3], j: usize) -> Vector3<f64> {
+    Vector3::new(a[0].d[j], a[1].d[j], a[2].d[j])
+}
+
+/// How the filter runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Mode {
+    /// The covariance recursion is evaluated at θ (S depends on θ; `∂P/∂θ`
+    /// is propagated); otherwise at the reference θ (`∂S/∂θ = 0`).
+    pub follows_theta: bool,
+    /// Compute the sensitivities (gradient and information); `false` gives
+    /// the objective only.
+    pub derivs: bool,
+    /// With `derivs`: also the η derivatives.
+    pub eta: bool,
+}
+
+impl Mode {
+    /// Objective only.
+    pub(crate) fn cost(follows_theta: bool) -> Self {
+        Mode { follows_theta, derivs: false, eta: false }
+    }
+    /// Objective and derivatives (η derivatives when `eta`).
+    pub(crate) fn full(follows_theta: bool, eta: bool) -> Self {
+        Mode { follows_theta, derivs: true, eta }
+    }
+}
+
+/// `A + Aᵀ` added to `dst` for a 3×9 `A` occupying rows 0..3.
+#[inline]
+fn add_sym_rows(dst: &mut M9, a: &M3x9) {
+    for r in 0..3 {
+        for c in 0..NZ {
+            dst[(r, c)] += a[(r, c)];
+            dst[(c, r)] += a[(r, c)];
+        }
+    }
+}
+
+/// Runs the filter over one window at θ (mean). The covariance recursion
+/// is linearised along the reference (reference heading, measured wheel
+/// rotations) at `theta_ref`, or at θ when `mode.follows_theta` (then
+/// `theta_ref` is ignored). Accumulates the objective and, with
+/// `mode.derivs`, its gradient and the Fisher information. With `record`,
+/// every innovation and its derivatives are returned.
+pub(crate) fn run_window(
+    input: &EivInput<'_>,
+    window: &Window,
+    theta: &Theta,
+    theta_ref: &Theta,
+    v: &Variances,
+    mode: Mode,
+    record: Option<&mut Vec<InnovationRecord>>,
+) -> Result<WindowSums> {
+    let ts = input.sample_time_s;
+    let mut record = record;
+    let follows = mode.follows_theta;
+    let theta_cov = if follows { theta } else { theta_ref };
+    // Sensitivity columns whose covariance derivatives are propagated.
+    let cols: Vec<usize> = (0..NP).filter(|&c| mode.derivs && if c < 4 { follows } else { mode.eta }).collect();
+    // The corrected score (X recursion) is needed only with the covariance held.
+    let corrected = mode.derivs && !follows;
+    let r_floor = [
+        POSITION_FLOOR_M * POSITION_FLOOR_M,
+        POSITION_FLOOR_M * POSITION_FLOOR_M,
+        HEADING_FLOOR_RAD * HEADING_FLOOR_RAD,
+    ];
+    let r_white = Vector3::new(v.pose[0], v.pose[1], v.pose[2]);
+    let r = Matrix3::from_diagonal(&(r_white + Vector3::from(r_floor)));
+    let dr3 = Matrix3::from_diagonal(&r_white);
+
+    let (mut p, mut dp) = initial_covariance(v, &r_floor);
+    let a0 = window.start;
+    let mut x = State::new(input.px[a0], input.py[a0], input.psi[a0]);
+    let mut s = Vector3::<f64>::zeros();
+    let mut b = Vector3::<f64>::zeros();
+    let mut d = D9::zeros();
+    let diag = [1.0, 1.0, 1.0, v.a_common, v.a_wheel, v.a_wheel, v.a_drift, v.a_drift, v.a_drift];
+    let q_s = [
+        v.common * (1.0 - v.a_common * v.a_common),
+        v.wheel * (1.0 - v.a_wheel * v.a_wheel),
+        v.wheel * (1.0 - v.a_wheel * v.a_wheel),
+    ];
+    let q_b: [f64; 3] = std::array::from_fn(|a| v.drift[a] * (1.0 - v.a_drift * v.a_drift));
+    // X_i = E[ε⁻ D̃_iᵀ]: cross-covariance of the estimation error and the
+    // noise-driven part of the θ-sensitivity (corrected score).
+    let mut xcov = [M9::zeros(); 4];
+    let mut out = WindowSums::zero();
+    let mut prev_e: Option<Vector3<f64>> = None;
+
+    for i in window.start..window.end {
+        let (nl, nr) = (input.n_rl[i], input.n_rr[i]);
+        let (beta, a_y) = (input.beta[i], input.a_y[i]);
+
+        // --- Covariance linearisation along the reference (at θ_cov).
+        let uref = Input { n_rl: nl, n_rr: nr, beta, a_y };
+        let rt = reference_terms(input.psi[i], &uref, theta_cov, ts);
+        let (f02, f12) = (rt.f02.v, rt.f12.v);
+        let fn_l = vec_of(&rt.fn_l);
+        let fn_r = vec_of(&rt.fn_r);
+        let f_a = vec_of(&rt.f_a);
+        let f_b = Vector3::new(f02, f12, 0.0);
+        let fxs_ref = Matrix3::from_columns(&[-fn_l * nl - fn_r * nr, -fn_l * nl, -fn_r * nr]);
+        let white = |n: f64| {
+            if n == 0.0 {
+                0.0
+            } else {
+                v.white_rel * n * n + v.quant
+            }
+        };
+        let (wl, wr) = (white(nl), white(nr));
+        let q_white = fn_l * fn_l.transpose() * wl + fn_r * fn_r.transpose() * wr;
+        let q_x = q_white + f_b * f_b.transpose() * v.beta + f_a * f_a.transpose() * v.a_y;
+
+        let d_post = d;
+        // --- Mean prediction at θ, with its exact Jacobians.
+        let (m_c, m_l, m_r) = (
+            f64::from(u8::from(nl != 0.0 || nr != 0.0)),
+            f64::from(u8::from(nl != 0.0)),
+            f64::from(u8::from(nr != 0.0)),
+        );
+        let one_minus = [1.0 - s[0], 1.0 - s[1], 1.0 - s[2]];
+        if one_minus.iter().any(|o| *o <= 0.0 || !o.is_finite()) {
+            return Err(Error::Numerical(format!(
+                "EIV filter diverged in window {} at sample {i}: estimated relative wheel error s = {:?} reached 1",
+                window.index,
+                [s[0], s[1], s[2]]
+            )));
+        }
+        out.correction -= m_c * one_minus[0].ln() + m_l * one_minus[1].ln() + m_r * one_minus[2].ln();
+        let ueff = Input { n_rl: nl * (1.0 - s[0] - s[1]), n_rr: nr * (1.0 - s[0] - s[2]), beta, a_y };
+        if mode.derivs {
+            for (row, m) in [(3usize, m_c), (4, m_l), (5, m_r)] {
+                if m > 0.0 {
+                    let w = m / one_minus[row - 3];
+                    for c in 0..NP {
+                        out.grad[c] += w * d[(row, c)];
+                        out.grad_profile[c] += w * d[(row, c)];
+                    }
+                }
+            }
+            let j = step_jacobians(&x, &ueff, theta, ts);
+            let (gl, gr) = (j.f_n.column(0) * nl, j.f_n.column(1) * nr);
+            let fxs = Matrix3::from_columns(&[-(gl + gr), -gl, -gr]);
+            // D⁻ = F D⁺ + [f_θ | 0].
+            let mut dn = D9::zeros();
+            for c in 0..NP {
+                let (d0, d1, d2) = (d[(0, c)], d[(1, c)], d[(2, c)]);
+                let (d3, d4, d5) = (d[(3, c)], d[(4, c)], d[(5, c)]);
+                for r in 0..3 {
+                    dn[(r, c)] = j.f_x[(r, 0)] * d0
+                        + j.f_x[(r, 1)] * d1
+                        + j.f_x[(r, 2)] * d2
+                        + fxs[(r, 0)] * d3
+                        + fxs[(r, 1)] * d4
+                        + fxs[(r, 2)] * d5;
+                }
+                for r in 3..NZ {
+                    dn[(r, c)] = diag[r] * d[(r, c)];
+                }
+            }
+            for c in 0..4 {
+                for r in 0..3 {
+                    dn[(r, c)] += j.f_theta[(r, c)];
+                }
+            }
+            d = dn;
+            x = j.next;
+        } else {
+            x = crate::model::step(&x, &ueff, theta, ts);
+        }
+        s = Vector3::new(v.a_common * s[0], v.a_wheel * s[1], v.a_wheel * s[2]);
+        b *= v.a_drift;
+
+        // --- Covariance prediction and its derivatives.
+        // ∂P⁻/∂θ_j = F̄ ∂P⁺ F̄ᵀ + (∂F̄ P⁺ F̄ᵀ + F̄ P⁺ ∂F̄ᵀ) + ∂Q/∂θ_j.
+        let mut theta_terms: [M3x9; 4] = [M3x9::zeros(); 4];
+        if follows && mode.derivs {
+            for (jt, tt) in theta_terms.iter_mut().enumerate() {
+                let dfl = dvec_of(&rt.fn_l, jt);
+                let dfr = dvec_of(&rt.fn_r, jt);
+                let dfxs = Matrix3::from_columns(&[-dfl * nl - dfr * nr, -dfl * nl, -dfr * nr]);
+                let (d02, d12) = (rt.f02.d[jt], rt.f12.d[jt]);
+                // G = ∂F̄ P⁺ (rows 0..3 only).
+                let mut g = M3x9::zeros();
+                for c in 0..NZ {
+                    let (p2, p3, p4, p5) = (p[(2, c)], p[(3, c)], p[(4, c)], p[(5, c)]);
+                    let dfr2 = [d02, d12, 0.0];
+                    for rr in 0..3 {
+                        g[(rr, c)] = dfr2[rr] * p2 + dfxs[(rr, 0)] * p3 + dfxs[(rr, 1)] * p4 + dfxs[(rr, 2)] * p5;
+                    }
+                }
+                // G F̄ᵀ.
+                for rr in 0..3 {
+                    for ci in 0..NZ {
+                        tt[(rr, ci)] = if ci < 3 {
+                            let fr = [f02, f12, 0.0];
+                            g[(rr, ci)]
+                                + fr[ci] * g[(rr, 2)]
+                                + fxs_ref[(ci, 0)] * g[(rr, 3)]
+                                + fxs_ref[(ci, 1)] * g[(rr, 4)]
+                                + fxs_ref[(ci, 2)] * g[(rr, 5)]
+                        } else {
+                            diag[ci] * g[(rr, ci)]
+                        };
+                    }
+                }
+                // ∂Q_x/∂θ_j (symmetric part added as half of A + Aᵀ).
+                let dfa = dvec_of(&rt.f_a, jt);
+                let dfb = Vector3::new(d02, d12, 0.0);
+                let half_dq = fn_l * dfl.transpose() * wl
+                    + fn_r * dfr.transpose() * wr
+                    + f_b * dfb.transpose() * v.beta
+                    + f_a * dfa.transpose() * v.a_y;
+                for rr in 0..3 {
+                    for ci in 0..3 {
+                        tt[(rr, ci)] += half_dq[(ci, rr)];
+                    }
+                }
+            }
+        }
+        p = propagate(&p, f02, f12, &fxs_ref, &diag);
+        for r in 0..3 {
+            for c in 0..3 {
+                p[(r, c)] += q_x[(r, c)];
+            }
+            p[(r + 3, r + 3)] += q_s[r];
+            p[(r + 6, r + 6)] += q_b[r];
+        }
+        for &jj in &cols {
+            let dpj = &mut dp[jj];
+            *dpj = propagate(dpj, f02, f12, &fxs_ref, &diag);
+            match jj {
+                0..=3 => add_sym_rows(dpj, &theta_terms[jj]),
+                4 => {
+                    // η_0 scales the white wheel, a_y and β noise together.
+                    for r in 0..3 {
+                        for c in 0..3 {
+                            dpj[(r, c)] += q_x[(r, c)];
+                        }
+                    }
+                }
+                5 => dpj[(3, 3)] += q_s[0],
+                6 => {
+                    dpj[(4, 4)] += q_s[1];
+                    dpj[(5, 5)] += q_s[2];
+                }
+                7 => {}
+                _ => {
+                    for r in 0..3 {
+                        dpj[(r + 6, r + 6)] += q_b[r];
+                    }
+                }
+            }
+        }
+
+        if corrected {
+            // Corrected score: X⁻ = F̄ X⁺ F̄ᵀ − Σ_u var(u) (∂f/∂u)(∂f_θ/∂u)ᵀ.
+            let a_u = theta_jacobian_input_derivatives(input.psi[i], &uref, theta_ref, ts);
+            // The noise moves the θ-sensitivity through ∂f/∂θ, through F_x (speed
+            // in the heading column) and through the s-columns of F (−F_n ñ).
+            let g_u = [(fn_l, wl), (fn_r, wr), (f_a, v.a_y)];
+            let fs_u = [
+                Matrix3::from_columns(&[-fn_l, -fn_l, Vector3::zeros()]),
+                Matrix3::from_columns(&[-fn_r, Vector3::zeros(), -fn_r]),
+                Matrix3::zeros(),
+            ];
+            for (ci, xi) in xcov.iter_mut().enumerate() {
+                *xi = propagate(xi, f02, f12, &fxs_ref, &diag);
+                let dx = Vector3::new(d_post[(0, ci)], d_post[(1, ci)], d_post[(2, ci)]);
+                let ds_ = Vector3::new(d_post[(3, ci)], d_post[(4, ci)], d_post[(5, ci)]);
+                for (u, (g, var)) in g_u.iter().enumerate() {
+                    if *var > 0.0 {
+                        let (a, df02, df12) = &a_u[u];
+                        let col = a.column(ci) + Vector3::new(df02 * dx[2], df12 * dx[2], 0.0) + fs_u[u] * ds_;
+                        for r in 0..3 {
+                            for c in 0..3 {
+                                xi[(r, c)] -= var * g[r] * col[c];
+                            }
+                        }
+                    }
+                }
+            }
+        }
+
+        // --- Measurement update where the reference was really measured.
+        let k1 = i + 1;
+        if let Some(m) = input.reference_measured {
+            if !m[k1] {
+                continue;
+            }
+        }
+        let y = Vector3::new(input.px[k1], input.py[k1], input.psi[k1]);
+        let yhat = x + b;
+        let nu = Vector3::new(y[0] - yhat[0], y[1] - yhat[1], wrap_angle(y[2] - yhat[2]));
+        let hp: M3x9 = h_rows(&p);
+        let s_mat = h_cols(&hp) + r;
+        let Some(chol) = s_mat.cholesky() else {
+            return Err(Error::Numerical(format!(
+                "EIV filter: innovation covariance not positive definite in window {} at sample {k1}",
+                window.index
+            )));
+        };
+        let sinv = chol.inverse();
+        let l = chol.l();
+        let logdet = 2.0 * (l[(0, 0)].ln() + l[(1, 1)].ln() + l[(2, 2)].ln());
+        let e = l.solve_lower_triangular(&nu).unwrap_or_else(Vector3::zeros);
+        let sinv_nu = sinv * nu;
+        let quad = nu.dot(&sinv_nu);
+        if !(quad.is_finite() && logdet.is_finite()) {
+            return Err(Error::Numerical(format!(
+                "EIV filter: non-finite innovation in window {} at sample {k1}",
+                window.index
+            )));
+        }
+        out.quad += quad;
+        out.logdet += logdet;
+        out.updates += 1;
+        for c in 0..3 {
+            out.e2[c] += e[c] * e[c];
+            if let Some(pe) = prev_e {
+                out.lag1[c] += e[c] * pe[c];
+            }
+        }
+        prev_e = Some(e);
+        let k: M9x3 = hp.transpose() * sinv;
+
+        if mode.derivs {
+            let hd = h_rows(&d); // ∂ν/∂p = −H D⁻
+                                 // Gradient of ½νᵀS⁻¹ν through ν: νᵀS⁻¹ ∂ν = −(HD)ᵀ S⁻¹ ν.
+            let gnu = hd.transpose() * sinv_nu;
+            out.grad -= gnu;
+            out.grad_profile -= gnu;
+            let sh = sinv * hd;
+            let mut info = hd.transpose() * sh;
+            let mut ds = [Matrix3::zeros(); NP];
+            let mut a = [Matrix3::zeros(); NP];
+            let mut g_t = nalgebra::Vector4::<f64>::zeros();
+            let mut dr = SMatrix::<f64, 3, 4>::zeros();
+            for c in 0..4 {
+                g_t[c] = -gnu[c];
+            }
+            for &jj in &cols {
+                let hdp: M3x9 = h_rows(&dp[jj]);
+                ds[jj] = h_cols(&hdp);
+                if jj == 7 {
+                    ds[jj] += dr3;
+                }
+                a[jj] = sinv * ds[jj];
+                let gq = -0.5 * sinv_nu.dot(&(ds[jj] * sinv_nu));
+                let gl = 0.5 * a[jj].trace();
+                out.grad[jj] += gq + gl;
+                out.grad_profile[jj] += gq;
+                if jj < 4 {
+                    g_t[jj] += gq;
+                }
+            }
+            for &i1 in &cols {
+                for &i2 in &cols {
+                    info[(i1, i2)] += 0.5 * (a[i1] * a[i2]).trace();
+                }
+            }
+            if follows {
+                // Gauss-Newton metric of the profile cost J = ½Σ‖r‖², r = L⁻¹ν
+                // (S = LLᵀ): ∂r_j = L⁻¹∂ν_j − Φ(L⁻¹ ∂S_j L⁻ᵀ) r, Φ the lower triangle
+                // with halved diagonal (the derivative of the Cholesky factor).
+                // It is the expected Hessian of J, not the Fisher information of
+                // the marginal likelihood, which overstates the curvature when the
+                // input noise is comparable to the turning signal.
+                let r_w = e;
+                for jt in 0..4 {
+                    let dnu_j = -Vector3::new(hd[(0, jt)], hd[(1, jt)], hd[(2, jt)]);
+                    let a1 = l.solve_lower_triangular(&dnu_j).unwrap_or_else(Vector3::zeros);
+                    let m1 = l.solve_lower_triangular(&ds[jt]).unwrap_or_else(Matrix3::zeros);
+                    let m = l.solve_lower_triangular(&m1.transpose()).unwrap_or_else(Matrix3::zeros);
+                    let mut phi = m.lower_triangle();
+                    for q in 0..3 {
+                        phi[(q, q)] *= 0.5;
+                    }
+                    dr.set_column(jt, &(a1 - phi * r_w));
+                }
+                out.h_theta += dr.transpose() * dr;
+            } else {
+                out.h_theta += info.fixed_view::<4, 4>(0, 0);
+            }
+            out.i_eta += info.fixed_view::<NETA, NETA>(4, 4);
+            out.opg += g_t * g_t.transpose();
+            if corrected {
+                for (ci, xi) in xcov.iter_mut().enumerate() {
+                    out.bias[ci] -= (sinv * h_cols(&h_rows(xi))).trace();
+                    *xi = joseph(xi, &k);
+                }
+            }
+            if let Some(rec) = record.as_deref_mut() {
+                rec.push(InnovationRecord { nu, s: s_mat, dnu: -hd, ds, r: e, dr });
+            }
+            // Sensitivity update: D⁺ = (I − KH) D⁻ + ∂K ν with
+            // ∂K = (∂P⁻Hᵀ − K ∂S) S⁻¹.
+            let mut dkn = SMatrix::<f64, NZ, NP>::zeros();
+            for &jj in &cols {
+                let hdp: M3x9 = h_rows(&dp[jj]);
+                let col = (hdp.transpose() - k * ds[jj]) * sinv_nu;
+                dkn.set_column(jj, &col);
+            }
+            d -= k * hd;
+            d += dkn;
+            // Joseph form (I−KH)∂P(I−KH)ᵀ + K ∂R Kᵀ: the algebraically equal
+            // ∂P − KH∂P − (KH∂P)ᵀ + K ∂S Kᵀ is numerically unstable here.
+            for &jj in &cols {
+                dp[jj] = joseph(&dp[jj], &k);
+                if jj == 7 {
+                    dp[jj] += k * dr3 * k.transpose();
+                }
+            }
+        }
+
+        // State and covariance updates.
+        let dz = k * nu;
+        for r in 0..3 {
+            x[r] += dz[r];
+            s[r] += dz[r + 3];
+            b[r] += dz[r + 6];
+        }
+        p = joseph(&p, &k) + k * r * k.transpose();
+        p = (p + p.transpose()) * 0.5;
+    }
+    Ok(out)
+}

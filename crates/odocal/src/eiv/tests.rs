@@ -1,0 +1,321 @@
+use super::filter::{run_window, InnovationRecord};
+use super::*;
+use crate::drive::Drive;
+use crate::identify::{batch_gauss_newton, IdentifyOptions};
+use crate::segment::{calibration_segments, SegmentData, SegmentOptions};
+use crate::sim::{simulate, NoiseOptions, SimOptions};
+
+/// The one place that reads a Drive's columns (Drive is being refactored).
+fn input_of(d: &Drive) -> EivInput<'_> {
+    EivInput {
+        sample_time_s: d.sample_time_s(),
+        parts: d.parts(),
+        px: d.px(),
+        py: d.py(),
+        psi: d.psi(),
+        n_rl: d.n_rl(),
+        n_rr: d.n_rr(),
+        beta: d.beta(),
+        a_y: d.a_y(),
+        reference_measured: d.reference_measured(),
+    }
+}
+
+/// Batch Gauss-Newton on every cut segment (no yaw-rate selection).
+fn batch_gn_all(d: &Drive) -> Theta {
+    let sel = calibration_segments(d, &SegmentOptions::default()).expect("segments");
+    let data: Vec<SegmentData> = sel.all.iter().map(|s| SegmentData::new(d, s)).collect();
+    let opts = IdentifyOptions { max_iterations: 20, ..Default::default() };
+    batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &opts).expect("batch G-N").theta
+}
+
+fn records(
+    input: &EivInput<'_>,
+    w: &Window,
+    th: &Theta,
+    th_ref: &Theta,
+    eta: &[f64; 5],
+    follows: bool,
+) -> Vec<InnovationRecord> {
+    let v = NoiseModel::default().variances(eta, input.sample_time_s);
+    let mut rec = Vec::new();
+    run_window(input, w, th, th_ref, &v, filter::Mode::full(follows, true), Some(&mut rec)).expect("window");
+    rec
+}
+
+fn perturb(th: &Theta, i: usize, h: f64) -> Theta {
+    let mut a = th.to_vector();
+    a[i] += h;
+    Theta::from_vector(&a)
+}
+
+/// Central differences with h ~1e-6 relative on a ~1000-step filter: the
+/// truncation error is ~1e-10 relative, round-off amplified by the
+/// recursion stays below ~1e-6 of the column scale.
+const FD_REL_TOL: f64 = 2e-5;
+
+fn check_innovation_derivatives(follows: bool) {
+    let out = simulate(&SimOptions { length_km: 0.6, ..SimOptions::paper(5) }).expect("sim");
+    let input = input_of(&out.drive);
+    let w = Window { index: 0, part: 0, start: 0, end: 1200.min(input.len() - 1) };
+    let th = Theta { c_e: 1.953, c_d: -0.0015, t_r: 1.52, d: 0.0009 };
+    let th_ref = Theta { c_e: 1.96, ..th };
+    let eta = [0.3, -0.5, 0.2, -0.2, 0.4];
+    let base = records(&input, &w, &th, &th_ref, &eta, follows);
+    let check = |fd: Vec<(usize, nalgebra::Vector3<f64>, nalgebra::Matrix3<f64>)>, p: usize, what: &str| {
+        // Scale: the largest derivative of this column over the window.
+        let scale_nu = base.iter().map(|r| r.dnu.column(p).amax()).fold(0.0f64, f64::max).max(1e-12);
+        let scale_s = base.iter().map(|r| r.ds[p].amax()).fold(0.0f64, f64::max).max(1e-300);
+        for (k, dnu, ds) in fd {
+            let a = base[k].dnu.column(p).into_owned();
+            assert!((a - dnu).amax() <= FD_REL_TOL * scale_nu, "{what}: ∂ν/∂p{p} at update {k}: {a} vs {dnu}");
+            let a = base[k].ds[p];
+            assert!((a - ds).amax() <= FD_REL_TOL * scale_s, "{what}: ∂S/∂p{p} at update {k}: {a} vs {ds}");
+        }
+    };
+    let picks = [1usize, 2, 10, 300, 700, base.len() - 1];
+    for j in 0..5 {
+        // ν is a difference of positions of ~1 km: its rounding (~1e-13 m)
+        // over 2h must stay well below the tolerance, so h is not tiny.
+        let h = 1e-4;
+        let (mut ep, mut em) = (eta, eta);
+        ep[j] += h;
+        em[j] -= h;
+        let rp = records(&input, &w, &th, &th_ref, &ep, follows);
+        let rm = records(&input, &w, &th, &th_ref, &em, follows);
+        let fd =
+            picks.iter().map(|&k| (k, (rp[k].nu - rm[k].nu) / (2.0 * h), (rp[k].s - rm[k].s) / (2.0 * h))).collect();
+        check(fd, 4 + j, "η");
+    }
+    for p in 0..4 {
+        let h = 1e-6 * [th.c_e, 1.0, th.t_r, 1.0][p];
+        let rp = records(&input, &w, &perturb(&th, p, h), &th_ref, &eta, follows);
+        let rm = records(&input, &w, &perturb(&th, p, -h), &th_ref, &eta, follows);
+        let fd = picks
+            .iter()
+            .map(|&k| {
+                if !follows {
+                    // ∂S/∂θ is exactly zero by construction (covariance at θ_ref).
+                    assert!((rp[k].s - rm[k].s).amax() == 0.0, "S depends on θ");
+                } else {
+                    assert!((rp[k].s - rm[k].s).amax() > 0.0, "S does not depend on θ");
+                }
+                (k, (rp[k].nu - rm[k].nu) / (2.0 * h), (rp[k].s - rm[k].s) / (2.0 * h))
+            })
+            .collect();
+        check(fd, p, "θ");
+    }
+}
+
+/// The whitened-innovation derivatives behind the Gauss-Newton metric
+/// (covariance following θ): `Σ (∂r/∂θ)ᵀ r` is the gradient of ½Σ νᵀS⁻¹ν,
+/// and each ∂r matches central differences of r.
+#[test]
+fn whitened_innovation_derivatives_match_central_differences() {
+    let out = simulate(&SimOptions { length_km: 0.6, ..SimOptions::paper(5) }).expect("sim");
+    let input = input_of(&out.drive);
+    let w = Window { index: 0, part: 0, start: 0, end: 1200.min(input.len() - 1) };
+    let th = Theta { c_e: 1.953, c_d: -0.0015, t_r: 1.52, d: 0.0009 };
+    let eta = [0.3, -0.5, 0.2, -0.2, 0.4];
+    let base = records(&input, &w, &th, &th, &eta, true);
+    let picks = [1usize, 10, 300, 700, base.len() - 1];
+    for p in 0..4 {
+        let h = 1e-6 * [th.c_e, 1.0, th.t_r, 1.0][p];
+        let rp = records(&input, &w, &perturb(&th, p, h), &th, &eta, true);
+        let rm = records(&input, &w, &perturb(&th, p, -h), &th, &eta, true);
+        let scale = base.iter().map(|r| r.dr.column(p).amax()).fold(0.0f64, f64::max);
+        for &k in &picks {
+            let fd = (rp[k].r - rm[k].r) / (2.0 * h);
+            let a = base[k].dr.column(p).into_owned();
+            assert!((a - fd).amax() <= FD_REL_TOL * scale, "∂r/∂θ{p} at update {k}: {a} vs {fd}");
+        }
+        let g: f64 = base.iter().map(|r| r.dr.column(p).dot(&r.r)).sum();
+        let q = |rs: &[InnovationRecord]| rs.iter().map(|r| 0.5 * r.r.norm_squared()).sum::<f64>();
+        let fd = (q(&rp) - q(&rm)) / (2.0 * h);
+        assert!((g - fd).abs() <= 1e-4 * g.abs().max(fd.abs()), "Σ ∂rᵀr over θ{p}: {g} vs {fd}");
+    }
+}
+
+#[test]
+fn innovation_derivatives_match_central_differences_covariance_held() {
+    check_innovation_derivatives(false);
+}
+
+#[test]
+fn innovation_derivatives_match_central_differences_covariance_follows_theta() {
+    check_innovation_derivatives(true);
+}
+
+fn check_objective_gradient(follows: bool) {
+    let out = simulate(&SimOptions { length_km: 0.6, ..SimOptions::paper(6) }).expect("sim");
+    let input = input_of(&out.drive);
+    let w = Window { index: 0, part: 0, start: 0, end: 1500.min(input.len() - 1) };
+    let th = Theta { c_e: 1.953, c_d: -0.0015, t_r: 1.52, d: 0.0009 };
+    let eta = [0.3, -0.5, 0.2, -0.2, 0.4];
+    let sums = |t: &Theta, e: &[f64; 5]| {
+        let v = NoiseModel::default().variances(e, input.sample_time_s);
+        run_window(&input, &w, t, &th, &v, filter::Mode::full(follows, true), None).expect("window")
+    };
+    let cost_only = |t: &Theta, e: &[f64; 5]| {
+        let v = NoiseModel::default().variances(e, input.sample_time_s);
+        run_window(&input, &w, t, &th, &v, filter::Mode::cost(follows), None).expect("window")
+    };
+    let base = sums(&th, &eta);
+    // The cost-only pass gives the same objective.
+    let c = cost_only(&th, &eta);
+    assert_eq!((c.quad, c.logdet, c.correction), (base.quad, base.logdet, base.correction));
+    for p in 0..9 {
+        let (tp, tm, ep, em, h) = if p < 4 {
+            let h = 1e-6 * [th.c_e, 1.0, th.t_r, 1.0][p];
+            (perturb(&th, p, h), perturb(&th, p, -h), eta, eta, h)
+        } else {
+            let h = 1e-5;
+            let (mut ep, mut em) = (eta, eta);
+            ep[p - 4] += h;
+            em[p - 4] -= h;
+            (th, th, ep, em, h)
+        };
+        let (sp, sm) = (cost_only(&tp, &ep), cost_only(&tm, &em));
+        for (what, fd, g) in [
+            ("M", (sp.merit() - sm.merit()) / (2.0 * h), base.grad[p]),
+            ("J", (sp.profile() - sm.profile()) / (2.0 * h), base.grad_profile[p]),
+        ] {
+            assert!((g - fd).abs() <= 1e-4 * g.abs().max(fd.abs()).max(1e-6), "∂{what}/∂p{p}: {g} vs {fd}");
+        }
+    }
+}
+
+#[test]
+fn objective_gradient_matches_central_differences_covariance_held() {
+    check_objective_gradient(false);
+}
+
+#[test]
+fn objective_gradient_matches_central_differences_covariance_follows_theta() {
+    check_objective_gradient(true);
+}
+
+/// Noise-free, one substep: the model is exact; EIV must return θ_true to
+/// rounding (the correction term with η at its lower clamp moves it by
+/// ~1e-11) — the bar.
+const EXACT_REL_TOL: f64 = 1e-8;
+
+#[test]
+fn noise_free_recovers_theta_true_and_eta_at_lower_clamp() {
+    let out = simulate(&SimOptions { length_km: 6.0, substeps: 1, ..SimOptions::noise_free(11) }).expect("sim");
+    let truth = out.sidecar.theta_true;
+    let input = input_of(&out.drive);
+    let start = Theta { c_e: 1.96, c_d: -0.001, t_r: 1.55, d: 0.0005 };
+    let opts = EivOptions::default();
+    let r = estimate(&input, &start, &opts).expect("eiv");
+    let (e, t) = (r.theta.to_array(), truth.to_array());
+    for i in 0..4 {
+        let rel = (e[i] - t[i]).abs() / t[i].abs();
+        assert!(rel <= EXACT_REL_TOL, "{}: {} vs {} (rel {rel:.2e}); {r}", PARAMETERS[i], e[i], t[i]);
+    }
+    for j in 0..5 {
+        assert!(r.eta[j] <= opts.eta_bounds[0] + 1e-9, "η{j} = {} not at the lower clamp; {r}", r.eta[j]);
+    }
+    assert!(!r.warnings.iter().any(|w| matches!(w, EivWarning::NoiseAtUpperClamp { .. })), "{:?}", r.warnings);
+}
+
+/// Measured (covariance following θ, η estimated from the production-car
+/// start): G-N t_r error 7.1e-2 m (+4.7 %), EIV 4.5e-4 m with σ 1.2e-2 m.
+/// (With the covariance held at a reference this failed: +13 % … +19 %.)
+/// The η block did not meet the step tolerance in 10 iterations here
+/// (a `NotConverged` warning); θ had settled.
+#[test]
+fn white_noise_drive_beats_batch_gauss_newton_on_t_r() {
+    let out = simulate(&SimOptions {
+        length_km: 8.0,
+        noise: NoiseOptions { wheel_white_rel_sigma: 0.02, ..NoiseOptions::white_wheel_only() },
+        ..SimOptions::paper(3)
+    })
+    .expect("sim");
+    let truth = out.sidecar.theta_true;
+    let gn = batch_gn_all(&out.drive);
+    let input = input_of(&out.drive);
+    let r = estimate(&input, &gn, &EivOptions::default()).expect("eiv");
+    let gn_err = (gn.t_r - truth.t_r).abs();
+    let eiv_err = (r.theta.t_r - truth.t_r).abs();
+    eprintln!(
+        "t_r: G-N {:.5} (err {gn_err:.2e}), EIV {:.5} ± {:.1e} (err {eiv_err:.2e}); {r}",
+        gn.t_r, r.theta.t_r, r.sigma[2]
+    );
+    // G-N is measurably off: more than 3 of EIV's σ.
+    assert!(gn_err > 3.0 * r.sigma[2], "G-N t_r error {gn_err:.2e} not measurable against σ {:.2e}", r.sigma[2]);
+    assert!(eiv_err <= 3.0 * r.sigma[2], "EIV t_r error {eiv_err:.2e} > 3σ = {:.2e}", 3.0 * r.sigma[2]);
+    assert!(eiv_err < gn_err);
+}
+
+#[test]
+fn report_is_identical_for_one_and_two_threads() {
+    let out = simulate(&SimOptions { length_km: 4.0, ..SimOptions::paper(21) }).expect("sim");
+    let input = input_of(&out.drive);
+    let opts = EivOptions { window_samples: 1500, ..Default::default() };
+    let start = Theta { c_e: 1.952, c_d: -0.0018, t_r: 1.54, d: 0.0007 };
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+        let mut r = pool.install(|| estimate(&input, &start, &opts)).expect("eiv");
+        r.timing_s = 0.0;
+        serde_json::to_string(&r).expect("json")
+    };
+    assert_eq!(run(1), run(2));
+}
+
+#[test]
+fn straight_drive_calibrates_c_e_and_names_the_rest() {
+    // A straight, noise-free drive: heading never changes.
+    let n = 4000;
+    let ts = 0.025;
+    let th = Theta::SIM_DEFAULT_TRUE;
+    let (n_rl, n_rr) = crate::model::wheel_rotations(10.0, 0.0, 0.0, &th);
+    let mut px = vec![0.0];
+    let mut py = vec![0.0];
+    let mut psi = vec![0.3];
+    for k in 1..n {
+        let x = crate::model::step(
+            &crate::model::State::new(px[k - 1], py[k - 1], psi[k - 1]),
+            &crate::model::Input { n_rl, n_rr, beta: 0.0, a_y: 0.0 },
+            &th,
+            ts,
+        );
+        px.push(x[0]);
+        py.push(x[1]);
+        psi.push(x[2]);
+    }
+    let (nl, nr, zero) = (vec![n_rl; n], vec![n_rr; n], vec![0.0; n]);
+    let parts = [0..n];
+    let input = EivInput {
+        sample_time_s: ts,
+        parts: &parts,
+        px: &px,
+        py: &py,
+        psi: &psi,
+        n_rl: &nl,
+        n_rr: &nr,
+        beta: &zero,
+        a_y: &zero,
+        reference_measured: None,
+    };
+    let start = Theta { c_e: 1.96, ..th };
+    let r = estimate(&input, &start, &EivOptions::default()).expect("eiv");
+    assert!((r.theta.c_e - th.c_e).abs() < 1e-6, "{r}");
+    assert!(r.observability.unobservable.contains(&Parameter::TR), "{:?}", r.observability);
+    assert!(r.observability.unobservable.contains(&Parameter::D), "{:?}", r.observability);
+    assert!(!r.free[2] && !r.free[3] && r.free[0]);
+    assert!(r.warnings.iter().any(|w| matches!(w, EivWarning::Unobservable { .. })));
+}
+
+#[test]
+fn updates_only_where_the_reference_was_measured() {
+    let out = simulate(&SimOptions { length_km: 1.0, ..SimOptions::paper(2) }).expect("sim");
+    let mut input = input_of(&out.drive);
+    let mask: Vec<bool> = (0..input.len()).map(|k| k % 4 == 0).collect();
+    input.reference_measured = Some(&mask);
+    let w = Window { index: 0, part: 0, start: 0, end: input.len() - 1 };
+    let v = NoiseModel::default().variances(&[0.0; 5], input.sample_time_s);
+    let th = Theta::SIM_DEFAULT_TRUE;
+    let s = run_window(&input, &w, &th, &th, &v, filter::Mode::full(false, false), None).expect("window");
+    assert_eq!(s.updates, (1..input.len()).filter(|k| k % 4 == 0).count());
+}
