@@ -44,6 +44,7 @@ use std::str::FromStr;
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix3x2, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
+#[cfg(any(test, feature = "test-fixtures"))]
 use crate::model::{step_jacobians, Input, Theta};
 
 /// One instance of the compensation QP. Vectors indexed by stage hold, at
