@@ -110,10 +110,11 @@
 //! is then not taken) or after 10 iterations; with the covariance held it
 //! runs twice (the second pass with the reference at the first result).
 //!
-//! Speed (24 km paper drive, 65 152 samples, 2 cores, measured while other
-//! jobs ran): batch G-N 1.3 s; following θ with a fixed noise model 1.2 s
-//! (3 filter passes); with η estimated 14 s (11 passes, the η block
-//! converges slowly); held 45 s (34 passes).
+//! Speed (24 km paper drive, 65 152 samples, 2 cores, `eiv_check`): batch
+//! G-N 0.55 s; following θ with a fixed noise model 0.83 s (3 filter
+//! passes); following θ with η estimated 4.4 s (11 passes: the η block
+//! converges slowly and carries 5 more covariance derivatives); held with a
+//! fixed noise model 4.1 s (21 passes).
 //!
 //! Uncertainty is `H_θ⁻¹` at the estimate (and a sandwich
 //! `H_θ⁻¹ B H_θ⁻¹`, B the outer products of the per-update scores, in
