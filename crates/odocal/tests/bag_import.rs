@@ -1,7 +1,6 @@
 //! `format = "mcap"` manifests through the importer: the shipped slice bag,
 //! and the full PSU mapping-van bag against the CSV manifest that uses the
 //! same clocks (`examples/psu-mapping-van/manifest-ros-time.toml`).
-#![cfg(feature = "mcap")]
 
 use odocal::{import, Manifest};
 use std::path::{Path, PathBuf};
@@ -28,6 +27,7 @@ fn load(rel: &str) -> Manifest {
 /// - positions are stored bit-exact (MCAP.md), so they agree exactly; the
 ///   times are the same decimal `ros_time_s` parsed to the nearest f64 in
 ///   both readers, so the de-jittering, clock offset and the parts agree.
+#[cfg(feature = "mcap")]
 #[test]
 fn full_bag_imports_as_the_ros_time_csv_manifest() {
     let bag = root().join("../shared/data/psu-mapping-van-2024-07-11/drive.mcap");
@@ -47,7 +47,7 @@ fn full_bag_imports_as_the_ros_time_csv_manifest() {
         "clock offset"
     );
     let max_diff = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(p, q)| (p - q).abs()).fold(0.0, f64::max);
-    assert_eq!(max_diff(a.t(), b.t()), 0.0, "time");
+    assert!(a.t().iter().zip(b.t()).all(|(p, q)| p.to_bits() == q.to_bits()), "times differ");
     let pos = max_diff(a.px(), b.px()).max(max_diff(a.py(), b.py()));
     assert!(pos <= 1e-3, "positions differ by {pos} m");
     let wheels = max_diff(a.n_rl(), b.n_rl()).max(max_diff(a.n_rr(), b.n_rr()));
@@ -62,6 +62,7 @@ fn full_bag_imports_as_the_ros_time_csv_manifest() {
 /// The shipped 120 s slice bag imports: both wheels, the pose, its quality
 /// threshold; and `time = "log"` gives the same drive (this bag's log time is
 /// its header stamp).
+#[cfg(feature = "mcap")]
 #[test]
 fn slice_bag_imports() {
     let text = r#"
@@ -111,4 +112,78 @@ quality = { column = "cov_x", max = 0.01 }
     let log = run("log");
     assert_eq!(log.drive.parts(), d.parts());
     assert_eq!(log.drive.px(), d.px());
+}
+
+/// A two-stream manifest with the stream keys `wheels_keys` and the pose
+/// quality table `quality`.
+fn small_manifest(wheels_keys: &str, quality: &str) -> String {
+    format!(
+        r#"
+[streams.wheels]
+{wheels_keys}
+
+[streams.pose]
+file = "p.csv"
+time_column = "t"
+
+[wheels]
+stream = "wheels"
+signal = "rad_cumulative"
+rear_left = {{ column = "l" }}
+rear_right = {{ column = "r" }}
+
+[pose]
+stream = "pose"
+position = {{ kind = "local", x = "x", y = "y" }}
+{quality}
+"#
+    )
+}
+
+fn parse_err(text: &str) -> String {
+    match Manifest::parse(text, Path::new("m.toml")) {
+        Ok(_) => panic!("expected an error for:\n{text}"),
+        Err(e) => e.to_string(),
+    }
+}
+
+#[test]
+fn mcap_stream_keys_are_checked() {
+    let mcap = "format = \"mcap\"\nfile = \"b.mcap\"\ntopic = \"/w\"";
+    let ok = Manifest::parse(&small_manifest(&format!("{mcap}\ntime = \"log\""), ""), Path::new("m.toml"));
+    assert!(ok.is_ok(), "{ok:?}");
+    let e = parse_err(&small_manifest(&format!("{mcap}\ntime_column = \"t\""), ""));
+    assert!(e.contains("`time_column` is not for format = \"mcap\"") && e.contains("time = \"log\""), "{e}");
+    let e = parse_err(&small_manifest("file = \"w.csv\"\ntime_column = \"t\"\ntime = \"log\"", ""));
+    assert!(e.contains("`time` is only for format = \"mcap\""), "{e}");
+    let e = parse_err(&small_manifest(&format!("{mcap}\ntime = \"gps\""), ""));
+    assert!(e.contains("streams.wheels") && e.contains("gps"), "{e}");
+}
+
+#[test]
+fn quality_thresholds() {
+    let csv = "file = \"w.csv\"\ntime_column = \"t\"";
+    let e = parse_err(&small_manifest(csv, "quality = { column = \"q\" }"));
+    assert!(e.contains("pose.quality.accept: no accepted values given"), "{e}");
+    let e = parse_err(&small_manifest(csv, "quality = { column = \"q\", max = nan }"));
+    assert!(e.contains("pose.quality.max: must be a finite number"), "{e}");
+    let m =
+        Manifest::parse(&small_manifest(csv, "quality = { column = \"q\", max = 0.01, min = 0 }"), Path::new("m.toml"))
+            .expect("manifest");
+    let q = m.pose.quality.expect("quality");
+    assert!(q.accepts(0.0004) && q.accepts(0.01) && q.accepts(0.0));
+    assert!(!q.accepts(100.0) && !q.accepts(-1.0) && !q.accepts(f64::NAN));
+    let both = odocal::import::QualitySpec { column: "q".into(), accept: vec![2.0], max: Some(1.5), min: None };
+    assert!(!both.accepts(2.0), "every given test must pass");
+}
+
+/// Without the `mcap` feature a bag stream is an error naming the feature.
+#[cfg(not(feature = "mcap"))]
+#[test]
+fn mcap_stream_without_the_feature_says_so() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/psu-mapping-van");
+    let text = small_manifest("format = \"mcap\"\nfile = \"drive-slice.mcap\"\ntopic = \"/w\"", "");
+    let m = Manifest::parse(&text, &dir.join("m.toml")).expect("manifest");
+    let e = import(&m).err().map(|e| e.to_string()).unwrap_or_default();
+    assert!(e.contains("cargo feature `mcap`") && e.contains("this build lacks"), "{e}");
 }

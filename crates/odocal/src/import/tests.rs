@@ -501,7 +501,8 @@ fn stream_format_is_tagged_with_csv_by_default() {
     let explicit = text.replacen("file = \"w.csv\"", "format = \"csv\"\nfile = \"w.csv\"", 1);
     assert_eq!(Manifest::parse(&explicit, &path).expect("explicit csv").streams, m.streams);
     // MCAP needs a topic; the topic is only for MCAP.
-    let mcap = text.replacen("file = \"w.csv\"", "format = \"mcap\"\nfile = \"w.mcap\"", 1);
+    // (A bag stream takes its time from the messages: no time_column.)
+    let mcap = text.replacen("file = \"w.csv\"\ntime_column = \"t\"", "format = \"mcap\"\nfile = \"w.mcap\"", 1);
     let e = Manifest::parse(&mcap, &path).expect_err("no topic").to_string();
     assert!(e.contains("streams.wheels") && e.contains("`topic` is required for format = \"mcap\""), "{e}");
     let e = Manifest::parse(&text.replacen("file = \"w.csv\"", "file = \"w.csv\"\ntopic = \"/w\"", 1), &path)
@@ -512,12 +513,16 @@ fn stream_format_is_tagged_with_csv_by_default() {
         .expect_err("unknown format")
         .to_string();
     assert!(e.contains("streams.wheels.format") && e.contains("hdf5"), "{e}");
-    // A parsed MCAP stream (time column optional) is answered by the reader seam.
+    // A parsed MCAP stream goes to the bag reader (here: no such file).
     let mcap = mcap.replacen("format = \"mcap\"", "format = \"mcap\"\ntopic = \"/wheels\"", 1);
     let m = Manifest::parse(&mcap, &path).expect("mcap manifest");
-    assert_eq!(m.streams["wheels"].source, SourceSpec::Mcap { file: "w.mcap".into(), topic: "/wheels".into() });
-    let e = import(&m).map(|_| ()).expect_err("no mcap reader").to_string();
-    assert!(e.contains("streams.wheels.format: \"mcap\""), "{e}");
+    let time = crate::import::manifest::BagTime::Header;
+    assert_eq!(m.streams["wheels"].source, SourceSpec::Mcap { file: "w.mcap".into(), topic: "/wheels".into(), time });
+    let e = import(&m).map(|_| ()).expect_err("no such bag").to_string();
+    #[cfg(feature = "mcap")]
+    assert!(e.contains("streams.wheels.file: ") && e.contains("w.mcap"), "{e}");
+    #[cfg(not(feature = "mcap"))]
+    assert!(e.contains("streams.wheels.format: \"mcap\" streams need odocal built with the cargo feature"), "{e}");
 }
 
 #[test]
