@@ -8,7 +8,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::harness::{self, Outcome};
+use common::harness;
 use proptest::prelude::*;
 
 fn corpus() -> Vec<PathBuf> {
