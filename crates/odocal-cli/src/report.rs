@@ -8,6 +8,10 @@ fn row(out: &mut String, name: &str, unit: &str, values: &[Option<f64>], scale: 
     let _ = write!(out, "  {name:<4} {unit:<14}");
     for v in values {
         match v {
+            // A σ of NaN marks a parameter held at θ_0 (not estimated).
+            Some(v) if v.is_nan() => {
+                let _ = write!(out, " {:>13}", "held");
+            }
             Some(v) => {
                 let _ = write!(out, " {:>13.*}", prec, v * scale);
             }
@@ -69,11 +73,21 @@ pub fn verdict(v: &Verdict) -> String {
 pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_scale: Option<&str>) -> String {
     let mut out = String::new();
     let _ = writeln!(out, "odocal calibrate — method {}", r.method);
-    let _ = writeln!(
-        out,
-        "segments: {} cut, {} selected (peak yaw rate > {} rad/s), {} validation",
-        r.segments.cut, r.segments.selected, r.options.segments.min_peak_yaw_rate_rad_per_s, r.segments.validation
-    );
+    let used = r.identification().map(|id| id.segments);
+    if used == Some(r.segments.cut) && r.segments.selected < r.segments.cut {
+        // --auto-fix on a drive without turns, or --min-yaw-rate 0: no selection happened.
+        let _ = writeln!(
+            out,
+            "segments: {} cut, all used (no yaw-rate selection), {} validation",
+            r.segments.cut, r.segments.validation
+        );
+    } else {
+        let _ = writeln!(
+            out,
+            "segments: {} cut, {} selected (peak yaw rate > {} rad/s), {} validation",
+            r.segments.cut, r.segments.selected, r.options.segments.min_peak_yaw_rate_rad_per_s, r.segments.validation
+        );
+    }
     if let (Some(s), Method::ThreeStep(o)) = (r.initial_step(), &r.options.method) {
         let _ = writeln!(
             out,
@@ -110,7 +124,17 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
     }
     out.push('\n');
     let mut cols = vec![("θ_0", Some(r.initial.theta)), ("calibrated", Some(r.theta))];
-    cols.push(("± 1σ (model)", Some(r.std_dev())));
+    // Held parameters print "held", not a σ of 0.
+    let sd = r.std_dev().to_array();
+    let free = r.options.identify.free;
+    let sigma: [f64; 4] = std::array::from_fn(|i| {
+        if odocal::Param::from_index(i).is_some_and(|p| free.contains(p)) {
+            sd[i]
+        } else {
+            f64::NAN
+        }
+    });
+    cols.push(("± 1σ (model)", Some(Theta { c_e: sigma[0], c_d: sigma[1], t_r: sigma[2], d: sigma[3] })));
     if let Some((t, _)) = truth {
         cols.push(("truth", Some(*t)));
     }
