@@ -24,20 +24,8 @@ use odocal::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{Drive, Theta};
 
-/// The one place that reads a Drive's columns.
 fn input_of(d: &Drive) -> EivInput<'_> {
-    EivInput {
-        sample_time_s: d.sample_time_s(),
-        parts: d.parts(),
-        px: d.px(),
-        py: d.py(),
-        psi: d.psi(),
-        n_rl: d.n_rl(),
-        n_rr: d.n_rr(),
-        beta: d.beta(),
-        a_y: d.a_y(),
-        reference_measured: d.reference_measured(),
-    }
+    EivInput::from_drive(d)
 }
 
 fn batch_gn(d: &Drive) -> Result<Theta, odocal::Error> {

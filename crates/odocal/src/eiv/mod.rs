@@ -184,7 +184,24 @@ pub struct EivInput<'a> {
     pub reference_measured: Option<&'a [bool]>,
 }
 
-impl EivInput<'_> {
+impl<'a> EivInput<'a> {
+    /// The columns of a checked [`Drive`](crate::Drive), its parts and its
+    /// reference mask.
+    pub fn from_drive(d: &'a crate::Drive) -> Self {
+        EivInput {
+            sample_time_s: d.sample_time_s(),
+            parts: d.parts(),
+            px: d.px(),
+            py: d.py(),
+            psi: d.psi(),
+            n_rl: d.n_rl(),
+            n_rr: d.n_rr(),
+            beta: d.beta(),
+            a_y: d.a_y(),
+            reference_measured: d.reference_measured(),
+        }
+    }
+
     /// Number of samples.
     pub fn len(&self) -> usize {
         self.px.len()

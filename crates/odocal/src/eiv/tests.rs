@@ -5,20 +5,8 @@ use crate::identify::{batch_gauss_newton, IdentifyOptions};
 use crate::segment::{calibration_segments, SegmentData, SegmentOptions};
 use crate::sim::{simulate, NoiseOptions, SimOptions};
 
-/// The one place that reads a Drive's columns (Drive is being refactored).
 fn input_of(d: &Drive) -> EivInput<'_> {
-    EivInput {
-        sample_time_s: d.sample_time_s(),
-        parts: d.parts(),
-        px: d.px(),
-        py: d.py(),
-        psi: d.psi(),
-        n_rl: d.n_rl(),
-        n_rr: d.n_rr(),
-        beta: d.beta(),
-        a_y: d.a_y(),
-        reference_measured: d.reference_measured(),
-    }
+    EivInput::from_drive(d)
 }
 
 /// Batch Gauss-Newton on every cut segment (no yaw-rate selection).
