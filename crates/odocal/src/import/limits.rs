@@ -8,6 +8,7 @@
 //! | `output.max_clock_offset_s` | [`MAX_CLOCK_OFFSET_S`] = 60 s | larger means a wrong time column, unit or offset |
 //! | clock search work (grid samples × lags) | [`MAX_CORRELATION_WORK`] = 4·10⁹ | seconds, not hours |
 //! | `streams.*.nominal_rate_hz` | [`MAX_NOMINAL_RATE_HZ`] = 100 kHz, and at most [`MAX_NOMINAL_OVER_MEAN_RATE`] × the stream's mean rate | de-jittering assigns one index per nominal period |
+//! | values read from one Parquet stream (declared rows × columns read) | [`MAX_STREAM_VALUES`] = 10⁸ | 800 MB of f64; a CSV stream is bounded by its file's size |
 //! | `streams.*.dejitter_window_s` | [`MAX_DEJITTER_WINDOW_S`] = 60 s and [`MAX_DEJITTER_HALF_WINDOW`] = 5,000 samples each side | the local fit costs the window per sample |
 //!
 //! The physical limits (speed, lateral acceleration) are in the manifest's
@@ -36,6 +37,9 @@ pub const MAX_NOMINAL_OVER_MEAN_RATE: f64 = 20.0;
 pub const MAX_DEJITTER_WINDOW_S: f64 = 60.0;
 /// Most samples each side of the de-jitter window.
 pub const MAX_DEJITTER_HALF_WINDOW: usize = 5_000;
+/// Most values (rows × columns read) one Parquet stream may declare; checked
+/// before any is read.
+pub const MAX_STREAM_VALUES: usize = 100_000_000;
 /// Characters of a value echoed in a message.
 pub(crate) use crate::drive::echo;
 

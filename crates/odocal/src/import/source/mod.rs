@@ -17,13 +17,17 @@
 //!    where it needs a dependency.
 //!
 //! `format = "mcap"` (a ROS 2 bag topic, `topic = "/wheels"`, read by
-//! `source/mcap.rs` when the `mcap` feature is on, the default) is the
-//! example. `format = "parquet"` is accepted by the manifest and answered
-//! with an error naming the key until its reader lands.
+//! `source/mcap.rs` when the `mcap` feature is on, the default) and
+//! `format = "parquet"` (columns named as for CSV, read by
+//! `source/parquet.rs` when the `parquet` feature is on, off by default) are
+//! the examples; without its feature a format is answered with an error that
+//! names the feature.
 
 mod csv;
 #[cfg(feature = "mcap")]
 mod mcap;
+#[cfg(feature = "parquet")]
+mod parquet;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -84,9 +88,17 @@ pub(crate) fn read_table(m: &Manifest, name: &str, wanted: &[Wanted]) -> Result<
             "\"mcap\" streams need odocal built with the cargo feature `mcap` (on by default), which this \
              build lacks; rebuild with `--features mcap` or export the topic to CSV",
         )),
+        #[cfg(feature = "parquet")]
+        SourceSpec::Parquet { file } => {
+            let time = spec.time_column.as_deref().unwrap_or_default();
+            parquet::read(m, name, &m.base_dir().join(file), time, spec.time_unit, wanted)
+        }
+        #[cfg(not(feature = "parquet"))]
         SourceSpec::Parquet { .. } => Err(m.error(
             &format!("streams.{name}.format"),
-            "\"parquet\" streams are not readable by this build yet; export the table to CSV",
+            "\"parquet\" streams need odocal built with the cargo feature `parquet` (off by default), which this \
+             build lacks; rebuild with `--features parquet` (the CLI: `cargo install --path crates/odocal-cli \
+             --features parquet`) or export the table to CSV",
         )),
     }
 }
