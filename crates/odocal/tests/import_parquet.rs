@@ -139,10 +139,15 @@ convention = "enu"
         assert!(e.contains("streams.pose.time_column: column 'stamp' not found"), "{e}");
     }
 
-    /// `bad.parquet` has a double time `t_s` and columns of every refused kind.
+    /// Pose columns of `bad.parquet`: x from `x`, y from `t_s`.
+    fn bad_pose(x: &str) -> String {
+        format!("[pose.position]\nkind = \"local\"\nx = \"{x}\"\ny = \"t_s\"\n")
+    }
+
+    /// `bad.parquet` has a double time `t_s` and columns of every refused
+    /// kind; the import of its `column` as the pose's x fails with this.
     fn bad_column(column: &str) -> String {
-        let (_d, m) =
-            van_with_pose(&pose_stream(&data("parquet/bad.parquet"), "t_s"), &VAN_POSE.replace("x_east_m", column));
+        let (_d, m) = van_with_pose(&pose_stream(&data("parquet/bad.parquet"), "t_s"), &bad_pose(column));
         import_err(&m)
     }
 
@@ -181,25 +186,22 @@ convention = "enu"
         // float32 `speed` and the timestamp time pass the column checks and
         // fail later for what they hold (4 rows, 0.3 s), not for their type.
         let e = bad_column("speed");
-        assert!(!e.contains("not a number") && !e.contains("not found"), "{e}");
+        assert!(e.contains("do not overlap in time") && e.contains("streams.pose (pose) t = 0 … 0.3 s"), "{e}");
     }
 
     #[test]
     fn timestamp_time_column_needs_its_unit() {
         let file = data("parquet/bad.parquet");
-        let (_d, m) = van_with_pose(&pose_stream(&file, "t_ns"), &VAN_POSE.replace("x_east_m", "t_s"));
+        let (_d, m) = van_with_pose(&pose_stream(&file, "t_ns"), &bad_pose("t_s"));
         let e = import_err(&m);
         assert!(
             e.contains("streams.pose.time_column: column 't_ns' of ")
                 && e.contains("is a timestamp in ns: set time_unit = \"ns\""),
             "{e}"
         );
-        let (_d, m) = van_with_pose(
-            &format!("{}\ntime_unit = \"ns\"", pose_stream(&file, "t_ns")),
-            &VAN_POSE.replace("x_east_m", "t_s"),
-        );
+        let (_d, m) = van_with_pose(&format!("{}\ntime_unit = \"ns\"", pose_stream(&file, "t_ns")), &bad_pose("t_s"));
         let e = import_err(&m);
-        assert!(!e.contains("timestamp"), "{e}");
+        assert!(e.contains("do not overlap in time") && e.contains("streams.pose (pose) t = 0 … 0.3"), "{e}");
     }
 
     #[test]

@@ -90,7 +90,8 @@ pub(super) fn read(
         if plans.iter().any(|p| p.name == column) {
             continue;
         }
-        let Some(leaf) = leaves.iter().position(|d| d.path().parts() == [column]) else {
+        // A list or struct `column` is found (its first leaf) and refused below.
+        let Some(leaf) = leaves.iter().position(|d| d.path().parts().first().is_some_and(|p| p == column)) else {
             return Err(m.error(
                 key,
                 format!("column '{}' not found in {shown}; columns found: {}", echo(column), list_columns(leaves)),
@@ -297,7 +298,7 @@ fn describe(d: &ColumnDescriptor) -> String {
         return "a list".into();
     }
     if d.path().parts().len() != 1 {
-        return "a field of a struct".into();
+        return "a struct".into();
     }
     let unit = |u: &PqTimeUnit| match u {
         PqTimeUnit::MILLIS => "ms",
@@ -323,12 +324,23 @@ fn describe(d: &ColumnDescriptor) -> String {
     }
 }
 
-/// The file's columns for a message: at most 30, each with its type.
+/// The file's top-level columns for a message: at most 30, each with its
+/// type (a list or struct once, by its first leaf).
 fn list_columns(leaves: &[std::sync::Arc<ColumnDescriptor>]) -> String {
-    let mut out: Vec<String> =
-        leaves.iter().take(30).map(|d| format!("{} ({})", echo(&d.path().string()), describe(d))).collect();
-    if leaves.len() > 30 {
-        out.push(format!("… ({} columns)", leaves.len()));
+    let mut seen: Vec<&str> = Vec::new();
+    let mut out: Vec<String> = Vec::new();
+    for d in leaves {
+        let top = d.path().parts().first().map(String::as_str).unwrap_or_default();
+        if seen.contains(&top) {
+            continue;
+        }
+        seen.push(top);
+        if out.len() < 30 {
+            out.push(format!("{} ({})", echo(top), describe(d)));
+        }
+    }
+    if seen.len() > 30 {
+        out.push(format!("… ({} columns)", seen.len()));
     }
     out.join(", ")
 }
