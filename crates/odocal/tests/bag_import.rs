@@ -5,10 +5,12 @@
 use odocal::{import, Manifest};
 use std::path::{Path, PathBuf};
 
+#[cfg(feature = "mcap")]
 fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
 
+#[cfg(feature = "mcap")]
 fn load(rel: &str) -> Manifest {
     let p = root().join(rel);
     Manifest::from_path(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
