@@ -3,7 +3,9 @@
 //! same clocks (`examples/psu-mapping-van/manifest-ros-time.toml`).
 
 use odocal::{import, Manifest};
-use std::path::{Path, PathBuf};
+use std::path::Path;
+#[cfg(feature = "mcap")]
+use std::path::PathBuf;
 
 #[cfg(feature = "mcap")]
 fn root() -> PathBuf {

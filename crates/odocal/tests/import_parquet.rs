@@ -80,7 +80,7 @@ convention = "enu"
     }
 
     fn import_err(m: &Manifest) -> String {
-        import(m).err().expect("the import must fail").to_string()
+        import(m).expect_err("the import must fail").to_string()
     }
 
     fn bits(v: &[f64]) -> Vec<u64> {
@@ -218,7 +218,7 @@ convention = "enu"
 #[cfg(not(feature = "parquet"))]
 #[test]
 fn without_the_feature_parquet_asks_for_it() {
-    let e = import(&manifest("parquet/manifest.toml")).err().expect("no parquet reader").to_string();
+    let e = import(&manifest("parquet/manifest.toml")).expect_err("no parquet reader").to_string();
     assert!(
         e.contains("streams.encoders.format")
             && e.contains("--features parquet")

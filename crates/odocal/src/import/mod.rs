@@ -89,7 +89,7 @@
 //! theta0 = [2.0, 0.0, 1.6, 0.0]  # θ_0 for speeds / a_y from wheels (default)
 //!
 //! [streams.encoders]          # one table per file; the name is yours
-//! format = "csv"              # csv (default) | mcap (with topic = "/...") | parquet
+//! format = "csv"              # csv (default) | mcap (with topic = "/...") | parquet (feature `parquet`)
 //! file = "data/encoders.csv"
 //! time_column = "stamp"
 //! time_unit = "ns"            # s | ms | us | ns (default s)
