@@ -187,15 +187,13 @@ pub(super) fn read(
         first_row += n;
     }
 
-    let mut by_name: BTreeMap<&str, Vec<f64>> = plans.iter().map(|p| p.name).zip(data).collect();
+    let by_name: BTreeMap<&str, Vec<f64>> = plans.iter().map(|p| p.name).zip(data).collect();
     let t_s = by_name.get(time).cloned().unwrap_or_default();
-    let mut columns = BTreeMap::new();
-    for w in wanted {
-        if let Some(v) = by_name.get(w.column.as_str()) {
-            columns.insert(w.column.clone(), v.clone());
-        }
-    }
-    by_name.clear();
+    let columns: BTreeMap<String, Vec<f64>> = by_name
+        .into_iter()
+        .filter(|(c, _)| wanted.iter().any(|w| w.column == *c))
+        .map(|(c, v)| (c.to_string(), v))
+        .collect();
     Ok(Table { t_s, columns, source: shown.to_string(), lines: None })
 }
 
