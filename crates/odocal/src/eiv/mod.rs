@@ -48,25 +48,32 @@
 //!   squares on increments with a noisy regressor — attenuation bias, t_r
 //!   too large — which the corrected score below only partly removes.
 //!
-//! Measured (`examples/eiv_check.rs`, 12 km, seeds 1–5, error mean ± sd;
-//! CRB σ from [`cramer_rao_bound`]; "known" = the simulator's noise model
-//! from [`NoiseModel::from_sim`], fixed; "est." = η estimated from
-//! [`NoiseModel::PRODUCTION_CAR`]):
+//! Measured (`examples/study_eiv.rs`, 12 km, seeds 1–20, error mean ± sd;
+//! CRB σ from [`cramer_rao_bound`], full Fisher information; "known" = the
+//! simulator's noise model from [`NoiseModel::from_sim`], fixed; "est." =
+//! η estimated from [`NoiseModel::PRODUCTION_CAR`]; "boot" = known minus
+//! the [`bootstrap`] bias, B = 10, seeds 1–8; docs/study.md has the rest):
 //!
-//! | preset | batch G-N t_r % | held, known | follows, known | follows, est. | CRB | follows, known c_e % (CRB) |
-//! |---|---|---|---|---|---|---|
-//! | white | +1.58 ± 0.84 | +0.60 ± 0.49 | +0.19 ± 0.22 | +0.13 ± 0.23 | 0.26 | +0.009 ± 0.003 (0.003) |
-//! | paper | +1.93 ± 0.96 | +1.29 ± 0.58 | +0.38 ± 0.31 | +3.66 ± 1.10 | 0.28 | +0.093 ± 0.028 (0.024) |
-//! | high  | +10.4 ± 3.9  | +11.1 ± 3.1  | +3.08 ± 1.06 | +105 ± 44    | 0.44 | +0.57 ± 0.07 (0.06) |
+//! | preset | batch G-N t_r % | follows, known | follows, est. | CRB | known c_e % | known + boot c_e % | c_e CRB |
+//! |---|---|---|---|---|---|---|---|
+//! | white | +1.11 ± 0.73 | +0.10 ± 0.24 | +0.01 ± 0.26 | 0.21 | +0.010 ± 0.003 | – | 0.003 |
+//! | paper | +1.37 ± 0.82 | +0.39 ± 0.30 | +4.04 ± 1.02 | 0.23 | +0.087 ± 0.029 | +0.014 ± 0.023 | 0.024 |
+//! | high  | +8.2 ± 3.6   | +3.3 ± 1.2   | +122 ± 33    | 0.29 | +0.55 ± 0.07 | – | 0.059 |
+//! | coloured wheel, perfect reference | +1.32 ± 0.81 | +0.14 ± 0.26 | +0.05 ± 0.25 | 0.22 | +0.098 ± 0.026 | +0.016 ± 0.029 | 0.019 |
 //!
+//! (Earlier, 5 seeds: the covariance held at a reference with the known
+//! noise gave t_r +0.60 / +1.29 / +11.1 % on white / paper / high.)
 //! Following θ removes most of the t_r bias when the noise model is right
-//! (white, paper), but leaves +3 % under high noise and adds a c_e bias of
-//! about `2σ²` of the relative input noise (white 0.009 %, paper 0.09 %,
-//! high 0.57 %; the coloured-noise correction is about half effective in
-//! this mode). With the production-car starting model (τ_w = 0.25 s,
-//! τ_c = 2 s against the simulator's 5 s) the estimated η absorbs the
-//! mismatch and t_r is biased again (paper +3.7 %, high +105 %); the held
-//! mode with estimated η is no better (+4.5 %, +15 %).
+//! (white, coloured; RMS 1.2–1.3× the CRB), less under paper (+0.4 %) and
+//! high (+3 %) noise, whose slip, drift and a_y/β noise the model holds
+//! only approximately. It adds a c_e bias of about `2σ²` of the relative
+//! input noise (the noise is scaled by the measured inputs; the
+//! coloured-noise correction is about half effective in this mode), which
+//! the bootstrap bias correction removes (paper +0.087 → +0.014 %). With
+//! the production-car starting model (τ_w = 0.25 s, τ_c = 2 s against the
+//! simulator's 5 s) the estimated η absorbs the mismatch and t_r is biased
+//! again (paper +4 %, high +122 %): estimating η from a wrong-τ start is
+//! not safe.
 //!
 //! ## The objective
 //!
