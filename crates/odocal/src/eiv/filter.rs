@@ -89,6 +89,13 @@ pub(crate) struct WindowSums {
     pub h_theta: nalgebra::Matrix4<f64>,
     /// Fisher information of η: Σ (∂ν/∂η)ᵀS⁻¹(∂ν/∂η) + ½ tr(S⁻¹∂S S⁻¹∂S).
     pub i_eta: M5,
+    /// Gaussian Fisher information of `p = [θ, η]` with both terms,
+    /// `Σ (∂ν/∂p_i)ᵀS⁻¹(∂ν/∂p_j) + ½ tr(S⁻¹∂S_i S⁻¹∂S_j)` (the trace term
+    /// only over the columns whose `∂S` is propagated: θ when the covariance
+    /// follows θ, η when η derivatives are on).
+    pub info: M9,
+    /// Mean-only information of θ, `Σ (∂ν/∂θ)ᵀS⁻¹(∂ν/∂θ)` (no `∂S/∂θ` term).
+    pub info_mean_theta: nalgebra::Matrix4<f64>,
     /// Measurement updates.
     pub updates: usize,
     /// Per component of the whitened innovation: Σ e_k e_{k−1}.
@@ -111,6 +118,8 @@ impl WindowSums {
             opg: nalgebra::Matrix4::zeros(),
             h_theta: nalgebra::Matrix4::zeros(),
             i_eta: M5::zeros(),
+            info: M9::zeros(),
+            info_mean_theta: nalgebra::Matrix4::zeros(),
             updates: 0,
             lag1: [0.0; 3],
             e2: [0.0; 3],
@@ -127,6 +136,8 @@ impl WindowSums {
         self.opg += o.opg;
         self.h_theta += o.h_theta;
         self.i_eta += o.i_eta;
+        self.info += o.info;
+        self.info_mean_theta += o.info_mean_theta;
         self.updates += o.updates;
         self.bias += o.bias;
         for c in 0..3 {
@@ -761,6 +772,7 @@ pub(crate) fn run_window(
             out.grad_profile -= gnu;
             let sh = sinv * hd;
             let mut info = hd.transpose() * sh;
+            out.info_mean_theta += info.fixed_view::<4, 4>(0, 0);
             let mut ds = [Matrix3::zeros(); NP];
             let mut a = [Matrix3::zeros(); NP];
             let mut g_t = nalgebra::Vector4::<f64>::zeros();
@@ -812,6 +824,7 @@ pub(crate) fn run_window(
                 out.h_theta += info.fixed_view::<4, 4>(0, 0);
             }
             out.i_eta += info.fixed_view::<NETA, NETA>(4, 4);
+            out.info += info;
             out.opg += g_t * g_t.transpose();
             if corrected {
                 for (ci, xi) in xcov.iter_mut().enumerate() {

@@ -48,25 +48,32 @@
 //!   squares on increments with a noisy regressor — attenuation bias, t_r
 //!   too large — which the corrected score below only partly removes.
 //!
-//! Measured (`examples/eiv_check.rs`, 12 km, seeds 1–5, error mean ± sd;
-//! CRB σ from [`cramer_rao_bound`]; "known" = the simulator's noise model
-//! from [`NoiseModel::from_sim`], fixed; "est." = η estimated from
-//! [`NoiseModel::PRODUCTION_CAR`]):
+//! Measured (`examples/study_eiv.rs`, 12 km, seeds 1–20, error mean ± sd;
+//! CRB σ from [`cramer_rao_bound`], full Fisher information; "known" = the
+//! simulator's noise model from [`NoiseModel::from_sim`], fixed; "est." =
+//! η estimated from [`NoiseModel::PRODUCTION_CAR`]; "boot" = known minus
+//! the [`bootstrap`] bias, B = 10, seeds 1–8; docs/study.md has the rest):
 //!
-//! | preset | batch G-N t_r % | held, known | follows, known | follows, est. | CRB | follows, known c_e % (CRB) |
-//! |---|---|---|---|---|---|---|
-//! | white | +1.58 ± 0.84 | +0.60 ± 0.49 | +0.19 ± 0.22 | +0.13 ± 0.23 | 0.26 | +0.009 ± 0.003 (0.003) |
-//! | paper | +1.93 ± 0.96 | +1.29 ± 0.58 | +0.38 ± 0.31 | +3.66 ± 1.10 | 0.28 | +0.093 ± 0.028 (0.024) |
-//! | high  | +10.4 ± 3.9  | +11.1 ± 3.1  | +3.08 ± 1.06 | +105 ± 44    | 0.44 | +0.57 ± 0.07 (0.06) |
+//! | preset | batch G-N t_r % | follows, known | follows, est. | CRB | known c_e % | known + boot c_e % | c_e CRB |
+//! |---|---|---|---|---|---|---|---|
+//! | white | +1.11 ± 0.73 | +0.10 ± 0.24 | +0.01 ± 0.26 | 0.21 | +0.010 ± 0.003 | – | 0.003 |
+//! | paper | +1.37 ± 0.82 | +0.39 ± 0.30 | +4.04 ± 1.02 | 0.23 | +0.087 ± 0.029 | +0.014 ± 0.023 | 0.024 |
+//! | high  | +8.2 ± 3.6   | +3.3 ± 1.2   | +122 ± 33    | 0.29 | +0.55 ± 0.07 | – | 0.059 |
+//! | coloured wheel, perfect reference | +1.32 ± 0.81 | +0.14 ± 0.26 | +0.05 ± 0.25 | 0.22 | +0.098 ± 0.026 | +0.016 ± 0.029 | 0.019 |
 //!
+//! (Earlier, 5 seeds: the covariance held at a reference with the known
+//! noise gave t_r +0.60 / +1.29 / +11.1 % on white / paper / high.)
 //! Following θ removes most of the t_r bias when the noise model is right
-//! (white, paper), but leaves +3 % under high noise and adds a c_e bias of
-//! about `2σ²` of the relative input noise (white 0.009 %, paper 0.09 %,
-//! high 0.57 %; the coloured-noise correction is about half effective in
-//! this mode). With the production-car starting model (τ_w = 0.25 s,
-//! τ_c = 2 s against the simulator's 5 s) the estimated η absorbs the
-//! mismatch and t_r is biased again (paper +3.7 %, high +105 %); the held
-//! mode with estimated η is no better (+4.5 %, +15 %).
+//! (white, coloured; RMS 1.2–1.3× the CRB), less under paper (+0.4 %) and
+//! high (+3 %) noise, whose slip, drift and a_y/β noise the model holds
+//! only approximately. It adds a c_e bias of about `2σ²` of the relative
+//! input noise (the noise is scaled by the measured inputs; the
+//! coloured-noise correction is about half effective in this mode), which
+//! the bootstrap bias correction removes (paper +0.087 → +0.014 %). With
+//! the production-car starting model (τ_w = 0.25 s, τ_c = 2 s against the
+//! simulator's 5 s) the estimated η absorbs the mismatch and t_r is biased
+//! again (paper +4 %, high +122 %): estimating η from a wrong-τ start is
+//! not safe.
 //!
 //! ## The objective
 //!
@@ -116,11 +123,25 @@
 //! converges slowly and carries 5 more covariance derivatives); held with a
 //! fixed noise model 4.1 s (21 passes).
 //!
-//! Uncertainty is `H_θ⁻¹` at the estimate (and a sandwich
-//! `H_θ⁻¹ B H_θ⁻¹`, B the outer products of the per-update scores, in
-//! [`EivReport::sigma_sandwich`]); the Cramér–Rao bound
-//! ([`cramer_rao_bound`]) is the same quantity at θ_true with the true noise
-//! model. Observability comes from the same matrix.
+//! Uncertainty is `H_θ⁻¹` at the estimate ([`EivReport::sigma`]), the
+//! sandwich `H_θ⁻¹ B H_θ⁻¹` (B the outer products of the per-update scores,
+//! [`EivReport::sigma_sandwich`]) and the inverse of the Gaussian Fisher
+//! information with both terms, jointly with the estimated η
+//! ([`EivReport::sigma_fisher`]); observability comes from `H_θ`. The
+//! Cramér–Rao bound ([`cramer_rao_bound`]) is the full Fisher information
+//! `Σ (∂ν/∂θ)ᵀS⁻¹(∂ν/∂θ) + ½ tr(S⁻¹∂S/∂θ_i S⁻¹∂S/∂θ_j)` at θ_true with the
+//! true noise model (the covariance following θ); its mean-only part is
+//! reported alongside. The `½ tr` term is information that the size of the
+//! innovations carries about θ when the noise model is known: the wheel
+//! noise in metres scales with the circumferences, which bounds c_e far
+//! below what the increments alone give (see the study table).
+//!
+//! **Parametric bootstrap** ([`bootstrap`]): B re-simulations of the fitted
+//! noise model at θ̂ on the drive's own inputs, re-fitted with the same
+//! options (each replicate seeded on its own, so thread-count independent),
+//! giving percentile and basic intervals, the estimator's bias at θ̂ and the
+//! bias-corrected θ̂ − bias. This is the measured cure of the c_e bias
+//! (below).
 //!
 //! ## Misspecification
 //!
@@ -143,6 +164,7 @@
 //!   estimation and reduction in sensitivity function calculations", IEEE
 //!   TAC 19(6), 1974 (filter sensitivity recursions, Fisher scoring).
 
+mod bootstrap;
 pub(crate) mod filter;
 #[cfg(test)]
 mod tests;
@@ -156,6 +178,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::model::Theta;
+pub use bootstrap::{bootstrap, BootstrapOptions, BootstrapReport};
 use filter::{run_window, Mode, Variances, WindowSums, NETA};
 
 /// The data of a drive as plain slices (all of length N, samples).
@@ -871,6 +894,12 @@ pub struct EivReport {
     /// Standard deviations of the sandwich `H_θ⁻¹ B H_θ⁻¹`, B the sum of the
     /// outer products of the per-update θ-scores (robust to a wrong noise scale).
     pub sigma_sandwich: [f64; 4],
+    /// Standard deviations from the Gaussian Fisher information at the
+    /// estimate with both terms (`½ tr(S⁻¹∂S S⁻¹∂S)` included), jointly
+    /// with the estimated η (θ block of the inverse): the Cramér–Rao form
+    /// of [`cramer_rao_bound`] at θ̂ and the fitted noise. Equal to the
+    /// mean-only information with the covariance held.
+    pub sigma_fisher: [f64; 4],
     /// Estimated log-scale factors η (0 with `fix_noise`).
     pub eta: [f64; 5],
     /// Standard deviations of η (0 when fixed or at a clamp).
@@ -926,13 +955,20 @@ pub struct CrbReport {
     pub theta: Theta,
     /// Which parameters were free.
     pub free: [bool; 4],
-    /// The information `H_θ` (4×4).
+    /// The Gaussian Fisher information of θ with both terms (4×4):
+    /// `Σ (∂ν/∂θ_i)ᵀS⁻¹(∂ν/∂θ_j) + ½ tr(S⁻¹ ∂S/∂θ_i S⁻¹ ∂S/∂θ_j)`, the
+    /// covariance recursion following θ.
     pub information: [[f64; 4]; 4],
     /// Its inverse over the free parameters (zero rows for fixed ones).
     pub covariance: [[f64; 4]; 4],
     /// `sqrt(diag)` of the covariance: the smallest standard deviation an
     /// unbiased estimator can have.
     pub sigma: [f64; 4],
+    /// The mean-only information `Σ (∂ν/∂θ)ᵀS⁻¹(∂ν/∂θ)` (no `∂S/∂θ` term;
+    /// the bound this function returned before, kept for comparison).
+    pub information_mean_only: [[f64; 4]; 4],
+    /// `sqrt(diag)` of the inverse of the mean-only information (≥ `sigma`).
+    pub sigma_mean_only: [f64; 4],
 }
 
 // ---------------------------------------------------------------------------
@@ -1447,6 +1483,11 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
     let sandwich = cov * ev.total.opg * cov;
     let sigma_sandwich: [f64; 4] =
         std::array::from_fn(|i| if free[i] { sandwich[(i, i)].max(0.0).sqrt() } else { 0.0 });
+    let eta_free: [bool; 5] = std::array::from_fn(|j| !opts.fix_noise && eta_sigma[j] > 0.0);
+    let sigma_fisher: [f64; 4] = match fisher_covariance(&ev.total.info, &free, &eta_free) {
+        Some(c) => std::array::from_fn(|i| if free[i] { c[(i, i)].max(0.0).sqrt() } else { 0.0 }),
+        None => [f64::NAN; 4],
+    };
     let observability = observability_of(&ev.total.h_theta, &free, unobservable.clone(), opts);
 
     let mut warnings = Vec::new();
@@ -1507,6 +1548,7 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         covariance: to_array(&cov),
         sigma,
         sigma_sandwich,
+        sigma_fisher,
         eta,
         eta_sigma,
         evaluations: prob.evaluations.get(),
@@ -1558,16 +1600,29 @@ fn halves_check(ev: &Evaluation, theta: &Theta, free: &[bool; 4], follows: bool)
     Some(HalvesCheck { first: t1, second: t2, z })
 }
 
-/// The Cramér–Rao bound of θ for this drive: `H_θ⁻¹` at `theta` (θ_true)
-/// with the filter's covariance at `theta` and the given (true) noise model
-/// unscaled, over the free parameters of `opts`.
+/// The Cramér–Rao bound of θ for this drive: the inverse of the Gaussian
+/// Fisher information at `theta` (θ_true) with the given (true) noise
+/// model unscaled, over the free parameters of `opts`.
 ///
-/// `H_θ = Σ_k (∂ν_k/∂θ)ᵀ S_k⁻¹ (∂ν_k/∂θ)` is the Fisher information of θ
-/// in the innovations form of the state-space likelihood (S held fixed).
+/// The innovations form of the state-space likelihood gives, with the
+/// covariance recursion following θ (S depends on θ through `F_n Σ_n F_nᵀ`),
+///
+/// ```text
+/// I_ij = Σ_k (∂ν_k/∂θ_i)ᵀ S_k⁻¹ (∂ν_k/∂θ_j) + ½ tr(S_k⁻¹ ∂S_k/∂θ_i S_k⁻¹ ∂S_k/∂θ_j)
+/// ```
+///
+/// with the exact sensitivities of the filter. The second term is
+/// information that the size of the innovations carries about θ when the
+/// noise model is known (the wheel noise in metres scales with the wheel
+/// circumferences); the mean-only part is reported too
+/// ([`CrbReport::sigma_mean_only`]). η is not estimated (known noise), so
+/// this is the bound of an estimator that knows the noise model.
 ///
 /// ## References
 /// R. H. Shumway, D. S. Stoffer, *Time Series Analysis and Its
-/// Applications*, §6.3 (innovations form of the Fisher information).
+/// Applications*, §6.3 (innovations form of the likelihood); the Gaussian
+/// Fisher information `I = ∂μᵀΣ⁻¹∂μ + ½ tr(Σ⁻¹∂Σ Σ⁻¹∂Σ)` (e.g. S. M. Kay,
+/// *Fundamentals of Statistical Signal Processing: Estimation Theory*, §3.9).
 pub fn cramer_rao_bound(
     input: &EivInput<'_>,
     theta: &Theta,
@@ -1583,17 +1638,40 @@ pub fn cramer_rao_bound(
         return Err(Error::NoSegments("the Cramér–Rao bound needs a drive part of at least two samples".into()));
     }
     let prob = Problem { input, windows, noise: *noise, evaluations: std::cell::Cell::new([0; 2]) };
-    let ev = prob.evaluate(theta, theta, &[0.0; 5], Mode::full(false, false))?;
-    let h = ev.total.h_theta;
-    let cov = free_inverse(&h, &opts.free).ok_or_else(|| Error::NotObservable {
+    let ev = prob.evaluate(theta, theta, &[0.0; 5], Mode::full(true, false))?;
+    let h: Matrix4<f64> = ev.total.info.fixed_view::<4, 4>(0, 0).into_owned();
+    let h_mean = ev.total.info_mean_theta;
+    let singular = || Error::NotObservable {
         params: (0..4).filter(|i| opts.free[*i]).map(|i| crate::param::Param::THETA[i]).collect(),
         reason: "the information matrix is singular; fix some parameters (EivOptions::free)".into(),
-    })?;
+    };
+    let cov = free_inverse(&h, &opts.free).ok_or_else(singular)?;
+    let cov_mean = free_inverse(&h_mean, &opts.free).ok_or_else(singular)?;
+    let sd = |c: &Matrix4<f64>| std::array::from_fn(|i| if opts.free[i] { c[(i, i)].max(0.0).sqrt() } else { 0.0 });
     Ok(CrbReport {
         theta: *theta,
         free: opts.free,
         information: to_array(&h),
         covariance: to_array(&cov),
-        sigma: std::array::from_fn(|i| if opts.free[i] { cov[(i, i)].max(0.0).sqrt() } else { 0.0 }),
+        sigma: sd(&cov),
+        information_mean_only: to_array(&h_mean),
+        sigma_mean_only: sd(&cov_mean),
     })
+}
+
+/// The θ block of the inverse of the joint Fisher information of the free
+/// θ and the estimated η that are not at a clamp (`eta_sigma > 0`).
+fn fisher_covariance(info: &filter::M9, free: &[bool; 4], eta_free: &[bool; 5]) -> Option<Matrix4<f64>> {
+    let idx: Vec<usize> =
+        (0..4).filter(|i| free[*i]).chain((0..NETA).filter(|j| eta_free[*j]).map(|j| 4 + j)).collect();
+    let p = idx.len();
+    let a = DMatrix::from_fn(p, p, |i, j| info[(idx[i], idx[j])]);
+    let inv = a.cholesky()?.inverse();
+    let mut out = Matrix4::zeros();
+    for (i, &fi) in idx.iter().enumerate().filter(|(_, f)| **f < 4) {
+        for (j, &fj) in idx.iter().enumerate().filter(|(_, f)| **f < 4) {
+            out[(fi, fj)] = inv[(i, j)];
+        }
+    }
+    Some(out)
 }

@@ -307,3 +307,98 @@ fn updates_only_where_the_reference_was_measured() {
     let s = run_window(&input, &w, &th, &th, &v, filter::Mode::full(false, false), None).expect("window");
     assert_eq!(s.updates, (1..input.len()).filter(|k| k % 4 == 0).count());
 }
+
+/// The Fisher information with the `½ tr(S⁻¹∂S S⁻¹∂S)` term dominates the
+/// mean-only information (their difference is positive semi-definite), so
+/// the full bound is the smaller; the trace term is not negligible on a
+/// noisy drive (it adds information about c_e through the noise size).
+#[test]
+fn full_fisher_information_dominates_the_mean_only_information() {
+    let out = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(7) }).expect("sim");
+    let input = input_of(&out.drive);
+    let noise = NoiseModel::from_sim(&out.sidecar.settings.noise, input.sample_time_s);
+    let c = cramer_rao_bound(&input, &out.sidecar.theta_true, &noise, &EivOptions::default()).expect("crb");
+    let full = nalgebra::Matrix4::from_fn(|i, j| c.information[i][j]);
+    let mean = nalgebra::Matrix4::from_fn(|i, j| c.information_mean_only[i][j]);
+    let diff = full - mean;
+    let eig = nalgebra::SymmetricEigen::new(diff).eigenvalues;
+    let scale = nalgebra::SymmetricEigen::new(full).eigenvalues.amax();
+    assert!(eig.min() >= -1e-9 * scale, "I_full − I_mean has eigenvalues {eig}");
+    assert!(eig.max() > 1e-6 * scale, "the trace term vanished: {eig}");
+    for i in 0..4 {
+        assert!(c.sigma[i] > 0.0 && c.sigma[i] <= c.sigma_mean_only[i] * (1.0 + 1e-9), "{i}: {c:?}");
+    }
+    eprintln!("CRB σ full {:?}, mean-only {:?}", c.sigma, c.sigma_mean_only);
+}
+
+fn known_noise_fit(km: f64, seed: u64) -> (crate::sim::SimOutput, EivOptions) {
+    let out = simulate(&SimOptions { length_km: km, ..SimOptions::paper(seed) }).expect("sim");
+    let noise = NoiseModel::from_sim(&out.sidecar.settings.noise, out.drive.sample_time_s());
+    (out, EivOptions { noise, fix_noise: true, ..Default::default() })
+}
+
+#[test]
+fn bootstrap_is_identical_for_one_and_two_threads() {
+    let (out, opts) = known_noise_fit(2.0, 31);
+    let input = input_of(&out.drive);
+    let r = estimate(&input, &out.sidecar.theta_true, &opts).expect("eiv");
+    let boot = BootstrapOptions { replicates: 4, seed: 9, ..Default::default() };
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+        let b = pool.install(|| bootstrap(&input, &r, &opts, &boot)).expect("bootstrap");
+        serde_json::to_string(&b).expect("json")
+    };
+    let one = run(1);
+    assert_eq!(one, run(2));
+    // Another seed gives other replicates.
+    let other = bootstrap(&input, &r, &opts, &BootstrapOptions { seed: 10, ..boot }).expect("bootstrap");
+    assert_ne!(one, serde_json::to_string(&other).expect("json"));
+}
+
+/// Paper noise, 6 km, the true noise model fixed, 40 replicates.
+/// Measured on this drive: c_e θ̂ is off by +0.090 % (2.6 reported σ, the
+/// known c_e bias under coloured relative noise); the bootstrap's bias
+/// estimate +0.077 % brings it to +0.013 %; the c_e percentile interval
+/// (centred on θ̂ + bias) misses the truth, the basic interval contains it.
+/// t_r is −0.95 % off here (1.9σ, an unlucky draw: its 95 % intervals,
+/// percentile and basic, both just miss the truth), so the assertion for
+/// every parameter is the 3σ one; 95 % coverage over seeds is measured in
+/// `examples/study_eiv.rs`.
+#[test]
+fn bootstrap_removes_the_c_e_bias_and_brackets_the_truth() {
+    let (out, opts) = known_noise_fit(6.0, 4);
+    let truth = out.sidecar.theta_true.to_array();
+    let input = input_of(&out.drive);
+    let r = estimate(&input, &out.sidecar.theta_true, &opts).expect("eiv");
+    let b = bootstrap(&input, &r, &opts, &BootstrapOptions { replicates: 40, seed: 1, ..Default::default() })
+        .expect("bootstrap");
+    assert!(b.failed.is_empty(), "{:?}", b.failed);
+    for i in 0..4 {
+        let [lo, hi] = b.interval_basic[i];
+        eprintln!(
+            "{}: truth {:.6e}, θ̂ {:.6e}, basic [{lo:.6e}, {hi:.6e}], percentile {:?}, bias {:.2e}, sd {:.2e}, σ {:.2e}",
+            PARAMETERS[i],
+            truth[i],
+            r.theta.to_array()[i],
+            b.interval[i],
+            b.bias[i],
+            b.sd[i],
+            r.sigma[i]
+        );
+        let off = (b.theta_corrected.to_array()[i] - truth[i]).abs();
+        assert!(
+            off <= 3.0 * b.sd[i],
+            "{}: bias-corrected error {off:.2e} > 3 sd = {:.2e}",
+            PARAMETERS[i],
+            3.0 * b.sd[i]
+        );
+        if i == 0 {
+            assert!(lo <= truth[i] && truth[i] <= hi, "c_e: {} outside the basic [{lo}, {hi}]", truth[i]);
+        }
+        let ratio = (hi - lo) / (2.0 * 1.96 * r.sigma[i]);
+        assert!((1.0 / 3.0..3.0).contains(&ratio), "{}: interval / reported ±1.96σ = {ratio}", PARAMETERS[i]);
+    }
+    let raw = (r.theta.c_e - truth[0]).abs();
+    let corrected = (b.theta_corrected.c_e - truth[0]).abs();
+    assert!(corrected < raw, "bias-corrected c_e error {corrected:.2e} not below θ̂'s {raw:.2e}");
+}

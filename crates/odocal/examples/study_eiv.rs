@@ -1,0 +1,311 @@
+//! The errors-in-variables study (docs/study.md, section "EIV"): batch
+//! Gauss-Newton on all segments, the paper's 3-step and EIV on simulated
+//! drives, read against the Cramér–Rao bound.
+//!
+//! ```text
+//! cargo run --release -p odocal --example study_eiv -- [--km 12] [--seeds 20]
+//!     [--presets off,white,paper,high,coloured] [--three-step-seeds 5]
+//!     [--bootstrap 0] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
+//! ```
+//!
+//! Per preset and seed (1..=S) it simulates a drive and runs:
+//! - `G-N`: batch Gauss-Newton from θ_0 on every cut segment (no yaw-rate selection);
+//! - `3-step`: the paper's method through `calibrate` (first `--three-step-seeds` seeds only);
+//! - `EIV known`: `eiv::estimate` from G-N with the simulator's noise model, fixed;
+//! - `EIV est.`: `eiv::estimate` from G-N, η estimated from the production-car model
+//!   (the library default);
+//! - `EIV known + boot`: the known-noise estimate minus its parametric
+//!   bootstrap bias (`--bootstrap B` replicates, first `--bootstrap-seeds` seeds
+//!   of `--bootstrap-presets`).
+//!
+//! The Cramér–Rao bound (`eiv::cramer_rao_bound`, full Gaussian Fisher
+//! information, and its mean-only part) at θ_true with the true noise model.
+//! Per method and parameter: mean error, sd, RMS/CRB, bias t = |mean|/(sd/√n),
+//! coverage of ±1.96 σ for each reported σ (EIV: σ = H⁻¹ of the scoring
+//! metric, sandwich, Fisher); Ē_p on the drive's validation segments
+//! against Ē_p(θ_true); wall time.
+//!
+//! `coloured` is the paper preset's wheel noise (white, encoder, common and
+//! per-wheel coloured; no slip) on a perfect reference (no pose, a_y or β noise).
+
+use std::collections::BTreeMap;
+use std::error::Error;
+use std::time::Instant;
+
+use odocal::eiv::{bootstrap, cramer_rao_bound, estimate, BootstrapOptions, EivInput, EivOptions, NoiseModel};
+use odocal::identify::{batch_gauss_newton, IdentifyOptions};
+use odocal::segment::{calibration_segments, validation_segments, SegmentData, SegmentOptions};
+use odocal::sim::{simulate, NoiseOptions, SimOptions};
+use odocal::{calibrate, mean_position_error, CalibrationOptions, Drive, Method, Theta, ValidationSegmentOptions};
+use serde::Serialize;
+
+type Res<T> = Result<T, Box<dyn Error>>;
+
+struct Args {
+    km: f64,
+    seeds: u64,
+    presets: Vec<String>,
+    three_step_seeds: u64,
+    bootstrap: usize,
+    bootstrap_seeds: u64,
+    bootstrap_presets: Vec<String>,
+    json: Option<String>,
+}
+
+fn parse_args() -> Res<Args> {
+    let mut a = Args {
+        km: 12.0,
+        seeds: 20,
+        presets: ["off", "white", "paper", "high", "coloured"].iter().map(|s| s.to_string()).collect(),
+        three_step_seeds: 5,
+        bootstrap: 0,
+        bootstrap_seeds: 0,
+        bootstrap_presets: vec!["paper".into(), "coloured".into()],
+        json: None,
+    };
+    let mut it = std::env::args().skip(1);
+    while let Some(k) = it.next() {
+        let mut v = || it.next().ok_or_else(|| format!("{k} needs a value"));
+        match k.as_str() {
+            "--km" => a.km = v()?.parse()?,
+            "--seeds" => a.seeds = v()?.parse()?,
+            "--presets" => a.presets = v()?.split(',').map(str::to_string).collect(),
+            "--three-step-seeds" => a.three_step_seeds = v()?.parse()?,
+            "--bootstrap" => a.bootstrap = v()?.parse()?,
+            "--bootstrap-seeds" => a.bootstrap_seeds = v()?.parse()?,
+            "--bootstrap-presets" => a.bootstrap_presets = v()?.split(',').map(str::to_string).collect(),
+            "--json" => a.json = Some(v()?),
+            other => return Err(format!("unknown argument '{other}'").into()),
+        }
+    }
+    Ok(a)
+}
+
+fn preset(name: &str) -> Res<NoiseOptions> {
+    if name == "coloured" {
+        let p = NoiseOptions::paper();
+        return Ok(NoiseOptions {
+            wheel_coloured_rel_sigma: p.wheel_coloured_rel_sigma,
+            wheel_coloured_differential_rel_sigma: p.wheel_coloured_differential_rel_sigma,
+            wheel_coloured_time_constant_s: p.wheel_coloured_time_constant_s,
+            wheel_white_rel_sigma: p.wheel_white_rel_sigma,
+            encoder_ticks_per_revolution: p.encoder_ticks_per_revolution,
+            ..NoiseOptions::off()
+        });
+    }
+    Ok(NoiseOptions::by_name(name)?)
+}
+
+fn batch_gn(d: &Drive) -> Res<Theta> {
+    let sel = calibration_segments(d, &SegmentOptions::default())?;
+    let data: Vec<SegmentData> = sel.all.iter().map(|s| SegmentData::new(d, s)).collect();
+    let opts = IdentifyOptions { max_iterations: 20, ..Default::default() };
+    Ok(batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &opts)?.theta)
+}
+
+/// One method's result on one drive.
+#[derive(Debug, Clone, Serialize)]
+struct Run {
+    theta: Theta,
+    /// Reported σ by kind (name, σ), SI.
+    sigmas: Vec<(String, [f64; 4])>,
+    e_p_m: f64,
+    time_s: f64,
+    warnings: usize,
+}
+
+#[derive(Debug, Clone, Serialize)]
+struct DriveResult {
+    preset: String,
+    seed: u64,
+    theta_true: Theta,
+    crb: [f64; 4],
+    crb_mean_only: [f64; 4],
+    e_p_true_m: f64,
+    runs: BTreeMap<String, Run>,
+}
+
+fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
+    let noise = preset(name)?;
+    let sim = simulate(&SimOptions { length_km: a.km, noise: noise.clone(), ..SimOptions::paper(seed) })?;
+    let d = &sim.drive;
+    let truth = sim.sidecar.theta_true;
+    let val = validation_segments(d, &ValidationSegmentOptions::default())?;
+    let ep = |t: &Theta| -> Res<f64> { Ok(mean_position_error(d, &val, t)?.mean_position_error_m) };
+    let input = EivInput::from_drive(d);
+    let true_noise = NoiseModel::from_sim(&noise, d.sample_time_s());
+    let (crb, crb_mean_only) = match cramer_rao_bound(&input, &truth, &true_noise, &EivOptions::default()) {
+        Ok(c) => (c.sigma, c.sigma_mean_only),
+        Err(_) => ([f64::NAN; 4], [f64::NAN; 4]),
+    };
+    let mut runs = BTreeMap::new();
+    let t = Instant::now();
+    let gn = batch_gn(d)?;
+    let t_gn = t.elapsed().as_secs_f64();
+    runs.insert("G-N".to_string(), Run { theta: gn, sigmas: vec![], e_p_m: ep(&gn)?, time_s: t_gn, warnings: 0 });
+    if seed <= a.three_step_seeds {
+        let t = Instant::now();
+        let opts = CalibrationOptions { method: Method::from_name("three-step")?, seed, ..Default::default() };
+        match calibrate(d, &opts, None) {
+            Ok(r) => {
+                let th = r.theta;
+                let time_s = t.elapsed().as_secs_f64();
+                runs.insert("3-step".into(), Run { theta: th, sigmas: vec![], e_p_m: ep(&th)?, time_s, warnings: 0 });
+            }
+            Err(e) => eprintln!("{name} {seed}: 3-step failed: {e}"),
+        }
+    }
+    let known = EivOptions { noise: true_noise, fix_noise: true, ..Default::default() };
+    for (label, opts) in [("EIV known", known.clone()), ("EIV est.", EivOptions::default())] {
+        let r = match estimate(&input, &gn, &opts) {
+            Ok(r) => r,
+            Err(e) => {
+                eprintln!("{name} {seed}: {label} failed: {e}");
+                continue;
+            }
+        };
+        let sigmas = vec![
+            ("H".to_string(), r.sigma),
+            ("sandwich".to_string(), r.sigma_sandwich),
+            ("Fisher".to_string(), r.sigma_fisher),
+        ];
+        let run = Run { theta: r.theta, sigmas, e_p_m: ep(&r.theta)?, time_s: r.timing_s, warnings: r.warnings.len() };
+        runs.insert(label.to_string(), run);
+        if label == "EIV known"
+            && a.bootstrap >= 2
+            && seed <= a.bootstrap_seeds
+            && a.bootstrap_presets.iter().any(|p| p == name)
+        {
+            let t = Instant::now();
+            let boot = BootstrapOptions { replicates: a.bootstrap, seed, ..Default::default() };
+            match bootstrap(&input, &r, &opts, &boot) {
+                Ok(b) => {
+                    let th = b.theta_corrected;
+                    let half: [f64; 4] = std::array::from_fn(|i| (b.interval[i][1] - b.interval[i][0]) / (2.0 * 1.96));
+                    let run = Run {
+                        theta: th,
+                        sigmas: vec![("boot".into(), half)],
+                        e_p_m: ep(&th)?,
+                        time_s: r.timing_s + t.elapsed().as_secs_f64(),
+                        warnings: b.failed.len(),
+                    };
+                    runs.insert("EIV known + boot".into(), run);
+                }
+                Err(e) => eprintln!("{name} {seed}: bootstrap failed: {e}"),
+            }
+        }
+    }
+    Ok(DriveResult { preset: name.into(), seed, theta_true: truth, crb, crb_mean_only, e_p_true_m: ep(&truth)?, runs })
+}
+
+const SCALE_NAMES: [&str; 4] = ["c_e %", "c_d mm", "t_r %", "d mm/(m/s²)"];
+
+fn scale(truth: &Theta) -> [f64; 4] {
+    [100.0 / truth.c_e, 1e3, 100.0 / truth.t_r, 1e3]
+}
+
+fn mean_sd(x: &[f64]) -> (f64, f64) {
+    let n = x.len() as f64;
+    let m = x.iter().sum::<f64>() / n;
+    let v = if x.len() > 1 { x.iter().map(|a| (a - m) * (a - m)).sum::<f64>() / (n - 1.0) } else { f64::NAN };
+    (m, v.sqrt())
+}
+
+fn summarise(preset: &str, results: &[DriveResult]) {
+    let mut methods: Vec<String> = Vec::new();
+    for r in results {
+        for m in r.runs.keys() {
+            if !methods.contains(m) {
+                methods.push(m.clone());
+            }
+        }
+    }
+    println!("\n### {preset} ({} drives)\n", results.len());
+    let crb_mean: [f64; 4] = std::array::from_fn(|i| {
+        let v: Vec<f64> = results.iter().map(|r| r.crb[i] * scale(&r.theta_true)[i]).collect();
+        mean_sd(&v).0
+    });
+    let crb_mo: [f64; 4] = std::array::from_fn(|i| {
+        let v: Vec<f64> = results.iter().map(|r| r.crb_mean_only[i] * scale(&r.theta_true)[i]).collect();
+        mean_sd(&v).0
+    });
+    println!(
+        "CRB σ (full Fisher): {}; mean-only: {}",
+        (0..4).map(|i| format!("{} {:.4}", SCALE_NAMES[i], crb_mean[i])).collect::<Vec<_>>().join(", "),
+        (0..4).map(|i| format!("{:.4}", crb_mo[i])).collect::<Vec<_>>().join(", ")
+    );
+    println!("\n| method | n | parameter | mean error | sd | RMS/CRB | t | coverage (σ kinds) |");
+    println!("|---|---|---|---|---|---|---|---|");
+    for m in &methods {
+        let rs: Vec<(&DriveResult, &Run)> = results.iter().filter_map(|r| r.runs.get(m).map(|x| (r, x))).collect();
+        let n = rs.len();
+        for i in 0..4 {
+            let errs: Vec<f64> = rs
+                .iter()
+                .map(|(r, x)| (x.theta.to_array()[i] - r.theta_true.to_array()[i]) * scale(&r.theta_true)[i])
+                .collect();
+            let (mean, sd) = mean_sd(&errs);
+            let rms = (errs.iter().map(|e| e * e).sum::<f64>() / n as f64).sqrt();
+            let t = mean.abs() / (sd / (n as f64).sqrt());
+            let mut cov = Vec::new();
+            if let Some((_, first)) = rs.first() {
+                for (k, (kind, _)) in first.sigmas.iter().enumerate() {
+                    let inside = rs
+                        .iter()
+                        .filter(|(r, x)| {
+                            let s = x.sigmas.get(k).map_or(f64::NAN, |s| s.1[i]);
+                            let e = (x.theta.to_array()[i] - r.theta_true.to_array()[i]).abs();
+                            e <= 1.96 * s
+                        })
+                        .count();
+                    cov.push(format!("{kind} {:.0} %", 100.0 * inside as f64 / n as f64));
+                }
+            }
+            println!(
+                "| {m} | {n} | {} | {mean:+.4} | {sd:.4} | {:.2} | {t:.1} | {} |",
+                SCALE_NAMES[i],
+                rms / crb_mean[i],
+                cov.join(", ")
+            );
+        }
+    }
+    println!("\n| method | Ē_p − Ē_p(θ_true) mean, m | max, m | mean wall s | warnings (runs with any) |");
+    println!("|---|---|---|---|---|");
+    for m in &methods {
+        let rs: Vec<(&DriveResult, &Run)> = results.iter().filter_map(|r| r.runs.get(m).map(|x| (r, x))).collect();
+        let ex: Vec<f64> = rs.iter().map(|(r, x)| x.e_p_m - r.e_p_true_m).collect();
+        let max = ex.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let time = mean_sd(&rs.iter().map(|(_, x)| x.time_s).collect::<Vec<_>>()).0;
+        let warned = rs.iter().filter(|(_, x)| x.warnings > 0).count();
+        println!("| {m} | {:+.4} | {max:+.4} | {time:.2} | {warned} |", mean_sd(&ex).0);
+    }
+}
+
+fn main() -> Res<()> {
+    let a = parse_args()?;
+    let t0 = Instant::now();
+    let mut all = Vec::new();
+    for p in &a.presets {
+        let mut results = Vec::new();
+        for seed in 1..=a.seeds {
+            let r = study_drive(p, seed, &a)?;
+            let fmt = |x: &Run| {
+                let s = scale(&r.theta_true);
+                let e: Vec<String> = (0..4)
+                    .map(|i| format!("{:+.4}", (x.theta.to_array()[i] - r.theta_true.to_array()[i]) * s[i]))
+                    .collect();
+                format!("[{}] {:.2}s", e.join(" "), x.time_s)
+            };
+            let line: Vec<String> = r.runs.iter().map(|(k, x)| format!("{k} {}", fmt(x))).collect();
+            eprintln!("{p} {seed}: {}", line.join(" | "));
+            results.push(r);
+        }
+        summarise(p, &results);
+        all.extend(results);
+    }
+    println!("\nTotal wall time {:.0} s", t0.elapsed().as_secs_f64());
+    if let Some(path) = &a.json {
+        std::fs::write(path, serde_json::to_string_pretty(&all)?)?;
+    }
+    Ok(())
+}

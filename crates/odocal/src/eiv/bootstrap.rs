@@ -1,0 +1,284 @@
+//! Parametric bootstrap of the EIV estimate: re-simulate the fitted noise
+//! on the drive's own inputs at the fitted θ, re-fit, B times.
+//!
+//! Replicate world b (its own seeded random stream, so the result does not
+//! depend on the number of threads):
+//! - true inputs: the drive's measured wheel rotations, a_y and β;
+//! - true poses: the model rolled out at θ̂ from the reference pose at the
+//!   start of each part (dead reckoning; the replicate's "truth");
+//! - measured wheel rotations `n·(1 + s_c + s_w + ε)` with s_c, s_w
+//!   Gauss-Markov and ε white at the fitted σ and the model's time
+//!   constants, then an encoder of step q (random phase);
+//! - measured a_y + white σ_a, β + Gauss-Markov σ_β;
+//! - reference poses: truth + Gauss-Markov drift + white noise.
+//!
+//! Each replicate is fitted with the same options as the original fit
+//! (same starting noise model, same `fix_noise`), from θ̂, with the
+//! original's free parameters. The spread of the replicates estimates the
+//! estimator's sampling distribution; their mean minus θ̂ its bias (at θ̂
+//! and the fitted noise), which gives the bias-corrected estimate
+//! `θ̂ − bias`.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::StandardNormal;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::{estimate, EivInput, EivOptions, EivReport, NoiseModel};
+use crate::error::{Error, Result};
+use crate::model::{step, Input, State, Theta};
+
+/// Options of [`bootstrap`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct BootstrapOptions {
+    /// Number of replicates B. Default 50.
+    pub replicates: usize,
+    /// Seed of the replicates' random streams. Default 0.
+    pub seed: u64,
+    /// Coverage of the percentile intervals. Default 0.95.
+    pub level: f64,
+}
+
+impl Default for BootstrapOptions {
+    fn default() -> Self {
+        BootstrapOptions { replicates: 50, seed: 0, level: 0.95 }
+    }
+}
+
+/// The result of [`bootstrap`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BootstrapReport {
+    /// The estimate being bootstrapped (θ̂).
+    pub theta_hat: Theta,
+    /// θ of every replicate that was fitted, in replicate order.
+    pub replicates: Vec<Theta>,
+    /// Replicates whose fit failed: index and reason.
+    pub failed: Vec<(usize, String)>,
+    /// Mean of the replicates.
+    pub mean: Theta,
+    /// Estimated bias of the estimator, mean − θ̂ (`[c_e, c_d, t_r, d]`).
+    pub bias: [f64; 4],
+    /// Standard deviation of the replicates.
+    pub sd: [f64; 4],
+    /// Coverage of the intervals.
+    pub level: f64,
+    /// Percentile intervals `[q_lo, q_hi]` of the replicates per parameter.
+    /// They are centred on θ̂ + bias: with a biased estimator they miss the
+    /// truth by the bias (use [`BootstrapReport::interval_basic`]).
+    pub interval: [[f64; 2]; 4],
+    /// Basic (reflected) bootstrap intervals `[2θ̂ − q_hi, 2θ̂ − q_lo]`:
+    /// the percentile interval moved by −2·bias, centred on the
+    /// bias-corrected estimate.
+    pub interval_basic: [[f64; 2]; 4],
+    /// The bias-corrected estimate θ̂ − bias.
+    pub theta_corrected: Theta,
+}
+
+/// Parametric bootstrap of an EIV estimate (see the module docs of
+/// `eiv::bootstrap`): `boot.replicates` re-simulations of the fitted noise
+/// model (`report.noise`) at the fitted θ on the drive's own inputs, each
+/// re-fitted with `opts` (the options of the original fit) from θ̂.
+/// Replicates run in parallel; each has its own random stream, so the
+/// report depends only on the inputs and the seed, not on the thread count.
+///
+/// Errors for invalid options or when fewer than two replicates could be fitted.
+pub fn bootstrap(
+    input: &EivInput<'_>,
+    report: &EivReport,
+    opts: &EivOptions,
+    boot: &BootstrapOptions,
+) -> Result<BootstrapReport> {
+    if boot.replicates < 2 {
+        return Err(Error::InvalidOption { field: "replicates", reason: "must be at least 2".into() });
+    }
+    if !(boot.level > 0.0 && boot.level < 1.0) {
+        return Err(Error::InvalidOption { field: "level", reason: format!("must be in (0, 1), got {}", boot.level) });
+    }
+    input.validate()?;
+    opts.validate()?;
+    report.noise.validate()?;
+    let theta_hat = report.theta;
+    let refit = EivOptions { free: report.free, fix_unobservable: false, ..opts.clone() };
+    let results: Vec<Result<Theta>> = (0..boot.replicates)
+        .into_par_iter()
+        .map(|b| {
+            let data = replicate(input, &theta_hat, &report.noise, boot.seed, b as u64);
+            let rin = data.input(input);
+            estimate(&rin, &theta_hat, &refit).map(|r| r.theta)
+        })
+        .collect();
+    let mut replicates = Vec::new();
+    let mut failed = Vec::new();
+    for (b, r) in results.into_iter().enumerate() {
+        match r {
+            Ok(t) => replicates.push(t),
+            Err(e) => failed.push((b, e.to_string())),
+        }
+    }
+    if replicates.len() < 2 {
+        return Err(Error::Numerical(format!(
+            "bootstrap: only {} of {} replicates could be fitted",
+            replicates.len(),
+            boot.replicates
+        )));
+    }
+    let n = replicates.len() as f64;
+    let cols: [Vec<f64>; 4] = std::array::from_fn(|i| replicates.iter().map(|t| t.to_array()[i]).collect());
+    let hat = theta_hat.to_array();
+    let mean: [f64; 4] = std::array::from_fn(|i| cols[i].iter().sum::<f64>() / n);
+    let sd: [f64; 4] = std::array::from_fn(|i| {
+        (cols[i].iter().map(|x| (x - mean[i]) * (x - mean[i])).sum::<f64>() / (n - 1.0)).sqrt()
+    });
+    let bias: [f64; 4] = std::array::from_fn(|i| if report.free[i] { mean[i] - hat[i] } else { 0.0 });
+    let alpha = (1.0 - boot.level) / 2.0;
+    let interval: [[f64; 2]; 4] = std::array::from_fn(|i| {
+        let mut v = cols[i].clone();
+        v.sort_by(f64::total_cmp);
+        [quantile(&v, alpha), quantile(&v, 1.0 - alpha)]
+    });
+    let interval_basic: [[f64; 2]; 4] =
+        std::array::from_fn(|i| [2.0 * hat[i] - interval[i][1], 2.0 * hat[i] - interval[i][0]]);
+    let corrected: [f64; 4] = std::array::from_fn(|i| hat[i] - bias[i]);
+    Ok(BootstrapReport {
+        theta_hat,
+        replicates,
+        failed,
+        mean: theta_of(mean),
+        bias,
+        sd,
+        level: boot.level,
+        interval,
+        interval_basic,
+        theta_corrected: theta_of(corrected),
+    })
+}
+
+fn theta_of(a: [f64; 4]) -> Theta {
+    Theta { c_e: a[0], c_d: a[1], t_r: a[2], d: a[3] }
+}
+
+/// Linear-interpolation quantile of sorted data.
+fn quantile(sorted: &[f64], q: f64) -> f64 {
+    let pos = q * (sorted.len() - 1) as f64;
+    let lo = pos.floor() as usize;
+    let hi = (lo + 1).min(sorted.len() - 1);
+    let f = pos - lo as f64;
+    sorted[lo] * (1.0 - f) + sorted[hi] * f
+}
+
+/// The re-simulated columns of one replicate.
+pub(crate) struct ReplicateData {
+    px: Vec<f64>,
+    py: Vec<f64>,
+    psi: Vec<f64>,
+    n_rl: Vec<f64>,
+    n_rr: Vec<f64>,
+    beta: Vec<f64>,
+    a_y: Vec<f64>,
+}
+
+impl ReplicateData {
+    fn input<'a>(&'a self, like: &EivInput<'a>) -> EivInput<'a> {
+        EivInput {
+            sample_time_s: like.sample_time_s,
+            parts: like.parts,
+            px: &self.px,
+            py: &self.py,
+            psi: &self.psi,
+            n_rl: &self.n_rl,
+            n_rr: &self.n_rr,
+            beta: &self.beta,
+            a_y: &self.a_y,
+            reference_measured: like.reference_measured,
+        }
+    }
+}
+
+/// First-order Gauss-Markov sequence, stationary start.
+struct Gm {
+    a: f64,
+    q: f64,
+    x: f64,
+}
+
+impl Gm {
+    fn new(rng: &mut ChaCha8Rng, sigma: f64, tau: f64, ts: f64) -> Self {
+        let a = (-ts / tau).exp();
+        Gm { a, q: sigma * (1.0 - a * a).sqrt(), x: sigma * normal(rng) }
+    }
+    fn next(&mut self, rng: &mut ChaCha8Rng) -> f64 {
+        let out = self.x;
+        self.x = self.a * self.x + self.q * normal(rng);
+        out
+    }
+}
+
+fn normal(rng: &mut ChaCha8Rng) -> f64 {
+    rng.sample::<f64, _>(StandardNormal)
+}
+
+/// One replicate world (module docs), from stream `b` of `seed`.
+pub(crate) fn replicate(input: &EivInput<'_>, theta: &Theta, nm: &NoiseModel, seed: u64, b: u64) -> ReplicateData {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(b + 1);
+    let ts = input.sample_time_s;
+    let mut d = ReplicateData {
+        px: input.px.to_vec(),
+        py: input.py.to_vec(),
+        psi: input.psi.to_vec(),
+        n_rl: input.n_rl.to_vec(),
+        n_rr: input.n_rr.to_vec(),
+        beta: input.beta.to_vec(),
+        a_y: input.a_y.to_vec(),
+    };
+    let q = nm.quantisation_step_rev_per_s;
+    let ticks = if q > 0.0 { 1.0 / (q * ts) } else { 0.0 };
+    for part in input.parts {
+        if part.end <= part.start {
+            continue;
+        }
+        let mut common = Gm::new(&mut rng, nm.wheel_common_rel_sigma, nm.wheel_common_time_constant_s, ts);
+        let wt = nm.wheel_differential_time_constant_s;
+        let mut wl = Gm::new(&mut rng, nm.wheel_differential_rel_sigma, wt, ts);
+        let mut wr = Gm::new(&mut rng, nm.wheel_differential_rel_sigma, wt, ts);
+        let dt = nm.drift_time_constant_s;
+        let mut dx = Gm::new(&mut rng, nm.position_drift_sigma_m, dt, ts);
+        let mut dy = Gm::new(&mut rng, nm.position_drift_sigma_m, dt, ts);
+        let mut dpsi = Gm::new(&mut rng, nm.heading_drift_sigma_rad, dt, ts);
+        let mut beta_err = Gm::new(&mut rng, nm.sideslip_sigma_rad, nm.sideslip_time_constant_s, ts);
+        let mut rev: [f64; 2] = [rng.random::<f64>(), rng.random::<f64>()];
+        let s = part.start;
+        let mut x = State::new(input.px[s], input.py[s], input.psi[s]);
+        for k in part.clone() {
+            let u = Input { n_rl: input.n_rl[k], n_rr: input.n_rr[k], beta: input.beta[k], a_y: input.a_y[k] };
+            d.px[k] = x[0] + dx.next(&mut rng) + nm.position_white_sigma_m * normal(&mut rng);
+            d.py[k] = x[1] + dy.next(&mut rng) + nm.position_white_sigma_m * normal(&mut rng);
+            d.psi[k] = x[2] + dpsi.next(&mut rng) + nm.heading_white_sigma_rad * normal(&mut rng);
+            let sc = common.next(&mut rng);
+            let sw = [wl.next(&mut rng), wr.next(&mut rng)];
+            for (w, n) in [u.n_rl, u.n_rr].into_iter().enumerate() {
+                let rel = sc + sw[w] + nm.wheel_white_rel_sigma * normal(&mut rng);
+                let noisy = n * (1.0 + rel);
+                let measured = if ticks > 0.0 {
+                    // Encoder: whole ticks over the interval (rev holds the phase in ticks).
+                    let before = rev[w].floor();
+                    rev[w] += noisy * ts * ticks;
+                    (rev[w].floor() - before) / (ticks * ts)
+                } else {
+                    noisy
+                };
+                if w == 0 {
+                    d.n_rl[k] = measured;
+                } else {
+                    d.n_rr[k] = measured;
+                }
+            }
+            d.a_y[k] = u.a_y + nm.lateral_acceleration_sigma_m_per_s2 * normal(&mut rng);
+            d.beta[k] = u.beta + beta_err.next(&mut rng);
+            x = step(&x, &u, theta, ts);
+        }
+    }
+    d
+}
