@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! cargo run --release -p odocal --example testtrack_crossrun -- \
-//!     [--method three-step|batch-gn] [--min-yaw-rate R] [--fix d] [--json out.json]
+//!     [--method three-step|batch-gn] [--min-yaw-rate R] [--fix d] [--auto-fix] [--json out.json]
 //! ```
 //!
 //! The manifests are in `examples/psu-mapping-van-testtrack/`, the data in
@@ -37,6 +37,7 @@ fn main() -> Result<(), Box<dyn Error>> {
                     opts.identify.free.remove(p);
                 }
             }
+            "--auto-fix" => opts.auto_fix = true,
             "--json" => json = Some(PathBuf::from(value()?)),
             other => return Err(format!("unknown argument {other}").into()),
         }

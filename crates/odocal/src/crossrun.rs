@@ -28,6 +28,13 @@ pub const CROSS_RUN_OWN_FIT_RATIO: f64 = 1.5;
 pub struct CrossRunRow {
     /// The drive calibrated on.
     pub name: String,
+    /// The calibration, or why it failed.
+    pub fit: std::result::Result<CrossRunFit, String>,
+}
+
+/// A drive's calibration and its validation on the other drives.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CrossRunFit {
     /// The calibrated θ.
     pub theta: Theta,
     /// Its verdict.
@@ -65,41 +72,46 @@ pub struct CrossRunCriteria {
     pub max_ratio: f64,
     /// Calibrations whose verdict is `rejected`.
     pub rejected: usize,
+    /// Calibrations that ended in an error (no θ; left out of the means).
+    pub failed: usize,
     /// Rows.
     pub runs: usize,
 }
 
 impl CrossRunCriteria {
-    /// True when no θ is worse than θ_0 on another drive and the ratio is
-    /// within `max_ratio` (the rejected count is for the caller to judge).
+    /// True when every calibration produced a θ, no θ is worse than θ_0
+    /// on another drive and the ratio is within `max_ratio` (the rejected
+    /// count is for the caller to judge).
     pub fn pass(&self) -> bool {
-        self.worse_than_initial.is_empty() && self.ratio <= self.max_ratio
+        self.failed == 0 && self.worse_than_initial.is_empty() && self.ratio <= self.max_ratio
     }
 }
 
 impl CrossRunTable {
     /// The criteria with the allowed ratio `max_ratio` (e.g. [`CROSS_RUN_OWN_FIT_RATIO`]).
     pub fn criteria(&self, max_ratio: f64) -> CrossRunCriteria {
-        let n = self.rows.len().max(1) as f64;
-        let worse_than_initial = self
-            .rows
+        let fits: Vec<(&str, &CrossRunFit)> =
+            self.rows.iter().filter_map(|r| r.fit.as_ref().ok().map(|f| (r.name.as_str(), f))).collect();
+        let n = fits.len().max(1) as f64;
+        let worse_than_initial = fits
             .iter()
-            .flat_map(|r| {
+            .flat_map(|(name, r)| {
                 r.others.worse_than_initial().map(|d| {
-                    (r.name.clone(), d.name.clone(), d.mean_position_error_m, d.initial_mean_position_error_m)
+                    (name.to_string(), d.name.clone(), d.mean_position_error_m, d.initial_mean_position_error_m)
                 })
             })
             .collect();
-        let mean_cross_m = self.rows.iter().map(|r| r.others.mean_over_drives_m).sum::<f64>() / n;
-        let mean_own_m = self.rows.iter().map(|r| r.own_m).sum::<f64>() / n;
+        let mean_cross_m = fits.iter().map(|(_, r)| r.others.mean_over_drives_m).sum::<f64>() / n;
+        let mean_own_m = fits.iter().map(|(_, r)| r.own_m).sum::<f64>() / n;
         CrossRunCriteria {
             worse_than_initial,
             mean_cross_m,
             mean_own_m,
-            mean_initial_cross_m: self.rows.iter().map(|r| r.others.initial_mean_over_drives_m).sum::<f64>() / n,
+            mean_initial_cross_m: fits.iter().map(|(_, r)| r.others.initial_mean_over_drives_m).sum::<f64>() / n,
             ratio: mean_cross_m / mean_own_m,
             max_ratio,
-            rejected: self.rows.iter().filter(|r| r.verdict.level == VerdictLevel::Rejected).count(),
+            rejected: fits.iter().filter(|(_, r)| r.verdict.level == VerdictLevel::Rejected).count(),
+            failed: self.rows.len() - fits.len(),
             runs: self.rows.len(),
         }
     }
@@ -113,7 +125,14 @@ impl std::fmt::Display for CrossRunTable {
              mean Ē_p on others (m) | θ_0 on others (m) | worst other / θ_0 |"
         )?;
         writeln!(f, "|---|---|---|---|---|---|---|---|---|---|---|")?;
-        for r in &self.rows {
+        for row in &self.rows {
+            let r = match &row.fit {
+                Ok(r) => r,
+                Err(e) => {
+                    writeln!(f, "| {} | failed: {e} |||||||||||", row.name)?;
+                    continue;
+                }
+            };
             let worst = r
                 .others
                 .drives
@@ -123,7 +142,7 @@ impl std::fmt::Display for CrossRunTable {
             writeln!(
                 f,
                 "| {} | {:.4} | {:+.2} | {:.3} | {:+.2} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} |",
-                r.name,
+                row.name,
                 r.theta.c_e,
                 r.theta.c_d * 1e3,
                 r.theta.t_r,
@@ -148,7 +167,7 @@ impl std::fmt::Display for CrossRunCriteria {
              drives {:.3} m",
             self.mean_cross_m, self.mean_own_m, self.ratio, self.max_ratio, self.mean_initial_cross_m
         )?;
-        writeln!(f, "rejected: {} of {}", self.rejected, self.runs)?;
+        writeln!(f, "rejected: {} of {}; failed (no θ): {}", self.rejected, self.runs, self.failed)?;
         if self.worse_than_initial.is_empty() {
             write!(f, "never worse than θ_0 on another run")
         } else {
@@ -164,8 +183,11 @@ impl std::fmt::Display for CrossRunCriteria {
 /// Calibrates each of `drives` with `opts` and validates each θ (and θ_0)
 /// on all the other drives.
 ///
+/// A calibration that fails is recorded in its row (the error's text) and
+/// left out of the means.
+///
 /// # Errors
-/// Fewer than two drives; any calibration's or validation's error, naming the drive.
+/// Fewer than two drives; a validation's error, naming the drive.
 pub fn cross_run(
     drives: &[(&str, &Drive)],
     opts: &CalibrationOptions,
@@ -179,19 +201,25 @@ pub fn cross_run(
     }
     let mut rows = Vec::with_capacity(drives.len());
     for (i, (name, drive)) in drives.iter().enumerate() {
-        let named = |e: Error| Error::Numerical(format!("cross-run, drive {name}: {e}"));
-        let r = calibrate(drive, opts, progress).map_err(named)?;
+        let r = match calibrate(drive, opts, progress) {
+            Ok(r) => r,
+            Err(e) => {
+                rows.push(CrossRunRow { name: (*name).to_string(), fit: Err(e.to_string()) });
+                continue;
+            }
+        };
         let others: Vec<(&str, &Drive)> =
             drives.iter().enumerate().filter(|(j, _)| *j != i).map(|(_, (n, d))| (*n, *d)).collect();
-        let others = validate_drives(&others, &r.theta, &opts.theta0, &opts.validation).map_err(named)?;
-        rows.push(CrossRunRow {
-            name: (*name).to_string(),
+        let others = validate_drives(&others, &r.theta, &opts.theta0, &opts.validation)
+            .map_err(|e| Error::Numerical(format!("cross-run, θ of drive {name}: {e}")))?;
+        let fit = CrossRunFit {
             theta: r.theta,
             verdict: r.verdict,
             own_m: r.validation.mean_position_error_m,
             initial_own_m: r.initial.mean_position_error_m,
             others,
-        });
+        };
+        rows.push(CrossRunRow { name: (*name).to_string(), fit: Ok(fit) });
     }
     Ok(CrossRunTable { rows })
 }

@@ -633,10 +633,45 @@ mod tests {
         let opts = ReachableOptions {
             lower: Theta { c_e: 1.96, ..opts.lower },
             starts: vec![Theta::SIM_DEFAULT_TRUE],
+            recentre: 0,
             ..opts
         };
         let r = reachable_minimum(&drive, &segs, &opts).expect("search");
         assert_eq!(r.theta, Theta::SIM_DEFAULT_TRUE);
+    }
+
+    /// θ_0 with t_r = 1.2 m: the box's t_r range [0.96, 1.44] m leaves out
+    /// the truth, 1.53 m. Without re-centring the result is flagged; with
+    /// it, the minimum is enclosed and found.
+    #[test]
+    fn a_minimum_outside_the_box_is_flagged_or_enclosed() {
+        let (drive, segs) = setup();
+        let truth = Theta::SIM_DEFAULT_TRUE;
+        let theta0 = Theta { t_r: 1.2, ..Theta::PAPER_INITIAL };
+        let small = ReachableOptions {
+            particles: 12,
+            iterations: 15,
+            refine_iterations: 80,
+            ..ReachableOptions::around(&theta0)
+        };
+        assert!(small.upper.t_r < truth.t_r);
+        let flagged = reachable_minimum(&drive, &segs, &ReachableOptions { recentre: 0, ..small.clone() }).expect("search");
+        assert!(!flagged.enclosed, "{flagged}");
+        assert!(flagged.at_edge.contains(Param::TR), "{flagged}");
+        assert_eq!(flagged.recentred, 0);
+        assert!(flagged.to_string().contains("NOT ENCLOSED: t_r"), "{flagged}");
+        assert!(small.upper.t_r - flagged.theta.t_r < EDGE_FRACTION * 0.48, "{flagged}");
+
+        let enclosed = reachable_minimum(&drive, &segs, &small).expect("search");
+        eprintln!("{enclosed}");
+        assert!(enclosed.recentred >= 1, "{enclosed}");
+        assert!(enclosed.recentred <= DEFAULT_RECENTRE);
+        assert!(enclosed.enclosed && enclosed.at_edge.is_empty(), "{enclosed}");
+        assert!(enclosed.mean_position_error_m < flagged.mean_position_error_m, "{enclosed} vs {flagged}");
+        assert!((enclosed.theta.t_r - truth.t_r).abs() < 0.03, "{enclosed}");
+        assert!(enclosed.evaluations > flagged.evaluations);
+        let u = enclosed.upper.expect("box");
+        assert!(u.t_r > truth.t_r, "the last box holds the truth: {u}");
     }
 
     #[test]
