@@ -562,7 +562,8 @@ fn run_calibration(
     let cb = |e| bars.event(e);
     let mut others = Vec::new();
     for p in &args.validate_on {
-        others.push((p.display().to_string(), load_drive(p).with_context(|| format!("--validate-on {}", p.display()))?));
+        others
+            .push((p.display().to_string(), load_drive(p).with_context(|| format!("--validate-on {}", p.display()))?));
     }
     let holdout = match args.holdout {
         Some(HalfArg::FirstHalf) => Some(Holdout::FirstHalf),

@@ -109,7 +109,7 @@ pub use reachable::{reachable_minimum, reachable_minimum_with_progress, Reachabl
 pub use segment::{Segment, SegmentData, SegmentOptions, ValidationSegmentOptions};
 pub use trust::{GuardViolation, Guards, TrustOptions, Verdict, VerdictLevel, VerdictReason};
 pub use validate::{
-    mean_position_error, validate, validate_drives, validate_with_progress, DriveValidation, MultiValidation, ValidateOptions, ValidateReport,
-    ValidationReport,
+    mean_position_error, validate, validate_drives, validate_with_progress, DriveValidation, MultiValidation,
+    ValidateOptions, ValidateReport, ValidationReport,
 };
 pub use warning::Warning;

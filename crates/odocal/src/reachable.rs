@@ -508,10 +508,8 @@ fn search_box(
     }
 
     let u = obj.scaled(&best.1);
-    let at_edge: ParamSet = (0..4)
-        .filter(|&i| u[i] < EDGE_FRACTION || u[i] > 1.0 - EDGE_FRACTION)
-        .filter_map(Param::from_index)
-        .collect();
+    let at_edge: ParamSet =
+        (0..4).filter(|&i| u[i] < EDGE_FRACTION || u[i] > 1.0 - EDGE_FRACTION).filter_map(Param::from_index).collect();
     Ok(ReachableReport {
         theta: best.1,
         mean_position_error_m: best.0,
@@ -655,7 +653,8 @@ mod tests {
             ..ReachableOptions::around(&theta0)
         };
         assert!(small.upper.t_r < truth.t_r);
-        let flagged = reachable_minimum(&drive, &segs, &ReachableOptions { recentre: 0, ..small.clone() }).expect("search");
+        let flagged =
+            reachable_minimum(&drive, &segs, &ReachableOptions { recentre: 0, ..small.clone() }).expect("search");
         assert!(!flagged.enclosed, "{flagged}");
         assert!(flagged.at_edge.contains(Param::TR), "{flagged}");
         assert_eq!(flagged.recentred, 0);

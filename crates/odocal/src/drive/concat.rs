@@ -128,8 +128,9 @@ mod tests {
         // A later drive keeps its stamps.
         let c = drive(80, 100.0, 0.025, vec![0..80]);
         assert_eq!(Drive::concat(&[&a, &c]).expect("join").t()[100], 100.0);
-        let v = validation_segments(&j, &ValidationSegmentOptions { length_steps: 40, stride_steps: 20, offset_steps: 0 })
-            .expect("segments");
+        let v =
+            validation_segments(&j, &ValidationSegmentOptions { length_steps: 40, stride_steps: 20, offset_steps: 0 })
+                .expect("segments");
         assert!(v.iter().all(|s| s.start + s.steps < 100 || s.start >= 100));
     }
 
