@@ -382,8 +382,8 @@ pub fn reachable_minimum_with_progress(
         let best = report.theta;
         let half = (box_opts.upper.to_vector() - box_opts.lower.to_vector()) / 2.0;
         let c = best.to_vector();
-        box_opts.lower = Theta::from_vector(&(&c - &half));
-        box_opts.upper = Theta::from_vector(&(&c + &half));
+        box_opts.lower = Theta::from_vector(&(c - half));
+        box_opts.upper = Theta::from_vector(&(c + half));
         box_opts.starts = std::iter::once(best).chain(opts.starts.iter().copied()).collect();
         box_opts.seed = opts.seed.wrapping_add(recentred as u64 + 1);
         recentred += 1;
