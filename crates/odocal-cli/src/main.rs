@@ -139,10 +139,11 @@ struct CalibrationArgs {
     /// the other half: first-half or second-half (the half held out).
     #[arg(long)]
     holdout: Option<HalfArg>,
-    /// Validate on another drive of the same vehicle (CSV or manifest)
-    /// instead of the calibration drive.
-    #[arg(long, conflicts_with = "holdout")]
-    validate_on: Option<PathBuf>,
+    /// Validate on other drives of the same vehicle (CSV or manifest;
+    /// repeat the flag or separate with commas) instead of the calibration
+    /// drive: Ē_p per drive and over all of them.
+    #[arg(long, conflicts_with = "holdout", value_delimiter = ',')]
+    validate_on: Vec<PathBuf>,
     /// Hold at θ_0 the parameters the data cannot determine (named by the
     /// observability check) instead of estimating them; with no turning
     /// segment, hold c_d, t_r, d and use every segment.
@@ -254,7 +255,10 @@ impl CalibrationArgs {
 #[derive(Args)]
 struct CalibrateArgs {
     /// The drive: a canonical CSV (SPEC §2) or a drive manifest (.toml).
-    drive: PathBuf,
+    /// Several drives of one vehicle are fitted jointly (segments never
+    /// span two drives; their sample times must agree).
+    #[arg(required = true, num_args = 1..)]
+    drive: Vec<PathBuf>,
     #[command(flatten)]
     calibration: CalibrationArgs,
     /// Write the JSON report here ("-" for stdout, which replaces the human output).
@@ -556,13 +560,19 @@ fn run_calibration(
 ) -> Result<Outcome> {
     let opts = args.options()?;
     let cb = |e| bars.event(e);
-    let holdout = match (args.holdout, &args.validate_on) {
-        (Some(HalfArg::FirstHalf), _) => Some(Holdout::FirstHalf),
-        (Some(HalfArg::SecondHalf), _) => Some(Holdout::SecondHalf),
-        (None, Some(p)) => {
-            Some(Holdout::Other(load_drive(p).with_context(|| format!("--validate-on {}", p.display()))?))
+    let mut others = Vec::new();
+    for p in &args.validate_on {
+        others
+            .push((p.display().to_string(), load_drive(p).with_context(|| format!("--validate-on {}", p.display()))?));
+    }
+    let holdout = match args.holdout {
+        Some(HalfArg::FirstHalf) => Some(Holdout::FirstHalf),
+        Some(HalfArg::SecondHalf) => Some(Holdout::SecondHalf),
+        None if others.is_empty() => None,
+        None => {
+            let refs: Vec<&Drive> = others.iter().map(|(_, d)| d).collect();
+            Some(Holdout::Other(Drive::concat(&refs).context("--validate-on")?))
         }
-        (None, None) => None,
     };
     // The halves are copies only when a hold-out is asked for.
     let split = holdout.as_ref().map(|h| h.split(drive)).transpose()?;
@@ -593,7 +603,13 @@ fn run_calibration(
         None => None,
     };
     let truth_ref = truth.as_ref().map(|(t, e)| (t, *e));
-    print_warnings(&r.warnings);
+    let per_drive = match others.len() {
+        0 => None,
+        _ => {
+            let named: Vec<(&str, &Drive)> = others.iter().map(|(n, d)| (n.as_str(), d)).collect();
+            Some(odocal::validate_drives(&named, &r.theta, &r.initial.theta, &opts.validation)?)
+        }
+    };
     let input = source.map(|(p, _)| p.display().to_string()).unwrap_or_else(|| "simulated drive".into());
     if let Some(p) = &args.params_out {
         let mut f = odocal::param_file::ParamFile::from_theta(&r.theta, sigma_or_held(&r), &input, &r.method);
@@ -632,12 +648,26 @@ fn run_calibration(
     }
     let outcome = if r.verdict.level == VerdictLevel::Rejected { Outcome::Rejected } else { Outcome::Done };
     if let Some(p) = json {
-        write_json(p, report_json(&r, truth_ref, wheel_scale)?)?;
+        let mut v = report_json(&r, truth_ref, wheel_scale)?;
+        if let (Some(m), Some(obj)) = (&per_drive, v.as_object_mut()) {
+            obj.insert("validate_on".into(), serde_json::to_value(m)?);
+        }
+        write_json(p, v)?;
         if p == Path::new("-") {
+            print_warnings(&r.warnings);
             return Ok(outcome);
         }
     }
-    print!("{}", report::calibration(&r, truth_ref, wheel_scale));
+    // The heading first, then the warnings (stderr), then the report.
+    let text = report::calibration(&r, truth_ref, wheel_scale);
+    let (head, rest) = text.split_once('\n').unwrap_or((&text, ""));
+    println!("{head}");
+    std::io::stdout().flush()?;
+    print_warnings(&r.warnings);
+    print!("{rest}");
+    if let Some(m) = &per_drive {
+        print!("{}", report::validate_on(m));
+    }
     std::io::stdout().flush()?;
     Ok(outcome)
 }
@@ -650,9 +680,21 @@ fn sigma_or_held(r: &odocal::CalibrationReport) -> [Option<f64>; 4] {
 }
 
 fn calibrate_cmd(a: CalibrateArgs, bars: &progress::Bars) -> Result<Outcome> {
-    let (drive, wheel_scale) = load_drive_with_scale(&a.drive)?;
-    let truth = load_truth(&a.drive).map(|s| s.theta_true);
-    run_calibration(&drive, Some((&a.drive, wheel_scale.as_deref())), &a.calibration, a.json.as_deref(), truth, bars)
+    let mut drives = Vec::with_capacity(a.drive.len());
+    let mut wheel_scale = None;
+    for p in &a.drive {
+        let (d, w) = load_drive_with_scale(p)?;
+        wheel_scale = wheel_scale.or(w);
+        drives.push(d);
+    }
+    let first = &a.drive[0];
+    let (drive, truth) = if drives.len() == 1 {
+        (drives.swap_remove(0), load_truth(first).map(|s| s.theta_true))
+    } else {
+        let refs: Vec<&Drive> = drives.iter().collect();
+        (Drive::concat(&refs).context("calibrating several drives jointly")?, None)
+    };
+    run_calibration(&drive, Some((first, wheel_scale.as_deref())), &a.calibration, a.json.as_deref(), truth, bars)
 }
 
 fn demo_cmd(a: DemoArgs, bars: &progress::Bars) -> Result<Outcome> {
@@ -693,9 +735,9 @@ fn validate_cmd(a: ValidateArgs, bars: &progress::Bars) -> Result<()> {
             starts: vec![a.theta],
             ..odocal::ReachableOptions::around(&centre)
         });
-        bars.stage("reachable minimum");
     }
-    let report = odocal::validate(&drive, &a.theta, &opts)?;
+    let cb = |e| bars.event(e);
+    let report = odocal::validate_with_progress(&drive, &a.theta, &opts, Some(&cb))?;
     bars.finish();
     if let Some(p) = &a.json {
         write_json(p, serde_json::to_value(&report)?)?;
@@ -711,6 +753,16 @@ fn validate_cmd(a: ValidateArgs, bars: &progress::Bars) -> Result<()> {
             "reachable minimum: Ē_p {:.4} m at θ = {} ({} evaluations, {:.1} s)",
             rm.mean_position_error_m, rm.theta, rm.evaluations, rm.time_s
         );
+        if rm.recentred > 0 {
+            println!("  the search box was re-centred {} time(s) on a best point at its edge", rm.recentred);
+        }
+        if !rm.enclosed {
+            println!(
+                "  NOT ENCLOSED: {} ended on the edge of the search box; the minimum may lie beyond \
+                 (widen the box with --theta0 nearer the best point)",
+                rm.at_edge
+            );
+        }
     }
     Ok(())
 }

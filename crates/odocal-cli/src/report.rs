@@ -2,7 +2,7 @@
 
 use std::fmt::Write as _;
 
-use odocal::{CalibrationReport, Method, Theta, Verdict, VerdictLevel};
+use odocal::{CalibrationReport, Method, MultiValidation, Theta, Verdict, VerdictLevel};
 
 fn row(out: &mut String, name: &str, unit: &str, values: &[Option<f64>], scale: f64, prec: usize) {
     let _ = write!(out, "  {name:<4} {unit:<14}");
@@ -169,6 +169,28 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
         out,
         "\ntime: {:.2} s total (setup {:.2}, initial {:.2}, compensation {:.2}, final {:.2}, validation {:.2})",
         t.total, t.setup, t.initial_identification, t.compensation, t.final_identification, t.validation
+    );
+    out
+}
+
+/// Ē_p of the calibrated θ and of θ_0 on each `--validate-on` drive and
+/// their mean over the drives.
+pub fn validate_on(m: &MultiValidation) -> String {
+    let mut out = String::from("validation drives (Ē_p calibrated / θ_0, m):\n");
+    for d in &m.drives {
+        let worse = if d.mean_position_error_m > d.initial_mean_position_error_m { "  worse than θ_0" } else { "" };
+        let _ = writeln!(
+            out,
+            "  {}: {:.3} / {:.3} ({} segments){worse}",
+            d.name, d.mean_position_error_m, d.initial_mean_position_error_m, d.segments
+        );
+    }
+    let _ = writeln!(
+        out,
+        "  mean over {} drives: {:.3} / {:.3}",
+        m.drives.len(),
+        m.mean_over_drives_m,
+        m.initial_mean_over_drives_m
     );
     out
 }

@@ -357,6 +357,73 @@ fn shipped_van_log_is_improved_or_rejected_on_both_half_splits() {
                 .collect();
             assert!(kinds.contains(&"worse_than_initial"), "{half}: {kinds:?}");
         }
+        // The halves disagree (measured: t_r 1.500 vs 1.640 m, d 3.9 vs −0.9
+        // mm/(m/s²)): the cross-split check says so on either split.
+        let split: Vec<&str> = r["verdict"]["reasons"]
+            .as_array()
+            .expect("reasons")
+            .iter()
+            .filter(|x| x["kind"] == "inconsistent_split")
+            .filter_map(|x| x["param"].as_str())
+            .collect();
+        assert!(split.contains(&"t_r") && split.contains(&"d"), "{half}: {}", r["verdict"]);
+        assert_ne!(r["verdict"]["level"], "accepted", "{half}");
     }
     assert_eq!(rejected, 1, "measured: the first-half hold-out is rejected, the second improves");
+}
+
+#[test]
+fn several_drives_jointly_and_validation_on_several() {
+    let d = tempfile::tempdir().expect("tmp");
+    let paths: Vec<PathBuf> = ["a.csv", "b.csv", "c.csv"].iter().map(|n| d.path().join(n)).collect();
+    for (p, seed) in paths.iter().zip(["4", "5", "6"]) {
+        let o = odocal(&["simulate", "--seed", seed, "--length-km", "2", "--out", p.to_str().expect("utf8")]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    let s: Vec<&str> = paths.iter().map(|p| p.to_str().expect("utf8")).collect();
+    // Validate on two drives, as a comma list and as a repeated flag: the same report.
+    let list = format!("{},{}", s[1], s[2]);
+    let o = odocal(&["calibrate", s[0], "--method", "batch-gn", "--validate-on", &list, "--json", "-"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    let per = r["validate_on"]["drives"].as_array().expect("per drive");
+    assert_eq!(per.len(), 2);
+    assert_eq!(per[0]["name"], s[1]);
+    let (e1, e2) =
+        (per[0]["mean_position_error_m"].as_f64().expect("e"), per[1]["mean_position_error_m"].as_f64().expect("e"));
+    let mean = r["validate_on"]["mean_over_drives_m"].as_f64().expect("mean");
+    assert!((mean - (e1 + e2) / 2.0).abs() < 1e-12, "{mean} {e1} {e2}");
+    // Each drive's Ē_p is what `validate` gives on it.
+    let th = format!("{},{},{},{}", r["theta"]["c_e"], r["theta"]["c_d"], r["theta"]["t_r"], r["theta"]["d"]);
+    let v = odocal(&["validate", s[2], "--theta", &th, "--json", "-"]);
+    let v: serde_json::Value = serde_json::from_slice(&v.stdout).expect("json");
+    assert!((v["mean_position_error_m"].as_f64().expect("e") - e2).abs() < 1e-9);
+    let o2 = odocal(&["calibrate", s[0], "--method", "batch-gn", "--validate-on", s[1], "--validate-on", s[2]]);
+    assert!(o2.status.success(), "{}", stderr(&o2));
+    let out = stdout(&o2);
+    assert!(out.contains("validation drives (Ē_p calibrated / θ_0, m):"), "{out}");
+    assert!(out.contains(&format!("  {}: {e1:.3} / ", s[1])), "{out}");
+    assert!(out.contains("  mean over 2 drives: "), "{out}");
+
+    // Two drives fitted jointly: more segments than either alone.
+    let one = odocal(&["calibrate", s[0], "--method", "batch-gn", "--json", "-"]);
+    let one: serde_json::Value = serde_json::from_slice(&one.stdout).expect("json");
+    let both = odocal(&["calibrate", s[0], s[1], "--method", "batch-gn", "--json", "-"]);
+    assert!(both.status.success(), "{}", stderr(&both));
+    let both: serde_json::Value = serde_json::from_slice(&both.stdout).expect("json");
+    assert!(
+        both["segments"]["cut"].as_u64() > one["segments"]["cut"].as_u64(),
+        "{} vs {}",
+        both["segments"],
+        one["segments"]
+    );
+    // Drives of different sample rates are not fitted together.
+    let slow = d.path().join("slow.csv");
+    let mut rows = String::from("t,px,py,psi,n_rl,n_rr,beta,a_y\n");
+    for i in 0..40 {
+        rows.push_str(&format!("{},{},0,0,5,5,0,0\n", i as f64 * 0.05, i as f64 * 0.5));
+    }
+    std::fs::write(&slow, rows).expect("write");
+    let o = odocal(&["calibrate", s[0], slow.to_str().expect("utf8")]);
+    assert_error(&o, &["drive 2 has a sample time of 0.050000 s, drive 1 0.025000 s"]);
 }

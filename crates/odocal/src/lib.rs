@@ -61,6 +61,7 @@
 pub mod bag;
 pub mod calibrate;
 pub mod compensate;
+pub mod crossrun;
 pub mod drive;
 pub mod eiv;
 pub mod error;
@@ -104,8 +105,11 @@ pub use model::{Input, State, Theta};
 pub use param::{Param, ParamSet};
 pub use progress::{Progress, ProgressFn};
 pub use qp::SolverKind;
-pub use reachable::{reachable_minimum, ReachableOptions, ReachableReport};
+pub use reachable::{reachable_minimum, reachable_minimum_with_progress, ReachableOptions, ReachableReport};
 pub use segment::{Segment, SegmentData, SegmentOptions, ValidationSegmentOptions};
 pub use trust::{GuardViolation, Guards, TrustOptions, Verdict, VerdictLevel, VerdictReason};
-pub use validate::{mean_position_error, validate, ValidateOptions, ValidateReport, ValidationReport};
+pub use validate::{
+    mean_position_error, validate, validate_drives, validate_with_progress, DriveValidation, MultiValidation,
+    ValidateOptions, ValidateReport, ValidationReport,
+};
 pub use warning::Warning;

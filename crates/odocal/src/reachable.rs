@@ -28,6 +28,14 @@
 //! to the box: finite so that Nelder-Mead's simplex statistics stay finite,
 //! growing so that a simplex that strays out is pushed back.
 //!
+//! ## A minimum on the box edge
+//! A best point within [`EDGE_FRACTION`] of the box width of a bound is *on
+//! the edge*: the true minimum may lie outside. The search then re-centres
+//! the box (same widths) on the best point and searches again, seeded with
+//! it, at most [`ReachableOptions::recentre`] times; the report names the
+//! parameters still on the edge ([`ReachableReport::at_edge`]) and whether
+//! the minimum is enclosed ([`ReachableReport::enclosed`]).
+//!
 //! The search is deterministic: the swarm draws from a `ChaCha8Rng` seeded
 //! with [`ReachableOptions::seed`], and `Ē_p` itself is computed in a fixed
 //! order whatever the number of threads. The result is never worse than the
@@ -56,6 +64,8 @@ use serde::{Deserialize, Serialize};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
 use crate::model::{Theta, THETA_NAMES};
+use crate::param::{Param, ParamSet};
+use crate::progress::{emit, Progress, ProgressFn};
 use crate::segment::Segment;
 use crate::validate::mean_position_error;
 
@@ -69,6 +79,19 @@ const PENALTY_M: f64 = 1e9;
 /// default box; small enough to stay in the swarm's basin, large enough
 /// that the simplex does not start collapsed).
 const SIMPLEX_STEP: f64 = 0.02;
+
+/// A best point closer than this fraction of the box width to a bound is
+/// *on the edge* of the box (1 %: the swarm and the simplex, pushed back by
+/// the penalty, end right at a bound when the minimum is beyond it, while
+/// an interior minimum a hundredth of the width from a bound is rare).
+pub const EDGE_FRACTION: f64 = 0.01;
+
+/// Default number of times the box is re-centred on a best point on its edge.
+pub const DEFAULT_RECENTRE: usize = 3;
+
+fn default_recentre() -> usize {
+    DEFAULT_RECENTRE
+}
 
 /// Options of the reachable-minimum search.
 ///
@@ -102,6 +125,11 @@ pub struct ReachableOptions {
     /// A start outside the box is evaluated as given and enters the swarm
     /// projected onto the box. Default: none (the box centre is always used).
     pub starts: Vec<Theta>,
+    /// When the best point is on the box edge, re-centre the box on it and
+    /// search again, at most this many times (0: never). Default
+    /// [`DEFAULT_RECENTRE`] = 3.
+    #[serde(default = "default_recentre")]
+    pub recentre: usize,
 }
 
 impl Default for ReachableOptions {
@@ -131,6 +159,7 @@ impl ReachableOptions {
             refine_tolerance_m: 1e-7,
             seed: 0,
             starts: Vec::new(),
+            recentre: DEFAULT_RECENTRE,
         }
     }
 
@@ -204,17 +233,47 @@ pub struct ReachableReport {
     /// Wall-clock time of the search, seconds.
     pub time_s: f64,
     /// How the two stages ended, with numbers, e.g. `"swarm: 60 iterations,
-    /// best 0.0123 m; refinement: Solver converged after 143 iterations"`.
+    /// best 0.0123 m; refinement: Solver converged after 143 iterations"`
+    /// (of the last box searched).
     pub termination: String,
+    /// Parameters of [`theta`](Self::theta) within [`EDGE_FRACTION`] of a
+    /// bound of the last box searched: the minimum may lie beyond.
+    #[serde(default)]
+    pub at_edge: ParamSet,
+    /// True when no parameter is on the edge: the minimum is enclosed by
+    /// the last box searched.
+    #[serde(default = "enclosed_default")]
+    pub enclosed: bool,
+    /// Times the box was re-centred on a best point on its edge.
+    #[serde(default)]
+    pub recentred: usize,
+    /// Lower corner of the last box searched.
+    #[serde(default)]
+    pub lower: Option<Theta>,
+    /// Upper corner of the last box searched.
+    #[serde(default)]
+    pub upper: Option<Theta>,
+}
+
+fn enclosed_default() -> bool {
+    true
 }
 
 impl std::fmt::Display for ReachableReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "reachable minimum Ē_p = {:.4} m at {} (centre {:.4} m; {} evaluations, {:.2} s)",
+            "reachable minimum Ē_p = {:.4} m at {} (centre {:.4} m; {} evaluations, {:.2} s",
             self.mean_position_error_m, self.theta, self.centre_mean_position_error_m, self.evaluations, self.time_s
-        )
+        )?;
+        if self.recentred > 0 {
+            write!(f, "; box re-centred {} time(s)", self.recentred)?;
+        }
+        f.write_str(")")?;
+        if !self.enclosed {
+            write!(f, "; NOT ENCLOSED: {} on the edge of the search box, the minimum may lie beyond", self.at_edge)?;
+        }
+        Ok(())
     }
 }
 
@@ -225,6 +284,7 @@ struct Objective<'a> {
     lower: [f64; 4],
     width: [f64; 4],
     evaluations: &'a AtomicUsize,
+    progress: Option<ProgressFn<'a>>,
 }
 
 impl Objective<'_> {
@@ -244,14 +304,19 @@ impl Objective<'_> {
 
     /// `Ē_p(θ)`, or [`PENALTY_M`] where θ is invalid or the error not finite.
     fn error_at(&self, theta: &Theta) -> f64 {
-        self.evaluations.fetch_add(1, Ordering::Relaxed);
+        self.count();
         mean_position_error(self.drive, self.segments, theta).map_or(PENALTY_M, |r| r.mean_position_error_m)
+    }
+
+    fn count(&self) {
+        self.evaluations.fetch_add(1, Ordering::Relaxed);
+        emit(self.progress, Progress::Advance(1));
     }
 
     fn scaled_cost(&self, u: &[f64]) -> f64 {
         let outside: f64 = u.iter().map(|&x| (-x).max(0.0) + (x - 1.0).max(0.0)).sum();
         if outside > 0.0 {
-            self.evaluations.fetch_add(1, Ordering::Relaxed);
+            self.count();
             return PENALTY_M * (1.0 + outside);
         }
         self.error_at(&self.theta(u))
@@ -292,14 +357,65 @@ fn argmin_error(stage: &str, e: argmin::core::Error) -> Error {
 /// # }
 /// ```
 pub fn reachable_minimum(drive: &Drive, segments: &[Segment], opts: &ReachableOptions) -> Result<ReachableReport> {
+    reachable_minimum_with_progress(drive, segments, opts, None)
+}
+
+/// [`reachable_minimum`], reporting progress: one stage per box searched
+/// (`"reachable: swarm"`, `"reachable: refine"`) advancing by one per
+/// evaluation of `Ē_p`.
+pub fn reachable_minimum_with_progress(
+    drive: &Drive,
+    segments: &[Segment],
+    opts: &ReachableOptions,
+    progress: Option<ProgressFn<'_>>,
+) -> Result<ReachableReport> {
+    let started = Instant::now();
+    opts.validate()?;
+    let mut report = search_box(drive, segments, opts, progress)?;
+    let mut evaluations = report.evaluations;
+    let mut recentred = 0;
+    let centre_error = report.centre_mean_position_error_m;
+    let mut box_opts = opts.clone();
+    while !report.at_edge.is_empty() && recentred < opts.recentre {
+        // Same widths around the best point; the best point and the
+        // caller's starts seed the new search.
+        let best = report.theta;
+        let half = (box_opts.upper.to_vector() - box_opts.lower.to_vector()) / 2.0;
+        let c = best.to_vector();
+        box_opts.lower = Theta::from_vector(&(c - half));
+        box_opts.upper = Theta::from_vector(&(c + half));
+        box_opts.starts = std::iter::once(best).chain(opts.starts.iter().copied()).collect();
+        box_opts.seed = opts.seed.wrapping_add(recentred as u64 + 1);
+        recentred += 1;
+        let next = search_box(drive, segments, &box_opts, progress)?;
+        evaluations += next.evaluations;
+        // The new search is seeded with the best point, so never worse.
+        report = next;
+    }
+    report.evaluations = evaluations;
+    report.recentred = recentred;
+    report.centre_mean_position_error_m = centre_error;
+    report.time_s = started.elapsed().as_secs_f64();
+    Ok(report)
+}
+
+/// One search in the box of `opts` (see the module docs).
+fn search_box(
+    drive: &Drive,
+    segments: &[Segment],
+    opts: &ReachableOptions,
+    progress: Option<ProgressFn<'_>>,
+) -> Result<ReachableReport> {
     let started = Instant::now();
     opts.validate()?;
     let evaluations = AtomicUsize::new(0);
     let lower = opts.lower.to_array();
     let upper = opts.upper.to_array();
     let width = [upper[0] - lower[0], upper[1] - lower[1], upper[2] - lower[2], upper[3] - lower[3]];
-    let objective = || Objective { drive, segments, lower, width, evaluations: &evaluations };
+    let objective = || Objective { drive, segments, lower, width, evaluations: &evaluations, progress };
     let obj = objective();
+    let swarm_total = 1 + 2 * opts.starts.len() + opts.particles * (opts.iterations + 1);
+    emit(progress, Progress::Stage { name: "reachable: swarm", total: swarm_total as u64 });
 
     // Starts: the box centre first, then the caller's, each evaluated as given.
     let centre = opts.centre();
@@ -357,8 +473,10 @@ pub fn reachable_minimum(drive: &Drive, segments: &[Segment], opts: &ReachableOp
     let global_best_m = best.0;
     let mut termination = format!("swarm: {} iterations, best {:.6} m", res.state().get_iter(), global_best_m);
 
-    // Stage 2: Nelder-Mead from the swarm's best (always inside the box).
+    // Stage 2: Nelder-Mead from the swarm's best (always inside the box);
+    // one to two evaluations per iteration, four more at a shrink.
     if opts.refine_iterations > 0 {
+        emit(progress, Progress::Stage { name: "reachable: refine", total: 2 * opts.refine_iterations as u64 + 5 });
         let x0 = swarm_best.1;
         let mut simplex = vec![x0.clone()];
         for i in 0..4 {
@@ -389,6 +507,9 @@ pub fn reachable_minimum(drive: &Drive, segments: &[Segment], opts: &ReachableOp
         ));
     }
 
+    let u = obj.scaled(&best.1);
+    let at_edge: ParamSet =
+        (0..4).filter(|&i| u[i] < EDGE_FRACTION || u[i] > 1.0 - EDGE_FRACTION).filter_map(Param::from_index).collect();
     Ok(ReachableReport {
         theta: best.1,
         mean_position_error_m: best.0,
@@ -397,6 +518,11 @@ pub fn reachable_minimum(drive: &Drive, segments: &[Segment], opts: &ReachableOp
         global_best_m,
         time_s: started.elapsed().as_secs_f64(),
         termination,
+        enclosed: at_edge.is_empty(),
+        at_edge,
+        recentred: 0,
+        lower: Some(opts.lower),
+        upper: Some(opts.upper),
     })
 }
 
@@ -505,10 +631,46 @@ mod tests {
         let opts = ReachableOptions {
             lower: Theta { c_e: 1.96, ..opts.lower },
             starts: vec![Theta::SIM_DEFAULT_TRUE],
+            recentre: 0,
             ..opts
         };
         let r = reachable_minimum(&drive, &segs, &opts).expect("search");
         assert_eq!(r.theta, Theta::SIM_DEFAULT_TRUE);
+    }
+
+    /// θ_0 with t_r = 1.2 m: the box's t_r range [0.96, 1.44] m leaves out
+    /// the truth, 1.53 m. Without re-centring the result is flagged; with
+    /// it, the minimum is enclosed and found.
+    #[test]
+    fn a_minimum_outside_the_box_is_flagged_or_enclosed() {
+        let (drive, segs) = setup();
+        let truth = Theta::SIM_DEFAULT_TRUE;
+        let theta0 = Theta { t_r: 1.2, ..Theta::PAPER_INITIAL };
+        let small = ReachableOptions {
+            particles: 12,
+            iterations: 15,
+            refine_iterations: 80,
+            ..ReachableOptions::around(&theta0)
+        };
+        assert!(small.upper.t_r < truth.t_r);
+        let flagged =
+            reachable_minimum(&drive, &segs, &ReachableOptions { recentre: 0, ..small.clone() }).expect("search");
+        assert!(!flagged.enclosed, "{flagged}");
+        assert!(flagged.at_edge.contains(Param::TR), "{flagged}");
+        assert_eq!(flagged.recentred, 0);
+        assert!(flagged.to_string().contains("NOT ENCLOSED: t_r"), "{flagged}");
+        assert!(small.upper.t_r - flagged.theta.t_r < EDGE_FRACTION * 0.48, "{flagged}");
+
+        let enclosed = reachable_minimum(&drive, &segs, &small).expect("search");
+        eprintln!("{enclosed}");
+        assert!(enclosed.recentred >= 1, "{enclosed}");
+        assert!(enclosed.recentred <= DEFAULT_RECENTRE);
+        assert!(enclosed.enclosed && enclosed.at_edge.is_empty(), "{enclosed}");
+        assert!(enclosed.mean_position_error_m < flagged.mean_position_error_m, "{enclosed} vs {flagged}");
+        assert!((enclosed.theta.t_r - truth.t_r).abs() < 0.03, "{enclosed}");
+        assert!(enclosed.evaluations > flagged.evaluations);
+        let u = enclosed.upper.expect("box");
+        assert!(u.t_r > truth.t_r, "the last box holds the truth: {u}");
     }
 
     #[test]

@@ -17,7 +17,8 @@ use serde::{Deserialize, Serialize};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
 use crate::model::{step, Theta};
-use crate::reachable::{reachable_minimum, ReachableOptions, ReachableReport};
+use crate::progress::ProgressFn;
+use crate::reachable::{reachable_minimum_with_progress, ReachableOptions, ReachableReport};
 use crate::segment::{validation_segments, Segment, SegmentData, ValidationSegmentOptions};
 
 /// Mean position error of θ on the validation segments.
@@ -95,11 +96,102 @@ pub struct ValidateReport {
 /// # Ok(()) }
 /// ```
 pub fn validate(drive: &Drive, theta: &Theta, opts: &ValidateOptions) -> Result<ValidateReport> {
+    validate_with_progress(drive, theta, opts, None)
+}
+
+/// [`validate`], reporting the reachable-minimum search's progress
+/// ([`reachable_minimum_with_progress`]).
+pub fn validate_with_progress(
+    drive: &Drive,
+    theta: &Theta,
+    opts: &ValidateOptions,
+    progress: Option<ProgressFn<'_>>,
+) -> Result<ValidateReport> {
     let segs = validation_segments(drive, &opts.segments)?;
     let validation = mean_position_error(drive, &segs, theta)?;
     let reachable_minimum = match &opts.reachable {
-        Some(r) => Some(reachable_minimum(drive, &segs, r)?),
+        Some(r) => Some(reachable_minimum_with_progress(drive, &segs, r, progress)?),
         None => None,
     };
     Ok(ValidateReport { validation, reachable_minimum })
+}
+
+/// Ē_p of θ and of θ_0 on one of several validation drives.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DriveValidation {
+    /// The drive's name (e.g. its file).
+    pub name: String,
+    /// Ē_p of θ on the drive, m.
+    pub mean_position_error_m: f64,
+    /// Ē_p of θ_0 on the drive, m.
+    pub initial_mean_position_error_m: f64,
+    /// Validation segments of the drive.
+    pub segments: usize,
+}
+
+/// Ē_p of θ and θ_0 on each of several drives, and their means over the
+/// drives (each drive weighs the same, however long).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MultiValidation {
+    /// The θ validated.
+    pub theta: Theta,
+    /// θ_0, the reference point.
+    pub theta0: Theta,
+    /// Per drive, in the order given.
+    pub drives: Vec<DriveValidation>,
+    /// Mean over drives of Ē_p of θ, m.
+    pub mean_over_drives_m: f64,
+    /// Mean over drives of Ē_p of θ_0, m.
+    pub initial_mean_over_drives_m: f64,
+}
+
+impl MultiValidation {
+    /// The drives on which θ is worse than θ_0.
+    pub fn worse_than_initial(&self) -> impl Iterator<Item = &DriveValidation> {
+        self.drives
+            .iter()
+            .filter(|d| d.mean_position_error_m.is_nan() || d.mean_position_error_m > d.initial_mean_position_error_m)
+    }
+}
+
+/// Ē_p of `theta` and of `theta0` on the validation segments of each named
+/// drive (cross-run checks: calibrate on one drive, validate on others).
+///
+/// # Errors
+/// [`Error::NoSegments`] naming a drive too short for one validation
+/// segment (or when `drives` is empty); the errors of [`mean_position_error`].
+pub fn validate_drives(
+    drives: &[(&str, &Drive)],
+    theta: &Theta,
+    theta0: &Theta,
+    segments: &ValidationSegmentOptions,
+) -> Result<MultiValidation> {
+    if drives.is_empty() {
+        return Err(Error::NoSegments("no validation drive given".into()));
+    }
+    let mut out = Vec::with_capacity(drives.len());
+    for (name, drive) in drives {
+        let segs = validation_segments(drive, segments)?;
+        if segs.is_empty() {
+            return Err(Error::NoSegments(format!(
+                "validation drive {name} ({} samples) is too short for one validation segment of {} steps",
+                drive.len(),
+                segments.length_steps
+            )));
+        }
+        out.push(DriveValidation {
+            name: (*name).to_string(),
+            mean_position_error_m: mean_position_error(drive, &segs, theta)?.mean_position_error_m,
+            initial_mean_position_error_m: mean_position_error(drive, &segs, theta0)?.mean_position_error_m,
+            segments: segs.len(),
+        });
+    }
+    let mean = |f: fn(&DriveValidation) -> f64| out.iter().map(f).sum::<f64>() / out.len() as f64;
+    Ok(MultiValidation {
+        theta: *theta,
+        theta0: *theta0,
+        mean_over_drives_m: mean(|d| d.mean_position_error_m),
+        initial_mean_over_drives_m: mean(|d| d.initial_mean_position_error_m),
+        drives: out,
+    })
 }

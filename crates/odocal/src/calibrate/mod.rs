@@ -549,6 +549,10 @@ pub fn calibrate_detailed(
         Some(_) => Some(mean_position_error(drive, &prep.validation, &outcome.theta)?.mean_position_error_m),
         None => None,
     };
+    let split = match held_out {
+        Some(h) if opts.trust.max_split_sigmas > 0.0 => split_fit(h, opts, selection.free),
+        _ => None,
+    };
     let verdict = judge(
         &Evidence {
             theta: &outcome.theta,
@@ -561,6 +565,7 @@ pub fn calibrate_detailed(
             calibrated_m: val.mean_position_error_m,
             initial_m: initial_val.mean_position_error_m,
             fit_m,
+            split,
         },
         &opts.trust,
     );
@@ -597,6 +602,19 @@ pub fn calibrate_detailed(
         validation: prep.validation,
         compensated: outcome.compensated,
     })
+}
+
+/// θ and its covariance fitted on the held-out drive alone with the same
+/// options and free set (the cross-split check of [`crate::trust`]); `None`
+/// when that fit fails (too short, nothing turns, …): the check is then
+/// left out rather than failing the calibration.
+fn split_fit(held_out: &Drive, opts: &CalibrationOptions, free: ParamSet) -> Option<(Theta, [[f64; 4]; 4])> {
+    let mut o = opts.clone();
+    o.identify.free = free;
+    o.auto_fix = false;
+    o.trust.max_split_sigmas = 0.0;
+    let r = calibrate_detailed(held_out, None, &o, None).ok()?.report;
+    Some((r.theta, r.covariance))
 }
 
 /// The segment-based methods' selection (SPEC §3, §6): calibration segments

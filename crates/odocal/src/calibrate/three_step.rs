@@ -257,9 +257,13 @@ impl Estimator for ThreeStepOptions {
 
         // Step 1.
         let t = Instant::now();
-        let batches = random_batches(selected.len(), self.initial_batch_size, self.initial_batches, opts.seed);
+        #[allow(unused_mut)]
+        let mut batches = random_batches(selected.len(), self.initial_batch_size, self.initial_batches, opts.seed);
         emit(progress, Progress::Stage { name: "initial identification", total: batches.len() as u64 });
-        let data: Vec<SegmentData> = selected.iter().map(|s| SegmentData::new(drive, s)).collect();
+        #[allow(unused_mut)]
+        let mut data: Vec<SegmentData> = selected.iter().map(|s| SegmentData::new(drive, s)).collect();
+        #[cfg(test)]
+        forced::apply(drive, &mut data, &mut batches);
         let results = score_batches(drive, &data, &batches, &prep.validation, &opts.theta0, &identify, progress);
         let mut ok = Vec::new();
         let mut rejected = Vec::new();
@@ -345,5 +349,108 @@ impl Estimator for ThreeStepOptions {
             warnings,
             compensated: Some(comp),
         })
+    }
+}
+
+/// Test-only hook: replace step 1's first random batch by chosen segments
+/// of the drive, selected or not (the forced-divergence test composes a
+/// batch of straight segments).
+#[cfg(test)]
+pub(crate) mod forced {
+    use std::cell::RefCell;
+
+    use crate::drive::Drive;
+    use crate::segment::{Segment, SegmentData};
+
+    thread_local! {
+        static FIRST_BATCH: RefCell<Option<Vec<Segment>>> = const { RefCell::new(None) };
+    }
+
+    /// Step 1 of calibrations on this thread uses `batch` as its first
+    /// batch; `None` restores random batches.
+    pub(crate) fn set_first_batch(batch: Option<Vec<Segment>>) {
+        FIRST_BATCH.with(|b| *b.borrow_mut() = batch);
+    }
+
+    pub(super) fn apply<'a>(drive: &'a Drive, data: &mut Vec<SegmentData<'a>>, batches: &mut [Vec<usize>]) {
+        FIRST_BATCH.with(|b| {
+            if let (Some(forced), Some(first)) = (b.borrow().as_ref(), batches.first_mut()) {
+                let base = data.len();
+                data.extend(forced.iter().map(|s| SegmentData::new(drive, s)));
+                *first = (base..data.len()).collect();
+            }
+        });
+    }
+}
+
+#[cfg(test)]
+mod forced_divergence_tests {
+    use super::*;
+    use crate::calibrate::{calibrate, CalibrationOptions, Method};
+    use crate::segment::calibration_segments;
+    use crate::sim::{simulate, SimOptions};
+    use crate::trust::GuardViolation;
+
+    /// A step-1 batch of the ten straightest segments cannot determine c_d,
+    /// t_r and d: the guards reject it, it is never picked, and the 3-step
+    /// result stays as good as without it.
+    #[test]
+    fn a_batch_of_straight_segments_is_rejected_and_not_picked() {
+        let sim = simulate(&SimOptions { length_km: 4.0, ..SimOptions::paper(7) }).expect("sim");
+        let truth = sim.sidecar.theta_true;
+        let opts = CalibrationOptions {
+            method: Method::ThreeStep(ThreeStepOptions {
+                initial_batches: 12,
+                final_segments: FinalSegments::Random(12),
+                ..Default::default()
+            }),
+            ..Default::default()
+        };
+        // The ten straightest segments of the drive (none of them selected).
+        let mut all = calibration_segments(&sim.drive, &opts.segments).expect("segments").all;
+        all.sort_by(|a, b| a.peak_yaw_rate_rad_per_s.total_cmp(&b.peak_yaw_rate_rad_per_s));
+        let mut straight: Vec<Segment> = all[..10].to_vec();
+        straight.sort_by_key(|s| s.start);
+        let peak = straight.iter().map(|s| s.peak_yaw_rate_rad_per_s).fold(0.0, f64::max);
+        // None of them turns enough to be selected by the default rule.
+        let threshold = crate::segment::SegmentOptions::default().min_peak_yaw_rate_rad_per_s;
+        assert!(peak < threshold, "the batch is straight: peak yaw rate {peak} rad/s");
+
+        let plain = calibrate(&sim.drive, &opts, None).expect("calibrate");
+        forced::set_first_batch(Some(straight.clone()));
+        let forced = calibrate(&sim.drive, &opts, None);
+        forced::set_first_batch(None);
+        let forced = forced.expect("calibrate with the forced batch");
+
+        let init = forced.initial_step().expect("three-step");
+        let starts: Vec<usize> = straight.iter().map(|s| s.start).collect();
+        assert_eq!(init.batches[0].segment_starts, starts, "the first batch is the forced one");
+        let rej = init.rejected.iter().find(|r| r.index == 0).expect("the straight batch is rejected");
+        // It runs away in a yaw-only parameter (measured: t_r 68 m, d 49 mm/(m/s²))
+        // or its normal equations are near-singular.
+        assert!(
+            rej.violations.iter().any(|v| matches!(
+                v,
+                GuardViolation::IllConditioned { .. }
+                    | GuardViolation::OutOfRange { param: crate::param::Param::TR | crate::param::Param::D, .. }
+            )),
+            "{:?} at θ = {}",
+            rej.violations,
+            init.batches[0].score.theta
+        );
+        assert!(!init.picked_batches.contains(&0), "picked {:?}", init.picked_batches);
+        // The result: as good as the run without the forced batch.
+        let rel = |a: f64, b: f64| ((a - b) / b).abs();
+        for r in [&plain, &forced] {
+            assert!(rel(r.theta.c_e, truth.c_e) < 2e-3, "{}", r.theta);
+            assert!(rel(r.theta.t_r, truth.t_r) < 0.03, "{}", r.theta);
+            assert!(r.validation.mean_position_error_m < r.initial.mean_position_error_m);
+        }
+        assert!(
+            forced.validation.mean_position_error_m < 1.1 * plain.validation.mean_position_error_m,
+            "{} vs {}",
+            forced.validation.mean_position_error_m,
+            plain.validation.mean_position_error_m
+        );
     }
 }

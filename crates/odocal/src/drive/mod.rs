@@ -42,9 +42,12 @@
 //! # Ok(()) }
 //! ```
 
+mod concat;
 mod csv;
 
 use std::ops::Range;
+
+pub use self::concat::CONCAT_GAP_S;
 
 pub(crate) use self::csv::echo;
 pub use self::csv::REQUIRED_COLUMNS;

@@ -1,0 +1,60 @@
+//! Cross-run check on the PSU van's six test-track runs of 2024-08-05:
+//! calibrate on each run, validate on the other five (README quotes its table).
+//!
+//! ```text
+//! cargo run --release -p odocal --example testtrack_crossrun -- \
+//!     [--method three-step|batch-gn] [--min-yaw-rate R] [--fix d] [--auto-fix] [--json out.json]
+//! ```
+//!
+//! The manifests are in `examples/psu-mapping-van-testtrack/`, the data in
+//! `../shared/data/psu-mapping-van-testtrack-2024-08-05/` beside the
+//! repository. For each run it prints the calibrated θ, its verdict, its own
+//! Ē_p (validated on the run it was fitted on), its mean Ē_p on the other
+//! five runs and θ_0's mean Ē_p on the same five; then the criteria of
+//! issue 10 (never worse than θ_0 on another run, mean cross-run Ē_p within
+//! 1.5 × the mean of the runs' own fits, at most two runs rejected).
+
+use std::error::Error;
+use std::path::PathBuf;
+
+use odocal::crossrun::{cross_run, CROSS_RUN_OWN_FIT_RATIO};
+use odocal::{CalibrationOptions, Method, ParamSet};
+
+/// The six runs of 2024-08-05 (manifest `run-NAME.toml`).
+const RUNS: [&str; 6] = ["14-45-26", "15-28-33", "16-06-28", "16-47-33", "17-45-46", "18-01-26"];
+
+fn main() -> Result<(), Box<dyn Error>> {
+    let mut opts = CalibrationOptions::default();
+    let mut json: Option<PathBuf> = None;
+    let mut args = std::env::args().skip(1);
+    while let Some(a) = args.next() {
+        let mut value = || args.next().ok_or_else(|| format!("{a} needs a value"));
+        match a.as_str() {
+            "--method" => opts.method = Method::from_name(&value()?)?,
+            "--min-yaw-rate" => opts.segments.min_peak_yaw_rate_rad_per_s = value()?.parse()?,
+            "--fix" => {
+                for p in value()?.parse::<ParamSet>()?.iter() {
+                    opts.identify.free.remove(p);
+                }
+            }
+            "--auto-fix" => opts.auto_fix = true,
+            "--json" => json = Some(PathBuf::from(value()?)),
+            other => return Err(format!("unknown argument {other}").into()),
+        }
+    }
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/psu-mapping-van-testtrack");
+    let mut drives = Vec::new();
+    for run in RUNS {
+        let (drive, _) = odocal::load_drive(&dir.join(format!("run-{run}.toml")))?;
+        drives.push((run, drive));
+    }
+    let named: Vec<(&str, &odocal::Drive)> = drives.iter().map(|(n, d)| (*n, d)).collect();
+    let table = cross_run(&named, &opts, None)?;
+    println!("{table}");
+    let c = table.criteria(CROSS_RUN_OWN_FIT_RATIO);
+    println!("{c}");
+    if let Some(p) = json {
+        std::fs::write(&p, serde_json::to_string_pretty(&table)? + "\n")?;
+    }
+    Ok(())
+}
