@@ -9,6 +9,10 @@
 //!    every segment used in step 3 is compensated once per θ_B,I; its
 //!    compensated input is the mean of those.
 //! 3. *Final identification*: batch G-N from θ_0 with the compensated inputs.
+//!
+//! Reference extrinsics ([`crate::extrinsics`]): steps 1 and 3 estimate (or
+//! hold) them with θ through the shared identification; step 2's QP ignores
+//! them.
 
 use std::time::Instant;
 
@@ -27,7 +31,7 @@ use crate::model::Theta;
 use crate::progress::{emit, Progress, ProgressFn};
 use crate::segment::{Segment, SegmentData};
 use crate::trust::{check_theta, GuardViolation};
-use crate::validate::mean_position_error;
+use crate::validate::mean_position_error_with;
 use crate::warning::Warning;
 
 /// Mixed into [`super::CalibrationOptions::seed`] to draw step 3's random
@@ -189,7 +193,9 @@ pub fn score_batches(
             } else {
                 let batch: Vec<SegmentData> = b.iter().map(|&i| data[i]).collect();
                 batch_gauss_newton(&batch, theta0, opts).and_then(|rep| {
-                    let v = mean_position_error(drive, validation, &rep.theta)?;
+                    // A batch that estimated extrinsics is scored with them.
+                    let ext = rep.extrinsics.as_ref().map_or(opts.extrinsics, |e| e.value);
+                    let v = mean_position_error_with(drive, validation, &rep.theta, &ext)?;
                     Ok(BatchResult {
                         segment_starts: b.iter().map(|&i| data[i].start).collect(),
                         score: ThetaScore { theta: rep.theta, mean_position_error_m: v.mean_position_error_m },
@@ -241,6 +247,14 @@ impl Estimator for ThreeStepOptions {
             return Err(Error::InvalidOption { field: "final_segments", reason: "must be at least 1".into() });
         }
         Ok(())
+    }
+
+    /// Steps 1 and 3 estimate (or hold) the extrinsics through the shared
+    /// identification, and step 1 scores each batch with its own; step 2's
+    /// input compensation ignores them (its QP compares the axle state with
+    /// the measured reference directly, SPEC §5).
+    fn supports_extrinsics(&self) -> bool {
+        true
     }
 
     fn run(
