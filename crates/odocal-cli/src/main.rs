@@ -108,6 +108,20 @@ struct CalibrationArgs {
     /// Parameters held fixed at θ_0, comma separated (e.g. c_d,t_r,d).
     #[arg(long)]
     fix: Option<ParamSet>,
+    /// Also estimate the pose reference's extrinsics with θ: lever-arm
+    /// and/or heading-offset (or lever_x, lever_y, heading_offset). The
+    /// validation then compares the model's reference point with the
+    /// reference. Batch-gn and three-step (steps 1 and 3) only.
+    #[arg(long)]
+    estimate: Option<ParamSet>,
+    /// Lever arm X,Y (m, x forward, y left) of the pose reference from the
+    /// rear-axle centre: held at this value, or the start of --estimate. Default 0,0.
+    #[arg(long, allow_hyphen_values = true)]
+    lever_arm: Option<String>,
+    /// Heading offset (rad) of the pose reference (reference heading minus
+    /// vehicle heading): held, or the start of --estimate. Default 0.
+    #[arg(long, allow_hyphen_values = true)]
+    heading_offset: Option<f64>,
     /// Minimum peak yaw rate for a segment to be selected, rad/s.
     #[arg(long)]
     min_yaw_rate: Option<f64>,
@@ -226,6 +240,28 @@ impl CalibrationArgs {
         };
         if let Some(t) = self.theta0 {
             o.theta0 = t;
+        }
+        if let Some(e) = self.estimate {
+            let theta = e.intersection(ParamSet::THETA);
+            if !theta.is_empty() {
+                bail!(
+                    "--estimate takes lever-arm, heading-offset (or lever_x, lever_y, heading_offset), not {theta}: \
+                     θ is estimated by default (hold parameters with --fix)"
+                );
+            }
+            o.identify.free = o.identify.free.union(e);
+        }
+        if let Some(s) = &self.lever_arm {
+            let v: Vec<&str> = s.split(',').map(str::trim).collect();
+            let parsed: Vec<f64> = v.iter().filter_map(|x| x.parse::<f64>().ok()).collect();
+            if v.len() != 2 || parsed.len() != 2 {
+                bail!("--lever-arm takes X,Y in metres (x forward, y left), got '{s}'");
+            }
+            o.identify.extrinsics.lever_x = parsed[0];
+            o.identify.extrinsics.lever_y = parsed[1];
+        }
+        if let Some(v) = self.heading_offset {
+            o.identify.extrinsics.heading_offset = v;
         }
         for p in self.fix.unwrap_or_default().iter() {
             o.identify.free.remove(p);

@@ -180,6 +180,8 @@ pub fn axle_pose_jacobian(y: &Vector3<f64>, e: &Extrinsics) -> Matrix3<f64> {
 const N: usize = 7;
 type Vec7 = SVector<f64, N>;
 type Mat7 = SMatrix<f64, N, N>;
+/// Jacobian of one predicted reference pose over `[θ, e]`.
+type Jac = SMatrix<f64, 3, N>;
 
 /// Normal equations over θ and the extrinsics.
 #[derive(Debug, Clone, Copy)]
@@ -190,33 +192,41 @@ struct NormalEquations7 {
     poses: usize,
 }
 
-/// Normal equations of one segment at (θ, e): the segment starts from the
-/// axle pose the reference implies, and the model's reference pose is
-/// compared with the measured one. The sensitivity of the axle state is
-/// propagated for θ (`S_0 = 0`) and for e (`T_0 = ∂g/∂e`, `T_{k+1} = F_x T_k`);
-/// a pose's Jacobian is `[H_x S_k | H_x T_k + H_e]`.
-fn segment_normal_equations(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics, w: &[f64; 3]) -> NormalEquations7 {
-    let wm = Matrix3::from_diagonal(&Vector3::from(*w));
+/// Runs the model over one segment at (θ, e) and calls `visit(k, ŷ_k, J_k)`
+/// for k = 1..=K with the predicted reference pose and its Jacobian
+/// `∂ŷ_k/∂[θ, e]` (3×7). The segment starts from the axle pose the
+/// reference implies; the sensitivity of the axle state is propagated for
+/// θ (`S_0 = 0`, `S_{k+1} = F_x S_k + F_θ`) and for e (`T_0 = ∂g/∂e`,
+/// `T_{k+1} = F_x T_k`), and `J_k = [H_x S_k | H_x T_k + H_e]`.
+fn rollout(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics, mut visit: impl FnMut(usize, &Vector3<f64>, &Jac)) {
     let y0 = seg.reference(0);
     let mut x = axle_pose(&y0, e);
     let mut s = Matrix3x4::<f64>::zeros();
     let mut t = axle_pose_jacobian(&y0, e);
-    let mut ne = NormalEquations7 { jtwj: Mat7::zeros(), jtwr: Vec7::zeros(), cost: 0.0, poses: seg.steps() };
     for k in 0..seg.steps() {
         let j = step_jacobians(&x, &seg.input(k), theta, seg.sample_time_s);
         s = j.f_x * s + j.f_theta;
         t = j.f_x * t;
         x = j.next;
         let (h_x, h_e) = reference_jacobians(&x, e);
-        let mut jac = SMatrix::<f64, 3, N>::zeros();
+        let mut jac = Jac::zeros();
         jac.fixed_view_mut::<3, 4>(0, 0).copy_from(&(h_x * s));
         jac.fixed_view_mut::<3, 3>(0, 4).copy_from(&(h_x * t + h_e));
-        let r = pose_residual(&seg.reference(k + 1), &reference_pose(&x, e));
+        visit(k + 1, &reference_pose(&x, e), &jac);
+    }
+}
+
+/// Normal equations of one segment at (θ, e) ([`rollout`]).
+fn segment_normal_equations(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics, w: &[f64; 3]) -> NormalEquations7 {
+    let wm = Matrix3::from_diagonal(&Vector3::from(*w));
+    let mut ne = NormalEquations7 { jtwj: Mat7::zeros(), jtwr: Vec7::zeros(), cost: 0.0, poses: seg.steps() };
+    rollout(seg, theta, e, |k, y, jac| {
+        let r = pose_residual(&seg.reference(k), y);
         let wj = wm * jac;
         ne.jtwj += jac.transpose() * wj;
         ne.jtwr += wj.transpose() * r;
         ne.cost += r.dot(&(wm * r));
-    }
+    });
     ne
 }
 
@@ -445,6 +455,145 @@ mod tests {
         fn axle_pose_inverts_reference_pose((x, e) in arb()) {
             let back = axle_pose(&reference_pose(&x, &e), &e);
             prop_assert!((back - x).amax() < 1e-9, "{back} vs {x}");
+        }
+    }
+
+    /// A short turning drive from the simulator, reference at `mount`.
+    fn sim_drive(seed: u64, km: f64, mount: Extrinsics, noise_free: bool) -> crate::drive::Drive {
+        use crate::sim::{simulate, SimOptions};
+        let base = if noise_free {
+            SimOptions { substeps: 1, ..SimOptions::noise_free(seed) }
+        } else {
+            SimOptions::paper(seed)
+        };
+        simulate(&SimOptions { length_km: km, reference_mount: mount, ..base }).expect("simulate").drive
+    }
+
+    const VAN: Extrinsics = Extrinsics { lever_x: -0.9, lever_y: 0.05, heading_offset: -0.0099 };
+
+    fn turning_data(d: &crate::drive::Drive) -> Vec<SegmentData<'_>> {
+        let sel = crate::segment::calibration_segments(d, &Default::default()).expect("segments");
+        assert!(sel.selected.len() >= 3, "too few turning segments: {}", sel.selected.len());
+        sel.selected.iter().map(|s| SegmentData::new(d, s)).collect()
+    }
+
+    #[test]
+    fn segment_jacobian_matches_central_differences_of_the_rollout() {
+        let d = sim_drive(4, 1.0, VAN, true);
+        let data = turning_data(&d);
+        let seg = &data[0];
+        let theta = Theta { c_e: 1.96, c_d: -0.001, t_r: 1.55, d: 0.0005 };
+        let e = Extrinsics { lever_x: -0.7, lever_y: 0.2, heading_offset: 0.004 };
+        let predict = |v: &Vec7| {
+            let (th, ex) = split(v);
+            let mut out = Vec::new();
+            rollout(seg, &th, &ex, |_, y, _| out.push(*y));
+            out
+        };
+        let mut jacs = Vec::new();
+        rollout(seg, &theta, &e, |_, _, j| jacs.push(*j));
+        let v0 = join(&theta, &e);
+        for i in 0..N {
+            let h = 1e-6;
+            let (mut vp, mut vm) = (v0, v0);
+            vp[i] += h;
+            vm[i] -= h;
+            let (yp, ym) = (predict(&vp), predict(&vm));
+            for k in (0..jacs.len()).step_by(37) {
+                let fd = (yp[k] - ym[k]) / (2.0 * h);
+                for r in 0..3 {
+                    let (a, b) = (jacs[k][(r, i)], fd[r]);
+                    // Positions are ~1e3 m: round-off of the difference is ~1e-13/1e-6.
+                    assert!((a - b).abs() <= 1e-5 * a.abs().max(b.abs()).max(1.0), "J[{k}][{r},{i}] {a} vs fd {b}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn noise_free_recovers_theta_and_extrinsics() {
+        let d = sim_drive(21, 3.0, VAN, true);
+        let data = turning_data(&d);
+        let opts = IdentifyOptions {
+            free: ParamSet::THETA.union(ParamSet::EXTRINSICS),
+            max_iterations: 30,
+            ..Default::default()
+        };
+        let r = crate::identify::batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &opts).expect("identify");
+        let truth = Theta::SIM_DEFAULT_TRUE;
+        for (got, want) in r.theta.to_array().iter().zip(truth.to_array()) {
+            assert!(((got - want) / want).abs() < 1e-8, "θ {} vs {truth}", r.theta);
+        }
+        let x = r.extrinsics.as_ref().expect("extrinsics estimated");
+        for (got, want) in x.value.to_array().iter().zip(VAN.to_array()) {
+            assert!((got - want).abs() < 1e-8, "{} vs {VAN}", x.value);
+        }
+        assert!(r.observability.unobservable.is_empty(), "{:?}", r.observability);
+        assert_eq!(x.free, ParamSet::EXTRINSICS);
+        // Validation with the estimate: the model's reference point is on the reference.
+        let segs = crate::segment::validation_segments(&d, &Default::default()).expect("segments");
+        let with = crate::validate::mean_position_error_with(&d, &segs, &r.theta, &x.value).expect("validate");
+        assert!(with.mean_position_error_m < 1e-6, "{}", with.mean_position_error_m);
+        let without = crate::validate::mean_position_error(&d, &segs, &truth).expect("validate");
+        assert!(without.mean_position_error_m > 100.0 * with.mean_position_error_m.max(1e-6));
+    }
+
+    #[test]
+    fn held_extrinsics_are_applied_and_not_estimated() {
+        let d = sim_drive(22, 2.0, VAN, true);
+        let data = turning_data(&d);
+        let opts = IdentifyOptions { extrinsics: VAN, max_iterations: 30, ..Default::default() };
+        assert!(opts.uses_extrinsics());
+        let r = crate::identify::batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &opts).expect("identify");
+        let truth = Theta::SIM_DEFAULT_TRUE;
+        for (got, want) in r.theta.to_array().iter().zip(truth.to_array()) {
+            assert!(((got - want) / want).abs() < 1e-8, "θ {} vs {truth}", r.theta);
+        }
+        let x = r.extrinsics.expect("held extrinsics reported");
+        assert_eq!(x.value, VAN);
+        assert!(x.free.is_empty());
+        assert_eq!(x.std_dev, Extrinsics::ZERO);
+    }
+
+    #[test]
+    fn lever_arm_without_turns_is_named_not_observable() {
+        // A straight drive: the lever arm has no effect at all.
+        let th = Theta::SIM_DEFAULT_TRUE;
+        let (ts, n) = (0.025, 2000);
+        let mut x = State::new(0.0, 0.0, 0.3);
+        let mut sig = crate::drive::Signals::with_capacity(n);
+        let mut t = Vec::new();
+        for i in 0..n {
+            let v = 10.0 + 3.0 * (i as f64 * 0.01).sin();
+            let (n_rl, n_rr) = crate::model::wheel_rotations(v, 0.0, 0.0, &th);
+            let u = crate::model::Input { n_rl, n_rr, beta: 0.0, a_y: 0.0 };
+            let y = reference_pose(&x, &VAN);
+            t.push(i as f64 * ts);
+            sig.px.push(y[0]);
+            sig.py.push(y[1]);
+            sig.psi.push(y[2]);
+            sig.n_rl.push(n_rl);
+            sig.n_rr.push(n_rr);
+            sig.beta.push(0.0);
+            sig.a_y.push(0.0);
+            x = crate::model::step(&x, &u, &th, ts);
+        }
+        let d = crate::drive::Drive::builder(t, sig).context("straight").build().expect("drive");
+        let data: Vec<SegmentData> =
+            crate::segment::cut(&d, 0, 650, 100).iter().map(|s| SegmentData::new(&d, s)).collect();
+        let opts = IdentifyOptions {
+            free: "c_e,c_d,lever_x,lever_y,heading_offset".parse().expect("set"),
+            ..Default::default()
+        };
+        match crate::identify::batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &opts) {
+            Err(e) => {
+                let m = e.to_string();
+                assert!(m.contains("lever_x") && m.contains("lever_y"), "{m}");
+            }
+            Ok(r) => {
+                let u = r.observability.unobservable;
+                assert!(u.contains(Param::LeverX) && u.contains(Param::LeverY), "{:?}", r.observability);
+            }
         }
     }
 
