@@ -633,6 +633,9 @@ fn run_calibration(
     let input = source.map(|(p, _)| p.display().to_string()).unwrap_or_else(|| "simulated drive".into());
     if let Some(p) = &args.params_out {
         let mut f = odocal::param_file::ParamFile::from_theta(&r.theta, sigma_or_held(&r), &input, &r.method);
+        if let Some(x) = &r.extrinsics {
+            f.add_extrinsics(x);
+        }
         f.node = args.params_node.clone();
         f.mapping = args.params_mapping;
         f.verdict = Some(r.verdict.level.to_string());
@@ -652,12 +655,16 @@ fn run_calibration(
                 ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
                 ("date".into(), odocal::param_file::utc_date_today()),
             ],
-            params: odocal_report::ParamRow::theta_rows(
-                &r.initial.theta,
-                &r.theta,
-                Some(sigma_or_held(&r)),
-                truth_ref.map(|t| t.0),
-            ),
+            params: {
+                let mut rows = odocal_report::ParamRow::theta_rows(
+                    &r.initial.theta,
+                    &r.theta,
+                    Some(sigma_or_held(&r)),
+                    truth_ref.map(|t| t.0),
+                );
+                rows.extend(r.extrinsics.as_ref().map(odocal_report::ParamRow::extrinsics_rows).unwrap_or_default());
+                rows
+            },
             truth: truth_ref.map(|t| *t.0),
             verdict: Some((r.verdict.level.to_string(), r.verdict.reasons.iter().map(|x| x.to_string()).collect())),
             batches,

@@ -3,7 +3,7 @@
 //! the PSU van's highway log and on its six test-track runs.
 //!
 //! ```text
-//! cargo run --release -p odocal --example extrinsics_check -- sim [SEEDS] [KM]
+//! cargo run --release -p odocal --example extrinsics_check -- sim [SEEDS] [KM] [NOISE]
 //! cargo run --release -p odocal --example extrinsics_check -- van METHOD
 //! cargo run --release -p odocal --example extrinsics_check -- track METHOD
 //! ```
@@ -24,7 +24,7 @@
 use std::path::Path;
 
 use odocal::segment::validation_segments;
-use odocal::sim::{simulate, SimOptions};
+use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{
     calibrate_with_holdout, mean_position_error_with, CalibrationOptions, CalibrationReport, Drive, Extrinsics,
     Holdout, Method, ParamSet, Theta,
@@ -66,12 +66,58 @@ fn extrinsics_cell(r: &CalibrationReport) -> String {
     }
 }
 
-fn sim(seeds: u64, km: f64) -> Result<(), odocal::Error> {
-    println!("paper noise, {km} km, reference mount {MOUNT}; batch G-N over θ and the extrinsics");
+/// The paper noise, or a part of it: `paper`, `reference` (reference-pose
+/// noise only), `no-reference` (every source but the reference pose's),
+/// `white-reference` (paper noise with the reference drifts off),
+/// `reference-white-only` (only the reference's white noise: the noise the
+/// model σ assumes).
+fn noise(preset: &str) -> Result<NoiseOptions, odocal::Error> {
+    let p = NoiseOptions::paper();
+    let off = NoiseOptions::off();
+    Ok(match preset {
+        "paper" => p,
+        "off" => off,
+        "reference" => NoiseOptions {
+            position_drift_sigma_m: p.position_drift_sigma_m,
+            position_white_sigma_m: p.position_white_sigma_m,
+            heading_drift_sigma_rad: p.heading_drift_sigma_rad,
+            heading_white_sigma_rad: p.heading_white_sigma_rad,
+            ..off
+        },
+        "no-reference" => NoiseOptions {
+            position_drift_sigma_m: 0.0,
+            position_white_sigma_m: 0.0,
+            heading_drift_sigma_rad: 0.0,
+            heading_white_sigma_rad: 0.0,
+            ..p
+        },
+        "white-reference" => NoiseOptions { position_drift_sigma_m: 0.0, heading_drift_sigma_rad: 0.0, ..p },
+        "reference-white-only" => NoiseOptions {
+            position_white_sigma_m: p.position_white_sigma_m,
+            heading_white_sigma_rad: p.heading_white_sigma_rad,
+            ..off
+        },
+        other => {
+            return Err(odocal::Error::InvalidOption {
+                field: "noise",
+                reason: format!("'{other}': paper, reference, no-reference, white-reference or reference-white-only"),
+            })
+        }
+    })
+}
+
+fn sim(seeds: u64, km: f64, preset: &str) -> Result<(), odocal::Error> {
+    println!("noise '{preset}', {km} km, reference mount {MOUNT}; batch G-N over θ and the extrinsics");
     println!("seed | l_x err (σ) | l_y err (σ) | δ err (σ) mrad | |err|/σ max | c_e rel err | t_r rel err");
     let mut worst = 0.0f64;
     for seed in 1..=seeds {
-        let drive = simulate(&SimOptions { length_km: km, reference_mount: MOUNT, ..SimOptions::paper(seed) })?.drive;
+        let drive = simulate(&SimOptions {
+            length_km: km,
+            reference_mount: MOUNT,
+            noise: noise(preset)?,
+            ..SimOptions::paper(seed)
+        })?
+        .drive;
         let r = odocal::calibrate(&drive, &options("batch-gn", true, false)?, None)?;
         let x = r.extrinsics.as_ref().ok_or_else(|| odocal::Error::Numerical("no extrinsics".into()))?;
         let err: Vec<f64> = x.value.to_array().iter().zip(MOUNT.to_array()).map(|(a, b)| a - b).collect();
@@ -201,6 +247,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "sim" => sim(
             args.get(1).and_then(|s| s.parse().ok()).unwrap_or(5),
             args.get(2).and_then(|s| s.parse().ok()).unwrap_or(8.0),
+            args.get(3).map(String::as_str).unwrap_or("paper"),
         )?,
         "van" => van(method)?,
         "track" => track(method)?,
