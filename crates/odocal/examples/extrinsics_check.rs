@@ -5,7 +5,7 @@
 //! ```text
 //! cargo run --release -p odocal --example extrinsics_check -- sim [SEEDS] [KM] [NOISE]
 //! cargo run --release -p odocal --example extrinsics_check -- van METHOD
-//! cargo run --release -p odocal --example extrinsics_check -- track METHOD
+//! cargo run --release -p odocal --example extrinsics_check -- track METHOD [HELD]
 //! ```
 //!
 //! METHOD is `batch-gn` (all segments: `--min-yaw-rate 0` on the van, the
@@ -18,7 +18,8 @@
 //!   lever-arm,heading-offset`: Ē_p, extrinsics ± σ, verdict.
 //! - `track`: `examples/psu-mapping-van-testtrack/run-*.toml`; each run
 //!   fitted and validated on the other five (as `--validate-on`), without
-//!   and with extrinsics; c_d per direction (runs 14-45-26, 15-28-33,
+//!   and with extrinsics (HELD: parameters held at θ_0, e.g. `d`); c_d per
+//!   direction over the runs not rejected (runs 14-45-26, 15-28-33,
 //!   16-06-28 counter-clockwise, the others clockwise).
 
 use std::path::Path;
@@ -180,19 +181,20 @@ fn cross_error(drive: &Drive, theta: &Theta, e: &Extrinsics) -> Result<f64, odoc
     Ok(mean_position_error_with(drive, &segs, theta, e)?.mean_position_error_m)
 }
 
-fn track(method: &str) -> Result<(), odocal::Error> {
+fn track(method: &str, fix: ParamSet) -> Result<(), odocal::Error> {
     let mut drives = Vec::new();
     for (run, _) in RUNS {
         let p = format!("examples/psu-mapping-van-testtrack/run-{run}.toml");
         drives.push(odocal::load_drive(Path::new(&p))?.0);
     }
-    println!("test track, method {method} (default selection); Ē_p on the other five runs");
+    println!("test track, method {method} (default selection), held: [{fix}]; Ē_p on the other five runs");
     println!("run | dir | extrinsics | own Ē_p m | others Ē_p m (θ_0 m) | c_e m | c_d mm | t_r m | d mm/(m/s²) | extrinsics ± σ | verdict");
     for with in [false, true] {
         let mut cd = (Vec::new(), Vec::new());
         let mut cross = Vec::new();
         for (i, (run, dir)) in RUNS.iter().enumerate() {
-            let o = options(method, with, false)?;
+            let mut o = options(method, with, false)?;
+            o.identify.free = o.identify.free.difference(fix);
             let r = match odocal::calibrate(&drives[i], &o, None) {
                 Ok(r) => r,
                 Err(e) => {
@@ -228,7 +230,7 @@ fn track(method: &str) -> Result<(), odocal::Error> {
         }
         let mean = |v: &Vec<f64>| v.iter().sum::<f64>() / v.len().max(1) as f64;
         println!(
-            "extrinsics {}: mean cross-run Ē_p {:.3} m; mean c_d clockwise {:+.3} mm, counter-clockwise {:+.3} mm, difference {:+.3} mm",
+            "extrinsics {}: mean cross-run Ē_p {:.3} m; mean c_d (runs not rejected) clockwise {:+.3} mm, counter-clockwise {:+.3} mm, difference {:+.3} mm",
             if with { "estimated" } else { "none" },
             mean(&cross),
             mean(&cd.0) * 1e3,
@@ -250,7 +252,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             args.get(3).map(String::as_str).unwrap_or("paper"),
         )?,
         "van" => van(method)?,
-        "track" => track(method)?,
+        "track" => track(method, args.get(2).map(|s| s.parse()).transpose()?.unwrap_or_default())?,
         other => return Err(format!("unknown part '{other}': sim, van or track").into()),
     }
     Ok(())
