@@ -108,6 +108,20 @@ struct CalibrationArgs {
     /// Parameters held fixed at θ_0, comma separated (e.g. c_d,t_r,d).
     #[arg(long)]
     fix: Option<ParamSet>,
+    /// Also estimate the pose reference's extrinsics with θ: lever-arm
+    /// and/or heading-offset (or lever_x, lever_y, heading_offset). The
+    /// validation then compares the model's reference point with the
+    /// reference. Batch-gn and three-step (steps 1 and 3) only.
+    #[arg(long)]
+    estimate: Option<ParamSet>,
+    /// Lever arm X,Y (m, x forward, y left) of the pose reference from the
+    /// rear-axle centre: held at this value, or the start of --estimate. Default 0,0.
+    #[arg(long, allow_hyphen_values = true)]
+    lever_arm: Option<String>,
+    /// Heading offset (rad) of the pose reference (reference heading minus
+    /// vehicle heading): held, or the start of --estimate. Default 0.
+    #[arg(long, allow_hyphen_values = true)]
+    heading_offset: Option<f64>,
     /// Minimum peak yaw rate for a segment to be selected, rad/s.
     #[arg(long)]
     min_yaw_rate: Option<f64>,
@@ -227,6 +241,28 @@ impl CalibrationArgs {
         };
         if let Some(t) = self.theta0 {
             o.theta0 = t;
+        }
+        if let Some(e) = self.estimate {
+            let theta = e.intersection(ParamSet::THETA);
+            if !theta.is_empty() {
+                bail!(
+                    "--estimate takes lever-arm, heading-offset (or lever_x, lever_y, heading_offset), not {theta}: \
+                     θ is estimated by default (hold parameters with --fix)"
+                );
+            }
+            o.identify.free = o.identify.free.union(e);
+        }
+        if let Some(s) = &self.lever_arm {
+            let v: Vec<&str> = s.split(',').map(str::trim).collect();
+            let parsed: Vec<f64> = v.iter().filter_map(|x| x.parse::<f64>().ok()).collect();
+            if v.len() != 2 || parsed.len() != 2 {
+                bail!("--lever-arm takes X,Y in metres (x forward, y left), got '{s}'");
+            }
+            o.identify.extrinsics.lever_x = parsed[0];
+            o.identify.extrinsics.lever_y = parsed[1];
+        }
+        if let Some(v) = self.heading_offset {
+            o.identify.extrinsics.heading_offset = v;
         }
         for p in self.fix.unwrap_or_default().iter() {
             o.identify.free.remove(p);
@@ -613,6 +649,9 @@ fn run_calibration(
     let input = source.map(|(p, _)| p.display().to_string()).unwrap_or_else(|| "simulated drive".into());
     if let Some(p) = &args.params_out {
         let mut f = odocal::param_file::ParamFile::from_theta(&r.theta, sigma_or_held(&r), &input, &r.method);
+        if let Some(x) = &r.extrinsics {
+            f.add_extrinsics(x);
+        }
         f.node = args.params_node.clone();
         f.mapping = args.params_mapping;
         f.verdict = Some(r.verdict.level.to_string());
@@ -632,12 +671,16 @@ fn run_calibration(
                 ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
                 ("date".into(), odocal::param_file::utc_date_today()),
             ],
-            params: odocal_report::ParamRow::theta_rows(
-                &r.initial.theta,
-                &r.theta,
-                Some(sigma_or_held(&r)),
-                truth_ref.map(|t| t.0),
-            ),
+            params: {
+                let mut rows = odocal_report::ParamRow::theta_rows(
+                    &r.initial.theta,
+                    &r.theta,
+                    Some(sigma_or_held(&r)),
+                    truth_ref.map(|t| t.0),
+                );
+                rows.extend(r.extrinsics.as_ref().map(odocal_report::ParamRow::extrinsics_rows).unwrap_or_default());
+                rows
+            },
             truth: truth_ref.map(|t| *t.0),
             verdict: Some((r.verdict.level.to_string(), r.verdict.reasons.iter().map(|x| x.to_string()).collect())),
             batches,

@@ -2,7 +2,7 @@
 
 use std::fmt::Write as _;
 
-use odocal::{CalibrationReport, Method, MultiValidation, Theta, Verdict, VerdictLevel};
+use odocal::{CalibrationReport, ExtrinsicsEstimate, Method, MultiValidation, Param, Theta, Verdict, VerdictLevel};
 
 fn row(out: &mut String, name: &str, unit: &str, values: &[Option<f64>], scale: f64, prec: usize) {
     let _ = write!(out, "  {name:<4} {unit:<14}");
@@ -36,6 +36,22 @@ pub fn theta_table(columns: &[(&str, Option<Theta>)]) -> String {
     row(&mut out, "c_d", "mm", &get(|t| t.c_d), 1e3, 4);
     row(&mut out, "t_r", "m", &get(|t| t.t_r), 1.0, 6);
     row(&mut out, "d", "mm/(m/s²)", &get(|t| t.d), 1e3, 4);
+    out
+}
+
+/// The reference extrinsics: initial, calibrated (or held) value and 1σ.
+pub fn extrinsics_table(x: &ExtrinsicsEstimate) -> String {
+    let mut out = String::from("  reference extrinsics (lever arm from the rear-axle centre, x forward, y left):\n");
+    let (init, val, sd) = (x.initial.to_array(), x.value.to_array(), x.std_dev.to_array());
+    for (i, p) in Param::EXTRINSICS.into_iter().enumerate() {
+        let sigma = if x.free.contains(p) { sd[i] } else { f64::NAN };
+        let (name, unit, scale, prec) = match p {
+            Param::HeadingOffset => ("δ", "mrad", 1e3, 4),
+            Param::LeverX => ("l_x", "m", 1.0, 4),
+            _ => ("l_y", "m", 1.0, 4),
+        };
+        row(&mut out, name, unit, &[Some(init[i]), Some(val[i]), Some(sigma)], scale, prec);
+    }
     out
 }
 
@@ -139,6 +155,9 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
         cols.push(("truth", Some(*t)));
     }
     out.push_str(&theta_table(&cols));
+    if let Some(x) = &r.extrinsics {
+        out.push_str(&extrinsics_table(x));
+    }
     out.push_str(&verdict(&r.verdict));
     if let Some(w) = wheel_scale {
         let _ = writeln!(out, "  wheels: {w}");

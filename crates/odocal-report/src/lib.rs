@@ -111,6 +111,30 @@ impl ParamRow {
     }
 }
 
+impl ParamRow {
+    /// Rows for the reference extrinsics (lever arm in m, heading offset in
+    /// mrad); held entries have no σ.
+    pub fn extrinsics_rows(x: &odocal::ExtrinsicsEstimate) -> Vec<ParamRow> {
+        let (init, val, sd) = (x.initial.to_array(), x.value.to_array(), x.std_dev.to_array());
+        odocal::Param::EXTRINSICS
+            .into_iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let (unit, scale) = if i == 2 { ("mrad", 1e3) } else { ("m", 1.0) };
+                ParamRow {
+                    name: p.name().to_string(),
+                    unit: unit.to_string(),
+                    scale,
+                    initial: init[i],
+                    calibrated: val[i],
+                    sigma: x.free.contains(p).then_some(sd[i]),
+                    truth: None,
+                }
+            })
+            .collect()
+    }
+}
+
 /// Everything the HTML report shows. Build with [`ReportInput::new`] and
 /// fill in what is known.
 #[derive(Debug, Clone)]

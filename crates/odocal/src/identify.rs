@@ -23,6 +23,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
+use crate::extrinsics::{Extrinsics, ExtrinsicsEstimate};
 use crate::model::{step_jacobians, wrap_angle, Theta};
 use crate::param::{Param, ParamSet};
 use crate::segment::SegmentData;
@@ -64,6 +65,21 @@ pub struct IdentifyOptions {
     /// (straight), 5.1e-4, and 2.6e-3 with t_r fixed (c_d against d: the IMU
     /// a_y carries a roll/bank bias that makes d·a_y act like c_d).
     pub min_rcond: f64,
+    /// The reference sensor's extrinsics (lever arm, heading offset): the
+    /// initial value of those in [`IdentifyOptions::free`] and the held
+    /// value of the others. Default 0 (the reference is the rear-axle
+    /// centre, aligned with the vehicle: SPEC §1). See [`crate::extrinsics`].
+    #[serde(default)]
+    pub extrinsics: Extrinsics,
+    /// Resolutions of the extrinsics for the observability check, `[lever_x
+    /// (m), lever_y (m), heading_offset (rad)]`. Default `[0.1, 0.1, 0.001]`
+    /// (10 cm, 1 mrad: 1 mrad moves a 300 m dead-reckoned path by 0.3 m).
+    #[serde(default = "default_extrinsics_resolution")]
+    pub extrinsics_resolution: [f64; 3],
+}
+
+fn default_extrinsics_resolution() -> [f64; 3] {
+    [0.1, 0.1, 0.001]
 }
 
 impl Default for IdentifyOptions {
@@ -77,6 +93,8 @@ impl Default for IdentifyOptions {
             resolution: [0.01, 0.001, 0.015, 0.0005],
             min_sensitivity_m: 0.01,
             min_rcond: 1e-2,
+            extrinsics: Extrinsics::ZERO,
+            extrinsics_resolution: default_extrinsics_resolution(),
         }
     }
 }
@@ -96,7 +114,18 @@ impl IdentifyOptions {
         if !(self.min_rcond.is_finite() && (0.0..1.0).contains(&self.min_rcond)) {
             return Err(Error::InvalidOption { field: "min_rcond", reason: "must be in [0, 1)".into() });
         }
+        self.extrinsics.validate()?;
+        if self.extrinsics_resolution.iter().any(|r| !(r.is_finite() && *r > 0.0)) {
+            return Err(Error::InvalidOption { field: "extrinsics_resolution", reason: "must be positive".into() });
+        }
         Ok(())
+    }
+
+    /// True when the identification involves the reference extrinsics:
+    /// some of them are free, or held at a value other than 0. Otherwise
+    /// the SPEC's θ-only path runs, unchanged.
+    pub fn uses_extrinsics(&self) -> bool {
+        !self.free.intersection(ParamSet::EXTRINSICS).is_empty() || !self.extrinsics.is_zero()
     }
 }
 
@@ -216,6 +245,11 @@ pub struct IdentifyReport {
     pub segments: usize,
     /// Residual poses used (Σ K).
     pub residual_poses: usize,
+    /// The reference extrinsics (initial, estimate, σ, covariance), when
+    /// the identification involved them ([`IdentifyOptions::uses_extrinsics`]).
+    /// `history` and `covariance` hold θ only.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub extrinsics: Option<ExtrinsicsEstimate>,
 }
 
 impl std::fmt::Display for IdentifyReport {
@@ -224,7 +258,11 @@ impl std::fmt::Display for IdentifyReport {
             f,
             "{} | cost {:.4e} -> {:.4e} in {} it ({}), rcond {:.2e}",
             self.theta, self.initial_cost, self.final_cost, self.iterations, self.termination, self.observability.rcond
-        )
+        )?;
+        if let Some(e) = &self.extrinsics {
+            write!(f, " | {}", e.value)?;
+        }
+        Ok(())
     }
 }
 
@@ -323,13 +361,34 @@ fn reduce(m: &Matrix4<f64>, v: &Vector4<f64>, free: &[usize]) -> (nalgebra::DMat
     (a, b)
 }
 
-/// Observability diagnostics of the free block of `JᵀWJ`.
+/// Observability diagnostics of the free block of `JᵀWJ` (θ only: free
+/// extrinsics are left out here; the identification with extrinsics runs
+/// [`observability_of`] over all seven).
 pub fn observability(ne: &NormalEquations, free: ParamSet, opts: &IdentifyOptions) -> Observability {
-    let idx = free.indices();
-    let poses = ne.poses.max(1) as f64;
-    let mut sensitivity = [0.0; 4];
+    let jtwj = nalgebra::DMatrix::from_fn(4, 4, |i, j| ne.jtwj[(i, j)]);
+    let (rcond, s, unobservable) =
+        observability_of(&jtwj, ne.poses, free.intersection(ParamSet::THETA), &opts.resolution, opts);
+    Observability { rcond, sensitivity_m: [s[0], s[1], s[2], s[3]], unobservable }
+}
+
+/// The observability check on a `JᵀWJ` over the first `jtwj.nrows()`
+/// parameters in vector order ([`Param::index`]), with one resolution per
+/// parameter: the reciprocal condition number of the equilibrated free
+/// block, the sensitivity of each parameter (0 when not free) and the
+/// parameters named not observable.
+pub fn observability_of(
+    jtwj: &nalgebra::DMatrix<f64>,
+    poses: usize,
+    free: ParamSet,
+    resolution: &[f64],
+    opts: &IdentifyOptions,
+) -> (f64, Vec<f64>, ParamSet) {
+    let n = jtwj.nrows();
+    let idx: Vec<usize> = free.indices().into_iter().filter(|i| *i < n).collect();
+    let poses = poses.max(1) as f64;
+    let mut sensitivity = vec![0.0; n];
     for &i in &idx {
-        sensitivity[i] = (ne.jtwj[(i, i)].max(0.0) / poses).sqrt() * opts.resolution[i];
+        sensitivity[i] = (jtwj[(i, i)].max(0.0) / poses).sqrt() * resolution[i];
     }
     // Physically scaled matrix: Hs = S H S / poses (S = resolutions).
     let p = idx.len();
@@ -337,15 +396,15 @@ pub fn observability(ne: &NormalEquations, free: ParamSet, opts: &IdentifyOption
     let mut he = nalgebra::DMatrix::zeros(p, p);
     for (a, &i) in idx.iter().enumerate() {
         for (b, &j) in idx.iter().enumerate() {
-            hs[(a, b)] = ne.jtwj[(i, j)] * opts.resolution[i] * opts.resolution[j] / poses;
-            let dd = (ne.jtwj[(i, i)] * ne.jtwj[(j, j)]).sqrt();
-            he[(a, b)] = if dd > 0.0 { ne.jtwj[(i, j)] / dd } else { 0.0 };
+            hs[(a, b)] = jtwj[(i, j)] * resolution[i] * resolution[j] / poses;
+            let dd = (jtwj[(i, i)] * jtwj[(j, j)]).sqrt();
+            he[(a, b)] = if dd > 0.0 { jtwj[(i, j)] / dd } else { 0.0 };
         }
     }
     let eig_e = SymmetricEigen::new(he);
     let (mn, mx) = eig_e.eigenvalues.iter().fold((f64::INFINITY, 0.0f64), |(a, b), &l| (a.min(l), b.max(l)));
     let rcond = if mx > 0.0 { (mn / mx).max(0.0) } else { 0.0 };
-    let mut weak = [false; 4];
+    let mut weak = vec![false; n];
     // A near-collinear combination (equilibrated eigenvalue below min_rcond
     // of the largest): the parameters in it cannot be told apart.
     if p > 1 {
@@ -373,8 +432,8 @@ pub fn observability(ne: &NormalEquations, free: ParamSet, opts: &IdentifyOption
             }
         }
     }
-    let unobservable = (0..4).filter(|i| weak[*i]).filter_map(Param::from_index).collect();
-    Observability { rcond, sensitivity_m: sensitivity, unobservable }
+    let unobservable = (0..n).filter(|i| weak[*i]).filter_map(Param::from_index).collect();
+    (rcond, sensitivity, unobservable)
 }
 
 /// Batch Gauss-Newton over segments from `theta0` (SPEC §4). With one
@@ -403,6 +462,9 @@ pub fn batch_gauss_newton(
     theta0.validate()?;
     if segments.is_empty() {
         return Err(Error::NoSegments("Gauss-Newton needs at least one segment".into()));
+    }
+    if opts.uses_extrinsics() {
+        return crate::extrinsics::batch_gauss_newton_with_extrinsics(segments, theta0, opts);
     }
     let free = opts.free.indices();
     let w = &opts.weights;
@@ -483,6 +545,7 @@ pub fn batch_gauss_newton(
         observability: obs,
         segments: segments.len(),
         residual_poses: ne.poses,
+        extrinsics: None,
     })
 }
 

@@ -66,6 +66,7 @@ pub mod drive;
 pub mod eiv;
 pub mod error;
 pub mod experiment;
+pub mod extrinsics;
 pub mod identify;
 pub mod import;
 pub mod limits;
@@ -99,6 +100,7 @@ pub use compensate::{CompensateOptions, QpOptions};
 pub use drive::{Drive, Signals};
 pub use error::{Error, Result};
 pub use experiment::{Experiment, ExperimentOptions};
+pub use extrinsics::{Extrinsics, ExtrinsicsEstimate};
 pub use identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport, Observability, Termination};
 pub use import::{import, load_drive, ImportReport, ImportedDrive, Manifest};
 pub use model::{Input, State, Theta};
@@ -109,7 +111,7 @@ pub use reachable::{reachable_minimum, reachable_minimum_with_progress, Reachabl
 pub use segment::{Segment, SegmentData, SegmentOptions, ValidationSegmentOptions};
 pub use trust::{GuardViolation, Guards, TrustOptions, Verdict, VerdictLevel, VerdictReason};
 pub use validate::{
-    mean_position_error, validate, validate_drives, validate_with_progress, DriveValidation, MultiValidation,
-    ValidateOptions, ValidateReport, ValidationReport,
+    mean_position_error, mean_position_error_with, validate, validate_drives, validate_with_progress, DriveValidation,
+    MultiValidation, ValidateOptions, ValidateReport, ValidationReport,
 };
 pub use warning::Warning;

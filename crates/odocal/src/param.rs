@@ -5,15 +5,17 @@
 //! serialise as names (`"c_e"`, `["c_d", "t_r"]`), so JSON reports read the
 //! same as the paper's symbols.
 //!
-//! Today the parameters are the four of θ. Later entries (the reference
-//! sensor's lever arm x/y and heading offset, noise scales) join as new
-//! variants *after* `D`: [`Param::index`] is the position in the full
-//! parameter vector, θ's four first, and [`ParamSet`] is a bit set with room
-//! for 32 entries.
+//! The parameters are the four of θ, then the reference sensor's
+//! extrinsics (lever arm x/y and heading offset, [`crate::extrinsics`]),
+//! which are held at their given value (default 0) unless asked for. Later
+//! entries (noise scales) join as new variants after those:
+//! [`Param::index`] is the position in the full parameter vector, θ's four
+//! first, and [`ParamSet`] is a bit set with room for 32 entries.
 
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
 use crate::error::{Error, Result};
+use crate::extrinsics::Extrinsics;
 use crate::model::Theta;
 
 /// One estimated parameter.
@@ -31,11 +33,26 @@ pub enum Param {
     /// Load-transfer coefficient d, m per m/s².
     #[serde(rename = "d")]
     D,
+    /// Lever arm of the pose reference along the vehicle's forward axis, m
+    /// ([`crate::extrinsics::Extrinsics::lever_x`]).
+    #[serde(rename = "lever_x")]
+    LeverX,
+    /// Lever arm of the pose reference along the vehicle's left axis, m.
+    #[serde(rename = "lever_y")]
+    LeverY,
+    /// Heading of the pose reference minus the vehicle's, rad.
+    #[serde(rename = "heading_offset")]
+    HeadingOffset,
 }
 
 impl Param {
     /// The four parameters of θ, in vector order `[c_e, c_d, t_r, d]`.
     pub const THETA: [Param; 4] = [Param::CE, Param::CD, Param::TR, Param::D];
+    /// The reference extrinsics, in vector order `[lever_x, lever_y, heading_offset]`.
+    pub const EXTRINSICS: [Param; 3] = [Param::LeverX, Param::LeverY, Param::HeadingOffset];
+    /// Every parameter, in vector order.
+    pub const ALL: [Param; 7] =
+        [Param::CE, Param::CD, Param::TR, Param::D, Param::LeverX, Param::LeverY, Param::HeadingOffset];
 
     /// The name used in reports and on the command line (`"c_e"`, …).
     pub const fn name(self) -> &'static str {
@@ -44,6 +61,25 @@ impl Param {
             Param::CD => "c_d",
             Param::TR => "t_r",
             Param::D => "d",
+            Param::LeverX => "lever_x",
+            Param::LeverY => "lever_y",
+            Param::HeadingOffset => "heading_offset",
+        }
+    }
+
+    /// True for the four parameters of θ.
+    pub const fn is_theta(self) -> bool {
+        (self as usize) < 4
+    }
+
+    /// Position among the extrinsics `[lever_x, lever_y, heading_offset]`,
+    /// `None` for a θ parameter.
+    pub const fn extrinsics_index(self) -> Option<usize> {
+        match self {
+            Param::LeverX => Some(0),
+            Param::LeverY => Some(1),
+            Param::HeadingOffset => Some(2),
+            _ => None,
         }
     }
 
@@ -54,17 +90,24 @@ impl Param {
 
     /// The parameter at vector position `i`, if there is one.
     pub fn from_index(i: usize) -> Option<Param> {
-        Param::THETA.get(i).copied()
+        Param::ALL.get(i).copied()
     }
 
-    /// This parameter's value in θ.
+    /// This parameter's value in θ; the extrinsics are not part of θ and
+    /// read NaN here (use [`Param::value_in`]).
     pub fn value(self, theta: &Theta) -> f64 {
         match self {
             Param::CE => theta.c_e,
             Param::CD => theta.c_d,
             Param::TR => theta.t_r,
             Param::D => theta.d,
+            Param::LeverX | Param::LeverY | Param::HeadingOffset => f64::NAN,
         }
+    }
+
+    /// This parameter's value in θ or in the extrinsics.
+    pub fn value_in(self, theta: &Theta, extrinsics: &Extrinsics) -> f64 {
+        extrinsics.get(self).unwrap_or_else(|| self.value(theta))
     }
 }
 
@@ -77,10 +120,10 @@ impl std::fmt::Display for Param {
 impl std::str::FromStr for Param {
     type Err = Error;
     fn from_str(s: &str) -> Result<Self> {
-        Param::THETA.into_iter().find(|p| p.name() == s.trim()).ok_or_else(|| Error::Parse {
+        Param::ALL.into_iter().find(|p| p.name() == s.trim()).ok_or_else(|| Error::Parse {
             what: "parameter",
             input: s.to_string(),
-            expected: "c_e, c_d, t_r or d",
+            expected: "c_e, c_d, t_r or d (or lever_x, lever_y, heading_offset)",
         })
     }
 }
@@ -101,6 +144,10 @@ impl ParamSet {
     pub const EMPTY: ParamSet = ParamSet(0);
     /// The four parameters of θ.
     pub const THETA: ParamSet = ParamSet(0b1111);
+    /// The reference extrinsics (lever_x, lever_y, heading_offset).
+    pub const EXTRINSICS: ParamSet = ParamSet(0b111_0000);
+    /// The lever arm (lever_x, lever_y); `lever-arm` in a parsed list.
+    pub const LEVER_ARM: ParamSet = ParamSet(0b011_0000);
 
     /// True when `p` is in the set.
     pub const fn contains(self, p: Param) -> bool {
@@ -145,9 +192,21 @@ impl ParamSet {
         self.0 == 0
     }
 
+    /// The parameters in both this set and `other`'s complement.
+    #[must_use]
+    pub const fn difference(self, other: ParamSet) -> ParamSet {
+        ParamSet(self.0 & !other.0)
+    }
+
+    /// The parameters in either set.
+    #[must_use]
+    pub const fn union(self, other: ParamSet) -> ParamSet {
+        ParamSet(self.0 | other.0)
+    }
+
     /// The parameters in vector order.
     pub fn iter(self) -> impl Iterator<Item = Param> {
-        Param::THETA.into_iter().filter(move |p| self.contains(*p))
+        Param::ALL.into_iter().filter(move |p| self.contains(*p))
     }
 
     /// Vector positions of the parameters, ascending.
@@ -183,9 +242,19 @@ impl std::fmt::Debug for ParamSet {
 
 impl std::str::FromStr for ParamSet {
     type Err = Error;
-    /// Comma-separated names (`"c_d,t_r,d"`); the empty string is the empty set.
+    /// Comma-separated names (`"c_d,t_r,d"`); the empty string is the empty
+    /// set. `lever-arm` (or `lever_arm`) stands for `lever_x, lever_y`, and
+    /// `heading-offset` for `heading_offset`.
     fn from_str(s: &str) -> Result<Self> {
-        s.split(',').map(str::trim).filter(|n| !n.is_empty()).map(str::parse::<Param>).collect()
+        let mut set = ParamSet::EMPTY;
+        for n in s.split(',').map(str::trim).filter(|n| !n.is_empty()) {
+            set = set.union(match n {
+                "lever-arm" | "lever_arm" => ParamSet::LEVER_ARM,
+                "heading-offset" => ParamSet::EMPTY.with(Param::HeadingOffset),
+                _ => ParamSet::EMPTY.with(n.parse::<Param>()?),
+            });
+        }
+        Ok(set)
     }
 }
 
@@ -224,7 +293,30 @@ mod tests {
     #[test]
     fn unknown_name_is_a_parse_error_naming_the_choices() {
         let e = "c_e,tr".parse::<ParamSet>().expect_err("tr is not a parameter");
-        assert_eq!(e.to_string(), "invalid parameter 'tr': use c_e, c_d, t_r or d");
+        assert_eq!(
+            e.to_string(),
+            "invalid parameter 'tr': use c_e, c_d, t_r or d (or lever_x, lever_y, heading_offset)"
+        );
+    }
+
+    #[test]
+    fn extrinsics_names_and_groups() {
+        let s: ParamSet = "lever-arm, heading-offset".parse().expect("groups");
+        assert_eq!(s, ParamSet::EXTRINSICS);
+        assert_eq!(s.to_string(), "lever_x, lever_y, heading_offset");
+        assert_eq!("lever_y".parse::<ParamSet>().expect("name"), ParamSet::EMPTY.with(Param::LeverY));
+        assert_eq!(serde_json::to_string(&s).expect("json"), r#"["lever_x","lever_y","heading_offset"]"#);
+        for (i, p) in Param::ALL.into_iter().enumerate() {
+            assert_eq!(p.index(), i);
+            assert_eq!(Param::from_index(i), Some(p));
+            assert_eq!(p.is_theta(), i < 4);
+            assert_eq!(p.extrinsics_index(), i.checked_sub(4));
+        }
+        assert_eq!(ParamSet::THETA.union(ParamSet::EXTRINSICS).len(), 7);
+        assert_eq!(ParamSet::THETA.union(ParamSet::LEVER_ARM).difference(ParamSet::THETA), ParamSet::LEVER_ARM);
+        let e = Extrinsics { lever_x: -0.9, lever_y: 0.1, heading_offset: -0.01 };
+        approx::assert_relative_eq!(Param::LeverY.value_in(&Theta::PAPER_INITIAL, &e), 0.1);
+        approx::assert_relative_eq!(Param::TR.value_in(&Theta::PAPER_INITIAL, &e), 1.6);
     }
 
     #[test]

@@ -102,6 +102,26 @@ const DESCRIPTIONS: [&str; 4] = [
 ];
 
 impl ParamFile {
+    /// Appends the reference extrinsics (`lever_x`, `lever_y` in m,
+    /// `heading_offset` in rad) with their 1σ (`None` for held entries).
+    pub fn add_extrinsics(&mut self, x: &crate::extrinsics::ExtrinsicsEstimate) {
+        let (value, sd) = (x.value.to_array(), x.std_dev.to_array());
+        let what = [
+            ("m", "pose reference lever arm from the rear-axle centre, forward"),
+            ("m", "pose reference lever arm from the rear-axle centre, left"),
+            ("rad", "pose reference heading minus vehicle heading"),
+        ];
+        for (i, p) in crate::param::Param::EXTRINSICS.into_iter().enumerate() {
+            self.params.push(ParamEntry {
+                name: p.name().into(),
+                value: value[i],
+                sigma: x.free.contains(p).then_some(sd[i]),
+                unit: what[i].0.into(),
+                description: what[i].1.into(),
+            });
+        }
+    }
+
     /// A file for θ with 1σ per entry (`None` = held), provenance filled with
     /// `input`, `method`, the odocal version and today's UTC date.
     pub fn from_theta(theta: &Theta, sigma: [Option<f64>; 4], input: &str, method: &str) -> ParamFile {
@@ -334,6 +354,26 @@ mod tests {
         assert_eq!(p["verdict"].as_str(), Some("accepted"));
         assert_eq!(p["provenance"]["input"].as_str(), Some("drive \"a\".csv"));
         assert_eq!(p["provenance"]["method"].as_str(), Some("batch-gn"));
+    }
+
+    #[test]
+    fn extrinsics_entries_follow_theta() {
+        use crate::extrinsics::{Extrinsics, ExtrinsicsEstimate};
+        let mut f = sample();
+        let x = ExtrinsicsEstimate {
+            value: Extrinsics { lever_x: -0.9, lever_y: 0.0, heading_offset: -0.0099 },
+            std_dev: Extrinsics { lever_x: 0.01, lever_y: 0.02, heading_offset: 1e-4 },
+            free: crate::param::ParamSet::LEVER_ARM,
+            ..ExtrinsicsEstimate::held(Extrinsics::ZERO)
+        };
+        f.add_extrinsics(&x);
+        let j = f.to_json();
+        let p = &j["parameters"];
+        assert_eq!(p["lever_x"].as_f64(), Some(-0.9), "{j}");
+        assert_eq!(p["lever_y_sigma"].as_f64(), Some(0.02), "{j}");
+        assert_eq!(p["heading_offset"].as_f64(), Some(-0.0099), "{j}");
+        assert_eq!(p["heading_offset_held"], serde_json::json!(true), "{j}");
+        assert_eq!(j["units"]["heading_offset"], "rad", "{j}");
     }
 
     #[test]

@@ -62,6 +62,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::drive::{Drive, Signals};
 use crate::error::{Error, Result};
+use crate::extrinsics::Extrinsics;
 use crate::model::{self, Input, State, Theta};
 
 /// Grid step of the speed profile along the route, m.
@@ -351,6 +352,14 @@ pub struct SimOptions {
     pub vehicle: VehicleOptions,
     /// Measurement errors. Default [`NoiseOptions::paper`].
     pub noise: NoiseOptions,
+    /// Where the pose reference sits on the vehicle: the measured pose is
+    /// the reference point `p + R(ψ)·[lever_x, lever_y]` with heading
+    /// `ψ + heading_offset` of the true axle pose, plus the reference noise
+    /// ([`crate::extrinsics`]); the truth columns stay the axle's. Default 0
+    /// (the SPEC's reference; the output, sidecar included, is then
+    /// byte-identical to a simulator without this setting).
+    #[serde(skip_serializing_if = "Extrinsics::is_zero")]
+    pub reference_mount: Extrinsics,
 }
 
 impl Default for SimOptions {
@@ -417,6 +426,7 @@ impl SimOptions {
             speed: SpeedOptions::default(),
             vehicle: VehicleOptions::default(),
             noise: NoiseOptions::paper(),
+            reference_mount: Extrinsics::ZERO,
         }
     }
 
@@ -427,6 +437,7 @@ impl SimOptions {
 
     /// Checks every option, naming the offending field.
     pub fn validate(&self) -> Result<()> {
+        self.reference_mount.validate()?;
         check_positive("length_km", self.length_km)?;
         if self.length_km > MAX_LENGTH_KM {
             return Err(invalid(
@@ -1002,9 +1013,13 @@ pub fn simulate(opts: &SimOptions) -> Result<SimOutput> {
                 count += 1;
             }
         }
-        measured.px.push(truth.px[k] + drift_x.next() + white_pos.next());
-        measured.py.push(truth.py[k] + drift_y.next() + white_pos.next());
-        measured.psi.push(truth.psi[k] + drift_psi.next() + white_psi.next());
+        let mut reference = State::new(truth.px[k], truth.py[k], truth.psi[k]);
+        if !opts.reference_mount.is_zero() {
+            reference = crate::extrinsics::reference_pose(&reference, &opts.reference_mount);
+        }
+        measured.px.push(reference[0] + drift_x.next() + white_pos.next());
+        measured.py.push(reference[1] + drift_y.next() + white_pos.next());
+        measured.psi.push(reference[2] + drift_psi.next() + white_psi.next());
         measured.a_y.push(truth.a_y[k] + white_ay.next());
         measured.beta.push(truth.beta[k] + beta_err.next());
     }

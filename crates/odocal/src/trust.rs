@@ -28,6 +28,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
+use crate::extrinsics::{Extrinsics, ExtrinsicsEstimate};
 use crate::model::Theta;
 use crate::param::{Param, ParamSet};
 
@@ -59,11 +60,39 @@ pub struct Guards {
     /// where the normal equations no longer determine a combination of
     /// parameters at all.
     pub min_rcond: f64,
+    /// |lever arm| per axis (x forward, y left) of the pose reference at
+    /// most this, m, when estimated ([`crate::extrinsics`]). Default 5: an
+    /// antenna or INS farther than 5 m from the rear axle is off a car or
+    /// van (the PSU van's antennas sit about 0.9 m from it).
+    #[serde(default = "default_lever_arm_abs_m")]
+    pub lever_arm_abs_m: f64,
+    /// |heading offset| of the pose reference at most this, rad, when
+    /// estimated. Default 0.1 (5.7°): a mounting or baseline error beyond
+    /// that is a configuration error, not a calibration (the PSU van's is
+    /// about 10 mrad).
+    #[serde(default = "default_heading_offset_abs_rad")]
+    pub heading_offset_abs_rad: f64,
+}
+
+fn default_lever_arm_abs_m() -> f64 {
+    5.0
+}
+
+fn default_heading_offset_abs_rad() -> f64 {
+    0.1
 }
 
 impl Default for Guards {
     fn default() -> Self {
-        Guards { c_e_rel: 0.10, c_d_rel_c_e: 0.01, t_r_rel: 0.30, d_abs_m_per_m_s2: 0.005, min_rcond: 1e-4 }
+        Guards {
+            c_e_rel: 0.10,
+            c_d_rel_c_e: 0.01,
+            t_r_rel: 0.30,
+            d_abs_m_per_m_s2: 0.005,
+            min_rcond: 1e-4,
+            lever_arm_abs_m: default_lever_arm_abs_m(),
+            heading_offset_abs_rad: default_heading_offset_abs_rad(),
+        }
     }
 }
 
@@ -75,6 +104,8 @@ impl Guards {
             (self.c_d_rel_c_e, "guards.c_d_rel_c_e"),
             (self.t_r_rel, "guards.t_r_rel"),
             (self.d_abs_m_per_m_s2, "guards.d_abs_m_per_m_s2"),
+            (self.lever_arm_abs_m, "guards.lever_arm_abs_m"),
+            (self.heading_offset_abs_rad, "guards.heading_offset_abs_rad"),
         ] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(Error::InvalidOption { field, reason: format!("must be positive, got {v}") });
@@ -86,13 +117,16 @@ impl Guards {
         Ok(())
     }
 
-    /// Half-width of the plausible region of `p` around `theta0`, SI units.
+    /// Half-width of the plausible region of `p` around `theta0`, SI units
+    /// (the extrinsics' regions are centred on 0, whatever θ_0).
     pub fn half_width(&self, p: Param, theta0: &Theta) -> f64 {
         match p {
             Param::CE => self.c_e_rel * theta0.c_e.abs(),
             Param::CD => self.c_d_rel_c_e * theta0.c_e.abs(),
             Param::TR => self.t_r_rel * theta0.t_r.abs(),
             Param::D => self.d_abs_m_per_m_s2,
+            Param::LeverX | Param::LeverY => self.lever_arm_abs_m,
+            Param::HeadingOffset => self.heading_offset_abs_rad,
         }
     }
 }
@@ -158,7 +192,7 @@ pub fn check_theta(
     if iterations == Some(0) && !free.is_empty() {
         out.push(GuardViolation::DidNotMove);
     }
-    for p in free.iter() {
+    for p in free.intersection(ParamSet::THETA).iter() {
         let (c, h, v) = (p.value(theta0), guards.half_width(p, theta0), p.value(theta));
         if (v - c).abs() > h {
             out.push(GuardViolation::OutOfRange { param: p, value: v, lower: c - h, upper: c + h });
@@ -166,6 +200,23 @@ pub fn check_theta(
     }
     if rcond.is_nan() || rcond < guards.min_rcond {
         out.push(GuardViolation::IllConditioned { rcond, min_rcond: guards.min_rcond });
+    }
+    out
+}
+
+/// Every guard estimated extrinsics fail: finite, each free one within its
+/// plausible region around 0 ([`Guards::lever_arm_abs_m`],
+/// [`Guards::heading_offset_abs_rad`]).
+pub fn check_extrinsics(e: &Extrinsics, free: ParamSet, guards: &Guards) -> Vec<GuardViolation> {
+    if !e.to_array().iter().all(|v| v.is_finite()) {
+        return vec![GuardViolation::NonFinite];
+    }
+    let mut out = Vec::new();
+    for p in free.intersection(ParamSet::EXTRINSICS).iter() {
+        let (h, v) = (guards.half_width(p, &Theta::PAPER_INITIAL), e.get(p).unwrap_or(f64::NAN));
+        if v.abs() > h {
+            out.push(GuardViolation::OutOfRange { param: p, value: v, lower: -h, upper: h });
+        }
     }
     out
 }
@@ -402,15 +453,19 @@ pub(crate) struct Evidence<'a> {
     pub fit_m: Option<f64>,
     /// θ and its covariance fitted on the held-out data alone (cross-split check).
     pub split: Option<(Theta, [[f64; 4]; 4])>,
+    /// The reference extrinsics, when the calibration involved them.
+    pub extrinsics: Option<&'a ExtrinsicsEstimate>,
 }
 
 /// The verdict on a calibration (see the module docs).
 pub(crate) fn judge(e: &Evidence<'_>, opts: &TrustOptions) -> Verdict {
     let g = &opts.guards;
-    let mut reasons: Vec<VerdictReason> = check_theta(e.theta, e.theta0, e.free, e.iterations, e.rcond, g)
-        .into_iter()
-        .map(|violation| VerdictReason::Implausible { violation })
-        .collect();
+    let mut violations = check_theta(e.theta, e.theta0, e.free, e.iterations, e.rcond, g);
+    if let Some(x) = e.extrinsics {
+        violations.extend(check_extrinsics(&x.value, x.free, g));
+    }
+    let mut reasons: Vec<VerdictReason> =
+        violations.into_iter().map(|violation| VerdictReason::Implausible { violation }).collect();
     if e.calibrated_m.is_nan() || e.calibrated_m > e.initial_m {
         reasons.push(VerdictReason::WorseThanInitial {
             calibrated_m: e.calibrated_m,
@@ -422,7 +477,21 @@ pub(crate) fn judge(e: &Evidence<'_>, opts: &TrustOptions) -> Verdict {
     if !unobservable.is_empty() {
         reasons.push(VerdictReason::Unobservable { params: unobservable });
     }
-    for p in e.free.iter() {
+    if let Some(x) = e.extrinsics {
+        for p in x.free.intersection(e.free).iter() {
+            let (h, i) = (g.half_width(p, e.theta0), p.extrinsics_index().unwrap_or(0));
+            let value = x.value.to_array()[i];
+            let fraction = value.abs() / h;
+            if fraction.is_finite() && fraction > opts.near_bound_fraction && fraction <= 1.0 {
+                reasons.push(VerdictReason::AtGuardBound { param: p, value, fraction });
+            }
+            let sigma = x.std_dev.to_array()[i];
+            if sigma.is_finite() && sigma > opts.max_sigma_fraction * h {
+                reasons.push(VerdictReason::LargeUncertainty { param: p, sigma, fraction: sigma / h });
+            }
+        }
+    }
+    for p in e.free.intersection(ParamSet::THETA).iter() {
         let h = g.half_width(p, e.theta0);
         let fraction = (p.value(e.theta) - p.value(e.theta0)).abs() / h;
         if fraction.is_finite() && fraction > opts.near_bound_fraction && fraction <= 1.0 {
@@ -501,7 +570,37 @@ mod tests {
             initial_m: 20.0,
             fit_m: None,
             split: None,
+            extrinsics: None,
         }
+    }
+
+    #[test]
+    fn extrinsics_guards_bound_the_lever_arm_and_heading_offset() {
+        let g = Guards::default();
+        let free = ParamSet::EXTRINSICS;
+        let van = Extrinsics { lever_x: -0.9, lever_y: 0.0, heading_offset: -0.0099 };
+        assert!(check_extrinsics(&van, free, &g).is_empty());
+        let wild = Extrinsics { lever_x: -12.0, lever_y: 0.0, heading_offset: 0.3 };
+        let v = check_extrinsics(&wild, free, &g);
+        assert_eq!(v.len(), 2, "{v:?}");
+        assert!(matches!(v[0], GuardViolation::OutOfRange { param: Param::LeverX, .. }), "{v:?}");
+        assert!(matches!(v[1], GuardViolation::OutOfRange { param: Param::HeadingOffset, .. }), "{v:?}");
+        // Held values are not judged.
+        assert!(check_extrinsics(&wild, ParamSet::EMPTY, &g).is_empty());
+        assert_eq!(
+            check_extrinsics(&Extrinsics { lever_y: f64::NAN, ..van }, free, &g),
+            vec![GuardViolation::NonFinite]
+        );
+        // In the verdict: an estimated 12 m lever arm rejects the calibration.
+        let th = Theta { c_e: 1.95, c_d: -0.002, t_r: 1.53, d: 0.0008 };
+        let cov = [[1e-8, 0.0, 0.0, 0.0], [0.0, 1e-11, 0.0, 0.0], [0.0, 0.0, 1e-7, 0.0], [0.0, 0.0, 0.0, 1e-11]];
+        let est = ExtrinsicsEstimate { value: wild, free, ..ExtrinsicsEstimate::held(Extrinsics::ZERO) };
+        let e = Evidence { free: ParamSet::THETA.union(free), extrinsics: Some(&est), ..evidence(&th, &cov) };
+        let v = judge(&e, &TrustOptions::default());
+        assert_eq!(v.level, VerdictLevel::Rejected, "{v:?}");
+        let est = ExtrinsicsEstimate { value: van, free, ..ExtrinsicsEstimate::held(Extrinsics::ZERO) };
+        let e = Evidence { free: ParamSet::THETA.union(free), extrinsics: Some(&est), ..evidence(&th, &cov) };
+        assert_eq!(judge(&e, &TrustOptions::default()).level, VerdictLevel::Accepted);
     }
 
     #[test]

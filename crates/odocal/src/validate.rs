@@ -16,6 +16,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::drive::Drive;
 use crate::error::{Error, Result};
+use crate::extrinsics::Extrinsics;
 use crate::model::{step, Theta};
 use crate::progress::ProgressFn;
 use crate::reachable::{reachable_minimum_with_progress, ReachableOptions, ReachableReport};
@@ -47,15 +48,36 @@ pub fn segment_position_error(seg: &SegmentData<'_>, theta: &Theta) -> f64 {
 
 /// Ē_p of θ over `segments` of `drive`, parallel over segments, deterministic.
 pub fn mean_position_error(drive: &Drive, segments: &[Segment], theta: &Theta) -> Result<ValidationReport> {
+    mean_position_error_with(drive, segments, theta, &Extrinsics::ZERO)
+}
+
+/// Ē_p of θ with the pose reference mounted at `extrinsics`: each segment
+/// starts from the axle pose the reference implies and the model's
+/// reference point is compared with the measured one
+/// ([`crate::extrinsics::segment_position_error`]). With zero extrinsics
+/// this is [`mean_position_error`], bit for bit.
+pub fn mean_position_error_with(
+    drive: &Drive,
+    segments: &[Segment],
+    theta: &Theta,
+    extrinsics: &Extrinsics,
+) -> Result<ValidationReport> {
     theta.validate()?;
+    extrinsics.validate()?;
     if segments.is_empty() {
         return Err(Error::NoSegments(format!(
             "the drive ({} samples) is too short for one validation segment",
             drive.len()
         )));
     }
-    let per_segment_m: Vec<f64> =
-        segments.par_iter().map(|s| segment_position_error(&SegmentData::new(drive, s), theta)).collect();
+    let per_segment_m: Vec<f64> = if extrinsics.is_zero() {
+        segments.par_iter().map(|s| segment_position_error(&SegmentData::new(drive, s), theta)).collect()
+    } else {
+        segments
+            .par_iter()
+            .map(|s| crate::extrinsics::segment_position_error(&SegmentData::new(drive, s), theta, extrinsics))
+            .collect()
+    };
     let mean = per_segment_m.iter().sum::<f64>() / per_segment_m.len() as f64;
     if !mean.is_finite() {
         return Err(Error::Numerical(format!("validation error is not finite at θ = {theta}")));

@@ -34,6 +34,10 @@ impl Estimator for BatchGnOptions {
         Ok(())
     }
 
+    fn supports_extrinsics(&self) -> bool {
+        true
+    }
+
     fn run(
         &self,
         prep: &Prepared<'_>,

@@ -43,6 +43,7 @@ use serde::{Deserialize, Serialize};
 use crate::compensate::{CompensatedInputs, CompensationStep};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
+use crate::extrinsics::ExtrinsicsEstimate;
 use crate::identify::{batch_normal_equations, observability, IdentifyOptions, IdentifyReport, Observability};
 use crate::model::Theta;
 use crate::param::{Param, ParamSet};
@@ -51,7 +52,7 @@ use crate::segment::{
     calibration_segments, validation_segments, Segment, SegmentData, SegmentOptions, ValidationSegmentOptions,
 };
 use crate::trust::{judge, Evidence, TrustOptions, Verdict};
-use crate::validate::mean_position_error;
+use crate::validate::mean_position_error_with;
 use crate::warning::Warning;
 
 pub mod batch_gn;
@@ -273,6 +274,13 @@ pub struct CalibrationReport {
     pub timing_s: Timing,
     /// Segment counts.
     pub segments: SegmentCounts,
+    /// The reference sensor's extrinsics (lever arm, heading offset:
+    /// initial and estimated values, σ, covariance) when the calibration
+    /// involved them ([`IdentifyOptions::uses_extrinsics`]); validation
+    /// (and θ_0's Ē_p, at the initial values) then compares the model's
+    /// reference point with the measured one. Absent otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub extrinsics: Option<ExtrinsicsEstimate>,
     /// The method's own results.
     #[serde(flatten)]
     pub detail: MethodDetail,
@@ -481,6 +489,13 @@ pub(crate) trait Estimator {
     fn select(&self, prep: &Prepared<'_>) -> Result<Selection> {
         turning_segments(prep)
     }
+    /// True when the method estimates (or holds at a given value) the
+    /// reference extrinsics of [`IdentifyOptions::extrinsics`] through the
+    /// shared identification. A method that does not is refused when the
+    /// options involve them. Default false.
+    fn supports_extrinsics(&self) -> bool {
+        false
+    }
     /// Estimates θ.
     fn run(
         &self,
@@ -499,13 +514,25 @@ pub fn calibrate_detailed(
     progress: Option<ProgressFn<'_>>,
 ) -> Result<DetailedCalibration> {
     opts.validate()?;
+    let method = opts.method.estimator();
+    if opts.identify.uses_extrinsics() && !method.supports_extrinsics() {
+        // TODO(extrinsics): the errors-in-variables method does not model the
+        // reference's lever arm and heading offset yet.
+        return Err(Error::InvalidOption {
+            field: "identify.extrinsics",
+            reason: format!(
+                "method {} does not estimate or apply the reference extrinsics (lever arm, heading offset); \
+                 use batch-gn or three-step",
+                method.name()
+            ),
+        });
+    }
     let t_start = Instant::now();
     crate::limits::check_conventions(drive, &opts.theta0, "drive")?;
     if let Some(h) = held_out {
         crate::limits::check_conventions(h, &opts.theta0, "held-out drive")?;
     }
     let prep = Prepared { drive, options: opts, validation: validation_segments(drive, &opts.validation)? };
-    let method = opts.method.estimator();
     let selection = method.select(&prep)?;
     if prep.validation.is_empty() {
         return Err(Error::NoSegments(format!(
@@ -528,7 +555,8 @@ pub fn calibrate_detailed(
         }
         None => (drive, prep.validation.clone()),
     };
-    let initial_val = mean_position_error(report_drive, &report_segments, &opts.theta0)?;
+    let initial_val =
+        mean_position_error_with(report_drive, &report_segments, &opts.theta0, &opts.identify.extrinsics)?;
     let setup = t_start.elapsed().as_secs_f64();
 
     let outcome = method.run(&prep, &selection, progress)?;
@@ -543,10 +571,12 @@ pub fn calibrate_detailed(
             rcond: o.rcond,
         });
     }
+    let extrinsics = if opts.identify.uses_extrinsics() { method_extrinsics(&outcome.detail) } else { None };
+    let ext = extrinsics.as_ref().map_or(opts.identify.extrinsics, |e| e.value);
     let t = Instant::now();
-    let val = mean_position_error(report_drive, &report_segments, &outcome.theta)?;
+    let val = mean_position_error_with(report_drive, &report_segments, &outcome.theta, &ext)?;
     let fit_m = match held_out {
-        Some(_) => Some(mean_position_error(drive, &prep.validation, &outcome.theta)?.mean_position_error_m),
+        Some(_) => Some(mean_position_error_with(drive, &prep.validation, &outcome.theta, &ext)?.mean_position_error_m),
         None => None,
     };
     let split = match held_out {
@@ -566,6 +596,7 @@ pub fn calibrate_detailed(
             initial_m: initial_val.mean_position_error_m,
             fit_m,
             split,
+            extrinsics: extrinsics.as_ref(),
         },
         &opts.trust,
     );
@@ -590,6 +621,7 @@ pub fn calibrate_detailed(
         verdict,
         initial: ThetaScore { theta: opts.theta0, mean_position_error_m: initial_val.mean_position_error_m },
         timing_s: timing,
+        extrinsics,
         segments: SegmentCounts { cut: selection.cut, selected: selection.selected, validation: report_segments.len() },
         detail: outcome.detail,
         warnings,
@@ -615,6 +647,14 @@ fn split_fit(held_out: &Drive, opts: &CalibrationOptions, free: ParamSet) -> Opt
     o.trust.max_split_sigmas = 0.0;
     let r = calibrate_detailed(held_out, None, &o, None).ok()?.report;
     Some((r.theta, r.covariance))
+}
+
+/// The extrinsics estimate of a method's final identification.
+fn method_extrinsics(detail: &MethodDetail) -> Option<ExtrinsicsEstimate> {
+    match detail {
+        MethodDetail::ThreeStep(d) => d.identification.extrinsics.clone(),
+        MethodDetail::BatchGn(d) => d.identification.extrinsics.clone(),
+    }
 }
 
 /// The segment-based methods' selection (SPEC §3, §6): calibration segments

@@ -9,6 +9,11 @@
 //!    every segment used in step 3 is compensated once per θ_B,I; its
 //!    compensated input is the mean of those.
 //! 3. *Final identification*: batch G-N from θ_0 with the compensated inputs.
+//!
+//! Reference extrinsics ([`crate::extrinsics`]): steps 1 and 3 estimate (or
+//! hold) them with θ through the shared identification; step 2's QP does
+//! not estimate them, it tracks the axle poses implied by the picked
+//! batches' mean extrinsics.
 
 use std::time::Instant;
 
@@ -22,12 +27,13 @@ use super::{Estimator, MethodDetail, MethodOutcome, Prepared, Selection, ThetaSc
 use crate::compensate::{compensate_segments, CompensateOptions, CompensationStep, QpOptions};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
+use crate::extrinsics::{axle_reference_drive, Extrinsics};
 use crate::identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport};
 use crate::model::Theta;
 use crate::progress::{emit, Progress, ProgressFn};
 use crate::segment::{Segment, SegmentData};
 use crate::trust::{check_theta, GuardViolation};
-use crate::validate::mean_position_error;
+use crate::validate::mean_position_error_with;
 use crate::warning::Warning;
 
 /// Mixed into [`super::CalibrationOptions::seed`] to draw step 3's random
@@ -116,6 +122,10 @@ pub struct BatchResult {
     /// Reciprocal condition number of `JᵀWJ` at the estimate.
     #[serde(default)]
     pub rcond: f64,
+    /// The batch's reference extrinsics (estimated or held), when the
+    /// identification involved them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub extrinsics: Option<Extrinsics>,
 }
 
 /// A step-1 result that failed a plausibility guard.
@@ -189,12 +199,15 @@ pub fn score_batches(
             } else {
                 let batch: Vec<SegmentData> = b.iter().map(|&i| data[i]).collect();
                 batch_gauss_newton(&batch, theta0, opts).and_then(|rep| {
-                    let v = mean_position_error(drive, validation, &rep.theta)?;
+                    // A batch that estimated extrinsics is scored with them.
+                    let ext = rep.extrinsics.as_ref().map_or(opts.extrinsics, |e| e.value);
+                    let v = mean_position_error_with(drive, validation, &rep.theta, &ext)?;
                     Ok(BatchResult {
                         segment_starts: b.iter().map(|&i| data[i].start).collect(),
                         score: ThetaScore { theta: rep.theta, mean_position_error_m: v.mean_position_error_m },
                         iterations: rep.iterations,
                         rcond: rep.observability.rcond,
+                        extrinsics: rep.extrinsics.map(|_| ext),
                     })
                 })
             };
@@ -241,6 +254,15 @@ impl Estimator for ThreeStepOptions {
             return Err(Error::InvalidOption { field: "final_segments", reason: "must be at least 1".into() });
         }
         Ok(())
+    }
+
+    /// Steps 1 and 3 estimate (or hold) the extrinsics through the shared
+    /// identification, and step 1 scores each batch with its own. Step 2's
+    /// QP does not estimate them: it tracks the axle poses the reference
+    /// implies under the mean extrinsics of the picked batches
+    /// ([`crate::extrinsics::axle_reference_drive`]).
+    fn supports_extrinsics(&self) -> bool {
+        true
     }
 
     fn run(
@@ -322,7 +344,30 @@ impl Estimator for ThreeStepOptions {
                 .collect(),
         };
         let thetas: Vec<Theta> = picked.iter().map(|p| p.theta).collect();
-        let comp = compensate_segments(drive, &final_segs, &thetas, &self.compensate, &self.qp, progress)?;
+        // With extrinsics, the QP tracks the axle poses the reference implies
+        // under the picked batches' mean extrinsics (the QP itself models the
+        // axle only); step 3 fits the original reference again.
+        let axle_drive = match identify.uses_extrinsics() {
+            true => {
+                let e: Vec<[f64; 3]> = picked_batches
+                    .iter()
+                    .map(|&i| ok[i].extrinsics.unwrap_or(identify.extrinsics).to_array())
+                    .collect();
+                let mean = Extrinsics::from_array(std::array::from_fn(|j| {
+                    e.iter().map(|a| a[j]).sum::<f64>() / e.len().max(1) as f64
+                }));
+                Some(axle_reference_drive(drive, &mean)?)
+            }
+            false => None,
+        };
+        let comp = compensate_segments(
+            axle_drive.as_ref().unwrap_or(drive),
+            &final_segs,
+            &thetas,
+            &self.compensate,
+            &self.qp,
+            progress,
+        )?;
         warnings.extend(comp.warnings.iter().cloned());
         if comp.segments.is_empty() {
             return Err(Error::NoSegments("input compensation failed on every segment".into()));
