@@ -18,7 +18,9 @@
 //! - *doubtful*: a free parameter is not observable, lies in the outer tenth
 //!   of its guard region, has a model σ above [`TrustOptions::max_sigma_fraction`]
 //!   of its guard half-width, or the held-out Ē_p is more than
-//!   [`TrustOptions::max_held_out_ratio`] times the Ē_p on the fitting data.
+//!   [`TrustOptions::max_held_out_ratio`] times the Ē_p on the fitting data,
+//!   or (EIV with its fallback off) the filter's consistency checks failed
+//!   on the returned θ ([`crate::Warning::EivCheckFailed`]).
 
 use serde::{Deserialize, Serialize};
 
@@ -284,6 +286,13 @@ pub enum VerdictReason {
         /// The allowed ratio.
         max_ratio: f64,
     },
+    /// The method's model does not fit the data: EIV consistency checks
+    /// failed on the returned θ (doubtful; the warnings name each check
+    /// and window).
+    Misspecified {
+        /// Checks that failed.
+        checks: usize,
+    },
 }
 
 impl VerdictReason {
@@ -317,6 +326,11 @@ impl std::fmt::Display for VerdictReason {
             VerdictReason::HeldOutMuchWorse { held_out_m, fit_m, max_ratio } => {
                 write!(f, "held-out Ē_p {held_out_m:.3} m is more than {max_ratio} × the fitting data's {fit_m:.3} m")
             }
+            VerdictReason::Misspecified { checks } => write!(
+                f,
+                "{checks} EIV consistency check(s) failed on this θ: the noise model does not fit these data (see the \
+                 warnings)"
+            ),
         }
     }
 }
@@ -351,6 +365,8 @@ pub(crate) struct Evidence<'a> {
     pub initial_m: f64,
     /// Ē_p of θ on the fitting data, when the report's data are held out.
     pub fit_m: Option<f64>,
+    /// Failed consistency checks of the method's model on this θ.
+    pub misspecified: usize,
 }
 
 /// The verdict on a calibration (see the module docs).
@@ -390,6 +406,9 @@ pub(crate) fn judge(e: &Evidence<'_>, opts: &TrustOptions) -> Verdict {
                 max_ratio: opts.max_held_out_ratio,
             });
         }
+    }
+    if e.misspecified > 0 {
+        reasons.push(VerdictReason::Misspecified { checks: e.misspecified });
     }
     Verdict::from_reasons(reasons)
 }
@@ -438,6 +457,7 @@ mod tests {
             calibrated_m: 2.0,
             initial_m: 20.0,
             fit_m: None,
+            misspecified: 0,
         }
     }
 

@@ -9,6 +9,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::eiv::EivWarning;
+use crate::model::Theta;
 use crate::param::{Param, ParamSet};
 use crate::trust::GuardViolation;
 
@@ -92,6 +94,27 @@ pub enum Warning {
         /// Why the first one stopped.
         reason: String,
     },
+    /// EIV: a consistency check of the filter failed (the model does not
+    /// fit the data): NIS or whiteness in a window, divergence in a window,
+    /// θ unstable across halves, a noise scale at its upper clamp, or no
+    /// convergence. The finding carries the window or parameter.
+    EivCheckFailed {
+        /// The filter's finding.
+        finding: EivWarning,
+        /// True when the report's θ is therefore the batch G-N fallback;
+        /// false when the EIV θ was kept (fallback off) despite it.
+        fell_back: bool,
+    },
+    /// EIV: the EIV estimate was not used; the report's θ is batch
+    /// Gauss-Newton over all cut segments (no yaw-rate selection).
+    EivFallback {
+        /// Why: the checks that failed, or the filter's error.
+        reason: String,
+        /// Segments the batch Gauss-Newton fitted.
+        segments: usize,
+        /// The EIV θ that was not used (none when the filter failed).
+        eiv_theta: Option<Theta>,
+    },
 }
 
 impl Warning {
@@ -106,7 +129,15 @@ impl Warning {
             Warning::FewUsableBatches { .. } => "few_usable_batches",
             Warning::CompensationFailed { .. } => "compensation_failed",
             Warning::SolverFallback { .. } => "solver_fallback",
+            Warning::EivCheckFailed { .. } => "eiv_check_failed",
+            Warning::EivFallback { .. } => "eiv_fallback",
         }
+    }
+
+    /// True for a failed EIV consistency check whose θ is the report's
+    /// result (the fallback was off): the verdict counts these.
+    pub fn misspecifies_result(&self) -> bool {
+        matches!(self, Warning::EivCheckFailed { fell_back: false, .. })
     }
 }
 
@@ -151,6 +182,22 @@ impl std::fmt::Display for Warning {
                 "compensation of the segment at sample {segment_start} (θ_B,I {theta_index}): linearization \
                  {linearization}: {solver} → {fallback}: {reason}"
             ),
+            Warning::EivCheckFailed { finding, fell_back } => write!(
+                f,
+                "EIV check failed: {finding}{}",
+                if *fell_back { "" } else { " (EIV result kept: fallback off)" }
+            ),
+            Warning::EivFallback { reason, segments, eiv_theta } => {
+                write!(
+                    f,
+                    "EIV result NOT used ({reason}): the result is batch Gauss-Newton on all {segments} cut segments \
+                     (no yaw-rate selection)"
+                )?;
+                match eiv_theta {
+                    Some(t) => write!(f, "; the rejected EIV θ was {t}"),
+                    None => Ok(()),
+                }
+            }
         }
     }
 }

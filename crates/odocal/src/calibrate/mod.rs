@@ -16,7 +16,10 @@
 //!
 //! The methods:
 //! - [`batch_gn`]: raw batch Gauss-Newton over all selected segments;
-//! - [`three_step`]: the paper's 3-step method with input compensation.
+//! - [`three_step`]: the paper's 3-step method with input compensation;
+//! - [`eiv`]: errors-in-variables filter over whole drive parts (SPEC §10),
+//!   started from batch G-N on all segments, falling back to it when the
+//!   filter's consistency checks fail.
 //!
 //! ## Adding a method
 //!
@@ -55,9 +58,11 @@ use crate::validate::mean_position_error;
 use crate::warning::Warning;
 
 pub mod batch_gn;
+pub mod eiv;
 pub mod three_step;
 
 pub use batch_gn::{BatchGnDetail, BatchGnOptions};
+pub use eiv::{EivDetail, EivMethodOptions, EivOutcome};
 pub use three_step::{
     per_segment_identification, random_batches, score_batches, BatchResult, FinalSegments, InitialStep, RejectedBatch,
     ThreeStepDetail, ThreeStepOptions,
@@ -77,6 +82,8 @@ pub enum Method {
     ThreeStep(ThreeStepOptions),
     /// Raw batch Gauss-Newton over all selected segments.
     BatchGn(BatchGnOptions),
+    /// Errors-in-variables filter over every drive part (SPEC §10).
+    Eiv(EivMethodOptions),
 }
 
 impl Default for Method {
@@ -87,9 +94,9 @@ impl Default for Method {
 
 impl Method {
     /// The names of the methods, as `--method` takes them.
-    pub const NAMES: [&'static str; 2] = ["three-step", "batch-gn"];
+    pub const NAMES: [&'static str; 3] = ["three-step", "batch-gn", "eiv"];
 
-    /// The method's name (`"three-step"`, `"batch-gn"`).
+    /// The method's name (`"three-step"`, `"batch-gn"`, `"eiv"`).
     pub fn name(&self) -> &'static str {
         self.estimator().name()
     }
@@ -99,7 +106,8 @@ impl Method {
         match name.trim() {
             "three-step" => Ok(Method::ThreeStep(ThreeStepOptions::default())),
             "batch-gn" => Ok(Method::BatchGn(BatchGnOptions::default())),
-            _ => Err(Error::Parse { what: "method", input: name.to_string(), expected: "three-step or batch-gn" }),
+            "eiv" => Ok(Method::Eiv(EivMethodOptions::default())),
+            _ => Err(Error::Parse { what: "method", input: name.to_string(), expected: "three-step, batch-gn or eiv" }),
         }
     }
 
@@ -112,6 +120,7 @@ impl Method {
         match self {
             Method::ThreeStep(o) => o,
             Method::BatchGn(o) => o,
+            Method::Eiv(o) => o,
         }
     }
 }
@@ -246,6 +255,10 @@ pub struct ValidationSummary {
 pub enum MethodDetail {
     /// The 3-step method's steps 1–3.
     ThreeStep(ThreeStepDetail),
+    /// The EIV method's start, fit and fallback (before `BatchGn`: both
+    /// have `identification`, and untagged deserialisation takes the first
+    /// variant that fits).
+    Eiv(EivDetail),
     /// Batch Gauss-Newton's identification.
     BatchGn(BatchGnDetail),
 }
@@ -253,7 +266,7 @@ pub enum MethodDetail {
 /// The calibration report (SPEC §9 and more).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CalibrationReport {
-    /// The method run (`"three-step"`, `"batch-gn"`).
+    /// The method run (`"three-step"`, `"batch-gn"`, `"eiv"`).
     pub method: String,
     /// The calibrated θ.
     pub theta: Theta,
@@ -288,11 +301,12 @@ pub struct CalibrationReport {
 
 impl CalibrationReport {
     /// The final Gauss-Newton identification (batch-gn: the only one;
-    /// three-step: step 3).
+    /// three-step: step 3; eiv: the starting batch G-N on all segments).
     pub fn identification(&self) -> Option<&IdentifyReport> {
         match &self.detail {
             MethodDetail::ThreeStep(d) => Some(&d.identification),
             MethodDetail::BatchGn(d) => Some(&d.identification),
+            MethodDetail::Eiv(d) => Some(&d.identification),
         }
     }
 
@@ -300,7 +314,7 @@ impl CalibrationReport {
     pub fn initial_step(&self) -> Option<&InitialStep> {
         match &self.detail {
             MethodDetail::ThreeStep(d) => Some(&d.initial_step),
-            MethodDetail::BatchGn(_) => None,
+            MethodDetail::BatchGn(_) | MethodDetail::Eiv(_) => None,
         }
     }
 
@@ -308,7 +322,7 @@ impl CalibrationReport {
     pub fn compensation(&self) -> Option<&CompensationStep> {
         match &self.detail {
             MethodDetail::ThreeStep(d) => Some(&d.compensation),
-            MethodDetail::BatchGn(_) => None,
+            MethodDetail::BatchGn(_) | MethodDetail::Eiv(_) => None,
         }
     }
 
@@ -561,6 +575,7 @@ pub fn calibrate_detailed(
             calibrated_m: val.mean_position_error_m,
             initial_m: initial_val.mean_position_error_m,
             fit_m,
+            misspecified: warnings.iter().filter(|w| w.misspecifies_result()).count(),
         },
         &opts.trust,
     );
@@ -663,7 +678,7 @@ const YAW_ONLY: ParamSet = ParamSet::EMPTY.with(Param::CD).with(Param::TR).with(
 /// Holds at θ_0, one at a time, the parameter (never c_e) with the smallest
 /// sensitivity among those the observability check names on `segments` at
 /// θ_0, until none is named. Returns the parameters held, in order.
-fn hold_unobservable(segments: &[SegmentData<'_>], theta0: &Theta, identify: &IdentifyOptions) -> Vec<Param> {
+pub(crate) fn hold_unobservable(segments: &[SegmentData<'_>], theta0: &Theta, identify: &IdentifyOptions) -> Vec<Param> {
     let ne = batch_normal_equations(segments, theta0, &identify.weights);
     let mut free = identify.free;
     let mut held = Vec::new();
