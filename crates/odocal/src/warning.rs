@@ -105,6 +105,13 @@ pub enum Warning {
         /// false when the EIV θ was kept (fallback off) despite it.
         fell_back: bool,
     },
+    /// EIV: a finding of the filter that is not a failure: innovations
+    /// smaller than the noise model allows (NIS below its band, and their
+    /// lag-1 correlation in such a window).
+    EivCheckNote {
+        /// The filter's finding.
+        finding: EivWarning,
+    },
     /// EIV: the EIV estimate was not used; the report's θ is batch
     /// Gauss-Newton over all cut segments (no yaw-rate selection).
     EivFallback {
@@ -130,6 +137,7 @@ impl Warning {
             Warning::CompensationFailed { .. } => "compensation_failed",
             Warning::SolverFallback { .. } => "solver_fallback",
             Warning::EivCheckFailed { .. } => "eiv_check_failed",
+            Warning::EivCheckNote { .. } => "eiv_check_note",
             Warning::EivFallback { .. } => "eiv_fallback",
         }
     }
@@ -186,6 +194,11 @@ impl std::fmt::Display for Warning {
                 f,
                 "EIV check failed: {finding}{}",
                 if *fell_back { "" } else { " (EIV result kept: fallback off)" }
+            ),
+            Warning::EivCheckNote { finding } => write!(
+                f,
+                "EIV note (not a failure): {finding}; the innovations are smaller than the noise model allows (a \
+                 noise source absent or over-estimated)"
             ),
             Warning::EivFallback { reason, segments, eiv_theta } => {
                 write!(

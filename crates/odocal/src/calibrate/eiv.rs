@@ -114,11 +114,26 @@ impl EivDetail {
     }
 }
 
-/// True for a filter finding that says the model does not fit the data
-/// (every [`EivWarning`] but `Unobservable`, which is reported through the
-/// observability fields).
-pub fn is_misspecification(w: &EivWarning) -> bool {
-    !matches!(w, EivWarning::Unobservable { .. })
+/// True for a filter finding of `report` that says the model does not fit
+/// the data: a diverged window, a window's NIS above its band, correlated
+/// innovations in a window whose NIS is not below its band, θ unstable
+/// across halves, a noise scale at its upper clamp, no convergence.
+///
+/// Not failures: `Unobservable` (reported through the observability
+/// fields); a NIS *below* the band, and correlated innovations in such a
+/// window — the innovations are smaller than the noise model allows (a
+/// noise source absent or over-estimated, as on a noise-free drive, where
+/// what is left of the innovations is rounding and is correlated).
+pub fn is_misspecification(w: &EivWarning, report: &EivReport) -> bool {
+    match w {
+        EivWarning::Unobservable { .. } => false,
+        EivWarning::InconsistentInnovations { nis, band, .. } => *nis > band[1],
+        EivWarning::CorrelatedInnovations { window, .. } => {
+            let band = report.windows.iter().find(|d| d.window.index == *window).map(|d| d.nis);
+            !band.is_some_and(|nis| nis < 0.5)
+        }
+        _ => true,
+    }
 }
 
 /// Reads a noise model from a TOML file of [`NoiseModel`] fields (missing
@@ -222,14 +237,7 @@ impl Estimator for EivMethodOptions {
             }
             auto_fixed = held;
         }
-        Ok(Selection {
-            selected: cut.all.len(),
-            cut: cut.all.len(),
-            segments: cut.all,
-            free,
-            auto_fixed,
-            warnings,
-        })
+        Ok(Selection { selected: cut.all.len(), cut: cut.all.len(), segments: cut.all, free, auto_fixed, warnings })
     }
 
     fn run(
@@ -270,13 +278,21 @@ impl Estimator for EivMethodOptions {
             Err(e) if self.fallback && !matches!(e, Error::InvalidOption { .. }) => (None, Some(e.to_string())),
             Err(e) => return Err(e),
         };
-        let findings: Vec<EivWarning> =
-            report.as_ref().map(|r| r.warnings.iter().filter(|w| is_misspecification(w)).cloned().collect()).unwrap_or_default();
+        let (findings, notes): (Vec<EivWarning>, Vec<EivWarning>) = match &report {
+            Some(r) => r
+                .warnings
+                .iter()
+                .filter(|w| !matches!(w, EivWarning::Unobservable { .. }))
+                .cloned()
+                .partition(|w| is_misspecification(w, r)),
+            None => (Vec::new(), Vec::new()),
+        };
         let fall_back = error.is_some() || (self.fallback && !findings.is_empty());
         let mut warnings: Vec<Warning> = findings
             .iter()
             .map(|finding| Warning::EivCheckFailed { finding: finding.clone(), fell_back: fall_back })
             .collect();
+        warnings.extend(notes.into_iter().map(|finding| Warning::EivCheckNote { finding }));
         let detail = EivDetail {
             identification: start,
             start_held,
@@ -328,3 +344,7 @@ impl Estimator for EivMethodOptions {
         Ok(outcome)
     }
 }
+
+#[cfg(test)]
+#[path = "eiv_tests.rs"]
+mod tests;

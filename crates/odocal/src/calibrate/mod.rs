@@ -678,7 +678,11 @@ const YAW_ONLY: ParamSet = ParamSet::EMPTY.with(Param::CD).with(Param::TR).with(
 /// Holds at θ_0, one at a time, the parameter (never c_e) with the smallest
 /// sensitivity among those the observability check names on `segments` at
 /// θ_0, until none is named. Returns the parameters held, in order.
-pub(crate) fn hold_unobservable(segments: &[SegmentData<'_>], theta0: &Theta, identify: &IdentifyOptions) -> Vec<Param> {
+pub(crate) fn hold_unobservable(
+    segments: &[SegmentData<'_>],
+    theta0: &Theta,
+    identify: &IdentifyOptions,
+) -> Vec<Param> {
     let ne = batch_normal_equations(segments, theta0, &identify.weights);
     let mut free = identify.free;
     let mut held = Vec::new();
