@@ -97,7 +97,7 @@ pub struct EivDetail {
     /// The EIV fit: θ, `H_θ⁻¹`, the estimated noise model in physical units
     /// (`eiv.noise`), termination, per-window consistency. `None` when the
     /// filter failed with an error (see `eiv_error`).
-    pub eiv: Option<EivReport>,
+    pub eiv: Option<Box<EivReport>>,
     /// The filter's error, when it failed.
     pub eiv_error: Option<String>,
     /// The starting noise model.
@@ -274,7 +274,7 @@ impl Estimator for EivMethodOptions {
         let timing = Timing { initial_identification: t_start, final_identification: t_eiv, ..Timing::default() };
 
         let (report, error) = match fit {
-            Ok(r) => (Some(r), None),
+            Ok(r) => (Some(Box::new(r)), None),
             Err(e) if self.fallback && !matches!(e, Error::InvalidOption { .. }) => (None, Some(e.to_string())),
             Err(e) => return Err(e),
         };

@@ -1,5 +1,8 @@
 //! Tests of the EIV method behind `calibrate` (`Method::Eiv`).
 
+// Held parameters and parsed values are compared exactly on purpose.
+#![allow(clippy::float_cmp)]
+
 use super::*;
 use crate::calibrate::{BatchGnOptions, MethodDetail, Timing};
 use crate::drive::Signals;
