@@ -12,9 +12,10 @@
 //! θ_0 holds further parameters, as for the segment-based methods.
 //!
 //! ## The start
-//! Batch Gauss-Newton over all cut segments from θ_0. Parameters that the
-//! batch observability check at θ_0 names are held at θ_0 *for the start
-//! only* (so that a straight drive gives a finite start); the filter then
+//! Batch Gauss-Newton over all cut segments from θ_0 (as `batch-gn
+//! --min-yaw-rate 0`). Only when its normal equations are singular (a
+//! straight drive) are the parameters that the batch observability check at
+//! θ_0 names held at θ_0 *for the start*; the filter then
 //! decides from its own information matrix `H_θ` which parameters it can
 //! estimate ([`EivOptions::fix_unobservable`]) and names the rest.
 //!
@@ -91,8 +92,9 @@ pub struct EivDetail {
     /// The starting batch Gauss-Newton over all cut segments (also the
     /// fallback result).
     pub identification: IdentifyReport,
-    /// Parameters held at θ_0 for the start only (named by the batch
-    /// observability check at θ_0).
+    /// Parameters held at θ_0 for the start only, because batch G-N with
+    /// all of them free was singular (named by the batch observability
+    /// check at θ_0).
     pub start_held: Vec<Param>,
     /// The EIV fit: θ, `H_θ⁻¹`, the estimated noise model in physical units
     /// (`eiv.noise`), termination, per-window consistency. `None` when the
@@ -251,16 +253,23 @@ impl Estimator for EivMethodOptions {
         emit(progress, Progress::Stage { name: "EIV: batch Gauss-Newton start", total: 1 });
         let data: Vec<SegmentData> = selection.segments.iter().map(|s| SegmentData::new(prep.drive, s)).collect();
         let identify = selection.identify(opts);
-        let start_held = hold_unobservable(&data, &opts.theta0, &identify);
-        let mut start_free = selection.free;
-        for p in &start_held {
-            start_free.remove(*p);
-        }
-        let start = if start_free.is_empty() {
-            // Nothing the start can estimate: the filter starts from θ_0.
-            batch_gauss_newton(&data, &opts.theta0, &IdentifyOptions { max_iterations: 0, ..identify.clone() })?
-        } else {
-            batch_gauss_newton(&data, &opts.theta0, &IdentifyOptions { free: start_free, ..identify.clone() })?
+        // Batch G-N over all segments with every free parameter; only when
+        // its normal equations are singular (a straight drive) are the
+        // parameters the check at θ_0 names held for the start.
+        let (start, start_held) = match batch_gauss_newton(&data, &opts.theta0, &identify) {
+            Ok(r) => (r, Vec::new()),
+            Err(Error::NotObservable { .. }) => {
+                let held = hold_unobservable(&data, &opts.theta0, &identify);
+                let mut free = selection.free;
+                for p in &held {
+                    free.remove(*p);
+                }
+                // Nothing left to estimate: the filter starts from θ_0.
+                let iterations = if free.is_empty() { 0 } else { identify.max_iterations };
+                let held_opts = IdentifyOptions { free, max_iterations: iterations, ..identify.clone() };
+                (batch_gauss_newton(&data, &opts.theta0, &held_opts)?, held)
+            }
+            Err(e) => return Err(e),
         };
         emit(progress, Progress::Advance(1));
         let t_start = t.elapsed().as_secs_f64();
