@@ -93,7 +93,9 @@ struct SimulateArgs {
 
 #[derive(Args, Clone)]
 struct CalibrationArgs {
-    /// Calibration method: three-step or batch-gn.
+    /// Calibration method: three-step, batch-gn or eiv (errors-in-variables
+    /// filter over the whole drive, started from batch-gn on all segments;
+    /// falls back to that batch-gn when its consistency checks fail).
     #[arg(long, default_value = "three-step")]
     method: Method,
     /// Seed of the random batches.
@@ -149,6 +151,21 @@ struct CalibrationArgs {
     /// Maximum Gauss-Newton iterations.
     #[arg(long)]
     max_iterations: Option<usize>,
+    /// EIV: starting noise model, a TOML file of noise-model fields (e.g.
+    /// `wheel_white_rel_sigma = 0.01`; missing fields keep the production-car
+    /// defaults; see `odocal::calibrate::eiv::read_noise_model`).
+    #[arg(long)]
+    noise_model: Option<PathBuf>,
+    /// EIV: use the starting noise model as is instead of estimating its scales.
+    #[arg(long)]
+    fix_noise: bool,
+    /// EIV: keep the EIV result even when its consistency checks fail
+    /// (default: fall back to batch G-N on all segments).
+    #[arg(long)]
+    no_fallback: bool,
+    /// EIV: filter window length, samples.
+    #[arg(long)]
+    eiv_window: Option<usize>,
     /// Hold out half of the drive (by time) for validation and calibrate on
     /// the other half: first-half or second-half (the half held out).
     #[arg(long)]
@@ -198,6 +215,26 @@ impl CalibrationArgs {
             ("--final-segments", self.final_segments.is_some()),
             ("--qp-solver", self.qp_solver.is_some()),
         ];
+        let eiv_flags = [
+            ("--noise-model", self.noise_model.is_some()),
+            ("--fix-noise", self.fix_noise),
+            ("--no-fallback", self.no_fallback),
+            ("--eiv-window", self.eiv_window.is_some()),
+        ];
+        let reject = |flags: &[(&str, bool)], owner: &str, other: &Method| -> Result<()> {
+            let given: Vec<&str> = flags.iter().filter(|f| f.1).map(|f| f.0).collect();
+            if !given.is_empty() {
+                bail!(
+                    "{} appl{} to --method {owner} only, not to --method {other}",
+                    given.join(", "),
+                    if given.len() == 1 { "ies" } else { "y" }
+                );
+            }
+            Ok(())
+        };
+        if !matches!(self.method, Method::Eiv(_)) {
+            reject(&eiv_flags, "eiv", &self.method)?;
+        }
         Ok(match &self.method {
             Method::ThreeStep(defaults) => {
                 let mut o: ThreeStepOptions = defaults.clone();
@@ -218,15 +255,21 @@ impl CalibrationArgs {
                 }
                 Method::ThreeStep(o)
             }
-            other => {
-                let given: Vec<&str> = three_step_flags.iter().filter(|f| f.1).map(|f| f.0).collect();
-                if !given.is_empty() {
-                    bail!(
-                        "{} appl{} to --method three-step only, not to --method {other}",
-                        given.join(", "),
-                        if given.len() == 1 { "ies" } else { "y" }
-                    );
+            Method::Eiv(defaults) => {
+                reject(&three_step_flags, "three-step", &self.method)?;
+                let mut o = defaults.clone();
+                if let Some(p) = &self.noise_model {
+                    o.filter.noise = odocal::calibrate::eiv::read_noise_model(p)?;
                 }
+                o.filter.fix_noise = self.fix_noise;
+                o.fallback = !self.no_fallback;
+                if let Some(v) = self.eiv_window {
+                    o.filter.window_samples = v;
+                }
+                Method::Eiv(o)
+            }
+            other => {
+                reject(&three_step_flags, "three-step", other)?;
                 other.clone()
             }
         })

@@ -2,7 +2,58 @@
 
 use std::fmt::Write as _;
 
-use odocal::{CalibrationReport, ExtrinsicsEstimate, Method, MultiValidation, Param, Theta, Verdict, VerdictLevel};
+use odocal::calibrate::eiv::noise_summary;
+use odocal::{
+    CalibrationReport, EivDetail, EivOutcome, ExtrinsicsEstimate, Method, MethodDetail, MultiValidation, Param, Theta,
+    Verdict, VerdictLevel,
+};
+
+fn eiv_detail(r: &CalibrationReport) -> Option<&EivDetail> {
+    match &r.detail {
+        MethodDetail::Eiv(d) => Some(d),
+        _ => None,
+    }
+}
+
+/// The EIV lines: fit, noise model (start and end, physical units), and
+/// which estimate the result is.
+fn eiv_section(d: &EivDetail) -> String {
+    let mut out = String::new();
+    match &d.eiv {
+        Some(e) => {
+            let _ = writeln!(
+                out,
+                "EIV: {} window(s), {} pose updates, {} it, {}; {} filter passes",
+                e.windows.len(),
+                e.updates,
+                e.iterations,
+                e.termination,
+                e.evaluations[0] + e.evaluations[1]
+            );
+            let fixed = e.eta.iter().all(|x| *x == 0.0) && e.eta_sigma.iter().all(|x| *x == 0.0);
+            let _ = writeln!(out, "  noise, start:     {}", noise_summary(&d.noise_start));
+            let _ = writeln!(
+                out,
+                "  noise, {}: {}",
+                if fixed { "fixed    " } else { "estimated" },
+                noise_summary(&e.noise)
+            );
+        }
+        None => {
+            let _ = writeln!(out, "EIV: filter failed: {}", d.eiv_error.as_deref().unwrap_or("unknown error"));
+        }
+    }
+    let _ = writeln!(
+        out,
+        "  result: {}",
+        match d.eiv_result {
+            EivOutcome::Eiv => "EIV estimate",
+            EivOutcome::BatchGnFallback =>
+                "BATCH G-N FALLBACK (all segments): the EIV checks failed (see the warnings; --no-fallback keeps EIV)",
+        }
+    );
+    out
+}
 
 fn row(out: &mut String, name: &str, unit: &str, values: &[Option<f64>], scale: f64, prec: usize) {
     let _ = write!(out, "  {name:<4} {unit:<14}");
@@ -90,7 +141,7 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
     let mut out = String::new();
     let _ = writeln!(out, "odocal calibrate — method {}", r.method);
     let used = r.identification().map(|id| id.segments);
-    if used == Some(r.segments.cut) && r.segments.selected < r.segments.cut {
+    if used == Some(r.segments.cut) && (r.segments.selected < r.segments.cut || eiv_detail(r).is_some()) {
         // --auto-fix on a drive without turns, or --min-yaw-rate 0: no selection happened.
         let _ = writeln!(
             out,
@@ -131,12 +182,21 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
         let _ = writeln!(
             out,
             "{}: {} segments, {} it, {}; rcond {:.2e}",
-            if r.initial_step().is_some() { "step 3" } else { "batch G-N" },
+            if r.initial_step().is_some() {
+                "step 3"
+            } else if eiv_detail(r).is_some() {
+                "EIV start, batch G-N"
+            } else {
+                "batch G-N"
+            },
             id.segments,
             id.iterations,
             id.termination,
             id.observability.rcond
         );
+    }
+    if let Some(d) = eiv_detail(r) {
+        out.push_str(&eiv_section(d));
     }
     out.push('\n');
     let mut cols = vec![("θ_0", Some(r.initial.theta)), ("calibrated", Some(r.theta))];
@@ -153,6 +213,11 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
     cols.push(("± 1σ (model)", Some(Theta { c_e: sigma[0], c_d: sigma[1], t_r: sigma[2], d: sigma[3] })));
     if let Some((t, _)) = truth {
         cols.push(("truth", Some(*t)));
+    }
+    if let Some(d) = eiv_detail(r).filter(|d| d.eiv_result == EivOutcome::BatchGnFallback) {
+        if let Some(e) = &d.eiv {
+            cols.push(("EIV (unused)", Some(e.theta)));
+        }
     }
     out.push_str(&theta_table(&cols));
     if let Some(x) = &r.extrinsics {

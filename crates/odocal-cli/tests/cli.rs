@@ -287,7 +287,7 @@ fn three_step_flags_are_rejected_with_batch_gn() {
     assert_error(&o, &["--picks, --qp-solver apply to --method three-step only"]);
     let o = odocal(&["calibrate", p.to_str().expect("utf8"), "--method", "batchgn"]);
     assert_eq!(o.status.code(), Some(2), "clap usage error: {}", stderr(&o));
-    assert!(stderr(&o).contains("invalid method 'batchgn': use three-step or batch-gn"), "{}", stderr(&o));
+    assert!(stderr(&o).contains("invalid method 'batchgn': use three-step, batch-gn or eiv"), "{}", stderr(&o));
     let o = odocal(&["calibrate", p.to_str().expect("utf8"), "--fix", "c_d,tr"]);
     assert!(
         stderr(&o).contains("invalid parameter 'tr': use c_e, c_d, t_r or d (or lever_x, lever_y, heading_offset)"),

@@ -464,8 +464,12 @@ struct CalibrationPlan {
 }
 
 /// The keyword options of `odocal.calibrate`, named like the CLI's flags.
-const CALIBRATION_KWARGS: [&str; 16] = [
+const CALIBRATION_KWARGS: [&str; 20] = [
     "seed",
+    "noise_model",
+    "fix_noise",
+    "fallback",
+    "eiv_window",
     "qp_solver",
     "theta0",
     "fix",
@@ -539,6 +543,8 @@ fn calibration_plan(method: &str, kwargs: Option<&Bound<'_, PyDict>>) -> PyResul
     let mut validate_on = None;
     // Three-step settings, applied to the method below.
     let (mut batches, mut batch_size, mut picks, mut final_segments, mut qp_solver) = (None, None, None, None, None);
+    // EIV settings (`--noise-model`, `--fix-noise`, `--no-fallback`, `--eiv-window`).
+    let (mut noise_model, mut fix_noise, mut fallback, mut eiv_window) = (None, None, None, None);
     if let Some(kwargs) = kwargs {
         for (key, v) in kwargs.iter() {
             let key: String = key.extract()?;
@@ -583,6 +589,13 @@ fn calibration_plan(method: &str, kwargs: Option<&Bound<'_, PyDict>>) -> PyResul
                     validate_on = Some(Holdout::Other(Drive::clone(&d.get().drive)));
                 }
                 "auto_fix" => o.auto_fix = v.extract()?,
+                "noise_model" => {
+                    let path: std::path::PathBuf = v.extract()?;
+                    noise_model = Some(odocal::calibrate::eiv::read_noise_model(&path).map_err(lib_err)?);
+                }
+                "fix_noise" => fix_noise = Some(v.extract::<bool>()?),
+                "fallback" => fallback = Some(v.extract::<bool>()?),
+                "eiv_window" => eiv_window = Some(v.extract::<usize>()?),
                 _ => {
                     return Err(PyTypeError::new_err(format!(
                         "calibrate() got an unknown option '{key}'; options: {}",
@@ -591,6 +604,32 @@ fn calibration_plan(method: &str, kwargs: Option<&Bound<'_, PyDict>>) -> PyResul
                 }
             }
         }
+    }
+    let eiv_given: Vec<&str> = [
+        ("noise_model", noise_model.is_some()),
+        ("fix_noise", fix_noise.is_some()),
+        ("fallback", fallback.is_some()),
+        ("eiv_window", eiv_window.is_some()),
+    ]
+    .iter()
+    .filter(|g| g.1)
+    .map(|g| g.0)
+    .collect();
+    if let Method::Eiv(e) = &mut o.method {
+        e.filter.noise = noise_model.unwrap_or(e.filter.noise);
+        e.filter.fix_noise = fix_noise.unwrap_or(e.filter.fix_noise);
+        e.fallback = fallback.unwrap_or(e.fallback);
+        e.filter.window_samples = eiv_window.unwrap_or(e.filter.window_samples);
+    } else if !eiv_given.is_empty() {
+        return Err(invalid_option(
+            "method",
+            format!(
+                "{} appl{} to method eiv only, not to {}",
+                eiv_given.join(", "),
+                if eiv_given.len() == 1 { "ies" } else { "y" },
+                o.method
+            ),
+        ));
     }
     match &mut o.method {
         Method::ThreeStep(t) => {

@@ -91,7 +91,7 @@ def test_option_errors(small_drive):
         odocal.calibrate(small_drive, batchez=3)
     with pytest.raises(odocal.OdocalError, match=r"^invalid option `initial_batches`: must be at least 1$"):
         odocal.calibrate(small_drive, batches=0)
-    with pytest.raises(odocal.OdocalError, match=r"'newton': use three-step or batch-gn"):
+    with pytest.raises(odocal.OdocalError, match=r"'newton': use three-step, batch-gn or eiv"):
         odocal.calibrate(small_drive, "newton")
     with pytest.raises(odocal.OdocalError, match="batches, picks apply to method three-step only, not to batch-gn"):
         odocal.calibrate(small_drive, "batch-gn", batches=3, picks=2)
@@ -196,3 +196,22 @@ def test_to_html(small_drive, tmp_path):
     assert (tmp_path / "held.html").stat().st_size > 1000
     with pytest.raises(ValueError, match="no drive"):
         odocal.CalibrationReport(r.to_dict(), r.to_json()).to_html(tmp_path / "x.html")
+
+
+def _without_eiv_timing(d):
+    d = without_timing(d)
+    d["eiv"] = dict(d["eiv"])
+    d["eiv"].pop("timing_s")
+    return d
+
+
+def test_eiv_equals_cli_json(odocal_bin, drive_csv):
+    cli = cli_json(odocal_bin, "calibrate", drive_csv, "--method", "eiv", "--fix-noise", "--eiv-window", "1500")
+    report = odocal.calibrate(odocal.Drive.from_csv(drive_csv), method="eiv", fix_noise=True, eiv_window=1500)
+    d = report.to_dict()
+    assert report.method == "eiv" and d["eiv_result"] in ("eiv", "batch-gn-fallback")
+    assert d["eiv"]["noise"]["wheel_white_rel_sigma"] == d["noise_start"]["wheel_white_rel_sigma"]  # fixed
+    assert "reason" in d["eiv"]["termination"]
+    assert _without_eiv_timing(d) == _without_eiv_timing(cli)
+    with pytest.raises(odocal.OdocalError, match="fix_noise applies to method eiv only, not to batch-gn"):
+        odocal.calibrate(odocal.Drive.from_csv(drive_csv), "batch-gn", fix_noise=True)

@@ -94,7 +94,7 @@ pub struct ReadmeDoctests;
 
 pub use calibrate::{
     calibrate, calibrate_held_out, calibrate_with_holdout, BatchGnOptions, CalibrationOptions, CalibrationReport,
-    FinalSegments, Holdout, Method, MethodDetail, ThreeStepOptions,
+    EivDetail, EivMethodOptions, EivOutcome, FinalSegments, Holdout, Method, MethodDetail, ThreeStepOptions,
 };
 pub use compensate::{CompensateOptions, QpOptions};
 pub use drive::{Drive, Signals};

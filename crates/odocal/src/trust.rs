@@ -24,6 +24,8 @@
 //!   and more than [`TrustOptions::min_split_fraction`] of the guard
 //!   half-width (*cross-split consistency*: two halves of one drive, or two
 //!   drives of one vehicle, should give one θ).
+//!   or (EIV with its fallback off) the filter's consistency checks failed
+//!   on the returned θ ([`crate::Warning::EivCheckFailed`]).
 
 use serde::{Deserialize, Serialize};
 
@@ -378,6 +380,13 @@ pub enum VerdictReason {
         /// The allowed ratio.
         max_ratio: f64,
     },
+    /// The method's model does not fit the data: EIV consistency checks
+    /// failed on the returned θ (doubtful; the warnings name each check
+    /// and window).
+    Misspecified {
+        /// Checks that failed.
+        checks: usize,
+    },
 }
 
 impl VerdictReason {
@@ -417,6 +426,11 @@ impl std::fmt::Display for VerdictReason {
             VerdictReason::HeldOutMuchWorse { held_out_m, fit_m, max_ratio } => {
                 write!(f, "held-out Ē_p {held_out_m:.3} m is more than {max_ratio} × the fitting data's {fit_m:.3} m")
             }
+            VerdictReason::Misspecified { checks } => write!(
+                f,
+                "{checks} EIV consistency check(s) failed on this θ: the noise model does not fit these data (see the \
+                 warnings)"
+            ),
         }
     }
 }
@@ -455,6 +469,8 @@ pub(crate) struct Evidence<'a> {
     pub split: Option<(Theta, [[f64; 4]; 4])>,
     /// The reference extrinsics, when the calibration involved them.
     pub extrinsics: Option<&'a ExtrinsicsEstimate>,
+    /// Failed consistency checks of the method's model on this θ.
+    pub misspecified: usize,
 }
 
 /// The verdict on a calibration (see the module docs).
@@ -522,6 +538,9 @@ pub(crate) fn judge(e: &Evidence<'_>, opts: &TrustOptions) -> Verdict {
             });
         }
     }
+    if e.misspecified > 0 {
+        reasons.push(VerdictReason::Misspecified { checks: e.misspecified });
+    }
     Verdict::from_reasons(reasons)
 }
 
@@ -571,6 +590,7 @@ mod tests {
             fit_m: None,
             split: None,
             extrinsics: None,
+            misspecified: 0,
         }
     }
 

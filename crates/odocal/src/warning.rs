@@ -9,6 +9,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::eiv::EivWarning;
+use crate::model::Theta;
 use crate::param::{Param, ParamSet};
 use crate::trust::GuardViolation;
 
@@ -92,6 +94,34 @@ pub enum Warning {
         /// Why the first one stopped.
         reason: String,
     },
+    /// EIV: a consistency check of the filter failed (the model does not
+    /// fit the data): NIS or whiteness in a window, divergence in a window,
+    /// θ unstable across halves, a noise scale at its upper clamp, or no
+    /// convergence. The finding carries the window or parameter.
+    EivCheckFailed {
+        /// The filter's finding.
+        finding: EivWarning,
+        /// True when the report's θ is therefore the batch G-N fallback;
+        /// false when the EIV θ was kept (fallback off) despite it.
+        fell_back: bool,
+    },
+    /// EIV: a finding of the filter that is not a failure: innovations
+    /// smaller than the noise model allows (NIS below its band, and their
+    /// lag-1 correlation in such a window).
+    EivCheckNote {
+        /// The filter's finding.
+        finding: EivWarning,
+    },
+    /// EIV: the EIV estimate was not used; the report's θ is batch
+    /// Gauss-Newton over all cut segments (no yaw-rate selection).
+    EivFallback {
+        /// Why: the checks that failed, or the filter's error.
+        reason: String,
+        /// Segments the batch Gauss-Newton fitted.
+        segments: usize,
+        /// The EIV θ that was not used (none when the filter failed).
+        eiv_theta: Option<Theta>,
+    },
 }
 
 impl Warning {
@@ -106,7 +136,16 @@ impl Warning {
             Warning::FewUsableBatches { .. } => "few_usable_batches",
             Warning::CompensationFailed { .. } => "compensation_failed",
             Warning::SolverFallback { .. } => "solver_fallback",
+            Warning::EivCheckFailed { .. } => "eiv_check_failed",
+            Warning::EivCheckNote { .. } => "eiv_check_note",
+            Warning::EivFallback { .. } => "eiv_fallback",
         }
+    }
+
+    /// True for a failed EIV consistency check whose θ is the report's
+    /// result (the fallback was off): the verdict counts these.
+    pub fn misspecifies_result(&self) -> bool {
+        matches!(self, Warning::EivCheckFailed { fell_back: false, .. })
     }
 }
 
@@ -151,6 +190,27 @@ impl std::fmt::Display for Warning {
                 "compensation of the segment at sample {segment_start} (θ_B,I {theta_index}): linearization \
                  {linearization}: {solver} → {fallback}: {reason}"
             ),
+            Warning::EivCheckFailed { finding, fell_back } => write!(
+                f,
+                "EIV check failed: {finding}{}",
+                if *fell_back { "" } else { " (EIV result kept: fallback off)" }
+            ),
+            Warning::EivCheckNote { finding } => write!(
+                f,
+                "EIV note (not a failure): {finding}; the innovations are smaller than the noise model allows (a \
+                 noise source absent or over-estimated)"
+            ),
+            Warning::EivFallback { reason, segments, eiv_theta } => {
+                write!(
+                    f,
+                    "EIV result NOT used ({reason}): the result is batch Gauss-Newton on all {segments} cut segments \
+                     (no yaw-rate selection)"
+                )?;
+                match eiv_theta {
+                    Some(t) => write!(f, "; the rejected EIV θ was {t}"),
+                    None => Ok(()),
+                }
+            }
         }
     }
 }

@@ -16,7 +16,10 @@
 //!
 //! The methods:
 //! - [`batch_gn`]: raw batch Gauss-Newton over all selected segments;
-//! - [`three_step`]: the paper's 3-step method with input compensation.
+//! - [`three_step`]: the paper's 3-step method with input compensation;
+//! - [`eiv`]: errors-in-variables filter over whole drive parts (SPEC §10),
+//!   started from batch G-N on all segments, falling back to it when the
+//!   filter's consistency checks fail.
 //!
 //! ## Adding a method
 //!
@@ -56,9 +59,11 @@ use crate::validate::mean_position_error_with;
 use crate::warning::Warning;
 
 pub mod batch_gn;
+pub mod eiv;
 pub mod three_step;
 
 pub use batch_gn::{BatchGnDetail, BatchGnOptions};
+pub use eiv::{EivDetail, EivMethodOptions, EivOutcome};
 pub use three_step::{
     per_segment_identification, random_batches, score_batches, BatchResult, FinalSegments, InitialStep, RejectedBatch,
     ThreeStepDetail, ThreeStepOptions,
@@ -78,6 +83,8 @@ pub enum Method {
     ThreeStep(ThreeStepOptions),
     /// Raw batch Gauss-Newton over all selected segments.
     BatchGn(BatchGnOptions),
+    /// Errors-in-variables filter over every drive part (SPEC §10).
+    Eiv(EivMethodOptions),
 }
 
 impl Default for Method {
@@ -88,9 +95,9 @@ impl Default for Method {
 
 impl Method {
     /// The names of the methods, as `--method` takes them.
-    pub const NAMES: [&'static str; 2] = ["three-step", "batch-gn"];
+    pub const NAMES: [&'static str; 3] = ["three-step", "batch-gn", "eiv"];
 
-    /// The method's name (`"three-step"`, `"batch-gn"`).
+    /// The method's name (`"three-step"`, `"batch-gn"`, `"eiv"`).
     pub fn name(&self) -> &'static str {
         self.estimator().name()
     }
@@ -100,7 +107,8 @@ impl Method {
         match name.trim() {
             "three-step" => Ok(Method::ThreeStep(ThreeStepOptions::default())),
             "batch-gn" => Ok(Method::BatchGn(BatchGnOptions::default())),
-            _ => Err(Error::Parse { what: "method", input: name.to_string(), expected: "three-step or batch-gn" }),
+            "eiv" => Ok(Method::Eiv(EivMethodOptions::default())),
+            _ => Err(Error::Parse { what: "method", input: name.to_string(), expected: "three-step, batch-gn or eiv" }),
         }
     }
 
@@ -113,6 +121,7 @@ impl Method {
         match self {
             Method::ThreeStep(o) => o,
             Method::BatchGn(o) => o,
+            Method::Eiv(o) => o,
         }
     }
 }
@@ -247,6 +256,10 @@ pub struct ValidationSummary {
 pub enum MethodDetail {
     /// The 3-step method's steps 1–3.
     ThreeStep(ThreeStepDetail),
+    /// The EIV method's start, fit and fallback (before `BatchGn`: both
+    /// have `identification`, and untagged deserialisation takes the first
+    /// variant that fits).
+    Eiv(EivDetail),
     /// Batch Gauss-Newton's identification.
     BatchGn(BatchGnDetail),
 }
@@ -254,7 +267,7 @@ pub enum MethodDetail {
 /// The calibration report (SPEC §9 and more).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CalibrationReport {
-    /// The method run (`"three-step"`, `"batch-gn"`).
+    /// The method run (`"three-step"`, `"batch-gn"`, `"eiv"`).
     pub method: String,
     /// The calibrated θ.
     pub theta: Theta,
@@ -296,11 +309,12 @@ pub struct CalibrationReport {
 
 impl CalibrationReport {
     /// The final Gauss-Newton identification (batch-gn: the only one;
-    /// three-step: step 3).
+    /// three-step: step 3; eiv: the starting batch G-N on all segments).
     pub fn identification(&self) -> Option<&IdentifyReport> {
         match &self.detail {
             MethodDetail::ThreeStep(d) => Some(&d.identification),
             MethodDetail::BatchGn(d) => Some(&d.identification),
+            MethodDetail::Eiv(d) => Some(&d.identification),
         }
     }
 
@@ -308,7 +322,7 @@ impl CalibrationReport {
     pub fn initial_step(&self) -> Option<&InitialStep> {
         match &self.detail {
             MethodDetail::ThreeStep(d) => Some(&d.initial_step),
-            MethodDetail::BatchGn(_) => None,
+            MethodDetail::BatchGn(_) | MethodDetail::Eiv(_) => None,
         }
     }
 
@@ -316,7 +330,7 @@ impl CalibrationReport {
     pub fn compensation(&self) -> Option<&CompensationStep> {
         match &self.detail {
             MethodDetail::ThreeStep(d) => Some(&d.compensation),
-            MethodDetail::BatchGn(_) => None,
+            MethodDetail::BatchGn(_) | MethodDetail::Eiv(_) => None,
         }
     }
 
@@ -597,6 +611,7 @@ pub fn calibrate_detailed(
             fit_m,
             split,
             extrinsics: extrinsics.as_ref(),
+            misspecified: warnings.iter().filter(|w| w.misspecifies_result()).count(),
         },
         &opts.trust,
     );
@@ -654,6 +669,8 @@ fn method_extrinsics(detail: &MethodDetail) -> Option<ExtrinsicsEstimate> {
     match detail {
         MethodDetail::ThreeStep(d) => d.identification.extrinsics.clone(),
         MethodDetail::BatchGn(d) => d.identification.extrinsics.clone(),
+        // The EIV method does not support extrinsics (refused up front).
+        MethodDetail::Eiv(_) => None,
     }
 }
 
@@ -721,7 +738,11 @@ const YAW_ONLY: ParamSet = ParamSet::EMPTY.with(Param::CD).with(Param::TR).with(
 /// Holds at θ_0, one at a time, the parameter (never c_e) with the smallest
 /// sensitivity among those the observability check names on `segments` at
 /// θ_0, until none is named. Returns the parameters held, in order.
-fn hold_unobservable(segments: &[SegmentData<'_>], theta0: &Theta, identify: &IdentifyOptions) -> Vec<Param> {
+pub(crate) fn hold_unobservable(
+    segments: &[SegmentData<'_>],
+    theta0: &Theta,
+    identify: &IdentifyOptions,
+) -> Vec<Param> {
     let ne = batch_normal_equations(segments, theta0, &identify.weights);
     let mut free = identify.free;
     let mut held = Vec::new();

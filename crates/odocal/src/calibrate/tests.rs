@@ -134,7 +134,7 @@ fn method_names_parse_and_bad_settings_name_the_field() {
         assert_eq!(n.parse::<Method>().expect("name").name(), n);
     }
     let e = "3step".parse::<Method>().expect_err("unknown");
-    assert_eq!(e.to_string(), "invalid method '3step': use three-step or batch-gn");
+    assert_eq!(e.to_string(), "invalid method '3step': use three-step, batch-gn or eiv");
     let bad = CalibrationOptions {
         method: Method::ThreeStep(ThreeStepOptions { picks: 0, ..Default::default() }),
         ..Default::default()

@@ -1,0 +1,90 @@
+//! `odocal calibrate --method eiv`: JSON (noise model, termination, which
+//! estimate), terminal section, flags of other methods rejected.
+
+use std::process::{Command, Output};
+
+fn odocal(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_odocal")).args(args).arg("--quiet").output().expect("run odocal")
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+#[test]
+fn eiv_on_a_small_simulated_drive() {
+    let d = tempfile::tempdir().expect("tmp");
+    let drive = d.path().join("drive.csv");
+    let dstr = drive.to_str().expect("utf8");
+    let o = odocal(&["simulate", "--seed", "4", "--length-km", "3", "--noise", "white", "--out", dstr]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+
+    let o = odocal(&["calibrate", dstr, "--method", "eiv", "--eiv-window", "1500", "--json", "-"]);
+    assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", text(&o.stderr));
+    let r: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    assert_eq!(r["method"], "eiv");
+    assert_eq!(r["options"]["method"]["name"], "eiv");
+    assert!(r["eiv"]["noise"]["wheel_white_rel_sigma"].is_f64(), "{}", r["eiv"]);
+    assert!(r["eiv"]["noise"]["position_drift_sigma_m"].is_f64());
+    assert!(r["noise_start"]["wheel_common_time_constant_s"].is_f64());
+    assert!(r["eiv"]["termination"]["reason"].is_string(), "{}", r["eiv"]["termination"]);
+    assert!(r["eiv"]["windows"].as_array().is_some_and(|w| !w.is_empty()));
+    assert!(["eiv", "batch-gn-fallback"].contains(&r["eiv_result"].as_str().expect("eiv_result")));
+    // The start: batch G-N over every cut segment.
+    assert_eq!(r["identification"]["segments"], r["segments"]["cut"]);
+    for k in ["c_e", "c_d", "t_r", "d"] {
+        assert!(r["theta"][k].is_f64());
+    }
+
+    // Terminal: the EIV section with the noise model in physical units.
+    let model = d.path().join("noise.toml");
+    std::fs::write(&model, "wheel_white_rel_sigma = 0.008\nwheel_common_rel_sigma = 0.0001\n").expect("write");
+    let o = odocal(&[
+        "calibrate",
+        dstr,
+        "--method",
+        "eiv",
+        "--eiv-window",
+        "1500",
+        "--fix-noise",
+        "--noise-model",
+        model.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", text(&o.stderr));
+    let out = text(&o.stdout);
+    assert!(out.starts_with("odocal calibrate — method eiv"), "{out}");
+    assert!(out.contains("all used (no yaw-rate selection)"), "{out}");
+    assert!(out.contains("EIV start, batch G-N:"), "{out}");
+    assert!(out.contains("noise, fixed    : σ_white 0.800 %"), "{out}");
+    assert!(out.contains("σ_c 0.010 %"), "{out}");
+    assert!(out.contains("  result: "), "{out}");
+}
+
+#[test]
+fn eiv_flags_belong_to_eiv() {
+    let d = tempfile::tempdir().expect("tmp");
+    let p = d.path().join("d.csv");
+    let mut rows = String::from("t,px,py,psi,n_rl,n_rr,beta,a_y\n");
+    for i in 0..10 {
+        rows.push_str(&format!("{},{},0,0,5,5,0,0\n", i as f64 * 0.025, i as f64 * 0.25));
+    }
+    std::fs::write(&p, rows).expect("write");
+    let csv = p.to_str().expect("utf8");
+    let o = odocal(&["calibrate", csv, "--method", "batch-gn", "--fix-noise", "--no-fallback"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        text(&o.stderr).contains("--fix-noise, --no-fallback apply to --method eiv only, not to --method batch-gn"),
+        "{}",
+        text(&o.stderr)
+    );
+    let o = odocal(&["calibrate", csv, "--noise-model", "n.toml"]);
+    assert!(text(&o.stderr).contains("--noise-model applies to --method eiv only, not to --method three-step"));
+    let o = odocal(&["calibrate", csv, "--method", "eiv", "--batches", "4"]);
+    assert!(text(&o.stderr).contains("--batches applies to --method three-step only, not to --method eiv"));
+    let o = odocal(&["calibrate", csv, "--method", "eiv", "--noise-model", "/nonexistent/n.toml"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(text(&o.stderr).contains("/nonexistent/n.toml"), "{}", text(&o.stderr));
+    let o = odocal(&["calibrate", "--help"]);
+    let help = text(&o.stdout);
+    assert!(help.contains("three-step, batch-gn or eiv") && help.contains("--fix-noise"), "{help}");
+}

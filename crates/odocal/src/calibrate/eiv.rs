@@ -1,0 +1,359 @@
+//! Errors-in-variables calibration as a method (`--method eiv`): the
+//! augmented extended Kalman filter of [`crate::eiv`] (SPEC §10) over
+//! windows of every part of the drive, started from batch Gauss-Newton over
+//! all cut segments, with a fallback to that batch Gauss-Newton when the
+//! filter's consistency checks say the model does not fit the data.
+//!
+//! ## Selection
+//! No yaw-rate selection: the filter runs over every continuous part of the
+//! drive, and its starting batch Gauss-Newton fits every cut calibration
+//! segment. Held parameters (`identify.free`, `--fix`) are held in both.
+//! With [`super::CalibrationOptions::auto_fix`] the observability check at
+//! θ_0 holds further parameters, as for the segment-based methods.
+//!
+//! ## The start
+//! Batch Gauss-Newton over all cut segments from θ_0 (as `batch-gn
+//! --min-yaw-rate 0`). Only when its normal equations are singular (a
+//! straight drive) are the parameters that the batch observability check at
+//! θ_0 names held at θ_0 *for the start*; the filter then
+//! decides from its own information matrix `H_θ` which parameters it can
+//! estimate ([`EivOptions::fix_unobservable`]) and names the rest.
+//!
+//! ## Misspecification and fallback
+//! Every consistency finding of the filter ([`EivWarning`] other than
+//! `Unobservable`: NIS per window outside its band, filter divergence in a
+//! window, correlated innovations, θ unstable across halves of the drive,
+//! a noise scale at its upper clamp, a fit that did not converge) becomes a
+//! [`Warning::EivCheckFailed`]. When there is at least one and
+//! [`EivMethodOptions::fallback`] is on (the default), the report's θ is the
+//! starting batch Gauss-Newton (all cut segments, no yaw-rate selection),
+//! with its covariance and observability, and [`Warning::EivFallback`] says
+//! so; a filter error (a window whose covariance stops being positive
+//! definite, named in the error) falls back the same way. With the fallback
+//! off, the EIV θ is returned and the verdict is at most doubtful
+//! ([`crate::trust::VerdictReason::Misspecified`]).
+//!
+//! ## Uncertainty and observability
+//! The covariance is `H_θ⁻¹` of the filter at the estimate; the reported
+//! observability has `rcond` and the names (parameters held as not
+//! observable, or in a near-collinear combination) from the same `H_θ`.
+//! `sensitivity_m` (metres per resolution step) is the starting batch
+//! Gauss-Newton's, as `H_θ` is in whitened innovation units.
+
+use std::path::Path;
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+
+use super::{hold_unobservable, Estimator, MethodDetail, MethodOutcome, Prepared, Selection, Timing};
+use crate::eiv::{self, EivInput, EivOptions, EivReport, EivWarning, NoiseModel};
+use crate::error::{Error, Result};
+use crate::identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport, Observability};
+use crate::param::{Param, ParamSet};
+use crate::progress::{emit, Progress, ProgressFn};
+use crate::segment::{calibration_segments, SegmentData};
+use crate::warning::Warning;
+
+/// Settings of the EIV method.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct EivMethodOptions {
+    /// The filter and fit settings, including the starting noise model
+    /// ([`EivOptions::noise`], default [`NoiseModel::PRODUCTION_CAR`]) and
+    /// [`EivOptions::fix_noise`]. Its `free` is replaced by the
+    /// calibration's free set ([`super::CalibrationOptions::identify`]).
+    pub filter: EivOptions,
+    /// When a consistency check fails (or the filter fails), report the
+    /// starting batch Gauss-Newton over all cut segments instead of the EIV
+    /// θ. Default true.
+    pub fallback: bool,
+}
+
+impl Default for EivMethodOptions {
+    fn default() -> Self {
+        EivMethodOptions { filter: EivOptions::default(), fallback: true }
+    }
+}
+
+/// Which estimate the report's θ is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum EivOutcome {
+    /// The EIV estimate.
+    Eiv,
+    /// The starting batch Gauss-Newton over all cut segments (the fallback).
+    BatchGnFallback,
+}
+
+/// What the EIV method reports. In JSON its fields stand at the top level
+/// of the report (`identification`, `eiv`, `eiv_result`, ...).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EivDetail {
+    /// The starting batch Gauss-Newton over all cut segments (also the
+    /// fallback result).
+    pub identification: IdentifyReport,
+    /// Parameters held at θ_0 for the start only, because batch G-N with
+    /// all of them free was singular (named by the batch observability
+    /// check at θ_0).
+    pub start_held: Vec<Param>,
+    /// The EIV fit: θ, `H_θ⁻¹`, the estimated noise model in physical units
+    /// (`eiv.noise`), termination, per-window consistency. `None` when the
+    /// filter failed with an error (see `eiv_error`).
+    pub eiv: Option<Box<EivReport>>,
+    /// The filter's error, when it failed.
+    pub eiv_error: Option<String>,
+    /// The starting noise model.
+    pub noise_start: NoiseModel,
+    /// Which estimate the report's θ is.
+    pub eiv_result: EivOutcome,
+}
+
+impl EivDetail {
+    /// The noise model the fit ended with (the starting one with
+    /// `fix_noise`), in physical units; `None` when the filter failed.
+    pub fn noise(&self) -> Option<&NoiseModel> {
+        self.eiv.as_ref().map(|e| &e.noise)
+    }
+}
+
+/// True for a filter finding of `report` that says the model does not fit
+/// the data: a diverged window, a window's NIS above its band, correlated
+/// innovations in a window whose NIS is not below its band, θ unstable
+/// across halves, a noise scale at its upper clamp, no convergence.
+///
+/// Not failures: `Unobservable` (reported through the observability
+/// fields); a NIS *below* the band, and correlated innovations in such a
+/// window — the innovations are smaller than the noise model allows (a
+/// noise source absent or over-estimated, as on a noise-free drive, where
+/// what is left of the innovations is rounding and is correlated).
+pub fn is_misspecification(w: &EivWarning, report: &EivReport) -> bool {
+    match w {
+        EivWarning::Unobservable { .. } => false,
+        EivWarning::InconsistentInnovations { nis, band, .. } => *nis > band[1],
+        EivWarning::CorrelatedInnovations { window, .. } => {
+            let band = report.windows.iter().find(|d| d.window.index == *window).map(|d| d.nis);
+            !band.is_some_and(|nis| nis < 0.5)
+        }
+        _ => true,
+    }
+}
+
+/// Reads a noise model from a TOML file of [`NoiseModel`] fields (missing
+/// fields keep the production-car defaults; an unknown field is an error).
+///
+/// ```toml
+/// wheel_white_rel_sigma = 0.01       # 1 %
+/// wheel_common_rel_sigma = 0.003
+/// wheel_common_time_constant_s = 5.0
+/// position_white_sigma_m = 0.03
+/// ```
+pub fn read_noise_model(path: &Path) -> Result<NoiseModel> {
+    let text = std::fs::read_to_string(path).map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
+    parse_noise_model(&text).map_err(|reason| Error::InvalidOption {
+        field: "noise model file",
+        reason: format!("{}: {reason}", path.display()),
+    })
+}
+
+/// Parses the TOML of [`read_noise_model`] and checks the model.
+pub fn parse_noise_model(text: &str) -> std::result::Result<NoiseModel, String> {
+    let table: toml::Table = toml::from_str(text).map_err(|e| e.message().to_string())?;
+    let known = serde_json::to_value(NoiseModel::PRODUCTION_CAR).map_err(|e| e.to_string())?;
+    if let Some(known) = known.as_object() {
+        let mut unknown: Vec<&str> = table.keys().map(String::as_str).filter(|k| !known.contains_key(*k)).collect();
+        unknown.sort_unstable();
+        if !unknown.is_empty() {
+            let mut names: Vec<&str> = known.keys().map(String::as_str).collect();
+            names.sort_unstable();
+            return Err(format!("unknown field(s) {}; the fields are {}", unknown.join(", "), names.join(", ")));
+        }
+    }
+    let model: NoiseModel = table.try_into().map_err(|e: toml::de::Error| e.message().to_string())?;
+    model.validate().map_err(|e| e.to_string())?;
+    Ok(model)
+}
+
+/// The noise model as one line in physical units (σ in %, time constants in s).
+pub fn noise_summary(n: &NoiseModel) -> String {
+    format!(
+        "σ_white {:.3} %, q {:.4} rev/s, σ_c {:.3} % (τ_c {} s), σ_w {:.3} % (τ_w {} s); pose σ {:.3} m / {:.2} mrad, \
+         drift {:.3} m / {:.2} mrad (τ {} s); σ_a {:.3} m/s², σ_β {:.2} mrad",
+        n.wheel_white_rel_sigma * 100.0,
+        n.quantisation_step_rev_per_s,
+        n.wheel_common_rel_sigma * 100.0,
+        n.wheel_common_time_constant_s,
+        n.wheel_differential_rel_sigma * 100.0,
+        n.wheel_differential_time_constant_s,
+        n.position_white_sigma_m,
+        n.heading_white_sigma_rad * 1e3,
+        n.position_drift_sigma_m,
+        n.heading_drift_sigma_rad * 1e3,
+        n.drift_time_constant_s,
+        n.lateral_acceleration_sigma_m_per_s2,
+        n.sideslip_sigma_rad * 1e3
+    )
+}
+
+fn mask(free: ParamSet) -> [bool; 4] {
+    std::array::from_fn(|i| Param::from_index(i).is_some_and(|p| free.contains(p)))
+}
+
+fn param_set<T: std::fmt::Display>(params: &[T]) -> ParamSet {
+    // eiv::Parameter displays as the θ name.
+    params.iter().filter_map(|p| p.to_string().parse::<Param>().ok()).collect()
+}
+
+impl Estimator for EivMethodOptions {
+    fn name(&self) -> &'static str {
+        "eiv"
+    }
+
+    fn validate(&self) -> Result<()> {
+        self.filter.validate()
+    }
+
+    /// Every cut segment (no yaw-rate selection); auto-fix as the
+    /// segment-based methods.
+    fn select(&self, prep: &Prepared<'_>) -> Result<Selection> {
+        let (drive, opts) = (prep.drive, prep.options);
+        let cut = calibration_segments(drive, &opts.segments)?;
+        if cut.all.is_empty() {
+            return Err(Error::NoSegments(format!(
+                "the drive has {} samples in {} part(s); a calibration segment needs {} steps",
+                drive.len(),
+                drive.parts().len(),
+                opts.segments.length_steps + 1
+            )));
+        }
+        let mut free = opts.identify.free;
+        let mut auto_fixed = Vec::new();
+        let mut warnings = Vec::new();
+        if opts.auto_fix {
+            let data: Vec<SegmentData> = cut.all.iter().map(|s| SegmentData::new(drive, s)).collect();
+            let held = hold_unobservable(&data, &opts.theta0, &IdentifyOptions { free, ..opts.identify.clone() });
+            if !held.is_empty() {
+                warnings.push(Warning::AutoFixUnobservable { params: held.clone(), segments: cut.all.len() });
+                for p in &held {
+                    free.remove(*p);
+                }
+            }
+            auto_fixed = held;
+        }
+        Ok(Selection { selected: cut.all.len(), cut: cut.all.len(), segments: cut.all, free, auto_fixed, warnings })
+    }
+
+    fn run(
+        &self,
+        prep: &Prepared<'_>,
+        selection: &Selection,
+        progress: Option<ProgressFn<'_>>,
+    ) -> Result<MethodOutcome> {
+        let opts = prep.options;
+        let t = Instant::now();
+        emit(progress, Progress::Stage { name: "EIV: batch Gauss-Newton start", total: 1 });
+        let data: Vec<SegmentData> = selection.segments.iter().map(|s| SegmentData::new(prep.drive, s)).collect();
+        let identify = selection.identify(opts);
+        // Batch G-N over all segments with every free parameter; only when
+        // its normal equations are singular (a straight drive) are the
+        // parameters the check at θ_0 names held for the start.
+        let (start, start_held) = match batch_gauss_newton(&data, &opts.theta0, &identify) {
+            Ok(r) => (r, Vec::new()),
+            Err(Error::NotObservable { .. }) => {
+                let held = hold_unobservable(&data, &opts.theta0, &identify);
+                let mut free = selection.free;
+                for p in &held {
+                    free.remove(*p);
+                }
+                // Nothing left to estimate: the filter starts from θ_0.
+                let iterations = if free.is_empty() { 0 } else { identify.max_iterations };
+                let held_opts = IdentifyOptions { free, max_iterations: iterations, ..identify.clone() };
+                (batch_gauss_newton(&data, &opts.theta0, &held_opts)?, held)
+            }
+            Err(e) => return Err(e),
+        };
+        emit(progress, Progress::Advance(1));
+        let t_start = t.elapsed().as_secs_f64();
+
+        let t = Instant::now();
+        emit(progress, Progress::Stage { name: "EIV filter", total: 1 });
+        let filter = EivOptions { free: mask(selection.free), ..self.filter.clone() };
+        let fit = eiv::estimate(&EivInput::from_drive(prep.drive), &start.theta, &filter);
+        emit(progress, Progress::Advance(1));
+        let t_eiv = t.elapsed().as_secs_f64();
+        let timing = Timing { initial_identification: t_start, final_identification: t_eiv, ..Timing::default() };
+
+        let (report, error) = match fit {
+            Ok(r) => (Some(Box::new(r)), None),
+            Err(e) if self.fallback && !matches!(e, Error::InvalidOption { .. }) => (None, Some(e.to_string())),
+            Err(e) => return Err(e),
+        };
+        let (findings, notes): (Vec<EivWarning>, Vec<EivWarning>) = match &report {
+            Some(r) => r
+                .warnings
+                .iter()
+                .filter(|w| !matches!(w, EivWarning::Unobservable { .. }))
+                .cloned()
+                .partition(|w| is_misspecification(w, r)),
+            None => (Vec::new(), Vec::new()),
+        };
+        let fall_back = error.is_some() || (self.fallback && !findings.is_empty());
+        let mut warnings: Vec<Warning> = findings
+            .iter()
+            .map(|finding| Warning::EivCheckFailed { finding: finding.clone(), fell_back: fall_back })
+            .collect();
+        warnings.extend(notes.into_iter().map(|finding| Warning::EivCheckNote { finding }));
+        let detail = EivDetail {
+            identification: start,
+            start_held,
+            eiv: report,
+            eiv_error: error.clone(),
+            noise_start: self.filter.noise,
+            eiv_result: EivOutcome::BatchGnFallback,
+        };
+        if fall_back {
+            let reason = match &error {
+                Some(e) => format!("the filter failed: {e}"),
+                None => format!("{} consistency check(s) failed", findings.len()),
+            };
+            let eiv_theta = detail.eiv.as_ref().map(|r| r.theta);
+            warnings.push(Warning::EivFallback { reason, segments: selection.segments.len(), eiv_theta });
+            let id = &detail.identification;
+            return Ok(MethodOutcome {
+                theta: id.theta,
+                iterations: Some(id.iterations),
+                covariance: id.covariance,
+                observability: id.observability.clone(),
+                detail: MethodDetail::Eiv(detail),
+                timing,
+                warnings,
+                compensated: None,
+            });
+        }
+        let Some(r) = detail.eiv.as_ref() else {
+            return Err(Error::Numerical("the EIV fit returned no report".into()));
+        };
+        let o = &r.observability;
+        let observability = Observability {
+            rcond: o.rcond,
+            sensitivity_m: detail.identification.observability.sensitivity_m,
+            unobservable: param_set(&o.unobservable).iter().chain(param_set(&o.collinear).iter()).collect(),
+        };
+        let outcome = MethodOutcome {
+            theta: r.theta,
+            // The EIV fit continues the start's iterations (it may take no
+            // step when the start is already its optimum).
+            iterations: Some(detail.identification.iterations + r.iterations),
+            covariance: r.covariance,
+            observability,
+            detail: MethodDetail::Eiv(EivDetail { eiv_result: EivOutcome::Eiv, ..detail.clone() }),
+            timing,
+            warnings,
+            compensated: None,
+        };
+        Ok(outcome)
+    }
+}
+
+#[cfg(test)]
+#[path = "eiv_tests.rs"]
+mod tests;

@@ -1,0 +1,217 @@
+//! Tests of the EIV method behind `calibrate` (`Method::Eiv`).
+
+// Held parameters and parsed values are compared exactly on purpose.
+#![allow(clippy::float_cmp)]
+
+use super::*;
+use crate::calibrate::{BatchGnOptions, MethodDetail, Timing};
+use crate::drive::Signals;
+use crate::eiv::{EivOptions, EivWarning, NoiseModel};
+use crate::model::Theta;
+use crate::sim::{simulate, NoiseOptions, SimOptions};
+use crate::trust::VerdictReason;
+use crate::warning::Warning;
+use crate::{calibrate, CalibrationOptions, Method};
+
+fn eiv_method(filter: EivOptions, fallback: bool) -> Method {
+    Method::Eiv(EivMethodOptions { filter, fallback })
+}
+
+fn detail(r: &crate::CalibrationReport) -> &EivDetail {
+    match &r.detail {
+        crate::MethodDetail::Eiv(d) => d,
+        other => panic!("not an EIV detail: {other:?}"),
+    }
+}
+
+/// Noise-free, one substep: the model is exact, and the EIV method returns
+/// θ_true to rounding (issue 9's bar, 1e-8 relative).
+#[test]
+fn noise_free_drive_returns_theta_true() {
+    let out = simulate(&SimOptions { length_km: 6.0, substeps: 1, ..SimOptions::noise_free(11) }).expect("sim");
+    let truth = out.sidecar.theta_true;
+    let opts = CalibrationOptions { method: eiv_method(EivOptions::default(), true), ..Default::default() };
+    let r = calibrate(&out.drive, &opts, None).expect("calibrate");
+    let d = detail(&r);
+    assert_eq!(d.eiv_result, EivOutcome::Eiv, "{:?}", r.warnings);
+    assert_eq!(r.method, "eiv");
+    let (e, t) = (r.theta.to_array(), truth.to_array());
+    for i in 0..4 {
+        let rel = (e[i] - t[i]).abs() / t[i].abs();
+        assert!(rel <= 1e-8, "parameter {i}: {} vs {} (rel {rel:.2e})", e[i], t[i]);
+    }
+    // No yaw-rate selection: every cut segment is used by the start.
+    assert_eq!(r.segments.selected, r.segments.cut);
+    assert_eq!(d.identification.segments, r.segments.cut);
+    // The JSON report reads back as an EIV report (the untagged detail).
+    let back: crate::CalibrationReport =
+        serde_json::from_value(serde_json::to_value(&r).expect("json")).expect("read back");
+    assert!(matches!(back.detail, crate::MethodDetail::Eiv(_)));
+}
+
+/// A drive with white wheel noise (the white preset): batch G-N over all segments (the EIV
+/// start) has a t_r error of several of EIV's σ; the EIV method, with the
+/// drive's noise model fixed, has an error within 3 of its reported σ and
+/// smaller. (With η estimated from the production-car model this drive
+/// fails the checks and the method falls back: measured on 8 km with 2 %
+/// white noise, c_e ran to 2.22 m, unstable across halves, not converged.)
+#[test]
+fn white_noise_drive_beats_batch_gauss_newton_on_t_r() {
+    let out =
+        simulate(&SimOptions { length_km: 12.0, noise: NoiseOptions::white_wheel_only(), ..SimOptions::paper(3) })
+            .expect("sim");
+    let truth = out.sidecar.theta_true;
+    let mut opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
+    opts.segments.min_peak_yaw_rate_rad_per_s = 0.0;
+    let gn = calibrate(&out.drive, &opts, None).expect("batch-gn");
+    let known = NoiseModel::from_sim(&out.sidecar.settings.noise, out.drive.sample_time_s());
+    let filter = EivOptions { noise: known, fix_noise: true, ..Default::default() };
+    let opts = CalibrationOptions { method: eiv_method(filter, true), ..Default::default() };
+    let r = calibrate(&out.drive, &opts, None).expect("eiv");
+    assert_eq!(detail(&r).eiv_result, EivOutcome::Eiv, "fell back: {:?}", r.warnings);
+    let sigma = r.std_dev().t_r;
+    let gn_err = (gn.theta.t_r - truth.t_r).abs();
+    let eiv_err = (r.theta.t_r - truth.t_r).abs();
+    eprintln!("t_r: G-N err {gn_err:.2e}, EIV err {eiv_err:.2e}, σ {sigma:.2e}");
+    assert!(gn_err > 3.0 * sigma, "G-N t_r error {gn_err:.2e} not measurable against σ {sigma:.2e}");
+    assert!(eiv_err <= 3.0 * sigma, "EIV t_r error {eiv_err:.2e} > 3σ = {:.2e}", 3.0 * sigma);
+    assert!(eiv_err < gn_err);
+}
+
+#[test]
+fn report_is_identical_for_one_and_two_threads() {
+    let out = simulate(&SimOptions { length_km: 4.0, ..SimOptions::paper(21) }).expect("sim");
+    let filter = EivOptions { window_samples: 1500, ..Default::default() };
+    let opts = CalibrationOptions { method: eiv_method(filter, false), ..Default::default() };
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+        let mut r = pool.install(|| calibrate(&out.drive, &opts, None)).expect("eiv");
+        r.timing_s = Timing::default();
+        if let MethodDetail::Eiv(d) = &mut r.detail {
+            if let Some(e) = d.eiv.as_mut() {
+                e.timing_s = 0.0;
+            }
+        }
+        serde_json::to_string(&r).expect("json")
+    };
+    assert_eq!(run(1), run(2));
+}
+
+/// A fixed noise model far below the drive's noise (0.01 % wheel noise,
+/// 1 mm pose noise on a paper-preset drive): the innovations are far too
+/// large, the checks fail with the window they failed in, and the method
+/// falls back to batch G-N on all cut segments — or, with the fallback
+/// off, keeps the EIV θ and the verdict says the model does not fit.
+#[test]
+fn wrong_noise_model_falls_back_to_batch_gauss_newton() {
+    let out = simulate(&SimOptions { length_km: 4.0, ..SimOptions::paper(5) }).expect("sim");
+    let tiny = NoiseModel {
+        wheel_white_rel_sigma: 1e-4,
+        wheel_common_rel_sigma: 1e-5,
+        wheel_differential_rel_sigma: 1e-5,
+        position_white_sigma_m: 1e-3,
+        position_drift_sigma_m: 1e-3,
+        heading_drift_sigma_rad: 1e-5,
+        ..NoiseModel::PRODUCTION_CAR
+    };
+    let filter = EivOptions { noise: tiny, fix_noise: true, ..Default::default() };
+    let opts = CalibrationOptions { method: eiv_method(filter.clone(), true), ..Default::default() };
+    let r = calibrate(&out.drive, &opts, None).expect("calibrate");
+    let d = detail(&r);
+    assert_eq!(d.eiv_result, EivOutcome::BatchGnFallback);
+    assert_eq!(r.theta, d.identification.theta, "the result is the batch G-N start");
+    assert_eq!(r.covariance, d.identification.covariance);
+    let window_finding = r.warnings.iter().any(|w| {
+        matches!(
+            w,
+            Warning::EivCheckFailed {
+                finding: EivWarning::FilterDiverged { .. } | EivWarning::InconsistentInnovations { .. },
+                fell_back: true
+            }
+        )
+    });
+    assert!(window_finding, "{:?}", r.warnings);
+    let fallback = r.warnings.iter().find(|w| matches!(w, Warning::EivFallback { .. })).expect("fallback warning");
+    let text = fallback.to_string();
+    assert!(text.starts_with("EIV result NOT used ("), "{text}");
+    assert!(text.contains(&format!("batch Gauss-Newton on all {} cut segments", r.segments.cut)), "{text}");
+    assert!(!r.verdict.reasons.iter().any(|x| matches!(x, VerdictReason::Misspecified { .. })));
+
+    let opts = CalibrationOptions { method: eiv_method(filter, false), ..Default::default() };
+    let kept = calibrate(&out.drive, &opts, None).expect("calibrate");
+    let d = detail(&kept);
+    assert_eq!(d.eiv_result, EivOutcome::Eiv);
+    assert_eq!(Some(kept.theta), d.eiv.as_ref().map(|e| e.theta));
+    assert!(kept.warnings.iter().any(Warning::misspecifies_result));
+    assert!(kept.verdict.level >= crate::VerdictLevel::Doubtful);
+    assert!(kept.verdict.reasons.iter().any(|x| matches!(x, VerdictReason::Misspecified { .. })), "{:?}", kept.verdict);
+}
+
+/// Held parameters (`identify.free`) are held by the start and the filter.
+#[test]
+fn held_parameters_stay_at_theta0() {
+    let out = simulate(&SimOptions { length_km: 4.0, substeps: 1, ..SimOptions::noise_free(7) }).expect("sim");
+    let truth = out.sidecar.theta_true;
+    let mut opts = CalibrationOptions { method: eiv_method(EivOptions::default(), true), ..Default::default() };
+    opts.theta0 = Theta { d: truth.d, ..Theta::PAPER_INITIAL };
+    opts.identify.free = ParamSet::THETA.without(Param::D);
+    let r = calibrate(&out.drive, &opts, None).expect("calibrate");
+    assert_eq!(r.theta.d, truth.d);
+    assert_eq!(r.covariance[3], [0.0; 4]);
+    assert_eq!(detail(&r).eiv.as_ref().map(|e| e.free), Some([true, true, true, false]));
+    assert!((r.theta.t_r / truth.t_r - 1.0).abs() < 1e-8, "{}", r.theta);
+}
+
+/// A straight drive: EIV calibrates c_e and names t_r and d (from its own
+/// information matrix) in the shared observability fields. c_d is not named:
+/// the heading determines c_d/t_r, so with t_r held c_d is determined (the
+/// start holds what the batch check at θ_0 names).
+#[test]
+fn straight_drive_calibrates_c_e_and_names_the_rest() {
+    let n = 4000;
+    let ts = 0.025;
+    let th = Theta::SIM_DEFAULT_TRUE;
+    let (n_rl, n_rr) = crate::model::wheel_rotations(10.0, 0.0, 0.0, &th);
+    let (mut px, mut py, mut psi) = (vec![0.0], vec![0.0], vec![0.3]);
+    for k in 1..n {
+        let x = crate::model::step(
+            &crate::model::State::new(px[k - 1], py[k - 1], psi[k - 1]),
+            &crate::model::Input { n_rl, n_rr, beta: 0.0, a_y: 0.0 },
+            &th,
+            ts,
+        );
+        px.push(x[0]);
+        py.push(x[1]);
+        psi.push(x[2]);
+    }
+    let t: Vec<f64> = (0..n).map(|k| k as f64 * ts).collect();
+    let signals =
+        Signals { px, py, psi, n_rl: vec![n_rl; n], n_rr: vec![n_rr; n], beta: vec![0.0; n], a_y: vec![0.0; n] };
+    let drive = crate::Drive::builder(t, signals).build().expect("drive");
+    let opts = CalibrationOptions { method: eiv_method(EivOptions::default(), true), ..Default::default() };
+    let r = calibrate(&drive, &opts, None).expect("calibrate");
+    assert_eq!(detail(&r).eiv_result, EivOutcome::Eiv, "{:?}", r.warnings);
+    assert!((r.theta.c_e / th.c_e - 1.0).abs() < 1e-6, "{}", r.theta);
+    assert!((r.theta.c_d - th.c_d).abs() < 1e-8, "{}", r.theta);
+    let held = &detail(&r).start_held;
+    assert!(!held.is_empty() && !held.contains(&Param::CE), "start held {held:?}");
+    let named = r.observability.unobservable;
+    for p in [Param::TR, Param::D] {
+        assert!(named.contains(p), "{p} not named: {named}");
+    }
+    assert!(!named.contains(Param::CE));
+    assert!(r.verdict.reasons.iter().any(|x| matches!(x, VerdictReason::Unobservable { .. })), "{:?}", r.verdict);
+    assert!(r.warnings.iter().any(|w| matches!(w, Warning::Unobservable { .. })));
+}
+
+#[test]
+fn noise_model_files_name_unknown_fields() {
+    let m = parse_noise_model("wheel_white_rel_sigma = 0.01\nwheel_common_time_constant_s = 5.0\n").expect("parse");
+    assert_eq!(m.wheel_white_rel_sigma, 0.01);
+    assert_eq!(m.wheel_common_time_constant_s, 5.0);
+    assert_eq!(m.position_white_sigma_m, NoiseModel::PRODUCTION_CAR.position_white_sigma_m);
+    let e = parse_noise_model("wheel_white_sigma = 0.01\n").expect_err("unknown field");
+    assert!(e.starts_with("unknown field(s) wheel_white_sigma; the fields are "), "{e}");
+    let e = parse_noise_model("position_white_sigma_m = -1.0\n").expect_err("negative");
+    assert!(e.contains("noise.position_white_sigma_m"), "{e}");
+}
