@@ -51,7 +51,7 @@ use crate::error::{Error, Result};
 use crate::identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport, Observability};
 use crate::param::{Param, ParamSet};
 use crate::progress::{emit, Progress, ProgressFn};
-use crate::segment::{calibration_segments, SegmentData};
+use crate::segment::SegmentData;
 use crate::warning::Warning;
 
 /// Settings of the EIV method.
@@ -216,15 +216,7 @@ impl Estimator for EivMethodOptions {
     /// segment-based methods.
     fn select(&self, prep: &Prepared<'_>) -> Result<Selection> {
         let (drive, opts) = (prep.drive, prep.options);
-        let cut = calibration_segments(drive, &opts.segments)?;
-        if cut.all.is_empty() {
-            return Err(Error::NoSegments(format!(
-                "the drive has {} samples in {} part(s); a calibration segment needs {} steps",
-                drive.len(),
-                drive.parts().len(),
-                opts.segments.length_steps + 1
-            )));
-        }
+        let cut = super::cut_segments(drive, &opts.segments)?;
         let mut free = opts.identify.free;
         let mut auto_fixed = Vec::new();
         let mut warnings = Vec::new();

@@ -674,21 +674,28 @@ fn method_extrinsics(detail: &MethodDetail) -> Option<ExtrinsicsEstimate> {
     }
 }
 
+/// The calibration segments of every method ([`calibration_segments`]), or
+/// an error saying why the drive has none.
+pub(crate) fn cut_segments(drive: &Drive, opts: &SegmentOptions) -> Result<crate::segment::SegmentSelection> {
+    let selection = calibration_segments(drive, opts)?;
+    if selection.all.is_empty() {
+        return Err(Error::NoSegments(format!(
+            "the drive has {} samples in {} part(s); a calibration segment needs {} steps",
+            drive.len(),
+            drive.parts().len(),
+            opts.length_steps + 1
+        )));
+    }
+    Ok(selection)
+}
+
 /// The segment-based methods' selection (SPEC §3, §6): calibration segments
 /// turning faster than the threshold; with none, an error naming the
 /// yaw-only parameters, or (auto-fix) those held and every segment used;
 /// with auto-fix, parameters the observability check names at θ_0 held.
 pub(crate) fn turning_segments(prep: &Prepared<'_>) -> Result<Selection> {
     let (drive, opts) = (prep.drive, prep.options);
-    let selection = calibration_segments(drive, &opts.segments)?;
-    if selection.all.is_empty() {
-        return Err(Error::NoSegments(format!(
-            "the drive has {} samples in {} part(s); a calibration segment needs {} steps",
-            drive.len(),
-            drive.parts().len(),
-            opts.segments.length_steps + 1
-        )));
-    }
+    let selection = cut_segments(drive, &opts.segments)?;
     let mut free = opts.identify.free;
     let mut auto_fixed = Vec::new();
     let mut warnings = Vec::new();
