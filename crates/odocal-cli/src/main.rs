@@ -166,6 +166,14 @@ struct CalibrationArgs {
     /// EIV: filter window length, samples.
     #[arg(long)]
     eiv_window: Option<usize>,
+    /// EIV: parametric bootstrap with B replicates (re-simulate the fitted
+    /// noise, re-fit B times): percentile intervals and the estimator's own
+    /// bias in the report; about B extra fits of time.
+    #[arg(long, value_name = "B")]
+    bootstrap: Option<usize>,
+    /// EIV: seed of the bootstrap's replicates.
+    #[arg(long, default_value_t = 0)]
+    bootstrap_seed: u64,
     /// Hold out half of the drive (by time) for validation and calibrate on
     /// the other half: first-half or second-half (the half held out).
     #[arg(long)]
@@ -220,6 +228,8 @@ impl CalibrationArgs {
             ("--fix-noise", self.fix_noise),
             ("--no-fallback", self.no_fallback),
             ("--eiv-window", self.eiv_window.is_some()),
+            ("--bootstrap", self.bootstrap.is_some()),
+            ("--bootstrap-seed", self.bootstrap_seed != 0),
         ];
         let reject = |flags: &[(&str, bool)], owner: &str, other: &Method| -> Result<()> {
             let given: Vec<&str> = flags.iter().filter(|f| f.1).map(|f| f.0).collect();
@@ -265,6 +275,13 @@ impl CalibrationArgs {
                 o.fallback = !self.no_fallback;
                 if let Some(v) = self.eiv_window {
                     o.filter.window_samples = v;
+                }
+                if let Some(b) = self.bootstrap {
+                    o.bootstrap = Some(odocal::eiv::BootstrapOptions {
+                        replicates: b,
+                        seed: self.bootstrap_seed,
+                        ..Default::default()
+                    });
                 }
                 Method::Eiv(o)
             }

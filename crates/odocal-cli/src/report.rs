@@ -52,6 +52,29 @@ fn eiv_section(d: &EivDetail) -> String {
                 "BATCH G-N FALLBACK (all segments): the EIV checks failed (see the warnings; --no-fallback keeps EIV)",
         }
     );
+    if let Some(b) = &d.bootstrap {
+        let _ = writeln!(
+            out,
+            "  bootstrap: {} replicates ({} failed), {:.0} % basic intervals and the estimator's own bias:",
+            b.replicates.len(),
+            b.failed.len(),
+            100.0 * b.level
+        );
+        // c_e, t_r in m; c_d in mm; d in mm/(m/s²), as the θ table.
+        for (i, (name, scale, prec)) in
+            [("c_e", 1.0, 6), ("c_d", 1e3, 4), ("t_r", 1.0, 6), ("d", 1e3, 4)].into_iter().enumerate()
+        {
+            let [lo, hi] = b.interval_basic[i];
+            let _ = writeln!(
+                out,
+                "    {name:<4} [{:.prec$}, {:.prec$}]  bias {:+.prec$}  corrected {:.prec$}",
+                lo * scale,
+                hi * scale,
+                b.bias[i] * scale,
+                b.theta_corrected.to_array()[i] * scale
+            );
+        }
+    }
     out
 }
 

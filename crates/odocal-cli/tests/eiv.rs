@@ -49,6 +49,9 @@ fn eiv_on_a_small_simulated_drive() {
         "--fix-noise",
         "--noise-model",
         model.to_str().expect("utf8"),
+        "--no-fallback",
+        "--bootstrap",
+        "3",
     ]);
     assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", text(&o.stderr));
     let out = text(&o.stdout);
@@ -57,7 +60,9 @@ fn eiv_on_a_small_simulated_drive() {
     assert!(out.contains("EIV start, batch G-N:"), "{out}");
     assert!(out.contains("noise, fixed    : σ_white 0.800 %"), "{out}");
     assert!(out.contains("σ_c 0.010 %"), "{out}");
-    assert!(out.contains("  result: "), "{out}");
+    assert!(out.contains("  result: EIV estimate"), "{out}");
+    assert!(out.contains("  bootstrap: 3 replicates (0 failed), 95 % basic intervals"), "{out}");
+    assert!(out.contains("    t_r  ["), "{out}");
 }
 
 #[test]

@@ -67,11 +67,17 @@ pub struct EivMethodOptions {
     /// starting batch Gauss-Newton over all cut segments instead of the EIV
     /// θ. Default true.
     pub fallback: bool,
+    /// A parametric bootstrap of the EIV estimate ([`eiv::bootstrap`]:
+    /// re-simulate the fitted noise at the fitted θ on the drive's own
+    /// inputs, re-fit, B times, seeded) for percentile intervals and the
+    /// estimator's own bias. Run only when the EIV θ is the result (not
+    /// after a fallback). Default `None` (about B fits' extra time).
+    pub bootstrap: Option<eiv::BootstrapOptions>,
 }
 
 impl Default for EivMethodOptions {
     fn default() -> Self {
-        EivMethodOptions { filter: EivOptions::default(), fallback: true }
+        EivMethodOptions { filter: EivOptions::default(), fallback: true, bootstrap: None }
     }
 }
 
@@ -106,6 +112,10 @@ pub struct EivDetail {
     pub noise_start: NoiseModel,
     /// Which estimate the report's θ is.
     pub eiv_result: EivOutcome,
+    /// The parametric bootstrap, when asked for
+    /// ([`EivMethodOptions::bootstrap`]) and the EIV θ is the result.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bootstrap: Option<Box<eiv::BootstrapReport>>,
 }
 
 impl EivDetail {
@@ -301,6 +311,7 @@ impl Estimator for EivMethodOptions {
             eiv_error: error.clone(),
             noise_start: self.filter.noise,
             eiv_result: EivOutcome::BatchGnFallback,
+            bootstrap: None,
         };
         if fall_back {
             let reason = match &error {
@@ -324,6 +335,15 @@ impl Estimator for EivMethodOptions {
         let Some(r) = detail.eiv.as_ref() else {
             return Err(Error::Numerical("the EIV fit returned no report".into()));
         };
+        let bootstrap = match &self.bootstrap {
+            Some(b) => {
+                emit(progress, Progress::Stage { name: "EIV bootstrap", total: 1 });
+                let boot = eiv::bootstrap(&EivInput::from_drive(prep.drive), r, &filter, b)?;
+                emit(progress, Progress::Advance(1));
+                Some(Box::new(boot))
+            }
+            None => None,
+        };
         let o = &r.observability;
         let observability = Observability {
             rcond: o.rcond,
@@ -337,7 +357,7 @@ impl Estimator for EivMethodOptions {
             iterations: Some(detail.identification.iterations + r.iterations),
             covariance: r.covariance,
             observability,
-            detail: MethodDetail::Eiv(EivDetail { eiv_result: EivOutcome::Eiv, ..detail.clone() }),
+            detail: MethodDetail::Eiv(EivDetail { eiv_result: EivOutcome::Eiv, bootstrap, ..detail.clone() }),
             timing,
             warnings,
             compensated: None,
