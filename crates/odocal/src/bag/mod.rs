@@ -615,7 +615,13 @@ impl Bag {
         use mcap::sans_io::{SummaryReadEvent, SummaryReader, SummaryReaderOptions};
         let opts = SummaryReaderOptions::default().with_file_size(self.len).with_record_length_limit(MAX_RECORD_BYTES);
         let mut reader = SummaryReader::new_with_options(opts);
-        while let Some(event) = reader.next_event() {
+        // As in `scan`: a panic of the mcap reader on a damaged file means
+        // no usable summary.
+        loop {
+            let Some(event) = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| reader.next_event())).ok()?
+            else {
+                break;
+            };
             match event.ok()? {
                 SummaryReadEvent::ReadRequest(n) => {
                     let read = self.file.read(reader.insert(n)).ok()?;
@@ -654,8 +660,21 @@ impl Bag {
     fn scan(&mut self, mut f: impl FnMut(&mcap::Message) -> Result<()>) -> Result<()> {
         self.file.rewind().map_err(|e| Error::Io { path: self.path.clone(), source: e })?;
         let opts = mcap::sans_io::LinearReaderOptions::default().with_record_length_limit(MAX_RECORD_BYTES);
-        let reader = mcap::io::MessageReader::new_with_options(BufReader::new(&mut self.file), opts);
-        for m in reader {
+        let mut reader = mcap::io::MessageReader::new_with_options(BufReader::new(&mut self.file), opts);
+        loop {
+            // mcap 0.26's linear reader can panic on a damaged file (an
+            // unchecked `compressed_remaining -= len` in an uncompressed chunk
+            // whose record claims more bytes than the chunk holds: an
+            // overflow panic in debug builds, found by the damaged-bag
+            // proptest). A damaged file must give an error, never a panic, so
+            // the reader's step is isolated; our own callback `f` is not.
+            let next =
+                std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| reader.next())).map_err(|_| Error::Bag {
+                    path: self.path.clone(),
+                    topic: None,
+                    reason: "corrupt MCAP file: a record's length does not fit its chunk".into(),
+                })?;
+            let Some(m) = next else { break };
             let m = m.map_err(|e| Error::Bag {
                 path: self.path.clone(),
                 topic: None,

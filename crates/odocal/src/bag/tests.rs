@@ -550,6 +550,29 @@ proptest! {
     }
 }
 
+/// The damaged bag on which mcap 0.26's reader panicked (an overflow in an
+/// uncompressed chunk, debug builds): now an error, not a panic. Found by
+/// `damaged_bag_files_never_panic` (comp 0, no cut, byte at 0.1423 set to 3).
+#[test]
+fn bag_that_made_the_mcap_reader_overflow_gives_an_error() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let p = dir.path().join("b.mcap");
+    write_bag(&p, compressions()[0].1, true, &all_topics());
+    let mut bytes = std::fs::read(&p).expect("read");
+    let n = bytes.len();
+    bytes[((0.14230484594650797 * n as f64) as usize).min(n - 1)] = 3;
+    std::fs::write(&p, &bytes).expect("write");
+    for r in [
+        read_topic(&p, "/joints", &["position.left"], TimeSource::HeaderStamp).map(|_| ()),
+        read_topic(&p, "/fix", &[], TimeSource::LogTime).map(|_| ()),
+    ] {
+        if let Err(e) = r {
+            assert!(e.to_string().contains("MCAP"), "{e}");
+        }
+    }
+    let _ = inspect(&p);
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
 
