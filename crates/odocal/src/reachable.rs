@@ -370,7 +370,7 @@ pub fn reachable_minimum_with_progress(
     progress: Option<ProgressFn<'_>>,
 ) -> Result<ReachableReport> {
     let started = Instant::now();
-    opts.validate()?;
+    // `search_box` validates the options (and each re-centred box).
     let mut report = search_box(drive, segments, opts, progress)?;
     let mut evaluations = report.evaluations;
     let mut recentred = 0;
