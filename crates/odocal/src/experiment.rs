@@ -5,6 +5,12 @@
 //!
 //! [`run`] computes every number; the `odocal experiment` command renders
 //! them as `report.md`, SVG figures and `experiment.json`.
+//!
+//! When the truth and the noise model are known (a simulated drive,
+//! [`ExperimentOptions::noise`]), every θ's error is also read against the
+//! Cramér–Rao bound ([`crate::eiv::cramer_rao_bound`] at θ_true with the
+//! true noise model): [`Experiment::cramer_rao`] holds σ_CRB and each
+//! [`Scored::error_over_crb`] is (θ − θ_true)/σ_CRB.
 
 use std::time::Instant;
 
@@ -16,6 +22,7 @@ use crate::calibrate::{
 };
 use crate::compensate::CompensationStep;
 use crate::drive::Drive;
+use crate::eiv::{cramer_rao_bound, EivInput, EivOptions, NoiseModel};
 use crate::error::{Error, Result};
 use crate::model::{step, Theta};
 use crate::progress::{emit, Progress, ProgressFn};
@@ -32,13 +39,18 @@ pub struct ExperimentOptions {
     /// The reachable-minimum search (the estimates are added to its starts).
     /// Default the box around the paper's θ_0, seed 0.
     pub reachable: ReachableOptions,
+    /// The drive's true noise model (a simulated drive:
+    /// [`NoiseModel::from_sim`]). With θ_true it gives the Cramér–Rao
+    /// bound column ([`Experiment::cramer_rao`]); `None` (a real drive)
+    /// leaves the column out, saying why. Default `None`.
+    pub noise: Option<NoiseModel>,
 }
 
 impl Default for ExperimentOptions {
     fn default() -> Self {
         let calibration = CalibrationOptions::default();
         let reachable = ReachableOptions::around(&calibration.theta0);
-        ExperimentOptions { calibration, reachable }
+        ExperimentOptions { calibration, reachable, noise: None }
     }
 }
 
@@ -51,6 +63,66 @@ pub struct Scored {
     pub mean_position_error_m: f64,
     /// θ − θ_true, SI units (None without truth).
     pub error_vs_true: Option<Theta>,
+    /// (θ − θ_true)/σ_CRB per parameter, dimensionless (None without the
+    /// Cramér–Rao bound, [`Experiment::cramer_rao`]).
+    pub error_over_crb: Option<Theta>,
+}
+
+/// The Cramér–Rao bound of θ on the experiment's drive: the smallest
+/// standard deviation an unbiased estimator that knows the noise model can
+/// have ([`crate::eiv::cramer_rao_bound`] at θ_true with the true noise
+/// model, all four parameters free, default EIV windows).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CramerRao {
+    /// σ_CRB per parameter, SI units (None when not available).
+    pub sigma: Option<Theta>,
+    /// σ from the mean-only information (no ∂S/∂θ term; ≥ `sigma`).
+    pub sigma_mean_only: Option<Theta>,
+    /// The noise model of the bound.
+    pub noise: Option<NoiseModel>,
+    /// Why the bound is not available: no truth or no noise model (a given
+    /// real drive), or the bound failed (e.g. a noise-free drive).
+    pub unavailable: Option<String>,
+}
+
+impl CramerRao {
+    fn unavailable(reason: impl Into<String>) -> Self {
+        CramerRao { sigma: None, sigma_mean_only: None, noise: None, unavailable: Some(reason.into()) }
+    }
+
+    /// (θ − θ_true)/σ_CRB, when the bound is available and positive for
+    /// every parameter.
+    pub fn ratio(&self, error: &Theta) -> Option<Theta> {
+        let s = self.sigma?;
+        let (e, s) = (error.to_array(), s.to_array());
+        if s.iter().any(|x| !(*x > 0.0)) {
+            return None;
+        }
+        Some(Theta { c_e: e[0] / s[0], c_d: e[1] / s[1], t_r: e[2] / s[2], d: e[3] / s[3] })
+    }
+}
+
+/// The bound at θ_true with the true noise model, or why it is not available.
+pub fn cramer_rao_column(drive: &Drive, theta_true: Option<&Theta>, noise: Option<&NoiseModel>) -> CramerRao {
+    let (theta, noise) = match (theta_true, noise) {
+        (Some(t), Some(n)) => (t, n),
+        (None, _) => return CramerRao::unavailable("the true θ is not known (a given drive without simulator sidecar)"),
+        (Some(_), None) => return CramerRao::unavailable("the drive's noise model is not known"),
+    };
+    let of = |a: [f64; 4]| Theta { c_e: a[0], c_d: a[1], t_r: a[2], d: a[3] };
+    match cramer_rao_bound(&EivInput::from_drive(drive), theta, noise, &EivOptions::default()) {
+        Ok(c) if c.sigma.iter().all(|s| s.is_finite() && *s > 0.0) => CramerRao {
+            sigma: Some(of(c.sigma)),
+            sigma_mean_only: Some(of(c.sigma_mean_only)),
+            noise: Some(*noise),
+            unavailable: None,
+        },
+        Ok(c) => CramerRao {
+            noise: Some(*noise),
+            ..CramerRao::unavailable(format!("the bound is degenerate (σ_CRB = {:?})", c.sigma))
+        },
+        Err(e) => CramerRao { noise: Some(*noise), ..CramerRao::unavailable(format!("the bound failed: {e}")) },
+    }
 }
 
 /// One step-1 batch, raw and compensated.
@@ -163,6 +235,8 @@ pub struct ExperimentTiming {
     pub compensated_batches: f64,
     /// The reachable-minimum search.
     pub reachable_minimum: f64,
+    /// The Cramér–Rao bound (one filter pass with derivatives at θ_true).
+    pub cramer_rao_bound: f64,
 }
 
 /// The reachable minimum and how it was found.
@@ -188,6 +262,8 @@ pub struct Experiment {
     pub qp_solver: String,
     /// θ_true, when known.
     pub truth: Option<Scored>,
+    /// The Cramér–Rao bound of θ, or why it is not available.
+    pub cramer_rao: CramerRao,
     /// The paper's θ_nom.
     pub nominal: Scored,
     /// θ_0.
@@ -297,6 +373,20 @@ pub fn run(
         }
     };
 
+    // The Cramér–Rao bound at θ_true with the true noise model.
+    let t = Instant::now();
+    let crb = cramer_rao_column(drive, theta_true, opts.noise.as_ref());
+    timing.cramer_rao_bound = t.elapsed().as_secs_f64();
+    let scored = |theta: &Theta, e_p: f64| {
+        let error_vs_true = theta_true.map(|t| diff(theta, t));
+        Scored {
+            theta: *theta,
+            mean_position_error_m: e_p,
+            error_vs_true,
+            error_over_crb: error_vs_true.and_then(|e| crb.ratio(&e)),
+        }
+    };
+
     // The 3-step calibration (steps 1–3), keeping the compensated inputs.
     let t = Instant::now();
     let det = calibrate_detailed(drive, None, copts, progress)?;
@@ -310,17 +400,9 @@ pub fn run(
     let validation = &det.validation;
     let score = |theta: &Theta| -> Result<Scored> {
         let v = mean_position_error(drive, validation, theta)?;
-        Ok(Scored {
-            theta: *theta,
-            mean_position_error_m: v.mean_position_error_m,
-            error_vs_true: theta_true.map(|t| diff(theta, t)),
-        })
+        Ok(scored(theta, v.mean_position_error_m))
     };
-    let of = |b: &BatchResult| Scored {
-        theta: b.score.theta,
-        mean_position_error_m: b.score.mean_position_error_m,
-        error_vs_true: theta_true.map(|t| diff(&b.score.theta, t)),
-    };
+    let of = |b: &BatchResult| scored(&b.score.theta, b.score.mean_position_error_m);
 
     // Per-segment G-N, raw and compensated.
     let t = Instant::now();
@@ -378,11 +460,7 @@ pub fn run(
     emit(progress, Progress::Advance(1));
     timing.reachable_minimum = t.elapsed().as_secs_f64();
     let reach = ReachableSummary {
-        scored: Scored {
-            theta: rm.theta,
-            mean_position_error_m: rm.mean_position_error_m,
-            error_vs_true: theta_true.map(|t| diff(&rm.theta, t)),
-        },
+        scored: scored(&rm.theta, rm.mean_position_error_m),
         evaluations: rm.evaluations,
         time_s: rm.time_s,
         termination: rm.termination.clone(),
@@ -432,6 +510,7 @@ pub fn run(
         segments: r.segments,
         qp_solver: three.qp.solver.to_string(),
         truth,
+        cramer_rao: crb,
         nominal,
         initial_guess,
         batch_size: three.initial_batch_size,
@@ -520,8 +599,20 @@ mod tests {
         let method = Method::ThreeStep(ThreeStepOptions { initial_batches: 4, ..Default::default() });
         let calibration = CalibrationOptions { method, seed: 3, ..Default::default() };
         let reachable = ReachableOptions { particles: 10, iterations: 5, refine_iterations: 20, ..Default::default() };
-        let opts = ExperimentOptions { calibration, reachable };
+        let noise = NoiseModel::from_sim(&sim.sidecar.settings.noise, sim.drive.sample_time_s());
+        let opts = ExperimentOptions { calibration, reachable, noise: Some(noise) };
         let e = run(&sim.drive, Some(&sim.sidecar.theta_true), &opts, None).expect("experiment");
+        let sigma = e.cramer_rao.sigma.expect("the bound of a simulated drive");
+        assert!(e.cramer_rao.unavailable.is_none());
+        for (s, m) in sigma.to_array().iter().zip(e.cramer_rao.sigma_mean_only.expect("mean-only").to_array()) {
+            assert!(*s > 0.0 && *s <= m * (1.0 + 1e-9), "σ_CRB {sigma:?}");
+        }
+        let f = &e.final_estimate;
+        let (err, ratio) = (f.error_vs_true.expect("truth").to_array(), f.error_over_crb.expect("ratio").to_array());
+        for i in 0..4 {
+            assert!((ratio[i] * sigma.to_array()[i] - err[i]).abs() <= 1e-12 * err[i].abs().max(1e-12), "{i}");
+        }
+        assert_eq!(e.truth.and_then(|t| t.error_over_crb), Some(Theta { c_e: 0.0, c_d: 0.0, t_r: 0.0, d: 0.0 }));
         assert_eq!(e.batches.len(), 4);
         assert_eq!(e.picked.len(), 5);
         let e_min = e.reachable_minimum.scored.mean_position_error_m;
@@ -537,5 +628,20 @@ mod tests {
         };
         let e = run(&sim.drive, None, &batch_gn, None).expect_err("three-step only");
         assert!(e.to_string().contains("three-step"), "{e}");
+    }
+
+    #[test]
+    fn the_bound_says_why_it_is_not_available() {
+        let sim = simulate(&SimOptions { length_km: 0.5, ..SimOptions::paper(1) }).expect("sim");
+        let truth = sim.sidecar.theta_true;
+        let noise = NoiseModel::from_sim(&sim.sidecar.settings.noise, sim.drive.sample_time_s());
+        let no_truth = cramer_rao_column(&sim.drive, None, Some(&noise));
+        assert!(no_truth.sigma.is_none() && no_truth.unavailable.as_deref().is_some_and(|r| r.contains("true θ")));
+        let no_noise = cramer_rao_column(&sim.drive, Some(&truth), None);
+        assert!(no_noise.sigma.is_none() && no_noise.unavailable.as_deref().is_some_and(|r| r.contains("noise")));
+        assert_eq!(no_noise.ratio(&truth), None);
+        let bad = NoiseModel { wheel_common_time_constant_s: 0.0, ..noise };
+        let failed = cramer_rao_column(&sim.drive, Some(&truth), Some(&bad));
+        assert!(failed.unavailable.as_deref().is_some_and(|r| r.contains("wheel_common_time_constant_s")), "{failed:?}");
     }
 }
