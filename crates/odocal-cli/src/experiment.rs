@@ -8,7 +8,8 @@ use std::path::Path;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use odocal::experiment::{self, Experiment, ExperimentOptions, ExperimentTiming, Figure6Curves, Scored, Summary};
+use odocal::experiment::{self, CramerRao, Experiment, ExperimentOptions, ExperimentTiming, Figure6Curves, Scored, Summary};
+use odocal::eiv::NoiseModel;
 use odocal::sim::{self, NoiseOptions, SimOptions};
 use odocal::{CalibrationOptions, Drive, Method, QpOptions, ReachableOptions, Theta, ThreeStepOptions};
 use serde::Serialize;
@@ -57,7 +58,7 @@ pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
 
     // The drive and its truth.
     let t = Instant::now();
-    let (drive, theta_true, info) = match &a.drive {
+    let (drive, theta_true, noise, info) = match &a.drive {
         Some(path) => {
             let drive = Drive::read_csv(path)?;
             let side = sim::sidecar_path(path);
@@ -75,7 +76,8 @@ pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
                 noise: None,
                 wheel_rotation_rel_error_rms: sidecar.as_ref().map(|s| s.stats.wheel_rotation_rel_error_rms),
             };
-            (drive, sidecar.map(|s| s.theta_true), info)
+            let noise = sidecar.as_ref().map(|s| NoiseModel::from_sim(&s.settings.noise, drive.sample_time_s()));
+            (drive, sidecar.map(|s| s.theta_true), noise, info)
         }
         None => {
             let noise = NoiseOptions::by_name(&a.noise)?;
@@ -93,7 +95,8 @@ pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
                 noise: Some(a.noise.clone()),
                 wheel_rotation_rel_error_rms: Some(s.wheel_rotation_rel_error_rms),
             };
-            (out.drive, Some(out.sidecar.theta_true), info)
+            let noise = NoiseModel::from_sim(&out.sidecar.settings.noise, out.drive.sample_time_s());
+            (out.drive, Some(out.sidecar.theta_true), Some(noise), info)
         }
     };
     timing.simulate = t.elapsed().as_secs_f64();
@@ -106,7 +109,8 @@ pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
     let calibration = CalibrationOptions { method, seed: a.seed, ..Default::default() };
     let reachable = ReachableOptions { seed: a.seed, ..ReachableOptions::around(&calibration.theta0) };
     let cb = |e| bars.event(e);
-    let exp = experiment::run(&drive, theta_true.as_ref(), &ExperimentOptions { calibration, reachable }, Some(&cb))?;
+    let opts = ExperimentOptions { calibration, reachable, noise };
+    let exp = experiment::run(&drive, theta_true.as_ref(), &opts, Some(&cb))?;
     bars.finish();
     timing.stages = exp.timing_s.clone();
 
@@ -433,6 +437,68 @@ fn summary_row(out: &mut String, name: &str, s: &Summary) {
     );
 }
 
+/// The Cramér–Rao section: σ_CRB and, next to each estimate's error, error/σ_CRB.
+fn crb_section(o: &mut String, c: &CramerRao, rows: &[(String, Scored)], time_s: f64) {
+    let _ = writeln!(o, "\n## Against the Cramér–Rao bound\n");
+    let (Some(sigma), None) = (c.sigma, &c.unavailable) else {
+        let _ = writeln!(
+            o,
+            "Not available: {}. The bound needs θ_true and the drive's true noise model, which only a simulated drive \
+             (or a CSV with its simulator sidecar) has.",
+            c.unavailable.as_deref().unwrap_or("no bound")
+        );
+        return;
+    };
+    let _ = writeln!(
+        o,
+        "σ_CRB is the smallest standard deviation an unbiased estimator that knows the noise model can have on this \
+         drive (`odocal::eiv::cramer_rao_bound` at θ_true with the simulator's noise model in the EIV filter's form; \
+         wheel slip is not in that form). Δ is θ − θ_true; Δ/σ_CRB of a single estimate is one draw: over seeds, an \
+         efficient unbiased estimator has RMS(Δ/σ_CRB) ≈ 1.\n"
+    );
+    let _ = writeln!(
+        o,
+        "| | Δc_e (mm) | Δc_e/σ | Δc_d (mm) | Δc_d/σ | Δt_r (mm) | Δt_r/σ | Δd (mm/(m/s²)) | Δd/σ |\n|---|---|---|---|---|---|---|---|---|"
+    );
+    let s = sigma.to_array();
+    let m = c.sigma_mean_only.map(|m| m.to_array());
+    let _ = writeln!(
+        o,
+        "| σ_CRB | {:.3} | | {:.4} | | {:.2} | | {:.4} | |",
+        s[0] * 1e3,
+        s[1] * 1e3,
+        s[2] * 1e3,
+        s[3] * 1e3
+    );
+    if let Some(m) = m {
+        let _ = writeln!(
+            o,
+            "| σ_CRB, mean-only information | {:.3} | | {:.4} | | {:.2} | | {:.4} | |",
+            m[0] * 1e3,
+            m[1] * 1e3,
+            m[2] * 1e3,
+            m[3] * 1e3
+        );
+    }
+    for (name, sc) in rows {
+        let (Some(d), Some(r)) = (sc.error_vs_true, sc.error_over_crb) else { continue };
+        let (d, r) = (d.to_array(), r.to_array());
+        let _ = writeln!(
+            o,
+            "| {name} | {:+.3} | {:+.2} | {:+.4} | {:+.2} | {:+.2} | {:+.2} | {:+.4} | {:+.2} |",
+            d[0] * 1e3,
+            r[0],
+            d[1] * 1e3,
+            r[1],
+            d[2] * 1e3,
+            r[2],
+            d[3] * 1e3,
+            r[3]
+        );
+    }
+    let _ = writeln!(o, "\nComputed in {time_s:.2} s (one filter pass with derivatives).");
+}
+
 fn report_md(e: &Experiment, out: &Outputs) -> String {
     let mut o = String::new();
     let e_min = e.reachable_minimum.scored.mean_position_error_m;
@@ -481,6 +547,12 @@ fn report_md(e: &Experiment, out: &Outputs) -> String {
             );
         }
     }
+
+    let mut rows = vec![("θ_nom (paper)".to_string(), e.nominal), ("θ_0 (G-N start)".to_string(), e.initial_guess)];
+    rows.extend(e.picked.iter().enumerate().map(|(i, p)| (format!("θ_B,I({})", i + 1), *p)));
+    rows.push(("**θ_B,F (3-step)**".into(), e.final_estimate));
+    rows.push(("reachable minimum".into(), e.reachable_minimum.scored));
+    crb_section(&mut o, &e.cramer_rao, &rows, e.timing_s.cramer_rao_bound);
 
     let _ = writeln!(o, "\n## Table 1: one segment and one batch, raw vs compensated inputs\n\n{TABLE_HEAD}");
     o.truncate(o.trim_end().len());
@@ -559,9 +631,10 @@ fn report_md(e: &Experiment, out: &Outputs) -> String {
     let (t, st) = (&out.timing, &out.timing.stages);
     let _ = writeln!(
         o,
-        "## Timing\n\n{:.1} s total: simulate {:.1}, calibrate {:.1}, per-segment {:.1}, compensated batches {:.1}, reachable minimum {:.1}, figures {:.1}.",
+        "## Timing\n\n{:.1} s total: simulate {:.1}, Cramér–Rao bound {:.2}, calibrate {:.1}, per-segment {:.1}, compensated batches {:.1}, reachable minimum {:.1}, figures {:.1}.",
         t.total,
         t.simulate,
+        st.cramer_rao_bound,
         st.calibrate,
         st.per_segment,
         st.compensated_batches,
@@ -569,4 +642,37 @@ fn report_md(e: &Experiment, out: &Outputs) -> String {
         t.figures
     );
     o
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scored(err: Option<Theta>, ratio: Option<Theta>) -> Scored {
+        Scored { theta: Theta::PAPER_INITIAL, mean_position_error_m: 1.0, error_vs_true: err, error_over_crb: ratio }
+    }
+
+    #[test]
+    fn the_crb_section_shows_the_ratio_beside_the_error_or_says_why_not() {
+        let sigma = Theta { c_e: 1e-4, c_d: 2e-5, t_r: 2e-3, d: 1e-4 };
+        let err = Theta { c_e: 2e-4, c_d: -2e-5, t_r: 1e-3, d: 0.0 };
+        let ratio = Theta { c_e: 2.0, c_d: -1.0, t_r: 0.5, d: 0.0 };
+        let c = CramerRao { sigma: Some(sigma), sigma_mean_only: Some(sigma), noise: None, unavailable: None };
+        let mut o = String::new();
+        crb_section(&mut o, &c, &[("θ_B,F".into(), scored(Some(err), Some(ratio)))], 0.25);
+        assert!(o.contains("| σ_CRB | 0.100 | | 0.0200 | | 2.00 | | 0.1000 | |"), "{o}");
+        assert!(o.contains("| θ_B,F | +0.200 | +2.00 | -0.0200 | -1.00 | +1.00 | +0.50 | +0.0000 | +0.00 |"), "{o}");
+        assert!(o.contains("0.25 s"), "{o}");
+
+        let none = CramerRao {
+            sigma: None,
+            sigma_mean_only: None,
+            noise: None,
+            unavailable: Some("the true θ is not known".into()),
+        };
+        let mut o = String::new();
+        crb_section(&mut o, &none, &[("θ_B,F".into(), scored(None, None))], 0.0);
+        assert!(o.contains("Not available: the true θ is not known"), "{o}");
+        assert!(!o.contains("| θ_B,F |"), "{o}");
+    }
 }

@@ -63,7 +63,7 @@ fn experiment_runs_end_to_end() {
         assert!(texts.iter().any(|t| t.starts_with(&format!("Fig. {}", i + 4))), "{f}: no title in {texts:?}");
         assert!(texts.iter().any(|t| t.contains('(') && t.contains(')')), "{f}: no axis label with unit");
     }
-    for needle in ["Table 1", "θ_true", "θ_nom", "reachable minimum", "θ_B,F", "θ_B,I(5)"] {
+    for needle in ["Table 1", "θ_true", "θ_nom", "reachable minimum", "θ_B,F", "θ_B,I(5)", "Cramér–Rao bound", "| σ_CRB |"] {
         assert!(report.contains(needle), "report.md lacks '{needle}'");
     }
 
@@ -90,4 +90,15 @@ fn experiment_runs_end_to_end() {
     assert_eq!(json["picked"].as_array().map(Vec::len), Some(5));
     assert!(number(&json, "/final_estimate/error_vs_true/c_e").abs() < 0.05, "c_e within 5 cm of the truth");
     assert!(json["per_segment"].as_array().is_some_and(|a| !a.is_empty()));
+    // The Cramér–Rao column: σ_CRB > 0 and error/σ_CRB beside every error.
+    for p in ["c_e", "c_d", "t_r", "d"] {
+        let sigma = number(&json, &format!("/cramer_rao/sigma/{p}"));
+        assert!(sigma > 0.0, "σ_CRB {p} = {sigma}");
+        let err = number(&json, &format!("/final_estimate/error_vs_true/{p}"));
+        let ratio = number(&json, &format!("/final_estimate/error_over_crb/{p}"));
+        assert!((ratio * sigma - err).abs() <= 1e-9 * err.abs().max(1e-9), "{p}: {ratio} × {sigma} ≠ {err}");
+    }
+    assert!(json["cramer_rao"]["unavailable"].is_null());
+    assert!(number(&json, "/timing_s/cramer_rao_bound") >= 0.0);
 }
+
