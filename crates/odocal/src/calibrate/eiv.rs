@@ -168,6 +168,14 @@ pub fn read_noise_model(path: &Path) -> Result<NoiseModel> {
 /// Parses the TOML of [`read_noise_model`] and checks the model.
 pub fn parse_noise_model(text: &str) -> std::result::Result<NoiseModel, String> {
     let table: toml::Table = toml::from_str(text).map_err(|e| e.message().to_string())?;
+    noise_model_from_table(table)
+}
+
+/// A noise model from a TOML table of [`NoiseModel`] fields (a
+/// `--noise-model` file, or a drive manifest's `[noise]` table): missing
+/// fields keep the production-car defaults; an unknown field, a value of
+/// the wrong type or out of range is an error naming the field.
+pub fn noise_model_from_table(table: toml::Table) -> std::result::Result<NoiseModel, String> {
     let known = serde_json::to_value(NoiseModel::PRODUCTION_CAR).map_err(|e| e.to_string())?;
     if let Some(known) = known.as_object() {
         let mut unknown: Vec<&str> = table.keys().map(String::as_str).filter(|k| !known.contains_key(*k)).collect();
@@ -178,7 +186,8 @@ pub fn parse_noise_model(text: &str) -> std::result::Result<NoiseModel, String> 
             return Err(format!("unknown field(s) {}; the fields are {}", unknown.join(", "), names.join(", ")));
         }
     }
-    let model: NoiseModel = table.try_into().map_err(|e: toml::de::Error| e.message().to_string())?;
+    let model: NoiseModel = serde_path_to_error::deserialize(toml::Value::Table(table))
+        .map_err(|e| format!("{}: {}", e.path(), e.inner().message()))?;
     model.validate().map_err(|e| e.to_string())?;
     Ok(model)
 }

@@ -214,6 +214,8 @@ fn noise_model_files_name_unknown_fields() {
     assert!(e.starts_with("unknown field(s) wheel_white_sigma; the fields are "), "{e}");
     let e = parse_noise_model("position_white_sigma_m = -1.0\n").expect_err("negative");
     assert!(e.contains("noise.position_white_sigma_m"), "{e}");
+    let e = parse_noise_model("sideslip_sigma_rad = \"small\"\n").expect_err("a string");
+    assert!(e.starts_with("sideslip_sigma_rad: "), "{e}");
 }
 
 /// `EivMethodOptions::bootstrap` runs the parametric bootstrap on the EIV

@@ -117,7 +117,7 @@ impl Method {
         self.estimator().validate()
     }
 
-    fn estimator(&self) -> &dyn Estimator {
+    pub(crate) fn estimator(&self) -> &dyn Estimator {
         match self {
             Method::ThreeStep(o) => o,
             Method::BatchGn(o) => o,

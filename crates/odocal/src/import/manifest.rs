@@ -7,6 +7,8 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use super::limits::{self, echo_num};
+use super::settings::{ManifestSettings, ReferenceSpec};
+use crate::eiv::NoiseModel;
 use crate::error::{Error, Result};
 use crate::model::Theta;
 
@@ -39,6 +41,15 @@ pub struct Manifest {
     /// defaults; raise them for a vehicle that really exceeds them.
     #[serde(default)]
     pub limits: LimitsSpec,
+    /// The sensor's noise (`[noise]`): the starting noise model of
+    /// `--method eiv`, the fields of [`NoiseModel`] (missing ones keep the
+    /// production-car defaults), parsed like a `--noise-model` file.
+    #[serde(default, deserialize_with = "super::settings::noise_table", skip_serializing_if = "Option::is_none")]
+    pub noise: Option<NoiseModel>,
+    /// The reference sensor's extrinsics (`[reference]`): lever arm,
+    /// heading offset and which of them to estimate.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference: Option<ReferenceSpec>,
 }
 
 /// Physical limits (`[limits]`): an imported signal beyond one is an error
@@ -631,6 +642,11 @@ impl Manifest {
         Error::Manifest { path: self.path.clone(), reason: format!("{key}: {reason}") }
     }
 
+    /// The calibration settings it states (`[noise]`, `[reference]`).
+    pub fn settings(&self) -> ManifestSettings {
+        ManifestSettings { manifest: self.path.clone(), noise: self.noise, reference: self.reference.clone() }
+    }
+
     /// The folder stream files are relative to.
     pub fn base_dir(&self) -> PathBuf {
         self.path.parent().map(Path::to_path_buf).unwrap_or_default()
@@ -793,6 +809,12 @@ impl Manifest {
         if let SideslipSpec::Column { stream, sign: s, .. } = &self.sideslip {
             stream_ref("sideslip.stream", stream)?;
             sign("sideslip.sign", *s)?;
+        }
+        if let Some(n) = &self.noise {
+            n.validate().map_err(|e| self.error("noise", e))?;
+        }
+        if let Some(r) = &self.reference {
+            r.check().map_err(|(key, reason)| self.error(key, reason))?;
         }
         Ok(())
     }

@@ -150,7 +150,23 @@
 //! [limits]                    # physical limits; beyond them is an error naming the time
 //! max_speed_m_per_s = 100.0   # each wheel at θ_0 and the pose (default 100)
 //! max_lateral_acceleration_m_per_s2 = 15.0  # |a_y| (default 15; derived a_y judged over 0.5 s)
+//!
+//! [noise]                     # optional: the sensor's noise, start of --method eiv
+//! wheel_white_rel_sigma = 0.01  # any field of a --noise-model file (odocal::eiv::NoiseModel);
+//! position_white_sigma_m = 0.03 # missing ones keep the production-car defaults
+//!
+//! [reference]                 # optional: the pose reference's extrinsics
+//! lever_arm = [-0.9, 0.0]     # x forward, y left, m, from the rear-axle centre (default 0, 0)
+//! heading_offset = -0.0099    # reference heading minus vehicle heading, rad (default 0)
+//! estimate = ["lever-arm", "heading-offset"]  # estimate them with θ (default: held)
 //! ```
+//!
+//! `[noise]` and `[reference]` are calibration settings, not import
+//! settings: the import checks them and carries them on
+//! [`ImportReport::settings`]; `odocal calibrate` applies them with
+//! [`ManifestSettings::apply`] unless the command line gives its own value
+//! (`--noise-model`, `--lever-arm`, `--heading-offset`, `--estimate` win),
+//! and its report says which was used.
 //!
 //! Resource budgets (output samples, clock search, de-jitter window) are
 //! fixed and documented in [`limits`]; settings beyond them are rejected
@@ -179,6 +195,7 @@ pub mod limits;
 mod manifest;
 mod pose;
 mod report;
+mod settings;
 mod signal;
 mod source;
 #[cfg(test)]
@@ -194,6 +211,7 @@ pub use manifest::{
     OutputSpec, PositionSpec, QualitySpec, SideslipSpec, SourceSpec, StreamSpec, TimeUnit, WheelColumn, WheelSignal,
     WheelSpec,
 };
+pub use settings::{GivenSettings, ManifestSettings, ReferenceSpec, SettingOutcome, SettingUse, MAX_LEVER_ARM_M};
 pub use report::{ClockOffsetReport, DejitterReport, GapRecord, ImportReport, JitterReport, PartRecord, StreamReport};
 
 use crate::drive::{Drive, Signals};
@@ -333,6 +351,8 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
         lateral_acceleration: a_y_desc,
         jitter,
         warnings,
+        noise: m.noise,
+        reference: m.reference.clone(),
         elapsed_s: started.elapsed().as_secs_f64(),
     };
     Ok(ImportedDrive { drive: d, report })

@@ -38,8 +38,21 @@ pub struct ImportReport {
     pub jitter: Option<JitterReport>,
     /// What looked wrong but did not stop the import.
     pub warnings: Vec<String>,
+    /// The manifest's `[noise]` (the sensor's noise model), when stated.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub noise: Option<crate::eiv::NoiseModel>,
+    /// The manifest's `[reference]` (reference extrinsics), when stated.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reference: Option<super::ReferenceSpec>,
     /// Wall time of the import, s.
     pub elapsed_s: f64,
+}
+
+impl ImportReport {
+    /// The calibration settings the manifest states (`[noise]`, `[reference]`).
+    pub fn settings(&self) -> super::ManifestSettings {
+        super::ManifestSettings { manifest: self.manifest.clone(), noise: self.noise, reference: self.reference.clone() }
+    }
 }
 
 /// One stream that was read.
@@ -230,6 +243,23 @@ impl std::fmt::Display for ImportReport {
             self.output_rate_hz
         )?;
         writeln!(f, "  wheels: {}", self.wheel_scale)?;
+        if let Some(n) = &self.noise {
+            writeln!(f, "  [noise] (start of --method eiv): {}", crate::calibrate::eiv::noise_summary(n))?;
+        }
+        if let Some(r) = &self.reference {
+            let l = r.lever_arm.unwrap_or_default();
+            write!(
+                f,
+                "  [reference]: lever arm ({:+.3}, {:+.3}) m, heading offset {:+.2} mrad",
+                l[0],
+                l[1],
+                r.heading_offset.unwrap_or_default() * 1e3
+            )?;
+            match r.estimate.is_empty() {
+                true => writeln!(f, ", held")?,
+                false => writeln!(f, ", estimate {}", r.estimate.join(", "))?,
+            }
+        }
         for w in &self.warnings {
             writeln!(f, "  warning: {w}")?;
         }

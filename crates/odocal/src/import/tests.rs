@@ -247,7 +247,7 @@ fn fixed_offset_and_raw_stamps_are_used_as_given() {
 }
 
 /// A minimal valid manifest over small stream files in `dir`.
-fn small_case(dir: &Path) -> PathBuf {
+pub(super) fn small_case(dir: &Path) -> PathBuf {
     let mut w = String::from("t,left,right\n");
     let mut p = String::from("t,x,y,q\n");
     for i in 0..400 {

@@ -1,0 +1,404 @@
+//! Calibration settings a manifest can state beside its streams: the
+//! sensor's noise (`[noise]`, the starting noise model of `--method eiv`)
+//! and the reference sensor's extrinsics (`[reference]`). The importer
+//! parses and checks them, [`super::ImportReport`] carries them, and
+//! [`ManifestSettings::apply`] puts them into [`CalibrationOptions`] where
+//! the caller did not give its own value (a command-line flag wins).
+
+use std::path::PathBuf;
+
+use serde::{Deserialize, Serialize};
+
+use crate::calibrate::CalibrationOptions;
+use crate::eiv::NoiseModel;
+use crate::error::{Error, Result};
+use crate::param::ParamSet;
+
+/// The reference sensor's extrinsics (`[reference]`): where the pose
+/// reference sits on the vehicle and whether to estimate that with θ
+/// (see [`crate::extrinsics`]). Every key is optional.
+///
+/// ```toml
+/// [reference]
+/// lever_arm = [-0.9, 0.0]      # x forward, y left, m, from the rear-axle centre
+/// heading_offset = -0.0099     # reference heading minus vehicle heading, rad
+/// estimate = ["lever-arm", "heading-offset"]   # start from the values above
+/// ```
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReferenceSpec {
+    /// Lever arm `[x, y]` of the reference point from the rear-axle centre,
+    /// m (x forward, y left): held at this value, or the start of the
+    /// estimate. Default none (0, 0).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lever_arm: Option<[f64; 2]>,
+    /// Reference heading minus vehicle heading, rad: held, or the start of
+    /// the estimate. Default none (0).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub heading_offset: Option<f64>,
+    /// Extrinsics to estimate with θ: `"lever-arm"`, `"heading-offset"`
+    /// (or `"lever_x"`, `"lever_y"`, `"heading_offset"`). Default none.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub estimate: Vec<String>,
+}
+
+impl ReferenceSpec {
+    /// The parameters of `estimate`, or the error naming the bad entry.
+    pub fn estimate_set(&self) -> std::result::Result<ParamSet, String> {
+        let mut set = ParamSet::EMPTY;
+        for name in &self.estimate {
+            let s: ParamSet = name.parse().map_err(|_| {
+                format!("'{name}' is not an extrinsic parameter (lever-arm, heading-offset, lever_x, lever_y, heading_offset)")
+            })?;
+            if s.is_empty() || !s.intersection(ParamSet::THETA).is_empty() {
+                return Err(format!(
+                    "'{name}' is not an extrinsic parameter (lever-arm, heading-offset, lever_x, lever_y, \
+                     heading_offset): θ is estimated by default"
+                ));
+            }
+            set = set.union(s);
+        }
+        Ok(set)
+    }
+
+    /// Checks the values: `(key, reason)` of the first bad one.
+    pub(crate) fn check(&self) -> std::result::Result<(), (&'static str, String)> {
+        if let Some(l) = self.lever_arm {
+            if !l.iter().all(|v| v.is_finite() && v.abs() <= MAX_LEVER_ARM_M) {
+                return Err((
+                    "reference.lever_arm",
+                    format!("[{}, {}] must be finite metres within ±{MAX_LEVER_ARM_M} m", l[0], l[1]),
+                ));
+            }
+        }
+        if let Some(h) = self.heading_offset {
+            if !(h.is_finite() && h.abs() <= std::f64::consts::PI) {
+                return Err(("reference.heading_offset", format!("{h} must be finite radians within ±π")));
+            }
+        }
+        self.estimate_set().map(|_| ()).map_err(|r| ("reference.estimate", r))
+    }
+}
+
+/// Largest lever arm a manifest may state, m (a vehicle's length).
+pub const MAX_LEVER_ARM_M: f64 = 20.0;
+
+/// `[noise]`: parsed by the same function as a `--noise-model` file
+/// ([`crate::calibrate::eiv::noise_model_from_table`]).
+pub(crate) fn noise_table<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Option<NoiseModel>, D::Error> {
+    let table = toml::Table::deserialize(d)?;
+    crate::calibrate::eiv::noise_model_from_table(table).map(Some).map_err(serde::de::Error::custom)
+}
+
+/// The calibration settings of one manifest.
+#[derive(Debug, Clone, PartialEq, Default, Serialize)]
+pub struct ManifestSettings {
+    /// The manifest that states them.
+    pub manifest: PathBuf,
+    /// `[noise]`: the sensor's noise model.
+    pub noise: Option<NoiseModel>,
+    /// `[reference]`: the reference sensor's extrinsics.
+    pub reference: Option<ReferenceSpec>,
+}
+
+/// Which settings the caller gives itself (they win over the manifest's).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct GivenSettings {
+    /// A noise model (`--noise-model`).
+    pub noise_model: bool,
+    /// A lever arm (`--lever-arm`).
+    pub lever_arm: bool,
+    /// A heading offset (`--heading-offset`).
+    pub heading_offset: bool,
+    /// The extrinsics to estimate (`--estimate`).
+    pub estimate: bool,
+}
+
+/// What became of one manifest setting.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case", tag = "outcome")]
+pub enum SettingOutcome {
+    /// Put into the calibration options.
+    Used,
+    /// The caller gave its own value, which was used instead.
+    Overridden,
+    /// Not used, for the reason given.
+    Ignored {
+        /// Why.
+        reason: String,
+    },
+}
+
+/// One manifest setting and what became of it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct SettingUse {
+    /// The manifest key (`noise`, `reference.lever_arm`,
+    /// `reference.heading_offset`, `reference.estimate`).
+    pub key: &'static str,
+    /// The manifest it comes from.
+    pub manifest: PathBuf,
+    /// What became of it.
+    #[serde(flatten)]
+    pub outcome: SettingOutcome,
+}
+
+impl std::fmt::Display for SettingUse {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let m = self.manifest.display();
+        match &self.outcome {
+            SettingOutcome::Used => write!(f, "{} from {m}: used", self.key),
+            SettingOutcome::Overridden => write!(f, "{} from {m}: overridden by the command line", self.key),
+            SettingOutcome::Ignored { reason } => write!(f, "{} from {m}: ignored ({reason})", self.key),
+        }
+    }
+}
+
+impl ManifestSettings {
+    /// True when the manifest states none.
+    pub fn is_empty(&self) -> bool {
+        self.noise.is_none() && self.reference.is_none()
+    }
+
+    /// The settings of several drives fitted jointly: they must agree
+    /// (drives without settings agree with any). `None` when none states any.
+    ///
+    /// # Errors
+    /// [`Error::InvalidOption`] naming the two manifests that differ.
+    pub fn merge<'a>(all: impl IntoIterator<Item = &'a ManifestSettings>) -> Result<Option<ManifestSettings>> {
+        let mut out: Option<ManifestSettings> = None;
+        for s in all.into_iter().filter(|s| !s.is_empty()) {
+            match &out {
+                None => out = Some(s.clone()),
+                Some(o) if o.noise == s.noise && o.reference == s.reference => {}
+                Some(o) => {
+                    return Err(Error::InvalidOption {
+                        field: "manifest settings",
+                        reason: format!(
+                            "{} and {} state different [noise] or [reference] tables; drives fitted jointly share \
+                             one setting: make them agree or give it on the command line",
+                            o.manifest.display(),
+                            s.manifest.display()
+                        ),
+                    })
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// Puts the settings into `opts` where `given` says the caller has no
+    /// value of its own, and says what became of each: the noise model is
+    /// the starting model of `--method eiv` (ignored by the other methods);
+    /// the extrinsics are held at, or estimated from, the stated values
+    /// (ignored, saying so, by a method that does not model them). Call it
+    /// before applying the caller's `--fix`, so that holds an estimated
+    /// extrinsic again.
+    pub fn apply(&self, opts: &mut CalibrationOptions, given: GivenSettings) -> Vec<SettingUse> {
+        let mut out = Vec::new();
+        let mut note = |key: &'static str, outcome: SettingOutcome| {
+            out.push(SettingUse { key, manifest: self.manifest.clone(), outcome });
+        };
+        if let Some(n) = &self.noise {
+            match &mut opts.method {
+                _ if given.noise_model => note("noise", SettingOutcome::Overridden),
+                crate::Method::Eiv(o) => {
+                    o.filter.noise = *n;
+                    note("noise", SettingOutcome::Used);
+                }
+                other => note(
+                    "noise",
+                    SettingOutcome::Ignored { reason: format!("method {other} does not use a noise model") },
+                ),
+            }
+        }
+        let Some(r) = &self.reference else { return out };
+        let supported = opts.method.estimator().supports_extrinsics();
+        let ignored = || SettingOutcome::Ignored {
+            reason: format!("method {} does not model the reference extrinsics", opts.method),
+        };
+        let mut x = opts.identify.extrinsics;
+        let mut free = opts.identify.free;
+        let mut notes = Vec::new();
+        if let Some(l) = r.lever_arm {
+            notes.push(("reference.lever_arm", given.lever_arm));
+            if !given.lever_arm {
+                (x.lever_x, x.lever_y) = (l[0], l[1]);
+            }
+        }
+        if let Some(h) = r.heading_offset {
+            notes.push(("reference.heading_offset", given.heading_offset));
+            if !given.heading_offset {
+                x.heading_offset = h;
+            }
+        }
+        if !r.estimate.is_empty() {
+            notes.push(("reference.estimate", given.estimate));
+            if !given.estimate {
+                // Checked by the importer; an unchecked bad entry estimates nothing.
+                free = free.union(r.estimate_set().unwrap_or(ParamSet::EMPTY));
+            }
+        }
+        for (key, overridden) in notes {
+            note(
+                key,
+                match (overridden, supported) {
+                    (true, _) => SettingOutcome::Overridden,
+                    (false, true) => SettingOutcome::Used,
+                    (false, false) => ignored(),
+                },
+            );
+        }
+        if supported {
+            opts.identify.extrinsics = x;
+            opts.identify.free = free;
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use super::*;
+    use crate::calibrate::eiv::EivMethodOptions;
+    use crate::extrinsics::Extrinsics;
+    use crate::import::{load_drive, Manifest};
+    use crate::param::Param;
+    use crate::Method;
+
+    /// The small manifest of the import tests with `extra` appended, parsed.
+    fn parsed(extra: &str) -> Result<Manifest> {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = super::super::tests::small_case(dir.path());
+        let text = std::fs::read_to_string(&path).expect("read") + extra;
+        Manifest::parse(&text, &path)
+    }
+
+    fn error(extra: &str) -> String {
+        parsed(extra).expect_err("a bad setting").to_string()
+    }
+
+    #[test]
+    fn noise_and_reference_tables_parse_and_are_carried_on_the_import_report() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = super::super::tests::small_case(dir.path());
+        let extra = "\n[noise]\nwheel_white_rel_sigma = 0.012\nposition_white_sigma_m = 0.05\n\n[reference]\n\
+                     lever_arm = [-0.9, 0.1]\nheading_offset = -0.0099\nestimate = [\"lever-arm\"]\n";
+        let text = std::fs::read_to_string(&path).expect("read") + extra;
+        std::fs::write(&path, text).expect("write");
+        let (_, report) = load_drive(&path).expect("import");
+        let s = report.expect("a manifest's report").settings();
+        let n = s.noise.expect("[noise]");
+        assert_eq!(n.wheel_white_rel_sigma, 0.012);
+        assert_eq!(n.position_white_sigma_m, 0.05);
+        assert_eq!(n.wheel_common_rel_sigma, NoiseModel::PRODUCTION_CAR.wheel_common_rel_sigma, "default kept");
+        let r = s.reference.clone().expect("[reference]");
+        assert_eq!(r.lever_arm, Some([-0.9, 0.1]));
+        assert_eq!(r.heading_offset, Some(-0.0099));
+        assert_eq!(r.estimate_set(), Ok(ParamSet::LEVER_ARM));
+        let m = Manifest::from_path(&path).expect("parse");
+        assert_eq!(m.settings(), ManifestSettings { manifest: path.clone(), ..s.clone() });
+        // The parsed manifest serialises and parses back the same.
+        let back = Manifest::parse(&toml::to_string(&m).expect("toml"), &path).expect("round trip");
+        assert_eq!(back.settings(), m.settings());
+    }
+
+    #[test]
+    fn bad_settings_are_errors_naming_the_key() {
+        let e = error("\n[noise]\nwheel_whte_rel_sigma = 0.01\n");
+        assert!(e.contains("noise: unknown field(s) wheel_whte_rel_sigma"), "{e}");
+        let e = error("\n[noise]\nposition_white_sigma_m = -0.5\n");
+        assert!(e.contains("noise") && e.contains("noise.position_white_sigma_m"), "{e}");
+        let e = error("\n[noise]\nsideslip_sigma_rad = \"small\"\n");
+        assert!(e.contains("noise: sideslip_sigma_rad: invalid type"), "{e}");
+        let e = error("\n[reference]\nlever_arm = [1.0]\n");
+        assert!(e.contains("reference.lever_arm"), "{e}");
+        let e = error("\n[reference]\nlever_arm = [1.0, 1e9]\n");
+        assert!(e.contains("reference.lever_arm: [1, 1000000000] must be finite metres"), "{e}");
+        let e = error("\n[reference]\nheading_offset = 7.0\n");
+        assert!(e.contains("reference.heading_offset: 7 must be finite radians within ±π"), "{e}");
+        let e = error("\n[reference]\nestimate = [\"t_r\"]\n");
+        assert!(e.contains("reference.estimate: 't_r' is not an extrinsic parameter"), "{e}");
+        let e = error("\n[reference]\nestimate = [\"lever-arms\"]\n");
+        assert!(e.contains("reference.estimate: 'lever-arms' is not"), "{e}");
+        let e = error("\n[reference]\nlever = [0.0, 0.0]\n");
+        assert!(e.contains("reference.lever: unknown field"), "{e}");
+    }
+
+    fn settings() -> ManifestSettings {
+        ManifestSettings {
+            manifest: "m.toml".into(),
+            noise: Some(NoiseModel { wheel_white_rel_sigma: 0.02, ..NoiseModel::PRODUCTION_CAR }),
+            reference: Some(ReferenceSpec {
+                lever_arm: Some([-0.9, 0.0]),
+                heading_offset: Some(-0.01),
+                estimate: vec!["heading-offset".into()],
+            }),
+        }
+    }
+
+    fn outcomes(uses: &[SettingUse]) -> Vec<(&'static str, SettingOutcome)> {
+        uses.iter().map(|u| (u.key, u.outcome.clone())).collect()
+    }
+
+    #[test]
+    fn apply_fills_what_the_caller_did_not_give() {
+        let s = settings();
+        // Batch G-N: the extrinsics are used, the noise model is not.
+        let mut o = CalibrationOptions { method: Method::BatchGn(Default::default()), ..Default::default() };
+        let uses = s.apply(&mut o, GivenSettings::default());
+        assert_eq!(o.identify.extrinsics, Extrinsics { lever_x: -0.9, lever_y: 0.0, heading_offset: -0.01 });
+        assert_eq!(o.identify.free, ParamSet::THETA.with(Param::HeadingOffset));
+        let o_uses = outcomes(&uses);
+        assert!(matches!(&o_uses[0], ("noise", SettingOutcome::Ignored { .. })), "{o_uses:?}");
+        assert_eq!(o_uses[1..], [
+            ("reference.lever_arm", SettingOutcome::Used),
+            ("reference.heading_offset", SettingOutcome::Used),
+            ("reference.estimate", SettingOutcome::Used),
+        ]);
+        assert!(uses[1].to_string().contains("reference.lever_arm from m.toml: used"), "{}", uses[1]);
+
+        // The caller's lever arm and estimate win; the rest is still the manifest's.
+        let mut o = CalibrationOptions { method: Method::BatchGn(Default::default()), ..Default::default() };
+        let given = GivenSettings { lever_arm: true, estimate: true, ..Default::default() };
+        let uses = s.apply(&mut o, given);
+        assert_eq!(o.identify.extrinsics, Extrinsics { lever_x: 0.0, lever_y: 0.0, heading_offset: -0.01 });
+        assert_eq!(o.identify.free, ParamSet::THETA);
+        assert_eq!(outcomes(&uses)[1..], [
+            ("reference.lever_arm", SettingOutcome::Overridden),
+            ("reference.heading_offset", SettingOutcome::Used),
+            ("reference.estimate", SettingOutcome::Overridden),
+        ]);
+
+        // EIV: the noise model is the start unless the caller gives one; the
+        // extrinsics are ignored (the method does not model them), saying so.
+        let eiv = || CalibrationOptions { method: Method::Eiv(EivMethodOptions::default()), ..Default::default() };
+        let mut o = eiv();
+        let uses = s.apply(&mut o, GivenSettings::default());
+        let Method::Eiv(m) = &o.method else { panic!("eiv") };
+        assert_eq!(m.filter.noise.wheel_white_rel_sigma, 0.02);
+        assert_eq!(o.identify.extrinsics, Extrinsics::ZERO);
+        assert_eq!(o.identify.free, ParamSet::THETA);
+        assert_eq!(outcomes(&uses)[0], ("noise", SettingOutcome::Used));
+        assert!(outcomes(&uses)[1..].iter().all(|u| matches!(u.1, SettingOutcome::Ignored { .. })), "{uses:?}");
+        let mut o = eiv();
+        let uses = s.apply(&mut o, GivenSettings { noise_model: true, ..Default::default() });
+        let Method::Eiv(m) = &o.method else { panic!("eiv") };
+        assert_eq!(m.filter.noise, NoiseModel::PRODUCTION_CAR);
+        assert_eq!(outcomes(&uses)[0], ("noise", SettingOutcome::Overridden));
+    }
+
+    #[test]
+    fn drives_fitted_jointly_must_agree() {
+        let a = settings();
+        let none = ManifestSettings { manifest: "n.toml".into(), ..Default::default() };
+        let same = ManifestSettings { manifest: "b.toml".into(), ..a.clone() };
+        let merged = ManifestSettings::merge([&none, &a, &same]).expect("agree").expect("some");
+        assert_eq!(merged.manifest, Path::new("m.toml"));
+        assert_eq!(ManifestSettings::merge([&none]).expect("none"), None);
+        let other = ManifestSettings { manifest: "c.toml".into(), noise: None, ..a.clone() };
+        let e = ManifestSettings::merge([&a, &other]).expect_err("differ").to_string();
+        assert!(e.contains("m.toml and c.toml state different"), "{e}");
+    }
+}
