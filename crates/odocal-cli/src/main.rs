@@ -12,6 +12,7 @@ use std::process::ExitCode;
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
 use odocal::drive::ExtraColumn;
+use odocal::import::{ManifestSettings, SettingUse};
 use odocal::sim::{self, NoiseOptions, SimOptions, SimSidecar};
 use odocal::{
     segment, CalibrationOptions, CalibrationReport, Drive, FinalSegments, Holdout, Method, ParamSet, QpOptions,
@@ -22,6 +23,7 @@ mod experiment;
 mod inspect;
 mod progress;
 mod report;
+mod settings;
 
 #[derive(Parser)]
 #[command(
@@ -292,7 +294,9 @@ impl CalibrationArgs {
         })
     }
 
-    fn options(&self) -> Result<CalibrationOptions> {
+    /// The options from the flags and, where a flag is not given, the
+    /// manifest's settings (what became of each is returned).
+    fn options(&self, manifest: Option<&ManifestSettings>) -> Result<(CalibrationOptions, Vec<SettingUse>)> {
         let mut o = CalibrationOptions {
             method: self.method()?,
             seed: self.seed,
@@ -302,6 +306,7 @@ impl CalibrationArgs {
         if let Some(t) = self.theta0 {
             o.theta0 = t;
         }
+        let uses = manifest.map(|m| m.apply(&mut o, settings::given(self))).unwrap_or_default();
         if let Some(e) = self.estimate {
             let theta = e.intersection(ParamSet::THETA);
             if !theta.is_empty() {
@@ -344,7 +349,7 @@ impl CalibrationArgs {
             o.identify.max_iterations = v;
         }
         o.validate()?;
-        Ok(o)
+        Ok((o, uses))
     }
 }
 
@@ -516,8 +521,9 @@ fn load_drive(path: &Path) -> Result<Drive> {
 }
 
 /// [`load_drive`], also returning how to read c_e when the drive came from a
-/// manifest (e.g. "c_e is metres per 40360 ticks").
-fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>)> {
+/// manifest (e.g. "c_e is metres per 40360 ticks") and the manifest's
+/// calibration settings (`[noise]`, `[reference]`).
+fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>, Option<ManifestSettings>)> {
     let (drive, report) = odocal::load_drive(path)?;
     if report.is_some() {
         eprintln!(
@@ -528,7 +534,8 @@ fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>)> {
             drive.distance_m() / 1e3
         );
     }
-    Ok((drive, report.map(|r| r.wheel_scale)))
+    let settings = report.as_ref().map(odocal::import::ImportReport::settings);
+    Ok((drive, report.map(|r| r.wheel_scale), settings))
 }
 
 fn import_cmd(a: ImportArgs) -> Result<()> {
@@ -646,15 +653,18 @@ fn c_e_only_command(path: &Path, args: &CalibrationArgs) -> String {
     cmd
 }
 
+#[allow(clippy::too_many_arguments)]
 fn run_calibration(
     drive: &Drive,
     source: Option<(&Path, Option<&str>)>,
+    manifest: Option<&ManifestSettings>,
     args: &CalibrationArgs,
     json: Option<&Path>,
     truth_theta: Option<Theta>,
     bars: &progress::Bars,
 ) -> Result<Outcome> {
-    let opts = args.options()?;
+    let (opts, setting_uses) = args.options(manifest)?;
+    let noise_origin = settings::noise_origin(args, &setting_uses);
     let cb = |e| bars.event(e);
     let mut others = Vec::new();
     for p in &args.validate_on {
@@ -755,6 +765,7 @@ fn run_calibration(
         if let (Some(m), Some(obj)) = (&per_drive, v.as_object_mut()) {
             obj.insert("validate_on".into(), serde_json::to_value(m)?);
         }
+        settings::add_to_json(&mut v, &setting_uses, noise_origin.as_deref())?;
         write_json(p, v)?;
         if p == Path::new("-") {
             print_warnings(&r.warnings);
@@ -771,6 +782,7 @@ fn run_calibration(
     if let Some(m) = &per_drive {
         print!("{}", report::validate_on(m));
     }
+    print!("{}", settings::report(&setting_uses, noise_origin.as_deref()));
     std::io::stdout().flush()?;
     Ok(outcome)
 }
@@ -785,11 +797,14 @@ fn sigma_or_held(r: &odocal::CalibrationReport) -> [Option<f64>; 4] {
 fn calibrate_cmd(a: CalibrateArgs, bars: &progress::Bars) -> Result<Outcome> {
     let mut drives = Vec::with_capacity(a.drive.len());
     let mut wheel_scale = None;
+    let mut manifests = Vec::new();
     for p in &a.drive {
-        let (d, w) = load_drive_with_scale(p)?;
+        let (d, w, m) = load_drive_with_scale(p)?;
         wheel_scale = wheel_scale.or(w);
+        manifests.extend(m);
         drives.push(d);
     }
+    let manifest = ManifestSettings::merge(&manifests)?;
     let first = &a.drive[0];
     let (drive, truth) = if drives.len() == 1 {
         (drives.swap_remove(0), load_truth(first).map(|s| s.theta_true))
@@ -797,7 +812,8 @@ fn calibrate_cmd(a: CalibrateArgs, bars: &progress::Bars) -> Result<Outcome> {
         let refs: Vec<&Drive> = drives.iter().collect();
         (Drive::concat(&refs).context("calibrating several drives jointly")?, None)
     };
-    run_calibration(&drive, Some((first, wheel_scale.as_deref())), &a.calibration, a.json.as_deref(), truth, bars)
+    let source = Some((first.as_path(), wheel_scale.as_deref()));
+    run_calibration(&drive, source, manifest.as_ref(), &a.calibration, a.json.as_deref(), truth, bars)
 }
 
 fn demo_cmd(a: DemoArgs, bars: &progress::Bars) -> Result<Outcome> {
@@ -821,7 +837,7 @@ fn demo_cmd(a: DemoArgs, bars: &progress::Bars) -> Result<Outcome> {
             sim.sidecar.theta_true
         );
     }
-    run_calibration(&sim.drive, None, &a.calibration, a.json.as_deref(), Some(sim.sidecar.theta_true), bars)
+    run_calibration(&sim.drive, None, None, &a.calibration, a.json.as_deref(), Some(sim.sidecar.theta_true), bars)
 }
 
 fn validate_cmd(a: ValidateArgs, bars: &progress::Bars) -> Result<()> {
