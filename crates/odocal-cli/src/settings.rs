@@ -5,8 +5,7 @@
 use std::fmt::Write as _;
 
 use anyhow::Result;
-use odocal::import::{GivenSettings, SettingOutcome, SettingUse};
-use odocal::Method;
+use odocal::import::{GivenSettings, SettingUse};
 
 use crate::CalibrationArgs;
 
@@ -22,16 +21,7 @@ pub fn given(a: &CalibrationArgs) -> GivenSettings {
 
 /// Which starting noise model `--method eiv` used; `None` for other methods.
 pub fn noise_origin(a: &CalibrationArgs, uses: &[SettingUse]) -> Option<String> {
-    if !matches!(a.method, Method::Eiv(_)) {
-        return None;
-    }
-    if let Some(p) = &a.noise_model {
-        return Some(format!("--noise-model {}", p.display()));
-    }
-    Some(match uses.iter().find(|u| u.key == "noise" && u.outcome == SettingOutcome::Used) {
-        Some(u) => format!("[noise] of {}", u.manifest.display()),
-        None => "the production-car defaults (no --noise-model, no manifest [noise])".into(),
-    })
+    odocal::import::noise_model_origin(&a.method, a.noise_model.as_deref(), uses)
 }
 
 /// The report's lines on the settings ("" when there is nothing to say).

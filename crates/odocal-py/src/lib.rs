@@ -24,6 +24,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList, PyString};
 
 use odocal::drive::{Drive, ExtraColumn, ExtraValues, Signals};
+use odocal::import::{GivenSettings, ManifestSettings, SettingUse};
 use odocal::model::Theta;
 use odocal::param::{Param, ParamSet};
 use odocal::qp::SolverKind;
@@ -60,6 +61,50 @@ struct Provenance {
     import_report: Option<String>,
     /// What one model revolution is (manifest imports).
     wheel_scale: Option<String>,
+}
+
+impl Provenance {
+    /// The manifest's calibration settings (`[noise]`, `[reference]`), read
+    /// back from the import report (so they survive pickling with it).
+    fn settings(&self) -> PyResult<Option<ManifestSettings>> {
+        let Some(text) = &self.import_report else { return Ok(None) };
+        let bad = |e: serde_json::Error| PyRuntimeError::new_err(format!("import report: {e}"));
+        let v: serde_json::Value = serde_json::from_str(text).map_err(bad)?;
+        let field = |k: &str| v.get(k).filter(|x| !x.is_null()).cloned();
+        Ok(Some(ManifestSettings {
+            manifest: field("manifest").map(serde_json::from_value).transpose().map_err(bad)?.unwrap_or_default(),
+            noise: field("noise").map(serde_json::from_value).transpose().map_err(bad)?,
+            reference: field("reference").map(serde_json::from_value).transpose().map_err(bad)?,
+        }))
+    }
+}
+
+/// One drive, or several of one vehicle joined with `Drive::concat`
+/// (segments and parts never span two): the argument `drive` of
+/// `calibrate` and `validate_on`. Returns the drive and each one's provenance.
+fn drives_arg(v: &Bound<'_, PyAny>, what: &str) -> PyResult<(Arc<Drive>, Vec<Provenance>)> {
+    if let Ok(d) = v.cast::<PyDrive>() {
+        let d = d.get();
+        return Ok((Arc::clone(&d.drive), vec![d.prov.clone()]));
+    }
+    let not_drives = || PyTypeError::new_err(format!("{what}: give an odocal.Drive or a list of them"));
+    if v.cast::<PyString>().is_ok() {
+        return Err(not_drives());
+    }
+    let items: Vec<Bound<'_, PyAny>> = v.try_iter().map_err(|_| not_drives())?.collect::<PyResult<_>>()?;
+    let mut drives = Vec::with_capacity(items.len());
+    for item in &items {
+        drives.push(item.cast::<PyDrive>().map_err(|_| not_drives())?.get());
+    }
+    match drives.as_slice() {
+        [] => Err(lib_err(odocal::Error::InvalidOption { field: "drive", reason: format!("{what}: no drives given") })),
+        [one] => Ok((Arc::clone(&one.drive), vec![one.prov.clone()])),
+        many => {
+            let refs: Vec<&Drive> = many.iter().map(|d| d.drive.as_ref()).collect();
+            let joined = Drive::concat(&refs).map_err(lib_err)?;
+            Ok((Arc::new(joined), many.iter().map(|d| d.prov.clone()).collect()))
+        }
+    }
 }
 
 /// A drive: one uniformly sampled time series of reference poses and model
@@ -461,11 +506,20 @@ struct CalibrationPlan {
     opts: CalibrationOptions,
     /// The CLI's `--holdout` or `--validate-on`.
     holdout: Option<Holdout>,
+    /// The `validate_on` drives one by one (several: Ē_p per drive too).
+    validate_on: Vec<Arc<Drive>>,
+    /// What became of the manifest's settings.
+    setting_uses: Vec<SettingUse>,
+    /// Which starting noise model method eiv uses.
+    noise_model_origin: Option<String>,
 }
 
 /// The keyword options of `odocal.calibrate`, named like the CLI's flags.
-const CALIBRATION_KWARGS: [&str; 20] = [
+const CALIBRATION_KWARGS: [&str; 23] = [
     "seed",
+    "estimate",
+    "lever_arm",
+    "heading_offset",
     "noise_model",
     "fix_noise",
     "fallback",
@@ -537,10 +591,31 @@ fn extract_theta(v: &Bound<'_, PyAny>) -> PyResult<Theta> {
 /// values `OdocalError`.
 ///
 /// This is the only function that knows the shape of [`CalibrationOptions`].
-fn calibration_plan(method: &str, kwargs: Option<&Bound<'_, PyDict>>) -> PyResult<CalibrationPlan> {
+fn calibration_plan(
+    method: &str,
+    kwargs: Option<&Bound<'_, PyDict>>,
+    manifest: Option<&ManifestSettings>,
+) -> PyResult<CalibrationPlan> {
     let mut o = CalibrationOptions { method: method.parse::<Method>().map_err(lib_err)?, ..Default::default() };
+    // The manifest's settings first, where no keyword gives its own value.
+    let given_kw = |k: &str| -> PyResult<bool> {
+        Ok(match kwargs {
+            Some(kw) => kw.get_item(k)?.is_some_and(|v| !v.is_none()),
+            None => false,
+        })
+    };
+    let given = GivenSettings {
+        noise_model: given_kw("noise_model")?,
+        lever_arm: given_kw("lever_arm")?,
+        heading_offset: given_kw("heading_offset")?,
+        estimate: given_kw("estimate")?,
+    };
+    let setting_uses = manifest.map(|m| m.apply(&mut o, given)).unwrap_or_default();
+    let mut noise_model_file: Option<PathBuf> = None;
+    let mut fix = ParamSet::EMPTY;
     let mut holdout = None;
     let mut validate_on = None;
+    let mut validate_on_drives = Vec::new();
     // Three-step settings, applied to the method below.
     let (mut batches, mut batch_size, mut picks, mut final_segments, mut qp_solver) = (None, None, None, None, None);
     // EIV settings (`--noise-model`, `--fix-noise`, `--no-fallback`, `--eiv-window`).
@@ -555,15 +630,29 @@ fn calibration_plan(method: &str, kwargs: Option<&Bound<'_, PyDict>>) -> PyResul
                 "seed" => o.seed = v.extract()?,
                 "qp_solver" => qp_solver = Some(v.extract::<String>()?.parse::<SolverKind>().map_err(lib_err)?),
                 "theta0" => o.theta0 = extract_theta(&v)?,
-                "fix" => {
-                    let text = match v.cast::<PyString>() {
-                        Ok(s) => s.to_str()?.to_string(),
-                        Err(_) => v.extract::<Vec<String>>()?.join(","),
-                    };
-                    for p in text.parse::<ParamSet>().map_err(lib_err)?.iter() {
-                        o.identify.free.remove(p);
+                "fix" => fix = param_set_arg(&v)?,
+                "estimate" => {
+                    let e = param_set_arg(&v)?;
+                    let theta = e.intersection(ParamSet::THETA);
+                    if !theta.is_empty() {
+                        return Err(invalid_option(
+                            "estimate",
+                            format!(
+                                "takes lever-arm, heading-offset (or lever_x, lever_y, heading_offset), not \
+                                 {theta}: θ is estimated by default (hold parameters with fix=)"
+                            ),
+                        ));
                     }
+                    o.identify.free = o.identify.free.difference(ParamSet::EXTRINSICS).union(e);
                 }
+                "lever_arm" => {
+                    let l: Vec<f64> = v.extract().map_err(|_| PyTypeError::new_err("lever_arm: give [x, y] in metres"))?;
+                    let [x, y] = l[..] else {
+                        return Err(invalid_option("lever_arm", format!("give [x, y] in metres, got {} values", l.len())));
+                    };
+                    (o.identify.extrinsics.lever_x, o.identify.extrinsics.lever_y) = (x, y);
+                }
+                "heading_offset" => o.identify.extrinsics.heading_offset = v.extract()?,
                 "min_yaw_rate" => o.segments.min_peak_yaw_rate_rad_per_s = v.extract()?,
                 "segment_length" => o.segments.length_steps = v.extract()?,
                 "segment_stride" => o.segments.stride_steps = v.extract()?,
@@ -584,14 +673,21 @@ fn calibration_plan(method: &str, kwargs: Option<&Bound<'_, PyDict>>) -> PyResul
                 "max_iterations" => o.identify.max_iterations = v.extract()?,
                 "holdout" => holdout = Some(parse_holdout(&v.extract::<String>()?)?),
                 "validate_on" => {
-                    let d =
-                        v.cast::<PyDrive>().map_err(|_| PyTypeError::new_err("validate_on: give an odocal.Drive"))?;
-                    validate_on = Some(Holdout::Other(Drive::clone(&d.get().drive)));
+                    let (joined, _) = drives_arg(&v, "validate_on")?;
+                    validate_on_drives = match v.cast::<PyDrive>() {
+                        Ok(_) => vec![Arc::clone(&joined)],
+                        Err(_) => v
+                            .try_iter()?
+                            .map(|d| Ok(Arc::clone(&d?.cast::<PyDrive>()?.get().drive)))
+                            .collect::<PyResult<_>>()?,
+                    };
+                    validate_on = Some(Holdout::Other(Drive::clone(&joined)));
                 }
                 "auto_fix" => o.auto_fix = v.extract()?,
                 "noise_model" => {
                     let path: std::path::PathBuf = v.extract()?;
                     noise_model = Some(odocal::calibrate::eiv::read_noise_model(&path).map_err(lib_err)?);
+                    noise_model_file = Some(path);
                 }
                 "fix_noise" => fix_noise = Some(v.extract::<bool>()?),
                 "fallback" => fallback = Some(v.extract::<bool>()?),
@@ -666,8 +762,28 @@ fn calibration_plan(method: &str, kwargs: Option<&Bound<'_, PyDict>>) -> PyResul
     if holdout.is_some() && validate_on.is_some() {
         return Err(invalid_option("validate_on", "give holdout or validate_on, not both".into()));
     }
+    // `fix` last, so that it also holds an extrinsic the manifest or `estimate` frees.
+    for p in fix.iter() {
+        o.identify.free.remove(p);
+    }
     o.validate().map_err(lib_err)?;
-    Ok(CalibrationPlan { opts: o, holdout: holdout.or(validate_on) })
+    let noise_model_origin = odocal::import::noise_model_origin(&o.method, noise_model_file.as_deref(), &setting_uses);
+    Ok(CalibrationPlan {
+        opts: o,
+        holdout: holdout.or(validate_on),
+        validate_on: validate_on_drives,
+        setting_uses,
+        noise_model_origin,
+    })
+}
+
+/// A parameter set from a list of names or the CLI's text `"c_d,t_r,d"`.
+fn param_set_arg(v: &Bound<'_, PyAny>) -> PyResult<ParamSet> {
+    let text = match v.cast::<PyString>() {
+        Ok(s) => s.to_str()?.to_string(),
+        Err(_) => v.extract::<Vec<String>>()?.join(","),
+    };
+    text.parse::<ParamSet>().map_err(lib_err)
 }
 
 // ---------------------------------------------------------------------------
@@ -790,6 +906,21 @@ fn calibrate_json(
     if let (Some(w), Some(obj)) = (&prov.wheel_scale, v.as_object_mut()) {
         obj.insert("wheel_scale".into(), serde_json::json!(w));
     }
+    if let Some(obj) = v.as_object_mut() {
+        if !plan.validate_on.is_empty() {
+            let names: Vec<String> = (0..plan.validate_on.len()).map(|i| format!("validate_on[{i}]")).collect();
+            let named: Vec<(&str, &Drive)> =
+                names.iter().map(String::as_str).zip(plan.validate_on.iter().map(|d| d.as_ref())).collect();
+            let m = odocal::validate_drives(&named, &report.theta, &report.initial.theta, &plan.opts.validation)?;
+            obj.insert("validate_on".into(), serde_json::to_value(m).map_err(json_err)?);
+        }
+        if !plan.setting_uses.is_empty() {
+            obj.insert("manifest_settings".into(), serde_json::to_value(&plan.setting_uses).map_err(json_err)?);
+        }
+        if let Some(n) = &plan.noise_model_origin {
+            obj.insert("noise_model_origin".into(), serde_json::json!(n));
+        }
+    }
     with_schema_version(&mut v);
     Ok(v)
 }
@@ -800,15 +931,24 @@ fn calibrate_json(
 #[pyo3(signature = (drive, method="three-step", *, progress=None, threads=None, **options))]
 fn calibrate<'py>(
     py: Python<'py>,
-    drive: &Bound<'py, PyDrive>,
+    drive: &Bound<'py, PyAny>,
     method: &str,
     progress: Option<Py<PyAny>>,
     threads: Option<usize>,
     options: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<(Bound<'py, PyAny>, String)> {
-    let plan = calibration_plan(method, options)?;
-    let d = drive.get();
-    let (inner, prov) = (Arc::clone(&d.drive), d.prov.clone());
+    let (inner, provs) = drives_arg(drive, "drive")?;
+    let settings: Vec<ManifestSettings> = provs.iter().map(Provenance::settings).collect::<PyResult<Vec<_>>>()?.into_iter().flatten().collect();
+    let manifest = ManifestSettings::merge(&settings).map_err(lib_err)?;
+    let plan = calibration_plan(method, options, manifest.as_ref())?;
+    // Several drives: no single truth (as the CLI); how to read c_e from the first that says.
+    let prov = match provs.as_slice() {
+        [one] => one.clone(),
+        many => Provenance {
+            wheel_scale: many.iter().find_map(|p| p.wheel_scale.clone()),
+            ..Default::default()
+        },
+    };
     let value = run_detached(py, progress, |cb| with_threads(threads, || calibrate_json(&inner, &prov, &plan, cb)))??
         .map_err(|e| match e {
         e @ odocal::Error::NotObservable { .. } => OdocalError::new_err(format!(
@@ -828,11 +968,11 @@ fn calibrate<'py>(
 #[pyo3(signature = (drive, report_json, path, *, holdout=None, validate_on=None, title=None))]
 fn _report_html(
     py: Python<'_>,
-    drive: &Bound<'_, PyDrive>,
+    drive: &Bound<'_, PyAny>,
     report_json: &str,
     path: PathBuf,
     holdout: Option<&str>,
-    validate_on: Option<&Bound<'_, PyDrive>>,
+    validate_on: Option<&Bound<'_, PyAny>>,
     title: Option<String>,
 ) -> PyResult<()> {
     let bad_report = |e: serde_json::Error| PyValueError::new_err(format!("not a calibration report: {e}"));
@@ -846,10 +986,10 @@ fn _report_html(
     let report: odocal::CalibrationReport = serde_json::from_value(value).map_err(bad_report)?;
     let holdout = match (holdout, validate_on) {
         (Some(h), _) => Some(parse_holdout(h)?),
-        (None, Some(d)) => Some(Holdout::Other(Drive::clone(&d.get().drive))),
+        (None, Some(d)) => Some(Holdout::Other(Drive::clone(&drives_arg(d, "validate_on")?.0))),
         (None, None) => None,
     };
-    let inner = Arc::clone(&drive.get().drive);
+    let inner = drives_arg(drive, "drive")?.0;
     let title = title.unwrap_or_else(|| "odocal calibration".into());
     py.detach(move || -> Result<(), String> {
         let split = holdout.as_ref().map(|h| h.split(&inner)).transpose().map_err(|e| e.to_string())?;

@@ -163,7 +163,7 @@ def _theta_arg(theta: ThetaLike) -> Any:
 
 
 def calibrate(
-    drive: Drive,
+    drive: Union[Drive, Sequence[Drive]],
     method: str = "three-step",
     *,
     progress: Optional[ProgressCallback] = None,
@@ -171,6 +171,10 @@ def calibrate(
     **options: Any,
 ) -> CalibrationReport:
     """Calibrates θ on ``drive`` and returns a :class:`CalibrationReport`.
+
+    ``drive`` is one :class:`Drive` or a list of drives of one vehicle,
+    fitted jointly (as ``odocal calibrate A B``: segments never span two
+    drives; their sample times must agree; a list has no single true θ).
 
     ``method`` is ``"three-step"`` (default, with input compensation) or
     ``"batch-gn"`` (raw batch Gauss-Newton over all selected segments).
@@ -188,8 +192,22 @@ def calibrate(
     - ``final_segments``: ``"all"`` or a number of random segments;
     - ``max_iterations``: Gauss-Newton iterations;
     - ``holdout`` (``"first-half"`` | ``"second-half"``: the half held out
-      for validation) or ``validate_on`` (another :class:`Drive`);
-    - ``auto_fix`` (bool): hold the parameters the data cannot determine.
+      for validation) or ``validate_on`` (another :class:`Drive`, or a list
+      of them: Ē_p over all of them, and per drive in the report's
+      ``"validate_on"``, named ``validate_on[i]``);
+    - ``auto_fix`` (bool): hold the parameters the data cannot determine;
+    - ``estimate`` (``"lever-arm,heading-offset"`` or a list),
+      ``lever_arm`` (``[x, y]``, m), ``heading_offset`` (rad): the reference
+      sensor's extrinsics, as ``--estimate``, ``--lever-arm``,
+      ``--heading-offset``;
+    - ``noise_model`` (path of a noise-model TOML), ``fix_noise``,
+      ``fallback``, ``eiv_window``: method ``"eiv"`` only.
+
+    A drive read from a manifest carries the manifest's ``[noise]`` and
+    ``[reference]`` settings (``drive.import_report``); they apply unless
+    the matching keyword is given, and the report says what became of each
+    (``"manifest_settings"``) and which noise model method ``"eiv"`` started
+    from (``"noise_model_origin"``), as the CLI's JSON does.
 
     ``threads`` runs the calibration on that many threads (default: all
     cores); the result does not depend on it. ``progress(stage, done,

@@ -87,7 +87,7 @@ class Drive:
     def __len__(self) -> int: ...
 
 def calibrate(
-    drive: Drive,
+    drive: Union[Drive, Sequence[Drive]],
     method: str = "three-step",
     *,
     progress: Optional[Callable[[str, int, int], Any]] = None,
@@ -117,11 +117,11 @@ def simulate(
 
 def _drive_from_state(state: dict[str, Any]) -> Drive: ...
 def _report_html(
-    drive: Drive,
+    drive: Union[Drive, Sequence[Drive]],
     report_json: str,
     path: _Path,
     *,
     holdout: Optional[str] = None,
-    validate_on: Optional[Drive] = None,
+    validate_on: Optional[Union[Drive, Sequence[Drive]]] = None,
     title: Optional[str] = None,
 ) -> None: ...

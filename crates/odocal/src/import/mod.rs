@@ -211,7 +211,9 @@ pub use manifest::{
     OutputSpec, PositionSpec, QualitySpec, SideslipSpec, SourceSpec, StreamSpec, TimeUnit, WheelColumn, WheelSignal,
     WheelSpec,
 };
-pub use settings::{GivenSettings, ManifestSettings, ReferenceSpec, SettingOutcome, SettingUse, MAX_LEVER_ARM_M};
+pub use settings::{
+    noise_model_origin, GivenSettings, ManifestSettings, ReferenceSpec, SettingOutcome, SettingUse, MAX_LEVER_ARM_M,
+};
 pub use report::{ClockOffsetReport, DejitterReport, GapRecord, ImportReport, JitterReport, PartRecord, StreamReport};
 
 use crate::drive::{Drive, Signals};

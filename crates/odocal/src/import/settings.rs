@@ -256,6 +256,27 @@ impl ManifestSettings {
     }
 }
 
+/// Which starting noise model `--method eiv` uses, in words: the
+/// caller's file (`noise_model_file`, e.g. `--noise-model`), a manifest's
+/// `[noise]` (a `noise` entry of `uses` that was used), or the
+/// production-car defaults. `None` for a method without a noise model.
+pub fn noise_model_origin(
+    method: &crate::Method,
+    noise_model_file: Option<&std::path::Path>,
+    uses: &[SettingUse],
+) -> Option<String> {
+    if !matches!(method, crate::Method::Eiv(_)) {
+        return None;
+    }
+    if let Some(p) = noise_model_file {
+        return Some(format!("--noise-model {}", p.display()));
+    }
+    Some(match uses.iter().find(|u| u.key == "noise" && u.outcome == SettingOutcome::Used) {
+        Some(u) => format!("[noise] of {}", u.manifest.display()),
+        None => "the production-car defaults (no --noise-model, no manifest [noise])".into(),
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use std::path::Path;

@@ -1,0 +1,159 @@
+"""Several drives in calibrate / validate_on, and a manifest's [noise] and [reference] settings."""
+
+import json
+import pickle
+import subprocess
+
+import numpy as np
+import pytest
+
+import odocal
+
+
+def without_timing(d):
+    d = dict(d)
+    d.pop("timing_s")
+    return d
+
+
+def cli_json(odocal_bin, *args):
+    out = subprocess.run([str(odocal_bin), *map(str, args), "--json", "-", "--quiet"], capture_output=True, text=True)
+    assert out.returncode in (0, 3), out.stderr
+    return json.loads(out.stdout)
+
+
+@pytest.fixture(scope="module")
+def csvs(tmp_path_factory):
+    """Three short simulated drives as CSV files (without sidecars, as real drives)."""
+    d = tmp_path_factory.mktemp("drives")
+    paths = []
+    for seed in (5, 6, 7):
+        p = d / f"drive{seed}.csv"
+        odocal.simulate(seed=seed, length_km=2.0).to_csv(p)
+        p.with_suffix(".json").unlink()
+        paths.append(p)
+    return paths
+
+
+def test_several_drives_are_fitted_jointly_as_the_cli_does(odocal_bin, csvs):
+    a, b, c = csvs
+    cli = cli_json(odocal_bin, "calibrate", a, b, "--method", "batch-gn", "--validate-on", c)
+    drives = [odocal.Drive.from_csv(p) for p in (a, b)]
+    r = odocal.calibrate(drives, "batch-gn", validate_on=odocal.Drive.from_csv(c)).to_dict()
+    # The per-drive table names the drives: paths on the command line, indices here.
+    assert [d["name"] for d in r["validate_on"]["drives"]] == ["validate_on[0]"]
+    for x in (r, cli):
+        for d in x["validate_on"]["drives"]:
+            d.pop("name")
+    assert without_timing(r) == without_timing(cli)
+    assert r.get("truth") is None
+
+
+def test_validate_on_several_drives(csvs):
+    a, b, c = (odocal.Drive.from_csv(p) for p in csvs)
+    r = odocal.calibrate(a, "batch-gn", validate_on=[b, c])
+    v = r.to_dict()["validate_on"]
+    assert len(v["drives"]) == 2
+    per = [d["mean_position_error_m"] for d in v["drives"]]
+    assert v["mean_over_drives_m"] == pytest.approx(np.mean(per), rel=1e-12)
+    assert per[0] == pytest.approx(odocal.validate(b, r)["mean_position_error_m"], rel=1e-12)
+    assert r.validation["held_out"]
+
+
+def test_several_drives_bad_input_raises(csvs):
+    a = odocal.Drive.from_csv(csvs[0])
+    with pytest.raises(odocal.OdocalError, match="no drives given"):
+        odocal.calibrate([], "batch-gn")
+    with pytest.raises(TypeError, match="give an odocal.Drive or a list of them"):
+        odocal.calibrate([a, "drive.csv"], "batch-gn")
+    with pytest.raises(TypeError, match="give an odocal.Drive or a list of them"):
+        odocal.calibrate("drive.csv", "batch-gn")
+    with pytest.raises(TypeError, match="validate_on: give an odocal.Drive or a list of them"):
+        odocal.calibrate(a, "batch-gn", validate_on=[a, 3])
+    t = np.arange(2000) * 0.05  # 20 Hz: another sample time
+    other = odocal.Drive.from_arrays(t, t, 0 * t, 0 * t, 5 + 0 * t, 5 + 0 * t, 0 * t)
+    with pytest.raises(odocal.OdocalError, match="joining drives"):
+        odocal.calibrate([a, other], "batch-gn")
+    with pytest.raises(odocal.OdocalError, match="lever_arm"):
+        odocal.calibrate(a, "batch-gn", lever_arm=[1.0])
+    with pytest.raises(odocal.OdocalError, match="θ is estimated by default"):
+        odocal.calibrate(a, "batch-gn", estimate="t_r")
+
+
+MANIFEST = """
+[output]
+clock_offset = 0.0
+min_part_s = 1.0
+
+[streams.d]
+file = "{csv}"
+time_column = "t"
+
+[wheels]
+stream = "d"
+signal = "rev_per_s"
+rear_left = {{ column = "n_rl" }}
+rear_right = {{ column = "n_rr" }}
+
+[pose]
+stream = "d"
+position = {{ kind = "local", x = "px", y = "py" }}
+heading = {{ column = "psi", convention = "enu" }}
+
+[lateral_acceleration]
+source = "imu"
+stream = "d"
+column = "a_y"
+
+[noise]
+wheel_white_rel_sigma = 0.011
+
+[reference]
+heading_offset = 0.001
+estimate = ["heading-offset"]
+"""
+
+
+def outcomes(report):
+    return {u["key"]: u["outcome"] for u in report.to_dict()["manifest_settings"]}
+
+
+def test_manifest_settings_apply_unless_a_keyword_is_given(odocal_bin, csvs, tmp_path):
+    manifest = tmp_path / "m.toml"
+    manifest.write_text(MANIFEST.format(csv=csvs[0].as_posix()))
+    drive = odocal.Drive.from_manifest(manifest)
+    assert drive.import_report["noise"]["wheel_white_rel_sigma"] == 0.011
+    assert drive.import_report["reference"] == {"heading_offset": 0.001, "estimate": ["heading-offset"]}
+
+    r = odocal.calibrate(drive, "batch-gn")
+    assert outcomes(r) == {"noise": "ignored", "reference.heading_offset": "used", "reference.estimate": "used"}
+    d = r.to_dict()
+    assert d["extrinsics"]["free"] == ["heading_offset"] and d["extrinsics"]["initial"]["heading_offset"] == 0.001
+    assert without_timing(d) == without_timing(cli_json(odocal_bin, "calibrate", manifest, "--method", "batch-gn"))
+
+    # Keywords win, as the CLI's flags do.
+    r = odocal.calibrate(drive, "batch-gn", estimate="lever-arm", heading_offset=0.0)
+    assert outcomes(r)["reference.estimate"] == "overridden"
+    assert r.to_dict()["extrinsics"]["free"] == ["lever_x", "lever_y"]
+    r = odocal.calibrate(drive, "batch-gn", fix="heading_offset")
+    assert "extrinsics" not in r.to_dict() or r.to_dict()["extrinsics"]["free"] == []
+
+    # The settings travel with a pickled drive.
+    again = pickle.loads(pickle.dumps(drive))
+    assert outcomes(odocal.calibrate(again, "batch-gn")) == outcomes(odocal.calibrate(drive, "batch-gn"))
+
+
+def test_manifest_noise_is_the_eiv_start(csvs, tmp_path):
+    manifest = tmp_path / "m.toml"
+    manifest.write_text(MANIFEST.format(csv=csvs[0].as_posix()).split("[reference]")[0])
+    drive = odocal.Drive.from_manifest(manifest)
+    opts = {"fix_noise": True, "fallback": False, "eiv_window": 1500}
+    d = odocal.calibrate(drive, "eiv", **opts).to_dict()
+    assert d["noise_start"]["wheel_white_rel_sigma"] == 0.011
+    assert d["noise_model_origin"].startswith("[noise] of ")
+    noise = tmp_path / "noise.toml"
+    noise.write_text("wheel_white_rel_sigma = 0.009\n")
+    d = odocal.calibrate(drive, "eiv", noise_model=str(noise), **opts).to_dict()
+    assert d["noise_start"]["wheel_white_rel_sigma"] == 0.009
+    assert d["noise_model_origin"] == f"--noise-model {noise}"
+    assert {u["key"]: u["outcome"] for u in d["manifest_settings"]} == {"noise": "overridden"}
