@@ -8,8 +8,10 @@ use std::path::Path;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use odocal::experiment::{self, CramerRao, Experiment, ExperimentOptions, ExperimentTiming, Figure6Curves, Scored, Summary};
 use odocal::eiv::NoiseModel;
+use odocal::experiment::{
+    self, CramerRao, Experiment, ExperimentOptions, ExperimentTiming, Figure6Curves, Scored, Summary,
+};
 use odocal::sim::{self, NoiseOptions, SimOptions};
 use odocal::{CalibrationOptions, Drive, Method, QpOptions, ReachableOptions, Theta, ThreeStepOptions};
 use serde::Serialize;

@@ -63,7 +63,9 @@ fn experiment_runs_end_to_end() {
         assert!(texts.iter().any(|t| t.starts_with(&format!("Fig. {}", i + 4))), "{f}: no title in {texts:?}");
         assert!(texts.iter().any(|t| t.contains('(') && t.contains(')')), "{f}: no axis label with unit");
     }
-    for needle in ["Table 1", "θ_true", "θ_nom", "reachable minimum", "θ_B,F", "θ_B,I(5)", "Cramér–Rao bound", "| σ_CRB |"] {
+    for needle in
+        ["Table 1", "θ_true", "θ_nom", "reachable minimum", "θ_B,F", "θ_B,I(5)", "Cramér–Rao bound", "| σ_CRB |"]
+    {
         assert!(report.contains(needle), "report.md lacks '{needle}'");
     }
 
@@ -101,4 +103,3 @@ fn experiment_runs_end_to_end() {
     assert!(json["cramer_rao"]["unavailable"].is_null());
     assert!(number(&json, "/timing_s/cramer_rao_bound") >= 0.0);
 }
-

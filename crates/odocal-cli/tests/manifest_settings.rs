@@ -79,7 +79,11 @@ fn manifest_noise_and_reference_settings_are_used_unless_a_flag_is_given() {
     let eiv = ["--method", "eiv", "--eiv-window", "1500", "--fix-noise", "--no-fallback"];
     let r = calibrate(d.path(), &eiv);
     assert_eq!(r["noise_start"]["wheel_white_rel_sigma"], 0.011, "{}", r["noise_start"]);
-    assert!(r["noise_model_origin"].as_str().is_some_and(|s| s.starts_with("[noise] of ")), "{}", r["noise_model_origin"]);
+    assert!(
+        r["noise_model_origin"].as_str().is_some_and(|s| s.starts_with("[noise] of ")),
+        "{}",
+        r["noise_model_origin"]
+    );
     assert_eq!(outcome(&r, "noise"), "used");
     assert_eq!(outcome(&r, "reference.estimate"), "ignored");
 

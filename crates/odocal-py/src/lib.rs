@@ -646,9 +646,13 @@ fn calibration_plan(
                     o.identify.free = o.identify.free.difference(ParamSet::EXTRINSICS).union(e);
                 }
                 "lever_arm" => {
-                    let l: Vec<f64> = v.extract().map_err(|_| PyTypeError::new_err("lever_arm: give [x, y] in metres"))?;
+                    let l: Vec<f64> =
+                        v.extract().map_err(|_| PyTypeError::new_err("lever_arm: give [x, y] in metres"))?;
                     let [x, y] = l[..] else {
-                        return Err(invalid_option("lever_arm", format!("give [x, y] in metres, got {} values", l.len())));
+                        return Err(invalid_option(
+                            "lever_arm",
+                            format!("give [x, y] in metres, got {} values", l.len()),
+                        ));
                     };
                     (o.identify.extrinsics.lever_x, o.identify.extrinsics.lever_y) = (x, y);
                 }
@@ -938,16 +942,14 @@ fn calibrate<'py>(
     options: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<(Bound<'py, PyAny>, String)> {
     let (inner, provs) = drives_arg(drive, "drive")?;
-    let settings: Vec<ManifestSettings> = provs.iter().map(Provenance::settings).collect::<PyResult<Vec<_>>>()?.into_iter().flatten().collect();
+    let settings: Vec<ManifestSettings> =
+        provs.iter().map(Provenance::settings).collect::<PyResult<Vec<_>>>()?.into_iter().flatten().collect();
     let manifest = ManifestSettings::merge(&settings).map_err(lib_err)?;
     let plan = calibration_plan(method, options, manifest.as_ref())?;
     // Several drives: no single truth (as the CLI); how to read c_e from the first that says.
     let prov = match provs.as_slice() {
         [one] => one.clone(),
-        many => Provenance {
-            wheel_scale: many.iter().find_map(|p| p.wheel_scale.clone()),
-            ..Default::default()
-        },
+        many => Provenance { wheel_scale: many.iter().find_map(|p| p.wheel_scale.clone()), ..Default::default() },
     };
     let value = run_detached(py, progress, |cb| with_threads(threads, || calibrate_json(&inner, &prov, &plan, cb)))??
         .map_err(|e| match e {

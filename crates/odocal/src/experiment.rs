@@ -106,7 +106,9 @@ impl CramerRao {
 pub fn cramer_rao_column(drive: &Drive, theta_true: Option<&Theta>, noise: Option<&NoiseModel>) -> CramerRao {
     let (theta, noise) = match (theta_true, noise) {
         (Some(t), Some(n)) => (t, n),
-        (None, _) => return CramerRao::unavailable("the true θ is not known (a given drive without simulator sidecar)"),
+        (None, _) => {
+            return CramerRao::unavailable("the true θ is not known (a given drive without simulator sidecar)")
+        }
         (Some(_), None) => return CramerRao::unavailable("the drive's noise model is not known"),
     };
     let of = |a: [f64; 4]| Theta { c_e: a[0], c_d: a[1], t_r: a[2], d: a[3] };
@@ -642,6 +644,9 @@ mod tests {
         assert_eq!(no_noise.ratio(&truth), None);
         let bad = NoiseModel { wheel_common_time_constant_s: 0.0, ..noise };
         let failed = cramer_rao_column(&sim.drive, Some(&truth), Some(&bad));
-        assert!(failed.unavailable.as_deref().is_some_and(|r| r.contains("wheel_common_time_constant_s")), "{failed:?}");
+        assert!(
+            failed.unavailable.as_deref().is_some_and(|r| r.contains("wheel_common_time_constant_s")),
+            "{failed:?}"
+        );
     }
 }

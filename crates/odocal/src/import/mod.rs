@@ -211,10 +211,10 @@ pub use manifest::{
     OutputSpec, PositionSpec, QualitySpec, SideslipSpec, SourceSpec, StreamSpec, TimeUnit, WheelColumn, WheelSignal,
     WheelSpec,
 };
+pub use report::{ClockOffsetReport, DejitterReport, GapRecord, ImportReport, JitterReport, PartRecord, StreamReport};
 pub use settings::{
     noise_model_origin, GivenSettings, ManifestSettings, ReferenceSpec, SettingOutcome, SettingUse, MAX_LEVER_ARM_M,
 };
-pub use report::{ClockOffsetReport, DejitterReport, GapRecord, ImportReport, JitterReport, PartRecord, StreamReport};
 
 use crate::drive::{Drive, Signals};
 use crate::error::{Error, Result};

@@ -51,7 +51,11 @@ pub struct ImportReport {
 impl ImportReport {
     /// The calibration settings the manifest states (`[noise]`, `[reference]`).
     pub fn settings(&self) -> super::ManifestSettings {
-        super::ManifestSettings { manifest: self.manifest.clone(), noise: self.noise, reference: self.reference.clone() }
+        super::ManifestSettings {
+            manifest: self.manifest.clone(),
+            noise: self.noise,
+            reference: self.reference.clone(),
+        }
     }
 }
 

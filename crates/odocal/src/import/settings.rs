@@ -373,11 +373,14 @@ mod tests {
         assert_eq!(o.identify.free, ParamSet::THETA.with(Param::HeadingOffset));
         let o_uses = outcomes(&uses);
         assert!(matches!(&o_uses[0], ("noise", SettingOutcome::Ignored { .. })), "{o_uses:?}");
-        assert_eq!(o_uses[1..], [
-            ("reference.lever_arm", SettingOutcome::Used),
-            ("reference.heading_offset", SettingOutcome::Used),
-            ("reference.estimate", SettingOutcome::Used),
-        ]);
+        assert_eq!(
+            o_uses[1..],
+            [
+                ("reference.lever_arm", SettingOutcome::Used),
+                ("reference.heading_offset", SettingOutcome::Used),
+                ("reference.estimate", SettingOutcome::Used),
+            ]
+        );
         assert!(uses[1].to_string().contains("reference.lever_arm from m.toml: used"), "{}", uses[1]);
 
         // The caller's lever arm and estimate win; the rest is still the manifest's.
@@ -386,11 +389,14 @@ mod tests {
         let uses = s.apply(&mut o, given);
         assert_eq!(o.identify.extrinsics, Extrinsics { lever_x: 0.0, lever_y: 0.0, heading_offset: -0.01 });
         assert_eq!(o.identify.free, ParamSet::THETA);
-        assert_eq!(outcomes(&uses)[1..], [
-            ("reference.lever_arm", SettingOutcome::Overridden),
-            ("reference.heading_offset", SettingOutcome::Used),
-            ("reference.estimate", SettingOutcome::Overridden),
-        ]);
+        assert_eq!(
+            outcomes(&uses)[1..],
+            [
+                ("reference.lever_arm", SettingOutcome::Overridden),
+                ("reference.heading_offset", SettingOutcome::Used),
+                ("reference.estimate", SettingOutcome::Overridden),
+            ]
+        );
 
         // EIV: the noise model is the start unless the caller gives one; the
         // extrinsics are ignored (the method does not model them), saying so.
@@ -408,6 +414,24 @@ mod tests {
         let Method::Eiv(m) = &o.method else { panic!("eiv") };
         assert_eq!(m.filter.noise, NoiseModel::PRODUCTION_CAR);
         assert_eq!(outcomes(&uses)[0], ("noise", SettingOutcome::Overridden));
+    }
+
+    /// The `[reference]` example the shipped van manifests carry commented
+    /// out is a valid table once uncommented.
+    #[test]
+    fn the_shipped_commented_reference_example_parses() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples");
+        for f in ["psu-mapping-van/manifest.toml", "psu-mapping-van-testtrack/run-14-45-26.toml"] {
+            let path = root.join(f);
+            let text = std::fs::read_to_string(&path).expect("read");
+            let i = text.find("\n# [reference]\n").expect("the commented example");
+            let tail: Vec<&str> = text[i..].lines().map(|l| l.strip_prefix("# ").unwrap_or(l)).collect();
+            let m = Manifest::parse(&(text[..i].to_string() + &tail.join("\n")), &path).expect("parses");
+            let r = m.reference.expect("[reference]");
+            assert_eq!((r.lever_arm, r.heading_offset), (Some([-0.9, 0.0]), Some(-0.0099)), "{f}");
+            assert_eq!(r.estimate_set(), Ok(ParamSet::EXTRINSICS), "{f}");
+            assert_eq!(Manifest::from_path(&path).expect("as shipped").reference, None, "{f}: commented out");
+        }
     }
 
     #[test]
