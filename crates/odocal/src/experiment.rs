@@ -95,7 +95,7 @@ impl CramerRao {
     pub fn ratio(&self, error: &Theta) -> Option<Theta> {
         let s = self.sigma?;
         let (e, s) = (error.to_array(), s.to_array());
-        if s.iter().any(|x| !(*x > 0.0)) {
+        if !s.iter().all(|x| x.is_finite() && *x > 0.0) {
             return None;
         }
         Some(Theta { c_e: e[0] / s[0], c_d: e[1] / s[1], t_r: e[2] / s[2], d: e[3] / s[3] })

@@ -278,6 +278,7 @@ pub fn noise_model_origin(
 }
 
 #[cfg(test)]
+#[allow(clippy::float_cmp)] // parsed and copied values are exact
 mod tests {
     use std::path::Path;
 
