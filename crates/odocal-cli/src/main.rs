@@ -653,7 +653,6 @@ fn c_e_only_command(path: &Path, args: &CalibrationArgs) -> String {
     cmd
 }
 
-#[allow(clippy::too_many_arguments)]
 fn run_calibration(
     drive: &Drive,
     source: Option<(&Path, Option<&str>)>,
