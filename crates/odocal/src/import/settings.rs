@@ -310,7 +310,13 @@ mod tests {
         let text = std::fs::read_to_string(&path).expect("read") + extra;
         std::fs::write(&path, text).expect("write");
         let (_, report) = load_drive(&path).expect("import");
-        let s = report.expect("a manifest's report").settings();
+        let report = report.expect("a manifest's report");
+        let text = report.to_string();
+        assert!(text.contains("[noise] (start of --method eiv): σ_white 1.200 %"), "{text}");
+        assert!(
+            text.contains("[reference]: lever arm (-0.900, +0.100) m, heading offset -9.90 mrad, estimate lever-arm")
+        );
+        let s = report.settings();
         let n = s.noise.expect("[noise]");
         assert_eq!(n.wheel_white_rel_sigma, 0.012);
         assert_eq!(n.position_white_sigma_m, 0.05);
