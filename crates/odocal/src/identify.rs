@@ -673,7 +673,7 @@ mod tests {
         // so that every parameter alone moves the poses by ~1 m per step.
         let res = IdentifyOptions::default().resolution;
         let poses = 100;
-        let mut jtwj = Matrix4::zeros();
+        let mut jtwj = nalgebra::Matrix4::zeros();
         for k in 0..poses {
             let s = (k as f64 * 0.37).sin();
             let c = (k as f64 * 0.21).cos();
