@@ -124,7 +124,8 @@ pub fn extrinsics_table(x: &ExtrinsicsEstimate) -> String {
             Param::LeverX => ("l_x", "m", 1.0, 4),
             _ => ("l_y", "m", 1.0, 4),
         };
-        row(&mut out, name, unit, &[Some(init[i]), Some(val[i]), Some(sigma)], scale, prec);
+        let robust = x.robust.as_ref().map(|rb| if x.free.contains(p) { rb.std_dev.to_array()[i] } else { f64::NAN });
+        row(&mut out, name, unit, &[Some(init[i]), Some(val[i]), Some(sigma), robust], scale, prec);
     }
     out
 }
@@ -234,6 +235,12 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
         }
     });
     cols.push(("± 1σ (model)", Some(Theta { c_e: sigma[0], c_d: sigma[1], t_r: sigma[2], d: sigma[3] })));
+    // The cluster-robust σ (residuals correlated along and across segments).
+    if let Some(rb) = r.robust() {
+        let sd = rb.std_dev().to_array();
+        let s: [f64; 4] = std::array::from_fn(|i| if sigma[i].is_nan() { f64::NAN } else { sd[i] });
+        cols.push(("± 1σ (robust)", Some(Theta { c_e: s[0], c_d: s[1], t_r: s[2], d: s[3] })));
+    }
     if let Some((t, _)) = truth {
         cols.push(("truth", Some(*t)));
     }
