@@ -218,6 +218,22 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
             id.termination,
             id.observability.rcond
         );
+        if eiv_detail(r).is_none() {
+            let o = &r.options.identify;
+            let _ = match &id.robust {
+                Some(rb) => writeln!(
+                    out,
+                    "robust σ: cluster-robust over {} clusters of {} samples (the model σ assumes independent residuals)",
+                    rb.clusters, rb.block_steps
+                ),
+                None => writeln!(
+                    out,
+                    "robust σ: not computed (fewer than {} clusters of {} samples); the model σ assumes independent \
+                     residuals and understates the uncertainty under input noise",
+                    o.robust_min_clusters, o.robust_block_steps
+                ),
+            };
+        }
     }
     if let Some(d) = eiv_detail(r) {
         out.push_str(&eiv_section(d));

@@ -314,8 +314,7 @@ pub(crate) fn batch_gauss_newton_with_extrinsics(
     let ne = out.total;
     let (rcond, sens, unobservable) = problem.observability(&ne);
     let cov = gauss_newton::model_covariance(&ne, &free);
-    let robust =
-        gauss_newton::cluster_robust_covariance(&ne, &out.per_segment, segments, &free, opts.robust_block_steps);
+    let robust = gauss_newton::cluster_robust_covariance(&ne, &out.per_segment, segments, &free, opts);
     let history = out.history.iter().map(|(x, cost)| IterationRecord { theta: split(x).0, cost: *cost }).collect();
     let estimate = ExtrinsicsEstimate {
         initial: e0,

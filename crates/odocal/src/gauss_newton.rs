@@ -191,18 +191,19 @@ pub(crate) fn clusters(starts: &[usize], block_steps: usize) -> (Vec<usize>, usi
 /// covariance it does not assume independent, equally scaled residuals:
 /// a segment's residuals integrate the same input noise, and overlapping
 /// segments share samples, so only sums over long stretches of the drive
-/// are close to independent. `None` with fewer than two clusters or a
-/// singular free block.
+/// are close to independent. Clusters are
+/// [`IdentifyOptions::robust_block_steps`] long; `None` with fewer than
+/// [`IdentifyOptions::robust_min_clusters`] of them or a singular free block.
 pub(crate) fn cluster_robust_covariance<const N: usize>(
     total: &NormalEquations<N>,
     per_segment: &[NormalEquations<N>],
     segments: &[SegmentData<'_>],
     free: &[usize],
-    block_steps: usize,
+    opts: &IdentifyOptions,
 ) -> Option<(SMatrix<f64, N, N>, usize)> {
     let starts: Vec<usize> = segments.iter().map(|s| s.start).collect();
-    let (id, g) = clusters(&starts, block_steps);
-    if g < 2 {
+    let (id, g) = clusters(&starts, opts.robust_block_steps);
+    if g < opts.robust_min_clusters.max(2) {
         return None;
     }
     let p = free.len();

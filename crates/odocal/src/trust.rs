@@ -415,11 +415,9 @@ impl std::fmt::Display for VerdictReason {
             VerdictReason::AtGuardBound { param, value, fraction } => {
                 write!(f, "{param} = {value:.6} is at {:.0} % of its plausible half-width from θ_0", fraction * 100.0)
             }
-            VerdictReason::LargeUncertainty { param, sigma, fraction } => write!(
-                f,
-                "{param} has a σ of {sigma:.3e} ({:.0} % of its plausible half-width)",
-                fraction * 100.0
-            ),
+            VerdictReason::LargeUncertainty { param, sigma, fraction } => {
+                write!(f, "{param} has a σ of {sigma:.3e} ({:.0} % of its plausible half-width)", fraction * 100.0)
+            }
             VerdictReason::InconsistentSplit { param, fit, held_out, sigma } => write!(
                 f,
                 "{param} = {fit:.6} here but {held_out:.6} fitted on the held-out data alone: {:.0} σ apart \
