@@ -16,7 +16,8 @@
 //!
 //! Per parameter it prints the fraction of seeds whose error lies within
 //! 1.96 σ (model; robust) and within t_{G−1,0.975} robust σ, the RMS error
-//! over seeds, the mean error (bias), and the RMS of each σ. An honest σ
+//! over seeds, the fraction within 3 robust σ, the mean error (bias) and
+//! the standard deviation of the error over seeds, and the RMS of each σ. An honest σ
 //! has RMS σ ≈ RMS error and coverage ≈ 95 %, unless the bias dominates.
 
 use std::time::Instant;
@@ -118,7 +119,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 let g = v.iter().map(|f| f.clusters as f64).sum::<f64>() / v.len() as f64;
                 println!("-- cluster length {block} samples: mean G = {g:.1}");
                 println!(
-                    "param          | cover model | cover robust 1.96 | cover robust t(G-1) | RMS err   | mean err  | RMS σ model | RMS σ robust | robust/model"
+                    "param          | cover model | cover robust 1.96 | cover robust t(G-1) | within 3σ robust | RMS err   | mean err  | SD err    | RMS σ model | RMS σ robust | robust/model"
                 );
                 for i in 0..v[0].err.len() {
                     let n = v.len() as f64;
@@ -127,11 +128,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     let cm = within(&|f| 1.96 * f.model[i]);
                     let cr = within(&|f| 1.96 * f.robust[i]);
                     let ct = within(&|f| t975((f.clusters as f64 - 1.0).max(1.0)) * f.robust[i]);
+                    let c3 = within(&|f| 3.0 * f.robust[i]);
                     let rms = |k: &dyn Fn(&Fit) -> f64| (v.iter().map(|f| k(f).powi(2)).sum::<f64>() / n).sqrt();
                     let (re, rm, rr) = (rms(&|f| f.err[i]), rms(&|f| f.model[i]), rms(&|f| f.robust[i]));
                     let mean = v.iter().map(|f| f.err[i]).sum::<f64>() / n;
+                    let sd = (v.iter().map(|f| (f.err[i] - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0)).sqrt();
                     println!(
-                        "{:<14} | {:>11.2} | {:>17.2} | {:>19.2} | {re:>9.3e} | {mean:>+9.2e} | {rm:>11.3e} | {rr:>12.3e} | {:>12.1}",
+                        "{:<14} | {:>11.2} | {:>17.2} | {:>19.2} | {c3:>16.2} | {re:>9.3e} | {mean:>+9.2e} | {sd:>9.3e} | {rm:>11.3e} | {rr:>12.3e} | {:>12.1}",
                         NAMES[i],
                         cm,
                         cr,
