@@ -10,7 +10,8 @@
 //! Defaults: 20 seeds, 12 km, presets `off,white,paper,high`, cluster
 //! lengths `1300` samples, FIT `theta,joint`. FIT `theta`: reference at the
 //! rear-axle centre, θ estimated; `joint`: reference at l = (−0.9, 0.05) m,
-//! δ = −9.9 mrad, θ and the extrinsics estimated. Each fit is the batch-gn
+//! δ = −9.9 mrad, θ and the extrinsics estimated; `three-step`: the
+//! default 3-step calibration (its σ are step 3's). Each other fit is the batch-gn
 //! method's: default selection (turning segments), default G-N options
 //! (5 iterations), from θ_0 = [`Theta::PAPER_INITIAL`] and zero extrinsics.
 //!
@@ -101,6 +102,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 let sel = calibration_segments(&drive, &Default::default())?;
                 let data: Vec<SegmentData> = sel.selected.iter().map(|s| SegmentData::new(&drive, s)).collect();
                 segs += data.len();
+                if kind == "three-step" {
+                    // The default 3-step calibration; its σ are step 3's.
+                    for (b, block) in blocks.iter().enumerate() {
+                        let mut o = odocal::CalibrationOptions::default();
+                        o.identify.robust_block_steps = *block;
+                        let t = Instant::now();
+                        let r = odocal::calibrate(&drive, &o, None)?;
+                        t_fit += t.elapsed().as_secs_f64();
+                        let id = r.identification().ok_or("three-step has step 3")?;
+                        per_block[b].push(fit(id, &sim.theta_true, &mount, false));
+                    }
+                    continue;
+                }
                 for (b, block) in blocks.iter().enumerate() {
                     let opts = IdentifyOptions { free, robust_block_steps: *block, ..Default::default() };
                     let t = Instant::now();
