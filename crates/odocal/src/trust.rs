@@ -18,8 +18,8 @@
 //! - *doubtful*: a free parameter is not observable, lies in the outer tenth
 //!   of its guard region, has a σ above [`TrustOptions::max_sigma_fraction`]
 //!   of its guard half-width (the cluster-robust σ of
-//!   [`crate::identify::RobustCovariance`] where the method has one, batch-gn
-//!   and 3-step; else the model σ; so also in the cross-split check), or the held-out Ē_p is more than
+//!   [`crate::identify::RobustCovariance`] where the method has one,
+//!   batch-gn; else the model σ; so also in the cross-split check), or the held-out Ē_p is more than
 //!   [`TrustOptions::max_held_out_ratio`] times the Ē_p on the fitting data,
 //!   or θ fitted on the held-out data differs from θ fitted on the fitting
 //!   data by more than [`TrustOptions::max_split_sigmas`] of their combined σ

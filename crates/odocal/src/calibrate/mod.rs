@@ -344,10 +344,13 @@ impl CalibrationReport {
 
     /// The cluster-robust covariance of the result ([`RobustCovariance`]:
     /// unlike the model covariance it allows for residuals correlated along
-    /// and across segments), for methods whose result is a batch
-    /// Gauss-Newton estimate: batch-gn and the 3-step method (its step 3;
-    /// this does not count step 2's use of the same reference). `None` for
-    /// the EIV method and when it could not be computed.
+    /// and across segments), for batch-gn, whose result is one batch
+    /// Gauss-Newton estimate. `None` for the other methods and when it could
+    /// not be computed. The 3-step method's step 3 has one too
+    /// (`identification.robust`), but it does not see steps 1–2 and is
+    /// 5–13× smaller than the spread of 3-step estimates over seeds
+    /// (`examples/gn_coverage.rs 20 12 paper 1300 three-step`), so it does
+    /// not stand for the result.
     pub fn robust(&self) -> Option<&RobustCovariance> {
         outcome_robust(&self.detail)
     }
@@ -617,8 +620,9 @@ pub fn calibrate_detailed(
             iterations: outcome.iterations,
             rcond: outcome.observability.rcond,
             unobservable: outcome.observability.unobservable,
-            // The cluster-robust σ where the method has one: the model σ is
-            // 5–120× too small under input noise (examples/gn_coverage.rs).
+            // The cluster-robust σ where the method has one (batch-gn): the
+            // model σ is 5–120× too small under input noise
+            // (examples/gn_coverage.rs).
             covariance: outcome_robust(&outcome.detail).map_or(&outcome.covariance, |r| &r.covariance),
             calibrated_m: val.mean_position_error_m,
             initial_m: initial_val.mean_position_error_m,
@@ -682,16 +686,19 @@ fn split_fit(held_out: &Drive, opts: &CalibrationOptions, free: ParamSet) -> Opt
 /// ([`CalibrationReport::robust`]).
 fn outcome_robust(detail: &MethodDetail) -> Option<&RobustCovariance> {
     match detail {
-        MethodDetail::ThreeStep(d) => d.identification.robust.as_ref(),
         MethodDetail::BatchGn(d) => d.identification.robust.as_ref(),
-        MethodDetail::Eiv(_) => None,
+        MethodDetail::ThreeStep(_) | MethodDetail::Eiv(_) => None,
     }
 }
 
 /// The extrinsics estimate of a method's final identification.
 fn method_extrinsics(detail: &MethodDetail) -> Option<ExtrinsicsEstimate> {
     match detail {
-        MethodDetail::ThreeStep(d) => d.identification.extrinsics.clone(),
+        // Step 3's robust σ does not stand for the 3-step result
+        // ([`CalibrationReport::robust`]); it stays in `identification`.
+        MethodDetail::ThreeStep(d) => {
+            d.identification.extrinsics.clone().map(|x| ExtrinsicsEstimate { robust: None, ..x })
+        }
         MethodDetail::BatchGn(d) => d.identification.extrinsics.clone(),
         // The EIV method does not support extrinsics (refused up front).
         MethodDetail::Eiv(_) => None,
