@@ -135,7 +135,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 println!(
                     "param          | cover model | cover robust 1.96 | cover robust t(G-1) | within 3σ robust | RMS err   | mean err  | SD err    | RMS σ model | RMS σ robust | robust/model"
                 );
-                for i in 0..v[0].err.len() {
+                for (i, name) in NAMES.iter().enumerate().take(v[0].err.len()) {
                     let n = v.len() as f64;
                     let within =
                         |k: &dyn Fn(&Fit) -> f64| v.iter().filter(|f| f.err[i].abs() <= k(f)).count() as f64 / n;
@@ -149,7 +149,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     let sd = (v.iter().map(|f| (f.err[i] - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0)).sqrt();
                     println!(
                         "{:<14} | {:>11.2} | {:>17.2} | {:>19.2} | {c3:>16.2} | {re:>9.3e} | {mean:>+9.2e} | {sd:>9.3e} | {rm:>11.3e} | {rr:>12.3e} | {:>12.1}",
-                        NAMES[i],
+                        name,
                         cm,
                         cr,
                         ct,
