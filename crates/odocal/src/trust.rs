@@ -16,8 +16,10 @@
 //! - *rejected*: the final θ fails a guard, or its Ē_p on the validation (or
 //!   held-out) data is above θ_0's (dead reckoning gets worse);
 //! - *doubtful*: a free parameter is not observable, lies in the outer tenth
-//!   of its guard region, has a model σ above [`TrustOptions::max_sigma_fraction`]
-//!   of its guard half-width, or the held-out Ē_p is more than
+//!   of its guard region, has a σ above [`TrustOptions::max_sigma_fraction`]
+//!   of its guard half-width (the cluster-robust σ of
+//!   [`crate::identify::RobustCovariance`] where the method has one,
+//!   batch-gn; else the model σ; so also in the cross-split check), or the held-out Ē_p is more than
 //!   [`TrustOptions::max_held_out_ratio`] times the Ē_p on the fitting data,
 //!   or θ fitted on the held-out data differs from θ fitted on the fitting
 //!   data by more than [`TrustOptions::max_split_sigmas`] of their combined σ
@@ -234,8 +236,9 @@ pub struct TrustOptions {
     /// different Ē_p; three times is more than route alone explains on the
     /// half-splits measured).
     pub max_held_out_ratio: f64,
-    /// A model σ above this fraction of the parameter's guard half-width
-    /// makes the result doubtful. Default 0.1.
+    /// A σ (cluster-robust where the method has one, else the model σ)
+    /// above this fraction of the parameter's guard half-width makes the
+    /// result doubtful. Default 0.1.
     pub max_sigma_fraction: f64,
     /// A parameter farther than this fraction of its guard half-width from
     /// θ_0 is "at a guard bound" (doubtful). Default 0.9.
@@ -412,11 +415,9 @@ impl std::fmt::Display for VerdictReason {
             VerdictReason::AtGuardBound { param, value, fraction } => {
                 write!(f, "{param} = {value:.6} is at {:.0} % of its plausible half-width from θ_0", fraction * 100.0)
             }
-            VerdictReason::LargeUncertainty { param, sigma, fraction } => write!(
-                f,
-                "{param} has a model σ of {sigma:.3e} ({:.0} % of its plausible half-width)",
-                fraction * 100.0
-            ),
+            VerdictReason::LargeUncertainty { param, sigma, fraction } => {
+                write!(f, "{param} has a σ of {sigma:.3e} ({:.0} % of its plausible half-width)", fraction * 100.0)
+            }
             VerdictReason::InconsistentSplit { param, fit, held_out, sigma } => write!(
                 f,
                 "{param} = {fit:.6} here but {held_out:.6} fitted on the held-out data alone: {:.0} σ apart \
@@ -460,6 +461,7 @@ pub(crate) struct Evidence<'a> {
     pub iterations: Option<usize>,
     pub rcond: f64,
     pub unobservable: ParamSet,
+    /// θ's covariance: the cluster-robust one where the method has it.
     pub covariance: &'a [[f64; 4]; 4],
     pub calibrated_m: f64,
     pub initial_m: f64,
@@ -501,7 +503,7 @@ pub(crate) fn judge(e: &Evidence<'_>, opts: &TrustOptions) -> Verdict {
             if fraction.is_finite() && fraction > opts.near_bound_fraction && fraction <= 1.0 {
                 reasons.push(VerdictReason::AtGuardBound { param: p, value, fraction });
             }
-            let sigma = x.std_dev.to_array()[i];
+            let sigma = x.robust.as_ref().map_or(x.std_dev, |r| r.std_dev).to_array()[i];
             if sigma.is_finite() && sigma > opts.max_sigma_fraction * h {
                 reasons.push(VerdictReason::LargeUncertainty { param: p, sigma, fraction: sigma / h });
             }
