@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! cargo run --release -p odocal --example testtrack_crossrun -- \
-//!     [--method three-step|batch-gn] [--min-yaw-rate R] [--fix d] [--auto-fix] [--json out.json]
+//!     [--method three-step|batch-gn] [--min-yaw-rate R] [--segment-length K] [--fix d] [--auto-fix] [--json out.json]
 //! ```
 //!
 //! The manifests are in `examples/psu-mapping-van-testtrack/`, the data in
@@ -32,6 +32,7 @@ fn main() -> Result<(), Box<dyn Error>> {
         match a.as_str() {
             "--method" => opts.method = Method::from_name(&value()?)?,
             "--min-yaw-rate" => opts.segments.min_peak_yaw_rate_rad_per_s = value()?.parse()?,
+            "--segment-length" => opts.segments.length_steps = value()?.parse()?,
             "--fix" => {
                 for p in value()?.parse::<ParamSet>()?.iter() {
                     opts.identify.free.remove(p);
