@@ -85,9 +85,9 @@ mod tests {
 
     #[test]
     fn one_way_names_the_common_sense_and_none_otherwise() {
-        // left turn over samples 0..20, right turn over 20..40
+        // left turn over samples 0..20, right turn over 20..40 (steps exact in binary)
         let psi: Vec<f64> =
-            (0..41).map(|i| if i <= 20 { 0.01 * i as f64 } else { 0.2 - 0.01 * (i - 20) as f64 }).collect();
+            (0..41).map(|i| if i <= 20 { 0.0625 * i as f64 } else { 1.25 - 0.0625 * (i - 20) as f64 }).collect();
         let d = drive_with_heading(psi);
         assert_eq!(one_way(&d, &[seg(0), seg(5), seg(10)]), Some(TurnSense::Left));
         assert_eq!(one_way(&d, &[seg(20), seg(25), seg(30)]), Some(TurnSense::Right));
