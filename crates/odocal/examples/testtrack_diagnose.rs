@@ -10,6 +10,12 @@ const RUNS: [&str; 6] = ["14-45-26", "15-28-33", "16-06-28", "16-47-33", "17-45-
 fn with_beta(d: &Drive, k: f64) -> Result<Drive, Box<dyn Error>> {
     let mut s = d.measured().clone();
     s.beta = d.a_y().iter().map(|a| k * a).collect();
+    // HEADING_SHIFT=m: the reference heading taken m samples later (m < 0: earlier)
+    let m: i64 = std::env::var("HEADING_SHIFT").ok().and_then(|v| v.parse().ok()).unwrap_or(0);
+    if m != 0 {
+        let n = s.psi.len() as i64;
+        s.psi = (0..n).map(|i| d.psi()[(i + m).clamp(0, n - 1) as usize]).collect();
+    }
     let mut b = Drive::builder(d.t().to_vec(), s).sample_time_s(d.sample_time_s()).parts(d.parts().to_vec());
     if let Some(m) = d.reference_measured() {
         b = b.reference_measured(m.to_vec());
@@ -33,6 +39,10 @@ fn main() -> Result<(), Box<dyn Error>> {
         }
         o
     };
+    if std::env::var("PAIRS").is_ok() {
+        pairs(&base)?;
+        return Ok(());
+    }
     for k in ks {
         let drives: Vec<Drive> = base.iter().map(|d| with_beta(d, k)).collect::<Result<_, _>>()?;
         let refs: Vec<&Drive> = drives.iter().collect();
@@ -73,6 +83,57 @@ fn main() -> Result<(), Box<dyn Error>> {
                 cd.join(" ")
             );
         }
+    }
+    Ok(())
+}
+
+/// Every counter-clockwise × clockwise pair fitted jointly, validated on the
+/// other four runs (default options and batch G-N with d held).
+fn pairs(base: &[Drive]) -> Result<(), Box<dyn Error>> {
+    let mut gn = CalibrationOptions { method: Method::from_name("batch-gn")?, ..Default::default() };
+    gn.segments.min_peak_yaw_rate_rad_per_s = 0.0;
+    gn.identify.free.remove(Param::D);
+    let auto = CalibrationOptions { auto_fix: true, ..Default::default() };
+    let mut fix_d = CalibrationOptions::default();
+    fix_d.identify.free.remove(Param::D);
+    for (label, o) in [("default", CalibrationOptions::default()), ("auto-fix", auto), ("fix d", fix_d), ("gn fix d", gn)] {
+        let (mut own, mut cross, mut cross0, mut worse, mut rejected, mut n) = (0.0, 0.0, 0.0, 0, 0, 0.0);
+        for i in 0..3 {
+            for j in 3..6 {
+                let joint = Drive::concat(&[&base[i], &base[j]])?;
+                let r = calibrate(&joint, &o, None)?;
+                let others: Vec<(&str, &Drive)> =
+                    (0..6).filter(|k| *k != i && *k != j).map(|k| (RUNS[k], &base[k])).collect();
+                let v = odocal::validate_drives(&others, &r.theta, &o.theta0, &o.validation)?;
+                let w = v.worse_than_initial().count();
+                println!(
+                    "pair {} + {} ({label}): c_e {:.5} c_d {:+.3} t_r {:.4} d {:+.3} {:?}  own {:.3}  others {:.3} (θ_0 {:.3}) worse {w}",
+                    RUNS[i],
+                    RUNS[j],
+                    r.theta.c_e,
+                    r.theta.c_d * 1e3,
+                    r.theta.t_r,
+                    r.theta.d * 1e3,
+                    r.verdict.level,
+                    r.validation.mean_position_error_m,
+                    v.mean_over_drives_m,
+                    v.initial_mean_over_drives_m
+                );
+                own += r.validation.mean_position_error_m;
+                cross += v.mean_over_drives_m;
+                cross0 += v.initial_mean_over_drives_m;
+                worse += w;
+                rejected += usize::from(r.verdict.level == odocal::VerdictLevel::Rejected);
+                n += 1.0;
+            }
+        }
+        println!(
+            "pairs {label}: own {:.3} others {:.3} ratio {:.2} θ_0 on others {:.3} worse pairs {worse} of 36, rejected {rejected} of 9",
+            own / n,
+            cross / n,
+            cross / own,
+            cross0 / n
+        );
     }
     Ok(())
 }
