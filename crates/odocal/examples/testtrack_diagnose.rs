@@ -1,4 +1,20 @@
-//! Scratch diagnostics for issue 10 (direction dependence on the test track).
+//! Why a θ fitted on one test-track run does worse on runs driven the other
+//! way (issue 10): the measurements README's "Cross-run check on the test
+//! track" quotes.
+//!
+//! ```text
+//! [HEADING_SHIFT=m] [TRACK_DIR=dir] cargo run --release -p odocal --example testtrack_diagnose -- K1 K2 …
+//! ```
+//!
+//! For each sideslip gain K (mrad per m/s²) the six runs' β is replaced by
+//! K·a_y (the manifests set β = 0 and derive a_y from the wheels); then it
+//! prints the joint batch-G-N fit (every segment, d held and free) of the
+//! three counter-clockwise runs, the three clockwise ones and all six, and
+//! the cross-run summary of the default 3-step, batch G-N with d held and
+//! batch G-N. `HEADING_SHIFT=m` takes the reference heading m samples
+//! (25 ms each) later, to test a heading lag; `TRACK_DIR` reads the
+//! manifests from another directory (copies with another clock offset,
+//! say). `K = 0` without either is the data as imported.
 use std::error::Error;
 use std::path::PathBuf;
 
@@ -7,6 +23,7 @@ use odocal::{calibrate, CalibrationOptions, Drive, Method, Param};
 
 const RUNS: [&str; 6] = ["14-45-26", "15-28-33", "16-06-28", "16-47-33", "17-45-46", "18-01-26"];
 
+/// `d` with β = k·a_y (and the reference heading shifted by `HEADING_SHIFT` samples).
 fn with_beta(d: &Drive, k: f64) -> Result<Drive, Box<dyn Error>> {
     let mut s = d.measured().clone();
     s.beta = d.a_y().iter().map(|a| k * a).collect();
@@ -25,7 +42,7 @@ fn with_beta(d: &Drive, k: f64) -> Result<Drive, Box<dyn Error>> {
 
 fn main() -> Result<(), Box<dyn Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let ks: Vec<f64> = args.iter().map(|a| a.parse::<f64>().expect("k mrad/(m/s²)") * 1e-3).collect();
+    let ks: Vec<f64> = args.iter().map(|a| a.parse::<f64>().map(|k| k * 1e-3)).collect::<Result<_, _>>()?;
     let dir = std::env::var("TRACK_DIR").map(PathBuf::from).unwrap_or_else(|_| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/psu-mapping-van-testtrack"));
     let mut base = Vec::new();
     for run in RUNS {
@@ -39,10 +56,6 @@ fn main() -> Result<(), Box<dyn Error>> {
         }
         o
     };
-    if std::env::var("PAIRS").is_ok() {
-        pairs(&base)?;
-        return Ok(());
-    }
     for k in ks {
         let drives: Vec<Drive> = base.iter().map(|d| with_beta(d, k)).collect::<Result<_, _>>()?;
         let refs: Vec<&Drive> = drives.iter().collect();
@@ -87,53 +100,3 @@ fn main() -> Result<(), Box<dyn Error>> {
     Ok(())
 }
 
-/// Every counter-clockwise × clockwise pair fitted jointly, validated on the
-/// other four runs (default options and batch G-N with d held).
-fn pairs(base: &[Drive]) -> Result<(), Box<dyn Error>> {
-    let mut gn = CalibrationOptions { method: Method::from_name("batch-gn")?, ..Default::default() };
-    gn.segments.min_peak_yaw_rate_rad_per_s = 0.0;
-    gn.identify.free.remove(Param::D);
-    let auto = CalibrationOptions { auto_fix: true, ..Default::default() };
-    let mut fix_d = CalibrationOptions::default();
-    fix_d.identify.free.remove(Param::D);
-    for (label, o) in [("default", CalibrationOptions::default()), ("auto-fix", auto), ("fix d", fix_d), ("gn fix d", gn)] {
-        let (mut own, mut cross, mut cross0, mut worse, mut rejected, mut n) = (0.0, 0.0, 0.0, 0, 0, 0.0);
-        for i in 0..3 {
-            for j in 3..6 {
-                let joint = Drive::concat(&[&base[i], &base[j]])?;
-                let r = calibrate(&joint, &o, None)?;
-                let others: Vec<(&str, &Drive)> =
-                    (0..6).filter(|k| *k != i && *k != j).map(|k| (RUNS[k], &base[k])).collect();
-                let v = odocal::validate_drives(&others, &r.theta, &o.theta0, &o.validation)?;
-                let w = v.worse_than_initial().count();
-                println!(
-                    "pair {} + {} ({label}): c_e {:.5} c_d {:+.3} t_r {:.4} d {:+.3} {:?}  own {:.3}  others {:.3} (θ_0 {:.3}) worse {w}",
-                    RUNS[i],
-                    RUNS[j],
-                    r.theta.c_e,
-                    r.theta.c_d * 1e3,
-                    r.theta.t_r,
-                    r.theta.d * 1e3,
-                    r.verdict.level,
-                    r.validation.mean_position_error_m,
-                    v.mean_over_drives_m,
-                    v.initial_mean_over_drives_m
-                );
-                own += r.validation.mean_position_error_m;
-                cross += v.mean_over_drives_m;
-                cross0 += v.initial_mean_over_drives_m;
-                worse += w;
-                rejected += usize::from(r.verdict.level == odocal::VerdictLevel::Rejected);
-                n += 1.0;
-            }
-        }
-        println!(
-            "pairs {label}: own {:.3} others {:.3} ratio {:.2} θ_0 on others {:.3} worse pairs {worse} of 36, rejected {rejected} of 9",
-            own / n,
-            cross / n,
-            cross / own,
-            cross0 / n
-        );
-    }
-    Ok(())
-}
