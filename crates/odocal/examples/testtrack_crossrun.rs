@@ -61,8 +61,11 @@ fn main() -> Result<(), Box<dyn Error>> {
     }
     let named: Vec<(&str, &odocal::Drive)> = drives.iter().map(|(n, d)| (*n, d)).collect();
     // RUNS: three counter-clockwise runs, then three clockwise ones
-    let groups: Vec<Vec<usize>> =
-        if pairs { (0..3).flat_map(|i| (3..6).map(move |j| vec![i, j])).collect() } else { (0..6).map(|i| vec![i]).collect() };
+    let groups: Vec<Vec<usize>> = if pairs {
+        (0..3).flat_map(|i| (3..6).map(move |j| vec![i, j])).collect()
+    } else {
+        (0..6).map(|i| vec![i]).collect()
+    };
     let table = cross_run_groups(&named, &groups, &opts, None)?;
     println!("{table}");
     let c = table.criteria(CROSS_RUN_OWN_FIT_RATIO);

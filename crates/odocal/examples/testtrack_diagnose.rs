@@ -43,7 +43,9 @@ fn with_beta(d: &Drive, k: f64) -> Result<Drive, Box<dyn Error>> {
 fn main() -> Result<(), Box<dyn Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let ks: Vec<f64> = args.iter().map(|a| a.parse::<f64>().map(|k| k * 1e-3)).collect::<Result<_, _>>()?;
-    let dir = std::env::var("TRACK_DIR").map(PathBuf::from).unwrap_or_else(|_| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/psu-mapping-van-testtrack"));
+    let dir = std::env::var("TRACK_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|_| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/psu-mapping-van-testtrack"));
     let mut base = Vec::new();
     for run in RUNS {
         base.push(odocal::load_drive(&dir.join(format!("run-{run}.toml")))?.0);
@@ -99,4 +101,3 @@ fn main() -> Result<(), Box<dyn Error>> {
     }
     Ok(())
 }
-

@@ -307,8 +307,8 @@ mod tests {
     fn a_failed_calibration_is_a_row_with_its_error() {
         // far too short for a segment: the row records NoSegments, no θ
         let (a, b) = (tiny_drive(), tiny_drive());
-        let t = cross_run_groups(&[("a", &a), ("b", &b)], &[vec![0]], &CalibrationOptions::default(), None)
-            .expect("table");
+        let t =
+            cross_run_groups(&[("a", &a), ("b", &b)], &[vec![0]], &CalibrationOptions::default(), None).expect("table");
         assert_eq!(t.rows.len(), 1);
         assert_eq!(t.rows[0].name, "a");
         assert!(t.rows[0].fit.as_ref().is_err_and(|e| e.contains("segment")), "{:?}", t.rows[0].fit);

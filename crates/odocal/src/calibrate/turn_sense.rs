@@ -67,7 +67,10 @@ pub(crate) fn one_way(drive: &Drive, segments: &[Segment]) -> Option<TurnSense> 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::calibrate::{calibrate, CalibrationOptions, Method};
     use crate::drive::Signals;
+    use crate::model::{step, wheel_rotations, Input, State, Theta};
+    use crate::warning::Warning;
 
     /// A drive whose heading follows `psi` (positions and wheels do not matter here).
     fn drive_with_heading(psi: Vec<f64>) -> Drive {
@@ -77,6 +80,49 @@ mod tests {
             s.push([i as f64 * 0.25, 0.0, *p, 5.0, 5.0, 0.0, 0.0]);
         }
         Drive::builder((0..n).map(|i| i as f64 * 0.025).collect(), s).build().expect("drive")
+    }
+
+    /// A noise-free oval (300 m straights, 40 m radius half circles) at
+    /// 10 m/s, driven counter-clockwise (`sign` +1) or clockwise (−1) for
+    /// 1.3 laps at 40 Hz: every turning segment turns one way, and some
+    /// segments lie on a straight.
+    fn oval(sign: f64) -> Drive {
+        let (theta, t_s, v, r, straight) = (Theta { c_d: 0.5e-3, ..Theta::PAPER_NOMINAL }, 0.025, 10.0, 40.0, 300.0);
+        let lap = 2.0 * straight + 2.0 * std::f64::consts::PI * r;
+        let n = (1.3 * lap / v / t_s) as usize;
+        let mut x = State::zeros();
+        let mut s = Signals::with_capacity(n);
+        for i in 0..n {
+            let along = (i as f64 * v * t_s) % lap;
+            let half = lap / 2.0;
+            let omega = if along % half < straight { 0.0 } else { sign * v / r };
+            let a_y = v * omega;
+            let (n_rl, n_rr) = wheel_rotations(v, omega, a_y, &theta);
+            s.push([x[0], x[1], x[2], n_rl, n_rr, 0.0, a_y]);
+            x = step(&x, &Input { n_rl, n_rr, beta: 0.0, a_y }, &theta, t_s);
+        }
+        Drive::builder((0..n).map(|i| i as f64 * t_s).collect(), s).build().expect("oval")
+    }
+
+    #[test]
+    fn a_one_way_selection_gets_every_segment_and_says_so() {
+        let opts = CalibrationOptions { method: Method::from_name("batch-gn").expect("method"), ..Default::default() };
+        for (sign, sense) in [(1.0, TurnSense::Left), (-1.0, TurnSense::Right)] {
+            let d = oval(sign);
+            let r = calibrate(&d, &opts, None).expect("calibrate");
+            let (cut, selected) = (r.segments.cut, r.segments.selected);
+            assert!(0 < selected && selected < cut, "{cut} cut, {selected} selected");
+            let w: Vec<&Warning> = r.warnings.iter().filter(|w| w.kind() == "one_way_turns").collect();
+            assert_eq!(w.len(), 1, "{:?}", r.warnings);
+            assert_eq!(
+                w[0],
+                &Warning::OneWayTurns { sense: sense.name().to_string(), selected, added: cut - selected }
+            );
+            // the paper's selection on request: no warning
+            let keep = CalibrationOptions { keep_one_way_selection: true, ..opts.clone() };
+            let r = calibrate(&d, &keep, None).expect("calibrate");
+            assert!(r.warnings.iter().all(|w| w.kind() != "one_way_turns"), "{:?}", r.warnings);
+        }
     }
 
     fn seg(start: usize) -> Segment {
