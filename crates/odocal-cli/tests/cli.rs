@@ -326,10 +326,14 @@ fn rejected_calibration_exits_3_and_still_writes_the_report() {
 
 /// The shipped van log (issue 10): on each half-split, default `calibrate`
 /// either improves Ē_p over θ_0 on the held-out half or ends `rejected`
-/// (exit code 3) saying why. Measured: holding out the first half gives
-/// Ē_p 325 m against θ_0's 66 m (rejected), the second half 45.7 m against
-/// 73.1 m (doubtful: t_r, d not observable). Needs the shared data set;
-/// without it the test says so and passes.
+/// (exit code 3) saying why. Measured: each half's turning segments turn
+/// one way only (11 left, 3 right), so every segment is used
+/// (`one_way_turns`; before, with the turning segments only, the first-half
+/// hold-out gave 325 m against θ_0's 66 m, rejected): holding out the
+/// first half now gives Ē_p 28.7 m against θ_0's 66.1 m, the second half
+/// 28.7 m against 73.1 m, both doubtful (the halves' t_r, 1.81 and 1.21 m,
+/// disagree). Needs the shared data set; without it the test says so and
+/// passes.
 #[test]
 fn shipped_van_log_is_improved_or_rejected_on_both_half_splits() {
     let m = format!("{}/../../examples/psu-mapping-van/manifest.toml", env!("CARGO_MANIFEST_DIR"));
@@ -361,8 +365,8 @@ fn shipped_van_log_is_improved_or_rejected_on_both_half_splits() {
                 .collect();
             assert!(kinds.contains(&"worse_than_initial"), "{half}: {kinds:?}");
         }
-        // The halves disagree (measured: t_r 1.500 vs 1.640 m, d 3.9 vs −0.9
-        // mm/(m/s²)): the cross-split check says so on either split.
+        // The halves disagree (measured: t_r 1.815 vs 1.209 m): the
+        // cross-split check says so on either split.
         let split: Vec<&str> = r["verdict"]["reasons"]
             .as_array()
             .expect("reasons")
@@ -370,10 +374,13 @@ fn shipped_van_log_is_improved_or_rejected_on_both_half_splits() {
             .filter(|x| x["kind"] == "inconsistent_split")
             .filter_map(|x| x["param"].as_str())
             .collect();
-        assert!(split.contains(&"t_r") && split.contains(&"d"), "{half}: {}", r["verdict"]);
+        assert!(split.contains(&"t_r"), "{half}: {}", r["verdict"]);
+        let warnings: Vec<&str> =
+            r["warnings"].as_array().expect("warnings").iter().filter_map(|w| w["kind"].as_str()).collect();
+        assert!(warnings.contains(&"one_way_turns"), "{half}: {warnings:?}");
         assert_ne!(r["verdict"]["level"], "accepted", "{half}");
     }
-    assert_eq!(rejected, 1, "measured: the first-half hold-out is rejected, the second improves");
+    assert_eq!(rejected, 0, "measured: both hold-outs improve on θ_0 (28.7 m against 66.1 and 73.1 m)");
 }
 
 #[test]

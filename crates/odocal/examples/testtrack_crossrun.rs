@@ -3,8 +3,15 @@
 //!
 //! ```text
 //! cargo run --release -p odocal --example testtrack_crossrun -- \
-//!     [--method three-step|batch-gn] [--min-yaw-rate R] [--fix d] [--auto-fix] [--json out.json]
+//!     [--method three-step|batch-gn] [--min-yaw-rate R] [--segment-length K] [--fix d] [--auto-fix] \
+//!     [--keep-one-way] [--pairs] [--json out.json]
 //! ```
+//!
+//! `--keep-one-way` keeps the paper's turning-only segment selection on
+//! these one-direction runs (`CalibrationOptions::keep_one_way_selection`;
+//! by default every segment is used there). `--pairs` calibrates each
+//! counter-clockwise run jointly with each clockwise one (nine pairs) and
+//! validates on the other four runs instead.
 //!
 //! The manifests are in `examples/psu-mapping-van-testtrack/`, the data in
 //! `../shared/data/psu-mapping-van-testtrack-2024-08-05/` beside the
@@ -17,7 +24,7 @@
 use std::error::Error;
 use std::path::PathBuf;
 
-use odocal::crossrun::{cross_run, CROSS_RUN_OWN_FIT_RATIO};
+use odocal::crossrun::{cross_run_groups, CROSS_RUN_OWN_FIT_RATIO};
 use odocal::{CalibrationOptions, Method, ParamSet};
 
 /// The six runs of 2024-08-05 (manifest `run-NAME.toml`).
@@ -26,18 +33,22 @@ const RUNS: [&str; 6] = ["14-45-26", "15-28-33", "16-06-28", "16-47-33", "17-45-
 fn main() -> Result<(), Box<dyn Error>> {
     let mut opts = CalibrationOptions::default();
     let mut json: Option<PathBuf> = None;
+    let mut pairs = false;
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         let mut value = || args.next().ok_or_else(|| format!("{a} needs a value"));
         match a.as_str() {
             "--method" => opts.method = Method::from_name(&value()?)?,
             "--min-yaw-rate" => opts.segments.min_peak_yaw_rate_rad_per_s = value()?.parse()?,
+            "--segment-length" => opts.segments.length_steps = value()?.parse()?,
             "--fix" => {
                 for p in value()?.parse::<ParamSet>()?.iter() {
                     opts.identify.free.remove(p);
                 }
             }
             "--auto-fix" => opts.auto_fix = true,
+            "--keep-one-way" => opts.keep_one_way_selection = true,
+            "--pairs" => pairs = true,
             "--json" => json = Some(PathBuf::from(value()?)),
             other => return Err(format!("unknown argument {other}").into()),
         }
@@ -49,7 +60,13 @@ fn main() -> Result<(), Box<dyn Error>> {
         drives.push((run, drive));
     }
     let named: Vec<(&str, &odocal::Drive)> = drives.iter().map(|(n, d)| (*n, d)).collect();
-    let table = cross_run(&named, &opts, None)?;
+    // RUNS: three counter-clockwise runs, then three clockwise ones
+    let groups: Vec<Vec<usize>> = if pairs {
+        (0..3).flat_map(|i| (3..6).map(move |j| vec![i, j])).collect()
+    } else {
+        (0..6).map(|i| vec![i]).collect()
+    };
+    let table = cross_run_groups(&named, &groups, &opts, None)?;
     println!("{table}");
     let c = table.criteria(CROSS_RUN_OWN_FIT_RATIO);
     println!("{c}");

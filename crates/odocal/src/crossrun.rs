@@ -193,25 +193,78 @@ pub fn cross_run(
     opts: &CalibrationOptions,
     progress: Option<ProgressFn<'_>>,
 ) -> Result<CrossRunTable> {
+    let groups: Vec<Vec<usize>> = (0..drives.len()).map(|i| vec![i]).collect();
+    cross_run_groups(drives, &groups, opts, progress)
+}
+
+/// Calibrates each group of `drives` jointly (indices into `drives`; the
+/// drives of a group are concatenated with [`Drive::concat`], so no
+/// segment spans two of them) and validates each θ (and θ_0) on every drive
+/// outside the group. A row's name joins its drives' names with `+`; its
+/// own Ē_p is the group's validation.
+///
+/// On the van's test track a group of one counter-clockwise and one
+/// clockwise run calibrates where single runs cannot (README, "Cross-run
+/// check on the test track").
+///
+/// A calibration that fails is recorded in its row (the error's text) and
+/// left out of the means.
+///
+/// # Errors
+/// Fewer than two drives, an empty group, an index out of range or a group
+/// that covers every drive (nothing left to validate on); a validation's
+/// error, naming the group.
+pub fn cross_run_groups(
+    drives: &[(&str, &Drive)],
+    groups: &[Vec<usize>],
+    opts: &CalibrationOptions,
+    progress: Option<ProgressFn<'_>>,
+) -> Result<CrossRunTable> {
     if drives.len() < 2 {
         return Err(Error::InvalidOption {
             field: "drives",
             reason: format!("a cross-run check needs at least two drives, got {}", drives.len()),
         });
     }
-    let mut rows = Vec::with_capacity(drives.len());
-    for (i, (name, drive)) in drives.iter().enumerate() {
+    for g in groups {
+        if g.is_empty() || g.iter().any(|&i| i >= drives.len()) || (0..drives.len()).all(|i| g.contains(&i)) {
+            return Err(Error::InvalidOption {
+                field: "groups",
+                reason: format!(
+                    "group {g:?}: a group needs at least one of the {} drives and must leave one out",
+                    drives.len()
+                ),
+            });
+        }
+    }
+    let mut rows = Vec::with_capacity(groups.len());
+    for g in groups {
+        let name = g.iter().map(|&i| drives[i].0).collect::<Vec<_>>().join("+");
+        let joint;
+        let drive = if let [i] = g.as_slice() {
+            drives[*i].1
+        } else {
+            let members: Vec<&Drive> = g.iter().map(|&i| drives[i].1).collect();
+            joint = match Drive::concat(&members) {
+                Ok(d) => d,
+                Err(e) => {
+                    rows.push(CrossRunRow { name, fit: Err(e.to_string()) });
+                    continue;
+                }
+            };
+            &joint
+        };
         let r = match calibrate(drive, opts, progress) {
             Ok(r) => r,
             Err(e) => {
-                rows.push(CrossRunRow { name: (*name).to_string(), fit: Err(e.to_string()) });
+                rows.push(CrossRunRow { name, fit: Err(e.to_string()) });
                 continue;
             }
         };
         let others: Vec<(&str, &Drive)> =
-            drives.iter().enumerate().filter(|(j, _)| *j != i).map(|(_, (n, d))| (*n, *d)).collect();
+            drives.iter().enumerate().filter(|(j, _)| !g.contains(j)).map(|(_, (n, d))| (*n, *d)).collect();
         let others = validate_drives(&others, &r.theta, &opts.theta0, &opts.validation)
-            .map_err(|e| Error::Numerical(format!("cross-run, θ of drive {name}: {e}")))?;
+            .map_err(|e| Error::Numerical(format!("cross-run, θ of {name}: {e}")))?;
         let fit = CrossRunFit {
             theta: r.theta,
             verdict: r.verdict,
@@ -219,7 +272,48 @@ pub fn cross_run(
             initial_own_m: r.initial.mean_position_error_m,
             others,
         };
-        rows.push(CrossRunRow { name: (*name).to_string(), fit: Ok(fit) });
+        rows.push(CrossRunRow { name, fit: Ok(fit) });
     }
     Ok(CrossRunTable { rows })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::drive::Signals;
+
+    fn tiny_drive() -> Drive {
+        let mut s = Signals::with_capacity(3);
+        for i in 0..3 {
+            s.push([i as f64 * 0.25, 0.0, 0.0, 5.0, 5.0, 0.0, 0.0]);
+        }
+        Drive::builder(vec![0.0, 0.025, 0.05], s).build().expect("drive")
+    }
+
+    #[test]
+    fn groups_that_leave_nothing_to_validate_on_or_are_malformed_are_refused() {
+        let (a, b) = (tiny_drive(), tiny_drive());
+        let drives = [("a", &a), ("b", &b)];
+        let o = CalibrationOptions::default();
+        for groups in [vec![vec![0, 1]], vec![vec![]], vec![vec![2]]] {
+            let e = cross_run_groups(&drives, &groups, &o, None).expect_err("refused");
+            assert!(matches!(e, Error::InvalidOption { field: "groups", .. }), "{groups:?}: {e}");
+        }
+        let e = cross_run(&drives[..1], &o, None).expect_err("one drive");
+        assert!(matches!(e, Error::InvalidOption { field: "drives", .. }), "{e}");
+    }
+
+    #[test]
+    fn a_failed_calibration_is_a_row_with_its_error() {
+        // far too short for a segment: the row records NoSegments, no θ
+        let (a, b) = (tiny_drive(), tiny_drive());
+        let t =
+            cross_run_groups(&[("a", &a), ("b", &b)], &[vec![0]], &CalibrationOptions::default(), None).expect("table");
+        assert_eq!(t.rows.len(), 1);
+        assert_eq!(t.rows[0].name, "a");
+        assert!(t.rows[0].fit.as_ref().is_err_and(|e| e.contains("segment")), "{:?}", t.rows[0].fit);
+        let c = t.criteria(CROSS_RUN_OWN_FIT_RATIO);
+        assert_eq!((c.failed, c.runs), (1, 1));
+        assert!(!c.pass());
+    }
 }

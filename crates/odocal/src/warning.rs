@@ -51,6 +51,18 @@ pub enum Warning {
         /// Selected segments the check ran on.
         segments: usize,
     },
+    /// Every selected calibration segment turns the same way, which makes
+    /// c_d and t_r nearly collinear: every cut segment was used instead
+    /// (the straight ones separate them; see
+    /// [`crate::CalibrationOptions::keep_one_way_selection`]).
+    OneWayTurns {
+        /// The common turning direction.
+        sense: String,
+        /// Segments selected by the yaw-rate threshold.
+        selected: usize,
+        /// Segments added (those below the threshold).
+        added: usize,
+    },
     /// A step-1 batch identification failed and was left out.
     BatchFailed {
         /// Batch index (0-based, in batch order).
@@ -131,6 +143,7 @@ impl Warning {
             Warning::Unobservable { .. } => "unobservable",
             Warning::AutoFixNoTurns { .. } => "auto_fix_no_turns",
             Warning::AutoFixUnobservable { .. } => "auto_fix_unobservable",
+            Warning::OneWayTurns { .. } => "one_way_turns",
             Warning::BatchFailed { .. } => "batch_failed",
             Warning::BatchRejected { .. } => "batch_rejected",
             Warning::FewUsableBatches { .. } => "few_usable_batches",
@@ -167,6 +180,11 @@ impl std::fmt::Display for Warning {
                      c_e is observable"
                 )
             }
+            Warning::OneWayTurns { sense, selected, added } => write!(
+                f,
+                "all {selected} selected segments turn {sense}, so c_d and t_r are nearly collinear on them: the \
+                 {added} straighter segments were added (keep_one_way_selection keeps the turning ones only)"
+            ),
             Warning::AutoFixUnobservable { params, segments } => {
                 let names: Vec<&str> = params.iter().map(|p| p.name()).collect();
                 write!(

@@ -63,6 +63,7 @@ use crate::warning::Warning;
 pub mod batch_gn;
 pub mod eiv;
 pub mod three_step;
+mod turn_sense;
 
 pub use batch_gn::{BatchGnDetail, BatchGnOptions};
 pub use eiv::{EivDetail, EivMethodOptions, EivOutcome};
@@ -172,6 +173,13 @@ pub struct CalibrationOptions {
     /// listed in [`CalibrationReport::auto_fixed`].
     #[serde(default)]
     pub auto_fix: bool,
+    /// Keep the paper's turning-only selection even when every selected
+    /// segment turns the same way (default false: then every cut segment is
+    /// used, with [`crate::Warning::OneWayTurns`], because on one-way turns
+    /// c_d and t_r are nearly collinear and the straight segments separate
+    /// them; not in the paper). Segment-based methods only.
+    #[serde(default)]
+    pub keep_one_way_selection: bool,
 }
 
 impl Default for CalibrationOptions {
@@ -185,6 +193,7 @@ impl Default for CalibrationOptions {
             seed: 0,
             trust: TrustOptions::default(),
             auto_fix: false,
+            keep_one_way_selection: false,
         }
     }
 }
@@ -755,7 +764,25 @@ pub(crate) fn turning_segments(prep: &Prepared<'_>) -> Result<Selection> {
             });
         }
     }
-    let segments = if selection.selected.is_empty() { selection.all.clone() } else { selection.selected.clone() };
+    // Every selected segment turning one way confounds c_d with t_r: add
+    // the straight ones (turn_sense; not in the paper).
+    let one_way = if selection.selected.is_empty() || opts.keep_one_way_selection {
+        None
+    } else {
+        turn_sense::one_way(drive, &selection.selected)
+    };
+    let segments = match one_way {
+        Some(sense) if selection.all.len() > selection.selected.len() => {
+            warnings.push(Warning::OneWayTurns {
+                sense: sense.name().to_string(),
+                selected: selection.selected.len(),
+                added: selection.all.len() - selection.selected.len(),
+            });
+            selection.all.clone()
+        }
+        _ if selection.selected.is_empty() => selection.all.clone(),
+        _ => selection.selected.clone(),
+    };
     if opts.auto_fix && auto_fixed.is_empty() {
         let data: Vec<SegmentData> = segments.iter().map(|s| SegmentData::new(drive, s)).collect();
         let held = hold_unobservable(&data, &opts.theta0, &IdentifyOptions { free, ..opts.identify.clone() });
