@@ -22,7 +22,7 @@ fn records(
     w: &Window,
     th: &Theta,
     th_ref: &Theta,
-    eta: &[f64; 5],
+    eta: &[f64; 6],
     follows: bool,
 ) -> Vec<InnovationRecord> {
     let v = NoiseModel::default().variances(eta, input.sample_time_s);
@@ -48,7 +48,7 @@ fn check_innovation_derivatives(follows: bool) {
     let w = Window { index: 0, part: 0, start: 0, end: 1200.min(input.len() - 1) };
     let th = Theta { c_e: 1.953, c_d: -0.0015, t_r: 1.52, d: 0.0009 };
     let th_ref = Theta { c_e: 1.96, ..th };
-    let eta = [0.3, -0.5, 0.2, -0.2, 0.4];
+    let eta = [0.3, -0.5, 0.2, -0.2, 0.4, 0.25];
     let base = records(&input, &w, &th, &th_ref, &eta, follows);
     let check = |fd: Vec<(usize, nalgebra::Vector3<f64>, nalgebra::Matrix3<f64>)>, p: usize, what: &str| {
         // Scale: the largest derivative of this column over the window.
@@ -62,7 +62,7 @@ fn check_innovation_derivatives(follows: bool) {
         }
     };
     let picks = [1usize, 2, 10, 300, 700, base.len() - 1];
-    for j in 0..5 {
+    for j in 0..NETA {
         // ν is a difference of positions of ~1 km: its rounding (~1e-13 m)
         // over 2h must stay well below the tolerance, so h is not tiny.
         let h = 1e-4;
@@ -104,7 +104,7 @@ fn whitened_innovation_derivatives_match_central_differences() {
     let input = input_of(&out.drive);
     let w = Window { index: 0, part: 0, start: 0, end: 1200.min(input.len() - 1) };
     let th = Theta { c_e: 1.953, c_d: -0.0015, t_r: 1.52, d: 0.0009 };
-    let eta = [0.3, -0.5, 0.2, -0.2, 0.4];
+    let eta = [0.3, -0.5, 0.2, -0.2, 0.4, 0.25];
     let base = records(&input, &w, &th, &th, &eta, true);
     let picks = [1usize, 10, 300, 700, base.len() - 1];
     for p in 0..4 {
@@ -139,12 +139,12 @@ fn check_objective_gradient(follows: bool) {
     let input = input_of(&out.drive);
     let w = Window { index: 0, part: 0, start: 0, end: 1500.min(input.len() - 1) };
     let th = Theta { c_e: 1.953, c_d: -0.0015, t_r: 1.52, d: 0.0009 };
-    let eta = [0.3, -0.5, 0.2, -0.2, 0.4];
-    let sums = |t: &Theta, e: &[f64; 5]| {
+    let eta = [0.3, -0.5, 0.2, -0.2, 0.4, 0.25];
+    let sums = |t: &Theta, e: &[f64; 6]| {
         let v = NoiseModel::default().variances(e, input.sample_time_s);
         run_window(&input, &w, t, &th, &v, filter::Mode::full(follows, true), None).expect("window")
     };
-    let cost_only = |t: &Theta, e: &[f64; 5]| {
+    let cost_only = |t: &Theta, e: &[f64; 6]| {
         let v = NoiseModel::default().variances(e, input.sample_time_s);
         run_window(&input, &w, t, &th, &v, filter::Mode::cost(follows), None).expect("window")
     };
@@ -201,7 +201,7 @@ fn noise_free_recovers_theta_true_and_eta_at_lower_clamp() {
         let rel = (e[i] - t[i]).abs() / t[i].abs();
         assert!(rel <= EXACT_REL_TOL, "{}: {} vs {} (rel {rel:.2e}); {r}", PARAMETERS[i], e[i], t[i]);
     }
-    for j in 0..5 {
+    for j in 0..NETA {
         assert!(r.eta[j] <= opts.eta_bounds[0] + 1e-9, "η{j} = {} not at the lower clamp; {r}", r.eta[j]);
     }
     assert!(!r.warnings.iter().any(|w| matches!(w, EivWarning::NoiseAtUpperClamp { .. })), "{:?}", r.warnings);
@@ -302,7 +302,7 @@ fn updates_only_where_the_reference_was_measured() {
     let mask: Vec<bool> = (0..input.len()).map(|k| k % 4 == 0).collect();
     input.reference_measured = Some(&mask);
     let w = Window { index: 0, part: 0, start: 0, end: input.len() - 1 };
-    let v = NoiseModel::default().variances(&[0.0; 5], input.sample_time_s);
+    let v = NoiseModel::default().variances(&[0.0; 6], input.sample_time_s);
     let th = Theta::SIM_DEFAULT_TRUE;
     let s = run_window(&input, &w, &th, &th, &v, filter::Mode::full(false, false), None).expect("window");
     assert_eq!(s.updates, (1..input.len()).filter(|k| k % 4 == 0).count());
