@@ -35,6 +35,9 @@ fn main() -> Res<()> {
         let noise = match p.as_str() {
             "noslip" => NoiseOptions { wheel_slip_per_m_per_s2: 0.0, ..NoiseOptions::paper() },
             "nobeta" => NoiseOptions { wheel_slip_per_m_per_s2: 0.0, sideslip_sigma_rad: 0.0, ..NoiseOptions::paper() },
+            "quantonly" => NoiseOptions { encoder_ticks_per_revolution: 256, ..NoiseOptions::off() },
+            "quantwhite" => NoiseOptions { encoder_ticks_per_revolution: 256, ..NoiseOptions::white_wheel_only() },
+            "white2" => NoiseOptions { wheel_white_rel_sigma: 0.02, ..NoiseOptions::white_wheel_only() },
             "noquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::paper() },
             "highnoquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::high() },
             _ => NoiseOptions::by_name(p)?,

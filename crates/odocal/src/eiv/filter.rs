@@ -568,6 +568,26 @@ pub(crate) fn run_window(
                 *d_rq = (a + a.transpose()) * v.quant;
             }
         }
+        if i == window.start {
+            // The window starts at the reference pose, but the counted wheel
+            // rotations are off the true ones by the initial remainder: the
+            // filter's pose is the count-propagated one, offset from the true
+            // pose by one more draw of R_q (without it the innovations of a
+            // quantisation-dominated drive were several times their variance).
+            for r_ in 0..3 {
+                for c_ in 0..3 {
+                    p[(r_, c_)] += r_q[(r_, c_)];
+                    if mode.derivs && mode.eta {
+                        dp[4][(r_, c_)] += r_q[(r_, c_)];
+                    }
+                    if follows && mode.derivs {
+                        for (jt, d_rq) in r_q_theta.iter().enumerate() {
+                            dp[jt][(r_, c_)] += d_rq[(r_, c_)];
+                        }
+                    }
+                }
+            }
+        }
         let q_white = fn_l * fn_l.transpose() * wl + fn_r * fn_r.transpose() * wr;
         let q_x = q_white + f_b * f_b.transpose() * v.beta + f_a * f_a.transpose() * v.a_y;
 
