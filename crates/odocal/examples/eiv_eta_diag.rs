@@ -3,11 +3,12 @@
 //!
 //! ```text
 //! cargo run --release -p odocal --example eiv_eta_diag -- [--km 12] [--seeds 4] [--presets paper,high]
+//!     [--variants known,est-pc,...] [--quantisation process|measurement]
 //! ```
 
 use std::error::Error;
 
-use odocal::eiv::{estimate, EivInput, EivOptions, NoiseModel};
+use odocal::eiv::{estimate, EivInput, EivOptions, NoiseModel, QuantisationModel};
 use odocal::identify::{batch_gauss_newton, IdentifyOptions};
 use odocal::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
@@ -20,6 +21,7 @@ fn main() -> Res<()> {
     let mut seeds = 4u64;
     let mut presets = vec!["paper".to_string(), "high".to_string()];
     let mut variants_arg: Option<Vec<String>> = None;
+    let mut quant = QuantisationModel::ProcessNoise;
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
         let v = it.next().ok_or("missing value")?;
@@ -27,6 +29,10 @@ fn main() -> Res<()> {
             "--km" => km = v.parse()?,
             "--seeds" => seeds = v.parse()?,
             "--presets" => presets = v.split(',').map(str::to_string).collect(),
+            "--quantisation" => {
+                quant =
+                    if v == "measurement" { QuantisationModel::Measurement } else { QuantisationModel::ProcessNoise }
+            }
             "--variants" => variants_arg = Some(v.split(',').map(str::to_string).collect()),
             _ => return Err(format!("unknown {k}").into()),
         }
@@ -38,6 +44,17 @@ fn main() -> Res<()> {
             "quantonly" => NoiseOptions { encoder_ticks_per_revolution: 256, ..NoiseOptions::off() },
             "quantwhite" => NoiseOptions { encoder_ticks_per_revolution: 256, ..NoiseOptions::white_wheel_only() },
             "white2" => NoiseOptions { wheel_white_rel_sigma: 0.02, ..NoiseOptions::white_wheel_only() },
+            "coloured" => {
+                let p = NoiseOptions::paper();
+                NoiseOptions {
+                    wheel_coloured_rel_sigma: p.wheel_coloured_rel_sigma,
+                    wheel_coloured_differential_rel_sigma: p.wheel_coloured_differential_rel_sigma,
+                    wheel_coloured_time_constant_s: p.wheel_coloured_time_constant_s,
+                    wheel_white_rel_sigma: p.wheel_white_rel_sigma,
+                    encoder_ticks_per_revolution: p.encoder_ticks_per_revolution,
+                    ..NoiseOptions::off()
+                }
+            }
             "noquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::paper() },
             "highnoquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::high() },
             _ => NoiseOptions::by_name(p)?,
@@ -48,7 +65,12 @@ fn main() -> Res<()> {
             let truth = sim.sidecar.theta_true;
             let sel = calibration_segments(d, &SegmentOptions::default())?;
             let data: Vec<SegmentData> = sel.all.iter().map(|s| SegmentData::new(d, s)).collect();
-            let gn = batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &IdentifyOptions { max_iterations: 20, ..Default::default() })?.theta;
+            let gn = batch_gauss_newton(
+                &data,
+                &Theta::PAPER_INITIAL,
+                &IdentifyOptions { max_iterations: 20, ..Default::default() },
+            )?
+            .theta;
             let input = EivInput::from_drive(d);
             let sim_noise = NoiseModel::from_sim(&noise, d.sample_time_s());
             let pc = NoiseModel::PRODUCTION_CAR;
@@ -70,7 +92,11 @@ fn main() -> Res<()> {
                 ("known", sim_noise, true),
                 ("est-from-sim", sim_noise, false),
                 ("est-pc", pc, false),
-                ("est-pc-q", NoiseModel { quantisation_step_rev_per_s: sim_noise.quantisation_step_rev_per_s, ..pc }, false),
+                (
+                    "est-pc-q",
+                    NoiseModel { quantisation_step_rev_per_s: sim_noise.quantisation_step_rev_per_s, ..pc },
+                    false,
+                ),
                 ("est-pc-truth", pc, false),
                 ("est-from-sim-truth", sim_noise, false),
                 ("est-pc-simtau", pc_tau, false),
@@ -94,7 +120,7 @@ fn main() -> Res<()> {
                 }
                 let at_truth = label.ends_with("-truth");
                 let free = if at_truth { [true, false, false, false] } else { [true; 4] };
-                let opts = EivOptions { noise: nm, fix_noise: fix, free, ..Default::default() };
+                let opts = EivOptions { noise: nm, fix_noise: fix, free, quantisation: quant, ..Default::default() };
                 let start = if at_truth { truth } else { gn };
                 match estimate(&input, &start, &opts) {
                     Ok(r) => {
@@ -111,6 +137,9 @@ fn main() -> Res<()> {
                             r.timing_s
                         );
                         println!("      noise: {}", odocal::calibrate::eiv::noise_summary(&r.noise));
+                        for w in &r.warnings {
+                            println!("      warning: {w}");
+                        }
                     }
                     Err(e) => println!("  {label}: failed {e}"),
                 }

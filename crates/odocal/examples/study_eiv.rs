@@ -6,6 +6,7 @@
 //! cargo run --release -p odocal --example study_eiv -- [--km 12] [--seeds 20]
 //!     [--presets off,white,paper,high,coloured] [--three-step-seeds 0]
 //!     [--bootstrap 0] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
+//!     [--quantisation process|measurement]
 //! ```
 //!
 //! Per preset and seed (1..=S) it simulates a drive and runs, all through
@@ -38,7 +39,7 @@ use std::error::Error;
 use std::time::Instant;
 
 use odocal::calibrate::{EivDetail, EivMethodOptions};
-use odocal::eiv::{bootstrap, cramer_rao_bound, BootstrapOptions, EivInput, EivOptions, NoiseModel};
+use odocal::eiv::{bootstrap, cramer_rao_bound, BootstrapOptions, EivInput, EivOptions, NoiseModel, QuantisationModel};
 use odocal::segment::validation_segments;
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{
@@ -58,6 +59,7 @@ struct Args {
     bootstrap_seeds: u64,
     bootstrap_presets: Vec<String>,
     json: Option<String>,
+    quantisation: QuantisationModel,
 }
 
 fn parse_args() -> Res<Args> {
@@ -70,6 +72,7 @@ fn parse_args() -> Res<Args> {
         bootstrap_seeds: 0,
         bootstrap_presets: vec!["paper".into(), "coloured".into()],
         json: None,
+        quantisation: QuantisationModel::ProcessNoise,
     };
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
@@ -83,6 +86,13 @@ fn parse_args() -> Res<Args> {
             "--bootstrap-seeds" => a.bootstrap_seeds = v()?.parse()?,
             "--bootstrap-presets" => a.bootstrap_presets = v()?.split(',').map(str::to_string).collect(),
             "--json" => a.json = Some(v()?),
+            "--quantisation" => {
+                a.quantisation = match v()?.as_str() {
+                    "process" => QuantisationModel::ProcessNoise,
+                    "measurement" => QuantisationModel::Measurement,
+                    other => return Err(format!("--quantisation process|measurement, got '{other}'").into()),
+                }
+            }
             other => return Err(format!("unknown argument '{other}'").into()),
         }
     }
@@ -165,8 +175,10 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
             Err(e) => eprintln!("{name} {seed}: 3-step failed: {e}"),
         }
     }
-    let known = EivOptions { noise: true_noise, fix_noise: true, ..Default::default() };
-    for (label, opts) in [("EIV known", known.clone()), ("EIV est.", EivOptions::default())] {
+    let q = a.quantisation;
+    let known = EivOptions { noise: true_noise, fix_noise: true, quantisation: q, ..Default::default() };
+    let est = EivOptions { quantisation: q, ..Default::default() };
+    for (label, opts) in [("EIV known", known.clone()), ("EIV est.", est)] {
         let (r, detail, time_s) = match calibrate_eiv(d, opts.clone(), seed) {
             Ok(x) => x,
             Err(e) => {
@@ -177,7 +189,10 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         let gn = detail.identification.theta;
         let t_gn = r.timing_s.initial_identification;
         if label == "EIV known" {
-            runs.insert("G-N".to_string(), Run { theta: gn, sigmas: vec![], e_p_m: ep(&gn)?, time_s: t_gn, warnings: 0 });
+            runs.insert(
+                "G-N".to_string(),
+                Run { theta: gn, sigmas: vec![], e_p_m: ep(&gn)?, time_s: t_gn, warnings: 0 },
+            );
         }
         let Some(fit) = detail.eiv.as_deref() else {
             eprintln!("{name} {seed}: {label}: the filter failed: {:?}", detail.eiv_error);

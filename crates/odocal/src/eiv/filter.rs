@@ -67,6 +67,9 @@ pub(crate) struct Variances {
     pub a_common: f64,
     pub a_wheel: f64,
     pub a_drift: f64,
+    /// Quantisation as measurement noise `R_q` (bounded count error) rather
+    /// than as white rate noise in the process ([`super::QuantisationModel`]).
+    pub quant_in_measurement: bool,
 }
 
 /// Everything one window contributes to the objective and its derivatives.
@@ -550,7 +553,7 @@ pub(crate) fn run_window(
         let f_b = Vector3::new(f02, f12, 0.0);
         let fxs_ref = Matrix3::from_columns(&[-fn_l * nl - fn_r * nr, -fn_l * nl, -fn_r * nr]);
         // White relative noise accumulates into the pose (process noise).
-        // Encoder quantisation does not: counting ticks carries the remainder
+        // Encoder quantisation does not (with `quant_in_measurement`): counting ticks carries the remainder
         // over, so the counted rotation is the true one to within one tick
         // at every sample, and the pose error it causes is bounded — white
         // in the *measurement*, `R_q = q²/12·(f_l f_lᵀ + f_r f_rᵀ)` with the
@@ -558,8 +561,18 @@ pub(crate) fn run_window(
         // As process noise it accumulated like a random walk and, on the
         // heading, made the filter misread quantisation as reference noise
         // (docs/study.md, EIV section).
-        let (wl, wr) = (v.white_rel * nl * nl, v.white_rel * nr * nr);
-        let r_q = (fn_l * fn_l.transpose() + fn_r * fn_r.transpose()) * v.quant;
+        let (wl, wr) = if v.quant_in_measurement {
+            (v.white_rel * nl * nl, v.white_rel * nr * nr)
+        } else {
+            // Quantisation as white rate noise where the wheel turns.
+            let white = |n: f64| if n == 0.0 { 0.0 } else { v.white_rel * n * n + v.quant };
+            (white(nl), white(nr))
+        };
+        let r_q = if v.quant_in_measurement {
+            (fn_l * fn_l.transpose() + fn_r * fn_r.transpose()) * v.quant
+        } else {
+            Matrix3::zeros()
+        };
         let mut r_q_theta = [Matrix3::<f64>::zeros(); 4];
         if follows && mode.derivs {
             for (jt, d_rq) in r_q_theta.iter_mut().enumerate() {
@@ -568,7 +581,7 @@ pub(crate) fn run_window(
                 *d_rq = (a + a.transpose()) * v.quant;
             }
         }
-        if i == window.start {
+        if i == window.start && v.quant_in_measurement {
             // The window starts at the reference pose, but the counted wheel
             // rotations are off the true ones by the initial remainder: the
             // filter's pose is the count-propagated one, offset from the true
