@@ -574,7 +574,7 @@ pub(crate) fn run_window(
             Matrix3::zeros()
         };
         let mut r_q_theta = [Matrix3::<f64>::zeros(); 4];
-        if follows && mode.derivs {
+        if v.quant_in_measurement && follows && mode.derivs {
             for (jt, d_rq) in r_q_theta.iter_mut().enumerate() {
                 let (dfl, dfr) = (dvec_of(&rt.fn_l, jt), dvec_of(&rt.fn_r, jt));
                 let a = fn_l * dfl.transpose() + fn_r * dfr.transpose();
