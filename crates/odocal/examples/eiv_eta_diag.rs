@@ -3,12 +3,14 @@
 //!
 //! ```text
 //! cargo run --release -p odocal --example eiv_eta_diag -- [--km 12] [--seeds 4] [--presets paper,high]
-//!     [--variants known,est-pc,...] [--quantisation process|measurement]
+//!     [--variants known,est-pc,...] [--quantisation process|measurement] [--heading separate|tied]
+//!
+//! (`--heading` defaults to `separate` here, unlike the library.)
 //! ```
 
 use std::error::Error;
 
-use odocal::eiv::{estimate, EivInput, EivOptions, NoiseModel, QuantisationModel};
+use odocal::eiv::{estimate, EivInput, EivOptions, HeadingScale, NoiseModel, QuantisationModel};
 use odocal::identify::{batch_gauss_newton, IdentifyOptions};
 use odocal::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
@@ -22,6 +24,7 @@ fn main() -> Res<()> {
     let mut presets = vec!["paper".to_string(), "high".to_string()];
     let mut variants_arg: Option<Vec<String>> = None;
     let mut quant = QuantisationModel::ProcessNoise;
+    let mut heading = HeadingScale::Separate;
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
         let v = it.next().ok_or("missing value")?;
@@ -29,6 +32,7 @@ fn main() -> Res<()> {
             "--km" => km = v.parse()?,
             "--seeds" => seeds = v.parse()?,
             "--presets" => presets = v.split(',').map(str::to_string).collect(),
+            "--heading" => heading = if v == "tied" { HeadingScale::TiedToPosition } else { HeadingScale::Separate },
             "--quantisation" => {
                 quant =
                     if v == "measurement" { QuantisationModel::Measurement } else { QuantisationModel::ProcessNoise }
@@ -120,7 +124,14 @@ fn main() -> Res<()> {
                 }
                 let at_truth = label.ends_with("-truth");
                 let free = if at_truth { [true, false, false, false] } else { [true; 4] };
-                let opts = EivOptions { noise: nm, fix_noise: fix, free, quantisation: quant, ..Default::default() };
+                let opts = EivOptions {
+                    noise: nm,
+                    fix_noise: fix,
+                    free,
+                    quantisation: quant,
+                    heading_scale: heading,
+                    ..Default::default()
+                };
                 let start = if at_truth { truth } else { gn };
                 match estimate(&input, &start, &opts) {
                     Ok(r) => {

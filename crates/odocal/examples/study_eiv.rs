@@ -6,7 +6,7 @@
 //! cargo run --release -p odocal --example study_eiv -- [--km 12] [--seeds 20]
 //!     [--presets off,white,paper,high,coloured] [--three-step-seeds 0]
 //!     [--bootstrap 0] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
-//!     [--quantisation process|measurement]
+//!     [--quantisation process|measurement] [--heading tied|separate]
 //! ```
 //!
 //! Per preset and seed (1..=S) it simulates a drive and runs, all through
@@ -60,6 +60,7 @@ struct Args {
     bootstrap_presets: Vec<String>,
     json: Option<String>,
     quantisation: QuantisationModel,
+    heading: HeadingScale,
 }
 
 fn parse_args() -> Res<Args> {
@@ -73,6 +74,7 @@ fn parse_args() -> Res<Args> {
         bootstrap_presets: vec!["paper".into(), "coloured".into()],
         json: None,
         quantisation: QuantisationModel::ProcessNoise,
+        heading: HeadingScale::TiedToPosition,
     };
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
@@ -86,6 +88,13 @@ fn parse_args() -> Res<Args> {
             "--bootstrap-seeds" => a.bootstrap_seeds = v()?.parse()?,
             "--bootstrap-presets" => a.bootstrap_presets = v()?.split(',').map(str::to_string).collect(),
             "--json" => a.json = Some(v()?),
+            "--heading" => {
+                a.heading = match v()?.as_str() {
+                    "tied" => HeadingScale::TiedToPosition,
+                    "separate" => HeadingScale::Separate,
+                    other => return Err(format!("--heading tied|separate, got '{other}'").into()),
+                }
+            }
             "--quantisation" => {
                 a.quantisation = match v()?.as_str() {
                     "process" => QuantisationModel::ProcessNoise,
@@ -176,8 +185,10 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         }
     }
     let q = a.quantisation;
-    let known = EivOptions { noise: true_noise, fix_noise: true, quantisation: q, ..Default::default() };
-    let est = EivOptions { quantisation: q, ..Default::default() };
+    let h = a.heading;
+    let known =
+        EivOptions { noise: true_noise, fix_noise: true, quantisation: q, heading_scale: h, ..Default::default() };
+    let est = EivOptions { quantisation: q, heading_scale: h, ..Default::default() };
     for (label, opts) in [("EIV known", known.clone()), ("EIV est.", est)] {
         let (r, detail, time_s) = match calibrate_eiv(d, opts.clone(), seed) {
             Ok(x) => x,

@@ -70,6 +70,9 @@ pub(crate) struct Variances {
     /// Quantisation as measurement noise `R_q` (bounded count error) rather
     /// than as white rate noise in the process ([`super::QuantisationModel`]).
     pub quant_in_measurement: bool,
+    /// The heading white noise has its own scale η_5 (otherwise η_3 scales
+    /// it with the position white noise; [`super::EivOptions::heading_scale`]).
+    pub heading_separate: bool,
 }
 
 /// Everything one window contributes to the objective and its derivatives.
@@ -327,7 +330,7 @@ fn initial_covariance(v: &Variances, r_floor: &[f64; 3]) -> (M9, [M9; NP]) {
         let (w, dr) = (v.pose[a], v.drift[a]);
         p[(a, a)] = w + r_floor[a] + dr;
         // η_3 scales the position white noise, η_5 the heading white noise.
-        dp[if a < 2 { 7 } else { 9 }][(a, a)] = w;
+        dp[if a < 2 || !v.heading_separate { 7 } else { 9 }][(a, a)] = w;
         for m in [&mut p, &mut dp[8]] {
             m[(a + 6, a + 6)] = dr;
             m[(a, a + 6)] = -dr;
@@ -513,8 +516,9 @@ pub(crate) fn run_window(
     let r_white = Vector3::new(v.pose[0], v.pose[1], v.pose[2]);
     let r = Matrix3::from_diagonal(&(r_white + Vector3::from(r_floor)));
     // ∂R/∂η_3 (position white) and ∂R/∂η_5 (heading white).
-    let dr_position = Matrix3::from_diagonal(&Vector3::new(v.pose[0], v.pose[1], 0.0));
-    let dr_heading = Matrix3::from_diagonal(&Vector3::new(0.0, 0.0, v.pose[2]));
+    let (h_pos, h_head) = if v.heading_separate { (0.0, v.pose[2]) } else { (v.pose[2], 0.0) };
+    let dr_position = Matrix3::from_diagonal(&Vector3::new(v.pose[0], v.pose[1], h_pos));
+    let dr_heading = Matrix3::from_diagonal(&Vector3::new(0.0, 0.0, h_head));
     let dr_of = |jj: usize| match jj {
         7 => Some(&dr_position),
         _ => None,

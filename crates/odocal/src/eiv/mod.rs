@@ -500,6 +500,7 @@ impl NoiseModel {
             pose: [
                 sq(self.position_white_sigma_m) * e[3],
                 sq(self.position_white_sigma_m) * e[3],
+                // η_5 when the heading has its own scale (see `Problem::evaluate`).
                 sq(self.heading_white_sigma_rad) * e[5],
             ],
             drift: [
@@ -513,6 +514,7 @@ impl NoiseModel {
             a_wheel: gm(self.wheel_differential_time_constant_s),
             a_drift: gm(self.drift_time_constant_s),
             quant_in_measurement: false,
+            heading_separate: true,
         }
     }
 }
@@ -617,6 +619,28 @@ pub struct EivOptions {
     /// [`QuantisationModel::ProcessNoise`] (see its docs for the measured
     /// trade-off).
     pub quantisation: QuantisationModel,
+    /// Whether the reference's heading white noise has its own scale η_5.
+    /// Default [`HeadingScale::TiedToPosition`] (see its docs).
+    pub heading_scale: HeadingScale,
+}
+
+/// Whether the heading white noise of the reference is scaled on its own.
+///
+/// Measured (docs/study.md, EIV section): tied to the position scale, the
+/// estimated heading noise keeps the starting model's ratio (production
+/// car 0.02 m : 0.5 mrad against the simulator's 0.02 m : 0.3 mrad), and the
+/// estimated-noise t_r on paper noise was +2.7 / +5.3 / +4.2 % (seeds 1–3);
+/// with its own scale +0.85 / +1.30 / +0.90 %. It is not the default yet
+/// because with it the noise-free straight drive of the unit tests no
+/// longer converges (c_e off by 0.06 %), and a 2 %-white-noise drive runs
+/// away from the production-car start (t_r +250 %, flagged).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum HeadingScale {
+    /// η_3 scales position and heading white noise together (η_5 unused, reported equal to η_3).
+    TiedToPosition,
+    /// η_5 scales the heading white noise alone.
+    Separate,
 }
 
 /// How the filter models encoder quantisation (q of [`NoiseModel`]).
@@ -666,6 +690,7 @@ impl Default for EivOptions {
             max_half_z: 4.0,
             covariance: CovarianceMode::FollowsTheta,
             quantisation: QuantisationModel::ProcessNoise,
+            heading_scale: HeadingScale::TiedToPosition,
         }
     }
 }
@@ -1034,6 +1059,7 @@ struct Problem<'a> {
     windows: Vec<Window>,
     noise: NoiseModel,
     quantisation: QuantisationModel,
+    heading_separate: bool,
     /// Filter passes over the drive: with derivatives, objective only.
     evaluations: std::cell::Cell<[usize; 2]>,
 }
@@ -1043,8 +1069,14 @@ impl Problem<'_> {
         let mut count = self.evaluations.get();
         count[usize::from(!mode.derivs)] += 1;
         self.evaluations.set(count);
-        let mut v = self.noise.variances(eta, self.input.sample_time_s);
+        let mut e = *eta;
+        if !self.heading_separate {
+            // Tied: η_3 scales the heading white noise too; η_5 has no effect.
+            e[5] = e[3];
+        }
+        let mut v = self.noise.variances(&e, self.input.sample_time_s);
         v.quant_in_measurement = self.quantisation == QuantisationModel::Measurement;
+        v.heading_separate = self.heading_separate;
         let parts: Vec<Result<WindowSums>> =
             self.windows.par_iter().map(|w| run_window(self.input, w, theta, theta_ref, &v, mode, None)).collect();
         let mut total = WindowSums::zero();
@@ -1507,6 +1539,7 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         windows,
         noise: opts.noise,
         quantisation: opts.quantisation,
+        heading_separate: opts.heading_scale == HeadingScale::Separate,
         evaluations: std::cell::Cell::new([0; 2]),
     };
     let mut theta = *theta_start;
@@ -1596,6 +1629,13 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
                 });
             }
         }
+    }
+    let mut eta = eta;
+    let mut eta_sigma = eta_sigma;
+    if opts.heading_scale == HeadingScale::TiedToPosition {
+        // The heading white noise was scaled by η_3: report it so.
+        eta[5] = eta[3];
+        eta_sigma[5] = 0.0;
     }
     let iterations = passes.iter().map(|p| p.history.len()).sum();
     Ok(EivReport {
@@ -1699,6 +1739,7 @@ pub fn cramer_rao_bound(
         windows,
         noise: *noise,
         quantisation: opts.quantisation,
+        heading_separate: opts.heading_scale == HeadingScale::Separate,
         evaluations: std::cell::Cell::new([0; 2]),
     };
     let ev = prob.evaluate(theta, theta, &[0.0; 6], Mode::full(true, false))?;
