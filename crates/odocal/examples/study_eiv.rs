@@ -39,7 +39,9 @@ use std::error::Error;
 use std::time::Instant;
 
 use odocal::calibrate::{EivDetail, EivMethodOptions};
-use odocal::eiv::{bootstrap, cramer_rao_bound, BootstrapOptions, EivInput, EivOptions, NoiseModel, QuantisationModel};
+use odocal::eiv::{
+    bootstrap, cramer_rao_bound, BootstrapOptions, EivInput, EivOptions, HeadingScale, NoiseModel, QuantisationModel,
+};
 use odocal::segment::validation_segments;
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{

@@ -1561,7 +1561,7 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         passes.push(out.report);
         last = Some((out.eval, out.eta_sigma));
     }
-    let Some((ev, eta_sigma)) = last else {
+    let Some((ev, mut eta_sigma)) = last else {
         return Err(Error::Numerical("no EIV pass ran".into()));
     };
     let termination = passes
@@ -1630,8 +1630,6 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
             }
         }
     }
-    let mut eta = eta;
-    let mut eta_sigma = eta_sigma;
     if opts.heading_scale == HeadingScale::TiedToPosition {
         // The heading white noise was scaled by η_3: report it so.
         eta[5] = eta[3];
