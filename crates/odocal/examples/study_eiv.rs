@@ -4,16 +4,22 @@
 //!
 //! ```text
 //! cargo run --release -p odocal --example study_eiv -- [--km 12] [--seeds 20]
-//!     [--presets off,white,paper,high,coloured] [--three-step-seeds 5]
+//!     [--presets off,white,paper,high,coloured] [--three-step-seeds 0]
 //!     [--bootstrap 0] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
+//!     [--quantisation process|measurement] [--heading tied|separate]
 //! ```
 //!
-//! Per preset and seed (1..=S) it simulates a drive and runs:
-//! - `G-N`: batch Gauss-Newton from θ_0 on every cut segment (no yaw-rate selection);
-//! - `3-step`: the paper's method through `calibrate` (first `--three-step-seeds` seeds only);
-//! - `EIV known`: `eiv::estimate` from G-N with the simulator's noise model, fixed;
-//! - `EIV est.`: `eiv::estimate` from G-N, η estimated from the production-car model
-//!   (the library default);
+//! Per preset and seed (1..=S) it simulates a drive and runs, all through
+//! `odocal::calibrate` as a user would:
+//! - `G-N`: batch Gauss-Newton from θ_0 on every cut segment (no yaw-rate
+//!   selection) — the EIV method's own start (`EivDetail::identification`);
+//! - `3-step`: the paper's method (first `--three-step-seeds` seeds only);
+//! - `EIV known`: `Method::Eiv` with the simulator's noise model, fixed
+//!   (`--fix-noise`), fallback off;
+//! - `EIV est.`: `Method::Eiv` with the default options (η estimated from
+//!   the production-car model), fallback off: the estimator itself;
+//! - `EIV est. + fallback`: the same run as a user gets it with the default
+//!   fallback on (θ = G-N when a consistency check failed; no extra fit);
 //! - `EIV known + boot`: the known-noise estimate minus its parametric
 //!   bootstrap bias (`--bootstrap B` replicates, first `--bootstrap-seeds` seeds
 //!   of `--bootstrap-presets`).
@@ -21,8 +27,8 @@
 //! The Cramér–Rao bound (`eiv::cramer_rao_bound`, full Gaussian Fisher
 //! information, and its mean-only part) at θ_true with the true noise model.
 //! Per method and parameter: mean error, sd, RMS/CRB, bias t = |mean|/(sd/√n),
-//! coverage of ±1.96 σ for each reported σ (EIV: σ = H⁻¹ of the scoring
-//! metric, sandwich, Fisher); Ē_p on the drive's validation segments
+//! coverage of ±1.96 σ for each reported σ (EIV: σ = the report's covariance
+//! `H⁻¹`, sandwich, Fisher); Ē_p on the drive's validation segments
 //! against Ē_p(θ_true); wall time.
 //!
 //! `coloured` is the paper preset's wheel noise (white, encoder, common and
@@ -32,11 +38,16 @@ use std::collections::BTreeMap;
 use std::error::Error;
 use std::time::Instant;
 
-use odocal::eiv::{bootstrap, cramer_rao_bound, estimate, BootstrapOptions, EivInput, EivOptions, NoiseModel};
-use odocal::identify::{batch_gauss_newton, IdentifyOptions};
-use odocal::segment::{calibration_segments, validation_segments, SegmentData, SegmentOptions};
+use odocal::calibrate::{EivDetail, EivMethodOptions};
+use odocal::eiv::{
+    bootstrap, cramer_rao_bound, BootstrapOptions, EivInput, EivOptions, HeadingScale, NoiseModel, QuantisationModel,
+};
+use odocal::segment::validation_segments;
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
-use odocal::{calibrate, mean_position_error, CalibrationOptions, Drive, Method, Theta, ValidationSegmentOptions};
+use odocal::{
+    calibrate, mean_position_error, CalibrationOptions, CalibrationReport, Drive, Method, MethodDetail, Theta,
+    ValidationSegmentOptions, Warning,
+};
 use serde::Serialize;
 
 type Res<T> = Result<T, Box<dyn Error>>;
@@ -50,6 +61,8 @@ struct Args {
     bootstrap_seeds: u64,
     bootstrap_presets: Vec<String>,
     json: Option<String>,
+    quantisation: QuantisationModel,
+    heading: HeadingScale,
 }
 
 fn parse_args() -> Res<Args> {
@@ -57,11 +70,13 @@ fn parse_args() -> Res<Args> {
         km: 12.0,
         seeds: 20,
         presets: ["off", "white", "paper", "high", "coloured"].iter().map(|s| s.to_string()).collect(),
-        three_step_seeds: 5,
+        three_step_seeds: 0,
         bootstrap: 0,
         bootstrap_seeds: 0,
         bootstrap_presets: vec!["paper".into(), "coloured".into()],
         json: None,
+        quantisation: QuantisationModel::ProcessNoise,
+        heading: HeadingScale::TiedToPosition,
     };
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
@@ -75,6 +90,20 @@ fn parse_args() -> Res<Args> {
             "--bootstrap-seeds" => a.bootstrap_seeds = v()?.parse()?,
             "--bootstrap-presets" => a.bootstrap_presets = v()?.split(',').map(str::to_string).collect(),
             "--json" => a.json = Some(v()?),
+            "--heading" => {
+                a.heading = match v()?.as_str() {
+                    "tied" => HeadingScale::TiedToPosition,
+                    "separate" => HeadingScale::Separate,
+                    other => return Err(format!("--heading tied|separate, got '{other}'").into()),
+                }
+            }
+            "--quantisation" => {
+                a.quantisation = match v()?.as_str() {
+                    "process" => QuantisationModel::ProcessNoise,
+                    "measurement" => QuantisationModel::Measurement,
+                    other => return Err(format!("--quantisation process|measurement, got '{other}'").into()),
+                }
+            }
             other => return Err(format!("unknown argument '{other}'").into()),
         }
     }
@@ -96,11 +125,17 @@ fn preset(name: &str) -> Res<NoiseOptions> {
     Ok(NoiseOptions::by_name(name)?)
 }
 
-fn batch_gn(d: &Drive) -> Res<Theta> {
-    let sel = calibration_segments(d, &SegmentOptions::default())?;
-    let data: Vec<SegmentData> = sel.all.iter().map(|s| SegmentData::new(d, s)).collect();
-    let opts = IdentifyOptions { max_iterations: 20, ..Default::default() };
-    Ok(batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &opts)?.theta)
+/// `calibrate` with the EIV method (fallback off) and the given filter options.
+fn calibrate_eiv(d: &Drive, filter: EivOptions, seed: u64) -> Res<(CalibrationReport, EivDetail, f64)> {
+    let t = Instant::now();
+    let method = Method::Eiv(EivMethodOptions { filter, fallback: false, bootstrap: None });
+    let r = calibrate(d, &CalibrationOptions { method, seed, ..Default::default() }, None)?;
+    let time_s = t.elapsed().as_secs_f64();
+    let MethodDetail::Eiv(detail) = &r.detail else {
+        return Err("calibrate with Method::Eiv returned another method's detail".into());
+    };
+    let detail = detail.clone();
+    Ok((r, detail, time_s))
 }
 
 /// One method's result on one drive.
@@ -139,10 +174,6 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         Err(_) => ([f64::NAN; 4], [f64::NAN; 4]),
     };
     let mut runs = BTreeMap::new();
-    let t = Instant::now();
-    let gn = batch_gn(d)?;
-    let t_gn = t.elapsed().as_secs_f64();
-    runs.insert("G-N".to_string(), Run { theta: gn, sigmas: vec![], e_p_m: ep(&gn)?, time_s: t_gn, warnings: 0 });
     if seed <= a.three_step_seeds {
         let t = Instant::now();
         let opts = CalibrationOptions { method: Method::from_name("three-step")?, seed, ..Default::default() };
@@ -155,22 +186,46 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
             Err(e) => eprintln!("{name} {seed}: 3-step failed: {e}"),
         }
     }
-    let known = EivOptions { noise: true_noise, fix_noise: true, ..Default::default() };
-    for (label, opts) in [("EIV known", known.clone()), ("EIV est.", EivOptions::default())] {
-        let r = match estimate(&input, &gn, &opts) {
-            Ok(r) => r,
+    let q = a.quantisation;
+    let h = a.heading;
+    let known =
+        EivOptions { noise: true_noise, fix_noise: true, quantisation: q, heading_scale: h, ..Default::default() };
+    let est = EivOptions { quantisation: q, heading_scale: h, ..Default::default() };
+    for (label, opts) in [("EIV known", known.clone()), ("EIV est.", est)] {
+        let (r, detail, time_s) = match calibrate_eiv(d, opts.clone(), seed) {
+            Ok(x) => x,
             Err(e) => {
                 eprintln!("{name} {seed}: {label} failed: {e}");
                 continue;
             }
         };
+        let gn = detail.identification.theta;
+        let t_gn = r.timing_s.initial_identification;
+        if label == "EIV known" {
+            runs.insert(
+                "G-N".to_string(),
+                Run { theta: gn, sigmas: vec![], e_p_m: ep(&gn)?, time_s: t_gn, warnings: 0 },
+            );
+        }
+        let Some(fit) = detail.eiv.as_deref() else {
+            eprintln!("{name} {seed}: {label}: the filter failed: {:?}", detail.eiv_error);
+            continue;
+        };
+        let sigma_h: [f64; 4] = std::array::from_fn(|i| r.covariance[i][i].max(0.0).sqrt());
         let sigmas = vec![
-            ("H".to_string(), r.sigma),
-            ("sandwich".to_string(), r.sigma_sandwich),
-            ("Fisher".to_string(), r.sigma_fisher),
+            ("H".to_string(), sigma_h),
+            ("sandwich".to_string(), fit.sigma_sandwich),
+            ("Fisher".to_string(), fit.sigma_fisher),
         ];
-        let run = Run { theta: r.theta, sigmas, e_p_m: ep(&r.theta)?, time_s: r.timing_s, warnings: r.warnings.len() };
+        let failed = r.warnings.iter().filter(|w| matches!(w, Warning::EivCheckFailed { .. })).count();
+        let run = Run { theta: r.theta, sigmas: sigmas.clone(), e_p_m: ep(&r.theta)?, time_s, warnings: failed };
         runs.insert(label.to_string(), run);
+        if label == "EIV est." {
+            // What a user gets with the default fallback on: G-N when a check failed.
+            let (th, sig) = if failed > 0 { (gn, vec![]) } else { (r.theta, sigmas) };
+            let run = Run { theta: th, sigmas: sig, e_p_m: ep(&th)?, time_s, warnings: failed };
+            runs.insert("EIV est. + fallback".to_string(), run);
+        }
         if label == "EIV known"
             && a.bootstrap >= 2
             && seed <= a.bootstrap_seeds
@@ -178,7 +233,8 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         {
             let t = Instant::now();
             let boot = BootstrapOptions { replicates: a.bootstrap, seed, ..Default::default() };
-            match bootstrap(&input, &r, &opts, &boot) {
+            let filter = EivOptions { free: fit.free, ..opts.clone() };
+            match bootstrap(&input, fit, &filter, &boot) {
                 Ok(b) => {
                     let th = b.theta_corrected;
                     let half: [f64; 4] = std::array::from_fn(|i| (b.interval[i][1] - b.interval[i][0]) / (2.0 * 1.96));
@@ -186,7 +242,7 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
                         theta: th,
                         sigmas: vec![("boot".into(), half)],
                         e_p_m: ep(&th)?,
-                        time_s: r.timing_s + t.elapsed().as_secs_f64(),
+                        time_s: time_s + t.elapsed().as_secs_f64(),
                         warnings: b.failed.len(),
                     };
                     runs.insert("EIV known + boot".into(), run);
@@ -269,7 +325,7 @@ fn summarise(preset: &str, results: &[DriveResult]) {
             );
         }
     }
-    println!("\n| method | Ē_p − Ē_p(θ_true) mean, m | max, m | mean wall s | warnings (runs with any) |");
+    println!("\n| method | Ē_p − Ē_p(θ_true) mean, m | max, m | mean wall s | runs with a failed EIV check |");
     println!("|---|---|---|---|---|");
     for m in &methods {
         let rs: Vec<(&DriveResult, &Run)> = results.iter().filter_map(|r| r.runs.get(m).map(|x| (r, x))).collect();

@@ -6,13 +6,13 @@
 //! heading, the measured wheel rotations and the reference θ of the pass),
 //! so it depends on the noise scales η but not on θ; the mean recursion runs
 //! the nonlinear model at the current θ. The parameter vector of the
-//! sensitivities is `p = [c_e, c_d, t_r, d, η_0 … η_4]`:
+//! sensitivities is `p = [c_e, c_d, t_r, d, η_0 … η_5]`:
 //!
 //! ```text
 //! mean:        D⁻_{k+1} = F_k D⁺_k + [∂f/∂θ | 0]        (F_k at the current mean)
 //!              D⁺_k     = (I − K_k H) D⁻_k + [0 | ∂K_k/∂η · ν_k]
 //! covariance:  ∂P⁻_{k+1}/∂η_j = F̄_k ∂P⁺_k F̄_kᵀ + ∂Q_k/∂η_j   (F̄_k: reference)
-//!              ∂S_k = H ∂P⁻_k Hᵀ + ∂R,  ∂K_k = (∂P⁻_k Hᵀ − K_k ∂S_k) S_k⁻¹
+//!              ∂S_k = H ∂P⁻_k Hᵀ + ∂R_k,  ∂K_k = (∂P⁻_k Hᵀ − K_k ∂S_k) S_k⁻¹
 //!              ∂P⁺_k = ∂P⁻_k − K_k H ∂P⁻_k − (K_k H ∂P⁻_k)ᵀ + K_k ∂S_k K_kᵀ
 //! innovation:  ∂ν_k/∂p = −H D⁻_k,   ∂S_k/∂θ = 0.
 //! ```
@@ -25,15 +25,17 @@ use crate::model::{step_jacobians, wrap_angle, Input, State, Theta};
 
 /// Number of filter states.
 pub(crate) const NZ: usize = 9;
-/// Number of sensitivity parameters: 4 θ + 5 η.
-pub(crate) const NP: usize = 9;
+/// Number of sensitivity parameters: 4 θ + 6 η.
+pub(crate) const NP: usize = 10;
 /// Number of noise scale factors η.
-pub(crate) const NETA: usize = 5;
+pub(crate) const NETA: usize = 6;
 
 pub(crate) type M9 = SMatrix<f64, NZ, NZ>;
 type D9 = SMatrix<f64, NZ, NP>;
 pub(crate) type V9 = SVector<f64, NP>;
 pub(crate) type M5 = SMatrix<f64, NETA, NETA>;
+/// `[θ, η]` × `[θ, η]` (information matrices).
+pub(crate) type MP = SMatrix<f64, NP, NP>;
 type M3x9 = SMatrix<f64, 3, NZ>;
 type M9x3 = SMatrix<f64, NZ, 3>;
 
@@ -47,13 +49,13 @@ const HEADING_FLOOR_RAD: f64 = 1e-5;
 pub(crate) struct Variances {
     /// Relative white wheel variance σ_white² · e^{η0}.
     pub white_rel: f64,
-    /// Quantisation variance q²/12 · e^{η0}, (rev/s)².
+    /// Quantisation variance q²/12 · e^{η0}, (rev/s)² (measurement noise, see [`run_window`]).
     pub quant: f64,
     /// Stationary variance of s_c, σ_c² · e^{η1}.
     pub common: f64,
     /// Stationary variance of s_l and s_r, σ_w² · e^{η2}.
     pub wheel: f64,
-    /// Pose white variances `[σ_p², σ_p², σ_ψ²] · e^{η3}` (floors not included).
+    /// Pose white variances `[σ_p²·e^{η3}, σ_p²·e^{η3}, σ_ψ²·e^{η5}]` (floors not included).
     pub pose: [f64; 3],
     /// Drift stationary variances `[σ_d², σ_d², σ_dψ²] · e^{η4}`.
     pub drift: [f64; 3],
@@ -65,6 +67,12 @@ pub(crate) struct Variances {
     pub a_common: f64,
     pub a_wheel: f64,
     pub a_drift: f64,
+    /// Quantisation as measurement noise `R_q` (bounded count error) rather
+    /// than as white rate noise in the process ([`super::QuantisationModel`]).
+    pub quant_in_measurement: bool,
+    /// The heading white noise has its own scale η_5 (otherwise η_3 scales
+    /// it with the position white noise; [`super::EivOptions::heading_scale`]).
+    pub heading_separate: bool,
 }
 
 /// Everything one window contributes to the objective and its derivatives.
@@ -93,7 +101,7 @@ pub(crate) struct WindowSums {
     /// `Σ (∂ν/∂p_i)ᵀS⁻¹(∂ν/∂p_j) + ½ tr(S⁻¹∂S_i S⁻¹∂S_j)` (the trace term
     /// only over the columns whose `∂S` is propagated: θ when the covariance
     /// follows θ, η when η derivatives are on).
-    pub info: M9,
+    pub info: MP,
     /// Mean-only information of θ, `Σ (∂ν/∂θ)ᵀS⁻¹(∂ν/∂θ)` (no `∂S/∂θ` term).
     pub info_mean_theta: nalgebra::Matrix4<f64>,
     /// Measurement updates.
@@ -118,7 +126,7 @@ impl WindowSums {
             opg: nalgebra::Matrix4::zeros(),
             h_theta: nalgebra::Matrix4::zeros(),
             i_eta: M5::zeros(),
-            info: M9::zeros(),
+            info: MP::zeros(),
             info_mean_theta: nalgebra::Matrix4::zeros(),
             updates: 0,
             lag1: [0.0; 3],
@@ -321,7 +329,8 @@ fn initial_covariance(v: &Variances, r_floor: &[f64; 3]) -> (M9, [M9; NP]) {
     for a in 0..3 {
         let (w, dr) = (v.pose[a], v.drift[a]);
         p[(a, a)] = w + r_floor[a] + dr;
-        dp[7][(a, a)] = w;
+        // η_3 scales the position white noise, η_5 the heading white noise.
+        dp[if a < 2 || !v.heading_separate { 7 } else { 9 }][(a, a)] = w;
         for m in [&mut p, &mut dp[8]] {
             m[(a + 6, a + 6)] = dr;
             m[(a, a + 6)] = -dr;
@@ -506,7 +515,14 @@ pub(crate) fn run_window(
     ];
     let r_white = Vector3::new(v.pose[0], v.pose[1], v.pose[2]);
     let r = Matrix3::from_diagonal(&(r_white + Vector3::from(r_floor)));
-    let dr3 = Matrix3::from_diagonal(&r_white);
+    // ∂R/∂η_3 (position white) and ∂R/∂η_5 (heading white).
+    let (h_pos, h_head) = if v.heading_separate { (0.0, v.pose[2]) } else { (v.pose[2], 0.0) };
+    let dr_position = Matrix3::from_diagonal(&Vector3::new(v.pose[0], v.pose[1], h_pos));
+    let dr_heading = Matrix3::from_diagonal(&Vector3::new(0.0, 0.0, h_head));
+    let dr_of = |jj: usize| match jj {
+        7 => Some(&dr_position),
+        _ => None,
+    };
 
     let (mut p, mut dp) = initial_covariance(v, &r_floor);
     let a0 = window.start;
@@ -540,14 +556,55 @@ pub(crate) fn run_window(
         let f_a = vec_of(&rt.f_a);
         let f_b = Vector3::new(f02, f12, 0.0);
         let fxs_ref = Matrix3::from_columns(&[-fn_l * nl - fn_r * nr, -fn_l * nl, -fn_r * nr]);
-        let white = |n: f64| {
-            if n == 0.0 {
-                0.0
-            } else {
-                v.white_rel * n * n + v.quant
-            }
+        // White relative noise accumulates into the pose (process noise).
+        // Encoder quantisation does not (with `quant_in_measurement`): counting ticks carries the remainder
+        // over, so the counted rotation is the true one to within one tick
+        // at every sample, and the pose error it causes is bounded — white
+        // in the *measurement*, `R_q = q²/12·(f_l f_lᵀ + f_r f_rᵀ)` with the
+        // step's `∂f/∂n` (a tick of the wheel moves the pose by `∂f/∂n·q`).
+        // As process noise it accumulated like a random walk and, on the
+        // heading, made the filter misread quantisation as reference noise
+        // (docs/study.md, EIV section).
+        let (wl, wr) = if v.quant_in_measurement {
+            (v.white_rel * nl * nl, v.white_rel * nr * nr)
+        } else {
+            // Quantisation as white rate noise where the wheel turns.
+            let white = |n: f64| if n == 0.0 { 0.0 } else { v.white_rel * n * n + v.quant };
+            (white(nl), white(nr))
         };
-        let (wl, wr) = (white(nl), white(nr));
+        let r_q = if v.quant_in_measurement {
+            (fn_l * fn_l.transpose() + fn_r * fn_r.transpose()) * v.quant
+        } else {
+            Matrix3::zeros()
+        };
+        let mut r_q_theta = [Matrix3::<f64>::zeros(); 4];
+        if v.quant_in_measurement && follows && mode.derivs {
+            for (jt, d_rq) in r_q_theta.iter_mut().enumerate() {
+                let (dfl, dfr) = (dvec_of(&rt.fn_l, jt), dvec_of(&rt.fn_r, jt));
+                let a = fn_l * dfl.transpose() + fn_r * dfr.transpose();
+                *d_rq = (a + a.transpose()) * v.quant;
+            }
+        }
+        if i == window.start && v.quant_in_measurement {
+            // The window starts at the reference pose, but the counted wheel
+            // rotations are off the true ones by the initial remainder: the
+            // filter's pose is the count-propagated one, offset from the true
+            // pose by one more draw of R_q (without it the innovations of a
+            // quantisation-dominated drive were several times their variance).
+            for r_ in 0..3 {
+                for c_ in 0..3 {
+                    p[(r_, c_)] += r_q[(r_, c_)];
+                    if mode.derivs && mode.eta {
+                        dp[4][(r_, c_)] += r_q[(r_, c_)];
+                    }
+                    if follows && mode.derivs {
+                        for (jt, d_rq) in r_q_theta.iter().enumerate() {
+                            dp[jt][(r_, c_)] += d_rq[(r_, c_)];
+                        }
+                    }
+                }
+            }
+        }
         let q_white = fn_l * fn_l.transpose() * wl + fn_r * fn_r.transpose() * wr;
         let q_x = q_white + f_b * f_b.transpose() * v.beta + f_a * f_a.transpose() * v.a_y;
 
@@ -684,12 +741,13 @@ pub(crate) fn run_window(
                     dpj[(4, 4)] += q_s[1];
                     dpj[(5, 5)] += q_s[2];
                 }
-                7 => {}
-                _ => {
+                8 => {
                     for r in 0..3 {
                         dpj[(r + 6, r + 6)] += q_b[r];
                     }
                 }
+                // η_3, η_5: the reference noise enters through R only.
+                _ => {}
             }
         }
 
@@ -733,7 +791,18 @@ pub(crate) fn run_window(
         let yhat = x + b;
         let nu = Vector3::new(y[0] - yhat[0], y[1] - yhat[1], wrap_angle(y[2] - yhat[2]));
         let hp: M3x9 = h_rows(&p);
-        let s_mat = h_cols(&hp) + r;
+        let r_k = r + r_q;
+        // ∂R_k/∂p_j: quantisation (η_0; θ through ∂f/∂n when following),
+        // position white (η_3), heading white (η_5).
+        let d_r = |jj: usize| -> Matrix3<f64> {
+            match jj {
+                0..=3 => r_q_theta[jj],
+                4 => r_q,
+                9 => dr_heading,
+                _ => dr_of(jj).copied().unwrap_or_else(Matrix3::zeros),
+            }
+        };
+        let s_mat = h_cols(&hp) + r_k;
         let Some(chol) = s_mat.cholesky() else {
             return Err(Error::Numerical(format!(
                 "EIV filter: innovation covariance not positive definite in window {} at sample {k1}",
@@ -782,10 +851,7 @@ pub(crate) fn run_window(
             }
             for &jj in &cols {
                 let hdp: M3x9 = h_rows(&dp[jj]);
-                ds[jj] = h_cols(&hdp);
-                if jj == 7 {
-                    ds[jj] += dr3;
-                }
+                ds[jj] = h_cols(&hdp) + d_r(jj);
                 a[jj] = sinv * ds[jj];
                 let gq = -0.5 * sinv_nu.dot(&(ds[jj] * sinv_nu));
                 let gl = 0.5 * a[jj].trace();
@@ -849,8 +915,9 @@ pub(crate) fn run_window(
             // ∂P − KH∂P − (KH∂P)ᵀ + K ∂S Kᵀ is numerically unstable here.
             for &jj in &cols {
                 dp[jj] = joseph(&dp[jj], &k);
-                if jj == 7 {
-                    dp[jj] += k * dr3 * k.transpose();
+                let dr = d_r(jj);
+                if dr != Matrix3::zeros() {
+                    dp[jj] += k * dr * k.transpose();
                 }
             }
         }
@@ -862,7 +929,7 @@ pub(crate) fn run_window(
             s[r] += dz[r + 3];
             b[r] += dz[r + 6];
         }
-        p = joseph(&p, &k) + k * r * k.transpose();
+        p = joseph(&p, &k) + k * r_k * k.transpose();
         p = (p + p.transpose()) * 0.5;
     }
     Ok(out)

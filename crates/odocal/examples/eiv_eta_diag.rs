@@ -1,0 +1,161 @@
+//! Diagnostic of the EIV noise-scale (η) estimate: where do the scales go
+//! from different starting noise models? (docs/study.md, EIV section.)
+//!
+//! ```text
+//! cargo run --release -p odocal --example eiv_eta_diag -- [--km 12] [--seeds 4] [--presets paper,high]
+//!     [--variants known,est-pc,...] [--quantisation process|measurement] [--heading separate|tied]
+//!
+//! (`--heading` defaults to `separate` here, unlike the library.)
+//! ```
+
+use std::error::Error;
+
+use odocal::eiv::{estimate, EivInput, EivOptions, HeadingScale, NoiseModel, QuantisationModel};
+use odocal::identify::{batch_gauss_newton, IdentifyOptions};
+use odocal::segment::{calibration_segments, SegmentData, SegmentOptions};
+use odocal::sim::{simulate, NoiseOptions, SimOptions};
+use odocal::Theta;
+
+type Res<T> = Result<T, Box<dyn Error>>;
+
+fn main() -> Res<()> {
+    let mut km = 12.0;
+    let mut seeds = 4u64;
+    let mut presets = vec!["paper".to_string(), "high".to_string()];
+    let mut variants_arg: Option<Vec<String>> = None;
+    let mut quant = QuantisationModel::ProcessNoise;
+    let mut heading = HeadingScale::Separate;
+    let mut it = std::env::args().skip(1);
+    while let Some(k) = it.next() {
+        let v = it.next().ok_or("missing value")?;
+        match k.as_str() {
+            "--km" => km = v.parse()?,
+            "--seeds" => seeds = v.parse()?,
+            "--presets" => presets = v.split(',').map(str::to_string).collect(),
+            "--heading" => heading = if v == "tied" { HeadingScale::TiedToPosition } else { HeadingScale::Separate },
+            "--quantisation" => {
+                quant =
+                    if v == "measurement" { QuantisationModel::Measurement } else { QuantisationModel::ProcessNoise }
+            }
+            "--variants" => variants_arg = Some(v.split(',').map(str::to_string).collect()),
+            _ => return Err(format!("unknown {k}").into()),
+        }
+    }
+    for p in &presets {
+        let noise = match p.as_str() {
+            "noslip" => NoiseOptions { wheel_slip_per_m_per_s2: 0.0, ..NoiseOptions::paper() },
+            "nobeta" => NoiseOptions { wheel_slip_per_m_per_s2: 0.0, sideslip_sigma_rad: 0.0, ..NoiseOptions::paper() },
+            "quantonly" => NoiseOptions { encoder_ticks_per_revolution: 256, ..NoiseOptions::off() },
+            "quantwhite" => NoiseOptions { encoder_ticks_per_revolution: 256, ..NoiseOptions::white_wheel_only() },
+            "white2" => NoiseOptions { wheel_white_rel_sigma: 0.02, ..NoiseOptions::white_wheel_only() },
+            "coloured" => {
+                let p = NoiseOptions::paper();
+                NoiseOptions {
+                    wheel_coloured_rel_sigma: p.wheel_coloured_rel_sigma,
+                    wheel_coloured_differential_rel_sigma: p.wheel_coloured_differential_rel_sigma,
+                    wheel_coloured_time_constant_s: p.wheel_coloured_time_constant_s,
+                    wheel_white_rel_sigma: p.wheel_white_rel_sigma,
+                    encoder_ticks_per_revolution: p.encoder_ticks_per_revolution,
+                    ..NoiseOptions::off()
+                }
+            }
+            "noquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::paper() },
+            "highnoquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::high() },
+            _ => NoiseOptions::by_name(p)?,
+        };
+        for seed in 1..=seeds {
+            let sim = simulate(&SimOptions { length_km: km, noise: noise.clone(), ..SimOptions::paper(seed) })?;
+            let d = &sim.drive;
+            let truth = sim.sidecar.theta_true;
+            let sel = calibration_segments(d, &SegmentOptions::default())?;
+            let data: Vec<SegmentData> = sel.all.iter().map(|s| SegmentData::new(d, s)).collect();
+            let gn = batch_gauss_newton(
+                &data,
+                &Theta::PAPER_INITIAL,
+                &IdentifyOptions { max_iterations: 20, ..Default::default() },
+            )?
+            .theta;
+            let input = EivInput::from_drive(d);
+            let sim_noise = NoiseModel::from_sim(&noise, d.sample_time_s());
+            let pc = NoiseModel::PRODUCTION_CAR;
+            let pc_tau = NoiseModel {
+                wheel_common_time_constant_s: sim_noise.wheel_common_time_constant_s,
+                wheel_differential_time_constant_s: sim_noise.wheel_differential_time_constant_s,
+                drift_time_constant_s: sim_noise.drift_time_constant_s,
+                ..pc
+            };
+            let pc_head = NoiseModel { heading_white_sigma_rad: sim_noise.heading_white_sigma_rad, ..pc };
+            let pc_tau_head = NoiseModel {
+                heading_white_sigma_rad: sim_noise.heading_white_sigma_rad,
+                wheel_differential_rel_sigma: sim_noise.wheel_differential_rel_sigma,
+                ..pc_tau
+            };
+            let all = [
+                ("est-pc-head", pc_head, false),
+                ("est-pc-simtau-head", pc_tau_head, false),
+                ("known", sim_noise, true),
+                ("est-from-sim", sim_noise, false),
+                ("est-pc", pc, false),
+                (
+                    "est-pc-q",
+                    NoiseModel { quantisation_step_rev_per_s: sim_noise.quantisation_step_rev_per_s, ..pc },
+                    false,
+                ),
+                ("est-pc-truth", pc, false),
+                ("est-from-sim-truth", sim_noise, false),
+                ("est-pc-simtau", pc_tau, false),
+            ];
+            let err = |t: &Theta| {
+                let (a, b) = (t.to_array(), truth.to_array());
+                format!(
+                    "c_e {:+.3}% c_d {:+.3}mm t_r {:+.2}% d {:+.3}",
+                    (a[0] - b[0]) / b[0] * 100.0,
+                    (a[1] - b[1]) * 1e3,
+                    (a[2] - b[2]) / b[2] * 100.0,
+                    (a[3] - b[3]) * 1e3
+                )
+            };
+            println!("{p} {seed}: G-N {}", err(&gn));
+            for (label, nm, fix) in all {
+                if let Some(v) = &variants_arg {
+                    if !v.iter().any(|x| x == label) {
+                        continue;
+                    }
+                }
+                let at_truth = label.ends_with("-truth");
+                let free = if at_truth { [true, false, false, false] } else { [true; 4] };
+                let opts = EivOptions {
+                    noise: nm,
+                    fix_noise: fix,
+                    free,
+                    quantisation: quant,
+                    heading_scale: heading,
+                    ..Default::default()
+                };
+                let start = if at_truth { truth } else { gn };
+                match estimate(&input, &start, &opts) {
+                    Ok(r) => {
+                        let nis: Vec<f64> = r.windows.iter().map(|w| w.nis).collect();
+                        let nis_m = nis.iter().sum::<f64>() / nis.len() as f64;
+                        println!(
+                            "  {label:14} {} | η [{}] M {:.1} it {} {} nis {:.2} {:.1}s",
+                            err(&r.theta),
+                            r.eta.iter().map(|e| format!("{e:+.2}")).collect::<Vec<_>>().join(" "),
+                            r.final_cost,
+                            r.iterations,
+                            r.termination,
+                            nis_m,
+                            r.timing_s
+                        );
+                        println!("      noise: {}", odocal::calibrate::eiv::noise_summary(&r.noise));
+                        for w in &r.warnings {
+                            println!("      warning: {w}");
+                        }
+                    }
+                    Err(e) => println!("  {label}: failed {e}"),
+                }
+            }
+        }
+    }
+    Ok(())
+}
