@@ -48,17 +48,7 @@ fn main() -> Res<()> {
             "quantonly" => NoiseOptions { encoder_ticks_per_revolution: 256, ..NoiseOptions::off() },
             "quantwhite" => NoiseOptions { encoder_ticks_per_revolution: 256, ..NoiseOptions::white_wheel_only() },
             "white2" => NoiseOptions { wheel_white_rel_sigma: 0.02, ..NoiseOptions::white_wheel_only() },
-            "coloured" => {
-                let p = NoiseOptions::paper();
-                NoiseOptions {
-                    wheel_coloured_rel_sigma: p.wheel_coloured_rel_sigma,
-                    wheel_coloured_differential_rel_sigma: p.wheel_coloured_differential_rel_sigma,
-                    wheel_coloured_time_constant_s: p.wheel_coloured_time_constant_s,
-                    wheel_white_rel_sigma: p.wheel_white_rel_sigma,
-                    encoder_ticks_per_revolution: p.encoder_ticks_per_revolution,
-                    ..NoiseOptions::off()
-                }
-            }
+            "coloured" => NoiseOptions::coloured_wheels_only(),
             "noquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::paper() },
             "highnoquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::high() },
             _ => NoiseOptions::by_name(p)?,

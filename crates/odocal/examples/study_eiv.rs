@@ -112,15 +112,7 @@ fn parse_args() -> Res<Args> {
 
 fn preset(name: &str) -> Res<NoiseOptions> {
     if name == "coloured" {
-        let p = NoiseOptions::paper();
-        return Ok(NoiseOptions {
-            wheel_coloured_rel_sigma: p.wheel_coloured_rel_sigma,
-            wheel_coloured_differential_rel_sigma: p.wheel_coloured_differential_rel_sigma,
-            wheel_coloured_time_constant_s: p.wheel_coloured_time_constant_s,
-            wheel_white_rel_sigma: p.wheel_white_rel_sigma,
-            encoder_ticks_per_revolution: p.encoder_ticks_per_revolution,
-            ..NoiseOptions::off()
-        });
+        return Ok(NoiseOptions::coloured_wheels_only());
     }
     Ok(NoiseOptions::by_name(name)?)
 }

@@ -295,6 +295,22 @@ impl NoiseOptions {
         NoiseOptions { wheel_white_rel_sigma: NoiseOptions::paper().wheel_white_rel_sigma, ..NoiseOptions::off() }
     }
 
+    /// The paper preset's wheel noise only — coloured common and
+    /// differential relative errors, white noise and encoder quantisation —
+    /// on a perfect reference, with no slip, a_y or sideslip noise (the
+    /// "coloured" preset of the EIV studies).
+    pub fn coloured_wheels_only() -> Self {
+        let p = NoiseOptions::paper();
+        NoiseOptions {
+            wheel_coloured_rel_sigma: p.wheel_coloured_rel_sigma,
+            wheel_coloured_differential_rel_sigma: p.wheel_coloured_differential_rel_sigma,
+            wheel_coloured_time_constant_s: p.wheel_coloured_time_constant_s,
+            wheel_white_rel_sigma: p.wheel_white_rel_sigma,
+            encoder_ticks_per_revolution: p.encoder_ticks_per_revolution,
+            ..NoiseOptions::off()
+        }
+    }
+
     /// Every source 2.5× the paper preset (encoder resolution a quarter).
     pub fn high() -> Self {
         let p = NoiseOptions::paper();

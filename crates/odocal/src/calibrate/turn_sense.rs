@@ -28,7 +28,7 @@ pub(crate) enum TurnSense {
 }
 
 impl TurnSense {
-    /// "left" or "right".
+    /// "left (counter-clockwise)" or "right (clockwise)".
     pub(crate) fn name(self) -> &'static str {
         match self {
             TurnSense::Left => "left (counter-clockwise)",

@@ -47,14 +47,12 @@ impl ReferenceSpec {
     pub fn estimate_set(&self) -> std::result::Result<ParamSet, String> {
         let mut set = ParamSet::EMPTY;
         for name in &self.estimate {
-            let s: ParamSet = name.parse().map_err(|_| {
+            let not_extrinsic = || {
                 format!("'{name}' is not an extrinsic parameter (lever-arm, heading-offset, lever_x, lever_y, heading_offset)")
-            })?;
+            };
+            let s: ParamSet = name.parse().map_err(|_| not_extrinsic())?;
             if s.is_empty() || !s.intersection(ParamSet::THETA).is_empty() {
-                return Err(format!(
-                    "'{name}' is not an extrinsic parameter (lever-arm, heading-offset, lever_x, lever_y, \
-                     heading_offset): θ is estimated by default"
-                ));
+                return Err(format!("{}: θ is estimated by default", not_extrinsic()));
             }
             set = set.union(s);
         }
