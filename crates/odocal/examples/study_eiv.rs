@@ -7,6 +7,7 @@
 //!     [--presets off,white,paper,high,coloured] [--three-step-seeds 0]
 //!     [--bootstrap 0] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
 //!     [--quantisation process|measurement] [--heading tied|separate]
+//!     [--methods known,est] (also: fitted, fo)
 //! ```
 //!
 //! Per preset and seed (1..=S) it simulates a drive and runs, all through
@@ -22,7 +23,15 @@
 //!   fallback on (θ = G-N when a consistency check failed; no extra fit);
 //! - `EIV known + boot`: the known-noise estimate minus its parametric
 //!   bootstrap bias (`--bootstrap B` replicates, first `--bootstrap-seeds` seeds
-//!   of `--bootstrap-presets`).
+//!   of `--bootstrap-presets`);
+//! - with `--methods` containing `fitted`: `EIV fitted` = EIV known with
+//!   `WheelNoiseScale::FittedInput` (the relative wheel noise scaled by the
+//!   fitted true input);
+//! - with `fo`: rows derived from each known-noise fit without another
+//!   filter pass (`EivReport::first_order_bias`): `+ fo` = θ − b for every
+//!   parameter, `+ fo c_e` = c_e − b_ce only, `+ fo c_e cond` = c_e minus the
+//!   conditional bias, `+ fo logdet c_e` = c_e minus the bias with the
+//!   coloured-noise correction kept (J + ½Σ log det S).
 //!
 //! The Cramér–Rao bound (`eiv::cramer_rao_bound`, full Gaussian Fisher
 //! information, and its mean-only part) at θ_true with the true noise model.
@@ -41,6 +50,7 @@ use std::time::Instant;
 use odocal::calibrate::{EivDetail, EivMethodOptions};
 use odocal::eiv::{
     bootstrap, cramer_rao_bound, BootstrapOptions, EivInput, EivOptions, HeadingScale, NoiseModel, QuantisationModel,
+    WheelNoiseScale,
 };
 use odocal::segment::validation_segments;
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
@@ -63,6 +73,7 @@ struct Args {
     json: Option<String>,
     quantisation: QuantisationModel,
     heading: HeadingScale,
+    methods: Vec<String>,
 }
 
 fn parse_args() -> Res<Args> {
@@ -77,6 +88,7 @@ fn parse_args() -> Res<Args> {
         json: None,
         quantisation: QuantisationModel::ProcessNoise,
         heading: HeadingScale::TiedToPosition,
+        methods: vec!["known".into(), "est".into()],
     };
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
@@ -90,6 +102,7 @@ fn parse_args() -> Res<Args> {
             "--bootstrap-seeds" => a.bootstrap_seeds = v()?.parse()?,
             "--bootstrap-presets" => a.bootstrap_presets = v()?.split(',').map(str::to_string).collect(),
             "--json" => a.json = Some(v()?),
+            "--methods" => a.methods = v()?.split(',').map(str::to_string).collect(),
             "--heading" => {
                 a.heading = match v()?.as_str() {
                     "tied" => HeadingScale::TiedToPosition,
@@ -183,7 +196,17 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
     let known =
         EivOptions { noise: true_noise, fix_noise: true, quantisation: q, heading_scale: h, ..Default::default() };
     let est = EivOptions { quantisation: q, heading_scale: h, ..Default::default() };
-    for (label, opts) in [("EIV known", known.clone()), ("EIV est.", est)] {
+    let fitted = EivOptions { wheel_noise_scale: WheelNoiseScale::FittedInput, ..known.clone() };
+    let want = |m: &str| a.methods.iter().any(|x| x == m);
+    // The known-noise fit always runs: it carries the G-N start.
+    let mut jobs = vec![("EIV known", known.clone())];
+    if want("est") {
+        jobs.push(("EIV est.", est));
+    }
+    if want("fitted") {
+        jobs.push(("EIV fitted", fitted));
+    }
+    for (label, opts) in jobs {
         let (r, detail, time_s) = match calibrate_eiv(d, opts.clone(), seed) {
             Ok(x) => x,
             Err(e) => {
@@ -212,6 +235,28 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         let failed = r.warnings.iter().filter(|w| matches!(w, Warning::EivCheckFailed { .. })).count();
         let run = Run { theta: r.theta, sigmas: sigmas.clone(), e_p_m: ep(&r.theta)?, time_s, warnings: failed };
         runs.insert(label.to_string(), run);
+        if want("fo") && label != "EIV est." {
+            if let Some(b) = &fit.first_order_bias {
+                let u = fit.theta_uncorrected.to_array();
+                let shifted = |shift: [f64; 4]| Theta {
+                    c_e: u[0] - shift[0],
+                    c_d: u[1] - shift[1],
+                    t_r: u[2] - shift[2],
+                    d: u[3] - shift[3],
+                };
+                let variants = [
+                    ("+ fo", b.bias),
+                    ("+ fo c_e", [b.bias[0], 0.0, 0.0, 0.0]),
+                    ("+ fo c_e cond", [b.bias_conditional[0], 0.0, 0.0, 0.0]),
+                    ("+ fo logdet c_e", [b.bias_logdet_only[0], 0.0, 0.0, 0.0]),
+                ];
+                for (suffix, shift) in variants {
+                    let th = shifted(shift);
+                    let run = Run { theta: th, sigmas: sigmas.clone(), e_p_m: ep(&th)?, time_s, warnings: failed };
+                    runs.insert(format!("{label} {suffix}"), run);
+                }
+            }
+        }
         if label == "EIV est." {
             // What a user gets with the default fallback on: G-N when a check failed.
             let (th, sig) = if failed > 0 { (gn, vec![]) } else { (r.theta, sigmas) };
@@ -232,7 +277,7 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
                     let half: [f64; 4] = std::array::from_fn(|i| (b.interval[i][1] - b.interval[i][0]) / (2.0 * 1.96));
                     let run = Run {
                         theta: th,
-                        sigmas: vec![("boot".into(), half)],
+                        sigmas: vec![("H".into(), sigma_h), ("boot".into(), half)],
                         e_p_m: ep(&th)?,
                         time_s: time_s + t.elapsed().as_secs_f64(),
                         warnings: b.failed.len(),
@@ -242,6 +287,20 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
                 Err(e) => eprintln!("{name} {seed}: bootstrap failed: {e}"),
             }
         }
+    }
+    if let (Some(k), Some(f)) = (runs.get("EIV known"), runs.get("EIV fitted")) {
+        // The midpoint of the measured- and fitted-input estimates (their c_e
+        // biases have opposite signs; two fits).
+        let (a, b) = (k.theta.to_array(), f.theta.to_array());
+        let th = Theta {
+            c_e: 0.5 * (a[0] + b[0]),
+            c_d: 0.5 * (a[1] + b[1]),
+            t_r: 0.5 * (a[2] + b[2]),
+            d: 0.5 * (a[3] + b[3]),
+        };
+        let run =
+            Run { theta: th, sigmas: k.sigmas.clone(), e_p_m: ep(&th)?, time_s: k.time_s + f.time_s, warnings: 0 };
+        runs.insert("EIV mid(known, fitted)".into(), run);
     }
     Ok(DriveResult { preset: name.into(), seed, theta_true: truth, crb, crb_mean_only, e_p_true_m: ep(&truth)?, runs })
 }

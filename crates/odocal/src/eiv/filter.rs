@@ -73,6 +73,10 @@ pub(crate) struct Variances {
     /// The heading white noise has its own scale η_5 (otherwise η_3 scales
     /// it with the position white noise; [`super::EivOptions::heading_scale`]).
     pub heading_separate: bool,
+    /// The relative wheel noise (white and Gauss-Markov) is scaled by the
+    /// fitted true input `ñ·C(θ_ref)/C(θ)` instead of the measured `ñ`
+    /// ([`super::WheelNoiseScale::FittedInput`]).
+    pub fitted_input: bool,
 }
 
 /// Everything one window contributes to the objective and its derivatives.
@@ -113,6 +117,10 @@ pub(crate) struct WindowSums {
     /// Expected gradient of the profile cost caused by the input noise,
     /// `Σ_k −tr(S_k⁻¹ H X_k,i Hᵀ)` (the corrected-score term, see [`run_window`]).
     pub bias: nalgebra::Vector4<f64>,
+    /// θ-gradient of the coloured-noise correction `−Σ m log(1 − ŝ)` alone.
+    pub grad_correction: nalgebra::Vector4<f64>,
+    /// θ-gradient of `½ Σ log det S` alone (zero with the covariance held).
+    pub grad_logdet: nalgebra::Vector4<f64>,
 }
 
 impl WindowSums {
@@ -132,6 +140,8 @@ impl WindowSums {
             lag1: [0.0; 3],
             e2: [0.0; 3],
             bias: nalgebra::Vector4::zeros(),
+            grad_correction: nalgebra::Vector4::zeros(),
+            grad_logdet: nalgebra::Vector4::zeros(),
         }
     }
 
@@ -148,6 +158,8 @@ impl WindowSums {
         self.info_mean_theta += o.info_mean_theta;
         self.updates += o.updates;
         self.bias += o.bias;
+        self.grad_correction += o.grad_correction;
+        self.grad_logdet += o.grad_logdet;
         for c in 0..3 {
             self.lag1[c] += o.lag1[c];
             self.e2[c] += o.e2[c];
@@ -450,6 +462,18 @@ fn dvec_of(a: &[Dual; 3], j: usize) -> Vector3<f64> {
     Vector3::new(a[0].d[j], a[1].d[j], a[2].d[j])
 }
 
+/// `C_w(θ_ref)/C_w(θ)` per wheel `[left, right]` with its θ-gradient: the
+/// factor that turns the measured wheel rotation into the true rotation
+/// fitted at θ, `n̂ = ñ·C(θ_ref)/C(θ)` (the distance `ñ·C(θ_ref)` is held,
+/// so the relative wheel noise in metres no longer grows with C(θ)).
+fn fitted_input_factors(a_y: f64, th: &Theta, th_ref: &Theta) -> [Dual; 2] {
+    let (c_e, c_d, d) = (Dual::var(th.c_e, 0), Dual::var(th.c_d, 1), Dual::var(th.d, 3));
+    let c_rl = c_e + c_d * 0.5 + d * a_y;
+    let c_rr = c_e - c_d * 0.5 - d * a_y;
+    let (r_rl, r_rr) = th_ref.wheel_circumferences(a_y);
+    [Dual::cst(r_rl) / c_rl, Dual::cst(r_rr) / c_rr]
+}
+
 /// How the filter runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct Mode {
@@ -555,7 +579,22 @@ pub(crate) fn run_window(
         let fn_r = vec_of(&rt.fn_r);
         let f_a = vec_of(&rt.f_a);
         let f_b = Vector3::new(f02, f12, 0.0);
-        let fxs_ref = Matrix3::from_columns(&[-fn_l * nl - fn_r * nr, -fn_l * nl, -fn_r * nr]);
+        // With `fitted_input` the relative wheel noise is scaled by the fitted
+        // true input n̂ = ñ·g, g = C(θ_ref)/C(θ): the s-columns of F̄ are
+        // −F_n n̂ and the white variance is σ²n̂² (g = 1 otherwise).
+        let fitted = v.fitted_input && follows;
+        let (fs_l, fs_r, gw) = if fitted {
+            let g = fitted_input_factors(a_y, theta, theta_ref);
+            (rt.fn_l.map(|x| x * g[0]), rt.fn_r.map(|x| x * g[1]), g)
+        } else {
+            (rt.fn_l, rt.fn_r, [Dual::cst(1.0); 2])
+        };
+        let fxs_ref = if fitted {
+            let (sl, sr) = (vec_of(&fs_l), vec_of(&fs_r));
+            Matrix3::from_columns(&[-sl * nl - sr * nr, -sl * nl, -sr * nr])
+        } else {
+            Matrix3::from_columns(&[-fn_l * nl - fn_r * nr, -fn_l * nl, -fn_r * nr])
+        };
         // White relative noise accumulates into the pose (process noise).
         // Encoder quantisation does not (with `quant_in_measurement`): counting ticks carries the remainder
         // over, so the counted rotation is the true one to within one tick
@@ -565,7 +604,13 @@ pub(crate) fn run_window(
         // As process noise it accumulated like a random walk and, on the
         // heading, made the filter misread quantisation as reference noise
         // (docs/study.md, EIV section).
-        let (wl, wr) = if v.quant_in_measurement {
+        let (wl, wr) = if fitted {
+            let white = |n: f64, g: f64| {
+                let q = if v.quant_in_measurement || n == 0.0 { 0.0 } else { v.quant };
+                v.white_rel * n * n * g * g + q
+            };
+            (white(nl, gw[0].v), white(nr, gw[1].v))
+        } else if v.quant_in_measurement {
             (v.white_rel * nl * nl, v.white_rel * nr * nr)
         } else {
             // Quantisation as white rate noise where the wheel turns.
@@ -633,6 +678,9 @@ pub(crate) fn run_window(
                         out.grad[c] += w * d[(row, c)];
                         out.grad_profile[c] += w * d[(row, c)];
                     }
+                    for c in 0..4 {
+                        out.grad_correction[c] += w * d[(row, c)];
+                    }
                 }
             }
             let j = step_jacobians(&x, &ueff, theta, ts);
@@ -675,7 +723,8 @@ pub(crate) fn run_window(
             for (jt, tt) in theta_terms.iter_mut().enumerate() {
                 let dfl = dvec_of(&rt.fn_l, jt);
                 let dfr = dvec_of(&rt.fn_r, jt);
-                let dfxs = Matrix3::from_columns(&[-dfl * nl - dfr * nr, -dfl * nl, -dfr * nr]);
+                let (dsl, dsr) = (dvec_of(&fs_l, jt), dvec_of(&fs_r, jt));
+                let dfxs = Matrix3::from_columns(&[-dsl * nl - dsr * nr, -dsl * nl, -dsr * nr]);
                 let (d02, d12) = (rt.f02.d[jt], rt.f12.d[jt]);
                 // G = ∂F̄ P⁺ (rows 0..3 only).
                 let mut g = M3x9::zeros();
@@ -704,10 +753,16 @@ pub(crate) fn run_window(
                 // ∂Q_x/∂θ_j (symmetric part added as half of A + Aᵀ).
                 let dfa = dvec_of(&rt.f_a, jt);
                 let dfb = Vector3::new(d02, d12, 0.0);
-                let half_dq = fn_l * dfl.transpose() * wl
+                let mut half_dq = fn_l * dfl.transpose() * wl
                     + fn_r * dfr.transpose() * wr
                     + f_b * dfb.transpose() * v.beta
                     + f_a * dfa.transpose() * v.a_y;
+                if fitted {
+                    // ∂(σ²ñ²g²)/∂θ_j = 2σ²ñ²g ∂g/∂θ_j; half of it in the half.
+                    let dwl = v.white_rel * nl * nl * gw[0].v * gw[0].d[jt];
+                    let dwr = v.white_rel * nr * nr * gw[1].v * gw[1].d[jt];
+                    half_dq += fn_l * fn_l.transpose() * dwl + fn_r * fn_r.transpose() * dwr;
+                }
                 for rr in 0..3 {
                     for ci in 0..3 {
                         tt[(rr, ci)] += half_dq[(ci, rr)];
@@ -859,6 +914,7 @@ pub(crate) fn run_window(
                 out.grad_profile[jj] += gq;
                 if jj < 4 {
                     g_t[jj] += gq;
+                    out.grad_logdet[jj] += gl;
                 }
             }
             for &i1 in &cols {

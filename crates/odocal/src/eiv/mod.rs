@@ -515,6 +515,7 @@ impl NoiseModel {
             a_drift: gm(self.drift_time_constant_s),
             quant_in_measurement: false,
             heading_separate: true,
+            fitted_input: false,
         }
     }
 }
@@ -622,6 +623,80 @@ pub struct EivOptions {
     /// Whether the reference's heading white noise has its own scale η_5.
     /// Default [`HeadingScale::TiedToPosition`] (see its docs).
     pub heading_scale: HeadingScale,
+    /// Which wheel rotation scales the relative wheel noise in the
+    /// covariance. Default [`WheelNoiseScale::MeasuredInput`] (see its docs
+    /// for the measured alternatives).
+    pub wheel_noise_scale: WheelNoiseScale,
+    /// Correction of the profile cost's bias applied to the estimate.
+    /// Default [`BiasCorrection::None`] (see its docs).
+    pub bias_correction: BiasCorrection,
+}
+
+/// Which wheel rotation the relative wheel noise (white and Gauss-Markov)
+/// is proportional to in the filter's covariance (issue 9 item 4).
+///
+/// With the covariance following θ the noise in metres is `C(θ)·ñ·σ`: it
+/// grows with the wheel circumference, and the profile cost, which has no
+/// `log det S`, lowers its weighted residuals by a larger c_e (about `+2σ²`
+/// for white noise in a scalar model). The simulator's (and a real wheel's)
+/// relative error is proportional to the *true* rotation; the true rotation
+/// fitted at θ is `n̂ = ñ·C(θ_ref)/C(θ)` (the distance `ñ·C(θ_ref)` held at
+/// the covariance reference), which makes the wheel noise in metres
+/// independent of the circumferences (but not of t_r).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WheelNoiseScale {
+    /// σ·ñ, the measured rotation (SPEC §10).
+    #[default]
+    MeasuredInput,
+    /// σ·n̂, `n̂ = ñ·C(θ_ref)/C(θ)` (only with [`CovarianceMode::FollowsTheta`];
+    /// θ_ref is the start of the fit, batch G-N's θ). Encoder quantisation
+    /// (an absolute count error) is not rescaled.
+    FittedInput,
+}
+
+/// A first-order correction of the bias of the profile cost
+/// (issue 9 item 4; [`FirstOrderBias`]).
+///
+/// The profile cost `J = ½Σ νᵀS⁻¹ν − Σ m log(1 − ŝ)` lacks the
+/// `½ Σ log det S` of the Gaussian likelihood of the filter's own model,
+/// whose θ-gradient is the Jacobian of the noise scale with θ; the
+/// `−Σ m log(1 − ŝ)` term stands in for it only for the part of the
+/// innovations that the filter attributes to the coloured states ŝ. Under
+/// the filter's model `E[∂J/∂θ] = −(g_logdet − g_corr)` at the truth
+/// (`g_logdet = ∂½Σ log det S/∂θ`, `g_corr = ∂(−Σ m log(1 − ŝ))/∂θ`), so the
+/// root of J is off by `b = H_θ⁻¹ (g_logdet − g_corr)` to first order
+/// (H_θ the scoring metric of J). The correction returns `θ̂ − b`, computed
+/// from the last filter pass (no extra pass).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BiasCorrection {
+    /// The root of the profile cost as is.
+    #[default]
+    None,
+    /// `θ̂ − b` for c_e only (b from the joint inverse), the other
+    /// parameters as estimated.
+    FirstOrderCe,
+    /// `θ̂ − b` for every free parameter.
+    FirstOrder,
+}
+
+/// The first-order bias of the profile cost's root at the estimate (see
+/// [`BiasCorrection`]); SI units, θ order `[c_e, c_d, t_r, d]`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct FirstOrderBias {
+    /// `g_logdet = ∂(½ Σ log det S)/∂θ`.
+    pub score_logdet: [f64; 4],
+    /// `g_corr = ∂(−Σ m log(1 − ŝ))/∂θ`.
+    pub score_correction: [f64; 4],
+    /// `b = H_θ⁻¹ (g_logdet − g_corr)` over the free parameters (what
+    /// [`BiasCorrection::FirstOrder`] subtracts).
+    pub bias: [f64; 4],
+    /// `H_θ⁻¹ g_logdet`: the bias if the coloured-noise correction were
+    /// kept in the likelihood (J + ½ Σ log det S).
+    pub bias_logdet_only: [f64; 4],
+    /// Each parameter alone, the others held: `(g_logdet − g_corr)_i / H_ii`.
+    pub bias_conditional: [f64; 4],
 }
 
 /// Whether the heading white noise of the reference is scaled on its own.
@@ -691,6 +766,8 @@ impl Default for EivOptions {
             covariance: CovarianceMode::FollowsTheta,
             quantisation: QuantisationModel::ProcessNoise,
             heading_scale: HeadingScale::TiedToPosition,
+            wheel_noise_scale: WheelNoiseScale::MeasuredInput,
+            bias_correction: BiasCorrection::None,
         }
     }
 }
@@ -998,6 +1075,12 @@ pub struct EivReport {
     pub halves: Option<HalvesCheck>,
     /// Everything that makes the result less trustworthy.
     pub warnings: Vec<EivWarning>,
+    /// The first-order bias of the profile cost's root at the estimate
+    /// (None with the covariance held or a singular `H_θ`). `theta` has it
+    /// subtracted when [`EivOptions::bias_correction`] asks for it.
+    pub first_order_bias: Option<FirstOrderBias>,
+    /// The root of the profile cost before any [`BiasCorrection`].
+    pub theta_uncorrected: Theta,
     /// Measurement updates used.
     pub updates: usize,
     /// Wall time, s.
@@ -1060,6 +1143,7 @@ struct Problem<'a> {
     noise: NoiseModel,
     quantisation: QuantisationModel,
     heading_separate: bool,
+    fitted_input: bool,
     /// Filter passes over the drive: with derivatives, objective only.
     evaluations: std::cell::Cell<[usize; 2]>,
 }
@@ -1077,6 +1161,7 @@ impl Problem<'_> {
         let mut v = self.noise.variances(&e, self.input.sample_time_s);
         v.quant_in_measurement = self.quantisation == QuantisationModel::Measurement;
         v.heading_separate = self.heading_separate;
+        v.fitted_input = self.fitted_input;
         let parts: Vec<Result<WindowSums>> =
             self.windows.par_iter().map(|w| run_window(self.input, w, theta, theta_ref, &v, mode, None)).collect();
         let mut total = WindowSums::zero();
@@ -1540,6 +1625,7 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         noise: opts.noise,
         quantisation: opts.quantisation,
         heading_separate: opts.heading_scale == HeadingScale::Separate,
+        fitted_input: opts.wheel_noise_scale == WheelNoiseScale::FittedInput,
         evaluations: std::cell::Cell::new([0; 2]),
     };
     let mut theta = *theta_start;
@@ -1579,6 +1665,8 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         None => [f64::NAN; 4],
     };
     let observability = observability_of(&ev.total.h_theta, &free, unobservable.clone(), opts);
+    let first_order_bias =
+        if opts.covariance == CovarianceMode::FollowsTheta { first_order_bias(&ev.total, &free) } else { None };
 
     let mut warnings = Vec::new();
     if !unobservable.is_empty() {
@@ -1636,9 +1724,20 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         eta_sigma[5] = 0.0;
     }
     let iterations = passes.iter().map(|p| p.history.len()).sum();
+    let theta_uncorrected = theta;
+    if let Some(b) = &first_order_bias {
+        let shift: [f64; 4] = match opts.bias_correction {
+            BiasCorrection::None => [0.0; 4],
+            BiasCorrection::FirstOrderCe => [b.bias[0], 0.0, 0.0, 0.0],
+            BiasCorrection::FirstOrder => b.bias,
+        };
+        theta = theta_add(&theta, &shift, -1.0);
+    }
     Ok(EivReport {
         initial_theta: *theta_start,
         theta,
+        first_order_bias,
+        theta_uncorrected,
         free,
         covariance: to_array(&cov),
         sigma,
@@ -1658,6 +1757,36 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         warnings,
         updates: ev.total.updates,
         timing_s: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// The first-order bias of the profile cost's root ([`FirstOrderBias`]):
+/// `H_θ⁻¹ (g_logdet − g_corr)` over the free parameters, from the sums of
+/// one filter pass with the covariance following θ. None when `H_θ` is
+/// singular over `free`.
+pub(crate) fn first_order_bias(sums: &WindowSums, free: &[bool; 4]) -> Option<FirstOrderBias> {
+    let inv = free_inverse(&sums.h_theta, free)?;
+    let mask = nalgebra::Vector4::from_fn(|i, _| if free[i] { 1.0 } else { 0.0 });
+    let gl = sums.grad_logdet.component_mul(&mask);
+    let gc = sums.grad_correction.component_mul(&mask);
+    let gap = gl - gc;
+    let b = inv * gap;
+    let b_l = inv * gl;
+    let arr = |v: nalgebra::Vector4<f64>| -> [f64; 4] { std::array::from_fn(|i| v[i]) };
+    let conditional = std::array::from_fn(|i| {
+        let h = sums.h_theta[(i, i)];
+        if free[i] && h > 0.0 {
+            gap[i] / h
+        } else {
+            0.0
+        }
+    });
+    Some(FirstOrderBias {
+        score_logdet: arr(gl),
+        score_correction: arr(gc),
+        bias: arr(b),
+        bias_logdet_only: arr(b_l),
+        bias_conditional: conditional,
     })
 }
 
@@ -1738,6 +1867,7 @@ pub fn cramer_rao_bound(
         noise: *noise,
         quantisation: opts.quantisation,
         heading_separate: opts.heading_scale == HeadingScale::Separate,
+        fitted_input: opts.wheel_noise_scale == WheelNoiseScale::FittedInput,
         evaluations: std::cell::Cell::new([0; 2]),
     };
     let ev = prob.evaluate(theta, theta, &[0.0; 6], Mode::full(true, false))?;

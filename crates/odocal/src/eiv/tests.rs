@@ -25,7 +25,20 @@ fn records(
     eta: &[f64; 6],
     follows: bool,
 ) -> Vec<InnovationRecord> {
-    let v = NoiseModel::default().variances(eta, input.sample_time_s);
+    records_with(input, w, th, th_ref, eta, follows, false)
+}
+
+fn records_with(
+    input: &EivInput<'_>,
+    w: &Window,
+    th: &Theta,
+    th_ref: &Theta,
+    eta: &[f64; 6],
+    follows: bool,
+    fitted_input: bool,
+) -> Vec<InnovationRecord> {
+    let mut v = NoiseModel::default().variances(eta, input.sample_time_s);
+    v.fitted_input = fitted_input;
     let mut rec = Vec::new();
     run_window(input, w, th, th_ref, &v, filter::Mode::full(follows, true), Some(&mut rec)).expect("window");
     rec
@@ -43,12 +56,19 @@ fn perturb(th: &Theta, i: usize, h: f64) -> Theta {
 const FD_REL_TOL: f64 = 2e-5;
 
 fn check_innovation_derivatives(follows: bool) {
+    check_innovation_derivatives_with(follows, false);
+}
+
+fn check_innovation_derivatives_with(follows: bool, fitted: bool) {
     let out = simulate(&SimOptions { length_km: 0.6, ..SimOptions::paper(5) }).expect("sim");
     let input = input_of(&out.drive);
     let w = Window { index: 0, part: 0, start: 0, end: 1200.min(input.len() - 1) };
     let th = Theta { c_e: 1.953, c_d: -0.0015, t_r: 1.52, d: 0.0009 };
     let th_ref = Theta { c_e: 1.96, ..th };
     let eta = [0.3, -0.5, 0.2, -0.2, 0.4, 0.25];
+    let records = |input: &EivInput<'_>, w: &Window, th: &Theta, th_ref: &Theta, eta: &[f64; 6], follows: bool| {
+        records_with(input, w, th, th_ref, eta, follows, fitted)
+    };
     let base = records(&input, &w, &th, &th_ref, &eta, follows);
     let check = |fd: Vec<(usize, nalgebra::Vector3<f64>, nalgebra::Matrix3<f64>)>, p: usize, what: &str| {
         // Scale: the largest derivative of this column over the window.
@@ -135,18 +155,30 @@ fn innovation_derivatives_match_central_differences_covariance_follows_theta() {
 }
 
 fn check_objective_gradient(follows: bool) {
+    check_objective_gradient_with(follows, false);
+}
+
+/// ∂M, ∂J and (covariance following θ) the parts `∂(½Σ log det S)/∂θ` and
+/// `∂(−Σ m log(1 − ŝ))/∂θ` behind [`FirstOrderBias`] against central
+/// differences; with `fitted` the wheel noise is scaled by the fitted true
+/// input (the reference θ away from θ, so the factor is not 1).
+fn check_objective_gradient_with(follows: bool, fitted: bool) {
     let out = simulate(&SimOptions { length_km: 0.6, ..SimOptions::paper(6) }).expect("sim");
     let input = input_of(&out.drive);
     let w = Window { index: 0, part: 0, start: 0, end: 1500.min(input.len() - 1) };
     let th = Theta { c_e: 1.953, c_d: -0.0015, t_r: 1.52, d: 0.0009 };
+    let th_ref = if fitted { Theta { c_e: 1.96, c_d: -0.001, d: 0.0012, ..th } } else { th };
     let eta = [0.3, -0.5, 0.2, -0.2, 0.4, 0.25];
+    let variances = |e: &[f64; 6]| {
+        let mut v = NoiseModel::default().variances(e, input.sample_time_s);
+        v.fitted_input = fitted;
+        v
+    };
     let sums = |t: &Theta, e: &[f64; 6]| {
-        let v = NoiseModel::default().variances(e, input.sample_time_s);
-        run_window(&input, &w, t, &th, &v, filter::Mode::full(follows, true), None).expect("window")
+        run_window(&input, &w, t, &th_ref, &variances(e), filter::Mode::full(follows, true), None).expect("window")
     };
     let cost_only = |t: &Theta, e: &[f64; 6]| {
-        let v = NoiseModel::default().variances(e, input.sample_time_s);
-        run_window(&input, &w, t, &th, &v, filter::Mode::cost(follows), None).expect("window")
+        run_window(&input, &w, t, &th_ref, &variances(e), filter::Mode::cost(follows), None).expect("window")
     };
     let base = sums(&th, &eta);
     // The cost-only pass gives the same objective.
@@ -170,7 +202,53 @@ fn check_objective_gradient(follows: bool) {
         ] {
             assert!((g - fd).abs() <= 1e-4 * g.abs().max(fd.abs()).max(1e-6), "∂{what}/∂p{p}: {g} vs {fd}");
         }
+        if p < 4 && follows {
+            for (what, fd, g) in [
+                ("½Σ log det S", 0.5 * (sp.logdet - sm.logdet) / (2.0 * h), base.grad_logdet[p]),
+                ("−Σ m log(1 − ŝ)", (sp.correction - sm.correction) / (2.0 * h), base.grad_correction[p]),
+            ] {
+                assert!((g - fd).abs() <= 1e-4 * g.abs().max(fd.abs()).max(1e-6), "∂{what}/∂θ{p}: {g} vs {fd}");
+            }
+        }
     }
+}
+
+#[test]
+fn objective_gradient_matches_central_differences_fitted_input() {
+    check_objective_gradient_with(true, true);
+}
+
+#[test]
+fn innovation_derivatives_match_central_differences_fitted_input() {
+    check_innovation_derivatives_with(true, true);
+}
+
+/// With the fitted-input scale the relative wheel noise in metres does not
+/// grow with c_e: at θ = θ_ref the filter is the measured-input filter, and
+/// scaling all circumferences up leaves S nearly unchanged while the
+/// measured-input S grows (quantisation and the other noise terms keep a
+/// small dependence).
+#[test]
+fn fitted_input_scale_removes_the_growth_of_s_with_c_e() {
+    let out = simulate(&SimOptions { length_km: 0.3, ..SimOptions::paper(7) }).expect("sim");
+    let input = input_of(&out.drive);
+    let w = Window { index: 0, part: 0, start: 0, end: 600.min(input.len() - 1) };
+    let th = Theta { c_e: 1.953, c_d: -0.0015, t_r: 1.52, d: 0.0009 };
+    let eta = [0.0; 6];
+    let same = records_with(&input, &w, &th, &th, &eta, true, true);
+    let measured = records_with(&input, &w, &th, &th, &eta, true, false);
+    for (a, b) in same.iter().zip(&measured) {
+        assert!((a.s - b.s).amax() <= 1e-15 * b.s.amax(), "θ = θ_ref: {} vs {}", a.s, b.s);
+    }
+    let big = Theta { c_e: th.c_e * 1.01, ..th };
+    let fitted_big = records_with(&input, &w, &big, &th, &eta, true, true);
+    let measured_big = records_with(&input, &w, &big, &th, &eta, true, false);
+    let k = measured.len() - 1;
+    let growth = |a: &InnovationRecord, b: &InnovationRecord| a.s[(0, 0)] / b.s[(0, 0)] - 1.0;
+    let (g_meas, g_fit) = (growth(&measured_big[k], &measured[k]), growth(&fitted_big[k], &same[k]));
+    // Measured input: S_xx grows by about 2 % for +1 % c_e (variance ∝ C²).
+    assert!(g_meas > 0.01, "measured-input S_xx grew by {g_meas}");
+    assert!(g_fit.abs() < 0.25 * g_meas, "fitted-input S_xx grew by {g_fit} (measured {g_meas})");
 }
 
 #[test]
