@@ -38,6 +38,18 @@ fn eiv_section(d: &EivDetail) -> String {
                 if fixed { "fixed    " } else { "estimated" },
                 noise_summary(&e.noise)
             );
+            if e.bias_subtracted.iter().any(|b| *b != 0.0) {
+                let b = e.bias_subtracted;
+                let _ = writeln!(
+                    out,
+                    "  bias correction: subtracted c_e {:+.6} m, c_d {:+.4} mm, t_r {:+.6} m, d {:+.4} mm/(m/s²) (uncorrected c_e {:.6} m)",
+                    b[0],
+                    b[1] * 1e3,
+                    b[2],
+                    b[3] * 1e3,
+                    e.theta_uncorrected.c_e
+                );
+            }
         }
         None => {
             let _ = writeln!(out, "EIV: filter failed: {}", d.eiv_error.as_deref().unwrap_or("unknown error"));

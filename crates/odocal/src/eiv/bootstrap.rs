@@ -14,7 +14,8 @@
 //!
 //! Each replicate is fitted with the same options as the original fit
 //! (same starting noise model, same `fix_noise`), from θ̂, with the
-//! original's free parameters. The spread of the replicates estimates the
+//! original's free parameters (but without a bootstrap bias correction,
+//! [`super::BiasCorrection::Bootstrap`], inside). The spread of the replicates estimates the
 //! estimator's sampling distribution; their mean minus θ̂ its bias (at θ̂
 //! and the fitted noise), which gives the bias-corrected estimate
 //! `θ̂ − bias`.
@@ -25,7 +26,7 @@ use rand_distr::StandardNormal;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::{estimate, EivInput, EivOptions, EivReport, NoiseModel};
+use super::{estimate, BiasCorrection, EivInput, EivOptions, EivReport, NoiseModel};
 use crate::error::{Error, Result};
 use crate::model::{step, Input, State, Theta};
 
@@ -100,7 +101,12 @@ pub fn bootstrap(
     opts.validate()?;
     report.noise.validate()?;
     let theta_hat = report.theta;
-    let refit = EivOptions { free: report.free, fix_unobservable: false, ..opts.clone() };
+    let mut refit = EivOptions { free: report.free, fix_unobservable: false, ..opts.clone() };
+    if matches!(refit.bias_correction, BiasCorrection::Bootstrap { .. }) {
+        // No bootstrap inside the bootstrap (B² fits): the replicates are
+        // fitted without it.
+        refit.bias_correction = BiasCorrection::None;
+    }
     let results: Vec<Result<Theta>> = (0..boot.replicates)
         .into_par_iter()
         .map(|b| {

@@ -527,3 +527,38 @@ fn heading_and_position_white_noise_scale_separately() {
     assert!((s.position_white_sigma_m - 2.0 * m.position_white_sigma_m).abs() < 1e-15);
     assert_eq!(NOISE_SOURCES[5], NoiseSource::HeadingWhite);
 }
+
+/// `BiasCorrection::Bootstrap` subtracts exactly what [`bootstrap`] with the
+/// same seed estimates (c_e only, or every parameter); the uncorrected
+/// root is the plain fit's θ, whose first-order bias diagnostic is there.
+/// Two replicates on 1 km keep it cheap (this checks the plumbing; the
+/// correction's effect over seeds is measured in `examples/study_eiv.rs`).
+#[test]
+fn bootstrap_bias_correction_subtracts_the_bootstrap_bias() {
+    let (out, opts) = known_noise_fit(1.0, 12);
+    let input = input_of(&out.drive);
+    let start = out.sidecar.theta_true;
+    let plain = estimate(&input, &start, &opts).expect("eiv");
+    assert_eq!(plain.theta, plain.theta_uncorrected);
+    assert_eq!(plain.bias_subtracted, [0.0; 4]);
+    let fo = plain.first_order_bias.expect("first-order bias with the covariance following θ");
+    assert!(fo.bias.iter().all(|b| b.is_finite()), "{fo:?}");
+
+    let boot = bootstrap(&input, &plain, &opts, &BootstrapOptions { replicates: 2, seed: 3, ..Default::default() })
+        .expect("bootstrap");
+    for all_parameters in [false, true] {
+        let corr = BiasCorrection::Bootstrap { replicates: 2, seed: 3, all_parameters };
+        let r = estimate(&input, &start, &EivOptions { bias_correction: corr, ..opts.clone() }).expect("eiv");
+        assert_eq!(r.theta_uncorrected, plain.theta);
+        let want = if all_parameters { boot.bias } else { [boot.bias[0], 0.0, 0.0, 0.0] };
+        assert!(want[0] != 0.0, "the bootstrap found no c_e bias at all: {want:?}");
+        assert_eq!(r.bias_subtracted, want);
+        // Bit-exact: the correction is one subtraction.
+        let p = plain.theta.to_array();
+        let shifted: [f64; 4] = std::array::from_fn(|i| p[i] - want[i]);
+        assert_eq!(r.theta.to_array(), shifted);
+    }
+    let one = BiasCorrection::Bootstrap { replicates: 1, seed: 0, all_parameters: false };
+    let bad = EivOptions { bias_correction: one, ..opts };
+    assert!(matches!(bad.validate(), Err(Error::InvalidOption { field: "bias_correction", .. })));
+}
