@@ -151,8 +151,10 @@
 //! noise model at θ̂ on the drive's own inputs, re-fitted with the same
 //! options (each replicate seeded on its own, so thread-count independent),
 //! giving percentile and basic intervals, the estimator's bias at θ̂ and the
-//! bias-corrected θ̂ − bias. This is the measured cure of the c_e bias
-//! (below).
+//! bias-corrected θ̂ − bias. This is the measured cure of the c_e bias:
+//! [`EivOptions::bias_correction`] = [`BiasCorrection::Bootstrap`] applies it
+//! inside [`estimate`] (its table; the analytic alternatives measured
+//! against it are [`FirstOrderBias`] and [`WheelNoiseScale::FittedInput`]).
 //!
 //! ## Misspecification
 //!

@@ -203,6 +203,12 @@ fn check_objective_gradient_with(follows: bool, fitted: bool) {
             assert!((g - fd).abs() <= 1e-4 * g.abs().max(fd.abs()).max(1e-6), "∂{what}/∂p{p}: {g} vs {fd}");
         }
         if p < 4 && follows {
+            // Σ log det S over 1500 updates is ~3e4 with a rounding error of
+            // ~1e-10, which a 1e-6 relative step turns into ~1e-3 of a c_d
+            // gradient of ~0.03: these parts get a 100× larger step (the
+            // truncation error stays ~1e-8 relative).
+            let h = 100.0 * h;
+            let (sp, sm) = (cost_only(&perturb(&th, p, h), &eta), cost_only(&perturb(&th, p, -h), &eta));
             for (what, fd, g) in [
                 ("½Σ log det S", 0.5 * (sp.logdet - sm.logdet) / (2.0 * h), base.grad_logdet[p]),
                 ("−Σ m log(1 − ŝ)", (sp.correction - sm.correction) / (2.0 * h), base.grad_correction[p]),
@@ -225,30 +231,46 @@ fn innovation_derivatives_match_central_differences_fitted_input() {
 
 /// With the fitted-input scale the relative wheel noise in metres does not
 /// grow with c_e: at θ = θ_ref the filter is the measured-input filter, and
-/// scaling all circumferences up leaves S nearly unchanged while the
-/// measured-input S grows (quantisation and the other noise terms keep a
-/// small dependence).
+/// +1 % on c_e leaves S nearly unchanged where the measured-input S grows by
+/// about 2 % (variance ∝ C²). Wheel noise only (no quantisation, reference,
+/// a_y or β noise beyond the 1 mm floors), so S is the wheel part.
 #[test]
 fn fitted_input_scale_removes_the_growth_of_s_with_c_e() {
     let out = simulate(&SimOptions { length_km: 0.3, ..SimOptions::paper(7) }).expect("sim");
     let input = input_of(&out.drive);
     let w = Window { index: 0, part: 0, start: 0, end: 600.min(input.len() - 1) };
     let th = Theta { c_e: 1.953, c_d: -0.0015, t_r: 1.52, d: 0.0009 };
-    let eta = [0.0; 6];
-    let same = records_with(&input, &w, &th, &th, &eta, true, true);
-    let measured = records_with(&input, &w, &th, &th, &eta, true, false);
+    let wheels_only = NoiseModel {
+        quantisation_step_rev_per_s: 0.0,
+        position_white_sigma_m: 0.0,
+        heading_white_sigma_rad: 0.0,
+        position_drift_sigma_m: 0.0,
+        heading_drift_sigma_rad: 0.0,
+        lateral_acceleration_sigma_m_per_s2: 0.0,
+        sideslip_sigma_rad: 0.0,
+        ..NoiseModel::default()
+    };
+    let run = |t: &Theta, fitted: bool| {
+        let mut v = wheels_only.variances(&[0.0; 6], input.sample_time_s);
+        v.fitted_input = fitted;
+        let mut rec = Vec::new();
+        run_window(&input, &w, t, &th, &v, filter::Mode::full(true, false), Some(&mut rec)).expect("window");
+        rec
+    };
+    let (same, measured) = (run(&th, true), run(&th, false));
+    // At θ = θ_ref the factor C(θ_ref)/C(θ) is 1 to rounding (the two
+    // circumference formulas may differ by an ulp), so S agrees to rounding
+    // amplified by the recursion.
     for (a, b) in same.iter().zip(&measured) {
-        assert!((a.s - b.s).amax() <= 1e-15 * b.s.amax(), "θ = θ_ref: {} vs {}", a.s, b.s);
+        assert!((a.s - b.s).amax() <= 1e-10 * b.s.amax(), "θ = θ_ref: {} vs {}", a.s, b.s);
     }
     let big = Theta { c_e: th.c_e * 1.01, ..th };
-    let fitted_big = records_with(&input, &w, &big, &th, &eta, true, true);
-    let measured_big = records_with(&input, &w, &big, &th, &eta, true, false);
+    let (fitted_big, measured_big) = (run(&big, true), run(&big, false));
     let k = measured.len() - 1;
     let growth = |a: &InnovationRecord, b: &InnovationRecord| a.s[(0, 0)] / b.s[(0, 0)] - 1.0;
     let (g_meas, g_fit) = (growth(&measured_big[k], &measured[k]), growth(&fitted_big[k], &same[k]));
-    // Measured input: S_xx grows by about 2 % for +1 % c_e (variance ∝ C²).
-    assert!(g_meas > 0.01, "measured-input S_xx grew by {g_meas}");
-    assert!(g_fit.abs() < 0.25 * g_meas, "fitted-input S_xx grew by {g_fit} (measured {g_meas})");
+    assert!(g_meas > 0.015, "measured-input S_xx grew by {g_meas}");
+    assert!(g_fit.abs() < 0.1 * g_meas, "fitted-input S_xx grew by {g_fit} (measured {g_meas})");
 }
 
 #[test]
