@@ -52,14 +52,14 @@
 //! CRB σ from [`cramer_rao_bound`], full Fisher information; "known" = the
 //! simulator's noise model from [`NoiseModel::from_sim`], fixed; "est." =
 //! η estimated from [`NoiseModel::PRODUCTION_CAR`]; "boot" = known minus
-//! the [`bootstrap`] bias, B = 10, seeds 1–8; docs/study.md has the rest):
+//! the [`bootstrap`] bias, B = 10, seeds 1–20 (stop 10); docs/study.md has the rest):
 //!
 //! | preset | batch G-N t_r % | follows, known | follows, est. | CRB | known c_e % | known + boot c_e % | c_e CRB |
 //! |---|---|---|---|---|---|---|---|
-//! | white | +1.11 ± 0.73 | +0.10 ± 0.24 | +0.01 ± 0.26 | 0.21 | +0.010 ± 0.003 | – | 0.003 |
-//! | paper | +1.37 ± 0.82 | +0.39 ± 0.30 | +4.04 ± 1.02 | 0.23 | +0.087 ± 0.029 | +0.014 ± 0.023 | 0.024 |
-//! | high  | +8.2 ± 3.6   | +3.3 ± 1.2   | +122 ± 33    | 0.29 | +0.55 ± 0.07 | – | 0.059 |
-//! | coloured wheel, perfect reference | +1.32 ± 0.81 | +0.14 ± 0.26 | +0.05 ± 0.25 | 0.22 | +0.098 ± 0.026 | +0.016 ± 0.029 | 0.019 |
+//! | white | +1.11 ± 0.73 | +0.10 ± 0.24 | +0.01 ± 0.26 | 0.21 | +0.010 ± 0.003 | +0.0003 ± 0.0026 | 0.003 |
+//! | paper | +1.37 ± 0.82 | +0.39 ± 0.30 | +4.04 ± 1.02 | 0.23 | +0.087 ± 0.029 | +0.005 ± 0.031 | 0.024 |
+//! | high  | +8.2 ± 3.6   | +3.3 ± 1.2   | +122 ± 33    | 0.29 | +0.55 ± 0.07 | +0.013 ± 0.078 | 0.059 |
+//! | coloured wheel, perfect reference | +1.32 ± 0.81 | +0.14 ± 0.26 | +0.05 ± 0.25 | 0.22 | +0.098 ± 0.026 | +0.004 ± 0.028 | 0.019 |
 //!
 //! (Earlier, 5 seeds: the covariance held at a reference with the known
 //! noise gave t_r +0.60 / +1.29 / +11.1 % on white / paper / high.)
@@ -79,7 +79,7 @@
 //! only approximately. It adds a c_e bias of about `2σ²` of the relative
 //! input noise (the noise is scaled by the measured inputs; the
 //! coloured-noise correction is about half effective in this mode), which
-//! the bootstrap bias correction removes (paper +0.087 → +0.014 %). With
+//! the bootstrap bias correction removes (paper +0.087 → +0.005 %, 20 seeds). With
 //! the production-car starting model (τ_w = 0.25 s, τ_c = 2 s against the
 //! simulator's 5 s) the estimated η absorbs the mismatch and t_r is biased
 //! again (paper +4 %, high +122 %): estimating η from a wrong-τ start is
