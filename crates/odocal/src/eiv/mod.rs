@@ -1398,6 +1398,13 @@ fn scoring_pass(
     let mut termination = Termination::MaxIterations { iterations: opts.max_iterations, step_over_sigma: f64::NAN };
     let mut eta_sigma = [0.0; 6];
     let tol = |c: f64| 1e-12 * c.abs().max(1.0);
+    // With the covariance following θ and η estimated, the evaluation at the
+    // end of a θ step only serves the η step that follows (its η gradient and
+    // information), so it skips `∂P/∂θ` (4 of the 9 covariance derivatives);
+    // when that η step is not taken, the point is evaluated again in full.
+    // After an iteration whose η did not move, the θ step is evaluated in
+    // full directly (η at a clamp: the η step is likely not taken again).
+    let mut eta_moved = true;
     for it in 0..opts.max_iterations {
         let (dth, sth) = theta_step(&ev.total, &free, follows)?;
         let (deta, seta) = if eta_derivs { eta_step(&ev.total, &eta, bounds) } else { ([0.0; 6], [0.0; 6]) };
@@ -1417,7 +1424,8 @@ fn scoring_pass(
                 let c = objective(t, th);
                 (c <= previous + tol(previous), c)
             };
-            match line_search(prob, &theta, &eta, &dth, &[0.0; 6], &theta_ref, full, false, opts, &accept_j)? {
+            let theta_mode = if eta_derivs && eta_moved { Mode::eta_only(follows) } else { full };
+            match line_search(prob, &theta, &eta, &dth, &[0.0; 6], &theta_ref, theta_mode, false, opts, &accept_j)? {
                 Search::Accepted { theta: th, ev: e, lambda: l, .. } => {
                     theta = th;
                     ev = *e;
@@ -1433,6 +1441,7 @@ fn scoring_pass(
                 let (deta, seta) = eta_step(&ev.total, &eta, bounds);
                 eta_sigma = seta;
                 ratio = ratio.max(step_ratio(&[0.0; 4], &sth, &[false; 4], &eta, &deta, &seta, bounds));
+                eta_moved = false;
                 if deta.iter().any(|x| *x != 0.0) {
                     let previous_m = ev.total.merit();
                     let accept_m = |t: &Evaluation, _: &Theta, _: &[f64; 6]| {
@@ -1443,14 +1452,19 @@ fn scoring_pass(
                         Search::Accepted { eta: et, ev: e, .. } => {
                             eta = et;
                             ev = *e;
+                            eta_moved = true;
                         }
                         Search::Rejected { cost } => {
                             termination =
                                 Termination::CostIncreased { cost, previous: previous_m, halvings: opts.max_halvings };
+                            ev = prob.evaluate(&theta, &theta_ref, &eta, full)?;
                             break;
                         }
                     }
                 }
+            }
+            if ev.mode != full {
+                ev = prob.evaluate(&theta, &theta_ref, &eta, full)?;
             }
         } else {
             // Joint step. Accept when the objective falls, or when the corrected
