@@ -2,7 +2,7 @@
 //! side by side in one run (issue 9's speed target for `--method eiv`):
 //!
 //! ```text
-//! cargo run --release -p odocal --example eiv_speed -- [km,km,..] [reps] [seed] [fingerprint.json]
+//! cargo run --release -p odocal --example eiv_speed -- [km,km,..] [reps] [seed] [fingerprint.json|-] [methods]
 //! ```
 //!
 //! Defaults: 12,24,48 km, 3 repetitions (the minimum wall time is
@@ -13,7 +13,9 @@
 //! objective only]`, scoring iterations, windows, and the split of the
 //! wall time between the batch G-N start and the filter. With a fourth
 //! argument the results (θ, η, σ, passes; no timings) are written as JSON,
-//! to check that a speed change leaves them unchanged.
+//! to check that a speed change leaves them unchanged (`-`: not written).
+//! The fifth argument picks methods by name (comma separated: `batch-gn`,
+//! `three-step`, `eiv-fixed`, `eiv-estimated`; default all).
 
 use std::time::Instant;
 
@@ -24,16 +26,13 @@ use odocal::{calibrate, CalibrationOptions, CalibrationReport, Method};
 
 fn methods() -> Vec<(&'static str, Method)> {
     let eiv = |fix_noise: bool| {
-        Method::Eiv(EivMethodOptions {
-            filter: EivOptions { fix_noise, ..Default::default() },
-            ..Default::default()
-        })
+        Method::Eiv(EivMethodOptions { filter: EivOptions { fix_noise, ..Default::default() }, ..Default::default() })
     };
     vec![
         ("batch-gn", Method::from_name("batch-gn").expect("method")),
         ("three-step", Method::from_name("three-step").expect("method")),
-        ("eiv fixed noise", eiv(true)),
-        ("eiv estimated noise", eiv(false)),
+        ("eiv-fixed", eiv(true)),
+        ("eiv-estimated", eiv(false)),
     ]
 }
 
@@ -45,7 +44,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     };
     let reps: usize = args.get(2).map(|s| s.parse()).transpose()?.unwrap_or(3).max(1);
     let seed: u64 = args.get(3).map(|s| s.parse()).transpose()?.unwrap_or(1);
-    let fingerprint_path = args.get(4);
+    let fingerprint_path = args.get(4).filter(|p| p.as_str() != "-");
+    let pick: Option<Vec<&str>> = args.get(5).map(|s| s.split(',').collect());
     let mut fingerprint = Vec::new();
     println!("threads {}; minimum of {reps} wall time(s) per cell", rayon::current_num_threads());
     println!("km | samples | method | wall s (min, all) | start s | filter s | passes [derivs, cost] | it | windows");
@@ -53,6 +53,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let out = simulate(&SimOptions { length_km: km, ..SimOptions::paper(seed) })?;
         let d = &out.drive;
         for (name, method) in methods() {
+            if pick.as_ref().is_some_and(|p| !p.contains(&name)) {
+                continue;
+            }
             let opts = CalibrationOptions { method, ..Default::default() };
             let mut times = Vec::with_capacity(reps);
             let mut last: Option<CalibrationReport> = None;

@@ -529,12 +529,8 @@ struct ReferenceTerms<const N: usize> {
 }
 
 fn reference_terms<const N: usize>(psi: f64, u: &Input, th: &Theta, ts: f64) -> ReferenceTerms<N> {
-    let (c_e, c_d, t_r, d) = (
-        Dual::<N>::var(th.c_e, 0),
-        Dual::<N>::var(th.c_d, 1),
-        Dual::<N>::var(th.t_r, 2),
-        Dual::<N>::var(th.d, 3),
-    );
+    let (c_e, c_d, t_r, d) =
+        (Dual::<N>::var(th.c_e, 0), Dual::<N>::var(th.c_d, 1), Dual::<N>::var(th.t_r, 2), Dual::<N>::var(th.d, 3));
     let (nl, nr) = (u.n_rl, u.n_rr);
     let c_rl = c_e + c_d * 0.5 + d * u.a_y;
     let c_rr = c_e - c_d * 0.5 - d * u.a_y;
@@ -1113,4 +1109,93 @@ pub(crate) fn run_window(
         add_kdk(&mut p, &k, &r_k);
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod kernel_tests {
+    //! The structured, symmetric kernels against the plain dense formulas.
+    use super::*;
+
+    /// Rounding of ~100 products of O(1) numbers: far above it would be a
+    /// wrong index, far below any effect on a fit.
+    const KERNEL_REL_TOL: f64 = 1e-13;
+
+    /// A deterministic pseudo-random number in [−1, 1).
+    fn lcg(state: &mut u64) -> f64 {
+        *state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((*state >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+    }
+
+    fn random_symmetric(state: &mut u64) -> M9 {
+        let a = M9::from_fn(|_, _| lcg(state));
+        a * a.transpose() + M9::identity()
+    }
+
+    fn h() -> SMatrix<f64, 3, NZ> {
+        let mut h = SMatrix::<f64, 3, NZ>::zeros();
+        for i in 0..3 {
+            h[(i, i)] = 1.0;
+            h[(i, i + 6)] = 1.0;
+        }
+        h
+    }
+
+    fn assert_close(a: &M9, b: &M9, what: &str) {
+        let scale = b.amax().max(1.0);
+        assert!((a - b).amax() <= KERNEL_REL_TOL * scale, "{what}: {a} vs {b}");
+    }
+
+    #[test]
+    fn structured_kernels_match_dense_formulas() {
+        let mut st = 7u64;
+        for _ in 0..20 {
+            let p = random_symmetric(&mut st);
+            let (f02, f12) = (lcg(&mut st), lcg(&mut st));
+            let fxs = Matrix3::from_fn(|_, _| lcg(&mut st));
+            let diag = [1.0, 1.0, 1.0, 0.9, 0.8, 0.8, 0.99, 0.99, 0.99];
+            let mut f = M9::zeros();
+            for i in 0..NZ {
+                f[(i, i)] = diag[i];
+            }
+            f[(0, 2)] = f02;
+            f[(1, 2)] = f12;
+            f.fixed_view_mut::<3, 3>(0, 3).copy_from(&fxs);
+            let dense = f * p * f.transpose();
+            let fast = propagate(&p, f02, f12, &fxs, &diag);
+            assert_close(&fast, &dense, "propagate");
+            assert_eq!(fast, fast.transpose(), "propagate is not exactly symmetric");
+            assert_close(&propagate_general(&p, f02, f12, &fxs, &diag), &dense, "propagate_general");
+            // A non-symmetric A through the general kernels.
+            let x = M9::from_fn(|_, _| lcg(&mut st));
+            assert_close(&propagate_general(&x, f02, f12, &fxs, &diag), &(f * x * f.transpose()), "general, asym");
+
+            let k = M9x3::from_fn(|_, _| lcg(&mut st));
+            let ikh = M9::identity() - k * h();
+            let dense = ikh * p * ikh.transpose();
+            let fast = joseph(&p, &k);
+            assert_close(&fast, &dense, "joseph");
+            assert_eq!(fast, fast.transpose(), "joseph is not exactly symmetric");
+            assert_close(&joseph_general(&x, &k), &(ikh * x * ikh.transpose()), "joseph_general, asym");
+
+            let dm = Matrix3::from_fn(|_, _| lcg(&mut st));
+            let dm = dm + dm.transpose();
+            let mut acc = p;
+            add_kdk(&mut acc, &k, &dm);
+            assert_close(&acc, &(p + k * dm * k.transpose()), "add_kdk");
+            assert_eq!(acc, acc.transpose(), "add_kdk is not exactly symmetric");
+        }
+    }
+
+    /// The value-only reference terms are the values of the differentiated
+    /// ones, to the bit (the same operations on the value).
+    #[test]
+    // Compared exactly on purpose.
+    #[allow(clippy::float_cmp)]
+    fn value_only_reference_terms_equal_the_differentiated_values() {
+        let th = Theta::SIM_DEFAULT_TRUE;
+        let u = Input { n_rl: 5.1, n_rr: 5.4, beta: 0.01, a_y: 1.3 };
+        let a = reference_terms::<4>(0.7, &u, &th, 0.025).values();
+        let b = reference_terms::<0>(0.7, &u, &th, 0.025).values();
+        assert_eq!((a.f02, a.f12, a.fn_l, a.fn_r, a.f_a), (b.f02, b.f12, b.fn_l, b.fn_r, b.f_a));
+    }
 }
