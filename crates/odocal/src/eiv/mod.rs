@@ -128,11 +128,19 @@
 //! is then not taken) or after 10 iterations; with the covariance held it
 //! runs twice (the second pass with the reference at the first result).
 //!
-//! Speed (24 km paper drive, 65 152 samples, 2 cores, `eiv_check`): batch
-//! G-N 0.55 s; following θ with a fixed noise model 0.83 s (3 filter
-//! passes); following θ with η estimated 4.4 s (11 passes: the η block
-//! converges slowly and carries 5 more covariance derivatives); held with a
-//! fixed noise model 4.1 s (21 passes).
+//! Speed. The filter's cost is the covariance recursion and its
+//! derivatives: per sample, P and up to 9 `∂P/∂p_j` (4 θ with the
+//! covariance following θ, 5 η; η_5 only with a separate heading scale),
+//! each a structured `F (·) Fᵀ` and a Joseph update, computed on the lower
+//! triangle and mirrored (module `filter`). A θ step's evaluation, whose
+//! only use is the η step after it, skips `∂P/∂θ`. A fit with η estimated
+//! takes 1 + 2 × iterations derivative passes (11 on the 24 km paper
+//! drive), with the noise fixed 1 + iterations (3). Measured on that drive
+//! through `odocal calibrate` (docs/performance.md, CPU seconds, since the
+//! 2-core machine was shared): η estimated 3.3 s before these changes,
+//! 2.2 s after; fixed noise 0.82 → 0.72 s (of which batch G-N, the start,
+//! 0.2 s). Results agree with the earlier filter to ~1e-13 relative (test
+//! `results_match_the_recorded_results_of_the_unoptimised_filter`).
 //!
 //! Uncertainty is `H_θ⁻¹` at the estimate ([`EivReport::sigma`]), the
 //! sandwich `H_θ⁻¹ B H_θ⁻¹` (B the outer products of the per-update scores,
