@@ -7,19 +7,24 @@
 //!   full batch G-N over all selected segments of the 24 km drive;
 //! - `validate`: Ē_p of one θ on all validation segments;
 //! - `three_step`: the full default 3-step calibration on 6/12/24/48 km
-//!   (linear growth expected).
+//!   (linear growth expected);
+//! - `eiv_calibrate`: `calibrate` with batch G-N, EIV with the noise model
+//!   fixed and EIV with it estimated (the method's default), side by side on
+//!   12/24/48 km (`examples/eiv_speed.rs` is the quicker way to iterate).
 
 use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use odocal::calibrate::EivMethodOptions;
+use odocal::eiv::EivOptions;
 use odocal::identify::{batch_gauss_newton, batch_normal_equations, IdentifyOptions};
 use odocal::model::{step_jacobians, Input, State, Theta};
 use odocal::segment::{
     calibration_segments, validation_segments, SegmentData, SegmentOptions, ValidationSegmentOptions,
 };
 use odocal::sim::{simulate, SimOptions};
-use odocal::{calibrate, CalibrationOptions};
+use odocal::{calibrate, CalibrationOptions, Method};
 
 fn drive(km: f64) -> odocal::Drive {
     simulate(&SimOptions { length_km: km, ..SimOptions::paper(1) }).expect("simulate").drive
@@ -77,5 +82,29 @@ fn bench_three_step(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench_model, bench_simulate, bench_identify, bench_three_step);
+fn bench_eiv(c: &mut Criterion) {
+    let mut g = c.benchmark_group("eiv_calibrate");
+    g.sample_size(10);
+    g.warm_up_time(Duration::from_millis(100));
+    g.measurement_time(Duration::from_secs(5));
+    let eiv = |fix_noise: bool| {
+        Method::Eiv(EivMethodOptions { filter: EivOptions { fix_noise, ..Default::default() }, ..Default::default() })
+    };
+    for km in [12.0, 24.0, 48.0] {
+        let d = drive(km);
+        for (name, method) in [
+            ("batch_gn", Method::BatchGn(Default::default())),
+            ("eiv_fixed_noise", eiv(true)),
+            ("eiv_estimated_noise", eiv(false)),
+        ] {
+            let opts = CalibrationOptions { method, ..Default::default() };
+            g.bench_with_input(BenchmarkId::new(name, format!("{km}km")), &d, |b, d| {
+                b.iter(|| calibrate(d, &opts, None).expect("calibrate"))
+            });
+        }
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench_model, bench_simulate, bench_identify, bench_three_step, bench_eiv);
 criterion_main!(benches);

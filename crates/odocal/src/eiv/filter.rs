@@ -202,34 +202,55 @@ pub(crate) struct InnovationRecord {
 
 /// `F P Fᵀ` for the structured transition
 /// `F = [[F_x, F_xs, 0], [0, diag(a_s), 0], [0, 0, a_b I]]`,
-/// `F_x = I + e_0 f02 e_2ᵀ + e_1 f12 e_2ᵀ`.
+/// `F_x = I + e_0 f02 e_2ᵀ + e_1 f12 e_2ᵀ`, for a symmetric `P`.
+///
+/// Only the lower triangle is computed (through `W = P F_topᵀ`, 9×3, `F_top`
+/// the first three rows of F) and mirrored, so the result is exactly
+/// symmetric; about 170 multiplications instead of the 380 of the general
+/// row-then-column form.
 #[inline]
 fn propagate(p: &M9, f02: f64, f12: f64, fxs: &Matrix3<f64>, diag: &[f64; 9]) -> M9 {
-    // M = F P (row operations).
-    let mut m = M9::zeros();
-    for j in 0..NZ {
-        let (p0, p1, p2) = (p[(0, j)], p[(1, j)], p[(2, j)]);
-        let (p3, p4, p5) = (p[(3, j)], p[(4, j)], p[(5, j)]);
-        m[(0, j)] = p0 + f02 * p2 + fxs[(0, 0)] * p3 + fxs[(0, 1)] * p4 + fxs[(0, 2)] * p5;
-        m[(1, j)] = p1 + f12 * p2 + fxs[(1, 0)] * p3 + fxs[(1, 1)] * p4 + fxs[(1, 2)] * p5;
-        m[(2, j)] = p2 + fxs[(2, 0)] * p3 + fxs[(2, 1)] * p4 + fxs[(2, 2)] * p5;
-        for r in 3..NZ {
-            m[(r, j)] = diag[r] * p[(r, j)];
+    let fr = [f02, f12, 0.0];
+    // W = P F_topᵀ: W[r, c] = P[r, c] + F[c, 2] P[r, 2] + F_xs[c, :] · P[r, 3..6].
+    let mut w = M9x3::zeros();
+    for c in 0..3 {
+        let (g2, g3, g4, g5) = (fr[c], fxs[(c, 0)], fxs[(c, 1)], fxs[(c, 2)]);
+        for r in 0..NZ {
+            w[(r, c)] = p[(r, c)] + g2 * p[(r, 2)] + g3 * p[(r, 3)] + g4 * p[(r, 4)] + g5 * p[(r, 5)];
         }
     }
-    // F P Fᵀ = M Fᵀ (column operations).
     let mut out = M9::zeros();
-    for i in 0..NZ {
-        let (m0, m1, m2) = (m[(i, 0)], m[(i, 1)], m[(i, 2)]);
-        let (m3, m4, m5) = (m[(i, 3)], m[(i, 4)], m[(i, 5)]);
-        out[(i, 0)] = m0 + f02 * m2 + fxs[(0, 0)] * m3 + fxs[(0, 1)] * m4 + fxs[(0, 2)] * m5;
-        out[(i, 1)] = m1 + f12 * m2 + fxs[(1, 0)] * m3 + fxs[(1, 1)] * m4 + fxs[(1, 2)] * m5;
-        out[(i, 2)] = m2 + fxs[(2, 0)] * m3 + fxs[(2, 1)] * m4 + fxs[(2, 2)] * m5;
-        for c in 3..NZ {
-            out[(i, c)] = diag[c] * m[(i, c)];
+    // Pose block: F_top W (lower triangle).
+    for c in 0..3 {
+        for i in c..3 {
+            out[(i, c)] = w[(i, c)]
+                + fr[i] * w[(2, c)]
+                + fxs[(i, 0)] * w[(3, c)]
+                + fxs[(i, 1)] * w[(4, c)]
+                + fxs[(i, 2)] * w[(5, c)];
         }
     }
+    // Rows 3..9: diagonal rows of F.
+    for i in 3..NZ {
+        for c in 0..3 {
+            out[(i, c)] = diag[i] * w[(i, c)];
+        }
+        for c in 3..=i {
+            out[(i, c)] = diag[c] * (diag[i] * p[(i, c)]);
+        }
+    }
+    mirror_lower(&mut out);
     out
+}
+
+/// Copies the strict lower triangle onto the upper one.
+#[inline]
+fn mirror_lower(m: &mut M9) {
+    for c in 1..NZ {
+        for r in 0..c {
+            m[(r, c)] = m[(c, r)];
+        }
+    }
 }
 
 /// `H A` for `H = [I₃ 0 I₃]`: rows 0..3 plus rows 6..9.
@@ -313,9 +334,49 @@ fn theta_jacobian_input_derivatives(psi: f64, u: &Input, th: &Theta, ts: f64) ->
     })
 }
 
-/// `(I − K H) A (I − K H)ᵀ` for `H = [I₃ 0 I₃]`.
+/// `(I − K H) A (I − K H)ᵀ` for `H = [I₃ 0 I₃]` and a symmetric `A`.
+///
+/// In the factored order of the Joseph form (`X = A − K(HA)`, then
+/// `X − (XHᵀ)Kᵀ`; the expanded `A − KHA − (KHA)ᵀ + K(HAHᵀ)Kᵀ` is
+/// numerically unstable here), but only the entries of X that the lower
+/// triangle of the result needs, and only that triangle, mirrored.
 #[inline]
 fn joseph(a: &M9, k: &M9x3) -> M9 {
+    // HA (3×9): rows 0..3 plus rows 6..9.
+    let ha = h_rows(a);
+    // X = A − K HA: every row of columns 0..3 and 6..9 (for XHᵀ), and the
+    // lower triangle of columns 3..6.
+    let mut x = M9::zeros();
+    for c in 0..NZ {
+        let first = if (3..6).contains(&c) { c } else { 0 };
+        let (h0, h1, h2) = (ha[(0, c)], ha[(1, c)], ha[(2, c)]);
+        for r in first..NZ {
+            x[(r, c)] = a[(r, c)] - (k[(r, 0)] * h0 + k[(r, 1)] * h1 + k[(r, 2)] * h2);
+        }
+    }
+    // XHᵀ (9×3).
+    let mut xh = M9x3::zeros();
+    for m in 0..3 {
+        for r in 0..NZ {
+            xh[(r, m)] = x[(r, m)] + x[(r, m + 6)];
+        }
+    }
+    // Lower triangle of X − (XHᵀ)Kᵀ.
+    let mut out = M9::zeros();
+    for c in 0..NZ {
+        let (k0, k1, k2) = (k[(c, 0)], k[(c, 1)], k[(c, 2)]);
+        for r in c..NZ {
+            out[(r, c)] = x[(r, c)] - (xh[(r, 0)] * k0 + xh[(r, 1)] * k1 + xh[(r, 2)] * k2);
+        }
+    }
+    mirror_lower(&mut out);
+    out
+}
+
+/// `(I − K H) A (I − K H)ᵀ` for `H = [I₃ 0 I₃]` and any `A` (the
+/// cross-covariances X of the corrected score are not symmetric).
+#[inline]
+fn joseph_general(a: &M9, k: &M9x3) -> M9 {
     let x = a - k * h_rows(a);
     let mut xh = M9x3::zeros();
     for r in 0..NZ {
@@ -324,6 +385,52 @@ fn joseph(a: &M9, k: &M9x3) -> M9 {
         }
     }
     x - xh * k.transpose()
+}
+
+/// `F A Fᵀ` as [`propagate`] for any `A` (not only symmetric ones).
+#[inline]
+fn propagate_general(p: &M9, f02: f64, f12: f64, fxs: &Matrix3<f64>, diag: &[f64; 9]) -> M9 {
+    // M = F P (row operations).
+    let mut m = M9::zeros();
+    for j in 0..NZ {
+        let (p0, p1, p2) = (p[(0, j)], p[(1, j)], p[(2, j)]);
+        let (p3, p4, p5) = (p[(3, j)], p[(4, j)], p[(5, j)]);
+        m[(0, j)] = p0 + f02 * p2 + fxs[(0, 0)] * p3 + fxs[(0, 1)] * p4 + fxs[(0, 2)] * p5;
+        m[(1, j)] = p1 + f12 * p2 + fxs[(1, 0)] * p3 + fxs[(1, 1)] * p4 + fxs[(1, 2)] * p5;
+        m[(2, j)] = p2 + fxs[(2, 0)] * p3 + fxs[(2, 1)] * p4 + fxs[(2, 2)] * p5;
+        for r in 3..NZ {
+            m[(r, j)] = diag[r] * p[(r, j)];
+        }
+    }
+    // F P Fᵀ = M Fᵀ (column operations).
+    let mut out = M9::zeros();
+    for i in 0..NZ {
+        let (m0, m1, m2) = (m[(i, 0)], m[(i, 1)], m[(i, 2)]);
+        let (m3, m4, m5) = (m[(i, 3)], m[(i, 4)], m[(i, 5)]);
+        out[(i, 0)] = m0 + f02 * m2 + fxs[(0, 0)] * m3 + fxs[(0, 1)] * m4 + fxs[(0, 2)] * m5;
+        out[(i, 1)] = m1 + f12 * m2 + fxs[(1, 0)] * m3 + fxs[(1, 1)] * m4 + fxs[(1, 2)] * m5;
+        out[(i, 2)] = m2 + fxs[(2, 0)] * m3 + fxs[(2, 1)] * m4 + fxs[(2, 2)] * m5;
+        for c in 3..NZ {
+            out[(i, c)] = diag[c] * m[(i, c)];
+        }
+    }
+    out
+}
+
+/// `dst += K D Kᵀ` for a symmetric 3×3 `D`, exactly symmetric.
+#[inline]
+fn add_kdk(dst: &mut M9, k: &M9x3, d: &Matrix3<f64>) {
+    let kd = k * d;
+    for c in 0..NZ {
+        let (k0, k1, k2) = (k[(c, 0)], k[(c, 1)], k[(c, 2)]);
+        for r in c..NZ {
+            let v = kd[(r, 0)] * k0 + kd[(r, 1)] * k1 + kd[(r, 2)] * k2;
+            dst[(r, c)] += v;
+            if r != c {
+                dst[(c, r)] += v;
+            }
+        }
+    }
 }
 
 /// The initial covariance of a window and its derivatives over
@@ -354,83 +461,88 @@ fn initial_covariance(v: &Variances, r_floor: &[f64; 3]) -> (M9, [M9; NP]) {
 }
 
 /// A number with its gradient over θ (forward-mode differentiation of the
-/// covariance-recursion terms; exact to rounding).
+/// covariance-recursion terms; exact to rounding). `N = 4` carries the
+/// gradient; `N = 0` only the value (the same operations on it, so the
+/// value is the same to the bit), for passes that do not need `∂P/∂θ`.
 #[derive(Debug, Clone, Copy)]
-struct Dual {
+struct Dual<const N: usize> {
     v: f64,
-    d: [f64; 4],
+    d: [f64; N],
 }
 
-impl Dual {
+impl<const N: usize> Dual<N> {
     fn cst(v: f64) -> Self {
-        Dual { v, d: [0.0; 4] }
+        Dual { v, d: [0.0; N] }
     }
     fn var(v: f64, i: usize) -> Self {
-        let mut d = [0.0; 4];
-        d[i] = 1.0;
+        let mut d = [0.0; N];
+        if let Some(x) = d.get_mut(i) {
+            *x = 1.0;
+        }
         Dual { v, d }
     }
-    fn sin_cos(self) -> (Dual, Dual) {
+    fn sin_cos(self) -> (Self, Self) {
         let (s, c) = self.v.sin_cos();
         (Dual { v: s, d: self.d.map(|x| c * x) }, Dual { v: c, d: self.d.map(|x| -s * x) })
     }
 }
 
-impl std::ops::Add for Dual {
-    type Output = Dual;
-    fn add(self, o: Dual) -> Dual {
+impl<const N: usize> std::ops::Add for Dual<N> {
+    type Output = Self;
+    fn add(self, o: Self) -> Self {
         Dual { v: self.v + o.v, d: std::array::from_fn(|i| self.d[i] + o.d[i]) }
     }
 }
-impl std::ops::Sub for Dual {
-    type Output = Dual;
-    fn sub(self, o: Dual) -> Dual {
+impl<const N: usize> std::ops::Sub for Dual<N> {
+    type Output = Self;
+    fn sub(self, o: Self) -> Self {
         Dual { v: self.v - o.v, d: std::array::from_fn(|i| self.d[i] - o.d[i]) }
     }
 }
-impl std::ops::Mul for Dual {
-    type Output = Dual;
+impl<const N: usize> std::ops::Mul for Dual<N> {
+    type Output = Self;
     // The product rule adds.
     #[allow(clippy::suspicious_arithmetic_impl)]
-    fn mul(self, o: Dual) -> Dual {
+    fn mul(self, o: Self) -> Self {
         Dual { v: self.v * o.v, d: std::array::from_fn(|i| self.d[i] * o.v + self.v * o.d[i]) }
     }
 }
-impl std::ops::Mul<f64> for Dual {
-    type Output = Dual;
-    fn mul(self, o: f64) -> Dual {
+impl<const N: usize> std::ops::Mul<f64> for Dual<N> {
+    type Output = Self;
+    fn mul(self, o: f64) -> Self {
         Dual { v: self.v * o, d: self.d.map(|x| x * o) }
     }
 }
-impl std::ops::Div for Dual {
-    type Output = Dual;
-    fn div(self, o: Dual) -> Dual {
+impl<const N: usize> std::ops::Div for Dual<N> {
+    type Output = Self;
+    fn div(self, o: Self) -> Self {
         let inv = 1.0 / o.v;
         let q = self.v * inv;
         Dual { v: q, d: std::array::from_fn(|i| (self.d[i] - q * o.d[i]) * inv) }
     }
 }
-impl std::ops::Neg for Dual {
-    type Output = Dual;
-    fn neg(self) -> Dual {
+impl<const N: usize> std::ops::Neg for Dual<N> {
+    type Output = Self;
+    fn neg(self) -> Self {
         Dual { v: -self.v, d: self.d.map(|x| -x) }
     }
 }
 
 /// The terms of the covariance recursion at one step, evaluated on the
 /// reference (reference heading ψ, measured inputs) at θ, with their
-/// θ-gradients: `F̄[0,2], F̄[1,2]`, `∂f/∂n_l`, `∂f/∂n_r`, `∂f/∂a_y` (as
-/// [`step_jacobians`] and the module docs).
-struct ReferenceTerms {
-    f02: Dual,
-    f12: Dual,
-    fn_l: [Dual; 3],
-    fn_r: [Dual; 3],
-    f_a: [Dual; 3],
+/// θ-gradients when `N = 4`: `F̄[0,2], F̄[1,2]`, `∂f/∂n_l`, `∂f/∂n_r`,
+/// `∂f/∂a_y` (as [`step_jacobians`] and the module docs).
+struct ReferenceTerms<const N: usize> {
+    f02: Dual<N>,
+    f12: Dual<N>,
+    fn_l: [Dual<N>; 3],
+    fn_r: [Dual<N>; 3],
+    f_a: [Dual<N>; 3],
 }
 
-fn reference_terms(psi: f64, u: &Input, th: &Theta, ts: f64) -> ReferenceTerms {
-    let (c_e, c_d, t_r, d) = (Dual::var(th.c_e, 0), Dual::var(th.c_d, 1), Dual::var(th.t_r, 2), Dual::var(th.d, 3));
+fn reference_terms<const N: usize>(psi: f64, u: &Input, th: &Theta, ts: f64) -> ReferenceTerms<N> {
+    let (c_e, c_d, t_r, d) =
+        (Dual::<N>::var(th.c_e, 0), Dual::<N>::var(th.c_d, 1), Dual::<N>::var(th.t_r, 2), Dual::<N>::var(th.d, 3));
     let (nl, nr) = (u.n_rl, u.n_rr);
     let c_rl = c_e + c_d * 0.5 + d * u.a_y;
     let c_rr = c_e - c_d * 0.5 - d * u.a_y;
@@ -439,7 +551,7 @@ fn reference_terms(psi: f64, u: &Input, th: &Theta, ts: f64) -> ReferenceTerms {
     let omega = num / t_r;
     let phi = omega * (ts / 2.0) + Dual::cst(psi + u.beta);
     let (s, c) = phi.sin_cos();
-    let row = |dv: Dual, domega: Dual| -> [Dual; 3] {
+    let row = |dv: Dual<N>, domega: Dual<N>| -> [Dual<N>; 3] {
         let dphi = domega * (ts / 2.0);
         [(c * dv - v * s * dphi) * ts, (s * dv + v * c * dphi) * ts, domega * ts]
     };
@@ -454,11 +566,11 @@ fn reference_terms(psi: f64, u: &Input, th: &Theta, ts: f64) -> ReferenceTerms {
     ReferenceTerms { f02: -(v * s) * ts, f12: v * c * ts, fn_l, fn_r, f_a }
 }
 
-fn vec_of(a: &[Dual; 3]) -> Vector3<f64> {
+fn vec_of<const N: usize>(a: &[Dual<N>; 3]) -> Vector3<f64> {
     Vector3::new(a[0].v, a[1].v, a[2].v)
 }
 
-fn dvec_of(a: &[Dual; 3], j: usize) -> Vector3<f64> {
+fn dvec_of(a: &[Dual<4>; 3], j: usize) -> Vector3<f64> {
     Vector3::new(a[0].d[j], a[1].d[j], a[2].d[j])
 }
 
@@ -466,12 +578,33 @@ fn dvec_of(a: &[Dual; 3], j: usize) -> Vector3<f64> {
 /// factor that turns the measured wheel rotation into the true rotation
 /// fitted at θ, `n̂ = ñ·C(θ_ref)/C(θ)` (the distance `ñ·C(θ_ref)` is held,
 /// so the relative wheel noise in metres no longer grows with C(θ)).
-fn fitted_input_factors(a_y: f64, th: &Theta, th_ref: &Theta) -> [Dual; 2] {
+fn fitted_input_factors(a_y: f64, th: &Theta, th_ref: &Theta) -> [Dual<4>; 2] {
     let (c_e, c_d, d) = (Dual::var(th.c_e, 0), Dual::var(th.c_d, 1), Dual::var(th.d, 3));
     let c_rl = c_e + c_d * 0.5 + d * a_y;
     let c_rr = c_e - c_d * 0.5 - d * a_y;
     let (r_rl, r_rr) = th_ref.wheel_circumferences(a_y);
     [Dual::cst(r_rl) / c_rl, Dual::cst(r_rr) / c_rr]
+}
+
+/// The values of [`ReferenceTerms`]: `F̄[0,2], F̄[1,2]`, `∂f/∂n_l`, `∂f/∂n_r`, `∂f/∂a_y`.
+struct ReferenceValues {
+    f02: f64,
+    f12: f64,
+    fn_l: Vector3<f64>,
+    fn_r: Vector3<f64>,
+    f_a: Vector3<f64>,
+}
+
+impl<const N: usize> ReferenceTerms<N> {
+    fn values(&self) -> ReferenceValues {
+        ReferenceValues {
+            f02: self.f02.v,
+            f12: self.f12.v,
+            fn_l: vec_of(&self.fn_l),
+            fn_r: vec_of(&self.fn_r),
+            f_a: vec_of(&self.f_a),
+        }
+    }
 }
 
 /// How the filter runs.
@@ -485,16 +618,26 @@ pub(crate) struct Mode {
     pub derivs: bool,
     /// With `derivs`: also the η derivatives.
     pub eta: bool,
+    /// With `derivs`: also the θ derivatives that need `∂P/∂θ` (with the
+    /// covariance following θ) or the corrected score (held). `false` (only
+    /// with `eta`) leaves the θ entries of the gradients and information
+    /// matrices incomplete, for an evaluation whose only use is an η step:
+    /// its η entries are the same to the bit.
+    pub theta: bool,
 }
 
 impl Mode {
     /// Objective only.
     pub(crate) fn cost(follows_theta: bool) -> Self {
-        Mode { follows_theta, derivs: false, eta: false }
+        Mode { follows_theta, derivs: false, eta: false, theta: false }
     }
     /// Objective and derivatives (η derivatives when `eta`).
     pub(crate) fn full(follows_theta: bool, eta: bool) -> Self {
-        Mode { follows_theta, derivs: true, eta }
+        Mode { follows_theta, derivs: true, eta, theta: true }
+    }
+    /// Objective and the η derivatives only (see [`Mode::theta`]).
+    pub(crate) fn eta_only(follows_theta: bool) -> Self {
+        Mode { follows_theta, derivs: true, eta: true, theta: false }
     }
 }
 
@@ -515,6 +658,13 @@ fn add_sym_rows(dst: &mut M9, a: &M3x9) {
 /// `theta_ref` is ignored). Accumulates the objective and, with
 /// `mode.derivs`, its gradient and the Fisher information. With `record`,
 /// every innovation and its derivatives are returned.
+///
+/// Speed: P and every `∂P/∂p_j` are symmetric and are propagated as such
+/// (lower triangle, mirrored; [`propagate`], [`joseph`]); a sensitivity
+/// column whose covariance derivative is identically zero (η_5 when the
+/// heading noise is tied to the position noise) is not propagated; the
+/// θ-gradients of the covariance terms are differentiated only when
+/// `∂P/∂θ` is propagated; nothing is allocated per sample.
 pub(crate) fn run_window(
     input: &EivInput<'_>,
     window: &Window,
@@ -528,10 +678,22 @@ pub(crate) fn run_window(
     let mut record = record;
     let follows = mode.follows_theta;
     let theta_cov = if follows { theta } else { theta_ref };
-    // Sensitivity columns whose covariance derivatives are propagated.
-    let cols: Vec<usize> = (0..NP).filter(|&c| mode.derivs && if c < 4 { follows } else { mode.eta }).collect();
+    // ∂P/∂θ is propagated (covariance following θ, θ derivatives wanted).
+    let theta_cols = mode.derivs && mode.theta && follows;
+    // Sensitivity columns whose covariance derivatives are propagated. With
+    // the heading white noise tied to the position's (η_3), ∂P/∂η_5 ≡ 0.
+    let mut cols_buf = [0usize; NP];
+    let mut ncols = 0;
+    for c in 0..NP {
+        let on = mode.derivs && if c < 4 { theta_cols } else { mode.eta && (c != 9 || v.heading_separate) };
+        if on {
+            cols_buf[ncols] = c;
+            ncols += 1;
+        }
+    }
+    let cols = &cols_buf[..ncols];
     // The corrected score (X recursion) is needed only with the covariance held.
-    let corrected = mode.derivs && !follows;
+    let corrected = mode.derivs && mode.theta && !follows;
     let r_floor = [
         POSITION_FLOOR_M * POSITION_FLOOR_M,
         POSITION_FLOOR_M * POSITION_FLOOR_M,
@@ -543,10 +705,6 @@ pub(crate) fn run_window(
     let (h_pos, h_head) = if v.heading_separate { (0.0, v.pose[2]) } else { (v.pose[2], 0.0) };
     let dr_position = Matrix3::from_diagonal(&Vector3::new(v.pose[0], v.pose[1], h_pos));
     let dr_heading = Matrix3::from_diagonal(&Vector3::new(0.0, 0.0, h_head));
-    let dr_of = |jj: usize| match jj {
-        7 => Some(&dr_position),
-        _ => None,
-    };
 
     let (mut p, mut dp) = initial_covariance(v, &r_floor);
     let a0 = window.start;
@@ -566,6 +724,13 @@ pub(crate) fn run_window(
     let mut xcov = [M9::zeros(); 4];
     let mut out = WindowSums::zero();
     let mut prev_e: Option<Vector3<f64>> = None;
+    // Per-sample work arrays (only the entries of `cols` are written; the
+    // rest stay zero, as the records expect).
+    let mut theta_terms: [M3x9; 4] = [M3x9::zeros(); 4];
+    let mut r_q_theta = [Matrix3::<f64>::zeros(); 4];
+    let mut ds = [Matrix3::<f64>::zeros(); NP];
+    let mut a = [Matrix3::<f64>::zeros(); NP];
+    let mut dkn = D9::zeros();
 
     for i in window.start..window.end {
         let (nl, nr) = (input.n_rl[i], input.n_rr[i]);
@@ -573,24 +738,22 @@ pub(crate) fn run_window(
 
         // --- Covariance linearisation along the reference (at θ_cov).
         let uref = Input { n_rl: nl, n_rr: nr, beta, a_y };
-        let rt = reference_terms(input.psi[i], &uref, theta_cov, ts);
-        let (f02, f12) = (rt.f02.v, rt.f12.v);
-        let fn_l = vec_of(&rt.fn_l);
-        let fn_r = vec_of(&rt.fn_r);
-        let f_a = vec_of(&rt.f_a);
+        let (rv, rt) = if theta_cols {
+            let rt = reference_terms::<4>(input.psi[i], &uref, theta_cov, ts);
+            (rt.values(), Some(rt))
+        } else {
+            (reference_terms::<0>(input.psi[i], &uref, theta_cov, ts).values(), None)
+        };
+        let (f02, f12) = (rv.f02, rv.f12);
+        let (fn_l, fn_r, f_a) = (rv.fn_l, rv.fn_r, rv.f_a);
         let f_b = Vector3::new(f02, f12, 0.0);
         // With `fitted_input` the relative wheel noise is scaled by the fitted
         // true input n̂ = ñ·g, g = C(θ_ref)/C(θ): the s-columns of F̄ are
         // −F_n n̂ and the white variance is σ²n̂² (g = 1 otherwise).
         let fitted = v.fitted_input && follows;
-        let (fs_l, fs_r, gw) = if fitted {
-            let g = fitted_input_factors(a_y, theta, theta_ref);
-            (rt.fn_l.map(|x| x * g[0]), rt.fn_r.map(|x| x * g[1]), g)
-        } else {
-            (rt.fn_l, rt.fn_r, [Dual::cst(1.0); 2])
-        };
+        let gw = if fitted { fitted_input_factors(a_y, theta, theta_ref) } else { [Dual::cst(1.0); 2] };
         let fxs_ref = if fitted {
-            let (sl, sr) = (vec_of(&fs_l), vec_of(&fs_r));
+            let (sl, sr) = (fn_l * gw[0].v, fn_r * gw[1].v);
             Matrix3::from_columns(&[-sl * nl - sr * nr, -sl * nl, -sr * nr])
         } else {
             Matrix3::from_columns(&[-fn_l * nl - fn_r * nr, -fn_l * nl, -fn_r * nr])
@@ -622,12 +785,13 @@ pub(crate) fn run_window(
         } else {
             Matrix3::zeros()
         };
-        let mut r_q_theta = [Matrix3::<f64>::zeros(); 4];
-        if v.quant_in_measurement && follows && mode.derivs {
-            for (jt, d_rq) in r_q_theta.iter_mut().enumerate() {
-                let (dfl, dfr) = (dvec_of(&rt.fn_l, jt), dvec_of(&rt.fn_r, jt));
-                let a = fn_l * dfl.transpose() + fn_r * dfr.transpose();
-                *d_rq = (a + a.transpose()) * v.quant;
+        if v.quant_in_measurement {
+            if let Some(rt) = &rt {
+                for (jt, d_rq) in r_q_theta.iter_mut().enumerate() {
+                    let (dfl, dfr) = (dvec_of(&rt.fn_l, jt), dvec_of(&rt.fn_r, jt));
+                    let a = fn_l * dfl.transpose() + fn_r * dfr.transpose();
+                    *d_rq = (a + a.transpose()) * v.quant;
+                }
             }
         }
         if i == window.start && v.quant_in_measurement {
@@ -642,7 +806,7 @@ pub(crate) fn run_window(
                     if mode.derivs && mode.eta {
                         dp[4][(r_, c_)] += r_q[(r_, c_)];
                     }
-                    if follows && mode.derivs {
+                    if theta_cols {
                         for (jt, d_rq) in r_q_theta.iter().enumerate() {
                             dp[jt][(r_, c_)] += d_rq[(r_, c_)];
                         }
@@ -653,7 +817,36 @@ pub(crate) fn run_window(
         let q_white = fn_l * fn_l.transpose() * wl + fn_r * fn_r.transpose() * wr;
         let q_x = q_white + f_b * f_b.transpose() * v.beta + f_a * f_a.transpose() * v.a_y;
 
-        let d_post = d;
+        // --- Corrected score (held covariance): X⁻ = F̄ X⁺ F̄ᵀ − Σ_u var(u) (∂f/∂u)(∂f_θ/∂u)ᵀ,
+        // with the sensitivities D⁺ of the previous update (before the mean prediction).
+        if corrected {
+            let a_u = theta_jacobian_input_derivatives(input.psi[i], &uref, theta_ref, ts);
+            // The noise moves the θ-sensitivity through ∂f/∂θ, through F_x (speed
+            // in the heading column) and through the s-columns of F (−F_n ñ).
+            let g_u = [(fn_l, wl), (fn_r, wr), (f_a, v.a_y)];
+            let fs_u = [
+                Matrix3::from_columns(&[-fn_l, -fn_l, Vector3::zeros()]),
+                Matrix3::from_columns(&[-fn_r, Vector3::zeros(), -fn_r]),
+                Matrix3::zeros(),
+            ];
+            for (ci, xi) in xcov.iter_mut().enumerate() {
+                *xi = propagate_general(xi, f02, f12, &fxs_ref, &diag);
+                let dx = Vector3::new(d[(0, ci)], d[(1, ci)], d[(2, ci)]);
+                let ds_ = Vector3::new(d[(3, ci)], d[(4, ci)], d[(5, ci)]);
+                for (u, (g, var)) in g_u.iter().enumerate() {
+                    if *var > 0.0 {
+                        let (a, df02, df12) = &a_u[u];
+                        let col = a.column(ci) + Vector3::new(df02 * dx[2], df12 * dx[2], 0.0) + fs_u[u] * ds_;
+                        for r in 0..3 {
+                            for c in 0..3 {
+                                xi[(r, c)] -= var * g[r] * col[c];
+                            }
+                        }
+                    }
+                }
+            }
+        }
+
         // --- Mean prediction at θ, with its exact Jacobians.
         let (m_c, m_l, m_r) = (
             f64::from(u8::from(nl != 0.0 || nr != 0.0)),
@@ -686,13 +879,12 @@ pub(crate) fn run_window(
             let j = step_jacobians(&x, &ueff, theta, ts);
             let (gl, gr) = (j.f_n.column(0) * nl, j.f_n.column(1) * nr);
             let fxs = Matrix3::from_columns(&[-(gl + gr), -gl, -gr]);
-            // D⁻ = F D⁺ + [f_θ | 0].
-            let mut dn = D9::zeros();
+            // D⁻ = F D⁺ + [f_θ | 0], in place column by column.
             for c in 0..NP {
                 let (d0, d1, d2) = (d[(0, c)], d[(1, c)], d[(2, c)]);
                 let (d3, d4, d5) = (d[(3, c)], d[(4, c)], d[(5, c)]);
                 for r in 0..3 {
-                    dn[(r, c)] = j.f_x[(r, 0)] * d0
+                    d[(r, c)] = j.f_x[(r, 0)] * d0
                         + j.f_x[(r, 1)] * d1
                         + j.f_x[(r, 2)] * d2
                         + fxs[(r, 0)] * d3
@@ -700,15 +892,14 @@ pub(crate) fn run_window(
                         + fxs[(r, 2)] * d5;
                 }
                 for r in 3..NZ {
-                    dn[(r, c)] = diag[r] * d[(r, c)];
+                    d[(r, c)] *= diag[r];
                 }
             }
             for c in 0..4 {
                 for r in 0..3 {
-                    dn[(r, c)] += j.f_theta[(r, c)];
+                    d[(r, c)] += j.f_theta[(r, c)];
                 }
             }
-            d = dn;
             x = j.next;
         } else {
             x = crate::model::step(&x, &ueff, theta, ts);
@@ -718,8 +909,14 @@ pub(crate) fn run_window(
 
         // --- Covariance prediction and its derivatives.
         // ∂P⁻/∂θ_j = F̄ ∂P⁺ F̄ᵀ + (∂F̄ P⁺ F̄ᵀ + F̄ P⁺ ∂F̄ᵀ) + ∂Q/∂θ_j.
-        let mut theta_terms: [M3x9; 4] = [M3x9::zeros(); 4];
-        if follows && mode.derivs {
+        if let Some(rt) = &rt {
+            // The s-columns −F_n n̂ with their θ-derivatives (n̂ = ñ·g, g = 1
+            // without `fitted_input`).
+            let (fs_l, fs_r) = if fitted {
+                (rt.fn_l.map(|x| x * gw[0]), rt.fn_r.map(|x| x * gw[1]))
+            } else {
+                (rt.fn_l, rt.fn_r)
+            };
             for (jt, tt) in theta_terms.iter_mut().enumerate() {
                 let dfl = dvec_of(&rt.fn_l, jt);
                 let dfr = dvec_of(&rt.fn_r, jt);
@@ -778,7 +975,7 @@ pub(crate) fn run_window(
             p[(r + 3, r + 3)] += q_s[r];
             p[(r + 6, r + 6)] += q_b[r];
         }
-        for &jj in &cols {
+        for &jj in cols {
             let dpj = &mut dp[jj];
             *dpj = propagate(dpj, f02, f12, &fxs_ref, &diag);
             match jj {
@@ -806,35 +1003,6 @@ pub(crate) fn run_window(
             }
         }
 
-        if corrected {
-            // Corrected score: X⁻ = F̄ X⁺ F̄ᵀ − Σ_u var(u) (∂f/∂u)(∂f_θ/∂u)ᵀ.
-            let a_u = theta_jacobian_input_derivatives(input.psi[i], &uref, theta_ref, ts);
-            // The noise moves the θ-sensitivity through ∂f/∂θ, through F_x (speed
-            // in the heading column) and through the s-columns of F (−F_n ñ).
-            let g_u = [(fn_l, wl), (fn_r, wr), (f_a, v.a_y)];
-            let fs_u = [
-                Matrix3::from_columns(&[-fn_l, -fn_l, Vector3::zeros()]),
-                Matrix3::from_columns(&[-fn_r, Vector3::zeros(), -fn_r]),
-                Matrix3::zeros(),
-            ];
-            for (ci, xi) in xcov.iter_mut().enumerate() {
-                *xi = propagate(xi, f02, f12, &fxs_ref, &diag);
-                let dx = Vector3::new(d_post[(0, ci)], d_post[(1, ci)], d_post[(2, ci)]);
-                let ds_ = Vector3::new(d_post[(3, ci)], d_post[(4, ci)], d_post[(5, ci)]);
-                for (u, (g, var)) in g_u.iter().enumerate() {
-                    if *var > 0.0 {
-                        let (a, df02, df12) = &a_u[u];
-                        let col = a.column(ci) + Vector3::new(df02 * dx[2], df12 * dx[2], 0.0) + fs_u[u] * ds_;
-                        for r in 0..3 {
-                            for c in 0..3 {
-                                xi[(r, c)] -= var * g[r] * col[c];
-                            }
-                        }
-                    }
-                }
-            }
-        }
-
         // --- Measurement update where the reference was really measured.
         let k1 = i + 1;
         if let Some(m) = input.reference_measured {
@@ -853,8 +1021,9 @@ pub(crate) fn run_window(
             match jj {
                 0..=3 => r_q_theta[jj],
                 4 => r_q,
+                7 => dr_position,
                 9 => dr_heading,
-                _ => dr_of(jj).copied().unwrap_or_else(Matrix3::zeros),
+                _ => Matrix3::zeros(),
             }
         };
         let s_mat = h_cols(&hp) + r_k;
@@ -897,18 +1066,17 @@ pub(crate) fn run_window(
             let sh = sinv * hd;
             let mut info = hd.transpose() * sh;
             out.info_mean_theta += info.fixed_view::<4, 4>(0, 0);
-            let mut ds = [Matrix3::zeros(); NP];
-            let mut a = [Matrix3::zeros(); NP];
             let mut g_t = nalgebra::Vector4::<f64>::zeros();
             let mut dr = SMatrix::<f64, 3, 4>::zeros();
             for c in 0..4 {
                 g_t[c] = -gnu[c];
             }
-            for &jj in &cols {
+            for &jj in cols {
                 let hdp: M3x9 = h_rows(&dp[jj]);
                 ds[jj] = h_cols(&hdp) + d_r(jj);
                 a[jj] = sinv * ds[jj];
-                let gq = -0.5 * sinv_nu.dot(&(ds[jj] * sinv_nu));
+                let ds_snu = ds[jj] * sinv_nu;
+                let gq = -0.5 * sinv_nu.dot(&ds_snu);
                 let gl = 0.5 * a[jj].trace();
                 out.grad[jj] += gq + gl;
                 out.grad_profile[jj] += gq;
@@ -916,13 +1084,25 @@ pub(crate) fn run_window(
                     g_t[jj] += gq;
                     out.grad_logdet[jj] += gl;
                 }
+                // Column of ∂K ν = (∂P⁻Hᵀ − K ∂S) S⁻¹ ν.
+                let col = hdp.transpose() * sinv_nu - k * ds_snu;
+                dkn.set_column(jj, &col);
             }
-            for &i1 in &cols {
-                for &i2 in &cols {
-                    info[(i1, i2)] += 0.5 * (a[i1] * a[i2]).trace();
+            // ½ tr(S⁻¹∂S_i S⁻¹∂S_j), symmetric in (i, j): tr(AB) = Σ A_rc B_cr.
+            for (n1, &i1) in cols.iter().enumerate() {
+                for &i2 in &cols[n1..] {
+                    let (a1, a2) = (&a[i1], &a[i2]);
+                    let mut t = 0.0;
+                    for r_ in 0..3 {
+                        t += a1[(r_, 0)] * a2[(0, r_)] + a1[(r_, 1)] * a2[(1, r_)] + a1[(r_, 2)] * a2[(2, r_)];
+                    }
+                    info[(i1, i2)] += 0.5 * t;
+                    if i1 != i2 {
+                        info[(i2, i1)] += 0.5 * t;
+                    }
                 }
             }
-            if follows {
+            if theta_cols {
                 // Gauss-Newton metric of the profile cost J = ½Σ‖r‖², r = L⁻¹ν
                 // (S = LLᵀ): ∂r_j = L⁻¹∂ν_j − Φ(L⁻¹ ∂S_j L⁻ᵀ) r, Φ the lower triangle
                 // with halved diagonal (the derivative of the Cholesky factor).
@@ -942,7 +1122,7 @@ pub(crate) fn run_window(
                     dr.set_column(jt, &(a1 - phi * r_w));
                 }
                 out.h_theta += dr.transpose() * dr;
-            } else {
+            } else if !follows {
                 out.h_theta += info.fixed_view::<4, 4>(0, 0);
             }
             out.i_eta += info.fixed_view::<NETA, NETA>(4, 4);
@@ -951,7 +1131,7 @@ pub(crate) fn run_window(
             if corrected {
                 for (ci, xi) in xcov.iter_mut().enumerate() {
                     out.bias[ci] -= (sinv * h_cols(&h_rows(xi))).trace();
-                    *xi = joseph(xi, &k);
+                    *xi = joseph_general(xi, &k);
                 }
             }
             if let Some(rec) = record.as_deref_mut() {
@@ -959,21 +1139,19 @@ pub(crate) fn run_window(
             }
             // Sensitivity update: D⁺ = (I − KH) D⁻ + ∂K ν with
             // ∂K = (∂P⁻Hᵀ − K ∂S) S⁻¹.
-            let mut dkn = SMatrix::<f64, NZ, NP>::zeros();
-            for &jj in &cols {
-                let hdp: M3x9 = h_rows(&dp[jj]);
-                let col = (hdp.transpose() - k * ds[jj]) * sinv_nu;
-                dkn.set_column(jj, &col);
-            }
             d -= k * hd;
-            d += dkn;
+            for &jj in cols {
+                for r_ in 0..NZ {
+                    d[(r_, jj)] += dkn[(r_, jj)];
+                }
+            }
             // Joseph form (I−KH)∂P(I−KH)ᵀ + K ∂R Kᵀ: the algebraically equal
             // ∂P − KH∂P − (KH∂P)ᵀ + K ∂S Kᵀ is numerically unstable here.
-            for &jj in &cols {
+            for &jj in cols {
                 dp[jj] = joseph(&dp[jj], &k);
                 let dr = d_r(jj);
                 if dr != Matrix3::zeros() {
-                    dp[jj] += k * dr * k.transpose();
+                    add_kdk(&mut dp[jj], &k, &dr);
                 }
             }
         }
@@ -985,8 +1163,97 @@ pub(crate) fn run_window(
             s[r] += dz[r + 3];
             b[r] += dz[r + 6];
         }
-        p = joseph(&p, &k) + k * r_k * k.transpose();
-        p = (p + p.transpose()) * 0.5;
+        p = joseph(&p, &k);
+        add_kdk(&mut p, &k, &r_k);
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod kernel_tests {
+    //! The structured, symmetric kernels against the plain dense formulas.
+    use super::*;
+
+    /// Rounding of ~100 products of O(1) numbers: far above it would be a
+    /// wrong index, far below any effect on a fit.
+    const KERNEL_REL_TOL: f64 = 1e-13;
+
+    /// A deterministic pseudo-random number in [−1, 1).
+    fn lcg(state: &mut u64) -> f64 {
+        *state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((*state >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+    }
+
+    fn random_symmetric(state: &mut u64) -> M9 {
+        let a = M9::from_fn(|_, _| lcg(state));
+        a * a.transpose() + M9::identity()
+    }
+
+    fn h() -> SMatrix<f64, 3, NZ> {
+        let mut h = SMatrix::<f64, 3, NZ>::zeros();
+        for i in 0..3 {
+            h[(i, i)] = 1.0;
+            h[(i, i + 6)] = 1.0;
+        }
+        h
+    }
+
+    fn assert_close(a: &M9, b: &M9, what: &str) {
+        let scale = b.amax().max(1.0);
+        assert!((a - b).amax() <= KERNEL_REL_TOL * scale, "{what}: {a} vs {b}");
+    }
+
+    #[test]
+    fn structured_kernels_match_dense_formulas() {
+        let mut st = 7u64;
+        for _ in 0..20 {
+            let p = random_symmetric(&mut st);
+            let (f02, f12) = (lcg(&mut st), lcg(&mut st));
+            let fxs = Matrix3::from_fn(|_, _| lcg(&mut st));
+            let diag = [1.0, 1.0, 1.0, 0.9, 0.8, 0.8, 0.99, 0.99, 0.99];
+            let mut f = M9::zeros();
+            for i in 0..NZ {
+                f[(i, i)] = diag[i];
+            }
+            f[(0, 2)] = f02;
+            f[(1, 2)] = f12;
+            f.fixed_view_mut::<3, 3>(0, 3).copy_from(&fxs);
+            let dense = f * p * f.transpose();
+            let fast = propagate(&p, f02, f12, &fxs, &diag);
+            assert_close(&fast, &dense, "propagate");
+            assert_eq!(fast, fast.transpose(), "propagate is not exactly symmetric");
+            assert_close(&propagate_general(&p, f02, f12, &fxs, &diag), &dense, "propagate_general");
+            // A non-symmetric A through the general kernels.
+            let x = M9::from_fn(|_, _| lcg(&mut st));
+            assert_close(&propagate_general(&x, f02, f12, &fxs, &diag), &(f * x * f.transpose()), "general, asym");
+
+            let k = M9x3::from_fn(|_, _| lcg(&mut st));
+            let ikh = M9::identity() - k * h();
+            let dense = ikh * p * ikh.transpose();
+            let fast = joseph(&p, &k);
+            assert_close(&fast, &dense, "joseph");
+            assert_eq!(fast, fast.transpose(), "joseph is not exactly symmetric");
+            assert_close(&joseph_general(&x, &k), &(ikh * x * ikh.transpose()), "joseph_general, asym");
+
+            let dm = Matrix3::from_fn(|_, _| lcg(&mut st));
+            let dm = dm + dm.transpose();
+            let mut acc = p;
+            add_kdk(&mut acc, &k, &dm);
+            assert_close(&acc, &(p + k * dm * k.transpose()), "add_kdk");
+            assert_eq!(acc, acc.transpose(), "add_kdk is not exactly symmetric");
+        }
+    }
+
+    /// The value-only reference terms are the values of the differentiated
+    /// ones, to the bit (the same operations on the value).
+    #[test]
+    // Compared exactly on purpose.
+    #[allow(clippy::float_cmp)]
+    fn value_only_reference_terms_equal_the_differentiated_values() {
+        let th = Theta::SIM_DEFAULT_TRUE;
+        let u = Input { n_rl: 5.1, n_rr: 5.4, beta: 0.01, a_y: 1.3 };
+        let a = reference_terms::<4>(0.7, &u, &th, 0.025).values();
+        let b = reference_terms::<0>(0.7, &u, &th, 0.025).values();
+        assert_eq!((a.f02, a.f12, a.fn_l, a.fn_r, a.f_a), (b.f02, b.f12, b.fn_l, b.fn_r, b.f_a));
+    }
 }

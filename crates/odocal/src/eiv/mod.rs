@@ -128,11 +128,19 @@
 //! is then not taken) or after 10 iterations; with the covariance held it
 //! runs twice (the second pass with the reference at the first result).
 //!
-//! Speed (24 km paper drive, 65 152 samples, 2 cores, `eiv_check`): batch
-//! G-N 0.55 s; following θ with a fixed noise model 0.83 s (3 filter
-//! passes); following θ with η estimated 4.4 s (11 passes: the η block
-//! converges slowly and carries 5 more covariance derivatives); held with a
-//! fixed noise model 4.1 s (21 passes).
+//! Speed. The filter's cost is the covariance recursion and its
+//! derivatives: per sample, P and up to 9 `∂P/∂p_j` (4 θ with the
+//! covariance following θ, 5 η; η_5 only with a separate heading scale),
+//! each a structured `F (·) Fᵀ` and a Joseph update, computed on the lower
+//! triangle and mirrored (module `filter`). A θ step's evaluation, whose
+//! only use is the η step after it, skips `∂P/∂θ`. A fit with η estimated
+//! takes 1 + 2 × iterations derivative passes (11 on the 24 km paper
+//! drive), with the noise fixed 1 + iterations (3). Measured on that drive
+//! through `odocal calibrate` (docs/performance.md, CPU seconds, since the
+//! 2-core machine was shared): η estimated 3.3 s before these changes,
+//! 2.2 s after; fixed noise 0.82 → 0.72 s (of which batch G-N, the start,
+//! 0.2 s). Results agree with the earlier filter to ~1e-13 relative (test
+//! `results_match_the_recorded_results_of_the_unoptimised_filter`).
 //!
 //! Uncertainty is `H_θ⁻¹` at the estimate ([`EivReport::sigma`]), the
 //! sandwich `H_θ⁻¹ B H_θ⁻¹` (B the outer products of the per-update scores,
@@ -1527,6 +1535,13 @@ fn scoring_pass(
     let mut termination = Termination::MaxIterations { iterations: opts.max_iterations, step_over_sigma: f64::NAN };
     let mut eta_sigma = [0.0; 6];
     let tol = |c: f64| 1e-12 * c.abs().max(1.0);
+    // With the covariance following θ and η estimated, the evaluation at the
+    // end of a θ step only serves the η step that follows (its η gradient and
+    // information), so it skips `∂P/∂θ` (4 of the 9 covariance derivatives);
+    // when that η step is not taken, the point is evaluated again in full.
+    // After an iteration whose η did not move, the θ step is evaluated in
+    // full directly (η at a clamp: the η step is likely not taken again).
+    let mut eta_moved = true;
     for it in 0..opts.max_iterations {
         let (dth, sth) = theta_step(&ev.total, &free, follows)?;
         let (deta, seta) = if eta_derivs { eta_step(&ev.total, &eta, bounds) } else { ([0.0; 6], [0.0; 6]) };
@@ -1546,7 +1561,8 @@ fn scoring_pass(
                 let c = objective(t, th);
                 (c <= previous + tol(previous), c)
             };
-            match line_search(prob, &theta, &eta, &dth, &[0.0; 6], &theta_ref, full, false, opts, &accept_j)? {
+            let theta_mode = if eta_derivs && eta_moved { Mode::eta_only(follows) } else { full };
+            match line_search(prob, &theta, &eta, &dth, &[0.0; 6], &theta_ref, theta_mode, false, opts, &accept_j)? {
                 Search::Accepted { theta: th, ev: e, lambda: l, .. } => {
                     theta = th;
                     ev = *e;
@@ -1562,6 +1578,7 @@ fn scoring_pass(
                 let (deta, seta) = eta_step(&ev.total, &eta, bounds);
                 eta_sigma = seta;
                 ratio = ratio.max(step_ratio(&[0.0; 4], &sth, &[false; 4], &eta, &deta, &seta, bounds));
+                eta_moved = false;
                 if deta.iter().any(|x| *x != 0.0) {
                     let previous_m = ev.total.merit();
                     let accept_m = |t: &Evaluation, _: &Theta, _: &[f64; 6]| {
@@ -1572,14 +1589,19 @@ fn scoring_pass(
                         Search::Accepted { eta: et, ev: e, .. } => {
                             eta = et;
                             ev = *e;
+                            eta_moved = true;
                         }
                         Search::Rejected { cost } => {
                             termination =
                                 Termination::CostIncreased { cost, previous: previous_m, halvings: opts.max_halvings };
+                            ev = prob.evaluate(&theta, &theta_ref, &eta, full)?;
                             break;
                         }
                     }
                 }
+            }
+            if ev.mode != full {
+                ev = prob.evaluate(&theta, &theta_ref, &eta, full)?;
             }
         } else {
             // Joint step. Accept when the objective falls, or when the corrected

@@ -1,0 +1,101 @@
+//! Wall time of `calibrate` per method on simulated paper-noise drives,
+//! side by side in one run (issue 9's speed target for `--method eiv`):
+//!
+//! ```text
+//! cargo run --release -p odocal --example eiv_speed -- [km,km,..] [reps] [seed] [fingerprint.json|-] [methods]
+//! ```
+//!
+//! Defaults: 12,24,48 km, 3 repetitions (the minimum wall time is
+//! reported; the machine is shared, so compare ratios within one run),
+//! seed 1. Methods: batch G-N, the 3-step (the default) and EIV with the
+//! production-car noise model fixed (`--fix-noise`) and estimated (the
+//! method's default). Per EIV run: filter passes `[with derivatives,
+//! objective only]`, scoring iterations, windows, and the split of the
+//! wall time between the batch G-N start and the filter. With a fourth
+//! argument the results (θ, η, σ, passes; no timings) are written as JSON,
+//! to check that a speed change leaves them unchanged (`-`: not written).
+//! The fifth argument picks methods by name (comma separated: `batch-gn`,
+//! `three-step`, `eiv-fixed`, `eiv-estimated`; default all).
+
+use std::time::Instant;
+
+use odocal::calibrate::{EivMethodOptions, MethodDetail};
+use odocal::eiv::EivOptions;
+use odocal::sim::{simulate, SimOptions};
+use odocal::{calibrate, CalibrationOptions, CalibrationReport, Method};
+
+fn methods() -> Vec<(&'static str, Method)> {
+    let eiv = |fix_noise: bool| {
+        Method::Eiv(EivMethodOptions { filter: EivOptions { fix_noise, ..Default::default() }, ..Default::default() })
+    };
+    vec![
+        ("batch-gn", Method::from_name("batch-gn").expect("method")),
+        ("three-step", Method::from_name("three-step").expect("method")),
+        ("eiv-fixed", eiv(true)),
+        ("eiv-estimated", eiv(false)),
+    ]
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let args: Vec<String> = std::env::args().collect();
+    let kms: Vec<f64> = match args.get(1) {
+        Some(s) => s.split(',').map(str::parse).collect::<Result<_, _>>()?,
+        None => vec![12.0, 24.0, 48.0],
+    };
+    let reps: usize = args.get(2).map(|s| s.parse()).transpose()?.unwrap_or(3).max(1);
+    let seed: u64 = args.get(3).map(|s| s.parse()).transpose()?.unwrap_or(1);
+    let fingerprint_path = args.get(4).filter(|p| p.as_str() != "-");
+    let pick: Option<Vec<&str>> = args.get(5).map(|s| s.split(',').collect());
+    let mut fingerprint = Vec::new();
+    println!("threads {}; minimum of {reps} wall time(s) per cell", rayon::current_num_threads());
+    println!("km | samples | method | wall s (min, all) | start s | filter s | passes [derivs, cost] | it | windows");
+    for &km in &kms {
+        let out = simulate(&SimOptions { length_km: km, ..SimOptions::paper(seed) })?;
+        let d = &out.drive;
+        for (name, method) in methods() {
+            if pick.as_ref().is_some_and(|p| !p.contains(&name)) {
+                continue;
+            }
+            let opts = CalibrationOptions { method, ..Default::default() };
+            let mut times = Vec::with_capacity(reps);
+            let mut last: Option<CalibrationReport> = None;
+            for _ in 0..reps {
+                let t = Instant::now();
+                let r = calibrate(d, &opts, None)?;
+                times.push(t.elapsed().as_secs_f64());
+                last = Some(r);
+            }
+            let Some(r) = last else { continue };
+            let best = times.iter().copied().fold(f64::INFINITY, f64::min);
+            let all: Vec<String> = times.iter().map(|t| format!("{t:.2}")).collect();
+            let (mut passes, mut it, mut windows) = (String::new(), String::new(), String::new());
+            let mut entry = serde_json::json!({ "km": km, "method": name, "theta": r.theta });
+            if let MethodDetail::Eiv(e) = &r.detail {
+                if let Some(f) = &e.eiv {
+                    passes = format!("{:?}", f.evaluations);
+                    it = f.iterations.to_string();
+                    windows = f.windows.len().to_string();
+                    entry = serde_json::json!({
+                        "km": km, "method": name, "theta": f.theta, "eta": f.eta, "sigma": f.sigma,
+                        "sigma_sandwich": f.sigma_sandwich, "sigma_fisher": f.sigma_fisher,
+                        "eta_sigma": f.eta_sigma, "evaluations": f.evaluations, "iterations": f.iterations,
+                        "final_cost": f.final_cost, "termination": f.termination, "warnings": f.warnings,
+                        "result": e.eiv_result, "returned_theta": r.theta,
+                    });
+                }
+            }
+            fingerprint.push(entry);
+            println!(
+                "{km} | {} | {name} | {best:.2} ({}) | {:.2} | {:.2} | {passes} | {it} | {windows}",
+                d.len(),
+                all.join(" "),
+                r.timing_s.initial_identification,
+                r.timing_s.final_identification,
+            );
+        }
+    }
+    if let Some(p) = fingerprint_path {
+        std::fs::write(p, serde_json::to_string_pretty(&fingerprint)?)?;
+    }
+    Ok(())
+}
