@@ -161,17 +161,17 @@
 //! sign = 1                    # +1: column positive to the left
 //! # smoothing_s = 0.5         # from_wheels (default 0) / from_pose (default 0.5)
 //!
-//! [lateral_acceleration.bank] # optional, from_wheels / from_pose only: see "Road bank"
-//! left = "gnss_left"          # the two antennas' streams (on the pose's GNSS clock)
-//! right = "gnss_right"
-//! lat = "lat_deg"             # columns of both
-//! lon = "lon_deg"
-//! alt = "alt_m"
-//! quality = { column = "fix_mode", accept = [6] }  # optional
-//! baseline_m = 1.485          # antenna separation, m
-//! height_offset_m = 0.0       # left minus right antenna height on level ground (default 0)
-//! smoothing_s = 1.0           # moving average of the roll (default 1)
-//! max_roll_deg = 20.0         # beyond: a glitch (dropped) or, above 1 % of pairs, an error (default 20)
+//! # [lateral_acceleration.bank] # optional, from_wheels / from_pose only: see "Road bank"
+//! # left = "gnss_left"          # the two antennas' streams (on the pose's GNSS clock)
+//! # right = "gnss_right"
+//! # lat = "lat_deg"             # columns of both
+//! # lon = "lon_deg"
+//! # alt = "alt_m"
+//! # quality = { column = "fix_mode", accept = [6] }  # optional
+//! # baseline_m = 1.485          # antenna separation, m
+//! # height_offset_m = 0.0       # left minus right antenna height on level ground (default 0)
+//! # smoothing_s = 1.0           # moving average of the roll (default 1)
+//! # max_roll_deg = 20.0         # beyond: a glitch (dropped) or, above 1 % of pairs, an error (default 20)
 //!
 //! [sideslip]
 //! source = "zero"             # zero (default) | column
