@@ -1,5 +1,7 @@
 //! Diagnostic (issue 10): does the road bank explain the direction-dependent
-//! c_d on the test track? Feeds the lateral specific force
+//! c_d on the test track? Imports the runs without the manifests'
+//! `[lateral_acceleration.bank]` (a_y = v·ω from the wheels), then feeds
+//! the lateral specific force
 //! f_y = a_y·cos φ − g·sin φ (φ the roll from the two rear antennas'
 //! altitude difference) instead of the kinematic a_y, optionally moves the
 //! reference by the antenna's roll displacement h·sin φ, and refits.
@@ -102,8 +104,12 @@ fn main() -> Result<(), Box<dyn Error>> {
     let data = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/psu-mapping-van-testtrack-2024-08-05");
     let mut base = Vec::new();
     for run in RUNS {
-        let (d, rep) = odocal::load_drive(&track.join(format!("run-{run}.toml")))?;
-        let rep = rep.ok_or("report")?;
+        // the manifests' a_y without their bank: the kinematic v·ω
+        let mut m = odocal::import::Manifest::from_path(&track.join(format!("run-{run}.toml")))?;
+        if let odocal::import::LateralAccelerationSpec::FromWheels { bank, .. } = &mut m.lateral_acceleration {
+            *bank = None;
+        }
+        let odocal::import::ImportedDrive { drive: d, report: rep } = odocal::import::import(&m)?;
         let (ts, ph) = roll_series(&data.join(format!("run-{run}")))?;
         // gps time → drive time
         let shift = -0.006 + rep.clock_offset.applied_s - rep.time_origin_s;

@@ -66,7 +66,7 @@ pub(crate) fn specific_force(a_kin: f64, phi: f64) -> f64 {
     a_kin * phi.cos() - G_M_PER_S2 * phi.sin()
 }
 
-/// One antenna's accepted samples: time, ENU position.
+/// One antenna's accepted samples: time, [east, north, altitude], m.
 fn antenna(
     m: &Manifest,
     b: &BankSpec,
@@ -100,7 +100,9 @@ fn antenna(
         let e = enu.get_or_insert_with(|| geodesy::Enu::new(lat[i], lon[i], alt[i]));
         let v = e.enu_of(lat[i], lon[i], alt[i]);
         t.push(s.t[i]);
-        p.push([v.x, v.y, v.z]);
+        // the altitude itself, not ENU up: away from the ENU origin, "up"
+        // tilts by distance / Earth radius
+        p.push([v.x, v.y, alt[i]]);
     }
     if t.is_empty() {
         let key = if b.quality.is_some() { format!("{KEY}.quality") } else { format!("{KEY}.{side}") };
@@ -225,7 +227,7 @@ mod tests {
         let s = sin_roll(100.0, 100.14, 0.0, 1.485);
         assert!((s - 0.14 / 1.485).abs() < 1e-12 && s > 0.0);
         // mounted 0.05 m higher on the left, level: no roll
-        assert_eq!(sin_roll(100.05, 100.0, 0.05, 1.485), 0.0);
+        assert!(sin_roll(100.05, 100.0, 0.05, 1.485).abs() < 1e-12);
         // the mirror
         assert!(sin_roll(100.14, 100.0, 0.0, 1.485) < 0.0);
     }

@@ -901,7 +901,7 @@ fn roll_samples_without_both_antennas_accepted_split_the_drive_and_glitches_are_
     let (d, r) = load_drive(&path).expect("a glitch is dropped");
     let r = r.expect("report");
     assert!(r.warnings.iter().any(|w| w.contains("1 of 40 antenna pairs give a roll beyond")), "{r}");
-    assert!(d.a_y().iter().all(|a| a.abs() < 1e-9));
+    assert!(d.a_y().iter().all(|a| a.abs() < 1e-9), "{:?}", d.a_y());
 }
 
 #[test]
@@ -924,7 +924,8 @@ fn bank_errors_name_the_key() {
     assert!(e.contains("lateral_acceleration.bank.baseline_m: must be a positive number"), "{e}");
     // The antennas are 1.5 m apart, not 3.
     let e = edit("baseline_m = 1.5", "baseline_m = 3.0");
-    assert!(e.contains("lateral_acceleration.bank.baseline_m: the antennas of streams 'gl' and 'gr' are a median 1.500 m"), "{e}");
+    let want = "lateral_acceleration.bank.baseline_m: the antennas of streams 'gl' and 'gr' are a median 1.";
+    assert!(e.contains(want) && e.contains("not baseline_m = 3 "), "{e}");
     let e = err(0.0, "height_offset_m = 2.0");
     assert!(e.contains("lateral_acceleration.bank.height_offset_m: must be a finite number"), "{e}");
     let e = err(0.0, "max_roll_deg = 90");
@@ -941,7 +942,7 @@ fn bank_errors_name_the_key() {
     let e = edit("alt = \"alt\"", "alt = \"height\"");
     assert!(e.contains("height") && e.contains("lateral_acceleration.bank.alt"), "{e}");
     let e = edit("baseline_m = 1.5", "baseline_m = 1.5\nbaseline = 2");
-    assert!(e.contains("lateral_acceleration.bank.baseline: unknown field"), "{e}");
+    assert!(e.contains("lateral_acceleration") && e.contains("unknown field `baseline`, expected one of `left`"), "{e}");
     // No common accepted sample.
     let path = bank_case(d, |_| 0.0, 0.0, |_| true, "");
     let e = load_drive(&path).map(|_| ()).expect_err("none accepted").to_string();
