@@ -34,10 +34,7 @@ fn roll_series(dir: &std::path::Path) -> Result<(Vec<f64>, Vec<f64>), Box<dyn Er
         for l in lines {
             let f: Vec<&str> = l.split(',').collect();
             let t: f64 = f[ct].parse()?;
-            out.insert(
-                (t * 10.0).round() as i64,
-                [f[cla].parse()?, f[clo].parse()?, f[cal].parse()?, f[cf].parse()?],
-            );
+            out.insert((t * 10.0).round() as i64, [f[cla].parse()?, f[clo].parse()?, f[cal].parse()?, f[cf].parse()?]);
         }
         Ok(out)
     };
@@ -101,7 +98,8 @@ fn variant(d: &Drive, phi: &[f64], fy: bool, w: bool, h: f64) -> Result<Drive, B
 
 fn main() -> Result<(), Box<dyn Error>> {
     let track = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/psu-mapping-van-testtrack");
-    let data = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/psu-mapping-van-testtrack-2024-08-05");
+    let data =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/psu-mapping-van-testtrack-2024-08-05");
     let mut base = Vec::new();
     for run in RUNS {
         // the manifests' a_y without their bank: the kinematic v·ω

@@ -106,7 +106,9 @@ fn antenna(
     }
     if t.is_empty() {
         let key = if b.quality.is_some() { format!("{KEY}.quality") } else { format!("{KEY}.{side}") };
-        return Err(m.error(&key, format!("the {side} antenna ({}) has no sample of accepted quality", s.path.display())));
+        return Err(
+            m.error(&key, format!("the {side} antenna ({}) has no sample of accepted quality", s.path.display()))
+        );
     }
     Ok((t, p))
 }
@@ -208,7 +210,13 @@ pub(crate) fn roll(
 
 /// The roll on the output grid: interpolated linearly, then a centred
 /// moving average over `smoothing_s` within each kept part.
-pub(crate) fn on_grid(roll: &Roll, grid: &[f64], h: f64, kept: &[std::ops::Range<usize>], smoothing_s: f64) -> Vec<f64> {
+pub(crate) fn on_grid(
+    roll: &Roll,
+    grid: &[f64],
+    h: f64,
+    kept: &[std::ops::Range<usize>],
+    smoothing_s: f64,
+) -> Vec<f64> {
     let mut phi = signal::interp_sorted(&roll.t, &roll.phi, grid);
     let width = 2 * ((smoothing_s / h / 2.0).round() as usize) + 1;
     for r in kept {

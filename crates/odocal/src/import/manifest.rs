@@ -948,11 +948,7 @@ impl Manifest {
         if !(b.max_roll_deg > 0.0 && b.max_roll_deg <= BankSpec::MAX_ROLL_LIMIT_DEG) {
             return Err(self.error(
                 &format!("{K}.max_roll_deg"),
-                format!(
-                    "must be in (0, {}] degrees, found {}",
-                    BankSpec::MAX_ROLL_LIMIT_DEG,
-                    echo_num(b.max_roll_deg)
-                ),
+                format!("must be in (0, {}] degrees, found {}", BankSpec::MAX_ROLL_LIMIT_DEG, echo_num(b.max_roll_deg)),
             ));
         }
         if let Some(q) = &b.quality {

@@ -238,9 +238,9 @@ use std::path::Path;
 use std::time::Instant;
 
 pub use manifest::{
-    AngleUnit, BagTime, BankSpec, ClockOffset, HeadingConvention, HeadingSpec, LateralAccelerationSpec, LimitsSpec, Manifest,
-    OutputSpec, PositionSpec, QualitySpec, SideslipSpec, SourceSpec, StreamSpec, TimeUnit, WheelColumn, WheelSignal,
-    WheelSpec,
+    AngleUnit, BagTime, BankSpec, ClockOffset, HeadingConvention, HeadingSpec, LateralAccelerationSpec, LimitsSpec,
+    Manifest, OutputSpec, PositionSpec, QualitySpec, SideslipSpec, SourceSpec, StreamSpec, TimeUnit, WheelColumn,
+    WheelSignal, WheelSpec,
 };
 pub use report::{ClockOffsetReport, DejitterReport, GapRecord, ImportReport, JitterReport, PartRecord, StreamReport};
 pub use settings::{
@@ -346,7 +346,17 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
         checks::Resampled { h, origin_s: start, kept: &kept, n_rl: &n_rl, n_rr: &n_rr, px: &px, py: &py, psi: &psi };
     checks::wheel_speeds(m, &resampled, &theta0)?;
     checks::conventions(m, &resampled, &theta0, &mut warnings)?;
-    let inputs = lateral::Inputs { grid: &g.t, h, n_rl: &n_rl, n_rr: &n_rr, px: &px, py: &py, psi: &psi, kept: &kept, roll: roll.as_ref() };
+    let inputs = lateral::Inputs {
+        grid: &g.t,
+        h,
+        n_rl: &n_rl,
+        n_rr: &n_rr,
+        px: &px,
+        py: &py,
+        psi: &psi,
+        kept: &kept,
+        roll: roll.as_ref(),
+    };
     let (a_y, a_y_desc) = lateral::lateral_acceleration(m, &streams, &inputs, &theta0);
     checks::lateral_acceleration(m, &resampled, &a_y)?;
     let jitter = wheels::jitter_report(m, &wheels, &g.t, h, &kept, &n_rl, &n_rr)?;

@@ -942,7 +942,10 @@ fn bank_errors_name_the_key() {
     let e = edit("alt = \"alt\"", "alt = \"height\"");
     assert!(e.contains("height") && e.contains("lateral_acceleration.bank.alt"), "{e}");
     let e = edit("baseline_m = 1.5", "baseline_m = 1.5\nbaseline = 2");
-    assert!(e.contains("lateral_acceleration") && e.contains("unknown field `baseline`, expected one of `left`"), "{e}");
+    assert!(
+        e.contains("lateral_acceleration") && e.contains("unknown field `baseline`, expected one of `left`"),
+        "{e}"
+    );
     // No common accepted sample.
     let path = bank_case(d, |_| 0.0, 0.0, |_| true, "");
     let e = load_drive(&path).map(|_| ()).expect_err("none accepted").to_string();
