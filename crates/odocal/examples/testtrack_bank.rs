@@ -42,7 +42,7 @@ fn roll_series(dir: &std::path::Path) -> Result<(Vec<f64>, Vec<f64>), Box<dyn Er
     let (mut ts, mut phi) = (Vec::new(), Vec::new());
     for (k, a) in &l {
         let Some(b) = r.get(k) else { continue };
-        if a[3] != 6.0 || b[3] != 6.0 {
+        if (a[3] - 6.0).abs() > 0.5 || (b[3] - 6.0).abs() > 0.5 {
             continue;
         }
         let re = 6_378_137.0;
@@ -71,8 +71,8 @@ fn variant(d: &Drive, phi: &[f64], fy: bool, w: bool, h: f64) -> Result<Drive, B
     let mut s = d.measured().clone();
     if w {
         // wheels turn about the road normal: world yaw rate = wheel yaw rate / cos φ
-        for i in 0..d.len() {
-            let (m, half) = ((s.n_rl[i] + s.n_rr[i]) / 2.0, (s.n_rr[i] - s.n_rl[i]) / 2.0 / phi[i].cos());
+        for (i, p) in phi.iter().enumerate() {
+            let (m, half) = ((s.n_rl[i] + s.n_rr[i]) / 2.0, (s.n_rr[i] - s.n_rl[i]) / 2.0 / p.cos());
             s.n_rl[i] = m - half;
             s.n_rr[i] = m + half;
         }
@@ -82,9 +82,9 @@ fn variant(d: &Drive, phi: &[f64], fy: bool, w: bool, h: f64) -> Result<Drive, B
     }
     if h != 0.0 {
         // antenna moved h·sin φ to the left (+y) of the axle: take it back
-        for i in 0..d.len() {
+        for (i, p) in phi.iter().enumerate() {
             let (sn, cs) = d.psi()[i].sin_cos();
-            let off = h * phi[i].sin();
+            let off = h * p.sin();
             s.px[i] -= -sn * off;
             s.py[i] -= cs * off;
         }
