@@ -4,7 +4,7 @@
 //! ```text
 //! cargo run --release -p odocal --example testtrack_crossrun -- \
 //!     [--method three-step|batch-gn] [--min-yaw-rate R] [--segment-length K] [--fix d] [--auto-fix] \
-//!     [--keep-one-way] [--pairs] [--json out.json]
+//!     [--keep-one-way] [--pairs] [--json out.json] [--check]
 //! ```
 //!
 //! `--keep-one-way` keeps the paper's turning-only segment selection on
@@ -20,6 +20,9 @@
 //! five runs and θ_0's mean Ē_p on the same five; then the criteria of
 //! issue 10 (never worse than θ_0 on another run, mean cross-run Ē_p within
 //! 1.5 × the mean of the runs' own fits, at most two runs rejected).
+//! With `--check` it exits with an error unless every run calibrates and
+//! those criteria hold (and not every run is rejected): CI runs
+//! `--check` with the default settings (`.ci/run`).
 
 use std::error::Error;
 use std::path::PathBuf;
@@ -34,6 +37,7 @@ fn main() -> Result<(), Box<dyn Error>> {
     let mut opts = CalibrationOptions::default();
     let mut json: Option<PathBuf> = None;
     let mut pairs = false;
+    let mut check = false;
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         let mut value = || args.next().ok_or_else(|| format!("{a} needs a value"));
@@ -49,6 +53,7 @@ fn main() -> Result<(), Box<dyn Error>> {
             "--auto-fix" => opts.auto_fix = true,
             "--keep-one-way" => opts.keep_one_way_selection = true,
             "--pairs" => pairs = true,
+            "--check" => check = true,
             "--json" => json = Some(PathBuf::from(value()?)),
             other => return Err(format!("unknown argument {other}").into()),
         }
@@ -72,6 +77,14 @@ fn main() -> Result<(), Box<dyn Error>> {
     println!("{c}");
     if let Some(p) = json {
         std::fs::write(&p, serde_json::to_string_pretty(&table)? + "\n")?;
+    }
+    if check {
+        // issue 10: never worse than θ_0 on another run, the ratio within
+        // 1.5, every run calibrated, at most two rejected (and not all)
+        if !c.pass() || c.rejected > 2 || c.rejected >= c.runs {
+            return Err(format!("the cross-run criterion of issue 10 does not hold:\n{c}").into());
+        }
+        println!("check passed: issue 10's cross-run criterion holds");
     }
     Ok(())
 }

@@ -3,33 +3,33 @@
 //!
 //! Measured (release, `cargo run --release -p odocal --example
 //! testtrack_crossrun -- …`; README, "Cross-run check on the test track",
-//! quotes the tables and the diagnosis): the issue's strict criterion
-//! (never worse than θ_0 on another run, mean cross-run Ē_p within 1.5 ×
-//! the mean own fit) is **not** met by a θ fitted on a single run, with any
-//! setting. The counter-clockwise runs (14-45-26, 15-28-33, 16-06-28) and
-//! the clockwise ones (16-47-33, 17-45-46, 18-01-26) want c_d about 0.9 mm
-//! apart (joint fit of each direction's three runs, d held: +1.24 and
-//! +2.12 mm), whatever d, a sideslip β = k·a_y (k = −20 … +20 mrad per
-//! m/s²), the clock offset (−0.2 … +0.1 s) or a reference-heading lag
-//! (−0.2 … +0.2 s): a yaw effect outside the model with the sign of the
-//! turning direction, which a run that turns one way only cannot tell from
-//! c_d. Even each direction's joint θ gives a ratio of 1.67 on the six runs.
-//! Calibrated on one counter-clockwise and one clockwise run jointly, the
-//! criterion holds. These tests assert:
-//! - default 3-step on each run (every segment used, as the selected ones
-//!   all turn one way: `Warning::OneWayTurns`): every run calibrates, at
-//!   most two are rejected, each θ beats θ_0 on its own run and on the mean
-//!   of the other five;
-//! - batch G-N with d held on each run: the same;
+//! quotes the tables and the diagnosis): the track is banked (≈ 5.4° in
+//! the curves), and with the manifests' `[lateral_acceleration.bank]` (a_y
+//! the lateral specific force a_y·cos φ − g·sin φ, φ from the rear
+//! antennas) the default 3-step on each single run meets issue 10's
+//! criterion: never worse than θ_0 on another run, mean cross-run Ē_p
+//! 2.30 m within 1.5 × the mean own fit 1.56 m (ratio 1.47), none
+//! rejected. Without the bank it did not (ratio 1.89, 3 of 30 pairs worse
+//! than θ_0): the counter-clockwise and clockwise runs wanted c_d 0.8 mm
+//! apart. With d held at 0 the bank cannot act (the term is d·g·sin φ) and
+//! the single-run criterion still fails (ratio 1.71–1.81). These tests
+//! assert:
+//! - default 3-step on each run: the full criterion (every run calibrates,
+//!   never worse than θ_0 on another run, ratio ≤ 1.5, at most two
+//!   rejected and not all), and each θ beats θ_0 on its own run;
+//! - batch G-N with d held on each run: every run calibrates, none
+//!   rejected, each θ beats θ_0 on its own run and on the mean of the
+//!   other five;
 //! - each counter-clockwise × clockwise pair, batch G-N on every segment
-//!   with d held: the full criterion (never worse than θ_0 on any of the
-//!   other four runs, ratio ≤ 1.5, none rejected);
+//!   with d held: the full criterion, none rejected;
 //! - the same pairs with the default 3-step: ratio ≤ 1.5, none failed, at
 //!   most two rejected.
 //!
-//! Slow in a debug build (six or nine calibrations per test): `#[ignore]`d;
-//! run with `cargo test --release -p odocal --test testtrack_crossrun --
-//! --ignored`. The data live in ../shared/data beside the repository.
+//! The first runs in every `cargo test` (about 10 s of CPU, measured: the
+//! test profile is optimised); the others, about as long each, stay
+//! `#[ignore]`d to keep CI's test stage short: run them with `cargo test
+//! --release -p odocal --test testtrack_crossrun -- --ignored`. The data
+//! live in ../shared/data beside the repository (as in CI).
 
 use odocal::crossrun::{cross_run_groups, CrossRunTable, CROSS_RUN_OWN_FIT_RATIO};
 use odocal::{CalibrationOptions, Drive, Method, Param, VerdictLevel};
@@ -85,10 +85,14 @@ fn assert_each_theta_improves(t: &CrossRunTable) {
     assert!(c.mean_cross_m < c.mean_initial_cross_m, "{c}");
 }
 
+/// Not ignored: six imports and calibrations and 30 validations take about
+/// 10 s of CPU in the test profile (opt-level 2), measured.
 #[test]
-#[ignore = "six calibrations: slow in debug; run with --release -- --ignored"]
-fn default_three_step_calibrates_every_run_and_improves_on_theta0() {
-    assert_each_theta_improves(&table(&CalibrationOptions::default(), false));
+fn default_three_step_meets_the_cross_run_criterion_on_single_runs() {
+    let t = table(&CalibrationOptions::default(), false);
+    let c = t.criteria(CROSS_RUN_OWN_FIT_RATIO);
+    assert!(c.pass(), "{c}\n{t}");
+    assert_each_theta_improves(&t);
 }
 
 #[test]

@@ -3,6 +3,7 @@
 
 use std::ops::Range;
 
+use super::bank::{self, Roll};
 use super::manifest::{LateralAccelerationSpec, Manifest};
 use super::signal;
 use super::source::Stream;
@@ -26,10 +27,51 @@ pub(crate) struct Inputs<'a> {
     pub psi: &'a [f64],
     /// The kept parts (smoothing never crosses their ends).
     pub kept: &'a [Range<usize>],
+    /// The roll from two antennas (on the wheel clock), when
+    /// `[lateral_acceleration.bank]` is given.
+    pub roll: Option<&'a Roll>,
 }
 
-/// a_y on the full grid and a description of its source.
+/// a_y on the full grid and a description of its source: the IMU column,
+/// or the derived kinematic a_y, turned into the lateral specific force
+/// when a bank is given.
 pub(crate) fn lateral_acceleration(
+    m: &Manifest,
+    streams: &std::collections::BTreeMap<String, Stream>,
+    x: &Inputs<'_>,
+    theta0: &Theta,
+) -> (Vec<f64>, String) {
+    let (mut a, mut desc) = kinematic(m, streams, x, theta0);
+    if let (Some(b), Some(roll)) = (m.lateral_acceleration.bank(), x.roll) {
+        let phi = bank::on_grid(roll, x.grid, x.h, x.kept, b.smoothing_s);
+        for k in x.kept.iter().flat_map(|r| r.clone()) {
+            a[k] = bank::specific_force(a[k], phi[k]);
+        }
+        let kept: Vec<f64> = x.kept.iter().flat_map(|r| r.clone()).map(|k| phi[k]).collect();
+        let n = kept.len().max(1) as f64;
+        let mean = kept.iter().sum::<f64>() / n;
+        let max = kept.iter().fold(0.0_f64, |m, p| m.max(p.abs()));
+        desc.push_str(&format!(
+            "; minus the bank's lateral gravity, a_y·cos φ − g·sin φ, with the roll φ from the antennas '{}' \
+             (left) and '{}' (right), baseline {} m, height offset {} m, {} pairs ({} dropped beyond {}°), \
+             smoothed over {} s: mean φ {:+.1} mrad, largest |φ| {:.1} mrad",
+            b.left,
+            b.right,
+            b.baseline_m,
+            b.height_offset_m,
+            roll.t.len() + roll.dropped,
+            roll.dropped,
+            b.max_roll_deg,
+            b.smoothing_s,
+            mean * 1e3,
+            max * 1e3
+        ));
+    }
+    (a, desc)
+}
+
+/// a_y before any bank correction.
+fn kinematic(
     m: &Manifest,
     streams: &std::collections::BTreeMap<String, Stream>,
     x: &Inputs<'_>,
@@ -46,7 +88,7 @@ pub(crate) fn lateral_acceleration(
                 format!("IMU column '{column}' of stream '{stream}' × {sign:+}, mean over each output interval"),
             )
         }
-        LateralAccelerationSpec::FromWheels { smoothing_s } => {
+        LateralAccelerationSpec::FromWheels { smoothing_s, .. } => {
             let mut a = vec![0.0; n_grid];
             for k in 0..n_grid {
                 // Fixed point through d·a_y (a single pass when d = 0).
@@ -61,7 +103,7 @@ pub(crate) fn lateral_acceleration(
             }
             (a, format!("from wheels: v·ω of the model at θ_0 = {theta0}, smoothed over {smoothing_s} s"))
         }
-        LateralAccelerationSpec::FromPose { smoothing_s } => {
+        LateralAccelerationSpec::FromPose { smoothing_s, .. } => {
             let mut a = vec![0.0; n_grid];
             for r in x.kept {
                 for k in r.clone() {

@@ -574,6 +574,10 @@ pub enum LateralAccelerationSpec {
         /// Centred moving-average window, s. Default 0 (none).
         #[serde(default)]
         smoothing_s: f64,
+        /// The road bank (`[lateral_acceleration.bank]`): subtract the
+        /// lateral gravity component measured by two antennas. Default none.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        bank: Option<Box<BankSpec>>,
     },
     /// a_y = speed × yaw rate of the reference pose, smoothed. Feeds the
     /// reference yaw rate into the model through d: see the module docs.
@@ -581,7 +585,93 @@ pub enum LateralAccelerationSpec {
         /// Centred moving-average window, s. Default 0.5.
         #[serde(default = "half")]
         smoothing_s: f64,
+        /// The road bank, as for `from_wheels`. Default none.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        bank: Option<Box<BankSpec>>,
     },
+}
+
+impl LateralAccelerationSpec {
+    /// The road-bank correction of a derived a_y, when asked for.
+    pub fn bank(&self) -> Option<&BankSpec> {
+        match self {
+            LateralAccelerationSpec::FromWheels { bank, .. } | LateralAccelerationSpec::FromPose { bank, .. } => {
+                bank.as_deref()
+            }
+            LateralAccelerationSpec::Imu { .. } => None,
+        }
+    }
+}
+
+/// The road bank (`[lateral_acceleration.bank]`): a derived a_y is the
+/// *kinematic* acceleration v·ω, but the load transfer of SPEC (3a,b)
+/// follows the lateral *specific force* in the vehicle frame,
+/// f_y = a_y·cos φ − g·sin φ on a road rolled by φ (positive when the
+/// left side is lower). The roll φ is measured by two GNSS antennas across
+/// the vehicle: sin φ = (h_right − h_left + `height_offset_m`) /
+/// `baseline_m`, from their altitudes at the times where both have an
+/// accepted quality (the right antenna interpolated linearly to the left
+/// one's stamps across at most `output.max_gap_s`), on the GNSS clock like
+/// the pose (the pose's clock offset is applied to it), interpolated to the
+/// output grid and smoothed with a centred moving average over
+/// `smoothing_s`. Output samples farther than `output.max_gap_s` from a
+/// roll measurement are invalid (they split the drive like a pose gap).
+///
+/// ```toml
+/// [lateral_acceleration.bank]
+/// left = "gnss_left"          # streams of the left and right antennas
+/// right = "gnss_right"
+/// lat = "lat_deg"             # columns in both (WGS84 degrees, metres)
+/// lon = "lon_deg"
+/// alt = "alt_m"
+/// quality = { column = "fix_mode", accept = [6] }  # optional
+/// baseline_m = 1.485          # antenna separation, m (> 0)
+/// height_offset_m = 0.0       # left minus right antenna height on level ground, m (default 0)
+/// smoothing_s = 1.0           # centred moving average of φ, s (default 1)
+/// max_roll_deg = 20.0         # larger |φ| is a glitch or a wrong column (default 20)
+/// ```
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BankSpec {
+    /// The stream (name in `[streams]`) of the left antenna.
+    pub left: String,
+    /// The stream of the right antenna.
+    pub right: String,
+    /// Latitude column (both streams), WGS84 degrees.
+    pub lat: String,
+    /// Longitude column (both streams), WGS84 degrees.
+    pub lon: String,
+    /// Altitude column (both streams), m.
+    pub alt: String,
+    /// Quality column (both streams) and its accepted values. Default: every sample.
+    #[serde(default)]
+    pub quality: Option<QualitySpec>,
+    /// Distance between the antennas, m; their measured separation must
+    /// agree within [`BankSpec::BASELINE_TOLERANCE`].
+    pub baseline_m: f64,
+    /// Height of the left antenna above the right one on level ground, m. Default 0.
+    #[serde(default)]
+    pub height_offset_m: f64,
+    /// Centred moving-average window of the roll on the output grid, s. Default 1.
+    #[serde(default = "one")]
+    pub smoothing_s: f64,
+    /// Largest plausible |roll|, degrees (roads are banked by a few degrees;
+    /// ramps and test tracks by up to ~10–15). A few samples beyond it are
+    /// dropped as glitches (a warning), more than 1 % is an error. Default 20.
+    #[serde(default = "default_max_roll_deg")]
+    pub max_roll_deg: f64,
+}
+
+impl BankSpec {
+    /// Largest relative disagreement between the median measured antenna
+    /// separation and `baseline_m` (a wrong stream, column or baseline).
+    pub const BASELINE_TOLERANCE: f64 = 0.1;
+    /// Upper bound of `max_roll_deg`.
+    pub const MAX_ROLL_LIMIT_DEG: f64 = 45.0;
+}
+
+fn default_max_roll_deg() -> f64 {
+    20.0
 }
 
 fn half() -> f64 {
@@ -590,7 +680,7 @@ fn half() -> f64 {
 
 impl Default for LateralAccelerationSpec {
     fn default() -> Self {
-        LateralAccelerationSpec::FromWheels { smoothing_s: 0.0 }
+        LateralAccelerationSpec::FromWheels { smoothing_s: 0.0, bank: None }
     }
 }
 
@@ -800,9 +890,13 @@ impl Manifest {
                 stream_ref("lateral_acceleration.stream", stream)?;
                 sign("lateral_acceleration.sign", *s)?;
             }
-            LateralAccelerationSpec::FromWheels { smoothing_s } | LateralAccelerationSpec::FromPose { smoothing_s } => {
+            LateralAccelerationSpec::FromWheels { smoothing_s, bank }
+            | LateralAccelerationSpec::FromPose { smoothing_s, bank } => {
                 if !non_negative(*smoothing_s) {
                     return Err(self.error("lateral_acceleration.smoothing_s", "must be >= 0"));
+                }
+                if let Some(b) = bank {
+                    self.check_bank(b, &stream_ref, &positive)?;
                 }
             }
         }
@@ -815,6 +909,52 @@ impl Manifest {
         }
         if let Some(r) = &self.reference {
             r.check().map_err(|(key, reason)| self.error(key, reason))?;
+        }
+        Ok(())
+    }
+}
+
+impl Manifest {
+    /// Checks `[lateral_acceleration.bank]`.
+    fn check_bank(
+        &self,
+        b: &BankSpec,
+        stream_ref: &dyn Fn(&str, &str) -> Result<()>,
+        positive: &dyn Fn(&str, f64) -> Result<()>,
+    ) -> Result<()> {
+        const K: &str = "lateral_acceleration.bank";
+        stream_ref(&format!("{K}.left"), &b.left)?;
+        stream_ref(&format!("{K}.right"), &b.right)?;
+        if b.left == b.right {
+            return Err(self.error(
+                &format!("{K}.right"),
+                format!("the right antenna's stream is the left one's ('{}'): two antennas are needed", b.left),
+            ));
+        }
+        positive(&format!("{K}.baseline_m"), b.baseline_m)?;
+        if !(b.height_offset_m.is_finite() && b.height_offset_m.abs() < b.baseline_m) {
+            return Err(self.error(
+                &format!("{K}.height_offset_m"),
+                format!(
+                    "must be a finite number of metres smaller in size than baseline_m = {}, found {}",
+                    b.baseline_m,
+                    echo_num(b.height_offset_m)
+                ),
+            ));
+        }
+        if !(non_negative(b.smoothing_s) && b.smoothing_s.is_finite()) {
+            return Err(self.error(&format!("{K}.smoothing_s"), format!("must be >= 0, found {}", b.smoothing_s)));
+        }
+        if !(b.max_roll_deg > 0.0 && b.max_roll_deg <= BankSpec::MAX_ROLL_LIMIT_DEG) {
+            return Err(self.error(
+                &format!("{K}.max_roll_deg"),
+                format!("must be in (0, {}] degrees, found {}", BankSpec::MAX_ROLL_LIMIT_DEG, echo_num(b.max_roll_deg)),
+            ));
+        }
+        if let Some(q) = &b.quality {
+            if q.accept.is_empty() && q.max.is_none() && q.min.is_none() {
+                return Err(self.error(&format!("{K}.quality.accept"), "no accepted values given"));
+            }
         }
         Ok(())
     }

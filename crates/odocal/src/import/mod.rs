@@ -65,6 +65,24 @@
 //! same reference look better than the wheels alone could do. `from_wheels`
 //! keeps the model's inputs independent of the reference.
 //!
+//! ## Road bank
+//!
+//! A derived a_y is kinematic (v·ω, horizontal), but the load transfer the
+//! model's `d·a_y` stands for follows the lateral *specific force* in the
+//! vehicle frame, what an IMU would measure: on a road rolled by φ
+//! (positive when the left side is lower), f_y = a_y·cos φ − g·sin φ. On a
+//! banked curve the two differ by about g·sin φ (≈ 0.9 m/s² at 5.4° on the
+//! van's test track), with the sign of the turning direction, and the fit
+//! then puts a direction-dependent term into c_d. `[lateral_acceleration.bank]`
+//! measures φ from two GNSS antennas across the vehicle
+//! ([`BankSpec`]: sin φ = (h_right − h_left + height_offset_m) / baseline_m
+//! where both are of accepted quality, on the pose's clock, smoothed) and
+//! imports f_y instead. Two other effects of the roll are left out,
+//! measured small on the test track: the wheels turn about the road normal
+//! (their yaw rate is ω·cos φ: fitted t_r is cos φ short, 8 mm there), and
+//! a roof antenna moves h·sin φ towards the low side (h = 2.5 m: c_e moves
+//! by 1.8 mm, the cross-run ratio by 0.02).
+//!
 //! ## Wheel units and θ
 //!
 //! The model's rotation is "revolutions" of whatever the import divided by:
@@ -143,6 +161,18 @@
 //! sign = 1                    # +1: column positive to the left
 //! # smoothing_s = 0.5         # from_wheels (default 0) / from_pose (default 0.5)
 //!
+//! # [lateral_acceleration.bank] # optional, from_wheels / from_pose only: see "Road bank"
+//! # left = "gnss_left"          # the two antennas' streams (on the pose's GNSS clock)
+//! # right = "gnss_right"
+//! # lat = "lat_deg"             # columns of both
+//! # lon = "lon_deg"
+//! # alt = "alt_m"
+//! # quality = { column = "fix_mode", accept = [6] }  # optional
+//! # baseline_m = 1.485          # antenna separation, m
+//! # height_offset_m = 0.0       # left minus right antenna height on level ground (default 0)
+//! # smoothing_s = 1.0           # moving average of the roll (default 1)
+//! # max_roll_deg = 20.0         # beyond: a glitch (dropped) or, above 1 % of pairs, an error (default 20)
+//!
 //! [sideslip]
 //! source = "zero"             # zero (default) | column
 //! # stream = "ins", column = "beta", unit = "rad", sign = 1
@@ -186,6 +216,7 @@
 //! # Ok(()) }
 //! ```
 
+mod bank;
 mod checks;
 mod clock;
 mod geodesy;
@@ -207,9 +238,9 @@ use std::path::Path;
 use std::time::Instant;
 
 pub use manifest::{
-    AngleUnit, BagTime, ClockOffset, HeadingConvention, HeadingSpec, LateralAccelerationSpec, LimitsSpec, Manifest,
-    OutputSpec, PositionSpec, QualitySpec, SideslipSpec, SourceSpec, StreamSpec, TimeUnit, WheelColumn, WheelSignal,
-    WheelSpec,
+    AngleUnit, BagTime, BankSpec, ClockOffset, HeadingConvention, HeadingSpec, LateralAccelerationSpec, LimitsSpec,
+    Manifest, OutputSpec, PositionSpec, QualitySpec, SideslipSpec, SourceSpec, StreamSpec, TimeUnit, WheelColumn,
+    WheelSignal, WheelSpec,
 };
 pub use report::{ClockOffsetReport, DejitterReport, GapRecord, ImportReport, JitterReport, PartRecord, StreamReport};
 pub use settings::{
@@ -278,12 +309,24 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
     let track = clock::WheelTrack { t: &ws.t, cum_l: &wheels.cum_l, cum_r: &wheels.cum_r, bad: &wheel_bad };
     let clock_offset = clock::align(m, &track, &pose, h, &theta0, &mut warnings)?;
     pose.shift(clock_offset.applied_s);
+    // The bank's roll, on the antennas' GNSS clock like the pose.
+    let roll = match m.lateral_acceleration.bank() {
+        Some(b) => {
+            let mut r = bank::roll(m, b, &streams[&b.left], &streams[&b.right], &mut warnings)?;
+            r.shift(clock_offset.applied_s);
+            Some(r)
+        }
+        None => None,
+    };
 
-    let (start, end) = grid::common_span(m, &spans(m, &streams, &pose), h)?;
+    let (start, end) = grid::common_span(m, &spans(m, &streams, &pose, roll.as_ref()), h)?;
     limits::check_samples(m, "the common span of the streams", end - start)?;
     let mut g = Grid::new(start, end, h);
     g.mark(&wheel_bad, true);
     g.mark(&pose.bad, false);
+    if let Some(r) = &roll {
+        g.mark(&r.bad, false);
+    }
     for (name, interval) in extra_streams(m) {
         let b = grid::gaps_of(&streams[&name].t, o.max_gap_s, &format!("{name} stream"));
         g.mark(&b, interval);
@@ -303,7 +346,17 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
         checks::Resampled { h, origin_s: start, kept: &kept, n_rl: &n_rl, n_rr: &n_rr, px: &px, py: &py, psi: &psi };
     checks::wheel_speeds(m, &resampled, &theta0)?;
     checks::conventions(m, &resampled, &theta0, &mut warnings)?;
-    let inputs = lateral::Inputs { grid: &g.t, h, n_rl: &n_rl, n_rr: &n_rr, px: &px, py: &py, psi: &psi, kept: &kept };
+    let inputs = lateral::Inputs {
+        grid: &g.t,
+        h,
+        n_rl: &n_rl,
+        n_rr: &n_rr,
+        px: &px,
+        py: &py,
+        psi: &psi,
+        kept: &kept,
+        roll: roll.as_ref(),
+    };
     let (a_y, a_y_desc) = lateral::lateral_acceleration(m, &streams, &inputs, &theta0);
     checks::lateral_acceleration(m, &resampled, &a_y)?;
     let jitter = wheels::jitter_report(m, &wheels, &g.t, h, &kept, &n_rl, &n_rr)?;
@@ -395,6 +448,16 @@ fn wanted_columns(m: &Manifest) -> BTreeMap<String, Vec<Wanted>> {
     if let SideslipSpec::Column { stream, column, .. } = &m.sideslip {
         need(stream, column, "sideslip.column");
     }
+    if let Some(b) = m.lateral_acceleration.bank() {
+        for s in [&b.left, &b.right] {
+            need(s, &b.lat, "lateral_acceleration.bank.lat");
+            need(s, &b.lon, "lateral_acceleration.bank.lon");
+            need(s, &b.alt, "lateral_acceleration.bank.alt");
+            if let Some(q) = &b.quality {
+                need(s, &q.column, "lateral_acceleration.bank.quality.column");
+            }
+        }
+    }
     needs
 }
 
@@ -422,9 +485,11 @@ fn extra_streams(m: &Manifest) -> Vec<(String, bool)> {
     extra
 }
 
-/// The time span of every stream, the pose after the clock offset.
-fn spans(m: &Manifest, streams: &BTreeMap<String, Stream>, pose: &Pose) -> Vec<grid::Span> {
+/// The time span of every stream, the pose (and the bank's roll) after the
+/// clock offset.
+fn spans(m: &Manifest, streams: &BTreeMap<String, Stream>, pose: &Pose, roll: Option<&bank::Roll>) -> Vec<grid::Span> {
     let (w, p) = (&m.wheels.stream, &m.pose.stream);
+    let antenna = |name: &str| m.lateral_acceleration.bank().is_some_and(|b| b.left == name || b.right == name);
     let ws = &streams[w];
     let mut spans = vec![
         grid::Span { name: format!("streams.{w}"), start: ws.t[0], end: ws.t[ws.t.len() - 1] },
@@ -435,9 +500,16 @@ fn spans(m: &Manifest, streams: &BTreeMap<String, Stream>, pose: &Pose) -> Vec<g
         },
     ];
     for (name, s) in streams {
-        if name != w && name != p {
+        if name != w && name != p && !antenna(name) {
             spans.push(grid::Span { name: format!("streams.{name}"), start: s.t[0], end: s.t[s.t.len() - 1] });
         }
+    }
+    if let Some(r) = roll {
+        spans.push(grid::Span {
+            name: "lateral_acceleration.bank (roll, both antennas accepted, after the clock offset)".into(),
+            start: r.t[0],
+            end: r.t[r.t.len() - 1],
+        });
     }
     spans
 }

@@ -802,3 +802,161 @@ fn a_known_offset_is_applied_with_its_confidence() {
     );
     assert!(k > 0.0 && u < 0.1, "{c:?}");
 }
+
+// ---- Road bank: the lateral specific force from two antennas' roll. ----
+
+/// The small case plus two antenna streams 1.5 m apart across the vehicle
+/// (driving east along y = 0), rolled by `roll(i)` rad (positive: left
+/// lower), the left one mounted `left_higher` m above the right one, RTK
+/// flag 6 except where `bad` says; the manifest asks for the bank with
+/// `bank_extra` appended to its table.
+fn bank_case(
+    dir: &Path,
+    roll: impl Fn(usize) -> f64,
+    left_higher: f64,
+    bad: impl Fn(usize) -> bool,
+    bank_extra: &str,
+) -> PathBuf {
+    let path = small_case(dir);
+    let (lat0, lon0, re) = (40.86_f64, -77.83_f64, 6_378_137.0_f64);
+    for (name, side, mount) in [("l.csv", 1.0, left_higher), ("r.csv", -1.0, 0.0)] {
+        let mut s = String::from("t,lat,lon,alt,fix\n");
+        for i in 0..40 {
+            let (sn, cs) = roll(i).sin_cos();
+            let (east, north) = (i as f64, side * 0.75 * cs);
+            let lat = lat0 + (north / re).to_degrees();
+            let lon = lon0 + (east / (re * lat0.to_radians().cos())).to_degrees();
+            let alt = 300.0 - side * 0.75 * sn + mount;
+            writeln!(s, "{},{lat:.10},{lon:.10},{alt:.6},{}", i as f64 / 10.0, if bad(i) { 2 } else { 6 })
+                .expect("write");
+        }
+        std::fs::write(dir.join(name), s).expect("write");
+    }
+    let mut text = std::fs::read_to_string(&path).expect("read");
+    text.push_str(&format!(
+        r#"
+[streams.gl]
+file = "l.csv"
+time_column = "t"
+
+[streams.gr]
+file = "r.csv"
+time_column = "t"
+
+[lateral_acceleration]
+source = "from_wheels"
+
+[lateral_acceleration.bank]
+left = "gl"
+right = "gr"
+lat = "lat"
+lon = "lon"
+alt = "alt"
+quality = {{ column = "fix", accept = [6] }}
+baseline_m = 1.5
+{bank_extra}
+"#
+    ));
+    std::fs::write(&path, text).expect("write");
+    path
+}
+
+#[test]
+fn the_bank_turns_the_kinematic_a_y_into_the_lateral_specific_force() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // Straight (kinematic a_y = 0) on a road 0.1 m lower on the left over 1.5 m.
+    let phi = (0.1_f64 / 1.5).asin();
+    let (d, r) = load_drive(&bank_case(dir.path(), |_| phi, 0.0, |_| false, "")).expect("import");
+    let want = -crate::import::bank::G_M_PER_S2 * 0.1 / 1.5;
+    assert!(d.a_y().iter().all(|a| (a - want).abs() < 1e-4), "{:?} vs {want}", &d.a_y()[..3]);
+    let r = r.expect("report");
+    assert!(r.lateral_acceleration.contains("roll φ from the antennas 'gl' (left) and 'gr' (right)"), "{r}");
+    assert!(r.lateral_acceleration.contains("mean φ +66.7 mrad"), "{}", r.lateral_acceleration);
+    // Level, the left antenna mounted 0.1 m higher: a roll unless the offset is given.
+    let (d, _) = load_drive(&bank_case(dir.path(), |_| 0.0, 0.1, |_| false, "")).expect("mounted");
+    assert!(d.a_y().iter().all(|a| (a + want).abs() < 1e-4), "{:?}", &d.a_y()[..3]);
+    let (d, _) = load_drive(&bank_case(dir.path(), |_| 0.0, 0.1, |_| false, "height_offset_m = 0.1")).expect("offset");
+    assert!(d.a_y().iter().all(|a| a.abs() < 1e-4), "{:?}", &d.a_y()[..3]);
+    // Without the bank table: the kinematic a_y, 0.
+    let path = bank_case(dir.path(), |_| phi, 0.0, |_| false, "");
+    let text = std::fs::read_to_string(&path).expect("read");
+    let cut = text.find("[lateral_acceleration.bank]").expect("table");
+    std::fs::write(&path, &text[..cut]).expect("write");
+    let (d, r) = load_drive(&path).expect("no bank");
+    assert!(d.a_y().iter().all(|a| a.abs() < 1e-9));
+    assert!(!r.expect("report").lateral_acceleration.contains("bank"));
+}
+
+#[test]
+fn roll_samples_without_both_antennas_accepted_split_the_drive_and_glitches_are_dropped() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // Samples 15..=22 not RTK fixed: a 0.9 s hole in the roll splits the drive.
+    let path = bank_case(dir.path(), |_| 0.0, 0.0, |i| (15..=22).contains(&i), "");
+    let (d, r) = load_drive(&path).expect("import");
+    let r = r.expect("report");
+    assert_eq!(d.parts().len(), 2, "{r}");
+    assert!(r.gaps.iter().any(|g| g.reasons.iter().any(|x| x.contains("roll (both antennas accepted)"))), "{r}");
+    // One altitude glitch (46° of roll) among 40 pairs: dropped with a warning.
+    let path = bank_case(dir.path(), |i| if i == 10 { 0.8 } else { 0.0 }, 0.0, |_| false, "");
+    let (d, r) = load_drive(&path).expect("a glitch is dropped");
+    let r = r.expect("report");
+    assert!(r.warnings.iter().any(|w| w.contains("1 of 40 antenna pairs give a roll beyond")), "{r}");
+    assert!(d.a_y().iter().all(|a| a.abs() < 1e-9), "{:?}", d.a_y());
+}
+
+#[test]
+fn bank_errors_name_the_key() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = dir.path();
+    let err = |phi: f64, extra: &str| -> String {
+        let path = bank_case(d, |_| phi, 0.0, |_| false, extra);
+        Manifest::from_path(&path).and_then(|m| import(&m)).map(|_| ()).expect_err("an error").to_string()
+    };
+    let edit = |from: &str, to: &str| -> String {
+        let path = bank_case(d, |_| 0.0, 0.0, |_| false, "");
+        let text = std::fs::read_to_string(&path).expect("read").replace(from, to);
+        std::fs::write(&path, text).expect("write");
+        Manifest::from_path(&path).and_then(|m| import(&m)).map(|_| ()).expect_err("an error").to_string()
+    };
+    let e = edit("baseline_m = 1.5", "baseline_m = 0.0");
+    assert!(e.contains("lateral_acceleration.bank.baseline_m: must be a positive number, found 0"), "{e}");
+    let e = edit("baseline_m = 1.5", "baseline_m = -1.5");
+    assert!(e.contains("lateral_acceleration.bank.baseline_m: must be a positive number"), "{e}");
+    // The antennas are 1.5 m apart, not 3.
+    let e = edit("baseline_m = 1.5", "baseline_m = 3.0");
+    let want = "lateral_acceleration.bank.baseline_m: the antennas of streams 'gl' and 'gr' are a median 1.";
+    assert!(e.contains(want) && e.contains("not baseline_m = 3 "), "{e}");
+    let e = err(0.0, "height_offset_m = 2.0");
+    assert!(e.contains("lateral_acceleration.bank.height_offset_m: must be a finite number"), "{e}");
+    let e = err(0.0, "max_roll_deg = 90");
+    assert!(e.contains("lateral_acceleration.bank.max_roll_deg: must be in (0, 45]"), "{e}");
+    let e = err(0.0, "smoothing_s = -1");
+    assert!(e.contains("lateral_acceleration.bank.smoothing_s: must be >= 0"), "{e}");
+    // Every pair rolled by 42°: an error, not glitches.
+    let e = err(0.73, "");
+    assert!(e.contains("lateral_acceleration.bank.max_roll_deg") && e.contains("40 of 40 antenna pairs"), "{e}");
+    let e = edit("right = \"gr\"", "right = \"gl\"");
+    assert!(e.contains("lateral_acceleration.bank.right: the right antenna's stream is the left one's"), "{e}");
+    let e = edit("right = \"gr\"", "right = \"gx\"");
+    assert!(e.contains("lateral_acceleration.bank.right: no stream named 'gx'"), "{e}");
+    let e = edit("alt = \"alt\"", "alt = \"height\"");
+    assert!(e.contains("height") && e.contains("lateral_acceleration.bank.alt"), "{e}");
+    let e = edit("baseline_m = 1.5", "baseline_m = 1.5\nbaseline = 2");
+    assert!(
+        e.contains("lateral_acceleration") && e.contains("unknown field `baseline`, expected one of `left`"),
+        "{e}"
+    );
+    // No common accepted sample.
+    let path = bank_case(d, |_| 0.0, 0.0, |_| true, "");
+    let e = load_drive(&path).map(|_| ()).expect_err("none accepted").to_string();
+    assert!(e.contains("lateral_acceleration.bank.quality") && e.contains("no sample of accepted quality"), "{e}");
+    // A kinematic-only option: an IMU already measures the specific force.
+    let e = edit("source = \"from_wheels\"", "source = \"imu\"\nstream = \"gl\"\ncolumn = \"alt\"");
+    assert!(e.contains("lateral_acceleration") && e.contains("bank"), "{e}");
+    // Latitude in metres.
+    let path = bank_case(d, |_| 0.0, 0.0, |_| false, "");
+    let l = std::fs::read_to_string(d.join("l.csv")).expect("read");
+    std::fs::write(d.join("l.csv"), l.replacen(",40.86", ",4086000.0", 1)).expect("write");
+    let e = load_drive(&path).map(|_| ()).expect_err("metres").to_string();
+    assert!(e.contains("l.csv") && e.contains("lateral_acceleration.bank.lat (left antenna)"), "{e}");
+}
