@@ -129,6 +129,13 @@ struct CalibrationArgs {
     /// Minimum peak yaw rate for a segment to be selected, rad/s.
     #[arg(long)]
     min_yaw_rate: Option<f64>,
+    /// Keep the paper's turning-only segment selection even when every
+    /// selected segment turns the same way (default: the straight segments
+    /// are added, with a warning, because one-way turns confound c_d with
+    /// t_r). Three-step and batch-gn; wins over a manifest's
+    /// `[calibration] keep_one_way`.
+    #[arg(long)]
+    keep_one_way: bool,
     /// Calibration segment length K, samples.
     #[arg(long)]
     segment_length: Option<usize>,
@@ -269,6 +276,9 @@ impl CalibrationArgs {
             }
             Method::Eiv(defaults) => {
                 reject(&three_step_flags, "three-step", &self.method)?;
+                if self.keep_one_way {
+                    bail!("--keep-one-way applies to the segment-selecting methods (three-step, batch-gn), not to --method eiv");
+                }
                 let mut o = defaults.clone();
                 if let Some(p) = &self.noise_model {
                     o.filter.noise = odocal::calibrate::eiv::read_noise_model(p)?;
@@ -334,6 +344,9 @@ impl CalibrationArgs {
         }
         if let Some(v) = self.min_yaw_rate {
             o.segments.min_peak_yaw_rate_rad_per_s = v;
+        }
+        if self.keep_one_way {
+            o.keep_one_way_selection = true;
         }
         if let Some(v) = self.segment_length {
             o.segments.length_steps = v;
@@ -666,9 +679,11 @@ fn run_calibration(
     let noise_origin = settings::noise_origin(args, &setting_uses);
     let cb = |e| bars.event(e);
     let mut others = Vec::new();
+    let mut other_settings = Vec::new();
     for p in &args.validate_on {
-        others
-            .push((p.display().to_string(), load_drive(p).with_context(|| format!("--validate-on {}", p.display()))?));
+        let (d, _, m) = load_drive_with_scale(p).with_context(|| format!("--validate-on {}", p.display()))?;
+        others.push((p.display().to_string(), d));
+        other_settings.push(m);
     }
     let holdout = match args.holdout {
         Some(HalfArg::FirstHalf) => Some(Holdout::FirstHalf),
@@ -685,7 +700,24 @@ fn run_calibration(
         Some((fit, held)) => (fit.as_ref(), Some(held.as_ref())),
         None => (drive, None),
     };
-    let r = match odocal::calibrate_held_out(fit, held, &opts, Some(&cb)) {
+    // Each validation drive with the extrinsics that apply to it (its own
+    // manifest's `[reference]` where the calibration neither estimates nor
+    // is given them: odocal::validate_on).
+    let validation: Vec<odocal::ValidationDrive> = others
+        .iter()
+        .zip(&other_settings)
+        .map(|((name, d), m)| odocal::ValidationDrive {
+            name,
+            drive: d,
+            reference: m.as_ref().and_then(|m| m.reference.as_ref()),
+        })
+        .collect();
+    let given = settings::given_extrinsics(args);
+    let result = match validation.is_empty() {
+        true => odocal::calibrate_held_out(fit, held, &opts, Some(&cb)).map(|r| (r, None)),
+        false => odocal::calibrate_validated_on(drive, &validation, given, &opts, Some(&cb)).map(|(r, m)| (r, Some(m))),
+    };
+    let (r, per_drive) = match result {
         Ok(r) => r,
         Err(e @ odocal::Error::NotObservable { .. }) => {
             bars.finish();
@@ -708,13 +740,6 @@ fn run_calibration(
         None => None,
     };
     let truth_ref = truth.as_ref().map(|(t, e)| (t, *e));
-    let per_drive = match others.len() {
-        0 => None,
-        _ => {
-            let named: Vec<(&str, &Drive)> = others.iter().map(|(n, d)| (n.as_str(), d)).collect();
-            Some(odocal::validate_drives(&named, &r.theta, &r.initial.theta, &opts.validation)?)
-        }
-    };
     let input = source.map(|(p, _)| p.display().to_string()).unwrap_or_else(|| "simulated drive".into());
     if let Some(p) = &args.params_out {
         let mut f = odocal::param_file::ParamFile::from_theta(&r.theta, sigma_or_held(&r), &input, &r.method);

@@ -320,6 +320,12 @@ pub fn validate_on(m: &MultiValidation) -> String {
             "  {}: {:.3} / {:.3} ({} segments){worse}",
             d.name, d.mean_position_error_m, d.initial_mean_position_error_m, d.segments
         );
+        if let Some(x) = &d.extrinsics {
+            let _ = writeln!(out, "    reference extrinsics: {x}");
+            for c in &x.conflicts {
+                let _ = writeln!(out, "    CONFLICT: {c}");
+            }
+        }
     }
     let _ = writeln!(
         out,

@@ -58,6 +58,7 @@ use crate::segment::{
 };
 use crate::trust::{judge, Evidence, TrustOptions, Verdict};
 use crate::validate::mean_position_error_with;
+use crate::validate_on::CalibrationExtrinsics;
 use crate::warning::Warning;
 
 pub mod batch_gn;
@@ -68,8 +69,8 @@ mod turn_sense;
 pub use batch_gn::{BatchGnDetail, BatchGnOptions};
 pub use eiv::{EivDetail, EivMethodOptions, EivOutcome};
 pub use three_step::{
-    per_segment_identification, random_batches, score_batches, BatchResult, FinalSegments, InitialStep, RejectedBatch,
-    ThreeStepDetail, ThreeStepOptions,
+    per_segment_identification, random_batches, score_batches, BatchResult, BatchSpread, FinalSegments, InitialStep,
+    RejectedBatch, ThreeStepDetail, ThreeStepOptions, ThreeStepUncertainty,
 };
 
 /// Which calibration method to run, with its settings.
@@ -551,6 +552,20 @@ pub fn calibrate_detailed(
     opts: &CalibrationOptions,
     progress: Option<ProgressFn<'_>>,
 ) -> Result<DetailedCalibration> {
+    calibrate_core(drive, held_out.map(|h| (h, None)), opts, progress)
+}
+
+/// [`calibrate_detailed`]; with held-out drives that each have their own
+/// extrinsics ([`crate::validate_on`]), the held-out Ē_p gives every
+/// segment its drive's.
+pub(crate) fn calibrate_core(
+    drive: &Drive,
+    held: Option<(&Drive, Option<&crate::validate_on::HeldOutDrives<'_>>)>,
+    opts: &CalibrationOptions,
+    progress: Option<ProgressFn<'_>>,
+) -> Result<DetailedCalibration> {
+    let held_out = held.map(|h| h.0);
+    let held_refs = held.and_then(|h| h.1);
     opts.validate()?;
     let method = opts.method.estimator();
     if opts.identify.uses_extrinsics() && !method.supports_extrinsics() {
@@ -593,8 +608,13 @@ pub fn calibrate_detailed(
         }
         None => (drive, prep.validation.clone()),
     };
-    let initial_val =
-        mean_position_error_with(report_drive, &report_segments, &opts.theta0, &opts.identify.extrinsics)?;
+    let initial_val = match held_refs {
+        Some(h) => {
+            let cal = CalibrationExtrinsics::before(opts, selection.free, h.given);
+            h.error(&report_segments, &opts.theta0, &cal, true)?
+        }
+        None => mean_position_error_with(report_drive, &report_segments, &opts.theta0, &opts.identify.extrinsics)?,
+    };
     let setup = t_start.elapsed().as_secs_f64();
 
     let outcome = method.run(&prep, &selection, progress)?;
@@ -612,7 +632,16 @@ pub fn calibrate_detailed(
     let extrinsics = if opts.identify.uses_extrinsics() { method_extrinsics(&outcome.detail) } else { None };
     let ext = extrinsics.as_ref().map_or(opts.identify.extrinsics, |e| e.value);
     let t = Instant::now();
-    let val = mean_position_error_with(report_drive, &report_segments, &outcome.theta, &ext)?;
+    let val = match held_refs {
+        Some(h) => {
+            let cal = CalibrationExtrinsics {
+                value: ext,
+                ..CalibrationExtrinsics::before(opts, extrinsics.as_ref().map_or(ParamSet::EMPTY, |e| e.free), h.given)
+            };
+            h.error(&report_segments, &outcome.theta, &cal, false)?
+        }
+        None => mean_position_error_with(report_drive, &report_segments, &outcome.theta, &ext)?,
+    };
     let fit_m = match held_out {
         Some(_) => Some(mean_position_error_with(drive, &prep.validation, &outcome.theta, &ext)?.mean_position_error_m),
         None => None,
