@@ -360,9 +360,20 @@ impl CalibrationReport {
     /// (`identification.robust`), but it does not see steps 1–2 and is
     /// 5–13× smaller than the spread of 3-step estimates over seeds
     /// (`examples/gn_coverage.rs 20 12 paper 1300 three-step`), so it does
-    /// not stand for the result.
+    /// not stand for the result; the 3-step's is its batch spread
+    /// ([`Self::result_covariance`]).
     pub fn robust(&self) -> Option<&RobustCovariance> {
         outcome_robust(&self.detail)
+    }
+
+    /// The covariance of θ that stands for the result's uncertainty, the
+    /// one the verdict's large-σ and cross-split checks use: batch-gn's
+    /// cluster-robust covariance ([`Self::robust`]); the 3-step method's
+    /// step-1 batch spread ([`ThreeStepUncertainty::batch_spread`]), since
+    /// step 3's own σ sees only its compensated inputs; `None` otherwise
+    /// (then the model covariance is all there is).
+    pub fn result_covariance(&self) -> Option<&[[f64; 4]; 4]> {
+        outcome_covariance(&self.detail)
     }
 }
 
@@ -658,10 +669,11 @@ pub(crate) fn calibrate_core(
             iterations: outcome.iterations,
             rcond: outcome.observability.rcond,
             unobservable: outcome.observability.unobservable,
-            // The cluster-robust σ where the method has one (batch-gn): the
-            // model σ is 5–120× too small under input noise
-            // (examples/gn_coverage.rs).
-            covariance: outcome_robust(&outcome.detail).map_or(&outcome.covariance, |r| &r.covariance),
+            // The σ that stands for the result (batch-gn: cluster-robust;
+            // 3-step: step-1 batch spread): the model σ is 5–120× too small
+            // under input noise (examples/gn_coverage.rs), 3-step's
+            // 100–1000× (examples/three_step_coverage.rs).
+            covariance: outcome_covariance(&outcome.detail).unwrap_or(&outcome.covariance),
             calibrated_m: val.mean_position_error_m,
             initial_m: initial_val.mean_position_error_m,
             fit_m,
@@ -717,7 +729,7 @@ fn split_fit(held_out: &Drive, opts: &CalibrationOptions, free: ParamSet) -> Opt
     o.auto_fix = false;
     o.trust.max_split_sigmas = 0.0;
     let r = calibrate_detailed(held_out, None, &o, None).ok()?.report;
-    Some((r.theta, r.robust().map_or(r.covariance, |rb| rb.covariance)))
+    Some((r.theta, *r.result_covariance().unwrap_or(&r.covariance)))
 }
 
 /// The cluster-robust covariance of a method's result
@@ -726,6 +738,16 @@ fn outcome_robust(detail: &MethodDetail) -> Option<&RobustCovariance> {
     match detail {
         MethodDetail::BatchGn(d) => d.identification.robust.as_ref(),
         MethodDetail::ThreeStep(_) | MethodDetail::Eiv(_) => None,
+    }
+}
+
+/// The covariance standing for a method's result
+/// ([`CalibrationReport::result_covariance`]).
+fn outcome_covariance(detail: &MethodDetail) -> Option<&[[f64; 4]; 4]> {
+    match detail {
+        MethodDetail::BatchGn(d) => d.identification.robust.as_ref().map(|r| &r.covariance),
+        MethodDetail::ThreeStep(d) => d.uncertainty.batch_spread.as_ref().map(|b| &b.covariance),
+        MethodDetail::Eiv(_) => None,
     }
 }
 

@@ -596,3 +596,33 @@ mod forced_divergence_tests {
         );
     }
 }
+
+#[cfg(test)]
+mod uncertainty_tests {
+    use super::*;
+
+    #[test]
+    fn batch_spread_is_the_scaled_sample_covariance() {
+        let t = |c_e: f64, t_r: f64| Theta { c_e, c_d: 0.0, t_r, d: 0.0 };
+        // c_e: 1, 2, 3 (mean 2, sample variance 1); t_r: 1, 1, 4 (variance 3)
+        let thetas = [t(1.0, 1.0), t(2.0, 1.0), t(3.0, 4.0)];
+        let b = BatchSpread::new(&thetas, 10, 50.0).expect("spread");
+        let f = 10.0 / 40.0;
+        assert!((b.covariance[0][0] - f).abs() < 1e-15, "{:?}", b.covariance);
+        assert!((b.covariance[2][2] - 3.0 * f).abs() < 1e-15);
+        assert!((b.covariance[0][2] - 1.5 * f).abs() < 1e-15, "cov(c_e, t_r) = 1.5");
+        assert_eq!(b.covariance[1], [0.0; 4], "a parameter that never moves has no spread");
+        assert!((b.std_dev().c_e - f.sqrt()).abs() < 1e-15);
+        assert!(BatchSpread::new(&thetas[..2], 10, 50.0).is_none(), "two estimates are too few");
+        assert!(BatchSpread::new(&thetas, 10, 10.0).is_none(), "no data beyond one batch");
+    }
+
+    #[test]
+    fn effective_segments_count_distinct_samples() {
+        let s = |start| Segment { start, steps: 100, peak_yaw_rate_rad_per_s: 1.0 };
+        assert_eq!(effective_segments(&[]), 0.0);
+        // 0..100 and 50..150 overlap: 150 samples; 1000..1100 adds 100
+        assert_eq!(effective_segments(&[s(1000), s(50), s(0)]), 2.5);
+        assert_eq!(effective_segments(&[s(0), s(0)]), 1.0);
+    }
+}
