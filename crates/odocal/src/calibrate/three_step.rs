@@ -146,9 +146,10 @@ pub struct ThreeStepDetail {
     pub compensation: CompensationStep,
     /// Step 3.
     pub identification: IdentifyReport,
-    /// Uncertainty of the result beyond step 3's own σ.
+    /// Uncertainty of the result beyond step 3's own σ (boxed: it would
+    /// make this the report's one large variant).
     #[serde(default)]
-    pub uncertainty: ThreeStepUncertainty,
+    pub uncertainty: Box<ThreeStepUncertainty>,
 }
 
 /// Candidate covariances of the 3-step result that, unlike step 3's own
@@ -467,14 +468,14 @@ impl Estimator for ThreeStepOptions {
             }
         };
         let plausible: Vec<Theta> = order.iter().map(|&i| ok[i].score.theta).collect();
-        let uncertainty = ThreeStepUncertainty {
+        let uncertainty = Box::new(ThreeStepUncertainty {
             measured_inputs,
             batch_spread: BatchSpread::new(
                 &plausible,
                 self.initial_batch_size.min(selected.len()),
                 effective_segments(selected),
             ),
-        };
+        });
         timing.final_identification = t.elapsed().as_secs_f64();
         Ok(MethodOutcome {
             theta: report.theta,
@@ -598,6 +599,7 @@ mod forced_divergence_tests {
 }
 
 #[cfg(test)]
+#[allow(clippy::float_cmp)] // exact: sums of small integers and a binary fraction
 mod uncertainty_tests {
     use super::*;
 
