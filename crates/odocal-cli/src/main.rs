@@ -865,8 +865,12 @@ fn demo_cmd(a: DemoArgs, bars: &progress::Bars) -> Result<Outcome> {
 }
 
 fn validate_cmd(a: ValidateArgs, bars: &progress::Bars) -> Result<()> {
-    let drive = load_drive(&a.drive)?;
+    let (drive, _, settings) = load_drive_with_scale(&a.drive)?;
     let mut opts = odocal::ValidateOptions::default();
+    // A manifest's [reference]: the drive's own mount.
+    if let Some(r) = settings.as_ref().and_then(|s| s.reference.as_ref()) {
+        opts.extrinsics = r.extrinsics();
+    }
     if let Some(v) = a.validation_length {
         opts.segments.length_steps = v;
         opts.segments.stride_steps = (v / 2).max(1);
@@ -890,12 +894,18 @@ fn validate_cmd(a: ValidateArgs, bars: &progress::Bars) -> Result<()> {
     }
     let r = &report.validation;
     println!("θ: {}", a.theta);
+    if !report.extrinsics.is_zero() {
+        println!("reference extrinsics: {} (the drive's manifest [reference])", report.extrinsics);
+    }
     println!("mean position error Ē_p: {:.4} m over {} validation segments", r.mean_position_error_m, r.segments);
     if let Some(rm) = &report.reachable_minimum {
         println!(
             "reachable minimum: Ē_p {:.4} m at θ = {} ({} evaluations, {:.1} s)",
             rm.mean_position_error_m, rm.theta, rm.evaluations, rm.time_s
         );
+        if !report.extrinsics.is_zero() {
+            println!("  (the search takes the reference at the rear-axle centre, not at the extrinsics above)");
+        }
         if rm.recentred > 0 {
             println!("  the search box was re-centred {} time(s) on a best point at its edge", rm.recentred);
         }

@@ -1084,6 +1084,10 @@ fn validate<'py>(
         opts.segments.length_steps = k;
         opts.segments.stride_steps = (k / 2).max(1);
     }
+    // A manifest's [reference]: the drive's own mount (as `odocal validate`).
+    if let Some(r) = drive.get().prov.settings()?.and_then(|s| s.reference) {
+        opts.extrinsics = r.extrinsics();
+    }
     let inner = Arc::clone(&drive.get().drive);
     let report = py.detach(|| with_threads(threads, || odocal::validate(&inner, &theta, &opts)))?.map_err(lib_err)?;
     let mut v = json(&report)?;

@@ -91,7 +91,12 @@ pub struct ValidateOptions {
     /// Validation segments. Default K_v = 1300, stride 650, offset 50.
     pub segments: ValidationSegmentOptions,
     /// Also search the reachable minimum of Ē_p with these settings. Default none.
+    /// (The search takes the reference at the axle, whatever `extrinsics`.)
     pub reachable: Option<ReachableOptions>,
+    /// The pose reference's mount (e.g. the drive manifest's `[reference]`,
+    /// [`crate::import::ReferenceSpec::extrinsics`]). Default 0: the axle.
+    #[serde(default)]
+    pub extrinsics: Extrinsics,
 }
 
 /// The `validate` report (SPEC §9): Ē_p of θ and, when asked, the reachable
@@ -104,6 +109,9 @@ pub struct ValidateReport {
     /// The reachable minimum, when asked for.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reachable_minimum: Option<ReachableReport>,
+    /// The reference extrinsics Ē_p of θ used, when not all 0.
+    #[serde(default, skip_serializing_if = "Extrinsics::is_zero")]
+    pub extrinsics: Extrinsics,
 }
 
 /// Ē_p of θ on the validation segments of `drive` and, with
@@ -130,12 +138,12 @@ pub fn validate_with_progress(
     progress: Option<ProgressFn<'_>>,
 ) -> Result<ValidateReport> {
     let segs = validation_segments(drive, &opts.segments)?;
-    let validation = mean_position_error(drive, &segs, theta)?;
+    let validation = mean_position_error_with(drive, &segs, theta, &opts.extrinsics)?;
     let reachable_minimum = match &opts.reachable {
         Some(r) => Some(reachable_minimum_with_progress(drive, &segs, r, progress)?),
         None => None,
     };
-    Ok(ValidateReport { validation, reachable_minimum })
+    Ok(ValidateReport { validation, reachable_minimum, extrinsics: opts.extrinsics })
 }
 
 /// Ē_p of θ and of θ_0 on one of several validation drives.

@@ -60,6 +60,16 @@ impl ReferenceSpec {
         Ok(set)
     }
 
+    /// The stated lever arm and heading offset (0 where not stated).
+    pub fn extrinsics(&self) -> crate::extrinsics::Extrinsics {
+        let l = self.lever_arm.unwrap_or_default();
+        crate::extrinsics::Extrinsics {
+            lever_x: l[0],
+            lever_y: l[1],
+            heading_offset: self.heading_offset.unwrap_or(0.0),
+        }
+    }
+
     /// Checks the values: `(key, reason)` of the first bad one.
     pub(crate) fn check(&self) -> std::result::Result<(), (&'static str, String)> {
         if let Some(l) = self.lever_arm {
