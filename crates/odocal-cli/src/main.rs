@@ -129,6 +129,13 @@ struct CalibrationArgs {
     /// Minimum peak yaw rate for a segment to be selected, rad/s.
     #[arg(long)]
     min_yaw_rate: Option<f64>,
+    /// Keep the paper's turning-only segment selection even when every
+    /// selected segment turns the same way (default: the straight segments
+    /// are added, with a warning, because one-way turns confound c_d with
+    /// t_r). Three-step and batch-gn; wins over a manifest's
+    /// `[calibration] keep_one_way`.
+    #[arg(long)]
+    keep_one_way: bool,
     /// Calibration segment length K, samples.
     #[arg(long)]
     segment_length: Option<usize>,
@@ -276,6 +283,9 @@ impl CalibrationArgs {
             }
             Method::Eiv(defaults) => {
                 reject(&three_step_flags, "three-step", &self.method)?;
+                if self.keep_one_way {
+                    bail!("--keep-one-way applies to the segment-selecting methods (three-step, batch-gn), not to --method eiv");
+                }
                 let mut o = defaults.clone();
                 if let Some(p) = &self.noise_model {
                     o.filter.noise = odocal::calibrate::eiv::read_noise_model(p)?;
@@ -348,6 +358,9 @@ impl CalibrationArgs {
         }
         if let Some(v) = self.min_yaw_rate {
             o.segments.min_peak_yaw_rate_rad_per_s = v;
+        }
+        if self.keep_one_way {
+            o.keep_one_way_selection = true;
         }
         if let Some(v) = self.segment_length {
             o.segments.length_steps = v;
@@ -680,9 +693,11 @@ fn run_calibration(
     let noise_origin = settings::noise_origin(args, &setting_uses);
     let cb = |e| bars.event(e);
     let mut others = Vec::new();
+    let mut other_settings = Vec::new();
     for p in &args.validate_on {
-        others
-            .push((p.display().to_string(), load_drive(p).with_context(|| format!("--validate-on {}", p.display()))?));
+        let (d, _, m) = load_drive_with_scale(p).with_context(|| format!("--validate-on {}", p.display()))?;
+        others.push((p.display().to_string(), d));
+        other_settings.push(m);
     }
     let holdout = match args.holdout {
         Some(HalfArg::FirstHalf) => Some(Holdout::FirstHalf),
@@ -699,7 +714,24 @@ fn run_calibration(
         Some((fit, held)) => (fit.as_ref(), Some(held.as_ref())),
         None => (drive, None),
     };
-    let r = match odocal::calibrate_held_out(fit, held, &opts, Some(&cb)) {
+    // Each validation drive with the extrinsics that apply to it (its own
+    // manifest's `[reference]` where the calibration neither estimates nor
+    // is given them: odocal::validate_on).
+    let validation: Vec<odocal::ValidationDrive> = others
+        .iter()
+        .zip(&other_settings)
+        .map(|((name, d), m)| odocal::ValidationDrive {
+            name,
+            drive: d,
+            reference: m.as_ref().and_then(|m| m.reference.as_ref()),
+        })
+        .collect();
+    let given = settings::given_extrinsics(args);
+    let result = match validation.is_empty() {
+        true => odocal::calibrate_held_out(fit, held, &opts, Some(&cb)).map(|r| (r, None)),
+        false => odocal::calibrate_validated_on(drive, &validation, given, &opts, Some(&cb)).map(|(r, m)| (r, Some(m))),
+    };
+    let (r, per_drive) = match result {
         Ok(r) => r,
         Err(e @ odocal::Error::NotObservable { .. }) => {
             bars.finish();
@@ -722,13 +754,6 @@ fn run_calibration(
         None => None,
     };
     let truth_ref = truth.as_ref().map(|(t, e)| (t, *e));
-    let per_drive = match others.len() {
-        0 => None,
-        _ => {
-            let named: Vec<(&str, &Drive)> = others.iter().map(|(n, d)| (n.as_str(), d)).collect();
-            Some(odocal::validate_drives(&named, &r.theta, &r.initial.theta, &opts.validation)?)
-        }
-    };
     let input = source.map(|(p, _)| p.display().to_string()).unwrap_or_else(|| "simulated drive".into());
     if let Some(p) = &args.params_out {
         let mut f = odocal::param_file::ParamFile::from_theta(&r.theta, sigma_or_held(&r), &input, &r.method);
@@ -854,8 +879,12 @@ fn demo_cmd(a: DemoArgs, bars: &progress::Bars) -> Result<Outcome> {
 }
 
 fn validate_cmd(a: ValidateArgs, bars: &progress::Bars) -> Result<()> {
-    let drive = load_drive(&a.drive)?;
+    let (drive, _, settings) = load_drive_with_scale(&a.drive)?;
     let mut opts = odocal::ValidateOptions::default();
+    // A manifest's [reference]: the drive's own mount.
+    if let Some(r) = settings.as_ref().and_then(|s| s.reference.as_ref()) {
+        opts.extrinsics = r.extrinsics();
+    }
     if let Some(v) = a.validation_length {
         opts.segments.length_steps = v;
         opts.segments.stride_steps = (v / 2).max(1);
@@ -879,12 +908,18 @@ fn validate_cmd(a: ValidateArgs, bars: &progress::Bars) -> Result<()> {
     }
     let r = &report.validation;
     println!("θ: {}", a.theta);
+    if !report.extrinsics.is_zero() {
+        println!("reference extrinsics: {} (the drive's manifest [reference])", report.extrinsics);
+    }
     println!("mean position error Ē_p: {:.4} m over {} validation segments", r.mean_position_error_m, r.segments);
     if let Some(rm) = &report.reachable_minimum {
         println!(
             "reachable minimum: Ē_p {:.4} m at θ = {} ({} evaluations, {:.1} s)",
             rm.mean_position_error_m, rm.theta, rm.evaluations, rm.time_s
         );
+        if !report.extrinsics.is_zero() {
+            println!("  (the search takes the reference at the rear-axle centre, not at the extrinsics above)");
+        }
         if rm.recentred > 0 {
             println!("  the search box was re-centred {} time(s) on a best point at its edge", rm.recentred);
         }

@@ -230,11 +230,18 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
             id.termination,
             id.observability.rcond
         );
-        if r.initial_step().is_some() {
+        if let Some(b) = three_step_spread(r) {
             let _ = writeln!(
                 out,
-                "σ: model only; it understates the spread of 3-step estimates about 100–1000× on simulated \
-                 paper-noise drives (step 3's cluster-robust σ, in the JSON, still 5–13×)"
+                "batch-spread σ: the spread of {} plausible step-1 batch estimates (of {} segments) scaled to \
+                 {:.0} independent segment lengths; the model σ (step 3's) understates the uncertainty 100–1000×",
+                b.batches, b.batch_size, b.effective_segments
+            );
+        } else if r.initial_step().is_some() {
+            let _ = writeln!(
+                out,
+                "σ: model only (too few plausible step-1 batches for a batch-spread σ); it understates the spread \
+                 of 3-step estimates about 100–1000× on simulated paper-noise drives"
             );
         } else if eiv_detail(r).is_none() {
             let o = &r.options.identify;
@@ -274,6 +281,12 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
         let sd = rb.std_dev().to_array();
         let s: [f64; 4] = std::array::from_fn(|i| if sigma[i].is_nan() { f64::NAN } else { sd[i] });
         cols.push(("± 1σ (robust)", Some(Theta { c_e: s[0], c_d: s[1], t_r: s[2], d: s[3] })));
+    }
+    // The 3-step's step-1 batch spread.
+    if let Some(b) = three_step_spread(r) {
+        let sd = b.std_dev().to_array();
+        let s: [f64; 4] = std::array::from_fn(|i| if sigma[i].is_nan() { f64::NAN } else { sd[i] });
+        cols.push(("± 1σ (spread)", Some(Theta { c_e: s[0], c_d: s[1], t_r: s[2], d: s[3] })));
     }
     if let Some((t, _)) = truth {
         cols.push(("truth", Some(*t)));
@@ -332,6 +345,12 @@ pub fn validate_on(m: &MultiValidation) -> String {
             "  {}: {:.3} / {:.3} ({} segments){worse}",
             d.name, d.mean_position_error_m, d.initial_mean_position_error_m, d.segments
         );
+        if let Some(x) = &d.extrinsics {
+            let _ = writeln!(out, "    reference extrinsics: {x}");
+            for c in &x.conflicts {
+                let _ = writeln!(out, "    CONFLICT: {c}");
+            }
+        }
     }
     let _ = writeln!(
         out,
@@ -341,4 +360,12 @@ pub fn validate_on(m: &MultiValidation) -> String {
         m.initial_mean_over_drives_m
     );
     out
+}
+
+/// The 3-step method's step-1 batch-spread σ, when it has one.
+fn three_step_spread(r: &CalibrationReport) -> Option<&odocal::calibrate::BatchSpread> {
+    match &r.detail {
+        MethodDetail::ThreeStep(d) => d.uncertainty.batch_spread.as_ref(),
+        _ => None,
+    }
 }

@@ -1,4 +1,4 @@
-//! The manifest's calibration settings (`[noise]`, `[reference]`) in
+//! The manifest's calibration settings (`[noise]`, `[reference]`, `[calibration]`) in
 //! `calibrate`: which flags override them, and what the report says about
 //! them. The library applies them (`odocal::import::ManifestSettings::apply`).
 
@@ -6,6 +6,7 @@ use std::fmt::Write as _;
 
 use anyhow::Result;
 use odocal::import::{GivenSettings, SettingUse};
+use odocal::{Param, ParamSet};
 
 use crate::CalibrationArgs;
 
@@ -16,7 +17,21 @@ pub fn given(a: &CalibrationArgs) -> GivenSettings {
         lever_arm: a.lever_arm.is_some(),
         heading_offset: a.heading_offset.is_some(),
         estimate: a.estimate.is_some(),
+        keep_one_way: a.keep_one_way,
     }
+}
+
+/// The extrinsic parameters the command line gives (`--lever-arm`,
+/// `--heading-offset`): they apply to every validation drive.
+pub fn given_extrinsics(a: &CalibrationArgs) -> ParamSet {
+    let mut s = ParamSet::EMPTY;
+    if a.lever_arm.is_some() {
+        s = s.union(ParamSet::LEVER_ARM);
+    }
+    if a.heading_offset.is_some() {
+        s = s.with(Param::HeadingOffset);
+    }
+    s
 }
 
 /// Which starting noise model `--method eiv` used; `None` for other methods.

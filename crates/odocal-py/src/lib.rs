@@ -24,7 +24,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList, PyString};
 
 use odocal::drive::{Drive, ExtraColumn, ExtraValues, Signals};
-use odocal::import::{GivenSettings, ManifestSettings, SettingUse};
+use odocal::import::{GivenSettings, ManifestSettings, ReferenceSpec, SettingUse};
 use odocal::model::Theta;
 use odocal::param::{Param, ParamSet};
 use odocal::qp::SolverKind;
@@ -64,7 +64,7 @@ struct Provenance {
 }
 
 impl Provenance {
-    /// The manifest's calibration settings (`[noise]`, `[reference]`), read
+    /// The manifest's calibration settings (`[noise]`, `[reference]`, `[calibration]`), read
     /// back from the import report (so they survive pickling with it).
     fn settings(&self) -> PyResult<Option<ManifestSettings>> {
         let Some(text) = &self.import_report else { return Ok(None) };
@@ -75,6 +75,7 @@ impl Provenance {
             manifest: field("manifest").map(serde_json::from_value).transpose().map_err(bad)?.unwrap_or_default(),
             noise: field("noise").map(serde_json::from_value).transpose().map_err(bad)?,
             reference: field("reference").map(serde_json::from_value).transpose().map_err(bad)?,
+            calibration: field("calibration").map(serde_json::from_value).transpose().map_err(bad)?,
         }))
     }
 }
@@ -506,8 +507,12 @@ struct CalibrationPlan {
     opts: CalibrationOptions,
     /// The CLI's `--holdout` or `--validate-on`.
     holdout: Option<Holdout>,
-    /// The `validate_on` drives one by one (several: Ē_p per drive too).
-    validate_on: Vec<Arc<Drive>>,
+    /// The `validate_on` drives one by one (several: Ē_p per drive too),
+    /// each with its manifest's `[reference]`.
+    validate_on: Vec<(Arc<Drive>, Option<ReferenceSpec>)>,
+    /// The extrinsic parameters the keywords give (`lever_arm`,
+    /// `heading_offset`): they apply to every validation drive.
+    given_extrinsics: ParamSet,
     /// What became of the manifest's settings.
     setting_uses: Vec<SettingUse>,
     /// Which starting noise model method eiv uses.
@@ -515,7 +520,7 @@ struct CalibrationPlan {
 }
 
 /// The keyword options of `odocal.calibrate`, named like the CLI's flags.
-const CALIBRATION_KWARGS: [&str; 23] = [
+const CALIBRATION_KWARGS: [&str; 24] = [
     "seed",
     "estimate",
     "lever_arm",
@@ -528,6 +533,7 @@ const CALIBRATION_KWARGS: [&str; 23] = [
     "theta0",
     "fix",
     "min_yaw_rate",
+    "keep_one_way",
     "segment_length",
     "segment_stride",
     "validation_length",
@@ -609,6 +615,7 @@ fn calibration_plan(
         lever_arm: given_kw("lever_arm")?,
         heading_offset: given_kw("heading_offset")?,
         estimate: given_kw("estimate")?,
+        keep_one_way: given_kw("keep_one_way")?,
     };
     let setting_uses = manifest.map(|m| m.apply(&mut o, given)).unwrap_or_default();
     let mut noise_model_file: Option<PathBuf> = None;
@@ -658,6 +665,7 @@ fn calibration_plan(
                 }
                 "heading_offset" => o.identify.extrinsics.heading_offset = v.extract()?,
                 "min_yaw_rate" => o.segments.min_peak_yaw_rate_rad_per_s = v.extract()?,
+                "keep_one_way" => o.keep_one_way_selection = v.extract()?,
                 "segment_length" => o.segments.length_steps = v.extract()?,
                 "segment_stride" => o.segments.stride_steps = v.extract()?,
                 "validation_length" => {
@@ -677,14 +685,19 @@ fn calibration_plan(
                 "max_iterations" => o.identify.max_iterations = v.extract()?,
                 "holdout" => holdout = Some(parse_holdout(&v.extract::<String>()?)?),
                 "validate_on" => {
-                    let (joined, _) = drives_arg(&v, "validate_on")?;
-                    validate_on_drives = match v.cast::<PyDrive>() {
+                    let (joined, provs) = drives_arg(&v, "validate_on")?;
+                    let drives: Vec<Arc<Drive>> = match v.cast::<PyDrive>() {
                         Ok(_) => vec![Arc::clone(&joined)],
                         Err(_) => v
                             .try_iter()?
                             .map(|d| Ok(Arc::clone(&d?.cast::<PyDrive>()?.get().drive)))
                             .collect::<PyResult<_>>()?,
                     };
+                    let references = provs
+                        .iter()
+                        .map(|p| Ok(p.settings()?.and_then(|s| s.reference)))
+                        .collect::<PyResult<Vec<_>>>()?;
+                    validate_on_drives = drives.into_iter().zip(references).collect();
                     validate_on = Some(Holdout::Other(Drive::clone(&joined)));
                 }
                 "auto_fix" => o.auto_fix = v.extract()?,
@@ -763,6 +776,12 @@ fn calibration_plan(
             }
         }
     }
+    if matches!(o.method, Method::Eiv(_)) && o.keep_one_way_selection {
+        return Err(invalid_option(
+            "keep_one_way",
+            "applies to the segment-selecting methods (three-step, batch-gn), not to method eiv".into(),
+        ));
+    }
     if holdout.is_some() && validate_on.is_some() {
         return Err(invalid_option("validate_on", "give holdout or validate_on, not both".into()));
     }
@@ -776,6 +795,16 @@ fn calibration_plan(
         opts: o,
         holdout: holdout.or(validate_on),
         validate_on: validate_on_drives,
+        given_extrinsics: {
+            let mut g = ParamSet::EMPTY;
+            if given.lever_arm {
+                g = g.union(ParamSet::LEVER_ARM);
+            }
+            if given.heading_offset {
+                g = g.with(Param::HeadingOffset);
+            }
+            g
+        },
         setting_uses,
         noise_model_origin,
     })
@@ -897,7 +926,21 @@ fn calibrate_json(
         Some((fit, held)) => (fit.as_ref(), Some(held.as_ref())),
         None => (drive, None),
     };
-    let report = odocal::calibrate_held_out(fit, held, &plan.opts, progress)?;
+    let names: Vec<String> = (0..plan.validate_on.len()).map(|i| format!("validate_on[{i}]")).collect();
+    let validation: Vec<odocal::ValidationDrive> = names
+        .iter()
+        .zip(&plan.validate_on)
+        .map(|(name, (d, r))| odocal::ValidationDrive { name, drive: d, reference: r.as_ref() })
+        .collect();
+    // Validation drives: each with the extrinsics that apply to it (odocal::validate_on).
+    let (report, per_drive) = match validation.is_empty() {
+        true => (odocal::calibrate_held_out(fit, held, &plan.opts, progress)?, None),
+        false => {
+            let (r, m) =
+                odocal::calibrate_validated_on(drive, &validation, plan.given_extrinsics, &plan.opts, progress)?;
+            (r, Some(m))
+        }
+    };
     let json_err = |source| odocal::Error::Json { context: "calibration report".into(), source };
     let mut v = serde_json::to_value(&report).map_err(json_err)?;
     let scored = held.unwrap_or(drive);
@@ -911,11 +954,7 @@ fn calibrate_json(
         obj.insert("wheel_scale".into(), serde_json::json!(w));
     }
     if let Some(obj) = v.as_object_mut() {
-        if !plan.validate_on.is_empty() {
-            let names: Vec<String> = (0..plan.validate_on.len()).map(|i| format!("validate_on[{i}]")).collect();
-            let named: Vec<(&str, &Drive)> =
-                names.iter().map(String::as_str).zip(plan.validate_on.iter().map(|d| d.as_ref())).collect();
-            let m = odocal::validate_drives(&named, &report.theta, &report.initial.theta, &plan.opts.validation)?;
+        if let Some(m) = per_drive {
             obj.insert("validate_on".into(), serde_json::to_value(m).map_err(json_err)?);
         }
         if !plan.setting_uses.is_empty() {
@@ -1044,6 +1083,10 @@ fn validate<'py>(
     if let Some(k) = validation_length {
         opts.segments.length_steps = k;
         opts.segments.stride_steps = (k / 2).max(1);
+    }
+    // A manifest's [reference]: the drive's own mount (as `odocal validate`).
+    if let Some(r) = drive.get().prov.settings()?.and_then(|s| s.reference) {
+        opts.extrinsics = r.extrinsics();
     }
     let inner = Arc::clone(&drive.get().drive);
     let report = py.detach(|| with_threads(threads, || odocal::validate(&inner, &theta, &opts)))?.map_err(lib_err)?;

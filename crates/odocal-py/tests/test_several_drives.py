@@ -157,3 +157,75 @@ def test_manifest_noise_is_the_eiv_start(csvs, tmp_path):
     assert d["noise_start"]["wheel_white_rel_sigma"] == 0.009
     assert d["noise_model_origin"] == f"--noise-model {noise}"
     assert {u["key"]: u["outcome"] for u in d["manifest_settings"]} == {"noise": "overridden"}
+
+
+def oval(sign=1.0):
+    """A noise-free oval (300 m straights, 40 m radius half circles) at 10 m/s, 1.3 laps at 40 Hz,
+    driven counter-clockwise (sign +1): every turning segment turns one way."""
+    t_s, v, r, straight, c_e, t_r = 0.025, 10.0, 40.0, 300.0, 2.0, 1.6
+    lap = 2 * straight + 2 * np.pi * r
+    n = int(1.3 * lap / v / t_s)
+    along = (np.arange(n) * v * t_s) % lap
+    omega = np.where(along % (lap / 2) < straight, 0.0, sign * v / r)
+    psi = np.concatenate([[0.0], np.cumsum(omega[:-1] * t_s)])
+    mid = psi + omega * t_s / 2
+    px = np.concatenate([[0.0], np.cumsum(v * t_s * np.cos(mid[:-1]))])
+    py = np.concatenate([[0.0], np.cumsum(v * t_s * np.sin(mid[:-1]))])
+    n_rl = (v - omega * t_r / 2) / c_e
+    n_rr = (v + omega * t_r / 2) / c_e
+    return odocal.Drive.from_arrays(np.arange(n) * t_s, px, py, psi, n_rl, n_rr, v * omega)
+
+
+def one_way_warnings(report):
+    return [w for w in report.to_dict()["warnings"] if w["kind"] == "one_way_turns"]
+
+
+def test_keep_one_way_keyword_and_manifest_setting(odocal_bin, tmp_path):
+    drive = oval()
+    assert len(one_way_warnings(odocal.calibrate(drive, "batch-gn"))) == 1
+    r = odocal.calibrate(drive, "batch-gn", keep_one_way=True)
+    assert one_way_warnings(r) == [] and r.to_dict()["options"]["keep_one_way_selection"] is True
+    with pytest.raises(odocal.OdocalError, match="keep_one_way"):
+        odocal.calibrate(drive, "eiv", keep_one_way=True)
+
+    # The manifest's [calibration] keep_one_way, as the CLI reads it; the keyword wins.
+    csv = tmp_path / "oval.csv"
+    drive.to_csv(csv)
+    manifest = tmp_path / "m.toml"
+    text = MANIFEST.format(csv=csv.as_posix()).split("[noise]")[0]
+    manifest.write_text(text + "[calibration]\nkeep_one_way = true\n")
+    m = odocal.Drive.from_manifest(manifest)
+    assert m.import_report["calibration"] == {"keep_one_way": True}
+    r = odocal.calibrate(m, "batch-gn")
+    assert one_way_warnings(r) == [] and outcomes(r) == {"calibration.keep_one_way": "used"}
+    assert without_timing(r.to_dict()) == without_timing(cli_json(odocal_bin, "calibrate", manifest, "--method", "batch-gn"))
+    manifest.write_text(text + "[calibration]\nkeep_one_way = false\n")
+    m = odocal.Drive.from_manifest(manifest)
+    assert len(one_way_warnings(odocal.calibrate(m, "batch-gn"))) == 1
+    r = odocal.calibrate(m, "batch-gn", keep_one_way=True)
+    assert one_way_warnings(r) == [] and outcomes(r) == {"calibration.keep_one_way": "overridden"}
+
+
+def test_validate_on_applies_the_drives_own_reference(odocal_bin, csvs, tmp_path):
+    manifest = tmp_path / "v.toml"
+    text = MANIFEST.format(csv=csvs[1].as_posix()).split("[noise]")[0]
+    manifest.write_text(text + "[reference]\nlever_arm = [-0.9, 0.3]\nheading_offset = -0.01\n")
+    fit = odocal.Drive.from_csv(csvs[0])
+    r = odocal.calibrate(fit, "batch-gn", validate_on=odocal.Drive.from_manifest(manifest)).to_dict()
+    x = r["validate_on"]["drives"][0]["extrinsics"]
+    assert x["value"] == {"lever_x": -0.9, "lever_y": 0.3, "heading_offset": -0.01}
+    assert x["source"] == {"lever_x": "drive", "lever_y": "drive", "heading_offset": "drive"}
+    cli = cli_json(odocal_bin, "calibrate", csvs[0], "--method", "batch-gn", "--validate-on", manifest)
+    for d in (r, cli):
+        for row in d["validate_on"]["drives"]:
+            row.pop("name")
+    assert without_timing(r) == without_timing(cli)
+    # validate() applies the drive's [reference] too, as `odocal validate` does.
+    v = odocal.validate(odocal.Drive.from_manifest(manifest), r["theta"])
+    assert v["extrinsics"] == {"lever_x": -0.9, "lever_y": 0.3, "heading_offset": -0.01}
+    assert v["mean_position_error_m"] == pytest.approx(r["validate_on"]["drives"][0]["mean_position_error_m"], rel=1e-9)
+    # A keyword's heading offset wins for every drive: a conflict, reported.
+    r = odocal.calibrate(fit, "batch-gn", heading_offset=0.0, validate_on=odocal.Drive.from_manifest(manifest))
+    x = r.to_dict()["validate_on"]["drives"][0]["extrinsics"]
+    assert x["source"]["heading_offset"] == "given"
+    assert [c["param"] for c in x["conflicts"]] == ["heading_offset"]

@@ -14,9 +14,11 @@ use crate::calibrate::{calibrate, CalibrationOptions};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
 use crate::model::Theta;
+use crate::param::ParamSet;
 use crate::progress::ProgressFn;
 use crate::trust::{Verdict, VerdictLevel};
-use crate::validate::{validate_drives, MultiValidation};
+use crate::validate::MultiValidation;
+use crate::validate_on::{validate_drives_with, CalibrationExtrinsics, ValidationDrive};
 
 /// The ratio of the acceptance criterion: the mean over runs of the
 /// cross-run Ē_p should stay within this multiple of the mean of the runs'
@@ -261,9 +263,15 @@ pub fn cross_run_groups(
                 continue;
             }
         };
-        let others: Vec<(&str, &Drive)> =
-            drives.iter().enumerate().filter(|(j, _)| !g.contains(j)).map(|(_, (n, d))| (*n, *d)).collect();
-        let others = validate_drives(&others, &r.theta, &opts.theta0, &opts.validation)
+        let others: Vec<ValidationDrive> = drives
+            .iter()
+            .enumerate()
+            .filter(|(j, _)| !g.contains(j))
+            .map(|(_, (name, drive))| ValidationDrive { name, drive, reference: None })
+            .collect();
+        // The calibration's extrinsics (estimated or held) on every other drive.
+        let cal = CalibrationExtrinsics::of(&r, ParamSet::EMPTY);
+        let others = validate_drives_with(&others, &r.theta, &opts.theta0, &cal, &opts.validation)
             .map_err(|e| Error::Numerical(format!("cross-run, θ of {name}: {e}")))?;
         let fit = CrossRunFit {
             theta: r.theta,

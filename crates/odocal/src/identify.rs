@@ -428,6 +428,29 @@ pub fn batch_normal_equations(segments: &[SegmentData<'_>], theta: &Theta, weigh
     total
 }
 
+/// The cluster-robust covariance of θ ([`RobustCovariance`]) of the batch
+/// Gauss-Newton problem on `segments`, evaluated at `theta` without
+/// iterating (the scores are centred, so `theta` need not be that
+/// problem's minimum): e.g. the 3-step result's on the measured inputs
+/// ([`crate::calibrate::ThreeStepUncertainty`]). θ's free entries only;
+/// `None` as for [`IdentifyReport::robust`].
+pub fn robust_covariance_at(
+    segments: &[SegmentData<'_>],
+    theta: &Theta,
+    opts: &IdentifyOptions,
+) -> Option<RobustCovariance> {
+    let per: Vec<NormalEquations> =
+        segments.par_iter().map(|s| segment_normal_equations(s, theta, &opts.weights)).collect();
+    let mut total = NormalEquations::zero();
+    for p in &per {
+        total.add(p);
+    }
+    let free = opts.free.intersection(ParamSet::THETA).indices();
+    crate::gauss_newton::cluster_robust_covariance(&total, &per, segments, &free, opts).map(|(c, clusters)| {
+        RobustCovariance { covariance: to_array4(&c), clusters, block_steps: opts.robust_block_steps }
+    })
+}
+
 /// Observability diagnostics of the free block of `JᵀWJ` (θ only: free
 /// extrinsics are left out here; the identification with extrinsics runs
 /// [`observability_of`] over all seven).

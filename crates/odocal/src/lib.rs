@@ -81,6 +81,7 @@ pub mod segment;
 pub mod sim;
 pub mod trust;
 pub mod validate;
+pub mod validate_on;
 pub mod warning;
 
 /// The `schema_version` of every JSON report the `odocal` tool writes
@@ -115,4 +116,5 @@ pub use validate::{
     mean_position_error, mean_position_error_with, validate, validate_drives, validate_with_progress, DriveValidation,
     MultiValidation, ValidateOptions, ValidateReport, ValidationReport,
 };
+pub use validate_on::{calibrate_validated_on, validate_drives_with, CalibrationExtrinsics, ValidationDrive};
 pub use warning::Warning;

@@ -17,9 +17,10 @@
 //!   held-out) data is above θ_0's (dead reckoning gets worse);
 //! - *doubtful*: a free parameter is not observable, lies in the outer tenth
 //!   of its guard region, has a σ above [`TrustOptions::max_sigma_fraction`]
-//!   of its guard half-width (the cluster-robust σ of
-//!   [`crate::identify::RobustCovariance`] where the method has one,
-//!   batch-gn; else the model σ; so also in the cross-split check), or the held-out Ē_p is more than
+//!   of its guard half-width (the σ of
+//!   [`crate::CalibrationReport::result_covariance`]: batch-gn's
+//!   cluster-robust σ, the 3-step's step-1 batch spread; else the model σ;
+//!   so also in the cross-split check), or the held-out Ē_p is more than
 //!   [`TrustOptions::max_held_out_ratio`] times the Ē_p on the fitting data,
 //!   or θ fitted on the held-out data differs from θ fitted on the fitting
 //!   data by more than [`TrustOptions::max_split_sigmas`] of their combined σ
@@ -236,8 +237,8 @@ pub struct TrustOptions {
     /// different Ē_p; three times is more than route alone explains on the
     /// half-splits measured).
     pub max_held_out_ratio: f64,
-    /// A σ (cluster-robust where the method has one, else the model σ)
-    /// above this fraction of the parameter's guard half-width makes the
+    /// A σ ([`crate::CalibrationReport::result_covariance`] where the
+    /// method has one, else the model σ) above this fraction of the parameter's guard half-width makes the
     /// result doubtful. Default 0.1.
     pub max_sigma_fraction: f64,
     /// A parameter farther than this fraction of its guard half-width from
@@ -461,7 +462,7 @@ pub(crate) struct Evidence<'a> {
     pub iterations: Option<usize>,
     pub rcond: f64,
     pub unobservable: ParamSet,
-    /// θ's covariance: the cluster-robust one where the method has it.
+    /// θ's covariance: the one standing for the result where the method has it.
     pub covariance: &'a [[f64; 4]; 4],
     pub calibrated_m: f64,
     pub initial_m: f64,

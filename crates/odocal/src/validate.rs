@@ -91,7 +91,12 @@ pub struct ValidateOptions {
     /// Validation segments. Default K_v = 1300, stride 650, offset 50.
     pub segments: ValidationSegmentOptions,
     /// Also search the reachable minimum of Ē_p with these settings. Default none.
+    /// (The search takes the reference at the axle, whatever `extrinsics`.)
     pub reachable: Option<ReachableOptions>,
+    /// The pose reference's mount (e.g. the drive manifest's `[reference]`,
+    /// [`crate::import::ReferenceSpec::extrinsics`]). Default 0: the axle.
+    #[serde(default)]
+    pub extrinsics: Extrinsics,
 }
 
 /// The `validate` report (SPEC §9): Ē_p of θ and, when asked, the reachable
@@ -104,6 +109,9 @@ pub struct ValidateReport {
     /// The reachable minimum, when asked for.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reachable_minimum: Option<ReachableReport>,
+    /// The reference extrinsics Ē_p of θ used, when not all 0.
+    #[serde(default, skip_serializing_if = "Extrinsics::is_zero")]
+    pub extrinsics: Extrinsics,
 }
 
 /// Ē_p of θ on the validation segments of `drive` and, with
@@ -130,12 +138,12 @@ pub fn validate_with_progress(
     progress: Option<ProgressFn<'_>>,
 ) -> Result<ValidateReport> {
     let segs = validation_segments(drive, &opts.segments)?;
-    let validation = mean_position_error(drive, &segs, theta)?;
+    let validation = mean_position_error_with(drive, &segs, theta, &opts.extrinsics)?;
     let reachable_minimum = match &opts.reachable {
         Some(r) => Some(reachable_minimum_with_progress(drive, &segs, r, progress)?),
         None => None,
     };
-    Ok(ValidateReport { validation, reachable_minimum })
+    Ok(ValidateReport { validation, reachable_minimum, extrinsics: opts.extrinsics })
 }
 
 /// Ē_p of θ and of θ_0 on one of several validation drives.
@@ -149,6 +157,10 @@ pub struct DriveValidation {
     pub initial_mean_position_error_m: f64,
     /// Validation segments of the drive.
     pub segments: usize,
+    /// The reference extrinsics this drive used, where they are not all 0
+    /// or a stated value was overruled ([`crate::validate_on`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub extrinsics: Option<crate::validate_on::DriveExtrinsics>,
 }
 
 /// Ē_p of θ and θ_0 on each of several drives, and their means over the
@@ -168,6 +180,19 @@ pub struct MultiValidation {
 }
 
 impl MultiValidation {
+    /// The rows and their means over the drives.
+    pub(crate) fn from_rows(theta: Theta, theta0: Theta, drives: Vec<DriveValidation>) -> Self {
+        let n = drives.len().max(1) as f64;
+        let mean = |f: fn(&DriveValidation) -> f64| drives.iter().map(f).sum::<f64>() / n;
+        MultiValidation {
+            theta,
+            theta0,
+            mean_over_drives_m: mean(|d| d.mean_position_error_m),
+            initial_mean_over_drives_m: mean(|d| d.initial_mean_position_error_m),
+            drives,
+        }
+    }
+
     /// The drives on which θ is worse than θ_0.
     pub fn worse_than_initial(&self) -> impl Iterator<Item = &DriveValidation> {
         self.drives
@@ -177,7 +202,10 @@ impl MultiValidation {
 }
 
 /// Ē_p of `theta` and of `theta0` on the validation segments of each named
-/// drive (cross-run checks: calibrate on one drive, validate on others).
+/// drive (cross-run checks: calibrate on one drive, validate on others),
+/// with the reference at the rear-axle centre. For drives with reference
+/// extrinsics (the calibration's, or their own manifests'), use
+/// [`crate::validate_on::validate_drives_with`].
 ///
 /// # Errors
 /// [`Error::NoSegments`] naming a drive too short for one validation
@@ -188,32 +216,9 @@ pub fn validate_drives(
     theta0: &Theta,
     segments: &ValidationSegmentOptions,
 ) -> Result<MultiValidation> {
-    if drives.is_empty() {
-        return Err(Error::NoSegments("no validation drive given".into()));
-    }
-    let mut out = Vec::with_capacity(drives.len());
-    for (name, drive) in drives {
-        let segs = validation_segments(drive, segments)?;
-        if segs.is_empty() {
-            return Err(Error::NoSegments(format!(
-                "validation drive {name} ({} samples) is too short for one validation segment of {} steps",
-                drive.len(),
-                segments.length_steps
-            )));
-        }
-        out.push(DriveValidation {
-            name: (*name).to_string(),
-            mean_position_error_m: mean_position_error(drive, &segs, theta)?.mean_position_error_m,
-            initial_mean_position_error_m: mean_position_error(drive, &segs, theta0)?.mean_position_error_m,
-            segments: segs.len(),
-        });
-    }
-    let mean = |f: fn(&DriveValidation) -> f64| out.iter().map(f).sum::<f64>() / out.len() as f64;
-    Ok(MultiValidation {
-        theta: *theta,
-        theta0: *theta0,
-        mean_over_drives_m: mean(|d| d.mean_position_error_m),
-        initial_mean_over_drives_m: mean(|d| d.initial_mean_position_error_m),
-        drives: out,
-    })
+    let drives: Vec<crate::validate_on::ValidationDrive> = drives
+        .iter()
+        .map(|(name, drive)| crate::validate_on::ValidationDrive { name, drive, reference: None })
+        .collect();
+    crate::validate_on::validate_drives_with(&drives, theta, theta0, &Default::default(), segments)
 }

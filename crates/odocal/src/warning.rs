@@ -183,7 +183,7 @@ impl std::fmt::Display for Warning {
             Warning::OneWayTurns { sense, selected, added } => write!(
                 f,
                 "all {selected} selected segments turn {sense}, so c_d and t_r are nearly collinear on them: the \
-                 {added} straighter segments were added (keep_one_way_selection keeps the turning ones only)"
+                 {added} straighter segments were added (--keep-one-way keeps the turning ones only)"
             ),
             Warning::AutoFixUnobservable { params, segments } => {
                 let names: Vec<&str> = params.iter().map(|p| p.name()).collect();

@@ -188,6 +188,9 @@ def calibrate(
     - ``fix``: parameters held at θ_0 (list of names or ``"c_d,t_r,d"``);
     - ``min_yaw_rate`` (rad/s), ``segment_length``, ``segment_stride``,
       ``validation_length`` (samples);
+    - ``keep_one_way`` (bool, False): keep the turning-only selection when
+      every selected segment turns one way (as ``--keep-one-way``; by
+      default the straight segments are added, with a warning);
     - ``batches``, ``batch_size``, ``picks``: step 1 of the 3-step method;
     - ``final_segments``: ``"all"`` or a number of random segments;
     - ``max_iterations``: Gauss-Newton iterations;
@@ -203,8 +206,8 @@ def calibrate(
     - ``noise_model`` (path of a noise-model TOML), ``fix_noise``,
       ``fallback``, ``eiv_window``: method ``"eiv"`` only.
 
-    A drive read from a manifest carries the manifest's ``[noise]`` and
-    ``[reference]`` settings (``drive.import_report``); they apply unless
+    A drive read from a manifest carries the manifest's ``[noise]``,
+    ``[reference]`` and ``[calibration]`` settings (``drive.import_report``); they apply unless
     the matching keyword is given, and the report says what became of each
     (``"manifest_settings"``) and which noise model method ``"eiv"`` started
     from (``"noise_model_origin"``), as the CLI's JSON does.

@@ -58,6 +58,7 @@ use crate::segment::{
 };
 use crate::trust::{judge, Evidence, TrustOptions, Verdict};
 use crate::validate::mean_position_error_with;
+use crate::validate_on::CalibrationExtrinsics;
 use crate::warning::Warning;
 
 pub mod batch_gn;
@@ -68,8 +69,8 @@ mod turn_sense;
 pub use batch_gn::{BatchGnDetail, BatchGnOptions};
 pub use eiv::{EivDetail, EivMethodOptions, EivOutcome};
 pub use three_step::{
-    per_segment_identification, random_batches, score_batches, BatchResult, FinalSegments, InitialStep, RejectedBatch,
-    ThreeStepDetail, ThreeStepOptions,
+    per_segment_identification, random_batches, score_batches, BatchResult, BatchSpread, FinalSegments, InitialStep,
+    RejectedBatch, ThreeStepDetail, ThreeStepOptions, ThreeStepUncertainty,
 };
 
 /// Which calibration method to run, with its settings.
@@ -359,9 +360,20 @@ impl CalibrationReport {
     /// (`identification.robust`), but it does not see steps 1–2 and is
     /// 5–13× smaller than the spread of 3-step estimates over seeds
     /// (`examples/gn_coverage.rs 20 12 paper 1300 three-step`), so it does
-    /// not stand for the result.
+    /// not stand for the result; the 3-step's is its batch spread
+    /// ([`Self::result_covariance`]).
     pub fn robust(&self) -> Option<&RobustCovariance> {
         outcome_robust(&self.detail)
+    }
+
+    /// The covariance of θ that stands for the result's uncertainty, the
+    /// one the verdict's large-σ and cross-split checks use: batch-gn's
+    /// cluster-robust covariance ([`Self::robust`]); the 3-step method's
+    /// step-1 batch spread ([`ThreeStepUncertainty::batch_spread`]), since
+    /// step 3's own σ sees only its compensated inputs; `None` otherwise
+    /// (then the model covariance is all there is).
+    pub fn result_covariance(&self) -> Option<&[[f64; 4]; 4]> {
+        outcome_covariance(&self.detail)
     }
 }
 
@@ -551,6 +563,20 @@ pub fn calibrate_detailed(
     opts: &CalibrationOptions,
     progress: Option<ProgressFn<'_>>,
 ) -> Result<DetailedCalibration> {
+    calibrate_core(drive, held_out.map(|h| (h, None)), opts, progress)
+}
+
+/// [`calibrate_detailed`]; with held-out drives that each have their own
+/// extrinsics ([`crate::validate_on`]), the held-out Ē_p gives every
+/// segment its drive's.
+pub(crate) fn calibrate_core(
+    drive: &Drive,
+    held: Option<(&Drive, Option<&crate::validate_on::HeldOutDrives<'_>>)>,
+    opts: &CalibrationOptions,
+    progress: Option<ProgressFn<'_>>,
+) -> Result<DetailedCalibration> {
+    let held_out = held.map(|h| h.0);
+    let held_refs = held.and_then(|h| h.1);
     opts.validate()?;
     let method = opts.method.estimator();
     if opts.identify.uses_extrinsics() && !method.supports_extrinsics() {
@@ -593,8 +619,13 @@ pub fn calibrate_detailed(
         }
         None => (drive, prep.validation.clone()),
     };
-    let initial_val =
-        mean_position_error_with(report_drive, &report_segments, &opts.theta0, &opts.identify.extrinsics)?;
+    let initial_val = match held_refs {
+        Some(h) => {
+            let cal = CalibrationExtrinsics::before(opts, selection.free, h.given);
+            h.error(&report_segments, &opts.theta0, &cal, true)?
+        }
+        None => mean_position_error_with(report_drive, &report_segments, &opts.theta0, &opts.identify.extrinsics)?,
+    };
     let setup = t_start.elapsed().as_secs_f64();
 
     let outcome = method.run(&prep, &selection, progress)?;
@@ -612,7 +643,16 @@ pub fn calibrate_detailed(
     let extrinsics = if opts.identify.uses_extrinsics() { method_extrinsics(&outcome.detail) } else { None };
     let ext = extrinsics.as_ref().map_or(opts.identify.extrinsics, |e| e.value);
     let t = Instant::now();
-    let val = mean_position_error_with(report_drive, &report_segments, &outcome.theta, &ext)?;
+    let val = match held_refs {
+        Some(h) => {
+            let cal = CalibrationExtrinsics {
+                value: ext,
+                ..CalibrationExtrinsics::before(opts, extrinsics.as_ref().map_or(ParamSet::EMPTY, |e| e.free), h.given)
+            };
+            h.error(&report_segments, &outcome.theta, &cal, false)?
+        }
+        None => mean_position_error_with(report_drive, &report_segments, &outcome.theta, &ext)?,
+    };
     let fit_m = match held_out {
         Some(_) => Some(mean_position_error_with(drive, &prep.validation, &outcome.theta, &ext)?.mean_position_error_m),
         None => None,
@@ -629,10 +669,11 @@ pub fn calibrate_detailed(
             iterations: outcome.iterations,
             rcond: outcome.observability.rcond,
             unobservable: outcome.observability.unobservable,
-            // The cluster-robust σ where the method has one (batch-gn): the
-            // model σ is 5–120× too small under input noise
-            // (examples/gn_coverage.rs).
-            covariance: outcome_robust(&outcome.detail).map_or(&outcome.covariance, |r| &r.covariance),
+            // The σ that stands for the result (batch-gn: cluster-robust;
+            // 3-step: step-1 batch spread): the model σ is 5–120× too small
+            // under input noise (examples/gn_coverage.rs), 3-step's
+            // 100–1000× (examples/three_step_coverage.rs).
+            covariance: outcome_covariance(&outcome.detail).unwrap_or(&outcome.covariance),
             calibrated_m: val.mean_position_error_m,
             initial_m: initial_val.mean_position_error_m,
             fit_m,
@@ -688,7 +729,7 @@ fn split_fit(held_out: &Drive, opts: &CalibrationOptions, free: ParamSet) -> Opt
     o.auto_fix = false;
     o.trust.max_split_sigmas = 0.0;
     let r = calibrate_detailed(held_out, None, &o, None).ok()?.report;
-    Some((r.theta, r.robust().map_or(r.covariance, |rb| rb.covariance)))
+    Some((r.theta, *r.result_covariance().unwrap_or(&r.covariance)))
 }
 
 /// The cluster-robust covariance of a method's result
@@ -697,6 +738,16 @@ fn outcome_robust(detail: &MethodDetail) -> Option<&RobustCovariance> {
     match detail {
         MethodDetail::BatchGn(d) => d.identification.robust.as_ref(),
         MethodDetail::ThreeStep(_) | MethodDetail::Eiv(_) => None,
+    }
+}
+
+/// The covariance standing for a method's result
+/// ([`CalibrationReport::result_covariance`]).
+fn outcome_covariance(detail: &MethodDetail) -> Option<&[[f64; 4]; 4]> {
+    match detail {
+        MethodDetail::BatchGn(d) => d.identification.robust.as_ref().map(|r| &r.covariance),
+        MethodDetail::ThreeStep(d) => d.uncertainty.batch_spread.as_ref().map(|b| &b.covariance),
+        MethodDetail::Eiv(_) => None,
     }
 }
 

@@ -217,6 +217,28 @@ fn every_report_has_a_verdict() {
     assert!(matches!(r.verdict.reasons[0], crate::trust::VerdictReason::WorseThanInitial { held_out: true, .. }));
 }
 
+/// The 3-step report carries the batch-spread σ, it is far wider than step
+/// 3's model σ, and it is the covariance the verdict uses.
+#[test]
+fn three_step_result_covariance_is_the_batch_spread() {
+    let sim = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim");
+    let method = Method::ThreeStep(ThreeStepOptions { initial_batches: 8, picks: 3, ..Default::default() });
+    let r = calibrate(&sim.drive, &CalibrationOptions { method, ..Default::default() }, None).expect("3-step");
+    let MethodDetail::ThreeStep(d) = &r.detail else { panic!("3-step detail") };
+    let spread = d.uncertainty.batch_spread.as_ref().expect("batch spread");
+    assert_eq!(r.result_covariance(), Some(&spread.covariance));
+    assert!(spread.batches >= 3 && spread.batch_size == 10, "{spread:?}");
+    let (s, m) = (spread.std_dev().to_array(), r.std_dev().to_array());
+    for i in 0..4 {
+        assert!(s[i] > 10.0 * m[i], "param {i}: spread σ {} vs model σ {}", s[i], m[i]);
+    }
+    assert!(r.robust().is_none(), "robust() stays batch-gn's");
+    // batch-gn: the cluster-robust covariance, when computed
+    let opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
+    let r = calibrate(&sim.drive, &opts, None).expect("batch-gn");
+    assert_eq!(r.result_covariance(), r.robust().map(|x| &x.covariance));
+}
+
 #[allow(clippy::unwrap_used)]
 mod solver_tests {
     use super::*;

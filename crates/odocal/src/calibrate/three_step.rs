@@ -28,7 +28,7 @@ use crate::compensate::{compensate_segments, CompensateOptions, CompensationStep
 use crate::drive::Drive;
 use crate::error::{Error, Result};
 use crate::extrinsics::{axle_reference_drive, Extrinsics};
-use crate::identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport};
+use crate::identify::{batch_gauss_newton, robust_covariance_at, IdentifyOptions, IdentifyReport, RobustCovariance};
 use crate::model::Theta;
 use crate::progress::{emit, Progress, ProgressFn};
 use crate::segment::{Segment, SegmentData};
@@ -146,6 +146,87 @@ pub struct ThreeStepDetail {
     pub compensation: CompensationStep,
     /// Step 3.
     pub identification: IdentifyReport,
+    /// Uncertainty of the result beyond step 3's own σ (boxed: it would
+    /// make this the report's one large variant).
+    #[serde(default)]
+    pub uncertainty: Box<ThreeStepUncertainty>,
+}
+
+/// Candidate covariances of the 3-step result that, unlike step 3's own
+/// (model or cluster-robust), do not take its compensated inputs for data:
+/// step 3 re-fits on inputs compensated with θ near its own result, so its
+/// residuals are too small to measure the result's error.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct ThreeStepUncertainty {
+    /// The cluster-robust covariance ([`RobustCovariance`]) of batch
+    /// Gauss-Newton on step 3's segments with the *measured* inputs,
+    /// evaluated at the 3-step θ ([`crate::identify::robust_covariance_at`]).
+    /// `None` with reference extrinsics, or as for [`IdentifyReport::robust`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub measured_inputs: Option<RobustCovariance>,
+    /// The spread of step 1's plausible batch estimates, scaled to all the
+    /// data ([`BatchSpread`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub batch_spread: Option<BatchSpread>,
+}
+
+/// The covariance of θ from the spread of step 1's plausible batch
+/// estimates: their sample covariance times `b/(n − b)`, the subsampling
+/// (delete-d jackknife) factor for estimates on `b` of `n` independent
+/// units; `n` is the selected segments' distinct samples over the segment
+/// length (overlapping segments share samples).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BatchSpread {
+    /// Covariance of θ, 4×4, row-major, SI units squared.
+    pub covariance: [[f64; 4]; 4],
+    /// Batch estimates used.
+    pub batches: usize,
+    /// Segments per batch `b`.
+    pub batch_size: usize,
+    /// Independent segment lengths in the selection `n`.
+    pub effective_segments: f64,
+}
+
+impl BatchSpread {
+    /// The spread of `thetas` (each on `batch_size` segments) scaled to
+    /// `effective_segments`; `None` with fewer than 3 estimates or
+    /// `effective_segments ≤ batch_size`.
+    pub fn new(thetas: &[Theta], batch_size: usize, effective_segments: f64) -> Option<Self> {
+        let n = thetas.len();
+        let b = batch_size as f64;
+        if n < 3 || effective_segments <= b {
+            return None;
+        }
+        let a: Vec<[f64; 4]> = thetas.iter().map(Theta::to_array).collect();
+        let mean: [f64; 4] = std::array::from_fn(|i| a.iter().map(|x| x[i]).sum::<f64>() / n as f64);
+        let factor = b / (effective_segments - b) / (n - 1) as f64;
+        let covariance = std::array::from_fn(|i| {
+            std::array::from_fn(|j| a.iter().map(|x| (x[i] - mean[i]) * (x[j] - mean[j])).sum::<f64>() * factor)
+        });
+        Some(BatchSpread { covariance, batches: n, batch_size, effective_segments })
+    }
+
+    /// One-σ of θ.
+    pub fn std_dev(&self) -> Theta {
+        let c = &self.covariance;
+        Theta { c_e: c[0][0].sqrt(), c_d: c[1][1].sqrt(), t_r: c[2][2].sqrt(), d: c[3][3].sqrt() }
+    }
+}
+
+/// Distinct samples covered by `segments` over one segment's steps.
+fn effective_segments(segments: &[Segment]) -> f64 {
+    let Some(k) = segments.first().map(|s| s.steps) else { return 0.0 };
+    let mut iv: Vec<(usize, usize)> = segments.iter().map(|s| (s.start, s.start + s.steps)).collect();
+    iv.sort_unstable();
+    let (mut covered, mut end) = (0usize, 0usize);
+    for (a, b) in iv {
+        let a = a.max(end);
+        if b > a {
+            covered += b - a;
+            end = b;
+        }
+    }
+    covered as f64 / k.max(1) as f64
 }
 
 /// Random batches of `size` distinct indices out of `n` (all when n ≤ size).
@@ -379,6 +460,22 @@ impl Estimator for ThreeStepOptions {
         emit(progress, Progress::Stage { name: "final identification", total: 1 });
         let report = batch_gauss_newton(&comp.segment_data(drive), &opts.theta0, &identify)?;
         emit(progress, Progress::Advance(1));
+        let measured_inputs = match identify.uses_extrinsics() {
+            true => None,
+            false => {
+                let raw: Vec<SegmentData> = comp.segments.iter().map(|s| SegmentData::new(drive, s)).collect();
+                robust_covariance_at(&raw, &report.theta, &identify)
+            }
+        };
+        let plausible: Vec<Theta> = order.iter().map(|&i| ok[i].score.theta).collect();
+        let uncertainty = Box::new(ThreeStepUncertainty {
+            measured_inputs,
+            batch_spread: BatchSpread::new(
+                &plausible,
+                self.initial_batch_size.min(selected.len()),
+                effective_segments(selected),
+            ),
+        });
         timing.final_identification = t.elapsed().as_secs_f64();
         Ok(MethodOutcome {
             theta: report.theta,
@@ -389,6 +486,7 @@ impl Estimator for ThreeStepOptions {
                 initial_step: InitialStep { batches: ok, picked, picked_batches, rejected },
                 compensation: comp.step.clone(),
                 identification: report,
+                uncertainty,
             }),
             timing,
             warnings,
@@ -497,5 +595,36 @@ mod forced_divergence_tests {
             forced.validation.mean_position_error_m,
             plain.validation.mean_position_error_m
         );
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::float_cmp)] // exact: sums of small integers and a binary fraction
+mod uncertainty_tests {
+    use super::*;
+
+    #[test]
+    fn batch_spread_is_the_scaled_sample_covariance() {
+        let t = |c_e: f64, t_r: f64| Theta { c_e, c_d: 0.0, t_r, d: 0.0 };
+        // c_e: 1, 2, 3 (mean 2, sample variance 1); t_r: 1, 1, 4 (variance 3)
+        let thetas = [t(1.0, 1.0), t(2.0, 1.0), t(3.0, 4.0)];
+        let b = BatchSpread::new(&thetas, 10, 50.0).expect("spread");
+        let f = 10.0 / 40.0;
+        assert!((b.covariance[0][0] - f).abs() < 1e-15, "{:?}", b.covariance);
+        assert!((b.covariance[2][2] - 3.0 * f).abs() < 1e-15);
+        assert!((b.covariance[0][2] - 1.5 * f).abs() < 1e-15, "cov(c_e, t_r) = 1.5");
+        assert_eq!(b.covariance[1], [0.0; 4], "a parameter that never moves has no spread");
+        assert!((b.std_dev().c_e - f.sqrt()).abs() < 1e-15);
+        assert!(BatchSpread::new(&thetas[..2], 10, 50.0).is_none(), "two estimates are too few");
+        assert!(BatchSpread::new(&thetas, 10, 10.0).is_none(), "no data beyond one batch");
+    }
+
+    #[test]
+    fn effective_segments_count_distinct_samples() {
+        let s = |start| Segment { start, steps: 100, peak_yaw_rate_rad_per_s: 1.0 };
+        assert_eq!(effective_segments(&[]), 0.0);
+        // 0..100 and 50..150 overlap: 150 samples; 1000..1100 adds 100
+        assert_eq!(effective_segments(&[s(1000), s(50), s(0)]), 2.5);
+        assert_eq!(effective_segments(&[s(0), s(0)]), 1.0);
     }
 }

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use super::limits::{self, echo_num};
-use super::settings::{ManifestSettings, ReferenceSpec};
+use super::settings::{CalibrationSpec, ManifestSettings, ReferenceSpec};
 use crate::eiv::NoiseModel;
 use crate::error::{Error, Result};
 use crate::model::Theta;
@@ -50,6 +50,9 @@ pub struct Manifest {
     /// heading offset and which of them to estimate.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reference: Option<ReferenceSpec>,
+    /// Calibration choices (`[calibration]`): `keep_one_way`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<CalibrationSpec>,
 }
 
 /// Physical limits (`[limits]`): an imported signal beyond one is an error
@@ -732,9 +735,14 @@ impl Manifest {
         Error::Manifest { path: self.path.clone(), reason: format!("{key}: {reason}") }
     }
 
-    /// The calibration settings it states (`[noise]`, `[reference]`).
+    /// The calibration settings it states (`[noise]`, `[reference]`, `[calibration]`).
     pub fn settings(&self) -> ManifestSettings {
-        ManifestSettings { manifest: self.path.clone(), noise: self.noise, reference: self.reference.clone() }
+        ManifestSettings {
+            manifest: self.path.clone(),
+            noise: self.noise,
+            reference: self.reference.clone(),
+            calibration: self.calibration,
+        }
     }
 
     /// The folder stream files are relative to.

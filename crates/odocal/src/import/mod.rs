@@ -189,13 +189,17 @@
 //! lever_arm = [-0.9, 0.0]     # x forward, y left, m, from the rear-axle centre (default 0, 0)
 //! heading_offset = -0.0099    # reference heading minus vehicle heading, rad (default 0)
 //! estimate = ["lever-arm", "heading-offset"]  # estimate them with θ (default: held)
+//!
+//! [calibration]               # optional: calibration choices
+//! keep_one_way = true         # keep the turning-only selection on one-way turns (default false)
 //! ```
 //!
-//! `[noise]` and `[reference]` are calibration settings, not import
+//! `[noise]`, `[reference]` and `[calibration]` are calibration settings, not import
 //! settings: the import checks them and carries them on
 //! [`ImportReport::settings`]; `odocal calibrate` applies them with
 //! [`ManifestSettings::apply`] unless the command line gives its own value
-//! (`--noise-model`, `--lever-arm`, `--heading-offset`, `--estimate` win),
+//! (`--noise-model`, `--lever-arm`, `--heading-offset`, `--estimate`,
+//! `--keep-one-way` win),
 //! and its report says which was used.
 //!
 //! Resource budgets (output samples, clock search, de-jitter window) are
@@ -244,7 +248,8 @@ pub use manifest::{
 };
 pub use report::{ClockOffsetReport, DejitterReport, GapRecord, ImportReport, JitterReport, PartRecord, StreamReport};
 pub use settings::{
-    noise_model_origin, GivenSettings, ManifestSettings, ReferenceSpec, SettingOutcome, SettingUse, MAX_LEVER_ARM_M,
+    noise_model_origin, CalibrationSpec, GivenSettings, ManifestSettings, ReferenceSpec, SettingOutcome, SettingUse,
+    MAX_LEVER_ARM_M,
 };
 
 use crate::drive::{Drive, Signals};
@@ -408,6 +413,7 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
         warnings,
         noise: m.noise,
         reference: m.reference.clone(),
+        calibration: m.calibration,
         elapsed_s: started.elapsed().as_secs_f64(),
     };
     Ok(ImportedDrive { drive: d, report })

@@ -44,17 +44,21 @@ pub struct ImportReport {
     /// The manifest's `[reference]` (reference extrinsics), when stated.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reference: Option<super::ReferenceSpec>,
+    /// The manifest's `[calibration]` (calibration choices), when stated.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<super::CalibrationSpec>,
     /// Wall time of the import, s.
     pub elapsed_s: f64,
 }
 
 impl ImportReport {
-    /// The calibration settings the manifest states (`[noise]`, `[reference]`).
+    /// The calibration settings the manifest states (`[noise]`, `[reference]`, `[calibration]`).
     pub fn settings(&self) -> super::ManifestSettings {
         super::ManifestSettings {
             manifest: self.manifest.clone(),
             noise: self.noise,
             reference: self.reference.clone(),
+            calibration: self.calibration,
         }
     }
 }
@@ -263,6 +267,9 @@ impl std::fmt::Display for ImportReport {
                 true => writeln!(f, ", held")?,
                 false => writeln!(f, ", estimate {}", r.estimate.join(", "))?,
             }
+        }
+        if let Some(k) = self.calibration.and_then(|c| c.keep_one_way) {
+            writeln!(f, "  [calibration]: keep_one_way = {k}")?;
         }
         for w in &self.warnings {
             writeln!(f, "  warning: {w}")?;

@@ -1,6 +1,7 @@
 //! Calibration settings a manifest can state beside its streams: the
-//! sensor's noise (`[noise]`, the starting noise model of `--method eiv`)
-//! and the reference sensor's extrinsics (`[reference]`). The importer
+//! sensor's noise (`[noise]`, the starting noise model of `--method eiv`),
+//! the reference sensor's extrinsics (`[reference]`) and calibration
+//! choices (`[calibration]`). The importer
 //! parses and checks them, [`super::ImportReport`] carries them, and
 //! [`ManifestSettings::apply`] puts them into [`CalibrationOptions`] where
 //! the caller did not give its own value (a command-line flag wins).
@@ -59,6 +60,16 @@ impl ReferenceSpec {
         Ok(set)
     }
 
+    /// The stated lever arm and heading offset (0 where not stated).
+    pub fn extrinsics(&self) -> crate::extrinsics::Extrinsics {
+        let l = self.lever_arm.unwrap_or_default();
+        crate::extrinsics::Extrinsics {
+            lever_x: l[0],
+            lever_y: l[1],
+            heading_offset: self.heading_offset.unwrap_or(0.0),
+        }
+    }
+
     /// Checks the values: `(key, reason)` of the first bad one.
     pub(crate) fn check(&self) -> std::result::Result<(), (&'static str, String)> {
         if let Some(l) = self.lever_arm {
@@ -76,6 +87,23 @@ impl ReferenceSpec {
         }
         self.estimate_set().map(|_| ()).map_err(|r| ("reference.estimate", r))
     }
+}
+
+/// Calibration choices (`[calibration]`). Every key is optional.
+///
+/// ```toml
+/// [calibration]
+/// keep_one_way = true   # keep the turning-only selection on one-way turns
+/// ```
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationSpec {
+    /// Keep the paper's turning-only segment selection even when every
+    /// selected segment turns the same way
+    /// ([`CalibrationOptions::keep_one_way_selection`]; `--keep-one-way`).
+    /// Default none (false: the straight segments are added, with a warning).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub keep_one_way: Option<bool>,
 }
 
 /// Largest lever arm a manifest may state, m (a vehicle's length).
@@ -97,6 +125,8 @@ pub struct ManifestSettings {
     pub noise: Option<NoiseModel>,
     /// `[reference]`: the reference sensor's extrinsics.
     pub reference: Option<ReferenceSpec>,
+    /// `[calibration]`: calibration choices.
+    pub calibration: Option<CalibrationSpec>,
 }
 
 /// Which settings the caller gives itself (they win over the manifest's).
@@ -110,6 +140,8 @@ pub struct GivenSettings {
     pub heading_offset: bool,
     /// The extrinsics to estimate (`--estimate`).
     pub estimate: bool,
+    /// Keep the one-way turning selection (`--keep-one-way`).
+    pub keep_one_way: bool,
 }
 
 /// What became of one manifest setting.
@@ -131,7 +163,8 @@ pub enum SettingOutcome {
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
 pub struct SettingUse {
     /// The manifest key (`noise`, `reference.lever_arm`,
-    /// `reference.heading_offset`, `reference.estimate`).
+    /// `reference.heading_offset`, `reference.estimate`,
+    /// `calibration.keep_one_way`).
     pub key: &'static str,
     /// The manifest it comes from.
     pub manifest: PathBuf,
@@ -154,7 +187,7 @@ impl std::fmt::Display for SettingUse {
 impl ManifestSettings {
     /// True when the manifest states none.
     pub fn is_empty(&self) -> bool {
-        self.noise.is_none() && self.reference.is_none()
+        self.noise.is_none() && self.reference.is_none() && self.calibration.is_none()
     }
 
     /// The settings of several drives fitted jointly: they must agree
@@ -167,12 +200,13 @@ impl ManifestSettings {
         for s in all.into_iter().filter(|s| !s.is_empty()) {
             match &out {
                 None => out = Some(s.clone()),
-                Some(o) if o.noise == s.noise && o.reference == s.reference => {}
+                Some(o) if o.noise == s.noise && o.reference == s.reference && o.calibration == s.calibration => {}
                 Some(o) => {
                     return Err(Error::InvalidOption {
                         field: "manifest settings",
                         reason: format!(
-                            "{} and {} state different [noise] or [reference] tables; drives fitted jointly share \
+                            "{} and {} state different [noise], [reference] or [calibration] tables; drives fitted \
+                             jointly share \
                              one setting: make them agree or give it on the command line",
                             o.manifest.display(),
                             s.manifest.display()
@@ -207,6 +241,21 @@ impl ManifestSettings {
                     "noise",
                     SettingOutcome::Ignored { reason: format!("method {other} does not use a noise model") },
                 ),
+            }
+        }
+        if let Some(k) = self.calibration.and_then(|c| c.keep_one_way) {
+            match &opts.method {
+                _ if given.keep_one_way => note("calibration.keep_one_way", SettingOutcome::Overridden),
+                crate::Method::Eiv(_) => note(
+                    "calibration.keep_one_way",
+                    SettingOutcome::Ignored {
+                        reason: "method eiv fits every segment, it does not select turning ones".into(),
+                    },
+                ),
+                _ => {
+                    opts.keep_one_way_selection = k;
+                    note("calibration.keep_one_way", SettingOutcome::Used);
+                }
             }
         }
         let Some(r) = &self.reference else { return out };
@@ -361,6 +410,7 @@ mod tests {
                 heading_offset: Some(-0.01),
                 estimate: vec!["heading-offset".into()],
             }),
+            calibration: None,
         }
     }
 
@@ -419,6 +469,39 @@ mod tests {
         let Method::Eiv(m) = &o.method else { panic!("eiv") };
         assert_eq!(m.filter.noise, NoiseModel::PRODUCTION_CAR);
         assert_eq!(outcomes(&uses)[0], ("noise", SettingOutcome::Overridden));
+    }
+
+    #[test]
+    fn keep_one_way_is_used_overridden_or_ignored() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = super::super::tests::small_case(dir.path());
+        let text = std::fs::read_to_string(&path).expect("read") + "\n[calibration]\nkeep_one_way = true\n";
+        let m = Manifest::parse(&text, &path).expect("parses");
+        let s = m.settings();
+        assert_eq!(s.calibration, Some(CalibrationSpec { keep_one_way: Some(true) }));
+        let e = error("\n[calibration]\nkeep_one_wya = true\n");
+        assert!(e.contains("calibration.keep_one_wya: unknown field"), "{e}");
+
+        let mut o = CalibrationOptions::default();
+        let uses = s.apply(&mut o, GivenSettings::default());
+        assert!(o.keep_one_way_selection);
+        assert_eq!(outcomes(&uses), [("calibration.keep_one_way", SettingOutcome::Used)]);
+        // `--keep-one-way` given: the command line's value stands
+        let mut o = CalibrationOptions::default();
+        let uses = s.apply(&mut o, GivenSettings { keep_one_way: true, ..Default::default() });
+        assert!(!o.keep_one_way_selection, "apply leaves the caller's own value to the caller");
+        assert_eq!(outcomes(&uses), [("calibration.keep_one_way", SettingOutcome::Overridden)]);
+        // EIV selects no turning segments
+        let mut o = CalibrationOptions { method: Method::Eiv(EivMethodOptions::default()), ..Default::default() };
+        let uses = s.apply(&mut o, GivenSettings::default());
+        assert!(!o.keep_one_way_selection);
+        assert!(matches!(outcomes(&uses)[0], ("calibration.keep_one_way", SettingOutcome::Ignored { .. })));
+        // jointly fitted drives must agree on it too
+        let other = ManifestSettings { manifest: "o.toml".into(), calibration: None, ..s.clone() };
+        let none = ManifestSettings { manifest: "n.toml".into(), ..Default::default() };
+        assert!(ManifestSettings::merge([&s, &none]).is_ok());
+        let other = ManifestSettings { calibration: Some(CalibrationSpec { keep_one_way: Some(false) }), ..other };
+        assert!(ManifestSettings::merge([&s, &other]).is_err());
     }
 
     /// The `[reference]` example the shipped van manifests carry commented

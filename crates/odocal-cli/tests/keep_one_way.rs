@@ -1,0 +1,129 @@
+//! `--keep-one-way` and the manifest's `[calibration] keep_one_way`: on a
+//! drive whose turning segments all turn one way, `calibrate` adds the
+//! straight segments and warns (`one_way_turns`) unless asked to keep the
+//! turning-only selection; the flag wins over the manifest.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use odocal::drive::Signals;
+use odocal::model::{step, wheel_rotations, Input, State, Theta};
+use odocal::Drive;
+
+fn odocal(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_odocal")).args(args).arg("--quiet").output().expect("run odocal")
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+/// A noise-free oval (300 m straights, 40 m radius half circles) driven
+/// counter-clockwise at 10 m/s for 1.3 laps at 40 Hz: every turning
+/// segment turns left, and some segments lie on a straight.
+fn oval() -> Drive {
+    let (theta, t_s, v, r, straight) = (Theta { c_d: 0.5e-3, ..Theta::PAPER_NOMINAL }, 0.025, 10.0, 40.0, 300.0);
+    let lap = 2.0 * straight + 2.0 * std::f64::consts::PI * r;
+    let n = (1.3 * lap / v / t_s) as usize;
+    let mut x = State::zeros();
+    let mut s = Signals::with_capacity(n);
+    for i in 0..n {
+        let along = (i as f64 * v * t_s) % lap;
+        let omega = if along % (lap / 2.0) < straight { 0.0 } else { v / r };
+        let a_y = v * omega;
+        let (n_rl, n_rr) = wheel_rotations(v, omega, a_y, &theta);
+        s.push([x[0], x[1], x[2], n_rl, n_rr, 0.0, a_y]);
+        x = step(&x, &Input { n_rl, n_rr, beta: 0.0, a_y }, &theta, t_s);
+    }
+    Drive::builder((0..n).map(|i| i as f64 * t_s).collect(), s).build().expect("oval")
+}
+
+/// A manifest importing the canonical CSV `drive.csv` beside it, with `extra` appended.
+fn manifest(extra: &str) -> String {
+    r#"
+[output]
+clock_offset = 0.0
+min_part_s = 1.0
+
+[streams.d]
+file = "drive.csv"
+time_column = "t"
+
+[wheels]
+stream = "d"
+signal = "rev_per_s"
+rear_left = { column = "n_rl" }
+rear_right = { column = "n_rr" }
+
+[pose]
+stream = "d"
+position = { kind = "local", x = "px", y = "py" }
+heading = { column = "psi", convention = "enu" }
+
+[lateral_acceleration]
+source = "imu"
+stream = "d"
+column = "a_y"
+"#
+    .to_string()
+        + extra
+}
+
+fn calibrate(input: &Path, extra: &[&str]) -> serde_json::Value {
+    let mut args = vec!["calibrate", input.to_str().expect("utf8"), "--method", "batch-gn", "--json", "-"];
+    args.extend_from_slice(extra);
+    let o = odocal(&args);
+    assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", text(&o.stderr));
+    serde_json::from_slice(&o.stdout).expect("json")
+}
+
+fn one_way_warnings(r: &serde_json::Value) -> usize {
+    r["warnings"].as_array().expect("warnings").iter().filter(|w| w["kind"] == "one_way_turns").count()
+}
+
+fn outcome(r: &serde_json::Value, key: &str) -> String {
+    let uses = r["manifest_settings"].as_array().expect("manifest_settings");
+    let u = uses.iter().find(|u| u["key"] == key).unwrap_or_else(|| panic!("no {key} in {uses:?}"));
+    u["outcome"].as_str().expect("outcome").to_string()
+}
+
+#[test]
+fn keep_one_way_flag_and_manifest_setting_keep_the_turning_selection() {
+    let d = tempfile::tempdir().expect("tmp");
+    let csv = d.path().join("drive.csv");
+    oval().write_csv(&csv).expect("write csv");
+
+    // Default: the straight segments are added, saying so.
+    let r = calibrate(&csv, &[]);
+    assert_eq!(one_way_warnings(&r), 1, "{}", r["warnings"]);
+    let (cut, selected) = (r["segments"]["cut"].as_u64(), r["segments"]["selected"].as_u64());
+    assert!(selected < cut, "{cut:?} cut, {selected:?} selected");
+    assert_eq!(r["options"]["keep_one_way_selection"], false);
+
+    // --keep-one-way: the paper's selection, no warning.
+    let r = calibrate(&csv, &["--keep-one-way"]);
+    assert_eq!(one_way_warnings(&r), 0, "{}", r["warnings"]);
+    assert_eq!(r["options"]["keep_one_way_selection"], true);
+
+    // The manifest's [calibration] keep_one_way = true: used.
+    let m = d.path().join("keep.toml");
+    std::fs::write(&m, manifest("\n[calibration]\nkeep_one_way = true\n")).expect("write");
+    let r = calibrate(&m, &[]);
+    assert_eq!(one_way_warnings(&r), 0, "{}", r["warnings"]);
+    assert_eq!(outcome(&r, "calibration.keep_one_way"), "used");
+
+    // keep_one_way = false in the manifest, --keep-one-way on the command line: the flag wins.
+    let m = d.path().join("add.toml");
+    std::fs::write(&m, manifest("\n[calibration]\nkeep_one_way = false\n")).expect("write");
+    let r = calibrate(&m, &[]);
+    assert_eq!(one_way_warnings(&r), 1, "{}", r["warnings"]);
+    assert_eq!(outcome(&r, "calibration.keep_one_way"), "used");
+    let r = calibrate(&m, &["--keep-one-way"]);
+    assert_eq!(one_way_warnings(&r), 0, "{}", r["warnings"]);
+    assert_eq!(outcome(&r, "calibration.keep_one_way"), "overridden");
+
+    // The EIV method selects no turning segments: the flag is an error there.
+    let o = odocal(&["calibrate", csv.to_str().expect("utf8"), "--method", "eiv", "--keep-one-way"]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o.stderr));
+    assert!(text(&o.stderr).contains("--keep-one-way applies to"), "{}", text(&o.stderr));
+}
