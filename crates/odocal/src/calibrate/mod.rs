@@ -554,13 +554,11 @@ pub fn calibrate_detailed(
     opts.validate()?;
     let method = opts.method.estimator();
     if opts.identify.uses_extrinsics() && !method.supports_extrinsics() {
-        // TODO(extrinsics): the errors-in-variables method does not model the
-        // reference's lever arm and heading offset yet.
         return Err(Error::InvalidOption {
             field: "identify.extrinsics",
             reason: format!(
                 "method {} does not estimate or apply the reference extrinsics (lever arm, heading offset); \
-                 use batch-gn or three-step",
+                 use batch-gn, three-step or eiv",
                 method.name()
             ),
         });
@@ -709,8 +707,9 @@ fn method_extrinsics(detail: &MethodDetail) -> Option<ExtrinsicsEstimate> {
             d.identification.extrinsics.clone().map(|x| ExtrinsicsEstimate { robust: None, ..x })
         }
         MethodDetail::BatchGn(d) => d.identification.extrinsics.clone(),
-        // The EIV method does not support extrinsics (refused up front).
-        MethodDetail::Eiv(_) => None,
+        // Two-stage: the start's joint estimate, held by the filter (its σ
+        // is the start's; see `Warning::EivExtrinsicsHeld`).
+        MethodDetail::Eiv(d) => d.identification.extrinsics.clone(),
     }
 }
 
