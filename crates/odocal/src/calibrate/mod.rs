@@ -302,7 +302,10 @@ pub struct CalibrationReport {
     /// initial and estimated values, σ, covariance) when the calibration
     /// involved them ([`IdentifyOptions::uses_extrinsics`]); validation
     /// (and θ_0's Ē_p, at the initial values) then compares the model's
-    /// reference point with the measured one. Absent otherwise.
+    /// reference point with the measured one. Absent otherwise. For `eiv`
+    /// they are its batch Gauss-Newton start's estimate and σ, held by the
+    /// filter, so the EIV θ covariance does not include their uncertainty
+    /// ([`Warning::EivExtrinsicsHeld`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub extrinsics: Option<ExtrinsicsEstimate>,
     /// The method's own results.
