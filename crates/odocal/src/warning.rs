@@ -249,7 +249,9 @@ impl std::fmt::Display for Warning {
                 };
                 write!(
                     f,
-                    "EIV two-stage: the reference extrinsics ({extrinsics}; {origin}) were held while the filter ran                      on the rear-axle poses they imply; the EIV θ σ does not include their uncertainty (their σ is                      the batch Gauss-Newton start's)"
+                    "EIV two-stage: the reference extrinsics ({extrinsics}; {origin}) were held while the filter ran \
+                     on the rear-axle poses they imply; the EIV θ σ does not include their uncertainty (their σ is \
+                     the batch Gauss-Newton start's)"
                 )
             }
         }

@@ -335,8 +335,12 @@ fn given_extrinsics_are_applied_by_the_filter() {
     let (at_axle, _) = eiv_on_mounted_drive(crate::extrinsics::Extrinsics::ZERO, Default::default());
     eprintln!("given: θ vs axle-mounted run {:.2e}", max_rel(&r.theta, &at_axle.theta));
     assert!(max_rel(&r.theta, &at_axle.theta) < 1e-10, "{} vs {}", r.theta, at_axle.theta);
-    assert!(r
+    let held = r
         .warnings
         .iter()
-        .any(|w| matches!(w, Warning::EivExtrinsicsHeld { estimated, .. } if estimated.is_empty())));
+        .find(|w| matches!(w, Warning::EivExtrinsicsHeld { estimated, .. } if estimated.is_empty()))
+        .expect("the held note")
+        .to_string();
+    assert!(held.contains("given") && held.contains("does not include their uncertainty"), "{held}");
+    assert!(!held.contains("  "), "{held}");
 }
