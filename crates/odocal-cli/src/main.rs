@@ -115,7 +115,8 @@ struct CalibrationArgs {
     /// Also estimate the pose reference's extrinsics with θ: lever-arm
     /// and/or heading-offset (or lever_x, lever_y, heading_offset). The
     /// validation then compares the model's reference point with the
-    /// reference. Batch-gn and three-step (steps 1 and 3) only.
+    /// reference. Batch-gn, three-step (steps 1 and 3) and eiv (two-stage:
+    /// its batch G-N start estimates them, the filter holds them).
     #[arg(long)]
     estimate: Option<ParamSet>,
     /// Lever arm X,Y (m, x forward, y left) of the pose reference from the

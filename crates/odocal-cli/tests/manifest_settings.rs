@@ -75,7 +75,8 @@ fn manifest_noise_and_reference_settings_are_used_unless_a_flag_is_given() {
     assert!(o.status.success(), "{}", text(&o.stderr));
     std::fs::write(d.path().join("manifest.toml"), MANIFEST).expect("write");
 
-    // EIV: the manifest's [noise] is the start; the extrinsics are ignored, saying so.
+    // EIV: the manifest's [noise] is the start; the [reference] estimate is
+    // used (two-stage: the batch G-N start estimates it, the filter holds it).
     let eiv = ["--method", "eiv", "--eiv-window", "1500", "--fix-noise", "--no-fallback"];
     let r = calibrate(d.path(), &eiv);
     assert_eq!(r["noise_start"]["wheel_white_rel_sigma"], 0.011, "{}", r["noise_start"]);
@@ -85,7 +86,11 @@ fn manifest_noise_and_reference_settings_are_used_unless_a_flag_is_given() {
         r["noise_model_origin"]
     );
     assert_eq!(outcome(&r, "noise"), "used");
-    assert_eq!(outcome(&r, "reference.estimate"), "ignored");
+    assert_eq!(outcome(&r, "reference.estimate"), "used");
+    assert_eq!(r["extrinsics"]["free"], serde_json::json!(["heading_offset"]), "{}", r["extrinsics"]);
+    let kinds: Vec<&str> =
+        r["warnings"].as_array().expect("warnings").iter().filter_map(|w| w["kind"].as_str()).collect();
+    assert!(kinds.contains(&"eiv_extrinsics_held") || kinds.contains(&"eiv_fallback"), "{kinds:?}");
 
     // --noise-model wins.
     let file = d.path().join("noise.toml");

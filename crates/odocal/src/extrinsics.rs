@@ -192,7 +192,7 @@ pub fn axle_pose_jacobian(y: &Vector3<f64>, e: &Extrinsics) -> Matrix3<f64> {
 /// A copy of `drive` whose reference poses are the axle poses they imply
 /// under `e` ([`axle_pose`] per sample); wheels, parts and the
 /// reference-measured mask are kept, truth and extra columns dropped. The
-/// 3-step method's input compensation runs on it.
+/// 3-step method's input compensation and the EIV filter run on it.
 pub fn axle_reference_drive(drive: &crate::drive::Drive, e: &Extrinsics) -> Result<crate::drive::Drive> {
     let mut m = drive.measured().clone();
     for i in 0..drive.len() {

@@ -134,6 +134,17 @@ pub enum Warning {
         /// The EIV θ that was not used (none when the filter failed).
         eiv_theta: Option<Theta>,
     },
+    /// EIV with reference extrinsics: a two-stage estimate. The extrinsics
+    /// were estimated jointly with θ by the method's batch Gauss-Newton
+    /// start (or given), then held while the filter ran on the axle poses
+    /// they imply; the EIV θ covariance does not include their uncertainty.
+    EivExtrinsicsHeld {
+        /// The extrinsics the filter held.
+        extrinsics: crate::extrinsics::Extrinsics,
+        /// Which of them the batch Gauss-Newton start estimated (empty:
+        /// all given).
+        estimated: ParamSet,
+    },
 }
 
 impl Warning {
@@ -152,6 +163,7 @@ impl Warning {
             Warning::EivCheckFailed { .. } => "eiv_check_failed",
             Warning::EivCheckNote { .. } => "eiv_check_note",
             Warning::EivFallback { .. } => "eiv_fallback",
+            Warning::EivExtrinsicsHeld { .. } => "eiv_extrinsics_held",
         }
     }
 
@@ -228,6 +240,19 @@ impl std::fmt::Display for Warning {
                     Some(t) => write!(f, "; the rejected EIV θ was {t}"),
                     None => Ok(()),
                 }
+            }
+            Warning::EivExtrinsicsHeld { extrinsics, estimated } => {
+                let origin = if estimated.is_empty() {
+                    "given".to_string()
+                } else {
+                    format!("{estimated} estimated by its batch Gauss-Newton start")
+                };
+                write!(
+                    f,
+                    "EIV two-stage: the reference extrinsics ({extrinsics}; {origin}) were held while the filter ran \
+                     on the rear-axle poses they imply; the EIV θ σ does not include their uncertainty (their σ is \
+                     the batch Gauss-Newton start's)"
+                )
             }
         }
     }

@@ -33,6 +33,19 @@
 //! off, the EIV θ is returned and the verdict is at most doubtful
 //! ([`crate::trust::VerdictReason::Misspecified`]).
 //!
+//! ## Reference extrinsics (two-stage)
+//! When [`IdentifyOptions::uses_extrinsics`] (a lever arm or heading
+//! offset given, or asked to be estimated), the start estimates the free
+//! ones jointly with θ exactly as `batch-gn` does (same
+//! [`IdentifyOptions`]). The filter does not model them: it runs on the
+//! rear-axle poses the reference implies with the start's extrinsics held
+//! ([`crate::extrinsics::axle_reference_drive`]: position minus
+//! `R(ψ)·l`, heading minus δ); given extrinsics are applied the same way.
+//! The report's `extrinsics` are the start's estimate with its σ, and
+//! [`Warning::EivExtrinsicsHeld`] says that the EIV θ covariance does not
+//! include their uncertainty. This is not a joint estimate inside the
+//! filter. After a fallback the result is the start's joint estimate.
+//!
 //! ## Uncertainty and observability
 //! The covariance is `H_θ⁻¹` of the filter at the estimate; the reported
 //! observability has `rcond` and the names (parameters held as not
@@ -48,6 +61,7 @@ use serde::{Deserialize, Serialize};
 use super::{hold_unobservable, Estimator, MethodDetail, MethodOutcome, Prepared, Selection, Timing};
 use crate::eiv::{self, EivInput, EivOptions, EivReport, EivWarning, NoiseModel};
 use crate::error::{Error, Result};
+use crate::extrinsics::axle_reference_drive;
 use crate::identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport, Observability};
 use crate::param::{Param, ParamSet};
 use crate::progress::{emit, Progress, ProgressFn};
@@ -231,6 +245,12 @@ impl Estimator for EivMethodOptions {
         self.filter.validate()
     }
 
+    /// Two-stage: the batch Gauss-Newton start estimates (or holds) the
+    /// extrinsics with θ; the filter holds them (module docs).
+    fn supports_extrinsics(&self) -> bool {
+        true
+    }
+
     /// Every cut segment (no yaw-rate selection); auto-fix as the
     /// segment-based methods.
     fn select(&self, prep: &Prepared<'_>) -> Result<Selection> {
@@ -288,7 +308,17 @@ impl Estimator for EivMethodOptions {
         let t = Instant::now();
         emit(progress, Progress::Stage { name: "EIV filter", total: 1 });
         let filter = EivOptions { free: mask(selection.free), ..self.filter.clone() };
-        let fit = eiv::estimate(&EivInput::from_drive(prep.drive), &start.theta, &filter);
+        // Two-stage extrinsics: the start's estimate (or the given values)
+        // held; the filter, which models the axle only, runs on the axle
+        // poses the reference implies under them.
+        let held_extrinsics =
+            identify.uses_extrinsics().then(|| start.extrinsics.as_ref().map_or(identify.extrinsics, |x| x.value));
+        let axle_drive = match &held_extrinsics {
+            Some(e) => Some(axle_reference_drive(prep.drive, e)?),
+            None => None,
+        };
+        let filter_drive = axle_drive.as_ref().unwrap_or(prep.drive);
+        let fit = eiv::estimate(&EivInput::from_drive(filter_drive), &start.theta, &filter);
         emit(progress, Progress::Advance(1));
         let t_eiv = t.elapsed().as_secs_f64();
         let timing = Timing { initial_identification: t_start, final_identification: t_eiv, ..Timing::default() };
@@ -344,10 +374,14 @@ impl Estimator for EivMethodOptions {
         let Some(r) = detail.eiv.as_ref() else {
             return Err(Error::Numerical("the EIV fit returned no report".into()));
         };
+        if let Some(extrinsics) = held_extrinsics {
+            let estimated = identify.free.intersection(ParamSet::EXTRINSICS);
+            warnings.push(Warning::EivExtrinsicsHeld { extrinsics, estimated });
+        }
         let bootstrap = match &self.bootstrap {
             Some(b) => {
                 emit(progress, Progress::Stage { name: "EIV bootstrap", total: 1 });
-                let boot = eiv::bootstrap(&EivInput::from_drive(prep.drive), r, &filter, b)?;
+                let boot = eiv::bootstrap(&EivInput::from_drive(filter_drive), r, &filter, b)?;
                 emit(progress, Progress::Advance(1));
                 Some(Box::new(boot))
             }

@@ -251,3 +251,96 @@ fn bootstrap_option_reports_replicates_of_the_returned_estimate() {
     assert_eq!(detail(&run(1)).bootstrap, d.bootstrap);
     assert_ne!(detail(&run(2)).bootstrap.as_ref().map(|b| b.replicates.clone()), Some(b.replicates.clone()));
 }
+
+/// A 2 km noise-free, exact-model (1 substep) drive, seed 21, with the
+/// reference at `mount`, calibrated by EIV with a fixed noise model and
+/// `identify` (its `max_iterations` set to 30).
+fn eiv_on_mounted_drive(
+    mount: crate::extrinsics::Extrinsics,
+    identify: crate::identify::IdentifyOptions,
+) -> (crate::CalibrationReport, Theta) {
+    let out =
+        simulate(&SimOptions { length_km: 2.0, substeps: 1, reference_mount: mount, ..SimOptions::noise_free(21) })
+            .expect("sim");
+    let filter = EivOptions { fix_noise: true, ..Default::default() };
+    let identify = crate::identify::IdentifyOptions { max_iterations: 30, ..identify };
+    let opts = CalibrationOptions { method: eiv_method(filter, true), identify, ..Default::default() };
+    (calibrate(&out.drive, &opts, None).expect("eiv"), out.sidecar.theta_true)
+}
+
+/// Largest relative difference of two θ.
+fn max_rel(a: &Theta, b: &Theta) -> f64 {
+    a.to_array().iter().zip(b.to_array()).map(|(x, y)| ((x - y) / y).abs()).fold(0.0, f64::max)
+}
+
+const VAN: crate::extrinsics::Extrinsics =
+    crate::extrinsics::Extrinsics { lever_x: -0.9, lever_y: 0.05, heading_offset: -0.0099 };
+
+/// Issue 10 item 4, two-stage: with the reference at the van's mount, EIV
+/// with `--estimate lever-arm,heading-offset` gets the extrinsics from its
+/// batch G-N start (measured error 5e-14), holds them in the filter, and
+/// returns the θ it returns on the same drive with the reference at the
+/// axle (measured: equal to 6e-13 relative; bound 1e-10, the G-N start's
+/// rounding with a margin). That θ is 3.7e-4 (relative, c_e) from θ_true
+/// with the production-car noise model fixed, mount or not: the filter's
+/// own limit on a noise-free drive with a fixed noise model (1.9e-8 with
+/// the noise estimated, 5× slower; measured on seed 22), so θ_true is
+/// checked to 1e-3. EIV ignoring the mount: 6.6e-2 relative.
+#[test]
+fn extrinsics_are_estimated_by_the_start_and_held_by_the_filter() {
+    use crate::param::ParamSet;
+    let joint =
+        crate::identify::IdentifyOptions { free: ParamSet::THETA.union(ParamSet::EXTRINSICS), ..Default::default() };
+    let (r, truth) = eiv_on_mounted_drive(VAN, joint);
+    assert_eq!(detail(&r).eiv_result, EivOutcome::Eiv, "fell back: {:?}", r.warnings);
+    let x = r.extrinsics.as_ref().expect("extrinsics in the report");
+    let x_err = x.value.to_array().iter().zip(VAN.to_array()).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+    assert_eq!(x.free, ParamSet::EXTRINSICS);
+    assert!(x.std_dev.lever_x > 0.0, "the start's σ is carried: {:?}", x.std_dev);
+    assert_eq!(Some(x), detail(&r).identification.extrinsics.as_ref(), "the start's estimate");
+    assert!(
+        r.warnings.iter().any(|w| matches!(w, Warning::EivExtrinsicsHeld { extrinsics, estimated }
+            if *extrinsics == x.value && *estimated == ParamSet::EXTRINSICS)),
+        "{:?}",
+        r.warnings
+    );
+    let (at_axle, _) = eiv_on_mounted_drive(crate::extrinsics::Extrinsics::ZERO, Default::default());
+    let (plain, _) = eiv_on_mounted_drive(VAN, Default::default());
+    assert!(plain.extrinsics.is_none());
+    assert!(!plain.warnings.iter().any(|w| w.kind() == "eiv_extrinsics_held"));
+    eprintln!(
+        "extrinsics err {x_err:.2e}; θ vs axle-mounted run {:.2e}, vs truth {:.2e}; ignoring the mount {:.2e}",
+        max_rel(&r.theta, &at_axle.theta),
+        max_rel(&r.theta, &truth),
+        max_rel(&plain.theta, &truth)
+    );
+    assert!(x_err < 1e-10, "{} vs {VAN}", x.value);
+    assert!(max_rel(&r.theta, &at_axle.theta) < 1e-10, "{} vs {}", r.theta, at_axle.theta);
+    assert!(max_rel(&r.theta, &truth) < 1e-3, "{} vs {truth}", r.theta);
+    assert!(max_rel(&plain.theta, &truth) > 10.0 * max_rel(&r.theta, &truth), "{} vs {}", plain.theta, r.theta);
+    assert!(r.validation.mean_position_error_m < plain.validation.mean_position_error_m);
+}
+
+/// Given (held) extrinsics are applied the same way: the filter runs on the
+/// axle poses they imply (θ as with the reference at the axle), and the
+/// report carries them with no σ.
+#[test]
+fn given_extrinsics_are_applied_by_the_filter() {
+    use crate::param::ParamSet;
+    let given = crate::identify::IdentifyOptions { extrinsics: VAN, ..Default::default() };
+    let (r, _) = eiv_on_mounted_drive(VAN, given);
+    assert_eq!(detail(&r).eiv_result, EivOutcome::Eiv, "fell back: {:?}", r.warnings);
+    let x = r.extrinsics.as_ref().expect("held extrinsics reported");
+    assert_eq!((x.value, x.free), (VAN, ParamSet::EMPTY));
+    let (at_axle, _) = eiv_on_mounted_drive(crate::extrinsics::Extrinsics::ZERO, Default::default());
+    eprintln!("given: θ vs axle-mounted run {:.2e}", max_rel(&r.theta, &at_axle.theta));
+    assert!(max_rel(&r.theta, &at_axle.theta) < 1e-10, "{} vs {}", r.theta, at_axle.theta);
+    let held = r
+        .warnings
+        .iter()
+        .find(|w| matches!(w, Warning::EivExtrinsicsHeld { estimated, .. } if estimated.is_empty()))
+        .expect("the held note")
+        .to_string();
+    assert!(held.contains("given") && held.contains("does not include their uncertainty"), "{held}");
+    assert!(!held.contains("  "), "{held}");
+}

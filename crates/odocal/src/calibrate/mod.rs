@@ -303,7 +303,10 @@ pub struct CalibrationReport {
     /// initial and estimated values, σ, covariance) when the calibration
     /// involved them ([`IdentifyOptions::uses_extrinsics`]); validation
     /// (and θ_0's Ē_p, at the initial values) then compares the model's
-    /// reference point with the measured one. Absent otherwise.
+    /// reference point with the measured one. Absent otherwise. For `eiv`
+    /// they are its batch Gauss-Newton start's estimate and σ, held by the
+    /// filter, so the EIV θ covariance does not include their uncertainty
+    /// ([`Warning::EivExtrinsicsHeld`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub extrinsics: Option<ExtrinsicsEstimate>,
     /// The method's own results.
@@ -580,13 +583,11 @@ pub(crate) fn calibrate_core(
     opts.validate()?;
     let method = opts.method.estimator();
     if opts.identify.uses_extrinsics() && !method.supports_extrinsics() {
-        // TODO(extrinsics): the errors-in-variables method does not model the
-        // reference's lever arm and heading offset yet.
         return Err(Error::InvalidOption {
             field: "identify.extrinsics",
             reason: format!(
                 "method {} does not estimate or apply the reference extrinsics (lever arm, heading offset); \
-                 use batch-gn or three-step",
+                 use batch-gn, three-step or eiv",
                 method.name()
             ),
         });
@@ -760,8 +761,9 @@ fn method_extrinsics(detail: &MethodDetail) -> Option<ExtrinsicsEstimate> {
             d.identification.extrinsics.clone().map(|x| ExtrinsicsEstimate { robust: None, ..x })
         }
         MethodDetail::BatchGn(d) => d.identification.extrinsics.clone(),
-        // The EIV method does not support extrinsics (refused up front).
-        MethodDetail::Eiv(_) => None,
+        // Two-stage: the start's joint estimate, held by the filter (its σ
+        // is the start's; see `Warning::EivExtrinsicsHeld`).
+        MethodDetail::Eiv(d) => d.identification.extrinsics.clone(),
     }
 }
 

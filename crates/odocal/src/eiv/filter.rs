@@ -912,11 +912,8 @@ pub(crate) fn run_window(
         if let Some(rt) = &rt {
             // The s-columns −F_n n̂ with their θ-derivatives (n̂ = ñ·g, g = 1
             // without `fitted_input`).
-            let (fs_l, fs_r) = if fitted {
-                (rt.fn_l.map(|x| x * gw[0]), rt.fn_r.map(|x| x * gw[1]))
-            } else {
-                (rt.fn_l, rt.fn_r)
-            };
+            let (fs_l, fs_r) =
+                if fitted { (rt.fn_l.map(|x| x * gw[0]), rt.fn_r.map(|x| x * gw[1])) } else { (rt.fn_l, rt.fn_r) };
             for (jt, tt) in theta_terms.iter_mut().enumerate() {
                 let dfl = dvec_of(&rt.fn_l, jt);
                 let dfr = dvec_of(&rt.fn_r, jt);

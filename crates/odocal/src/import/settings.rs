@@ -454,16 +454,17 @@ mod tests {
         );
 
         // EIV: the noise model is the start unless the caller gives one; the
-        // extrinsics are ignored (the method does not model them), saying so.
+        // extrinsics are used (its batch G-N start estimates them, the
+        // filter holds them).
         let eiv = || CalibrationOptions { method: Method::Eiv(EivMethodOptions::default()), ..Default::default() };
         let mut o = eiv();
         let uses = s.apply(&mut o, GivenSettings::default());
         let Method::Eiv(m) = &o.method else { panic!("eiv") };
         assert_eq!(m.filter.noise.wheel_white_rel_sigma, 0.02);
-        assert_eq!(o.identify.extrinsics, Extrinsics::ZERO);
-        assert_eq!(o.identify.free, ParamSet::THETA);
+        assert_eq!(o.identify.extrinsics, Extrinsics { lever_x: -0.9, lever_y: 0.0, heading_offset: -0.01 });
+        assert_eq!(o.identify.free, ParamSet::THETA.with(Param::HeadingOffset));
         assert_eq!(outcomes(&uses)[0], ("noise", SettingOutcome::Used));
-        assert!(outcomes(&uses)[1..].iter().all(|u| matches!(u.1, SettingOutcome::Ignored { .. })), "{uses:?}");
+        assert!(outcomes(&uses)[1..].iter().all(|u| u.1 == SettingOutcome::Used), "{uses:?}");
         let mut o = eiv();
         let uses = s.apply(&mut o, GivenSettings { noise_model: true, ..Default::default() });
         let Method::Eiv(m) = &o.method else { panic!("eiv") };
