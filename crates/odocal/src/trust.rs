@@ -522,7 +522,9 @@ pub(crate) fn judge(e: &Evidence<'_>, opts: &TrustOptions) -> Verdict {
         }
     }
     if let (Some((other, other_cov)), true) = (&e.split, opts.max_split_sigmas > 0.0) {
-        for p in e.free.iter() {
+        // θ only: the held-out fit's θ and covariance carry no extrinsics
+        // (estimated extrinsics are judged above, by their bound and σ).
+        for p in e.free.intersection(ParamSet::THETA).iter() {
             let (a, b, i) = (p.value(e.theta), p.value(other), p.index());
             let sigma = (e.covariance[i][i] + other_cov[i][i]).sqrt();
             let diff = (a - b).abs();

@@ -4,6 +4,7 @@ use super::three_step::equal_step_picks;
 use super::*;
 use crate::compensate::QpOptions;
 use crate::identify::IdentifyOptions;
+use crate::param::ParamSet;
 use crate::qp::SolverKind;
 use crate::segment::{calibration_segments, validation_segments, Segment, SegmentOptions, ValidationSegmentOptions};
 use crate::sim::{simulate, SimOptions};
@@ -82,6 +83,21 @@ fn three_step_noise_free_recovers_truth() {
     let step = r.compensation().expect("three-step");
     assert_eq!(step.failed_jobs, 0);
     assert!(r.validation.mean_position_error_m < 0.05, "{}", r.validation.mean_position_error_m);
+}
+
+/// A held-out split with the extrinsics estimated: the cross-split check
+/// compares θ only (it indexed the 4×4 θ covariance with the extrinsics'
+/// indices and panicked, found on the van log with `--holdout first-half
+/// --estimate lever-arm,heading-offset`).
+#[test]
+fn holdout_with_estimated_extrinsics_is_judged_without_panicking() {
+    let drive = simulate(&SimOptions { length_km: 2.0, ..SimOptions::noise_free(3) }).expect("sim").drive;
+    let identify = IdentifyOptions { free: ParamSet::THETA.union(ParamSet::EXTRINSICS), ..Default::default() };
+    let opts = CalibrationOptions { method: Method::BatchGn(Default::default()), identify, ..Default::default() };
+    let r = calibrate_with_holdout(&drive, &Holdout::FirstHalf, &opts, None).expect("calibrate");
+    let x = r.extrinsics.as_ref().expect("extrinsics estimated");
+    assert_eq!(x.free, ParamSet::EXTRINSICS);
+    assert!(x.value.to_array().iter().all(|v| v.is_finite()), "{x:?}");
 }
 
 #[test]
