@@ -218,10 +218,7 @@ pub(crate) fn on_grid(
     smoothing_s: f64,
 ) -> Vec<f64> {
     let mut phi = signal::interp_sorted(&roll.t, &roll.phi, grid);
-    let width = 2 * ((smoothing_s / h / 2.0).round() as usize) + 1;
-    for r in kept {
-        signal::moving_average(&mut phi, r.clone(), width);
-    }
+    signal::smooth_parts(&mut phi, kept, smoothing_s, h);
     phi
 }
 

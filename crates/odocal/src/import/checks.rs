@@ -93,10 +93,7 @@ pub(crate) fn lateral_acceleration(m: &Manifest, x: &Resampled<'_>, a_y: &[f64])
     let max = m.limits.max_lateral_acceleration_m_per_s2;
     let mut judged = a_y.to_vec();
     if !matches!(m.lateral_acceleration, LateralAccelerationSpec::Imu { .. }) {
-        let width = 2 * ((A_Y_CHECK_SMOOTHING_S / x.h / 2.0).round() as usize) + 1;
-        for r in x.kept {
-            signal::moving_average(&mut judged, r.clone(), width);
-        }
+        signal::smooth_parts(&mut judged, x.kept, A_Y_CHECK_SMOOTHING_S, x.h);
     }
     let a_y = &judged;
     for k in x.kept.iter().flat_map(|r| r.clone()) {
@@ -197,7 +194,7 @@ pub(crate) fn conventions(m: &Manifest, x: &Resampled<'_>, theta0: &Theta, warni
         ww[k] = kinematics(&Input { n_rl: x.n_rl[k], n_rr: x.n_rr[k], beta: 0.0, a_y: 0.0 }, theta0).yaw_rate_rad_per_s;
         wr[k] = (x.psi[k + 1] - x.psi[k - 1]) / (2.0 * x.h);
     }
-    let width = 2 * ((YAW_SMOOTHING_S / x.h / 2.0).round() as usize) + 1;
+    let width = signal::odd_width(YAW_SMOOTHING_S, x.h);
     for part in x.kept {
         let inner = part.start + 1..part.end.saturating_sub(1);
         if inner.len() > 1 {

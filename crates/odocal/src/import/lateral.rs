@@ -97,10 +97,7 @@ fn kinematic(
                     a[k] = kin.speed_m_per_s * kin.yaw_rate_rad_per_s;
                 }
             }
-            let width = 2 * ((smoothing_s / h / 2.0).round() as usize) + 1;
-            for r in x.kept {
-                signal::moving_average(&mut a, r.clone(), width);
-            }
+            signal::smooth_parts(&mut a, x.kept, *smoothing_s, h);
             (a, format!("from wheels: v·ω of the model at θ_0 = {theta0}, smoothed over {smoothing_s} s"))
         }
         LateralAccelerationSpec::FromPose { smoothing_s, .. } => {
@@ -114,10 +111,7 @@ fn kinematic(
                     a[k] = v * om;
                 }
             }
-            let width = 2 * ((smoothing_s / h / 2.0).round() as usize) + 1;
-            for r in x.kept {
-                signal::moving_average(&mut a, r.clone(), width);
-            }
+            signal::smooth_parts(&mut a, x.kept, *smoothing_s, h);
             (
                 a,
                 format!(

@@ -145,6 +145,21 @@ pub(crate) fn interval_rates(ts: &[f64], cum: &[f64], grid: &[f64], h: f64) -> V
     a.iter().zip(&b).map(|(a, b)| (b - a) / h).collect()
 }
 
+/// The odd number of samples a centred moving average over `span_s` spans
+/// at sample interval `h` (1: no smoothing).
+pub(crate) fn odd_width(span_s: f64, h: f64) -> usize {
+    2 * ((span_s / h / 2.0).round() as usize) + 1
+}
+
+/// [`moving_average`] over `span_s` within each of `parts` (smoothing never
+/// crosses a part's ends).
+pub(crate) fn smooth_parts(x: &mut [f64], parts: &[std::ops::Range<usize>], span_s: f64, h: f64) {
+    let width = odd_width(span_s, h);
+    for r in parts {
+        moving_average(x, r.clone(), width);
+    }
+}
+
 /// Centred moving average over `width` samples (odd, ≥ 1) within `range`.
 pub(crate) fn moving_average(x: &mut [f64], range: std::ops::Range<usize>, width: usize) {
     let half = width / 2;
