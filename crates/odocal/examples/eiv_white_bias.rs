@@ -17,7 +17,7 @@
 //!
 //! ```text
 //! cargo run --release -p odocal --example eiv_white_bias -- [--km 12] [--seeds 8] [--sigma 0.02]
-//!     [--substeps 1] [--first-seed 1] [--eiv known,w10,p0.02,...] [--sim-pos σ_m] [--sim-head σ_rad]
+//!     [--substeps 1] [--first-seed 1] [--eiv known,held]
 //! ```
 
 use std::error::Error;
@@ -165,7 +165,6 @@ fn main() -> Res<()> {
     let mut sigma = 0.02;
     let mut substeps = 10usize;
     let mut eiv_modes = vec!["known".to_string()];
-    let (mut sim_pos, mut sim_head) = (0.0, 0.0);
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
         let v = it.next().ok_or("missing value")?;
@@ -175,18 +174,11 @@ fn main() -> Res<()> {
             "--first-seed" => first = v.parse()?,
             "--sigma" => sigma = v.parse()?,
             "--substeps" => substeps = v.parse()?,
-            "--sim-pos" => sim_pos = v.parse()?,
-            "--sim-head" => sim_head = v.parse()?,
             "--eiv" => eiv_modes = v.split(',').filter(|s| !s.is_empty()).map(str::to_string).collect(),
             _ => return Err(format!("unknown {k}").into()),
         }
     }
-    let noise = NoiseOptions {
-        wheel_white_rel_sigma: sigma,
-        position_white_sigma_m: sim_pos,
-        heading_white_sigma_rad: sim_head,
-        ..NoiseOptions::white_wheel_only()
-    };
+    let noise = NoiseOptions { wheel_white_rel_sigma: sigma, ..NoiseOptions::white_wheel_only() };
     let mut rows: Vec<(String, Vec<[f64; 4]>)> = Vec::new();
     let mut push = |label: &str, e: [f64; 4]| {
         if let Some(r) = rows.iter_mut().find(|r| r.0 == label) {
@@ -214,7 +206,7 @@ fn main() -> Res<()> {
         let sim_noise = NoiseModel::from_sim(&noise, d.sample_time_s());
         for mode in &eiv_modes {
             // A variant: tokens joined by '+': `held` (covariance held at the
-            // reference), `so` (second-order mean), `w<N>` (window samples), `p<σ_m>` / `h<σ_rad>` (reference
+            // reference), `w<N>` (window samples), `p<σ_m>` / `h<σ_rad>` (reference
             // white noise assumed by the filter), `x<σ>` (white wheel σ assumed).
             let mut opts = EivOptions {
                 noise: sim_noise,
@@ -225,9 +217,7 @@ fn main() -> Res<()> {
                 ..Default::default()
             };
             for tok in mode.split('+') {
-                if tok == "so" {
-                    opts.second_order_mean = true;
-                } else if tok == "held" {
+                if tok == "held" {
                     opts.covariance = CovarianceMode::HeldAtReference;
                 } else if let Some(v) = tok.strip_prefix('w') {
                     opts.window_samples = v.parse()?;

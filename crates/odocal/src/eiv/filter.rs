@@ -77,9 +77,6 @@ pub(crate) struct Variances {
     /// fitted true input `ñ·C(θ_ref)/C(θ)` instead of the measured `ñ`
     /// ([`super::WheelNoiseScale::FittedInput`]).
     pub fitted_input: bool,
-    /// Add the second-order mean of the white wheel noise to the pose
-    /// prediction ([`super::EivOptions::second_order_mean`]).
-    pub second_order_mean: bool,
 }
 
 /// Everything one window contributes to the objective and its derivatives.
@@ -589,29 +586,6 @@ fn fitted_input_factors(a_y: f64, th: &Theta, th_ref: &Theta) -> [Dual<4>; 2] {
     [Dual::cst(r_rl) / c_rl, Dual::cst(r_rr) / c_rr]
 }
 
-/// The second-order mean of the pose step under white wheel noise,
-/// `½ Σ_w var_w ∂²f/∂n_w²` at heading ψ, measured inputs `u` and θ, with its
-/// θ-gradient (`[Δp_x, Δp_y]`; the heading step is linear in n, so its
-/// second-order term is zero). With `φ = ψ + ω t_s/2 + β`, `v_w = ∂v/∂n_w`,
-/// `φ_w = ∂φ/∂n_w`, in the frame of φ the along-track term is
-/// `−½ t_s v Σ var_w φ_w²` and the sideways one `t_s Σ var_w v_w φ_w`
-/// (`= t_s²/2·E[δv δω]`). Its ψ-derivative is `(−Δp_y, Δp_x)`.
-fn second_order_mean(psi: f64, u: &Input, th: &Theta, ts: f64, var_l: f64, var_r: f64) -> [Dual<4>; 2] {
-    let (c_e, c_d, t_r, d) =
-        (Dual::<4>::var(th.c_e, 0), Dual::<4>::var(th.c_d, 1), Dual::<4>::var(th.t_r, 2), Dual::<4>::var(th.d, 3));
-    let c_rl = c_e + c_d * 0.5 + d * u.a_y;
-    let c_rr = c_e - c_d * 0.5 - d * u.a_y;
-    let v = (c_rl * u.n_rl + c_rr * u.n_rr) * 0.5;
-    let omega = (c_rr * u.n_rr - c_rl * u.n_rl) / t_r;
-    let h = ts / 2.0;
-    let phi = omega * h + Dual::cst(psi + u.beta);
-    let (s, c) = phi.sin_cos();
-    let (phi_l, phi_r) = (-(c_rl * h) / t_r, (c_rr * h) / t_r);
-    let along = -(v * (phi_l * phi_l * var_l + phi_r * phi_r * var_r)) * (0.5 * ts);
-    let side = (c_rl * 0.5 * phi_l * var_l + c_rr * 0.5 * phi_r * var_r) * ts;
-    [along * c - side * s, along * s + side * c]
-}
-
 /// The values of [`ReferenceTerms`]: `F̄[0,2], F̄[1,2]`, `∂f/∂n_l`, `∂f/∂n_r`, `∂f/∂a_y`.
 struct ReferenceValues {
     f02: f64,
@@ -902,8 +876,6 @@ pub(crate) fn run_window(
                     }
                 }
             }
-            let corr = v.second_order_mean.then(|| second_order_mean(x[2], &uref, theta, ts, wl, wr));
-            let psi_sens: [f64; NP] = std::array::from_fn(|c| d[(2, c)]);
             let j = step_jacobians(&x, &ueff, theta, ts);
             let (gl, gr) = (j.f_n.column(0) * nl, j.f_n.column(1) * nr);
             let fxs = Matrix3::from_columns(&[-(gl + gr), -gl, -gr]);
@@ -929,32 +901,8 @@ pub(crate) fn run_window(
                 }
             }
             x = j.next;
-            if let Some(corr) = corr {
-                // ∂/∂ψ of the correction is (−Δp_y, Δp_x); ∂/∂θ from the duals;
-                // it scales with the white variance, so ∂/∂η_0 is itself.
-                let (cx, cy) = (corr[0].v, corr[1].v);
-                for (c, &dpsi) in psi_sens.iter().enumerate() {
-                    d[(0, c)] -= cy * dpsi;
-                    d[(1, c)] += cx * dpsi;
-                }
-                for c in 0..4 {
-                    d[(0, c)] += corr[0].d[c];
-                    d[(1, c)] += corr[1].d[c];
-                }
-                d[(0, 4)] += cx;
-                d[(1, 4)] += cy;
-                x[0] += cx;
-                x[1] += cy;
-            }
         } else {
-            if v.second_order_mean {
-                let corr = second_order_mean(x[2], &uref, theta, ts, wl, wr);
-                x = crate::model::step(&x, &ueff, theta, ts);
-                x[0] += corr[0].v;
-                x[1] += corr[1].v;
-            } else {
-                x = crate::model::step(&x, &ueff, theta, ts);
-            }
+            x = crate::model::step(&x, &ueff, theta, ts);
         }
         s = Vector3::new(v.a_common * s[0], v.a_wheel * s[1], v.a_wheel * s[2]);
         b *= v.a_drift;

@@ -526,7 +526,6 @@ impl NoiseModel {
             quant_in_measurement: false,
             heading_separate: true,
             fitted_input: false,
-            second_order_mean: false,
         }
     }
 }
@@ -641,17 +640,6 @@ pub struct EivOptions {
     /// Correction of the profile cost's bias applied to the estimate.
     /// Default [`BiasCorrection::None`] (see its docs).
     pub bias_correction: BiasCorrection,
-    /// Add the second-order mean of the white wheel noise to the filter's
-    /// pose prediction (a Gaussian second-order filter's mean term,
-    /// `½ Σ_w var(e_w) ∂²f/∂n_w²`). The first-order (extended) filter
-    /// drops it; it is a systematic sideways offset `t_s·(t_s/2)·E[δv δω]`
-    /// per step (the speed and yaw-rate errors of the two wheels' noise are
-    /// correlated in a turn) plus a small along-track shortening, which on a
-    /// near-perfect position reference the filter accumulates in the
-    /// direction its rank-2 wheel noise cannot explain, and θ (t_r, d)
-    /// absorbs. Default false (see docs/study.md, EIV section, for the
-    /// measurements).
-    pub second_order_mean: bool,
 }
 
 /// Which wheel rotation the relative wheel noise (white and Gauss-Markov)
@@ -822,7 +810,6 @@ impl Default for EivOptions {
             heading_scale: HeadingScale::TiedToPosition,
             wheel_noise_scale: WheelNoiseScale::MeasuredInput,
             bias_correction: BiasCorrection::None,
-            second_order_mean: false,
         }
     }
 }
@@ -1209,7 +1196,6 @@ struct Problem<'a> {
     quantisation: QuantisationModel,
     heading_separate: bool,
     fitted_input: bool,
-    second_order_mean: bool,
     /// Filter passes over the drive: with derivatives, objective only.
     evaluations: std::cell::Cell<[usize; 2]>,
 }
@@ -1228,7 +1214,6 @@ impl Problem<'_> {
         v.quant_in_measurement = self.quantisation == QuantisationModel::Measurement;
         v.heading_separate = self.heading_separate;
         v.fitted_input = self.fitted_input;
-        v.second_order_mean = self.second_order_mean;
         let parts: Vec<Result<WindowSums>> =
             self.windows.par_iter().map(|w| run_window(self.input, w, theta, theta_ref, &v, mode, None)).collect();
         let mut total = WindowSums::zero();
@@ -1707,7 +1692,6 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         quantisation: opts.quantisation,
         heading_separate: opts.heading_scale == HeadingScale::Separate,
         fitted_input: opts.wheel_noise_scale == WheelNoiseScale::FittedInput,
-        second_order_mean: opts.second_order_mean,
         evaluations: std::cell::Cell::new([0; 2]),
     };
     let mut theta = *theta_start;
@@ -1954,7 +1938,6 @@ pub fn cramer_rao_bound(
         quantisation: opts.quantisation,
         heading_separate: opts.heading_scale == HeadingScale::Separate,
         fitted_input: opts.wheel_noise_scale == WheelNoiseScale::FittedInput,
-        second_order_mean: opts.second_order_mean,
         evaluations: std::cell::Cell::new([0; 2]),
     };
     let ev = prob.evaluate(theta, theta, &[0.0; 6], Mode::full(true, false))?;
