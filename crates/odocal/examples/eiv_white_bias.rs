@@ -17,12 +17,16 @@
 //!
 //! ```text
 //! cargo run --release -p odocal --example eiv_white_bias -- [--km 12] [--seeds 8] [--sigma 0.02]
-//!     [--substeps 1] [--first-seed 1] [--eiv known,held]
+//!     [--substeps 1] [--first-seed 1] [--eiv known,w10,p0.02,...] [--sim-pos σ_m] [--sim-head σ_rad]
+//!     [--preset white|paper|high|highnoquant] [--per-sample on|off]
+//!
+//! (`--preset` replaces the white-noise drive built from `--sigma`/`--sim-*`;
+//! the `CRB σ` row's mean column is the mean Cramér–Rao σ over the drives.)
 //! ```
 
 use std::error::Error;
 
-use nalgebra::{Matrix3, Vector3, Vector4};
+use nalgebra::{Matrix3, Vector3};
 use odocal::eiv::{estimate, CovarianceMode, EivInput, EivOptions, HeadingScale, NoiseModel};
 use odocal::identify::{batch_gauss_newton, IdentifyOptions};
 use odocal::model::{step_jacobians, wrap_angle, Input, State};
@@ -165,6 +169,9 @@ fn main() -> Res<()> {
     let mut sigma = 0.02;
     let mut substeps = 10usize;
     let mut eiv_modes = vec!["known".to_string()];
+    let (mut sim_pos, mut sim_head) = (0.0, 0.0);
+    let mut preset: Option<String> = None;
+    let mut per_sample = true;
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
         let v = it.next().ok_or("missing value")?;
@@ -174,11 +181,25 @@ fn main() -> Res<()> {
             "--first-seed" => first = v.parse()?,
             "--sigma" => sigma = v.parse()?,
             "--substeps" => substeps = v.parse()?,
+            "--sim-pos" => sim_pos = v.parse()?,
+            "--sim-head" => sim_head = v.parse()?,
+            "--preset" => preset = Some(v),
+            "--per-sample" => per_sample = v == "on",
             "--eiv" => eiv_modes = v.split(',').filter(|s| !s.is_empty()).map(str::to_string).collect(),
             _ => return Err(format!("unknown {k}").into()),
         }
     }
-    let noise = NoiseOptions { wheel_white_rel_sigma: sigma, ..NoiseOptions::white_wheel_only() };
+    let noise = NoiseOptions {
+        wheel_white_rel_sigma: sigma,
+        position_white_sigma_m: sim_pos,
+        heading_white_sigma_rad: sim_head,
+        ..NoiseOptions::white_wheel_only()
+    };
+    let noise = match preset.as_deref() {
+        None => noise,
+        Some("highnoquant") => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::high() },
+        Some(p) => NoiseOptions::by_name(p)?,
+    };
     let mut rows: Vec<(String, Vec<[f64; 4]>)> = Vec::new();
     let mut push = |label: &str, e: [f64; 4]| {
         if let Some(r) = rows.iter_mut().find(|r| r.0 == label) {
@@ -205,9 +226,10 @@ fn main() -> Res<()> {
         let input = EivInput::from_drive(d);
         let sim_noise = NoiseModel::from_sim(&noise, d.sample_time_s());
         for mode in &eiv_modes {
-            // A variant: tokens joined by '+': `held` (covariance held at the
-            // reference), `w<N>` (window samples), `p<σ_m>` / `h<σ_rad>` (reference
-            // white noise assumed by the filter), `x<σ>` (white wheel σ assumed).
+            // A variant: tokens joined by '+': `known` (the simulator's model),
+            // `held` (covariance held at the reference), `w<N>` (window samples),
+            // `p<σ_m>` / `h<σ_rad>` (reference white noise assumed by the filter),
+            // `x<σ>` (white wheel σ assumed).
             let mut opts = EivOptions {
                 noise: sim_noise,
                 fix_noise: true,
@@ -238,7 +260,11 @@ fn main() -> Res<()> {
                 Err(e) => println!("  EIV {mode}: failed {e}"),
             }
         }
-        for (label, scale) in [("meas", Scale::Measured), ("true", Scale::True)] {
+        let crb = odocal::eiv::cramer_rao_bound(&input, &truth, &sim_noise, &EivOptions::default())?;
+        let cs = crb.sigma;
+        push("CRB σ", [cs[0] / truth.c_e * 100.0, cs[1] * 1e3, cs[2] / truth.t_r * 100.0, cs[3] * 1e3]);
+        let scales: &[(&str, Scale)] = if per_sample { &[("meas", Scale::Measured), ("true", Scale::True)] } else { &[] };
+        for &(label, scale) in scales {
             let start = Theta { c_e: truth.c_e, ..gn };
             let (th, _, _) =
                 gn_whitened(d, &start, [false, true, true, true], &|d, t, o| heading_residuals(d, t, sigma, scale, o));
@@ -256,7 +282,12 @@ fn main() -> Res<()> {
             println!("      J(θ_true) {j_true:.1}, per dof {:.4}", 2.0 * j_true / n);
         }
     }
-    println!("\nsummary (mean ± sd over seeds; t = mean/(sd/√n))");
+    println!("\nsummary (mean ± sd over seeds; t = mean/(sd/√n); RMS/CRB against the mean CRB σ)");
+    let crb_mean: [f64; 4] = rows
+        .iter()
+        .find(|r| r.0 == "CRB σ")
+        .map(|r| std::array::from_fn(|p| r.1.iter().map(|e| e[p]).sum::<f64>() / r.1.len() as f64))
+        .unwrap_or([f64::NAN; 4]);
     for (label, es) in &rows {
         let n = es.len() as f64;
         let mut line = format!("{label:12} n {n:2}");
@@ -264,10 +295,14 @@ fn main() -> Res<()> {
             let v: Vec<f64> = es.iter().map(|e| e[p]).collect();
             let mean = v.iter().sum::<f64>() / n;
             let sd = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0)).sqrt();
-            line += &format!(" | {name} {mean:+.4} ± {sd:.4} (t {:.1})", mean / (sd / n.sqrt()));
+            let rms = (v.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
+            line += &format!(
+                " | {name} {mean:+.4} ± {sd:.4} (t {:.1}, {:.2}×)",
+                mean / (sd / n.sqrt()),
+                rms / crb_mean[p]
+            );
         }
         println!("{line}");
     }
-    let _ = Vector4::<f64>::zeros();
     Ok(())
 }
