@@ -18,7 +18,7 @@
 //! ```text
 //! cargo run --release -p odocal --example eiv_white_bias -- [--km 12] [--seeds 8] [--sigma 0.02]
 //!     [--substeps 1] [--first-seed 1] [--eiv known,w10,p0.02,...] [--sim-pos σ_m] [--sim-head σ_rad]
-//!     [--preset white|paper|high|highnoquant] [--per-sample on|off]
+//!     [--preset white|paper|high|highnoquant|coloured] [--per-sample on|off]
 //!
 //! (`--preset` replaces the white-noise drive built from `--sigma`/`--sim-*`;
 //! the `CRB σ` row's mean column is the mean Cramér–Rao σ over the drives.)
@@ -197,6 +197,7 @@ fn main() -> Res<()> {
     };
     let noise = match preset.as_deref() {
         None => noise,
+        Some("coloured") => NoiseOptions::coloured_wheels_only(),
         Some("highnoquant") => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::high() },
         Some(p) => NoiseOptions::by_name(p)?,
     };
@@ -229,7 +230,7 @@ fn main() -> Res<()> {
             // A variant: tokens joined by '+': `known` (the simulator's model),
             // `held` (covariance held at the reference), `w<N>` (window samples),
             // `p<σ_m>` / `h<σ_rad>` (reference white noise assumed by the filter),
-            // `x<σ>` (white wheel σ assumed).
+            // `x<σ>` (white wheel σ assumed), `f<σ_m>` (`EivOptions::position_floor_m`).
             let mut opts = EivOptions {
                 noise: sim_noise,
                 fix_noise: true,
@@ -247,6 +248,8 @@ fn main() -> Res<()> {
                     opts.noise.position_white_sigma_m = v.parse()?;
                 } else if let Some(v) = tok.strip_prefix('h') {
                     opts.noise.heading_white_sigma_rad = v.parse()?;
+                } else if let Some(v) = tok.strip_prefix('f') {
+                    opts.position_floor_m = v.parse()?;
                 } else if let Some(v) = tok.strip_prefix('x') {
                     opts.noise.wheel_white_rel_sigma = v.parse()?;
                 }
