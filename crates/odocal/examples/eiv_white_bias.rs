@@ -21,7 +21,9 @@
 //!     [--preset white|paper|high|highnoquant|coloured] [--per-sample on|off]
 //!
 //! (`--preset` replaces the white-noise drive built from `--sigma`/`--sim-*`;
-//! the `CRB σ` row's mean column is the mean Cramér–Rao σ over the drives.)
+//! the `CRB σ` row's mean column is the mean Cramér–Rao σ over the drives,
+//! `CRBmean σ` its mean-only version (without `½ tr(S⁻¹∂S S⁻¹∂S)`),
+//! `CRB5 σ` the full bound with a 5 mm position floor.)
 //! ```
 
 use std::error::Error;
@@ -266,6 +268,18 @@ fn main() -> Res<()> {
         let crb = odocal::eiv::cramer_rao_bound(&input, &truth, &sim_noise, &EivOptions::default())?;
         let cs = crb.sigma;
         push("CRB σ", [cs[0] / truth.c_e * 100.0, cs[1] * 1e3, cs[2] / truth.t_r * 100.0, cs[3] * 1e3]);
+        let cs = crb.sigma_mean_only;
+        push("CRBmean σ", [cs[0] / truth.c_e * 100.0, cs[1] * 1e3, cs[2] / truth.t_r * 100.0, cs[3] * 1e3]);
+        // The same bound with a 5 mm position floor in R (the model of a
+        // reference known to 5 mm rather than 1 mm).
+        let crb5 = odocal::eiv::cramer_rao_bound(
+            &input,
+            &truth,
+            &sim_noise,
+            &EivOptions { position_floor_m: 0.005, ..EivOptions::default() },
+        )?;
+        let cs = crb5.sigma;
+        push("CRB5 σ", [cs[0] / truth.c_e * 100.0, cs[1] * 1e3, cs[2] / truth.t_r * 100.0, cs[3] * 1e3]);
         let scales: &[(&str, Scale)] = if per_sample { &[("meas", Scale::Measured), ("true", Scale::True)] } else { &[] };
         for &(label, scale) in scales {
             let start = Theta { c_e: truth.c_e, ..gn };

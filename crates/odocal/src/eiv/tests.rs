@@ -715,3 +715,39 @@ fn results_match_the_recorded_results_of_the_unoptimised_filter() {
 const GOLDEN_REL_TOL: f64 = 1e-9;
 /// Absolute tolerance of η (log-scales, some near 0): measured differences ~2e-12.
 const GOLDEN_ETA_TOL: f64 = 1e-8;
+
+/// `EivOptions::position_floor_m` is the position σ floor of R: on a
+/// perfect reference (the noise model's position white noise zero) the
+/// position variance of every innovation covariance grows by exactly the
+/// difference of the squared floors against the default 1 mm (heading
+/// unchanged), and a non-positive floor is rejected.
+#[test]
+fn position_floor_enters_the_innovation_covariance() {
+    let out = simulate(&SimOptions { length_km: 0.3, substeps: 1, ..SimOptions::noise_free(4) }).expect("sim");
+    let input = input_of(&out.drive);
+    let w = Window { index: 0, part: 0, start: 0, end: 200.min(input.len() - 1) };
+    let th = out.sidecar.theta_true;
+    let noise = NoiseModel::from_sim(&NoiseOptions::white_wheel_only(), input.sample_time_s);
+    let run = |floor: f64| {
+        let mut v = noise.variances(&[0.0; 6], input.sample_time_s);
+        v.position_floor_m = floor;
+        let mut rec = Vec::new();
+        run_window(&input, &w, &th, &th, &v, filter::Mode::full(true, false), Some(&mut rec)).expect("window");
+        rec
+    };
+    let (a, b) = (run(DEFAULT_POSITION_FLOOR_M), run(0.005));
+    assert!(!a.is_empty() && a.len() == b.len());
+    // The first update: P⁻ = P₀ + Q with P₀ = R, so S = 2R + H Q Hᵀ.
+    let want = 2.0 * (0.005f64.powi(2) - DEFAULT_POSITION_FLOOR_M.powi(2));
+    for c in 0..2 {
+        let got = b[0].s[(c, c)] - a[0].s[(c, c)];
+        assert!((got - want).abs() <= 1e-12, "S[{c},{c}] grew by {got:e}, want {want:e}");
+    }
+    assert!((b[0].s[(2, 2)] - a[0].s[(2, 2)]).abs() <= 1e-15, "the heading variance moved");
+    // Later updates: never less than the floor's share of R.
+    assert!(b.iter().all(|r| r.s[(0, 0)] >= 0.005f64.powi(2) && r.s[(1, 1)] >= 0.005f64.powi(2)));
+    for bad in [0.0, -1e-3, f64::NAN] {
+        let opts = EivOptions { position_floor_m: bad, ..EivOptions::default() };
+        assert!(opts.validate().is_err(), "floor {bad} accepted");
+    }
+}
