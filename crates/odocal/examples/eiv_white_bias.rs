@@ -157,8 +157,8 @@ fn heading_residuals(d: &Drive, th: &Theta, sigma: f64, scale: Scale, out: &mut 
             _ => (nl, nr),
         };
         let x = (c_rr * nr - c_rl * nl) * ts;
-        let var = sigma * sigma * ts * ts * (c_rr * c_rr * sr * sr + c_rl * c_rl * sl * sl)
-            + (th.t_r * HEAD_FLOOR).powi(2);
+        let var =
+            sigma * sigma * ts * ts * (c_rr * c_rr * sr * sr + c_rl * c_rl * sl * sl) + (th.t_r * HEAD_FLOOR).powi(2);
         let dpsi = wrap_angle(m.psi[k + 1] - m.psi[k]);
         out.push((th.t_r * dpsi - x) / var.sqrt());
     }
@@ -222,15 +222,20 @@ fn main() -> Res<()> {
         let fmt = |e: [f64; 4]| format!("c_e {:+.4}% c_d {:+.3}mm t_r {:+.3}% d {:+.3}", e[0], e[1], e[2], e[3]);
         let sel = calibration_segments(d, &SegmentOptions::default())?;
         let data: Vec<SegmentData> = sel.all.iter().map(|s| SegmentData::new(d, s)).collect();
-        let gn = batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &IdentifyOptions { max_iterations: 20, ..Default::default() })?
-            .theta;
+        let gn = batch_gauss_newton(
+            &data,
+            &Theta::PAPER_INITIAL,
+            &IdentifyOptions { max_iterations: 20, ..Default::default() },
+        )?
+        .theta;
         println!("seed {seed}: G-N {}", fmt(err(&gn)));
         push("G-N", err(&gn));
         let input = EivInput::from_drive(d);
         let sim_noise = NoiseModel::from_sim(&noise, d.sample_time_s());
         for mode in &eiv_modes {
             // A variant: tokens joined by '+': `known` (the simulator's model),
-            // `held` (covariance held at the reference), `w<N>` (window samples),
+            // `held` (covariance held at the reference), `est` (η estimated from the
+            // production-car model, the library's iteration defaults; put it first), `w<N>` (window samples),
             // `p<σ_m>` / `h<σ_rad>` (reference white noise assumed by the filter),
             // `x<σ>` (white wheel σ assumed), `f<σ_m>` (`EivOptions::position_floor_m`).
             let mut opts = EivOptions {
@@ -242,7 +247,12 @@ fn main() -> Res<()> {
                 ..Default::default()
             };
             for tok in mode.split('+') {
-                if tok == "held" {
+                if tok == "est" {
+                    opts.fix_noise = false;
+                    opts.noise = NoiseModel::PRODUCTION_CAR;
+                    opts.max_iterations = 10;
+                    opts.step_tolerance = 0.05;
+                } else if tok == "held" {
                     opts.covariance = CovarianceMode::HeldAtReference;
                 } else if let Some(v) = tok.strip_prefix('w') {
                     opts.window_samples = v.parse()?;
@@ -259,7 +269,12 @@ fn main() -> Res<()> {
             match estimate(&input, &gn, &opts) {
                 Ok(r) => {
                     let nis = r.windows.iter().map(|w| w.nis).sum::<f64>() / r.windows.len().max(1) as f64;
-                    println!("  EIV {mode:6} {} | it {} {} nis {nis:.3}", fmt(err(&r.theta)), r.iterations, r.termination);
+                    println!(
+                        "  EIV {mode:6} {} | it {} {} nis {nis:.3}",
+                        fmt(err(&r.theta)),
+                        r.iterations,
+                        r.termination
+                    );
                     push(&format!("EIV {mode}"), err(&r.theta));
                 }
                 Err(e) => println!("  EIV {mode}: failed {e}"),
@@ -280,15 +295,15 @@ fn main() -> Res<()> {
         )?;
         let cs = crb5.sigma;
         push("CRB5 σ", [cs[0] / truth.c_e * 100.0, cs[1] * 1e3, cs[2] / truth.t_r * 100.0, cs[3] * 1e3]);
-        let scales: &[(&str, Scale)] = if per_sample { &[("meas", Scale::Measured), ("true", Scale::True)] } else { &[] };
+        let scales: &[(&str, Scale)] =
+            if per_sample { &[("meas", Scale::Measured), ("true", Scale::True)] } else { &[] };
         for &(label, scale) in scales {
             let start = Theta { c_e: truth.c_e, ..gn };
             let (th, _, _) =
                 gn_whitened(d, &start, [false, true, true, true], &|d, t, o| heading_residuals(d, t, sigma, scale, o));
             println!("  head-{label}  {}", fmt(err(&th)));
             push(&format!("head-{label}"), err(&th));
-            let (th, cost, its) =
-                gn_whitened(d, &gn, [true; 4], &|d, t, o| step_residuals(d, t, sigma, scale, o));
+            let (th, cost, its) = gn_whitened(d, &gn, [true; 4], &|d, t, o| step_residuals(d, t, sigma, scale, o));
             println!("  step3-{label} {} | J {cost:.1} it {its}", fmt(err(&th)));
             push(&format!("step3-{label}"), err(&th));
             // The cost at the truth vs at the estimate.
@@ -313,11 +328,8 @@ fn main() -> Res<()> {
             let mean = v.iter().sum::<f64>() / n;
             let sd = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0)).sqrt();
             let rms = (v.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
-            line += &format!(
-                " | {name} {mean:+.4} ± {sd:.4} (t {:.1}, {:.2}×)",
-                mean / (sd / n.sqrt()),
-                rms / crb_mean[p]
-            );
+            line +=
+                &format!(" | {name} {mean:+.4} ± {sd:.4} (t {:.1}, {:.2}×)", mean / (sd / n.sqrt()), rms / crb_mean[p]);
         }
         println!("{line}");
     }
