@@ -28,10 +28,10 @@
 //!   straight): c_e with its σ and which parameters are named unobservable
 //!   or held, with the defaults and with `--auto-fix`.
 //!
-//! σ is the one that stands for the result
-//! ([`odocal::CalibrationReport::result_covariance`], else the model
-//! covariance): batch G-N's cluster-robust σ, the 3-step's batch spread,
-//! EIV's `H_θ⁻¹`. Prints markdown tables (stdout) and writes JSON with
+//! σ is the one that stands for the result, as `--params-out` writes it
+//! ([`odocal::CalibrationReport::result_sigma`]): batch G-N's
+//! cluster-robust σ, the 3-step's batch spread, EIV's `H_θ⁻¹`, else the
+//! model σ (the source is named). Prints markdown tables (stdout) and writes JSON with
 //! `--json`. The data are in `../shared/data/` beside the repository. Not a
 //! test: a few minutes in release on two cores.
 
@@ -75,11 +75,10 @@ fn options(method: &str) -> Result<CalibrationOptions, Box<dyn Error>> {
     Ok(o)
 }
 
-/// The σ that stands for the result, per parameter (`None` = held).
+/// The σ that stands for the result, per parameter (`None` = held), as
+/// `--params-out` writes it.
 fn result_sigma(r: &CalibrationReport) -> [Option<f64>; 4] {
-    let c = r.result_covariance().unwrap_or(&r.covariance);
-    let free = r.options.identify.free;
-    std::array::from_fn(|i| odocal::Param::from_index(i).filter(|p| free.contains(*p)).map(|_| c[i][i].sqrt()))
+    r.result_sigma().to_array()
 }
 
 /// EIV: `Some((fell back, reasons))`; `None` for the other methods.
@@ -169,6 +168,7 @@ fn testtrack(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error
                 "run": name,
                 "theta": r.theta,
                 "sigma": result_sigma(&r),
+                "sigma_source": r.result_sigma().source,
                 "verdict": verdict_json(&r),
                 "own_m": r.validation.mean_position_error_m,
                 "others_m": v.mean_over_drives_m,
@@ -184,7 +184,11 @@ fn testtrack(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error
                 r.validation.mean_position_error_m,
                 v.mean_over_drives_m,
                 v.initial_mean_over_drives_m,
-                fb.map_or("–".into(), |(f, why)| if f { format!("yes: {}", short_reasons(&why)) } else { "no".into() }),
+                fb.map_or("–".into(), |(f, why)| if f {
+                    format!("yes: {}", short_reasons(&why))
+                } else {
+                    "no".into()
+                }),
                 wall
             ));
             let fit = CrossRunFit {
@@ -199,8 +203,10 @@ fn testtrack(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error
         let wall = started.elapsed().as_secs_f64();
         let table = CrossRunTable { rows };
         let c = table.criteria(CROSS_RUN_OWN_FIT_RATIO);
-        let count = |l: VerdictLevel| table.rows.iter().filter(|r| r.fit.as_ref().is_ok_and(|f| f.verdict.level == l)).count();
-        let (acc, dou, rej) = (count(VerdictLevel::Accepted), count(VerdictLevel::Doubtful), count(VerdictLevel::Rejected));
+        let count =
+            |l: VerdictLevel| table.rows.iter().filter(|r| r.fit.as_ref().is_ok_and(|f| f.verdict.level == l)).count();
+        let (acc, dou, rej) =
+            (count(VerdictLevel::Accepted), count(VerdictLevel::Doubtful), count(VerdictLevel::Rejected));
         let fell = extra.iter().filter(|e| e["eiv_fell_back"] == json!(true)).count();
         let is_eiv = m.starts_with("eiv");
         let worse = if c.worse_than_initial.is_empty() {
@@ -277,6 +283,7 @@ fn van(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
                 "holdout": label,
                 "theta": r.theta,
                 "sigma": result_sigma(&r),
+                "sigma_source": r.result_sigma().source,
                 "held_out_m": r.validation.mean_position_error_m,
                 "initial_held_out_m": r.initial.mean_position_error_m,
                 "verdict": verdict_json(&r),
@@ -329,8 +336,12 @@ fn rav4(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
             md.push_str(&format!(
                 "| {m} | {label} | {:.5} ± {} | {} | {} | {} | {:.2} / {:.2} | {} | {wall:.1} |\n",
                 r.theta.c_e,
-                sigma[0].map_or("held".into(), |s| format!("{s:.5}")),
-                if r.observability.unobservable.is_empty() { "none".into() } else { r.observability.unobservable.to_string() },
+                sigma[0].map_or("held".into(), |s| format!("{s:.5} ({})", r.result_sigma().source)),
+                if r.observability.unobservable.is_empty() {
+                    "none".into()
+                } else {
+                    r.observability.unobservable.to_string()
+                },
                 if held.is_empty() { "none".into() } else { held.join(", ") },
                 r.verdict.level,
                 r.validation.mean_position_error_m,
@@ -346,6 +357,7 @@ fn rav4(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
                 "auto_fix": auto_fix,
                 "theta": r.theta,
                 "sigma": sigma,
+                "sigma_source": r.result_sigma().source,
                 "unobservable": r.observability.unobservable.iter().map(|p| p.name()).collect::<Vec<_>>(),
                 "rcond": r.observability.rcond,
                 "auto_fixed": r.auto_fixed.iter().map(|p| p.name()).collect::<Vec<_>>(),
