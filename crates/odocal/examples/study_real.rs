@@ -120,7 +120,7 @@ fn theta_cell(r: &CalibrationReport) -> String {
     format!("{:.4} / {:+.2} / {:.3} / {:+.2}", t.c_e, t.c_d * 1e3, t.t_r, t.d * 1e3)
 }
 
-fn load(path: &PathBuf) -> Result<Drive, Box<dyn Error>> {
+fn load(path: &std::path::Path) -> Result<Drive, Box<dyn Error>> {
     let (drive, _) = odocal::load_drive(path).map_err(|e| format!("{}: {e}", path.display()))?;
     Ok(drive)
 }
