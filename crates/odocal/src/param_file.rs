@@ -398,9 +398,10 @@ mod tests {
     }
 
     /// The file's σ is the one that stands for the result (the verdict's):
-    /// the 3-step's batch spread, batch-gn's cluster-robust σ, not the
-    /// model σ (which covered 0 % for the 3-step); a zero covariance row
-    /// (not estimated) is written as held.
+    /// the 3-step's batch spread, not step 3's model σ (which covered 0 %);
+    /// batch-gn on a drive too short for its cluster-robust σ gives the
+    /// model σ and says so; a zero covariance row (not estimated) is
+    /// written as held. (The CLI test `params_out` covers the robust σ.)
     #[test]
     fn from_report_writes_the_result_sigma_not_the_model_sigma() {
         use crate::calibrate::{calibrate, CalibrationOptions, Method, SigmaSource, ThreeStepOptions};
