@@ -187,6 +187,7 @@
 
 mod bootstrap;
 pub(crate) mod filter;
+mod tau;
 #[cfg(test)]
 mod tests;
 
@@ -200,6 +201,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::model::Theta;
 pub use bootstrap::{bootstrap, BootstrapOptions, BootstrapReport};
+pub use tau::{TimeConstantCandidate, TimeConstantFit, TimeConstantGrid, TIME_CONSTANT_RANGE_S};
 use filter::{run_window, Mode, Variances, WindowSums, NETA};
 
 /// The data of a drive as plain slices (all of length N, samples).
@@ -640,6 +642,17 @@ pub struct EivOptions {
     /// Correction of the profile cost's bias applied to the estimate.
     /// Default [`BiasCorrection::None`] (see its docs).
     pub bias_correction: BiasCorrection,
+    /// Estimate the Gauss-Markov time constants (wheel τ_c, τ_w and the
+    /// reference drift τ) with the noise scales, by a profile of the
+    /// marginal likelihood over [`EivOptions::time_constant_grid`] (one fit
+    /// per candidate; [`TimeConstantGrid`] has the method and its cost).
+    /// The chosen values replace the starting model's in
+    /// [`EivReport::noise`]. Default false (the time constants of
+    /// [`EivOptions::noise`] are used as given).
+    pub estimate_time_constants: bool,
+    /// Candidates of the time-constant search (used only with
+    /// [`EivOptions::estimate_time_constants`]).
+    pub time_constant_grid: TimeConstantGrid,
 }
 
 /// Which wheel rotation the relative wheel noise (white and Gauss-Markov)
@@ -810,6 +823,8 @@ impl Default for EivOptions {
             heading_scale: HeadingScale::TiedToPosition,
             wheel_noise_scale: WheelNoiseScale::MeasuredInput,
             bias_correction: BiasCorrection::None,
+            estimate_time_constants: false,
+            time_constant_grid: TimeConstantGrid::default(),
         }
     }
 }
@@ -850,6 +865,9 @@ impl EivOptions {
         }
         if self.wheel_noise_scale == WheelNoiseScale::FittedInput && self.covariance != CovarianceMode::FollowsTheta {
             return bad("wheel_noise_scale", "fitted_input needs covariance = follows_theta");
+        }
+        if self.estimate_time_constants {
+            self.time_constant_grid.validate()?;
         }
         self.noise.validate()
     }
@@ -1137,6 +1155,11 @@ pub struct EivReport {
     pub updates: usize,
     /// Wall time, s.
     pub timing_s: f64,
+    /// The time-constant search (None unless
+    /// [`EivOptions::estimate_time_constants`]); the chosen time constants
+    /// are also in [`EivReport::noise`].
+    #[serde(default)]
+    pub time_constants: Option<TimeConstantFit>,
 }
 
 impl std::fmt::Display for EivReport {
@@ -1677,6 +1700,22 @@ fn scoring_pass(
 /// # Ok(()) }
 /// ```
 pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) -> Result<EivReport> {
+    if opts.estimate_time_constants {
+        return tau::estimate_with_time_constants(input, theta_start, opts);
+    }
+    estimate_from(input, theta_start, &[0.0; 6], opts).map(|(report, _)| report)
+}
+
+/// [`estimate`] at the time constants of `opts.noise`, starting from η =
+/// `eta_start`; also returns the Gaussian negative log-likelihood
+/// `½ Σ (νᵀS⁻¹ν + log det S)` (without 2π terms) at the estimate, before
+/// any bias correction.
+pub(crate) fn estimate_from(
+    input: &EivInput<'_>,
+    theta_start: &Theta,
+    eta_start: &[f64; 6],
+    opts: &EivOptions,
+) -> Result<(EivReport, f64)> {
     let t0 = Instant::now();
     opts.validate()?;
     input.validate()?;
@@ -1695,7 +1734,7 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         evaluations: std::cell::Cell::new([0; 2]),
     };
     let mut theta = *theta_start;
-    let mut eta = [0.0; 6];
+    let mut eta = if opts.fix_noise { [0.0; 6] } else { *eta_start };
     let mut free = opts.free;
     let mut unobservable = Vec::new();
     let mut passes = Vec::new();
@@ -1791,6 +1830,7 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
     }
     let iterations = passes.iter().map(|p| p.history.len()).sum();
     let theta_uncorrected = theta;
+    let neg_log_likelihood = 0.5 * (ev.total.quad + ev.total.logdet);
     let mut report = EivReport {
         initial_theta: *theta_start,
         theta,
@@ -1816,6 +1856,7 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         warnings,
         updates: ev.total.updates,
         timing_s: t0.elapsed().as_secs_f64(),
+        time_constants: None,
     };
     if let BiasCorrection::Bootstrap { replicates, seed, all_parameters } = opts.bias_correction {
         // The replicates are fitted without correction (their mean estimates
@@ -1827,7 +1868,7 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         report.theta = theta_add(&report.theta, &report.bias_subtracted, -1.0);
         report.timing_s = t0.elapsed().as_secs_f64();
     }
-    Ok(report)
+    Ok((report, neg_log_likelihood))
 }
 
 /// The first-order bias of the profile cost's root ([`FirstOrderBias`]):
