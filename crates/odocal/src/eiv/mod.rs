@@ -201,8 +201,8 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::model::Theta;
 pub use bootstrap::{bootstrap, BootstrapOptions, BootstrapReport};
-pub use tau::{TimeConstantCandidate, TimeConstantFit, TimeConstantGrid, TIME_CONSTANT_RANGE_S};
 use filter::{run_window, Mode, Variances, WindowSums, NETA};
+pub use tau::{TimeConstantCandidate, TimeConstantFit, TimeConstantGrid, TIME_CONSTANT_RANGE_S};
 
 /// The data of a drive as plain slices (all of length N, samples).
 #[derive(Debug, Clone, Copy)]

@@ -88,7 +88,8 @@ impl TimeConstantGrid {
     pub fn validate(&self) -> Result<()> {
         let bad = |field: &'static str, reason: String| Err(Error::InvalidOption { field, reason });
         let [lo, hi] = TIME_CONSTANT_RANGE_S;
-        for (field, g) in [("time_constant_grid.wheel_s", &self.wheel_s), ("time_constant_grid.drift_s", &self.drift_s)] {
+        for (field, g) in [("time_constant_grid.wheel_s", &self.wheel_s), ("time_constant_grid.drift_s", &self.drift_s)]
+        {
             if g.is_empty() {
                 return bad(field, "needs at least one candidate".into());
             }
@@ -182,7 +183,13 @@ impl Search<'_, '_> {
             Err(Error::Numerical(_)) => (f64::NAN, theta0, false, None),
             Err(e) => return Err(e),
         };
-        self.candidates.push(TimeConstantCandidate { time_constants_s: tau, neg_log_likelihood: nll, theta, converged, timing_s });
+        self.candidates.push(TimeConstantCandidate {
+            time_constants_s: tau,
+            neg_log_likelihood: nll,
+            theta,
+            converged,
+            timing_s,
+        });
         if let Some(r) = report {
             let better = match &self.best {
                 None => true,
@@ -198,7 +205,14 @@ impl Search<'_, '_> {
     /// Coordinate `k` of τ over `grid` (plus extensions and refinement),
     /// the other coordinates at the best's (or `base`'s) values; `tie_wheel`
     /// sets τ_c = τ_w. Returns whether the chosen value is at a grid end.
-    fn coordinate(&mut self, base: [f64; 3], k: usize, grid: &TimeConstantGrid, values: &[f64], tie_wheel: bool) -> Result<bool> {
+    fn coordinate(
+        &mut self,
+        base: [f64; 3],
+        k: usize,
+        grid: &TimeConstantGrid,
+        values: &[f64],
+        tie_wheel: bool,
+    ) -> Result<bool> {
         let place = |b: [f64; 3], v: f64| {
             let mut t = b;
             t[k] = v;
@@ -251,7 +265,9 @@ impl Search<'_, '_> {
                     s.candidates.iter().find(|c| c.time_constants_s == t).map(|c| c.neg_log_likelihood)
                 };
                 let (x0, x1, x2) = (xs[i - 1].ln(), xs[i].ln(), xs[i + 1].ln());
-                if let (Some(f0), Some(f1), Some(f2)) = (nll_at(self, xs[i - 1]), nll_at(self, xs[i]), nll_at(self, xs[i + 1])) {
+                if let (Some(f0), Some(f1), Some(f2)) =
+                    (nll_at(self, xs[i - 1]), nll_at(self, xs[i]), nll_at(self, xs[i + 1]))
+                {
                     if let Some(x) = parabola_vertex([x0, x1, x2], [f0, f1, f2]) {
                         let v = x.exp().clamp(lo, hi);
                         if (x - x1).abs() > 0.05 {
