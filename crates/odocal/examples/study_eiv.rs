@@ -7,7 +7,7 @@
 //!     [--presets off,white,paper,high,coloured] [--three-step-seeds 0]
 //!     [--bootstrap 0] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
 //!     [--quantisation process|measurement] [--heading tied|separate]
-//!     [--methods known,est] (also: fitted, fo)
+//!     [--methods known,est] (also: fitted, fo, esttau, estsimtau) [--tau-candidates]
 //! ```
 //!
 //! Per preset and seed (1..=S) it simulates a drive and runs, all through
@@ -81,6 +81,8 @@ struct Args {
     quantisation: QuantisationModel,
     heading: HeadingScale,
     methods: Vec<String>,
+    /// Print every candidate of the time-constant search (`--tau-candidates`).
+    tau_candidates: bool,
 }
 
 fn parse_args() -> Res<Args> {
@@ -96,9 +98,14 @@ fn parse_args() -> Res<Args> {
         quantisation: QuantisationModel::ProcessNoise,
         heading: HeadingScale::TiedToPosition,
         methods: vec!["known".into(), "est".into()],
+        tau_candidates: false,
     };
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
+        if k == "--tau-candidates" {
+            a.tau_candidates = true;
+            continue;
+        }
         let mut v = || it.next().ok_or_else(|| format!("{k} needs a value"));
         match k.as_str() {
             "--km" => a.km = v()?.parse()?,
@@ -261,6 +268,18 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         ];
         let failed = r.warnings.iter().filter(|w| matches!(w, Warning::EivCheckFailed { .. })).count();
         let tau_s = fit.time_constants.as_ref().map(|t| [t.wheel_common_s, t.wheel_differential_s, t.drift_s]);
+        if let (Some(t), true) = (&fit.time_constants, a.tau_candidates) {
+            for c in &t.candidates {
+                eprintln!(
+                    "  {name} {seed} τ candidate {:?}: −log L {:.2}, t_r error {:+.3} %, converged {}, {:.1} s",
+                    c.time_constants_s,
+                    c.neg_log_likelihood,
+                    (c.theta.t_r - truth.t_r) / truth.t_r * 100.0,
+                    c.converged,
+                    c.timing_s
+                );
+            }
+        }
         let run = Run { theta: r.theta, sigmas: sigmas.clone(), e_p_m: ep(&r.theta)?, time_s, warnings: failed, tau_s };
         runs.insert(label.to_string(), run);
         if want("fo") && label != "EIV est." {
