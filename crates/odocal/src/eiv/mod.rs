@@ -649,6 +649,16 @@ pub struct EivOptions {
     /// The chosen values replace the starting model's in
     /// [`EivReport::noise`]. Default false (the time constants of
     /// [`EivOptions::noise`] are used as given).
+    ///
+    /// Measured (docs/study.md, EIV section; 12 km, η estimated from the
+    /// production-car model): it does **not** help. Paper noise, separate
+    /// heading scale, 20 seeds: t_r +0.87 ± 0.37 % against +0.83 ± 0.36 %
+    /// without it and +0.85 ± 0.38 % with the simulator's τ given (known
+    /// noise model: +0.39 ± 0.30 %); high noise (5 seeds) +22.9 % against
+    /// +17.4 %; on a perfect reference (coloured preset) the likelihood
+    /// prefers a degenerate τ_wheel → 0.06 s with t_r +40 … +70 % (flagged;
+    /// the fallback returns batch G-N). About 6–8× the wall time of a fit.
+    /// Kept as an opt-in diagnostic.
     pub estimate_time_constants: bool,
     /// Candidates of the time-constant search (used only with
     /// [`EivOptions::estimate_time_constants`]).
