@@ -330,7 +330,8 @@ fn make_windows(parts: &[Range<usize>], target: usize) -> Vec<Window> {
 /// Scale factor groups η: 0 = white + quantisation, 1 = common wheel
 /// Gauss-Markov, 2 = per-wheel Gauss-Markov, 3 = position white, 4 = pose
 /// drift (position and heading), 5 = heading white. σ_a and σ_β scale with
-/// η_0 (white input noise); all time constants are fixed.
+/// η_0 (white input noise); the time constants are fixed unless
+/// [`EivOptions::estimate_time_constants`] (a grid profile, not a scale).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct NoiseModel {
