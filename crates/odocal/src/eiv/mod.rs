@@ -658,7 +658,7 @@ pub struct EivOptions {
     /// noise model: +0.39 ± 0.30 %); high noise (5 seeds) +22.9 % against
     /// +17.4 %; on a perfect reference (coloured preset) the likelihood
     /// prefers a degenerate τ_wheel → 0.06 s with t_r +40 … +70 % (flagged;
-    /// the fallback returns batch G-N). About 6–8× the wall time of a fit.
+    /// the fallback returns batch G-N). About 4.5–7.5× the wall time of a fit.
     /// Kept as an opt-in diagnostic.
     pub estimate_time_constants: bool,
     /// Candidates of the time-constant search (used only with
