@@ -187,6 +187,7 @@
 
 mod bootstrap;
 pub(crate) mod filter;
+mod tau;
 #[cfg(test)]
 mod tests;
 
@@ -201,6 +202,7 @@ use crate::error::{Error, Result};
 use crate::model::Theta;
 pub use bootstrap::{bootstrap, BootstrapOptions, BootstrapReport};
 use filter::{run_window, Mode, Variances, WindowSums, NETA};
+pub use tau::{TimeConstantCandidate, TimeConstantFit, TimeConstantGrid, TIME_CONSTANT_RANGE_S};
 
 /// The data of a drive as plain slices (all of length N, samples).
 #[derive(Debug, Clone, Copy)]
@@ -328,7 +330,8 @@ fn make_windows(parts: &[Range<usize>], target: usize) -> Vec<Window> {
 /// Scale factor groups η: 0 = white + quantisation, 1 = common wheel
 /// Gauss-Markov, 2 = per-wheel Gauss-Markov, 3 = position white, 4 = pose
 /// drift (position and heading), 5 = heading white. σ_a and σ_β scale with
-/// η_0 (white input noise); all time constants are fixed.
+/// η_0 (white input noise); the time constants are fixed unless
+/// [`EivOptions::estimate_time_constants`] (a grid profile, not a scale).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct NoiseModel {
@@ -659,6 +662,27 @@ pub struct EivOptions {
     /// centimetres of position noise (`paper`, `high`) the floor changes
     /// nothing.
     pub position_floor_m: f64,
+    /// Estimate the Gauss-Markov time constants (wheel τ_c, τ_w and the
+    /// reference drift τ) with the noise scales, by a profile of the
+    /// marginal likelihood over [`EivOptions::time_constant_grid`] (one fit
+    /// per candidate; [`TimeConstantGrid`] has the method and its cost).
+    /// The chosen values replace the starting model's in
+    /// [`EivReport::noise`]. Default false (the time constants of
+    /// [`EivOptions::noise`] are used as given).
+    ///
+    /// Measured (docs/study.md, EIV section; 12 km, η estimated from the
+    /// production-car model): it does **not** help. Paper noise, separate
+    /// heading scale, 20 seeds: t_r +0.87 ± 0.37 % against +0.83 ± 0.36 %
+    /// without it and +0.85 ± 0.38 % with the simulator's τ given (known
+    /// noise model: +0.39 ± 0.30 %); high noise (5 seeds) +22.9 % against
+    /// +17.4 %; on a perfect reference (coloured preset) the likelihood
+    /// prefers a degenerate τ_wheel → 0.06 s with t_r +40 … +70 % (flagged;
+    /// the fallback returns batch G-N). About 4.5–7.5× the wall time of a fit.
+    /// Kept as an opt-in diagnostic.
+    pub estimate_time_constants: bool,
+    /// Candidates of the time-constant search (used only with
+    /// [`EivOptions::estimate_time_constants`]).
+    pub time_constant_grid: TimeConstantGrid,
 }
 
 /// Default of [`EivOptions::position_floor_m`], m.
@@ -833,6 +857,8 @@ impl Default for EivOptions {
             wheel_noise_scale: WheelNoiseScale::MeasuredInput,
             bias_correction: BiasCorrection::None,
             position_floor_m: DEFAULT_POSITION_FLOOR_M,
+            estimate_time_constants: false,
+            time_constant_grid: TimeConstantGrid::default(),
         }
     }
 }
@@ -876,6 +902,9 @@ impl EivOptions {
         }
         if self.wheel_noise_scale == WheelNoiseScale::FittedInput && self.covariance != CovarianceMode::FollowsTheta {
             return bad("wheel_noise_scale", "fitted_input needs covariance = follows_theta");
+        }
+        if self.estimate_time_constants {
+            self.time_constant_grid.validate()?;
         }
         self.noise.validate()
     }
@@ -1163,6 +1192,11 @@ pub struct EivReport {
     pub updates: usize,
     /// Wall time, s.
     pub timing_s: f64,
+    /// The time-constant search (None unless
+    /// [`EivOptions::estimate_time_constants`]); the chosen time constants
+    /// are also in [`EivReport::noise`].
+    #[serde(default)]
+    pub time_constants: Option<TimeConstantFit>,
 }
 
 impl std::fmt::Display for EivReport {
@@ -1705,6 +1739,22 @@ fn scoring_pass(
 /// # Ok(()) }
 /// ```
 pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) -> Result<EivReport> {
+    if opts.estimate_time_constants {
+        return tau::estimate_with_time_constants(input, theta_start, opts);
+    }
+    estimate_from(input, theta_start, &[0.0; 6], opts).map(|(report, _)| report)
+}
+
+/// [`estimate`] at the time constants of `opts.noise`, starting from η =
+/// `eta_start`; also returns the Gaussian negative log-likelihood
+/// `½ Σ (νᵀS⁻¹ν + log det S)` (without 2π terms) at the estimate, before
+/// any bias correction.
+pub(crate) fn estimate_from(
+    input: &EivInput<'_>,
+    theta_start: &Theta,
+    eta_start: &[f64; 6],
+    opts: &EivOptions,
+) -> Result<(EivReport, f64)> {
     let t0 = Instant::now();
     opts.validate()?;
     input.validate()?;
@@ -1724,7 +1774,7 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         evaluations: std::cell::Cell::new([0; 2]),
     };
     let mut theta = *theta_start;
-    let mut eta = [0.0; 6];
+    let mut eta = if opts.fix_noise { [0.0; 6] } else { *eta_start };
     let mut free = opts.free;
     let mut unobservable = Vec::new();
     let mut passes = Vec::new();
@@ -1820,6 +1870,7 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
     }
     let iterations = passes.iter().map(|p| p.history.len()).sum();
     let theta_uncorrected = theta;
+    let neg_log_likelihood = 0.5 * (ev.total.quad + ev.total.logdet);
     let mut report = EivReport {
         initial_theta: *theta_start,
         theta,
@@ -1845,6 +1896,7 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         warnings,
         updates: ev.total.updates,
         timing_s: t0.elapsed().as_secs_f64(),
+        time_constants: None,
     };
     if let BiasCorrection::Bootstrap { replicates, seed, all_parameters } = opts.bias_correction {
         // The replicates are fitted without correction (their mean estimates
@@ -1856,7 +1908,7 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         report.theta = theta_add(&report.theta, &report.bias_subtracted, -1.0);
         report.timing_s = t0.elapsed().as_secs_f64();
     }
-    Ok(report)
+    Ok((report, neg_log_likelihood))
 }
 
 /// The first-order bias of the profile cost's root ([`FirstOrderBias`]):
