@@ -662,6 +662,13 @@ pub struct EivOptions {
     /// centimetres of position noise (`paper`, `high`) the floor changes
     /// nothing.
     pub position_floor_m: f64,
+    /// Values at which parameters that the filter names unobservable (with
+    /// [`EivOptions::fix_unobservable`]) are held. `None` (the default)
+    /// holds them at the start θ given to [`estimate`]. `calibrate` passes
+    /// the calibration's θ_0: the start is batch G-N's estimate, which for
+    /// a parameter the data cannot determine can be far off (on the RAV4
+    /// drive, t_r = 5.63 m, so the result was rejected as implausible).
+    pub hold_unobservable_at: Option<Theta>,
     /// Estimate the Gauss-Markov time constants (wheel τ_c, τ_w and the
     /// reference drift τ) with the noise scales, by a profile of the
     /// marginal likelihood over [`EivOptions::time_constant_grid`] (one fit
@@ -857,6 +864,7 @@ impl Default for EivOptions {
             wheel_noise_scale: WheelNoiseScale::MeasuredInput,
             bias_correction: BiasCorrection::None,
             position_floor_m: DEFAULT_POSITION_FLOOR_M,
+            hold_unobservable_at: None,
             estimate_time_constants: false,
             time_constant_grid: TimeConstantGrid::default(),
         }
@@ -891,6 +899,12 @@ impl EivOptions {
         }
         if !(self.nis_band[0] >= 0.0 && self.nis_band[1] > self.nis_band[0]) {
             return bad("nis_band", "must be [lower, upper] with 0 <= lower < upper");
+        }
+        if let Some(t) = &self.hold_unobservable_at {
+            t.validate().map_err(|e| Error::InvalidOption {
+                field: "hold_unobservable_at",
+                reason: format!("{e}; give a usable θ (or None to hold at the start)"),
+            })?;
         }
         if !(self.position_floor_m.is_finite() && self.position_floor_m > 0.0) {
             return bad("position_floor_m", "must be positive (it keeps S regular on a perfect reference)");
@@ -1592,6 +1606,15 @@ fn scoring_pass(
     } else {
         (free0, Vec::new())
     };
+    if let Some(held) = opts.hold_unobservable_at.filter(|_| free != free0) {
+        let (mut a, h) = (theta.to_array(), held.to_array());
+        for i in (0..4).filter(|i| free0[*i] && !free[*i]) {
+            a[i] = h[i];
+        }
+        theta = Theta { c_e: a[0], c_d: a[1], t_r: a[2], d: a[3] };
+        theta.validate()?;
+        ev = prob.evaluate(&theta, &theta_ref, &eta, full)?;
+    }
     let initial_cost = objective(&ev, &theta);
     let mut history = Vec::new();
     let mut termination = Termination::MaxIterations { iterations: opts.max_iterations, step_over_sigma: f64::NAN };

@@ -422,6 +422,19 @@ fn straight_drive_calibrates_c_e_and_names_the_rest() {
     assert!(r.observability.unobservable.contains(&Parameter::D), "{:?}", r.observability);
     assert!(!r.free[2] && !r.free[3] && r.free[0]);
     assert!(r.warnings.iter().any(|w| matches!(w, EivWarning::Unobservable { .. })));
+
+    // A start whose unobservable t_r and d are far off (batch G-N's value on
+    // a straight drive is arbitrary): by default they stay at the start,
+    // with `hold_unobservable_at` at the given θ_0; c_e is estimated either way.
+    let bad_start = Theta { c_e: 1.96, t_r: 5.63, d: 0.01, ..th };
+    let at_start = estimate(&input, &bad_start, &EivOptions::default()).expect("eiv");
+    assert_eq!((at_start.theta.t_r, at_start.theta.d), (5.63, 0.01), "{at_start}");
+    let held = EivOptions { hold_unobservable_at: Some(th), ..Default::default() };
+    let at_theta0 = estimate(&input, &bad_start, &held).expect("eiv");
+    assert_eq!((at_theta0.theta.t_r, at_theta0.theta.d), (th.t_r, th.d), "{at_theta0}");
+    assert!((at_theta0.theta.c_e - th.c_e).abs() < 1e-6, "{at_theta0}");
+    let invalid = EivOptions { hold_unobservable_at: Some(Theta { t_r: f64::NAN, ..th }), ..Default::default() };
+    assert!(estimate(&input, &bad_start, &invalid).is_err());
 }
 
 #[test]
