@@ -1252,6 +1252,14 @@ pub struct CrbReport {
     pub information_mean_only: [[f64; 4]; 4],
     /// `sqrt(diag)` of the inverse of the mean-only information (≥ `sigma`).
     pub sigma_mean_only: [f64; 4],
+    /// The bound when the noise scales are unknown too: `sqrt(diag)` of the
+    /// θ block of the inverse of the joint Fisher information of θ and the
+    /// log-scales η of the noise sources present in the model (η as
+    /// nuisance parameters; ≥ `sigma`). This is the fair bound for EIV with
+    /// η estimated (the library default): the information that the size of
+    /// the innovations carries about θ (the trace term of `sigma`) is shared
+    /// with η. `None` when the joint matrix is singular.
+    pub sigma_noise_estimated: Option<[f64; 4]>,
 }
 
 // ---------------------------------------------------------------------------
@@ -2045,7 +2053,7 @@ pub fn cramer_rao_bound(
         position_floor_m: opts.position_floor_m,
         evaluations: std::cell::Cell::new([0; 2]),
     };
-    let ev = prob.evaluate(theta, theta, &[0.0; 6], Mode::full(true, false))?;
+    let ev = prob.evaluate(theta, theta, &[0.0; 6], Mode::full(true, true))?;
     let h: Matrix4<f64> = ev.total.info.fixed_view::<4, 4>(0, 0).into_owned();
     let h_mean = ev.total.info_mean_theta;
     let singular = || Error::NotObservable {
@@ -2055,6 +2063,10 @@ pub fn cramer_rao_bound(
     let cov = free_inverse(&h, &opts.free).ok_or_else(singular)?;
     let cov_mean = free_inverse(&h_mean, &opts.free).ok_or_else(singular)?;
     let sd = |c: &Matrix4<f64>| std::array::from_fn(|i| if opts.free[i] { c[(i, i)].max(0.0).sqrt() } else { 0.0 });
+    // η of the sources present (a zero σ gives a zero information row).
+    let present = noise_sources_present(noise, opts.heading_scale == HeadingScale::Separate);
+    let eta_free: [bool; 6] = std::array::from_fn(|j| present[j] && ev.total.info[(4 + j, 4 + j)] > 0.0);
+    let sigma_noise_estimated = fisher_covariance(&ev.total.info, &opts.free, &eta_free).map(|c| sd(&c));
     Ok(CrbReport {
         theta: *theta,
         free: opts.free,
@@ -2063,7 +2075,34 @@ pub fn cramer_rao_bound(
         sigma: sd(&cov),
         information_mean_only: to_array(&h_mean),
         sigma_mean_only: sd(&cov_mean),
+        sigma_noise_estimated,
     })
+}
+
+/// Which of the six noise log-scales η have a source in `noise` (a group
+/// whose standard deviations are all zero carries no information about its
+/// scale). η_5 (the heading white noise) is a separate scale only with
+/// `heading_separate`; otherwise η_3 scales it with the position white noise.
+fn noise_sources_present(noise: &NoiseModel, heading_separate: bool) -> [bool; 6] {
+    let n = noise;
+    let any = |v: &[f64]| v.iter().any(|x| *x > 0.0);
+    [
+        any(&[
+            n.wheel_white_rel_sigma,
+            n.quantisation_step_rev_per_s,
+            n.lateral_acceleration_sigma_m_per_s2,
+            n.sideslip_sigma_rad,
+        ]),
+        any(&[n.wheel_common_rel_sigma]),
+        any(&[n.wheel_differential_rel_sigma]),
+        if heading_separate {
+            any(&[n.position_white_sigma_m])
+        } else {
+            any(&[n.position_white_sigma_m, n.heading_white_sigma_rad])
+        },
+        any(&[n.position_drift_sigma_m, n.heading_drift_sigma_rad]),
+        heading_separate && any(&[n.heading_white_sigma_rad]),
+    ]
 }
 
 /// The θ block of the inverse of the joint Fisher information of the free

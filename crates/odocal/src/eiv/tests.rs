@@ -471,6 +471,16 @@ fn full_fisher_information_dominates_the_mean_only_information() {
         assert!(c.sigma[i] > 0.0 && c.sigma[i] <= c.sigma_mean_only[i] * (1.0 + 1e-9), "{i}: {c:?}");
     }
     eprintln!("CRB σ full {:?}, mean-only {:?}", c.sigma, c.sigma_mean_only);
+    // η as nuisance parameters can only widen the bound (the θ block of a
+    // joint inverse dominates the inverse of the θ block), and it must
+    // widen t_r's: its trace-term information is shared with the wheel
+    // noise scale.
+    let ne = c.sigma_noise_estimated.expect("joint θ, η information is regular");
+    for i in 0..4 {
+        assert!(ne[i] >= c.sigma[i] * (1.0 - 1e-9), "{i}: {ne:?} vs {:?}", c.sigma);
+    }
+    assert!(ne[2] > 1.01 * c.sigma[2], "t_r: η unknown {} vs known {}", ne[2], c.sigma[2]);
+    eprintln!("CRB σ with η estimated {ne:?}");
 }
 
 fn known_noise_fit(km: f64, seed: u64) -> (crate::sim::SimOutput, EivOptions) {
