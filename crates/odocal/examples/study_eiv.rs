@@ -152,6 +152,9 @@ struct Run {
     e_p_m: f64,
     time_s: f64,
     warnings: usize,
+    /// Kinds of the failed EIV checks (`EivWarning`'s tag), one per finding.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    checks: Vec<String>,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -186,7 +189,10 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
             Ok(r) => {
                 let th = r.theta;
                 let time_s = t.elapsed().as_secs_f64();
-                runs.insert("3-step".into(), Run { theta: th, sigmas: vec![], e_p_m: ep(&th)?, time_s, warnings: 0 });
+                runs.insert(
+                    "3-step".into(),
+                    Run { theta: th, sigmas: vec![], e_p_m: ep(&th)?, time_s, warnings: 0, checks: vec![] },
+                );
             }
             Err(e) => eprintln!("{name} {seed}: 3-step failed: {e}"),
         }
@@ -219,7 +225,7 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         if label == "EIV known" {
             runs.insert(
                 "G-N".to_string(),
-                Run { theta: gn, sigmas: vec![], e_p_m: ep(&gn)?, time_s: t_gn, warnings: 0 },
+                Run { theta: gn, sigmas: vec![], e_p_m: ep(&gn)?, time_s: t_gn, warnings: 0, checks: vec![] },
             );
         }
         let Some(fit) = detail.eiv.as_deref() else {
@@ -233,7 +239,18 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
             ("Fisher".to_string(), fit.sigma_fisher),
         ];
         let failed = r.warnings.iter().filter(|w| matches!(w, Warning::EivCheckFailed { .. })).count();
-        let run = Run { theta: r.theta, sigmas: sigmas.clone(), e_p_m: ep(&r.theta)?, time_s, warnings: failed };
+        let checks: Vec<String> = r
+            .warnings
+            .iter()
+            .filter_map(|w| match w {
+                Warning::EivCheckFailed { finding, .. } => serde_json::to_value(finding)
+                    .ok()
+                    .and_then(|v| v.get("kind").and_then(|k| k.as_str()).map(str::to_string)),
+                _ => None,
+            })
+            .collect();
+        let run =
+            Run { theta: r.theta, sigmas: sigmas.clone(), e_p_m: ep(&r.theta)?, time_s, warnings: failed, checks };
         runs.insert(label.to_string(), run);
         if want("fo") && label != "EIV est." {
             if let Some(b) = &fit.first_order_bias {
@@ -252,7 +269,14 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
                 ];
                 for (suffix, shift) in variants {
                     let th = shifted(shift);
-                    let run = Run { theta: th, sigmas: sigmas.clone(), e_p_m: ep(&th)?, time_s, warnings: failed };
+                    let run = Run {
+                        theta: th,
+                        sigmas: sigmas.clone(),
+                        e_p_m: ep(&th)?,
+                        time_s,
+                        warnings: failed,
+                        checks: vec![],
+                    };
                     runs.insert(format!("{label} {suffix}"), run);
                 }
             }
@@ -260,7 +284,7 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         if label == "EIV est." {
             // What a user gets with the default fallback on: G-N when a check failed.
             let (th, sig) = if failed > 0 { (gn, vec![]) } else { (r.theta, sigmas) };
-            let run = Run { theta: th, sigmas: sig, e_p_m: ep(&th)?, time_s, warnings: failed };
+            let run = Run { theta: th, sigmas: sig, e_p_m: ep(&th)?, time_s, warnings: failed, checks: vec![] };
             runs.insert("EIV est. + fallback".to_string(), run);
         }
         if label == "EIV known"
@@ -281,6 +305,7 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
                         e_p_m: ep(&th)?,
                         time_s: time_s + t.elapsed().as_secs_f64(),
                         warnings: b.failed.len(),
+                        checks: vec![],
                     };
                     runs.insert("EIV known + boot".into(), run);
                 }
@@ -298,8 +323,14 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
             t_r: 0.5 * (a[2] + b[2]),
             d: 0.5 * (a[3] + b[3]),
         };
-        let run =
-            Run { theta: th, sigmas: k.sigmas.clone(), e_p_m: ep(&th)?, time_s: k.time_s + f.time_s, warnings: 0 };
+        let run = Run {
+            theta: th,
+            sigmas: k.sigmas.clone(),
+            e_p_m: ep(&th)?,
+            time_s: k.time_s + f.time_s,
+            warnings: 0,
+            checks: vec![],
+        };
         runs.insert("EIV mid(known, fitted)".into(), run);
     }
     Ok(DriveResult { preset: name.into(), seed, theta_true: truth, crb, crb_mean_only, e_p_true_m: ep(&truth)?, runs })
@@ -384,7 +415,19 @@ fn summarise(preset: &str, results: &[DriveResult]) {
         let max = ex.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         let time = mean_sd(&rs.iter().map(|(_, x)| x.time_s).collect::<Vec<_>>()).0;
         let warned = rs.iter().filter(|(_, x)| x.warnings > 0).count();
-        println!("| {m} | {:+.4} | {max:+.4} | {time:.2} | {warned} |", mean_sd(&ex).0);
+        // Runs with each kind of failed check.
+        let mut kinds: BTreeMap<&str, usize> = BTreeMap::new();
+        for (_, x) in &rs {
+            let mut seen: Vec<&str> = x.checks.iter().map(String::as_str).collect();
+            seen.sort_unstable();
+            seen.dedup();
+            for k in seen {
+                *kinds.entry(k).or_default() += 1;
+            }
+        }
+        let kinds: Vec<String> = kinds.iter().map(|(k, n)| format!("{k} {n}")).collect();
+        let kinds = if kinds.is_empty() { String::new() } else { format!(" ({})", kinds.join(", ")) };
+        println!("| {m} | {:+.4} | {max:+.4} | {time:.2} | {warned}{kinds} |", mean_sd(&ex).0);
     }
 }
 

@@ -1330,7 +1330,65 @@ fn eta_step(sums: &WindowSums, eta: &[f64; 6], bounds: [f64; 2]) -> ([f64; 6], [
         step[j] = (eta[j] + de).clamp(bounds[0], bounds[1]) - eta[j];
         sigma[j] = inv[(i, i)].max(0.0).sqrt();
     }
+    // The scoring step d is a step of the variances (relative change), mapped
+    // to η by ln(1 + d) and clamped: each component keeps its sign but not its
+    // size, so with correlated sources (off-diagonal information) the mapped
+    // step can point uphill on M, and then no halving is accepted (measured on
+    // the noise-free straight drive with the heading scale separate: gᵀΔη =
+    // +249, the fit stopped after one iteration with c_e 0.06 % off). Then take
+    // the scoring step in η itself, which is a descent direction.
+    let slope: f64 = (0..NETA).map(|j| g[j] * step[j]).sum();
+    if slope >= 0.0 {
+        step = eta_descent_step(sums, &g, eta, bounds, idx);
+    }
     (step, sigma)
+}
+
+/// Largest |Δη| of the fallback step of [`eta_step`] (a variance factor of e²).
+const MAX_LOG_ETA_STEP: f64 = 2.0;
+
+/// The Fisher-scoring step in η (not in the variances) over the sources in
+/// `idx`, scaled as a whole so that no component exceeds
+/// [`MAX_LOG_ETA_STEP`]; a source at a clamp whose step points out of the
+/// range is held and the step recomputed without it (otherwise clamping
+/// would change the step's direction). Its slope `gᵀΔη = −s·gᵀI⁻¹g` is
+/// negative, so a short enough step lowers M.
+fn eta_descent_step(
+    sums: &WindowSums,
+    g: &[f64; 6],
+    eta: &[f64; 6],
+    bounds: [f64; 2],
+    mut idx: Vec<usize>,
+) -> [f64; 6] {
+    let tol = 1e-9;
+    loop {
+        let mut step = [0.0; 6];
+        let p = idx.len();
+        if p == 0 {
+            return step;
+        }
+        let a = DMatrix::from_fn(p, p, |i, k| sums.i_eta[(idx[i], idx[k])]);
+        let ridge = 1e-12 * (0..p).map(|i| a[(i, i)]).fold(0.0f64, f64::max);
+        let a = a + DMatrix::identity(p, p) * ridge;
+        let b = DVector::from_fn(p, |i, _| -g[idx[i]]);
+        let Some(chol) = a.cholesky() else {
+            return step;
+        };
+        let d = chol.solve(&b);
+        let outward = (0..p).find(|&i| {
+            let j = idx[i];
+            (eta[j] <= bounds[0] + tol && d[i] < 0.0) || (eta[j] >= bounds[1] - tol && d[i] > 0.0)
+        });
+        if let Some(i) = outward {
+            idx.remove(i);
+            continue;
+        }
+        let s = (MAX_LOG_ETA_STEP / d.amax().max(f64::MIN_POSITIVE)).min(1.0);
+        for (i, &j) in idx.iter().enumerate() {
+            step[j] = (eta[j] + s * d[i]).clamp(bounds[0], bounds[1]) - eta[j];
+        }
+        return step;
+    }
 }
 
 fn eta_add(eta: &[f64; 6], step: &[f64; 6], lambda: f64, bounds: [f64; 2]) -> [f64; 6] {
