@@ -806,8 +806,8 @@ impl Default for EivOptions {
             max_lag1: 0.5,
             max_half_z: 4.0,
             covariance: CovarianceMode::FollowsTheta,
-            quantisation: QuantisationModel::Measurement,
-            heading_scale: HeadingScale::Separate,
+            quantisation: QuantisationModel::ProcessNoise,
+            heading_scale: HeadingScale::TiedToPosition,
             wheel_noise_scale: WheelNoiseScale::MeasuredInput,
             bias_correction: BiasCorrection::None,
         }
