@@ -748,9 +748,14 @@ pub struct FirstOrderBias {
 /// car 0.02 m : 0.5 mrad against the simulator's 0.02 m : 0.3 mrad), and the
 /// estimated-noise t_r on paper noise was +2.7 / +5.3 / +4.2 % (seeds 1–3);
 /// with its own scale +0.85 / +1.30 / +0.90 %. It is not the default yet
-/// because with it the noise-free straight drive of the unit tests no
-/// longer converges (c_e off by 0.06 %), and a 2 %-white-noise drive runs
-/// away from the production-car start (t_r +250 %, flagged).
+/// because with it the noise-free straight drive of the unit tests stops at
+/// a second fixed point of the θ/η iteration (c_e −0.057 %, η well above
+/// its lower clamp; the earlier "step rejected after 10 halvings" was an
+/// uphill η step, fixed), and it runs away on a 2 %-white-noise drive and
+/// on one of 20 `coloured` drives (t_r +250 % / +243 %, flagged). Measured
+/// with η estimated together with [`QuantisationModel::Measurement`] it is
+/// the best combination on every simulated preset (docs/study.md, EIV
+/// section, "Stop 11").
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum HeadingScale {
@@ -770,10 +775,11 @@ pub enum HeadingScale {
 /// −1.2 ± 1.1 % (5.7×) against `ProcessNoise` +0.39 ± 0.30 % (2.2×) and
 /// +3.3 ± 1.2 % (12×); with η estimated from the production-car start,
 /// paper −1.2 ± 0.6 % / high +4.5 ± 5.0 % against +4.0 ± 1.0 % / +122 ± 33 %.
-/// It is not the default yet because, from the production-car start, it
-/// runs away on a 2 %-white-noise drive without quantisation (t_r +250 %,
-/// flagged at the upper clamp) and does not converge on a noise-free
-/// straight drive (c_e off by 0.06 %).
+/// It is not the default yet: alone (heading scale tied) it changes little
+/// with η estimated (paper t_r +3.8 %, high +118 %); with
+/// [`HeadingScale::Separate`] it gives paper −1.2 %, high +4.5 % (docs/study.md,
+/// EIV section, "Stop 11"). Alone it passes the noise-free straight drive;
+/// the straight-drive failure is the separate heading scale's.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum QuantisationModel {
