@@ -168,6 +168,9 @@ struct Run {
     warnings: usize,
     /// Time constants chosen by the τ search `[τ_c, τ_w, τ_drift]`, s.
     tau_s: Option<[f64; 3]>,
+    /// Kinds of the failed EIV checks (`EivWarning`'s tag), one per finding.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    checks: Vec<String>,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -204,7 +207,15 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
                 let time_s = t.elapsed().as_secs_f64();
                 runs.insert(
                     "3-step".into(),
-                    Run { theta: th, sigmas: vec![], e_p_m: ep(&th)?, time_s, warnings: 0, tau_s: None },
+                    Run {
+                        theta: th,
+                        sigmas: vec![],
+                        e_p_m: ep(&th)?,
+                        time_s,
+                        warnings: 0,
+                        tau_s: None,
+                        checks: vec![],
+                    },
                 );
             }
             Err(e) => eprintln!("{name} {seed}: 3-step failed: {e}"),
@@ -253,7 +264,15 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         if label == "EIV known" {
             runs.insert(
                 "G-N".to_string(),
-                Run { theta: gn, sigmas: vec![], e_p_m: ep(&gn)?, time_s: t_gn, warnings: 0, tau_s: None },
+                Run {
+                    theta: gn,
+                    sigmas: vec![],
+                    e_p_m: ep(&gn)?,
+                    time_s: t_gn,
+                    warnings: 0,
+                    tau_s: None,
+                    checks: vec![],
+                },
             );
         }
         let Some(fit) = detail.eiv.as_deref() else {
@@ -280,7 +299,25 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
                 );
             }
         }
-        let run = Run { theta: r.theta, sigmas: sigmas.clone(), e_p_m: ep(&r.theta)?, time_s, warnings: failed, tau_s };
+        let checks: Vec<String> = r
+            .warnings
+            .iter()
+            .filter_map(|w| match w {
+                Warning::EivCheckFailed { finding, .. } => serde_json::to_value(finding)
+                    .ok()
+                    .and_then(|v| v.get("kind").and_then(|k| k.as_str()).map(str::to_string)),
+                _ => None,
+            })
+            .collect();
+        let run = Run {
+            theta: r.theta,
+            sigmas: sigmas.clone(),
+            e_p_m: ep(&r.theta)?,
+            time_s,
+            warnings: failed,
+            tau_s,
+            checks: checks.clone(),
+        };
         runs.insert(label.to_string(), run);
         if want("fo") && label != "EIV est." {
             if let Some(b) = &fit.first_order_bias {
@@ -306,6 +343,7 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
                         time_s,
                         warnings: failed,
                         tau_s: None,
+                        checks: vec![],
                     };
                     runs.insert(format!("{label} {suffix}"), run);
                 }
@@ -313,13 +351,22 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         }
         if label == "EIV est. τ" {
             let (th, sig) = if failed > 0 { (gn, vec![]) } else { (r.theta, sigmas.clone()) };
-            let run = Run { theta: th, sigmas: sig, e_p_m: ep(&th)?, time_s, warnings: failed, tau_s };
+            let run = Run {
+                theta: th,
+                sigmas: sig,
+                e_p_m: ep(&th)?,
+                time_s,
+                warnings: failed,
+                tau_s,
+                checks: checks.clone(),
+            };
             runs.insert("EIV est. τ + fallback".to_string(), run);
         }
         if label == "EIV est." {
             // What a user gets with the default fallback on: G-N when a check failed.
             let (th, sig) = if failed > 0 { (gn, vec![]) } else { (r.theta, sigmas) };
-            let run = Run { theta: th, sigmas: sig, e_p_m: ep(&th)?, time_s, warnings: failed, tau_s: None };
+            let run =
+                Run { theta: th, sigmas: sig, e_p_m: ep(&th)?, time_s, warnings: failed, tau_s: None, checks: vec![] };
             runs.insert("EIV est. + fallback".to_string(), run);
         }
         if label == "EIV known"
@@ -341,6 +388,7 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
                         time_s: time_s + t.elapsed().as_secs_f64(),
                         warnings: b.failed.len(),
                         tau_s: None,
+                        checks: vec![],
                     };
                     runs.insert("EIV known + boot".into(), run);
                 }
@@ -365,6 +413,7 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
             time_s: k.time_s + f.time_s,
             warnings: 0,
             tau_s: None,
+            checks: vec![],
         };
         runs.insert("EIV mid(known, fitted)".into(), run);
     }
@@ -450,7 +499,19 @@ fn summarise(preset: &str, results: &[DriveResult]) {
         let max = ex.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         let time = mean_sd(&rs.iter().map(|(_, x)| x.time_s).collect::<Vec<_>>()).0;
         let warned = rs.iter().filter(|(_, x)| x.warnings > 0).count();
-        println!("| {m} | {:+.4} | {max:+.4} | {time:.2} | {warned} |", mean_sd(&ex).0);
+        // Runs with each kind of failed check.
+        let mut kinds: BTreeMap<&str, usize> = BTreeMap::new();
+        for (_, x) in &rs {
+            let mut seen: Vec<&str> = x.checks.iter().map(String::as_str).collect();
+            seen.sort_unstable();
+            seen.dedup();
+            for k in seen {
+                *kinds.entry(k).or_default() += 1;
+            }
+        }
+        let kinds: Vec<String> = kinds.iter().map(|(k, n)| format!("{k} {n}")).collect();
+        let kinds = if kinds.is_empty() { String::new() } else { format!(" ({})", kinds.join(", ")) };
+        println!("| {m} | {:+.4} | {max:+.4} | {time:.2} | {warned}{kinds} |", mean_sd(&ex).0);
     }
     for m in &methods {
         let taus: Vec<[f64; 3]> = results.iter().filter_map(|r| r.runs.get(m).and_then(|x| x.tau_s)).collect();
