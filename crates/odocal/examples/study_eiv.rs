@@ -180,6 +180,8 @@ struct DriveResult {
     theta_true: Theta,
     crb: [f64; 4],
     crb_mean_only: [f64; 4],
+    /// The bound with the noise scales η unknown too (nuisance parameters).
+    crb_noise_estimated: [f64; 4],
     e_p_true_m: f64,
     runs: BTreeMap<String, Run>,
 }
@@ -193,10 +195,11 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
     let ep = |t: &Theta| -> Res<f64> { Ok(mean_position_error(d, &val, t)?.mean_position_error_m) };
     let input = EivInput::from_drive(d);
     let true_noise = NoiseModel::from_sim(&noise, d.sample_time_s());
-    let (crb, crb_mean_only) = match cramer_rao_bound(&input, &truth, &true_noise, &EivOptions::default()) {
-        Ok(c) => (c.sigma, c.sigma_mean_only),
-        Err(_) => ([f64::NAN; 4], [f64::NAN; 4]),
-    };
+    let (crb, crb_mean_only, crb_noise_estimated) =
+        match cramer_rao_bound(&input, &truth, &true_noise, &EivOptions::default()) {
+            Ok(c) => (c.sigma, c.sigma_mean_only, c.sigma_noise_estimated.unwrap_or([f64::NAN; 4])),
+            Err(_) => ([f64::NAN; 4], [f64::NAN; 4], [f64::NAN; 4]),
+        };
     let mut runs = BTreeMap::new();
     if seed <= a.three_step_seeds {
         let t = Instant::now();
@@ -417,7 +420,16 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         };
         runs.insert("EIV mid(known, fitted)".into(), run);
     }
-    Ok(DriveResult { preset: name.into(), seed, theta_true: truth, crb, crb_mean_only, e_p_true_m: ep(&truth)?, runs })
+    Ok(DriveResult {
+        preset: name.into(),
+        seed,
+        theta_true: truth,
+        crb,
+        crb_mean_only,
+        crb_noise_estimated,
+        e_p_true_m: ep(&truth)?,
+        runs,
+    })
 }
 
 const SCALE_NAMES: [&str; 4] = ["c_e %", "c_d mm", "t_r %", "d mm/(m/s²)"];
@@ -451,13 +463,18 @@ fn summarise(preset: &str, results: &[DriveResult]) {
         let v: Vec<f64> = results.iter().map(|r| r.crb_mean_only[i] * scale(&r.theta_true)[i]).collect();
         mean_sd(&v).0
     });
+    let crb_ne: [f64; 4] = std::array::from_fn(|i| {
+        let v: Vec<f64> = results.iter().map(|r| r.crb_noise_estimated[i] * scale(&r.theta_true)[i]).collect();
+        mean_sd(&v).0
+    });
     println!(
-        "CRB σ (full Fisher): {}; mean-only: {}",
+        "CRB σ (full Fisher): {}; mean-only: {}; noise scales unknown too (CRB_η): {}",
         (0..4).map(|i| format!("{} {:.4}", SCALE_NAMES[i], crb_mean[i])).collect::<Vec<_>>().join(", "),
-        (0..4).map(|i| format!("{:.4}", crb_mo[i])).collect::<Vec<_>>().join(", ")
+        (0..4).map(|i| format!("{:.4}", crb_mo[i])).collect::<Vec<_>>().join(", "),
+        (0..4).map(|i| format!("{:.4}", crb_ne[i])).collect::<Vec<_>>().join(", ")
     );
-    println!("\n| method | n | parameter | mean error | sd | RMS/CRB | t | coverage (σ kinds) |");
-    println!("|---|---|---|---|---|---|---|---|");
+    println!("\n| method | n | parameter | mean error | sd | RMS/CRB | RMS/CRB_η | t | coverage (σ kinds) |");
+    println!("|---|---|---|---|---|---|---|---|---|");
     for m in &methods {
         let rs: Vec<(&DriveResult, &Run)> = results.iter().filter_map(|r| r.runs.get(m).map(|x| (r, x))).collect();
         let n = rs.len();
@@ -484,9 +501,10 @@ fn summarise(preset: &str, results: &[DriveResult]) {
                 }
             }
             println!(
-                "| {m} | {n} | {} | {mean:+.4} | {sd:.4} | {:.2} | {t:.1} | {} |",
+                "| {m} | {n} | {} | {mean:+.4} | {sd:.4} | {:.2} | {:.2} | {t:.1} | {} |",
                 SCALE_NAMES[i],
                 rms / crb_mean[i],
+                rms / crb_ne[i],
                 cov.join(", ")
             );
         }
