@@ -19,7 +19,7 @@
 
 use nalgebra::{Matrix3, Matrix3x4, SMatrix, SVector, Vector3};
 
-use super::{EivInput, Window};
+use super::{EivInput, InputJacobian, Window};
 use crate::error::{Error, Result};
 use crate::model::{step_jacobians, wrap_angle, Input, State, Theta};
 
@@ -77,6 +77,9 @@ pub(crate) struct Variances {
     /// fitted true input `ñ·C(θ_ref)/C(θ)` instead of the measured `ñ`
     /// ([`super::WheelNoiseScale::FittedInput`]).
     pub fitted_input: bool,
+    /// The log-Jacobian term of the relative white wheel noise in J
+    /// ([`super::InputJacobian`]).
+    pub input_jacobian: InputJacobian,
 }
 
 /// Everything one window contributes to the objective and its derivatives.
@@ -121,6 +124,17 @@ pub(crate) struct WindowSums {
     pub grad_correction: nalgebra::Vector4<f64>,
     /// θ-gradient of `½ Σ log det S` alone (zero with the covariance held).
     pub grad_logdet: nalgebra::Vector4<f64>,
+    /// The input log-Jacobian term `T = −Σ u ln(C(θ)/C(θ_ref))`
+    /// ([`super::InputJacobian`]; part of J, not of M).
+    pub jacobian: f64,
+    /// ∂T/∂θ with the weights u held (already included in `grad_profile`).
+    pub grad_jacobian: nalgebra::Vector4<f64>,
+    /// ∂²T/∂θ² = Σ u ∇C∇Cᵀ/C² with u held (already included in `h_theta`).
+    pub hess_jacobian: nalgebra::Matrix4<f64>,
+    /// Σ u per wheel `[left, right]`.
+    pub jacobian_weight: [f64; 2],
+    /// Samples where each wheel turns `[left, right]` (Σ m).
+    pub turning: [f64; 2],
 }
 
 impl WindowSums {
@@ -142,6 +156,11 @@ impl WindowSums {
             bias: nalgebra::Vector4::zeros(),
             grad_correction: nalgebra::Vector4::zeros(),
             grad_logdet: nalgebra::Vector4::zeros(),
+            jacobian: 0.0,
+            grad_jacobian: nalgebra::Vector4::zeros(),
+            hess_jacobian: nalgebra::Matrix4::zeros(),
+            jacobian_weight: [0.0; 2],
+            turning: [0.0; 2],
         }
     }
 
@@ -160,6 +179,13 @@ impl WindowSums {
         self.bias += o.bias;
         self.grad_correction += o.grad_correction;
         self.grad_logdet += o.grad_logdet;
+        self.jacobian += o.jacobian;
+        self.grad_jacobian += o.grad_jacobian;
+        self.hess_jacobian += o.hess_jacobian;
+        for w in 0..2 {
+            self.jacobian_weight[w] += o.jacobian_weight[w];
+            self.turning[w] += o.turning[w];
+        }
         for c in 0..3 {
             self.lag1[c] += o.lag1[c];
             self.e2[c] += o.e2[c];
@@ -171,9 +197,10 @@ impl WindowSums {
         0.5 * (self.quad + self.logdet) + self.correction
     }
 
-    /// The profile cost `J = ½ Σ νᵀS⁻¹ν − Σ m log(1 − ŝ)` (SPEC §10).
+    /// The profile cost `J = ½ Σ νᵀS⁻¹ν − Σ m log(1 − ŝ)` (SPEC §10), plus
+    /// the input log-Jacobian term when it is on.
     pub(crate) fn profile(&self) -> f64 {
-        0.5 * self.quad + self.correction
+        0.5 * self.quad + self.correction + self.jacobian
     }
 
     /// The objective whose θ-gradient is the corrected score:
@@ -652,6 +679,27 @@ fn add_sym_rows(dst: &mut M9, a: &M3x9) {
     }
 }
 
+/// `ln(C_w(θ)/C_w(θ_ref))` per wheel `[left, right]` at lateral
+/// acceleration `a_y` and its θ-gradient `∇C_w/C_w` (θ order
+/// `[c_e, c_d, t_r, d]`; the Hessian of the log is `−∇ln C ∇ln Cᵀ`, C being
+/// linear in θ).
+fn log_circumference_ratio(a_y: f64, th: &Theta, th_ref: &Theta) -> [(f64, nalgebra::Vector4<f64>); 2] {
+    let (cl, cr) = th.wheel_circumferences(a_y);
+    let (rl, rr) = th_ref.wheel_circumferences(a_y);
+    let gl = nalgebra::Vector4::new(1.0, 0.5, 0.0, a_y) / cl;
+    let gr = nalgebra::Vector4::new(1.0, -0.5, 0.0, -a_y) / cr;
+    [((cl / rl).ln(), gl), ((cr / rr).ln(), gr)]
+}
+
+/// Adds `−u·L` to the value, `−u·∇L` to the gradient and `u·∇L∇Lᵀ` to the
+/// Hessian of the input log-Jacobian term.
+#[inline]
+fn add_jacobian_term(out: &mut WindowSums, u: f64, l: f64, g: &nalgebra::Vector4<f64>) {
+    out.jacobian -= u * l;
+    out.grad_jacobian -= g * u;
+    out.hess_jacobian += g * g.transpose() * u;
+}
+
 /// Runs the filter over one window at θ (mean). The covariance recursion
 /// is linearised along the reference (reference heading, measured wheel
 /// rotations) at `theta_ref`, or at θ when `mode.follows_theta` (then
@@ -731,6 +779,14 @@ pub(crate) fn run_window(
     let mut ds = [Matrix3::<f64>::zeros(); NP];
     let mut a = [Matrix3::<f64>::zeros(); NP];
     let mut dkn = D9::zeros();
+    // Input log-Jacobian term: per-wheel sums at unit weight (Unit,
+    // SmoothedShare), samples waiting for the next update (FilterShare:
+    // wheel, σ²n̂², f_w, ln C ratio, its gradient) and ∂P/∂λ_w (SmoothedShare).
+    let jac_mode = v.input_jacobian;
+    let mut unit_sums = [WindowSums::zero(), WindowSums::zero()];
+    let mut pending: Vec<(usize, f64, Vector3<f64>, f64, nalgebra::Vector4<f64>)> = Vec::new();
+    let mut dp_lambda = [M9::zeros(); 2];
+    let mut w_smoothed = [0.0; 2];
 
     for i in window.start..window.end {
         let (nl, nr) = (input.n_rl[i], input.n_rr[i]);
@@ -816,6 +872,39 @@ pub(crate) fn run_window(
         }
         let q_white = fn_l * fn_l.transpose() * wl + fn_r * fn_r.transpose() * wr;
         let q_x = q_white + f_b * f_b.transpose() * v.beta + f_a * f_a.transpose() * v.a_y;
+        if jac_mode != InputJacobian::None {
+            let lc = log_circumference_ratio(a_y, theta, theta_ref);
+            // The relative white noise variance of each wheel (rev², the
+            // fitted-input factor included; quantisation excluded).
+            let g2 = if fitted { [gw[0].v * gw[0].v, gw[1].v * gw[1].v] } else { [1.0, 1.0] };
+            let rel = [v.white_rel * nl * nl * g2[0], v.white_rel * nr * nr * g2[1]];
+            for (w, (n_w, f_w)) in [(nl, fn_l), (nr, fn_r)].into_iter().enumerate() {
+                if n_w == 0.0 {
+                    continue;
+                }
+                unit_sums[w].turning[w] += 1.0;
+                match jac_mode {
+                    InputJacobian::FilterShare => {
+                        if rel[w] > 0.0 {
+                            pending.push((w, rel[w], f_w, lc[w].0, lc[w].1));
+                        }
+                    }
+                    _ => add_jacobian_term(&mut unit_sums[w], 1.0, lc[w].0, &lc[w].1),
+                }
+            }
+            if jac_mode == InputJacobian::SmoothedShare {
+                for (w, f_w) in [fn_l, fn_r].into_iter().enumerate() {
+                    let dpl = &mut dp_lambda[w];
+                    *dpl = propagate(dpl, f02, f12, &fxs_ref, &diag);
+                    let q = f_w * f_w.transpose() * rel[w];
+                    for r_ in 0..3 {
+                        for c_ in 0..3 {
+                            dpl[(r_, c_)] += q[(r_, c_)];
+                        }
+                    }
+                }
+            }
+        }
 
         // --- Corrected score (held covariance): X⁻ = F̄ X⁺ F̄ᵀ − Σ_u var(u) (∂f/∂u)(∂f_θ/∂u)ᵀ,
         // with the sensitivities D⁺ of the previous update (before the mean prediction).
@@ -1035,6 +1124,20 @@ pub(crate) fn run_window(
         let logdet = 2.0 * (l[(0, 0)].ln() + l[(1, 1)].ln() + l[(2, 2)].ln());
         let e = l.solve_lower_triangular(&nu).unwrap_or_else(Vector3::zeros);
         let sinv_nu = sinv * nu;
+        if jac_mode == InputJacobian::FilterShare {
+            for (w, var, f_w, lc, g) in pending.drain(..) {
+                let u = var * f_w.dot(&(sinv * f_w));
+                out.jacobian_weight[w] += u;
+                add_jacobian_term(&mut out, u, lc, &g);
+            }
+        } else if jac_mode == InputJacobian::SmoothedShare {
+            let k_l: M9x3 = hp.transpose() * sinv;
+            for (w, dpl) in dp_lambda.iter_mut().enumerate() {
+                let ds_l = h_cols(&h_rows(dpl));
+                w_smoothed[w] += (sinv * ds_l).trace();
+                *dpl = joseph(dpl, &k_l);
+            }
+        }
         let quad = nu.dot(&sinv_nu);
         if !(quad.is_finite() && logdet.is_finite()) {
             return Err(Error::Numerical(format!(
@@ -1162,6 +1265,31 @@ pub(crate) fn run_window(
         }
         p = joseph(&p, &k);
         add_kdk(&mut p, &k, &r_k);
+    }
+    if jac_mode != InputJacobian::None {
+        for (w, u) in unit_sums.iter().enumerate() {
+            let m = u.turning[w];
+            out.turning[w] += m;
+            // Unit and SmoothedShare: the same weight on every turning sample
+            // of the window (FilterShare was added update by update).
+            let scale = match jac_mode {
+                InputJacobian::Unit => 1.0,
+                InputJacobian::SmoothedShare if m > 0.0 => w_smoothed[w] / m,
+                _ => 0.0,
+            };
+            if scale > 0.0 {
+                out.jacobian += scale * u.jacobian;
+                out.grad_jacobian += u.grad_jacobian * scale;
+                out.hess_jacobian += u.hess_jacobian * scale;
+                out.jacobian_weight[w] += scale * m;
+            }
+        }
+        if mode.derivs {
+            for c in 0..4 {
+                out.grad_profile[c] += out.grad_jacobian[c];
+            }
+            out.h_theta += out.hess_jacobian;
+        }
     }
     Ok(out)
 }

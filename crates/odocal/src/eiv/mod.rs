@@ -526,6 +526,7 @@ impl NoiseModel {
             quant_in_measurement: false,
             heading_separate: true,
             fitted_input: false,
+            input_jacobian: InputJacobian::None,
         }
     }
 }
@@ -640,6 +641,50 @@ pub struct EivOptions {
     /// Correction of the profile cost's bias applied to the estimate.
     /// Default [`BiasCorrection::None`] (see its docs).
     pub bias_correction: BiasCorrection,
+    /// Log-Jacobian term of the relative white wheel noise added to the θ
+    /// cost. Default [`InputJacobian::None`] (see its docs).
+    pub input_jacobian: InputJacobian,
+}
+
+/// A log-Jacobian term `−Σ_k Σ_w u_w,k·ln(C_w,k(θ)/C_w,k(θ_ref))` added to
+/// the profile cost J of θ (issue 9 item 4: the c_e bias), with C_w,k the
+/// wheel circumference at sample k (3a, 3b; θ_ref the start of the fit) and
+/// weights u ≥ 0 per wheel and sample. Not part of the marginal likelihood
+/// M of the η step. Meant with [`WheelNoiseScale::FittedInput`].
+///
+/// Why. A scalar model with exact increments `Δ_k = c·n_k·t_s` and relative
+/// white input noise `ñ_k = n_k(1 + ε_k)` has the exact negative
+/// log-likelihood `½Σ(c/r_k − 1)²/σ² − N·ln c` (r_k = Δ_k/(ñ_k t_s); the
+/// `−N ln c` is the log-Jacobian of the density of ñ at the latent
+/// `n = Δ/(c t_s)`), whose score has zero mean at the true c. The
+/// fitted-input filter has the quadratic part (attenuation `−σ²` without
+/// the Jacobian). With a noisy reference the latent input is only partly
+/// determined by the data: in a linear Gaussian model `y = A(θ)ñ − A(θ)e + v`
+/// the expected score of the quadratic part at the truth is
+/// `Σ_w (∂ln C_w/∂θ)·tr(S⁻¹ A_w Σ_e,w A_wᵀ)`, and
+/// `tr(S⁻¹ A_w Σ_e,w A_wᵀ) = Σ_j (1 − posterior/prior variance of e_j)`
+/// over wheel w's inputs (the smoothed share of each input's noise that
+/// the data remove) `= ∂(Σ_k ln det S_k)/∂λ_w`, λ_w scaling wheel w's
+/// white relative noise variance. So the weight that makes the score
+/// unbiased (to first order in the noise variance) is that share, 1 only
+/// where the increments are exact.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InputJacobian {
+    /// No term.
+    #[default]
+    None,
+    /// u = 1 where the wheel turns (the scalar model's exact-increment weight).
+    Unit,
+    /// u = the share of the sample's white relative noise removed by the next
+    /// measurement update, `σ²n̂_w²·f_wᵀS⁻¹f_w` (f_w = ∂f/∂n_w, pose rows;
+    /// filtered, a lower bound of the smoothed share).
+    FilterShare,
+    /// u = the smoothed share per window and wheel,
+    /// `W_w = Σ_k tr(S_k⁻¹ ∂S_k/∂λ_w)` (two more covariance-derivative
+    /// recursions), spread evenly over the window's samples where the wheel
+    /// turns. The weights are held constant in the derivatives.
+    SmoothedShare,
 }
 
 /// Which wheel rotation the relative wheel noise (white and Gauss-Markov)
@@ -810,6 +855,7 @@ impl Default for EivOptions {
             heading_scale: HeadingScale::TiedToPosition,
             wheel_noise_scale: WheelNoiseScale::MeasuredInput,
             bias_correction: BiasCorrection::None,
+            input_jacobian: InputJacobian::None,
         }
     }
 }
@@ -1196,6 +1242,7 @@ struct Problem<'a> {
     quantisation: QuantisationModel,
     heading_separate: bool,
     fitted_input: bool,
+    input_jacobian: InputJacobian,
     /// Filter passes over the drive: with derivatives, objective only.
     evaluations: std::cell::Cell<[usize; 2]>,
 }
@@ -1214,6 +1261,7 @@ impl Problem<'_> {
         v.quant_in_measurement = self.quantisation == QuantisationModel::Measurement;
         v.heading_separate = self.heading_separate;
         v.fitted_input = self.fitted_input;
+        v.input_jacobian = self.input_jacobian;
         let parts: Vec<Result<WindowSums>> =
             self.windows.par_iter().map(|w| run_window(self.input, w, theta, theta_ref, &v, mode, None)).collect();
         let mut total = WindowSums::zero();
@@ -1692,6 +1740,7 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         quantisation: opts.quantisation,
         heading_separate: opts.heading_scale == HeadingScale::Separate,
         fitted_input: opts.wheel_noise_scale == WheelNoiseScale::FittedInput,
+        input_jacobian: opts.input_jacobian,
         evaluations: std::cell::Cell::new([0; 2]),
     };
     let mut theta = *theta_start;
@@ -1938,6 +1987,8 @@ pub fn cramer_rao_bound(
         quantisation: opts.quantisation,
         heading_separate: opts.heading_scale == HeadingScale::Separate,
         fitted_input: opts.wheel_noise_scale == WheelNoiseScale::FittedInput,
+        // The CRB uses the information matrix only.
+        input_jacobian: InputJacobian::None,
         evaluations: std::cell::Cell::new([0; 2]),
     };
     let ev = prob.evaluate(theta, theta, &[0.0; 6], Mode::full(true, false))?;
