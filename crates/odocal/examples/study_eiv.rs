@@ -27,6 +27,11 @@
 //! - with `--methods` containing `fitted`: `EIV fitted` = EIV known with
 //!   `WheelNoiseScale::FittedInput` (the relative wheel noise scaled by the
 //!   fitted true input);
+//! - `jac-unit`, `jac-filter`, `jac-smoothed`: `EIV fitted` plus the input
+//!   log-Jacobian term (`InputJacobian::Unit`, `FilterShare`,
+//!   `SmoothedShare`), `jac-filter2` (`FilterShareSecondOrder`), `jac-all` (`SmoothedShareAll`; `known-jac-all` on the
+//!   measured-input filter); `est-fitted`, `est-jac-filter`, `est-jac-smoothed`:
+//!   the same with η estimated (the `est` options with the fitted input);
 //! - with `fo`: rows derived from each known-noise fit without another
 //!   filter pass (`EivReport::first_order_bias`): `+ fo` = θ − b for every
 //!   parameter, `+ fo c_e` = c_e − b_ce only, `+ fo c_e cond` = c_e minus the
@@ -49,8 +54,8 @@ use std::time::Instant;
 
 use odocal::calibrate::{EivDetail, EivMethodOptions};
 use odocal::eiv::{
-    bootstrap, cramer_rao_bound, BootstrapOptions, EivInput, EivOptions, HeadingScale, NoiseModel, QuantisationModel,
-    WheelNoiseScale,
+    bootstrap, cramer_rao_bound, BootstrapOptions, EivInput, EivOptions, HeadingScale, InputJacobian, NoiseModel,
+    QuantisationModel, WheelNoiseScale,
 };
 use odocal::segment::validation_segments;
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
@@ -201,10 +206,37 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
     // The known-noise fit always runs: it carries the G-N start.
     let mut jobs = vec![("EIV known", known.clone())];
     if want("est") {
-        jobs.push(("EIV est.", est));
+        jobs.push(("EIV est.", est.clone()));
     }
     if want("fitted") {
-        jobs.push(("EIV fitted", fitted));
+        jobs.push(("EIV fitted", fitted.clone()));
+    }
+    // The input log-Jacobian term on the fitted-input filter (known noise),
+    // and with η estimated (`est-jac-*`).
+    let est_fitted = EivOptions { wheel_noise_scale: WheelNoiseScale::FittedInput, ..est.clone() };
+    for (m, label, jac) in [
+        ("jac-unit", "EIV fitted + jac unit", InputJacobian::Unit),
+        ("jac-filter", "EIV fitted + jac filter", InputJacobian::FilterShare),
+        ("jac-filter2", "EIV fitted + jac filter2", InputJacobian::FilterShareSecondOrder),
+        ("jac-smoothed", "EIV fitted + jac smoothed", InputJacobian::SmoothedShare),
+        ("jac-all", "EIV fitted + jac all", InputJacobian::SmoothedShareAll),
+        ("known-jac-all", "EIV known + jac all", InputJacobian::SmoothedShareAll),
+    ] {
+        if want(m) {
+            let base = if m.starts_with("known") { &known } else { &fitted };
+            jobs.push((label, EivOptions { input_jacobian: jac, ..base.clone() }));
+        }
+    }
+    for (m, label, jac) in [
+        ("est-fitted", "EIV est. fitted", InputJacobian::None),
+        ("est-jac-filter", "EIV est. fitted + jac filter", InputJacobian::FilterShare),
+        ("est-jac-filter2", "EIV est. fitted + jac filter2", InputJacobian::FilterShareSecondOrder),
+        ("est-jac-smoothed", "EIV est. fitted + jac smoothed", InputJacobian::SmoothedShare),
+        ("est-jac-all", "EIV est. fitted + jac all", InputJacobian::SmoothedShareAll),
+    ] {
+        if want(m) {
+            jobs.push((label, EivOptions { input_jacobian: jac, ..est_fitted.clone() }));
+        }
     }
     for (label, opts) in jobs {
         let (r, detail, time_s) = match calibrate_eiv(d, opts.clone(), seed) {

@@ -785,8 +785,18 @@ pub(crate) fn run_window(
     let jac_mode = v.input_jacobian;
     let mut unit_sums = [WindowSums::zero(), WindowSums::zero()];
     let mut pending: Vec<(usize, f64, Vector3<f64>, f64, nalgebra::Vector4<f64>)> = Vec::new();
-    let mut dp_lambda = [M9::zeros(); 2];
-    let mut w_smoothed = [0.0; 2];
+    // ∂P/∂λ for [left, right, common]: left/right = that wheel's white
+    // relative noise (and, with SmoothedShareAll, its Gauss-Markov s_w),
+    // common = s_c (SmoothedShareAll only; half to each wheel).
+    let all_sources = jac_mode == InputJacobian::SmoothedShareAll;
+    let smoothed = all_sources || jac_mode == InputJacobian::SmoothedShare;
+    let mut dp_lambda = [M9::zeros(); 3];
+    if all_sources {
+        dp_lambda[0][(4, 4)] = v.wheel;
+        dp_lambda[1][(5, 5)] = v.wheel;
+        dp_lambda[2][(3, 3)] = v.common;
+    }
+    let mut w_smoothed = [0.0; 3];
 
     for i in window.start..window.end {
         let (nl, nr) = (input.n_rl[i], input.n_rr[i]);
@@ -884,7 +894,7 @@ pub(crate) fn run_window(
                 }
                 unit_sums[w].turning[w] += 1.0;
                 match jac_mode {
-                    InputJacobian::FilterShare => {
+                    InputJacobian::FilterShare | InputJacobian::FilterShareSecondOrder => {
                         if rel[w] > 0.0 {
                             pending.push((w, rel[w], f_w, lc[w].0, lc[w].1));
                         }
@@ -892,7 +902,7 @@ pub(crate) fn run_window(
                     _ => add_jacobian_term(&mut unit_sums[w], 1.0, lc[w].0, &lc[w].1),
                 }
             }
-            if jac_mode == InputJacobian::SmoothedShare {
+            if smoothed {
                 for (w, f_w) in [fn_l, fn_r].into_iter().enumerate() {
                     let dpl = &mut dp_lambda[w];
                     *dpl = propagate(dpl, f02, f12, &fxs_ref, &diag);
@@ -902,6 +912,14 @@ pub(crate) fn run_window(
                             dpl[(r_, c_)] += q[(r_, c_)];
                         }
                     }
+                    if all_sources {
+                        dpl[(4 + w, 4 + w)] += q_s[1 + w];
+                    }
+                }
+                if all_sources {
+                    let dpc = &mut dp_lambda[2];
+                    *dpc = propagate(dpc, f02, f12, &fxs_ref, &diag);
+                    dpc[(3, 3)] += q_s[0];
                 }
             }
         }
@@ -958,7 +976,9 @@ pub(crate) fn run_window(
                     let w = m / one_minus[row - 3];
                     for c in 0..NP {
                         out.grad[c] += w * d[(row, c)];
-                        out.grad_profile[c] += w * d[(row, c)];
+                        if !all_sources {
+                            out.grad_profile[c] += w * d[(row, c)];
+                        }
                     }
                     for c in 0..4 {
                         out.grad_correction[c] += w * d[(row, c)];
@@ -1124,15 +1144,17 @@ pub(crate) fn run_window(
         let logdet = 2.0 * (l[(0, 0)].ln() + l[(1, 1)].ln() + l[(2, 2)].ln());
         let e = l.solve_lower_triangular(&nu).unwrap_or_else(Vector3::zeros);
         let sinv_nu = sinv * nu;
-        if jac_mode == InputJacobian::FilterShare {
+        if matches!(jac_mode, InputJacobian::FilterShare | InputJacobian::FilterShareSecondOrder) {
             for (w, var, f_w, lc, g) in pending.drain(..) {
-                let u = var * f_w.dot(&(sinv * f_w));
+                let share = var * f_w.dot(&(sinv * f_w));
+                let u = if jac_mode == InputJacobian::FilterShare { share } else { share * (1.0 - 2.0 * share) };
                 out.jacobian_weight[w] += u;
                 add_jacobian_term(&mut out, u, lc, &g);
             }
-        } else if jac_mode == InputJacobian::SmoothedShare {
+        } else if smoothed {
             let k_l: M9x3 = hp.transpose() * sinv;
-            for (w, dpl) in dp_lambda.iter_mut().enumerate() {
+            let n_l = if all_sources { 3 } else { 2 };
+            for (w, dpl) in dp_lambda.iter_mut().take(n_l).enumerate() {
                 let ds_l = h_cols(&h_rows(dpl));
                 w_smoothed[w] += (sinv * ds_l).trace();
                 *dpl = joseph(dpl, &k_l);
@@ -1266,6 +1288,11 @@ pub(crate) fn run_window(
         p = joseph(&p, &k);
         add_kdk(&mut p, &k, &r_k);
     }
+    if all_sources {
+        // The smoothed share of the Gauss-Markov noise replaces the ŝ
+        // correction in J (kept in M): `jacobian` carries −correction.
+        out.jacobian -= out.correction;
+    }
     if jac_mode != InputJacobian::None {
         for (w, u) in unit_sums.iter().enumerate() {
             let m = u.turning[w];
@@ -1275,6 +1302,7 @@ pub(crate) fn run_window(
             let scale = match jac_mode {
                 InputJacobian::Unit => 1.0,
                 InputJacobian::SmoothedShare if m > 0.0 => w_smoothed[w] / m,
+                InputJacobian::SmoothedShareAll if m > 0.0 => (w_smoothed[w] + 0.5 * w_smoothed[2]) / m,
                 _ => 0.0,
             };
             if scale > 0.0 {

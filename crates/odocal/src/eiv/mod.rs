@@ -680,11 +680,24 @@ pub enum InputJacobian {
     /// measurement update, `σ²n̂_w²·f_wᵀS⁻¹f_w` (f_w = ∂f/∂n_w, pose rows;
     /// filtered, a lower bound of the smoothed share).
     FilterShare,
+    /// u = w(1 − 2w) with w the filtered share of [`InputJacobian::FilterShare`]:
+    /// the filter's wheel variance `σ²n̂²` is proportional to the *measured*
+    /// rotation, so `S⁻¹` is correlated with the noise it weights; to second
+    /// order that adds `−2w²` per sample to the expected score (scalar model
+    /// with exact increments: w = 1, bias `+σ²` instead of `−σ²`).
+    FilterShareSecondOrder,
     /// u = the smoothed share per window and wheel,
     /// `W_w = Σ_k tr(S_k⁻¹ ∂S_k/∂λ_w)` (two more covariance-derivative
     /// recursions), spread evenly over the window's samples where the wheel
     /// turns. The weights are held constant in the derivatives.
     SmoothedShare,
+    /// As [`InputJacobian::SmoothedShare`] over all the relative wheel
+    /// noise: λ_w scales wheel w's white and per-wheel Gauss-Markov
+    /// variance, and half of the common Gauss-Markov share goes to each
+    /// wheel (three more recursions). It **replaces** the coloured-noise
+    /// correction `−Σ m log(1 − ŝ)` in J (that term is about the filtered
+    /// share of the Gauss-Markov noise; M keeps it).
+    SmoothedShareAll,
 }
 
 /// Which wheel rotation the relative wheel noise (white and Gauss-Markov)
