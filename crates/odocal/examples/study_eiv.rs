@@ -7,7 +7,8 @@
 //!     [--presets off,white,paper,high,coloured] [--three-step-seeds 0]
 //!     [--bootstrap 0] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
 //!     [--quantisation process|measurement] [--heading tied|separate]
-//!     [--methods known,est] (also: fitted, fo)
+//!     [--methods known,est] (also: fitted, fo, jac-*, est-jac-*, no-known-boot)
+//!     [--bootstrap-reestimate-seeds 0]
 //! ```
 //!
 //! Per preset and seed (1..=S) it simulates a drive and runs, all through
@@ -24,6 +25,11 @@
 //! - `EIV known + boot`: the known-noise estimate minus its parametric
 //!   bootstrap bias (`--bootstrap B` replicates, first `--bootstrap-seeds` seeds
 //!   of `--bootstrap-presets`);
+//! - with `est` and `--bootstrap B`: `EIV est. + boot held η̂` = the
+//!   η-estimated fit with c_e corrected by a bootstrap whose replicates hold
+//!   the fitted noise model (fixed-noise re-fits), and `EIV est. + boot
+//!   re-est. η` = the same with η re-estimated in every replicate (first
+//!   `--bootstrap-reestimate-seeds` seeds);
 //! - with `--methods` containing `fitted`: `EIV fitted` = EIV known with
 //!   `WheelNoiseScale::FittedInput` (the relative wheel noise scaled by the
 //!   fitted true input);
@@ -74,6 +80,7 @@ struct Args {
     three_step_seeds: u64,
     bootstrap: usize,
     bootstrap_seeds: u64,
+    bootstrap_reestimate_seeds: u64,
     bootstrap_presets: Vec<String>,
     json: Option<String>,
     quantisation: QuantisationModel,
@@ -89,6 +96,7 @@ fn parse_args() -> Res<Args> {
         three_step_seeds: 0,
         bootstrap: 0,
         bootstrap_seeds: 0,
+        bootstrap_reestimate_seeds: 0,
         bootstrap_presets: vec!["paper".into(), "coloured".into()],
         json: None,
         quantisation: QuantisationModel::ProcessNoise,
@@ -105,6 +113,7 @@ fn parse_args() -> Res<Args> {
             "--three-step-seeds" => a.three_step_seeds = v()?.parse()?,
             "--bootstrap" => a.bootstrap = v()?.parse()?,
             "--bootstrap-seeds" => a.bootstrap_seeds = v()?.parse()?,
+            "--bootstrap-reestimate-seeds" => a.bootstrap_reestimate_seeds = v()?.parse()?,
             "--bootstrap-presets" => a.bootstrap_presets = v()?.split(',').map(str::to_string).collect(),
             "--json" => a.json = Some(v()?),
             "--methods" => a.methods = v()?.split(',').map(str::to_string).collect(),
@@ -295,7 +304,44 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
             let run = Run { theta: th, sigmas: sig, e_p_m: ep(&th)?, time_s, warnings: failed };
             runs.insert("EIV est. + fallback".to_string(), run);
         }
+        if label == "EIV est."
+            && a.bootstrap >= 2
+            && seed <= a.bootstrap_seeds
+            && a.bootstrap_presets.iter().any(|p| p == name)
+        {
+            // Bootstrap of the η-estimated fit: the replicates either hold the
+            // fitted noise model (`held η̂`, fixed-noise re-fits) or
+            // re-estimate η from the same start as the fit (`re-est. η`,
+            // only on the first `--bootstrap-reestimate-seeds` seeds).
+            let mut variants = vec![(
+                "EIV est. + boot held η̂",
+                EivOptions { noise: fit.noise, fix_noise: true, free: fit.free, ..opts.clone() },
+            )];
+            if seed <= a.bootstrap_reestimate_seeds {
+                variants.push(("EIV est. + boot re-est. η", EivOptions { free: fit.free, ..opts.clone() }));
+            }
+            for (row, filter) in variants {
+                let t = Instant::now();
+                let boot = BootstrapOptions { replicates: a.bootstrap, seed, ..Default::default() };
+                match bootstrap(&input, fit, &filter, &boot) {
+                    Ok(b) => {
+                        // c_e only corrected, as `--correct-c-e-bias` does.
+                        let th = Theta { c_e: b.theta_corrected.c_e, ..r.theta };
+                        let run = Run {
+                            theta: th,
+                            sigmas: vec![("H".into(), sigma_h)],
+                            e_p_m: ep(&th)?,
+                            time_s: time_s + t.elapsed().as_secs_f64(),
+                            warnings: b.failed.len(),
+                        };
+                        runs.insert(row.into(), run);
+                    }
+                    Err(e) => eprintln!("{name} {seed}: {row} failed: {e}"),
+                }
+            }
+        }
         if label == "EIV known"
+            && !want("no-known-boot")
             && a.bootstrap >= 2
             && seed <= a.bootstrap_seeds
             && a.bootstrap_presets.iter().any(|p| p == name)

@@ -691,6 +691,11 @@ fn log_circumference_ratio(a_y: f64, th: &Theta, th_ref: &Theta) -> [(f64, nalge
     [((cl / rl).ln(), gl), ((cr / rr).ln(), gr)]
 }
 
+/// A wheel input waiting for the next measurement update (FilterShare):
+/// wheel index, relative white variance `σ²n̂²`, `f_w = ∂f/∂n_w` (pose rows),
+/// `ln(C_w(θ)/C_w(θ_ref))` and its θ-gradient.
+type PendingInput = (usize, f64, Vector3<f64>, f64, nalgebra::Vector4<f64>);
+
 /// Adds `−u·L` to the value, `−u·∇L` to the gradient and `u·∇L∇Lᵀ` to the
 /// Hessian of the input log-Jacobian term.
 #[inline]
@@ -784,7 +789,7 @@ pub(crate) fn run_window(
     // wheel, σ²n̂², f_w, ln C ratio, its gradient) and ∂P/∂λ_w (SmoothedShare).
     let jac_mode = v.input_jacobian;
     let mut unit_sums = [WindowSums::zero(), WindowSums::zero()];
-    let mut pending: Vec<(usize, f64, Vector3<f64>, f64, nalgebra::Vector4<f64>)> = Vec::new();
+    let mut pending: Vec<PendingInput> = Vec::new();
     // ∂P/∂λ for [left, right, common]: left/right = that wheel's white
     // relative noise (and, with SmoothedShareAll, its Gauss-Markov s_w),
     // common = s_c (SmoothedShareAll only; half to each wheel).

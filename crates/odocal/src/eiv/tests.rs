@@ -751,7 +751,10 @@ fn input_jacobian_derivatives_match_central_differences() {
     assert!((base.h_theta - none.h_theta - hess).amax() <= 1e-9 * base.h_theta.amax());
     for p in 0..4 {
         let h = 1e-6 * [th.c_e, 1.0, th.t_r, 1.0][p];
-        let (sp, sm) = (run(&perturb(&th, p, h), InputJacobian::Unit, full, 1.0), run(&perturb(&th, p, -h), InputJacobian::Unit, full, 1.0));
+        let (sp, sm) = (
+            run(&perturb(&th, p, h), InputJacobian::Unit, full, 1.0),
+            run(&perturb(&th, p, -h), InputJacobian::Unit, full, 1.0),
+        );
         let fd = (sp.jacobian - sm.jacobian) / (2.0 * h);
         let g = base.grad_jacobian[p];
         assert!((g - fd).abs() <= 1e-6 * g.abs().max(fd.abs()).max(1e-6), "∂T/∂θ{p}: {g} vs {fd}");
