@@ -8,7 +8,7 @@
 //!     [--bootstrap 0] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
 //!     [--quantisation process|measurement] [--heading tied|separate]
 //!     [--methods known,est] (also: fitted, fo, jac-*, est-jac-*, no-known-boot)
-//!     [--bootstrap-reestimate-seeds 0]
+//!     [--bootstrap-reestimate-seeds 0] [--smooth-half-width 20]
 //! ```
 //!
 //! Per preset and seed (1..=S) it simulates a drive and runs, all through
@@ -36,7 +36,10 @@
 //! - `jac-unit`, `jac-filter`, `jac-smoothed`: `EIV fitted` plus the input
 //!   log-Jacobian term (`InputJacobian::Unit`, `FilterShare`,
 //!   `SmoothedShare`), `jac-filter2` (`FilterShareSecondOrder`), `jac-all` (`SmoothedShareAll`; `known-jac-all` on the
-//!   measured-input filter); `est-fitted`, `est-jac-filter`, `est-jac-smoothed`:
+//!   measured-input filter); `smooth`, `smooth-jac-smoothed`, `smooth-jac-all`,
+//!   `smooth-jac-filter`: `WheelNoiseScale::SmoothedFittedInput` (±`--smooth-half-width`
+//!   samples) without and with the term; `est-smooth`, `est-smooth-jac-smoothed`,
+//!   `est-smooth-jac-filter`: the same with η estimated; `est-fitted`, `est-jac-filter`, `est-jac-smoothed`:
 //!   the same with η estimated (the `est` options with the fitted input);
 //! - with `fo`: rows derived from each known-noise fit without another
 //!   filter pass (`EivReport::first_order_bias`): `+ fo` = θ − b for every
@@ -81,6 +84,7 @@ struct Args {
     bootstrap: usize,
     bootstrap_seeds: u64,
     bootstrap_reestimate_seeds: u64,
+    smooth_half_width: usize,
     bootstrap_presets: Vec<String>,
     json: Option<String>,
     quantisation: QuantisationModel,
@@ -97,6 +101,7 @@ fn parse_args() -> Res<Args> {
         bootstrap: 0,
         bootstrap_seeds: 0,
         bootstrap_reestimate_seeds: 0,
+        smooth_half_width: 20,
         bootstrap_presets: vec!["paper".into(), "coloured".into()],
         json: None,
         quantisation: QuantisationModel::ProcessNoise,
@@ -114,6 +119,7 @@ fn parse_args() -> Res<Args> {
             "--bootstrap" => a.bootstrap = v()?.parse()?,
             "--bootstrap-seeds" => a.bootstrap_seeds = v()?.parse()?,
             "--bootstrap-reestimate-seeds" => a.bootstrap_reestimate_seeds = v()?.parse()?,
+            "--smooth-half-width" => a.smooth_half_width = v()?.parse()?,
             "--bootstrap-presets" => a.bootstrap_presets = v()?.split(',').map(str::to_string).collect(),
             "--json" => a.json = Some(v()?),
             "--methods" => a.methods = v()?.split(',').map(str::to_string).collect(),
@@ -230,9 +236,23 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         ("jac-smoothed", "EIV fitted + jac smoothed", InputJacobian::SmoothedShare),
         ("jac-all", "EIV fitted + jac all", InputJacobian::SmoothedShareAll),
         ("known-jac-all", "EIV known + jac all", InputJacobian::SmoothedShareAll),
+        ("smooth", "EIV smoothed-input", InputJacobian::None),
+        ("smooth-jac-smoothed", "EIV smoothed-input + jac smoothed", InputJacobian::SmoothedShare),
+        ("smooth-jac-all", "EIV smoothed-input + jac all", InputJacobian::SmoothedShareAll),
+        ("smooth-jac-filter", "EIV smoothed-input + jac filter", InputJacobian::FilterShare),
     ] {
         if want(m) {
-            let base = if m.starts_with("known") { &known } else { &fitted };
+            let smoothed = EivOptions {
+                wheel_noise_scale: WheelNoiseScale::SmoothedFittedInput { half_width_samples: a.smooth_half_width },
+                ..known.clone()
+            };
+            let base = if m.starts_with("known") {
+                &known
+            } else if m.starts_with("smooth") {
+                &smoothed
+            } else {
+                &fitted
+            };
             jobs.push((label, EivOptions { input_jacobian: jac, ..base.clone() }));
         }
     }
@@ -242,9 +262,17 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         ("est-jac-filter2", "EIV est. fitted + jac filter2", InputJacobian::FilterShareSecondOrder),
         ("est-jac-smoothed", "EIV est. fitted + jac smoothed", InputJacobian::SmoothedShare),
         ("est-jac-all", "EIV est. fitted + jac all", InputJacobian::SmoothedShareAll),
+        ("est-smooth", "EIV est. smoothed-input", InputJacobian::None),
+        ("est-smooth-jac-smoothed", "EIV est. smoothed-input + jac smoothed", InputJacobian::SmoothedShare),
+        ("est-smooth-jac-filter", "EIV est. smoothed-input + jac filter", InputJacobian::FilterShare),
     ] {
         if want(m) {
-            jobs.push((label, EivOptions { input_jacobian: jac, ..est_fitted.clone() }));
+            let est_smoothed = EivOptions {
+                wheel_noise_scale: WheelNoiseScale::SmoothedFittedInput { half_width_samples: a.smooth_half_width },
+                ..est.clone()
+            };
+            let base = if m.starts_with("est-smooth") { &est_smoothed } else { &est_fitted };
+            jobs.push((label, EivOptions { input_jacobian: jac, ..base.clone() }));
         }
     }
     for (label, opts) in jobs {

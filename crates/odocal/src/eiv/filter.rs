@@ -80,6 +80,10 @@ pub(crate) struct Variances {
     /// The log-Jacobian term of the relative white wheel noise in J
     /// ([`super::InputJacobian`]).
     pub input_jacobian: InputJacobian,
+    /// With `fitted_input`: the rotation that scales the relative wheel
+    /// noise is the moving average of ñ over ±this many samples (0: ñ
+    /// itself; [`super::WheelNoiseScale::SmoothedFittedInput`]).
+    pub noise_input_half_width: usize,
 }
 
 /// Everything one window contributes to the objective and its derivatives.
@@ -802,9 +806,34 @@ pub(crate) fn run_window(
         dp_lambda[2][(3, 3)] = v.common;
     }
     let mut w_smoothed = [0.0; 3];
+    // The rotations that scale the relative wheel noise with the fitted
+    // input: ñ, or its moving average over ±K samples within the window
+    // (nearly independent of the white error of sample i).
+    let half = if v.fitted_input && follows { v.noise_input_half_width } else { 0 };
+    let smooth_of = |n: &[f64]| -> Vec<f64> {
+        if half == 0 {
+            return Vec::new();
+        }
+        let (a0, a1) = (window.start, window.end);
+        let mut prefix = Vec::with_capacity(a1 - a0 + 1);
+        prefix.push(0.0);
+        for k in a0..a1 {
+            let last = prefix[prefix.len() - 1];
+            prefix.push(last + n[k]);
+        }
+        (a0..a1)
+            .map(|k| {
+                let (lo, hi) = (k.saturating_sub(half).max(a0), (k + half + 1).min(a1));
+                (prefix[hi - a0] - prefix[lo - a0]) / (hi - lo) as f64
+            })
+            .collect()
+    };
+    let (smooth_l, smooth_r) = (smooth_of(input.n_rl), smooth_of(input.n_rr));
 
     for i in window.start..window.end {
         let (nl, nr) = (input.n_rl[i], input.n_rr[i]);
+        // The rotations scaling the relative noise (smoothed when asked).
+        let (nls, nrs) = if half > 0 { (smooth_l[i - window.start], smooth_r[i - window.start]) } else { (nl, nr) };
         let (beta, a_y) = (input.beta[i], input.a_y[i]);
 
         // --- Covariance linearisation along the reference (at θ_cov).
@@ -825,7 +854,7 @@ pub(crate) fn run_window(
         let gw = if fitted { fitted_input_factors(a_y, theta, theta_ref) } else { [Dual::cst(1.0); 2] };
         let fxs_ref = if fitted {
             let (sl, sr) = (fn_l * gw[0].v, fn_r * gw[1].v);
-            Matrix3::from_columns(&[-sl * nl - sr * nr, -sl * nl, -sr * nr])
+            Matrix3::from_columns(&[-sl * nls - sr * nrs, -sl * nls, -sr * nrs])
         } else {
             Matrix3::from_columns(&[-fn_l * nl - fn_r * nr, -fn_l * nl, -fn_r * nr])
         };
@@ -839,11 +868,11 @@ pub(crate) fn run_window(
         // heading, made the filter misread quantisation as reference noise
         // (docs/study.md, EIV section).
         let (wl, wr) = if fitted {
-            let white = |n: f64, g: f64| {
+            let white = |n: f64, ns: f64, g: f64| {
                 let q = if v.quant_in_measurement || n == 0.0 { 0.0 } else { v.quant };
-                v.white_rel * n * n * g * g + q
+                v.white_rel * ns * ns * g * g + q
             };
-            (white(nl, gw[0].v), white(nr, gw[1].v))
+            (white(nl, nls, gw[0].v), white(nr, nrs, gw[1].v))
         } else if v.quant_in_measurement {
             (v.white_rel * nl * nl, v.white_rel * nr * nr)
         } else {
@@ -892,7 +921,7 @@ pub(crate) fn run_window(
             // The relative white noise variance of each wheel (rev², the
             // fitted-input factor included; quantisation excluded).
             let g2 = if fitted { [gw[0].v * gw[0].v, gw[1].v * gw[1].v] } else { [1.0, 1.0] };
-            let rel = [v.white_rel * nl * nl * g2[0], v.white_rel * nr * nr * g2[1]];
+            let rel = [v.white_rel * nls * nls * g2[0], v.white_rel * nrs * nrs * g2[1]];
             for (w, (n_w, f_w)) in [(nl, fn_l), (nr, fn_r)].into_iter().enumerate() {
                 if n_w == 0.0 {
                     continue;
@@ -1032,7 +1061,7 @@ pub(crate) fn run_window(
                 let dfl = dvec_of(&rt.fn_l, jt);
                 let dfr = dvec_of(&rt.fn_r, jt);
                 let (dsl, dsr) = (dvec_of(&fs_l, jt), dvec_of(&fs_r, jt));
-                let dfxs = Matrix3::from_columns(&[-dsl * nl - dsr * nr, -dsl * nl, -dsr * nr]);
+                let dfxs = Matrix3::from_columns(&[-dsl * nls - dsr * nrs, -dsl * nls, -dsr * nrs]);
                 let (d02, d12) = (rt.f02.d[jt], rt.f12.d[jt]);
                 // G = ∂F̄ P⁺ (rows 0..3 only).
                 let mut g = M3x9::zeros();
@@ -1067,8 +1096,8 @@ pub(crate) fn run_window(
                     + f_a * dfa.transpose() * v.a_y;
                 if fitted {
                     // ∂(σ²ñ²g²)/∂θ_j = 2σ²ñ²g ∂g/∂θ_j; half of it in the half.
-                    let dwl = v.white_rel * nl * nl * gw[0].v * gw[0].d[jt];
-                    let dwr = v.white_rel * nr * nr * gw[1].v * gw[1].d[jt];
+                    let dwl = v.white_rel * nls * nls * gw[0].v * gw[0].d[jt];
+                    let dwr = v.white_rel * nrs * nrs * gw[1].v * gw[1].d[jt];
                     half_dq += fn_l * fn_l.transpose() * dwl + fn_r * fn_r.transpose() * dwr;
                 }
                 for rr in 0..3 {

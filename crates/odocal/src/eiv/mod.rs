@@ -527,6 +527,7 @@ impl NoiseModel {
             heading_separate: true,
             fitted_input: false,
             input_jacobian: InputJacobian::None,
+            noise_input_half_width: 0,
         }
     }
 }
@@ -727,6 +728,26 @@ pub enum WheelNoiseScale {
     /// θ_ref is the start of the fit, batch G-N's θ). Encoder quantisation
     /// (an absolute count error) is not rescaled.
     FittedInput,
+    /// As [`WheelNoiseScale::FittedInput`], with ñ replaced by its moving
+    /// average over ±`half_width_samples` (within the filter window) in the
+    /// noise scale and the s-columns of the covariance transition (the mean
+    /// still uses ñ). With ñ itself the filter's variance `σ²ñ_k²` is
+    /// correlated with the error ε_k it weights (the +σ² of a scalar model
+    /// with exact increments); the average is nearly independent of ε_k.
+    SmoothedFittedInput {
+        /// Half-width K of the moving average, samples (at least 1).
+        half_width_samples: usize,
+    },
+}
+
+impl WheelNoiseScale {
+    /// Half-width of the moving average (0 without smoothing).
+    fn half_width(&self) -> usize {
+        match self {
+            WheelNoiseScale::SmoothedFittedInput { half_width_samples } => *half_width_samples,
+            _ => 0,
+        }
+    }
 }
 
 /// A correction of the estimator's own bias applied to the estimate
@@ -907,7 +928,10 @@ impl EivOptions {
                 return bad("bias_correction", "the bootstrap needs at least 2 replicates");
             }
         }
-        if self.wheel_noise_scale == WheelNoiseScale::FittedInput && self.covariance != CovarianceMode::FollowsTheta {
+        if let WheelNoiseScale::SmoothedFittedInput { half_width_samples: 0 } = self.wheel_noise_scale {
+            return bad("wheel_noise_scale", "smoothed_fitted_input needs half_width_samples >= 1");
+        }
+        if self.wheel_noise_scale != WheelNoiseScale::MeasuredInput && self.covariance != CovarianceMode::FollowsTheta {
             return bad("wheel_noise_scale", "fitted_input needs covariance = follows_theta");
         }
         self.noise.validate()
@@ -1255,6 +1279,7 @@ struct Problem<'a> {
     quantisation: QuantisationModel,
     heading_separate: bool,
     fitted_input: bool,
+    noise_input_half_width: usize,
     input_jacobian: InputJacobian,
     /// Filter passes over the drive: with derivatives, objective only.
     evaluations: std::cell::Cell<[usize; 2]>,
@@ -1275,6 +1300,7 @@ impl Problem<'_> {
         v.heading_separate = self.heading_separate;
         v.fitted_input = self.fitted_input;
         v.input_jacobian = self.input_jacobian;
+        v.noise_input_half_width = self.noise_input_half_width;
         let parts: Vec<Result<WindowSums>> =
             self.windows.par_iter().map(|w| run_window(self.input, w, theta, theta_ref, &v, mode, None)).collect();
         let mut total = WindowSums::zero();
@@ -1752,7 +1778,8 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         noise: opts.noise,
         quantisation: opts.quantisation,
         heading_separate: opts.heading_scale == HeadingScale::Separate,
-        fitted_input: opts.wheel_noise_scale == WheelNoiseScale::FittedInput,
+        fitted_input: opts.wheel_noise_scale != WheelNoiseScale::MeasuredInput,
+        noise_input_half_width: opts.wheel_noise_scale.half_width(),
         input_jacobian: opts.input_jacobian,
         evaluations: std::cell::Cell::new([0; 2]),
     };
@@ -1999,7 +2026,8 @@ pub fn cramer_rao_bound(
         noise: *noise,
         quantisation: opts.quantisation,
         heading_separate: opts.heading_scale == HeadingScale::Separate,
-        fitted_input: opts.wheel_noise_scale == WheelNoiseScale::FittedInput,
+        fitted_input: opts.wheel_noise_scale != WheelNoiseScale::MeasuredInput,
+        noise_input_half_width: opts.wheel_noise_scale.half_width(),
         // The CRB uses the information matrix only.
         input_jacobian: InputJacobian::None,
         evaluations: std::cell::Cell::new([0; 2]),
