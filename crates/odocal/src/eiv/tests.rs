@@ -788,3 +788,49 @@ fn input_jacobian_derivatives_match_central_differences() {
         assert!(f > 0.0 && f <= s * (1.0 + 1e-9) && s < smoothed.turning[k], "wheel {k}: filtered {f}, smoothed {s}");
     }
 }
+
+/// With the relative noise scaled by the moving average of ñ
+/// ([`WheelNoiseScale::SmoothedFittedInput`]) the gradients of M and of J
+/// (with the unit-weight Jacobian term) still match central differences,
+/// and the filter differs from the plain fitted-input one.
+#[test]
+fn smoothed_fitted_input_gradients_match_central_differences() {
+    let out = simulate(&SimOptions { length_km: 0.6, ..SimOptions::paper(6) }).expect("sim");
+    let input = input_of(&out.drive);
+    let w = Window { index: 0, part: 0, start: 0, end: 1500.min(input.len() - 1) };
+    let th = Theta { c_e: 1.953, c_d: -0.0015, t_r: 1.52, d: 0.0009 };
+    let th_ref = Theta { c_e: 1.96, c_d: -0.001, d: 0.0012, ..th };
+    let eta = [0.3, -0.5, 0.2, -0.2, 0.4, 0.25];
+    let variances = |e: &[f64; 6], half: usize| {
+        let mut v = NoiseModel::default().variances(e, input.sample_time_s);
+        v.fitted_input = true;
+        v.noise_input_half_width = half;
+        v.input_jacobian = InputJacobian::Unit;
+        v
+    };
+    let run = |t: &Theta, e: &[f64; 6], mode: filter::Mode, half: usize| {
+        run_window(&input, &w, t, &th_ref, &variances(e, half), mode, None).expect("window")
+    };
+    let base = run(&th, &eta, filter::Mode::full(true, true), 20);
+    let plain = run(&th, &eta, filter::Mode::full(true, true), 0);
+    assert!((base.quad - plain.quad).abs() > 1e-6 * plain.quad.abs(), "smoothing changed nothing");
+    for p in 0..9 {
+        let (tp, tm, ep, em, h) = if p < 4 {
+            let h = 1e-6 * [th.c_e, 1.0, th.t_r, 1.0][p];
+            (perturb(&th, p, h), perturb(&th, p, -h), eta, eta, h)
+        } else {
+            let h = 1e-5;
+            let (mut ep, mut em) = (eta, eta);
+            ep[p - 4] += h;
+            em[p - 4] -= h;
+            (th, th, ep, em, h)
+        };
+        let (sp, sm) = (run(&tp, &ep, filter::Mode::cost(true), 20), run(&tm, &em, filter::Mode::cost(true), 20));
+        for (what, fd, g) in [
+            ("M", (sp.merit() - sm.merit()) / (2.0 * h), base.grad[p]),
+            ("J", (sp.profile() - sm.profile()) / (2.0 * h), base.grad_profile[p]),
+        ] {
+            assert!((g - fd).abs() <= 1e-4 * g.abs().max(fd.abs()).max(1e-6), "∂{what}/∂p{p}: {g} vs {fd}");
+        }
+    }
+}
