@@ -39,7 +39,8 @@
 //!   measured-input filter); `smooth`, `smooth-jac-smoothed`, `smooth-jac-all`,
 //!   `smooth-jac-filter`: `WheelNoiseScale::SmoothedFittedInput` (±`--smooth-half-width`
 //!   samples) without and with the term; `est-smooth`, `est-smooth-jac-smoothed`,
-//!   `est-smooth-jac-filter`: the same with η estimated; `est-fitted`, `est-jac-filter`, `est-jac-smoothed`:
+//!   `est-smooth-jac-filter`: the same with η estimated; `ref`, `ref-jac-*`,
+//!   `est-ref-jac-*`: `WheelNoiseScale::ReferenceInput`; `est-fitted`, `est-jac-filter`, `est-jac-smoothed`:
 //!   the same with η estimated (the `est` options with the fitted input);
 //! - with `fo`: rows derived from each known-noise fit without another
 //!   filter pass (`EivReport::first_order_bias`): `+ fo` = θ − b for every
@@ -240,14 +241,24 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         ("smooth-jac-smoothed", "EIV smoothed-input + jac smoothed", InputJacobian::SmoothedShare),
         ("smooth-jac-all", "EIV smoothed-input + jac all", InputJacobian::SmoothedShareAll),
         ("smooth-jac-filter", "EIV smoothed-input + jac filter", InputJacobian::FilterShare),
+        ("ref", "EIV reference-input", InputJacobian::None),
+        ("ref-jac-smoothed", "EIV reference-input + jac smoothed", InputJacobian::SmoothedShare),
+        ("ref-jac-all", "EIV reference-input + jac all", InputJacobian::SmoothedShareAll),
+        ("ref-jac-filter", "EIV reference-input + jac filter", InputJacobian::FilterShare),
     ] {
         if want(m) {
             let smoothed = EivOptions {
                 wheel_noise_scale: WheelNoiseScale::SmoothedFittedInput { half_width_samples: a.smooth_half_width },
                 ..known.clone()
             };
+            let reference = EivOptions {
+                wheel_noise_scale: WheelNoiseScale::ReferenceInput { half_width_samples: a.smooth_half_width },
+                ..known.clone()
+            };
             let base = if m.starts_with("known") {
                 &known
+            } else if m.starts_with("ref") {
+                &reference
             } else if m.starts_with("smooth") {
                 &smoothed
             } else {
@@ -265,13 +276,25 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         ("est-smooth", "EIV est. smoothed-input", InputJacobian::None),
         ("est-smooth-jac-smoothed", "EIV est. smoothed-input + jac smoothed", InputJacobian::SmoothedShare),
         ("est-smooth-jac-filter", "EIV est. smoothed-input + jac filter", InputJacobian::FilterShare),
+        ("est-ref-jac-all", "EIV est. reference-input + jac all", InputJacobian::SmoothedShareAll),
+        ("est-ref-jac-smoothed", "EIV est. reference-input + jac smoothed", InputJacobian::SmoothedShare),
     ] {
         if want(m) {
             let est_smoothed = EivOptions {
                 wheel_noise_scale: WheelNoiseScale::SmoothedFittedInput { half_width_samples: a.smooth_half_width },
                 ..est.clone()
             };
-            let base = if m.starts_with("est-smooth") { &est_smoothed } else { &est_fitted };
+            let est_reference = EivOptions {
+                wheel_noise_scale: WheelNoiseScale::ReferenceInput { half_width_samples: a.smooth_half_width },
+                ..est.clone()
+            };
+            let base = if m.starts_with("est-smooth") {
+                &est_smoothed
+            } else if m.starts_with("est-ref") {
+                &est_reference
+            } else {
+                &est_fitted
+            };
             jobs.push((label, EivOptions { input_jacobian: jac, ..base.clone() }));
         }
     }

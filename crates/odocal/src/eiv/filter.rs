@@ -84,6 +84,11 @@ pub(crate) struct Variances {
     /// noise is the moving average of ñ over ±this many samples (0: ñ
     /// itself; [`super::WheelNoiseScale::SmoothedFittedInput`]).
     pub noise_input_half_width: usize,
+    /// With `noise_input_half_width > 0`: the rotations come from the
+    /// reference's speed and yaw rate (central differences over ±K samples)
+    /// at θ_ref instead of from the moving average of ñ
+    /// ([`super::WheelNoiseScale::ReferenceInput`]).
+    pub noise_input_from_reference: bool,
 }
 
 /// Everything one window contributes to the objective and its derivatives.
@@ -828,7 +833,29 @@ pub(crate) fn run_window(
             })
             .collect()
     };
-    let (smooth_l, smooth_r) = (smooth_of(input.n_rl), smooth_of(input.n_rr));
+    let (smooth_l, smooth_r) = if half > 0 && v.noise_input_from_reference {
+        // Wheel rotations implied by the reference at θ_ref: speed and yaw
+        // rate by central differences over ±K samples (within the window),
+        // C_l n_l = (v − ψ̇ t_r/2) t_s, C_r n_r = (v + ψ̇ t_r/2) t_s, with the
+        // sign of the measured rotation (independent of the wheel noise).
+        let (a0, a1) = (window.start, window.end);
+        let mut l = Vec::with_capacity(a1 - a0);
+        let mut r = Vec::with_capacity(a1 - a0);
+        for k in a0..a1 {
+            let (lo, hi) = (k.saturating_sub(half).max(a0), (k + half).min(a1));
+            let dt = (hi - lo).max(1) as f64 * ts;
+            let speed = (input.px[hi] - input.px[lo]).hypot(input.py[hi] - input.py[lo]) / dt;
+            let yaw_rate = wrap_angle(input.psi[hi] - input.psi[lo]) / dt;
+            let (c_l, c_r) = theta_ref.wheel_circumferences(input.a_y[k]);
+            let nl_ = (speed - 0.5 * yaw_rate * theta_ref.t_r) * ts / c_l;
+            let nr_ = (speed + 0.5 * yaw_rate * theta_ref.t_r) * ts / c_r;
+            l.push(nl_.abs() * input.n_rl[k].signum() * f64::from(u8::from(input.n_rl[k] != 0.0)));
+            r.push(nr_.abs() * input.n_rr[k].signum() * f64::from(u8::from(input.n_rr[k] != 0.0)));
+        }
+        (l, r)
+    } else {
+        (smooth_of(input.n_rl), smooth_of(input.n_rr))
+    };
 
     for i in window.start..window.end {
         let (nl, nr) = (input.n_rl[i], input.n_rr[i]);

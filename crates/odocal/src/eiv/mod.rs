@@ -528,6 +528,7 @@ impl NoiseModel {
             fitted_input: false,
             input_jacobian: InputJacobian::None,
             noise_input_half_width: 0,
+            noise_input_from_reference: false,
         }
     }
 }
@@ -738,13 +739,24 @@ pub enum WheelNoiseScale {
         /// Half-width K of the moving average, samples (at least 1).
         half_width_samples: usize,
     },
+    /// As [`WheelNoiseScale::FittedInput`], with the rotation scaling the
+    /// relative noise (and the s-columns of the covariance transition) taken
+    /// from the reference: speed and yaw rate by central differences over
+    /// ±`half_width_samples` at θ_ref (`C_l n_l = (v − ψ̇ t_r/2) t_s`,
+    /// `C_r n_r = (v + ψ̇ t_r/2) t_s`), so the scale is independent of both the
+    /// white and the Gauss-Markov wheel errors.
+    ReferenceInput {
+        /// Half-width K of the central difference, samples (at least 1).
+        half_width_samples: usize,
+    },
 }
 
 impl WheelNoiseScale {
     /// Half-width of the moving average (0 without smoothing).
     fn half_width(&self) -> usize {
         match self {
-            WheelNoiseScale::SmoothedFittedInput { half_width_samples } => *half_width_samples,
+            WheelNoiseScale::SmoothedFittedInput { half_width_samples }
+            | WheelNoiseScale::ReferenceInput { half_width_samples } => *half_width_samples,
             _ => 0,
         }
     }
@@ -928,8 +940,12 @@ impl EivOptions {
                 return bad("bias_correction", "the bootstrap needs at least 2 replicates");
             }
         }
-        if let WheelNoiseScale::SmoothedFittedInput { half_width_samples: 0 } = self.wheel_noise_scale {
-            return bad("wheel_noise_scale", "smoothed_fitted_input needs half_width_samples >= 1");
+        if matches!(
+            self.wheel_noise_scale,
+            WheelNoiseScale::SmoothedFittedInput { half_width_samples: 0 }
+                | WheelNoiseScale::ReferenceInput { half_width_samples: 0 }
+        ) {
+            return bad("wheel_noise_scale", "the smoothed scales need half_width_samples >= 1");
         }
         if self.wheel_noise_scale != WheelNoiseScale::MeasuredInput && self.covariance != CovarianceMode::FollowsTheta {
             return bad("wheel_noise_scale", "fitted_input needs covariance = follows_theta");
@@ -1280,6 +1296,7 @@ struct Problem<'a> {
     heading_separate: bool,
     fitted_input: bool,
     noise_input_half_width: usize,
+    noise_input_from_reference: bool,
     input_jacobian: InputJacobian,
     /// Filter passes over the drive: with derivatives, objective only.
     evaluations: std::cell::Cell<[usize; 2]>,
@@ -1301,6 +1318,7 @@ impl Problem<'_> {
         v.fitted_input = self.fitted_input;
         v.input_jacobian = self.input_jacobian;
         v.noise_input_half_width = self.noise_input_half_width;
+        v.noise_input_from_reference = self.noise_input_from_reference;
         let parts: Vec<Result<WindowSums>> =
             self.windows.par_iter().map(|w| run_window(self.input, w, theta, theta_ref, &v, mode, None)).collect();
         let mut total = WindowSums::zero();
@@ -1780,6 +1798,7 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         heading_separate: opts.heading_scale == HeadingScale::Separate,
         fitted_input: opts.wheel_noise_scale != WheelNoiseScale::MeasuredInput,
         noise_input_half_width: opts.wheel_noise_scale.half_width(),
+        noise_input_from_reference: matches!(opts.wheel_noise_scale, WheelNoiseScale::ReferenceInput { .. }),
         input_jacobian: opts.input_jacobian,
         evaluations: std::cell::Cell::new([0; 2]),
     };
@@ -2028,6 +2047,7 @@ pub fn cramer_rao_bound(
         heading_separate: opts.heading_scale == HeadingScale::Separate,
         fitted_input: opts.wheel_noise_scale != WheelNoiseScale::MeasuredInput,
         noise_input_half_width: opts.wheel_noise_scale.half_width(),
+        noise_input_from_reference: matches!(opts.wheel_noise_scale, WheelNoiseScale::ReferenceInput { .. }),
         // The CRB uses the information matrix only.
         input_jacobian: InputJacobian::None,
         evaluations: std::cell::Cell::new([0; 2]),
