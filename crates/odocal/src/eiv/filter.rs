@@ -836,7 +836,7 @@ pub(crate) fn run_window(
     let (smooth_l, smooth_r) = if half > 0 && v.noise_input_from_reference {
         // Wheel rotations implied by the reference at θ_ref: speed and yaw
         // rate by central differences over ±K samples (within the window),
-        // C_l n_l = (v − ψ̇ t_r/2) t_s, C_r n_r = (v + ψ̇ t_r/2) t_s, with the
+        // C_l n_l = v − ψ̇ t_r/2, C_r n_r = v + ψ̇ t_r/2 (rev/s), with the
         // sign of the measured rotation (independent of the wheel noise).
         let (a0, a1) = (window.start, window.end);
         let mut l = Vec::with_capacity(a1 - a0);
@@ -847,8 +847,8 @@ pub(crate) fn run_window(
             let speed = (input.px[hi] - input.px[lo]).hypot(input.py[hi] - input.py[lo]) / dt;
             let yaw_rate = wrap_angle(input.psi[hi] - input.psi[lo]) / dt;
             let (c_l, c_r) = theta_ref.wheel_circumferences(input.a_y[k]);
-            let nl_ = (speed - 0.5 * yaw_rate * theta_ref.t_r) * ts / c_l;
-            let nr_ = (speed + 0.5 * yaw_rate * theta_ref.t_r) * ts / c_r;
+            let nl_ = (speed - 0.5 * yaw_rate * theta_ref.t_r) / c_l;
+            let nr_ = (speed + 0.5 * yaw_rate * theta_ref.t_r) / c_r;
             l.push(nl_.abs() * input.n_rl[k].signum() * f64::from(u8::from(input.n_rl[k] != 0.0)));
             r.push(nr_.abs() * input.n_rr[k].signum() * f64::from(u8::from(input.n_rr[k] != 0.0)));
         }

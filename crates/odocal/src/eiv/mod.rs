@@ -742,8 +742,8 @@ pub enum WheelNoiseScale {
     /// As [`WheelNoiseScale::FittedInput`], with the rotation scaling the
     /// relative noise (and the s-columns of the covariance transition) taken
     /// from the reference: speed and yaw rate by central differences over
-    /// ±`half_width_samples` at θ_ref (`C_l n_l = (v − ψ̇ t_r/2) t_s`,
-    /// `C_r n_r = (v + ψ̇ t_r/2) t_s`), so the scale is independent of both the
+    /// ±`half_width_samples` at θ_ref (`C_l n_l = v − ψ̇ t_r/2`,
+    /// `C_r n_r = v + ψ̇ t_r/2`, rev/s), so the scale is independent of both the
     /// white and the Gauss-Markov wheel errors.
     ReferenceInput {
         /// Half-width K of the central difference, samples (at least 1).
