@@ -456,7 +456,9 @@ fn crb_section(o: &mut String, c: &CramerRao, rows: &[(String, Scored)], time_s:
         "σ_CRB is the smallest standard deviation an unbiased estimator that knows the noise model can have on this \
          drive (`odocal::eiv::cramer_rao_bound` at θ_true with the simulator's noise model in the EIV filter's form; \
          wheel slip is not in that form). Δ is θ − θ_true; Δ/σ_CRB of a single estimate is one draw: over seeds, an \
-         efficient unbiased estimator has RMS(Δ/σ_CRB) ≈ 1.\n"
+         efficient unbiased estimator has RMS(Δ/σ_CRB) ≈ 1. The row \"noise scales unknown too\" is the bound of an \
+         estimator that estimates the noise levels with θ (EIV's default): the size of the innovations then no \
+         longer measures θ.\n"
     );
     let _ = writeln!(
         o,
@@ -476,6 +478,16 @@ fn crb_section(o: &mut String, c: &CramerRao, rows: &[(String, Scored)], time_s:
         let _ = writeln!(
             o,
             "| σ_CRB, mean-only information | {:.3} | | {:.4} | | {:.2} | | {:.4} | |",
+            m[0] * 1e3,
+            m[1] * 1e3,
+            m[2] * 1e3,
+            m[3] * 1e3
+        );
+    }
+    if let Some(m) = c.sigma_noise_estimated.map(|m| m.to_array()) {
+        let _ = writeln!(
+            o,
+            "| σ_CRB, noise scales unknown too | {:.3} | | {:.4} | | {:.2} | | {:.4} | |",
             m[0] * 1e3,
             m[1] * 1e3,
             m[2] * 1e3,
@@ -659,16 +671,24 @@ mod tests {
         let sigma = Theta { c_e: 1e-4, c_d: 2e-5, t_r: 2e-3, d: 1e-4 };
         let err = Theta { c_e: 2e-4, c_d: -2e-5, t_r: 1e-3, d: 0.0 };
         let ratio = Theta { c_e: 2.0, c_d: -1.0, t_r: 0.5, d: 0.0 };
-        let c = CramerRao { sigma: Some(sigma), sigma_mean_only: Some(sigma), noise: None, unavailable: None };
+        let c = CramerRao {
+            sigma: Some(sigma),
+            sigma_mean_only: Some(sigma),
+            sigma_noise_estimated: Some(sigma),
+            noise: None,
+            unavailable: None,
+        };
         let mut o = String::new();
         crb_section(&mut o, &c, &[("θ_B,F".into(), scored(Some(err), Some(ratio)))], 0.25);
         assert!(o.contains("| σ_CRB | 0.100 | | 0.0200 | | 2.00 | | 0.1000 | |"), "{o}");
         assert!(o.contains("| θ_B,F | +0.200 | +2.00 | -0.0200 | -1.00 | +1.00 | +0.50 | +0.0000 | +0.00 |"), "{o}");
         assert!(o.contains("0.25 s"), "{o}");
+        assert!(o.contains("| σ_CRB, noise scales unknown too | 0.100 |"), "{o}");
 
         let none = CramerRao {
             sigma: None,
             sigma_mean_only: None,
+            sigma_noise_estimated: None,
             noise: None,
             unavailable: Some("the true θ is not known".into()),
         };

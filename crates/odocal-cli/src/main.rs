@@ -657,6 +657,10 @@ fn report_json(
     wheel_scale: Option<&str>,
 ) -> Result<serde_json::Value> {
     let mut v = serde_json::to_value(r)?;
+    // The σ that stands for the result (the verdict's, --params-out's).
+    if let Some(obj) = v.as_object_mut() {
+        obj.insert("sigma".into(), serde_json::to_value(r.result_sigma())?);
+    }
     // The `method` of the report (SPEC §9) is the name; its settings are in `options.method`.
     if let (Some((t, e)), Some(obj)) = (truth, v.as_object_mut()) {
         obj.insert("truth".into(), serde_json::json!({"theta": t, "mean_position_error_m": e}));
@@ -757,14 +761,10 @@ fn run_calibration(
     let truth_ref = truth.as_ref().map(|(t, e)| (t, *e));
     let input = source.map(|(p, _)| p.display().to_string()).unwrap_or_else(|| "simulated drive".into());
     if let Some(p) = &args.params_out {
-        let mut f = odocal::param_file::ParamFile::from_theta(&r.theta, sigma_or_held(&r), &input, &r.method);
-        if let Some(x) = &r.extrinsics {
-            f.add_extrinsics(x);
-        }
+        // The σ that stands for the result (the verdict's, the JSON's `sigma`).
+        let mut f = odocal::param_file::ParamFile::from_report(&r, &input);
         f.node = args.params_node.clone();
         f.mapping = args.params_mapping;
-        f.verdict = Some(r.verdict.level.to_string());
-        f.verdict_reasons = r.verdict.reasons.iter().map(|x| x.to_string()).collect();
         f.write(p)?;
     }
     if let Some(p) = &args.report {
@@ -784,7 +784,7 @@ fn run_calibration(
                 let mut rows = odocal_report::ParamRow::theta_rows(
                     &r.initial.theta,
                     &r.theta,
-                    Some(sigma_or_held(&r)),
+                    Some(r.result_sigma().to_array()),
                     truth_ref.map(|t| t.0),
                 );
                 rows.extend(r.extrinsics.as_ref().map(odocal_report::ParamRow::extrinsics_rows).unwrap_or_default());
@@ -824,13 +824,6 @@ fn run_calibration(
     print!("{}", settings::report(&setting_uses, noise_origin.as_deref()));
     std::io::stdout().flush()?;
     Ok(outcome)
-}
-
-/// 1σ per θ entry, `None` for a parameter held at θ_0.
-fn sigma_or_held(r: &odocal::CalibrationReport) -> [Option<f64>; 4] {
-    let sd = r.std_dev().to_array();
-    let free = r.options.identify.free;
-    std::array::from_fn(|i| odocal::Param::from_index(i).filter(|p| free.contains(*p)).map(|_| sd[i]))
 }
 
 fn calibrate_cmd(a: CalibrateArgs, bars: &progress::Bars) -> Result<Outcome> {

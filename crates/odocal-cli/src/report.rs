@@ -4,8 +4,8 @@ use std::fmt::Write as _;
 
 use odocal::calibrate::eiv::noise_summary;
 use odocal::{
-    CalibrationReport, EivDetail, EivOutcome, ExtrinsicsEstimate, Method, MethodDetail, MultiValidation, Param, Theta,
-    Verdict, VerdictLevel,
+    CalibrationReport, EivDetail, EivOutcome, ExtrinsicsEstimate, Method, MethodDetail, MultiValidation, Param,
+    SigmaSource, Theta, Verdict, VerdictLevel,
 };
 
 fn eiv_detail(r: &CalibrationReport) -> Option<&EivDetail> {
@@ -301,6 +301,12 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
         out.push_str(&extrinsics_table(x));
     }
     out.push_str(&verdict(&r.verdict));
+    let column = match r.result_sigma().source {
+        SigmaSource::ClusterRobust => "robust",
+        SigmaSource::BatchSpread => "spread",
+        SigmaSource::Model => "model",
+    };
+    let _ = writeln!(out, "  σ of the result (verdict, --params-out, --report, JSON `sigma`): ± 1σ ({column})");
     if let Some(w) = wheel_scale {
         let _ = writeln!(out, "  wheels: {w}");
     }

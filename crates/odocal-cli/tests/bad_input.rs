@@ -3,16 +3,12 @@
 //! message that names the cause; and import memory bounded on the
 //! blow-up manifests (run under an address-space limit).
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-fn odocal(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_odocal")).args(args).arg("--quiet").output().expect("run odocal")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
+use common::{odocal, stderr};
 
 fn assert_fails(o: &Output, code: i32, needles: &[&str]) {
     let e = stderr(o);

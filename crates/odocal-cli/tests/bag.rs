@@ -2,8 +2,11 @@
 //! every bag error of a `format = "mcap"` manifest through `odocal import`,
 //! with its exact one-line message (exit code 1).
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+
+use common::odocal;
 
 const WHEELS: &str = "/vehicle/wheel_joint_states";
 const POSE: &str = "/localization/pose_with_covariance";
@@ -13,10 +16,6 @@ const TOPICS: &str = "/localization/pose_with_covariance (geometry_msgs/msg/Pose
                       /sensing/gnss/rear_left/nav_sat_fix (sensor_msgs/msg/NavSatFix), \
                       /sensing/gnss/rear_right/nav_sat_fix (sensor_msgs/msg/NavSatFix), \
                       /vehicle/wheel_joint_states (sensor_msgs/msg/JointState)";
-
-fn odocal(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_odocal")).args(args).arg("--quiet").output().expect("run odocal")
-}
 
 fn slice() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../odocal/tests/data/psu-mapping-van/drive-slice.mcap")

@@ -1,20 +1,12 @@
 //! End-to-end tests of the `odocal` binary: contract (SPEC §9), bad input,
 //! determinism.
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
-fn odocal(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_odocal")).args(args).arg("--quiet").output().expect("run odocal")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-fn stdout(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
+use common::{odocal, stderr, stdout};
 
 /// Asserts a failed run with exit code 1 and one error line containing all `needles`.
 fn assert_error(o: &Output, needles: &[&str]) {

@@ -1,15 +1,9 @@
 //! `odocal calibrate --method eiv`: JSON (noise model, termination, which
 //! estimate), terminal section, flags of other methods rejected.
 
-use std::process::{Command, Output};
+mod common;
 
-fn odocal(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_odocal")).args(args).arg("--quiet").output().expect("run odocal")
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
-}
+use common::{odocal, text};
 
 #[test]
 fn eiv_on_a_small_simulated_drive() {

@@ -2,13 +2,12 @@
 //! `--lever-arm`, `--heading-offset`, `--fix` of an extrinsics parameter,
 //! and their rows in the JSON, terminal and parameter-file reports.
 
-use std::process::{Command, Output};
+mod common;
 
+use std::process::Output;
+
+use common::odocal;
 use serde_json::Value;
-
-fn odocal(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_odocal")).args(args).arg("--quiet").output().expect("run odocal")
-}
 
 fn json(o: &Output) -> Value {
     assert!(o.status.code().is_some_and(|c| c == 0 || c == 3), "{}", String::from_utf8_lossy(&o.stderr));

@@ -3,20 +3,14 @@
 //! straight segments and warns (`one_way_turns`) unless asked to keep the
 //! turning-only selection; the flag wins over the manifest.
 
-use std::path::Path;
-use std::process::{Command, Output};
+mod common;
 
+use std::path::Path;
+
+use common::{calibrate_json, canonical_manifest, odocal, setting_outcome, text};
 use odocal::drive::Signals;
 use odocal::model::{step, wheel_rotations, Input, State, Theta};
 use odocal::Drive;
-
-fn odocal(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_odocal")).args(args).arg("--quiet").output().expect("run odocal")
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
-}
 
 /// A noise-free oval (300 m straights, 40 m radius half circles) driven
 /// counter-clockwise at 10 m/s for 1.3 laps at 40 Hz: every turning
@@ -40,51 +34,15 @@ fn oval() -> Drive {
 
 /// A manifest importing the canonical CSV `drive.csv` beside it, with `extra` appended.
 fn manifest(extra: &str) -> String {
-    r#"
-[output]
-clock_offset = 0.0
-min_part_s = 1.0
-
-[streams.d]
-file = "drive.csv"
-time_column = "t"
-
-[wheels]
-stream = "d"
-signal = "rev_per_s"
-rear_left = { column = "n_rl" }
-rear_right = { column = "n_rr" }
-
-[pose]
-stream = "d"
-position = { kind = "local", x = "px", y = "py" }
-heading = { column = "psi", convention = "enu" }
-
-[lateral_acceleration]
-source = "imu"
-stream = "d"
-column = "a_y"
-"#
-    .to_string()
-        + extra
+    canonical_manifest("drive.csv", extra)
 }
 
 fn calibrate(input: &Path, extra: &[&str]) -> serde_json::Value {
-    let mut args = vec!["calibrate", input.to_str().expect("utf8"), "--method", "batch-gn", "--json", "-"];
-    args.extend_from_slice(extra);
-    let o = odocal(&args);
-    assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", text(&o.stderr));
-    serde_json::from_slice(&o.stdout).expect("json")
+    calibrate_json(input, &[&["--method", "batch-gn"], extra].concat())
 }
 
 fn one_way_warnings(r: &serde_json::Value) -> usize {
     r["warnings"].as_array().expect("warnings").iter().filter(|w| w["kind"] == "one_way_turns").count()
-}
-
-fn outcome(r: &serde_json::Value, key: &str) -> String {
-    let uses = r["manifest_settings"].as_array().expect("manifest_settings");
-    let u = uses.iter().find(|u| u["key"] == key).unwrap_or_else(|| panic!("no {key} in {uses:?}"));
-    u["outcome"].as_str().expect("outcome").to_string()
 }
 
 #[test]
@@ -110,17 +68,17 @@ fn keep_one_way_flag_and_manifest_setting_keep_the_turning_selection() {
     std::fs::write(&m, manifest("\n[calibration]\nkeep_one_way = true\n")).expect("write");
     let r = calibrate(&m, &[]);
     assert_eq!(one_way_warnings(&r), 0, "{}", r["warnings"]);
-    assert_eq!(outcome(&r, "calibration.keep_one_way"), "used");
+    assert_eq!(setting_outcome(&r, "calibration.keep_one_way"), "used");
 
     // keep_one_way = false in the manifest, --keep-one-way on the command line: the flag wins.
     let m = d.path().join("add.toml");
     std::fs::write(&m, manifest("\n[calibration]\nkeep_one_way = false\n")).expect("write");
     let r = calibrate(&m, &[]);
     assert_eq!(one_way_warnings(&r), 1, "{}", r["warnings"]);
-    assert_eq!(outcome(&r, "calibration.keep_one_way"), "used");
+    assert_eq!(setting_outcome(&r, "calibration.keep_one_way"), "used");
     let r = calibrate(&m, &["--keep-one-way"]);
     assert_eq!(one_way_warnings(&r), 0, "{}", r["warnings"]);
-    assert_eq!(outcome(&r, "calibration.keep_one_way"), "overridden");
+    assert_eq!(setting_outcome(&r, "calibration.keep_one_way"), "overridden");
 
     // The EIV method selects no turning segments: the flag is an error there.
     let o = odocal(&["calibrate", csv.to_str().expect("utf8"), "--method", "eiv", "--keep-one-way"]);

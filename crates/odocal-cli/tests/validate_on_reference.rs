@@ -5,57 +5,16 @@
 //! report says which extrinsics each drive used; a command-line value that
 //! overrules the drive's is reported as a conflict.
 
-use std::path::Path;
-use std::process::{Command, Output};
+mod common;
 
+use std::path::Path;
+
+use common::{calibrate_json, canonical_manifest, odocal, text};
 use odocal::extrinsics::Extrinsics;
 use odocal::sim::{simulate, SimOptions};
 
-fn odocal(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_odocal")).args(args).arg("--quiet").output().expect("run odocal")
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
-}
-
-/// A manifest importing the canonical CSV `file` beside it, with `extra` appended.
-fn manifest(file: &str, extra: &str) -> String {
-    format!(
-        r#"
-[output]
-clock_offset = 0.0
-min_part_s = 1.0
-
-[streams.d]
-file = "{file}"
-time_column = "t"
-
-[wheels]
-stream = "d"
-signal = "rev_per_s"
-rear_left = {{ column = "n_rl" }}
-rear_right = {{ column = "n_rr" }}
-
-[pose]
-stream = "d"
-position = {{ kind = "local", x = "px", y = "py" }}
-heading = {{ column = "psi", convention = "enu" }}
-
-[lateral_acceleration]
-source = "imu"
-stream = "d"
-column = "a_y"
-{extra}"#
-    )
-}
-
 fn calibrate(fit: &Path, extra: &[&str]) -> serde_json::Value {
-    let mut args = vec!["calibrate", fit.to_str().expect("utf8"), "--method", "batch-gn", "--json", "-"];
-    args.extend_from_slice(extra);
-    let o = odocal(&args);
-    assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", text(&o.stderr));
-    serde_json::from_slice(&o.stdout).expect("json")
+    calibrate_json(fit, &[&["--method", "batch-gn"], extra].concat())
 }
 
 #[test]
@@ -73,9 +32,9 @@ fn a_validation_drive_applies_its_own_reference() {
     other.drive.write_csv(&csv).expect("write");
     let toml = d.path().join("other.toml");
     let reference = "\n[reference]\nlever_arm = [-0.9, 0.3]\nheading_offset = -0.01\n";
-    std::fs::write(&toml, manifest("other.csv", reference)).expect("write");
+    std::fs::write(&toml, canonical_manifest("other.csv", reference)).expect("write");
     let bare = d.path().join("bare.toml");
-    std::fs::write(&bare, manifest("other.csv", "")).expect("write");
+    std::fs::write(&bare, canonical_manifest("other.csv", "")).expect("write");
 
     // Without its [reference] (CSV, or a manifest without one): the reference taken for the axle.
     let without = calibrate(&fit, &["--validate-on", csv.to_str().expect("utf8")]);

@@ -954,6 +954,8 @@ fn calibrate_json(
         obj.insert("wheel_scale".into(), serde_json::json!(w));
     }
     if let Some(obj) = v.as_object_mut() {
+        // The σ that stands for the result (as the CLI's JSON `sigma`).
+        obj.insert("sigma".into(), serde_json::to_value(report.result_sigma()).map_err(json_err)?);
         if let Some(m) = per_drive {
             obj.insert("validate_on".into(), serde_json::to_value(m).map_err(json_err)?);
         }
@@ -1037,11 +1039,8 @@ fn _report_html(
         let scored: &Drive = split.as_ref().map_or(&inner, |(_, h)| h.as_ref());
         let segs =
             odocal::segment::validation_segments(scored, &report.options.validation).map_err(|e| e.to_string())?;
-        let free = report.options.identify.free;
-        let sigma: [Option<f64>; 4] = std::array::from_fn(|i| {
-            let held = Param::from_index(i).is_none_or(|p| !free.contains(p));
-            (!held).then(|| report.covariance[i][i].max(0.0).sqrt())
-        });
+        // The σ that stands for the result (the verdict's, the CLI's).
+        let sigma = report.result_sigma().to_array();
         let theta0 = report.options.theta0;
         let mut input = odocal_report::ReportInput {
             provenance: vec![

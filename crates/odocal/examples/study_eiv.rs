@@ -7,8 +7,8 @@
 //!     [--presets off,white,paper,high,coloured] [--three-step-seeds 0]
 //!     [--bootstrap 0] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
 //!     [--quantisation process|measurement] [--heading tied|separate]
-//!     [--methods known,est] (also: fitted, fo, jac-*, est-jac-*, no-known-boot)
-//!     [--bootstrap-reestimate-seeds 0] [--smooth-half-width 20]
+//!     [--methods known,est] (also: fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot)
+//!     [--tau-candidates] [--bootstrap-reestimate-seeds 0] [--smooth-half-width 20]
 //! ```
 //!
 //! Per preset and seed (1..=S) it simulates a drive and runs, all through
@@ -46,7 +46,14 @@
 //!   filter pass (`EivReport::first_order_bias`): `+ fo` = θ − b for every
 //!   parameter, `+ fo c_e` = c_e − b_ce only, `+ fo c_e cond` = c_e minus the
 //!   conditional bias, `+ fo logdet c_e` = c_e minus the bias with the
-//!   coloured-noise correction kept (J + ½Σ log det S).
+//!   coloured-noise correction kept (J + ½Σ log det S);
+//! - with `esttau`: `EIV est. τ` = `EIV est.` with the Gauss-Markov time
+//!   constants estimated too (`EivOptions::estimate_time_constants`, the
+//!   default grid); the chosen τ (wheel common, per-wheel, drift) are
+//!   summarised against the simulator's; with `estsimtau`: `EIV est. sim τ`
+//!   = `EIV est.` started from the production-car model with the
+//!   simulator's time constants (τ_c = τ_w = the coloured wheel τ, drift τ =
+//!   the position drift's), fixed: what a perfect τ estimate could give.
 //!
 //! The Cramér–Rao bound (`eiv::cramer_rao_bound`, full Gaussian Fisher
 //! information, and its mean-only part) at θ_true with the true noise model.
@@ -91,6 +98,8 @@ struct Args {
     quantisation: QuantisationModel,
     heading: HeadingScale,
     methods: Vec<String>,
+    /// Print every candidate of the time-constant search (`--tau-candidates`).
+    tau_candidates: bool,
 }
 
 fn parse_args() -> Res<Args> {
@@ -108,9 +117,14 @@ fn parse_args() -> Res<Args> {
         quantisation: QuantisationModel::ProcessNoise,
         heading: HeadingScale::TiedToPosition,
         methods: vec!["known".into(), "est".into()],
+        tau_candidates: false,
     };
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
+        if k == "--tau-candidates" {
+            a.tau_candidates = true;
+            continue;
+        }
         let mut v = || it.next().ok_or_else(|| format!("{k} needs a value"));
         match k.as_str() {
             "--km" => a.km = v()?.parse()?,
@@ -173,6 +187,8 @@ struct Run {
     e_p_m: f64,
     time_s: f64,
     warnings: usize,
+    /// Time constants chosen by the τ search `[τ_c, τ_w, τ_drift]`, s.
+    tau_s: Option<[f64; 3]>,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -207,7 +223,10 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
             Ok(r) => {
                 let th = r.theta;
                 let time_s = t.elapsed().as_secs_f64();
-                runs.insert("3-step".into(), Run { theta: th, sigmas: vec![], e_p_m: ep(&th)?, time_s, warnings: 0 });
+                runs.insert(
+                    "3-step".into(),
+                    Run { theta: th, sigmas: vec![], e_p_m: ep(&th)?, time_s, warnings: 0, tau_s: None },
+                );
             }
             Err(e) => eprintln!("{name} {seed}: 3-step failed: {e}"),
         }
@@ -298,6 +317,21 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
             jobs.push((label, EivOptions { input_jacobian: jac, ..base.clone() }));
         }
     }
+    if want("esttau") {
+        jobs.push((
+            "EIV est. τ",
+            EivOptions { estimate_time_constants: true, quantisation: q, heading_scale: h, ..Default::default() },
+        ));
+    }
+    if want("estsimtau") {
+        let noise = NoiseModel {
+            wheel_common_time_constant_s: true_noise.wheel_common_time_constant_s,
+            wheel_differential_time_constant_s: true_noise.wheel_differential_time_constant_s,
+            drift_time_constant_s: true_noise.drift_time_constant_s,
+            ..NoiseModel::PRODUCTION_CAR
+        };
+        jobs.push(("EIV est. sim τ", EivOptions { noise, quantisation: q, heading_scale: h, ..Default::default() }));
+    }
     for (label, opts) in jobs {
         let (r, detail, time_s) = match calibrate_eiv(d, opts.clone(), seed) {
             Ok(x) => x,
@@ -311,7 +345,7 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         if label == "EIV known" {
             runs.insert(
                 "G-N".to_string(),
-                Run { theta: gn, sigmas: vec![], e_p_m: ep(&gn)?, time_s: t_gn, warnings: 0 },
+                Run { theta: gn, sigmas: vec![], e_p_m: ep(&gn)?, time_s: t_gn, warnings: 0, tau_s: None },
             );
         }
         let Some(fit) = detail.eiv.as_deref() else {
@@ -325,7 +359,20 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
             ("Fisher".to_string(), fit.sigma_fisher),
         ];
         let failed = r.warnings.iter().filter(|w| matches!(w, Warning::EivCheckFailed { .. })).count();
-        let run = Run { theta: r.theta, sigmas: sigmas.clone(), e_p_m: ep(&r.theta)?, time_s, warnings: failed };
+        let tau_s = fit.time_constants.as_ref().map(|t| [t.wheel_common_s, t.wheel_differential_s, t.drift_s]);
+        if let (Some(t), true) = (&fit.time_constants, a.tau_candidates) {
+            for c in &t.candidates {
+                eprintln!(
+                    "  {name} {seed} τ candidate {:?}: −log L {:.2}, t_r error {:+.3} %, converged {}, {:.1} s",
+                    c.time_constants_s,
+                    c.neg_log_likelihood,
+                    (c.theta.t_r - truth.t_r) / truth.t_r * 100.0,
+                    c.converged,
+                    c.timing_s
+                );
+            }
+        }
+        let run = Run { theta: r.theta, sigmas: sigmas.clone(), e_p_m: ep(&r.theta)?, time_s, warnings: failed, tau_s };
         runs.insert(label.to_string(), run);
         if want("fo") && label != "EIV est." {
             if let Some(b) = &fit.first_order_bias {
@@ -344,15 +391,27 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
                 ];
                 for (suffix, shift) in variants {
                     let th = shifted(shift);
-                    let run = Run { theta: th, sigmas: sigmas.clone(), e_p_m: ep(&th)?, time_s, warnings: failed };
+                    let run = Run {
+                        theta: th,
+                        sigmas: sigmas.clone(),
+                        e_p_m: ep(&th)?,
+                        time_s,
+                        warnings: failed,
+                        tau_s: None,
+                    };
                     runs.insert(format!("{label} {suffix}"), run);
                 }
             }
         }
+        if label == "EIV est. τ" {
+            let (th, sig) = if failed > 0 { (gn, vec![]) } else { (r.theta, sigmas.clone()) };
+            let run = Run { theta: th, sigmas: sig, e_p_m: ep(&th)?, time_s, warnings: failed, tau_s };
+            runs.insert("EIV est. τ + fallback".to_string(), run);
+        }
         if label == "EIV est." {
             // What a user gets with the default fallback on: G-N when a check failed.
             let (th, sig) = if failed > 0 { (gn, vec![]) } else { (r.theta, sigmas) };
-            let run = Run { theta: th, sigmas: sig, e_p_m: ep(&th)?, time_s, warnings: failed };
+            let run = Run { theta: th, sigmas: sig, e_p_m: ep(&th)?, time_s, warnings: failed, tau_s: None };
             runs.insert("EIV est. + fallback".to_string(), run);
         }
         if label == "EIV est."
@@ -384,6 +443,7 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
                             e_p_m: ep(&th)?,
                             time_s: time_s + t.elapsed().as_secs_f64(),
                             warnings: b.failed.len(),
+                            tau_s: None,
                         };
                         runs.insert(row.into(), run);
                     }
@@ -410,6 +470,7 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
                         e_p_m: ep(&th)?,
                         time_s: time_s + t.elapsed().as_secs_f64(),
                         warnings: b.failed.len(),
+                        tau_s: None,
                     };
                     runs.insert("EIV known + boot".into(), run);
                 }
@@ -427,8 +488,14 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
             t_r: 0.5 * (a[2] + b[2]),
             d: 0.5 * (a[3] + b[3]),
         };
-        let run =
-            Run { theta: th, sigmas: k.sigmas.clone(), e_p_m: ep(&th)?, time_s: k.time_s + f.time_s, warnings: 0 };
+        let run = Run {
+            theta: th,
+            sigmas: k.sigmas.clone(),
+            e_p_m: ep(&th)?,
+            time_s: k.time_s + f.time_s,
+            warnings: 0,
+            tau_s: None,
+        };
         runs.insert("EIV mid(known, fitted)".into(), run);
     }
     Ok(DriveResult { preset: name.into(), seed, theta_true: truth, crb, crb_mean_only, e_p_true_m: ep(&truth)?, runs })
@@ -515,6 +582,18 @@ fn summarise(preset: &str, results: &[DriveResult]) {
         let warned = rs.iter().filter(|(_, x)| x.warnings > 0).count();
         println!("| {m} | {:+.4} | {max:+.4} | {time:.2} | {warned} |", mean_sd(&ex).0);
     }
+    for m in &methods {
+        let taus: Vec<[f64; 3]> = results.iter().filter_map(|r| r.runs.get(m).and_then(|x| x.tau_s)).collect();
+        if taus.is_empty() || m.ends_with("fallback") {
+            continue;
+        }
+        let col = |k: usize| {
+            let mut v: Vec<f64> = taus.iter().map(|t| t[k]).collect();
+            v.sort_by(f64::total_cmp);
+            format!("median {:.3}, range {:.3}–{:.3}", v[v.len() / 2], v[0], v[v.len() - 1])
+        };
+        println!("\n{m}: chosen τ_c s {}; τ_w s {}; drift τ s {} ({} drives)", col(0), col(1), col(2), taus.len());
+    }
 }
 
 fn main() -> Res<()> {
@@ -530,7 +609,8 @@ fn main() -> Res<()> {
                 let e: Vec<String> = (0..4)
                     .map(|i| format!("{:+.4}", (x.theta.to_array()[i] - r.theta_true.to_array()[i]) * s[i]))
                     .collect();
-                format!("[{}] {:.2}s", e.join(" "), x.time_s)
+                let tau = x.tau_s.map_or(String::new(), |t| format!(" τ [{:.3} {:.3} {:.1}]", t[0], t[1], t[2]));
+                format!("[{}] {:.2}s{tau}", e.join(" "), x.time_s)
             };
             let line: Vec<String> = r.runs.iter().map(|(k, x)| format!("{k} {}", fmt(x))).collect();
             eprintln!("{p} {seed}: {}", line.join(" | "));

@@ -78,6 +78,10 @@ pub struct CramerRao {
     pub sigma: Option<Theta>,
     /// σ from the mean-only information (no ∂S/∂θ term; ≥ `sigma`).
     pub sigma_mean_only: Option<Theta>,
+    /// σ with the noise scales η unknown too (nuisance parameters; ≥
+    /// `sigma`): the fair bound for EIV with η estimated
+    /// ([`crate::eiv::CrbReport::sigma_noise_estimated`]).
+    pub sigma_noise_estimated: Option<Theta>,
     /// The noise model of the bound.
     pub noise: Option<NoiseModel>,
     /// Why the bound is not available: no truth or no noise model (a given
@@ -87,7 +91,13 @@ pub struct CramerRao {
 
 impl CramerRao {
     fn unavailable(reason: impl Into<String>) -> Self {
-        CramerRao { sigma: None, sigma_mean_only: None, noise: None, unavailable: Some(reason.into()) }
+        CramerRao {
+            sigma: None,
+            sigma_mean_only: None,
+            sigma_noise_estimated: None,
+            noise: None,
+            unavailable: Some(reason.into()),
+        }
     }
 
     /// (θ − θ_true)/σ_CRB, when the bound is available and positive for
@@ -116,6 +126,7 @@ pub fn cramer_rao_column(drive: &Drive, theta_true: Option<&Theta>, noise: Optio
         Ok(c) if c.sigma.iter().all(|s| s.is_finite() && *s > 0.0) => CramerRao {
             sigma: Some(of(c.sigma)),
             sigma_mean_only: Some(of(c.sigma_mean_only)),
+            sigma_noise_estimated: c.sigma_noise_estimated.map(of),
             noise: Some(*noise),
             unavailable: None,
         },

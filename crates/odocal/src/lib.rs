@@ -96,7 +96,8 @@ pub struct ReadmeDoctests;
 
 pub use calibrate::{
     calibrate, calibrate_held_out, calibrate_with_holdout, BatchGnOptions, CalibrationOptions, CalibrationReport,
-    EivDetail, EivMethodOptions, EivOutcome, FinalSegments, Holdout, Method, MethodDetail, ThreeStepOptions,
+    EivDetail, EivMethodOptions, EivOutcome, FinalSegments, Holdout, Method, MethodDetail, ResultSigma, SigmaSource,
+    ThreeStepOptions,
 };
 pub use compensate::{CompensateOptions, QpOptions};
 pub use drive::{Drive, Signals};

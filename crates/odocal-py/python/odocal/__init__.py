@@ -105,6 +105,16 @@ class CalibrationReport:
         return {k: float(np.sqrt(max(c[i, i], 0.0))) for i, k in enumerate(THETA_NAMES)}
 
     @property
+    def result_sigma(self) -> Optional[dict]:
+        """The 1σ that stands for the result, as the verdict, the CLI's JSON and
+        ``--params-out`` give it: ``{"source": "cluster-robust" | "batch-spread" |
+        "model", "c_e": …, "c_d": …, "t_r": …, "d": …}`` (``None`` for a held
+        parameter). Unlike :attr:`sigma` (the model σ, which understates the
+        uncertainty under input noise). ``None`` for reports without it."""
+        s = self._dict.get("sigma")
+        return dict(s) if s is not None else None
+
+    @property
     def validation(self) -> dict:
         """Ē_p of the result: ``{"mean_position_error_m", "segments", "held_out"}``."""
         return dict(self._dict["validation"])

@@ -307,7 +307,13 @@ impl Estimator for EivMethodOptions {
 
         let t = Instant::now();
         emit(progress, Progress::Stage { name: "EIV filter", total: 1 });
-        let filter = EivOptions { free: mask(selection.free), ..self.filter.clone() };
+        // Parameters the filter names unobservable are held at θ_0, not at
+        // the start (batch G-N's value, arbitrary for such a parameter).
+        let filter = EivOptions {
+            free: mask(selection.free),
+            hold_unobservable_at: self.filter.hold_unobservable_at.or(Some(opts.theta0)),
+            ..self.filter.clone()
+        };
         // Two-stage extrinsics: the start's estimate (or the given values)
         // held; the filter, which models the axle only, runs on the axle
         // poses the reference implies under them.

@@ -378,6 +378,83 @@ impl CalibrationReport {
     pub fn result_covariance(&self) -> Option<&[[f64; 4]; 4]> {
         outcome_covariance(&self.detail)
     }
+
+    /// The 1σ that stands for the result: the square roots of the
+    /// diagonal of [`Self::result_covariance`], else of the model
+    /// covariance (EIV's `H_θ⁻¹`, or a method's when nothing better was
+    /// computed), with where it comes from. Held parameters (not free, or a
+    /// zero covariance row: not estimated) have none. The verdict, the
+    /// parameter file ([`crate::param_file::ParamFile::from_report`]), the
+    /// HTML report and the CLI's JSON `sigma` all give this σ.
+    pub fn result_sigma(&self) -> ResultSigma {
+        let (source, c) = match (&self.detail, self.result_covariance()) {
+            (MethodDetail::BatchGn(_), Some(c)) => (SigmaSource::ClusterRobust, c),
+            (MethodDetail::ThreeStep(_), Some(c)) => (SigmaSource::BatchSpread, c),
+            (_, c) => (SigmaSource::Model, c.unwrap_or(&self.covariance)),
+        };
+        let free = self.options.identify.free;
+        let sd: [Option<f64>; 4] = std::array::from_fn(|i| {
+            let estimated = Param::from_index(i).is_some_and(|p| free.contains(p)) && self.covariance[i][i] != 0.0;
+            estimated.then(|| c[i][i].max(0.0).sqrt())
+        });
+        ResultSigma { source, c_e: sd[0], c_d: sd[1], t_r: sd[2], d: sd[3] }
+    }
+}
+
+/// Which covariance a result's σ comes from ([`CalibrationReport::result_sigma`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SigmaSource {
+    /// batch-gn's cluster-robust covariance ([`RobustCovariance`]).
+    ClusterRobust,
+    /// The 3-step method's step-1 batch spread ([`BatchSpread`]).
+    BatchSpread,
+    /// The model covariance ([`CalibrationReport::covariance`]): EIV's
+    /// `H_θ⁻¹`, or batch-gn's / step 3's `σ²(JᵀWJ)⁻¹` when the robust or
+    /// batch-spread σ could not be computed (then it understates the
+    /// uncertainty under input noise).
+    Model,
+}
+
+impl SigmaSource {
+    /// The name in reports (`cluster-robust`, `batch-spread`, `model`).
+    pub fn name(self) -> &'static str {
+        match self {
+            SigmaSource::ClusterRobust => "cluster-robust",
+            SigmaSource::BatchSpread => "batch-spread",
+            SigmaSource::Model => "model",
+        }
+    }
+}
+
+impl std::fmt::Display for SigmaSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// The 1σ of a calibration's result, per parameter (SI units; `None` for
+/// a parameter held), and which covariance it comes from. In JSON:
+/// `{"source": "batch-spread", "c_e": …, "c_d": …, "t_r": …, "d": null}`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ResultSigma {
+    /// Which covariance.
+    pub source: SigmaSource,
+    /// 1σ of c_e, m.
+    pub c_e: Option<f64>,
+    /// 1σ of c_d, m.
+    pub c_d: Option<f64>,
+    /// 1σ of t_r, m.
+    pub t_r: Option<f64>,
+    /// 1σ of d, m per m/s².
+    pub d: Option<f64>,
+}
+
+impl ResultSigma {
+    /// `[c_e, c_d, t_r, d]`.
+    pub fn to_array(&self) -> [Option<f64>; 4] {
+        [self.c_e, self.c_d, self.t_r, self.d]
+    }
 }
 
 /// Where the report's validation runs: on part of the drive the calibration

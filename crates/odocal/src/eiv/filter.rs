@@ -39,8 +39,8 @@ pub(crate) type MP = SMatrix<f64, NP, NP>;
 type M3x9 = SMatrix<f64, 3, NZ>;
 type M9x3 = SMatrix<f64, NZ, 3>;
 
-/// Measurement noise floors (SPEC §10): keep S regular on a perfect reference.
-const POSITION_FLOOR_M: f64 = 1e-3;
+/// Heading measurement noise floor (SPEC §10): keeps S regular on a perfect
+/// reference (the position floor is [`Variances::position_floor_m`]).
 const HEADING_FLOOR_RAD: f64 = 1e-5;
 
 /// Per-sample noise quantities of one filter pass: the base variances of the
@@ -89,6 +89,8 @@ pub(crate) struct Variances {
     /// at θ_ref instead of from the moving average of ñ
     /// ([`super::WheelNoiseScale::ReferenceInput`]).
     pub noise_input_from_reference: bool,
+    /// Floor of the position measurement σ, m ([`super::EivOptions::position_floor_m`]).
+    pub position_floor_m: f64,
 }
 
 /// Everything one window contributes to the objective and its derivatives.
@@ -757,8 +759,8 @@ pub(crate) fn run_window(
     // The corrected score (X recursion) is needed only with the covariance held.
     let corrected = mode.derivs && mode.theta && !follows;
     let r_floor = [
-        POSITION_FLOOR_M * POSITION_FLOOR_M,
-        POSITION_FLOOR_M * POSITION_FLOOR_M,
+        v.position_floor_m * v.position_floor_m,
+        v.position_floor_m * v.position_floor_m,
         HEADING_FLOOR_RAD * HEADING_FLOOR_RAD,
     ];
     let r_white = Vector3::new(v.pose[0], v.pose[1], v.pose[2]);

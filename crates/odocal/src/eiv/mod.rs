@@ -187,6 +187,7 @@
 
 mod bootstrap;
 pub(crate) mod filter;
+mod tau;
 #[cfg(test)]
 mod tests;
 
@@ -201,6 +202,7 @@ use crate::error::{Error, Result};
 use crate::model::Theta;
 pub use bootstrap::{bootstrap, BootstrapOptions, BootstrapReport};
 use filter::{run_window, Mode, Variances, WindowSums, NETA};
+pub use tau::{TimeConstantCandidate, TimeConstantFit, TimeConstantGrid, TIME_CONSTANT_RANGE_S};
 
 /// The data of a drive as plain slices (all of length N, samples).
 #[derive(Debug, Clone, Copy)]
@@ -328,7 +330,8 @@ fn make_windows(parts: &[Range<usize>], target: usize) -> Vec<Window> {
 /// Scale factor groups η: 0 = white + quantisation, 1 = common wheel
 /// Gauss-Markov, 2 = per-wheel Gauss-Markov, 3 = position white, 4 = pose
 /// drift (position and heading), 5 = heading white. σ_a and σ_β scale with
-/// η_0 (white input noise); all time constants are fixed.
+/// η_0 (white input noise); the time constants are fixed unless
+/// [`EivOptions::estimate_time_constants`] (a grid profile, not a scale).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct NoiseModel {
@@ -529,6 +532,7 @@ impl NoiseModel {
             input_jacobian: InputJacobian::None,
             noise_input_half_width: 0,
             noise_input_from_reference: false,
+            position_floor_m: DEFAULT_POSITION_FLOOR_M,
         }
     }
 }
@@ -643,6 +647,52 @@ pub struct EivOptions {
     /// Correction of the profile cost's bias applied to the estimate.
     /// Default [`BiasCorrection::None`] (see its docs).
     pub bias_correction: BiasCorrection,
+    /// Floor of the reference's position noise σ in the filter's `R`, m
+    /// (added in quadrature to the noise model's position white noise; it is
+    /// not scaled by η). Default 1e-3 (SPEC §10).
+    ///
+    /// Measured (docs/study.md, EIV section, "t_r under large white wheel
+    /// noise"; 12 km, seeds 1–20, the simulator's noise model fixed): on a
+    /// perfect reference with 2 % white wheel noise the 1 mm floor leaves
+    /// t_r +2.90 ± 1.56 % (bias t 8.3) and d −0.58 (t 8.2); with 5 mm,
+    /// t_r +0.23 ± 0.61 % (t 1.7) and d −0.04 (t 1.0), as the filter-free
+    /// heading-channel Deming estimator on the same drives (+0.22 ± 0.58 %).
+    /// The wheel noise is rank 2 in the 3-dof pose, so on a near-perfect
+    /// position reference one direction of the innovation is known to the
+    /// floor and the filter carries it from step to step (windows of 10
+    /// samples remove the bias too). On the `coloured` preset 5 mm also
+    /// lowers the c_e bias (+0.098 → +0.047 %); where the reference has
+    /// centimetres of position noise (`paper`, `high`) the floor changes
+    /// nothing.
+    pub position_floor_m: f64,
+    /// Values at which parameters that the filter names unobservable (with
+    /// [`EivOptions::fix_unobservable`]) are held. `None` (the default)
+    /// holds them at the start θ given to [`estimate`]. `calibrate` passes
+    /// the calibration's θ_0: the start is batch G-N's estimate, which for
+    /// a parameter the data cannot determine can be far off (on the RAV4
+    /// drive, t_r = 5.63 m, so the result was rejected as implausible).
+    pub hold_unobservable_at: Option<Theta>,
+    /// Estimate the Gauss-Markov time constants (wheel τ_c, τ_w and the
+    /// reference drift τ) with the noise scales, by a profile of the
+    /// marginal likelihood over [`EivOptions::time_constant_grid`] (one fit
+    /// per candidate; [`TimeConstantGrid`] has the method and its cost).
+    /// The chosen values replace the starting model's in
+    /// [`EivReport::noise`]. Default false (the time constants of
+    /// [`EivOptions::noise`] are used as given).
+    ///
+    /// Measured (docs/study.md, EIV section; 12 km, η estimated from the
+    /// production-car model): it does **not** help. Paper noise, separate
+    /// heading scale, 20 seeds: t_r +0.87 ± 0.37 % against +0.83 ± 0.36 %
+    /// without it and +0.85 ± 0.38 % with the simulator's τ given (known
+    /// noise model: +0.39 ± 0.30 %); high noise (5 seeds) +22.9 % against
+    /// +17.4 %; on a perfect reference (coloured preset) the likelihood
+    /// prefers a degenerate τ_wheel → 0.06 s with t_r +40 … +70 % (flagged;
+    /// the fallback returns batch G-N). About 4.5–7.5× the wall time of a fit.
+    /// Kept as an opt-in diagnostic.
+    pub estimate_time_constants: bool,
+    /// Candidates of the time-constant search (used only with
+    /// [`EivOptions::estimate_time_constants`]).
+    pub time_constant_grid: TimeConstantGrid,
     /// Log-Jacobian term of the relative white wheel noise added to the θ
     /// cost. Default [`InputJacobian::None`] (see its docs).
     pub input_jacobian: InputJacobian,
@@ -717,6 +767,9 @@ pub enum InputJacobian {
     /// share of the Gauss-Markov noise; M keeps it).
     SmoothedShareAll,
 }
+
+/// Default of [`EivOptions::position_floor_m`], m.
+pub const DEFAULT_POSITION_FLOOR_M: f64 = 1e-3;
 
 /// Which wheel rotation the relative wheel noise (white and Gauss-Markov)
 /// is proportional to in the filter's covariance (issue 9 item 4).
@@ -918,6 +971,10 @@ impl Default for EivOptions {
             wheel_noise_scale: WheelNoiseScale::MeasuredInput,
             bias_correction: BiasCorrection::None,
             input_jacobian: InputJacobian::None,
+            position_floor_m: DEFAULT_POSITION_FLOOR_M,
+            hold_unobservable_at: None,
+            estimate_time_constants: false,
+            time_constant_grid: TimeConstantGrid::default(),
         }
     }
 }
@@ -951,6 +1008,15 @@ impl EivOptions {
         if !(self.nis_band[0] >= 0.0 && self.nis_band[1] > self.nis_band[0]) {
             return bad("nis_band", "must be [lower, upper] with 0 <= lower < upper");
         }
+        if let Some(t) = &self.hold_unobservable_at {
+            t.validate().map_err(|e| Error::InvalidOption {
+                field: "hold_unobservable_at",
+                reason: format!("{e}; give a usable θ (or None to hold at the start)"),
+            })?;
+        }
+        if !(self.position_floor_m.is_finite() && self.position_floor_m > 0.0) {
+            return bad("position_floor_m", "must be positive (it keeps S regular on a perfect reference)");
+        }
         if let BiasCorrection::Bootstrap { replicates, .. } = self.bias_correction {
             if replicates < 2 {
                 return bad("bias_correction", "the bootstrap needs at least 2 replicates");
@@ -965,6 +1031,9 @@ impl EivOptions {
         }
         if self.wheel_noise_scale != WheelNoiseScale::MeasuredInput && self.covariance != CovarianceMode::FollowsTheta {
             return bad("wheel_noise_scale", "fitted_input needs covariance = follows_theta");
+        }
+        if self.estimate_time_constants {
+            self.time_constant_grid.validate()?;
         }
         self.noise.validate()
     }
@@ -1252,6 +1321,11 @@ pub struct EivReport {
     pub updates: usize,
     /// Wall time, s.
     pub timing_s: f64,
+    /// The time-constant search (None unless
+    /// [`EivOptions::estimate_time_constants`]); the chosen time constants
+    /// are also in [`EivReport::noise`].
+    #[serde(default)]
+    pub time_constants: Option<TimeConstantFit>,
 }
 
 impl std::fmt::Display for EivReport {
@@ -1293,6 +1367,14 @@ pub struct CrbReport {
     pub information_mean_only: [[f64; 4]; 4],
     /// `sqrt(diag)` of the inverse of the mean-only information (≥ `sigma`).
     pub sigma_mean_only: [f64; 4],
+    /// The bound when the noise scales are unknown too: `sqrt(diag)` of the
+    /// θ block of the inverse of the joint Fisher information of θ and the
+    /// log-scales η of the noise sources present in the model (η as
+    /// nuisance parameters; ≥ `sigma`). This is the fair bound for EIV with
+    /// η estimated (the library default): the information that the size of
+    /// the innovations carries about θ (the trace term of `sigma`) is shared
+    /// with η. `None` when the joint matrix is singular.
+    pub sigma_noise_estimated: Option<[f64; 4]>,
 }
 
 // ---------------------------------------------------------------------------
@@ -1314,6 +1396,7 @@ struct Problem<'a> {
     noise_input_half_width: usize,
     noise_input_from_reference: bool,
     input_jacobian: InputJacobian,
+    position_floor_m: f64,
     /// Filter passes over the drive: with derivatives, objective only.
     evaluations: std::cell::Cell<[usize; 2]>,
 }
@@ -1335,6 +1418,7 @@ impl Problem<'_> {
         v.input_jacobian = self.input_jacobian;
         v.noise_input_half_width = self.noise_input_half_width;
         v.noise_input_from_reference = self.noise_input_from_reference;
+        v.position_floor_m = self.position_floor_m;
         let parts: Vec<Result<WindowSums>> =
             self.windows.par_iter().map(|w| run_window(self.input, w, theta, theta_ref, &v, mode, None)).collect();
         let mut total = WindowSums::zero();
@@ -1651,6 +1735,15 @@ fn scoring_pass(
     } else {
         (free0, Vec::new())
     };
+    if let Some(held) = opts.hold_unobservable_at.filter(|_| free != free0) {
+        let (mut a, h) = (theta.to_array(), held.to_array());
+        for i in (0..4).filter(|i| free0[*i] && !free[*i]) {
+            a[i] = h[i];
+        }
+        theta = Theta { c_e: a[0], c_d: a[1], t_r: a[2], d: a[3] };
+        theta.validate()?;
+        ev = prob.evaluate(&theta, &theta_ref, &eta, full)?;
+    }
     let initial_cost = objective(&ev, &theta);
     let mut history = Vec::new();
     let mut termination = Termination::MaxIterations { iterations: opts.max_iterations, step_over_sigma: f64::NAN };
@@ -1798,6 +1891,22 @@ fn scoring_pass(
 /// # Ok(()) }
 /// ```
 pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) -> Result<EivReport> {
+    if opts.estimate_time_constants {
+        return tau::estimate_with_time_constants(input, theta_start, opts);
+    }
+    estimate_from(input, theta_start, &[0.0; 6], opts).map(|(report, _)| report)
+}
+
+/// [`estimate`] at the time constants of `opts.noise`, starting from η =
+/// `eta_start`; also returns the Gaussian negative log-likelihood
+/// `½ Σ (νᵀS⁻¹ν + log det S)` (without 2π terms) at the estimate, before
+/// any bias correction.
+pub(crate) fn estimate_from(
+    input: &EivInput<'_>,
+    theta_start: &Theta,
+    eta_start: &[f64; 6],
+    opts: &EivOptions,
+) -> Result<(EivReport, f64)> {
     let t0 = Instant::now();
     opts.validate()?;
     input.validate()?;
@@ -1816,10 +1925,11 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         noise_input_half_width: opts.wheel_noise_scale.half_width(),
         noise_input_from_reference: matches!(opts.wheel_noise_scale, WheelNoiseScale::ReferenceInput { .. }),
         input_jacobian: opts.input_jacobian,
+        position_floor_m: opts.position_floor_m,
         evaluations: std::cell::Cell::new([0; 2]),
     };
     let mut theta = *theta_start;
-    let mut eta = [0.0; 6];
+    let mut eta = if opts.fix_noise { [0.0; 6] } else { *eta_start };
     let mut free = opts.free;
     let mut unobservable = Vec::new();
     let mut passes = Vec::new();
@@ -1915,6 +2025,7 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
     }
     let iterations = passes.iter().map(|p| p.history.len()).sum();
     let theta_uncorrected = theta;
+    let neg_log_likelihood = 0.5 * (ev.total.quad + ev.total.logdet);
     let mut report = EivReport {
         initial_theta: *theta_start,
         theta,
@@ -1940,6 +2051,7 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         warnings,
         updates: ev.total.updates,
         timing_s: t0.elapsed().as_secs_f64(),
+        time_constants: None,
     };
     if let BiasCorrection::Bootstrap { replicates, seed, all_parameters } = opts.bias_correction {
         // The replicates are fitted without correction (their mean estimates
@@ -1951,7 +2063,7 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         report.theta = theta_add(&report.theta, &report.bias_subtracted, -1.0);
         report.timing_s = t0.elapsed().as_secs_f64();
     }
-    Ok(report)
+    Ok((report, neg_log_likelihood))
 }
 
 /// The first-order bias of the profile cost's root ([`FirstOrderBias`]):
@@ -2066,9 +2178,10 @@ pub fn cramer_rao_bound(
         noise_input_from_reference: matches!(opts.wheel_noise_scale, WheelNoiseScale::ReferenceInput { .. }),
         // The CRB uses the information matrix only.
         input_jacobian: InputJacobian::None,
+        position_floor_m: opts.position_floor_m,
         evaluations: std::cell::Cell::new([0; 2]),
     };
-    let ev = prob.evaluate(theta, theta, &[0.0; 6], Mode::full(true, false))?;
+    let ev = prob.evaluate(theta, theta, &[0.0; 6], Mode::full(true, true))?;
     let h: Matrix4<f64> = ev.total.info.fixed_view::<4, 4>(0, 0).into_owned();
     let h_mean = ev.total.info_mean_theta;
     let singular = || Error::NotObservable {
@@ -2078,6 +2191,10 @@ pub fn cramer_rao_bound(
     let cov = free_inverse(&h, &opts.free).ok_or_else(singular)?;
     let cov_mean = free_inverse(&h_mean, &opts.free).ok_or_else(singular)?;
     let sd = |c: &Matrix4<f64>| std::array::from_fn(|i| if opts.free[i] { c[(i, i)].max(0.0).sqrt() } else { 0.0 });
+    // η of the sources present (a zero σ gives a zero information row).
+    let present = noise_sources_present(noise, opts.heading_scale == HeadingScale::Separate);
+    let eta_free: [bool; 6] = std::array::from_fn(|j| present[j] && ev.total.info[(4 + j, 4 + j)] > 0.0);
+    let sigma_noise_estimated = fisher_covariance(&ev.total.info, &opts.free, &eta_free).map(|c| sd(&c));
     Ok(CrbReport {
         theta: *theta,
         free: opts.free,
@@ -2086,7 +2203,34 @@ pub fn cramer_rao_bound(
         sigma: sd(&cov),
         information_mean_only: to_array(&h_mean),
         sigma_mean_only: sd(&cov_mean),
+        sigma_noise_estimated,
     })
+}
+
+/// Which of the six noise log-scales η have a source in `noise` (a group
+/// whose standard deviations are all zero carries no information about its
+/// scale). η_5 (the heading white noise) is a separate scale only with
+/// `heading_separate`; otherwise η_3 scales it with the position white noise.
+fn noise_sources_present(noise: &NoiseModel, heading_separate: bool) -> [bool; 6] {
+    let n = noise;
+    let any = |v: &[f64]| v.iter().any(|x| *x > 0.0);
+    [
+        any(&[
+            n.wheel_white_rel_sigma,
+            n.quantisation_step_rev_per_s,
+            n.lateral_acceleration_sigma_m_per_s2,
+            n.sideslip_sigma_rad,
+        ]),
+        any(&[n.wheel_common_rel_sigma]),
+        any(&[n.wheel_differential_rel_sigma]),
+        if heading_separate {
+            any(&[n.position_white_sigma_m])
+        } else {
+            any(&[n.position_white_sigma_m, n.heading_white_sigma_rad])
+        },
+        any(&[n.position_drift_sigma_m, n.heading_drift_sigma_rad]),
+        heading_separate && any(&[n.heading_white_sigma_rad]),
+    ]
 }
 
 /// The θ block of the inverse of the joint Fisher information of the free

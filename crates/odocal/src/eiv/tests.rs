@@ -422,6 +422,19 @@ fn straight_drive_calibrates_c_e_and_names_the_rest() {
     assert!(r.observability.unobservable.contains(&Parameter::D), "{:?}", r.observability);
     assert!(!r.free[2] && !r.free[3] && r.free[0]);
     assert!(r.warnings.iter().any(|w| matches!(w, EivWarning::Unobservable { .. })));
+
+    // A start whose unobservable t_r and d are far off (batch G-N's value on
+    // a straight drive is arbitrary): by default they stay at the start,
+    // with `hold_unobservable_at` at the given θ_0; c_e is estimated either way.
+    let bad_start = Theta { c_e: 1.96, t_r: 5.63, d: 0.01, ..th };
+    let at_start = estimate(&input, &bad_start, &EivOptions::default()).expect("eiv");
+    assert_eq!((at_start.theta.t_r, at_start.theta.d), (5.63, 0.01), "{at_start}");
+    let held = EivOptions { hold_unobservable_at: Some(th), ..Default::default() };
+    let at_theta0 = estimate(&input, &bad_start, &held).expect("eiv");
+    assert_eq!((at_theta0.theta.t_r, at_theta0.theta.d), (th.t_r, th.d), "{at_theta0}");
+    assert!((at_theta0.theta.c_e - th.c_e).abs() < 1e-6, "{at_theta0}");
+    let invalid = EivOptions { hold_unobservable_at: Some(Theta { t_r: f64::NAN, ..th }), ..Default::default() };
+    assert!(estimate(&input, &bad_start, &invalid).is_err());
 }
 
 #[test]
@@ -458,6 +471,16 @@ fn full_fisher_information_dominates_the_mean_only_information() {
         assert!(c.sigma[i] > 0.0 && c.sigma[i] <= c.sigma_mean_only[i] * (1.0 + 1e-9), "{i}: {c:?}");
     }
     eprintln!("CRB σ full {:?}, mean-only {:?}", c.sigma, c.sigma_mean_only);
+    // η as nuisance parameters can only widen the bound (the θ block of a
+    // joint inverse dominates the inverse of the θ block), and it must
+    // widen t_r's: its trace-term information is shared with the wheel
+    // noise scale.
+    let ne = c.sigma_noise_estimated.expect("joint θ, η information is regular");
+    for i in 0..4 {
+        assert!(ne[i] >= c.sigma[i] * (1.0 - 1e-9), "{i}: {ne:?} vs {:?}", c.sigma);
+    }
+    assert!(ne[2] > 1.01 * c.sigma[2], "t_r: η unknown {} vs known {}", ne[2], c.sigma[2]);
+    eprintln!("CRB σ with η estimated {ne:?}");
 }
 
 fn known_noise_fit(km: f64, seed: u64) -> (crate::sim::SimOutput, EivOptions) {
@@ -832,5 +855,41 @@ fn smoothed_fitted_input_gradients_match_central_differences() {
         ] {
             assert!((g - fd).abs() <= 1e-4 * g.abs().max(fd.abs()).max(1e-6), "∂{what}/∂p{p}: {g} vs {fd}");
         }
+    }
+}
+
+/// `EivOptions::position_floor_m` is the position σ floor of R: on a
+/// perfect reference (the noise model's position white noise zero) the
+/// position variance of every innovation covariance grows by exactly the
+/// difference of the squared floors against the default 1 mm (heading
+/// unchanged), and a non-positive floor is rejected.
+#[test]
+fn position_floor_enters_the_innovation_covariance() {
+    let out = simulate(&SimOptions { length_km: 0.3, substeps: 1, ..SimOptions::noise_free(4) }).expect("sim");
+    let input = input_of(&out.drive);
+    let w = Window { index: 0, part: 0, start: 0, end: 200.min(input.len() - 1) };
+    let th = out.sidecar.theta_true;
+    let noise = NoiseModel::from_sim(&NoiseOptions::white_wheel_only(), input.sample_time_s);
+    let run = |floor: f64| {
+        let mut v = noise.variances(&[0.0; 6], input.sample_time_s);
+        v.position_floor_m = floor;
+        let mut rec = Vec::new();
+        run_window(&input, &w, &th, &th, &v, filter::Mode::full(true, false), Some(&mut rec)).expect("window");
+        rec
+    };
+    let (a, b) = (run(DEFAULT_POSITION_FLOOR_M), run(0.005));
+    assert!(!a.is_empty() && a.len() == b.len());
+    // The first update: P⁻ = P₀ + Q with P₀ = R, so S = 2R + H Q Hᵀ.
+    let want = 2.0 * (0.005f64.powi(2) - DEFAULT_POSITION_FLOOR_M.powi(2));
+    for c in 0..2 {
+        let got = b[0].s[(c, c)] - a[0].s[(c, c)];
+        assert!((got - want).abs() <= 1e-12, "S[{c},{c}] grew by {got:e}, want {want:e}");
+    }
+    assert!((b[0].s[(2, 2)] - a[0].s[(2, 2)]).abs() <= 1e-15, "the heading variance moved");
+    // Later updates: never less than the floor's share of R.
+    assert!(b.iter().all(|r| r.s[(0, 0)] >= 0.005f64.powi(2) && r.s[(1, 1)] >= 0.005f64.powi(2)));
+    for bad in [0.0, -1e-3, f64::NAN] {
+        let opts = EivOptions { position_floor_m: bad, ..EivOptions::default() };
+        assert!(opts.validate().is_err(), "floor {bad} accepted");
     }
 }

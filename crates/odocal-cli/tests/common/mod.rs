@@ -1,0 +1,82 @@
+//! Helpers shared by the integration tests of the `odocal` binary. A test
+//! file that uses them declares `mod common;` (each test file is its own
+//! crate, and each uses a subset, hence `dead_code` allowed).
+#![allow(dead_code)]
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use serde_json::Value;
+
+/// Runs the `odocal` binary of this build with `args` and `--quiet`.
+pub fn odocal(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_odocal")).args(args).arg("--quiet").output().expect("run odocal")
+}
+
+/// Bytes of stdout or stderr as text (lossy).
+pub fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+/// The run's stderr as text.
+pub fn stderr(o: &Output) -> String {
+    text(&o.stderr)
+}
+
+/// The run's stdout as text.
+pub fn stdout(o: &Output) -> String {
+    text(&o.stdout)
+}
+
+/// A manifest importing the canonical CSV `file` (relative to the
+/// manifest) for every stream — wheels in rev/s, local pose with ENU
+/// heading, a_y as an IMU signal — with `extra` (more TOML tables)
+/// appended.
+pub fn canonical_manifest(file: &str, extra: &str) -> String {
+    format!(
+        r#"
+[output]
+clock_offset = 0.0
+min_part_s = 1.0
+
+[streams.d]
+file = "{file}"
+time_column = "t"
+
+[wheels]
+stream = "d"
+signal = "rev_per_s"
+rear_left = {{ column = "n_rl" }}
+rear_right = {{ column = "n_rr" }}
+
+[pose]
+stream = "d"
+position = {{ kind = "local", x = "px", y = "py" }}
+heading = {{ column = "psi", convention = "enu" }}
+
+[lateral_acceleration]
+source = "imu"
+stream = "d"
+column = "a_y"
+{extra}"#
+    )
+}
+
+/// `odocal calibrate INPUT ARGS… --json -`: asserts it ran (exit 0, or 3
+/// for a rejected result) and returns the JSON report.
+pub fn calibrate_json(input: &Path, args: &[&str]) -> Value {
+    let mut all = vec!["calibrate", input.to_str().expect("utf8")];
+    all.extend_from_slice(args);
+    all.extend(["--json", "-"]);
+    let o = odocal(&all);
+    assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", stderr(&o));
+    serde_json::from_slice(&o.stdout).expect("json")
+}
+
+/// What became of the manifest setting `key` (`used`, `overridden`, …) in
+/// a calibrate report's `manifest_settings`.
+pub fn setting_outcome(r: &Value, key: &str) -> String {
+    let uses = r["manifest_settings"].as_array().expect("manifest_settings");
+    let u = uses.iter().find(|u| u["key"] == key).unwrap_or_else(|| panic!("no {key} in {uses:?}"));
+    u["outcome"].as_str().expect("outcome").to_string()
+}

@@ -1,0 +1,100 @@
+//! `--params-out` (YAML and JSON), the JSON report's `sigma` and the
+//! terminal report give one σ for one run: the one that stands for the
+//! result (the verdict's) — the 3-step's batch spread, batch-gn's
+//! cluster-robust σ — not the model σ (step 3's covered 0 % of 3-step
+//! errors in the coverage study).
+
+mod common;
+
+use common::{odocal, stderr, stdout};
+use serde_json::Value;
+
+/// `c_e_sigma: 1.23e-3` and friends of a ROS 2 parameter file, read back.
+fn yaml_number(yaml: &str, key: &str) -> Option<f64> {
+    let prefix = format!("{key}: ");
+    yaml.lines().find_map(|l| l.trim().strip_prefix(prefix.as_str())).map(|v| {
+        let v = v.split_whitespace().next().expect("value");
+        v.parse().unwrap_or_else(|e| panic!("{key}: {v}: {e}"))
+    })
+}
+
+fn sqrt_diag(c: &Value, i: usize) -> f64 {
+    c[i][i].as_f64().expect("covariance entry").sqrt()
+}
+
+#[test]
+fn params_file_json_and_text_give_the_result_sigma() {
+    let d = tempfile::tempdir().expect("tmp");
+    // 3 km for the 3-step (a few seconds in the test profile); 5 km for
+    // batch-gn, the shortest with the 10 clusters its robust σ needs.
+    let (short, long) = (d.path().join("drive3.csv"), d.path().join("drive5.csv"));
+    for (path, km) in [(&short, "3"), (&long, "5")] {
+        let o = odocal(&["simulate", "--seed", "1", "--length-km", km, "--out", path.to_str().expect("utf8")]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    let dstr = short.to_str().expect("utf8");
+
+    // The 3-step: the batch-spread σ everywhere.
+    let (yaml, json) = (d.path().join("p.yaml"), d.path().join("r.json"));
+    let o = odocal(&[
+        "calibrate",
+        dstr,
+        "--batches",
+        "8",
+        "--picks",
+        "3",
+        "--params-out",
+        yaml.to_str().expect("utf8"),
+        "--json",
+        json.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", stderr(&o));
+    let r: Value = serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("json");
+    let y = std::fs::read_to_string(&yaml).expect("yaml");
+    let out = stdout(&o);
+    assert_eq!(r["sigma"]["source"], "batch-spread", "{}", r["sigma"]);
+    assert!(y.contains("sigma: \"batch-spread\""), "{y}");
+    assert!(out.contains("σ of the result (verdict, --params-out, --report, JSON `sigma`): ± 1σ (spread)"), "{out}");
+    let spread = &r["uncertainty"]["batch_spread"]["covariance"];
+    for (i, name) in ["c_e", "c_d", "t_r", "d"].into_iter().enumerate() {
+        let s = sqrt_diag(spread, i);
+        let file = yaml_number(&y, &format!("{name}_sigma")).expect("sigma in the file");
+        assert_eq!(file.to_bits(), s.to_bits(), "{name}: file {file} vs batch spread {s}");
+        assert_eq!(r["sigma"][name].as_f64(), Some(s), "{name}");
+        let model = sqrt_diag(&r["covariance"], i);
+        assert!(s > 10.0 * model, "{name}: the model σ {model} is what the file must not hold (spread {s})");
+    }
+    // The text's c_e row holds the same σ (6 decimals, as printed).
+    let c_e = sqrt_diag(spread, 0);
+    let row = out.lines().find(|l| l.trim_start().starts_with("c_e")).expect("c_e row");
+    assert!(row.contains(&format!("{c_e:.6}")), "{row} lacks {c_e:.6}");
+
+    // batch-gn: its cluster-robust σ; a held parameter is held in both.
+    let params = d.path().join("p.json");
+    let o = odocal(&[
+        "calibrate",
+        long.to_str().expect("utf8"),
+        "--method",
+        "batch-gn",
+        "--fix",
+        "d",
+        "--params-out",
+        params.to_str().expect("utf8"),
+        "--json",
+        json.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", stderr(&o));
+    let r: Value = serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("json");
+    let p: Value = serde_json::from_str(&std::fs::read_to_string(&params).expect("params")).expect("params");
+    assert_eq!(r["sigma"]["source"], "cluster-robust", "{}", r["sigma"]);
+    assert_eq!(p["provenance"]["sigma"], "cluster-robust", "{p}");
+    let robust = &r["identification"]["robust"]["covariance"];
+    for (i, name) in ["c_e", "c_d", "t_r"].into_iter().enumerate() {
+        let s = sqrt_diag(robust, i);
+        assert_eq!(p["parameters"][format!("{name}_sigma")].as_f64(), Some(s), "{name}: {p}");
+        assert_eq!(r["sigma"][name].as_f64(), Some(s), "{name}");
+    }
+    assert_eq!(p["parameters"]["d_held"], true, "{p}");
+    assert!(r["sigma"]["d"].is_null(), "{}", r["sigma"]);
+    assert!(stdout(&o).contains("± 1σ (robust)"), "{}", stdout(&o));
+}

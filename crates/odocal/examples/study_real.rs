@@ -1,0 +1,429 @@
+//! The real-log rows of the EIV study (issue 9, items 6 and 10): batch G-N,
+//! the 3-step method and EIV on the shipped logs, as `odocal calibrate` runs
+//! them (every method with its library defaults).
+//!
+//! ```text
+//! cargo run --release -p odocal --example study_real -- \
+//!     [--methods batch-gn,batch-gn-all,three-step,eiv,eiv-fixed] [--parts testtrack,van,rav4] \
+//!     [--json study_real.json] [--markdown study_real.md]
+//! ```
+//!
+//! Methods: `batch-gn` (`--method batch-gn`, yaw-rate selection),
+//! `batch-gn-all` (`--method batch-gn --min-yaw-rate 0`: every cut
+//! segment, the EIV method's start and fallback), `three-step` (the
+//! default), `eiv` (`--method eiv`: noise estimated from the production-car
+//! start, fallback on) and `eiv-fixed` (`--method eiv --fix-noise`: the
+//! production-car noise model as is).
+//!
+//! Parts:
+//! - `testtrack`: the six test-track runs of 2024-08-05
+//!   (`examples/psu-mapping-van-testtrack/`): calibrate on one run, Ē_p on
+//!   the other five ([`odocal::crossrun`]'s table and criteria), verdict
+//!   counts, and for EIV how many fits fell back to batch G-N;
+//! - `van`: the highway van (`examples/psu-mapping-van/manifest.toml`)
+//!   fitted on one half, Ē_p on the held-out other half (`--holdout
+//!   first-half|second-half`), θ_0's Ē_p beside it, and for EIV whether it
+//!   fell back and why;
+//! - `rav4`: the comma2k19 RAV4 (`examples/comma2k19-rav4/`, 1 km, nearly
+//!   straight): c_e with its σ and which parameters are named unobservable
+//!   or held, with the defaults and with `--auto-fix`.
+//!
+//! σ is the one that stands for the result, as `--params-out` writes it
+//! ([`odocal::CalibrationReport::result_sigma`]): batch G-N's
+//! cluster-robust σ, the 3-step's batch spread, EIV's `H_θ⁻¹`, else the
+//! model σ (the source is named). Prints markdown tables (stdout) and writes JSON with
+//! `--json`. The data are in `../shared/data/` beside the repository. Not a
+//! test: a few minutes in release on two cores.
+
+use std::error::Error;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use odocal::crossrun::{CrossRunFit, CrossRunRow, CrossRunTable, CROSS_RUN_OWN_FIT_RATIO};
+use odocal::eiv::EivOptions;
+use odocal::{
+    calibrate, calibrate_with_holdout, BatchGnOptions, CalibrationExtrinsics, CalibrationOptions, CalibrationReport,
+    Drive, EivMethodOptions, EivOutcome, Holdout, Method, MethodDetail, ParamSet, ValidationDrive, VerdictLevel,
+    Warning,
+};
+use serde_json::{json, Value};
+
+/// The six runs of 2024-08-05 (manifest `run-NAME.toml`).
+const RUNS: [&str; 6] = ["14-45-26", "15-28-33", "16-06-28", "16-47-33", "17-45-46", "18-01-26"];
+
+const METHODS: [&str; 5] = ["batch-gn", "batch-gn-all", "three-step", "eiv", "eiv-fixed"];
+
+/// The options `odocal calibrate --method …` uses for a study method.
+fn options(method: &str) -> Result<CalibrationOptions, Box<dyn Error>> {
+    let mut o = CalibrationOptions::default();
+    match method {
+        "batch-gn" => o.method = Method::BatchGn(BatchGnOptions::default()),
+        "batch-gn-all" => {
+            o.method = Method::BatchGn(BatchGnOptions::default());
+            o.segments.min_peak_yaw_rate_rad_per_s = 0.0;
+        }
+        "three-step" => o.method = Method::default(),
+        "eiv" => o.method = Method::Eiv(EivMethodOptions::default()),
+        "eiv-fixed" => {
+            o.method = Method::Eiv(EivMethodOptions {
+                filter: EivOptions { fix_noise: true, ..EivOptions::default() },
+                ..EivMethodOptions::default()
+            })
+        }
+        other => return Err(format!("unknown method {other}; use {}", METHODS.join(", ")).into()),
+    }
+    Ok(o)
+}
+
+/// The σ that stands for the result, per parameter (`None` = held), as
+/// `--params-out` writes it.
+fn result_sigma(r: &CalibrationReport) -> [Option<f64>; 4] {
+    r.result_sigma().to_array()
+}
+
+/// EIV: `Some((fell back, reasons))`; `None` for the other methods.
+fn eiv_fallback(r: &CalibrationReport) -> Option<(bool, Vec<String>)> {
+    let MethodDetail::Eiv(d) = &r.detail else { return None };
+    let fell = d.eiv_result == EivOutcome::BatchGnFallback;
+    let mut reasons: Vec<String> = r
+        .warnings
+        .iter()
+        .filter_map(|w| match w {
+            Warning::EivCheckFailed { finding, .. } => Some(finding.to_string()),
+            _ => None,
+        })
+        .collect();
+    if let Some(e) = &d.eiv_error {
+        reasons.push(format!("filter error: {e}"));
+    }
+    Some((fell, reasons))
+}
+
+/// The fallback reasons in one short cell: the first one and how many more.
+fn short_reasons(reasons: &[String]) -> String {
+    match reasons {
+        [] => "–".into(),
+        [one] => one.replace('|', "\\|"),
+        [first, rest @ ..] => format!("{} (+{} more)", first.replace('|', "\\|"), rest.len()),
+    }
+}
+
+fn verdict_json(r: &CalibrationReport) -> Value {
+    json!({
+        "level": r.verdict.level.to_string(),
+        "reasons": r.verdict.reasons.iter().map(|x| x.to_string()).collect::<Vec<_>>(),
+    })
+}
+
+fn theta_cell(r: &CalibrationReport) -> String {
+    let t = &r.theta;
+    format!("{:.4} / {:+.2} / {:.3} / {:+.2}", t.c_e, t.c_d * 1e3, t.t_r, t.d * 1e3)
+}
+
+fn load(path: &std::path::Path) -> Result<Drive, Box<dyn Error>> {
+    let (drive, _) = odocal::load_drive(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok(drive)
+}
+
+/// (a) calibrate on each test-track run, Ē_p on the other five.
+fn testtrack(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/psu-mapping-van-testtrack");
+    let mut drives = Vec::new();
+    for run in RUNS {
+        drives.push((run, load(&dir.join(format!("run-{run}.toml")))?));
+    }
+    md.push_str(
+        "#### (a) Test track, 2024-08-05: fit on one run, Ē_p on the other five (m)\n\n\
+         | method | own Ē_p, mean | others, mean | θ_0 on others | ratio (≤ 1.5) | worse than θ_0 on another run \
+         | accepted / doubtful / rejected | EIV fell back | wall s (6 fits) |\n|---|---|---|---|---|---|---|---|---|\n",
+    );
+    let mut out = Vec::new();
+    let mut per_run_md = String::new();
+    for m in methods {
+        let opts = options(m)?;
+        let started = Instant::now();
+        let mut rows = Vec::new();
+        let mut extra = Vec::new();
+        for (i, (name, drive)) in drives.iter().enumerate() {
+            let t = Instant::now();
+            let r = match calibrate(drive, &opts, None) {
+                Ok(r) => r,
+                Err(e) => {
+                    rows.push(CrossRunRow { name: name.to_string(), fit: Err(e.to_string()) });
+                    extra.push(json!({"run": name, "error": e.to_string()}));
+                    continue;
+                }
+            };
+            let others: Vec<ValidationDrive> = drives
+                .iter()
+                .enumerate()
+                .filter(|(j, _)| *j != i)
+                .map(|(_, (n, d))| ValidationDrive { name: n, drive: d, reference: None })
+                .collect();
+            let cal = CalibrationExtrinsics::of(&r, ParamSet::EMPTY);
+            let v = odocal::validate_drives_with(&others, &r.theta, &opts.theta0, &cal, &opts.validation)?;
+            let wall = t.elapsed().as_secs_f64();
+            let fb = eiv_fallback(&r);
+            extra.push(json!({
+                "run": name,
+                "theta": r.theta,
+                "sigma": result_sigma(&r),
+                "sigma_source": r.result_sigma().source,
+                "verdict": verdict_json(&r),
+                "own_m": r.validation.mean_position_error_m,
+                "others_m": v.mean_over_drives_m,
+                "initial_others_m": v.initial_mean_over_drives_m,
+                "eiv_fell_back": fb.as_ref().map(|f| f.0),
+                "eiv_checks_failed": fb.as_ref().map(|f| f.1.clone()),
+                "wall_s": wall,
+            }));
+            per_run_md.push_str(&format!(
+                "| {m} | {name} | {} | {} | {:.2} | {:.2} | {:.2} | {} | {:.1} |\n",
+                theta_cell(&r),
+                r.verdict.level,
+                r.validation.mean_position_error_m,
+                v.mean_over_drives_m,
+                v.initial_mean_over_drives_m,
+                fb.map_or("–".into(), |(f, why)| if f {
+                    format!("yes: {}", short_reasons(&why))
+                } else {
+                    "no".into()
+                }),
+                wall
+            ));
+            let fit = CrossRunFit {
+                theta: r.theta,
+                verdict: r.verdict.clone(),
+                own_m: r.validation.mean_position_error_m,
+                initial_own_m: r.initial.mean_position_error_m,
+                others: v,
+            };
+            rows.push(CrossRunRow { name: name.to_string(), fit: Ok(fit) });
+        }
+        let wall = started.elapsed().as_secs_f64();
+        let table = CrossRunTable { rows };
+        let c = table.criteria(CROSS_RUN_OWN_FIT_RATIO);
+        let count =
+            |l: VerdictLevel| table.rows.iter().filter(|r| r.fit.as_ref().is_ok_and(|f| f.verdict.level == l)).count();
+        let (acc, dou, rej) =
+            (count(VerdictLevel::Accepted), count(VerdictLevel::Doubtful), count(VerdictLevel::Rejected));
+        let fell = extra.iter().filter(|e| e["eiv_fell_back"] == json!(true)).count();
+        let is_eiv = m.starts_with("eiv");
+        let worse = if c.worse_than_initial.is_empty() {
+            "none".to_string()
+        } else {
+            format!("{} of {}", c.worse_than_initial.len(), 5 * (c.runs - c.failed))
+        };
+        md.push_str(&format!(
+            "| {m} | {:.2} | {:.2} | {:.2} | {:.2} | {worse} | {acc} / {dou} / {rej}{} | {} | {wall:.1} |\n",
+            c.mean_own_m,
+            c.mean_cross_m,
+            c.mean_initial_cross_m,
+            c.ratio,
+            if c.failed > 0 { format!(" ({} failed)", c.failed) } else { String::new() },
+            if is_eiv { format!("{fell} of {}", c.runs - c.failed) } else { "–".into() },
+        ));
+        out.push(json!({
+            "method": m,
+            "criteria": c,
+            "verdicts": {"accepted": acc, "doubtful": dou, "rejected": rej},
+            "eiv_fallbacks": is_eiv.then_some(fell),
+            "runs": extra,
+            "wall_s": wall,
+        }));
+    }
+    md.push_str(
+        "\nPer run (θ = c_e m / c_d mm / t_r m / d mm/(m/s²); Ē_p in m):\n\n\
+         | method | run | θ | verdict | own Ē_p | others | θ_0 on others | EIV fell back | wall s |\n\
+         |---|---|---|---|---|---|---|---|---|\n",
+    );
+    md.push_str(&per_run_md);
+    md.push('\n');
+    Ok(Value::Array(out))
+}
+
+/// (b) the highway van, fitted on one half, Ē_p on the other.
+fn van(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/psu-mapping-van/manifest.toml");
+    let drive = load(&path)?;
+    md.push_str(
+        "#### (b) Highway van (07-11): fit on one half, Ē_p on the held-out half (m)\n\n\
+         | method | held out | θ (c_e m / c_d mm / t_r m / d mm/(m/s²)) | held-out Ē_p | θ_0 Ē_p | verdict \
+         | EIV fell back (why) | wall s |\n|---|---|---|---|---|---|---|---|\n",
+    );
+    let mut out = Vec::new();
+    for m in methods {
+        let opts = options(m)?;
+        for (label, h) in [("first-half", Holdout::FirstHalf), ("second-half", Holdout::SecondHalf)] {
+            let t = Instant::now();
+            let r = match calibrate_with_holdout(&drive, &h, &opts, None) {
+                Ok(r) => r,
+                Err(e) => {
+                    md.push_str(&format!("| {m} | {label} | failed: {} ||||||\n", e.to_string().replace('|', "\\|")));
+                    out.push(json!({"method": m, "holdout": label, "error": e.to_string()}));
+                    continue;
+                }
+            };
+            let wall = t.elapsed().as_secs_f64();
+            let fb = eiv_fallback(&r);
+            md.push_str(&format!(
+                "| {m} | {label} | {} | {:.2} | {:.2} | {} | {} | {wall:.1} |\n",
+                theta_cell(&r),
+                r.validation.mean_position_error_m,
+                r.initial.mean_position_error_m,
+                r.verdict.level,
+                fb.as_ref().map_or("–".into(), |(f, why)| if *f {
+                    format!("yes: {}", short_reasons(why))
+                } else {
+                    "no".into()
+                }),
+            ));
+            out.push(json!({
+                "method": m,
+                "holdout": label,
+                "theta": r.theta,
+                "sigma": result_sigma(&r),
+                "sigma_source": r.result_sigma().source,
+                "held_out_m": r.validation.mean_position_error_m,
+                "initial_held_out_m": r.initial.mean_position_error_m,
+                "verdict": verdict_json(&r),
+                "eiv_fell_back": fb.as_ref().map(|f| f.0),
+                "eiv_checks_failed": fb.as_ref().map(|f| f.1.clone()),
+                "wall_s": wall,
+            }));
+        }
+    }
+    md.push('\n');
+    Ok(Value::Array(out))
+}
+
+/// (c) the RAV4: c_e, its σ, what is named unobservable or held.
+fn rav4(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/comma2k19-rav4/manifest.toml");
+    let drive = load(&path)?;
+    md.push_str(
+        "#### (c) comma2k19 RAV4 (1 km, nearly straight): c_e and what is named\n\n\
+         | method | options | c_e (m) ± 1σ | unobservable (named) | held (auto-fix / EIV start) | verdict | Ē_p / θ_0 (m) \
+         | EIV fell back | wall s |\n|---|---|---|---|---|---|---|---|---|\n",
+    );
+    let mut out = Vec::new();
+    for m in methods {
+        for auto_fix in [false, true] {
+            let opts = CalibrationOptions { auto_fix, ..options(m)? };
+            let label = if auto_fix { "--auto-fix" } else { "default" };
+            let t = Instant::now();
+            let r = match calibrate(&drive, &opts, None) {
+                Ok(r) => r,
+                Err(e) => {
+                    let text = e.to_string();
+                    let short: String = text.chars().take(120).collect();
+                    md.push_str(&format!(
+                        "| {m} | {label} | refused: {}{} ||||||\n",
+                        short.replace('|', "\\|"),
+                        if text.len() > short.len() { "…" } else { "" }
+                    ));
+                    out.push(json!({"method": m, "auto_fix": auto_fix, "error": text}));
+                    continue;
+                }
+            };
+            let wall = t.elapsed().as_secs_f64();
+            let sigma = result_sigma(&r);
+            let mut held: Vec<String> = r.auto_fixed.iter().map(|p| p.name().to_string()).collect();
+            if let MethodDetail::Eiv(d) = &r.detail {
+                held.extend(d.start_held.iter().map(|p| format!("{} (start)", p.name())));
+            }
+            let fb = eiv_fallback(&r);
+            md.push_str(&format!(
+                "| {m} | {label} | {:.5} ± {} | {} | {} | {} | {:.2} / {:.2} | {} | {wall:.1} |\n",
+                r.theta.c_e,
+                sigma[0].map_or("held".into(), |s| format!("{s:.5} ({})", r.result_sigma().source)),
+                if r.observability.unobservable.is_empty() {
+                    "none".into()
+                } else {
+                    r.observability.unobservable.to_string()
+                },
+                if held.is_empty() { "none".into() } else { held.join(", ") },
+                r.verdict.level,
+                r.validation.mean_position_error_m,
+                r.initial.mean_position_error_m,
+                fb.as_ref().map_or("–".into(), |(f, why)| if *f {
+                    format!("yes: {}", short_reasons(why))
+                } else {
+                    "no".into()
+                }),
+            ));
+            out.push(json!({
+                "method": m,
+                "auto_fix": auto_fix,
+                "theta": r.theta,
+                "sigma": sigma,
+                "sigma_source": r.result_sigma().source,
+                "unobservable": r.observability.unobservable.iter().map(|p| p.name()).collect::<Vec<_>>(),
+                "rcond": r.observability.rcond,
+                "auto_fixed": r.auto_fixed.iter().map(|p| p.name()).collect::<Vec<_>>(),
+                "held": held,
+                "verdict": verdict_json(&r),
+                "mean_position_error_m": r.validation.mean_position_error_m,
+                "initial_mean_position_error_m": r.initial.mean_position_error_m,
+                "eiv_fell_back": fb.as_ref().map(|f| f.0),
+                "eiv_checks_failed": fb.as_ref().map(|f| f.1.clone()),
+                "wall_s": wall,
+            }));
+        }
+    }
+    md.push('\n');
+    Ok(Value::Array(out))
+}
+
+fn main() -> Result<(), Box<dyn Error>> {
+    let mut methods: Vec<String> = METHODS.iter().map(|s| s.to_string()).collect();
+    let mut parts: Vec<String> = ["testtrack", "van", "rav4"].iter().map(|s| s.to_string()).collect();
+    let mut json_path: Option<PathBuf> = None;
+    let mut md_path: Option<PathBuf> = None;
+    let mut args = std::env::args().skip(1);
+    while let Some(a) = args.next() {
+        let mut value = || args.next().ok_or_else(|| format!("{a} needs a value"));
+        match a.as_str() {
+            "--methods" => methods = value()?.split(',').map(|s| s.trim().to_string()).collect(),
+            "--parts" => parts = value()?.split(',').map(|s| s.trim().to_string()).collect(),
+            "--json" => json_path = Some(PathBuf::from(value()?)),
+            "--markdown" => md_path = Some(PathBuf::from(value()?)),
+            other => return Err(format!("unknown argument {other}").into()),
+        }
+    }
+    for m in &methods {
+        options(m)?;
+    }
+    let started = Instant::now();
+    let mut md = String::new();
+    let mut out = serde_json::Map::new();
+    for p in &parts {
+        let t = Instant::now();
+        let v = match p.as_str() {
+            "testtrack" => testtrack(&methods, &mut md)?,
+            "van" => van(&methods, &mut md)?,
+            "rav4" => rav4(&methods, &mut md)?,
+            other => return Err(format!("unknown part {other}; use testtrack, van, rav4").into()),
+        };
+        eprintln!("{p}: {:.1} s", t.elapsed().as_secs_f64());
+        out.insert(p.clone(), v);
+    }
+    let wall = started.elapsed().as_secs_f64();
+    md.push_str(&format!("Total wall time {wall:.0} s ({} threads).\n", rayon_threads()));
+    out.insert("wall_s".into(), json!(wall));
+    out.insert("methods".into(), json!(methods));
+    print!("{md}");
+    if let Some(p) = json_path {
+        std::fs::write(&p, serde_json::to_string_pretty(&Value::Object(out))? + "\n")?;
+    }
+    if let Some(p) = md_path {
+        std::fs::write(&p, &md)?;
+    }
+    Ok(())
+}
+
+/// The number of threads of rayon's pool (the machine's cores unless
+/// `RAYON_NUM_THREADS` says otherwise).
+fn rayon_threads() -> usize {
+    rayon::current_num_threads()
+}
