@@ -7,7 +7,8 @@
 //!     [--presets off,white,paper,high,coloured] [--three-step-seeds 0]
 //!     [--bootstrap 0] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
 //!     [--quantisation process|measurement] [--heading tied|separate]
-//!     [--methods known,est] (also: fitted, fo, esttau, estsimtau) [--tau-candidates]
+//!     [--methods known,est] (also: fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot)
+//!     [--tau-candidates] [--bootstrap-reestimate-seeds 0] [--smooth-half-width 20]
 //! ```
 //!
 //! Per preset and seed (1..=S) it simulates a drive and runs, all through
@@ -24,9 +25,23 @@
 //! - `EIV known + boot`: the known-noise estimate minus its parametric
 //!   bootstrap bias (`--bootstrap B` replicates, first `--bootstrap-seeds` seeds
 //!   of `--bootstrap-presets`);
+//! - with `est` and `--bootstrap B`: `EIV est. + boot held η̂` = the
+//!   η-estimated fit with c_e corrected by a bootstrap whose replicates hold
+//!   the fitted noise model (fixed-noise re-fits), and `EIV est. + boot
+//!   re-est. η` = the same with η re-estimated in every replicate (first
+//!   `--bootstrap-reestimate-seeds` seeds);
 //! - with `--methods` containing `fitted`: `EIV fitted` = EIV known with
 //!   `WheelNoiseScale::FittedInput` (the relative wheel noise scaled by the
 //!   fitted true input);
+//! - `jac-unit`, `jac-filter`, `jac-smoothed`: `EIV fitted` plus the input
+//!   log-Jacobian term (`InputJacobian::Unit`, `FilterShare`,
+//!   `SmoothedShare`), `jac-filter2` (`FilterShareSecondOrder`), `jac-all` (`SmoothedShareAll`; `known-jac-all` on the
+//!   measured-input filter); `smooth`, `smooth-jac-smoothed`, `smooth-jac-all`,
+//!   `smooth-jac-filter`: `WheelNoiseScale::SmoothedFittedInput` (±`--smooth-half-width`
+//!   samples) without and with the term; `est-smooth`, `est-smooth-jac-smoothed`,
+//!   `est-smooth-jac-filter`: the same with η estimated; `ref`, `ref-jac-*`,
+//!   `est-ref-jac-*`: `WheelNoiseScale::ReferenceInput`; `est-fitted`, `est-jac-filter`, `est-jac-smoothed`:
+//!   the same with η estimated (the `est` options with the fitted input);
 //! - with `fo`: rows derived from each known-noise fit without another
 //!   filter pass (`EivReport::first_order_bias`): `+ fo` = θ − b for every
 //!   parameter, `+ fo c_e` = c_e − b_ce only, `+ fo c_e cond` = c_e minus the
@@ -56,8 +71,8 @@ use std::time::Instant;
 
 use odocal::calibrate::{EivDetail, EivMethodOptions};
 use odocal::eiv::{
-    bootstrap, cramer_rao_bound, BootstrapOptions, EivInput, EivOptions, HeadingScale, NoiseModel, QuantisationModel,
-    WheelNoiseScale,
+    bootstrap, cramer_rao_bound, BootstrapOptions, EivInput, EivOptions, HeadingScale, InputJacobian, NoiseModel,
+    QuantisationModel, WheelNoiseScale,
 };
 use odocal::segment::validation_segments;
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
@@ -76,6 +91,8 @@ struct Args {
     three_step_seeds: u64,
     bootstrap: usize,
     bootstrap_seeds: u64,
+    bootstrap_reestimate_seeds: u64,
+    smooth_half_width: usize,
     bootstrap_presets: Vec<String>,
     json: Option<String>,
     quantisation: QuantisationModel,
@@ -93,6 +110,8 @@ fn parse_args() -> Res<Args> {
         three_step_seeds: 0,
         bootstrap: 0,
         bootstrap_seeds: 0,
+        bootstrap_reestimate_seeds: 0,
+        smooth_half_width: 20,
         bootstrap_presets: vec!["paper".into(), "coloured".into()],
         json: None,
         quantisation: QuantisationModel::ProcessNoise,
@@ -114,6 +133,8 @@ fn parse_args() -> Res<Args> {
             "--three-step-seeds" => a.three_step_seeds = v()?.parse()?,
             "--bootstrap" => a.bootstrap = v()?.parse()?,
             "--bootstrap-seeds" => a.bootstrap_seeds = v()?.parse()?,
+            "--bootstrap-reestimate-seeds" => a.bootstrap_reestimate_seeds = v()?.parse()?,
+            "--smooth-half-width" => a.smooth_half_width = v()?.parse()?,
             "--bootstrap-presets" => a.bootstrap_presets = v()?.split(',').map(str::to_string).collect(),
             "--json" => a.json = Some(v()?),
             "--methods" => a.methods = v()?.split(',').map(str::to_string).collect(),
@@ -234,10 +255,81 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
     // The known-noise fit always runs: it carries the G-N start.
     let mut jobs = vec![("EIV known", known.clone())];
     if want("est") {
-        jobs.push(("EIV est.", est));
+        jobs.push(("EIV est.", est.clone()));
     }
     if want("fitted") {
-        jobs.push(("EIV fitted", fitted));
+        jobs.push(("EIV fitted", fitted.clone()));
+    }
+    // The input log-Jacobian term on the fitted-input filter (known noise),
+    // and with η estimated (`est-jac-*`).
+    let est_fitted = EivOptions { wheel_noise_scale: WheelNoiseScale::FittedInput, ..est.clone() };
+    for (m, label, jac) in [
+        ("jac-unit", "EIV fitted + jac unit", InputJacobian::Unit),
+        ("jac-filter", "EIV fitted + jac filter", InputJacobian::FilterShare),
+        ("jac-filter2", "EIV fitted + jac filter2", InputJacobian::FilterShareSecondOrder),
+        ("jac-smoothed", "EIV fitted + jac smoothed", InputJacobian::SmoothedShare),
+        ("jac-all", "EIV fitted + jac all", InputJacobian::SmoothedShareAll),
+        ("known-jac-all", "EIV known + jac all", InputJacobian::SmoothedShareAll),
+        ("smooth", "EIV smoothed-input", InputJacobian::None),
+        ("smooth-jac-smoothed", "EIV smoothed-input + jac smoothed", InputJacobian::SmoothedShare),
+        ("smooth-jac-all", "EIV smoothed-input + jac all", InputJacobian::SmoothedShareAll),
+        ("smooth-jac-filter", "EIV smoothed-input + jac filter", InputJacobian::FilterShare),
+        ("ref", "EIV reference-input", InputJacobian::None),
+        ("ref-jac-smoothed", "EIV reference-input + jac smoothed", InputJacobian::SmoothedShare),
+        ("ref-jac-all", "EIV reference-input + jac all", InputJacobian::SmoothedShareAll),
+        ("ref-jac-filter", "EIV reference-input + jac filter", InputJacobian::FilterShare),
+    ] {
+        if want(m) {
+            let smoothed = EivOptions {
+                wheel_noise_scale: WheelNoiseScale::SmoothedFittedInput { half_width_samples: a.smooth_half_width },
+                ..known.clone()
+            };
+            let reference = EivOptions {
+                wheel_noise_scale: WheelNoiseScale::ReferenceInput { half_width_samples: a.smooth_half_width },
+                ..known.clone()
+            };
+            let base = if m.starts_with("known") {
+                &known
+            } else if m.starts_with("ref") {
+                &reference
+            } else if m.starts_with("smooth") {
+                &smoothed
+            } else {
+                &fitted
+            };
+            jobs.push((label, EivOptions { input_jacobian: jac, ..base.clone() }));
+        }
+    }
+    for (m, label, jac) in [
+        ("est-fitted", "EIV est. fitted", InputJacobian::None),
+        ("est-jac-filter", "EIV est. fitted + jac filter", InputJacobian::FilterShare),
+        ("est-jac-filter2", "EIV est. fitted + jac filter2", InputJacobian::FilterShareSecondOrder),
+        ("est-jac-smoothed", "EIV est. fitted + jac smoothed", InputJacobian::SmoothedShare),
+        ("est-jac-all", "EIV est. fitted + jac all", InputJacobian::SmoothedShareAll),
+        ("est-smooth", "EIV est. smoothed-input", InputJacobian::None),
+        ("est-smooth-jac-smoothed", "EIV est. smoothed-input + jac smoothed", InputJacobian::SmoothedShare),
+        ("est-smooth-jac-filter", "EIV est. smoothed-input + jac filter", InputJacobian::FilterShare),
+        ("est-ref-jac-all", "EIV est. reference-input + jac all", InputJacobian::SmoothedShareAll),
+        ("est-ref-jac-smoothed", "EIV est. reference-input + jac smoothed", InputJacobian::SmoothedShare),
+    ] {
+        if want(m) {
+            let est_smoothed = EivOptions {
+                wheel_noise_scale: WheelNoiseScale::SmoothedFittedInput { half_width_samples: a.smooth_half_width },
+                ..est.clone()
+            };
+            let est_reference = EivOptions {
+                wheel_noise_scale: WheelNoiseScale::ReferenceInput { half_width_samples: a.smooth_half_width },
+                ..est.clone()
+            };
+            let base = if m.starts_with("est-smooth") {
+                &est_smoothed
+            } else if m.starts_with("est-ref") {
+                &est_reference
+            } else {
+                &est_fitted
+            };
+            jobs.push((label, EivOptions { input_jacobian: jac, ..base.clone() }));
+        }
     }
     if want("esttau") {
         jobs.push((
@@ -372,7 +464,45 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
                 Run { theta: th, sigmas: sig, e_p_m: ep(&th)?, time_s, warnings: failed, tau_s: None, checks: vec![] };
             runs.insert("EIV est. + fallback".to_string(), run);
         }
+        if label == "EIV est."
+            && a.bootstrap >= 2
+            && seed <= a.bootstrap_seeds
+            && a.bootstrap_presets.iter().any(|p| p == name)
+        {
+            // Bootstrap of the η-estimated fit: the replicates either hold the
+            // fitted noise model (`held η̂`, fixed-noise re-fits) or
+            // re-estimate η from the same start as the fit (`re-est. η`,
+            // only on the first `--bootstrap-reestimate-seeds` seeds).
+            let mut variants = vec![(
+                "EIV est. + boot held η̂",
+                EivOptions { noise: fit.noise, fix_noise: true, free: fit.free, ..opts.clone() },
+            )];
+            if seed <= a.bootstrap_reestimate_seeds {
+                variants.push(("EIV est. + boot re-est. η", EivOptions { free: fit.free, ..opts.clone() }));
+            }
+            for (row, filter) in variants {
+                let t = Instant::now();
+                let boot = BootstrapOptions { replicates: a.bootstrap, seed, ..Default::default() };
+                match bootstrap(&input, fit, &filter, &boot) {
+                    Ok(b) => {
+                        // c_e only corrected, as `--correct-c-e-bias` does.
+                        let th = Theta { c_e: b.theta_corrected.c_e, ..r.theta };
+                        let run = Run {
+                            theta: th,
+                            sigmas: vec![("H".into(), sigma_h)],
+                            e_p_m: ep(&th)?,
+                            time_s: time_s + t.elapsed().as_secs_f64(),
+                            warnings: b.failed.len(),
+                            tau_s: None,
+                        };
+                        runs.insert(row.into(), run);
+                    }
+                    Err(e) => eprintln!("{name} {seed}: {row} failed: {e}"),
+                }
+            }
+        }
         if label == "EIV known"
+            && !want("no-known-boot")
             && a.bootstrap >= 2
             && seed <= a.bootstrap_seeds
             && a.bootstrap_presets.iter().any(|p| p == name)

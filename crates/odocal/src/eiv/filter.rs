@@ -19,7 +19,7 @@
 
 use nalgebra::{Matrix3, Matrix3x4, SMatrix, SVector, Vector3};
 
-use super::{EivInput, Window};
+use super::{EivInput, InputJacobian, Window};
 use crate::error::{Error, Result};
 use crate::model::{step_jacobians, wrap_angle, Input, State, Theta};
 
@@ -77,6 +77,18 @@ pub(crate) struct Variances {
     /// fitted true input `ñ·C(θ_ref)/C(θ)` instead of the measured `ñ`
     /// ([`super::WheelNoiseScale::FittedInput`]).
     pub fitted_input: bool,
+    /// The log-Jacobian term of the relative white wheel noise in J
+    /// ([`super::InputJacobian`]).
+    pub input_jacobian: InputJacobian,
+    /// With `fitted_input`: the rotation that scales the relative wheel
+    /// noise is the moving average of ñ over ±this many samples (0: ñ
+    /// itself; [`super::WheelNoiseScale::SmoothedFittedInput`]).
+    pub noise_input_half_width: usize,
+    /// With `noise_input_half_width > 0`: the rotations come from the
+    /// reference's speed and yaw rate (central differences over ±K samples)
+    /// at θ_ref instead of from the moving average of ñ
+    /// ([`super::WheelNoiseScale::ReferenceInput`]).
+    pub noise_input_from_reference: bool,
     /// Floor of the position measurement σ, m ([`super::EivOptions::position_floor_m`]).
     pub position_floor_m: f64,
 }
@@ -123,6 +135,17 @@ pub(crate) struct WindowSums {
     pub grad_correction: nalgebra::Vector4<f64>,
     /// θ-gradient of `½ Σ log det S` alone (zero with the covariance held).
     pub grad_logdet: nalgebra::Vector4<f64>,
+    /// The input log-Jacobian term `T = −Σ u ln(C(θ)/C(θ_ref))`
+    /// ([`super::InputJacobian`]; part of J, not of M).
+    pub jacobian: f64,
+    /// ∂T/∂θ with the weights u held (already included in `grad_profile`).
+    pub grad_jacobian: nalgebra::Vector4<f64>,
+    /// ∂²T/∂θ² = Σ u ∇C∇Cᵀ/C² with u held (already included in `h_theta`).
+    pub hess_jacobian: nalgebra::Matrix4<f64>,
+    /// Σ u per wheel `[left, right]`.
+    pub jacobian_weight: [f64; 2],
+    /// Samples where each wheel turns `[left, right]` (Σ m).
+    pub turning: [f64; 2],
 }
 
 impl WindowSums {
@@ -144,6 +167,11 @@ impl WindowSums {
             bias: nalgebra::Vector4::zeros(),
             grad_correction: nalgebra::Vector4::zeros(),
             grad_logdet: nalgebra::Vector4::zeros(),
+            jacobian: 0.0,
+            grad_jacobian: nalgebra::Vector4::zeros(),
+            hess_jacobian: nalgebra::Matrix4::zeros(),
+            jacobian_weight: [0.0; 2],
+            turning: [0.0; 2],
         }
     }
 
@@ -162,6 +190,13 @@ impl WindowSums {
         self.bias += o.bias;
         self.grad_correction += o.grad_correction;
         self.grad_logdet += o.grad_logdet;
+        self.jacobian += o.jacobian;
+        self.grad_jacobian += o.grad_jacobian;
+        self.hess_jacobian += o.hess_jacobian;
+        for w in 0..2 {
+            self.jacobian_weight[w] += o.jacobian_weight[w];
+            self.turning[w] += o.turning[w];
+        }
         for c in 0..3 {
             self.lag1[c] += o.lag1[c];
             self.e2[c] += o.e2[c];
@@ -173,9 +208,10 @@ impl WindowSums {
         0.5 * (self.quad + self.logdet) + self.correction
     }
 
-    /// The profile cost `J = ½ Σ νᵀS⁻¹ν − Σ m log(1 − ŝ)` (SPEC §10).
+    /// The profile cost `J = ½ Σ νᵀS⁻¹ν − Σ m log(1 − ŝ)` (SPEC §10), plus
+    /// the input log-Jacobian term when it is on.
     pub(crate) fn profile(&self) -> f64 {
-        0.5 * self.quad + self.correction
+        0.5 * self.quad + self.correction + self.jacobian
     }
 
     /// The objective whose θ-gradient is the corrected score:
@@ -654,6 +690,32 @@ fn add_sym_rows(dst: &mut M9, a: &M3x9) {
     }
 }
 
+/// `ln(C_w(θ)/C_w(θ_ref))` per wheel `[left, right]` at lateral
+/// acceleration `a_y` and its θ-gradient `∇C_w/C_w` (θ order
+/// `[c_e, c_d, t_r, d]`; the Hessian of the log is `−∇ln C ∇ln Cᵀ`, C being
+/// linear in θ).
+fn log_circumference_ratio(a_y: f64, th: &Theta, th_ref: &Theta) -> [(f64, nalgebra::Vector4<f64>); 2] {
+    let (cl, cr) = th.wheel_circumferences(a_y);
+    let (rl, rr) = th_ref.wheel_circumferences(a_y);
+    let gl = nalgebra::Vector4::new(1.0, 0.5, 0.0, a_y) / cl;
+    let gr = nalgebra::Vector4::new(1.0, -0.5, 0.0, -a_y) / cr;
+    [((cl / rl).ln(), gl), ((cr / rr).ln(), gr)]
+}
+
+/// A wheel input waiting for the next measurement update (FilterShare):
+/// wheel index, relative white variance `σ²n̂²`, `f_w = ∂f/∂n_w` (pose rows),
+/// `ln(C_w(θ)/C_w(θ_ref))` and its θ-gradient.
+type PendingInput = (usize, f64, Vector3<f64>, f64, nalgebra::Vector4<f64>);
+
+/// Adds `−u·L` to the value, `−u·∇L` to the gradient and `u·∇L∇Lᵀ` to the
+/// Hessian of the input log-Jacobian term.
+#[inline]
+fn add_jacobian_term(out: &mut WindowSums, u: f64, l: f64, g: &nalgebra::Vector4<f64>) {
+    out.jacobian -= u * l;
+    out.grad_jacobian -= g * u;
+    out.hess_jacobian += g * g.transpose() * u;
+}
+
 /// Runs the filter over one window at θ (mean). The covariance recursion
 /// is linearised along the reference (reference heading, measured wheel
 /// rotations) at `theta_ref`, or at θ when `mode.follows_theta` (then
@@ -733,9 +795,74 @@ pub(crate) fn run_window(
     let mut ds = [Matrix3::<f64>::zeros(); NP];
     let mut a = [Matrix3::<f64>::zeros(); NP];
     let mut dkn = D9::zeros();
+    // Input log-Jacobian term: per-wheel sums at unit weight (Unit,
+    // SmoothedShare), samples waiting for the next update (FilterShare:
+    // wheel, σ²n̂², f_w, ln C ratio, its gradient) and ∂P/∂λ_w (SmoothedShare).
+    let jac_mode = v.input_jacobian;
+    let mut unit_sums = [WindowSums::zero(), WindowSums::zero()];
+    let mut pending: Vec<PendingInput> = Vec::new();
+    // ∂P/∂λ for [left, right, common]: left/right = that wheel's white
+    // relative noise (and, with SmoothedShareAll, its Gauss-Markov s_w),
+    // common = s_c (SmoothedShareAll only; half to each wheel).
+    let all_sources = jac_mode == InputJacobian::SmoothedShareAll;
+    let smoothed = all_sources || jac_mode == InputJacobian::SmoothedShare;
+    let mut dp_lambda = [M9::zeros(); 3];
+    if all_sources {
+        dp_lambda[0][(4, 4)] = v.wheel;
+        dp_lambda[1][(5, 5)] = v.wheel;
+        dp_lambda[2][(3, 3)] = v.common;
+    }
+    let mut w_smoothed = [0.0; 3];
+    // The rotations that scale the relative wheel noise with the fitted
+    // input: ñ, or its moving average over ±K samples within the window
+    // (nearly independent of the white error of sample i).
+    let half = if v.fitted_input && follows { v.noise_input_half_width } else { 0 };
+    let smooth_of = |n: &[f64]| -> Vec<f64> {
+        if half == 0 {
+            return Vec::new();
+        }
+        let (a0, a1) = (window.start, window.end);
+        let mut prefix = Vec::with_capacity(a1 - a0 + 1);
+        prefix.push(0.0);
+        for k in a0..a1 {
+            let last = prefix[prefix.len() - 1];
+            prefix.push(last + n[k]);
+        }
+        (a0..a1)
+            .map(|k| {
+                let (lo, hi) = (k.saturating_sub(half).max(a0), (k + half + 1).min(a1));
+                (prefix[hi - a0] - prefix[lo - a0]) / (hi - lo) as f64
+            })
+            .collect()
+    };
+    let (smooth_l, smooth_r) = if half > 0 && v.noise_input_from_reference {
+        // Wheel rotations implied by the reference at θ_ref: speed and yaw
+        // rate by central differences over ±K samples (within the window),
+        // C_l n_l = v − ψ̇ t_r/2, C_r n_r = v + ψ̇ t_r/2 (rev/s), with the
+        // sign of the measured rotation (independent of the wheel noise).
+        let (a0, a1) = (window.start, window.end);
+        let mut l = Vec::with_capacity(a1 - a0);
+        let mut r = Vec::with_capacity(a1 - a0);
+        for k in a0..a1 {
+            let (lo, hi) = (k.saturating_sub(half).max(a0), (k + half).min(a1));
+            let dt = (hi - lo).max(1) as f64 * ts;
+            let speed = (input.px[hi] - input.px[lo]).hypot(input.py[hi] - input.py[lo]) / dt;
+            let yaw_rate = wrap_angle(input.psi[hi] - input.psi[lo]) / dt;
+            let (c_l, c_r) = theta_ref.wheel_circumferences(input.a_y[k]);
+            let nl_ = (speed - 0.5 * yaw_rate * theta_ref.t_r) / c_l;
+            let nr_ = (speed + 0.5 * yaw_rate * theta_ref.t_r) / c_r;
+            l.push(nl_.abs() * input.n_rl[k].signum() * f64::from(u8::from(input.n_rl[k] != 0.0)));
+            r.push(nr_.abs() * input.n_rr[k].signum() * f64::from(u8::from(input.n_rr[k] != 0.0)));
+        }
+        (l, r)
+    } else {
+        (smooth_of(input.n_rl), smooth_of(input.n_rr))
+    };
 
     for i in window.start..window.end {
         let (nl, nr) = (input.n_rl[i], input.n_rr[i]);
+        // The rotations scaling the relative noise (smoothed when asked).
+        let (nls, nrs) = if half > 0 { (smooth_l[i - window.start], smooth_r[i - window.start]) } else { (nl, nr) };
         let (beta, a_y) = (input.beta[i], input.a_y[i]);
 
         // --- Covariance linearisation along the reference (at θ_cov).
@@ -756,7 +883,7 @@ pub(crate) fn run_window(
         let gw = if fitted { fitted_input_factors(a_y, theta, theta_ref) } else { [Dual::cst(1.0); 2] };
         let fxs_ref = if fitted {
             let (sl, sr) = (fn_l * gw[0].v, fn_r * gw[1].v);
-            Matrix3::from_columns(&[-sl * nl - sr * nr, -sl * nl, -sr * nr])
+            Matrix3::from_columns(&[-sl * nls - sr * nrs, -sl * nls, -sr * nrs])
         } else {
             Matrix3::from_columns(&[-fn_l * nl - fn_r * nr, -fn_l * nl, -fn_r * nr])
         };
@@ -770,11 +897,11 @@ pub(crate) fn run_window(
         // heading, made the filter misread quantisation as reference noise
         // (docs/study.md, EIV section).
         let (wl, wr) = if fitted {
-            let white = |n: f64, g: f64| {
+            let white = |n: f64, ns: f64, g: f64| {
                 let q = if v.quant_in_measurement || n == 0.0 { 0.0 } else { v.quant };
-                v.white_rel * n * n * g * g + q
+                v.white_rel * ns * ns * g * g + q
             };
-            (white(nl, gw[0].v), white(nr, gw[1].v))
+            (white(nl, nls, gw[0].v), white(nr, nrs, gw[1].v))
         } else if v.quant_in_measurement {
             (v.white_rel * nl * nl, v.white_rel * nr * nr)
         } else {
@@ -818,6 +945,47 @@ pub(crate) fn run_window(
         }
         let q_white = fn_l * fn_l.transpose() * wl + fn_r * fn_r.transpose() * wr;
         let q_x = q_white + f_b * f_b.transpose() * v.beta + f_a * f_a.transpose() * v.a_y;
+        if jac_mode != InputJacobian::None {
+            let lc = log_circumference_ratio(a_y, theta, theta_ref);
+            // The relative white noise variance of each wheel (rev², the
+            // fitted-input factor included; quantisation excluded).
+            let g2 = if fitted { [gw[0].v * gw[0].v, gw[1].v * gw[1].v] } else { [1.0, 1.0] };
+            let rel = [v.white_rel * nls * nls * g2[0], v.white_rel * nrs * nrs * g2[1]];
+            for (w, (n_w, f_w)) in [(nl, fn_l), (nr, fn_r)].into_iter().enumerate() {
+                if n_w == 0.0 {
+                    continue;
+                }
+                unit_sums[w].turning[w] += 1.0;
+                match jac_mode {
+                    InputJacobian::FilterShare | InputJacobian::FilterShareSecondOrder => {
+                        if rel[w] > 0.0 {
+                            pending.push((w, rel[w], f_w, lc[w].0, lc[w].1));
+                        }
+                    }
+                    _ => add_jacobian_term(&mut unit_sums[w], 1.0, lc[w].0, &lc[w].1),
+                }
+            }
+            if smoothed {
+                for (w, f_w) in [fn_l, fn_r].into_iter().enumerate() {
+                    let dpl = &mut dp_lambda[w];
+                    *dpl = propagate(dpl, f02, f12, &fxs_ref, &diag);
+                    let q = f_w * f_w.transpose() * rel[w];
+                    for r_ in 0..3 {
+                        for c_ in 0..3 {
+                            dpl[(r_, c_)] += q[(r_, c_)];
+                        }
+                    }
+                    if all_sources {
+                        dpl[(4 + w, 4 + w)] += q_s[1 + w];
+                    }
+                }
+                if all_sources {
+                    let dpc = &mut dp_lambda[2];
+                    *dpc = propagate(dpc, f02, f12, &fxs_ref, &diag);
+                    dpc[(3, 3)] += q_s[0];
+                }
+            }
+        }
 
         // --- Corrected score (held covariance): X⁻ = F̄ X⁺ F̄ᵀ − Σ_u var(u) (∂f/∂u)(∂f_θ/∂u)ᵀ,
         // with the sensitivities D⁺ of the previous update (before the mean prediction).
@@ -871,7 +1039,9 @@ pub(crate) fn run_window(
                     let w = m / one_minus[row - 3];
                     for c in 0..NP {
                         out.grad[c] += w * d[(row, c)];
-                        out.grad_profile[c] += w * d[(row, c)];
+                        if !all_sources {
+                            out.grad_profile[c] += w * d[(row, c)];
+                        }
                     }
                     for c in 0..4 {
                         out.grad_correction[c] += w * d[(row, c)];
@@ -920,7 +1090,7 @@ pub(crate) fn run_window(
                 let dfl = dvec_of(&rt.fn_l, jt);
                 let dfr = dvec_of(&rt.fn_r, jt);
                 let (dsl, dsr) = (dvec_of(&fs_l, jt), dvec_of(&fs_r, jt));
-                let dfxs = Matrix3::from_columns(&[-dsl * nl - dsr * nr, -dsl * nl, -dsr * nr]);
+                let dfxs = Matrix3::from_columns(&[-dsl * nls - dsr * nrs, -dsl * nls, -dsr * nrs]);
                 let (d02, d12) = (rt.f02.d[jt], rt.f12.d[jt]);
                 // G = ∂F̄ P⁺ (rows 0..3 only).
                 let mut g = M3x9::zeros();
@@ -955,8 +1125,8 @@ pub(crate) fn run_window(
                     + f_a * dfa.transpose() * v.a_y;
                 if fitted {
                     // ∂(σ²ñ²g²)/∂θ_j = 2σ²ñ²g ∂g/∂θ_j; half of it in the half.
-                    let dwl = v.white_rel * nl * nl * gw[0].v * gw[0].d[jt];
-                    let dwr = v.white_rel * nr * nr * gw[1].v * gw[1].d[jt];
+                    let dwl = v.white_rel * nls * nls * gw[0].v * gw[0].d[jt];
+                    let dwr = v.white_rel * nrs * nrs * gw[1].v * gw[1].d[jt];
                     half_dq += fn_l * fn_l.transpose() * dwl + fn_r * fn_r.transpose() * dwr;
                 }
                 for rr in 0..3 {
@@ -1037,6 +1207,22 @@ pub(crate) fn run_window(
         let logdet = 2.0 * (l[(0, 0)].ln() + l[(1, 1)].ln() + l[(2, 2)].ln());
         let e = l.solve_lower_triangular(&nu).unwrap_or_else(Vector3::zeros);
         let sinv_nu = sinv * nu;
+        if matches!(jac_mode, InputJacobian::FilterShare | InputJacobian::FilterShareSecondOrder) {
+            for (w, var, f_w, lc, g) in pending.drain(..) {
+                let share = var * f_w.dot(&(sinv * f_w));
+                let u = if jac_mode == InputJacobian::FilterShare { share } else { share * (1.0 - 2.0 * share) };
+                out.jacobian_weight[w] += u;
+                add_jacobian_term(&mut out, u, lc, &g);
+            }
+        } else if smoothed {
+            let k_l: M9x3 = hp.transpose() * sinv;
+            let n_l = if all_sources { 3 } else { 2 };
+            for (w, dpl) in dp_lambda.iter_mut().take(n_l).enumerate() {
+                let ds_l = h_cols(&h_rows(dpl));
+                w_smoothed[w] += (sinv * ds_l).trace();
+                *dpl = joseph(dpl, &k_l);
+            }
+        }
         let quad = nu.dot(&sinv_nu);
         if !(quad.is_finite() && logdet.is_finite()) {
             return Err(Error::Numerical(format!(
@@ -1164,6 +1350,37 @@ pub(crate) fn run_window(
         }
         p = joseph(&p, &k);
         add_kdk(&mut p, &k, &r_k);
+    }
+    if all_sources {
+        // The smoothed share of the Gauss-Markov noise replaces the ŝ
+        // correction in J (kept in M): `jacobian` carries −correction.
+        out.jacobian -= out.correction;
+    }
+    if jac_mode != InputJacobian::None {
+        for (w, u) in unit_sums.iter().enumerate() {
+            let m = u.turning[w];
+            out.turning[w] += m;
+            // Unit and SmoothedShare: the same weight on every turning sample
+            // of the window (FilterShare was added update by update).
+            let scale = match jac_mode {
+                InputJacobian::Unit => 1.0,
+                InputJacobian::SmoothedShare if m > 0.0 => w_smoothed[w] / m,
+                InputJacobian::SmoothedShareAll if m > 0.0 => (w_smoothed[w] + 0.5 * w_smoothed[2]) / m,
+                _ => 0.0,
+            };
+            if scale > 0.0 {
+                out.jacobian += scale * u.jacobian;
+                out.grad_jacobian += u.grad_jacobian * scale;
+                out.hess_jacobian += u.hess_jacobian * scale;
+                out.jacobian_weight[w] += scale * m;
+            }
+        }
+        if mode.derivs {
+            for c in 0..4 {
+                out.grad_profile[c] += out.grad_jacobian[c];
+            }
+            out.h_theta += out.hess_jacobian;
+        }
     }
     Ok(out)
 }

@@ -529,6 +529,9 @@ impl NoiseModel {
             quant_in_measurement: false,
             heading_separate: true,
             fitted_input: false,
+            input_jacobian: InputJacobian::None,
+            noise_input_half_width: 0,
+            noise_input_from_reference: false,
             position_floor_m: DEFAULT_POSITION_FLOOR_M,
         }
     }
@@ -690,6 +693,79 @@ pub struct EivOptions {
     /// Candidates of the time-constant search (used only with
     /// [`EivOptions::estimate_time_constants`]).
     pub time_constant_grid: TimeConstantGrid,
+    /// Log-Jacobian term of the relative white wheel noise added to the θ
+    /// cost. Default [`InputJacobian::None`] (see its docs).
+    pub input_jacobian: InputJacobian,
+}
+
+/// A log-Jacobian term `−Σ_k Σ_w u_w,k·ln(C_w,k(θ)/C_w,k(θ_ref))` added to
+/// the profile cost J of θ (issue 9 item 4: the c_e bias), with C_w,k the
+/// wheel circumference at sample k (3a, 3b; θ_ref the start of the fit) and
+/// weights u ≥ 0 per wheel and sample. Not part of the marginal likelihood
+/// M of the η step. Meant with [`WheelNoiseScale::FittedInput`].
+///
+/// Why. A scalar model with exact increments `Δ_k = c·n_k·t_s` and relative
+/// white input noise `ñ_k = n_k(1 + ε_k)` has the exact negative
+/// log-likelihood `½Σ(c/r_k − 1)²/σ² − N·ln c` (r_k = Δ_k/(ñ_k t_s); the
+/// `−N ln c` is the log-Jacobian of the density of ñ at the latent
+/// `n = Δ/(c t_s)`), whose score has zero mean at the true c. The
+/// fitted-input filter has the quadratic part (attenuation `−σ²` without
+/// the Jacobian). With a noisy reference the latent input is only partly
+/// determined by the data: in a linear Gaussian model `y = A(θ)ñ − A(θ)e + v`
+/// the expected score of the quadratic part at the truth is
+/// `Σ_w (∂ln C_w/∂θ)·tr(S⁻¹ A_w Σ_e,w A_wᵀ)`, and
+/// `tr(S⁻¹ A_w Σ_e,w A_wᵀ) = Σ_j (1 − posterior/prior variance of e_j)`
+/// over wheel w's inputs (the smoothed share of each input's noise that
+/// the data remove) `= ∂(Σ_k ln det S_k)/∂λ_w`, λ_w scaling wheel w's
+/// white relative noise variance. So the weight that makes the score
+/// unbiased (to first order in the noise variance) is that share, 1 only
+/// where the increments are exact. That holds only when S does not depend
+/// on the noise: [`WheelNoiseScale::FittedInput`] scales the noise by the
+/// *measured* rotation (its own c_e bias is `+σ²` on white noise, not
+/// `−σ²`), so use [`WheelNoiseScale::SmoothedFittedInput`].
+///
+/// Measured (`examples/study_eiv.rs`, 12 km, seeds 1–20, known noise; c_e
+/// error mean, bias t, RMS/CRB; docs/study.md "The c_e bias" has the rest):
+///
+/// | variant | white | coloured | paper | high |
+/// |---|---|---|---|---|
+/// | none (measured input) | +0.0099 %, t 16, 3.7× | +0.098 %, t 17, 5.3× | +0.087 %, t 14, 3.8× | +0.55 %, t 35, 9.4× |
+/// | `SmoothedFittedInput` (±20) + `SmoothedShare` | +0.0006 %, t 0.9, 0.97× | +0.078 %, t 14, 4.3× | +0.011 %, t 1.7, 1.28× | +0.035 %, t 2.0, 1.39× |
+/// | `SmoothedFittedInput` (±20) + `FilterShare` | +0.0004 %, t 0.7, 0.96× | +0.072 %, t 13, 4.0× | +0.010 %, t 1.6, 1.27× | +0.030 %, t 1.8, 1.35× |
+/// | `FittedInput` + `Unit` | +0.012 %, t 19 | +0.185 %, t 35 | +0.33 %, t 52 | +2.1 %, t 103 |
+///
+/// t_r, c_d, d unchanged within their spread. Not a default: the coloured
+/// preset (perfect reference) keeps +0.07 %.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InputJacobian {
+    /// No term.
+    #[default]
+    None,
+    /// u = 1 where the wheel turns (the scalar model's exact-increment weight).
+    Unit,
+    /// u = the share of the sample's white relative noise removed by the next
+    /// measurement update, `σ²n̂_w²·f_wᵀS⁻¹f_w` (f_w = ∂f/∂n_w, pose rows;
+    /// filtered, a lower bound of the smoothed share).
+    FilterShare,
+    /// u = w(1 − 2w) with w the filtered share of [`InputJacobian::FilterShare`]:
+    /// the filter's wheel variance `σ²n̂²` is proportional to the *measured*
+    /// rotation, so `S⁻¹` is correlated with the noise it weights; to second
+    /// order that adds `−2w²` per sample to the expected score (scalar model
+    /// with exact increments: w = 1, bias `+σ²` instead of `−σ²`).
+    FilterShareSecondOrder,
+    /// u = the smoothed share per window and wheel,
+    /// `W_w = Σ_k tr(S_k⁻¹ ∂S_k/∂λ_w)` (two more covariance-derivative
+    /// recursions), spread evenly over the window's samples where the wheel
+    /// turns. The weights are held constant in the derivatives.
+    SmoothedShare,
+    /// As [`InputJacobian::SmoothedShare`] over all the relative wheel
+    /// noise: λ_w scales wheel w's white and per-wheel Gauss-Markov
+    /// variance, and half of the common Gauss-Markov share goes to each
+    /// wheel (three more recursions). It **replaces** the coloured-noise
+    /// correction `−Σ m log(1 − ŝ)` in J (that term is about the filtered
+    /// share of the Gauss-Markov noise; M keeps it).
+    SmoothedShareAll,
 }
 
 /// Default of [`EivOptions::position_floor_m`], m.
@@ -722,6 +798,37 @@ pub enum WheelNoiseScale {
     /// θ_ref is the start of the fit, batch G-N's θ). Encoder quantisation
     /// (an absolute count error) is not rescaled.
     FittedInput,
+    /// As [`WheelNoiseScale::FittedInput`], with ñ replaced by its moving
+    /// average over ±`half_width_samples` (within the filter window) in the
+    /// noise scale and the s-columns of the covariance transition (the mean
+    /// still uses ñ). With ñ itself the filter's variance `σ²ñ_k²` is
+    /// correlated with the error ε_k it weights (the +σ² of a scalar model
+    /// with exact increments); the average is nearly independent of ε_k.
+    SmoothedFittedInput {
+        /// Half-width K of the moving average, samples (at least 1).
+        half_width_samples: usize,
+    },
+    /// As [`WheelNoiseScale::FittedInput`], with the rotation scaling the
+    /// relative noise (and the s-columns of the covariance transition) taken
+    /// from the reference: speed and yaw rate by central differences over
+    /// ±`half_width_samples` at θ_ref (`C_l n_l = v − ψ̇ t_r/2`,
+    /// `C_r n_r = v + ψ̇ t_r/2`, rev/s), so the scale is independent of both the
+    /// white and the Gauss-Markov wheel errors.
+    ReferenceInput {
+        /// Half-width K of the central difference, samples (at least 1).
+        half_width_samples: usize,
+    },
+}
+
+impl WheelNoiseScale {
+    /// Half-width of the moving average (0 without smoothing).
+    fn half_width(&self) -> usize {
+        match self {
+            WheelNoiseScale::SmoothedFittedInput { half_width_samples }
+            | WheelNoiseScale::ReferenceInput { half_width_samples } => *half_width_samples,
+            _ => 0,
+        }
+    }
 }
 
 /// A correction of the estimator's own bias applied to the estimate
@@ -869,6 +976,7 @@ impl Default for EivOptions {
             heading_scale: HeadingScale::TiedToPosition,
             wheel_noise_scale: WheelNoiseScale::MeasuredInput,
             bias_correction: BiasCorrection::None,
+            input_jacobian: InputJacobian::None,
             position_floor_m: DEFAULT_POSITION_FLOOR_M,
             hold_unobservable_at: None,
             estimate_time_constants: false,
@@ -920,7 +1028,14 @@ impl EivOptions {
                 return bad("bias_correction", "the bootstrap needs at least 2 replicates");
             }
         }
-        if self.wheel_noise_scale == WheelNoiseScale::FittedInput && self.covariance != CovarianceMode::FollowsTheta {
+        if matches!(
+            self.wheel_noise_scale,
+            WheelNoiseScale::SmoothedFittedInput { half_width_samples: 0 }
+                | WheelNoiseScale::ReferenceInput { half_width_samples: 0 }
+        ) {
+            return bad("wheel_noise_scale", "the smoothed scales need half_width_samples >= 1");
+        }
+        if self.wheel_noise_scale != WheelNoiseScale::MeasuredInput && self.covariance != CovarianceMode::FollowsTheta {
             return bad("wheel_noise_scale", "fitted_input needs covariance = follows_theta");
         }
         if self.estimate_time_constants {
@@ -1284,6 +1399,9 @@ struct Problem<'a> {
     quantisation: QuantisationModel,
     heading_separate: bool,
     fitted_input: bool,
+    noise_input_half_width: usize,
+    noise_input_from_reference: bool,
+    input_jacobian: InputJacobian,
     position_floor_m: f64,
     /// Filter passes over the drive: with derivatives, objective only.
     evaluations: std::cell::Cell<[usize; 2]>,
@@ -1303,6 +1421,9 @@ impl Problem<'_> {
         v.quant_in_measurement = self.quantisation == QuantisationModel::Measurement;
         v.heading_separate = self.heading_separate;
         v.fitted_input = self.fitted_input;
+        v.input_jacobian = self.input_jacobian;
+        v.noise_input_half_width = self.noise_input_half_width;
+        v.noise_input_from_reference = self.noise_input_from_reference;
         v.position_floor_m = self.position_floor_m;
         let parts: Vec<Result<WindowSums>> =
             self.windows.par_iter().map(|w| run_window(self.input, w, theta, theta_ref, &v, mode, None)).collect();
@@ -1864,7 +1985,10 @@ pub(crate) fn estimate_from(
         noise: opts.noise,
         quantisation: opts.quantisation,
         heading_separate: opts.heading_scale == HeadingScale::Separate,
-        fitted_input: opts.wheel_noise_scale == WheelNoiseScale::FittedInput,
+        fitted_input: opts.wheel_noise_scale != WheelNoiseScale::MeasuredInput,
+        noise_input_half_width: opts.wheel_noise_scale.half_width(),
+        noise_input_from_reference: matches!(opts.wheel_noise_scale, WheelNoiseScale::ReferenceInput { .. }),
+        input_jacobian: opts.input_jacobian,
         position_floor_m: opts.position_floor_m,
         evaluations: std::cell::Cell::new([0; 2]),
     };
@@ -2113,7 +2237,11 @@ pub fn cramer_rao_bound(
         noise: *noise,
         quantisation: opts.quantisation,
         heading_separate: opts.heading_scale == HeadingScale::Separate,
-        fitted_input: opts.wheel_noise_scale == WheelNoiseScale::FittedInput,
+        fitted_input: opts.wheel_noise_scale != WheelNoiseScale::MeasuredInput,
+        noise_input_half_width: opts.wheel_noise_scale.half_width(),
+        noise_input_from_reference: matches!(opts.wheel_noise_scale, WheelNoiseScale::ReferenceInput { .. }),
+        // The CRB uses the information matrix only.
+        input_jacobian: InputJacobian::None,
         position_floor_m: opts.position_floor_m,
         evaluations: std::cell::Cell::new([0; 2]),
     };

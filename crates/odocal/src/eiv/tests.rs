@@ -739,6 +739,125 @@ const GOLDEN_REL_TOL: f64 = 1e-9;
 /// Absolute tolerance of η (log-scales, some near 0): measured differences ~2e-12.
 const GOLDEN_ETA_TOL: f64 = 1e-8;
 
+/// The input log-Jacobian term ([`InputJacobian`]): with unit weights (θ
+/// independent) its value, gradient and Hessian and the profile gradient
+/// that includes it match central differences; the smoothed-share weight
+/// equals `∂(Σ ln det S)/∂ln σ_white²` (central differences over the white
+/// relative variance) and is at least the filtered share.
+#[test]
+fn input_jacobian_derivatives_match_central_differences() {
+    let out = simulate(&SimOptions { length_km: 0.6, ..SimOptions::paper(6) }).expect("sim");
+    let input = input_of(&out.drive);
+    let w = Window { index: 0, part: 0, start: 0, end: 1500.min(input.len() - 1) };
+    let th = Theta { c_e: 1.953, c_d: -0.0015, t_r: 1.52, d: 0.0009 };
+    let th_ref = Theta { c_e: 1.96, c_d: -0.001, d: 0.0012, ..th };
+    let eta = [0.3, -0.5, 0.2, -0.2, 0.4, 0.25];
+    let variances = |jac: InputJacobian, white_scale: f64| {
+        let mut v = NoiseModel::default().variances(&eta, input.sample_time_s);
+        v.fitted_input = true;
+        v.input_jacobian = jac;
+        v.white_rel *= white_scale;
+        v
+    };
+    let run = |t: &Theta, jac: InputJacobian, mode: filter::Mode, white_scale: f64| {
+        run_window(&input, &w, t, &th_ref, &variances(jac, white_scale), mode, None).expect("window")
+    };
+    let full = filter::Mode::full(true, false);
+    let base = run(&th, InputJacobian::Unit, full, 1.0);
+    let none = run(&th, InputJacobian::None, full, 1.0);
+    assert!(base.jacobian != 0.0 && base.turning[0] > 1000.0, "term {} on {:?}", base.jacobian, base.turning);
+    // Unit weight: Σ u is the count of turning samples, exactly.
+    assert!(
+        base.jacobian_weight.iter().zip(&base.turning).all(|(u, m)| (u - m).abs() < 0.5),
+        "{:?}",
+        base.jacobian_weight
+    );
+    // The term is part of J and its θ-derivatives, not of M.
+    assert!((base.merit() - none.merit()).abs() <= 1e-12 * none.merit().abs(), "M changed");
+    assert!((base.profile() - none.profile() - base.jacobian).abs() <= 1e-9 * base.profile().abs());
+    let hess = base.hess_jacobian;
+    assert!((base.h_theta - none.h_theta - hess).amax() <= 1e-9 * base.h_theta.amax());
+    for p in 0..4 {
+        let h = 1e-6 * [th.c_e, 1.0, th.t_r, 1.0][p];
+        let (sp, sm) = (
+            run(&perturb(&th, p, h), InputJacobian::Unit, full, 1.0),
+            run(&perturb(&th, p, -h), InputJacobian::Unit, full, 1.0),
+        );
+        let fd = (sp.jacobian - sm.jacobian) / (2.0 * h);
+        let g = base.grad_jacobian[p];
+        assert!((g - fd).abs() <= 1e-6 * g.abs().max(fd.abs()).max(1e-6), "∂T/∂θ{p}: {g} vs {fd}");
+        let fd_j = (sp.profile() - sm.profile()) / (2.0 * h);
+        let g_j = base.grad_profile[p];
+        assert!((g_j - fd_j).abs() <= 1e-4 * g_j.abs().max(fd_j.abs()).max(1e-6), "∂J/∂θ{p}: {g_j} vs {fd_j}");
+        for q in 0..4 {
+            let fd_h = (sp.grad_jacobian[q] - sm.grad_jacobian[q]) / (2.0 * h);
+            let scale = hess[(p, p)].abs().max(hess[(q, q)].abs()).max(1e-6);
+            assert!((hess[(p, q)] - fd_h).abs() <= 1e-6 * scale, "∂²T/∂θ{p}∂θ{q}: {} vs {fd_h}", hess[(p, q)]);
+        }
+    }
+    // Smoothed share: Σ_w W_w = ∂(Σ ln det S)/∂ln(σ_white²).
+    let smoothed = run(&th, InputJacobian::SmoothedShare, filter::Mode::cost(true), 1.0);
+    let h: f64 = 1e-4;
+    let (lp, lm) = (
+        run(&th, InputJacobian::None, filter::Mode::cost(true), h.exp()).logdet,
+        run(&th, InputJacobian::None, filter::Mode::cost(true), (-h).exp()).logdet,
+    );
+    let fd = (lp - lm) / (2.0 * h);
+    let total = smoothed.jacobian_weight[0] + smoothed.jacobian_weight[1];
+    assert!(total > 0.0 && (total - fd).abs() <= 1e-5 * fd.abs(), "smoothed weight {total} vs {fd}");
+    let filtered = run(&th, InputJacobian::FilterShare, filter::Mode::cost(true), 1.0);
+    for k in 0..2 {
+        let (f, s) = (filtered.jacobian_weight[k], smoothed.jacobian_weight[k]);
+        assert!(f > 0.0 && f <= s * (1.0 + 1e-9) && s < smoothed.turning[k], "wheel {k}: filtered {f}, smoothed {s}");
+    }
+}
+
+/// With the relative noise scaled by the moving average of ñ
+/// ([`WheelNoiseScale::SmoothedFittedInput`]) the gradients of M and of J
+/// (with the unit-weight Jacobian term) still match central differences,
+/// and the filter differs from the plain fitted-input one.
+#[test]
+fn smoothed_fitted_input_gradients_match_central_differences() {
+    let out = simulate(&SimOptions { length_km: 0.6, ..SimOptions::paper(6) }).expect("sim");
+    let input = input_of(&out.drive);
+    let w = Window { index: 0, part: 0, start: 0, end: 1500.min(input.len() - 1) };
+    let th = Theta { c_e: 1.953, c_d: -0.0015, t_r: 1.52, d: 0.0009 };
+    let th_ref = Theta { c_e: 1.96, c_d: -0.001, d: 0.0012, ..th };
+    let eta = [0.3, -0.5, 0.2, -0.2, 0.4, 0.25];
+    let variances = |e: &[f64; 6], half: usize| {
+        let mut v = NoiseModel::default().variances(e, input.sample_time_s);
+        v.fitted_input = true;
+        v.noise_input_half_width = half;
+        v.input_jacobian = InputJacobian::Unit;
+        v
+    };
+    let run = |t: &Theta, e: &[f64; 6], mode: filter::Mode, half: usize| {
+        run_window(&input, &w, t, &th_ref, &variances(e, half), mode, None).expect("window")
+    };
+    let base = run(&th, &eta, filter::Mode::full(true, true), 20);
+    let plain = run(&th, &eta, filter::Mode::full(true, true), 0);
+    assert!((base.quad - plain.quad).abs() > 1e-6 * plain.quad.abs(), "smoothing changed nothing");
+    for p in 0..9 {
+        let (tp, tm, ep, em, h) = if p < 4 {
+            let h = 1e-6 * [th.c_e, 1.0, th.t_r, 1.0][p];
+            (perturb(&th, p, h), perturb(&th, p, -h), eta, eta, h)
+        } else {
+            let h = 1e-5;
+            let (mut ep, mut em) = (eta, eta);
+            ep[p - 4] += h;
+            em[p - 4] -= h;
+            (th, th, ep, em, h)
+        };
+        let (sp, sm) = (run(&tp, &ep, filter::Mode::cost(true), 20), run(&tm, &em, filter::Mode::cost(true), 20));
+        for (what, fd, g) in [
+            ("M", (sp.merit() - sm.merit()) / (2.0 * h), base.grad[p]),
+            ("J", (sp.profile() - sm.profile()) / (2.0 * h), base.grad_profile[p]),
+        ] {
+            assert!((g - fd).abs() <= 1e-4 * g.abs().max(fd.abs()).max(1e-6), "∂{what}/∂p{p}: {g} vs {fd}");
+        }
+    }
+}
+
 /// `EivOptions::position_floor_m` is the position σ floor of R: on a
 /// perfect reference (the noise model's position white noise zero) the
 /// position variance of every innovation covariance grows by exactly the
