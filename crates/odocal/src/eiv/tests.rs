@@ -949,6 +949,9 @@ fn eta_step_descends_on_the_noise_free_straight_drive() {
         heading_separate: true,
         fitted_input: false,
         position_floor_m: opts.position_floor_m,
+        noise_input_half_width: 0,
+        noise_input_from_reference: false,
+        input_jacobian: opts.input_jacobian,
         evaluations: std::cell::Cell::new([0; 2]),
     };
     let theta = Theta { c_e: 1.9488978137579984, c_d: -0.001998869480161304, t_r: 1.53, d: 0.0008 };
