@@ -494,6 +494,7 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
                             time_s: time_s + t.elapsed().as_secs_f64(),
                             warnings: b.failed.len(),
                             tau_s: None,
+                            checks: vec![],
                         };
                         runs.insert(row.into(), run);
                     }
