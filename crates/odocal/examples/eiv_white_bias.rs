@@ -244,7 +244,7 @@ fn main() -> Res<()> {
                 heading_scale: HeadingScale::TiedToPosition,
                 max_iterations: 30,
                 step_tolerance: 1e-3,
-                ..Default::default()
+                ..EivOptions::spec()
             };
             for tok in mode.split('+') {
                 if tok == "est" {
@@ -280,7 +280,7 @@ fn main() -> Res<()> {
                 Err(e) => println!("  EIV {mode}: failed {e}"),
             }
         }
-        let crb = odocal::eiv::cramer_rao_bound(&input, &truth, &sim_noise, &EivOptions::default())?;
+        let crb = odocal::eiv::cramer_rao_bound(&input, &truth, &sim_noise, &EivOptions::spec())?;
         let cs = crb.sigma;
         push("CRB σ", [cs[0] / truth.c_e * 100.0, cs[1] * 1e3, cs[2] / truth.t_r * 100.0, cs[3] * 1e3]);
         let cs = crb.sigma_mean_only;
@@ -291,7 +291,7 @@ fn main() -> Res<()> {
             &input,
             &truth,
             &sim_noise,
-            &EivOptions { position_floor_m: 0.005, ..EivOptions::default() },
+            &EivOptions { position_floor_m: 0.005, ..EivOptions::spec() },
         )?;
         let cs = crb5.sigma;
         push("CRB5 σ", [cs[0] / truth.c_e * 100.0, cs[1] * 1e3, cs[2] / truth.t_r * 100.0, cs[3] * 1e3]);

@@ -217,7 +217,7 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
     let input = EivInput::from_drive(d);
     let true_noise = NoiseModel::from_sim(&noise, d.sample_time_s());
     let (crb, crb_mean_only, crb_noise_estimated) =
-        match cramer_rao_bound(&input, &truth, &true_noise, &EivOptions::default()) {
+        match cramer_rao_bound(&input, &truth, &true_noise, &EivOptions::spec()) {
             Ok(c) => (c.sigma, c.sigma_mean_only, c.sigma_noise_estimated.unwrap_or([f64::NAN; 4])),
             Err(_) => ([f64::NAN; 4], [f64::NAN; 4], [f64::NAN; 4]),
         };

@@ -768,8 +768,12 @@ pub enum InputJacobian {
     SmoothedShareAll,
 }
 
-/// Default of [`EivOptions::position_floor_m`], m.
-pub const DEFAULT_POSITION_FLOOR_M: f64 = 1e-3;
+/// Default of [`EivOptions::position_floor_m`], m (stop 11; SPEC §10
+/// states 1 mm, [`SPEC_POSITION_FLOOR_M`]).
+pub const DEFAULT_POSITION_FLOOR_M: f64 = 5e-3;
+
+/// The position σ floor of SPEC §10, m (the default before stop 11).
+pub const SPEC_POSITION_FLOOR_M: f64 = 1e-3;
 
 /// Which wheel rotation the relative wheel noise (white and Gauss-Markov)
 /// is proportional to in the filter's covariance (issue 9 item 4).
@@ -974,9 +978,9 @@ impl Default for EivOptions {
             covariance: CovarianceMode::FollowsTheta,
             quantisation: QuantisationModel::ProcessNoise,
             heading_scale: HeadingScale::TiedToPosition,
-            wheel_noise_scale: WheelNoiseScale::MeasuredInput,
+            wheel_noise_scale: WheelNoiseScale::SmoothedFittedInput { half_width_samples: 20 },
             bias_correction: BiasCorrection::None,
-            input_jacobian: InputJacobian::None,
+            input_jacobian: InputJacobian::FilterShare,
             position_floor_m: DEFAULT_POSITION_FLOOR_M,
             hold_unobservable_at: None,
             estimate_time_constants: false,
@@ -986,6 +990,21 @@ impl Default for EivOptions {
 }
 
 impl EivOptions {
+    /// The defaults with SPEC §10's formulation of the cost and of `R`: the
+    /// relative wheel noise scaled by the measured rotation, no input
+    /// log-Jacobian term, the 1 mm position floor (the library defaults
+    /// before stop 11). The studies' Cramér–Rao bound is computed with it,
+    /// so that it depends on the noise model only, not on the estimator's
+    /// bias corrections.
+    pub fn spec() -> Self {
+        EivOptions {
+            wheel_noise_scale: WheelNoiseScale::MeasuredInput,
+            input_jacobian: InputJacobian::None,
+            position_floor_m: SPEC_POSITION_FLOOR_M,
+            ..EivOptions::default()
+        }
+    }
+
     /// Checks the options, naming the offending field.
     pub fn validate(&self) -> Result<()> {
         let bad = |field: &'static str, reason: &str| Err(Error::InvalidOption { field, reason: reason.into() });

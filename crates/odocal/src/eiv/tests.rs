@@ -253,6 +253,8 @@ fn fitted_input_scale_removes_the_growth_of_s_with_c_e() {
     let run = |t: &Theta, fitted: bool| {
         let mut v = wheels_only.variances(&[0.0; 6], input.sample_time_s);
         v.fitted_input = fitted;
+        // SPEC's 1 mm floor: with 5 mm, R dominates S_xx on this short window.
+        v.position_floor_m = SPEC_POSITION_FLOOR_M;
         let mut rec = Vec::new();
         run_window(&input, &w, t, &th, &v, filter::Mode::full(true, false), Some(&mut rec)).expect("window");
         rec
@@ -685,7 +687,8 @@ fn results_match_the_recorded_results_of_the_unoptimised_filter() {
     let out = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(5) }).expect("sim");
     let input = input_of(&out.drive);
     let start = Theta { c_e: 1.952, c_d: -0.0018, t_r: 1.54, d: 0.0007 };
-    let base = EivOptions { window_samples: 2000, ..Default::default() };
+    // Recorded with the options of the time (SPEC §10's cost and floor).
+    let base = EivOptions { window_samples: 2000, ..EivOptions::spec() };
     let options = |case: &str| match case {
         "follows-estimated" => base.clone(),
         "follows-fixed" => EivOptions { fix_noise: true, ..base.clone() },
@@ -877,10 +880,10 @@ fn position_floor_enters_the_innovation_covariance() {
         run_window(&input, &w, &th, &th, &v, filter::Mode::full(true, false), Some(&mut rec)).expect("window");
         rec
     };
-    let (a, b) = (run(DEFAULT_POSITION_FLOOR_M), run(0.005));
+    let (a, b) = (run(SPEC_POSITION_FLOOR_M), run(0.005));
     assert!(!a.is_empty() && a.len() == b.len());
     // The first update: P⁻ = P₀ + Q with P₀ = R, so S = 2R + H Q Hᵀ.
-    let want = 2.0 * (0.005f64.powi(2) - DEFAULT_POSITION_FLOOR_M.powi(2));
+    let want = 2.0 * (0.005f64.powi(2) - SPEC_POSITION_FLOOR_M.powi(2));
     for c in 0..2 {
         let got = b[0].s[(c, c)] - a[0].s[(c, c)];
         assert!((got - want).abs() <= 1e-12, "S[{c},{c}] grew by {got:e}, want {want:e}");
