@@ -104,7 +104,8 @@ fn report_is_identical_for_one_and_two_threads() {
 /// off, keeps the EIV θ and the verdict says the model does not fit.
 #[test]
 fn wrong_noise_model_falls_back_to_batch_gauss_newton() {
-    let out = simulate(&SimOptions { length_km: 4.0, ..SimOptions::paper(5) }).expect("sim");
+    // 6 km: enough 1300-step clusters for the start's cluster-robust σ.
+    let out = simulate(&SimOptions { length_km: 6.0, ..SimOptions::paper(5) }).expect("sim");
     let tiny = NoiseModel {
         wheel_white_rel_sigma: 1e-4,
         wheel_common_rel_sigma: 1e-5,
@@ -121,6 +122,11 @@ fn wrong_noise_model_falls_back_to_batch_gauss_newton() {
     assert_eq!(d.eiv_result, EivOutcome::BatchGnFallback);
     assert_eq!(r.theta, d.identification.theta, "the result is the batch G-N start");
     assert_eq!(r.covariance, d.identification.covariance);
+    // Its σ is the batch G-N start's cluster-robust σ, as for batch-gn.
+    let robust = d.identification.robust.as_ref().expect("the start's cluster-robust covariance");
+    let rs = r.result_sigma();
+    assert_eq!(rs.source, crate::calibrate::SigmaSource::ClusterRobust);
+    assert_eq!(rs.t_r, Some(robust.covariance[2][2].sqrt()));
     let window_finding = r.warnings.iter().any(|w| {
         matches!(
             w,

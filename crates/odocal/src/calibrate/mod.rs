@@ -388,7 +388,7 @@ impl CalibrationReport {
     /// HTML report and the CLI's JSON `sigma` all give this σ.
     pub fn result_sigma(&self) -> ResultSigma {
         let (source, c) = match (&self.detail, self.result_covariance()) {
-            (MethodDetail::BatchGn(_), Some(c)) => (SigmaSource::ClusterRobust, c),
+            (MethodDetail::BatchGn(_) | MethodDetail::Eiv(_), Some(c)) => (SigmaSource::ClusterRobust, c),
             (MethodDetail::ThreeStep(_), Some(c)) => (SigmaSource::BatchSpread, c),
             (_, c) => (SigmaSource::Model, c.unwrap_or(&self.covariance)),
         };
@@ -410,7 +410,8 @@ pub enum SigmaSource {
     /// The 3-step method's step-1 batch spread ([`BatchSpread`]).
     BatchSpread,
     /// The model covariance ([`CalibrationReport::covariance`]): EIV's
-    /// `H_θ⁻¹`, or batch-gn's / step 3's `σ²(JᵀWJ)⁻¹` when the robust or
+    /// `H_θ⁻¹` (after an EIV fallback the start's cluster-robust σ stands,
+    /// where computed), or batch-gn's / step 3's `σ²(JᵀWJ)⁻¹` when the robust or
     /// batch-spread σ could not be computed (then it understates the
     /// uncertainty under input noise).
     Model,
@@ -825,6 +826,10 @@ fn outcome_covariance(detail: &MethodDetail) -> Option<&[[f64; 4]; 4]> {
     match detail {
         MethodDetail::BatchGn(d) => d.identification.robust.as_ref().map(|r| &r.covariance),
         MethodDetail::ThreeStep(d) => d.uncertainty.batch_spread.as_ref().map(|b| &b.covariance),
+        // A fallback result is the start's batch G-N: its cluster-robust σ.
+        MethodDetail::Eiv(d) if d.eiv_result == EivOutcome::BatchGnFallback => {
+            d.identification.robust.as_ref().map(|r| &r.covariance)
+        }
         MethodDetail::Eiv(_) => None,
     }
 }
