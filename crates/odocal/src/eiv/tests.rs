@@ -385,25 +385,10 @@ fn report_is_identical_for_one_and_two_threads() {
 #[test]
 fn straight_drive_calibrates_c_e_and_names_the_rest() {
     // A straight, noise-free drive: heading never changes.
-    let n = 4000;
-    let ts = 0.025;
+    let (n, ts) = (4000, 0.025);
     let th = Theta::SIM_DEFAULT_TRUE;
-    let (n_rl, n_rr) = crate::model::wheel_rotations(10.0, 0.0, 0.0, &th);
-    let mut px = vec![0.0];
-    let mut py = vec![0.0];
-    let mut psi = vec![0.3];
-    for k in 1..n {
-        let x = crate::model::step(
-            &crate::model::State::new(px[k - 1], py[k - 1], psi[k - 1]),
-            &crate::model::Input { n_rl, n_rr, beta: 0.0, a_y: 0.0 },
-            &th,
-            ts,
-        );
-        px.push(x[0]);
-        py.push(x[1]);
-        psi.push(x[2]);
-    }
-    let (nl, nr, zero) = (vec![n_rl; n], vec![n_rr; n], vec![0.0; n]);
+    let (px, py, psi, nl, nr) = straight_drive(n, ts);
+    let zero = vec![0.0; n];
     let parts = [0..n];
     let input = EivInput {
         sample_time_s: ts,
