@@ -121,7 +121,7 @@ pub fn cramer_rao_column(drive: &Drive, theta_true: Option<&Theta>, noise: Optio
         }
         (Some(_), None) => return CramerRao::unavailable("the drive's noise model is not known"),
     };
-    let of = |a: [f64; 4]| Theta { c_e: a[0], c_d: a[1], t_r: a[2], d: a[3] };
+    let of = Theta::from_array;
     match cramer_rao_bound(&EivInput::from_drive(drive), theta, noise, &EivOptions::spec()) {
         Ok(c) if c.sigma.iter().all(|s| s.is_finite() && *s > 0.0) => CramerRao {
             sigma: Some(of(c.sigma)),

@@ -320,12 +320,7 @@ impl Estimator for EivMethodOptions {
         let held: [f64; 4] = std::array::from_fn(|i| if determined(i) { s[i] } else { t0[i] });
         let filter = EivOptions {
             free: mask(selection.free),
-            hold_unobservable_at: self.filter.hold_unobservable_at.or(Some(Theta {
-                c_e: held[0],
-                c_d: held[1],
-                t_r: held[2],
-                d: held[3],
-            })),
+            hold_unobservable_at: self.filter.hold_unobservable_at.or(Some(Theta::from_array(held))),
             ..self.filter.clone()
         };
         // Two-stage extrinsics: the start's estimate (or the given values)

@@ -151,18 +151,14 @@ pub fn bootstrap(
         theta_hat,
         replicates,
         failed,
-        mean: theta_of(mean),
+        mean: Theta::from_array(mean),
         bias,
         sd,
         level: boot.level,
         interval,
         interval_basic,
-        theta_corrected: theta_of(corrected),
+        theta_corrected: Theta::from_array(corrected),
     })
-}
-
-fn theta_of(a: [f64; 4]) -> Theta {
-    Theta { c_e: a[0], c_d: a[1], t_r: a[2], d: a[3] }
 }
 
 /// Linear-interpolation quantile of sorted data.

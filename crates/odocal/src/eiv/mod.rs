@@ -1823,7 +1823,7 @@ fn scoring_pass(
         for i in (0..4).filter(|i| free0[*i] && !free[*i]) {
             a[i] = h[i];
         }
-        theta = Theta { c_e: a[0], c_d: a[1], t_r: a[2], d: a[3] };
+        theta = Theta::from_array(a);
         theta.validate()?;
         ev = prob.evaluate(&theta, &theta_ref, &eta, full)?;
     }
