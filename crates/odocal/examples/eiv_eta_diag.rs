@@ -3,6 +3,9 @@
 //!
 //! ```text
 //! cargo run --release -p odocal --example eiv_eta_diag -- [--km 12] [--seeds 4] [--presets paper,high]
+//!     (presets also: noslip, nobeta, noquant, highnoquant, quantonly, quantwhite, white2, coloured,
+//!     and the quantisation-free paper ablations nq-noslip, nq-noay, nq-nodrift, nq-noposwhite,
+//!     nq-nocoloured, nq-nowheel)
 //!     [--variants known,est-pc,...] [--quantisation process|measurement] [--heading separate|tied]
 //!
 //! (`--heading` defaults to `separate` here, unlike the library.)
@@ -51,6 +54,42 @@ fn main() -> Res<()> {
             "coloured" => NoiseOptions::coloured_wheels_only(),
             "noquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::paper() },
             "highnoquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::high() },
+            // Ablations of the paper preset without quantisation (`nq-…`: one more source off).
+            "nq-noslip" => {
+                NoiseOptions { encoder_ticks_per_revolution: 0, wheel_slip_per_m_per_s2: 0.0, ..NoiseOptions::paper() }
+            }
+            "nq-noay" => NoiseOptions {
+                encoder_ticks_per_revolution: 0,
+                lateral_acceleration_white_sigma_m_per_s2: 0.0,
+                ..NoiseOptions::paper()
+            },
+            "nq-nodrift" => NoiseOptions {
+                encoder_ticks_per_revolution: 0,
+                position_drift_sigma_m: 0.0,
+                heading_drift_sigma_rad: 0.0,
+                ..NoiseOptions::paper()
+            },
+            "nq-noposwhite" => NoiseOptions {
+                encoder_ticks_per_revolution: 0,
+                position_white_sigma_m: 0.0,
+                heading_white_sigma_rad: 0.0,
+                ..NoiseOptions::paper()
+            },
+            "nq-nowheel" => NoiseOptions {
+                encoder_ticks_per_revolution: 0,
+                wheel_white_rel_sigma: 0.0,
+                wheel_coloured_rel_sigma: 0.0,
+                wheel_coloured_differential_rel_sigma: 0.0,
+                wheel_slip_per_m_per_s2: 0.0,
+                ..NoiseOptions::paper()
+            },
+            "nq-nocoloured" => NoiseOptions {
+                encoder_ticks_per_revolution: 0,
+                wheel_coloured_rel_sigma: 0.0,
+                wheel_coloured_differential_rel_sigma: 0.0,
+                wheel_slip_per_m_per_s2: 0.0,
+                ..NoiseOptions::paper()
+            },
             _ => NoiseOptions::by_name(p)?,
         };
         for seed in 1..=seeds {
