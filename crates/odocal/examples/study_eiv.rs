@@ -60,9 +60,9 @@
 //! Per method and parameter: mean error, sd, RMS/CRB, bias t = |mean|/(sd/√n),
 //! coverage of ±1.96 σ for each reported σ (EIV: σ = the report's covariance
 //! `H⁻¹`, sandwich, Fisher); Ē_p on the drive's validation segments
-//! against Ē_p(θ_true), and on a fresh drive (same preset and length, seed
-//! + 10 000) that no method saw, where fitting the drive's own noise cannot
-//! lower Ē_p; wall time.
+//! against Ē_p(θ_true), and on a fresh drive (same preset and length, the
+//! seed plus 10 000) that no method saw, where fitting the drive's own noise
+//! cannot lower Ē_p; wall time.
 //!
 //! `coloured` is the paper preset's wheel noise (white, encoder, common and
 //! per-wheel coloured; no slip) on a perfect reference (no pose, a_y or β noise).
