@@ -5,6 +5,7 @@
 //! ```text
 //! cargo run --release -p odocal --example study_real -- \
 //!     [--methods batch-gn,batch-gn-all,three-step,eiv,eiv-fixed] [--parts testtrack,van,rav4] \
+//!     (also eiv-stop11: the stop-11 checks and iteration; eiv-nofallback: fallback off)
 //!     [--json study_real.json] [--markdown study_real.md]
 //! ```
 //!
@@ -53,6 +54,11 @@ const RUNS: [&str; 6] = ["14-45-26", "15-28-33", "16-06-28", "16-47-33", "17-45-
 
 const METHODS: [&str; 5] = ["batch-gn", "batch-gn-all", "three-step", "eiv", "eiv-fixed"];
 
+/// Methods run only when named: `eiv-stop11` (`eiv` with the stop-11
+/// innovation checks and θ/η iteration) and `eiv-nofallback` (`eiv` with
+/// the fallback off: the EIV θ whatever the checks say).
+const EXTRA_METHODS: [&str; 2] = ["eiv-stop11", "eiv-nofallback"];
+
 /// The options `odocal calibrate --method …` uses for a study method.
 fn options(method: &str) -> Result<CalibrationOptions, Box<dyn Error>> {
     let mut o = CalibrationOptions::default();
@@ -64,13 +70,26 @@ fn options(method: &str) -> Result<CalibrationOptions, Box<dyn Error>> {
         }
         "three-step" => o.method = Method::default(),
         "eiv" => o.method = Method::Eiv(EivMethodOptions::default()),
+        "eiv-stop11" => {
+            o.method = Method::Eiv(EivMethodOptions {
+                filter: EivOptions {
+                    eta_secant_damping: false,
+                    innovation_null: odocal::eiv::InnovationNull::FittedModel,
+                    ..EivOptions::default()
+                },
+                ..EivMethodOptions::default()
+            })
+        }
+        "eiv-nofallback" => o.method = Method::Eiv(EivMethodOptions { fallback: false, ..EivMethodOptions::default() }),
         "eiv-fixed" => {
             o.method = Method::Eiv(EivMethodOptions {
                 filter: EivOptions { fix_noise: true, ..EivOptions::default() },
                 ..EivMethodOptions::default()
             })
         }
-        other => return Err(format!("unknown method {other}; use {}", METHODS.join(", ")).into()),
+        other => {
+            return Err(format!("unknown method {other}; use {} or {}", METHODS.join(", "), EXTRA_METHODS.join(", ")).into())
+        }
     }
     Ok(o)
 }
