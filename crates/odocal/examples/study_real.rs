@@ -183,6 +183,18 @@ fn testtrack(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error
             let v = odocal::validate_drives_with(&others, &r.theta, &opts.theta0, &cal, &opts.validation)?;
             let wall = t.elapsed().as_secs_f64();
             let fb = eiv_fallback(&r);
+            if let MethodDetail::Eiv(d) = &r.detail {
+                if let Some(e) = &d.eiv {
+                    // The EIV fit's consistency numbers (stderr), to read the checks against.
+                    eprintln!("{m} {name}: η {:.2?} {} halves z {:.1?}", e.eta, e.termination, e.halves.as_ref().map(|h| h.z));
+                    for w in &e.windows {
+                        eprintln!(
+                            "   w{} n {} nis {:.3} (no floors {:.3}) lag1 {:.2?} (no floors {:.2?})",
+                            w.window.index, w.updates, w.nis, w.nis_without_floors, w.lag1, w.lag1_without_floors
+                        );
+                    }
+                }
+            }
             extra.push(json!({
                 "run": name,
                 "theta": r.theta,
