@@ -88,7 +88,9 @@ fn options(method: &str) -> Result<CalibrationOptions, Box<dyn Error>> {
             })
         }
         other => {
-            return Err(format!("unknown method {other}; use {} or {}", METHODS.join(", "), EXTRA_METHODS.join(", ")).into())
+            return Err(
+                format!("unknown method {other}; use {} or {}", METHODS.join(", "), EXTRA_METHODS.join(", ")).into()
+            )
         }
     }
     Ok(o)
@@ -186,7 +188,12 @@ fn testtrack(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error
             if let MethodDetail::Eiv(d) = &r.detail {
                 if let Some(e) = &d.eiv {
                     // The EIV fit's consistency numbers (stderr), to read the checks against.
-                    eprintln!("{m} {name}: η {:.2?} {} halves z {:.1?}", e.eta, e.termination, e.halves.as_ref().map(|h| h.z));
+                    eprintln!(
+                        "{m} {name}: η {:.2?} {} halves z {:.1?}",
+                        e.eta,
+                        e.termination,
+                        e.halves.as_ref().map(|h| h.z)
+                    );
                     for w in &e.windows {
                         eprintln!(
                             "   w{} n {} nis {:.3} (no floors {:.3}) lag1 {:.2?} (no floors {:.2?})",

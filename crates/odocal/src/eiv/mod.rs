@@ -1273,7 +1273,10 @@ impl std::fmt::Display for EivWarning {
             }
             EivWarning::CorrelatedInnovations { window, component, lag1, expected, threshold } => {
                 if *expected == 0.0 {
-                    write!(f, "window {window}: {component:?} innovations lag-1 correlation {lag1:.2} beyond ±{threshold}")
+                    write!(
+                        f,
+                        "window {window}: {component:?} innovations lag-1 correlation {lag1:.2} beyond ±{threshold}"
+                    )
                 } else {
                     write!(
                         f,

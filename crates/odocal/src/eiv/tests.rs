@@ -963,8 +963,9 @@ fn eta_step_descends_on_the_noise_free_straight_drive() {
 fn white_drive_fit(lever_x: f64, null: InnovationNull) -> EivReport {
     let noise = NoiseOptions::white_wheel_only();
     let mount = crate::extrinsics::Extrinsics { lever_x, lever_y: 0.0, heading_offset: 0.0 };
-    let out = simulate(&SimOptions { length_km: 1.0, noise: noise.clone(), reference_mount: mount, ..SimOptions::paper(4) })
-        .expect("sim");
+    let out =
+        simulate(&SimOptions { length_km: 1.0, noise: noise.clone(), reference_mount: mount, ..SimOptions::paper(4) })
+            .expect("sim");
     let input = input_of(&out.drive);
     let opts = EivOptions {
         noise: NoiseModel::from_sim(&noise, input.sample_time_s),
@@ -1048,7 +1049,12 @@ fn explore_misspecified_reference() {
             };
             let t = std::time::Instant::now();
             let r = estimate(&input, &truth, &opts).expect("eiv");
-            eprintln!("{label} fix {fix}: {:.1}s t_r err {:+.2}% {}", t.elapsed().as_secs_f64(), (r.theta.t_r / truth.t_r - 1.0) * 100.0, r.termination);
+            eprintln!(
+                "{label} fix {fix}: {:.1}s t_r err {:+.2}% {}",
+                t.elapsed().as_secs_f64(),
+                (r.theta.t_r / truth.t_r - 1.0) * 100.0,
+                r.termination
+            );
             for w in &r.windows {
                 eprintln!(
                     "   w{} n {} nis {:.3} (0: {:.3}) lag1 {:.3?} (0: {:.3?})",
