@@ -7,6 +7,7 @@
 //!     and the quantisation-free paper ablations nq-noslip, nq-noay, nq-nodrift, nq-noposwhite,
 //!     nq-nocoloured, nq-nowheel)
 //!     [--variants known,est-pc,...] [--quantisation process|measurement] [--heading separate|tied]
+//!     [--history 1]  (print every iteration's θ, η and step/σ, and each window's NIS and lag-1)
 //!
 //! (`--heading` defaults to `separate` here, unlike the library.)
 //! ```
@@ -28,6 +29,7 @@ fn main() -> Res<()> {
     let mut variants_arg: Option<Vec<String>> = None;
     let mut quant = QuantisationModel::ProcessNoise;
     let mut heading = HeadingScale::Separate;
+    let mut history = false;
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
         let v = it.next().ok_or("missing value")?;
@@ -40,6 +42,7 @@ fn main() -> Res<()> {
                 quant =
                     if v == "measurement" { QuantisationModel::Measurement } else { QuantisationModel::ProcessNoise }
             }
+            "--history" => history = v == "1" || v == "true",
             "--variants" => variants_arg = Some(v.split(',').map(str::to_string).collect()),
             _ => return Err(format!("unknown {k}").into()),
         }
@@ -179,6 +182,34 @@ fn main() -> Res<()> {
                         println!("      noise: {}", odocal::calibrate::eiv::noise_summary(&r.noise));
                         for w in &r.warnings {
                             println!("      warning: {w}");
+                        }
+                        if history {
+                            for (i, h) in r.passes.iter().flat_map(|p| p.history.iter()).enumerate() {
+                                println!(
+                                    "      it {i}: {} | η [{}] cost {:.3} step/σ {:.3e} λ {}",
+                                    err(&h.theta),
+                                    h.eta.iter().map(|e| format!("{e:+.2}")).collect::<Vec<_>>().join(" "),
+                                    h.cost,
+                                    h.step_over_sigma,
+                                    h.step_factor
+                                );
+                            }
+                            for w in &r.windows {
+                                println!(
+                                    "      window {}: updates {} nis {:.3} (no floors {:.3}) lag1 [{:.3} {:.3} {:.3}] \
+                                     (no floors [{:.3} {:.3} {:.3}])",
+                                    w.window.index,
+                                    w.updates,
+                                    w.nis,
+                                    w.nis_without_floors,
+                                    w.lag1[0],
+                                    w.lag1[1],
+                                    w.lag1[2],
+                                    w.lag1_without_floors[0],
+                                    w.lag1_without_floors[1],
+                                    w.lag1_without_floors[2]
+                                );
+                            }
                         }
                     }
                     Err(e) => println!("  {label}: failed {e}"),

@@ -7,7 +7,7 @@
 //!     [--presets off,white,paper,high,coloured] [--three-step-seeds 0]
 //!     [--bootstrap 0] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
 //!     [--quantisation process|measurement] [--heading tied|separate]
-//!     [--methods known,est] (also: fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot)
+//!     [--methods known,est] (also: est-stop11 = `est` with the stop-11 checks and iteration, fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot)
 //!     [--tau-candidates] [--bootstrap-reestimate-seeds 0] [--smooth-half-width 20]
 //! ```
 //!
@@ -265,6 +265,16 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
     if want("est") {
         jobs.push(("EIV est.", est.clone()));
     }
+    if want("est-stop11") {
+        // The stop-11 checks and iteration: no secant damping of the η
+        // step, innovation checks against the fitted model with the floors.
+        let before = EivOptions {
+            eta_secant_damping: false,
+            innovation_null: odocal::eiv::InnovationNull::FittedModel,
+            ..est.clone()
+        };
+        jobs.push(("EIV est. stop-11", before));
+    }
     if want("fitted") {
         jobs.push(("EIV fitted", fitted.clone()));
     }
@@ -465,12 +475,12 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
             };
             runs.insert("EIV est. τ + fallback".to_string(), run);
         }
-        if label == "EIV est." {
+        if label == "EIV est." || label == "EIV est. stop-11" {
             // What a user gets with the default fallback on: G-N when a check failed.
             let (th, sig) = if failed > 0 { (gn, vec![]) } else { (r.theta, sigmas) };
             let run =
                 Run { theta: th, sigmas: sig, e_p_m: ep(&th)?, time_s, warnings: failed, tau_s: None, checks: vec![] };
-            runs.insert("EIV est. + fallback".to_string(), run);
+            runs.insert(format!("{label} + fallback"), run);
         }
         if label == "EIV est."
             && a.bootstrap >= 2

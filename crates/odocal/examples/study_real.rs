@@ -5,6 +5,7 @@
 //! ```text
 //! cargo run --release -p odocal --example study_real -- \
 //!     [--methods batch-gn,batch-gn-all,three-step,eiv,eiv-fixed] [--parts testtrack,van,rav4] \
+//!     (also eiv-stop11: the stop-11 checks and iteration; eiv-nofallback: fallback off)
 //!     [--json study_real.json] [--markdown study_real.md]
 //! ```
 //!
@@ -53,6 +54,11 @@ const RUNS: [&str; 6] = ["14-45-26", "15-28-33", "16-06-28", "16-47-33", "17-45-
 
 const METHODS: [&str; 5] = ["batch-gn", "batch-gn-all", "three-step", "eiv", "eiv-fixed"];
 
+/// Methods run only when named: `eiv-stop11` (`eiv` with the stop-11
+/// innovation checks and θ/η iteration) and `eiv-nofallback` (`eiv` with
+/// the fallback off: the EIV θ whatever the checks say).
+const EXTRA_METHODS: [&str; 2] = ["eiv-stop11", "eiv-nofallback"];
+
 /// The options `odocal calibrate --method …` uses for a study method.
 fn options(method: &str) -> Result<CalibrationOptions, Box<dyn Error>> {
     let mut o = CalibrationOptions::default();
@@ -64,13 +70,28 @@ fn options(method: &str) -> Result<CalibrationOptions, Box<dyn Error>> {
         }
         "three-step" => o.method = Method::default(),
         "eiv" => o.method = Method::Eiv(EivMethodOptions::default()),
+        "eiv-stop11" => {
+            o.method = Method::Eiv(EivMethodOptions {
+                filter: EivOptions {
+                    eta_secant_damping: false,
+                    innovation_null: odocal::eiv::InnovationNull::FittedModel,
+                    ..EivOptions::default()
+                },
+                ..EivMethodOptions::default()
+            })
+        }
+        "eiv-nofallback" => o.method = Method::Eiv(EivMethodOptions { fallback: false, ..EivMethodOptions::default() }),
         "eiv-fixed" => {
             o.method = Method::Eiv(EivMethodOptions {
                 filter: EivOptions { fix_noise: true, ..EivOptions::default() },
                 ..EivMethodOptions::default()
             })
         }
-        other => return Err(format!("unknown method {other}; use {}", METHODS.join(", ")).into()),
+        other => {
+            return Err(
+                format!("unknown method {other}; use {} or {}", METHODS.join(", "), EXTRA_METHODS.join(", ")).into()
+            )
+        }
     }
     Ok(o)
 }
@@ -164,6 +185,23 @@ fn testtrack(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error
             let v = odocal::validate_drives_with(&others, &r.theta, &opts.theta0, &cal, &opts.validation)?;
             let wall = t.elapsed().as_secs_f64();
             let fb = eiv_fallback(&r);
+            if let MethodDetail::Eiv(d) = &r.detail {
+                if let Some(e) = &d.eiv {
+                    // The EIV fit's consistency numbers (stderr), to read the checks against.
+                    eprintln!(
+                        "{m} {name}: η {:.2?} {} halves z {:.1?}",
+                        e.eta,
+                        e.termination,
+                        e.halves.as_ref().map(|h| h.z)
+                    );
+                    for w in &e.windows {
+                        eprintln!(
+                            "   w{} n {} nis {:.3} (no floors {:.3}) lag1 {:.2?} (no floors {:.2?})",
+                            w.window.index, w.updates, w.nis, w.nis_without_floors, w.lag1, w.lag1_without_floors
+                        );
+                    }
+                }
+            }
             extra.push(json!({
                 "run": name,
                 "theta": r.theta,

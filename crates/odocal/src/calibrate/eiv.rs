@@ -150,7 +150,9 @@ impl EivDetail {
 /// fields); a NIS *below* the band, and correlated innovations in such a
 /// window — the innovations are smaller than the noise model allows (a
 /// noise source absent or over-estimated, as on a noise-free drive, where
-/// what is left of the innovations is rounding and is correlated).
+/// what is left of the innovations is rounding and is correlated). The
+/// band and the whiteness limits already allow for the measurement floors
+/// ([`eiv::InnovationNull`]).
 pub fn is_misspecification(w: &EivWarning, report: &EivReport) -> bool {
     match w {
         EivWarning::Unobservable { .. } => false,

@@ -91,6 +91,12 @@ pub(crate) struct Variances {
     pub noise_input_from_reference: bool,
     /// Floor of the position measurement σ, m ([`super::EivOptions::position_floor_m`]).
     pub position_floor_m: f64,
+    /// Also run the null recursion of the innovation diagnostics: the
+    /// covariance of the filter's error when the data follow the model
+    /// *without* the measurement floors (the floors are regularisation, not
+    /// noise the data are assumed to have), giving the expected lag-1
+    /// correlation and NIS of the innovations ([`WindowSums::lag1_null`]).
+    pub null_without_floors: bool,
 }
 
 /// Everything one window contributes to the objective and its derivatives.
@@ -128,6 +134,14 @@ pub(crate) struct WindowSums {
     pub lag1: [f64; 3],
     /// Per component: Σ e_k².
     pub e2: [f64; 3],
+    /// Per component: Σ E₀[e_k e_{k−1}], the expectation of [`WindowSums::lag1`]
+    /// under the null of [`Variances::null_without_floors`] (zero unless it is on).
+    pub lag1_null: [f64; 3],
+    /// Per component: Σ E₀[e_k²] under the same null.
+    pub e2_null: [f64; 3],
+    /// Σ E₀[νᵀS⁻¹ν] = Σ tr(S⁻¹S₀) under the same null (S₀ the innovation
+    /// covariance without the floors, with the filter's gain).
+    pub quad_null: f64,
     /// Expected gradient of the profile cost caused by the input noise,
     /// `Σ_k −tr(S_k⁻¹ H X_k,i Hᵀ)` (the corrected-score term, see [`run_window`]).
     pub bias: nalgebra::Vector4<f64>,
@@ -164,6 +178,9 @@ impl WindowSums {
             updates: 0,
             lag1: [0.0; 3],
             e2: [0.0; 3],
+            lag1_null: [0.0; 3],
+            e2_null: [0.0; 3],
+            quad_null: 0.0,
             bias: nalgebra::Vector4::zeros(),
             grad_correction: nalgebra::Vector4::zeros(),
             grad_logdet: nalgebra::Vector4::zeros(),
@@ -197,9 +214,12 @@ impl WindowSums {
             self.jacobian_weight[w] += o.jacobian_weight[w];
             self.turning[w] += o.turning[w];
         }
+        self.quad_null += o.quad_null;
         for c in 0..3 {
             self.lag1[c] += o.lag1[c];
             self.e2[c] += o.e2[c];
+            self.lag1_null[c] += o.lag1_null[c];
+            self.e2_null[c] += o.e2_null[c];
         }
     }
 
@@ -450,6 +470,22 @@ fn propagate_general(p: &M9, f02: f64, f12: f64, fxs: &Matrix3<f64>, diag: &[f64
         out[(i, 2)] = m2 + fxs[(2, 0)] * m3 + fxs[(2, 1)] * m4 + fxs[(2, 2)] * m5;
         for c in 3..NZ {
             out[(i, c)] = diag[c] * m[(i, c)];
+        }
+    }
+    out
+}
+
+/// `F C` for a 9×3 `C` and the structured transition of [`propagate`].
+#[inline]
+fn propagate_cols(c: &M9x3, f02: f64, f12: f64, fxs: &Matrix3<f64>, diag: &[f64; 9]) -> M9x3 {
+    let mut out = M9x3::zeros();
+    for j in 0..3 {
+        let (p2, p3, p4, p5) = (c[(2, j)], c[(3, j)], c[(4, j)], c[(5, j)]);
+        out[(0, j)] = c[(0, j)] + f02 * p2 + fxs[(0, 0)] * p3 + fxs[(0, 1)] * p4 + fxs[(0, 2)] * p5;
+        out[(1, j)] = c[(1, j)] + f12 * p2 + fxs[(1, 0)] * p3 + fxs[(1, 1)] * p4 + fxs[(1, 2)] * p5;
+        out[(2, j)] = p2 + fxs[(2, 0)] * p3 + fxs[(2, 1)] * p4 + fxs[(2, 2)] * p5;
+        for r in 3..NZ {
+            out[(r, j)] = diag[r] * c[(r, j)];
         }
     }
     out
@@ -771,6 +807,18 @@ pub(crate) fn run_window(
     let dr_heading = Matrix3::from_diagonal(&Vector3::new(0.0, 0.0, h_head));
 
     let (mut p, mut dp) = initial_covariance(v, &r_floor);
+    // Null recursion of the innovation diagnostics (`null_without_floors`):
+    // the true error covariance P₀ when the data have no floor noise, its
+    // cross-covariance C₀ = E[ε ν_prevᵀ] with the previous innovation, and
+    // the previous update's Cholesky factor of S (the whitening).
+    let null = v.null_without_floors;
+    let mut p0 = p;
+    if null {
+        for (a, f) in r_floor.iter().enumerate() {
+            p0[(a, a)] -= f;
+        }
+    }
+    let mut c0: Option<(M9x3, Matrix3<f64>)> = None;
     let a0 = window.start;
     let mut x = State::new(input.px[a0], input.py[a0], input.psi[a0]);
     let mut s = Vector3::<f64>::zeros();
@@ -932,6 +980,7 @@ pub(crate) fn run_window(
             for r_ in 0..3 {
                 for c_ in 0..3 {
                     p[(r_, c_)] += r_q[(r_, c_)];
+                    p0[(r_, c_)] += r_q[(r_, c_)];
                     if mode.derivs && mode.eta {
                         dp[4][(r_, c_)] += r_q[(r_, c_)];
                     }
@@ -1144,6 +1193,19 @@ pub(crate) fn run_window(
             p[(r + 3, r + 3)] += q_s[r];
             p[(r + 6, r + 6)] += q_b[r];
         }
+        if null {
+            p0 = propagate(&p0, f02, f12, &fxs_ref, &diag);
+            for r in 0..3 {
+                for c in 0..3 {
+                    p0[(r, c)] += q_x[(r, c)];
+                }
+                p0[(r + 3, r + 3)] += q_s[r];
+                p0[(r + 6, r + 6)] += q_b[r];
+            }
+            if let Some((c, _)) = &mut c0 {
+                *c = propagate_cols(c, f02, f12, &fxs_ref, &diag);
+            }
+        }
         for &jj in cols {
             let dpj = &mut dp[jj];
             *dpj = propagate(dpj, f02, f12, &fxs_ref, &diag);
@@ -1241,6 +1303,32 @@ pub(crate) fn run_window(
         }
         prev_e = Some(e);
         let k: M9x3 = hp.transpose() * sinv;
+        if null {
+            // Expected moments of the whitened innovations when the data have
+            // the model's noise but not the floors (R₀ = R − floors).
+            let r0 = Matrix3::from_diagonal(&r_white) + r_q;
+            let hp0: M3x9 = h_rows(&p0);
+            let s0 = h_cols(&hp0) + r0;
+            let m1 = l.solve_lower_triangular(&s0).unwrap_or_else(Matrix3::zeros);
+            let e_cov = l.solve_lower_triangular(&m1.transpose()).unwrap_or_else(Matrix3::zeros);
+            out.quad_null += (sinv * s0).trace();
+            if let Some((c, l_prev)) = &c0 {
+                // E[ν_k ν_{k−1}ᵀ] = H C₀; whitened: L_k⁻¹ H C₀ L_{k−1}⁻ᵀ.
+                let cross = h_rows(c);
+                let m1 = l.solve_lower_triangular(&cross).unwrap_or_else(Matrix3::zeros);
+                let m2 = l_prev.solve_lower_triangular(&m1.transpose()).unwrap_or_else(Matrix3::zeros);
+                for q in 0..3 {
+                    out.lag1_null[q] += m2[(q, q)];
+                }
+            }
+            for q in 0..3 {
+                out.e2_null[q] += e_cov[(q, q)];
+            }
+            // C₀ = E[ε⁺ νᵀ] = P₀Hᵀ − K S₀; P₀⁺ = (I−KH)P₀(I−KH)ᵀ + K R₀ Kᵀ.
+            c0 = Some((hp0.transpose() - k * s0, l));
+            p0 = joseph(&p0, &k);
+            add_kdk(&mut p0, &k, &r0);
+        }
 
         if mode.derivs {
             let hd = h_rows(&d); // ∂ν/∂p = −H D⁻
