@@ -966,15 +966,16 @@ pub struct FirstOrderBias {
 /// estimated heading noise keeps the starting model's ratio (production
 /// car 0.02 m : 0.5 mrad against the simulator's 0.02 m : 0.3 mrad), and the
 /// estimated-noise t_r on paper noise was +2.7 / +5.3 / +4.2 % (seeds 1–3);
-/// with its own scale +0.85 / +1.30 / +0.90 %. It is not the default yet
-/// because with it the noise-free straight drive of the unit tests stops at
-/// a second fixed point of the θ/η iteration (c_e −0.057 %, η well above
-/// its lower clamp; the earlier "step rejected after 10 halvings" was an
-/// uphill η step, fixed), and it runs away on a 2 %-white-noise drive and
-/// on one of 20 `coloured` drives (t_r +250 % / +243 %, flagged). Measured
-/// with η estimated together with [`QuantisationModel::Measurement`] it is
-/// the best combination on every simulated preset (docs/study.md, EIV
-/// section, "Stop 11").
+/// with its own scale +0.85 / +1.30 / +0.90 %. Alone it runs away on a
+/// 2 %-white-noise drive and on one of 20 `coloured` drives (t_r +250 % /
+/// +230 %, flagged). Together with [`QuantisationModel::Measurement`] it is
+/// the best combination on every simulated preset with η estimated (paper
+/// t_r −1.2 %, high +4.1 %; docs/study.md, EIV section, "Stop 12") and the
+/// recommended default, not switched yet. With the SPEC formulation
+/// ([`InputJacobian::None`]) the noise-free straight drive stops at a
+/// second fixed point of the θ/η iteration (c_e −0.057 %, η well above its
+/// lower clamp); with the default [`InputJacobian::FilterShare`] it does
+/// not (c_e to 1e-9, "Stop 12").
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum HeadingScale {
@@ -997,8 +998,8 @@ pub enum HeadingScale {
 /// It is not the default yet: alone (heading scale tied) it changes little
 /// with η estimated (paper t_r +3.8 %, high +118 %); with
 /// [`HeadingScale::Separate`] it gives paper −1.2 %, high +4.5 % (docs/study.md,
-/// EIV section, "Stop 11"). Alone it passes the noise-free straight drive;
-/// the straight-drive failure is the separate heading scale's.
+/// EIV section, "Stop 11"; with today's defaults −1.2 % / +4.1 %, "Stop 12",
+/// where the pair passes the noise-free straight and turning drives).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum QuantisationModel {
