@@ -1185,23 +1185,21 @@ pub(crate) fn run_window(
                 }
             }
         }
-        p = propagate(&p, f02, f12, &fxs_ref, &diag);
-        for r in 0..3 {
-            for c in 0..3 {
-                p[(r, c)] += q_x[(r, c)];
-            }
-            p[(r + 3, r + 3)] += q_s[r];
-            p[(r + 6, r + 6)] += q_b[r];
-        }
-        if null {
-            p0 = propagate(&p0, f02, f12, &fxs_ref, &diag);
+        // The step's process noise, the same for the filter's P and the null pass's P₀.
+        let add_q = |m: &mut M9| {
             for r in 0..3 {
                 for c in 0..3 {
-                    p0[(r, c)] += q_x[(r, c)];
+                    m[(r, c)] += q_x[(r, c)];
                 }
-                p0[(r + 3, r + 3)] += q_s[r];
-                p0[(r + 6, r + 6)] += q_b[r];
+                m[(r + 3, r + 3)] += q_s[r];
+                m[(r + 6, r + 6)] += q_b[r];
             }
+        };
+        p = propagate(&p, f02, f12, &fxs_ref, &diag);
+        add_q(&mut p);
+        if null {
+            p0 = propagate(&p0, f02, f12, &fxs_ref, &diag);
+            add_q(&mut p0);
             if let Some((c, _)) = &mut c0 {
                 *c = propagate_cols(c, f02, f12, &fxs_ref, &diag);
             }
