@@ -1,7 +1,9 @@
 //! The augmented extended Kalman filter of SPEC §10 over one window, with
 //! its exact sensitivity recursion.
 //!
-//! State `z = [p_x, p_y, ψ, s_c, s_l, s_r, b_x, b_y, b_ψ]`. The covariance
+//! State `z = [p_x, p_y, ψ, s_c, s_l, s_r, b_x, b_y, b_ψ, w_l, w_r]`; the
+//! last two are the encoder remainders of the previous sample (rev/s, only
+//! with [`Variances::quant_counting`]; identically zero otherwise). The covariance
 //! recursion (P, S, K) is linearised along the *reference* (the reference
 //! heading, the measured wheel rotations and the reference θ of the pass),
 //! so it depends on the noise scales η but not on θ; the mean recursion runs
@@ -23,21 +25,25 @@ use super::{EivInput, InputJacobian, Window};
 use crate::error::{Error, Result};
 use crate::model::{step_jacobians, wrap_angle, Input, State, Theta};
 
-/// Number of filter states.
-pub(crate) const NZ: usize = 9;
+/// Number of filter states (the two remainder states w_l, w_r included).
+pub(crate) const NZ: usize = 11;
+/// Index of the first remainder state `w_l` (`w_r` follows).
+const IW: usize = 9;
 /// Number of sensitivity parameters: 4 θ + 6 η.
 pub(crate) const NP: usize = 10;
 /// Number of noise scale factors η.
 pub(crate) const NETA: usize = 6;
 
-pub(crate) type M9 = SMatrix<f64, NZ, NZ>;
-type D9 = SMatrix<f64, NZ, NP>;
+pub(crate) type MZ = SMatrix<f64, NZ, NZ>;
+type DZ = SMatrix<f64, NZ, NP>;
 pub(crate) type V9 = SVector<f64, NP>;
 pub(crate) type M5 = SMatrix<f64, NETA, NETA>;
 /// `[θ, η]` × `[θ, η]` (information matrices).
 pub(crate) type MP = SMatrix<f64, NP, NP>;
-type M3x9 = SMatrix<f64, 3, NZ>;
-type M9x3 = SMatrix<f64, NZ, 3>;
+type M3xZ = SMatrix<f64, 3, NZ>;
+/// The pose rows of the remainder columns of F (`−∂f/∂n_w` of turning wheels).
+type M3x2 = SMatrix<f64, 3, 2>;
+type MZx3 = SMatrix<f64, NZ, 3>;
 
 /// Heading measurement noise floor (SPEC §10): keeps S regular on a perfect
 /// reference (the position floor is [`Variances::position_floor_m`]).
@@ -70,6 +76,10 @@ pub(crate) struct Variances {
     /// Quantisation as measurement noise `R_q` (bounded count error) rather
     /// than as white rate noise in the process ([`super::QuantisationModel`]).
     pub quant_in_measurement: bool,
+    /// Quantisation as the exact counting error: the measured rate is
+    /// `ñ_k = n_k + w_{k−1} − w_k` (w the remainder of the count, in rev/s,
+    /// variance q²/12), with `w_{k−1}` in the state ([`super::QuantisationModel::Counting`]).
+    pub quant_counting: bool,
     /// The heading white noise has its own scale η_5 (otherwise η_3 scales
     /// it with the position white noise; [`super::EivOptions::heading_scale`]).
     pub heading_separate: bool,
@@ -239,25 +249,31 @@ pub(crate) struct InnovationRecord {
 }
 
 /// `F P Fᵀ` for the structured transition
-/// `F = [[F_x, F_xs, 0], [0, diag(a_s), 0], [0, 0, a_b I]]`,
+/// `F = [[F_x, F_xs, 0, F_xw], [0, diag(a_s), 0, 0], [0, 0, a_b I, 0], [0, 0, 0, diag(a_w)]]`,
 /// `F_x = I + e_0 f02 e_2ᵀ + e_1 f12 e_2ᵀ`, for a symmetric `P`.
 ///
-/// Only the lower triangle is computed (through `W = P F_topᵀ`, 9×3, `F_top`
+/// Only the lower triangle is computed (through `W = P F_topᵀ`, NZ×3, `F_top`
 /// the first three rows of F) and mirrored, so the result is exactly
-/// symmetric; about 170 multiplications instead of the 380 of the general
-/// row-then-column form.
+/// symmetric.
 #[inline]
-fn propagate(p: &M9, f02: f64, f12: f64, fxs: &Matrix3<f64>, diag: &[f64; 9]) -> M9 {
+fn propagate(p: &MZ, f02: f64, f12: f64, fxs: &Matrix3<f64>, fxw: &M3x2, diag: &[f64; NZ]) -> MZ {
     let fr = [f02, f12, 0.0];
-    // W = P F_topᵀ: W[r, c] = P[r, c] + F[c, 2] P[r, 2] + F_xs[c, :] · P[r, 3..6].
-    let mut w = M9x3::zeros();
+    // W = P F_topᵀ: W[r, c] = P[r, c] + F[c, 2] P[r, 2] + F_xs[c, :] · P[r, 3..6] + F_xw[c, :] · P[r, 9..11].
+    let mut w = MZx3::zeros();
     for c in 0..3 {
         let (g2, g3, g4, g5) = (fr[c], fxs[(c, 0)], fxs[(c, 1)], fxs[(c, 2)]);
+        let (g9, g10) = (fxw[(c, 0)], fxw[(c, 1)]);
         for r in 0..NZ {
-            w[(r, c)] = p[(r, c)] + g2 * p[(r, 2)] + g3 * p[(r, 3)] + g4 * p[(r, 4)] + g5 * p[(r, 5)];
+            w[(r, c)] = p[(r, c)]
+                + g2 * p[(r, 2)]
+                + g3 * p[(r, 3)]
+                + g4 * p[(r, 4)]
+                + g5 * p[(r, 5)]
+                + g9 * p[(r, IW)]
+                + g10 * p[(r, IW + 1)];
         }
     }
-    let mut out = M9::zeros();
+    let mut out = MZ::zeros();
     // Pose block: F_top W (lower triangle).
     for c in 0..3 {
         for i in c..3 {
@@ -265,10 +281,12 @@ fn propagate(p: &M9, f02: f64, f12: f64, fxs: &Matrix3<f64>, diag: &[f64; 9]) ->
                 + fr[i] * w[(2, c)]
                 + fxs[(i, 0)] * w[(3, c)]
                 + fxs[(i, 1)] * w[(4, c)]
-                + fxs[(i, 2)] * w[(5, c)];
+                + fxs[(i, 2)] * w[(5, c)]
+                + fxw[(i, 0)] * w[(IW, c)]
+                + fxw[(i, 1)] * w[(IW + 1, c)];
         }
     }
-    // Rows 3..9: diagonal rows of F.
+    // Rows 3..NZ: diagonal rows of F.
     for i in 3..NZ {
         for c in 0..3 {
             out[(i, c)] = diag[i] * w[(i, c)];
@@ -283,7 +301,7 @@ fn propagate(p: &M9, f02: f64, f12: f64, fxs: &Matrix3<f64>, diag: &[f64; 9]) ->
 
 /// Copies the strict lower triangle onto the upper one.
 #[inline]
-fn mirror_lower(m: &mut M9) {
+fn mirror_lower(m: &mut MZ) {
     for c in 1..NZ {
         for r in 0..c {
             m[(r, c)] = m[(c, r)];
@@ -305,7 +323,7 @@ fn h_rows<const C: usize>(a: &SMatrix<f64, NZ, C>) -> SMatrix<f64, 3, C> {
 
 /// `B Hᵀ` for a 3×9 `B`: columns 0..3 plus columns 6..9.
 #[inline]
-fn h_cols(b: &M3x9) -> Matrix3<f64> {
+fn h_cols(b: &M3xZ) -> Matrix3<f64> {
     let mut out = Matrix3::zeros();
     for r in 0..3 {
         for c in 0..3 {
@@ -379,28 +397,28 @@ fn theta_jacobian_input_derivatives(psi: f64, u: &Input, th: &Theta, ts: f64) ->
 /// numerically unstable here), but only the entries of X that the lower
 /// triangle of the result needs, and only that triangle, mirrored.
 #[inline]
-fn joseph(a: &M9, k: &M9x3) -> M9 {
+fn joseph(a: &MZ, k: &MZx3) -> MZ {
     // HA (3×9): rows 0..3 plus rows 6..9.
     let ha = h_rows(a);
     // X = A − K HA: every row of columns 0..3 and 6..9 (for XHᵀ), and the
-    // lower triangle of columns 3..6.
-    let mut x = M9::zeros();
+    // lower triangle of the other columns.
+    let mut x = MZ::zeros();
     for c in 0..NZ {
-        let first = if (3..6).contains(&c) { c } else { 0 };
+        let first = if c < 3 || (6..9).contains(&c) { 0 } else { c };
         let (h0, h1, h2) = (ha[(0, c)], ha[(1, c)], ha[(2, c)]);
         for r in first..NZ {
             x[(r, c)] = a[(r, c)] - (k[(r, 0)] * h0 + k[(r, 1)] * h1 + k[(r, 2)] * h2);
         }
     }
     // XHᵀ (9×3).
-    let mut xh = M9x3::zeros();
+    let mut xh = MZx3::zeros();
     for m in 0..3 {
         for r in 0..NZ {
             xh[(r, m)] = x[(r, m)] + x[(r, m + 6)];
         }
     }
     // Lower triangle of X − (XHᵀ)Kᵀ.
-    let mut out = M9::zeros();
+    let mut out = MZ::zeros();
     for c in 0..NZ {
         let (k0, k1, k2) = (k[(c, 0)], k[(c, 1)], k[(c, 2)]);
         for r in c..NZ {
@@ -414,9 +432,9 @@ fn joseph(a: &M9, k: &M9x3) -> M9 {
 /// `(I − K H) A (I − K H)ᵀ` for `H = [I₃ 0 I₃]` and any `A` (the
 /// cross-covariances X of the corrected score are not symmetric).
 #[inline]
-fn joseph_general(a: &M9, k: &M9x3) -> M9 {
+fn joseph_general(a: &MZ, k: &MZx3) -> MZ {
     let x = a - k * h_rows(a);
-    let mut xh = M9x3::zeros();
+    let mut xh = MZx3::zeros();
     for r in 0..NZ {
         for c in 0..3 {
             xh[(r, c)] = x[(r, c)] + x[(r, c + 6)];
@@ -427,27 +445,31 @@ fn joseph_general(a: &M9, k: &M9x3) -> M9 {
 
 /// `F A Fᵀ` as [`propagate`] for any `A` (not only symmetric ones).
 #[inline]
-fn propagate_general(p: &M9, f02: f64, f12: f64, fxs: &Matrix3<f64>, diag: &[f64; 9]) -> M9 {
+fn propagate_general(p: &MZ, f02: f64, f12: f64, fxs: &Matrix3<f64>, fxw: &M3x2, diag: &[f64; NZ]) -> MZ {
     // M = F P (row operations).
-    let mut m = M9::zeros();
+    let mut m = MZ::zeros();
     for j in 0..NZ {
         let (p0, p1, p2) = (p[(0, j)], p[(1, j)], p[(2, j)]);
         let (p3, p4, p5) = (p[(3, j)], p[(4, j)], p[(5, j)]);
-        m[(0, j)] = p0 + f02 * p2 + fxs[(0, 0)] * p3 + fxs[(0, 1)] * p4 + fxs[(0, 2)] * p5;
-        m[(1, j)] = p1 + f12 * p2 + fxs[(1, 0)] * p3 + fxs[(1, 1)] * p4 + fxs[(1, 2)] * p5;
-        m[(2, j)] = p2 + fxs[(2, 0)] * p3 + fxs[(2, 1)] * p4 + fxs[(2, 2)] * p5;
+        let (p9, p10) = (p[(IW, j)], p[(IW + 1, j)]);
+        let wc = |r: usize| fxw[(r, 0)] * p9 + fxw[(r, 1)] * p10;
+        m[(0, j)] = p0 + f02 * p2 + fxs[(0, 0)] * p3 + fxs[(0, 1)] * p4 + fxs[(0, 2)] * p5 + wc(0);
+        m[(1, j)] = p1 + f12 * p2 + fxs[(1, 0)] * p3 + fxs[(1, 1)] * p4 + fxs[(1, 2)] * p5 + wc(1);
+        m[(2, j)] = p2 + fxs[(2, 0)] * p3 + fxs[(2, 1)] * p4 + fxs[(2, 2)] * p5 + wc(2);
         for r in 3..NZ {
             m[(r, j)] = diag[r] * p[(r, j)];
         }
     }
     // F P Fᵀ = M Fᵀ (column operations).
-    let mut out = M9::zeros();
+    let mut out = MZ::zeros();
     for i in 0..NZ {
         let (m0, m1, m2) = (m[(i, 0)], m[(i, 1)], m[(i, 2)]);
         let (m3, m4, m5) = (m[(i, 3)], m[(i, 4)], m[(i, 5)]);
-        out[(i, 0)] = m0 + f02 * m2 + fxs[(0, 0)] * m3 + fxs[(0, 1)] * m4 + fxs[(0, 2)] * m5;
-        out[(i, 1)] = m1 + f12 * m2 + fxs[(1, 0)] * m3 + fxs[(1, 1)] * m4 + fxs[(1, 2)] * m5;
-        out[(i, 2)] = m2 + fxs[(2, 0)] * m3 + fxs[(2, 1)] * m4 + fxs[(2, 2)] * m5;
+        let (m9, m10) = (m[(i, IW)], m[(i, IW + 1)]);
+        let wc = |r: usize| fxw[(r, 0)] * m9 + fxw[(r, 1)] * m10;
+        out[(i, 0)] = m0 + f02 * m2 + fxs[(0, 0)] * m3 + fxs[(0, 1)] * m4 + fxs[(0, 2)] * m5 + wc(0);
+        out[(i, 1)] = m1 + f12 * m2 + fxs[(1, 0)] * m3 + fxs[(1, 1)] * m4 + fxs[(1, 2)] * m5 + wc(1);
+        out[(i, 2)] = m2 + fxs[(2, 0)] * m3 + fxs[(2, 1)] * m4 + fxs[(2, 2)] * m5 + wc(2);
         for c in 3..NZ {
             out[(i, c)] = diag[c] * m[(i, c)];
         }
@@ -457,7 +479,7 @@ fn propagate_general(p: &M9, f02: f64, f12: f64, fxs: &Matrix3<f64>, diag: &[f64
 
 /// `dst += K D Kᵀ` for a symmetric 3×3 `D`, exactly symmetric.
 #[inline]
-fn add_kdk(dst: &mut M9, k: &M9x3, d: &Matrix3<f64>) {
+fn add_kdk(dst: &mut MZ, k: &MZx3, d: &Matrix3<f64>) {
     let kd = k * d;
     for c in 0..NZ {
         let (k0, k1, k2) = (k[(c, 0)], k[(c, 1)], k[(c, 2)]);
@@ -473,10 +495,17 @@ fn add_kdk(dst: &mut M9, k: &M9x3, d: &Matrix3<f64>) {
 
 /// The initial covariance of a window and its derivatives over
 /// `p = [θ, η]` (SPEC §10): `P_xx = R + Σ_b, P_bb = Σ_b, P_xb = −Σ_b,
-/// P_ss = diag(σ²)`; it does not depend on θ.
-fn initial_covariance(v: &Variances, r_floor: &[f64; 3]) -> (M9, [M9; NP]) {
-    let mut p = M9::zeros();
-    let mut dp = [M9::zeros(); NP];
+/// P_ss = diag(σ²)`, with counting quantisation `P_ww = q²/12·I` (the
+/// remainders before the first sample); it does not depend on θ.
+fn initial_covariance(v: &Variances, r_floor: &[f64; 3]) -> (MZ, [MZ; NP]) {
+    let mut p = MZ::zeros();
+    let mut dp = [MZ::zeros(); NP];
+    if v.quant_counting {
+        for i in IW..NZ {
+            p[(i, i)] = v.quant;
+            dp[4][(i, i)] = v.quant;
+        }
+    }
     p[(3, 3)] = v.common;
     dp[5][(3, 3)] = v.common;
     for i in 4..6 {
@@ -681,7 +710,7 @@ impl Mode {
 
 /// `A + Aᵀ` added to `dst` for a 3×9 `A` occupying rows 0..3.
 #[inline]
-fn add_sym_rows(dst: &mut M9, a: &M3x9) {
+fn add_sym_rows(dst: &mut MZ, a: &M3xZ) {
     for r in 0..3 {
         for c in 0..NZ {
             dst[(r, c)] += a[(r, c)];
@@ -775,8 +804,10 @@ pub(crate) fn run_window(
     let mut x = State::new(input.px[a0], input.py[a0], input.psi[a0]);
     let mut s = Vector3::<f64>::zeros();
     let mut b = Vector3::<f64>::zeros();
-    let mut d = D9::zeros();
-    let diag = [1.0, 1.0, 1.0, v.a_common, v.a_wheel, v.a_wheel, v.a_drift, v.a_drift, v.a_drift];
+    // Counting quantisation: the estimated remainders w_{k−1} (rev/s).
+    let mut wq = [0.0f64; 2];
+    let mut d = DZ::zeros();
+    let base_diag = [1.0, 1.0, 1.0, v.a_common, v.a_wheel, v.a_wheel, v.a_drift, v.a_drift, v.a_drift, 1.0, 1.0];
     let q_s = [
         v.common * (1.0 - v.a_common * v.a_common),
         v.wheel * (1.0 - v.a_wheel * v.a_wheel),
@@ -785,16 +816,16 @@ pub(crate) fn run_window(
     let q_b: [f64; 3] = std::array::from_fn(|a| v.drift[a] * (1.0 - v.a_drift * v.a_drift));
     // X_i = E[ε⁻ D̃_iᵀ]: cross-covariance of the estimation error and the
     // noise-driven part of the θ-sensitivity (corrected score).
-    let mut xcov = [M9::zeros(); 4];
+    let mut xcov = [MZ::zeros(); 4];
     let mut out = WindowSums::zero();
     let mut prev_e: Option<Vector3<f64>> = None;
     // Per-sample work arrays (only the entries of `cols` are written; the
     // rest stay zero, as the records expect).
-    let mut theta_terms: [M3x9; 4] = [M3x9::zeros(); 4];
+    let mut theta_terms: [M3xZ; 4] = [M3xZ::zeros(); 4];
     let mut r_q_theta = [Matrix3::<f64>::zeros(); 4];
     let mut ds = [Matrix3::<f64>::zeros(); NP];
     let mut a = [Matrix3::<f64>::zeros(); NP];
-    let mut dkn = D9::zeros();
+    let mut dkn = DZ::zeros();
     // Input log-Jacobian term: per-wheel sums at unit weight (Unit,
     // SmoothedShare), samples waiting for the next update (FilterShare:
     // wheel, σ²n̂², f_w, ln C ratio, its gradient) and ∂P/∂λ_w (SmoothedShare).
@@ -806,7 +837,7 @@ pub(crate) fn run_window(
     // common = s_c (SmoothedShareAll only; half to each wheel).
     let all_sources = jac_mode == InputJacobian::SmoothedShareAll;
     let smoothed = all_sources || jac_mode == InputJacobian::SmoothedShare;
-    let mut dp_lambda = [M9::zeros(); 3];
+    let mut dp_lambda = [MZ::zeros(); 3];
     if all_sources {
         dp_lambda[0][(4, 4)] = v.wheel;
         dp_lambda[1][(5, 5)] = v.wheel;
@@ -887,8 +918,27 @@ pub(crate) fn run_window(
         } else {
             Matrix3::from_columns(&[-fn_l * nl - fn_r * nr, -fn_l * nl, -fn_r * nr])
         };
+        // Counting quantisation (exact): the true rate of a turning wheel is
+        // ñ_k − w_{k−1} + w_k, w the remainder of the count in rev/s
+        // (`Encoder::measure` of the simulator: n_k·t_s·T = count + u_{k−1} − u_k,
+        // w = q(u − ½)). So the pose rows of the remainder column are −∂f/∂n_w,
+        // the new remainder w_k is fresh (F row 0, variance q²/12) and enters
+        // the pose with +∂f/∂n_w (Q_xw = ∂f/∂n_w·q²/12). Where a wheel counts
+        // nothing (standstill) the remainder is carried over unchanged: no
+        // error, no new draw (F row 1).
+        let counting = [v.quant_counting && nl != 0.0, v.quant_counting && nr != 0.0];
+        let mut diag = base_diag;
+        let mut fxw_ref = M3x2::zeros();
+        for (w, f_w) in [fn_l, fn_r].into_iter().enumerate() {
+            if counting[w] {
+                diag[IW + w] = 0.0;
+                fxw_ref.set_column(w, &(-f_w));
+            }
+        }
         // White relative noise accumulates into the pose (process noise).
-        // Encoder quantisation does not (with `quant_in_measurement`): counting ticks carries the remainder
+        // Encoder quantisation does not (with `quant_in_measurement`, an
+        // approximation; `quant_counting` models it exactly through the
+        // remainder states): counting ticks carries the remainder
         // over, so the counted rotation is the true one to within one tick
         // at every sample, and the pose error it causes is bounded — white
         // in the *measurement*, `R_q = q²/12·(f_l f_lᵀ + f_r f_rᵀ)` with the
@@ -968,7 +1018,7 @@ pub(crate) fn run_window(
             if smoothed {
                 for (w, f_w) in [fn_l, fn_r].into_iter().enumerate() {
                     let dpl = &mut dp_lambda[w];
-                    *dpl = propagate(dpl, f02, f12, &fxs_ref, &diag);
+                    *dpl = propagate(dpl, f02, f12, &fxs_ref, &fxw_ref, &diag);
                     let q = f_w * f_w.transpose() * rel[w];
                     for r_ in 0..3 {
                         for c_ in 0..3 {
@@ -981,7 +1031,7 @@ pub(crate) fn run_window(
                 }
                 if all_sources {
                     let dpc = &mut dp_lambda[2];
-                    *dpc = propagate(dpc, f02, f12, &fxs_ref, &diag);
+                    *dpc = propagate(dpc, f02, f12, &fxs_ref, &fxw_ref, &diag);
                     dpc[(3, 3)] += q_s[0];
                 }
             }
@@ -1000,7 +1050,7 @@ pub(crate) fn run_window(
                 Matrix3::zeros(),
             ];
             for (ci, xi) in xcov.iter_mut().enumerate() {
-                *xi = propagate_general(xi, f02, f12, &fxs_ref, &diag);
+                *xi = propagate_general(xi, f02, f12, &fxs_ref, &fxw_ref, &diag);
                 let dx = Vector3::new(d[(0, ci)], d[(1, ci)], d[(2, ci)]);
                 let ds_ = Vector3::new(d[(3, ci)], d[(4, ci)], d[(5, ci)]);
                 for (u, (g, var)) in g_u.iter().enumerate() {
@@ -1032,7 +1082,11 @@ pub(crate) fn run_window(
             )));
         }
         out.correction -= m_c * one_minus[0].ln() + m_l * one_minus[1].ln() + m_r * one_minus[2].ln();
-        let ueff = Input { n_rl: nl * (1.0 - s[0] - s[1]), n_rr: nr * (1.0 - s[0] - s[2]), beta, a_y };
+        // The remainder of the previous count is taken off the measured rate
+        // (the new one has mean zero).
+        let wsub = [if counting[0] { wq[0] } else { 0.0 }, if counting[1] { wq[1] } else { 0.0 }];
+        let ueff =
+            Input { n_rl: nl * (1.0 - s[0] - s[1]) - wsub[0], n_rr: nr * (1.0 - s[0] - s[2]) - wsub[1], beta, a_y };
         if mode.derivs {
             for (row, m) in [(3usize, m_c), (4, m_l), (5, m_r)] {
                 if m > 0.0 {
@@ -1051,17 +1105,27 @@ pub(crate) fn run_window(
             let j = step_jacobians(&x, &ueff, theta, ts);
             let (gl, gr) = (j.f_n.column(0) * nl, j.f_n.column(1) * nr);
             let fxs = Matrix3::from_columns(&[-(gl + gr), -gl, -gr]);
+            // Remainder columns: −∂f/∂n_w at the mean for turning wheels.
+            let mut fxw = M3x2::zeros();
+            for w in 0..2 {
+                if counting[w] {
+                    fxw.set_column(w, &(-j.f_n.column(w)));
+                }
+            }
             // D⁻ = F D⁺ + [f_θ | 0], in place column by column.
             for c in 0..NP {
                 let (d0, d1, d2) = (d[(0, c)], d[(1, c)], d[(2, c)]);
                 let (d3, d4, d5) = (d[(3, c)], d[(4, c)], d[(5, c)]);
+                let (d9, d10) = (d[(IW, c)], d[(IW + 1, c)]);
                 for r in 0..3 {
                     d[(r, c)] = j.f_x[(r, 0)] * d0
                         + j.f_x[(r, 1)] * d1
                         + j.f_x[(r, 2)] * d2
                         + fxs[(r, 0)] * d3
                         + fxs[(r, 1)] * d4
-                        + fxs[(r, 2)] * d5;
+                        + fxs[(r, 2)] * d5
+                        + fxw[(r, 0)] * d9
+                        + fxw[(r, 1)] * d10;
                 }
                 for r in 3..NZ {
                     d[(r, c)] *= diag[r];
@@ -1078,6 +1142,11 @@ pub(crate) fn run_window(
         }
         s = Vector3::new(v.a_common * s[0], v.a_wheel * s[1], v.a_wheel * s[2]);
         b *= v.a_drift;
+        for w in 0..2 {
+            if counting[w] {
+                wq[w] = 0.0;
+            }
+        }
 
         // --- Covariance prediction and its derivatives.
         // ∂P⁻/∂θ_j = F̄ ∂P⁺ F̄ᵀ + (∂F̄ P⁺ F̄ᵀ + F̄ P⁺ ∂F̄ᵀ) + ∂Q/∂θ_j.
@@ -1092,13 +1161,26 @@ pub(crate) fn run_window(
                 let (dsl, dsr) = (dvec_of(&fs_l, jt), dvec_of(&fs_r, jt));
                 let dfxs = Matrix3::from_columns(&[-dsl * nls - dsr * nrs, -dsl * nls, -dsr * nrs]);
                 let (d02, d12) = (rt.f02.d[jt], rt.f12.d[jt]);
+                // ∂F̄_xw/∂θ_j = −∂(∂f/∂n_w)/∂θ_j for turning wheels (counting).
+                let mut dfxw = M3x2::zeros();
+                for (w, df) in [dfl, dfr].into_iter().enumerate() {
+                    if counting[w] {
+                        dfxw.set_column(w, &(-df));
+                    }
+                }
                 // G = ∂F̄ P⁺ (rows 0..3 only).
-                let mut g = M3x9::zeros();
+                let mut g = M3xZ::zeros();
                 for c in 0..NZ {
                     let (p2, p3, p4, p5) = (p[(2, c)], p[(3, c)], p[(4, c)], p[(5, c)]);
+                    let (p9, p10) = (p[(IW, c)], p[(IW + 1, c)]);
                     let dfr2 = [d02, d12, 0.0];
                     for rr in 0..3 {
-                        g[(rr, c)] = dfr2[rr] * p2 + dfxs[(rr, 0)] * p3 + dfxs[(rr, 1)] * p4 + dfxs[(rr, 2)] * p5;
+                        g[(rr, c)] = dfr2[rr] * p2
+                            + dfxs[(rr, 0)] * p3
+                            + dfxs[(rr, 1)] * p4
+                            + dfxs[(rr, 2)] * p5
+                            + dfxw[(rr, 0)] * p9
+                            + dfxw[(rr, 1)] * p10;
                     }
                 }
                 // G F̄ᵀ.
@@ -1111,6 +1193,8 @@ pub(crate) fn run_window(
                                 + fxs_ref[(ci, 0)] * g[(rr, 3)]
                                 + fxs_ref[(ci, 1)] * g[(rr, 4)]
                                 + fxs_ref[(ci, 2)] * g[(rr, 5)]
+                                + fxw_ref[(ci, 0)] * g[(rr, IW)]
+                                + fxw_ref[(ci, 1)] * g[(rr, IW + 1)]
                         } else {
                             diag[ci] * g[(rr, ci)]
                         };
@@ -1134,9 +1218,17 @@ pub(crate) fn run_window(
                         tt[(rr, ci)] += half_dq[(ci, rr)];
                     }
                 }
+                // ∂Q_xw/∂θ_j (the off-diagonal block, added with its mirror).
+                for (w, df) in [dfl, dfr].into_iter().enumerate() {
+                    if counting[w] {
+                        for rr in 0..3 {
+                            tt[(rr, IW + w)] += df[rr] * v.quant;
+                        }
+                    }
+                }
             }
         }
-        p = propagate(&p, f02, f12, &fxs_ref, &diag);
+        p = propagate(&p, f02, f12, &fxs_ref, &fxw_ref, &diag);
         for r in 0..3 {
             for c in 0..3 {
                 p[(r, c)] += q_x[(r, c)];
@@ -1144,18 +1236,32 @@ pub(crate) fn run_window(
             p[(r + 3, r + 3)] += q_s[r];
             p[(r + 6, r + 6)] += q_b[r];
         }
+        // Counting: the fresh remainder w_k (Q_ww) and its share of the pose step (Q_xw).
+        let add_q_w = |m: &mut MZ| {
+            for (w, f_w) in [fn_l, fn_r].into_iter().enumerate() {
+                if counting[w] {
+                    m[(IW + w, IW + w)] += v.quant;
+                    for r in 0..3 {
+                        m[(r, IW + w)] += f_w[r] * v.quant;
+                        m[(IW + w, r)] += f_w[r] * v.quant;
+                    }
+                }
+            }
+        };
+        add_q_w(&mut p);
         for &jj in cols {
             let dpj = &mut dp[jj];
-            *dpj = propagate(dpj, f02, f12, &fxs_ref, &diag);
+            *dpj = propagate(dpj, f02, f12, &fxs_ref, &fxw_ref, &diag);
             match jj {
                 0..=3 => add_sym_rows(dpj, &theta_terms[jj]),
                 4 => {
-                    // η_0 scales the white wheel, a_y and β noise together.
+                    // η_0 scales the white wheel, quantisation, a_y and β noise together.
                     for r in 0..3 {
                         for c in 0..3 {
                             dpj[(r, c)] += q_x[(r, c)];
                         }
                     }
+                    add_q_w(dpj);
                 }
                 5 => dpj[(3, 3)] += q_s[0],
                 6 => {
@@ -1182,7 +1288,7 @@ pub(crate) fn run_window(
         let y = Vector3::new(input.px[k1], input.py[k1], input.psi[k1]);
         let yhat = x + b;
         let nu = Vector3::new(y[0] - yhat[0], y[1] - yhat[1], wrap_angle(y[2] - yhat[2]));
-        let hp: M3x9 = h_rows(&p);
+        let hp: M3xZ = h_rows(&p);
         let r_k = r + r_q;
         // ∂R_k/∂p_j: quantisation (η_0; θ through ∂f/∂n when following),
         // position white (η_3), heading white (η_5).
@@ -1215,7 +1321,7 @@ pub(crate) fn run_window(
                 add_jacobian_term(&mut out, u, lc, &g);
             }
         } else if smoothed {
-            let k_l: M9x3 = hp.transpose() * sinv;
+            let k_l: MZx3 = hp.transpose() * sinv;
             let n_l = if all_sources { 3 } else { 2 };
             for (w, dpl) in dp_lambda.iter_mut().take(n_l).enumerate() {
                 let ds_l = h_cols(&h_rows(dpl));
@@ -1240,7 +1346,7 @@ pub(crate) fn run_window(
             }
         }
         prev_e = Some(e);
-        let k: M9x3 = hp.transpose() * sinv;
+        let k: MZx3 = hp.transpose() * sinv;
 
         if mode.derivs {
             let hd = h_rows(&d); // ∂ν/∂p = −H D⁻
@@ -1257,7 +1363,7 @@ pub(crate) fn run_window(
                 g_t[c] = -gnu[c];
             }
             for &jj in cols {
-                let hdp: M3x9 = h_rows(&dp[jj]);
+                let hdp: M3xZ = h_rows(&dp[jj]);
                 ds[jj] = h_cols(&hdp) + d_r(jj);
                 a[jj] = sinv * ds[jj];
                 let ds_snu = ds[jj] * sinv_nu;
@@ -1348,6 +1454,8 @@ pub(crate) fn run_window(
             s[r] += dz[r + 3];
             b[r] += dz[r + 6];
         }
+        wq[0] += dz[IW];
+        wq[1] += dz[IW + 1];
         p = joseph(&p, &k);
         add_kdk(&mut p, &k, &r_k);
     }
@@ -1400,9 +1508,9 @@ mod kernel_tests {
         ((*state >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
     }
 
-    fn random_symmetric(state: &mut u64) -> M9 {
-        let a = M9::from_fn(|_, _| lcg(state));
-        a * a.transpose() + M9::identity()
+    fn random_symmetric(state: &mut u64) -> MZ {
+        let a = MZ::from_fn(|_, _| lcg(state));
+        a * a.transpose() + MZ::identity()
     }
 
     fn h() -> SMatrix<f64, 3, NZ> {
@@ -1414,7 +1522,7 @@ mod kernel_tests {
         h
     }
 
-    fn assert_close(a: &M9, b: &M9, what: &str) {
+    fn assert_close(a: &MZ, b: &MZ, what: &str) {
         let scale = b.amax().max(1.0);
         assert!((a - b).amax() <= KERNEL_REL_TOL * scale, "{what}: {a} vs {b}");
     }
@@ -1426,25 +1534,31 @@ mod kernel_tests {
             let p = random_symmetric(&mut st);
             let (f02, f12) = (lcg(&mut st), lcg(&mut st));
             let fxs = Matrix3::from_fn(|_, _| lcg(&mut st));
-            let diag = [1.0, 1.0, 1.0, 0.9, 0.8, 0.8, 0.99, 0.99, 0.99];
-            let mut f = M9::zeros();
+            let diag = [1.0, 1.0, 1.0, 0.9, 0.8, 0.8, 0.99, 0.99, 0.99, 0.0, 1.0];
+            let fxw = M3x2::from_fn(|_, _| lcg(&mut st));
+            let mut f = MZ::zeros();
             for i in 0..NZ {
                 f[(i, i)] = diag[i];
             }
             f[(0, 2)] = f02;
             f[(1, 2)] = f12;
             f.fixed_view_mut::<3, 3>(0, 3).copy_from(&fxs);
+            f.fixed_view_mut::<3, 2>(0, IW).copy_from(&fxw);
             let dense = f * p * f.transpose();
-            let fast = propagate(&p, f02, f12, &fxs, &diag);
+            let fast = propagate(&p, f02, f12, &fxs, &fxw, &diag);
             assert_close(&fast, &dense, "propagate");
             assert_eq!(fast, fast.transpose(), "propagate is not exactly symmetric");
-            assert_close(&propagate_general(&p, f02, f12, &fxs, &diag), &dense, "propagate_general");
+            assert_close(&propagate_general(&p, f02, f12, &fxs, &fxw, &diag), &dense, "propagate_general");
             // A non-symmetric A through the general kernels.
-            let x = M9::from_fn(|_, _| lcg(&mut st));
-            assert_close(&propagate_general(&x, f02, f12, &fxs, &diag), &(f * x * f.transpose()), "general, asym");
+            let x = MZ::from_fn(|_, _| lcg(&mut st));
+            assert_close(
+                &propagate_general(&x, f02, f12, &fxs, &fxw, &diag),
+                &(f * x * f.transpose()),
+                "general, asym",
+            );
 
-            let k = M9x3::from_fn(|_, _| lcg(&mut st));
-            let ikh = M9::identity() - k * h();
+            let k = MZx3::from_fn(|_, _| lcg(&mut st));
+            let ikh = MZ::identity() - k * h();
             let dense = ikh * p * ikh.transpose();
             let fast = joseph(&p, &k);
             assert_close(&fast, &dense, "joseph");
