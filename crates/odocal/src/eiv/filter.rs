@@ -256,14 +256,14 @@ pub(crate) struct InnovationRecord {
 /// the first three rows of F) and mirrored, so the result is exactly
 /// symmetric.
 #[inline]
-fn propagate(p: &MZ, f02: f64, f12: f64, fxs: &Matrix3<f64>, fxw: &M3x2, diag: &[f64; NZ]) -> MZ {
+fn propagate(p: &MZ, f02: f64, f12: f64, fxs: &Matrix3<f64>, fxw: &M3x2, diag: &[f64; NZ], nz: usize) -> MZ {
     let fr = [f02, f12, 0.0];
     // W = P F_topᵀ: W[r, c] = P[r, c] + F[c, 2] P[r, 2] + F_xs[c, :] · P[r, 3..6] + F_xw[c, :] · P[r, 9..11].
     let mut w = MZx3::zeros();
     for c in 0..3 {
         let (g2, g3, g4, g5) = (fr[c], fxs[(c, 0)], fxs[(c, 1)], fxs[(c, 2)]);
         let (g9, g10) = (fxw[(c, 0)], fxw[(c, 1)]);
-        for r in 0..NZ {
+        for r in 0..nz {
             w[(r, c)] = p[(r, c)]
                 + g2 * p[(r, 2)]
                 + g3 * p[(r, 3)]
@@ -286,8 +286,8 @@ fn propagate(p: &MZ, f02: f64, f12: f64, fxs: &Matrix3<f64>, fxw: &M3x2, diag: &
                 + fxw[(i, 1)] * w[(IW + 1, c)];
         }
     }
-    // Rows 3..NZ: diagonal rows of F.
-    for i in 3..NZ {
+    // Rows 3..nz: diagonal rows of F.
+    for i in 3..nz {
         for c in 0..3 {
             out[(i, c)] = diag[i] * w[(i, c)];
         }
@@ -295,14 +295,14 @@ fn propagate(p: &MZ, f02: f64, f12: f64, fxs: &Matrix3<f64>, fxw: &M3x2, diag: &
             out[(i, c)] = diag[c] * (diag[i] * p[(i, c)]);
         }
     }
-    mirror_lower(&mut out);
+    mirror_lower(&mut out, nz);
     out
 }
 
 /// Copies the strict lower triangle onto the upper one.
 #[inline]
-fn mirror_lower(m: &mut MZ) {
-    for c in 1..NZ {
+fn mirror_lower(m: &mut MZ, nz: usize) {
+    for c in 1..nz {
         for r in 0..c {
             m[(r, c)] = m[(c, r)];
         }
@@ -397,13 +397,13 @@ fn theta_jacobian_input_derivatives(psi: f64, u: &Input, th: &Theta, ts: f64) ->
 /// numerically unstable here), but only the entries of X that the lower
 /// triangle of the result needs, and only that triangle, mirrored.
 #[inline]
-fn joseph(a: &MZ, k: &MZx3) -> MZ {
+fn joseph(a: &MZ, k: &MZx3, nz: usize) -> MZ {
     // HA (3×9): rows 0..3 plus rows 6..9.
     let ha = h_rows(a);
     // X = A − K HA: every row of columns 0..3 and 6..9 (for XHᵀ), and the
     // lower triangle of the other columns.
     let mut x = MZ::zeros();
-    for c in 0..NZ {
+    for c in 0..nz {
         let first = if c < 3 || (6..9).contains(&c) { 0 } else { c };
         let (h0, h1, h2) = (ha[(0, c)], ha[(1, c)], ha[(2, c)]);
         for r in first..NZ {
@@ -413,19 +413,19 @@ fn joseph(a: &MZ, k: &MZx3) -> MZ {
     // XHᵀ (9×3).
     let mut xh = MZx3::zeros();
     for m in 0..3 {
-        for r in 0..NZ {
+        for r in 0..nz {
             xh[(r, m)] = x[(r, m)] + x[(r, m + 6)];
         }
     }
     // Lower triangle of X − (XHᵀ)Kᵀ.
     let mut out = MZ::zeros();
-    for c in 0..NZ {
+    for c in 0..nz {
         let (k0, k1, k2) = (k[(c, 0)], k[(c, 1)], k[(c, 2)]);
-        for r in c..NZ {
+        for r in c..nz {
             out[(r, c)] = x[(r, c)] - (xh[(r, 0)] * k0 + xh[(r, 1)] * k1 + xh[(r, 2)] * k2);
         }
     }
-    mirror_lower(&mut out);
+    mirror_lower(&mut out, nz);
     out
 }
 
@@ -479,11 +479,11 @@ fn propagate_general(p: &MZ, f02: f64, f12: f64, fxs: &Matrix3<f64>, fxw: &M3x2,
 
 /// `dst += K D Kᵀ` for a symmetric 3×3 `D`, exactly symmetric.
 #[inline]
-fn add_kdk(dst: &mut MZ, k: &MZx3, d: &Matrix3<f64>) {
+fn add_kdk(dst: &mut MZ, k: &MZx3, d: &Matrix3<f64>, nz: usize) {
     let kd = k * d;
-    for c in 0..NZ {
+    for c in 0..nz {
         let (k0, k1, k2) = (k[(c, 0)], k[(c, 1)], k[(c, 2)]);
-        for r in c..NZ {
+        for r in c..nz {
             let v = kd[(r, 0)] * k0 + kd[(r, 1)] * k1 + kd[(r, 2)] * k2;
             dst[(r, c)] += v;
             if r != c {
@@ -806,6 +806,9 @@ pub(crate) fn run_window(
     let mut b = Vector3::<f64>::zeros();
     // Counting quantisation: the estimated remainders w_{k−1} (rev/s).
     let mut wq = [0.0f64; 2];
+    // Active state size: without counting quantisation the remainder rows
+    // and columns stay exactly zero, and the kernels skip them.
+    let nz = if v.quant_counting { NZ } else { IW };
     let mut d = DZ::zeros();
     let base_diag = [1.0, 1.0, 1.0, v.a_common, v.a_wheel, v.a_wheel, v.a_drift, v.a_drift, v.a_drift, 1.0, 1.0];
     let q_s = [
@@ -1018,7 +1021,7 @@ pub(crate) fn run_window(
             if smoothed {
                 for (w, f_w) in [fn_l, fn_r].into_iter().enumerate() {
                     let dpl = &mut dp_lambda[w];
-                    *dpl = propagate(dpl, f02, f12, &fxs_ref, &fxw_ref, &diag);
+                    *dpl = propagate(dpl, f02, f12, &fxs_ref, &fxw_ref, &diag, nz);
                     let q = f_w * f_w.transpose() * rel[w];
                     for r_ in 0..3 {
                         for c_ in 0..3 {
@@ -1031,7 +1034,7 @@ pub(crate) fn run_window(
                 }
                 if all_sources {
                     let dpc = &mut dp_lambda[2];
-                    *dpc = propagate(dpc, f02, f12, &fxs_ref, &fxw_ref, &diag);
+                    *dpc = propagate(dpc, f02, f12, &fxs_ref, &fxw_ref, &diag, nz);
                     dpc[(3, 3)] += q_s[0];
                 }
             }
@@ -1170,7 +1173,7 @@ pub(crate) fn run_window(
                 }
                 // G = ∂F̄ P⁺ (rows 0..3 only).
                 let mut g = M3xZ::zeros();
-                for c in 0..NZ {
+                for c in 0..nz {
                     let (p2, p3, p4, p5) = (p[(2, c)], p[(3, c)], p[(4, c)], p[(5, c)]);
                     let (p9, p10) = (p[(IW, c)], p[(IW + 1, c)]);
                     let dfr2 = [d02, d12, 0.0];
@@ -1185,7 +1188,7 @@ pub(crate) fn run_window(
                 }
                 // G F̄ᵀ.
                 for rr in 0..3 {
-                    for ci in 0..NZ {
+                    for ci in 0..nz {
                         tt[(rr, ci)] = if ci < 3 {
                             let fr = [f02, f12, 0.0];
                             g[(rr, ci)]
@@ -1228,7 +1231,7 @@ pub(crate) fn run_window(
                 }
             }
         }
-        p = propagate(&p, f02, f12, &fxs_ref, &fxw_ref, &diag);
+        p = propagate(&p, f02, f12, &fxs_ref, &fxw_ref, &diag, nz);
         for r in 0..3 {
             for c in 0..3 {
                 p[(r, c)] += q_x[(r, c)];
@@ -1251,7 +1254,7 @@ pub(crate) fn run_window(
         add_q_w(&mut p);
         for &jj in cols {
             let dpj = &mut dp[jj];
-            *dpj = propagate(dpj, f02, f12, &fxs_ref, &fxw_ref, &diag);
+            *dpj = propagate(dpj, f02, f12, &fxs_ref, &fxw_ref, &diag, nz);
             match jj {
                 0..=3 => add_sym_rows(dpj, &theta_terms[jj]),
                 4 => {
@@ -1326,7 +1329,7 @@ pub(crate) fn run_window(
             for (w, dpl) in dp_lambda.iter_mut().take(n_l).enumerate() {
                 let ds_l = h_cols(&h_rows(dpl));
                 w_smoothed[w] += (sinv * ds_l).trace();
-                *dpl = joseph(dpl, &k_l);
+                *dpl = joseph(dpl, &k_l, nz);
             }
         }
         let quad = nu.dot(&sinv_nu);
@@ -1439,10 +1442,10 @@ pub(crate) fn run_window(
             // Joseph form (I−KH)∂P(I−KH)ᵀ + K ∂R Kᵀ: the algebraically equal
             // ∂P − KH∂P − (KH∂P)ᵀ + K ∂S Kᵀ is numerically unstable here.
             for &jj in cols {
-                dp[jj] = joseph(&dp[jj], &k);
+                dp[jj] = joseph(&dp[jj], &k, nz);
                 let dr = d_r(jj);
                 if dr != Matrix3::zeros() {
-                    add_kdk(&mut dp[jj], &k, &dr);
+                    add_kdk(&mut dp[jj], &k, &dr, nz);
                 }
             }
         }
@@ -1456,8 +1459,8 @@ pub(crate) fn run_window(
         }
         wq[0] += dz[IW];
         wq[1] += dz[IW + 1];
-        p = joseph(&p, &k);
-        add_kdk(&mut p, &k, &r_k);
+        p = joseph(&p, &k, nz);
+        add_kdk(&mut p, &k, &r_k, nz);
     }
     if all_sources {
         // The smoothed share of the Gauss-Markov noise replaces the ŝ
@@ -1545,7 +1548,7 @@ mod kernel_tests {
             f.fixed_view_mut::<3, 3>(0, 3).copy_from(&fxs);
             f.fixed_view_mut::<3, 2>(0, IW).copy_from(&fxw);
             let dense = f * p * f.transpose();
-            let fast = propagate(&p, f02, f12, &fxs, &fxw, &diag);
+            let fast = propagate(&p, f02, f12, &fxs, &fxw, &diag, NZ);
             assert_close(&fast, &dense, "propagate");
             assert_eq!(fast, fast.transpose(), "propagate is not exactly symmetric");
             assert_close(&propagate_general(&p, f02, f12, &fxs, &fxw, &diag), &dense, "propagate_general");
@@ -1560,7 +1563,7 @@ mod kernel_tests {
             let k = MZx3::from_fn(|_, _| lcg(&mut st));
             let ikh = MZ::identity() - k * h();
             let dense = ikh * p * ikh.transpose();
-            let fast = joseph(&p, &k);
+            let fast = joseph(&p, &k, NZ);
             assert_close(&fast, &dense, "joseph");
             assert_eq!(fast, fast.transpose(), "joseph is not exactly symmetric");
             assert_close(&joseph_general(&x, &k), &(ikh * x * ikh.transpose()), "joseph_general, asym");
@@ -1568,7 +1571,7 @@ mod kernel_tests {
             let dm = Matrix3::from_fn(|_, _| lcg(&mut st));
             let dm = dm + dm.transpose();
             let mut acc = p;
-            add_kdk(&mut acc, &k, &dm);
+            add_kdk(&mut acc, &k, &dm, NZ);
             assert_close(&acc, &(p + k * dm * k.transpose()), "add_kdk");
             assert_eq!(acc, acc.transpose(), "add_kdk is not exactly symmetric");
         }
