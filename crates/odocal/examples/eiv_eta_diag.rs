@@ -23,6 +23,8 @@ use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::Theta;
 
 type Res<T> = Result<T, Box<dyn Error>>;
+/// (preset, variant, quantisation model), θ errors per seed, failed fits.
+type SummaryRow = ((String, String, String), Vec<[f64; 4]>, usize);
 
 fn main() -> Res<()> {
     let mut km = 12.0;
@@ -58,7 +60,7 @@ fn main() -> Res<()> {
         }
     }
     // (preset, variant, quantisation model) → θ errors per seed: c_e %, c_d mm, t_r %, d ×1e3.
-    let mut summary: Vec<((String, String, String), Vec<[f64; 4]>, usize)> = Vec::new();
+    let mut summary: Vec<SummaryRow> = Vec::new();
     for p in &presets {
         let noise = match p.as_str() {
             "noslip" => NoiseOptions { wheel_slip_per_m_per_s2: 0.0, ..NoiseOptions::paper() },

@@ -25,7 +25,7 @@ fn records(
     eta: &[f64; 6],
     follows: bool,
 ) -> Vec<InnovationRecord> {
-    records_with(input, w, th, th_ref, eta, follows, false, false)
+    records_with(input, w, th, th_ref, eta, follows, (false, false))
 }
 
 fn records_with(
@@ -35,8 +35,8 @@ fn records_with(
     th_ref: &Theta,
     eta: &[f64; 6],
     follows: bool,
-    fitted_input: bool,
-    counting: bool,
+    // (fitted input, counting quantisation)
+    (fitted_input, counting): (bool, bool),
 ) -> Vec<InnovationRecord> {
     let mut v = NoiseModel::default().variances(eta, input.sample_time_s);
     v.fitted_input = fitted_input;
@@ -69,7 +69,7 @@ fn check_innovation_derivatives_with(follows: bool, fitted: bool, counting: bool
     let th_ref = Theta { c_e: 1.96, ..th };
     let eta = [0.3, -0.5, 0.2, -0.2, 0.4, 0.25];
     let records = |input: &EivInput<'_>, w: &Window, th: &Theta, th_ref: &Theta, eta: &[f64; 6], follows: bool| {
-        records_with(input, w, th, th_ref, eta, follows, fitted, counting)
+        records_with(input, w, th, th_ref, eta, follows, (fitted, counting))
     };
     let base = records(&input, &w, &th, &th_ref, &eta, follows);
     let check = |fd: Vec<(usize, nalgebra::Vector3<f64>, nalgebra::Matrix3<f64>)>, p: usize, what: &str| {
