@@ -34,16 +34,17 @@ pub(crate) const NP: usize = 10;
 /// Number of noise scale factors η.
 pub(crate) const NETA: usize = 6;
 
-pub(crate) type MZ = SMatrix<f64, NZ, NZ>;
-type DZ = SMatrix<f64, NZ, NP>;
+/// A state × state matrix (S = NZ with counting quantisation, else IW).
+pub(crate) type MZ<const S: usize> = SMatrix<f64, S, S>;
+type DZ<const S: usize> = SMatrix<f64, S, NP>;
 pub(crate) type V9 = SVector<f64, NP>;
 pub(crate) type M5 = SMatrix<f64, NETA, NETA>;
 /// `[θ, η]` × `[θ, η]` (information matrices).
 pub(crate) type MP = SMatrix<f64, NP, NP>;
-type M3xZ = SMatrix<f64, 3, NZ>;
+type M3xZ<const S: usize> = SMatrix<f64, 3, S>;
 /// The pose rows of the remainder columns of F (`−∂f/∂n_w` of turning wheels).
 type M3x2 = SMatrix<f64, 3, 2>;
-type MZx3 = SMatrix<f64, NZ, 3>;
+type MZx3<const S: usize> = SMatrix<f64, S, 3>;
 
 /// Heading measurement noise floor (SPEC §10): keeps S regular on a perfect
 /// reference (the position floor is [`Variances::position_floor_m`]).
@@ -256,10 +257,18 @@ pub(crate) struct InnovationRecord {
 /// the first three rows of F) and mirrored, so the result is exactly
 /// symmetric.
 #[inline]
-fn propagate(p: &MZ, f02: f64, f12: f64, fxs: &Matrix3<f64>, fxw: &M3x2, diag: &[f64; NZ], nz: usize) -> MZ {
+fn propagate<const S: usize>(
+    p: &MZ<S>,
+    f02: f64,
+    f12: f64,
+    fxs: &Matrix3<f64>,
+    fxw: &M3x2,
+    diag: &[f64; S],
+    nz: usize,
+) -> MZ<S> {
     let fr = [f02, f12, 0.0];
     // W = P F_topᵀ: W[r, c] = P[r, c] + F[c, 2] P[r, 2] + F_xs[c, :] · P[r, 3..6] + F_xw[c, :] · P[r, 9..11].
-    let mut w = MZx3::zeros();
+    let mut w = MZx3::<S>::zeros();
     for c in 0..3 {
         let (g2, g3, g4, g5) = (fr[c], fxs[(c, 0)], fxs[(c, 1)], fxs[(c, 2)]);
         let (g9, g10) = (fxw[(c, 0)], fxw[(c, 1)]);
@@ -269,11 +278,10 @@ fn propagate(p: &MZ, f02: f64, f12: f64, fxs: &Matrix3<f64>, fxw: &M3x2, diag: &
                 + g3 * p[(r, 3)]
                 + g4 * p[(r, 4)]
                 + g5 * p[(r, 5)]
-                + g9 * p[(r, IW)]
-                + g10 * p[(r, IW + 1)];
+                + if S > IW { g9 * p[(r, IW)] + g10 * p[(r, IW + 1)] } else { 0.0 };
         }
     }
-    let mut out = MZ::zeros();
+    let mut out = MZ::<S>::zeros();
     // Pose block: F_top W (lower triangle).
     for c in 0..3 {
         for i in c..3 {
@@ -282,8 +290,7 @@ fn propagate(p: &MZ, f02: f64, f12: f64, fxs: &Matrix3<f64>, fxw: &M3x2, diag: &
                 + fxs[(i, 0)] * w[(3, c)]
                 + fxs[(i, 1)] * w[(4, c)]
                 + fxs[(i, 2)] * w[(5, c)]
-                + fxw[(i, 0)] * w[(IW, c)]
-                + fxw[(i, 1)] * w[(IW + 1, c)];
+                + if S > IW { fxw[(i, 0)] * w[(IW, c)] + fxw[(i, 1)] * w[(IW + 1, c)] } else { 0.0 };
         }
     }
     // Rows 3..nz: diagonal rows of F.
@@ -301,7 +308,7 @@ fn propagate(p: &MZ, f02: f64, f12: f64, fxs: &Matrix3<f64>, fxw: &M3x2, diag: &
 
 /// Copies the strict lower triangle onto the upper one.
 #[inline]
-fn mirror_lower(m: &mut MZ, nz: usize) {
+fn mirror_lower<const S: usize>(m: &mut MZ<S>, nz: usize) {
     for c in 1..nz {
         for r in 0..c {
             m[(r, c)] = m[(c, r)];
@@ -311,7 +318,7 @@ fn mirror_lower(m: &mut MZ, nz: usize) {
 
 /// `H A` for `H = [I₃ 0 I₃]`: rows 0..3 plus rows 6..9.
 #[inline]
-fn h_rows<const C: usize>(a: &SMatrix<f64, NZ, C>) -> SMatrix<f64, 3, C> {
+fn h_rows<const S: usize, const C: usize>(a: &SMatrix<f64, S, C>) -> SMatrix<f64, 3, C> {
     let mut out = SMatrix::<f64, 3, C>::zeros();
     for r in 0..3 {
         for c in 0..C {
@@ -323,7 +330,7 @@ fn h_rows<const C: usize>(a: &SMatrix<f64, NZ, C>) -> SMatrix<f64, 3, C> {
 
 /// `B Hᵀ` for a 3×9 `B`: columns 0..3 plus columns 6..9.
 #[inline]
-fn h_cols(b: &M3xZ) -> Matrix3<f64> {
+fn h_cols<const S: usize>(b: &M3xZ<S>) -> Matrix3<f64> {
     let mut out = Matrix3::zeros();
     for r in 0..3 {
         for c in 0..3 {
@@ -397,28 +404,28 @@ fn theta_jacobian_input_derivatives(psi: f64, u: &Input, th: &Theta, ts: f64) ->
 /// numerically unstable here), but only the entries of X that the lower
 /// triangle of the result needs, and only that triangle, mirrored.
 #[inline]
-fn joseph(a: &MZ, k: &MZx3, nz: usize) -> MZ {
+fn joseph<const S: usize>(a: &MZ<S>, k: &MZx3<S>, nz: usize) -> MZ<S> {
     // HA (3×9): rows 0..3 plus rows 6..9.
     let ha = h_rows(a);
     // X = A − K HA: every row of columns 0..3 and 6..9 (for XHᵀ), and the
     // lower triangle of the other columns.
-    let mut x = MZ::zeros();
+    let mut x = MZ::<S>::zeros();
     for c in 0..nz {
         let first = if c < 3 || (6..9).contains(&c) { 0 } else { c };
         let (h0, h1, h2) = (ha[(0, c)], ha[(1, c)], ha[(2, c)]);
-        for r in first..NZ {
+        for r in first..S {
             x[(r, c)] = a[(r, c)] - (k[(r, 0)] * h0 + k[(r, 1)] * h1 + k[(r, 2)] * h2);
         }
     }
     // XHᵀ (9×3).
-    let mut xh = MZx3::zeros();
+    let mut xh = MZx3::<S>::zeros();
     for m in 0..3 {
         for r in 0..nz {
             xh[(r, m)] = x[(r, m)] + x[(r, m + 6)];
         }
     }
     // Lower triangle of X − (XHᵀ)Kᵀ.
-    let mut out = MZ::zeros();
+    let mut out = MZ::<S>::zeros();
     for c in 0..nz {
         let (k0, k1, k2) = (k[(c, 0)], k[(c, 1)], k[(c, 2)]);
         for r in c..nz {
@@ -432,10 +439,10 @@ fn joseph(a: &MZ, k: &MZx3, nz: usize) -> MZ {
 /// `(I − K H) A (I − K H)ᵀ` for `H = [I₃ 0 I₃]` and any `A` (the
 /// cross-covariances X of the corrected score are not symmetric).
 #[inline]
-fn joseph_general(a: &MZ, k: &MZx3) -> MZ {
+fn joseph_general<const S: usize>(a: &MZ<S>, k: &MZx3<S>) -> MZ<S> {
     let x = a - k * h_rows(a);
-    let mut xh = MZx3::zeros();
-    for r in 0..NZ {
+    let mut xh = MZx3::<S>::zeros();
+    for r in 0..S {
         for c in 0..3 {
             xh[(r, c)] = x[(r, c)] + x[(r, c + 6)];
         }
@@ -445,32 +452,39 @@ fn joseph_general(a: &MZ, k: &MZx3) -> MZ {
 
 /// `F A Fᵀ` as [`propagate`] for any `A` (not only symmetric ones).
 #[inline]
-fn propagate_general(p: &MZ, f02: f64, f12: f64, fxs: &Matrix3<f64>, fxw: &M3x2, diag: &[f64; NZ]) -> MZ {
+fn propagate_general<const S: usize>(
+    p: &MZ<S>,
+    f02: f64,
+    f12: f64,
+    fxs: &Matrix3<f64>,
+    fxw: &M3x2,
+    diag: &[f64; S],
+) -> MZ<S> {
     // M = F P (row operations).
-    let mut m = MZ::zeros();
-    for j in 0..NZ {
+    let mut m = MZ::<S>::zeros();
+    for j in 0..S {
         let (p0, p1, p2) = (p[(0, j)], p[(1, j)], p[(2, j)]);
         let (p3, p4, p5) = (p[(3, j)], p[(4, j)], p[(5, j)]);
-        let (p9, p10) = (p[(IW, j)], p[(IW + 1, j)]);
+        let (p9, p10) = if S > IW { (p[(IW, j)], p[(IW + 1, j)]) } else { (0.0, 0.0) };
         let wc = |r: usize| fxw[(r, 0)] * p9 + fxw[(r, 1)] * p10;
         m[(0, j)] = p0 + f02 * p2 + fxs[(0, 0)] * p3 + fxs[(0, 1)] * p4 + fxs[(0, 2)] * p5 + wc(0);
         m[(1, j)] = p1 + f12 * p2 + fxs[(1, 0)] * p3 + fxs[(1, 1)] * p4 + fxs[(1, 2)] * p5 + wc(1);
         m[(2, j)] = p2 + fxs[(2, 0)] * p3 + fxs[(2, 1)] * p4 + fxs[(2, 2)] * p5 + wc(2);
-        for r in 3..NZ {
+        for r in 3..S {
             m[(r, j)] = diag[r] * p[(r, j)];
         }
     }
     // F P Fᵀ = M Fᵀ (column operations).
-    let mut out = MZ::zeros();
-    for i in 0..NZ {
+    let mut out = MZ::<S>::zeros();
+    for i in 0..S {
         let (m0, m1, m2) = (m[(i, 0)], m[(i, 1)], m[(i, 2)]);
         let (m3, m4, m5) = (m[(i, 3)], m[(i, 4)], m[(i, 5)]);
-        let (m9, m10) = (m[(i, IW)], m[(i, IW + 1)]);
+        let (m9, m10) = if S > IW { (m[(i, IW)], m[(i, IW + 1)]) } else { (0.0, 0.0) };
         let wc = |r: usize| fxw[(r, 0)] * m9 + fxw[(r, 1)] * m10;
         out[(i, 0)] = m0 + f02 * m2 + fxs[(0, 0)] * m3 + fxs[(0, 1)] * m4 + fxs[(0, 2)] * m5 + wc(0);
         out[(i, 1)] = m1 + f12 * m2 + fxs[(1, 0)] * m3 + fxs[(1, 1)] * m4 + fxs[(1, 2)] * m5 + wc(1);
         out[(i, 2)] = m2 + fxs[(2, 0)] * m3 + fxs[(2, 1)] * m4 + fxs[(2, 2)] * m5 + wc(2);
-        for c in 3..NZ {
+        for c in 3..S {
             out[(i, c)] = diag[c] * m[(i, c)];
         }
     }
@@ -479,7 +493,7 @@ fn propagate_general(p: &MZ, f02: f64, f12: f64, fxs: &Matrix3<f64>, fxw: &M3x2,
 
 /// `dst += K D Kᵀ` for a symmetric 3×3 `D`, exactly symmetric.
 #[inline]
-fn add_kdk(dst: &mut MZ, k: &MZx3, d: &Matrix3<f64>, nz: usize) {
+fn add_kdk<const S: usize>(dst: &mut MZ<S>, k: &MZx3<S>, d: &Matrix3<f64>, nz: usize) {
     let kd = k * d;
     for c in 0..nz {
         let (k0, k1, k2) = (k[(c, 0)], k[(c, 1)], k[(c, 2)]);
@@ -497,11 +511,11 @@ fn add_kdk(dst: &mut MZ, k: &MZx3, d: &Matrix3<f64>, nz: usize) {
 /// `p = [θ, η]` (SPEC §10): `P_xx = R + Σ_b, P_bb = Σ_b, P_xb = −Σ_b,
 /// P_ss = diag(σ²)`, with counting quantisation `P_ww = q²/12·I` (the
 /// remainders before the first sample); it does not depend on θ.
-fn initial_covariance(v: &Variances, r_floor: &[f64; 3]) -> (MZ, [MZ; NP]) {
-    let mut p = MZ::zeros();
-    let mut dp = [MZ::zeros(); NP];
+fn initial_covariance<const S: usize>(v: &Variances, r_floor: &[f64; 3]) -> (MZ<S>, [MZ<S>; NP]) {
+    let mut p = MZ::<S>::zeros();
+    let mut dp = [MZ::<S>::zeros(); NP];
     if v.quant_counting {
-        for i in IW..NZ {
+        for i in IW..S {
             p[(i, i)] = v.quant;
             dp[4][(i, i)] = v.quant;
         }
@@ -710,9 +724,9 @@ impl Mode {
 
 /// `A + Aᵀ` added to `dst` for a 3×9 `A` occupying rows 0..3.
 #[inline]
-fn add_sym_rows(dst: &mut MZ, a: &M3xZ) {
+fn add_sym_rows<const S: usize>(dst: &mut MZ<S>, a: &M3xZ<S>) {
     for r in 0..3 {
-        for c in 0..NZ {
+        for c in 0..S {
             dst[(r, c)] += a[(r, c)];
             dst[(c, r)] += a[(r, c)];
         }
@@ -767,6 +781,25 @@ pub(crate) fn run_window(
     mode: Mode,
     record: Option<&mut Vec<InnovationRecord>>,
 ) -> Result<WindowSums> {
+    // The remainder states exist only with counting quantisation: the other
+    // models run the 9-state filter (the same arithmetic, no 11-row storage).
+    if v.quant_counting {
+        run_window_s::<NZ>(input, window, theta, theta_ref, v, mode, record)
+    } else {
+        run_window_s::<IW>(input, window, theta, theta_ref, v, mode, record)
+    }
+}
+
+/// [`run_window`] with the state size `S` (`NZ` or `IW`).
+fn run_window_s<const S: usize>(
+    input: &EivInput<'_>,
+    window: &Window,
+    theta: &Theta,
+    theta_ref: &Theta,
+    v: &Variances,
+    mode: Mode,
+    record: Option<&mut Vec<InnovationRecord>>,
+) -> Result<WindowSums> {
     let ts = input.sample_time_s;
     let mut record = record;
     let follows = mode.follows_theta;
@@ -808,9 +841,10 @@ pub(crate) fn run_window(
     let mut wq = [0.0f64; 2];
     // Active state size: without counting quantisation the remainder rows
     // and columns stay exactly zero, and the kernels skip them.
-    let nz = if v.quant_counting { NZ } else { IW };
-    let mut d = DZ::zeros();
-    let base_diag = [1.0, 1.0, 1.0, v.a_common, v.a_wheel, v.a_wheel, v.a_drift, v.a_drift, v.a_drift, 1.0, 1.0];
+    let nz = S;
+    let mut d = DZ::<S>::zeros();
+    let mut base_diag = [1.0; S];
+    base_diag[3..IW].copy_from_slice(&[v.a_common, v.a_wheel, v.a_wheel, v.a_drift, v.a_drift, v.a_drift]);
     let q_s = [
         v.common * (1.0 - v.a_common * v.a_common),
         v.wheel * (1.0 - v.a_wheel * v.a_wheel),
@@ -819,16 +853,16 @@ pub(crate) fn run_window(
     let q_b: [f64; 3] = std::array::from_fn(|a| v.drift[a] * (1.0 - v.a_drift * v.a_drift));
     // X_i = E[ε⁻ D̃_iᵀ]: cross-covariance of the estimation error and the
     // noise-driven part of the θ-sensitivity (corrected score).
-    let mut xcov = [MZ::zeros(); 4];
+    let mut xcov = [MZ::<S>::zeros(); 4];
     let mut out = WindowSums::zero();
     let mut prev_e: Option<Vector3<f64>> = None;
     // Per-sample work arrays (only the entries of `cols` are written; the
     // rest stay zero, as the records expect).
-    let mut theta_terms: [M3xZ; 4] = [M3xZ::zeros(); 4];
+    let mut theta_terms: [M3xZ<S>; 4] = [M3xZ::<S>::zeros(); 4];
     let mut r_q_theta = [Matrix3::<f64>::zeros(); 4];
     let mut ds = [Matrix3::<f64>::zeros(); NP];
     let mut a = [Matrix3::<f64>::zeros(); NP];
-    let mut dkn = DZ::zeros();
+    let mut dkn = DZ::<S>::zeros();
     // Input log-Jacobian term: per-wheel sums at unit weight (Unit,
     // SmoothedShare), samples waiting for the next update (FilterShare:
     // wheel, σ²n̂², f_w, ln C ratio, its gradient) and ∂P/∂λ_w (SmoothedShare).
@@ -840,7 +874,7 @@ pub(crate) fn run_window(
     // common = s_c (SmoothedShareAll only; half to each wheel).
     let all_sources = jac_mode == InputJacobian::SmoothedShareAll;
     let smoothed = all_sources || jac_mode == InputJacobian::SmoothedShare;
-    let mut dp_lambda = [MZ::zeros(); 3];
+    let mut dp_lambda = [MZ::<S>::zeros(); 3];
     if all_sources {
         dp_lambda[0][(4, 4)] = v.wheel;
         dp_lambda[1][(5, 5)] = v.wheel;
@@ -1119,7 +1153,7 @@ pub(crate) fn run_window(
             for c in 0..NP {
                 let (d0, d1, d2) = (d[(0, c)], d[(1, c)], d[(2, c)]);
                 let (d3, d4, d5) = (d[(3, c)], d[(4, c)], d[(5, c)]);
-                let (d9, d10) = (d[(IW, c)], d[(IW + 1, c)]);
+                let (d9, d10) = if S > IW { (d[(IW, c)], d[(IW + 1, c)]) } else { (0.0, 0.0) };
                 for r in 0..3 {
                     d[(r, c)] = j.f_x[(r, 0)] * d0
                         + j.f_x[(r, 1)] * d1
@@ -1130,7 +1164,7 @@ pub(crate) fn run_window(
                         + fxw[(r, 0)] * d9
                         + fxw[(r, 1)] * d10;
                 }
-                for r in 3..NZ {
+                for r in 3..S {
                     d[(r, c)] *= diag[r];
                 }
             }
@@ -1172,10 +1206,10 @@ pub(crate) fn run_window(
                     }
                 }
                 // G = ∂F̄ P⁺ (rows 0..3 only).
-                let mut g = M3xZ::zeros();
+                let mut g = M3xZ::<S>::zeros();
                 for c in 0..nz {
                     let (p2, p3, p4, p5) = (p[(2, c)], p[(3, c)], p[(4, c)], p[(5, c)]);
-                    let (p9, p10) = (p[(IW, c)], p[(IW + 1, c)]);
+                    let (p9, p10) = if S > IW { (p[(IW, c)], p[(IW + 1, c)]) } else { (0.0, 0.0) };
                     let dfr2 = [d02, d12, 0.0];
                     for rr in 0..3 {
                         g[(rr, c)] = dfr2[rr] * p2
@@ -1196,8 +1230,11 @@ pub(crate) fn run_window(
                                 + fxs_ref[(ci, 0)] * g[(rr, 3)]
                                 + fxs_ref[(ci, 1)] * g[(rr, 4)]
                                 + fxs_ref[(ci, 2)] * g[(rr, 5)]
-                                + fxw_ref[(ci, 0)] * g[(rr, IW)]
-                                + fxw_ref[(ci, 1)] * g[(rr, IW + 1)]
+                                + if S > IW {
+                                    fxw_ref[(ci, 0)] * g[(rr, IW)] + fxw_ref[(ci, 1)] * g[(rr, IW + 1)]
+                                } else {
+                                    0.0
+                                }
                         } else {
                             diag[ci] * g[(rr, ci)]
                         };
@@ -1240,7 +1277,7 @@ pub(crate) fn run_window(
             p[(r + 6, r + 6)] += q_b[r];
         }
         // Counting: the fresh remainder w_k (Q_ww) and its share of the pose step (Q_xw).
-        let add_q_w = |m: &mut MZ| {
+        let add_q_w = |m: &mut MZ<S>| {
             for (w, f_w) in [fn_l, fn_r].into_iter().enumerate() {
                 if counting[w] {
                     m[(IW + w, IW + w)] += v.quant;
@@ -1291,7 +1328,7 @@ pub(crate) fn run_window(
         let y = Vector3::new(input.px[k1], input.py[k1], input.psi[k1]);
         let yhat = x + b;
         let nu = Vector3::new(y[0] - yhat[0], y[1] - yhat[1], wrap_angle(y[2] - yhat[2]));
-        let hp: M3xZ = h_rows(&p);
+        let hp: M3xZ<S> = h_rows(&p);
         let r_k = r + r_q;
         // ∂R_k/∂p_j: quantisation (η_0; θ through ∂f/∂n when following),
         // position white (η_3), heading white (η_5).
@@ -1324,7 +1361,7 @@ pub(crate) fn run_window(
                 add_jacobian_term(&mut out, u, lc, &g);
             }
         } else if smoothed {
-            let k_l: MZx3 = hp.transpose() * sinv;
+            let k_l: MZx3<S> = hp.transpose() * sinv;
             let n_l = if all_sources { 3 } else { 2 };
             for (w, dpl) in dp_lambda.iter_mut().take(n_l).enumerate() {
                 let ds_l = h_cols(&h_rows(dpl));
@@ -1349,7 +1386,7 @@ pub(crate) fn run_window(
             }
         }
         prev_e = Some(e);
-        let k: MZx3 = hp.transpose() * sinv;
+        let k: MZx3<S> = hp.transpose() * sinv;
 
         if mode.derivs {
             let hd = h_rows(&d); // ∂ν/∂p = −H D⁻
@@ -1366,7 +1403,7 @@ pub(crate) fn run_window(
                 g_t[c] = -gnu[c];
             }
             for &jj in cols {
-                let hdp: M3xZ = h_rows(&dp[jj]);
+                let hdp: M3xZ<S> = h_rows(&dp[jj]);
                 ds[jj] = h_cols(&hdp) + d_r(jj);
                 a[jj] = sinv * ds[jj];
                 let ds_snu = ds[jj] * sinv_nu;
@@ -1435,7 +1472,7 @@ pub(crate) fn run_window(
             // ∂K = (∂P⁻Hᵀ − K ∂S) S⁻¹.
             d -= k * hd;
             for &jj in cols {
-                for r_ in 0..NZ {
+                for r_ in 0..S {
                     d[(r_, jj)] += dkn[(r_, jj)];
                 }
             }
@@ -1457,8 +1494,10 @@ pub(crate) fn run_window(
             s[r] += dz[r + 3];
             b[r] += dz[r + 6];
         }
-        wq[0] += dz[IW];
-        wq[1] += dz[IW + 1];
+        if S > IW {
+            wq[0] += dz[IW];
+            wq[1] += dz[IW + 1];
+        }
         p = joseph(&p, &k, nz);
         add_kdk(&mut p, &k, &r_k, nz);
     }
@@ -1511,9 +1550,9 @@ mod kernel_tests {
         ((*state >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
     }
 
-    fn random_symmetric(state: &mut u64) -> MZ {
-        let a = MZ::from_fn(|_, _| lcg(state));
-        a * a.transpose() + MZ::identity()
+    fn random_symmetric(state: &mut u64) -> MZ<NZ> {
+        let a = MZ::<NZ>::from_fn(|_, _| lcg(state));
+        a * a.transpose() + MZ::<NZ>::identity()
     }
 
     fn h() -> SMatrix<f64, 3, NZ> {
@@ -1525,7 +1564,7 @@ mod kernel_tests {
         h
     }
 
-    fn assert_close(a: &MZ, b: &MZ, what: &str) {
+    fn assert_close(a: &MZ<NZ>, b: &MZ<NZ>, what: &str) {
         let scale = b.amax().max(1.0);
         assert!((a - b).amax() <= KERNEL_REL_TOL * scale, "{what}: {a} vs {b}");
     }
@@ -1539,7 +1578,7 @@ mod kernel_tests {
             let fxs = Matrix3::from_fn(|_, _| lcg(&mut st));
             let diag = [1.0, 1.0, 1.0, 0.9, 0.8, 0.8, 0.99, 0.99, 0.99, 0.0, 1.0];
             let fxw = M3x2::from_fn(|_, _| lcg(&mut st));
-            let mut f = MZ::zeros();
+            let mut f = MZ::<NZ>::zeros();
             for i in 0..NZ {
                 f[(i, i)] = diag[i];
             }
@@ -1553,15 +1592,15 @@ mod kernel_tests {
             assert_eq!(fast, fast.transpose(), "propagate is not exactly symmetric");
             assert_close(&propagate_general(&p, f02, f12, &fxs, &fxw, &diag), &dense, "propagate_general");
             // A non-symmetric A through the general kernels.
-            let x = MZ::from_fn(|_, _| lcg(&mut st));
+            let x = MZ::<NZ>::from_fn(|_, _| lcg(&mut st));
             assert_close(
                 &propagate_general(&x, f02, f12, &fxs, &fxw, &diag),
                 &(f * x * f.transpose()),
                 "general, asym",
             );
 
-            let k = MZx3::from_fn(|_, _| lcg(&mut st));
-            let ikh = MZ::identity() - k * h();
+            let k = MZx3::<NZ>::from_fn(|_, _| lcg(&mut st));
+            let ikh = MZ::<NZ>::identity() - k * h();
             let dense = ikh * p * ikh.transpose();
             let fast = joseph(&p, &k, NZ);
             assert_close(&fast, &dense, "joseph");
