@@ -3,7 +3,7 @@
 //!
 //! State `z = [p_x, p_y, ψ, s_c, s_l, s_r, b_x, b_y, b_ψ, w_l, w_r]`; the
 //! last two are the encoder remainders of the previous sample (rev/s, only
-//! with [`Variances::quant_counting`]; identically zero otherwise). The covariance
+//! with [`Variances::quant_counting`]: the filter runs with 11 states then, 9 otherwise). The covariance
 //! recursion (P, S, K) is linearised along the *reference* (the reference
 //! heading, the measured wheel rotations and the reference θ of the pass),
 //! so it depends on the noise scales η but not on θ; the mean recursion runs
