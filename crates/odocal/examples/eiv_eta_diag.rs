@@ -6,10 +6,13 @@
 //!     (presets also: noslip, nobeta, noquant, highnoquant, quantonly, quantwhite, white2, coloured,
 //!     and the quantisation-free paper ablations nq-noslip, nq-noay, nq-nodrift, nq-noposwhite,
 //!     nq-nocoloured, nq-nowheel)
-//!     [--variants known,est-pc,...] [--quantisation process|measurement] [--heading separate|tied]
+//!     [--variants known,est-pc,...] [--quantisation process,measurement,counting] [--heading separate|tied]
 //!     [--history 1]  (print every iteration's θ, η and step/σ, and each window's NIS and lag-1)
 //!
-//! (`--heading` defaults to `separate` here, unlike the library.)
+//! (`--heading` defaults to `separate` here, unlike the library.) Several
+//! quantisation models (comma separated) run side by side on the same
+//! drives; the run ends with a table of the mean θ error, its standard
+//! error and t = mean/se over the seeds per preset, variant and model.
 //! ```
 
 use std::error::Error;
@@ -21,13 +24,15 @@ use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::Theta;
 
 type Res<T> = Result<T, Box<dyn Error>>;
+/// (preset, variant, quantisation model), θ errors per seed, failed fits.
+type SummaryRow = ((String, String, String), Vec<[f64; 4]>, usize);
 
 fn main() -> Res<()> {
     let mut km = 12.0;
     let mut seeds = 4u64;
     let mut presets = vec!["paper".to_string(), "high".to_string()];
     let mut variants_arg: Option<Vec<String>> = None;
-    let mut quant = QuantisationModel::ProcessNoise;
+    let mut quants = vec![("process", QuantisationModel::ProcessNoise)];
     let mut heading = HeadingScale::Separate;
     let mut history = false;
     let mut it = std::env::args().skip(1);
@@ -39,14 +44,26 @@ fn main() -> Res<()> {
             "--presets" => presets = v.split(',').map(str::to_string).collect(),
             "--heading" => heading = if v == "tied" { HeadingScale::TiedToPosition } else { HeadingScale::Separate },
             "--quantisation" => {
-                quant =
-                    if v == "measurement" { QuantisationModel::Measurement } else { QuantisationModel::ProcessNoise }
+                quants = Vec::new();
+                for name in v.split(',') {
+                    let m = match name {
+                        "process" => ("process", QuantisationModel::ProcessNoise),
+                        "measurement" => ("measurement", QuantisationModel::Measurement),
+                        "counting" => ("counting", QuantisationModel::Counting),
+                        other => {
+                            return Err(format!("--quantisation process|measurement|counting, got '{other}'").into())
+                        }
+                    };
+                    quants.push(m);
+                }
             }
             "--history" => history = v == "1" || v == "true",
             "--variants" => variants_arg = Some(v.split(',').map(str::to_string).collect()),
             _ => return Err(format!("unknown {k}").into()),
         }
     }
+    // (preset, variant, quantisation model) → θ errors per seed: c_e %, c_d mm, t_r %, d ×1e3.
+    let mut summary: Vec<SummaryRow> = Vec::new();
     for p in &presets {
         let noise = match p.as_str() {
             "noslip" => NoiseOptions { wheel_slip_per_m_per_s2: 0.0, ..NoiseOptions::paper() },
@@ -137,6 +154,10 @@ fn main() -> Res<()> {
                 ("est-from-sim-truth", sim_noise, false),
                 ("est-pc-simtau", pc_tau, false),
             ];
+            let errs = |t: &Theta| {
+                let (a, b) = (t.to_array(), truth.to_array());
+                [(a[0] - b[0]) / b[0] * 100.0, (a[1] - b[1]) * 1e3, (a[2] - b[2]) / b[2] * 100.0, (a[3] - b[3]) * 1e3]
+            };
             let err = |t: &Theta| {
                 let (a, b) = (t.to_array(), truth.to_array());
                 format!(
@@ -148,12 +169,22 @@ fn main() -> Res<()> {
                 )
             };
             println!("{p} {seed}: G-N {}", err(&gn));
-            for (label, nm, fix) in all {
+            for ((label, nm, fix), &(qname, quant)) in
+                all.iter().flat_map(|a| quants.iter().map(move |q| (a, q))).map(|(a, q)| (*a, q))
+            {
                 if let Some(v) = &variants_arg {
                     if !v.iter().any(|x| x == label) {
                         continue;
                     }
                 }
+                let key = (p.clone(), label.to_string(), qname.to_string());
+                let idx = match summary.iter().position(|(k, _, _)| *k == key) {
+                    Some(i) => i,
+                    None => {
+                        summary.push((key, Vec::new(), 0));
+                        summary.len() - 1
+                    }
+                };
                 let at_truth = label.ends_with("-truth");
                 let free = if at_truth { [true, false, false, false] } else { [true; 4] };
                 let opts = EivOptions {
@@ -167,10 +198,11 @@ fn main() -> Res<()> {
                 let start = if at_truth { truth } else { gn };
                 match estimate(&input, &start, &opts) {
                     Ok(r) => {
+                        summary[idx].1.push(errs(&r.theta));
                         let nis: Vec<f64> = r.windows.iter().map(|w| w.nis).collect();
                         let nis_m = nis.iter().sum::<f64>() / nis.len() as f64;
                         println!(
-                            "  {label:14} {} | η [{}] M {:.1} it {} {} nis {:.2} {:.1}s",
+                            "  {label:14} {qname:11} {} | η [{}] M {:.1} it {} {} nis {:.2} {:.1}s",
                             err(&r.theta),
                             r.eta.iter().map(|e| format!("{e:+.2}")).collect::<Vec<_>>().join(" "),
                             r.final_cost,
@@ -212,10 +244,27 @@ fn main() -> Res<()> {
                             }
                         }
                     }
-                    Err(e) => println!("  {label}: failed {e}"),
+                    Err(e) => {
+                        summary[idx].2 += 1;
+                        println!("  {label} {qname}: failed {e}")
+                    }
                 }
             }
         }
+    }
+    println!("\nmean ± se (t = mean/se) over seeds; c_e %, c_d mm, t_r %, d ×1e3");
+    println!("preset | variant | quantisation | n (failed) | c_e | c_d | t_r | d");
+    for ((p, label, q), e, failed) in &summary {
+        let n = e.len() as f64;
+        let cells: Vec<String> = (0..4)
+            .map(|i| {
+                let m = e.iter().map(|x| x[i]).sum::<f64>() / n;
+                let var = e.iter().map(|x| (x[i] - m) * (x[i] - m)).sum::<f64>() / (n - 1.0).max(1.0);
+                let se = (var / n).sqrt();
+                format!("{m:+.3} ± {se:.3} (t {:+.1})", m / se)
+            })
+            .collect();
+        println!("{p} | {label} | {q} | {} ({failed}) | {}", e.len(), cells.join(" | "));
     }
     Ok(())
 }

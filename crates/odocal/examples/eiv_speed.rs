@@ -15,24 +15,33 @@
 //! argument the results (θ, η, σ, passes; no timings) are written as JSON,
 //! to check that a speed change leaves them unchanged (`-`: not written).
 //! The fifth argument picks methods by name (comma separated: `batch-gn`,
-//! `three-step`, `eiv-fixed`, `eiv-estimated`; default all).
+//! `three-step`, `eiv-fixed`, `eiv-estimated`, and the same two EIV runs
+//! with quantisation modelled by counting, `eiv-fixed-counting`,
+//! `eiv-estimated-counting`; default all).
 
 use std::time::Instant;
 
 use odocal::calibrate::{EivMethodOptions, MethodDetail};
-use odocal::eiv::EivOptions;
+use odocal::eiv::{EivOptions, QuantisationModel};
 use odocal::sim::{simulate, SimOptions};
 use odocal::{calibrate, CalibrationOptions, CalibrationReport, Method};
 
 fn methods() -> Vec<(&'static str, Method)> {
-    let eiv = |fix_noise: bool| {
-        Method::Eiv(EivMethodOptions { filter: EivOptions { fix_noise, ..Default::default() }, ..Default::default() })
+    let eiv = |fix_noise: bool, quantisation: QuantisationModel| {
+        Method::Eiv(EivMethodOptions {
+            filter: EivOptions { fix_noise, quantisation, ..Default::default() },
+            ..Default::default()
+        })
     };
+    let process = QuantisationModel::ProcessNoise;
+    let counting = QuantisationModel::Counting;
     vec![
         ("batch-gn", Method::from_name("batch-gn").expect("method")),
         ("three-step", Method::from_name("three-step").expect("method")),
-        ("eiv-fixed", eiv(true)),
-        ("eiv-estimated", eiv(false)),
+        ("eiv-fixed", eiv(true, process)),
+        ("eiv-estimated", eiv(false, process)),
+        ("eiv-fixed-counting", eiv(true, counting)),
+        ("eiv-estimated-counting", eiv(false, counting)),
     ]
 }
 

@@ -6,7 +6,7 @@
 //! cargo run --release -p odocal --example study_eiv -- [--km 12] [--seeds 20]
 //!     [--presets off,white,paper,high,coloured] [--three-step-seeds 0]
 //!     [--bootstrap 0] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
-//!     [--quantisation process|measurement] [--heading tied|separate]
+//!     [--quantisation process|measurement|counting] [--heading tied|separate]
 //!     [--methods known,est] (also: est-stop11 = `est` with the stop-11 checks and iteration, fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot)
 //!     [--tau-candidates] [--bootstrap-reestimate-seeds 0] [--smooth-half-width 20]
 //! ```
@@ -151,7 +151,8 @@ fn parse_args() -> Res<Args> {
                 a.quantisation = match v()?.as_str() {
                     "process" => QuantisationModel::ProcessNoise,
                     "measurement" => QuantisationModel::Measurement,
-                    other => return Err(format!("--quantisation process|measurement, got '{other}'").into()),
+                    "counting" => QuantisationModel::Counting,
+                    other => return Err(format!("--quantisation process|measurement|counting, got '{other}'").into()),
                 }
             }
             other => return Err(format!("unknown argument '{other}'").into()),

@@ -1,7 +1,9 @@
 //! The augmented extended Kalman filter of SPEC §10 over one window, with
 //! its exact sensitivity recursion.
 //!
-//! State `z = [p_x, p_y, ψ, s_c, s_l, s_r, b_x, b_y, b_ψ]`. The covariance
+//! State `z = [p_x, p_y, ψ, s_c, s_l, s_r, b_x, b_y, b_ψ, w_l, w_r]`; the
+//! last two are the encoder remainders of the previous sample (rev/s, only
+//! with [`Variances::quant_counting`]: the filter runs with 11 states then, 9 otherwise). The covariance
 //! recursion (P, S, K) is linearised along the *reference* (the reference
 //! heading, the measured wheel rotations and the reference θ of the pass),
 //! so it depends on the noise scales η but not on θ; the mean recursion runs
@@ -23,21 +25,26 @@ use super::{EivInput, InputJacobian, Window};
 use crate::error::{Error, Result};
 use crate::model::{step_jacobians, wrap_angle, Input, State, Theta};
 
-/// Number of filter states.
-pub(crate) const NZ: usize = 9;
+/// Number of filter states (the two remainder states w_l, w_r included).
+pub(crate) const NZ: usize = 11;
+/// Index of the first remainder state `w_l` (`w_r` follows).
+const IW: usize = 9;
 /// Number of sensitivity parameters: 4 θ + 6 η.
 pub(crate) const NP: usize = 10;
 /// Number of noise scale factors η.
 pub(crate) const NETA: usize = 6;
 
-pub(crate) type M9 = SMatrix<f64, NZ, NZ>;
-type D9 = SMatrix<f64, NZ, NP>;
+/// A state × state matrix (S = NZ with counting quantisation, else IW).
+pub(crate) type MZ<const S: usize> = SMatrix<f64, S, S>;
+type DZ<const S: usize> = SMatrix<f64, S, NP>;
 pub(crate) type V9 = SVector<f64, NP>;
 pub(crate) type M5 = SMatrix<f64, NETA, NETA>;
 /// `[θ, η]` × `[θ, η]` (information matrices).
 pub(crate) type MP = SMatrix<f64, NP, NP>;
-type M3x9 = SMatrix<f64, 3, NZ>;
-type M9x3 = SMatrix<f64, NZ, 3>;
+type M3xZ<const S: usize> = SMatrix<f64, 3, S>;
+/// The pose rows of the remainder columns of F (`−∂f/∂n_w` of turning wheels).
+type M3x2 = SMatrix<f64, 3, 2>;
+type MZx3<const S: usize> = SMatrix<f64, S, 3>;
 
 /// Heading measurement noise floor (SPEC §10): keeps S regular on a perfect
 /// reference (the position floor is [`Variances::position_floor_m`]).
@@ -70,6 +77,10 @@ pub(crate) struct Variances {
     /// Quantisation as measurement noise `R_q` (bounded count error) rather
     /// than as white rate noise in the process ([`super::QuantisationModel`]).
     pub quant_in_measurement: bool,
+    /// Quantisation as the exact counting error: the measured rate is
+    /// `ñ_k = n_k + w_{k−1} − w_k` (w the remainder of the count, in rev/s,
+    /// variance q²/12), with `w_{k−1}` in the state ([`super::QuantisationModel::Counting`]).
+    pub quant_counting: bool,
     /// The heading white noise has its own scale η_5 (otherwise η_3 scales
     /// it with the position white noise; [`super::EivOptions::heading_scale`]).
     pub heading_separate: bool,
@@ -259,25 +270,38 @@ pub(crate) struct InnovationRecord {
 }
 
 /// `F P Fᵀ` for the structured transition
-/// `F = [[F_x, F_xs, 0], [0, diag(a_s), 0], [0, 0, a_b I]]`,
+/// `F = [[F_x, F_xs, 0, F_xw], [0, diag(a_s), 0, 0], [0, 0, a_b I, 0], [0, 0, 0, diag(a_w)]]`,
 /// `F_x = I + e_0 f02 e_2ᵀ + e_1 f12 e_2ᵀ`, for a symmetric `P`.
 ///
-/// Only the lower triangle is computed (through `W = P F_topᵀ`, 9×3, `F_top`
+/// Only the lower triangle is computed (through `W = P F_topᵀ`, NZ×3, `F_top`
 /// the first three rows of F) and mirrored, so the result is exactly
-/// symmetric; about 170 multiplications instead of the 380 of the general
-/// row-then-column form.
+/// symmetric.
 #[inline]
-fn propagate(p: &M9, f02: f64, f12: f64, fxs: &Matrix3<f64>, diag: &[f64; 9]) -> M9 {
+fn propagate<const S: usize>(
+    p: &MZ<S>,
+    f02: f64,
+    f12: f64,
+    fxs: &Matrix3<f64>,
+    fxw: &M3x2,
+    diag: &[f64; S],
+    nz: usize,
+) -> MZ<S> {
     let fr = [f02, f12, 0.0];
-    // W = P F_topᵀ: W[r, c] = P[r, c] + F[c, 2] P[r, 2] + F_xs[c, :] · P[r, 3..6].
-    let mut w = M9x3::zeros();
+    // W = P F_topᵀ: W[r, c] = P[r, c] + F[c, 2] P[r, 2] + F_xs[c, :] · P[r, 3..6] + F_xw[c, :] · P[r, 9..11].
+    let mut w = MZx3::<S>::zeros();
     for c in 0..3 {
         let (g2, g3, g4, g5) = (fr[c], fxs[(c, 0)], fxs[(c, 1)], fxs[(c, 2)]);
-        for r in 0..NZ {
-            w[(r, c)] = p[(r, c)] + g2 * p[(r, 2)] + g3 * p[(r, 3)] + g4 * p[(r, 4)] + g5 * p[(r, 5)];
+        let (g9, g10) = (fxw[(c, 0)], fxw[(c, 1)]);
+        for r in 0..nz {
+            w[(r, c)] = p[(r, c)]
+                + g2 * p[(r, 2)]
+                + g3 * p[(r, 3)]
+                + g4 * p[(r, 4)]
+                + g5 * p[(r, 5)]
+                + if S > IW { g9 * p[(r, IW)] + g10 * p[(r, IW + 1)] } else { 0.0 };
         }
     }
-    let mut out = M9::zeros();
+    let mut out = MZ::<S>::zeros();
     // Pose block: F_top W (lower triangle).
     for c in 0..3 {
         for i in c..3 {
@@ -285,11 +309,12 @@ fn propagate(p: &M9, f02: f64, f12: f64, fxs: &Matrix3<f64>, diag: &[f64; 9]) ->
                 + fr[i] * w[(2, c)]
                 + fxs[(i, 0)] * w[(3, c)]
                 + fxs[(i, 1)] * w[(4, c)]
-                + fxs[(i, 2)] * w[(5, c)];
+                + fxs[(i, 2)] * w[(5, c)]
+                + if S > IW { fxw[(i, 0)] * w[(IW, c)] + fxw[(i, 1)] * w[(IW + 1, c)] } else { 0.0 };
         }
     }
-    // Rows 3..9: diagonal rows of F.
-    for i in 3..NZ {
+    // Rows 3..nz: diagonal rows of F.
+    for i in 3..nz {
         for c in 0..3 {
             out[(i, c)] = diag[i] * w[(i, c)];
         }
@@ -297,14 +322,14 @@ fn propagate(p: &M9, f02: f64, f12: f64, fxs: &Matrix3<f64>, diag: &[f64; 9]) ->
             out[(i, c)] = diag[c] * (diag[i] * p[(i, c)]);
         }
     }
-    mirror_lower(&mut out);
+    mirror_lower(&mut out, nz);
     out
 }
 
 /// Copies the strict lower triangle onto the upper one.
 #[inline]
-fn mirror_lower(m: &mut M9) {
-    for c in 1..NZ {
+fn mirror_lower<const S: usize>(m: &mut MZ<S>, nz: usize) {
+    for c in 1..nz {
         for r in 0..c {
             m[(r, c)] = m[(c, r)];
         }
@@ -313,7 +338,7 @@ fn mirror_lower(m: &mut M9) {
 
 /// `H A` for `H = [I₃ 0 I₃]`: rows 0..3 plus rows 6..9.
 #[inline]
-fn h_rows<const C: usize>(a: &SMatrix<f64, NZ, C>) -> SMatrix<f64, 3, C> {
+fn h_rows<const S: usize, const C: usize>(a: &SMatrix<f64, S, C>) -> SMatrix<f64, 3, C> {
     let mut out = SMatrix::<f64, 3, C>::zeros();
     for r in 0..3 {
         for c in 0..C {
@@ -325,7 +350,7 @@ fn h_rows<const C: usize>(a: &SMatrix<f64, NZ, C>) -> SMatrix<f64, 3, C> {
 
 /// `B Hᵀ` for a 3×9 `B`: columns 0..3 plus columns 6..9.
 #[inline]
-fn h_cols(b: &M3x9) -> Matrix3<f64> {
+fn h_cols<const S: usize>(b: &M3xZ<S>) -> Matrix3<f64> {
     let mut out = Matrix3::zeros();
     for r in 0..3 {
         for c in 0..3 {
@@ -399,45 +424,45 @@ fn theta_jacobian_input_derivatives(psi: f64, u: &Input, th: &Theta, ts: f64) ->
 /// numerically unstable here), but only the entries of X that the lower
 /// triangle of the result needs, and only that triangle, mirrored.
 #[inline]
-fn joseph(a: &M9, k: &M9x3) -> M9 {
+fn joseph<const S: usize>(a: &MZ<S>, k: &MZx3<S>, nz: usize) -> MZ<S> {
     // HA (3×9): rows 0..3 plus rows 6..9.
     let ha = h_rows(a);
     // X = A − K HA: every row of columns 0..3 and 6..9 (for XHᵀ), and the
-    // lower triangle of columns 3..6.
-    let mut x = M9::zeros();
-    for c in 0..NZ {
-        let first = if (3..6).contains(&c) { c } else { 0 };
+    // lower triangle of the other columns.
+    let mut x = MZ::<S>::zeros();
+    for c in 0..nz {
+        let first = if c < 3 || (6..9).contains(&c) { 0 } else { c };
         let (h0, h1, h2) = (ha[(0, c)], ha[(1, c)], ha[(2, c)]);
-        for r in first..NZ {
+        for r in first..S {
             x[(r, c)] = a[(r, c)] - (k[(r, 0)] * h0 + k[(r, 1)] * h1 + k[(r, 2)] * h2);
         }
     }
     // XHᵀ (9×3).
-    let mut xh = M9x3::zeros();
+    let mut xh = MZx3::<S>::zeros();
     for m in 0..3 {
-        for r in 0..NZ {
+        for r in 0..nz {
             xh[(r, m)] = x[(r, m)] + x[(r, m + 6)];
         }
     }
     // Lower triangle of X − (XHᵀ)Kᵀ.
-    let mut out = M9::zeros();
-    for c in 0..NZ {
+    let mut out = MZ::<S>::zeros();
+    for c in 0..nz {
         let (k0, k1, k2) = (k[(c, 0)], k[(c, 1)], k[(c, 2)]);
-        for r in c..NZ {
+        for r in c..nz {
             out[(r, c)] = x[(r, c)] - (xh[(r, 0)] * k0 + xh[(r, 1)] * k1 + xh[(r, 2)] * k2);
         }
     }
-    mirror_lower(&mut out);
+    mirror_lower(&mut out, nz);
     out
 }
 
 /// `(I − K H) A (I − K H)ᵀ` for `H = [I₃ 0 I₃]` and any `A` (the
 /// cross-covariances X of the corrected score are not symmetric).
 #[inline]
-fn joseph_general(a: &M9, k: &M9x3) -> M9 {
+fn joseph_general<const S: usize>(a: &MZ<S>, k: &MZx3<S>) -> MZ<S> {
     let x = a - k * h_rows(a);
-    let mut xh = M9x3::zeros();
-    for r in 0..NZ {
+    let mut xh = MZx3::<S>::zeros();
+    for r in 0..S {
         for c in 0..3 {
             xh[(r, c)] = x[(r, c)] + x[(r, c + 6)];
         }
@@ -447,44 +472,65 @@ fn joseph_general(a: &M9, k: &M9x3) -> M9 {
 
 /// `F A Fᵀ` as [`propagate`] for any `A` (not only symmetric ones).
 #[inline]
-fn propagate_general(p: &M9, f02: f64, f12: f64, fxs: &Matrix3<f64>, diag: &[f64; 9]) -> M9 {
+fn propagate_general<const S: usize>(
+    p: &MZ<S>,
+    f02: f64,
+    f12: f64,
+    fxs: &Matrix3<f64>,
+    fxw: &M3x2,
+    diag: &[f64; S],
+) -> MZ<S> {
     // M = F P (row operations).
-    let mut m = M9::zeros();
-    for j in 0..NZ {
+    let mut m = MZ::<S>::zeros();
+    for j in 0..S {
         let (p0, p1, p2) = (p[(0, j)], p[(1, j)], p[(2, j)]);
         let (p3, p4, p5) = (p[(3, j)], p[(4, j)], p[(5, j)]);
-        m[(0, j)] = p0 + f02 * p2 + fxs[(0, 0)] * p3 + fxs[(0, 1)] * p4 + fxs[(0, 2)] * p5;
-        m[(1, j)] = p1 + f12 * p2 + fxs[(1, 0)] * p3 + fxs[(1, 1)] * p4 + fxs[(1, 2)] * p5;
-        m[(2, j)] = p2 + fxs[(2, 0)] * p3 + fxs[(2, 1)] * p4 + fxs[(2, 2)] * p5;
-        for r in 3..NZ {
+        let (p9, p10) = if S > IW { (p[(IW, j)], p[(IW + 1, j)]) } else { (0.0, 0.0) };
+        let wc = |r: usize| fxw[(r, 0)] * p9 + fxw[(r, 1)] * p10;
+        m[(0, j)] = p0 + f02 * p2 + fxs[(0, 0)] * p3 + fxs[(0, 1)] * p4 + fxs[(0, 2)] * p5 + wc(0);
+        m[(1, j)] = p1 + f12 * p2 + fxs[(1, 0)] * p3 + fxs[(1, 1)] * p4 + fxs[(1, 2)] * p5 + wc(1);
+        m[(2, j)] = p2 + fxs[(2, 0)] * p3 + fxs[(2, 1)] * p4 + fxs[(2, 2)] * p5 + wc(2);
+        for r in 3..S {
             m[(r, j)] = diag[r] * p[(r, j)];
         }
     }
     // F P Fᵀ = M Fᵀ (column operations).
-    let mut out = M9::zeros();
-    for i in 0..NZ {
+    let mut out = MZ::<S>::zeros();
+    for i in 0..S {
         let (m0, m1, m2) = (m[(i, 0)], m[(i, 1)], m[(i, 2)]);
         let (m3, m4, m5) = (m[(i, 3)], m[(i, 4)], m[(i, 5)]);
-        out[(i, 0)] = m0 + f02 * m2 + fxs[(0, 0)] * m3 + fxs[(0, 1)] * m4 + fxs[(0, 2)] * m5;
-        out[(i, 1)] = m1 + f12 * m2 + fxs[(1, 0)] * m3 + fxs[(1, 1)] * m4 + fxs[(1, 2)] * m5;
-        out[(i, 2)] = m2 + fxs[(2, 0)] * m3 + fxs[(2, 1)] * m4 + fxs[(2, 2)] * m5;
-        for c in 3..NZ {
+        let (m9, m10) = if S > IW { (m[(i, IW)], m[(i, IW + 1)]) } else { (0.0, 0.0) };
+        let wc = |r: usize| fxw[(r, 0)] * m9 + fxw[(r, 1)] * m10;
+        out[(i, 0)] = m0 + f02 * m2 + fxs[(0, 0)] * m3 + fxs[(0, 1)] * m4 + fxs[(0, 2)] * m5 + wc(0);
+        out[(i, 1)] = m1 + f12 * m2 + fxs[(1, 0)] * m3 + fxs[(1, 1)] * m4 + fxs[(1, 2)] * m5 + wc(1);
+        out[(i, 2)] = m2 + fxs[(2, 0)] * m3 + fxs[(2, 1)] * m4 + fxs[(2, 2)] * m5 + wc(2);
+        for c in 3..S {
             out[(i, c)] = diag[c] * m[(i, c)];
         }
     }
     out
 }
 
-/// `F C` for a 9×3 `C` and the structured transition of [`propagate`].
+/// `F C` for an S×3 `C` and the structured transition of [`propagate`].
 #[inline]
-fn propagate_cols(c: &M9x3, f02: f64, f12: f64, fxs: &Matrix3<f64>, diag: &[f64; 9]) -> M9x3 {
-    let mut out = M9x3::zeros();
+fn propagate_cols<const S: usize>(
+    c: &MZx3<S>,
+    f02: f64,
+    f12: f64,
+    fxs: &Matrix3<f64>,
+    fxw: &M3x2,
+    diag: &[f64; S],
+    nz: usize,
+) -> MZx3<S> {
+    let mut out = MZx3::<S>::zeros();
     for j in 0..3 {
         let (p2, p3, p4, p5) = (c[(2, j)], c[(3, j)], c[(4, j)], c[(5, j)]);
-        out[(0, j)] = c[(0, j)] + f02 * p2 + fxs[(0, 0)] * p3 + fxs[(0, 1)] * p4 + fxs[(0, 2)] * p5;
-        out[(1, j)] = c[(1, j)] + f12 * p2 + fxs[(1, 0)] * p3 + fxs[(1, 1)] * p4 + fxs[(1, 2)] * p5;
-        out[(2, j)] = p2 + fxs[(2, 0)] * p3 + fxs[(2, 1)] * p4 + fxs[(2, 2)] * p5;
-        for r in 3..NZ {
+        let (p9, p10) = if S > IW { (c[(IW, j)], c[(IW + 1, j)]) } else { (0.0, 0.0) };
+        let wc = |r: usize| fxw[(r, 0)] * p9 + fxw[(r, 1)] * p10;
+        out[(0, j)] = c[(0, j)] + f02 * p2 + fxs[(0, 0)] * p3 + fxs[(0, 1)] * p4 + fxs[(0, 2)] * p5 + wc(0);
+        out[(1, j)] = c[(1, j)] + f12 * p2 + fxs[(1, 0)] * p3 + fxs[(1, 1)] * p4 + fxs[(1, 2)] * p5 + wc(1);
+        out[(2, j)] = p2 + fxs[(2, 0)] * p3 + fxs[(2, 1)] * p4 + fxs[(2, 2)] * p5 + wc(2);
+        for r in 3..nz {
             out[(r, j)] = diag[r] * c[(r, j)];
         }
     }
@@ -493,11 +539,11 @@ fn propagate_cols(c: &M9x3, f02: f64, f12: f64, fxs: &Matrix3<f64>, diag: &[f64;
 
 /// `dst += K D Kᵀ` for a symmetric 3×3 `D`, exactly symmetric.
 #[inline]
-fn add_kdk(dst: &mut M9, k: &M9x3, d: &Matrix3<f64>) {
+fn add_kdk<const S: usize>(dst: &mut MZ<S>, k: &MZx3<S>, d: &Matrix3<f64>, nz: usize) {
     let kd = k * d;
-    for c in 0..NZ {
+    for c in 0..nz {
         let (k0, k1, k2) = (k[(c, 0)], k[(c, 1)], k[(c, 2)]);
-        for r in c..NZ {
+        for r in c..nz {
             let v = kd[(r, 0)] * k0 + kd[(r, 1)] * k1 + kd[(r, 2)] * k2;
             dst[(r, c)] += v;
             if r != c {
@@ -509,10 +555,17 @@ fn add_kdk(dst: &mut M9, k: &M9x3, d: &Matrix3<f64>) {
 
 /// The initial covariance of a window and its derivatives over
 /// `p = [θ, η]` (SPEC §10): `P_xx = R + Σ_b, P_bb = Σ_b, P_xb = −Σ_b,
-/// P_ss = diag(σ²)`; it does not depend on θ.
-fn initial_covariance(v: &Variances, r_floor: &[f64; 3]) -> (M9, [M9; NP]) {
-    let mut p = M9::zeros();
-    let mut dp = [M9::zeros(); NP];
+/// P_ss = diag(σ²)`, with counting quantisation `P_ww = q²/12·I` (the
+/// remainders before the first sample); it does not depend on θ.
+fn initial_covariance<const S: usize>(v: &Variances, r_floor: &[f64; 3]) -> (MZ<S>, [MZ<S>; NP]) {
+    let mut p = MZ::<S>::zeros();
+    let mut dp = [MZ::<S>::zeros(); NP];
+    if v.quant_counting {
+        for i in IW..S {
+            p[(i, i)] = v.quant;
+            dp[4][(i, i)] = v.quant;
+        }
+    }
     p[(3, 3)] = v.common;
     dp[5][(3, 3)] = v.common;
     for i in 4..6 {
@@ -717,9 +770,9 @@ impl Mode {
 
 /// `A + Aᵀ` added to `dst` for a 3×9 `A` occupying rows 0..3.
 #[inline]
-fn add_sym_rows(dst: &mut M9, a: &M3x9) {
+fn add_sym_rows<const S: usize>(dst: &mut MZ<S>, a: &M3xZ<S>) {
     for r in 0..3 {
-        for c in 0..NZ {
+        for c in 0..S {
             dst[(r, c)] += a[(r, c)];
             dst[(c, r)] += a[(r, c)];
         }
@@ -774,6 +827,25 @@ pub(crate) fn run_window(
     mode: Mode,
     record: Option<&mut Vec<InnovationRecord>>,
 ) -> Result<WindowSums> {
+    // The remainder states exist only with counting quantisation: the other
+    // models run the 9-state filter (the same arithmetic, no 11-row storage).
+    if v.quant_counting {
+        run_window_s::<NZ>(input, window, theta, theta_ref, v, mode, record)
+    } else {
+        run_window_s::<IW>(input, window, theta, theta_ref, v, mode, record)
+    }
+}
+
+/// [`run_window`] with the state size `S` (`NZ` or `IW`).
+fn run_window_s<const S: usize>(
+    input: &EivInput<'_>,
+    window: &Window,
+    theta: &Theta,
+    theta_ref: &Theta,
+    v: &Variances,
+    mode: Mode,
+    record: Option<&mut Vec<InnovationRecord>>,
+) -> Result<WindowSums> {
     let ts = input.sample_time_s;
     let mut record = record;
     let follows = mode.follows_theta;
@@ -818,13 +890,19 @@ pub(crate) fn run_window(
             p0[(a, a)] -= f;
         }
     }
-    let mut c0: Option<(M9x3, Matrix3<f64>)> = None;
+    let mut c0: Option<(MZx3<S>, Matrix3<f64>)> = None;
     let a0 = window.start;
     let mut x = State::new(input.px[a0], input.py[a0], input.psi[a0]);
     let mut s = Vector3::<f64>::zeros();
     let mut b = Vector3::<f64>::zeros();
-    let mut d = D9::zeros();
-    let diag = [1.0, 1.0, 1.0, v.a_common, v.a_wheel, v.a_wheel, v.a_drift, v.a_drift, v.a_drift];
+    // Counting quantisation: the estimated remainders w_{k−1} (rev/s).
+    let mut wq = [0.0f64; 2];
+    // Active state size: without counting quantisation the remainder rows
+    // and columns stay exactly zero, and the kernels skip them.
+    let nz = S;
+    let mut d = DZ::<S>::zeros();
+    let mut base_diag = [1.0; S];
+    base_diag[3..IW].copy_from_slice(&[v.a_common, v.a_wheel, v.a_wheel, v.a_drift, v.a_drift, v.a_drift]);
     let q_s = [
         v.common * (1.0 - v.a_common * v.a_common),
         v.wheel * (1.0 - v.a_wheel * v.a_wheel),
@@ -833,16 +911,16 @@ pub(crate) fn run_window(
     let q_b: [f64; 3] = std::array::from_fn(|a| v.drift[a] * (1.0 - v.a_drift * v.a_drift));
     // X_i = E[ε⁻ D̃_iᵀ]: cross-covariance of the estimation error and the
     // noise-driven part of the θ-sensitivity (corrected score).
-    let mut xcov = [M9::zeros(); 4];
+    let mut xcov = [MZ::<S>::zeros(); 4];
     let mut out = WindowSums::zero();
     let mut prev_e: Option<Vector3<f64>> = None;
     // Per-sample work arrays (only the entries of `cols` are written; the
     // rest stay zero, as the records expect).
-    let mut theta_terms: [M3x9; 4] = [M3x9::zeros(); 4];
+    let mut theta_terms: [M3xZ<S>; 4] = [M3xZ::<S>::zeros(); 4];
     let mut r_q_theta = [Matrix3::<f64>::zeros(); 4];
     let mut ds = [Matrix3::<f64>::zeros(); NP];
     let mut a = [Matrix3::<f64>::zeros(); NP];
-    let mut dkn = D9::zeros();
+    let mut dkn = DZ::<S>::zeros();
     // Input log-Jacobian term: per-wheel sums at unit weight (Unit,
     // SmoothedShare), samples waiting for the next update (FilterShare:
     // wheel, σ²n̂², f_w, ln C ratio, its gradient) and ∂P/∂λ_w (SmoothedShare).
@@ -854,7 +932,7 @@ pub(crate) fn run_window(
     // common = s_c (SmoothedShareAll only; half to each wheel).
     let all_sources = jac_mode == InputJacobian::SmoothedShareAll;
     let smoothed = all_sources || jac_mode == InputJacobian::SmoothedShare;
-    let mut dp_lambda = [M9::zeros(); 3];
+    let mut dp_lambda = [MZ::<S>::zeros(); 3];
     if all_sources {
         dp_lambda[0][(4, 4)] = v.wheel;
         dp_lambda[1][(5, 5)] = v.wheel;
@@ -935,8 +1013,27 @@ pub(crate) fn run_window(
         } else {
             Matrix3::from_columns(&[-fn_l * nl - fn_r * nr, -fn_l * nl, -fn_r * nr])
         };
+        // Counting quantisation (exact): the true rate of a turning wheel is
+        // ñ_k − w_{k−1} + w_k, w the remainder of the count in rev/s
+        // (`Encoder::measure` of the simulator: n_k·t_s·T = count + u_{k−1} − u_k,
+        // w = q(u − ½)). So the pose rows of the remainder column are −∂f/∂n_w,
+        // the new remainder w_k is fresh (F row 0, variance q²/12) and enters
+        // the pose with +∂f/∂n_w (Q_xw = ∂f/∂n_w·q²/12). Where a wheel counts
+        // nothing (standstill) the remainder is carried over unchanged: no
+        // error, no new draw (F row 1).
+        let counting = [v.quant_counting && nl != 0.0, v.quant_counting && nr != 0.0];
+        let mut diag = base_diag;
+        let mut fxw_ref = M3x2::zeros();
+        for (w, f_w) in [fn_l, fn_r].into_iter().enumerate() {
+            if counting[w] {
+                diag[IW + w] = 0.0;
+                fxw_ref.set_column(w, &(-f_w));
+            }
+        }
         // White relative noise accumulates into the pose (process noise).
-        // Encoder quantisation does not (with `quant_in_measurement`): counting ticks carries the remainder
+        // Encoder quantisation does not (with `quant_in_measurement`, an
+        // approximation; `quant_counting` models it exactly through the
+        // remainder states): counting ticks carries the remainder
         // over, so the counted rotation is the true one to within one tick
         // at every sample, and the pose error it causes is bounded — white
         // in the *measurement*, `R_q = q²/12·(f_l f_lᵀ + f_r f_rᵀ)` with the
@@ -1017,7 +1114,7 @@ pub(crate) fn run_window(
             if smoothed {
                 for (w, f_w) in [fn_l, fn_r].into_iter().enumerate() {
                     let dpl = &mut dp_lambda[w];
-                    *dpl = propagate(dpl, f02, f12, &fxs_ref, &diag);
+                    *dpl = propagate(dpl, f02, f12, &fxs_ref, &fxw_ref, &diag, nz);
                     let q = f_w * f_w.transpose() * rel[w];
                     for r_ in 0..3 {
                         for c_ in 0..3 {
@@ -1030,7 +1127,7 @@ pub(crate) fn run_window(
                 }
                 if all_sources {
                     let dpc = &mut dp_lambda[2];
-                    *dpc = propagate(dpc, f02, f12, &fxs_ref, &diag);
+                    *dpc = propagate(dpc, f02, f12, &fxs_ref, &fxw_ref, &diag, nz);
                     dpc[(3, 3)] += q_s[0];
                 }
             }
@@ -1049,7 +1146,7 @@ pub(crate) fn run_window(
                 Matrix3::zeros(),
             ];
             for (ci, xi) in xcov.iter_mut().enumerate() {
-                *xi = propagate_general(xi, f02, f12, &fxs_ref, &diag);
+                *xi = propagate_general(xi, f02, f12, &fxs_ref, &fxw_ref, &diag);
                 let dx = Vector3::new(d[(0, ci)], d[(1, ci)], d[(2, ci)]);
                 let ds_ = Vector3::new(d[(3, ci)], d[(4, ci)], d[(5, ci)]);
                 for (u, (g, var)) in g_u.iter().enumerate() {
@@ -1081,7 +1178,11 @@ pub(crate) fn run_window(
             )));
         }
         out.correction -= m_c * one_minus[0].ln() + m_l * one_minus[1].ln() + m_r * one_minus[2].ln();
-        let ueff = Input { n_rl: nl * (1.0 - s[0] - s[1]), n_rr: nr * (1.0 - s[0] - s[2]), beta, a_y };
+        // The remainder of the previous count is taken off the measured rate
+        // (the new one has mean zero).
+        let wsub = [if counting[0] { wq[0] } else { 0.0 }, if counting[1] { wq[1] } else { 0.0 }];
+        let ueff =
+            Input { n_rl: nl * (1.0 - s[0] - s[1]) - wsub[0], n_rr: nr * (1.0 - s[0] - s[2]) - wsub[1], beta, a_y };
         if mode.derivs {
             for (row, m) in [(3usize, m_c), (4, m_l), (5, m_r)] {
                 if m > 0.0 {
@@ -1100,19 +1201,29 @@ pub(crate) fn run_window(
             let j = step_jacobians(&x, &ueff, theta, ts);
             let (gl, gr) = (j.f_n.column(0) * nl, j.f_n.column(1) * nr);
             let fxs = Matrix3::from_columns(&[-(gl + gr), -gl, -gr]);
+            // Remainder columns: −∂f/∂n_w at the mean for turning wheels.
+            let mut fxw = M3x2::zeros();
+            for w in 0..2 {
+                if counting[w] {
+                    fxw.set_column(w, &(-j.f_n.column(w)));
+                }
+            }
             // D⁻ = F D⁺ + [f_θ | 0], in place column by column.
             for c in 0..NP {
                 let (d0, d1, d2) = (d[(0, c)], d[(1, c)], d[(2, c)]);
                 let (d3, d4, d5) = (d[(3, c)], d[(4, c)], d[(5, c)]);
+                let (d9, d10) = if S > IW { (d[(IW, c)], d[(IW + 1, c)]) } else { (0.0, 0.0) };
                 for r in 0..3 {
                     d[(r, c)] = j.f_x[(r, 0)] * d0
                         + j.f_x[(r, 1)] * d1
                         + j.f_x[(r, 2)] * d2
                         + fxs[(r, 0)] * d3
                         + fxs[(r, 1)] * d4
-                        + fxs[(r, 2)] * d5;
+                        + fxs[(r, 2)] * d5
+                        + fxw[(r, 0)] * d9
+                        + fxw[(r, 1)] * d10;
                 }
-                for r in 3..NZ {
+                for r in 3..S {
                     d[(r, c)] *= diag[r];
                 }
             }
@@ -1127,6 +1238,11 @@ pub(crate) fn run_window(
         }
         s = Vector3::new(v.a_common * s[0], v.a_wheel * s[1], v.a_wheel * s[2]);
         b *= v.a_drift;
+        for w in 0..2 {
+            if counting[w] {
+                wq[w] = 0.0;
+            }
+        }
 
         // --- Covariance prediction and its derivatives.
         // ∂P⁻/∂θ_j = F̄ ∂P⁺ F̄ᵀ + (∂F̄ P⁺ F̄ᵀ + F̄ P⁺ ∂F̄ᵀ) + ∂Q/∂θ_j.
@@ -1141,18 +1257,31 @@ pub(crate) fn run_window(
                 let (dsl, dsr) = (dvec_of(&fs_l, jt), dvec_of(&fs_r, jt));
                 let dfxs = Matrix3::from_columns(&[-dsl * nls - dsr * nrs, -dsl * nls, -dsr * nrs]);
                 let (d02, d12) = (rt.f02.d[jt], rt.f12.d[jt]);
+                // ∂F̄_xw/∂θ_j = −∂(∂f/∂n_w)/∂θ_j for turning wheels (counting).
+                let mut dfxw = M3x2::zeros();
+                for (w, df) in [dfl, dfr].into_iter().enumerate() {
+                    if counting[w] {
+                        dfxw.set_column(w, &(-df));
+                    }
+                }
                 // G = ∂F̄ P⁺ (rows 0..3 only).
-                let mut g = M3x9::zeros();
-                for c in 0..NZ {
+                let mut g = M3xZ::<S>::zeros();
+                for c in 0..nz {
                     let (p2, p3, p4, p5) = (p[(2, c)], p[(3, c)], p[(4, c)], p[(5, c)]);
+                    let (p9, p10) = if S > IW { (p[(IW, c)], p[(IW + 1, c)]) } else { (0.0, 0.0) };
                     let dfr2 = [d02, d12, 0.0];
                     for rr in 0..3 {
-                        g[(rr, c)] = dfr2[rr] * p2 + dfxs[(rr, 0)] * p3 + dfxs[(rr, 1)] * p4 + dfxs[(rr, 2)] * p5;
+                        g[(rr, c)] = dfr2[rr] * p2
+                            + dfxs[(rr, 0)] * p3
+                            + dfxs[(rr, 1)] * p4
+                            + dfxs[(rr, 2)] * p5
+                            + dfxw[(rr, 0)] * p9
+                            + dfxw[(rr, 1)] * p10;
                     }
                 }
                 // G F̄ᵀ.
                 for rr in 0..3 {
-                    for ci in 0..NZ {
+                    for ci in 0..nz {
                         tt[(rr, ci)] = if ci < 3 {
                             let fr = [f02, f12, 0.0];
                             g[(rr, ci)]
@@ -1160,6 +1289,11 @@ pub(crate) fn run_window(
                                 + fxs_ref[(ci, 0)] * g[(rr, 3)]
                                 + fxs_ref[(ci, 1)] * g[(rr, 4)]
                                 + fxs_ref[(ci, 2)] * g[(rr, 5)]
+                                + if S > IW {
+                                    fxw_ref[(ci, 0)] * g[(rr, IW)] + fxw_ref[(ci, 1)] * g[(rr, IW + 1)]
+                                } else {
+                                    0.0
+                                }
                         } else {
                             diag[ci] * g[(rr, ci)]
                         };
@@ -1183,10 +1317,18 @@ pub(crate) fn run_window(
                         tt[(rr, ci)] += half_dq[(ci, rr)];
                     }
                 }
+                // ∂Q_xw/∂θ_j (the off-diagonal block, added with its mirror).
+                for (w, df) in [dfl, dfr].into_iter().enumerate() {
+                    if counting[w] {
+                        for rr in 0..3 {
+                            tt[(rr, IW + w)] += df[rr] * v.quant;
+                        }
+                    }
+                }
             }
         }
         // The step's process noise, the same for the filter's P and the null pass's P₀.
-        let add_q = |m: &mut M9| {
+        let add_q = |m: &mut MZ<S>| {
             for r in 0..3 {
                 for c in 0..3 {
                     m[(r, c)] += q_x[(r, c)];
@@ -1195,27 +1337,42 @@ pub(crate) fn run_window(
                 m[(r + 6, r + 6)] += q_b[r];
             }
         };
-        p = propagate(&p, f02, f12, &fxs_ref, &diag);
+        // Counting: the fresh remainder w_k (Q_ww) and its share of the pose step (Q_xw).
+        let add_q_w = |m: &mut MZ<S>| {
+            for (w, f_w) in [fn_l, fn_r].into_iter().enumerate() {
+                if counting[w] {
+                    m[(IW + w, IW + w)] += v.quant;
+                    for r in 0..3 {
+                        m[(r, IW + w)] += f_w[r] * v.quant;
+                        m[(IW + w, r)] += f_w[r] * v.quant;
+                    }
+                }
+            }
+        };
+        p = propagate(&p, f02, f12, &fxs_ref, &fxw_ref, &diag, nz);
         add_q(&mut p);
+        add_q_w(&mut p);
         if null {
-            p0 = propagate(&p0, f02, f12, &fxs_ref, &diag);
+            p0 = propagate(&p0, f02, f12, &fxs_ref, &fxw_ref, &diag, nz);
             add_q(&mut p0);
+            add_q_w(&mut p0);
             if let Some((c, _)) = &mut c0 {
-                *c = propagate_cols(c, f02, f12, &fxs_ref, &diag);
+                *c = propagate_cols(c, f02, f12, &fxs_ref, &fxw_ref, &diag, nz);
             }
         }
         for &jj in cols {
             let dpj = &mut dp[jj];
-            *dpj = propagate(dpj, f02, f12, &fxs_ref, &diag);
+            *dpj = propagate(dpj, f02, f12, &fxs_ref, &fxw_ref, &diag, nz);
             match jj {
                 0..=3 => add_sym_rows(dpj, &theta_terms[jj]),
                 4 => {
-                    // η_0 scales the white wheel, a_y and β noise together.
+                    // η_0 scales the white wheel, quantisation, a_y and β noise together.
                     for r in 0..3 {
                         for c in 0..3 {
                             dpj[(r, c)] += q_x[(r, c)];
                         }
                     }
+                    add_q_w(dpj);
                 }
                 5 => dpj[(3, 3)] += q_s[0],
                 6 => {
@@ -1242,7 +1399,7 @@ pub(crate) fn run_window(
         let y = Vector3::new(input.px[k1], input.py[k1], input.psi[k1]);
         let yhat = x + b;
         let nu = Vector3::new(y[0] - yhat[0], y[1] - yhat[1], wrap_angle(y[2] - yhat[2]));
-        let hp: M3x9 = h_rows(&p);
+        let hp: M3xZ<S> = h_rows(&p);
         let r_k = r + r_q;
         // ∂R_k/∂p_j: quantisation (η_0; θ through ∂f/∂n when following),
         // position white (η_3), heading white (η_5).
@@ -1275,12 +1432,12 @@ pub(crate) fn run_window(
                 add_jacobian_term(&mut out, u, lc, &g);
             }
         } else if smoothed {
-            let k_l: M9x3 = hp.transpose() * sinv;
+            let k_l: MZx3<S> = hp.transpose() * sinv;
             let n_l = if all_sources { 3 } else { 2 };
             for (w, dpl) in dp_lambda.iter_mut().take(n_l).enumerate() {
                 let ds_l = h_cols(&h_rows(dpl));
                 w_smoothed[w] += (sinv * ds_l).trace();
-                *dpl = joseph(dpl, &k_l);
+                *dpl = joseph(dpl, &k_l, nz);
             }
         }
         let quad = nu.dot(&sinv_nu);
@@ -1300,12 +1457,12 @@ pub(crate) fn run_window(
             }
         }
         prev_e = Some(e);
-        let k: M9x3 = hp.transpose() * sinv;
+        let k: MZx3<S> = hp.transpose() * sinv;
         if null {
             // Expected moments of the whitened innovations when the data have
             // the model's noise but not the floors (R₀ = R − floors).
             let r0 = Matrix3::from_diagonal(&r_white) + r_q;
-            let hp0: M3x9 = h_rows(&p0);
+            let hp0: M3xZ<S> = h_rows(&p0);
             let s0 = h_cols(&hp0) + r0;
             let m1 = l.solve_lower_triangular(&s0).unwrap_or_else(Matrix3::zeros);
             let e_cov = l.solve_lower_triangular(&m1.transpose()).unwrap_or_else(Matrix3::zeros);
@@ -1324,8 +1481,8 @@ pub(crate) fn run_window(
             }
             // C₀ = E[ε⁺ νᵀ] = P₀Hᵀ − K S₀; P₀⁺ = (I−KH)P₀(I−KH)ᵀ + K R₀ Kᵀ.
             c0 = Some((hp0.transpose() - k * s0, l));
-            p0 = joseph(&p0, &k);
-            add_kdk(&mut p0, &k, &r0);
+            p0 = joseph(&p0, &k, nz);
+            add_kdk(&mut p0, &k, &r0, nz);
         }
 
         if mode.derivs {
@@ -1343,7 +1500,7 @@ pub(crate) fn run_window(
                 g_t[c] = -gnu[c];
             }
             for &jj in cols {
-                let hdp: M3x9 = h_rows(&dp[jj]);
+                let hdp: M3xZ<S> = h_rows(&dp[jj]);
                 ds[jj] = h_cols(&hdp) + d_r(jj);
                 a[jj] = sinv * ds[jj];
                 let ds_snu = ds[jj] * sinv_nu;
@@ -1412,17 +1569,17 @@ pub(crate) fn run_window(
             // ∂K = (∂P⁻Hᵀ − K ∂S) S⁻¹.
             d -= k * hd;
             for &jj in cols {
-                for r_ in 0..NZ {
+                for r_ in 0..S {
                     d[(r_, jj)] += dkn[(r_, jj)];
                 }
             }
             // Joseph form (I−KH)∂P(I−KH)ᵀ + K ∂R Kᵀ: the algebraically equal
             // ∂P − KH∂P − (KH∂P)ᵀ + K ∂S Kᵀ is numerically unstable here.
             for &jj in cols {
-                dp[jj] = joseph(&dp[jj], &k);
+                dp[jj] = joseph(&dp[jj], &k, nz);
                 let dr = d_r(jj);
                 if dr != Matrix3::zeros() {
-                    add_kdk(&mut dp[jj], &k, &dr);
+                    add_kdk(&mut dp[jj], &k, &dr, nz);
                 }
             }
         }
@@ -1434,8 +1591,12 @@ pub(crate) fn run_window(
             s[r] += dz[r + 3];
             b[r] += dz[r + 6];
         }
-        p = joseph(&p, &k);
-        add_kdk(&mut p, &k, &r_k);
+        if S > IW {
+            wq[0] += dz[IW];
+            wq[1] += dz[IW + 1];
+        }
+        p = joseph(&p, &k, nz);
+        add_kdk(&mut p, &k, &r_k, nz);
     }
     if all_sources {
         // The smoothed share of the Gauss-Markov noise replaces the ŝ
@@ -1486,9 +1647,9 @@ mod kernel_tests {
         ((*state >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
     }
 
-    fn random_symmetric(state: &mut u64) -> M9 {
-        let a = M9::from_fn(|_, _| lcg(state));
-        a * a.transpose() + M9::identity()
+    fn random_symmetric(state: &mut u64) -> MZ<NZ> {
+        let a = MZ::<NZ>::from_fn(|_, _| lcg(state));
+        a * a.transpose() + MZ::<NZ>::identity()
     }
 
     fn h() -> SMatrix<f64, 3, NZ> {
@@ -1500,7 +1661,7 @@ mod kernel_tests {
         h
     }
 
-    fn assert_close(a: &M9, b: &M9, what: &str) {
+    fn assert_close(a: &MZ<NZ>, b: &MZ<NZ>, what: &str) {
         let scale = b.amax().max(1.0);
         assert!((a - b).amax() <= KERNEL_REL_TOL * scale, "{what}: {a} vs {b}");
     }
@@ -1512,27 +1673,33 @@ mod kernel_tests {
             let p = random_symmetric(&mut st);
             let (f02, f12) = (lcg(&mut st), lcg(&mut st));
             let fxs = Matrix3::from_fn(|_, _| lcg(&mut st));
-            let diag = [1.0, 1.0, 1.0, 0.9, 0.8, 0.8, 0.99, 0.99, 0.99];
-            let mut f = M9::zeros();
+            let diag = [1.0, 1.0, 1.0, 0.9, 0.8, 0.8, 0.99, 0.99, 0.99, 0.0, 1.0];
+            let fxw = M3x2::from_fn(|_, _| lcg(&mut st));
+            let mut f = MZ::<NZ>::zeros();
             for i in 0..NZ {
                 f[(i, i)] = diag[i];
             }
             f[(0, 2)] = f02;
             f[(1, 2)] = f12;
             f.fixed_view_mut::<3, 3>(0, 3).copy_from(&fxs);
+            f.fixed_view_mut::<3, 2>(0, IW).copy_from(&fxw);
             let dense = f * p * f.transpose();
-            let fast = propagate(&p, f02, f12, &fxs, &diag);
+            let fast = propagate(&p, f02, f12, &fxs, &fxw, &diag, NZ);
             assert_close(&fast, &dense, "propagate");
             assert_eq!(fast, fast.transpose(), "propagate is not exactly symmetric");
-            assert_close(&propagate_general(&p, f02, f12, &fxs, &diag), &dense, "propagate_general");
+            assert_close(&propagate_general(&p, f02, f12, &fxs, &fxw, &diag), &dense, "propagate_general");
             // A non-symmetric A through the general kernels.
-            let x = M9::from_fn(|_, _| lcg(&mut st));
-            assert_close(&propagate_general(&x, f02, f12, &fxs, &diag), &(f * x * f.transpose()), "general, asym");
+            let x = MZ::<NZ>::from_fn(|_, _| lcg(&mut st));
+            assert_close(
+                &propagate_general(&x, f02, f12, &fxs, &fxw, &diag),
+                &(f * x * f.transpose()),
+                "general, asym",
+            );
 
-            let k = M9x3::from_fn(|_, _| lcg(&mut st));
-            let ikh = M9::identity() - k * h();
+            let k = MZx3::<NZ>::from_fn(|_, _| lcg(&mut st));
+            let ikh = MZ::<NZ>::identity() - k * h();
             let dense = ikh * p * ikh.transpose();
-            let fast = joseph(&p, &k);
+            let fast = joseph(&p, &k, NZ);
             assert_close(&fast, &dense, "joseph");
             assert_eq!(fast, fast.transpose(), "joseph is not exactly symmetric");
             assert_close(&joseph_general(&x, &k), &(ikh * x * ikh.transpose()), "joseph_general, asym");
@@ -1540,7 +1707,7 @@ mod kernel_tests {
             let dm = Matrix3::from_fn(|_, _| lcg(&mut st));
             let dm = dm + dm.transpose();
             let mut acc = p;
-            add_kdk(&mut acc, &k, &dm);
+            add_kdk(&mut acc, &k, &dm, NZ);
             assert_close(&acc, &(p + k * dm * k.transpose()), "add_kdk");
             assert_eq!(acc, acc.transpose(), "add_kdk is not exactly symmetric");
         }

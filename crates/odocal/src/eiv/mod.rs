@@ -527,6 +527,7 @@ impl NoiseModel {
             a_wheel: gm(self.wheel_differential_time_constant_s),
             a_drift: gm(self.drift_time_constant_s),
             quant_in_measurement: false,
+            quant_counting: false,
             heading_separate: true,
             fitted_input: false,
             input_jacobian: InputJacobian::None,
@@ -1010,6 +1011,15 @@ pub enum QuantisationModel {
     /// of the step, following θ), plus one draw in the window's initial
     /// covariance.
     Measurement,
+    /// The exact counting error: the measured rate of a turning wheel is
+    /// `ñ_k = n_k + w_{k−1} − w_k`, w the remainder of the tick count in
+    /// rev/s (variance q²/12, independent from sample to sample), an MA(1)
+    /// input error. The filter carries `w_{k−1}` of each wheel as a state
+    /// (two states more): the step takes it off the measured rate, the new
+    /// remainder enters as process noise shared by the pose and the state.
+    /// Where a wheel counts nothing the remainder is carried over (no error,
+    /// no new draw). Scaled by η_0 like the other models.
+    Counting,
 }
 
 impl Default for EivOptions {
@@ -1545,6 +1555,7 @@ impl Problem<'_> {
         }
         let mut v = self.noise.variances(&e, self.input.sample_time_s);
         v.quant_in_measurement = self.quantisation == QuantisationModel::Measurement;
+        v.quant_counting = self.quantisation == QuantisationModel::Counting;
         v.heading_separate = self.heading_separate;
         v.fitted_input = self.fitted_input;
         v.input_jacobian = self.input_jacobian;
