@@ -425,21 +425,8 @@ fn straight_drive_calibrates_c_e_and_names_the_rest() {
     // A straight, noise-free drive: heading never changes.
     let (n, ts) = (4000, 0.025);
     let th = Theta::SIM_DEFAULT_TRUE;
-    let (px, py, psi, nl, nr) = straight_drive(n, ts);
-    let zero = vec![0.0; n];
-    let parts = [0..n];
-    let input = EivInput {
-        sample_time_s: ts,
-        parts: &parts,
-        px: &px,
-        py: &py,
-        psi: &psi,
-        n_rl: &nl,
-        n_rr: &nr,
-        beta: &zero,
-        a_y: &zero,
-        reference_measured: None,
-    };
+    let drive = StraightDrive::new(n, ts);
+    let input = drive.input();
     let start = Theta { c_e: 1.96, ..th };
     let r = estimate(&input, &start, &EivOptions::default()).expect("eiv");
     assert!((r.theta.c_e - th.c_e).abs() < 1e-6, "{r}");
@@ -930,29 +917,58 @@ fn position_floor_enters_the_innovation_covariance() {
     }
 }
 
-/// A straight, noise-free drive (heading constant; 100 s at 10 m/s) at
-/// θ = [`Theta::SIM_DEFAULT_TRUE`]: px, py, ψ, n_rl, n_rr.
-type StraightDrive = (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>);
-
-fn straight_drive(n: usize, ts: f64) -> StraightDrive {
-    let th = Theta::SIM_DEFAULT_TRUE;
-    let (n_rl, n_rr) = crate::model::wheel_rotations(10.0, 0.0, 0.0, &th);
-    let (mut px, mut py, mut psi) = (vec![0.0], vec![0.0], vec![0.3]);
-    for k in 1..n {
-        let x = crate::model::step(
-            &crate::model::State::new(px[k - 1], py[k - 1], psi[k - 1]),
-            &crate::model::Input { n_rl, n_rr, beta: 0.0, a_y: 0.0 },
-            &th,
-            ts,
-        );
-        px.push(x[0]);
-        py.push(x[1]);
-        psi.push(x[2]);
-    }
-    (px, py, psi, vec![n_rl; n], vec![n_rr; n])
+/// A straight, noise-free drive (heading constant; 10 m/s) at
+/// θ = [`Theta::SIM_DEFAULT_TRUE`], owning the signals an [`EivInput`]
+/// borrows.
+struct StraightDrive {
+    ts: f64,
+    parts: [std::ops::Range<usize>; 1],
+    px: Vec<f64>,
+    py: Vec<f64>,
+    psi: Vec<f64>,
+    n_rl: Vec<f64>,
+    n_rr: Vec<f64>,
+    zero: Vec<f64>,
 }
 
-/// The separate heading scale, with either quantisation model, returns
+impl StraightDrive {
+    /// `n` samples of `ts` seconds.
+    fn new(n: usize, ts: f64) -> Self {
+        let th = Theta::SIM_DEFAULT_TRUE;
+        let (n_rl, n_rr) = crate::model::wheel_rotations(10.0, 0.0, 0.0, &th);
+        let (mut px, mut py, mut psi) = (vec![0.0], vec![0.0], vec![0.3]);
+        for k in 1..n {
+            let x = crate::model::step(
+                &crate::model::State::new(px[k - 1], py[k - 1], psi[k - 1]),
+                &crate::model::Input { n_rl, n_rr, beta: 0.0, a_y: 0.0 },
+                &th,
+                ts,
+            );
+            px.push(x[0]);
+            py.push(x[1]);
+            psi.push(x[2]);
+        }
+        StraightDrive { ts, parts: [0..n], px, py, psi, n_rl: vec![n_rl; n], n_rr: vec![n_rr; n], zero: vec![0.0; n] }
+    }
+
+    /// The drive as one part, β and a_y zero, the reference measured everywhere.
+    fn input(&self) -> EivInput<'_> {
+        EivInput {
+            sample_time_s: self.ts,
+            parts: &self.parts,
+            px: &self.px,
+            py: &self.py,
+            psi: &self.psi,
+            n_rl: &self.n_rl,
+            n_rr: &self.n_rr,
+            beta: &self.zero,
+            a_y: &self.zero,
+            reference_measured: None,
+        }
+    }
+}
+
+/// The separate heading scale, with every quantisation model, returns
 /// c_e on the noise-free straight drive (the other options the defaults).
 /// Regression: with the SPEC formulation's input log-Jacobian
 /// ([`InputJacobian::None`]) the θ/η iteration stops after two iterations
@@ -964,23 +980,10 @@ fn straight_drive(n: usize, ts: f64) -> StraightDrive {
 fn separate_heading_scale_calibrates_c_e_on_the_noise_free_straight_drive() {
     let (n, ts) = (4000, 0.025);
     let th = Theta::SIM_DEFAULT_TRUE;
-    let (px, py, psi, nl, nr) = straight_drive(n, ts);
-    let zero = vec![0.0; n];
-    let parts = [0..n];
-    let input = EivInput {
-        sample_time_s: ts,
-        parts: &parts,
-        px: &px,
-        py: &py,
-        psi: &psi,
-        n_rl: &nl,
-        n_rr: &nr,
-        beta: &zero,
-        a_y: &zero,
-        reference_measured: None,
-    };
+    let drive = StraightDrive::new(n, ts);
+    let input = drive.input();
     let start = Theta { c_e: 1.96, ..th };
-    for quantisation in [QuantisationModel::ProcessNoise, QuantisationModel::Measurement] {
+    for quantisation in [QuantisationModel::ProcessNoise, QuantisationModel::Measurement, QuantisationModel::Counting] {
         let opts = EivOptions { heading_scale: HeadingScale::Separate, quantisation, ..EivOptions::default() };
         let r = estimate(&input, &start, &opts).expect("eiv");
         assert!((r.theta.c_e - th.c_e).abs() < 1e-6, "{quantisation:?}: {r}");
@@ -998,21 +1001,8 @@ fn separate_heading_scale_calibrates_c_e_on_the_noise_free_straight_drive() {
 #[test]
 fn eta_step_descends_on_the_noise_free_straight_drive() {
     let (n, ts) = (4000, 0.025);
-    let (px, py, psi, nl, nr) = straight_drive(n, ts);
-    let zero = vec![0.0; n];
-    let parts = [0..n];
-    let input = EivInput {
-        sample_time_s: ts,
-        parts: &parts,
-        px: &px,
-        py: &py,
-        psi: &psi,
-        n_rl: &nl,
-        n_rr: &nr,
-        beta: &zero,
-        a_y: &zero,
-        reference_measured: None,
-    };
+    let drive = StraightDrive::new(n, ts);
+    let input = drive.input();
     let opts = EivOptions { heading_scale: HeadingScale::Separate, ..EivOptions::default() };
     let prob = Problem {
         input: &input,
