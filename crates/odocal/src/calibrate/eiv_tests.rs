@@ -177,22 +177,17 @@ fn straight_drive_calibrates_c_e_and_names_the_rest() {
     let n = 4000;
     let ts = 0.025;
     let th = Theta::SIM_DEFAULT_TRUE;
-    let (n_rl, n_rr) = crate::model::wheel_rotations(10.0, 0.0, 0.0, &th);
-    let (mut px, mut py, mut psi) = (vec![0.0], vec![0.0], vec![0.3]);
-    for k in 1..n {
-        let x = crate::model::step(
-            &crate::model::State::new(px[k - 1], py[k - 1], psi[k - 1]),
-            &crate::model::Input { n_rl, n_rr, beta: 0.0, a_y: 0.0 },
-            &th,
-            ts,
-        );
-        px.push(x[0]);
-        py.push(x[1]);
-        psi.push(x[2]);
-    }
+    let sd = crate::eiv::tests::StraightDrive::new(n, ts);
     let t: Vec<f64> = (0..n).map(|k| k as f64 * ts).collect();
-    let signals =
-        Signals { px, py, psi, n_rl: vec![n_rl; n], n_rr: vec![n_rr; n], beta: vec![0.0; n], a_y: vec![0.0; n] };
+    let signals = Signals {
+        px: sd.px,
+        py: sd.py,
+        psi: sd.psi,
+        n_rl: sd.n_rl,
+        n_rr: sd.n_rr,
+        beta: sd.zero.clone(),
+        a_y: sd.zero,
+    };
     let drive = crate::Drive::builder(t, signals).build().expect("drive");
     let opts = CalibrationOptions { method: eiv_method(EivOptions::default(), true), ..Default::default() };
     let r = calibrate(&drive, &opts, None).expect("calibrate");

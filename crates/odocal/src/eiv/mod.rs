@@ -189,7 +189,7 @@ mod bootstrap;
 pub(crate) mod filter;
 mod tau;
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 use std::ops::Range;
 use std::time::Instant;

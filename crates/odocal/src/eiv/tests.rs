@@ -920,20 +920,20 @@ fn position_floor_enters_the_innovation_covariance() {
 /// A straight, noise-free drive (heading constant; 10 m/s) at
 /// θ = [`Theta::SIM_DEFAULT_TRUE`], owning the signals an [`EivInput`]
 /// borrows.
-struct StraightDrive {
+pub(crate) struct StraightDrive {
     ts: f64,
     parts: [std::ops::Range<usize>; 1],
-    px: Vec<f64>,
-    py: Vec<f64>,
-    psi: Vec<f64>,
-    n_rl: Vec<f64>,
-    n_rr: Vec<f64>,
-    zero: Vec<f64>,
+    pub px: Vec<f64>,
+    pub py: Vec<f64>,
+    pub psi: Vec<f64>,
+    pub n_rl: Vec<f64>,
+    pub n_rr: Vec<f64>,
+    pub zero: Vec<f64>,
 }
 
 impl StraightDrive {
     /// `n` samples of `ts` seconds.
-    fn new(n: usize, ts: f64) -> Self {
+    pub(crate) fn new(n: usize, ts: f64) -> Self {
         let th = Theta::SIM_DEFAULT_TRUE;
         let (n_rl, n_rr) = crate::model::wheel_rotations(10.0, 0.0, 0.0, &th);
         let (mut px, mut py, mut psi) = (vec![0.0], vec![0.0], vec![0.3]);
