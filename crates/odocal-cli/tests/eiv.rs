@@ -60,6 +60,29 @@ fn eiv_on_a_small_simulated_drive() {
 }
 
 #[test]
+fn eiv_noise_model_shape_flags_reach_the_options() {
+    let d = tempfile::tempdir().expect("tmp");
+    let drive = d.path().join("drive.csv");
+    let dstr = drive.to_str().expect("utf8");
+    let o = odocal(&["simulate", "--seed", "4", "--length-km", "1", "--noise", "white", "--out", dstr]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    for (q, h, q_json, h_json) in
+        [("counting", "separate", "counting", "separate"), ("process", "tied", "process_noise", "tied_to_position")]
+    {
+        let args = ["calibrate", dstr, "--method", "eiv", "--eiv-window", "1500", "--fix-noise"];
+        let o = odocal(&[&args[..], &["--quantisation", q, "--heading-noise", h, "--json", "-"]].concat());
+        assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", text(&o.stderr));
+        let r: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+        let f = &r["options"]["method"]["filter"];
+        assert_eq!(f["quantisation"], q_json, "{f}");
+        assert_eq!(f["heading_scale"], h_json, "{f}");
+    }
+    let o = odocal(&["calibrate", dstr, "--method", "eiv", "--quantisation", "ticks"]);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));
+    assert!(text(&o.stderr).contains("possible values: process, measurement, counting"), "{}", text(&o.stderr));
+}
+
+#[test]
 fn eiv_flags_belong_to_eiv() {
     let d = tempfile::tempdir().expect("tmp");
     let p = d.path().join("d.csv");
@@ -73,6 +96,13 @@ fn eiv_flags_belong_to_eiv() {
     assert_eq!(o.status.code(), Some(1));
     assert!(
         text(&o.stderr).contains("--fix-noise, --no-fallback apply to --method eiv only, not to --method batch-gn"),
+        "{}",
+        text(&o.stderr)
+    );
+    let o =
+        odocal(&["calibrate", csv, "--method", "batch-gn", "--quantisation", "counting", "--heading-noise", "tied"]);
+    assert!(
+        text(&o.stderr).contains("--quantisation, --heading-noise apply to --method eiv only"),
         "{}",
         text(&o.stderr)
     );
