@@ -24,6 +24,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList, PyString};
 
 use odocal::drive::{Drive, ExtraColumn, ExtraValues, Signals};
+use odocal::eiv::{HeadingScale, QuantisationModel};
 use odocal::import::{GivenSettings, ManifestSettings, ReferenceSpec, SettingUse};
 use odocal::model::Theta;
 use odocal::param::{Param, ParamSet};
@@ -520,7 +521,7 @@ struct CalibrationPlan {
 }
 
 /// The keyword options of `odocal.calibrate`, named like the CLI's flags.
-const CALIBRATION_KWARGS: [&str; 24] = [
+const CALIBRATION_KWARGS: [&str; 26] = [
     "seed",
     "estimate",
     "lever_arm",
@@ -529,6 +530,8 @@ const CALIBRATION_KWARGS: [&str; 24] = [
     "fix_noise",
     "fallback",
     "eiv_window",
+    "quantisation",
+    "heading_noise",
     "qp_solver",
     "theta0",
     "fix",
@@ -627,6 +630,7 @@ fn calibration_plan(
     let (mut batches, mut batch_size, mut picks, mut final_segments, mut qp_solver) = (None, None, None, None, None);
     // EIV settings (`--noise-model`, `--fix-noise`, `--no-fallback`, `--eiv-window`).
     let (mut noise_model, mut fix_noise, mut fallback, mut eiv_window) = (None, None, None, None);
+    let (mut quantisation, mut heading_noise) = (None, None);
     if let Some(kwargs) = kwargs {
         for (key, v) in kwargs.iter() {
             let key: String = key.extract()?;
@@ -709,6 +713,12 @@ fn calibration_plan(
                 "fix_noise" => fix_noise = Some(v.extract::<bool>()?),
                 "fallback" => fallback = Some(v.extract::<bool>()?),
                 "eiv_window" => eiv_window = Some(v.extract::<usize>()?),
+                "quantisation" => {
+                    quantisation = Some(v.extract::<String>()?.parse::<QuantisationModel>().map_err(lib_err)?)
+                }
+                "heading_noise" => {
+                    heading_noise = Some(v.extract::<String>()?.parse::<HeadingScale>().map_err(lib_err)?)
+                }
                 _ => {
                     return Err(PyTypeError::new_err(format!(
                         "calibrate() got an unknown option '{key}'; options: {}",
@@ -723,6 +733,8 @@ fn calibration_plan(
         ("fix_noise", fix_noise.is_some()),
         ("fallback", fallback.is_some()),
         ("eiv_window", eiv_window.is_some()),
+        ("quantisation", quantisation.is_some()),
+        ("heading_noise", heading_noise.is_some()),
     ]
     .iter()
     .filter(|g| g.1)
@@ -733,6 +745,8 @@ fn calibration_plan(
         e.filter.fix_noise = fix_noise.unwrap_or(e.filter.fix_noise);
         e.fallback = fallback.unwrap_or(e.fallback);
         e.filter.window_samples = eiv_window.unwrap_or(e.filter.window_samples);
+        e.filter.quantisation = quantisation.unwrap_or(e.filter.quantisation);
+        e.filter.heading_scale = heading_noise.unwrap_or(e.filter.heading_scale);
     } else if !eiv_given.is_empty() {
         return Err(invalid_option(
             "method",

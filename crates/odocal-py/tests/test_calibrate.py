@@ -206,12 +206,26 @@ def _without_eiv_timing(d):
 
 
 def test_eiv_equals_cli_json(odocal_bin, drive_csv):
-    cli = cli_json(odocal_bin, "calibrate", drive_csv, "--method", "eiv", "--fix-noise", "--eiv-window", "1500")
-    report = odocal.calibrate(odocal.Drive.from_csv(drive_csv), method="eiv", fix_noise=True, eiv_window=1500)
+    shape = ["--quantisation", "counting", "--heading-noise", "separate"]
+    cli = cli_json(odocal_bin, "calibrate", drive_csv, "--method", "eiv", "--fix-noise", "--eiv-window", "1500", *shape)
+    report = odocal.calibrate(
+        odocal.Drive.from_csv(drive_csv),
+        method="eiv",
+        fix_noise=True,
+        eiv_window=1500,
+        quantisation="counting",
+        heading_noise="separate",
+    )
     d = report.to_dict()
     assert report.method == "eiv" and d["eiv_result"] in ("eiv", "batch-gn-fallback")
+    filt = d["options"]["method"]["filter"]
+    assert (filt["quantisation"], filt["heading_scale"]) == ("counting", "separate")
     assert d["eiv"]["noise"]["wheel_white_rel_sigma"] == d["noise_start"]["wheel_white_rel_sigma"]  # fixed
     assert "reason" in d["eiv"]["termination"]
     assert _without_eiv_timing(d) == _without_eiv_timing(cli)
     with pytest.raises(odocal.OdocalError, match="fix_noise applies to method eiv only, not to batch-gn"):
         odocal.calibrate(odocal.Drive.from_csv(drive_csv), "batch-gn", fix_noise=True)
+    with pytest.raises(odocal.OdocalError, match="invalid quantisation model 'ticks': use process, measurement or counting"):
+        odocal.calibrate(odocal.Drive.from_csv(drive_csv), "eiv", quantisation="ticks")
+    with pytest.raises(odocal.OdocalError, match="heading_noise applies to method eiv only"):
+        odocal.calibrate(odocal.Drive.from_csv(drive_csv), "batch-gn", heading_noise="tied")

@@ -214,7 +214,9 @@ def calibrate(
       sensor's extrinsics, as ``--estimate``, ``--lever-arm``,
       ``--heading-offset``;
     - ``noise_model`` (path of a noise-model TOML), ``fix_noise``,
-      ``fallback``, ``eiv_window``: method ``"eiv"`` only.
+      ``fallback``, ``eiv_window``, ``quantisation`` (``"process"`` |
+      ``"measurement"`` | ``"counting"``), ``heading_noise`` (``"tied"`` |
+      ``"separate"``): method ``"eiv"`` only, as the CLI's flags.
 
     A drive read from a manifest carries the manifest's ``[noise]``,
     ``[reference]`` and ``[calibration]`` settings (``drive.import_report``); they apply unless

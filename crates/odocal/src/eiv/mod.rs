@@ -1022,6 +1022,42 @@ pub enum QuantisationModel {
     Counting,
 }
 
+impl std::str::FromStr for HeadingScale {
+    type Err = Error;
+    /// `tied` ([`HeadingScale::TiedToPosition`]) or `separate`, as the CLI's `--heading-noise`.
+    fn from_str(s: &str) -> Result<Self> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "tied" | "tied_to_position" => Ok(HeadingScale::TiedToPosition),
+            "separate" => Ok(HeadingScale::Separate),
+            _ => Err(Error::Parse { what: "heading noise scale", input: s.to_string(), expected: "tied or separate" }),
+        }
+    }
+}
+
+impl std::str::FromStr for QuantisationModel {
+    type Err = Error;
+    /// `process` ([`QuantisationModel::ProcessNoise`]), `measurement` or
+    /// `counting`, as the CLI's `--quantisation`.
+    ///
+    /// ```
+    /// use odocal::eiv::QuantisationModel;
+    /// assert_eq!("counting".parse::<QuantisationModel>().unwrap(), QuantisationModel::Counting);
+    /// assert!("ticks".parse::<QuantisationModel>().is_err());
+    /// ```
+    fn from_str(s: &str) -> Result<Self> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "process" | "process_noise" => Ok(QuantisationModel::ProcessNoise),
+            "measurement" => Ok(QuantisationModel::Measurement),
+            "counting" => Ok(QuantisationModel::Counting),
+            _ => Err(Error::Parse {
+                what: "quantisation model",
+                input: s.to_string(),
+                expected: "process, measurement or counting",
+            }),
+        }
+    }
+}
+
 impl Default for EivOptions {
     fn default() -> Self {
         EivOptions {
