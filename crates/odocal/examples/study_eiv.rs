@@ -9,6 +9,9 @@
 //!     [--quantisation process|measurement|counting] [--heading tied|separate]
 //!     [--methods known,est] (also: est-stop11 = `est` with the stop-11 checks and iteration, fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot)
 //!     [--tau-candidates] [--bootstrap-reestimate-seeds 0] [--smooth-half-width 20]
+//!     [--reentry-score 10] (with `--methods est-reentry`: `EIV est. reentry` = `est` with
+//!     `EivOptions::eta_reentry_min_score` = that value, stop 13; `est-robust`: `est` with
+//!     `CovarianceEstimate::LargerOfModelAndBlock`; `est-reentry-robust`: both)
 //! ```
 //!
 //! Per preset and seed (1..=S) it simulates a drive and runs, all through
@@ -73,8 +76,8 @@ use std::time::Instant;
 
 use odocal::calibrate::{EivDetail, EivMethodOptions};
 use odocal::eiv::{
-    bootstrap, cramer_rao_bound, BootstrapOptions, EivInput, EivOptions, HeadingScale, InputJacobian, NoiseModel,
-    QuantisationModel, WheelNoiseScale,
+    bootstrap, cramer_rao_bound, BootstrapOptions, CovarianceEstimate, EivInput, EivOptions, HeadingScale,
+    InputJacobian, NoiseModel, QuantisationModel, WheelNoiseScale,
 };
 use odocal::segment::validation_segments;
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
@@ -102,6 +105,8 @@ struct Args {
     methods: Vec<String>,
     /// Print every candidate of the time-constant search (`--tau-candidates`).
     tau_candidates: bool,
+    /// `EivOptions::eta_reentry_min_score` of the `est-reentry` method (`--reentry-score`).
+    reentry_score: f64,
 }
 
 fn parse_args() -> Res<Args> {
@@ -120,6 +125,7 @@ fn parse_args() -> Res<Args> {
         heading: HeadingScale::TiedToPosition,
         methods: vec!["known".into(), "est".into()],
         tau_candidates: false,
+        reentry_score: 10.0,
     };
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
@@ -133,6 +139,7 @@ fn parse_args() -> Res<Args> {
             "--seeds" => a.seeds = v()?.parse()?,
             "--presets" => a.presets = v()?.split(',').map(str::to_string).collect(),
             "--three-step-seeds" => a.three_step_seeds = v()?.parse()?,
+            "--reentry-score" => a.reentry_score = v()?.parse()?,
             "--bootstrap" => a.bootstrap = v()?.parse()?,
             "--bootstrap-seeds" => a.bootstrap_seeds = v()?.parse()?,
             "--bootstrap-reestimate-seeds" => a.bootstrap_reestimate_seeds = v()?.parse()?,
@@ -266,6 +273,21 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
     if want("est") {
         jobs.push(("EIV est.", est.clone()));
     }
+    if want("est-reentry") {
+        // Stop 13: a noise scale at its lower clamp re-enters when its score
+        // test exceeds `--reentry-score`.
+        let o = EivOptions { eta_reentry_min_score: Some(a.reentry_score), ..est.clone() };
+        jobs.push(("EIV est. reentry", o));
+    }
+    let robust = CovarianceEstimate::LargerOfModelAndBlock;
+    if want("est-robust") {
+        // Stop 13: the reported σ raised to the block sandwich's.
+        jobs.push(("EIV est. robust", EivOptions { covariance_estimate: robust, ..est.clone() }));
+    }
+    if want("est-reentry-robust") {
+        let o = EivOptions { eta_reentry_min_score: Some(a.reentry_score), covariance_estimate: robust, ..est.clone() };
+        jobs.push(("EIV est. reentry robust", o));
+    }
     if want("est-stop11") {
         // The stop-11 checks and iteration: no secant damping of the η
         // step, innovation checks against the fitted model with the floors.
@@ -397,6 +419,7 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         let sigmas = vec![
             ("H".to_string(), sigma_h),
             ("sandwich".to_string(), fit.sigma_sandwich),
+            ("block".to_string(), fit.sigma_block),
             ("Fisher".to_string(), fit.sigma_fisher),
         ];
         let failed = r.warnings.iter().filter(|w| matches!(w, Warning::EivCheckFailed { .. })).count();
@@ -476,7 +499,9 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
             };
             runs.insert("EIV est. τ + fallback".to_string(), run);
         }
-        if label == "EIV est." || label == "EIV est. stop-11" {
+        if ["EIV est.", "EIV est. stop-11", "EIV est. reentry", "EIV est. robust", "EIV est. reentry robust"]
+            .contains(&label)
+        {
             // What a user gets with the default fallback on: G-N when a check failed.
             let (th, sig) = if failed > 0 { (gn, vec![]) } else { (r.theta, sigmas) };
             let run =

@@ -126,6 +126,10 @@ pub(crate) struct WindowSums {
     /// Outer products of the per-update θ-scores of `½ νᵀS⁻¹ν`, Σ g_k g_kᵀ
     /// (the "meat" of a sandwich covariance).
     pub opg: nalgebra::Matrix4<f64>,
+    /// The per-update θ-scores of [`WindowSums::opg`] summed over blocks of
+    /// [`SCORE_BLOCK_S`] within the window (a batch-means sandwich that
+    /// holds under serially correlated scores).
+    pub blocks: BlockScores,
     /// Scoring metric of θ: with the covariance held, the Fisher information
     /// Σ (∂ν/∂θ)ᵀ S⁻¹ (∂ν/∂θ); with the covariance following θ, the
     /// Gauss-Newton matrix Σ (∂r/∂θ)ᵀ(∂r/∂θ) of the whitened innovations.
@@ -173,6 +177,92 @@ pub(crate) struct WindowSums {
     pub turning: [f64; 2],
 }
 
+/// Length of the blocks over which the per-update θ-scores are summed for
+/// the block sandwich ([`BlockScores`]), s: several correlation times of
+/// the slowest wheel noise a production-car model or the simulator has (5 s).
+pub(crate) const SCORE_BLOCK_S: f64 = 20.0;
+
+/// Sums of the block θ-scores `G_b` of one or more windows (blocks never
+/// span two windows: each window's filter starts afresh).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct BlockScores {
+    /// Σ G_b.
+    pub sum: nalgebra::Vector4<f64>,
+    /// Σ G_b G_bᵀ.
+    pub outer: nalgebra::Matrix4<f64>,
+    /// Σ over neighbouring blocks of the same window of `G_b G_{b+1}ᵀ + G_{b+1} G_bᵀ`.
+    pub cross: nalgebra::Matrix4<f64>,
+    /// Blocks.
+    pub n: usize,
+    /// Neighbouring pairs.
+    pub pairs: usize,
+    /// Σ over neighbouring pairs of `G_b + G_{b+1}` (for the centring).
+    pub pair_sum: nalgebra::Vector4<f64>,
+}
+
+impl BlockScores {
+    pub(crate) fn zero() -> Self {
+        BlockScores {
+            sum: nalgebra::Vector4::zeros(),
+            outer: nalgebra::Matrix4::zeros(),
+            cross: nalgebra::Matrix4::zeros(),
+            n: 0,
+            pairs: 0,
+            pair_sum: nalgebra::Vector4::zeros(),
+        }
+    }
+
+    fn add(&mut self, o: &BlockScores) {
+        self.sum += o.sum;
+        self.outer += o.outer;
+        self.cross += o.cross;
+        self.n += o.n;
+        self.pairs += o.pairs;
+        self.pair_sum += o.pair_sum;
+    }
+
+    /// Closes a block with score sum `g` (`prev`: the window's previous block).
+    fn push(&mut self, g: &nalgebra::Vector4<f64>, prev: Option<&nalgebra::Vector4<f64>>) {
+        self.sum += g;
+        self.outer += g * g.transpose();
+        self.n += 1;
+        if let Some(p) = prev {
+            self.cross += p * g.transpose() + g * p.transpose();
+            self.pairs += 1;
+            self.pair_sum += p + g;
+        }
+    }
+
+    /// [`BlockScores::push`] for the unit tests.
+    #[cfg(test)]
+    pub(crate) fn push_for_test(&mut self, g: &nalgebra::Vector4<f64>, prev: Option<&nalgebra::Vector4<f64>>) {
+        self.push(g, prev);
+    }
+
+    /// [`BlockScores::add`] for the unit tests.
+    #[cfg(test)]
+    pub(crate) fn add_for_test(&mut self, o: &BlockScores) {
+        self.add(o);
+    }
+
+    /// The "meat" of the block sandwich: the centred outer products of the
+    /// block scores plus the lag-1 cross products with Bartlett weight ½
+    /// (Newey–West with one block of lag), scaled by n/(n − 1). None with
+    /// fewer than two blocks.
+    pub(crate) fn meat(&self) -> Option<nalgebra::Matrix4<f64>> {
+        if self.n < 2 {
+            return None;
+        }
+        let n = self.n as f64;
+        let mean = self.sum / n;
+        let mm = mean * mean.transpose();
+        let centred = self.outer - mm * n;
+        let cross = self.cross - (self.pair_sum * mean.transpose() + mean * self.pair_sum.transpose())
+            + mm * (2.0 * self.pairs as f64);
+        Some((centred + cross * 0.5) * (n / (n - 1.0)))
+    }
+}
+
 impl WindowSums {
     pub(crate) fn zero() -> Self {
         WindowSums {
@@ -182,6 +272,7 @@ impl WindowSums {
             grad: V9::zeros(),
             grad_profile: V9::zeros(),
             opg: nalgebra::Matrix4::zeros(),
+            blocks: BlockScores::zero(),
             h_theta: nalgebra::Matrix4::zeros(),
             i_eta: M5::zeros(),
             info: MP::zeros(),
@@ -210,6 +301,7 @@ impl WindowSums {
         self.grad += o.grad;
         self.grad_profile += o.grad_profile;
         self.opg += o.opg;
+        self.blocks.add(&o.blocks);
         self.h_theta += o.h_theta;
         self.i_eta += o.i_eta;
         self.info += o.info;
@@ -985,6 +1077,10 @@ fn run_window_s<const S: usize>(
         (smooth_of(input.n_rl), smooth_of(input.n_rr))
     };
 
+    // The open block of θ-scores ([`BlockScores`]).
+    let (mut block_index, mut block_open) = (0usize, false);
+    let mut block_sum = nalgebra::Vector4::<f64>::zeros();
+    let mut block_prev: Option<nalgebra::Vector4<f64>> = None;
     for i in window.start..window.end {
         let (nl, nr) = (input.n_rl[i], input.n_rr[i]);
         // The rotations scaling the relative noise (smoothed when asked).
@@ -1556,6 +1652,17 @@ fn run_window_s<const S: usize>(
             out.i_eta += info.fixed_view::<NETA, NETA>(4, 4);
             out.info += info;
             out.opg += g_t * g_t.transpose();
+            let b = ((k1 - window.start) as f64 * ts / SCORE_BLOCK_S) as usize;
+            if b != block_index {
+                if block_open {
+                    out.blocks.push(&block_sum, block_prev.as_ref());
+                    block_prev = Some(block_sum);
+                }
+                block_index = b;
+                block_sum = nalgebra::Vector4::zeros();
+            }
+            block_open = true;
+            block_sum += g_t;
             if corrected {
                 for (ci, xi) in xcov.iter_mut().enumerate() {
                     out.bias[ci] -= (sinv * h_cols(&h_rows(xi))).trace();
@@ -1597,6 +1704,9 @@ fn run_window_s<const S: usize>(
         }
         p = joseph(&p, &k, nz);
         add_kdk(&mut p, &k, &r_k, nz);
+    }
+    if block_open {
+        out.blocks.push(&block_sum, block_prev.as_ref());
     }
     if all_sources {
         // The smoothed share of the Gauss-Markov noise replaces the ŝ
