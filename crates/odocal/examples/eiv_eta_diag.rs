@@ -17,7 +17,7 @@
 
 use std::error::Error;
 
-use odocal::eiv::{estimate, EivInput, EivOptions, HeadingScale, NoiseModel, QuantisationModel};
+use odocal::eiv::{estimate, EivInput, EivOptions, HeadingScale, NoiseModel, QuantisationLevel, QuantisationModel};
 use odocal::identify::{batch_gauss_newton, IdentifyOptions};
 use odocal::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
@@ -139,7 +139,23 @@ fn main() -> Res<()> {
                 wheel_differential_rel_sigma: sim_noise.wheel_differential_rel_sigma,
                 ..pc_tau
             };
+            // Only the wheel (τ_c, τ_w) or only the drift time constant from the simulator.
+            let pc_simwheel = NoiseModel {
+                wheel_common_time_constant_s: sim_noise.wheel_common_time_constant_s,
+                wheel_differential_time_constant_s: sim_noise.wheel_differential_time_constant_s,
+                ..pc
+            };
+            let pc_simdrift = NoiseModel { drift_time_constant_s: sim_noise.drift_time_constant_s, ..pc };
             let all = [
+                // The encoder's q given (the simulator's ticks), not scaled by η_0.
+                (
+                    "est-pc-qgiven",
+                    NoiseModel { quantisation_step_rev_per_s: sim_noise.quantisation_step_rev_per_s, ..pc },
+                    false,
+                ),
+                ("est-from-sim-qgiven", sim_noise, false),
+                ("est-pc-simwheel", pc_simwheel, false),
+                ("est-pc-simdrift", pc_simdrift, false),
                 ("est-pc-head", pc_head, false),
                 ("est-pc-simtau-head", pc_tau_head, false),
                 ("known", sim_noise, true),
@@ -169,6 +185,7 @@ fn main() -> Res<()> {
                 )
             };
             println!("{p} {seed}: G-N {}", err(&gn));
+            println!("      truth: {}", odocal::calibrate::eiv::noise_summary(&sim_noise));
             for ((label, nm, fix), &(qname, quant)) in
                 all.iter().flat_map(|a| quants.iter().map(move |q| (a, q))).map(|(a, q)| (*a, q))
             {
@@ -193,6 +210,11 @@ fn main() -> Res<()> {
                     free,
                     quantisation: quant,
                     heading_scale: heading,
+                    quantisation_level: if label.ends_with("-qgiven") {
+                        QuantisationLevel::Given
+                    } else {
+                        QuantisationLevel::ScaledWithWhite
+                    },
                     ..Default::default()
                 };
                 let start = if at_truth { truth } else { gn };
