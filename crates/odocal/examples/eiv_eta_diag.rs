@@ -3,10 +3,12 @@
 //!
 //! ```text
 //! cargo run --release -p odocal --example eiv_eta_diag -- [--km 12] [--seeds 4] [--presets paper,high]
-//!     (presets also: noslip, nobeta, noquant, highnoquant, quantonly, quantwhite, white2, coloured,
+//!     (presets also: noslip, nobeta, noquant, highnoquant, high-noslip, quantonly, quantwhite, white2, coloured,
 //!     and the quantisation-free paper ablations nq-noslip, nq-noay, nq-nodrift, nq-noposwhite,
 //!     nq-nocoloured, nq-nowheel)
-//!     [--variants known,est-pc,...] [--quantisation process,measurement,counting] [--heading separate|tied]
+//!     [--variants known,est-pc,...] (est-pc-qgiven, est-from-sim-qgiven: the simulator's q given,
+//!     `QuantisationLevel::Given`; est-pc-simwheel / est-pc-simdrift: only those time constants from the simulator)
+//!     [--quantisation process,measurement,counting] [--heading separate|tied]
 //!     [--history 1]  (print every iteration's θ, η and step/σ, and each window's NIS and lag-1)
 //!
 //! (`--heading` defaults to `separate` here, unlike the library.) Several
@@ -74,6 +76,7 @@ fn main() -> Res<()> {
             "coloured" => NoiseOptions::coloured_wheels_only(),
             "noquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::paper() },
             "highnoquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::high() },
+            "high-noslip" => NoiseOptions { wheel_slip_per_m_per_s2: 0.0, ..NoiseOptions::high() },
             // Ablations of the paper preset without quantisation (`nq-…`: one more source off).
             "nq-noslip" => {
                 NoiseOptions { encoder_ticks_per_revolution: 0, wheel_slip_per_m_per_s2: 0.0, ..NoiseOptions::paper() }

@@ -280,8 +280,8 @@ fn innovation_derivatives_match_central_differences_counting_quantisation() {
 
 /// The quantisation level given (not scaled by η_0,
 /// [`QuantisationLevel::Given`]): ∂M, ∂J, ∂ν/∂p and ∂S/∂p against central
-/// differences with the counting model, and ∂M, ∂J with the rate-noise and
-/// measurement models (covariance following θ, fitted input).
+/// differences with the counting model, and ∂M, ∂J with the rate-noise model
+/// (fitted and measured input; covariance following θ).
 #[test]
 fn derivatives_match_central_differences_quantisation_given() {
     check_objective_gradient_quant(true, true, true, true);
