@@ -197,10 +197,13 @@ fn check_objective_gradient(follows: bool) {
 /// differences; with `fitted` the wheel noise is scaled by the fitted true
 /// input (the reference θ away from θ, so the factor is not 1).
 fn check_objective_gradient_with(follows: bool, fitted: bool, counting: bool) {
-    check_objective_gradient_quant(follows, fitted, counting, false);
+    check_objective_gradient_quant(follows, fitted, counting, (false, false));
 }
 
-fn check_objective_gradient_quant(follows: bool, fitted: bool, counting: bool, given: bool) {
+/// [`check_objective_gradient_with`]; `given`: the quantisation level given
+/// ([`QuantisationLevel::Given`]); `measurement`: quantisation as measurement
+/// noise ([`QuantisationModel::Measurement`], not with `counting`).
+fn check_objective_gradient_quant(follows: bool, fitted: bool, counting: bool, (given, measurement): (bool, bool)) {
     let out = simulate(&SimOptions { length_km: 0.6, ..SimOptions::paper(6) }).expect("sim");
     let input = input_of(&out.drive);
     let w = Window { index: 0, part: 0, start: 0, end: 1500.min(input.len() - 1) };
@@ -211,6 +214,7 @@ fn check_objective_gradient_quant(follows: bool, fitted: bool, counting: bool, g
         let mut v = variances_quant(e, input.sample_time_s, given);
         v.fitted_input = fitted;
         v.quant_counting = counting;
+        v.quant_in_measurement = measurement;
         v
     };
     let sums = |t: &Theta, e: &[f64; 6]| {
@@ -281,13 +285,14 @@ fn innovation_derivatives_match_central_differences_counting_quantisation() {
 /// The quantisation level given (not scaled by η_0,
 /// [`QuantisationLevel::Given`]): ∂M, ∂J, ∂ν/∂p and ∂S/∂p against central
 /// differences with the counting model, and ∂M, ∂J with the rate-noise model
-/// (fitted and measured input; covariance following θ).
+/// (fitted and measured input) and the measurement model (covariance following θ).
 #[test]
 fn derivatives_match_central_differences_quantisation_given() {
-    check_objective_gradient_quant(true, true, true, true);
+    check_objective_gradient_quant(true, true, true, (true, false));
     check_innovation_derivatives_quant(true, true, true, true);
-    check_objective_gradient_quant(true, true, false, true);
-    check_objective_gradient_quant(true, false, false, true);
+    check_objective_gradient_quant(true, true, false, (true, false));
+    check_objective_gradient_quant(true, false, false, (true, false));
+    check_objective_gradient_quant(true, true, false, (true, true));
 }
 
 #[test]
