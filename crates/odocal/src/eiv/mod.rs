@@ -1000,7 +1000,12 @@ pub enum HeadingScale {
 /// wheel noise: from the production-car start (q/σ_white = 0.02 rev/s /
 /// 0.8 %) on the simulator's `high` preset (512 ticks: q = 0.078 rev/s with
 /// 2 % white noise) it comes out at 0.05 rev/s, and the heading channel's
-/// misfit moves t_r (docs/study.md, "Stop 13").
+/// misfit moves t_r (docs/study.md, "Stop 13"). Given, with
+/// [`QuantisationModel::Counting`] and [`HeadingScale::Separate`], the
+/// `high` bias of t_r with η estimated went from +8.5 % to +1.5 % (20 seeds ×
+/// 12 km; the known model +0.66 %). Use it with `Counting` only: with the
+/// approximate [`QuantisationModel::Measurement`] it made `high` worse
+/// (t_r +5.0 % → −11.7 %, 10 seeds).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum QuantisationLevel {
