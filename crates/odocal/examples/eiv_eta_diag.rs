@@ -3,10 +3,12 @@
 //!
 //! ```text
 //! cargo run --release -p odocal --example eiv_eta_diag -- [--km 12] [--seeds 4] [--presets paper,high]
-//!     (presets also: noslip, nobeta, noquant, highnoquant, quantonly, quantwhite, white2, coloured,
+//!     (presets also: noslip, nobeta, noquant, highnoquant, high-noslip, quantonly, quantwhite, white2, coloured,
 //!     and the quantisation-free paper ablations nq-noslip, nq-noay, nq-nodrift, nq-noposwhite,
 //!     nq-nocoloured, nq-nowheel)
-//!     [--variants known,est-pc,...] [--quantisation process,measurement,counting] [--heading separate|tied]
+//!     [--variants known,est-pc,...] (est-pc-qgiven, est-from-sim-qgiven: the simulator's q given,
+//!     `QuantisationLevel::Given`; est-pc-simwheel / est-pc-simdrift: only those time constants from the simulator)
+//!     [--quantisation process,measurement,counting] [--heading separate|tied]
 //!     [--history 1]  (print every iteration's θ, η and step/σ, and each window's NIS and lag-1)
 //!
 //! (`--heading` defaults to `separate` here, unlike the library.) Several
@@ -17,7 +19,7 @@
 
 use std::error::Error;
 
-use odocal::eiv::{estimate, EivInput, EivOptions, HeadingScale, NoiseModel, QuantisationModel};
+use odocal::eiv::{estimate, EivInput, EivOptions, HeadingScale, NoiseModel, QuantisationLevel, QuantisationModel};
 use odocal::identify::{batch_gauss_newton, IdentifyOptions};
 use odocal::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
@@ -74,6 +76,7 @@ fn main() -> Res<()> {
             "coloured" => NoiseOptions::coloured_wheels_only(),
             "noquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::paper() },
             "highnoquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::high() },
+            "high-noslip" => NoiseOptions { wheel_slip_per_m_per_s2: 0.0, ..NoiseOptions::high() },
             // Ablations of the paper preset without quantisation (`nq-…`: one more source off).
             "nq-noslip" => {
                 NoiseOptions { encoder_ticks_per_revolution: 0, wheel_slip_per_m_per_s2: 0.0, ..NoiseOptions::paper() }
@@ -139,7 +142,23 @@ fn main() -> Res<()> {
                 wheel_differential_rel_sigma: sim_noise.wheel_differential_rel_sigma,
                 ..pc_tau
             };
+            // Only the wheel (τ_c, τ_w) or only the drift time constant from the simulator.
+            let pc_simwheel = NoiseModel {
+                wheel_common_time_constant_s: sim_noise.wheel_common_time_constant_s,
+                wheel_differential_time_constant_s: sim_noise.wheel_differential_time_constant_s,
+                ..pc
+            };
+            let pc_simdrift = NoiseModel { drift_time_constant_s: sim_noise.drift_time_constant_s, ..pc };
             let all = [
+                // The encoder's q given (the simulator's ticks), not scaled by η_0.
+                (
+                    "est-pc-qgiven",
+                    NoiseModel { quantisation_step_rev_per_s: sim_noise.quantisation_step_rev_per_s, ..pc },
+                    false,
+                ),
+                ("est-from-sim-qgiven", sim_noise, false),
+                ("est-pc-simwheel", pc_simwheel, false),
+                ("est-pc-simdrift", pc_simdrift, false),
                 ("est-pc-head", pc_head, false),
                 ("est-pc-simtau-head", pc_tau_head, false),
                 ("known", sim_noise, true),
@@ -169,6 +188,7 @@ fn main() -> Res<()> {
                 )
             };
             println!("{p} {seed}: G-N {}", err(&gn));
+            println!("      truth: {}", odocal::calibrate::eiv::noise_summary(&sim_noise));
             for ((label, nm, fix), &(qname, quant)) in
                 all.iter().flat_map(|a| quants.iter().map(move |q| (a, q))).map(|(a, q)| (*a, q))
             {
@@ -193,6 +213,11 @@ fn main() -> Res<()> {
                     free,
                     quantisation: quant,
                     heading_scale: heading,
+                    quantisation_level: if label.ends_with("-qgiven") {
+                        QuantisationLevel::Given
+                    } else {
+                        QuantisationLevel::ScaledWithWhite
+                    },
                     ..Default::default()
                 };
                 let start = if at_truth { truth } else { gn };

@@ -7,7 +7,7 @@
 //!     [--presets off,white,paper,high,coloured] [--three-step-seeds 0]
 //!     [--bootstrap 0] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
 //!     [--quantisation process|measurement|counting] [--heading tied|separate]
-//!     [--methods known,est] (also: est-stop11 = `est` with the stop-11 checks and iteration, fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot)
+//!     [--methods known,est] (also: est-qgiven = `est` with the encoder's q given, est-stop11 = `est` with the stop-11 checks and iteration, fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot)
 //!     [--tau-candidates] [--bootstrap-reestimate-seeds 0] [--smooth-half-width 20]
 //!     [--reentry-score 10] (with `--methods est-reentry`: `EIV est. reentry` = `est` with
 //!     `EivOptions::eta_reentry_min_score` = that value, stop 13; `est-robust`: `est` with
@@ -287,6 +287,18 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
     if want("est-reentry-robust") {
         let o = EivOptions { eta_reentry_min_score: Some(a.reentry_score), covariance_estimate: robust, ..est.clone() };
         jobs.push(("EIV est. reentry robust", o));
+    }
+    if want("est-qgiven") {
+        // The encoder's quantisation step given (the simulator's ticks per
+        // revolution), not scaled by η_0 (`QuantisationLevel::Given`).
+        let noise = NoiseModel {
+            quantisation_step_rev_per_s: true_noise.quantisation_step_rev_per_s,
+            ..NoiseModel::PRODUCTION_CAR
+        };
+        jobs.push((
+            "EIV est. q given",
+            EivOptions { noise, quantisation_level: odocal::eiv::QuantisationLevel::Given, ..est.clone() },
+        ));
     }
     if want("est-stop11") {
         // The stop-11 checks and iteration: no secant damping of the η

@@ -56,8 +56,12 @@ const HEADING_FLOOR_RAD: f64 = 1e-5;
 pub(crate) struct Variances {
     /// Relative white wheel variance σ_white² · e^{η0}.
     pub white_rel: f64,
-    /// Quantisation variance q²/12 · e^{η0}, (rev/s)² (measurement noise, see [`run_window`]).
+    /// Quantisation variance q²/12 · e^{η0}, (rev/s)² (measurement noise, see [`run_window`]);
+    /// q²/12 without the factor when not [`Variances::quant_scaled`].
     pub quant: f64,
+    /// η_0 scales the quantisation variance with the white wheel noise
+    /// (otherwise it is held at the model's q: [`super::QuantisationLevel::Given`]).
+    pub quant_scaled: bool,
     /// Stationary variance of s_c, σ_c² · e^{η1}.
     pub common: f64,
     /// Stationary variance of s_l and s_r, σ_w² · e^{η2}.
@@ -655,7 +659,9 @@ fn initial_covariance<const S: usize>(v: &Variances, r_floor: &[f64; 3]) -> (MZ<
     if v.quant_counting {
         for i in IW..S {
             p[(i, i)] = v.quant;
-            dp[4][(i, i)] = v.quant;
+            if v.quant_scaled {
+                dp[4][(i, i)] = v.quant;
+            }
         }
     }
     p[(3, 3)] = v.common;
@@ -1174,7 +1180,7 @@ fn run_window_s<const S: usize>(
                 for c_ in 0..3 {
                     p[(r_, c_)] += r_q[(r_, c_)];
                     p0[(r_, c_)] += r_q[(r_, c_)];
-                    if mode.derivs && mode.eta {
+                    if mode.derivs && mode.eta && v.quant_scaled {
                         dp[4][(r_, c_)] += r_q[(r_, c_)];
                     }
                     if theta_cols {
@@ -1186,6 +1192,14 @@ fn run_window_s<const S: usize>(
             }
         }
         let q_white = fn_l * fn_l.transpose() * wl + fn_r * fn_r.transpose() * wr;
+        // The quantisation's share of q_white (rate noise or the counting
+        // remainder's pose share): not scaled by η_0 when the level is given.
+        let q_x_quant = if v.quant_scaled || v.quant_in_measurement {
+            Matrix3::zeros()
+        } else {
+            let q_of = |n: f64| if n == 0.0 { 0.0 } else { v.quant };
+            fn_l * fn_l.transpose() * q_of(nl) + fn_r * fn_r.transpose() * q_of(nr)
+        };
         let q_x = q_white + f_b * f_b.transpose() * v.beta + f_a * f_a.transpose() * v.a_y;
         if jac_mode != InputJacobian::None {
             let lc = log_circumference_ratio(a_y, theta, theta_ref);
@@ -1462,13 +1476,16 @@ fn run_window_s<const S: usize>(
             match jj {
                 0..=3 => add_sym_rows(dpj, &theta_terms[jj]),
                 4 => {
-                    // η_0 scales the white wheel, quantisation, a_y and β noise together.
+                    // η_0 scales the white wheel, quantisation, a_y and β noise together
+                    // (quantisation not when it is given: its share of Q_x comes off).
                     for r in 0..3 {
                         for c in 0..3 {
-                            dpj[(r, c)] += q_x[(r, c)];
+                            dpj[(r, c)] += q_x[(r, c)] - q_x_quant[(r, c)];
                         }
                     }
-                    add_q_w(dpj);
+                    if v.quant_scaled {
+                        add_q_w(dpj);
+                    }
                 }
                 5 => dpj[(3, 3)] += q_s[0],
                 6 => {
@@ -1502,7 +1519,7 @@ fn run_window_s<const S: usize>(
         let d_r = |jj: usize| -> Matrix3<f64> {
             match jj {
                 0..=3 => r_q_theta[jj],
-                4 => r_q,
+                4 if v.quant_scaled => r_q,
                 7 => dr_position,
                 9 => dr_heading,
                 _ => Matrix3::zeros(),

@@ -38,12 +38,40 @@ fn records_with(
     // (fitted input, counting quantisation)
     (fitted_input, counting): (bool, bool),
 ) -> Vec<InnovationRecord> {
-    let mut v = NoiseModel::default().variances(eta, input.sample_time_s);
+    records_quant(input, w, th, th_ref, eta, follows, (fitted_input, counting), false)
+}
+
+/// [`records_with`]; `given`: the quantisation held at the model's q
+/// ([`QuantisationLevel::Given`], not scaled by η_0).
+#[allow(clippy::too_many_arguments)]
+fn records_quant(
+    input: &EivInput<'_>,
+    w: &Window,
+    th: &Theta,
+    th_ref: &Theta,
+    eta: &[f64; 6],
+    follows: bool,
+    (fitted_input, counting): (bool, bool),
+    given: bool,
+) -> Vec<InnovationRecord> {
+    let mut v = variances_quant(eta, input.sample_time_s, given);
     v.fitted_input = fitted_input;
     v.quant_counting = counting;
     let mut rec = Vec::new();
     run_window(input, w, th, th_ref, &v, filter::Mode::full(follows, true), Some(&mut rec)).expect("window");
     rec
+}
+
+/// The default model's variances at η; with `given` the quantisation is
+/// held at q²/12 (as `Problem::evaluate_with` does for [`QuantisationLevel::Given`]).
+fn variances_quant(eta: &[f64; 6], ts: f64, given: bool) -> filter::Variances {
+    let m = NoiseModel::default();
+    let mut v = m.variances(eta, ts);
+    if given {
+        v.quant = m.quantisation_step_rev_per_s * m.quantisation_step_rev_per_s / 12.0;
+        v.quant_scaled = false;
+    }
+    v
 }
 
 fn perturb(th: &Theta, i: usize, h: f64) -> Theta {
@@ -62,6 +90,10 @@ fn check_innovation_derivatives(follows: bool) {
 }
 
 fn check_innovation_derivatives_with(follows: bool, fitted: bool, counting: bool) {
+    check_innovation_derivatives_quant(follows, fitted, counting, false);
+}
+
+fn check_innovation_derivatives_quant(follows: bool, fitted: bool, counting: bool, given: bool) {
     let out = simulate(&SimOptions { length_km: 0.6, ..SimOptions::paper(5) }).expect("sim");
     let input = input_of(&out.drive);
     let w = Window { index: 0, part: 0, start: 0, end: 1200.min(input.len() - 1) };
@@ -69,7 +101,7 @@ fn check_innovation_derivatives_with(follows: bool, fitted: bool, counting: bool
     let th_ref = Theta { c_e: 1.96, ..th };
     let eta = [0.3, -0.5, 0.2, -0.2, 0.4, 0.25];
     let records = |input: &EivInput<'_>, w: &Window, th: &Theta, th_ref: &Theta, eta: &[f64; 6], follows: bool| {
-        records_with(input, w, th, th_ref, eta, follows, (fitted, counting))
+        records_quant(input, w, th, th_ref, eta, follows, (fitted, counting), given)
     };
     let base = records(&input, &w, &th, &th_ref, &eta, follows);
     let check = |fd: Vec<(usize, nalgebra::Vector3<f64>, nalgebra::Matrix3<f64>)>, p: usize, what: &str| {
@@ -165,6 +197,13 @@ fn check_objective_gradient(follows: bool) {
 /// differences; with `fitted` the wheel noise is scaled by the fitted true
 /// input (the reference θ away from θ, so the factor is not 1).
 fn check_objective_gradient_with(follows: bool, fitted: bool, counting: bool) {
+    check_objective_gradient_quant(follows, fitted, counting, (false, false));
+}
+
+/// [`check_objective_gradient_with`]; `given`: the quantisation level given
+/// ([`QuantisationLevel::Given`]); `measurement`: quantisation as measurement
+/// noise ([`QuantisationModel::Measurement`], not with `counting`).
+fn check_objective_gradient_quant(follows: bool, fitted: bool, counting: bool, (given, measurement): (bool, bool)) {
     let out = simulate(&SimOptions { length_km: 0.6, ..SimOptions::paper(6) }).expect("sim");
     let input = input_of(&out.drive);
     let w = Window { index: 0, part: 0, start: 0, end: 1500.min(input.len() - 1) };
@@ -172,9 +211,10 @@ fn check_objective_gradient_with(follows: bool, fitted: bool, counting: bool) {
     let th_ref = if fitted { Theta { c_e: 1.96, c_d: -0.001, d: 0.0012, ..th } } else { th };
     let eta = [0.3, -0.5, 0.2, -0.2, 0.4, 0.25];
     let variances = |e: &[f64; 6]| {
-        let mut v = NoiseModel::default().variances(e, input.sample_time_s);
+        let mut v = variances_quant(e, input.sample_time_s, given);
         v.fitted_input = fitted;
         v.quant_counting = counting;
+        v.quant_in_measurement = measurement;
         v
     };
     let sums = |t: &Theta, e: &[f64; 6]| {
@@ -240,6 +280,19 @@ fn objective_gradient_matches_central_differences_counting_quantisation() {
 #[test]
 fn innovation_derivatives_match_central_differences_counting_quantisation() {
     check_innovation_derivatives_with(true, true, true);
+}
+
+/// The quantisation level given (not scaled by η_0,
+/// [`QuantisationLevel::Given`]): ∂M, ∂J, ∂ν/∂p and ∂S/∂p against central
+/// differences with the counting model, and ∂M, ∂J with the rate-noise model
+/// (fitted and measured input) and the measurement model (covariance following θ).
+#[test]
+fn derivatives_match_central_differences_quantisation_given() {
+    check_objective_gradient_quant(true, true, true, (true, false));
+    check_innovation_derivatives_quant(true, true, true, true);
+    check_objective_gradient_quant(true, true, false, (true, false));
+    check_objective_gradient_quant(true, false, false, (true, false));
+    check_objective_gradient_quant(true, true, false, (true, true));
 }
 
 #[test]
@@ -1009,6 +1062,7 @@ fn eta_step_descends_on_the_noise_free_straight_drive() {
         windows: make_windows(input.parts, opts.window_samples),
         noise: opts.noise,
         quantisation: opts.quantisation,
+        quantisation_given: false,
         heading_separate: true,
         fitted_input: false,
         position_floor_m: opts.position_floor_m,
