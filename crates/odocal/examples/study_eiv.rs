@@ -11,7 +11,8 @@
 //!     [--tau-candidates] [--bootstrap-reestimate-seeds 0] [--smooth-half-width 20]
 //!     [--reentry-score 10] (with `--methods est-reentry`: `EIV est. reentry` = `est` with
 //!     `EivOptions::eta_reentry_min_score` = that value, stop 13; `est-robust`: `est` with
-//!     `CovarianceEstimate::LargerOfModelAndBlock`; `est-reentry-robust`: both)
+//!     `CovarianceEstimate::LargerOfModelAndBlock`, the default since stop 13; `est-model`: `est`
+//!     with `CovarianceEstimate::Model`, the σ before stop 13; `est-reentry-robust`: both)
 //! ```
 //!
 //! Per preset and seed (1..=S) it simulates a drive and runs, all through
@@ -280,8 +281,12 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         jobs.push(("EIV est. reentry", o));
     }
     let robust = CovarianceEstimate::LargerOfModelAndBlock;
+    if want("est-model") {
+        // The covariance before stop 13 (H_θ⁻¹ alone; `est` now raises σ to the block sandwich's).
+        jobs.push(("EIV est. model σ", EivOptions { covariance_estimate: CovarianceEstimate::Model, ..est.clone() }));
+    }
     if want("est-robust") {
-        // Stop 13: the reported σ raised to the block sandwich's.
+        // Stop 13: the reported σ raised to the block sandwich's (the default since stop 13).
         jobs.push(("EIV est. robust", EivOptions { covariance_estimate: robust, ..est.clone() }));
     }
     if want("est-reentry-robust") {

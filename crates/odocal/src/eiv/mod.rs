@@ -599,9 +599,9 @@ pub enum CovarianceEstimate {
     /// spread of 0.023 % (coverage 35 %), so the halves check rejected 7 of
     /// 20 good fits. Where the model is right the two agree (the
     /// simulator's noise model given: mean σ 0.0194 % against the block
-    /// sandwich's 0.0197 %).
-    #[default]
+    /// sandwich's 0.0197 %). The default until stop 13.
     Model,
+    /// The default (since stop 13).
     /// Per parameter the larger of the `H_θ⁻¹` σ and the block sandwich σ
     /// ([`EivReport::sigma_block`]): `C = D H_θ⁻¹ D` with
     /// `D = diag(max(1, σ_block,i/σ_i))`, so the correlations are the
@@ -615,6 +615,7 @@ pub enum CovarianceEstimate {
     /// bound; `white` identical; on `paper` the halves check no longer
     /// rejects two fits with t_r +4.7 and +3.9 % (it measures spread, not
     /// bias).
+    #[default]
     LargerOfModelAndBlock,
 }
 
@@ -655,9 +656,10 @@ pub struct EivOptions {
     /// [`CovarianceEstimate::LargerOfModelAndBlock`]).
     pub eta_reentry_min_score: Option<f64>,
     /// Which covariance of θ the report carries (`covariance`, `sigma`) and
-    /// the halves check uses. Default [`CovarianceEstimate::Model`] (see its
-    /// docs and [`CovarianceEstimate::LargerOfModelAndBlock`] for the
-    /// stop-13 measurements).
+    /// the halves check uses. Default
+    /// [`CovarianceEstimate::LargerOfModelAndBlock`] since stop 13
+    /// ([`CovarianceEstimate::Model`] restores the earlier σ; see both for
+    /// the stop-13 measurements).
     pub covariance_estimate: CovarianceEstimate,
     /// Passes, each with the covariance reference θ at the previous result.
     /// Default 2.
@@ -1159,7 +1161,7 @@ impl Default for EivOptions {
             max_halvings: 10,
             eta_secant_damping: true,
             eta_reentry_min_score: None,
-            covariance_estimate: CovarianceEstimate::Model,
+            covariance_estimate: CovarianceEstimate::LargerOfModelAndBlock,
             passes: 2,
             free: [true; 4],
             fix_unobservable: true,

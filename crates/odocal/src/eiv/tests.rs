@@ -752,7 +752,8 @@ fn results_match_the_recorded_results_of_the_unoptimised_filter() {
     let start = Theta { c_e: 1.952, c_d: -0.0018, t_r: 1.54, d: 0.0007 };
     // Recorded with the options of the time (SPEC §10's cost and floor, the
     // heading tied to the position scale, quantisation as process noise; the
-    // η step undamped and no null pass of the innovation checks, stop 12),
+    // η step undamped and no null pass of the innovation checks, stop 12;
+    // the σ of H_θ⁻¹ alone, stop 13),
     // spelt out so that a change of those defaults does not change the cases.
     let base = EivOptions {
         window_samples: 2000,
@@ -760,6 +761,7 @@ fn results_match_the_recorded_results_of_the_unoptimised_filter() {
         quantisation: QuantisationModel::ProcessNoise,
         eta_secant_damping: false,
         innovation_null: InnovationNull::FittedModel,
+        covariance_estimate: CovarianceEstimate::Model,
         ..EivOptions::spec()
     };
     let options = |case: &str| match case {
@@ -1227,7 +1229,13 @@ fn coloured_common_mode_noise_block_sandwich_and_reentry() {
     let truth = out.sidecar.theta_true;
     let sim_noise = NoiseModel::from_sim(&noise, input.sample_time_s);
     let without_common = NoiseModel { wheel_common_rel_sigma: 0.0, ..sim_noise };
-    let base = EivOptions { noise: without_common, fix_noise: true, window_samples: 2000, ..Default::default() };
+    let base = EivOptions {
+        noise: without_common,
+        fix_noise: true,
+        window_samples: 2000,
+        covariance_estimate: CovarianceEstimate::Model,
+        ..Default::default()
+    };
     let model = estimate(&input, &truth, &base).expect("fit");
     assert!(
         model.sigma_block[0] > 2.0 * model.sigma[0],
