@@ -365,51 +365,63 @@ pub(crate) struct InnovationRecord {
     pub dr: SMatrix<f64, 3, 4>,
 }
 
-/// `F P Fᵀ` for the structured transition
+/// The structured transition of one step,
 /// `F = [[F_x, F_xs, 0, F_xw], [0, diag(a_s), 0, 0], [0, 0, a_b I, 0], [0, 0, 0, diag(a_w)]]`,
-/// `F_x = I + e_0 f02 e_2ᵀ + e_1 f12 e_2ᵀ`, for a symmetric `P`.
+/// `F_x = I + e_0 f02 e_2ᵀ + e_1 f12 e_2ᵀ`, `diag` the diagonal of rows 3..S.
+#[derive(Clone, Copy)]
+struct Transition<'a, const S: usize> {
+    f02: f64,
+    f12: f64,
+    fxs: &'a Matrix3<f64>,
+    fxw: &'a M3x2,
+    diag: &'a [f64; S],
+}
+
+impl<const S: usize> Transition<'_, S> {
+    /// Rows 0..3 of `F v` for the vector with entries `v(k)` (the one place
+    /// the dense rows of F are written out).
+    #[inline(always)]
+    fn top(&self, v: impl Fn(usize) -> f64) -> [f64; 3] {
+        let (fxs, fxw) = (self.fxs, self.fxw);
+        let fr = [self.f02, self.f12, 0.0];
+        let (v2, v3, v4, v5) = (v(2), v(3), v(4), v(5));
+        let (v9, v10) = if S > IW { (v(IW), v(IW + 1)) } else { (0.0, 0.0) };
+        std::array::from_fn(|i| {
+            v(i) + fr[i] * v2
+                + fxs[(i, 0)] * v3
+                + fxs[(i, 1)] * v4
+                + fxs[(i, 2)] * v5
+                + if S > IW { fxw[(i, 0)] * v9 + fxw[(i, 1)] * v10 } else { 0.0 }
+        })
+    }
+}
+
+/// `F P Fᵀ` for the structured transition `t` ([`Transition`]) and a
+/// symmetric `P`, over the active size `nz`.
 ///
 /// Only the lower triangle is computed (through `W = P F_topᵀ`, NZ×3, `F_top`
 /// the first three rows of F) and mirrored, so the result is exactly
 /// symmetric.
 #[inline]
-fn propagate<const S: usize>(
-    p: &MZ<S>,
-    f02: f64,
-    f12: f64,
-    fxs: &Matrix3<f64>,
-    fxw: &M3x2,
-    diag: &[f64; S],
-    nz: usize,
-) -> MZ<S> {
-    let fr = [f02, f12, 0.0];
-    // W = P F_topᵀ: W[r, c] = P[r, c] + F[c, 2] P[r, 2] + F_xs[c, :] · P[r, 3..6] + F_xw[c, :] · P[r, 9..11].
+fn propagate<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>, nz: usize) -> MZ<S> {
+    // W = P F_topᵀ: row r of W is F_top applied to row r of P.
     let mut w = MZx3::<S>::zeros();
-    for c in 0..3 {
-        let (g2, g3, g4, g5) = (fr[c], fxs[(c, 0)], fxs[(c, 1)], fxs[(c, 2)]);
-        let (g9, g10) = (fxw[(c, 0)], fxw[(c, 1)]);
-        for r in 0..nz {
-            w[(r, c)] = p[(r, c)]
-                + g2 * p[(r, 2)]
-                + g3 * p[(r, 3)]
-                + g4 * p[(r, 4)]
-                + g5 * p[(r, 5)]
-                + if S > IW { g9 * p[(r, IW)] + g10 * p[(r, IW + 1)] } else { 0.0 };
+    for r in 0..nz {
+        let row = t.top(|k| p[(r, k)]);
+        for (c, v) in row.into_iter().enumerate() {
+            w[(r, c)] = v;
         }
     }
     let mut out = MZ::<S>::zeros();
     // Pose block: F_top W (lower triangle).
     for c in 0..3 {
+        let col = t.top(|k| w[(k, c)]);
         for i in c..3 {
-            out[(i, c)] = w[(i, c)]
-                + fr[i] * w[(2, c)]
-                + fxs[(i, 0)] * w[(3, c)]
-                + fxs[(i, 1)] * w[(4, c)]
-                + fxs[(i, 2)] * w[(5, c)]
-                + if S > IW { fxw[(i, 0)] * w[(IW, c)] + fxw[(i, 1)] * w[(IW + 1, c)] } else { 0.0 };
+            out[(i, c)] = col[i];
         }
     }
     // Rows 3..nz: diagonal rows of F.
+    let diag = t.diag;
     for i in 3..nz {
         for c in 0..3 {
             out[(i, c)] = diag[i] * w[(i, c)];
@@ -568,40 +580,27 @@ fn joseph_general<const S: usize>(a: &MZ<S>, k: &MZx3<S>) -> MZ<S> {
 
 /// `F A Fᵀ` as [`propagate`] for any `A` (not only symmetric ones).
 #[inline]
-fn propagate_general<const S: usize>(
-    p: &MZ<S>,
-    f02: f64,
-    f12: f64,
-    fxs: &Matrix3<f64>,
-    fxw: &M3x2,
-    diag: &[f64; S],
-) -> MZ<S> {
+fn propagate_general<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>) -> MZ<S> {
     // M = F P (row operations).
     let mut m = MZ::<S>::zeros();
     for j in 0..S {
-        let (p0, p1, p2) = (p[(0, j)], p[(1, j)], p[(2, j)]);
-        let (p3, p4, p5) = (p[(3, j)], p[(4, j)], p[(5, j)]);
-        let (p9, p10) = if S > IW { (p[(IW, j)], p[(IW + 1, j)]) } else { (0.0, 0.0) };
-        let wc = |r: usize| fxw[(r, 0)] * p9 + fxw[(r, 1)] * p10;
-        m[(0, j)] = p0 + f02 * p2 + fxs[(0, 0)] * p3 + fxs[(0, 1)] * p4 + fxs[(0, 2)] * p5 + wc(0);
-        m[(1, j)] = p1 + f12 * p2 + fxs[(1, 0)] * p3 + fxs[(1, 1)] * p4 + fxs[(1, 2)] * p5 + wc(1);
-        m[(2, j)] = p2 + fxs[(2, 0)] * p3 + fxs[(2, 1)] * p4 + fxs[(2, 2)] * p5 + wc(2);
+        let col = t.top(|k| p[(k, j)]);
+        for (r, v) in col.into_iter().enumerate() {
+            m[(r, j)] = v;
+        }
         for r in 3..S {
-            m[(r, j)] = diag[r] * p[(r, j)];
+            m[(r, j)] = t.diag[r] * p[(r, j)];
         }
     }
     // F P Fᵀ = M Fᵀ (column operations).
     let mut out = MZ::<S>::zeros();
     for i in 0..S {
-        let (m0, m1, m2) = (m[(i, 0)], m[(i, 1)], m[(i, 2)]);
-        let (m3, m4, m5) = (m[(i, 3)], m[(i, 4)], m[(i, 5)]);
-        let (m9, m10) = if S > IW { (m[(i, IW)], m[(i, IW + 1)]) } else { (0.0, 0.0) };
-        let wc = |r: usize| fxw[(r, 0)] * m9 + fxw[(r, 1)] * m10;
-        out[(i, 0)] = m0 + f02 * m2 + fxs[(0, 0)] * m3 + fxs[(0, 1)] * m4 + fxs[(0, 2)] * m5 + wc(0);
-        out[(i, 1)] = m1 + f12 * m2 + fxs[(1, 0)] * m3 + fxs[(1, 1)] * m4 + fxs[(1, 2)] * m5 + wc(1);
-        out[(i, 2)] = m2 + fxs[(2, 0)] * m3 + fxs[(2, 1)] * m4 + fxs[(2, 2)] * m5 + wc(2);
+        let row = t.top(|k| m[(i, k)]);
+        for (c, v) in row.into_iter().enumerate() {
+            out[(i, c)] = v;
+        }
         for c in 3..S {
-            out[(i, c)] = diag[c] * m[(i, c)];
+            out[(i, c)] = t.diag[c] * m[(i, c)];
         }
     }
     out
@@ -609,25 +608,15 @@ fn propagate_general<const S: usize>(
 
 /// `F C` for an S×3 `C` and the structured transition of [`propagate`].
 #[inline]
-fn propagate_cols<const S: usize>(
-    c: &MZx3<S>,
-    f02: f64,
-    f12: f64,
-    fxs: &Matrix3<f64>,
-    fxw: &M3x2,
-    diag: &[f64; S],
-    nz: usize,
-) -> MZx3<S> {
+fn propagate_cols<const S: usize>(c: &MZx3<S>, t: &Transition<'_, S>, nz: usize) -> MZx3<S> {
     let mut out = MZx3::<S>::zeros();
     for j in 0..3 {
-        let (p2, p3, p4, p5) = (c[(2, j)], c[(3, j)], c[(4, j)], c[(5, j)]);
-        let (p9, p10) = if S > IW { (c[(IW, j)], c[(IW + 1, j)]) } else { (0.0, 0.0) };
-        let wc = |r: usize| fxw[(r, 0)] * p9 + fxw[(r, 1)] * p10;
-        out[(0, j)] = c[(0, j)] + f02 * p2 + fxs[(0, 0)] * p3 + fxs[(0, 1)] * p4 + fxs[(0, 2)] * p5 + wc(0);
-        out[(1, j)] = c[(1, j)] + f12 * p2 + fxs[(1, 0)] * p3 + fxs[(1, 1)] * p4 + fxs[(1, 2)] * p5 + wc(1);
-        out[(2, j)] = p2 + fxs[(2, 0)] * p3 + fxs[(2, 1)] * p4 + fxs[(2, 2)] * p5 + wc(2);
+        let col = t.top(|k| c[(k, j)]);
+        for (r, v) in col.into_iter().enumerate() {
+            out[(r, j)] = v;
+        }
         for r in 3..nz {
-            out[(r, j)] = diag[r] * c[(r, j)];
+            out[(r, j)] = t.diag[r] * c[(r, j)];
         }
     }
     out
@@ -1132,6 +1121,7 @@ fn run_window_s<const S: usize>(
                 fxw_ref.set_column(w, &(-f_w));
             }
         }
+        let ft = Transition { f02, f12, fxs: &fxs_ref, fxw: &fxw_ref, diag: &diag };
         // White relative noise accumulates into the pose (process noise).
         // Encoder quantisation does not (with `quant_in_measurement`, an
         // approximation; `quant_counting` models it exactly through the
@@ -1224,7 +1214,7 @@ fn run_window_s<const S: usize>(
             if smoothed {
                 for (w, f_w) in [fn_l, fn_r].into_iter().enumerate() {
                     let dpl = &mut dp_lambda[w];
-                    *dpl = propagate(dpl, f02, f12, &fxs_ref, &fxw_ref, &diag, nz);
+                    *dpl = propagate(dpl, &ft, nz);
                     let q = f_w * f_w.transpose() * rel[w];
                     for r_ in 0..3 {
                         for c_ in 0..3 {
@@ -1237,7 +1227,7 @@ fn run_window_s<const S: usize>(
                 }
                 if all_sources {
                     let dpc = &mut dp_lambda[2];
-                    *dpc = propagate(dpc, f02, f12, &fxs_ref, &fxw_ref, &diag, nz);
+                    *dpc = propagate(dpc, &ft, nz);
                     dpc[(3, 3)] += q_s[0];
                 }
             }
@@ -1256,7 +1246,7 @@ fn run_window_s<const S: usize>(
                 Matrix3::zeros(),
             ];
             for (ci, xi) in xcov.iter_mut().enumerate() {
-                *xi = propagate_general(xi, f02, f12, &fxs_ref, &fxw_ref, &diag);
+                *xi = propagate_general(xi, &ft);
                 let dx = Vector3::new(d[(0, ci)], d[(1, ci)], d[(2, ci)]);
                 let ds_ = Vector3::new(d[(3, ci)], d[(4, ci)], d[(5, ci)]);
                 for (u, (g, var)) in g_u.iter().enumerate() {
@@ -1459,20 +1449,20 @@ fn run_window_s<const S: usize>(
                 }
             }
         };
-        p = propagate(&p, f02, f12, &fxs_ref, &fxw_ref, &diag, nz);
+        p = propagate(&p, &ft, nz);
         add_q(&mut p);
         add_q_w(&mut p);
         if null {
-            p0 = propagate(&p0, f02, f12, &fxs_ref, &fxw_ref, &diag, nz);
+            p0 = propagate(&p0, &ft, nz);
             add_q(&mut p0);
             add_q_w(&mut p0);
             if let Some((c, _)) = &mut c0 {
-                *c = propagate_cols(c, f02, f12, &fxs_ref, &fxw_ref, &diag, nz);
+                *c = propagate_cols(c, &ft, nz);
             }
         }
         for &jj in cols {
             let dpj = &mut dp[jj];
-            *dpj = propagate(dpj, f02, f12, &fxs_ref, &fxw_ref, &diag, nz);
+            *dpj = propagate(dpj, &ft, nz);
             match jj {
                 0..=3 => add_sym_rows(dpj, &theta_terms[jj]),
                 4 => {
@@ -1811,17 +1801,20 @@ mod kernel_tests {
             f.fixed_view_mut::<3, 3>(0, 3).copy_from(&fxs);
             f.fixed_view_mut::<3, 2>(0, IW).copy_from(&fxw);
             let dense = f * p * f.transpose();
-            let fast = propagate(&p, f02, f12, &fxs, &fxw, &diag, NZ);
+            let t = Transition { f02, f12, fxs: &fxs, fxw: &fxw, diag: &diag };
+            let fast = propagate(&p, &t, NZ);
             assert_close(&fast, &dense, "propagate");
             assert_eq!(fast, fast.transpose(), "propagate is not exactly symmetric");
-            assert_close(&propagate_general(&p, f02, f12, &fxs, &fxw, &diag), &dense, "propagate_general");
+            assert_close(&propagate_general(&p, &t), &dense, "propagate_general");
+            let c = MZx3::<NZ>::from_fn(|_, _| lcg(&mut st));
+            let fc = propagate_cols(&c, &t, NZ);
+            let want = f * c;
+            for (r, (a, b)) in fc.iter().zip(want.iter()).enumerate() {
+                assert!((a - b).abs() <= 1e-12 * b.abs().max(1.0), "propagate_cols entry {r}: {a} vs {b}");
+            }
             // A non-symmetric A through the general kernels.
             let x = MZ::<NZ>::from_fn(|_, _| lcg(&mut st));
-            assert_close(
-                &propagate_general(&x, f02, f12, &fxs, &fxw, &diag),
-                &(f * x * f.transpose()),
-                "general, asym",
-            );
+            assert_close(&propagate_general(&x, &t), &(f * x * f.transpose()), "general, asym");
 
             let k = MZx3::<NZ>::from_fn(|_, _| lcg(&mut st));
             let ikh = MZ::<NZ>::identity() - k * h();
