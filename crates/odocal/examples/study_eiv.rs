@@ -7,7 +7,7 @@
 //!     [--presets off,white,paper,high,coloured] [--three-step-seeds 0]
 //!     [--bootstrap 0] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
 //!     [--quantisation process|measurement|counting] [--heading tied|separate]
-//!     [--methods known,est] (also: est-thconv = `est` with `theta_convergence`, est-it20 = `est` with 20 iterations, est-stop11 = `est` with the stop-11 checks and iteration, fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot)
+//!     [--methods known,est] (also: est-thconv = `est` with `theta_convergence`, est-it20 = `est` with 20 iterations, est-final = `est` with `final_step_check`, est-stop11 = `est` with the stop-11 checks and iteration, fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot)
 //!     [--tau-candidates] [--bootstrap-reestimate-seeds 0] [--smooth-half-width 20]
 //! ```
 //!
@@ -270,6 +270,11 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         // Stop 13: convergence judged on θ (its step and the θ change the
         // remaining η step would cause).
         jobs.push(("EIV est. θ-conv", EivOptions { theta_convergence: true, ..est.clone() }));
+    }
+    if want("est-final") {
+        // Stop 13: the convergence test on the step remaining at the end of
+        // each iteration (also at the iteration limit).
+        jobs.push(("EIV est. final-check", EivOptions { final_step_check: true, ..est.clone() }));
     }
     if want("est-it20") {
         // Stop 13: a larger iteration limit.
