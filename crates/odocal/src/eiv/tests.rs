@@ -1093,6 +1093,45 @@ fn innovation_checks_flag_an_unmodelled_reference_lever_arm() {
     assert!(flagged.len() >= r.windows.len(), "{r}");
 }
 
+/// The 1 km white-noise drive of the stop-13 convergence tests with η
+/// estimated, the heading scale separate and counting quantisation.
+fn separate_counting_white_fit(opts: EivOptions) -> (EivReport, EivReport) {
+    let out = simulate(&SimOptions { length_km: 1.0, noise: NoiseOptions::white_wheel_only(), ..SimOptions::paper(1) })
+        .expect("sim");
+    let input = input_of(&out.drive);
+    let base = EivOptions {
+        window_samples: 1000,
+        heading_scale: HeadingScale::Separate,
+        quantisation: QuantisationModel::Counting,
+        ..Default::default()
+    };
+    let full = estimate(&input, &out.sidecar.theta_true, &base).expect("eiv");
+    let r = estimate(&input, &out.sidecar.theta_true, &EivOptions { window_samples: 1000, ..opts }).expect("eiv");
+    (full, r)
+}
+
+/// At the iteration limit the default test judges the steps just taken; the
+/// fit of this drive takes 6 iterations, and the step remaining after the
+/// 6th is below the tolerance, so with [`EivOptions::final_step_check`] a
+/// 6-iteration limit ends converged, at the same θ.
+#[test]
+fn final_step_check_converges_at_the_iteration_limit() {
+    let opts = EivOptions {
+        heading_scale: HeadingScale::Separate,
+        quantisation: QuantisationModel::Counting,
+        max_iterations: 6,
+        final_step_check: true,
+        ..Default::default()
+    };
+    let (full, r) = separate_counting_white_fit(opts);
+    let history = full.passes.last().map(|p| p.history.clone()).unwrap_or_default();
+    assert_eq!(history.len(), 6, "{full}");
+    // Without the option a 6-iteration limit ends on this step: not converged.
+    assert!(history[5].step_over_sigma >= 0.05, "{full}");
+    assert!(r.termination.converged(), "{r}");
+    assert_eq!(r.theta, full.theta);
+}
+
 /// With the heading scale separate, θ settles iterations before η does
 /// (stop 13): on this 1 km white-noise drive (η estimated, counting
 /// quantisation) the default test needs 6 iterations; judged on θ
