@@ -7,7 +7,7 @@
 //!     [--presets off,white,paper,high,coloured] [--three-step-seeds 0]
 //!     [--bootstrap 0] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
 //!     [--quantisation process|measurement|counting] [--heading tied|separate]
-//!     [--methods known,est] (also: est-qgiven = `est` with the encoder's q given, est-stop11 = `est` with the stop-11 checks and iteration, fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot)
+//!     [--methods known,est] (also: est-qgiven = `est` with the encoder's q given, est-thconv = `est` with `theta_convergence`, est-it20 = `est` with 20 iterations, est-final = `est` with `final_step_check`, est-stop11 = `est` with the stop-11 checks and iteration, fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot)
 //!     [--tau-candidates] [--bootstrap-reestimate-seeds 0] [--smooth-half-width 20]
 //!     [--reentry-score 10] (with `--methods est-reentry`: `EIV est. reentry` = `est` with
 //!     `EivOptions::eta_reentry_min_score` = that value, stop 13; `est-robust`: `est` with
@@ -305,6 +305,20 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
             EivOptions { noise, quantisation_level: odocal::eiv::QuantisationLevel::Given, ..est.clone() },
         ));
     }
+    if want("est-thconv") {
+        // Stop 13: convergence judged on θ (its step and the θ change the
+        // remaining η step would cause).
+        jobs.push(("EIV est. θ-conv", EivOptions { theta_convergence: true, ..est.clone() }));
+    }
+    if want("est-final") {
+        // Stop 13: the convergence test on the step remaining at the end of
+        // each iteration (also at the iteration limit).
+        jobs.push(("EIV est. final-check", EivOptions { final_step_check: true, ..est.clone() }));
+    }
+    if want("est-it20") {
+        // Stop 13: a larger iteration limit.
+        jobs.push(("EIV est. it20", EivOptions { max_iterations: 20, ..est.clone() }));
+    }
     if want("est-stop11") {
         // The stop-11 checks and iteration: no secant damping of the η
         // step, innovation checks against the fitted model with the floors.
@@ -432,6 +446,14 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
             eprintln!("{name} {seed}: {label}: the filter failed: {:?}", detail.eiv_error);
             continue;
         };
+        if let Some(p) = fit.passes.last() {
+            eprintln!(
+                "  {name} {seed} {label}: iterations {}, {:?}, last η step/σ {:.3}",
+                p.history.len(),
+                p.termination,
+                p.eta_step_over_sigma.unwrap_or(f64::NAN)
+            );
+        }
         let sigma_h: [f64; 4] = std::array::from_fn(|i| r.covariance[i][i].max(0.0).sqrt());
         let sigmas = vec![
             ("H".to_string(), sigma_h),

@@ -1264,3 +1264,75 @@ fn coloured_common_mode_noise_block_sandwich_and_reentry() {
     let (left, _) = estimate_from(&input, &truth, &start, &re).expect("fit");
     assert!(left.eta[1] > re.eta_bounds[0] + 1.0, "with re-entry η₁ leaves the clamp: {:?}", left.eta);
 }
+
+/// The 1 km white-noise drive of the stop-13 convergence tests with η
+/// estimated, the heading scale separate and counting quantisation.
+fn separate_counting_white_fit(opts: EivOptions) -> (EivReport, EivReport) {
+    let out = simulate(&SimOptions { length_km: 1.0, noise: NoiseOptions::white_wheel_only(), ..SimOptions::paper(1) })
+        .expect("sim");
+    let input = input_of(&out.drive);
+    let base = EivOptions {
+        window_samples: 1000,
+        heading_scale: HeadingScale::Separate,
+        quantisation: QuantisationModel::Counting,
+        ..Default::default()
+    };
+    let full = estimate(&input, &out.sidecar.theta_true, &base).expect("eiv");
+    let r = estimate(&input, &out.sidecar.theta_true, &EivOptions { window_samples: 1000, ..opts }).expect("eiv");
+    (full, r)
+}
+
+/// At the iteration limit the default test judges the steps just taken; the
+/// fit of this drive takes 6 iterations, and the step remaining after the
+/// 6th is below the tolerance, so with [`EivOptions::final_step_check`] a
+/// 6-iteration limit ends converged, at the same θ.
+#[test]
+fn final_step_check_converges_at_the_iteration_limit() {
+    let opts = EivOptions {
+        heading_scale: HeadingScale::Separate,
+        quantisation: QuantisationModel::Counting,
+        max_iterations: 6,
+        final_step_check: true,
+        ..Default::default()
+    };
+    let (full, r) = separate_counting_white_fit(opts.clone());
+    let history = full.passes.last().map(|p| p.history.clone()).unwrap_or_default();
+    assert_eq!(history.len(), 6, "{full}");
+    // Without the option a 6-iteration limit ends on this step: not converged.
+    assert!(history[5].step_over_sigma >= 0.05, "{full}");
+    assert!(r.termination.converged(), "{r}");
+    assert_eq!(r.theta, full.theta);
+    let (_, without) = separate_counting_white_fit(EivOptions { final_step_check: false, ..opts });
+    assert!(!without.termination.converged(), "{without}");
+    assert_eq!(without.theta, full.theta);
+}
+
+/// With the heading scale separate, θ settles iterations before η does
+/// (stop 13): on this 1 km white-noise drive (η estimated, counting
+/// quantisation) the default test needs 6 iterations; judged on θ
+/// ([`EivOptions::theta_convergence`]) the fit converges within 4 and θ
+/// agrees with the fully converged one to 0.05 σ.
+#[test]
+fn theta_convergence_stops_when_theta_has_settled() {
+    let out = simulate(&SimOptions { length_km: 1.0, noise: NoiseOptions::white_wheel_only(), ..SimOptions::paper(1) })
+        .expect("sim");
+    let input = input_of(&out.drive);
+    let opts = EivOptions {
+        window_samples: 1000,
+        heading_scale: HeadingScale::Separate,
+        quantisation: QuantisationModel::Counting,
+        ..Default::default()
+    };
+    let full = estimate(&input, &out.sidecar.theta_true, &opts).expect("eiv");
+    let p = full.passes.last().expect("a pass");
+    assert!(full.termination.converged() && p.history.len() > 4, "{full}");
+    let short = EivOptions { max_iterations: 4, theta_convergence: true, ..opts };
+    let r = estimate(&input, &out.sidecar.theta_true, &short).expect("eiv");
+    assert!(r.termination.converged(), "{r}");
+    let eta_step = r.passes.last().and_then(|p| p.eta_step_over_sigma).expect("η step reported");
+    assert!(eta_step > 0.05, "η had not settled: {eta_step}");
+    let (a, b) = (r.theta.to_array(), full.theta.to_array());
+    for i in (0..4).filter(|i| full.sigma[*i] > 0.0) {
+        assert!((a[i] - b[i]).abs() < 0.05 * full.sigma[i], "θ_{i}: {} against {} (σ {})", a[i], b[i], full.sigma[i]);
+    }
+}
