@@ -1265,21 +1265,19 @@ fn coloured_common_mode_noise_block_sandwich_and_reentry() {
     assert!(left.eta[1] > re.eta_bounds[0] + 1.0, "with re-entry η₁ leaves the clamp: {:?}", left.eta);
 }
 
-/// The 1 km white-noise drive of the stop-13 convergence tests with η
-/// estimated, the heading scale separate and counting quantisation.
-fn separate_counting_white_fit(opts: EivOptions) -> (EivReport, EivReport) {
+/// The 1 km white-noise drive of the stop-13 convergence tests, and the
+/// options they share: η estimated, the heading scale separate, counting
+/// quantisation.
+fn separate_counting_white_drive() -> (crate::sim::SimOutput, EivOptions) {
     let out = simulate(&SimOptions { length_km: 1.0, noise: NoiseOptions::white_wheel_only(), ..SimOptions::paper(1) })
         .expect("sim");
-    let input = input_of(&out.drive);
-    let base = EivOptions {
+    let opts = EivOptions {
         window_samples: 1000,
         heading_scale: HeadingScale::Separate,
         quantisation: QuantisationModel::Counting,
         ..Default::default()
     };
-    let full = estimate(&input, &out.sidecar.theta_true, &base).expect("eiv");
-    let r = estimate(&input, &out.sidecar.theta_true, &EivOptions { window_samples: 1000, ..opts }).expect("eiv");
-    (full, r)
+    (out, opts)
 }
 
 /// At the iteration limit the default test judges the steps just taken; the
@@ -1288,21 +1286,19 @@ fn separate_counting_white_fit(opts: EivOptions) -> (EivReport, EivReport) {
 /// 6-iteration limit ends converged, at the same θ.
 #[test]
 fn final_step_check_converges_at_the_iteration_limit() {
-    let opts = EivOptions {
-        heading_scale: HeadingScale::Separate,
-        quantisation: QuantisationModel::Counting,
-        max_iterations: 6,
-        final_step_check: true,
-        ..Default::default()
-    };
-    let (full, r) = separate_counting_white_fit(opts.clone());
+    let (out, base) = separate_counting_white_drive();
+    let input = input_of(&out.drive);
+    let truth = out.sidecar.theta_true;
+    let full = estimate(&input, &truth, &base).expect("eiv");
     let history = full.passes.last().map(|p| p.history.clone()).unwrap_or_default();
     assert_eq!(history.len(), 6, "{full}");
     // Without the option a 6-iteration limit ends on this step: not converged.
     assert!(history[5].step_over_sigma >= 0.05, "{full}");
+    let opts = EivOptions { max_iterations: 6, final_step_check: true, ..base };
+    let r = estimate(&input, &truth, &opts).expect("eiv");
     assert!(r.termination.converged(), "{r}");
     assert_eq!(r.theta, full.theta);
-    let (_, without) = separate_counting_white_fit(EivOptions { final_step_check: false, ..opts });
+    let without = estimate(&input, &truth, &EivOptions { final_step_check: false, ..opts }).expect("eiv");
     assert!(!without.termination.converged(), "{without}");
     assert_eq!(without.theta, full.theta);
 }
@@ -1314,15 +1310,8 @@ fn final_step_check_converges_at_the_iteration_limit() {
 /// agrees with the fully converged one to 0.05 σ.
 #[test]
 fn theta_convergence_stops_when_theta_has_settled() {
-    let out = simulate(&SimOptions { length_km: 1.0, noise: NoiseOptions::white_wheel_only(), ..SimOptions::paper(1) })
-        .expect("sim");
+    let (out, opts) = separate_counting_white_drive();
     let input = input_of(&out.drive);
-    let opts = EivOptions {
-        window_samples: 1000,
-        heading_scale: HeadingScale::Separate,
-        quantisation: QuantisationModel::Counting,
-        ..Default::default()
-    };
     let full = estimate(&input, &out.sidecar.theta_true, &opts).expect("eiv");
     let p = full.passes.last().expect("a pass");
     assert!(full.termination.converged() && p.history.len() > 4, "{full}");
