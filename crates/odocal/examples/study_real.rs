@@ -35,7 +35,10 @@
 //!   fell back and why;
 //! - `rav4`: the comma2k19 RAV4 (`examples/comma2k19-rav4/`, 1 km, nearly
 //!   straight): c_e with its σ and which parameters are named unobservable
-//!   or held, with the defaults and with `--auto-fix`.
+//!   or held, with the defaults and with `--auto-fix`;
+//! - `swap` (only when named; stop 14): per test-track run, `eiv-scg-nofallback`'s
+//!   θ with one parameter at a time from batch G-N (all segments), judged by
+//!   Ē_p on the other five runs (which parameter makes the difference).
 //!
 //! σ is the one that stands for the result, as `--params-out` writes it
 //! ([`odocal::CalibrationReport::result_sigma`]): batch G-N's
@@ -65,7 +68,7 @@ const METHODS: [&str; 5] = ["batch-gn", "batch-gn-all", "three-step", "eiv", "ei
 /// Methods run only when named: `eiv-stop11` (`eiv` with the stop-11
 /// innovation checks and θ/η iteration) and `eiv-nofallback` (`eiv` with
 /// the fallback off: the EIV θ whatever the checks say).
-const EXTRA_METHODS: [&str; 12] = [
+const EXTRA_METHODS: [&str; 22] = [
     "eiv-stop11",
     "eiv-nofallback",
     "eiv-sc",
@@ -78,6 +81,16 @@ const EXTRA_METHODS: [&str; 12] = [
     "eiv-scg-tau",
     "eiv-scg-tau-nofallback",
     "eiv-scg-x-tau-nofallback",
+    "eiv-scg0",
+    "eiv-scg0-nofallback",
+    "eiv-scg-tc",
+    "eiv-scg-tc-nofallback",
+    "eiv-scg-x-tc",
+    "batch-gn-all-h",
+    "eiv-scg-h",
+    "eiv-scg-h-nofallback",
+    "eiv-scg-h-tc",
+    "eiv-scg-h-tc-nofallback",
 ];
 
 /// Correlation time of the reference's position and heading drift for the
@@ -142,11 +155,16 @@ fn options(method: &str, q: f64) -> Result<CalibrationOptions, Box<dyn Error>> {
     let mut o = CalibrationOptions::default();
     // Diagnostic variants (stop 14): `-x` also estimates the reference's
     // lever arm and heading offset with θ in the start (the filter runs on
-    // the rear-axle poses they imply); `-tau` starts from a reference drift
-    // with a correlation time of SHORT_DRIFT_TAU_S instead of 100 s.
+    // the rear-axle poses they imply), `-h` the heading offset alone; `-tau` starts from a reference drift
+    // with a correlation time of SHORT_DRIFT_TAU_S instead of 100 s; `-tc`
+    // turns on `EivOptions::theta_convergence`.
     let (base, x) = match method.strip_suffix("-nofallback") {
         Some(b) => (b, "-nofallback"),
         None => (method, ""),
+    };
+    let (base, tc) = match base.strip_suffix("-tc") {
+        Some(b) => (b, true),
+        None => (base, false),
     };
     let (base, tau) = match base.strip_suffix("-tau") {
         Some(b) => (b, true),
@@ -156,7 +174,11 @@ fn options(method: &str, q: f64) -> Result<CalibrationOptions, Box<dyn Error>> {
         Some(b) => (b, true),
         None => (base, false),
     };
-    if lever || tau {
+    let (base, heading) = match base.strip_suffix("-h") {
+        Some(b) => (b, true),
+        None => (base, false),
+    };
+    if lever || heading || tau || tc {
         if !EXTRA_METHODS.contains(&method) {
             return Err(format!("unknown method {method}").into());
         }
@@ -164,9 +186,15 @@ fn options(method: &str, q: f64) -> Result<CalibrationOptions, Box<dyn Error>> {
         if lever {
             o.identify.free = o.identify.free.union(ParamSet::EXTRINSICS);
         }
-        if tau {
-            if let Method::Eiv(e) = &mut o.method {
+        if heading {
+            o.identify.free = o.identify.free.with(odocal::Param::HeadingOffset);
+        }
+        if let Method::Eiv(e) = &mut o.method {
+            if tau {
                 e.filter.noise.drift_time_constant_s = SHORT_DRIFT_TAU_S;
+            }
+            if tc {
+                e.filter.theta_convergence = true;
             }
         }
         return Ok(o);
@@ -175,6 +203,10 @@ fn options(method: &str, q: f64) -> Result<CalibrationOptions, Box<dyn Error>> {
         "eiv-sc" => o.method = candidate(None, true),
         "eiv-sc-nofallback" => o.method = candidate(None, false),
         "eiv-scg" => o.method = candidate(Some(q), true),
+        "eiv-scg0" => o.method = candidate(Some(NoiseModel::PRODUCTION_CAR.quantisation_step_rev_per_s), true),
+        "eiv-scg0-nofallback" => {
+            o.method = candidate(Some(NoiseModel::PRODUCTION_CAR.quantisation_step_rev_per_s), false)
+        }
         "eiv-scg-nofallback" => o.method = candidate(Some(q), false),
         "batch-gn" => o.method = Method::BatchGn(BatchGnOptions::default()),
         "batch-gn-all" => {
@@ -325,7 +357,15 @@ fn verdict_json(r: &CalibrationReport) -> Value {
 
 fn theta_cell(r: &CalibrationReport) -> String {
     let t = &r.theta;
-    format!("{:.4} / {:+.2} / {:.3} / {:+.2}", t.c_e, t.c_d * 1e3, t.t_r, t.d * 1e3)
+    let x = r.extrinsics.as_ref().map_or(String::new(), |e| {
+        format!(
+            " (l {:+.2}, {:+.2} m, δ {:+.1} mrad)",
+            e.value.lever_x,
+            e.value.lever_y,
+            e.value.heading_offset * 1e3
+        )
+    });
+    format!("{:.4} / {:+.2} / {:.3} / {:+.2}{x}", t.c_e, t.c_d * 1e3, t.t_r, t.d * 1e3)
 }
 
 fn load(path: &std::path::Path) -> Result<Drive, Box<dyn Error>> {
@@ -403,6 +443,7 @@ fn testtrack(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error
             extra.push(json!({
                 "run": name,
                 "theta": r.theta,
+                "extrinsics": r.extrinsics.as_ref().map(|e| e.value),
                 "sigma": result_sigma(&r),
                 "sigma_source": r.result_sigma().source,
                 "verdict": verdict_json(&r),
@@ -485,6 +526,64 @@ fn testtrack(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error
     Ok(Value::Array(out))
 }
 
+/// (d) which parameter makes the difference on the test track: per run,
+/// batch G-N (all segments) and `eiv-scg-nofallback`, and EIV's θ with one
+/// parameter at a time replaced by batch G-N's, each judged by the mean Ē_p
+/// on the other five runs.
+fn swap(md: &mut String) -> Result<Value, Box<dyn Error>> {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/psu-mapping-van-testtrack");
+    let mut drives = Vec::new();
+    for run in RUNS {
+        let path = dir.join(format!("run-{run}.toml"));
+        drives.push((run, load(&path)?, encoder_q(&path)?.0));
+    }
+    md.push_str(
+        "#### (d) Test track: EIV (`eiv-scg-nofallback`) with one parameter at a time from batch G-N (all \
+         segments); mean Ē_p on the other five runs (m)\n\n\
+         | run | batch G-N | EIV | EIV, G-N's c_e | EIV, G-N's c_d | EIV, G-N's t_r | EIV, G-N's d \
+         | G-N, EIV's c_e | G-N, EIV's c_d |\n|---|---|---|---|---|---|---|---|---|\n",
+    );
+    let mut out = Vec::new();
+    let mut sums = [0.0; 8];
+    for (i, (name, drive, q)) in drives.iter().enumerate() {
+        let gn_opts = options("batch-gn-all", *q)?;
+        let eiv_opts = options("eiv-scg-nofallback", *q)?;
+        let gn = calibrate(drive, &gn_opts, None)?;
+        let eiv = calibrate(drive, &eiv_opts, None)?;
+        let others: Vec<ValidationDrive> = drives
+            .iter()
+            .enumerate()
+            .filter(|(j, _)| *j != i)
+            .map(|(_, (n, d, _))| ValidationDrive { name: n, drive: d, reference: None })
+            .collect();
+        let cal = CalibrationExtrinsics::of(&gn, ParamSet::EMPTY);
+        let judge = |t: &odocal::Theta| -> Result<f64, Box<dyn Error>> {
+            Ok(odocal::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?.mean_over_drives_m)
+        };
+        let (g, e) = (gn.theta, eiv.theta);
+        let mut cells = vec![judge(&g)?, judge(&e)?];
+        cells.push(judge(&odocal::Theta { c_e: g.c_e, ..e })?);
+        cells.push(judge(&odocal::Theta { c_d: g.c_d, ..e })?);
+        cells.push(judge(&odocal::Theta { t_r: g.t_r, ..e })?);
+        cells.push(judge(&odocal::Theta { d: g.d, ..e })?);
+        cells.push(judge(&odocal::Theta { c_e: e.c_e, ..g })?);
+        cells.push(judge(&odocal::Theta { c_d: e.c_d, ..g })?);
+        for (s, c) in sums.iter_mut().zip(&cells) {
+            *s += c / RUNS.len() as f64;
+        }
+        md.push_str(&format!(
+            "| {name} | {} |\n",
+            cells.iter().map(|c| format!("{c:.2}")).collect::<Vec<_>>().join(" | ")
+        ));
+        out.push(json!({"run": name, "batch_gn": g, "eiv": e, "others_m": cells}));
+    }
+    md.push_str(&format!(
+        "| mean | {} |\n\n",
+        sums.iter().map(|c| format!("{c:.2}")).collect::<Vec<_>>().join(" | ")
+    ));
+    Ok(Value::Array(out))
+}
+
 /// (b) the highway van, fitted on one half, Ē_p on the other.
 fn van(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/psu-mapping-van/manifest.toml");
@@ -533,6 +632,7 @@ fn van(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
                 "method": m,
                 "holdout": label,
                 "theta": r.theta,
+                "extrinsics": r.extrinsics.as_ref().map(|e| e.value),
                 "sigma": result_sigma(&r),
                 "sigma_source": r.result_sigma().source,
                 "held_out_m": r.validation.mean_position_error_m,
@@ -622,6 +722,7 @@ fn rav4(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
                 "method": m,
                 "auto_fix": auto_fix,
                 "theta": r.theta,
+                "extrinsics": r.extrinsics.as_ref().map(|e| e.value),
                 "sigma": sigma,
                 "sigma_source": r.result_sigma().source,
                 "unobservable": r.observability.unobservable.iter().map(|p| p.name()).collect::<Vec<_>>(),
@@ -676,7 +777,8 @@ fn main() -> Result<(), Box<dyn Error>> {
             "testtrack" => testtrack(&methods, &mut md)?,
             "van" => van(&methods, &mut md)?,
             "rav4" => rav4(&methods, &mut md)?,
-            other => return Err(format!("unknown part {other}; use testtrack, van, rav4").into()),
+            "swap" => swap(&mut md)?,
+            other => return Err(format!("unknown part {other}; use testtrack, van, rav4, swap").into()),
         };
         eprintln!("{p}: {:.1} s", t.elapsed().as_secs_f64());
         out.insert(p.clone(), v);
