@@ -68,7 +68,7 @@ const METHODS: [&str; 5] = ["batch-gn", "batch-gn-all", "three-step", "eiv", "ei
 /// Methods run only when named: `eiv-stop11` (`eiv` with the stop-11
 /// innovation checks and θ/η iteration) and `eiv-nofallback` (`eiv` with
 /// the fallback off: the EIV θ whatever the checks say).
-const EXTRA_METHODS: [&str; 22] = [
+const EXTRA_METHODS: [&str; 23] = [
     "eiv-stop11",
     "eiv-nofallback",
     "eiv-sc",
@@ -87,6 +87,7 @@ const EXTRA_METHODS: [&str; 22] = [
     "eiv-scg-tc-nofallback",
     "eiv-scg-x-tc",
     "batch-gn-all-h",
+    "eiv-h",
     "eiv-scg-h",
     "eiv-scg-h-nofallback",
     "eiv-scg-h-tc",
@@ -341,6 +342,7 @@ fn eiv_detail_row(m: &str, fit: &str, r: &CalibrationReport) -> Option<(String, 
         "method": m, "fit": fit, "fell_back": fell, "eiv_theta": e.theta, "eiv_sigma": e.sigma,
         "findings": found, "eta": e.eta, "noise": e.noise, "termination": e.termination.to_string(),
         "iterations": e.iterations,
+        "unobservable": e.observability.unobservable,
         "windows": e.windows.iter().map(|w| json!({"index": w.window.index, "updates": w.updates, "nis": w.nis,
             "nis_without_floors": w.nis_without_floors, "lag1": w.lag1, "lag1_without_floors": w.lag1_without_floors})).collect::<Vec<_>>(),
         "halves_z": e.halves.as_ref().map(|h| h.z),
@@ -358,12 +360,7 @@ fn verdict_json(r: &CalibrationReport) -> Value {
 fn theta_cell(r: &CalibrationReport) -> String {
     let t = &r.theta;
     let x = r.extrinsics.as_ref().map_or(String::new(), |e| {
-        format!(
-            " (l {:+.2}, {:+.2} m, δ {:+.1} mrad)",
-            e.value.lever_x,
-            e.value.lever_y,
-            e.value.heading_offset * 1e3
-        )
+        format!(" (l {:+.2}, {:+.2} m, δ {:+.1} mrad)", e.value.lever_x, e.value.lever_y, e.value.heading_offset * 1e3)
     });
     format!("{:.4} / {:+.2} / {:.3} / {:+.2}{x}", t.c_e, t.c_d * 1e3, t.t_r, t.d * 1e3)
 }
@@ -427,10 +424,11 @@ fn testtrack(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error
                 if let Some(e) = &d.eiv {
                     // The EIV fit's consistency numbers (stderr), to read the checks against.
                     eprintln!(
-                        "{m} {name}: η {:.2?} {} halves z {:.1?}",
+                        "{m} {name}: η {:.2?} {} halves z {:.1?} unobservable {:?}",
                         e.eta,
                         e.termination,
-                        e.halves.as_ref().map(|h| h.z)
+                        e.halves.as_ref().map(|h| h.z),
+                        e.observability.unobservable
                     );
                     for w in &e.windows {
                         eprintln!(
@@ -577,10 +575,7 @@ fn swap(md: &mut String) -> Result<Value, Box<dyn Error>> {
         ));
         out.push(json!({"run": name, "batch_gn": g, "eiv": e, "others_m": cells}));
     }
-    md.push_str(&format!(
-        "| mean | {} |\n\n",
-        sums.iter().map(|c| format!("{c:.2}")).collect::<Vec<_>>().join(" | ")
-    ));
+    md.push_str(&format!("| mean | {} |\n\n", sums.iter().map(|c| format!("{c:.2}")).collect::<Vec<_>>().join(" | ")));
     Ok(Value::Array(out))
 }
 
