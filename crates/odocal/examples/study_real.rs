@@ -38,7 +38,8 @@
 //!   or held, with the defaults and with `--auto-fix`;
 //! - `swap` (only when named; stop 14): per test-track run, `eiv-scg-nofallback`'s
 //!   θ with one parameter at a time from batch G-N (all segments), judged by
-//!   Ē_p on the other five runs (which parameter makes the difference).
+//!   Ē_p on the other five runs (which parameter makes the difference), and
+//!   the same on the van's held-out halves.
 //!
 //! σ is the one that stands for the result, as `--params-out` writes it
 //! ([`odocal::CalibrationReport::result_sigma`]): batch G-N's
@@ -576,6 +577,43 @@ fn swap(md: &mut String) -> Result<Value, Box<dyn Error>> {
         out.push(json!({"run": name, "batch_gn": g, "eiv": e, "others_m": cells}));
     }
     md.push_str(&format!("| mean | {} |\n\n", sums.iter().map(|c| format!("{c:.2}")).collect::<Vec<_>>().join(" | ")));
+    // The same for the van: fitted on one half, Ē_p on the held-out half.
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/psu-mapping-van/manifest.toml");
+    let drive = load(&path)?;
+    let q = encoder_q(&path)?.0;
+    md.push_str(
+        "Van (07-11), the same on the held-out half (m):\n\n\
+         | held out | batch G-N | EIV | EIV, G-N's c_e | EIV, G-N's c_d | EIV, G-N's t_r | EIV, G-N's d \
+         | G-N, EIV's c_e | G-N, EIV's c_d |\n|---|---|---|---|---|---|---|---|---|\n",
+    );
+    for (label, h) in [("first-half", Holdout::FirstHalf), ("second-half", Holdout::SecondHalf)] {
+        let (fit, held) = h.split(&drive)?;
+        let gn_opts = options("batch-gn-all", q)?;
+        let gn = calibrate(&fit, &gn_opts, None)?;
+        let eiv = calibrate(&fit, &options("eiv-scg-nofallback", q)?, None)?;
+        let others = [ValidationDrive { name: label, drive: &held, reference: None }];
+        let cal = CalibrationExtrinsics::of(&gn, ParamSet::EMPTY);
+        let judge = |t: &odocal::Theta| -> Result<f64, Box<dyn Error>> {
+            Ok(odocal::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?.mean_over_drives_m)
+        };
+        let (g, e) = (gn.theta, eiv.theta);
+        let cells = [
+            judge(&g)?,
+            judge(&e)?,
+            judge(&odocal::Theta { c_e: g.c_e, ..e })?,
+            judge(&odocal::Theta { c_d: g.c_d, ..e })?,
+            judge(&odocal::Theta { t_r: g.t_r, ..e })?,
+            judge(&odocal::Theta { d: g.d, ..e })?,
+            judge(&odocal::Theta { c_e: e.c_e, ..g })?,
+            judge(&odocal::Theta { c_d: e.c_d, ..g })?,
+        ];
+        md.push_str(&format!(
+            "| {label} | {} |\n",
+            cells.iter().map(|c| format!("{c:.2}")).collect::<Vec<_>>().join(" | ")
+        ));
+        out.push(json!({"van_holdout": label, "batch_gn": g, "eiv": e, "held_out_m": cells}));
+    }
+    md.push('\n');
     Ok(Value::Array(out))
 }
 
