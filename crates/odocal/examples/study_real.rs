@@ -53,7 +53,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use odocal::crossrun::{CrossRunFit, CrossRunRow, CrossRunTable, CROSS_RUN_OWN_FIT_RATIO};
-use odocal::eiv::{EivOptions, HeadingScale, InputNoiseLevel, NoiseModel, QuantisationLevel, QuantisationModel};
+use odocal::eiv::{EivOptions, HeadingScale, NoiseModel, QuantisationLevel, QuantisationModel};
 use odocal::{
     calibrate, calibrate_with_holdout, BatchGnOptions, CalibrationExtrinsics, CalibrationOptions, CalibrationReport,
     Drive, EivMethodOptions, EivOutcome, Holdout, Method, MethodDetail, ParamSet, ValidationDrive, VerdictLevel,
@@ -69,7 +69,7 @@ const METHODS: [&str; 5] = ["batch-gn", "batch-gn-all", "three-step", "eiv", "ei
 /// Methods run only when named: `eiv-stop11` (`eiv` with the stop-11
 /// innovation checks and θ/η iteration) and `eiv-nofallback` (`eiv` with
 /// the fallback off: the EIV θ whatever the checks say).
-const EXTRA_METHODS: [&str; 29] = [
+const EXTRA_METHODS: [&str; 23] = [
     "eiv-stop11",
     "eiv-nofallback",
     "eiv-sc",
@@ -91,18 +91,9 @@ const EXTRA_METHODS: [&str; 29] = [
     "eiv-h",
     "eiv-scg-h",
     "eiv-scg-h-nofallback",
-    "eiv-scg-a",
-    "eiv-scg-a-nofallback",
-    "eiv-scg-h-a",
-    "eiv-scg-h-a-nofallback",
-    "eiv-scg-A-nofallback",
-    "eiv-scg-h-A-nofallback",
     "eiv-scg-h-tc",
     "eiv-scg-h-tc-nofallback",
 ];
-
-/// σ_a of the `-A` methods (a_y input noise given at this level), m/s².
-const LARGE_A_Y_SIGMA: f64 = 0.5;
 
 /// Correlation time of the reference's position and heading drift for the
 /// `-tau` methods, s (the production car's is 100 s).
@@ -168,20 +159,10 @@ fn options(method: &str, q: f64) -> Result<CalibrationOptions, Box<dyn Error>> {
     // lever arm and heading offset with θ in the start (the filter runs on
     // the rear-axle poses they imply), `-h` the heading offset alone; `-tau` starts from a reference drift
     // with a correlation time of SHORT_DRIFT_TAU_S instead of 100 s; `-tc`
-    // turns on `EivOptions::theta_convergence`; `-a` holds the a_y and β
-    // input noise at the production car's σ (`InputNoiseLevel::Given`), `-A`
-    // at σ_a = LARGE_A_Y_SIGMA.
+    // turns on `EivOptions::theta_convergence`.
     let (base, x) = match method.strip_suffix("-nofallback") {
         Some(b) => (b, "-nofallback"),
         None => (method, ""),
-    };
-    let (base, inputs_large) = match base.strip_suffix("-A") {
-        Some(b) => (b, true),
-        None => (base, false),
-    };
-    let (base, inputs) = match base.strip_suffix("-a") {
-        Some(b) => (b, true),
-        None => (base, inputs_large),
     };
     let (base, tc) = match base.strip_suffix("-tc") {
         Some(b) => (b, true),
@@ -199,7 +180,7 @@ fn options(method: &str, q: f64) -> Result<CalibrationOptions, Box<dyn Error>> {
         Some(b) => (b, true),
         None => (base, false),
     };
-    if lever || heading || tau || tc || inputs {
+    if lever || heading || tau || tc {
         if !EXTRA_METHODS.contains(&method) {
             return Err(format!("unknown method {method}").into());
         }
@@ -216,12 +197,6 @@ fn options(method: &str, q: f64) -> Result<CalibrationOptions, Box<dyn Error>> {
             }
             if tc {
                 e.filter.theta_convergence = true;
-            }
-            if inputs {
-                e.filter.input_noise_level = InputNoiseLevel::Given;
-            }
-            if inputs_large {
-                e.filter.noise.lateral_acceleration_sigma_m_per_s2 = LARGE_A_Y_SIGMA;
             }
         }
         return Ok(o);

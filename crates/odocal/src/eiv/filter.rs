@@ -72,10 +72,6 @@ pub(crate) struct Variances {
     pub drift: [f64; 3],
     /// Lateral acceleration variance (fixed), (m/s²)².
     pub a_y: f64,
-    /// η_0 scales the a_y and β input variances with the white wheel noise
-    /// (otherwise they are held at the model's σ_a, σ_β:
-    /// [`super::InputNoiseLevel::Given`]).
-    pub inputs_scaled: bool,
     /// Equivalent white sideslip variance (fixed), rad².
     pub beta: f64,
     /// Gauss-Markov coefficients `a = exp(−t_s/τ)`: common, per-wheel, drift.
@@ -1194,10 +1190,7 @@ fn run_window_s<const S: usize>(
             let q_of = |n: f64| if n == 0.0 { 0.0 } else { v.quant };
             fn_l * fn_l.transpose() * q_of(nl) + fn_r * fn_r.transpose() * q_of(nr)
         };
-        let q_x_inputs = f_b * f_b.transpose() * v.beta + f_a * f_a.transpose() * v.a_y;
-        let q_x = q_white + q_x_inputs;
-        // The a_y and β share of Q_x when it is not scaled by η_0.
-        let q_x_inputs = if v.inputs_scaled { Matrix3::zeros() } else { q_x_inputs };
+        let q_x = q_white + f_b * f_b.transpose() * v.beta + f_a * f_a.transpose() * v.a_y;
         if jac_mode != InputJacobian::None {
             let lc = log_circumference_ratio(a_y, theta, theta_ref);
             // The relative white noise variance of each wheel (rev², the
@@ -1474,10 +1467,10 @@ fn run_window_s<const S: usize>(
                 0..=3 => add_sym_rows(dpj, &theta_terms[jj]),
                 4 => {
                     // η_0 scales the white wheel, quantisation, a_y and β noise together
-                    // (quantisation, a_y and β not when given: their share of Q_x comes off).
+                    // (quantisation not when it is given: its share of Q_x comes off).
                     for r in 0..3 {
                         for c in 0..3 {
-                            dpj[(r, c)] += q_x[(r, c)] - q_x_quant[(r, c)] - q_x_inputs[(r, c)];
+                            dpj[(r, c)] += q_x[(r, c)] - q_x_quant[(r, c)];
                         }
                     }
                     if v.quant_scaled {

@@ -527,7 +527,6 @@ impl NoiseModel {
             a_wheel: gm(self.wheel_differential_time_constant_s),
             a_drift: gm(self.drift_time_constant_s),
             quant_scaled: true,
-            inputs_scaled: true,
             quant_in_measurement: false,
             quant_counting: false,
             heading_separate: true,
@@ -741,10 +740,6 @@ pub struct EivOptions {
     /// noise or the quantisation step of [`EivOptions::noise`] is taken as
     /// known. Default [`QuantisationLevel::ScaledWithWhite`] (see its docs).
     pub quantisation_level: QuantisationLevel,
-    /// Whether η_0 scales the a_y and β input noise with the white wheel
-    /// noise or σ_a, σ_β of [`EivOptions::noise`] are taken as given.
-    /// Default [`InputNoiseLevel::ScaledWithWhite`] (see its docs).
-    pub input_noise_level: InputNoiseLevel,
     /// Whether the reference's heading white noise has its own scale η_5.
     /// Default [`HeadingScale::TiedToPosition`] (see its docs).
     pub heading_scale: HeadingScale,
@@ -1100,27 +1095,6 @@ pub enum QuantisationLevel {
     Given,
 }
 
-/// Whether the lateral-acceleration and sideslip input noise (σ_a, σ_β of
-/// [`NoiseModel`]) is scaled by η_0 with the white wheel noise or given
-/// ([`EivOptions::input_noise_level`]).
-///
-/// Tied to η_0, the a_y noise follows the wheels' white noise. On the real
-/// logs with 40,000-tick encoders and the separate heading scale, η_0 ends
-/// at its lower clamp (no white wheel noise beyond the counting error), and
-/// with it σ_a: a_y derived from the wheels is then treated as exact, and d
-/// (a_y's coefficient) takes up what the noisy a_y does to the yaw rate
-/// (docs/study.md, "Stop 14: the candidate EIV defaults on the real logs").
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum InputNoiseLevel {
-    /// σ_a and σ_β scaled by `exp(η_0/2)` with the white wheel noise.
-    #[default]
-    ScaledWithWhite,
-    /// σ_a and σ_β held at [`EivOptions::noise`]'s values; η_0 scales the
-    /// white wheel noise (and the quantisation unless it is given) only.
-    Given,
-}
-
 /// How the filter models encoder quantisation (q of [`NoiseModel`]).
 ///
 /// Counting ticks carries the remainder over, so the counted rotation is
@@ -1227,7 +1201,6 @@ impl Default for EivOptions {
             quantisation: QuantisationModel::ProcessNoise,
             heading_scale: HeadingScale::TiedToPosition,
             quantisation_level: QuantisationLevel::ScaledWithWhite,
-            input_noise_level: InputNoiseLevel::ScaledWithWhite,
             wheel_noise_scale: WheelNoiseScale::SmoothedFittedInput { half_width_samples: 20 },
             bias_correction: BiasCorrection::None,
             input_jacobian: InputJacobian::FilterShare,
@@ -1717,8 +1690,6 @@ struct Problem<'a> {
     quantisation: QuantisationModel,
     /// [`QuantisationLevel::Given`]: q²/12 not scaled by η_0.
     quantisation_given: bool,
-    /// [`InputNoiseLevel::Given`]: σ_a², σ_β² not scaled by η_0.
-    inputs_given: bool,
     heading_separate: bool,
     fitted_input: bool,
     noise_input_half_width: usize,
@@ -1758,11 +1729,6 @@ impl Problem<'_> {
         if self.quantisation_given {
             v.quant = self.noise.quantisation_step_rev_per_s * self.noise.quantisation_step_rev_per_s / 12.0;
             v.quant_scaled = false;
-        }
-        if self.inputs_given {
-            let held = self.noise.variances(&[0.0; 6], self.input.sample_time_s);
-            (v.a_y, v.beta) = (held.a_y, held.beta);
-            v.inputs_scaled = false;
         }
         v.heading_separate = self.heading_separate;
         v.fitted_input = self.fitted_input;
@@ -2491,7 +2457,6 @@ pub(crate) fn estimate_from(
         noise: opts.noise,
         quantisation: opts.quantisation,
         quantisation_given: opts.quantisation_level == QuantisationLevel::Given,
-        inputs_given: opts.input_noise_level == InputNoiseLevel::Given,
         heading_separate: opts.heading_scale == HeadingScale::Separate,
         fitted_input: opts.wheel_noise_scale != WheelNoiseScale::MeasuredInput,
         noise_input_half_width: opts.wheel_noise_scale.half_width(),
@@ -2661,10 +2626,6 @@ pub(crate) fn estimate_from(
             let mut n = opts.noise.scaled(&eta);
             if opts.quantisation_level == QuantisationLevel::Given {
                 n.quantisation_step_rev_per_s = opts.noise.quantisation_step_rev_per_s;
-            }
-            if opts.input_noise_level == InputNoiseLevel::Given {
-                n.lateral_acceleration_sigma_m_per_s2 = opts.noise.lateral_acceleration_sigma_m_per_s2;
-                n.sideslip_sigma_rad = opts.noise.sideslip_sigma_rad;
             }
             n
         },
@@ -2836,7 +2797,6 @@ pub fn cramer_rao_bound(
         noise: *noise,
         quantisation: opts.quantisation,
         quantisation_given: opts.quantisation_level == QuantisationLevel::Given,
-        inputs_given: opts.input_noise_level == InputNoiseLevel::Given,
         heading_separate: opts.heading_scale == HeadingScale::Separate,
         fitted_input: opts.wheel_noise_scale != WheelNoiseScale::MeasuredInput,
         noise_input_half_width: opts.wheel_noise_scale.half_width(),

@@ -1065,7 +1065,6 @@ fn eta_step_descends_on_the_noise_free_straight_drive() {
         noise: opts.noise,
         quantisation: opts.quantisation,
         quantisation_given: false,
-        inputs_given: false,
         heading_separate: true,
         fitted_input: false,
         position_floor_m: opts.position_floor_m,
