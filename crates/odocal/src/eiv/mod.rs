@@ -187,6 +187,7 @@
 
 mod bootstrap;
 pub(crate) mod filter;
+mod lattice;
 mod tau;
 #[cfg(test)]
 pub(crate) mod tests;
@@ -201,6 +202,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::model::Theta;
 pub use bootstrap::{bootstrap, BootstrapOptions, BootstrapReport};
+pub use lattice::{quantisation_step_of_readings, LATTICE_TOLERANCE_STEPS, MAX_LATTICE_INDEX, MIN_LATTICE_LEVELS};
 use filter::{run_window, Mode, Variances, WindowSums, NETA};
 pub use tau::{TimeConstantCandidate, TimeConstantFit, TimeConstantGrid, TIME_CONSTANT_RANGE_S};
 
@@ -1093,6 +1095,51 @@ pub enum QuantisationLevel {
     /// q held at [`NoiseModel::quantisation_step_rev_per_s`] of
     /// [`EivOptions::noise`]; η_0 scales the white wheel, a_y and β noise only.
     Given,
+    /// q read off the wheel readings when they lie on a lattice of counted
+    /// ticks ([`quantisation_step_of_readings`]) and then held there as with
+    /// [`QuantisationLevel::Given`]; readings off any lattice (interpolated
+    /// ticks, resampled speeds) fall back to
+    /// [`QuantisationLevel::ScaledWithWhite`] from the noise model's q.
+    /// [`EivReport::quantisation_step_from_readings`] says which.
+    FromReadings,
+}
+
+impl QuantisationLevel {
+    /// The level `estimate` uses on `input`: `FromReadings` becomes `Given`
+    /// (with the step found) or `ScaledWithWhite` (with `None`).
+    pub(crate) fn resolve(self, input: &EivInput<'_>) -> (QuantisationLevel, Option<f64>) {
+        match self {
+            QuantisationLevel::FromReadings => match lattice::input_quantisation_step(input) {
+                Some(q) => (QuantisationLevel::Given, Some(q)),
+                None => (QuantisationLevel::ScaledWithWhite, None),
+            },
+            other => (other, None),
+        }
+    }
+}
+
+impl std::str::FromStr for QuantisationLevel {
+    type Err = Error;
+    /// `scaled` ([`QuantisationLevel::ScaledWithWhite`]), `given` or
+    /// `from-readings`, as the CLI's `--quantisation-level`.
+    ///
+    /// ```
+    /// use odocal::eiv::QuantisationLevel;
+    /// assert_eq!("from-readings".parse::<QuantisationLevel>().unwrap(), QuantisationLevel::FromReadings);
+    /// assert!("auto".parse::<QuantisationLevel>().is_err());
+    /// ```
+    fn from_str(s: &str) -> Result<Self> {
+        match s.trim().to_ascii_lowercase().replace('-', "_").as_str() {
+            "scaled" | "scaled_with_white" => Ok(QuantisationLevel::ScaledWithWhite),
+            "given" => Ok(QuantisationLevel::Given),
+            "from_readings" => Ok(QuantisationLevel::FromReadings),
+            _ => Err(Error::Parse {
+                what: "quantisation level",
+                input: s.to_string(),
+                expected: "scaled, given or from-readings",
+            }),
+        }
+    }
 }
 
 /// How the filter models encoder quantisation (q of [`NoiseModel`]).
@@ -1623,6 +1670,12 @@ pub struct EivReport {
     /// are also in [`EivReport::noise`].
     #[serde(default)]
     pub time_constants: Option<TimeConstantFit>,
+    /// The quantisation step read off the wheel readings' lattice, rev/s,
+    /// with [`QuantisationLevel::FromReadings`] (None when the readings lie
+    /// on no lattice or another level was asked for); then also
+    /// [`EivReport::noise`]'s q.
+    #[serde(default)]
+    pub quantisation_step_from_readings: Option<f64>,
 }
 
 impl std::fmt::Display for EivReport {
@@ -2451,6 +2504,22 @@ pub(crate) fn estimate_from(
     if windows.is_empty() {
         return Err(Error::NoSegments("EIV needs a drive part of at least two samples".into()));
     }
+    // `FromReadings` is resolved once here: the rest of the fit (and the
+    // bootstrap's replicates, whose re-simulated readings carry no lattice)
+    // sees `Given` with the step found, or `ScaledWithWhite`.
+    let (level, q_found) = opts.quantisation_level.resolve(input);
+    let resolved;
+    let opts = if opts.quantisation_level == level {
+        opts
+    } else {
+        let mut o = opts.clone();
+        o.quantisation_level = level;
+        if let Some(q) = q_found {
+            o.noise.quantisation_step_rev_per_s = q;
+        }
+        resolved = o;
+        &resolved
+    };
     let prob = Problem {
         input,
         windows,
@@ -2640,6 +2709,7 @@ pub(crate) fn estimate_from(
         updates: ev.total.updates,
         timing_s: t0.elapsed().as_secs_f64(),
         time_constants: None,
+        quantisation_step_from_readings: q_found,
     };
     if let BiasCorrection::Bootstrap { replicates, seed, all_parameters } = opts.bias_correction {
         // The replicates are fitted without correction (their mean estimates
@@ -2791,12 +2861,14 @@ pub fn cramer_rao_bound(
     if windows.is_empty() {
         return Err(Error::NoSegments("the Cramér–Rao bound needs a drive part of at least two samples".into()));
     }
+    // With `FromReadings` the bound takes `noise`'s q as the encoder's
+    // (held, not scaled by η_0) where the readings lie on a lattice.
     let prob = Problem {
         input,
         windows,
         noise: *noise,
         quantisation: opts.quantisation,
-        quantisation_given: opts.quantisation_level == QuantisationLevel::Given,
+        quantisation_given: opts.quantisation_level.resolve(input).0 == QuantisationLevel::Given,
         heading_separate: opts.heading_scale == HeadingScale::Separate,
         fitted_input: opts.wheel_noise_scale != WheelNoiseScale::MeasuredInput,
         noise_input_half_width: opts.wheel_noise_scale.half_width(),
