@@ -718,8 +718,7 @@ fn calibration_plan(
                     quantisation = Some(v.extract::<String>()?.parse::<QuantisationModel>().map_err(lib_err)?)
                 }
                 "quantisation_level" => {
-                    quantisation_level =
-                        Some(v.extract::<String>()?.parse::<QuantisationLevel>().map_err(lib_err)?)
+                    quantisation_level = Some(v.extract::<String>()?.parse::<QuantisationLevel>().map_err(lib_err)?)
                 }
                 "heading_noise" => {
                     heading_noise = Some(v.extract::<String>()?.parse::<HeadingScale>().map_err(lib_err)?)

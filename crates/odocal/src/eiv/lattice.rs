@@ -118,7 +118,8 @@ mod tests {
     #[test]
     fn readings_without_quantisation_give_no_step() {
         // White wheel noise only (no encoder): continuous readings.
-        let opts = SimOptions { length_km: 0.5, noise: NoiseOptions::white_wheel_only(), seed: 3, ..SimOptions::default() };
+        let opts =
+            SimOptions { length_km: 0.5, noise: NoiseOptions::white_wheel_only(), seed: 3, ..SimOptions::default() };
         let out = simulate(&opts).unwrap();
         let m = out.drive.measured();
         assert_eq!(quantisation_step_of_readings(&m.n_rl, &m.n_rr), None);

@@ -202,8 +202,8 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::model::Theta;
 pub use bootstrap::{bootstrap, BootstrapOptions, BootstrapReport};
-pub use lattice::{quantisation_step_of_readings, LATTICE_TOLERANCE_STEPS, MAX_LATTICE_INDEX, MIN_LATTICE_LEVELS};
 use filter::{run_window, Mode, Variances, WindowSums, NETA};
+pub use lattice::{quantisation_step_of_readings, LATTICE_TOLERANCE_STEPS, MAX_LATTICE_INDEX, MIN_LATTICE_LEVELS};
 pub use tau::{TimeConstantCandidate, TimeConstantFit, TimeConstantGrid, TIME_CONSTANT_RANGE_S};
 
 /// The data of a drive as plain slices (all of length N, samples).
@@ -735,15 +735,15 @@ pub struct EivOptions {
     /// [`CovarianceMode::FollowsTheta`].
     pub covariance: CovarianceMode,
     /// How encoder quantisation enters the filter. Default
-    /// [`QuantisationModel::ProcessNoise`] (see its docs for the measured
-    /// trade-off).
+    /// [`QuantisationModel::Counting`] since stop 14 (see its docs for the
+    /// measured trade-off).
     pub quantisation: QuantisationModel,
     /// Whether η_0 scales the encoder quantisation with the white wheel
-    /// noise or the quantisation step of [`EivOptions::noise`] is taken as
-    /// known. Default [`QuantisationLevel::ScaledWithWhite`] (see its docs).
+    /// noise or the quantisation step is taken as known. Default
+    /// [`QuantisationLevel::FromReadings`] since stop 14 (see its docs).
     pub quantisation_level: QuantisationLevel,
     /// Whether the reference's heading white noise has its own scale η_5.
-    /// Default [`HeadingScale::TiedToPosition`] (see its docs).
+    /// Default [`HeadingScale::Separate`] since stop 14 (see its docs).
     pub heading_scale: HeadingScale,
     /// Which wheel rotation scales the relative wheel noise in the
     /// covariance. Default [`WheelNoiseScale::MeasuredInput`] (see its docs
@@ -1058,11 +1058,14 @@ pub struct FirstOrderBias {
 /// ([`InputJacobian::None`]) the noise-free straight drive stops at a
 /// second fixed point of the θ/η iteration (c_e −0.057 %, η well above its
 /// lower clamp); with the default [`InputJacobian::FilterShare`] it does
-/// not (c_e to 1e-9, "Stop 12"). Not the default after stop 13's study
-/// (20 seeds × 12 km, docs/study.md "Stop 13"): with η estimated on the
-/// `white` preset the separate scale stops at the iteration limit on 12
-/// (with `Measurement`) / 3 (with `Counting`) of 20 drives, against 0 tied,
-/// so `calibrate` falls back to batch G-N more often.
+/// not (c_e to 1e-9, "Stop 12"). After stop 13's study the separate scale
+/// stopped at the iteration limit on 3 of 20 `white` drives with `Counting`;
+/// [`EivOptions::final_step_check`] showed those were converged. The
+/// default since stop 14, with [`QuantisationModel::Counting`] and
+/// [`QuantisationLevel::FromReadings`] (docs/study.md "Stop 14"; 20 seeds ×
+/// 12 km, η estimated: t_r +0.06 % white, +0.02 % coloured, +0.30 % paper,
+/// +1.50 % high, against +0.06 %, −0.01 %, +3.65 %, all-fallback tied with
+/// process-noise quantisation).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum HeadingScale {
@@ -1086,7 +1089,10 @@ pub enum HeadingScale {
 /// `high` bias of t_r with η estimated went from +8.5 % to +1.5 % (20 seeds ×
 /// 12 km; the known model +0.66 %). Use it with `Counting` only: with the
 /// approximate [`QuantisationModel::Measurement`] it made `high` worse
-/// (t_r +5.0 % → −11.7 %, 10 seeds).
+/// (t_r +5.0 % → −11.7 %, 10 seeds). The default since stop 14 is
+/// [`QuantisationLevel::FromReadings`]: the step is read off the readings
+/// where they lie on a lattice (a simulator's, or rates from counted ticks
+/// at the encoder's own sample times), and otherwise scaled as before.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum QuantisationLevel {
@@ -1152,11 +1158,12 @@ impl std::str::FromStr for QuantisationLevel {
 /// −1.2 ± 1.1 % (5.7×) against `ProcessNoise` +0.39 ± 0.30 % (2.2×) and
 /// +3.3 ± 1.2 % (12×); with η estimated from the production-car start,
 /// paper −1.2 ± 0.6 % / high +4.5 ± 5.0 % against +4.0 ± 1.0 % / +122 ± 33 %.
-/// It is not the default yet: alone (heading scale tied) it changes little
-/// with η estimated (paper t_r +3.8 %, high +118 %); with
-/// [`HeadingScale::Separate`] it gives paper −1.2 %, high +4.5 % (docs/study.md,
-/// EIV section, "Stop 11"; with today's defaults −1.2 % / +4.1 %, "Stop 12",
-/// where the pair passes the noise-free straight and turning drives).
+/// Alone (heading scale tied) it changes little with η estimated (paper
+/// t_r +3.8 %, high +118 %); with [`HeadingScale::Separate`] it gives
+/// paper −1.2 %, high +4.5 % (docs/study.md, EIV section, "Stop 11"; "Stop
+/// 12", where the pair passes the noise-free straight and turning drives).
+/// [`QuantisationModel::Counting`] with the separate scale and the step
+/// read off the readings is the default since stop 14.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum QuantisationModel {
@@ -1178,7 +1185,9 @@ pub enum QuantisationModel {
     /// separate heading scale and the noise model known it is the best of the
     /// three (20 seeds × 12 km, t_r paper +0.17 %, high +0.66 %; its
     /// innovation checks flag none of 80 drives), with η estimated paper
-    /// +0.28 % but high +8.5 % (docs/study.md "Stop 13"); not the default.
+    /// +0.28 % but high +8.5 % (docs/study.md "Stop 13"), +1.5 % with the
+    /// step held at the encoder's ([`QuantisationLevel::FromReadings`]).
+    /// The default since stop 14.
     Counting,
 }
 
@@ -1245,9 +1254,9 @@ impl Default for EivOptions {
             max_lag1_below: 0.2,
             max_half_z: 4.0,
             covariance: CovarianceMode::FollowsTheta,
-            quantisation: QuantisationModel::ProcessNoise,
-            heading_scale: HeadingScale::TiedToPosition,
-            quantisation_level: QuantisationLevel::ScaledWithWhite,
+            quantisation: QuantisationModel::Counting,
+            heading_scale: HeadingScale::Separate,
+            quantisation_level: QuantisationLevel::FromReadings,
             wheel_noise_scale: WheelNoiseScale::SmoothedFittedInput { half_width_samples: 20 },
             bias_correction: BiasCorrection::None,
             input_jacobian: InputJacobian::FilterShare,
