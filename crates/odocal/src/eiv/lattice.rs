@@ -72,7 +72,7 @@ pub fn quantisation_step_of_readings(n_rl: &[f64], n_rr: &[f64]) -> Option<f64> 
     // The smallest level is itself a multiple of q: a gap below it is a
     // candidate, and so is the level when no gap is smaller.
     let candidate = smallest_gap.min(levels[0]);
-    if !(candidate > 0.0) || top / candidate > MAX_LATTICE_INDEX {
+    if candidate <= 0.0 || top / candidate > MAX_LATTICE_INDEX {
         return None;
     }
     // Least squares q = Σ k·x / Σ k² over the levels, then every reading
