@@ -19,10 +19,12 @@
 //!
 //! Run only when named (stop 14, the candidate EIV defaults): `eiv-sc`
 //! (`HeadingScale::Separate` + `QuantisationModel::Counting`, the
-//! quantisation level scaled with the white wheel noise as today) and
+//! quantisation level scaled with the white wheel noise) and
 //! `eiv-scg` (the same with `QuantisationLevel::Given`: q held at the
 //! encoder's step, see [`encoder_q`]), each also as `…-nofallback` (the
-//! EIV θ whatever the checks say).
+//! EIV θ whatever the checks say). `eiv-stop13` (`-nofallback`): the EIV
+//! defaults before stop 14 (tied heading scale, quantisation as process
+//! noise scaled with the white wheel noise).
 //!
 //! Parts:
 //! - `testtrack`: the six test-track runs of 2024-08-05
@@ -69,7 +71,7 @@ const METHODS: [&str; 5] = ["batch-gn", "batch-gn-all", "three-step", "eiv", "ei
 /// Methods run only when named: `eiv-stop11` (`eiv` with the stop-11
 /// innovation checks and θ/η iteration) and `eiv-nofallback` (`eiv` with
 /// the fallback off: the EIV θ whatever the checks say).
-const EXTRA_METHODS: [&str; 23] = [
+const EXTRA_METHODS: [&str; 27] = [
     "eiv-stop11",
     "eiv-nofallback",
     "eiv-sc",
@@ -88,7 +90,11 @@ const EXTRA_METHODS: [&str; 23] = [
     "eiv-scg-tc-nofallback",
     "eiv-scg-x-tc",
     "batch-gn-all-h",
+    "eiv-stop13",
+    "eiv-stop13-nofallback",
+    "eiv-stop13-h",
     "eiv-h",
+    "eiv-h-nofallback",
     "eiv-scg-h",
     "eiv-scg-h-nofallback",
     "eiv-scg-h-tc",
@@ -142,6 +148,7 @@ fn candidate(q: Option<f64>, fallback: bool) -> Method {
     let mut filter = EivOptions {
         heading_scale: HeadingScale::Separate,
         quantisation: QuantisationModel::Counting,
+        quantisation_level: QuantisationLevel::ScaledWithWhite,
         ..EivOptions::default()
     };
     if let Some(q) = q {
@@ -202,6 +209,18 @@ fn options(method: &str, q: f64) -> Result<CalibrationOptions, Box<dyn Error>> {
         return Ok(o);
     }
     match method {
+        "eiv-stop13" | "eiv-stop13-nofallback" => {
+            o.method = Method::Eiv(EivMethodOptions {
+                filter: EivOptions {
+                    heading_scale: HeadingScale::TiedToPosition,
+                    quantisation: QuantisationModel::ProcessNoise,
+                    quantisation_level: QuantisationLevel::ScaledWithWhite,
+                    ..EivOptions::default()
+                },
+                fallback: method == "eiv-stop13",
+                ..EivMethodOptions::default()
+            })
+        }
         "eiv-sc" => o.method = candidate(None, true),
         "eiv-sc-nofallback" => o.method = candidate(None, false),
         "eiv-scg" => o.method = candidate(Some(q), true),

@@ -357,7 +357,8 @@ fn given_extrinsics_are_applied_by_the_filter() {
 /// fallback) but hardly EIV's, which takes c_d from the heading increments
 /// the offset does not change. Measured on this 2 km noise-free drive
 /// (seed 21, production-car noise fixed): true c_d −2.000 mm, batch G-N
-/// −1.457 mm (error 5.4e-4 m), EIV −1.983 mm (1.7e-5 m); so the test fails
+/// −1.457 mm (error 5.4e-4 m), EIV −1.982 mm (1.8e-5 m; −1.983 with the
+/// stop-13 defaults); so the test fails
 /// if EIV's c_d absorbs the offset as batch G-N's does.
 #[test]
 fn unmodelled_heading_offset_moves_batch_gn_c_d_not_eiv() {
