@@ -107,10 +107,10 @@ mod tests {
     fn simulated_encoder_readings_give_the_encoders_step() {
         for (noise, ticks) in [(NoiseOptions::paper(), 2048.0), (NoiseOptions::high(), 512.0)] {
             let opts = SimOptions { length_km: 0.5, noise, seed: 3, ..SimOptions::default() };
-            let out = simulate(&opts).unwrap();
+            let out = simulate(&opts).expect("sim");
             let d = &out.drive;
             let expected = 1.0 / (ticks * d.sample_time_s());
-            let q = quantisation_step_of_readings(&d.measured().n_rl, &d.measured().n_rr).unwrap();
+            let q = quantisation_step_of_readings(&d.measured().n_rl, &d.measured().n_rr).expect("lattice");
             assert!((q / expected - 1.0).abs() < 1e-9, "q {q} expected {expected}");
         }
     }
@@ -120,12 +120,12 @@ mod tests {
         // White wheel noise only (no encoder): continuous readings.
         let opts =
             SimOptions { length_km: 0.5, noise: NoiseOptions::white_wheel_only(), seed: 3, ..SimOptions::default() };
-        let out = simulate(&opts).unwrap();
+        let out = simulate(&opts).expect("sim");
         let m = out.drive.measured();
         assert_eq!(quantisation_step_of_readings(&m.n_rl, &m.n_rr), None);
         // Noise-free readings: the true rotation rates, no lattice either.
         let off = SimOptions { length_km: 0.5, noise: NoiseOptions::off(), seed: 3, ..SimOptions::default() };
-        let m = simulate(&off).unwrap().drive.measured().clone();
+        let m = simulate(&off).expect("sim").drive.measured().clone();
         assert_eq!(quantisation_step_of_readings(&m.n_rl, &m.n_rr), None);
     }
 
@@ -140,7 +140,7 @@ mod tests {
         assert_eq!(quantisation_step_of_readings(&many, &many), None, "one reading between lattice points");
         // Readings written with six decimals keep their lattice.
         let rounded: Vec<f64> = (0..400).map(|k| (f64::from(100 + k % 60) * 0.0390625 * 1e6).round() / 1e6).collect();
-        let found = quantisation_step_of_readings(&rounded, &rounded).unwrap();
+        let found = quantisation_step_of_readings(&rounded, &rounded).expect("lattice");
         assert!((found / 0.0390625 - 1.0).abs() < 1e-6, "{found}");
         assert_eq!(quantisation_step_of_readings(&[], &[f64::NAN, 0.0]), None);
     }
