@@ -378,8 +378,8 @@ struct Transition<'a, const S: usize> {
 }
 
 impl<const S: usize> Transition<'_, S> {
-    /// Rows 0..3 of `F v` for the vector with entries `v(k)` (the one place
-    /// the dense rows of F are written out).
+    /// Rows 0..3 of `F v` for the vector with entries `v(k)` (the dense rows
+    /// of F; [`propagate`] writes the same sums out column-wise).
     #[inline(always)]
     fn top(&self, v: impl Fn(usize) -> f64) -> [f64; 3] {
         let (fxs, fxw) = (self.fxs, self.fxw);
@@ -404,12 +404,26 @@ impl<const S: usize> Transition<'_, S> {
 /// symmetric.
 #[inline]
 fn propagate<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>, nz: usize) -> MZ<S> {
-    // W = P F_topᵀ: row r of W is F_top applied to row r of P.
+    // W = P F_topᵀ: row r of W is F_top applied to row r of P. Computed
+    // column by column (`W[:, c] = Σ_k F[c, k] P[:, k]`, the sum in the order
+    // of [`Transition::top`], so every entry is the same to the bit): the
+    // inner loop runs down contiguous columns of P and vectorises.
     let mut w = MZx3::<S>::zeros();
-    for r in 0..nz {
-        let row = t.top(|k| p[(r, k)]);
-        for (c, v) in row.into_iter().enumerate() {
-            w[(r, c)] = v;
+    let fr = [t.f02, t.f12, 0.0];
+    for c in 0..3 {
+        let (a2, a3, a4, a5) = (fr[c], t.fxs[(c, 0)], t.fxs[(c, 1)], t.fxs[(c, 2)]);
+        let (a9, a10) = (t.fxw[(c, 0)], t.fxw[(c, 1)]);
+        let (pc, p2, p3, p4, p5) = (p.column(c), p.column(2), p.column(3), p.column(4), p.column(5));
+        let mut wc = w.column_mut(c);
+        if S > IW {
+            let (p9, p10) = (p.column(IW), p.column(IW + 1));
+            for r in 0..nz {
+                wc[r] = pc[r] + a2 * p2[r] + a3 * p3[r] + a4 * p4[r] + a5 * p5[r] + (a9 * p9[r] + a10 * p10[r]);
+            }
+        } else {
+            for r in 0..nz {
+                wc[r] = pc[r] + a2 * p2[r] + a3 * p3[r] + a4 * p4[r] + a5 * p5[r] + 0.0;
+            }
         }
     }
     let mut out = MZ::<S>::zeros();
@@ -421,12 +435,15 @@ fn propagate<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>, nz: usize) -> MZ<
         }
     }
     // Rows 3..nz: diagonal rows of F.
+    // (Column by column, down contiguous memory.)
     let diag = t.diag;
-    for i in 3..nz {
-        for c in 0..3 {
+    for c in 0..3 {
+        for i in 3..nz {
             out[(i, c)] = diag[i] * w[(i, c)];
         }
-        for c in 3..=i {
+    }
+    for c in 3..nz {
+        for i in c..nz {
             out[(i, c)] = diag[c] * (diag[i] * p[(i, c)]);
         }
     }
