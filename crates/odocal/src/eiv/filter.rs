@@ -401,9 +401,22 @@ impl<const S: usize> Transition<'_, S> {
 ///
 /// Only the lower triangle is computed (through `W = P F_topᵀ`, NZ×3, `F_top`
 /// the first three rows of F) and mirrored, so the result is exactly
-/// symmetric.
-#[inline]
+/// symmetric. (The filter calls [`propagate_in_place`]; this copy is for the
+/// kernel tests.)
+#[cfg(test)]
 fn propagate<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>, nz: usize) -> MZ<S> {
+    let mut out = *p;
+    propagate_in_place(&mut out, t, nz);
+    out
+}
+
+/// [`propagate`] overwriting `p` (no S×S temporary, no copy of the result).
+///
+/// Safe in place: the pose rows and columns of the result depend on P only
+/// through `W`, computed first, and every other lower-triangle entry
+/// `diag_c·diag_i·P[i, c]` only on the same entry of P.
+#[inline]
+fn propagate_in_place<const S: usize>(p: &mut MZ<S>, t: &Transition<'_, S>, nz: usize) {
     // W = P F_topᵀ: row r of W is F_top applied to row r of P. Computed
     // column by column (`W[:, c] = Σ_k F[c, k] P[:, k]`, the sum in the order
     // of [`Transition::top`], so every entry is the same to the bit): the
@@ -426,7 +439,7 @@ fn propagate<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>, nz: usize) -> MZ<
             }
         }
     }
-    let mut out = MZ::<S>::zeros();
+    let out = p;
     // Pose block: F_top W (lower triangle).
     for c in 0..3 {
         let col = t.top(|k| w[(k, c)]);
@@ -444,11 +457,10 @@ fn propagate<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>, nz: usize) -> MZ<
     }
     for c in 3..nz {
         for i in c..nz {
-            out[(i, c)] = diag[c] * (diag[i] * p[(i, c)]);
+            out[(i, c)] = diag[c] * (diag[i] * out[(i, c)]);
         }
     }
-    mirror_lower(&mut out, nz);
-    out
+    mirror_lower(out, nz);
 }
 
 /// Copies the strict lower triangle onto the upper one.
@@ -548,18 +560,34 @@ fn theta_jacobian_input_derivatives(psi: f64, u: &Input, th: &Theta, ts: f64) ->
 /// `X − (XHᵀ)Kᵀ`; the expanded `A − KHA − (KHA)ᵀ + K(HAHᵀ)Kᵀ` is
 /// numerically unstable here), but only the entries of X that the lower
 /// triangle of the result needs, and only that triangle, mirrored.
-#[inline]
+///
+/// (The filter calls [`joseph_in_place`]; this copy is for the kernel tests.)
+#[cfg(test)]
 fn joseph<const S: usize>(a: &MZ<S>, k: &MZx3<S>, nz: usize) -> MZ<S> {
+    let mut out = *a;
+    joseph_in_place(&mut out, k, nz);
+    out
+}
+
+/// [`joseph`] overwriting `a` (no S×S temporaries, no copy of the result).
+///
+/// Safe in place: `HA` is taken first; then every entry of X depends on A
+/// only through the same entry, and every lower-triangle entry of the result
+/// on X only through the same entry and `XHᵀ` (taken before them); the upper
+/// triangle is mirrored last.
+#[inline]
+fn joseph_in_place<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, nz: usize) {
     // HA (3×9): rows 0..3 plus rows 6..9.
     let ha = h_rows(a);
     // X = A − K HA: every row of columns 0..3 and 6..9 (for XHᵀ), and the
-    // lower triangle of the other columns.
-    let mut x = MZ::<S>::zeros();
+    // lower triangle of the other columns (the rest of A is left as it is:
+    // the mirror overwrites it).
+    let x = a;
     for c in 0..nz {
         let first = if c < 3 || (6..9).contains(&c) { 0 } else { c };
         let (h0, h1, h2) = (ha[(0, c)], ha[(1, c)], ha[(2, c)]);
         for r in first..S {
-            x[(r, c)] = a[(r, c)] - (k[(r, 0)] * h0 + k[(r, 1)] * h1 + k[(r, 2)] * h2);
+            x[(r, c)] -= k[(r, 0)] * h0 + k[(r, 1)] * h1 + k[(r, 2)] * h2;
         }
     }
     // XHᵀ (9×3).
@@ -570,15 +598,13 @@ fn joseph<const S: usize>(a: &MZ<S>, k: &MZx3<S>, nz: usize) -> MZ<S> {
         }
     }
     // Lower triangle of X − (XHᵀ)Kᵀ.
-    let mut out = MZ::<S>::zeros();
     for c in 0..nz {
         let (k0, k1, k2) = (k[(c, 0)], k[(c, 1)], k[(c, 2)]);
         for r in c..nz {
-            out[(r, c)] = x[(r, c)] - (xh[(r, 0)] * k0 + xh[(r, 1)] * k1 + xh[(r, 2)] * k2);
+            x[(r, c)] -= xh[(r, 0)] * k0 + xh[(r, 1)] * k1 + xh[(r, 2)] * k2;
         }
     }
-    mirror_lower(&mut out, nz);
-    out
+    mirror_lower(x, nz);
 }
 
 /// `(I − K H) A (I − K H)ᵀ` for `H = [I₃ 0 I₃]` and any `A` (the
@@ -1231,7 +1257,7 @@ fn run_window_s<const S: usize>(
             if smoothed {
                 for (w, f_w) in [fn_l, fn_r].into_iter().enumerate() {
                     let dpl = &mut dp_lambda[w];
-                    *dpl = propagate(dpl, &ft, nz);
+                    propagate_in_place(dpl, &ft, nz);
                     let q = f_w * f_w.transpose() * rel[w];
                     for r_ in 0..3 {
                         for c_ in 0..3 {
@@ -1244,7 +1270,7 @@ fn run_window_s<const S: usize>(
                 }
                 if all_sources {
                     let dpc = &mut dp_lambda[2];
-                    *dpc = propagate(dpc, &ft, nz);
+                    propagate_in_place(dpc, &ft, nz);
                     dpc[(3, 3)] += q_s[0];
                 }
             }
@@ -1466,11 +1492,11 @@ fn run_window_s<const S: usize>(
                 }
             }
         };
-        p = propagate(&p, &ft, nz);
+        propagate_in_place(&mut p, &ft, nz);
         add_q(&mut p);
         add_q_w(&mut p);
         if null {
-            p0 = propagate(&p0, &ft, nz);
+            propagate_in_place(&mut p0, &ft, nz);
             add_q(&mut p0);
             add_q_w(&mut p0);
             if let Some((c, _)) = &mut c0 {
@@ -1479,7 +1505,7 @@ fn run_window_s<const S: usize>(
         }
         for &jj in cols {
             let dpj = &mut dp[jj];
-            *dpj = propagate(dpj, &ft, nz);
+            propagate_in_place(dpj, &ft, nz);
             match jj {
                 0..=3 => add_sym_rows(dpj, &theta_terms[jj]),
                 4 => {
@@ -1557,7 +1583,7 @@ fn run_window_s<const S: usize>(
             for (w, dpl) in dp_lambda.iter_mut().take(n_l).enumerate() {
                 let ds_l = h_cols(&h_rows(dpl));
                 w_smoothed[w] += (sinv * ds_l).trace();
-                *dpl = joseph(dpl, &k_l, nz);
+                joseph_in_place(dpl, &k_l, nz);
             }
         }
         let quad = nu.dot(&sinv_nu);
@@ -1601,7 +1627,7 @@ fn run_window_s<const S: usize>(
             }
             // C₀ = E[ε⁺ νᵀ] = P₀Hᵀ − K S₀; P₀⁺ = (I−KH)P₀(I−KH)ᵀ + K R₀ Kᵀ.
             c0 = Some((hp0.transpose() - k * s0, l));
-            p0 = joseph(&p0, &k, nz);
+            joseph_in_place(&mut p0, &k, nz);
             add_kdk(&mut p0, &k, &r0, nz);
         }
 
@@ -1707,7 +1733,7 @@ fn run_window_s<const S: usize>(
             // Joseph form (I−KH)∂P(I−KH)ᵀ + K ∂R Kᵀ: the algebraically equal
             // ∂P − KH∂P − (KH∂P)ᵀ + K ∂S Kᵀ is numerically unstable here.
             for &jj in cols {
-                dp[jj] = joseph(&dp[jj], &k, nz);
+                joseph_in_place(&mut dp[jj], &k, nz);
                 let dr = d_r(jj);
                 if dr != Matrix3::zeros() {
                     add_kdk(&mut dp[jj], &k, &dr, nz);
@@ -1726,7 +1752,7 @@ fn run_window_s<const S: usize>(
             wq[0] += dz[IW];
             wq[1] += dz[IW + 1];
         }
-        p = joseph(&p, &k, nz);
+        joseph_in_place(&mut p, &k, nz);
         add_kdk(&mut p, &k, &r_k, nz);
     }
     if block_open {
