@@ -397,16 +397,16 @@ impl<const S: usize> Transition<'_, S> {
 }
 
 /// `F P Fᵀ` for the structured transition `t` ([`Transition`]) and a
-/// symmetric `P`, over the active size `nz`.
+/// symmetric `P`.
 ///
 /// Only the lower triangle is computed (through `W = P F_topᵀ`, NZ×3, `F_top`
 /// the first three rows of F) and mirrored, so the result is exactly
 /// symmetric. (The filter calls [`propagate_in_place`]; this copy is for the
 /// kernel tests.)
 #[cfg(test)]
-fn propagate<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>, nz: usize) -> MZ<S> {
+fn propagate<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>) -> MZ<S> {
     let mut out = *p;
-    propagate_in_place(&mut out, t, nz);
+    propagate_in_place(&mut out, t);
     out
 }
 
@@ -416,7 +416,7 @@ fn propagate<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>, nz: usize) -> MZ<
 /// through `W`, computed first, and every other lower-triangle entry
 /// `diag_c·diag_i·P[i, c]` only on the same entry of P.
 #[inline]
-fn propagate_in_place<const S: usize>(p: &mut MZ<S>, t: &Transition<'_, S>, nz: usize) {
+fn propagate_in_place<const S: usize>(p: &mut MZ<S>, t: &Transition<'_, S>) {
     // W = P F_topᵀ: row r of W is F_top applied to row r of P. Computed
     // column by column (`W[:, c] = Σ_k F[c, k] P[:, k]`, the sum in the order
     // of [`Transition::top`], so every entry is the same to the bit): the
@@ -430,11 +430,11 @@ fn propagate_in_place<const S: usize>(p: &mut MZ<S>, t: &Transition<'_, S>, nz: 
         let mut wc = w.column_mut(c);
         if S > IW {
             let (p9, p10) = (p.column(IW), p.column(IW + 1));
-            for r in 0..nz {
+            for r in 0..S {
                 wc[r] = pc[r] + a2 * p2[r] + a3 * p3[r] + a4 * p4[r] + a5 * p5[r] + (a9 * p9[r] + a10 * p10[r]);
             }
         } else {
-            for r in 0..nz {
+            for r in 0..S {
                 wc[r] = pc[r] + a2 * p2[r] + a3 * p3[r] + a4 * p4[r] + a5 * p5[r] + 0.0;
             }
         }
@@ -447,26 +447,26 @@ fn propagate_in_place<const S: usize>(p: &mut MZ<S>, t: &Transition<'_, S>, nz: 
             out[(i, c)] = col[i];
         }
     }
-    // Rows 3..nz: diagonal rows of F.
+    // Rows 3..S: diagonal rows of F.
     // (Column by column, down contiguous memory.)
     let diag = t.diag;
     for c in 0..3 {
-        for i in 3..nz {
+        for i in 3..S {
             out[(i, c)] = diag[i] * w[(i, c)];
         }
     }
-    for c in 3..nz {
-        for i in c..nz {
+    for c in 3..S {
+        for i in c..S {
             out[(i, c)] = diag[c] * (diag[i] * out[(i, c)]);
         }
     }
-    mirror_lower(out, nz);
+    mirror_lower(out);
 }
 
 /// Copies the strict lower triangle onto the upper one.
 #[inline]
-fn mirror_lower<const S: usize>(m: &mut MZ<S>, nz: usize) {
-    for c in 1..nz {
+fn mirror_lower<const S: usize>(m: &mut MZ<S>) {
+    for c in 1..S {
         for r in 0..c {
             m[(r, c)] = m[(c, r)];
         }
@@ -563,9 +563,9 @@ fn theta_jacobian_input_derivatives(psi: f64, u: &Input, th: &Theta, ts: f64) ->
 ///
 /// (The filter calls [`joseph_in_place`]; this copy is for the kernel tests.)
 #[cfg(test)]
-fn joseph<const S: usize>(a: &MZ<S>, k: &MZx3<S>, nz: usize) -> MZ<S> {
+fn joseph<const S: usize>(a: &MZ<S>, k: &MZx3<S>) -> MZ<S> {
     let mut out = *a;
-    joseph_in_place(&mut out, k, nz);
+    joseph_in_place(&mut out, k);
     out
 }
 
@@ -576,14 +576,14 @@ fn joseph<const S: usize>(a: &MZ<S>, k: &MZx3<S>, nz: usize) -> MZ<S> {
 /// on X only through the same entry and `XHᵀ` (taken before them); the upper
 /// triangle is mirrored last.
 #[inline]
-fn joseph_in_place<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, nz: usize) {
+fn joseph_in_place<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>) {
     // HA (3×9): rows 0..3 plus rows 6..9.
     let ha = h_rows(a);
     // X = A − K HA: every row of columns 0..3 and 6..9 (for XHᵀ), and the
     // lower triangle of the other columns (the rest of A is left as it is:
     // the mirror overwrites it).
     let x = a;
-    for c in 0..nz {
+    for c in 0..S {
         let first = if c < 3 || (6..9).contains(&c) { 0 } else { c };
         let (h0, h1, h2) = (ha[(0, c)], ha[(1, c)], ha[(2, c)]);
         for r in first..S {
@@ -593,18 +593,18 @@ fn joseph_in_place<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, nz: usize) {
     // XHᵀ (9×3).
     let mut xh = MZx3::<S>::zeros();
     for m in 0..3 {
-        for r in 0..nz {
+        for r in 0..S {
             xh[(r, m)] = x[(r, m)] + x[(r, m + 6)];
         }
     }
     // Lower triangle of X − (XHᵀ)Kᵀ.
-    for c in 0..nz {
+    for c in 0..S {
         let (k0, k1, k2) = (k[(c, 0)], k[(c, 1)], k[(c, 2)]);
-        for r in c..nz {
+        for r in c..S {
             x[(r, c)] -= xh[(r, 0)] * k0 + xh[(r, 1)] * k1 + xh[(r, 2)] * k2;
         }
     }
-    mirror_lower(x, nz);
+    mirror_lower(x);
 }
 
 /// `(I − K H) A (I − K H)ᵀ` for `H = [I₃ 0 I₃]` and any `A` (the
@@ -651,34 +651,36 @@ fn propagate_general<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>) -> MZ<S> 
 
 /// `F C` for an S×3 `C` and the structured transition of [`propagate`].
 #[inline]
-fn propagate_cols<const S: usize>(c: &MZx3<S>, t: &Transition<'_, S>, nz: usize) -> MZx3<S> {
+fn propagate_cols<const S: usize>(c: &MZx3<S>, t: &Transition<'_, S>) -> MZx3<S> {
     let mut out = MZx3::<S>::zeros();
     for j in 0..3 {
         let col = t.top(|k| c[(k, j)]);
         for (r, v) in col.into_iter().enumerate() {
             out[(r, j)] = v;
         }
-        for r in 3..nz {
+        for r in 3..S {
             out[(r, j)] = t.diag[r] * c[(r, j)];
         }
     }
     out
 }
 
-/// `dst += K D Kᵀ` for a symmetric 3×3 `D`, exactly symmetric.
+/// `dst += K D Kᵀ` for a symmetric 3×3 `D` and an exactly symmetric `dst`
+/// (every covariance and covariance derivative of the filter), exactly
+/// symmetric: the lower triangle is added (down contiguous columns) and
+/// mirrored, which for a symmetric `dst` is the same to the bit as adding
+/// the same product to both triangles.
 #[inline]
-fn add_kdk<const S: usize>(dst: &mut MZ<S>, k: &MZx3<S>, d: &Matrix3<f64>, nz: usize) {
+fn add_kdk<const S: usize>(dst: &mut MZ<S>, k: &MZx3<S>, d: &Matrix3<f64>) {
+    debug_assert!(*dst == dst.transpose(), "add_kdk: dst not exactly symmetric");
     let kd = k * d;
-    for c in 0..nz {
+    for c in 0..S {
         let (k0, k1, k2) = (k[(c, 0)], k[(c, 1)], k[(c, 2)]);
-        for r in c..nz {
-            let v = kd[(r, 0)] * k0 + kd[(r, 1)] * k1 + kd[(r, 2)] * k2;
-            dst[(r, c)] += v;
-            if r != c {
-                dst[(c, r)] += v;
-            }
+        for r in c..S {
+            dst[(r, c)] += kd[(r, 0)] * k0 + kd[(r, 1)] * k1 + kd[(r, 2)] * k2;
         }
     }
+    mirror_lower(dst);
 }
 
 /// The initial covariance of a window and its derivatives over
@@ -1027,9 +1029,6 @@ fn run_window_s<const S: usize>(
     let mut b = Vector3::<f64>::zeros();
     // Counting quantisation: the estimated remainders w_{k−1} (rev/s).
     let mut wq = [0.0f64; 2];
-    // Active state size: without counting quantisation the remainder rows
-    // and columns stay exactly zero, and the kernels skip them.
-    let nz = S;
     let mut d = DZ::<S>::zeros();
     let mut base_diag = [1.0; S];
     base_diag[3..IW].copy_from_slice(&[v.a_common, v.a_wheel, v.a_wheel, v.a_drift, v.a_drift, v.a_drift]);
@@ -1257,7 +1256,7 @@ fn run_window_s<const S: usize>(
             if smoothed {
                 for (w, f_w) in [fn_l, fn_r].into_iter().enumerate() {
                     let dpl = &mut dp_lambda[w];
-                    propagate_in_place(dpl, &ft, nz);
+                    propagate_in_place(dpl, &ft);
                     let q = f_w * f_w.transpose() * rel[w];
                     for r_ in 0..3 {
                         for c_ in 0..3 {
@@ -1270,7 +1269,7 @@ fn run_window_s<const S: usize>(
                 }
                 if all_sources {
                     let dpc = &mut dp_lambda[2];
-                    propagate_in_place(dpc, &ft, nz);
+                    propagate_in_place(dpc, &ft);
                     dpc[(3, 3)] += q_s[0];
                 }
             }
@@ -1409,7 +1408,7 @@ fn run_window_s<const S: usize>(
                 }
                 // G = ∂F̄ P⁺ (rows 0..3 only).
                 let mut g = M3xZ::<S>::zeros();
-                for c in 0..nz {
+                for c in 0..S {
                     let (p2, p3, p4, p5) = (p[(2, c)], p[(3, c)], p[(4, c)], p[(5, c)]);
                     let (p9, p10) = if S > IW { (p[(IW, c)], p[(IW + 1, c)]) } else { (0.0, 0.0) };
                     let dfr2 = [d02, d12, 0.0];
@@ -1424,7 +1423,7 @@ fn run_window_s<const S: usize>(
                 }
                 // G F̄ᵀ.
                 for rr in 0..3 {
-                    for ci in 0..nz {
+                    for ci in 0..S {
                         tt[(rr, ci)] = if ci < 3 {
                             let fr = [f02, f12, 0.0];
                             g[(rr, ci)]
@@ -1492,20 +1491,20 @@ fn run_window_s<const S: usize>(
                 }
             }
         };
-        propagate_in_place(&mut p, &ft, nz);
+        propagate_in_place(&mut p, &ft);
         add_q(&mut p);
         add_q_w(&mut p);
         if null {
-            propagate_in_place(&mut p0, &ft, nz);
+            propagate_in_place(&mut p0, &ft);
             add_q(&mut p0);
             add_q_w(&mut p0);
             if let Some((c, _)) = &mut c0 {
-                *c = propagate_cols(c, &ft, nz);
+                *c = propagate_cols(c, &ft);
             }
         }
         for &jj in cols {
             let dpj = &mut dp[jj];
-            propagate_in_place(dpj, &ft, nz);
+            propagate_in_place(dpj, &ft);
             match jj {
                 0..=3 => add_sym_rows(dpj, &theta_terms[jj]),
                 4 => {
@@ -1583,7 +1582,7 @@ fn run_window_s<const S: usize>(
             for (w, dpl) in dp_lambda.iter_mut().take(n_l).enumerate() {
                 let ds_l = h_cols(&h_rows(dpl));
                 w_smoothed[w] += (sinv * ds_l).trace();
-                joseph_in_place(dpl, &k_l, nz);
+                joseph_in_place(dpl, &k_l);
             }
         }
         let quad = nu.dot(&sinv_nu);
@@ -1627,8 +1626,8 @@ fn run_window_s<const S: usize>(
             }
             // C₀ = E[ε⁺ νᵀ] = P₀Hᵀ − K S₀; P₀⁺ = (I−KH)P₀(I−KH)ᵀ + K R₀ Kᵀ.
             c0 = Some((hp0.transpose() - k * s0, l));
-            joseph_in_place(&mut p0, &k, nz);
-            add_kdk(&mut p0, &k, &r0, nz);
+            joseph_in_place(&mut p0, &k);
+            add_kdk(&mut p0, &k, &r0);
         }
 
         if mode.derivs {
@@ -1733,10 +1732,10 @@ fn run_window_s<const S: usize>(
             // Joseph form (I−KH)∂P(I−KH)ᵀ + K ∂R Kᵀ: the algebraically equal
             // ∂P − KH∂P − (KH∂P)ᵀ + K ∂S Kᵀ is numerically unstable here.
             for &jj in cols {
-                joseph_in_place(&mut dp[jj], &k, nz);
+                joseph_in_place(&mut dp[jj], &k);
                 let dr = d_r(jj);
                 if dr != Matrix3::zeros() {
-                    add_kdk(&mut dp[jj], &k, &dr, nz);
+                    add_kdk(&mut dp[jj], &k, &dr);
                 }
             }
         }
@@ -1752,8 +1751,8 @@ fn run_window_s<const S: usize>(
             wq[0] += dz[IW];
             wq[1] += dz[IW + 1];
         }
-        joseph_in_place(&mut p, &k, nz);
-        add_kdk(&mut p, &k, &r_k, nz);
+        joseph_in_place(&mut p, &k);
+        add_kdk(&mut p, &k, &r_k);
     }
     if block_open {
         out.blocks.push(&block_sum, block_prev.as_ref());
@@ -1845,7 +1844,7 @@ mod kernel_tests {
             f.fixed_view_mut::<3, 2>(0, IW).copy_from(&fxw);
             let dense = f * p * f.transpose();
             let t = Transition { f02, f12, fxs: &fxs, fxw: &fxw, diag: &diag };
-            let fast = propagate(&p, &t, NZ);
+            let fast = propagate(&p, &t);
             assert_close(&fast, &dense, "propagate");
             assert_eq!(fast, fast.transpose(), "propagate is not exactly symmetric");
             assert_close(&propagate_general(&p, &t), &dense, "propagate_general");
@@ -1862,7 +1861,7 @@ mod kernel_tests {
             let k = MZx3::<NZ>::from_fn(|_, _| lcg(&mut st));
             let ikh = MZ::<NZ>::identity() - k * h();
             let dense = ikh * p * ikh.transpose();
-            let fast = joseph(&p, &k, NZ);
+            let fast = joseph(&p, &k);
             assert_close(&fast, &dense, "joseph");
             assert_eq!(fast, fast.transpose(), "joseph is not exactly symmetric");
             assert_close(&joseph_general(&x, &k), &(ikh * x * ikh.transpose()), "joseph_general, asym");
