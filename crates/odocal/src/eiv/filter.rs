@@ -1389,6 +1389,7 @@ fn run_window_s<const S: usize>(
         // --- Covariance prediction and its derivatives.
         // ∂P⁻/∂θ_j = F̄ ∂P⁺ F̄ᵀ + (∂F̄ P⁺ F̄ᵀ + F̄ P⁺ ∂F̄ᵀ) + ∂Q/∂θ_j.
         if let Some(rt) = &rt {
+            debug_assert!(p == MZ::<S>::transpose(&p), "P⁺ not exactly symmetric");
             // The s-columns −F_n n̂ with their θ-derivatives (n̂ = ñ·g, g = 1
             // without `fitted_input`).
             let (fs_l, fs_r) =
@@ -1406,19 +1407,18 @@ fn run_window_s<const S: usize>(
                         dfxw.set_column(w, &(-df));
                     }
                 }
-                // G = ∂F̄ P⁺ (rows 0..3 only).
-                let mut g = M3xZ::<S>::zeros();
-                for c in 0..S {
-                    let (p2, p3, p4, p5) = (p[(2, c)], p[(3, c)], p[(4, c)], p[(5, c)]);
-                    let (p9, p10) = if S > IW { (p[(IW, c)], p[(IW + 1, c)]) } else { (0.0, 0.0) };
-                    let dfr2 = [d02, d12, 0.0];
-                    for rr in 0..3 {
-                        g[(rr, c)] = dfr2[rr] * p2
-                            + dfxs[(rr, 0)] * p3
-                            + dfxs[(rr, 1)] * p4
-                            + dfxs[(rr, 2)] * p5
-                            + dfxw[(rr, 0)] * p9
-                            + dfxw[(rr, 1)] * p10;
+                // G = ∂F̄ P⁺ (rows 0..3 only), stored transposed (Gᵀ, S×3):
+                // row rr of G is a combination of rows of P⁺, read as its
+                // columns (P⁺ is exactly symmetric), so the inner loop runs
+                // down contiguous memory; the sums are the same to the bit.
+                let mut gt = MZx3::<S>::zeros();
+                let dfr2 = [d02, d12, 0.0];
+                for rr in 0..3 {
+                    let (a2, a3, a4, a5) = (dfr2[rr], dfxs[(rr, 0)], dfxs[(rr, 1)], dfxs[(rr, 2)]);
+                    let (a9, a10) = (dfxw[(rr, 0)], dfxw[(rr, 1)]);
+                    for c in 0..S {
+                        let (p9, p10) = if S > IW { (p[(c, IW)], p[(c, IW + 1)]) } else { (0.0, 0.0) };
+                        gt[(c, rr)] = a2 * p[(c, 2)] + a3 * p[(c, 3)] + a4 * p[(c, 4)] + a5 * p[(c, 5)] + a9 * p9 + a10 * p10;
                     }
                 }
                 // G F̄ᵀ.
@@ -1426,18 +1426,18 @@ fn run_window_s<const S: usize>(
                     for ci in 0..S {
                         tt[(rr, ci)] = if ci < 3 {
                             let fr = [f02, f12, 0.0];
-                            g[(rr, ci)]
-                                + fr[ci] * g[(rr, 2)]
-                                + fxs_ref[(ci, 0)] * g[(rr, 3)]
-                                + fxs_ref[(ci, 1)] * g[(rr, 4)]
-                                + fxs_ref[(ci, 2)] * g[(rr, 5)]
+                            gt[(ci, rr)]
+                                + fr[ci] * gt[(2, rr)]
+                                + fxs_ref[(ci, 0)] * gt[(3, rr)]
+                                + fxs_ref[(ci, 1)] * gt[(4, rr)]
+                                + fxs_ref[(ci, 2)] * gt[(5, rr)]
                                 + if S > IW {
-                                    fxw_ref[(ci, 0)] * g[(rr, IW)] + fxw_ref[(ci, 1)] * g[(rr, IW + 1)]
+                                    fxw_ref[(ci, 0)] * gt[(IW, rr)] + fxw_ref[(ci, 1)] * gt[(IW + 1, rr)]
                                 } else {
                                     0.0
                                 }
                         } else {
-                            diag[ci] * g[(rr, ci)]
+                            diag[ci] * gt[(ci, rr)]
                         };
                     }
                 }
