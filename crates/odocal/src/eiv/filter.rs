@@ -565,7 +565,7 @@ fn theta_jacobian_input_derivatives(psi: f64, u: &Input, th: &Theta, ts: f64) ->
 #[cfg(test)]
 fn joseph<const S: usize>(a: &MZ<S>, k: &MZx3<S>) -> MZ<S> {
     let mut out = *a;
-    joseph_in_place(&mut out, k);
+    joseph_in_place(&mut out, k, None);
     out
 }
 
@@ -575,8 +575,11 @@ fn joseph<const S: usize>(a: &MZ<S>, k: &MZx3<S>) -> MZ<S> {
 /// only through the same entry, and every lower-triangle entry of the result
 /// on X only through the same entry and `XHᵀ` (taken before them); the upper
 /// triangle is mirrored last.
+///
+/// With `d`, `K D Kᵀ` is added as well ([`add_kdk`]) before the one mirror:
+/// the same to the bit as [`add_kdk`] after the mirrored Joseph form.
 #[inline]
-fn joseph_in_place<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>) {
+fn joseph_in_place<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, d: Option<&Matrix3<f64>>) {
     // HA (3×9): rows 0..3 plus rows 6..9.
     let ha = h_rows(a);
     // X = A − K HA: every row of columns 0..3 and 6..9 (for XHᵀ), and the
@@ -603,6 +606,9 @@ fn joseph_in_place<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>) {
         for r in c..S {
             x[(r, c)] -= xh[(r, 0)] * k0 + xh[(r, 1)] * k1 + xh[(r, 2)] * k2;
         }
+    }
+    if let Some(d) = d {
+        add_kdk_lower(x, k, d);
     }
     mirror_lower(x);
 }
@@ -667,12 +673,20 @@ fn propagate_cols<const S: usize>(c: &MZx3<S>, t: &Transition<'_, S>) -> MZx3<S>
 
 /// `dst += K D Kᵀ` for a symmetric 3×3 `D` and an exactly symmetric `dst`
 /// (every covariance and covariance derivative of the filter), exactly
-/// symmetric: the lower triangle is added (down contiguous columns) and
-/// mirrored, which for a symmetric `dst` is the same to the bit as adding
-/// the same product to both triangles.
-#[inline]
+/// symmetric: the lower triangle is added ([`add_kdk_lower`]) and mirrored,
+/// which for a symmetric `dst` is the same to the bit as adding the same
+/// product to both triangles. (The filter adds it inside
+/// [`joseph_in_place`]; this copy is for the kernel tests.)
+#[cfg(test)]
 fn add_kdk<const S: usize>(dst: &mut MZ<S>, k: &MZx3<S>, d: &Matrix3<f64>) {
     debug_assert!(*dst == dst.transpose(), "add_kdk: dst not exactly symmetric");
+    add_kdk_lower(dst, k, d);
+    mirror_lower(dst);
+}
+
+/// The lower triangle of `dst += K D Kᵀ` (down contiguous columns).
+#[inline]
+fn add_kdk_lower<const S: usize>(dst: &mut MZ<S>, k: &MZx3<S>, d: &Matrix3<f64>) {
     let kd = k * d;
     for c in 0..S {
         let (k0, k1, k2) = (k[(c, 0)], k[(c, 1)], k[(c, 2)]);
@@ -680,7 +694,6 @@ fn add_kdk<const S: usize>(dst: &mut MZ<S>, k: &MZx3<S>, d: &Matrix3<f64>) {
             dst[(r, c)] += kd[(r, 0)] * k0 + kd[(r, 1)] * k1 + kd[(r, 2)] * k2;
         }
     }
-    mirror_lower(dst);
 }
 
 /// The initial covariance of a window and its derivatives over
@@ -1582,7 +1595,7 @@ fn run_window_s<const S: usize>(
             for (w, dpl) in dp_lambda.iter_mut().take(n_l).enumerate() {
                 let ds_l = h_cols(&h_rows(dpl));
                 w_smoothed[w] += (sinv * ds_l).trace();
-                joseph_in_place(dpl, &k_l);
+                joseph_in_place(dpl, &k_l, None);
             }
         }
         let quad = nu.dot(&sinv_nu);
@@ -1626,8 +1639,7 @@ fn run_window_s<const S: usize>(
             }
             // C₀ = E[ε⁺ νᵀ] = P₀Hᵀ − K S₀; P₀⁺ = (I−KH)P₀(I−KH)ᵀ + K R₀ Kᵀ.
             c0 = Some((hp0.transpose() - k * s0, l));
-            joseph_in_place(&mut p0, &k);
-            add_kdk(&mut p0, &k, &r0);
+            joseph_in_place(&mut p0, &k, Some(&r0));
         }
 
         if mode.derivs {
@@ -1732,11 +1744,8 @@ fn run_window_s<const S: usize>(
             // Joseph form (I−KH)∂P(I−KH)ᵀ + K ∂R Kᵀ: the algebraically equal
             // ∂P − KH∂P − (KH∂P)ᵀ + K ∂S Kᵀ is numerically unstable here.
             for &jj in cols {
-                joseph_in_place(&mut dp[jj], &k);
                 let dr = d_r(jj);
-                if dr != Matrix3::zeros() {
-                    add_kdk(&mut dp[jj], &k, &dr);
-                }
+                joseph_in_place(&mut dp[jj], &k, (dr != Matrix3::zeros()).then_some(&dr));
             }
         }
 
@@ -1751,8 +1760,7 @@ fn run_window_s<const S: usize>(
             wq[0] += dz[IW];
             wq[1] += dz[IW + 1];
         }
-        joseph_in_place(&mut p, &k);
-        add_kdk(&mut p, &k, &r_k);
+        joseph_in_place(&mut p, &k, Some(&r_k));
     }
     if block_open {
         out.blocks.push(&block_sum, block_prev.as_ref());
@@ -1869,7 +1877,7 @@ mod kernel_tests {
             let dm = Matrix3::from_fn(|_, _| lcg(&mut st));
             let dm = dm + dm.transpose();
             let mut acc = p;
-            add_kdk(&mut acc, &k, &dm, NZ);
+            add_kdk(&mut acc, &k, &dm);
             assert_close(&acc, &(p + k * dm * k.transpose()), "add_kdk");
             assert_eq!(acc, acc.transpose(), "add_kdk is not exactly symmetric");
         }
