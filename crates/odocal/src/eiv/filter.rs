@@ -1857,7 +1857,7 @@ mod kernel_tests {
             assert_eq!(fast, fast.transpose(), "propagate is not exactly symmetric");
             assert_close(&propagate_general(&p, &t), &dense, "propagate_general");
             let c = MZx3::<NZ>::from_fn(|_, _| lcg(&mut st));
-            let fc = propagate_cols(&c, &t, NZ);
+            let fc = propagate_cols(&c, &t);
             let want = f * c;
             for (r, (a, b)) in fc.iter().zip(want.iter()).enumerate() {
                 assert!((a - b).abs() <= 1e-12 * b.abs().max(1.0), "propagate_cols entry {r}: {a} vs {b}");
@@ -1880,7 +1880,47 @@ mod kernel_tests {
             add_kdk(&mut acc, &k, &dm);
             assert_close(&acc, &(p + k * dm * k.transpose()), "add_kdk");
             assert_eq!(acc, acc.transpose(), "add_kdk is not exactly symmetric");
+
+            // The fused Joseph form + K D Kᵀ the filter runs: the same to the
+            // bit as the two steps (stop 14; a reordering would break this).
+            let mut fused = p;
+            joseph_in_place(&mut fused, &k, Some(&dm));
+            let mut two = joseph(&p, &k);
+            add_kdk(&mut two, &k, &dm);
+            assert_eq!(fused, two, "joseph_in_place with K D Kᵀ is not bitwise joseph then add_kdk");
+            // The column-wise propagation: the same to the bit as the
+            // row-wise formulation it replaced.
+            assert_eq!(propagate(&p, &t), propagate_rowwise(&p, &t), "propagate is not bitwise the row-wise one");
         }
+    }
+
+    /// The row-wise `F P Fᵀ` of stop 13 (through [`Transition::top`]), the
+    /// bitwise reference of [`propagate`].
+    fn propagate_rowwise<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>) -> MZ<S> {
+        let mut w = MZx3::<S>::zeros();
+        for r in 0..S {
+            let row = t.top(|k| p[(r, k)]);
+            for (c, v) in row.into_iter().enumerate() {
+                w[(r, c)] = v;
+            }
+        }
+        let mut out = MZ::<S>::zeros();
+        for c in 0..3 {
+            let col = t.top(|k| w[(k, c)]);
+            for i in c..3 {
+                out[(i, c)] = col[i];
+            }
+        }
+        for i in 3..S {
+            for c in 0..3 {
+                out[(i, c)] = t.diag[i] * w[(i, c)];
+            }
+            for c in 3..=i {
+                out[(i, c)] = t.diag[c] * (t.diag[i] * p[(i, c)]);
+            }
+        }
+        mirror_lower(&mut out);
+        out
     }
 
     /// The value-only reference terms are the values of the differentiated
