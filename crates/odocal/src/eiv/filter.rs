@@ -1431,7 +1431,8 @@ fn run_window_s<const S: usize>(
                     let (a9, a10) = (dfxw[(rr, 0)], dfxw[(rr, 1)]);
                     for c in 0..S {
                         let (p9, p10) = if S > IW { (p[(c, IW)], p[(c, IW + 1)]) } else { (0.0, 0.0) };
-                        gt[(c, rr)] = a2 * p[(c, 2)] + a3 * p[(c, 3)] + a4 * p[(c, 4)] + a5 * p[(c, 5)] + a9 * p9 + a10 * p10;
+                        gt[(c, rr)] =
+                            a2 * p[(c, 2)] + a3 * p[(c, 3)] + a4 * p[(c, 4)] + a5 * p[(c, 5)] + a9 * p9 + a10 * p10;
                     }
                 }
                 // G F̄ᵀ.
