@@ -378,8 +378,8 @@ struct Transition<'a, const S: usize> {
 }
 
 impl<const S: usize> Transition<'_, S> {
-    /// Rows 0..3 of `F v` for the vector with entries `v(k)` (the one place
-    /// the dense rows of F are written out).
+    /// Rows 0..3 of `F v` for the vector with entries `v(k)` (the dense rows
+    /// of F; [`propagate`] writes the same sums out column-wise).
     #[inline(always)]
     fn top(&self, v: impl Fn(usize) -> f64) -> [f64; 3] {
         let (fxs, fxw) = (self.fxs, self.fxw);
@@ -397,22 +397,49 @@ impl<const S: usize> Transition<'_, S> {
 }
 
 /// `F P Fᵀ` for the structured transition `t` ([`Transition`]) and a
-/// symmetric `P`, over the active size `nz`.
+/// symmetric `P`.
 ///
 /// Only the lower triangle is computed (through `W = P F_topᵀ`, NZ×3, `F_top`
 /// the first three rows of F) and mirrored, so the result is exactly
-/// symmetric.
+/// symmetric. (The filter calls [`propagate_in_place`]; this copy is for the
+/// kernel tests.)
+#[cfg(test)]
+fn propagate<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>) -> MZ<S> {
+    let mut out = *p;
+    propagate_in_place(&mut out, t);
+    out
+}
+
+/// [`propagate`] overwriting `p` (no S×S temporary, no copy of the result).
+///
+/// Safe in place: the pose rows and columns of the result depend on P only
+/// through `W`, computed first, and every other lower-triangle entry
+/// `diag_c·diag_i·P[i, c]` only on the same entry of P.
 #[inline]
-fn propagate<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>, nz: usize) -> MZ<S> {
-    // W = P F_topᵀ: row r of W is F_top applied to row r of P.
+fn propagate_in_place<const S: usize>(p: &mut MZ<S>, t: &Transition<'_, S>) {
+    // W = P F_topᵀ: row r of W is F_top applied to row r of P. Computed
+    // column by column (`W[:, c] = Σ_k F[c, k] P[:, k]`, the sum in the order
+    // of [`Transition::top`], so every entry is the same to the bit): the
+    // inner loop runs down contiguous columns of P and vectorises.
     let mut w = MZx3::<S>::zeros();
-    for r in 0..nz {
-        let row = t.top(|k| p[(r, k)]);
-        for (c, v) in row.into_iter().enumerate() {
-            w[(r, c)] = v;
+    let fr = [t.f02, t.f12, 0.0];
+    for c in 0..3 {
+        let (a2, a3, a4, a5) = (fr[c], t.fxs[(c, 0)], t.fxs[(c, 1)], t.fxs[(c, 2)]);
+        let (a9, a10) = (t.fxw[(c, 0)], t.fxw[(c, 1)]);
+        let (pc, p2, p3, p4, p5) = (p.column(c), p.column(2), p.column(3), p.column(4), p.column(5));
+        let mut wc = w.column_mut(c);
+        if S > IW {
+            let (p9, p10) = (p.column(IW), p.column(IW + 1));
+            for r in 0..S {
+                wc[r] = pc[r] + a2 * p2[r] + a3 * p3[r] + a4 * p4[r] + a5 * p5[r] + (a9 * p9[r] + a10 * p10[r]);
+            }
+        } else {
+            for r in 0..S {
+                wc[r] = pc[r] + a2 * p2[r] + a3 * p3[r] + a4 * p4[r] + a5 * p5[r] + 0.0;
+            }
         }
     }
-    let mut out = MZ::<S>::zeros();
+    let out = p;
     // Pose block: F_top W (lower triangle).
     for c in 0..3 {
         let col = t.top(|k| w[(k, c)]);
@@ -420,24 +447,26 @@ fn propagate<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>, nz: usize) -> MZ<
             out[(i, c)] = col[i];
         }
     }
-    // Rows 3..nz: diagonal rows of F.
+    // Rows 3..S: diagonal rows of F.
+    // (Column by column, down contiguous memory.)
     let diag = t.diag;
-    for i in 3..nz {
-        for c in 0..3 {
+    for c in 0..3 {
+        for i in 3..S {
             out[(i, c)] = diag[i] * w[(i, c)];
         }
-        for c in 3..=i {
-            out[(i, c)] = diag[c] * (diag[i] * p[(i, c)]);
+    }
+    for c in 3..S {
+        for i in c..S {
+            out[(i, c)] = diag[c] * (diag[i] * out[(i, c)]);
         }
     }
-    mirror_lower(&mut out, nz);
-    out
+    mirror_lower(out);
 }
 
 /// Copies the strict lower triangle onto the upper one.
 #[inline]
-fn mirror_lower<const S: usize>(m: &mut MZ<S>, nz: usize) {
-    for c in 1..nz {
+fn mirror_lower<const S: usize>(m: &mut MZ<S>) {
+    for c in 1..S {
         for r in 0..c {
             m[(r, c)] = m[(c, r)];
         }
@@ -531,37 +560,57 @@ fn theta_jacobian_input_derivatives(psi: f64, u: &Input, th: &Theta, ts: f64) ->
 /// `X − (XHᵀ)Kᵀ`; the expanded `A − KHA − (KHA)ᵀ + K(HAHᵀ)Kᵀ` is
 /// numerically unstable here), but only the entries of X that the lower
 /// triangle of the result needs, and only that triangle, mirrored.
+///
+/// (The filter calls [`joseph_in_place`]; this copy is for the kernel tests.)
+#[cfg(test)]
+fn joseph<const S: usize>(a: &MZ<S>, k: &MZx3<S>) -> MZ<S> {
+    let mut out = *a;
+    joseph_in_place(&mut out, k, None);
+    out
+}
+
+/// [`joseph`] overwriting `a` (no S×S temporaries, no copy of the result).
+///
+/// Safe in place: `HA` is taken first; then every entry of X depends on A
+/// only through the same entry, and every lower-triangle entry of the result
+/// on X only through the same entry and `XHᵀ` (taken before them); the upper
+/// triangle is mirrored last.
+///
+/// With `d`, `K D Kᵀ` is added as well ([`add_kdk`]) before the one mirror:
+/// the same to the bit as [`add_kdk`] after the mirrored Joseph form.
 #[inline]
-fn joseph<const S: usize>(a: &MZ<S>, k: &MZx3<S>, nz: usize) -> MZ<S> {
+fn joseph_in_place<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, d: Option<&Matrix3<f64>>) {
     // HA (3×9): rows 0..3 plus rows 6..9.
     let ha = h_rows(a);
     // X = A − K HA: every row of columns 0..3 and 6..9 (for XHᵀ), and the
-    // lower triangle of the other columns.
-    let mut x = MZ::<S>::zeros();
-    for c in 0..nz {
+    // lower triangle of the other columns (the rest of A is left as it is:
+    // the mirror overwrites it).
+    let x = a;
+    for c in 0..S {
         let first = if c < 3 || (6..9).contains(&c) { 0 } else { c };
         let (h0, h1, h2) = (ha[(0, c)], ha[(1, c)], ha[(2, c)]);
         for r in first..S {
-            x[(r, c)] = a[(r, c)] - (k[(r, 0)] * h0 + k[(r, 1)] * h1 + k[(r, 2)] * h2);
+            x[(r, c)] -= k[(r, 0)] * h0 + k[(r, 1)] * h1 + k[(r, 2)] * h2;
         }
     }
     // XHᵀ (9×3).
     let mut xh = MZx3::<S>::zeros();
     for m in 0..3 {
-        for r in 0..nz {
+        for r in 0..S {
             xh[(r, m)] = x[(r, m)] + x[(r, m + 6)];
         }
     }
     // Lower triangle of X − (XHᵀ)Kᵀ.
-    let mut out = MZ::<S>::zeros();
-    for c in 0..nz {
+    for c in 0..S {
         let (k0, k1, k2) = (k[(c, 0)], k[(c, 1)], k[(c, 2)]);
-        for r in c..nz {
-            out[(r, c)] = x[(r, c)] - (xh[(r, 0)] * k0 + xh[(r, 1)] * k1 + xh[(r, 2)] * k2);
+        for r in c..S {
+            x[(r, c)] -= xh[(r, 0)] * k0 + xh[(r, 1)] * k1 + xh[(r, 2)] * k2;
         }
     }
-    mirror_lower(&mut out, nz);
-    out
+    if let Some(d) = d {
+        add_kdk_lower(x, k, d);
+    }
+    mirror_lower(x);
 }
 
 /// `(I − K H) A (I − K H)ᵀ` for `H = [I₃ 0 I₃]` and any `A` (the
@@ -608,32 +657,41 @@ fn propagate_general<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>) -> MZ<S> 
 
 /// `F C` for an S×3 `C` and the structured transition of [`propagate`].
 #[inline]
-fn propagate_cols<const S: usize>(c: &MZx3<S>, t: &Transition<'_, S>, nz: usize) -> MZx3<S> {
+fn propagate_cols<const S: usize>(c: &MZx3<S>, t: &Transition<'_, S>) -> MZx3<S> {
     let mut out = MZx3::<S>::zeros();
     for j in 0..3 {
         let col = t.top(|k| c[(k, j)]);
         for (r, v) in col.into_iter().enumerate() {
             out[(r, j)] = v;
         }
-        for r in 3..nz {
+        for r in 3..S {
             out[(r, j)] = t.diag[r] * c[(r, j)];
         }
     }
     out
 }
 
-/// `dst += K D Kᵀ` for a symmetric 3×3 `D`, exactly symmetric.
+/// `dst += K D Kᵀ` for a symmetric 3×3 `D` and an exactly symmetric `dst`
+/// (every covariance and covariance derivative of the filter), exactly
+/// symmetric: the lower triangle is added ([`add_kdk_lower`]) and mirrored,
+/// which for a symmetric `dst` is the same to the bit as adding the same
+/// product to both triangles. (The filter adds it inside
+/// [`joseph_in_place`]; this copy is for the kernel tests.)
+#[cfg(test)]
+fn add_kdk<const S: usize>(dst: &mut MZ<S>, k: &MZx3<S>, d: &Matrix3<f64>) {
+    debug_assert!(*dst == dst.transpose(), "add_kdk: dst not exactly symmetric");
+    add_kdk_lower(dst, k, d);
+    mirror_lower(dst);
+}
+
+/// The lower triangle of `dst += K D Kᵀ` (down contiguous columns).
 #[inline]
-fn add_kdk<const S: usize>(dst: &mut MZ<S>, k: &MZx3<S>, d: &Matrix3<f64>, nz: usize) {
+fn add_kdk_lower<const S: usize>(dst: &mut MZ<S>, k: &MZx3<S>, d: &Matrix3<f64>) {
     let kd = k * d;
-    for c in 0..nz {
+    for c in 0..S {
         let (k0, k1, k2) = (k[(c, 0)], k[(c, 1)], k[(c, 2)]);
-        for r in c..nz {
-            let v = kd[(r, 0)] * k0 + kd[(r, 1)] * k1 + kd[(r, 2)] * k2;
-            dst[(r, c)] += v;
-            if r != c {
-                dst[(c, r)] += v;
-            }
+        for r in c..S {
+            dst[(r, c)] += kd[(r, 0)] * k0 + kd[(r, 1)] * k1 + kd[(r, 2)] * k2;
         }
     }
 }
@@ -984,9 +1042,6 @@ fn run_window_s<const S: usize>(
     let mut b = Vector3::<f64>::zeros();
     // Counting quantisation: the estimated remainders w_{k−1} (rev/s).
     let mut wq = [0.0f64; 2];
-    // Active state size: without counting quantisation the remainder rows
-    // and columns stay exactly zero, and the kernels skip them.
-    let nz = S;
     let mut d = DZ::<S>::zeros();
     let mut base_diag = [1.0; S];
     base_diag[3..IW].copy_from_slice(&[v.a_common, v.a_wheel, v.a_wheel, v.a_drift, v.a_drift, v.a_drift]);
@@ -1214,7 +1269,7 @@ fn run_window_s<const S: usize>(
             if smoothed {
                 for (w, f_w) in [fn_l, fn_r].into_iter().enumerate() {
                     let dpl = &mut dp_lambda[w];
-                    *dpl = propagate(dpl, &ft, nz);
+                    propagate_in_place(dpl, &ft);
                     let q = f_w * f_w.transpose() * rel[w];
                     for r_ in 0..3 {
                         for c_ in 0..3 {
@@ -1227,7 +1282,7 @@ fn run_window_s<const S: usize>(
                 }
                 if all_sources {
                     let dpc = &mut dp_lambda[2];
-                    *dpc = propagate(dpc, &ft, nz);
+                    propagate_in_place(dpc, &ft);
                     dpc[(3, 3)] += q_s[0];
                 }
             }
@@ -1347,6 +1402,7 @@ fn run_window_s<const S: usize>(
         // --- Covariance prediction and its derivatives.
         // ∂P⁻/∂θ_j = F̄ ∂P⁺ F̄ᵀ + (∂F̄ P⁺ F̄ᵀ + F̄ P⁺ ∂F̄ᵀ) + ∂Q/∂θ_j.
         if let Some(rt) = &rt {
+            debug_assert!(p == MZ::<S>::transpose(&p), "P⁺ not exactly symmetric");
             // The s-columns −F_n n̂ with their θ-derivatives (n̂ = ñ·g, g = 1
             // without `fitted_input`).
             let (fs_l, fs_r) =
@@ -1364,38 +1420,38 @@ fn run_window_s<const S: usize>(
                         dfxw.set_column(w, &(-df));
                     }
                 }
-                // G = ∂F̄ P⁺ (rows 0..3 only).
-                let mut g = M3xZ::<S>::zeros();
-                for c in 0..nz {
-                    let (p2, p3, p4, p5) = (p[(2, c)], p[(3, c)], p[(4, c)], p[(5, c)]);
-                    let (p9, p10) = if S > IW { (p[(IW, c)], p[(IW + 1, c)]) } else { (0.0, 0.0) };
-                    let dfr2 = [d02, d12, 0.0];
-                    for rr in 0..3 {
-                        g[(rr, c)] = dfr2[rr] * p2
-                            + dfxs[(rr, 0)] * p3
-                            + dfxs[(rr, 1)] * p4
-                            + dfxs[(rr, 2)] * p5
-                            + dfxw[(rr, 0)] * p9
-                            + dfxw[(rr, 1)] * p10;
+                // G = ∂F̄ P⁺ (rows 0..3 only), stored transposed (Gᵀ, S×3):
+                // row rr of G is a combination of rows of P⁺, read as its
+                // columns (P⁺ is exactly symmetric), so the inner loop runs
+                // down contiguous memory; the sums are the same to the bit.
+                let mut gt = MZx3::<S>::zeros();
+                let dfr2 = [d02, d12, 0.0];
+                for rr in 0..3 {
+                    let (a2, a3, a4, a5) = (dfr2[rr], dfxs[(rr, 0)], dfxs[(rr, 1)], dfxs[(rr, 2)]);
+                    let (a9, a10) = (dfxw[(rr, 0)], dfxw[(rr, 1)]);
+                    for c in 0..S {
+                        let (p9, p10) = if S > IW { (p[(c, IW)], p[(c, IW + 1)]) } else { (0.0, 0.0) };
+                        gt[(c, rr)] =
+                            a2 * p[(c, 2)] + a3 * p[(c, 3)] + a4 * p[(c, 4)] + a5 * p[(c, 5)] + a9 * p9 + a10 * p10;
                     }
                 }
                 // G F̄ᵀ.
                 for rr in 0..3 {
-                    for ci in 0..nz {
+                    for ci in 0..S {
                         tt[(rr, ci)] = if ci < 3 {
                             let fr = [f02, f12, 0.0];
-                            g[(rr, ci)]
-                                + fr[ci] * g[(rr, 2)]
-                                + fxs_ref[(ci, 0)] * g[(rr, 3)]
-                                + fxs_ref[(ci, 1)] * g[(rr, 4)]
-                                + fxs_ref[(ci, 2)] * g[(rr, 5)]
+                            gt[(ci, rr)]
+                                + fr[ci] * gt[(2, rr)]
+                                + fxs_ref[(ci, 0)] * gt[(3, rr)]
+                                + fxs_ref[(ci, 1)] * gt[(4, rr)]
+                                + fxs_ref[(ci, 2)] * gt[(5, rr)]
                                 + if S > IW {
-                                    fxw_ref[(ci, 0)] * g[(rr, IW)] + fxw_ref[(ci, 1)] * g[(rr, IW + 1)]
+                                    fxw_ref[(ci, 0)] * gt[(IW, rr)] + fxw_ref[(ci, 1)] * gt[(IW + 1, rr)]
                                 } else {
                                     0.0
                                 }
                         } else {
-                            diag[ci] * g[(rr, ci)]
+                            diag[ci] * gt[(ci, rr)]
                         };
                     }
                 }
@@ -1449,20 +1505,20 @@ fn run_window_s<const S: usize>(
                 }
             }
         };
-        p = propagate(&p, &ft, nz);
+        propagate_in_place(&mut p, &ft);
         add_q(&mut p);
         add_q_w(&mut p);
         if null {
-            p0 = propagate(&p0, &ft, nz);
+            propagate_in_place(&mut p0, &ft);
             add_q(&mut p0);
             add_q_w(&mut p0);
             if let Some((c, _)) = &mut c0 {
-                *c = propagate_cols(c, &ft, nz);
+                *c = propagate_cols(c, &ft);
             }
         }
         for &jj in cols {
             let dpj = &mut dp[jj];
-            *dpj = propagate(dpj, &ft, nz);
+            propagate_in_place(dpj, &ft);
             match jj {
                 0..=3 => add_sym_rows(dpj, &theta_terms[jj]),
                 4 => {
@@ -1540,7 +1596,7 @@ fn run_window_s<const S: usize>(
             for (w, dpl) in dp_lambda.iter_mut().take(n_l).enumerate() {
                 let ds_l = h_cols(&h_rows(dpl));
                 w_smoothed[w] += (sinv * ds_l).trace();
-                *dpl = joseph(dpl, &k_l, nz);
+                joseph_in_place(dpl, &k_l, None);
             }
         }
         let quad = nu.dot(&sinv_nu);
@@ -1584,8 +1640,7 @@ fn run_window_s<const S: usize>(
             }
             // C₀ = E[ε⁺ νᵀ] = P₀Hᵀ − K S₀; P₀⁺ = (I−KH)P₀(I−KH)ᵀ + K R₀ Kᵀ.
             c0 = Some((hp0.transpose() - k * s0, l));
-            p0 = joseph(&p0, &k, nz);
-            add_kdk(&mut p0, &k, &r0, nz);
+            joseph_in_place(&mut p0, &k, Some(&r0));
         }
 
         if mode.derivs {
@@ -1690,11 +1745,8 @@ fn run_window_s<const S: usize>(
             // Joseph form (I−KH)∂P(I−KH)ᵀ + K ∂R Kᵀ: the algebraically equal
             // ∂P − KH∂P − (KH∂P)ᵀ + K ∂S Kᵀ is numerically unstable here.
             for &jj in cols {
-                dp[jj] = joseph(&dp[jj], &k, nz);
                 let dr = d_r(jj);
-                if dr != Matrix3::zeros() {
-                    add_kdk(&mut dp[jj], &k, &dr, nz);
-                }
+                joseph_in_place(&mut dp[jj], &k, (dr != Matrix3::zeros()).then_some(&dr));
             }
         }
 
@@ -1709,8 +1761,7 @@ fn run_window_s<const S: usize>(
             wq[0] += dz[IW];
             wq[1] += dz[IW + 1];
         }
-        p = joseph(&p, &k, nz);
-        add_kdk(&mut p, &k, &r_k, nz);
+        joseph_in_place(&mut p, &k, Some(&r_k));
     }
     if block_open {
         out.blocks.push(&block_sum, block_prev.as_ref());
@@ -1802,12 +1853,12 @@ mod kernel_tests {
             f.fixed_view_mut::<3, 2>(0, IW).copy_from(&fxw);
             let dense = f * p * f.transpose();
             let t = Transition { f02, f12, fxs: &fxs, fxw: &fxw, diag: &diag };
-            let fast = propagate(&p, &t, NZ);
+            let fast = propagate(&p, &t);
             assert_close(&fast, &dense, "propagate");
             assert_eq!(fast, fast.transpose(), "propagate is not exactly symmetric");
             assert_close(&propagate_general(&p, &t), &dense, "propagate_general");
             let c = MZx3::<NZ>::from_fn(|_, _| lcg(&mut st));
-            let fc = propagate_cols(&c, &t, NZ);
+            let fc = propagate_cols(&c, &t);
             let want = f * c;
             for (r, (a, b)) in fc.iter().zip(want.iter()).enumerate() {
                 assert!((a - b).abs() <= 1e-12 * b.abs().max(1.0), "propagate_cols entry {r}: {a} vs {b}");
@@ -1819,7 +1870,7 @@ mod kernel_tests {
             let k = MZx3::<NZ>::from_fn(|_, _| lcg(&mut st));
             let ikh = MZ::<NZ>::identity() - k * h();
             let dense = ikh * p * ikh.transpose();
-            let fast = joseph(&p, &k, NZ);
+            let fast = joseph(&p, &k);
             assert_close(&fast, &dense, "joseph");
             assert_eq!(fast, fast.transpose(), "joseph is not exactly symmetric");
             assert_close(&joseph_general(&x, &k), &(ikh * x * ikh.transpose()), "joseph_general, asym");
@@ -1827,10 +1878,50 @@ mod kernel_tests {
             let dm = Matrix3::from_fn(|_, _| lcg(&mut st));
             let dm = dm + dm.transpose();
             let mut acc = p;
-            add_kdk(&mut acc, &k, &dm, NZ);
+            add_kdk(&mut acc, &k, &dm);
             assert_close(&acc, &(p + k * dm * k.transpose()), "add_kdk");
             assert_eq!(acc, acc.transpose(), "add_kdk is not exactly symmetric");
+
+            // The fused Joseph form + K D Kᵀ the filter runs: the same to the
+            // bit as the two steps (stop 14; a reordering would break this).
+            let mut fused = p;
+            joseph_in_place(&mut fused, &k, Some(&dm));
+            let mut two = joseph(&p, &k);
+            add_kdk(&mut two, &k, &dm);
+            assert_eq!(fused, two, "joseph_in_place with K D Kᵀ is not bitwise joseph then add_kdk");
+            // The column-wise propagation: the same to the bit as the
+            // row-wise formulation it replaced.
+            assert_eq!(propagate(&p, &t), propagate_rowwise(&p, &t), "propagate is not bitwise the row-wise one");
         }
+    }
+
+    /// The row-wise `F P Fᵀ` of stop 13 (through [`Transition::top`]), the
+    /// bitwise reference of [`propagate`].
+    fn propagate_rowwise<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>) -> MZ<S> {
+        let mut w = MZx3::<S>::zeros();
+        for r in 0..S {
+            let row = t.top(|k| p[(r, k)]);
+            for (c, v) in row.into_iter().enumerate() {
+                w[(r, c)] = v;
+            }
+        }
+        let mut out = MZ::<S>::zeros();
+        for c in 0..3 {
+            let col = t.top(|k| w[(k, c)]);
+            for i in c..3 {
+                out[(i, c)] = col[i];
+            }
+        }
+        for i in 3..S {
+            for c in 0..3 {
+                out[(i, c)] = t.diag[i] * w[(i, c)];
+            }
+            for c in 3..=i {
+                out[(i, c)] = t.diag[c] * (t.diag[i] * p[(i, c)]);
+            }
+        }
+        mirror_lower(&mut out);
+        out
     }
 
     /// The value-only reference terms are the values of the differentiated
