@@ -9,9 +9,10 @@
 //!     noslip, noquant, paperq, noay, nobeta, nodrift, noposwhite, noheadwhite, nocommon, nodiff,
 //!     nowhite, paperwhite, noref, nowheel; `scaleF` = every paper source × F)
 //!     [--variants known,est-pc,...] (est-pc-qgiven, est-from-sim-qgiven: the simulator's q given,
-//!     `QuantisationLevel::Given`; est-pc-simwheel / est-pc-simdrift: only those time constants from the simulator)
+//!     `QuantisationLevel::Given`; est-pc-simtau-qgiven, est-pc-simwheel-qgiven, est-pc-simdrift-qgiven: q
+//!     given and the simulator's time constants (all, wheel, drift); est-pc-simwheel / est-pc-simdrift: only those time constants from the simulator)
 //!     [--quantisation process,measurement,counting] [--heading separate|tied]
-//!     [--substeps 10] (the simulator's integration substeps per sample)
+//!     [--substeps 10] (the simulator's integration substeps per sample) [--window-samples N]
 //!     [--history 1]  (print every iteration's θ, η and step/σ, and each window's NIS and lag-1)
 //!
 //! (`--heading` defaults to `separate` here, unlike the library.) Several
@@ -41,6 +42,7 @@ fn main() -> Res<()> {
     let mut heading = HeadingScale::Separate;
     let mut history = false;
     let mut substeps = SimOptions::paper(0).substeps;
+    let mut window_samples: Option<usize> = None;
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
         let v = it.next().ok_or("missing value")?;
@@ -65,6 +67,7 @@ fn main() -> Res<()> {
             }
             "--history" => history = v == "1" || v == "true",
             "--substeps" => substeps = v.parse()?,
+            "--window-samples" => window_samples = Some(v.parse()?),
             "--variants" => variants_arg = Some(v.split(',').map(str::to_string).collect()),
             _ => return Err(format!("unknown {k}").into()),
         }
@@ -130,7 +133,8 @@ fn main() -> Res<()> {
             _ => NoiseOptions::by_name(p)?,
         };
         for seed in 1..=seeds {
-            let sim = simulate(&SimOptions { length_km: km, noise: noise.clone(), substeps, ..SimOptions::paper(seed) })?;
+            let sim =
+                simulate(&SimOptions { length_km: km, noise: noise.clone(), substeps, ..SimOptions::paper(seed) })?;
             let d = &sim.drive;
             let truth = sim.sidecar.theta_true;
             let sel = calibration_segments(d, &SegmentOptions::default())?;
@@ -171,6 +175,22 @@ fn main() -> Res<()> {
                     false,
                 ),
                 ("est-from-sim-qgiven", sim_noise, false),
+                // Stop 14: q given and the simulator's time constants (all, wheel only, drift only).
+                (
+                    "est-pc-simtau-qgiven",
+                    NoiseModel { quantisation_step_rev_per_s: sim_noise.quantisation_step_rev_per_s, ..pc_tau },
+                    false,
+                ),
+                (
+                    "est-pc-simwheel-qgiven",
+                    NoiseModel { quantisation_step_rev_per_s: sim_noise.quantisation_step_rev_per_s, ..pc_simwheel },
+                    false,
+                ),
+                (
+                    "est-pc-simdrift-qgiven",
+                    NoiseModel { quantisation_step_rev_per_s: sim_noise.quantisation_step_rev_per_s, ..pc_simdrift },
+                    false,
+                ),
                 ("est-pc-simwheel", pc_simwheel, false),
                 ("est-pc-simdrift", pc_simdrift, false),
                 ("est-pc-head", pc_head, false),
@@ -234,6 +254,7 @@ fn main() -> Res<()> {
                     },
                     ..Default::default()
                 };
+                let opts = EivOptions { window_samples: window_samples.unwrap_or(opts.window_samples), ..opts };
                 let start = if at_truth { truth } else { gn };
                 match estimate(&input, &start, &opts) {
                     Ok(r) => {
@@ -313,7 +334,9 @@ fn ablate(n: NoiseOptions, what: &str) -> Res<NoiseOptions> {
     Ok(match what {
         "noslip" => NoiseOptions { wheel_slip_per_m_per_s2: 0.0, ..n },
         "noquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..n },
-        "paperq" => NoiseOptions { encoder_ticks_per_revolution: NoiseOptions::paper().encoder_ticks_per_revolution, ..n },
+        "paperq" => {
+            NoiseOptions { encoder_ticks_per_revolution: NoiseOptions::paper().encoder_ticks_per_revolution, ..n }
+        }
         "noay" => NoiseOptions { lateral_acceleration_white_sigma_m_per_s2: 0.0, ..n },
         "nobeta" => NoiseOptions { sideslip_sigma_rad: 0.0, ..n },
         "nodrift" => NoiseOptions { position_drift_sigma_m: 0.0, heading_drift_sigma_rad: 0.0, ..n },
