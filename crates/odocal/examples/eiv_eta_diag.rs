@@ -13,6 +13,7 @@
 //!     given and the simulator's time constants (all, wheel, drift); est-pc-simwheel / est-pc-simdrift: only those time constants from the simulator)
 //!     [--quantisation process,measurement,counting] [--heading separate|tied]
 //!     [--substeps 10] (the simulator's integration substeps per sample) [--window-samples N]
+//!     [--hold 1,5] (η sources held at the starting model, `EivOptions::eta_held`)
 //!     [--history 1]  (print every iteration's θ, η and step/σ, and each window's NIS and lag-1)
 //!
 //! (`--heading` defaults to `separate` here, unlike the library.) Several
@@ -43,6 +44,7 @@ fn main() -> Res<()> {
     let mut history = false;
     let mut substeps = SimOptions::paper(0).substeps;
     let mut window_samples: Option<usize> = None;
+    let mut eta_held = [false; 6];
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
         let v = it.next().ok_or("missing value")?;
@@ -68,6 +70,12 @@ fn main() -> Res<()> {
             "--history" => history = v == "1" || v == "true",
             "--substeps" => substeps = v.parse()?,
             "--window-samples" => window_samples = Some(v.parse()?),
+            "--hold" => {
+                for j in v.split(',').filter(|x| !x.is_empty()) {
+                    let j: usize = j.parse()?;
+                    *eta_held.get_mut(j).ok_or("--hold takes source indices 0..=5")? = true;
+                }
+            }
             "--variants" => variants_arg = Some(v.split(',').map(str::to_string).collect()),
             _ => return Err(format!("unknown {k}").into()),
         }
@@ -254,7 +262,8 @@ fn main() -> Res<()> {
                     },
                     ..Default::default()
                 };
-                let opts = EivOptions { window_samples: window_samples.unwrap_or(opts.window_samples), ..opts };
+                let opts =
+                    EivOptions { window_samples: window_samples.unwrap_or(opts.window_samples), eta_held, ..opts };
                 let start = if at_truth { truth } else { gn };
                 match estimate(&input, &start, &opts) {
                     Ok(r) => {

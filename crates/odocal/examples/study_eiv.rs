@@ -7,7 +7,8 @@
 //!     [--presets off,white,paper,high,coloured] [--three-step-seeds 0]
 //!     [--bootstrap 0] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
 //!     [--quantisation process|measurement|counting] [--heading tied|separate]
-//!     [--methods known,est] (also: est-qgiven = `est` with the encoder's q given, est-thconv = `est` with `theta_convergence`, est-it20 = `est` with 20 iterations, est-final = `est` with `final_step_check`, est-stop11 = `est` with the stop-11 checks and iteration, fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot)
+//!     [--methods known,est] (also: est-qgiven = `est` with the encoder's q given, est-qgiven-hgiven = est-qgiven
+//!     with the reference's heading white σ given too and η_5 held (stop 14), est-thconv = `est` with `theta_convergence`, est-it20 = `est` with 20 iterations, est-final = `est` with `final_step_check`, est-stop11 = `est` with the stop-11 checks and iteration, fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot)
 //!     [--tau-candidates] [--bootstrap-reestimate-seeds 0] [--smooth-half-width 20]
 //!     [--reentry-score 10] (with `--methods est-reentry`: `EIV est. reentry` = `est` with
 //!     `EivOptions::eta_reentry_min_score` = that value, stop 13; `est-robust`: `est` with
@@ -303,6 +304,22 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         jobs.push((
             "EIV est. q given",
             EivOptions { noise, quantisation_level: odocal::eiv::QuantisationLevel::Given, ..est.clone() },
+        ));
+    }
+    if want("est-qgiven-hgiven") {
+        // Stop 14: as `est-qgiven`, with the reference's heading white noise
+        // also given (the simulator's σ_ψ) and its scale η_5 held
+        // (`EivOptions::eta_held`).
+        let noise = NoiseModel {
+            quantisation_step_rev_per_s: true_noise.quantisation_step_rev_per_s,
+            heading_white_sigma_rad: true_noise.heading_white_sigma_rad,
+            ..NoiseModel::PRODUCTION_CAR
+        };
+        let mut eta_held = [false; 6];
+        eta_held[5] = true;
+        jobs.push((
+            "EIV est. q, σ_ψ given",
+            EivOptions { noise, quantisation_level: odocal::eiv::QuantisationLevel::Given, eta_held, ..est.clone() },
         ));
     }
     if want("est-thconv") {

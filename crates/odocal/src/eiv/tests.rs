@@ -1076,7 +1076,7 @@ fn eta_step_descends_on_the_noise_free_straight_drive() {
     let theta = Theta { c_e: 1.9488978137579984, c_d: -0.001998869480161304, t_r: 1.53, d: 0.0008 };
     let eta = [-0.00903020194120505, 0.2628615557666504, 0.75, 0.1370901227620087, -2.5, -2.5];
     let ev = prob.evaluate(&theta, &theta, &eta, filter::Mode::full(true, true)).expect("filter");
-    let step = eta_step(&ev.total, &eta, opts.eta_bounds, f64::INFINITY).step;
+    let step = eta_step(&ev.total, &eta, opts.eta_bounds, f64::INFINITY, &[false; 6]).step;
     let slope: f64 = (0..NETA).map(|j| ev.total.grad[4 + j] * step[j]).sum();
     assert!(slope < 0.0, "η step {step:?} is not a descent direction: gᵀΔη = {slope}");
     let m0 = ev.total.merit();
@@ -1324,4 +1324,26 @@ fn theta_convergence_stops_when_theta_has_settled() {
     for i in (0..4).filter(|i| full.sigma[*i] > 0.0) {
         assert!((a[i] - b[i]).abs() < 0.05 * full.sigma[i], "θ_{i}: {} against {} (σ {})", a[i], b[i], full.sigma[i]);
     }
+}
+
+/// `EivOptions::eta_held`: a held noise scale stays at the starting model
+/// (η_j = 0, the model's σ reported unchanged) while the others are
+/// estimated; without the hold the same fit moves it (the production car's
+/// heading σ 0.5 mrad against the simulator's 0.3 mrad), so the test can fail.
+#[test]
+fn held_noise_scale_stays_at_the_starting_model() {
+    let sim = simulate(&SimOptions { length_km: 1.0, ..SimOptions::paper(3) }).expect("simulate");
+    let d = &sim.drive;
+    let input = input_of(d);
+    let start = batch_gn_all(d);
+    let free = EivOptions { heading_scale: HeadingScale::Separate, max_iterations: 3, ..EivOptions::default() };
+    let mut eta_held = [false; NETA];
+    eta_held[5] = true;
+    let held = EivOptions { eta_held, ..free.clone() };
+    let r_free = estimate(&input, &start, &free).expect("eiv, η_5 free");
+    let r_held = estimate(&input, &start, &held).expect("eiv, η_5 held");
+    assert!(r_free.eta[5].abs() > 0.1, "η_5 free did not move: {:?}", r_free.eta);
+    assert_eq!(r_held.eta[5], 0.0, "η_5 held moved: {:?}", r_held.eta);
+    assert_eq!(r_held.noise.heading_white_sigma_rad, NoiseModel::PRODUCTION_CAR.heading_white_sigma_rad);
+    assert!(r_held.eta[..5] != [0.0; 5], "the other scales were not estimated: {:?}", r_held.eta);
 }
