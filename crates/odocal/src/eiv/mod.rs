@@ -200,7 +200,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::model::Theta;
-pub use bootstrap::{bootstrap, BootstrapOptions, BootstrapReport};
+pub use bootstrap::{bootstrap, BootstrapInputs, BootstrapOptions, BootstrapReport};
 use filter::{run_window, Mode, Variances, WindowSums, NETA};
 pub use tau::{TimeConstantCandidate, TimeConstantFit, TimeConstantGrid, TIME_CONSTANT_RANGE_S};
 
