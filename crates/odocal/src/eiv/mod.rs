@@ -755,6 +755,11 @@ pub struct EivOptions {
     /// Correction of the profile cost's bias applied to the estimate.
     /// Default [`BiasCorrection::None`] (see its docs).
     pub bias_correction: BiasCorrection,
+    /// The true inputs of the replicate worlds of
+    /// [`BiasCorrection::Bootstrap`]. Default [`BootstrapInputs::Measured`];
+    /// `Smoothed { half_width_samples: 20 }` removed the t_r bias on `high`
+    /// (stop 14, docs/study.md "the remaining t_r bias on high").
+    pub bootstrap_inputs: BootstrapInputs,
     /// Floor of the reference's position noise σ in the filter's `R`, m
     /// (added in quadrature to the noise model's position white noise; it is
     /// not scaled by η). Default 1e-3 (SPEC §10).
@@ -1209,6 +1214,7 @@ impl Default for EivOptions {
             quantisation_level: QuantisationLevel::ScaledWithWhite,
             wheel_noise_scale: WheelNoiseScale::SmoothedFittedInput { half_width_samples: 20 },
             bias_correction: BiasCorrection::None,
+            bootstrap_inputs: BootstrapInputs::Measured,
             input_jacobian: InputJacobian::FilterShare,
             position_floor_m: DEFAULT_POSITION_FLOOR_M,
             hold_unobservable_at: None,
@@ -2651,7 +2657,12 @@ pub(crate) fn estimate_from(
         // The replicates are fitted without correction (their mean estimates
         // the uncorrected estimator's mean at θ̂).
         let inner = EivOptions { bias_correction: BiasCorrection::None, ..opts.clone() };
-        let boot = bootstrap(input, &report, &inner, &BootstrapOptions { replicates, seed, ..Default::default() })?;
+        let boot = bootstrap(
+            input,
+            &report,
+            &inner,
+            &BootstrapOptions { replicates, seed, true_inputs: opts.bootstrap_inputs, ..Default::default() },
+        )?;
         let b = boot.bias;
         report.bias_subtracted = if all_parameters { b } else { [b[0], 0.0, 0.0, 0.0] };
         report.theta = theta_add(&report.theta, &report.bias_subtracted, -1.0);
