@@ -180,13 +180,23 @@ struct CalibrationArgs {
     /// white rate noise that accumulates), measurement (a pose noise) or
     /// counting (the exact counting error, two more filter states, about
     /// 1.2× the time). Default: the library's (`EivOptions::quantisation`).
-    #[arg(long, value_name = "MODEL")]
-    quantisation: Option<QuantisationArg>,
+    #[arg(long, value_name = "MODEL",
+          value_parser = library_enum::<odocal::eiv::QuantisationModel>(&["process", "measurement", "counting"]))]
+    quantisation: Option<odocal::eiv::QuantisationModel>,
+    /// EIV: the quantisation step q: scaled (estimated with the white wheel
+    /// noise from the noise model's q), given (the noise model's q, held)
+    /// or from-readings (read off the wheel readings when they lie on the
+    /// lattice of counted ticks, else scaled). Default: the library's
+    /// (`EivOptions::quantisation_level`).
+    #[arg(long, value_name = "LEVEL",
+          value_parser = library_enum::<odocal::eiv::QuantisationLevel>(&["scaled", "given", "from-readings"]))]
+    quantisation_level: Option<odocal::eiv::QuantisationLevel>,
     /// EIV: the reference heading's white noise scaled together with the
     /// position noise (tied) or by a scale of its own (separate). Default:
     /// the library's (`EivOptions::heading_scale`).
-    #[arg(long, value_name = "SCALE")]
-    heading_noise: Option<HeadingNoiseArg>,
+    #[arg(long, value_name = "SCALE",
+          value_parser = library_enum::<odocal::eiv::HeadingScale>(&["tied", "separate"]))]
+    heading_noise: Option<odocal::eiv::HeadingScale>,
     /// EIV: parametric bootstrap with B replicates (re-simulate the fitted
     /// noise, re-fit B times): percentile intervals and the estimator's own
     /// bias in the report; about B extra fits of time.
@@ -232,38 +242,16 @@ struct CalibrationArgs {
     report: Option<PathBuf>,
 }
 
-/// `--quantisation`: [`odocal::eiv::QuantisationModel`] on the command line.
-#[derive(Clone, Copy, clap::ValueEnum)]
-enum QuantisationArg {
-    Process,
-    Measurement,
-    Counting,
-}
-
-impl From<QuantisationArg> for odocal::eiv::QuantisationModel {
-    fn from(q: QuantisationArg) -> Self {
-        match q {
-            QuantisationArg::Process => Self::ProcessNoise,
-            QuantisationArg::Measurement => Self::Measurement,
-            QuantisationArg::Counting => Self::Counting,
-        }
-    }
-}
-
-/// `--heading-noise`: [`odocal::eiv::HeadingScale`] on the command line.
-#[derive(Clone, Copy, clap::ValueEnum)]
-enum HeadingNoiseArg {
-    Tied,
-    Separate,
-}
-
-impl From<HeadingNoiseArg> for odocal::eiv::HeadingScale {
-    fn from(h: HeadingNoiseArg) -> Self {
-        match h {
-            HeadingNoiseArg::Tied => Self::TiedToPosition,
-            HeadingNoiseArg::Separate => Self::Separate,
-        }
-    }
+/// A clap parser of a library enum named on the command line: the names
+/// offered (and listed by `--help`) are `names`, the mapping is the
+/// library's `FromStr`, so the CLI and the library (and Python, which uses
+/// the same `FromStr`) cannot drift apart.
+fn library_enum<T>(names: &'static [&'static str]) -> impl clap::builder::TypedValueParser<Value = T>
+where
+    T: std::str::FromStr<Err = odocal::Error> + Clone + Send + Sync + 'static,
+{
+    use clap::builder::TypedValueParser;
+    clap::builder::PossibleValuesParser::new(names).try_map(|s| s.parse::<T>())
 }
 
 /// The half of the drive `--holdout` holds out.
@@ -290,6 +278,7 @@ impl CalibrationArgs {
             ("--no-fallback", self.no_fallback),
             ("--eiv-window", self.eiv_window.is_some()),
             ("--quantisation", self.quantisation.is_some()),
+            ("--quantisation-level", self.quantisation_level.is_some()),
             ("--heading-noise", self.heading_noise.is_some()),
             ("--bootstrap", self.bootstrap.is_some()),
             ("--bootstrap-seed", self.bootstrap_seed != 0),
@@ -344,10 +333,13 @@ impl CalibrationArgs {
                     o.filter.window_samples = v;
                 }
                 if let Some(q) = self.quantisation {
-                    o.filter.quantisation = q.into();
+                    o.filter.quantisation = q;
+                }
+                if let Some(l) = self.quantisation_level {
+                    o.filter.quantisation_level = l;
                 }
                 if let Some(h) = self.heading_noise {
-                    o.filter.heading_scale = h.into();
+                    o.filter.heading_scale = h;
                 }
                 if let Some(b) = self.correct_c_e_bias {
                     o.filter.bias_correction = odocal::eiv::BiasCorrection::Bootstrap {

@@ -66,16 +66,32 @@ fn eiv_noise_model_shape_flags_reach_the_options() {
     let dstr = drive.to_str().expect("utf8");
     let o = odocal(&["simulate", "--seed", "4", "--length-km", "1", "--noise", "white", "--out", dstr]);
     assert!(o.status.success(), "{}", text(&o.stderr));
-    for (q, h, q_json, h_json) in
-        [("counting", "separate", "counting", "separate"), ("process", "tied", "process_noise", "tied_to_position")]
-    {
+    for (q, h, l, q_json, h_json, l_json) in [
+        ("counting", "separate", "given", "counting", "separate", "given"),
+        ("process", "tied", "scaled", "process_noise", "tied_to_position", "scaled_with_white"),
+    ] {
         let args = ["calibrate", dstr, "--method", "eiv", "--eiv-window", "1500", "--fix-noise"];
-        let o = odocal(&[&args[..], &["--quantisation", q, "--heading-noise", h, "--json", "-"]].concat());
+        let shape = ["--quantisation", q, "--heading-noise", h, "--quantisation-level", l, "--json", "-"];
+        let o = odocal(&[&args[..], &shape[..]].concat());
         assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", text(&o.stderr));
         let r: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
         let f = &r["options"]["method"]["filter"];
         assert_eq!(f["quantisation"], q_json, "{f}");
         assert_eq!(f["heading_scale"], h_json, "{f}");
+        assert_eq!(f["quantisation_level"], l_json, "{f}");
+    }
+    // From the readings: the simulator's paper encoder (2048 ticks at
+    // 40 Hz) is found through the CSV; the white preset has no encoder.
+    let paper = d.path().join("paper.csv");
+    let pstr = paper.to_str().expect("utf8");
+    let o = odocal(&["simulate", "--seed", "4", "--length-km", "1", "--noise", "paper", "--out", pstr]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    for (file, expected) in [(pstr, Some(1.0 / (2048.0 * 0.025))), (dstr, None)] {
+        let args = ["calibrate", file, "--method", "eiv", "--eiv-window", "1500", "--fix-noise"];
+        let o = odocal(&[&args[..], &["--quantisation-level", "from-readings", "--json", "-"]].concat());
+        assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", text(&o.stderr));
+        let r: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+        assert_eq!(r["eiv"]["quantisation_step_from_readings"].as_f64(), expected, "{file}");
     }
     let o = odocal(&["calibrate", dstr, "--method", "eiv", "--quantisation", "ticks"]);
     assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));
@@ -99,10 +115,10 @@ fn eiv_flags_belong_to_eiv() {
         "{}",
         text(&o.stderr)
     );
-    let o =
-        odocal(&["calibrate", csv, "--method", "batch-gn", "--quantisation", "counting", "--heading-noise", "tied"]);
+    let shape = ["--quantisation", "counting", "--quantisation-level", "given", "--heading-noise", "tied"];
+    let o = odocal(&[&["calibrate", csv, "--method", "batch-gn"][..], &shape[..]].concat());
     assert!(
-        text(&o.stderr).contains("--quantisation, --heading-noise apply to --method eiv only"),
+        text(&o.stderr).contains("--quantisation, --quantisation-level, --heading-noise apply to --method eiv only"),
         "{}",
         text(&o.stderr)
     );

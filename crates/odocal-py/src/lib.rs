@@ -24,7 +24,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList, PyString};
 
 use odocal::drive::{Drive, ExtraColumn, ExtraValues, Signals};
-use odocal::eiv::{HeadingScale, QuantisationModel};
+use odocal::eiv::{HeadingScale, QuantisationLevel, QuantisationModel};
 use odocal::import::{GivenSettings, ManifestSettings, ReferenceSpec, SettingUse};
 use odocal::model::Theta;
 use odocal::param::{Param, ParamSet};
@@ -521,7 +521,7 @@ struct CalibrationPlan {
 }
 
 /// The keyword options of `odocal.calibrate`, named like the CLI's flags.
-const CALIBRATION_KWARGS: [&str; 26] = [
+const CALIBRATION_KWARGS: [&str; 27] = [
     "seed",
     "estimate",
     "lever_arm",
@@ -531,6 +531,7 @@ const CALIBRATION_KWARGS: [&str; 26] = [
     "fallback",
     "eiv_window",
     "quantisation",
+    "quantisation_level",
     "heading_noise",
     "qp_solver",
     "theta0",
@@ -630,7 +631,7 @@ fn calibration_plan(
     let (mut batches, mut batch_size, mut picks, mut final_segments, mut qp_solver) = (None, None, None, None, None);
     // EIV settings (`--noise-model`, `--fix-noise`, `--no-fallback`, `--eiv-window`).
     let (mut noise_model, mut fix_noise, mut fallback, mut eiv_window) = (None, None, None, None);
-    let (mut quantisation, mut heading_noise) = (None, None);
+    let (mut quantisation, mut quantisation_level, mut heading_noise) = (None, None, None);
     if let Some(kwargs) = kwargs {
         for (key, v) in kwargs.iter() {
             let key: String = key.extract()?;
@@ -716,6 +717,9 @@ fn calibration_plan(
                 "quantisation" => {
                     quantisation = Some(v.extract::<String>()?.parse::<QuantisationModel>().map_err(lib_err)?)
                 }
+                "quantisation_level" => {
+                    quantisation_level = Some(v.extract::<String>()?.parse::<QuantisationLevel>().map_err(lib_err)?)
+                }
                 "heading_noise" => {
                     heading_noise = Some(v.extract::<String>()?.parse::<HeadingScale>().map_err(lib_err)?)
                 }
@@ -734,6 +738,7 @@ fn calibration_plan(
         ("fallback", fallback.is_some()),
         ("eiv_window", eiv_window.is_some()),
         ("quantisation", quantisation.is_some()),
+        ("quantisation_level", quantisation_level.is_some()),
         ("heading_noise", heading_noise.is_some()),
     ]
     .iter()
@@ -746,6 +751,7 @@ fn calibration_plan(
         e.fallback = fallback.unwrap_or(e.fallback);
         e.filter.window_samples = eiv_window.unwrap_or(e.filter.window_samples);
         e.filter.quantisation = quantisation.unwrap_or(e.filter.quantisation);
+        e.filter.quantisation_level = quantisation_level.unwrap_or(e.filter.quantisation_level);
         e.filter.heading_scale = heading_noise.unwrap_or(e.filter.heading_scale);
     } else if !eiv_given.is_empty() {
         return Err(invalid_option(

@@ -206,7 +206,7 @@ def _without_eiv_timing(d):
 
 
 def test_eiv_equals_cli_json(odocal_bin, drive_csv):
-    shape = ["--quantisation", "counting", "--heading-noise", "separate"]
+    shape = ["--quantisation", "counting", "--heading-noise", "separate", "--quantisation-level", "from-readings"]
     cli = cli_json(odocal_bin, "calibrate", drive_csv, "--method", "eiv", "--fix-noise", "--eiv-window", "1500", *shape)
     report = odocal.calibrate(
         odocal.Drive.from_csv(drive_csv),
@@ -215,11 +215,12 @@ def test_eiv_equals_cli_json(odocal_bin, drive_csv):
         eiv_window=1500,
         quantisation="counting",
         heading_noise="separate",
+        quantisation_level="from-readings",
     )
     d = report.to_dict()
     assert report.method == "eiv" and d["eiv_result"] in ("eiv", "batch-gn-fallback")
     filt = d["options"]["method"]["filter"]
-    assert (filt["quantisation"], filt["heading_scale"]) == ("counting", "separate")
+    assert (filt["quantisation"], filt["heading_scale"], filt["quantisation_level"]) == ("counting", "separate", "from_readings")
     assert d["eiv"]["noise"]["wheel_white_rel_sigma"] == d["noise_start"]["wheel_white_rel_sigma"]  # fixed
     assert "reason" in d["eiv"]["termination"]
     assert _without_eiv_timing(d) == _without_eiv_timing(cli)
@@ -227,5 +228,7 @@ def test_eiv_equals_cli_json(odocal_bin, drive_csv):
         odocal.calibrate(odocal.Drive.from_csv(drive_csv), "batch-gn", fix_noise=True)
     with pytest.raises(odocal.OdocalError, match="invalid quantisation model 'ticks': use process, measurement or counting"):
         odocal.calibrate(odocal.Drive.from_csv(drive_csv), "eiv", quantisation="ticks")
+    with pytest.raises(odocal.OdocalError, match="invalid quantisation level 'auto': use scaled, given or from-readings"):
+        odocal.calibrate(odocal.Drive.from_csv(drive_csv), "eiv", quantisation_level="auto")
     with pytest.raises(odocal.OdocalError, match="heading_noise applies to method eiv only"):
         odocal.calibrate(odocal.Drive.from_csv(drive_csv), "batch-gn", heading_noise="tied")

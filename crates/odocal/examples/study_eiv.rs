@@ -7,6 +7,7 @@
 //!     [--presets off,white,paper,high,coloured] [--three-step-seeds 0]
 //!     [--bootstrap 0] [--bootstrap-smooth K (replicates' true inputs: ±K moving average, stop 14)] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
 //!     [--quantisation process|measurement|counting] [--heading tied|separate]
+//!     [--quantisation-level scaled|given|from-readings] (defaults: the library's EivOptions)
 //!     [--methods known,est] (also: est-qgiven = `est` with the encoder's q given, est-qgiven-hgiven = est-qgiven
 //!     with the reference's heading white σ given too and η_5 held (stop 14; with `--bootstrap B` also
 //!     `+ boot held η̂`: every parameter minus the bias of a bootstrap holding the fitted noise), est-thconv = `est` with `theta_convergence`, est-it20 = `est` with 20 iterations, est-final = `est` with `final_step_check`, est-stop11 = `est` with the stop-11 checks and iteration, fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot)
@@ -80,7 +81,7 @@ use std::time::Instant;
 use odocal::calibrate::{EivDetail, EivMethodOptions};
 use odocal::eiv::{
     bootstrap, cramer_rao_bound, BootstrapInputs, BootstrapOptions, CovarianceEstimate, EivInput, EivOptions,
-    HeadingScale, InputJacobian, NoiseModel, QuantisationModel, WheelNoiseScale,
+    HeadingScale, InputJacobian, NoiseModel, QuantisationLevel, QuantisationModel, WheelNoiseScale,
 };
 use odocal::segment::validation_segments;
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
@@ -104,6 +105,7 @@ struct Args {
     bootstrap_presets: Vec<String>,
     json: Option<String>,
     quantisation: QuantisationModel,
+    quantisation_level: QuantisationLevel,
     heading: HeadingScale,
     methods: Vec<String>,
     /// Print every candidate of the time-constant search (`--tau-candidates`).
@@ -126,8 +128,9 @@ fn parse_args() -> Res<Args> {
         smooth_half_width: 20,
         bootstrap_presets: vec!["paper".into(), "coloured".into()],
         json: None,
-        quantisation: QuantisationModel::ProcessNoise,
-        heading: HeadingScale::TiedToPosition,
+        quantisation: EivOptions::default().quantisation,
+        quantisation_level: EivOptions::default().quantisation_level,
+        heading: EivOptions::default().heading_scale,
         methods: vec!["known".into(), "est".into()],
         tau_candidates: false,
         reentry_score: 10.0,
@@ -156,21 +159,9 @@ fn parse_args() -> Res<Args> {
             "--bootstrap-smooth" => {
                 a.bootstrap_inputs = BootstrapInputs::Smoothed { half_width_samples: v()?.parse()? };
             }
-            "--heading" => {
-                a.heading = match v()?.as_str() {
-                    "tied" => HeadingScale::TiedToPosition,
-                    "separate" => HeadingScale::Separate,
-                    other => return Err(format!("--heading tied|separate, got '{other}'").into()),
-                }
-            }
-            "--quantisation" => {
-                a.quantisation = match v()?.as_str() {
-                    "process" => QuantisationModel::ProcessNoise,
-                    "measurement" => QuantisationModel::Measurement,
-                    "counting" => QuantisationModel::Counting,
-                    other => return Err(format!("--quantisation process|measurement|counting, got '{other}'").into()),
-                }
-            }
+            "--heading" => a.heading = v()?.parse()?,
+            "--quantisation" => a.quantisation = v()?.parse()?,
+            "--quantisation-level" => a.quantisation_level = v()?.parse()?,
             other => return Err(format!("unknown argument '{other}'").into()),
         }
     }
@@ -272,9 +263,16 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
     }
     let q = a.quantisation;
     let h = a.heading;
-    let known =
-        EivOptions { noise: true_noise, fix_noise: true, quantisation: q, heading_scale: h, ..Default::default() };
-    let est = EivOptions { quantisation: q, heading_scale: h, ..Default::default() };
+    let ql = a.quantisation_level;
+    let known = EivOptions {
+        noise: true_noise,
+        fix_noise: true,
+        quantisation: q,
+        quantisation_level: ql,
+        heading_scale: h,
+        ..Default::default()
+    };
+    let est = EivOptions { quantisation: q, quantisation_level: ql, heading_scale: h, ..Default::default() };
     let fitted = EivOptions { wheel_noise_scale: WheelNoiseScale::FittedInput, ..known.clone() };
     let want = |m: &str| a.methods.iter().any(|x| x == m);
     // The known-noise fit always runs: it carries the G-N start.

@@ -5,7 +5,8 @@
 //! ```text
 //! cargo run --release -p odocal --example study_real -- \
 //!     [--methods batch-gn,batch-gn-all,three-step,eiv,eiv-fixed] [--parts testtrack,van,rav4] \
-//!     (also eiv-stop11: the stop-11 checks and iteration; eiv-nofallback: fallback off)
+//!     (also eiv-stop11: the stop-11 checks and iteration; eiv-nofallback: fallback off;
+//!      eiv-sc, eiv-scg and their -nofallback variants: the stop-14 candidate noise-model shape)
 //!     [--json study_real.json] [--markdown study_real.md]
 //! ```
 //!
@@ -15,6 +16,15 @@
 //! default), `eiv` (`--method eiv`: noise estimated from the production-car
 //! start, fallback on) and `eiv-fixed` (`--method eiv --fix-noise`: the
 //! production-car noise model as is).
+//!
+//! Run only when named (stop 14, the candidate EIV defaults): `eiv-sc`
+//! (`HeadingScale::Separate` + `QuantisationModel::Counting`, the
+//! quantisation level scaled with the white wheel noise) and
+//! `eiv-scg` (the same with `QuantisationLevel::Given`: q held at the
+//! encoder's step, see [`encoder_q`]), each also as `…-nofallback` (the
+//! EIV θ whatever the checks say). `eiv-stop13` (`-nofallback`): the EIV
+//! defaults before stop 14 (tied heading scale, quantisation as process
+//! noise scaled with the white wheel noise).
 //!
 //! Parts:
 //! - `testtrack`: the six test-track runs of 2024-08-05
@@ -27,7 +37,11 @@
 //!   fell back and why;
 //! - `rav4`: the comma2k19 RAV4 (`examples/comma2k19-rav4/`, 1 km, nearly
 //!   straight): c_e with its σ and which parameters are named unobservable
-//!   or held, with the defaults and with `--auto-fix`.
+//!   or held, with the defaults and with `--auto-fix`;
+//! - `swap` (only when named; stop 14): per test-track run, `eiv-scg-nofallback`'s
+//!   θ with one parameter at a time from batch G-N (all segments), judged by
+//!   Ē_p on the other five runs (which parameter makes the difference), and
+//!   the same on the van's held-out halves.
 //!
 //! σ is the one that stands for the result, as `--params-out` writes it
 //! ([`odocal::CalibrationReport::result_sigma`]): batch G-N's
@@ -41,7 +55,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use odocal::crossrun::{CrossRunFit, CrossRunRow, CrossRunTable, CROSS_RUN_OWN_FIT_RATIO};
-use odocal::eiv::EivOptions;
+use odocal::eiv::{EivOptions, HeadingScale, NoiseModel, QuantisationLevel, QuantisationModel};
 use odocal::{
     calibrate, calibrate_with_holdout, BatchGnOptions, CalibrationExtrinsics, CalibrationOptions, CalibrationReport,
     Drive, EivMethodOptions, EivOutcome, Holdout, Method, MethodDetail, ParamSet, ValidationDrive, VerdictLevel,
@@ -57,12 +71,164 @@ const METHODS: [&str; 5] = ["batch-gn", "batch-gn-all", "three-step", "eiv", "ei
 /// Methods run only when named: `eiv-stop11` (`eiv` with the stop-11
 /// innovation checks and θ/η iteration) and `eiv-nofallback` (`eiv` with
 /// the fallback off: the EIV θ whatever the checks say).
-const EXTRA_METHODS: [&str; 2] = ["eiv-stop11", "eiv-nofallback"];
+const EXTRA_METHODS: [&str; 27] = [
+    "eiv-stop11",
+    "eiv-nofallback",
+    "eiv-sc",
+    "eiv-sc-nofallback",
+    "eiv-scg",
+    "eiv-scg-nofallback",
+    "batch-gn-all-x",
+    "eiv-scg-x",
+    "eiv-scg-x-nofallback",
+    "eiv-scg-tau",
+    "eiv-scg-tau-nofallback",
+    "eiv-scg-x-tau-nofallback",
+    "eiv-scg0",
+    "eiv-scg0-nofallback",
+    "eiv-scg-tc",
+    "eiv-scg-tc-nofallback",
+    "eiv-scg-x-tc",
+    "batch-gn-all-h",
+    "eiv-stop13",
+    "eiv-stop13-nofallback",
+    "eiv-stop13-h",
+    "eiv-h",
+    "eiv-h-nofallback",
+    "eiv-scg-h",
+    "eiv-scg-h-nofallback",
+    "eiv-scg-h-tc",
+    "eiv-scg-h-tc-nofallback",
+];
 
-/// The options `odocal calibrate --method …` uses for a study method.
-fn options(method: &str) -> Result<CalibrationOptions, Box<dyn Error>> {
+/// Correlation time of the reference's position and heading drift for the
+/// `-tau` methods, s (the production car's is 100 s).
+const SHORT_DRIFT_TAU_S: f64 = 2.0;
+
+/// The lattice of the RAV4's CAN wheel speeds, m/s: 0.01 km/h (measured on
+/// `wheel_speeds.csv`: every difference between distinct values is a
+/// multiple of 0.002778 m/s).
+const CAN_SPEED_STEP_M_PER_S: f64 = 0.01 / 3.6;
+
+/// The encoder quantisation step q of a manifest's wheel signal in model
+/// revolutions per second at the drive's output sample time h, with how it
+/// was obtained.
+///
+/// Ticks (`ticks_cumulative`, `ticks_raw`): `q = 1/(ticks_per_rev · h)`,
+/// `ticks_per_rev` the ticks of one *model* revolution (on the vans
+/// 40,360 / 40,460 ticks = about 2 m of travel, not a physical wheel
+/// revolution: the filter's rotation is in those units), h = 1/`rate_hz`
+/// (the import interpolates the cumulative count at the output samples and
+/// differences it over h, so the count error stays within about a tick).
+/// CAN speeds (`m_per_s`): no ticks; the readings lie on the 0.01 km/h
+/// lattice, `q = 0.002778 m/s / circumference_m`. That is a rounding of
+/// each rate reading (white), not a count's remainder (the MA(1) error of
+/// `QuantisationModel::Counting`), but at 8–20 m/s it is ~1/30 of the
+/// production car's 0.8 % white wheel noise, so the model's shape there
+/// hardly matters.
+fn encoder_q(path: &std::path::Path) -> Result<(f64, String), Box<dyn Error>> {
+    use odocal::import::WheelSignal;
+    let m = odocal::Manifest::from_path(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let h = 1.0 / m.output.rate_hz;
+    let w = &m.wheels;
+    match (w.signal, w.ticks_per_rev, w.circumference_m) {
+        (WheelSignal::TicksCumulative | WheelSignal::TicksRaw, Some(tpr), _) if tpr > 0.0 => {
+            Ok((1.0 / (tpr * h), format!("1/({tpr} ticks × {h} s)")))
+        }
+        (WheelSignal::MPerS, _, Some(c)) if c > 0.0 => {
+            Ok((CAN_SPEED_STEP_M_PER_S / c, format!("{CAN_SPEED_STEP_M_PER_S:.6} m/s CAN lattice / {c} m")))
+        }
+        (s, ..) => Err(format!("{}: no quantisation step known for wheel signal {s:?}", path.display()).into()),
+    }
+}
+
+/// The EIV options of the stop-14 candidate shape: separate heading scale,
+/// counting quantisation; with `q`, the quantisation level given at q.
+fn candidate(q: Option<f64>, fallback: bool) -> Method {
+    let mut filter = EivOptions {
+        heading_scale: HeadingScale::Separate,
+        quantisation: QuantisationModel::Counting,
+        quantisation_level: QuantisationLevel::ScaledWithWhite,
+        ..EivOptions::default()
+    };
+    if let Some(q) = q {
+        filter.quantisation_level = QuantisationLevel::Given;
+        filter.noise = NoiseModel { quantisation_step_rev_per_s: q, ..filter.noise };
+    }
+    Method::Eiv(EivMethodOptions { filter, fallback, ..EivMethodOptions::default() })
+}
+
+/// The options `odocal calibrate --method …` uses for a study method; `q`
+/// is the drive's encoder step ([`encoder_q`], used by `eiv-scg`).
+fn options(method: &str, q: f64) -> Result<CalibrationOptions, Box<dyn Error>> {
     let mut o = CalibrationOptions::default();
+    // Diagnostic variants (stop 14): `-x` also estimates the reference's
+    // lever arm and heading offset with θ in the start (the filter runs on
+    // the rear-axle poses they imply), `-h` the heading offset alone; `-tau` starts from a reference drift
+    // with a correlation time of SHORT_DRIFT_TAU_S instead of 100 s; `-tc`
+    // turns on `EivOptions::theta_convergence`.
+    let (base, x) = match method.strip_suffix("-nofallback") {
+        Some(b) => (b, "-nofallback"),
+        None => (method, ""),
+    };
+    let (base, tc) = match base.strip_suffix("-tc") {
+        Some(b) => (b, true),
+        None => (base, false),
+    };
+    let (base, tau) = match base.strip_suffix("-tau") {
+        Some(b) => (b, true),
+        None => (base, false),
+    };
+    let (base, lever) = match base.strip_suffix("-x") {
+        Some(b) => (b, true),
+        None => (base, false),
+    };
+    let (base, heading) = match base.strip_suffix("-h") {
+        Some(b) => (b, true),
+        None => (base, false),
+    };
+    if lever || heading || tau || tc {
+        if !EXTRA_METHODS.contains(&method) {
+            return Err(format!("unknown method {method}").into());
+        }
+        let mut o = options(&format!("{base}{x}"), q)?;
+        if lever {
+            o.identify.free = o.identify.free.union(ParamSet::EXTRINSICS);
+        }
+        if heading {
+            o.identify.free = o.identify.free.with(odocal::Param::HeadingOffset);
+        }
+        if let Method::Eiv(e) = &mut o.method {
+            if tau {
+                e.filter.noise.drift_time_constant_s = SHORT_DRIFT_TAU_S;
+            }
+            if tc {
+                e.filter.theta_convergence = true;
+            }
+        }
+        return Ok(o);
+    }
     match method {
+        "eiv-stop13" | "eiv-stop13-nofallback" => {
+            o.method = Method::Eiv(EivMethodOptions {
+                filter: EivOptions {
+                    heading_scale: HeadingScale::TiedToPosition,
+                    quantisation: QuantisationModel::ProcessNoise,
+                    quantisation_level: QuantisationLevel::ScaledWithWhite,
+                    ..EivOptions::default()
+                },
+                fallback: method == "eiv-stop13",
+                ..EivMethodOptions::default()
+            })
+        }
+        "eiv-sc" => o.method = candidate(None, true),
+        "eiv-sc-nofallback" => o.method = candidate(None, false),
+        "eiv-scg" => o.method = candidate(Some(q), true),
+        "eiv-scg0" => o.method = candidate(Some(NoiseModel::PRODUCTION_CAR.quantisation_step_rev_per_s), true),
+        "eiv-scg0-nofallback" => {
+            o.method = candidate(Some(NoiseModel::PRODUCTION_CAR.quantisation_step_rev_per_s), false)
+        }
+        "eiv-scg-nofallback" => o.method = candidate(Some(q), false),
         "batch-gn" => o.method = Method::BatchGn(BatchGnOptions::default()),
         "batch-gn-all" => {
             o.method = Method::BatchGn(BatchGnOptions::default());
@@ -129,6 +295,81 @@ fn short_reasons(reasons: &[String]) -> String {
     }
 }
 
+/// Header of the EIV detail table (every EIV fit, fallen back or not).
+const EIV_DETAIL_HEADER: &str = "| method | fit | EIV θ (c_e m / c_d mm / t_r m / d mm/(m/s²)) | fell back | \
+     every check that fired | η (L/U = at the lower/upper clamp) | σ_white % / q rev/s / σ_c % / σ_w % / σ_p m / σ_ψ mrad | \
+     iterations, termination |\n|---|---|---|---|---|---|---|---|\n";
+
+/// One row of the EIV detail table: the EIV fit's own θ (also when the
+/// report's θ is the fallback), every finding that fired, η with its clamp
+/// state and the estimated noise in physical units. `None` for other methods.
+fn eiv_detail_row(m: &str, fit: &str, r: &CalibrationReport) -> Option<(String, Value)> {
+    let MethodDetail::Eiv(d) = &r.detail else { return None };
+    let fell = d.eiv_result == EivOutcome::BatchGnFallback;
+    let Some(e) = &d.eiv else {
+        let why = d.eiv_error.clone().unwrap_or_default();
+        return Some((
+            format!("| {m} | {fit} | filter failed | {fell} | {} |||||\n", why.replace('|', "\\|")),
+            json!({"method": m, "fit": fit, "eiv_error": why}),
+        ));
+    };
+    // No study method changes the clamps.
+    let [lo, hi] = EivOptions::default().eta_bounds;
+    let eta: Vec<String> = e
+        .eta
+        .iter()
+        .map(|&v| {
+            let tag = if v <= lo + 1e-6 {
+                "L"
+            } else if v >= hi - 1e-6 {
+                "U"
+            } else {
+                ""
+            };
+            format!("{v:.1}{tag}")
+        })
+        .collect();
+    let n = &e.noise;
+    let noise = format!(
+        "{:.3} / {:.2e} / {:.3} / {:.4} / {:.3} / {:.3}",
+        n.wheel_white_rel_sigma * 100.0,
+        n.quantisation_step_rev_per_s,
+        n.wheel_common_rel_sigma * 100.0,
+        n.wheel_differential_rel_sigma * 100.0,
+        n.position_white_sigma_m,
+        n.heading_white_sigma_rad * 1e3
+    );
+    let found: Vec<String> = e
+        .warnings
+        .iter()
+        .filter(|w| odocal::calibrate::eiv::is_misspecification(w, e))
+        .map(|w| w.to_string())
+        .collect();
+    let t = &e.theta;
+    let row = format!(
+        "| {m} | {fit} | {:.4} / {:+.2} / {:.3} / {:+.2} | {} | {} | {} | {noise} | {}, {} |\n",
+        t.c_e,
+        t.c_d * 1e3,
+        t.t_r,
+        t.d * 1e3,
+        if fell { "yes" } else { "no" },
+        if found.is_empty() { "none".into() } else { found.join("; ").replace('|', "\\|") },
+        eta.join(", "),
+        e.iterations,
+        e.termination.to_string().replace('|', "\\|"),
+    );
+    let v = json!({
+        "method": m, "fit": fit, "fell_back": fell, "eiv_theta": e.theta, "eiv_sigma": e.sigma,
+        "findings": found, "eta": e.eta, "noise": e.noise, "termination": e.termination.to_string(),
+        "iterations": e.iterations,
+        "unobservable": e.observability.unobservable,
+        "windows": e.windows.iter().map(|w| json!({"index": w.window.index, "updates": w.updates, "nis": w.nis,
+            "nis_without_floors": w.nis_without_floors, "lag1": w.lag1, "lag1_without_floors": w.lag1_without_floors})).collect::<Vec<_>>(),
+        "halves_z": e.halves.as_ref().map(|h| h.z),
+    });
+    Some((row, v))
+}
+
 fn verdict_json(r: &CalibrationReport) -> Value {
     json!({
         "level": r.verdict.level.to_string(),
@@ -138,7 +379,10 @@ fn verdict_json(r: &CalibrationReport) -> Value {
 
 fn theta_cell(r: &CalibrationReport) -> String {
     let t = &r.theta;
-    format!("{:.4} / {:+.2} / {:.3} / {:+.2}", t.c_e, t.c_d * 1e3, t.t_r, t.d * 1e3)
+    let x = r.extrinsics.as_ref().map_or(String::new(), |e| {
+        format!(" (l {:+.2}, {:+.2} m, δ {:+.1} mrad)", e.value.lever_x, e.value.lever_y, e.value.heading_offset * 1e3)
+    });
+    format!("{:.4} / {:+.2} / {:.3} / {:+.2}{x}", t.c_e, t.c_d * 1e3, t.t_r, t.d * 1e3)
 }
 
 fn load(path: &std::path::Path) -> Result<Drive, Box<dyn Error>> {
@@ -150,8 +394,13 @@ fn load(path: &std::path::Path) -> Result<Drive, Box<dyn Error>> {
 fn testtrack(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/psu-mapping-van-testtrack");
     let mut drives = Vec::new();
+    let mut qs = Vec::new();
     for run in RUNS {
-        drives.push((run, load(&dir.join(format!("run-{run}.toml")))?));
+        let path = dir.join(format!("run-{run}.toml"));
+        let (q, how) = encoder_q(&path)?;
+        eprintln!("testtrack {run}: encoder q = {q:.6e} rev/s ({how})");
+        qs.push(q);
+        drives.push((run, load(&path)?));
     }
     md.push_str(
         "#### (a) Test track, 2024-08-05: fit on one run, Ē_p on the other five (m)\n\n\
@@ -160,12 +409,14 @@ fn testtrack(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error
     );
     let mut out = Vec::new();
     let mut per_run_md = String::new();
+    let mut detail_md = String::new();
+    let mut details = Vec::new();
     for m in methods {
-        let opts = options(m)?;
         let started = Instant::now();
         let mut rows = Vec::new();
         let mut extra = Vec::new();
         for (i, (name, drive)) in drives.iter().enumerate() {
+            let opts = options(m, qs[i])?;
             let t = Instant::now();
             let r = match calibrate(drive, &opts, None) {
                 Ok(r) => r,
@@ -185,14 +436,19 @@ fn testtrack(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error
             let v = odocal::validate_drives_with(&others, &r.theta, &opts.theta0, &cal, &opts.validation)?;
             let wall = t.elapsed().as_secs_f64();
             let fb = eiv_fallback(&r);
+            if let Some((row, v)) = eiv_detail_row(m, name, &r) {
+                detail_md.push_str(&row);
+                details.push(v);
+            }
             if let MethodDetail::Eiv(d) = &r.detail {
                 if let Some(e) = &d.eiv {
                     // The EIV fit's consistency numbers (stderr), to read the checks against.
                     eprintln!(
-                        "{m} {name}: η {:.2?} {} halves z {:.1?}",
+                        "{m} {name}: η {:.2?} {} halves z {:.1?} unobservable {:?}",
                         e.eta,
                         e.termination,
-                        e.halves.as_ref().map(|h| h.z)
+                        e.halves.as_ref().map(|h| h.z),
+                        e.observability.unobservable
                     );
                     for w in &e.windows {
                         eprintln!(
@@ -205,6 +461,7 @@ fn testtrack(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error
             extra.push(json!({
                 "run": name,
                 "theta": r.theta,
+                "extrinsics": r.extrinsics.as_ref().map(|e| e.value),
                 "sigma": result_sigma(&r),
                 "sigma_source": r.result_sigma().source,
                 "verdict": verdict_json(&r),
@@ -277,6 +534,105 @@ fn testtrack(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error
     );
     md.push_str(&per_run_md);
     md.push('\n');
+    if !detail_md.is_empty() {
+        md.push_str("EIV fits (the filter's own θ and findings, also where the report fell back):\n\n");
+        md.push_str(EIV_DETAIL_HEADER);
+        md.push_str(&detail_md);
+        md.push('\n');
+        out.push(json!({"eiv_details": details}));
+    }
+    Ok(Value::Array(out))
+}
+
+/// (d) which parameter makes the difference on the test track: per run,
+/// batch G-N (all segments) and `eiv-scg-nofallback`, and EIV's θ with one
+/// parameter at a time replaced by batch G-N's, each judged by the mean Ē_p
+/// on the other five runs.
+fn swap(md: &mut String) -> Result<Value, Box<dyn Error>> {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/psu-mapping-van-testtrack");
+    let mut drives = Vec::new();
+    for run in RUNS {
+        let path = dir.join(format!("run-{run}.toml"));
+        drives.push((run, load(&path)?, encoder_q(&path)?.0));
+    }
+    md.push_str(
+        "#### (d) Test track: EIV (`eiv-scg-nofallback`) with one parameter at a time from batch G-N (all \
+         segments); mean Ē_p on the other five runs (m)\n\n\
+         | run | batch G-N | EIV | EIV, G-N's c_e | EIV, G-N's c_d | EIV, G-N's t_r | EIV, G-N's d \
+         | G-N, EIV's c_e | G-N, EIV's c_d |\n|---|---|---|---|---|---|---|---|---|\n",
+    );
+    let mut out = Vec::new();
+    let mut sums = [0.0; 8];
+    for (i, (name, drive, q)) in drives.iter().enumerate() {
+        let gn_opts = options("batch-gn-all", *q)?;
+        let eiv_opts = options("eiv-scg-nofallback", *q)?;
+        let gn = calibrate(drive, &gn_opts, None)?;
+        let eiv = calibrate(drive, &eiv_opts, None)?;
+        let others: Vec<ValidationDrive> = drives
+            .iter()
+            .enumerate()
+            .filter(|(j, _)| *j != i)
+            .map(|(_, (n, d, _))| ValidationDrive { name: n, drive: d, reference: None })
+            .collect();
+        let cal = CalibrationExtrinsics::of(&gn, ParamSet::EMPTY);
+        let judge = |t: &odocal::Theta| -> Result<f64, Box<dyn Error>> {
+            Ok(odocal::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?.mean_over_drives_m)
+        };
+        let (g, e) = (gn.theta, eiv.theta);
+        let mut cells = vec![judge(&g)?, judge(&e)?];
+        cells.push(judge(&odocal::Theta { c_e: g.c_e, ..e })?);
+        cells.push(judge(&odocal::Theta { c_d: g.c_d, ..e })?);
+        cells.push(judge(&odocal::Theta { t_r: g.t_r, ..e })?);
+        cells.push(judge(&odocal::Theta { d: g.d, ..e })?);
+        cells.push(judge(&odocal::Theta { c_e: e.c_e, ..g })?);
+        cells.push(judge(&odocal::Theta { c_d: e.c_d, ..g })?);
+        for (s, c) in sums.iter_mut().zip(&cells) {
+            *s += c / RUNS.len() as f64;
+        }
+        md.push_str(&format!(
+            "| {name} | {} |\n",
+            cells.iter().map(|c| format!("{c:.2}")).collect::<Vec<_>>().join(" | ")
+        ));
+        out.push(json!({"run": name, "batch_gn": g, "eiv": e, "others_m": cells}));
+    }
+    md.push_str(&format!("| mean | {} |\n\n", sums.iter().map(|c| format!("{c:.2}")).collect::<Vec<_>>().join(" | ")));
+    // The same for the van: fitted on one half, Ē_p on the held-out half.
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/psu-mapping-van/manifest.toml");
+    let drive = load(&path)?;
+    let q = encoder_q(&path)?.0;
+    md.push_str(
+        "Van (07-11), the same on the held-out half (m):\n\n\
+         | held out | batch G-N | EIV | EIV, G-N's c_e | EIV, G-N's c_d | EIV, G-N's t_r | EIV, G-N's d \
+         | G-N, EIV's c_e | G-N, EIV's c_d |\n|---|---|---|---|---|---|---|---|---|\n",
+    );
+    for (label, h) in [("first-half", Holdout::FirstHalf), ("second-half", Holdout::SecondHalf)] {
+        let (fit, held) = h.split(&drive)?;
+        let gn_opts = options("batch-gn-all", q)?;
+        let gn = calibrate(&fit, &gn_opts, None)?;
+        let eiv = calibrate(&fit, &options("eiv-scg-nofallback", q)?, None)?;
+        let others = [ValidationDrive { name: label, drive: &held, reference: None }];
+        let cal = CalibrationExtrinsics::of(&gn, ParamSet::EMPTY);
+        let judge = |t: &odocal::Theta| -> Result<f64, Box<dyn Error>> {
+            Ok(odocal::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?.mean_over_drives_m)
+        };
+        let (g, e) = (gn.theta, eiv.theta);
+        let cells = [
+            judge(&g)?,
+            judge(&e)?,
+            judge(&odocal::Theta { c_e: g.c_e, ..e })?,
+            judge(&odocal::Theta { c_d: g.c_d, ..e })?,
+            judge(&odocal::Theta { t_r: g.t_r, ..e })?,
+            judge(&odocal::Theta { d: g.d, ..e })?,
+            judge(&odocal::Theta { c_e: e.c_e, ..g })?,
+            judge(&odocal::Theta { c_d: e.c_d, ..g })?,
+        ];
+        md.push_str(&format!(
+            "| {label} | {} |\n",
+            cells.iter().map(|c| format!("{c:.2}")).collect::<Vec<_>>().join(" | ")
+        ));
+        out.push(json!({"van_holdout": label, "batch_gn": g, "eiv": e, "held_out_m": cells}));
+    }
+    md.push('\n');
     Ok(Value::Array(out))
 }
 
@@ -284,14 +640,18 @@ fn testtrack(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error
 fn van(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/psu-mapping-van/manifest.toml");
     let drive = load(&path)?;
+    let (q, how) = encoder_q(&path)?;
+    eprintln!("van: encoder q = {q:.6e} rev/s ({how})");
     md.push_str(
         "#### (b) Highway van (07-11): fit on one half, Ē_p on the held-out half (m)\n\n\
          | method | held out | θ (c_e m / c_d mm / t_r m / d mm/(m/s²)) | held-out Ē_p | θ_0 Ē_p | verdict \
          | EIV fell back (why) | wall s |\n|---|---|---|---|---|---|---|---|\n",
     );
     let mut out = Vec::new();
+    let mut detail_md = String::new();
+    let mut details = Vec::new();
     for m in methods {
-        let opts = options(m)?;
+        let opts = options(m, q)?;
         for (label, h) in [("first-half", Holdout::FirstHalf), ("second-half", Holdout::SecondHalf)] {
             let t = Instant::now();
             let r = match calibrate_with_holdout(&drive, &h, &opts, None) {
@@ -304,6 +664,10 @@ fn van(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
             };
             let wall = t.elapsed().as_secs_f64();
             let fb = eiv_fallback(&r);
+            if let Some((row, v)) = eiv_detail_row(m, label, &r) {
+                detail_md.push_str(&row);
+                details.push(v);
+            }
             md.push_str(&format!(
                 "| {m} | {label} | {} | {:.2} | {:.2} | {} | {} | {wall:.1} |\n",
                 theta_cell(&r),
@@ -320,6 +684,7 @@ fn van(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
                 "method": m,
                 "holdout": label,
                 "theta": r.theta,
+                "extrinsics": r.extrinsics.as_ref().map(|e| e.value),
                 "sigma": result_sigma(&r),
                 "sigma_source": r.result_sigma().source,
                 "held_out_m": r.validation.mean_position_error_m,
@@ -332,6 +697,13 @@ fn van(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
         }
     }
     md.push('\n');
+    if !detail_md.is_empty() {
+        md.push_str("EIV fits (held-out half named; the filter's own θ and findings):\n\n");
+        md.push_str(EIV_DETAIL_HEADER);
+        md.push_str(&detail_md);
+        md.push('\n');
+        out.push(json!({"eiv_details": details}));
+    }
     Ok(Value::Array(out))
 }
 
@@ -339,15 +711,19 @@ fn van(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
 fn rav4(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/comma2k19-rav4/manifest.toml");
     let drive = load(&path)?;
+    let (q, how) = encoder_q(&path)?;
+    eprintln!("rav4: encoder q = {q:.6e} rev/s ({how})");
     md.push_str(
         "#### (c) comma2k19 RAV4 (1 km, nearly straight): c_e and what is named\n\n\
          | method | options | c_e (m) ± 1σ | unobservable (named) | held (auto-fix / EIV start) | verdict | Ē_p / θ_0 (m) \
          | EIV fell back | wall s |\n|---|---|---|---|---|---|---|---|---|\n",
     );
     let mut out = Vec::new();
+    let mut detail_md = String::new();
+    let mut details = Vec::new();
     for m in methods {
         for auto_fix in [false, true] {
-            let opts = CalibrationOptions { auto_fix, ..options(m)? };
+            let opts = CalibrationOptions { auto_fix, ..options(m, q)? };
             let label = if auto_fix { "--auto-fix" } else { "default" };
             let t = Instant::now();
             let r = match calibrate(&drive, &opts, None) {
@@ -371,6 +747,10 @@ fn rav4(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
                 held.extend(d.start_held.iter().map(|p| format!("{} (start)", p.name())));
             }
             let fb = eiv_fallback(&r);
+            if let Some((row, v)) = eiv_detail_row(m, label, &r) {
+                detail_md.push_str(&row);
+                details.push(v);
+            }
             md.push_str(&format!(
                 "| {m} | {label} | {:.5} ± {} | {} | {} | {} | {:.2} / {:.2} | {} | {wall:.1} |\n",
                 r.theta.c_e,
@@ -394,6 +774,7 @@ fn rav4(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
                 "method": m,
                 "auto_fix": auto_fix,
                 "theta": r.theta,
+                "extrinsics": r.extrinsics.as_ref().map(|e| e.value),
                 "sigma": sigma,
                 "sigma_source": r.result_sigma().source,
                 "unobservable": r.observability.unobservable.iter().map(|p| p.name()).collect::<Vec<_>>(),
@@ -410,6 +791,13 @@ fn rav4(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
         }
     }
     md.push('\n');
+    if !detail_md.is_empty() {
+        md.push_str("EIV fits (the filter's own θ and findings):\n\n");
+        md.push_str(EIV_DETAIL_HEADER);
+        md.push_str(&detail_md);
+        md.push('\n');
+        out.push(json!({"eiv_details": details}));
+    }
     Ok(Value::Array(out))
 }
 
@@ -430,7 +818,7 @@ fn main() -> Result<(), Box<dyn Error>> {
         }
     }
     for m in &methods {
-        options(m)?;
+        options(m, NoiseModel::PRODUCTION_CAR.quantisation_step_rev_per_s)?;
     }
     let started = Instant::now();
     let mut md = String::new();
@@ -441,7 +829,8 @@ fn main() -> Result<(), Box<dyn Error>> {
             "testtrack" => testtrack(&methods, &mut md)?,
             "van" => van(&methods, &mut md)?,
             "rav4" => rav4(&methods, &mut md)?,
-            other => return Err(format!("unknown part {other}; use testtrack, van, rav4").into()),
+            "swap" => swap(&mut md)?,
+            other => return Err(format!("unknown part {other}; use testtrack, van, rav4, swap").into()),
         };
         eprintln!("{p}: {:.1} s", t.elapsed().as_secs_f64());
         out.insert(p.clone(), v);

@@ -215,8 +215,9 @@ def calibrate(
       ``--heading-offset``;
     - ``noise_model`` (path of a noise-model TOML), ``fix_noise``,
       ``fallback``, ``eiv_window``, ``quantisation`` (``"process"`` |
-      ``"measurement"`` | ``"counting"``), ``heading_noise`` (``"tied"`` |
-      ``"separate"``): method ``"eiv"`` only, as the CLI's flags.
+      ``"measurement"`` | ``"counting"``), ``quantisation_level``
+      (``"scaled"`` | ``"given"`` | ``"from-readings"``), ``heading_noise``
+      (``"tied"`` | ``"separate"``): method ``"eiv"`` only, as the CLI's flags.
 
     A drive read from a manifest carries the manifest's ``[noise]``,
     ``[reference]`` and ``[calibration]`` settings (``drive.import_report``); they apply unless

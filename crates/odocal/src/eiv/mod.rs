@@ -187,6 +187,7 @@
 
 mod bootstrap;
 pub(crate) mod filter;
+mod lattice;
 mod tau;
 #[cfg(test)]
 pub(crate) mod tests;
@@ -202,6 +203,7 @@ use crate::error::{Error, Result};
 use crate::model::Theta;
 pub use bootstrap::{bootstrap, BootstrapInputs, BootstrapOptions, BootstrapReport};
 use filter::{run_window, Mode, Variances, WindowSums, NETA};
+pub use lattice::{quantisation_step_of_readings, LATTICE_TOLERANCE_STEPS, MAX_LATTICE_INDEX, MIN_LATTICE_LEVELS};
 pub use tau::{TimeConstantCandidate, TimeConstantFit, TimeConstantGrid, TIME_CONSTANT_RANGE_S};
 
 /// The data of a drive as plain slices (all of length N, samples).
@@ -738,15 +740,15 @@ pub struct EivOptions {
     /// [`CovarianceMode::FollowsTheta`].
     pub covariance: CovarianceMode,
     /// How encoder quantisation enters the filter. Default
-    /// [`QuantisationModel::ProcessNoise`] (see its docs for the measured
-    /// trade-off).
+    /// [`QuantisationModel::Counting`] since stop 14 (see its docs for the
+    /// measured trade-off).
     pub quantisation: QuantisationModel,
     /// Whether η_0 scales the encoder quantisation with the white wheel
-    /// noise or the quantisation step of [`EivOptions::noise`] is taken as
-    /// known. Default [`QuantisationLevel::ScaledWithWhite`] (see its docs).
+    /// noise or the quantisation step is taken as known. Default
+    /// [`QuantisationLevel::FromReadings`] since stop 14 (see its docs).
     pub quantisation_level: QuantisationLevel,
     /// Whether the reference's heading white noise has its own scale η_5.
-    /// Default [`HeadingScale::TiedToPosition`] (see its docs).
+    /// Default [`HeadingScale::Separate`] since stop 14 (see its docs).
     pub heading_scale: HeadingScale,
     /// Which wheel rotation scales the relative wheel noise in the
     /// covariance. Default [`WheelNoiseScale::MeasuredInput`] (see its docs
@@ -1066,11 +1068,14 @@ pub struct FirstOrderBias {
 /// ([`InputJacobian::None`]) the noise-free straight drive stops at a
 /// second fixed point of the θ/η iteration (c_e −0.057 %, η well above its
 /// lower clamp); with the default [`InputJacobian::FilterShare`] it does
-/// not (c_e to 1e-9, "Stop 12"). Not the default after stop 13's study
-/// (20 seeds × 12 km, docs/study.md "Stop 13"): with η estimated on the
-/// `white` preset the separate scale stops at the iteration limit on 12
-/// (with `Measurement`) / 3 (with `Counting`) of 20 drives, against 0 tied,
-/// so `calibrate` falls back to batch G-N more often.
+/// not (c_e to 1e-9, "Stop 12"). After stop 13's study the separate scale
+/// stopped at the iteration limit on 3 of 20 `white` drives with `Counting`;
+/// [`EivOptions::final_step_check`] showed those were converged. The
+/// default since stop 14, with [`QuantisationModel::Counting`] and
+/// [`QuantisationLevel::FromReadings`] (docs/study.md "Stop 14"; 20 seeds ×
+/// 12 km, η estimated: t_r +0.06 % white, +0.02 % coloured, +0.30 % paper,
+/// +1.50 % high, against +0.06 %, −0.01 %, +3.65 %, all-fallback tied with
+/// process-noise quantisation).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum HeadingScale {
@@ -1094,7 +1099,10 @@ pub enum HeadingScale {
 /// `high` bias of t_r with η estimated went from +8.5 % to +1.5 % (20 seeds ×
 /// 12 km; the known model +0.66 %). Use it with `Counting` only: with the
 /// approximate [`QuantisationModel::Measurement`] it made `high` worse
-/// (t_r +5.0 % → −11.7 %, 10 seeds).
+/// (t_r +5.0 % → −11.7 %, 10 seeds). The default since stop 14 is
+/// [`QuantisationLevel::FromReadings`]: the step is read off the readings
+/// where they lie on a lattice (a simulator's, or rates from counted ticks
+/// at the encoder's own sample times), and otherwise scaled as before.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum QuantisationLevel {
@@ -1103,6 +1111,51 @@ pub enum QuantisationLevel {
     /// q held at [`NoiseModel::quantisation_step_rev_per_s`] of
     /// [`EivOptions::noise`]; η_0 scales the white wheel, a_y and β noise only.
     Given,
+    /// q read off the wheel readings when they lie on a lattice of counted
+    /// ticks ([`quantisation_step_of_readings`]) and then held there as with
+    /// [`QuantisationLevel::Given`]; readings off any lattice (interpolated
+    /// ticks, resampled speeds) fall back to
+    /// [`QuantisationLevel::ScaledWithWhite`] from the noise model's q.
+    /// [`EivReport::quantisation_step_from_readings`] says which.
+    FromReadings,
+}
+
+impl QuantisationLevel {
+    /// The level `estimate` uses on `input`: `FromReadings` becomes `Given`
+    /// (with the step found) or `ScaledWithWhite` (with `None`).
+    pub(crate) fn resolve(self, input: &EivInput<'_>) -> (QuantisationLevel, Option<f64>) {
+        match self {
+            QuantisationLevel::FromReadings => match lattice::input_quantisation_step(input) {
+                Some(q) => (QuantisationLevel::Given, Some(q)),
+                None => (QuantisationLevel::ScaledWithWhite, None),
+            },
+            other => (other, None),
+        }
+    }
+}
+
+impl std::str::FromStr for QuantisationLevel {
+    type Err = Error;
+    /// `scaled` ([`QuantisationLevel::ScaledWithWhite`]), `given` or
+    /// `from-readings`, as the CLI's `--quantisation-level`.
+    ///
+    /// ```
+    /// use odocal::eiv::QuantisationLevel;
+    /// assert_eq!("from-readings".parse::<QuantisationLevel>().unwrap(), QuantisationLevel::FromReadings);
+    /// assert!("auto".parse::<QuantisationLevel>().is_err());
+    /// ```
+    fn from_str(s: &str) -> Result<Self> {
+        match s.trim().to_ascii_lowercase().replace('-', "_").as_str() {
+            "scaled" | "scaled_with_white" => Ok(QuantisationLevel::ScaledWithWhite),
+            "given" => Ok(QuantisationLevel::Given),
+            "from_readings" => Ok(QuantisationLevel::FromReadings),
+            _ => Err(Error::Parse {
+                what: "quantisation level",
+                input: s.to_string(),
+                expected: "scaled, given or from-readings",
+            }),
+        }
+    }
 }
 
 /// How the filter models encoder quantisation (q of [`NoiseModel`]).
@@ -1115,11 +1168,12 @@ pub enum QuantisationLevel {
 /// −1.2 ± 1.1 % (5.7×) against `ProcessNoise` +0.39 ± 0.30 % (2.2×) and
 /// +3.3 ± 1.2 % (12×); with η estimated from the production-car start,
 /// paper −1.2 ± 0.6 % / high +4.5 ± 5.0 % against +4.0 ± 1.0 % / +122 ± 33 %.
-/// It is not the default yet: alone (heading scale tied) it changes little
-/// with η estimated (paper t_r +3.8 %, high +118 %); with
-/// [`HeadingScale::Separate`] it gives paper −1.2 %, high +4.5 % (docs/study.md,
-/// EIV section, "Stop 11"; with today's defaults −1.2 % / +4.1 %, "Stop 12",
-/// where the pair passes the noise-free straight and turning drives).
+/// Alone (heading scale tied) it changes little with η estimated (paper
+/// t_r +3.8 %, high +118 %); with [`HeadingScale::Separate`] it gives
+/// paper −1.2 %, high +4.5 % (docs/study.md, EIV section, "Stop 11"; "Stop
+/// 12", where the pair passes the noise-free straight and turning drives).
+/// [`QuantisationModel::Counting`] with the separate scale and the step
+/// read off the readings is the default since stop 14.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum QuantisationModel {
@@ -1141,7 +1195,9 @@ pub enum QuantisationModel {
     /// separate heading scale and the noise model known it is the best of the
     /// three (20 seeds × 12 km, t_r paper +0.17 %, high +0.66 %; its
     /// innovation checks flag none of 80 drives), with η estimated paper
-    /// +0.28 % but high +8.5 % (docs/study.md "Stop 13"); not the default.
+    /// +0.28 % but high +8.5 % (docs/study.md "Stop 13"), +1.5 % with the
+    /// step held at the encoder's ([`QuantisationLevel::FromReadings`]).
+    /// The default since stop 14.
     Counting,
 }
 
@@ -1209,9 +1265,9 @@ impl Default for EivOptions {
             max_lag1_below: 0.2,
             max_half_z: 4.0,
             covariance: CovarianceMode::FollowsTheta,
-            quantisation: QuantisationModel::ProcessNoise,
-            heading_scale: HeadingScale::TiedToPosition,
-            quantisation_level: QuantisationLevel::ScaledWithWhite,
+            quantisation: QuantisationModel::Counting,
+            heading_scale: HeadingScale::Separate,
+            quantisation_level: QuantisationLevel::FromReadings,
             wheel_noise_scale: WheelNoiseScale::SmoothedFittedInput { half_width_samples: 20 },
             bias_correction: BiasCorrection::None,
             bootstrap_inputs: BootstrapInputs::Measured,
@@ -1635,6 +1691,12 @@ pub struct EivReport {
     /// are also in [`EivReport::noise`].
     #[serde(default)]
     pub time_constants: Option<TimeConstantFit>,
+    /// The quantisation step read off the wheel readings' lattice, rev/s,
+    /// with [`QuantisationLevel::FromReadings`] (None when the readings lie
+    /// on no lattice or another level was asked for); then also
+    /// [`EivReport::noise`]'s q.
+    #[serde(default)]
+    pub quantisation_step_from_readings: Option<f64>,
 }
 
 impl std::fmt::Display for EivReport {
@@ -2463,6 +2525,22 @@ pub(crate) fn estimate_from(
     if windows.is_empty() {
         return Err(Error::NoSegments("EIV needs a drive part of at least two samples".into()));
     }
+    // `FromReadings` is resolved once here: the rest of the fit (and the
+    // bootstrap's replicates, whose re-simulated readings carry no lattice)
+    // sees `Given` with the step found, or `ScaledWithWhite`.
+    let (level, q_found) = opts.quantisation_level.resolve(input);
+    let resolved;
+    let opts = if opts.quantisation_level == level {
+        opts
+    } else {
+        let mut o = opts.clone();
+        o.quantisation_level = level;
+        if let Some(q) = q_found {
+            o.noise.quantisation_step_rev_per_s = q;
+        }
+        resolved = o;
+        &resolved
+    };
     let prob = Problem {
         input,
         windows,
@@ -2652,6 +2730,7 @@ pub(crate) fn estimate_from(
         updates: ev.total.updates,
         timing_s: t0.elapsed().as_secs_f64(),
         time_constants: None,
+        quantisation_step_from_readings: q_found,
     };
     if let BiasCorrection::Bootstrap { replicates, seed, all_parameters } = opts.bias_correction {
         // The replicates are fitted without correction (their mean estimates
@@ -2808,12 +2887,14 @@ pub fn cramer_rao_bound(
     if windows.is_empty() {
         return Err(Error::NoSegments("the Cramér–Rao bound needs a drive part of at least two samples".into()));
     }
+    // With `FromReadings` the bound takes `noise`'s q as the encoder's
+    // (held, not scaled by η_0) where the readings lie on a lattice.
     let prob = Problem {
         input,
         windows,
         noise: *noise,
         quantisation: opts.quantisation,
-        quantisation_given: opts.quantisation_level == QuantisationLevel::Given,
+        quantisation_given: opts.quantisation_level.resolve(input).0 == QuantisationLevel::Given,
         heading_separate: opts.heading_scale == HeadingScale::Separate,
         fitted_input: opts.wheel_noise_scale != WheelNoiseScale::MeasuredInput,
         noise_input_half_width: opts.wheel_noise_scale.half_width(),

@@ -753,12 +753,14 @@ fn results_match_the_recorded_results_of_the_unoptimised_filter() {
     // Recorded with the options of the time (SPEC §10's cost and floor, the
     // heading tied to the position scale, quantisation as process noise; the
     // η step undamped and no null pass of the innovation checks, stop 12;
-    // the σ of H_θ⁻¹ alone, stop 13),
-    // spelt out so that a change of those defaults does not change the cases.
+    // the σ of H_θ⁻¹ alone, stop 13; the quantisation step scaled with the
+    // white noise, stop 14), spelt out so that a change of those defaults
+    // does not change the cases.
     let base = EivOptions {
         window_samples: 2000,
         heading_scale: HeadingScale::TiedToPosition,
         quantisation: QuantisationModel::ProcessNoise,
+        quantisation_level: QuantisationLevel::ScaledWithWhite,
         eta_secant_damping: false,
         innovation_null: InnovationNull::FittedModel,
         covariance_estimate: CovarianceEstimate::Model,
