@@ -5,10 +5,15 @@
 //! cargo run --release -p odocal --example eiv_eta_diag -- [--km 12] [--seeds 4] [--presets paper,high]
 //!     (presets also: noslip, nobeta, noquant, highnoquant, high-noslip, quantonly, quantwhite, white2, coloured,
 //!     and the quantisation-free paper ablations nq-noslip, nq-noay, nq-nodrift, nq-noposwhite,
-//!     nq-nocoloured, nq-nowheel)
+//!     nq-nocoloured, nq-nowheel; stop 14: `high-A+B…` = high with sources A, B… off, A one of
+//!     noslip, noquant, paperq, noay, nobeta, nodrift, noposwhite, noheadwhite, nocommon, nodiff,
+//!     nowhite, paperwhite, noref, nowheel; `scaleF` = every paper source × F)
 //!     [--variants known,est-pc,...] (est-pc-qgiven, est-from-sim-qgiven: the simulator's q given,
-//!     `QuantisationLevel::Given`; est-pc-simwheel / est-pc-simdrift: only those time constants from the simulator)
+//!     `QuantisationLevel::Given`; est-pc-simtau-qgiven, est-pc-simwheel-qgiven, est-pc-simdrift-qgiven: q
+//!     given and the simulator's time constants (all, wheel, drift); est-pc-simwheel / est-pc-simdrift: only those time constants from the simulator)
 //!     [--quantisation process,measurement,counting] [--heading separate|tied]
+//!     [--substeps 10] (the simulator's integration substeps per sample) [--window-samples N]
+//!     [--hold 1,5] (η sources held at the starting model, `EivOptions::eta_held`)
 //!     [--history 1]  (print every iteration's θ, η and step/σ, and each window's NIS and lag-1)
 //!
 //! (`--heading` defaults to `separate` here, unlike the library.) Several
@@ -37,6 +42,9 @@ fn main() -> Res<()> {
     let mut quants = vec![("process", QuantisationModel::ProcessNoise)];
     let mut heading = HeadingScale::Separate;
     let mut history = false;
+    let mut substeps = SimOptions::paper(0).substeps;
+    let mut window_samples: Option<usize> = None;
+    let mut eta_held = [false; 6];
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
         let v = it.next().ok_or("missing value")?;
@@ -60,6 +68,14 @@ fn main() -> Res<()> {
                 }
             }
             "--history" => history = v == "1" || v == "true",
+            "--substeps" => substeps = v.parse()?,
+            "--window-samples" => window_samples = Some(v.parse()?),
+            "--hold" => {
+                for j in v.split(',').filter(|x| !x.is_empty()) {
+                    let j: usize = j.parse()?;
+                    *eta_held.get_mut(j).ok_or("--hold takes source indices 0..=5")? = true;
+                }
+            }
             "--variants" => variants_arg = Some(v.split(',').map(str::to_string).collect()),
             _ => return Err(format!("unknown {k}").into()),
         }
@@ -76,7 +92,6 @@ fn main() -> Res<()> {
             "coloured" => NoiseOptions::coloured_wheels_only(),
             "noquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::paper() },
             "highnoquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::high() },
-            "high-noslip" => NoiseOptions { wheel_slip_per_m_per_s2: 0.0, ..NoiseOptions::high() },
             // Ablations of the paper preset without quantisation (`nq-…`: one more source off).
             "nq-noslip" => {
                 NoiseOptions { encoder_ticks_per_revolution: 0, wheel_slip_per_m_per_s2: 0.0, ..NoiseOptions::paper() }
@@ -113,10 +128,21 @@ fn main() -> Res<()> {
                 wheel_slip_per_m_per_s2: 0.0,
                 ..NoiseOptions::paper()
             },
+            // `high-a+b+…` (stop 14): the high preset with the named sources switched off, one
+            // or more (see `ablate`); `scaleF`: every paper source × F (q by F too), F ∈ (0, 10].
+            _ if p.starts_with("high-") => {
+                let mut n = NoiseOptions::high();
+                for a in p["high-".len()..].split('+') {
+                    n = ablate(n, a)?;
+                }
+                n
+            }
+            _ if p.starts_with("scale") => scaled_paper(p["scale".len()..].parse()?),
             _ => NoiseOptions::by_name(p)?,
         };
         for seed in 1..=seeds {
-            let sim = simulate(&SimOptions { length_km: km, noise: noise.clone(), ..SimOptions::paper(seed) })?;
+            let sim =
+                simulate(&SimOptions { length_km: km, noise: noise.clone(), substeps, ..SimOptions::paper(seed) })?;
             let d = &sim.drive;
             let truth = sim.sidecar.theta_true;
             let sel = calibration_segments(d, &SegmentOptions::default())?;
@@ -157,6 +183,22 @@ fn main() -> Res<()> {
                     false,
                 ),
                 ("est-from-sim-qgiven", sim_noise, false),
+                // Stop 14: q given and the simulator's time constants (all, wheel only, drift only).
+                (
+                    "est-pc-simtau-qgiven",
+                    NoiseModel { quantisation_step_rev_per_s: sim_noise.quantisation_step_rev_per_s, ..pc_tau },
+                    false,
+                ),
+                (
+                    "est-pc-simwheel-qgiven",
+                    NoiseModel { quantisation_step_rev_per_s: sim_noise.quantisation_step_rev_per_s, ..pc_simwheel },
+                    false,
+                ),
+                (
+                    "est-pc-simdrift-qgiven",
+                    NoiseModel { quantisation_step_rev_per_s: sim_noise.quantisation_step_rev_per_s, ..pc_simdrift },
+                    false,
+                ),
                 ("est-pc-simwheel", pc_simwheel, false),
                 ("est-pc-simdrift", pc_simdrift, false),
                 ("est-pc-head", pc_head, false),
@@ -220,6 +262,8 @@ fn main() -> Res<()> {
                     },
                     ..Default::default()
                 };
+                let opts =
+                    EivOptions { window_samples: window_samples.unwrap_or(opts.window_samples), eta_held, ..opts };
                 let start = if at_truth { truth } else { gn };
                 match estimate(&input, &start, &opts) {
                     Ok(r) => {
@@ -292,4 +336,60 @@ fn main() -> Res<()> {
         println!("{p} | {label} | {q} | {} ({failed}) | {}", e.len(), cells.join(" | "));
     }
     Ok(())
+}
+
+/// The noise options with one source switched off (stop-14 ablations of `high`).
+fn ablate(n: NoiseOptions, what: &str) -> Res<NoiseOptions> {
+    Ok(match what {
+        "noslip" => NoiseOptions { wheel_slip_per_m_per_s2: 0.0, ..n },
+        "noquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..n },
+        "paperq" => {
+            NoiseOptions { encoder_ticks_per_revolution: NoiseOptions::paper().encoder_ticks_per_revolution, ..n }
+        }
+        "noay" => NoiseOptions { lateral_acceleration_white_sigma_m_per_s2: 0.0, ..n },
+        "nobeta" => NoiseOptions { sideslip_sigma_rad: 0.0, ..n },
+        "nodrift" => NoiseOptions { position_drift_sigma_m: 0.0, heading_drift_sigma_rad: 0.0, ..n },
+        "noposwhite" => NoiseOptions { position_white_sigma_m: 0.0, ..n },
+        "noheadwhite" => NoiseOptions { heading_white_sigma_rad: 0.0, ..n },
+        "nocommon" => NoiseOptions { wheel_coloured_rel_sigma: 0.0, ..n },
+        "nodiff" => NoiseOptions { wheel_coloured_differential_rel_sigma: 0.0, ..n },
+        "nowhite" => NoiseOptions { wheel_white_rel_sigma: 0.0, ..n },
+        "paperwhite" => NoiseOptions { wheel_white_rel_sigma: NoiseOptions::paper().wheel_white_rel_sigma, ..n },
+        "noref" => NoiseOptions {
+            position_drift_sigma_m: 0.0,
+            heading_drift_sigma_rad: 0.0,
+            position_white_sigma_m: 0.0,
+            heading_white_sigma_rad: 0.0,
+            ..n
+        },
+        "nowheel" => NoiseOptions {
+            wheel_slip_per_m_per_s2: 0.0,
+            wheel_coloured_rel_sigma: 0.0,
+            wheel_coloured_differential_rel_sigma: 0.0,
+            wheel_white_rel_sigma: 0.0,
+            encoder_ticks_per_revolution: 0,
+            ..n
+        },
+        other => return Err(format!("unknown ablation '{other}'").into()),
+    })
+}
+
+/// Every source of the paper preset scaled by `f` (standard deviations × f,
+/// encoder ticks ÷ f, so the quantisation step × f); `scale2.5` ≈ `high`.
+fn scaled_paper(f: f64) -> NoiseOptions {
+    let p = NoiseOptions::paper();
+    NoiseOptions {
+        wheel_slip_per_m_per_s2: f * p.wheel_slip_per_m_per_s2,
+        wheel_coloured_rel_sigma: f * p.wheel_coloured_rel_sigma,
+        wheel_coloured_differential_rel_sigma: f * p.wheel_coloured_differential_rel_sigma,
+        wheel_white_rel_sigma: f * p.wheel_white_rel_sigma,
+        encoder_ticks_per_revolution: (f64::from(p.encoder_ticks_per_revolution) / f).round() as u32,
+        position_drift_sigma_m: f * p.position_drift_sigma_m,
+        position_white_sigma_m: f * p.position_white_sigma_m,
+        heading_drift_sigma_rad: f * p.heading_drift_sigma_rad,
+        heading_white_sigma_rad: f * p.heading_white_sigma_rad,
+        lateral_acceleration_white_sigma_m_per_s2: f * p.lateral_acceleration_white_sigma_m_per_s2,
+        sideslip_sigma_rad: f * p.sideslip_sigma_rad,
+        ..p
+    }
 }

@@ -5,10 +5,12 @@
 //! ```text
 //! cargo run --release -p odocal --example study_eiv -- [--km 12] [--seeds 20]
 //!     [--presets off,white,paper,high,coloured] [--three-step-seeds 0]
-//!     [--bootstrap 0] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
+//!     [--bootstrap 0] [--bootstrap-smooth K (replicates' true inputs: ±K moving average, stop 14)] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
 //!     [--quantisation process|measurement|counting] [--heading tied|separate]
 //!     [--quantisation-level scaled|given|from-readings] (defaults: the library's EivOptions)
-//!     [--methods known,est] (also: est-qgiven = `est` with the encoder's q given, est-thconv = `est` with `theta_convergence`, est-it20 = `est` with 20 iterations, est-final = `est` with `final_step_check`, est-stop11 = `est` with the stop-11 checks and iteration, fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot)
+//!     [--methods known,est] (also: est-qgiven = `est` with the encoder's q given, est-qgiven-hgiven = est-qgiven
+//!     with the reference's heading white σ given too and η_5 held (stop 14; with `--bootstrap B` also
+//!     `+ boot held η̂`: every parameter minus the bias of a bootstrap holding the fitted noise), est-thconv = `est` with `theta_convergence`, est-it20 = `est` with 20 iterations, est-final = `est` with `final_step_check`, est-stop11 = `est` with the stop-11 checks and iteration, fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot)
 //!     [--tau-candidates] [--bootstrap-reestimate-seeds 0] [--smooth-half-width 20]
 //!     [--reentry-score 10] (with `--methods est-reentry`: `EIV est. reentry` = `est` with
 //!     `EivOptions::eta_reentry_min_score` = that value, stop 13; `est-robust`: `est` with
@@ -78,8 +80,8 @@ use std::time::Instant;
 
 use odocal::calibrate::{EivDetail, EivMethodOptions};
 use odocal::eiv::{
-    bootstrap, cramer_rao_bound, BootstrapOptions, CovarianceEstimate, EivInput, EivOptions, HeadingScale,
-    InputJacobian, NoiseModel, QuantisationLevel, QuantisationModel, WheelNoiseScale,
+    bootstrap, cramer_rao_bound, BootstrapInputs, BootstrapOptions, CovarianceEstimate, EivInput, EivOptions,
+    HeadingScale, InputJacobian, NoiseModel, QuantisationLevel, QuantisationModel, WheelNoiseScale,
 };
 use odocal::segment::validation_segments;
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
@@ -110,6 +112,8 @@ struct Args {
     tau_candidates: bool,
     /// `EivOptions::eta_reentry_min_score` of the `est-reentry` method (`--reentry-score`).
     reentry_score: f64,
+    /// The replicate worlds' true inputs (`--bootstrap-smooth K`: moving average ±K, stop 14).
+    bootstrap_inputs: BootstrapInputs,
 }
 
 fn parse_args() -> Res<Args> {
@@ -130,6 +134,7 @@ fn parse_args() -> Res<Args> {
         methods: vec!["known".into(), "est".into()],
         tau_candidates: false,
         reentry_score: 10.0,
+        bootstrap_inputs: BootstrapInputs::Measured,
     };
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
@@ -151,6 +156,9 @@ fn parse_args() -> Res<Args> {
             "--bootstrap-presets" => a.bootstrap_presets = v()?.split(',').map(str::to_string).collect(),
             "--json" => a.json = Some(v()?),
             "--methods" => a.methods = v()?.split(',').map(str::to_string).collect(),
+            "--bootstrap-smooth" => {
+                a.bootstrap_inputs = BootstrapInputs::Smoothed { half_width_samples: v()?.parse()? };
+            }
             "--heading" => a.heading = v()?.parse()?,
             "--quantisation" => a.quantisation = v()?.parse()?,
             "--quantisation-level" => a.quantisation_level = v()?.parse()?,
@@ -301,6 +309,22 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         jobs.push((
             "EIV est. q given",
             EivOptions { noise, quantisation_level: odocal::eiv::QuantisationLevel::Given, ..est.clone() },
+        ));
+    }
+    if want("est-qgiven-hgiven") {
+        // Stop 14: as `est-qgiven`, with the reference's heading white noise
+        // also given (the simulator's σ_ψ) and its scale η_5 held
+        // (`EivOptions::eta_held`).
+        let noise = NoiseModel {
+            quantisation_step_rev_per_s: true_noise.quantisation_step_rev_per_s,
+            heading_white_sigma_rad: true_noise.heading_white_sigma_rad,
+            ..NoiseModel::PRODUCTION_CAR
+        };
+        let mut eta_held = [false; 6];
+        eta_held[5] = true;
+        jobs.push((
+            "EIV est. q, σ_ψ given",
+            EivOptions { noise, quantisation_level: odocal::eiv::QuantisationLevel::Given, eta_held, ..est.clone() },
         ));
     }
     if want("est-thconv") {
@@ -563,7 +587,12 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
             }
             for (row, filter) in variants {
                 let t = Instant::now();
-                let boot = BootstrapOptions { replicates: a.bootstrap, seed, ..Default::default() };
+                let boot = BootstrapOptions {
+                    replicates: a.bootstrap,
+                    seed,
+                    true_inputs: a.bootstrap_inputs,
+                    ..Default::default()
+                };
                 match bootstrap(&input, fit, &filter, &boot) {
                     Ok(b) => {
                         // c_e only corrected, as `--correct-c-e-bias` does.
@@ -583,6 +612,39 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
                 }
             }
         }
+        if label == "EIV est. q, σ_ψ given"
+            && a.bootstrap >= 2
+            && seed <= a.bootstrap_seeds
+            && a.bootstrap_presets.iter().any(|p| p == name)
+        {
+            // Stop 14: the η-estimated fit (q and σ_ψ given) minus the bias of
+            // a bootstrap whose replicates hold the fitted noise model
+            // (fixed-noise re-fits), every parameter corrected.
+            let t = Instant::now();
+            let boot = BootstrapOptions {
+                replicates: a.bootstrap,
+                seed,
+                true_inputs: a.bootstrap_inputs,
+                ..Default::default()
+            };
+            let filter = EivOptions { noise: fit.noise, fix_noise: true, free: fit.free, ..opts.clone() };
+            match bootstrap(&input, fit, &filter, &boot) {
+                Ok(b) => {
+                    let th = b.theta_corrected;
+                    let run = Run {
+                        theta: th,
+                        sigmas: vec![("H".into(), sigma_h)],
+                        e_p_m: ep(&th)?,
+                        time_s: time_s + t.elapsed().as_secs_f64(),
+                        warnings: b.failed.len(),
+                        tau_s: None,
+                        checks: vec![],
+                    };
+                    runs.insert(format!("{label} + boot held η̂"), run);
+                }
+                Err(e) => eprintln!("{name} {seed}: {label} bootstrap failed: {e}"),
+            }
+        }
         if label == "EIV known"
             && !want("no-known-boot")
             && a.bootstrap >= 2
@@ -590,7 +652,12 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
             && a.bootstrap_presets.iter().any(|p| p == name)
         {
             let t = Instant::now();
-            let boot = BootstrapOptions { replicates: a.bootstrap, seed, ..Default::default() };
+            let boot = BootstrapOptions {
+                replicates: a.bootstrap,
+                seed,
+                true_inputs: a.bootstrap_inputs,
+                ..Default::default()
+            };
             let filter = EivOptions { free: fit.free, ..opts.clone() };
             match bootstrap(&input, fit, &filter, &boot) {
                 Ok(b) => {

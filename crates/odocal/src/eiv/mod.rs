@@ -201,7 +201,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::model::Theta;
-pub use bootstrap::{bootstrap, BootstrapOptions, BootstrapReport};
+pub use bootstrap::{bootstrap, BootstrapInputs, BootstrapOptions, BootstrapReport};
 use filter::{run_window, Mode, Variances, WindowSums, NETA};
 pub use lattice::{quantisation_step_of_readings, LATTICE_TOLERANCE_STEPS, MAX_LATTICE_INDEX, MIN_LATTICE_LEVELS};
 pub use tau::{TimeConstantCandidate, TimeConstantFit, TimeConstantGrid, TIME_CONSTANT_RANGE_S};
@@ -698,6 +698,11 @@ pub struct EivOptions {
     /// Clamp range of the log-scale factors η. Default [−20, 6]: variances
     /// between 2e-9 and 400 times the starting model's.
     pub eta_bounds: [f64; 2],
+    /// Noise sources (in [`NOISE_SOURCES`] order) whose scale is held at
+    /// the starting model (η_j = 0) while the others are estimated; ignored
+    /// with [`EivOptions::fix_noise`]. A diagnostic (stop 14: which scale's
+    /// error moves t_r on `high`). Default none.
+    pub eta_held: [bool; 6],
     /// Parameter resolutions `[c_e, c_d, t_r, d]`, SI units: a parameter
     /// whose standard deviation exceeds its resolution is not observable.
     /// Default `[0.01, 0.001, 0.015, 0.0005]` (as batch G-N).
@@ -752,6 +757,11 @@ pub struct EivOptions {
     /// Correction of the profile cost's bias applied to the estimate.
     /// Default [`BiasCorrection::None`] (see its docs).
     pub bias_correction: BiasCorrection,
+    /// The true inputs of the replicate worlds of
+    /// [`BiasCorrection::Bootstrap`]. Default [`BootstrapInputs::Measured`];
+    /// `Smoothed { half_width_samples: 20 }` removed the t_r bias on `high`
+    /// (stop 14, docs/study.md "the remaining t_r bias on high").
+    pub bootstrap_inputs: BootstrapInputs,
     /// Floor of the reference's position noise σ in the filter's `R`, m
     /// (added in quadrature to the noise model's position white noise; it is
     /// not scaled by η). Default 1e-3 (SPEC §10).
@@ -1231,6 +1241,7 @@ impl Default for EivOptions {
     fn default() -> Self {
         EivOptions {
             window_samples: 6000,
+            eta_held: [false; 6],
             max_iterations: 10,
             step_tolerance: 0.05,
             max_halvings: 10,
@@ -1259,6 +1270,7 @@ impl Default for EivOptions {
             quantisation_level: QuantisationLevel::FromReadings,
             wheel_noise_scale: WheelNoiseScale::SmoothedFittedInput { half_width_samples: 20 },
             bias_correction: BiasCorrection::None,
+            bootstrap_inputs: BootstrapInputs::Measured,
             input_jacobian: InputJacobian::FilterShare,
             position_floor_m: DEFAULT_POSITION_FLOOR_M,
             hold_unobservable_at: None,
@@ -1880,7 +1892,7 @@ fn score_norm(sums: &WindowSums, free: &[bool; 4], follows: bool) -> f64 {
 
 /// The scoring step of η (log-transformed, clamped; see the module docs),
 /// its standard deviations and which η are held at a clamp.
-fn eta_step(sums: &WindowSums, eta: &[f64; 6], bounds: [f64; 2], reentry_min_score: f64) -> EtaStep {
+fn eta_step(sums: &WindowSums, eta: &[f64; 6], bounds: [f64; 2], reentry_min_score: f64, held: &[bool; 6]) -> EtaStep {
     let tol = 1e-9;
     let g: [f64; 6] = std::array::from_fn(|j| sums.grad[4 + j]);
     // A noise source with no effect on the data has zero information: leave it.
@@ -1906,7 +1918,7 @@ fn eta_step(sums: &WindowSums, eta: &[f64; 6], bounds: [f64; 2], reentry_min_sco
         } else {
             sums.i_eta[(j, j)] <= 1e-12 * scale.max(f64::MIN_POSITIVE)
         };
-        if !(at_lo || at_hi || no_info) {
+        if !(at_lo || at_hi || no_info || held[j]) {
             idx.push(j);
         }
     }
@@ -2309,7 +2321,7 @@ fn scoring_pass(
     let mut eta_last: Option<f64> = None;
     for it in 0..opts.max_iterations {
         let (dth, sth) = theta_step(&ev.total, &free, follows)?;
-        let es = if eta_derivs { eta_step(&ev.total, &eta, bounds, reentry) } else { EtaStep::none() };
+        let es = if eta_derivs { eta_step(&ev.total, &eta, bounds, reentry, &opts.eta_held) } else { EtaStep::none() };
         let (deta, seta) = (es.step, es.sigma);
         eta_sigma = seta;
         let mut ratio = step_ratio(&dth, &sth, &free, &eta, &deta, &seta, bounds);
@@ -2355,7 +2367,7 @@ fn scoring_pass(
             }
             if eta_derivs {
                 // η step on the marginal likelihood M at fixed θ (cost-only halvings).
-                let es = eta_step(&ev.total, &eta, bounds, reentry);
+                let es = eta_step(&ev.total, &eta, bounds, reentry, &opts.eta_held);
                 let (deta, seta) = (es.step, es.sigma);
                 eta_sigma = seta;
                 ratio = ratio.max(step_ratio(&[0.0; 4], &sth, &[false; 4], &eta, &deta, &seta, bounds));
@@ -2428,7 +2440,7 @@ fn scoring_pass(
             // The remaining steps at the new point (no filter evaluation: `ev`
             // is in full mode here).
             let (dth, sth) = theta_step(&ev.total, &free, follows)?;
-            let es = eta_step(&ev.total, &eta, bounds, reentry);
+            let es = eta_step(&ev.total, &eta, bounds, reentry, &opts.eta_held);
             let (deta, seta) = (es.step, es.sigma);
             eta_last = Some(step_ratio(&[0.0; 4], &sth, &[false; 4], &eta, &deta, &seta, bounds));
             // A scale leaving its clamp is not converged, whatever its σ says.
@@ -2724,7 +2736,12 @@ pub(crate) fn estimate_from(
         // The replicates are fitted without correction (their mean estimates
         // the uncorrected estimator's mean at θ̂).
         let inner = EivOptions { bias_correction: BiasCorrection::None, ..opts.clone() };
-        let boot = bootstrap(input, &report, &inner, &BootstrapOptions { replicates, seed, ..Default::default() })?;
+        let boot = bootstrap(
+            input,
+            &report,
+            &inner,
+            &BootstrapOptions { replicates, seed, true_inputs: opts.bootstrap_inputs, ..Default::default() },
+        )?;
         let b = boot.bias;
         report.bias_subtracted = if all_parameters { b } else { [b[0], 0.0, 0.0, 0.0] };
         report.theta = theta_add(&report.theta, &report.bias_subtracted, -1.0);

@@ -1078,7 +1078,7 @@ fn eta_step_descends_on_the_noise_free_straight_drive() {
     let theta = Theta { c_e: 1.9488978137579984, c_d: -0.001998869480161304, t_r: 1.53, d: 0.0008 };
     let eta = [-0.00903020194120505, 0.2628615557666504, 0.75, 0.1370901227620087, -2.5, -2.5];
     let ev = prob.evaluate(&theta, &theta, &eta, filter::Mode::full(true, true)).expect("filter");
-    let step = eta_step(&ev.total, &eta, opts.eta_bounds, f64::INFINITY).step;
+    let step = eta_step(&ev.total, &eta, opts.eta_bounds, f64::INFINITY, &[false; 6]).step;
     let slope: f64 = (0..NETA).map(|j| ev.total.grad[4 + j] * step[j]).sum();
     assert!(slope < 0.0, "η step {step:?} is not a descent direction: gᵀΔη = {slope}");
     let m0 = ev.total.merit();
@@ -1326,4 +1326,45 @@ fn theta_convergence_stops_when_theta_has_settled() {
     for i in (0..4).filter(|i| full.sigma[*i] > 0.0) {
         assert!((a[i] - b[i]).abs() < 0.05 * full.sigma[i], "θ_{i}: {} against {} (σ {})", a[i], b[i], full.sigma[i]);
     }
+}
+
+/// `EivOptions::eta_held`: a held noise scale stays at the starting model
+/// (η_j = 0, the model's σ reported unchanged) while the others are
+/// estimated; without the hold the same fit moves it (the production car's
+/// heading σ 0.5 mrad against the simulator's 0.3 mrad), so the test can fail.
+#[test]
+fn held_noise_scale_stays_at_the_starting_model() {
+    let sim = simulate(&SimOptions { length_km: 1.0, ..SimOptions::paper(3) }).expect("simulate");
+    let d = &sim.drive;
+    let input = input_of(d);
+    let start = batch_gn_all(d);
+    let free = EivOptions { heading_scale: HeadingScale::Separate, max_iterations: 3, ..EivOptions::default() };
+    let mut eta_held = [false; NETA];
+    eta_held[5] = true;
+    let held = EivOptions { eta_held, ..free.clone() };
+    let r_free = estimate(&input, &start, &free).expect("eiv, η_5 free");
+    let r_held = estimate(&input, &start, &held).expect("eiv, η_5 held");
+    assert!(r_free.eta[5].abs() > 0.1, "η_5 free did not move: {:?}", r_free.eta);
+    assert!(r_held.eta[5].abs() < 1e-15, "η_5 held moved: {:?}", r_held.eta);
+    let start = NoiseModel::PRODUCTION_CAR.heading_white_sigma_rad;
+    assert!((r_held.noise.heading_white_sigma_rad - start).abs() < 1e-15 * start);
+    assert!(r_held.eta[..5] != [0.0; 5], "the other scales were not estimated: {:?}", r_held.eta);
+}
+
+/// `BootstrapInputs::Smoothed`: the replicate worlds run on the moving
+/// average of the measured inputs, so the same seed gives other replicates
+/// than with the measured inputs; a half-width of 0 is rejected. (Its effect
+/// on the bias estimate over seeds: `examples/study_eiv.rs --bootstrap-smooth`.)
+#[test]
+fn smoothed_bootstrap_inputs_change_the_replicate_worlds() {
+    let (out, opts) = known_noise_fit(1.0, 31);
+    let input = input_of(&out.drive);
+    let r = estimate(&input, &out.sidecar.theta_true, &opts).expect("eiv");
+    let boot = BootstrapOptions { replicates: 4, seed: 9, ..Default::default() };
+    let smooth = BootstrapOptions { true_inputs: BootstrapInputs::Smoothed { half_width_samples: 20 }, ..boot };
+    let measured = bootstrap(&input, &r, &opts, &boot).expect("bootstrap, measured inputs");
+    let smoothed = bootstrap(&input, &r, &opts, &smooth).expect("bootstrap, smoothed inputs");
+    assert_ne!(measured.replicates, smoothed.replicates);
+    let zero = BootstrapOptions { true_inputs: BootstrapInputs::Smoothed { half_width_samples: 0 }, ..boot };
+    assert!(bootstrap(&input, &r, &opts, &zero).is_err());
 }
