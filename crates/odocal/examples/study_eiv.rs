@@ -8,6 +8,7 @@
 //!     [--bootstrap 0] [--bootstrap-smooth K (replicates' true inputs: ±K moving average, stop 14)] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
 //!     [--quantisation process|measurement|counting] [--heading tied|separate]
 //!     [--quantisation-level scaled|given|from-readings] (defaults: the library's EivOptions)
+//!     [--estimate-heading-offset] (every EIV run's batch G-N start also estimates the reference heading offset)
 //!     [--methods known,est] (also: est-qgiven = `est` with the encoder's q given, est-qgiven-hgiven = est-qgiven
 //!     with the reference's heading white σ given too and η_5 held (stop 14; with `--bootstrap B` also
 //!     `+ boot held η̂`: every parameter minus the bias of a bootstrap holding the fitted noise), est-thconv = `est` with `theta_convergence`, est-it20 = `est` with 20 iterations, est-final = `est` with `final_step_check`, est-stop11 = `est` with the stop-11 checks and iteration, fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot)
@@ -114,6 +115,9 @@ struct Args {
     reentry_score: f64,
     /// The replicate worlds' true inputs (`--bootstrap-smooth K`: moving average ±K, stop 14).
     bootstrap_inputs: BootstrapInputs,
+    /// Every EIV run's start also estimates the reference heading offset
+    /// (`--estimate-heading-offset`; the `G-N` rows are that start).
+    estimate_heading_offset: bool,
 }
 
 fn parse_args() -> Res<Args> {
@@ -135,11 +139,16 @@ fn parse_args() -> Res<Args> {
         tau_candidates: false,
         reentry_score: 10.0,
         bootstrap_inputs: BootstrapInputs::Measured,
+        estimate_heading_offset: false,
     };
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
         if k == "--tau-candidates" {
             a.tau_candidates = true;
+            continue;
+        }
+        if k == "--estimate-heading-offset" {
+            a.estimate_heading_offset = true;
             continue;
         }
         let mut v = || it.next().ok_or_else(|| format!("{k} needs a value"));
@@ -175,11 +184,23 @@ fn preset(name: &str) -> Res<NoiseOptions> {
     Ok(NoiseOptions::by_name(name)?)
 }
 
-/// `calibrate` with the EIV method (fallback off) and the given filter options.
-fn calibrate_eiv(d: &Drive, filter: EivOptions, seed: u64) -> Res<(CalibrationReport, EivDetail, f64)> {
+/// `calibrate` with the EIV method (fallback off) and the given filter
+/// options; with `heading_offset` the start also estimates the reference's
+/// heading offset (`--estimate heading-offset`) and the filter runs on the
+/// poses it implies.
+fn calibrate_eiv(
+    d: &Drive,
+    filter: EivOptions,
+    seed: u64,
+    heading_offset: bool,
+) -> Res<(CalibrationReport, EivDetail, f64)> {
     let t = Instant::now();
     let method = Method::Eiv(EivMethodOptions { filter, fallback: false, bootstrap: None });
-    let r = calibrate(d, &CalibrationOptions { method, seed, ..Default::default() }, None)?;
+    let mut opts = CalibrationOptions { method, seed, ..Default::default() };
+    if heading_offset {
+        opts.identify.free = opts.identify.free.with(odocal::Param::HeadingOffset);
+    }
+    let r = calibrate(d, &opts, None)?;
     let time_s = t.elapsed().as_secs_f64();
     let MethodDetail::Eiv(detail) = &r.detail else {
         return Err("calibrate with Method::Eiv returned another method's detail".into());
@@ -441,7 +462,7 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         jobs.push(("EIV est. sim τ", EivOptions { noise, quantisation: q, heading_scale: h, ..Default::default() }));
     }
     for (label, opts) in jobs {
-        let (r, detail, time_s) = match calibrate_eiv(d, opts.clone(), seed) {
+        let (r, detail, time_s) = match calibrate_eiv(d, opts.clone(), seed, a.estimate_heading_offset) {
             Ok(x) => x,
             Err(e) => {
                 eprintln!("{name} {seed}: {label} failed: {e}");
