@@ -140,7 +140,12 @@ pub fn bootstrap(
         BootstrapInputs::Smoothed { half_width_samples } => Some(SmoothedInputs::new(input, half_width_samples)),
     };
     let theta_hat = report.theta;
-    let mut refit = EivOptions { free: report.free, fix_unobservable: false, ..opts.clone() };
+    // The fit's own quantisation level: `FromReadings` resolved as it was on
+    // the drive (`report.quantisation_step_from_readings`), not re-read off
+    // the replicates' readings, which are counted with the fitted step and
+    // so lie on a lattice even where the drive's readings did not.
+    let resolved = opts.with_resolved_quantisation(report.quantisation_step_from_readings);
+    let mut refit = EivOptions { free: report.free, fix_unobservable: false, ..resolved };
     if matches!(refit.bias_correction, BiasCorrection::Bootstrap { .. }) {
         // No bootstrap inside the bootstrap (B² fits): the replicates are
         // fitted without it.

@@ -1121,15 +1121,12 @@ pub enum QuantisationLevel {
 }
 
 impl QuantisationLevel {
-    /// The level `estimate` uses on `input`: `FromReadings` becomes `Given`
-    /// (with the step found) or `ScaledWithWhite` (with `None`).
-    pub(crate) fn resolve(self, input: &EivInput<'_>) -> (QuantisationLevel, Option<f64>) {
+    /// The step `FromReadings` finds on `input` (None for the other levels
+    /// and where the readings lie on no lattice).
+    pub(crate) fn step_found(self, input: &EivInput<'_>) -> Option<f64> {
         match self {
-            QuantisationLevel::FromReadings => match lattice::input_quantisation_step(input) {
-                Some(q) => (QuantisationLevel::Given, Some(q)),
-                None => (QuantisationLevel::ScaledWithWhite, None),
-            },
-            other => (other, None),
+            QuantisationLevel::FromReadings => lattice::input_quantisation_step(input),
+            _ => None,
         }
     }
 }
@@ -1281,6 +1278,23 @@ impl Default for EivOptions {
 }
 
 impl EivOptions {
+    /// These options with [`QuantisationLevel::FromReadings`] replaced by what
+    /// it resolves to where the readings gave the step `found`: `Given` at
+    /// that step, or `ScaledWithWhite` for `None`. Other levels are kept.
+    pub(crate) fn with_resolved_quantisation(&self, found: Option<f64>) -> EivOptions {
+        let mut o = self.clone();
+        if o.quantisation_level == QuantisationLevel::FromReadings {
+            match found {
+                Some(q) => {
+                    o.quantisation_level = QuantisationLevel::Given;
+                    o.noise.quantisation_step_rev_per_s = q;
+                }
+                None => o.quantisation_level = QuantisationLevel::ScaledWithWhite,
+            }
+        }
+        o
+    }
+
     /// The defaults with SPEC §10's formulation of the cost and of `R`: the
     /// relative wheel noise scaled by the measured rotation, no input
     /// log-Jacobian term, the 1 mm position floor (the library defaults
@@ -2525,21 +2539,17 @@ pub(crate) fn estimate_from(
     if windows.is_empty() {
         return Err(Error::NoSegments("EIV needs a drive part of at least two samples".into()));
     }
-    // `FromReadings` is resolved once here: the rest of the fit (and the
-    // bootstrap's replicates, whose re-simulated readings carry no lattice)
-    // sees `Given` with the step found, or `ScaledWithWhite`.
-    let (level, q_found) = opts.quantisation_level.resolve(input);
+    // `FromReadings` is resolved once here, on the drive's readings: the
+    // rest of the fit sees `Given` with the step found, or `ScaledWithWhite`
+    // (and so does a bootstrap of the fit: `bootstrap` resolves it from the
+    // report, not from its replicates' readings).
+    let q_found = opts.quantisation_level.step_found(input);
     let resolved;
-    let opts = if opts.quantisation_level == level {
-        opts
-    } else {
-        let mut o = opts.clone();
-        o.quantisation_level = level;
-        if let Some(q) = q_found {
-            o.noise.quantisation_step_rev_per_s = q;
-        }
-        resolved = o;
+    let opts = if opts.quantisation_level == QuantisationLevel::FromReadings {
+        resolved = opts.with_resolved_quantisation(q_found);
         &resolved
+    } else {
+        opts
     };
     let prob = Problem {
         input,
@@ -2894,7 +2904,8 @@ pub fn cramer_rao_bound(
         windows,
         noise: *noise,
         quantisation: opts.quantisation,
-        quantisation_given: opts.quantisation_level.resolve(input).0 == QuantisationLevel::Given,
+        quantisation_given: opts.quantisation_level == QuantisationLevel::Given
+            || opts.quantisation_level.step_found(input).is_some(),
         heading_separate: opts.heading_scale == HeadingScale::Separate,
         fitted_input: opts.wheel_noise_scale != WheelNoiseScale::MeasuredInput,
         noise_input_half_width: opts.wheel_noise_scale.half_width(),

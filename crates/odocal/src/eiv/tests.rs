@@ -1351,6 +1351,31 @@ fn held_noise_scale_stays_at_the_starting_model() {
     assert!(r_held.eta[..5] != [0.0; 5], "the other scales were not estimated: {:?}", r_held.eta);
 }
 
+/// A bootstrap of a `FromReadings` fit refits its replicates at the level
+/// the fit resolved to on the drive, not at one re-read off the replicates'
+/// readings: those are counted with the fitted step, so they lie on a
+/// lattice even where the drive's did not (white wheel noise, no encoder:
+/// the fit scales q; without the fix the replicates held it).
+#[test]
+fn bootstrap_refits_at_the_quantisation_level_of_the_fit() {
+    let opts =
+        SimOptions { length_km: 0.5, noise: crate::sim::NoiseOptions::white_wheel_only(), ..SimOptions::paper(5) };
+    let out = simulate(&opts).expect("sim");
+    let input = input_of(&out.drive);
+    let fit = EivOptions { max_iterations: 2, ..EivOptions::default() };
+    assert_eq!(fit.quantisation_level, QuantisationLevel::FromReadings);
+    let r = estimate(&input, &out.sidecar.theta_true, &fit).expect("eiv");
+    assert_eq!(r.quantisation_step_from_readings, None, "no lattice in white-noise readings");
+    assert!(r.noise.quantisation_step_rev_per_s > 1e-3, "the replicates are counted: {:?}", r.noise);
+    let boot = BootstrapOptions { replicates: 2, seed: 4, ..Default::default() };
+    let replicates = |o: &EivOptions| bootstrap(&input, &r, o, &boot).expect("bootstrap").replicates;
+    let from_readings = replicates(&fit);
+    let scaled = EivOptions { quantisation_level: QuantisationLevel::ScaledWithWhite, ..fit.clone() };
+    assert_eq!(from_readings, replicates(&scaled));
+    let given = EivOptions { quantisation_level: QuantisationLevel::Given, noise: r.noise, ..fit.clone() };
+    assert_ne!(from_readings, replicates(&given), "the test cannot tell the levels apart");
+}
+
 /// `BootstrapInputs::Smoothed`: the replicate worlds run on the moving
 /// average of the measured inputs, so the same seed gives other replicates
 /// than with the measured inputs; a half-width of 0 is rejected. (Its effect
