@@ -137,7 +137,7 @@ fn main() -> Res<()> {
                 }
                 n
             }
-            _ if p.starts_with("scale") => scaled_paper(p["scale".len()..].parse()?),
+            _ if p.starts_with("scale") => NoiseOptions::paper_scaled(p["scale".len()..].parse()?),
             _ => NoiseOptions::by_name(p)?,
         };
         for seed in 1..=seeds {
@@ -372,24 +372,4 @@ fn ablate(n: NoiseOptions, what: &str) -> Res<NoiseOptions> {
         },
         other => return Err(format!("unknown ablation '{other}'").into()),
     })
-}
-
-/// Every source of the paper preset scaled by `f` (standard deviations × f,
-/// encoder ticks ÷ f, so the quantisation step × f); `scale2.5` ≈ `high`.
-fn scaled_paper(f: f64) -> NoiseOptions {
-    let p = NoiseOptions::paper();
-    NoiseOptions {
-        wheel_slip_per_m_per_s2: f * p.wheel_slip_per_m_per_s2,
-        wheel_coloured_rel_sigma: f * p.wheel_coloured_rel_sigma,
-        wheel_coloured_differential_rel_sigma: f * p.wheel_coloured_differential_rel_sigma,
-        wheel_white_rel_sigma: f * p.wheel_white_rel_sigma,
-        encoder_ticks_per_revolution: (f64::from(p.encoder_ticks_per_revolution) / f).round() as u32,
-        position_drift_sigma_m: f * p.position_drift_sigma_m,
-        position_white_sigma_m: f * p.position_white_sigma_m,
-        heading_drift_sigma_rad: f * p.heading_drift_sigma_rad,
-        heading_white_sigma_rad: f * p.heading_white_sigma_rad,
-        lateral_acceleration_white_sigma_m_per_s2: f * p.lateral_acceleration_white_sigma_m_per_s2,
-        sideslip_sigma_rad: f * p.sideslip_sigma_rad,
-        ..p
-    }
 }

@@ -314,19 +314,31 @@ impl NoiseOptions {
     /// Every source 2.5× the paper preset (encoder resolution a quarter).
     pub fn high() -> Self {
         let p = NoiseOptions::paper();
-        const F: f64 = 2.5;
         NoiseOptions {
-            wheel_slip_per_m_per_s2: F * p.wheel_slip_per_m_per_s2,
-            wheel_coloured_rel_sigma: F * p.wheel_coloured_rel_sigma,
-            wheel_coloured_differential_rel_sigma: F * p.wheel_coloured_differential_rel_sigma,
-            wheel_white_rel_sigma: F * p.wheel_white_rel_sigma,
             encoder_ticks_per_revolution: p.encoder_ticks_per_revolution / 4,
-            position_drift_sigma_m: F * p.position_drift_sigma_m,
-            position_white_sigma_m: F * p.position_white_sigma_m,
-            heading_drift_sigma_rad: F * p.heading_drift_sigma_rad,
-            heading_white_sigma_rad: F * p.heading_white_sigma_rad,
-            lateral_acceleration_white_sigma_m_per_s2: F * p.lateral_acceleration_white_sigma_m_per_s2,
-            sideslip_sigma_rad: F * p.sideslip_sigma_rad,
+            ..NoiseOptions::paper_scaled(2.5)
+        }
+    }
+
+    /// Every source of the paper preset scaled by `f`: its standard
+    /// deviations and the slip coefficient × f, the encoder ticks per
+    /// revolution ÷ f (rounded), so the quantisation step × f; time constants
+    /// kept. `paper_scaled(2.5)` is [`NoiseOptions::high`] but for the ticks
+    /// (819 there, 512 in `high`).
+    pub fn paper_scaled(f: f64) -> Self {
+        let p = NoiseOptions::paper();
+        NoiseOptions {
+            wheel_slip_per_m_per_s2: f * p.wheel_slip_per_m_per_s2,
+            wheel_coloured_rel_sigma: f * p.wheel_coloured_rel_sigma,
+            wheel_coloured_differential_rel_sigma: f * p.wheel_coloured_differential_rel_sigma,
+            wheel_white_rel_sigma: f * p.wheel_white_rel_sigma,
+            encoder_ticks_per_revolution: (f64::from(p.encoder_ticks_per_revolution) / f).round() as u32,
+            position_drift_sigma_m: f * p.position_drift_sigma_m,
+            position_white_sigma_m: f * p.position_white_sigma_m,
+            heading_drift_sigma_rad: f * p.heading_drift_sigma_rad,
+            heading_white_sigma_rad: f * p.heading_white_sigma_rad,
+            lateral_acceleration_white_sigma_m_per_s2: f * p.lateral_acceleration_white_sigma_m_per_s2,
+            sideslip_sigma_rad: f * p.sideslip_sigma_rad,
             ..p
         }
     }
