@@ -461,6 +461,9 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         };
         jobs.push(("EIV est. sim τ", EivOptions { noise, quantisation: q, heading_scale: h, ..Default::default() }));
     }
+    // The bootstrap rows' options (`--bootstrap B`, `--bootstrap-smooth K`).
+    let boot_opts =
+        BootstrapOptions { replicates: a.bootstrap, seed, true_inputs: a.bootstrap_inputs, ..Default::default() };
     for (label, opts) in jobs {
         let (r, detail, time_s) = match calibrate_eiv(d, opts.clone(), seed, a.estimate_heading_offset) {
             Ok(x) => x,
@@ -608,13 +611,7 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
             }
             for (row, filter) in variants {
                 let t = Instant::now();
-                let boot = BootstrapOptions {
-                    replicates: a.bootstrap,
-                    seed,
-                    true_inputs: a.bootstrap_inputs,
-                    ..Default::default()
-                };
-                match bootstrap(&input, fit, &filter, &boot) {
+                match bootstrap(&input, fit, &filter, &boot_opts) {
                     Ok(b) => {
                         // c_e only corrected, as `--correct-c-e-bias` does.
                         let th = Theta { c_e: b.theta_corrected.c_e, ..r.theta };
@@ -642,14 +639,8 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
             // a bootstrap whose replicates hold the fitted noise model
             // (fixed-noise re-fits), every parameter corrected.
             let t = Instant::now();
-            let boot = BootstrapOptions {
-                replicates: a.bootstrap,
-                seed,
-                true_inputs: a.bootstrap_inputs,
-                ..Default::default()
-            };
             let filter = EivOptions { noise: fit.noise, fix_noise: true, free: fit.free, ..opts.clone() };
-            match bootstrap(&input, fit, &filter, &boot) {
+            match bootstrap(&input, fit, &filter, &boot_opts) {
                 Ok(b) => {
                     let th = b.theta_corrected;
                     let run = Run {
@@ -673,14 +664,8 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
             && a.bootstrap_presets.iter().any(|p| p == name)
         {
             let t = Instant::now();
-            let boot = BootstrapOptions {
-                replicates: a.bootstrap,
-                seed,
-                true_inputs: a.bootstrap_inputs,
-                ..Default::default()
-            };
             let filter = EivOptions { free: fit.free, ..opts.clone() };
-            match bootstrap(&input, fit, &filter, &boot) {
+            match bootstrap(&input, fit, &filter, &boot_opts) {
                 Ok(b) => {
                     let th = b.theta_corrected;
                     let half: [f64; 4] = std::array::from_fn(|i| (b.interval[i][1] - b.interval[i][0]) / (2.0 * 1.96));
