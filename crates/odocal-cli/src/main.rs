@@ -398,9 +398,10 @@ impl CalibrationArgs {
         }
         if let Some(v) = self.heading_offset {
             o.identify.extrinsics.heading_offset = v;
+            o.hold_stated_heading_offset();
         }
         for p in self.fix.unwrap_or_default().iter() {
-            o.identify.free.remove(p);
+            o.hold(p);
         }
         if let Some(v) = self.min_yaw_rate {
             o.segments.min_peak_yaw_rate_rad_per_s = v;

@@ -668,7 +668,10 @@ fn calibration_plan(
                     };
                     (o.identify.extrinsics.lever_x, o.identify.extrinsics.lever_y) = (x, y);
                 }
-                "heading_offset" => o.identify.extrinsics.heading_offset = v.extract()?,
+                "heading_offset" => {
+                    o.identify.extrinsics.heading_offset = v.extract()?;
+                    o.hold_stated_heading_offset();
+                }
                 "min_yaw_rate" => o.segments.min_peak_yaw_rate_rad_per_s = v.extract()?,
                 "keep_one_way" => o.keep_one_way_selection = v.extract()?,
                 "segment_length" => o.segments.length_steps = v.extract()?,
@@ -807,7 +810,7 @@ fn calibration_plan(
     }
     // `fix` last, so that it also holds an extrinsic the manifest or `estimate` frees.
     for p in fix.iter() {
-        o.identify.free.remove(p);
+        o.hold(p);
     }
     o.validate().map_err(lib_err)?;
     let noise_model_origin = odocal::import::noise_model_origin(&o.method, noise_model_file.as_deref(), &setting_uses);

@@ -8,7 +8,8 @@
 //!     [--bootstrap 0] [--bootstrap-smooth K (replicates' true inputs: ±K moving average, stop 14)] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
 //!     [--quantisation process|measurement|counting] [--heading tied|separate]
 //!     [--quantisation-level scaled|given|from-readings] (defaults: the library's EivOptions)
-//!     [--estimate-heading-offset] (every EIV run's batch G-N start also estimates the reference heading offset)
+//!     [--hold-heading-offset] (every EIV run's batch G-N start holds the reference heading offset at 0, the
+//!     stop-14 default; by default it estimates it, `EivMethodOptions::estimate_heading_offset`)
 //!     [--methods known,est] (also: est-qgiven = `est` with the encoder's q given, est-qgiven-hgiven = est-qgiven
 //!     with the reference's heading white σ given too and η_5 held (stop 14; with `--bootstrap B` also
 //!     `+ boot held η̂`: every parameter minus the bias of a bootstrap holding the fitted noise), est-thconv = `est` with `theta_convergence`, est-it20 = `est` with 20 iterations, est-final = `est` with `final_step_check`, est-stop11 = `est` with the stop-11 checks and iteration, fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot)
@@ -116,7 +117,8 @@ struct Args {
     /// The replicate worlds' true inputs (`--bootstrap-smooth K`: moving average ±K, stop 14).
     bootstrap_inputs: BootstrapInputs,
     /// Every EIV run's start also estimates the reference heading offset
-    /// (`--estimate-heading-offset`; the `G-N` rows are that start).
+    /// (the library default; `--hold-heading-offset` holds it at 0; the
+    /// `G-N` rows are that start).
     estimate_heading_offset: bool,
 }
 
@@ -139,7 +141,7 @@ fn parse_args() -> Res<Args> {
         tau_candidates: false,
         reentry_score: 10.0,
         bootstrap_inputs: BootstrapInputs::Measured,
-        estimate_heading_offset: false,
+        estimate_heading_offset: EivMethodOptions::default().estimate_heading_offset,
     };
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
@@ -147,8 +149,8 @@ fn parse_args() -> Res<Args> {
             a.tau_candidates = true;
             continue;
         }
-        if k == "--estimate-heading-offset" {
-            a.estimate_heading_offset = true;
+        if k == "--hold-heading-offset" {
+            a.estimate_heading_offset = false;
             continue;
         }
         let mut v = || it.next().ok_or_else(|| format!("{k} needs a value"));
@@ -186,8 +188,8 @@ fn preset(name: &str) -> Res<NoiseOptions> {
 
 /// `calibrate` with the EIV method (fallback off) and the given filter
 /// options; with `heading_offset` the start also estimates the reference's
-/// heading offset (`--estimate heading-offset`) and the filter runs on the
-/// poses it implies.
+/// heading offset (the library default) and the filter runs on the poses it
+/// implies.
 fn calibrate_eiv(
     d: &Drive,
     filter: EivOptions,
@@ -195,11 +197,13 @@ fn calibrate_eiv(
     heading_offset: bool,
 ) -> Res<(CalibrationReport, EivDetail, f64)> {
     let t = Instant::now();
-    let method = Method::Eiv(EivMethodOptions { filter, fallback: false, bootstrap: None });
-    let mut opts = CalibrationOptions { method, seed, ..Default::default() };
-    if heading_offset {
-        opts.identify.free = opts.identify.free.with(odocal::Param::HeadingOffset);
-    }
+    let method = Method::Eiv(EivMethodOptions {
+        filter,
+        fallback: false,
+        bootstrap: None,
+        estimate_heading_offset: heading_offset,
+    });
+    let opts = CalibrationOptions { method, seed, ..Default::default() };
     let r = calibrate(d, &opts, None)?;
     let time_s = t.elapsed().as_secs_f64();
     let MethodDetail::Eiv(detail) = &r.detail else {

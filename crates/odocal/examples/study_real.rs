@@ -68,10 +68,14 @@ const RUNS: [&str; 6] = ["14-45-26", "15-28-33", "16-06-28", "16-47-33", "17-45-
 
 const METHODS: [&str; 5] = ["batch-gn", "batch-gn-all", "three-step", "eiv", "eiv-fixed"];
 
-/// Methods run only when named: `eiv-stop11` (`eiv` with the stop-11
+/// Methods run only when named: `eiv-stop14` (`eiv` with the reference
+/// heading offset held at 0, the stop-14 default; the other historical
+/// variants hold it too), `eiv-stop11` (`eiv` with the stop-11
 /// innovation checks and θ/η iteration) and `eiv-nofallback` (`eiv` with
 /// the fallback off: the EIV θ whatever the checks say).
-const EXTRA_METHODS: [&str; 27] = [
+const EXTRA_METHODS: [&str; 29] = [
+    "eiv-stop14",
+    "eiv-stop14-nofallback",
     "eiv-stop11",
     "eiv-nofallback",
     "eiv-sc",
@@ -155,7 +159,7 @@ fn candidate(q: Option<f64>, fallback: bool) -> Method {
         filter.quantisation_level = QuantisationLevel::Given;
         filter.noise = NoiseModel { quantisation_step_rev_per_s: q, ..filter.noise };
     }
-    Method::Eiv(EivMethodOptions { filter, fallback, ..EivMethodOptions::default() })
+    Method::Eiv(EivMethodOptions { filter, fallback, estimate_heading_offset: false, ..EivMethodOptions::default() })
 }
 
 /// The options `odocal calibrate --method …` uses for a study method; `q`
@@ -218,6 +222,7 @@ fn options(method: &str, q: f64) -> Result<CalibrationOptions, Box<dyn Error>> {
                     ..EivOptions::default()
                 },
                 fallback: method == "eiv-stop13",
+                estimate_heading_offset: false,
                 ..EivMethodOptions::default()
             })
         }
@@ -236,6 +241,13 @@ fn options(method: &str, q: f64) -> Result<CalibrationOptions, Box<dyn Error>> {
         }
         "three-step" => o.method = Method::default(),
         "eiv" => o.method = Method::Eiv(EivMethodOptions::default()),
+        "eiv-stop14" | "eiv-stop14-nofallback" => {
+            o.method = Method::Eiv(EivMethodOptions {
+                fallback: method == "eiv-stop14",
+                estimate_heading_offset: false,
+                ..EivMethodOptions::default()
+            })
+        }
         "eiv-stop11" => {
             o.method = Method::Eiv(EivMethodOptions {
                 filter: EivOptions {
@@ -243,6 +255,7 @@ fn options(method: &str, q: f64) -> Result<CalibrationOptions, Box<dyn Error>> {
                     innovation_null: odocal::eiv::InnovationNull::FittedModel,
                     ..EivOptions::default()
                 },
+                estimate_heading_offset: false,
                 ..EivMethodOptions::default()
             })
         }

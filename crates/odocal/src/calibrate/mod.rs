@@ -209,6 +209,28 @@ impl CalibrationOptions {
         self.trust.validate()?;
         self.method.validate()
     }
+
+    /// Holds `p` at its initial value (θ_0, or the extrinsics' value): it
+    /// leaves `identify.free`, and for the heading offset the EIV start no
+    /// longer estimates it by default
+    /// ([`EivMethodOptions::estimate_heading_offset`]). What `--fix` does.
+    pub fn hold(&mut self, p: Param) {
+        self.identify.free.remove(p);
+        if p == Param::HeadingOffset {
+            self.hold_stated_heading_offset();
+        }
+    }
+
+    /// A heading offset was stated (`--heading-offset`, a manifest's
+    /// `reference.heading_offset`): the EIV start holds it at
+    /// `identify.extrinsics.heading_offset` instead of estimating it by
+    /// default, as the other methods do; `identify.free` still estimates it
+    /// when it holds δ (`--estimate heading-offset`).
+    pub fn hold_stated_heading_offset(&mut self) {
+        if let Method::Eiv(m) = &mut self.method {
+            m.estimate_heading_offset = false;
+        }
+    }
 }
 
 /// θ with its mean validation position error.
@@ -627,6 +649,10 @@ pub(crate) trait Estimator {
     fn supports_extrinsics(&self) -> bool {
         false
     }
+    /// The method's own change to the identification settings before
+    /// anything else runs (e.g. a parameter the method estimates by
+    /// default); the report's `options` show the result. Default none.
+    fn adjust_identify(&self, _identify: &mut IdentifyOptions) {}
     /// Estimates θ.
     fn run(
         &self,
@@ -660,6 +686,15 @@ pub(crate) fn calibrate_core(
     let held_refs = held.and_then(|h| h.1);
     opts.validate()?;
     let method = opts.method.estimator();
+    let mut identify = opts.identify.clone();
+    method.adjust_identify(&mut identify);
+    let adjusted;
+    let opts = if identify == opts.identify {
+        opts
+    } else {
+        adjusted = CalibrationOptions { identify, ..opts.clone() };
+        &adjusted
+    };
     if opts.identify.uses_extrinsics() && !method.supports_extrinsics() {
         return Err(Error::InvalidOption {
             field: "identify.extrinsics",

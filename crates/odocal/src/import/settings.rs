@@ -298,6 +298,9 @@ impl ManifestSettings {
         if supported {
             opts.identify.extrinsics = x;
             opts.identify.free = free;
+            if r.heading_offset.is_some() && !given.heading_offset {
+                opts.hold_stated_heading_offset();
+            }
         }
         out
     }
@@ -470,6 +473,19 @@ mod tests {
         let Method::Eiv(m) = &o.method else { panic!("eiv") };
         assert_eq!(m.filter.noise, NoiseModel::PRODUCTION_CAR);
         assert_eq!(outcomes(&uses)[0], ("noise", SettingOutcome::Overridden));
+        // A stated heading offset is held by EIV's start (which estimates
+        // one by default) unless the manifest frees it; the caller's own
+        // `--heading-offset` leaves that to the caller.
+        let held = ManifestSettings {
+            reference: Some(ReferenceSpec { heading_offset: Some(-0.01), lever_arm: None, estimate: vec![] }),
+            ..settings()
+        };
+        let mut o = eiv();
+        held.apply(&mut o, GivenSettings::default());
+        assert!(matches!(&o.method, Method::Eiv(m) if !m.estimate_heading_offset));
+        let mut o = eiv();
+        held.apply(&mut o, GivenSettings { heading_offset: true, ..Default::default() });
+        assert!(matches!(&o.method, Method::Eiv(m) if m.estimate_heading_offset));
     }
 
     #[test]
