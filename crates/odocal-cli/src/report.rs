@@ -125,9 +125,16 @@ pub fn theta_table(columns: &[(&str, Option<Theta>)]) -> String {
     out
 }
 
-/// The reference extrinsics: initial, calibrated (or held) value and 1σ.
+/// The reference extrinsics: initial, calibrated (or held) value, model 1σ
+/// and, when computed, the cluster-robust 1σ, under their own column names
+/// (the θ table's columns above may differ: truth, spread, EIV).
 pub fn extrinsics_table(x: &ExtrinsicsEstimate) -> String {
     let mut out = String::from("  reference extrinsics (lever arm from the rear-axle centre, x forward, y left):\n");
+    let _ = write!(out, "  {:<4} {:<14}", "", "");
+    for name in ["initial", "calibrated", "± 1σ (model)", "± 1σ (robust)"] {
+        let _ = write!(out, " {name:>13}");
+    }
+    out.push('\n');
     let (init, val, sd) = (x.initial.to_array(), x.value.to_array(), x.std_dev.to_array());
     for (i, p) in Param::EXTRINSICS.into_iter().enumerate() {
         let sigma = if x.free.contains(p) { sd[i] } else { f64::NAN };
