@@ -85,7 +85,7 @@ def _verdict_text(verdict: Any) -> str:
     return json.dumps(verdict, sort_keys=True)
 
 
-def calibrate_one(path: str, method: str = "three-step", options: Optional[dict] = None,
+def calibrate_one(path: str, method: str = "eiv", options: Optional[dict] = None,
                   threads: Optional[int] = None) -> dict:
     """Calibrates one drive and returns its table row (never raises for a
     bad drive: the row says `status = error`). Runs inside a Ray task, or
@@ -116,7 +116,7 @@ def calibrate_one(path: str, method: str = "three-step", options: Optional[dict]
     return row
 
 
-def calibrate_serial(paths: Iterable[str | os.PathLike], method: str = "three-step",
+def calibrate_serial(paths: Iterable[str | os.PathLike], method: str = "eiv",
                      options: Optional[dict] = None, threads: Optional[int] = None) -> list[dict]:
     """The same rows as `calibrate_fleet`, one drive after the other in this process."""
     return [calibrate_one(str(p), method, options, threads) for p in paths]
@@ -136,7 +136,7 @@ def init_ray(address: Optional[str] = None, num_cpus: Optional[int] = None, **kw
         ray.init(address=address, **kwargs)
 
 
-def calibrate_fleet(paths: Iterable[str | os.PathLike], method: str = "three-step",
+def calibrate_fleet(paths: Iterable[str | os.PathLike], method: str = "eiv",
                     options: Optional[dict] = None, cpus_per_task: int = 1) -> list[dict]:
     """Calibrates every drive in its own Ray task (Ray must be initialised,
     see `init_ray`) and returns the rows in input order.
@@ -181,7 +181,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("inputs", nargs="+", help="drives (CSV or .toml manifest) or directories of them")
     ap.add_argument("--out", required=True, help="the table: .csv or .parquet")
-    ap.add_argument("--method", default="three-step", help="three-step (default) or batch-gn")
+    ap.add_argument("--method", default="eiv", help="eiv (default), three-step or batch-gn")
     ap.add_argument("--option", "-o", action="append", type=_option, default=[], metavar="KEY=VALUE",
                     help="an odocal.calibrate option, named like the CLI flag (batches=20, fix=c_d,t_r,d, ...)")
     ap.add_argument("--address", help="join this Ray cluster ('auto', 'ray://host:10001'); default: a local Ray")

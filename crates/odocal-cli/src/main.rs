@@ -97,8 +97,9 @@ struct SimulateArgs {
 struct CalibrationArgs {
     /// Calibration method: three-step, batch-gn or eiv (errors-in-variables
     /// filter over the whole drive, started from batch-gn on all segments;
-    /// falls back to that batch-gn when its consistency checks fail).
-    #[arg(long, default_value = "three-step")]
+    /// falls back to that batch-gn when its consistency checks fail; the
+    /// default); three-step is the paper's method.
+    #[arg(long, default_value = "eiv")]
     method: Method,
     /// Seed of the random batches.
     #[arg(long, default_value_t = 0)]

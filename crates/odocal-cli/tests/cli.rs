@@ -172,7 +172,15 @@ fn simulate_calibrate_validate_contract_and_determinism() {
 
 #[test]
 fn demo_runs_and_compares_with_truth() {
-    let o = odocal(&["demo", "--length-km", "3", "--batches", "4", "--final-segments", "6", "--json", "-"]);
+    // The default method is eiv.
+    let o = odocal(&["demo", "--length-km", "3", "--json", "-"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    assert_eq!(r["method"], "eiv");
+    assert_eq!(r["options"]["method"]["name"], "eiv");
+    assert!(r["truth"]["theta"]["c_e"].is_f64() && r["eiv"]["noise"].is_object(), "{r}");
+    let args = ["demo", "--length-km", "3", "--method", "three-step", "--batches", "4", "--final-segments", "6"];
+    let o = odocal(&[&args[..], &["--json", "-"]].concat());
     assert!(o.status.success(), "{}", stderr(&o));
     let r: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
     assert_eq!(r["method"], "three-step");
@@ -317,15 +325,15 @@ fn rejected_calibration_exits_3_and_still_writes_the_report() {
 }
 
 /// The shipped van log (issue 10): on each half-split, default `calibrate`
-/// either improves Ē_p over θ_0 on the held-out half or ends `rejected`
-/// (exit code 3) saying why. Measured: each half's turning segments turn
-/// one way only (11 left, 3 right), so every segment is used
-/// (`one_way_turns`; before, with the turning segments only, the first-half
-/// hold-out gave 325 m against θ_0's 66 m, rejected): holding out the
-/// first half now gives Ē_p 28.7 m against θ_0's 66.1 m, the second half
-/// 26.0 m against 73.1 m (28.7 m before the manifest's road bank), both
-/// doubtful (the halves' t_r, 1.86 and 1.36 m, disagree). Needs the shared
-/// data set; without it the test says so and passes.
+/// (method eiv) either improves Ē_p over θ_0 on the held-out half and is not
+/// rejected, or ends `rejected` (exit code 3) saying why; it is never
+/// accepted (the halves' t_r disagree). Measured (stop 15): EIV's checks fail
+/// on both halves and it falls back to its batch G-N start (every segment,
+/// heading offset estimated). Holding out the first half gives Ē_p 23.6 m
+/// against θ_0's 66.1 m, but t_r = 2.146 m lies beyond the plausible
+/// 1.12–2.08 m: rejected as implausible. Holding out the second half gives
+/// 26.0 m against 73.1 m (t_r 1.218 m), doubtful. Needs the shared data set;
+/// without it the test says so and passes.
 #[test]
 fn shipped_van_log_is_improved_or_rejected_on_both_half_splits() {
     let m = format!("{}/../../examples/psu-mapping-van/manifest.toml", env!("CARGO_MANIFEST_DIR"));
@@ -334,33 +342,37 @@ fn shipped_van_log_is_improved_or_rejected_on_both_half_splits() {
         eprintln!("skipped: {data} not present");
         return;
     }
-    let mut rejected = 0;
+    let mut rejected = Vec::new();
     for half in ["first-half", "second-half"] {
         let o = odocal(&["calibrate", &m, "--holdout", half, "--json", "-"]);
         let r: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+        assert_eq!(r["method"], "eiv", "{half}: the default method");
         let (e, e0) = (
             r["validation"]["mean_position_error_m"].as_f64().expect("Ē_p"),
             r["initial"]["mean_position_error_m"].as_f64().expect("Ē_p θ_0"),
         );
         assert_eq!(r["validation"]["held_out"], true);
-        if e < e0 {
-            assert_eq!(o.status.code(), Some(0), "{half}: improved, not rejected: {}", r["verdict"]);
+        let kinds: Vec<&str> =
+            r["verdict"]["reasons"].as_array().expect("reasons").iter().filter_map(|x| x["kind"].as_str()).collect();
+        if r["verdict"]["level"] == "rejected" {
+            rejected.push(half);
+            assert_eq!(o.status.code(), Some(3), "{half}: rejected must exit 3");
+            if e >= e0 {
+                assert!(kinds.contains(&"worse_than_initial"), "{half}: {kinds:?}");
+            } else {
+                assert!(kinds.contains(&"implausible"), "{half}: improved yet rejected must say why: {kinds:?}");
+            }
         } else {
-            rejected += 1;
-            assert_eq!(o.status.code(), Some(3), "{half}: worse than θ_0 must exit 3");
-            assert_eq!(r["verdict"]["level"], "rejected", "{half}");
-            let kinds: Vec<&str> = r["verdict"]["reasons"]
-                .as_array()
-                .expect("reasons")
-                .iter()
-                .filter_map(|x| x["kind"].as_str())
-                .collect();
-            assert!(kinds.contains(&"worse_than_initial"), "{half}: {kinds:?}");
+            assert!(e < e0, "{half}: not rejected, so Ē_p must improve on θ_0: {e} vs {e0}");
+            assert_eq!(o.status.code(), Some(0), "{half}: {}", r["verdict"]);
         }
-        // The halves disagree (measured: t_r 1.863 vs 1.356 m with the bank). With the
-        // 3-step's batch-spread σ (t_r: 0.21 m on the first half) that is
-        // within the cross-split check's 5 combined σ, and the verdict says
-        // instead that t_r's σ is large; either way t_r is named.
+        // A fallback is said, with the check that failed.
+        let warnings: Vec<&str> =
+            r["warnings"].as_array().expect("warnings").iter().filter_map(|w| w["kind"].as_str()).collect();
+        if r["eiv_result"] == "batch-gn-fallback" {
+            assert!(warnings.contains(&"eiv_fallback") && warnings.contains(&"eiv_check_failed"), "{warnings:?}");
+        }
+        // The halves disagree (measured: t_r 2.146 vs 1.218 m): t_r is named.
         let doubts: Vec<&str> = r["verdict"]["reasons"]
             .as_array()
             .expect("reasons")
@@ -369,12 +381,9 @@ fn shipped_van_log_is_improved_or_rejected_on_both_half_splits() {
             .filter_map(|x| x["param"].as_str())
             .collect();
         assert!(doubts.contains(&"t_r"), "{half}: {}", r["verdict"]);
-        let warnings: Vec<&str> =
-            r["warnings"].as_array().expect("warnings").iter().filter_map(|w| w["kind"].as_str()).collect();
-        assert!(warnings.contains(&"one_way_turns"), "{half}: {warnings:?}");
         assert_ne!(r["verdict"]["level"], "accepted", "{half}");
     }
-    assert_eq!(rejected, 0, "measured: both hold-outs improve on θ_0 (28.7 and 26.0 m against 66.1 and 73.1 m)");
+    assert!(rejected.len() < 2, "measured: the second-half hold-out is kept (26.0 m against θ_0's 73.1 m)");
 }
 
 #[test]

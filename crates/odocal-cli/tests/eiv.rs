@@ -122,7 +122,7 @@ fn eiv_flags_belong_to_eiv() {
         "{}",
         text(&o.stderr)
     );
-    let o = odocal(&["calibrate", csv, "--noise-model", "n.toml"]);
+    let o = odocal(&["calibrate", csv, "--method", "three-step", "--noise-model", "n.toml"]);
     assert!(text(&o.stderr).contains("--noise-model applies to --method eiv only, not to --method three-step"));
     let o = odocal(&["calibrate", csv, "--method", "eiv", "--batches", "4"]);
     assert!(text(&o.stderr).contains("--batches applies to --method three-step only, not to --method eiv"));

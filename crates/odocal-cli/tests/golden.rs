@@ -88,7 +88,8 @@ fn current(dir: &Path) -> Value {
         .expect("simulate");
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let gn = run_json(&["calibrate", d, "--method", "batch-gn", "--json", "-"]);
-    let ts = run_json(&["calibrate", d, "--batches", "6", "--final-segments", "8", "--json", "-"]);
+    let ts =
+        run_json(&["calibrate", d, "--method", "three-step", "--batches", "6", "--final-segments", "8", "--json", "-"]);
     let held = run_json(&["calibrate", d, "--method", "batch-gn", "--holdout", "first-half", "--json", "-"]);
     let th = theta_arg(&ts["theta"]);
     let val = run_json(&["validate", d, "--theta", &th, "--reachable-minimum", "--seed", "3", "--json", "-"]);

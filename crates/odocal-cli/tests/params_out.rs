@@ -39,6 +39,8 @@ fn params_file_json_and_text_give_the_result_sigma() {
     let o = odocal(&[
         "calibrate",
         dstr,
+        "--method",
+        "three-step",
         "--batches",
         "8",
         "--picks",

@@ -996,7 +996,7 @@ fn calibrate_json(
 /// Calibrates `drive` (see the Python docstring of `odocal.calibrate`).
 /// Returns `(report dict, report JSON text)`.
 #[pyfunction]
-#[pyo3(signature = (drive, method="three-step", *, progress=None, threads=None, **options))]
+#[pyo3(signature = (drive, method="eiv", *, progress=None, threads=None, **options))]
 fn calibrate<'py>(
     py: Python<'py>,
     drive: &Bound<'py, PyAny>,

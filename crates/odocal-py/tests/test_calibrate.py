@@ -12,7 +12,7 @@ import odocal
 from conftest import REPO
 
 # A quick 3-step calibration (the defaults run 50 batches).
-QUICK = {"batches": 6, "picks": 3, "seed": 2}
+QUICK = {"method": "three-step", "batches": 6, "picks": 3, "seed": 2}
 
 
 def without_timing(d):
@@ -90,7 +90,7 @@ def test_option_errors(small_drive):
     with pytest.raises(TypeError, match="unknown option 'batchez'"):
         odocal.calibrate(small_drive, batchez=3)
     with pytest.raises(odocal.OdocalError, match=r"^invalid option `initial_batches`: must be at least 1$"):
-        odocal.calibrate(small_drive, batches=0)
+        odocal.calibrate(small_drive, "three-step", batches=0)
     with pytest.raises(odocal.OdocalError, match=r"'newton': use three-step, batch-gn or eiv"):
         odocal.calibrate(small_drive, "newton")
     with pytest.raises(odocal.OdocalError, match="batches, picks apply to method three-step only, not to batch-gn"):
@@ -100,9 +100,18 @@ def test_option_errors(small_drive):
     with pytest.raises(odocal.OdocalError, match="t_r = -1 m must be positive"):
         odocal.calibrate(small_drive, theta0={"c_e": 2.0, "c_d": 0.0, "t_r": -1.0, "d": 0.0})
     with pytest.raises(odocal.OdocalError, match="invalid QP solver .osqp.: use structured or clarabel"):
-        odocal.calibrate(small_drive, qp_solver="osqp")
+        odocal.calibrate(small_drive, "three-step", qp_solver="osqp")
     with pytest.raises(ValueError, match="threads"):
         odocal.calibrate(small_drive, "batch-gn", threads=0)
+
+
+def test_default_method_is_eiv(small_drive):
+    r = odocal.calibrate(small_drive)
+    d = r.to_dict()
+    assert r.method == "eiv" and d["options"]["method"]["name"] == "eiv"
+    assert d["eiv_result"] in ("eiv", "batch-gn-fallback")
+    with pytest.raises(odocal.OdocalError, match="batches applies to method three-step only, not to eiv"):
+        odocal.calibrate(small_drive, batches=3)
 
 
 def test_not_observable_is_library_error():

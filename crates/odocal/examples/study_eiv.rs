@@ -9,7 +9,8 @@
 //!     [--quantisation process|measurement|counting] [--heading tied|separate]
 //!     [--quantisation-level scaled|given|from-readings] (defaults: the library's EivOptions)
 //!     [--hold-heading-offset] (every EIV run's batch G-N start holds the reference heading offset at 0, the
-//!     stop-14 default; by default it estimates it, `EivMethodOptions::estimate_heading_offset`)
+//!     stop-14 default; by default it estimates it, `EivMethodOptions::estimate_heading_offset`, except
+//!     for rows with a fixed noise model such as `known`: those are oracle rows and hold it at its true 0)
 //!     [--methods known,est] (also: est-qgiven = `est` with the encoder's q given, est-qgiven-hgiven = est-qgiven
 //!     with the reference's heading white σ given too and η_5 held (stop 14; with `--bootstrap B` also
 //!     `+ boot held η̂`: every parameter minus the bias of a bootstrap holding the fitted noise), est-thconv = `est` with `theta_convergence`, est-it20 = `est` with 20 iterations, est-final = `est` with `final_step_check`, est-stop11 = `est` with the stop-11 checks and iteration, fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot)
@@ -469,7 +470,12 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
     let boot_opts =
         BootstrapOptions { replicates: a.bootstrap, seed, true_inputs: a.bootstrap_inputs, ..Default::default() };
     for (label, opts) in jobs {
-        let (r, detail, time_s) = match calibrate_eiv(d, opts.clone(), seed, a.estimate_heading_offset) {
+        // A fixed (given) noise model is an oracle row: it also knows the
+        // reference heading offset (0 here), as the Cramér–Rao bound does. A
+        // fixed model with the offset the start estimated (a few 0.1 mrad of
+        // noise, then held) collapses t_r on a perfect reference (stop 15).
+        let estimate_delta = a.estimate_heading_offset && !opts.fix_noise;
+        let (r, detail, time_s) = match calibrate_eiv(d, opts.clone(), seed, estimate_delta) {
             Ok(x) => x,
             Err(e) => {
                 eprintln!("{name} {seed}: {label} failed: {e}");

@@ -6,7 +6,7 @@
 //! quotes the tables and the diagnosis): the track is banked (≈ 5.4° in
 //! the curves), and with the manifests' `[lateral_acceleration.bank]` (a_y
 //! the lateral specific force a_y·cos φ − g·sin φ, φ from the rear
-//! antennas) the default 3-step on each single run meets issue 10's
+//! antennas) the 3-step on each single run meets issue 10's
 //! criterion: never worse than θ_0 on another run, mean cross-run Ē_p
 //! 2.30 m within 1.5 × the mean own fit 1.56 m (ratio 1.47), none
 //! rejected. Without the bank it did not (ratio 1.89, 3 of 30 pairs worse
@@ -14,18 +14,21 @@
 //! apart. With d held at 0 the bank cannot act (the term is d·g·sin φ) and
 //! the single-run criterion still fails (ratio 1.71–1.81). These tests
 //! assert:
-//! - default 3-step on each run: the full criterion (every run calibrates,
-//!   never worse than θ_0 on another run, ratio ≤ 1.5, at most two
-//!   rejected and not all), and each θ beats θ_0 on its own run;
+//! - the default method (eiv, since stop 15) and the 3-step on each run:
+//!   the full criterion (every run calibrates, never worse than θ_0 on
+//!   another run, ratio ≤ 1.5, at most two rejected and not all), and each
+//!   θ beats θ_0 on its own run; eiv's mean cross-run Ē_p is no worse than
+//!   batch G-N's on all segments (issue 9, item 10);
 //! - batch G-N with d held on each run: every run calibrates, none
 //!   rejected, each θ beats θ_0 on its own run and on the mean of the
 //!   other five;
 //! - each counter-clockwise × clockwise pair, batch G-N on every segment
 //!   with d held: the full criterion, none rejected;
-//! - the same pairs with the default 3-step: ratio ≤ 1.5, none failed, at
-//!   most two rejected.
+//! - the same pairs with the 3-step: ratio ≤ 1.5, none failed, at most two
+//!   rejected.
 //!
-//! The first runs in every `cargo test` (about 10 s of CPU, measured: the
+//! The first two run in every `cargo test` (about 10 s of CPU each,
+//! measured: the
 //! test profile is optimised); the others, about as long each, stay
 //! `#[ignore]`d to keep CI's test stage short: run them with `cargo test
 //! --release -p odocal --test testtrack_crossrun -- --ignored`. The data
@@ -85,11 +88,37 @@ fn assert_each_theta_improves(t: &CrossRunTable) {
     assert!(c.mean_cross_m < c.mean_initial_cross_m, "{c}");
 }
 
-/// Not ignored: six imports and calibrations and 30 validations take about
-/// 10 s of CPU in the test profile (opt-level 2), measured.
+fn three_step() -> CalibrationOptions {
+    CalibrationOptions { method: Method::from_name("three-step").expect("method"), ..Default::default() }
+}
+
+/// The default method (eiv) meets the criterion and, issue 9's item 10, is
+/// no worse than batch G-N on all segments across runs (measured, stop 15:
+/// mean Ē_p on the other runs 1.59 m against 2.31 m; ratio 1.40). Not
+/// ignored: twelve calibrations and 60 validations take about 10 s of CPU in
+/// the test profile (opt-level 2), measured.
 #[test]
-fn default_three_step_meets_the_cross_run_criterion_on_single_runs() {
+fn default_method_meets_the_cross_run_criterion_and_beats_batch_gn() {
     let t = table(&CalibrationOptions::default(), false);
+    let c = t.criteria(CROSS_RUN_OWN_FIT_RATIO);
+    assert!(c.pass(), "{c}\n{t}");
+    assert_each_theta_improves(&t);
+    let mut gn = CalibrationOptions { method: Method::from_name("batch-gn").expect("method"), ..Default::default() };
+    gn.segments.min_peak_yaw_rate_rad_per_s = 0.0;
+    let g = table(&gn, false).criteria(CROSS_RUN_OWN_FIT_RATIO);
+    assert!(
+        c.mean_cross_m <= g.mean_cross_m,
+        "eiv {} m vs batch G-N on all segments {} m",
+        c.mean_cross_m,
+        g.mean_cross_m
+    );
+}
+
+/// The paper's 3-step (the default until stop 15) meets it too (measured:
+/// 2.30 m on the others against 1.56 m own; ratio 1.47).
+#[test]
+fn three_step_meets_the_cross_run_criterion_on_single_runs() {
+    let t = table(&three_step(), false);
     let c = t.criteria(CROSS_RUN_OWN_FIT_RATIO);
     assert!(c.pass(), "{c}\n{t}");
     assert_each_theta_improves(&t);
@@ -118,8 +147,8 @@ fn pairs_of_opposite_directions_meet_the_cross_run_criterion() {
 
 #[test]
 #[ignore = "nine calibrations: slow in debug; run with --release -- --ignored"]
-fn default_three_step_on_pairs_keeps_the_cross_run_ratio() {
-    let t = table(&CalibrationOptions::default(), true);
+fn three_step_on_pairs_keeps_the_cross_run_ratio() {
+    let t = table(&three_step(), true);
     let c = t.criteria(CROSS_RUN_OWN_FIT_RATIO);
     assert!(c.ratio <= CROSS_RUN_OWN_FIT_RATIO, "{c}");
     assert_each_theta_improves(&t);

@@ -77,7 +77,7 @@ class CalibrationReport:
     # -- shortcuts ----------------------------------------------------------
     @property
     def method(self) -> str:
-        """The method run: ``"three-step"`` or ``"batch-gn"``."""
+        """The method run: ``"eiv"``, ``"three-step"`` or ``"batch-gn"``."""
         return self._dict["method"]
 
     @property
@@ -174,7 +174,7 @@ def _theta_arg(theta: ThetaLike) -> Any:
 
 def calibrate(
     drive: Union[Drive, Sequence[Drive]],
-    method: str = "three-step",
+    method: str = "eiv",
     *,
     progress: Optional[ProgressCallback] = None,
     threads: Optional[int] = None,
@@ -186,8 +186,11 @@ def calibrate(
     fitted jointly (as ``odocal calibrate A B``: segments never span two
     drives; their sample times must agree; a list has no single true θ).
 
-    ``method`` is ``"three-step"`` (default, with input compensation) or
-    ``"batch-gn"`` (raw batch Gauss-Newton over all selected segments).
+    ``method`` is ``"eiv"`` (default: the errors-in-variables filter over
+    the whole drive, started from batch G-N on all segments, falling back to
+    it when its consistency checks fail), ``"three-step"`` (the paper's
+    method, with input compensation) or ``"batch-gn"`` (raw batch
+    Gauss-Newton over all selected segments).
 
     Options are keyword arguments named like the CLI's flags (``--min-yaw-rate``
     is ``min_yaw_rate=``); None means the default:

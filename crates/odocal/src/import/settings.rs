@@ -499,12 +499,13 @@ mod tests {
         let e = error("\n[calibration]\nkeep_one_wya = true\n");
         assert!(e.contains("calibration.keep_one_wya: unknown field"), "{e}");
 
-        let mut o = CalibrationOptions::default();
+        let three_step = || CalibrationOptions { method: Method::ThreeStep(Default::default()), ..Default::default() };
+        let mut o = three_step();
         let uses = s.apply(&mut o, GivenSettings::default());
         assert!(o.keep_one_way_selection);
         assert_eq!(outcomes(&uses), [("calibration.keep_one_way", SettingOutcome::Used)]);
         // `--keep-one-way` given: the command line's value stands
-        let mut o = CalibrationOptions::default();
+        let mut o = three_step();
         let uses = s.apply(&mut o, GivenSettings { keep_one_way: true, ..Default::default() });
         assert!(!o.keep_one_way_selection, "apply leaves the caller's own value to the caller");
         assert_eq!(outcomes(&uses), [("calibration.keep_one_way", SettingOutcome::Overridden)]);
