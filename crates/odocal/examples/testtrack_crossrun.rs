@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! cargo run --release -p odocal --example testtrack_crossrun -- \
-//!     [--method three-step|batch-gn] [--min-yaw-rate R] [--segment-length K] [--fix d] [--auto-fix] \
+//!     [--method eiv|three-step|batch-gn] [--min-yaw-rate R] [--segment-length K] [--fix d] [--auto-fix] \
 //!     [--keep-one-way] [--pairs] [--json out.json] [--check]
 //! ```
 //!
