@@ -12,7 +12,7 @@ import odocal
 from conftest import REPO
 
 # A quick 3-step calibration (the defaults run 50 batches).
-QUICK = {"method": "three-step", "batches": 6, "picks": 3, "seed": 2}
+QUICK = {"batches": 6, "picks": 3, "seed": 2}  # three-step options
 
 
 def without_timing(d):
@@ -123,8 +123,8 @@ def test_not_observable_is_library_error():
 
 
 def test_thread_count_independent(small_drive):
-    one = odocal.calibrate(small_drive, threads=1, **QUICK).to_dict()
-    two = odocal.calibrate(small_drive, threads=2, **QUICK).to_dict()
+    one = odocal.calibrate(small_drive, "three-step", threads=1, **QUICK).to_dict()
+    two = odocal.calibrate(small_drive, "three-step", threads=2, **QUICK).to_dict()
     assert without_timing(one) == without_timing(two)
 
 
@@ -135,7 +135,7 @@ def test_progress_on_calling_thread(small_drive):
     def progress(stage, done, total):
         calls.append((threading.get_ident(), stage, done, total))
 
-    r = odocal.calibrate(small_drive, progress=progress, **QUICK)
+    r = odocal.calibrate(small_drive, "three-step", progress=progress, **QUICK)
     assert calls, "the progress callback was never called"
     assert {c[0] for c in calls} == {me}
     stages = [c[1] for c in calls]
@@ -184,7 +184,7 @@ def test_gil_released_during_calibration(small_drive):
         assert started.wait(10)
         sys.setswitchinterval(100.0)
         before = counter[0]
-        odocal.calibrate(small_drive, **QUICK)
+        odocal.calibrate(small_drive, "three-step", **QUICK)
         after = counter[0]
     finally:
         sys.setswitchinterval(old)
@@ -194,7 +194,7 @@ def test_gil_released_during_calibration(small_drive):
 
 
 def test_to_html(small_drive, tmp_path):
-    r = odocal.calibrate(small_drive, **QUICK)
+    r = odocal.calibrate(small_drive, "three-step", **QUICK)
     out = tmp_path / "report.html"
     r.to_html(out, title="car 3")
     html = out.read_text()

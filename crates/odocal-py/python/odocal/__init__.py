@@ -2,9 +2,10 @@
 
 odocal calibrates a vehicle's wheel-odometry model θ = [c_e, c_d, t_r, d]
 (effective rear wheel circumference, circumference difference, rear track
-width, load-transfer coefficient) from a logged drive, by the 3-step method
-of Fazekas, Gáspár and Németh (IFAC-PapersOnLine 2022) or raw batch
-Gauss-Newton. This package is a thin layer over the Rust library that the
+width, load-transfer coefficient) from a logged drive: by default with an
+errors-in-variables filter that models the noise on the wheel inputs, or by
+the 3-step method of Fazekas, Gáspár and Németh (IFAC-PapersOnLine 2022),
+or raw batch Gauss-Newton. This package is a thin layer over the Rust library that the
 ``odocal`` command-line tool also uses: the same checks, the same numbers,
 the same JSON report.
 
