@@ -959,7 +959,7 @@ fn validate_cmd(a: ValidateArgs, bars: &progress::Bars) -> Result<()> {
             rm.mean_position_error_m, rm.theta, rm.evaluations, rm.time_s
         );
         if !report.extrinsics.is_zero() {
-            println!("  (the search takes the reference at the rear-axle centre, not at the extrinsics above)");
+            println!("  (the search, too, takes the reference at the extrinsics above)");
         }
         if rm.recentred > 0 {
             println!("  the search box was re-centred {} time(s) on a best point at its edge", rm.recentred);

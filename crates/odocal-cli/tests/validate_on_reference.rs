@@ -72,6 +72,13 @@ fn a_validation_drive_applies_its_own_reference() {
     assert_eq!(v["extrinsics"]["lever_x"], -0.9, "{v}");
     let e = v["mean_position_error_m"].as_f64().expect("Ē_p");
     assert!((e - e_with).abs() < 1e-9 * e_with, "validate {e} m, validate-on {e_with} m");
+    // Its reachable-minimum search takes the same mount, so it is never above Ē_p of θ.
+    let args = ["validate", toml.to_str().expect("utf8"), "--theta", &theta, "--reachable-minimum"];
+    let o = odocal(&[&args[..], &["--json", "-"]].concat());
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    assert_eq!(v["reachable_minimum"]["extrinsics"], v["extrinsics"], "{v}");
+    assert!(v["reachable_minimum"]["mean_position_error_m"].as_f64().expect("minimum") <= e, "{v}");
     let o = odocal(&["validate", bare.to_str().expect("utf8"), "--theta", &theta, "--json", "-"]);
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
     assert!(v["extrinsics"].is_null(), "{v}");

@@ -63,11 +63,12 @@ use serde::{Deserialize, Serialize};
 
 use crate::drive::Drive;
 use crate::error::{Error, Result};
+use crate::extrinsics::Extrinsics;
 use crate::model::{Theta, THETA_NAMES};
 use crate::param::{Param, ParamSet};
 use crate::progress::{emit, Progress, ProgressFn};
 use crate::segment::Segment;
-use crate::validate::mean_position_error;
+use crate::validate::mean_position_error_with;
 
 /// Cost, in metres, of a θ outside the box or invalid (`t_r ≤ 0`, `c_e ≤ 0`,
 /// non-finite error). Far above any real `Ē_p` (a few metres to kilometres)
@@ -130,6 +131,14 @@ pub struct ReachableOptions {
     /// [`DEFAULT_RECENTRE`] = 3.
     #[serde(default = "default_recentre")]
     pub recentre: usize,
+    /// The pose reference's mount (lever arm, heading offset), held: every
+    /// `Ē_p(θ)` of the search compares the model's antenna position with
+    /// the reference, as [`crate::validate::mean_position_error_with`] does,
+    /// so the minimum is comparable with a validation on the same mount.
+    /// [`crate::validate`] sets it from [`crate::ValidateOptions::extrinsics`].
+    /// Default 0: the reference at the rear-axle centre.
+    #[serde(default)]
+    pub extrinsics: Extrinsics,
 }
 
 impl Default for ReachableOptions {
@@ -160,6 +169,7 @@ impl ReachableOptions {
             seed: 0,
             starts: Vec::new(),
             recentre: DEFAULT_RECENTRE,
+            extrinsics: Extrinsics::default(),
         }
     }
 
@@ -212,7 +222,7 @@ impl ReachableOptions {
         for (i, s) in self.starts.iter().enumerate() {
             s.validate().map_err(|e| Error::InvalidOption { field: "starts", reason: format!("start {i}: {e}") })?;
         }
-        Ok(())
+        self.extrinsics.validate()
     }
 }
 
@@ -253,6 +263,10 @@ pub struct ReachableReport {
     /// Upper corner of the last box searched.
     #[serde(default)]
     pub upper: Option<Theta>,
+    /// The reference mount every `Ē_p` of the search used
+    /// ([`ReachableOptions::extrinsics`]); omitted in JSON when 0.
+    #[serde(default, skip_serializing_if = "Extrinsics::is_zero")]
+    pub extrinsics: Extrinsics,
 }
 
 fn enclosed_default() -> bool {
@@ -285,6 +299,7 @@ struct Objective<'a> {
     width: [f64; 4],
     evaluations: &'a AtomicUsize,
     progress: Option<ProgressFn<'a>>,
+    extrinsics: &'a Extrinsics,
 }
 
 impl Objective<'_> {
@@ -305,7 +320,8 @@ impl Objective<'_> {
     /// `Ē_p(θ)`, or [`PENALTY_M`] where θ is invalid or the error not finite.
     fn error_at(&self, theta: &Theta) -> f64 {
         self.count();
-        mean_position_error(self.drive, self.segments, theta).map_or(PENALTY_M, |r| r.mean_position_error_m)
+        mean_position_error_with(self.drive, self.segments, theta, self.extrinsics)
+            .map_or(PENALTY_M, |r| r.mean_position_error_m)
     }
 
     fn count(&self) {
@@ -412,14 +428,15 @@ fn search_box(
     let lower = opts.lower.to_array();
     let upper = opts.upper.to_array();
     let width = [upper[0] - lower[0], upper[1] - lower[1], upper[2] - lower[2], upper[3] - lower[3]];
-    let objective = || Objective { drive, segments, lower, width, evaluations: &evaluations, progress };
+    let extrinsics = &opts.extrinsics;
+    let objective = || Objective { drive, segments, lower, width, evaluations: &evaluations, progress, extrinsics };
     let obj = objective();
     let swarm_total = 1 + 2 * opts.starts.len() + opts.particles * (opts.iterations + 1);
     emit(progress, Progress::Stage { name: "reachable: swarm", total: swarm_total as u64 });
 
     // Starts: the box centre first, then the caller's, each evaluated as given.
     let centre = opts.centre();
-    let centre_error = mean_position_error(drive, segments, &centre)?.mean_position_error_m;
+    let centre_error = mean_position_error_with(drive, segments, &centre, extrinsics)?.mean_position_error_m;
     evaluations.fetch_add(1, Ordering::Relaxed);
     let mut best = (centre_error, centre);
     let mut seeds: Vec<(Vec<f64>, f64)> = vec![(obj.scaled(&centre), centre_error)];
@@ -523,6 +540,7 @@ fn search_box(
         recentred: 0,
         lower: Some(opts.lower),
         upper: Some(opts.upper),
+        extrinsics: opts.extrinsics,
     })
 }
 
@@ -532,12 +550,60 @@ mod tests {
     use crate::drive::Signals;
     use crate::model::{step, Input, State};
     use crate::segment::{validation_segments, ValidationSegmentOptions};
+    use crate::validate::mean_position_error;
 
     /// Sample time of the synthetic drive, s (40 Hz).
     const TS: f64 = 0.025;
     /// With noise-free data the minimum is exactly 0; the search must get
     /// within a millimetre of it.
     const ZERO_ERROR_M: f64 = 1e-3;
+
+    /// A reference mounted off the axle: with the mount, the search finds
+    /// the noise-free minimum (≈ 0 at θ_true) and `validate`'s Ē_p of θ_true
+    /// can never beat its reachable minimum; at the axle (what the search
+    /// did before) the minimum is metres and θ_true, validated on its mount,
+    /// appears to beat the "reachable minimum".
+    #[test]
+    fn the_search_uses_the_reference_mount_of_the_validation() {
+        use crate::sim::{simulate, SimOptions};
+        use crate::validate::{validate, ValidateOptions};
+        let mount = Extrinsics { lever_x: -0.9, lever_y: 0.3, heading_offset: -0.01 };
+        let sim = SimOptions { length_km: 2.0, substeps: 1, reference_mount: mount, ..SimOptions::noise_free(3) };
+        let s = simulate(&sim).expect("simulate");
+        let truth = s.sidecar.theta_true;
+        let search = ReachableOptions {
+            particles: 12,
+            iterations: 10,
+            refine_iterations: 150,
+            starts: vec![truth],
+            ..ReachableOptions::around(&truth)
+        };
+        let run = |extrinsics: Extrinsics| {
+            let opts = ValidateOptions { extrinsics, reachable: Some(search.clone()), ..Default::default() };
+            validate(&s.drive, &truth, &opts).expect("validate")
+        };
+        let mounted = run(mount);
+        let rm = mounted.reachable_minimum.as_ref().expect("searched");
+        assert!(mounted.validation.mean_position_error_m < 1e-6, "{}", mounted.validation.mean_position_error_m);
+        assert_eq!(rm.extrinsics, mount);
+        assert!(rm.mean_position_error_m <= mounted.validation.mean_position_error_m, "{rm:?}");
+        assert!(rm.mean_position_error_m < ZERO_ERROR_M, "{}", rm.mean_position_error_m);
+        // Ignoring the mount, the best θ still misses by far more.
+        let at_axle = reachable_minimum(
+            &s.drive,
+            &validation_segments(&s.drive, &ValidationSegmentOptions::default()).expect("segments"),
+            &search,
+        )
+        .expect("search");
+        eprintln!(
+            "reachable minimum: {} m with the mount, {} m at the axle",
+            rm.mean_position_error_m, at_axle.mean_position_error_m
+        );
+        assert!(at_axle.mean_position_error_m > 100.0 * ZERO_ERROR_M, "{}", at_axle.mean_position_error_m);
+        // A bad mount is an option error naming it.
+        let bad = ReachableOptions { extrinsics: Extrinsics { lever_x: f64::NAN, ..mount }, ..search.clone() };
+        assert!(bad.validate().is_err());
+    }
 
     /// A noise-free ~3 min drive: speed 7–13 m/s, curvature alternating in
     /// sign (figure-of-eight-like) with varying amplitude, wheel rotations

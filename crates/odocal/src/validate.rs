@@ -91,7 +91,9 @@ pub struct ValidateOptions {
     /// Validation segments. Default K_v = 1300, stride 650, offset 50.
     pub segments: ValidationSegmentOptions,
     /// Also search the reachable minimum of Ē_p with these settings. Default none.
-    /// (The search takes the reference at the axle, whatever `extrinsics`.)
+    /// The search uses [`ValidateOptions::extrinsics`] (its own
+    /// [`ReachableOptions::extrinsics`] is replaced), so its minimum and Ē_p
+    /// of θ are computed against the same reference mount.
     pub reachable: Option<ReachableOptions>,
     /// The pose reference's mount (e.g. the drive manifest's `[reference]`,
     /// [`crate::import::ReferenceSpec::extrinsics`]). Default 0: the axle.
@@ -140,7 +142,10 @@ pub fn validate_with_progress(
     let segs = validation_segments(drive, &opts.segments)?;
     let validation = mean_position_error_with(drive, &segs, theta, &opts.extrinsics)?;
     let reachable_minimum = match &opts.reachable {
-        Some(r) => Some(reachable_minimum_with_progress(drive, &segs, r, progress)?),
+        Some(r) => {
+            let r = ReachableOptions { extrinsics: opts.extrinsics, ..r.clone() };
+            Some(reachable_minimum_with_progress(drive, &segs, &r, progress)?)
+        }
         None => None,
     };
     Ok(ValidateReport { validation, reachable_minimum, extrinsics: opts.extrinsics })
