@@ -164,9 +164,16 @@ struct CalibrationArgs {
     max_iterations: Option<usize>,
     /// EIV: starting noise model, a TOML file of noise-model fields (e.g.
     /// `wheel_white_rel_sigma = 0.01`; missing fields keep the production-car
-    /// defaults; see `odocal::calibrate::eiv::read_noise_model`).
+    /// defaults; `known = ["heading_white"]` holds stated levels; see
+    /// `odocal::calibrate::eiv::read_noise_model`).
     #[arg(long)]
     noise_model: Option<PathBuf>,
+    /// EIV: noise sources whose level in the starting model is known (e.g.
+    /// from the INS datasheet) and held, not estimated: wheel-white,
+    /// wheel-common, wheel-differential, pose-white, pose-drift,
+    /// heading-white (comma list; adds to a noise model's `known`).
+    #[arg(long, value_delimiter = ',')]
+    known_noise: Vec<odocal::eiv::NoiseSource>,
     /// EIV: use the starting noise model as is instead of estimating its scales.
     #[arg(long)]
     fix_noise: bool,
@@ -275,6 +282,7 @@ impl CalibrationArgs {
         ];
         let eiv_flags = [
             ("--noise-model", self.noise_model.is_some()),
+            ("--known-noise", !self.known_noise.is_empty()),
             ("--fix-noise", self.fix_noise),
             ("--no-fallback", self.no_fallback),
             ("--eiv-window", self.eiv_window.is_some()),
@@ -326,8 +334,10 @@ impl CalibrationArgs {
                 }
                 let mut o = defaults.clone();
                 if let Some(p) = &self.noise_model {
-                    o.filter.noise = odocal::calibrate::eiv::read_noise_model(p)?;
+                    odocal::calibrate::eiv::read_noise_model(p)?.apply(&mut o.filter);
                 }
+                // A manifest's [noise] `known` adds to these when it applies.
+                o.filter.hold_known(&self.known_noise);
                 o.filter.fix_noise = self.fix_noise;
                 o.fallback = !self.no_fallback;
                 if let Some(v) = self.eiv_window {

@@ -17,7 +17,7 @@ fn eiv_detail(r: &CalibrationReport) -> Option<&EivDetail> {
 
 /// The EIV lines: fit, noise model (start and end, physical units), and
 /// which estimate the result is.
-fn eiv_section(d: &EivDetail) -> String {
+fn eiv_section(d: &EivDetail, known: &[odocal::eiv::NoiseSource]) -> String {
     let mut out = String::new();
     match &d.eiv {
         Some(e) => {
@@ -32,6 +32,10 @@ fn eiv_section(d: &EivDetail) -> String {
             );
             let fixed = e.eta.iter().all(|x| *x == 0.0) && e.eta_sigma.iter().all(|x| *x == 0.0);
             let _ = writeln!(out, "  noise, start:     {}", noise_summary(&d.noise_start));
+            if !known.is_empty() {
+                let names: Vec<&str> = known.iter().map(|s| s.name()).collect();
+                let _ = writeln!(out, "  known (held at the start): {}", names.join(", "));
+            }
             let _ = writeln!(
                 out,
                 "  noise, {}: {}",
@@ -268,7 +272,11 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
         }
     }
     if let Some(d) = eiv_detail(r) {
-        out.push_str(&eiv_section(d));
+        let known = match &r.options.method {
+            odocal::Method::Eiv(m) if !m.filter.fix_noise => m.filter.known_sources(),
+            _ => Vec::new(),
+        };
+        out.push_str(&eiv_section(d, &known));
     }
     out.push('\n');
     let mut cols = vec![("θ_0", Some(r.initial.theta)), ("calibrated", Some(r.theta))];

@@ -59,6 +59,52 @@ fn eiv_on_a_small_simulated_drive() {
     assert!(out.contains("    t_r  ["), "{out}");
 }
 
+/// `--known-noise` and a noise model's `known`: the stated levels are held
+/// (reported as the start's), the others estimated; the terminal names them.
+#[test]
+fn known_noise_sources_are_held_at_the_stated_level() {
+    let d = tempfile::tempdir().expect("tmp");
+    let drive = d.path().join("drive.csv");
+    let dstr = drive.to_str().expect("utf8");
+    let o = odocal(&["simulate", "--seed", "4", "--length-km", "2", "--noise", "paper", "--out", dstr]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let model = d.path().join("noise.toml");
+    std::fs::write(&model, "heading_white_sigma_rad = 0.0002\nknown = [\"heading_white\"]\n").expect("write");
+    let mstr = model.to_str().expect("utf8");
+    let runs =
+        [vec!["--known-noise", "heading-white,pose-white"], vec!["--noise-model", mstr, "--known-noise", "pose_white"]];
+    for flags in runs {
+        let args = [&["calibrate", dstr, "--eiv-window", "1500", "--no-fallback"][..], &flags[..]].concat();
+        let o = odocal(&[&args[..], &["--json", "-"]].concat());
+        assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", text(&o.stderr));
+        let r: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+        let held = &r["options"]["method"]["filter"]["eta_held"];
+        assert_eq!(held, &serde_json::json!([false, false, false, true, false, true]), "{flags:?}");
+        for k in ["heading_white_sigma_rad", "position_white_sigma_m"] {
+            assert_eq!(r["eiv"]["noise"][k], r["noise_start"][k], "{flags:?}: {k} held");
+        }
+        assert_ne!(r["eiv"]["noise"]["wheel_white_rel_sigma"], r["noise_start"]["wheel_white_rel_sigma"], "estimated");
+        let o = odocal(&args);
+        assert!(
+            text(&o.stdout).contains("  known (held at the start): pose_white, heading_white"),
+            "{}",
+            text(&o.stdout)
+        );
+    }
+    let o = odocal(&["calibrate", dstr, "--known-noise", "heading"]);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));
+    assert!(text(&o.stderr).contains("heading_white"), "{}", text(&o.stderr));
+    let o = odocal(&["calibrate", dstr, "--method", "batch-gn", "--known-noise", "heading-white"]);
+    assert!(text(&o.stderr).contains("--known-noise applies to --method eiv only"), "{}", text(&o.stderr));
+    let o = odocal(&["calibrate", dstr, "--known-noise", "heading-white", "--heading-noise", "tied"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        text(&o.stderr).contains("heading_white is known but its scale is tied to pose_white"),
+        "{}",
+        text(&o.stderr)
+    );
+}
+
 #[test]
 fn eiv_noise_model_shape_flags_reach_the_options() {
     let d = tempfile::tempdir().expect("tmp");

@@ -521,12 +521,13 @@ struct CalibrationPlan {
 }
 
 /// The keyword options of `odocal.calibrate`, named like the CLI's flags.
-const CALIBRATION_KWARGS: [&str; 27] = [
+const CALIBRATION_KWARGS: [&str; 28] = [
     "seed",
     "estimate",
     "lever_arm",
     "heading_offset",
     "noise_model",
+    "known_noise",
     "fix_noise",
     "fallback",
     "eiv_window",
@@ -631,6 +632,7 @@ fn calibration_plan(
     let (mut batches, mut batch_size, mut picks, mut final_segments, mut qp_solver) = (None, None, None, None, None);
     // EIV settings (`--noise-model`, `--fix-noise`, `--no-fallback`, `--eiv-window`).
     let (mut noise_model, mut fix_noise, mut fallback, mut eiv_window) = (None, None, None, None);
+    let mut known_noise: Option<Vec<odocal::eiv::NoiseSource>> = None;
     let (mut quantisation, mut quantisation_level, mut heading_noise) = (None, None, None);
     if let Some(kwargs) = kwargs {
         for (key, v) in kwargs.iter() {
@@ -714,6 +716,19 @@ fn calibration_plan(
                     noise_model = Some(odocal::calibrate::eiv::read_noise_model(&path).map_err(lib_err)?);
                     noise_model_file = Some(path);
                 }
+                "known_noise" => {
+                    let names: Vec<String> = match v.cast::<PyString>() {
+                        Ok(s) => s.to_str()?.split(',').map(str::to_string).collect(),
+                        Err(_) => v.extract::<Vec<String>>()?,
+                    };
+                    known_noise = Some(
+                        names
+                            .iter()
+                            .map(|n| n.parse::<odocal::eiv::NoiseSource>())
+                            .collect::<Result<_, _>>()
+                            .map_err(lib_err)?,
+                    );
+                }
                 "fix_noise" => fix_noise = Some(v.extract::<bool>()?),
                 "fallback" => fallback = Some(v.extract::<bool>()?),
                 "eiv_window" => eiv_window = Some(v.extract::<usize>()?),
@@ -737,6 +752,7 @@ fn calibration_plan(
     }
     let eiv_given: Vec<&str> = [
         ("noise_model", noise_model.is_some()),
+        ("known_noise", known_noise.is_some()),
         ("fix_noise", fix_noise.is_some()),
         ("fallback", fallback.is_some()),
         ("eiv_window", eiv_window.is_some()),
@@ -749,7 +765,10 @@ fn calibration_plan(
     .map(|g| g.0)
     .collect();
     if let Method::Eiv(e) = &mut o.method {
-        e.filter.noise = noise_model.unwrap_or(e.filter.noise);
+        if let Some(spec) = &noise_model {
+            spec.apply(&mut e.filter);
+        }
+        e.filter.hold_known(known_noise.as_deref().unwrap_or_default());
         e.filter.fix_noise = fix_noise.unwrap_or(e.filter.fix_noise);
         e.fallback = fallback.unwrap_or(e.fallback);
         e.filter.window_samples = eiv_window.unwrap_or(e.filter.window_samples);

@@ -241,3 +241,17 @@ def test_eiv_equals_cli_json(odocal_bin, drive_csv):
         odocal.calibrate(odocal.Drive.from_csv(drive_csv), "eiv", quantisation_level="auto")
     with pytest.raises(odocal.OdocalError, match="heading_noise applies to method eiv only"):
         odocal.calibrate(odocal.Drive.from_csv(drive_csv), "batch-gn", heading_noise="tied")
+
+
+def test_known_noise_equals_cli_json(odocal_bin, drive_csv):
+    cli = cli_json(odocal_bin, "calibrate", drive_csv, "--eiv-window", "1500", "--known-noise", "heading-white")
+    report = odocal.calibrate(odocal.Drive.from_csv(drive_csv), eiv_window=1500, known_noise=["heading_white"])
+    d = report.to_dict()
+    assert d["options"]["method"]["filter"]["eta_held"] == [False] * 5 + [True]
+    assert _without_eiv_timing(d) == _without_eiv_timing(cli)
+    same = odocal.calibrate(odocal.Drive.from_csv(drive_csv), eiv_window=1500, known_noise="heading-white")
+    assert _without_eiv_timing(same.to_dict()) == _without_eiv_timing(d)
+    with pytest.raises(odocal.OdocalError, match="invalid noise source 'heading'"):
+        odocal.calibrate(odocal.Drive.from_csv(drive_csv), known_noise=["heading"])
+    with pytest.raises(odocal.OdocalError, match="known_noise applies to method eiv only"):
+        odocal.calibrate(odocal.Drive.from_csv(drive_csv), "batch-gn", known_noise="heading_white")

@@ -217,7 +217,9 @@ def calibrate(
       ``lever_arm`` (``[x, y]``, m), ``heading_offset`` (rad): the reference
       sensor's extrinsics, as ``--estimate``, ``--lever-arm``,
       ``--heading-offset``;
-    - ``noise_model`` (path of a noise-model TOML), ``fix_noise``,
+    - ``noise_model`` (path of a noise-model TOML), ``known_noise`` (noise
+      sources whose level in the starting model is known and held, a list
+      or ``"heading_white,pose_white"``, as ``--known-noise``), ``fix_noise``,
       ``fallback``, ``eiv_window``, ``quantisation`` (``"process"`` |
       ``"measurement"`` | ``"counting"``), ``quantisation_level``
       (``"scaled"`` | ``"given"`` | ``"from-readings"``), ``heading_noise``

@@ -195,16 +195,43 @@ pub fn is_misspecification(w: &EivWarning, report: &EivReport) -> bool {
     }
 }
 
+/// A noise model as a `--noise-model` file or a drive manifest's `[noise]`
+/// states it: the levels, and which of them are known (held, not
+/// estimated: [`EivOptions::eta_held`]). In JSON the model's fields stand
+/// at the top level, beside `known`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NoiseSpec {
+    /// The starting noise model.
+    #[serde(flatten)]
+    pub model: NoiseModel,
+    /// The sources whose level the model states as known (e.g. from the
+    /// sensor's datasheet). Default none: every level is estimated.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub known: Vec<eiv::NoiseSource>,
+}
+
+impl NoiseSpec {
+    /// Starts `filter` from this model, holding the known sources (in
+    /// addition to any it already holds).
+    pub fn apply(&self, filter: &mut EivOptions) {
+        filter.noise = self.model;
+        filter.hold_known(&self.known);
+    }
+}
+
 /// Reads a noise model from a TOML file of [`NoiseModel`] fields (missing
-/// fields keep the production-car defaults; an unknown field is an error).
+/// fields keep the production-car defaults; an unknown field is an error)
+/// and, optionally, `known`: the sources whose stated level is known.
 ///
 /// ```toml
 /// wheel_white_rel_sigma = 0.01       # 1 %
 /// wheel_common_rel_sigma = 0.003
 /// wheel_common_time_constant_s = 5.0
 /// position_white_sigma_m = 0.03
+/// heading_white_sigma_rad = 0.0003   # the INS datasheet's heading σ ...
+/// known = ["heading_white"]          # ... held, not estimated
 /// ```
-pub fn read_noise_model(path: &Path) -> Result<NoiseModel> {
+pub fn read_noise_model(path: &Path) -> Result<NoiseSpec> {
     let text = std::fs::read_to_string(path).map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
     parse_noise_model(&text).map_err(|reason| Error::InvalidOption {
         field: "noise model file",
@@ -213,22 +240,38 @@ pub fn read_noise_model(path: &Path) -> Result<NoiseModel> {
 }
 
 /// Parses the TOML of [`read_noise_model`] and checks the model.
-pub fn parse_noise_model(text: &str) -> std::result::Result<NoiseModel, String> {
+pub fn parse_noise_model(text: &str) -> std::result::Result<NoiseSpec, String> {
     let table: toml::Table = toml::from_str(text).map_err(|e| e.message().to_string())?;
     noise_model_from_table(table)
 }
 
-/// A noise model from a TOML table of [`NoiseModel`] fields (a
+/// A noise model from a TOML table of [`NoiseModel`] fields and `known` (a
 /// `--noise-model` file, or a drive manifest's `[noise]` table): missing
 /// fields keep the production-car defaults; an unknown field, a value of
-/// the wrong type or out of range is an error naming the field.
-pub fn noise_model_from_table(table: toml::Table) -> std::result::Result<NoiseModel, String> {
-    let known = serde_json::to_value(NoiseModel::PRODUCTION_CAR).map_err(|e| e.to_string())?;
-    if let Some(known) = known.as_object() {
-        let mut unknown: Vec<&str> = table.keys().map(String::as_str).filter(|k| !known.contains_key(*k)).collect();
+/// the wrong type or out of range, or an unknown source in `known` is an
+/// error naming the field.
+pub fn noise_model_from_table(mut table: toml::Table) -> std::result::Result<NoiseSpec, String> {
+    let known = match table.remove("known") {
+        None => Vec::new(),
+        Some(toml::Value::Array(list)) => {
+            let mut known = Vec::with_capacity(list.len().min(eiv::NOISE_SOURCES.len()));
+            for v in list {
+                let name = v.as_str().ok_or_else(|| format!("known: {v} is not a source name (a string)"))?;
+                let source: eiv::NoiseSource = name.parse().map_err(|e: Error| format!("known: {e}"))?;
+                if !known.contains(&source) {
+                    known.push(source);
+                }
+            }
+            known
+        }
+        Some(v) => return Err(format!("known: {v} must be a list of source names, e.g. [\"heading_white\"]")),
+    };
+    let fields = serde_json::to_value(NoiseModel::PRODUCTION_CAR).map_err(|e| e.to_string())?;
+    if let Some(fields) = fields.as_object() {
+        let mut unknown: Vec<&str> = table.keys().map(String::as_str).filter(|k| !fields.contains_key(*k)).collect();
         unknown.sort_unstable();
         if !unknown.is_empty() {
-            let mut names: Vec<&str> = known.keys().map(String::as_str).collect();
+            let mut names: Vec<&str> = fields.keys().map(String::as_str).chain(["known"]).collect();
             names.sort_unstable();
             return Err(format!("unknown field(s) {}; the fields are {}", unknown.join(", "), names.join(", ")));
         }
@@ -236,7 +279,7 @@ pub fn noise_model_from_table(table: toml::Table) -> std::result::Result<NoiseMo
     let model: NoiseModel = serde_path_to_error::deserialize(toml::Value::Table(table))
         .map_err(|e| format!("{}: {}", e.path(), e.inner().message()))?;
     model.validate().map_err(|e| e.to_string())?;
-    Ok(model)
+    Ok(NoiseSpec { model, known })
 }
 
 /// The noise model as one line in physical units (σ in %, time constants in s).

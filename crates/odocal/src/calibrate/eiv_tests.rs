@@ -216,16 +216,44 @@ fn straight_drive_calibrates_c_e_and_names_the_rest() {
 
 #[test]
 fn noise_model_files_name_unknown_fields() {
-    let m = parse_noise_model("wheel_white_rel_sigma = 0.01\nwheel_common_time_constant_s = 5.0\n").expect("parse");
+    let spec = parse_noise_model("wheel_white_rel_sigma = 0.01\nwheel_common_time_constant_s = 5.0\n").expect("parse");
+    let m = spec.model;
     assert_eq!(m.wheel_white_rel_sigma, 0.01);
     assert_eq!(m.wheel_common_time_constant_s, 5.0);
     assert_eq!(m.position_white_sigma_m, NoiseModel::PRODUCTION_CAR.position_white_sigma_m);
+    assert!(spec.known.is_empty());
     let e = parse_noise_model("wheel_white_sigma = 0.01\n").expect_err("unknown field");
     assert!(e.starts_with("unknown field(s) wheel_white_sigma; the fields are "), "{e}");
+    assert!(e.contains(", known, "), "the field list names `known`: {e}");
     let e = parse_noise_model("position_white_sigma_m = -1.0\n").expect_err("negative");
     assert!(e.contains("noise.position_white_sigma_m"), "{e}");
     let e = parse_noise_model("sideslip_sigma_rad = \"small\"\n").expect_err("a string");
     assert!(e.starts_with("sideslip_sigma_rad: "), "{e}");
+}
+
+/// A noise model's `known = [...]`: the sources held at the stated level.
+#[test]
+fn noise_model_files_state_known_sources() {
+    use crate::eiv::NoiseSource;
+    let text = "heading_white_sigma_rad = 0.0003\nknown = [\"heading_white\", \"pose-white\", \"heading_white\"]\n";
+    let spec = parse_noise_model(text).expect("parse");
+    assert_eq!(spec.model.heading_white_sigma_rad, 0.0003);
+    assert_eq!(spec.known, [NoiseSource::HeadingWhite, NoiseSource::PoseWhite]);
+    let mut filter = EivOptions::default();
+    spec.apply(&mut filter);
+    assert_eq!(filter.eta_held, [false, false, false, true, false, true]);
+    assert_eq!(filter.known_sources(), [NoiseSource::PoseWhite, NoiseSource::HeadingWhite]);
+    assert_eq!(filter.noise.heading_white_sigma_rad, 0.0003);
+    filter.validate().expect("valid with the separate heading scale");
+    let tied = EivOptions { heading_scale: crate::eiv::HeadingScale::TiedToPosition, ..filter.clone() };
+    let e = tied.validate().expect_err("tied heading scale").to_string();
+    assert!(e.contains("heading_white is known but its scale is tied to pose_white"), "{e}");
+    let e = parse_noise_model("known = [\"heading\"]\n").expect_err("unknown source");
+    assert!(e.contains("known: ") && e.contains("'heading'") && e.contains("heading_white"), "{e}");
+    let e = parse_noise_model("known = \"heading_white\"\n").expect_err("not a list");
+    assert!(e.starts_with("known: ") && e.contains("must be a list"), "{e}");
+    let e = parse_noise_model("known = [3]\n").expect_err("not a name");
+    assert!(e.starts_with("known: 3 is not a source name"), "{e}");
 }
 
 /// `EivMethodOptions::bootstrap` runs the parametric bootstrap on the EIV

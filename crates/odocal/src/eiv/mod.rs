@@ -396,6 +396,53 @@ pub enum NoiseSource {
     HeadingWhite,
 }
 
+impl NoiseSource {
+    /// The source's name: `wheel_white`, `wheel_common`,
+    /// `wheel_differential`, `pose_white`, `pose_drift`, `heading_white`.
+    pub fn name(self) -> &'static str {
+        match self {
+            NoiseSource::WheelWhite => "wheel_white",
+            NoiseSource::WheelCommon => "wheel_common",
+            NoiseSource::WheelDifferential => "wheel_differential",
+            NoiseSource::PoseWhite => "pose_white",
+            NoiseSource::PoseDrift => "pose_drift",
+            NoiseSource::HeadingWhite => "heading_white",
+        }
+    }
+
+    /// The source's index in η ([`NOISE_SOURCES`] order, as
+    /// [`EivOptions::eta_held`]).
+    pub fn index(self) -> usize {
+        NOISE_SOURCES.iter().position(|s| *s == self).unwrap_or(0)
+    }
+}
+
+impl std::fmt::Display for NoiseSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for NoiseSource {
+    type Err = Error;
+    /// A source by its [`NoiseSource::name`] (`-` for `_` accepted, as on
+    /// the command line).
+    ///
+    /// ```
+    /// use odocal::eiv::NoiseSource;
+    /// assert_eq!("heading-white".parse::<NoiseSource>().unwrap(), NoiseSource::HeadingWhite);
+    /// assert!("heading".parse::<NoiseSource>().is_err());
+    /// ```
+    fn from_str(s: &str) -> Result<Self> {
+        let name = s.trim().to_ascii_lowercase().replace('-', "_");
+        NOISE_SOURCES.into_iter().find(|x| x.name() == name).ok_or_else(|| Error::Parse {
+            what: "noise source",
+            input: s.to_string(),
+            expected: "wheel_white, wheel_common, wheel_differential, pose_white, pose_drift or heading_white",
+        })
+    }
+}
+
 /// The sources in η order.
 pub const NOISE_SOURCES: [NoiseSource; 6] = [
     NoiseSource::WheelWhite,
@@ -698,10 +745,14 @@ pub struct EivOptions {
     /// Clamp range of the log-scale factors η. Default [−20, 6]: variances
     /// between 2e-9 and 400 times the starting model's.
     pub eta_bounds: [f64; 2],
-    /// Noise sources (in [`NOISE_SOURCES`] order) whose scale is held at
-    /// the starting model (η_j = 0) while the others are estimated; ignored
-    /// with [`EivOptions::fix_noise`]. A diagnostic (stop 14: which scale's
-    /// error moves t_r on `high`). Default none.
+    /// Noise sources (in [`NOISE_SOURCES`] order) whose level is *known*:
+    /// their scale is held at the starting model (η_j = 0) while the others
+    /// are estimated; ignored with [`EivOptions::fix_noise`]. Set it from a
+    /// datasheet (e.g. the INS's heading σ) with [`EivOptions::hold_known`],
+    /// `--known-noise`, or a noise model's `known = [...]`. Measured (stop
+    /// 14, 20 × 12 km, `high`): holding the heading white noise at its true
+    /// σ took t_r's bias from +1.50 % to +0.54 %. A wrong stated level biases
+    /// instead. Default none.
     pub eta_held: [bool; 6],
     /// Parameter resolutions `[c_e, c_d, t_r, d]`, SI units: a parameter
     /// whose standard deviation exceeds its resolution is not observable.
@@ -1278,6 +1329,20 @@ impl Default for EivOptions {
 }
 
 impl EivOptions {
+    /// Holds the scales of `sources` at the starting model
+    /// ([`EivOptions::eta_held`]): their levels in [`EivOptions::noise`] are
+    /// known.
+    pub fn hold_known(&mut self, sources: &[NoiseSource]) {
+        for s in sources {
+            self.eta_held[s.index()] = true;
+        }
+    }
+
+    /// The sources [`EivOptions::eta_held`] holds, in η order.
+    pub fn known_sources(&self) -> Vec<NoiseSource> {
+        NOISE_SOURCES.into_iter().filter(|s| self.eta_held[s.index()]).collect()
+    }
+
     /// These options with [`QuantisationLevel::FromReadings`] replaced by what
     /// it resolves to where the readings gave the step `found`: `Given` at
     /// that step, or `ScaledWithWhite` for `None`. Other levels are kept.
@@ -1340,6 +1405,14 @@ impl EivOptions {
         }
         if !(self.nis_band[0] >= 0.0 && self.nis_band[1] > self.nis_band[0]) {
             return bad("nis_band", "must be [lower, upper] with 0 <= lower < upper");
+        }
+        let heading = NoiseSource::HeadingWhite.index();
+        if self.eta_held[heading] && self.heading_scale == HeadingScale::TiedToPosition && !self.fix_noise {
+            return bad(
+                "eta_held",
+                "heading_white is known but its scale is tied to pose_white (heading noise `tied`): \
+                 use the separate heading scale, or state pose_white as known",
+            );
         }
         if let Some(t) = &self.hold_unobservable_at {
             t.validate().map_err(|e| Error::InvalidOption {

@@ -8,7 +8,6 @@ use serde::{Deserialize, Serialize};
 
 use super::limits::{self, echo_num};
 use super::settings::{CalibrationSpec, ManifestSettings, ReferenceSpec};
-use crate::eiv::NoiseModel;
 use crate::error::{Error, Result};
 use crate::model::Theta;
 
@@ -42,10 +41,11 @@ pub struct Manifest {
     #[serde(default)]
     pub limits: LimitsSpec,
     /// The sensor's noise (`[noise]`): the starting noise model of
-    /// `--method eiv`, the fields of [`NoiseModel`] (missing ones keep the
-    /// production-car defaults), parsed like a `--noise-model` file.
+    /// `--method eiv`, the fields of [`crate::eiv::NoiseModel`] (missing ones keep the
+    /// production-car defaults) and `known`, parsed like a `--noise-model`
+    /// file ([`crate::calibrate::eiv::NoiseSpec`]).
     #[serde(default, deserialize_with = "super::settings::noise_table", skip_serializing_if = "Option::is_none")]
-    pub noise: Option<NoiseModel>,
+    pub noise: Option<crate::calibrate::eiv::NoiseSpec>,
     /// The reference sensor's extrinsics (`[reference]`): lever arm,
     /// heading offset and which of them to estimate.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -739,7 +739,7 @@ impl Manifest {
     pub fn settings(&self) -> ManifestSettings {
         ManifestSettings {
             manifest: self.path.clone(),
-            noise: self.noise,
+            noise: self.noise.clone(),
             reference: self.reference.clone(),
             calibration: self.calibration,
         }
@@ -913,7 +913,7 @@ impl Manifest {
             sign("sideslip.sign", *s)?;
         }
         if let Some(n) = &self.noise {
-            n.validate().map_err(|e| self.error("noise", e))?;
+            n.model.validate().map_err(|e| self.error("noise", e))?;
         }
         if let Some(r) = &self.reference {
             r.check().map_err(|(key, reason)| self.error(key, reason))?;

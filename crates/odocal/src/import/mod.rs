@@ -184,6 +184,7 @@
 //! [noise]                     # optional: the sensor's noise, start of --method eiv
 //! wheel_white_rel_sigma = 0.01  # any field of a --noise-model file (odocal::eiv::NoiseModel);
 //! position_white_sigma_m = 0.03 # missing ones keep the production-car defaults
+//! known = ["pose_white"]        # optional: levels held as stated, not estimated
 //!
 //! [reference]                 # optional: the pose reference's extrinsics
 //! lever_arm = [-0.9, 0.0]     # x forward, y left, m, from the rear-axle centre (default 0, 0)
@@ -411,7 +412,7 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
         lateral_acceleration: a_y_desc,
         jitter,
         warnings,
-        noise: m.noise,
+        noise: m.noise.clone(),
         reference: m.reference.clone(),
         calibration: m.calibration,
         elapsed_s: started.elapsed().as_secs_f64(),

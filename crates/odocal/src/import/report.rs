@@ -40,7 +40,7 @@ pub struct ImportReport {
     pub warnings: Vec<String>,
     /// The manifest's `[noise]` (the sensor's noise model), when stated.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub noise: Option<crate::eiv::NoiseModel>,
+    pub noise: Option<crate::calibrate::eiv::NoiseSpec>,
     /// The manifest's `[reference]` (reference extrinsics), when stated.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reference: Option<super::ReferenceSpec>,
@@ -56,7 +56,7 @@ impl ImportReport {
     pub fn settings(&self) -> super::ManifestSettings {
         super::ManifestSettings {
             manifest: self.manifest.clone(),
-            noise: self.noise,
+            noise: self.noise.clone(),
             reference: self.reference.clone(),
             calibration: self.calibration,
         }
@@ -252,7 +252,12 @@ impl std::fmt::Display for ImportReport {
         )?;
         writeln!(f, "  wheels: {}", self.wheel_scale)?;
         if let Some(n) = &self.noise {
-            writeln!(f, "  [noise] (start of --method eiv): {}", crate::calibrate::eiv::noise_summary(n))?;
+            write!(f, "  [noise] (start of --method eiv): {}", crate::calibrate::eiv::noise_summary(&n.model))?;
+            if !n.known.is_empty() {
+                let names: Vec<&str> = n.known.iter().map(|s| s.name()).collect();
+                write!(f, "; known: {}", names.join(", "))?;
+            }
+            writeln!(f)?;
         }
         if let Some(r) = &self.reference {
             let l = r.lever_arm.unwrap_or_default();

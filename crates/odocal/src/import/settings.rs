@@ -10,8 +10,8 @@ use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
 
+use crate::calibrate::eiv::NoiseSpec;
 use crate::calibrate::CalibrationOptions;
-use crate::eiv::NoiseModel;
 use crate::error::{Error, Result};
 use crate::param::ParamSet;
 
@@ -111,7 +111,7 @@ pub const MAX_LEVER_ARM_M: f64 = 20.0;
 
 /// `[noise]`: parsed by the same function as a `--noise-model` file
 /// ([`crate::calibrate::eiv::noise_model_from_table`]).
-pub(crate) fn noise_table<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Option<NoiseModel>, D::Error> {
+pub(crate) fn noise_table<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Option<NoiseSpec>, D::Error> {
     let table = toml::Table::deserialize(d)?;
     crate::calibrate::eiv::noise_model_from_table(table).map(Some).map_err(serde::de::Error::custom)
 }
@@ -121,8 +121,8 @@ pub(crate) fn noise_table<'de, D: serde::Deserializer<'de>>(d: D) -> std::result
 pub struct ManifestSettings {
     /// The manifest that states them.
     pub manifest: PathBuf,
-    /// `[noise]`: the sensor's noise model.
-    pub noise: Option<NoiseModel>,
+    /// `[noise]`: the sensor's noise model and which levels are known.
+    pub noise: Option<NoiseSpec>,
     /// `[reference]`: the reference sensor's extrinsics.
     pub reference: Option<ReferenceSpec>,
     /// `[calibration]`: calibration choices.
@@ -234,7 +234,7 @@ impl ManifestSettings {
             match &mut opts.method {
                 _ if given.noise_model => note("noise", SettingOutcome::Overridden),
                 crate::Method::Eiv(o) => {
-                    o.filter.noise = *n;
+                    n.apply(&mut o.filter);
                     note("noise", SettingOutcome::Used);
                 }
                 other => note(
@@ -334,6 +334,7 @@ mod tests {
 
     use super::*;
     use crate::calibrate::eiv::EivMethodOptions;
+    use crate::eiv::NoiseModel;
     use crate::extrinsics::Extrinsics;
     use crate::import::{load_drive, Manifest};
     use crate::param::Param;
@@ -355,7 +356,7 @@ mod tests {
     fn noise_and_reference_tables_parse_and_are_carried_on_the_import_report() {
         let dir = tempfile::tempdir().expect("tempdir");
         let path = super::super::tests::small_case(dir.path());
-        let extra = "\n[noise]\nwheel_white_rel_sigma = 0.012\nposition_white_sigma_m = 0.05\n\n[reference]\n\
+        let extra = "\n[noise]\nwheel_white_rel_sigma = 0.012\nposition_white_sigma_m = 0.05\nknown = [\"pose_white\"]\n\n[reference]\n\
                      lever_arm = [-0.9, 0.1]\nheading_offset = -0.0099\nestimate = [\"lever-arm\"]\n";
         let text = std::fs::read_to_string(&path).expect("read") + extra;
         std::fs::write(&path, text).expect("write");
@@ -363,11 +364,13 @@ mod tests {
         let report = report.expect("a manifest's report");
         let text = report.to_string();
         assert!(text.contains("[noise] (start of --method eiv): σ_white 1.200 %"), "{text}");
+        assert!(text.contains("; known: pose_white\n"), "{text}");
         assert!(
             text.contains("[reference]: lever arm (-0.900, +0.100) m, heading offset -9.90 mrad, estimate lever-arm")
         );
         let s = report.settings();
-        let n = s.noise.expect("[noise]");
+        assert_eq!(s.noise.as_ref().map(|n| n.known.clone()), Some(vec![crate::eiv::NoiseSource::PoseWhite]));
+        let n = s.noise.clone().expect("[noise]").model;
         assert_eq!(n.wheel_white_rel_sigma, 0.012);
         assert_eq!(n.position_white_sigma_m, 0.05);
         assert_eq!(n.wheel_common_rel_sigma, NoiseModel::PRODUCTION_CAR.wheel_common_rel_sigma, "default kept");
@@ -407,7 +410,10 @@ mod tests {
     fn settings() -> ManifestSettings {
         ManifestSettings {
             manifest: "m.toml".into(),
-            noise: Some(NoiseModel { wheel_white_rel_sigma: 0.02, ..NoiseModel::PRODUCTION_CAR }),
+            noise: Some(NoiseSpec {
+                model: NoiseModel { wheel_white_rel_sigma: 0.02, ..NoiseModel::PRODUCTION_CAR },
+                known: vec![crate::eiv::NoiseSource::PoseWhite],
+            }),
             reference: Some(ReferenceSpec {
                 lever_arm: Some([-0.9, 0.0]),
                 heading_offset: Some(-0.01),
@@ -464,6 +470,7 @@ mod tests {
         let uses = s.apply(&mut o, GivenSettings::default());
         let Method::Eiv(m) = &o.method else { panic!("eiv") };
         assert_eq!(m.filter.noise.wheel_white_rel_sigma, 0.02);
+        assert_eq!(m.filter.known_sources(), [crate::eiv::NoiseSource::PoseWhite], "[noise] known");
         assert_eq!(o.identify.extrinsics, Extrinsics { lever_x: -0.9, lever_y: 0.0, heading_offset: -0.01 });
         assert_eq!(o.identify.free, ParamSet::THETA.with(Param::HeadingOffset));
         assert_eq!(outcomes(&uses)[0], ("noise", SettingOutcome::Used));
@@ -472,6 +479,7 @@ mod tests {
         let uses = s.apply(&mut o, GivenSettings { noise_model: true, ..Default::default() });
         let Method::Eiv(m) = &o.method else { panic!("eiv") };
         assert_eq!(m.filter.noise, NoiseModel::PRODUCTION_CAR);
+        assert!(m.filter.known_sources().is_empty(), "the caller's model replaces the manifest's known sources too");
         assert_eq!(outcomes(&uses)[0], ("noise", SettingOutcome::Overridden));
         // A stated heading offset is held by EIV's start (which estimates
         // one by default) unless the manifest frees it; the caller's own
