@@ -7,7 +7,7 @@
 //! Ē_p* = min over θ ∈ [lower, upper] of Ē_p(θ)
 //! ```
 //!
-//! where `Ē_p` is [`mean_position_error`]. It is the yardstick a calibration
+//! where `Ē_p` is [`mean_position_error`](crate::validate::mean_position_error). It is the yardstick a calibration
 //! is judged against: the gap between a calibrated θ̂ and the reachable
 //! minimum is what better identification could still win.
 //!
@@ -135,7 +135,7 @@ pub struct ReachableOptions {
     /// `Ē_p(θ)` of the search compares the model's antenna position with
     /// the reference, as [`crate::validate::mean_position_error_with`] does,
     /// so the minimum is comparable with a validation on the same mount.
-    /// [`crate::validate`] sets it from [`crate::ValidateOptions::extrinsics`].
+    /// [`validate`](crate::validate()) sets it from [`crate::ValidateOptions::extrinsics`].
     /// Default 0: the reference at the rear-axle centre.
     #[serde(default)]
     pub extrinsics: Extrinsics,
