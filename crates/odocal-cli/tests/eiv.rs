@@ -73,18 +73,20 @@ fn known_noise_sources_are_held_at_the_stated_level() {
     let mstr = model.to_str().expect("utf8");
     let runs =
         [vec!["--known-noise", "heading-white,pose-white"], vec!["--noise-model", mstr, "--known-noise", "pose_white"]];
+    let json = d.path().join("r.json");
+    let jstr = json.to_str().expect("utf8");
     for flags in runs {
-        let args = [&["calibrate", dstr, "--eiv-window", "1500", "--no-fallback"][..], &flags[..]].concat();
-        let o = odocal(&[&args[..], &["--json", "-"]].concat());
+        let args = [&["calibrate", dstr, "--eiv-window", "1500", "--no-fallback", "--json", jstr][..], &flags[..]];
+        let o = odocal(&args.concat());
         assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", text(&o.stderr));
-        let r: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+        let r: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&json).expect("report")).expect("json");
         let held = &r["options"]["method"]["filter"]["eta_held"];
         assert_eq!(held, &serde_json::json!([false, false, false, true, false, true]), "{flags:?}");
         for k in ["heading_white_sigma_rad", "position_white_sigma_m"] {
             assert_eq!(r["eiv"]["noise"][k], r["noise_start"][k], "{flags:?}: {k} held");
         }
         assert_ne!(r["eiv"]["noise"]["wheel_white_rel_sigma"], r["noise_start"]["wheel_white_rel_sigma"], "estimated");
-        let o = odocal(&args);
         assert!(
             text(&o.stdout).contains("  known (held at the start): pose_white, heading_white"),
             "{}",

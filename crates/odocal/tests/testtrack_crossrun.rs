@@ -60,9 +60,15 @@ fn table(opts: &CalibrationOptions, pairs: bool) -> CrossRunTable {
     t
 }
 
-fn batch_gn_all_segments_d_held() -> CalibrationOptions {
+/// Batch G-N on every cut segment (no yaw-rate selection).
+fn batch_gn_all_segments() -> CalibrationOptions {
     let mut opts = CalibrationOptions { method: Method::from_name("batch-gn").expect("method"), ..Default::default() };
     opts.segments.min_peak_yaw_rate_rad_per_s = 0.0;
+    opts
+}
+
+fn batch_gn_all_segments_d_held() -> CalibrationOptions {
+    let mut opts = batch_gn_all_segments();
     opts.identify.free.remove(Param::D);
     opts
 }
@@ -103,9 +109,7 @@ fn default_method_meets_the_cross_run_criterion_and_beats_batch_gn() {
     let c = t.criteria(CROSS_RUN_OWN_FIT_RATIO);
     assert!(c.pass(), "{c}\n{t}");
     assert_each_theta_improves(&t);
-    let mut gn = CalibrationOptions { method: Method::from_name("batch-gn").expect("method"), ..Default::default() };
-    gn.segments.min_peak_yaw_rate_rad_per_s = 0.0;
-    let g = table(&gn, false).criteria(CROSS_RUN_OWN_FIT_RATIO);
+    let g = table(&batch_gn_all_segments(), false).criteria(CROSS_RUN_OWN_FIT_RATIO);
     assert!(
         c.mean_cross_m <= g.mean_cross_m,
         "eiv {} m vs batch G-N on all segments {} m",

@@ -239,6 +239,10 @@ fn noise_model_files_state_known_sources() {
     let spec = parse_noise_model(text).expect("parse");
     assert_eq!(spec.model.heading_white_sigma_rad, 0.0003);
     assert_eq!(spec.known, [NoiseSource::HeadingWhite, NoiseSource::PoseWhite]);
+    for (i, s) in crate::eiv::NOISE_SOURCES.into_iter().enumerate() {
+        assert_eq!(s.index(), i, "{s}: η order");
+        assert_eq!(s.name().parse::<NoiseSource>().expect("its own name"), s);
+    }
     let mut filter = EivOptions::default();
     spec.apply(&mut filter);
     assert_eq!(filter.eta_held, [false, false, false, true, false, true]);
