@@ -14,6 +14,7 @@
 //!     [--quantisation process,measurement,counting] [--heading separate|tied]
 //!     [--substeps 10] (the simulator's integration substeps per sample) [--window-samples N]
 //!     [--hold 1,5] (η sources held at the starting model, `EivOptions::eta_held`)
+//!     [--passes N] (`EivOptions::passes`) [--start truth] (start, and hold Q's first reference, at θ_true)
 //!     [--history 1]  (print every iteration's θ, η and step/σ, and each window's NIS and lag-1)
 //!
 //! (`--heading` defaults to `separate` here, unlike the library.) Several
@@ -45,6 +46,8 @@ fn main() -> Res<()> {
     let mut substeps = SimOptions::paper(0).substeps;
     let mut window_samples: Option<usize> = None;
     let mut eta_held = [false; 6];
+    let mut passes: Option<usize> = None;
+    let mut start_truth = false;
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
         let v = it.next().ok_or("missing value")?;
@@ -77,6 +80,8 @@ fn main() -> Res<()> {
                 }
             }
             "--variants" => variants_arg = Some(v.split(',').map(str::to_string).collect()),
+            "--passes" => passes = Some(v.parse()?),
+            "--start" => start_truth = v == "truth",
             _ => return Err(format!("unknown {k}").into()),
         }
     }
@@ -262,9 +267,13 @@ fn main() -> Res<()> {
                     },
                     ..Default::default()
                 };
-                let opts =
-                    EivOptions { window_samples: window_samples.unwrap_or(opts.window_samples), eta_held, ..opts };
-                let start = if at_truth { truth } else { gn };
+                let opts = EivOptions {
+                    window_samples: window_samples.unwrap_or(opts.window_samples),
+                    eta_held,
+                    passes: passes.unwrap_or(opts.passes),
+                    ..opts
+                };
+                let start = if at_truth || start_truth { truth } else { gn };
                 match estimate(&input, &start, &opts) {
                     Ok(r) => {
                         summary[idx].1.push(errs(&r.theta));

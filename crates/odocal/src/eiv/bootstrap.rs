@@ -145,7 +145,9 @@ pub fn bootstrap(
     // the replicates' readings, which are counted with the fitted step and
     // so lie on a lattice even where the drive's readings did not.
     let resolved = opts.with_resolved_quantisation(report.quantisation_step_from_readings);
-    let mut refit = EivOptions { free: report.free, fix_unobservable: false, ..resolved };
+    // The replicates' θ is all that is used: no covariance term for η.
+    let mut refit =
+        EivOptions { free: report.free, fix_unobservable: false, noise_estimate_in_covariance: false, ..resolved };
     if matches!(refit.bias_correction, BiasCorrection::Bootstrap { .. }) {
         // No bootstrap inside the bootstrap (B² fits): the replicates are
         // fitted without it.

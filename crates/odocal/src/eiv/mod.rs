@@ -710,6 +710,24 @@ pub struct EivOptions {
     /// ([`CovarianceEstimate::Model`] restores the earlier σ; see both for
     /// the stop-13 measurements).
     pub covariance_estimate: CovarianceEstimate,
+    /// Add to θ's reported covariance what estimating the noise scales η
+    /// from the same drive adds to it (stop 16): `A Σ_η Aᵀ` with
+    /// `A = ∂θ̂/∂η = −J⁻¹ ∂g_θ/∂η` (implicit function theorem at the
+    /// estimate; `g_θ` the θ-score, `J = ∂g_θ/∂θ`) and `Σ_η` the inverse of
+    /// η's information over the estimated scales. Both derivatives are
+    /// forward differences of the exact θ-score (steps
+    /// [`ETA_SENSITIVITY_STEP`] in η and 1 % of σ in θ): one more filter
+    /// pass with θ derivatives per estimated scale and per free parameter,
+    /// instead of a second-order sensitivity recursion through the filter.
+    /// `A` is [`EivReport::theta_eta_sensitivity`], the added σ
+    /// [`EivReport::sigma_noise_estimate`]. No effect with
+    /// [`EivOptions::fix_noise`].
+    ///
+    /// Why: on the `high` preset t_r moves by ≈ 7–15 % per unit of the
+    /// heading white-noise scale η_5, whose own σ there is 0.04–0.12, so
+    /// the σ at a fixed η understated t_r's by up to 1.8×. Measured in
+    /// docs/study.md "Stop 16". Default true.
+    pub noise_estimate_in_covariance: bool,
     /// Judge convergence of the θ/η iteration by what the user gets, θ:
     /// also stop when θ's remaining scoring step is below
     /// [`EivOptions::step_tolerance`]·σ_θ *and* so is the θ change that the
@@ -1296,6 +1314,7 @@ impl Default for EivOptions {
             eta_secant_damping: true,
             eta_reentry_min_score: None,
             covariance_estimate: CovarianceEstimate::LargerOfModelAndBlock,
+            noise_estimate_in_covariance: true,
             theta_convergence: false,
             final_step_check: true,
             passes: 2,
@@ -1737,6 +1756,18 @@ pub struct EivReport {
     /// of [`cramer_rao_bound`] at θ̂ and the fitted noise. Equal to the
     /// mean-only information with the covariance held.
     pub sigma_fisher: [f64; 4],
+    /// The part of θ's σ that estimating η from the drive adds
+    /// ([`EivOptions::noise_estimate_in_covariance`]): `sqrt(diag A Σ_η Aᵀ)`.
+    /// Included in [`EivReport::covariance`] and [`EivReport::sigma`] when
+    /// that option is on; 0 with a fixed noise model or the option off.
+    #[serde(default)]
+    pub sigma_noise_estimate: [f64; 4],
+    /// `∂θ̂/∂η_j` at the estimate (`[parameter][source]`, in θ's units per
+    /// unit of η; [`EivOptions::noise_estimate_in_covariance`]): how far θ̂
+    /// moves when a source's variance is e-fold. Zero for sources not
+    /// estimated, with a fixed noise model or with the option off.
+    #[serde(default)]
+    pub theta_eta_sensitivity: [[f64; 6]; 4],
     /// Estimated log-scale factors η (0 with `fix_noise`).
     pub eta: [f64; 6],
     /// Standard deviations of η (0 when fixed or at a clamp).
@@ -2680,8 +2711,18 @@ pub(crate) fn estimate_from(
         CovarianceEstimate::Model => cov,
         CovarianceEstimate::LargerOfModelAndBlock => inflate_to_block(&cov, &ev.total.blocks),
     };
-    let sigma: [f64; 4] = std::array::from_fn(|i| if free[i] { cov_reported[(i, i)].max(0.0).sqrt() } else { 0.0 });
     let eta_free: [bool; 6] = std::array::from_fn(|j| !opts.fix_noise && eta_sigma[j] > 0.0);
+    let (noise_cov, theta_eta_sensitivity) = if opts.noise_estimate_in_covariance && eta_free.iter().any(|f| *f) {
+        let theta_ref = passes.last().map(|p| p.theta_reference).unwrap_or(theta);
+        let follows = opts.covariance == CovarianceMode::FollowsTheta;
+        noise_estimate_covariance(&prob, &theta, &theta_ref, &eta, &eta_free, &ev.total, &cov, follows)?
+    } else {
+        (Matrix4::zeros(), [[0.0; 6]; 4])
+    };
+    let sigma_noise_estimate: [f64; 4] =
+        std::array::from_fn(|i| if free[i] { noise_cov[(i, i)].max(0.0).sqrt() } else { 0.0 });
+    let cov_reported = cov_reported + noise_cov;
+    let sigma: [f64; 4] = std::array::from_fn(|i| if free[i] { cov_reported[(i, i)].max(0.0).sqrt() } else { 0.0 });
     let sigma_fisher: [f64; 4] = match fisher_covariance(&ev.total.info, &free, &eta_free) {
         Some(c) => std::array::from_fn(|i| if free[i] { c[(i, i)].max(0.0).sqrt() } else { 0.0 }),
         None => [f64::NAN; 4],
@@ -2792,6 +2833,8 @@ pub(crate) fn estimate_from(
         sigma_sandwich,
         sigma_block,
         sigma_fisher,
+        sigma_noise_estimate,
+        theta_eta_sensitivity,
         eta,
         eta_sigma,
         evaluations: prob.evaluations.get(),
@@ -2917,6 +2960,87 @@ fn halves_check(
 /// with each parameter's σ raised to the block sandwich's where that is
 /// larger, `D cov D` with `D = diag(max(1, σ_block,i/σ_i))`. `cov` itself
 /// with fewer than two blocks.
+/// Step in η of the forward difference of the θ-score
+/// ([`EivOptions::noise_estimate_in_covariance`]): 1e-4, i.e. a 0.01 %
+/// change of the source's variance. The score is smooth in η (one-sided
+/// error ≈ h/2 relative); its sums have ≥ 10 significant digits to spare.
+pub const ETA_SENSITIVITY_STEP: f64 = 1e-4;
+
+/// The covariance that estimating η adds to θ̂: `A Σ_η Aᵀ` with
+/// `A = −J⁻¹ ∂g_θ/∂η` over the free η ([`EivOptions::noise_estimate_in_covariance`];
+/// J = ∂g_θ/∂θ, observed), and `A` itself (`[parameter][source]`, zero
+/// columns for the fixed η). `sums` is the evaluation at (θ̂, η̂), `cov` =
+/// `H_θ⁻¹` over the free θ (zero rows for the fixed ones; also J⁻¹'s
+/// stand-in should J be singular).
+#[allow(clippy::too_many_arguments)]
+fn noise_estimate_covariance(
+    prob: &Problem<'_>,
+    theta: &Theta,
+    theta_ref: &Theta,
+    eta: &[f64; 6],
+    eta_free: &[bool; 6],
+    sums: &WindowSums,
+    cov: &Matrix4<f64>,
+    follows: bool,
+) -> Result<(Matrix4<f64>, [[f64; 6]; 4])> {
+    let mut sens = [[0.0; 6]; 4];
+    let idx: Vec<usize> = (0..NETA).filter(|j| eta_free[*j]).collect();
+    let p = idx.len();
+    let info = DMatrix::from_fn(p, p, |i, k| sums.i_eta[(idx[i], idx[k])]);
+    let ridge = 1e-12 * (0..p).map(|i| info[(i, i)]).fold(0.0f64, f64::max);
+    let Some(chol) = (info + DMatrix::identity(p, p) * ridge).cholesky() else {
+        return Ok((Matrix4::zeros(), sens));
+    };
+    let cov_eta = chol.inverse();
+    let g0 = theta_score(sums, follows);
+    let h = ETA_SENSITIVITY_STEP;
+    // The observed Jacobian of the θ-score, ∂g_θ/∂θ, by forward differences
+    // of 1 % of each free parameter's σ: the t_r–d block of H_θ is nearly
+    // singular, and the few-% difference between the scoring metric H_θ and
+    // the observed Jacobian moved ∂t_r/∂η by 1.5× on a 4 km `high` drive
+    // (the refits of the test agree with the observed one).
+    let fidx: Vec<usize> = (0..4).filter(|i| cov[(*i, *i)] > 0.0).collect();
+    let q = fidx.len();
+    let mut jac = DMatrix::zeros(q, q);
+    for (c, &k) in fidx.iter().enumerate() {
+        let hk = 0.01 * cov[(k, k)].sqrt();
+        let mut t = theta.to_array();
+        t[k] += hk;
+        let ev = prob.evaluate(&Theta::from_array(t), theta_ref, eta, Mode::full(follows, false))?;
+        let dg = (theta_score(&ev.total, follows) - g0) / hk;
+        for (r, &i) in fidx.iter().enumerate() {
+            jac[(r, c)] = dg[i];
+        }
+    }
+    let jinv = match jac.try_inverse() {
+        Some(ji) if (0..q).all(|i| ji[(i, i)] > 0.0) => {
+            let mut m = Matrix4::zeros();
+            for (r, &i) in fidx.iter().enumerate() {
+                for (c, &k) in fidx.iter().enumerate() {
+                    m[(i, k)] = ji[(r, c)];
+                }
+            }
+            m
+        }
+        _ => *cov,
+    };
+    // A = −J⁻¹ ∂g_θ/∂η, 4 × p.
+    let mut a = DMatrix::zeros(4, p);
+    for (c, &j) in idx.iter().enumerate() {
+        let mut e = *eta;
+        e[j] += h;
+        let ev = prob.evaluate(theta, theta_ref, &e, Mode::full(follows, false))?;
+        let dg = (theta_score(&ev.total, follows) - g0) / h;
+        let col = -(jinv * dg);
+        for i in 0..4 {
+            a[(i, c)] = col[i];
+            sens[i][j] = col[i];
+        }
+    }
+    let out = &a * cov_eta * a.transpose();
+    Ok((Matrix4::from_fn(|i, k| out[(i, k)]), sens))
+}
+
 fn inflate_to_block(cov: &Matrix4<f64>, blocks: &filter::BlockScores) -> Matrix4<f64> {
     let Some(meat) = blocks.meat() else {
         return *cov;

@@ -764,6 +764,8 @@ fn results_match_the_recorded_results_of_the_unoptimised_filter() {
         eta_secant_damping: false,
         innovation_null: InnovationNull::FittedModel,
         covariance_estimate: CovarianceEstimate::Model,
+        // The recorded σ are H_θ⁻¹'s (before stop 16's η term).
+        noise_estimate_in_covariance: false,
         ..EivOptions::spec()
     };
     let options = |case: &str| match case {
@@ -1392,4 +1394,70 @@ fn smoothed_bootstrap_inputs_change_the_replicate_worlds() {
     assert_ne!(measured.replicates, smoothed.replicates);
     let zero = BootstrapOptions { true_inputs: BootstrapInputs::Smoothed { half_width_samples: 0 }, ..boot };
     assert!(bootstrap(&input, &r, &opts, &zero).is_err());
+}
+
+/// Stop 16: `∂θ̂/∂η` from the implicit function theorem at the estimate
+/// (`EivReport::theta_eta_sensitivity`, a forward difference of the exact
+/// θ-score) matches re-fitting θ with the noise model held at the fitted one
+/// moved by ±h in that source; the reported covariance is H_θ⁻¹ (block
+/// inflated) plus `A Σ_η Aᵀ`, θ itself unchanged; a fixed noise model adds
+/// nothing.
+#[test]
+fn noise_estimate_sensitivity_matches_refits_and_widens_sigma() {
+    let noise = NoiseOptions::high();
+    let out = simulate(&SimOptions { length_km: 4.0, noise, ..SimOptions::paper(2) }).expect("sim");
+    let input = input_of(&out.drive);
+    let gn = batch_gn_all(&out.drive);
+    let opts = EivOptions::default();
+    let r = estimate(&input, &gn, &opts).expect("eiv");
+    let off = estimate(&input, &gn, &EivOptions { noise_estimate_in_covariance: false, ..opts.clone() }).expect("eiv");
+    assert_eq!(r.theta, off.theta, "the option changes the covariance only");
+    assert!(off.sigma_noise_estimate.iter().all(|s| *s == 0.0), "option off: no η term");
+    for i in 0..4 {
+        let want = off.sigma[i].hypot(r.sigma_noise_estimate[i]);
+        assert!((r.sigma[i] - want).abs() <= 1e-9 * want, "σ{i}: {} vs {want}", r.sigma[i]);
+        assert!((r.covariance[i][i].sqrt() - r.sigma[i]).abs() <= 1e-12 * r.sigma[i]);
+    }
+    // t_r's most influential estimated source.
+    let (j, _) = (0..6)
+        .filter(|j| r.eta_sigma[*j] > 0.0)
+        .map(|j| (j, (r.theta_eta_sensitivity[2][j] * r.eta_sigma[j]).abs()))
+        .fold((usize::MAX, 0.0), |a, b| if b.1 > a.1 { b } else { a });
+    assert!(j < 6, "some estimated scale moves t_r: {r}");
+    assert!(
+        r.sigma_noise_estimate[2] > 0.05 * off.sigma[2],
+        "η term of t_r {:.3e} vs σ {:.3e}",
+        r.sigma_noise_estimate[2],
+        off.sigma[2]
+    );
+    let h = 0.1;
+    let refit = |sign: f64| {
+        let mut e = [0.0; 6];
+        e[j] = sign * h;
+        let o = EivOptions {
+            noise: r.noise.scaled(&e),
+            fix_noise: true,
+            free: r.free,
+            fix_unobservable: false,
+            step_tolerance: 1e-4,
+            max_iterations: 30,
+            ..opts.clone()
+        };
+        estimate(&input, &r.theta, &o).expect("refit").theta.to_array()
+    };
+    let (a, b) = (refit(1.0), refit(-1.0));
+    for i in 0..4 {
+        let fd = (a[i] - b[i]) / (2.0 * h);
+        let got = r.theta_eta_sensitivity[i][j];
+        // Against the parameter's σ: entries that do not matter need not agree in relative terms.
+        let scale = off.sigma[i];
+        assert!(
+            (got - fd).abs() <= 0.1 * fd.abs() + 0.05 * scale,
+            "∂θ{i}/∂η{j}: implicit {got:.4e} vs refits {fd:.4e} (σ {scale:.2e})"
+        );
+    }
+    let fixed = EivOptions { noise: r.noise, fix_noise: true, ..opts };
+    let rf = estimate(&input, &r.theta, &fixed).expect("fixed");
+    assert!(rf.sigma_noise_estimate.iter().all(|s| *s == 0.0), "fixed noise: no η term");
+    assert!(rf.theta_eta_sensitivity.iter().flatten().all(|s| *s == 0.0));
 }
