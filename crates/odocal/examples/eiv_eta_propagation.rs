@@ -7,7 +7,7 @@
 //! Coverage of the truth by θ̂ ± 1.96 σ is printed for both.
 //!
 //! ```text
-//! cargo run --release -p odocal --example eiv_eta_propagation -- [--km 12] [--seeds 10] [--presets paper,high] [--h 0.05]
+//! cargo run --release -p odocal --example eiv_eta_propagation -- [--km 12] [--seeds 10] [--presets paper,high] [--h 0.05] [--refits 0]
 //! ```
 
 use std::error::Error;
@@ -25,6 +25,7 @@ fn main() -> Res<()> {
     let mut seeds = 10u64;
     let mut presets = vec!["paper".to_string(), "high".to_string()];
     let mut h = 0.05;
+    let mut refits = true;
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
         let v = it.next().ok_or("missing value")?;
@@ -33,6 +34,7 @@ fn main() -> Res<()> {
             "--seeds" => seeds = v.parse()?,
             "--presets" => presets = v.split(',').map(str::to_string).collect(),
             "--h" => h = v.parse()?,
+            "--refits" => refits = v != "0",
             _ => return Err(format!("unknown {k}").into()),
         }
     }
@@ -63,7 +65,7 @@ fn main() -> Res<()> {
             let mut var_prop = [0.0f64; 4];
             let mut sens = Vec::new();
             for j in 0..6 {
-                if r.eta_sigma[j] <= 0.0 {
+                if r.eta_sigma[j] <= 0.0 || !refits {
                     continue;
                 }
                 let fit = |sign: f64| -> Res<[f64; 4]> {
@@ -80,6 +82,12 @@ fn main() -> Res<()> {
                 sens.push(format!("η{j} σ {:.3} ∂t_r/∂η {:+.3}%", r.eta_sigma[j], s[2] / truth[2] * 100.0));
             }
             n += 1;
+            eprintln!(
+                "ERR {p} {seed} {} {} {}",
+                (0..4).map(|i| format!("{:.6e}", th[i] - truth[i])).collect::<Vec<_>>().join(" "),
+                (0..4).map(|i| format!("{:.6e}", lib.sigma_noise_estimate[i])).collect::<Vec<_>>().join(" "),
+                (0..4).map(|i| format!("{:.6e}", r.sigma[i])).collect::<Vec<_>>().join(" ")
+            );
             let mut line = format!("{p} {seed}:");
             for i in 0..4 {
                 let err = th[i] - truth[i];

@@ -18,7 +18,9 @@
 //! `three-step`, `eiv-fixed`, `eiv-estimated` (the library's EIV defaults:
 //! counting quantisation since stop 14), and the same two EIV runs with
 //! quantisation as process noise (the default before stop 14, two filter
-//! states fewer), `eiv-fixed-process`, `eiv-estimated-process`; default all).
+//! states fewer), `eiv-fixed-process`, `eiv-estimated-process`, and
+//! `eiv-estimated-no-eta-cov` (the default without
+//! `EivOptions::noise_estimate_in_covariance`, stop 16); default all).
 
 use std::time::Instant;
 
@@ -44,6 +46,14 @@ fn methods() -> Vec<(&'static str, Method)> {
         ("eiv-estimated", eiv(false, None)),
         ("eiv-fixed-process", eiv(true, process)),
         ("eiv-estimated-process", eiv(false, process)),
+        // Stop 16: the default without the covariance term for η (its extra filter passes).
+        (
+            "eiv-estimated-no-eta-cov",
+            Method::Eiv(EivMethodOptions {
+                filter: EivOptions { noise_estimate_in_covariance: false, ..EivOptions::default() },
+                ..Default::default()
+            }),
+        ),
     ]
 }
 
