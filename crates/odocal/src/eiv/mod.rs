@@ -3024,21 +3024,6 @@ fn noise_estimate_covariance(
         }
         _ => *cov,
     };
-    if std::env::var("ODOCAL_SIGDIAG").is_ok() {
-        let meat = sums.blocks.meat().unwrap_or(sums.h_theta);
-        let hbh = cov * meat * cov;
-        let jhj = jinv * sums.h_theta * jinv.transpose();
-        let jbj = jinv * meat * jinv.transpose();
-        for i in 0..4 {
-            eprintln!(
-                "SIGDIAG {i} {:.6e} {:.6e} {:.6e} {:.6e}",
-                cov[(i, i)].max(0.0).sqrt(),
-                hbh[(i, i)].max(0.0).sqrt(),
-                jhj[(i, i)].max(0.0).sqrt(),
-                jbj[(i, i)].max(0.0).sqrt()
-            );
-        }
-    }
     // A = −J⁻¹ ∂g_θ/∂η, 4 × p.
     let mut a = DMatrix::zeros(4, p);
     for (c, &j) in idx.iter().enumerate() {
