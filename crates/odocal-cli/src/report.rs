@@ -42,6 +42,19 @@ fn eiv_section(d: &EivDetail, known: &[odocal::eiv::NoiseSource]) -> String {
                 if fixed { "fixed    " } else { "estimated" },
                 noise_summary(&e.noise)
             );
+            if e.sigma_noise_estimate.iter().any(|x| *x > 0.0) {
+                // σ with the η term over σ without it, per estimated parameter.
+                let names = ["c_e", "c_d", "t_r", "d"];
+                let parts: Vec<String> = (0..4)
+                    .filter(|i| e.sigma[*i] > 0.0)
+                    .map(|i| {
+                        let (s, n) = (e.sigma[i], e.sigma_noise_estimate[i]);
+                        let without = (s * s - n * n).max(0.0).sqrt();
+                        format!("{} ×{:.2}", names[i], if without > 0.0 { s / without } else { f64::INFINITY })
+                    })
+                    .collect();
+                let _ = writeln!(out, "  σ widened for the estimated noise levels: {}", parts.join(", "));
+            }
             if e.bias_subtracted.iter().any(|b| *b != 0.0) {
                 let b = e.bias_subtracted;
                 let _ = writeln!(

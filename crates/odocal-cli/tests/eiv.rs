@@ -53,6 +53,7 @@ fn eiv_on_a_small_simulated_drive() {
     assert!(out.contains("all used (no yaw-rate selection)"), "{out}");
     assert!(out.contains("EIV start, batch G-N:"), "{out}");
     assert!(out.contains("noise, fixed    : σ_white 0.800 %"), "{out}");
+    assert!(!out.contains("σ widened"), "a fixed noise model adds no η term: {out}");
     assert!(out.contains("σ_c 0.010 %"), "{out}");
     assert!(out.contains("  result: EIV estimate"), "{out}");
     assert!(out.contains("  bootstrap: 3 replicates (0 failed), 95 % basic intervals"), "{out}");
@@ -92,6 +93,10 @@ fn known_noise_sources_are_held_at_the_stated_level() {
             "{}",
             text(&o.stdout)
         );
+        // Stop 16: the estimated levels widen θ's σ, and the terminal says by how much.
+        let widened = r["eiv"]["sigma_noise_estimate"].as_array().expect("sigma_noise_estimate");
+        assert!(widened.iter().any(|x| x.as_f64().is_some_and(|v| v > 0.0)), "{widened:?}");
+        assert!(text(&o.stdout).contains("  σ widened for the estimated noise levels: c_e ×"), "{}", text(&o.stdout));
     }
     let o = odocal(&["calibrate", dstr, "--known-noise", "heading"]);
     assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));

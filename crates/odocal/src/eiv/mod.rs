@@ -2956,10 +2956,6 @@ fn halves_check(
     Some(HalvesCheck { first: t1, second: t2, z })
 }
 
-/// [`CovarianceEstimate::LargerOfModelAndBlock`]: `cov` (an `H_θ⁻¹`)
-/// with each parameter's σ raised to the block sandwich's where that is
-/// larger, `D cov D` with `D = diag(max(1, σ_block,i/σ_i))`. `cov` itself
-/// with fewer than two blocks.
 /// Step in η of the forward difference of the θ-score
 /// ([`EivOptions::noise_estimate_in_covariance`]): 1e-4, i.e. a 0.01 %
 /// change of the source's variance. The score is smooth in η (one-sided
@@ -3041,6 +3037,10 @@ fn noise_estimate_covariance(
     Ok((Matrix4::from_fn(|i, k| out[(i, k)]), sens))
 }
 
+/// [`CovarianceEstimate::LargerOfModelAndBlock`]: `cov` (an `H_θ⁻¹`)
+/// with each parameter's σ raised to the block sandwich's where that is
+/// larger, `D cov D` with `D = diag(max(1, σ_block,i/σ_i))`. `cov` itself
+/// with fewer than two blocks.
 fn inflate_to_block(cov: &Matrix4<f64>, blocks: &filter::BlockScores) -> Matrix4<f64> {
     let Some(meat) = blocks.meat() else {
         return *cov;
