@@ -7,7 +7,7 @@
 //! Coverage of the truth by θ̂ ± 1.96 σ is printed for both.
 //!
 //! ```text
-//! cargo run --release -p odocal --example eiv_eta_propagation -- [--km 12] [--seeds 10] [--presets paper,high] [--h 0.05] [--refits 0]
+//! cargo run --release -p odocal --example eiv_eta_propagation -- [--km 12] [--seeds 10] [--presets paper,high] (also white, coloured) [--h 0.05] [--refits 0]
 //! ```
 
 use std::error::Error;
@@ -40,7 +40,10 @@ fn main() -> Res<()> {
     }
     let names = ["c_e", "c_d", "t_r", "d"];
     for p in &presets {
-        let noise = NoiseOptions::by_name(p)?;
+        let noise = match p.as_str() {
+            "coloured" => NoiseOptions::coloured_wheels_only(),
+            _ => NoiseOptions::by_name(p)?,
+        };
         // Per parameter: cover (reported), cover (with η propagated), Σ err², Σ σ², Σ σ_tot².
         let mut acc = [[0.0f64; 5]; 4];
         let mut n = 0usize;

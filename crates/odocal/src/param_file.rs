@@ -152,7 +152,7 @@ impl ParamFile {
 
     /// The file for a calibration: θ with the σ that stands for the result
     /// ([`CalibrationReport::result_sigma`]: batch-gn's cluster-robust σ,
-    /// the 3-step's batch spread, EIV's `H_θ⁻¹`; the same σ as the verdict,
+    /// the 3-step's batch spread, EIV's filter covariance; the same σ as the verdict,
     /// the HTML report and the CLI's JSON `sigma`), `<name>_held` for held
     /// parameters, the reference extrinsics when the calibration involved
     /// them, the verdict with its reasons, and provenance (`input`,

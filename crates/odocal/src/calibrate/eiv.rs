@@ -150,7 +150,7 @@ pub struct EivDetail {
     /// all of them free was singular (named by the batch observability
     /// check at θ_0).
     pub start_held: Vec<Param>,
-    /// The EIV fit: θ, `H_θ⁻¹`, the estimated noise model in physical units
+    /// The EIV fit: θ, its covariance, the estimated noise model in physical units
     /// (`eiv.noise`), termination, per-window consistency. `None` when the
     /// filter failed with an error (see `eiv_error`).
     pub eiv: Option<Box<EivReport>>,

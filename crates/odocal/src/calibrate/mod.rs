@@ -406,7 +406,7 @@ impl CalibrationReport {
 
     /// The 1σ that stands for the result: the square roots of the
     /// diagonal of [`Self::result_covariance`], else of the model
-    /// covariance (EIV's `H_θ⁻¹`, or a method's when nothing better was
+    /// covariance (EIV's filter covariance, or a method's when nothing better was
     /// computed), with where it comes from. Held parameters (not free, or a
     /// zero covariance row: not estimated) have none. The verdict, the
     /// parameter file ([`crate::param_file::ParamFile::from_report`]), the
@@ -435,7 +435,9 @@ pub enum SigmaSource {
     /// The 3-step method's step-1 batch spread ([`BatchSpread`]).
     BatchSpread,
     /// The model covariance ([`CalibrationReport::covariance`]): EIV's
-    /// `H_θ⁻¹` (after an EIV fallback the start's cluster-robust σ stands,
+    /// filter covariance (per parameter the larger of `H_θ⁻¹` and a block
+    /// sandwich, plus what estimating the noise levels adds;
+    /// [`crate::eiv::EivReport::covariance`]) (after an EIV fallback the start's cluster-robust σ stands,
     /// where computed), or batch-gn's / step 3's `σ²(JᵀWJ)⁻¹` when the robust or
     /// batch-spread σ could not be computed (then it understates the
     /// uncertainty under input noise).

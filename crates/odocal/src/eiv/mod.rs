@@ -1736,9 +1736,12 @@ pub struct EivReport {
     pub theta: Theta,
     /// Which parameters were estimated.
     pub free: [bool; 4],
-    /// Covariance `H_θ⁻¹` at the estimate (zero rows for fixed parameters).
+    /// θ's covariance at the estimate (zero rows for fixed parameters):
+    /// `H_θ⁻¹`, or per parameter raised to the block sandwich's
+    /// ([`EivOptions::covariance_estimate`]), plus what estimating η adds
+    /// ([`EivOptions::noise_estimate_in_covariance`]).
     pub covariance: [[f64; 4]; 4],
-    /// Standard deviations `sqrt(diag H_θ⁻¹)`.
+    /// Standard deviations `sqrt(diag covariance)`.
     pub sigma: [f64; 4],
     /// Standard deviations of the sandwich `H_θ⁻¹ B H_θ⁻¹`, B the sum of the
     /// outer products of the per-update θ-scores (robust to a wrong noise scale).
