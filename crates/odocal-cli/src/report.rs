@@ -15,6 +15,22 @@ fn eiv_detail(r: &CalibrationReport) -> Option<&EivDetail> {
     }
 }
 
+/// The method's own account of the fit, as the terminal prints it: EIV's
+/// filter, noise model (start and end), σ widening and result; empty for
+/// the other methods. Also the HTML report's "Method details".
+pub(crate) fn method_details(r: &CalibrationReport) -> String {
+    match eiv_detail(r) {
+        Some(d) => {
+            let known = match &r.options.method {
+                odocal::Method::Eiv(m) if !m.filter.fix_noise => m.filter.known_sources(),
+                _ => Vec::new(),
+            };
+            eiv_section(d, &known)
+        }
+        None => String::new(),
+    }
+}
+
 /// The EIV lines: fit, noise model (start and end, physical units), and
 /// which estimate the result is.
 fn eiv_section(d: &EivDetail, known: &[odocal::eiv::NoiseSource]) -> String {
@@ -284,13 +300,7 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
             };
         }
     }
-    if let Some(d) = eiv_detail(r) {
-        let known = match &r.options.method {
-            odocal::Method::Eiv(m) if !m.filter.fix_noise => m.filter.known_sources(),
-            _ => Vec::new(),
-        };
-        out.push_str(&eiv_section(d, &known));
-    }
+    out.push_str(&method_details(r));
     out.push('\n');
     let mut cols = vec![("θ_0", Some(r.initial.theta)), ("calibrated", Some(r.theta))];
     // Held parameters print "held", not a σ of 0.

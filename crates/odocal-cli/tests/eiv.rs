@@ -76,8 +76,13 @@ fn known_noise_sources_are_held_at_the_stated_level() {
         [vec!["--known-noise", "heading-white,pose-white"], vec!["--noise-model", mstr, "--known-noise", "pose_white"]];
     let json = d.path().join("r.json");
     let jstr = json.to_str().expect("utf8");
+    let html = d.path().join("r.html");
+    let hstr = html.to_str().expect("utf8");
     for flags in runs {
-        let args = [&["calibrate", dstr, "--eiv-window", "1500", "--no-fallback", "--json", jstr][..], &flags[..]];
+        let args = [
+            &["calibrate", dstr, "--eiv-window", "1500", "--no-fallback", "--json", jstr, "--report", hstr][..],
+            &flags[..],
+        ];
         let o = odocal(&args.concat());
         assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", text(&o.stderr));
         let r: serde_json::Value =
@@ -97,6 +102,11 @@ fn known_noise_sources_are_held_at_the_stated_level() {
         let widened = r["eiv"]["sigma_noise_estimate"].as_array().expect("sigma_noise_estimate");
         assert!(widened.iter().any(|x| x.as_f64().is_some_and(|v| v > 0.0)), "{widened:?}");
         assert!(text(&o.stdout).contains("  σ widened for the estimated noise levels: c_e ×"), "{}", text(&o.stdout));
+        // The HTML report carries the same account of the EIV fit.
+        let page = std::fs::read_to_string(&html).expect("html");
+        assert!(page.contains("<section id=\"method\">"), "{flags:?}");
+        assert!(page.contains("  known (held at the start): pose_white, heading_white"), "{flags:?}");
+        assert!(page.contains("  σ widened for the estimated noise levels: c_e ×"), "{flags:?}");
     }
     let o = odocal(&["calibrate", dstr, "--known-noise", "heading"]);
     assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));

@@ -5,7 +5,8 @@
 //! self-contained HTML page (inline SVG, no scripts, no network fetches):
 //!
 //! 1. the verdict and its reasons, then the parameter table (θ_0,
-//!    calibrated, 1σ or "held", truth when known);
+//!    calibrated, 1σ or "held", truth when known) and the method's own
+//!    account of the fit (EIV: noise model, σ widening, result);
 //! 2. Ē_p of θ_0 and of the calibrated θ (and of the truth);
 //! 3. the drive as a map: the reference, and dead reckoning with θ_0 and
 //!    with the calibrated θ on a few validation segments;
@@ -161,6 +162,12 @@ pub struct ReportInput<'a> {
     pub batches: Vec<(Theta, f64)>,
     /// Warnings, one per line.
     pub warnings: Vec<String>,
+    /// The method's own account of the fit, one line each (for EIV: the
+    /// filter, the noise model at the start and as estimated, how far the
+    /// estimated noise levels widened θ's σ, and whether the result is the
+    /// EIV estimate or the batch G-N fallback). Shown as text under the
+    /// parameter table; the section is left out when empty.
+    pub method_details: Vec<String>,
     /// How many validation segments the map shows (default 4).
     pub map_segments: usize,
 }
@@ -187,6 +194,7 @@ impl<'a> ReportInput<'a> {
             truth: None,
             batches: Vec::new(),
             warnings: Vec::new(),
+            method_details: Vec::new(),
             map_segments: 4,
         }
     }
@@ -311,6 +319,13 @@ pub fn render_html(r: &ReportInput<'_>) -> Result<String> {
         h.push_str("</tr>\n");
     }
     h.push_str("</table>\n</section>\n");
+    if !r.method_details.is_empty() {
+        h.push_str("<section id=\"method\">\n<h2>Method details</h2>\n<pre>");
+        for line in &r.method_details {
+            let _ = writeln!(h, "{}", esc(line));
+        }
+        h.push_str("</pre>\n</section>\n");
+    }
 
     // 2. Ē_p.
     h.push_str("<section id=\"validation\">\n<h2>Validation: mean position error Ē_p</h2>\n<table>\n");
@@ -514,7 +529,8 @@ table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #ccc;padding
 td:first-child,th:first-child{text-align:left}.prov{color:#555;font-size:.9em}\
 .verdict{display:inline-block;padding:.3em .9em;border-radius:.3em;font-weight:bold;font-size:1.2em;text-transform:uppercase}\
 .accepted{background:#d4f4dd;color:#0a5c2b}.doubtful{background:#fff2cc;color:#7a5a00}.rejected{background:#fadbd8;color:#8a1c12}\
-.none{background:#eee;color:#555}svg{max-width:100%;height:auto;display:block;margin:.5em 0}";
+.none{background:#eee;color:#555}svg{max-width:100%;height:auto;display:block;margin:.5em 0}\
+pre{white-space:pre-wrap;font-size:.85em;background:#f7f7f7;padding:.5em}";
 
 #[cfg(test)]
 mod tests {
@@ -544,10 +560,17 @@ mod tests {
             truth: Some(truth),
             batches: vec![(th0, 20.0), (truth, 10.0)],
             warnings: vec!["a <warning>".into()],
+            method_details: vec!["EIV: 1 window(s)".into(), "  noise, estimated: σ_white <1 %>".into()],
             ..ReportInput::new("sim <2 km>", &out.drive, &segs, th0, truth)
         };
         let html = render_html(&input).expect("render");
-        for id in ["verdict", "parameters", "validation", "map", "batches", "residuals", "warnings"] {
+        assert!(
+            html.contains("<pre>EIV: 1 window(s)\n  noise, estimated: σ_white &lt;1 %&gt;\n</pre>"),
+            "method details"
+        );
+        let plain = render_html(&ReportInput { method_details: Vec::new(), ..input.clone() }).expect("render");
+        assert!(!plain.contains("<section id=\"method\">"), "no details, no section");
+        for id in ["verdict", "parameters", "method", "validation", "map", "batches", "residuals", "warnings"] {
             assert!(html.contains(&format!("<section id=\"{id}\">")), "section {id}");
         }
         assert!(html.contains("<td>held</td>"));
