@@ -799,6 +799,7 @@ pub(crate) fn calibrate_core(
             split,
             extrinsics: extrinsics.as_ref(),
             misspecified: warnings.iter().filter(|w| w.misspecifies_result()).count(),
+            identification: result_identification(&outcome.detail),
         },
         &opts.trust,
     );
@@ -869,6 +870,20 @@ fn outcome_covariance(detail: &MethodDetail) -> Option<&[[f64; 4]; 4]> {
         // A fallback result is the start's batch G-N: its cluster-robust σ.
         MethodDetail::Eiv(d) if d.eiv_result == EivOutcome::BatchGnFallback => {
             d.identification.robust.as_ref().map(|r| &r.covariance)
+        }
+        MethodDetail::Eiv(_) => None,
+    }
+}
+
+/// The batch Gauss-Newton whose θ is the result, and what to call it in
+/// the verdict; `None` when the EIV filter's θ is the result (its own
+/// convergence is an EIV check, [`crate::eiv::EivWarning`]).
+fn result_identification(detail: &MethodDetail) -> Option<(&'static str, &IdentifyReport)> {
+    match detail {
+        MethodDetail::BatchGn(d) => Some(("batch Gauss-Newton", &d.identification)),
+        MethodDetail::ThreeStep(d) => Some(("the 3-step's final identification", &d.identification)),
+        MethodDetail::Eiv(d) if d.eiv_result == EivOutcome::BatchGnFallback => {
+            Some(("the EIV fallback's batch Gauss-Newton", &d.identification))
         }
         MethodDetail::Eiv(_) => None,
     }

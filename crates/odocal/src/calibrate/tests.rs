@@ -233,6 +233,28 @@ fn every_report_has_a_verdict() {
     assert!(matches!(r.verdict.reasons[0], crate::trust::VerdictReason::WorseThanInitial { held_out: true, .. }));
 }
 
+/// A batch G-N cut off after one step from θ_0 is still far from its
+/// optimum: the verdict says so (and names the iteration limit); with the
+/// default five iterations it converges and says nothing of it.
+#[test]
+fn an_unconverged_gauss_newton_result_is_doubtful() {
+    use crate::trust::VerdictReason;
+    let sim = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim");
+    let mut opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
+    opts.identify.max_iterations = 1;
+    let r = calibrate(&sim.drive, &opts, None).expect("batch-gn");
+    let reason = r.verdict.reasons.iter().find(|x| matches!(x, VerdictReason::NotConverged { .. }));
+    let Some(VerdictReason::NotConverged { stage, iterations, step_sigmas, .. }) = reason else {
+        panic!("{:?}", r.verdict)
+    };
+    assert_eq!((stage.as_str(), *iterations), ("batch Gauss-Newton", 1));
+    assert!(*step_sigmas > 1.0, "one step from θ_0 moves θ by many σ: {step_sigmas}");
+    assert!(r.verdict.level >= crate::trust::VerdictLevel::Doubtful);
+    opts.identify.max_iterations = 5;
+    let r = calibrate(&sim.drive, &opts, None).expect("batch-gn");
+    assert!(!r.verdict.reasons.iter().any(|x| matches!(x, VerdictReason::NotConverged { .. })), "{:?}", r.verdict);
+}
+
 /// The 3-step report carries the batch-spread σ, it is far wider than step
 /// 3's model σ, and it is the covariance the verdict uses.
 #[test]
