@@ -851,7 +851,7 @@ fn run_calibration(
             verdict: Some((r.verdict.level.to_string(), r.verdict.reasons.iter().map(|x| x.to_string()).collect())),
             batches,
             warnings: r.warnings.iter().map(|w| w.to_string()).collect(),
-            method_details: report::method_details(&r).lines().map(str::to_string).collect(),
+            method_details: r.method_details().lines().map(str::to_string).collect(),
             ..odocal_report::ReportInput::new(input.clone(), drive, &val, r.initial.theta, r.theta)
         };
         odocal_report::write_html(p, &html)?;

@@ -2,7 +2,6 @@
 
 use std::fmt::Write as _;
 
-use odocal::calibrate::eiv::noise_summary;
 use odocal::{
     CalibrationReport, EivDetail, EivOutcome, ExtrinsicsEstimate, Method, MethodDetail, MultiValidation, Param,
     SigmaSource, Theta, Verdict, VerdictLevel,
@@ -13,114 +12,6 @@ fn eiv_detail(r: &CalibrationReport) -> Option<&EivDetail> {
         MethodDetail::Eiv(d) => Some(d),
         _ => None,
     }
-}
-
-/// The method's own account of the fit, as the terminal prints it: EIV's
-/// filter, noise model (start and end), σ widening and result; empty for
-/// the other methods. Also the HTML report's "Method details".
-pub(crate) fn method_details(r: &CalibrationReport) -> String {
-    match eiv_detail(r) {
-        Some(d) => {
-            let known = match &r.options.method {
-                odocal::Method::Eiv(m) if !m.filter.fix_noise => m.filter.known_sources(),
-                _ => Vec::new(),
-            };
-            eiv_section(d, &known)
-        }
-        None => String::new(),
-    }
-}
-
-/// The EIV lines: fit, noise model (start and end, physical units), and
-/// which estimate the result is.
-fn eiv_section(d: &EivDetail, known: &[odocal::eiv::NoiseSource]) -> String {
-    let mut out = String::new();
-    match &d.eiv {
-        Some(e) => {
-            let _ = writeln!(
-                out,
-                "EIV: {} window(s), {} pose updates, {} it, {}; {} filter passes",
-                e.windows.len(),
-                e.updates,
-                e.iterations,
-                e.termination,
-                e.evaluations[0] + e.evaluations[1]
-            );
-            let fixed = e.eta.iter().all(|x| *x == 0.0) && e.eta_sigma.iter().all(|x| *x == 0.0);
-            let _ = writeln!(out, "  noise, start:     {}", noise_summary(&d.noise_start));
-            if !known.is_empty() {
-                let names: Vec<&str> = known.iter().map(|s| s.name()).collect();
-                let _ = writeln!(out, "  known (held at the start): {}", names.join(", "));
-            }
-            let _ = writeln!(
-                out,
-                "  noise, {}: {}",
-                if fixed { "fixed    " } else { "estimated" },
-                noise_summary(&e.noise)
-            );
-            if e.sigma_noise_estimate.iter().any(|x| *x > 0.0) {
-                // σ with the η term over σ without it, per estimated parameter.
-                let names = ["c_e", "c_d", "t_r", "d"];
-                let parts: Vec<String> = (0..4)
-                    .filter(|i| e.sigma[*i] > 0.0)
-                    .map(|i| {
-                        let (s, n) = (e.sigma[i], e.sigma_noise_estimate[i]);
-                        let without = (s * s - n * n).max(0.0).sqrt();
-                        format!("{} ×{:.2}", names[i], if without > 0.0 { s / without } else { f64::INFINITY })
-                    })
-                    .collect();
-                let _ = writeln!(out, "  σ widened for the estimated noise levels: {}", parts.join(", "));
-            }
-            if e.bias_subtracted.iter().any(|b| *b != 0.0) {
-                let b = e.bias_subtracted;
-                let _ = writeln!(
-                    out,
-                    "  bias correction: subtracted c_e {:+.6} m, c_d {:+.4} mm, t_r {:+.6} m, d {:+.4} mm/(m/s²) (uncorrected c_e {:.6} m)",
-                    b[0],
-                    b[1] * 1e3,
-                    b[2],
-                    b[3] * 1e3,
-                    e.theta_uncorrected.c_e
-                );
-            }
-        }
-        None => {
-            let _ = writeln!(out, "EIV: filter failed: {}", d.eiv_error.as_deref().unwrap_or("unknown error"));
-        }
-    }
-    let _ = writeln!(
-        out,
-        "  result: {}",
-        match d.eiv_result {
-            EivOutcome::Eiv => "EIV estimate",
-            EivOutcome::BatchGnFallback =>
-                "BATCH G-N FALLBACK (all segments): the EIV checks failed (see the warnings; --no-fallback keeps EIV)",
-        }
-    );
-    if let Some(b) = &d.bootstrap {
-        let _ = writeln!(
-            out,
-            "  bootstrap: {} replicates ({} failed), {:.0} % basic intervals and the estimator's own bias:",
-            b.replicates.len(),
-            b.failed.len(),
-            100.0 * b.level
-        );
-        // c_e, t_r in m; c_d in mm; d in mm/(m/s²), as the θ table.
-        for (i, (name, scale, prec)) in
-            [("c_e", 1.0, 6), ("c_d", 1e3, 4), ("t_r", 1.0, 6), ("d", 1e3, 4)].into_iter().enumerate()
-        {
-            let [lo, hi] = b.interval_basic[i];
-            let _ = writeln!(
-                out,
-                "    {name:<4} [{:.prec$}, {:.prec$}]  bias {:+.prec$}  corrected {:.prec$}",
-                lo * scale,
-                hi * scale,
-                b.bias[i] * scale,
-                b.theta_corrected.to_array()[i] * scale
-            );
-        }
-    }
-    out
 }
 
 fn row(out: &mut String, name: &str, unit: &str, values: &[Option<f64>], scale: f64, prec: usize) {
@@ -300,7 +191,7 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
             };
         }
     }
-    out.push_str(&method_details(r));
+    out.push_str(&r.method_details());
     out.push('\n');
     let mut cols = vec![("θ_0", Some(r.initial.theta)), ("calibrated", Some(r.theta))];
     // Held parameters print "held", not a σ of 0.

@@ -1045,6 +1045,16 @@ fn calibrate<'py>(
     Ok((to_py(py, &value)?, text))
 }
 
+/// The method's own account of the fit (`CalibrationReport::method_details`
+/// of the library: the EIV lines the CLI prints; empty for the other
+/// methods) of a calibration report's JSON text.
+#[pyfunction]
+fn _method_details(report_json: &str) -> PyResult<String> {
+    let report: odocal::CalibrationReport = serde_json::from_str(report_json)
+        .map_err(|e| PyValueError::new_err(format!("not a calibration report: {e}")))?;
+    Ok(report.method_details())
+}
+
 /// Writes the HTML report (odocal-report) of a calibration report (its
 /// JSON text) on the drive it was validated on: `drive`, its held-out half
 /// (`holdout`), or `validate_on`. Maps the JSON report to the renderer's
@@ -1097,6 +1107,7 @@ fn _report_html(
                 report.verdict.reasons.iter().map(|r| r.to_string()).collect(),
             )),
             warnings: report.warnings.iter().map(|w| w.to_string()).collect(),
+            method_details: report.method_details().lines().map(str::to_string).collect(),
             ..odocal_report::ReportInput::new(title, scored, &segs, theta0, report.theta)
         };
         if let Some(step) = report.initial_step() {
@@ -1180,6 +1191,7 @@ fn _odocal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(simulate, m)?)?;
     m.add_function(wrap_pyfunction!(_drive_from_state, m)?)?;
     m.add_function(wrap_pyfunction!(_report_html, m)?)?;
+    m.add_function(wrap_pyfunction!(_method_details, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("COLUMNS", COLUMNS.to_vec())?;
     Ok(())

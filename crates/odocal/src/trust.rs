@@ -705,9 +705,7 @@ mod tests {
         let e = Evidence { identification: Some(("batch Gauss-Newton", &id)), ..evidence(&th, &cov) };
         let v = judge(&e, &opts);
         assert_eq!(v.level, VerdictLevel::Doubtful, "{v:?}");
-        let VerdictReason::NotConverged { param, step_sigmas, iterations, .. } = &v.reasons[0] else {
-            panic!("{v:?}")
-        };
+        let VerdictReason::NotConverged { param, step_sigmas, iterations, .. } = &v.reasons[0] else { panic!("{v:?}") };
         assert_eq!((*param, *iterations), (Param::TR, 2));
         assert!((step_sigmas - 1e-4 / 1e-7f64.sqrt()).abs() < 1e-9, "{step_sigmas}");
         let text = v.reasons[0].to_string();

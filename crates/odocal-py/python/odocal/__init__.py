@@ -145,9 +145,19 @@ class CalibrationReport:
         """For a simulated drive: the true θ and its Ē_p (as the CLI reports), else None."""
         return self._dict.get("truth")
 
+    @property
+    def method_details(self) -> str:
+        """The method's own account of the fit, as ``odocal calibrate`` prints
+        it: for EIV the filter's windows, iterations and termination, the noise
+        model at the start and as estimated (physical units), the σ widening
+        for the estimated noise levels and whether the result is the EIV
+        estimate or the batch G-N fallback; empty for the other methods."""
+        return _odocal._method_details(self._json)
+
     def to_html(self, path: Union[str, "os.PathLike[str]"], title: Optional[str] = None) -> None:
         """Writes the self-contained HTML report (verdict, θ table, Ē_p, map,
-        per-segment errors, step-1 spread, residuals, warnings) to ``path``.
+        per-segment errors, step-1 spread, residuals, warnings, method
+        details) to ``path``.
 
         Needs the drive the report was made from (reports from
         :func:`calibrate` keep it); ``title`` defaults to "odocal calibration".

@@ -71,13 +71,14 @@
 //! `sensitivity_m` (metres per resolution step) is the starting batch
 //! Gauss-Newton's, as `H_θ` is in whitened innovation units.
 
+use std::fmt::Write as _;
 use std::path::Path;
 use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
 use super::{hold_unobservable, Estimator, MethodDetail, MethodOutcome, Prepared, Selection, Timing};
-use crate::eiv::{self, EivInput, EivOptions, EivReport, EivWarning, NoiseModel};
+use crate::eiv::{self, EivInput, EivOptions, EivReport, EivWarning, NoiseModel, NoiseSource};
 use crate::error::{Error, Result};
 use crate::extrinsics::axle_reference_drive;
 use crate::identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport, Observability};
@@ -506,6 +507,106 @@ impl Estimator for EivMethodOptions {
             compensated: None,
         };
         Ok(outcome)
+    }
+}
+
+impl EivDetail {
+    /// The EIV fit in lines as the CLI prints them: the filter's windows,
+    /// updates, iterations, termination and passes; the noise model at the
+    /// start and as estimated (physical units, [`noise_summary`]); the
+    /// `known` sources held at the start; the σ widening for the estimated
+    /// noise levels; a bias correction; which estimate the result is (EIV
+    /// or the batch G-N fallback); the bootstrap's intervals. Through
+    /// [`crate::CalibrationReport::method_details`].
+    pub fn summary(&self, known: &[NoiseSource]) -> String {
+        let d = self;
+        let mut out = String::new();
+        match &d.eiv {
+            Some(e) => {
+                let _ = writeln!(
+                    out,
+                    "EIV: {} window(s), {} pose updates, {} it, {}; {} filter passes",
+                    e.windows.len(),
+                    e.updates,
+                    e.iterations,
+                    e.termination,
+                    e.evaluations[0] + e.evaluations[1]
+                );
+                let fixed = e.eta.iter().all(|x| *x == 0.0) && e.eta_sigma.iter().all(|x| *x == 0.0);
+                let _ = writeln!(out, "  noise, start:     {}", noise_summary(&d.noise_start));
+                if !known.is_empty() {
+                    let names: Vec<&str> = known.iter().map(|s| s.name()).collect();
+                    let _ = writeln!(out, "  known (held at the start): {}", names.join(", "));
+                }
+                let _ = writeln!(
+                    out,
+                    "  noise, {}: {}",
+                    if fixed { "fixed    " } else { "estimated" },
+                    noise_summary(&e.noise)
+                );
+                if e.sigma_noise_estimate.iter().any(|x| *x > 0.0) {
+                    // σ with the η term over σ without it, per estimated parameter.
+                    let names = ["c_e", "c_d", "t_r", "d"];
+                    let parts: Vec<String> = (0..4)
+                        .filter(|i| e.sigma[*i] > 0.0)
+                        .map(|i| {
+                            let (s, n) = (e.sigma[i], e.sigma_noise_estimate[i]);
+                            let without = (s * s - n * n).max(0.0).sqrt();
+                            format!("{} ×{:.2}", names[i], if without > 0.0 { s / without } else { f64::INFINITY })
+                        })
+                        .collect();
+                    let _ = writeln!(out, "  σ widened for the estimated noise levels: {}", parts.join(", "));
+                }
+                if e.bias_subtracted.iter().any(|b| *b != 0.0) {
+                    let b = e.bias_subtracted;
+                    let _ = writeln!(
+                        out,
+                        "  bias correction: subtracted c_e {:+.6} m, c_d {:+.4} mm, t_r {:+.6} m, d {:+.4} mm/(m/s²) (uncorrected c_e {:.6} m)",
+                        b[0],
+                        b[1] * 1e3,
+                        b[2],
+                        b[3] * 1e3,
+                        e.theta_uncorrected.c_e
+                    );
+                }
+            }
+            None => {
+                let _ = writeln!(out, "EIV: filter failed: {}", d.eiv_error.as_deref().unwrap_or("unknown error"));
+            }
+        }
+        let _ = writeln!(
+            out,
+            "  result: {}",
+            match d.eiv_result {
+                EivOutcome::Eiv => "EIV estimate",
+                EivOutcome::BatchGnFallback =>
+                    "BATCH G-N FALLBACK (all segments): the EIV checks failed (see the warnings; with the fallback off, --no-fallback, EIV's θ is kept)",
+            }
+        );
+        if let Some(b) = &d.bootstrap {
+            let _ = writeln!(
+                out,
+                "  bootstrap: {} replicates ({} failed), {:.0} % basic intervals and the estimator's own bias:",
+                b.replicates.len(),
+                b.failed.len(),
+                100.0 * b.level
+            );
+            // c_e, t_r in m; c_d in mm; d in mm/(m/s²), as the θ table.
+            for (i, (name, scale, prec)) in
+                [("c_e", 1.0, 6), ("c_d", 1e3, 4), ("t_r", 1.0, 6), ("d", 1e3, 4)].into_iter().enumerate()
+            {
+                let [lo, hi] = b.interval_basic[i];
+                let _ = writeln!(
+                    out,
+                    "    {name:<4} [{:.prec$}, {:.prec$}]  bias {:+.prec$}  corrected {:.prec$}",
+                    lo * scale,
+                    hi * scale,
+                    b.bias[i] * scale,
+                    b.theta_corrected.to_array()[i] * scale
+                );
+            }
+        }
+        out
     }
 }
 

@@ -348,6 +348,35 @@ pub struct CalibrationReport {
 }
 
 impl CalibrationReport {
+    /// The method's own account of the fit, in lines as `odocal calibrate`
+    /// prints them and the HTML report shows them ("Method details"):
+    /// for EIV, [`EivDetail::summary`] with the sources the options held as
+    /// known; empty for the other methods.
+    ///
+    /// ```
+    /// use odocal::sim::{simulate, SimOptions};
+    /// use odocal::{calibrate, CalibrationOptions};
+    ///
+    /// let out = simulate(&SimOptions { length_km: 2.0, ..SimOptions::paper(1) })?;
+    /// let r = calibrate(&out.drive, &CalibrationOptions::default(), None)?;
+    /// let lines = r.method_details();
+    /// assert!(lines.starts_with("EIV: ") || lines.starts_with("EIV: filter failed"), "{lines}");
+    /// assert!(lines.contains("  result: "));
+    /// # Ok::<(), odocal::Error>(())
+    /// ```
+    pub fn method_details(&self) -> String {
+        match &self.detail {
+            MethodDetail::Eiv(d) => {
+                let known = match &self.options.method {
+                    Method::Eiv(m) if !m.filter.fix_noise => m.filter.known_sources(),
+                    _ => Vec::new(),
+                };
+                d.summary(&known)
+            }
+            _ => String::new(),
+        }
+    }
+
     /// The final Gauss-Newton identification (batch-gn: the only one;
     /// three-step: step 3; eiv: the starting batch G-N on all segments).
     pub fn identification(&self) -> Option<&IdentifyReport> {

@@ -329,7 +329,15 @@ pub(crate) fn estimate_with_time_constants(
     let t0 = std::time::Instant::now();
     opts.validate()?;
     let grid = &opts.time_constant_grid;
-    let inner = EivOptions { estimate_time_constants: false, bias_correction: BiasCorrection::None, ..opts.clone() };
+    // The candidates are compared by likelihood alone: the η term of the
+    // covariance (about ten filter passes) is computed once, for the chosen
+    // time constants, by the re-fit below.
+    let inner = EivOptions {
+        estimate_time_constants: false,
+        bias_correction: BiasCorrection::None,
+        noise_estimate_in_covariance: false,
+        ..opts.clone()
+    };
     let n = &opts.noise;
     let start = [n.wheel_common_time_constant_s, n.wheel_differential_time_constant_s, n.drift_time_constant_s];
     let mut s = Search {
@@ -363,10 +371,13 @@ pub(crate) fn estimate_with_time_constants(
         at_grid_end: at_end,
         candidates: s.candidates,
     };
-    let mut report = if opts.bias_correction == BiasCorrection::None {
+    let eta_term = opts.noise_estimate_in_covariance && !opts.fix_noise;
+    let mut report = if opts.bias_correction == BiasCorrection::None && !eta_term {
         best.report
     } else {
-        // The correction at the chosen time constants (its replicates keep them fixed).
+        // The correction at the chosen time constants (its replicates keep
+        // them fixed) and the η term of the covariance, from the best
+        // candidate's θ and η.
         let mut o = EivOptions { estimate_time_constants: false, ..opts.clone() };
         o.noise.wheel_common_time_constant_s = fit.wheel_common_s;
         o.noise.wheel_differential_time_constant_s = fit.wheel_differential_s;
@@ -460,5 +471,38 @@ mod tests {
         assert!(same(chosen.neg_log_likelihood, best), "{scores:?}");
         assert_eq!(chosen.theta, r.theta);
         assert_eq!(fit.at_grid_end, [false, false, false]);
+    }
+
+    /// With η estimated, the candidates are fitted without the η term of
+    /// the covariance and the chosen one is re-fitted with it: a search
+    /// with one candidate, the start's time constants, reports the σ (η
+    /// term included) and θ of a plain fit at those time constants.
+    #[test]
+    fn the_eta_term_is_added_for_the_chosen_time_constants() {
+        let out = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(2) }).expect("sim");
+        let input = EivInput::from_drive(&out.drive);
+        let mut noise = super::super::NoiseModel::default();
+        noise.wheel_differential_time_constant_s = noise.wheel_common_time_constant_s;
+        let plain = EivOptions { noise, ..Default::default() };
+        let direct = super::super::estimate(&input, &out.sidecar.theta_true, &plain).expect("eiv");
+        let grid = TimeConstantGrid {
+            wheel_s: vec![noise.wheel_common_time_constant_s],
+            search_drift: false,
+            refine: false,
+            max_extensions: 0,
+            ..Default::default()
+        };
+        let opts = EivOptions { estimate_time_constants: true, time_constant_grid: grid, ..plain };
+        let r = super::super::estimate(&input, &out.sidecar.theta_true, &opts).expect("eiv");
+        assert_eq!(r.time_constants.as_ref().map(|f| f.candidates.len()), Some(1));
+        assert!(r.sigma_noise_estimate.iter().any(|s| *s > 0.0), "{:?}", r.sigma_noise_estimate);
+        for i in 0..4 {
+            let (a, b) = (r.sigma[i], direct.sigma[i]);
+            assert!((a - b).abs() <= 1e-3 * b, "σ {i}: {a:e} vs {b:e}");
+            let (a, b) = (r.sigma_noise_estimate[i], direct.sigma_noise_estimate[i]);
+            assert!((a - b).abs() <= 1e-2 * b.max(1e-12), "η-term σ {i}: {a:e} vs {b:e}");
+            let (a, b) = (r.theta.to_array()[i], direct.theta.to_array()[i]);
+            assert!((a - b).abs() <= 1e-2 * direct.sigma[i], "θ {i}: {a} vs {b}");
+        }
     }
 }
