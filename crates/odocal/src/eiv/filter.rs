@@ -62,6 +62,9 @@ pub(crate) struct Variances {
     /// η_0 scales the quantisation variance with the white wheel noise
     /// (otherwise it is held at the model's q: [`super::QuantisationLevel::Given`]).
     pub quant_scaled: bool,
+    /// η_0 scales the a_y and β variances with the white wheel noise
+    /// (otherwise they are held: [`super::LateralNoise::Stated`]).
+    pub lateral_scaled: bool,
     /// Stationary variance of s_c, σ_c² · e^{η1}.
     pub common: f64,
     /// Stationary variance of s_l and s_r, σ_w² · e^{η2}.
@@ -1245,7 +1248,11 @@ fn run_window_s<const S: usize>(
             let q_of = |n: f64| if n == 0.0 { 0.0 } else { v.quant };
             fn_l * fn_l.transpose() * q_of(nl) + fn_r * fn_r.transpose() * q_of(nr)
         };
-        let q_x = q_white + f_b * f_b.transpose() * v.beta + f_a * f_a.transpose() * v.a_y;
+        let q_lateral = f_b * f_b.transpose() * v.beta + f_a * f_a.transpose() * v.a_y;
+        let q_x = q_white + q_lateral;
+        // The share of Q_x that η_0 scales: not the quantisation's when its
+        // level is given, not a_y's and β's when their noise is stated.
+        let q_x_eta0 = if v.lateral_scaled { q_x - q_x_quant } else { q_white - q_x_quant };
         if jac_mode != InputJacobian::None {
             let lc = log_circumference_ratio(a_y, theta, theta_ref);
             // The relative white noise variance of each wheel (rev², the
@@ -1523,10 +1530,10 @@ fn run_window_s<const S: usize>(
                 0..=3 => add_sym_rows(dpj, &theta_terms[jj]),
                 4 => {
                     // η_0 scales the white wheel, quantisation, a_y and β noise together
-                    // (quantisation not when it is given: its share of Q_x comes off).
+                    // (quantisation not when it is given, a_y and β not when stated).
                     for r in 0..3 {
                         for c in 0..3 {
-                            dpj[(r, c)] += q_x[(r, c)] - q_x_quant[(r, c)];
+                            dpj[(r, c)] += q_x_eta0[(r, c)];
                         }
                     }
                     if v.quant_scaled {

@@ -38,11 +38,24 @@ fn records_with(
     // (fitted input, counting quantisation)
     (fitted_input, counting): (bool, bool),
 ) -> Vec<InnovationRecord> {
-    records_quant(input, w, th, th_ref, eta, follows, (fitted_input, counting), false)
+    records_quant(input, w, th, th_ref, eta, follows, (fitted_input, counting), Held::NONE)
 }
 
-/// [`records_with`]; `given`: the quantisation held at the model's q
-/// ([`QuantisationLevel::Given`], not scaled by η_0).
+/// Which variances η_0 leaves alone in a derivative test: the quantisation
+/// ([`QuantisationLevel::Given`]) and a_y and β ([`LateralNoise::Stated`]).
+#[derive(Clone, Copy)]
+struct Held {
+    quant: bool,
+    lateral: bool,
+}
+
+impl Held {
+    const NONE: Held = Held { quant: false, lateral: false };
+    const QUANT: Held = Held { quant: true, lateral: false };
+    const LATERAL: Held = Held { quant: false, lateral: true };
+}
+
+/// [`records_with`]; `given`: the variances η_0 does not scale ([`Held`]).
 #[allow(clippy::too_many_arguments)]
 fn records_quant(
     input: &EivInput<'_>,
@@ -52,7 +65,7 @@ fn records_quant(
     eta: &[f64; 6],
     follows: bool,
     (fitted_input, counting): (bool, bool),
-    given: bool,
+    given: Held,
 ) -> Vec<InnovationRecord> {
     let mut v = variances_quant(eta, input.sample_time_s, given);
     v.fitted_input = fitted_input;
@@ -62,14 +75,20 @@ fn records_quant(
     rec
 }
 
-/// The default model's variances at η; with `given` the quantisation is
-/// held at q²/12 (as `Problem::evaluate_with` does for [`QuantisationLevel::Given`]).
-fn variances_quant(eta: &[f64; 6], ts: f64, given: bool) -> filter::Variances {
+/// The default model's variances at η; with `given.quant` the quantisation
+/// is held at q²/12, with `given.lateral` a_y and β at the model's σ (as
+/// `Problem::evaluate_with` does for [`QuantisationLevel::Given`] and
+/// [`LateralNoise::Stated`]).
+fn variances_quant(eta: &[f64; 6], ts: f64, given: Held) -> filter::Variances {
     let m = NoiseModel::default();
     let mut v = m.variances(eta, ts);
-    if given {
+    if given.quant {
         v.quant = m.quantisation_step_rev_per_s * m.quantisation_step_rev_per_s / 12.0;
         v.quant_scaled = false;
+    }
+    if given.lateral {
+        let unscaled = m.variances(&[0.0; 6], ts);
+        (v.a_y, v.beta, v.lateral_scaled) = (unscaled.a_y, unscaled.beta, false);
     }
     v
 }
@@ -90,10 +109,10 @@ fn check_innovation_derivatives(follows: bool) {
 }
 
 fn check_innovation_derivatives_with(follows: bool, fitted: bool, counting: bool) {
-    check_innovation_derivatives_quant(follows, fitted, counting, false);
+    check_innovation_derivatives_quant(follows, fitted, counting, Held::NONE);
 }
 
-fn check_innovation_derivatives_quant(follows: bool, fitted: bool, counting: bool, given: bool) {
+fn check_innovation_derivatives_quant(follows: bool, fitted: bool, counting: bool, given: Held) {
     let out = simulate(&SimOptions { length_km: 0.6, ..SimOptions::paper(5) }).expect("sim");
     let input = input_of(&out.drive);
     let w = Window { index: 0, part: 0, start: 0, end: 1200.min(input.len() - 1) };
@@ -197,13 +216,13 @@ fn check_objective_gradient(follows: bool) {
 /// differences; with `fitted` the wheel noise is scaled by the fitted true
 /// input (the reference θ away from θ, so the factor is not 1).
 fn check_objective_gradient_with(follows: bool, fitted: bool, counting: bool) {
-    check_objective_gradient_quant(follows, fitted, counting, (false, false));
+    check_objective_gradient_quant(follows, fitted, counting, (Held::NONE, false));
 }
 
 /// [`check_objective_gradient_with`]; `given`: the quantisation level given
 /// ([`QuantisationLevel::Given`]); `measurement`: quantisation as measurement
 /// noise ([`QuantisationModel::Measurement`], not with `counting`).
-fn check_objective_gradient_quant(follows: bool, fitted: bool, counting: bool, (given, measurement): (bool, bool)) {
+fn check_objective_gradient_quant(follows: bool, fitted: bool, counting: bool, (given, measurement): (Held, bool)) {
     let out = simulate(&SimOptions { length_km: 0.6, ..SimOptions::paper(6) }).expect("sim");
     let input = input_of(&out.drive);
     let w = Window { index: 0, part: 0, start: 0, end: 1500.min(input.len() - 1) };
@@ -288,11 +307,22 @@ fn innovation_derivatives_match_central_differences_counting_quantisation() {
 /// (fitted and measured input) and the measurement model (covariance following θ).
 #[test]
 fn derivatives_match_central_differences_quantisation_given() {
-    check_objective_gradient_quant(true, true, true, (true, false));
-    check_innovation_derivatives_quant(true, true, true, true);
-    check_objective_gradient_quant(true, true, false, (true, false));
-    check_objective_gradient_quant(true, false, false, (true, false));
-    check_objective_gradient_quant(true, true, false, (true, true));
+    check_objective_gradient_quant(true, true, true, (Held::QUANT, false));
+    check_innovation_derivatives_quant(true, true, true, Held::QUANT);
+    check_objective_gradient_quant(true, true, false, (Held::QUANT, false));
+    check_objective_gradient_quant(true, false, false, (Held::QUANT, false));
+    check_objective_gradient_quant(true, true, false, (Held::QUANT, true));
+}
+
+/// a_y and β noise held at the model's σ ([`LateralNoise::Stated`], not
+/// scaled by η_0): ∂M, ∂J, ∂ν/∂p and ∂S/∂p against central differences
+/// (counting quantisation, covariance following θ; and ∂M, ∂J with the
+/// covariance held).
+#[test]
+fn derivatives_match_central_differences_lateral_noise_stated() {
+    check_objective_gradient_quant(true, true, true, (Held::LATERAL, false));
+    check_innovation_derivatives_quant(true, true, true, Held::LATERAL);
+    check_objective_gradient_quant(false, false, true, (Held::LATERAL, false));
 }
 
 #[test]
@@ -1069,6 +1099,7 @@ fn eta_step_descends_on_the_noise_free_straight_drive() {
         noise: opts.noise,
         quantisation: opts.quantisation,
         quantisation_given: false,
+        lateral_stated: false,
         heading_separate: true,
         fitted_input: false,
         position_floor_m: opts.position_floor_m,
