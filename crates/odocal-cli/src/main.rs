@@ -199,6 +199,13 @@ struct CalibrationArgs {
     #[arg(long, value_name = "LEVEL",
           value_parser = library_enum::<odocal::eiv::QuantisationLevel>(&["scaled", "given", "from-readings"]))]
     quantisation_level: Option<odocal::eiv::QuantisationLevel>,
+    /// EIV: the a_y and β noise scaled with the white wheel noise (tied) or
+    /// held at the noise model's σ (stated: the IMU's and the sideslip
+    /// source's noise, e.g. from `--noise-model`). Default: the library's
+    /// (`EivOptions::lateral_noise`).
+    #[arg(long, value_name = "SCALE",
+          value_parser = library_enum::<odocal::eiv::LateralNoise>(&["tied", "stated"]))]
+    lateral_noise: Option<odocal::eiv::LateralNoise>,
     /// EIV: the reference heading's white noise scaled together with the
     /// position noise (tied) or by a scale of its own (separate). Default:
     /// the library's (`EivOptions::heading_scale`).
@@ -288,6 +295,7 @@ impl CalibrationArgs {
             ("--eiv-window", self.eiv_window.is_some()),
             ("--quantisation", self.quantisation.is_some()),
             ("--quantisation-level", self.quantisation_level.is_some()),
+            ("--lateral-noise", self.lateral_noise.is_some()),
             ("--heading-noise", self.heading_noise.is_some()),
             ("--bootstrap", self.bootstrap.is_some()),
             ("--bootstrap-seed", self.bootstrap_seed != 0),
@@ -348,6 +356,9 @@ impl CalibrationArgs {
                 }
                 if let Some(l) = self.quantisation_level {
                     o.filter.quantisation_level = l;
+                }
+                if let Some(l) = self.lateral_noise {
+                    o.filter.lateral_noise = l;
                 }
                 if let Some(h) = self.heading_noise {
                     o.filter.heading_scale = h;

@@ -129,12 +129,22 @@ fn eiv_noise_model_shape_flags_reach_the_options() {
     let dstr = drive.to_str().expect("utf8");
     let o = odocal(&["simulate", "--seed", "4", "--length-km", "1", "--noise", "white", "--out", dstr]);
     assert!(o.status.success(), "{}", text(&o.stderr));
-    for (q, h, l, q_json, h_json, l_json) in [
-        ("counting", "separate", "given", "counting", "separate", "given"),
-        ("process", "tied", "scaled", "process_noise", "tied_to_position", "scaled_with_white"),
+    for (q, h, l, a, q_json, h_json, l_json, a_json) in [
+        ("counting", "separate", "given", "stated", "counting", "separate", "given", "stated"),
+        (
+            "process",
+            "tied",
+            "scaled",
+            "tied",
+            "process_noise",
+            "tied_to_position",
+            "scaled_with_white",
+            "tied_to_wheel_white",
+        ),
     ] {
         let args = ["calibrate", dstr, "--method", "eiv", "--eiv-window", "1500", "--fix-noise"];
-        let shape = ["--quantisation", q, "--heading-noise", h, "--quantisation-level", l, "--json", "-"];
+        let shape =
+            ["--quantisation", q, "--heading-noise", h, "--quantisation-level", l, "--lateral-noise", a, "--json", "-"];
         let o = odocal(&[&args[..], &shape[..]].concat());
         assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", text(&o.stderr));
         let r: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
@@ -142,7 +152,21 @@ fn eiv_noise_model_shape_flags_reach_the_options() {
         assert_eq!(f["quantisation"], q_json, "{f}");
         assert_eq!(f["heading_scale"], h_json, "{f}");
         assert_eq!(f["quantisation_level"], l_json, "{f}");
+        assert_eq!(f["lateral_noise"], a_json, "{f}");
     }
+    // Stated with the noise estimated: the reported a_y and β σ are the
+    // starting model's, whatever η_0 became.
+    let args =
+        ["calibrate", dstr, "--method", "eiv", "--eiv-window", "1500", "--lateral-noise", "stated", "--json", "-"];
+    let o = odocal(&args);
+    assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", text(&o.stderr));
+    let r: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    let (start, end) = (&r["noise_start"], &r["eiv"]["noise"]);
+    assert_ne!(r["eiv"]["eta"][0].as_f64(), Some(0.0), "η_0 was estimated: {}", r["eiv"]["eta"]);
+    for k in ["lateral_acceleration_sigma_m_per_s2", "sideslip_sigma_rad"] {
+        assert_eq!(start[k], end[k], "{k}");
+    }
+    assert_ne!(start["wheel_white_rel_sigma"], end["wheel_white_rel_sigma"]);
     // From the readings: the simulator's paper encoder (2048 ticks at
     // 40 Hz) is found through the CSV; the white preset has no encoder.
     let paper = d.path().join("paper.csv");
@@ -178,10 +202,21 @@ fn eiv_flags_belong_to_eiv() {
         "{}",
         text(&o.stderr)
     );
-    let shape = ["--quantisation", "counting", "--quantisation-level", "given", "--heading-noise", "tied"];
+    let shape = [
+        "--quantisation",
+        "counting",
+        "--quantisation-level",
+        "given",
+        "--lateral-noise",
+        "stated",
+        "--heading-noise",
+        "tied",
+    ];
     let o = odocal(&[&["calibrate", csv, "--method", "batch-gn"][..], &shape[..]].concat());
     assert!(
-        text(&o.stderr).contains("--quantisation, --quantisation-level, --heading-noise apply to --method eiv only"),
+        text(&o.stderr).contains(
+            "--quantisation, --quantisation-level, --lateral-noise, --heading-noise apply to --method eiv only"
+        ),
         "{}",
         text(&o.stderr)
     );

@@ -533,6 +533,7 @@ const CALIBRATION_KWARGS: [&str; 28] = [
     "eiv_window",
     "quantisation",
     "quantisation_level",
+    "lateral_noise",
     "heading_noise",
     "qp_solver",
     "theta0",
@@ -634,6 +635,7 @@ fn calibration_plan(
     let (mut noise_model, mut fix_noise, mut fallback, mut eiv_window) = (None, None, None, None);
     let mut known_noise: Option<Vec<odocal::eiv::NoiseSource>> = None;
     let (mut quantisation, mut quantisation_level, mut heading_noise) = (None, None, None);
+    let mut lateral_noise = None;
     if let Some(kwargs) = kwargs {
         for (key, v) in kwargs.iter() {
             let key: String = key.extract()?;
@@ -741,6 +743,9 @@ fn calibration_plan(
                 "heading_noise" => {
                     heading_noise = Some(v.extract::<String>()?.parse::<HeadingScale>().map_err(lib_err)?)
                 }
+                "lateral_noise" => {
+                    lateral_noise = Some(v.extract::<String>()?.parse::<odocal::eiv::LateralNoise>().map_err(lib_err)?)
+                }
                 _ => {
                     return Err(PyTypeError::new_err(format!(
                         "calibrate() got an unknown option '{key}'; options: {}",
@@ -758,6 +763,7 @@ fn calibration_plan(
         ("eiv_window", eiv_window.is_some()),
         ("quantisation", quantisation.is_some()),
         ("quantisation_level", quantisation_level.is_some()),
+        ("lateral_noise", lateral_noise.is_some()),
         ("heading_noise", heading_noise.is_some()),
     ]
     .iter()
@@ -775,6 +781,7 @@ fn calibration_plan(
         e.filter.quantisation = quantisation.unwrap_or(e.filter.quantisation);
         e.filter.quantisation_level = quantisation_level.unwrap_or(e.filter.quantisation_level);
         e.filter.heading_scale = heading_noise.unwrap_or(e.filter.heading_scale);
+        e.filter.lateral_noise = lateral_noise.unwrap_or(e.filter.lateral_noise);
     } else if !eiv_given.is_empty() {
         return Err(invalid_option(
             "method",

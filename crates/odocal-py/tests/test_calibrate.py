@@ -239,6 +239,11 @@ def test_eiv_equals_cli_json(odocal_bin, drive_csv):
         odocal.calibrate(odocal.Drive.from_csv(drive_csv), "eiv", quantisation="ticks")
     with pytest.raises(odocal.OdocalError, match="invalid quantisation level 'auto': use scaled, given or from-readings"):
         odocal.calibrate(odocal.Drive.from_csv(drive_csv), "eiv", quantisation_level="auto")
+    stated = odocal.calibrate(odocal.Drive.from_csv(drive_csv), eiv_window=1500, lateral_noise="stated").to_dict()
+    assert stated["options"]["method"]["filter"]["lateral_noise"] == "stated"
+    assert stated["eiv"]["noise"]["sideslip_sigma_rad"] == stated["noise_start"]["sideslip_sigma_rad"]
+    with pytest.raises(odocal.OdocalError, match="invalid lateral noise 'free': use tied or stated"):
+        odocal.calibrate(odocal.Drive.from_csv(drive_csv), lateral_noise="free")
     with pytest.raises(odocal.OdocalError, match="heading_noise applies to method eiv only"):
         odocal.calibrate(odocal.Drive.from_csv(drive_csv), "batch-gn", heading_noise="tied")
 

@@ -13,7 +13,7 @@
 //!     for rows with a fixed noise model such as `known`: those are oracle rows and hold it at its true 0)
 //!     [--methods known,est] (also: est-qgiven = `est` with the encoder's q given, est-qgiven-hgiven = est-qgiven
 //!     with the reference's heading white σ given too and η_5 held (stop 14; with `--bootstrap B` also
-//!     `+ boot held η̂`: every parameter minus the bias of a bootstrap holding the fitted noise), est-thconv = `est` with `theta_convergence`, est-it20 = `est` with 20 iterations, est-final = `est` with `final_step_check`, est-stop11 = `est` with the stop-11 checks and iteration, fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot)
+//!     `+ boot held η̂`: every parameter minus the bias of a bootstrap holding the fitted noise), est-thconv = `est` with `theta_convergence`, est-it20 = `est` with 20 iterations, est-final = `est` with `final_step_check`, est-stop11 = `est` with the stop-11 checks and iteration, fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot; stop 17: est-lat = `est` with `LateralNoise::Stated` at the production car's a_y and β σ, est-lat-given = the same at the simulator's)
 //!     [--tau-candidates] [--bootstrap-reestimate-seeds 0] [--smooth-half-width 20]
 //!     [--reentry-score 10] (with `--methods est-reentry`: `EIV est. reentry` = `est` with
 //!     `EivOptions::eta_reentry_min_score` = that value, stop 13; `est-robust`: `est` with
@@ -324,6 +324,23 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
     if want("est-reentry-robust") {
         let o = EivOptions { eta_reentry_min_score: Some(a.reentry_score), covariance_estimate: robust, ..est.clone() };
         jobs.push(("EIV est. reentry robust", o));
+    }
+    if want("est-lat") {
+        // Stop 17: a_y and β noise held at the production car's σ
+        // (`LateralNoise::Stated`), not scaled by η_0.
+        let o = EivOptions { lateral_noise: odocal::eiv::LateralNoise::Stated, ..est.clone() };
+        jobs.push(("EIV est. lateral stated", o));
+    }
+    if want("est-lat-given") {
+        // …at the simulator's σ (a user stating the IMU's and the sideslip
+        // source's noise).
+        let noise = NoiseModel {
+            lateral_acceleration_sigma_m_per_s2: true_noise.lateral_acceleration_sigma_m_per_s2,
+            sideslip_sigma_rad: true_noise.sideslip_sigma_rad,
+            ..est.noise
+        };
+        let o = EivOptions { noise, lateral_noise: odocal::eiv::LateralNoise::Stated, ..est.clone() };
+        jobs.push(("EIV est. lateral given", o));
     }
     if want("est-qgiven") {
         // The encoder's quantisation step given (the simulator's ticks per

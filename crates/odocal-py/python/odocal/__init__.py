@@ -233,7 +233,8 @@ def calibrate(
       ``fallback``, ``eiv_window``, ``quantisation`` (``"process"`` |
       ``"measurement"`` | ``"counting"``), ``quantisation_level``
       (``"scaled"`` | ``"given"`` | ``"from-readings"``), ``heading_noise``
-      (``"tied"`` | ``"separate"``): method ``"eiv"`` only, as the CLI's flags.
+      (``"tied"`` | ``"separate"``), ``lateral_noise`` (``"tied"`` |
+      ``"stated"``): method ``"eiv"`` only, as the CLI's flags.
 
     A drive read from a manifest carries the manifest's ``[noise]``,
     ``[reference]`` and ``[calibration]`` settings (``drive.import_report``); they apply unless
