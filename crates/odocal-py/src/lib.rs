@@ -521,7 +521,7 @@ struct CalibrationPlan {
 }
 
 /// The keyword options of `odocal.calibrate`, named like the CLI's flags.
-const CALIBRATION_KWARGS: [&str; 28] = [
+const CALIBRATION_KWARGS: [&str; 29] = [
     "seed",
     "estimate",
     "lever_arm",
