@@ -410,6 +410,27 @@ fn noise_free_recovers_theta_true_and_eta_at_lower_clamp() {
     assert!(!r.warnings.iter().any(|w| matches!(w, EivWarning::NoiseAtUpperClamp { .. })), "{:?}", r.warnings);
 }
 
+/// [`LateralNoise::Stated`] on a noise-free straight drive: the tie drives
+/// every noise scale to its lower clamp and returns c_e exactly; stated a_y
+/// and β noise (the production car's) that the data do not have stays in
+/// the model and costs c_e's information (its σ many times the tie's) —
+/// why `Stated` is not the default (see its docs).
+#[test]
+fn stated_lateral_noise_costs_information_the_data_do_not_lack() {
+    let (n, th) = (4000, Theta::SIM_DEFAULT_TRUE);
+    let drive = StraightDrive::new(n, 0.025);
+    let input = drive.input();
+    let start = Theta { c_e: 1.96, ..th };
+    let tied = estimate(&input, &start, &EivOptions::default()).expect("eiv");
+    let stated = EivOptions { lateral_noise: LateralNoise::Stated, ..Default::default() };
+    let stated = estimate(&input, &start, &stated).expect("eiv");
+    assert!((tied.theta.c_e - th.c_e).abs() < 1e-6, "{tied}");
+    assert!(stated.sigma[0] > 100.0 * tied.sigma[0], "σ c_e: stated {:e}, tied {:e}", stated.sigma[0], tied.sigma[0]);
+    // Still an honest σ: the stated fit's c_e within 3 of its σ.
+    assert!((stated.theta.c_e - th.c_e).abs() < 3.0 * stated.sigma[0], "{stated}");
+    assert_eq!(stated.noise.sideslip_sigma_rad, NoiseModel::default().sideslip_sigma_rad);
+}
+
 /// The same with encoder quantisation modelled by counting (remainder
 /// states): θ_true to rounding. Ignored by default (a second 6 km fit is
 /// too slow for the debug test budget; a 1.5 km drive leaves t_r
