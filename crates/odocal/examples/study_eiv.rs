@@ -13,7 +13,7 @@
 //!     for rows with a fixed noise model such as `known`: those are oracle rows and hold it at its true 0)
 //!     [--methods known,est] (also: est-qgiven = `est` with the encoder's q given, est-qgiven-hgiven = est-qgiven
 //!     with the reference's heading white σ given too and η_5 held (stop 14; with `--bootstrap B` also
-//!     `+ boot held η̂`: every parameter minus the bias of a bootstrap holding the fitted noise), est-thconv = `est` with `theta_convergence`, est-it20 = `est` with 20 iterations, est-final = `est` with `final_step_check`, est-stop11 = `est` with the stop-11 checks and iteration, fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot; stop 17: est-lat = `est` with `LateralNoise::Stated` at the production car's a_y and β σ, est-lat-given = the same at the simulator's, est-tied = `LateralNoise::TiedToWheelWhite`, the default)
+//!     `+ boot held η̂`: every parameter minus the bias of a bootstrap holding the fitted noise), est-thconv = `est` with `theta_convergence`, est-it20 = `est` with 20 iterations, est-final = `est` with `final_step_check`, est-stop11 = `est` with the stop-11 checks and iteration, fitted, fo, esttau, estsimtau, jac-*, est-jac-*, smooth*, ref*, no-known-boot; stop 17: est-lat = `est` with `LateralNoise::Stated` at the production car's a_y and β σ, est-lat-given = the same at the simulator's, est-tied = `LateralNoise::TiedToWheelWhite`, the default; est-hgiven / est-lat-hgiven = `est` / `est-lat` with the simulator's heading white σ given and η_5 held)
 //!     [--tau-candidates] [--bootstrap-reestimate-seeds 0] [--smooth-half-width 20]
 //!     [--reentry-score 10] (with `--methods est-reentry`: `EIV est. reentry` = `est` with
 //!     `EivOptions::eta_reentry_min_score` = that value, stop 13; `est-robust`: `est` with
@@ -330,6 +330,23 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         // (`LateralNoise::Stated`), not scaled by η_0.
         let o = EivOptions { lateral_noise: odocal::eiv::LateralNoise::Stated, ..est.clone() };
         jobs.push(("EIV est. lateral stated", o));
+    }
+    if want("est-lat-hgiven") {
+        // Stop 17: `est-lat` with the reference's heading white σ given too
+        // (the simulator's, η_5 held: `--lateral-noise stated --known-noise
+        // heading-white` with the INS datasheet's σ_ψ).
+        let noise = NoiseModel { heading_white_sigma_rad: true_noise.heading_white_sigma_rad, ..est.noise };
+        let mut eta_held = [false; 6];
+        eta_held[5] = true;
+        let o = EivOptions { noise, eta_held, lateral_noise: odocal::eiv::LateralNoise::Stated, ..est.clone() };
+        jobs.push(("EIV est. lateral stated, σ_ψ given", o));
+    }
+    if want("est-hgiven") {
+        // …the same with the tie (the default's lateral noise).
+        let noise = NoiseModel { heading_white_sigma_rad: true_noise.heading_white_sigma_rad, ..est.noise };
+        let mut eta_held = [false; 6];
+        eta_held[5] = true;
+        jobs.push(("EIV est. σ_ψ given", EivOptions { noise, eta_held, ..est.clone() }));
     }
     if want("est-tied") {
         // …and tied to the white wheel noise by η_0 (the default, explicitly).
