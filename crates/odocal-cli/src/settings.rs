@@ -18,6 +18,7 @@ pub fn given(a: &CalibrationArgs) -> GivenSettings {
         heading_offset: a.heading_offset.is_some(),
         estimate: a.estimate.is_some(),
         keep_one_way: a.keep_one_way,
+        lateral_noise: a.lateral_noise.is_some(),
     }
 }
 

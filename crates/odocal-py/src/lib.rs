@@ -622,6 +622,7 @@ fn calibration_plan(
         heading_offset: given_kw("heading_offset")?,
         estimate: given_kw("estimate")?,
         keep_one_way: given_kw("keep_one_way")?,
+        lateral_noise: given_kw("lateral_noise")?,
     };
     let setting_uses = manifest.map(|m| m.apply(&mut o, given)).unwrap_or_default();
     let mut noise_model_file: Option<PathBuf> = None;

@@ -212,20 +212,30 @@ pub struct NoiseSpec {
     /// sensor's datasheet). Default none: every level is estimated.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub known: Vec<eiv::NoiseSource>,
+    /// `lateral = "stated"` (or `"tied"`): how the a_y and β noise of the
+    /// model is scaled ([`EivOptions::lateral_noise`]). Default none: the
+    /// options' own.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lateral: Option<eiv::LateralNoise>,
 }
 
 impl NoiseSpec {
     /// Starts `filter` from this model, holding the known sources (in
-    /// addition to any it already holds).
+    /// addition to any it already holds), with its lateral-noise choice
+    /// where it states one.
     pub fn apply(&self, filter: &mut EivOptions) {
         filter.noise = self.model;
         filter.hold_known(&self.known);
+        if let Some(l) = self.lateral {
+            filter.lateral_noise = l;
+        }
     }
 }
 
 /// Reads a noise model from a TOML file of [`NoiseModel`] fields (missing
 /// fields keep the production-car defaults; an unknown field is an error)
-/// and, optionally, `known`: the sources whose stated level is known.
+/// and, optionally, `known`: the sources whose stated level is known, and
+/// `lateral`: `"stated"` holds the a_y and β noise at the stated σ.
 ///
 /// ```toml
 /// wheel_white_rel_sigma = 0.01       # 1 %
@@ -234,6 +244,8 @@ impl NoiseSpec {
 /// position_white_sigma_m = 0.03
 /// heading_white_sigma_rad = 0.0003   # the INS datasheet's heading σ ...
 /// known = ["heading_white"]          # ... held, not estimated
+/// lateral_acceleration_sigma_m_per_s2 = 0.08   # the IMU's a_y noise ...
+/// lateral = "stated"                 # ... held, not scaled with the wheels'
 /// ```
 pub fn read_noise_model(path: &Path) -> Result<NoiseSpec> {
     let text = std::fs::read_to_string(path).map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
@@ -270,12 +282,17 @@ pub fn noise_model_from_table(mut table: toml::Table) -> std::result::Result<Noi
         }
         Some(v) => return Err(format!("known: {v} must be a list of source names, e.g. [\"heading_white\"]")),
     };
+    let lateral = match table.remove("lateral") {
+        None => None,
+        Some(toml::Value::String(v)) => Some(v.parse::<eiv::LateralNoise>().map_err(|e| format!("lateral: {e}"))?),
+        Some(v) => return Err(format!("lateral: {v} must be \"tied\" or \"stated\"")),
+    };
     let fields = serde_json::to_value(NoiseModel::PRODUCTION_CAR).map_err(|e| e.to_string())?;
     if let Some(fields) = fields.as_object() {
         let mut unknown: Vec<&str> = table.keys().map(String::as_str).filter(|k| !fields.contains_key(*k)).collect();
         unknown.sort_unstable();
         if !unknown.is_empty() {
-            let mut names: Vec<&str> = fields.keys().map(String::as_str).chain(["known"]).collect();
+            let mut names: Vec<&str> = fields.keys().map(String::as_str).chain(["known", "lateral"]).collect();
             names.sort_unstable();
             return Err(format!("unknown field(s) {}; the fields are {}", unknown.join(", "), names.join(", ")));
         }
@@ -283,7 +300,7 @@ pub fn noise_model_from_table(mut table: toml::Table) -> std::result::Result<Noi
     let model: NoiseModel = serde_path_to_error::deserialize(toml::Value::Table(table))
         .map_err(|e| format!("{}: {}", e.path(), e.inner().message()))?;
     model.validate().map_err(|e| e.to_string())?;
-    Ok(NoiseSpec { model, known })
+    Ok(NoiseSpec { model, known, lateral })
 }
 
 /// The noise model as one line in physical units (σ in %, time constants in s).

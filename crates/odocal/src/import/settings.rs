@@ -142,6 +142,9 @@ pub struct GivenSettings {
     pub estimate: bool,
     /// Keep the one-way turning selection (`--keep-one-way`).
     pub keep_one_way: bool,
+    /// How the a_y and β noise is scaled (`--lateral-noise`): wins over the
+    /// manifest's `[noise] lateral`.
+    pub lateral_noise: bool,
 }
 
 /// What became of one manifest setting.
@@ -234,8 +237,13 @@ impl ManifestSettings {
             match &mut opts.method {
                 _ if given.noise_model => note("noise", SettingOutcome::Overridden),
                 crate::Method::Eiv(o) => {
+                    let caller_lateral = o.filter.lateral_noise;
                     n.apply(&mut o.filter);
                     note("noise", SettingOutcome::Used);
+                    if n.lateral.is_some() && given.lateral_noise {
+                        o.filter.lateral_noise = caller_lateral;
+                        note("noise.lateral", SettingOutcome::Overridden);
+                    }
                 }
                 other => note(
                     "noise",
@@ -389,6 +397,10 @@ mod tests {
     fn bad_settings_are_errors_naming_the_key() {
         let e = error("\n[noise]\nwheel_whte_rel_sigma = 0.01\n");
         assert!(e.contains("noise: unknown field(s) wheel_whte_rel_sigma"), "{e}");
+        let e = error("\n[noise]\nlateral = \"free\"\n");
+        assert!(e.contains("noise: lateral: invalid lateral noise 'free': use tied or stated"), "{e}");
+        let e = error("\n[noise]\nlateral = 1\n");
+        assert!(e.contains("noise: lateral: 1 must be \"tied\" or \"stated\""), "{e}");
         let e = error("\n[noise]\nposition_white_sigma_m = -0.5\n");
         assert!(e.contains("noise") && e.contains("noise.position_white_sigma_m"), "{e}");
         let e = error("\n[noise]\nsideslip_sigma_rad = \"small\"\n");
@@ -413,6 +425,7 @@ mod tests {
             noise: Some(NoiseSpec {
                 model: NoiseModel { wheel_white_rel_sigma: 0.02, ..NoiseModel::PRODUCTION_CAR },
                 known: vec![crate::eiv::NoiseSource::PoseWhite],
+                lateral: None,
             }),
             reference: Some(ReferenceSpec {
                 lever_arm: Some([-0.9, 0.0]),
@@ -481,6 +494,24 @@ mod tests {
         assert_eq!(m.filter.noise, NoiseModel::PRODUCTION_CAR);
         assert!(m.filter.known_sources().is_empty(), "the caller's model replaces the manifest's known sources too");
         assert_eq!(outcomes(&uses)[0], ("noise", SettingOutcome::Overridden));
+        // `[noise] lateral = "stated"` sets the lateral noise with the model,
+        // unless the caller gave its own (`--lateral-noise`).
+        let mut lat = s.clone();
+        if let Some(n) = lat.noise.as_mut() {
+            n.lateral = Some(crate::eiv::LateralNoise::Stated);
+        }
+        let mut o = eiv();
+        lat.apply(&mut o, GivenSettings::default());
+        let Method::Eiv(m) = &o.method else { panic!("eiv") };
+        assert_eq!(m.filter.lateral_noise, crate::eiv::LateralNoise::Stated);
+        let mut o = eiv();
+        let uses = lat.apply(&mut o, GivenSettings { lateral_noise: true, ..Default::default() });
+        let Method::Eiv(m) = &o.method else { panic!("eiv") };
+        assert_eq!(m.filter.lateral_noise, crate::eiv::LateralNoise::TiedToWheelWhite);
+        assert_eq!(
+            outcomes(&uses)[..2],
+            [("noise", SettingOutcome::Used), ("noise.lateral", SettingOutcome::Overridden)]
+        );
         // A stated heading offset is held by EIV's start (which estimates
         // one by default) unless the manifest frees it; the caller's own
         // `--heading-offset` leaves that to the caller.
