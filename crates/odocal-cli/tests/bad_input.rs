@@ -48,12 +48,32 @@ fn csv_classes_exit_1_with_the_cause() {
         ("semicolon.csv", &["separated by ';'"]),
         ("part_float.csv", &["not a non-negative integer"]),
         ("long_field.csv", &["… (5000 bytes)"]),
+        ("mcap_bag.csv", &["a ROS 2 bag (MCAP)", "odocal inspect", "manifest (.toml)"]),
+        ("gzip.csv", &["gzip-compressed"]),
     ] {
         let o = odocal(&["calibrate", path_str(&corpus("csv_drive", file))]);
         assert_fails(&o, 1, needles);
         assert!(stderr(&o).len() < 600, "{file}: long message: {}", stderr(&o));
         assert_eq!(stderr(&o).trim_end().lines().count(), 1, "{file}: one line");
     }
+}
+
+/// A bag (named .mcap, as users have it) or a rosbag2 directory given where
+/// a drive belongs: exit 1, saying what the file is and what to do.
+#[test]
+fn a_bag_given_as_the_drive_says_to_describe_it_in_a_manifest() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let bag = dir.path().join("drive.mcap");
+    std::fs::copy(corpus("csv_drive", "mcap_bag.csv"), &bag).expect("copy");
+    let o = odocal(&["calibrate", path_str(&bag)]);
+    assert_fails(&o, 1, &["drive.mcap: a ROS 2 bag (MCAP), not a canonical drive CSV", "odocal inspect"]);
+    let bagdir = dir.path().join("rosbag2_run");
+    std::fs::create_dir(&bagdir).expect("mkdir");
+    std::fs::write(bagdir.join("metadata.yaml"), "rosbag2_bagfile_information:\n").expect("write");
+    let o = odocal(&["validate", path_str(&bagdir), "--theta", "1.95,0,1.53,0"]);
+    assert_fails(&o, 1, &["rosbag2_run: a ROS 2 bag directory", "manifest"]);
+    let o = odocal(&["calibrate", path_str(dir.path())]);
+    assert_fails(&o, 1, &["a directory, not a canonical drive CSV"]);
 }
 
 #[test]
@@ -101,10 +121,12 @@ fn conventions_are_named() {
 #[test]
 fn io_errors_are_not_doubled() {
     let dir = tempfile::tempdir().expect("tmp");
-    let o = odocal(&["calibrate", path_str(dir.path())]);
+    let missing = dir.path().join("missing.csv");
+    let o = odocal(&["calibrate", path_str(&missing)]);
     let e = stderr(&o);
     assert_eq!(o.status.code(), Some(1), "{e}");
-    assert_eq!(e.matches("Is a directory").count(), 1, "{e}");
+    assert_eq!(e.matches("No such file or directory").count(), 1, "{e}");
+    assert_eq!(e.matches("missing.csv").count(), 1, "{e}");
 }
 
 /// The blow-up manifests end in an error, within 2 GB of address space (the

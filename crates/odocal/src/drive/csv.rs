@@ -45,6 +45,42 @@ fn list(names: &[String]) -> String {
     listed(names).join(", ")
 }
 
+/// Files that are sometimes given where a canonical drive CSV belongs, known
+/// by their first bytes: what the file is and what to do instead. (Not CSV
+/// text, they would otherwise fail as "invalid UTF-8" or as missing columns.)
+const NOT_CSV: [(&[u8], &str); 8] = [
+    (
+        b"\x89MCAP0\r\n",
+        "a ROS 2 bag (MCAP), not a canonical drive CSV: list its topics with `odocal inspect FILE`, name the wheel, \
+         pose and IMU topics in a manifest (README \"ROS 2 bags\"; examples/psu-mapping-van/manifest-mcap.toml is one) \
+         and give the manifest (.toml) instead",
+    ),
+    (
+        b"SQLite format 3\0",
+        "a ROS 2 sqlite3 (.db3) bag, not a canonical drive CSV: odocal reads bags in MCAP; convert it with \
+         `ros2 bag convert`, then describe its topics in a manifest (.toml) and give that instead",
+    ),
+    (
+        b"#ROSBAG V",
+        "a ROS 1 bag, not a canonical drive CSV: odocal reads ROS 2 bags in MCAP; convert it (e.g. \
+         `mcap convert IN.bag OUT.mcap`), then describe its topics in a manifest (.toml) and give that instead",
+    ),
+    (
+        b"PAR1",
+        "a Parquet file, not a canonical drive CSV: name it as a stream (`format = \"parquet\"`) in a manifest \
+         (.toml; README \"Parquet streams\") and give the manifest instead",
+    ),
+    (b"\x1f\x8b", "gzip-compressed: decompress it first (`gunzip -k FILE`)"),
+    (b"\x28\xb5\x2f\xfd", "zstd-compressed: decompress it first (`zstd -d FILE`)"),
+    (b"\xfd7zXZ\0", "xz-compressed: decompress it first (`xz -dk FILE`)"),
+    (b"PK\x03\x04", "a zip archive: extract the drive CSV from it first"),
+];
+
+/// What a file is when its first bytes say it is not CSV text ([`NOT_CSV`]).
+fn not_csv(bytes: &[u8]) -> Option<&'static str> {
+    NOT_CSV.iter().find(|(magic, _)| bytes.starts_with(magic)).map(|(_, what)| *what)
+}
+
 impl Drive {
     /// Reads a canonical drive CSV (SPEC §2). Accepts a UTF-8 BOM, CRLF line
     /// endings, extra columns (numbers or text, kept in [`Drive::extra`];
@@ -55,9 +91,24 @@ impl Drive {
     ///
     /// # Errors
     /// [`Error::Io`], [`Error::Csv`] naming the line and column,
-    /// [`Error::MissingColumns`] listing what was found.
+    /// [`Error::MissingColumns`] listing what was found,
+    /// [`Error::InvalidDrive`] for a directory or a file that is not CSV text
+    /// but a ROS bag, a Parquet file or a compressed archive (known by its
+    /// first bytes), saying what to do instead.
     pub fn read_csv(path: impl AsRef<Path>) -> Result<Drive> {
         let path = path.as_ref();
+        if path.is_dir() {
+            // A rosbag2 directory (metadata.yaml beside .mcap or .db3 files) or
+            // any other folder: say so instead of the OS's "Is a directory".
+            let bag = path.join("metadata.yaml").is_file();
+            let reason = if bag {
+                "a ROS 2 bag directory, not a canonical drive CSV: list its topics with `odocal inspect` on its \
+                 .mcap file, name the wheel, pose and IMU topics in a manifest (.toml) and give the manifest instead"
+            } else {
+                "a directory, not a canonical drive CSV: give the drive's .csv file (or a manifest, .toml)"
+            };
+            return Err(Error::InvalidDrive { context: path.display().to_string(), reason: reason.into() });
+        }
         let mut bytes = Vec::new();
         std::fs::File::open(path)
             .and_then(|mut f| f.read_to_end(&mut bytes))
@@ -67,6 +118,9 @@ impl Drive {
 
     /// Parses canonical CSV from bytes; `path` is used in error messages.
     pub fn parse_csv(bytes: &[u8], path: &Path) -> Result<Drive> {
+        if let Some(what) = not_csv(bytes) {
+            return Err(Error::InvalidDrive { context: path.display().to_string(), reason: what.into() });
+        }
         let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF".as_slice()).unwrap_or(bytes);
         let csv_error = |line: u64, column: Option<&str>, reason: String| Error::Csv {
             path: path.to_path_buf(),
