@@ -210,6 +210,26 @@ fn straight_real_drive_names_unobservable_parameters_and_the_command_to_run() {
     }
 }
 
+/// EIV holds what the straight drive cannot determine at its start: the
+/// table says "held" for them, as the JSON `sigma` says null, not a σ of 0.
+#[test]
+fn parameters_eiv_holds_print_held_not_a_zero_sigma() {
+    let m = slice_manifest("comma2k19-rav4");
+    let args = ["calibrate", &m, "--segment-length", "400", "--validation-length", "400"];
+    let o = odocal(&args);
+    let out = stdout(&o);
+    let row = |name: &str| out.lines().find(|l| l.trim_start().starts_with(name)).unwrap_or_default().to_string();
+    for p in ["t_r ", "d "] {
+        let r = row(p);
+        assert!(r.ends_with("held") && !r.contains("0.000000"), "{p}: {r}\n{out}");
+    }
+    assert!(!row("c_e ").contains("held"), "{out}");
+    let o = odocal(&[&args[..], &["--json", "-"]].concat());
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("json");
+    assert_eq!(v["sigma"]["t_r"], serde_json::Value::Null);
+    assert!(v["sigma"]["c_e"].as_f64().is_some_and(|s| s > 0.0));
+}
+
 #[test]
 fn auto_fix_calibrates_the_scale_of_a_straight_real_drive() {
     let m = slice_manifest("comma2k19-rav4");
