@@ -85,9 +85,10 @@ struct SimulateArgs {
     /// Noise preset: paper, off, white (white wheel noise only) or high.
     #[arg(long, default_value = "paper")]
     noise: String,
-    /// True θ as c_e,c_d,t_r,d in SI units (c_d in m, d in m per m/s²).
+    /// True θ as c_e,c_d,t_r,d in SI units (c_d in m, d in m per m/s²), or a
+    /// parameter file (.yaml, .yml, .json, as --params-out writes).
     #[arg(long, allow_hyphen_values = true)]
-    theta: Option<Theta>,
+    theta: Option<ThetaArg>,
     /// Integration substeps per output sample (1 makes the model exact).
     #[arg(long)]
     substeps: Option<usize>,
@@ -107,9 +108,10 @@ struct CalibrationArgs {
     /// Three-step: QP solver for input compensation, structured (default) or clarabel.
     #[arg(long)]
     qp_solver: Option<SolverKind>,
-    /// Initial guess θ_0 as c_e,c_d,t_r,d (SI).
+    /// Initial guess θ_0 as c_e,c_d,t_r,d (SI), or a parameter file (.yaml,
+    /// .yml, .json, as --params-out writes: its θ; e.g. the last calibration).
     #[arg(long, allow_hyphen_values = true)]
-    theta0: Option<Theta>,
+    theta0: Option<ThetaArg>,
     /// Parameters held fixed at θ_0, comma separated (e.g. c_d,t_r,d).
     #[arg(long)]
     fix: Option<ParamSet>,
@@ -395,8 +397,8 @@ impl CalibrationArgs {
             auto_fix: self.auto_fix,
             ..Default::default()
         };
-        if let Some(t) = self.theta0 {
-            o.theta0 = t;
+        if let Some(t) = &self.theta0 {
+            o.theta0 = t.theta;
         }
         let uses = manifest.map(|m| m.apply(&mut o, settings::given(self))).unwrap_or_default();
         if let Some(e) = self.estimate {
@@ -467,9 +469,11 @@ struct CalibrateArgs {
 struct ValidateArgs {
     /// The drive: a canonical CSV or a drive manifest (.toml).
     drive: PathBuf,
-    /// θ as c_e,c_d,t_r,d (SI).
+    /// θ as c_e,c_d,t_r,d (SI), or a parameter file (.yaml, .yml, .json) as
+    /// `calibrate --params-out` writes it: its θ and the reference extrinsics
+    /// it estimated (held ones give way to the drive's manifest [reference]).
     #[arg(long, allow_hyphen_values = true)]
-    theta: Theta,
+    theta: ThetaArg,
     /// Validation segment length K_v, samples (stride K_v/2).
     #[arg(long)]
     validation_length: Option<usize>,
@@ -477,9 +481,10 @@ struct ValidateArgs {
     /// box around θ_0, refined by Nelder-Mead).
     #[arg(long)]
     reachable_minimum: bool,
-    /// Centre of the reachable-minimum search box (default the paper's θ_0).
+    /// Centre of the reachable-minimum search box (default the paper's θ_0;
+    /// c_e,c_d,t_r,d or a parameter file).
     #[arg(long, allow_hyphen_values = true)]
-    theta0: Option<Theta>,
+    theta0: Option<ThetaArg>,
     /// Seed of the reachable-minimum search.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -492,9 +497,9 @@ struct ValidateArgs {
 struct CompensateArgs {
     /// The drive: a canonical CSV or a drive manifest (.toml).
     drive: PathBuf,
-    /// θ as c_e,c_d,t_r,d (SI).
+    /// θ as c_e,c_d,t_r,d (SI), or a parameter file (.yaml, .yml, .json).
     #[arg(long, allow_hyphen_values = true)]
-    theta: Theta,
+    theta: ThetaArg,
     /// Output CSV (the drive plus n_rl_comp, n_rr_comp, compensated columns).
     #[arg(long)]
     out: PathBuf,
@@ -634,6 +639,29 @@ fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>, Option<M
     Ok((drive, report.map(|r| r.wheel_scale), settings))
 }
 
+/// θ on the command line: `c_e,c_d,t_r,d` (SI units), or the path of a
+/// parameter file odocal wrote (`--params-out`: `.yaml`, `.yml`, `.json`).
+#[derive(Debug, Clone)]
+struct ThetaArg {
+    theta: Theta,
+    /// The parameter file θ came from, when it did.
+    file: Option<(PathBuf, odocal::param_file::ParamFile)>,
+}
+
+impl std::str::FromStr for ThetaArg {
+    type Err = odocal::Error;
+    fn from_str(s: &str) -> std::result::Result<Self, Self::Err> {
+        let path = Path::new(s);
+        let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+        if matches!(ext.as_deref(), Some("yaml" | "yml" | "json")) {
+            let f = odocal::param_file::ParamFile::read(path)?;
+            let theta = f.theta().map_err(|e| odocal::Error::ParamFile { path: path.into(), reason: e.to_string() })?;
+            return Ok(ThetaArg { theta, file: Some((path.into(), f)) });
+        }
+        Ok(ThetaArg { theta: s.parse()?, file: None })
+    }
+}
+
 fn import_cmd(a: ImportArgs) -> Result<()> {
     let m = odocal::Manifest::from_path(&a.manifest)?;
     let imported = odocal::import(&m)?;
@@ -676,8 +704,8 @@ fn sim_options(seed: u64, length_km: f64, noise: &str) -> Result<SimOptions> {
 
 fn simulate_cmd(a: SimulateArgs, bars: &progress::Bars) -> Result<()> {
     let mut o = sim_options(a.seed, a.length_km, &a.noise)?;
-    if let Some(t) = a.theta {
-        o.theta_true = t;
+    if let Some(t) = &a.theta {
+        o.theta_true = t.theta;
     }
     if let Some(s) = a.substeps {
         o.substeps = s;
@@ -948,20 +976,44 @@ fn validate_cmd(a: ValidateArgs, bars: &progress::Bars) -> Result<()> {
     if let Some(r) = settings.as_ref().and_then(|s| s.reference.as_ref()) {
         opts.extrinsics = r.extrinsics();
     }
+    // A parameter file's extrinsics, as `--validate-on` takes a calibration's
+    // (odocal::validate_on): estimated ones are the sensor's, for every drive
+    // of the vehicle; held ones give way to the drive's own manifest.
+    let mut extrinsics_from = "the drive's manifest [reference]".to_string();
+    if let Some((path, f)) = &a.theta.file {
+        let (x, estimated) = f.extrinsics();
+        let stated = settings.as_ref().and_then(|s| s.reference.as_ref()).is_some();
+        let (mut v, file) = (opts.extrinsics.to_array(), x.to_array());
+        let mut from_file = Vec::new();
+        for (i, p) in odocal::Param::EXTRINSICS.into_iter().enumerate() {
+            if estimated.contains(p) || !stated {
+                v[i] = file[i];
+                from_file.push(p.name());
+            }
+        }
+        opts.extrinsics = odocal::Extrinsics::from_array(v);
+        extrinsics_from = if from_file.len() == 3 {
+            path.display().to_string()
+        } else if from_file.is_empty() {
+            extrinsics_from
+        } else {
+            format!("{} from {}, the rest from the drive's manifest [reference]", from_file.join(", "), path.display())
+        };
+    }
     if let Some(v) = a.validation_length {
         opts.segments.length_steps = v;
         opts.segments.stride_steps = (v / 2).max(1);
     }
     if a.reachable_minimum {
-        let centre = a.theta0.unwrap_or(Theta::PAPER_INITIAL);
+        let centre = a.theta0.as_ref().map_or(Theta::PAPER_INITIAL, |t| t.theta);
         opts.reachable = Some(odocal::ReachableOptions {
             seed: a.seed,
-            starts: vec![a.theta],
+            starts: vec![a.theta.theta],
             ..odocal::ReachableOptions::around(&centre)
         });
     }
     let cb = |e| bars.event(e);
-    let report = odocal::validate_with_progress(&drive, &a.theta, &opts, Some(&cb))?;
+    let report = odocal::validate_with_progress(&drive, &a.theta.theta, &opts, Some(&cb))?;
     bars.finish();
     if let Some(p) = &a.json {
         write_json(p, serde_json::to_value(&report)?)?;
@@ -970,9 +1022,17 @@ fn validate_cmd(a: ValidateArgs, bars: &progress::Bars) -> Result<()> {
         }
     }
     let r = &report.validation;
-    println!("θ: {}", a.theta);
+    match &a.theta.file {
+        Some((path, f)) => println!(
+            "θ: {} (from {}{})",
+            a.theta.theta,
+            path.display(),
+            f.verdict.as_ref().map(|v| format!(", verdict {v}")).unwrap_or_default()
+        ),
+        None => println!("θ: {}", a.theta.theta),
+    }
     if !report.extrinsics.is_zero() {
-        println!("reference extrinsics: {} (the drive's manifest [reference])", report.extrinsics);
+        println!("reference extrinsics: {} ({extrinsics_from})", report.extrinsics);
     }
     println!("mean position error Ē_p: {:.4} m over {} validation segments", r.mean_position_error_m, r.segments);
     if let Some(rm) = &report.reachable_minimum {
@@ -1010,7 +1070,7 @@ fn compensate_cmd(a: CompensateArgs, bars: &progress::Bars) -> Result<()> {
     let comp = odocal::compensate::compensate_segments(
         &drive,
         &segs,
-        &[a.theta],
+        &[a.theta.theta],
         &odocal::CompensateOptions::default(),
         &QpOptions { solver: a.qp_solver, ..Default::default() },
         Some(&cb),

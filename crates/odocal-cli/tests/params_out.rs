@@ -100,3 +100,46 @@ fn params_file_json_and_text_give_the_result_sigma() {
     assert!(r["sigma"]["d"].is_null(), "{}", r["sigma"]);
     assert!(stdout(&o).contains("± 1σ (robust)"), "{}", stdout(&o));
 }
+
+/// A parameter file `--params-out` wrote is a θ for `validate --theta` (and
+/// `--theta0`): read back to the bit, with the heading offset it estimated
+/// (the default method, EIV, estimates it with its batch G-N start),
+/// it gives the calibration's own Ē_p exactly; the bare numbers, without
+/// the offset, do not.
+#[test]
+fn a_params_file_validates_like_the_calibration_that_wrote_it() {
+    let d = tempfile::tempdir().expect("tmp");
+    let drive = d.path().join("drive.csv");
+    let dstr = drive.to_str().expect("utf8");
+    let o = odocal(&["simulate", "--seed", "2", "--length-km", "5", "--out", dstr]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (yaml, pjson, json) = (d.path().join("p.yaml"), d.path().join("p.json"), d.path().join("c.json"));
+    let path = |p: &std::path::Path| p.to_str().expect("utf8").to_string();
+    for params in [&yaml, &pjson] {
+        let o = odocal(&["calibrate", dstr, "--params-out", &path(params), "--json", &path(&json)]);
+        assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", stderr(&o));
+    }
+    let c: Value = serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("json");
+    let own = c["validation"]["mean_position_error_m"].as_f64().expect("Ē_p");
+    let offset = c["extrinsics"]["value"]["heading_offset"].as_f64().expect("heading offset");
+    assert!(offset.abs() > 1e-4, "the simulated reference has a heading offset to estimate: {offset}");
+    let ep = |theta: &str| {
+        let o = odocal(&["validate", dstr, "--theta", theta, "--json", "-"]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let v: Value = serde_json::from_str(&stdout(&o)).expect("json");
+        v["mean_position_error_m"].as_f64().expect("Ē_p")
+    };
+    assert_eq!(ep(&path(&yaml)).to_bits(), own.to_bits());
+    assert_eq!(ep(&path(&pjson)).to_bits(), own.to_bits());
+    let t = &c["theta"];
+    let numbers = ["c_e", "c_d", "t_r", "d"].map(|k| format!("{:?}", t[k].as_f64().expect("θ"))).join(",");
+    assert_ne!(ep(&numbers).to_bits(), own.to_bits(), "without the heading offset Ē_p differs");
+    let o = odocal(&["validate", dstr, "--theta", &path(&yaml)]);
+    assert!(stdout(&o).contains("(from ") && stdout(&o).contains("p.yaml"), "{}", stdout(&o));
+    // A file that is not one: exit 2 (a bad command line), naming it.
+    let bad = d.path().join("bad.yaml");
+    std::fs::write(&bad, "odocal:\n  ros__parameters:\n    c_e: 1.95\n").expect("write");
+    let o = odocal(&["validate", dstr, "--theta", &path(&bad)]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("bad.yaml") && stderr(&o).contains("no `c_d`"), "{}", stderr(&o));
+}

@@ -129,6 +129,15 @@ pub enum Error {
         /// What is wrong, naming the key.
         reason: String,
     },
+    /// A parameter file (ROS 2 YAML or JSON, as `--params-out` writes) could
+    /// not be read as one.
+    #[error("{path}: {reason}")]
+    ParamFile {
+        /// The parameter file.
+        path: PathBuf,
+        /// What is wrong, naming the key.
+        reason: String,
+    },
     /// JSON (de)serialisation failed.
     #[error("{context}: {source}")]
     Json {

@@ -35,7 +35,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::calibrate::CalibrationReport;
 use crate::error::{Error, Result};
+use crate::extrinsics::Extrinsics;
 use crate::model::{Theta, THETA_NAMES};
+use crate::param::{Param, ParamSet};
 
 /// Onto which consumer's keys the parameters are also written.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -277,6 +279,261 @@ impl ParamFile {
     }
 }
 
+/// Largest parameter file [`ParamFile::read`] accepts, bytes (odocal writes
+/// about 1.5 kB).
+pub const MAX_PARAM_FILE_BYTES: u64 = 1 << 20;
+
+/// A value of the flat `ros__parameters` / `parameters` map.
+enum Flat {
+    Number(f64),
+    Bool(bool),
+    Text(String),
+    Other(&'static str),
+}
+
+/// The extrinsics' names, units and descriptions, in [`Param::EXTRINSICS`] order.
+const EXTRINSIC_INFO: [(&str, &str, &str); 3] = [
+    ("lever_x", "m", "pose reference lever arm from the rear-axle centre, forward"),
+    ("lever_y", "m", "pose reference lever arm from the rear-axle centre, left"),
+    ("heading_offset", "rad", "pose reference heading minus vehicle heading"),
+];
+
+impl ParamFile {
+    /// Reads a parameter file as [`ParamFile::write`] writes it (and as a
+    /// user may edit it): a ROS 2 parameter file (`.yaml`/`.yml`: the node
+    /// whose `ros__parameters` hold `c_e`, or the only node) or odocal's JSON
+    /// (`.json`). `c_e`, `c_d`, `t_r` and `d` are required (SI units, checked
+    /// like a typed θ); `<name>_sigma` gives a 1σ, `<name>_held: true` marks
+    /// a held parameter; `lever_x`, `lever_y`, `heading_offset`, the verdict
+    /// and the provenance are read when present; other keys (a consumer's,
+    /// e.g. `wheel_separation`) are ignored. Writing the result again gives
+    /// the same parameters to the bit.
+    ///
+    /// ```
+    /// use odocal::param_file::ParamFile;
+    /// use odocal::Theta;
+    /// let dir = std::env::temp_dir().join(format!("odocal-doc-{}", std::process::id()));
+    /// std::fs::create_dir_all(&dir)?;
+    /// let path = dir.join("odocal.yaml");
+    /// let theta = Theta { c_e: 1.951448, c_d: -0.0021, t_r: 1.5649, d: 0.0008 };
+    /// ParamFile::from_theta(&theta, [Some(2.1e-5), None, Some(3e-3), Some(1e-4)], "drive.csv", "eiv").write(&path)?;
+    /// let back = ParamFile::read(&path)?;
+    /// assert_eq!(back.theta()?, theta);
+    /// assert_eq!(back.params[1].sigma, None); // c_d was held
+    /// # std::fs::remove_dir_all(&dir)?;
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    ///
+    /// # Errors
+    /// [`Error::Io`]; [`Error::ParamFile`] naming the key for a file that is
+    /// not a parameter file (another extension, larger than
+    /// [`MAX_PARAM_FILE_BYTES`], not YAML/JSON, a required parameter missing
+    /// or not a number, a physically absurd θ).
+    pub fn read(path: &Path) -> Result<ParamFile> {
+        let bad = |reason: String| Error::ParamFile { path: path.to_path_buf(), reason };
+        let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+        let yaml = match ext.as_deref() {
+            Some("yaml" | "yml") => true,
+            Some("json") => false,
+            _ => {
+                return Err(bad("not a parameter file: use the .yaml, .yml or .json file `--params-out` wrote".into()))
+            }
+        };
+        let len = std::fs::metadata(path).map_err(|source| Error::io(path, source))?.len();
+        if len > MAX_PARAM_FILE_BYTES {
+            return Err(bad(format!("{len} bytes: not a parameter file (odocal writes about 1.5 kB)")));
+        }
+        let text = std::fs::read_to_string(path).map_err(|source| Error::io(path, source))?;
+        let (node, flat) = if yaml { flat_yaml(&text) } else { flat_json(&text) }.map_err(bad)?;
+        Self::from_flat(node, flat).map_err(bad)
+    }
+
+    /// θ from the file's `c_e`, `c_d`, `t_r`, `d`, checked for physical sanity.
+    ///
+    /// # Errors
+    /// [`Error::InvalidTheta`] when one is missing or the values are absurd.
+    pub fn theta(&self) -> Result<Theta> {
+        let mut v = [0.0; 4];
+        for (i, name) in THETA_NAMES.iter().enumerate() {
+            v[i] = self.value(name).ok_or_else(|| Error::InvalidTheta(format!("no `{name}` in the parameter file")))?;
+        }
+        let theta = Theta::from_array(v);
+        crate::limits::check_theta(&theta)?;
+        Ok(theta)
+    }
+
+    /// The reference extrinsics the file holds (0 for those it lacks) and
+    /// which of them carry a σ, i.e. were estimated by the calibration that
+    /// wrote it.
+    pub fn extrinsics(&self) -> (Extrinsics, ParamSet) {
+        let mut v = [0.0; 3];
+        let mut estimated = ParamSet::EMPTY;
+        for (i, p) in Param::EXTRINSICS.into_iter().enumerate() {
+            if let Some(e) = self.params.iter().find(|e| e.name == p.name()) {
+                v[i] = e.value;
+                if e.sigma.is_some() {
+                    estimated.insert(p);
+                }
+            }
+        }
+        (Extrinsics::from_array(v), estimated)
+    }
+
+    /// Builds the file from the flat key–value map of one node.
+    fn from_flat(node: String, flat: Vec<(String, Flat)>) -> std::result::Result<ParamFile, String> {
+        let get = |k: &str| flat.iter().find(|(n, _)| n == k).map(|(_, v)| v);
+        let number = |k: &str| -> std::result::Result<Option<f64>, String> {
+            match get(k) {
+                None => Ok(None),
+                Some(Flat::Number(x)) if x.is_finite() => Ok(Some(*x)),
+                Some(Flat::Number(x)) => Err(format!("key `{k}`: {x} is not a finite number")),
+                Some(Flat::Text(t)) => Err(format!("key `{k}`: '{}' is not a number", crate::drive::echo(t))),
+                Some(Flat::Bool(b)) => Err(format!("key `{k}`: {b} is not a number")),
+                Some(Flat::Other(what)) => Err(format!("key `{k}`: {what}, not a number")),
+            }
+        };
+        let mut params = Vec::new();
+        let names = THETA_NAMES.iter().enumerate().map(|(i, n)| (*n, UNITS[i], DESCRIPTIONS[i], true));
+        let extr = EXTRINSIC_INFO.iter().map(|(n, u, d)| (*n, *u, *d, false));
+        for (name, unit, description, required) in names.chain(extr) {
+            let Some(value) = number(name)? else {
+                if required {
+                    let found: Vec<&str> = flat.iter().map(|(n, _)| n.as_str()).take(12).collect();
+                    return Err(format!(
+                        "node `{node}`: no `{name}` (a parameter file needs c_e, c_d, t_r and d, SI units; keys found: {})",
+                        if found.is_empty() { "none".to_string() } else { found.join(", ") }
+                    ));
+                }
+                continue;
+            };
+            let sigma = number(&format!("{name}_sigma"))?;
+            if let Some(s) = sigma.filter(|s| *s < 0.0) {
+                return Err(format!("key `{name}_sigma`: {s} is negative"));
+            }
+            params.push(ParamEntry {
+                name: name.into(),
+                value,
+                sigma,
+                unit: unit.into(),
+                description: description.into(),
+            });
+        }
+        let text = |k: &str| match get(k) {
+            Some(Flat::Text(t)) => Some(t.clone()),
+            _ => None,
+        };
+        let verdict = text("verdict");
+        let verdict_reasons = flat
+            .iter()
+            .filter_map(|(n, v)| match v {
+                Flat::Text(t) if n.starts_with("verdict_reasons[") => Some(t.clone()),
+                _ => None,
+            })
+            .collect();
+        let provenance = flat
+            .iter()
+            .filter_map(|(n, v)| match v {
+                Flat::Text(t) => n.strip_prefix("provenance.").map(|k| (k.to_string(), t.clone())),
+                _ => None,
+            })
+            .collect();
+        let mapping =
+            if get("wheel_separation").is_some() { ParamMapping::DiffDriveController } else { ParamMapping::Odocal };
+        let f = ParamFile { node, params, verdict, verdict_reasons, provenance, mapping };
+        f.theta().map_err(|e| e.to_string())?;
+        Ok(f)
+    }
+}
+
+/// The node and its flattened `ros__parameters` of a ROS 2 parameter file:
+/// nested maps as `a.b`, list items as `a[i]`.
+fn flat_yaml(text: &str) -> std::result::Result<(String, Vec<(String, Flat)>), String> {
+    use yaml_rust2::Yaml;
+    let docs = yaml_rust2::YamlLoader::load_from_str(text).map_err(|e| format!("not YAML: {e}"))?;
+    let Some(Yaml::Hash(nodes)) = docs.first() else {
+        return Err("not a ROS 2 parameter file (expected `NODE:` then `ros__parameters:`)".into());
+    };
+    let mut found = Vec::new();
+    for (k, v) in nodes {
+        let name = match k {
+            Yaml::String(s) => s.clone(),
+            other => format!("{other:?}"),
+        };
+        if let Yaml::Hash(h) = &v["ros__parameters"] {
+            found.push((name, h));
+        }
+    }
+    let has_c_e = |h: &&yaml_rust2::yaml::Hash| h.contains_key(&Yaml::String("c_e".into()));
+    let chosen = match found.iter().position(|(_, h)| has_c_e(h)) {
+        Some(i) => found.swap_remove(i),
+        None if found.len() == 1 => found.swap_remove(0),
+        None if found.is_empty() => {
+            return Err("not a ROS 2 parameter file: no node with `ros__parameters`".into());
+        }
+        None => {
+            let names: Vec<&str> = found.iter().map(|(n, _)| n.as_str()).collect();
+            return Err(format!("no node's `ros__parameters` has `c_e` (nodes: {})", names.join(", ")));
+        }
+    };
+    fn walk(prefix: &str, y: &Yaml, out: &mut Vec<(String, Flat)>) {
+        match y {
+            Yaml::Real(_) | Yaml::Integer(_) => out.push((
+                prefix.into(),
+                Flat::Number(y.as_f64().or_else(|| y.as_i64().map(|i| i as f64)).unwrap_or(f64::NAN)),
+            )),
+            Yaml::Boolean(b) => out.push((prefix.into(), Flat::Bool(*b))),
+            Yaml::String(s) => out.push((prefix.into(), Flat::Text(s.clone()))),
+            Yaml::Array(a) => {
+                for (i, v) in a.iter().enumerate() {
+                    walk(&format!("{prefix}[{i}]"), v, out);
+                }
+            }
+            Yaml::Hash(h) => {
+                for (k, v) in h {
+                    if let Yaml::String(k) = k {
+                        let key = if prefix.is_empty() { k.clone() } else { format!("{prefix}.{k}") };
+                        walk(&key, v, out);
+                    }
+                }
+            }
+            Yaml::Null => out.push((prefix.into(), Flat::Other("empty"))),
+            _ => out.push((prefix.into(), Flat::Other("not a value"))),
+        }
+    }
+    let mut out = Vec::new();
+    walk("", &Yaml::Hash(chosen.1.clone()), &mut out);
+    Ok((chosen.0, out))
+}
+
+/// The node and its flattened `parameters` of odocal's JSON parameter file
+/// (verdict, reasons and provenance under the same names as in YAML).
+fn flat_json(text: &str) -> std::result::Result<(String, Vec<(String, Flat)>), String> {
+    use serde_json::Value;
+    let v: Value = serde_json::from_str(text).map_err(|e| format!("not JSON: {e}"))?;
+    let Some(params) = v.get("parameters").and_then(Value::as_object) else {
+        return Err("not an odocal parameter file (no `parameters` object)".into());
+    };
+    let node = v.get("node").and_then(Value::as_str).unwrap_or("odocal").to_string();
+    let flat_of = |x: &Value| match x {
+        Value::Number(n) => Flat::Number(n.as_f64().unwrap_or(f64::NAN)),
+        Value::Bool(b) => Flat::Bool(*b),
+        Value::String(s) => Flat::Text(s.clone()),
+        Value::Null => Flat::Other("null"),
+        _ => Flat::Other("not a value"),
+    };
+    let mut out: Vec<(String, Flat)> = params.iter().map(|(k, x)| (k.clone(), flat_of(x))).collect();
+    if let Some(s) = v.get("verdict").and_then(Value::as_str) {
+        out.push(("verdict".into(), Flat::Text(s.into())));
+    }
+    if let Some(a) = v.get("verdict_reasons").and_then(Value::as_array) {
+        out.extend(a.iter().enumerate().map(|(i, x)| (format!("verdict_reasons[{i}]"), flat_of(x))));
+    }
+    if let Some(o) = v.get("provenance").and_then(Value::as_object) {
+        out.extend(o.iter().map(|(k, x)| (format!("provenance.{k}"), flat_of(x))));
+    }
+    Ok((node, out))
+}
+
 fn yaml_f64(v: f64) -> String {
     if v.is_finite() {
         let s = format!("{v:?}");
@@ -375,6 +632,93 @@ mod tests {
         assert_eq!(p["verdict"].as_str(), Some("accepted"));
         assert_eq!(p["provenance"]["input"].as_str(), Some("drive \"a\".csv"));
         assert_eq!(p["provenance"]["method"].as_str(), Some("batch-gn"));
+    }
+
+    fn with_extrinsics(mut f: ParamFile) -> ParamFile {
+        use crate::extrinsics::ExtrinsicsEstimate;
+        f.add_extrinsics(&ExtrinsicsEstimate {
+            value: Extrinsics { lever_x: -0.9, lever_y: 0.0, heading_offset: -0.0099 },
+            std_dev: Extrinsics { lever_x: 0.01, lever_y: 0.02, heading_offset: 1e-4 },
+            free: ParamSet::LEVER_ARM,
+            ..ExtrinsicsEstimate::held(Extrinsics::ZERO)
+        });
+        f
+    }
+
+    #[test]
+    fn files_read_back_to_the_same_parameters() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let f = with_extrinsics(sample());
+        let yaml = dir.path().join("odocal.yaml");
+        f.write(&yaml).expect("write yaml");
+        let back = ParamFile::read(&yaml).expect("read yaml");
+        assert_eq!(back, f);
+        assert_eq!(back.to_ros2_yaml(), f.to_ros2_yaml());
+        let json = dir.path().join("odocal.json");
+        f.write(&json).expect("write json");
+        let mut back = ParamFile::read(&json).expect("read json");
+        // JSON objects are unordered: compare the provenance as a set.
+        back.provenance.sort();
+        let mut g = f.clone();
+        g.provenance.sort();
+        assert_eq!(back, g);
+        assert_eq!(
+            back.theta().expect("theta").to_array().map(f64::to_bits),
+            [1.951448, -0.002130942, 1.564853, 0.000396481].map(f64::to_bits)
+        );
+        let (x, estimated) = back.extrinsics();
+        assert_eq!(x, Extrinsics { lever_x: -0.9, lever_y: 0.0, heading_offset: -0.0099 });
+        assert_eq!(estimated, ParamSet::LEVER_ARM);
+    }
+
+    fn read_text(name: &str, text: &str) -> Result<ParamFile> {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join(name);
+        std::fs::write(&path, text).expect("write");
+        ParamFile::read(&path)
+    }
+
+    #[test]
+    fn hand_written_files_are_read_and_bad_ones_named() {
+        // Integers, another node first, keys of a consumer, no σ at all.
+        let ok = "/**:\n  ros__parameters:\n    use_sim_time: false\nodocal:\n  ros__parameters:\n    c_e: 1.95\n    \
+                  c_d: 0\n    t_r: 1.53\n    d: 0\n    wheel_separation: 1.53\n";
+        let f = read_text("p.yaml", ok).expect("hand-written file");
+        assert_eq!(f.theta().expect("theta"), Theta { c_e: 1.95, c_d: 0.0, t_r: 1.53, d: 0.0 });
+        assert!(f.params.iter().all(|p| p.sigma.is_none()));
+        assert_eq!(f.mapping, ParamMapping::DiffDriveController);
+        for (name, text, needles) in [
+            (
+                "p.yaml",
+                "odocal:\n  ros__parameters:\n    c_e: 1.95\n    c_d: 0.0\n    d: 0.0\n",
+                &["no `t_r`", "keys found: c_e, c_d, d"][..],
+            ),
+            (
+                "p.yaml",
+                "odocal:\n  ros__parameters:\n    c_e: big\n    c_d: 0.0\n    t_r: 1.5\n    d: 0.0\n",
+                &["key `c_e`", "'big' is not a number"],
+            ),
+            (
+                "p.yaml",
+                "odocal:\n  ros__parameters:\n    c_e: 1.95\n    c_d: 0.0\n    t_r: 0.0\n    d: 0.0\n",
+                &["t_r"],
+            ),
+            (
+                "p.yaml",
+                "odocal:\n  ros__parameters:\n    c_e: 1.95\n    c_e_sigma: -1.0\n",
+                &["`c_e_sigma`", "negative"],
+            ),
+            ("p.yaml", "c_e: 1.95\n", &["no node with `ros__parameters`"]),
+            ("p.yaml", "odocal: [unclosed\n", &["not YAML"]),
+            ("p.json", "{\"c_e\": 1.95}", &["no `parameters` object"]),
+            ("p.txt", "c_e: 1.95", &["use the .yaml, .yml or .json file"]),
+        ] {
+            let e = read_text(name, text).expect_err(text).to_string();
+            assert!(e.contains(name), "{e}");
+            for n in needles {
+                assert!(e.contains(n), "expected '{n}' in: {e}");
+            }
+        }
     }
 
     #[test]
