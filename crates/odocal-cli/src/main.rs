@@ -976,22 +976,12 @@ fn validate_cmd(a: ValidateArgs, bars: &progress::Bars) -> Result<()> {
     if let Some(r) = settings.as_ref().and_then(|s| s.reference.as_ref()) {
         opts.extrinsics = r.extrinsics();
     }
-    // A parameter file's extrinsics, as `--validate-on` takes a calibration's
-    // (odocal::validate_on): estimated ones are the sensor's, for every drive
-    // of the vehicle; held ones give way to the drive's own manifest.
+    // A parameter file's extrinsics, as `--validate-on` takes a calibration's.
     let mut extrinsics_from = "the drive's manifest [reference]".to_string();
     if let Some((path, f)) = &a.theta.file {
-        let (x, estimated) = f.extrinsics();
-        let stated = settings.as_ref().and_then(|s| s.reference.as_ref()).is_some();
-        let (mut v, file) = (opts.extrinsics.to_array(), x.to_array());
-        let mut from_file = Vec::new();
-        for (i, p) in odocal::Param::EXTRINSICS.into_iter().enumerate() {
-            if estimated.contains(p) || !stated {
-                v[i] = file[i];
-                from_file.push(p.name());
-            }
-        }
-        opts.extrinsics = odocal::Extrinsics::from_array(v);
+        let stated = settings.as_ref().and_then(|s| s.reference.as_ref()).map(|r| r.extrinsics());
+        let (x, from_file) = f.extrinsics_for_drive(stated.as_ref());
+        opts.extrinsics = x;
         extrinsics_from = if from_file.len() == 3 {
             path.display().to_string()
         } else if from_file.is_empty() {

@@ -379,6 +379,25 @@ impl ParamFile {
         (Extrinsics::from_array(v), estimated)
     }
 
+    /// The reference extrinsics to validate this file's θ with on a drive,
+    /// by the rules of [`crate::validate_on`]: one the calibration estimated
+    /// (it has a σ) is the sensor's, so it holds for every drive of the
+    /// vehicle; a held one gives way to what the drive's own manifest states
+    /// (`drive_reference`, its `[reference]`), else the file's value. Also
+    /// returns the names of those taken from the file.
+    pub fn extrinsics_for_drive(&self, drive_reference: Option<&Extrinsics>) -> (Extrinsics, Vec<&'static str>) {
+        let (file, estimated) = self.extrinsics();
+        let (file, mut v) = (file.to_array(), drive_reference.copied().unwrap_or(Extrinsics::ZERO).to_array());
+        let mut from_file = Vec::new();
+        for (i, p) in Param::EXTRINSICS.into_iter().enumerate() {
+            if estimated.contains(p) || drive_reference.is_none() {
+                v[i] = file[i];
+                from_file.push(p.name());
+            }
+        }
+        (Extrinsics::from_array(v), from_file)
+    }
+
     /// Builds the file from the flat key–value map of one node.
     fn from_flat(node: String, flat: Vec<(String, Flat)>) -> std::result::Result<ParamFile, String> {
         let get = |k: &str| flat.iter().find(|(n, _)| n == k).map(|(_, v)| v);
@@ -669,6 +688,19 @@ mod tests {
         let (x, estimated) = back.extrinsics();
         assert_eq!(x, Extrinsics { lever_x: -0.9, lever_y: 0.0, heading_offset: -0.0099 });
         assert_eq!(estimated, ParamSet::LEVER_ARM);
+        // On a drive whose manifest states its mount, the estimated lever arm
+        // still comes from the file, the held heading offset from the drive.
+        let stated = Extrinsics { lever_x: 0.5, lever_y: 0.1, heading_offset: 0.02 };
+        let (x, from_file) = back.extrinsics_for_drive(Some(&stated));
+        assert_eq!(x, Extrinsics { lever_x: -0.9, lever_y: 0.0, heading_offset: 0.02 });
+        assert_eq!(from_file, ["lever_x", "lever_y"]);
+        assert_eq!(
+            back.extrinsics_for_drive(None),
+            (
+                Extrinsics { lever_x: -0.9, lever_y: 0.0, heading_offset: -0.0099 },
+                vec!["lever_x", "lever_y", "heading_offset"]
+            )
+        );
     }
 
     fn read_text(name: &str, text: &str) -> Result<ParamFile> {
