@@ -565,9 +565,26 @@ fn parse_holdout(s: &str) -> PyResult<Holdout> {
     }
 }
 
-/// θ from a dict `{"c_e", "c_d", "t_r", "d"}`, a sequence of four numbers
-/// or the CLI's text `"c_e,c_d,t_r,d"`; checked by the library.
+/// The parameter file a θ argument names: a text ending in `.yaml`, `.yml`
+/// or `.json` (the Python layer turns path objects into text), read by the
+/// library; `None` for any other argument.
+fn params_file_arg(v: &Bound<'_, PyAny>) -> PyResult<Option<odocal::param_file::ParamFile>> {
+    let Ok(s) = v.cast::<PyString>() else { return Ok(None) };
+    let s = s.to_str()?;
+    let lower = s.to_ascii_lowercase();
+    if [".yaml", ".yml", ".json"].iter().any(|e| lower.ends_with(e)) {
+        return odocal::param_file::ParamFile::read(std::path::Path::new(s)).map(Some).map_err(lib_err);
+    }
+    Ok(None)
+}
+
+/// θ from a dict `{"c_e", "c_d", "t_r", "d"}`, a sequence of four numbers,
+/// the CLI's text `"c_e,c_d,t_r,d"` or the path of a parameter file
+/// (`--params-out`'s); checked by the library.
 fn extract_theta(v: &Bound<'_, PyAny>) -> PyResult<Theta> {
+    if let Some(f) = params_file_arg(v)? {
+        return f.theta().map_err(lib_err);
+    }
     let theta = if let Ok(s) = v.cast::<PyString>() {
         s.to_str()?.parse::<Theta>().map_err(lib_err)?
     } else if let Ok(d) = v.cast::<PyDict>() {
@@ -1063,6 +1080,28 @@ fn _method_details(report_json: &str) -> PyResult<String> {
     Ok(report.method_details())
 }
 
+/// Reads a parameter file (ROS 2 YAML or JSON, as `--params-out` writes
+/// it; library `ParamFile::read`) into the layout of the JSON file.
+#[pyfunction]
+fn read_params(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyAny>> {
+    let f = odocal::param_file::ParamFile::read(&path).map_err(lib_err)?;
+    to_py(py, &f.to_json())
+}
+
+/// Writes the parameter file of a calibration report (its JSON text) as
+/// `odocal calibrate --params-out` does: YAML for `.yaml`/`.yml`, JSON for
+/// `.json` (library `ParamFile::from_report`).
+#[pyfunction]
+#[pyo3(signature = (report_json, path, *, input, node, mapping))]
+fn _write_params(report_json: &str, path: PathBuf, input: &str, node: &str, mapping: &str) -> PyResult<()> {
+    let report: odocal::CalibrationReport = serde_json::from_str(report_json)
+        .map_err(|e| PyValueError::new_err(format!("not a calibration report: {e}")))?;
+    let mut f = odocal::param_file::ParamFile::from_report(&report, input);
+    f.node = node.to_string();
+    f.mapping = mapping.parse().map_err(lib_err)?;
+    f.write(&path).map_err(lib_err)
+}
+
 /// Writes the HTML report (odocal-report) of a calibration report (its
 /// JSON text) on the drive it was validated on: `drive`, its held-out half
 /// (`holdout`), or `validate_on`. Maps the JSON report to the renderer's
@@ -1138,15 +1177,21 @@ fn validate<'py>(
     validation_length: Option<usize>,
     threads: Option<usize>,
 ) -> PyResult<Bound<'py, PyAny>> {
+    let file = params_file_arg(theta)?;
     let theta = extract_theta(theta)?;
     let mut opts = odocal::ValidateOptions::default();
     if let Some(k) = validation_length {
         opts.segments.length_steps = k;
         opts.segments.stride_steps = (k / 2).max(1);
     }
-    // A manifest's [reference]: the drive's own mount (as `odocal validate`).
-    if let Some(r) = drive.get().prov.settings()?.and_then(|s| s.reference) {
-        opts.extrinsics = r.extrinsics();
+    // A manifest's [reference]: the drive's own mount (as `odocal validate`);
+    // a parameter file's estimated extrinsics win (ParamFile::extrinsics_for_drive).
+    let stated = drive.get().prov.settings()?.and_then(|s| s.reference).map(|r| r.extrinsics());
+    if let Some(x) = stated {
+        opts.extrinsics = x;
+    }
+    if let Some(f) = &file {
+        opts.extrinsics = f.extrinsics_for_drive(stated.as_ref()).0;
     }
     let inner = Arc::clone(&drive.get().drive);
     let report = py.detach(|| with_threads(threads, || odocal::validate(&inner, &theta, &opts)))?.map_err(lib_err)?;
@@ -1200,6 +1245,8 @@ fn _odocal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(_drive_from_state, m)?)?;
     m.add_function(wrap_pyfunction!(_report_html, m)?)?;
     m.add_function(wrap_pyfunction!(_method_details, m)?)?;
+    m.add_function(wrap_pyfunction!(read_params, m)?)?;
+    m.add_function(wrap_pyfunction!(_write_params, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("COLUMNS", COLUMNS.to_vec())?;
     Ok(())

@@ -274,3 +274,41 @@ def test_known_noise_equals_cli_json(odocal_bin, drive_csv):
         odocal.calibrate(odocal.Drive.from_csv(drive_csv), known_noise=["heading"])
     with pytest.raises(odocal.OdocalError, match="known_noise applies to method eiv only"):
         odocal.calibrate(odocal.Drive.from_csv(drive_csv), "batch-gn", known_noise="heading_white")
+
+
+def test_params_files_round_trip_and_equal_the_cli(odocal_bin, drive_csv, tmp_path):
+    """write_params writes what `--params-out` writes; read_params and every θ argument read it back."""
+    drive = odocal.Drive.from_csv(drive_csv)
+    report = odocal.calibrate(drive, eiv_window=1500)
+    for name in ("p.yaml", "p.json"):
+        ours, theirs = tmp_path / ("py-" + name), tmp_path / ("cli-" + name)
+        report.write_params(ours, input=str(drive_csv))
+        out = subprocess.run(
+            [str(odocal_bin), "calibrate", str(drive_csv), "--eiv-window", "1500", "--params-out", str(theirs)],
+            capture_output=True,
+            text=True,
+        )
+        assert out.returncode in (0, 3), out.stderr
+        # The same file but for the date line (a run across midnight UTC).
+        undated = lambda p: [l for l in p.read_text().splitlines() if '"date"' not in l and "date:" not in l]
+        assert undated(ours) == undated(theirs)
+        back = odocal.read_params(ours)
+        params = back["parameters"]
+        assert [params[k] for k in odocal.THETA_NAMES] == [report.theta[k] for k in odocal.THETA_NAMES]
+        rs = report.result_sigma
+        for k in odocal.THETA_NAMES:
+            assert params.get(k + "_sigma") == rs[k], (k, params, rs)
+        assert back["verdict"] == report.verdict["level"]
+        # A file is a θ: validate takes its θ and the heading offset its calibration estimated,
+        # so it gives the calibration's own Ē_p to the bit; the bare θ (no offset) does not.
+        v = odocal.validate(drive, ours)
+        assert v["mean_position_error_m"] == report.mean_position_error_m
+        assert v["extrinsics"]["heading_offset"] == params["heading_offset"] != 0.0
+        assert odocal.validate(drive, report)["mean_position_error_m"] != report.mean_position_error_m
+        assert odocal.validate(drive, str(ours))["mean_position_error_m"] == report.mean_position_error_m
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("odocal:\n  ros__parameters:\n    c_e: 1.95\n")
+    with pytest.raises(odocal.OdocalError, match="bad.yaml: node `odocal`: no `c_d`"):
+        odocal.validate(drive, bad)
+    with pytest.raises(odocal.OdocalError, match="no `c_d`"):
+        odocal.read_params(bad)

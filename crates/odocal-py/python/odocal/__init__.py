@@ -28,7 +28,7 @@ from typing import Any, Callable, Mapping, Optional, Sequence, Union
 import numpy as np
 
 from . import _odocal
-from ._odocal import COLUMNS, Drive, OdocalError, __version__, simulate
+from ._odocal import COLUMNS, Drive, OdocalError, __version__, read_params, simulate
 
 __all__ = [
     "COLUMNS",
@@ -37,6 +37,7 @@ __all__ = [
     "Drive",
     "OdocalError",
     "calibrate",
+    "read_params",
     "simulate",
     "validate",
     "__version__",
@@ -45,7 +46,7 @@ __all__ = [
 #: The parameter names, in vector order.
 THETA_NAMES = ("c_e", "c_d", "t_r", "d")
 
-ThetaLike = Union[Mapping[str, float], Sequence[float], str, "CalibrationReport"]
+ThetaLike = Union[Mapping[str, float], Sequence[float], str, "os.PathLike[str]", "CalibrationReport"]
 ProgressCallback = Callable[[str, int, int], Any]
 
 
@@ -166,6 +167,23 @@ class CalibrationReport:
             raise ValueError("this report has no drive to draw (make it with odocal.calibrate)")
         _odocal._report_html(self._drive, self._json, os.fspath(path), title=title, **self._scored_on)
 
+    def write_params(
+        self,
+        path: Union[str, "os.PathLike[str]"],
+        *,
+        input: str = "python",
+        node: str = "odocal",
+        mapping: str = "odocal",
+    ) -> None:
+        """Writes the parameter file ``odocal calibrate --params-out`` writes:
+        a ROS 2 parameter file for ``.yaml``/``.yml`` (``ros__parameters``
+        under ``node``), JSON for ``.json``; θ with the σ that stands for the
+        result (``result_sigma``; ``<name>_held: true`` for held ones), the
+        reference extrinsics, the verdict and provenance (``input`` names the
+        data). ``mapping="diff_drive_controller"`` adds that controller's keys.
+        :func:`read_params` and every θ argument read it back."""
+        _odocal._write_params(self._json, os.fspath(path), input=input, node=node, mapping=mapping)
+
     def __repr__(self) -> str:
         t = self._dict["theta"]
         return (
@@ -178,6 +196,8 @@ class CalibrationReport:
 def _theta_arg(theta: ThetaLike) -> Any:
     if isinstance(theta, CalibrationReport):
         return theta.theta
+    if isinstance(theta, os.PathLike):
+        return os.fspath(theta)
     if isinstance(theta, np.ndarray):
         return [float(x) for x in theta]
     return theta
@@ -268,6 +288,10 @@ def validate(
 
     Returns the CLI's ``validate --json``: ``{"theta", "mean_position_error_m",
     "segments", "per_segment_m", "schema_version"}``. ``theta`` is a dict, four numbers, the
-    text ``"c_e,c_d,t_r,d"`` or a :class:`CalibrationReport`.
+    text ``"c_e,c_d,t_r,d"``, a :class:`CalibrationReport` or the path of a parameter file
+    (``.yaml``, ``.yml``, ``.json``, as :meth:`CalibrationReport.write_params` and
+    ``--params-out`` write it): then the reference extrinsics its calibration estimated are
+    used too (held ones give way to the drive's manifest ``[reference]``), as ``odocal
+    validate --theta FILE`` does.
     """
     return _odocal.validate(drive, _theta_arg(theta), validation_length=validation_length, threads=threads)
