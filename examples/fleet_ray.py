@@ -3,6 +3,7 @@
 
     python examples/fleet_ray.py DRIVES_DIR_OR_FILES... --out fleet.csv
     python examples/fleet_ray.py drives/ --out fleet.parquet --address auto --cpus-per-task 2
+    python examples/fleet_ray.py drives/ --out fleet.csv --params-dir params/   # + one ROS 2 parameter file per drive
 
 Every input is a drive (a canonical CSV or a `.toml` manifest) or a
 directory of them. Each drive is calibrated by `odocal.calibrate` in its own
@@ -11,6 +12,12 @@ the drives must be readable there: a shared file system or object store);
 the rows come back in input order and are written as CSV or, for a
 `.parquet` path, Parquet (needs pyarrow). A drive that fails gives a row
 with `status = error` and the library's message instead of stopping the run.
+The σ columns are the σ that stands for each result (the verdict's, as
+`--params-out` and the JSON `sigma` give; `sigma_source` names it; empty for
+a held parameter). With `--params-dir DIR` each calibrated drive's parameter
+file is written as DIR/<drive name>.yaml (θ, σ, verdict, provenance: what
+`odocal calibrate --params-out` writes), so a deployment can take the files
+whose verdict is `accepted`.
 
 Without `--address` a local Ray is started (usage statistics and the
 dashboard off: it needs no network); with `--address auto` or
@@ -45,11 +52,13 @@ FIELDS = [
     "sigma_c_d",
     "sigma_t_r",
     "sigma_d",
+    "sigma_source",
     "verdict",
     "mean_position_error_m",
     "initial_mean_position_error_m",
     "validation_segments",
     "warnings",
+    "params_file",
     "error",
     "wall_s",
     "node",
@@ -86,10 +95,11 @@ def _verdict_text(verdict: Any) -> str:
 
 
 def calibrate_one(path: str, method: str = "eiv", options: Optional[dict] = None,
-                  threads: Optional[int] = None) -> dict:
+                  threads: Optional[int] = None, params_dir: Optional[str] = None) -> dict:
     """Calibrates one drive and returns its table row (never raises for a
-    bad drive: the row says `status = error`). Runs inside a Ray task, or
-    directly for a serial run."""
+    bad drive: the row says `status = error`); with `params_dir`, also
+    writes the drive's parameter file there (`<drive stem>.yaml`). Runs
+    inside a Ray task, or directly for a serial run."""
     import odocal
 
     row: dict[str, Any] = {k: "" for k in FIELDS}
@@ -99,17 +109,22 @@ def calibrate_one(path: str, method: str = "eiv", options: Optional[dict] = None
         drive = odocal.Drive.load(path)
         row.update(samples=len(drive), distance_km=drive.distance_m / 1e3)
         report = odocal.calibrate(drive, method, threads=threads, **(options or {}))
-        sigma = report.sigma
+        sigma = report.result_sigma or {}
         row.update(
             status="ok",
             **report.theta,
-            **{f"sigma_{k}": v for k, v in sigma.items()},
+            **{f"sigma_{k}": "" if sigma.get(k) is None else sigma[k] for k in odocal.THETA_NAMES},
+            sigma_source=sigma.get("source", ""),
             verdict=_verdict_text(report.verdict),
             mean_position_error_m=report.mean_position_error_m,
             initial_mean_position_error_m=report.initial["mean_position_error_m"],
             validation_segments=report.validation["segments"],
             warnings=len(report.warnings),
         )
+        if params_dir is not None:
+            out = Path(params_dir) / (Path(path).stem + ".yaml")
+            report.write_params(out, input=str(path))
+            row["params_file"] = str(out)
     except (odocal.OdocalError, OSError) as e:
         row.update(status="error", error=str(e))
     row["wall_s"] = time.perf_counter() - t0
@@ -117,9 +132,11 @@ def calibrate_one(path: str, method: str = "eiv", options: Optional[dict] = None
 
 
 def calibrate_serial(paths: Iterable[str | os.PathLike], method: str = "eiv",
-                     options: Optional[dict] = None, threads: Optional[int] = None) -> list[dict]:
+                     options: Optional[dict] = None, threads: Optional[int] = None,
+                     params_dir: Optional[str | os.PathLike] = None) -> list[dict]:
     """The same rows as `calibrate_fleet`, one drive after the other in this process."""
-    return [calibrate_one(str(p), method, options, threads) for p in paths]
+    pdir = None if params_dir is None else str(params_dir)
+    return [calibrate_one(str(p), method, options, threads, pdir) for p in paths]
 
 
 def init_ray(address: Optional[str] = None, num_cpus: Optional[int] = None, **kwargs: Any) -> None:
@@ -137,17 +154,21 @@ def init_ray(address: Optional[str] = None, num_cpus: Optional[int] = None, **kw
 
 
 def calibrate_fleet(paths: Iterable[str | os.PathLike], method: str = "eiv",
-                    options: Optional[dict] = None, cpus_per_task: int = 1) -> list[dict]:
+                    options: Optional[dict] = None, cpus_per_task: int = 1,
+                    params_dir: Optional[str | os.PathLike] = None) -> list[dict]:
     """Calibrates every drive in its own Ray task (Ray must be initialised,
     see `init_ray`) and returns the rows in input order.
 
     Each task reserves `cpus_per_task` CPUs and runs odocal on that many
     threads, so the tasks of one node do not oversubscribe its cores; the
-    numbers do not depend on it (odocal is thread-count independent)."""
+    numbers do not depend on it (odocal is thread-count independent). The
+    tasks write the parameter files into `params_dir` themselves, so on a
+    cluster it must be a shared directory, like the drives."""
     import ray
 
+    pdir = None if params_dir is None else str(params_dir)
     task = ray.remote(num_cpus=cpus_per_task)(calibrate_one)
-    refs = [task.remote(str(p), method, options, cpus_per_task) for p in paths]
+    refs = [task.remote(str(p), method, options, cpus_per_task, pdir) for p in paths]
     return ray.get(refs)
 
 
@@ -188,19 +209,28 @@ def main(argv: Optional[list[str]] = None) -> int:
     ap.add_argument("--num-cpus", type=int, help="CPUs of the local Ray (default: all)")
     ap.add_argument("--cpus-per-task", type=int, default=1, help="CPUs (odocal threads) per drive, default 1")
     ap.add_argument("--serial", action="store_true", help="no Ray: calibrate one drive after the other here")
+    ap.add_argument("--params-dir", help="also write each drive's ROS 2 parameter file here (<drive name>.yaml)")
     a = ap.parse_args(argv)
 
     paths = find_drives(a.inputs)
     if not paths:
         print("no drives found (looked for *.csv and *.toml)", file=sys.stderr)
         return 1
+    stems = [p.stem for p in paths]
+    if a.params_dir is not None:
+        twice = sorted({s for s in stems if stems.count(s) > 1})
+        if twice:
+            print(f"--params-dir: drives share a name ({', '.join(twice)}): their parameter files would collide",
+                  file=sys.stderr)
+            return 1
+        Path(a.params_dir).mkdir(parents=True, exist_ok=True)
     options = dict(a.option)
     t0 = time.perf_counter()
     if a.serial:
-        rows = calibrate_serial(paths, a.method, options)
+        rows = calibrate_serial(paths, a.method, options, params_dir=a.params_dir)
     else:
         init_ray(a.address, a.num_cpus)
-        rows = calibrate_fleet(paths, a.method, options, a.cpus_per_task)
+        rows = calibrate_fleet(paths, a.method, options, a.cpus_per_task, params_dir=a.params_dir)
     wall = time.perf_counter() - t0
     write_table(rows, a.out)
     failed = [r for r in rows if r["status"] != "ok"]

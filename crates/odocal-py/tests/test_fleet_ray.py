@@ -68,8 +68,33 @@ def test_ray_equals_serial(local_ray, fleet_dir, tmp_path):
     for row, rep in zip(rows, serial):
         assert row["status"] == "ok", row["error"]
         assert {k: float(row[k]) for k in odocal.THETA_NAMES} == rep.theta
-        assert float(row["sigma_t_r"]) == rep.sigma["t_r"]
+        for k in odocal.THETA_NAMES:  # empty for a parameter the 2 km drive could not determine
+            s = rep.result_sigma[k]
+            assert (row[f"sigma_{k}"] == "") if s is None else (float(row[f"sigma_{k}"]) == s), (k, row, s)
+        assert row["sigma_source"] == rep.result_sigma["source"]
         assert float(row["mean_position_error_m"]) == rep.mean_position_error_m
+
+
+def test_params_dir_holds_each_drives_parameter_file(local_ray, fleet_dir, tmp_path):
+    fleet = local_ray
+    paths = fleet.find_drives([fleet_dir])[:2]
+    pdir = tmp_path / "params"
+    out = tmp_path / "fleet.csv"
+    opts = [f"-o{k}={v}" for k, v in OPTIONS.items()]
+    assert fleet.main([*map(str, paths), "--out", str(out), "--params-dir", str(pdir), *opts]) == 0
+    with out.open() as f:
+        rows = list(csv.DictReader(f))
+    for row, p in zip(rows, paths):
+        assert row["params_file"] == str(pdir / (p.stem + ".yaml"))
+        back = odocal.read_params(row["params_file"])
+        assert {k: back["parameters"][k] for k in odocal.THETA_NAMES} == {k: float(row[k]) for k in odocal.THETA_NAMES}
+        assert back["verdict"] == row["verdict"]
+        assert back["provenance"]["input"] == str(p)
+    # Two drives of one name would overwrite each other's file: refused.
+    other = tmp_path / "elsewhere"
+    other.mkdir()
+    (other / paths[0].name).write_bytes(paths[0].read_bytes())
+    assert fleet.main([str(paths[0]), str(other / paths[0].name), "--out", str(out), "--params-dir", str(pdir)]) == 1
 
 
 def test_bad_drive_gives_error_row(local_ray, fleet_dir, tmp_path):
