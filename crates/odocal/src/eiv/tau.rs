@@ -373,9 +373,8 @@ pub(crate) fn estimate_with_time_constants(
     };
     // The η term needs the re-fit only when some scale was estimated (not
     // held at a clamp: σ > 0, as in the fit's own η term); else it is zero.
-    let eta_term = opts.noise_estimate_in_covariance
-        && !opts.fix_noise
-        && best.report.eta_sigma.iter().any(|s| *s > 0.0);
+    let eta_term =
+        opts.noise_estimate_in_covariance && !opts.fix_noise && best.report.eta_sigma.iter().any(|s| *s > 0.0);
     let mut report = if opts.bias_correction == BiasCorrection::None && !eta_term {
         best.report
     } else {
