@@ -1,9 +1,10 @@
 //! `odocal inspect BAG`: what a ROS 2 bag (MCAP) holds, like `ros2 bag info`,
-//! plus the manifest column names of each topic odocal reads.
+//! plus the manifest column names of each topic odocal reads; with
+//! `--manifest`, a draft manifest that imports it.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
-use anyhow::Result;
+use anyhow::{bail, Context, Result};
 use clap::Args;
 
 /// Arguments of `odocal inspect`.
@@ -11,11 +12,20 @@ use clap::Args;
 pub struct InspectArgs {
     /// The bag: an `.mcap` file (or a bag directory holding one).
     bag: PathBuf,
+    /// Write a draft manifest that imports the bag (wheel, pose and IMU
+    /// topics chosen by message type; guesses marked CHECK) to this file, or
+    /// to stdout without a file name (then nothing else is printed). An
+    /// existing file is not overwritten.
+    #[arg(long, value_name = "OUT.toml", num_args = 0..=1, default_missing_value = "-")]
+    manifest: Option<PathBuf>,
 }
 
 /// Prints the bag's topics, types, counts and rates, then the columns a
-/// manifest can take from each readable topic.
+/// manifest can take from each readable topic; or writes a draft manifest.
 pub fn run(a: InspectArgs) -> Result<()> {
+    if let Some(out) = &a.manifest {
+        return draft(&a.bag, out);
+    }
     let info = odocal::bag::inspect(&a.bag)?;
     print!("{info}");
     let readable: Vec<_> = info.topics.iter().filter_map(|t| Some((t, t.supported_type()?))).collect();
@@ -24,6 +34,42 @@ pub fn run(a: InspectArgs) -> Result<()> {
         for (t, ty) in readable {
             println!("  {}: {}", t.topic, ty.columns().join(", "));
         }
+        println!("A draft manifest of the drive: odocal inspect {} --manifest OUT.toml", a.bag.display());
+    }
+    Ok(())
+}
+
+/// The bag as the manifest at `out` names it: relative to the manifest's
+/// folder when the bag is inside it, else absolute (stdout: absolute).
+fn bag_path_for(bag: &Path, out: Option<&Path>) -> Result<String> {
+    let bag = bag.canonicalize().with_context(|| format!("{}", bag.display()))?;
+    if let Some(dir) = out.and_then(|o| o.parent()) {
+        let dir = if dir.as_os_str().is_empty() { Path::new(".") } else { dir };
+        if let Ok(dir) = dir.canonicalize() {
+            if let Ok(rel) = bag.strip_prefix(&dir) {
+                return Ok(rel.display().to_string());
+            }
+        }
+    }
+    Ok(bag.display().to_string())
+}
+
+fn draft(bag: &Path, out: &Path) -> Result<()> {
+    let to_stdout = out == Path::new("-");
+    if !to_stdout && out.exists() {
+        bail!("{}: exists; remove it or give another name (a draft never overwrites a manifest)", out.display());
+    }
+    let file = bag_path_for(bag, (!to_stdout).then_some(out))?;
+    let text = odocal::bag::draft_manifest(bag, &file)?;
+    if to_stdout {
+        print!("{text}");
+    } else {
+        std::fs::write(out, &text).with_context(|| format!("writing {}", out.display()))?;
+        println!(
+            "wrote {} (check the lines marked CHECK, then: odocal import {} --out drive.csv)",
+            out.display(),
+            out.display()
+        );
     }
     Ok(())
 }

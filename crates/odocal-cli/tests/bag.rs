@@ -88,6 +88,39 @@ fn inspect_lists_topics_types_counts_and_rates() {
     assert_eq!(text.matches(" Hz | ").count(), 5, "a rate per topic:\n{text}");
 }
 
+/// `inspect --manifest OUT` writes a draft that `odocal import` takes as it
+/// stands (the bag named relative to it); it never overwrites a file; without
+/// a file name the draft alone goes to stdout.
+#[test]
+fn inspect_drafts_a_manifest_that_imports() {
+    let d = tempfile::tempdir().expect("tmp");
+    std::fs::copy(slice(), d.path().join("van.mcap")).expect("copy");
+    let bag = d.path().join("van.mcap");
+    let out = d.path().join("van.toml");
+    let s = |p: &Path| p.to_str().expect("utf8").to_string();
+    let o = odocal(&["inspect", &s(&bag), "--manifest", &s(&out)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = std::fs::read_to_string(&out).expect("draft");
+    assert!(text.contains("file = \"van.mcap\"") && text.contains(&format!("topic = \"{WHEELS}\"")), "{text}");
+    let csv = d.path().join("van.csv");
+    let o = odocal(&["import", &s(&out), "--out", &s(&csv)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(std::fs::metadata(&csv).expect("csv").len() > 100_000);
+    let o = odocal(&["inspect", &s(&bag), "--manifest", &s(&out)]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("exists"), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = odocal(&["inspect", &s(&bag), "--manifest"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let printed = String::from_utf8_lossy(&o.stdout);
+    assert!(printed.starts_with("# Draft manifest") && !printed.contains("Topic information"), "{printed}");
+    // On stdout the bag is named by its absolute path.
+    assert!(printed.contains(&format!("file = {}", toml_quoted(&s(&bag.canonicalize().expect("abs"))))), "{printed}");
+}
+
+fn toml_quoted(s: &str) -> String {
+    format!("\"{}\"", s.replace('\\', "\\\\").replace('"', "\\\""))
+}
+
 #[test]
 fn unknown_topic_names_it_and_lists_the_bags_topics() {
     let d = tempfile::tempdir().expect("tmp");

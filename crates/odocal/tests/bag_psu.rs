@@ -205,3 +205,32 @@ fn full_bag_matches_the_fixture_csv_rows() {
     assert_eq!(t.columns[LEFT][n].to_bits(), 39005.79643703454f64.to_bits());
     assert_eq!(t.columns[RIGHT][n].to_bits(), 39075.74700206227f64.to_bits());
 }
+
+/// The draft manifest of the slice names the van's topics and rear joints,
+/// and imports as it stands: the same wheel and pose samples the hand-written
+/// manifest's topics give (the draft has no de-jittering and no quality
+/// filter, so the drive itself may differ in its cuts).
+#[test]
+fn slice_draft_manifest_imports() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    std::fs::copy(fixture("drive-slice.mcap"), dir.path().join("bag.mcap")).expect("copy");
+    let text = bag::draft_manifest(&dir.path().join("bag.mcap"), "bag.mcap").expect("draft");
+    for want in [
+        "topic = \"/vehicle/wheel_joint_states\"",
+        "signal = \"rad_cumulative\"",
+        "rear_left = { column = \"position.rear_left_wheel_joint\" }\n",
+        "rear_right = { column = \"position.rear_right_wheel_joint\" }\n",
+        "topic = \"/localization/pose_with_covariance\"",
+        "source = \"from_wheels\"",
+    ] {
+        assert!(text.contains(want), "expected '{want}' in:\n{text}");
+    }
+    assert!(!text.contains("a guess from the joint names"), "{text}");
+    let path = dir.path().join("draft.toml");
+    std::fs::write(&path, &text).expect("write");
+    let m = odocal::Manifest::from_path(&path).expect("the draft parses");
+    let imported = odocal::import(&m).expect("the draft imports");
+    // 120 s of a van at highway speed, every sample of one continuous part.
+    assert!(imported.drive.distance_m() > 2000.0, "{} m", imported.drive.distance_m());
+    assert!(imported.drive.len() > 40 * 100, "{} samples", imported.drive.len());
+}

@@ -76,11 +76,13 @@
 //! ```
 
 mod columns;
+mod draft;
 mod msg;
 #[cfg(test)]
 mod tests;
 
 pub use columns::MessageType;
+pub use draft::draft_manifest;
 
 use columns::{Column, Decoded, JointField};
 use std::collections::{BTreeMap, BTreeSet, HashMap};

@@ -51,9 +51,9 @@ fn list(names: &[String]) -> String {
 const NOT_CSV: [(&[u8], &str); 8] = [
     (
         b"\x89MCAP0\r\n",
-        "a ROS 2 bag (MCAP), not a canonical drive CSV: list its topics with `odocal inspect FILE`, name the wheel, \
-         pose and IMU topics in a manifest (README \"ROS 2 bags\"; examples/psu-mapping-van/manifest-mcap.toml is one) \
-         and give the manifest (.toml) instead",
+        "a ROS 2 bag (MCAP), not a canonical drive CSV: draft a manifest that names its wheel, pose and IMU topics \
+         with `odocal inspect FILE --manifest OUT.toml` (README \"ROS 2 bags\"), check it and give the manifest \
+         (.toml) instead",
     ),
     (
         b"SQLite format 3\0",
@@ -102,8 +102,8 @@ impl Drive {
             // any other folder: say so instead of the OS's "Is a directory".
             let bag = path.join("metadata.yaml").is_file();
             let reason = if bag {
-                "a ROS 2 bag directory, not a canonical drive CSV: list its topics with `odocal inspect` on its \
-                 .mcap file, name the wheel, pose and IMU topics in a manifest (.toml) and give the manifest instead"
+                "a ROS 2 bag directory, not a canonical drive CSV: draft a manifest for it with `odocal inspect \
+                 DIR --manifest OUT.toml`, check it and give the manifest (.toml) instead"
             } else {
                 "a directory, not a canonical drive CSV: give the drive's .csv file (or a manifest, .toml)"
             };
