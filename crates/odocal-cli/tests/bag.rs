@@ -80,7 +80,8 @@ fn inspect_lists_topics_types_counts_and_rates() {
         "| Count: 11832 |",
         "Topic: /localization/pose_with_covariance   | Type: geometry_msgs/msg/PoseWithCovarianceStamped | Count:  1063",
         "Serialization Format: cdr",
-        "  /vehicle/wheel_joint_states: position.<joint name>, velocity.<joint name>",
+        "  /vehicle/wheel_joint_states: position.<joint name>, velocity.<joint name>\n    joints: ",
+        "rear_left_wheel_joint, rear_right_wheel_joint",
         "  /sensing/gnss/front/nav_sat_fix: latitude, longitude, altitude, status, cov_e, cov_n, cov_u",
     ] {
         assert!(text.contains(needle), "expected '{needle}' in:\n{text}");
