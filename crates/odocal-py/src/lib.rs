@@ -1169,15 +1169,22 @@ fn _report_html(
 /// (the CLI's `validate --json`): a dict with `theta`,
 /// `mean_position_error_m`, `segments` and `per_segment_m`.
 #[pyfunction]
-#[pyo3(signature = (drive, theta, *, validation_length=None, threads=None))]
+#[pyo3(signature = (drive, theta, *, validation_length=None, threads=None, report_json=None))]
 fn validate<'py>(
     py: Python<'py>,
     drive: &Bound<'py, PyDrive>,
     theta: &Bound<'py, PyAny>,
     validation_length: Option<usize>,
     threads: Option<usize>,
+    report_json: Option<&str>,
 ) -> PyResult<Bound<'py, PyAny>> {
-    let file = params_file_arg(theta)?;
+    let mut file = params_file_arg(theta)?;
+    if let Some(j) = report_json {
+        // A CalibrationReport as θ: its extrinsics as a parameter file of it would carry them.
+        let report: odocal::CalibrationReport =
+            serde_json::from_str(j).map_err(|e| PyValueError::new_err(format!("not a calibration report: {e}")))?;
+        file = Some(odocal::param_file::ParamFile::from_report(&report, ""));
+    }
     let theta = extract_theta(theta)?;
     let mut opts = odocal::ValidateOptions::default();
     if let Some(k) = validation_length {

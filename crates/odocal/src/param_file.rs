@@ -1,6 +1,8 @@
-//! Parameter files out: the calibrated parameters as a ROS 2 parameter file
-//! (YAML, `ros__parameters` layout) or JSON, with their 1σ, units, the
-//! verdict and provenance, so a robot stack can load them directly.
+//! Parameter files out and back in: the calibrated parameters as a ROS 2
+//! parameter file (YAML, `ros__parameters` layout) or JSON, with their 1σ,
+//! units, the verdict and provenance, so a robot stack can load them
+//! directly; [`ParamFile::read`] reads them back (a θ for validation or a
+//! new start).
 //!
 //! Under odocal's own names the file holds, for node `odocal` (configurable):
 //!
@@ -530,7 +532,12 @@ fn flat_json(text: &str) -> std::result::Result<(String, Vec<(String, Flat)>), S
     use serde_json::Value;
     let v: Value = serde_json::from_str(text).map_err(|e| format!("not JSON: {e}"))?;
     let Some(params) = v.get("parameters").and_then(Value::as_object) else {
-        return Err("not an odocal parameter file (no `parameters` object)".into());
+        let hint = if v.get("theta").is_some() {
+            " — a `calibrate --json` report? Write the parameter file with `--params-out FILE.yaml`"
+        } else {
+            ""
+        };
+        return Err(format!("not an odocal parameter file (no `parameters` object){hint}"));
     };
     let node = v.get("node").and_then(Value::as_str).unwrap_or("odocal").to_string();
     let flat_of = |x: &Value| match x {
@@ -743,6 +750,7 @@ mod tests {
             ("p.yaml", "c_e: 1.95\n", &["no node with `ros__parameters`"]),
             ("p.yaml", "odocal: [unclosed\n", &["not YAML"]),
             ("p.json", "{\"c_e\": 1.95}", &["no `parameters` object"]),
+            ("r.json", "{\"theta\": {\"c_e\": 1.95}}", &["a `calibrate --json` report?", "--params-out"]),
             ("p.txt", "c_e: 1.95", &["use the .yaml, .yml or .json file"]),
         ] {
             let e = read_text(name, text).expect_err(text).to_string();

@@ -290,8 +290,12 @@ def validate(
     "segments", "per_segment_m", "schema_version"}``. ``theta`` is a dict, four numbers, the
     text ``"c_e,c_d,t_r,d"``, a :class:`CalibrationReport` or the path of a parameter file
     (``.yaml``, ``.yml``, ``.json``, as :meth:`CalibrationReport.write_params` and
-    ``--params-out`` write it): then the reference extrinsics its calibration estimated are
-    used too (held ones give way to the drive's manifest ``[reference]``), as ``odocal
-    validate --theta FILE`` does.
+    ``--params-out`` write it). With a report or a file, the reference extrinsics its
+    calibration estimated are used too (held ones give way to the drive's manifest
+    ``[reference]``), as ``odocal validate --theta FILE`` does: on the calibration's own
+    drive that is its own Ē_p.
     """
-    return _odocal.validate(drive, _theta_arg(theta), validation_length=validation_length, threads=threads)
+    report_json = theta._json if isinstance(theta, CalibrationReport) else None
+    return _odocal.validate(
+        drive, _theta_arg(theta), validation_length=validation_length, threads=threads, report_json=report_json
+    )

@@ -102,8 +102,10 @@ def validate(
     *,
     validation_length: Optional[int] = None,
     threads: Optional[int] = None,
+    report_json: Optional[str] = None,
 ) -> dict[str, Any]:
-    """Ē_p of θ on the validation segments of the drive."""
+    """Ē_p of θ on the validation segments of the drive (with ``report_json``, the extrinsics
+    that report's calibration estimated)."""
 
 def simulate(
     seed: int = 0,
