@@ -113,16 +113,13 @@ pub fn draft_manifest(bag: &Path, file: &str) -> Result<String> {
     let _ = writeln!(w, "\n[output]\nrate_hz = 40.0\nmax_gap_s = 0.5\nclock_offset = \"auto\"");
     let _ = writeln!(w, "theta0 = [2.0, 0.0, 1.6, 0.0]   # c_e per wheel revolution (2 pi rad of joint angle)");
 
-    let rate = |t: &TopicInfo| t.rate_hz().map(|r| format!("{r:.1} Hz")).unwrap_or_else(|| "rate unknown".into());
-    let _ = writeln!(w, "\n[streams.wheels]\nformat = \"mcap\"\nfile = {}", quoted(file));
-    let _ = writeln!(
-        w,
-        "topic = {}   # {}, {} messages, {}",
-        quoted(&wheels.topic),
-        wheels.message_type,
-        wheels.count,
-        rate(wheels)
-    );
+    // One `[streams.NAME]` table per topic, saying what the topic is.
+    let stream = |w: &mut String, name: &str, t: &TopicInfo| {
+        let rate = t.rate_hz().map(|r| format!("{r:.1} Hz")).unwrap_or_else(|| "rate unknown".into());
+        let _ = writeln!(w, "\n[streams.{name}]\nformat = \"mcap\"\nfile = {}", quoted(file));
+        let _ = writeln!(w, "topic = {}   # {}, {} messages, {rate}", quoted(&t.topic), t.message_type, t.count);
+    };
+    stream(w, "wheels", wheels);
     let _ = writeln!(w, "time = \"header\"   # CHECK: \"log\" if the header stamps are not on the other topics' clock");
     if let Some(r) = wheels.rate_hz() {
         let _ = writeln!(
@@ -131,18 +128,9 @@ pub fn draft_manifest(bag: &Path, file: &str) -> Result<String> {
             r.round()
         );
     }
-    let _ = writeln!(w, "\n[streams.pose]\nformat = \"mcap\"\nfile = {}", quoted(file));
-    let _ = writeln!(
-        w,
-        "topic = {}   # {}, {} messages, {}",
-        quoted(&pose.topic),
-        pose.message_type,
-        pose.count,
-        rate(pose)
-    );
+    stream(w, "pose", pose);
     if let Some(t) = imu {
-        let _ = writeln!(w, "\n[streams.imu]\nformat = \"mcap\"\nfile = {}", quoted(file));
-        let _ = writeln!(w, "topic = {}   # {}, {} messages, {}", quoted(&t.topic), t.message_type, t.count, rate(t));
+        stream(w, "imu", t);
     }
 
     let mark = |guess: bool| if guess { "   # CHECK: a guess from the joint names" } else { "" };
