@@ -652,11 +652,10 @@ impl std::str::FromStr for ThetaArg {
     type Err = odocal::Error;
     fn from_str(s: &str) -> std::result::Result<Self, Self::Err> {
         let path = Path::new(s);
-        let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-        if matches!(ext.as_deref(), Some("yaml" | "yml" | "json")) {
+        if odocal::param_file::is_param_file(path) {
+            // `read` has checked θ (`theta()` cannot fail after it).
             let f = odocal::param_file::ParamFile::read(path)?;
-            let theta = f.theta().map_err(|e| odocal::Error::ParamFile { path: path.into(), reason: e.to_string() })?;
-            return Ok(ThetaArg { theta, file: Some((path.into(), f)) });
+            return Ok(ThetaArg { theta: f.theta()?, file: Some((path.into(), f)) });
         }
         Ok(ThetaArg { theta: s.parse()?, file: None })
     }

@@ -570,10 +570,9 @@ fn parse_holdout(s: &str) -> PyResult<Holdout> {
 /// library; `None` for any other argument.
 fn params_file_arg(v: &Bound<'_, PyAny>) -> PyResult<Option<odocal::param_file::ParamFile>> {
     let Ok(s) = v.cast::<PyString>() else { return Ok(None) };
-    let s = s.to_str()?;
-    let lower = s.to_ascii_lowercase();
-    if [".yaml", ".yml", ".json"].iter().any(|e| lower.ends_with(e)) {
-        return odocal::param_file::ParamFile::read(std::path::Path::new(s)).map(Some).map_err(lib_err);
+    let path = std::path::Path::new(s.to_str()?);
+    if odocal::param_file::is_param_file(path) {
+        return odocal::param_file::ParamFile::read(path).map(Some).map_err(lib_err);
     }
     Ok(None)
 }

@@ -261,16 +261,15 @@ impl ParamFile {
     /// # Errors
     /// [`Error::InvalidOption`] for another extension, [`Error::Io`].
     pub fn write(&self, path: &Path) -> Result<()> {
-        let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-        let text = match ext.as_deref() {
-            Some("yaml" | "yml") => self.to_ros2_yaml(),
-            Some("json") => {
+        let text = match FileFormat::of(path) {
+            Some(FileFormat::Yaml) => self.to_ros2_yaml(),
+            Some(FileFormat::Json) => {
                 let mut s = serde_json::to_string_pretty(&self.to_json())
                     .map_err(|source| Error::Json { context: path.display().to_string(), source })?;
                 s.push('\n');
                 s
             }
-            _ => {
+            None => {
                 return Err(Error::InvalidOption {
                     field: "params_out",
                     reason: format!("{}: use a .yaml, .yml or .json file name", path.display()),
@@ -279,6 +278,33 @@ impl ParamFile {
         };
         std::fs::write(path, text).map_err(|source| Error::io(path, source))
     }
+}
+
+/// A parameter file's format, by its extension.
+#[derive(Clone, Copy)]
+enum FileFormat {
+    /// `.yaml`, `.yml`: a ROS 2 parameter file.
+    Yaml,
+    /// `.json`.
+    Json,
+}
+
+impl FileFormat {
+    fn of(path: &Path) -> Option<FileFormat> {
+        let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+        match ext.as_deref() {
+            Some("yaml" | "yml") => Some(FileFormat::Yaml),
+            Some("json") => Some(FileFormat::Json),
+            _ => None,
+        }
+    }
+}
+
+/// Whether `path` names a parameter file by its extension (`.yaml`, `.yml`,
+/// `.json`: the files [`ParamFile::write`] writes and [`ParamFile::read`]
+/// reads), e.g. to tell one from a θ typed as text.
+pub fn is_param_file(path: &Path) -> bool {
+    FileFormat::of(path).is_some()
 }
 
 /// Largest parameter file [`ParamFile::read`] accepts, bytes (odocal writes
@@ -333,20 +359,19 @@ impl ParamFile {
     /// or not a number, a physically absurd θ).
     pub fn read(path: &Path) -> Result<ParamFile> {
         let bad = |reason: String| Error::ParamFile { path: path.to_path_buf(), reason };
-        let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-        let yaml = match ext.as_deref() {
-            Some("yaml" | "yml") => true,
-            Some("json") => false,
-            _ => {
-                return Err(bad("not a parameter file: use the .yaml, .yml or .json file `--params-out` wrote".into()))
-            }
+        let Some(format) = FileFormat::of(path) else {
+            return Err(bad("not a parameter file: use the .yaml, .yml or .json file `--params-out` wrote".into()));
         };
         let len = std::fs::metadata(path).map_err(|source| Error::io(path, source))?.len();
         if len > MAX_PARAM_FILE_BYTES {
             return Err(bad(format!("{len} bytes: not a parameter file (odocal writes about 1.5 kB)")));
         }
         let text = std::fs::read_to_string(path).map_err(|source| Error::io(path, source))?;
-        let (node, flat) = if yaml { flat_yaml(&text) } else { flat_json(&text) }.map_err(bad)?;
+        let (node, flat) = match format {
+            FileFormat::Yaml => flat_yaml(&text),
+            FileFormat::Json => flat_json(&text),
+        }
+        .map_err(bad)?;
         Self::from_flat(node, flat).map_err(bad)
     }
 
