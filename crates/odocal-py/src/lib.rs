@@ -1069,14 +1069,22 @@ fn calibrate<'py>(
     Ok((to_py(py, &value)?, text))
 }
 
+/// The error for JSON text that is not a calibration report.
+fn not_a_report(e: serde_json::Error) -> PyErr {
+    PyValueError::new_err(format!("not a calibration report: {e}"))
+}
+
+/// A calibration report from its JSON text (the Python report's `_json`).
+fn report_from_json(report_json: &str) -> PyResult<odocal::CalibrationReport> {
+    serde_json::from_str(report_json).map_err(not_a_report)
+}
+
 /// The method's own account of the fit (`CalibrationReport::method_details`
 /// of the library: the EIV lines the CLI prints; empty for the other
 /// methods) of a calibration report's JSON text.
 #[pyfunction]
 fn _method_details(report_json: &str) -> PyResult<String> {
-    let report: odocal::CalibrationReport = serde_json::from_str(report_json)
-        .map_err(|e| PyValueError::new_err(format!("not a calibration report: {e}")))?;
-    Ok(report.method_details())
+    Ok(report_from_json(report_json)?.method_details())
 }
 
 /// Reads a parameter file (ROS 2 YAML or JSON, as `--params-out` writes
@@ -1093,9 +1101,7 @@ fn read_params(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyAny>> {
 #[pyfunction]
 #[pyo3(signature = (report_json, path, *, input, node, mapping))]
 fn _write_params(report_json: &str, path: PathBuf, input: &str, node: &str, mapping: &str) -> PyResult<()> {
-    let report: odocal::CalibrationReport = serde_json::from_str(report_json)
-        .map_err(|e| PyValueError::new_err(format!("not a calibration report: {e}")))?;
-    let mut f = odocal::param_file::ParamFile::from_report(&report, input);
+    let mut f = odocal::param_file::ParamFile::from_report(&report_from_json(report_json)?, input);
     f.node = node.to_string();
     f.mapping = mapping.parse().map_err(lib_err)?;
     f.write(&path).map_err(lib_err)
@@ -1116,15 +1122,14 @@ fn _report_html(
     validate_on: Option<&Bound<'_, PyAny>>,
     title: Option<String>,
 ) -> PyResult<()> {
-    let bad_report = |e: serde_json::Error| PyValueError::new_err(format!("not a calibration report: {e}"));
-    let value: serde_json::Value = serde_json::from_str(report_json).map_err(bad_report)?;
+    let value: serde_json::Value = serde_json::from_str(report_json).map_err(not_a_report)?;
     let truth: Option<Theta> = value
         .get("truth")
         .and_then(|t| t.get("theta"))
         .map(|t| serde_json::from_value(t.clone()))
         .transpose()
-        .map_err(bad_report)?;
-    let report: odocal::CalibrationReport = serde_json::from_value(value).map_err(bad_report)?;
+        .map_err(not_a_report)?;
+    let report: odocal::CalibrationReport = serde_json::from_value(value).map_err(not_a_report)?;
     let holdout = match (holdout, validate_on) {
         (Some(h), _) => Some(parse_holdout(h)?),
         (None, Some(d)) => Some(Holdout::Other(Drive::clone(&drives_arg(d, "validate_on")?.0))),
@@ -1177,14 +1182,17 @@ fn validate<'py>(
     threads: Option<usize>,
     report_json: Option<&str>,
 ) -> PyResult<Bound<'py, PyAny>> {
-    let mut file = params_file_arg(theta)?;
-    if let Some(j) = report_json {
-        // A CalibrationReport as θ: its extrinsics as a parameter file of it would carry them.
-        let report: odocal::CalibrationReport =
-            serde_json::from_str(j).map_err(|e| PyValueError::new_err(format!("not a calibration report: {e}")))?;
-        file = Some(odocal::param_file::ParamFile::from_report(&report, ""));
-    }
-    let theta = extract_theta(theta)?;
+    // A parameter file is read once: its θ (checked by `read`) and extrinsics.
+    let file = params_file_arg(theta)?;
+    let theta = match &file {
+        Some(f) => f.theta().map_err(lib_err)?,
+        None => extract_theta(theta)?,
+    };
+    // A CalibrationReport as θ: its extrinsics, as a parameter file of it would carry them.
+    let file = match report_json {
+        Some(j) => Some(odocal::param_file::ParamFile::from_report(&report_from_json(j)?, "")),
+        None => file,
+    };
     let mut opts = odocal::ValidateOptions::default();
     if let Some(k) = validation_length {
         opts.segments.length_steps = k;
