@@ -36,11 +36,8 @@ pub fn run(a: InspectArgs) -> Result<()> {
             if ty == odocal::bag::MessageType::JointState && t.count > 0 {
                 // The joint names a manifest's columns need (those of the first message).
                 let table = odocal::bag::read_topic(&a.bag, &t.topic, &[], odocal::bag::TimeSource::HeaderStamp)?;
-                let joints: std::collections::BTreeSet<&str> = table
-                    .columns
-                    .keys()
-                    .filter_map(|k| k.strip_prefix("position.").or_else(|| k.strip_prefix("velocity.")))
-                    .collect();
+                let joints: std::collections::BTreeSet<&str> =
+                    table.joints("position").into_iter().chain(table.joints("velocity")).collect();
                 println!("    joints: {}", joints.into_iter().collect::<Vec<_>>().join(", "));
             }
         }

@@ -42,16 +42,16 @@ fn pick<'a>(topics: &'a [TopicInfo], types: &[MessageType]) -> Option<(&'a Topic
 /// The joint of `names` for one rear wheel (`side` "left" or "right"), and
 /// whether it is a guess: a name with rear/back and the side, else the side
 /// alone, else `fallback`.
-fn joint<'a>(names: &'a [String], side: &str, fallback: usize) -> (Option<&'a String>, bool) {
+fn joint<'a>(names: &[&'a str], side: &str, fallback: usize) -> (Option<&'a str>, bool) {
     let has = |n: &str, w: &str| n.to_ascii_lowercase().contains(w);
     let rear = |n: &str| has(n, "rear") || has(n, "back");
     if let Some(n) = names.iter().find(|n| rear(n) && has(n, side)) {
-        return (Some(n), false);
+        return (Some(*n), false);
     }
     if let Some(n) = names.iter().find(|n| has(n, side)) {
-        return (Some(n), true);
+        return (Some(*n), true);
     }
-    (names.get(fallback), true)
+    (names.get(fallback).copied(), true)
 }
 
 /// A draft manifest (TOML text) that imports the drive in the bag at `bag`:
@@ -85,10 +85,7 @@ pub fn draft_manifest(bag: &Path, file: &str) -> Result<String> {
 
     // The joints the first message names, and which fields they carry.
     let table = read_topic(bag, &wheels.topic, &[], TimeSource::HeaderStamp)?;
-    let names_of = |prefix: &str| -> Vec<String> {
-        table.columns.keys().filter_map(|k| k.strip_prefix(prefix)).map(str::to_string).collect()
-    };
-    let (positions, velocities) = (names_of("position."), names_of("velocity."));
+    let (positions, velocities) = (table.joints("position"), table.joints("velocity"));
     let (field, signal, names) = if positions.len() >= 2 {
         ("position", "rad_cumulative", positions)
     } else {

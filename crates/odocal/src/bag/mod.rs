@@ -129,6 +129,12 @@ impl Table {
     pub fn column(&self, name: &str) -> Option<&[f64]> {
         self.columns.get(name).map(Vec::as_slice)
     }
+
+    /// The joints of a `JointState` table that have a `field` column
+    /// (`"position"` or `"velocity"`: the names in `field.<joint>`), sorted.
+    pub fn joints(&self, field: &str) -> Vec<&str> {
+        self.columns.keys().filter_map(|k| k.strip_prefix(field)?.strip_prefix('.')).collect()
+    }
 }
 
 /// Which clock a [`Table`]'s times come from.
