@@ -972,13 +972,13 @@ fn validate_cmd(a: ValidateArgs, bars: &progress::Bars) -> Result<()> {
     let (drive, _, settings) = load_drive_with_scale(&a.drive)?;
     let mut opts = odocal::ValidateOptions::default();
     // A manifest's [reference]: the drive's own mount.
-    if let Some(r) = settings.as_ref().and_then(|s| s.reference.as_ref()) {
-        opts.extrinsics = r.extrinsics();
+    let stated = settings.as_ref().and_then(|s| s.reference.as_ref()).map(|r| r.extrinsics());
+    if let Some(x) = stated {
+        opts.extrinsics = x;
     }
     // A parameter file's extrinsics, as `--validate-on` takes a calibration's.
     let mut extrinsics_from = "the drive's manifest [reference]".to_string();
     if let Some((path, f)) = &a.theta.file {
-        let stated = settings.as_ref().and_then(|s| s.reference.as_ref()).map(|r| r.extrinsics());
         let (x, from_file) = f.extrinsics_for_drive(stated.as_ref());
         opts.extrinsics = x;
         extrinsics_from = if from_file.len() == 3 {
