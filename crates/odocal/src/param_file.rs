@@ -537,8 +537,7 @@ fn flat_yaml(text: &str) -> std::result::Result<(String, Vec<(String, Flat)>), S
             Yaml::Hash(h) => {
                 for (k, v) in h {
                     if let Yaml::String(k) = k {
-                        let key = if prefix.is_empty() { k.clone() } else { format!("{prefix}.{k}") };
-                        walk(&key, v, out);
+                        walk(&format!("{prefix}.{k}"), v, out);
                     }
                 }
             }
@@ -547,7 +546,11 @@ fn flat_yaml(text: &str) -> std::result::Result<(String, Vec<(String, Flat)>), S
         }
     }
     let mut out = Vec::new();
-    walk("", &Yaml::Hash(chosen.1.clone()), &mut out);
+    for (k, v) in chosen.1 {
+        if let Yaml::String(k) = k {
+            walk(k, v, &mut out);
+        }
+    }
     Ok((chosen.0, out))
 }
 
