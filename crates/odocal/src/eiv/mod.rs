@@ -1959,6 +1959,27 @@ struct Problem<'a> {
     evaluations: std::cell::Cell<[usize; 2]>,
 }
 
+impl<'a> Problem<'a> {
+    /// The problem of `opts` (its quantisation level already resolved) over `windows`.
+    fn new(input: &'a EivInput<'a>, windows: Vec<Window>, opts: &EivOptions) -> Self {
+        Problem {
+            input,
+            windows,
+            noise: opts.noise,
+            quantisation: opts.quantisation,
+            quantisation_given: opts.quantisation_level == QuantisationLevel::Given,
+            lateral_stated: opts.lateral_noise == LateralNoise::Stated,
+            heading_separate: opts.heading_scale == HeadingScale::Separate,
+            fitted_input: opts.wheel_noise_scale != WheelNoiseScale::MeasuredInput,
+            noise_input_half_width: opts.wheel_noise_scale.half_width(),
+            noise_input_from_reference: matches!(opts.wheel_noise_scale, WheelNoiseScale::ReferenceInput { .. }),
+            input_jacobian: opts.input_jacobian,
+            position_floor_m: opts.position_floor_m,
+            evaluations: std::cell::Cell::new([0; 2]),
+        }
+    }
+}
+
 impl Problem<'_> {
     fn evaluate(&self, theta: &Theta, theta_ref: &Theta, eta: &[f64; 6], mode: Mode) -> Result<Evaluation> {
         self.evaluate_with(theta, theta_ref, eta, mode, false)
@@ -1977,6 +1998,21 @@ impl Problem<'_> {
         let mut count = self.evaluations.get();
         count[usize::from(!mode.derivs)] += 1;
         self.evaluations.set(count);
+        let v = self.variances(eta, null);
+        let parts: Vec<Result<WindowSums>> =
+            self.windows.par_iter().map(|w| run_window(self.input, w, theta, theta_ref, &v, mode, None)).collect();
+        let mut total = WindowSums::zero();
+        let mut windows = Vec::with_capacity(parts.len());
+        for p in parts {
+            let p = p?;
+            total.add(&p);
+            windows.push(p);
+        }
+        Ok(Evaluation { total, windows, mode })
+    }
+
+    /// The filter's variances at η under this problem's noise options.
+    fn variances(&self, eta: &[f64; 6], null: bool) -> filter::Variances {
         let mut e = *eta;
         if !self.heading_separate {
             // Tied: η_3 scales the heading white noise too; η_5 has no effect.
@@ -2000,16 +2036,7 @@ impl Problem<'_> {
         v.noise_input_from_reference = self.noise_input_from_reference;
         v.position_floor_m = self.position_floor_m;
         v.null_without_floors = null;
-        let parts: Vec<Result<WindowSums>> =
-            self.windows.par_iter().map(|w| run_window(self.input, w, theta, theta_ref, &v, mode, None)).collect();
-        let mut total = WindowSums::zero();
-        let mut windows = Vec::with_capacity(parts.len());
-        for p in parts {
-            let p = p?;
-            total.add(&p);
-            windows.push(p);
-        }
-        Ok(Evaluation { total, windows, mode })
+        v
     }
 }
 
@@ -2726,21 +2753,7 @@ pub(crate) fn estimate_from(
     } else {
         opts
     };
-    let prob = Problem {
-        input,
-        windows,
-        noise: opts.noise,
-        quantisation: opts.quantisation,
-        quantisation_given: opts.quantisation_level == QuantisationLevel::Given,
-        lateral_stated: opts.lateral_noise == LateralNoise::Stated,
-        heading_separate: opts.heading_scale == HeadingScale::Separate,
-        fitted_input: opts.wheel_noise_scale != WheelNoiseScale::MeasuredInput,
-        noise_input_half_width: opts.wheel_noise_scale.half_width(),
-        noise_input_from_reference: matches!(opts.wheel_noise_scale, WheelNoiseScale::ReferenceInput { .. }),
-        input_jacobian: opts.input_jacobian,
-        position_floor_m: opts.position_floor_m,
-        evaluations: std::cell::Cell::new([0; 2]),
-    };
+    let prob = Problem::new(input, windows, opts);
     let mut theta = *theta_start;
     let mut eta = if opts.fix_noise { [0.0; 6] } else { *eta_start };
     let mut free = opts.free;
@@ -3173,21 +3186,12 @@ pub fn cramer_rao_bound(
     // With `FromReadings` the bound takes `noise`'s q as the encoder's
     // (held, not scaled by η_0) where the readings lie on a lattice.
     let prob = Problem {
-        input,
-        windows,
         noise: *noise,
-        quantisation: opts.quantisation,
         quantisation_given: opts.quantisation_level == QuantisationLevel::Given
             || opts.quantisation_level.step_found(input).is_some(),
-        lateral_stated: opts.lateral_noise == LateralNoise::Stated,
-        heading_separate: opts.heading_scale == HeadingScale::Separate,
-        fitted_input: opts.wheel_noise_scale != WheelNoiseScale::MeasuredInput,
-        noise_input_half_width: opts.wheel_noise_scale.half_width(),
-        noise_input_from_reference: matches!(opts.wheel_noise_scale, WheelNoiseScale::ReferenceInput { .. }),
         // The CRB uses the information matrix only.
         input_jacobian: InputJacobian::None,
-        position_floor_m: opts.position_floor_m,
-        evaluations: std::cell::Cell::new([0; 2]),
+        ..Problem::new(input, windows, opts)
     };
     let ev = prob.evaluate(theta, theta, &[0.0; 6], Mode::full(true, true))?;
     let h: Matrix4<f64> = ev.total.info.fixed_view::<4, 4>(0, 0).into_owned();
