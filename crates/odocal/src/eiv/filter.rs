@@ -26,9 +26,12 @@ use crate::error::{Error, Result};
 use crate::model::{step_jacobians, wrap_angle, Input, State, Theta};
 
 /// Number of filter states (the two remainder states w_l, w_r included).
-pub(crate) const NZ: usize = 11;
+pub(crate) const NZ: usize = 12;
+/// Index of the sideslip error state `e_β` (the measured β's Gauss-Markov
+/// error: the true sideslip is `β̃ − e_β`).
+const IB: usize = 9;
 /// Index of the first remainder state `w_l` (`w_r` follows).
-const IW: usize = 9;
+const IW: usize = 10;
 /// Number of sensitivity parameters: 4 θ + 6 η.
 pub(crate) const NP: usize = 10;
 /// Number of noise scale factors η.
@@ -75,12 +78,13 @@ pub(crate) struct Variances {
     pub drift: [f64; 3],
     /// Lateral acceleration variance (fixed), (m/s²)².
     pub a_y: f64,
-    /// Equivalent white sideslip variance (fixed), rad².
+    /// Stationary variance of the sideslip error state e_β (Gauss-Markov), rad².
     pub beta: f64,
-    /// Gauss-Markov coefficients `a = exp(−t_s/τ)`: common, per-wheel, drift.
+    /// Gauss-Markov coefficients `a = exp(−t_s/τ)`: common, per-wheel, drift, sideslip error.
     pub a_common: f64,
     pub a_wheel: f64,
     pub a_drift: f64,
+    pub a_beta: f64,
     /// Quantisation as measurement noise `R_q` (bounded count error) rather
     /// than as white rate noise in the process ([`super::QuantisationModel`]).
     pub quant_in_measurement: bool,
@@ -369,8 +373,9 @@ pub(crate) struct InnovationRecord {
 }
 
 /// The structured transition of one step,
-/// `F = [[F_x, F_xs, 0, F_xw], [0, diag(a_s), 0, 0], [0, 0, a_b I, 0], [0, 0, 0, diag(a_w)]]`,
-/// `F_x = I + e_0 f02 e_2ᵀ + e_1 f12 e_2ᵀ`, `diag` the diagonal of rows 3..S.
+/// `F = [[F_x, F_xs, 0, F_xβ, F_xw], [0, diag(a_s), 0, 0, 0], [0, 0, a_b I, 0, 0], [0, 0, 0, a_β, 0],
+/// [0, 0, 0, 0, diag(a_w)]]`, `F_x = I + e_0 f02 e_2ᵀ + e_1 f12 e_2ᵀ`, `F_xβ = −(f02, f12, 0)ᵀ` (the
+/// sideslip enters the step as the heading does, `φ = ψ + ωt_s/2 + β`), `diag` the diagonal of rows 3..S.
 #[derive(Clone, Copy)]
 struct Transition<'a, const S: usize> {
     f02: f64,
@@ -387,13 +392,14 @@ impl<const S: usize> Transition<'_, S> {
     fn top(&self, v: impl Fn(usize) -> f64) -> [f64; 3] {
         let (fxs, fxw) = (self.fxs, self.fxw);
         let fr = [self.f02, self.f12, 0.0];
-        let (v2, v3, v4, v5) = (v(2), v(3), v(4), v(5));
+        let (v2, v3, v4, v5, vb) = (v(2), v(3), v(4), v(5), v(IB));
         let (v9, v10) = if S > IW { (v(IW), v(IW + 1)) } else { (0.0, 0.0) };
         std::array::from_fn(|i| {
             v(i) + fr[i] * v2
                 + fxs[(i, 0)] * v3
                 + fxs[(i, 1)] * v4
                 + fxs[(i, 2)] * v5
+                - fr[i] * vb
                 + if S > IW { fxw[(i, 0)] * v9 + fxw[(i, 1)] * v10 } else { 0.0 }
         })
     }
@@ -430,15 +436,17 @@ fn propagate_in_place<const S: usize>(p: &mut MZ<S>, t: &Transition<'_, S>) {
         let (a2, a3, a4, a5) = (fr[c], t.fxs[(c, 0)], t.fxs[(c, 1)], t.fxs[(c, 2)]);
         let (a9, a10) = (t.fxw[(c, 0)], t.fxw[(c, 1)]);
         let (pc, p2, p3, p4, p5) = (p.column(c), p.column(2), p.column(3), p.column(4), p.column(5));
+        let pb = p.column(IB);
         let mut wc = w.column_mut(c);
         if S > IW {
             let (p9, p10) = (p.column(IW), p.column(IW + 1));
             for r in 0..S {
-                wc[r] = pc[r] + a2 * p2[r] + a3 * p3[r] + a4 * p4[r] + a5 * p5[r] + (a9 * p9[r] + a10 * p10[r]);
+                wc[r] = pc[r] + a2 * p2[r] + a3 * p3[r] + a4 * p4[r] + a5 * p5[r] - a2 * pb[r]
+                    + (a9 * p9[r] + a10 * p10[r]);
             }
         } else {
             for r in 0..S {
-                wc[r] = pc[r] + a2 * p2[r] + a3 * p3[r] + a4 * p4[r] + a5 * p5[r] + 0.0;
+                wc[r] = pc[r] + a2 * p2[r] + a3 * p3[r] + a4 * p4[r] + a5 * p5[r] - a2 * pb[r] + 0.0;
             }
         }
     }
@@ -716,6 +724,11 @@ fn initial_covariance<const S: usize>(v: &Variances, r_floor: &[f64; 3]) -> (MZ<
     }
     p[(3, 3)] = v.common;
     dp[5][(3, 3)] = v.common;
+    // The sideslip error starts stationary (η_0 scales it unless stated).
+    p[(IB, IB)] = v.beta;
+    if v.lateral_scaled {
+        dp[4][(IB, IB)] = v.beta;
+    }
     for i in 4..6 {
         p[(i, i)] = v.wheel;
         dp[6][(i, i)] = v.wheel;
@@ -1043,11 +1056,15 @@ fn run_window_s<const S: usize>(
     let mut x = State::new(input.px[a0], input.py[a0], input.psi[a0]);
     let mut s = Vector3::<f64>::zeros();
     let mut b = Vector3::<f64>::zeros();
+    // The estimated sideslip error e_β (rad).
+    let mut eb = 0.0f64;
     // Counting quantisation: the estimated remainders w_{k−1} (rev/s).
     let mut wq = [0.0f64; 2];
     let mut d = DZ::<S>::zeros();
     let mut base_diag = [1.0; S];
-    base_diag[3..IW].copy_from_slice(&[v.a_common, v.a_wheel, v.a_wheel, v.a_drift, v.a_drift, v.a_drift]);
+    base_diag[3..IW]
+        .copy_from_slice(&[v.a_common, v.a_wheel, v.a_wheel, v.a_drift, v.a_drift, v.a_drift, v.a_beta]);
+    let q_beta = v.beta * (1.0 - v.a_beta * v.a_beta);
     let q_s = [
         v.common * (1.0 - v.a_common * v.a_common),
         v.wheel * (1.0 - v.a_wheel * v.a_wheel),
@@ -1150,7 +1167,6 @@ fn run_window_s<const S: usize>(
         };
         let (f02, f12) = (rv.f02, rv.f12);
         let (fn_l, fn_r, f_a) = (rv.fn_l, rv.fn_r, rv.f_a);
-        let f_b = Vector3::new(f02, f12, 0.0);
         // With `fitted_input` the relative wheel noise is scaled by the fitted
         // true input n̂ = ñ·g, g = C(θ_ref)/C(θ): the s-columns of F̄ are
         // −F_n n̂ and the white variance is σ²n̂² (g = 1 otherwise).
@@ -1248,7 +1264,8 @@ fn run_window_s<const S: usize>(
             let q_of = |n: f64| if n == 0.0 { 0.0 } else { v.quant };
             fn_l * fn_l.transpose() * q_of(nl) + fn_r * fn_r.transpose() * q_of(nr)
         };
-        let q_lateral = f_b * f_b.transpose() * v.beta + f_a * f_a.transpose() * v.a_y;
+        // a_y's white noise; β's Gauss-Markov error is the state e_β.
+        let q_lateral = f_a * f_a.transpose() * v.a_y;
         let q_x = q_white + q_lateral;
         // The share of Q_x that η_0 scales: not the quantisation's when its
         // level is given, not a_y's and β's when their noise is stated.
@@ -1343,8 +1360,12 @@ fn run_window_s<const S: usize>(
         // The remainder of the previous count is taken off the measured rate
         // (the new one has mean zero).
         let wsub = [if counting[0] { wq[0] } else { 0.0 }, if counting[1] { wq[1] } else { 0.0 }];
-        let ueff =
-            Input { n_rl: nl * (1.0 - s[0] - s[1]) - wsub[0], n_rr: nr * (1.0 - s[0] - s[2]) - wsub[1], beta, a_y };
+        let ueff = Input {
+            n_rl: nl * (1.0 - s[0] - s[1]) - wsub[0],
+            n_rr: nr * (1.0 - s[0] - s[2]) - wsub[1],
+            beta: beta - eb,
+            a_y,
+        };
         if mode.derivs {
             for (row, m) in [(3usize, m_c), (4, m_l), (5, m_r)] {
                 if m > 0.0 {
@@ -1375,13 +1396,17 @@ fn run_window_s<const S: usize>(
                 let (d0, d1, d2) = (d[(0, c)], d[(1, c)], d[(2, c)]);
                 let (d3, d4, d5) = (d[(3, c)], d[(4, c)], d[(5, c)]);
                 let (d9, d10) = if S > IW { (d[(IW, c)], d[(IW + 1, c)]) } else { (0.0, 0.0) };
+                let db = d[(IB, c)];
                 for r in 0..3 {
+                    // ∂f/∂β = ∂f/∂ψ on the position rows, 0 on the heading row.
+                    let fb = if r < 2 { j.f_x[(r, 2)] } else { 0.0 };
                     d[(r, c)] = j.f_x[(r, 0)] * d0
                         + j.f_x[(r, 1)] * d1
                         + j.f_x[(r, 2)] * d2
                         + fxs[(r, 0)] * d3
                         + fxs[(r, 1)] * d4
                         + fxs[(r, 2)] * d5
+                        - fb * db
                         + fxw[(r, 0)] * d9
                         + fxw[(r, 1)] * d10;
                 }
@@ -1400,6 +1425,7 @@ fn run_window_s<const S: usize>(
         }
         s = Vector3::new(v.a_common * s[0], v.a_wheel * s[1], v.a_wheel * s[2]);
         b *= v.a_drift;
+        eb *= v.a_beta;
         for w in 0..2 {
             if counting[w] {
                 wq[w] = 0.0;
@@ -1438,8 +1464,10 @@ fn run_window_s<const S: usize>(
                     let (a9, a10) = (dfxw[(rr, 0)], dfxw[(rr, 1)]);
                     for c in 0..S {
                         let (p9, p10) = if S > IW { (p[(c, IW)], p[(c, IW + 1)]) } else { (0.0, 0.0) };
-                        gt[(c, rr)] =
-                            a2 * p[(c, 2)] + a3 * p[(c, 3)] + a4 * p[(c, 4)] + a5 * p[(c, 5)] + a9 * p9 + a10 * p10;
+                        gt[(c, rr)] = a2 * p[(c, 2)] + a3 * p[(c, 3)] + a4 * p[(c, 4)] + a5 * p[(c, 5)]
+                            - a2 * p[(c, IB)]
+                            + a9 * p9
+                            + a10 * p10;
                     }
                 }
                 // G F̄ᵀ.
@@ -1452,6 +1480,7 @@ fn run_window_s<const S: usize>(
                                 + fxs_ref[(ci, 0)] * gt[(3, rr)]
                                 + fxs_ref[(ci, 1)] * gt[(4, rr)]
                                 + fxs_ref[(ci, 2)] * gt[(5, rr)]
+                                - fr[ci] * gt[(IB, rr)]
                                 + if S > IW {
                                     fxw_ref[(ci, 0)] * gt[(IW, rr)] + fxw_ref[(ci, 1)] * gt[(IW + 1, rr)]
                                 } else {
@@ -1464,11 +1493,8 @@ fn run_window_s<const S: usize>(
                 }
                 // ∂Q_x/∂θ_j (symmetric part added as half of A + Aᵀ).
                 let dfa = dvec_of(&rt.f_a, jt);
-                let dfb = Vector3::new(d02, d12, 0.0);
-                let mut half_dq = fn_l * dfl.transpose() * wl
-                    + fn_r * dfr.transpose() * wr
-                    + f_b * dfb.transpose() * v.beta
-                    + f_a * dfa.transpose() * v.a_y;
+                let mut half_dq =
+                    fn_l * dfl.transpose() * wl + fn_r * dfr.transpose() * wr + f_a * dfa.transpose() * v.a_y;
                 if fitted {
                     // ∂(σ²ñ²g²)/∂θ_j = 2σ²ñ²g ∂g/∂θ_j; half of it in the half.
                     let dwl = v.white_rel * nls * nls * gw[0].v * gw[0].d[jt];
@@ -1499,6 +1525,7 @@ fn run_window_s<const S: usize>(
                 m[(r + 3, r + 3)] += q_s[r];
                 m[(r + 6, r + 6)] += q_b[r];
             }
+            m[(IB, IB)] += q_beta;
         };
         // Counting: the fresh remainder w_k (Q_ww) and its share of the pose step (Q_xw).
         let add_q_w = |m: &mut MZ<S>| {
@@ -1538,6 +1565,9 @@ fn run_window_s<const S: usize>(
                     }
                     if v.quant_scaled {
                         add_q_w(dpj);
+                    }
+                    if v.lateral_scaled {
+                        dpj[(IB, IB)] += q_beta;
                     }
                 }
                 5 => dpj[(3, 3)] += q_s[0],
@@ -1764,6 +1794,7 @@ fn run_window_s<const S: usize>(
             s[r] += dz[r + 3];
             b[r] += dz[r + 6];
         }
+        eb += dz[IB];
         if S > IW {
             wq[0] += dz[IW];
             wq[1] += dz[IW + 1];
@@ -1848,7 +1879,7 @@ mod kernel_tests {
             let p = random_symmetric(&mut st);
             let (f02, f12) = (lcg(&mut st), lcg(&mut st));
             let fxs = Matrix3::from_fn(|_, _| lcg(&mut st));
-            let diag = [1.0, 1.0, 1.0, 0.9, 0.8, 0.8, 0.99, 0.99, 0.99, 0.0, 1.0];
+            let diag = [1.0, 1.0, 1.0, 0.9, 0.8, 0.8, 0.99, 0.99, 0.99, 0.95, 0.0, 1.0];
             let fxw = M3x2::from_fn(|_, _| lcg(&mut st));
             let mut f = MZ::<NZ>::zeros();
             for i in 0..NZ {
@@ -1856,6 +1887,8 @@ mod kernel_tests {
             }
             f[(0, 2)] = f02;
             f[(1, 2)] = f12;
+            f[(0, IB)] = -f02;
+            f[(1, IB)] = -f12;
             f.fixed_view_mut::<3, 3>(0, 3).copy_from(&fxs);
             f.fixed_view_mut::<3, 2>(0, IW).copy_from(&fxw);
             let dense = f * p * f.transpose();
