@@ -78,8 +78,12 @@ pub(crate) struct Variances {
     pub drift: [f64; 3],
     /// Lateral acceleration variance (fixed), (m/s²)².
     pub a_y: f64,
-    /// Stationary variance of the sideslip error state e_β (Gauss-Markov), rad².
+    /// Stationary variance of the sideslip error state e_β (Gauss-Markov), rad²
+    /// (0 with [`super::SideslipNoise::WhiteEquivalent`]).
     pub beta: f64,
+    /// The sideslip error as white process noise of this variance, rad²
+    /// ([`super::SideslipNoise::WhiteEquivalent`]; else 0).
+    pub beta_white: f64,
     /// Gauss-Markov coefficients `a = exp(−t_s/τ)`: common, per-wheel, drift, sideslip error.
     pub a_common: f64,
     pub a_wheel: f64,
@@ -1264,8 +1268,10 @@ fn run_window_s<const S: usize>(
             let q_of = |n: f64| if n == 0.0 { 0.0 } else { v.quant };
             fn_l * fn_l.transpose() * q_of(nl) + fn_r * fn_r.transpose() * q_of(nr)
         };
-        // a_y's white noise; β's Gauss-Markov error is the state e_β.
-        let q_lateral = f_a * f_a.transpose() * v.a_y;
+        // a_y's white noise; β's Gauss-Markov error is the state e_β (or,
+        // with `SideslipNoise::WhiteEquivalent`, white noise: `beta_white`).
+        let f_b = Vector3::new(f02, f12, 0.0);
+        let q_lateral = f_b * f_b.transpose() * v.beta_white + f_a * f_a.transpose() * v.a_y;
         let q_x = q_white + q_lateral;
         // The share of Q_x that η_0 scales: not the quantisation's when its
         // level is given, not a_y's and β's when their noise is stated.
@@ -1493,8 +1499,11 @@ fn run_window_s<const S: usize>(
                 }
                 // ∂Q_x/∂θ_j (symmetric part added as half of A + Aᵀ).
                 let dfa = dvec_of(&rt.f_a, jt);
-                let mut half_dq =
-                    fn_l * dfl.transpose() * wl + fn_r * dfr.transpose() * wr + f_a * dfa.transpose() * v.a_y;
+                let dfb = Vector3::new(d02, d12, 0.0);
+                let mut half_dq = fn_l * dfl.transpose() * wl
+                    + fn_r * dfr.transpose() * wr
+                    + f_b * dfb.transpose() * v.beta_white
+                    + f_a * dfa.transpose() * v.a_y;
                 if fitted {
                     // ∂(σ²ñ²g²)/∂θ_j = 2σ²ñ²g ∂g/∂θ_j; half of it in the half.
                     let dwl = v.white_rel * nls * nls * gw[0].v * gw[0].d[jt];

@@ -628,16 +628,17 @@ fn bootstrap_is_identical_for_one_and_two_threads() {
 }
 
 /// Paper noise, 6 km, the true noise model fixed, 40 replicates.
-/// Measured on this drive: c_e θ̂ is off by +0.090 % (2.6 reported σ, the
-/// known c_e bias under coloured relative noise); the bootstrap's bias
-/// estimate +0.077 % brings it to +0.013 %; the c_e percentile interval
-/// (centred on θ̂ + bias) misses the truth, the basic interval contains it.
-/// t_r is −0.95 % off here (1.9σ, an unlucky draw: its 95 % intervals,
-/// percentile and basic, both just miss the truth), so the assertion for
-/// every parameter is the 3σ one; 95 % coverage over seeds is measured in
-/// `examples/study_eiv.rs`.
+/// Until stop 19 c_e θ̂ was off by +0.090 % here (2.6 reported σ), and the
+/// bootstrap's bias estimate +0.077 % brought it to +0.013 %. With the
+/// sideslip error a filter state ([`SideslipNoise::GaussMarkovState`])
+/// c_e θ̂ is off by +0.009 % (0.2σ) and the bootstrap finds no c_e bias
+/// beyond its Monte Carlo error: the bias was the white-equivalent
+/// sideslip noise, which the bootstrap's replicates (simulated from the
+/// same model) shared. t_r is −1.1 % off here (2.3σ, an unlucky draw), so
+/// the assertion for every parameter is the 3σ one; 95 % coverage over
+/// seeds is measured in `examples/study_eiv.rs`.
 #[test]
-fn bootstrap_removes_the_c_e_bias_and_brackets_the_truth() {
+fn bootstrap_brackets_the_truth_and_finds_no_c_e_bias_left() {
     let (out, opts) = known_noise_fit(6.0, 4);
     let truth = out.sidecar.theta_true.to_array();
     let input = input_of(&out.drive);
@@ -671,8 +672,9 @@ fn bootstrap_removes_the_c_e_bias_and_brackets_the_truth() {
         assert!((1.0 / 3.0..3.0).contains(&ratio), "{}: interval / reported ±1.96σ = {ratio}", PARAMETERS[i]);
     }
     let raw = (r.theta.c_e - truth[0]).abs();
-    let corrected = (b.theta_corrected.c_e - truth[0]).abs();
-    assert!(corrected < raw, "bias-corrected c_e error {corrected:.2e} not below θ̂'s {raw:.2e}");
+    assert!(raw <= 2.0 * r.sigma[0], "c_e error {raw:.2e} > 2σ = {:.2e}", 2.0 * r.sigma[0]);
+    let mc = 3.0 * b.sd[0] / (b.replicates.len() as f64).sqrt();
+    assert!(b.bias[0].abs() <= mc, "c_e bootstrap bias {:.2e} beyond 3 Monte Carlo se {mc:.2e}", b.bias[0]);
 }
 
 /// The heading white noise has its own scale (η_5): scaling it leaves the
@@ -821,6 +823,8 @@ fn results_match_the_recorded_results_of_the_unoptimised_filter() {
         covariance_estimate: CovarianceEstimate::Model,
         // The recorded σ are H_θ⁻¹'s (before stop 16's η term).
         noise_estimate_in_covariance: false,
+        // The sideslip error as white noise (before stop 19's state).
+        sideslip_noise: SideslipNoise::WhiteEquivalent,
         ..EivOptions::spec()
     };
     let options = |case: &str| match case {
@@ -1125,6 +1129,7 @@ fn eta_step_descends_on_the_noise_free_straight_drive() {
         quantisation: opts.quantisation,
         quantisation_given: false,
         lateral_stated: false,
+        sideslip_white: false,
         heading_separate: true,
         fitted_input: false,
         position_floor_m: opts.position_floor_m,
@@ -1341,9 +1346,10 @@ fn separate_counting_white_drive() -> (crate::sim::SimOutput, EivOptions) {
 }
 
 /// At the iteration limit the default test judges the steps just taken; the
-/// fit of this drive takes 6 iterations, and the step remaining after the
-/// 6th is below the tolerance, so with [`EivOptions::final_step_check`] a
-/// 6-iteration limit ends converged, at the same θ.
+/// fit of this drive takes n iterations (5 since stop 19, 6 before), and the
+/// step remaining after the n-th is below the tolerance, so with
+/// [`EivOptions::final_step_check`] an n-iteration limit ends converged, at
+/// the same θ.
 #[test]
 fn final_step_check_converges_at_the_iteration_limit() {
     let (out, base) = separate_counting_white_drive();
@@ -1351,10 +1357,11 @@ fn final_step_check_converges_at_the_iteration_limit() {
     let truth = out.sidecar.theta_true;
     let full = estimate(&input, &truth, &base).expect("eiv");
     let history = full.passes.last().map(|p| p.history.clone()).unwrap_or_default();
-    assert_eq!(history.len(), 6, "{full}");
-    // Without the option a 6-iteration limit ends on this step: not converged.
-    assert!(history[5].step_over_sigma >= 0.05, "{full}");
-    let opts = EivOptions { max_iterations: 6, final_step_check: true, ..base };
+    let n = history.len();
+    assert!((2..base.max_iterations).contains(&n), "{full}");
+    // Without the option an n-iteration limit ends on this step: not converged.
+    assert!(history[n - 1].step_over_sigma >= 0.05, "{full}");
+    let opts = EivOptions { max_iterations: n, final_step_check: true, ..base };
     let r = estimate(&input, &truth, &opts).expect("eiv");
     assert!(r.termination.converged(), "{r}");
     assert_eq!(r.theta, full.theta);
