@@ -399,11 +399,7 @@ impl<const S: usize> Transition<'_, S> {
         let (v2, v3, v4, v5, vb) = (v(2), v(3), v(4), v(5), v(IB));
         let (v9, v10) = if S > IW { (v(IW), v(IW + 1)) } else { (0.0, 0.0) };
         std::array::from_fn(|i| {
-            v(i) + fr[i] * v2
-                + fxs[(i, 0)] * v3
-                + fxs[(i, 1)] * v4
-                + fxs[(i, 2)] * v5
-                - fr[i] * vb
+            v(i) + fr[i] * v2 + fxs[(i, 0)] * v3 + fxs[(i, 1)] * v4 + fxs[(i, 2)] * v5 - fr[i] * vb
                 + if S > IW { fxw[(i, 0)] * v9 + fxw[(i, 1)] * v10 } else { 0.0 }
         })
     }
@@ -1066,8 +1062,7 @@ fn run_window_s<const S: usize>(
     let mut wq = [0.0f64; 2];
     let mut d = DZ::<S>::zeros();
     let mut base_diag = [1.0; S];
-    base_diag[3..IW]
-        .copy_from_slice(&[v.a_common, v.a_wheel, v.a_wheel, v.a_drift, v.a_drift, v.a_drift, v.a_beta]);
+    base_diag[3..IW].copy_from_slice(&[v.a_common, v.a_wheel, v.a_wheel, v.a_drift, v.a_drift, v.a_drift, v.a_beta]);
     let q_beta = v.beta * (1.0 - v.a_beta * v.a_beta);
     let q_s = [
         v.common * (1.0 - v.a_common * v.a_common),

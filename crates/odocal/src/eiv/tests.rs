@@ -1558,11 +1558,9 @@ fn eta_scores_at_the_truth() {
             "high-noslip" => NoiseOptions { wheel_slip_per_m_per_s2: 0.0, ..high },
             "high-nobeta" => NoiseOptions { sideslip_sigma_rad: 0.0, ..high },
             "high-noay" => NoiseOptions { lateral_acceleration_white_sigma_m_per_s2: 0.0, ..high },
-            "high-nolat" => NoiseOptions {
-                lateral_acceleration_white_sigma_m_per_s2: 0.0,
-                sideslip_sigma_rad: 0.0,
-                ..high
-            },
+            "high-nolat" => {
+                NoiseOptions { lateral_acceleration_white_sigma_m_per_s2: 0.0, sideslip_sigma_rad: 0.0, ..high }
+            }
             other => panic!("unknown preset {other}"),
         };
         let mut zs: Vec<[f64; 6]> = Vec::new();
@@ -1623,9 +1621,8 @@ fn eta_scores_at_the_truth() {
             })
             .collect();
         println!("{preset} ({seeds} seeds × {km} km): {}", cells.join(", "));
-        let st: Vec<String> = (0..6)
-            .map(|j| format!("{} {:+.3}", names[j], steps.iter().map(|z| z[j]).sum::<f64>() / n))
-            .collect();
+        let st: Vec<String> =
+            (0..6).map(|j| format!("{} {:+.3}", names[j], steps.iter().map(|z| z[j]).sum::<f64>() / n)).collect();
         println!("  first scoring step of η from the truth (mean): {}", st.join(", "));
         for (b, bin) in bins.iter().enumerate() {
             // −g / ½tr: the relative excess of ν's heading variance the bin shows (≈ 0 when the model fits).
