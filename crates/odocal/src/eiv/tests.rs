@@ -825,6 +825,8 @@ fn results_match_the_recorded_results_of_the_unoptimised_filter() {
         noise_estimate_in_covariance: false,
         // The sideslip error as white noise (before stop 19's state).
         sideslip_noise: SideslipNoise::WhiteEquivalent,
+        // And the iteration limit of the time.
+        max_iterations: 10,
         ..EivOptions::spec()
     };
     let options = |case: &str| match case {
