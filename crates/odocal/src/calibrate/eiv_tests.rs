@@ -462,3 +462,24 @@ fn the_start_estimates_the_heading_offset_by_default() {
     o.hold_stated_heading_offset();
     assert!(matches!(&o.method, Method::Eiv(m) if !m.estimate_heading_offset));
 }
+
+/// A `high` drive (12 km, seed 3; `study_eiv`'s) whose θ line search could
+/// not lower the profile cost J near the score's root (J rose by 2.5e-11
+/// relative: the θ-score holds the input log-Jacobian's weights, so it is
+/// not J's exact gradient). The fit ended `CostIncreased`, not converged,
+/// and `calibrate` fell back to batch G-N (t_r +9.9 % off, against EIV's
+/// −1.35 %). Taking the full step when it shrinks the score, the fit
+/// converges and its θ is kept.
+#[test]
+fn a_step_that_shrinks_the_score_is_taken_when_the_profile_cost_cannot_fall() {
+    let out =
+        simulate(&SimOptions { length_km: 12.0, noise: NoiseOptions::high(), ..SimOptions::paper(3) }).expect("sim");
+    let r = calibrate(&out.drive, &CalibrationOptions::default(), None).expect("calibrate");
+    let d = detail(&r);
+    let eiv = d.eiv.as_ref().expect("the EIV fit ran");
+    assert!(eiv.termination.converged(), "{eiv}");
+    assert_eq!(d.eiv_result, EivOutcome::Eiv, "{:?}", r.warnings);
+    let truth = out.sidecar.theta_true;
+    let off = (r.theta.t_r - truth.t_r).abs();
+    assert!(off <= 3.0 * eiv.sigma[2], "t_r off by {off:.4} m, 3σ = {:.4} m", 3.0 * eiv.sigma[2]);
+}

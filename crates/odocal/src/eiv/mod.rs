@@ -2642,8 +2642,34 @@ fn scoring_pass(
                     lambda = l;
                 }
                 Search::Rejected { cost } => {
-                    termination = Termination::CostIncreased { cost, previous, halvings: opts.max_halvings };
-                    break;
+                    // The θ-score holds the input log-Jacobian's weights, which
+                    // depend on θ through S, so it is not J's exact gradient and
+                    // near its root the scoring step need not lower J (a `high`
+                    // drive stopped so, J up by 2.5e-11 relative, and fell back).
+                    // The estimate is the score's root: take the full step when
+                    // it shrinks the score in the scoring metric, as the joint
+                    // step with the covariance held does.
+                    let th = theta_add(&theta, &dth, 1.0);
+                    let before = score_norm(&ev.total, &free, follows);
+                    let rescue = if th.validate().is_ok() {
+                        prob.evaluate(&th, &theta_ref, &eta, full).ok().filter(|t| {
+                            let after = score_norm(&t.total, &free, follows);
+                            after.is_finite() && after < before
+                        })
+                    } else {
+                        None
+                    };
+                    match rescue {
+                        Some(t) => {
+                            theta = th;
+                            ev = t;
+                            lambda = 1.0;
+                        }
+                        None => {
+                            termination = Termination::CostIncreased { cost, previous, halvings: opts.max_halvings };
+                            break;
+                        }
+                    }
                 }
             }
             if eta_derivs {
