@@ -1322,25 +1322,6 @@ pub enum SideslipNoise {
     WhiteEquivalent,
 }
 
-impl std::str::FromStr for SideslipNoise {
-    type Err = Error;
-    /// `state` ([`SideslipNoise::GaussMarkovState`]) or `white`, as the
-    /// CLI's `--sideslip-noise`.
-    ///
-    /// ```
-    /// use odocal::eiv::SideslipNoise;
-    /// assert_eq!("white".parse::<SideslipNoise>().unwrap(), SideslipNoise::WhiteEquivalent);
-    /// assert!("free".parse::<SideslipNoise>().is_err());
-    /// ```
-    fn from_str(s: &str) -> Result<Self> {
-        match s.trim().to_ascii_lowercase().replace('-', "_").as_str() {
-            "state" | "gauss_markov" | "gauss_markov_state" => Ok(SideslipNoise::GaussMarkovState),
-            "white" | "white_equivalent" => Ok(SideslipNoise::WhiteEquivalent),
-            _ => Err(Error::Parse { what: "sideslip noise", input: s.to_string(), expected: "state or white" }),
-        }
-    }
-}
-
 /// How the filter models encoder quantisation (q of [`NoiseModel`]).
 ///
 /// Counting ticks carries the remainder over, so the counted rotation is
