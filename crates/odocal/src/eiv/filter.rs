@@ -593,6 +593,14 @@ fn joseph<const S: usize>(a: &MZ<S>, k: &MZx3<S>) -> MZ<S> {
 fn joseph_in_place<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, d: Option<&Matrix3<f64>>) {
     // HA (3×9): rows 0..3 plus rows 6..9.
     let ha = h_rows(a);
+    joseph_in_place_with(a, k, d, &ha);
+}
+
+/// [`joseph_in_place`] given `ha = HA` (`h_rows(a)`), which the filter has
+/// already formed for the innovation covariance.
+#[inline]
+fn joseph_in_place_with<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, d: Option<&Matrix3<f64>>, ha: &M3xZ<S>) {
+    debug_assert!(*ha == h_rows(a), "joseph_in_place_with: ha is not HA");
     // X = A − K HA: every row of columns 0..3 and 6..9 (for XHᵀ), and the
     // lower triangle of the other columns (the rest of A is left as it is:
     // the mirror overwrites it).
@@ -1082,6 +1090,8 @@ fn run_window_s<const S: usize>(
     let mut ds = [Matrix3::<f64>::zeros(); NP];
     let mut a = [Matrix3::<f64>::zeros(); NP];
     let mut dkn = DZ::<S>::zeros();
+    // H ∂P⁻/∂p_j of the update (for ∂S and again in the Joseph form).
+    let mut hdps = [M3xZ::<S>::zeros(); NP];
     // Input log-Jacobian term: per-wheel sums at unit weight (Unit,
     // SmoothedShare), samples waiting for the next update (FilterShare:
     // wheel, σ²n̂², f_w, ln C ratio, its gradient) and ∂P/∂λ_w (SmoothedShare).
@@ -1699,8 +1709,9 @@ fn run_window_s<const S: usize>(
                 g_t[c] = -gnu[c];
             }
             for &jj in cols {
-                let hdp: M3xZ<S> = h_rows(&dp[jj]);
-                ds[jj] = h_cols(&hdp) + d_r(jj);
+                hdps[jj] = h_rows(&dp[jj]);
+                let hdp = &hdps[jj];
+                ds[jj] = h_cols(hdp) + d_r(jj);
                 a[jj] = sinv * ds[jj];
                 let ds_snu = ds[jj] * sinv_nu;
                 let gq = -0.5 * sinv_nu.dot(&ds_snu);
@@ -1787,7 +1798,7 @@ fn run_window_s<const S: usize>(
             // ∂P − KH∂P − (KH∂P)ᵀ + K ∂S Kᵀ is numerically unstable here.
             for &jj in cols {
                 let dr = d_r(jj);
-                joseph_in_place(&mut dp[jj], &k, (dr != Matrix3::zeros()).then_some(&dr));
+                joseph_in_place_with(&mut dp[jj], &k, (dr != Matrix3::zeros()).then_some(&dr), &hdps[jj]);
             }
         }
 
@@ -1803,7 +1814,7 @@ fn run_window_s<const S: usize>(
             wq[0] += dz[IW];
             wq[1] += dz[IW + 1];
         }
-        joseph_in_place(&mut p, &k, Some(&r_k));
+        joseph_in_place_with(&mut p, &k, Some(&r_k), &hp);
     }
     if block_open {
         out.blocks.push(&block_sum, block_prev.as_ref());

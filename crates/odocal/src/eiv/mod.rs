@@ -2052,6 +2052,41 @@ impl Problem<'_> {
         Ok(Evaluation { total, windows, mode })
     }
 
+    /// [`Problem::evaluate`] at several points `(θ, η)` in one parallel
+    /// sweep over every (point, window) pair, so that two threads share the
+    /// work of all the points rather than each point's few windows. The
+    /// totals are summed window by window in order, as `evaluate` does:
+    /// the results are the same to the bit as evaluating the points one by
+    /// one, whatever the thread count.
+    fn evaluate_many(&self, points: &[(Theta, [f64; 6])], theta_ref: &Theta, mode: Mode) -> Result<Vec<Evaluation>> {
+        let mut count = self.evaluations.get();
+        count[usize::from(!mode.derivs)] += points.len();
+        self.evaluations.set(count);
+        let nw = self.windows.len();
+        let vars: Vec<filter::Variances> = points.iter().map(|(_, eta)| self.variances(eta, false)).collect();
+        let (input, windows) = (self.input, &self.windows);
+        let parts: Vec<Result<WindowSums>> = (0..points.len() * nw)
+            .into_par_iter()
+            .map(|t| {
+                let (pi, wi) = (t / nw, t % nw);
+                run_window(input, &windows[wi], &points[pi].0, theta_ref, &vars[pi], mode, None)
+            })
+            .collect();
+        let mut out = Vec::with_capacity(points.len());
+        let mut it = parts.into_iter();
+        for _ in 0..points.len() {
+            let mut total = WindowSums::zero();
+            let mut windows = Vec::with_capacity(nw);
+            for p in it.by_ref().take(nw) {
+                let p = p?;
+                total.add(&p);
+                windows.push(p);
+            }
+            out.push(Evaluation { total, windows, mode });
+        }
+        Ok(out)
+    }
+
     /// The filter's variances at η under this problem's noise options.
     fn variances(&self, eta: &[f64; 6], null: bool) -> filter::Variances {
         let mut e = *eta;
@@ -3158,13 +3193,27 @@ fn noise_estimate_covariance(
     // (the refits of the test agree with the observed one).
     let fidx: Vec<usize> = (0..4).filter(|i| cov[(*i, *i)] > 0.0).collect();
     let q = fidx.len();
+    // Every displaced point (θ first, then η), evaluated in one sweep.
+    let steps: Vec<f64> = fidx.iter().map(|&k| 0.01 * cov[(k, k)].sqrt()).collect();
+    let mut points: Vec<(Theta, [f64; 6])> = fidx
+        .iter()
+        .zip(&steps)
+        .map(|(&k, &hk)| {
+            let mut t = theta.to_array();
+            t[k] += hk;
+            (Theta::from_array(t), *eta)
+        })
+        .collect();
+    points.extend(idx.iter().map(|&j| {
+        let mut e = *eta;
+        e[j] += h;
+        (*theta, e)
+    }));
+    let evs = prob.evaluate_many(&points, theta_ref, Mode::full(follows, false))?;
+    let (ev_theta, ev_eta) = evs.split_at(q);
     let mut jac = DMatrix::zeros(q, q);
-    for (c, &k) in fidx.iter().enumerate() {
-        let hk = 0.01 * cov[(k, k)].sqrt();
-        let mut t = theta.to_array();
-        t[k] += hk;
-        let ev = prob.evaluate(&Theta::from_array(t), theta_ref, eta, Mode::full(follows, false))?;
-        let dg = (theta_score(&ev.total, follows) - g0) / hk;
+    for (c, (ev, hk)) in ev_theta.iter().zip(&steps).enumerate() {
+        let dg = (theta_score(&ev.total, follows) - g0) / *hk;
         for (r, &i) in fidx.iter().enumerate() {
             jac[(r, c)] = dg[i];
         }
@@ -3183,10 +3232,7 @@ fn noise_estimate_covariance(
     };
     // A = −J⁻¹ ∂g_θ/∂η, 4 × p.
     let mut a = DMatrix::zeros(4, p);
-    for (c, &j) in idx.iter().enumerate() {
-        let mut e = *eta;
-        e[j] += h;
-        let ev = prob.evaluate(theta, theta_ref, &e, Mode::full(follows, false))?;
+    for (c, (&j, ev)) in idx.iter().zip(ev_eta).enumerate() {
         let dg = (theta_score(&ev.total, follows) - g0) / h;
         let col = -(jinv * dg);
         for i in 0..4 {
