@@ -185,6 +185,55 @@ fn eiv_noise_model_shape_flags_reach_the_options() {
     assert!(text(&o.stderr).contains("possible values: process, measurement, counting"), "{}", text(&o.stderr));
 }
 
+/// `--correct-bias B`: every parameter corrected by a bootstrap on the
+/// smoothed trajectory whose replicates hold the fitted noise model; θ's σ
+/// carries the correction's Monte Carlo error; not with `--correct-c-e-bias`
+/// nor with another method.
+#[test]
+fn correct_bias_corrects_every_parameter_with_held_noise() {
+    let d = tempfile::tempdir().expect("tmp");
+    let drive = d.path().join("drive.csv");
+    let dstr = drive.to_str().expect("utf8");
+    let o = odocal(&["simulate", "--seed", "6", "--length-km", "2", "--noise", "paper", "--out", dstr]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let base = ["calibrate", dstr, "--method", "eiv", "--no-fallback", "--json", "-"];
+    let run = |extra: &[&str]| {
+        let o = odocal(&[&base[..], extra].concat());
+        assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", text(&o.stderr));
+        serde_json::from_slice::<serde_json::Value>(&o.stdout).expect("json")
+    };
+    let plain = run(&[]);
+    let r = run(&["--correct-bias", "2", "--bootstrap-seed", "7"]);
+    let f = &r["options"]["method"]["filter"];
+    assert_eq!(f["bias_correction"]["bootstrap"]["all_parameters"], true, "{f}");
+    assert_eq!(f["bootstrap_noise"], "held_at_fit", "{f}");
+    assert_eq!(f["bootstrap_inputs"]["Smoothed"]["half_width_samples"], 20, "{f}");
+    assert_eq!(r["eiv"]["theta_uncorrected"], plain["eiv"]["theta"]);
+    let (e, p) = (&r["eiv"], &plain["eiv"]);
+    for i in 0..4 {
+        let free = e["free"][i].as_bool().expect("free");
+        let mc = e["sigma_bias_correction"][i].as_f64().expect("mc σ");
+        let (s, s0) = (e["sigma"][i].as_f64().expect("σ"), p["sigma"][i].as_f64().expect("σ"));
+        if free {
+            assert!(mc > 0.0 && (s * s - s0 * s0 - mc * mc).abs() <= 1e-9 * s * s, "{i}: {s} {s0} {mc}");
+            assert_ne!(e["bias_subtracted"][i].as_f64(), Some(0.0), "{i}: {}", e["bias_subtracted"]);
+        } else {
+            assert_eq!(mc.to_bits(), 0.0f64.to_bits(), "{i}: a held parameter has no Monte Carlo σ");
+        }
+    }
+    let o = odocal(&[&base[..], &["--correct-bias", "2", "--correct-c-e-bias", "2"]].concat());
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));
+    assert!(text(&o.stderr).contains("cannot be used with"), "{}", text(&o.stderr));
+    let o = odocal(&["calibrate", dstr, "--method", "batch-gn", "--correct-bias", "2"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(text(&o.stderr).contains("--correct-bias applies to --method eiv only"), "{}", text(&o.stderr));
+    // Terminal: the correction and its Monte Carlo σ are named.
+    let o = odocal(&["calibrate", dstr, "--method", "eiv", "--no-fallback", "--correct-bias", "2"]);
+    let out = text(&o.stdout);
+    assert!(out.contains("  bias correction: subtracted c_e "), "{out}");
+    assert!(out.contains("  σ includes the correction's Monte Carlo error: c_e "), "{out}");
+}
+
 #[test]
 fn eiv_flags_belong_to_eiv() {
     let d = tempfile::tempdir().expect("tmp");

@@ -39,7 +39,9 @@
 //!   η-estimated fit with c_e corrected by a bootstrap whose replicates hold
 //!   the fitted noise model (fixed-noise re-fits), and `EIV est. + boot
 //!   re-est. η` = the same with η re-estimated in every replicate (first
-//!   `--bootstrap-reestimate-seeds` seeds);
+//!   `--bootstrap-reestimate-seeds` seeds); each also as `… (all)`, every
+//!   parameter corrected (stop 20; `… boot held η̂ (all)` with
+//!   `--bootstrap-smooth 20` is what the CLI's `--correct-bias` does);
 //! - with `--methods` containing `fitted`: `EIV fitted` = EIV known with
 //!   `WheelNoiseScale::FittedInput` (the relative wheel noise scaled by the
 //!   fitted true input);
@@ -662,18 +664,23 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
                 let t = Instant::now();
                 match bootstrap(&input, fit, &filter, &boot_opts) {
                     Ok(b) => {
-                        // c_e only corrected, as `--correct-c-e-bias` does.
-                        let th = Theta { c_e: b.theta_corrected.c_e, ..r.theta };
-                        let run = Run {
-                            theta: th,
-                            sigmas: vec![("H".into(), sigma_h)],
-                            e_p_m: ep(&th)?,
-                            time_s: time_s + t.elapsed().as_secs_f64(),
-                            warnings: b.failed.len(),
-                            tau_s: None,
-                            checks: vec![],
-                        };
-                        runs.insert(row.into(), run);
+                        // c_e only corrected, as `--correct-c-e-bias` does, and
+                        // (stop 20, `… (all)`) every parameter, as `--correct-bias` does.
+                        let time_s = time_s + t.elapsed().as_secs_f64();
+                        for (suffix, th) in
+                            [("", Theta { c_e: b.theta_corrected.c_e, ..r.theta }), (" (all)", b.theta_corrected)]
+                        {
+                            let run = Run {
+                                theta: th,
+                                sigmas: vec![("H".into(), sigma_h)],
+                                e_p_m: ep(&th)?,
+                                time_s,
+                                warnings: b.failed.len(),
+                                tau_s: None,
+                                checks: vec![],
+                            };
+                            runs.insert(format!("{row}{suffix}"), run);
+                        }
                     }
                     Err(e) => eprintln!("{name} {seed}: {row} failed: {e}"),
                 }

@@ -567,7 +567,9 @@ impl EivDetail {
                     let parts: Vec<String> = (0..4)
                         .filter(|i| e.sigma[*i] > 0.0)
                         .map(|i| {
-                            let (s, n) = (e.sigma[i], e.sigma_noise_estimate[i]);
+                            // (The bias correction's Monte Carlo share is not part of the ratio.)
+                            let (m, n) = (e.sigma_bias_correction[i], e.sigma_noise_estimate[i]);
+                            let s = (e.sigma[i] * e.sigma[i] - m * m).max(0.0).sqrt();
                             let without = (s * s - n * n).max(0.0).sqrt();
                             format!("{} ×{:.2}", names[i], if without > 0.0 { s / without } else { f64::INFINITY })
                         })
@@ -584,6 +586,15 @@ impl EivDetail {
                         b[2],
                         b[3] * 1e3,
                         e.theta_uncorrected.c_e
+                    );
+                    let m = e.sigma_bias_correction;
+                    let _ = writeln!(
+                        out,
+                        "  σ includes the correction's Monte Carlo error: c_e {:.6} m, c_d {:.4} mm, t_r {:.6} m, d {:.4} mm/(m/s²)",
+                        m[0],
+                        m[1] * 1e3,
+                        m[2],
+                        m[3] * 1e3
                     );
                 }
             }

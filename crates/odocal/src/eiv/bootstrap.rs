@@ -207,6 +207,30 @@ pub fn bootstrap(
     })
 }
 
+impl BootstrapReport {
+    /// The covariance of the replicates' mean (their sample covariance over
+    /// the number of replicates fitted): the Monte Carlo error of
+    /// [`BootstrapReport::mean`] and so of the bias and the corrected
+    /// estimate. `[c_e, c_d, t_r, d]` order, SI units.
+    pub fn mean_covariance(&self) -> [[f64; 4]; 4] {
+        let n = self.replicates.len() as f64;
+        let m = self.mean.to_array();
+        let mut c = [[0.0; 4]; 4];
+        if self.replicates.len() < 2 {
+            return c;
+        }
+        for t in &self.replicates {
+            let a = t.to_array();
+            for i in 0..4 {
+                for j in 0..4 {
+                    c[i][j] += (a[i] - m[i]) * (a[j] - m[j]);
+                }
+            }
+        }
+        c.map(|row| row.map(|x| x / ((n - 1.0) * n)))
+    }
+}
+
 /// Linear-interpolation quantile of sorted data.
 fn quantile(sorted: &[f64], q: f64) -> f64 {
     let pos = q * (sorted.len() - 1) as f64;

@@ -725,10 +725,65 @@ fn bootstrap_bias_correction_subtracts_the_bootstrap_bias() {
         let p = plain.theta.to_array();
         let shifted: [f64; 4] = std::array::from_fn(|i| p[i] - want[i]);
         assert_eq!(bits(r.theta.to_array()), bits(shifted));
+        // The σ of a corrected parameter carries the Monte Carlo error of the
+        // subtracted mean (replicates' variance / B); the others are unchanged.
+        let mc = boot.mean_covariance();
+        for i in 0..4 {
+            let corrected = plain.free[i] && (all_parameters || i == 0);
+            let want_var = plain.sigma[i].powi(2) + if corrected { mc[i][i] } else { 0.0 };
+            assert!(
+                (r.sigma[i].powi(2) - want_var).abs() <= 1e-12 * want_var,
+                "parameter {i}: σ² {} against {want_var}",
+                r.sigma[i].powi(2)
+            );
+            let want_mc: f64 = if corrected { mc[i][i].sqrt() } else { 0.0 };
+            assert_eq!(r.sigma_bias_correction[i].to_bits(), want_mc.to_bits(), "parameter {i}");
+            assert!(!corrected || mc[i][i] > 0.0, "parameter {i}: no Monte Carlo variance");
+        }
     }
     let one = BiasCorrection::Bootstrap { replicates: 1, seed: 0, all_parameters: false };
     let bad = EivOptions { bias_correction: one, ..opts };
     assert!(matches!(bad.validate(), Err(Error::InvalidOption { field: "bias_correction", .. })));
+}
+
+/// With the noise scales estimated, [`BootstrapNoise::HeldAtFit`] fits the
+/// replicates with the fitted noise model held (what `--correct-bias`
+/// does): it subtracts exactly the bias of a bootstrap run with
+/// `EivOptions { noise: fit.noise, fix_noise: true }`, and another bias
+/// than the default re-estimating replicates. 2 km, 2 replicates: the
+/// plumbing (the effect over seeds is in docs/study.md, stop 20).
+#[test]
+fn held_noise_bias_correction_fits_the_replicates_with_the_fitted_noise() {
+    let out = simulate(&SimOptions { length_km: 2.0, ..SimOptions::paper(5) }).expect("sim");
+    let input = input_of(&out.drive);
+    let start = out.sidecar.theta_true;
+    let opts =
+        EivOptions { bootstrap_inputs: BootstrapInputs::Smoothed { half_width_samples: 20 }, ..Default::default() };
+    let plain = estimate(&input, &start, &opts).expect("eiv");
+    assert!(plain.eta.iter().any(|e| *e != 0.0), "the noise scales were not estimated: {:?}", plain.eta);
+    let boot_opts = BootstrapOptions {
+        replicates: 2,
+        seed: 4,
+        true_inputs: BootstrapInputs::Smoothed { half_width_samples: 20 },
+        ..Default::default()
+    };
+    let held = EivOptions { noise: plain.noise, fix_noise: true, ..opts.clone() };
+    let boot = bootstrap(&input, &plain, &held, &boot_opts).expect("bootstrap");
+    let corr = BiasCorrection::Bootstrap { replicates: 2, seed: 4, all_parameters: true };
+    let run = |noise: BootstrapNoise| {
+        estimate(&input, &start, &EivOptions { bias_correction: corr, bootstrap_noise: noise, ..opts.clone() })
+            .expect("eiv")
+    };
+    let r = run(BootstrapNoise::HeldAtFit);
+    assert_eq!(r.theta_uncorrected, plain.theta);
+    assert_eq!(r.bias_subtracted.map(f64::to_bits), boot.bias.map(f64::to_bits));
+    let re = run(BootstrapNoise::Reestimated);
+    assert_eq!(re.theta_uncorrected, plain.theta);
+    assert_ne!(
+        re.bias_subtracted.map(f64::to_bits),
+        r.bias_subtracted.map(f64::to_bits),
+        "re-estimating replicates gave the held-noise bias"
+    );
 }
 
 /// The covariance recursion's speed-ups (symmetric kernels, skipped zero
