@@ -384,15 +384,7 @@ impl CalibrationArgs {
                     };
                 }
                 if let Some(b) = self.correct_bias {
-                    o.filter.bias_correction = odocal::eiv::BiasCorrection::Bootstrap {
-                        replicates: b,
-                        seed: self.bootstrap_seed,
-                        all_parameters: true,
-                    };
-                    o.filter.bootstrap_inputs = odocal::eiv::BootstrapInputs::Smoothed {
-                        half_width_samples: odocal::eiv::BIAS_BOOTSTRAP_SMOOTHING_SAMPLES,
-                    };
-                    o.filter.bootstrap_noise = odocal::eiv::BootstrapNoise::HeldAtFit;
+                    o.filter.correct_bias(b, self.bootstrap_seed);
                 }
                 if let Some(b) = self.bootstrap {
                     o.bootstrap = Some(odocal::eiv::BootstrapOptions {

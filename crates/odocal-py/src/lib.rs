@@ -521,7 +521,7 @@ struct CalibrationPlan {
 }
 
 /// The keyword options of `odocal.calibrate`, named like the CLI's flags.
-const CALIBRATION_KWARGS: [&str; 29] = [
+const CALIBRATION_KWARGS: [&str; 31] = [
     "seed",
     "estimate",
     "lever_arm",
@@ -535,6 +535,8 @@ const CALIBRATION_KWARGS: [&str; 29] = [
     "quantisation_level",
     "lateral_noise",
     "heading_noise",
+    "correct_bias",
+    "bootstrap_seed",
     "qp_solver",
     "theta0",
     "fix",
@@ -653,6 +655,7 @@ fn calibration_plan(
     let mut known_noise: Option<Vec<odocal::eiv::NoiseSource>> = None;
     let (mut quantisation, mut quantisation_level, mut heading_noise) = (None, None, None);
     let mut lateral_noise = None;
+    let (mut correct_bias, mut bootstrap_seed) = (None, None);
     if let Some(kwargs) = kwargs {
         for (key, v) in kwargs.iter() {
             let key: String = key.extract()?;
@@ -763,6 +766,8 @@ fn calibration_plan(
                 "lateral_noise" => {
                     lateral_noise = Some(v.extract::<String>()?.parse::<odocal::eiv::LateralNoise>().map_err(lib_err)?)
                 }
+                "correct_bias" => correct_bias = Some(v.extract::<usize>()?),
+                "bootstrap_seed" => bootstrap_seed = Some(v.extract::<u64>()?),
                 _ => {
                     return Err(PyTypeError::new_err(format!(
                         "calibrate() got an unknown option '{key}'; options: {}",
@@ -782,6 +787,8 @@ fn calibration_plan(
         ("quantisation_level", quantisation_level.is_some()),
         ("lateral_noise", lateral_noise.is_some()),
         ("heading_noise", heading_noise.is_some()),
+        ("correct_bias", correct_bias.is_some()),
+        ("bootstrap_seed", bootstrap_seed.is_some()),
     ]
     .iter()
     .filter(|g| g.1)
@@ -799,6 +806,16 @@ fn calibration_plan(
         e.filter.quantisation_level = quantisation_level.unwrap_or(e.filter.quantisation_level);
         e.filter.heading_scale = heading_noise.unwrap_or(e.filter.heading_scale);
         e.filter.lateral_noise = lateral_noise.unwrap_or(e.filter.lateral_noise);
+        match (correct_bias, bootstrap_seed) {
+            (Some(b), seed) => e.filter.correct_bias(b, seed.unwrap_or(0)),
+            (None, Some(_)) => {
+                return Err(invalid_option(
+                    "bootstrap_seed",
+                    "is the seed of correct_bias; give correct_bias too".into(),
+                ))
+            }
+            (None, None) => {}
+        }
     } else if !eiv_given.is_empty() {
         return Err(invalid_option(
             "method",

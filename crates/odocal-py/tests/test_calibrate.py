@@ -276,6 +276,29 @@ def test_known_noise_equals_cli_json(odocal_bin, drive_csv):
         odocal.calibrate(odocal.Drive.from_csv(drive_csv), "batch-gn", known_noise="heading_white")
 
 
+def test_correct_bias_equals_cli_json(odocal_bin, drive_csv):
+    """correct_bias=B is --correct-bias B: every parameter corrected, σ with the correction's Monte Carlo error."""
+    args = ("calibrate", drive_csv, "--eiv-window", "1500", "--no-fallback")
+    cli = cli_json(odocal_bin, *args, "--correct-bias", "2", "--bootstrap-seed", "5")
+    drive = odocal.Drive.from_csv(drive_csv)
+    d = odocal.calibrate(drive, eiv_window=1500, fallback=False, correct_bias=2, bootstrap_seed=5).to_dict()
+    assert _without_eiv_timing(d) == _without_eiv_timing(cli)
+    f = d["options"]["method"]["filter"]
+    assert f["bias_correction"] == {"bootstrap": {"replicates": 2, "seed": 5, "all_parameters": True}}
+    assert f["bootstrap_noise"] == "held_at_fit"
+    plain = odocal.calibrate(drive, eiv_window=1500, fallback=False).to_dict()["eiv"]
+    e = d["eiv"]
+    assert e["theta_uncorrected"] == plain["theta"]
+    for i, free in enumerate(e["free"]):
+        assert (e["sigma_bias_correction"][i] > 0) == free
+        if free:
+            assert e["sigma"][i] ** 2 == pytest.approx(plain["sigma"][i] ** 2 + e["sigma_bias_correction"][i] ** 2)
+    with pytest.raises(odocal.OdocalError, match="bootstrap_seed`: is the seed of correct_bias"):
+        odocal.calibrate(drive, eiv_window=1500, bootstrap_seed=5)
+    with pytest.raises(odocal.OdocalError, match="correct_bias applies to method eiv only"):
+        odocal.calibrate(drive, "batch-gn", correct_bias=2)
+
+
 def test_params_files_round_trip_and_equal_the_cli(odocal_bin, drive_csv, tmp_path):
     """write_params writes what `--params-out` writes; read_params and every θ argument read it back."""
     drive = odocal.Drive.from_csv(drive_csv)

@@ -6,7 +6,8 @@
 //! cargo run --release -p odocal --example study_real -- \
 //!     [--methods batch-gn,batch-gn-all,three-step,eiv,eiv-fixed] [--parts testtrack,van,rav4] \
 //!     (also eiv-stop11: the stop-11 checks and iteration; eiv-nofallback: fallback off;
-//!      eiv-sc, eiv-scg and their -nofallback variants: the stop-14 candidate noise-model shape)
+//!      eiv-sc, eiv-scg and their -nofallback variants: the stop-14 candidate noise-model shape;
+//!      eiv-cb (-nofallback): what `--correct-bias 10` sets, stop 20)
 //!     [--json study_real.json] [--markdown study_real.md]
 //! ```
 //!
@@ -73,7 +74,7 @@ const METHODS: [&str; 5] = ["batch-gn", "batch-gn-all", "three-step", "eiv", "ei
 /// variants hold it too), `eiv-stop11` (`eiv` with the stop-11
 /// innovation checks and θ/η iteration) and `eiv-nofallback` (`eiv` with
 /// the fallback off: the EIV θ whatever the checks say).
-const EXTRA_METHODS: [&str; 29] = [
+const EXTRA_METHODS: [&str; 31] = [
     "eiv-stop14",
     "eiv-stop14-nofallback",
     "eiv-stop11",
@@ -98,6 +99,8 @@ const EXTRA_METHODS: [&str; 29] = [
     "eiv-stop13-nofallback",
     "eiv-stop13-h",
     "eiv-h",
+    "eiv-cb",
+    "eiv-cb-nofallback",
     "eiv-h-nofallback",
     "eiv-scg-h",
     "eiv-scg-h-nofallback",
@@ -260,6 +263,13 @@ fn options(method: &str, q: f64) -> Result<CalibrationOptions, Box<dyn Error>> {
             })
         }
         "eiv-nofallback" => o.method = Method::Eiv(EivMethodOptions { fallback: false, ..EivMethodOptions::default() }),
+        // Stop 20: what the CLI's `--correct-bias 10` sets (seed 0).
+        "eiv-cb" | "eiv-cb-nofallback" => {
+            let mut filter = EivOptions::default();
+            filter.correct_bias(10, 0);
+            o.method =
+                Method::Eiv(EivMethodOptions { filter, fallback: method == "eiv-cb", ..EivMethodOptions::default() })
+        }
         "eiv-fixed" => {
             o.method = Method::Eiv(EivMethodOptions {
                 filter: EivOptions { fix_noise: true, ..EivOptions::default() },

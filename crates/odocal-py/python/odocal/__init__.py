@@ -254,7 +254,10 @@ def calibrate(
       ``"measurement"`` | ``"counting"``), ``quantisation_level``
       (``"scaled"`` | ``"given"`` | ``"from-readings"``), ``heading_noise``
       (``"tied"`` | ``"separate"``), ``lateral_noise`` (``"tied"`` |
-      ``"stated"``): method ``"eiv"`` only, as the CLI's flags.
+      ``"stated"``), ``correct_bias`` (B: subtract the estimator's own bias
+      from every parameter, estimated by a bootstrap of B replicates, as
+      ``--correct-bias``; about twice the time of a fit at B = 10) with
+      ``bootstrap_seed``: method ``"eiv"`` only, as the CLI's flags.
 
     A drive read from a manifest carries the manifest's ``[noise]``,
     ``[reference]`` and ``[calibration]`` settings (``drive.import_report``); they apply unless

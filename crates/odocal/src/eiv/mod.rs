@@ -1519,6 +1519,27 @@ impl EivOptions {
         o
     }
 
+    /// Subtracts the estimator's own bias from every parameter, estimated by
+    /// a parametric bootstrap of `replicates` re-simulations (seed `seed`)
+    /// on the smoothed trajectory ([`BIAS_BOOTSTRAP_SMOOTHING_SAMPLES`]),
+    /// each holding the fitted noise model ([`BootstrapNoise::HeldAtFit`]):
+    /// the setting of the CLI's `--correct-bias B` and Python's
+    /// `correct_bias=B`, measured in [`BiasCorrection`]'s docs.
+    ///
+    /// ```
+    /// use odocal::eiv::{BiasCorrection, BootstrapNoise, EivOptions};
+    /// let mut o = EivOptions::default();
+    /// o.correct_bias(10, 0);
+    /// assert_eq!(o.bias_correction, BiasCorrection::Bootstrap { replicates: 10, seed: 0, all_parameters: true });
+    /// assert_eq!(o.bootstrap_noise, BootstrapNoise::HeldAtFit);
+    /// assert!(o.validate().is_ok());
+    /// ```
+    pub fn correct_bias(&mut self, replicates: usize, seed: u64) {
+        self.bias_correction = BiasCorrection::Bootstrap { replicates, seed, all_parameters: true };
+        self.bootstrap_inputs = BootstrapInputs::Smoothed { half_width_samples: BIAS_BOOTSTRAP_SMOOTHING_SAMPLES };
+        self.bootstrap_noise = BootstrapNoise::HeldAtFit;
+    }
+
     /// The defaults with SPEC §10's formulation of the cost and of `R`: the
     /// relative wheel noise scaled by the measured rotation, no input
     /// log-Jacobian term, the 1 mm position floor (the library defaults
