@@ -577,24 +577,16 @@ impl EivDetail {
                     let _ = writeln!(out, "  σ widened for the estimated noise levels: {}", parts.join(", "));
                 }
                 if e.bias_subtracted.iter().any(|b| *b != 0.0) {
-                    let b = e.bias_subtracted;
                     let _ = writeln!(
                         out,
-                        "  bias correction: subtracted c_e {:+.6} m, c_d {:+.4} mm, t_r {:+.6} m, d {:+.4} mm/(m/s²) (uncorrected c_e {:.6} m)",
-                        b[0],
-                        b[1] * 1e3,
-                        b[2],
-                        b[3] * 1e3,
+                        "  bias correction: subtracted {} (uncorrected c_e {:.6} m)",
+                        theta_in_units(&e.bias_subtracted, true),
                         e.theta_uncorrected.c_e
                     );
-                    let m = e.sigma_bias_correction;
                     let _ = writeln!(
                         out,
-                        "  σ includes the correction's Monte Carlo error: c_e {:.6} m, c_d {:.4} mm, t_r {:.6} m, d {:.4} mm/(m/s²)",
-                        m[0],
-                        m[1] * 1e3,
-                        m[2],
-                        m[3] * 1e3
+                        "  σ includes the correction's Monte Carlo error: {}",
+                        theta_in_units(&e.sigma_bias_correction, false)
                     );
                 }
             }
@@ -636,6 +628,26 @@ impl EivDetail {
         }
         out
     }
+}
+
+/// `[c_e, c_d, t_r, d]` (SI) as "c_e … m, c_d … mm, t_r … m, d … mm/(m/s²)",
+/// with a sign when `signed`.
+fn theta_in_units(a: &[f64; 4], signed: bool) -> String {
+    const UNITS: [(&str, f64, &str, usize); 4] =
+        [("c_e", 1.0, "m", 6), ("c_d", 1e3, "mm", 4), ("t_r", 1.0, "m", 6), ("d", 1e3, "mm/(m/s²)", 4)];
+    let parts: Vec<String> = UNITS
+        .iter()
+        .zip(a)
+        .map(|((name, scale, unit, digits), v)| {
+            let x = v * scale;
+            if signed {
+                format!("{name} {x:+.digits$} {unit}")
+            } else {
+                format!("{name} {x:.digits$} {unit}")
+            }
+        })
+        .collect();
+    parts.join(", ")
 }
 
 #[cfg(test)]
