@@ -746,6 +746,49 @@ fn bootstrap_bias_correction_subtracts_the_bootstrap_bias() {
     assert!(matches!(bad.validate(), Err(Error::InvalidOption { field: "bias_correction", .. })));
 }
 
+/// [`Problem::evaluate_many`] (the noise-estimate term's one sweep over
+/// every (point, window) pair) gives each point's sums exactly as
+/// [`Problem::evaluate`] one point at a time, with one thread or two.
+#[test]
+fn evaluate_many_equals_evaluating_the_points_one_by_one() {
+    let out = simulate(&SimOptions { length_km: 1.5, ..SimOptions::paper(8) }).expect("sim");
+    let input = input_of(&out.drive);
+    let opts = EivOptions { window_samples: 700, ..EivOptions::default() };
+    let windows = make_windows(input.parts, opts.window_samples);
+    assert!(windows.len() >= 3, "{} windows", windows.len());
+    let th = out.sidecar.theta_true;
+    let points =
+        [(th, [0.0; 6]), (Theta { t_r: th.t_r * 1.001, ..th }, [0.0; 6]), (th, [0.1, 0.0, 0.0, -0.2, 0.0, 0.3])];
+    let mode = filter::Mode::full(true, false);
+    // Per point: the window sums from the sweep and from `evaluate`.
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+        pool.install(|| {
+            let prob = Problem::new(&input, windows.clone(), &opts);
+            let many = prob.evaluate_many(&points, &th, mode).expect("filter");
+            let count = prob.evaluations.get();
+            let pairs: Vec<_> = points
+                .iter()
+                .zip(many)
+                .map(|((t, e), ev)| {
+                    let one = prob.evaluate(t, &th, e, mode).expect("filter");
+                    assert_eq!(ev.mode, one.mode);
+                    ((ev.total, ev.windows), (one.total, one.windows))
+                })
+                .collect();
+            (pairs, count)
+        })
+    };
+    for threads in [1, 2] {
+        let (pairs, count) = run(threads);
+        assert_eq!(count, [points.len(), 0], "passes counted");
+        assert_eq!(pairs.len(), points.len());
+        for (i, (many, one)) in pairs.iter().enumerate() {
+            assert_eq!(many, one, "point {i}, {threads} thread(s)");
+        }
+    }
+}
+
 /// With the noise scales estimated, [`BootstrapNoise::HeldAtFit`] fits the
 /// replicates with the fitted noise model held (what `--correct-bias`
 /// does): it subtracts exactly the bias of a bootstrap run with
