@@ -1932,6 +1932,13 @@ pub struct EivReport {
     /// estimated, with a fixed noise model or with the option off.
     #[serde(default)]
     pub theta_eta_sensitivity: [[f64; 6]; 4],
+    /// `∂η̂_j/∂θ_i` at the estimate (`[source][parameter]`, per unit of θ in
+    /// SI), from the expected information of the marginal likelihood M:
+    /// `−I_ηη⁻¹ I_ηθ` over the estimated sources. How the noise estimate
+    /// follows θ; with [`EivReport::theta_eta_sensitivity`] it gives the
+    /// feedback `A B` between θ̂ and η̂. Zero with a fixed noise model.
+    #[serde(default)]
+    pub eta_theta_sensitivity: [[f64; 4]; 6],
     /// Estimated log-scale factors η (0 with `fix_noise`).
     pub eta: [f64; 6],
     /// Standard deviations of η (0 when fixed or at a clamp).
@@ -3095,6 +3102,7 @@ pub(crate) fn estimate_from(
         sigma_fisher,
         sigma_noise_estimate,
         theta_eta_sensitivity,
+        eta_theta_sensitivity: eta_on_theta(&ev.total.info, &free, &eta_free),
         eta,
         eta_sigma,
         evaluations: prob.evaluations.get(),
@@ -3457,6 +3465,29 @@ fn noise_sources_present(noise: &NoiseModel, heading_separate: bool) -> [bool; 6
 
 /// The θ block of the inverse of the joint Fisher information of the free
 /// θ and the estimated η that are not at a clamp (`eta_sigma > 0`).
+/// `∂η̂/∂θ = −I_ηη⁻¹ I_ηθ` over the free η and θ ([`EivReport::eta_theta_sensitivity`]);
+/// zeros when no η is free or `I_ηη` is singular.
+fn eta_on_theta(info: &filter::MP, free: &[bool; 4], eta_free: &[bool; 6]) -> [[f64; 4]; 6] {
+    let mut out = [[0.0; 4]; 6];
+    let idx: Vec<usize> = (0..NETA).filter(|j| eta_free[*j]).collect();
+    let p = idx.len();
+    if p == 0 {
+        return out;
+    }
+    let i_ee = DMatrix::from_fn(p, p, |a, b| info[(4 + idx[a], 4 + idx[b])]);
+    let Some(chol) = i_ee.cholesky() else {
+        return out;
+    };
+    for t in (0..4).filter(|t| free[*t]) {
+        let col = DVector::from_fn(p, |a, _| info[(4 + idx[a], t)]);
+        let x = chol.solve(&col);
+        for (a, &j) in idx.iter().enumerate() {
+            out[j][t] = -x[a];
+        }
+    }
+    out
+}
+
 fn fisher_covariance(info: &filter::MP, free: &[bool; 4], eta_free: &[bool; 6]) -> Option<Matrix4<f64>> {
     let idx: Vec<usize> =
         (0..4).filter(|i| free[*i]).chain((0..NETA).filter(|j| eta_free[*j]).map(|j| 4 + j)).collect();

@@ -804,6 +804,17 @@ fn held_noise_bias_correction_fits_the_replicates_with_the_fitted_noise() {
         EivOptions { bootstrap_inputs: BootstrapInputs::Smoothed { half_width_samples: 20 }, ..Default::default() };
     let plain = estimate(&input, &start, &opts).expect("eiv");
     assert!(plain.eta.iter().any(|e| *e != 0.0), "the noise scales were not estimated: {:?}", plain.eta);
+    // ∂η̂/∂θ: rows of the estimated sources (σ > 0) only, columns of the free parameters only.
+    let b = plain.eta_theta_sensitivity;
+    for j in 0..NETA {
+        for t in 0..4 {
+            assert!(b[j][t].is_finite());
+            if plain.eta_sigma[j] == 0.0 || !plain.free[t] {
+                assert_eq!(b[j][t].to_bits(), 0.0f64.to_bits(), "source {j}, parameter {t}");
+            }
+        }
+    }
+    assert!(b.iter().flatten().any(|x| *x != 0.0), "{b:?}");
     let boot_opts = BootstrapOptions {
         replicates: 2,
         seed: 4,
