@@ -1976,6 +1976,7 @@ pub struct EivReport {
     /// error of the subtracted bias, the replicates' covariance over the
     /// number of replicates fitted, for the corrected parameters (zeros
     /// without a correction).
+    #[serde(default)]
     pub sigma_bias_correction: [f64; 4],
     /// Measurement updates used.
     pub updates: usize,
