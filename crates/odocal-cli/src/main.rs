@@ -235,7 +235,8 @@ struct CalibrationArgs {
     /// fitted noise model; θ's σ includes the bootstrap's Monte Carlo
     /// error. For heavy wheel noise, where t_r is biased (simulated `high`
     /// preset, 20 drives: t_r +1.10 % → +0.53 %, every parameter within
-    /// |t| ≤ 1.9, 95 % coverage); about twice the time of a fit at B = 10.
+    /// |t| ≤ 1.9, 95 % coverage); about twice the time of a fit at B = 10,
+    /// 3.5× at B = 20, which halves the correction's Monte Carlo noise.
     #[arg(long, value_name = "B")]
     correct_bias: Option<usize>,
     /// Hold out half of the drive (by time) for validation and calibrate on
