@@ -42,8 +42,8 @@
 //!   `--bootstrap-reestimate-seeds` seeds); each also as `… (all)`, every
 //!   parameter corrected (stop 20; `… boot held η̂ (all)` with
 //!   `--bootstrap-smooth 20` is what the CLI's `--correct-bias` does), and
-//!   `… (all, fed back)`: θ̂ − (I − A B)⁻¹ b with the fit's `A = ∂θ̂/∂η` and
-//!   `B = ∂η̂/∂θ` (tried in stop 20, not adopted);
+//!   for the held rows `… (all, fed back)`: θ̂ − (I − A B)⁻¹ b with the fit's
+//!   `A = ∂θ̂/∂η` and `B = ∂η̂/∂θ` (tried in stop 20, not adopted);
 //! - with `--methods` containing `fitted`: `EIV fitted` = EIV known with
 //!   `WheelNoiseScale::FittedInput` (the relative wheel noise scaled by the
 //!   fitted true input);
@@ -669,28 +669,29 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
                         // c_e only corrected, as `--correct-c-e-bias` does, and
                         // (stop 20, `… (all)`) every parameter, as `--correct-bias` does.
                         let time_s = time_s + t.elapsed().as_secs_f64();
-                        // `(all, fed back)` (stop 20): the held-noise bias b carried
-                        // through the θ̂–η̂ feedback, (I − A B)⁻¹ b, with A = ∂θ̂/∂η
-                        // and B = ∂η̂/∂θ of the fit.
-                        let (a_s, b_s) = (fit.theta_eta_sensitivity, fit.eta_theta_sensitivity);
-                        let ab = nalgebra::Matrix4::from_fn(|i, k| (0..6).map(|j| a_s[i][j] * b_s[j][k]).sum::<f64>());
-                        let fed = (nalgebra::Matrix4::identity() - ab)
-                            .try_inverse()
-                            .map(|m| m * nalgebra::Vector4::from(b.bias))
-                            .unwrap_or(nalgebra::Vector4::from(b.bias));
-                        let u = r.theta.to_array();
-                        let th_fed = Theta::from_array(std::array::from_fn(|i| u[i] - fed[i]));
-                        eprintln!(
-                            "  {name} {seed} feedback: A B diag {:?}, b {:?}, fed {:?}",
-                            [ab[(0, 0)], ab[(1, 1)], ab[(2, 2)], ab[(3, 3)]],
-                            b.bias,
-                            [fed[0], fed[1], fed[2], fed[3]]
-                        );
-                        for (suffix, th) in [
-                            ("", Theta { c_e: b.theta_corrected.c_e, ..r.theta }),
-                            (" (all)", b.theta_corrected),
-                            (" (all, fed back)", th_fed),
-                        ] {
+                        let mut rows =
+                            vec![("", Theta { c_e: b.theta_corrected.c_e, ..r.theta }), (" (all)", b.theta_corrected)];
+                        if row == "EIV est. + boot held η̂" {
+                            // `(all, fed back)` (stop 20): the held-noise bias b carried
+                            // through the θ̂–η̂ feedback, (I − A B)⁻¹ b, with A = ∂θ̂/∂η
+                            // and B = ∂η̂/∂θ of the fit.
+                            let (a_s, b_s) = (fit.theta_eta_sensitivity, fit.eta_theta_sensitivity);
+                            let ab =
+                                nalgebra::Matrix4::from_fn(|i, k| (0..6).map(|j| a_s[i][j] * b_s[j][k]).sum::<f64>());
+                            let fed = (nalgebra::Matrix4::identity() - ab)
+                                .try_inverse()
+                                .map(|m| m * nalgebra::Vector4::from(b.bias))
+                                .unwrap_or(nalgebra::Vector4::from(b.bias));
+                            let u = r.theta.to_array();
+                            eprintln!(
+                                "  {name} {seed} feedback: A B diag {:?}, b {:?}, fed {:?}",
+                                [ab[(0, 0)], ab[(1, 1)], ab[(2, 2)], ab[(3, 3)]],
+                                b.bias,
+                                [fed[0], fed[1], fed[2], fed[3]]
+                            );
+                            rows.push((" (all, fed back)", Theta::from_array(std::array::from_fn(|i| u[i] - fed[i]))));
+                        }
+                        for (suffix, th) in rows {
                             let run = Run {
                                 theta: th,
                                 sigmas: vec![("H".into(), sigma_h)],

@@ -180,9 +180,8 @@ pub fn bootstrap(
     let cols: [Vec<f64>; 4] = std::array::from_fn(|i| replicates.iter().map(|t| t.to_array()[i]).collect());
     let hat = theta_hat.to_array();
     let mean: [f64; 4] = std::array::from_fn(|i| cols[i].iter().sum::<f64>() / n);
-    let sd: [f64; 4] = std::array::from_fn(|i| {
-        (cols[i].iter().map(|x| (x - mean[i]) * (x - mean[i])).sum::<f64>() / (n - 1.0)).sqrt()
-    });
+    let cov = sample_covariance(&replicates, &mean);
+    let sd: [f64; 4] = std::array::from_fn(|i| cov[i][i].sqrt());
     let bias: [f64; 4] = std::array::from_fn(|i| if report.free[i] { mean[i] - hat[i] } else { 0.0 });
     let alpha = (1.0 - boot.level) / 2.0;
     let interval: [[f64; 2]; 4] = std::array::from_fn(|i| {
@@ -213,22 +212,28 @@ impl BootstrapReport {
     /// [`BootstrapReport::mean`] and so of the bias and the corrected
     /// estimate. `[c_e, c_d, t_r, d]` order, SI units.
     pub fn mean_covariance(&self) -> [[f64; 4]; 4] {
-        let n = self.replicates.len() as f64;
-        let m = self.mean.to_array();
-        let mut c = [[0.0; 4]; 4];
         if self.replicates.len() < 2 {
-            return c;
+            return [[0.0; 4]; 4];
         }
-        for t in &self.replicates {
-            let a = t.to_array();
-            for i in 0..4 {
-                for j in 0..4 {
-                    c[i][j] += (a[i] - m[i]) * (a[j] - m[j]);
-                }
+        let n = self.replicates.len() as f64;
+        sample_covariance(&self.replicates, &self.mean.to_array()).map(|row| row.map(|x| x / n))
+    }
+}
+
+/// The sample covariance (divisor n − 1) of at least two replicates about
+/// their `mean`.
+fn sample_covariance(replicates: &[Theta], mean: &[f64; 4]) -> [[f64; 4]; 4] {
+    let mut c = [[0.0; 4]; 4];
+    for t in replicates {
+        let a = t.to_array();
+        for i in 0..4 {
+            for j in 0..4 {
+                c[i][j] += (a[i] - mean[i]) * (a[j] - mean[j]);
             }
         }
-        c.map(|row| row.map(|x| x / ((n - 1.0) * n)))
     }
+    let n = replicates.len() as f64;
+    c.map(|row| row.map(|x| x / (n - 1.0)))
 }
 
 /// Linear-interpolation quantile of sorted data.

@@ -2116,34 +2116,28 @@ impl Problem<'_> {
         mode: Mode,
         null: bool,
     ) -> Result<Evaluation> {
-        let mut count = self.evaluations.get();
-        count[usize::from(!mode.derivs)] += 1;
-        self.evaluations.set(count);
-        let v = self.variances(eta, null);
-        let parts: Vec<Result<WindowSums>> =
-            self.windows.par_iter().map(|w| run_window(self.input, w, theta, theta_ref, &v, mode, None)).collect();
-        let mut total = WindowSums::zero();
-        let mut windows = Vec::with_capacity(parts.len());
-        for p in parts {
-            let p = p?;
-            total.add(&p);
-            windows.push(p);
-        }
-        Ok(Evaluation { total, windows, mode })
+        let mut one = self.evaluate_many(&[(*theta, *eta)], theta_ref, mode, null)?;
+        one.pop().ok_or_else(|| Error::Numerical("no filter evaluation".into()))
     }
 
-    /// [`Problem::evaluate`] at several points `(θ, η)` in one parallel
+    /// [`Problem::evaluate_with`] at several points `(θ, η)` in one parallel
     /// sweep over every (point, window) pair, so that two threads share the
-    /// work of all the points rather than each point's few windows. The
-    /// totals are summed window by window in order, as `evaluate` does:
-    /// the results are the same to the bit as evaluating the points one by
-    /// one, whatever the thread count.
-    fn evaluate_many(&self, points: &[(Theta, [f64; 6])], theta_ref: &Theta, mode: Mode) -> Result<Vec<Evaluation>> {
+    /// work of all the points rather than each point's few windows. Each
+    /// point's totals are summed window by window in order: the results are
+    /// the same to the bit as evaluating the points one by one, whatever the
+    /// thread count.
+    fn evaluate_many(
+        &self,
+        points: &[(Theta, [f64; 6])],
+        theta_ref: &Theta,
+        mode: Mode,
+        null: bool,
+    ) -> Result<Vec<Evaluation>> {
         let mut count = self.evaluations.get();
         count[usize::from(!mode.derivs)] += points.len();
         self.evaluations.set(count);
         let nw = self.windows.len();
-        let vars: Vec<filter::Variances> = points.iter().map(|(_, eta)| self.variances(eta, false)).collect();
+        let vars: Vec<filter::Variances> = points.iter().map(|(_, eta)| self.variances(eta, null)).collect();
         let (input, windows) = (self.input, &self.windows);
         let parts: Vec<Result<WindowSums>> = (0..points.len() * nw)
             .into_par_iter()
@@ -2199,6 +2193,11 @@ impl Problem<'_> {
         v.null_without_floors = null;
         v
     }
+}
+
+/// Per parameter: `√max(var(i), 0)` where `mask[i]`, 0 elsewhere.
+fn free_sigma(mask: &[bool; 4], var: impl Fn(usize) -> f64) -> [f64; 4] {
+    std::array::from_fn(|i| if mask[i] { var(i).max(0.0).sqrt() } else { 0.0 })
 }
 
 fn to_array(m: &Matrix4<f64>) -> [[f64; 4]; 4] {
@@ -2969,12 +2968,11 @@ pub(crate) fn estimate_from(
         .unwrap_or(Termination::MaxIterations { iterations: 0, step_over_sigma: f64::NAN });
     let cov = free_inverse(&ev.total.h_theta, &free).unwrap_or_else(|| Matrix4::from_element(f64::NAN));
     let sandwich = cov * ev.total.opg * cov;
-    let sigma_sandwich: [f64; 4] =
-        std::array::from_fn(|i| if free[i] { sandwich[(i, i)].max(0.0).sqrt() } else { 0.0 });
+    let sigma_sandwich: [f64; 4] = free_sigma(&free, |i| sandwich[(i, i)]);
     let sigma_block: [f64; 4] = match ev.total.blocks.meat() {
         Some(b) => {
             let c = cov * b * cov;
-            std::array::from_fn(|i| if free[i] { c[(i, i)].max(0.0).sqrt() } else { 0.0 })
+            free_sigma(&free, |i| c[(i, i)])
         }
         None => [f64::NAN; 4],
     };
@@ -2991,12 +2989,11 @@ pub(crate) fn estimate_from(
     } else {
         (Matrix4::zeros(), [[0.0; 6]; 4])
     };
-    let sigma_noise_estimate: [f64; 4] =
-        std::array::from_fn(|i| if free[i] { noise_cov[(i, i)].max(0.0).sqrt() } else { 0.0 });
+    let sigma_noise_estimate: [f64; 4] = free_sigma(&free, |i| noise_cov[(i, i)]);
     let cov_reported = cov_reported + noise_cov;
-    let sigma: [f64; 4] = std::array::from_fn(|i| if free[i] { cov_reported[(i, i)].max(0.0).sqrt() } else { 0.0 });
+    let sigma: [f64; 4] = free_sigma(&free, |i| cov_reported[(i, i)]);
     let sigma_fisher: [f64; 4] = match fisher_covariance(&ev.total.info, &free, &eta_free) {
-        Some(c) => std::array::from_fn(|i| if free[i] { c[(i, i)].max(0.0).sqrt() } else { 0.0 }),
+        Some(c) => free_sigma(&free, |i| c[(i, i)]),
         None => [f64::NAN; 4],
     };
     let observability = observability_of(&ev.total.h_theta, &free, unobservable.clone(), opts);
@@ -3170,9 +3167,8 @@ pub(crate) fn estimate_from(
             }
         }
         report.covariance = cov;
-        report.sigma_bias_correction =
-            std::array::from_fn(|i| if corrected[i] { mc[i][i].max(0.0).sqrt() } else { 0.0 });
-        report.sigma = std::array::from_fn(|i| if report.free[i] { cov[i][i].max(0.0).sqrt() } else { 0.0 });
+        report.sigma_bias_correction = free_sigma(&corrected, |i| mc[i][i]);
+        report.sigma = free_sigma(&report.free, |i| cov[i][i]);
         report.timing_s = t0.elapsed().as_secs_f64();
     }
     Ok((report, neg_log_likelihood))
@@ -3315,7 +3311,7 @@ fn noise_estimate_covariance(
         e[j] += h;
         (*theta, e)
     }));
-    let evs = prob.evaluate_many(&points, theta_ref, Mode::full(follows, false))?;
+    let evs = prob.evaluate_many(&points, theta_ref, Mode::full(follows, false), false)?;
     let (ev_theta, ev_eta) = evs.split_at(q);
     let mut jac = DMatrix::zeros(q, q);
     for (c, (ev, hk)) in ev_theta.iter().zip(&steps).enumerate() {

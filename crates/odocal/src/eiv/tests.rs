@@ -748,7 +748,8 @@ fn bootstrap_bias_correction_subtracts_the_bootstrap_bias() {
 
 /// [`Problem::evaluate_many`] (the noise-estimate term's one sweep over
 /// every (point, window) pair) gives each point's sums exactly as
-/// [`Problem::evaluate`] one point at a time, with one thread or two.
+/// [`Problem::evaluate`] one point at a time (a sweep of one point), with one
+/// thread or two.
 #[test]
 fn evaluate_many_equals_evaluating_the_points_one_by_one() {
     let out = simulate(&SimOptions { length_km: 1.5, ..SimOptions::paper(8) }).expect("sim");
@@ -765,7 +766,7 @@ fn evaluate_many_equals_evaluating_the_points_one_by_one() {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
         pool.install(|| {
             let prob = Problem::new(&input, windows.clone(), &opts);
-            let many = prob.evaluate_many(&points, &th, mode).expect("filter");
+            let many = prob.evaluate_many(&points, &th, mode, false).expect("filter");
             let count = prob.evaluations.get();
             let pairs: Vec<_> = points
                 .iter()
