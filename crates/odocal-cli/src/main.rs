@@ -230,14 +230,14 @@ struct CalibrationArgs {
     #[arg(long, value_name = "B", conflicts_with = "correct_bias")]
     correct_c_e_bias: Option<usize>,
     /// EIV: subtract the estimator's own bias from every parameter,
-    /// estimated by a parametric bootstrap with B replicates (seed
-    /// --bootstrap-seed) on the smoothed trajectory, each holding the
-    /// fitted noise model; θ's σ includes the bootstrap's Monte Carlo
-    /// error. For heavy wheel noise, where t_r is biased (simulated `high`
-    /// preset, 20 drives: t_r +1.10 % → +0.53 %, every parameter within
-    /// |t| ≤ 1.9, 95 % coverage); about twice the time of a fit at B = 10,
-    /// 3.5× at B = 20, which halves the correction's Monte Carlo noise.
-    #[arg(long, value_name = "B")]
+    /// estimated by a parametric bootstrap with B replicates (an even
+    /// number: antithetic pairs; seed --bootstrap-seed) on the smoothed
+    /// trajectory, each holding the fitted noise model; θ's σ includes the
+    /// bootstrap's Monte Carlo error. For heavy wheel noise, where t_r is
+    /// biased (simulated `high` preset, 20 drives: t_r +1.10 % → +0.53 %,
+    /// every parameter within |t| ≤ 1.9, 95 % coverage); about twice the
+    /// time of a fit at B = 10.
+    #[arg(long, value_name = "B", value_parser = parse_even_replicates)]
     correct_bias: Option<usize>,
     /// Hold out half of the drive (by time) for validation and calibrate on
     /// the other half: first-half or second-half (the half held out).
@@ -1101,4 +1101,16 @@ fn compensate_cmd(a: CompensateArgs, bars: &progress::Bars) -> Result<()> {
         comp.step.rms_relative_input_change * 100.0
     );
     Ok(())
+}
+
+/// `--correct-bias B`: an even number of replicates, at least 2 (the
+/// bootstrap's replicates come in antithetic pairs).
+fn parse_even_replicates(s: &str) -> std::result::Result<usize, String> {
+    let b: usize = s.parse().map_err(|e| format!("{e}"))?;
+    if b < 2 || b % 2 != 0 {
+        return Err(format!(
+            "B must be an even number of at least 2 (the replicates come in antithetic pairs), got {b}"
+        ));
+    }
+    Ok(b)
 }

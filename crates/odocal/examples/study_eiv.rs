@@ -5,7 +5,7 @@
 //! ```text
 //! cargo run --release -p odocal --example study_eiv -- [--km 12] [--seeds 20]
 //!     [--presets off,white,paper,high,coloured] [--three-step-seeds 0]
-//!     [--bootstrap 0] [--bootstrap-smooth K (replicates' true inputs: ±K moving average, stop 14)] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
+//!     [--bootstrap 0] [--bootstrap-smooth K (replicates' true inputs: ±K moving average, stop 14)] [--bootstrap-antithetic (pairs with negated Gaussian draws, stop 21)] [--bootstrap-seeds 0] [--bootstrap-presets paper,coloured] [--json out.json]
 //!     [--quantisation process|measurement|counting] [--heading tied|separate]
 //!     [--quantisation-level scaled|given|from-readings] (defaults: the library's EivOptions)
 //!     [--hold-heading-offset] (every EIV run's batch G-N start holds the reference heading offset at 0, the
@@ -125,6 +125,8 @@ struct Args {
     /// (the library default; `--hold-heading-offset` holds it at 0; the
     /// `G-N` rows are that start).
     estimate_heading_offset: bool,
+    /// The bootstrap rows' replicates in antithetic pairs (`--bootstrap-antithetic`, stop 21).
+    bootstrap_antithetic: bool,
 }
 
 fn parse_args() -> Res<Args> {
@@ -147,11 +149,16 @@ fn parse_args() -> Res<Args> {
         reentry_score: 10.0,
         bootstrap_inputs: BootstrapInputs::Measured,
         estimate_heading_offset: EivMethodOptions::default().estimate_heading_offset,
+        bootstrap_antithetic: false,
     };
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
         if k == "--tau-candidates" {
             a.tau_candidates = true;
+            continue;
+        }
+        if k == "--bootstrap-antithetic" {
+            a.bootstrap_antithetic = true;
             continue;
         }
         if k == "--hold-heading-offset" {
@@ -510,8 +517,13 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
         jobs.push(("EIV est. sim τ", EivOptions { noise, quantisation: q, heading_scale: h, ..Default::default() }));
     }
     // The bootstrap rows' options (`--bootstrap B`, `--bootstrap-smooth K`).
-    let boot_opts =
-        BootstrapOptions { replicates: a.bootstrap, seed, true_inputs: a.bootstrap_inputs, ..Default::default() };
+    let boot_opts = BootstrapOptions {
+        replicates: a.bootstrap,
+        seed,
+        true_inputs: a.bootstrap_inputs,
+        antithetic: a.bootstrap_antithetic,
+        ..Default::default()
+    };
     for (label, opts) in jobs {
         // A fixed (given) noise model is an oracle row: it also knows the
         // reference heading offset (0 here), as the Cramér–Rao bound does. A
@@ -666,6 +678,17 @@ fn study_drive(name: &str, seed: u64, a: &Args) -> Res<DriveResult> {
                 let t = Instant::now();
                 match bootstrap(&input, fit, &filter, &boot_opts) {
                     Ok(b) => {
+                        // The Monte Carlo sd of the subtracted bias, per parameter
+                        // (√ of `mean_covariance`'s diagonal; antithetic pairs: the
+                        // pairs' spread), and the replicates' own sd.
+                        let mc = b.mean_covariance();
+                        eprintln!(
+                            "  {name} {seed} {row}: bias {:?}, replicate sd {:?}, Monte Carlo sd of the bias {:?}, pairs {}",
+                            b.bias,
+                            b.sd,
+                            [mc[0][0].sqrt(), mc[1][1].sqrt(), mc[2][2].sqrt(), mc[3][3].sqrt()],
+                            b.pair_means.len()
+                        );
                         // c_e only corrected, as `--correct-c-e-bias` does, and
                         // (stop 20, `… (all)`) every parameter, as `--correct-bias` does.
                         let time_s = time_s + t.elapsed().as_secs_f64();

@@ -78,7 +78,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use super::{hold_unobservable, Estimator, MethodDetail, MethodOutcome, Prepared, Selection, Timing};
-use crate::eiv::{self, EivInput, EivOptions, EivReport, EivWarning, NoiseModel, NoiseSource};
+use crate::eiv::{self, BiasCorrection, EivInput, EivOptions, EivReport, EivWarning, NoiseModel, NoiseSource};
 use crate::error::{Error, Result};
 use crate::extrinsics::axle_reference_drive;
 use crate::identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport, Observability};
@@ -436,7 +436,21 @@ impl Estimator for EivMethodOptions {
             None => None,
         };
         let filter_drive = axle_drive.as_ref().unwrap_or(prep.drive);
-        let fit = eiv::estimate(&EivInput::from_drive(filter_drive), &start.theta, &filter);
+        // The bias correction (a bootstrap, B more fits) only for a fit that
+        // is kept: the filter runs without it, the checks decide, then it
+        // is applied.
+        let filter_input = EivInput::from_drive(filter_drive);
+        let uncorrected = EivOptions { bias_correction: BiasCorrection::None, ..filter.clone() };
+        let mut fit = eiv::estimate(&filter_input, &start.theta, &uncorrected);
+        if let Ok(r) = &mut fit {
+            let misspecified =
+                r.warnings.iter().any(|w| !matches!(w, EivWarning::Unobservable { .. }) && is_misspecification(w, r));
+            if !(self.fallback && misspecified) {
+                if let Err(e) = eiv::apply_bias_correction(&filter_input, r, &filter) {
+                    fit = Err(e);
+                }
+            }
+        }
         emit(progress, Progress::Advance(1));
         let t_eiv = t.elapsed().as_secs_f64();
         let timing = Timing { initial_identification: t_start, final_identification: t_eiv, ..Timing::default() };
@@ -499,7 +513,7 @@ impl Estimator for EivMethodOptions {
         let bootstrap = match &self.bootstrap {
             Some(b) => {
                 emit(progress, Progress::Stage { name: "EIV bootstrap", total: 1 });
-                let boot = eiv::bootstrap(&EivInput::from_drive(filter_drive), r, &filter, b)?;
+                let boot = eiv::bootstrap(&filter_input, r, &filter, b)?;
                 emit(progress, Progress::Advance(1));
                 Some(Box::new(boot))
             }

@@ -110,7 +110,8 @@ fn report_is_identical_for_one_and_two_threads() {
 /// 1 mm pose noise on a paper-preset drive): the innovations are far too
 /// large, the checks fail with the window they failed in, and the method
 /// falls back to batch G-N on all cut segments — or, with the fallback
-/// off, keeps the EIV θ and the verdict says the model does not fit.
+/// off, keeps the EIV θ and the verdict says the model does not fit. A
+/// bias correction is asked for: it runs only for the kept fit.
 #[test]
 fn wrong_noise_model_falls_back_to_batch_gauss_newton() {
     // 6 km: enough 1300-step clusters for the start's cluster-robust σ.
@@ -124,11 +125,16 @@ fn wrong_noise_model_falls_back_to_batch_gauss_newton() {
         heading_drift_sigma_rad: 1e-5,
         ..NoiseModel::PRODUCTION_CAR
     };
-    let filter = EivOptions { noise: tiny, fix_noise: true, ..Default::default() };
+    let mut filter = EivOptions { noise: tiny, fix_noise: true, ..Default::default() };
+    filter.correct_bias(2, 1);
     let opts = CalibrationOptions { method: eiv_method(filter.clone(), true), ..Default::default() };
     let r = calibrate(&out.drive, &opts, None).expect("calibrate");
     let d = detail(&r);
     assert_eq!(d.eiv_result, EivOutcome::BatchGnFallback);
+    // The fit that is not used was not bias-corrected (no bootstrap ran).
+    let unused = d.eiv.as_ref().expect("the EIV fit's report");
+    assert_eq!(unused.bias_subtracted, [0.0; 4]);
+    assert_eq!(unused.theta, unused.theta_uncorrected);
     assert_eq!(r.theta, d.identification.theta, "the result is the batch G-N start");
     assert_eq!(r.covariance, d.identification.covariance);
     // Its σ is the batch G-N start's cluster-robust σ, as for batch-gn.
@@ -157,6 +163,9 @@ fn wrong_noise_model_falls_back_to_batch_gauss_newton() {
     let d = detail(&kept);
     assert_eq!(d.eiv_result, EivOutcome::Eiv);
     assert_eq!(Some(kept.theta), d.eiv.as_ref().map(|e| e.theta));
+    let e = d.eiv.as_ref().expect("the EIV fit's report");
+    assert_eq!(e.theta_uncorrected, unused.theta_uncorrected, "the same fit, then corrected");
+    assert!(e.bias_subtracted.iter().zip(e.free).any(|(b, f)| f && *b != 0.0), "{:?}", e.bias_subtracted);
     assert!(kept.warnings.iter().any(Warning::misspecifies_result));
     assert!(kept.verdict.level >= crate::VerdictLevel::Doubtful);
     assert!(kept.verdict.reasons.iter().any(|x| matches!(x, VerdictReason::Misspecified { .. })), "{:?}", kept.verdict);

@@ -45,11 +45,25 @@ pub struct BootstrapOptions {
     /// The true inputs of the replicate worlds. Default
     /// [`BootstrapInputs::Measured`].
     pub true_inputs: BootstrapInputs,
+    /// Antithetic pairs: replicates 2j and 2j + 1 share one random stream
+    /// with every Gaussian draw's sign flipped in the second, and the bias
+    /// is the mean of the pairs' means (`replicates` must then be even).
+    /// Each replicate is still a draw of the fitted noise model; the pair's
+    /// mean cancels the part of the estimator's error that is odd in the
+    /// noise (to first order all of its spread) and keeps the even part,
+    /// whose mean is the bias. Default false.
+    pub antithetic: bool,
 }
 
 impl Default for BootstrapOptions {
     fn default() -> Self {
-        BootstrapOptions { replicates: 50, seed: 0, level: 0.95, true_inputs: BootstrapInputs::Measured }
+        BootstrapOptions {
+            replicates: 50,
+            seed: 0,
+            level: 0.95,
+            true_inputs: BootstrapInputs::Measured,
+            antithetic: false,
+        }
     }
 }
 
@@ -104,6 +118,11 @@ pub struct BootstrapReport {
     pub interval_basic: [[f64; 2]; 4],
     /// The bias-corrected estimate θ̂ − bias.
     pub theta_corrected: Theta,
+    /// With [`BootstrapOptions::antithetic`]: the mean of each pair whose
+    /// two replicates were both fitted, in pair order ([`BootstrapReport::mean`]
+    /// is their mean). Empty otherwise.
+    #[serde(default)]
+    pub pair_means: Vec<Theta>,
 }
 
 /// Parametric bootstrap of an EIV estimate (see the module docs of
@@ -125,6 +144,12 @@ pub fn bootstrap(
     }
     if !(boot.level > 0.0 && boot.level < 1.0) {
         return Err(Error::InvalidOption { field: "level", reason: format!("must be in (0, 1), got {}", boot.level) });
+    }
+    if boot.antithetic && boot.replicates % 2 != 0 {
+        return Err(Error::InvalidOption {
+            field: "replicates",
+            reason: format!("antithetic pairs need an even number of replicates, got {}", boot.replicates),
+        });
     }
     if let BootstrapInputs::Smoothed { half_width_samples: 0 } = boot.true_inputs {
         return Err(Error::InvalidOption {
@@ -156,11 +181,29 @@ pub fn bootstrap(
     let results: Vec<Result<Theta>> = (0..boot.replicates)
         .into_par_iter()
         .map(|b| {
-            let data = replicate(input, smoothed.as_ref(), &theta_hat, &report.noise, boot.seed, b as u64);
+            // Antithetic: the pair (2j, 2j + 1) shares stream j, the second
+            // with its Gaussian draws negated.
+            let (stream, sign) =
+                if boot.antithetic { ((b / 2) as u64, if b % 2 == 0 { 1.0 } else { -1.0 }) } else { (b as u64, 1.0) };
+            let data = replicate(input, smoothed.as_ref(), &theta_hat, &report.noise, boot.seed, stream, sign);
             let rin = data.input(input);
             estimate(&rin, &theta_hat, &refit).map(|r| r.theta)
         })
         .collect();
+    let pair_means: Vec<Theta> = if boot.antithetic {
+        results
+            .chunks(2)
+            .filter_map(|p| match p {
+                [Ok(a), Ok(b)] => {
+                    let (a, b) = (a.to_array(), b.to_array());
+                    Some(Theta::from_array(std::array::from_fn(|i| 0.5 * (a[i] + b[i]))))
+                }
+                _ => None,
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
     let mut replicates = Vec::new();
     let mut failed = Vec::new();
     for (b, r) in results.into_iter().enumerate() {
@@ -169,18 +212,22 @@ pub fn bootstrap(
             Err(e) => failed.push((b, e.to_string())),
         }
     }
-    if replicates.len() < 2 {
+    if replicates.len() < 2 || (boot.antithetic && pair_means.is_empty()) {
         return Err(Error::Numerical(format!(
-            "bootstrap: only {} of {} replicates could be fitted",
+            "bootstrap: only {} of {} replicates could be fitted{}",
             replicates.len(),
-            boot.replicates
+            boot.replicates,
+            if boot.antithetic { format!(" ({} complete antithetic pairs)", pair_means.len()) } else { String::new() }
         )));
     }
-    let n = replicates.len() as f64;
     let cols: [Vec<f64>; 4] = std::array::from_fn(|i| replicates.iter().map(|t| t.to_array()[i]).collect());
     let hat = theta_hat.to_array();
-    let mean: [f64; 4] = std::array::from_fn(|i| cols[i].iter().sum::<f64>() / n);
-    let cov = sample_covariance(&replicates, &mean);
+    // The mean over the replicates, or over the complete pairs' means (a
+    // replicate whose partner failed would bring its odd error back).
+    let averaged: &[Theta] = if boot.antithetic { &pair_means } else { &replicates };
+    let n = averaged.len() as f64;
+    let mean: [f64; 4] = std::array::from_fn(|i| averaged.iter().map(|t| t.to_array()[i]).sum::<f64>() / n);
+    let cov = sample_covariance(&replicates, &mean_of(&replicates));
     let sd: [f64; 4] = std::array::from_fn(|i| cov[i][i].sqrt());
     let bias: [f64; 4] = std::array::from_fn(|i| if report.free[i] { mean[i] - hat[i] } else { 0.0 });
     let alpha = (1.0 - boot.level) / 2.0;
@@ -203,20 +250,41 @@ pub fn bootstrap(
         interval,
         interval_basic,
         theta_corrected: Theta::from_array(corrected),
+        pair_means,
     })
+}
+
+/// The mean of a non-empty set of θ.
+fn mean_of(thetas: &[Theta]) -> [f64; 4] {
+    let n = thetas.len() as f64;
+    std::array::from_fn(|i| thetas.iter().map(|t| t.to_array()[i]).sum::<f64>() / n)
 }
 
 impl BootstrapReport {
     /// The covariance of the replicates' mean (their sample covariance over
-    /// the number of replicates fitted): the Monte Carlo error of
+    /// the number of replicates fitted; with antithetic pairs the pair
+    /// means' over the number of pairs): the Monte Carlo error of
     /// [`BootstrapReport::mean`] and so of the bias and the corrected
     /// estimate. `[c_e, c_d, t_r, d]` order, SI units.
+    ///
+    /// With a single complete antithetic pair the pairs' spread cannot be
+    /// estimated: the replicates' covariance over 2 stands in, the
+    /// plain bootstrap's error for two replicates (an upper bound in the
+    /// usual case that the pair's errors are negatively correlated).
     pub fn mean_covariance(&self) -> [[f64; 4]; 4] {
-        if self.replicates.len() < 2 {
+        let averaged = match self.pair_means.len() {
+            0 => &self.replicates,
+            1 => {
+                let n = 2.0;
+                return sample_covariance(&self.replicates, &mean_of(&self.replicates)).map(|row| row.map(|x| x / n));
+            }
+            _ => &self.pair_means,
+        };
+        if averaged.len() < 2 {
             return [[0.0; 4]; 4];
         }
-        let n = self.replicates.len() as f64;
-        sample_covariance(&self.replicates, &self.mean.to_array()).map(|row| row.map(|x| x / n))
+        let n = averaged.len() as f64;
+        sample_covariance(averaged, &self.mean.to_array()).map(|row| row.map(|x| x / n))
     }
 }
 
@@ -273,6 +341,22 @@ impl ReplicateData {
     }
 }
 
+/// A replicate's random draws: standard normals times `sign` (−1 for the
+/// second replicate of an antithetic pair), uniforms as drawn.
+struct Draws {
+    rng: ChaCha8Rng,
+    sign: f64,
+}
+
+impl Draws {
+    fn normal(&mut self) -> f64 {
+        self.sign * self.rng.sample::<f64, _>(StandardNormal)
+    }
+    fn uniform(&mut self) -> f64 {
+        self.rng.random::<f64>()
+    }
+}
+
 /// First-order Gauss-Markov sequence, stationary start.
 struct Gm {
     a: f64,
@@ -281,19 +365,15 @@ struct Gm {
 }
 
 impl Gm {
-    fn new(rng: &mut ChaCha8Rng, sigma: f64, tau: f64, ts: f64) -> Self {
+    fn new(rng: &mut Draws, sigma: f64, tau: f64, ts: f64) -> Self {
         let a = (-ts / tau).exp();
-        Gm { a, q: sigma * (1.0 - a * a).sqrt(), x: sigma * normal(rng) }
+        Gm { a, q: sigma * (1.0 - a * a).sqrt(), x: sigma * rng.normal() }
     }
-    fn next(&mut self, rng: &mut ChaCha8Rng) -> f64 {
+    fn next(&mut self, rng: &mut Draws) -> f64 {
         let out = self.x;
-        self.x = self.a * self.x + self.q * normal(rng);
+        self.x = self.a * self.x + self.q * rng.normal();
         out
     }
-}
-
-fn normal(rng: &mut ChaCha8Rng) -> f64 {
-    rng.sample::<f64, _>(StandardNormal)
 }
 
 /// The true inputs of [`BootstrapInputs::Smoothed`]: centred moving
@@ -344,8 +424,9 @@ fn moving_average(x: &[f64], k: usize, out: &mut [f64]) {
     }
 }
 
-/// One replicate world (module docs), from stream `b` of `seed`; the true
-/// inputs are `smoothed` if given, else the measured ones.
+/// One replicate world (module docs), from stream `b` of `seed` with every
+/// Gaussian draw times `sign` (±1); the true inputs are `smoothed` if given,
+/// else the measured ones.
 pub(crate) fn replicate(
     input: &EivInput<'_>,
     smoothed: Option<&SmoothedInputs>,
@@ -353,9 +434,11 @@ pub(crate) fn replicate(
     nm: &NoiseModel,
     seed: u64,
     b: u64,
+    sign: f64,
 ) -> ReplicateData {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     rng.set_stream(b + 1);
+    let mut rng = Draws { rng, sign };
     let ts = input.sample_time_s;
     let mut d = ReplicateData {
         px: input.px.to_vec(),
@@ -381,7 +464,7 @@ pub(crate) fn replicate(
         let mut dy = Gm::new(&mut rng, nm.position_drift_sigma_m, dt, ts);
         let mut dpsi = Gm::new(&mut rng, nm.heading_drift_sigma_rad, dt, ts);
         let mut beta_err = Gm::new(&mut rng, nm.sideslip_sigma_rad, nm.sideslip_time_constant_s, ts);
-        let mut rev: [f64; 2] = [rng.random::<f64>(), rng.random::<f64>()];
+        let mut rev: [f64; 2] = [rng.uniform(), rng.uniform()];
         let s = part.start;
         let mut x = State::new(input.px[s], input.py[s], input.psi[s]);
         for k in part.clone() {
@@ -389,13 +472,13 @@ pub(crate) fn replicate(
                 Some(t) => Input { n_rl: t.n_rl[k], n_rr: t.n_rr[k], beta: t.beta[k], a_y: t.a_y[k] },
                 None => Input { n_rl: input.n_rl[k], n_rr: input.n_rr[k], beta: input.beta[k], a_y: input.a_y[k] },
             };
-            d.px[k] = x[0] + dx.next(&mut rng) + nm.position_white_sigma_m * normal(&mut rng);
-            d.py[k] = x[1] + dy.next(&mut rng) + nm.position_white_sigma_m * normal(&mut rng);
-            d.psi[k] = x[2] + dpsi.next(&mut rng) + nm.heading_white_sigma_rad * normal(&mut rng);
+            d.px[k] = x[0] + dx.next(&mut rng) + nm.position_white_sigma_m * rng.normal();
+            d.py[k] = x[1] + dy.next(&mut rng) + nm.position_white_sigma_m * rng.normal();
+            d.psi[k] = x[2] + dpsi.next(&mut rng) + nm.heading_white_sigma_rad * rng.normal();
             let sc = common.next(&mut rng);
             let sw = [wl.next(&mut rng), wr.next(&mut rng)];
             for (w, n) in [u.n_rl, u.n_rr].into_iter().enumerate() {
-                let rel = sc + sw[w] + nm.wheel_white_rel_sigma * normal(&mut rng);
+                let rel = sc + sw[w] + nm.wheel_white_rel_sigma * rng.normal();
                 let noisy = n * (1.0 + rel);
                 let measured = if ticks > 0.0 {
                     // Encoder: whole ticks over the interval (rev holds the phase in ticks).
@@ -411,7 +494,7 @@ pub(crate) fn replicate(
                     d.n_rr[k] = measured;
                 }
             }
-            d.a_y[k] = u.a_y + nm.lateral_acceleration_sigma_m_per_s2 * normal(&mut rng);
+            d.a_y[k] = u.a_y + nm.lateral_acceleration_sigma_m_per_s2 * rng.normal();
             d.beta[k] = u.beta + beta_err.next(&mut rng);
             x = step(&x, &u, theta, ts);
         }
@@ -421,7 +504,52 @@ pub(crate) fn replicate(
 
 #[cfg(test)]
 mod tests {
-    use super::moving_average;
+    use super::{moving_average, replicate, SmoothedInputs};
+    use crate::eiv::{EivInput, NoiseModel};
+    use crate::sim::{simulate, SimOptions};
+
+    /// The two replicates of an antithetic pair mirror each other about the
+    /// replicate world's truth: without an encoder every noise enters
+    /// linearly, so their mean is the true wheel rotations, a_y, β and poses
+    /// to rounding, and their difference is not zero.
+    #[test]
+    fn antithetic_replicates_mirror_each_other_about_the_truth() {
+        let out = simulate(&SimOptions { length_km: 0.5, ..SimOptions::paper(3) }).expect("sim");
+        let input = EivInput::from_drive(&out.drive);
+        let nm = NoiseModel { quantisation_step_rev_per_s: 0.0, ..NoiseModel::PRODUCTION_CAR };
+        let theta = out.sidecar.theta_true;
+        let smooth = SmoothedInputs::new(&input, 20);
+        let plus = replicate(&input, Some(&smooth), &theta, &nm, 9, 4, 1.0);
+        let minus = replicate(&input, Some(&smooth), &theta, &nm, 9, 4, -1.0);
+        // The world's true poses: the noise-free replicate (every σ zero).
+        let quiet = NoiseModel {
+            wheel_white_rel_sigma: 0.0,
+            wheel_common_rel_sigma: 0.0,
+            wheel_differential_rel_sigma: 0.0,
+            position_white_sigma_m: 0.0,
+            position_drift_sigma_m: 0.0,
+            heading_white_sigma_rad: 0.0,
+            heading_drift_sigma_rad: 0.0,
+            lateral_acceleration_sigma_m_per_s2: 0.0,
+            sideslip_sigma_rad: 0.0,
+            ..nm
+        };
+        let truth = replicate(&input, Some(&smooth), &theta, &quiet, 9, 4, 1.0);
+        let cols = |d: &super::ReplicateData| {
+            [d.px.clone(), d.py.clone(), d.psi.clone(), d.n_rl.clone(), d.n_rr.clone(), d.beta.clone(), d.a_y.clone()]
+        };
+        let (p, m, t) = (cols(&plus), cols(&minus), cols(&truth));
+        for c in 0..7 {
+            let mut apart = 0.0f64;
+            for k in 0..p[c].len() {
+                let mid = 0.5 * (p[c][k] + m[c][k]);
+                let scale = t[c][k].abs().max(1.0);
+                assert!((mid - t[c][k]).abs() <= 1e-12 * scale, "column {c}, sample {k}: {mid} against {}", t[c][k]);
+                apart = apart.max((p[c][k] - m[c][k]).abs());
+            }
+            assert!(apart > 0.0, "column {c}: the pair is identical");
+        }
+    }
 
     /// Centred, truncated at the ends: [1, 2, 3, 4, 10] over ±1.
     #[test]

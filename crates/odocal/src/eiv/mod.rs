@@ -849,6 +849,10 @@ pub struct EivOptions {
     /// replicates re-estimated the noise: the same c_e correction at three
     /// times the cost, and an over-correction of t_r).
     pub bootstrap_noise: BootstrapNoise,
+    /// The replicates of [`BiasCorrection::Bootstrap`] come in antithetic
+    /// pairs ([`BootstrapOptions::antithetic`]; B must be even). Default
+    /// false; [`EivOptions::correct_bias`] sets it.
+    pub bootstrap_antithetic: bool,
     /// Floor of the reference's position noise σ in the filter's `R`, m
     /// (added in quadrature to the noise model's position white noise; it is
     /// not scaled by η). Default 1e-3 (SPEC §10).
@@ -1483,6 +1487,7 @@ impl Default for EivOptions {
             bias_correction: BiasCorrection::None,
             bootstrap_inputs: BootstrapInputs::Measured,
             bootstrap_noise: BootstrapNoise::HeldAtFit,
+            bootstrap_antithetic: false,
             input_jacobian: InputJacobian::FilterShare,
             position_floor_m: DEFAULT_POSITION_FLOOR_M,
             hold_unobservable_at: None,
@@ -1543,6 +1548,7 @@ impl EivOptions {
         self.bias_correction = BiasCorrection::Bootstrap { replicates, seed, all_parameters: true };
         self.bootstrap_inputs = BootstrapInputs::Smoothed { half_width_samples: BIAS_BOOTSTRAP_SMOOTHING_SAMPLES };
         self.bootstrap_noise = BootstrapNoise::HeldAtFit;
+        self.bootstrap_antithetic = true;
     }
 
     /// The defaults with SPEC §10's formulation of the cost and of `R`: the
@@ -1611,6 +1617,12 @@ impl EivOptions {
         if let BiasCorrection::Bootstrap { replicates, .. } = self.bias_correction {
             if replicates < 2 {
                 return bad("bias_correction", "the bootstrap needs at least 2 replicates");
+            }
+            if self.bootstrap_antithetic && replicates % 2 != 0 {
+                return bad(
+                    "bias_correction",
+                    "antithetic pairs (bootstrap_antithetic) need an even number of replicates",
+                );
             }
         }
         if matches!(
@@ -3133,45 +3145,88 @@ pub(crate) fn estimate_from(
         time_constants: None,
         quantisation_step_from_readings: q_found,
     };
-    if let BiasCorrection::Bootstrap { replicates, seed, all_parameters } = opts.bias_correction {
-        // The replicates are fitted without correction (their mean estimates
-        // the uncorrected estimator's mean at θ̂).
-        let inner = match opts.bootstrap_noise {
-            BootstrapNoise::Reestimated => EivOptions { bias_correction: BiasCorrection::None, ..opts.clone() },
-            BootstrapNoise::HeldAtFit => EivOptions {
-                bias_correction: BiasCorrection::None,
-                noise: report.noise,
-                fix_noise: true,
-                ..opts.clone()
-            },
-        };
-        let boot = bootstrap(
-            input,
-            &report,
-            &inner,
-            &BootstrapOptions { replicates, seed, true_inputs: opts.bootstrap_inputs, ..Default::default() },
-        )?;
-        let b = boot.bias;
-        report.bias_subtracted = if all_parameters { b } else { [b[0], 0.0, 0.0, 0.0] };
-        report.theta = theta_add(&report.theta, &report.bias_subtracted, -1.0);
-        // The subtracted bias is a mean of B replicates: its Monte Carlo
-        // covariance (replicates' covariance / B) joins θ's.
-        let corrected: [bool; 4] = std::array::from_fn(|i| report.free[i] && (all_parameters || i == 0));
-        let mc = boot.mean_covariance();
-        let mut cov = report.covariance;
-        for i in 0..4 {
-            for j in 0..4 {
-                if corrected[i] && corrected[j] {
-                    cov[i][j] += mc[i][j];
-                }
+    apply_bias_correction(input, &mut report, opts)?;
+    Ok((report, neg_log_likelihood))
+}
+
+/// Applies `opts.bias_correction` to a fit made without it (nothing for
+/// [`BiasCorrection::None`]): runs the [`bootstrap`] it names at the fit
+/// (replicates on `opts.bootstrap_inputs`, holding the fitted noise or
+/// re-estimating it, `opts.bootstrap_noise`; in antithetic pairs with
+/// `opts.bootstrap_antithetic`), subtracts its bias from `report.theta`
+/// (every free parameter or c_e only) and adds the bias's Monte Carlo
+/// covariance to `report.covariance` and `report.sigma`.
+///
+/// [`estimate`] calls it at its end; `calibrate` calls it itself after
+/// deciding whether to fall back, so that a fit it replaces by batch
+/// Gauss-Newton costs no bootstrap. `report` must be that of [`estimate`]
+/// on `input` with `opts` except for the correction (and with its
+/// `bias_subtracted` zero). With time constants chosen by the fit
+/// ([`EivReport::time_constants`]) the replicates hold them.
+pub fn apply_bias_correction(input: &EivInput<'_>, report: &mut EivReport, opts: &EivOptions) -> Result<()> {
+    let BiasCorrection::Bootstrap { replicates, seed, all_parameters } = opts.bias_correction else {
+        return Ok(());
+    };
+    opts.validate()?;
+    if report.bias_subtracted.iter().any(|b| *b != 0.0) {
+        return Err(Error::InvalidOption {
+            field: "bias_correction",
+            reason: "the report was already corrected".into(),
+        });
+    }
+    let t0 = Instant::now();
+    // The fit's own quantisation level (as `estimate` resolved it on the
+    // drive's readings) and time constants.
+    let mut opts = EivOptions {
+        estimate_time_constants: false,
+        ..opts.with_resolved_quantisation(report.quantisation_step_from_readings)
+    };
+    if let Some(tc) = &report.time_constants {
+        opts.noise.wheel_common_time_constant_s = tc.wheel_common_s;
+        opts.noise.wheel_differential_time_constant_s = tc.wheel_differential_s;
+        opts.noise.drift_time_constant_s = tc.drift_s;
+    }
+    let opts = &opts;
+    // The replicates are fitted without correction (their mean estimates
+    // the uncorrected estimator's mean at θ̂).
+    let inner = match opts.bootstrap_noise {
+        BootstrapNoise::Reestimated => EivOptions { bias_correction: BiasCorrection::None, ..opts.clone() },
+        BootstrapNoise::HeldAtFit => {
+            EivOptions { bias_correction: BiasCorrection::None, noise: report.noise, fix_noise: true, ..opts.clone() }
+        }
+    };
+    let boot = bootstrap(
+        input,
+        &*report,
+        &inner,
+        &BootstrapOptions {
+            replicates,
+            seed,
+            true_inputs: opts.bootstrap_inputs,
+            antithetic: opts.bootstrap_antithetic,
+            ..Default::default()
+        },
+    )?;
+    let b = boot.bias;
+    report.bias_subtracted = if all_parameters { b } else { [b[0], 0.0, 0.0, 0.0] };
+    report.theta = theta_add(&report.theta, &report.bias_subtracted, -1.0);
+    // The subtracted bias is a mean of B replicates: its Monte Carlo
+    // covariance (replicates' covariance / B) joins θ's.
+    let corrected: [bool; 4] = std::array::from_fn(|i| report.free[i] && (all_parameters || i == 0));
+    let mc = boot.mean_covariance();
+    let mut cov = report.covariance;
+    for i in 0..4 {
+        for j in 0..4 {
+            if corrected[i] && corrected[j] {
+                cov[i][j] += mc[i][j];
             }
         }
-        report.covariance = cov;
-        report.sigma_bias_correction = free_sigma(&corrected, |i| mc[i][i]);
-        report.sigma = free_sigma(&report.free, |i| cov[i][i]);
-        report.timing_s = t0.elapsed().as_secs_f64();
     }
-    Ok((report, neg_log_likelihood))
+    report.covariance = cov;
+    report.sigma_bias_correction = free_sigma(&corrected, |i| mc[i][i]);
+    report.sigma = free_sigma(&report.free, |i| cov[i][i]);
+    report.timing_s += t0.elapsed().as_secs_f64();
+    Ok(())
 }
 
 /// The first-order bias of the profile cost's root ([`FirstOrderBias`]):
