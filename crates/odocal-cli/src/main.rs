@@ -1107,7 +1107,7 @@ fn compensate_cmd(a: CompensateArgs, bars: &progress::Bars) -> Result<()> {
 /// bootstrap's replicates come in antithetic pairs).
 fn parse_even_replicates(s: &str) -> std::result::Result<usize, String> {
     let b: usize = s.parse().map_err(|e| format!("{e}"))?;
-    if b < 2 || b % 2 != 0 {
+    if b < 2 || !b.is_multiple_of(2) {
         return Err(format!(
             "B must be an even number of at least 2 (the replicates come in antithetic pairs), got {b}"
         ));

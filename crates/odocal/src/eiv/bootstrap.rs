@@ -145,7 +145,7 @@ pub fn bootstrap(
     if !(boot.level > 0.0 && boot.level < 1.0) {
         return Err(Error::InvalidOption { field: "level", reason: format!("must be in (0, 1), got {}", boot.level) });
     }
-    if boot.antithetic && boot.replicates % 2 != 0 {
+    if boot.antithetic && !boot.replicates.is_multiple_of(2) {
         return Err(Error::InvalidOption {
             field: "replicates",
             reason: format!("antithetic pairs need an even number of replicates, got {}", boot.replicates),
@@ -183,8 +183,11 @@ pub fn bootstrap(
         .map(|b| {
             // Antithetic: the pair (2j, 2j + 1) shares stream j, the second
             // with its Gaussian draws negated.
-            let (stream, sign) =
-                if boot.antithetic { ((b / 2) as u64, if b % 2 == 0 { 1.0 } else { -1.0 }) } else { (b as u64, 1.0) };
+            let (stream, sign) = if boot.antithetic {
+                ((b / 2) as u64, if b.is_multiple_of(2) { 1.0 } else { -1.0 })
+            } else {
+                (b as u64, 1.0)
+            };
             let data = replicate(input, smoothed.as_ref(), &theta_hat, &report.noise, boot.seed, stream, sign);
             let rin = data.input(input);
             estimate(&rin, &theta_hat, &refit).map(|r| r.theta)

@@ -1618,7 +1618,7 @@ impl EivOptions {
             if replicates < 2 {
                 return bad("bias_correction", "the bootstrap needs at least 2 replicates");
             }
-            if self.bootstrap_antithetic && replicates % 2 != 0 {
+            if self.bootstrap_antithetic && !replicates.is_multiple_of(2) {
                 return bad(
                     "bias_correction",
                     "antithetic pairs (bootstrap_antithetic) need an even number of replicates",
