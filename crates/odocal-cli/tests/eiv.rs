@@ -185,10 +185,12 @@ fn eiv_noise_model_shape_flags_reach_the_options() {
     assert!(text(&o.stderr).contains("possible values: process, measurement, counting"), "{}", text(&o.stderr));
 }
 
-/// `--correct-bias B`: every parameter corrected by a bootstrap on the
+/// The default bias correction (B = 4, since stop 21) and `--correct-bias
+/// B`: every parameter corrected by a bootstrap in antithetic pairs on the
 /// smoothed trajectory whose replicates hold the fitted noise model; θ's σ
-/// carries the correction's Monte Carlo error; not with `--correct-c-e-bias`
-/// nor with another method.
+/// carries the correction's Monte Carlo error; `--no-bias-correction`
+/// returns the uncorrected fit; B must be even; not with
+/// `--correct-c-e-bias` nor with another method.
 #[test]
 fn correct_bias_corrects_every_parameter_with_held_noise() {
     let d = tempfile::tempdir().expect("tmp");
@@ -202,36 +204,55 @@ fn correct_bias_corrects_every_parameter_with_held_noise() {
         assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", text(&o.stderr));
         serde_json::from_slice::<serde_json::Value>(&o.stdout).expect("json")
     };
-    let plain = run(&[]);
+    let plain = run(&["--no-bias-correction"]);
+    assert!(plain["options"]["method"]["correct_bias"].is_null(), "{}", plain["options"]["method"]);
+    assert_eq!(plain["eiv"]["bias_subtracted"], serde_json::json!([0.0, 0.0, 0.0, 0.0]));
+    let default = run(&[]);
+    assert_eq!(default["options"]["method"]["correct_bias"], serde_json::json!({"replicates": 4, "seed": 0}));
+    assert_eq!(default["eiv"]["theta_uncorrected"], plain["eiv"]["theta"]);
     let r = run(&["--correct-bias", "2", "--bootstrap-seed", "7"]);
-    let f = &r["options"]["method"]["filter"];
-    assert_eq!(f["bias_correction"]["bootstrap"]["all_parameters"], true, "{f}");
-    assert_eq!(f["bootstrap_noise"], "held_at_fit", "{f}");
-    assert_eq!(f["bootstrap_inputs"]["Smoothed"]["half_width_samples"], 20, "{f}");
+    assert_eq!(r["options"]["method"]["correct_bias"], serde_json::json!({"replicates": 2, "seed": 7}));
     assert_eq!(r["eiv"]["theta_uncorrected"], plain["eiv"]["theta"]);
-    let (e, p) = (&r["eiv"], &plain["eiv"]);
-    for i in 0..4 {
-        let free = e["free"][i].as_bool().expect("free");
-        let mc = e["sigma_bias_correction"][i].as_f64().expect("mc σ");
-        let (s, s0) = (e["sigma"][i].as_f64().expect("σ"), p["sigma"][i].as_f64().expect("σ"));
-        if free {
-            assert!(mc > 0.0 && (s * s - s0 * s0 - mc * mc).abs() <= 1e-9 * s * s, "{i}: {s} {s0} {mc}");
-            assert_ne!(e["bias_subtracted"][i].as_f64(), Some(0.0), "{i}: {}", e["bias_subtracted"]);
-        } else {
-            assert_eq!(mc.to_bits(), 0.0f64.to_bits(), "{i}: a held parameter has no Monte Carlo σ");
+    for (name, c) in [("default", &default), ("--correct-bias 2", &r)] {
+        let (e, p) = (&c["eiv"], &plain["eiv"]);
+        for i in 0..4 {
+            let free = e["free"][i].as_bool().expect("free");
+            let mc = e["sigma_bias_correction"][i].as_f64().expect("mc σ");
+            let (s, s0) = (e["sigma"][i].as_f64().expect("σ"), p["sigma"][i].as_f64().expect("σ"));
+            if free {
+                assert!(mc > 0.0 && (s * s - s0 * s0 - mc * mc).abs() <= 1e-9 * s * s, "{name} {i}: {s} {s0} {mc}");
+                assert_ne!(e["bias_subtracted"][i].as_f64(), Some(0.0), "{name} {i}: {}", e["bias_subtracted"]);
+            } else {
+                assert_eq!(mc.to_bits(), 0.0f64.to_bits(), "{name} {i}: a held parameter has no Monte Carlo σ");
+            }
         }
     }
-    let o = odocal(&[&base[..], &["--correct-bias", "2", "--correct-c-e-bias", "2"]].concat());
-    assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));
-    assert!(text(&o.stderr).contains("cannot be used with"), "{}", text(&o.stderr));
+    assert_ne!(default["eiv"]["bias_subtracted"], r["eiv"]["bias_subtracted"]);
+    for (extra, want) in [
+        (&["--correct-bias", "2", "--correct-c-e-bias", "2"][..], "cannot be used with"),
+        (&["--correct-bias", "2", "--no-bias-correction"][..], "cannot be used with"),
+        (
+            &["--correct-bias", "3"][..],
+            "B must be an even number of at least 2 (the replicates come in antithetic pairs), got 3",
+        ),
+    ] {
+        let o = odocal(&[&base[..], extra].concat());
+        assert_eq!(o.status.code(), Some(2), "{extra:?}: {}", text(&o.stderr));
+        assert!(text(&o.stderr).contains(want), "{extra:?}: {}", text(&o.stderr));
+    }
     let o = odocal(&["calibrate", dstr, "--method", "batch-gn", "--correct-bias", "2"]);
     assert_eq!(o.status.code(), Some(1));
     assert!(text(&o.stderr).contains("--correct-bias applies to --method eiv only"), "{}", text(&o.stderr));
-    // Terminal: the correction and its Monte Carlo σ are named.
-    let o = odocal(&["calibrate", dstr, "--method", "eiv", "--no-fallback", "--correct-bias", "2"]);
+    let o = odocal(&["calibrate", dstr, "--method", "batch-gn", "--no-bias-correction"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(text(&o.stderr).contains("--no-bias-correction applies to --method eiv only"), "{}", text(&o.stderr));
+    // Terminal: the correction and its Monte Carlo σ are named (by default).
+    let o = odocal(&["calibrate", dstr, "--method", "eiv", "--no-fallback"]);
     let out = text(&o.stdout);
     assert!(out.contains("  bias correction: subtracted c_e "), "{out}");
     assert!(out.contains("  σ includes the correction's Monte Carlo error: c_e "), "{out}");
+    let o = odocal(&["calibrate", dstr, "--method", "eiv", "--no-fallback", "--no-bias-correction"]);
+    assert!(!text(&o.stdout).contains("bias correction"), "{}", text(&o.stdout));
 }
 
 #[test]

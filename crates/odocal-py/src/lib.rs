@@ -23,6 +23,7 @@ use pyo3::exceptions::{PyKeyError, PyRuntimeError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList, PyString};
 
+use odocal::calibrate::CorrectBias;
 use odocal::drive::{Drive, ExtraColumn, ExtraValues, Signals};
 use odocal::eiv::{HeadingScale, QuantisationLevel, QuantisationModel};
 use odocal::import::{GivenSettings, ManifestSettings, ReferenceSpec, SettingUse};
@@ -806,14 +807,27 @@ fn calibration_plan(
         e.filter.quantisation_level = quantisation_level.unwrap_or(e.filter.quantisation_level);
         e.filter.heading_scale = heading_noise.unwrap_or(e.filter.heading_scale);
         e.filter.lateral_noise = lateral_noise.unwrap_or(e.filter.lateral_noise);
+        // The bias correction is on by default (B = 4); correct_bias=B sets
+        // B (even), correct_bias=0 turns it off, bootstrap_seed seeds it.
         match (correct_bias, bootstrap_seed) {
-            (Some(b), seed) => e.filter.correct_bias(b, seed.unwrap_or(0)),
-            (None, Some(_)) => {
+            (Some(0), Some(_)) => {
                 return Err(invalid_option(
                     "bootstrap_seed",
-                    "is the seed of correct_bias; give correct_bias too".into(),
+                    "is the seed of the bias correction, which correct_bias=0 turns off".into(),
                 ))
             }
+            (Some(0), None) => e.correct_bias = None,
+            (Some(b), _) if !b.is_multiple_of(2) => {
+                return Err(invalid_option(
+                    "correct_bias",
+                    format!(
+                        "must be 0 (no correction) or an even number of at least 2 (the replicates come in \
+                         antithetic pairs), got {b}"
+                    ),
+                ))
+            }
+            (Some(b), seed) => e.correct_bias = Some(CorrectBias { replicates: b, seed: seed.unwrap_or(0) }),
+            (None, Some(seed)) => e.correct_bias = e.correct_bias.map(|c| CorrectBias { seed, ..c }),
             (None, None) => {}
         }
     } else if !eiv_given.is_empty() {

@@ -20,7 +20,9 @@
 //! quantisation as process noise (the default before stop 14, two filter
 //! states fewer), `eiv-fixed-process`, `eiv-estimated-process`, and
 //! `eiv-estimated-no-eta-cov` (the default without
-//! `EivOptions::noise_estimate_in_covariance`, stop 16); default all).
+//! `EivOptions::noise_estimate_in_covariance`, stop 16), and the default
+//! with the bootstrap bias correction, `eiv-corrected-4` and
+//! `eiv-corrected-10` (`--correct-bias 4` / `10`, stop 21); default all).
 
 use std::time::Instant;
 
@@ -54,7 +56,17 @@ fn methods() -> Vec<(&'static str, Method)> {
                 ..Default::default()
             }),
         ),
+        // Stop 21: the default with the bootstrap bias correction (`--correct-bias B`, antithetic pairs).
+        ("eiv-corrected-4", corrected(4)),
+        ("eiv-corrected-10", corrected(10)),
     ]
+}
+
+/// The default EIV method with `EivOptions::correct_bias(B, 0)`.
+fn corrected(b: usize) -> Method {
+    let mut filter = EivOptions::default();
+    filter.correct_bias(b, 0);
+    Method::Eiv(EivMethodOptions { filter, ..Default::default() })
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

@@ -214,6 +214,10 @@ fn calibrate_eiv(
         fallback: false,
         bootstrap: None,
         estimate_heading_offset: heading_offset,
+        // The rows are the uncorrected fits; the `+ boot` rows correct them
+        // (`… (all)` with `--bootstrap 4 --bootstrap-smooth 20
+        // --bootstrap-antithetic` is the method's default since stop 21).
+        correct_bias: None,
     });
     let opts = CalibrationOptions { method, seed, ..Default::default() };
     let r = calibrate(d, &opts, None)?;

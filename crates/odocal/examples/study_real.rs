@@ -72,9 +72,13 @@ const METHODS: [&str; 5] = ["batch-gn", "batch-gn-all", "three-step", "eiv", "ei
 /// Methods run only when named: `eiv-stop14` (`eiv` with the reference
 /// heading offset held at 0, the stop-14 default; the other historical
 /// variants hold it too), `eiv-stop11` (`eiv` with the stop-11
-/// innovation checks and θ/η iteration) and `eiv-nofallback` (`eiv` with
-/// the fallback off: the EIV θ whatever the checks say).
-const EXTRA_METHODS: [&str; 31] = [
+/// innovation checks and θ/η iteration), `eiv-nofallback` (`eiv` with
+/// the fallback off: the EIV θ whatever the checks say) and
+/// `eiv-uncorrected` (`eiv` without its default bias correction, the
+/// default before stop 21).
+const EXTRA_METHODS: [&str; 33] = [
+    "eiv-uncorrected",
+    "eiv-uncorrected-nofallback",
     "eiv-stop14",
     "eiv-stop14-nofallback",
     "eiv-stop11",
@@ -263,7 +267,15 @@ fn options(method: &str, q: f64) -> Result<CalibrationOptions, Box<dyn Error>> {
             })
         }
         "eiv-nofallback" => o.method = Method::Eiv(EivMethodOptions { fallback: false, ..EivMethodOptions::default() }),
-        // Stop 20: what the CLI's `--correct-bias 10` sets (seed 0).
+        // Stop 21: the default before its bias correction (`--no-bias-correction`).
+        "eiv-uncorrected" | "eiv-uncorrected-nofallback" => {
+            o.method = Method::Eiv(EivMethodOptions {
+                correct_bias: None,
+                fallback: method == "eiv-uncorrected",
+                ..EivMethodOptions::default()
+            })
+        }
+        // Stop 20: what the CLI's `--correct-bias 10` sets (seed 0; antithetic pairs since stop 21).
         "eiv-cb" | "eiv-cb-nofallback" => {
             let mut filter = EivOptions::default();
             filter.correct_bias(10, 0);

@@ -254,10 +254,12 @@ def calibrate(
       ``"measurement"`` | ``"counting"``), ``quantisation_level``
       (``"scaled"`` | ``"given"`` | ``"from-readings"``), ``heading_noise``
       (``"tied"`` | ``"separate"``), ``lateral_noise`` (``"tied"`` |
-      ``"stated"``), ``correct_bias`` (B: subtract the estimator's own bias
-      from every parameter, estimated by a bootstrap of B replicates, as
-      ``--correct-bias``; about twice the time of a fit at B = 10) with
-      ``bootstrap_seed``: method ``"eiv"`` only, as the CLI's flags.
+      ``"stated"``), ``correct_bias`` (B, an even number: replicates of the
+      bias correction that is on by default with B = 4 — the estimator's own
+      bias subtracted from every parameter, estimated by a bootstrap in
+      antithetic pairs, as ``--correct-bias``; ``0`` turns it off, as
+      ``--no-bias-correction``) with ``bootstrap_seed`` (its seed): method
+      ``"eiv"`` only, as the CLI's flags.
 
     A drive read from a manifest carries the manifest's ``[noise]``,
     ``[reference]`` and ``[calibration]`` settings (``drive.import_report``); they apply unless

@@ -67,7 +67,7 @@ pub mod three_step;
 mod turn_sense;
 
 pub use batch_gn::{BatchGnDetail, BatchGnOptions};
-pub use eiv::{EivDetail, EivMethodOptions, EivOutcome};
+pub use eiv::{CorrectBias, EivDetail, EivMethodOptions, EivOutcome, DEFAULT_BIAS_REPLICATES};
 pub use three_step::{
     per_segment_identification, random_batches, score_batches, BatchResult, BatchSpread, FinalSegments, InitialStep,
     RejectedBatch, ThreeStepDetail, ThreeStepOptions, ThreeStepUncertainty,
