@@ -15,14 +15,16 @@
 //! argument the results (θ, η, σ, passes; no timings) are written as JSON,
 //! to check that a speed change leaves them unchanged (`-`: not written).
 //! The fifth argument picks methods by name (comma separated: `batch-gn`,
-//! `three-step`, `eiv-fixed`, `eiv-estimated` (the library's EIV defaults:
+//! `three-step`, `eiv-fixed`, `eiv-estimated` (the library's EIV filter
+//! defaults without the method's bias correction, stop 21:
 //! counting quantisation since stop 14), and the same two EIV runs with
 //! quantisation as process noise (the default before stop 14, two filter
 //! states fewer), `eiv-fixed-process`, `eiv-estimated-process`, and
 //! `eiv-estimated-no-eta-cov` (the default without
 //! `EivOptions::noise_estimate_in_covariance`, stop 16), and the default
-//! with the bootstrap bias correction, `eiv-corrected-4` and
-//! `eiv-corrected-10` (`--correct-bias 4` / `10`, stop 21); default all).
+//! with the bootstrap bias correction, `eiv-corrected-4` (the method's
+//! default since stop 21) and `eiv-corrected-10` (`--correct-bias 10`);
+//! default all).
 
 use std::time::Instant;
 
@@ -37,6 +39,8 @@ fn methods() -> Vec<(&'static str, Method)> {
         let d = EivOptions::default();
         Method::Eiv(EivMethodOptions {
             filter: EivOptions { fix_noise, quantisation: quantisation.unwrap_or(d.quantisation), ..d },
+            // The fit alone (the method's default bias correction: `eiv-corrected-*`).
+            correct_bias: None,
             ..Default::default()
         })
     };
@@ -53,6 +57,7 @@ fn methods() -> Vec<(&'static str, Method)> {
             "eiv-estimated-no-eta-cov",
             Method::Eiv(EivMethodOptions {
                 filter: EivOptions { noise_estimate_in_covariance: false, ..EivOptions::default() },
+                correct_bias: None,
                 ..Default::default()
             }),
         ),
@@ -62,11 +67,13 @@ fn methods() -> Vec<(&'static str, Method)> {
     ]
 }
 
-/// The default EIV method with `EivOptions::correct_bias(B, 0)`.
+/// The default EIV method with its bias correction at B replicates (B = 4
+/// is the default since stop 21).
 fn corrected(b: usize) -> Method {
-    let mut filter = EivOptions::default();
-    filter.correct_bias(b, 0);
-    Method::Eiv(EivMethodOptions { filter, ..Default::default() })
+    Method::Eiv(EivMethodOptions {
+        correct_bias: Some(odocal::calibrate::CorrectBias { replicates: b, seed: 0 }),
+        ..Default::default()
+    })
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

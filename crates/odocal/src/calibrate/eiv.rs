@@ -660,9 +660,9 @@ impl EivDetail {
                 if e.bias_subtracted.iter().any(|b| *b != 0.0) {
                     let _ = writeln!(
                         out,
-                        "  bias correction: subtracted {} (uncorrected c_e {:.6} m)",
+                        "  bias correction: subtracted {}; uncorrected {}",
                         theta_in_units(&e.bias_subtracted, true),
-                        e.theta_uncorrected.c_e
+                        theta_in_units(&e.theta_uncorrected.to_array(), false)
                     );
                     let _ = writeln!(
                         out,

@@ -14,6 +14,11 @@
 //! - measured a_y + white σ_a, β + Gauss-Markov σ_β;
 //! - reference poses: truth + Gauss-Markov drift + white noise.
 //!
+//! With [`BootstrapOptions::antithetic`] replicates 2j and 2j + 1 share
+//! stream j, the second with every Gaussian draw negated: each is still a
+//! draw of the fitted model, and the pair's mean cancels the part of the
+//! fit's error that is odd in the noise (stop 21).
+//!
 //! Each replicate is fitted with the same options as the original fit
 //! (same starting noise model, same `fix_noise`), from θ̂, with the
 //! original's free parameters (but without a bootstrap bias correction,
