@@ -238,7 +238,7 @@ struct CalibrationArgs {
     /// trajectory, each holding the fitted noise model; θ's σ includes its
     /// Monte Carlo error. It removes the bias heavy wheel noise puts on t_r
     /// (simulated `high` preset, 20 drives: t_r +1.10 % → +0.46 %, every
-    /// parameter within |t| ≤ 1.9, 94 % coverage) at 1.4–1.5× the time of
+    /// parameter within |t| ≤ 1.9, 94 % coverage) at 1.3–1.5× the time of
     /// the uncorrected fit (B = 4). It runs only for a fit that is kept.
     #[arg(long, value_name = "B", value_parser = parse_even_replicates, conflicts_with = "no_bias_correction")]
     correct_bias: Option<usize>,

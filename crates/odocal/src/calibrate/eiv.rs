@@ -75,7 +75,7 @@
 //! (docs/study.md, "Stop 21"): every parameter within |t| ≤ 2.8 of zero on
 //! every noisy preset (high t_r +0.46 %, t 1.9), the 95 % intervals cover
 //! the truth in ≥ 93.8 % of cases, t_r's RMS error falls (high 5.38 →
-//! 4.01× the Cramér–Rao bound, paper 1.69 → 1.62×), at 1.4–1.5× the time
+//! 4.01× the Cramér–Rao bound, paper 1.69 → 1.62×), at 1.3–1.5× the time
 //! of the uncorrected fit.
 //!
 //! ## Uncertainty and observability
@@ -163,7 +163,7 @@ impl Default for EivMethodOptions {
 /// ([`EivMethodOptions::correct_bias`]): two antithetic pairs. Measured
 /// (stop 21, 20 × 12 km per preset, η estimated): B = 4 and B = 10 remove
 /// the same bias (`high` t_r +1.097 % → +0.458 % and +0.456 %), and B = 4
-/// costs 1.4–1.5× a fit against about 2× (docs/study.md, "Stop 21").
+/// costs 1.3–1.5× a fit against about 2× (docs/study.md, "Stop 21").
 pub const DEFAULT_BIAS_REPLICATES: usize = 4;
 
 /// The bootstrap bias correction of the EIV method
