@@ -99,6 +99,8 @@ fn report_is_identical_for_one_and_two_threads() {
         if let MethodDetail::Eiv(d) = &mut r.detail {
             if let Some(e) = d.eiv.as_mut() {
                 e.timing_s = 0.0;
+                // The default bias correction ran (its replicates, in parallel, are covered too).
+                assert!(e.bias_subtracted.iter().any(|b| *b != 0.0), "{:?}", e.bias_subtracted);
             }
         }
         serde_json::to_string(&r).expect("json")
