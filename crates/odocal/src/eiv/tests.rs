@@ -909,6 +909,13 @@ fn antithetic_pairs_average_out_the_replicates_odd_error() {
     let r = estimate(&input, &start, &o).expect("eiv");
     assert_eq!(r.theta_uncorrected, fit.theta);
     assert_eq!(r.bias_subtracted.map(f64::to_bits), anti.bias.map(f64::to_bits));
+    // Applied after the fit, the same to the bit; a second application is refused.
+    let mut after = fit.clone();
+    apply_bias_correction(&input, &mut after, &o).expect("correction");
+    assert_eq!(after.theta, r.theta);
+    assert_eq!(after.sigma.map(f64::to_bits), r.sigma.map(f64::to_bits));
+    let twice = apply_bias_correction(&input, &mut after, &o);
+    assert!(matches!(twice, Err(Error::InvalidOption { field: "bias_correction", .. })), "{twice:?}");
     for i in (0..4).filter(|i| fit.free[*i]) {
         let want = mc[i][i].sqrt();
         assert!((r.sigma_bias_correction[i] - want).abs() <= 1e-12 * want, "parameter {i}");
