@@ -510,8 +510,7 @@ impl Estimator for EivMethodOptions {
         let uncorrected = EivOptions { bias_correction: BiasCorrection::None, ..filter.clone() };
         let mut fit = eiv::estimate(&filter_input, &start.theta, &uncorrected);
         if let Ok(r) = &mut fit {
-            let misspecified =
-                r.warnings.iter().any(|w| !matches!(w, EivWarning::Unobservable { .. }) && is_misspecification(w, r));
+            let misspecified = r.warnings.iter().any(|w| is_misspecification(w, r));
             if !(self.fallback && misspecified) {
                 if let Err(e) = eiv::apply_bias_correction(&filter_input, r, &filter) {
                     fit = Err(e);
@@ -693,9 +692,7 @@ impl EivDetail {
                 100.0 * b.level
             );
             // c_e, t_r in m; c_d in mm; d in mm/(m/s²), as the θ table.
-            for (i, (name, scale, prec)) in
-                [("c_e", 1.0, 6), ("c_d", 1e3, 4), ("t_r", 1.0, 6), ("d", 1e3, 4)].into_iter().enumerate()
-            {
+            for (i, &(name, scale, _, prec)) in THETA_UNITS.iter().enumerate() {
                 let [lo, hi] = b.interval_basic[i];
                 let _ = writeln!(
                     out,
@@ -711,12 +708,15 @@ impl EivDetail {
     }
 }
 
+/// How the method details print θ: per parameter its name, the factor from
+/// SI, the unit and the decimals (as the θ table).
+const THETA_UNITS: [(&str, f64, &str, usize); 4] =
+    [("c_e", 1.0, "m", 6), ("c_d", 1e3, "mm", 4), ("t_r", 1.0, "m", 6), ("d", 1e3, "mm/(m/s²)", 4)];
+
 /// `[c_e, c_d, t_r, d]` (SI) as "c_e … m, c_d … mm, t_r … m, d … mm/(m/s²)",
 /// with a sign when `signed`.
 fn theta_in_units(a: &[f64; 4], signed: bool) -> String {
-    const UNITS: [(&str, f64, &str, usize); 4] =
-        [("c_e", 1.0, "m", 6), ("c_d", 1e3, "mm", 4), ("t_r", 1.0, "m", 6), ("d", 1e3, "mm/(m/s²)", 4)];
-    let parts: Vec<String> = UNITS
+    let parts: Vec<String> = THETA_UNITS
         .iter()
         .zip(a)
         .map(|((name, scale, unit, digits), v)| {

@@ -232,9 +232,7 @@ pub fn bootstrap(
     let hat = theta_hat.to_array();
     // The mean over the replicates, or over the complete pairs' means (a
     // replicate whose partner failed would bring its odd error back).
-    let averaged: &[Theta] = if boot.antithetic { &pair_means } else { &replicates };
-    let n = averaged.len() as f64;
-    let mean: [f64; 4] = std::array::from_fn(|i| averaged.iter().map(|t| t.to_array()[i]).sum::<f64>() / n);
+    let mean = mean_of(if boot.antithetic { &pair_means } else { &replicates });
     let cov = sample_covariance(&replicates, &mean_of(&replicates));
     let sd: [f64; 4] = std::array::from_fn(|i| cov[i][i].sqrt());
     let bias: [f64; 4] = std::array::from_fn(|i| if report.free[i] { mean[i] - hat[i] } else { 0.0 });
@@ -280,19 +278,16 @@ impl BootstrapReport {
     /// plain bootstrap's error for two replicates (an upper bound in the
     /// usual case that the pair's errors are negatively correlated).
     pub fn mean_covariance(&self) -> [[f64; 4]; 4] {
-        let averaged = match self.pair_means.len() {
-            0 => &self.replicates,
-            1 => {
-                let n = 2.0;
-                return sample_covariance(&self.replicates, &mean_of(&self.replicates)).map(|row| row.map(|x| x / n));
-            }
-            _ => &self.pair_means,
+        // The set whose spread is measured, and the number its mean averages.
+        let (set, n) = match self.pair_means.len() {
+            0 => (&self.replicates, self.replicates.len()),
+            1 => (&self.replicates, 2),
+            k => (&self.pair_means, k),
         };
-        if averaged.len() < 2 {
+        if set.len() < 2 {
             return [[0.0; 4]; 4];
         }
-        let n = averaged.len() as f64;
-        sample_covariance(averaged, &self.mean.to_array()).map(|row| row.map(|x| x / n))
+        sample_covariance(set, &mean_of(set)).map(|row| row.map(|x| x / n as f64))
     }
 }
 
