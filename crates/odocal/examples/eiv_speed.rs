@@ -87,7 +87,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let fingerprint_path = args.get(4).filter(|p| p.as_str() != "-");
     let pick: Option<Vec<&str>> = args.get(5).map(|s| s.split(',').collect());
     let mut fingerprint = Vec::new();
-    println!("threads {}; minimum of {reps} wall time(s) per cell", rayon::current_num_threads());
+    println!(
+        "threads {}; filter kernels {}; minimum of {reps} wall time(s) per cell",
+        rayon::current_num_threads(),
+        odocal::eiv::kernel_instruction_set()
+    );
     println!("km | samples | method | wall s (min, all) | start s | filter s | passes [derivs, cost] | it | windows");
     for &km in &kms {
         let out = simulate(&SimOptions { length_km: km, ..SimOptions::paper(seed) })?;

@@ -424,7 +424,7 @@ fn propagate<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>) -> MZ<S> {
 /// Safe in place: the pose rows and columns of the result depend on P only
 /// through `W`, computed first, and every other lower-triangle entry
 /// `diag_c·diag_i·P[i, c]` only on the same entry of P.
-#[inline]
+#[inline(always)]
 fn propagate_in_place<const S: usize>(p: &mut MZ<S>, t: &Transition<'_, S>) {
     // W = P F_topᵀ: row r of W is F_top applied to row r of P. Computed
     // column by column (`W[:, c] = Σ_k F[c, k] P[:, k]`, the sum in the order
@@ -475,7 +475,7 @@ fn propagate_in_place<const S: usize>(p: &mut MZ<S>, t: &Transition<'_, S>) {
 }
 
 /// Copies the strict lower triangle onto the upper one.
-#[inline]
+#[inline(always)]
 fn mirror_lower<const S: usize>(m: &mut MZ<S>) {
     for c in 1..S {
         for r in 0..c {
@@ -485,7 +485,7 @@ fn mirror_lower<const S: usize>(m: &mut MZ<S>) {
 }
 
 /// `H A` for `H = [I₃ 0 I₃]`: rows 0..3 plus rows 6..9.
-#[inline]
+#[inline(always)]
 fn h_rows<const S: usize, const C: usize>(a: &SMatrix<f64, S, C>) -> SMatrix<f64, 3, C> {
     let mut out = SMatrix::<f64, 3, C>::zeros();
     for r in 0..3 {
@@ -497,7 +497,7 @@ fn h_rows<const S: usize, const C: usize>(a: &SMatrix<f64, S, C>) -> SMatrix<f64
 }
 
 /// `B Hᵀ` for a 3×9 `B`: columns 0..3 plus columns 6..9.
-#[inline]
+#[inline(always)]
 fn h_cols<const S: usize>(b: &M3xZ<S>) -> Matrix3<f64> {
     let mut out = Matrix3::zeros();
     for r in 0..3 {
@@ -589,7 +589,7 @@ fn joseph<const S: usize>(a: &MZ<S>, k: &MZx3<S>) -> MZ<S> {
 ///
 /// With `d`, `K D Kᵀ` is added as well ([`add_kdk`]) before the one mirror:
 /// the same to the bit as [`add_kdk`] after the mirrored Joseph form.
-#[inline]
+#[inline(always)]
 fn joseph_in_place<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, d: Option<&Matrix3<f64>>) {
     // HA (3×9): rows 0..3 plus rows 6..9.
     let ha = h_rows(a);
@@ -598,7 +598,7 @@ fn joseph_in_place<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, d: Option<&Matrix
 
 /// [`joseph_in_place`] given `ha = HA` (`h_rows(a)`), which the filter has
 /// already formed for the innovation covariance.
-#[inline]
+#[inline(always)]
 fn joseph_in_place_with<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, d: Option<&Matrix3<f64>>, ha: &M3xZ<S>) {
     debug_assert!(*ha == h_rows(a), "joseph_in_place_with: ha is not HA");
     // X = A − K HA: every row of columns 0..3 and 6..9 (for XHᵀ), and the
@@ -634,7 +634,7 @@ fn joseph_in_place_with<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, d: Option<&M
 
 /// `(I − K H) A (I − K H)ᵀ` for `H = [I₃ 0 I₃]` and any `A` (the
 /// cross-covariances X of the corrected score are not symmetric).
-#[inline]
+#[inline(always)]
 fn joseph_general<const S: usize>(a: &MZ<S>, k: &MZx3<S>) -> MZ<S> {
     let x = a - k * h_rows(a);
     let mut xh = MZx3::<S>::zeros();
@@ -647,7 +647,7 @@ fn joseph_general<const S: usize>(a: &MZ<S>, k: &MZx3<S>) -> MZ<S> {
 }
 
 /// `F A Fᵀ` as [`propagate`] for any `A` (not only symmetric ones).
-#[inline]
+#[inline(always)]
 fn propagate_general<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>) -> MZ<S> {
     // M = F P (row operations).
     let mut m = MZ::<S>::zeros();
@@ -675,7 +675,7 @@ fn propagate_general<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>) -> MZ<S> 
 }
 
 /// `F C` for an S×3 `C` and the structured transition of [`propagate`].
-#[inline]
+#[inline(always)]
 fn propagate_cols<const S: usize>(c: &MZx3<S>, t: &Transition<'_, S>) -> MZx3<S> {
     let mut out = MZx3::<S>::zeros();
     for j in 0..3 {
@@ -704,7 +704,7 @@ fn add_kdk<const S: usize>(dst: &mut MZ<S>, k: &MZx3<S>, d: &Matrix3<f64>) {
 }
 
 /// The lower triangle of `dst += K D Kᵀ` (down contiguous columns).
-#[inline]
+#[inline(always)]
 fn add_kdk_lower<const S: usize>(dst: &mut MZ<S>, k: &MZx3<S>, d: &Matrix3<f64>) {
     let kd = k * d;
     for c in 0..S {
@@ -938,7 +938,7 @@ impl Mode {
 }
 
 /// `A + Aᵀ` added to `dst` for a 3×9 `A` occupying rows 0..3.
-#[inline]
+#[inline(always)]
 fn add_sym_rows<const S: usize>(dst: &mut MZ<S>, a: &M3xZ<S>) {
     for r in 0..3 {
         for c in 0..S {
@@ -967,7 +967,7 @@ type PendingInput = (usize, f64, Vector3<f64>, f64, nalgebra::Vector4<f64>);
 
 /// Adds `−u·L` to the value, `−u·∇L` to the gradient and `u·∇L∇Lᵀ` to the
 /// Hessian of the input log-Jacobian term.
-#[inline]
+#[inline(always)]
 fn add_jacobian_term(out: &mut WindowSums, u: f64, l: f64, g: &nalgebra::Vector4<f64>) {
     out.jacobian -= u * l;
     out.grad_jacobian -= g * u;
@@ -996,6 +996,89 @@ pub(crate) fn run_window(
     mode: Mode,
     record: Option<&mut Vec<InnovationRecord>>,
 ) -> Result<WindowSums> {
+    #[cfg(target_arch = "x86_64")]
+    if kernels() == Kernels::Avx2 {
+        // SAFETY: `kernels()` returns `Avx2` only when the running CPU reports
+        // both AVX2 and FMA (`is_x86_feature_detected!`), the features
+        // `run_window_avx2` is compiled for.
+        #[allow(unsafe_code)]
+        return unsafe { run_window_avx2(input, window, theta, theta_ref, v, mode, record) };
+    }
+    run_window_baseline(input, window, theta, theta_ref, v, mode, record)
+}
+
+/// The instruction set the filter's kernels run with ([`kernels`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Kernels {
+    /// The build's target features (SSE2 on a default x86-64 build).
+    Baseline,
+    /// AVX2 and FMA, detected at run time (x86-64 only).
+    Avx2,
+}
+
+/// The kernels [`run_window`] uses: AVX2 where the CPU has AVX2 and FMA
+/// (x86-64), unless the environment variable `ODOCAL_SIMD=baseline` asks
+/// for the build's baseline instruction set. Decided once per process.
+///
+/// Both compile the same Rust code; Rust never contracts a multiply and an
+/// add into a fused one on its own, so the two give results identical to
+/// the bit (test `avx2_kernels_equal_the_baseline_to_the_bit`). AVX2's
+/// four-wide registers make the covariance kernels about 1.3× faster
+/// (docs/performance.md, stop 22).
+pub(crate) fn kernels() -> Kernels {
+    static CHOICE: std::sync::OnceLock<Kernels> = std::sync::OnceLock::new();
+    *CHOICE.get_or_init(|| {
+        let forced = std::env::var("ODOCAL_SIMD").is_ok_and(|s| s.eq_ignore_ascii_case("baseline"));
+        if !forced && avx2_available() {
+            Kernels::Avx2
+        } else {
+            Kernels::Baseline
+        }
+    })
+}
+
+/// Whether the running CPU has AVX2 and FMA.
+pub(crate) fn avx2_available() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// [`run_window_baseline`] compiled for AVX2 and FMA (the body is inlined,
+/// so every kernel it calls is compiled for them too).
+///
+/// # Safety
+/// The running CPU must support AVX2 and FMA ([`avx2_available`]).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+pub(crate) fn run_window_avx2(
+    input: &EivInput<'_>,
+    window: &Window,
+    theta: &Theta,
+    theta_ref: &Theta,
+    v: &Variances,
+    mode: Mode,
+    record: Option<&mut Vec<InnovationRecord>>,
+) -> Result<WindowSums> {
+    run_window_baseline(input, window, theta, theta_ref, v, mode, record)
+}
+
+/// [`run_window`] with the build's baseline target features.
+#[inline(always)]
+pub(crate) fn run_window_baseline(
+    input: &EivInput<'_>,
+    window: &Window,
+    theta: &Theta,
+    theta_ref: &Theta,
+    v: &Variances,
+    mode: Mode,
+    record: Option<&mut Vec<InnovationRecord>>,
+) -> Result<WindowSums> {
     // The remainder states exist only with counting quantisation: the other
     // models run the 9-state filter (the same arithmetic, no 11-row storage).
     if v.quant_counting {
@@ -1005,7 +1088,10 @@ pub(crate) fn run_window(
     }
 }
 
-/// [`run_window`] with the state size `S` (`NZ` or `IW`).
+/// [`run_window`] with the state size `S` (`NZ` or `IW`). Always inlined,
+/// so that [`run_window_avx2`] compiles it (and the kernels it inlines) for
+/// AVX2.
+#[inline(always)]
 fn run_window_s<const S: usize>(
     input: &EivInput<'_>,
     window: &Window,

@@ -2903,6 +2903,24 @@ fn scoring_pass(
     Ok(PassOutcome { theta, eta, eval: ev, report, free, unobservable, eta_sigma })
 }
 
+/// The instruction set the filter's kernels run with in this process:
+/// `"avx2"` where the CPU has AVX2 and FMA (x86-64, detected at run time),
+/// else `"baseline"` (the build's target features, SSE2 on a default x86-64
+/// build). The environment variable `ODOCAL_SIMD=baseline` forces the
+/// baseline; it is read once per process. Both give results
+/// identical to the bit; AVX2 is faster (docs/performance.md, stop 22).
+///
+/// ```
+/// let set = odocal::eiv::kernel_instruction_set();
+/// assert!(set == "avx2" || set == "baseline");
+/// ```
+pub fn kernel_instruction_set() -> &'static str {
+    match filter::kernels() {
+        filter::Kernels::Avx2 => "avx2",
+        filter::Kernels::Baseline => "baseline",
+    }
+}
+
 /// Estimates θ (and the noise scales η) by the EIV method of SPEC §10,
 /// starting from `theta_start` (batch Gauss-Newton on all segments).
 ///

@@ -1830,3 +1830,61 @@ fn eta_scores_at_the_truth() {
         }
     }
 }
+
+/// The AVX2 build of the filter (run-time dispatch, `filter::kernels`) and
+/// the baseline build give the same window sums and innovations, to the bit,
+/// in every pass mode, with and without counting quantisation and with the
+/// wheel noise scaled by the fitted input. On a CPU without AVX2 only the
+/// baseline runs (and the test says so).
+#[test]
+fn avx2_kernels_equal_the_baseline_to_the_bit() {
+    let out =
+        simulate(&SimOptions { length_km: 0.6, noise: NoiseOptions::high(), ..SimOptions::paper(11) }).expect("sim");
+    let input = input_of(&out.drive);
+    let w = Window { index: 0, part: 0, start: 0, end: 1500.min(input.len() - 1) };
+    let th = Theta { c_e: 1.953, c_d: -0.0015, t_r: 1.52, d: 0.0009 };
+    let th_ref = Theta { c_e: 1.96, c_d: -0.001, d: 0.0012, ..th };
+    let eta = [0.3, -0.5, 0.2, -0.2, 0.4, 0.25];
+    if !filter::avx2_available() {
+        eprintln!("this CPU has no AVX2 + FMA: only the baseline kernels can run here");
+        return;
+    }
+    let mut compared = 0;
+    for (fitted, counting) in [(false, false), (false, true), (true, true)] {
+        let mut v = variances_quant(&eta, input.sample_time_s, Held::NONE);
+        v.fitted_input = fitted;
+        v.quant_counting = counting;
+        for follows in [false, true] {
+            for mode in [
+                filter::Mode::full(follows, true),
+                filter::Mode::full(follows, false),
+                filter::Mode::eta_only(follows),
+                filter::Mode::cost(follows),
+            ] {
+                let (mut rb, mut ra) = (Vec::new(), Vec::new());
+                let base =
+                    filter::run_window_baseline(&input, &w, &th, &th_ref, &v, mode, Some(&mut rb)).expect("window");
+                #[cfg(target_arch = "x86_64")]
+                // SAFETY: `avx2_available()` was checked above.
+                #[allow(unsafe_code)]
+                let avx2 = unsafe { filter::run_window_avx2(&input, &w, &th, &th_ref, &v, mode, Some(&mut ra)) }
+                    .expect("window");
+                #[cfg(not(target_arch = "x86_64"))]
+                let avx2 = base.clone();
+                assert!(base.quad > 0.0 && base.quad.is_finite(), "{mode:?}: a real objective ({})", base.quad);
+                assert_eq!(
+                    format!("{base:?}"),
+                    format!("{avx2:?}"),
+                    "window sums, {mode:?}, fitted {fitted}, counting {counting}"
+                );
+                assert_eq!(
+                    format!("{rb:?}"),
+                    format!("{ra:?}"),
+                    "innovations, {mode:?}, fitted {fitted}, counting {counting}"
+                );
+                compared += 1;
+            }
+        }
+    }
+    assert_eq!(compared, 24);
+}
