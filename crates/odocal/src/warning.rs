@@ -145,6 +145,25 @@ pub enum Warning {
         /// all given).
         estimated: ParamSet,
     },
+    /// EIV: the bias correction's bootstrap fitted only some of its
+    /// replicates. The subtracted bias is the mean over the complete
+    /// antithetic pairs that were fitted; its Monte Carlo error, larger with
+    /// fewer pairs, is in θ's σ.
+    EivBiasCorrectionIncomplete {
+        /// Replicates that could not be fitted.
+        failed: usize,
+        /// Replicates asked for.
+        replicates: usize,
+        /// The first replicate's error.
+        first_error: String,
+    },
+    /// EIV: the bias correction could not be computed (too few of its
+    /// replicates could be fitted). The result is the uncorrected EIV
+    /// estimate (the profile cost's root), which the checks accepted.
+    EivBiasCorrectionFailed {
+        /// Why.
+        error: String,
+    },
 }
 
 impl Warning {
@@ -164,6 +183,8 @@ impl Warning {
             Warning::EivCheckNote { .. } => "eiv_check_note",
             Warning::EivFallback { .. } => "eiv_fallback",
             Warning::EivExtrinsicsHeld { .. } => "eiv_extrinsics_held",
+            Warning::EivBiasCorrectionIncomplete { .. } => "eiv_bias_correction_incomplete",
+            Warning::EivBiasCorrectionFailed { .. } => "eiv_bias_correction_failed",
         }
     }
 
@@ -254,6 +275,17 @@ impl std::fmt::Display for Warning {
                      the batch Gauss-Newton start's)"
                 )
             }
+            Warning::EivBiasCorrectionIncomplete { failed, replicates, first_error } => write!(
+                f,
+                "EIV bias correction from {} of {replicates} replicates ({failed} could not be fitted, the first: \
+                 {first_error}); its Monte Carlo error is in θ's σ",
+                replicates.saturating_sub(*failed)
+            ),
+            Warning::EivBiasCorrectionFailed { error } => write!(
+                f,
+                "EIV bias correction NOT applied ({error}): the result is the uncorrected EIV estimate; another \
+                 bootstrap seed or more replicates may succeed"
+            ),
         }
     }
 }

@@ -76,7 +76,11 @@
 //! every noisy preset (high t_r +0.46 %, t 1.9), the 95 % intervals cover
 //! the truth in ≥ 93.8 % of cases, t_r's RMS error falls (high 5.38 →
 //! 4.01× the Cramér–Rao bound, paper 1.69 → 1.62×), at 1.3–1.5× the time
-//! of the uncorrected fit.
+//! of the uncorrected fit. Replicates that cannot be fitted are counted in
+//! [`Warning::EivBiasCorrectionIncomplete`] (the bias then comes from the
+//! complete pairs); if no complete pair is left, the uncorrected fit is
+//! returned with [`Warning::EivBiasCorrectionFailed`] (since stop 22; it
+//! used to fall back to batch G-N).
 //!
 //! ## Uncertainty and observability
 //! The covariance is the filter's at the estimate: per parameter the larger
@@ -509,11 +513,17 @@ impl Estimator for EivMethodOptions {
         let filter_input = EivInput::from_drive(filter_drive);
         let uncorrected = EivOptions { bias_correction: BiasCorrection::None, ..filter.clone() };
         let mut fit = eiv::estimate(&filter_input, &start.theta, &uncorrected);
+        // A correction that cannot be computed leaves the fit the checks
+        // accepted uncorrected, with a warning (not a fallback: the
+        // uncorrected root is the estimate the checks judged).
+        let mut correction_failed = None;
         if let Ok(r) = &mut fit {
             let misspecified = r.warnings.iter().any(|w| is_misspecification(w, r));
             if !(self.fallback && misspecified) {
-                if let Err(e) = eiv::apply_bias_correction(&filter_input, r, &filter) {
-                    fit = Err(e);
+                match eiv::apply_bias_correction(&filter_input, r, &filter) {
+                    Ok(()) => {}
+                    Err(e @ Error::InvalidOption { .. }) => fit = Err(e),
+                    Err(e) => correction_failed = Some(e.to_string()),
                 }
             }
         }
@@ -575,6 +585,19 @@ impl Estimator for EivMethodOptions {
         if let Some(extrinsics) = held_extrinsics {
             let estimated = identify.free.intersection(ParamSet::EXTRINSICS);
             warnings.push(Warning::EivExtrinsicsHeld { extrinsics, estimated });
+        }
+        if let Some(error) = correction_failed {
+            warnings.push(Warning::EivBiasCorrectionFailed { error });
+        } else if let Some((_, first_error)) = r.bias_replicates_failed.first() {
+            let replicates = match filter.bias_correction {
+                BiasCorrection::Bootstrap { replicates, .. } => replicates,
+                _ => r.bias_replicates_failed.len(),
+            };
+            warnings.push(Warning::EivBiasCorrectionIncomplete {
+                failed: r.bias_replicates_failed.len(),
+                replicates,
+                first_error: first_error.clone(),
+            });
         }
         let bootstrap = match &self.bootstrap {
             Some(b) => {

@@ -500,3 +500,57 @@ fn a_step_that_shrinks_the_score_is_taken_when_the_profile_cost_cannot_fall() {
     let off = (r.theta.t_r - truth.t_r).abs();
     assert!(off <= 3.0 * eiv.sigma[2], "t_r off by {off:.4} m, 3σ = {:.4} m", 3.0 * eiv.sigma[2]);
 }
+
+/// The default bias correction when its replicates fail (test-only fault
+/// injection by seed, `eiv::FAIL_*_SEED`): with one replicate failed the
+/// bias comes from the one complete antithetic pair and a warning counts
+/// the failure; with every replicate failed the result is the uncorrected
+/// EIV fit, identical to `correct_bias: None`, with a warning, and not a
+/// fallback to batch G-N.
+#[test]
+fn a_failed_bias_correction_keeps_the_uncorrected_fit_and_says_so() {
+    let out = simulate(&SimOptions { length_km: 4.0, ..SimOptions::paper(21) }).expect("sim");
+    let run = |correct_bias: Option<CorrectBias>| {
+        let filter = EivOptions { window_samples: 1500, ..Default::default() };
+        let method = Method::Eiv(EivMethodOptions { filter, fallback: true, correct_bias, ..Default::default() });
+        calibrate(&out.drive, &CalibrationOptions { method, ..Default::default() }, None).expect("calibrate")
+    };
+    let plain = run(None);
+    assert_eq!(detail(&plain).eiv_result, EivOutcome::Eiv, "{:?}", plain.warnings);
+    let kinds = |r: &crate::CalibrationReport| r.warnings.iter().map(|w| w.kind()).collect::<Vec<_>>();
+
+    let failed = run(Some(CorrectBias { replicates: 4, seed: crate::eiv::FAIL_EVERY_REPLICATE_SEED }));
+    assert_eq!(detail(&failed).eiv_result, EivOutcome::Eiv, "{:?}", failed.warnings);
+    assert_eq!(failed.theta, plain.theta, "the uncorrected fit, to the bit");
+    assert_eq!(failed.covariance, plain.covariance);
+    let e = detail(&failed).eiv.as_ref().expect("the EIV report");
+    assert_eq!(e.bias_subtracted, [0.0; 4]);
+    let w = failed.warnings.iter().find(|w| w.kind() == "eiv_bias_correction_failed").expect("a warning");
+    let text = w.to_string();
+    assert!(text.contains("NOT applied") && text.contains("only 0 of 4 replicates"), "{text}");
+    assert!(!kinds(&failed).contains(&"eiv_fallback"), "{:?}", kinds(&failed));
+    assert!(!kinds(&plain).iter().any(|k| k.starts_with("eiv_bias_correction")), "{:?}", kinds(&plain));
+
+    let partial = run(Some(CorrectBias { replicates: 4, seed: crate::eiv::FAIL_ONE_REPLICATE_SEED }));
+    assert_eq!(detail(&partial).eiv_result, EivOutcome::Eiv, "{:?}", partial.warnings);
+    let e = detail(&partial).eiv.as_ref().expect("the EIV report");
+    assert_eq!(e.theta_uncorrected, plain.theta);
+    assert_eq!(e.bias_replicates_failed.iter().map(|(b, _)| *b).collect::<Vec<_>>(), vec![1]);
+    assert!(
+        e.bias_subtracted.iter().zip(e.free).all(|(b, f)| !f || (*b != 0.0 && b.is_finite())),
+        "{:?}",
+        e.bias_subtracted
+    );
+    assert!(e.sigma_bias_correction.iter().zip(e.free).all(|(s, f)| !f || (*s > 0.0 && s.is_finite())));
+    let w = partial.warnings.iter().find(|w| w.kind() == "eiv_bias_correction_incomplete").expect("a warning");
+    assert_eq!(
+        w,
+        &Warning::EivBiasCorrectionIncomplete {
+            failed: 1,
+            replicates: 4,
+            first_error: "numerical failure: replicate 1: failure injected by a test".into()
+        }
+    );
+    assert!(w.to_string().starts_with("EIV bias correction from 3 of 4 replicates"), "{w}");
+    assert!(!kinds(&partial).contains(&"eiv_bias_correction_failed"));
+}

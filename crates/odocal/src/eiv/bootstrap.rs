@@ -130,6 +130,21 @@ pub struct BootstrapReport {
     pub pair_means: Vec<Theta>,
 }
 
+/// Test-only fault injection (the replicates' fits do not fail on any drive
+/// found so far, yet the paths that handle a failure must be tested): with
+/// this seed, replicate 1 fails (the first antithetic pair is incomplete).
+#[cfg(test)]
+pub(crate) const FAIL_ONE_REPLICATE_SEED: u64 = 0xFA11_0001;
+/// Test-only fault injection: with this seed every replicate fails.
+#[cfg(test)]
+pub(crate) const FAIL_EVERY_REPLICATE_SEED: u64 = 0xFA11_0002;
+
+#[cfg(test)]
+fn injected_failure(seed: u64, b: usize) -> Option<Error> {
+    (seed == FAIL_EVERY_REPLICATE_SEED || (seed == FAIL_ONE_REPLICATE_SEED && b == 1))
+        .then(|| Error::Numerical(format!("replicate {b}: failure injected by a test")))
+}
+
 /// Parametric bootstrap of an EIV estimate (see the module docs of
 /// `eiv::bootstrap`): `boot.replicates` re-simulations of the fitted noise
 /// model (`report.noise`) at the fitted θ on the drive's own inputs, each
@@ -193,6 +208,10 @@ pub fn bootstrap(
             } else {
                 (b as u64, 1.0)
             };
+            #[cfg(test)]
+            if let Some(e) = injected_failure(boot.seed, b) {
+                return Err(e);
+            }
             let data = replicate(input, smoothed.as_ref(), &theta_hat, &report.noise, boot.seed, stream, sign);
             let rin = data.input(input);
             estimate(&rin, &theta_hat, &refit).map(|r| r.theta)

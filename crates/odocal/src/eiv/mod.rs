@@ -202,6 +202,8 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::model::Theta;
 pub use bootstrap::{bootstrap, BootstrapInputs, BootstrapOptions, BootstrapReport};
+#[cfg(test)]
+pub(crate) use bootstrap::{FAIL_EVERY_REPLICATE_SEED, FAIL_ONE_REPLICATE_SEED};
 use filter::{run_window, Mode, Variances, WindowSums, NETA};
 pub use lattice::{quantisation_step_of_readings, LATTICE_TOLERANCE_STEPS, MAX_LATTICE_INDEX, MIN_LATTICE_LEVELS};
 pub use tau::{TimeConstantCandidate, TimeConstantFit, TimeConstantGrid, TIME_CONSTANT_RANGE_S};
@@ -2009,6 +2011,12 @@ pub struct EivReport {
     /// without a correction).
     #[serde(default)]
     pub sigma_bias_correction: [f64; 4],
+    /// The bias correction's replicates that could not be fitted: (index,
+    /// error). The bias is then the mean over the complete antithetic pairs
+    /// (or the replicates) that were fitted; empty without a correction or
+    /// when every replicate was fitted.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub bias_replicates_failed: Vec<(usize, String)>,
     /// Measurement updates used.
     pub updates: usize,
     /// Wall time, s.
@@ -3141,6 +3149,7 @@ pub(crate) fn estimate_from(
         theta_uncorrected,
         bias_subtracted: [0.0; 4],
         sigma_bias_correction: [0.0; 4],
+        bias_replicates_failed: Vec::new(),
         free,
         covariance: to_array(&cov_reported),
         sigma,
@@ -3275,6 +3284,7 @@ pub fn apply_bias_correction(input: &EivInput<'_>, report: &mut EivReport, opts:
     }
     report.covariance = cov;
     report.sigma_bias_correction = free_sigma(&corrected, |i| mc[i][i]);
+    report.bias_replicates_failed = boot.failed;
     report.sigma = free_sigma(&report.free, |i| cov[i][i]);
     report.timing_s += t0.elapsed().as_secs_f64();
     Ok(())
