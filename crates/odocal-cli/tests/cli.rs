@@ -6,7 +6,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
-use common::{odocal, stderr, stdout};
+use common::{odocal, simulated_drive, stderr, stdout};
 
 /// Asserts a failed run with exit code 1 and one error line containing all `needles`.
 fn assert_error(o: &Output, needles: &[&str]) {
@@ -263,12 +263,8 @@ fn calibrate_report_says_what_c_e_means_for_ticks() {
 #[test]
 fn validate_on_another_drive() {
     let d = tempfile::tempdir().expect("tmp");
-    let (a, b) = (d.path().join("a.csv"), d.path().join("b.csv"));
-    for (p, seed) in [(&a, "4"), (&b, "5")] {
-        let o = odocal(&["simulate", "--seed", seed, "--length-km", "3", "--out", p.to_str().expect("utf8")]);
-        assert!(o.status.success(), "{}", stderr(&o));
-    }
-    let (astr, bstr) = (a.to_str().expect("utf8"), b.to_str().expect("utf8"));
+    let astr: &str = &simulated_drive(d.path(), "a.csv", &["--seed", "4", "--length-km", "3"]);
+    let bstr: &str = &simulated_drive(d.path(), "b.csv", &["--seed", "5", "--length-km", "3"]);
     let o = odocal(&["calibrate", astr, "--method", "batch-gn", "--validate-on", bstr, "--json", "-"]);
     assert!(o.status.success(), "{}", stderr(&o));
     let r: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
@@ -319,13 +315,11 @@ fn three_step_flags_are_rejected_with_batch_gn() {
 #[test]
 fn rejected_calibration_exits_3_and_still_writes_the_report() {
     let d = tempfile::tempdir().expect("tmp");
-    let (a, b) = (d.path().join("a.csv"), d.path().join("b.csv"));
-    let (astr, bstr) = (a.to_str().expect("utf8"), b.to_str().expect("utf8"));
-    assert!(odocal(&["simulate", "--seed", "4", "--length-km", "3", "--out", astr]).status.success());
+    let astr: &str = &simulated_drive(d.path(), "a.csv", &["--seed", "4", "--length-km", "3"]);
     // Another vehicle, [2.1, 1 mm, 1.66, 0]: θ_0 is closer in every parameter
     // than the calibrated ≈ [1.95, −2 mm, 1.53, 0.8 mm], so it wins on this drive.
-    let o = odocal(&["simulate", "--seed", "5", "--length-km", "3", "--theta", "2.1,0.001,1.66,0", "--out", bstr]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let bstr: &str =
+        &simulated_drive(d.path(), "b.csv", &["--seed", "5", "--length-km", "3", "--theta", "2.1,0.001,1.66,0"]);
     let report = d.path().join("r.json");
     let args = ["calibrate", astr, "--method", "batch-gn", "--validate-on", bstr];
     let o = odocal(&[&args[..], &["--json", report.to_str().expect("utf8")]].concat());
@@ -409,12 +403,11 @@ fn shipped_van_log_is_improved_or_rejected_on_both_half_splits() {
 #[test]
 fn several_drives_jointly_and_validation_on_several() {
     let d = tempfile::tempdir().expect("tmp");
-    let paths: Vec<PathBuf> = ["a.csv", "b.csv", "c.csv"].iter().map(|n| d.path().join(n)).collect();
-    for (p, seed) in paths.iter().zip(["4", "5", "6"]) {
-        let o = odocal(&["simulate", "--seed", seed, "--length-km", "2", "--out", p.to_str().expect("utf8")]);
-        assert!(o.status.success(), "{}", stderr(&o));
-    }
-    let s: Vec<&str> = paths.iter().map(|p| p.to_str().expect("utf8")).collect();
+    let paths: Vec<String> = [("a.csv", "4"), ("b.csv", "5"), ("c.csv", "6")]
+        .iter()
+        .map(|(n, seed)| simulated_drive(d.path(), n, &["--seed", seed, "--length-km", "2"]))
+        .collect();
+    let s: Vec<&str> = paths.iter().map(String::as_str).collect();
     // Validate on two drives, as a comma list and as a repeated flag: the same report.
     let list = format!("{},{}", s[1], s[2]);
     let o = odocal(&["calibrate", s[0], "--method", "batch-gn", "--validate-on", &list, "--json", "-"]);

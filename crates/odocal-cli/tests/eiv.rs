@@ -3,15 +3,12 @@
 
 mod common;
 
-use common::{odocal, text};
+use common::{odocal, simulated_drive, text};
 
 #[test]
 fn eiv_on_a_small_simulated_drive() {
     let d = tempfile::tempdir().expect("tmp");
-    let drive = d.path().join("drive.csv");
-    let dstr = drive.to_str().expect("utf8");
-    let o = odocal(&["simulate", "--seed", "4", "--length-km", "3", "--noise", "white", "--out", dstr]);
-    assert!(o.status.success(), "{}", text(&o.stderr));
+    let dstr: &str = &simulated_drive(d.path(), "drive.csv", &["--seed", "4", "--length-km", "3", "--noise", "white"]);
 
     let o = odocal(&["calibrate", dstr, "--method", "eiv", "--eiv-window", "1500", "--json", "-"]);
     assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", text(&o.stderr));
@@ -65,10 +62,7 @@ fn eiv_on_a_small_simulated_drive() {
 #[test]
 fn known_noise_sources_are_held_at_the_stated_level() {
     let d = tempfile::tempdir().expect("tmp");
-    let drive = d.path().join("drive.csv");
-    let dstr = drive.to_str().expect("utf8");
-    let o = odocal(&["simulate", "--seed", "4", "--length-km", "2", "--noise", "paper", "--out", dstr]);
-    assert!(o.status.success(), "{}", text(&o.stderr));
+    let dstr: &str = &simulated_drive(d.path(), "drive.csv", &["--seed", "4", "--length-km", "2", "--noise", "paper"]);
     let model = d.path().join("noise.toml");
     std::fs::write(&model, "heading_white_sigma_rad = 0.0002\nknown = [\"heading_white\"]\n").expect("write");
     let mstr = model.to_str().expect("utf8");
@@ -125,10 +119,7 @@ fn known_noise_sources_are_held_at_the_stated_level() {
 #[test]
 fn eiv_noise_model_shape_flags_reach_the_options() {
     let d = tempfile::tempdir().expect("tmp");
-    let drive = d.path().join("drive.csv");
-    let dstr = drive.to_str().expect("utf8");
-    let o = odocal(&["simulate", "--seed", "4", "--length-km", "1", "--noise", "white", "--out", dstr]);
-    assert!(o.status.success(), "{}", text(&o.stderr));
+    let dstr: &str = &simulated_drive(d.path(), "drive.csv", &["--seed", "4", "--length-km", "1", "--noise", "white"]);
     for (q, h, l, a, q_json, h_json, l_json, a_json) in [
         ("counting", "separate", "given", "stated", "counting", "separate", "given", "stated"),
         (
@@ -169,10 +160,7 @@ fn eiv_noise_model_shape_flags_reach_the_options() {
     assert_ne!(start["wheel_white_rel_sigma"], end["wheel_white_rel_sigma"]);
     // From the readings: the simulator's paper encoder (2048 ticks at
     // 40 Hz) is found through the CSV; the white preset has no encoder.
-    let paper = d.path().join("paper.csv");
-    let pstr = paper.to_str().expect("utf8");
-    let o = odocal(&["simulate", "--seed", "4", "--length-km", "1", "--noise", "paper", "--out", pstr]);
-    assert!(o.status.success(), "{}", text(&o.stderr));
+    let pstr: &str = &simulated_drive(d.path(), "paper.csv", &["--seed", "4", "--length-km", "1", "--noise", "paper"]);
     for (file, expected) in [(pstr, Some(1.0 / (2048.0 * 0.025))), (dstr, None)] {
         let args = ["calibrate", file, "--method", "eiv", "--eiv-window", "1500", "--fix-noise"];
         let o = odocal(&[&args[..], &["--quantisation-level", "from-readings", "--json", "-"]].concat());
@@ -194,10 +182,7 @@ fn eiv_noise_model_shape_flags_reach_the_options() {
 #[test]
 fn correct_bias_corrects_every_parameter_with_held_noise() {
     let d = tempfile::tempdir().expect("tmp");
-    let drive = d.path().join("drive.csv");
-    let dstr = drive.to_str().expect("utf8");
-    let o = odocal(&["simulate", "--seed", "6", "--length-km", "2", "--noise", "paper", "--out", dstr]);
-    assert!(o.status.success(), "{}", text(&o.stderr));
+    let dstr: &str = &simulated_drive(d.path(), "drive.csv", &["--seed", "6", "--length-km", "2", "--noise", "paper"]);
     let base = ["calibrate", dstr, "--method", "eiv", "--no-fallback", "--json", "-"];
     let run = |extra: &[&str]| {
         let o = odocal(&[&base[..], extra].concat());

@@ -28,6 +28,18 @@ pub fn stdout(o: &Output) -> String {
     text(&o.stdout)
 }
 
+/// `odocal simulate ARGS… --out DIR/NAME`, asserting that it ran: the
+/// simulated drive's CSV path as text (its sidecar JSON is beside it).
+pub fn simulated_drive(dir: &Path, name: &str, args: &[&str]) -> String {
+    let out = dir.join(name).to_str().expect("utf8").to_owned();
+    let mut all = vec!["simulate"];
+    all.extend_from_slice(args);
+    all.extend(["--out", &out]);
+    let o = odocal(&all);
+    assert!(o.status.success(), "{}", stderr(&o));
+    out
+}
+
 /// A manifest importing the canonical CSV `file` (relative to the
 /// manifest) for every stream — wheels in rev/s, local pose with ENU
 /// heading, a_y as an IMU signal — with `extra` (more TOML tables)

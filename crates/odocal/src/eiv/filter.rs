@@ -1049,8 +1049,9 @@ pub(crate) fn avx2_available() -> bool {
     }
 }
 
-/// [`run_window_baseline`] compiled for AVX2 and FMA (the body is inlined,
-/// so every kernel it calls is compiled for them too).
+/// [`run_window_baseline`] compiled for AVX2 and FMA: the window loop and
+/// every kernel it calls are inlined ([`Inlined`]), so all of it is
+/// compiled for them.
 ///
 /// # Safety
 /// The running CPU must support AVX2 and FMA ([`avx2_available`]).
@@ -1065,12 +1066,47 @@ pub(crate) fn run_window_avx2(
     mode: Mode,
     record: Option<&mut Vec<InnovationRecord>>,
 ) -> Result<WindowSums> {
-    run_window_baseline(input, window, theta, theta_ref, v, mode, record)
+    // One function per state size: two smaller functions for the compiler
+    // (they can be optimised in parallel) than one with both inlined.
+    if v.quant_counting {
+        run_window_avx2_s::<NZ>(input, window, theta, theta_ref, v, mode, record)
+    } else {
+        run_window_avx2_s::<IW>(input, window, theta, theta_ref, v, mode, record)
+    }
+}
+
+/// [`run_window_avx2`] at the state size `S`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[inline(never)]
+fn run_window_avx2_s<const S: usize>(
+    input: &EivInput<'_>,
+    window: &Window,
+    theta: &Theta,
+    theta_ref: &Theta,
+    v: &Variances,
+    mode: Mode,
+    record: Option<&mut Vec<InnovationRecord>>,
+) -> Result<WindowSums> {
+    run_window_s::<S, Inlined>(input, window, theta, theta_ref, v, mode, record)
 }
 
 /// [`run_window`] with the build's baseline target features.
-#[inline(always)]
 pub(crate) fn run_window_baseline(
+    input: &EivInput<'_>,
+    window: &Window,
+    theta: &Theta,
+    theta_ref: &Theta,
+    v: &Variances,
+    mode: Mode,
+    record: Option<&mut Vec<InnovationRecord>>,
+) -> Result<WindowSums> {
+    run_window_sized::<OutOfLine>(input, window, theta, theta_ref, v, mode, record)
+}
+
+/// [`run_window_s`] at the state size of `v`, the big kernels called as `K` says.
+#[inline(always)]
+fn run_window_sized<K: KernelCalls>(
     input: &EivInput<'_>,
     window: &Window,
     theta: &Theta,
@@ -1082,9 +1118,59 @@ pub(crate) fn run_window_baseline(
     // The remainder states exist only with counting quantisation: the other
     // models run the 9-state filter (the same arithmetic, no 11-row storage).
     if v.quant_counting {
-        run_window_s::<NZ>(input, window, theta, theta_ref, v, mode, record)
+        run_window_s::<NZ, K>(input, window, theta, theta_ref, v, mode, record)
     } else {
-        run_window_s::<IW>(input, window, theta, theta_ref, v, mode, record)
+        run_window_s::<IW, K>(input, window, theta, theta_ref, v, mode, record)
+    }
+}
+
+/// How the window loop calls its three big covariance kernels (the
+/// propagation and the two Joseph updates).
+///
+/// The AVX2 copy inlines them ([`Inlined`]), so that they are compiled for
+/// AVX2 with it. The baseline copy calls one out-of-line instance of each
+/// ([`OutOfLine`]), as before the AVX2 copy existed: inlined at their eight
+/// call sites they made the baseline 5–10 % slower and every build of the
+/// crate slower to compile.
+trait KernelCalls {
+    fn propagate_in_place<const S: usize>(p: &mut MZ<S>, t: &Transition<'_, S>);
+    fn joseph_in_place<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, d: Option<&Matrix3<f64>>);
+    fn joseph_in_place_with<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, d: Option<&Matrix3<f64>>, ha: &M3xZ<S>);
+}
+
+/// [`KernelCalls`] inlining the kernels (the AVX2 copy).
+struct Inlined;
+
+/// [`KernelCalls`] calling out-of-line kernels (the baseline copy).
+struct OutOfLine;
+
+impl KernelCalls for Inlined {
+    #[inline(always)]
+    fn propagate_in_place<const S: usize>(p: &mut MZ<S>, t: &Transition<'_, S>) {
+        propagate_in_place(p, t);
+    }
+    #[inline(always)]
+    fn joseph_in_place<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, d: Option<&Matrix3<f64>>) {
+        joseph_in_place(a, k, d);
+    }
+    #[inline(always)]
+    fn joseph_in_place_with<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, d: Option<&Matrix3<f64>>, ha: &M3xZ<S>) {
+        joseph_in_place_with(a, k, d, ha);
+    }
+}
+
+impl KernelCalls for OutOfLine {
+    #[inline(never)]
+    fn propagate_in_place<const S: usize>(p: &mut MZ<S>, t: &Transition<'_, S>) {
+        propagate_in_place(p, t);
+    }
+    #[inline(never)]
+    fn joseph_in_place<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, d: Option<&Matrix3<f64>>) {
+        joseph_in_place(a, k, d);
+    }
+    #[inline(never)]
+    fn joseph_in_place_with<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, d: Option<&Matrix3<f64>>, ha: &M3xZ<S>) {
+        joseph_in_place_with(a, k, d, ha);
     }
 }
 
@@ -1092,7 +1178,7 @@ pub(crate) fn run_window_baseline(
 /// so that [`run_window_avx2`] compiles it (and the kernels it inlines) for
 /// AVX2.
 #[inline(always)]
-fn run_window_s<const S: usize>(
+fn run_window_s<const S: usize, K: KernelCalls>(
     input: &EivInput<'_>,
     window: &Window,
     theta: &Theta,
@@ -1390,7 +1476,7 @@ fn run_window_s<const S: usize>(
             if smoothed {
                 for (w, f_w) in [fn_l, fn_r].into_iter().enumerate() {
                     let dpl = &mut dp_lambda[w];
-                    propagate_in_place(dpl, &ft);
+                    K::propagate_in_place(dpl, &ft);
                     let q = f_w * f_w.transpose() * rel[w];
                     for r_ in 0..3 {
                         for c_ in 0..3 {
@@ -1403,7 +1489,7 @@ fn run_window_s<const S: usize>(
                 }
                 if all_sources {
                     let dpc = &mut dp_lambda[2];
-                    propagate_in_place(dpc, &ft);
+                    K::propagate_in_place(dpc, &ft);
                     dpc[(3, 3)] += q_s[0];
                 }
             }
@@ -1639,11 +1725,11 @@ fn run_window_s<const S: usize>(
                 }
             }
         };
-        propagate_in_place(&mut p, &ft);
+        K::propagate_in_place(&mut p, &ft);
         add_q(&mut p);
         add_q_w(&mut p);
         if null {
-            propagate_in_place(&mut p0, &ft);
+            K::propagate_in_place(&mut p0, &ft);
             add_q(&mut p0);
             add_q_w(&mut p0);
             if let Some((c, _)) = &mut c0 {
@@ -1652,7 +1738,7 @@ fn run_window_s<const S: usize>(
         }
         for &jj in cols {
             let dpj = &mut dp[jj];
-            propagate_in_place(dpj, &ft);
+            K::propagate_in_place(dpj, &ft);
             match jj {
                 0..=3 => add_sym_rows(dpj, &theta_terms[jj]),
                 4 => {
@@ -1733,7 +1819,7 @@ fn run_window_s<const S: usize>(
             for (w, dpl) in dp_lambda.iter_mut().take(n_l).enumerate() {
                 let ds_l = h_cols(&h_rows(dpl));
                 w_smoothed[w] += (sinv * ds_l).trace();
-                joseph_in_place(dpl, &k_l, None);
+                K::joseph_in_place(dpl, &k_l, None);
             }
         }
         let quad = nu.dot(&sinv_nu);
@@ -1777,7 +1863,7 @@ fn run_window_s<const S: usize>(
             }
             // C₀ = E[ε⁺ νᵀ] = P₀Hᵀ − K S₀; P₀⁺ = (I−KH)P₀(I−KH)ᵀ + K R₀ Kᵀ.
             c0 = Some((hp0.transpose() - k * s0, l));
-            joseph_in_place(&mut p0, &k, Some(&r0));
+            K::joseph_in_place(&mut p0, &k, Some(&r0));
         }
 
         if mode.derivs {
@@ -1884,7 +1970,7 @@ fn run_window_s<const S: usize>(
             // ∂P − KH∂P − (KH∂P)ᵀ + K ∂S Kᵀ is numerically unstable here.
             for &jj in cols {
                 let dr = d_r(jj);
-                joseph_in_place_with(&mut dp[jj], &k, (dr != Matrix3::zeros()).then_some(&dr), &hdps[jj]);
+                K::joseph_in_place_with(&mut dp[jj], &k, (dr != Matrix3::zeros()).then_some(&dr), &hdps[jj]);
             }
         }
 
@@ -1900,7 +1986,7 @@ fn run_window_s<const S: usize>(
             wq[0] += dz[IW];
             wq[1] += dz[IW + 1];
         }
-        joseph_in_place_with(&mut p, &k, Some(&r_k), &hp);
+        K::joseph_in_place_with(&mut p, &k, Some(&r_k), &hp);
     }
     if block_open {
         out.blocks.push(&block_sum, block_prev.as_ref());
