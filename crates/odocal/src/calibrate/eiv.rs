@@ -588,11 +588,9 @@ impl Estimator for EivMethodOptions {
         }
         if let Some(error) = correction_failed {
             warnings.push(Warning::EivBiasCorrectionFailed { error });
-        } else if let Some((_, first_error)) = r.bias_replicates_failed.first() {
-            let replicates = match filter.bias_correction {
-                BiasCorrection::Bootstrap { replicates, .. } => replicates,
-                _ => r.bias_replicates_failed.len(),
-            };
+        } else if let (Some((_, first_error)), BiasCorrection::Bootstrap { replicates, .. }) =
+            (r.bias_replicates_failed.first(), filter.bias_correction)
+        {
             warnings.push(Warning::EivBiasCorrectionIncomplete {
                 failed: r.bias_replicates_failed.len(),
                 replicates,
