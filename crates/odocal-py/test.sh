@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Builds the Python package (maturin, release) into a virtualenv it creates
+# Builds the Python package (maturin, dev profile) into a virtualenv it creates
 # and runs its pytest suite, including the Ray fleet example on a local Ray.
 # Run from anywhere: crates/odocal-py/test.sh   (extra arguments go to pytest)
 #
@@ -22,8 +22,15 @@ pip=("$venv/bin/python" -m pip install --quiet --disable-pip-version-check)
 # test command this is a no-op, where a release build of the CLI took 3 min
 # of CI. Floating point is the same at every opt-level (no fast-math).
 cargo test --workspace --no-run --quiet
+# The wheel under test is built with the dev profile, whose settings the
+# test profile shares (root Cargo.toml): it reuses the test build's
+# artifacts and compiles only pyo3, numpy and the bindings (~1 min), where a
+# release build compiled the whole dependency tree again (4 min on the
+# 2-core machine). Debug assertions and overflow checks stay on, as in
+# `cargo test`. A wheel to install for use: `pip install crates/odocal-py`
+# (release).
 rm -f target/wheels/odocal-*.whl
-"$venv/bin/maturin" build --release --quiet -m crates/odocal-py/Cargo.toml -o target/wheels
+"$venv/bin/maturin" build --profile dev --quiet -m crates/odocal-py/Cargo.toml -o target/wheels
 "${pip[@]}" --force-reinstall --no-deps target/wheels/odocal-*.whl
 
 status=0

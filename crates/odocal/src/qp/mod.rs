@@ -44,7 +44,6 @@ use std::str::FromStr;
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix3x2, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
-#[cfg(any(test, feature = "test-fixtures"))]
 use crate::model::{step_jacobians, Input, Theta};
 
 /// One instance of the compensation QP. Vectors indexed by stage hold, at
@@ -456,7 +455,6 @@ impl FromStr for SolverKind {
 /// `tightness ≈ 0.9` activates many input bounds, `≈ 0.97` state bounds
 /// too; from about 0.98 on, some instances have no feasible point.
 /// Values of `tightness` are clamped to [0, 0.999].
-#[cfg(any(test, feature = "test-fixtures"))]
 pub fn random_instance(seed: u64, stages: usize, tightness: f64) -> StageQp {
     use rand::SeedableRng;
     use rand_distr::{Distribution, StandardNormal};

@@ -1,6 +1,6 @@
 //! Benchmarks of the calibration pipeline on seeded simulated drives.
 //!
-//! `cargo bench -p odocal --bench pipeline` — groups:
+//! `cargo bench -p odocal-bench --bench pipeline` — groups:
 //! - `model`: one model step with all Jacobians;
 //! - `simulate`: the default 24 km paper-noise drive;
 //! - `identify`: one batch Gauss-Newton iteration (normal equations) and a
