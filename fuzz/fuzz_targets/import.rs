@@ -1,7 +1,7 @@
 //! Fuzz target: `cargo +nightly fuzz run import fuzz/corpus/import`.
 #![no_main]
 
-#[path = "../../crates/odocal/tests/common/harness.rs"]
+#[path = "../../crates/odocal/tests/integration/common/harness.rs"]
 mod harness;
 
 libfuzzer_sys::fuzz_target!(|data: &[u8]| {

@@ -4,7 +4,7 @@
 //! never panic. Memory stays bounded: the CLI test `bad_input_memory` runs
 //! the same bundles under an address-space limit.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 

@@ -3,7 +3,7 @@
 //! message that names the cause; and import memory bounded on the
 //! blow-up manifests (run under an address-space limit).
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -96,9 +96,7 @@ fn absurd_theta_is_a_usage_error() {
 #[test]
 fn conventions_are_named() {
     let dir = tempfile::tempdir().expect("tmp");
-    let csv = dir.path().join("d.csv");
-    let o = odocal(&["simulate", "--seed", "2", "--length-km", "2", "--out", path_str(&csv)]);
-    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let csv = common::simulated_drive(dir.path(), "d.csv", &["--seed", "2", "--length-km", "2"]);
     let text = std::fs::read_to_string(&csv).expect("csv");
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().expect("header").split(',').collect();

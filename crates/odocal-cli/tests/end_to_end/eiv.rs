@@ -1,7 +1,7 @@
 //! `odocal calibrate --method eiv`: JSON (noise model, termination, which
 //! estimate), terminal section, flags of other methods rejected.
 
-mod common;
+use crate::common;
 
 use common::{odocal, simulated_drive, text};
 

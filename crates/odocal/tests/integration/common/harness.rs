@@ -1,6 +1,6 @@
 //! The bad-input harness shared by the fuzz targets (`fuzz/`, cargo-fuzz on
 //! nightly) and the stable replay and mutation tests
-//! (`tests/bad_input.rs`): each function feeds one input to a reader and
+//! (`tests/integration/bad_input.rs`): each function feeds one input to a reader and
 //! checks what must hold for *any* input — no panic (a panic fails the
 //! caller), an error message of bounded length that is one line, and a
 //! drive that is finite and consistent when the input is accepted.

@@ -1,7 +1,7 @@
 //! End-to-end tests of the `odocal` binary: contract (SPEC §9), bad input,
 //! determinism.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::Output;

@@ -6,7 +6,7 @@
 //! by the code of main at commit 8f30b25 (before the calibration modules
 //! were split), so a refactor that changes a number fails here. To write it
 //! again (only for an intended change of the numbers, said in the commit):
-//! `ODOCAL_BLESS=1 cargo test -p odocal --test golden`.
+//! `ODOCAL_BLESS=1 cargo test -p odocal --test integration golden::`.
 
 use std::path::PathBuf;
 
@@ -19,7 +19,7 @@ use odocal::{
 use odocal::{mean_position_error, Drive};
 use serde_json::{json, Value};
 
-#[path = "support/json_compare.rs"]
+#[path = "../support/json_compare.rs"]
 mod json_compare;
 use json_compare::{check_or_bless, compare};
 

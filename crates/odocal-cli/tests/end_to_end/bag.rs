@@ -2,7 +2,7 @@
 //! every bag error of a `format = "mcap"` manifest through `odocal import`,
 //! with its exact one-line message (exit code 1).
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 

@@ -5,7 +5,7 @@
 //! report says which extrinsics each drive used; a command-line value that
 //! overrules the drive's is reported as a conflict.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -31,7 +31,7 @@
 //! measured: the
 //! test profile is optimised); the others, about as long each, stay
 //! `#[ignore]`d to keep CI's test stage short: run them with `cargo test
-//! --release -p odocal --test testtrack_crossrun -- --ignored`. The data
+//! --release -p odocal --test integration testtrack_crossrun:: -- --ignored`. The data
 //! live in ../shared/data beside the repository (as in CI).
 
 use odocal::crossrun::{cross_run_groups, CrossRunTable, CROSS_RUN_OWN_FIT_RATIO};

@@ -4,7 +4,7 @@
 //! cluster-robust σ — not the model σ (step 3's covered 0 % of 3-step
 //! errors in the coverage study).
 
-mod common;
+use crate::common;
 
 use common::{odocal, stderr, stdout};
 use serde_json::Value;
@@ -27,12 +27,9 @@ fn params_file_json_and_text_give_the_result_sigma() {
     let d = tempfile::tempdir().expect("tmp");
     // 3 km for the 3-step (a few seconds in the test profile); 5 km for
     // batch-gn, the shortest with the 10 clusters its robust σ needs.
-    let (short, long) = (d.path().join("drive3.csv"), d.path().join("drive5.csv"));
-    for (path, km) in [(&short, "3"), (&long, "5")] {
-        let o = odocal(&["simulate", "--seed", "1", "--length-km", km, "--out", path.to_str().expect("utf8")]);
-        assert!(o.status.success(), "{}", stderr(&o));
-    }
-    let dstr = short.to_str().expect("utf8");
+    let short = common::simulated_drive(d.path(), "drive3.csv", &["--seed", "1", "--length-km", "3"]);
+    let long = common::simulated_drive(d.path(), "drive5.csv", &["--seed", "1", "--length-km", "5"]);
+    let dstr = short.as_str();
 
     // The 3-step: the batch-spread σ everywhere.
     let (yaml, json) = (d.path().join("p.yaml"), d.path().join("r.json"));
@@ -75,7 +72,7 @@ fn params_file_json_and_text_give_the_result_sigma() {
     let params = d.path().join("p.json");
     let o = odocal(&[
         "calibrate",
-        long.to_str().expect("utf8"),
+        long.as_str(),
         "--method",
         "batch-gn",
         "--fix",
@@ -109,10 +106,8 @@ fn params_file_json_and_text_give_the_result_sigma() {
 #[test]
 fn a_params_file_validates_like_the_calibration_that_wrote_it() {
     let d = tempfile::tempdir().expect("tmp");
-    let drive = d.path().join("drive.csv");
-    let dstr = drive.to_str().expect("utf8");
-    let o = odocal(&["simulate", "--seed", "2", "--length-km", "5", "--out", dstr]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let drive = common::simulated_drive(d.path(), "drive.csv", &["--seed", "2", "--length-km", "5"]);
+    let dstr = drive.as_str();
     let (yaml, pjson, json) = (d.path().join("p.yaml"), d.path().join("p.json"), d.path().join("c.json"));
     let path = |p: &std::path::Path| p.to_str().expect("utf8").to_string();
     for params in [&yaml, &pjson] {

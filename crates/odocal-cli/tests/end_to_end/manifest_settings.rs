@@ -2,12 +2,11 @@
 //! used where no flag is given, overridden by `--noise-model`,
 //! `--estimate`, and the report says which was used.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
-use std::process::Command;
 
-use common::{calibrate_json, canonical_manifest, setting_outcome, text};
+use common::{calibrate_json, canonical_manifest, setting_outcome};
 
 /// A manifest importing a simulated canonical CSV (both streams from it)
 /// that states a noise model and the reference extrinsics.
@@ -33,13 +32,7 @@ fn calibrate(dir: &Path, extra: &[&str]) -> serde_json::Value {
 #[test]
 fn manifest_noise_and_reference_settings_are_used_unless_a_flag_is_given() {
     let d = tempfile::tempdir().expect("tmp");
-    let drive = d.path().join("drive.csv");
-    let o = Command::new(env!("CARGO_BIN_EXE_odocal"))
-        .args(["simulate", "--seed", "4", "--length-km", "2", "--noise", "white", "--quiet", "--out"])
-        .arg(&drive)
-        .output()
-        .expect("run odocal");
-    assert!(o.status.success(), "{}", text(&o.stderr));
+    common::simulated_drive(d.path(), "drive.csv", &["--seed", "4", "--length-km", "2", "--noise", "white"]);
     std::fs::write(d.path().join("manifest.toml"), manifest()).expect("write");
 
     // EIV: the manifest's [noise] is the start; the [reference] estimate is

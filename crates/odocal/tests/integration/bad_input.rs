@@ -3,7 +3,7 @@
 //! replayed through the same harness the fuzz targets use (`fuzz/`), and
 //! property tests mutate valid inputs.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 

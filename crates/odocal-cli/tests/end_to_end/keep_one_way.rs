@@ -3,7 +3,7 @@
 //! straight segments and warns (`one_way_turns`) unless asked to keep the
 //! turning-only selection; the flag wins over the manifest.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

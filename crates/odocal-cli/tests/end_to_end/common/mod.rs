@@ -1,6 +1,5 @@
-//! Helpers shared by the integration tests of the `odocal` binary. A test
-//! file that uses them declares `mod common;` (each test file is its own
-//! crate, and each uses a subset, hence `dead_code` allowed).
+//! Helpers shared by the end-to-end tests of the `odocal` binary (each test
+//! module uses a subset, hence `dead_code` allowed).
 #![allow(dead_code)]
 
 use std::path::Path;

@@ -2,7 +2,7 @@
 //! `--lever-arm`, `--heading-offset`, `--fix` of an extrinsics parameter,
 //! and their rows in the JSON, terminal and parameter-file reports.
 
-mod common;
+use crate::common;
 
 use std::process::Output;
 
@@ -17,10 +17,12 @@ fn json(o: &Output) -> Value {
 #[test]
 fn estimate_hold_and_fix_extrinsics() {
     let dir = tempfile::tempdir().expect("tmp");
-    let drive = dir.path().join("d.csv");
-    let d = drive.to_str().expect("utf8");
-    let o = odocal(&["simulate", "--seed", "5", "--length-km", "3", "--noise", "off", "--substeps", "1", "--out", d]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let drive = common::simulated_drive(
+        dir.path(),
+        "d.csv",
+        &["--seed", "5", "--length-km", "3", "--noise", "off", "--substeps", "1"],
+    );
+    let d = drive.as_str();
 
     // Without the flags the report has no extrinsics block.
     let plain = json(&odocal(&["calibrate", d, "--method", "batch-gn", "--json", "-"]));

@@ -7,14 +7,15 @@
 //! and the truth block are compared with `tests/data/golden/cli.json`,
 //! written by the binary of main at commit 8f30b25 (before the calibration
 //! modules were split). To write it again (only for an intended change of
-//! the numbers): `ODOCAL_BLESS=1 cargo test -p odocal-cli --test golden`.
+//! the numbers): `ODOCAL_BLESS=1 cargo test -p odocal-cli --test end_to_end golden::`.
 
+use crate::common;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use serde_json::{json, Value};
 
-#[path = "../../odocal/tests/support/json_compare.rs"]
+#[path = "../../../odocal/tests/support/json_compare.rs"]
 mod json_compare;
 use json_compare::check_or_bless;
 
@@ -80,13 +81,8 @@ fn theta_arg(v: &Value) -> String {
 }
 
 fn current(dir: &Path) -> Value {
-    let drive = dir.join("drive.csv");
-    let d = drive.to_str().expect("utf8");
-    let o = Command::new(env!("CARGO_BIN_EXE_odocal"))
-        .args(["simulate", "--seed", "7", "--length-km", "4", "--out", d, "--quiet"])
-        .output()
-        .expect("simulate");
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let drive = common::simulated_drive(dir, "drive.csv", &["--seed", "7", "--length-km", "4"]);
+    let d = drive.as_str();
     let gn = run_json(&["calibrate", d, "--method", "batch-gn", "--json", "-"]);
     let ts =
         run_json(&["calibrate", d, "--method", "three-step", "--batches", "6", "--final-segments", "8", "--json", "-"]);
