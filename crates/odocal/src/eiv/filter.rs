@@ -186,6 +186,12 @@ pub(crate) struct WindowSums {
     pub grad_jacobian: nalgebra::Vector4<f64>,
     /// ∂²T/∂θ² = Σ u ∇C∇Cᵀ/C² with u held (already included in `h_theta`).
     pub hess_jacobian: nalgebra::Matrix4<f64>,
+    /// `∂(grad_jacobian)/∂η_j` per noise scale: how the θ-score's input
+    /// log-Jacobian term moves with η through its weights u (exact, for
+    /// [`super::InputJacobian::FilterShare`] and its second-order variant,
+    /// whose u depends on η through the white variance and S; zero for the
+    /// other modes and without η derivatives).
+    pub grad_jacobian_eta: [nalgebra::Vector4<f64>; NETA],
     /// Σ u per wheel `[left, right]`.
     pub jacobian_weight: [f64; 2],
     /// Samples where each wheel turns `[left, right]` (Σ m).
@@ -304,6 +310,7 @@ impl WindowSums {
             jacobian: 0.0,
             grad_jacobian: nalgebra::Vector4::zeros(),
             hess_jacobian: nalgebra::Matrix4::zeros(),
+            grad_jacobian_eta: [nalgebra::Vector4::zeros(); NETA],
             jacobian_weight: [0.0; 2],
             turning: [0.0; 2],
         }
@@ -328,6 +335,9 @@ impl WindowSums {
         self.jacobian += o.jacobian;
         self.grad_jacobian += o.grad_jacobian;
         self.hess_jacobian += o.hess_jacobian;
+        for (a, b) in self.grad_jacobian_eta.iter_mut().zip(&o.grad_jacobian_eta) {
+            *a += b;
+        }
         for w in 0..2 {
             self.jacobian_weight[w] += o.jacobian_weight[w];
             self.turning[w] += o.turning[w];
@@ -1807,11 +1817,16 @@ fn run_window_s<const S: usize, K: KernelCalls>(
         let e = l.solve_lower_triangular(&nu).unwrap_or_else(Vector3::zeros);
         let sinv_nu = sinv * nu;
         if matches!(jac_mode, InputJacobian::FilterShare | InputJacobian::FilterShareSecondOrder) {
-            for (w, var, f_w, lc, g) in pending.drain(..) {
+            for &(w, var, f_w, lc, g) in &pending {
                 let share = var * f_w.dot(&(sinv * f_w));
                 let u = if jac_mode == InputJacobian::FilterShare { share } else { share * (1.0 - 2.0 * share) };
                 out.jacobian_weight[w] += u;
                 add_jacobian_term(&mut out, u, lc, &g);
+            }
+            // With η derivatives the weights' η-derivatives are added after
+            // ∂S/∂η is formed (below), which then clears `pending`.
+            if !(mode.derivs && mode.eta) {
+                pending.clear();
             }
         } else if smoothed {
             let k_l: MZx3<S> = hp.transpose() * sinv;
@@ -1897,6 +1912,25 @@ fn run_window_s<const S: usize, K: KernelCalls>(
                 // Column of ∂K ν = (∂P⁻Hᵀ − K ∂S) S⁻¹ ν.
                 let col = hdp.transpose() * sinv_nu - k * ds_snu;
                 dkn.set_column(jj, &col);
+            }
+            // FilterShare: u = var·f_wᵀS⁻¹f_w depends on η through the white
+            // variance (∝ e^η₀) and S, so the θ-score's log-Jacobian term
+            // −Σ u ∇L moves with η: ∂u/∂η_j = [j = 0]·share − var·(S⁻¹f)ᵀ ∂S_j (S⁻¹f).
+            if mode.eta && !pending.is_empty() {
+                let second_order = jac_mode == InputJacobian::FilterShareSecondOrder;
+                for &(_, var, f_w, _, g) in &pending {
+                    let sf = sinv * f_w;
+                    let share = var * f_w.dot(&sf);
+                    let chain = if second_order { 1.0 - 4.0 * share } else { 1.0 };
+                    for &jj in cols.iter().filter(|c| **c >= 4) {
+                        let mut dshare = -var * sf.dot(&(ds[jj] * sf));
+                        if jj == 4 {
+                            dshare += share;
+                        }
+                        out.grad_jacobian_eta[jj - 4] -= g * (dshare * chain);
+                    }
+                }
+                pending.clear();
             }
             // ½ tr(S⁻¹∂S_i S⁻¹∂S_j), symmetric in (i, j): tr(AB) = Σ A_rc B_cr.
             for (n1, &i1) in cols.iter().enumerate() {

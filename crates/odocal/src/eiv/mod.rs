@@ -2196,6 +2196,14 @@ impl Problem<'_> {
     }
 
     /// The filter's variances at η under this problem's noise options.
+    /// Whether the filter's η derivatives give the θ-score's full
+    /// η-dependence (see [`noise_estimate_covariance`]): not with the
+    /// smoothed-share log-Jacobian weights, whose η-dependence it does not
+    /// differentiate.
+    fn mixed_partials_by_symmetry(&self) -> bool {
+        !matches!(self.input_jacobian, InputJacobian::SmoothedShare | InputJacobian::SmoothedShareAll)
+    }
+
     fn variances(&self, eta: &[f64; 6], null: bool) -> filter::Variances {
         let mut e = *eta;
         if !self.heading_separate {
@@ -2688,6 +2696,18 @@ fn scoring_pass(
     let follows = opts.covariance == CovarianceMode::FollowsTheta;
     let eta_derivs = !opts.fix_noise;
     let full = Mode::full(follows, eta_derivs);
+    // Lean iterations (stop 24): with the covariance following θ and η
+    // estimated, the evaluation an iteration starts from needs its η
+    // derivatives only for the convergence test, whose θ part alone decides
+    // while the θ step is ≥ the tolerance (the test takes the maximum over
+    // θ and η). So it is evaluated with the θ derivatives only (4 of the 10
+    // covariance derivatives) and evaluated again in full only when its θ
+    // step is below the tolerance, or at the end. Steps and decisions are
+    // those of full evaluations (the θ entries are identical to the bit);
+    // only `IterationRecord::step_over_sigma` of an unconverged iteration can
+    // be smaller (it lacks the η step at the iteration's start).
+    let lean = follows && eta_derivs && !opts.theta_convergence;
+    let start_mode = if lean { Mode::full(follows, false) } else { full };
     let bounds = opts.eta_bounds;
     let reentry = opts.eta_reentry_min_score.unwrap_or(f64::INFINITY);
     let objective = |ev: &Evaluation, th: &Theta| -> f64 {
@@ -2698,7 +2718,7 @@ fn scoring_pass(
         }
     };
     let (mut theta, mut eta) = (theta0, eta0);
-    let mut ev = prob.evaluate(&theta, &theta_ref, &eta, full)?;
+    let mut ev = prob.evaluate(&theta, &theta_ref, &eta, start_mode)?;
     let (free, unobservable) = if check_observability && opts.fix_unobservable {
         fix_unobservable(&ev.total.h_theta, &free0, opts)
     } else {
@@ -2711,7 +2731,7 @@ fn scoring_pass(
         }
         theta = Theta::from_array(a);
         theta.validate()?;
-        ev = prob.evaluate(&theta, &theta_ref, &eta, full)?;
+        ev = prob.evaluate(&theta, &theta_ref, &eta, start_mode)?;
     }
     let initial_cost = objective(&ev, &theta);
     let mut history = Vec::new();
@@ -2729,17 +2749,40 @@ fn scoring_pass(
     // with (secant damping, see `secant_eta_factor`).
     let mut last_eta_step: Option<([f64; 6], f64)> = None;
     let mut eta_last: Option<f64> = None;
-    for it in 0..opts.max_iterations {
+    // A θ-only evaluation's θ step is below the tolerance: evaluate it in full.
+    let upgrade = |ev: Evaluation, th: &Theta, et: &[f64; 6]| -> Result<Evaluation> {
+        if ev.mode == full {
+            return Ok(ev);
+        }
         let (dth, sth) = theta_step(&ev.total, &free, follows)?;
-        let es = if eta_derivs { eta_step(&ev.total, &eta, bounds, reentry, &opts.eta_held) } else { EtaStep::none() };
+        if step_ratio(&dth, &sth, &free, et, &[0.0; 6], &[0.0; 6], bounds) < opts.step_tolerance {
+            prob.evaluate(th, &theta_ref, et, full)
+        } else {
+            Ok(ev)
+        }
+    };
+    // The loop stopped after an iteration start that was evaluated lean (its
+    // η step and σ are then taken from the final full evaluation).
+    let mut stopped_at_lean_start = false;
+    for it in 0..opts.max_iterations {
+        ev = upgrade(ev, &theta, &eta)?;
+        let at_full = ev.mode == full;
+        let (dth, sth) = theta_step(&ev.total, &free, follows)?;
+        let es = if eta_derivs && at_full {
+            eta_step(&ev.total, &eta, bounds, reentry, &opts.eta_held)
+        } else {
+            EtaStep::none()
+        };
         let (deta, seta) = (es.step, es.sigma);
-        eta_sigma = seta;
+        if at_full {
+            eta_sigma = seta;
+        }
         let mut ratio = step_ratio(&dth, &sth, &free, &eta, &deta, &seta, bounds);
         if es.leaving {
             // A scale leaving its clamp: not converged, whatever its σ says.
             ratio = ratio.max(1.0);
         }
-        if eta_derivs {
+        if eta_derivs && at_full {
             eta_last = Some(step_ratio(&[0.0; 4], &sth, &[false; 4], &eta, &deta, &seta, bounds));
         }
         if opts.theta_convergence && eta_derivs && !es.leaving {
@@ -2796,6 +2839,7 @@ fn scoring_pass(
                         }
                         None => {
                             termination = Termination::CostIncreased { cost, previous, halvings: opts.max_halvings };
+                            stopped_at_lean_start = !at_full;
                             break;
                         }
                     }
@@ -2820,7 +2864,10 @@ fn scoring_pass(
                         let c = t.total.merit();
                         (c <= previous_m + tol(previous_m), c)
                     };
-                    match line_search(prob, &theta, &eta, &[0.0; 4], &deta, &theta_ref, full, false, opts, &accept_m)? {
+                    // Lean: in full where this iteration is the last (its step below the tolerance).
+                    let m_mode = if ratio < opts.step_tolerance { full } else { start_mode };
+                    match line_search(prob, &theta, &eta, &[0.0; 4], &deta, &theta_ref, m_mode, false, opts, &accept_m)?
+                    {
                         Search::Accepted { eta: et, ev: e, lambda: l, .. } => {
                             eta = et;
                             ev = *e;
@@ -2836,8 +2883,11 @@ fn scoring_pass(
                     }
                 }
             }
-            if ev.mode != full {
-                ev = prob.evaluate(&theta, &theta_ref, &eta, full)?;
+            // An η step not taken leaves the θ step's evaluation, without ∂P/∂θ
+            // (lean: in full only where this iteration is the last).
+            if ev.mode != full && ev.mode != start_mode {
+                let mode = if ratio < opts.step_tolerance { full } else { start_mode };
+                ev = prob.evaluate(&theta, &theta_ref, &eta, mode)?;
             }
         } else {
             // Joint step. Accept when the objective falls, or when the corrected
@@ -2872,7 +2922,11 @@ fn scoring_pass(
             termination = Termination::StepTolerance { step_over_sigma: ratio, threshold: opts.step_tolerance };
             break;
         }
-        if eta_derivs && follows {
+        if eta_derivs && follows && opts.final_step_check {
+            // Lean: in full only where the θ step alone is below the tolerance.
+            ev = upgrade(ev, &theta, &eta)?;
+        }
+        if eta_derivs && follows && ev.mode == full {
             // The remaining steps at the new point (no filter evaluation: `ev`
             // is in full mode here).
             let (dth, sth) = theta_step(&ev.total, &free, follows)?;
@@ -2897,6 +2951,17 @@ fn scoring_pass(
         }
         if it + 1 == opts.max_iterations {
             termination = Termination::MaxIterations { iterations: opts.max_iterations, step_over_sigma: ratio };
+        }
+    }
+    if ev.mode != full {
+        // Lean: the report needs the η derivatives at the estimate (the loop
+        // ran out of iterations, or a θ step from a lean start failed).
+        ev = prob.evaluate(&theta, &theta_ref, &eta, full)?;
+        let (_, sth) = theta_step(&ev.total, &free, follows)?;
+        let es = eta_step(&ev.total, &eta, bounds, reentry, &opts.eta_held);
+        eta_last = Some(step_ratio(&[0.0; 4], &sth, &[false; 4], &eta, &es.step, &es.sigma, bounds));
+        if stopped_at_lean_start {
+            eta_sigma = es.sigma;
         }
     }
     let report = PassReport {
@@ -3037,7 +3102,8 @@ pub(crate) fn estimate_from(
     let (noise_cov, theta_eta_sensitivity) = if opts.noise_estimate_in_covariance && eta_free.iter().any(|f| *f) {
         let theta_ref = passes.last().map(|p| p.theta_reference).unwrap_or(theta);
         let follows = opts.covariance == CovarianceMode::FollowsTheta;
-        noise_estimate_covariance(&prob, &theta, &theta_ref, &eta, &eta_free, &ev.total, &cov, follows)?
+        let by_symmetry = prob.mixed_partials_by_symmetry();
+        noise_estimate_covariance(&prob, &theta, &theta_ref, &eta, &eta_free, &ev.total, &cov, follows, by_symmetry)?
     } else {
         (Matrix4::zeros(), [[0.0; 6]; 4])
     };
@@ -3379,9 +3445,12 @@ pub const ETA_SENSITIVITY_STEP: f64 = 1e-4;
 /// The covariance that estimating η adds to θ̂: `A Σ_η Aᵀ` with
 /// `A = −J⁻¹ ∂g_θ/∂η` over the free η ([`EivOptions::noise_estimate_in_covariance`];
 /// J = ∂g_θ/∂θ, observed), and `A` itself (`[parameter][source]`, zero
-/// columns for the fixed η). `sums` is the evaluation at (θ̂, η̂), `cov` =
-/// `H_θ⁻¹` over the free θ (zero rows for the fixed ones; also J⁻¹'s
-/// stand-in should J be singular).
+/// columns for the fixed η). `sums` is the evaluation at (θ̂, η̂) (with η
+/// derivatives), `cov` = `H_θ⁻¹` over the free θ (zero rows for the fixed
+/// ones; also J⁻¹'s stand-in should J be singular). With
+/// `mixed_partials_by_symmetry` (and the covariance following θ) `∂g_θ/∂η`
+/// comes from the θ-displaced passes J needs (one per free θ); otherwise
+/// from one more pass per free η, displaced by [`ETA_SENSITIVITY_STEP`].
 #[allow(clippy::too_many_arguments)]
 fn noise_estimate_covariance(
     prob: &Problem<'_>,
@@ -3392,6 +3461,7 @@ fn noise_estimate_covariance(
     sums: &WindowSums,
     cov: &Matrix4<f64>,
     follows: bool,
+    mixed_partials_by_symmetry: bool,
 ) -> Result<(Matrix4<f64>, [[f64; 6]; 4])> {
     let mut sens = [[0.0; 6]; 4];
     let idx: Vec<usize> = (0..NETA).filter(|j| eta_free[*j]).collect();
@@ -3411,6 +3481,17 @@ fn noise_estimate_covariance(
     // (the refits of the test agree with the observed one).
     let fidx: Vec<usize> = (0..4).filter(|i| cov[(*i, *i)] > 0.0).collect();
     let q = fidx.len();
+    // ∂g_θ/∂η by symmetry of the mixed partials (stop 24): with the covariance
+    // following θ, g_θ = ∂F/∂θ + G_T, F = ½Σνᵀ S⁻¹ν − Σ m log(1 − ŝ) and G_T
+    // the input log-Jacobian's θ-score with its weights u held, so
+    // ∂g_θ/∂η_j = ∂/∂θ (∂F/∂η_j) + ∂G_T/∂η_j. The first is the forward
+    // difference in θ of `grad_profile`'s η entries at the θ-displaced points
+    // the observed Jacobian needs anyway (evaluated with η derivatives), the
+    // second is summed exactly by the filter (`grad_jacobian_eta`). That needs
+    // 4 filter passes instead of 4 + one per free η. Where u depends on η in a
+    // way the filter does not differentiate (the smoothed shares) or with the
+    // covariance held (the corrected score's bias term), η is displaced instead.
+    let by_symmetry = mixed_partials_by_symmetry && follows && !sums.grad_profile.iter().any(|g| !g.is_finite());
     // Every displaced point (θ first, then η), evaluated in one sweep.
     let steps: Vec<f64> = fidx.iter().map(|&k| 0.01 * cov[(k, k)].sqrt()).collect();
     let mut points: Vec<(Theta, [f64; 6])> = fidx
@@ -3422,12 +3503,14 @@ fn noise_estimate_covariance(
             (Theta::from_array(t), *eta)
         })
         .collect();
-    points.extend(idx.iter().map(|&j| {
-        let mut e = *eta;
-        e[j] += h;
-        (*theta, e)
-    }));
-    let evs = prob.evaluate_many(&points, theta_ref, Mode::full(follows, false), false)?;
+    if !by_symmetry {
+        points.extend(idx.iter().map(|&j| {
+            let mut e = *eta;
+            e[j] += h;
+            (*theta, e)
+        }));
+    }
+    let evs = prob.evaluate_many(&points, theta_ref, Mode::full(follows, by_symmetry), false)?;
     let (ev_theta, ev_eta) = evs.split_at(q);
     let mut jac = DMatrix::zeros(q, q);
     for (c, (ev, hk)) in ev_theta.iter().zip(&steps).enumerate() {
@@ -3448,10 +3531,23 @@ fn noise_estimate_covariance(
         }
         _ => *cov,
     };
+    // ∂g_θ/∂η_j (4-vector) per free η.
+    let dg_deta: Vec<nalgebra::Vector4<f64>> = if by_symmetry {
+        idx.iter()
+            .map(|&j| {
+                let mut dg = sums.grad_jacobian_eta[j];
+                for ((ev, hk), &i) in ev_theta.iter().zip(&steps).zip(&fidx) {
+                    dg[i] += (ev.total.grad_profile[4 + j] - sums.grad_profile[4 + j]) / *hk;
+                }
+                dg
+            })
+            .collect()
+    } else {
+        ev_eta.iter().map(|ev| (theta_score(&ev.total, follows) - g0) / h).collect()
+    };
     // A = −J⁻¹ ∂g_θ/∂η, 4 × p.
     let mut a = DMatrix::zeros(4, p);
-    for (c, (&j, ev)) in idx.iter().zip(ev_eta).enumerate() {
-        let dg = (theta_score(&ev.total, follows) - g0) / h;
+    for (c, (&j, dg)) in idx.iter().zip(dg_deta).enumerate() {
         let col = -(jinv * dg);
         for i in 0..4 {
             a[(i, c)] = col[i];
