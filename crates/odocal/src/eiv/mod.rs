@@ -133,13 +133,20 @@
 //! covariance following θ, 5 η; η_5 only with a separate heading scale),
 //! each a structured `F (·) Fᵀ` and a Joseph update, computed on the lower
 //! triangle and mirrored (module `filter`). A θ step's evaluation, whose
-//! only use is the η step after it, skips `∂P/∂θ`. A fit with η estimated
-//! takes 1 + 2 × iterations derivative passes (11 on the 24 km paper
-//! drive), with the noise fixed 1 + iterations (3). Measured on that drive
+//! only use is the η step after it, skips `∂P/∂θ`; since stop 24 the
+//! evaluation an iteration starts from skips `∂P/∂η` until its θ step is
+//! below the tolerance (then it is evaluated again in full for the
+//! convergence test; steps and decisions are unchanged). A fit with η
+//! estimated typically takes 2 + 2 × iterations derivative passes (10 on the 24 km
+//! paper drive, 6 of them with the θ or the η columns only), with the noise
+//! fixed 1 + iterations (3); the η term of the covariance one more per free
+//! parameter (4). Stop 14's structured kernels, measured on that drive
 //! through `odocal calibrate` (docs/performance.md, CPU seconds, since the
-//! 2-core machine was shared): η estimated 3.3 s before these changes,
-//! 2.2 s after; fixed noise 0.82 → 0.72 s (of which batch G-N, the start,
-//! 0.2 s). Results agree with the earlier filter to ~1e-13 relative (test
+//! 2-core machine was shared): η estimated 3.3 s before, 2.2 s after;
+//! fixed noise 0.82 → 0.72 s (of which batch G-N, the start, 0.2 s). Stop
+//! 24's lean iteration starts and η term: 24 km `eiv_speed` wall time
+//! 2.42–2.92 s → 1.78–2.45 s (interleaved rounds; docs/performance.md).
+//! Results agree with the earlier filter to ~1e-13 relative (test
 //! `results_match_the_recorded_results_of_the_unoptimised_filter`).
 //!
 //! Uncertainty is `H_θ⁻¹` at the estimate ([`EivReport::sigma`]), the
@@ -722,10 +729,15 @@ pub struct EivOptions {
     /// `A = ∂θ̂/∂η = −J⁻¹ ∂g_θ/∂η` (implicit function theorem at the
     /// estimate; `g_θ` the θ-score, `J = ∂g_θ/∂θ`) and `Σ_η` the inverse of
     /// η's information over the estimated scales. Both derivatives are
-    /// forward differences of the exact θ-score (steps
-    /// [`ETA_SENSITIVITY_STEP`] in η and 1 % of σ in θ): one more filter
-    /// pass with θ derivatives per estimated scale and per free parameter,
-    /// instead of a second-order sensitivity recursion through the filter.
+    /// forward differences (1 % of σ) in θ of exact filter derivatives: J of
+    /// the θ-score, `∂g_θ/∂η` of the η-gradient of the profile cost (the
+    /// mixed partials are symmetric; the FilterShare log-Jacobian weights'
+    /// own η-dependence is summed exactly by the filter), so one more filter
+    /// pass with θ and η derivatives per free parameter (since stop 24;
+    /// before, and still with the smoothed-share weights or the covariance
+    /// held, one more pass per estimated scale too, displaced by
+    /// [`ETA_SENSITIVITY_STEP`] in η), instead of a second-order sensitivity
+    /// recursion through the filter.
     /// `A` is [`EivReport::theta_eta_sensitivity`], the added σ
     /// [`EivReport::sigma_noise_estimate`]. No effect with
     /// [`EivOptions::fix_noise`].
