@@ -2123,6 +2123,9 @@ struct Problem<'a> {
     position_floor_m: f64,
     /// Filter passes over the drive: with derivatives, objective only.
     evaluations: std::cell::Cell<[usize; 2]>,
+    /// Lean iteration starts in [`scoring_pass`] (always on; off only in the
+    /// test that holds them to the full evaluations' results).
+    lean_iterations: bool,
 }
 
 impl<'a> Problem<'a> {
@@ -2143,6 +2146,7 @@ impl<'a> Problem<'a> {
             input_jacobian: opts.input_jacobian,
             position_floor_m: opts.position_floor_m,
             evaluations: std::cell::Cell::new([0; 2]),
+            lean_iterations: true,
         }
     }
 }
@@ -2714,11 +2718,13 @@ fn scoring_pass(
     // while the θ step is ≥ the tolerance (the test takes the maximum over
     // θ and η). So it is evaluated with the θ derivatives only (4 of the 10
     // covariance derivatives) and evaluated again in full only when its θ
-    // step is below the tolerance, or at the end. Steps and decisions are
-    // those of full evaluations (the θ entries are identical to the bit);
+    // step is below the tolerance, or at the end; once that happened, later
+    // starts are evaluated in full directly. Steps and decisions are those
+    // of full evaluations (the θ entries are identical to the bit; test
+    // `lean_iteration_starts_give_the_full_evaluations_results_to_the_bit`);
     // only `IterationRecord::step_over_sigma` of an unconverged iteration can
     // be smaller (it lacks the η step at the iteration's start).
-    let lean = follows && eta_derivs && !opts.theta_convergence;
+    let lean = prob.lean_iterations && follows && eta_derivs && !opts.theta_convergence;
     let start_mode = if lean { Mode::full(follows, false) } else { full };
     let bounds = opts.eta_bounds;
     let reentry = opts.eta_reentry_min_score.unwrap_or(f64::INFINITY);
@@ -2776,9 +2782,15 @@ fn scoring_pass(
     // The loop stopped after an iteration start that was evaluated lean (its
     // η step and σ are then taken from the final full evaluation).
     let mut stopped_at_lean_start = false;
+    // Once an iteration start had to be evaluated again in full (θ's step
+    // below the tolerance, η's not yet), the later ones are evaluated in
+    // full directly: θ stays settled while η finishes.
+    let mut theta_settled = false;
     for it in 0..opts.max_iterations {
+        let was_lean = ev.mode != full;
         ev = upgrade(ev, &theta, &eta)?;
         let at_full = ev.mode == full;
+        theta_settled |= was_lean && at_full;
         let (dth, sth) = theta_step(&ev.total, &free, follows)?;
         let es = if eta_derivs && at_full {
             eta_step(&ev.total, &eta, bounds, reentry, &opts.eta_held)
@@ -2877,7 +2889,7 @@ fn scoring_pass(
                         (c <= previous_m + tol(previous_m), c)
                     };
                     // Lean: in full where this iteration is the last (its step below the tolerance).
-                    let m_mode = if ratio < opts.step_tolerance { full } else { start_mode };
+                    let m_mode = if theta_settled || ratio < opts.step_tolerance { full } else { start_mode };
                     match line_search(prob, &theta, &eta, &[0.0; 4], &deta, &theta_ref, m_mode, false, opts, &accept_m)?
                     {
                         Search::Accepted { eta: et, ev: e, lambda: l, .. } => {
@@ -2898,7 +2910,7 @@ fn scoring_pass(
             // An η step not taken leaves the θ step's evaluation, without ∂P/∂θ
             // (lean: in full only where this iteration is the last).
             if ev.mode != full && ev.mode != start_mode {
-                let mode = if ratio < opts.step_tolerance { full } else { start_mode };
+                let mode = if theta_settled || ratio < opts.step_tolerance { full } else { start_mode };
                 ev = prob.evaluate(&theta, &theta_ref, &eta, mode)?;
             }
         } else {
@@ -2936,7 +2948,9 @@ fn scoring_pass(
         }
         if eta_derivs && follows && opts.final_step_check {
             // Lean: in full only where the θ step alone is below the tolerance.
+            let was_lean = ev.mode != full;
             ev = upgrade(ev, &theta, &eta)?;
+            theta_settled |= was_lean && ev.mode == full;
         }
         if eta_derivs && follows && ev.mode == full {
             // The remaining steps at the new point (no filter evaluation: `ev`

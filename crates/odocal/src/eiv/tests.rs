@@ -1330,6 +1330,7 @@ fn eta_step_descends_on_the_noise_free_straight_drive() {
         noise_input_from_reference: false,
         input_jacobian: opts.input_jacobian,
         evaluations: std::cell::Cell::new([0; 2]),
+        lean_iterations: true,
     };
     let theta = Theta { c_e: 1.9488978137579984, c_d: -0.001998869480161304, t_r: 1.53, d: 0.0008 };
     let eta = [-0.00903020194120505, 0.2628615557666504, 0.75, 0.1370901227620087, -2.5, -2.5];
@@ -1961,5 +1962,57 @@ fn noise_estimate_term_by_symmetry_matches_displaced_eta() {
         let (x, y) = (c_sym[(i, i)].sqrt(), c_eta[(i, i)].sqrt());
         // Measured: within 7e-4 relative.
         assert!((x - y).abs() <= 3e-3 * y + 1e-6 * s, "η term of σ{i}: {x:.6e} vs {y:.6e}");
+    }
+}
+
+/// Stop 24: lean iteration starts (θ derivatives only until the θ step is
+/// below the tolerance) give the scoring pass of full evaluations to the
+/// bit: θ, η, η's σ, the termination, the remaining η step, every accepted
+/// iteration's θ, η, cost and step factor, and the final evaluation's sums.
+/// Also where the pass stops by the iteration limit, without the final step
+/// check and from a start far from the estimate. Fewer covariance columns,
+/// not fewer passes, is what it saves; the pass count is reported.
+#[test]
+fn lean_iteration_starts_give_the_full_evaluations_results_to_the_bit() {
+    let cases: [(NoiseOptions, u64, f64); 2] = [(NoiseOptions::high(), 2, 2.0), (NoiseOptions::paper(), 7, 2.0)];
+    for (noise, seed, km) in cases {
+        let out = simulate(&SimOptions { length_km: km, noise, ..SimOptions::paper(seed) }).expect("sim");
+        let input = input_of(&out.drive);
+        let gn = batch_gn_all(&out.drive);
+        let far = Theta { c_e: gn.c_e * 1.003, t_r: gn.t_r * 1.05, ..gn };
+        let variants = [
+            ("default", EivOptions::default(), gn),
+            ("from afar", EivOptions::default(), far),
+            ("iteration limit", EivOptions { max_iterations: 2, ..EivOptions::default() }, far),
+            ("no final step check", EivOptions { final_step_check: false, ..EivOptions::default() }, gn),
+        ];
+        for (name, opts, start) in variants {
+            let q = opts.quantisation_level.step_found(&input);
+            let opts = opts.with_resolved_quantisation(q);
+            let run = |lean: bool| {
+                let prob = Problem {
+                    lean_iterations: lean,
+                    ..Problem::new(&input, make_windows(input.parts, opts.window_samples), &opts)
+                };
+                let out = scoring_pass(&prob, start, [0.0; 6], start, opts.free, true, &opts).expect("scoring pass");
+                (out, prob.evaluations.get())
+            };
+            let ((full, full_passes), (lean, lean_passes)) = (run(false), run(true));
+            let case = format!("seed {seed}, {name}");
+            assert_eq!(lean.theta, full.theta, "{case}: θ");
+            assert_eq!(lean.eta, full.eta, "{case}: η");
+            assert_eq!(lean.eta_sigma, full.eta_sigma, "{case}: σ_η");
+            assert_eq!(lean.report.termination, full.report.termination, "{case}: termination");
+            assert_eq!(lean.report.eta_step_over_sigma, full.report.eta_step_over_sigma, "{case}: η step left");
+            assert_eq!(lean.report.final_cost, full.report.final_cost, "{case}: cost");
+            assert_eq!(lean.report.history.len(), full.report.history.len(), "{case}: iterations");
+            for (a, b) in lean.report.history.iter().zip(&full.report.history) {
+                assert_eq!((a.theta, a.eta, a.cost, a.step_factor), (b.theta, b.eta, b.cost, b.step_factor), "{case}");
+                assert!(a.step_over_sigma <= b.step_over_sigma, "{case}: the lean start lacks only the η part");
+            }
+            assert_eq!(lean.eval.mode, full.eval.mode, "{case}: the final evaluation is in full");
+            assert_eq!(lean.eval.total, full.eval.total, "{case}: the final evaluation's sums");
+            eprintln!("{case}: {:?}, passes full {full_passes:?} lean {lean_passes:?}", full.report.termination);
+        }
     }
 }
