@@ -1973,6 +1973,7 @@ fn noise_estimate_term_by_symmetry_matches_displaced_eta() {
 /// check and from a start far from the estimate. Fewer covariance columns,
 /// not fewer passes, is what it saves; the pass count is reported.
 #[test]
+#[allow(clippy::float_cmp)] // identity to the bit is the claim
 fn lean_iteration_starts_give_the_full_evaluations_results_to_the_bit() {
     let cases: [(NoiseOptions, u64, f64); 2] = [(NoiseOptions::high(), 2, 2.0), (NoiseOptions::paper(), 7, 2.0)];
     for (noise, seed, km) in cases {
