@@ -33,7 +33,7 @@ use rand_distr::StandardNormal;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::{estimate, BiasCorrection, EivInput, EivOptions, EivReport, NoiseModel};
+use super::{estimate, BiasCorrection, EivInput, EivOptions, EivReport, InnovationNull, NoiseModel};
 use crate::error::{Error, Result};
 use crate::model::{step, Input, State, Theta};
 
@@ -190,9 +190,16 @@ pub fn bootstrap(
     // the replicates' readings, which are counted with the fitted step and
     // so lie on a lattice even where the drive's readings did not.
     let resolved = opts.with_resolved_quantisation(report.quantisation_step_from_readings);
-    // The replicates' θ is all that is used: no covariance term for η.
-    let mut refit =
-        EivOptions { free: report.free, fix_unobservable: false, noise_estimate_in_covariance: false, ..resolved };
+    // The replicates' θ is all that is used: no covariance term for η, and
+    // no null pass for the innovation checks (stop 24; their warnings are
+    // not read).
+    let mut refit = EivOptions {
+        free: report.free,
+        fix_unobservable: false,
+        noise_estimate_in_covariance: false,
+        innovation_null: InnovationNull::FittedModel,
+        ..resolved
+    };
     if matches!(refit.bias_correction, BiasCorrection::Bootstrap { .. }) {
         // No bootstrap inside the bootstrap (B² fits): the replicates are
         // fitted without it.

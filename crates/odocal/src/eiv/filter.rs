@@ -930,20 +930,30 @@ pub(crate) struct Mode {
     /// matrices incomplete, for an evaluation whose only use is an η step:
     /// its η entries are the same to the bit.
     pub theta: bool,
+    /// With `eta`: η columns (bit j = η_j) whose covariance derivative is
+    /// not propagated, for an evaluation that needs only the others (their
+    /// gradient and information entries are then incomplete; the rest are
+    /// the same to the bit).
+    pub eta_skip: u8,
 }
 
 impl Mode {
     /// Objective only.
     pub(crate) fn cost(follows_theta: bool) -> Self {
-        Mode { follows_theta, derivs: false, eta: false, theta: false }
+        Mode { follows_theta, derivs: false, eta: false, theta: false, eta_skip: 0 }
     }
     /// Objective and derivatives (η derivatives when `eta`).
     pub(crate) fn full(follows_theta: bool, eta: bool) -> Self {
-        Mode { follows_theta, derivs: true, eta, theta: true }
+        Mode { follows_theta, derivs: true, eta, theta: true, eta_skip: 0 }
     }
     /// Objective and the η derivatives only (see [`Mode::theta`]).
     pub(crate) fn eta_only(follows_theta: bool) -> Self {
-        Mode { follows_theta, derivs: true, eta: true, theta: false }
+        Mode { follows_theta, derivs: true, eta: true, theta: false, eta_skip: 0 }
+    }
+    /// The same without the covariance derivatives of the η in `skip`
+    /// (bit j = η_j; see [`Mode::eta_skip`]).
+    pub(crate) fn skipping_eta(self, skip: u8) -> Self {
+        Mode { eta_skip: skip, ..self }
     }
 }
 
@@ -1208,7 +1218,12 @@ fn run_window_s<const S: usize, K: KernelCalls>(
     let mut cols_buf = [0usize; NP];
     let mut ncols = 0;
     for c in 0..NP {
-        let on = mode.derivs && if c < 4 { theta_cols } else { mode.eta && (c != 9 || v.heading_separate) };
+        let on = mode.derivs
+            && if c < 4 {
+                theta_cols
+            } else {
+                mode.eta && (c != 9 || v.heading_separate) && (mode.eta_skip >> (c - 4)) & 1 == 0
+            };
         if on {
             cols_buf[ncols] = c;
             ncols += 1;

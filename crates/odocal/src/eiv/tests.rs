@@ -2017,3 +2017,34 @@ fn lean_iteration_starts_give_the_full_evaluations_results_to_the_bit() {
         }
     }
 }
+
+/// Stop 24: skipping the covariance derivatives of some η columns (the η
+/// term's displaced passes skip the scales at a clamp) leaves every other
+/// entry of the sums the same to the bit, and the skipped η's gradient
+/// differs (so the skip is real).
+#[test]
+#[allow(clippy::float_cmp)] // identity to the bit is the claim
+fn skipping_eta_columns_leaves_the_other_entries_to_the_bit() {
+    let out = simulate(&SimOptions { length_km: 1.0, ..SimOptions::paper(4) }).expect("sim");
+    let input = input_of(&out.drive);
+    let opts = EivOptions::default();
+    let prob = Problem::new(&input, make_windows(input.parts, opts.window_samples), &opts);
+    let th = out.sidecar.theta_true;
+    let eta = [0.1, -0.3, 0.2, 0.1, -0.2, 0.3];
+    let full = prob.evaluate(&th, &th, &eta, filter::Mode::full(true, true)).expect("filter").total;
+    let skip = (1u8 << 2) | (1 << 4);
+    let lean = prob.evaluate(&th, &th, &eta, filter::Mode::full(true, true).skipping_eta(skip)).expect("filter").total;
+    assert_eq!((lean.quad, lean.logdet, lean.correction), (full.quad, full.logdet, full.correction));
+    assert_eq!(lean.h_theta, full.h_theta);
+    for c in (0..filter::NP).filter(|c| *c < 4 || (skip >> (c - 4)) & 1 == 0) {
+        assert_eq!(lean.grad_profile[c], full.grad_profile[c], "column {c}");
+        assert_eq!(lean.grad[c], full.grad[c], "column {c}");
+        for c2 in (0..filter::NP).filter(|c2| *c2 < 4 || (skip >> (c2 - 4)) & 1 == 0) {
+            assert_eq!(lean.info[(c, c2)], full.info[(c, c2)], "information ({c}, {c2})");
+        }
+    }
+    for j in [2usize, 4] {
+        assert_ne!(lean.grad[4 + j], full.grad[4 + j], "η{j} was skipped");
+        assert_eq!(lean.grad_jacobian_eta[j], nalgebra::Vector4::zeros(), "η{j}: no log-Jacobian derivative");
+    }
+}
