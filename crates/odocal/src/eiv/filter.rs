@@ -985,6 +985,41 @@ fn log_circumference_ratio(a_y: f64, th: &Theta, th_ref: &Theta) -> [(f64, nalge
 /// `ln(C_w(θ)/C_w(θ_ref))` and its θ-gradient.
 type PendingInput = (usize, f64, Vector3<f64>, f64, nalgebra::Vector4<f64>);
 
+/// FilterShare: adds every pending input's log-Jacobian term with its
+/// weight u, the share `var·f_wᵀS⁻¹f_w` of its white variance that this
+/// update removes (`u = share·(1 − 2·share)` with `second_order`), and
+/// clears `pending`. With `eta_ds` (the propagated columns and their ∂S),
+/// also the weights' η-derivatives: u depends on η through the white
+/// variance (∝ e^η₀) and S, so the θ-score's term −Σ u ∇L moves with η,
+/// `∂share/∂η_j = [j = 0]·share − var·(S⁻¹f)ᵀ ∂S_j (S⁻¹f)`
+/// ([`WindowSums::grad_jacobian_eta`]).
+#[inline(always)]
+fn add_filter_share_terms(
+    out: &mut WindowSums,
+    pending: &mut Vec<PendingInput>,
+    sinv: &Matrix3<f64>,
+    second_order: bool,
+    eta_ds: Option<(&[usize], &[Matrix3<f64>; NP])>,
+) {
+    for (w, var, f_w, lc, g) in pending.drain(..) {
+        let sf = sinv * f_w;
+        let share = var * f_w.dot(&sf);
+        let u = if second_order { share * (1.0 - 2.0 * share) } else { share };
+        out.jacobian_weight[w] += u;
+        add_jacobian_term(out, u, lc, &g);
+        if let Some((cols, ds)) = eta_ds {
+            let chain = if second_order { 1.0 - 4.0 * share } else { 1.0 };
+            for &jj in cols.iter().filter(|c| **c >= 4) {
+                let mut dshare = -var * sf.dot(&(ds[jj] * sf));
+                if jj == 4 {
+                    dshare += share;
+                }
+                out.grad_jacobian_eta[jj - 4] -= g * (dshare * chain);
+            }
+        }
+    }
+}
+
 /// Adds `−u·L` to the value, `−u·∇L` to the gradient and `u·∇L∇Lᵀ` to the
 /// Hessian of the input log-Jacobian term.
 #[inline(always)]
@@ -1831,18 +1866,12 @@ fn run_window_s<const S: usize, K: KernelCalls>(
         let logdet = 2.0 * (l[(0, 0)].ln() + l[(1, 1)].ln() + l[(2, 2)].ln());
         let e = l.solve_lower_triangular(&nu).unwrap_or_else(Vector3::zeros);
         let sinv_nu = sinv * nu;
-        if matches!(jac_mode, InputJacobian::FilterShare | InputJacobian::FilterShareSecondOrder) {
-            for &(w, var, f_w, lc, g) in &pending {
-                let share = var * f_w.dot(&(sinv * f_w));
-                let u = if jac_mode == InputJacobian::FilterShare { share } else { share * (1.0 - 2.0 * share) };
-                out.jacobian_weight[w] += u;
-                add_jacobian_term(&mut out, u, lc, &g);
-            }
-            // With η derivatives the weights' η-derivatives are added after
-            // ∂S/∂η is formed (below), which then clears `pending`.
-            if !(mode.derivs && mode.eta) {
-                pending.clear();
-            }
+        let filter_share = matches!(jac_mode, InputJacobian::FilterShare | InputJacobian::FilterShareSecondOrder);
+        let second_order = jac_mode == InputJacobian::FilterShareSecondOrder;
+        // With η derivatives the FilterShare terms wait for ∂S/∂η (below).
+        let share_eta = filter_share && mode.derivs && mode.eta;
+        if filter_share && !share_eta {
+            add_filter_share_terms(&mut out, &mut pending, &sinv, second_order, None);
         } else if smoothed {
             let k_l: MZx3<S> = hp.transpose() * sinv;
             let n_l = if all_sources { 3 } else { 2 };
@@ -1928,24 +1957,8 @@ fn run_window_s<const S: usize, K: KernelCalls>(
                 let col = hdp.transpose() * sinv_nu - k * ds_snu;
                 dkn.set_column(jj, &col);
             }
-            // FilterShare: u = var·f_wᵀS⁻¹f_w depends on η through the white
-            // variance (∝ e^η₀) and S, so the θ-score's log-Jacobian term
-            // −Σ u ∇L moves with η: ∂u/∂η_j = [j = 0]·share − var·(S⁻¹f)ᵀ ∂S_j (S⁻¹f).
-            if mode.eta && !pending.is_empty() {
-                let second_order = jac_mode == InputJacobian::FilterShareSecondOrder;
-                for &(_, var, f_w, _, g) in &pending {
-                    let sf = sinv * f_w;
-                    let share = var * f_w.dot(&sf);
-                    let chain = if second_order { 1.0 - 4.0 * share } else { 1.0 };
-                    for &jj in cols.iter().filter(|c| **c >= 4) {
-                        let mut dshare = -var * sf.dot(&(ds[jj] * sf));
-                        if jj == 4 {
-                            dshare += share;
-                        }
-                        out.grad_jacobian_eta[jj - 4] -= g * (dshare * chain);
-                    }
-                }
-                pending.clear();
+            if share_eta {
+                add_filter_share_terms(&mut out, &mut pending, &sinv, second_order, Some((cols, &ds)));
             }
             // ½ tr(S⁻¹∂S_i S⁻¹∂S_j), symmetric in (i, j): tr(AB) = Σ A_rc B_cr.
             for (n1, &i1) in cols.iter().enumerate() {

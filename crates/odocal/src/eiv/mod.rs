@@ -2211,7 +2211,6 @@ impl Problem<'_> {
         Ok(out)
     }
 
-    /// The filter's variances at η under this problem's noise options.
     /// Whether the filter's η derivatives give the θ-score's full
     /// η-dependence (see [`noise_estimate_covariance`]): not with the
     /// smoothed-share log-Jacobian weights, whose η-dependence it does not
@@ -2220,6 +2219,7 @@ impl Problem<'_> {
         !matches!(self.input_jacobian, InputJacobian::SmoothedShare | InputJacobian::SmoothedShareAll)
     }
 
+    /// The filter's variances at η under this problem's noise options.
     fn variances(&self, eta: &[f64; 6], null: bool) -> filter::Variances {
         let mut e = *eta;
         if !self.heading_separate {
@@ -2646,6 +2646,11 @@ fn line_search(
 }
 
 /// `max |step_i|/σ_i` over the free θ and the η that move.
+/// `max |Δη_j|/σ_j` of an η step alone ([`step_ratio`] without θ).
+fn eta_ratio(eta: &[f64; 6], deta: &[f64; 6], seta: &[f64; 6], bounds: [f64; 2]) -> f64 {
+    step_ratio(&[0.0; 4], &[0.0; 4], &[false; 4], eta, deta, seta, bounds)
+}
+
 fn step_ratio(
     dth: &[f64; 4],
     sth: &[f64; 4],
@@ -2767,16 +2772,17 @@ fn scoring_pass(
     // with (secant damping, see `secant_eta_factor`).
     let mut last_eta_step: Option<([f64; 6], f64)> = None;
     let mut eta_last: Option<f64> = None;
-    // A θ-only evaluation's θ step is below the tolerance: evaluate it in full.
-    let upgrade = |ev: Evaluation, th: &Theta, et: &[f64; 6]| -> Result<Evaluation> {
+    // A θ-only evaluation whose θ step is below the tolerance is evaluated
+    // again in full; `true` when that happened.
+    let upgrade = |ev: Evaluation, th: &Theta, et: &[f64; 6]| -> Result<(Evaluation, bool)> {
         if ev.mode == full {
-            return Ok(ev);
+            return Ok((ev, false));
         }
         let (dth, sth) = theta_step(&ev.total, &free, follows)?;
         if step_ratio(&dth, &sth, &free, et, &[0.0; 6], &[0.0; 6], bounds) < opts.step_tolerance {
-            prob.evaluate(th, &theta_ref, et, full)
+            Ok((prob.evaluate(th, &theta_ref, et, full)?, true))
         } else {
-            Ok(ev)
+            Ok((ev, false))
         }
     };
     // The loop stopped after an iteration start that was evaluated lean (its
@@ -2787,10 +2793,10 @@ fn scoring_pass(
     // full directly: θ stays settled while η finishes.
     let mut theta_settled = false;
     for it in 0..opts.max_iterations {
-        let was_lean = ev.mode != full;
-        ev = upgrade(ev, &theta, &eta)?;
+        let upgraded;
+        (ev, upgraded) = upgrade(ev, &theta, &eta)?;
+        theta_settled |= upgraded;
         let at_full = ev.mode == full;
-        theta_settled |= was_lean && at_full;
         let (dth, sth) = theta_step(&ev.total, &free, follows)?;
         let es = if eta_derivs && at_full {
             eta_step(&ev.total, &eta, bounds, reentry, &opts.eta_held)
@@ -2807,7 +2813,7 @@ fn scoring_pass(
             ratio = ratio.max(1.0);
         }
         if eta_derivs && at_full {
-            eta_last = Some(step_ratio(&[0.0; 4], &sth, &[false; 4], &eta, &deta, &seta, bounds));
+            eta_last = Some(eta_ratio(&eta, &deta, &seta, bounds));
         }
         if opts.theta_convergence && eta_derivs && !es.leaving {
             let r = theta_ratio(&ev.total, &dth, &sth, &free, &deta);
@@ -2874,11 +2880,14 @@ fn scoring_pass(
                 let es = eta_step(&ev.total, &eta, bounds, reentry, &opts.eta_held);
                 let (deta, seta) = (es.step, es.sigma);
                 eta_sigma = seta;
-                ratio = ratio.max(step_ratio(&[0.0; 4], &sth, &[false; 4], &eta, &deta, &seta, bounds));
+                ratio = ratio.max(eta_ratio(&eta, &deta, &seta, bounds));
                 if es.leaving {
                     ratio = ratio.max(1.0);
                 }
                 eta_moved = false;
+                // Lean: the next evaluation in full where this iteration is the
+                // last (its step below the tolerance) or θ has settled.
+                let next_mode = if theta_settled || ratio < opts.step_tolerance { full } else { start_mode };
                 if deta.iter().any(|x| *x != 0.0) {
                     let factor = if opts.eta_secant_damping { secant_eta_factor(&deta, last_eta_step) } else { 1.0 };
                     let deta_raw = deta;
@@ -2888,10 +2897,9 @@ fn scoring_pass(
                         let c = t.total.merit();
                         (c <= previous_m + tol(previous_m), c)
                     };
-                    // Lean: in full where this iteration is the last (its step below the tolerance).
-                    let m_mode = if theta_settled || ratio < opts.step_tolerance { full } else { start_mode };
-                    match line_search(prob, &theta, &eta, &[0.0; 4], &deta, &theta_ref, m_mode, false, opts, &accept_m)?
-                    {
+                    match line_search(
+                        prob, &theta, &eta, &[0.0; 4], &deta, &theta_ref, next_mode, false, opts, &accept_m,
+                    )? {
                         Search::Accepted { eta: et, ev: e, lambda: l, .. } => {
                             eta = et;
                             ev = *e;
@@ -2906,12 +2914,10 @@ fn scoring_pass(
                         }
                     }
                 }
-            }
-            // An η step not taken leaves the θ step's evaluation, without ∂P/∂θ
-            // (lean: in full only where this iteration is the last).
-            if ev.mode != full && ev.mode != start_mode {
-                let mode = if theta_settled || ratio < opts.step_tolerance { full } else { start_mode };
-                ev = prob.evaluate(&theta, &theta_ref, &eta, mode)?;
+                // An η step not taken leaves the θ step's evaluation, without ∂P/∂θ.
+                if ev.mode != full && ev.mode != start_mode {
+                    ev = prob.evaluate(&theta, &theta_ref, &eta, next_mode)?;
+                }
             }
         } else {
             // Joint step. Accept when the objective falls, or when the corrected
@@ -2948,9 +2954,9 @@ fn scoring_pass(
         }
         if eta_derivs && follows && opts.final_step_check {
             // Lean: in full only where the θ step alone is below the tolerance.
-            let was_lean = ev.mode != full;
-            ev = upgrade(ev, &theta, &eta)?;
-            theta_settled |= was_lean && ev.mode == full;
+            let upgraded;
+            (ev, upgraded) = upgrade(ev, &theta, &eta)?;
+            theta_settled |= upgraded;
         }
         if eta_derivs && follows && ev.mode == full {
             // The remaining steps at the new point (no filter evaluation: `ev`
@@ -2958,7 +2964,7 @@ fn scoring_pass(
             let (dth, sth) = theta_step(&ev.total, &free, follows)?;
             let es = eta_step(&ev.total, &eta, bounds, reentry, &opts.eta_held);
             let (deta, seta) = (es.step, es.sigma);
-            eta_last = Some(step_ratio(&[0.0; 4], &sth, &[false; 4], &eta, &deta, &seta, bounds));
+            eta_last = Some(eta_ratio(&eta, &deta, &seta, bounds));
             // A scale leaving its clamp is not converged, whatever its σ says.
             if opts.final_step_check && !es.leaving {
                 let r = step_ratio(&dth, &sth, &free, &eta, &deta, &seta, bounds);
@@ -2983,9 +2989,8 @@ fn scoring_pass(
         // Lean: the report needs the η derivatives at the estimate (the loop
         // ran out of iterations, or a θ step from a lean start failed).
         ev = prob.evaluate(&theta, &theta_ref, &eta, full)?;
-        let (_, sth) = theta_step(&ev.total, &free, follows)?;
         let es = eta_step(&ev.total, &eta, bounds, reentry, &opts.eta_held);
-        eta_last = Some(step_ratio(&[0.0; 4], &sth, &[false; 4], &eta, &es.step, &es.sigma, bounds));
+        eta_last = Some(eta_ratio(&eta, &es.step, &es.sigma, bounds));
         if stopped_at_lean_start {
             eta_sigma = es.sigma;
         }
@@ -3517,7 +3522,7 @@ fn noise_estimate_covariance(
     // 4 filter passes instead of 4 + one per free η. Where u depends on η in a
     // way the filter does not differentiate (the smoothed shares) or with the
     // covariance held (the corrected score's bias term), η is displaced instead.
-    let by_symmetry = mixed_partials_by_symmetry && follows && !sums.grad_profile.iter().any(|g| !g.is_finite());
+    let by_symmetry = mixed_partials_by_symmetry && follows;
     // Every displaced point (θ first, then η), evaluated in one sweep.
     let steps: Vec<f64> = fidx.iter().map(|&k| 0.01 * cov[(k, k)].sqrt()).collect();
     let mut points: Vec<(Theta, [f64; 6])> = fidx
