@@ -99,7 +99,7 @@ fn main() -> Result<(), odocal::Error> {
             a.time.push(t_gn);
             let input = input_of(d);
             let true_noise = NoiseModel::from_sim(&noise, d.sample_time_s());
-            if let Ok(c) = cramer_rao_bound(&input, &truth, &true_noise, &EivOptions::spec()) {
+            if let Ok(c) = cramer_rao_bound(&EivInput::from_drive_truth(d)?, &truth, &true_noise, &EivOptions::spec()) {
                 println!("{preset:5} {seed} CRB | | {}", fmt(&sc(&c.sigma)));
                 acc.entry((preset.clone(), "CRB".into())).or_default().sigma.push(sc(&c.sigma));
             }

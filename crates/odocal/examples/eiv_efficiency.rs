@@ -59,6 +59,8 @@ fn main() -> Result<(), Box<dyn Error>> {
         // The replicate world: θ̂ and the fitted noise model, known.
         let held = EivOptions { noise: fit.noise, fix_noise: true, ..opts.clone() };
         let boot = bootstrap(&input, &fit, &held, &BootstrapOptions { replicates, seed, ..Default::default() })?;
+        // The replicate world's true inputs are the drive's measured ones
+        // (`BootstrapInputs::Measured`), so its bound is linearised along them.
         let crb = cramer_rao_bound(&input, &fit.theta, &fit.noise, &held)?;
         let hat = fit.theta.to_array();
         let mut sd = [0.0f64; 4];

@@ -280,7 +280,8 @@ fn main() -> Res<()> {
                 Err(e) => println!("  EIV {mode}: failed {e}"),
             }
         }
-        let crb = odocal::eiv::cramer_rao_bound(&input, &truth, &sim_noise, &EivOptions::spec())?;
+        let along = odocal::eiv::EivInput::from_drive_truth(d)?;
+        let crb = odocal::eiv::cramer_rao_bound(&along, &truth, &sim_noise, &EivOptions::spec())?;
         let cs = crb.sigma;
         push("CRB σ", [cs[0] / truth.c_e * 100.0, cs[1] * 1e3, cs[2] / truth.t_r * 100.0, cs[3] * 1e3]);
         let cs = crb.sigma_mean_only;
@@ -288,7 +289,7 @@ fn main() -> Res<()> {
         // The same bound with a 5 mm position floor in R (the model of a
         // reference known to 5 mm rather than 1 mm).
         let crb5 = odocal::eiv::cramer_rao_bound(
-            &input,
+            &along,
             &truth,
             &sim_noise,
             &EivOptions { position_floor_m: 0.005, ..EivOptions::spec() },

@@ -121,8 +121,19 @@ pub fn cramer_rao_column(drive: &Drive, theta_true: Option<&Theta>, noise: Optio
         }
         (Some(_), None) => return CramerRao::unavailable("the drive's noise model is not known"),
     };
+    // Linearised along the true inputs, not the measured ones (whose noise
+    // would count as excitation: `EivInput::from_drive_truth`).
+    let input = match EivInput::from_drive_truth(drive) {
+        Ok(i) => i,
+        Err(_) => {
+            return CramerRao {
+                noise: Some(*noise),
+                ..CramerRao::unavailable("the drive has no truth columns (*_true) to evaluate the bound along")
+            }
+        }
+    };
     let of = Theta::from_array;
-    match cramer_rao_bound(&EivInput::from_drive(drive), theta, noise, &EivOptions::spec()) {
+    match cramer_rao_bound(&input, theta, noise, &EivOptions::spec()) {
         Ok(c) if c.sigma.iter().all(|s| s.is_finite() && *s > 0.0) => CramerRao {
             sigma: Some(of(c.sigma)),
             sigma_mean_only: Some(of(c.sigma_mean_only)),
@@ -653,6 +664,17 @@ mod tests {
         let no_noise = cramer_rao_column(&sim.drive, Some(&truth), None);
         assert!(no_noise.sigma.is_none() && no_noise.unavailable.as_deref().is_some_and(|r| r.contains("noise")));
         assert_eq!(no_noise.ratio(&truth), None);
+        let bare = Drive::builder(sim.drive.t().to_vec(), sim.drive.measured().clone())
+            .sample_time_s(sim.drive.sample_time_s())
+            .context("no truth")
+            .build()
+            .expect("drive");
+        let no_columns = cramer_rao_column(&bare, Some(&truth), Some(&noise));
+        assert!(
+            no_columns.sigma.is_none()
+                && no_columns.unavailable.as_deref().is_some_and(|r| r.contains("truth columns")),
+            "{no_columns:?}"
+        );
         let bad = NoiseModel { wheel_common_time_constant_s: 0.0, ..noise };
         let failed = cramer_rao_column(&sim.drive, Some(&truth), Some(&bad));
         assert!(

@@ -259,6 +259,50 @@ impl<'a> EivInput<'a> {
         }
     }
 
+    /// The noise-free truth columns of a simulated drive (its parts and
+    /// reference mask as [`EivInput::from_drive`]): the trajectory along
+    /// which [`cramer_rao_bound`] at θ_true is linearised.
+    ///
+    /// Why not the measured columns (stop 25): the bound's sensitivities
+    /// are the filter's, linearised along the inputs it is given. Along the
+    /// measured wheel rotations the white wheel noise appears as yaw and
+    /// speed excitation the vehicle never had (on `high` about 5 mrad of
+    /// yaw per 25 ms step), and the information about t_r and d, which grows
+    /// with that excitation, is overstated: the bound came out about half
+    /// the true one for t_r on `high` (docs/study.md, "Stop 25").
+    ///
+    /// # Errors
+    /// [`Error::InvalidDrive`] when the drive carries no truth (a recorded
+    /// drive: its bound cannot be evaluated at the truth).
+    ///
+    /// ```
+    /// use odocal::eiv::EivInput;
+    /// use odocal::sim::{simulate, SimOptions};
+    /// let sim = simulate(&SimOptions { length_km: 0.5, ..SimOptions::paper(1) })?;
+    /// let truth = EivInput::from_drive_truth(&sim.drive)?;
+    /// let measured = EivInput::from_drive(&sim.drive);
+    /// assert_eq!(truth.len(), measured.len());
+    /// assert_ne!(truth.n_rl, measured.n_rl);
+    /// # Ok::<(), odocal::Error>(())
+    /// ```
+    pub fn from_drive_truth(d: &'a crate::Drive) -> Result<Self> {
+        let t = d.truth().ok_or_else(|| Error::InvalidDrive {
+            context: "EIV input".into(),
+            reason: "the drive carries no truth columns (*_true): the bound at the truth needs a simulated drive"
+                .into(),
+        })?;
+        Ok(EivInput {
+            px: &t.px,
+            py: &t.py,
+            psi: &t.psi,
+            n_rl: &t.n_rl,
+            n_rr: &t.n_rr,
+            beta: &t.beta,
+            a_y: &t.a_y,
+            ..EivInput::from_drive(d)
+        })
+    }
+
     /// Number of samples.
     pub fn len(&self) -> usize {
         self.px.len()
@@ -3627,7 +3671,16 @@ fn inflate_to_block(cov: &Matrix4<f64>, blocks: &filter::BlockScores) -> Matrix4
 /// noise model is known (the wheel noise in metres scales with the wheel
 /// circumferences); the mean-only part is reported too
 /// ([`CrbReport::sigma_mean_only`]). η is not estimated (known noise), so
-/// this is the bound of an estimator that knows the noise model.
+/// this is the bound of an estimator that knows the noise model;
+/// [`CrbReport::sigma_noise_estimated`] is the bound with the noise scales
+/// as nuisance parameters, the one an estimator that estimates the noise
+/// model from the drive (the EIV default) can reach.
+///
+/// The sensitivities are linearised along `input`. For the bound at the
+/// truth pass the *true* inputs, [`EivInput::from_drive_truth`] of a
+/// simulated drive: along the measured ones the wheel noise counts as
+/// excitation and the bound on t_r and d comes out too small (on the `high`
+/// preset about half of t_r's).
 ///
 /// ## References
 /// R. H. Shumway, D. S. Stoffer, *Time Series Analysis and Its

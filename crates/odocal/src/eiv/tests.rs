@@ -603,6 +603,35 @@ fn full_fisher_information_dominates_the_mean_only_information() {
     eprintln!("CRB σ with η estimated {ne:?}");
 }
 
+/// The bound at θ_true is linearised along the true inputs (stop 25):
+/// along the measured ones the white wheel noise counts as yaw excitation
+/// and t_r's bound comes out far too small on a high-noise drive, while
+/// c_e's (set by the distance, not by the turning) hardly moves. On a
+/// noise-free drive the two inputs are the same columns and so are the
+/// bounds, to the bit.
+#[test]
+fn the_bound_at_the_truth_is_linearised_along_the_true_inputs() {
+    let high = SimOptions { length_km: 3.0, noise: crate::sim::NoiseOptions::high(), ..SimOptions::paper(7) };
+    let out = simulate(&high).expect("sim");
+    let noise = NoiseModel::from_sim(&out.sidecar.settings.noise, out.drive.sample_time_s());
+    let th = out.sidecar.theta_true;
+    let opts = EivOptions::spec();
+    let truth = EivInput::from_drive_truth(&out.drive).expect("simulated drive");
+    let along_truth = cramer_rao_bound(&truth, &th, &noise, &opts).expect("crb");
+    let along_measured = cramer_rao_bound(&input_of(&out.drive), &th, &noise, &opts).expect("crb");
+    let ratio = |i: usize| along_truth.sigma_mean_only[i] / along_measured.sigma_mean_only[i];
+    eprintln!("mean-only σ along the truth / along the measured inputs: {:?}", (0..4).map(ratio).collect::<Vec<_>>());
+    assert!(ratio(2) > 1.4, "t_r: {}", ratio(2));
+    assert!(ratio(3) > 1.2, "d: {}", ratio(3));
+    assert!((ratio(0) - 1.0).abs() < 0.1, "c_e: {}", ratio(0));
+
+    let off = simulate(&SimOptions { length_km: 1.0, ..SimOptions::noise_free(7) }).expect("sim");
+    let paper = NoiseModel::from_sim(&crate::sim::NoiseOptions::paper(), off.drive.sample_time_s());
+    let a = cramer_rao_bound(&EivInput::from_drive_truth(&off.drive).expect("truth"), &th, &paper, &opts).expect("crb");
+    let b = cramer_rao_bound(&input_of(&off.drive), &th, &paper, &opts).expect("crb");
+    assert_eq!(a.information, b.information);
+}
+
 fn known_noise_fit(km: f64, seed: u64) -> (crate::sim::SimOutput, EivOptions) {
     let out = simulate(&SimOptions { length_km: km, ..SimOptions::paper(seed) }).expect("sim");
     let noise = NoiseModel::from_sim(&out.sidecar.settings.noise, out.drive.sample_time_s());
