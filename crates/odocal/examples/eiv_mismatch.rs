@@ -14,6 +14,13 @@
 //! with acceleration), `one-substep` (truth integrated with the filter's
 //! own step), `no-quant` (no encoder quantisation), `no-lateral` (exact a_y
 //! and β), `none` (all of the above off).
+//!
+//! The bound is linearised along the drive's true inputs
+//! (`EivInput::from_drive_truth`) with `EivOptions::spec()`. Environment:
+//! `CRB_MEASURED=1` linearises it along the measured inputs instead (the
+//! bound before stop 25); `CRB_KNOWN=1` computes it with the fit's own
+//! options; `START_TRUE=1` starts the fit at θ_true instead of batch G-N.
+//! docs/study.md, "Stop 25".
 
 use std::error::Error;
 
