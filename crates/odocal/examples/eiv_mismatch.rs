@@ -19,7 +19,8 @@
 //! (`EivInput::from_drive_truth`) with `EivOptions::spec()`. Environment:
 //! `CRB_MEASURED=1` linearises it along the measured inputs instead (the
 //! bound before stop 25); `CRB_KNOWN=1` computes it with the fit's own
-//! options; `START_TRUE=1` starts the fit at θ_true instead of batch G-N.
+//! options; `START_TRUE=1` starts the fit at θ_true instead of batch G-N;
+//! `EST=1` estimates the noise model (uncorrected) instead of knowing it.
 //! docs/study.md, "Stop 25".
 
 use std::error::Error;
@@ -66,10 +67,14 @@ fn main() -> Result<(), Box<dyn Error>> {
     });
     let noise = NoiseOptions::by_name(preset)?;
     println!("preset {preset}, {km} km, seeds 1..={seeds}; EIV with the simulator's noise model, fixed, uncorrected");
-    println!("| variant | parameter | mean error | t | RMS / CRB | RMS / mean-only | RMS / CRB_η |");
-    println!("|---|---|---:|---:|---:|---:|---:|");
+    println!(
+        "| variant | parameter | mean error | t | RMS / CRB | RMS / mean-only | RMS / CRB_η | fit's σ / mean-only bound |"
+    );
+    println!("|---|---|---:|---:|---:|---:|---:|---:|");
     for v in &variants {
         let (mut sum, mut sq, mut crb2, mut mean2, mut eta2) = ([0.0f64; 4], [0.0f64; 4], [0.0; 4], [0.0; 4], [0.0; 4]);
+        // The fits' own reported σ (RMS over drives).
+        let mut fit2 = [0.0f64; 4];
         let mut n = 0usize;
         for seed in 1..=seeds {
             let base = SimOptions { length_km: km, noise: noise.clone(), ..SimOptions::paper(seed) };
@@ -86,7 +91,9 @@ fn main() -> Result<(), Box<dyn Error>> {
             }
             let true_noise = NoiseModel::from_sim(&out.sidecar.settings.noise, d.sample_time_s());
             let known = EivOptions { noise: true_noise, fix_noise: true, ..Default::default() };
-            let fit = match estimate(&input, &start, &known) {
+            // EST=1: the noise model estimated from the drive (uncorrected) instead of known.
+            let fit_opts = if std::env::var_os("EST").is_some() { EivOptions::default() } else { known.clone() };
+            let fit = match estimate(&input, &start, &fit_opts) {
                 Ok(f) => f,
                 Err(e) => {
                     eprintln!("{v} seed {seed}: {e}");
@@ -109,6 +116,7 @@ fn main() -> Result<(), Box<dyn Error>> {
                 sum[i] += e;
                 sq[i] += e * e;
                 crb2[i] += (crb.sigma[i] * scale).powi(2);
+                fit2[i] += (fit.sigma[i] * scale).powi(2);
                 mean2[i] += (crb.sigma_mean_only[i] * scale).powi(2);
                 eta2[i] += (crb.sigma_noise_estimated.map_or(f64::NAN, |s| s[i]) * scale).powi(2);
             }
@@ -121,12 +129,13 @@ fn main() -> Result<(), Box<dyn Error>> {
             let rms = (sq[i] / nf).sqrt();
             let r = |b: f64| rms / (b / nf).sqrt();
             println!(
-                "| {v} | {} | {mean:+.3e} | {:.1} | {:.2} | {:.2} | {:.2} |",
+                "| {v} | {} | {mean:+.3e} | {:.1} | {:.2} | {:.2} | {:.2} | {:.2} |",
                 NAMES[i],
                 mean / (sd / nf.sqrt()),
                 r(crb2[i]),
                 r(mean2[i]),
-                r(eta2[i])
+                r(eta2[i]),
+                (fit2[i] / mean2[i]).sqrt()
             );
         }
     }
