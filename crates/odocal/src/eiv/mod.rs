@@ -2007,7 +2007,12 @@ pub struct EivReport {
     /// estimate with both terms (`½ tr(S⁻¹∂S S⁻¹∂S)` included), jointly
     /// with the estimated η (θ block of the inverse): the Cramér–Rao form
     /// of [`cramer_rao_bound`] at θ̂ and the fitted noise. Equal to the
-    /// mean-only information with the covariance held.
+    /// mean-only information with the covariance held. Linearised along the
+    /// measured inputs (a fit has no other), whose noise counts as
+    /// excitation: under heavy wheel noise it understates t_r's and d's σ
+    /// (on the `high` preset t_r's by about half; it covered t_r in 22–25 %
+    /// of drives). A diagnostic; [`EivReport::sigma`] is raised to the block
+    /// sandwich, which measures the scores' actual spread.
     pub sigma_fisher: [f64; 4],
     /// The part of θ's σ that estimating η from the drive adds
     /// ([`EivOptions::noise_estimate_in_covariance`]): `sqrt(diag A Σ_η Aᵀ)`.
