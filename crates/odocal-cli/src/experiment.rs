@@ -455,10 +455,10 @@ fn crb_section(o: &mut String, c: &CramerRao, rows: &[(String, Scored)], time_s:
         o,
         "σ_CRB is the smallest standard deviation an unbiased estimator that knows the noise model can have on this \
          drive (`odocal::eiv::cramer_rao_bound` at θ_true with the simulator's noise model in the EIV filter's form, \
-         linearised along the drive's true inputs; wheel slip is not in that form). Δ is θ − θ_true; Δ/σ_CRB of a single estimate is one draw: over seeds, an \
-         efficient unbiased estimator has RMS(Δ/σ_CRB) ≈ 1. The row \"noise scales unknown too\" is the bound of an \
-         estimator that estimates the noise levels with θ (EIV's default): the size of the innovations then no \
-         longer measures θ.\n"
+         linearised along the drive's true inputs; wheel slip is not in that form). Δ is θ − θ_true; Δ/σ_CRB of a \
+         single estimate is one draw: over seeds, an efficient unbiased estimator has RMS(Δ/σ_CRB) ≈ 1. The row \
+         \"noise scales unknown too\" is the bound of an estimator that estimates the noise levels with θ (EIV's \
+         default): the size of the innovations then no longer measures θ.\n"
     );
     let _ = writeln!(
         o,

@@ -32,9 +32,11 @@ use odocal::sim::{simulate, NoiseOptions, SimOptions};
 
 const NAMES: [&str; 4] = ["c_e", "c_d", "t_r", "d"];
 
-fn variant(base: &SimOptions, name: &str) -> Result<SimOptions, String> {
-    let mut o = base.clone();
-    let off = |o: &mut SimOptions, what: &str| match what {
+/// The simulator's departures from the filter's model, each a variant that switches it off.
+const DEPARTURES: [&str; 4] = ["no-slip", "one-substep", "no-quant", "no-lateral"];
+
+fn switch_off(o: &mut SimOptions, departure: &str) {
+    match departure {
         "no-slip" => o.noise.wheel_slip_per_m_per_s2 = 0.0,
         "one-substep" => o.substeps = 1,
         "no-quant" => o.noise.encoder_ticks_per_revolution = 0,
@@ -42,16 +44,16 @@ fn variant(base: &SimOptions, name: &str) -> Result<SimOptions, String> {
             o.noise.lateral_acceleration_white_sigma_m_per_s2 = 0.0;
             o.noise.sideslip_sigma_rad = 0.0;
         }
-        _ => {}
-    };
+        other => unreachable!("not a departure: {other}"),
+    }
+}
+
+fn variant(base: &SimOptions, name: &str) -> Result<SimOptions, String> {
+    let mut o = base.clone();
     match name {
         "as-is" => {}
-        "no-slip" | "one-substep" | "no-quant" | "no-lateral" => off(&mut o, name),
-        "none" => {
-            for w in ["no-slip", "one-substep", "no-quant", "no-lateral"] {
-                off(&mut o, w);
-            }
-        }
+        "none" => DEPARTURES.iter().for_each(|d| switch_off(&mut o, d)),
+        d if DEPARTURES.contains(&d) => switch_off(&mut o, d),
         other => return Err(format!("unknown variant '{other}'")),
     }
     Ok(o)
@@ -62,11 +64,16 @@ fn main() -> Result<(), Box<dyn Error>> {
     let preset = args.get(1).map(String::as_str).unwrap_or("high");
     let seeds: u64 = args.get(2).map(|s| s.parse()).transpose()?.unwrap_or(20);
     let km: f64 = args.get(3).map(|s| s.parse()).transpose()?.unwrap_or(12.0);
-    let variants: Vec<String> = args.get(4).map(|s| s.split(',').map(str::to_string).collect()).unwrap_or_else(|| {
-        ["as-is", "no-slip", "one-substep", "no-quant", "no-lateral", "none"].map(String::from).to_vec()
-    });
+    let variants: Vec<String> = args
+        .get(4)
+        .map(|s| s.split(',').map(str::to_string).collect())
+        .unwrap_or_else(|| std::iter::once("as-is").chain(DEPARTURES).chain(["none"]).map(String::from).collect());
     let noise = NoiseOptions::by_name(preset)?;
-    println!("preset {preset}, {km} km, seeds 1..={seeds}; EIV with the simulator's noise model, fixed, uncorrected");
+    let flag = |name: &str| std::env::var_os(name).is_some();
+    let (start_true, estimated, crb_known, crb_measured) =
+        (flag("START_TRUE"), flag("EST"), flag("CRB_KNOWN"), flag("CRB_MEASURED"));
+    let model = if estimated { "the noise model estimated" } else { "the simulator's noise model, fixed" };
+    println!("preset {preset}, {km} km, seeds 1..={seeds}; EIV with {model}, uncorrected");
     println!(
         "| variant | parameter | mean error | t | RMS / CRB | RMS / mean-only | RMS / CRB_η | fit's σ / mean-only bound |"
     );
@@ -86,13 +93,13 @@ fn main() -> Result<(), Box<dyn Error>> {
             let data: Vec<SegmentData> = sel.all.iter().map(|s| SegmentData::new(d, s)).collect();
             let gn = IdentifyOptions { max_iterations: 20, ..Default::default() };
             let mut start = batch_gauss_newton(&data, &odocal::Theta::PAPER_INITIAL, &gn)?.theta;
-            if std::env::var_os("START_TRUE").is_some() {
+            if start_true {
                 start = out.sidecar.theta_true;
             }
             let true_noise = NoiseModel::from_sim(&out.sidecar.settings.noise, d.sample_time_s());
             let known = EivOptions { noise: true_noise, fix_noise: true, ..Default::default() };
             // EST=1: the noise model estimated from the drive (uncorrected) instead of known.
-            let fit_opts = if std::env::var_os("EST").is_some() { EivOptions::default() } else { known.clone() };
+            let fit_opts = if estimated { EivOptions::default() } else { known.clone() };
             let fit = match estimate(&input, &start, &fit_opts) {
                 Ok(f) => f,
                 Err(e) => {
@@ -100,13 +107,9 @@ fn main() -> Result<(), Box<dyn Error>> {
                     continue;
                 }
             };
-            let crb_opts = if std::env::var_os("CRB_KNOWN").is_some() { known.clone() } else { EivOptions::spec() };
+            let crb_opts = if crb_known { known } else { EivOptions::spec() };
             // CRB_MEASURED: linearised along the measured inputs (before stop 25).
-            let crb_input = if std::env::var_os("CRB_MEASURED").is_some() {
-                EivInput::from_drive(d)
-            } else {
-                EivInput::from_drive_truth(d)?
-            };
+            let crb_input = if crb_measured { input } else { EivInput::from_drive_truth(d)? };
             let crb = cramer_rao_bound(&crb_input, &out.sidecar.theta_true, &true_noise, &crb_opts)?;
             let t = fit.theta.to_array();
             for i in 0..4 {
@@ -121,6 +124,9 @@ fn main() -> Result<(), Box<dyn Error>> {
                 eta2[i] += (crb.sigma_noise_estimated.map_or(f64::NAN, |s| s[i]) * scale).powi(2);
             }
             n += 1;
+        }
+        if n < 2 {
+            return Err(format!("{v}: {n} drive(s) fitted, at least 2 needed for a spread").into());
         }
         let nf = n as f64;
         for i in 0..4 {

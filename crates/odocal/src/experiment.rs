@@ -123,14 +123,11 @@ pub fn cramer_rao_column(drive: &Drive, theta_true: Option<&Theta>, noise: Optio
     };
     // Linearised along the true inputs, not the measured ones (whose noise
     // would count as excitation: `EivInput::from_drive_truth`).
-    let input = match EivInput::from_drive_truth(drive) {
-        Ok(i) => i,
-        Err(_) => {
-            return CramerRao {
-                noise: Some(*noise),
-                ..CramerRao::unavailable("the drive has no truth columns (*_true) to evaluate the bound along")
-            }
-        }
+    let Ok(input) = EivInput::from_drive_truth(drive) else {
+        return CramerRao {
+            noise: Some(*noise),
+            ..CramerRao::unavailable("the drive has no truth columns (*_true) to evaluate the bound along")
+        };
     };
     let of = Theta::from_array;
     match cramer_rao_bound(&input, theta, noise, &EivOptions::spec()) {

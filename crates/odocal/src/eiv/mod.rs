@@ -2694,12 +2694,12 @@ fn line_search(
     Ok(Search::Rejected { cost: last_cost })
 }
 
-/// `max |step_i|/σ_i` over the free θ and the η that move.
 /// `max |Δη_j|/σ_j` of an η step alone ([`step_ratio`] without θ).
 fn eta_ratio(eta: &[f64; 6], deta: &[f64; 6], seta: &[f64; 6], bounds: [f64; 2]) -> f64 {
     step_ratio(&[0.0; 4], &[0.0; 4], &[false; 4], eta, deta, seta, bounds)
 }
 
+/// `max |step_i|/σ_i` over the free θ and the η that move.
 fn step_ratio(
     dth: &[f64; 4],
     sth: &[f64; 4],
