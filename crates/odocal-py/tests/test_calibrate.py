@@ -51,8 +51,6 @@ def test_equals_cli_json(odocal_bin, drive_csv, method, flags, kwargs):
 
 def test_manifest_equals_cli_json(odocal_bin):
     manifest = REPO / "examples" / "psu-mapping-van" / "manifest.toml"
-    if not (REPO.parent / "shared" / "data" / "psu-mapping-van-2024-07-11").is_dir():
-        pytest.skip("the real drive's data are not here")
     cli = cli_json(odocal_bin, "calibrate", manifest, "--method", "batch-gn", "--holdout", "second-half")
     report = odocal.calibrate(odocal.Drive.from_manifest(manifest), "batch-gn", holdout="second-half")
     assert "wheel_scale" in cli and report.validation["held_out"]

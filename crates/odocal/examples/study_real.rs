@@ -1,13 +1,14 @@
-//! The real-log rows of the EIV study (issue 9, items 6 and 10): batch G-N,
+//! The real-log rows of the EIV study (docs/study.md): batch G-N,
 //! the 3-step method and EIV on the shipped logs, as `odocal calibrate` runs
 //! them (every method with its library defaults).
 //!
 //! ```text
 //! cargo run --release -p odocal --example study_real -- \
 //!     [--methods batch-gn,batch-gn-all,three-step,eiv,eiv-fixed] [--parts testtrack,van,rav4] \
-//!     (also eiv-stop11: the stop-11 checks and iteration; eiv-nofallback: fallback off;
-//!      eiv-sc, eiv-scg and their -nofallback variants: the stop-14 candidate noise-model shape;
-//!      eiv-cb (-nofallback): what `--correct-bias 10` sets, stop 20)
+//!     (also eiv-stop11: fitted-model innovation checks, no secant damping of η;
+//!      eiv-nofallback: fallback off; eiv-sc, eiv-scg and their -nofallback variants:
+//!      separate heading scale with counting quantisation; eiv-cb (-nofallback): what
+//!      `--correct-bias 10` sets)
 //!     [--json study_real.json] [--markdown study_real.md]
 //! ```
 //!
@@ -18,14 +19,14 @@
 //! start, fallback on) and `eiv-fixed` (`--method eiv --fix-noise`: the
 //! production-car noise model as is).
 //!
-//! Run only when named (stop 14, the candidate EIV defaults): `eiv-sc`
+//! Run only when named (alternative EIV noise-model shapes): `eiv-sc`
 //! (`HeadingScale::Separate` + `QuantisationModel::Counting`, the
 //! quantisation level scaled with the white wheel noise) and
 //! `eiv-scg` (the same with `QuantisationLevel::Given`: q held at the
 //! encoder's step, see [`encoder_q`]), each also as `…-nofallback` (the
-//! EIV θ whatever the checks say). `eiv-stop13` (`-nofallback`): the EIV
-//! defaults before stop 14 (tied heading scale, quantisation as process
-//! noise scaled with the white wheel noise).
+//! EIV θ whatever the checks say). `eiv-stop13` (`-nofallback`): tied
+//! heading scale, quantisation as process noise scaled with the white wheel
+//! noise, heading offset held.
 //!
 //! Parts:
 //! - `testtrack`: the six test-track runs of 2024-08-05
@@ -39,7 +40,7 @@
 //! - `rav4`: the comma2k19 RAV4 (`examples/comma2k19-rav4/`, 1 km, nearly
 //!   straight): c_e with its σ and which parameters are named unobservable
 //!   or held, with the defaults and with `--auto-fix`;
-//! - `swap` (only when named; stop 14): per test-track run, `eiv-scg-nofallback`'s
+//! - `swap` (only when named): per test-track run, `eiv-scg-nofallback`'s
 //!   θ with one parameter at a time from batch G-N (all segments), judged by
 //!   Ē_p on the other five runs (which parameter makes the difference), and
 //!   the same on the van's held-out halves.
@@ -48,7 +49,7 @@
 //! ([`odocal::CalibrationReport::result_sigma`]): batch G-N's
 //! cluster-robust σ, the 3-step's batch spread, EIV's `H_θ⁻¹`, else the
 //! model σ (the source is named). Prints markdown tables (stdout) and writes JSON with
-//! `--json`. The data are in `../shared/data/` beside the repository. Not a
+//! `--json`. The data are in the repository's `data/`. Not a
 //! test: a few minutes in release on two cores.
 
 use std::error::Error;
@@ -70,12 +71,11 @@ const RUNS: [&str; 6] = ["14-45-26", "15-28-33", "16-06-28", "16-47-33", "17-45-
 const METHODS: [&str; 5] = ["batch-gn", "batch-gn-all", "three-step", "eiv", "eiv-fixed"];
 
 /// Methods run only when named: `eiv-stop14` (`eiv` with the reference
-/// heading offset held at 0, the stop-14 default; the other historical
-/// variants hold it too), `eiv-stop11` (`eiv` with the stop-11
-/// innovation checks and θ/η iteration), `eiv-nofallback` (`eiv` with
-/// the fallback off: the EIV θ whatever the checks say) and
-/// `eiv-uncorrected` (`eiv` without its default bias correction, the
-/// default before stop 21).
+/// heading offset held at 0; the `eiv-stop*` and `eiv-sc*` variants hold it
+/// too), `eiv-stop11` (`eiv` with innovation checks against the fitted
+/// model and no secant damping of the η step), `eiv-nofallback` (`eiv` with the
+/// fallback off: the EIV θ whatever the checks say) and `eiv-uncorrected`
+/// (`eiv` without its default bias correction).
 const EXTRA_METHODS: [&str; 33] = [
     "eiv-uncorrected",
     "eiv-uncorrected-nofallback",
@@ -153,7 +153,7 @@ fn encoder_q(path: &std::path::Path) -> Result<(f64, String), Box<dyn Error>> {
     }
 }
 
-/// The EIV options of the stop-14 candidate shape: separate heading scale,
+/// The EIV options of the `eiv-sc*` shape: separate heading scale,
 /// counting quantisation; with `q`, the quantisation level given at q.
 fn candidate(q: Option<f64>, fallback: bool) -> Method {
     let mut filter = EivOptions {
@@ -173,7 +173,7 @@ fn candidate(q: Option<f64>, fallback: bool) -> Method {
 /// is the drive's encoder step ([`encoder_q`], used by `eiv-scg`).
 fn options(method: &str, q: f64) -> Result<CalibrationOptions, Box<dyn Error>> {
     let mut o = CalibrationOptions::default();
-    // Diagnostic variants (stop 14): `-x` also estimates the reference's
+    // Diagnostic variants: `-x` also estimates the reference's
     // lever arm and heading offset with θ in the start (the filter runs on
     // the rear-axle poses they imply), `-h` the heading offset alone; `-tau` starts from a reference drift
     // with a correlation time of SHORT_DRIFT_TAU_S instead of 100 s; `-tc`
@@ -267,7 +267,7 @@ fn options(method: &str, q: f64) -> Result<CalibrationOptions, Box<dyn Error>> {
             })
         }
         "eiv-nofallback" => o.method = Method::Eiv(EivMethodOptions { fallback: false, ..EivMethodOptions::default() }),
-        // Stop 21: the default before its bias correction (`--no-bias-correction`).
+        // The default without its bias correction (`--no-bias-correction`).
         "eiv-uncorrected" | "eiv-uncorrected-nofallback" => {
             o.method = Method::Eiv(EivMethodOptions {
                 correct_bias: None,
@@ -275,7 +275,7 @@ fn options(method: &str, q: f64) -> Result<CalibrationOptions, Box<dyn Error>> {
                 ..EivMethodOptions::default()
             })
         }
-        // Stop 20: what the CLI's `--correct-bias 10` sets (seed 0; antithetic pairs since stop 21).
+        // What the CLI's `--correct-bias 10` sets (seed 0, antithetic pairs).
         "eiv-cb" | "eiv-cb-nofallback" => {
             let mut filter = EivOptions::default();
             filter.correct_bias(10, 0);

@@ -1,4 +1,4 @@
-//! Diagnostic (issue 10): does the road bank explain the direction-dependent
+//! Diagnostic: does the road bank explain the direction-dependent
 //! c_d on the test track? Imports the runs without the manifests'
 //! `[lateral_acceleration.bank]` (a_y = v·ω from the wheels), then feeds
 //! the lateral specific force
@@ -98,8 +98,7 @@ fn variant(d: &Drive, phi: &[f64], fy: bool, w: bool, h: f64) -> Result<Drive, B
 
 fn main() -> Result<(), Box<dyn Error>> {
     let track = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/psu-mapping-van-testtrack");
-    let data =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/psu-mapping-van-testtrack-2024-08-05");
+    let data = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/psu-mapping-van-testtrack-2024-08-05");
     let mut base = Vec::new();
     for run in RUNS {
         // the manifests' a_y without their bank: the kinematic v·ω

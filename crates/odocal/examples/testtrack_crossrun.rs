@@ -14,12 +14,12 @@
 //! validates on the other four runs instead.
 //!
 //! The manifests are in `examples/psu-mapping-van-testtrack/`, the data in
-//! `../shared/data/psu-mapping-van-testtrack-2024-08-05/` beside the
-//! repository. For each run it prints the calibrated θ, its verdict, its own
-//! Ē_p (validated on the run it was fitted on), its mean Ē_p on the other
-//! five runs and θ_0's mean Ē_p on the same five; then the criteria of
-//! issue 10 (never worse than θ_0 on another run, mean cross-run Ē_p within
-//! 1.5 × the mean of the runs' own fits, at most two runs rejected).
+//! `data/psu-mapping-van-testtrack-2024-08-05/`. For each run it prints the
+//! calibrated θ, its verdict, its own Ē_p (validated on the run it was
+//! fitted on), its mean Ē_p on the other five runs and θ_0's mean Ē_p on the
+//! same five; then the cross-run criteria (never worse than θ_0 on another
+//! run, mean cross-run Ē_p within 1.5 × the mean of the runs' own fits, at
+//! most two runs rejected).
 //! With `--check` it exits with an error unless every run calibrates and
 //! those criteria hold (and not every run is rejected): CI runs
 //! `--check` with the default settings (`.ci/run`).
@@ -79,12 +79,12 @@ fn main() -> Result<(), Box<dyn Error>> {
         std::fs::write(&p, serde_json::to_string_pretty(&table)? + "\n")?;
     }
     if check {
-        // issue 10: never worse than θ_0 on another run, the ratio within
+        // never worse than θ_0 on another run, the ratio within
         // 1.5, every run calibrated, at most two rejected (and not all)
         if !c.pass() || c.rejected > 2 || c.rejected >= c.runs {
-            return Err(format!("the cross-run criterion of issue 10 does not hold:\n{c}").into());
+            return Err(format!("the cross-run criterion does not hold:\n{c}").into());
         }
-        println!("check passed: issue 10's cross-run criterion holds");
+        println!("check passed: the cross-run criterion holds");
     }
     Ok(())
 }

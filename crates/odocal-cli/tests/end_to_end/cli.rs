@@ -338,24 +338,18 @@ fn rejected_calibration_exits_3_and_still_writes_the_report() {
     assert!(stdout(&o).contains("  verdict: ACCEPTED"), "{}", stdout(&o));
 }
 
-/// The shipped van log (issue 10): on each half-split, default `calibrate`
-/// (method eiv) either improves Ē_p over θ_0 on the held-out half and is not
-/// rejected, or ends `rejected` (exit code 3) saying why; it is never
-/// accepted (the halves' t_r disagree). Measured (stop 15): EIV's checks fail
-/// on both halves and it falls back to its batch G-N start (every segment,
-/// heading offset estimated). Holding out the first half gives Ē_p 23.6 m
+/// The shipped van log (`data/psu-mapping-van-2024-07-11/`): on each
+/// half-split, default `calibrate` (method eiv) either improves Ē_p over θ_0
+/// on the held-out half and is not rejected, or ends `rejected` (exit code 3)
+/// saying why; it is never accepted (the halves' t_r disagree). Measured:
+/// EIV's checks fail on both halves and it falls back to its batch G-N start
+/// (every segment, heading offset estimated). Holding out the first half gives Ē_p 23.6 m
 /// against θ_0's 66.1 m, but t_r = 2.146 m lies beyond the plausible
 /// 1.12–2.08 m: rejected as implausible. Holding out the second half gives
-/// 26.0 m against 73.1 m (t_r 1.218 m), doubtful. Needs the shared data set;
-/// without it the test says so and passes.
+/// 26.0 m against 73.1 m (t_r 1.218 m), doubtful.
 #[test]
 fn shipped_van_log_is_improved_or_rejected_on_both_half_splits() {
     let m = format!("{}/../../examples/psu-mapping-van/manifest.toml", env!("CARGO_MANIFEST_DIR"));
-    let data = format!("{}/../../../shared/data/psu-mapping-van-2024-07-11", env!("CARGO_MANIFEST_DIR"));
-    if !Path::new(&data).exists() {
-        eprintln!("skipped: {data} not present");
-        return;
-    }
     let mut rejected = Vec::new();
     for half in ["first-half", "second-half"] {
         let o = odocal(&["calibrate", &m, "--holdout", half, "--json", "-"]);

@@ -1,12 +1,11 @@
 //! The PSU mapping-van bags (written by `rosbags`, a different library from
 //! the one odocal reads with) against the CSVs they were made from; see
-//! `shared/data/psu-mapping-van-2024-07-11/MCAP.md` for how.
+//! `data/psu-mapping-van-2024-07-11/MCAP.md` for how.
 //!
 //! The slice bag is in `tests/data/psu-mapping-van/`; it covers the first
 //! 120 s of the drive, before the CSV fixtures there, so it is checked
-//! against the full CSVs in the shared data folder (which CI has beside the
-//! repository, as the example manifests assume). The full bag is checked
-//! against the fixture CSVs.
+//! against the full CSVs in `data/psu-mapping-van-2024-07-11/`. The full bag
+//! there is checked against the fixture CSVs.
 #![cfg(feature = "mcap")]
 
 use odocal::bag::{self, TimeSource};
@@ -29,8 +28,8 @@ fn fixture(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/psu-mapping-van").join(name)
 }
 
-fn shared(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/psu-mapping-van-2024-07-11").join(name)
+fn full_log(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../data/psu-mapping-van-2024-07-11").join(name)
 }
 
 /// A CSV as text fields by column name.
@@ -149,7 +148,7 @@ fn slice_wheels_are_the_encoder_ticks_in_radians() {
     let t = bag::read_topic(&p, JOINTS, &[LEFT, RIGHT], TimeSource::HeaderStamp).expect("read");
     assert_eq!(t.len(), 11_832);
     // The slice is the first 11,832 encoder rows; every one matches.
-    assert_eq!(check_wheels(&t, &shared("encoders.csv")), 11_832);
+    assert_eq!(check_wheels(&t, &full_log("encoders.csv")), 11_832);
     assert_eq!((t.columns[LEFT][0], t.columns[RIGHT][0]), (0.0, 0.0));
 }
 
@@ -158,7 +157,7 @@ fn slice_pose_and_gnss_match_their_csvs() {
     let p = fixture("drive-slice.mcap");
     let pose =
         bag::read_topic(&p, POSE, &["x", "y", "yaw", "cov_x", "cov_yaw"], TimeSource::HeaderStamp).expect("pose");
-    assert_eq!(check_pose(&pose, &shared("pose_rear_antenna_mid.csv")), 1063);
+    assert_eq!(check_pose(&pose, &full_log("pose_rear_antenna_mid.csv")), 1063);
 
     for (topic, file, n) in [
         ("/sensing/gnss/front/nav_sat_fix", "gnss_front.csv", 1084),
@@ -166,7 +165,7 @@ fn slice_pose_and_gnss_match_their_csvs() {
         ("/sensing/gnss/rear_right/nav_sat_fix", "gnss_right_rear.csv", 1180),
     ] {
         let fix = bag::read_topic(&p, topic, &[], TimeSource::HeaderStamp).expect("fix");
-        let (h, rows) = csv(&shared(file));
+        let (h, rows) = csv(&full_log(file));
         let (it, ilat, ilon, ialt, imode) =
             (col(&h, "ros_time_s"), col(&h, "lat_deg"), col(&h, "lon_deg"), col(&h, "alt_m"), col(&h, "fix_mode"));
         assert_eq!(fix.len(), n);
@@ -191,7 +190,7 @@ fn slice_pose_and_gnss_match_their_csvs() {
 
 #[test]
 fn full_bag_matches_the_fixture_csv_rows() {
-    let p = shared("drive.mcap");
+    let p = full_log("drive.mcap");
     let t = bag::read_topic(&p, JOINTS, &[LEFT, RIGHT], TimeSource::HeaderStamp).expect("read");
     assert_eq!(t.len(), 57_470);
     // The fixture's 13,000 encoder rows (ros time 1720717700–830) are all in the bag.

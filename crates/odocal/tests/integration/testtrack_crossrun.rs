@@ -1,4 +1,4 @@
-//! Cross-run check on the six test-track runs of 2024-08-05 (issue 10):
+//! Cross-run check on the six test-track runs of 2024-08-05:
 //! calibrate on each run (or on a pair of runs), validate on the others.
 //!
 //! Measured (release, `cargo run --release -p odocal --example
@@ -6,19 +6,19 @@
 //! quotes the tables and the diagnosis): the track is banked (≈ 5.4° in
 //! the curves), and with the manifests' `[lateral_acceleration.bank]` (a_y
 //! the lateral specific force a_y·cos φ − g·sin φ, φ from the rear
-//! antennas) the 3-step on each single run meets issue 10's
+//! antennas) the 3-step on each single run meets the cross-run
 //! criterion: never worse than θ_0 on another run, mean cross-run Ē_p
 //! 2.30 m within 1.5 × the mean own fit 1.56 m (ratio 1.47), none
-//! rejected. Without the bank it did not (ratio 1.89, 3 of 30 pairs worse
-//! than θ_0): the counter-clockwise and clockwise runs wanted c_d 0.8 mm
+//! rejected. Without the bank it does not (ratio 1.89, 3 of 30 pairs worse
+//! than θ_0): the counter-clockwise and clockwise runs want c_d 0.8 mm
 //! apart. With d held at 0 the bank cannot act (the term is d·g·sin φ) and
 //! the single-run criterion still fails (ratio 1.71–1.81). These tests
 //! assert:
-//! - the default method (eiv, since stop 15) and the 3-step on each run:
+//! - the default method (eiv) and the 3-step on each run:
 //!   the full criterion (every run calibrates, never worse than θ_0 on
 //!   another run, ratio ≤ 1.5, at most two rejected and not all), and each
 //!   θ beats θ_0 on its own run; eiv's mean cross-run Ē_p is no worse than
-//!   batch G-N's on all segments (issue 9, item 10);
+//!   batch G-N's on all segments;
 //! - batch G-N with d held on each run: every run calibrates, none
 //!   rejected, each θ beats θ_0 on its own run and on the mean of the
 //!   other five;
@@ -28,11 +28,10 @@
 //!   rejected.
 //!
 //! The first two run in every `cargo test` (about 10 s of CPU each,
-//! measured: the
-//! test profile is optimised); the others, about as long each, stay
-//! `#[ignore]`d to keep CI's test stage short: run them with `cargo test
-//! --release -p odocal --test integration testtrack_crossrun:: -- --ignored`. The data
-//! live in ../shared/data beside the repository (as in CI).
+//! measured: the test profile is optimised); the others, about as long each,
+//! stay `#[ignore]`d to keep CI's test stage short: run them with `cargo test
+//! --release -p odocal --test integration testtrack_crossrun:: -- --ignored`.
+//! The data live in `data/` at the repository root.
 
 use odocal::crossrun::{cross_run_groups, CrossRunTable, CROSS_RUN_OWN_FIT_RATIO};
 use odocal::{CalibrationOptions, Drive, Method, Param, VerdictLevel};
@@ -98,9 +97,8 @@ fn three_step() -> CalibrationOptions {
     CalibrationOptions { method: Method::from_name("three-step").expect("method"), ..Default::default() }
 }
 
-/// The default method (eiv) meets the criterion and, issue 9's item 10, is
-/// no worse than batch G-N on all segments across runs (measured, stop 15:
-/// mean Ē_p on the other runs 1.59 m against 2.31 m; ratio 1.40). Not
+/// The default method (eiv) meets the criterion and is no worse than batch
+/// G-N on all segments across runs (measured: mean Ē_p on the other runs 1.59 m against 2.31 m; ratio 1.40). Not
 /// ignored: twelve calibrations and 60 validations take about 10 s of CPU in
 /// the test profile (opt-level 2), measured.
 #[test]
@@ -118,7 +116,7 @@ fn default_method_meets_the_cross_run_criterion_and_beats_batch_gn() {
     );
 }
 
-/// The paper's 3-step (the default until stop 15) meets it too (measured:
+/// The paper's 3-step meets it too (measured:
 /// 2.30 m on the others against 1.56 m own; ratio 1.47).
 #[test]
 fn three_step_meets_the_cross_run_criterion_on_single_runs() {

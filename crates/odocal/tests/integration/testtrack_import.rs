@@ -1,8 +1,8 @@
 //! The six 2024-08-05 test-track runs (examples/psu-mapping-van-testtrack)
 //! import without inventing motion: no wheel speed or lateral acceleration
-//! beyond what the van can do. Before the corrupt-row fix, runs 14-45-26
-//! and 16-06-28 gave ±2,729 and ±46,651 rev/s on two consecutive samples.
-//! The data lives in ../shared/data beside the repository (as in CI).
+//! beyond what the van can do. Runs 14-45-26 and 16-06-28 hold corrupt rows
+//! that, imported as they stand, give ±2,729 and ±46,651 rev/s on two
+//! consecutive samples. The data live in `data/` at the repository root.
 
 use odocal::{import, Manifest};
 
