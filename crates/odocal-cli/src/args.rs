@@ -33,7 +33,7 @@ pub struct HelpArgs {
     /// Print the common options.
     #[arg(short, long, action = ArgAction::HelpShort, display_order = 1001)]
     help: Option<bool>,
-    /// Print every option, grouped, with full explanations.
+    /// Print every option, with explanations.
     #[arg(long, action = ArgAction::HelpLong, display_order = 1002)]
     help_all: Option<bool>,
 }
@@ -42,52 +42,56 @@ pub struct HelpArgs {
 /// maps them, with a manifest's settings, to the library's options.
 #[derive(Args, Clone)]
 pub struct CalibrationArgs {
-    /// Calibration method: three-step, batch-gn or eiv.
+    /// three-step, batch-gn or eiv (default).
     ///
-    /// eiv (the default): an errors-in-variables filter over the whole drive,
+    /// The calibration method. eiv (the default): an errors-in-variables filter over the whole drive,
     /// started from batch-gn on all segments; it falls back to that batch-gn
     /// when its consistency checks fail. three-step: the paper's method
     /// (random batches, input compensation by a QP, a final fit). batch-gn:
     /// one Gauss-Newton fit over the selected segments.
-    #[arg(long, default_value = "eiv")]
+    #[arg(long, default_value = "eiv", hide_default_value = true)]
     pub method: Method,
-    /// Initial guess θ_0: c_e,c_d,t_r,d (SI) or a parameter file.
+    /// θ_0: c_e,c_d,t_r,d (SI) or a parameter file.
     ///
-    /// In SI units: c_d in m, d in m per m/s². A parameter file is one that
+    /// The initial guess. In SI units: c_d in m, d in m per m/s². A parameter file is one that
     /// --params-out wrote (.yaml, .yml, .json), e.g. the last calibration's:
     /// its θ is taken.
     #[arg(long, allow_hyphen_values = true)]
     pub theta0: Option<ThetaArg>,
-    /// Parameters held at θ_0, comma separated (e.g. c_d,t_r,d).
+    /// Parameters held at θ_0 (e.g. c_d,t_r,d).
+    ///
+    /// Comma separated: c_e, c_d, t_r, d (and lever_x, lever_y,
+    /// heading_offset when --estimate frees them).
     #[arg(long)]
     pub fix: Option<ParamSet>,
-    /// Validate on first-half or second-half of the drive, fit the rest.
+    /// Validate on one half: first-half, second-half.
     ///
     /// The drive is halved by time; the half named is held out for the
     /// validation and the calibration uses the other.
     #[arg(long, hide_possible_values = true)]
     pub holdout: Option<HalfArg>,
-    /// Validate on other drives (CSVs or manifests, comma separated).
+    /// Validate on other drives (comma separated).
     ///
-    /// Drives of the same vehicle (repeat the flag or separate with commas)
+    /// Drive CSVs or manifests of the same vehicle (repeat the flag or separate with commas)
     /// instead of the calibration drive: Ē_p per drive and over all of them.
     #[arg(long, conflicts_with = "holdout", value_delimiter = ',')]
     pub validate_on: Vec<PathBuf>,
-    /// Hold at θ_0 the parameters the data cannot determine.
+    /// Hold what the data cannot determine at θ_0.
     ///
-    /// The observability check names them; they are held instead of
+    /// The parameters the observability check names as not determined by
+    /// the data; they are held instead of
     /// estimated. With no turning segment, c_d, t_r, d are held and every
     /// segment is used.
     #[arg(long)]
     pub auto_fix: bool,
-    /// Write θ and its 1σ to a ROS 2 parameter file (.yaml) or .json.
+    /// Write θ and 1σ to a ROS 2 .yaml or a .json.
     ///
     /// The calibrated parameters with their 1σ, units, verdict and
     /// provenance: a ROS 2 parameter file (.yaml/.yml) or JSON (.json).
     /// `--theta0` and `validate --theta` read it back.
     #[arg(long)]
     pub params_out: Option<PathBuf>,
-    /// Write a self-contained HTML report to this file.
+    /// Write a self-contained HTML report here.
     ///
     /// The verdict, θ, a map, per-segment errors, residuals and warnings, in
     /// one file without scripts or network fetches.

@@ -20,7 +20,7 @@ use crate::{report, settings, Outcome};
 /// Arguments of `odocal calibrate`.
 #[derive(Args)]
 pub struct CalibrateArgs {
-    /// Drive CSV (canonical, SPEC §2) or drive manifest (.toml); several are fitted jointly.
+    /// Drive CSV or manifest (.toml); several are fitted jointly.
     ///
     /// The drive: a canonical CSV (SPEC §2) or a drive manifest (.toml).
     /// Several drives of one vehicle are fitted jointly (segments never span
@@ -29,7 +29,9 @@ pub struct CalibrateArgs {
     drive: Vec<PathBuf>,
     #[command(flatten)]
     calibration: CalibrationArgs,
-    /// Write the JSON report here ("-": stdout, replacing the text).
+    /// Write the JSON report here ("-": stdout).
+    ///
+    /// "-" writes it to stdout instead of the text report.
     #[arg(long)]
     json: Option<PathBuf>,
     #[command(flatten)]
@@ -39,21 +41,25 @@ pub struct CalibrateArgs {
 /// Arguments of `odocal demo`.
 #[derive(Args)]
 pub struct DemoArgs {
-    /// Simulation seed (`--seed` seeds the calibration's random batches).
-    #[arg(long, default_value_t = 1)]
+    /// Seed of the simulated drive [default: 1].
+    ///
+    /// `--seed` seeds the calibration's random batches.
+    #[arg(long, default_value_t = 1, hide_default_value = true)]
     sim_seed: u64,
     /// Route length, km.
     #[arg(long, default_value_t = 24.0)]
     length_km: f64,
-    /// Noise preset: paper, off, white or high.
-    #[arg(long, default_value = "paper")]
+    /// paper (default), off, white or high noise.
+    #[arg(long, default_value = "paper", hide_default_value = true)]
     noise: String,
     /// Also write the simulated drive here.
     #[arg(long)]
     out: Option<PathBuf>,
     #[command(flatten)]
     calibration: CalibrationArgs,
-    /// Write the JSON report here ("-" for stdout).
+    /// Write the JSON report here ("-": stdout).
+    ///
+    /// "-" writes it to stdout instead of the text report.
     #[arg(long)]
     json: Option<PathBuf>,
     #[command(flatten)]

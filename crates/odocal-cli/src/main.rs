@@ -29,9 +29,14 @@ mod validate;
 
 /// The line under `calibrate --help` and `demo --help` that names what
 /// `--help-all` adds.
-const MORE_OPTIONS: &str =
-    "More options (--help-all): segments and Gauss-Newton, reference extrinsics, the three-step \
-                            method, the EIV noise model, EIV bias correction and bootstrap, parameter-file keys.";
+const MORE_OPTIONS: &str = "More options (--help-all): segments, reference extrinsics, three-step, EIV noise \
+                            model, EIV bias correction, parameter file.";
+
+/// The lines at the end of `calibrate --help-all`.
+const CALIBRATE_NOTES: &str = "A manifest's [calibration], [noise] and [reference] settings apply where no flag \
+                               gives them. The results do not depend on --threads.\n\
+                               Exit codes: 0 done, 1 error, 2 usage error, 3 calibration rejected (the reports \
+                               are still written).";
 
 #[derive(Parser)]
 #[command(
@@ -45,9 +50,6 @@ struct Cli {
     #[arg(long, short, global = true, display_order = 1000)]
     quiet: bool,
     /// Worker threads (default: one per core).
-    ///
-    /// Worker threads of the parallel stages (default: one per core); the
-    /// results do not depend on their number.
     #[arg(long, global = true, value_name = "N", display_order = 1000)]
     threads: Option<usize>,
     #[command(subcommand)]
@@ -56,33 +58,50 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Simulate a drive with known true parameters: writes DRIVE.csv and its truth, DRIVE.json.
+    /// Simulate a drive with known θ (writes DRIVE.csv and DRIVE.json).
+    ///
+    /// DRIVE.json, the sidecar, holds the true θ and the noise settings;
+    /// `calibrate` and `experiment` compare with it.
     Simulate(simulate::SimulateArgs),
-    /// Calibrate θ from a drive CSV or a manifest (TOML); several drives are fitted jointly.
+    /// Calibrate θ from a drive CSV or a manifest (TOML).
+    ///
+    /// Several drives of one vehicle are fitted jointly.
     #[command(
         disable_help_flag = true,
         after_help = MORE_OPTIONS,
-        after_long_help = "A manifest's [calibration], [noise] and [reference] settings apply where no flag \
-                           gives them.\nExit codes: 0 done, 1 error, 2 usage error, 3 calibration rejected (the \
-                           reports are still written)."
+        after_long_help = CALIBRATE_NOTES
     )]
     Calibrate(calibrate::CalibrateArgs),
-    /// Mean position error Ē_p of a θ (c_e,c_d,t_r,d or a parameter file) on a drive CSV or manifest.
+    /// Validate a θ (c_e,c_d,t_r,d or a parameter file) on a drive: Ē_p.
+    ///
+    /// The mean position error Ē_p of dead reckoning with θ on the validation
+    /// segments of a drive CSV or manifest; optionally the reachable minimum.
     Validate(validate::ValidateArgs),
-    /// Compensate a drive's wheel rotations for a θ: writes them beside the measured ones.
+    /// Write a drive's wheel rotations compensated for a θ beside them.
+    ///
+    /// The three-step method's input compensation (a QP per segment) for a
+    /// given θ: the drive CSV gains n_rl_comp, n_rr_comp and compensated.
     Compensate(compensate::CompensateArgs),
-    /// Simulate a drive, calibrate it with calibrate's options and compare with the truth.
-    #[command(
-        disable_help_flag = true,
-        after_help = MORE_OPTIONS,
-        after_long_help = "The demo's calibration is not one to deploy: it exits with 0 whatever the verdict."
-    )]
+    /// Simulate a drive, calibrate it and compare with the truth.
+    ///
+    /// The calibration takes calibrate's options. It is not one to deploy: the
+    /// demo exits with 0 whatever the verdict.
+    #[command(disable_help_flag = true, after_help = MORE_OPTIONS)]
     Demo(calibrate::DemoArgs),
-    /// Reproduce the paper's §6 on a simulated drive or a drive CSV: report.md, SVG figures, experiment.json.
+    /// The paper's §6 on a drive: report.md, SVG figures, experiment.json.
+    ///
+    /// On a simulated drive, or on a drive CSV (with the truth from its
+    /// sidecar when it has one).
     Experiment(experiment::ExperimentArgs),
-    /// Import a multi-stream log described by a manifest (TOML) into a canonical drive CSV.
+    /// Import a log described by a manifest (TOML) into a drive CSV.
+    ///
+    /// The manifest names the streams (CSV, MCAP, Parquet) of a multi-stream
+    /// log; the result is a canonical drive CSV.
     Import(import::ImportArgs),
-    /// List a ROS 2 bag's (MCAP) topics, rates and manifest columns, or draft its manifest.
+    /// List a ROS 2 bag's (MCAP) topics; draft a manifest for it.
+    ///
+    /// Topics, types, counts and rates, and the manifest columns of each
+    /// topic odocal reads; with --manifest, a draft manifest.
     Inspect(inspect::InspectArgs),
 }
 
