@@ -103,17 +103,10 @@ fn calibrate_help_all_lists_every_option_under_its_heading() {
     for (heading, flags) in EXPERT {
         let at = from + help[from..].find(heading).unwrap_or_else(|| panic!("{heading} missing or out of order"));
         // The section ends at the next line that is not indented (the next heading).
-        let body = &help[at + heading.len()..];
-        let end = body.find(|c: char| c == '\n').map_or(body.len(), |first| {
-            body[first..]
-                .match_indices('\n')
-                .map(|(i, _)| first + i + 1)
-                .find(|&i| body[i..].chars().next().is_some_and(|c| !c.is_whitespace()))
-                .unwrap_or(body.len())
-        });
-        let section = &body[..end];
+        let lines = help[at + heading.len()..].lines().skip(1);
+        let section = lines.take_while(|l| l.is_empty() || l.starts_with(' ')).collect::<Vec<_>>().join("\n");
         for flag in flags.iter() {
-            assert!(lists(section, flag), "{flag} not under {heading}:\n{section}");
+            assert!(lists(&section, flag), "{flag} not under {heading}:\n{section}");
         }
         from = at + heading.len();
     }
