@@ -107,6 +107,30 @@ pub fn verdict(v: &Verdict) -> String {
 pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_scale: Option<&str>) -> String {
     let mut out = String::new();
     let _ = writeln!(out, "odocal calibrate — method {}", r.method);
+    segments_line(&mut out, r);
+    three_step_lines(&mut out, r);
+    identification_lines(&mut out, r);
+    out.push_str(&r.method_details());
+    out.push('\n');
+    out.push_str(&theta_table(&theta_columns(r, truth)));
+    if let Some(x) = &r.extrinsics {
+        out.push_str(&extrinsics_table(x));
+    }
+    out.push_str(&verdict(&r.verdict));
+    result_notes(&mut out, r, wheel_scale);
+    out.push('\n');
+    validation_lines(&mut out, r, truth);
+    let t = &r.timing_s;
+    let _ = writeln!(
+        out,
+        "\ntime: {:.2} s total (setup {:.2}, initial {:.2}, compensation {:.2}, final {:.2}, validation {:.2})",
+        t.total, t.setup, t.initial_identification, t.compensation, t.final_identification, t.validation
+    );
+    out
+}
+
+/// The segments cut, selected and used for validation.
+fn segments_line(out: &mut String, r: &CalibrationReport) {
     let used = r.identification().map(|id| id.segments);
     if used == Some(r.segments.cut) && (r.segments.selected < r.segments.cut || eiv_detail(r).is_some()) {
         // --auto-fix on a drive without turns, or --min-yaw-rate 0: no selection happened.
@@ -122,6 +146,11 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
             r.segments.cut, r.segments.selected, r.options.segments.min_peak_yaw_rate_rad_per_s, r.segments.validation
         );
     }
+}
+
+/// The three-step method's first two steps: the batch fits and the input
+/// compensation.
+fn three_step_lines(out: &mut String, r: &CalibrationReport) {
     if let (Some(s), Method::ThreeStep(o)) = (r.initial_step(), &r.options.method) {
         let _ = writeln!(
             out,
@@ -145,54 +174,61 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
             c.rms_relative_input_change * 100.0
         );
     }
-    if let Some(id) = r.identification() {
+}
+
+/// The Gauss-Newton fit (the three-step's step 3, EIV's start or batch
+/// G-N) and which σ stands beside the model σ.
+fn identification_lines(out: &mut String, r: &CalibrationReport) {
+    let Some(id) = r.identification() else { return };
+    let _ = writeln!(
+        out,
+        "{}: {} segments, {} it, {}; rcond {:.2e}",
+        if r.initial_step().is_some() {
+            "step 3"
+        } else if eiv_detail(r).is_some() {
+            "EIV start, batch G-N"
+        } else {
+            "batch G-N"
+        },
+        id.segments,
+        id.iterations,
+        id.termination,
+        id.observability.rcond
+    );
+    if let Some(b) = three_step_spread(r) {
         let _ = writeln!(
             out,
-            "{}: {} segments, {} it, {}; rcond {:.2e}",
-            if r.initial_step().is_some() {
-                "step 3"
-            } else if eiv_detail(r).is_some() {
-                "EIV start, batch G-N"
-            } else {
-                "batch G-N"
-            },
-            id.segments,
-            id.iterations,
-            id.termination,
-            id.observability.rcond
+            "batch-spread σ: the spread of {} plausible step-1 batch estimates (of {} segments) scaled to \
+             {:.0} independent segment lengths; the model σ (step 3's) understates the uncertainty 100–1000×",
+            b.batches, b.batch_size, b.effective_segments
         );
-        if let Some(b) = three_step_spread(r) {
-            let _ = writeln!(
+    } else if r.initial_step().is_some() {
+        let _ = writeln!(
+            out,
+            "σ: model only (too few plausible step-1 batches for a batch-spread σ); it understates the spread \
+             of 3-step estimates about 100–1000× on simulated paper-noise drives"
+        );
+    } else if eiv_detail(r).is_none() {
+        let o = &r.options.identify;
+        let _ = match &id.robust {
+            Some(rb) => writeln!(
                 out,
-                "batch-spread σ: the spread of {} plausible step-1 batch estimates (of {} segments) scaled to \
-                 {:.0} independent segment lengths; the model σ (step 3's) understates the uncertainty 100–1000×",
-                b.batches, b.batch_size, b.effective_segments
-            );
-        } else if r.initial_step().is_some() {
-            let _ = writeln!(
+                "robust σ: cluster-robust over {} clusters of {} samples (the model σ assumes independent residuals)",
+                rb.clusters, rb.block_steps
+            ),
+            None => writeln!(
                 out,
-                "σ: model only (too few plausible step-1 batches for a batch-spread σ); it understates the spread \
-                 of 3-step estimates about 100–1000× on simulated paper-noise drives"
-            );
-        } else if eiv_detail(r).is_none() {
-            let o = &r.options.identify;
-            let _ = match &id.robust {
-                Some(rb) => writeln!(
-                    out,
-                    "robust σ: cluster-robust over {} clusters of {} samples (the model σ assumes independent residuals)",
-                    rb.clusters, rb.block_steps
-                ),
-                None => writeln!(
-                    out,
-                    "robust σ: not computed (fewer than {} clusters of {} samples); the model σ assumes independent \
-                     residuals and understates the uncertainty under input noise",
-                    o.robust_min_clusters, o.robust_block_steps
-                ),
-            };
-        }
+                "robust σ: not computed (fewer than {} clusters of {} samples); the model σ assumes independent \
+                 residuals and understates the uncertainty under input noise",
+                o.robust_min_clusters, o.robust_block_steps
+            ),
+        };
     }
-    out.push_str(&r.method_details());
-    out.push('\n');
+}
+
+/// The θ table's columns: θ_0, the calibrated θ, each σ the method has,
+/// the truth when known and an EIV estimate the fallback replaced.
+fn theta_columns(r: &CalibrationReport, truth: Option<(&Theta, f64)>) -> Vec<(&'static str, Option<Theta>)> {
     let mut cols = vec![("θ_0", Some(r.initial.theta)), ("calibrated", Some(r.theta))];
     // Held parameters print "held", not a σ of 0: those not free and those
     // the method held itself (EIV holds what it cannot observe at its start;
@@ -221,11 +257,12 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
             cols.push(("EIV (unused)", Some(e.theta)));
         }
     }
-    out.push_str(&theta_table(&cols));
-    if let Some(x) = &r.extrinsics {
-        out.push_str(&extrinsics_table(x));
-    }
-    out.push_str(&verdict(&r.verdict));
+    cols
+}
+
+/// Under the tables: which σ stands for the result, how to read c_e, what
+/// was held and what the data cannot determine.
+fn result_notes(out: &mut String, r: &CalibrationReport, wheel_scale: Option<&str>) {
     let column = match r.result_sigma().source {
         SigmaSource::ClusterRobust => "robust",
         SigmaSource::BatchSpread => "spread",
@@ -243,7 +280,10 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
     if !unobs.is_empty() {
         let _ = writeln!(out, "  NOT OBSERVABLE from these data (estimates not to be trusted): {unobs}");
     }
-    out.push('\n');
+}
+
+/// Ē_p of θ_0, of the calibrated θ and of the truth, and the error against the truth.
+fn validation_lines(out: &mut String, r: &CalibrationReport, truth: Option<(&Theta, f64)>) {
     let _ = writeln!(
         out,
         "mean position error Ē_p on {} validation segments{}:",
@@ -256,13 +296,6 @@ pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_sc
         let _ = writeln!(out, "  truth        {e:>9.3} m");
         let _ = writeln!(out, "error against truth: {}", error_line(&r.theta, t));
     }
-    let t = &r.timing_s;
-    let _ = writeln!(
-        out,
-        "\ntime: {:.2} s total (setup {:.2}, initial {:.2}, compensation {:.2}, final {:.2}, validation {:.2})",
-        t.total, t.setup, t.initial_identification, t.compensation, t.final_identification, t.validation
-    );
-    out
 }
 
 /// Ē_p of the calibrated θ and of θ_0 on each `--validate-on` drive and

@@ -8,7 +8,7 @@ use anyhow::Result;
 use odocal::import::{GivenSettings, SettingUse};
 use odocal::{Param, ParamSet};
 
-use crate::CalibrationArgs;
+use crate::args::CalibrationArgs;
 
 /// The settings the command line gives itself (they win over the manifest's).
 pub fn given(a: &CalibrationArgs) -> GivenSettings {

@@ -36,15 +36,11 @@
 //! ```
 
 pub mod plots;
-
-use std::fmt::Write as _;
+mod sections;
 
 use odocal::model::{step, Theta, THETA_NAMES};
 use odocal::segment::{Segment, SegmentData};
-use odocal::validate::segment_position_error;
 use odocal::Drive;
-
-use crate::plots::{figure_svg, Panel, Series};
 
 /// Errors of the report renderer.
 #[derive(Debug, thiserror::Error)]
@@ -250,267 +246,20 @@ fn thin(points: Vec<(f64, f64)>, max: usize) -> Vec<(f64, f64)> {
 /// [`ReportError::Input`] without validation segments; [`ReportError::Draw`]
 /// when a figure fails.
 pub fn render_html(r: &ReportInput<'_>) -> Result<String> {
-    let drive = r.drive;
     if r.validation_segments.is_empty() {
         return Err(ReportError::Input("no validation segments to show".into()));
     }
-    let segs: Vec<SegmentData<'_>> = r.validation_segments.iter().map(|s| SegmentData::new(drive, s)).collect();
-    let e0: Vec<f64> = segs.iter().map(|s| segment_position_error(s, &r.theta0)).collect();
-    let e1: Vec<f64> = segs.iter().map(|s| segment_position_error(s, &r.theta)).collect();
-    let et: Option<Vec<f64>> = r.truth.map(|t| segs.iter().map(|s| segment_position_error(s, &t)).collect());
-    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
-
+    let segs: Vec<SegmentData<'_>> = r.validation_segments.iter().map(|s| SegmentData::new(r.drive, s)).collect();
+    let errors = sections::SegmentErrors::new(r, &segs);
     let mut h = String::new();
-    let _ = write!(
-        h,
-        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\"/>\n<title>odocal — {}</title>\n<style>\n{}\n</style>\n</head>\n<body>\n",
-        esc(&r.title),
-        CSS
-    );
-    let _ = writeln!(h, "<h1>odocal calibration — {}</h1>", esc(&r.title));
-    if !r.provenance.is_empty() {
-        h.push_str("<p class=\"prov\">");
-        let items: Vec<String> = r.provenance.iter().map(|(k, v)| format!("{}: <b>{}</b>", esc(k), esc(v))).collect();
-        h.push_str(&items.join(" · "));
-        h.push_str("</p>\n");
-    }
-
-    // 1. Verdict and parameters.
-    h.push_str("<section id=\"verdict\">\n<h2>Verdict</h2>\n");
-    match &r.verdict {
-        Some((level, reasons)) => {
-            let _ = writeln!(h, "<p class=\"verdict {0}\">{0}</p>", esc(level));
-            if !reasons.is_empty() {
-                h.push_str("<ul>\n");
-                for reason in reasons {
-                    let _ = writeln!(h, "<li>{}</li>", esc(reason));
-                }
-                h.push_str("</ul>\n");
-            }
-        }
-        None => h.push_str("<p class=\"verdict none\">no verdict given</p>\n"),
-    }
-    h.push_str("</section>\n<section id=\"parameters\">\n<h2>Parameters</h2>\n<table>\n<tr><th>parameter</th><th>unit</th><th>initial</th><th>calibrated</th><th>± 1σ</th>");
-    let has_truth = r.params.iter().any(|p| p.truth.is_some());
-    if has_truth {
-        h.push_str("<th>truth</th><th>error</th>");
-    }
-    h.push_str("</tr>\n");
-    for p in &r.params {
-        let f = |v: f64| format!("{:.6}", v * p.scale);
-        let sigma = p.sigma.map(f).unwrap_or_else(|| "held".into());
-        let _ = write!(
-            h,
-            "<tr><td>{}</td><td>{}</td><td>{}</td><td><b>{}</b></td><td>{}</td>",
-            esc(&p.name),
-            esc(&p.unit),
-            f(p.initial),
-            f(p.calibrated),
-            sigma
-        );
-        if has_truth {
-            match p.truth {
-                Some(t) => {
-                    let _ = write!(h, "<td>{}</td><td>{:+.6}</td>", f(t), (p.calibrated - t) * p.scale);
-                }
-                None => h.push_str("<td></td><td></td>"),
-            }
-        }
-        h.push_str("</tr>\n");
-    }
-    h.push_str("</table>\n</section>\n");
-    if !r.method_details.is_empty() {
-        h.push_str("<section id=\"method\">\n<h2>Method details</h2>\n<pre>");
-        for line in &r.method_details {
-            let _ = writeln!(h, "{}", esc(line));
-        }
-        h.push_str("</pre>\n</section>\n");
-    }
-
-    // 2. Ē_p.
-    h.push_str("<section id=\"validation\">\n<h2>Validation: mean position error Ē_p</h2>\n<table>\n");
-    let _ = writeln!(h, "<tr><th>θ</th><th>Ē_p (m)</th><th>segments</th></tr>");
-    let _ = writeln!(h, "<tr><td>θ_0 (initial)</td><td>{:.3}</td><td>{}</td></tr>", mean(&e0), e0.len());
-    let _ = writeln!(h, "<tr><td>calibrated</td><td><b>{:.3}</b></td><td>{}</td></tr>", mean(&e1), e1.len());
-    if let Some(et) = &et {
-        let _ = writeln!(h, "<tr><td>truth</td><td>{:.3}</td><td>{}</td></tr>", mean(et), et.len());
-    }
-    let better = e1.iter().zip(&e0).filter(|(a, b)| a < b).count();
-    let _ = writeln!(
-        h,
-        "</table>\n<p>The calibrated θ dead-reckons better than θ_0 on {better} of {} validation segments.</p>",
-        e0.len()
-    );
-    // 4. per segment (drawn here, next to the numbers).
-    let idx = |v: &[f64]| v.iter().enumerate().map(|(i, &e)| (i as f64, e)).collect::<Vec<_>>();
-    let mut series =
-        vec![Series::points("θ_0", idx(&e0), plots::ORANGE), Series::points("calibrated", idx(&e1), plots::BLUE)];
-    if let Some(et) = &et {
-        series.push(Series::points("truth", idx(et), plots::GREEN));
-    }
-    let panel = Panel {
-        title: "E_p,s per validation segment".into(),
-        x_label: "validation segment".into(),
-        y_label: "E_p,s (m)".into(),
-        series,
-        y_range: plots::robust_range(&[e0.clone(), e1.clone()].concat(), &[0.0]),
-        ..Default::default()
-    };
-    h.push_str(&figure_svg("Dead-reckoning error per validation segment", (900, 380), (1, 1), &[panel])?);
-    h.push_str("</section>\n");
-
-    // 3. Map.
-    h.push_str("<section id=\"map\">\n<h2>The drive</h2>\n");
-    let mut map_series = Vec::new();
-    for p in drive.parts() {
-        let pts: Vec<(f64, f64)> = (p.start..p.end).map(|i| (drive.px()[i], drive.py()[i])).collect();
-        map_series.push(Series::line(
-            if map_series.is_empty() { "reference" } else { "" },
-            thin(pts, 4000),
-            plots::GREY,
-        ));
-    }
-    // The segments shown: the ones where θ_0 was worst, up to map_segments.
-    let mut order: Vec<usize> = (0..segs.len()).collect();
-    order.sort_by(|&a, &b| e0[b].total_cmp(&e0[a]));
-    order.truncate(r.map_segments.max(1));
-    order.sort_unstable();
-    for (j, &i) in order.iter().enumerate() {
-        let first = j == 0;
-        map_series.push(Series::line(
-            if first { "dead reckoning θ_0" } else { "" },
-            thin(dead_reckoning(&segs[i], &r.theta0), 1500),
-            plots::ORANGE,
-        ));
-        map_series.push(Series::line(
-            if first { "dead reckoning calibrated" } else { "" },
-            thin(dead_reckoning(&segs[i], &r.theta), 1500),
-            plots::BLUE,
-        ));
-    }
-    let map = Panel {
-        title: format!("reference and dead reckoning on the {} validation segments where θ_0 is worst", order.len()),
-        x_label: "x (m)".into(),
-        y_label: "y (m)".into(),
-        series: map_series,
-        equal_aspect: true,
-        ..Default::default()
-    };
-    h.push_str(&figure_svg("Map", (900, 700), (1, 1), &[map])?);
-    let _ = writeln!(
-        h,
-        "<p>Segments shown (start time, s): {}.</p>\n</section>",
-        order
-            .iter()
-            .map(|&i| format!("{:.1}", drive.t()[r.validation_segments[i].start]))
-            .collect::<Vec<_>>()
-            .join(", ")
-    );
-
-    // 5. Step-1 spread.
-    if !r.batches.is_empty() {
-        h.push_str("<section id=\"batches\">\n<h2>Step-1 estimates θ_B,I</h2>\n");
-        let units = [("c_e (m)", 1.0), ("c_d (mm)", 1e3), ("t_r (m)", 1.0), ("d (mm/(m/s²))", 1e3)];
-        let panels: Vec<Panel> = (0..4)
-            .map(|i| {
-                let pts: Vec<(f64, f64)> = r.batches.iter().map(|(t, e)| (*e, t.to_array()[i] * units[i].1)).collect();
-                let ys: Vec<f64> = pts.iter().map(|p| p.1).collect();
-                let mut hlines = vec![plots::HLine {
-                    name: "calibrated".into(),
-                    y: r.theta.to_array()[i] * units[i].1,
-                    color: plots::RED,
-                }];
-                if let Some(t) = r.truth {
-                    hlines.push(plots::HLine {
-                        name: "truth".into(),
-                        y: t.to_array()[i] * units[i].1,
-                        color: plots::GREEN,
-                    });
-                }
-                let always: Vec<f64> = hlines.iter().map(|l| l.y).collect();
-                Panel {
-                    title: units[i].0.split(' ').next().unwrap_or("").to_string(),
-                    x_label: "Ē_p of the batch estimate (m)".into(),
-                    y_label: units[i].0.into(),
-                    y_range: plots::robust_range(&ys, &always),
-                    series: vec![Series::points("θ_B,I", pts, plots::BLUE)],
-                    hlines,
-                    ..Default::default()
-                }
-            })
-            .collect();
-        h.push_str(&figure_svg("Spread of the step-1 batch estimates", (900, 640), (2, 2), &panels)?);
-        h.push_str("</section>\n");
-    }
-
-    // 6. Residuals.
-    h.push_str("<section id=\"residuals\">\n<h2>Residuals</h2>\n");
-    let ts = drive.sample_time_s();
-    let mut heading = Vec::new();
-    let mut heading0 = Vec::new();
-    for p in drive.parts() {
-        for i in p.start..p.end.saturating_sub(1) {
-            let x = drive.pose(i);
-            let u = drive.input(i);
-            let r1 = drive.psi()[i + 1] - step(&x, &u, &r.theta, ts)[2];
-            let r0 = drive.psi()[i + 1] - step(&x, &u, &r.theta0, ts)[2];
-            heading.push((drive.t()[i], r1 / ts));
-            heading0.push((drive.t()[i], r0 / ts));
-        }
-    }
-    // Means over 5 s make a systematic yaw-rate error visible above the wheel noise.
-    let smooth = |v: &[(f64, f64)]| -> Vec<(f64, f64)> {
-        let w = ((5.0 / ts).round() as usize).max(1);
-        v.chunks(w).map(|c| (c[0].0, c.iter().map(|p| p.1).sum::<f64>() / c.len() as f64)).collect()
-    };
-    let (hs, hs0) = (smooth(&heading), smooth(&heading0));
-    let ys: Vec<f64> = hs.iter().chain(&hs0).map(|p| p.1).collect();
-    let p1 = Panel {
-        title: "yaw-rate residual: reference − model one step ahead (5 s means)".into(),
-        x_label: "t (s)".into(),
-        y_label: "rad/s".into(),
-        y_range: plots::robust_range(&ys, &[0.0]),
-        series: vec![Series::line("θ_0", hs0, plots::ORANGE), Series::line("calibrated", hs, plots::BLUE)],
-        ..Default::default()
-    };
-    let mut pos_series = Vec::new();
-    let mut ys = Vec::new();
-    for (j, (s, seg)) in r.validation_segments.iter().zip(&segs).enumerate() {
-        let (a, b) = (dead_reckoning(seg, &r.theta0), dead_reckoning(seg, &r.theta));
-        let err_of = |d: &[(f64, f64)]| -> Vec<(f64, f64)> {
-            d.iter()
-                .enumerate()
-                .map(|(k, p)| (drive.t()[s.start + k], (seg.px[k] - p.0).hypot(seg.py[k] - p.1)))
-                .collect()
-        };
-        let (e_a, e_b) = (err_of(&a), err_of(&b));
-        ys.extend(e_a.iter().chain(&e_b).map(|p| p.1));
-        pos_series.push(Series::line(if j == 0 { "θ_0" } else { "" }, thin(e_a, 200), plots::ORANGE));
-        pos_series.push(Series::line(if j == 0 { "calibrated" } else { "" }, thin(e_b, 200), plots::BLUE));
-    }
-    let p2 = Panel {
-        title: "dead-reckoning position error along each validation segment".into(),
-        x_label: "t (s)".into(),
-        y_label: "m".into(),
-        y_range: Some((0.0, 1.05 * ys.iter().copied().filter(|v| v.is_finite()).fold(1e-3, f64::max))),
-        series: pos_series,
-        ..Default::default()
-    };
-    h.push_str(&figure_svg("Residuals over the drive", (900, 640), (2, 1), &[p1, p2])?);
-    h.push_str("</section>\n");
-
-    // 7. Warnings.
-    h.push_str("<section id=\"warnings\">\n<h2>Warnings</h2>\n");
-    if r.warnings.is_empty() {
-        h.push_str("<p>none</p>\n");
-    } else {
-        h.push_str("<ul>\n");
-        for w in &r.warnings {
-            let _ = writeln!(h, "<li>{}</li>", esc(w));
-        }
-        h.push_str("</ul>\n");
-    }
-    h.push_str("</section>\n</body>\n</html>\n");
+    sections::head(&mut h, r);
+    sections::verdict(&mut h, r);
+    sections::parameters(&mut h, r);
+    sections::validation(&mut h, &errors)?;
+    sections::map(&mut h, r, &segs, &errors.initial)?;
+    sections::batches(&mut h, r)?;
+    sections::residuals(&mut h, r, &segs)?;
+    sections::warnings(&mut h, r);
     Ok(h)
 }
 

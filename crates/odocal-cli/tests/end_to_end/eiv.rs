@@ -282,7 +282,7 @@ fn eiv_flags_belong_to_eiv() {
     let o = odocal(&["calibrate", csv, "--method", "eiv", "--noise-model", "/nonexistent/n.toml"]);
     assert_eq!(o.status.code(), Some(1));
     assert!(text(&o.stderr).contains("/nonexistent/n.toml"), "{}", text(&o.stderr));
-    let o = odocal(&["calibrate", "--help"]);
+    let o = odocal(&["calibrate", "--help-all"]);
     let help = text(&o.stdout);
     assert!(help.contains("three-step, batch-gn or eiv") && help.contains("--fix-noise"), "{help}");
 }

@@ -14,6 +14,7 @@ mod eiv;
 mod experiment;
 mod extrinsics;
 mod golden;
+mod help;
 mod keep_one_way;
 mod manifest_settings;
 mod params_out;

@@ -1,0 +1,481 @@
+//! The calibration options that `calibrate` and `demo` share, and the
+//! argument types the subcommands have in common.
+//!
+//! `--help` lists the options most runs need; `--help-all` adds the expert
+//! ones, grouped under headings, with their full explanations.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Result};
+use clap::{ArgAction, Args};
+use odocal::import::{ManifestSettings, SettingUse};
+use odocal::{CalibrationOptions, FinalSegments, Method, ParamSet, SolverKind, Theta, ThreeStepOptions};
+
+use crate::settings;
+
+/// Help heading of the segment and Gauss-Newton options.
+const SEGMENTS: &str = "Segments and Gauss-Newton";
+/// Help heading of the pose reference's extrinsics.
+const EXTRINSICS: &str = "Reference extrinsics";
+/// Help heading of the three-step method's options.
+const THREE_STEP: &str = "Three-step method (--method three-step)";
+/// Help heading of the EIV noise model's options.
+const EIV_NOISE: &str = "EIV noise model (--method eiv)";
+/// Help heading of the EIV bias correction and bootstrap.
+const EIV_BIAS: &str = "EIV bias correction and bootstrap (--method eiv)";
+/// Help heading of the parameter file's keys.
+const PARAM_FILE: &str = "Parameter file (--params-out)";
+
+/// `-h`/`--help` (the common options) and `--help-all` (every option): a
+/// subcommand that flattens these sets `disable_help_flag`.
+#[derive(Args, Clone)]
+pub struct HelpArgs {
+    /// Print the common options.
+    #[arg(short, long, action = ArgAction::HelpShort, display_order = 1001)]
+    help: Option<bool>,
+    /// Print every option, with explanations.
+    #[arg(long, action = ArgAction::HelpLong, display_order = 1002)]
+    help_all: Option<bool>,
+}
+
+/// The options of a calibration (`calibrate`, `demo`); [`CalibrationArgs::options`]
+/// maps them, with a manifest's settings, to the library's options.
+#[derive(Args, Clone)]
+pub struct CalibrationArgs {
+    /// three-step, batch-gn or eiv (default).
+    ///
+    /// The calibration method. eiv (the default): an errors-in-variables filter over the whole drive,
+    /// started from batch-gn on all segments; it falls back to that batch-gn
+    /// when its consistency checks fail. three-step: the paper's method
+    /// (random batches, input compensation by a QP, a final fit). batch-gn:
+    /// one Gauss-Newton fit over the selected segments.
+    #[arg(long, default_value = "eiv", hide_default_value = true)]
+    pub method: Method,
+    /// θ_0: c_e,c_d,t_r,d (SI) or a parameter file.
+    ///
+    /// The initial guess. In SI units: c_d in m, d in m per m/s². A parameter file is one that
+    /// --params-out wrote (.yaml, .yml, .json), e.g. the last calibration's:
+    /// its θ is taken.
+    #[arg(long, allow_hyphen_values = true)]
+    pub theta0: Option<ThetaArg>,
+    /// Parameters held at θ_0 (e.g. c_d,t_r,d).
+    ///
+    /// Comma separated: c_e, c_d, t_r, d (and lever_x, lever_y,
+    /// heading_offset when --estimate frees them).
+    #[arg(long)]
+    pub fix: Option<ParamSet>,
+    /// Validate on one half: first-half, second-half.
+    ///
+    /// The drive is halved by time; the half named is held out for the
+    /// validation and the calibration uses the other.
+    #[arg(long, hide_possible_values = true)]
+    pub holdout: Option<HalfArg>,
+    /// Validate on other drives (comma separated).
+    ///
+    /// Drive CSVs or manifests of the same vehicle (repeat the flag or separate with commas)
+    /// instead of the calibration drive: Ē_p per drive and over all of them.
+    #[arg(long, conflicts_with = "holdout", value_delimiter = ',')]
+    pub validate_on: Vec<PathBuf>,
+    /// Hold what the data cannot determine at θ_0.
+    ///
+    /// The parameters the observability check names as not determined by
+    /// the data; they are held instead of
+    /// estimated. With no turning segment, c_d, t_r, d are held and every
+    /// segment is used.
+    #[arg(long)]
+    pub auto_fix: bool,
+    /// Write θ and 1σ to a ROS 2 .yaml or a .json.
+    ///
+    /// The calibrated parameters with their 1σ, units, verdict and
+    /// provenance: a ROS 2 parameter file (.yaml/.yml) or JSON (.json).
+    /// `--theta0` and `validate --theta` read it back.
+    #[arg(long)]
+    pub params_out: Option<PathBuf>,
+    /// Write a self-contained HTML report here.
+    ///
+    /// The verdict, θ, a map, per-segment errors, residuals and warnings, in
+    /// one file without scripts or network fetches.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// Minimum peak yaw rate for a segment to be selected, rad/s.
+    #[arg(long, help_heading = SEGMENTS, hide_short_help = true)]
+    pub min_yaw_rate: Option<f64>,
+    /// Keep the paper's turning-only segment selection even when every
+    /// selected segment turns the same way (default: the straight segments
+    /// are added, with a warning, because one-way turns confound c_d with
+    /// t_r). Three-step and batch-gn; wins over a manifest's
+    /// `[calibration] keep_one_way`.
+    #[arg(long, help_heading = SEGMENTS, hide_short_help = true)]
+    pub keep_one_way: bool,
+    /// Calibration segment length K, samples.
+    #[arg(long, help_heading = SEGMENTS, hide_short_help = true)]
+    pub segment_length: Option<usize>,
+    /// Calibration segment stride, samples.
+    #[arg(long, help_heading = SEGMENTS, hide_short_help = true)]
+    pub segment_stride: Option<usize>,
+    /// Validation segment length K_v, samples.
+    #[arg(long, help_heading = SEGMENTS, hide_short_help = true)]
+    pub validation_length: Option<usize>,
+    /// Maximum Gauss-Newton iterations.
+    #[arg(long, help_heading = SEGMENTS, hide_short_help = true)]
+    pub max_iterations: Option<usize>,
+    /// Also estimate the pose reference's extrinsics with θ: lever-arm
+    /// and/or heading-offset (or lever_x, lever_y, heading_offset). The
+    /// validation then compares the model's reference point with the
+    /// reference. Batch-gn, three-step (its first and final fits) and eiv
+    /// (two-stage: its batch G-N start estimates them, the filter holds them).
+    #[arg(long, help_heading = EXTRINSICS, hide_short_help = true)]
+    pub estimate: Option<ParamSet>,
+    /// Lever arm X,Y (m, x forward, y left) of the pose reference from the
+    /// rear-axle centre: held at this value, or the start of --estimate. Default 0,0.
+    #[arg(long, allow_hyphen_values = true, help_heading = EXTRINSICS, hide_short_help = true)]
+    pub lever_arm: Option<String>,
+    /// Heading offset (rad) of the pose reference (reference heading minus
+    /// vehicle heading): held, or the start of --estimate. Default 0.
+    #[arg(long, allow_hyphen_values = true, help_heading = EXTRINSICS, hide_short_help = true)]
+    pub heading_offset: Option<f64>,
+    /// Seed of the random batches.
+    #[arg(long, default_value_t = 0, help_heading = THREE_STEP, hide_short_help = true)]
+    pub seed: u64,
+    /// QP solver for input compensation, structured (default) or clarabel.
+    #[arg(long, help_heading = THREE_STEP, hide_short_help = true)]
+    pub qp_solver: Option<SolverKind>,
+    /// Number of random batches of the first fit.
+    #[arg(long, help_heading = THREE_STEP, hide_short_help = true)]
+    pub batches: Option<usize>,
+    /// Segments per batch of the first fit.
+    #[arg(long, help_heading = THREE_STEP, hide_short_help = true)]
+    pub batch_size: Option<usize>,
+    /// Number of batch estimates θ_B,I picked to start the compensation from.
+    #[arg(long, help_heading = THREE_STEP, hide_short_help = true)]
+    pub picks: Option<usize>,
+    /// Segments of the final fit: "all" selected segments or a number of random ones.
+    #[arg(long, help_heading = THREE_STEP, hide_short_help = true)]
+    pub final_segments: Option<FinalSegments>,
+    /// Starting noise model, a TOML file of noise-model fields (e.g.
+    /// `wheel_white_rel_sigma = 0.01`; missing fields keep the production-car
+    /// defaults; `known = ["heading_white"]` holds stated levels; see
+    /// `odocal::calibrate::eiv::read_noise_model`).
+    #[arg(long, help_heading = EIV_NOISE, hide_short_help = true)]
+    pub noise_model: Option<PathBuf>,
+    /// Noise sources whose level in the starting model is known (e.g. from
+    /// the INS datasheet) and held, not estimated: wheel-white, wheel-common,
+    /// wheel-differential, pose-white, pose-drift, heading-white (comma
+    /// list; adds to a noise model's `known`).
+    #[arg(long, value_delimiter = ',', help_heading = EIV_NOISE, hide_short_help = true)]
+    pub known_noise: Vec<odocal::eiv::NoiseSource>,
+    /// Use the starting noise model as is instead of estimating its scales.
+    #[arg(long, help_heading = EIV_NOISE, hide_short_help = true)]
+    pub fix_noise: bool,
+    /// Keep the EIV result even when its consistency checks fail (default:
+    /// fall back to batch G-N on all segments).
+    #[arg(long, help_heading = EIV_NOISE, hide_short_help = true)]
+    pub no_fallback: bool,
+    /// Filter window length, samples.
+    #[arg(long, help_heading = EIV_NOISE, hide_short_help = true)]
+    pub eiv_window: Option<usize>,
+    /// How encoder quantisation enters the noise model: process (a white
+    /// rate noise that accumulates), measurement (a pose noise) or counting
+    /// (the exact counting error, two more filter states, about 1.2× the
+    /// time). Default: the library's (`EivOptions::quantisation`).
+    #[arg(long, value_name = "MODEL", help_heading = EIV_NOISE, hide_short_help = true,
+          value_parser = library_enum::<odocal::eiv::QuantisationModel>(&["process", "measurement", "counting"]))]
+    pub quantisation: Option<odocal::eiv::QuantisationModel>,
+    /// The quantisation step q: scaled (estimated with the white wheel noise
+    /// from the noise model's q), given (the noise model's q, held) or
+    /// from-readings (read off the wheel readings when they lie on the
+    /// lattice of counted ticks, else scaled). Default: the library's
+    /// (`EivOptions::quantisation_level`).
+    #[arg(long, value_name = "LEVEL", help_heading = EIV_NOISE, hide_short_help = true,
+          value_parser = library_enum::<odocal::eiv::QuantisationLevel>(&["scaled", "given", "from-readings"]))]
+    pub quantisation_level: Option<odocal::eiv::QuantisationLevel>,
+    /// The a_y and β noise scaled with the white wheel noise (tied) or held
+    /// at the noise model's σ (stated: the IMU's and the sideslip source's
+    /// noise, e.g. from `--noise-model`). Default: the library's
+    /// (`EivOptions::lateral_noise`).
+    #[arg(long, value_name = "SCALE", help_heading = EIV_NOISE, hide_short_help = true,
+          value_parser = library_enum::<odocal::eiv::LateralNoise>(&["tied", "stated"]))]
+    pub lateral_noise: Option<odocal::eiv::LateralNoise>,
+    /// The reference heading's white noise scaled together with the
+    /// position noise (tied) or by a scale of its own (separate). Default:
+    /// the library's (`EivOptions::heading_scale`).
+    #[arg(long, value_name = "SCALE", help_heading = EIV_NOISE, hide_short_help = true,
+          value_parser = library_enum::<odocal::eiv::HeadingScale>(&["tied", "separate"]))]
+    pub heading_noise: Option<odocal::eiv::HeadingScale>,
+    /// Parametric bootstrap with B replicates (re-simulate the fitted noise,
+    /// re-fit B times): percentile intervals and the estimator's own bias in
+    /// the report; about B extra fits of time.
+    #[arg(long, value_name = "B", help_heading = EIV_BIAS, hide_short_help = true)]
+    pub bootstrap: Option<usize>,
+    /// Seed of the bootstrap's replicates (--bootstrap, and the bias
+    /// correction: the default one and --correct-bias, --correct-c-e-bias).
+    #[arg(long, default_value_t = 0, help_heading = EIV_BIAS, hide_short_help = true)]
+    pub bootstrap_seed: u64,
+    /// Subtract the estimator's own c_e bias only, estimated by a parametric
+    /// bootstrap with B replicates (seed --bootstrap-seed); about B extra
+    /// fits of time. It replaces the default correction of every parameter
+    /// (see --correct-bias); the default fit has no c_e bias left for it to
+    /// remove (docs/study.md).
+    #[arg(long, value_name = "B", help_heading = EIV_BIAS, hide_short_help = true,
+          conflicts_with_all = ["correct_bias", "no_bias_correction"])]
+    pub correct_c_e_bias: Option<usize>,
+    /// Replicates B of the bias correction that is on by default (B = 4):
+    /// the estimator's own bias is subtracted from every parameter, estimated
+    /// by a parametric bootstrap of B re-simulations in antithetic pairs (B
+    /// even; seed --bootstrap-seed) on the smoothed trajectory, each holding
+    /// the fitted noise model; θ's σ includes its Monte Carlo error. It
+    /// removes the bias heavy wheel noise puts on t_r (simulated `high`
+    /// preset, 20 drives: t_r +1.10 % → +0.46 %, every parameter within
+    /// |t| ≤ 1.9, 94 % coverage) at 1.3–1.5× the time of the uncorrected fit
+    /// (B = 4). It runs only for a fit that is kept.
+    #[arg(long, value_name = "B", help_heading = EIV_BIAS, hide_short_help = true,
+          value_parser = parse_even_replicates, conflicts_with = "no_bias_correction")]
+    pub correct_bias: Option<usize>,
+    /// Return the profile cost's root as is, without the default bias
+    /// correction (see --correct-bias).
+    #[arg(long, help_heading = EIV_BIAS, hide_short_help = true)]
+    pub no_bias_correction: bool,
+    /// ROS node name of the parameter file.
+    #[arg(long, default_value = "odocal", help_heading = PARAM_FILE, hide_short_help = true)]
+    pub params_node: String,
+    /// Also write the parameters under a consumer's keys: odocal (none) or
+    /// diff_drive_controller (wheel_separation, wheel_radius, radius multipliers).
+    #[arg(long, default_value = "odocal", help_heading = PARAM_FILE, hide_short_help = true)]
+    pub params_mapping: odocal::param_file::ParamMapping,
+}
+
+/// A clap parser of a library enum named on the command line: the names
+/// offered (and listed by `--help`) are `names`, the mapping is the
+/// library's `FromStr`, so the CLI and the library (and Python, which uses
+/// the same `FromStr`) cannot drift apart.
+fn library_enum<T>(names: &'static [&'static str]) -> impl clap::builder::TypedValueParser<Value = T>
+where
+    T: std::str::FromStr<Err = odocal::Error> + Clone + Send + Sync + 'static,
+{
+    use clap::builder::TypedValueParser;
+    clap::builder::PossibleValuesParser::new(names).try_map(|s| s.parse::<T>())
+}
+
+/// The half of the drive `--holdout` holds out.
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum HalfArg {
+    FirstHalf,
+    SecondHalf,
+}
+
+impl CalibrationArgs {
+    /// The method with the flags that belong to it; a flag of another
+    /// method is an error (batch-gn would otherwise ignore it silently).
+    fn method(&self) -> Result<Method> {
+        let three_step_flags = [
+            ("--batches", self.batches.is_some()),
+            ("--batch-size", self.batch_size.is_some()),
+            ("--picks", self.picks.is_some()),
+            ("--final-segments", self.final_segments.is_some()),
+            ("--qp-solver", self.qp_solver.is_some()),
+        ];
+        let eiv_flags = [
+            ("--noise-model", self.noise_model.is_some()),
+            ("--known-noise", !self.known_noise.is_empty()),
+            ("--fix-noise", self.fix_noise),
+            ("--no-fallback", self.no_fallback),
+            ("--eiv-window", self.eiv_window.is_some()),
+            ("--quantisation", self.quantisation.is_some()),
+            ("--quantisation-level", self.quantisation_level.is_some()),
+            ("--lateral-noise", self.lateral_noise.is_some()),
+            ("--heading-noise", self.heading_noise.is_some()),
+            ("--bootstrap", self.bootstrap.is_some()),
+            ("--bootstrap-seed", self.bootstrap_seed != 0),
+            ("--correct-c-e-bias", self.correct_c_e_bias.is_some()),
+            ("--correct-bias", self.correct_bias.is_some()),
+            ("--no-bias-correction", self.no_bias_correction),
+        ];
+        let reject = |flags: &[(&str, bool)], owner: &str, other: &Method| -> Result<()> {
+            let given: Vec<&str> = flags.iter().filter(|f| f.1).map(|f| f.0).collect();
+            if !given.is_empty() {
+                bail!(
+                    "{} appl{} to --method {owner} only, not to --method {other}",
+                    given.join(", "),
+                    if given.len() == 1 { "ies" } else { "y" }
+                );
+            }
+            Ok(())
+        };
+        if !matches!(self.method, Method::Eiv(_)) {
+            reject(&eiv_flags, "eiv", &self.method)?;
+        }
+        Ok(match &self.method {
+            Method::ThreeStep(defaults) => {
+                let mut o: ThreeStepOptions = defaults.clone();
+                if let Some(v) = self.batches {
+                    o.initial_batches = v;
+                }
+                if let Some(v) = self.batch_size {
+                    o.initial_batch_size = v;
+                }
+                if let Some(v) = self.picks {
+                    o.picks = v;
+                }
+                if let Some(v) = self.final_segments {
+                    o.final_segments = v;
+                }
+                if let Some(v) = self.qp_solver {
+                    o.qp.solver = v;
+                }
+                Method::ThreeStep(o)
+            }
+            Method::Eiv(defaults) => {
+                reject(&three_step_flags, "three-step", &self.method)?;
+                if self.keep_one_way {
+                    bail!("--keep-one-way applies to the segment-selecting methods (three-step, batch-gn), not to --method eiv");
+                }
+                let mut o = defaults.clone();
+                if let Some(p) = &self.noise_model {
+                    odocal::calibrate::eiv::read_noise_model(p)?.apply(&mut o.filter);
+                }
+                // A manifest's [noise] `known` adds to these when it applies.
+                o.filter.hold_known(&self.known_noise);
+                o.filter.fix_noise = self.fix_noise;
+                o.fallback = !self.no_fallback;
+                if let Some(v) = self.eiv_window {
+                    o.filter.window_samples = v;
+                }
+                if let Some(q) = self.quantisation {
+                    o.filter.quantisation = q;
+                }
+                if let Some(l) = self.quantisation_level {
+                    o.filter.quantisation_level = l;
+                }
+                if let Some(l) = self.lateral_noise {
+                    o.filter.lateral_noise = l;
+                }
+                if let Some(h) = self.heading_noise {
+                    o.filter.heading_scale = h;
+                }
+                if let Some(b) = self.correct_c_e_bias {
+                    o.filter.bias_correction = odocal::eiv::BiasCorrection::Bootstrap {
+                        replicates: b,
+                        seed: self.bootstrap_seed,
+                        all_parameters: false,
+                    };
+                }
+                // The default bias correction (B = 4) takes the bootstrap seed;
+                // --correct-bias sets B, --no-bias-correction turns it off.
+                o.correct_bias = if self.no_bias_correction {
+                    None
+                } else {
+                    let replicates = self.correct_bias.unwrap_or(odocal::calibrate::DEFAULT_BIAS_REPLICATES);
+                    Some(odocal::calibrate::CorrectBias { replicates, seed: self.bootstrap_seed })
+                };
+                if let Some(b) = self.bootstrap {
+                    o.bootstrap = Some(odocal::eiv::BootstrapOptions {
+                        replicates: b,
+                        seed: self.bootstrap_seed,
+                        ..Default::default()
+                    });
+                }
+                Method::Eiv(o)
+            }
+            other => {
+                reject(&three_step_flags, "three-step", other)?;
+                other.clone()
+            }
+        })
+    }
+
+    /// The options from the flags and, where a flag is not given, the
+    /// manifest's settings (what became of each is returned).
+    pub fn options(&self, manifest: Option<&ManifestSettings>) -> Result<(CalibrationOptions, Vec<SettingUse>)> {
+        let mut o = CalibrationOptions {
+            method: self.method()?,
+            seed: self.seed,
+            auto_fix: self.auto_fix,
+            ..Default::default()
+        };
+        if let Some(t) = &self.theta0 {
+            o.theta0 = t.theta;
+        }
+        let uses = manifest.map(|m| m.apply(&mut o, settings::given(self))).unwrap_or_default();
+        if let Some(e) = self.estimate {
+            let theta = e.intersection(ParamSet::THETA);
+            if !theta.is_empty() {
+                bail!(
+                    "--estimate takes lever-arm, heading-offset (or lever_x, lever_y, heading_offset), not {theta}: \
+                     θ is estimated by default (hold parameters with --fix)"
+                );
+            }
+            o.identify.free = o.identify.free.union(e);
+        }
+        if let Some(s) = &self.lever_arm {
+            let v: Vec<&str> = s.split(',').map(str::trim).collect();
+            let parsed: Vec<f64> = v.iter().filter_map(|x| x.parse::<f64>().ok()).collect();
+            if v.len() != 2 || parsed.len() != 2 {
+                bail!("--lever-arm takes X,Y in metres (x forward, y left), got '{s}'");
+            }
+            o.identify.extrinsics.lever_x = parsed[0];
+            o.identify.extrinsics.lever_y = parsed[1];
+        }
+        if let Some(v) = self.heading_offset {
+            o.identify.extrinsics.heading_offset = v;
+            o.hold_stated_heading_offset();
+        }
+        for p in self.fix.unwrap_or_default().iter() {
+            o.hold(p);
+        }
+        if let Some(v) = self.min_yaw_rate {
+            o.segments.min_peak_yaw_rate_rad_per_s = v;
+        }
+        if self.keep_one_way {
+            o.keep_one_way_selection = true;
+        }
+        if let Some(v) = self.segment_length {
+            o.segments.length_steps = v;
+        }
+        if let Some(v) = self.segment_stride {
+            o.segments.stride_steps = v;
+        }
+        if let Some(v) = self.validation_length {
+            o.validation.length_steps = v;
+            o.validation.stride_steps = (v / 2).max(1);
+        }
+        if let Some(v) = self.max_iterations {
+            o.identify.max_iterations = v;
+        }
+        o.validate()?;
+        Ok((o, uses))
+    }
+}
+
+/// θ on the command line: `c_e,c_d,t_r,d` (SI units), or the path of a
+/// parameter file odocal wrote (`--params-out`: `.yaml`, `.yml`, `.json`).
+#[derive(Debug, Clone)]
+pub struct ThetaArg {
+    pub theta: Theta,
+    /// The parameter file θ came from, when it did.
+    pub file: Option<(PathBuf, odocal::param_file::ParamFile)>,
+}
+
+impl std::str::FromStr for ThetaArg {
+    type Err = odocal::Error;
+    fn from_str(s: &str) -> std::result::Result<Self, Self::Err> {
+        let path = Path::new(s);
+        if odocal::param_file::is_param_file(path) {
+            // `read` has checked θ (`theta()` cannot fail after it).
+            let f = odocal::param_file::ParamFile::read(path)?;
+            return Ok(ThetaArg { theta: f.theta()?, file: Some((path.into(), f)) });
+        }
+        Ok(ThetaArg { theta: s.parse()?, file: None })
+    }
+}
+
+/// `--correct-bias B`: an even number of replicates, at least 2 (the
+/// bootstrap's replicates come in antithetic pairs).
+fn parse_even_replicates(s: &str) -> std::result::Result<usize, String> {
+    let b: usize = s.parse().map_err(|e| format!("{e}"))?;
+    if b < 2 || !b.is_multiple_of(2) {
+        return Err(format!(
+            "B must be an even number of at least 2 (the replicates come in antithetic pairs), got {b}"
+        ));
+    }
+    Ok(b)
+}

@@ -1,0 +1,356 @@
+//! `odocal calibrate` and `odocal demo`: a calibration, its reports (text,
+//! JSON, HTML, parameter file) and its exit code.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use clap::Args;
+use odocal::import::{ManifestSettings, SettingUse};
+use odocal::{
+    segment, sim, CalibrationOptions, CalibrationReport, Drive, Holdout, MultiValidation, Theta, VerdictLevel,
+};
+
+use crate::args::{CalibrationArgs, HalfArg, HelpArgs};
+use crate::io::{load_drive_with_scale, load_truth, print_warnings, write_json};
+use crate::progress::Bars;
+use crate::simulate::sim_options;
+use crate::{report, settings, Outcome};
+
+/// Arguments of `odocal calibrate`.
+#[derive(Args)]
+pub struct CalibrateArgs {
+    /// Drive CSV or manifest (.toml); several are fitted jointly.
+    ///
+    /// The drive: a canonical CSV (SPEC §2) or a drive manifest (.toml).
+    /// Several drives of one vehicle are fitted jointly (segments never span
+    /// two drives; their sample times must agree).
+    #[arg(required = true, num_args = 1..)]
+    drive: Vec<PathBuf>,
+    #[command(flatten)]
+    calibration: CalibrationArgs,
+    /// Write the JSON report here ("-": stdout).
+    ///
+    /// "-" writes it to stdout instead of the text report.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    #[command(flatten)]
+    help: HelpArgs,
+}
+
+/// Arguments of `odocal demo`.
+#[derive(Args)]
+pub struct DemoArgs {
+    /// Seed of the simulated drive [default: 1].
+    ///
+    /// `--seed` seeds the calibration's random batches.
+    #[arg(long, default_value_t = 1, hide_default_value = true)]
+    sim_seed: u64,
+    /// Route length, km.
+    #[arg(long, default_value_t = 24.0)]
+    length_km: f64,
+    /// paper (default), off, white or high noise.
+    #[arg(long, default_value = "paper", hide_default_value = true)]
+    noise: String,
+    /// Also write the simulated drive here.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    #[command(flatten)]
+    calibration: CalibrationArgs,
+    /// Write the JSON report here ("-": stdout).
+    ///
+    /// "-" writes it to stdout instead of the text report.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    #[command(flatten)]
+    help: HelpArgs,
+}
+
+/// Calibrates the drive(s) named on the command line.
+pub fn calibrate_cmd(a: CalibrateArgs, bars: &Bars) -> Result<Outcome> {
+    let mut drives = Vec::with_capacity(a.drive.len());
+    let mut wheel_scale = None;
+    let mut manifests = Vec::new();
+    for p in &a.drive {
+        let (d, w, m) = load_drive_with_scale(p)?;
+        wheel_scale = wheel_scale.or(w);
+        manifests.extend(m);
+        drives.push(d);
+    }
+    let manifest = ManifestSettings::merge(&manifests)?;
+    let first = &a.drive[0];
+    let (drive, truth) = if drives.len() == 1 {
+        (drives.swap_remove(0), load_truth(first).map(|s| s.theta_true))
+    } else {
+        let refs: Vec<&Drive> = drives.iter().collect();
+        (Drive::concat(&refs).context("calibrating several drives jointly")?, None)
+    };
+    let source = Some((first.as_path(), wheel_scale.as_deref()));
+    run_calibration(&drive, source, manifest.as_ref(), &a.calibration, a.json.as_deref(), truth, bars)
+}
+
+/// Simulates a drive, calibrates it and compares the result with the truth.
+pub fn demo_cmd(a: DemoArgs, bars: &Bars) -> Result<Outcome> {
+    let o = sim_options(a.sim_seed, a.length_km, &a.noise)?;
+    bars.stage("simulating");
+    let sim = sim::simulate(&o)?;
+    bars.finish();
+    if let Some(p) = &a.out {
+        sim.drive.write_csv(p)?;
+        sim.sidecar.write_json(&sim::sidecar_path(p))?;
+    }
+    if a.json.as_deref() != Some(Path::new("-")) {
+        let s = &sim.sidecar.stats;
+        println!(
+            "simulated {:.1} km, {:.0} s, seed {}, noise '{}' ({:.2} % rms wheel error); true θ: {}\n",
+            s.distance_m / 1e3,
+            s.duration_s,
+            a.sim_seed,
+            a.noise,
+            s.wheel_rotation_rel_error_rms * 100.0,
+            sim.sidecar.theta_true
+        );
+    }
+    run_calibration(&sim.drive, None, None, &a.calibration, a.json.as_deref(), Some(sim.sidecar.theta_true), bars)
+}
+
+/// A `--validate-on` drive: its name, the drive and its manifest's settings.
+type OtherDrive = (String, Drive, Option<ManifestSettings>);
+
+/// Calibrates `drive` and writes every report asked for.
+///
+/// `source` is the input file and how to read c_e (ticks per revolution or
+/// nominal circumference) when the drive came from a manifest; `None` for a
+/// simulated drive, whose truth is `truth_theta`.
+fn run_calibration(
+    drive: &Drive,
+    source: Option<(&Path, Option<&str>)>,
+    manifest: Option<&ManifestSettings>,
+    args: &CalibrationArgs,
+    json: Option<&Path>,
+    truth_theta: Option<Theta>,
+    bars: &Bars,
+) -> Result<Outcome> {
+    let (opts, setting_uses) = args.options(manifest)?;
+    let noise_origin = settings::noise_origin(args, &setting_uses);
+    let others = load_validation_drives(&args.validate_on)?;
+    let holdout = holdout(args.holdout, &others)?;
+    // The halves are copies only when a hold-out is asked for.
+    let split = holdout.as_ref().map(|h| h.split(drive)).transpose()?;
+    let (fit, held) = match &split {
+        Some((fit, held)) => (fit.as_ref(), Some(held.as_ref())),
+        None => (drive, None),
+    };
+    let (r, per_drive) =
+        calibrate(drive, fit, held, &others, args, &opts, bars).map_err(|e| with_hint(e, source, args, bars))?;
+    let wheel_scale = source.and_then(|(_, w)| w);
+    let drive = held.unwrap_or(drive);
+    bars.finish();
+    let truth = match truth_theta {
+        Some(t) => {
+            let val = segment::validation_segments(drive, &opts.validation)?;
+            Some((t, odocal::mean_position_error(drive, &val, &t)?.mean_position_error_m))
+        }
+        None => None,
+    };
+    let truth_ref = truth.as_ref().map(|(t, e)| (t, *e));
+    let input = source.map(|(p, _)| p.display().to_string()).unwrap_or_else(|| "simulated drive".into());
+    if let Some(p) = &args.params_out {
+        // The σ that stands for the result (the verdict's, the JSON's `sigma`).
+        let mut f = odocal::param_file::ParamFile::from_report(&r, &input);
+        f.node = args.params_node.clone();
+        f.mapping = args.params_mapping;
+        f.write(p)?;
+    }
+    if let Some(p) = &args.report {
+        write_html_report(p, drive, &r, &opts, &input, truth_ref)?;
+    }
+    let outcome = if r.verdict.level == VerdictLevel::Rejected { Outcome::Rejected } else { Outcome::Done };
+    if let Some(p) = json {
+        let mut v = report_json(&r, truth_ref, wheel_scale)?;
+        if let (Some(m), Some(obj)) = (&per_drive, v.as_object_mut()) {
+            obj.insert("validate_on".into(), serde_json::to_value(m)?);
+        }
+        settings::add_to_json(&mut v, &setting_uses, noise_origin.as_deref())?;
+        write_json(p, v)?;
+        if p == Path::new("-") {
+            print_warnings(&r.warnings);
+            return Ok(outcome);
+        }
+    }
+    print_text_report(&r, truth_ref, wheel_scale, per_drive.as_ref(), &setting_uses, noise_origin.as_deref())?;
+    Ok(outcome)
+}
+
+/// Reads the `--validate-on` drives.
+fn load_validation_drives(paths: &[PathBuf]) -> Result<Vec<OtherDrive>> {
+    let mut others = Vec::with_capacity(paths.len());
+    for p in paths {
+        let (d, _, m) = load_drive_with_scale(p).with_context(|| format!("--validate-on {}", p.display()))?;
+        others.push((p.display().to_string(), d, m));
+    }
+    Ok(others)
+}
+
+/// The data the calibration is validated on: a half of the drive
+/// (`--holdout`), the `--validate-on` drives joined, or none (the drive itself).
+fn holdout(half: Option<HalfArg>, others: &[OtherDrive]) -> Result<Option<Holdout>> {
+    Ok(match half {
+        Some(HalfArg::FirstHalf) => Some(Holdout::FirstHalf),
+        Some(HalfArg::SecondHalf) => Some(Holdout::SecondHalf),
+        None if others.is_empty() => None,
+        None => {
+            let refs: Vec<&Drive> = others.iter().map(|(_, d, _)| d).collect();
+            Some(Holdout::Other(Drive::concat(&refs).context("--validate-on")?))
+        }
+    })
+}
+
+/// Runs the calibration on `fit`, validated on `held` or, with
+/// `--validate-on`, on each other drive.
+fn calibrate(
+    drive: &Drive,
+    fit: &Drive,
+    held: Option<&Drive>,
+    others: &[OtherDrive],
+    args: &CalibrationArgs,
+    opts: &CalibrationOptions,
+    bars: &Bars,
+) -> odocal::Result<(CalibrationReport, Option<MultiValidation>)> {
+    let cb = |e| bars.event(e);
+    // Each validation drive with the extrinsics that apply to it (its own
+    // manifest's `[reference]` where the calibration neither estimates nor
+    // is given them: odocal::validate_on).
+    let validation: Vec<odocal::ValidationDrive> = others
+        .iter()
+        .map(|(name, d, m)| odocal::ValidationDrive {
+            name,
+            drive: d,
+            reference: m.as_ref().and_then(|m| m.reference.as_ref()),
+        })
+        .collect();
+    let given = settings::given_extrinsics(args);
+    match validation.is_empty() {
+        true => odocal::calibrate_held_out(fit, held, opts, Some(&cb)).map(|r| (r, None)),
+        false => odocal::calibrate_validated_on(drive, &validation, given, opts, Some(&cb)).map(|(r, m)| (r, Some(m))),
+    }
+}
+
+/// The calibration's error; when a parameter is not observable, with the
+/// command line that calibrates c_e alone.
+fn with_hint(
+    e: odocal::Error,
+    source: Option<(&Path, Option<&str>)>,
+    args: &CalibrationArgs,
+    bars: &Bars,
+) -> anyhow::Error {
+    if !matches!(e, odocal::Error::NotObservable { .. }) {
+        return e.into();
+    }
+    bars.finish();
+    let hint = match source {
+        Some((p, _)) => format!("; run: {} (or add --auto-fix)", c_e_only_command(p, args)),
+        None => "; or add --auto-fix".into(),
+    };
+    anyhow::anyhow!("{e}{hint}")
+}
+
+/// Writes the HTML report of the calibration (`--report`).
+fn write_html_report(
+    path: &Path,
+    drive: &Drive,
+    r: &CalibrationReport,
+    opts: &CalibrationOptions,
+    input: &str,
+    truth: Option<(&Theta, f64)>,
+) -> Result<()> {
+    let val = segment::validation_segments(drive, &opts.validation)?;
+    let batches = r
+        .initial_step()
+        .map(|s| s.batches.iter().map(|b| (b.score.theta, b.score.mean_position_error_m)).collect())
+        .unwrap_or_default();
+    let mut params = odocal_report::ParamRow::theta_rows(
+        &r.initial.theta,
+        &r.theta,
+        Some(r.result_sigma().to_array()),
+        truth.map(|t| t.0),
+    );
+    params.extend(r.extrinsics.as_ref().map(odocal_report::ParamRow::extrinsics_rows).unwrap_or_default());
+    let html = odocal_report::ReportInput {
+        provenance: vec![
+            ("method".into(), r.method.clone()),
+            ("input".into(), input.to_string()),
+            ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
+            ("date".into(), odocal::param_file::utc_date_today()),
+        ],
+        params,
+        truth: truth.map(|t| *t.0),
+        verdict: Some((r.verdict.level.to_string(), r.verdict.reasons.iter().map(|x| x.to_string()).collect())),
+        batches,
+        warnings: r.warnings.iter().map(|w| w.to_string()).collect(),
+        method_details: r.method_details().lines().map(str::to_string).collect(),
+        ..odocal_report::ReportInput::new(input.to_string(), drive, &val, r.initial.theta, r.theta)
+    };
+    odocal_report::write_html(path, &html)?;
+    Ok(())
+}
+
+/// The report for humans: the heading first, then the warnings (stderr),
+/// then the rest.
+fn print_text_report(
+    r: &CalibrationReport,
+    truth: Option<(&Theta, f64)>,
+    wheel_scale: Option<&str>,
+    per_drive: Option<&MultiValidation>,
+    setting_uses: &[SettingUse],
+    noise_origin: Option<&str>,
+) -> Result<()> {
+    let text = report::calibration(r, truth, wheel_scale);
+    let (head, rest) = text.split_once('\n').unwrap_or((&text, ""));
+    println!("{head}");
+    std::io::stdout().flush()?;
+    print_warnings(&r.warnings);
+    print!("{rest}");
+    if let Some(m) = per_drive {
+        print!("{}", report::validate_on(m));
+    }
+    print!("{}", settings::report(setting_uses, noise_origin));
+    std::io::stdout().flush()?;
+    Ok(())
+}
+
+/// The JSON report: the library's report with the σ of the result, the
+/// truth when known and how to read c_e.
+fn report_json(
+    r: &CalibrationReport,
+    truth: Option<(&Theta, f64)>,
+    wheel_scale: Option<&str>,
+) -> Result<serde_json::Value> {
+    let mut v = serde_json::to_value(r)?;
+    // The σ that stands for the result (the verdict's, --params-out's).
+    if let Some(obj) = v.as_object_mut() {
+        obj.insert("sigma".into(), serde_json::to_value(r.result_sigma())?);
+    }
+    // The `method` of the report (SPEC §9) is the name; its settings are in `options.method`.
+    if let (Some((t, e)), Some(obj)) = (truth, v.as_object_mut()) {
+        obj.insert("truth".into(), serde_json::json!({"theta": t, "mean_position_error_m": e}));
+    }
+    if let (Some(w), Some(obj)) = (wheel_scale, v.as_object_mut()) {
+        obj.insert("wheel_scale".into(), serde_json::json!(w));
+    }
+    Ok(v)
+}
+
+/// The command line that calibrates c_e alone on `path`, with the user's
+/// other settings, for the error when c_d, t_r, d are not observable.
+fn c_e_only_command(path: &Path, args: &CalibrationArgs) -> String {
+    let mut cmd = format!("odocal calibrate {} --method {}", path.display(), args.method);
+    if let Some(h) = args.holdout {
+        cmd.push_str(match h {
+            HalfArg::FirstHalf => " --holdout first-half",
+            HalfArg::SecondHalf => " --holdout second-half",
+        });
+    }
+    cmd.push_str(" --fix c_d,t_r,d --min-yaw-rate 0");
+    cmd
+}

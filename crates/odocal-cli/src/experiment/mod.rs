@@ -1,0 +1,207 @@
+//! `odocal experiment`: the paper's §6 on a simulated (or given) drive in one
+//! command. The numbers come from [`odocal::experiment::run`]; this module
+//! loads or simulates the drive and writes them as `report.md` ([`markdown`]),
+//! SVG figures ([`figures`]) and `experiment.json`.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use odocal::eiv::NoiseModel;
+use odocal::experiment::{self, Experiment, ExperimentOptions, ExperimentTiming};
+use odocal::sim::{self, NoiseOptions, SimOptions};
+use odocal::{CalibrationOptions, Drive, Method, QpOptions, ReachableOptions, SolverKind, Theta, ThreeStepOptions};
+use serde::Serialize;
+
+use crate::progress::Bars;
+
+mod figures;
+mod markdown;
+
+/// Arguments of `odocal experiment`.
+#[derive(Args)]
+pub struct ExperimentArgs {
+    /// Seed of the simulation and of the random batches.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Simulated route length, km.
+    #[arg(long, default_value_t = 24.0)]
+    pub length_km: f64,
+    /// Noise preset of the simulation: paper, off, white (wheel white noise only) or high.
+    #[arg(long, default_value = "paper")]
+    pub noise: String,
+    /// Run on this drive (canonical CSV) instead of simulating one; the truth
+    /// is taken from its sidecar JSON when there is one.
+    #[arg(long)]
+    pub drive: Option<PathBuf>,
+    /// QP solver for input compensation: structured or clarabel.
+    #[arg(long, default_value = "structured")]
+    pub qp_solver: SolverKind,
+    /// Number of random batches of N = 10 segments of the first fit.
+    #[arg(long, default_value_t = 50)]
+    pub batches: usize,
+    /// Output directory (created if missing).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// Where the drive came from.
+#[derive(Debug, Clone, Serialize)]
+struct DriveInfo {
+    source: String,
+    samples: usize,
+    distance_km: f64,
+    sample_time_s: f64,
+    seed: Option<u64>,
+    noise: Option<String>,
+    wheel_rotation_rel_error_rms: Option<f64>,
+}
+
+/// Wall time, s: the library's stages plus simulation and figures.
+#[derive(Debug, Clone, Default, Serialize)]
+struct Timing {
+    simulate: f64,
+    #[serde(flatten)]
+    stages: ExperimentTiming,
+    figures: f64,
+    total: f64,
+}
+
+/// What the command adds to the library's numbers.
+struct Outputs {
+    drive: DriveInfo,
+    figures: Vec<String>,
+    timing: Timing,
+}
+
+/// The drive of the experiment, its true θ and noise model when known, and
+/// where it came from.
+type DriveAndTruth = (Drive, Option<Theta>, Option<NoiseModel>, DriveInfo);
+
+/// Runs the experiment.
+pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
+    let t_total = Instant::now();
+    let mut timing = Timing::default();
+    if a.batches == 0 {
+        bail!("--batches must be at least 1");
+    }
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+
+    let t = Instant::now();
+    let (drive, theta_true, noise, info) = match &a.drive {
+        Some(path) => read_drive(path)?,
+        None => simulate_drive(&a, bars)?,
+    };
+    timing.simulate = t.elapsed().as_secs_f64();
+
+    let method = Method::ThreeStep(ThreeStepOptions {
+        initial_batches: a.batches,
+        qp: QpOptions { solver: a.qp_solver, ..Default::default() },
+        ..Default::default()
+    });
+    let calibration = CalibrationOptions { method, seed: a.seed, ..Default::default() };
+    let reachable = ReachableOptions { seed: a.seed, ..ReachableOptions::around(&calibration.theta0) };
+    let cb = |e| bars.event(e);
+    let opts = ExperimentOptions { calibration, reachable, noise };
+    let exp = experiment::run(&drive, theta_true.as_ref(), &opts, Some(&cb))?;
+    bars.finish();
+    timing.stages = exp.timing_s.clone();
+
+    let t = Instant::now();
+    let figures = figures::write_figures(&a.out, &exp, &exp.figure6_curves)?;
+    timing.figures = t.elapsed().as_secs_f64();
+    timing.total = t_total.elapsed().as_secs_f64();
+    let outputs = Outputs { drive: info, figures, timing };
+
+    let json_path = write_json(&a.out, &exp, &outputs)?;
+    let md_path = a.out.join("report.md");
+    std::fs::write(&md_path, markdown::report_md(&exp, &outputs))
+        .with_context(|| format!("writing {}", md_path.display()))?;
+
+    for l in odocal::warning::summarize(&exp.warnings, SHOWN_WARNINGS) {
+        eprintln!("warning: {l}");
+    }
+    println!(
+        "θ_B,F Ē_p {:.3} m; reachable minimum {:.3} m; θ_nom {:.3} m{}",
+        exp.final_estimate.mean_position_error_m,
+        exp.reachable_minimum.scored.mean_position_error_m,
+        exp.nominal.mean_position_error_m,
+        exp.truth.map(|t| format!("; θ_true {:.3} m", t.mean_position_error_m)).unwrap_or_default()
+    );
+    println!("wrote {} and {} ({:.1} s)", md_path.display(), json_path.display(), outputs.timing.total);
+    Ok(())
+}
+
+/// A drive CSV with the truth from its simulator sidecar, when it has one.
+fn read_drive(path: &Path) -> Result<DriveAndTruth> {
+    let drive = Drive::read_csv(path)?;
+    let side = sim::sidecar_path(path);
+    let sidecar = if side.exists() {
+        Some(sim::SimSidecar::read_json(&side).with_context(|| format!("reading {}", side.display()))?)
+    } else {
+        None
+    };
+    let info = DriveInfo {
+        source: path.display().to_string(),
+        samples: drive.len(),
+        distance_km: drive.distance_m() / 1e3,
+        sample_time_s: drive.sample_time_s(),
+        seed: sidecar.as_ref().map(|s| s.settings.seed),
+        noise: None,
+        wheel_rotation_rel_error_rms: sidecar.as_ref().map(|s| s.stats.wheel_rotation_rel_error_rms),
+    };
+    let noise = sidecar.as_ref().map(|s| NoiseModel::from_sim(&s.settings.noise, drive.sample_time_s()));
+    Ok((drive, sidecar.map(|s| s.theta_true), noise, info))
+}
+
+/// A simulated drive of the arguments' seed, length and noise preset.
+fn simulate_drive(a: &ExperimentArgs, bars: &Bars) -> Result<DriveAndTruth> {
+    let noise = NoiseOptions::by_name(&a.noise)?;
+    let o = SimOptions { seed: a.seed, length_km: a.length_km, noise, ..SimOptions::paper(a.seed) };
+    bars.stage("simulating");
+    let out = sim::simulate(&o)?;
+    bars.finish();
+    let s = &out.sidecar.stats;
+    let info = DriveInfo {
+        source: format!("simulated (seed {}, {} km, noise '{}')", a.seed, a.length_km, a.noise),
+        samples: s.samples,
+        distance_km: s.distance_m / 1e3,
+        sample_time_s: out.drive.sample_time_s(),
+        seed: Some(a.seed),
+        noise: Some(a.noise.clone()),
+        wheel_rotation_rel_error_rms: Some(s.wheel_rotation_rel_error_rms),
+    };
+    let noise = NoiseModel::from_sim(&out.sidecar.settings.noise, out.drive.sample_time_s());
+    Ok((out.drive, Some(out.sidecar.theta_true), Some(noise), info))
+}
+
+/// Writes `experiment.json`: the library's numbers with the drive, the
+/// figures and the timing; returns its path.
+fn write_json(dir: &Path, exp: &Experiment, outputs: &Outputs) -> Result<PathBuf> {
+    let json_path = dir.join("experiment.json");
+    let mut json = serde_json::to_value(exp)?;
+    if let Some(obj) = json.as_object_mut() {
+        obj.insert("schema_version".into(), odocal::REPORT_SCHEMA_VERSION.into());
+        obj.insert("drive".into(), serde_json::to_value(&outputs.drive)?);
+        obj.insert("figures".into(), serde_json::to_value(&outputs.figures)?);
+        obj.insert("timing_s".into(), serde_json::to_value(&outputs.timing)?);
+    }
+    let text = serde_json::to_string_pretty(&json)?;
+    std::fs::write(&json_path, text + "\n").with_context(|| format!("writing {}", json_path.display()))?;
+    Ok(json_path)
+}
+
+/// Warnings of one kind printed on stderr (report.md lists all).
+const SHOWN_WARNINGS: usize = 3;
+
+/// A parameter's name, plot unit and value in that unit.
+type Param = (&'static str, &'static str, fn(&Theta) -> f64);
+
+/// The θ entries with their plot units (c_d and d in mm).
+const PARAMS: [Param; 4] = [
+    ("c_e", "m", |t| t.c_e),
+    ("c_d", "mm", |t| t.c_d * 1e3),
+    ("t_r", "m", |t| t.t_r),
+    ("d", "mm/(m/s²)", |t| t.d * 1e3),
+];

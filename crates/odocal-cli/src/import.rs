@@ -1,0 +1,38 @@
+//! `odocal import`: a multi-stream log described by a manifest into a
+//! canonical drive CSV.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Result;
+use clap::Args;
+
+use crate::io::write_json;
+
+/// Arguments of `odocal import`.
+#[derive(Args)]
+pub struct ImportArgs {
+    /// The drive manifest (TOML; see examples/README.md).
+    manifest: PathBuf,
+    /// Output canonical CSV.
+    #[arg(long)]
+    out: PathBuf,
+    /// Write the import report as JSON here ("-" for stdout).
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+/// Imports the log, writes the CSV and prints (or writes) the import report.
+pub fn run(a: ImportArgs) -> Result<()> {
+    let m = odocal::Manifest::from_path(&a.manifest)?;
+    let imported = odocal::import(&m)?;
+    imported.drive.write_csv(&a.out)?;
+    if let Some(p) = &a.json {
+        write_json(p, serde_json::to_value(&imported.report)?)?;
+        if p == Path::new("-") {
+            return Ok(());
+        }
+    }
+    println!("{}", imported.report.to_string().trim_end());
+    println!("wrote {}", a.out.display());
+    Ok(())
+}

@@ -1,0 +1,68 @@
+//! Reading drives and writing reports: what every subcommand shares.
+
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use odocal::import::ManifestSettings;
+use odocal::sim::{self, SimSidecar};
+use odocal::{Drive, Warning};
+
+/// Reads a drive: a canonical CSV, or a `.toml` manifest of a multi-stream log
+/// (its import summary goes to stderr).
+pub fn load_drive(path: &Path) -> Result<Drive> {
+    Ok(load_drive_with_scale(path)?.0)
+}
+
+/// [`load_drive`], also returning how to read c_e when the drive came from a
+/// manifest (e.g. "c_e is metres per 40360 ticks") and the manifest's
+/// calibration settings (`[noise]`, `[reference]`).
+pub fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>, Option<ManifestSettings>)> {
+    let (drive, report) = odocal::load_drive(path)?;
+    if report.is_some() {
+        eprintln!(
+            "imported {}: {} samples in {} part(s), {:.2} km (run `odocal import` for the full import report)",
+            path.display(),
+            drive.len(),
+            drive.parts().len(),
+            drive.distance_m() / 1e3
+        );
+    }
+    let settings = report.as_ref().map(odocal::import::ImportReport::settings);
+    Ok((drive, report.map(|r| r.wheel_scale), settings))
+}
+
+/// The simulator's sidecar beside a drive, when there is one.
+pub fn load_truth(drive_path: &Path) -> Option<SimSidecar> {
+    let p = sim::sidecar_path(drive_path);
+    p.exists().then(|| SimSidecar::read_json(&p).ok()).flatten()
+}
+
+/// Writes a JSON report with its `schema_version` ("-": stdout).
+pub fn write_json(path: &Path, mut value: serde_json::Value) -> Result<()> {
+    if let Some(obj) = value.as_object_mut() {
+        obj.insert("schema_version".into(), odocal::REPORT_SCHEMA_VERSION.into());
+    }
+    let text = serde_json::to_string_pretty(&value)?;
+    if path == Path::new("-") {
+        println!("{text}");
+    } else {
+        std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
+}
+
+/// Warnings to stderr, grouped by kind: at most [`WARNINGS_PER_KIND`] of
+/// each and a count of the rest (the JSON report lists all).
+pub fn print_warnings(warnings: &[Warning]) {
+    let lines = odocal::warning::summarize(warnings, WARNINGS_PER_KIND);
+    let collapsed = lines.iter().any(|l| l.starts_with('…'));
+    for l in lines {
+        eprintln!("warning: {l}");
+    }
+    if collapsed {
+        eprintln!("warning: (the --json report lists every warning)");
+    }
+}
+
+/// Warnings of one kind printed before the rest are counted.
+const WARNINGS_PER_KIND: usize = 3;

@@ -1,0 +1,129 @@
+//! `odocal validate`: Ē_p of a given θ on a drive's validation segments,
+//! and optionally the reachable minimum of Ē_p.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Result;
+use clap::Args;
+use odocal::{Theta, ValidateOptions};
+
+use crate::args::ThetaArg;
+use crate::io::{load_drive_with_scale, write_json};
+use crate::progress::Bars;
+
+/// Arguments of `odocal validate`.
+#[derive(Args)]
+pub struct ValidateArgs {
+    /// The drive: a canonical CSV or a drive manifest (.toml).
+    drive: PathBuf,
+    /// θ as c_e,c_d,t_r,d (SI), or a parameter file (.yaml, .yml, .json) as
+    /// `calibrate --params-out` writes it: its θ and the reference extrinsics
+    /// it estimated (held ones give way to the drive's manifest [reference]).
+    #[arg(long, allow_hyphen_values = true)]
+    theta: ThetaArg,
+    /// Validation segment length K_v, samples (stride K_v/2).
+    #[arg(long)]
+    validation_length: Option<usize>,
+    /// Also search the reachable minimum of Ē_p (global particle swarm over a
+    /// box around θ_0, refined by Nelder-Mead).
+    #[arg(long)]
+    reachable_minimum: bool,
+    /// Centre of the reachable-minimum search box (default the paper's θ_0;
+    /// c_e,c_d,t_r,d or a parameter file).
+    #[arg(long, allow_hyphen_values = true)]
+    theta0: Option<ThetaArg>,
+    /// Seed of the reachable-minimum search.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Write the JSON report here ("-" for stdout).
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+/// Validates θ and prints (or writes) the report.
+pub fn run(a: ValidateArgs, bars: &Bars) -> Result<()> {
+    let (drive, _, settings) = load_drive_with_scale(&a.drive)?;
+    let mut opts = ValidateOptions::default();
+    // A manifest's [reference]: the drive's own mount.
+    let stated = settings.as_ref().and_then(|s| s.reference.as_ref()).map(|r| r.extrinsics());
+    if let Some(x) = stated {
+        opts.extrinsics = x;
+    }
+    let extrinsics_from = theta_file_extrinsics(&a, stated.as_ref(), &mut opts);
+    if let Some(v) = a.validation_length {
+        opts.segments.length_steps = v;
+        opts.segments.stride_steps = (v / 2).max(1);
+    }
+    if a.reachable_minimum {
+        let centre = a.theta0.as_ref().map_or(Theta::PAPER_INITIAL, |t| t.theta);
+        opts.reachable = Some(odocal::ReachableOptions {
+            seed: a.seed,
+            starts: vec![a.theta.theta],
+            ..odocal::ReachableOptions::around(&centre)
+        });
+    }
+    let cb = |e| bars.event(e);
+    let report = odocal::validate_with_progress(&drive, &a.theta.theta, &opts, Some(&cb))?;
+    bars.finish();
+    if let Some(p) = &a.json {
+        write_json(p, serde_json::to_value(&report)?)?;
+        if p == Path::new("-") {
+            return Ok(());
+        }
+    }
+    print_report(&a, &report, &extrinsics_from);
+    Ok(())
+}
+
+/// A parameter file's extrinsics, as `--validate-on` takes a calibration's:
+/// sets them in `opts` and returns where the extrinsics in force came from.
+fn theta_file_extrinsics(a: &ValidateArgs, stated: Option<&odocal::Extrinsics>, opts: &mut ValidateOptions) -> String {
+    let manifest = "the drive's manifest [reference]".to_string();
+    let Some((path, f)) = &a.theta.file else { return manifest };
+    let (x, from_file) = f.extrinsics_for_drive(stated);
+    opts.extrinsics = x;
+    if from_file.len() == 3 {
+        path.display().to_string()
+    } else if from_file.is_empty() {
+        manifest
+    } else {
+        format!("{} from {}, the rest from the drive's manifest [reference]", from_file.join(", "), path.display())
+    }
+}
+
+/// The report for humans.
+fn print_report(a: &ValidateArgs, report: &odocal::ValidateReport, extrinsics_from: &str) {
+    let r = &report.validation;
+    match &a.theta.file {
+        Some((path, f)) => println!(
+            "θ: {} (from {}{})",
+            a.theta.theta,
+            path.display(),
+            f.verdict.as_ref().map(|v| format!(", verdict {v}")).unwrap_or_default()
+        ),
+        None => println!("θ: {}", a.theta.theta),
+    }
+    if !report.extrinsics.is_zero() {
+        println!("reference extrinsics: {} ({extrinsics_from})", report.extrinsics);
+    }
+    println!("mean position error Ē_p: {:.4} m over {} validation segments", r.mean_position_error_m, r.segments);
+    if let Some(rm) = &report.reachable_minimum {
+        println!(
+            "reachable minimum: Ē_p {:.4} m at θ = {} ({} evaluations, {:.1} s)",
+            rm.mean_position_error_m, rm.theta, rm.evaluations, rm.time_s
+        );
+        if !report.extrinsics.is_zero() {
+            println!("  (the search, too, takes the reference at the extrinsics above)");
+        }
+        if rm.recentred > 0 {
+            println!("  the search box was re-centred {} time(s) on a best point at its edge", rm.recentred);
+        }
+        if !rm.enclosed {
+            println!(
+                "  NOT ENCLOSED: {} ended on the edge of the search box; the minimum may lie beyond \
+                 (widen the box with --theta0 nearer the best point)",
+                rm.at_edge
+            );
+        }
+    }
+}

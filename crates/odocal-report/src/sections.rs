@@ -1,0 +1,326 @@
+//! The sections of the HTML report, each appended to the page in turn.
+
+use std::fmt::Write as _;
+
+use odocal::model::step;
+use odocal::segment::SegmentData;
+use odocal::validate::segment_position_error;
+
+use crate::plots::{self, figure_svg, Panel, Series};
+use crate::{dead_reckoning, esc, thin, ReportInput, Result, CSS};
+
+/// E_p,s of each validation segment for θ_0, the calibrated θ and the truth.
+pub(crate) struct SegmentErrors {
+    /// θ_0's.
+    pub initial: Vec<f64>,
+    /// The calibrated θ's.
+    pub calibrated: Vec<f64>,
+    /// The truth's, when known.
+    pub truth: Option<Vec<f64>>,
+}
+
+impl SegmentErrors {
+    pub fn new(r: &ReportInput<'_>, segs: &[SegmentData<'_>]) -> Self {
+        SegmentErrors {
+            initial: segs.iter().map(|s| segment_position_error(s, &r.theta0)).collect(),
+            calibrated: segs.iter().map(|s| segment_position_error(s, &r.theta)).collect(),
+            truth: r.truth.map(|t| segs.iter().map(|s| segment_position_error(s, &t)).collect()),
+        }
+    }
+}
+
+/// The document head, the title and the provenance line.
+pub(crate) fn head(h: &mut String, r: &ReportInput<'_>) {
+    let _ = write!(
+        h,
+        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\"/>\n<title>odocal — {}</title>\n<style>\n{}\n</style>\n</head>\n<body>\n",
+        esc(&r.title),
+        CSS
+    );
+    let _ = writeln!(h, "<h1>odocal calibration — {}</h1>", esc(&r.title));
+    if !r.provenance.is_empty() {
+        h.push_str("<p class=\"prov\">");
+        let items: Vec<String> = r.provenance.iter().map(|(k, v)| format!("{}: <b>{}</b>", esc(k), esc(v))).collect();
+        h.push_str(&items.join(" · "));
+        h.push_str("</p>\n");
+    }
+}
+
+/// Section 1: the verdict and its reasons.
+pub(crate) fn verdict(h: &mut String, r: &ReportInput<'_>) {
+    h.push_str("<section id=\"verdict\">\n<h2>Verdict</h2>\n");
+    match &r.verdict {
+        Some((level, reasons)) => {
+            let _ = writeln!(h, "<p class=\"verdict {0}\">{0}</p>", esc(level));
+            if !reasons.is_empty() {
+                h.push_str("<ul>\n");
+                for reason in reasons {
+                    let _ = writeln!(h, "<li>{}</li>", esc(reason));
+                }
+                h.push_str("</ul>\n");
+            }
+        }
+        None => h.push_str("<p class=\"verdict none\">no verdict given</p>\n"),
+    }
+    h.push_str("</section>\n");
+}
+
+/// Section 1: the parameter table, then the method's own account of the fit.
+pub(crate) fn parameters(h: &mut String, r: &ReportInput<'_>) {
+    h.push_str("<section id=\"parameters\">\n<h2>Parameters</h2>\n<table>\n<tr><th>parameter</th><th>unit</th><th>initial</th><th>calibrated</th><th>± 1σ</th>");
+    let has_truth = r.params.iter().any(|p| p.truth.is_some());
+    if has_truth {
+        h.push_str("<th>truth</th><th>error</th>");
+    }
+    h.push_str("</tr>\n");
+    for p in &r.params {
+        let f = |v: f64| format!("{:.6}", v * p.scale);
+        let sigma = p.sigma.map(f).unwrap_or_else(|| "held".into());
+        let _ = write!(
+            h,
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td><b>{}</b></td><td>{}</td>",
+            esc(&p.name),
+            esc(&p.unit),
+            f(p.initial),
+            f(p.calibrated),
+            sigma
+        );
+        if has_truth {
+            match p.truth {
+                Some(t) => {
+                    let _ = write!(h, "<td>{}</td><td>{:+.6}</td>", f(t), (p.calibrated - t) * p.scale);
+                }
+                None => h.push_str("<td></td><td></td>"),
+            }
+        }
+        h.push_str("</tr>\n");
+    }
+    h.push_str("</table>\n</section>\n");
+    if !r.method_details.is_empty() {
+        h.push_str("<section id=\"method\">\n<h2>Method details</h2>\n<pre>");
+        for line in &r.method_details {
+            let _ = writeln!(h, "{}", esc(line));
+        }
+        h.push_str("</pre>\n</section>\n");
+    }
+}
+
+/// Sections 2 and 4: Ē_p, and E_p,s per validation segment (drawn here,
+/// next to the numbers).
+pub(crate) fn validation(h: &mut String, e: &SegmentErrors) -> Result<()> {
+    let (e0, e1) = (&e.initial, &e.calibrated);
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    h.push_str("<section id=\"validation\">\n<h2>Validation: mean position error Ē_p</h2>\n<table>\n");
+    let _ = writeln!(h, "<tr><th>θ</th><th>Ē_p (m)</th><th>segments</th></tr>");
+    let _ = writeln!(h, "<tr><td>θ_0 (initial)</td><td>{:.3}</td><td>{}</td></tr>", mean(e0), e0.len());
+    let _ = writeln!(h, "<tr><td>calibrated</td><td><b>{:.3}</b></td><td>{}</td></tr>", mean(e1), e1.len());
+    if let Some(et) = &e.truth {
+        let _ = writeln!(h, "<tr><td>truth</td><td>{:.3}</td><td>{}</td></tr>", mean(et), et.len());
+    }
+    let better = e1.iter().zip(e0).filter(|(a, b)| a < b).count();
+    let _ = writeln!(
+        h,
+        "</table>\n<p>The calibrated θ dead-reckons better than θ_0 on {better} of {} validation segments.</p>",
+        e0.len()
+    );
+    let idx = |v: &[f64]| v.iter().enumerate().map(|(i, &e)| (i as f64, e)).collect::<Vec<_>>();
+    let mut series =
+        vec![Series::points("θ_0", idx(e0), plots::ORANGE), Series::points("calibrated", idx(e1), plots::BLUE)];
+    if let Some(et) = &e.truth {
+        series.push(Series::points("truth", idx(et), plots::GREEN));
+    }
+    let panel = Panel {
+        title: "E_p,s per validation segment".into(),
+        x_label: "validation segment".into(),
+        y_label: "E_p,s (m)".into(),
+        series,
+        y_range: plots::robust_range(&[e0.clone(), e1.clone()].concat(), &[0.0]),
+        ..Default::default()
+    };
+    h.push_str(&figure_svg("Dead-reckoning error per validation segment", (900, 380), (1, 1), &[panel])?);
+    h.push_str("</section>\n");
+    Ok(())
+}
+
+/// Section 3: the drive as a map, the reference and dead reckoning with θ_0
+/// and the calibrated θ on the validation segments where θ_0 is worst.
+pub(crate) fn map(h: &mut String, r: &ReportInput<'_>, segs: &[SegmentData<'_>], e0: &[f64]) -> Result<()> {
+    let drive = r.drive;
+    h.push_str("<section id=\"map\">\n<h2>The drive</h2>\n");
+    let mut map_series = Vec::new();
+    for p in drive.parts() {
+        let pts: Vec<(f64, f64)> = (p.start..p.end).map(|i| (drive.px()[i], drive.py()[i])).collect();
+        map_series.push(Series::line(
+            if map_series.is_empty() { "reference" } else { "" },
+            thin(pts, 4000),
+            plots::GREY,
+        ));
+    }
+    // The segments shown: the ones where θ_0 was worst, up to map_segments.
+    let mut order: Vec<usize> = (0..segs.len()).collect();
+    order.sort_by(|&a, &b| e0[b].total_cmp(&e0[a]));
+    order.truncate(r.map_segments.max(1));
+    order.sort_unstable();
+    for (j, &i) in order.iter().enumerate() {
+        let first = j == 0;
+        map_series.push(Series::line(
+            if first { "dead reckoning θ_0" } else { "" },
+            thin(dead_reckoning(&segs[i], &r.theta0), 1500),
+            plots::ORANGE,
+        ));
+        map_series.push(Series::line(
+            if first { "dead reckoning calibrated" } else { "" },
+            thin(dead_reckoning(&segs[i], &r.theta), 1500),
+            plots::BLUE,
+        ));
+    }
+    let map = Panel {
+        title: format!("reference and dead reckoning on the {} validation segments where θ_0 is worst", order.len()),
+        x_label: "x (m)".into(),
+        y_label: "y (m)".into(),
+        series: map_series,
+        equal_aspect: true,
+        ..Default::default()
+    };
+    h.push_str(&figure_svg("Map", (900, 700), (1, 1), &[map])?);
+    let _ = writeln!(
+        h,
+        "<p>Segments shown (start time, s): {}.</p>\n</section>",
+        order
+            .iter()
+            .map(|&i| format!("{:.1}", drive.t()[r.validation_segments[i].start]))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    Ok(())
+}
+
+/// Section 5: the spread of the step-1 estimates θ_B,I (3-step method);
+/// nothing without them.
+pub(crate) fn batches(h: &mut String, r: &ReportInput<'_>) -> Result<()> {
+    if r.batches.is_empty() {
+        return Ok(());
+    }
+    h.push_str("<section id=\"batches\">\n<h2>Step-1 estimates θ_B,I</h2>\n");
+    let units = [("c_e (m)", 1.0), ("c_d (mm)", 1e3), ("t_r (m)", 1.0), ("d (mm/(m/s²))", 1e3)];
+    let panels: Vec<Panel> = (0..4)
+        .map(|i| {
+            let pts: Vec<(f64, f64)> = r.batches.iter().map(|(t, e)| (*e, t.to_array()[i] * units[i].1)).collect();
+            let ys: Vec<f64> = pts.iter().map(|p| p.1).collect();
+            let mut hlines = vec![plots::HLine {
+                name: "calibrated".into(),
+                y: r.theta.to_array()[i] * units[i].1,
+                color: plots::RED,
+            }];
+            if let Some(t) = r.truth {
+                hlines.push(plots::HLine {
+                    name: "truth".into(),
+                    y: t.to_array()[i] * units[i].1,
+                    color: plots::GREEN,
+                });
+            }
+            let always: Vec<f64> = hlines.iter().map(|l| l.y).collect();
+            Panel {
+                title: units[i].0.split(' ').next().unwrap_or("").to_string(),
+                x_label: "Ē_p of the batch estimate (m)".into(),
+                y_label: units[i].0.into(),
+                y_range: plots::robust_range(&ys, &always),
+                series: vec![Series::points("θ_B,I", pts, plots::BLUE)],
+                hlines,
+                ..Default::default()
+            }
+        })
+        .collect();
+    h.push_str(&figure_svg("Spread of the step-1 batch estimates", (900, 640), (2, 2), &panels)?);
+    h.push_str("</section>\n");
+    Ok(())
+}
+
+/// Section 6: residual time series, the one-step yaw-rate residual and the
+/// dead-reckoning position error along the validation segments.
+pub(crate) fn residuals(h: &mut String, r: &ReportInput<'_>, segs: &[SegmentData<'_>]) -> Result<()> {
+    h.push_str("<section id=\"residuals\">\n<h2>Residuals</h2>\n");
+    let p1 = yaw_rate_residual_panel(r);
+    let p2 = position_error_panel(r, segs);
+    h.push_str(&figure_svg("Residuals over the drive", (900, 640), (2, 1), &[p1, p2])?);
+    h.push_str("</section>\n");
+    Ok(())
+}
+
+/// The yaw-rate residual, reference − model one step ahead, for θ_0 and the
+/// calibrated θ, in 5 s means.
+fn yaw_rate_residual_panel(r: &ReportInput<'_>) -> Panel {
+    let drive = r.drive;
+    let ts = drive.sample_time_s();
+    let mut heading = Vec::new();
+    let mut heading0 = Vec::new();
+    for p in drive.parts() {
+        for i in p.start..p.end.saturating_sub(1) {
+            let x = drive.pose(i);
+            let u = drive.input(i);
+            let r1 = drive.psi()[i + 1] - step(&x, &u, &r.theta, ts)[2];
+            let r0 = drive.psi()[i + 1] - step(&x, &u, &r.theta0, ts)[2];
+            heading.push((drive.t()[i], r1 / ts));
+            heading0.push((drive.t()[i], r0 / ts));
+        }
+    }
+    // Means over 5 s make a systematic yaw-rate error visible above the wheel noise.
+    let smooth = |v: &[(f64, f64)]| -> Vec<(f64, f64)> {
+        let w = ((5.0 / ts).round() as usize).max(1);
+        v.chunks(w).map(|c| (c[0].0, c.iter().map(|p| p.1).sum::<f64>() / c.len() as f64)).collect()
+    };
+    let (hs, hs0) = (smooth(&heading), smooth(&heading0));
+    let ys: Vec<f64> = hs.iter().chain(&hs0).map(|p| p.1).collect();
+    Panel {
+        title: "yaw-rate residual: reference − model one step ahead (5 s means)".into(),
+        x_label: "t (s)".into(),
+        y_label: "rad/s".into(),
+        y_range: plots::robust_range(&ys, &[0.0]),
+        series: vec![Series::line("θ_0", hs0, plots::ORANGE), Series::line("calibrated", hs, plots::BLUE)],
+        ..Default::default()
+    }
+}
+
+/// The dead-reckoning position error along each validation segment for θ_0
+/// and the calibrated θ.
+fn position_error_panel(r: &ReportInput<'_>, segs: &[SegmentData<'_>]) -> Panel {
+    let drive = r.drive;
+    let mut pos_series = Vec::new();
+    let mut ys = Vec::new();
+    for (j, (s, seg)) in r.validation_segments.iter().zip(segs).enumerate() {
+        let (a, b) = (dead_reckoning(seg, &r.theta0), dead_reckoning(seg, &r.theta));
+        let err_of = |d: &[(f64, f64)]| -> Vec<(f64, f64)> {
+            d.iter()
+                .enumerate()
+                .map(|(k, p)| (drive.t()[s.start + k], (seg.px[k] - p.0).hypot(seg.py[k] - p.1)))
+                .collect()
+        };
+        let (e_a, e_b) = (err_of(&a), err_of(&b));
+        ys.extend(e_a.iter().chain(&e_b).map(|p| p.1));
+        pos_series.push(Series::line(if j == 0 { "θ_0" } else { "" }, thin(e_a, 200), plots::ORANGE));
+        pos_series.push(Series::line(if j == 0 { "calibrated" } else { "" }, thin(e_b, 200), plots::BLUE));
+    }
+    Panel {
+        title: "dead-reckoning position error along each validation segment".into(),
+        x_label: "t (s)".into(),
+        y_label: "m".into(),
+        y_range: Some((0.0, 1.05 * ys.iter().copied().filter(|v| v.is_finite()).fold(1e-3, f64::max))),
+        series: pos_series,
+        ..Default::default()
+    }
+}
+
+/// Section 7: the warnings, and the end of the page.
+pub(crate) fn warnings(h: &mut String, r: &ReportInput<'_>) {
+    h.push_str("<section id=\"warnings\">\n<h2>Warnings</h2>\n");
+    if r.warnings.is_empty() {
+        h.push_str("<p>none</p>\n");
+    } else {
+        h.push_str("<ul>\n");
+        for w in &r.warnings {
+            let _ = writeln!(h, "<li>{}</li>", esc(w));
+        }
+        h.push_str("</ul>\n");
+    }
+    h.push_str("</section>\n</body>\n</html>\n");
+}
