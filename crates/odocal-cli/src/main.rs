@@ -11,11 +11,11 @@ use std::process::ExitCode;
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
+use odocal::calibrate::settings::{ManifestSettings, SettingUse};
 use odocal::drive::ExtraColumn;
-use odocal::import::{ManifestSettings, SettingUse};
 use odocal::sim::{self, NoiseOptions, SimOptions, SimSidecar};
 use odocal::{
-    segment, CalibrationOptions, CalibrationReport, Drive, FinalSegments, Holdout, Method, ParamSet, QpOptions,
+    drive::segment, CalibrationOptions, CalibrationReport, Drive, FinalSegments, Holdout, Method, ParamSet, QpOptions,
     SolverKind, Theta, ThreeStepOptions, VerdictLevel, Warning,
 };
 
@@ -270,7 +270,7 @@ struct CalibrationArgs {
     /// Also write the parameters under a consumer's keys: odocal (none) or
     /// diff_drive_controller (wheel_separation, wheel_radius, radius multipliers).
     #[arg(long, default_value = "odocal")]
-    params_mapping: odocal::param_file::ParamMapping,
+    params_mapping: odocal::io::param_file::ParamMapping,
     /// Write a self-contained HTML report (verdict, θ, map, per-segment errors,
     /// residuals, warnings) to this file.
     #[arg(long)]
@@ -654,6 +654,7 @@ fn load_drive(path: &Path) -> Result<Drive> {
 /// calibration settings (`[noise]`, `[reference]`).
 fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>, Option<ManifestSettings>)> {
     let (drive, report) = odocal::load_drive(path)?;
+    let settings = report.as_ref().map(ManifestSettings::of_report).transpose()?;
     if report.is_some() {
         eprintln!(
             "imported {}: {} samples in {} part(s), {:.2} km (run `odocal import` for the full import report)",
@@ -663,7 +664,6 @@ fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>, Option<M
             drive.distance_m() / 1e3
         );
     }
-    let settings = report.as_ref().map(odocal::import::ImportReport::settings);
     Ok((drive, report.map(|r| r.wheel_scale), settings))
 }
 
@@ -673,16 +673,16 @@ fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>, Option<M
 struct ThetaArg {
     theta: Theta,
     /// The parameter file θ came from, when it did.
-    file: Option<(PathBuf, odocal::param_file::ParamFile)>,
+    file: Option<(PathBuf, odocal::io::param_file::ParamFile)>,
 }
 
 impl std::str::FromStr for ThetaArg {
     type Err = odocal::Error;
     fn from_str(s: &str) -> std::result::Result<Self, Self::Err> {
         let path = Path::new(s);
-        if odocal::param_file::is_param_file(path) {
+        if odocal::io::param_file::is_param_file(path) {
             // `read` has checked θ (`theta()` cannot fail after it).
-            let f = odocal::param_file::ParamFile::read(path)?;
+            let f = odocal::io::param_file::ParamFile::read(path)?;
             return Ok(ThetaArg { theta: f.theta()?, file: Some((path.into(), f)) });
         }
         Ok(ThetaArg { theta: s.parse()?, file: None })
@@ -691,6 +691,8 @@ impl std::str::FromStr for ThetaArg {
 
 fn import_cmd(a: ImportArgs) -> Result<()> {
     let m = odocal::Manifest::from_path(&a.manifest)?;
+    // The calibration settings are checked too, so a bad one is named now.
+    ManifestSettings::of_manifest(&m)?;
     let imported = odocal::import(&m)?;
     imported.drive.write_csv(&a.out)?;
     if let Some(p) = &a.json {
@@ -761,7 +763,7 @@ fn simulate_cmd(a: SimulateArgs, bars: &progress::Bars) -> Result<()> {
 /// Warnings to stderr, grouped by kind: at most [`WARNINGS_PER_KIND`] of
 /// each and a count of the rest (the JSON report lists all).
 fn print_warnings(warnings: &[Warning]) {
-    let lines = odocal::warning::summarize(warnings, WARNINGS_PER_KIND);
+    let lines = odocal::assess::warning::summarize(warnings, WARNINGS_PER_KIND);
     let collapsed = lines.iter().any(|l| l.starts_with('…'));
     for l in lines {
         eprintln!("warning: {l}");
@@ -844,7 +846,7 @@ fn run_calibration(
     };
     // Each validation drive with the extrinsics that apply to it (its own
     // manifest's `[reference]` where the calibration neither estimates nor
-    // is given them: odocal::validate_on).
+    // is given them: odocal::assess::validation_drives).
     let validation: Vec<odocal::ValidationDrive> = others
         .iter()
         .zip(&other_settings)
@@ -885,7 +887,7 @@ fn run_calibration(
     let input = source.map(|(p, _)| p.display().to_string()).unwrap_or_else(|| "simulated drive".into());
     if let Some(p) = &args.params_out {
         // The σ that stands for the result (the verdict's, the JSON's `sigma`).
-        let mut f = odocal::param_file::ParamFile::from_report(&r, &input);
+        let mut f = odocal::io::param_file::ParamFile::from_report(&r, &input);
         f.node = args.params_node.clone();
         f.mapping = args.params_mapping;
         f.write(p)?;
@@ -901,7 +903,7 @@ fn run_calibration(
                 ("method".into(), r.method.clone()),
                 ("input".into(), input.clone()),
                 ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
-                ("date".into(), odocal::param_file::utc_date_today()),
+                ("date".into(), odocal::io::param_file::utc_date_today()),
             ],
             params: {
                 let mut rows = odocal_report::ParamRow::theta_rows(
@@ -1093,7 +1095,7 @@ fn compensate_cmd(a: CompensateArgs, bars: &progress::Bars) -> Result<()> {
         Some(&cb),
     )?;
     bars.finish();
-    print_warnings(&comp.warnings);
+    print_warnings(&comp.warnings.iter().cloned().map(odocal::Warning::from).collect::<Vec<_>>());
     let (mut c_rl, mut c_rr, mut flag) = (drive.n_rl().to_vec(), drive.n_rr().to_vec(), vec![0.0; drive.len()]);
     for (i, s) in comp.segments.iter().enumerate() {
         c_rl[s.start..s.start + s.steps].copy_from_slice(&comp.n_rl[i]);

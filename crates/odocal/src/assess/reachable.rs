@@ -7,7 +7,7 @@
 //! Ē_p* = min over θ ∈ [lower, upper] of Ē_p(θ)
 //! ```
 //!
-//! where `Ē_p` is [`mean_position_error`](crate::validate::mean_position_error). It is the yardstick a calibration
+//! where `Ē_p` is [`mean_position_error`](crate::assess::position_error::mean_position_error). It is the yardstick a calibration
 //! is judged against: the gap between a calibrated θ̂ and the reachable
 //! minimum is what better identification could still win.
 //!
@@ -61,14 +61,14 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use crate::assess::position_error::mean_position_error_with;
+use crate::drive::segment::Segment;
 use crate::drive::Drive;
 use crate::error::{Error, Result};
-use crate::extrinsics::Extrinsics;
+use crate::model::extrinsics::Extrinsics;
+use crate::model::param::{Param, ParamSet};
 use crate::model::{Theta, THETA_NAMES};
-use crate::param::{Param, ParamSet};
 use crate::progress::{emit, Progress, ProgressFn};
-use crate::segment::Segment;
-use crate::validate::mean_position_error_with;
 
 /// Cost, in metres, of a θ outside the box or invalid (`t_r ≤ 0`, `c_e ≤ 0`,
 /// non-finite error). Far above any real `Ē_p` (a few metres to kilometres)
@@ -133,9 +133,9 @@ pub struct ReachableOptions {
     pub recentre: usize,
     /// The pose reference's mount (lever arm, heading offset), held: every
     /// `Ē_p(θ)` of the search compares the model's antenna position with
-    /// the reference, as [`crate::validate::mean_position_error_with`] does,
+    /// the reference, as [`crate::assess::position_error::mean_position_error_with`] does,
     /// so the minimum is comparable with a validation on the same mount.
-    /// [`validate`](crate::validate()) sets it from [`crate::ValidateOptions::extrinsics`].
+    /// [`validate`](crate::assess::validate::validate()) sets it from [`crate::ValidateOptions::extrinsics`].
     /// Default 0: the reference at the rear-axle centre.
     #[serde(default)]
     pub extrinsics: Extrinsics,
@@ -547,10 +547,10 @@ fn search_box(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::assess::position_error::mean_position_error;
+    use crate::drive::segment::{validation_segments, ValidationSegmentOptions};
     use crate::drive::Signals;
     use crate::model::{step, Input, State};
-    use crate::segment::{validation_segments, ValidationSegmentOptions};
-    use crate::validate::mean_position_error;
 
     /// Sample time of the synthetic drive, s (40 Hz).
     const TS: f64 = 0.025;
@@ -565,8 +565,8 @@ mod tests {
     /// appears to beat the "reachable minimum".
     #[test]
     fn the_search_uses_the_reference_mount_of_the_validation() {
+        use crate::assess::validate::{validate, ValidateOptions};
         use crate::sim::{simulate, SimOptions};
-        use crate::validate::{validate, ValidateOptions};
         let mount = Extrinsics { lever_x: -0.9, lever_y: 0.3, heading_offset: -0.01 };
         let sim = SimOptions { length_km: 2.0, substeps: 1, reference_mount: mount, ..SimOptions::noise_free(3) };
         let s = simulate(&sim).expect("simulate");

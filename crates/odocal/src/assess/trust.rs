@@ -36,10 +36,10 @@
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::extrinsics::{Extrinsics, ExtrinsicsEstimate};
 use crate::identify::{IdentifyReport, Termination};
+use crate::model::extrinsics::{Extrinsics, ExtrinsicsEstimate};
+use crate::model::param::{Param, ParamSet};
 use crate::model::Theta;
-use crate::param::{Param, ParamSet};
 
 /// The plausible region of θ around θ_0, and the numerical guards.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -70,7 +70,7 @@ pub struct Guards {
     /// parameters at all.
     pub min_rcond: f64,
     /// |lever arm| per axis (x forward, y left) of the pose reference at
-    /// most this, m, when estimated ([`crate::extrinsics`]). Default 5: an
+    /// most this, m, when estimated ([`crate::model::extrinsics`]). Default 5: an
     /// antenna or INS farther than 5 m from the rear axle is off a car or
     /// van (the PSU van's antennas sit about 0.9 m from it).
     #[serde(default = "default_lever_arm_abs_m")]

@@ -1,89 +1,18 @@
-//! Validation of a calibrated θ by dead reckoning (SPEC §7).
-//!
-//! On each validation segment the model runs with the *measured* wheel
-//! rotations from the reference start pose, and the mean position error is
-//!
-//! ```text
-//! E_p,s = (1/K_v) Σ_k sqrt((p̃_x,k − p_x,k(θ))² + (p̃_y,k − p_y,k(θ))²)
-//! ```
-//!
-//! `Ē_p` is the mean over segments. [`validate`] is the `validate` command:
-//! Ē_p of a θ and, optionally, the reachable minimum
-//! ([`crate::reachable`]) on the same segments.
+//! Validation of a calibrated θ by dead reckoning (SPEC §7): [`validate`]
+//! is the `validate` command, Ē_p ([`super::position_error`]) of a θ and,
+//! optionally, the reachable minimum ([`super::reachable`]) on the same
+//! segments; [`validate_drives`] validates on several drives.
 
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use super::position_error::{mean_position_error_with, ValidationReport};
+use super::reachable::{reachable_minimum_with_progress, ReachableOptions, ReachableReport};
+use crate::drive::segment::{validation_segments, ValidationSegmentOptions};
 use crate::drive::Drive;
-use crate::error::{Error, Result};
-use crate::extrinsics::Extrinsics;
-use crate::model::{step, Theta};
+use crate::error::Result;
+use crate::model::extrinsics::Extrinsics;
+use crate::model::Theta;
 use crate::progress::ProgressFn;
-use crate::reachable::{reachable_minimum_with_progress, ReachableOptions, ReachableReport};
-use crate::segment::{validation_segments, Segment, SegmentData, ValidationSegmentOptions};
-
-/// Mean position error of θ on the validation segments.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ValidationReport {
-    /// The θ validated.
-    pub theta: Theta,
-    /// Ē_p, the mean over segments of the per-segment mean position error, m.
-    pub mean_position_error_m: f64,
-    /// Number of validation segments.
-    pub segments: usize,
-    /// E_p,s per segment, m, in segment order.
-    pub per_segment_m: Vec<f64>,
-}
-
-/// Mean position error E_p,s of one segment at θ.
-pub fn segment_position_error(seg: &SegmentData<'_>, theta: &Theta) -> f64 {
-    let mut x = seg.reference(0);
-    let mut sum = 0.0;
-    for k in 0..seg.steps() {
-        x = step(&x, &seg.input(k), theta, seg.sample_time_s);
-        sum += (seg.px[k + 1] - x[0]).hypot(seg.py[k + 1] - x[1]);
-    }
-    sum / seg.steps() as f64
-}
-
-/// Ē_p of θ over `segments` of `drive`, parallel over segments, deterministic.
-pub fn mean_position_error(drive: &Drive, segments: &[Segment], theta: &Theta) -> Result<ValidationReport> {
-    mean_position_error_with(drive, segments, theta, &Extrinsics::ZERO)
-}
-
-/// Ē_p of θ with the pose reference mounted at `extrinsics`: each segment
-/// starts from the axle pose the reference implies and the model's
-/// reference point is compared with the measured one
-/// ([`crate::extrinsics::segment_position_error`]). With zero extrinsics
-/// this is [`mean_position_error`], bit for bit.
-pub fn mean_position_error_with(
-    drive: &Drive,
-    segments: &[Segment],
-    theta: &Theta,
-    extrinsics: &Extrinsics,
-) -> Result<ValidationReport> {
-    theta.validate()?;
-    extrinsics.validate()?;
-    if segments.is_empty() {
-        return Err(Error::NoSegments(format!(
-            "the drive ({} samples) is too short for one validation segment",
-            drive.len()
-        )));
-    }
-    let per_segment_m: Vec<f64> = if extrinsics.is_zero() {
-        segments.par_iter().map(|s| segment_position_error(&SegmentData::new(drive, s), theta)).collect()
-    } else {
-        segments
-            .par_iter()
-            .map(|s| crate::extrinsics::segment_position_error(&SegmentData::new(drive, s), theta, extrinsics))
-            .collect()
-    };
-    let mean = per_segment_m.iter().sum::<f64>() / per_segment_m.len() as f64;
-    if !mean.is_finite() {
-        return Err(Error::Numerical(format!("validation error is not finite at θ = {theta}")));
-    }
-    Ok(ValidationReport { theta: *theta, mean_position_error_m: mean, segments: segments.len(), per_segment_m })
-}
 
 /// Settings of [`validate`].
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
@@ -96,7 +25,7 @@ pub struct ValidateOptions {
     /// of θ are computed against the same reference mount.
     pub reachable: Option<ReachableOptions>,
     /// The pose reference's mount (e.g. the drive manifest's `[reference]`,
-    /// [`crate::import::ReferenceSpec::extrinsics`]). Default 0: the axle.
+    /// [`crate::io::import::ReferenceSpec::extrinsics`]). Default 0: the axle.
     #[serde(default)]
     pub extrinsics: Extrinsics,
 }
@@ -163,9 +92,9 @@ pub struct DriveValidation {
     /// Validation segments of the drive.
     pub segments: usize,
     /// The reference extrinsics this drive used, where they are not all 0
-    /// or a stated value was overruled ([`crate::validate_on`]).
+    /// or a stated value was overruled ([`crate::assess::validation_drives`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub extrinsics: Option<crate::validate_on::DriveExtrinsics>,
+    pub extrinsics: Option<crate::assess::validation_drives::DriveExtrinsics>,
 }
 
 /// Ē_p of θ and θ_0 on each of several drives, and their means over the
@@ -210,7 +139,7 @@ impl MultiValidation {
 /// drive (cross-run checks: calibrate on one drive, validate on others),
 /// with the reference at the rear-axle centre. For drives with reference
 /// extrinsics (the calibration's, or their own manifests'), use
-/// [`crate::validate_on::validate_drives_with`].
+/// [`crate::assess::validation_drives::validate_drives_with`].
 ///
 /// # Errors
 /// [`Error::NoSegments`] naming a drive too short for one validation
@@ -221,9 +150,9 @@ pub fn validate_drives(
     theta0: &Theta,
     segments: &ValidationSegmentOptions,
 ) -> Result<MultiValidation> {
-    let drives: Vec<crate::validate_on::ValidationDrive> = drives
+    let drives: Vec<crate::assess::validation_drives::ValidationDrive> = drives
         .iter()
-        .map(|(name, drive)| crate::validate_on::ValidationDrive { name, drive, reference: None })
+        .map(|(name, drive)| crate::assess::validation_drives::ValidationDrive { name, drive, reference: None })
         .collect();
-    crate::validate_on::validate_drives_with(&drives, theta, theta0, &Default::default(), segments)
+    crate::assess::validation_drives::validate_drives_with(&drives, theta, theta0, &Default::default(), segments)
 }

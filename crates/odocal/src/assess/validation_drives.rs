@@ -26,16 +26,15 @@
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::calibrate::{calibrate_core, CalibrationOptions, CalibrationReport};
+use super::position_error::{segment_position_error, segment_position_error_with, ValidationReport};
+use super::validate::{DriveValidation, MultiValidation};
+use crate::drive::segment::{validation_segments, Segment, SegmentData, ValidationSegmentOptions};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
-use crate::extrinsics::Extrinsics;
-use crate::import::ReferenceSpec;
+use crate::io::import::ReferenceSpec;
+use crate::model::extrinsics::{Extrinsics, ExtrinsicsEstimate};
+use crate::model::param::{Param, ParamSet};
 use crate::model::Theta;
-use crate::param::{Param, ParamSet};
-use crate::progress::ProgressFn;
-use crate::segment::{validation_segments, Segment, SegmentData, ValidationSegmentOptions};
-use crate::validate::{segment_position_error, DriveValidation, MultiValidation, ValidationReport};
 
 /// Where a validation drive's value of one extrinsic parameter comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -78,21 +77,18 @@ pub struct CalibrationExtrinsics {
 }
 
 impl CalibrationExtrinsics {
-    /// The extrinsics of a calibration report; `given` names the parameters
-    /// the caller gave (e.g. `--lever-arm` gives `lever_x`, `lever_y`).
-    pub fn of(report: &CalibrationReport, given: ParamSet) -> Self {
-        match &report.extrinsics {
+    /// The extrinsics of a calibration: its estimate (`None` when it held
+    /// every extrinsic, at `held`); `given` names the parameters the caller
+    /// gave (e.g. `--lever-arm` gives `lever_x`, `lever_y`).
+    pub fn of_estimate(estimate: Option<&ExtrinsicsEstimate>, held: Extrinsics, given: ParamSet) -> Self {
+        match estimate {
             Some(e) => CalibrationExtrinsics { initial: e.initial, value: e.value, estimated: e.free, given },
-            None => {
-                let x = report.options.identify.extrinsics;
-                CalibrationExtrinsics { initial: x, value: x, estimated: ParamSet::EMPTY, given }
-            }
+            None => CalibrationExtrinsics { initial: held, value: held, estimated: ParamSet::EMPTY, given },
         }
     }
 
-    /// Before the estimate: the options' values, `free`'s extrinsics as estimated.
-    pub(crate) fn before(opts: &CalibrationOptions, free: ParamSet, given: ParamSet) -> Self {
-        let x = opts.identify.extrinsics;
+    /// Before the estimate: the start values `x`, `free`'s extrinsics as estimated.
+    pub fn before(x: Extrinsics, free: ParamSet, given: ParamSet) -> Self {
         let estimated = free.intersection(ParamSet::EXTRINSICS);
         CalibrationExtrinsics { initial: x, value: x, estimated, given }
     }
@@ -232,7 +228,7 @@ fn segment_error(drive: &Drive, s: &Segment, theta: &Theta, e: &Extrinsics) -> f
     if e.is_zero() {
         segment_position_error(&data, theta)
     } else {
-        crate::extrinsics::segment_position_error(&data, theta, e)
+        segment_position_error_with(&data, theta, e)
     }
 }
 
@@ -350,34 +346,6 @@ pub fn validate_drives_with(
         });
     }
     Ok(MultiValidation::from_rows(*theta, *theta0, out))
-}
-
-/// Calibrates `drive` with `opts` and validates on `validation` (other
-/// drives of the same vehicle), each validation drive with its own
-/// extrinsics (module docs): the report's `validation` and `initial` are
-/// Ē_p over all their segments, as with [`crate::Holdout::Other`] of the
-/// joined drives, and the [`MultiValidation`] has each drive's row.
-/// `given` names the extrinsic parameters the caller gave itself.
-///
-/// # Errors
-/// Those of [`crate::calibrate_held_out`], of joining the drives
-/// ([`Drive::concat`]) and of [`validate_drives_with`].
-pub fn calibrate_validated_on(
-    drive: &Drive,
-    validation: &[ValidationDrive<'_>],
-    given: ParamSet,
-    opts: &CalibrationOptions,
-    progress: Option<ProgressFn<'_>>,
-) -> Result<(CalibrationReport, MultiValidation)> {
-    if validation.is_empty() {
-        return Err(Error::NoSegments("no validation drive given".into()));
-    }
-    let given = given.intersection(ParamSet::EXTRINSICS);
-    let held = HeldOutDrives::new(validation, given)?;
-    let report = calibrate_core(drive, Some((&held.joined, Some(&held))), opts, progress)?.report;
-    let cal = CalibrationExtrinsics::of(&report, given);
-    let per = validate_drives_with(validation, &report.theta, &report.initial.theta, &cal, &opts.validation)?;
-    Ok((report, per))
 }
 
 #[cfg(test)]

@@ -9,10 +9,11 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::assess::trust::GuardViolation;
+use crate::compensate::CompensationWarning;
 use crate::eiv::EivWarning;
+use crate::model::param::{Param, ParamSet};
 use crate::model::Theta;
-use crate::param::{Param, ParamSet};
-use crate::trust::GuardViolation;
 
 /// Something the user should know about a calibration result.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -140,7 +141,7 @@ pub enum Warning {
     /// they imply; the EIV θ covariance does not include their uncertainty.
     EivExtrinsicsHeld {
         /// The extrinsics the filter held.
-        extrinsics: crate::extrinsics::Extrinsics,
+        extrinsics: crate::model::extrinsics::Extrinsics,
         /// Which of them the batch Gauss-Newton start estimated (empty:
         /// all given).
         estimated: ParamSet,
@@ -164,6 +165,24 @@ pub enum Warning {
         /// Why.
         error: String,
     },
+}
+
+impl From<CompensationWarning> for Warning {
+    fn from(w: CompensationWarning) -> Self {
+        match w {
+            CompensationWarning::Failed { segment_start, reason } => {
+                Warning::CompensationFailed { segment_start, reason }
+            }
+            CompensationWarning::SolverFallback {
+                segment_start,
+                theta_index,
+                linearization,
+                solver,
+                fallback,
+                reason,
+            } => Warning::SolverFallback { segment_start, theta_index, linearization, solver, fallback, reason },
+        }
+    }
 }
 
 impl Warning {

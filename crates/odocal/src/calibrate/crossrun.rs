@@ -10,15 +10,15 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::assess::trust::{Verdict, VerdictLevel};
+use crate::assess::validate::MultiValidation;
+use crate::assess::validation_drives::{validate_drives_with, ValidationDrive};
 use crate::calibrate::{calibrate, CalibrationOptions};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
+use crate::model::param::ParamSet;
 use crate::model::Theta;
-use crate::param::ParamSet;
 use crate::progress::ProgressFn;
-use crate::trust::{Verdict, VerdictLevel};
-use crate::validate::MultiValidation;
-use crate::validate_on::{validate_drives_with, CalibrationExtrinsics, ValidationDrive};
 
 /// The ratio of the acceptance criterion: the mean over runs of the
 /// cross-run Ē_p should stay within this multiple of the mean of the runs'
@@ -270,7 +270,7 @@ pub fn cross_run_groups(
             .map(|(_, (name, drive))| ValidationDrive { name, drive, reference: None })
             .collect();
         // The calibration's extrinsics (estimated or held) on every other drive.
-        let cal = CalibrationExtrinsics::of(&r, ParamSet::EMPTY);
+        let cal = r.extrinsics_for_validation(ParamSet::EMPTY);
         let others = validate_drives_with(&others, &r.theta, &opts.theta0, &cal, &opts.validation)
             .map_err(|e| Error::Numerical(format!("cross-run, θ of {name}: {e}")))?;
         let fit = CrossRunFit {

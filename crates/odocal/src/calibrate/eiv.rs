@@ -31,7 +31,7 @@
 //! so; a filter error (a window whose covariance stops being positive
 //! definite, named in the error) falls back the same way. With the fallback
 //! off, the EIV θ is returned and the verdict is at most doubtful
-//! ([`crate::trust::VerdictReason::Misspecified`]).
+//! ([`crate::assess::trust::VerdictReason::Misspecified`]).
 //!
 //! ## Reference extrinsics (two-stage)
 //! When [`IdentifyOptions::uses_extrinsics`] (a lever arm or heading
@@ -39,7 +39,7 @@
 //! ones jointly with θ exactly as `batch-gn` does (same
 //! [`IdentifyOptions`]). The filter does not model them: it runs on the
 //! rear-axle poses the reference implies with the start's extrinsics held
-//! ([`crate::extrinsics::axle_reference_drive`]: position minus
+//! ([`crate::drive::axle_reference_drive`]: position minus
 //! `R(ψ)·l`, heading minus δ); given extrinsics are applied the same way.
 //! The report's `extrinsics` are the start's estimate with its σ, and
 //! [`Warning::EivExtrinsicsHeld`] says that the EIV θ covariance does not
@@ -99,15 +99,15 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use super::{hold_unobservable, Estimator, MethodDetail, MethodOutcome, Prepared, Selection, Timing};
+use crate::assess::warning::Warning;
+use crate::drive::axle_reference_drive;
+use crate::drive::segment::SegmentData;
 use crate::eiv::{self, BiasCorrection, EivInput, EivOptions, EivReport, EivWarning, NoiseModel, NoiseSource};
 use crate::error::{Error, Result};
-use crate::extrinsics::axle_reference_drive;
 use crate::identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport, Observability};
+use crate::model::param::{Param, ParamSet};
 use crate::model::Theta;
-use crate::param::{Param, ParamSet};
 use crate::progress::{emit, Progress, ProgressFn};
-use crate::segment::SegmentData;
-use crate::warning::Warning;
 
 /// Settings of the EIV method.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

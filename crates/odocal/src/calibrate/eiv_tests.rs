@@ -4,13 +4,13 @@
 #![allow(clippy::float_cmp)]
 
 use super::*;
+use crate::assess::trust::VerdictReason;
+use crate::assess::warning::Warning;
 use crate::calibrate::{BatchGnOptions, MethodDetail, Timing};
 use crate::drive::Signals;
 use crate::eiv::{EivOptions, EivWarning, NoiseModel};
 use crate::model::Theta;
 use crate::sim::{simulate, NoiseOptions, SimOptions};
-use crate::trust::VerdictReason;
-use crate::warning::Warning;
 use crate::{calibrate, CalibrationOptions, Method};
 
 fn eiv_method(filter: EivOptions, fallback: bool) -> Method {
@@ -315,7 +315,7 @@ fn bootstrap_option_reports_replicates_of_the_returned_estimate() {
 /// `identify` (its `max_iterations` set to 30), the start estimating the
 /// heading offset by default or not ([`EivMethodOptions::estimate_heading_offset`]).
 fn eiv_on_mounted_drive(
-    mount: crate::extrinsics::Extrinsics,
+    mount: crate::model::extrinsics::Extrinsics,
     identify: crate::identify::IdentifyOptions,
     estimate_heading_offset: bool,
 ) -> (crate::CalibrationReport, Theta) {
@@ -342,8 +342,8 @@ fn max_rel(a: &Theta, b: &Theta) -> f64 {
     a.to_array().iter().zip(b.to_array()).map(|(x, y)| ((x - y) / y).abs()).fold(0.0, f64::max)
 }
 
-const VAN: crate::extrinsics::Extrinsics =
-    crate::extrinsics::Extrinsics { lever_x: -0.9, lever_y: 0.05, heading_offset: -0.0099 };
+const VAN: crate::model::extrinsics::Extrinsics =
+    crate::model::extrinsics::Extrinsics { lever_x: -0.9, lever_y: 0.05, heading_offset: -0.0099 };
 
 /// Issue 10 item 4, two-stage: with the reference at the van's mount, EIV
 /// with `--estimate lever-arm,heading-offset` gets the extrinsics from its
@@ -357,7 +357,7 @@ const VAN: crate::extrinsics::Extrinsics =
 /// checked to 1e-3. EIV ignoring the mount: 6.6e-2 relative.
 #[test]
 fn extrinsics_are_estimated_by_the_start_and_held_by_the_filter() {
-    use crate::param::ParamSet;
+    use crate::model::param::ParamSet;
     let joint =
         crate::identify::IdentifyOptions { free: ParamSet::THETA.union(ParamSet::EXTRINSICS), ..Default::default() };
     let (r, truth) = eiv_on_mounted_drive(VAN, joint, true);
@@ -373,7 +373,7 @@ fn extrinsics_are_estimated_by_the_start_and_held_by_the_filter() {
         "{:?}",
         r.warnings
     );
-    let (at_axle, _) = eiv_on_mounted_drive(crate::extrinsics::Extrinsics::ZERO, Default::default(), false);
+    let (at_axle, _) = eiv_on_mounted_drive(crate::model::extrinsics::Extrinsics::ZERO, Default::default(), false);
     let (plain, _) = eiv_on_mounted_drive(VAN, Default::default(), false);
     assert!(plain.extrinsics.is_none());
     assert!(!plain.warnings.iter().any(|w| w.kind() == "eiv_extrinsics_held"));
@@ -395,13 +395,13 @@ fn extrinsics_are_estimated_by_the_start_and_held_by_the_filter() {
 /// report carries them with no σ.
 #[test]
 fn given_extrinsics_are_applied_by_the_filter() {
-    use crate::param::ParamSet;
+    use crate::model::param::ParamSet;
     let given = crate::identify::IdentifyOptions { extrinsics: VAN, ..Default::default() };
     let (r, _) = eiv_on_mounted_drive(VAN, given, false);
     assert_eq!(detail(&r).eiv_result, EivOutcome::Eiv, "fell back: {:?}", r.warnings);
     let x = r.extrinsics.as_ref().expect("held extrinsics reported");
     assert_eq!((x.value, x.free), (VAN, ParamSet::EMPTY));
-    let (at_axle, _) = eiv_on_mounted_drive(crate::extrinsics::Extrinsics::ZERO, Default::default(), false);
+    let (at_axle, _) = eiv_on_mounted_drive(crate::model::extrinsics::Extrinsics::ZERO, Default::default(), false);
     eprintln!("given: θ vs axle-mounted run {:.2e}", max_rel(&r.theta, &at_axle.theta));
     assert!(max_rel(&r.theta, &at_axle.theta) < 1e-10, "{} vs {}", r.theta, at_axle.theta);
     let held = r
@@ -426,7 +426,7 @@ fn given_extrinsics_are_applied_by_the_filter() {
 /// if EIV's c_d absorbs the offset as batch G-N's does.
 #[test]
 fn unmodelled_heading_offset_moves_batch_gn_c_d_not_eiv() {
-    let mount = crate::extrinsics::Extrinsics { lever_x: 0.0, lever_y: 0.0, heading_offset: 0.018 };
+    let mount = crate::model::extrinsics::Extrinsics { lever_x: 0.0, lever_y: 0.0, heading_offset: 0.018 };
     let (r, truth) = eiv_on_mounted_drive(mount, Default::default(), false);
     let d = detail(&r);
     assert_eq!(d.eiv_result, EivOutcome::Eiv, "fell back: {:?}", r.warnings);
@@ -446,8 +446,8 @@ fn unmodelled_heading_offset_moves_batch_gn_c_d_not_eiv() {
 /// held at 0. A stated offset, or `hold`, keeps δ held.
 #[test]
 fn the_start_estimates_the_heading_offset_by_default() {
-    use crate::param::{Param, ParamSet};
-    let mount = crate::extrinsics::Extrinsics { lever_x: 0.0, lever_y: 0.0, heading_offset: 0.018 };
+    use crate::model::param::{Param, ParamSet};
+    let mount = crate::model::extrinsics::Extrinsics { lever_x: 0.0, lever_y: 0.0, heading_offset: 0.018 };
     let (r, truth) = eiv_on_mounted_drive(mount, Default::default(), true);
     let d = detail(&r);
     assert_eq!(d.eiv_result, EivOutcome::Eiv, "fell back: {:?}", r.warnings);

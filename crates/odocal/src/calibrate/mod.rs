@@ -43,28 +43,31 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
+use crate::assess::position_error::mean_position_error_with;
+use crate::assess::trust::{judge, Evidence, TrustOptions, Verdict};
+use crate::assess::validation_drives::CalibrationExtrinsics;
+use crate::assess::warning::Warning;
 use crate::compensate::{CompensatedInputs, CompensationStep};
+use crate::drive::segment::{
+    calibration_segments, validation_segments, Segment, SegmentData, SegmentOptions, ValidationSegmentOptions,
+};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
-use crate::extrinsics::ExtrinsicsEstimate;
 use crate::identify::{
     batch_normal_equations, observability, IdentifyOptions, IdentifyReport, Observability, RobustCovariance,
 };
+use crate::model::extrinsics::ExtrinsicsEstimate;
+use crate::model::param::{Param, ParamSet};
 use crate::model::Theta;
-use crate::param::{Param, ParamSet};
 use crate::progress::ProgressFn;
-use crate::segment::{
-    calibration_segments, validation_segments, Segment, SegmentData, SegmentOptions, ValidationSegmentOptions,
-};
-use crate::trust::{judge, Evidence, TrustOptions, Verdict};
-use crate::validate::mean_position_error_with;
-use crate::validate_on::CalibrationExtrinsics;
-use crate::warning::Warning;
 
 pub mod batch_gn;
+pub mod crossrun;
 pub mod eiv;
+pub mod settings;
 pub mod three_step;
 mod turn_sense;
+pub mod validate_on;
 
 pub use batch_gn::{BatchGnDetail, BatchGnOptions};
 pub use eiv::{CorrectBias, EivDetail, EivMethodOptions, EivOutcome, DEFAULT_BIAS_REPLICATES};
@@ -316,7 +319,7 @@ pub struct CalibrationReport {
     /// Ē_p of the result.
     pub validation: ValidationSummary,
     /// Whether to trust the result: accepted, doubtful or rejected, with
-    /// the reasons ([`crate::trust`]).
+    /// the reasons ([`crate::assess::trust`]).
     pub verdict: Verdict,
     /// θ_0 and its Ē_p.
     pub initial: ThetaScore,
@@ -438,7 +441,7 @@ impl CalibrationReport {
     /// covariance (EIV's filter covariance, or a method's when nothing better was
     /// computed), with where it comes from. Held parameters (not free, or a
     /// zero covariance row: not estimated) have none. The verdict, the
-    /// parameter file ([`crate::param_file::ParamFile::from_report`]), the
+    /// parameter file ([`crate::io::param_file::ParamFile::from_report`]), the
     /// HTML report and the CLI's JSON `sigma` all give this σ.
     pub fn result_sigma(&self) -> ResultSigma {
         let (source, c) = match (&self.detail, self.result_covariance()) {
@@ -708,11 +711,11 @@ pub fn calibrate_detailed(
 }
 
 /// [`calibrate_detailed`]; with held-out drives that each have their own
-/// extrinsics ([`crate::validate_on`]), the held-out Ē_p gives every
+/// extrinsics ([`crate::assess::validation_drives`]), the held-out Ē_p gives every
 /// segment its drive's.
 pub(crate) fn calibrate_core(
     drive: &Drive,
-    held: Option<(&Drive, Option<&crate::validate_on::HeldOutDrives<'_>>)>,
+    held: Option<(&Drive, Option<&crate::assess::validation_drives::HeldOutDrives<'_>>)>,
     opts: &CalibrationOptions,
     progress: Option<ProgressFn<'_>>,
 ) -> Result<DetailedCalibration> {
@@ -740,9 +743,9 @@ pub(crate) fn calibrate_core(
         });
     }
     let t_start = Instant::now();
-    crate::limits::check_conventions(drive, &opts.theta0, "drive")?;
+    crate::drive::plausibility::check_conventions(drive, &opts.theta0, "drive")?;
     if let Some(h) = held_out {
-        crate::limits::check_conventions(h, &opts.theta0, "held-out drive")?;
+        crate::drive::plausibility::check_conventions(h, &opts.theta0, "held-out drive")?;
     }
     let prep = Prepared { drive, options: opts, validation: validation_segments(drive, &opts.validation)? };
     let selection = method.select(&prep)?;
@@ -769,7 +772,7 @@ pub(crate) fn calibrate_core(
     };
     let initial_val = match held_refs {
         Some(h) => {
-            let cal = CalibrationExtrinsics::before(opts, selection.free, h.given);
+            let cal = CalibrationExtrinsics::before(opts.identify.extrinsics, selection.free, h.given);
             h.error(&report_segments, &opts.theta0, &cal, true)?
         }
         None => mean_position_error_with(report_drive, &report_segments, &opts.theta0, &opts.identify.extrinsics)?,
@@ -795,7 +798,11 @@ pub(crate) fn calibrate_core(
         Some(h) => {
             let cal = CalibrationExtrinsics {
                 value: ext,
-                ..CalibrationExtrinsics::before(opts, extrinsics.as_ref().map_or(ParamSet::EMPTY, |e| e.free), h.given)
+                ..CalibrationExtrinsics::before(
+                    opts.identify.extrinsics,
+                    extrinsics.as_ref().map_or(ParamSet::EMPTY, |e| e.free),
+                    h.given,
+                )
             };
             h.error(&report_segments, &outcome.theta, &cal, false)?
         }
@@ -869,7 +876,7 @@ pub(crate) fn calibrate_core(
 }
 
 /// θ and its covariance fitted on the held-out drive alone with the same
-/// options and free set (the cross-split check of [`crate::trust`]); `None`
+/// options and free set (the cross-split check of [`crate::assess::trust`]); `None`
 /// when that fit fails (too short, nothing turns, …): the check is then
 /// left out rather than failing the calibration.
 fn split_fit(held_out: &Drive, opts: &CalibrationOptions, free: ParamSet) -> Option<(Theta, [[f64; 4]; 4])> {
@@ -935,7 +942,7 @@ fn method_extrinsics(detail: &MethodDetail) -> Option<ExtrinsicsEstimate> {
 
 /// The calibration segments of every method ([`calibration_segments`]), or
 /// an error saying why the drive has none.
-pub(crate) fn cut_segments(drive: &Drive, opts: &SegmentOptions) -> Result<crate::segment::SegmentSelection> {
+pub(crate) fn cut_segments(drive: &Drive, opts: &SegmentOptions) -> Result<crate::drive::segment::SegmentSelection> {
     let selection = calibration_segments(drive, opts)?;
     if selection.all.is_empty() {
         return Err(Error::NoSegments(format!(
@@ -965,14 +972,14 @@ pub(crate) fn turning_segments(prep: &Prepared<'_>) -> Result<Selection> {
             free = free.intersection(ParamSet::EMPTY.with(Param::CE));
             auto_fixed.extend(free_yaw.iter());
             warnings.push(Warning::AutoFixNoTurns {
-                params: free_yaw,
+                params: free_yaw.into(),
                 segments: selection.all.len(),
                 min_peak_yaw_rate_rad_per_s: opts.segments.min_peak_yaw_rate_rad_per_s,
                 peak_yaw_rate_rad_per_s: peak,
             });
         } else if !free_yaw.is_empty() {
             return Err(Error::NotObservable {
-                params: free_yaw,
+                params: free_yaw.into(),
                 reason: format!(
                     "none of the {} segments turns faster than {} rad/s (the fastest: {peak:.3} rad/s); these \
                      parameters act only through the yaw equation. Hold them at θ_0 (--fix c_d,t_r,d) and \

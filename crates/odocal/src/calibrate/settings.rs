@@ -1,120 +1,21 @@
-//! Calibration settings a manifest can state beside its streams: the
+//! The calibration settings a manifest states beside its streams: the
 //! sensor's noise (`[noise]`, the starting noise model of `--method eiv`),
 //! the reference sensor's extrinsics (`[reference]`) and calibration
-//! choices (`[calibration]`). The importer
-//! parses and checks them, [`super::ImportReport`] carries them, and
-//! [`ManifestSettings::apply`] puts them into [`CalibrationOptions`] where
-//! the caller did not give its own value (a command-line flag wins).
+//! choices (`[calibration]`). The importer carries them as plain data
+//! ([`crate::io::import::ImportReport`]); [`ManifestSettings`] reads the
+//! noise model and [`ManifestSettings::apply`] puts them into
+//! [`CalibrationOptions`] where the caller did not give its own value (a
+//! command-line flag wins).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
-use crate::calibrate::eiv::NoiseSpec;
-use crate::calibrate::CalibrationOptions;
+use super::eiv::{noise_model_from_table, NoiseSpec};
+use super::{CalibrationOptions, Method};
 use crate::error::{Error, Result};
-use crate::param::ParamSet;
-
-/// The reference sensor's extrinsics (`[reference]`): where the pose
-/// reference sits on the vehicle and whether to estimate that with θ
-/// (see [`crate::extrinsics`]). Every key is optional.
-///
-/// ```toml
-/// [reference]
-/// lever_arm = [-0.9, 0.0]      # x forward, y left, m, from the rear-axle centre
-/// heading_offset = -0.0099     # reference heading minus vehicle heading, rad
-/// estimate = ["lever-arm", "heading-offset"]   # start from the values above
-/// ```
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ReferenceSpec {
-    /// Lever arm `[x, y]` of the reference point from the rear-axle centre,
-    /// m (x forward, y left): held at this value, or the start of the
-    /// estimate. Default none (0, 0).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub lever_arm: Option<[f64; 2]>,
-    /// Reference heading minus vehicle heading, rad: held, or the start of
-    /// the estimate. Default none (0).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub heading_offset: Option<f64>,
-    /// Extrinsics to estimate with θ: `"lever-arm"`, `"heading-offset"`
-    /// (or `"lever_x"`, `"lever_y"`, `"heading_offset"`). Default none.
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub estimate: Vec<String>,
-}
-
-impl ReferenceSpec {
-    /// The parameters of `estimate`, or the error naming the bad entry.
-    pub fn estimate_set(&self) -> std::result::Result<ParamSet, String> {
-        let mut set = ParamSet::EMPTY;
-        for name in &self.estimate {
-            let not_extrinsic = || {
-                format!("'{name}' is not an extrinsic parameter (lever-arm, heading-offset, lever_x, lever_y, heading_offset)")
-            };
-            let s: ParamSet = name.parse().map_err(|_| not_extrinsic())?;
-            if s.is_empty() || !s.intersection(ParamSet::THETA).is_empty() {
-                return Err(format!("{}: θ is estimated by default", not_extrinsic()));
-            }
-            set = set.union(s);
-        }
-        Ok(set)
-    }
-
-    /// The stated lever arm and heading offset (0 where not stated).
-    pub fn extrinsics(&self) -> crate::extrinsics::Extrinsics {
-        let l = self.lever_arm.unwrap_or_default();
-        crate::extrinsics::Extrinsics {
-            lever_x: l[0],
-            lever_y: l[1],
-            heading_offset: self.heading_offset.unwrap_or(0.0),
-        }
-    }
-
-    /// Checks the values: `(key, reason)` of the first bad one.
-    pub(crate) fn check(&self) -> std::result::Result<(), (&'static str, String)> {
-        if let Some(l) = self.lever_arm {
-            if !l.iter().all(|v| v.is_finite() && v.abs() <= MAX_LEVER_ARM_M) {
-                return Err((
-                    "reference.lever_arm",
-                    format!("[{}, {}] must be finite metres within ±{MAX_LEVER_ARM_M} m", l[0], l[1]),
-                ));
-            }
-        }
-        if let Some(h) = self.heading_offset {
-            if !(h.is_finite() && h.abs() <= std::f64::consts::PI) {
-                return Err(("reference.heading_offset", format!("{h} must be finite radians within ±π")));
-            }
-        }
-        self.estimate_set().map(|_| ()).map_err(|r| ("reference.estimate", r))
-    }
-}
-
-/// Calibration choices (`[calibration]`). Every key is optional.
-///
-/// ```toml
-/// [calibration]
-/// keep_one_way = true   # keep the turning-only selection on one-way turns
-/// ```
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct CalibrationSpec {
-    /// Keep the paper's turning-only segment selection even when every
-    /// selected segment turns the same way
-    /// ([`CalibrationOptions::keep_one_way_selection`]; `--keep-one-way`).
-    /// Default none (false: the straight segments are added, with a warning).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub keep_one_way: Option<bool>,
-}
-
-/// Largest lever arm a manifest may state, m (a vehicle's length).
-pub const MAX_LEVER_ARM_M: f64 = 20.0;
-
-/// `[noise]`: parsed by the same function as a `--noise-model` file
-/// ([`crate::calibrate::eiv::noise_model_from_table`]).
-pub(crate) fn noise_table<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Option<NoiseSpec>, D::Error> {
-    let table = toml::Table::deserialize(d)?;
-    crate::calibrate::eiv::noise_model_from_table(table).map(Some).map_err(serde::de::Error::custom)
-}
+use crate::io::import::{CalibrationSpec, ImportReport, Manifest, NoiseTable, ReferenceSpec};
+use crate::model::param::ParamSet;
 
 /// The calibration settings of one manifest.
 #[derive(Debug, Clone, PartialEq, Default, Serialize)]
@@ -187,7 +88,50 @@ impl std::fmt::Display for SettingUse {
     }
 }
 
+/// The noise model of a manifest's `[noise]` table, parsed by the same
+/// function as a `--noise-model` file ([`noise_model_from_table`]).
+///
+/// # Errors
+/// [`Error::Manifest`] naming `noise`, the bad field and the table's line.
+pub fn read_noise_table(manifest: &Path, noise: &NoiseTable) -> Result<NoiseSpec> {
+    noise_model_from_table(noise.table.clone()).map_err(|reason| Error::Manifest {
+        path: manifest.to_path_buf(),
+        reason: format!("noise: {reason}{}", noise.line.map(|l| format!(" (line {l})")).unwrap_or_default()),
+    })
+}
+
 impl ManifestSettings {
+    /// The settings `manifest` states, its `[noise]` table read as a noise
+    /// model ([`read_noise_table`]).
+    ///
+    /// # Errors
+    /// [`Error::Manifest`] for a bad `[noise]` table.
+    pub fn new(
+        manifest: PathBuf,
+        noise: Option<&NoiseTable>,
+        reference: Option<ReferenceSpec>,
+        calibration: Option<CalibrationSpec>,
+    ) -> Result<Self> {
+        let noise = noise.map(|n| read_noise_table(&manifest, n)).transpose()?;
+        Ok(ManifestSettings { manifest, noise, reference, calibration })
+    }
+
+    /// The calibration settings a parsed manifest states.
+    ///
+    /// # Errors
+    /// [`Error::Manifest`] for a bad `[noise]` table.
+    pub fn of_manifest(m: &Manifest) -> Result<Self> {
+        Self::new(m.path.clone(), m.noise.as_ref(), m.reference.clone(), m.calibration)
+    }
+
+    /// The calibration settings of an imported manifest.
+    ///
+    /// # Errors
+    /// [`Error::Manifest`] for a bad `[noise]` table.
+    pub fn of_report(r: &ImportReport) -> Result<Self> {
+        Self::new(r.manifest.clone(), r.noise.as_ref(), r.reference.clone(), r.calibration)
+    }
+
     /// True when the manifest states none.
     pub fn is_empty(&self) -> bool {
         self.noise.is_none() && self.reference.is_none() && self.calibration.is_none()
@@ -236,7 +180,7 @@ impl ManifestSettings {
         if let Some(n) = &self.noise {
             match &mut opts.method {
                 _ if given.noise_model => note("noise", SettingOutcome::Overridden),
-                crate::Method::Eiv(o) => {
+                Method::Eiv(o) => {
                     let caller_lateral = o.filter.lateral_noise;
                     n.apply(&mut o.filter);
                     note("noise", SettingOutcome::Used);
@@ -254,7 +198,7 @@ impl ManifestSettings {
         if let Some(k) = self.calibration.and_then(|c| c.keep_one_way) {
             match &opts.method {
                 _ if given.keep_one_way => note("calibration.keep_one_way", SettingOutcome::Overridden),
-                crate::Method::Eiv(_) => note(
+                Method::Eiv(_) => note(
                     "calibration.keep_one_way",
                     SettingOutcome::Ignored {
                         reason: "method eiv fits every segment, it does not select turning ones".into(),
@@ -319,11 +263,11 @@ impl ManifestSettings {
 /// `[noise]` (a `noise` entry of `uses` that was used), or the
 /// production-car defaults. `None` for a method without a noise model.
 pub fn noise_model_origin(
-    method: &crate::Method,
+    method: &Method,
     noise_model_file: Option<&std::path::Path>,
     uses: &[SettingUse],
 ) -> Option<String> {
-    if !matches!(method, crate::Method::Eiv(_)) {
+    if !matches!(method, Method::Eiv(_)) {
         return None;
     }
     if let Some(p) = noise_model_file {
@@ -343,27 +287,32 @@ mod tests {
     use super::*;
     use crate::calibrate::eiv::EivMethodOptions;
     use crate::eiv::NoiseModel;
-    use crate::extrinsics::Extrinsics;
-    use crate::import::{load_drive, Manifest};
-    use crate::param::Param;
-    use crate::Method;
+    use crate::io::import::load_drive;
+    use crate::io::import::tests::small_case;
+    use crate::model::extrinsics::Extrinsics;
+    use crate::model::param::Param;
 
-    /// The small manifest of the import tests with `extra` appended, parsed.
-    fn parsed(extra: &str) -> Result<Manifest> {
+    /// The small manifest of the import tests with `extra` appended, parsed
+    /// and its settings read.
+    fn parsed(extra: &str) -> Result<(Manifest, ManifestSettings)> {
         let dir = tempfile::tempdir().expect("tempdir");
-        let path = super::super::tests::small_case(dir.path());
+        let path = small_case(dir.path());
         let text = std::fs::read_to_string(&path).expect("read") + extra;
-        Manifest::parse(&text, &path)
+        let m = Manifest::parse(&text, &path)?;
+        let s = ManifestSettings::of_manifest(&m)?;
+        Ok((m, s))
     }
 
+    /// The message of a bad setting, without the manifest's (temporary) path.
     fn error(extra: &str) -> String {
-        parsed(extra).expect_err("a bad setting").to_string()
+        let e = parsed(extra).expect_err("a bad setting").to_string();
+        e.split_once("m.toml: ").map_or(e.clone(), |(_, m)| m.to_string())
     }
 
     #[test]
     fn noise_and_reference_tables_parse_and_are_carried_on_the_import_report() {
         let dir = tempfile::tempdir().expect("tempdir");
-        let path = super::super::tests::small_case(dir.path());
+        let path = small_case(dir.path());
         let extra = "\n[noise]\nwheel_white_rel_sigma = 0.012\nposition_white_sigma_m = 0.05\nknown = [\"pose_white\"]\n\n[reference]\n\
                      lever_arm = [-0.9, 0.1]\nheading_offset = -0.0099\nestimate = [\"lever-arm\"]\n";
         let text = std::fs::read_to_string(&path).expect("read") + extra;
@@ -371,12 +320,17 @@ mod tests {
         let (_, report) = load_drive(&path).expect("import");
         let report = report.expect("a manifest's report");
         let text = report.to_string();
-        assert!(text.contains("[noise] (start of --method eiv): σ_white 1.200 %"), "{text}");
-        assert!(text.contains("; known: pose_white\n"), "{text}");
+        assert!(
+            text.contains(
+                "[noise] (start of --method eiv): known = [\"pose_white\"], position_white_sigma_m = 0.05, \
+                 wheel_white_rel_sigma = 0.012\n"
+            ),
+            "{text}"
+        );
         assert!(
             text.contains("[reference]: lever arm (-0.900, +0.100) m, heading offset -9.90 mrad, estimate lever-arm")
         );
-        let s = report.settings();
+        let s = ManifestSettings::of_report(&report).expect("settings");
         assert_eq!(s.noise.as_ref().map(|n| n.known.clone()), Some(vec![crate::eiv::NoiseSource::PoseWhite]));
         let n = s.noise.clone().expect("[noise]").model;
         assert_eq!(n.wheel_white_rel_sigma, 0.012);
@@ -387,10 +341,11 @@ mod tests {
         assert_eq!(r.heading_offset, Some(-0.0099));
         assert_eq!(r.estimate_set(), Ok(ParamSet::LEVER_ARM));
         let m = Manifest::from_path(&path).expect("parse");
-        assert_eq!(m.settings(), ManifestSettings { manifest: path.clone(), ..s.clone() });
+        let from_manifest = ManifestSettings::of_manifest(&m).expect("settings");
+        assert_eq!(from_manifest, ManifestSettings { manifest: path.clone(), ..s.clone() });
         // The parsed manifest serialises and parses back the same.
         let back = Manifest::parse(&toml::to_string(&m).expect("toml"), &path).expect("round trip");
-        assert_eq!(back.settings(), m.settings());
+        assert_eq!(ManifestSettings::of_manifest(&back).expect("settings"), from_manifest);
     }
 
     #[test]
@@ -417,6 +372,32 @@ mod tests {
         assert!(e.contains("reference.estimate: 'lever-arms' is not"), "{e}");
         let e = error("\n[reference]\nlever = [0.0, 0.0]\n");
         assert!(e.contains("reference.lever: unknown field"), "{e}");
+    }
+
+    #[test]
+    fn noise_errors_name_the_key_and_the_tables_line() {
+        // Each message names the key and the line the table starts on.
+        let cases = [
+            ("\n[noise]\nwheel_whte_rel_sigma = 0.01\n",
+             "noise: unknown field(s) wheel_whte_rel_sigma; the fields are drift_time_constant_s, heading_drift_sigma_rad, heading_white_sigma_rad, known, lateral, lateral_acceleration_sigma_m_per_s2, position_drift_sigma_m, position_white_sigma_m, quantisation_step_rev_per_s, sideslip_sigma_rad, sideslip_time_constant_s, wheel_common_rel_sigma, wheel_common_time_constant_s, wheel_differential_rel_sigma, wheel_differential_time_constant_s, wheel_white_rel_sigma (line 24)"),
+            ("\n[noise]\nlateral = \"free\"\n",
+             "noise: lateral: invalid lateral noise 'free': use tied or stated (line 24)"),
+            ("\n[noise]\nlateral = 1\n",
+             "noise: lateral: 1 must be \"tied\" or \"stated\" (line 24)"),
+            ("\n[noise]\nposition_white_sigma_m = -0.5\n",
+             "noise: invalid option `noise.position_white_sigma_m`: must be finite and >= 0, got -0.5 (line 24)"),
+            ("\n[noise]\nsideslip_sigma_rad = \"small\"\n",
+             "noise: sideslip_sigma_rad: invalid type: string \"small\", expected f64 (line 24)"),
+            ("\n[noise]\nknown = [\"x\"]\n",
+             "noise: known: invalid noise source 'x': use wheel_white, wheel_common, wheel_differential, pose_white, pose_drift or heading_white (line 24)"),
+            ("\n[noise]\nknown = 3\n",
+             "noise: known: 3 must be a list of source names, e.g. [\"heading_white\"] (line 24)"),
+            ("\n[noise]\nwheel_white_rel_sigma = 0.01\nknown = [\"pose_white\"]\n[calibration]\nkeep_one_way = 3\n",
+             "calibration.keep_one_way: invalid type: integer `3`, expected a boolean (line 28)"),
+        ];
+        for (extra, message) in cases {
+            assert_eq!(error(extra), message, "{extra}");
+        }
     }
 
     fn settings() -> ManifestSettings {
@@ -530,10 +511,10 @@ mod tests {
     #[test]
     fn keep_one_way_is_used_overridden_or_ignored() {
         let dir = tempfile::tempdir().expect("tempdir");
-        let path = super::super::tests::small_case(dir.path());
+        let path = small_case(dir.path());
         let text = std::fs::read_to_string(&path).expect("read") + "\n[calibration]\nkeep_one_way = true\n";
         let m = Manifest::parse(&text, &path).expect("parses");
-        let s = m.settings();
+        let s = ManifestSettings::of_manifest(&m).expect("settings");
         assert_eq!(s.calibration, Some(CalibrationSpec { keep_one_way: Some(true) }));
         let e = error("\n[calibration]\nkeep_one_wya = true\n");
         assert!(e.contains("calibration.keep_one_wya: unknown field"), "{e}");

@@ -2,11 +2,13 @@
 
 use super::three_step::equal_step_picks;
 use super::*;
+use crate::compensate::qp::SolverKind;
 use crate::compensate::QpOptions;
+use crate::drive::segment::{
+    calibration_segments, validation_segments, Segment, SegmentOptions, ValidationSegmentOptions,
+};
 use crate::identify::IdentifyOptions;
-use crate::param::ParamSet;
-use crate::qp::SolverKind;
-use crate::segment::{calibration_segments, validation_segments, Segment, SegmentOptions, ValidationSegmentOptions};
+use crate::model::param::ParamSet;
 use crate::sim::{simulate, SimOptions};
 
 /// Relative error to which a noise-free, exact-model (1 substep) drive
@@ -191,7 +193,7 @@ fn implausible_step1_batches_are_never_picked() {
         assert!(!init.picked_batches.contains(&rej.index), "batch {} was picked", rej.index);
         let t_r = init.batches[rej.index].score.theta.t_r;
         assert!(!(1.53..=1.67).contains(&t_r), "rejected t_r {t_r} is inside the region");
-        assert!(matches!(rej.violations[0], crate::trust::GuardViolation::OutOfRange { param: Param::TR, .. }));
+        assert!(matches!(rej.violations[0], crate::assess::trust::GuardViolation::OutOfRange { param: Param::TR, .. }));
     }
     for p in &init.picked {
         assert!((1.53..=1.67).contains(&p.theta.t_r), "picked t_r {}", p.theta.t_r);
@@ -218,7 +220,7 @@ fn every_report_has_a_verdict() {
     let sim = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim");
     let opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
     let r = calibrate(&sim.drive, &opts, None).expect("batch-gn");
-    assert_eq!(r.verdict.level, crate::trust::VerdictLevel::Accepted, "{:?}", r.verdict);
+    assert_eq!(r.verdict.level, crate::assess::trust::VerdictLevel::Accepted, "{:?}", r.verdict);
     // Validated on a drive of another vehicle (θ = [2.1, 1 mm, 1.66, 0]):
     // θ_0 = [2.0, 0, 1.6, 0] is closer in every parameter than the
     // calibrated ≈ [1.95, −2 mm, 1.53, 0.8 mm], so the calibration is rejected.
@@ -229,8 +231,11 @@ fn every_report_has_a_verdict() {
     })
     .expect("sim");
     let r = calibrate_held_out(&sim.drive, Some(&other.drive), &opts, None).expect("held out");
-    assert_eq!(r.verdict.level, crate::trust::VerdictLevel::Rejected, "{:?}", r.verdict);
-    assert!(matches!(r.verdict.reasons[0], crate::trust::VerdictReason::WorseThanInitial { held_out: true, .. }));
+    assert_eq!(r.verdict.level, crate::assess::trust::VerdictLevel::Rejected, "{:?}", r.verdict);
+    assert!(matches!(
+        r.verdict.reasons[0],
+        crate::assess::trust::VerdictReason::WorseThanInitial { held_out: true, .. }
+    ));
 }
 
 /// A batch G-N cut off after one step from θ_0 is still far from its
@@ -238,7 +243,7 @@ fn every_report_has_a_verdict() {
 /// default five iterations it converges and says nothing of it.
 #[test]
 fn an_unconverged_gauss_newton_result_is_doubtful() {
-    use crate::trust::VerdictReason;
+    use crate::assess::trust::VerdictReason;
     let sim = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim");
     let mut opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
     opts.identify.max_iterations = 1;
@@ -249,7 +254,7 @@ fn an_unconverged_gauss_newton_result_is_doubtful() {
     };
     assert_eq!((stage.as_str(), *iterations), ("batch Gauss-Newton", 1));
     assert!(*step_sigmas > 1.0, "one step from θ_0 moves θ by many σ: {step_sigmas}");
-    assert!(r.verdict.level >= crate::trust::VerdictLevel::Doubtful);
+    assert!(r.verdict.level >= crate::assess::trust::VerdictLevel::Doubtful);
     opts.identify.max_iterations = 5;
     let r = calibrate(&sim.drive, &opts, None).expect("batch-gn");
     assert!(!r.verdict.reasons.iter().any(|x| matches!(x, VerdictReason::NotConverged { .. })), "{:?}", r.verdict);

@@ -17,7 +17,7 @@
 //! ```
 //!
 //! with `Q = diag(1, 1, 10)`, `R = diag(1000, 1000)` is posed in deviation
-//! variables `z = x − ỹ`, `w = n − ñ` ([`crate::qp::StageQp`]) and solved; the
+//! variables `z = x − ỹ`, `w = n − ñ` ([`crate::compensate::qp::StageQp`]) and solved; the
 //! model is re-linearized around the solution until the inputs change by
 //! less than a tolerance (at most 5 linearizations).
 //!
@@ -32,15 +32,16 @@ use nalgebra::{Vector2, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::drive::segment::{Segment, SegmentData};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
 use crate::model::{step_jacobians, Input, Theta};
 use crate::progress::{Progress, ProgressFn};
-use crate::qp::clarabel::{ClarabelOptions, ClarabelSolver};
-use crate::qp::riccati::{StructuredOptions, StructuredSolver};
-use crate::qp::{QpError, QpSolution, QpSolver, SolverKind, StageQp};
-use crate::segment::{Segment, SegmentData};
-use crate::warning::Warning;
+use qp::clarabel::{ClarabelOptions, ClarabelSolver};
+use qp::riccati::{StructuredOptions, StructuredSolver};
+use qp::{QpError, QpSolution, QpSolver, SolverKind, StageQp};
+
+pub mod qp;
 
 /// Which QP solver compensation uses, and the settings of each.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
@@ -251,7 +252,7 @@ pub fn compensate_segment(
 
 /// [`compensate_segment`] with a fallback: a QP on which `solver` stops at
 /// its iteration limit or fails numerically is solved again by `fallback`
-/// (typically [`crate::qp::clarabel::ClarabelSolver`]), and the event is
+/// (typically [`crate::compensate::qp::clarabel::ClarabelSolver`]), and the event is
 /// recorded in [`Compensation::fallbacks`]. An infeasible or malformed QP is
 /// not retried (no solver can do better); it is returned as an error.
 pub fn compensate_segment_with_fallback(
@@ -367,7 +368,35 @@ pub struct CompensatedInputs {
     /// Statistics.
     pub step: CompensationStep,
     /// One per failed job and per fallback solve.
-    pub warnings: Vec<Warning>,
+    pub warnings: Vec<CompensationWarning>,
+}
+
+/// What went wrong in one compensation job (a calibration reports it as a
+/// warning).
+#[derive(Debug, Clone, PartialEq)]
+pub enum CompensationWarning {
+    /// A compensation job (one segment at one θ_B,I) failed and was left out.
+    Failed {
+        /// First sample of the segment.
+        segment_start: usize,
+        /// Why.
+        reason: String,
+    },
+    /// A QP the configured solver did not finish was solved by the fallback.
+    SolverFallback {
+        /// First sample of the segment.
+        segment_start: usize,
+        /// Which θ_B,I (1-based).
+        theta_index: usize,
+        /// The linearization (1-based).
+        linearization: usize,
+        /// The solver that did not finish.
+        solver: String,
+        /// The solver that did.
+        fallback: String,
+        /// Why the first one stopped.
+        reason: String,
+    },
 }
 
 impl CompensatedInputs {
@@ -455,7 +484,7 @@ pub fn compensate_segments(
                         out.step.unconverged_jobs += 1;
                     }
                     out.step.fallback_solves += c.fallbacks.len();
-                    out.warnings.extend(c.fallbacks.iter().map(|f| Warning::SolverFallback {
+                    out.warnings.extend(c.fallbacks.iter().map(|f| CompensationWarning::SolverFallback {
                         segment_start: seg.start,
                         theta_index: t + 1,
                         linearization: f.linearization,
@@ -466,7 +495,7 @@ pub fn compensate_segments(
                 }
                 Err(e) => {
                     out.step.failed_jobs += 1;
-                    out.warnings.push(Warning::CompensationFailed { segment_start: seg.start, reason: e.to_string() });
+                    out.warnings.push(CompensationWarning::Failed { segment_start: seg.start, reason: e.to_string() });
                 }
             }
         }
@@ -497,10 +526,10 @@ pub fn compensate_segments(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::compensate::qp::SolverKind;
+    use crate::drive::segment::{cut, SegmentData};
     use crate::drive::{Drive, Signals};
     use crate::model::{step, State};
-    use crate::qp::SolverKind;
-    use crate::segment::{cut, SegmentData};
     use crate::sim::{simulate, NoiseOptions, SimOptions};
 
     /// Circle at constant wheel speeds, reference = exact model trajectory.
@@ -589,9 +618,9 @@ mod tests {
 #[allow(clippy::unwrap_used)]
 mod solver_tests {
     use super::*;
-    use crate::qp::clarabel::ClarabelSolver;
-    use crate::qp::riccati::StructuredSolver;
-    use crate::segment::{calibration_segments, SegmentOptions};
+    use crate::compensate::qp::clarabel::ClarabelSolver;
+    use crate::compensate::qp::riccati::StructuredSolver;
+    use crate::drive::segment::{calibration_segments, SegmentOptions};
     use crate::sim::{simulate, SimOptions};
 
     /// Relative objective agreement of the two solvers (both stop at ~1e-9

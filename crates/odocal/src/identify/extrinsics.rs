@@ -1,216 +1,22 @@
-//! Reference-sensor extrinsics: where the pose reference sits on the vehicle.
-//!
-//! The odometry model (SPEC §1) moves the rear-axle centre with the vehicle
-//! heading ψ. A real pose reference often measures another point with
-//! another heading: on the PSU mapping van it is the midpoint of two rear
-//! GNSS antennas, heading along their baseline. [`Extrinsics`] describes
-//! that mount in the vehicle frame:
-//!
-//! ```text
-//! p_ref = p_axle + R(ψ)·[l_x, l_y]        (lever arm: x forward, y left, m)
-//! ψ_ref = ψ + δ                            (heading offset, rad)
-//! ```
-//!
-//! Identification and validation start each segment from the *axle* pose
-//! the reference implies ([`axle_pose`], the inverse map) and compare the
-//! model's *reference* pose ([`reference_pose`]) with the measured one. With
-//! every value 0 both maps are the identity and every result is the SPEC's.
-//!
-//! Observability: the lever arm acts only through heading *changes* (on a
-//! drive that never turns, `R(ψ_k) − R(ψ_0) = 0` and it has no effect at
-//! all); the heading offset rotates the whole dead-reckoned path about its
-//! start, so it is seen through position drift on any drive.
-//!
-//! The analytic Jacobians ([`reference_jacobians`], [`axle_pose_jacobian`])
-//! are tested against central finite differences.
+//! Identification of θ with the reference extrinsics
+//! ([`crate::model::extrinsics`]): batch Gauss-Newton over the seven-vector
+//! `[c_e, c_d, t_r, d, lever_x, lever_y, heading_offset]`.
 
 use nalgebra::{DMatrix, Matrix3, Matrix3x4, SMatrix, SVector, Vector3};
-use serde::{Deserialize, Serialize};
 
-use crate::error::{Error, Result};
-use crate::gauss_newton;
-use crate::identify::{
+use super::gauss_newton;
+use super::{
     observability_of, pose_residual, to_array4, IdentifyOptions, IdentifyReport, IterationRecord, NormalEquations,
     Observability, RobustCovariance,
 };
-use crate::model::{step_jacobians, State, Theta};
-use crate::param::{Param, ParamSet};
-use crate::segment::SegmentData;
-
-/// The pose reference's mount on the vehicle (see the module docs).
-///
-/// Field names are the parameter names of [`Param::LeverX`],
-/// [`Param::LeverY`] and [`Param::HeadingOffset`] (JSON, `--fix`).
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
-pub struct Extrinsics {
-    /// Lever arm along the vehicle's forward axis, from the rear-axle centre
-    /// to the reference point, m.
-    pub lever_x: f64,
-    /// Lever arm along the vehicle's left axis, m.
-    pub lever_y: f64,
-    /// Reference heading minus vehicle heading, rad.
-    pub heading_offset: f64,
-}
-
-impl Extrinsics {
-    /// The reference at the rear-axle centre, aligned with the vehicle.
-    pub const ZERO: Extrinsics = Extrinsics { lever_x: 0.0, lever_y: 0.0, heading_offset: 0.0 };
-
-    /// True when every value is exactly 0 (the SPEC's reference).
-    pub fn is_zero(&self) -> bool {
-        self.to_array().iter().all(|v| *v == 0.0)
-    }
-
-    /// `[lever_x, lever_y, heading_offset]`.
-    pub fn to_array(&self) -> [f64; 3] {
-        [self.lever_x, self.lever_y, self.heading_offset]
-    }
-
-    /// Builds the extrinsics from `[lever_x, lever_y, heading_offset]`.
-    pub fn from_array(a: [f64; 3]) -> Self {
-        Extrinsics { lever_x: a[0], lever_y: a[1], heading_offset: a[2] }
-    }
-
-    /// The value of an extrinsics parameter; `None` for a θ parameter.
-    pub fn get(&self, p: Param) -> Option<f64> {
-        p.extrinsics_index().map(|i| self.to_array()[i])
-    }
-
-    /// Checks that every value is finite.
-    pub fn validate(&self) -> Result<()> {
-        for (p, v) in Param::EXTRINSICS.iter().zip(self.to_array()) {
-            if !v.is_finite() {
-                return Err(Error::InvalidOption { field: "extrinsics", reason: format!("{p} = {v} is not finite") });
-            }
-        }
-        Ok(())
-    }
-}
-
-impl std::fmt::Display for Extrinsics {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "lever arm = [{:.4}, {:.4}] m, heading offset = {:.4} mrad",
-            self.lever_x,
-            self.lever_y,
-            self.heading_offset * 1e3
-        )
-    }
-}
-
-/// The extrinsics part of an identification or calibration: initial and
-/// estimated values, their model σ and covariance, and their sensitivity.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ExtrinsicsEstimate {
-    /// The value the estimate started from (and the value of held entries).
-    pub initial: Extrinsics,
-    /// The estimate.
-    pub value: Extrinsics,
-    /// Which of the three were estimated (the others were held).
-    pub free: ParamSet,
-    /// Model 1σ of each (0 for held entries), same units as the values.
-    pub std_dev: Extrinsics,
-    /// Covariance of `[lever_x, lever_y, heading_offset]`, 3×3, row-major.
-    pub covariance: [[f64; 3]; 3],
-    /// Cross-covariance of θ `[c_e, c_d, t_r, d]` (rows) with the
-    /// extrinsics (columns), 4×3.
-    pub cross_covariance: [[f64; 3]; 4],
-    /// RMS change of the predicted poses (weighted metres per residual
-    /// pose) when each moves by its resolution
-    /// ([`crate::identify::IdentifyOptions::extrinsics_resolution`]); 0 for held entries.
-    pub sensitivity_m: [f64; 3],
-    /// The cluster-robust σ and covariance
-    /// ([`crate::identify::RobustCovariance`]), when computed.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub robust: Option<RobustExtrinsics>,
-}
-
-/// The extrinsics part of the cluster-robust covariance
-/// ([`crate::identify::RobustCovariance`]).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct RobustExtrinsics {
-    /// Cluster-robust 1σ of each (0 for held entries).
-    pub std_dev: Extrinsics,
-    /// Covariance of `[lever_x, lever_y, heading_offset]`, 3×3, row-major.
-    pub covariance: [[f64; 3]; 3],
-}
-
-impl ExtrinsicsEstimate {
-    /// Held extrinsics: `value` = `initial`, no σ.
-    pub fn held(initial: Extrinsics) -> Self {
-        ExtrinsicsEstimate {
-            initial,
-            value: initial,
-            free: ParamSet::EMPTY,
-            std_dev: Extrinsics::ZERO,
-            covariance: [[0.0; 3]; 3],
-            cross_covariance: [[0.0; 3]; 4],
-            sensitivity_m: [0.0; 3],
-            robust: None,
-        }
-    }
-}
-
-/// The reference pose `[p_ref,x, p_ref,y, ψ_ref]` of the model's axle
-/// state `x` under extrinsics `e`.
-#[inline]
-pub fn reference_pose(x: &State, e: &Extrinsics) -> Vector3<f64> {
-    let (s, c) = x[2].sin_cos();
-    Vector3::new(x[0] + c * e.lever_x - s * e.lever_y, x[1] + s * e.lever_x + c * e.lever_y, x[2] + e.heading_offset)
-}
-
-/// `(∂h/∂x, ∂h/∂e)` of [`reference_pose`] `h(x, e)`, each 3×3 (columns
-/// of `∂h/∂e`: lever_x, lever_y, heading_offset).
-#[inline]
-pub fn reference_jacobians(x: &State, e: &Extrinsics) -> (Matrix3<f64>, Matrix3<f64>) {
-    let (s, c) = x[2].sin_cos();
-    let h_x =
-        Matrix3::new(1.0, 0.0, -s * e.lever_x - c * e.lever_y, 0.0, 1.0, c * e.lever_x - s * e.lever_y, 0.0, 0.0, 1.0);
-    let h_e = Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0);
-    (h_x, h_e)
-}
-
-/// The axle state whose reference pose is `y` (the inverse of
-/// [`reference_pose`]): `ψ = ψ_ref − δ`, `p = p_ref − R(ψ)·l`.
-#[inline]
-pub fn axle_pose(y: &Vector3<f64>, e: &Extrinsics) -> State {
-    let psi = y[2] - e.heading_offset;
-    let (s, c) = psi.sin_cos();
-    State::new(y[0] - (c * e.lever_x - s * e.lever_y), y[1] - (s * e.lever_x + c * e.lever_y), psi)
-}
-
-/// `∂g/∂e` of [`axle_pose`] `g(y, e)`, 3×3.
-#[inline]
-pub fn axle_pose_jacobian(y: &Vector3<f64>, e: &Extrinsics) -> Matrix3<f64> {
-    let psi = y[2] - e.heading_offset;
-    let (s, c) = psi.sin_cos();
-    // ∂p/∂δ = +dR/dψ·l (ψ falls by δ).
-    Matrix3::new(-c, s, -s * e.lever_x - c * e.lever_y, -s, -c, c * e.lever_x - s * e.lever_y, 0.0, 0.0, -1.0)
-}
-
-/// A copy of `drive` whose reference poses are the axle poses they imply
-/// under `e` ([`axle_pose`] per sample); wheels, parts and the
-/// reference-measured mask are kept, truth and extra columns dropped. The
-/// 3-step method's input compensation and the EIV filter run on it.
-pub fn axle_reference_drive(drive: &crate::drive::Drive, e: &Extrinsics) -> Result<crate::drive::Drive> {
-    let mut m = drive.measured().clone();
-    for i in 0..drive.len() {
-        let x = axle_pose(&drive.pose(i), e);
-        (m.px[i], m.py[i], m.psi[i]) = (x[0], x[1], x[2]);
-    }
-    let mut b = crate::drive::Drive::builder(drive.t().to_vec(), m)
-        .parts(drive.parts().to_vec())
-        .sample_time_s(drive.sample_time_s())
-        .context("axle reference");
-    if let Some(mask) = drive.reference_measured() {
-        b = b.reference_measured(mask.to_vec());
-    }
-    b.build()
-}
-
-// ---------------------------------------------------------------------------
-// Identification with extrinsics.
+use crate::drive::segment::SegmentData;
+use crate::error::{Error, Result};
+use crate::model::extrinsics::{
+    axle_pose, axle_pose_jacobian, reference_jacobians, reference_pose, Extrinsics, ExtrinsicsEstimate,
+    RobustExtrinsics,
+};
+use crate::model::param::ParamSet;
+use crate::model::{step_jacobians, Theta};
 
 /// Number of parameters of the joint vector `[θ (4), extrinsics (3)]`.
 const N: usize = 7;
@@ -275,21 +81,6 @@ fn split(v: &Vec7) -> (Theta, Extrinsics) {
 fn join(theta: &Theta, e: &Extrinsics) -> Vec7 {
     let (t, x) = (theta.to_array(), e.to_array());
     Vec7::from_column_slice(&[t[0], t[1], t[2], t[3], x[0], x[1], x[2]])
-}
-
-/// Mean position error E_p,s of one segment at (θ, e) (SPEC §7 with the
-/// model's reference pose): the segment starts from the axle pose the
-/// reference implies, and the model's reference point is compared with the
-/// measured one.
-pub fn segment_position_error(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics) -> f64 {
-    let mut x = axle_pose(&seg.reference(0), e);
-    let mut sum = 0.0;
-    for k in 0..seg.steps() {
-        x = crate::model::step(&x, &seg.input(k), theta, seg.sample_time_s);
-        let y = reference_pose(&x, e);
-        sum += (seg.px[k + 1] - y[0]).hypot(seg.py[k + 1] - y[1]);
-    }
-    sum / seg.steps() as f64
 }
 
 /// Batch Gauss-Newton over θ and the reference extrinsics (the path of
@@ -384,7 +175,7 @@ impl gauss_newton::Problem<N> for JointProblem<'_> {
     fn singular(&self, ne: &NormalEquations<N>) -> Error {
         let weak = self.observability(ne).2;
         Error::NotObservable {
-            params: if weak.is_empty() { self.opts.free } else { weak },
+            params: if weak.is_empty() { self.opts.free } else { weak }.into(),
             reason: "JᵀWJ is singular at the current θ and extrinsics (the data do not excite these \
                      parameters; a lever arm needs turns); hold them fixed"
                 .into(),
@@ -395,55 +186,8 @@ impl gauss_newton::Problem<N> for JointProblem<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use proptest::prelude::*;
-
-    fn arb() -> impl Strategy<Value = (State, Extrinsics)> {
-        ((-1e3..1e3f64, -1e3..1e3f64, -20.0..20.0f64), (-3.0..3.0f64, -2.0..2.0f64, -0.1..0.1f64)).prop_map(
-            |((px, py, psi), (lx, ly, d))| {
-                (State::new(px, py, psi), Extrinsics { lever_x: lx, lever_y: ly, heading_offset: d })
-            },
-        )
-    }
-
-    fn close(a: f64, b: f64) -> bool {
-        (a - b).abs() <= 1e-6 * a.abs().max(b.abs()).max(1.0)
-    }
-
-    proptest! {
-        #[test]
-        fn jacobians_match_central_differences((x, e) in arb()) {
-            let (h_x, h_e) = reference_jacobians(&x, &e);
-            let g_e = axle_pose_jacobian(&x, &e);
-            let h = 1e-6;
-            for i in 0..3 {
-                let (mut xp, mut xm) = (x, x);
-                xp[i] += h;
-                xm[i] -= h;
-                let fd = (reference_pose(&xp, &e) - reference_pose(&xm, &e)) / (2.0 * h);
-                for r in 0..3 {
-                    prop_assert!(close(h_x[(r, i)], fd[r]), "h_x[{r},{i}] {} vs {}", h_x[(r, i)], fd[r]);
-                }
-                let (mut ap, mut am) = (e.to_array(), e.to_array());
-                ap[i] += h;
-                am[i] -= h;
-                let (ep, em) = (Extrinsics::from_array(ap), Extrinsics::from_array(am));
-                let fd = (reference_pose(&x, &ep) - reference_pose(&x, &em)) / (2.0 * h);
-                for r in 0..3 {
-                    prop_assert!(close(h_e[(r, i)], fd[r]), "h_e[{r},{i}] {} vs {}", h_e[(r, i)], fd[r]);
-                }
-                let fd = (axle_pose(&x, &ep) - axle_pose(&x, &em)) / (2.0 * h);
-                for r in 0..3 {
-                    prop_assert!(close(g_e[(r, i)], fd[r]), "g_e[{r},{i}] {} vs {}", g_e[(r, i)], fd[r]);
-                }
-            }
-        }
-
-        #[test]
-        fn axle_pose_inverts_reference_pose((x, e) in arb()) {
-            let back = axle_pose(&reference_pose(&x, &e), &e);
-            prop_assert!((back - x).amax() < 1e-9, "{back} vs {x}");
-        }
-    }
+    use crate::model::param::Param;
+    use crate::model::State;
 
     /// A short turning drive from the simulator, reference at `mount`.
     fn sim_drive(seed: u64, km: f64, mount: Extrinsics, noise_free: bool) -> crate::drive::Drive {
@@ -459,7 +203,7 @@ mod tests {
     const VAN: Extrinsics = Extrinsics { lever_x: -0.9, lever_y: 0.05, heading_offset: -0.0099 };
 
     fn turning_data(d: &crate::drive::Drive) -> Vec<SegmentData<'_>> {
-        let sel = crate::segment::calibration_segments(d, &Default::default()).expect("segments");
+        let sel = crate::drive::segment::calibration_segments(d, &Default::default()).expect("segments");
         assert!(sel.selected.len() >= 3, "too few turning segments: {}", sel.selected.len());
         sel.selected.iter().map(|s| SegmentData::new(d, s)).collect()
     }
@@ -518,10 +262,11 @@ mod tests {
         assert!(r.observability.unobservable.is_empty(), "{:?}", r.observability);
         assert_eq!(x.free, ParamSet::EXTRINSICS);
         // Validation with the estimate: the model's reference point is on the reference.
-        let segs = crate::segment::validation_segments(&d, &Default::default()).expect("segments");
-        let with = crate::validate::mean_position_error_with(&d, &segs, &r.theta, &x.value).expect("validate");
+        let segs = crate::drive::segment::validation_segments(&d, &Default::default()).expect("segments");
+        let with =
+            crate::assess::position_error::mean_position_error_with(&d, &segs, &r.theta, &x.value).expect("validate");
         assert!(with.mean_position_error_m < 1e-6, "{}", with.mean_position_error_m);
-        let without = crate::validate::mean_position_error(&d, &segs, &truth).expect("validate");
+        let without = crate::assess::position_error::mean_position_error(&d, &segs, &truth).expect("validate");
         assert!(without.mean_position_error_m > 100.0 * with.mean_position_error_m.max(1e-6));
     }
 
@@ -597,7 +342,7 @@ mod tests {
         let x = r.extrinsics.as_ref().expect("extrinsics in the report");
         assert!((x.value.lever_x - VAN.lever_x).abs() < 1e-8, "{}", x.value);
         assert!(r.validation.mean_position_error_m < 1e-6, "{}", r.validation.mean_position_error_m);
-        assert_eq!(r.verdict.level, crate::trust::VerdictLevel::Accepted, "{:?}", r.verdict);
+        assert_eq!(r.verdict.level, crate::assess::trust::VerdictLevel::Accepted, "{:?}", r.verdict);
         // Without extrinsics the same drive validates metres off.
         let plain =
             calibrate(&d, &CalibrationOptions { identify: Default::default(), ..gn.clone() }, None).expect("plain");
@@ -660,7 +405,7 @@ mod tests {
         }
         let d = crate::drive::Drive::builder(t, sig).context("straight").build().expect("drive");
         let data: Vec<SegmentData> =
-            crate::segment::cut(&d, 0, 650, 100).iter().map(|s| SegmentData::new(&d, s)).collect();
+            crate::drive::segment::cut(&d, 0, 650, 100).iter().map(|s| SegmentData::new(&d, s)).collect();
         let opts = IdentifyOptions {
             free: "c_e,c_d,lever_x,lever_y,heading_offset".parse().expect("set"),
             ..Default::default()

@@ -1,6 +1,6 @@
 //! The one batch Gauss-Newton loop (SPEC §4) behind
 //! [`crate::identify::batch_gauss_newton`], over θ alone (N = 4) and over
-//! θ with the reference extrinsics (N = 7, [`crate::extrinsics`]).
+//! θ with the reference extrinsics (N = 7, [`crate::model::extrinsics`]).
 //!
 //! What varies between the two is a [`Problem`]: the residuals and
 //! Jacobian of one segment at a parameter vector (as its normal
@@ -13,9 +13,9 @@
 use nalgebra::{DMatrix, DVector, SMatrix, SVector};
 use rayon::prelude::*;
 
+use super::{IdentifyOptions, NormalEquations, Termination};
+use crate::drive::segment::SegmentData;
 use crate::error::{Error, Result};
-use crate::identify::{IdentifyOptions, NormalEquations, Termination};
-use crate::segment::SegmentData;
 
 /// The residual/Jacobian supplier of the loop over an N-parameter vector.
 pub(crate) trait Problem<const N: usize>: Sync {

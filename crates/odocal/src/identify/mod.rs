@@ -22,12 +22,14 @@ use nalgebra::{Matrix3, Matrix3x4, SMatrix, SVector, SymmetricEigen, Vector3, Ve
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::drive::segment::SegmentData;
 use crate::error::{Error, Result};
-use crate::extrinsics::{Extrinsics, ExtrinsicsEstimate};
-use crate::gauss_newton;
+use crate::model::extrinsics::{Extrinsics, ExtrinsicsEstimate};
+use crate::model::param::{Param, ParamSet};
 use crate::model::{step_jacobians, wrap_angle, Theta};
-use crate::param::{Param, ParamSet};
-use crate::segment::SegmentData;
+
+mod extrinsics;
+mod gauss_newton;
 
 /// Options of the Gauss-Newton identification.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -69,7 +71,7 @@ pub struct IdentifyOptions {
     /// The reference sensor's extrinsics (lever arm, heading offset): the
     /// initial value of those in [`IdentifyOptions::free`] and the held
     /// value of the others. Default 0 (the reference is the rear-axle
-    /// centre, aligned with the vehicle: SPEC §1). See [`crate::extrinsics`].
+    /// centre, aligned with the vehicle: SPEC §1). See [`crate::model::extrinsics`].
     #[serde(default)]
     pub extrinsics: Extrinsics,
     /// Resolutions of the extrinsics for the observability check, `[lever_x
@@ -352,7 +354,7 @@ impl std::fmt::Display for IdentifyReport {
 
 /// Normal equations of one or more segments at one parameter vector:
 /// over θ (`N = 4`, the default) or over θ and the reference extrinsics
-/// (`N = 7`, [`crate::extrinsics`]).
+/// (`N = 7`, [`crate::model::extrinsics`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NormalEquations<const N: usize = 4> {
     /// `JᵀWJ`.
@@ -446,8 +448,10 @@ pub fn robust_covariance_at(
         total.add(p);
     }
     let free = opts.free.intersection(ParamSet::THETA).indices();
-    crate::gauss_newton::cluster_robust_covariance(&total, &per, segments, &free, opts).map(|(c, clusters)| {
-        RobustCovariance { covariance: to_array4(&c), clusters, block_steps: opts.robust_block_steps }
+    gauss_newton::cluster_robust_covariance(&total, &per, segments, &free, opts).map(|(c, clusters)| RobustCovariance {
+        covariance: to_array4(&c),
+        clusters,
+        block_steps: opts.robust_block_steps,
     })
 }
 
@@ -554,7 +558,7 @@ pub fn batch_gauss_newton(
         return Err(Error::NoSegments("Gauss-Newton needs at least one segment".into()));
     }
     if opts.uses_extrinsics() {
-        return crate::extrinsics::batch_gauss_newton_with_extrinsics(segments, theta0, opts);
+        return extrinsics::batch_gauss_newton_with_extrinsics(segments, theta0, opts);
     }
     let free = opts.free.indices();
     let problem = ThetaProblem { weights: opts.weights, opts };
@@ -616,7 +620,7 @@ impl gauss_newton::Problem<4> for ThetaProblem<'_> {
     fn singular(&self, ne: &NormalEquations) -> Error {
         let weak = observability(ne, self.opts.free, self.opts).unobservable;
         Error::NotObservable {
-            params: if weak.is_empty() { self.opts.free } else { weak },
+            params: if weak.is_empty() { self.opts.free } else { weak }.into(),
             reason: "JᵀWJ is singular at the current θ (the data do not excite these parameters); \
                      hold them fixed at θ_0"
                 .into(),
@@ -627,9 +631,9 @@ impl gauss_newton::Problem<4> for ThetaProblem<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::drive::segment::{cut, SegmentData};
     use crate::drive::{Drive, Signals};
     use crate::model::{step, Input};
-    use crate::segment::{cut, SegmentData};
 
     /// A straight drive at varying speed, reference = exact model trajectory,
     /// plus optional small deterministic heading wiggle on the reference.
@@ -754,7 +758,7 @@ mod tests {
     fn robust_covariance_is_wider_than_the_model_one_under_paper_noise() {
         use crate::sim::{simulate, SimOptions};
         let d = simulate(&SimOptions { length_km: 12.0, ..SimOptions::paper(3) }).expect("simulate").drive;
-        let sel = crate::segment::calibration_segments(&d, &Default::default()).expect("segments");
+        let sel = crate::drive::segment::calibration_segments(&d, &Default::default()).expect("segments");
         let data: Vec<SegmentData> = sel.selected.iter().map(|s| SegmentData::new(&d, s)).collect();
         let opts = IdentifyOptions::default();
         let r = batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &opts).expect("identify");

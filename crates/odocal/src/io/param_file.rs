@@ -37,9 +37,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::calibrate::CalibrationReport;
 use crate::error::{Error, Result};
-use crate::extrinsics::Extrinsics;
+use crate::model::extrinsics::Extrinsics;
+use crate::model::param::{Param, ParamSet};
 use crate::model::{Theta, THETA_NAMES};
-use crate::param::{Param, ParamSet};
 
 /// Onto which consumer's keys the parameters are also written.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -109,14 +109,14 @@ const DESCRIPTIONS: [&str; 4] = [
 impl ParamFile {
     /// Appends the reference extrinsics (`lever_x`, `lever_y` in m,
     /// `heading_offset` in rad) with their 1σ (`None` for held entries).
-    pub fn add_extrinsics(&mut self, x: &crate::extrinsics::ExtrinsicsEstimate) {
+    pub fn add_extrinsics(&mut self, x: &crate::model::extrinsics::ExtrinsicsEstimate) {
         let (value, sd) = (x.value.to_array(), x.std_dev.to_array());
         let what = [
             ("m", "pose reference lever arm from the rear-axle centre, forward"),
             ("m", "pose reference lever arm from the rear-axle centre, left"),
             ("rad", "pose reference heading minus vehicle heading"),
         ];
-        for (i, p) in crate::param::Param::EXTRINSICS.into_iter().enumerate() {
+        for (i, p) in crate::model::param::Param::EXTRINSICS.into_iter().enumerate() {
             self.params.push(ParamEntry {
                 name: p.name().into(),
                 value: value[i],
@@ -385,7 +385,7 @@ impl ParamFile {
             v[i] = self.value(name).ok_or_else(|| Error::InvalidTheta(format!("no `{name}` in the parameter file")))?;
         }
         let theta = Theta::from_array(v);
-        crate::limits::check_theta(&theta)?;
+        crate::model::limits::check_theta(&theta)?;
         Ok(theta)
     }
 
@@ -407,7 +407,7 @@ impl ParamFile {
     }
 
     /// The reference extrinsics to validate this file's θ with on a drive,
-    /// by the rules of [`crate::validate_on`]: one the calibration estimated
+    /// by the rules of [`crate::assess::validation_drives`]: one the calibration estimated
     /// (it has a σ) is the sensor's, so it holds for every drive of the
     /// vehicle; a held one gives way to what the drive's own manifest states
     /// (`drive_reference`, its `[reference]`), else the file's value. Also
@@ -689,7 +689,7 @@ mod tests {
     }
 
     fn with_extrinsics(mut f: ParamFile) -> ParamFile {
-        use crate::extrinsics::ExtrinsicsEstimate;
+        use crate::model::extrinsics::ExtrinsicsEstimate;
         f.add_extrinsics(&ExtrinsicsEstimate {
             value: Extrinsics { lever_x: -0.9, lever_y: 0.0, heading_offset: -0.0099 },
             std_dev: Extrinsics { lever_x: 0.01, lever_y: 0.02, heading_offset: 1e-4 },
@@ -791,12 +791,12 @@ mod tests {
 
     #[test]
     fn extrinsics_entries_follow_theta() {
-        use crate::extrinsics::{Extrinsics, ExtrinsicsEstimate};
+        use crate::model::extrinsics::{Extrinsics, ExtrinsicsEstimate};
         let mut f = sample();
         let x = ExtrinsicsEstimate {
             value: Extrinsics { lever_x: -0.9, lever_y: 0.0, heading_offset: -0.0099 },
             std_dev: Extrinsics { lever_x: 0.01, lever_y: 0.02, heading_offset: 1e-4 },
-            free: crate::param::ParamSet::LEVER_ARM,
+            free: crate::model::param::ParamSet::LEVER_ARM,
             ..ExtrinsicsEstimate::held(Extrinsics::ZERO)
         };
         f.add_extrinsics(&x);

@@ -18,6 +18,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 
+pub mod extrinsics;
+pub mod limits;
+pub mod param;
+
 /// Model state `[p_x (m), p_y (m), ψ (rad, unwrapped)]`.
 pub type State = Vector3<f64>;
 
@@ -109,7 +113,7 @@ impl std::fmt::Display for Theta {
 impl std::str::FromStr for Theta {
     type Err = Error;
     /// Parses `c_e,c_d,t_r,d` in SI units (the CLI's `--theta`) and checks
-    /// its absolute physical sanity ([`crate::limits::check_theta`]).
+    /// its absolute physical sanity ([`crate::model::limits::check_theta`]).
     fn from_str(s: &str) -> Result<Self> {
         let parts: Vec<&str> = s.split(',').map(str::trim).collect();
         if parts.len() != 4 {
@@ -125,7 +129,7 @@ impl std::str::FromStr for Theta {
                 .map_err(|_| Error::InvalidTheta(format!("{} = '{p}' is not a number", THETA_NAMES[i])))?;
         }
         let theta = Theta { c_e: v[0], c_d: v[1], t_r: v[2], d: v[3] };
-        crate::limits::check_theta(&theta)?;
+        crate::model::limits::check_theta(&theta)?;
         Ok(theta)
     }
 }

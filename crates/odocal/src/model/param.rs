@@ -6,7 +6,7 @@
 //! same as the paper's symbols.
 //!
 //! The parameters are the four of θ, then the reference sensor's
-//! extrinsics (lever arm x/y and heading offset, [`crate::extrinsics`]),
+//! extrinsics (lever arm x/y and heading offset, [`crate::model::extrinsics`]),
 //! which are held at their given value (default 0) unless asked for. Later
 //! entries (noise scales) join as new variants after those:
 //! [`Param::index`] is the position in the full parameter vector, θ's four
@@ -14,8 +14,8 @@
 
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
-use crate::error::{Error, Result};
-use crate::extrinsics::Extrinsics;
+use crate::error::{Error, ParamNames, Result};
+use crate::model::extrinsics::Extrinsics;
 use crate::model::Theta;
 
 /// One estimated parameter.
@@ -34,7 +34,7 @@ pub enum Param {
     #[serde(rename = "d")]
     D,
     /// Lever arm of the pose reference along the vehicle's forward axis, m
-    /// ([`crate::extrinsics::Extrinsics::lever_x`]).
+    /// ([`crate::model::extrinsics::Extrinsics::lever_x`]).
     #[serde(rename = "lever_x")]
     LeverX,
     /// Lever arm of the pose reference along the vehicle's left axis, m.
@@ -218,6 +218,18 @@ impl ParamSet {
 impl FromIterator<Param> for ParamSet {
     fn from_iter<I: IntoIterator<Item = Param>>(iter: I) -> Self {
         iter.into_iter().fold(ParamSet::EMPTY, ParamSet::with)
+    }
+}
+
+impl From<ParamSet> for ParamNames {
+    fn from(s: ParamSet) -> Self {
+        ParamNames(s.iter().map(Param::name).collect())
+    }
+}
+
+impl FromIterator<Param> for ParamNames {
+    fn from_iter<I: IntoIterator<Item = Param>>(iter: I) -> Self {
+        ParamSet::from_iter(iter).into()
     }
 }
 

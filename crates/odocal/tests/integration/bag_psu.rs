@@ -9,7 +9,7 @@
 //! against the fixture CSVs.
 #![cfg(feature = "mcap")]
 
-use odocal::bag::{self, TimeSource};
+use odocal::io::bag::{self, TimeSource};
 use std::collections::HashMap;
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};

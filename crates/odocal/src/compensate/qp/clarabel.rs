@@ -12,7 +12,7 @@
 //!
 //! Clarabel's optimality conditions are `Px + p + Aᵀy = 0`, `y` in the dual
 //! cone; its `y` of the dynamics rows is therefore exactly the λ of the
-//! module's dual convention (see [`crate::qp`]).
+//! module's dual convention (see [`crate::compensate::qp`]).
 //!
 //! ## References
 //! P. J. Goulart, Y. Chen, "Clarabel: An interior-point solver for conic
@@ -241,7 +241,7 @@ impl QpSolver for ClarabelSolver {
 #[allow(clippy::unwrap_used)]
 mod tests {
     use super::*;
-    use crate::qp::{kkt_residual, random_instance, solve_equality_constrained};
+    use crate::compensate::qp::{kkt_residual, random_instance, solve_equality_constrained};
 
     /// Clarabel stops at 1e-9 *relative* to gradients of O(100) (R = 1000):
     /// an absolute natural residual below 1e-6 is what that guarantees.

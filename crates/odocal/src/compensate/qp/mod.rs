@@ -44,6 +44,7 @@ use std::str::FromStr;
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix3x2, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
+pub use crate::error::QpError;
 use crate::model::{step_jacobians, Input, Theta};
 
 /// One instance of the compensation QP. Vectors indexed by stage hold, at
@@ -156,28 +157,6 @@ pub struct QpSolution {
     /// Dual variables of the dynamics constraints (λ_k, k = 1..K), when the
     /// solver provides them (used for KKT checks and warm starts).
     pub dynamics_duals: Option<Vec<Vector3<f64>>>,
-}
-
-/// Why a QP was not solved.
-#[derive(Debug, Clone, PartialEq, thiserror::Error, Serialize, Deserialize)]
-pub enum QpError {
-    /// The problem has no feasible point.
-    #[error("infeasible: {0}")]
-    Infeasible(String),
-    /// The iteration limit was reached before convergence.
-    #[error("iteration limit reached after {iterations} iterations (residual {residual:.2e})")]
-    MaxIterations {
-        /// Iterations taken.
-        iterations: usize,
-        /// Residual at the last iterate.
-        residual: f64,
-    },
-    /// A numerical failure (factorisation, non-finite values).
-    #[error("numerical failure: {0}")]
-    Numerical(String),
-    /// The problem data are inconsistent.
-    #[error("malformed problem: {0}")]
-    Malformed(String),
 }
 
 /// A solver for [`StageQp`].

@@ -32,7 +32,7 @@
 //! and multipliers `μ_lo, μ_hi ≥ 0` (named `l_lo`, `l_hi` in the code). The
 //! iteration is the infeasible-start Mehrotra predictor-corrector method
 //! (Nocedal & Wright, *Numerical Optimization*, §16.6) on the KKT system of
-//! [`crate::qp`]'s dual convention; steps use one common primal-dual step
+//! [`crate::compensate::qp`]'s dual convention; steps use one common primal-dual step
 //! length. It stops when the primal residual, the dual residual and the mean
 //! complementarity are all below [`StructuredOptions`]' tolerances.
 //!

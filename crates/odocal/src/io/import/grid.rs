@@ -6,7 +6,7 @@ use std::ops::Range;
 
 use super::report::{GapRecord, PartRecord};
 use crate::error::{Error, Result};
-use crate::import::manifest::Manifest;
+use crate::io::import::manifest::Manifest;
 
 /// A time interval that invalidates output samples, with its reason.
 #[derive(Debug, Clone)]

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use super::limits::{self, echo_num};
-use super::settings::{CalibrationSpec, ManifestSettings, ReferenceSpec};
+use super::settings::{CalibrationSpec, NoiseTable, ReferenceSpec};
 use crate::error::{Error, Result};
 use crate::model::Theta;
 
@@ -41,11 +41,10 @@ pub struct Manifest {
     #[serde(default)]
     pub limits: LimitsSpec,
     /// The sensor's noise (`[noise]`): the starting noise model of
-    /// `--method eiv`, the fields of [`crate::eiv::NoiseModel`] (missing ones keep the
-    /// production-car defaults) and `known`, parsed like a `--noise-model`
-    /// file ([`crate::calibrate::eiv::NoiseSpec`]).
+    /// `--method eiv` as written, read by the calibration like a
+    /// `--noise-model` file ([`NoiseTable`]).
     #[serde(default, deserialize_with = "super::settings::noise_table", skip_serializing_if = "Option::is_none")]
-    pub noise: Option<crate::calibrate::eiv::NoiseSpec>,
+    pub noise: Option<NoiseTable>,
     /// The reference sensor's extrinsics (`[reference]`): lever arm,
     /// heading offset and which of them to estimate.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -227,7 +226,7 @@ pub enum SourceSpec {
     },
     /// One topic of a ROS 2 bag in MCAP (`format = "mcap"`, `topic = "/x"`,
     /// optional `time = "header" | "log"`). Columns are named as
-    /// [`crate::bag`] names them (`position.<joint>`, `x`, `yaw`, `cov_x`, …).
+    /// [`crate::io::bag`] names them (`position.<joint>`, `x`, `yaw`, `cov_x`, …).
     Mcap {
         /// The bag, relative to the manifest's folder.
         file: PathBuf,
@@ -726,6 +725,10 @@ impl Manifest {
             err(toml_message(e.inner(), text, Some(key)))
         })?;
         m.path = path.to_path_buf();
+        if let Some(n) = &mut m.noise {
+            // The deserializer left the table's byte offset.
+            n.line = n.line.map(|at| text.get(..at).unwrap_or(text).matches('\n').count() + 1);
+        }
         m.check()?;
         Ok(m)
     }
@@ -733,16 +736,6 @@ impl Manifest {
     /// The manifest error for `key`.
     pub(crate) fn error(&self, key: &str, reason: impl std::fmt::Display) -> Error {
         Error::Manifest { path: self.path.clone(), reason: format!("{key}: {reason}") }
-    }
-
-    /// The calibration settings it states (`[noise]`, `[reference]`, `[calibration]`).
-    pub fn settings(&self) -> ManifestSettings {
-        ManifestSettings {
-            manifest: self.path.clone(),
-            noise: self.noise.clone(),
-            reference: self.reference.clone(),
-            calibration: self.calibration,
-        }
     }
 
     /// The folder stream files are relative to.
@@ -911,9 +904,6 @@ impl Manifest {
         if let SideslipSpec::Column { stream, sign: s, .. } = &self.sideslip {
             stream_ref("sideslip.stream", stream)?;
             sign("sideslip.sign", *s)?;
-        }
-        if let Some(n) = &self.noise {
-            n.model.validate().map_err(|e| self.error("noise", e))?;
         }
         if let Some(r) = &self.reference {
             r.check().map_err(|(key, reason)| self.error(key, reason))?;

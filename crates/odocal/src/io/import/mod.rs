@@ -235,7 +235,7 @@ mod settings;
 mod signal;
 mod source;
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 mod wheels;
 
 use std::collections::BTreeMap;
@@ -248,10 +248,7 @@ pub use manifest::{
     WheelSignal, WheelSpec,
 };
 pub use report::{ClockOffsetReport, DejitterReport, GapRecord, ImportReport, JitterReport, PartRecord, StreamReport};
-pub use settings::{
-    noise_model_origin, CalibrationSpec, GivenSettings, ManifestSettings, ReferenceSpec, SettingOutcome, SettingUse,
-    MAX_LEVER_ARM_M,
-};
+pub use settings::{CalibrationSpec, NoiseTable, ReferenceSpec, MAX_LEVER_ARM_M};
 
 use crate::drive::{Drive, Signals};
 use crate::error::{Error, Result};

@@ -38,9 +38,9 @@ pub struct ImportReport {
     pub jitter: Option<JitterReport>,
     /// What looked wrong but did not stop the import.
     pub warnings: Vec<String>,
-    /// The manifest's `[noise]` (the sensor's noise model), when stated.
+    /// The manifest's `[noise]` (the sensor's noise model) as written, when stated.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub noise: Option<crate::calibrate::eiv::NoiseSpec>,
+    pub noise: Option<super::NoiseTable>,
     /// The manifest's `[reference]` (reference extrinsics), when stated.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reference: Option<super::ReferenceSpec>,
@@ -49,18 +49,6 @@ pub struct ImportReport {
     pub calibration: Option<super::CalibrationSpec>,
     /// Wall time of the import, s.
     pub elapsed_s: f64,
-}
-
-impl ImportReport {
-    /// The calibration settings the manifest states (`[noise]`, `[reference]`, `[calibration]`).
-    pub fn settings(&self) -> super::ManifestSettings {
-        super::ManifestSettings {
-            manifest: self.manifest.clone(),
-            noise: self.noise.clone(),
-            reference: self.reference.clone(),
-            calibration: self.calibration,
-        }
-    }
 }
 
 /// One stream that was read.
@@ -252,12 +240,8 @@ impl std::fmt::Display for ImportReport {
         )?;
         writeln!(f, "  wheels: {}", self.wheel_scale)?;
         if let Some(n) = &self.noise {
-            write!(f, "  [noise] (start of --method eiv): {}", crate::calibrate::eiv::noise_summary(&n.model))?;
-            if !n.known.is_empty() {
-                let names: Vec<&str> = n.known.iter().map(|s| s.name()).collect();
-                write!(f, "; known: {}", names.join(", "))?;
-            }
-            writeln!(f)?;
+            let entries: Vec<String> = n.table.iter().map(|(k, v)| format!("{k} = {v}")).collect();
+            writeln!(f, "  [noise] (start of --method eiv): {}", entries.join(", "))?;
         }
         if let Some(r) = &self.reference {
             let l = r.lever_arm.unwrap_or_default();

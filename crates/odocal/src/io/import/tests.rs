@@ -247,7 +247,7 @@ fn fixed_offset_and_raw_stamps_are_used_as_given() {
 }
 
 /// A minimal valid manifest over small stream files in `dir`.
-pub(super) fn small_case(dir: &Path) -> PathBuf {
+pub(crate) fn small_case(dir: &Path) -> PathBuf {
     let mut w = String::from("t,left,right\n");
     let mut p = String::from("t,x,y,q\n");
     for i in 0..400 {
@@ -516,7 +516,7 @@ fn stream_format_is_tagged_with_csv_by_default() {
     // A parsed MCAP stream goes to the bag reader (here: no such file).
     let mcap = mcap.replacen("format = \"mcap\"", "format = \"mcap\"\ntopic = \"/wheels\"", 1);
     let m = Manifest::parse(&mcap, &path).expect("mcap manifest");
-    let time = crate::import::manifest::BagTime::Header;
+    let time = crate::io::import::manifest::BagTime::Header;
     assert_eq!(m.streams["wheels"].source, SourceSpec::Mcap { file: "w.mcap".into(), topic: "/wheels".into(), time });
     let e = import(&m).map(|_| ()).expect_err("no such bag").to_string();
     #[cfg(feature = "mcap")]
@@ -867,7 +867,7 @@ fn the_bank_turns_the_kinematic_a_y_into_the_lateral_specific_force() {
     // Straight (kinematic a_y = 0) on a road 0.1 m lower on the left over 1.5 m.
     let phi = (0.1_f64 / 1.5).asin();
     let (d, r) = load_drive(&bank_case(dir.path(), |_| phi, 0.0, |_| false, "")).expect("import");
-    let want = -crate::import::bank::G_M_PER_S2 * 0.1 / 1.5;
+    let want = -crate::io::import::bank::G_M_PER_S2 * 0.1 / 1.5;
     assert!(d.a_y().iter().all(|a| (a - want).abs() < 1e-4), "{:?} vs {want}", &d.a_y()[..3]);
     let r = r.expect("report");
     assert!(r.lateral_acceleration.contains("roll φ from the antennas 'gl' (left) and 'gr' (right)"), "{r}");

@@ -9,7 +9,7 @@
 
 use std::path::Path;
 
-use odocal::import::{import, Manifest};
+use odocal::io::import::{import, Manifest};
 use odocal::Drive;
 
 /// Longest acceptable error message, bytes: echoed fields are truncated.
@@ -86,7 +86,7 @@ pub fn import_bundle(data: &[u8]) -> Outcome {
         }
     }
     let Some(path) = manifest_path else { return Outcome::Error("no m.toml section".into()) };
-    match odocal::import::load_drive(&path) {
+    match odocal::io::import::load_drive(&path) {
         Ok((d, _)) => check_drive(&d),
         Err(e) => check_message(e.to_string()),
     }

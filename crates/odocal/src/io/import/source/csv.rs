@@ -6,8 +6,8 @@ use std::path::Path;
 
 use super::{Table, Wanted};
 use crate::error::{Error, Result};
-use crate::import::limits::echo;
-use crate::import::manifest::Manifest;
+use crate::io::import::limits::echo;
+use crate::io::import::manifest::Manifest;
 
 /// Reads the time column `time` and the `wanted` columns of `path`.
 pub(super) fn read(m: &Manifest, name: &str, path: &Path, time: &str, wanted: &[Wanted]) -> Result<Table> {

@@ -1,5 +1,5 @@
 //! ROS 2 bag topics (`format = "mcap"`): one topic of an MCAP bag read with
-//! [`crate::bag::read_topic`], its columns named as that module names them
+//! [`crate::io::bag::read_topic`], its columns named as that module names them
 //! (`position.<joint>`, `x`, `y`, `yaw`, `cov_x`, `latitude`, `status`,
 //! `acc_y`, …), its time the header stamp or the log time.
 //!
@@ -11,9 +11,9 @@
 use std::path::Path;
 
 use super::{Table, Wanted};
-use crate::bag::{self, TimeSource};
 use crate::error::{Error, Result};
-use crate::import::manifest::{BagTime, Manifest};
+use crate::io::bag::{self, TimeSource};
+use crate::io::import::manifest::{BagTime, Manifest};
 
 /// Reads the `wanted` columns of `topic` in the bag at `path`.
 pub(super) fn read(

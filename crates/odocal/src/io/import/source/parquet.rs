@@ -36,8 +36,8 @@ use ::parquet::schema::types::ColumnDescriptor;
 
 use super::{Table, Wanted};
 use crate::error::Result;
-use crate::import::limits::{self, echo};
-use crate::import::manifest::{Manifest, TimeUnit};
+use crate::io::import::limits::{self, echo};
+use crate::io::import::manifest::{Manifest, TimeUnit};
 
 /// Rows read per batch from a row group.
 pub(crate) const BATCH_ROWS: usize = 65_536;
