@@ -887,7 +887,7 @@ fn run_calibration(
     let input = source.map(|(p, _)| p.display().to_string()).unwrap_or_else(|| "simulated drive".into());
     if let Some(p) = &args.params_out {
         // The σ that stands for the result (the verdict's, the JSON's `sigma`).
-        let mut f = odocal::io::param_file::ParamFile::from_report(&r, &input);
+        let mut f = r.param_file(&input);
         f.node = args.params_node.clone();
         f.mapping = args.params_mapping;
         f.write(p)?;

@@ -1130,11 +1130,11 @@ fn read_params(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyAny>> {
 
 /// Writes the parameter file of a calibration report (its JSON text) as
 /// `odocal calibrate --params-out` does: YAML for `.yaml`/`.yml`, JSON for
-/// `.json` (library `ParamFile::from_report`).
+/// `.json` (library `CalibrationReport::param_file`).
 #[pyfunction]
 #[pyo3(signature = (report_json, path, *, input, node, mapping))]
 fn _write_params(report_json: &str, path: PathBuf, input: &str, node: &str, mapping: &str) -> PyResult<()> {
-    let mut f = odocal::io::param_file::ParamFile::from_report(&report_from_json(report_json)?, input);
+    let mut f = report_from_json(report_json)?.param_file(input);
     f.node = node.to_string();
     f.mapping = mapping.parse().map_err(lib_err)?;
     f.write(&path).map_err(lib_err)
@@ -1223,7 +1223,7 @@ fn validate<'py>(
     };
     // A CalibrationReport as θ: its extrinsics, as a parameter file of it would carry them.
     let file = match report_json {
-        Some(j) => Some(odocal::io::param_file::ParamFile::from_report(&report_from_json(j)?, "")),
+        Some(j) => Some(report_from_json(j)?.param_file("")),
         None => file,
     };
     let mut opts = odocal::ValidateOptions::default();

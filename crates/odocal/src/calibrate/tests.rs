@@ -347,3 +347,42 @@ mod solver_tests {
         }
     }
 }
+
+/// The file's σ is the one that stands for the result (the verdict's):
+/// the 3-step's batch spread, not step 3's model σ (which covered 0 %);
+/// batch-gn on a drive too short for its cluster-robust σ gives the
+/// model σ and says so; a zero covariance row (not estimated) is
+/// written as held. (The CLI test `params_out` covers the robust σ.)
+#[test]
+fn the_param_file_has_the_result_sigma_not_the_model_sigma() {
+    use crate::calibrate::{calibrate, CalibrationOptions, Method, SigmaSource, ThreeStepOptions};
+    use crate::sim::{simulate, SimOptions};
+    let sim = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim");
+    let method = Method::ThreeStep(ThreeStepOptions { initial_batches: 8, picks: 3, ..Default::default() });
+    let r = calibrate(&sim.drive, &CalibrationOptions { method, ..Default::default() }, None).expect("3-step");
+    let spread = r.result_covariance().expect("batch spread");
+    let f = r.param_file("drive.csv");
+    let s = r.result_sigma();
+    assert_eq!(s.source, SigmaSource::BatchSpread);
+    for (i, e) in f.params.iter().enumerate() {
+        let sigma = e.sigma.expect("free");
+        assert_eq!(sigma.to_bits(), spread[i][i].sqrt().to_bits(), "{}", e.name);
+        assert_eq!(Some(sigma), s.to_array()[i], "{}", e.name);
+        let model = r.covariance[i][i].sqrt();
+        assert!(sigma > 10.0 * model, "{}: file σ {sigma} vs model σ {model}", e.name);
+    }
+    assert!(f.provenance.contains(&("sigma".into(), "batch-spread".into())), "{:?}", f.provenance);
+    assert_eq!(f.verdict.as_deref(), Some(r.verdict.level.to_string().as_str()));
+
+    let opts = CalibrationOptions { method: Method::BatchGn(Default::default()), ..Default::default() };
+    let mut r = calibrate(&sim.drive, &opts, None).expect("batch-gn");
+    // 3 km: too few clusters for the cluster-robust σ, so the model σ, and labelled so
+    assert!(r.robust().is_none());
+    assert_eq!(r.result_sigma().source, SigmaSource::Model);
+    let f = r.param_file("drive.csv");
+    assert_eq!(f.params[2].sigma, Some(r.std_dev().t_r));
+    assert!(f.provenance.contains(&("sigma".into(), "model".into())), "{:?}", f.provenance);
+    // a zero covariance row means "not estimated" (EIV holds what it cannot determine)
+    r.covariance[3] = [0.0; 4];
+    assert_eq!(r.param_file("drive.csv").params[3].sigma, None);
+}

@@ -35,7 +35,6 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::calibrate::CalibrationReport;
 use crate::error::{Error, Result};
 use crate::model::extrinsics::Extrinsics;
 use crate::model::param::{Param, ParamSet};
@@ -152,26 +151,6 @@ impl ParamFile {
             ],
             mapping: ParamMapping::Odocal,
         }
-    }
-
-    /// The file for a calibration: θ with the σ that stands for the result
-    /// ([`CalibrationReport::result_sigma`]: batch-gn's cluster-robust σ,
-    /// the 3-step's batch spread, EIV's filter covariance; the same σ as the verdict,
-    /// the HTML report and the CLI's JSON `sigma`), `<name>_held` for held
-    /// parameters, the reference extrinsics when the calibration involved
-    /// them, the verdict with its reasons, and provenance (`input`,
-    /// `method`, `sigma`: which covariance the σ comes from, the odocal
-    /// version, today's date).
-    pub fn from_report(report: &CalibrationReport, input: &str) -> ParamFile {
-        let sigma = report.result_sigma();
-        let mut f = ParamFile::from_theta(&report.theta, sigma.to_array(), input, &report.method);
-        f.provenance.insert(2, ("sigma".into(), sigma.source.name().into()));
-        if let Some(x) = &report.extrinsics {
-            f.add_extrinsics(x);
-        }
-        f.verdict = Some(report.verdict.level.to_string());
-        f.verdict_reasons = report.verdict.reasons.iter().map(|r| r.to_string()).collect();
-        f
     }
 
     fn value(&self, name: &str) -> Option<f64> {
@@ -807,45 +786,6 @@ mod tests {
         assert_eq!(p["heading_offset"].as_f64(), Some(-0.0099), "{j}");
         assert_eq!(p["heading_offset_held"], serde_json::json!(true), "{j}");
         assert_eq!(j["units"]["heading_offset"], "rad", "{j}");
-    }
-
-    /// The file's σ is the one that stands for the result (the verdict's):
-    /// the 3-step's batch spread, not step 3's model σ (which covered 0 %);
-    /// batch-gn on a drive too short for its cluster-robust σ gives the
-    /// model σ and says so; a zero covariance row (not estimated) is
-    /// written as held. (The CLI test `params_out` covers the robust σ.)
-    #[test]
-    fn from_report_writes_the_result_sigma_not_the_model_sigma() {
-        use crate::calibrate::{calibrate, CalibrationOptions, Method, SigmaSource, ThreeStepOptions};
-        use crate::sim::{simulate, SimOptions};
-        let sim = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim");
-        let method = Method::ThreeStep(ThreeStepOptions { initial_batches: 8, picks: 3, ..Default::default() });
-        let r = calibrate(&sim.drive, &CalibrationOptions { method, ..Default::default() }, None).expect("3-step");
-        let spread = r.result_covariance().expect("batch spread");
-        let f = ParamFile::from_report(&r, "drive.csv");
-        let s = r.result_sigma();
-        assert_eq!(s.source, SigmaSource::BatchSpread);
-        for (i, e) in f.params.iter().enumerate() {
-            let sigma = e.sigma.expect("free");
-            assert_eq!(sigma.to_bits(), spread[i][i].sqrt().to_bits(), "{}", e.name);
-            assert_eq!(Some(sigma), s.to_array()[i], "{}", e.name);
-            let model = r.covariance[i][i].sqrt();
-            assert!(sigma > 10.0 * model, "{}: file σ {sigma} vs model σ {model}", e.name);
-        }
-        assert!(f.provenance.contains(&("sigma".into(), "batch-spread".into())), "{:?}", f.provenance);
-        assert_eq!(f.verdict.as_deref(), Some(r.verdict.level.to_string().as_str()));
-
-        let opts = CalibrationOptions { method: Method::BatchGn(Default::default()), ..Default::default() };
-        let mut r = calibrate(&sim.drive, &opts, None).expect("batch-gn");
-        // 3 km: too few clusters for the cluster-robust σ, so the model σ, and labelled so
-        assert!(r.robust().is_none());
-        assert_eq!(r.result_sigma().source, SigmaSource::Model);
-        let f = ParamFile::from_report(&r, "drive.csv");
-        assert_eq!(f.params[2].sigma, Some(r.std_dev().t_r));
-        assert!(f.provenance.contains(&("sigma".into(), "model".into())), "{:?}", f.provenance);
-        // a zero covariance row means "not estimated" (EIV holds what it cannot determine)
-        r.covariance[3] = [0.0; 4];
-        assert_eq!(ParamFile::from_report(&r, "drive.csv").params[3].sigma, None);
     }
 
     #[test]
