@@ -225,10 +225,9 @@ struct CalibrationArgs {
     bootstrap_seed: u64,
     /// EIV: subtract the estimator's own c_e bias, estimated by a
     /// parametric bootstrap with B replicates (seed --bootstrap-seed);
-    /// about B extra fits of time. It removed a ~0.1 % c_e bias of earlier
-    /// defaults; since stop 19 the default fit has none left to remove
-    /// (docs/study.md). It replaces the default correction of every
-    /// parameter (see --correct-bias).
+    /// about B extra fits of time. The default fit has no c_e bias left for
+    /// it to remove (docs/study.md). It replaces the default correction of
+    /// every parameter (see --correct-bias).
     #[arg(long, value_name = "B", conflicts_with_all = ["correct_bias", "no_bias_correction"])]
     correct_c_e_bias: Option<usize>,
     /// EIV: replicates B of the bias correction that is on by default
@@ -243,7 +242,7 @@ struct CalibrationArgs {
     #[arg(long, value_name = "B", value_parser = parse_even_replicates, conflicts_with = "no_bias_correction")]
     correct_bias: Option<usize>,
     /// EIV: return the profile cost's root as is, without the default bias
-    /// correction (see --correct-bias); the EIV default before stop 21.
+    /// correction (see --correct-bias).
     #[arg(long)]
     no_bias_correction: bool,
     /// Hold out half of the drive (by time) for validation and calibrate on

@@ -142,8 +142,9 @@ impl MultiValidation {
 /// [`crate::assess::validation_drives::validate_drives_with`].
 ///
 /// # Errors
-/// [`Error::NoSegments`] naming a drive too short for one validation
-/// segment (or when `drives` is empty); the errors of [`mean_position_error`].
+/// [`crate::Error::NoSegments`] naming a drive too short for one validation
+/// segment (or when `drives` is empty); the errors of
+/// [`super::position_error::mean_position_error`].
 pub fn validate_drives(
     drives: &[(&str, &Drive)],
     theta: &Theta,

@@ -4,7 +4,7 @@
 //! A calibration that only fits the drive it came from is no calibration.
 //! [`cross_run`] calibrates every drive on its own and validates each θ on
 //! every other drive, beside θ_0; [`CrossRunTable::criteria`] sums the table
-//! up as issue 10 asks: never worse than θ_0 on another drive, the mean
+//! up: never worse than θ_0 on another drive, the mean
 //! cross-run Ē_p within a ratio of the mean of the drives' own fits, and how
 //! many calibrations were rejected.
 
@@ -22,7 +22,7 @@ use crate::progress::ProgressFn;
 
 /// The ratio of the acceptance criterion: the mean over runs of the
 /// cross-run Ē_p should stay within this multiple of the mean of the runs'
-/// own fits (issue 10: 1.5).
+/// own fits.
 pub const CROSS_RUN_OWN_FIT_RATIO: f64 = 1.5;
 
 /// One drive's calibration and its validation on the others.

@@ -25,7 +25,7 @@ fn detail(r: &crate::CalibrationReport) -> &EivDetail {
 }
 
 /// Noise-free, one substep: the model is exact, and the EIV method returns
-/// θ_true to rounding (issue 9's bar, 1e-8 relative).
+/// θ_true to rounding (1e-8 relative).
 #[test]
 fn noise_free_drive_returns_theta_true() {
     let out = simulate(&SimOptions { length_km: 6.0, substeps: 1, ..SimOptions::noise_free(11) }).expect("sim");
@@ -345,7 +345,7 @@ fn max_rel(a: &Theta, b: &Theta) -> f64 {
 const VAN: crate::model::extrinsics::Extrinsics =
     crate::model::extrinsics::Extrinsics { lever_x: -0.9, lever_y: 0.05, heading_offset: -0.0099 };
 
-/// Issue 10 item 4, two-stage: with the reference at the van's mount, EIV
+/// Two-stage: with the reference at the van's mount, EIV
 /// with `--estimate lever-arm,heading-offset` gets the extrinsics from its
 /// batch G-N start (measured error 5e-14), holds them in the filter, and
 /// returns the θ it returns on the same drive with the reference at the
@@ -414,15 +414,14 @@ fn given_extrinsics_are_applied_by_the_filter() {
     assert!(!held.contains("  "), "{held}");
 }
 
-/// Stop 14, the test-track diagnosis (docs/study.md "Stop 14: the candidate
-/// EIV defaults on the real logs"): a reference heading offset that the
+/// The test-track diagnosis (docs/study.md, the EIV defaults on the real
+/// logs): a reference heading offset that the
 /// calibration does not model (+18 mrad, batch G-N's estimate on the six
 /// test-track runs) moves batch G-N's c_d (all segments: the EIV start and
 /// fallback) but hardly EIV's, which takes c_d from the heading increments
 /// the offset does not change. Measured on this 2 km noise-free drive
 /// (seed 21, production-car noise fixed): true c_d −2.000 mm, batch G-N
-/// −1.457 mm (error 5.4e-4 m), EIV −1.982 mm (1.8e-5 m; −1.983 with the
-/// stop-13 defaults); so the test fails
+/// −1.457 mm (error 5.4e-4 m), EIV −1.982 mm (1.8e-5 m); so the test fails
 /// if EIV's c_d absorbs the offset as batch G-N's does.
 #[test]
 fn unmodelled_heading_offset_moves_batch_gn_c_d_not_eiv() {
@@ -439,9 +438,9 @@ fn unmodelled_heading_offset_moves_batch_gn_c_d_not_eiv() {
     assert!(gn_err > 5.0 * eiv_err, "batch G-N c_d error {gn_err:.2e}, EIV {eiv_err:.2e}");
 }
 
-/// Stop 15: by default the EIV start estimates the reference heading
+/// By default the EIV start estimates the reference heading
 /// offset, so on the +18 mrad drive of the test above the report carries
-/// δ (its batch G-N start's estimate), the start's c_d is no longer pulled
+/// δ (its batch G-N start's estimate), the start's c_d is not pulled
 /// off, and the validation (which applies δ) is far better than with δ
 /// held at 0. A stated offset, or `hold`, keeps δ held.
 #[test]

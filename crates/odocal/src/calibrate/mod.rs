@@ -44,10 +44,10 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use crate::assess::position_error::mean_position_error_with;
-use crate::assess::trust::{judge, Evidence, TrustOptions, Verdict};
+use crate::assess::trust::{judge, Evidence, TrustOptions};
 use crate::assess::validation_drives::CalibrationExtrinsics;
 use crate::assess::warning::Warning;
-use crate::compensate::{CompensatedInputs, CompensationStep};
+use crate::compensate::CompensatedInputs;
 use crate::drive::segment::{
     calibration_segments, validation_segments, Segment, SegmentData, SegmentOptions, ValidationSegmentOptions,
 };

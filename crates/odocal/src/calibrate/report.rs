@@ -3,8 +3,18 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::*;
+use super::{
+    outcome_covariance, outcome_robust, BatchGnDetail, CalibrationOptions, EivDetail, InitialStep, Method,
+    ThreeStepDetail,
+};
+use crate::assess::trust::Verdict;
+use crate::assess::warning::Warning;
+use crate::compensate::CompensationStep;
+use crate::identify::{IdentifyReport, Observability, RobustCovariance};
 use crate::io::param_file::ParamFile;
+use crate::model::extrinsics::ExtrinsicsEstimate;
+use crate::model::param::Param;
+use crate::model::Theta;
 
 /// θ with its mean validation position error.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

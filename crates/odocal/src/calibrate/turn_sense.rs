@@ -1,4 +1,4 @@
-//! One-way turning selections (issue 10): when every selected calibration
+//! One-way turning selections: when every selected calibration
 //! segment turns the same way, the straight segments are added.
 //!
 //! c_d acts on the yaw rate as a bias proportional to the distance driven

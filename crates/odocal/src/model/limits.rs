@@ -4,8 +4,9 @@
 //! A drive whose numbers are physically absurd is bad input, not a drive to
 //! calibrate: a time column in milliseconds, a position column holding ECEF
 //! metres, a heading in degrees, a wheel speed of 1e300 all produce a
-//! confident wrong answer if they are let through. Every [`Drive`] is checked
-//! against [`PhysicalLimits`] when it is built (the canonical CSV, the
+//! confident wrong answer if they are let through. Every
+//! [`Drive`](crate::drive::Drive) is checked against [`PhysicalLimits`] when
+//! it is built ([`crate::drive::plausibility`]; the canonical CSV, the
 //! importer, the simulator and the Python package all build through
 //! [`DriveBuilder`](crate::drive::DriveBuilder)); a θ typed by a user is
 //! checked by [`check_theta`].

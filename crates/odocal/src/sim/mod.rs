@@ -67,7 +67,7 @@ mod route;
 
 use options::invalid;
 pub use options::{NoiseOptions, RouteOptions, SimOptions, SpeedOptions, VehicleOptions};
-use route::*;
+use route::{build_route, stream, Encoder, GaussMarkov, SpeedProfile, White};
 
 /// Grid step of the speed profile along the route, m.
 const SPEED_GRID_M: f64 = 0.5;

@@ -14,15 +14,15 @@ pub(super) fn stream(seed: u64, id: u64) -> ChaCha8Rng {
     rng
 }
 
-pub(super) fn uniform(rng: &mut ChaCha8Rng, r: [f64; 2]) -> f64 {
+fn uniform(rng: &mut ChaCha8Rng, r: [f64; 2]) -> f64 {
     r[0] + (r[1] - r[0]) * rng.random::<f64>()
 }
 
-pub(super) fn log_uniform(rng: &mut ChaCha8Rng, r: [f64; 2]) -> f64 {
+fn log_uniform(rng: &mut ChaCha8Rng, r: [f64; 2]) -> f64 {
     r[0] * (r[1] / r[0]).powf(rng.random::<f64>())
 }
 
-pub(super) fn random_sign(rng: &mut ChaCha8Rng) -> f64 {
+fn random_sign(rng: &mut ChaCha8Rng) -> f64 {
     if rng.random::<bool>() {
         1.0
     } else {
@@ -30,7 +30,7 @@ pub(super) fn random_sign(rng: &mut ChaCha8Rng) -> f64 {
     }
 }
 
-pub(super) fn normal(rng: &mut ChaCha8Rng) -> f64 {
+fn normal(rng: &mut ChaCha8Rng) -> f64 {
     rng.sample::<f64, _>(StandardNormal)
 }
 
@@ -40,19 +40,19 @@ pub(super) struct Route {
     /// Knot distances, m, non-decreasing, starting at 0.
     pub(super) s: Vec<f64>,
     /// Curvature at the knots, 1/m (positive to the left).
-    pub(super) kappa: Vec<f64>,
+    kappa: Vec<f64>,
     /// Speed limit pieces `(end distance, limit)`, in order.
-    pub(super) limits: Vec<(f64, f64)>,
+    limits: Vec<(f64, f64)>,
     /// Stops `(distance, standstill duration)`, in order.
-    pub(super) stops: Vec<(f64, f64)>,
+    stops: Vec<(f64, f64)>,
 }
 
 impl Route {
-    pub(super) fn end(&self) -> f64 {
+    fn end(&self) -> f64 {
         self.s.last().copied().unwrap_or(0.0)
     }
 
-    pub(super) fn push(&mut self, len: f64, kappa: f64) {
+    fn push(&mut self, len: f64, kappa: f64) {
         if len > 0.0 {
             let s = self.end() + len;
             self.s.push(s);
@@ -60,11 +60,11 @@ impl Route {
         }
     }
 
-    pub(super) fn current_kappa(&self) -> f64 {
+    fn current_kappa(&self) -> f64 {
         self.kappa.last().copied().unwrap_or(0.0)
     }
 
-    pub(super) fn straight(&mut self, len: f64) {
+    fn straight(&mut self, len: f64) {
         let k = self.current_kappa();
         self.push(len, k);
     }
@@ -73,7 +73,7 @@ impl Route {
     /// entered and left through clothoids of length `lt`, back to κ = 0.
     /// Each level is held for `θ_i/κ_i − lt` (at least 0), so that with the
     /// halves of its two adjacent transitions it turns by θ_i.
-    pub(super) fn levels(&mut self, levels: &[(f64, f64)], lt: f64) {
+    fn levels(&mut self, levels: &[(f64, f64)], lt: f64) {
         for &(kappa, angle) in levels {
             self.push(lt, kappa);
             self.straight((angle / kappa - lt).max(0.0));
@@ -99,7 +99,7 @@ impl Route {
         self.kappa[i] + f * (self.kappa[i + 1] - self.kappa[i])
     }
 
-    pub(super) fn limit_at(&self, s: f64, cursor: &mut usize) -> f64 {
+    fn limit_at(&self, s: f64, cursor: &mut usize) -> f64 {
         while *cursor + 1 < self.limits.len() && self.limits[*cursor].0 < s {
             *cursor += 1;
         }
@@ -184,12 +184,12 @@ pub(super) fn build_route(opts: &SimOptions, rng: &mut ChaCha8Rng) -> Route {
 
 #[derive(Debug)]
 pub(super) struct SpeedProfile {
-    pub(super) ds: f64,
+    ds: f64,
     pub(super) v: Vec<f64>,
     /// Arrival time at each grid point, s.
-    pub(super) arrive: Vec<f64>,
+    arrive: Vec<f64>,
     /// Departure time from each grid point (arrival + standstill), s.
-    pub(super) depart: Vec<f64>,
+    depart: Vec<f64>,
 }
 
 /// Distance, speed and longitudinal acceleration at one time.
@@ -285,11 +285,11 @@ impl SpeedProfile {
 
 /// First-order Gauss-Markov process sampled at a fixed step (exact discretisation).
 pub(super) struct GaussMarkov {
-    pub(super) rng: ChaCha8Rng,
-    pub(super) phi: f64,
-    pub(super) q: f64,
-    pub(super) x: f64,
-    pub(super) on: bool,
+    rng: ChaCha8Rng,
+    phi: f64,
+    q: f64,
+    x: f64,
+    on: bool,
 }
 
 impl GaussMarkov {

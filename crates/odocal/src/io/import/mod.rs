@@ -196,9 +196,11 @@
 //! ```
 //!
 //! `[noise]`, `[reference]` and `[calibration]` are calibration settings, not import
-//! settings: the import checks them and carries them on
-//! [`ImportReport::settings`]; `odocal calibrate` applies them with
-//! [`ManifestSettings::apply`] unless the command line gives its own value
+//! settings: the import checks `[reference]` and `[calibration]`, keeps
+//! `[noise]` as written ([`NoiseTable`]) and carries them on the
+//! [`ImportReport`]; `odocal calibrate` reads them
+//! ([`crate::calibrate::settings::ManifestSettings`]) and applies them
+//! unless the command line gives its own value
 //! (`--noise-model`, `--lever-arm`, `--heading-offset`, `--estimate`,
 //! `--keep-one-way` win),
 //! and its report says which was used.

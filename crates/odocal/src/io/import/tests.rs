@@ -547,7 +547,7 @@ fn reference_measured_marks_the_sample_nearest_each_pose_sample() {
     assert!((frac - 0.25).abs() < 0.01, "{frac}");
 }
 
-// ---- Issue 11: bounded resources and physical plausibility. ----
+// ---- Bounded resources and physical plausibility. ----
 
 /// Imports the small case after `edit` of the manifest and `edit_w` of the
 /// wheel CSV; returns the error text and the largest grid allocated.
@@ -751,7 +751,7 @@ fn a_corrupt_wheel_row_is_dropped_not_turned_into_a_speed_spike() {
     assert!(worst < 1e-9, "wheel speeds stay 5 rev/s: worst deviation {worst}");
 }
 
-// ---- Issue 10 item 6: robust clock offset. ----
+// ---- Robust clock offset. ----
 
 fn corr(offset_s: f64, peak: f64, second: Option<(f64, f64)>) -> signal::Correlation {
     signal::Correlation { offset_s, peak, pairs: 1000, curvature: 1.0, second }
