@@ -699,7 +699,7 @@ pub(crate) fn turning_segments(prep: &Prepared<'_>) -> Result<Selection> {
             free = free.intersection(ParamSet::EMPTY.with(Param::CE));
             auto_fixed.extend(free_yaw.iter());
             warnings.push(Warning::AutoFixNoTurns {
-                params: free_yaw.into(),
+                params: free_yaw,
                 segments: selection.all.len(),
                 min_peak_yaw_rate_rad_per_s: opts.segments.min_peak_yaw_rate_rad_per_s,
                 peak_yaw_rate_rad_per_s: peak,
