@@ -61,7 +61,7 @@ pub struct ValidationSummary {
     /// Validation segments.
     pub segments: usize,
     /// True when the validation ran on held-out data that the calibration
-    /// did not see (see [`calibrate_held_out`]).
+    /// did not see (see [`super::calibrate_held_out`]).
     pub held_out: bool,
 }
 
@@ -106,7 +106,7 @@ pub struct CalibrationReport {
     pub segments: SegmentCounts,
     /// The reference sensor's extrinsics (lever arm, heading offset:
     /// initial and estimated values, σ, covariance) when the calibration
-    /// involved them ([`IdentifyOptions::uses_extrinsics`]); validation
+    /// involved them ([`crate::identify::IdentifyOptions::uses_extrinsics`]); validation
     /// (and θ_0's Ē_p, at the initial values) then compares the model's
     /// reference point with the measured one. Absent otherwise. For `eiv`
     /// they are its batch Gauss-Newton start's estimate and σ, held by the
@@ -206,7 +206,7 @@ impl CalibrationReport {
     /// The covariance of θ that stands for the result's uncertainty, the
     /// one the verdict's large-σ and cross-split checks use: batch-gn's
     /// cluster-robust covariance ([`Self::robust`]); the 3-step method's
-    /// step-1 batch spread ([`ThreeStepUncertainty::batch_spread`]), since
+    /// step-1 batch spread ([`super::ThreeStepUncertainty::batch_spread`]), since
     /// step 3's own σ sees only its compensated inputs; `None` otherwise
     /// (then the model covariance is all there is).
     pub fn result_covariance(&self) -> Option<&[[f64; 4]; 4]> {
@@ -241,7 +241,7 @@ impl CalibrationReport {
 pub enum SigmaSource {
     /// batch-gn's cluster-robust covariance ([`RobustCovariance`]).
     ClusterRobust,
-    /// The 3-step method's step-1 batch spread ([`BatchSpread`]).
+    /// The 3-step method's step-1 batch spread ([`super::BatchSpread`]).
     BatchSpread,
     /// The model covariance ([`CalibrationReport::covariance`]): EIV's
     /// filter covariance (per parameter the larger of `H_θ⁻¹` and a block
