@@ -695,7 +695,7 @@ fn import_cmd(a: ImportArgs) -> Result<()> {
     let imported = odocal::import(&m)?;
     imported.drive.write_csv(&a.out)?;
     if let Some(p) = &a.json {
-        write_json(p, serde_json::to_value(&imported.report)?)?;
+        write_json(p, odocal::calibrate::settings::import_report_json(&imported.report)?)?;
         if p == Path::new("-") {
             return Ok(());
         }

@@ -28,7 +28,7 @@ use odocal::calibrate::CorrectBias;
 use odocal::compensate::qp::SolverKind;
 use odocal::drive::{Drive, ExtraColumn, ExtraValues, Signals};
 use odocal::eiv::{HeadingScale, QuantisationLevel, QuantisationModel};
-use odocal::io::import::ReferenceSpec;
+use odocal::io::import::{NoiseTable, ReferenceSpec};
 use odocal::model::param::{Param, ParamSet};
 use odocal::model::Theta;
 use odocal::sim::{NoiseOptions, SimOptions, SimSidecar};
@@ -74,12 +74,15 @@ impl Provenance {
         let bad = |e: serde_json::Error| PyRuntimeError::new_err(format!("import report: {e}"));
         let v: serde_json::Value = serde_json::from_str(text).map_err(bad)?;
         let field = |k: &str| v.get(k).filter(|x| !x.is_null()).cloned();
-        Ok(Some(ManifestSettings {
-            manifest: field("manifest").map(serde_json::from_value).transpose().map_err(bad)?.unwrap_or_default(),
-            noise: field("noise").map(serde_json::from_value).transpose().map_err(bad)?,
-            reference: field("reference").map(serde_json::from_value).transpose().map_err(bad)?,
-            calibration: field("calibration").map(serde_json::from_value).transpose().map_err(bad)?,
-        }))
+        let noise: Option<NoiseTable> = field("noise").map(serde_json::from_value).transpose().map_err(bad)?;
+        let settings = ManifestSettings::new(
+            field("manifest").map(serde_json::from_value).transpose().map_err(bad)?.unwrap_or_default(),
+            noise.as_ref(),
+            field("reference").map(serde_json::from_value).transpose().map_err(bad)?,
+            field("calibration").map(serde_json::from_value).transpose().map_err(bad)?,
+        )
+        .map_err(lib_err)?;
+        Ok(Some(settings))
     }
 }
 
@@ -170,9 +173,13 @@ fn read_csv_with_sidecar(path: &std::path::Path) -> odocal::Result<(Drive, Prove
 
 fn read_manifest(path: &std::path::Path) -> odocal::Result<(Drive, Provenance)> {
     let m = odocal::Manifest::from_path(path)?;
+    // The calibration settings are checked too, so a bad one is named now.
+    ManifestSettings::of_manifest(&m)?;
     let imported = odocal::import(&m)?;
-    let import_report = serde_json::to_string_pretty(&imported.report)
-        .map_err(|source| odocal::Error::Json { context: format!("import report of {}", path.display()), source })?;
+    let import_report = serde_json::to_string_pretty(&odocal::calibrate::settings::import_report_json(
+        &imported.report,
+    )?)
+    .map_err(|source| odocal::Error::Json { context: format!("import report of {}", path.display()), source })?;
     let wheel_scale = Some(imported.report.wheel_scale.clone());
     Ok((imported.drive, Provenance { sidecar: None, import_report: Some(import_report), wheel_scale }))
 }

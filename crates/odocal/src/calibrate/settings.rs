@@ -100,6 +100,22 @@ pub fn read_noise_table(manifest: &Path, noise: &NoiseTable) -> Result<NoiseSpec
     })
 }
 
+/// The import report as JSON, its `[noise]` read as the noise model it
+/// states ([`read_noise_table`]: every field, the defaults filled in, with
+/// `known` and `lateral`), as the `odocal import` report and the Python
+/// package show it.
+///
+/// # Errors
+/// [`Error::Manifest`] for a bad `[noise]` table.
+pub fn import_report_json(report: &ImportReport) -> Result<serde_json::Value> {
+    let json = |source| Error::Json { context: format!("import report of {}", report.manifest.display()), source };
+    let mut v = serde_json::to_value(report).map_err(json)?;
+    if let (Some(n), Some(obj)) = (&report.noise, v.as_object_mut()) {
+        obj.insert("noise".into(), serde_json::to_value(read_noise_table(&report.manifest, n)?).map_err(json)?);
+    }
+    Ok(v)
+}
+
 impl ManifestSettings {
     /// The settings `manifest` states, its `[noise]` table read as a noise
     /// model ([`read_noise_table`]).
