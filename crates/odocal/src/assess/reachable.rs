@@ -360,7 +360,7 @@ fn argmin_error(stage: &str, e: argmin::core::Error) -> Error {
 ///
 /// # Example
 /// ```no_run
-/// use odocal::segment::{validation_segments, ValidationSegmentOptions};
+/// use odocal::drive::segment::{validation_segments, ValidationSegmentOptions};
 /// use odocal::{reachable_minimum, Drive, ReachableOptions, Theta};
 /// # fn main() -> odocal::Result<()> {
 /// let drive = Drive::read_csv("drive.csv")?;

@@ -59,7 +59,7 @@
 //!
 //! ```no_run
 //! # fn main() -> Result<(), odocal::Error> {
-//! use odocal::bag::{self, TimeSource};
+//! use odocal::io::bag::{self, TimeSource};
 //! use std::path::Path;
 //!
 //! let path = Path::new("drive.mcap");

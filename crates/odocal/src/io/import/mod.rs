@@ -216,8 +216,8 @@
 //! ```no_run
 //! # fn main() -> odocal::Result<()> {
 //! use std::path::Path;
-//! let manifest = odocal::import::Manifest::from_path(Path::new("examples/psu-mapping-van/manifest.toml"))?;
-//! let imported = odocal::import::import(&manifest)?;
+//! let manifest = odocal::io::import::Manifest::from_path(Path::new("examples/psu-mapping-van/manifest.toml"))?;
+//! let imported = odocal::io::import::import(&manifest)?;
 //! println!("{}", imported.report);
 //! imported.drive.write_csv("drive.csv")?;
 //! # Ok(()) }

@@ -9,6 +9,7 @@
 
 use std::path::Path;
 
+use odocal::calibrate::settings::ManifestSettings;
 use odocal::io::import::{import, Manifest};
 use odocal::Drive;
 
@@ -53,10 +54,11 @@ pub fn csv_drive(data: &[u8]) -> Outcome {
     }
 }
 
-/// The manifest parser and its checks.
+/// The manifest parser and its checks, with the calibration settings the
+/// manifest states (its `[noise]` read as a noise model).
 pub fn manifest(data: &[u8]) -> Outcome {
     let Ok(text) = std::str::from_utf8(data) else { return Outcome::Error("not UTF-8".into()) };
-    match Manifest::parse(text, Path::new("fuzz.toml")) {
+    match Manifest::parse(text, Path::new("fuzz.toml")).and_then(|m| ManifestSettings::of_manifest(&m)) {
         Ok(_) => Outcome::Parsed,
         Err(e) => check_message(e.to_string()),
     }
