@@ -3,7 +3,8 @@
 //! names every `crate::<module>` path (in code; comments, doc comments and
 //! string literals are ignored, as are `#[cfg(test)]` items and the
 //! `tests.rs` / `*_tests.rs` files) that reaches a higher layer or another
-//! module of the same layer.
+//! module of the same layer, and every `super::` in a module's top file
+//! (which would reach the crate root, around the check).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -181,6 +182,21 @@ fn crate_paths(code: &str) -> Vec<(usize, String)> {
     out
 }
 
+/// The first path segment after each `super::` in `code`, with its line.
+fn super_paths(code: &str) -> Vec<(usize, String)> {
+    let mut out = Vec::new();
+    let mut from = 0;
+    while let Some(at) = code[from..].find("super::").map(|p| p + from) {
+        from = at + "super::".len();
+        if code[..at].chars().next_back().is_some_and(is_ident) {
+            continue;
+        }
+        let name: String = code[from..].chars().take_while(|c| is_ident(*c) || *c == '{' || *c == '*').collect();
+        out.push((code[..at].matches('\n').count() + 1, name));
+    }
+    out
+}
+
 /// The names `lib.rs` re-exports at the crate root, each with the module it
 /// comes from (`pub use assess::trust::{Verdict, …}` maps `Verdict` to `assess`).
 fn root_reexports(lib: &str) -> BTreeMap<String, String> {
@@ -240,7 +256,20 @@ fn uses(src: &Path) -> BTreeMap<String, Vec<Use>> {
         }
         let module = module_of(&rel).expect("module");
         let text = std::fs::read_to_string(&file).expect("read");
-        for (line, first) in crate_paths(&without_test_items(&code_only(&text))) {
+        let code = without_test_items(&code_only(&text));
+        // In a module's top file `super::` is the crate root: it must name the module with `crate::`.
+        let top = rel.components().count() == 1
+            || rel.file_name().is_some_and(|n| n == "mod.rs") && rel.components().count() == 2;
+        if top {
+            for (line, first) in super_paths(&code) {
+                out.entry(module.clone()).or_default().push(Use {
+                    file: rel.clone(),
+                    line,
+                    target: format!("?super::{first}"),
+                });
+            }
+        }
+        for (line, first) in crate_paths(&code) {
             let target = if layer_of(&first).is_some() {
                 first
             } else if let Some(m) = reexports.get(&first) {
@@ -274,6 +303,9 @@ fn modules_use_only_lower_layers() {
         for u in list {
             let at = format!("src/{}:{}", u.file.display(), u.line);
             match layer_of(&u.target) {
+                None if u.target.starts_with("?super::") => {
+                    problems.push(format!("{at}: `{}` leaves the module; name it with `crate::`", &u.target[1..]))
+                }
                 None => problems.push(format!("{at}: `crate::{}` is no module of the table", &u.target[1..])),
                 Some(to) if to > from => problems
                     .push(format!("{at}: `{module}` (layer {from}) uses `{}` (layer {to}), a higher layer", u.target)),
