@@ -3,9 +3,9 @@
 //! seeded instances, side by side in one group.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use odocal::qp::clarabel::ClarabelSolver;
-use odocal::qp::riccati::StructuredSolver;
-use odocal::qp::{random_instance, QpSolver};
+use odocal::compensate::qp::clarabel::ClarabelSolver;
+use odocal::compensate::qp::riccati::StructuredSolver;
+use odocal::compensate::qp::{random_instance, QpSolver};
 use std::hint::black_box;
 
 const STAGES: usize = 650;

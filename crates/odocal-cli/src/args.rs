@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Result};
 use clap::{ArgAction, Args};
-use odocal::import::{ManifestSettings, SettingUse};
+use odocal::calibrate::settings::{ManifestSettings, SettingUse};
 use odocal::{CalibrationOptions, FinalSegments, Method, ParamSet, SolverKind, Theta, ThreeStepOptions};
 
 use crate::settings;
@@ -241,7 +241,7 @@ pub struct CalibrationArgs {
     /// Also write the parameters under a consumer's keys: odocal (none) or
     /// diff_drive_controller (wheel_separation, wheel_radius, radius multipliers).
     #[arg(long, default_value = "odocal", help_heading = PARAM_FILE, hide_short_help = true)]
-    pub params_mapping: odocal::param_file::ParamMapping,
+    pub params_mapping: odocal::io::param_file::ParamMapping,
 }
 
 /// A clap parser of a library enum named on the command line: the names
@@ -452,16 +452,16 @@ impl CalibrationArgs {
 pub struct ThetaArg {
     pub theta: Theta,
     /// The parameter file θ came from, when it did.
-    pub file: Option<(PathBuf, odocal::param_file::ParamFile)>,
+    pub file: Option<(PathBuf, odocal::io::param_file::ParamFile)>,
 }
 
 impl std::str::FromStr for ThetaArg {
     type Err = odocal::Error;
     fn from_str(s: &str) -> std::result::Result<Self, Self::Err> {
         let path = Path::new(s);
-        if odocal::param_file::is_param_file(path) {
+        if odocal::io::param_file::is_param_file(path) {
             // `read` has checked θ (`theta()` cannot fail after it).
-            let f = odocal::param_file::ParamFile::read(path)?;
+            let f = odocal::io::param_file::ParamFile::read(path)?;
             return Ok(ThetaArg { theta: f.theta()?, file: Some((path.into(), f)) });
         }
         Ok(ThetaArg { theta: s.parse()?, file: None })

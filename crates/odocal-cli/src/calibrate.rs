@@ -6,9 +6,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::Args;
-use odocal::import::{ManifestSettings, SettingUse};
+use odocal::calibrate::settings::{ManifestSettings, SettingUse};
 use odocal::{
-    segment, sim, CalibrationOptions, CalibrationReport, Drive, Holdout, MultiValidation, Theta, VerdictLevel,
+    drive::segment, sim, CalibrationOptions, CalibrationReport, Drive, Holdout, MultiValidation, Theta, VerdictLevel,
 };
 
 use crate::args::{CalibrationArgs, HalfArg, HelpArgs};
@@ -157,7 +157,7 @@ fn run_calibration(
     let input = source.map(|(p, _)| p.display().to_string()).unwrap_or_else(|| "simulated drive".into());
     if let Some(p) = &args.params_out {
         // The σ that stands for the result (the verdict's, the JSON's `sigma`).
-        let mut f = odocal::param_file::ParamFile::from_report(&r, &input);
+        let mut f = r.param_file(&input);
         f.node = args.params_node.clone();
         f.mapping = args.params_mapping;
         f.write(p)?;
@@ -220,7 +220,7 @@ fn calibrate(
     let cb = |e| bars.event(e);
     // Each validation drive with the extrinsics that apply to it (its own
     // manifest's `[reference]` where the calibration neither estimates nor
-    // is given them: odocal::validate_on).
+    // is given them: odocal::assess::validation_drives).
     let validation: Vec<odocal::ValidationDrive> = others
         .iter()
         .map(|(name, d, m)| odocal::ValidationDrive {
@@ -281,7 +281,7 @@ fn write_html_report(
             ("method".into(), r.method.clone()),
             ("input".into(), input.to_string()),
             ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
-            ("date".into(), odocal::param_file::utc_date_today()),
+            ("date".into(), odocal::io::param_file::utc_date_today()),
         ],
         params,
         truth: truth.map(|t| *t.0),

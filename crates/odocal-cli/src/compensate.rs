@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Result};
 use clap::Args;
 use odocal::drive::ExtraColumn;
-use odocal::{segment, QpOptions, SolverKind};
+use odocal::{drive::segment, QpOptions, SolverKind};
 
 use crate::args::ThetaArg;
 use crate::io::{load_drive, print_warnings};
@@ -51,7 +51,7 @@ pub fn run(a: CompensateArgs, bars: &Bars) -> Result<()> {
         Some(&cb),
     )?;
     bars.finish();
-    print_warnings(&comp.warnings);
+    print_warnings(&comp.warnings.iter().cloned().map(odocal::Warning::from).collect::<Vec<_>>());
     let (mut c_rl, mut c_rr, mut flag) = (drive.n_rl().to_vec(), drive.n_rr().to_vec(), vec![0.0; drive.len()]);
     for (i, s) in comp.segments.iter().enumerate() {
         c_rl[s.start..s.start + s.steps].copy_from_slice(&comp.n_rl[i]);

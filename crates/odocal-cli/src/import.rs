@@ -24,10 +24,12 @@ pub struct ImportArgs {
 /// Imports the log, writes the CSV and prints (or writes) the import report.
 pub fn run(a: ImportArgs) -> Result<()> {
     let m = odocal::Manifest::from_path(&a.manifest)?;
+    // The calibration settings are checked too, so a bad one is named now.
+    odocal::calibrate::settings::ManifestSettings::of_manifest(&m)?;
     let imported = odocal::import(&m)?;
     imported.drive.write_csv(&a.out)?;
     if let Some(p) = &a.json {
-        write_json(p, serde_json::to_value(&imported.report)?)?;
+        write_json(p, odocal::calibrate::settings::import_report_json(&imported.report)?)?;
         if p == Path::new("-") {
             return Ok(());
         }

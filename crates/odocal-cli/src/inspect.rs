@@ -26,16 +26,17 @@ pub fn run(a: InspectArgs) -> Result<()> {
     if let Some(out) = &a.manifest {
         return draft(&a.bag, out);
     }
-    let info = odocal::bag::inspect(&a.bag)?;
+    let info = odocal::io::bag::inspect(&a.bag)?;
     print!("{info}");
     let readable: Vec<_> = info.topics.iter().filter_map(|t| Some((t, t.supported_type()?))).collect();
     if !readable.is_empty() {
         println!("Manifest columns (format = \"mcap\", topic = ...):");
         for (t, ty) in readable {
             println!("  {}: {}", t.topic, ty.columns().join(", "));
-            if ty == odocal::bag::MessageType::JointState && t.count > 0 {
+            if ty == odocal::io::bag::MessageType::JointState && t.count > 0 {
                 // The joint names a manifest's columns need (those of the first message).
-                let table = odocal::bag::read_topic(&a.bag, &t.topic, &[], odocal::bag::TimeSource::HeaderStamp)?;
+                let table =
+                    odocal::io::bag::read_topic(&a.bag, &t.topic, &[], odocal::io::bag::TimeSource::HeaderStamp)?;
                 let joints: std::collections::BTreeSet<&str> =
                     table.joints("position").into_iter().chain(table.joints("velocity")).collect();
                 println!("    joints: {}", joints.into_iter().collect::<Vec<_>>().join(", "));
@@ -67,7 +68,7 @@ fn draft(bag: &Path, out: &Path) -> Result<()> {
         bail!("{}: exists; remove it or give another name (a draft never overwrites a manifest)", out.display());
     }
     let file = bag_path_for(bag, (!to_stdout).then_some(out))?;
-    let text = odocal::bag::draft_manifest(bag, &file)?;
+    let text = odocal::io::bag::draft_manifest(bag, &file)?;
     if to_stdout {
         print!("{text}");
     } else {

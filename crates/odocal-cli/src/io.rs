@@ -3,7 +3,7 @@
 use std::path::Path;
 
 use anyhow::{Context, Result};
-use odocal::import::ManifestSettings;
+use odocal::calibrate::settings::ManifestSettings;
 use odocal::sim::{self, SimSidecar};
 use odocal::{Drive, Warning};
 
@@ -18,6 +18,7 @@ pub fn load_drive(path: &Path) -> Result<Drive> {
 /// calibration settings (`[noise]`, `[reference]`).
 pub fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>, Option<ManifestSettings>)> {
     let (drive, report) = odocal::load_drive(path)?;
+    let settings = report.as_ref().map(ManifestSettings::of_report).transpose()?;
     if report.is_some() {
         eprintln!(
             "imported {}: {} samples in {} part(s), {:.2} km (run `odocal import` for the full import report)",
@@ -27,7 +28,6 @@ pub fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>, Opti
             drive.distance_m() / 1e3
         );
     }
-    let settings = report.as_ref().map(odocal::import::ImportReport::settings);
     Ok((drive, report.map(|r| r.wheel_scale), settings))
 }
 
@@ -54,7 +54,7 @@ pub fn write_json(path: &Path, mut value: serde_json::Value) -> Result<()> {
 /// Warnings to stderr, grouped by kind: at most [`WARNINGS_PER_KIND`] of
 /// each and a count of the rest (the JSON report lists all).
 pub fn print_warnings(warnings: &[Warning]) {
-    let lines = odocal::warning::summarize(warnings, WARNINGS_PER_KIND);
+    let lines = odocal::assess::warning::summarize(warnings, WARNINGS_PER_KIND);
     let collapsed = lines.iter().any(|l| l.starts_with('…'));
     for l in lines {
         eprintln!("warning: {l}");

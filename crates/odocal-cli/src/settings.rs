@@ -1,11 +1,11 @@
 //! The manifest's calibration settings (`[noise]`, `[reference]`, `[calibration]`) in
 //! `calibrate`: which flags override them, and what the report says about
-//! them. The library applies them (`odocal::import::ManifestSettings::apply`).
+//! them. The library applies them (`odocal::calibrate::settings::ManifestSettings::apply`).
 
 use std::fmt::Write as _;
 
 use anyhow::Result;
-use odocal::import::{GivenSettings, SettingUse};
+use odocal::calibrate::settings::{GivenSettings, SettingUse};
 use odocal::{Param, ParamSet};
 
 use crate::args::CalibrationArgs;
@@ -37,7 +37,7 @@ pub fn given_extrinsics(a: &CalibrationArgs) -> ParamSet {
 
 /// Which starting noise model `--method eiv` used; `None` for other methods.
 pub fn noise_origin(a: &CalibrationArgs, uses: &[SettingUse]) -> Option<String> {
-    odocal::import::noise_model_origin(&a.method, a.noise_model.as_deref(), uses)
+    odocal::calibrate::settings::noise_model_origin(&a.method, a.noise_model.as_deref(), uses)
 }
 
 /// The report's lines on the settings ("" when there is nothing to say).

@@ -23,13 +23,14 @@ use pyo3::exceptions::{PyKeyError, PyRuntimeError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList, PyString};
 
+use odocal::calibrate::settings::{GivenSettings, ManifestSettings, SettingUse};
 use odocal::calibrate::CorrectBias;
+use odocal::compensate::qp::SolverKind;
 use odocal::drive::{Drive, ExtraColumn, ExtraValues, Signals};
 use odocal::eiv::{HeadingScale, QuantisationLevel, QuantisationModel};
-use odocal::import::{GivenSettings, ManifestSettings, ReferenceSpec, SettingUse};
+use odocal::io::import::{NoiseTable, ReferenceSpec};
+use odocal::model::param::{Param, ParamSet};
 use odocal::model::Theta;
-use odocal::param::{Param, ParamSet};
-use odocal::qp::SolverKind;
 use odocal::sim::{NoiseOptions, SimOptions, SimSidecar};
 use odocal::{CalibrationOptions, FinalSegments, Holdout, Method, Progress};
 
@@ -73,12 +74,15 @@ impl Provenance {
         let bad = |e: serde_json::Error| PyRuntimeError::new_err(format!("import report: {e}"));
         let v: serde_json::Value = serde_json::from_str(text).map_err(bad)?;
         let field = |k: &str| v.get(k).filter(|x| !x.is_null()).cloned();
-        Ok(Some(ManifestSettings {
-            manifest: field("manifest").map(serde_json::from_value).transpose().map_err(bad)?.unwrap_or_default(),
-            noise: field("noise").map(serde_json::from_value).transpose().map_err(bad)?,
-            reference: field("reference").map(serde_json::from_value).transpose().map_err(bad)?,
-            calibration: field("calibration").map(serde_json::from_value).transpose().map_err(bad)?,
-        }))
+        let noise: Option<NoiseTable> = field("noise").map(serde_json::from_value).transpose().map_err(bad)?;
+        let settings = ManifestSettings::new(
+            field("manifest").map(serde_json::from_value).transpose().map_err(bad)?.unwrap_or_default(),
+            noise.as_ref(),
+            field("reference").map(serde_json::from_value).transpose().map_err(bad)?,
+            field("calibration").map(serde_json::from_value).transpose().map_err(bad)?,
+        )
+        .map_err(lib_err)?;
+        Ok(Some(settings))
     }
 }
 
@@ -169,9 +173,13 @@ fn read_csv_with_sidecar(path: &std::path::Path) -> odocal::Result<(Drive, Prove
 
 fn read_manifest(path: &std::path::Path) -> odocal::Result<(Drive, Provenance)> {
     let m = odocal::Manifest::from_path(path)?;
+    // The calibration settings are checked too, so a bad one is named now.
+    ManifestSettings::of_manifest(&m)?;
     let imported = odocal::import(&m)?;
-    let import_report = serde_json::to_string_pretty(&imported.report)
-        .map_err(|source| odocal::Error::Json { context: format!("import report of {}", path.display()), source })?;
+    let import_report = serde_json::to_string_pretty(&odocal::calibrate::settings::import_report_json(
+        &imported.report,
+    )?)
+    .map_err(|source| odocal::Error::Json { context: format!("import report of {}", path.display()), source })?;
     let wheel_scale = Some(imported.report.wheel_scale.clone());
     Ok((imported.drive, Provenance { sidecar: None, import_report: Some(import_report), wheel_scale }))
 }
@@ -571,11 +579,11 @@ fn parse_holdout(s: &str) -> PyResult<Holdout> {
 /// The parameter file a θ argument names: a text ending in `.yaml`, `.yml`
 /// or `.json` (the Python layer turns path objects into text), read by the
 /// library; `None` for any other argument.
-fn params_file_arg(v: &Bound<'_, PyAny>) -> PyResult<Option<odocal::param_file::ParamFile>> {
+fn params_file_arg(v: &Bound<'_, PyAny>) -> PyResult<Option<odocal::io::param_file::ParamFile>> {
     let Ok(s) = v.cast::<PyString>() else { return Ok(None) };
     let path = std::path::Path::new(s.to_str()?);
-    if odocal::param_file::is_param_file(path) {
-        return odocal::param_file::ParamFile::read(path).map(Some).map_err(lib_err);
+    if odocal::io::param_file::is_param_file(path) {
+        return odocal::io::param_file::ParamFile::read(path).map(Some).map_err(lib_err);
     }
     Ok(None)
 }
@@ -887,7 +895,8 @@ fn calibration_plan(
         o.hold(p);
     }
     o.validate().map_err(lib_err)?;
-    let noise_model_origin = odocal::import::noise_model_origin(&o.method, noise_model_file.as_deref(), &setting_uses);
+    let noise_model_origin =
+        odocal::calibrate::settings::noise_model_origin(&o.method, noise_model_file.as_deref(), &setting_uses);
     Ok(CalibrationPlan {
         opts: o,
         holdout: holdout.or(validate_on),
@@ -1029,7 +1038,7 @@ fn calibrate_json(
         .zip(&plan.validate_on)
         .map(|(name, (d, r))| odocal::ValidationDrive { name, drive: d, reference: r.as_ref() })
         .collect();
-    // Validation drives: each with the extrinsics that apply to it (odocal::validate_on).
+    // Validation drives: each with the extrinsics that apply to it (odocal::assess::validation_drives).
     let (report, per_drive) = match validation.is_empty() {
         true => (odocal::calibrate_held_out(fit, held, &plan.opts, progress)?, None),
         false => {
@@ -1043,7 +1052,7 @@ fn calibrate_json(
     let scored = held.unwrap_or(drive);
     if let (Some(side), Some(obj)) = (&prov.sidecar, v.as_object_mut()) {
         let t = side.theta_true;
-        let segs = odocal::segment::validation_segments(scored, &plan.opts.validation)?;
+        let segs = odocal::drive::segment::validation_segments(scored, &plan.opts.validation)?;
         let e = odocal::mean_position_error(scored, &segs, &t)?.mean_position_error_m;
         obj.insert("truth".into(), serde_json::json!({"theta": t, "mean_position_error_m": e}));
     }
@@ -1122,17 +1131,17 @@ fn _method_details(report_json: &str) -> PyResult<String> {
 /// it; library `ParamFile::read`) into the layout of the JSON file.
 #[pyfunction]
 fn read_params(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyAny>> {
-    let f = odocal::param_file::ParamFile::read(&path).map_err(lib_err)?;
+    let f = odocal::io::param_file::ParamFile::read(&path).map_err(lib_err)?;
     to_py(py, &f.to_json())
 }
 
 /// Writes the parameter file of a calibration report (its JSON text) as
 /// `odocal calibrate --params-out` does: YAML for `.yaml`/`.yml`, JSON for
-/// `.json` (library `ParamFile::from_report`).
+/// `.json` (library `CalibrationReport::param_file`).
 #[pyfunction]
 #[pyo3(signature = (report_json, path, *, input, node, mapping))]
 fn _write_params(report_json: &str, path: PathBuf, input: &str, node: &str, mapping: &str) -> PyResult<()> {
-    let mut f = odocal::param_file::ParamFile::from_report(&report_from_json(report_json)?, input);
+    let mut f = report_from_json(report_json)?.param_file(input);
     f.node = node.to_string();
     f.mapping = mapping.parse().map_err(lib_err)?;
     f.write(&path).map_err(lib_err)
@@ -1171,8 +1180,8 @@ fn _report_html(
     py.detach(move || -> Result<(), String> {
         let split = holdout.as_ref().map(|h| h.split(&inner)).transpose().map_err(|e| e.to_string())?;
         let scored: &Drive = split.as_ref().map_or(&inner, |(_, h)| h.as_ref());
-        let segs =
-            odocal::segment::validation_segments(scored, &report.options.validation).map_err(|e| e.to_string())?;
+        let segs = odocal::drive::segment::validation_segments(scored, &report.options.validation)
+            .map_err(|e| e.to_string())?;
         // The σ that stands for the result (the verdict's, the CLI's).
         let sigma = report.result_sigma().to_array();
         let theta0 = report.options.theta0;
@@ -1221,7 +1230,7 @@ fn validate<'py>(
     };
     // A CalibrationReport as θ: its extrinsics, as a parameter file of it would carry them.
     let file = match report_json {
-        Some(j) => Some(odocal::param_file::ParamFile::from_report(&report_from_json(j)?, "")),
+        Some(j) => Some(report_from_json(j)?.param_file("")),
         None => file,
     };
     let mut opts = odocal::ValidateOptions::default();

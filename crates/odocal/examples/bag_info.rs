@@ -5,7 +5,7 @@
 //! cargo run -p odocal --example bag_info -- BAG.mcap [TOPIC [COLUMN ...]]
 //! ```
 
-use odocal::bag::{self, TimeSource};
+use odocal::io::bag::{self, TimeSource};
 use std::path::Path;
 
 fn main() -> Result<(), odocal::Error> {

@@ -18,9 +18,9 @@
 use std::collections::BTreeMap;
 use std::time::Instant;
 
+use odocal::drive::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::eiv::{cramer_rao_bound, estimate, CovarianceMode, EivInput, EivOptions, NoiseModel};
 use odocal::identify::{batch_gauss_newton, IdentifyOptions};
-use odocal::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{Drive, Theta};
 

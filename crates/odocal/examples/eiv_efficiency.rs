@@ -22,9 +22,9 @@
 
 use std::error::Error;
 
+use odocal::drive::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::eiv::{bootstrap, cramer_rao_bound, estimate, BootstrapOptions, EivInput, EivOptions};
 use odocal::identify::{batch_gauss_newton, IdentifyOptions};
-use odocal::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 
 const NAMES: [&str; 4] = ["c_e", "c_d", "t_r", "d"];

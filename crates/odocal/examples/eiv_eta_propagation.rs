@@ -12,9 +12,9 @@
 
 use std::error::Error;
 
+use odocal::drive::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::eiv::{estimate, EivInput, EivOptions};
 use odocal::identify::{batch_gauss_newton, IdentifyOptions};
-use odocal::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::Theta;
 

@@ -25,9 +25,9 @@
 
 use std::error::Error;
 
+use odocal::drive::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::eiv::{cramer_rao_bound, estimate, EivInput, EivOptions, NoiseModel};
 use odocal::identify::{batch_gauss_newton, IdentifyOptions};
-use odocal::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 
 const NAMES: [&str; 4] = ["c_e", "c_d", "t_r", "d"];

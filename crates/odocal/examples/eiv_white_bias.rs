@@ -29,10 +29,10 @@
 use std::error::Error;
 
 use nalgebra::{Matrix3, Vector3};
+use odocal::drive::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::eiv::{estimate, CovarianceMode, EivInput, EivOptions, HeadingScale, NoiseModel};
 use odocal::identify::{batch_gauss_newton, IdentifyOptions};
 use odocal::model::{step_jacobians, wrap_angle, Input, State};
-use odocal::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{Drive, Theta};
 

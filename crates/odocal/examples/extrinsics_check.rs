@@ -41,7 +41,7 @@
 
 use std::path::Path;
 
-use odocal::segment::validation_segments;
+use odocal::drive::segment::validation_segments;
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{
     calibrate_with_holdout, mean_position_error_with, CalibrationOptions, CalibrationReport, Drive, Extrinsics,

@@ -23,8 +23,8 @@
 
 use std::time::Instant;
 
+use odocal::drive::segment::{calibration_segments, SegmentData};
 use odocal::identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport};
-use odocal::segment::{calibration_segments, SegmentData};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{Extrinsics, ParamSet, Theta};
 

@@ -89,11 +89,11 @@ use std::error::Error;
 use std::time::Instant;
 
 use odocal::calibrate::{EivDetail, EivMethodOptions};
+use odocal::drive::segment::validation_segments;
 use odocal::eiv::{
     bootstrap, cramer_rao_bound, BootstrapInputs, BootstrapOptions, CovarianceEstimate, EivInput, EivOptions,
     HeadingScale, InputJacobian, NoiseModel, QuantisationLevel, QuantisationModel, WheelNoiseScale,
 };
-use odocal::segment::validation_segments;
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{
     calibrate, mean_position_error, CalibrationOptions, CalibrationReport, Drive, Method, MethodDetail, Theta,

@@ -31,7 +31,7 @@
 //! Parts:
 //! - `testtrack`: the six test-track runs of 2024-08-05
 //!   (`examples/psu-mapping-van-testtrack/`): calibrate on one run, Ē_p on
-//!   the other five ([`odocal::crossrun`]'s table and criteria), verdict
+//!   the other five ([`odocal::calibrate::crossrun`]'s table and criteria), verdict
 //!   counts, and for EIV how many fits fell back to batch G-N;
 //! - `van`: the highway van (`examples/psu-mapping-van/manifest.toml`)
 //!   fitted on one half, Ē_p on the held-out other half (`--holdout
@@ -56,12 +56,11 @@ use std::error::Error;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use odocal::crossrun::{CrossRunFit, CrossRunRow, CrossRunTable, CROSS_RUN_OWN_FIT_RATIO};
+use odocal::calibrate::crossrun::{CrossRunFit, CrossRunRow, CrossRunTable, CROSS_RUN_OWN_FIT_RATIO};
 use odocal::eiv::{EivOptions, HeadingScale, NoiseModel, QuantisationLevel, QuantisationModel};
 use odocal::{
-    calibrate, calibrate_with_holdout, BatchGnOptions, CalibrationExtrinsics, CalibrationOptions, CalibrationReport,
-    Drive, EivMethodOptions, EivOutcome, Holdout, Method, MethodDetail, ParamSet, ValidationDrive, VerdictLevel,
-    Warning,
+    calibrate, calibrate_with_holdout, BatchGnOptions, CalibrationOptions, CalibrationReport, Drive, EivMethodOptions,
+    EivOutcome, Holdout, Method, MethodDetail, ParamSet, ValidationDrive, VerdictLevel, Warning,
 };
 use serde_json::{json, Value};
 
@@ -138,7 +137,7 @@ const CAN_SPEED_STEP_M_PER_S: f64 = 0.01 / 3.6;
 /// production car's 0.8 % white wheel noise, so the model's shape there
 /// hardly matters.
 fn encoder_q(path: &std::path::Path) -> Result<(f64, String), Box<dyn Error>> {
-    use odocal::import::WheelSignal;
+    use odocal::io::import::WheelSignal;
     let m = odocal::Manifest::from_path(path).map_err(|e| format!("{}: {e}", path.display()))?;
     let h = 1.0 / m.output.rate_hz;
     let w = &m.wheels;
@@ -467,7 +466,7 @@ fn testtrack(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error
                 .filter(|(j, _)| *j != i)
                 .map(|(_, (n, d))| ValidationDrive { name: n, drive: d, reference: None })
                 .collect();
-            let cal = CalibrationExtrinsics::of(&r, ParamSet::EMPTY);
+            let cal = r.extrinsics_for_validation(ParamSet::EMPTY);
             let v = odocal::validate_drives_with(&others, &r.theta, &opts.theta0, &cal, &opts.validation)?;
             let wall = t.elapsed().as_secs_f64();
             let fb = eiv_fallback(&r);
@@ -609,7 +608,7 @@ fn swap(md: &mut String) -> Result<Value, Box<dyn Error>> {
             .filter(|(j, _)| *j != i)
             .map(|(_, (n, d, _))| ValidationDrive { name: n, drive: d, reference: None })
             .collect();
-        let cal = CalibrationExtrinsics::of(&gn, ParamSet::EMPTY);
+        let cal = gn.extrinsics_for_validation(ParamSet::EMPTY);
         let judge = |t: &odocal::Theta| -> Result<f64, Box<dyn Error>> {
             Ok(odocal::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?.mean_over_drives_m)
         };
@@ -646,7 +645,7 @@ fn swap(md: &mut String) -> Result<Value, Box<dyn Error>> {
         let gn = calibrate(&fit, &gn_opts, None)?;
         let eiv = calibrate(&fit, &options("eiv-scg-nofallback", q)?, None)?;
         let others = [ValidationDrive { name: label, drive: &held, reference: None }];
-        let cal = CalibrationExtrinsics::of(&gn, ParamSet::EMPTY);
+        let cal = gn.extrinsics_for_validation(ParamSet::EMPTY);
         let judge = |t: &odocal::Theta| -> Result<f64, Box<dyn Error>> {
             Ok(odocal::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?.mean_over_drives_m)
         };

@@ -15,7 +15,7 @@
 use std::error::Error;
 use std::path::PathBuf;
 
-use odocal::crossrun::{cross_run, CROSS_RUN_OWN_FIT_RATIO};
+use odocal::calibrate::crossrun::{cross_run, CROSS_RUN_OWN_FIT_RATIO};
 use odocal::{calibrate, CalibrationOptions, Drive, Method, Param};
 
 const RUNS: [&str; 6] = ["14-45-26", "15-28-33", "16-06-28", "16-47-33", "17-45-46", "18-01-26"];
@@ -102,11 +102,11 @@ fn main() -> Result<(), Box<dyn Error>> {
     let mut base = Vec::new();
     for run in RUNS {
         // the manifests' a_y without their bank: the kinematic v·ω
-        let mut m = odocal::import::Manifest::from_path(&track.join(format!("run-{run}.toml")))?;
-        if let odocal::import::LateralAccelerationSpec::FromWheels { bank, .. } = &mut m.lateral_acceleration {
+        let mut m = odocal::io::import::Manifest::from_path(&track.join(format!("run-{run}.toml")))?;
+        if let odocal::io::import::LateralAccelerationSpec::FromWheels { bank, .. } = &mut m.lateral_acceleration {
             *bank = None;
         }
-        let odocal::import::ImportedDrive { drive: d, report: rep } = odocal::import::import(&m)?;
+        let odocal::io::import::ImportedDrive { drive: d, report: rep } = odocal::io::import::import(&m)?;
         let (ts, ph) = roll_series(&data.join(format!("run-{run}")))?;
         // gps time → drive time
         let shift = -0.006 + rep.clock_offset.applied_s - rep.time_origin_s;

@@ -27,7 +27,7 @@
 use std::error::Error;
 use std::path::PathBuf;
 
-use odocal::crossrun::{cross_run_groups, CROSS_RUN_OWN_FIT_RATIO};
+use odocal::calibrate::crossrun::{cross_run_groups, CROSS_RUN_OWN_FIT_RATIO};
 use odocal::{CalibrationOptions, Method, ParamSet};
 
 /// The six runs of 2024-08-05 (manifest `run-NAME.toml`).

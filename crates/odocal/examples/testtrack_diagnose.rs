@@ -18,7 +18,7 @@
 use std::error::Error;
 use std::path::PathBuf;
 
-use odocal::crossrun::{cross_run, CROSS_RUN_OWN_FIT_RATIO};
+use odocal::calibrate::crossrun::{cross_run, CROSS_RUN_OWN_FIT_RATIO};
 use odocal::{calibrate, CalibrationOptions, Drive, Method, Param};
 
 const RUNS: [&str; 6] = ["14-45-26", "15-28-33", "16-06-28", "16-47-33", "17-45-46", "18-01-26"];

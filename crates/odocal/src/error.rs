@@ -2,8 +2,7 @@
 
 use std::path::PathBuf;
 
-use crate::param::ParamSet;
-use crate::qp::QpError;
+use serde::{Deserialize, Serialize};
 
 /// Everything that can go wrong in the odocal library.
 ///
@@ -95,7 +94,7 @@ pub enum Error {
     #[error("parameter(s) {params} not observable from these data: {reason}")]
     NotObservable {
         /// The parameters that cannot be identified.
-        params: ParamSet,
+        params: ParamNames,
         /// Why.
         reason: String,
     },
@@ -242,3 +241,38 @@ impl Error {
 
 /// The library's result type.
 pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// Why a QP was not solved.
+#[derive(Debug, Clone, PartialEq, thiserror::Error, Serialize, Deserialize)]
+pub enum QpError {
+    /// The problem has no feasible point.
+    #[error("infeasible: {0}")]
+    Infeasible(String),
+    /// The iteration limit was reached before convergence.
+    #[error("iteration limit reached after {iterations} iterations (residual {residual:.2e})")]
+    MaxIterations {
+        /// Iterations taken.
+        iterations: usize,
+        /// Residual at the last iterate.
+        residual: f64,
+    },
+    /// A numerical failure (factorisation, non-finite values).
+    #[error("numerical failure: {0}")]
+    Numerical(String),
+    /// The problem data are inconsistent.
+    #[error("malformed problem: {0}")]
+    Malformed(String),
+}
+
+/// Names of model parameters as an error states them, in order
+/// (`"c_d, t_r, d"`); built from a parameter set
+/// ([`crate::model::param::ParamSet`]).
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct ParamNames(pub Vec<&'static str>);
+
+impl std::fmt::Display for ParamNames {
+    /// Names joined by ", ".
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0.join(", "))
+    }
+}

@@ -16,20 +16,20 @@ use std::time::Instant;
 
 use serde::Serialize;
 
+use crate::assess::position_error::mean_position_error;
+use crate::assess::reachable::{reachable_minimum, ReachableOptions};
+use crate::assess::warning::Warning;
 use crate::calibrate::{
     calibrate_detailed, per_segment_identification, score_batches, BatchResult, CalibrationOptions, Method,
     SegmentCounts, ThreeStepOptions,
 };
 use crate::compensate::CompensationStep;
+use crate::drive::segment::SegmentData;
 use crate::drive::Drive;
 use crate::eiv::{cramer_rao_bound, EivInput, EivOptions, NoiseModel};
 use crate::error::{Error, Result};
 use crate::model::{step, Theta};
 use crate::progress::{emit, Progress, ProgressFn};
-use crate::reachable::{reachable_minimum, ReachableOptions};
-use crate::segment::SegmentData;
-use crate::validate::mean_position_error;
-use crate::warning::Warning;
 
 /// Settings of an experiment.
 #[derive(Debug, Clone, PartialEq)]

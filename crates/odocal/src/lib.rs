@@ -27,15 +27,26 @@
 //! 3. batch Gauss-Newton with the compensated inputs gives θ_B,F.
 //!
 //! Results are judged by dead-reckoning error on validation segments
-//! ([`mod@validate`]). The exact statement, with every default, is the
-//! project's SPEC.md. [`calibrate()`] runs a whole calibration with either
+//! ([`assess`]). The exact statement, with every default, is the
+//! project's SPEC.md. [`calibrate()`] runs a whole calibration with any
 //! method ([`mod@calibrate`]); [`experiment::run`] reproduces the paper's §6.
+//!
+//! ## The modules
+//!
+//! In layers, lowest first; a module uses only modules of lower layers:
+//! [`error`] and [`progress`]; [`model`] (θ, the equations, parameters,
+//! extrinsics, physical limits); [`drive`] (drives, segments, plausibility);
+//! [`mod@io`] (manifest import, bags, parameter files) and [`sim`];
+//! [`identify`] (Gauss-Newton); [`compensate`] (the QP) and [`eiv`];
+//! [`assess`] (Ē_p, reachable minimum, verdict, warnings);
+//! [`mod@calibrate`] (the methods, settings, validation on other drives,
+//! cross-run); [`experiment`].
 //!
 //! ## Example
 //!
 //! ```
 //! # fn main() -> Result<(), odocal::Error> {
-//! use odocal::{identify, segment, sim, Theta};
+//! use odocal::{drive::segment, identify, sim, Theta};
 //! // A noise-free simulated drive: batch Gauss-Newton recovers the true θ.
 //! let sim = sim::simulate(&sim::SimOptions { length_km: 2.0, substeps: 1, ..sim::SimOptions::noise_free(1) })?;
 //! let drive = &sim.drive;
@@ -57,32 +68,20 @@
 // Numerical loops index several parallel arrays at once; index loops read like the maths.
 #![allow(clippy::needless_range_loop)]
 
-#[cfg(feature = "mcap")]
-pub mod bag;
-pub mod calibrate;
-pub mod compensate;
-pub mod crossrun;
-pub mod drive;
-pub mod eiv;
-pub mod error;
+// The modules in layers, lowest first; a module uses only its own subtree
+// and modules of lower layers (tests/architecture.rs checks it).
+pub mod assess; // 6
+pub mod calibrate; // 7
+pub mod compensate; // 5
+pub mod drive; // 2
+pub mod eiv; // 5
+pub mod error; // 0
 pub mod experiment;
-pub mod extrinsics;
-mod gauss_newton;
-pub mod identify;
-pub mod import;
-pub mod limits;
-pub mod model;
-pub mod param;
-pub mod param_file;
-pub mod progress;
-pub mod qp;
-pub mod reachable;
-pub mod segment;
-pub mod sim;
-pub mod trust;
-pub mod validate;
-pub mod validate_on;
-pub mod warning;
+pub mod identify; // 4
+pub mod io; // 3
+pub mod model; // 1
+pub mod progress; // 0
+pub mod sim; // 3 // 8
 
 /// The `schema_version` of every JSON report the `odocal` tool writes
 /// (calibrate, validate, import, experiment). Raised when a field is
@@ -94,28 +93,31 @@ pub const REPORT_SCHEMA_VERSION: u32 = 1;
 #[doc = include_str!("../../../README.md")]
 pub struct ReadmeDoctests;
 
+pub use assess::position_error::ValidationReport;
+pub use assess::position_error::{mean_position_error, mean_position_error_with};
+pub use assess::reachable::{reachable_minimum, reachable_minimum_with_progress, ReachableOptions, ReachableReport};
+pub use assess::trust::{GuardViolation, Guards, TrustOptions, Verdict, VerdictLevel, VerdictReason};
+pub use assess::validate::{
+    validate, validate_drives, validate_with_progress, DriveValidation, MultiValidation, ValidateOptions,
+    ValidateReport,
+};
+pub use assess::validation_drives::{validate_drives_with, CalibrationExtrinsics, ValidationDrive};
+pub use assess::warning::Warning;
+pub use calibrate::validate_on::calibrate_validated_on;
 pub use calibrate::{
     calibrate, calibrate_held_out, calibrate_with_holdout, BatchGnOptions, CalibrationOptions, CalibrationReport,
     EivDetail, EivMethodOptions, EivOutcome, FinalSegments, Holdout, Method, MethodDetail, ResultSigma, SigmaSource,
     ThreeStepOptions,
 };
+pub use compensate::qp::SolverKind;
 pub use compensate::{CompensateOptions, QpOptions};
+pub use drive::segment::{Segment, SegmentData, SegmentOptions, ValidationSegmentOptions};
 pub use drive::{Drive, Signals};
 pub use error::{Error, Result};
 pub use experiment::{Experiment, ExperimentOptions};
-pub use extrinsics::{Extrinsics, ExtrinsicsEstimate};
 pub use identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport, Observability, RobustCovariance, Termination};
-pub use import::{import, load_drive, ImportReport, ImportedDrive, Manifest};
+pub use io::import::{import, load_drive, ImportReport, ImportedDrive, Manifest};
+pub use model::extrinsics::{Extrinsics, ExtrinsicsEstimate};
+pub use model::param::{Param, ParamSet};
 pub use model::{Input, State, Theta};
-pub use param::{Param, ParamSet};
 pub use progress::{Progress, ProgressFn};
-pub use qp::SolverKind;
-pub use reachable::{reachable_minimum, reachable_minimum_with_progress, ReachableOptions, ReachableReport};
-pub use segment::{Segment, SegmentData, SegmentOptions, ValidationSegmentOptions};
-pub use trust::{GuardViolation, Guards, TrustOptions, Verdict, VerdictLevel, VerdictReason};
-pub use validate::{
-    mean_position_error, mean_position_error_with, validate, validate_drives, validate_with_progress, DriveValidation,
-    MultiValidation, ValidateOptions, ValidateReport, ValidationReport,
-};
-pub use validate_on::{calibrate_validated_on, validate_drives_with, CalibrationExtrinsics, ValidationDrive};
-pub use warning::Warning;

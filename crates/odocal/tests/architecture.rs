@@ -1,6 +1,333 @@
 //! Checks on the repository as a whole.
+//!
+//! **Layers.** The library's modules stay in layers: a module uses only its own subtree
+//! and modules of strictly lower layers. The check reads `src/` as text and
+//! names every `crate::<module>` path (in code; comments, doc comments and
+//! string literals are ignored, as are `#[cfg(test)]` items and the
+//! `tests.rs` / `*_tests.rs` files) that reaches a higher layer or another
+//! module of the same layer, and every `super::` in a module's top file
+//! (which would reach the crate root, around the check).
+//!
+//! **Self-contained.** No source, test, example, manifest, script or doc
+//! refers to data beside the repository (a sibling `shared` folder): everything a clone
+//! needs is in it (`data/`).
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+
+/// The layers, lowest first: `(layer, top-level module)`.
+const LAYERS: &[(u32, &str)] = &[
+    (0, "error"),      // Error, Result, QpError, ParamNames
+    (0, "progress"),   // progress events
+    (1, "model"),      // θ, the equations, parameters, extrinsics, physical limits
+    (2, "drive"),      // drives, CSV, concat, segments, plausibility checks
+    (3, "io"),         // manifest import, bags, Parquet, parameter files
+    (3, "sim"),        // the drive simulator
+    (4, "identify"),   // Gauss-Newton, covariance, estimation with extrinsics
+    (5, "compensate"), // input compensation and its QP
+    (5, "eiv"),        // the errors-in-variables estimator
+    (6, "assess"),     // Ē_p, validation, reachable minimum, verdict, warnings
+    (7, "calibrate"),  // the methods, settings, validation on other drives, cross-run
+    (8, "experiment"), // the paper's §6 experiment
+];
+
+fn layer_of(module: &str) -> Option<u32> {
+    LAYERS.iter().find(|(_, m)| *m == module).map(|(l, _)| *l)
+}
+
+/// One use of another top-level module.
+#[derive(Debug)]
+struct Use {
+    file: PathBuf,
+    line: usize,
+    target: String,
+}
+
+/// `text` with comments, string and char literals blanked (newlines kept, so
+/// line numbers stay).
+fn code_only(text: &str) -> String {
+    let b = text.as_bytes();
+    let mut out = String::with_capacity(text.len());
+    let mut i = 0;
+    let blank = |s: &str, out: &mut String| out.extend(s.chars().map(|c| if c == '\n' { '\n' } else { ' ' }));
+    while i < b.len() {
+        let rest = &text[i..];
+        let end = if rest.starts_with("//") {
+            rest.find('\n').unwrap_or(rest.len())
+        } else if rest.starts_with("/*") {
+            rest.find("*/").map_or(rest.len(), |e| e + 2)
+        } else if let Some(hashes) = raw_string_start(rest) {
+            let close = format!("\"{}", "#".repeat(hashes));
+            let open = 2 + hashes;
+            rest[open..].find(&close).map_or(rest.len(), |e| open + e + close.len())
+        } else if rest.starts_with('"') {
+            string_end(rest)
+        } else if rest.starts_with('\'') && is_char_literal(rest) {
+            rest[1..].find('\'').map_or(rest.len(), |e| e + 2)
+        } else {
+            let c = rest.chars().next().map_or(1, char::len_utf8);
+            out.push_str(&rest[..c]);
+            i += c;
+            continue;
+        };
+        blank(&rest[..end], &mut out);
+        i += end;
+    }
+    out
+}
+
+/// `r"`, `r#"`, … at the start of `s`: the number of `#`.
+fn raw_string_start(s: &str) -> Option<usize> {
+    let t = s.strip_prefix('r')?;
+    let hashes = t.len() - t.trim_start_matches('#').len();
+    t[hashes..].starts_with('"').then_some(hashes)
+}
+
+/// The length of the string literal at the start of `s` (escapes honoured).
+fn string_end(s: &str) -> usize {
+    let mut escaped = false;
+    for (i, c) in s.char_indices().skip(1) {
+        match c {
+            '\\' if !escaped => escaped = true,
+            '"' if !escaped => return i + 1,
+            _ => escaped = false,
+        }
+    }
+    s.len()
+}
+
+/// A char literal (`'a'`, `'\n'`, `'\''`) rather than a lifetime (`'a`).
+fn is_char_literal(s: &str) -> bool {
+    let mut it = s.chars().skip(1);
+    match it.next() {
+        Some('\\') => true,
+        Some(_) => it.next() == Some('\''),
+        None => false,
+    }
+}
+
+/// `code` with every `#[cfg(test)]` item blanked (a `mod tests { … }`, a
+/// test-only function or `use`).
+fn without_test_items(code: &str) -> String {
+    let mut out = code.to_string();
+    let mut from = 0;
+    while let Some(at) = out[from..].find("#[cfg(test)]").map(|p| p + from) {
+        let body = &out[at..];
+        // The item ends at the first `;` before any `{`, or at the `}` matching its first `{`.
+        let (semi, brace) = (body.find(';'), body.find('{'));
+        let end = match (semi, brace) {
+            (Some(s), Some(b)) if s < b => s + 1,
+            (Some(s), None) => s + 1,
+            (_, Some(b)) => {
+                let mut depth = 0usize;
+                let mut end = body.len();
+                for (i, c) in body[b..].char_indices() {
+                    match c {
+                        '{' => depth += 1,
+                        '}' => {
+                            depth -= 1;
+                            if depth == 0 {
+                                end = b + i + 1;
+                                break;
+                            }
+                        }
+                        _ => {}
+                    }
+                }
+                end
+            }
+            (None, None) => body.len(),
+        };
+        let blanked: String = body[..end].chars().map(|c| if c == '\n' { '\n' } else { ' ' }).collect();
+        out.replace_range(at..at + end, &blanked);
+        from = at + blanked.len();
+    }
+    out
+}
+
+fn is_ident(c: char) -> bool {
+    c.is_alphanumeric() || c == '_'
+}
+
+/// The first path segment after `crate::` at each use in `code`, with its
+/// line; a `crate::{a::X, b}` group gives each member.
+fn crate_paths(code: &str) -> Vec<(usize, String)> {
+    let mut out = Vec::new();
+    let line_at = |pos: usize| code[..pos].matches('\n').count() + 1;
+    let mut from = 0;
+    while let Some(at) = code[from..].find("crate::").map(|p| p + from) {
+        from = at + "crate::".len();
+        if code[..at].chars().next_back().is_some_and(is_ident) {
+            continue; // e.g. `my_crate::`
+        }
+        let rest = &code[from..];
+        if let Some(group) = rest.strip_prefix('{') {
+            let mut depth = 0usize;
+            let mut start = true;
+            for (i, c) in group.char_indices() {
+                match c {
+                    '{' => depth += 1,
+                    '}' if depth == 0 => break,
+                    '}' => depth -= 1,
+                    ',' if depth == 0 => start = true,
+                    c if start && is_ident(c) => {
+                        let name: String = group[i..].chars().take_while(|c| is_ident(*c)).collect();
+                        out.push((line_at(from + 1 + i), name));
+                        start = false;
+                    }
+                    _ => {}
+                }
+            }
+        } else {
+            let name: String = rest.chars().take_while(|c| is_ident(*c)).collect();
+            if !name.is_empty() {
+                out.push((line_at(at), name));
+            }
+        }
+    }
+    out
+}
+
+/// The first path segment after each `super::` in `code`, with its line.
+fn super_paths(code: &str) -> Vec<(usize, String)> {
+    let mut out = Vec::new();
+    let mut from = 0;
+    while let Some(at) = code[from..].find("super::").map(|p| p + from) {
+        from = at + "super::".len();
+        if code[..at].chars().next_back().is_some_and(is_ident) {
+            continue;
+        }
+        let name: String = code[from..].chars().take_while(|c| is_ident(*c) || *c == '{' || *c == '*').collect();
+        out.push((code[..at].matches('\n').count() + 1, name));
+    }
+    out
+}
+
+/// The names `lib.rs` re-exports at the crate root, each with the module it
+/// comes from (`pub use assess::trust::{Verdict, …}` maps `Verdict` to `assess`).
+fn root_reexports(lib: &str) -> BTreeMap<String, String> {
+    let code = code_only(lib);
+    let mut out = BTreeMap::new();
+    for stmt in code.split(';') {
+        let Some(path) = stmt.trim().strip_prefix("pub use ") else { continue };
+        let module: String = path.chars().take_while(|c| is_ident(*c)).collect();
+        let names = match (path.find('{'), path.rfind("::")) {
+            (Some(b), _) => path[b + 1..].trim_end_matches('}').to_string(),
+            (None, Some(c)) => path[c + 2..].to_string(),
+            (None, None) => continue,
+        };
+        for n in names.split(',') {
+            let n = n.trim().rsplit("::").next().unwrap_or("").trim();
+            if !n.is_empty() && n != "self" {
+                out.insert(n.to_string(), module.clone());
+            }
+        }
+    }
+    out
+}
+
+/// The top-level module of a source file (`assess/trust.rs` → `assess`).
+fn module_of(rel: &Path) -> Option<String> {
+    let first = rel.components().next()?.as_os_str().to_str()?;
+    Some(first.strip_suffix(".rs").unwrap_or(first).to_string())
+}
+
+fn is_test_file(path: &Path) -> bool {
+    path.file_name().and_then(|n| n.to_str()).is_some_and(|n| n == "tests.rs" || n.ends_with("_tests.rs"))
+}
+
+fn sources(dir: &Path, out: &mut Vec<PathBuf>) {
+    let mut entries: Vec<_> = std::fs::read_dir(dir).expect("read src").map(|e| e.expect("entry").path()).collect();
+    entries.sort();
+    for p in entries {
+        if p.is_dir() {
+            sources(&p, out);
+        } else if p.extension().is_some_and(|e| e == "rs") {
+            out.push(p);
+        }
+    }
+}
+
+/// Every use of another top-level module, per using module.
+fn uses(src: &Path) -> BTreeMap<String, Vec<Use>> {
+    let lib = std::fs::read_to_string(src.join("lib.rs")).expect("lib.rs");
+    let reexports = root_reexports(&lib);
+    let mut files = Vec::new();
+    sources(src, &mut files);
+    let mut out: BTreeMap<String, Vec<Use>> = BTreeMap::new();
+    for file in files {
+        let rel = file.strip_prefix(src).expect("under src").to_path_buf();
+        if rel == Path::new("lib.rs") || is_test_file(&rel) {
+            continue;
+        }
+        let module = module_of(&rel).expect("module");
+        let text = std::fs::read_to_string(&file).expect("read");
+        let code = without_test_items(&code_only(&text));
+        // In a module's top file `super::` is the crate root: it must name the module with `crate::`.
+        let top = rel.components().count() == 1
+            || rel.file_name().is_some_and(|n| n == "mod.rs") && rel.components().count() == 2;
+        if top {
+            for (line, first) in super_paths(&code) {
+                out.entry(module.clone()).or_default().push(Use {
+                    file: rel.clone(),
+                    line,
+                    target: format!("?super::{first}"),
+                });
+            }
+        }
+        for (line, first) in crate_paths(&code) {
+            let target = if layer_of(&first).is_some() {
+                first
+            } else if let Some(m) = reexports.get(&first) {
+                m.clone()
+            } else {
+                format!("?{first}")
+            };
+            if target != module {
+                out.entry(module.clone()).or_default().push(Use { file: rel.clone(), line, target });
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn modules_use_only_lower_layers() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut files = Vec::new();
+    sources(&src, &mut files);
+    let mut problems = Vec::new();
+    for f in &files {
+        let rel = f.strip_prefix(&src).expect("under src");
+        let m = module_of(rel).expect("module");
+        if m != "lib" && layer_of(&m).is_none() {
+            problems.push(format!("src/{}: module `{m}` is in no layer of the table", rel.display()));
+        }
+    }
+    for (module, list) in uses(&src) {
+        let from = layer_of(&module).expect("checked above");
+        for u in list {
+            let at = format!("src/{}:{}", u.file.display(), u.line);
+            match layer_of(&u.target) {
+                None if u.target.starts_with("?super::") => {
+                    problems.push(format!("{at}: `{}` leaves the module; name it with `crate::`", &u.target[1..]))
+                }
+                None => problems.push(format!("{at}: `crate::{}` is no module of the table", &u.target[1..])),
+                Some(to) if to > from => problems
+                    .push(format!("{at}: `{module}` (layer {from}) uses `{}` (layer {to}), a higher layer", u.target)),
+                Some(to) if to == from => problems.push(format!(
+                    "{at}: `{module}` (layer {from}) uses `{}` (layer {to}), another module of its own layer",
+                    u.target
+                )),
+                Some(_) => {}
+            }
+        }
+    }
+    assert!(problems.is_empty(), "module layering broken:\n{}", problems.join("\n"));
+}
+
+// ---- self-contained repository ----
+
 
 /// Build output and version control, relative to the root: not sources.
 const GENERATED: [&str; 6] = [".git", "target", "fuzz/target", "fuzz/artifacts", "fuzz/coverage", "out"];

@@ -1,5 +1,5 @@
 //! `calibrate --validate-on` applies a validation drive's own `[reference]`
-//! (odocal::validate_on): a noise-free simulated drive whose pose reference sits at a
+//! (odocal::assess::validation_drives): a noise-free simulated drive whose pose reference sits at a
 //! known lever arm and heading offset, read through a manifest stating
 //! them, validates with a lower Ē_p than the same drive as a bare CSV; the
 //! report says which extrinsics each drive used; a command-line value that
@@ -10,7 +10,7 @@ use crate::common;
 use std::path::Path;
 
 use common::{calibrate_json, canonical_manifest, odocal, text};
-use odocal::extrinsics::Extrinsics;
+use odocal::model::extrinsics::Extrinsics;
 use odocal::sim::{simulate, SimOptions};
 
 fn calibrate(fit: &Path, extra: &[&str]) -> serde_json::Value {

@@ -8,10 +8,10 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use super::{Estimator, MethodDetail, MethodOutcome, Prepared, Selection, Timing};
+use crate::drive::segment::SegmentData;
 use crate::error::Result;
 use crate::identify::{batch_gauss_newton, IdentifyReport};
 use crate::progress::{emit, Progress, ProgressFn};
-use crate::segment::SegmentData;
 
 /// Settings of batch Gauss-Newton beyond the shared ones (none yet: the
 /// Gauss-Newton settings are [`super::CalibrationOptions::identify`]).

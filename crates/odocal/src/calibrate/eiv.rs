@@ -31,7 +31,7 @@
 //! so; a filter error (a window whose covariance stops being positive
 //! definite, named in the error) falls back the same way. With the fallback
 //! off, the EIV θ is returned and the verdict is at most doubtful
-//! ([`crate::trust::VerdictReason::Misspecified`]).
+//! ([`crate::assess::trust::VerdictReason::Misspecified`]).
 //!
 //! ## Reference extrinsics (two-stage)
 //! When [`IdentifyOptions::uses_extrinsics`] (a lever arm or heading
@@ -39,7 +39,7 @@
 //! ones jointly with θ exactly as `batch-gn` does (same
 //! [`IdentifyOptions`]). The filter does not model them: it runs on the
 //! rear-axle poses the reference implies with the start's extrinsics held
-//! ([`crate::extrinsics::axle_reference_drive`]: position minus
+//! ([`crate::drive::axle_reference_drive`]: position minus
 //! `R(ψ)·l`, heading minus δ); given extrinsics are applied the same way.
 //! The report's `extrinsics` are the start's estimate with its σ, and
 //! [`Warning::EivExtrinsicsHeld`] says that the EIV θ covariance does not
@@ -61,7 +61,7 @@
 //! (20 seeds × 12 km, four presets). A stated offset is held instead
 //! (set the option false).
 //!
-//! ## Bias correction (default since stop 21)
+//! ## Bias correction (on by default)
 //! The profile cost's root is biased under heavy wheel noise (t_r most:
 //! simulated `high` preset, 20 × 12 km, +1.10 %, t 4.5). By default
 //! ([`EivMethodOptions::correct_bias`]) the method subtracts the
@@ -72,21 +72,20 @@
 //! error that is odd in the noise and keeps the bias), each re-fitted with
 //! that noise model held. θ's σ includes the correction's Monte Carlo
 //! error. It runs after the checks, only for a fit that is kept. Measured
-//! (docs/study.md, "Stop 21"): every parameter within |t| ≤ 2.8 of zero on
+//! (docs/study.md): every parameter within |t| ≤ 2.8 of zero on
 //! every noisy preset (high t_r +0.46 %, t 1.9), the 95 % intervals cover
 //! the truth in ≥ 93.8 % of cases, t_r's RMS error falls (high 5.38 →
 //! 4.01× the Cramér–Rao bound, paper 1.69 → 1.62×), at 1.3–1.5× the time
 //! of the uncorrected fit. Replicates that cannot be fitted are counted in
 //! [`Warning::EivBiasCorrectionIncomplete`] (the bias then comes from the
 //! complete pairs); if no complete pair is left, the uncorrected fit is
-//! returned with [`Warning::EivBiasCorrectionFailed`] (since stop 22; it
-//! used to fall back to batch G-N).
+//! returned with [`Warning::EivBiasCorrectionFailed`].
 //!
 //! ## Uncertainty and observability
 //! The covariance is the filter's at the estimate: per parameter the larger
 //! of `H_θ⁻¹` and a block sandwich ([`EivOptions::covariance_estimate`]),
 //! plus what estimating the noise scales from the same drive adds
-//! ([`EivOptions::noise_estimate_in_covariance`], stop 16). The reported
+//! ([`EivOptions::noise_estimate_in_covariance`]). The reported
 //! observability has `rcond` and the names (parameters held as not
 //! observable, or in a near-collinear combination) from the same `H_θ`.
 //! `sensitivity_m` (metres per resolution step) is the starting batch
@@ -99,15 +98,15 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use super::{hold_unobservable, Estimator, MethodDetail, MethodOutcome, Prepared, Selection, Timing};
+use crate::assess::warning::Warning;
+use crate::drive::axle_reference_drive;
+use crate::drive::segment::SegmentData;
 use crate::eiv::{self, BiasCorrection, EivInput, EivOptions, EivReport, EivWarning, NoiseModel, NoiseSource};
 use crate::error::{Error, Result};
-use crate::extrinsics::axle_reference_drive;
 use crate::identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport, Observability};
+use crate::model::param::{Param, ParamSet};
 use crate::model::Theta;
-use crate::param::{Param, ParamSet};
 use crate::progress::{emit, Progress, ProgressFn};
-use crate::segment::SegmentData;
-use crate::warning::Warning;
 
 /// Settings of the EIV method.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -143,8 +142,8 @@ pub struct EivMethodOptions {
     /// [`CorrectBias::replicates`] re-simulations in antithetic pairs on the
     /// smoothed trajectory, holding the fitted noise model), applied only
     /// to a fit that is kept (not after a fallback). Default
-    /// `Some(CorrectBias::default())`, B = [`DEFAULT_BIAS_REPLICATES`],
-    /// since stop 21 (module docs, "Bias correction"); `None` returns the
+    /// `Some(CorrectBias::default())`, B = [`DEFAULT_BIAS_REPLICATES`]
+    /// (module docs, "Bias correction"); `None` returns the
     /// profile cost's root as is. Ignored when
     /// [`EivOptions::bias_correction`] is set in `filter` (that setting
     /// stands).
@@ -165,9 +164,9 @@ impl Default for EivMethodOptions {
 
 /// Replicates B of the EIV method's default bias correction
 /// ([`EivMethodOptions::correct_bias`]): two antithetic pairs. Measured
-/// (stop 21, 20 × 12 km per preset, η estimated): B = 4 and B = 10 remove
+/// (20 × 12 km per preset, η estimated): B = 4 and B = 10 remove
 /// the same bias (`high` t_r +1.097 % → +0.458 % and +0.456 %), and B = 4
-/// costs 1.3–1.5× a fit against about 2× (docs/study.md, "Stop 21").
+/// costs 1.3–1.5× a fit against about 2× (docs/study.md).
 pub const DEFAULT_BIAS_REPLICATES: usize = 4;
 
 /// The bootstrap bias correction of the EIV method

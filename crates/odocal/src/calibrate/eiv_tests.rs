@@ -4,13 +4,13 @@
 #![allow(clippy::float_cmp)]
 
 use super::*;
+use crate::assess::trust::VerdictReason;
+use crate::assess::warning::Warning;
 use crate::calibrate::{BatchGnOptions, MethodDetail, Timing};
 use crate::drive::Signals;
 use crate::eiv::{EivOptions, EivWarning, NoiseModel};
 use crate::model::Theta;
 use crate::sim::{simulate, NoiseOptions, SimOptions};
-use crate::trust::VerdictReason;
-use crate::warning::Warning;
 use crate::{calibrate, CalibrationOptions, Method};
 
 fn eiv_method(filter: EivOptions, fallback: bool) -> Method {
@@ -25,7 +25,7 @@ fn detail(r: &crate::CalibrationReport) -> &EivDetail {
 }
 
 /// Noise-free, one substep: the model is exact, and the EIV method returns
-/// θ_true to rounding (issue 9's bar, 1e-8 relative).
+/// θ_true to rounding (1e-8 relative).
 #[test]
 fn noise_free_drive_returns_theta_true() {
     let out = simulate(&SimOptions { length_km: 6.0, substeps: 1, ..SimOptions::noise_free(11) }).expect("sim");
@@ -315,7 +315,7 @@ fn bootstrap_option_reports_replicates_of_the_returned_estimate() {
 /// `identify` (its `max_iterations` set to 30), the start estimating the
 /// heading offset by default or not ([`EivMethodOptions::estimate_heading_offset`]).
 fn eiv_on_mounted_drive(
-    mount: crate::extrinsics::Extrinsics,
+    mount: crate::model::extrinsics::Extrinsics,
     identify: crate::identify::IdentifyOptions,
     estimate_heading_offset: bool,
 ) -> (crate::CalibrationReport, Theta) {
@@ -342,10 +342,10 @@ fn max_rel(a: &Theta, b: &Theta) -> f64 {
     a.to_array().iter().zip(b.to_array()).map(|(x, y)| ((x - y) / y).abs()).fold(0.0, f64::max)
 }
 
-const VAN: crate::extrinsics::Extrinsics =
-    crate::extrinsics::Extrinsics { lever_x: -0.9, lever_y: 0.05, heading_offset: -0.0099 };
+const VAN: crate::model::extrinsics::Extrinsics =
+    crate::model::extrinsics::Extrinsics { lever_x: -0.9, lever_y: 0.05, heading_offset: -0.0099 };
 
-/// Issue 10 item 4, two-stage: with the reference at the van's mount, EIV
+/// Two-stage: with the reference at the van's mount, EIV
 /// with `--estimate lever-arm,heading-offset` gets the extrinsics from its
 /// batch G-N start (measured error 5e-14), holds them in the filter, and
 /// returns the θ it returns on the same drive with the reference at the
@@ -357,7 +357,7 @@ const VAN: crate::extrinsics::Extrinsics =
 /// checked to 1e-3. EIV ignoring the mount: 6.6e-2 relative.
 #[test]
 fn extrinsics_are_estimated_by_the_start_and_held_by_the_filter() {
-    use crate::param::ParamSet;
+    use crate::model::param::ParamSet;
     let joint =
         crate::identify::IdentifyOptions { free: ParamSet::THETA.union(ParamSet::EXTRINSICS), ..Default::default() };
     let (r, truth) = eiv_on_mounted_drive(VAN, joint, true);
@@ -373,7 +373,7 @@ fn extrinsics_are_estimated_by_the_start_and_held_by_the_filter() {
         "{:?}",
         r.warnings
     );
-    let (at_axle, _) = eiv_on_mounted_drive(crate::extrinsics::Extrinsics::ZERO, Default::default(), false);
+    let (at_axle, _) = eiv_on_mounted_drive(crate::model::extrinsics::Extrinsics::ZERO, Default::default(), false);
     let (plain, _) = eiv_on_mounted_drive(VAN, Default::default(), false);
     assert!(plain.extrinsics.is_none());
     assert!(!plain.warnings.iter().any(|w| w.kind() == "eiv_extrinsics_held"));
@@ -395,13 +395,13 @@ fn extrinsics_are_estimated_by_the_start_and_held_by_the_filter() {
 /// report carries them with no σ.
 #[test]
 fn given_extrinsics_are_applied_by_the_filter() {
-    use crate::param::ParamSet;
+    use crate::model::param::ParamSet;
     let given = crate::identify::IdentifyOptions { extrinsics: VAN, ..Default::default() };
     let (r, _) = eiv_on_mounted_drive(VAN, given, false);
     assert_eq!(detail(&r).eiv_result, EivOutcome::Eiv, "fell back: {:?}", r.warnings);
     let x = r.extrinsics.as_ref().expect("held extrinsics reported");
     assert_eq!((x.value, x.free), (VAN, ParamSet::EMPTY));
-    let (at_axle, _) = eiv_on_mounted_drive(crate::extrinsics::Extrinsics::ZERO, Default::default(), false);
+    let (at_axle, _) = eiv_on_mounted_drive(crate::model::extrinsics::Extrinsics::ZERO, Default::default(), false);
     eprintln!("given: θ vs axle-mounted run {:.2e}", max_rel(&r.theta, &at_axle.theta));
     assert!(max_rel(&r.theta, &at_axle.theta) < 1e-10, "{} vs {}", r.theta, at_axle.theta);
     let held = r
@@ -414,19 +414,18 @@ fn given_extrinsics_are_applied_by_the_filter() {
     assert!(!held.contains("  "), "{held}");
 }
 
-/// Stop 14, the test-track diagnosis (docs/study.md "Stop 14: the candidate
-/// EIV defaults on the real logs"): a reference heading offset that the
+/// The test-track diagnosis (docs/study.md, the EIV defaults on the real
+/// logs): a reference heading offset that the
 /// calibration does not model (+18 mrad, batch G-N's estimate on the six
 /// test-track runs) moves batch G-N's c_d (all segments: the EIV start and
 /// fallback) but hardly EIV's, which takes c_d from the heading increments
 /// the offset does not change. Measured on this 2 km noise-free drive
 /// (seed 21, production-car noise fixed): true c_d −2.000 mm, batch G-N
-/// −1.457 mm (error 5.4e-4 m), EIV −1.982 mm (1.8e-5 m; −1.983 with the
-/// stop-13 defaults); so the test fails
+/// −1.457 mm (error 5.4e-4 m), EIV −1.982 mm (1.8e-5 m); so the test fails
 /// if EIV's c_d absorbs the offset as batch G-N's does.
 #[test]
 fn unmodelled_heading_offset_moves_batch_gn_c_d_not_eiv() {
-    let mount = crate::extrinsics::Extrinsics { lever_x: 0.0, lever_y: 0.0, heading_offset: 0.018 };
+    let mount = crate::model::extrinsics::Extrinsics { lever_x: 0.0, lever_y: 0.0, heading_offset: 0.018 };
     let (r, truth) = eiv_on_mounted_drive(mount, Default::default(), false);
     let d = detail(&r);
     assert_eq!(d.eiv_result, EivOutcome::Eiv, "fell back: {:?}", r.warnings);
@@ -439,15 +438,15 @@ fn unmodelled_heading_offset_moves_batch_gn_c_d_not_eiv() {
     assert!(gn_err > 5.0 * eiv_err, "batch G-N c_d error {gn_err:.2e}, EIV {eiv_err:.2e}");
 }
 
-/// Stop 15: by default the EIV start estimates the reference heading
+/// By default the EIV start estimates the reference heading
 /// offset, so on the +18 mrad drive of the test above the report carries
-/// δ (its batch G-N start's estimate), the start's c_d is no longer pulled
+/// δ (its batch G-N start's estimate), the start's c_d is not pulled
 /// off, and the validation (which applies δ) is far better than with δ
 /// held at 0. A stated offset, or `hold`, keeps δ held.
 #[test]
 fn the_start_estimates_the_heading_offset_by_default() {
-    use crate::param::{Param, ParamSet};
-    let mount = crate::extrinsics::Extrinsics { lever_x: 0.0, lever_y: 0.0, heading_offset: 0.018 };
+    use crate::model::param::{Param, ParamSet};
+    let mount = crate::model::extrinsics::Extrinsics { lever_x: 0.0, lever_y: 0.0, heading_offset: 0.018 };
     let (r, truth) = eiv_on_mounted_drive(mount, Default::default(), true);
     let d = detail(&r);
     assert_eq!(d.eiv_result, EivOutcome::Eiv, "fell back: {:?}", r.warnings);

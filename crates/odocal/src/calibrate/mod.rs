@@ -43,28 +43,36 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use crate::compensate::{CompensatedInputs, CompensationStep};
+use crate::assess::position_error::mean_position_error_with;
+use crate::assess::trust::{judge, Evidence, TrustOptions};
+use crate::assess::validation_drives::CalibrationExtrinsics;
+use crate::assess::warning::Warning;
+use crate::compensate::CompensatedInputs;
+use crate::drive::segment::{
+    calibration_segments, validation_segments, Segment, SegmentData, SegmentOptions, ValidationSegmentOptions,
+};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
-use crate::extrinsics::ExtrinsicsEstimate;
 use crate::identify::{
     batch_normal_equations, observability, IdentifyOptions, IdentifyReport, Observability, RobustCovariance,
 };
+use crate::model::extrinsics::ExtrinsicsEstimate;
+use crate::model::param::{Param, ParamSet};
 use crate::model::Theta;
-use crate::param::{Param, ParamSet};
 use crate::progress::ProgressFn;
-use crate::segment::{
-    calibration_segments, validation_segments, Segment, SegmentData, SegmentOptions, ValidationSegmentOptions,
-};
-use crate::trust::{judge, Evidence, TrustOptions, Verdict};
-use crate::validate::mean_position_error_with;
-use crate::validate_on::CalibrationExtrinsics;
-use crate::warning::Warning;
 
 pub mod batch_gn;
+pub mod crossrun;
 pub mod eiv;
+mod report;
+pub mod settings;
 pub mod three_step;
 mod turn_sense;
+pub mod validate_on;
+
+pub use report::{
+    CalibrationReport, MethodDetail, ResultSigma, SegmentCounts, SigmaSource, ThetaScore, Timing, ValidationSummary,
+};
 
 pub use batch_gn::{BatchGnDetail, BatchGnOptions};
 pub use eiv::{CorrectBias, EivDetail, EivMethodOptions, EivOutcome, DEFAULT_BIAS_REPLICATES};
@@ -233,284 +241,6 @@ impl CalibrationOptions {
         if let Method::Eiv(m) = &mut self.method {
             m.estimate_heading_offset = false;
         }
-    }
-}
-
-/// θ with its mean validation position error.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct ThetaScore {
-    /// Parameters.
-    pub theta: Theta,
-    /// Ē_p on the validation segments, m.
-    pub mean_position_error_m: f64,
-}
-
-/// Counts of segments.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub struct SegmentCounts {
-    /// Calibration segments cut.
-    pub cut: usize,
-    /// Calibration segments selected (turning enough).
-    pub selected: usize,
-    /// Validation segments.
-    pub validation: usize,
-}
-
-/// Wall time per stage, s.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
-pub struct Timing {
-    /// Whole calibration.
-    pub total: f64,
-    /// Preparation, segment selection and validation of θ_0.
-    pub setup: f64,
-    /// Step 1 (or the single batch G-N of batch-gn).
-    pub initial_identification: f64,
-    /// Step 2.
-    pub compensation: f64,
-    /// Step 3.
-    pub final_identification: f64,
-    /// Validation of the result.
-    pub validation: f64,
-}
-
-/// Validation summary of the result (SPEC §9 `validation`).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct ValidationSummary {
-    /// Ē_p of the result, m.
-    pub mean_position_error_m: f64,
-    /// Validation segments.
-    pub segments: usize,
-    /// True when the validation ran on held-out data that the calibration
-    /// did not see (see [`calibrate_held_out`]).
-    pub held_out: bool,
-}
-
-/// What a method reports beyond the shared estimate. In JSON its fields
-/// stand at the top level of the report (`initial_step`, `compensation`,
-/// `identification`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(untagged)]
-pub enum MethodDetail {
-    /// The 3-step method's steps 1–3.
-    ThreeStep(ThreeStepDetail),
-    /// The EIV method's start, fit and fallback (before `BatchGn`: both
-    /// have `identification`, and untagged deserialisation takes the first
-    /// variant that fits).
-    Eiv(EivDetail),
-    /// Batch Gauss-Newton's identification.
-    BatchGn(BatchGnDetail),
-}
-
-/// The calibration report (SPEC §9 and more).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct CalibrationReport {
-    /// The method run (`"three-step"`, `"batch-gn"`, `"eiv"`).
-    pub method: String,
-    /// The calibrated θ.
-    pub theta: Theta,
-    /// Covariance of θ (4×4, row-major, zero rows for parameters not
-    /// estimated), SI units squared.
-    pub covariance: [[f64; 4]; 4],
-    /// Observability of the parameters at the estimate.
-    pub observability: Observability,
-    /// Ē_p of the result.
-    pub validation: ValidationSummary,
-    /// Whether to trust the result: accepted, doubtful or rejected, with
-    /// the reasons ([`crate::trust`]).
-    pub verdict: Verdict,
-    /// θ_0 and its Ē_p.
-    pub initial: ThetaScore,
-    /// Wall time per stage.
-    pub timing_s: Timing,
-    /// Segment counts.
-    pub segments: SegmentCounts,
-    /// The reference sensor's extrinsics (lever arm, heading offset:
-    /// initial and estimated values, σ, covariance) when the calibration
-    /// involved them ([`IdentifyOptions::uses_extrinsics`]); validation
-    /// (and θ_0's Ē_p, at the initial values) then compares the model's
-    /// reference point with the measured one. Absent otherwise. For `eiv`
-    /// they are its batch Gauss-Newton start's estimate and σ, held by the
-    /// filter, so the EIV θ covariance does not include their uncertainty
-    /// ([`Warning::EivExtrinsicsHeld`]).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub extrinsics: Option<ExtrinsicsEstimate>,
-    /// The method's own results.
-    #[serde(flatten)]
-    pub detail: MethodDetail,
-    /// Things the user should know (unobservable parameters, dropped
-    /// segments, solver fallbacks).
-    pub warnings: Vec<Warning>,
-    /// Parameters held at θ_0 by [`CalibrationOptions::auto_fix`], in the
-    /// order they were held (`options.identify.free` shows the final set).
-    pub auto_fixed: Vec<Param>,
-    /// The options used.
-    pub options: CalibrationOptions,
-}
-
-impl CalibrationReport {
-    /// The method's own account of the fit, in lines as `odocal calibrate`
-    /// prints them and the HTML report shows them ("Method details"):
-    /// for EIV, [`EivDetail::summary`] with the sources the options held as
-    /// known; empty for the other methods.
-    ///
-    /// ```
-    /// use odocal::sim::{simulate, SimOptions};
-    /// use odocal::{calibrate, CalibrationOptions};
-    ///
-    /// let out = simulate(&SimOptions { length_km: 2.0, ..SimOptions::paper(1) })?;
-    /// let r = calibrate(&out.drive, &CalibrationOptions::default(), None)?;
-    /// let lines = r.method_details();
-    /// assert!(lines.starts_with("EIV: ") || lines.starts_with("EIV: filter failed"), "{lines}");
-    /// assert!(lines.contains("  result: "));
-    /// # Ok::<(), odocal::Error>(())
-    /// ```
-    pub fn method_details(&self) -> String {
-        match &self.detail {
-            MethodDetail::Eiv(d) => {
-                let known = match &self.options.method {
-                    Method::Eiv(m) if !m.filter.fix_noise => m.filter.known_sources(),
-                    _ => Vec::new(),
-                };
-                d.summary(&known)
-            }
-            _ => String::new(),
-        }
-    }
-
-    /// The final Gauss-Newton identification (batch-gn: the only one;
-    /// three-step: step 3; eiv: the starting batch G-N on all segments).
-    pub fn identification(&self) -> Option<&IdentifyReport> {
-        match &self.detail {
-            MethodDetail::ThreeStep(d) => Some(&d.identification),
-            MethodDetail::BatchGn(d) => Some(&d.identification),
-            MethodDetail::Eiv(d) => Some(&d.identification),
-        }
-    }
-
-    /// Step 1 of the 3-step method.
-    pub fn initial_step(&self) -> Option<&InitialStep> {
-        match &self.detail {
-            MethodDetail::ThreeStep(d) => Some(&d.initial_step),
-            MethodDetail::BatchGn(_) | MethodDetail::Eiv(_) => None,
-        }
-    }
-
-    /// Step 2 of the 3-step method.
-    pub fn compensation(&self) -> Option<&CompensationStep> {
-        match &self.detail {
-            MethodDetail::ThreeStep(d) => Some(&d.compensation),
-            MethodDetail::BatchGn(_) | MethodDetail::Eiv(_) => None,
-        }
-    }
-
-    /// One-σ model standard deviations of θ (square roots of the covariance diagonal).
-    pub fn std_dev(&self) -> Theta {
-        let c = &self.covariance;
-        Theta { c_e: c[0][0].sqrt(), c_d: c[1][1].sqrt(), t_r: c[2][2].sqrt(), d: c[3][3].sqrt() }
-    }
-
-    /// The cluster-robust covariance of the result ([`RobustCovariance`]:
-    /// unlike the model covariance it allows for residuals correlated along
-    /// and across segments), for batch-gn, whose result is one batch
-    /// Gauss-Newton estimate. `None` for the other methods and when it could
-    /// not be computed. The 3-step method's step 3 has one too
-    /// (`identification.robust`), but it does not see steps 1–2 and is
-    /// 5–13× smaller than the spread of 3-step estimates over seeds
-    /// (`examples/gn_coverage.rs 20 12 paper 1300 three-step`), so it does
-    /// not stand for the result; the 3-step's is its batch spread
-    /// ([`Self::result_covariance`]).
-    pub fn robust(&self) -> Option<&RobustCovariance> {
-        outcome_robust(&self.detail)
-    }
-
-    /// The covariance of θ that stands for the result's uncertainty, the
-    /// one the verdict's large-σ and cross-split checks use: batch-gn's
-    /// cluster-robust covariance ([`Self::robust`]); the 3-step method's
-    /// step-1 batch spread ([`ThreeStepUncertainty::batch_spread`]), since
-    /// step 3's own σ sees only its compensated inputs; `None` otherwise
-    /// (then the model covariance is all there is).
-    pub fn result_covariance(&self) -> Option<&[[f64; 4]; 4]> {
-        outcome_covariance(&self.detail)
-    }
-
-    /// The 1σ that stands for the result: the square roots of the
-    /// diagonal of [`Self::result_covariance`], else of the model
-    /// covariance (EIV's filter covariance, or a method's when nothing better was
-    /// computed), with where it comes from. Held parameters (not free, or a
-    /// zero covariance row: not estimated) have none. The verdict, the
-    /// parameter file ([`crate::param_file::ParamFile::from_report`]), the
-    /// HTML report and the CLI's JSON `sigma` all give this σ.
-    pub fn result_sigma(&self) -> ResultSigma {
-        let (source, c) = match (&self.detail, self.result_covariance()) {
-            (MethodDetail::BatchGn(_) | MethodDetail::Eiv(_), Some(c)) => (SigmaSource::ClusterRobust, c),
-            (MethodDetail::ThreeStep(_), Some(c)) => (SigmaSource::BatchSpread, c),
-            (_, c) => (SigmaSource::Model, c.unwrap_or(&self.covariance)),
-        };
-        let free = self.options.identify.free;
-        let sd: [Option<f64>; 4] = std::array::from_fn(|i| {
-            let estimated = Param::from_index(i).is_some_and(|p| free.contains(p)) && self.covariance[i][i] != 0.0;
-            estimated.then(|| c[i][i].max(0.0).sqrt())
-        });
-        ResultSigma { source, c_e: sd[0], c_d: sd[1], t_r: sd[2], d: sd[3] }
-    }
-}
-
-/// Which covariance a result's σ comes from ([`CalibrationReport::result_sigma`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum SigmaSource {
-    /// batch-gn's cluster-robust covariance ([`RobustCovariance`]).
-    ClusterRobust,
-    /// The 3-step method's step-1 batch spread ([`BatchSpread`]).
-    BatchSpread,
-    /// The model covariance ([`CalibrationReport::covariance`]): EIV's
-    /// filter covariance (per parameter the larger of `H_θ⁻¹` and a block
-    /// sandwich, plus what estimating the noise levels adds;
-    /// [`crate::eiv::EivReport::covariance`]) (after an EIV fallback the start's cluster-robust σ stands,
-    /// where computed), or batch-gn's / step 3's `σ²(JᵀWJ)⁻¹` when the robust or
-    /// batch-spread σ could not be computed (then it understates the
-    /// uncertainty under input noise).
-    Model,
-}
-
-impl SigmaSource {
-    /// The name in reports (`cluster-robust`, `batch-spread`, `model`).
-    pub fn name(self) -> &'static str {
-        match self {
-            SigmaSource::ClusterRobust => "cluster-robust",
-            SigmaSource::BatchSpread => "batch-spread",
-            SigmaSource::Model => "model",
-        }
-    }
-}
-
-impl std::fmt::Display for SigmaSource {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-/// The 1σ of a calibration's result, per parameter (SI units; `None` for
-/// a parameter held), and which covariance it comes from. In JSON:
-/// `{"source": "batch-spread", "c_e": …, "c_d": …, "t_r": …, "d": null}`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct ResultSigma {
-    /// Which covariance.
-    pub source: SigmaSource,
-    /// 1σ of c_e, m.
-    pub c_e: Option<f64>,
-    /// 1σ of c_d, m.
-    pub c_d: Option<f64>,
-    /// 1σ of t_r, m.
-    pub t_r: Option<f64>,
-    /// 1σ of d, m per m/s².
-    pub d: Option<f64>,
-}
-
-impl ResultSigma {
-    /// `[c_e, c_d, t_r, d]`.
-    pub fn to_array(&self) -> [Option<f64>; 4] {
-        [self.c_e, self.c_d, self.t_r, self.d]
     }
 }
 
@@ -708,11 +438,11 @@ pub fn calibrate_detailed(
 }
 
 /// [`calibrate_detailed`]; with held-out drives that each have their own
-/// extrinsics ([`crate::validate_on`]), the held-out Ē_p gives every
+/// extrinsics ([`crate::assess::validation_drives`]), the held-out Ē_p gives every
 /// segment its drive's.
 pub(crate) fn calibrate_core(
     drive: &Drive,
-    held: Option<(&Drive, Option<&crate::validate_on::HeldOutDrives<'_>>)>,
+    held: Option<(&Drive, Option<&crate::assess::validation_drives::HeldOutDrives<'_>>)>,
     opts: &CalibrationOptions,
     progress: Option<ProgressFn<'_>>,
 ) -> Result<DetailedCalibration> {
@@ -740,9 +470,9 @@ pub(crate) fn calibrate_core(
         });
     }
     let t_start = Instant::now();
-    crate::limits::check_conventions(drive, &opts.theta0, "drive")?;
+    crate::drive::plausibility::check_conventions(drive, &opts.theta0, "drive")?;
     if let Some(h) = held_out {
-        crate::limits::check_conventions(h, &opts.theta0, "held-out drive")?;
+        crate::drive::plausibility::check_conventions(h, &opts.theta0, "held-out drive")?;
     }
     let prep = Prepared { drive, options: opts, validation: validation_segments(drive, &opts.validation)? };
     let selection = method.select(&prep)?;
@@ -769,7 +499,7 @@ pub(crate) fn calibrate_core(
     };
     let initial_val = match held_refs {
         Some(h) => {
-            let cal = CalibrationExtrinsics::before(opts, selection.free, h.given);
+            let cal = CalibrationExtrinsics::before(opts.identify.extrinsics, selection.free, h.given);
             h.error(&report_segments, &opts.theta0, &cal, true)?
         }
         None => mean_position_error_with(report_drive, &report_segments, &opts.theta0, &opts.identify.extrinsics)?,
@@ -795,7 +525,11 @@ pub(crate) fn calibrate_core(
         Some(h) => {
             let cal = CalibrationExtrinsics {
                 value: ext,
-                ..CalibrationExtrinsics::before(opts, extrinsics.as_ref().map_or(ParamSet::EMPTY, |e| e.free), h.given)
+                ..CalibrationExtrinsics::before(
+                    opts.identify.extrinsics,
+                    extrinsics.as_ref().map_or(ParamSet::EMPTY, |e| e.free),
+                    h.given,
+                )
             };
             h.error(&report_segments, &outcome.theta, &cal, false)?
         }
@@ -869,7 +603,7 @@ pub(crate) fn calibrate_core(
 }
 
 /// θ and its covariance fitted on the held-out drive alone with the same
-/// options and free set (the cross-split check of [`crate::trust`]); `None`
+/// options and free set (the cross-split check of [`crate::assess::trust`]); `None`
 /// when that fit fails (too short, nothing turns, …): the check is then
 /// left out rather than failing the calibration.
 fn split_fit(held_out: &Drive, opts: &CalibrationOptions, free: ParamSet) -> Option<(Theta, [[f64; 4]; 4])> {
@@ -935,7 +669,7 @@ fn method_extrinsics(detail: &MethodDetail) -> Option<ExtrinsicsEstimate> {
 
 /// The calibration segments of every method ([`calibration_segments`]), or
 /// an error saying why the drive has none.
-pub(crate) fn cut_segments(drive: &Drive, opts: &SegmentOptions) -> Result<crate::segment::SegmentSelection> {
+pub(crate) fn cut_segments(drive: &Drive, opts: &SegmentOptions) -> Result<crate::drive::segment::SegmentSelection> {
     let selection = calibration_segments(drive, opts)?;
     if selection.all.is_empty() {
         return Err(Error::NoSegments(format!(
@@ -972,7 +706,7 @@ pub(crate) fn turning_segments(prep: &Prepared<'_>) -> Result<Selection> {
             });
         } else if !free_yaw.is_empty() {
             return Err(Error::NotObservable {
-                params: free_yaw,
+                params: free_yaw.into(),
                 reason: format!(
                     "none of the {} segments turns faster than {} rad/s (the fastest: {peak:.3} rad/s); these \
                      parameters act only through the yaw equation. Hold them at θ_0 (--fix c_d,t_r,d) and \

@@ -2,11 +2,13 @@
 
 use super::three_step::equal_step_picks;
 use super::*;
+use crate::compensate::qp::SolverKind;
 use crate::compensate::QpOptions;
+use crate::drive::segment::{
+    calibration_segments, validation_segments, Segment, SegmentOptions, ValidationSegmentOptions,
+};
 use crate::identify::IdentifyOptions;
-use crate::param::ParamSet;
-use crate::qp::SolverKind;
-use crate::segment::{calibration_segments, validation_segments, Segment, SegmentOptions, ValidationSegmentOptions};
+use crate::model::param::ParamSet;
 use crate::sim::{simulate, SimOptions};
 
 /// Relative error to which a noise-free, exact-model (1 substep) drive
@@ -191,7 +193,7 @@ fn implausible_step1_batches_are_never_picked() {
         assert!(!init.picked_batches.contains(&rej.index), "batch {} was picked", rej.index);
         let t_r = init.batches[rej.index].score.theta.t_r;
         assert!(!(1.53..=1.67).contains(&t_r), "rejected t_r {t_r} is inside the region");
-        assert!(matches!(rej.violations[0], crate::trust::GuardViolation::OutOfRange { param: Param::TR, .. }));
+        assert!(matches!(rej.violations[0], crate::assess::trust::GuardViolation::OutOfRange { param: Param::TR, .. }));
     }
     for p in &init.picked {
         assert!((1.53..=1.67).contains(&p.theta.t_r), "picked t_r {}", p.theta.t_r);
@@ -218,7 +220,7 @@ fn every_report_has_a_verdict() {
     let sim = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim");
     let opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
     let r = calibrate(&sim.drive, &opts, None).expect("batch-gn");
-    assert_eq!(r.verdict.level, crate::trust::VerdictLevel::Accepted, "{:?}", r.verdict);
+    assert_eq!(r.verdict.level, crate::assess::trust::VerdictLevel::Accepted, "{:?}", r.verdict);
     // Validated on a drive of another vehicle (θ = [2.1, 1 mm, 1.66, 0]):
     // θ_0 = [2.0, 0, 1.6, 0] is closer in every parameter than the
     // calibrated ≈ [1.95, −2 mm, 1.53, 0.8 mm], so the calibration is rejected.
@@ -229,8 +231,11 @@ fn every_report_has_a_verdict() {
     })
     .expect("sim");
     let r = calibrate_held_out(&sim.drive, Some(&other.drive), &opts, None).expect("held out");
-    assert_eq!(r.verdict.level, crate::trust::VerdictLevel::Rejected, "{:?}", r.verdict);
-    assert!(matches!(r.verdict.reasons[0], crate::trust::VerdictReason::WorseThanInitial { held_out: true, .. }));
+    assert_eq!(r.verdict.level, crate::assess::trust::VerdictLevel::Rejected, "{:?}", r.verdict);
+    assert!(matches!(
+        r.verdict.reasons[0],
+        crate::assess::trust::VerdictReason::WorseThanInitial { held_out: true, .. }
+    ));
 }
 
 /// A batch G-N cut off after one step from θ_0 is still far from its
@@ -238,7 +243,7 @@ fn every_report_has_a_verdict() {
 /// default five iterations it converges and says nothing of it.
 #[test]
 fn an_unconverged_gauss_newton_result_is_doubtful() {
-    use crate::trust::VerdictReason;
+    use crate::assess::trust::VerdictReason;
     let sim = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim");
     let mut opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
     opts.identify.max_iterations = 1;
@@ -249,7 +254,7 @@ fn an_unconverged_gauss_newton_result_is_doubtful() {
     };
     assert_eq!((stage.as_str(), *iterations), ("batch Gauss-Newton", 1));
     assert!(*step_sigmas > 1.0, "one step from θ_0 moves θ by many σ: {step_sigmas}");
-    assert!(r.verdict.level >= crate::trust::VerdictLevel::Doubtful);
+    assert!(r.verdict.level >= crate::assess::trust::VerdictLevel::Doubtful);
     opts.identify.max_iterations = 5;
     let r = calibrate(&sim.drive, &opts, None).expect("batch-gn");
     assert!(!r.verdict.reasons.iter().any(|x| matches!(x, VerdictReason::NotConverged { .. })), "{:?}", r.verdict);
@@ -341,4 +346,43 @@ mod solver_tests {
             assert_eq!(one, without_timing(&run(threads)), "{threads} threads");
         }
     }
+}
+
+/// The file's σ is the one that stands for the result (the verdict's):
+/// the 3-step's batch spread, not step 3's model σ (which covered 0 %);
+/// batch-gn on a drive too short for its cluster-robust σ gives the
+/// model σ and says so; a zero covariance row (not estimated) is
+/// written as held. (The CLI test `params_out` covers the robust σ.)
+#[test]
+fn the_param_file_has_the_result_sigma_not_the_model_sigma() {
+    use crate::calibrate::{calibrate, CalibrationOptions, Method, SigmaSource, ThreeStepOptions};
+    use crate::sim::{simulate, SimOptions};
+    let sim = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim");
+    let method = Method::ThreeStep(ThreeStepOptions { initial_batches: 8, picks: 3, ..Default::default() });
+    let r = calibrate(&sim.drive, &CalibrationOptions { method, ..Default::default() }, None).expect("3-step");
+    let spread = r.result_covariance().expect("batch spread");
+    let f = r.param_file("drive.csv");
+    let s = r.result_sigma();
+    assert_eq!(s.source, SigmaSource::BatchSpread);
+    for (i, e) in f.params.iter().enumerate() {
+        let sigma = e.sigma.expect("free");
+        assert_eq!(sigma.to_bits(), spread[i][i].sqrt().to_bits(), "{}", e.name);
+        assert_eq!(Some(sigma), s.to_array()[i], "{}", e.name);
+        let model = r.covariance[i][i].sqrt();
+        assert!(sigma > 10.0 * model, "{}: file σ {sigma} vs model σ {model}", e.name);
+    }
+    assert!(f.provenance.contains(&("sigma".into(), "batch-spread".into())), "{:?}", f.provenance);
+    assert_eq!(f.verdict.as_deref(), Some(r.verdict.level.to_string().as_str()));
+
+    let opts = CalibrationOptions { method: Method::BatchGn(Default::default()), ..Default::default() };
+    let mut r = calibrate(&sim.drive, &opts, None).expect("batch-gn");
+    // 3 km: too few clusters for the cluster-robust σ, so the model σ, and labelled so
+    assert!(r.robust().is_none());
+    assert_eq!(r.result_sigma().source, SigmaSource::Model);
+    let f = r.param_file("drive.csv");
+    assert_eq!(f.params[2].sigma, Some(r.std_dev().t_r));
+    assert!(f.provenance.contains(&("sigma".into(), "model".into())), "{:?}", f.provenance);
+    // a zero covariance row means "not estimated" (EIV holds what it cannot determine)
+    r.covariance[3] = [0.0; 4];
+    assert_eq!(r.param_file("drive.csv").params[3].sigma, None);
 }

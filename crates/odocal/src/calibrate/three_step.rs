@@ -10,7 +10,7 @@
 //!    compensated input is the mean of those.
 //! 3. *Final identification*: batch G-N from θ_0 with the compensated inputs.
 //!
-//! Reference extrinsics ([`crate::extrinsics`]): steps 1 and 3 estimate (or
+//! Reference extrinsics ([`crate::model::extrinsics`]): steps 1 and 3 estimate (or
 //! hold) them with θ through the shared identification; step 2's QP does
 //! not estimate them, it tracks the axle poses implied by the picked
 //! batches' mean extrinsics.
@@ -24,17 +24,18 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::{Estimator, MethodDetail, MethodOutcome, Prepared, Selection, ThetaScore, Timing};
+use crate::assess::position_error::mean_position_error_with;
+use crate::assess::trust::{check_theta, GuardViolation};
+use crate::assess::warning::Warning;
 use crate::compensate::{compensate_segments, CompensateOptions, CompensationStep, QpOptions};
+use crate::drive::axle_reference_drive;
+use crate::drive::segment::{Segment, SegmentData};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
-use crate::extrinsics::{axle_reference_drive, Extrinsics};
 use crate::identify::{batch_gauss_newton, robust_covariance_at, IdentifyOptions, IdentifyReport, RobustCovariance};
+use crate::model::extrinsics::Extrinsics;
 use crate::model::Theta;
 use crate::progress::{emit, Progress, ProgressFn};
-use crate::segment::{Segment, SegmentData};
-use crate::trust::{check_theta, GuardViolation};
-use crate::validate::mean_position_error_with;
-use crate::warning::Warning;
 
 /// Mixed into [`super::CalibrationOptions::seed`] to draw step 3's random
 /// batch ([`FinalSegments::Random`]) independently of step 1's batches.
@@ -341,7 +342,7 @@ impl Estimator for ThreeStepOptions {
     /// identification, and step 1 scores each batch with its own. Step 2's
     /// QP does not estimate them: it tracks the axle poses the reference
     /// implies under the mean extrinsics of the picked batches
-    /// ([`crate::extrinsics::axle_reference_drive`]).
+    /// ([`crate::drive::axle_reference_drive`]).
     fn supports_extrinsics(&self) -> bool {
         true
     }
@@ -449,7 +450,7 @@ impl Estimator for ThreeStepOptions {
             &self.qp,
             progress,
         )?;
-        warnings.extend(comp.warnings.iter().cloned());
+        warnings.extend(comp.warnings.iter().cloned().map(Warning::from));
         if comp.segments.is_empty() {
             return Err(Error::NoSegments("input compensation failed on every segment".into()));
         }
@@ -502,8 +503,8 @@ impl Estimator for ThreeStepOptions {
 pub(crate) mod forced {
     use std::cell::RefCell;
 
+    use crate::drive::segment::{Segment, SegmentData};
     use crate::drive::Drive;
-    use crate::segment::{Segment, SegmentData};
 
     thread_local! {
         static FIRST_BATCH: RefCell<Option<Vec<Segment>>> = const { RefCell::new(None) };
@@ -529,10 +530,10 @@ pub(crate) mod forced {
 #[cfg(test)]
 mod forced_divergence_tests {
     use super::*;
+    use crate::assess::trust::GuardViolation;
     use crate::calibrate::{calibrate, CalibrationOptions, Method};
-    use crate::segment::calibration_segments;
+    use crate::drive::segment::calibration_segments;
     use crate::sim::{simulate, SimOptions};
-    use crate::trust::GuardViolation;
 
     /// A step-1 batch of the ten straightest segments cannot determine c_d,
     /// t_r and d: the guards reject it, it is never picked, and the 3-step
@@ -556,7 +557,7 @@ mod forced_divergence_tests {
         straight.sort_by_key(|s| s.start);
         let peak = straight.iter().map(|s| s.peak_yaw_rate_rad_per_s).fold(0.0, f64::max);
         // None of them turns enough to be selected by the default rule.
-        let threshold = crate::segment::SegmentOptions::default().min_peak_yaw_rate_rad_per_s;
+        let threshold = crate::drive::segment::SegmentOptions::default().min_peak_yaw_rate_rad_per_s;
         assert!(peak < threshold, "the batch is straight: peak yaw rate {peak} rad/s");
 
         let plain = calibrate(&sim.drive, &opts, None).expect("calibrate");
@@ -575,7 +576,10 @@ mod forced_divergence_tests {
             rej.violations.iter().any(|v| matches!(
                 v,
                 GuardViolation::IllConditioned { .. }
-                    | GuardViolation::OutOfRange { param: crate::param::Param::TR | crate::param::Param::D, .. }
+                    | GuardViolation::OutOfRange {
+                        param: crate::model::param::Param::TR | crate::model::param::Param::D,
+                        ..
+                    }
             )),
             "{:?} at θ = {}",
             rej.violations,

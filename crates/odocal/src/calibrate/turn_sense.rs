@@ -1,4 +1,4 @@
-//! One-way turning selections (issue 10): when every selected calibration
+//! One-way turning selections: when every selected calibration
 //! segment turns the same way, the straight segments are added.
 //!
 //! c_d acts on the yaw rate as a bias proportional to the distance driven
@@ -15,8 +15,8 @@
 //! "Cross-run check on the test track"). Straight segments separate the
 //! two: there c_d is the only yaw term.
 
+use crate::drive::segment::Segment;
 use crate::drive::Drive;
-use crate::segment::Segment;
 
 /// The way all of a selection's segments turn, when they all turn one way.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -67,10 +67,10 @@ pub(crate) fn one_way(drive: &Drive, segments: &[Segment]) -> Option<TurnSense> 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::assess::warning::Warning;
     use crate::calibrate::{calibrate, CalibrationOptions, Method};
     use crate::drive::Signals;
     use crate::model::{step, wheel_rotations, Input, State, Theta};
-    use crate::warning::Warning;
 
     /// A drive whose heading follows `psi` (positions and wheels do not matter here).
     fn drive_with_heading(psi: Vec<f64>) -> Drive {

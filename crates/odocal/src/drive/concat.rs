@@ -2,7 +2,7 @@
 
 use super::{Drive, DriveBuilder, Signals, STEP_UNIFORMITY_TOL};
 use crate::error::{Error, Result};
-use crate::limits::PhysicalLimits;
+use crate::model::limits::PhysicalLimits;
 
 /// Seconds between the last sample of one drive and the first of the next
 /// when [`Drive::concat`] has to shift a drive's clock (its time does not
@@ -100,7 +100,7 @@ fn append(to: &mut Signals, from: &Signals) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::segment::{cut, validation_segments, ValidationSegmentOptions};
+    use crate::drive::segment::{cut, validation_segments, ValidationSegmentOptions};
 
     fn drive(n: usize, t0: f64, ts: f64, parts: Vec<std::ops::Range<usize>>) -> Drive {
         let mut s = Signals::with_capacity(n);

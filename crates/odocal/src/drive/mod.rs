@@ -44,6 +44,8 @@
 
 mod concat;
 mod csv;
+pub mod plausibility;
+pub mod segment;
 
 use std::ops::Range;
 
@@ -52,10 +54,11 @@ pub use self::concat::CONCAT_GAP_S;
 pub(crate) use self::csv::echo;
 pub use self::csv::REQUIRED_COLUMNS;
 use crate::error::{Error, Result};
-use crate::limits::PhysicalLimits;
+use crate::model::extrinsics::{axle_pose, Extrinsics};
+use crate::model::limits::PhysicalLimits;
 use crate::model::{Input, State};
 
-/// Relative tolerance on the uniformity of the sample step (SPEC/issue: 1 %).
+/// Relative tolerance on the uniformity of the sample step (SPEC: 1 %).
 pub const STEP_UNIFORMITY_TOL: f64 = 0.01;
 
 /// Names of the seven signal columns of [`Signals`], in [`Signals::columns`] order.
@@ -240,7 +243,7 @@ impl DriveBuilder {
     }
 
     /// The physical limits the drive is checked against (default
-    /// [`PhysicalLimits::default`], the table in [`crate::limits`]).
+    /// [`PhysicalLimits::default`], the table in [`crate::model::limits`]).
     pub fn limits(mut self, limits: PhysicalLimits) -> Self {
         self.limits = limits;
         self
@@ -412,7 +415,7 @@ impl DriveBuilder {
             unwrap_in_place(&mut tr.psi);
         }
         let drive = Drive { t, measured, truth, reference_measured, extra, parts, sample_time_s: ts };
-        limits.check(&drive, &context)?;
+        plausibility::check_limits(&drive, &limits, &context)?;
         Ok(drive)
     }
 }
@@ -649,6 +652,26 @@ pub fn unwrap_in_place(a: &mut [f64]) {
         prev_raw = raw;
         *v = raw + offset;
     }
+}
+
+/// A copy of `drive` whose reference poses are the axle poses they imply
+/// under `e` ([`axle_pose`] per sample); wheels, parts and the
+/// reference-measured mask are kept, truth and extra columns dropped. The
+/// 3-step method's input compensation and the EIV filter run on it.
+pub fn axle_reference_drive(drive: &Drive, e: &Extrinsics) -> Result<Drive> {
+    let mut m = drive.measured().clone();
+    for i in 0..drive.len() {
+        let x = axle_pose(&drive.pose(i), e);
+        (m.px[i], m.py[i], m.psi[i]) = (x[0], x[1], x[2]);
+    }
+    let mut b = Drive::builder(drive.t().to_vec(), m)
+        .parts(drive.parts().to_vec())
+        .sample_time_s(drive.sample_time_s())
+        .context("axle reference");
+    if let Some(mask) = drive.reference_measured() {
+        b = b.reference_measured(mask.to_vec());
+    }
+    b.build()
 }
 
 #[cfg(test)]

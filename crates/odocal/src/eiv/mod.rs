@@ -2339,8 +2339,8 @@ fn theta_add(theta: &Theta, step: &[f64; 4], lambda: f64) -> Theta {
 /// The scoring step of θ over the free parameters and the standard deviations.
 fn theta_step(sums: &WindowSums, free: &[bool; 4], follows: bool) -> Result<([f64; 4], [f64; 4])> {
     let Some(inv) = free_inverse(&sums.h_theta, free) else {
-        let params: crate::param::ParamSet =
-            (0..4).filter(|i| free[*i]).map(|i| crate::param::Param::THETA[i]).collect();
+        let params: crate::error::ParamNames =
+            (0..4).filter(|i| free[*i]).map(|i| crate::model::param::Param::THETA[i]).collect();
         return Err(Error::NotObservable {
             params,
             reason: "the EIV information matrix H_θ is singular; hold them fixed (EivOptions::free)".into(),
@@ -3720,7 +3720,7 @@ pub fn cramer_rao_bound(
     let h: Matrix4<f64> = ev.total.info.fixed_view::<4, 4>(0, 0).into_owned();
     let h_mean = ev.total.info_mean_theta;
     let singular = || Error::NotObservable {
-        params: (0..4).filter(|i| opts.free[*i]).map(|i| crate::param::Param::THETA[i]).collect(),
+        params: (0..4).filter(|i| opts.free[*i]).map(|i| crate::model::param::Param::THETA[i]).collect(),
         reason: "the information matrix is singular; fix some parameters (EivOptions::free)".into(),
     };
     let cov = free_inverse(&h, &opts.free).ok_or_else(singular)?;

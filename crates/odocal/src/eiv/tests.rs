@@ -1,8 +1,8 @@
 use super::filter::{run_window, InnovationRecord};
 use super::*;
+use crate::drive::segment::{calibration_segments, SegmentData, SegmentOptions};
 use crate::drive::Drive;
 use crate::identify::{batch_gauss_newton, IdentifyOptions};
-use crate::segment::{calibration_segments, SegmentData, SegmentOptions};
 use crate::sim::{simulate, NoiseOptions, SimOptions};
 
 fn input_of(d: &Drive) -> EivInput<'_> {
@@ -1381,7 +1381,7 @@ fn eta_step_descends_on_the_noise_free_straight_drive() {
 /// rear axle, not modelled (stop 12).
 fn white_drive_fit(lever_x: f64, null: InnovationNull) -> EivReport {
     let noise = NoiseOptions::white_wheel_only();
-    let mount = crate::extrinsics::Extrinsics { lever_x, lever_y: 0.0, heading_offset: 0.0 };
+    let mount = crate::model::extrinsics::Extrinsics { lever_x, lever_y: 0.0, heading_offset: 0.0 };
     let out =
         simulate(&SimOptions { length_km: 1.0, noise: noise.clone(), reference_mount: mount, ..SimOptions::paper(4) })
             .expect("sim");

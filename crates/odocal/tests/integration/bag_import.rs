@@ -172,7 +172,7 @@ fn quality_thresholds() {
     let q = m.pose.quality.expect("quality");
     assert!(q.accepts(0.0004) && q.accepts(0.01) && q.accepts(0.0));
     assert!(!q.accepts(100.0) && !q.accepts(-1.0) && !q.accepts(f64::NAN));
-    let both = odocal::import::QualitySpec { column: "q".into(), accept: vec![2.0], max: Some(1.5), min: None };
+    let both = odocal::io::import::QualitySpec { column: "q".into(), accept: vec![2.0], max: Some(1.5), min: None };
     assert!(!both.accepts(2.0), "every given test must pass");
 }
 

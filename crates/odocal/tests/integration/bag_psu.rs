@@ -8,7 +8,7 @@
 //! there is checked against the fixture CSVs.
 #![cfg(feature = "mcap")]
 
-use odocal::bag::{self, TimeSource};
+use odocal::io::bag::{self, TimeSource};
 use std::collections::HashMap;
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};

@@ -10,7 +10,7 @@
 
 use std::path::PathBuf;
 
-use odocal::segment::{validation_segments, ValidationSegmentOptions};
+use odocal::drive::segment::{validation_segments, ValidationSegmentOptions};
 use odocal::sim::{simulate, SimOptions};
 use odocal::{
     calibrate_held_out, calibrate_with_holdout, CalibrationOptions, CalibrationReport, FinalSegments, Holdout, Method,

@@ -9,7 +9,8 @@
 
 use std::path::Path;
 
-use odocal::import::{import, Manifest};
+use odocal::calibrate::settings::ManifestSettings;
+use odocal::io::import::{import, Manifest};
 use odocal::Drive;
 
 /// Longest acceptable error message, bytes: echoed fields are truncated.
@@ -53,10 +54,11 @@ pub fn csv_drive(data: &[u8]) -> Outcome {
     }
 }
 
-/// The manifest parser and its checks.
+/// The manifest parser and its checks, with the calibration settings the
+/// manifest states (its `[noise]` read as a noise model).
 pub fn manifest(data: &[u8]) -> Outcome {
     let Ok(text) = std::str::from_utf8(data) else { return Outcome::Error("not UTF-8".into()) };
-    match Manifest::parse(text, Path::new("fuzz.toml")) {
+    match Manifest::parse(text, Path::new("fuzz.toml")).and_then(|m| ManifestSettings::of_manifest(&m)) {
         Ok(_) => Outcome::Parsed,
         Err(e) => check_message(e.to_string()),
     }
@@ -86,7 +88,7 @@ pub fn import_bundle(data: &[u8]) -> Outcome {
         }
     }
     let Some(path) = manifest_path else { return Outcome::Error("no m.toml section".into()) };
-    match odocal::import::load_drive(&path) {
+    match odocal::io::import::load_drive(&path) {
         Ok((d, _)) => check_drive(&d),
         Err(e) => check_message(e.to_string()),
     }

@@ -1,0 +1,159 @@
+//! Validation of a calibrated θ by dead reckoning (SPEC §7): [`validate`]
+//! is the `validate` command, Ē_p ([`super::position_error`]) of a θ and,
+//! optionally, the reachable minimum ([`super::reachable`]) on the same
+//! segments; [`validate_drives`] validates on several drives.
+
+use serde::{Deserialize, Serialize};
+
+use super::position_error::{mean_position_error_with, ValidationReport};
+use super::reachable::{reachable_minimum_with_progress, ReachableOptions, ReachableReport};
+use crate::drive::segment::{validation_segments, ValidationSegmentOptions};
+use crate::drive::Drive;
+use crate::error::Result;
+use crate::model::extrinsics::Extrinsics;
+use crate::model::Theta;
+use crate::progress::ProgressFn;
+
+/// Settings of [`validate`].
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct ValidateOptions {
+    /// Validation segments. Default K_v = 1300, stride 650, offset 50.
+    pub segments: ValidationSegmentOptions,
+    /// Also search the reachable minimum of Ē_p with these settings. Default none.
+    /// The search uses [`ValidateOptions::extrinsics`] (its own
+    /// [`ReachableOptions::extrinsics`] is replaced), so its minimum and Ē_p
+    /// of θ are computed against the same reference mount.
+    pub reachable: Option<ReachableOptions>,
+    /// The pose reference's mount (e.g. the drive manifest's `[reference]`,
+    /// [`crate::io::import::ReferenceSpec::extrinsics`]). Default 0: the axle.
+    #[serde(default)]
+    pub extrinsics: Extrinsics,
+}
+
+/// The `validate` report (SPEC §9): Ē_p of θ and, when asked, the reachable
+/// minimum. In JSON the [`ValidationReport`] fields stand at the top level.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ValidateReport {
+    /// Ē_p of θ.
+    #[serde(flatten)]
+    pub validation: ValidationReport,
+    /// The reachable minimum, when asked for.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reachable_minimum: Option<ReachableReport>,
+    /// The reference extrinsics Ē_p of θ used, when not all 0.
+    #[serde(default, skip_serializing_if = "Extrinsics::is_zero")]
+    pub extrinsics: Extrinsics,
+}
+
+/// Ē_p of θ on the validation segments of `drive` and, with
+/// [`ValidateOptions::reachable`], the reachable minimum on the same segments.
+///
+/// ```
+/// # fn main() -> Result<(), odocal::Error> {
+/// use odocal::{sim, validate, Theta, ValidateOptions};
+/// let s = sim::simulate(&sim::SimOptions { length_km: 2.0, substeps: 1, ..sim::SimOptions::noise_free(1) })?;
+/// let r = validate(&s.drive, &s.sidecar.theta_true, &ValidateOptions::default())?;
+/// assert!(r.validation.mean_position_error_m < 1e-6);
+/// # Ok(()) }
+/// ```
+pub fn validate(drive: &Drive, theta: &Theta, opts: &ValidateOptions) -> Result<ValidateReport> {
+    validate_with_progress(drive, theta, opts, None)
+}
+
+/// [`validate`], reporting the reachable-minimum search's progress
+/// ([`reachable_minimum_with_progress`]).
+pub fn validate_with_progress(
+    drive: &Drive,
+    theta: &Theta,
+    opts: &ValidateOptions,
+    progress: Option<ProgressFn<'_>>,
+) -> Result<ValidateReport> {
+    let segs = validation_segments(drive, &opts.segments)?;
+    let validation = mean_position_error_with(drive, &segs, theta, &opts.extrinsics)?;
+    let reachable_minimum = match &opts.reachable {
+        Some(r) => {
+            let r = ReachableOptions { extrinsics: opts.extrinsics, ..r.clone() };
+            Some(reachable_minimum_with_progress(drive, &segs, &r, progress)?)
+        }
+        None => None,
+    };
+    Ok(ValidateReport { validation, reachable_minimum, extrinsics: opts.extrinsics })
+}
+
+/// Ē_p of θ and of θ_0 on one of several validation drives.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DriveValidation {
+    /// The drive's name (e.g. its file).
+    pub name: String,
+    /// Ē_p of θ on the drive, m.
+    pub mean_position_error_m: f64,
+    /// Ē_p of θ_0 on the drive, m.
+    pub initial_mean_position_error_m: f64,
+    /// Validation segments of the drive.
+    pub segments: usize,
+    /// The reference extrinsics this drive used, where they are not all 0
+    /// or a stated value was overruled ([`crate::assess::validation_drives`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub extrinsics: Option<crate::assess::validation_drives::DriveExtrinsics>,
+}
+
+/// Ē_p of θ and θ_0 on each of several drives, and their means over the
+/// drives (each drive weighs the same, however long).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MultiValidation {
+    /// The θ validated.
+    pub theta: Theta,
+    /// θ_0, the reference point.
+    pub theta0: Theta,
+    /// Per drive, in the order given.
+    pub drives: Vec<DriveValidation>,
+    /// Mean over drives of Ē_p of θ, m.
+    pub mean_over_drives_m: f64,
+    /// Mean over drives of Ē_p of θ_0, m.
+    pub initial_mean_over_drives_m: f64,
+}
+
+impl MultiValidation {
+    /// The rows and their means over the drives.
+    pub(crate) fn from_rows(theta: Theta, theta0: Theta, drives: Vec<DriveValidation>) -> Self {
+        let n = drives.len().max(1) as f64;
+        let mean = |f: fn(&DriveValidation) -> f64| drives.iter().map(f).sum::<f64>() / n;
+        MultiValidation {
+            theta,
+            theta0,
+            mean_over_drives_m: mean(|d| d.mean_position_error_m),
+            initial_mean_over_drives_m: mean(|d| d.initial_mean_position_error_m),
+            drives,
+        }
+    }
+
+    /// The drives on which θ is worse than θ_0.
+    pub fn worse_than_initial(&self) -> impl Iterator<Item = &DriveValidation> {
+        self.drives
+            .iter()
+            .filter(|d| d.mean_position_error_m.is_nan() || d.mean_position_error_m > d.initial_mean_position_error_m)
+    }
+}
+
+/// Ē_p of `theta` and of `theta0` on the validation segments of each named
+/// drive (cross-run checks: calibrate on one drive, validate on others),
+/// with the reference at the rear-axle centre. For drives with reference
+/// extrinsics (the calibration's, or their own manifests'), use
+/// [`crate::assess::validation_drives::validate_drives_with`].
+///
+/// # Errors
+/// [`crate::Error::NoSegments`] naming a drive too short for one validation
+/// segment (or when `drives` is empty); the errors of
+/// [`super::position_error::mean_position_error`].
+pub fn validate_drives(
+    drives: &[(&str, &Drive)],
+    theta: &Theta,
+    theta0: &Theta,
+    segments: &ValidationSegmentOptions,
+) -> Result<MultiValidation> {
+    let drives: Vec<crate::assess::validation_drives::ValidationDrive> = drives
+        .iter()
+        .map(|(name, drive)| crate::assess::validation_drives::ValidationDrive { name, drive, reference: None })
+        .collect();
+    crate::assess::validation_drives::validate_drives_with(&drives, theta, theta0, &Default::default(), segments)
+}

@@ -1,0 +1,429 @@
+//! Validation on other drives of the same vehicle, each with the reference
+//! extrinsics that apply to it (`calibrate --validate-on`, `validate_on=`).
+//!
+//! A validation drive read from a manifest may state its own `[reference]`
+//! (lever arm, heading offset). Which values its Ē_p uses, per parameter
+//! (`lever_x`, `lever_y`, `heading_offset`), first rule that applies:
+//!
+//! 1. **Estimated by the calibration** → the estimate. The extrinsics are
+//!    the reference sensor's, and the sensor is the vehicle's: an estimate
+//!    from one drive holds for every drive of the vehicle. If the drive's
+//!    manifest states another value for it (and does not list it under
+//!    `estimate`, i.e. as a mere start), that is a *conflict*: reported,
+//!    the estimate used.
+//! 2. **Given by the caller** (`--lever-arm`, `--heading-offset`, the Python
+//!    keywords) → that value, for every drive: the command line wins over
+//!    manifests, as everywhere. A drive stating another value is a conflict.
+//! 3. **Stated by the drive's own manifest** → the drive's value: it
+//!    describes that drive's recording (a sensor can be re-mounted).
+//! 4. Otherwise **the calibration's held value** (its own manifest's, or 0).
+//!
+//! θ_0's Ē_p on the drive uses the same values, with an estimated parameter
+//! at the value the estimate started from (as the calibration's own
+//! `initial` Ē_p). Each drive's [`DriveExtrinsics`] says which values were
+//! used, from where, and lists the conflicts.
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::position_error::{segment_position_error, segment_position_error_with, ValidationReport};
+use super::validate::{DriveValidation, MultiValidation};
+use crate::drive::segment::{validation_segments, Segment, SegmentData, ValidationSegmentOptions};
+use crate::drive::Drive;
+use crate::error::{Error, Result};
+use crate::io::import::ReferenceSpec;
+use crate::model::extrinsics::{Extrinsics, ExtrinsicsEstimate};
+use crate::model::param::{Param, ParamSet};
+use crate::model::Theta;
+
+/// Where a validation drive's value of one extrinsic parameter comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ExtrinsicSource {
+    /// The calibration's estimate (rule 1).
+    Estimated,
+    /// The caller's value, e.g. `--lever-arm` (rule 2).
+    Given,
+    /// The drive's own manifest `[reference]` (rule 3).
+    Drive,
+    /// The calibration's held value: its manifest's, or 0 (rule 4).
+    Calibration,
+}
+
+impl std::fmt::Display for ExtrinsicSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            ExtrinsicSource::Estimated => "the calibration's estimate",
+            ExtrinsicSource::Given => "the command line",
+            ExtrinsicSource::Drive => "the drive's manifest",
+            ExtrinsicSource::Calibration => "the calibration's value",
+        })
+    }
+}
+
+/// The reference extrinsics of a calibration, as validation drives see
+/// them: what was estimated, what the caller gave, the held and final values.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct CalibrationExtrinsics {
+    /// The start of the estimate and the value of held parameters.
+    pub initial: Extrinsics,
+    /// The result (equal to `initial` for held parameters).
+    pub value: Extrinsics,
+    /// The parameters the calibration estimated.
+    pub estimated: ParamSet,
+    /// The parameters the caller gave itself (they win over every
+    /// validation drive's manifest).
+    pub given: ParamSet,
+}
+
+impl CalibrationExtrinsics {
+    /// The extrinsics of a calibration: its estimate (`None` when it held
+    /// every extrinsic, at `held`); `given` names the parameters the caller
+    /// gave (e.g. `--lever-arm` gives `lever_x`, `lever_y`).
+    pub fn of_estimate(estimate: Option<&ExtrinsicsEstimate>, held: Extrinsics, given: ParamSet) -> Self {
+        match estimate {
+            Some(e) => CalibrationExtrinsics { initial: e.initial, value: e.value, estimated: e.free, given },
+            None => CalibrationExtrinsics { initial: held, value: held, estimated: ParamSet::EMPTY, given },
+        }
+    }
+
+    /// Before the estimate: the start values `x`, `free`'s extrinsics as estimated.
+    pub fn before(x: Extrinsics, free: ParamSet, given: ParamSet) -> Self {
+        let estimated = free.intersection(ParamSet::EXTRINSICS);
+        CalibrationExtrinsics { initial: x, value: x, estimated, given }
+    }
+}
+
+/// A drive's stated value differs from the one used (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ExtrinsicConflict {
+    /// The parameter.
+    pub param: Param,
+    /// The drive's manifest's value (m or rad).
+    pub stated: f64,
+    /// The value used.
+    pub used: f64,
+    /// Where the value used comes from.
+    pub source: ExtrinsicSource,
+}
+
+impl std::fmt::Display for ExtrinsicConflict {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "its manifest states {} = {}, {} ({}) was used",
+            self.param,
+            fmt_value(self.param, self.stated),
+            fmt_value(self.param, self.used),
+            self.source
+        )
+    }
+}
+
+fn fmt_value(p: Param, v: f64) -> String {
+    match p {
+        Param::HeadingOffset => format!("{:+.2} mrad", v * 1e3),
+        _ => format!("{v:+.3} m"),
+    }
+}
+
+/// Where each extrinsic parameter of a validation drive comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ExtrinsicSources {
+    /// Of `lever_x`.
+    pub lever_x: ExtrinsicSource,
+    /// Of `lever_y`.
+    pub lever_y: ExtrinsicSource,
+    /// Of `heading_offset`.
+    pub heading_offset: ExtrinsicSource,
+}
+
+/// The extrinsics one validation drive used (see the module docs).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DriveExtrinsics {
+    /// With the calibrated θ.
+    pub value: Extrinsics,
+    /// With θ_0.
+    pub initial: Extrinsics,
+    /// Where each comes from.
+    pub source: ExtrinsicSources,
+    /// The drive's stated values that were not used.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub conflicts: Vec<ExtrinsicConflict>,
+}
+
+impl std::fmt::Display for DriveExtrinsics {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let v = &self.value;
+        let s = &self.source;
+        write!(f, "lever arm ({:+.3}, {:+.3}) m", v.lever_x, v.lever_y)?;
+        if s.lever_x == s.lever_y {
+            write!(f, " [{}]", s.lever_x)?;
+        } else {
+            write!(f, " [x: {}, y: {}]", s.lever_x, s.lever_y)?;
+        }
+        write!(f, ", heading offset {:+.2} mrad [{}]", v.heading_offset * 1e3, s.heading_offset)
+    }
+}
+
+/// The extrinsics a validation drive whose manifest states `reference`
+/// uses under the calibration's `cal` (the rules of the module docs).
+pub fn drive_extrinsics(cal: &CalibrationExtrinsics, reference: Option<&ReferenceSpec>) -> DriveExtrinsics {
+    // The drive's stated values, and which it lists as a start of an estimate only.
+    let stated = |p: Param| -> Option<f64> {
+        let r = reference?;
+        match p {
+            Param::LeverX => r.lever_arm.map(|l| l[0]),
+            Param::LeverY => r.lever_arm.map(|l| l[1]),
+            Param::HeadingOffset => r.heading_offset,
+            _ => None,
+        }
+    };
+    let start_only = |p: Param| reference.is_some_and(|r| r.estimate_set().is_ok_and(|s| s.contains(p)));
+    let (mut value, mut initial) = ([0.0; 3], [0.0; 3]);
+    let mut source = [ExtrinsicSource::Calibration; 3];
+    let mut conflicts = Vec::new();
+    for (i, p) in Param::EXTRINSICS.into_iter().enumerate() {
+        let (v, v0, src) = if cal.estimated.contains(p) {
+            (cal.value.to_array()[i], cal.initial.to_array()[i], ExtrinsicSource::Estimated)
+        } else if cal.given.contains(p) {
+            (cal.initial.to_array()[i], cal.initial.to_array()[i], ExtrinsicSource::Given)
+        } else if let Some(s) = stated(p) {
+            (s, s, ExtrinsicSource::Drive)
+        } else {
+            (cal.initial.to_array()[i], cal.initial.to_array()[i], ExtrinsicSource::Calibration)
+        };
+        if let Some(s) = stated(p) {
+            let overruled = matches!(src, ExtrinsicSource::Estimated | ExtrinsicSource::Given);
+            let excused = src == ExtrinsicSource::Estimated && start_only(p);
+            if overruled && !excused && (s - v).abs() > 1e-12 {
+                conflicts.push(ExtrinsicConflict { param: p, stated: s, used: v, source: src });
+            }
+        }
+        (value[i], initial[i], source[i]) = (v, v0, src);
+    }
+    DriveExtrinsics {
+        value: Extrinsics::from_array(value),
+        initial: Extrinsics::from_array(initial),
+        source: ExtrinsicSources { lever_x: source[0], lever_y: source[1], heading_offset: source[2] },
+        conflicts,
+    }
+}
+
+/// One validation drive: its name (e.g. its file), samples and the
+/// `[reference]` its manifest states (`None` for a CSV or a manifest without one).
+#[derive(Debug, Clone, Copy)]
+pub struct ValidationDrive<'a> {
+    /// The name in reports.
+    pub name: &'a str,
+    /// The drive.
+    pub drive: &'a Drive,
+    /// Its manifest's `[reference]`.
+    pub reference: Option<&'a ReferenceSpec>,
+}
+
+/// E_p,s of one segment at θ with extrinsics `e` (the SPEC's error when zero).
+fn segment_error(drive: &Drive, s: &Segment, theta: &Theta, e: &Extrinsics) -> f64 {
+    let data = SegmentData::new(drive, s);
+    if e.is_zero() {
+        segment_position_error(&data, theta)
+    } else {
+        segment_position_error_with(&data, theta, e)
+    }
+}
+
+/// Ē_p of θ on `drive` with each drive's extrinsics: `e` gives them for a
+/// segment (parallel over segments, deterministic).
+fn mean_error_by(
+    drive: &Drive,
+    segments: &[Segment],
+    theta: &Theta,
+    e: impl Fn(&Segment) -> Extrinsics + Sync,
+) -> Result<ValidationReport> {
+    theta.validate()?;
+    if segments.is_empty() {
+        return Err(Error::NoSegments(format!(
+            "the drive ({} samples) is too short for one validation segment",
+            drive.len()
+        )));
+    }
+    let per_segment_m: Vec<f64> = segments.par_iter().map(|s| segment_error(drive, s, theta, &e(s))).collect();
+    let mean = per_segment_m.iter().sum::<f64>() / per_segment_m.len() as f64;
+    if !mean.is_finite() {
+        return Err(Error::Numerical(format!("validation error is not finite at θ = {theta}")));
+    }
+    Ok(ValidationReport { theta: *theta, mean_position_error_m: mean, segments: segments.len(), per_segment_m })
+}
+
+/// The validation drives joined ([`Drive::concat`]) with what is needed to
+/// give each of its segments its own drive's extrinsics.
+pub(crate) struct HeldOutDrives<'a> {
+    /// The drives joined.
+    pub joined: Drive,
+    /// First sample of each drive in `joined`.
+    starts: Vec<usize>,
+    /// Each drive's `[reference]`.
+    references: Vec<Option<&'a ReferenceSpec>>,
+    /// The parameters the caller gave.
+    pub given: ParamSet,
+}
+
+impl<'a> HeldOutDrives<'a> {
+    pub(crate) fn new(drives: &[ValidationDrive<'a>], given: ParamSet) -> Result<Self> {
+        let refs: Vec<&Drive> = drives.iter().map(|d| d.drive).collect();
+        let joined = Drive::concat(&refs)?;
+        let mut starts = Vec::with_capacity(drives.len());
+        let mut n = 0;
+        for d in drives {
+            starts.push(n);
+            n += d.drive.len();
+        }
+        Ok(HeldOutDrives { joined, starts, references: drives.iter().map(|d| d.reference).collect(), given })
+    }
+
+    /// Ē_p of θ (or of θ_0 with `initial`) over the joined drive's
+    /// `segments`, each with its drive's extrinsics under `cal`.
+    pub(crate) fn error(
+        &self,
+        segments: &[Segment],
+        theta: &Theta,
+        cal: &CalibrationExtrinsics,
+        initial: bool,
+    ) -> Result<ValidationReport> {
+        let per_drive: Vec<DriveExtrinsics> = self.references.iter().map(|r| drive_extrinsics(cal, *r)).collect();
+        for x in &per_drive {
+            x.value.validate()?;
+        }
+        mean_error_by(&self.joined, segments, theta, |s| {
+            let i = self.starts.partition_point(|&b| b <= s.start).saturating_sub(1);
+            let x = &per_drive[i];
+            if initial {
+                x.initial
+            } else {
+                x.value
+            }
+        })
+    }
+}
+
+/// Ē_p of `theta` and of `theta0` on the validation segments of each
+/// drive, with the extrinsics each drive uses under `cal` (module docs);
+/// each row carries them ([`DriveValidation::extrinsics`]).
+///
+/// # Errors
+/// [`Error::NoSegments`] naming a drive too short for one validation
+/// segment (or when `drives` is empty); non-finite errors.
+pub fn validate_drives_with(
+    drives: &[ValidationDrive<'_>],
+    theta: &Theta,
+    theta0: &Theta,
+    cal: &CalibrationExtrinsics,
+    segments: &ValidationSegmentOptions,
+) -> Result<MultiValidation> {
+    if drives.is_empty() {
+        return Err(Error::NoSegments("no validation drive given".into()));
+    }
+    let mut out = Vec::with_capacity(drives.len());
+    for d in drives {
+        let segs = validation_segments(d.drive, segments)?;
+        if segs.is_empty() {
+            return Err(Error::NoSegments(format!(
+                "validation drive {} ({} samples) is too short for one validation segment of {} steps",
+                d.name,
+                d.drive.len(),
+                segments.length_steps
+            )));
+        }
+        let x = drive_extrinsics(cal, d.reference);
+        x.value.validate()?;
+        let applies = !(x.value.is_zero() && x.initial.is_zero() && x.conflicts.is_empty());
+        out.push(DriveValidation {
+            name: d.name.to_string(),
+            mean_position_error_m: mean_error_by(d.drive, &segs, theta, |_| x.value)?.mean_position_error_m,
+            initial_mean_position_error_m: mean_error_by(d.drive, &segs, theta0, |_| x.initial)?.mean_position_error_m,
+            segments: segs.len(),
+            extrinsics: applies.then_some(x),
+        });
+    }
+    Ok(MultiValidation::from_rows(*theta, *theta0, out))
+}
+
+#[cfg(test)]
+#[allow(clippy::float_cmp)] // values copied, not computed
+mod tests {
+    use super::*;
+
+    fn spec(lever: Option<[f64; 2]>, heading: Option<f64>, estimate: &[&str]) -> ReferenceSpec {
+        ReferenceSpec {
+            lever_arm: lever,
+            heading_offset: heading,
+            estimate: estimate.iter().map(|s| s.to_string()).collect(),
+        }
+    }
+
+    #[test]
+    fn a_drive_validated_with_its_own_mount_is_exact() {
+        use crate::sim::{simulate, SimOptions};
+        let mount = Extrinsics { lever_x: -0.9, lever_y: 0.3, heading_offset: -0.01 };
+        let o = SimOptions { length_km: 2.0, substeps: 1, reference_mount: mount, ..SimOptions::noise_free(6) };
+        let s = simulate(&o).expect("simulate");
+        let theta = s.sidecar.theta_true;
+        let r = spec(Some([-0.9, 0.3]), Some(-0.01), &[]);
+        let drives = [
+            ValidationDrive { name: "stated", drive: &s.drive, reference: Some(&r) },
+            ValidationDrive { name: "bare", drive: &s.drive, reference: None },
+        ];
+        let m = validate_drives_with(&drives, &theta, &theta, &CalibrationExtrinsics::default(), &Default::default())
+            .expect("validate");
+        let (with, without) = (m.drives[0].mean_position_error_m, m.drives[1].mean_position_error_m);
+        assert!(with < 1e-6 && without > 0.1, "Ē_p {with} m with the drive's mount, {without} m without");
+        assert_eq!(m.drives[0].extrinsics.as_ref().map(|x| x.value), Some(mount));
+        assert!(m.drives[1].extrinsics.is_none());
+        // The joined held-out drives give each segment its own drive's mount.
+        let held = HeldOutDrives::new(&drives, ParamSet::EMPTY).expect("join");
+        let segs = validation_segments(&held.joined, &Default::default()).expect("segments");
+        let cal = CalibrationExtrinsics::default();
+        let joint = held.error(&segs, &theta, &cal, false).expect("error");
+        assert!((joint.mean_position_error_m - (with + without) / 2.0).abs() < 1e-9 * without, "{joint:?}");
+        assert_eq!(joint.segments, 2 * m.drives[0].segments);
+    }
+
+    #[test]
+    fn the_rules_pick_estimate_caller_drive_calibration_in_that_order() {
+        let cal = CalibrationExtrinsics {
+            initial: Extrinsics { lever_x: -0.5, lever_y: 0.0, heading_offset: 0.002 },
+            value: Extrinsics { lever_x: -0.8, lever_y: 0.1, heading_offset: 0.002 },
+            estimated: ParamSet::LEVER_ARM,
+            given: ParamSet::EMPTY,
+        };
+        // No manifest: estimate for the lever arm, the calibration's held heading offset.
+        let x = drive_extrinsics(&cal, None);
+        assert_eq!(x.value, cal.value);
+        assert_eq!(x.initial, cal.initial);
+        assert_eq!(x.source.lever_x, ExtrinsicSource::Estimated);
+        assert_eq!(x.source.heading_offset, ExtrinsicSource::Calibration);
+        assert!(x.conflicts.is_empty());
+        // The drive states both: its heading offset applies; its lever arm conflicts with the estimate.
+        let r = spec(Some([-0.9, 0.0]), Some(-0.01), &[]);
+        let x = drive_extrinsics(&cal, Some(&r));
+        assert_eq!(x.value, Extrinsics { lever_x: -0.8, lever_y: 0.1, heading_offset: -0.01 });
+        assert_eq!(x.initial.heading_offset, -0.01);
+        assert_eq!(x.source.heading_offset, ExtrinsicSource::Drive);
+        let params: Vec<Param> = x.conflicts.iter().map(|c| c.param).collect();
+        assert_eq!(params, [Param::LeverX, Param::LeverY]);
+        assert!(x.conflicts[0]
+            .to_string()
+            .contains("states lever_x = -0.900 m, -0.800 m (the calibration's estimate)"));
+        // ... unless the drive lists the lever arm as estimated too: its value is only a start.
+        let r = spec(Some([-0.9, 0.0]), None, &["lever-arm"]);
+        assert!(drive_extrinsics(&cal, Some(&r)).conflicts.is_empty());
+        // A caller's heading offset wins over the drive's, reported.
+        let cal = CalibrationExtrinsics { given: ParamSet::EMPTY.with(Param::HeadingOffset), ..cal };
+        let r = spec(None, Some(-0.01), &[]);
+        let x = drive_extrinsics(&cal, Some(&r));
+        assert_eq!(x.value.heading_offset, 0.002);
+        assert_eq!(x.source.heading_offset, ExtrinsicSource::Given);
+        assert_eq!(x.conflicts.len(), 1);
+        assert_eq!(x.conflicts[0].source, ExtrinsicSource::Given);
+    }
+}

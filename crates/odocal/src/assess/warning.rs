@@ -1,0 +1,364 @@
+//! Typed warnings of a calibration: what the user should know about a
+//! result that is not an error.
+//!
+//! Each [`Warning`] carries its numbers as fields (in the JSON report, tagged
+//! by `"kind"`) and reads as one sentence through `Display`. Human output can
+//! group them by [`Warning::kind`]: a noisy drive gives hundreds of
+//! [`Warning::CompensationFailed`] and the CLI prints a count and the first
+//! few ([`summarize`]).
+
+use serde::{Deserialize, Serialize};
+
+use crate::assess::trust::GuardViolation;
+use crate::compensate::CompensationWarning;
+use crate::eiv::EivWarning;
+use crate::model::param::{Param, ParamSet};
+use crate::model::Theta;
+
+/// Something the user should know about a calibration result.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+#[non_exhaustive]
+pub enum Warning {
+    /// An identification ended with parameters the data cannot determine
+    /// (alone, or in a near-collinear combination): their estimates are not
+    /// to be trusted.
+    Unobservable {
+        /// Which identification (`"final identification"`).
+        stage: String,
+        /// The parameters.
+        params: ParamSet,
+        /// RMS pose change per resolution step of each θ parameter, m.
+        sensitivity_m: [f64; 4],
+        /// Reciprocal condition number of the equilibrated `JᵀWJ`.
+        rcond: f64,
+    },
+    /// `auto_fix`: no segment turns enough, so the yaw-only parameters were
+    /// held at θ_0 and every segment was used.
+    AutoFixNoTurns {
+        /// The parameters held.
+        params: ParamSet,
+        /// Segments used (all cut).
+        segments: usize,
+        /// The selection threshold, rad/s.
+        min_peak_yaw_rate_rad_per_s: f64,
+        /// The fastest segment's peak yaw rate, rad/s.
+        peak_yaw_rate_rad_per_s: f64,
+    },
+    /// `auto_fix`: parameters the observability check named at θ_0 were held.
+    AutoFixUnobservable {
+        /// The parameters held, in the order they were held.
+        params: Vec<Param>,
+        /// Selected segments the check ran on.
+        segments: usize,
+    },
+    /// Every selected calibration segment turns the same way, which makes
+    /// c_d and t_r nearly collinear: every cut segment was used instead
+    /// (the straight ones separate them; see
+    /// [`crate::CalibrationOptions::keep_one_way_selection`]).
+    OneWayTurns {
+        /// The common turning direction.
+        sense: String,
+        /// Segments selected by the yaw-rate threshold.
+        selected: usize,
+        /// Segments added (those below the threshold).
+        added: usize,
+    },
+    /// A step-1 batch identification failed and was left out.
+    BatchFailed {
+        /// Batch index (0-based, in batch order).
+        batch: usize,
+        /// Why.
+        reason: String,
+    },
+    /// A step-1 batch result failed a plausibility guard and was not picked.
+    BatchRejected {
+        /// Batch index (0-based, in batch order).
+        batch: usize,
+        /// The guards it failed.
+        violations: Vec<GuardViolation>,
+    },
+    /// Fewer step-1 results passed the guards than θ_B,I are to be picked.
+    FewUsableBatches {
+        /// Results that passed.
+        usable: usize,
+        /// θ_B,I asked for.
+        picks: usize,
+    },
+    /// A compensation job (one segment at one θ_B,I) failed and was left out.
+    CompensationFailed {
+        /// First sample of the segment.
+        segment_start: usize,
+        /// Why.
+        reason: String,
+    },
+    /// A QP the configured solver did not finish was solved by the fallback.
+    SolverFallback {
+        /// First sample of the segment.
+        segment_start: usize,
+        /// Which θ_B,I (1-based).
+        theta_index: usize,
+        /// The linearization (1-based).
+        linearization: usize,
+        /// The solver that did not finish.
+        solver: String,
+        /// The solver that did.
+        fallback: String,
+        /// Why the first one stopped.
+        reason: String,
+    },
+    /// EIV: a consistency check of the filter failed (the model does not
+    /// fit the data): NIS or whiteness in a window, divergence in a window,
+    /// θ unstable across halves, a noise scale at its upper clamp, or no
+    /// convergence. The finding carries the window or parameter.
+    EivCheckFailed {
+        /// The filter's finding.
+        finding: EivWarning,
+        /// True when the report's θ is therefore the batch G-N fallback;
+        /// false when the EIV θ was kept (fallback off) despite it.
+        fell_back: bool,
+    },
+    /// EIV: a finding of the filter that is not a failure: innovations
+    /// smaller than the noise model allows (NIS below its band, and their
+    /// lag-1 correlation in such a window).
+    EivCheckNote {
+        /// The filter's finding.
+        finding: EivWarning,
+    },
+    /// EIV: the EIV estimate was not used; the report's θ is batch
+    /// Gauss-Newton over all cut segments (no yaw-rate selection).
+    EivFallback {
+        /// Why: the checks that failed, or the filter's error.
+        reason: String,
+        /// Segments the batch Gauss-Newton fitted.
+        segments: usize,
+        /// The EIV θ that was not used (none when the filter failed).
+        eiv_theta: Option<Theta>,
+    },
+    /// EIV with reference extrinsics: a two-stage estimate. The extrinsics
+    /// were estimated jointly with θ by the method's batch Gauss-Newton
+    /// start (or given), then held while the filter ran on the axle poses
+    /// they imply; the EIV θ covariance does not include their uncertainty.
+    EivExtrinsicsHeld {
+        /// The extrinsics the filter held.
+        extrinsics: crate::model::extrinsics::Extrinsics,
+        /// Which of them the batch Gauss-Newton start estimated (empty:
+        /// all given).
+        estimated: ParamSet,
+    },
+    /// EIV: the bias correction's bootstrap fitted only some of its
+    /// replicates. The subtracted bias is the mean over the complete
+    /// antithetic pairs that were fitted; its Monte Carlo error, larger with
+    /// fewer pairs, is in θ's σ.
+    EivBiasCorrectionIncomplete {
+        /// Replicates that could not be fitted.
+        failed: usize,
+        /// Replicates asked for.
+        replicates: usize,
+        /// The first replicate's error.
+        first_error: String,
+    },
+    /// EIV: the bias correction could not be computed (too few of its
+    /// replicates could be fitted). The result is the uncorrected EIV
+    /// estimate (the profile cost's root), which the checks accepted.
+    EivBiasCorrectionFailed {
+        /// Why.
+        error: String,
+    },
+}
+
+impl From<CompensationWarning> for Warning {
+    fn from(w: CompensationWarning) -> Self {
+        match w {
+            CompensationWarning::Failed { segment_start, reason } => {
+                Warning::CompensationFailed { segment_start, reason }
+            }
+            CompensationWarning::SolverFallback {
+                segment_start,
+                theta_index,
+                linearization,
+                solver,
+                fallback,
+                reason,
+            } => Warning::SolverFallback { segment_start, theta_index, linearization, solver, fallback, reason },
+        }
+    }
+}
+
+impl Warning {
+    /// A short name of the kind of warning (the JSON `"kind"`), for grouping.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Warning::Unobservable { .. } => "unobservable",
+            Warning::AutoFixNoTurns { .. } => "auto_fix_no_turns",
+            Warning::AutoFixUnobservable { .. } => "auto_fix_unobservable",
+            Warning::OneWayTurns { .. } => "one_way_turns",
+            Warning::BatchFailed { .. } => "batch_failed",
+            Warning::BatchRejected { .. } => "batch_rejected",
+            Warning::FewUsableBatches { .. } => "few_usable_batches",
+            Warning::CompensationFailed { .. } => "compensation_failed",
+            Warning::SolverFallback { .. } => "solver_fallback",
+            Warning::EivCheckFailed { .. } => "eiv_check_failed",
+            Warning::EivCheckNote { .. } => "eiv_check_note",
+            Warning::EivFallback { .. } => "eiv_fallback",
+            Warning::EivExtrinsicsHeld { .. } => "eiv_extrinsics_held",
+            Warning::EivBiasCorrectionIncomplete { .. } => "eiv_bias_correction_incomplete",
+            Warning::EivBiasCorrectionFailed { .. } => "eiv_bias_correction_failed",
+        }
+    }
+
+    /// True for a failed EIV consistency check whose θ is the report's
+    /// result (the fallback was off): the verdict counts these.
+    pub fn misspecifies_result(&self) -> bool {
+        matches!(self, Warning::EivCheckFailed { fell_back: false, .. })
+    }
+}
+
+impl std::fmt::Display for Warning {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Warning::Unobservable { stage, params, sensitivity_m: s, rcond } => write!(
+                f,
+                "{stage}: {params} not observable from these data (sensitivity [c_e, c_d, t_r, d] = [{:.3}, {:.3}, \
+                 {:.3}, {:.3}] m per resolution step, rcond {rcond:.1e}); their estimates are not to be trusted — \
+                 hold them fixed at θ_0 (--fix) or use a drive with more turns",
+                s[0], s[1], s[2], s[3]
+            ),
+            Warning::AutoFixNoTurns { params, segments, min_peak_yaw_rate_rad_per_s, peak_yaw_rate_rad_per_s } => {
+                write!(
+                    f,
+                    "auto-fix: {params} held at θ_0 and all {segments} segments used: none turns faster than \
+                     {min_peak_yaw_rate_rad_per_s} rad/s (the fastest: {peak_yaw_rate_rad_per_s:.3} rad/s), so only \
+                     c_e is observable"
+                )
+            }
+            Warning::OneWayTurns { sense, selected, added } => write!(
+                f,
+                "all {selected} selected segments turn {sense}, so c_d and t_r are nearly collinear on them: the \
+                 {added} straighter segments were added (--keep-one-way keeps the turning ones only)"
+            ),
+            Warning::AutoFixUnobservable { params, segments } => {
+                let names: Vec<&str> = params.iter().map(|p| p.name()).collect();
+                write!(
+                    f,
+                    "auto-fix: {} held at θ_0 (not observable from the {segments} selected segments at θ_0)",
+                    names.join(", ")
+                )
+            }
+            Warning::BatchFailed { batch, reason } => write!(f, "initial batch {batch} left out: {reason}"),
+            Warning::BatchRejected { batch, violations } => {
+                let v: Vec<String> = violations.iter().map(ToString::to_string).collect();
+                write!(f, "initial batch {batch} not picked (implausible): {}", v.join("; "))
+            }
+            Warning::FewUsableBatches { usable, picks } => write!(
+                f,
+                "only {usable} step-1 results passed the plausibility guards; {usable} θ_B,I picked instead of {picks}"
+            ),
+            Warning::CompensationFailed { reason, .. } => write!(f, "compensation left out: {reason}"),
+            Warning::SolverFallback { segment_start, theta_index, linearization, solver, fallback, reason } => write!(
+                f,
+                "compensation of the segment at sample {segment_start} (θ_B,I {theta_index}): linearization \
+                 {linearization}: {solver} → {fallback}: {reason}"
+            ),
+            Warning::EivCheckFailed { finding, fell_back } => write!(
+                f,
+                "EIV check failed: {finding}{}",
+                if *fell_back { "" } else { " (EIV result kept: fallback off)" }
+            ),
+            Warning::EivCheckNote { finding } => write!(
+                f,
+                "EIV note (not a failure): {finding}; the innovations are smaller than the noise model allows (a \
+                 noise source absent or over-estimated)"
+            ),
+            Warning::EivFallback { reason, segments, eiv_theta } => {
+                write!(
+                    f,
+                    "EIV result NOT used ({reason}): the result is batch Gauss-Newton on all {segments} cut segments \
+                     (no yaw-rate selection)"
+                )?;
+                match eiv_theta {
+                    Some(t) => write!(f, "; the rejected EIV θ was {t}"),
+                    None => Ok(()),
+                }
+            }
+            Warning::EivExtrinsicsHeld { extrinsics, estimated } => {
+                let origin = if estimated.is_empty() {
+                    "given".to_string()
+                } else {
+                    format!("{estimated} estimated by its batch Gauss-Newton start")
+                };
+                write!(
+                    f,
+                    "EIV two-stage: the reference extrinsics ({extrinsics}; {origin}) were held while the filter ran \
+                     on the rear-axle poses they imply; the EIV θ σ does not include their uncertainty (their σ is \
+                     the batch Gauss-Newton start's)"
+                )
+            }
+            Warning::EivBiasCorrectionIncomplete { failed, replicates, first_error } => write!(
+                f,
+                "EIV bias correction from {} of {replicates} replicates ({failed} could not be fitted, the first: \
+                 {first_error}); its Monte Carlo error is in θ's σ",
+                replicates.saturating_sub(*failed)
+            ),
+            Warning::EivBiasCorrectionFailed { error } => write!(
+                f,
+                "EIV bias correction NOT applied ({error}): the result is the uncorrected EIV estimate; another \
+                 bootstrap seed or more replicates may succeed"
+            ),
+        }
+    }
+}
+
+/// Lines for a human reader: warnings grouped by kind (in order of first
+/// appearance), at most `per_kind` of each, then `"… and N more <kind>
+/// warnings"` for the rest.
+pub fn summarize(warnings: &[Warning], per_kind: usize) -> Vec<String> {
+    let mut kinds: Vec<&'static str> = Vec::new();
+    for w in warnings {
+        if !kinds.contains(&w.kind()) {
+            kinds.push(w.kind());
+        }
+    }
+    let mut out = Vec::new();
+    for k in kinds {
+        let of_kind: Vec<&Warning> = warnings.iter().filter(|w| w.kind() == k).collect();
+        out.extend(of_kind.iter().take(per_kind).map(|w| w.to_string()));
+        if of_kind.len() > per_kind {
+            out.push(format!("… and {} more {} warnings", of_kind.len() - per_kind, k.replace('_', " ")));
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn repeated_warnings_collapse_to_a_count() {
+        let mut w: Vec<Warning> = (0..500)
+            .map(|i| Warning::CompensationFailed { segment_start: i * 100, reason: format!("job {i}") })
+            .collect();
+        w.insert(1, Warning::BatchFailed { batch: 3, reason: "singular".into() });
+        let lines = summarize(&w, 3);
+        assert_eq!(lines.len(), 5, "{lines:?}");
+        assert_eq!(lines[0], "compensation left out: job 0");
+        assert_eq!(lines[3], "… and 497 more compensation failed warnings");
+        assert_eq!(lines[4], "initial batch 3 left out: singular");
+    }
+
+    #[test]
+    fn json_is_tagged_by_kind_with_named_parameters() {
+        let w = Warning::AutoFixNoTurns {
+            params: "c_d,t_r,d".parse().expect("params"),
+            segments: 4,
+            min_peak_yaw_rate_rad_per_s: 0.15,
+            peak_yaw_rate_rad_per_s: 0.01,
+        };
+        let v = serde_json::to_value(&w).expect("json");
+        assert_eq!(v["kind"], "auto_fix_no_turns");
+        assert_eq!(v["params"], serde_json::json!(["c_d", "t_r", "d"]));
+        assert_eq!(serde_json::from_value::<Warning>(v).expect("back"), w);
+        assert!(w.to_string().starts_with("auto-fix: c_d, t_r, d held at θ_0 and all 4 segments used"), "{w}");
+    }
+}

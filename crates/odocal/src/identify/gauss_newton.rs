@@ -1,0 +1,250 @@
+//! The one batch Gauss-Newton loop (SPEC §4) behind
+//! [`crate::identify::batch_gauss_newton`], over θ alone (N = 4) and over
+//! θ with the reference extrinsics (N = 7, [`crate::model::extrinsics`]).
+//!
+//! What varies between the two is a [`Problem`]: the residuals and
+//! Jacobian of one segment at a parameter vector (as its normal
+//! equations), its cost, and the words of the errors. The loop — the
+//! reduced solve over the free parameters, the candidate checks, the step
+//! acceptance and the termination — is this module's, as are the model
+//! covariance `σ̂²(JᵀWJ)⁻¹` and the cluster-robust covariance of
+//! [`cluster_robust_covariance`].
+
+use nalgebra::{DMatrix, DVector, SMatrix, SVector};
+use rayon::prelude::*;
+
+use super::{IdentifyOptions, NormalEquations, Termination};
+use crate::drive::segment::SegmentData;
+use crate::error::{Error, Result};
+
+/// The residual/Jacobian supplier of the loop over an N-parameter vector.
+pub(crate) trait Problem<const N: usize>: Sync {
+    /// Normal equations of one segment at `x`.
+    fn normal_equations(&self, seg: &SegmentData<'_>, x: &SVector<f64, N>) -> NormalEquations<N>;
+    /// Weighted cost of one segment at `x` (no Jacobian).
+    fn cost(&self, seg: &SegmentData<'_>, x: &SVector<f64, N>) -> f64;
+    /// True when `x` is physical (θ's `c_e`, `t_r` positive).
+    fn physical(&self, x: &SVector<f64, N>) -> bool;
+    /// The error for a non-finite cost at the start `x`.
+    fn non_finite_start(&self, x: &SVector<f64, N>) -> Error;
+    /// The error for a singular reduced `JᵀWJ` (`total` at the current x).
+    fn singular(&self, total: &NormalEquations<N>) -> Error;
+}
+
+/// What the loop hands back.
+pub(crate) struct Outcome<const N: usize> {
+    /// The estimate.
+    pub x: SVector<f64, N>,
+    /// Weighted cost at the start.
+    pub initial_cost: f64,
+    /// Accepted iterates and their costs, in order.
+    pub history: Vec<(SVector<f64, N>, f64)>,
+    /// Why it stopped.
+    pub termination: Termination,
+    /// Normal equations at the estimate, summed over segments.
+    pub total: NormalEquations<N>,
+    /// Normal equations at the estimate, per segment (input order).
+    pub per_segment: Vec<NormalEquations<N>>,
+}
+
+/// Per-segment normal equations in parallel and their sum in segment order
+/// (deterministic whatever the thread count).
+pub(crate) fn batch<const N: usize, P: Problem<N>>(
+    p: &P,
+    segments: &[SegmentData<'_>],
+    x: &SVector<f64, N>,
+) -> (NormalEquations<N>, Vec<NormalEquations<N>>) {
+    let parts: Vec<NormalEquations<N>> = segments.par_iter().map(|s| p.normal_equations(s, x)).collect();
+    let mut total = NormalEquations::zero();
+    for q in &parts {
+        total.add(q);
+    }
+    (total, parts)
+}
+
+fn batch_cost<const N: usize, P: Problem<N>>(p: &P, segments: &[SegmentData<'_>], x: &SVector<f64, N>) -> f64 {
+    let costs: Vec<f64> = segments.par_iter().map(|s| p.cost(s, x)).collect();
+    costs.iter().sum()
+}
+
+/// The free block of `m` (rows and columns `free`) and of `v`.
+pub(crate) fn reduce<const N: usize>(
+    m: &SMatrix<f64, N, N>,
+    v: &SVector<f64, N>,
+    free: &[usize],
+) -> (DMatrix<f64>, DVector<f64>) {
+    let a = DMatrix::from_fn(free.len(), free.len(), |i, j| m[(free[i], free[j])]);
+    let b = DVector::from_fn(free.len(), |i, _| v[free[i]]);
+    (a, b)
+}
+
+/// Batch Gauss-Newton from `x0` over the `free` entries; `scale` divides
+/// the step for the step-tolerance test. Accepted steps never increase the
+/// weighted cost; see [`Termination`] for how it stops.
+pub(crate) fn run<const N: usize, P: Problem<N>>(
+    p: &P,
+    segments: &[SegmentData<'_>],
+    x0: &SVector<f64, N>,
+    free: &[usize],
+    scale: &SVector<f64, N>,
+    opts: &IdentifyOptions,
+) -> Result<Outcome<N>> {
+    let mut x = *x0;
+    let (mut ne, mut parts) = batch(p, segments, &x);
+    if !ne.cost.is_finite() {
+        return Err(p.non_finite_start(&x));
+    }
+    let initial_cost = ne.cost;
+    let mut history = Vec::new();
+    let mut termination = Termination::MaxIterations { iterations: opts.max_iterations };
+    for _ in 0..opts.max_iterations {
+        let (a, b) = reduce(&ne.jtwj, &ne.jtwr, free);
+        let Some(chol) = a.cholesky() else {
+            return Err(p.singular(&ne));
+        };
+        let dx = chol.solve(&b);
+        let mut step = SVector::<f64, N>::zeros();
+        for (i, &fi) in free.iter().enumerate() {
+            step[fi] = dx[i];
+        }
+        let cand = x + step;
+        let rel_step = step.component_div(scale).amax();
+        if !cand.iter().all(|v| v.is_finite()) {
+            termination = Termination::NonFiniteCandidate { previous: ne.cost };
+            break;
+        }
+        if !p.physical(&cand) {
+            termination = Termination::NonPhysicalCandidate { previous: ne.cost };
+            break;
+        }
+        let cand_cost = batch_cost(p, segments, &cand);
+        let rel_change = (cand_cost - ne.cost).abs() / ne.cost.max(f64::MIN_POSITIVE);
+        if cand_cost.is_nan() || cand_cost > ne.cost {
+            termination = if rel_change <= opts.cost_tolerance {
+                Termination::Converged { rel_change, threshold: opts.cost_tolerance }
+            } else {
+                Termination::CostIncreased { cost: cand_cost, previous: ne.cost }
+            };
+            break;
+        }
+        x = cand;
+        (ne, parts) = batch(p, segments, &x);
+        history.push((x, ne.cost));
+        if rel_step <= opts.step_tolerance {
+            termination = Termination::StepTolerance { rel_step, threshold: opts.step_tolerance };
+            break;
+        }
+    }
+    Ok(Outcome { x, initial_cost, history, termination, total: ne, per_segment: parts })
+}
+
+/// The model covariance `σ̂² (JᵀWJ)⁻¹` over the free entries (zero rows and
+/// columns elsewhere), `σ̂² = cost / (m − p)` with `m = 3·poses` residuals
+/// and `p` free parameters; zero when the free block is singular.
+pub(crate) fn model_covariance<const N: usize>(ne: &NormalEquations<N>, free: &[usize]) -> SMatrix<f64, N, N> {
+    let (a, _) = reduce(&ne.jtwj, &ne.jtwr, free);
+    let m = 3 * ne.poses;
+    let sigma2 = if m > free.len() { ne.cost / (m - free.len()) as f64 } else { f64::NAN };
+    let mut cov = SMatrix::<f64, N, N>::zeros();
+    if let Some(inv) = a.try_inverse() {
+        for (i, &fi) in free.iter().enumerate() {
+            for (j, &fj) in free.iter().enumerate() {
+                cov[(fi, fj)] = sigma2 * inv[(i, j)];
+            }
+        }
+    }
+    cov
+}
+
+/// Groups segments into clusters for [`cluster_robust_covariance`]:
+/// segments sorted by start sample; a new cluster begins at the first
+/// segment starting `block_steps` or more after the current cluster's first
+/// segment. Returns the cluster index of each segment (input order) and
+/// the number of clusters.
+pub(crate) fn clusters(starts: &[usize], block_steps: usize) -> (Vec<usize>, usize) {
+    let mut order: Vec<usize> = (0..starts.len()).collect();
+    order.sort_by_key(|&i| (starts[i], i));
+    let mut id = vec![0; starts.len()];
+    let (mut g, mut first) = (0usize, None::<usize>);
+    for &i in &order {
+        match first {
+            Some(f) if starts[i] < f + block_steps.max(1) => {}
+            Some(_) => {
+                g += 1;
+                first = Some(starts[i]);
+            }
+            None => first = Some(starts[i]),
+        }
+        id[i] = g;
+    }
+    (id, if starts.is_empty() { 0 } else { g + 1 })
+}
+
+/// The cluster-robust ("sandwich") covariance over the free entries,
+///
+/// ```text
+/// V = H⁻¹ · G/(G−1) Σ_c (g_c − ḡ)(g_c − ḡ)ᵀ · H⁻¹,   H = JᵀWJ,  g_c = Σ_{s∈c} J_sᵀW r_s
+/// ```
+///
+/// with the clusters of [`clusters`] (`G` of them; ḡ their mean, which is
+/// the gradient over G and 0 at a converged estimate). Unlike the model
+/// covariance it does not assume independent, equally scaled residuals:
+/// a segment's residuals integrate the same input noise, and overlapping
+/// segments share samples, so only sums over long stretches of the drive
+/// are close to independent. Clusters are
+/// [`IdentifyOptions::robust_block_steps`] long; `None` with fewer than
+/// [`IdentifyOptions::robust_min_clusters`] of them or a singular free block.
+pub(crate) fn cluster_robust_covariance<const N: usize>(
+    total: &NormalEquations<N>,
+    per_segment: &[NormalEquations<N>],
+    segments: &[SegmentData<'_>],
+    free: &[usize],
+    opts: &IdentifyOptions,
+) -> Option<(SMatrix<f64, N, N>, usize)> {
+    let starts: Vec<usize> = segments.iter().map(|s| s.start).collect();
+    let (id, g) = clusters(&starts, opts.robust_block_steps);
+    if g < opts.robust_min_clusters.max(2) {
+        return None;
+    }
+    let p = free.len();
+    let mut scores = vec![DVector::<f64>::zeros(p); g];
+    for (s, ne) in per_segment.iter().enumerate() {
+        for (i, &fi) in free.iter().enumerate() {
+            scores[id[s]][i] += ne.jtwr[fi];
+        }
+    }
+    let mean = scores.iter().fold(DVector::zeros(p), |acc, v| acc + v) / g as f64;
+    let mut meat = DMatrix::<f64>::zeros(p, p);
+    for v in &scores {
+        let c = v - &mean;
+        meat += &c * c.transpose();
+    }
+    meat *= g as f64 / (g - 1) as f64;
+    let (a, _) = reduce(&total.jtwj, &total.jtwr, free);
+    let inv = a.try_inverse()?;
+    let v = &inv * meat * &inv;
+    let mut cov = SMatrix::<f64, N, N>::zeros();
+    for (i, &fi) in free.iter().enumerate() {
+        for (j, &fj) in free.iter().enumerate() {
+            // Symmetrise against round-off.
+            cov[(fi, fj)] = 0.5 * (v[(i, j)] + v[(j, i)]);
+        }
+    }
+    Some((cov, g))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn clusters_start_a_new_block_every_block_steps() {
+        let (id, g) = clusters(&[0, 100, 200, 700, 800, 1400, 5000], 650);
+        assert_eq!(id, vec![0, 0, 0, 1, 1, 2, 3]);
+        assert_eq!(g, 4);
+        // Unsorted input: cluster by start, reported in input order.
+        let (id, g) = clusters(&[800, 0, 700, 100], 650);
+        assert_eq!((id, g), (vec![1, 0, 1, 0], 2));
+        assert_eq!(clusters(&[], 650), (vec![], 0));
+    }
+}

@@ -1,0 +1,77 @@
+//! CSV streams (`format = "csv"`, the default): a header row, one row per
+//! sample, numbers in the columns read (other columns are not looked at).
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use super::{Table, Wanted};
+use crate::error::{Error, Result};
+use crate::io::import::limits::echo;
+use crate::io::import::manifest::Manifest;
+
+/// Reads the time column `time` and the `wanted` columns of `path`.
+pub(super) fn read(m: &Manifest, name: &str, path: &Path, time: &str, wanted: &[Wanted]) -> Result<Table> {
+    let key = format!("streams.{name}.file");
+    let bytes = std::fs::read(path).map_err(|e| m.error(&key, format!("cannot read {}: {e}", path.display())))?;
+    let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF".as_slice()).unwrap_or(&bytes);
+    let mut rdr = ::csv::ReaderBuilder::new().has_headers(true).trim(::csv::Trim::All).from_reader(bytes);
+    let csv_err = |e: ::csv::Error| Error::Csv {
+        path: path.to_path_buf(),
+        line: e.position().map(|p| p.line()).unwrap_or(0),
+        column: None,
+        reason: e.to_string(),
+    };
+    let headers: Vec<String> = rdr.headers().map_err(csv_err)?.iter().map(str::to_string).collect();
+    let mut all: Vec<Wanted> = vec![Wanted { column: time.to_string(), key: format!("streams.{name}.time_column") }];
+    all.extend(wanted.iter().cloned());
+    let mut idx = Vec::new();
+    for w in &all {
+        match headers.iter().position(|h| h == &w.column) {
+            Some(j) => idx.push(j),
+            None => {
+                return Err(m.error(
+                    &w.key,
+                    format!(
+                        "column '{}' not found in {}; columns found: {}",
+                        w.column,
+                        path.display(),
+                        list_headers(&headers)
+                    ),
+                ))
+            }
+        }
+    }
+    let mut data: Vec<Vec<f64>> = vec![Vec::new(); all.len()];
+    let mut lines: Vec<u64> = Vec::new();
+    let mut record = ::csv::StringRecord::new();
+    let mut line = 1u64;
+    while rdr.read_record(&mut record).map_err(csv_err)? {
+        line = record.position().map(|p| p.line()).unwrap_or(line + 1);
+        for (c, &j) in idx.iter().enumerate() {
+            let field = record.get(j).unwrap_or("");
+            let v: f64 = field.parse().map_err(|_| Error::Csv {
+                path: path.to_path_buf(),
+                line,
+                column: Some(headers[j].clone()),
+                reason: format!("'{}' is not a number", echo(field)),
+            })?;
+            data[c].push(v);
+        }
+        lines.push(line);
+    }
+    let t_s = std::mem::take(&mut data[0]);
+    let mut columns = BTreeMap::new();
+    for (c, w) in all.iter().enumerate().skip(1) {
+        columns.insert(w.column.clone(), std::mem::take(&mut data[c]));
+    }
+    Ok(Table { t_s, columns, source: path.display().to_string(), lines: Some(lines) })
+}
+
+/// The header for a message: at most 30 names, each echoed short.
+fn list_headers(headers: &[String]) -> String {
+    let mut out: Vec<String> = headers.iter().take(30).map(|h| echo(h)).collect();
+    if headers.len() > 30 {
+        out.push(format!("… ({} columns)", headers.len()));
+    }
+    out.join(", ")
+}

@@ -1,0 +1,803 @@
+//! Parameter files out and back in: the calibrated parameters as a ROS 2
+//! parameter file (YAML, `ros__parameters` layout) or JSON, with their 1σ,
+//! units, the verdict and provenance, so a robot stack can load them
+//! directly; [`ParamFile::read`] reads them back (a θ for validation or a
+//! new start).
+//!
+//! Under odocal's own names the file holds, for node `odocal` (configurable):
+//!
+//! ```yaml
+//! odocal:
+//!   ros__parameters:
+//!     c_e: 1.951448          # m, effective rear wheel circumference
+//!     c_e_sigma: 2.1e-05
+//!     ...
+//!     verdict: "accepted"
+//!     provenance:
+//!       input: "drive.csv"
+//!       method: "batch-gn"
+//!       odocal_version: "0.1.0"
+//!       date: "2026-11-23"
+//! ```
+//!
+//! With [`ParamMapping::DiffDriveController`] the wheel parameters are also
+//! written under the keys of ROS 2 `diff_drive_controller`:
+//! `wheel_separation` = t_r, `wheel_radius` = c_e / 2π,
+//! `left_wheel_radius_multiplier` = (c_e + c_d/2) / c_e and
+//! `right_wheel_radius_multiplier` = (c_e − c_d/2) / c_e (d, the load
+//! transfer, has no counterpart there and is only under odocal's name). The
+//! radius is physical only when one model revolution is one wheel revolution
+//! (wheel speeds in rev/s or rad/s, or ticks with `ticks_per_rev` the true
+//! encoder resolution).
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::model::extrinsics::Extrinsics;
+use crate::model::param::{Param, ParamSet};
+use crate::model::{Theta, THETA_NAMES};
+
+/// Onto which consumer's keys the parameters are also written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ParamMapping {
+    /// odocal's own names only (default).
+    #[default]
+    Odocal,
+    /// Also ROS 2 `diff_drive_controller`'s keys.
+    DiffDriveController,
+}
+
+impl std::str::FromStr for ParamMapping {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "odocal" => Ok(ParamMapping::Odocal),
+            "diff_drive_controller" | "diff-drive-controller" => Ok(ParamMapping::DiffDriveController),
+            _ => Err(Error::InvalidOption {
+                field: "params_mapping",
+                reason: format!("'{s}': use odocal or diff_drive_controller"),
+            }),
+        }
+    }
+}
+
+/// One parameter of the file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ParamEntry {
+    /// Name (`c_e`, …).
+    pub name: String,
+    /// Value, SI.
+    pub value: f64,
+    /// 1σ, SI; `None` when the parameter was held.
+    pub sigma: Option<f64>,
+    /// SI unit.
+    pub unit: String,
+    /// What it is.
+    pub description: String,
+}
+
+/// The content of a parameter file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ParamFile {
+    /// ROS node name the parameters belong to. Default `odocal`.
+    pub node: String,
+    /// The parameters.
+    pub params: Vec<ParamEntry>,
+    /// The verdict (`accepted`, `doubtful`, `rejected`), when there is one.
+    pub verdict: Option<String>,
+    /// Reasons for the verdict.
+    pub verdict_reasons: Vec<String>,
+    /// Provenance: input, method, odocal version, date (key–value).
+    pub provenance: Vec<(String, String)>,
+    /// Extra keys for a consumer.
+    pub mapping: ParamMapping,
+}
+
+const UNITS: [&str; 4] = ["m", "m", "m", "m/(m/s^2)"];
+const DESCRIPTIONS: [&str; 4] = [
+    "effective rear wheel circumference (per model revolution)",
+    "rear wheel circumference difference, left minus right",
+    "rear track width",
+    "load-transfer coefficient: circumference change per m/s^2 of lateral acceleration",
+];
+
+impl ParamFile {
+    /// Appends the reference extrinsics (`lever_x`, `lever_y` in m,
+    /// `heading_offset` in rad) with their 1σ (`None` for held entries).
+    pub fn add_extrinsics(&mut self, x: &crate::model::extrinsics::ExtrinsicsEstimate) {
+        let (value, sd) = (x.value.to_array(), x.std_dev.to_array());
+        let what = [
+            ("m", "pose reference lever arm from the rear-axle centre, forward"),
+            ("m", "pose reference lever arm from the rear-axle centre, left"),
+            ("rad", "pose reference heading minus vehicle heading"),
+        ];
+        for (i, p) in crate::model::param::Param::EXTRINSICS.into_iter().enumerate() {
+            self.params.push(ParamEntry {
+                name: p.name().into(),
+                value: value[i],
+                sigma: x.free.contains(p).then_some(sd[i]),
+                unit: what[i].0.into(),
+                description: what[i].1.into(),
+            });
+        }
+    }
+
+    /// A file for θ with 1σ per entry (`None` = held), provenance filled with
+    /// `input`, `method`, the odocal version and today's UTC date.
+    pub fn from_theta(theta: &Theta, sigma: [Option<f64>; 4], input: &str, method: &str) -> ParamFile {
+        let params = (0..4)
+            .map(|i| ParamEntry {
+                name: THETA_NAMES[i].into(),
+                value: theta.to_array()[i],
+                sigma: sigma[i],
+                unit: UNITS[i].into(),
+                description: DESCRIPTIONS[i].into(),
+            })
+            .collect();
+        ParamFile {
+            node: "odocal".into(),
+            params,
+            verdict: None,
+            verdict_reasons: Vec::new(),
+            provenance: vec![
+                ("input".into(), input.into()),
+                ("method".into(), method.into()),
+                ("odocal_version".into(), env!("CARGO_PKG_VERSION").into()),
+                ("date".into(), utc_date_today()),
+            ],
+            mapping: ParamMapping::Odocal,
+        }
+    }
+
+    fn value(&self, name: &str) -> Option<f64> {
+        self.params.iter().find(|p| p.name == name).map(|p| p.value)
+    }
+
+    /// The consumer keys of [`ParamFile::mapping`] with their values.
+    pub fn mapped(&self) -> Vec<(&'static str, f64)> {
+        match self.mapping {
+            ParamMapping::Odocal => Vec::new(),
+            ParamMapping::DiffDriveController => {
+                let (Some(c_e), Some(c_d), Some(t_r)) = (self.value("c_e"), self.value("c_d"), self.value("t_r"))
+                else {
+                    return Vec::new();
+                };
+                vec![
+                    ("wheel_separation", t_r),
+                    ("wheel_radius", c_e / std::f64::consts::TAU),
+                    ("left_wheel_radius_multiplier", (c_e + c_d / 2.0) / c_e),
+                    ("right_wheel_radius_multiplier", (c_e - c_d / 2.0) / c_e),
+                ]
+            }
+        }
+    }
+
+    /// The ROS 2 parameter file (YAML). Numbers are written in shortest
+    /// round-trip form, so reading them back gives the same f64.
+    pub fn to_ros2_yaml(&self) -> String {
+        let mut y = String::new();
+        let _ = writeln!(y, "# odocal calibration; units: SI (m, m/(m/s^2)); *_sigma = 1 standard deviation");
+        let _ = writeln!(y, "{}:", yaml_key(&self.node));
+        let _ = writeln!(y, "  ros__parameters:");
+        for p in &self.params {
+            let _ = writeln!(y, "    {}: {}  # {}, {}", yaml_key(&p.name), yaml_f64(p.value), p.unit, p.description);
+            match p.sigma {
+                Some(s) => {
+                    let _ = writeln!(y, "    {}_sigma: {}", yaml_key(&p.name), yaml_f64(s));
+                }
+                None => {
+                    let _ = writeln!(y, "    {}_held: true", yaml_key(&p.name));
+                }
+            }
+        }
+        for (k, v) in self.mapped() {
+            let _ = writeln!(y, "    {k}: {}", yaml_f64(v));
+        }
+        if let Some(v) = &self.verdict {
+            let _ = writeln!(y, "    verdict: {}", yaml_str(v));
+            let reasons: Vec<String> = self.verdict_reasons.iter().map(|r| yaml_str(r)).collect();
+            let _ = writeln!(y, "    verdict_reasons: [{}]", reasons.join(", "));
+        }
+        let _ = writeln!(y, "    provenance:");
+        for (k, v) in &self.provenance {
+            let _ = writeln!(y, "      {}: {}", yaml_key(k), yaml_str(v));
+        }
+        y
+    }
+
+    /// The same content as JSON.
+    pub fn to_json(&self) -> serde_json::Value {
+        let mut params = serde_json::Map::new();
+        for p in &self.params {
+            params.insert(p.name.clone(), serde_json::json!(p.value));
+            match p.sigma {
+                Some(s) => params.insert(format!("{}_sigma", p.name), serde_json::json!(s)),
+                None => params.insert(format!("{}_held", p.name), serde_json::json!(true)),
+            };
+        }
+        for (k, v) in self.mapped() {
+            params.insert(k.into(), serde_json::json!(v));
+        }
+        let prov: serde_json::Map<String, serde_json::Value> =
+            self.provenance.iter().map(|(k, v)| (k.clone(), serde_json::json!(v))).collect();
+        serde_json::json!({
+            "schema_version": 1,
+            "node": self.node,
+            "parameters": params,
+            "units": self.params.iter().map(|p| (p.name.clone(), serde_json::json!(p.unit))).collect::<serde_json::Map<_, _>>(),
+            "verdict": self.verdict,
+            "verdict_reasons": self.verdict_reasons,
+            "provenance": prov,
+        })
+    }
+
+    /// Writes YAML for a `.yaml`/`.yml` path, JSON for `.json`.
+    ///
+    /// # Errors
+    /// [`Error::InvalidOption`] for another extension, [`Error::Io`].
+    pub fn write(&self, path: &Path) -> Result<()> {
+        let text = match FileFormat::of(path) {
+            Some(FileFormat::Yaml) => self.to_ros2_yaml(),
+            Some(FileFormat::Json) => {
+                let mut s = serde_json::to_string_pretty(&self.to_json())
+                    .map_err(|source| Error::Json { context: path.display().to_string(), source })?;
+                s.push('\n');
+                s
+            }
+            None => {
+                return Err(Error::InvalidOption {
+                    field: "params_out",
+                    reason: format!("{}: use a .yaml, .yml or .json file name", path.display()),
+                })
+            }
+        };
+        std::fs::write(path, text).map_err(|source| Error::io(path, source))
+    }
+}
+
+/// A parameter file's format, by its extension.
+#[derive(Clone, Copy)]
+enum FileFormat {
+    /// `.yaml`, `.yml`: a ROS 2 parameter file.
+    Yaml,
+    /// `.json`.
+    Json,
+}
+
+impl FileFormat {
+    fn of(path: &Path) -> Option<FileFormat> {
+        let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+        match ext.as_deref() {
+            Some("yaml" | "yml") => Some(FileFormat::Yaml),
+            Some("json") => Some(FileFormat::Json),
+            _ => None,
+        }
+    }
+}
+
+/// Whether `path` names a parameter file by its extension (`.yaml`, `.yml`,
+/// `.json`: the files [`ParamFile::write`] writes and [`ParamFile::read`]
+/// reads), e.g. to tell one from a θ typed as text.
+pub fn is_param_file(path: &Path) -> bool {
+    FileFormat::of(path).is_some()
+}
+
+/// Largest parameter file [`ParamFile::read`] accepts, bytes (odocal writes
+/// about 1.5 kB).
+pub const MAX_PARAM_FILE_BYTES: u64 = 1 << 20;
+
+/// A value of the flat `ros__parameters` / `parameters` map.
+enum Flat {
+    Number(f64),
+    Bool(bool),
+    Text(String),
+    Other(&'static str),
+}
+
+/// The extrinsics' names, units and descriptions, in [`Param::EXTRINSICS`] order.
+const EXTRINSIC_INFO: [(&str, &str, &str); 3] = [
+    ("lever_x", "m", "pose reference lever arm from the rear-axle centre, forward"),
+    ("lever_y", "m", "pose reference lever arm from the rear-axle centre, left"),
+    ("heading_offset", "rad", "pose reference heading minus vehicle heading"),
+];
+
+impl ParamFile {
+    /// Reads a parameter file as [`ParamFile::write`] writes it (and as a
+    /// user may edit it): a ROS 2 parameter file (`.yaml`/`.yml`: the node
+    /// whose `ros__parameters` hold `c_e`, or the only node) or odocal's JSON
+    /// (`.json`). `c_e`, `c_d`, `t_r` and `d` are required (SI units, checked
+    /// like a typed θ); `<name>_sigma` gives a 1σ, `<name>_held: true` marks
+    /// a held parameter; `lever_x`, `lever_y`, `heading_offset`, the verdict
+    /// and the provenance are read when present; other keys (a consumer's,
+    /// e.g. `wheel_separation`) are ignored. Writing the result again gives
+    /// the same parameters to the bit.
+    ///
+    /// ```
+    /// use odocal::io::param_file::ParamFile;
+    /// use odocal::Theta;
+    /// let dir = std::env::temp_dir().join(format!("odocal-doc-{}", std::process::id()));
+    /// std::fs::create_dir_all(&dir)?;
+    /// let path = dir.join("odocal.yaml");
+    /// let theta = Theta { c_e: 1.951448, c_d: -0.0021, t_r: 1.5649, d: 0.0008 };
+    /// ParamFile::from_theta(&theta, [Some(2.1e-5), None, Some(3e-3), Some(1e-4)], "drive.csv", "eiv").write(&path)?;
+    /// let back = ParamFile::read(&path)?;
+    /// assert_eq!(back.theta()?, theta);
+    /// assert_eq!(back.params[1].sigma, None); // c_d was held
+    /// # std::fs::remove_dir_all(&dir)?;
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    ///
+    /// # Errors
+    /// [`Error::Io`]; [`Error::ParamFile`] naming the key for a file that is
+    /// not a parameter file (another extension, larger than
+    /// [`MAX_PARAM_FILE_BYTES`], not YAML/JSON, a required parameter missing
+    /// or not a number, a physically absurd θ).
+    pub fn read(path: &Path) -> Result<ParamFile> {
+        let bad = |reason: String| Error::ParamFile { path: path.to_path_buf(), reason };
+        let Some(format) = FileFormat::of(path) else {
+            return Err(bad("not a parameter file: use the .yaml, .yml or .json file `--params-out` wrote".into()));
+        };
+        let len = std::fs::metadata(path).map_err(|source| Error::io(path, source))?.len();
+        if len > MAX_PARAM_FILE_BYTES {
+            return Err(bad(format!("{len} bytes: not a parameter file (odocal writes about 1.5 kB)")));
+        }
+        let text = std::fs::read_to_string(path).map_err(|source| Error::io(path, source))?;
+        let (node, flat) = match format {
+            FileFormat::Yaml => flat_yaml(&text),
+            FileFormat::Json => flat_json(&text),
+        }
+        .map_err(bad)?;
+        Self::from_flat(node, flat).map_err(bad)
+    }
+
+    /// θ from the file's `c_e`, `c_d`, `t_r`, `d`, checked for physical sanity.
+    ///
+    /// # Errors
+    /// [`Error::InvalidTheta`] when one is missing or the values are absurd.
+    pub fn theta(&self) -> Result<Theta> {
+        let mut v = [0.0; 4];
+        for (i, name) in THETA_NAMES.iter().enumerate() {
+            v[i] = self.value(name).ok_or_else(|| Error::InvalidTheta(format!("no `{name}` in the parameter file")))?;
+        }
+        let theta = Theta::from_array(v);
+        crate::model::limits::check_theta(&theta)?;
+        Ok(theta)
+    }
+
+    /// The reference extrinsics the file holds (0 for those it lacks) and
+    /// which of them carry a σ, i.e. were estimated by the calibration that
+    /// wrote it.
+    pub fn extrinsics(&self) -> (Extrinsics, ParamSet) {
+        let mut v = [0.0; 3];
+        let mut estimated = ParamSet::EMPTY;
+        for (i, p) in Param::EXTRINSICS.into_iter().enumerate() {
+            if let Some(e) = self.params.iter().find(|e| e.name == p.name()) {
+                v[i] = e.value;
+                if e.sigma.is_some() {
+                    estimated.insert(p);
+                }
+            }
+        }
+        (Extrinsics::from_array(v), estimated)
+    }
+
+    /// The reference extrinsics to validate this file's θ with on a drive,
+    /// by the rules of [`crate::assess::validation_drives`]: one the calibration estimated
+    /// (it has a σ) is the sensor's, so it holds for every drive of the
+    /// vehicle; a held one gives way to what the drive's own manifest states
+    /// (`drive_reference`, its `[reference]`), else the file's value. Also
+    /// returns the names of those taken from the file.
+    pub fn extrinsics_for_drive(&self, drive_reference: Option<&Extrinsics>) -> (Extrinsics, Vec<&'static str>) {
+        let (file, estimated) = self.extrinsics();
+        let (file, mut v) = (file.to_array(), drive_reference.copied().unwrap_or(Extrinsics::ZERO).to_array());
+        let mut from_file = Vec::new();
+        for (i, p) in Param::EXTRINSICS.into_iter().enumerate() {
+            if estimated.contains(p) || drive_reference.is_none() {
+                v[i] = file[i];
+                from_file.push(p.name());
+            }
+        }
+        (Extrinsics::from_array(v), from_file)
+    }
+
+    /// Builds the file from the flat key–value map of one node.
+    fn from_flat(node: String, flat: Vec<(String, Flat)>) -> std::result::Result<ParamFile, String> {
+        let get = |k: &str| flat.iter().find(|(n, _)| n == k).map(|(_, v)| v);
+        let number = |k: &str| -> std::result::Result<Option<f64>, String> {
+            match get(k) {
+                None => Ok(None),
+                Some(Flat::Number(x)) if x.is_finite() => Ok(Some(*x)),
+                Some(Flat::Number(x)) => Err(format!("key `{k}`: {x} is not a finite number")),
+                Some(Flat::Text(t)) => Err(format!("key `{k}`: '{}' is not a number", crate::drive::echo(t))),
+                Some(Flat::Bool(b)) => Err(format!("key `{k}`: {b} is not a number")),
+                Some(Flat::Other(what)) => Err(format!("key `{k}`: {what}, not a number")),
+            }
+        };
+        let mut params = Vec::new();
+        let names = THETA_NAMES.iter().enumerate().map(|(i, n)| (*n, UNITS[i], DESCRIPTIONS[i], true));
+        let extr = EXTRINSIC_INFO.iter().map(|(n, u, d)| (*n, *u, *d, false));
+        for (name, unit, description, required) in names.chain(extr) {
+            let Some(value) = number(name)? else {
+                if required {
+                    let found: Vec<&str> = flat.iter().map(|(n, _)| n.as_str()).take(12).collect();
+                    return Err(format!(
+                        "node `{node}`: no `{name}` (a parameter file needs c_e, c_d, t_r and d, SI units; keys found: {})",
+                        if found.is_empty() { "none".to_string() } else { found.join(", ") }
+                    ));
+                }
+                continue;
+            };
+            let sigma = number(&format!("{name}_sigma"))?;
+            if let Some(s) = sigma.filter(|s| *s < 0.0) {
+                return Err(format!("key `{name}_sigma`: {s} is negative"));
+            }
+            params.push(ParamEntry {
+                name: name.into(),
+                value,
+                sigma,
+                unit: unit.into(),
+                description: description.into(),
+            });
+        }
+        let text = |k: &str| match get(k) {
+            Some(Flat::Text(t)) => Some(t.clone()),
+            _ => None,
+        };
+        let verdict = text("verdict");
+        let verdict_reasons = flat
+            .iter()
+            .filter_map(|(n, v)| match v {
+                Flat::Text(t) if n.starts_with("verdict_reasons[") => Some(t.clone()),
+                _ => None,
+            })
+            .collect();
+        let provenance = flat
+            .iter()
+            .filter_map(|(n, v)| match v {
+                Flat::Text(t) => n.strip_prefix("provenance.").map(|k| (k.to_string(), t.clone())),
+                _ => None,
+            })
+            .collect();
+        let mapping =
+            if get("wheel_separation").is_some() { ParamMapping::DiffDriveController } else { ParamMapping::Odocal };
+        let f = ParamFile { node, params, verdict, verdict_reasons, provenance, mapping };
+        f.theta().map_err(|e| e.to_string())?;
+        Ok(f)
+    }
+}
+
+/// The node and its flattened `ros__parameters` of a ROS 2 parameter file:
+/// nested maps as `a.b`, list items as `a[i]`.
+fn flat_yaml(text: &str) -> std::result::Result<(String, Vec<(String, Flat)>), String> {
+    use yaml_rust2::Yaml;
+    let docs = yaml_rust2::YamlLoader::load_from_str(text).map_err(|e| format!("not YAML: {e}"))?;
+    let Some(Yaml::Hash(nodes)) = docs.first() else {
+        return Err("not a ROS 2 parameter file (expected `NODE:` then `ros__parameters:`)".into());
+    };
+    let mut found = Vec::new();
+    for (k, v) in nodes {
+        let name = match k {
+            Yaml::String(s) => s.clone(),
+            other => format!("{other:?}"),
+        };
+        if let Yaml::Hash(h) = &v["ros__parameters"] {
+            found.push((name, h));
+        }
+    }
+    let has_c_e = |h: &&yaml_rust2::yaml::Hash| h.contains_key(&Yaml::String("c_e".into()));
+    let chosen = match found.iter().position(|(_, h)| has_c_e(h)) {
+        Some(i) => found.swap_remove(i),
+        None if found.len() == 1 => found.swap_remove(0),
+        None if found.is_empty() => {
+            return Err("not a ROS 2 parameter file: no node with `ros__parameters`".into());
+        }
+        None => {
+            let names: Vec<&str> = found.iter().map(|(n, _)| n.as_str()).collect();
+            return Err(format!("no node's `ros__parameters` has `c_e` (nodes: {})", names.join(", ")));
+        }
+    };
+    fn walk(prefix: &str, y: &Yaml, out: &mut Vec<(String, Flat)>) {
+        match y {
+            Yaml::Real(_) | Yaml::Integer(_) => out.push((
+                prefix.into(),
+                Flat::Number(y.as_f64().or_else(|| y.as_i64().map(|i| i as f64)).unwrap_or(f64::NAN)),
+            )),
+            Yaml::Boolean(b) => out.push((prefix.into(), Flat::Bool(*b))),
+            Yaml::String(s) => out.push((prefix.into(), Flat::Text(s.clone()))),
+            Yaml::Array(a) => {
+                for (i, v) in a.iter().enumerate() {
+                    walk(&format!("{prefix}[{i}]"), v, out);
+                }
+            }
+            Yaml::Hash(h) => {
+                for (k, v) in h {
+                    if let Yaml::String(k) = k {
+                        walk(&format!("{prefix}.{k}"), v, out);
+                    }
+                }
+            }
+            Yaml::Null => out.push((prefix.into(), Flat::Other("empty"))),
+            _ => out.push((prefix.into(), Flat::Other("not a value"))),
+        }
+    }
+    let mut out = Vec::new();
+    for (k, v) in chosen.1 {
+        if let Yaml::String(k) = k {
+            walk(k, v, &mut out);
+        }
+    }
+    Ok((chosen.0, out))
+}
+
+/// The node and its flattened `parameters` of odocal's JSON parameter file
+/// (verdict, reasons and provenance under the same names as in YAML).
+fn flat_json(text: &str) -> std::result::Result<(String, Vec<(String, Flat)>), String> {
+    use serde_json::Value;
+    let v: Value = serde_json::from_str(text).map_err(|e| format!("not JSON: {e}"))?;
+    let Some(params) = v.get("parameters").and_then(Value::as_object) else {
+        let hint = if v.get("theta").is_some() {
+            " — a `calibrate --json` report? Write the parameter file with `--params-out FILE.yaml`"
+        } else {
+            ""
+        };
+        return Err(format!("not an odocal parameter file (no `parameters` object){hint}"));
+    };
+    let node = v.get("node").and_then(Value::as_str).unwrap_or("odocal").to_string();
+    let flat_of = |x: &Value| match x {
+        Value::Number(n) => Flat::Number(n.as_f64().unwrap_or(f64::NAN)),
+        Value::Bool(b) => Flat::Bool(*b),
+        Value::String(s) => Flat::Text(s.clone()),
+        Value::Null => Flat::Other("null"),
+        _ => Flat::Other("not a value"),
+    };
+    let mut out: Vec<(String, Flat)> = params.iter().map(|(k, x)| (k.clone(), flat_of(x))).collect();
+    if let Some(s) = v.get("verdict").and_then(Value::as_str) {
+        out.push(("verdict".into(), Flat::Text(s.into())));
+    }
+    if let Some(a) = v.get("verdict_reasons").and_then(Value::as_array) {
+        out.extend(a.iter().enumerate().map(|(i, x)| (format!("verdict_reasons[{i}]"), flat_of(x))));
+    }
+    if let Some(o) = v.get("provenance").and_then(Value::as_object) {
+        out.extend(o.iter().map(|(k, x)| (format!("provenance.{k}"), flat_of(x))));
+    }
+    Ok((node, out))
+}
+
+fn yaml_f64(v: f64) -> String {
+    if v.is_finite() {
+        let s = format!("{v:?}");
+        // `1e-5` is a float in YAML 1.2 but a string in YAML 1.1 readers; write `1.0e-5`.
+        match s.split_once('e') {
+            Some((m, e)) if !m.contains('.') => format!("{m}.0e{e}"),
+            _ => s,
+        }
+    } else {
+        ".nan".into()
+    }
+}
+
+fn yaml_key(k: &str) -> String {
+    if !k.is_empty() && k.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '/') {
+        k.to_string()
+    } else {
+        yaml_str(k)
+    }
+}
+
+/// A double-quoted YAML string.
+fn yaml_str(s: &str) -> String {
+    let mut o = String::from("\"");
+    for c in s.chars() {
+        match c {
+            '"' => o.push_str("\\\""),
+            '\\' => o.push_str("\\\\"),
+            '\n' => o.push_str("\\n"),
+            c if c.is_control() => {
+                let _ = write!(o, "\\u{:04x}", c as u32);
+            }
+            c => o.push(c),
+        }
+    }
+    o.push('"');
+    o
+}
+
+/// Today's date (UTC) as `YYYY-MM-DD`, from the system clock.
+pub fn utc_date_today() -> String {
+    let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
+    let (y, m, d) = civil_from_days((secs / 86_400) as i64);
+    format!("{y:04}-{m:02}-{d:02}")
+}
+
+/// Proleptic Gregorian date of a day count since 1970-01-01 (H. Hinnant's algorithm).
+fn civil_from_days(z: i64) -> (i64, u32, u32) {
+    let z = z + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = (doy - (153 * mp + 2) / 5 + 1) as u32;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
+    (yoe + era * 400 + i64::from(m <= 2), m, d)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn civil_dates() {
+        assert_eq!(civil_from_days(0), (1970, 1, 1));
+        assert_eq!(civil_from_days(20_415), (2025, 11, 23));
+        assert_eq!(civil_from_days(11_016), (2000, 2, 29));
+    }
+
+    fn sample() -> ParamFile {
+        let th = Theta { c_e: 1.951448, c_d: -0.002130942, t_r: 1.564853, d: 0.000396481 };
+        let mut f =
+            ParamFile::from_theta(&th, [Some(2.1e-5), Some(3e-7), Some(4.7e-5), None], "drive \"a\".csv", "batch-gn");
+        f.verdict = Some("accepted".into());
+        f.verdict_reasons = vec!["Ē_p 9.3 m < θ_0's 26.9 m".into()];
+        f.mapping = ParamMapping::DiffDriveController;
+        f
+    }
+
+    #[test]
+    fn yaml_parses_back_to_the_same_numbers() {
+        let f = sample();
+        let text = f.to_ros2_yaml();
+        let docs = yaml_rust2::YamlLoader::load_from_str(&text).expect("valid YAML");
+        let p = &docs[0]["odocal"]["ros__parameters"];
+        for e in &f.params {
+            assert_eq!(p[e.name.as_str()].as_f64().map(f64::to_bits), Some(e.value.to_bits()), "{}", e.name);
+        }
+        assert_eq!(p["c_e_sigma"].as_f64(), Some(2.1e-5));
+        assert_eq!(p["d_held"].as_bool(), Some(true));
+        let sep = p["wheel_separation"].as_f64().expect("mapped");
+        assert_eq!(sep.to_bits(), 1.564853f64.to_bits());
+        let left = p["left_wheel_radius_multiplier"].as_f64().expect("mapped");
+        assert!((left - (1.951448 - 0.002130942 / 2.0) / 1.951448).abs() < 1e-15);
+        assert_eq!(p["verdict"].as_str(), Some("accepted"));
+        assert_eq!(p["provenance"]["input"].as_str(), Some("drive \"a\".csv"));
+        assert_eq!(p["provenance"]["method"].as_str(), Some("batch-gn"));
+    }
+
+    fn with_extrinsics(mut f: ParamFile) -> ParamFile {
+        use crate::model::extrinsics::ExtrinsicsEstimate;
+        f.add_extrinsics(&ExtrinsicsEstimate {
+            value: Extrinsics { lever_x: -0.9, lever_y: 0.0, heading_offset: -0.0099 },
+            std_dev: Extrinsics { lever_x: 0.01, lever_y: 0.02, heading_offset: 1e-4 },
+            free: ParamSet::LEVER_ARM,
+            ..ExtrinsicsEstimate::held(Extrinsics::ZERO)
+        });
+        f
+    }
+
+    #[test]
+    fn files_read_back_to_the_same_parameters() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let f = with_extrinsics(sample());
+        let yaml = dir.path().join("odocal.yaml");
+        f.write(&yaml).expect("write yaml");
+        let back = ParamFile::read(&yaml).expect("read yaml");
+        assert_eq!(back, f);
+        assert_eq!(back.to_ros2_yaml(), f.to_ros2_yaml());
+        let json = dir.path().join("odocal.json");
+        f.write(&json).expect("write json");
+        let mut back = ParamFile::read(&json).expect("read json");
+        // JSON objects are unordered: compare the provenance as a set.
+        back.provenance.sort();
+        let mut g = f.clone();
+        g.provenance.sort();
+        assert_eq!(back, g);
+        assert_eq!(
+            back.theta().expect("theta").to_array().map(f64::to_bits),
+            [1.951448, -0.002130942, 1.564853, 0.000396481].map(f64::to_bits)
+        );
+        let (x, estimated) = back.extrinsics();
+        assert_eq!(x, Extrinsics { lever_x: -0.9, lever_y: 0.0, heading_offset: -0.0099 });
+        assert_eq!(estimated, ParamSet::LEVER_ARM);
+        // On a drive whose manifest states its mount, the estimated lever arm
+        // still comes from the file, the held heading offset from the drive.
+        let stated = Extrinsics { lever_x: 0.5, lever_y: 0.1, heading_offset: 0.02 };
+        let (x, from_file) = back.extrinsics_for_drive(Some(&stated));
+        assert_eq!(x, Extrinsics { lever_x: -0.9, lever_y: 0.0, heading_offset: 0.02 });
+        assert_eq!(from_file, ["lever_x", "lever_y"]);
+        assert_eq!(
+            back.extrinsics_for_drive(None),
+            (
+                Extrinsics { lever_x: -0.9, lever_y: 0.0, heading_offset: -0.0099 },
+                vec!["lever_x", "lever_y", "heading_offset"]
+            )
+        );
+    }
+
+    fn read_text(name: &str, text: &str) -> Result<ParamFile> {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join(name);
+        std::fs::write(&path, text).expect("write");
+        ParamFile::read(&path)
+    }
+
+    #[test]
+    fn hand_written_files_are_read_and_bad_ones_named() {
+        // Integers, another node first, keys of a consumer, no σ at all.
+        let ok = "/**:\n  ros__parameters:\n    use_sim_time: false\nodocal:\n  ros__parameters:\n    c_e: 1.95\n    \
+                  c_d: 0\n    t_r: 1.53\n    d: 0\n    wheel_separation: 1.53\n";
+        let f = read_text("p.yaml", ok).expect("hand-written file");
+        assert_eq!(f.theta().expect("theta"), Theta { c_e: 1.95, c_d: 0.0, t_r: 1.53, d: 0.0 });
+        assert!(f.params.iter().all(|p| p.sigma.is_none()));
+        assert_eq!(f.mapping, ParamMapping::DiffDriveController);
+        for (name, text, needles) in [
+            (
+                "p.yaml",
+                "odocal:\n  ros__parameters:\n    c_e: 1.95\n    c_d: 0.0\n    d: 0.0\n",
+                &["no `t_r`", "keys found: c_e, c_d, d"][..],
+            ),
+            (
+                "p.yaml",
+                "odocal:\n  ros__parameters:\n    c_e: big\n    c_d: 0.0\n    t_r: 1.5\n    d: 0.0\n",
+                &["key `c_e`", "'big' is not a number"],
+            ),
+            (
+                "p.yaml",
+                "odocal:\n  ros__parameters:\n    c_e: 1.95\n    c_d: 0.0\n    t_r: 0.0\n    d: 0.0\n",
+                &["t_r"],
+            ),
+            (
+                "p.yaml",
+                "odocal:\n  ros__parameters:\n    c_e: 1.95\n    c_e_sigma: -1.0\n",
+                &["`c_e_sigma`", "negative"],
+            ),
+            ("p.yaml", "c_e: 1.95\n", &["no node with `ros__parameters`"]),
+            ("p.yaml", "odocal: [unclosed\n", &["not YAML"]),
+            ("p.json", "{\"c_e\": 1.95}", &["no `parameters` object"]),
+            ("r.json", "{\"theta\": {\"c_e\": 1.95}}", &["a `calibrate --json` report?", "--params-out"]),
+            ("p.txt", "c_e: 1.95", &["use the .yaml, .yml or .json file"]),
+        ] {
+            let e = read_text(name, text).expect_err(text).to_string();
+            assert!(e.contains(name), "{e}");
+            for n in needles {
+                assert!(e.contains(n), "expected '{n}' in: {e}");
+            }
+        }
+    }
+
+    #[test]
+    fn extrinsics_entries_follow_theta() {
+        use crate::model::extrinsics::{Extrinsics, ExtrinsicsEstimate};
+        let mut f = sample();
+        let x = ExtrinsicsEstimate {
+            value: Extrinsics { lever_x: -0.9, lever_y: 0.0, heading_offset: -0.0099 },
+            std_dev: Extrinsics { lever_x: 0.01, lever_y: 0.02, heading_offset: 1e-4 },
+            free: crate::model::param::ParamSet::LEVER_ARM,
+            ..ExtrinsicsEstimate::held(Extrinsics::ZERO)
+        };
+        f.add_extrinsics(&x);
+        let j = f.to_json();
+        let p = &j["parameters"];
+        assert_eq!(p["lever_x"].as_f64(), Some(-0.9), "{j}");
+        assert_eq!(p["lever_y_sigma"].as_f64(), Some(0.02), "{j}");
+        assert_eq!(p["heading_offset"].as_f64(), Some(-0.0099), "{j}");
+        assert_eq!(p["heading_offset_held"], serde_json::json!(true), "{j}");
+        assert_eq!(j["units"]["heading_offset"], "rad", "{j}");
+    }
+
+    #[test]
+    fn json_and_extension() {
+        let f = sample();
+        let j = f.to_json();
+        assert_eq!(j["parameters"]["t_r"].as_f64(), Some(1.564853));
+        assert_eq!(j["parameters"]["d_held"].as_bool(), Some(true));
+        let dir = tempfile::tempdir().expect("tmp");
+        f.write(&dir.path().join("p.yaml")).expect("yaml");
+        f.write(&dir.path().join("p.json")).expect("json");
+        let e = f.write(&dir.path().join("p.txt")).expect_err("txt").to_string();
+        assert!(e.contains(".yaml, .yml or .json"), "{e}");
+    }
+}

@@ -1,0 +1,529 @@
+//! The drive simulator (SPEC §8): city and suburb routes with a known true θ.
+//!
+//! Real logs of wheel rotations with a GNSS/INS reference rarely are public,
+//! and they never carry the true parameters. [`simulate`] makes drives that
+//! do, reproducibly from a seed.
+//!
+//! ## How a drive is made
+//!
+//! 1. **Route.** A curvature-versus-distance profile κ(s), piecewise linear:
+//!    straights, bends of varied radius (some S-bends), 90° crossroad turns
+//!    and roundabouts, joined by clothoid transitions (curvature linear in s)
+//!    so that the yaw rate is continuous. The route alternates between city
+//!    and suburb zones.
+//! 2. **Speed.** A cruise speed per manoeuvre (city 30–50 km/h, suburb
+//!    60–90 km/h), limited by `sqrt(a_lat,max/|κ|)` in curves and brought to
+//!    standstill for a few seconds at some crossroads; a forward pass
+//!    (acceleration limit) and a backward pass (deceleration limit) on a
+//!    0.5 m grid give v(s), integrated in time with constant acceleration
+//!    per grid cell.
+//! 3. **Truth.** At every fine step `t_s/substeps`, evaluated at the step's
+//!    midpoint time: `ω = v·κ`, `a_y = v·ω`, steady-state rear-axle sideslip
+//!    of the linear single-track model `β = −m·l_f·a_y/(L·C_r)`, and the
+//!    wheel rotations obtained by inverting the model (2a, 2b, 3a, 3b) with
+//!    the true θ:
+//!
+//!    ```text
+//!    n_rr = (v + ω·t_r/2)/c_rr      n_rl = (v − ω·t_r/2)/c_rl
+//!    ```
+//!
+//!    The true pose is integrated with [`model::step`] at the fine step.
+//! 4. **Output sample k** carries the true pose at `t_k = k·t_s` and, as its
+//!    true inputs, the *mean* of the fine-step inputs over the interval
+//!    `[t_k, t_k+1)` — for the wheel rotations that is the number of
+//!    revolutions turned in the interval divided by `t_s`, which is what a
+//!    counting encoder reports. With `substeps = 1` the output inputs are
+//!    exactly the ones the truth was integrated with, so [`model::step`]
+//!    from a truth pose with the truth inputs reproduces the next truth pose
+//!    bit for bit and calibration recovers θ_true to rounding. With more
+//!    substeps the one-step model is no longer exact (midpoint rule over
+//!    t_s, mean of products), a small model error as in real data.
+//! 5. **Measurements.** Wheel rotations get slip proportional to the
+//!    longitudinal acceleration, coloured (first-order Gauss-Markov) noise
+//!    common to both wheels and, smaller, independent per wheel, white
+//!    relative noise per wheel, then encoder quantization: ticks are counted
+//!    over each sample interval (the remainder carries over). The reference
+//!    pose gets a slow Gauss-Markov drift plus white noise on position and
+//!    heading; a_y gets white noise (IMU), β a Gauss-Markov error (filtered
+//!    estimate). Each source has its own setting; [`NoiseOptions::off`]
+//!    makes every measured column equal to its truth column.
+//!
+//! Each noise source draws from its own ChaCha8 stream of the seed, so
+//! switching one source off leaves the route, the truth and the other
+//! sources' realisations unchanged; the same options give byte-identical
+//! output on every platform.
+
+use std::path::{Path, PathBuf};
+
+use rand::Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::drive::{Drive, Signals};
+use crate::error::{Error, Result};
+use crate::model::{self, Input, State, Theta};
+
+mod options;
+mod route;
+
+use options::invalid;
+pub use options::{NoiseOptions, RouteOptions, SimOptions, SpeedOptions, VehicleOptions};
+use route::{build_route, stream, Encoder, GaussMarkov, SpeedProfile, White};
+
+/// Grid step of the speed profile along the route, m.
+const SPEED_GRID_M: f64 = 0.5;
+/// A sample counts as moving (for [`SimStats::wheel_rotation_rel_error_rms`])
+/// when its true speed exceeds this, m/s.
+pub const MOVING_SPEED_M_PER_S: f64 = 1.0;
+/// Longest drive accepted, km (memory guard: about 40 MB of samples per 100 km).
+const MAX_LENGTH_KM: f64 = 2000.0;
+
+/// Options of the route generator. Ranges `[min, max]` are sampled uniformly
+/// Summary numbers of a simulated drive (all from the truth).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SimStats {
+    /// Output samples.
+    pub samples: usize,
+    /// Length of the true path, m.
+    pub distance_m: f64,
+    /// Duration, s (`(samples − 1)·t_s`).
+    pub duration_s: f64,
+    /// Peak absolute true yaw rate, rad/s.
+    pub max_yaw_rate_rad_per_s: f64,
+    /// Peak absolute true lateral acceleration, m/s².
+    pub max_abs_lateral_acceleration_m_per_s2: f64,
+    /// RMS of `(measured − true)/true` wheel rotation over both rear wheels
+    /// and every moving sample (true speed above [`MOVING_SPEED_M_PER_S`]).
+    pub wheel_rotation_rel_error_rms: f64,
+}
+
+/// The sidecar of a simulated drive: the truth that the CSV cannot hold.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SimSidecar {
+    /// The true θ (SI units).
+    pub theta_true: Theta,
+    /// Every simulator setting.
+    pub settings: SimOptions,
+    /// Summary numbers.
+    pub stats: SimStats,
+}
+
+impl SimSidecar {
+    /// Writes the sidecar as pretty JSON.
+    pub fn write_json(&self, path: &Path) -> Result<()> {
+        let text = serde_json::to_string_pretty(self)
+            .map_err(|source| Error::Json { context: format!("writing {}", path.display()), source })?;
+        std::fs::write(path, text + "\n").map_err(|source| Error::Io { path: path.to_path_buf(), source })
+    }
+
+    /// Reads a sidecar written by [`SimSidecar::write_json`].
+    pub fn read_json(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
+        serde_json::from_str(&text).map_err(|source| Error::Json { context: path.display().to_string(), source })
+    }
+}
+
+/// The sidecar path of a drive CSV: `drive.csv` → `drive.json`.
+pub fn sidecar_path(drive_csv: &Path) -> PathBuf {
+    drive_csv.with_extension("json")
+}
+
+/// A simulated drive and its sidecar.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimOutput {
+    /// The drive, with [`Drive::truth`] filled.
+    pub drive: Drive,
+    /// θ_true, the settings and summary numbers.
+    pub sidecar: SimSidecar,
+}
+
+// ---------------------------------------------------------------------------
+
+/// Simulates one drive (SPEC §8).
+///
+/// The same options (seed included) give an identical drive, byte for byte
+/// when written as CSV. The measured columns carry the noise of
+/// [`SimOptions::noise`]; [`Drive::truth`] holds the true poses and inputs,
+/// the sidecar θ_true, the settings and [`SimStats`].
+///
+/// ```
+/// # fn main() -> Result<(), odocal::Error> {
+/// use odocal::sim::{simulate, SimOptions};
+/// let out = simulate(&SimOptions { length_km: 1.0, ..SimOptions::paper(42) })?;
+/// let drive = &out.drive;
+/// assert_eq!(drive.len(), out.sidecar.stats.samples);
+/// assert!((out.sidecar.stats.distance_m - 1000.0).abs() < 20.0);
+/// assert!(drive.truth().is_some());
+/// # Ok(()) }
+/// ```
+pub fn simulate(opts: &SimOptions) -> Result<SimOutput> {
+    opts.validate()?;
+    let theta = opts.theta_true;
+    let mut route_rng = stream(opts.seed, 0);
+    let route = build_route(opts, &mut route_rng);
+    let profile = SpeedProfile::new(&route, &opts.speed);
+    let psi0 = route_rng.random_range(-std::f64::consts::PI..std::f64::consts::PI);
+
+    let ts = 1.0 / opts.sample_rate_hz;
+    let sub = opts.substeps;
+    let dtf = ts / sub as f64;
+    let n = (profile.duration() * opts.sample_rate_hz).floor() as usize + 1;
+    if n < 2 {
+        return Err(invalid("length_km", "the drive is shorter than two samples"));
+    }
+    let beta_gain = opts.vehicle.sideslip_gain_rad_per_m_per_s2();
+
+    // Truth, integrated at the fine step.
+    let mut truth = Signals::with_capacity(n);
+    let mut a_x = Vec::with_capacity(n);
+    let mut x = State::new(0.0, 0.0, psi0);
+    let (mut pcur, mut kcur) = (0usize, 0usize);
+    let (mut max_yaw, mut max_ay) = (0.0f64, 0.0f64);
+    for k in 0..n {
+        truth.px.push(x[0]);
+        truth.py.push(x[1]);
+        truth.psi.push(x[2]);
+        let mut sum = [0.0f64; 5];
+        for j in 0..sub {
+            let t_mid = ((k * sub + j) as f64 + 0.5) * dtf;
+            let m = profile.at(t_mid, &mut pcur);
+            let kappa = route.kappa_at(m.s, &mut kcur);
+            let omega = m.v * kappa;
+            let a_y = m.v * omega;
+            let beta = beta_gain * a_y;
+            let (n_rl, n_rr) = model::wheel_rotations(m.v, omega, a_y, &theta);
+            let u = Input { n_rl, n_rr, beta, a_y };
+            x = model::step(&x, &u, &theta, dtf);
+            for (acc, v) in sum.iter_mut().zip([u.n_rl, u.n_rr, u.beta, u.a_y, m.a]) {
+                *acc += v;
+            }
+            max_yaw = max_yaw.max(omega.abs());
+            max_ay = max_ay.max(a_y.abs());
+        }
+        let div = sub as f64;
+        truth.n_rl.push(sum[0] / div);
+        truth.n_rr.push(sum[1] / div);
+        truth.beta.push(sum[2] / div);
+        truth.a_y.push(sum[3] / div);
+        a_x.push(sum[4] / div);
+    }
+
+    // Measurements.
+    let no = &opts.noise;
+    let seed = opts.seed;
+    let tau_w = no.wheel_coloured_time_constant_s;
+    let mut gm_common = GaussMarkov::new(stream(seed, 1), no.wheel_coloured_rel_sigma, tau_w, ts);
+    let wheel_gm = |id| GaussMarkov::new(stream(seed, id), no.wheel_coloured_differential_rel_sigma, tau_w, ts);
+    let (mut gm_rl, mut gm_rr) = (wheel_gm(2), wheel_gm(12));
+    let mut white_wheel = White { rng: stream(seed, 3), sigma: no.wheel_white_rel_sigma };
+    let ticks = f64::from(no.encoder_ticks_per_revolution);
+    let mut phase_rng = stream(seed, 4);
+    let mut enc_rl = Encoder { ticks, revolutions: phase_rng.random::<f64>() / ticks.max(1.0) };
+    let mut enc_rr = Encoder { ticks, revolutions: phase_rng.random::<f64>() / ticks.max(1.0) };
+    let pos_gm =
+        |id| GaussMarkov::new(stream(seed, id), no.position_drift_sigma_m, no.position_drift_time_constant_s, ts);
+    let (mut drift_x, mut drift_y) = (pos_gm(5), pos_gm(6));
+    let mut white_pos = White { rng: stream(seed, 7), sigma: no.position_white_sigma_m };
+    let mut drift_psi =
+        GaussMarkov::new(stream(seed, 8), no.heading_drift_sigma_rad, no.heading_drift_time_constant_s, ts);
+    let mut white_psi = White { rng: stream(seed, 9), sigma: no.heading_white_sigma_rad };
+    let mut white_ay = White { rng: stream(seed, 10), sigma: no.lateral_acceleration_white_sigma_m_per_s2 };
+    let mut beta_err = GaussMarkov::new(stream(seed, 11), no.sideslip_sigma_rad, no.sideslip_time_constant_s, ts);
+
+    let mut measured = Signals::with_capacity(n);
+    let (mut sq, mut count) = (0.0f64, 0usize);
+    for (k, &ax) in a_x.iter().enumerate() {
+        let slip = no.wheel_slip_per_m_per_s2 * ax + gm_common.next();
+        let rel_rl = slip + gm_rl.next() + white_wheel.next();
+        let rel_rr = slip + gm_rr.next() + white_wheel.next();
+        let n_rl = enc_rl.measure(truth.n_rl[k] * (1.0 + rel_rl), ts);
+        let n_rr = enc_rr.measure(truth.n_rr[k] * (1.0 + rel_rr), ts);
+        measured.n_rl.push(n_rl);
+        measured.n_rr.push(n_rr);
+        let tu = Input { n_rl: truth.n_rl[k], n_rr: truth.n_rr[k], beta: truth.beta[k], a_y: truth.a_y[k] };
+        if model::kinematics(&tu, &theta).speed_m_per_s > MOVING_SPEED_M_PER_S {
+            for (m, t) in [(n_rl, tu.n_rl), (n_rr, tu.n_rr)] {
+                let e = (m - t) / t;
+                sq += e * e;
+                count += 1;
+            }
+        }
+        let mut reference = State::new(truth.px[k], truth.py[k], truth.psi[k]);
+        if !opts.reference_mount.is_zero() {
+            reference = crate::model::extrinsics::reference_pose(&reference, &opts.reference_mount);
+        }
+        measured.px.push(reference[0] + drift_x.next() + white_pos.next());
+        measured.py.push(reference[1] + drift_y.next() + white_pos.next());
+        measured.psi.push(reference[2] + drift_psi.next() + white_psi.next());
+        measured.a_y.push(truth.a_y[k] + white_ay.next());
+        measured.beta.push(truth.beta[k] + beta_err.next());
+    }
+    let distance_m = (1..n).map(|k| (truth.px[k] - truth.px[k - 1]).hypot(truth.py[k] - truth.py[k - 1])).sum::<f64>();
+    let stats = SimStats {
+        samples: n,
+        distance_m,
+        duration_s: (n - 1) as f64 * ts,
+        max_yaw_rate_rad_per_s: max_yaw,
+        max_abs_lateral_acceleration_m_per_s2: max_ay,
+        wheel_rotation_rel_error_rms: if count > 0 { (sq / count as f64).sqrt() } else { 0.0 },
+    };
+    let t = (0..n).map(|k| k as f64 / opts.sample_rate_hz).collect();
+    let drive = Drive::builder(t, measured).truth(truth).sample_time_s(ts).context("simulator").build()?;
+    Ok(SimOutput { drive, sidecar: SimSidecar { theta_true: theta, settings: opts.clone(), stats } })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::drive::segment::{calibration_segments, SegmentData};
+    use crate::identify::{batch_gauss_newton, IdentifyOptions};
+
+    /// Rounding over one f64 model step of ~0.5 m at coordinates up to ~2 km.
+    const STEP_REPRODUCTION_TOL_M: f64 = 1e-9;
+    /// Noise-free, substeps = 1: the model is exact, G-N converges to rounding.
+    const EXACT_RECOVERY_REL_TOL: f64 = 1e-8;
+    /// Noise-free, 10 substeps: the one-step model's midpoint-rule error.
+    const SUBSTEP_RECOVERY_REL_TOL: f64 = 1e-4;
+
+    fn short(opts: SimOptions, km: f64) -> SimOutput {
+        simulate(&SimOptions { length_km: km, ..opts }).expect("simulate")
+    }
+
+    fn csv_bytes(d: &Drive) -> Vec<u8> {
+        let mut buf = Vec::new();
+        d.write_csv_to(&mut buf).expect("write csv");
+        buf
+    }
+
+    fn truth(d: &Drive) -> &Signals {
+        d.truth().as_ref().expect("simulated drives carry the truth")
+    }
+
+    #[test]
+    fn same_seed_same_bytes_other_seed_differs() {
+        let a = short(SimOptions::paper(5), 1.5);
+        let b = short(SimOptions::paper(5), 1.5);
+        assert_eq!(a, b);
+        assert_eq!(csv_bytes(&a.drive), csv_bytes(&b.drive));
+        let c = short(SimOptions::paper(6), 1.5);
+        assert_ne!(a.drive, c.drive);
+        assert_ne!(csv_bytes(&a.drive), csv_bytes(&c.drive));
+    }
+
+    #[test]
+    fn noise_sources_do_not_change_the_truth() {
+        let a = short(SimOptions::paper(3), 1.0);
+        let b = short(SimOptions::noise_free(3), 1.0);
+        assert_eq!(a.drive.truth(), b.drive.truth());
+        assert_ne!(a.drive.n_rl(), b.drive.n_rl());
+    }
+
+    #[test]
+    fn noise_off_measured_equals_truth_and_model_reproduces_truth() {
+        let out = short(SimOptions { substeps: 1, ..SimOptions::noise_free(11) }, 2.0);
+        let d = &out.drive;
+        let tr = truth(d);
+        assert_eq!(d.px(), tr.px);
+        assert_eq!(d.py(), tr.py);
+        assert_eq!(d.psi(), tr.psi);
+        assert_eq!(d.n_rl(), tr.n_rl);
+        assert_eq!(d.n_rr(), tr.n_rr);
+        assert_eq!(d.beta(), tr.beta);
+        assert_eq!(d.a_y(), tr.a_y);
+        assert_eq!(d.parts(), vec![0..d.len()]);
+        approx::assert_relative_eq!(d.sample_time_s(), 0.025, max_relative = 1e-15);
+        let theta = out.sidecar.theta_true;
+        let mut worst = 0.0f64;
+        for k in 0..d.len() - 1 {
+            let next = model::step(&d.pose(k), &d.input(k), &theta, d.sample_time_s());
+            worst = worst.max((next - d.pose(k + 1)).abs().max());
+        }
+        assert!(worst <= STEP_REPRODUCTION_TOL_M, "one-step model error {worst:e}");
+        // With substeps the one-step model is close but no longer exact.
+        let out = short(SimOptions::noise_free(11), 2.0);
+        let d = &out.drive;
+        let mut worst = 0.0f64;
+        for k in 0..d.len() - 1 {
+            let next = model::step(&d.pose(k), &d.input(k), &theta, d.sample_time_s());
+            worst = worst.max((next - d.pose(k + 1)).abs().max());
+        }
+        assert!(worst > 0.0 && worst < 1e-5, "substep model error {worst:e}");
+    }
+
+    fn identify(out: &SimOutput) -> (Theta, usize) {
+        let d = &out.drive;
+        let sel = calibration_segments(d, &Default::default()).expect("segments");
+        assert!(sel.selected.len() >= 5, "too few turning segments: {}", sel.selected.len());
+        let data: Vec<_> = sel.selected.iter().map(|s| SegmentData::new(d, s)).collect();
+        let opts = IdentifyOptions { max_iterations: 20, ..Default::default() };
+        let report = batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &opts).expect("identify");
+        (report.theta, data.len())
+    }
+
+    fn rel_errors(est: &Theta, truth: &Theta) -> [f64; 4] {
+        let (e, t) = (est.to_array(), truth.to_array());
+        [0, 1, 2, 3].map(|i| ((e[i] - t[i]) / t[i]).abs())
+    }
+
+    #[test]
+    fn noise_free_calibration_recovers_theta() {
+        let truth_theta = Theta::SIM_DEFAULT_TRUE;
+        // The start is off by more than 1 % in every parameter.
+        for r in rel_errors(&Theta::PAPER_INITIAL, &truth_theta) {
+            assert!(r > 0.01, "start too close: {r}");
+        }
+        let out = short(SimOptions { substeps: 1, ..SimOptions::noise_free(21) }, 3.0);
+        let (est, _) = identify(&out);
+        for (name, r) in crate::model::THETA_NAMES.iter().zip(rel_errors(&est, &truth_theta)) {
+            assert!(r <= EXACT_RECOVERY_REL_TOL, "substeps 1: {name} off by {r:e} ({est})");
+        }
+        let out = short(SimOptions::noise_free(21), 3.0);
+        let (est, _) = identify(&out);
+        for (name, r) in crate::model::THETA_NAMES.iter().zip(rel_errors(&est, &truth_theta)) {
+            assert!(r <= SUBSTEP_RECOVERY_REL_TOL, "substeps 10: {name} off by {r:e} ({est})");
+        }
+    }
+
+    #[test]
+    fn paper_noise_has_the_paper_size() {
+        let out = short(SimOptions::paper(4), 3.0);
+        let d = &out.drive;
+        let tr = truth(d);
+        let rms = out.sidecar.stats.wheel_rotation_rel_error_rms;
+        assert!((0.005..0.02).contains(&rms), "wheel rms relative error {rms}");
+        let n = d.len() as f64;
+        let pos_rms = (d.px().iter().zip(&tr.px).zip(d.py().iter().zip(&tr.py)))
+            .map(|((a, b), (c, e))| (a - b).powi(2) + (c - e).powi(2))
+            .sum::<f64>()
+            / n;
+        let pos_rms = pos_rms.sqrt();
+        assert!((0.05..1.0).contains(&pos_rms), "reference position error rms {pos_rms} m");
+        let psi_rms = (d.psi().iter().zip(&tr.psi).map(|(a, b)| (a - b).powi(2)).sum::<f64>() / n).sqrt();
+        assert!((2e-4..0.02).contains(&psi_rms), "reference heading error rms {psi_rms} rad");
+        // Measured wheels differ from the truth, and standstill reads zero.
+        assert!(d.n_rl().iter().zip(&tr.n_rl).any(|(a, b)| (a - b).abs() > 1e-3));
+        // At standstill the true rotation is exactly 0 (v = ω = 0) and so is the encoder count.
+        #[allow(clippy::float_cmp)]
+        for (m, t) in d.n_rr().iter().zip(&tr.n_rr) {
+            if *t == 0.0 {
+                assert_eq!(*m, 0.0);
+            }
+        }
+    }
+
+    #[test]
+    fn presets_are_ordered() {
+        let white = short(SimOptions { noise: NoiseOptions::white_wheel_only(), ..SimOptions::paper(8) }, 1.0);
+        let paper = short(SimOptions::paper(8), 1.0);
+        let high = short(SimOptions { noise: NoiseOptions::high(), ..SimOptions::paper(8) }, 1.0);
+        let (w, p, h) = (
+            white.sidecar.stats.wheel_rotation_rel_error_rms,
+            paper.sidecar.stats.wheel_rotation_rel_error_rms,
+            high.sidecar.stats.wheel_rotation_rel_error_rms,
+        );
+        assert!(w > 0.0 && w < p && p * 1.8 < h, "white {w}, paper {p}, high {h}");
+        let tr = truth(&white.drive);
+        assert_eq!(white.drive.px(), tr.px);
+        assert_eq!(white.drive.a_y(), tr.a_y);
+        assert_eq!(NoiseOptions::by_name("white").expect("preset"), NoiseOptions::white_wheel_only());
+        assert_eq!(NoiseOptions::by_name("off").expect("preset"), NoiseOptions::off());
+        let e = NoiseOptions::by_name("loud").expect_err("unknown preset");
+        assert!(e.to_string().contains("loud") && e.to_string().contains("paper"), "{e}");
+    }
+
+    #[test]
+    fn stats_are_sane_and_sidecar_round_trips() {
+        let opts = SimOptions { length_km: 2.0, ..SimOptions::paper(9) };
+        let out = simulate(&opts).expect("simulate");
+        let st = &out.sidecar.stats;
+        let d = &out.drive;
+        assert_eq!(st.samples, d.len());
+        approx::assert_relative_eq!(st.duration_s, d.t()[d.len() - 1], max_relative = 1e-12);
+        assert!((st.distance_m - 2000.0).abs() < 10.0, "distance {}", st.distance_m);
+        let mean_speed = st.distance_m / st.duration_s;
+        assert!((5.0..25.0).contains(&mean_speed), "mean speed {mean_speed} m/s");
+        assert!((0.15..2.0).contains(&st.max_yaw_rate_rad_per_s), "yaw rate {}", st.max_yaw_rate_rad_per_s);
+        let ay_max = opts.speed.max_lateral_acceleration_m_per_s2;
+        assert!(
+            (0.5 * ay_max..=ay_max * (1.0 + 1e-9)).contains(&st.max_abs_lateral_acceleration_m_per_s2),
+            "lateral acceleration {}",
+            st.max_abs_lateral_acceleration_m_per_s2
+        );
+        let tr = truth(d);
+        let truth_ay = tr.a_y.iter().fold(0.0f64, |m, a| m.max(a.abs()));
+        assert!(truth_ay <= st.max_abs_lateral_acceleration_m_per_s2 * (1.0 + 1e-12));
+        // Heading unwrapped, time uniform.
+        assert!(tr.psi.windows(2).all(|w| (w[1] - w[0]).abs() < 0.1));
+        assert!(d.t().windows(2).all(|w| ((w[1] - w[0]) - 0.025).abs() < 1e-9));
+        assert_eq!(out.sidecar.theta_true, opts.theta_true);
+        assert_eq!(out.sidecar.settings, opts);
+
+        let dir = std::env::temp_dir().join(format!("odocal-sim-test-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("temp dir");
+        let csv = dir.join("drive.csv");
+        let json = sidecar_path(&csv);
+        assert_eq!(json, dir.join("drive.json"));
+        out.sidecar.write_json(&json).expect("write sidecar");
+        let back = SimSidecar::read_json(&json).expect("read sidecar");
+        assert_eq!(back, out.sidecar);
+        let text = std::fs::read_to_string(&json).expect("read");
+        assert!(text.contains("\"theta_true\"") && text.contains("\"c_e\""), "{text}");
+        let e = SimSidecar::read_json(&dir.join("missing.json")).expect_err("missing file");
+        assert!(e.to_string().contains("missing.json"), "{e}");
+        std::fs::remove_dir_all(&dir).expect("clean up");
+    }
+
+    #[test]
+    fn route_turns_enough() {
+        let out = short(SimOptions::paper(13), 5.0);
+        let sel = calibration_segments(&out.drive, &Default::default()).expect("segments");
+        let frac = sel.selected.len() as f64 / sel.all.len() as f64;
+        assert!((0.25..0.8).contains(&frac), "selected {} of {} segments", sel.selected.len(), sel.all.len());
+        // And it also has straight stretches and stops.
+        assert!(sel.selected.len() < sel.all.len());
+        let tr = truth(&out.drive);
+        // A standstill integrates v = 0 exactly: the pose does not change at all.
+        #[allow(clippy::float_cmp)]
+        let stopped = tr.px.windows(2).zip(tr.py.windows(2)).filter(|(x, y)| x[0] == x[1] && y[0] == y[1]).count();
+        assert!(stopped > 40, "no standstill: {stopped} samples");
+    }
+
+    #[test]
+    fn invalid_options_name_the_field() {
+        let cases: Vec<(SimOptions, &str)> = vec![
+            (SimOptions { length_km: 0.0, ..Default::default() }, "length_km"),
+            (SimOptions { sample_rate_hz: f64::NAN, ..Default::default() }, "sample_rate_hz"),
+            (SimOptions { substeps: 0, ..Default::default() }, "substeps"),
+            (
+                SimOptions { theta_true: Theta { t_r: -1.0, ..Theta::SIM_DEFAULT_TRUE }, ..Default::default() },
+                "theta_true",
+            ),
+            (
+                SimOptions {
+                    route: RouteOptions { bend_radius_m: [50.0, 10.0], ..Default::default() },
+                    ..Default::default()
+                },
+                "route.bend_radius_m",
+            ),
+            (
+                SimOptions {
+                    noise: NoiseOptions { wheel_white_rel_sigma: -0.1, ..NoiseOptions::paper() },
+                    ..Default::default()
+                },
+                "noise.wheel_white_rel_sigma",
+            ),
+            (
+                SimOptions {
+                    speed: SpeedOptions { stop_probability: 1.5, ..Default::default() },
+                    ..Default::default()
+                },
+                "speed.stop_probability",
+            ),
+        ];
+        for (opts, field) in cases {
+            let e = simulate(&opts).expect_err(field);
+            assert!(matches!(&e, Error::InvalidOption { field: f, .. } if *f == field), "{field}: {e}");
+        }
+        assert!(SimOptions::default().validate().is_ok());
+        assert_eq!(SimOptions::default(), SimOptions::paper(0));
+    }
+}
