@@ -1,8 +1,11 @@
 //! The parametric bootstrap and the bias correction built on it.
 
 use super::support::*;
+use crate::eiv::filter::NETA;
 use crate::eiv::*;
 use crate::sim::{simulate, SimOptions};
+use crate::Error;
+use crate::Theta;
 
 #[test]
 fn bootstrap_is_identical_for_one_and_two_threads() {

@@ -1,8 +1,10 @@
 //! θ's covariance: the block sandwich and the larger-of rule.
 
 use super::support::*;
+use crate::eiv::covariance::inflate_to_block;
 use crate::eiv::*;
 use crate::sim::{simulate, NoiseOptions, SimOptions};
+use nalgebra::Matrix4;
 
 /// Stop 13: the block sandwich's meat on a constructed case (three blocks
 /// in one window, then one more window of two blocks), against the plain

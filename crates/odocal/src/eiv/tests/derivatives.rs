@@ -1,9 +1,13 @@
 //! The filter's exact derivatives against central differences.
 
 use super::support::*;
+use crate::eiv::filter::NETA;
 use crate::eiv::filter::{run_window, InnovationRecord};
+use crate::eiv::input::make_windows;
+use crate::eiv::problem::Problem;
 use crate::eiv::*;
 use crate::sim::{simulate, NoiseOptions, SimOptions};
+use crate::Theta;
 
 fn check_innovation_derivatives(follows: bool) {
     check_innovation_derivatives_with(follows, false, false);

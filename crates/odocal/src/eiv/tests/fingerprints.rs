@@ -1,8 +1,12 @@
 //! Regression fingerprints: the speed-ups and the AVX2 kernels change no result.
 
 use super::support::*;
+use crate::eiv::input::make_windows;
+use crate::eiv::problem::Problem;
+use crate::eiv::scoring::scoring_pass;
 use crate::eiv::*;
 use crate::sim::{simulate, NoiseOptions, SimOptions};
+use crate::Theta;
 
 /// The covariance recursion's speed-ups (symmetric kernels, skipped zero
 /// columns, value-only reference terms, θ-step evaluations without ∂P/∂θ)

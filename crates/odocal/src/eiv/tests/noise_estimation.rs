@@ -1,8 +1,14 @@
 //! Estimating the noise scales η and the noise-estimate term of θ's σ.
 
 use super::support::*;
+use crate::eiv::covariance::noise_estimate_covariance;
+use crate::eiv::filter::NETA;
+use crate::eiv::input::make_windows;
+use crate::eiv::problem::free_inverse;
+use crate::eiv::problem::Problem;
 use crate::eiv::*;
 use crate::sim::{simulate, NoiseOptions, SimOptions};
+use crate::Theta;
 
 /// [`LateralNoise::Stated`] on a noise-free straight drive: the tie drives
 /// every noise scale to its lower clamp and returns c_e exactly; stated a_y

@@ -2,8 +2,14 @@
 
 use super::support::*;
 use crate::eiv::filter::run_window;
+use crate::eiv::filter::NETA;
+use crate::eiv::input::make_windows;
+use crate::eiv::problem::Problem;
+use crate::eiv::steps::eta_add;
+use crate::eiv::steps::eta_step;
 use crate::eiv::*;
 use crate::sim::{simulate, NoiseOptions, SimOptions};
+use crate::Theta;
 
 /// Noise-free, one substep: the model is exact; EIV must return θ_true to
 /// rounding (the correction term with η at its lower clamp moves it by

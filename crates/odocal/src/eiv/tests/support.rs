@@ -6,6 +6,7 @@ use crate::eiv::*;
 use crate::identify::{batch_gauss_newton, IdentifyOptions};
 use crate::segment::{calibration_segments, SegmentData, SegmentOptions};
 use crate::sim::{simulate, NoiseOptions, SimOptions};
+use crate::Theta;
 
 pub(super) fn input_of(d: &Drive) -> EivInput<'_> {
     EivInput::from_drive(d)

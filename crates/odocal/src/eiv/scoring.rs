@@ -1,0 +1,433 @@
+//! One Fisher-scoring pass: θ and η steps, step halving, convergence.
+
+use nalgebra::{DMatrix, DVector};
+
+use super::filter::{Mode, WindowSums, NETA};
+use super::problem::{theta_add, Evaluation, Problem};
+use super::steps::{
+    damp_eta_step, eta_add, eta_step, fix_unobservable, score_norm, secant_eta_factor, theta_step, EtaStep,
+};
+use super::{CovarianceMode, EivOptions, IterationRecord, Parameter, PassReport, Termination};
+use crate::error::Result;
+use crate::model::Theta;
+
+pub(super) struct PassOutcome {
+    pub(super) theta: Theta,
+    pub(super) eta: [f64; 6],
+    pub(super) eval: Evaluation,
+    pub(super) report: PassReport,
+    pub(super) free: [bool; 4],
+    pub(super) unobservable: Vec<Parameter>,
+    pub(super) eta_sigma: [f64; 6],
+}
+
+/// Result of a line search: the accepted point, or the last cost tried.
+pub(super) enum Search {
+    Accepted { theta: Theta, eta: [f64; 6], ev: Box<Evaluation>, lambda: f64 },
+    Rejected { cost: f64 },
+}
+
+/// Whether a trial point is accepted, and its objective.
+pub(super) type Acceptance<'a> = dyn Fn(&Evaluation, &Theta, &[f64; 6]) -> (bool, f64) + 'a;
+
+/// Step halving along `(dθ, dη)` from `(θ, η)`. The full step is evaluated
+/// with derivatives (it is usually accepted); shorter steps with the
+/// objective only, unless `accept` needs the derivatives (`needs_derivs`).
+/// The accepted point is returned with derivatives.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn line_search(
+    prob: &Problem<'_>,
+    theta: &Theta,
+    eta: &[f64; 6],
+    dth: &[f64; 4],
+    deta: &[f64; 6],
+    theta_ref: &Theta,
+    full: Mode,
+    needs_derivs: bool,
+    opts: &EivOptions,
+    accept: &Acceptance<'_>,
+) -> Result<Search> {
+    let mut lambda = 1.0;
+    let mut last_cost = f64::NAN;
+    for h in 0..=opts.max_halvings {
+        let th = theta_add(theta, dth, lambda);
+        if th.validate().is_ok() {
+            let et = eta_add(eta, deta, lambda, opts.eta_bounds);
+            let mode = if h == 0 || needs_derivs { full } else { Mode::cost(full.follows_theta) };
+            if let Ok(t) = prob.evaluate(&th, theta_ref, &et, mode) {
+                let (ok, cost) = accept(&t, &th, &et);
+                if cost.is_finite() {
+                    last_cost = cost;
+                    if ok {
+                        let ev = if t.mode == full { t } else { prob.evaluate(&th, theta_ref, &et, full)? };
+                        return Ok(Search::Accepted { theta: th, eta: et, ev: Box::new(ev), lambda });
+                    }
+                }
+            }
+        }
+        lambda *= 0.5;
+    }
+    Ok(Search::Rejected { cost: last_cost })
+}
+
+/// `max |Δη_j|/σ_j` of an η step alone ([`step_ratio`] without θ).
+pub(super) fn eta_ratio(eta: &[f64; 6], deta: &[f64; 6], seta: &[f64; 6], bounds: [f64; 2]) -> f64 {
+    step_ratio(&[0.0; 4], &[0.0; 4], &[false; 4], eta, deta, seta, bounds)
+}
+
+/// `max |step_i|/σ_i` over the free θ and the η that move.
+pub(super) fn step_ratio(
+    dth: &[f64; 4],
+    sth: &[f64; 4],
+    free: &[bool; 4],
+    eta: &[f64; 6],
+    deta: &[f64; 6],
+    seta: &[f64; 6],
+    bounds: [f64; 2],
+) -> f64 {
+    let mut ratio = 0.0f64;
+    for i in 0..4 {
+        if free[i] && sth[i] > 0.0 {
+            ratio = ratio.max(dth[i].abs() / sth[i]);
+        }
+    }
+    for j in 0..NETA {
+        if seta[j] > 0.0 {
+            // A step that lands on a clamp counts by its size, not its σ.
+            let at_clamp = (eta[j] + deta[j] - bounds[0]).abs() < 1e-12 || (eta[j] + deta[j] - bounds[1]).abs() < 1e-12;
+            if !at_clamp || deta[j].abs() > 1e-12 {
+                ratio = ratio.max(deta[j].abs() / seta[j]);
+            }
+        }
+    }
+    ratio
+}
+
+/// With [`EivOptions::theta_convergence`]: `max_i |·|/σ_i` over the free θ of
+/// the remaining θ step and of the θ change the remaining η step would cause
+/// through the joint information, `dθ = −I_θθ⁻¹ I_θη dη` (blocks over the
+/// free θ and the η that move). Infinite when the θ block is singular.
+pub(super) fn theta_ratio(sums: &WindowSums, dth: &[f64; 4], sth: &[f64; 4], free: &[bool; 4], deta: &[f64; 6]) -> f64 {
+    let fi: Vec<usize> = (0..4).filter(|i| free[*i] && sth[*i] > 0.0).collect();
+    let p = fi.len();
+    if p == 0 {
+        return 0.0;
+    }
+    let a = DMatrix::from_fn(p, p, |i, k| sums.info[(fi[i], fi[k])]);
+    let b = DVector::from_fn(p, |i, _| -(0..NETA).map(|j| sums.info[(fi[i], 4 + j)] * deta[j]).sum::<f64>());
+    let Some(chol) = a.cholesky() else {
+        return f64::INFINITY;
+    };
+    let induced = chol.solve(&b);
+    fi.iter().enumerate().map(|(k, &i)| (dth[i].abs().max(induced[k].abs())) / sth[i]).fold(0.0f64, f64::max)
+}
+
+/// One scoring pass (with [`CovarianceMode::HeldAtReference`], at a fixed
+/// covariance reference).
+///
+/// With the covariance following θ, θ and η have different objectives (the
+/// profile cost J for θ, the marginal likelihood M for η), so each
+/// iteration takes a θ step halved on J at fixed η, then an η step halved
+/// on M at fixed θ (block coordinate). With the covariance held, one joint
+/// step on M (corrected score for θ) as before.
+pub(super) fn scoring_pass(
+    prob: &Problem<'_>,
+    theta0: Theta,
+    eta0: [f64; 6],
+    theta_ref: Theta,
+    free0: [bool; 4],
+    check_observability: bool,
+    opts: &EivOptions,
+) -> Result<PassOutcome> {
+    let follows = opts.covariance == CovarianceMode::FollowsTheta;
+    let eta_derivs = !opts.fix_noise;
+    let full = Mode::full(follows, eta_derivs);
+    // Lean iterations (stop 24): with the covariance following θ and η
+    // estimated, the evaluation an iteration starts from needs its η
+    // derivatives only for the convergence test, whose θ part alone decides
+    // while the θ step is ≥ the tolerance (the test takes the maximum over
+    // θ and η). So it is evaluated with the θ derivatives only (4 of the 10
+    // covariance derivatives) and evaluated again in full only when its θ
+    // step is below the tolerance, or at the end; once that happened, later
+    // starts are evaluated in full directly. Steps and decisions are those
+    // of full evaluations (the θ entries are identical to the bit; test
+    // `lean_iteration_starts_give_the_full_evaluations_results_to_the_bit`);
+    // only `IterationRecord::step_over_sigma` of an unconverged iteration can
+    // be smaller (it lacks the η step at the iteration's start).
+    let lean = prob.lean_iterations && follows && eta_derivs && !opts.theta_convergence;
+    let start_mode = if lean { Mode::full(follows, false) } else { full };
+    let bounds = opts.eta_bounds;
+    let reentry = opts.eta_reentry_min_score.unwrap_or(f64::INFINITY);
+    let objective = |ev: &Evaluation, th: &Theta| -> f64 {
+        if follows {
+            ev.total.profile()
+        } else {
+            ev.total.corrected_merit(th, &theta_ref)
+        }
+    };
+    let (mut theta, mut eta) = (theta0, eta0);
+    let mut ev = prob.evaluate(&theta, &theta_ref, &eta, start_mode)?;
+    let (free, unobservable) = if check_observability && opts.fix_unobservable {
+        fix_unobservable(&ev.total.h_theta, &free0, opts)
+    } else {
+        (free0, Vec::new())
+    };
+    if let Some(held) = opts.hold_unobservable_at.filter(|_| free != free0) {
+        let (mut a, h) = (theta.to_array(), held.to_array());
+        for i in (0..4).filter(|i| free0[*i] && !free[*i]) {
+            a[i] = h[i];
+        }
+        theta = Theta::from_array(a);
+        theta.validate()?;
+        ev = prob.evaluate(&theta, &theta_ref, &eta, start_mode)?;
+    }
+    let initial_cost = objective(&ev, &theta);
+    let mut history = Vec::new();
+    let mut termination = Termination::MaxIterations { iterations: opts.max_iterations, step_over_sigma: f64::NAN };
+    let mut eta_sigma = [0.0; 6];
+    let tol = |c: f64| 1e-12 * c.abs().max(1.0);
+    // With the covariance following θ and η estimated, the evaluation at the
+    // end of a θ step only serves the η step that follows (its η gradient and
+    // information), so it skips `∂P/∂θ` (4 of the 9 covariance derivatives);
+    // when that η step is not taken, the point is evaluated again in full.
+    // After an iteration whose η did not move, the θ step is evaluated in
+    // full directly (η at a clamp: the η step is likely not taken again).
+    let mut eta_moved = true;
+    // The previous iteration's η scoring step and the factor it was taken
+    // with (secant damping, see `secant_eta_factor`).
+    let mut last_eta_step: Option<([f64; 6], f64)> = None;
+    let mut eta_last: Option<f64> = None;
+    // A θ-only evaluation whose θ step is below the tolerance is evaluated
+    // again in full; `true` when that happened.
+    let upgrade = |ev: Evaluation, th: &Theta, et: &[f64; 6]| -> Result<(Evaluation, bool)> {
+        if ev.mode == full {
+            return Ok((ev, false));
+        }
+        let (dth, sth) = theta_step(&ev.total, &free, follows)?;
+        if step_ratio(&dth, &sth, &free, et, &[0.0; 6], &[0.0; 6], bounds) < opts.step_tolerance {
+            Ok((prob.evaluate(th, &theta_ref, et, full)?, true))
+        } else {
+            Ok((ev, false))
+        }
+    };
+    // The loop stopped after an iteration start that was evaluated lean (its
+    // η step and σ are then taken from the final full evaluation).
+    let mut stopped_at_lean_start = false;
+    // Once an iteration start had to be evaluated again in full (θ's step
+    // below the tolerance, η's not yet), the later ones are evaluated in
+    // full directly: θ stays settled while η finishes.
+    let mut theta_settled = false;
+    for it in 0..opts.max_iterations {
+        let upgraded;
+        (ev, upgraded) = upgrade(ev, &theta, &eta)?;
+        theta_settled |= upgraded;
+        let at_full = ev.mode == full;
+        let (dth, sth) = theta_step(&ev.total, &free, follows)?;
+        let es = if eta_derivs && at_full {
+            eta_step(&ev.total, &eta, bounds, reentry, &opts.eta_held)
+        } else {
+            EtaStep::none()
+        };
+        let (deta, seta) = (es.step, es.sigma);
+        if at_full {
+            eta_sigma = seta;
+        }
+        let mut ratio = step_ratio(&dth, &sth, &free, &eta, &deta, &seta, bounds);
+        if es.leaving {
+            // A scale leaving its clamp: not converged, whatever its σ says.
+            ratio = ratio.max(1.0);
+        }
+        if eta_derivs && at_full {
+            eta_last = Some(eta_ratio(&eta, &deta, &seta, bounds));
+        }
+        if opts.theta_convergence && eta_derivs && !es.leaving {
+            let r = theta_ratio(&ev.total, &dth, &sth, &free, &deta);
+            if r < opts.step_tolerance {
+                termination = Termination::StepTolerance { step_over_sigma: r, threshold: opts.step_tolerance };
+                break;
+            }
+        }
+        if ratio < opts.step_tolerance {
+            // Converged: the remaining step is negligible against σ, so it is not
+            // taken (the estimate is the point the derivatives were evaluated at).
+            termination = Termination::StepTolerance { step_over_sigma: ratio, threshold: opts.step_tolerance };
+            break;
+        }
+        let previous = objective(&ev, &theta);
+        let lambda;
+        if follows {
+            // θ step on the profile cost J at fixed η (cost-only halvings).
+            let accept_j = |t: &Evaluation, th: &Theta, _: &[f64; 6]| {
+                let c = objective(t, th);
+                (c <= previous + tol(previous), c)
+            };
+            let theta_mode = if eta_derivs && eta_moved { Mode::eta_only(follows) } else { full };
+            match line_search(prob, &theta, &eta, &dth, &[0.0; 6], &theta_ref, theta_mode, false, opts, &accept_j)? {
+                Search::Accepted { theta: th, ev: e, lambda: l, .. } => {
+                    theta = th;
+                    ev = *e;
+                    lambda = l;
+                }
+                Search::Rejected { cost } => {
+                    // The θ-score holds the input log-Jacobian's weights, which
+                    // depend on θ through S, so it is not J's exact gradient and
+                    // near its root the scoring step need not lower J (a `high`
+                    // drive stopped so, J up by 2.5e-11 relative, and fell back).
+                    // The estimate is the score's root: take the full step when
+                    // it shrinks the score in the scoring metric, as the joint
+                    // step with the covariance held does.
+                    let th = theta_add(&theta, &dth, 1.0);
+                    let before = score_norm(&ev.total, &free, follows);
+                    let rescue = if th.validate().is_ok() {
+                        prob.evaluate(&th, &theta_ref, &eta, full).ok().filter(|t| {
+                            let after = score_norm(&t.total, &free, follows);
+                            after.is_finite() && after < before
+                        })
+                    } else {
+                        None
+                    };
+                    match rescue {
+                        Some(t) => {
+                            theta = th;
+                            ev = t;
+                            lambda = 1.0;
+                        }
+                        None => {
+                            termination = Termination::CostIncreased { cost, previous, halvings: opts.max_halvings };
+                            stopped_at_lean_start = !at_full;
+                            break;
+                        }
+                    }
+                }
+            }
+            if eta_derivs {
+                // η step on the marginal likelihood M at fixed θ (cost-only halvings).
+                let es = eta_step(&ev.total, &eta, bounds, reentry, &opts.eta_held);
+                let (deta, seta) = (es.step, es.sigma);
+                eta_sigma = seta;
+                ratio = ratio.max(eta_ratio(&eta, &deta, &seta, bounds));
+                if es.leaving {
+                    ratio = ratio.max(1.0);
+                }
+                eta_moved = false;
+                // Lean: the next evaluation in full where this iteration is the
+                // last (its step below the tolerance) or θ has settled.
+                let next_mode = if theta_settled || ratio < opts.step_tolerance { full } else { start_mode };
+                if deta.iter().any(|x| *x != 0.0) {
+                    let factor = if opts.eta_secant_damping { secant_eta_factor(&deta, last_eta_step) } else { 1.0 };
+                    let deta_raw = deta;
+                    let deta = damp_eta_step(&deta, &eta, factor, bounds);
+                    let previous_m = ev.total.merit();
+                    let accept_m = |t: &Evaluation, _: &Theta, _: &[f64; 6]| {
+                        let c = t.total.merit();
+                        (c <= previous_m + tol(previous_m), c)
+                    };
+                    match line_search(
+                        prob, &theta, &eta, &[0.0; 4], &deta, &theta_ref, next_mode, false, opts, &accept_m,
+                    )? {
+                        Search::Accepted { eta: et, ev: e, lambda: l, .. } => {
+                            eta = et;
+                            ev = *e;
+                            eta_moved = true;
+                            last_eta_step = Some((deta_raw, factor * l));
+                        }
+                        Search::Rejected { cost } => {
+                            termination =
+                                Termination::CostIncreased { cost, previous: previous_m, halvings: opts.max_halvings };
+                            ev = prob.evaluate(&theta, &theta_ref, &eta, full)?;
+                            break;
+                        }
+                    }
+                }
+                // An η step not taken leaves the θ step's evaluation, without ∂P/∂θ.
+                if ev.mode != full && ev.mode != start_mode {
+                    ev = prob.evaluate(&theta, &theta_ref, &eta, next_mode)?;
+                }
+            }
+        } else {
+            // Joint step. Accept when the objective falls, or when the corrected
+            // score (whose root is the estimate; the bias term is not an exact
+            // gradient) shrinks in the Fisher metric.
+            let previous_q = score_norm(&ev.total, &free, follows);
+            let accept = |t: &Evaluation, th: &Theta, _: &[f64; 6]| {
+                let c = objective(t, th);
+                (c <= previous + tol(previous) || score_norm(&t.total, &free, follows) < previous_q, c)
+            };
+            match line_search(prob, &theta, &eta, &dth, &deta, &theta_ref, full, true, opts, &accept)? {
+                Search::Accepted { theta: th, eta: et, ev: e, lambda: l } => {
+                    theta = th;
+                    eta = et;
+                    ev = *e;
+                    lambda = l;
+                }
+                Search::Rejected { cost } => {
+                    termination = Termination::CostIncreased { cost, previous, halvings: opts.max_halvings };
+                    break;
+                }
+            }
+        }
+        history.push(IterationRecord {
+            theta,
+            eta,
+            cost: objective(&ev, &theta),
+            step_over_sigma: ratio,
+            step_factor: lambda,
+        });
+        if ratio < opts.step_tolerance {
+            termination = Termination::StepTolerance { step_over_sigma: ratio, threshold: opts.step_tolerance };
+            break;
+        }
+        if eta_derivs && follows && opts.final_step_check {
+            // Lean: in full only where the θ step alone is below the tolerance.
+            let upgraded;
+            (ev, upgraded) = upgrade(ev, &theta, &eta)?;
+            theta_settled |= upgraded;
+        }
+        if eta_derivs && follows && ev.mode == full {
+            // The remaining steps at the new point (no filter evaluation: `ev`
+            // is in full mode here).
+            let (dth, sth) = theta_step(&ev.total, &free, follows)?;
+            let es = eta_step(&ev.total, &eta, bounds, reentry, &opts.eta_held);
+            let (deta, seta) = (es.step, es.sigma);
+            eta_last = Some(eta_ratio(&eta, &deta, &seta, bounds));
+            // A scale leaving its clamp is not converged, whatever its σ says.
+            if opts.final_step_check && !es.leaving {
+                let r = step_ratio(&dth, &sth, &free, &eta, &deta, &seta, bounds);
+                if r < opts.step_tolerance {
+                    termination = Termination::StepTolerance { step_over_sigma: r, threshold: opts.step_tolerance };
+                    break;
+                }
+            }
+            if opts.theta_convergence && !es.leaving {
+                let r = theta_ratio(&ev.total, &dth, &sth, &free, &deta);
+                if r < opts.step_tolerance {
+                    termination = Termination::StepTolerance { step_over_sigma: r, threshold: opts.step_tolerance };
+                    break;
+                }
+            }
+        }
+        if it + 1 == opts.max_iterations {
+            termination = Termination::MaxIterations { iterations: opts.max_iterations, step_over_sigma: ratio };
+        }
+    }
+    if ev.mode != full {
+        // Lean: the report needs the η derivatives at the estimate (the loop
+        // ran out of iterations, or a θ step from a lean start failed).
+        ev = prob.evaluate(&theta, &theta_ref, &eta, full)?;
+        let es = eta_step(&ev.total, &eta, bounds, reentry, &opts.eta_held);
+        eta_last = Some(eta_ratio(&eta, &es.step, &es.sigma, bounds));
+        if stopped_at_lean_start {
+            eta_sigma = es.sigma;
+        }
+    }
+    let report = PassReport {
+        theta_reference: theta_ref,
+        theta,
+        initial_cost,
+        final_cost: objective(&ev, &theta),
+        termination,
+        history,
+        eta_step_over_sigma: eta_last,
+    };
+    Ok(PassOutcome { theta, eta, eval: ev, report, free, unobservable, eta_sigma })
+}
