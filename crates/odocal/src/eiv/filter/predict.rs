@@ -28,7 +28,7 @@ fn add_process_noise<const S: usize>(m: &mut MZ<S>, q_x: &Matrix3<f64>, q_s: &[f
     m[(IB, IB)] += q_beta;
 }
 
-impl<const S: usize> WindowFilter<'_, S> {
+impl<const S: usize> WindowFilter<'_, '_, S> {
     /// Predicts from sample `lin.i` to the next: the input log-Jacobian
     /// term, the corrected score's X (with the sensitivities of the last
     /// update, before the mean prediction), the mean, the Gauss-Markov
@@ -254,7 +254,7 @@ impl<const S: usize> WindowFilter<'_, S> {
     /// written to `theta_terms[j]`.
     #[inline(always)]
     fn theta_covariance_terms(&mut self, lin: &Linearisation<S>, rt: &ReferenceTerms<4>) {
-        let (v, p) = (self.v, &self.p);
+        let (v, p) = (self.v, &*self.p);
         debug_assert!(*p == MZ::<S>::transpose(p), "P⁺ not exactly symmetric");
         let (nls, nrs, gw, counting) = (lin.nls, lin.nrs, &lin.gw, lin.counting);
         let (f02, f12, fxs_ref, fxw_ref, diag) = (lin.f02, lin.f12, &lin.fxs_ref, &lin.fxw_ref, &lin.diag);

@@ -84,7 +84,7 @@ pub(super) fn add_remainder_noise<const S: usize>(m: &mut MZ<S>, v: &Variances, 
     }
 }
 
-impl<const S: usize> WindowFilter<'_, S> {
+impl<const S: usize> WindowFilter<'_, '_, S> {
     /// Quantisation as measurement noise, at the window's first sample: the
     /// window starts at the reference pose, but the counted wheel rotations
     /// are off the true ones by the initial remainder, so the filter's pose

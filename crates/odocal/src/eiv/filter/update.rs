@@ -33,7 +33,7 @@ pub(super) struct Innovation<const S: usize> {
     k: MZx3<S>,
 }
 
-impl<const S: usize> WindowFilter<'_, S> {
+impl<const S: usize> WindowFilter<'_, '_, S> {
     /// The measurement update at sample `k1`; with `record`, the innovation
     /// and its derivatives are pushed to it.
     ///
@@ -136,7 +136,7 @@ impl<const S: usize> WindowFilter<'_, S> {
             out.e2_null[q] += e_cov[(q, q)];
         }
         // C₀ = E[ε⁺ νᵀ] = P₀Hᵀ − K S₀; P₀⁺ = (I−KH)P₀(I−KH)ᵀ + K R₀ Kᵀ.
-        self.c0 = Some((hp0.transpose() - k * s0, *l));
+        *self.c0 = Some((hp0.transpose() - k * s0, *l));
         K::joseph_in_place(&mut self.p0, k, Some(&r0));
     }
 
@@ -197,11 +197,11 @@ impl<const S: usize> WindowFilter<'_, S> {
             }
         }
         if let Some(rec) = record {
-            rec.push(InnovationRecord { nu: inn.nu, s: inn.s_mat, dnu: -hd, ds: self.ds, r: inn.e, dr });
+            rec.push(InnovationRecord { nu: inn.nu, s: inn.s_mat, dnu: -hd, ds: *self.ds, r: inn.e, dr });
         }
         // Sensitivity update: D⁺ = (I − KH) D⁻ + ∂K ν with
         // ∂K = (∂P⁻Hᵀ − K ∂S) S⁻¹.
-        self.d -= k * hd;
+        *self.d -= k * hd;
         let cols = self.cols;
         for &jj in cols.as_slice() {
             for r_ in 0..S {

@@ -147,10 +147,42 @@ impl<const S: usize> Linearisation<S> {
     }
 }
 
+/// The floors of the reference noise: the position (both axes) and heading
+/// variances.
+#[inline(always)]
+fn r_floor(v: &Variances) -> [f64; 3] {
+    [
+        v.position_floor_m * v.position_floor_m,
+        v.position_floor_m * v.position_floor_m,
+        HEADING_FLOOR_RAD * HEADING_FLOOR_RAD,
+    ]
+}
+
+/// The arrays a [`WindowFilter`] works on, each borrowed from its own local
+/// of [`run_window_s`]. As fields of one struct, indexed by loop variables,
+/// they would be one block of memory to the optimiser, which then cannot
+/// tell that a store to one leaves the others unchanged.
+pub(super) struct WindowArrays<'w, const S: usize> {
+    pub(super) p: &'w mut MZ<S>,
+    pub(super) dp: &'w mut [MZ<S>; NP],
+    pub(super) d: &'w mut DZ<S>,
+    pub(super) p0: &'w mut MZ<S>,
+    pub(super) c0: &'w mut Option<(MZx3<S>, Matrix3<f64>)>,
+    pub(super) xcov: &'w mut [MZ<S>; 4],
+    pub(super) out: &'w mut WindowSums,
+    pub(super) theta_terms: &'w mut [M3xZ<S>; 4],
+    pub(super) r_q_theta: &'w mut [Matrix3<f64>; 4],
+    pub(super) ds: &'w mut [Matrix3<f64>; NP],
+    pub(super) a: &'w mut [Matrix3<f64>; NP],
+    pub(super) dkn: &'w mut DZ<S>,
+    pub(super) hdps: &'w mut [M3xZ<S>; NP],
+    pub(super) jacobian: &'w mut InputJacobianSums<S>,
+}
+
 /// The filter of one window: what is fixed for the window, the state
 /// estimate with its covariance and sensitivities, and the sums it
 /// accumulates ([`WindowSums`]).
-pub(super) struct WindowFilter<'a, const S: usize> {
+pub(super) struct WindowFilter<'a, 'w, const S: usize> {
     pub(super) input: &'a EivInput<'a>,
     pub(super) window: &'a Window,
     /// θ of the mean recursion.
@@ -190,32 +222,32 @@ pub(super) struct WindowFilter<'a, const S: usize> {
     pub(super) eb: f64,
     pub(super) wq: [f64; 2],
     /// P and `∂P/∂p_j`.
-    pub(super) p: MZ<S>,
-    pub(super) dp: [MZ<S>; NP],
+    pub(super) p: &'w mut MZ<S>,
+    pub(super) dp: &'w mut [MZ<S>; NP],
     /// The mean's sensitivities `∂ẑ/∂p`.
-    pub(super) d: DZ<S>,
+    pub(super) d: &'w mut DZ<S>,
     /// Null recursion of the innovation diagnostics (`null_without_floors`):
     /// the true error covariance P₀ when the data have no floor noise, its
     /// cross-covariance C₀ = E[ε ν_prevᵀ] with the previous innovation, and
     /// the previous update's Cholesky factor of S (the whitening).
     pub(super) null: bool,
-    pub(super) p0: MZ<S>,
-    pub(super) c0: Option<(MZx3<S>, Matrix3<f64>)>,
+    pub(super) p0: &'w mut MZ<S>,
+    pub(super) c0: &'w mut Option<(MZx3<S>, Matrix3<f64>)>,
     /// X_i = E[ε⁻ D̃_iᵀ]: cross-covariance of the estimation error and the
     /// noise-driven part of the θ-sensitivity (corrected score).
-    pub(super) xcov: [MZ<S>; 4],
-    pub(super) out: WindowSums,
+    pub(super) xcov: &'w mut [MZ<S>; 4],
+    pub(super) out: &'w mut WindowSums,
     pub(super) prev_e: Option<Vector3<f64>>,
     /// Per-sample work arrays (only the entries of `cols` are written; the
     /// rest stay zero, as the records expect).
-    pub(super) theta_terms: [M3xZ<S>; 4],
-    pub(super) r_q_theta: [Matrix3<f64>; 4],
-    pub(super) ds: [Matrix3<f64>; NP],
-    pub(super) a: [Matrix3<f64>; NP],
-    pub(super) dkn: DZ<S>,
+    pub(super) theta_terms: &'w mut [M3xZ<S>; 4],
+    pub(super) r_q_theta: &'w mut [Matrix3<f64>; 4],
+    pub(super) ds: &'w mut [Matrix3<f64>; NP],
+    pub(super) a: &'w mut [Matrix3<f64>; NP],
+    pub(super) dkn: &'w mut DZ<S>,
     /// H ∂P⁻/∂p_j of the update (for ∂S and again in the Joseph form).
-    pub(super) hdps: [M3xZ<S>; NP],
-    pub(super) jacobian: InputJacobianSums<S>,
+    pub(super) hdps: &'w mut [M3xZ<S>; NP],
+    pub(super) jacobian: &'w mut InputJacobianSums<S>,
     /// The open block of θ-scores ([`super::BlockScores`]).
     pub(super) block_index: usize,
     pub(super) block_open: bool,
@@ -223,9 +255,9 @@ pub(super) struct WindowFilter<'a, const S: usize> {
     pub(super) block_prev: Option<Vector4<f64>>,
 }
 
-impl<'a, const S: usize> WindowFilter<'a, S> {
-    /// The filter at the start of `window`: `x = ỹ_0, s = 0, b = 0` and the
-    /// initial covariance.
+impl<'a, 'w, const S: usize> WindowFilter<'a, 'w, S> {
+    /// The filter at the start of `window`: `x = ỹ_0, s = 0, b = 0`, the
+    /// initial covariance in `arrays`.
     #[inline(always)]
     pub(super) fn new(
         input: &'a EivInput<'a>,
@@ -234,6 +266,7 @@ impl<'a, const S: usize> WindowFilter<'a, S> {
         theta_ref: &'a Theta,
         v: &'a Variances,
         mode: Mode,
+        arrays: WindowArrays<'w, S>,
     ) -> Self {
         let ts = input.sample_time_s;
         let follows = mode.follows_theta;
@@ -241,28 +274,16 @@ impl<'a, const S: usize> WindowFilter<'a, S> {
         let theta_cols = mode.derivs && mode.theta && follows;
         let cols = Columns::of(mode, v, theta_cols);
         let corrected = mode.derivs && mode.theta && !follows;
-        let r_floor = [
-            v.position_floor_m * v.position_floor_m,
-            v.position_floor_m * v.position_floor_m,
-            HEADING_FLOOR_RAD * HEADING_FLOOR_RAD,
-        ];
         let r_white = Vector3::new(v.pose[0], v.pose[1], v.pose[2]);
-        let r = Matrix3::from_diagonal(&(r_white + Vector3::from(r_floor)));
+        let r = Matrix3::from_diagonal(&(r_white + Vector3::from(r_floor(v))));
         let (h_pos, h_head) = if v.heading_separate { (0.0, v.pose[2]) } else { (v.pose[2], 0.0) };
         let dr_position = Matrix3::from_diagonal(&Vector3::new(v.pose[0], v.pose[1], h_pos));
         let dr_heading = Matrix3::from_diagonal(&Vector3::new(0.0, 0.0, h_head));
-        let (p, dp) = initial_covariance(v, &r_floor);
-        let null = v.null_without_floors;
-        let mut p0 = p;
-        if null {
-            for (a, f) in r_floor.iter().enumerate() {
-                p0[(a, a)] -= f;
-            }
-        }
         let a0 = window.start;
         let mut base_diag = [1.0; S];
         base_diag[3..IW]
             .copy_from_slice(&[v.a_common, v.a_wheel, v.a_wheel, v.a_drift, v.a_drift, v.a_drift, v.a_beta]);
+        let WindowArrays { p, dp, d, p0, c0, xcov, out, theta_terms, r_q_theta, ds, a, dkn, hdps, jacobian } = arrays;
         WindowFilter {
             input,
             window,
@@ -296,20 +317,20 @@ impl<'a, const S: usize> WindowFilter<'a, S> {
             wq: [0.0; 2],
             p,
             dp,
-            d: DZ::<S>::zeros(),
-            null,
+            d,
+            null: v.null_without_floors,
             p0,
-            c0: None,
-            xcov: [MZ::<S>::zeros(); 4],
-            out: WindowSums::zero(),
+            c0,
+            xcov,
+            out,
             prev_e: None,
-            theta_terms: [M3xZ::<S>::zeros(); 4],
-            r_q_theta: [Matrix3::zeros(); 4],
-            ds: [Matrix3::zeros(); NP],
-            a: [Matrix3::zeros(); NP],
-            dkn: DZ::<S>::zeros(),
-            hdps: [M3xZ::<S>::zeros(); NP],
-            jacobian: InputJacobianSums::new(v),
+            theta_terms,
+            r_q_theta,
+            ds,
+            a,
+            dkn,
+            hdps,
+            jacobian,
             block_index: 0,
             block_open: false,
             block_sum: Vector4::zeros(),
@@ -396,14 +417,13 @@ impl<'a, const S: usize> WindowFilter<'a, S> {
         }
     }
 
-    /// The sums of the window, once every sample has been filtered.
+    /// Closes the window's sums once every sample has been filtered.
     #[inline(always)]
-    pub(super) fn finish(mut self) -> WindowSums {
+    pub(super) fn finish(self) {
         if self.block_open {
             self.out.blocks.push(&self.block_sum, self.block_prev.as_ref());
         }
-        self.jacobian.finish(&mut self.out, self.mode.derivs);
-        self.out
+        self.jacobian.finish(self.out, self.mode.derivs);
     }
 }
 
@@ -463,7 +483,44 @@ pub(super) fn run_window_s<const S: usize, K: KernelCalls>(
     record: Option<&mut Vec<InnovationRecord>>,
 ) -> Result<WindowSums> {
     let mut record = record;
-    let mut f = WindowFilter::<S>::new(input, window, theta, theta_ref, v, mode);
+    // The initial covariance; P₀ of the null recursion without the floors.
+    let (mut p, mut dp) = initial_covariance::<S>(v, &r_floor(v));
+    let mut p0 = p;
+    if v.null_without_floors {
+        for (a, f) in r_floor(v).iter().enumerate() {
+            p0[(a, a)] -= f;
+        }
+    }
+    let mut d = DZ::<S>::zeros();
+    let mut c0 = None;
+    let mut xcov = [MZ::<S>::zeros(); 4];
+    let mut out = WindowSums::zero();
+    // Per-sample work arrays (only the entries of the propagated columns
+    // are written; the rest stay zero, as the records expect).
+    let mut theta_terms = [M3xZ::<S>::zeros(); 4];
+    let mut r_q_theta = [Matrix3::zeros(); 4];
+    let mut ds = [Matrix3::zeros(); NP];
+    let mut a = [Matrix3::zeros(); NP];
+    let mut dkn = DZ::<S>::zeros();
+    let mut hdps = [M3xZ::<S>::zeros(); NP];
+    let mut jacobian = InputJacobianSums::<S>::new(v);
+    let arrays = WindowArrays {
+        p: &mut p,
+        dp: &mut dp,
+        d: &mut d,
+        p0: &mut p0,
+        c0: &mut c0,
+        xcov: &mut xcov,
+        out: &mut out,
+        theta_terms: &mut theta_terms,
+        r_q_theta: &mut r_q_theta,
+        ds: &mut ds,
+        a: &mut a,
+        dkn: &mut dkn,
+        hdps: &mut hdps,
+        jacobian: &mut jacobian,
+    };
+    let mut f = WindowFilter::<S>::new(input, window, theta, theta_ref, v, mode, arrays);
     for i in window.start..window.end {
         let lin = f.linearise(i);
         f.predict::<K>(&lin)?;
@@ -475,5 +532,6 @@ pub(super) fn run_window_s<const S: usize, K: KernelCalls>(
         }
         f.update::<K>(k1, &lin, record.as_deref_mut())?;
     }
-    Ok(f.finish())
+    f.finish();
+    Ok(out)
 }
