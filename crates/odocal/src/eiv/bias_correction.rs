@@ -17,9 +17,9 @@ use crate::error::{Error, Result};
 /// (every free parameter or c_e only) and adds the bias's Monte Carlo
 /// covariance to `report.covariance` and `report.sigma`.
 ///
-/// [`estimate`] calls it at its end; `calibrate` calls it itself after
+/// [`estimate`](crate::eiv::estimate) calls it at its end; `calibrate` calls it itself after
 /// deciding whether to fall back, so that a fit it replaces by batch
-/// Gauss-Newton costs no bootstrap. `report` must be that of [`estimate`]
+/// Gauss-Newton costs no bootstrap. `report` must be that of [`estimate`](crate::eiv::estimate)
 /// on `input` with `opts` except for the correction (and with its
 /// `bias_subtracted` zero). With time constants chosen by the fit
 /// ([`EivReport::time_constants`]) the replicates hold them.

@@ -9,7 +9,7 @@ use crate::error::Result;
 use crate::model::Theta;
 
 /// Step in η of the forward difference of the θ-score
-/// ([`EivOptions::noise_estimate_in_covariance`]): 1e-4, i.e. a 0.01 %
+/// ([`EivOptions::noise_estimate_in_covariance`](crate::eiv::EivOptions::noise_estimate_in_covariance)): 1e-4, i.e. a 0.01 %
 /// change of the source's variance. The score is smooth in η (one-sided
 /// error ≈ h/2 relative); its sums have ≥ 10 significant digits to spare.
 pub const ETA_SENSITIVITY_STEP: f64 = 1e-4;
@@ -53,7 +53,7 @@ pub(super) fn noise_estimate_covariance(
     // (the refits of the test agree with the observed one).
     let fidx: Vec<usize> = (0..4).filter(|i| cov[(*i, *i)] > 0.0).collect();
     let q = fidx.len();
-    // ∂g_θ/∂η by symmetry of the mixed partials (stop 24): with the covariance
+    // ∂g_θ/∂η by symmetry of the mixed partials: with the covariance
     // following θ, g_θ = ∂F/∂θ + G_T, F = ½Σνᵀ S⁻¹ν − Σ m log(1 − ŝ) and G_T
     // the input log-Jacobian's θ-score with its weights u held, so
     // ∂g_θ/∂η_j = ∂/∂θ (∂F/∂η_j) + ∂G_T/∂η_j. The first is the forward

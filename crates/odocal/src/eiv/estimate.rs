@@ -24,7 +24,7 @@ use crate::model::Theta;
 /// else `"baseline"` (the build's target features, SSE2 on a default x86-64
 /// build). The environment variable `ODOCAL_SIMD=baseline` forces the
 /// baseline; it is read once per process. Both give results
-/// identical to the bit; AVX2 is faster (docs/performance.md, stop 22).
+/// identical to the bit; AVX2 is faster (docs/performance.md).
 ///
 /// ```
 /// let set = odocal::eiv::kernel_instruction_set();

@@ -52,15 +52,16 @@ impl<'a> EivInput<'a> {
 
     /// The noise-free truth columns of a simulated drive (its parts and
     /// reference mask as [`EivInput::from_drive`]): the trajectory along
-    /// which [`cramer_rao_bound`] at θ_true is linearised.
+    /// which [`cramer_rao_bound`](crate::eiv::cramer_rao_bound) at θ_true is linearised.
     ///
-    /// Why not the measured columns (stop 25): the bound's sensitivities
+    /// Why not the measured columns: the bound's sensitivities
     /// are the filter's, linearised along the inputs it is given. Along the
     /// measured wheel rotations the white wheel noise appears as yaw and
     /// speed excitation the vehicle never had (on `high` about 5 mrad of
     /// yaw per 25 ms step), and the information about t_r and d, which grows
-    /// with that excitation, is overstated: the bound came out about half
-    /// the true one for t_r on `high` (docs/study.md, "Stop 25").
+    /// with that excitation, is overstated: along the measured inputs the
+    /// bound comes out about half the true one for t_r on `high`
+    /// (docs/study.md, the bound along the truth).
     ///
     /// # Errors
     /// [`Error::InvalidDrive`] when the drive carries no truth (a recorded

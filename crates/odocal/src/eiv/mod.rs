@@ -4,10 +4,13 @@
 //!
 //! ## The filter
 //!
-//! State (9): `z = [p_x, p_y, ψ, s_c, s_l, s_r, b_x, b_y, b_ψ]`: the pose,
-//! the common-mode and per-wheel relative wheel-rotation errors (first-order
-//! Gauss-Markov, `s' = a·s + w`, `a = exp(−t_s/τ)`, `var w = σ²(1 − a²)`) and
-//! the reference-pose drift (Gauss-Markov per axis and heading). The true
+//! State (12): `z = [p_x, p_y, ψ, s_c, s_l, s_r, b_x, b_y, b_ψ, e_β, w_l, w_r]`:
+//! the pose, the common-mode and per-wheel relative wheel-rotation errors
+//! (first-order Gauss-Markov, `s' = a·s + w`, `a = exp(−t_s/τ)`,
+//! `var w = σ²(1 − a²)`), the reference-pose drift (Gauss-Markov per axis
+//! and heading), the sideslip error ([`SideslipNoise`]) and the encoder
+//! remainders of counting quantisation ([`QuantisationModel::Counting`];
+//! without it the filter runs the first 10 states). The true
 //! wheel rotations are `n_w = ñ_w·(1 − s_c − s_w) − e_w` with white
 //! `e_w ~ N(0, (σ_white·ñ_w)² + q²/12·[ñ_w ≠ 0])`; the pose propagates with
 //! the model step f at these effective inputs. a_y and β are noisy inputs:
@@ -17,9 +20,10 @@
 //! ỹ_k = x_k + b_k + v_k,   R = diag(σ_p² + (1 mm)², σ_p² + (1 mm)², σ_ψ² + (1e-5 rad)²)
 //! ```
 //!
-//! (`f_β = ∂f/∂β`, `f_a = ∂f/∂a_y`; the sideslip error, Gauss-Markov with
-//! correlation time τ_β, enters as the white variance with the same long-run
-//! sum, `σ_β,eq² = σ_β²·(1 + a_β)/(1 − a_β)`). σ_a and σ_β are settable in
+//! (`f_β = ∂f/∂β`, `f_a = ∂f/∂a_y`; with [`SideslipNoise::WhiteEquivalent`]
+//! the sideslip error, Gauss-Markov with correlation time τ_β, enters as the
+//! white variance with the same long-run sum,
+//! `σ_β,eq² = σ_β²·(1 + a_β)/(1 − a_β)`, else as the state e_β). σ_a and σ_β are settable in
 //! [`NoiseModel`] and scaled together with the white wheel noise (η_0, the
 //! "white input noise" group); they have no scale factor of their own.
 //!
@@ -52,7 +56,7 @@
 //! CRB σ from [`cramer_rao_bound`], full Fisher information; "known" = the
 //! simulator's noise model from [`NoiseModel::from_sim`], fixed; "est." =
 //! η estimated from [`NoiseModel::PRODUCTION_CAR`]; "boot" = known minus
-//! the [`bootstrap`] bias, B = 10, seeds 1–20 (stop 10); docs/study.md has the rest):
+//! the [`bootstrap`] bias, B = 10, seeds 1–20; docs/study.md has the rest):
 //!
 //! | preset | batch G-N t_r % | follows, known | follows, est. | CRB | known c_e % | known + boot c_e % | c_e CRB |
 //! |---|---|---|---|---|---|---|---|
@@ -61,14 +65,12 @@
 //! | high  | +8.2 ± 3.6   | +3.3 ± 1.2   | +122 ± 33    | 0.29 | +0.55 ± 0.07 | +0.013 ± 0.078 | 0.059 |
 //! | coloured wheel, perfect reference | +1.32 ± 0.81 | +0.14 ± 0.26 | +0.05 ± 0.25 | 0.22 | +0.098 ± 0.026 | +0.004 ± 0.028 | 0.019 |
 //!
-//! (Earlier, 5 seeds: the covariance held at a reference with the known
-//! noise gave t_r +0.60 / +1.29 / +11.1 % on white / paper / high.)
-//!
-//! (The table is for the filter before the heading white noise got its own
-//! scale η_5. Diagnosis and the numbers since, including the opt-in
-//! [`QuantisationModel::Measurement`]: docs/study.md, EIV section, and
+//! (The table's fits tie the heading white noise to the position scale,
+//! [`HeadingScale::TiedToPosition`], and model quantisation as rate noise,
+//! [`QuantisationModel::ProcessNoise`]. The fits with the separate scale η_5
+//! and the other quantisation models: docs/study.md, EIV section, and
 //! `examples/eiv_eta_diag.rs`. In short: the "est." failure on paper and
-//! high came from the tied position/heading scale — the heading kept the
+//! high comes from the tied position/heading scale — the heading keeps the
 //! production car's ratio, 0.49 mrad against the simulator's 0.30 — not
 //! from the time constants; and the known-noise t_r bias under high noise
 //! comes mostly from encoder quantisation modelled as accumulating rate
@@ -100,7 +102,7 @@
 //! (m: 1 where the wheel(s) turn). With the covariance held, S does not
 //! depend on θ and `∂M/∂θ` is exactly the gradient of SPEC's corrected
 //! profile cost; with it following θ, θ uses `∂J/∂θ` (J = M without
-//! `½Σ log det S`, which biased t_r by +7 to +8 % in the prototype) and η
+//! `½Σ log det S`, which biases t_r by +7 to +8 % when included) and η
 //! uses `∂M/∂η`.
 //!
 //! **Corrected score** (held mode only). With S held at the reference, the θ-gradient of the
@@ -110,13 +112,13 @@
 //! `b = Σ_k −tr(S_k⁻¹ H X_k Hᵀ)`, with `X = E[ε D̃ᵀ]` propagated like P
 //! (`X⁻ = F̄ X⁺ F̄ᵀ − Σ_u var(u)·(∂f/∂u)(∂(F D + f_θ)/∂u)ᵀ`,
 //! `X⁺ = (I − KH) X⁻ (I − KH)ᵀ`), is subtracted: θ solves `∂M/∂θ − b = 0`
-//! (Nakamura 1990). This removed the collapse of t_r under white wheel
-//! noise but leaves a bias of several per cent on t_r (see the branch report).
+//! (Nakamura 1990). This prevents the collapse of t_r under white wheel
+//! noise but leaves a bias of several per cent on t_r.
 //!
 //! ## Fisher scoring
 //!
 //! Exact derivatives come from a hand-written sensitivity recursion through
-//! the filter (module `filter`): `∂ẑ/∂[θ, η]` (9×9) for the mean and
+//! the filter (module `filter`): `∂ẑ/∂[θ, η]` (state × 10) for the mean and
 //! `∂P/∂η_j` for the covariance. With
 //! `H_θ = Σ (∂ν/∂θ)ᵀ S⁻¹ (∂ν/∂θ)` and
 //! `I_η = Σ (∂ν/∂η)ᵀ S⁻¹ (∂ν/∂η) + ½ Σ tr(S⁻¹ ∂S_i S⁻¹ ∂S_j)` the steps are
@@ -129,24 +131,20 @@
 //! runs twice (the second pass with the reference at the first result).
 //!
 //! Speed. The filter's cost is the covariance recursion and its
-//! derivatives: per sample, P and up to 9 `∂P/∂p_j` (4 θ with the
-//! covariance following θ, 5 η; η_5 only with a separate heading scale),
+//! derivatives: per sample, P and up to 10 `∂P/∂p_j` (4 θ with the
+//! covariance following θ, 6 η; η_5 only with a separate heading scale),
 //! each a structured `F (·) Fᵀ` and a Joseph update, computed on the lower
 //! triangle and mirrored (module `filter`). A θ step's evaluation, whose
-//! only use is the η step after it, skips `∂P/∂θ`; since stop 24 the
-//! evaluation an iteration starts from skips `∂P/∂η` until its θ step is
-//! below the tolerance (then it is evaluated again in full for the
-//! convergence test; steps and decisions are unchanged). A fit with η
-//! estimated typically takes 2 + 2 × iterations derivative passes (10 on the 24 km
-//! paper drive, 6 of them with the θ or the η columns only), with the noise
-//! fixed 1 + iterations (3); the η term of the covariance one more per free
-//! parameter (4). Stop 14's structured kernels, measured on that drive
-//! through `odocal calibrate` (docs/performance.md, CPU seconds, since the
-//! 2-core machine was shared): η estimated 3.3 s before, 2.2 s after;
-//! fixed noise 0.82 → 0.72 s (of which batch G-N, the start, 0.2 s). Stop
-//! 24's lean iteration starts and η term: 24 km `eiv_speed` wall time
-//! 2.42–2.92 s → 1.78–2.45 s (interleaved rounds; docs/performance.md).
-//! Results agree with the earlier filter to ~1e-13 relative (test
+//! only use is the η step after it, skips `∂P/∂θ`; the evaluation an
+//! iteration starts from skips `∂P/∂η` until its θ step is below the
+//! tolerance (then it is evaluated again in full for the convergence test;
+//! steps and decisions are those of full evaluations). A fit with η
+//! estimated typically takes 2 + 2 × iterations derivative passes (10 on
+//! the 24 km paper drive, 6 of them with the θ or the η columns only), with
+//! the noise fixed 1 + iterations (3); the η term of the covariance one
+//! more per free parameter (4). docs/performance.md has the timings
+//! (`examples/eiv_speed.rs`). Results agree with the straightforward dense
+//! filter to ~1e-13 relative (test
 //! `results_match_the_recorded_results_of_the_unoptimised_filter`).
 //!
 //! Uncertainty is `H_θ⁻¹` at the estimate ([`EivReport::sigma`]), the
@@ -178,6 +176,19 @@
 //! innovations; θ is re-estimated on each half of the windows by one scoring
 //! step. Failures, noise scales at their upper clamp and non-convergence are
 //! typed [`EivWarning`]s carrying the window index or parameter.
+//!
+//! ## Code layout
+//!
+//! `input` (the drive's slices and its windows), `noise` (the noise model
+//! and its scaled sources), `options` and `modelling` (the options and the
+//! modelling choices they select), `report` (what a fit reports), `problem`
+//! (the Fisher-scoring problem: a drive's windows and their summed filter
+//! passes), `steps` (the θ and η scoring steps), `scoring` (one scoring
+//! pass), `estimate` (the entry points and the per-window checks),
+//! `covariance` (θ's covariance beyond `H_θ⁻¹`), `bias_correction` and
+//! `bootstrap`, `crb` (the Cramér–Rao bound), `tau` (the time-constant
+//! grid), `lattice` (the quantisation step read off the readings) and
+//! `filter` (the augmented filter over one window).
 //!
 //! ## References
 //! - G. Fazekas, P. Gáspár, B. Németh, "Wheel Odometry Model Calibration with

@@ -8,7 +8,7 @@ use super::EivInput;
 use crate::error::{Error, Result};
 
 /// A log-Jacobian term `−Σ_k Σ_w u_w,k·ln(C_w,k(θ)/C_w,k(θ_ref))` added to
-/// the profile cost J of θ (issue 9 item 4: the c_e bias), with C_w,k the
+/// the profile cost J of θ (against the c_e bias of the following-θ cost), with C_w,k the
 /// wheel circumference at sample k (3a, 3b; θ_ref the start of the fit) and
 /// weights u ≥ 0 per wheel and sample. Not part of the marginal likelihood
 /// M of the η step. Meant with [`WheelNoiseScale::FittedInput`].
@@ -78,9 +78,9 @@ pub enum InputJacobian {
 }
 
 /// The null hypothesis of the per-window innovation checks
-/// ([`EivOptions::innovation_null`]).
+/// ([`EivOptions::innovation_null`](crate::eiv::EivOptions::innovation_null)).
 ///
-/// The measurement floors of `R` ([`EivOptions::position_floor_m`], 1e-5
+/// The measurement floors of `R` ([`EivOptions::position_floor_m`](crate::eiv::EivOptions::position_floor_m), 1e-5
 /// rad on the heading) are regularisation: on a perfect reference the data
 /// have no noise at that level, so a filter whose `R` contains the floor
 /// does not fully follow the measurements, and its innovations are
@@ -93,7 +93,7 @@ pub enum InputJacobian {
 #[serde(rename_all = "snake_case")]
 pub enum InnovationNull {
     /// The model as fitted, floors included: white innovations (lag-1 0)
-    /// and NIS/dof 1. The checks before stop 12.
+    /// and NIS/dof 1.
     FittedModel,
     /// The real noise below the floors is anywhere between none and the
     /// floor: one more filter pass at the estimate propagates the error
@@ -101,24 +101,24 @@ pub enum InnovationNull {
     /// fitted noise without the floors, giving per window the expected
     /// lag-1 autocorrelation ρ₀ and NIS/dof n₀ of the whitened innovations.
     /// A window is flagged when its lag-1 is more than
-    /// [`EivOptions::max_lag1`] above `max(0, ρ₀)` or more than
-    /// [`EivOptions::max_lag1_below`] below `min(0, ρ₀)`, or its
+    /// [`EivOptions::max_lag1`](crate::eiv::EivOptions::max_lag1) above `max(0, ρ₀)` or more than
+    /// [`EivOptions::max_lag1_below`](crate::eiv::EivOptions::max_lag1_below) below `min(0, ρ₀)`, or its
     /// NIS/dof outside `[lo·min(1, n₀), hi·max(1, n₀)]` (`[lo, hi]` =
-    /// [`EivOptions::nis_band`]). Where the reference has noise well above
+    /// [`EivOptions::nis_band`](crate::eiv::EivOptions::nis_band)). Where the reference has noise well above
     /// the floors (real logs, the `paper` preset), ρ₀ ≈ 0 and n₀ ≈ 1 and
     /// the checks are those of [`InnovationNull::FittedModel`].
     FloorsAsRegularisation,
 }
 
-/// Default of [`EivOptions::position_floor_m`], m (stop 11; SPEC §10
-/// states 1 mm, [`SPEC_POSITION_FLOOR_M`]).
+/// Default of [`EivOptions::position_floor_m`](crate::eiv::EivOptions::position_floor_m), m (SPEC §10 states 1 mm,
+/// [`SPEC_POSITION_FLOOR_M`]; see that option for why 5 mm).
 pub const DEFAULT_POSITION_FLOOR_M: f64 = 5e-3;
 
-/// The position σ floor of SPEC §10, m (the default before stop 11).
+/// The position σ floor of SPEC §10, m.
 pub const SPEC_POSITION_FLOOR_M: f64 = 1e-3;
 
 /// Which wheel rotation the relative wheel noise (white and Gauss-Markov)
-/// is proportional to in the filter's covariance (issue 9 item 4).
+/// is proportional to in the filter's covariance.
 ///
 /// With the covariance following θ the noise in metres is `C(θ)·ñ·σ`: it
 /// grows with the wheel circumference, and the profile cost, which has no
@@ -140,7 +140,7 @@ pub enum WheelNoiseScale {
     /// σ·ñ, the measured rotation (SPEC §10).
     #[default]
     MeasuredInput,
-    /// σ·n̂, `n̂ = ñ·C(θ_ref)/C(θ)` (only with [`CovarianceMode::FollowsTheta`];
+    /// σ·n̂, `n̂ = ñ·C(θ_ref)/C(θ)` (only with [`CovarianceMode::FollowsTheta`](crate::eiv::CovarianceMode::FollowsTheta);
     /// θ_ref is the start of the fit, batch G-N's θ). Encoder quantisation
     /// (an absolute count error) is not rescaled.
     FittedInput,
@@ -177,16 +177,16 @@ impl WheelNoiseScale {
     }
 }
 
-/// A correction of the estimator's own bias applied to the estimate
-/// (issue 9 item 4).
+/// A correction of the estimator's own bias applied to the estimate.
 ///
-/// Until stop 19 its target was a c_e bias of about +0.1 % under coloured
-/// wheel noise, which the bootstrap removed on every preset (the known
-/// noise model fixed, 12 km, 20 seeds, B = 10: c_e t 14–35 → 0.5–0.8; the
-/// analytic first-order correction, [`FirstOrderBias`], failed).
-/// Since the sideslip error is a filter state (stop 19) the default fit has
-/// no c_e bias left; what remains under heavy wheel noise is t_r's and d's.
-/// Measured (stop 20, `examples/study_eiv.rs --km 12 --seeds 20 --methods
+/// With the sideslip error white-equivalent
+/// ([`SideslipNoise::WhiteEquivalent`]) the fit has a c_e bias of about
+/// +0.1 % under coloured wheel noise, which the bootstrap removes on every
+/// preset (the known noise model fixed, 12 km, 20 seeds, B = 10: c_e t
+/// 14–35 → 0.5–0.8; the analytic first-order correction, [`FirstOrderBias`],
+/// does not). With the sideslip error a filter state (the default) the fit
+/// has no c_e bias left; what remains under heavy wheel noise is t_r's and
+/// d's. Measured (`examples/study_eiv.rs --km 12 --seeds 20 --methods
 /// est --bootstrap 10 --bootstrap-smooth 20`, η estimated, every parameter
 /// corrected, replicates on the smoothed trajectory holding the fitted noise
 /// model, [`BootstrapNoise::HeldAtFit`]; mean error (t), coverage of the 95 %
@@ -199,27 +199,27 @@ impl WheelNoiseScale {
 /// | white | +0.073 % (1.3) | +0.059 % (1.0) | +0.002 (0.1) | 1.0 | 97.5 → 97.5 % |
 /// | coloured | +0.093 % (1.7) | +0.095 % (1.4) | −0.010 (0.6) | 1.4 | 93.8 → 92.5 % |
 ///
-/// That correction (stop 20) added Monte Carlo noise: the corrected t_r
-/// was more spread (RMS/CRB on paper 1.69 → 1.82) and fresh-drive Ē_p 1–4
-/// cm worse. Since stop 21 the replicates come in antithetic pairs
-/// ([`EivOptions::bootstrap_antithetic`], set by
-/// [`EivOptions::correct_bias`]), whose means cancel the replicates' odd
-/// error: with B = 4 the same bias is removed (high t_r +0.458 %, t 1.9;
+/// With independent replicates that correction adds Monte Carlo noise: the
+/// corrected t_r is more spread (RMS/CRB on paper 1.69 → 1.82) and
+/// fresh-drive Ē_p 1–4 cm worse. Antithetic pairs
+/// ([`EivOptions::bootstrap_antithetic`](crate::eiv::EivOptions::bootstrap_antithetic), set by
+/// [`EivOptions::correct_bias`](crate::eiv::EivOptions::correct_bias)), whose means cancel the replicates' odd
+/// error, remove the same bias with B = 4 (high t_r +0.458 %, t 1.9;
 /// largest |t| 2.8 on paper) and the RMS error falls (t_r on high 5.38 →
 /// 4.01× the bound, paper 1.69 → 1.62×), coverage 93.8 / 96.3 / 97.5 /
 /// 95.0 %. It is the EIV method's default in `calibrate`
 /// (`calibrate::EivMethodOptions::correct_bias`, the CLI's `--correct-bias
-/// B` / `--no-bias-correction`); [`estimate`] applies what this field says
+/// B` / `--no-bias-correction`); [`estimate`](crate::eiv::estimate) applies what this field says
 /// (default none). The subtracted bias is a mean over the replicates (or
 /// pairs); its Monte Carlo covariance is added to θ's
-/// ([`EivReport::sigma_bias_correction`]).
+/// ([`EivReport::sigma_bias_correction`](crate::eiv::EivReport::sigma_bias_correction)).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum BiasCorrection {
     /// The root of the profile cost as is.
     #[default]
     None,
-    /// The parametric [`bootstrap`] bias (B re-simulations of the fitted
+    /// The parametric [`bootstrap`](crate::eiv::bootstrap) bias (B re-simulations of the fitted
     /// noise at θ̂, each re-fitted without correction) subtracted:
     /// `θ̂ − (mean of the replicates − θ̂)`, for c_e only or for every free
     /// parameter. About B more fits.
@@ -233,16 +233,16 @@ pub enum BiasCorrection {
     },
 }
 
-/// Half-width of the moving average ([`BootstrapInputs::Smoothed`]) the
+/// Half-width of the moving average ([`BootstrapInputs::Smoothed`](crate::eiv::BootstrapInputs::Smoothed)) the
 /// CLI's `--correct-bias` takes as the replicates' true inputs: ±20
-/// samples, ±0.5 s at 40 Hz (stop 14 measured K = 20 only; with the
-/// measured inputs as the truth the bootstrap finds no t_r bias).
+/// samples, ±0.5 s at 40 Hz (only K = 20 is measured; with the measured
+/// inputs as the truth the bootstrap finds no t_r bias).
 pub const BIAS_BOOTSTRAP_SMOOTHING_SAMPLES: usize = 20;
 
 /// The noise model the replicates of [`BiasCorrection::Bootstrap`] are
 /// fitted with.
 ///
-/// Measured (stop 20, docs/study.md; `study_eiv --km 12 --seeds 20
+/// Measured (docs/study.md; `study_eiv --km 12 --seeds 20
 /// --methods est --bootstrap 10 --bootstrap-smooth 20`, η estimated, every
 /// parameter corrected, replicates on the smoothed trajectory): t_r mean
 /// error on `high` +1.097 % (t 4.5) uncorrected, +0.531 % (t 1.9) with
@@ -256,10 +256,9 @@ pub const BIAS_BOOTSTRAP_SMOOTHING_SAMPLES: usize = 20;
 #[serde(rename_all = "snake_case")]
 pub enum BootstrapNoise {
     /// Every replicate is fitted with the fit's own options: the noise
-    /// scales re-estimated when the fit estimated them (the only choice
-    /// before stop 20).
+    /// scales re-estimated when the fit estimated them.
     Reestimated,
-    /// Every replicate holds the fitted noise model ([`EivReport::noise`],
+    /// Every replicate holds the fitted noise model ([`EivReport::noise`](crate::eiv::EivReport::noise),
     /// `fix_noise`): it estimates the bias of θ̂ at the fitted noise, about
     /// a third of the cost of re-estimating. The default.
     #[default]
@@ -305,16 +304,15 @@ pub struct FirstOrderBias {
 /// 2 %-white-noise drive and on one of 20 `coloured` drives (t_r +250 % /
 /// +230 %, flagged). Together with [`QuantisationModel::Measurement`] it is
 /// the best combination on every simulated preset with η estimated (paper
-/// t_r −1.2 %, high +4.1 %; docs/study.md, EIV section, "Stop 12") and the
-/// recommended default, not switched yet. With the SPEC formulation
+/// t_r −1.2 %, high +4.1 %; docs/study.md, EIV section). With the SPEC formulation
 /// ([`InputJacobian::None`]) the noise-free straight drive stops at a
 /// second fixed point of the θ/η iteration (c_e −0.057 %, η well above its
 /// lower clamp); with the default [`InputJacobian::FilterShare`] it does
-/// not (c_e to 1e-9, "Stop 12"). After stop 13's study the separate scale
-/// stopped at the iteration limit on 3 of 20 `white` drives with `Counting`;
-/// [`EivOptions::final_step_check`] showed those were converged. The
-/// default since stop 14, with [`QuantisationModel::Counting`] and
-/// [`QuantisationLevel::FromReadings`] (docs/study.md "Stop 14"; 20 seeds ×
+/// not (c_e to 1e-9). Without [`EivOptions::final_step_check`](crate::eiv::EivOptions::final_step_check) the
+/// separate scale stops at the iteration limit on 3 of 20 `white` drives
+/// with `Counting`, though converged. The default, with
+/// [`QuantisationModel::Counting`] and [`QuantisationLevel::FromReadings`]
+/// (docs/study.md, EIV section; 20 seeds ×
 /// 12 km, η estimated: t_r +0.06 % white, +0.02 % coloured, +0.30 % paper,
 /// +1.50 % high, against +0.06 %, −0.01 %, +3.65 %, all-fallback tied with
 /// process-noise quantisation).
@@ -328,7 +326,7 @@ pub enum HeadingScale {
 }
 
 /// Whether the encoder quantisation's level is estimated with the white
-/// wheel noise (η_0) or given ([`EivOptions::quantisation_level`]).
+/// wheel noise (η_0) or given ([`EivOptions::quantisation_level`](crate::eiv::EivOptions::quantisation_level)).
 ///
 /// The quantisation step q = 1/(ticks per revolution · sample time) is a
 /// property of the encoder, usually known, and the wheel-rate readings lie
@@ -336,29 +334,29 @@ pub enum HeadingScale {
 /// wheel noise: from the production-car start (q/σ_white = 0.02 rev/s /
 /// 0.8 %) on the simulator's `high` preset (512 ticks: q = 0.078 rev/s with
 /// 2 % white noise) it comes out at 0.05 rev/s, and the heading channel's
-/// misfit moves t_r (docs/study.md, "Stop 13"). Given, with
+/// misfit moves t_r (docs/study.md, EIV section). Given, with
 /// [`QuantisationModel::Counting`] and [`HeadingScale::Separate`], the
-/// `high` bias of t_r with η estimated went from +8.5 % to +1.5 % (20 seeds ×
+/// `high` bias of t_r with η estimated is +1.5 % instead of +8.5 % (20 seeds ×
 /// 12 km; the known model +0.66 %). Use it with `Counting` only: with the
-/// approximate [`QuantisationModel::Measurement`] it made `high` worse
-/// (t_r +5.0 % → −11.7 %, 10 seeds). The default since stop 14 is
+/// approximate [`QuantisationModel::Measurement`] it makes `high` worse
+/// (t_r +5.0 % → −11.7 %, 10 seeds). The default is
 /// [`QuantisationLevel::FromReadings`]: the step is read off the readings
 /// where they lie on a lattice (a simulator's, or rates from counted ticks
-/// at the encoder's own sample times), and otherwise scaled as before.
+/// at the encoder's own sample times), and otherwise scaled with η_0.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum QuantisationLevel {
     /// q scaled by `exp(η_0/2)` with the white wheel noise, a_y and β noise.
     ScaledWithWhite,
-    /// q held at [`NoiseModel::quantisation_step_rev_per_s`] of
-    /// [`EivOptions::noise`]; η_0 scales the white wheel, a_y and β noise only.
+    /// q held at [`NoiseModel::quantisation_step_rev_per_s`](crate::eiv::NoiseModel::quantisation_step_rev_per_s) of
+    /// [`EivOptions::noise`](crate::eiv::EivOptions::noise); η_0 scales the white wheel, a_y and β noise only.
     Given,
     /// q read off the wheel readings when they lie on a lattice of counted
-    /// ticks ([`quantisation_step_of_readings`]) and then held there as with
+    /// ticks ([`quantisation_step_of_readings`](crate::eiv::quantisation_step_of_readings)) and then held there as with
     /// [`QuantisationLevel::Given`]; readings off any lattice (interpolated
     /// ticks, resampled speeds) fall back to
     /// [`QuantisationLevel::ScaledWithWhite`] from the noise model's q.
-    /// [`EivReport::quantisation_step_from_readings`] says which.
+    /// [`EivReport::quantisation_step_from_readings`](crate::eiv::EivReport::quantisation_step_from_readings) says which.
     FromReadings,
 }
 
@@ -398,7 +396,7 @@ impl std::str::FromStr for QuantisationLevel {
 }
 
 /// How the noise of the lateral inputs, a_y and the sideslip β, is scaled
-/// ([`EivOptions::lateral_noise`]).
+/// ([`EivOptions::lateral_noise`](crate::eiv::EivOptions::lateral_noise)).
 ///
 /// With six noise scales η, a_y's and β's σ have none of their own: by
 /// default η_0 scales them with the white wheel noise (`TiedToWheelWhite`).
@@ -410,7 +408,8 @@ impl std::str::FromStr for QuantisationLevel {
 /// model's σ instead: the IMU's and the sideslip source's noise, settable
 /// in a noise-model file or a manifest's `[noise]`.
 ///
-/// Measured (docs/study.md, stop 17; 20 × 12 km drives, η estimated,
+/// Measured with the sideslip error white-equivalent
+/// ([`SideslipNoise::WhiteEquivalent`]; docs/study.md; 20 × 12 km drives, η estimated,
 /// production-car start; bias t = mean/se, tied → stated): `paper` t_r
 /// 4.2 → 3.2 (RMS 1.91 → 1.72× the CRB), d 3.1 → 2.2; `high` c_e 4.1 → 0.7,
 /// t_r 6.0 → 4.8, d 4.9 → 4.0; `white` c_e 4.1 → 0.5; `coloured` t_r
@@ -422,17 +421,18 @@ impl std::str::FromStr for QuantisationLevel {
 /// that σ (the tie drives every scale to its lower clamp and returns
 /// θ_true); the noise-free 6 km drive gives d to 5e-8 relative instead of
 /// 1e-8. An own scale for a_y and β would keep both; it is not written.
-/// Since the sideslip error is a filter state ([`SideslipNoise`], stop 19)
-/// `Stated` no longer changes those simulated results (`high` t_r t 4.4
-/// → 4.7): its gains above made up for the white-equivalent sideslip noise.
+/// With the sideslip error a filter state ([`SideslipNoise::GaussMarkovState`],
+/// the default) `Stated` does not change those simulated results (`high`
+/// t_r t 4.4 → 4.7): its gains above make up for the white-equivalent
+/// sideslip noise.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum LateralNoise {
     /// η_0 scales a_y and β noise with the white wheel noise.
     #[default]
     TiedToWheelWhite,
-    /// a_y and β noise held at [`NoiseModel::lateral_acceleration_sigma_m_per_s2`]
-    /// and [`NoiseModel::sideslip_sigma_rad`] of [`EivOptions::noise`].
+    /// a_y and β noise held at [`NoiseModel::lateral_acceleration_sigma_m_per_s2`](crate::eiv::NoiseModel::lateral_acceleration_sigma_m_per_s2)
+    /// and [`NoiseModel::sideslip_sigma_rad`](crate::eiv::NoiseModel::sideslip_sigma_rad) of [`EivOptions::noise`](crate::eiv::EivOptions::noise).
     Stated,
 }
 
@@ -456,16 +456,16 @@ impl std::str::FromStr for LateralNoise {
 }
 
 /// How the filter models the error of the measured sideslip β, a
-/// Gauss-Markov process of σ [`NoiseModel::sideslip_sigma_rad`] and time
-/// constant [`NoiseModel::sideslip_time_constant_s`] (as the simulator's,
+/// Gauss-Markov process of σ [`NoiseModel::sideslip_sigma_rad`](crate::eiv::NoiseModel::sideslip_sigma_rad) and time
+/// constant [`NoiseModel::sideslip_time_constant_s`](crate::eiv::NoiseModel::sideslip_time_constant_s) (as the simulator's,
 /// and as a sideslip estimate filtered from the IMU behaves).
 ///
-/// Stop 19 found why the noise scales were off at the truth on `high`
-/// (docs/study.md, EIV section): the white equivalent overstates the
-/// sideslip error's effect over the few steps the filter's position
-/// innovations span by about the factor `(1+a)/(1−a)` (80 at τ = 1 s and
-/// 40 Hz), and the fit made up for it by lowering the drift and position
-/// scales and raising the heading white one (the scoring step from the
+/// The white equivalent puts the noise scales off at the truth on `high`
+/// (docs/study.md, EIV section): it overstates the sideslip error's effect
+/// over the few steps the filter's position innovations span by about the
+/// factor `(1+a)/(1−a)` (80 at τ = 1 s and 40 Hz), and the fit makes up for
+/// it by lowering the drift and position scales and raising the heading
+/// white one (the scoring step from the
 /// truth, 6 drives: drift −0.103, heading white +0.051; with the state
 /// −0.002 and +0.015, as with no sideslip error at all). 10 drives × 12
 /// km of `high`, η estimated: c_e +0.089 → +0.019 %, t_r +1.33 → +0.91 %,
@@ -478,11 +478,11 @@ pub enum SideslipNoise {
     #[default]
     GaussMarkovState,
     /// The error taken as white process noise of the long-run variance
-    /// `σ²(1+a)/(1−a)`, `a = exp(−t_s/τ)` (the filter before stop 19).
+    /// `σ²(1+a)/(1−a)`, `a = exp(−t_s/τ)`.
     WhiteEquivalent,
 }
 
-/// How the filter models encoder quantisation (q of [`NoiseModel`]).
+/// How the filter models encoder quantisation (q of [`NoiseModel`](crate::eiv::NoiseModel)).
 ///
 /// Counting ticks carries the remainder over, so the counted rotation is
 /// within one tick of the true one at every sample: the error is bounded and
@@ -494,10 +494,10 @@ pub enum SideslipNoise {
 /// paper −1.2 ± 0.6 % / high +4.5 ± 5.0 % against +4.0 ± 1.0 % / +122 ± 33 %.
 /// Alone (heading scale tied) it changes little with η estimated (paper
 /// t_r +3.8 %, high +118 %); with [`HeadingScale::Separate`] it gives
-/// paper −1.2 %, high +4.5 % (docs/study.md, EIV section, "Stop 11"; "Stop
-/// 12", where the pair passes the noise-free straight and turning drives).
+/// paper −1.2 %, high +4.5 % (docs/study.md, EIV section, where the pair
+/// also passes the noise-free straight and turning drives).
 /// [`QuantisationModel::Counting`] with the separate scale and the step
-/// read off the readings is the default since stop 14.
+/// read off the readings is the default.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum QuantisationModel {
@@ -519,9 +519,9 @@ pub enum QuantisationModel {
     /// separate heading scale and the noise model known it is the best of the
     /// three (20 seeds × 12 km, t_r paper +0.17 %, high +0.66 %; its
     /// innovation checks flag none of 80 drives), with η estimated paper
-    /// +0.28 % but high +8.5 % (docs/study.md "Stop 13"), +1.5 % with the
+    /// +0.28 % but high +8.5 % (docs/study.md, EIV section), +1.5 % with the
     /// step held at the encoder's ([`QuantisationLevel::FromReadings`]).
-    /// The default since stop 14.
+    /// The default.
     Counting,
 }
 

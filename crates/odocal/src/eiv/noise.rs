@@ -13,7 +13,7 @@ use crate::error::{Error, Result};
 /// Gauss-Markov, 2 = per-wheel Gauss-Markov, 3 = position white, 4 = pose
 /// drift (position and heading), 5 = heading white. σ_a and σ_β scale with
 /// η_0 (white input noise); the time constants are fixed unless
-/// [`EivOptions::estimate_time_constants`] (a grid profile, not a scale).
+/// [`EivOptions::estimate_time_constants`](crate::eiv::EivOptions::estimate_time_constants) (a grid profile, not a scale).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct NoiseModel {
@@ -91,7 +91,7 @@ impl NoiseSource {
     }
 
     /// The source's index in η ([`NOISE_SOURCES`] order, as
-    /// [`EivOptions::eta_held`]): the declaration order.
+    /// [`EivOptions::eta_held`](crate::eiv::EivOptions::eta_held)): the declaration order.
     pub fn index(self) -> usize {
         self as usize
     }
@@ -154,7 +154,7 @@ impl NoiseModel {
     };
 
     /// The noise model that matches a simulator setting (the "true noise
-    /// model" for [`cramer_rao_bound`]). Slip is not represented (it is
+    /// model" for [`cramer_rao_bound`](crate::eiv::cramer_rao_bound)). Slip is not represented (it is
     /// absorbed by the common-mode error); the drift time constant is the
     /// position drift's.
     pub fn from_sim(n: &crate::sim::NoiseOptions, sample_time_s: f64) -> Self {

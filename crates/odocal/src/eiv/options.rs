@@ -32,35 +32,35 @@ pub enum CovarianceMode {
     FollowsTheta,
 }
 
-/// The covariance of θ reported by [`estimate`] ([`EivReport::covariance`],
-/// [`EivReport::sigma`]) and used by the halves check.
+/// The covariance of θ reported by [`estimate`](crate::eiv::estimate) ([`EivReport::covariance`](crate::eiv::EivReport::covariance),
+/// [`EivReport::sigma`](crate::eiv::EivReport::sigma)) and used by the halves check.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum CovarianceEstimate {
     /// `H_θ⁻¹`, the inverse of the scoring metric at the fitted noise model:
     /// right when the noise model is (the fitted scales of the right
-    /// processes). Stop 13 (`coloured` preset, η estimated from the
-    /// production-car model, whose common-mode wheel noise has τ_c = 2 s
-    /// against the simulator's 5 s): c_e's σ was 0.0062 % against an actual
-    /// spread of 0.023 % (coverage 35 %), so the halves check rejected 7 of
+    /// processes). On the `coloured` preset, η estimated from the
+    /// production-car model (whose common-mode wheel noise has τ_c = 2 s
+    /// against the simulator's 5 s), c_e's σ is 0.0062 % against an actual
+    /// spread of 0.023 % (coverage 35 %), so the halves check rejects 7 of
     /// 20 good fits. Where the model is right the two agree (the
     /// simulator's noise model given: mean σ 0.0194 % against the block
-    /// sandwich's 0.0197 %). The default until stop 13.
+    /// sandwich's 0.0197 %).
     Model,
-    /// The default (since stop 13).
+    /// The default.
     /// Per parameter the larger of the `H_θ⁻¹` σ and the block sandwich σ
-    /// ([`EivReport::sigma_block`]): `C = D H_θ⁻¹ D` with
+    /// ([`EivReport::sigma_block`](crate::eiv::EivReport::sigma_block)): `C = D H_θ⁻¹ D` with
     /// `D = diag(max(1, σ_block,i/σ_i))`, so the correlations are the
     /// model's. The block sandwich sums the per-update θ-scores over 20 s
     /// blocks (several correlation times of the wheel noise) and so stays
     /// honest when the noise model's time constants are wrong; the larger
     /// of the two keeps the model's σ where the blocks are few (a short
-    /// drive) and their estimate noisy. Measured (docs/study.md "Stop 13";
+    /// drive) and their estimate noisy. Measured against [`CovarianceEstimate::Model`] (docs/study.md;
     /// 12 km, seeds 1–20): `coloured` c_e coverage 35 → 90 %, halves
     /// fallbacks 7 → 0, what a user gets c_e 2.82× → 1.62× the Cramér–Rao
-    /// bound; `white` identical; on `paper` the halves check no longer
-    /// rejects two fits with t_r +4.7 and +3.9 % (it measures spread, not
-    /// bias).
+    /// bound; `white` identical; on `paper` the halves check does not
+    /// reject two fits with t_r +4.7 and +3.9 % that it rejects with the
+    /// model's σ (it measures spread, not bias).
     #[default]
     LargerOfModelAndBlock,
 }
@@ -72,9 +72,8 @@ pub struct EivOptions {
     /// Filter window length, samples (each part is cut into windows of about
     /// this length). Default 6000 (150 s at 40 Hz).
     pub window_samples: usize,
-    /// Fisher-scoring iterations per pass. Default 20 (10 until stop 19: a
-    /// test-track run then stopped at the limit with a last step of 0.25σ and
-    /// fell back; it converges in 12; the simulated studies converge in ≤ 10).
+    /// Fisher-scoring iterations per pass. Default 20 (a test-track run
+    /// converges in 12; the simulated studies converge in ≤ 10).
     pub max_iterations: usize,
     /// Stop when `max |step_i|/σ_i` (free θ and η not at a clamp) is below
     /// this. Default 0.05.
@@ -83,20 +82,20 @@ pub struct EivOptions {
     pub max_halvings: usize,
     /// Damp the η step of the θ/η iteration by a secant estimate of its
     /// overshoot (with the covariance following θ and η estimated). Default
-    /// true (stop 12; see the measurements at `secant_eta_factor` in the
-    /// source and docs/study.md "Stop 12").
+    /// true (see the measurements at `secant_eta_factor` in the source and
+    /// docs/study.md, EIV section).
     pub eta_secant_damping: bool,
     /// Score-test level at which a noise scale at its lower clamp re-enters
     /// the fit: the source leaves the clamp when the score test of its scale
     /// against the data, `g²/I` (g = ∂M/∂η, I its Fisher information, both
     /// at the clamp), exceeds this and g < 0 (more of that noise lowers M).
-    /// `None` = never: a scale that reached the clamp stays there (the
-    /// stop-12 behaviour: at the clamp its information is ~e⁻⁴⁰ of the
-    /// others' and it read as "no information"). Default `None`.
+    /// `None` = never: a scale that reached the clamp stays there (at the
+    /// clamp its information is ~e⁻⁴⁰ of the others' and reads as "no
+    /// information"). Default `None`.
     ///
-    /// Measured (docs/study.md "Stop 13"; `coloured` preset, 12 km, seeds
-    /// 1–20): the production-car model's common-mode scale η₁ ended at the
-    /// clamp on 16 of 20 drives; re-entered (level 10), the fits' M was
+    /// Measured (docs/study.md; `coloured` preset, 12 km, seeds
+    /// 1–20): the production-car model's common-mode scale η₁ ends at the
+    /// clamp on 16 of 20 drives; re-entered (level 10), the fits' M is
     /// 508–738 lower (seeds 2–6), but η₁ climbs back by about +3 per
     /// iteration and 14 of 20 fits hit the 10-iteration limit (2 of 20 on
     /// `white`), so it is not the default; c_e's σ stays too small with it
@@ -105,12 +104,11 @@ pub struct EivOptions {
     pub eta_reentry_min_score: Option<f64>,
     /// Which covariance of θ the report carries (`covariance`, `sigma`) and
     /// the halves check uses. Default
-    /// [`CovarianceEstimate::LargerOfModelAndBlock`] since stop 13
-    /// ([`CovarianceEstimate::Model`] restores the earlier σ; see both for
-    /// the stop-13 measurements).
+    /// [`CovarianceEstimate::LargerOfModelAndBlock`] (see both for the
+    /// measurements).
     pub covariance_estimate: CovarianceEstimate,
     /// Add to θ's reported covariance what estimating the noise scales η
-    /// from the same drive adds to it (stop 16): `A Σ_η Aᵀ` with
+    /// from the same drive adds to it: `A Σ_η Aᵀ` with
     /// `A = ∂θ̂/∂η = −J⁻¹ ∂g_θ/∂η` (implicit function theorem at the
     /// estimate; `g_θ` the θ-score, `J = ∂g_θ/∂θ`) and `Σ_η` the inverse of
     /// η's information over the estimated scales. Both derivatives are
@@ -118,19 +116,18 @@ pub struct EivOptions {
     /// the θ-score, `∂g_θ/∂η` of the η-gradient of the profile cost (the
     /// mixed partials are symmetric; the FilterShare log-Jacobian weights'
     /// own η-dependence is summed exactly by the filter), so one more filter
-    /// pass with θ and η derivatives per free parameter (since stop 24;
-    /// before, and still with the smoothed-share weights or the covariance
-    /// held, one more pass per estimated scale too, displaced by
-    /// [`ETA_SENSITIVITY_STEP`] in η), instead of a second-order sensitivity
-    /// recursion through the filter.
-    /// `A` is [`EivReport::theta_eta_sensitivity`], the added σ
-    /// [`EivReport::sigma_noise_estimate`]. No effect with
+    /// pass with θ and η derivatives per free parameter (with the
+    /// smoothed-share weights or the covariance held, one more pass per
+    /// estimated scale too, displaced by [`ETA_SENSITIVITY_STEP`](crate::eiv::ETA_SENSITIVITY_STEP) in η),
+    /// instead of a second-order sensitivity recursion through the filter.
+    /// `A` is [`EivReport::theta_eta_sensitivity`](crate::eiv::EivReport::theta_eta_sensitivity), the added σ
+    /// [`EivReport::sigma_noise_estimate`](crate::eiv::EivReport::sigma_noise_estimate). No effect with
     /// [`EivOptions::fix_noise`].
     ///
     /// Why: on the `high` preset t_r moves by ≈ 7–15 % per unit of the
     /// heading white-noise scale η_5, whose own σ there is 0.04–0.12, so
-    /// the σ at a fixed η understated t_r's by up to 1.8×. Measured in
-    /// docs/study.md "Stop 16". Default true.
+    /// the σ at a fixed η understates t_r's by up to 1.8× (docs/study.md).
+    /// Default true.
     pub noise_estimate_in_covariance: bool,
     /// Judge convergence of the θ/η iteration by what the user gets, θ:
     /// also stop when θ's remaining scoring step is below
@@ -138,8 +135,8 @@ pub struct EivOptions {
     /// remaining η step would cause through the joint information,
     /// `dθ ≈ −I_θθ⁻¹ I_θη dη` (η wandering that does not move θ is no reason
     /// to distrust θ). The remaining η step is reported in
-    /// [`PassReport::eta_step_over_sigma`]. Default false (stop 13; see
-    /// docs/study.md "Stop 13: convergence of the η iteration").
+    /// [`PassReport::eta_step_over_sigma`](crate::eiv::PassReport::eta_step_over_sigma). Default false (see
+    /// docs/study.md on the convergence of the η iteration).
     pub theta_convergence: bool,
     /// Test convergence at the end of each iteration on the step that
     /// *remains* at the new point (θ and η, the usual
@@ -147,9 +144,9 @@ pub struct EivOptions {
     /// point is already evaluated in full) instead of only on the steps just
     /// taken, so the last iteration of [`EivOptions::max_iterations`] can
     /// end converged. With the covariance following θ and η estimated.
-    /// Default true since stop 13 (on `white` with the separate heading scale
-    /// every `not_converged` fit had a remaining step of 0.001–0.002 σ; the
-    /// option changed no θ on 80 simulated fits).
+    /// Default true (without it, on `white` with the separate heading scale
+    /// every `not_converged` fit has a remaining step of 0.001–0.002 σ; the
+    /// option changes no θ on 80 simulated fits).
     pub final_step_check: bool,
     /// Passes, each with the covariance reference θ at the previous result.
     /// Default 2.
@@ -193,18 +190,18 @@ pub struct EivOptions {
     pub max_lag1: f64,
     /// With [`InnovationNull::FloorsAsRegularisation`]: largest acceptable
     /// lag-1 autocorrelation *below* the interval that the null allows
-    /// (`min(0, ρ₀) − lag-1`). Default 0.2 (stop 12). Negative correlation
+    /// (`min(0, ρ₀) − lag-1`). Default 0.2. Negative correlation
     /// is what a filter shows when the data have measurement noise the
     /// model lacks (it follows the noise and corrects back); the floors and
     /// surplus process noise only lag the filter behind the measurements
-    /// (positive correlation). Measured (docs/study.md "Stop 12"): heading
+    /// (positive correlation). Measured (docs/study.md, EIV section): heading
     /// lag-1 of good fits on the simulated presets ≥ −0.15; on the six
     /// test-track runs (heading white noise held near zero by the tied
     /// scale) −0.26 … −0.45, where EIV loses to batch G-N.
     pub max_lag1_below: f64,
     /// What the innovation checks (NIS band, whiteness) take as consistent.
-    /// Default [`InnovationNull::FloorsAsRegularisation`] (stop 12; see its
-    /// docs for the measurements).
+    /// Default [`InnovationNull::FloorsAsRegularisation`] (see its docs for
+    /// the measurements).
     pub innovation_null: InnovationNull,
     /// Largest acceptable |z| of the difference between θ from the two
     /// halves of the windows. Default 4.
@@ -213,12 +210,12 @@ pub struct EivOptions {
     /// [`CovarianceMode::FollowsTheta`].
     pub covariance: CovarianceMode,
     /// How encoder quantisation enters the filter. Default
-    /// [`QuantisationModel::Counting`] since stop 14 (see its docs for the
-    /// measured trade-off).
+    /// [`QuantisationModel::Counting`] (see its docs for the measured
+    /// trade-off).
     pub quantisation: QuantisationModel,
     /// Whether η_0 scales the encoder quantisation with the white wheel
     /// noise or the quantisation step is taken as known. Default
-    /// [`QuantisationLevel::FromReadings`] since stop 14 (see its docs).
+    /// [`QuantisationLevel::FromReadings`] (see its docs).
     pub quantisation_level: QuantisationLevel,
     /// Whether η_0 scales the a_y and β noise with the white wheel noise or
     /// they are held at the noise model's σ. Default
@@ -226,10 +223,10 @@ pub struct EivOptions {
     /// trade-off).
     pub lateral_noise: LateralNoise,
     /// How the filter models the error of the measured sideslip β. Default
-    /// [`SideslipNoise::GaussMarkovState`] since stop 19 (see its docs).
+    /// [`SideslipNoise::GaussMarkovState`] (see its docs).
     pub sideslip_noise: SideslipNoise,
     /// Whether the reference's heading white noise has its own scale η_5.
-    /// Default [`HeadingScale::Separate`] since stop 14 (see its docs).
+    /// Default [`HeadingScale::Separate`] (see its docs).
     pub heading_scale: HeadingScale,
     /// Which wheel rotation scales the relative wheel noise in the
     /// covariance. Default [`WheelNoiseScale::MeasuredInput`] (see its docs
@@ -240,16 +237,16 @@ pub struct EivOptions {
     pub bias_correction: BiasCorrection,
     /// The true inputs of the replicate worlds of
     /// [`BiasCorrection::Bootstrap`]. Default [`BootstrapInputs::Measured`];
-    /// `Smoothed { half_width_samples: 20 }` removed the t_r bias on `high`
-    /// (stop 14, docs/study.md "the remaining t_r bias on high").
+    /// `Smoothed { half_width_samples: 20 }` removes the t_r bias on `high`
+    /// (docs/study.md, "the remaining t_r bias on high").
     pub bootstrap_inputs: BootstrapInputs,
     /// The noise model of the replicates of [`BiasCorrection::Bootstrap`].
-    /// Default [`BootstrapNoise::HeldAtFit`] (since stop 20; before, the
-    /// replicates re-estimated the noise: the same c_e correction at three
-    /// times the cost, and an over-correction of t_r).
+    /// Default [`BootstrapNoise::HeldAtFit`] (re-estimating the noise in
+    /// the replicates gives the same c_e correction at three times the
+    /// cost, and over-corrects t_r).
     pub bootstrap_noise: BootstrapNoise,
     /// The replicates of [`BiasCorrection::Bootstrap`] come in antithetic
-    /// pairs ([`BootstrapOptions::antithetic`]; B must be even). Default
+    /// pairs ([`BootstrapOptions::antithetic`](crate::eiv::BootstrapOptions::antithetic); B must be even). Default
     /// false; [`EivOptions::correct_bias`] sets it.
     pub bootstrap_antithetic: bool,
     /// Floor of the reference's position noise σ in the filter's `R`, m
@@ -272,7 +269,7 @@ pub struct EivOptions {
     pub position_floor_m: f64,
     /// Values at which parameters that the filter names unobservable (with
     /// [`EivOptions::fix_unobservable`]) are held. `None` (the default)
-    /// holds them at the start θ given to [`estimate`]. `calibrate` passes
+    /// holds them at the start θ given to [`estimate`](crate::eiv::estimate). `calibrate` passes
     /// the calibration's θ_0: the start is batch G-N's estimate, which for
     /// a parameter the data cannot determine can be far off (on the RAV4
     /// drive, t_r = 5.63 m, so the result was rejected as implausible).
@@ -282,7 +279,7 @@ pub struct EivOptions {
     /// marginal likelihood over [`EivOptions::time_constant_grid`] (one fit
     /// per candidate; [`TimeConstantGrid`] has the method and its cost).
     /// The chosen values replace the starting model's in
-    /// [`EivReport::noise`]. Default false (the time constants of
+    /// [`EivReport::noise`](crate::eiv::EivReport::noise). Default false (the time constants of
     /// [`EivOptions::noise`] are used as given).
     ///
     /// Measured (docs/study.md, EIV section; 12 km, η estimated from the
@@ -412,8 +409,8 @@ impl EivOptions {
 
     /// The defaults with SPEC §10's formulation of the cost and of `R`: the
     /// relative wheel noise scaled by the measured rotation, no input
-    /// log-Jacobian term, the 1 mm position floor (the library defaults
-    /// before stop 11). The studies' Cramér–Rao bound is computed with it,
+    /// log-Jacobian term, the 1 mm position floor. The studies'
+    /// Cramér–Rao bound is computed with it,
     /// so that it depends on the noise model only, not on the estimator's
     /// bias corrections.
     pub fn spec() -> Self {

@@ -121,8 +121,8 @@ pub enum EivWarning {
         threshold: f64,
     },
     /// A window's NIS per degree of freedom is outside the consistency band
-    /// (with [`InnovationNull::FloorsAsRegularisation`], the band widened to
-    /// cover the NIS expected without the floors, see [`EivOptions::innovation_null`]).
+    /// (with [`InnovationNull::FloorsAsRegularisation`](crate::eiv::InnovationNull::FloorsAsRegularisation), the band widened to
+    /// cover the NIS expected without the floors, see [`EivOptions::innovation_null`](crate::eiv::EivOptions::innovation_null)).
     InconsistentInnovations {
         /// Window index.
         window: usize,
@@ -134,7 +134,7 @@ pub enum EivWarning {
     /// A window's whitened innovations are correlated from one update to
     /// the next beyond what the noise model explains: the lag-1
     /// autocorrelation is more than `threshold` outside the interval
-    /// between 0 and `expected` (see [`EivOptions::innovation_null`];
+    /// between 0 and `expected` (see [`EivOptions::innovation_null`](crate::eiv::EivOptions::innovation_null);
     /// `threshold` is the limit on the side where it left the interval).
     CorrelatedInnovations {
         /// Window index.
@@ -144,7 +144,7 @@ pub enum EivWarning {
         /// Lag-1 autocorrelation.
         lag1: f64,
         /// Expected lag-1 autocorrelation when the data have none of the
-        /// measurement floors (0 with [`InnovationNull::FittedModel`]).
+        /// measurement floors (0 with [`InnovationNull::FittedModel`](crate::eiv::InnovationNull::FittedModel)).
         #[serde(default)]
         expected: f64,
         /// The limit.
@@ -236,12 +236,12 @@ pub struct WindowDiagnostics {
     pub lag1: [f64; 3],
     /// Expected NIS per degree of freedom when the data have the fitted
     /// noise but none of the measurement floors
-    /// ([`InnovationNull::FloorsAsRegularisation`]; 1 with
-    /// [`InnovationNull::FittedModel`]).
+    /// ([`InnovationNull::FloorsAsRegularisation`](crate::eiv::InnovationNull::FloorsAsRegularisation); 1 with
+    /// [`InnovationNull::FittedModel`](crate::eiv::InnovationNull::FittedModel)).
     #[serde(default = "one")]
     pub nis_without_floors: f64,
     /// Expected lag-1 autocorrelation `[x, y, ψ]` of the whitened
-    /// innovations under the same null (0 with [`InnovationNull::FittedModel`]).
+    /// innovations under the same null (0 with [`InnovationNull::FittedModel`](crate::eiv::InnovationNull::FittedModel)).
     #[serde(default)]
     pub lag1_without_floors: [f64; 3],
 }
@@ -308,8 +308,8 @@ pub struct EivReport {
     pub free: [bool; 4],
     /// θ's covariance at the estimate (zero rows for fixed parameters):
     /// `H_θ⁻¹`, or per parameter raised to the block sandwich's
-    /// ([`EivOptions::covariance_estimate`]), plus what estimating η adds
-    /// ([`EivOptions::noise_estimate_in_covariance`]).
+    /// ([`EivOptions::covariance_estimate`](crate::eiv::EivOptions::covariance_estimate)), plus what estimating η adds
+    /// ([`EivOptions::noise_estimate_in_covariance`](crate::eiv::EivOptions::noise_estimate_in_covariance)).
     pub covariance: [[f64; 4]; 4],
     /// Standard deviations `sqrt(diag covariance)`.
     pub sigma: [f64; 4],
@@ -320,13 +320,13 @@ pub struct EivReport {
     /// from the per-update θ-scores summed over 20 s blocks within each
     /// window (centred, lag-1 Newey–West across neighbouring blocks): robust
     /// to a wrong noise model *and* to serially correlated scores, which the
-    /// per-update [`EivReport::sigma_sandwich`] is not (stop 13). NaN with
+    /// per-update [`EivReport::sigma_sandwich`] is not. NaN with
     /// fewer than two blocks.
     pub sigma_block: [f64; 4],
     /// Standard deviations from the Gaussian Fisher information at the
     /// estimate with both terms (`½ tr(S⁻¹∂S S⁻¹∂S)` included), jointly
     /// with the estimated η (θ block of the inverse): the Cramér–Rao form
-    /// of [`cramer_rao_bound`] at θ̂ and the fitted noise. Equal to the
+    /// of [`cramer_rao_bound`](crate::eiv::cramer_rao_bound) at θ̂ and the fitted noise. Equal to the
     /// mean-only information with the covariance held. Linearised along the
     /// measured inputs (a fit has no other), whose noise counts as
     /// excitation: under heavy wheel noise it understates t_r's and d's σ
@@ -335,13 +335,13 @@ pub struct EivReport {
     /// sandwich, which measures the scores' actual spread.
     pub sigma_fisher: [f64; 4],
     /// The part of θ's σ that estimating η from the drive adds
-    /// ([`EivOptions::noise_estimate_in_covariance`]): `sqrt(diag A Σ_η Aᵀ)`.
+    /// ([`EivOptions::noise_estimate_in_covariance`](crate::eiv::EivOptions::noise_estimate_in_covariance)): `sqrt(diag A Σ_η Aᵀ)`.
     /// Included in [`EivReport::covariance`] and [`EivReport::sigma`] when
     /// that option is on; 0 with a fixed noise model or the option off.
     #[serde(default)]
     pub sigma_noise_estimate: [f64; 4],
     /// `∂θ̂/∂η_j` at the estimate (`[parameter][source]`, in θ's units per
-    /// unit of η; [`EivOptions::noise_estimate_in_covariance`]): how far θ̂
+    /// unit of η; [`EivOptions::noise_estimate_in_covariance`](crate::eiv::EivOptions::noise_estimate_in_covariance)): how far θ̂
     /// moves when a source's variance is e-fold. Zero for sources not
     /// estimated, with a fixed noise model or with the option off.
     #[serde(default)]
@@ -380,12 +380,12 @@ pub struct EivReport {
     /// The first-order bias of the profile cost's root at the estimate, a
     /// diagnostic (None with the covariance held or a singular `H_θ`).
     pub first_order_bias: Option<FirstOrderBias>,
-    /// The root of the profile cost before any [`BiasCorrection`].
+    /// The root of the profile cost before any [`BiasCorrection`](crate::eiv::BiasCorrection).
     pub theta_uncorrected: Theta,
-    /// The bias subtracted by [`EivOptions::bias_correction`] (`theta =
+    /// The bias subtracted by [`EivOptions::bias_correction`](crate::eiv::EivOptions::bias_correction) (`theta =
     /// theta_uncorrected − bias_subtracted`; zeros without a correction).
     pub bias_subtracted: [f64; 4],
-    /// What the bootstrap of [`EivOptions::bias_correction`] adds to θ's σ
+    /// What the bootstrap of [`EivOptions::bias_correction`](crate::eiv::EivOptions::bias_correction) adds to θ's σ
     /// (already in [`EivReport::sigma`] and the covariance): the Monte Carlo
     /// error of the subtracted bias, the replicates' covariance over the
     /// number of replicates fitted, for the corrected parameters (zeros
@@ -403,12 +403,12 @@ pub struct EivReport {
     /// Wall time, s.
     pub timing_s: f64,
     /// The time-constant search (None unless
-    /// [`EivOptions::estimate_time_constants`]); the chosen time constants
+    /// [`EivOptions::estimate_time_constants`](crate::eiv::EivOptions::estimate_time_constants)); the chosen time constants
     /// are also in [`EivReport::noise`].
     #[serde(default)]
     pub time_constants: Option<TimeConstantFit>,
     /// The quantisation step read off the wheel readings' lattice, rev/s,
-    /// with [`QuantisationLevel::FromReadings`] (None when the readings lie
+    /// with [`QuantisationLevel::FromReadings`](crate::eiv::QuantisationLevel::FromReadings) (None when the readings lie
     /// on no lattice or another level was asked for); then also
     /// [`EivReport::noise`]'s q.
     #[serde(default)]
@@ -450,7 +450,7 @@ pub struct CrbReport {
     /// unbiased estimator can have.
     pub sigma: [f64; 4],
     /// The mean-only information `Σ (∂ν/∂θ)ᵀS⁻¹(∂ν/∂θ)` (no `∂S/∂θ` term;
-    /// the bound this function returned before, kept for comparison).
+    /// for comparison).
     pub information_mean_only: [[f64; 4]; 4],
     /// `sqrt(diag)` of the inverse of the mean-only information (≥ `sigma`).
     pub sigma_mean_only: [f64; 4],

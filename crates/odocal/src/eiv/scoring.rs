@@ -129,7 +129,7 @@ pub(super) fn theta_ratio(sums: &WindowSums, dth: &[f64; 4], sth: &[f64; 4], fre
 /// profile cost J for θ, the marginal likelihood M for η), so each
 /// iteration takes a θ step halved on J at fixed η, then an η step halved
 /// on M at fixed θ (block coordinate). With the covariance held, one joint
-/// step on M (corrected score for θ) as before.
+/// step on M (corrected score for θ).
 pub(super) fn scoring_pass(
     prob: &Problem<'_>,
     theta0: Theta,

@@ -62,7 +62,7 @@ pub(crate) enum Kernels {
 /// add into a fused one on its own, so the two give results identical to
 /// the bit (test `avx2_kernels_equal_the_baseline_to_the_bit`). AVX2's
 /// four-wide registers make the covariance kernels about 1.3× faster
-/// (docs/performance.md, stop 22).
+/// (docs/performance.md).
 pub(crate) fn kernels() -> Kernels {
     static CHOICE: std::sync::OnceLock<Kernels> = std::sync::OnceLock::new();
     *CHOICE.get_or_init(|| {
@@ -154,7 +154,7 @@ pub(super) fn run_window_sized<K: KernelCalls>(
     record: Option<&mut Vec<InnovationRecord>>,
 ) -> Result<WindowSums> {
     // The remainder states exist only with counting quantisation: the other
-    // models run the 9-state filter (the same arithmetic, no 11-row storage).
+    // models run the 10-state filter (the same arithmetic, no 12-row storage).
     if v.quant_counting {
         run_window_s::<NZ, K>(input, window, theta, theta_ref, v, mode, record)
     } else {
@@ -167,9 +167,8 @@ pub(super) fn run_window_sized<K: KernelCalls>(
 ///
 /// The AVX2 copy inlines them ([`Inlined`]), so that they are compiled for
 /// AVX2 with it. The baseline copy calls one out-of-line instance of each
-/// ([`OutOfLine`]), as before the AVX2 copy existed: inlined at their eight
-/// call sites they made the baseline 5–10 % slower and every build of the
-/// crate slower to compile.
+/// ([`OutOfLine`]): inlined at their call sites they make the baseline
+/// 5–10 % slower and every build of the crate slower to compile.
 pub(super) trait KernelCalls {
     fn propagate_in_place<const S: usize>(p: &mut MZ<S>, t: &Transition<'_, S>);
     fn joseph_in_place<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, d: Option<&Matrix3<f64>>);

@@ -39,7 +39,7 @@ impl<const S: usize> Transition<'_, S> {
 /// `F P Fᵀ` for the structured transition `t` ([`Transition`]) and a
 /// symmetric `P`.
 ///
-/// Only the lower triangle is computed (through `W = P F_topᵀ`, NZ×3, `F_top`
+/// Only the lower triangle is computed (through `W = P F_topᵀ`, S×3, `F_top`
 /// the first three rows of F) and mirrored, so the result is exactly
 /// symmetric. (The filter calls [`propagate_in_place`]; this copy is for the
 /// kernel tests.)
@@ -127,7 +127,7 @@ pub(super) fn h_rows<const S: usize, const C: usize>(a: &SMatrix<f64, S, C>) -> 
     out
 }
 
-/// `B Hᵀ` for a 3×9 `B`: columns 0..3 plus columns 6..9.
+/// `B Hᵀ` for a 3×S `B`: columns 0..3 plus columns 6..9.
 #[inline(always)]
 pub(super) fn h_cols<const S: usize>(b: &M3xZ<S>) -> Matrix3<f64> {
     let mut out = Matrix3::zeros();
@@ -165,7 +165,7 @@ pub(super) fn joseph<const S: usize>(a: &MZ<S>, k: &MZx3<S>) -> MZ<S> {
 /// the same to the bit as [`add_kdk`] after the mirrored Joseph form.
 #[inline(always)]
 pub(super) fn joseph_in_place<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, d: Option<&Matrix3<f64>>) {
-    // HA (3×9): rows 0..3 plus rows 6..9.
+    // HA (3×S): rows 0..3 plus rows 6..9.
     let ha = h_rows(a);
     joseph_in_place_with(a, k, d, &ha);
 }
@@ -186,7 +186,7 @@ pub(super) fn joseph_in_place_with<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, d
             x[(r, c)] -= k[(r, 0)] * h0 + k[(r, 1)] * h1 + k[(r, 2)] * h2;
         }
     }
-    // XHᵀ (9×3).
+    // XHᵀ (S×3).
     let mut xh = MZx3::<S>::zeros();
     for m in 0..3 {
         for r in 0..S {
@@ -289,7 +289,7 @@ pub(super) fn add_kdk_lower<const S: usize>(dst: &mut MZ<S>, k: &MZx3<S>, d: &Ma
     }
 }
 
-/// `A + Aᵀ` added to `dst` for a 3×9 `A` occupying rows 0..3.
+/// `A + Aᵀ` added to `dst` for a 3×S `A` occupying rows 0..3.
 #[inline(always)]
 pub(super) fn add_sym_rows<const S: usize>(dst: &mut MZ<S>, a: &M3xZ<S>) {
     for r in 0..3 {
@@ -386,19 +386,19 @@ mod kernel_tests {
             assert_eq!(acc, acc.transpose(), "add_kdk is not exactly symmetric");
 
             // The fused Joseph form + K D Kᵀ the filter runs: the same to the
-            // bit as the two steps (stop 14; a reordering would break this).
+            // bit as the two steps (a reordering would break this).
             let mut fused = p;
             joseph_in_place(&mut fused, &k, Some(&dm));
             let mut two = joseph(&p, &k);
             add_kdk(&mut two, &k, &dm);
             assert_eq!(fused, two, "joseph_in_place with K D Kᵀ is not bitwise joseph then add_kdk");
             // The column-wise propagation: the same to the bit as the
-            // row-wise formulation it replaced.
+            // row-wise formulation.
             assert_eq!(propagate(&p, &t), propagate_rowwise(&p, &t), "propagate is not bitwise the row-wise one");
         }
     }
 
-    /// The row-wise `F P Fᵀ` of stop 13 (through [`Transition::top`]), the
+    /// The row-wise `F P Fᵀ` (through [`Transition::top`]), the
     /// bitwise reference of [`propagate`].
     fn propagate_rowwise<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>) -> MZ<S> {
         let mut w = MZx3::<S>::zeros();

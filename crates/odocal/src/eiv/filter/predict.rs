@@ -201,13 +201,13 @@ impl<const S: usize> WindowFilter<'_, '_, S> {
         }
         let v = self.v;
         let ft = lin.transition();
-        K::propagate_in_place(&mut self.p, &ft);
-        add_process_noise(&mut self.p, &lin.q_x, &self.q_s, &self.q_b, self.q_beta);
-        add_remainder_noise(&mut self.p, v, lin);
+        K::propagate_in_place(self.p, &ft);
+        add_process_noise(self.p, &lin.q_x, &self.q_s, &self.q_b, self.q_beta);
+        add_remainder_noise(self.p, v, lin);
         if self.null {
-            K::propagate_in_place(&mut self.p0, &ft);
-            add_process_noise(&mut self.p0, &lin.q_x, &self.q_s, &self.q_b, self.q_beta);
-            add_remainder_noise(&mut self.p0, v, lin);
+            K::propagate_in_place(self.p0, &ft);
+            add_process_noise(self.p0, &lin.q_x, &self.q_s, &self.q_b, self.q_beta);
+            add_remainder_noise(self.p0, v, lin);
             if let Some((c, _)) = &mut self.c0 {
                 *c = propagate_cols(c, &ft);
             }

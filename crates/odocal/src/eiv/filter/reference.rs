@@ -118,7 +118,7 @@ pub(super) fn dvec_of(a: &[Dual<4>; 3], j: usize) -> Vector3<f64> {
 /// `C_w(θ_ref)/C_w(θ)` per wheel `[left, right]` with its θ-gradient: the
 /// factor that turns the measured wheel rotation into the true rotation
 /// fitted at θ, `n̂ = ñ·C(θ_ref)/C(θ)` (the distance `ñ·C(θ_ref)` is held,
-/// so the relative wheel noise in metres no longer grows with C(θ)).
+/// so the relative wheel noise in metres does not grow with C(θ)).
 pub(super) fn fitted_input_factors(a_y: f64, th: &Theta, th_ref: &Theta) -> [Dual<4>; 2] {
     let (c_e, c_d, d) = (Dual::var(th.c_e, 0), Dual::var(th.c_d, 1), Dual::var(th.d, 3));
     let c_rl = c_e + c_d * 0.5 + d * a_y;

@@ -259,7 +259,7 @@ impl WindowSums {
 pub(crate) struct InnovationRecord {
     pub nu: Vector3<f64>,
     pub s: Matrix3<f64>,
-    /// ∂ν/∂p (3×9).
+    /// ∂ν/∂p (3×10).
     pub dnu: SMatrix<f64, 3, NP>,
     /// ∂S/∂p_j (zero where not propagated).
     pub ds: [Matrix3<f64>; NP],

@@ -51,7 +51,7 @@ impl<const S: usize> WindowFilter<'_, '_, S> {
         let y = Vector3::new(input.px[k1], input.py[k1], input.psi[k1]);
         let yhat = self.x + self.b;
         let nu = Vector3::new(y[0] - yhat[0], y[1] - yhat[1], wrap_angle(y[2] - yhat[2]));
-        let hp: M3xZ<S> = h_rows(&self.p);
+        let hp: M3xZ<S> = h_rows(self.p);
         let r_k = self.r + lin.r_q;
         let s_mat = super::kernels::h_cols(&hp) + r_k;
         let Some(chol) = s_mat.cholesky() else {
@@ -67,7 +67,7 @@ impl<const S: usize> WindowFilter<'_, '_, S> {
         let sinv_nu = sinv * nu;
         // With η derivatives the FilterShare terms wait for ∂S/∂η (in `accumulate`).
         let share_eta = self.jacobian.filter_share() && self.mode.derivs && self.mode.eta;
-        self.jacobian.update::<K>(&mut self.out, &hp, &sinv, share_eta);
+        self.jacobian.update::<K>(self.out, &hp, &sinv, share_eta);
         let quad = nu.dot(&sinv_nu);
         if !(quad.is_finite() && logdet.is_finite()) {
             return Err(Error::Numerical(format!(
@@ -106,7 +106,7 @@ impl<const S: usize> WindowFilter<'_, '_, S> {
             self.wq[0] += dz[IW];
             self.wq[1] += dz[IW + 1];
         }
-        K::joseph_in_place_with(&mut self.p, &k, Some(&inn.r_k), &inn.hp);
+        K::joseph_in_place_with(self.p, &k, Some(&inn.r_k), &inn.hp);
         Ok(())
     }
 
@@ -118,7 +118,7 @@ impl<const S: usize> WindowFilter<'_, '_, S> {
         let (l, sinv, k) = (&inn.l, &inn.sinv, &inn.k);
         let out = &mut self.out;
         let r0 = Matrix3::from_diagonal(&self.r_white) + lin.r_q;
-        let hp0: M3xZ<S> = h_rows(&self.p0);
+        let hp0: M3xZ<S> = h_rows(self.p0);
         let s0 = h_cols(&hp0) + r0;
         let m1 = l.solve_lower_triangular(&s0).unwrap_or_else(Matrix3::zeros);
         let e_cov = l.solve_lower_triangular(&m1.transpose()).unwrap_or_else(Matrix3::zeros);
@@ -137,7 +137,7 @@ impl<const S: usize> WindowFilter<'_, '_, S> {
         }
         // C₀ = E[ε⁺ νᵀ] = P₀Hᵀ − K S₀; P₀⁺ = (I−KH)P₀(I−KH)ᵀ + K R₀ Kᵀ.
         *self.c0 = Some((hp0.transpose() - k * s0, *l));
-        K::joseph_in_place(&mut self.p0, k, Some(&r0));
+        K::joseph_in_place(self.p0, k, Some(&r0));
     }
 
     /// With derivatives: the gradients (`∂ν/∂p = −H D⁻` and `∂S/∂p`), the
@@ -154,8 +154,8 @@ impl<const S: usize> WindowFilter<'_, '_, S> {
         record: Option<&mut Vec<InnovationRecord>>,
     ) {
         let (sinv, k) = (inn.sinv, inn.k);
-        let hd = h_rows(&self.d); // ∂ν/∂p = −H D⁻
-                                  // Gradient of ½νᵀS⁻¹ν through ν: νᵀS⁻¹ ∂ν = −(HD)ᵀ S⁻¹ ν.
+        let hd = h_rows(self.d); // ∂ν/∂p = −H D⁻
+                                 // Gradient of ½νᵀS⁻¹ν through ν: νᵀS⁻¹ ∂ν = −(HD)ᵀ S⁻¹ ν.
         let gnu = hd.transpose() * inn.sinv_nu;
         self.out.grad -= gnu;
         self.out.grad_profile -= gnu;
@@ -172,11 +172,11 @@ impl<const S: usize> WindowFilter<'_, '_, S> {
             let second_order = self.jacobian.second_order();
             let cols = self.cols;
             add_filter_share_terms(
-                &mut self.out,
+                self.out,
                 &mut self.jacobian.pending,
                 &inn.sinv,
                 second_order,
-                Some((cols.as_slice(), &self.ds)),
+                Some((cols.as_slice(), self.ds)),
             );
         }
         self.add_trace_information(&mut info);

@@ -370,7 +370,7 @@ impl<'a, 'w, const S: usize> WindowFilter<'a, 'w, S> {
         };
         let (counting, diag, fxw_ref) = counting_transition(v, nl, nr, &fn_l, &fn_r, &self.base_diag);
         let (wl, wr) = white_variances(v, fitted, (nl, nr), (nls, nrs), &gw);
-        let r_q = measurement_quantisation(v, &fn_l, &fn_r, rt.as_ref(), &mut self.r_q_theta);
+        let r_q = measurement_quantisation(v, &fn_l, &fn_r, rt.as_ref(), self.r_q_theta);
         let q_white = fn_l * fn_l.transpose() * wl + fn_r * fn_r.transpose() * wr;
         // The quantisation's share of q_white (rate noise or the counting
         // remainder's pose share): not scaled by η_0 when the level is given.

@@ -26,9 +26,9 @@ fn bootstrap_is_identical_for_one_and_two_threads() {
 }
 
 /// Paper noise, 6 km, the true noise model fixed, 40 replicates.
-/// Until stop 19 c_e θ̂ was off by +0.090 % here (2.6 reported σ), and the
-/// bootstrap's bias estimate +0.077 % brought it to +0.013 %. With the
-/// sideslip error a filter state ([`SideslipNoise::GaussMarkovState`])
+/// With the sideslip error white-equivalent c_e θ̂ is off by +0.090 % here
+/// (2.6 reported σ), and the bootstrap's bias estimate +0.077 % brings it
+/// to +0.013 %. With the sideslip error a filter state ([`SideslipNoise::GaussMarkovState`])
 /// c_e θ̂ is off by +0.009 % (0.2σ) and the bootstrap finds no c_e bias
 /// beyond its Monte Carlo error: the bias was the white-equivalent
 /// sideslip noise, which the bootstrap's replicates (simulated from the
@@ -131,7 +131,7 @@ fn bootstrap_bias_correction_subtracts_the_bootstrap_bias() {
 /// does): it subtracts exactly the bias of a bootstrap run with
 /// `EivOptions { noise: fit.noise, fix_noise: true }`, and another bias
 /// than the default re-estimating replicates. 2 km, 2 replicates: the
-/// plumbing (the effect over seeds is in docs/study.md, stop 20).
+/// plumbing (the effect over seeds is in docs/study.md).
 #[test]
 fn held_noise_bias_correction_fits_the_replicates_with_the_fitted_noise() {
     let out = simulate(&SimOptions { length_km: 2.0, ..SimOptions::paper(5) }).expect("sim");

@@ -6,7 +6,7 @@ use crate::eiv::*;
 use crate::sim::{simulate, NoiseOptions, SimOptions};
 use nalgebra::Matrix4;
 
-/// Stop 13: the block sandwich's meat on a constructed case (three blocks
+/// The block sandwich's meat on a constructed case (three blocks
 /// in one window, then one more window of two blocks), against the plain
 /// formula: centred outer products plus half the centred lag-1 cross
 /// products of neighbouring blocks of the same window, times n/(n − 1).
@@ -46,7 +46,7 @@ fn block_sandwich_meat_matches_the_plain_formula() {
     assert!(one.meat().is_none(), "one block gives no sandwich");
 }
 
-/// Stop 13: `CovarianceEstimate::LargerOfModelAndBlock` raises each σ to
+/// `CovarianceEstimate::LargerOfModelAndBlock` raises each σ to
 /// the block sandwich's where that is larger and keeps the correlations.
 #[test]
 fn larger_of_model_and_block_inflates_only_where_the_blocks_are_wider() {
@@ -70,7 +70,7 @@ fn larger_of_model_and_block_inflates_only_where_the_blocks_are_wider() {
     assert_eq!(inflate_to_block(&cov, &BlockScores::zero()), cov, "no blocks: the model's covariance");
 }
 
-/// Stop 13, on a drive with coloured common-mode wheel noise (1.5 km, the
+/// On a drive with coloured common-mode wheel noise (1.5 km, the
 /// `coloured` preset): a noise model without the common-mode source (η₁ at
 /// its clamp in effect) reports c_e's σ several times too small; the block
 /// sandwich sees the spread of the block scores and is wider, and

@@ -37,7 +37,7 @@ fn full_fisher_information_dominates_the_mean_only_information() {
     eprintln!("CRB σ with η estimated {ne:?}");
 }
 
-/// The bound at θ_true is linearised along the true inputs (stop 25):
+/// The bound at θ_true is linearised along the true inputs:
 /// along the measured ones the white wheel noise counts as yaw excitation
 /// and t_r's bound comes out far too small on a high-noise drive, while
 /// c_e's (set by the distance, not by the turning) hardly moves. On a

@@ -414,7 +414,7 @@ fn smoothed_fitted_input_gradients_match_central_differences() {
     }
 }
 
-/// Stop 24: the θ-score's log-Jacobian term moves with η through its
+/// The θ-score's log-Jacobian term moves with η through its
 /// FilterShare weights u = var·fᵀS⁻¹f; the filter sums that derivative
 /// exactly (`grad_jacobian_eta`). Against central differences in η of the
 /// term itself, on a short high-noise drive at a point off the fit.

@@ -6,7 +6,7 @@ use crate::sim::{simulate, NoiseOptions, SimOptions};
 
 /// A white-noise drive on a perfect reference (1 km, the simulator's noise
 /// model given) and the same drive with the reference 0.5 m ahead of the
-/// rear axle, not modelled (stop 12).
+/// rear axle, not modelled.
 fn white_drive_fit(lever_x: f64, null: InnovationNull) -> EivReport {
     let noise = NoiseOptions::white_wheel_only();
     let mount = crate::extrinsics::Extrinsics { lever_x, lever_y: 0.0, heading_offset: 0.0 };
@@ -34,7 +34,8 @@ fn innovation_findings(r: &EivReport) -> Vec<&EivWarning> {
 
 /// On a perfect reference the 5 mm position floor is not in the data, so
 /// the innovations of a correct model are correlated (lag-1 ≈ 0.6–0.7) and
-/// small (NIS/dof ≈ 0.4): the stop-11 checks flag every window, the checks
+/// small (NIS/dof ≈ 0.4): the checks against the fitted model
+/// ([`InnovationNull::FittedModel`]) flag every window, the checks
 /// against the floor-free null none, and that null predicts the lag-1.
 #[test]
 fn innovation_checks_pass_a_correct_model_on_a_perfect_reference() {

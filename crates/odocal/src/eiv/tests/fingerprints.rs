@@ -8,89 +8,86 @@ use crate::eiv::*;
 use crate::sim::{simulate, NoiseOptions, SimOptions};
 use crate::Theta;
 
-/// The covariance recursion's speed-ups (symmetric kernels, skipped zero
-/// columns, value-only reference terms, θ-step evaluations without ∂P/∂θ)
-/// change only the rounding: every option set below gives the results that
-/// the filter before them gave (recorded at commit 190c4e4 with the same
-/// drive, start and options), θ and σ to [`GOLDEN_REL_TOL`], η to
-/// [`GOLDEN_ETA_TOL`], with the same number of filter passes.
-#[test]
-fn results_match_the_recorded_results_of_the_unoptimised_filter() {
-    // (case, θ, η, σ, σ_fisher, filter passes [with derivatives, objective only])
-    #[allow(clippy::type_complexity)]
-    let golden: [(&str, [f64; 4], [f64; 6], [f64; 4], [f64; 4], [usize; 2]); 5] = [
-        (
-            "follows-estimated",
-            [1.9517221228746462, -0.002079871585151128, 1.5622634012964582, 0.000607946011927801],
-            [
-                -0.08757325592487535,
-                0.79729676574084,
-                0.677520072616239,
-                -0.006961895455444829,
-                1.0302776860718408,
-                -0.006961895455444829,
-            ],
-            [0.001048223598634666, 0.00029167607905906446, 0.012851106003377495, 0.00013531789598289243],
-            [0.001078694626330269, 0.00029048259828455395, 0.010913068993301283, 0.0001293380851742862],
-            [10, 0], // 9 before stop 24's lean iteration starts (same θ, η, σ)
-        ),
-        (
-            "follows-fixed",
-            [1.9510784916035862, -0.0020554247723165563, 1.5553723206505459, 0.0006445878118950823],
-            [0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
-            [0.0006971472826100538, 0.00029261253469116573, 0.012620314131039565, 0.00013554949162042343],
-            [0.0006971103626697929, 0.00029031651909707895, 0.00870883212334176, 0.0001238899036349334],
-            [2, 0],
-        ),
-        (
-            "follows-separate-measurement",
-            [1.9517605103415996, -0.0019914988852835205, 1.5449359366878468, 0.0007090639079576904],
-            [
-                -0.06842186187407444,
-                0.811046409089124,
-                0.5555886423286271,
-                -0.003996526827079905,
-                1.025031414522649,
-                -0.5093469771542682,
-            ],
-            [0.0010532494893682996, 0.00028983705185397655, 0.012583400085295009, 0.0001347993867926527],
-            [0.0010849539925099454, 0.0002885763371857724, 0.010594344218814425, 0.00012849184497623625],
-            [10, 0], // 9 before stop 24
-        ),
-        (
-            "held-estimated",
-            [1.9496229896194592, -0.0021462491413058163, 1.5796028831420352, 0.0005018695015733097],
-            [
-                -0.10189959150871294,
-                0.768609333222542,
-                0.9485201558661361,
-                -0.006876857766691133,
-                1.0334860763887939,
-                -0.006876857766691133,
-            ],
-            [0.0010364206547086217, 0.0002964582660739425, 0.01117298095890374, 0.00013201669504880206],
-            [0.0010367240643712695, 0.0002965391972877368, 0.01130743546550646, 0.00013254870461501878],
-            [21, 0],
-        ),
-        (
-            "held-fixed-measurement",
-            [1.9499934415269828, -0.001936281489085759, 1.5330870221633592, 0.0007773895986003269],
-            [0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
-            [0.0006966830379912104, 0.0002886046247743278, 0.01050599614949048, 0.00012880005599677619],
-            [0.0006966830379912104, 0.0002886046247743278, 0.01050599614949048, 0.00012880005599677619],
-            [10, 0],
-        ),
-    ];
-    let out = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(5) }).expect("sim");
-    let input = input_of(&out.drive);
-    let start = Theta { c_e: 1.952, c_d: -0.0018, t_r: 1.54, d: 0.0007 };
-    // Recorded with the options of the time (SPEC §10's cost and floor, the
-    // heading tied to the position scale, quantisation as process noise; the
-    // η step undamped and no null pass of the innovation checks, stop 12;
-    // the σ of H_θ⁻¹ alone, stop 13; the quantisation step scaled with the
-    // white noise, stop 14), spelt out so that a change of those defaults
-    // does not change the cases.
-    let base = EivOptions {
+/// One recorded case: name, θ, η, σ, σ_fisher, filter passes [with
+/// derivatives, objective only].
+type Recorded = (&'static str, [f64; 4], [f64; 6], [f64; 4], [f64; 4], [usize; 2]);
+
+/// The results of the unoptimised filter (the straightforward dense
+/// recursion; recorded at commit 190c4e4) on the drive, start and options
+/// of [`results_match_the_recorded_results_of_the_unoptimised_filter`]. The
+/// filter-pass counts are those of the current iteration scheme.
+const RECORDED: [Recorded; 5] = [
+    (
+        "follows-estimated",
+        [1.9517221228746462, -0.002079871585151128, 1.5622634012964582, 0.000607946011927801],
+        [
+            -0.08757325592487535,
+            0.79729676574084,
+            0.677520072616239,
+            -0.006961895455444829,
+            1.0302776860718408,
+            -0.006961895455444829,
+        ],
+        [0.001048223598634666, 0.00029167607905906446, 0.012851106003377495, 0.00013531789598289243],
+        [0.001078694626330269, 0.00029048259828455395, 0.010913068993301283, 0.0001293380851742862],
+        [10, 0],
+    ),
+    (
+        "follows-fixed",
+        [1.9510784916035862, -0.0020554247723165563, 1.5553723206505459, 0.0006445878118950823],
+        [0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        [0.0006971472826100538, 0.00029261253469116573, 0.012620314131039565, 0.00013554949162042343],
+        [0.0006971103626697929, 0.00029031651909707895, 0.00870883212334176, 0.0001238899036349334],
+        [2, 0],
+    ),
+    (
+        "follows-separate-measurement",
+        [1.9517605103415996, -0.0019914988852835205, 1.5449359366878468, 0.0007090639079576904],
+        [
+            -0.06842186187407444,
+            0.811046409089124,
+            0.5555886423286271,
+            -0.003996526827079905,
+            1.025031414522649,
+            -0.5093469771542682,
+        ],
+        [0.0010532494893682996, 0.00028983705185397655, 0.012583400085295009, 0.0001347993867926527],
+        [0.0010849539925099454, 0.0002885763371857724, 0.010594344218814425, 0.00012849184497623625],
+        [10, 0],
+    ),
+    (
+        "held-estimated",
+        [1.9496229896194592, -0.0021462491413058163, 1.5796028831420352, 0.0005018695015733097],
+        [
+            -0.10189959150871294,
+            0.768609333222542,
+            0.9485201558661361,
+            -0.006876857766691133,
+            1.0334860763887939,
+            -0.006876857766691133,
+        ],
+        [0.0010364206547086217, 0.0002964582660739425, 0.01117298095890374, 0.00013201669504880206],
+        [0.0010367240643712695, 0.0002965391972877368, 0.01130743546550646, 0.00013254870461501878],
+        [21, 0],
+    ),
+    (
+        "held-fixed-measurement",
+        [1.9499934415269828, -0.001936281489085759, 1.5330870221633592, 0.0007773895986003269],
+        [0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        [0.0006966830379912104, 0.0002886046247743278, 0.01050599614949048, 0.00012880005599677619],
+        [0.0006966830379912104, 0.0002886046247743278, 0.01050599614949048, 0.00012880005599677619],
+        [10, 0],
+    ),
+];
+
+/// The options the cases were recorded with (SPEC §10's cost and floor, the
+/// heading tied to the position scale, quantisation as process noise, the η
+/// step undamped, no null pass of the innovation checks, the σ of H_θ⁻¹
+/// alone without the noise-estimate term, the sideslip error as white
+/// noise, 10 iterations), spelt out so that a change of the defaults does
+/// not change the cases.
+fn recorded_base_options() -> EivOptions {
+    EivOptions {
         window_samples: 2000,
         heading_scale: HeadingScale::TiedToPosition,
         quantisation: QuantisationModel::ProcessNoise,
@@ -98,15 +95,16 @@ fn results_match_the_recorded_results_of_the_unoptimised_filter() {
         eta_secant_damping: false,
         innovation_null: InnovationNull::FittedModel,
         covariance_estimate: CovarianceEstimate::Model,
-        // The recorded σ are H_θ⁻¹'s (before stop 16's η term).
         noise_estimate_in_covariance: false,
-        // The sideslip error as white noise (before stop 19's state).
         sideslip_noise: SideslipNoise::WhiteEquivalent,
-        // And the iteration limit of the time.
         max_iterations: 10,
         ..EivOptions::spec()
-    };
-    let options = |case: &str| match case {
+    }
+}
+
+/// The options of one recorded case.
+fn recorded_options(case: &str, base: &EivOptions) -> EivOptions {
+    match case {
         "follows-estimated" => base.clone(),
         "follows-fixed" => EivOptions { fix_noise: true, ..base.clone() },
         "follows-separate-measurement" => EivOptions {
@@ -121,10 +119,24 @@ fn results_match_the_recorded_results_of_the_unoptimised_filter() {
             quantisation: QuantisationModel::Measurement,
             ..base.clone()
         },
-    };
+    }
+}
+
+/// The covariance recursion's speed-ups (symmetric kernels, skipped zero
+/// columns, value-only reference terms, θ-step evaluations without ∂P/∂θ)
+/// change only the rounding: every option set of [`RECORDED`] gives the
+/// results that the unoptimised filter gave with the same drive, start and
+/// options, θ and σ to [`GOLDEN_REL_TOL`], η to [`GOLDEN_ETA_TOL`], with
+/// the recorded number of filter passes; so does the Cramér–Rao bound.
+#[test]
+fn results_match_the_recorded_results_of_the_unoptimised_filter() {
+    let out = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(5) }).expect("sim");
+    let input = input_of(&out.drive);
+    let start = Theta { c_e: 1.952, c_d: -0.0018, t_r: 1.54, d: 0.0007 };
+    let base = recorded_base_options();
     let rel = |a: f64, b: f64| (a - b).abs() / b.abs().max(f64::MIN_POSITIVE);
-    for (case, theta, eta, sigma, sigma_fisher, passes) in golden {
-        let r = estimate(&input, &start, &options(case)).expect("eiv");
+    for (case, theta, eta, sigma, sigma_fisher, passes) in RECORDED {
+        let r = estimate(&input, &start, &recorded_options(case, &base)).expect("eiv");
         let th = r.theta.to_array();
         for i in 0..4 {
             assert!(rel(th[i], theta[i]) <= GOLDEN_REL_TOL, "{case}: θ{i} {} vs {}", th[i], theta[i]);
@@ -217,7 +229,7 @@ fn avx2_kernels_equal_the_baseline_to_the_bit() {
     assert_eq!(compared, 24);
 }
 
-/// Stop 24: lean iteration starts (θ derivatives only until the θ step is
+/// Lean iteration starts (θ derivatives only until the θ step is
 /// below the tolerance) give the scoring pass of full evaluations to the
 /// bit: θ, η, η's σ, the termination, the remaining η step, every accepted
 /// iteration's θ, η, cost and step factor, and the final evaluation's sums.
@@ -270,7 +282,7 @@ fn lean_iteration_starts_give_the_full_evaluations_results_to_the_bit() {
     }
 }
 
-/// Stop 24: skipping the covariance derivatives of some η columns (the η
+/// Skipping the covariance derivatives of some η columns (the η
 /// term's displaced passes skip the scales at a clamp) leaves every other
 /// entry of the sums the same to the bit, and the skipped η's gradient
 /// differs (so the skip is real).

@@ -116,7 +116,7 @@ fn held_noise_scale_stays_at_the_starting_model() {
     assert!(r_held.eta[..5] != [0.0; 5], "the other scales were not estimated: {:?}", r_held.eta);
 }
 
-/// Stop 16: `∂θ̂/∂η` from the implicit function theorem at the estimate
+/// `∂θ̂/∂η` from the implicit function theorem at the estimate
 /// (`EivReport::theta_eta_sensitivity`, a forward difference of the exact
 /// θ-score) matches re-fitting θ with the noise model held at the fitted one
 /// moved by ±h in that source; the reported covariance is H_θ⁻¹ (block
@@ -182,9 +182,9 @@ fn noise_estimate_sensitivity_matches_refits_and_widens_sigma() {
     assert!(rf.theta_eta_sensitivity.iter().flatten().all(|s| *s == 0.0));
 }
 
-/// Stop 24: `∂g_θ/∂η` by the symmetry of the mixed partials (the θ-displaced
+/// `∂g_θ/∂η` by the symmetry of the mixed partials (the θ-displaced
 /// passes with η derivatives plus the exact log-Jacobian term; 4 passes) and
-/// by displacing η (one more pass per free η, the stop-16 formulation) give
+/// by displacing η (one more pass per free η) give
 /// the same `∂θ̂/∂η` and the same η term of the covariance.
 #[test]
 fn noise_estimate_term_by_symmetry_matches_displaced_eta() {

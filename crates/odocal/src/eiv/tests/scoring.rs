@@ -13,7 +13,7 @@ use crate::Theta;
 
 /// Noise-free, one substep: the model is exact; EIV must return θ_true to
 /// rounding (the correction term with η at its lower clamp moves it by
-/// ~1e-11) — the bar.
+/// ~1e-11).
 const EXACT_REL_TOL: f64 = 1e-8;
 
 #[test]
@@ -211,9 +211,9 @@ fn position_floor_enters_the_innovation_covariance() {
 /// Regression: with the SPEC formulation's input log-Jacobian
 /// ([`InputJacobian::None`]) the θ/η iteration stops after two iterations
 /// at a second fixed point, c_e −0.057 % with η held well above its lower
-/// clamp (docs/study.md, "Stop 12"); with [`InputJacobian::FilterShare`]
+/// clamp (docs/study.md, EIV section); with [`InputJacobian::FilterShare`]
 /// the profile cost's minimum at that η is +0.026 %, not −0.057 %, so the
-/// point is no longer fixed and the fit reaches θ_true.
+/// point is not fixed and the fit reaches θ_true.
 #[test]
 fn separate_heading_scale_calibrates_c_e_on_the_noise_free_straight_drive() {
     let (n, ts) = (4000, 0.025);
@@ -275,7 +275,7 @@ fn eta_step_descends_on_the_noise_free_straight_drive() {
 }
 
 /// At the iteration limit the default test judges the steps just taken; the
-/// fit of this drive takes n iterations (5 since stop 19, 6 before), and the
+/// fit of this drive takes n iterations, and the
 /// step remaining after the n-th is below the tolerance, so with
 /// [`EivOptions::final_step_check`] an n-iteration limit ends converged, at
 /// the same θ.
@@ -299,8 +299,8 @@ fn final_step_check_converges_at_the_iteration_limit() {
     assert_eq!(without.theta, full.theta);
 }
 
-/// With the heading scale separate, θ settles iterations before η does
-/// (stop 13): on this 1 km white-noise drive (η estimated, counting
+/// With the heading scale separate, θ settles iterations before η does:
+/// on this 1 km white-noise drive (η estimated, counting
 /// quantisation) the default test needs 6 iterations; judged on θ
 /// ([`EivOptions::theta_convergence`]) the fit converges within 4 and θ
 /// agrees with the fully converged one to 0.05 σ.

@@ -164,7 +164,7 @@ impl StraightDrive {
     }
 }
 
-/// The 1 km white-noise drive of the stop-13 convergence tests, and the
+/// The 1 km white-noise drive of the convergence tests, and the
 /// options they share: η estimated, the heading scale separate, counting
 /// quantisation.
 pub(super) fn separate_counting_white_drive() -> (crate::sim::SimOutput, EivOptions) {
