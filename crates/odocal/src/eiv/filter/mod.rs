@@ -25,25 +25,19 @@
 //! (`∂F̄/∂η = 0`; `∂F̄/∂θ ≠ 0` and `∂P/∂θ` is propagated only with the
 //! covariance following θ, else `∂S/∂θ = 0`.)
 //!
-//! The modules: [`window`] holds the filter of one window and its loop,
-//! [`predict`] and [`update`] its two steps, [`kernels`] the structured
-//! covariance kernels, [`dispatch`] the choice between the AVX2 and the
-//! baseline build of the loop, [`reference`] and [`dual`] the
-//! linearisation along the reference with its θ-gradients, [`quantisation`]
-//! the encoder quantisation models, [`noise_input`] and [`input_jacobian`]
-//! the fitted-input noise scale and its log-Jacobian term, [`sums`] what a
-//! window contributes.
+//! The modules: `window` holds the filter over one window, `kernels` the
+//! structured covariance kernels, `dispatch` the choice between the AVX2
+//! and the baseline build of the window loop, `reference` and `dual` the
+//! linearisation along the reference with its θ-gradients,
+//! `input_jacobian` the input log-Jacobian term, `sums` what a window
+//! contributes.
 
 mod dispatch;
 mod dual;
 mod input_jacobian;
 mod kernels;
-mod noise_input;
-mod predict;
-mod quantisation;
 mod reference;
 mod sums;
-mod update;
 mod window;
 
 use nalgebra::{SMatrix, SVector};
