@@ -1,15 +1,19 @@
-//! The filter over one window ([`run_window_s`]): the per-sample
+//! The filter over one window ([`run_window_s`]): per sample the
 //! linearisation along the reference, the prediction of the mean and the
 //! covariance with their derivatives, and the measurement update.
 //!
-//! One function on purpose: every array of the recursion is a local of it,
-//! so the optimiser sees that they never overlap and vectorises the
-//! covariance kernels inlined into the AVX2 build. The same recursion as a
-//! window-state type with `predict`/`update` methods (the arrays as fields
-//! of the type, or borrowed from locals) computes the same results to the
-//! bit but runs 20–35 % slower on AVX2 (callgrind on a 2 km simulated
-//! drive, and CPU time on 8 km), because the kernels are no longer
-//! vectorised; so it is kept as it is.
+//! One function on purpose: every array of the recursion (P, the `∂P/∂p_j`,
+//! the sensitivities D, the work arrays) is a local of it, so the optimiser
+//! sees that they never overlap and vectorises the covariance kernels that
+//! the AVX2 build inlines. The same recursion written as a window-state type
+//! with `linearise`/`predict`/`update` methods, the arrays fields of the
+//! type or borrowed from locals, gives the same results to the bit but the
+//! kernels inlined into the AVX2 build stay scalar: +36 % instructions on
+//! the AVX2 path (callgrind, `RAYON_NUM_THREADS=1 odocal calibrate` of
+//! `odocal simulate --seed 1 --length-km 2`), +15 to +30 % CPU time on
+//! 8 km. Helpers that take the arrays as explicit `&mut` arguments, not
+//! through a struct, would keep them distinct for the optimiser; they are
+//! not written.
 
 use nalgebra::{Matrix3, SMatrix, Vector3};
 
@@ -65,9 +69,10 @@ fn initial_covariance<const S: usize>(v: &Variances, r_floor: &[f64; 3]) -> (MZ<
     (p, dp)
 }
 
-/// [`run_window`] with the state size `S` (`NZ` or `IW`). Always inlined,
-/// so that [`run_window_avx2`] compiles it (and the kernels it inlines) for
-/// AVX2.
+/// [`run_window`](super::run_window) with the state size `S` (`NZ` or
+/// `IW`), the big covariance kernels called as `K` says. Always inlined, so
+/// that [`run_window_avx2`](super::dispatch::run_window_avx2) compiles it
+/// (and the kernels it inlines) for AVX2.
 #[inline(always)]
 pub(super) fn run_window_s<const S: usize, K: KernelCalls>(
     input: &EivInput<'_>,
