@@ -5,7 +5,7 @@
 //! depend on the number of threads):
 //! - true inputs: the drive's measured wheel rotations, a_y and β
 //!   ([`BootstrapInputs::Measured`], the default) or their moving averages
-//!   ([`BootstrapInputs::Smoothed`], stop 14);
+//!   ([`BootstrapInputs::Smoothed`]);
 //! - true poses: the model rolled out at θ̂ from the reference pose at the
 //!   start of each part (dead reckoning; the replicate's "truth");
 //! - measured wheel rotations `n·(1 + s_c + s_w + ε)` with s_c, s_w
@@ -17,7 +17,7 @@
 //! With [`BootstrapOptions::antithetic`] replicates 2j and 2j + 1 share
 //! stream j, the second with every Gaussian draw negated: each is still a
 //! draw of the fitted model, and the pair's mean cancels the part of the
-//! fit's error that is odd in the noise (stop 21).
+//! fit's error that is odd in the noise.
 //!
 //! Each replicate is fitted with the same options as the original fit
 //! (same starting noise model, same `fix_noise`), from θ̂, with the
@@ -60,6 +60,39 @@ pub struct BootstrapOptions {
     pub antithetic: bool,
 }
 
+impl BootstrapOptions {
+    /// Checks the options.
+    ///
+    /// # Errors
+    /// [`Error::InvalidOption`] for fewer than 2 replicates, a level outside
+    /// (0, 1), an odd number of antithetic replicates or a zero smoothing
+    /// half-width.
+    fn validate(&self) -> Result<()> {
+        if self.replicates < 2 {
+            return Err(Error::InvalidOption { field: "replicates", reason: "must be at least 2".into() });
+        }
+        if !(self.level > 0.0 && self.level < 1.0) {
+            return Err(Error::InvalidOption {
+                field: "level",
+                reason: format!("must be in (0, 1), got {}", self.level),
+            });
+        }
+        if self.antithetic && !self.replicates.is_multiple_of(2) {
+            return Err(Error::InvalidOption {
+                field: "replicates",
+                reason: format!("antithetic pairs need an even number of replicates, got {}", self.replicates),
+            });
+        }
+        if let BootstrapInputs::Smoothed { half_width_samples: 0 } = self.true_inputs {
+            return Err(Error::InvalidOption {
+                field: "true_inputs",
+                reason: "the smoothing half-width must be at least 1 sample".into(),
+            });
+        }
+        Ok(())
+    }
+}
+
 impl Default for BootstrapOptions {
     fn default() -> Self {
         BootstrapOptions {
@@ -74,22 +107,23 @@ impl Default for BootstrapOptions {
 
 /// The true inputs (wheel rotations, a_y, β) of a bootstrap replicate world.
 ///
-/// Why (stop 14, docs/study.md "the remaining t_r bias on high"). With the
+/// Why the choice (docs/study.md, "the remaining t_r bias on high"). With the
 /// measured inputs as the truth, the replicate's true yaw rate carries the
 /// measured wheels' white noise (on `high` about 5 mrad per 25 ms step at
 /// 10 m/s, more than the turning itself), so the replicates see a far larger
 /// true yaw signal than the drive had, and the t_r bias of the errors-in-
 /// variables fit, which grows with noise over signal, does not appear in
-/// them: on `high` (known noise, 20 seeds × 12 km, B = 10) the bootstrap
-/// corrected c_e (+0.059 → +0.008 %) but not t_r (+0.66 → +0.70 %).
+/// them: on `high` (known noise, 20 seeds × 12 km, B = 10) the bootstrap on
+/// the measured inputs corrects c_e (+0.059 → +0.008 %) but not t_r
+/// (+0.66 → +0.70 %).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub enum BootstrapInputs {
-    /// The drive's measured inputs (before stop 14 the only choice).
+    /// The drive's measured inputs.
     #[default]
     Measured,
     /// The measured inputs averaged over ±`half_width_samples` within each
     /// continuous part (truncated at the part's ends): a smoothed
-    /// trajectory, as issue 9 item 3 describes the bootstrap.
+    /// trajectory.
     Smoothed {
         /// Half-width K of the centred moving average, samples (at least 1).
         half_width_samples: usize,
@@ -159,24 +193,7 @@ pub fn bootstrap(
     opts: &EivOptions,
     boot: &BootstrapOptions,
 ) -> Result<BootstrapReport> {
-    if boot.replicates < 2 {
-        return Err(Error::InvalidOption { field: "replicates", reason: "must be at least 2".into() });
-    }
-    if !(boot.level > 0.0 && boot.level < 1.0) {
-        return Err(Error::InvalidOption { field: "level", reason: format!("must be in (0, 1), got {}", boot.level) });
-    }
-    if boot.antithetic && !boot.replicates.is_multiple_of(2) {
-        return Err(Error::InvalidOption {
-            field: "replicates",
-            reason: format!("antithetic pairs need an even number of replicates, got {}", boot.replicates),
-        });
-    }
-    if let BootstrapInputs::Smoothed { half_width_samples: 0 } = boot.true_inputs {
-        return Err(Error::InvalidOption {
-            field: "true_inputs",
-            reason: "the smoothing half-width must be at least 1 sample".into(),
-        });
-    }
+    boot.validate()?;
     input.validate()?;
     opts.validate()?;
     report.noise.validate()?;
@@ -191,8 +208,8 @@ pub fn bootstrap(
     // so lie on a lattice even where the drive's readings did not.
     let resolved = opts.with_resolved_quantisation(report.quantisation_step_from_readings);
     // The replicates' θ is all that is used: no covariance term for η, and
-    // no null pass for the innovation checks (stop 24; their warnings are
-    // not read).
+    // no null pass for the innovation checks (their warnings are not
+    // read).
     let mut refit = EivOptions {
         free: report.free,
         fix_unobservable: false,
@@ -238,6 +255,18 @@ pub fn bootstrap(
     } else {
         Vec::new()
     };
+    summarise(results, pair_means, report, boot)
+}
+
+/// The bootstrap's statistics from the replicates' fits (`results`, in
+/// replicate order) and, for antithetic pairs, the complete pairs' means.
+fn summarise(
+    results: Vec<Result<Theta>>,
+    pair_means: Vec<Theta>,
+    report: &EivReport,
+    boot: &BootstrapOptions,
+) -> Result<BootstrapReport> {
+    let theta_hat = report.theta;
     let mut replicates = Vec::new();
     let mut failed = Vec::new();
     for (b, r) in results.into_iter().enumerate() {

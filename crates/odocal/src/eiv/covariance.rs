@@ -1,0 +1,193 @@
+//! θ's covariance beyond H_θ⁻¹: the noise-estimate term, the block inflation, the joint Fisher inverse.
+
+use nalgebra::{DMatrix, DVector, Matrix4};
+
+use super::filter::{self, Mode, WindowSums, NETA};
+use super::problem::Problem;
+use super::steps::theta_score;
+use crate::error::Result;
+use crate::model::Theta;
+
+/// Step in η of the forward difference of the θ-score
+/// ([`EivOptions::noise_estimate_in_covariance`](crate::eiv::EivOptions::noise_estimate_in_covariance)): 1e-4, i.e. a 0.01 %
+/// change of the source's variance. The score is smooth in η (one-sided
+/// error ≈ h/2 relative); its sums have ≥ 10 significant digits to spare.
+pub const ETA_SENSITIVITY_STEP: f64 = 1e-4;
+
+/// The covariance that estimating η adds to θ̂: `A Σ_η Aᵀ` with
+/// `A = −J⁻¹ ∂g_θ/∂η` over the free η ([`EivOptions::noise_estimate_in_covariance`];
+/// J = ∂g_θ/∂θ, observed), and `A` itself (`[parameter][source]`, zero
+/// columns for the fixed η). `sums` is the evaluation at (θ̂, η̂) (with η
+/// derivatives), `cov` = `H_θ⁻¹` over the free θ (zero rows for the fixed
+/// ones; also J⁻¹'s stand-in should J be singular). With
+/// `mixed_partials_by_symmetry` (and the covariance following θ) `∂g_θ/∂η`
+/// comes from the θ-displaced passes J needs (one per free θ); otherwise
+/// from one more pass per free η, displaced by [`ETA_SENSITIVITY_STEP`].
+#[allow(clippy::too_many_arguments)]
+pub(super) fn noise_estimate_covariance(
+    prob: &Problem<'_>,
+    theta: &Theta,
+    theta_ref: &Theta,
+    eta: &[f64; 6],
+    eta_free: &[bool; 6],
+    sums: &WindowSums,
+    cov: &Matrix4<f64>,
+    follows: bool,
+    mixed_partials_by_symmetry: bool,
+) -> Result<(Matrix4<f64>, [[f64; 6]; 4])> {
+    let mut sens = [[0.0; 6]; 4];
+    let idx: Vec<usize> = (0..NETA).filter(|j| eta_free[*j]).collect();
+    let p = idx.len();
+    let info = DMatrix::from_fn(p, p, |i, k| sums.i_eta[(idx[i], idx[k])]);
+    let ridge = 1e-12 * (0..p).map(|i| info[(i, i)]).fold(0.0f64, f64::max);
+    let Some(chol) = (info + DMatrix::identity(p, p) * ridge).cholesky() else {
+        return Ok((Matrix4::zeros(), sens));
+    };
+    let cov_eta = chol.inverse();
+    let g0 = theta_score(sums, follows);
+    let h = ETA_SENSITIVITY_STEP;
+    // The observed Jacobian of the θ-score, ∂g_θ/∂θ, by forward differences
+    // of 1 % of each free parameter's σ: the t_r–d block of H_θ is nearly
+    // singular, and the few-% difference between the scoring metric H_θ and
+    // the observed Jacobian moved ∂t_r/∂η by 1.5× on a 4 km `high` drive
+    // (the refits of the test agree with the observed one).
+    let fidx: Vec<usize> = (0..4).filter(|i| cov[(*i, *i)] > 0.0).collect();
+    let q = fidx.len();
+    // ∂g_θ/∂η by symmetry of the mixed partials: with the covariance
+    // following θ, g_θ = ∂F/∂θ + G_T, F = ½Σνᵀ S⁻¹ν − Σ m log(1 − ŝ) and G_T
+    // the input log-Jacobian's θ-score with its weights u held, so
+    // ∂g_θ/∂η_j = ∂/∂θ (∂F/∂η_j) + ∂G_T/∂η_j. The first is the forward
+    // difference in θ of `grad_profile`'s η entries at the θ-displaced points
+    // the observed Jacobian needs anyway (evaluated with η derivatives), the
+    // second is summed exactly by the filter (`grad_jacobian_eta`). That needs
+    // 4 filter passes instead of 4 + one per free η. Where u depends on η in a
+    // way the filter does not differentiate (the smoothed shares) or with the
+    // covariance held (the corrected score's bias term), η is displaced instead.
+    let by_symmetry = mixed_partials_by_symmetry && follows;
+    // Every displaced point (θ first, then η), evaluated in one sweep.
+    let steps: Vec<f64> = fidx.iter().map(|&k| 0.01 * cov[(k, k)].sqrt()).collect();
+    let mut points: Vec<(Theta, [f64; 6])> = fidx
+        .iter()
+        .zip(&steps)
+        .map(|(&k, &hk)| {
+            let mut t = theta.to_array();
+            t[k] += hk;
+            (Theta::from_array(t), *eta)
+        })
+        .collect();
+    if !by_symmetry {
+        points.extend(idx.iter().map(|&j| {
+            let mut e = *eta;
+            e[j] += h;
+            (*theta, e)
+        }));
+    }
+    // By symmetry only the free η's columns are needed (a scale at its clamp is not estimated).
+    let skip = if by_symmetry { (0..NETA).filter(|j| !eta_free[*j]).fold(0u8, |m, j| m | (1 << j)) } else { 0 };
+    let evs = prob.evaluate_many(&points, theta_ref, Mode::full(follows, by_symmetry).skipping_eta(skip), false)?;
+    let (ev_theta, ev_eta) = evs.split_at(q);
+    let mut jac = DMatrix::zeros(q, q);
+    for (c, (ev, hk)) in ev_theta.iter().zip(&steps).enumerate() {
+        let dg = (theta_score(&ev.total, follows) - g0) / *hk;
+        for (r, &i) in fidx.iter().enumerate() {
+            jac[(r, c)] = dg[i];
+        }
+    }
+    let jinv = match jac.try_inverse() {
+        Some(ji) if (0..q).all(|i| ji[(i, i)] > 0.0) => {
+            let mut m = Matrix4::zeros();
+            for (r, &i) in fidx.iter().enumerate() {
+                for (c, &k) in fidx.iter().enumerate() {
+                    m[(i, k)] = ji[(r, c)];
+                }
+            }
+            m
+        }
+        _ => *cov,
+    };
+    // ∂g_θ/∂η_j (4-vector) per free η.
+    let dg_deta: Vec<nalgebra::Vector4<f64>> = if by_symmetry {
+        idx.iter()
+            .map(|&j| {
+                let mut dg = sums.grad_jacobian_eta[j];
+                for ((ev, hk), &i) in ev_theta.iter().zip(&steps).zip(&fidx) {
+                    dg[i] += (ev.total.grad_profile[4 + j] - sums.grad_profile[4 + j]) / *hk;
+                }
+                dg
+            })
+            .collect()
+    } else {
+        ev_eta.iter().map(|ev| (theta_score(&ev.total, follows) - g0) / h).collect()
+    };
+    // A = −J⁻¹ ∂g_θ/∂η, 4 × p.
+    let mut a = DMatrix::zeros(4, p);
+    for (c, (&j, dg)) in idx.iter().zip(dg_deta).enumerate() {
+        let col = -(jinv * dg);
+        for i in 0..4 {
+            a[(i, c)] = col[i];
+            sens[i][j] = col[i];
+        }
+    }
+    let out = &a * cov_eta * a.transpose();
+    Ok((Matrix4::from_fn(|i, k| out[(i, k)]), sens))
+}
+
+/// [`CovarianceEstimate::LargerOfModelAndBlock`]: `cov` (an `H_θ⁻¹`)
+/// with each parameter's σ raised to the block sandwich's where that is
+/// larger, `D cov D` with `D = diag(max(1, σ_block,i/σ_i))`. `cov` itself
+/// with fewer than two blocks.
+pub(super) fn inflate_to_block(cov: &Matrix4<f64>, blocks: &filter::BlockScores) -> Matrix4<f64> {
+    let Some(meat) = blocks.meat() else {
+        return *cov;
+    };
+    let sandwich = cov * meat * cov;
+    let f: [f64; 4] = std::array::from_fn(|i| {
+        let (m, b) = (cov[(i, i)], sandwich[(i, i)]);
+        if m > 0.0 && b.is_finite() && b > m {
+            (b / m).sqrt()
+        } else {
+            1.0
+        }
+    });
+    Matrix4::from_fn(|i, j| cov[(i, j)] * f[i] * f[j])
+}
+
+/// The θ block of the inverse of the joint Fisher information of the free
+/// θ and the estimated η that are not at a clamp (`eta_sigma > 0`).
+/// `∂η̂/∂θ = −I_ηη⁻¹ I_ηθ` over the free η and θ ([`EivReport::eta_theta_sensitivity`]);
+/// zeros when no η is free or `I_ηη` is singular.
+pub(super) fn eta_on_theta(info: &filter::MP, free: &[bool; 4], eta_free: &[bool; 6]) -> [[f64; 4]; 6] {
+    let mut out = [[0.0; 4]; 6];
+    let idx: Vec<usize> = (0..NETA).filter(|j| eta_free[*j]).collect();
+    let p = idx.len();
+    if p == 0 {
+        return out;
+    }
+    let i_ee = DMatrix::from_fn(p, p, |a, b| info[(4 + idx[a], 4 + idx[b])]);
+    let Some(chol) = i_ee.cholesky() else {
+        return out;
+    };
+    for t in (0..4).filter(|t| free[*t]) {
+        let col = DVector::from_fn(p, |a, _| info[(4 + idx[a], t)]);
+        let x = chol.solve(&col);
+        for (a, &j) in idx.iter().enumerate() {
+            out[j][t] = -x[a];
+        }
+    }
+    out
+}
+
+pub(super) fn fisher_covariance(info: &filter::MP, free: &[bool; 4], eta_free: &[bool; 6]) -> Option<Matrix4<f64>> {
+    let idx: Vec<usize> =
+        (0..4).filter(|i| free[*i]).chain((0..NETA).filter(|j| eta_free[*j]).map(|j| 4 + j)).collect();
+    let p = idx.len();
+    let a = DMatrix::from_fn(p, p, |i, j| info[(idx[i], idx[j])]);
+    let inv = a.cholesky()?.inverse();
+    let mut out = Matrix4::zeros();
+    for (i, &fi) in idx.iter().enumerate().filter(|(_, f)| **f < 4) {
+        for (j, &fj) in idx.iter().enumerate().filter(|(_, f)| **f < 4) {
+            out[(fi, fj)] = inv[(i, j)];
+        }
+    }
+    Some(out)
+}

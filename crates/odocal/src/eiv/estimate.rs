@@ -1,0 +1,460 @@
+//! The estimator's entry points: a fit and its checks.
+
+use super::tau;
+use std::time::Instant;
+
+use nalgebra::Matrix4;
+
+use super::covariance::{eta_on_theta, fisher_covariance, inflate_to_block, noise_estimate_covariance};
+use super::filter::{self, Mode, WindowSums, NETA};
+use super::input::make_windows;
+use super::problem::{free_inverse, free_sigma, theta_add, to_array, Evaluation, Problem};
+use super::scoring::scoring_pass;
+use super::steps::{observability_of, theta_step};
+use super::{
+    apply_bias_correction, first_order_bias, CovarianceEstimate, CovarianceMode, EivInput, EivOptions, EivReport,
+    EivWarning, HalvesCheck, HeadingScale, InnovationNull, LateralNoise, NoiseModel, Parameter, PassReport,
+    PoseComponent, QuantisationLevel, Termination, Window, WindowDiagnostics, NOISE_SOURCES, PARAMETERS,
+};
+use crate::error::{Error, Result};
+use crate::model::Theta;
+
+/// The instruction set the filter's kernels run with in this process:
+/// `"avx2"` where the CPU has AVX2 and FMA (x86-64, detected at run time),
+/// else `"baseline"` (the build's target features, SSE2 on a default x86-64
+/// build). The environment variable `ODOCAL_SIMD=baseline` forces the
+/// baseline; it is read once per process. Both give results
+/// identical to the bit; AVX2 is faster (docs/performance.md).
+///
+/// ```
+/// let set = odocal::eiv::kernel_instruction_set();
+/// assert!(set == "avx2" || set == "baseline");
+/// ```
+pub fn kernel_instruction_set() -> &'static str {
+    match filter::kernels() {
+        filter::Kernels::Avx2 => "avx2",
+        filter::Kernels::Baseline => "baseline",
+    }
+}
+
+/// Estimates θ (and the noise scales η) by the EIV method of SPEC §10,
+/// starting from `theta_start` (batch Gauss-Newton on all segments).
+///
+/// Two passes of Fisher scoring on the objective M of the module docs;
+/// the covariance recursion of pass i is linearised at the θ that pass
+/// starts from. Returns the estimate with `H_θ⁻¹`, the estimated noise in
+/// physical units, observability and consistency diagnostics, and typed
+/// warnings. Errors only for invalid input, a singular information matrix
+/// (with `fix_unobservable` off) or a numerically failing filter (naming
+/// the window).
+///
+/// ```
+/// # fn main() -> Result<(), odocal::Error> {
+/// use odocal::{eiv, sim, Theta};
+/// let out = sim::simulate(&sim::SimOptions { length_km: 1.0, substeps: 1, ..sim::SimOptions::noise_free(3) })?;
+/// let d = &out.drive;
+/// let input = eiv::EivInput {
+///     sample_time_s: d.sample_time_s(), parts: d.parts(), px: d.px(), py: d.py(), psi: d.psi(),
+///     n_rl: d.n_rl(), n_rr: d.n_rr(), beta: d.beta(), a_y: d.a_y(), reference_measured: None,
+/// };
+/// let start = Theta { c_e: 1.951, ..out.sidecar.theta_true };
+/// let report = eiv::estimate(&input, &start, &eiv::EivOptions::default())?;
+/// assert!((report.theta.c_e - 1.95).abs() < 1e-6);
+/// # Ok(()) }
+/// ```
+pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) -> Result<EivReport> {
+    if opts.estimate_time_constants {
+        return tau::estimate_with_time_constants(input, theta_start, opts);
+    }
+    estimate_from(input, theta_start, &[0.0; 6], opts).map(|(report, _)| report)
+}
+
+/// [`estimate`] at the time constants of `opts.noise`, starting from η =
+/// `eta_start`; also returns the Gaussian negative log-likelihood
+/// `½ Σ (νᵀS⁻¹ν + log det S)` (without 2π terms) at the estimate, before
+/// any bias correction.
+pub(crate) fn estimate_from(
+    input: &EivInput<'_>,
+    theta_start: &Theta,
+    eta_start: &[f64; 6],
+    opts: &EivOptions,
+) -> Result<(EivReport, f64)> {
+    let t0 = Instant::now();
+    opts.validate()?;
+    input.validate()?;
+    theta_start.validate()?;
+    let windows = make_windows(input.parts, opts.window_samples);
+    if windows.is_empty() {
+        return Err(Error::NoSegments("EIV needs a drive part of at least two samples".into()));
+    }
+    // `FromReadings` is resolved once here, on the drive's readings: the
+    // rest of the fit sees `Given` with the step found, or `ScaledWithWhite`
+    // (and so does a bootstrap of the fit: `bootstrap` resolves it from the
+    // report, not from its replicates' readings).
+    let q_found = opts.quantisation_level.step_found(input);
+    let resolved;
+    let opts = if opts.quantisation_level == QuantisationLevel::FromReadings {
+        resolved = opts.with_resolved_quantisation(q_found);
+        &resolved
+    } else {
+        opts
+    };
+    let prob = Problem::new(input, windows, opts);
+    let fit = run_passes(&prob, theta_start, eta_start, opts)?;
+    let (ev, free, theta) = (&fit.ev, fit.free, fit.theta);
+    let unc = uncertainty(&prob, &fit, opts)?;
+    let observability = observability_of(&ev.total.h_theta, &free, fit.unobservable.clone(), opts);
+    let first_order_bias =
+        if opts.covariance == CovarianceMode::FollowsTheta { first_order_bias(&ev.total, &free) } else { None };
+    let mut warnings = fit_warnings(&fit, opts);
+    let diags = window_diagnostics(&prob, &fit, opts, &mut warnings)?;
+    let halves =
+        halves_check(ev, &theta, &free, opts.covariance == CovarianceMode::FollowsTheta, opts.covariance_estimate);
+    if let Some(h) = &halves {
+        for i in 0..4 {
+            if h.z[i].abs() > opts.max_half_z {
+                warnings.push(EivWarning::UnstableAcrossHalves {
+                    parameter: PARAMETERS[i],
+                    z: h.z[i],
+                    threshold: opts.max_half_z,
+                });
+            }
+        }
+    }
+    let (mut eta, mut eta_sigma) = (fit.eta, fit.eta_sigma);
+    if opts.heading_scale == HeadingScale::TiedToPosition {
+        // The heading white noise was scaled by η_3: report it so.
+        eta[5] = eta[3];
+        eta_sigma[5] = 0.0;
+    }
+    let iterations = fit.passes.iter().map(|p| p.history.len()).sum();
+    let neg_log_likelihood = 0.5 * (ev.total.quad + ev.total.logdet);
+    let mut report = EivReport {
+        initial_theta: *theta_start,
+        theta,
+        first_order_bias,
+        theta_uncorrected: theta,
+        bias_subtracted: [0.0; 4],
+        sigma_bias_correction: [0.0; 4],
+        bias_replicates_failed: Vec::new(),
+        free,
+        covariance: to_array(&unc.covariance),
+        sigma: unc.sigma,
+        sigma_sandwich: unc.sigma_sandwich,
+        sigma_block: unc.sigma_block,
+        sigma_fisher: unc.sigma_fisher,
+        sigma_noise_estimate: unc.sigma_noise_estimate,
+        theta_eta_sensitivity: unc.theta_eta_sensitivity,
+        eta_theta_sensitivity: eta_on_theta(&ev.total.info, &free, &unc.eta_free),
+        eta,
+        eta_sigma,
+        evaluations: prob.evaluations.get(),
+        noise: reported_noise(opts, &eta),
+        final_cost: ev.total.merit(),
+        iterations,
+        termination: fit.termination(),
+        passes: fit.passes,
+        observability,
+        windows: diags,
+        halves,
+        warnings,
+        updates: fit.ev.total.updates,
+        timing_s: t0.elapsed().as_secs_f64(),
+        time_constants: None,
+        quantisation_step_from_readings: q_found,
+    };
+    apply_bias_correction(input, &mut report, opts)?;
+    Ok((report, neg_log_likelihood))
+}
+
+/// The scoring passes of a fit and where they ended.
+struct Fit {
+    theta: Theta,
+    eta: [f64; 6],
+    eta_sigma: [f64; 6],
+    free: [bool; 4],
+    unobservable: Vec<Parameter>,
+    passes: Vec<PassReport>,
+    /// The last pass's evaluation at the estimate.
+    ev: Evaluation,
+}
+
+impl Fit {
+    /// Why the last pass stopped.
+    fn termination(&self) -> Termination {
+        self.passes
+            .last()
+            .map(|p| p.termination)
+            .unwrap_or(Termination::MaxIterations { iterations: 0, step_over_sigma: f64::NAN })
+    }
+
+    /// The covariance reference of the last pass.
+    fn theta_reference(&self) -> Theta {
+        self.passes.last().map(|p| p.theta_reference).unwrap_or(self.theta)
+    }
+}
+
+/// Runs the scoring passes: one with the covariance following θ (there is
+/// no reference to update), else `opts.passes`, each with the reference at
+/// the previous pass's result. The first pass decides which parameters are
+/// observable.
+fn run_passes(prob: &Problem<'_>, theta_start: &Theta, eta_start: &[f64; 6], opts: &EivOptions) -> Result<Fit> {
+    let mut theta = *theta_start;
+    let mut eta = if opts.fix_noise { [0.0; 6] } else { *eta_start };
+    let mut free = opts.free;
+    let mut unobservable = Vec::new();
+    let mut passes = Vec::new();
+    let mut last: Option<(Evaluation, [f64; 6])> = None;
+    let passes_to_run = if opts.covariance == CovarianceMode::FollowsTheta { 1 } else { opts.passes };
+    for pass in 0..passes_to_run {
+        let out = scoring_pass(prob, theta, eta, theta, free, pass == 0, opts)?;
+        if pass == 0 {
+            unobservable = out.unobservable.clone();
+            free = out.free;
+        }
+        theta = out.theta;
+        eta = out.eta;
+        passes.push(out.report);
+        last = Some((out.eval, out.eta_sigma));
+    }
+    let Some((ev, eta_sigma)) = last else {
+        return Err(Error::Numerical("no EIV pass ran".into()));
+    };
+    Ok(Fit { theta, eta, eta_sigma, free, unobservable, passes, ev })
+}
+
+/// θ's uncertainty at the estimate.
+struct Uncertainty {
+    /// The reported covariance ([`CovarianceEstimate`], plus the noise-estimate term).
+    covariance: Matrix4<f64>,
+    sigma: [f64; 4],
+    sigma_sandwich: [f64; 4],
+    sigma_block: [f64; 4],
+    sigma_fisher: [f64; 4],
+    sigma_noise_estimate: [f64; 4],
+    theta_eta_sensitivity: [[f64; 6]; 4],
+    /// The noise scales estimated (with a σ).
+    eta_free: [bool; 6],
+}
+
+/// θ's covariance and σ of every kind ([`EivReport::sigma`] and the others).
+fn uncertainty(prob: &Problem<'_>, fit: &Fit, opts: &EivOptions) -> Result<Uncertainty> {
+    let (ev, free) = (&fit.ev, fit.free);
+    let cov = free_inverse(&ev.total.h_theta, &free).unwrap_or_else(|| Matrix4::from_element(f64::NAN));
+    let sandwich = cov * ev.total.opg * cov;
+    let sigma_sandwich: [f64; 4] = free_sigma(&free, |i| sandwich[(i, i)]);
+    let sigma_block: [f64; 4] = match ev.total.blocks.meat() {
+        Some(b) => {
+            let c = cov * b * cov;
+            free_sigma(&free, |i| c[(i, i)])
+        }
+        None => [f64::NAN; 4],
+    };
+    let cov_reported = match opts.covariance_estimate {
+        CovarianceEstimate::Model => cov,
+        CovarianceEstimate::LargerOfModelAndBlock => inflate_to_block(&cov, &ev.total.blocks),
+    };
+    let eta_free: [bool; 6] = std::array::from_fn(|j| !opts.fix_noise && fit.eta_sigma[j] > 0.0);
+    let (noise_cov, theta_eta_sensitivity) = if opts.noise_estimate_in_covariance && eta_free.iter().any(|f| *f) {
+        let theta_ref = fit.theta_reference();
+        let follows = opts.covariance == CovarianceMode::FollowsTheta;
+        let by_symmetry = prob.mixed_partials_by_symmetry();
+        noise_estimate_covariance(
+            prob,
+            &fit.theta,
+            &theta_ref,
+            &fit.eta,
+            &eta_free,
+            &ev.total,
+            &cov,
+            follows,
+            by_symmetry,
+        )?
+    } else {
+        (Matrix4::zeros(), [[0.0; 6]; 4])
+    };
+    let sigma_noise_estimate: [f64; 4] = free_sigma(&free, |i| noise_cov[(i, i)]);
+    let covariance = cov_reported + noise_cov;
+    let sigma: [f64; 4] = free_sigma(&free, |i| covariance[(i, i)]);
+    let sigma_fisher: [f64; 4] = match fisher_covariance(&ev.total.info, &free, &eta_free) {
+        Some(c) => free_sigma(&free, |i| c[(i, i)]),
+        None => [f64::NAN; 4],
+    };
+    Ok(Uncertainty {
+        covariance,
+        sigma,
+        sigma_sandwich,
+        sigma_block,
+        sigma_fisher,
+        sigma_noise_estimate,
+        theta_eta_sensitivity,
+        eta_free,
+    })
+}
+
+/// The fit's own warnings: unobservable parameters, no convergence, noise
+/// scales at their upper clamp.
+fn fit_warnings(fit: &Fit, opts: &EivOptions) -> Vec<EivWarning> {
+    let mut warnings = Vec::new();
+    if !fit.unobservable.is_empty() {
+        warnings.push(EivWarning::Unobservable { parameters: fit.unobservable.clone() });
+    }
+    let termination = fit.termination();
+    if !termination.converged() {
+        warnings.push(EivWarning::NotConverged { termination });
+    }
+    if !opts.fix_noise {
+        for j in 0..NETA {
+            if fit.eta[j] >= opts.eta_bounds[1] - 1e-9 {
+                warnings.push(EivWarning::NoiseAtUpperClamp { source: NOISE_SOURCES[j], eta: fit.eta[j] });
+            }
+        }
+    }
+    warnings
+}
+
+/// The noise model at the estimate, as reported: the starting model scaled
+/// by η, with the held variances (a given quantisation level, stated
+/// lateral noise) as the model states them.
+fn reported_noise(opts: &EivOptions, eta: &[f64; 6]) -> NoiseModel {
+    let mut n = opts.noise.scaled(eta);
+    if opts.quantisation_level == QuantisationLevel::Given {
+        n.quantisation_step_rev_per_s = opts.noise.quantisation_step_rev_per_s;
+    }
+    if opts.lateral_noise == LateralNoise::Stated {
+        n.lateral_acceleration_sigma_m_per_s2 = opts.noise.lateral_acceleration_sigma_m_per_s2;
+        n.sideslip_sigma_rad = opts.noise.sideslip_sigma_rad;
+    }
+    n
+}
+
+/// Every window's consistency numbers ([`WindowDiagnostics`]), with their
+/// warnings pushed to `warnings`. With
+/// [`InnovationNull::FloorsAsRegularisation`] the null comes from one more
+/// (objective-only) filter pass at the estimate, with the recursion of the
+/// floor-free null.
+fn window_diagnostics(
+    prob: &Problem<'_>,
+    fit: &Fit,
+    opts: &EivOptions,
+    warnings: &mut Vec<EivWarning>,
+) -> Result<Vec<WindowDiagnostics>> {
+    let null_sums = match opts.innovation_null {
+        InnovationNull::FittedModel => None,
+        InnovationNull::FloorsAsRegularisation => {
+            let theta_ref = fit.theta_reference();
+            let mode = Mode::cost(opts.covariance == CovarianceMode::FollowsTheta);
+            Some(prob.evaluate_with(&fit.theta, &theta_ref, &fit.eta, mode, true)?.windows)
+        }
+    };
+    let mut diags = Vec::with_capacity(prob.windows.len());
+    for (i, (w, s)) in prob.windows.iter().zip(&fit.ev.windows).enumerate() {
+        let nis = if s.updates > 0 { s.quad / (3 * s.updates) as f64 } else { f64::NAN };
+        let lag1: [f64; 3] = std::array::from_fn(|c| if s.e2[c] > 0.0 { s.lag1[c] / s.e2[c] } else { 0.0 });
+        let (nis0, lag1_0) = match null_sums.as_ref().and_then(|n| n.get(i)) {
+            Some(n) if n.updates > 0 => (
+                n.quad_null / (3 * n.updates) as f64,
+                std::array::from_fn(|c| if n.e2_null[c] > 0.0 { n.lag1_null[c] / n.e2_null[c] } else { 0.0 }),
+            ),
+            _ => (1.0, [0.0; 3]),
+        };
+        if s.updates > 0 {
+            window_warnings(w, nis, nis0, &lag1, &lag1_0, opts, warnings);
+        }
+        diags.push(WindowDiagnostics {
+            window: *w,
+            updates: s.updates,
+            nis,
+            lag1,
+            nis_without_floors: nis0,
+            lag1_without_floors: lag1_0,
+        });
+    }
+    Ok(diags)
+}
+
+/// The warnings of one window: NIS above the divergence limit or outside
+/// its band, lag-1 correlation of a component beyond its null.
+fn window_warnings(
+    w: &Window,
+    nis: f64,
+    nis0: f64,
+    lag1: &[f64; 3],
+    lag1_0: &[f64; 3],
+    opts: &EivOptions,
+    warnings: &mut Vec<EivWarning>,
+) {
+    let band = [opts.nis_band[0] * nis0.min(1.0), opts.nis_band[1] * nis0.max(1.0)];
+    if nis > opts.divergence_nis {
+        warnings.push(EivWarning::FilterDiverged { window: w.index, nis, threshold: opts.divergence_nis });
+    } else if !(band[0]..=band[1]).contains(&nis) {
+        warnings.push(EivWarning::InconsistentInnovations { window: w.index, nis, band });
+    }
+    let comps = [PoseComponent::X, PoseComponent::Y, PoseComponent::Heading];
+    for c in 0..3 {
+        let (above, below) = (lag1[c] - lag1_0[c].max(0.0), lag1_0[c].min(0.0) - lag1[c]);
+        let below_limit = match opts.innovation_null {
+            InnovationNull::FittedModel => opts.max_lag1,
+            InnovationNull::FloorsAsRegularisation => opts.max_lag1_below,
+        };
+        if above > opts.max_lag1 || below > below_limit {
+            warnings.push(EivWarning::CorrelatedInnovations {
+                window: w.index,
+                component: comps[c],
+                lag1: lag1[c],
+                expected: lag1_0[c],
+                threshold: if above > opts.max_lag1 { opts.max_lag1 } else { below_limit },
+            });
+        }
+    }
+}
+
+/// θ from each half of the windows (split by measurement updates), one
+/// scoring step from the joint estimate.
+pub(super) fn halves_check(
+    ev: &Evaluation,
+    theta: &Theta,
+    free: &[bool; 4],
+    follows: bool,
+    estimate: CovarianceEstimate,
+) -> Option<HalvesCheck> {
+    if ev.windows.len() < 2 {
+        return None;
+    }
+    let total = ev.total.updates;
+    let mut first = WindowSums::zero();
+    let mut second = WindowSums::zero();
+    let mut acc = 0usize;
+    for w in &ev.windows {
+        if acc * 2 < total {
+            first.add(w);
+        } else {
+            second.add(w);
+        }
+        acc += w.updates;
+    }
+    let (s1, sd1) = theta_step(&first, free, follows).ok()?;
+    let (s2, sd2) = theta_step(&second, free, follows).ok()?;
+    let robust = |sums: &WindowSums, sd: [f64; 4]| -> [f64; 4] {
+        match (estimate, free_inverse(&sums.h_theta, free)) {
+            (CovarianceEstimate::LargerOfModelAndBlock, Some(c)) => {
+                let r = inflate_to_block(&c, &sums.blocks);
+                std::array::from_fn(|i| r[(i, i)].max(0.0).sqrt())
+            }
+            _ => sd,
+        }
+    };
+    let (sd1, sd2) = (robust(&first, sd1), robust(&second, sd2));
+    let t1 = theta_add(theta, &s1, 1.0);
+    let t2 = theta_add(theta, &s2, 1.0);
+    let (a1, a2) = (t1.to_array(), t2.to_array());
+    let z = std::array::from_fn(|i| {
+        let v = sd1[i] * sd1[i] + sd2[i] * sd2[i];
+        if free[i] && v > 0.0 {
+            (a1[i] - a2[i]) / v.sqrt()
+        } else {
+            0.0
+        }
+    });
+    Some(HalvesCheck { first: t1, second: t2, z })
+}

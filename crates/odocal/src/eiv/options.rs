@@ -1,0 +1,499 @@
+//! The options of the EIV calibration and the covariance it reports.
+
+use super::BootstrapInputs;
+use super::TimeConstantGrid;
+
+use serde::{Deserialize, Serialize};
+
+use super::{
+    BiasCorrection, BootstrapNoise, HeadingScale, InnovationNull, InputJacobian, LateralNoise, NoiseModel, NoiseSource,
+    QuantisationLevel, QuantisationModel, SideslipNoise, WheelNoiseScale, BIAS_BOOTSTRAP_SMOOTHING_SAMPLES,
+    DEFAULT_POSITION_FLOOR_M, NOISE_SOURCES, SPEC_POSITION_FLOOR_M,
+};
+use crate::error::{Error, Result};
+use crate::model::Theta;
+
+/// How the filter's covariance recursion (P, S, K) depends on θ.
+///
+/// SPEC §10 asks for both the profile cost `½ Σ νᵀS(θ)⁻¹ν` with S depending
+/// on θ through `F_n Σ_n F_nᵀ` and for Q held at a reference θ; the two
+/// differ exactly in whether `∂S/∂θ` is zero. See the module docs for the
+/// measured consequences.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CovarianceMode {
+    /// The covariance recursion is linearised at a reference θ (batch G-N's
+    /// result, then each pass's result): `∂S/∂θ = 0` and θ solves the
+    /// corrected score of the module docs.
+    HeldAtReference,
+    /// The covariance recursion is evaluated at θ: S depends on θ, `∂P/∂θ`
+    /// is propagated exactly, and θ minimises the profile (joint-MAP over
+    /// the latent true inputs; Deming / total least squares) cost.
+    FollowsTheta,
+}
+
+/// The covariance of θ reported by [`estimate`](crate::eiv::estimate) ([`EivReport::covariance`](crate::eiv::EivReport::covariance),
+/// [`EivReport::sigma`](crate::eiv::EivReport::sigma)) and used by the halves check.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CovarianceEstimate {
+    /// `H_θ⁻¹`, the inverse of the scoring metric at the fitted noise model:
+    /// right when the noise model is (the fitted scales of the right
+    /// processes). On the `coloured` preset, η estimated from the
+    /// production-car model (whose common-mode wheel noise has τ_c = 2 s
+    /// against the simulator's 5 s), c_e's σ is 0.0062 % against an actual
+    /// spread of 0.023 % (coverage 35 %), so the halves check rejects 7 of
+    /// 20 good fits. Where the model is right the two agree (the
+    /// simulator's noise model given: mean σ 0.0194 % against the block
+    /// sandwich's 0.0197 %).
+    Model,
+    /// The default.
+    /// Per parameter the larger of the `H_θ⁻¹` σ and the block sandwich σ
+    /// ([`EivReport::sigma_block`](crate::eiv::EivReport::sigma_block)): `C = D H_θ⁻¹ D` with
+    /// `D = diag(max(1, σ_block,i/σ_i))`, so the correlations are the
+    /// model's. The block sandwich sums the per-update θ-scores over 20 s
+    /// blocks (several correlation times of the wheel noise) and so stays
+    /// honest when the noise model's time constants are wrong; the larger
+    /// of the two keeps the model's σ where the blocks are few (a short
+    /// drive) and their estimate noisy. Measured against [`CovarianceEstimate::Model`] (docs/study.md;
+    /// 12 km, seeds 1–20): `coloured` c_e coverage 35 → 90 %, halves
+    /// fallbacks 7 → 0, what a user gets c_e 2.82× → 1.62× the Cramér–Rao
+    /// bound; `white` identical; on `paper` the halves check does not
+    /// reject two fits with t_r +4.7 and +3.9 % that it rejects with the
+    /// model's σ (it measures spread, not bias).
+    #[default]
+    LargerOfModelAndBlock,
+}
+
+/// Options of the EIV calibration. Defaults follow SPEC §10.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct EivOptions {
+    /// Filter window length, samples (each part is cut into windows of about
+    /// this length). Default 6000 (150 s at 40 Hz).
+    pub window_samples: usize,
+    /// Fisher-scoring iterations per pass. Default 20 (a test-track run
+    /// converges in 12; the simulated studies converge in ≤ 10).
+    pub max_iterations: usize,
+    /// Stop when `max |step_i|/σ_i` (free θ and η not at a clamp) is below
+    /// this. Default 0.05.
+    pub step_tolerance: f64,
+    /// Step halvings tried before giving up on an iteration. Default 10.
+    pub max_halvings: usize,
+    /// Damp the η step of the θ/η iteration by a secant estimate of its
+    /// overshoot (with the covariance following θ and η estimated). Default
+    /// true (see the measurements at `secant_eta_factor` in the source and
+    /// docs/study.md, EIV section).
+    pub eta_secant_damping: bool,
+    /// Score-test level at which a noise scale at its lower clamp re-enters
+    /// the fit: the source leaves the clamp when the score test of its scale
+    /// against the data, `g²/I` (g = ∂M/∂η, I its Fisher information, both
+    /// at the clamp), exceeds this and g < 0 (more of that noise lowers M).
+    /// `None` = never: a scale that reached the clamp stays there (at the
+    /// clamp its information is ~e⁻⁴⁰ of the others' and reads as "no
+    /// information"). Default `None`.
+    ///
+    /// Measured (docs/study.md; `coloured` preset, 12 km, seeds
+    /// 1–20): the production-car model's common-mode scale η₁ ends at the
+    /// clamp on 16 of 20 drives; re-entered (level 10), the fits' M is
+    /// 508–738 lower (seeds 2–6), but η₁ climbs back by about +3 per
+    /// iteration and 14 of 20 fits hit the 10-iteration limit (2 of 20 on
+    /// `white`), so it is not the default; c_e's σ stays too small with it
+    /// (coverage 55 %: the production car's τ_c is wrong, see
+    /// [`CovarianceEstimate::LargerOfModelAndBlock`]).
+    pub eta_reentry_min_score: Option<f64>,
+    /// Which covariance of θ the report carries (`covariance`, `sigma`) and
+    /// the halves check uses. Default
+    /// [`CovarianceEstimate::LargerOfModelAndBlock`] (see both for the
+    /// measurements).
+    pub covariance_estimate: CovarianceEstimate,
+    /// Add to θ's reported covariance what estimating the noise scales η
+    /// from the same drive adds to it: `A Σ_η Aᵀ` with
+    /// `A = ∂θ̂/∂η = −J⁻¹ ∂g_θ/∂η` (implicit function theorem at the
+    /// estimate; `g_θ` the θ-score, `J = ∂g_θ/∂θ`) and `Σ_η` the inverse of
+    /// η's information over the estimated scales. Both derivatives are
+    /// forward differences (1 % of σ) in θ of exact filter derivatives: J of
+    /// the θ-score, `∂g_θ/∂η` of the η-gradient of the profile cost (the
+    /// mixed partials are symmetric; the FilterShare log-Jacobian weights'
+    /// own η-dependence is summed exactly by the filter), so one more filter
+    /// pass with θ and η derivatives per free parameter (with the
+    /// smoothed-share weights or the covariance held, one more pass per
+    /// estimated scale too, displaced by [`ETA_SENSITIVITY_STEP`](crate::eiv::ETA_SENSITIVITY_STEP) in η),
+    /// instead of a second-order sensitivity recursion through the filter.
+    /// `A` is [`EivReport::theta_eta_sensitivity`](crate::eiv::EivReport::theta_eta_sensitivity), the added σ
+    /// [`EivReport::sigma_noise_estimate`](crate::eiv::EivReport::sigma_noise_estimate). No effect with
+    /// [`EivOptions::fix_noise`].
+    ///
+    /// Why: on the `high` preset t_r moves by ≈ 7–15 % per unit of the
+    /// heading white-noise scale η_5, whose own σ there is 0.04–0.12, so
+    /// the σ at a fixed η understates t_r's by up to 1.8× (docs/study.md).
+    /// Default true.
+    pub noise_estimate_in_covariance: bool,
+    /// Judge convergence of the θ/η iteration by what the user gets, θ:
+    /// also stop when θ's remaining scoring step is below
+    /// [`EivOptions::step_tolerance`]·σ_θ *and* so is the θ change that the
+    /// remaining η step would cause through the joint information,
+    /// `dθ ≈ −I_θθ⁻¹ I_θη dη` (η wandering that does not move θ is no reason
+    /// to distrust θ). The remaining η step is reported in
+    /// [`PassReport::eta_step_over_sigma`](crate::eiv::PassReport::eta_step_over_sigma). Default false (see
+    /// docs/study.md on the convergence of the η iteration).
+    pub theta_convergence: bool,
+    /// Test convergence at the end of each iteration on the step that
+    /// *remains* at the new point (θ and η, the usual
+    /// [`EivOptions::step_tolerance`] test; no extra filter evaluation: the
+    /// point is already evaluated in full) instead of only on the steps just
+    /// taken, so the last iteration of [`EivOptions::max_iterations`] can
+    /// end converged. With the covariance following θ and η estimated.
+    /// Default true (without it, on `white` with the separate heading scale
+    /// every `not_converged` fit has a remaining step of 0.001–0.002 σ; the
+    /// option changes no θ on 80 simulated fits).
+    pub final_step_check: bool,
+    /// Passes, each with the covariance reference θ at the previous result.
+    /// Default 2.
+    pub passes: usize,
+    /// Which parameters are estimated (`[c_e, c_d, t_r, d]`). Default all.
+    pub free: [bool; 4],
+    /// Hold parameters that the data cannot determine (σ above their
+    /// resolution at the start) at their starting value and name them.
+    /// Default true.
+    pub fix_unobservable: bool,
+    /// The starting noise model. Default [`NoiseModel::PRODUCTION_CAR`].
+    pub noise: NoiseModel,
+    /// Use [`EivOptions::noise`] as is (do not estimate η). Default false.
+    pub fix_noise: bool,
+    /// Clamp range of the log-scale factors η. Default [−20, 6]: variances
+    /// between 2e-9 and 400 times the starting model's.
+    pub eta_bounds: [f64; 2],
+    /// Noise sources (in [`NOISE_SOURCES`] order) whose level is *known*:
+    /// their scale is held at the starting model (η_j = 0) while the others
+    /// are estimated; ignored with [`EivOptions::fix_noise`]. Set it from a
+    /// datasheet (e.g. the INS's heading σ) with [`EivOptions::hold_known`],
+    /// `--known-noise`, or a noise model's `known = [...]`. Measured (stop
+    /// 14, 20 × 12 km, `high`): holding the heading white noise at its true
+    /// σ took t_r's bias from +1.50 % to +0.54 %. A wrong stated level biases
+    /// instead. Default none.
+    pub eta_held: [bool; 6],
+    /// Parameter resolutions `[c_e, c_d, t_r, d]`, SI units: a parameter
+    /// whose standard deviation exceeds its resolution is not observable.
+    /// Default `[0.01, 0.001, 0.015, 0.0005]` (as batch G-N).
+    pub resolution: [f64; 4],
+    /// Parameters in an eigenvector of the equilibrated `H_θ` with eigenvalue
+    /// below this fraction of the largest are named collinear. Default 1e-2.
+    pub min_rcond: f64,
+    /// Acceptable band of the per-window NIS per degree of freedom. Default [0.5, 2].
+    pub nis_band: [f64; 2],
+    /// A window whose NIS per degree of freedom exceeds this has diverged. Default 10.
+    pub divergence_nis: f64,
+    /// Largest acceptable |lag-1 autocorrelation| of whitened innovations per
+    /// window, beyond the interval that [`EivOptions::innovation_null`]
+    /// allows. Default 0.5.
+    pub max_lag1: f64,
+    /// With [`InnovationNull::FloorsAsRegularisation`]: largest acceptable
+    /// lag-1 autocorrelation *below* the interval that the null allows
+    /// (`min(0, ρ₀) − lag-1`). Default 0.2. Negative correlation
+    /// is what a filter shows when the data have measurement noise the
+    /// model lacks (it follows the noise and corrects back); the floors and
+    /// surplus process noise only lag the filter behind the measurements
+    /// (positive correlation). Measured (docs/study.md, EIV section): heading
+    /// lag-1 of good fits on the simulated presets ≥ −0.15; on the six
+    /// test-track runs (heading white noise held near zero by the tied
+    /// scale) −0.26 … −0.45, where EIV loses to batch G-N.
+    pub max_lag1_below: f64,
+    /// What the innovation checks (NIS band, whiteness) take as consistent.
+    /// Default [`InnovationNull::FloorsAsRegularisation`] (see its docs for
+    /// the measurements).
+    pub innovation_null: InnovationNull,
+    /// Largest acceptable |z| of the difference between θ from the two
+    /// halves of the windows. Default 4.
+    pub max_half_z: f64,
+    /// How the covariance recursion depends on θ. Default
+    /// [`CovarianceMode::FollowsTheta`].
+    pub covariance: CovarianceMode,
+    /// How encoder quantisation enters the filter. Default
+    /// [`QuantisationModel::Counting`] (see its docs for the measured
+    /// trade-off).
+    pub quantisation: QuantisationModel,
+    /// Whether η_0 scales the encoder quantisation with the white wheel
+    /// noise or the quantisation step is taken as known. Default
+    /// [`QuantisationLevel::FromReadings`] (see its docs).
+    pub quantisation_level: QuantisationLevel,
+    /// Whether η_0 scales the a_y and β noise with the white wheel noise or
+    /// they are held at the noise model's σ. Default
+    /// [`LateralNoise::TiedToWheelWhite`] (see its docs for the measured
+    /// trade-off).
+    pub lateral_noise: LateralNoise,
+    /// How the filter models the error of the measured sideslip β. Default
+    /// [`SideslipNoise::GaussMarkovState`] (see its docs).
+    pub sideslip_noise: SideslipNoise,
+    /// Whether the reference's heading white noise has its own scale η_5.
+    /// Default [`HeadingScale::Separate`] (see its docs).
+    pub heading_scale: HeadingScale,
+    /// Which wheel rotation scales the relative wheel noise in the
+    /// covariance. Default [`WheelNoiseScale::MeasuredInput`] (see its docs
+    /// for the measured alternatives).
+    pub wheel_noise_scale: WheelNoiseScale,
+    /// Correction of the profile cost's bias applied to the estimate.
+    /// Default [`BiasCorrection::None`] (see its docs).
+    pub bias_correction: BiasCorrection,
+    /// The true inputs of the replicate worlds of
+    /// [`BiasCorrection::Bootstrap`]. Default [`BootstrapInputs::Measured`];
+    /// `Smoothed { half_width_samples: 20 }` removes the t_r bias on `high`
+    /// (docs/study.md, "the remaining t_r bias on high").
+    pub bootstrap_inputs: BootstrapInputs,
+    /// The noise model of the replicates of [`BiasCorrection::Bootstrap`].
+    /// Default [`BootstrapNoise::HeldAtFit`] (re-estimating the noise in
+    /// the replicates gives the same c_e correction at three times the
+    /// cost, and over-corrects t_r).
+    pub bootstrap_noise: BootstrapNoise,
+    /// The replicates of [`BiasCorrection::Bootstrap`] come in antithetic
+    /// pairs ([`BootstrapOptions::antithetic`](crate::eiv::BootstrapOptions::antithetic); B must be even). Default
+    /// false; [`EivOptions::correct_bias`] sets it.
+    pub bootstrap_antithetic: bool,
+    /// Floor of the reference's position noise σ in the filter's `R`, m
+    /// (added in quadrature to the noise model's position white noise; it is
+    /// not scaled by η). Default 1e-3 (SPEC §10).
+    ///
+    /// Measured (docs/study.md, EIV section, "t_r under large white wheel
+    /// noise"; 12 km, seeds 1–20, the simulator's noise model fixed): on a
+    /// perfect reference with 2 % white wheel noise the 1 mm floor leaves
+    /// t_r +2.90 ± 1.56 % (bias t 8.3) and d −0.58 (t 8.2); with 5 mm,
+    /// t_r +0.23 ± 0.61 % (t 1.7) and d −0.04 (t 1.0), as the filter-free
+    /// heading-channel Deming estimator on the same drives (+0.22 ± 0.58 %).
+    /// The wheel noise is rank 2 in the 3-dof pose, so on a near-perfect
+    /// position reference one direction of the innovation is known to the
+    /// floor and the filter carries it from step to step (windows of 10
+    /// samples remove the bias too). On the `coloured` preset 5 mm also
+    /// lowers the c_e bias (+0.098 → +0.047 %); where the reference has
+    /// centimetres of position noise (`paper`, `high`) the floor changes
+    /// nothing.
+    pub position_floor_m: f64,
+    /// Values at which parameters that the filter names unobservable (with
+    /// [`EivOptions::fix_unobservable`]) are held. `None` (the default)
+    /// holds them at the start θ given to [`estimate`](crate::eiv::estimate). `calibrate` passes
+    /// the calibration's θ_0: the start is batch G-N's estimate, which for
+    /// a parameter the data cannot determine can be far off (on the RAV4
+    /// drive, t_r = 5.63 m, so the result was rejected as implausible).
+    pub hold_unobservable_at: Option<Theta>,
+    /// Estimate the Gauss-Markov time constants (wheel τ_c, τ_w and the
+    /// reference drift τ) with the noise scales, by a profile of the
+    /// marginal likelihood over [`EivOptions::time_constant_grid`] (one fit
+    /// per candidate; [`TimeConstantGrid`] has the method and its cost).
+    /// The chosen values replace the starting model's in
+    /// [`EivReport::noise`](crate::eiv::EivReport::noise). Default false (the time constants of
+    /// [`EivOptions::noise`] are used as given).
+    ///
+    /// Measured (docs/study.md, EIV section; 12 km, η estimated from the
+    /// production-car model): it does **not** help. Paper noise, separate
+    /// heading scale, 20 seeds: t_r +0.87 ± 0.37 % against +0.83 ± 0.36 %
+    /// without it and +0.85 ± 0.38 % with the simulator's τ given (known
+    /// noise model: +0.39 ± 0.30 %); high noise (5 seeds) +22.9 % against
+    /// +17.4 %; on a perfect reference (coloured preset) the likelihood
+    /// prefers a degenerate τ_wheel → 0.06 s with t_r +40 … +70 % (flagged;
+    /// the fallback returns batch G-N). About 4.5–7.5× the wall time of a fit.
+    /// Kept as an opt-in diagnostic.
+    pub estimate_time_constants: bool,
+    /// Candidates of the time-constant search (used only with
+    /// [`EivOptions::estimate_time_constants`]).
+    pub time_constant_grid: TimeConstantGrid,
+    /// Log-Jacobian term of the relative white wheel noise added to the θ
+    /// cost. Default [`InputJacobian::None`] (see its docs).
+    pub input_jacobian: InputJacobian,
+}
+
+impl Default for EivOptions {
+    fn default() -> Self {
+        EivOptions {
+            window_samples: 6000,
+            eta_held: [false; 6],
+            max_iterations: 20,
+            step_tolerance: 0.05,
+            max_halvings: 10,
+            eta_secant_damping: true,
+            eta_reentry_min_score: None,
+            covariance_estimate: CovarianceEstimate::LargerOfModelAndBlock,
+            noise_estimate_in_covariance: true,
+            theta_convergence: false,
+            final_step_check: true,
+            passes: 2,
+            free: [true; 4],
+            fix_unobservable: true,
+            noise: NoiseModel::PRODUCTION_CAR,
+            fix_noise: false,
+            eta_bounds: [-20.0, 6.0],
+            resolution: [0.01, 0.001, 0.015, 0.0005],
+            min_rcond: 1e-2,
+            nis_band: [0.5, 2.0],
+            divergence_nis: 10.0,
+            max_lag1: 0.5,
+            innovation_null: InnovationNull::FloorsAsRegularisation,
+            max_lag1_below: 0.2,
+            max_half_z: 4.0,
+            covariance: CovarianceMode::FollowsTheta,
+            quantisation: QuantisationModel::Counting,
+            heading_scale: HeadingScale::Separate,
+            quantisation_level: QuantisationLevel::FromReadings,
+            lateral_noise: LateralNoise::TiedToWheelWhite,
+            sideslip_noise: SideslipNoise::GaussMarkovState,
+            wheel_noise_scale: WheelNoiseScale::SmoothedFittedInput { half_width_samples: 20 },
+            bias_correction: BiasCorrection::None,
+            bootstrap_inputs: BootstrapInputs::Measured,
+            bootstrap_noise: BootstrapNoise::HeldAtFit,
+            bootstrap_antithetic: false,
+            input_jacobian: InputJacobian::FilterShare,
+            position_floor_m: DEFAULT_POSITION_FLOOR_M,
+            hold_unobservable_at: None,
+            estimate_time_constants: false,
+            time_constant_grid: TimeConstantGrid::default(),
+        }
+    }
+}
+
+impl EivOptions {
+    /// Holds the scales of `sources` at the starting model
+    /// ([`EivOptions::eta_held`]): their levels in [`EivOptions::noise`] are
+    /// known.
+    pub fn hold_known(&mut self, sources: &[NoiseSource]) {
+        for s in sources {
+            self.eta_held[s.index()] = true;
+        }
+    }
+
+    /// The sources [`EivOptions::eta_held`] holds, in η order.
+    pub fn known_sources(&self) -> Vec<NoiseSource> {
+        NOISE_SOURCES.into_iter().filter(|s| self.eta_held[s.index()]).collect()
+    }
+
+    /// These options with [`QuantisationLevel::FromReadings`] replaced by what
+    /// it resolves to where the readings gave the step `found`: `Given` at
+    /// that step, or `ScaledWithWhite` for `None`. Other levels are kept.
+    pub(crate) fn with_resolved_quantisation(&self, found: Option<f64>) -> EivOptions {
+        let mut o = self.clone();
+        if o.quantisation_level == QuantisationLevel::FromReadings {
+            match found {
+                Some(q) => {
+                    o.quantisation_level = QuantisationLevel::Given;
+                    o.noise.quantisation_step_rev_per_s = q;
+                }
+                None => o.quantisation_level = QuantisationLevel::ScaledWithWhite,
+            }
+        }
+        o
+    }
+
+    /// Subtracts the estimator's own bias from every parameter, estimated by
+    /// a parametric bootstrap of `replicates` re-simulations (seed `seed`;
+    /// an even number: antithetic pairs, [`EivOptions::bootstrap_antithetic`])
+    /// on the smoothed trajectory ([`BIAS_BOOTSTRAP_SMOOTHING_SAMPLES`]),
+    /// each holding the fitted noise model ([`BootstrapNoise::HeldAtFit`]):
+    /// what the EIV method of `calibrate` applies by default (B = 4), the
+    /// CLI's `--correct-bias B` and Python's `correct_bias=B`, measured in
+    /// [`BiasCorrection`]'s docs.
+    ///
+    /// ```
+    /// use odocal::eiv::{BiasCorrection, BootstrapNoise, EivOptions};
+    /// let mut o = EivOptions::default();
+    /// o.correct_bias(10, 0);
+    /// assert_eq!(o.bias_correction, BiasCorrection::Bootstrap { replicates: 10, seed: 0, all_parameters: true });
+    /// assert_eq!(o.bootstrap_noise, BootstrapNoise::HeldAtFit);
+    /// assert!(o.bootstrap_antithetic);
+    /// assert!(o.validate().is_ok());
+    /// o.correct_bias(5, 0); // an odd B cannot be paired
+    /// assert!(o.validate().is_err());
+    /// ```
+    pub fn correct_bias(&mut self, replicates: usize, seed: u64) {
+        self.bias_correction = BiasCorrection::Bootstrap { replicates, seed, all_parameters: true };
+        self.bootstrap_inputs = BootstrapInputs::Smoothed { half_width_samples: BIAS_BOOTSTRAP_SMOOTHING_SAMPLES };
+        self.bootstrap_noise = BootstrapNoise::HeldAtFit;
+        self.bootstrap_antithetic = true;
+    }
+
+    /// The defaults with SPEC §10's formulation of the cost and of `R`: the
+    /// relative wheel noise scaled by the measured rotation, no input
+    /// log-Jacobian term, the 1 mm position floor. The studies'
+    /// Cramér–Rao bound is computed with it,
+    /// so that it depends on the noise model only, not on the estimator's
+    /// bias corrections.
+    pub fn spec() -> Self {
+        EivOptions {
+            wheel_noise_scale: WheelNoiseScale::MeasuredInput,
+            input_jacobian: InputJacobian::None,
+            position_floor_m: SPEC_POSITION_FLOOR_M,
+            ..EivOptions::default()
+        }
+    }
+
+    /// Checks the options, naming the offending field.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |field: &'static str, reason: &str| Err(Error::InvalidOption { field, reason: reason.into() });
+        if self.window_samples < 10 {
+            return bad("window_samples", "must be at least 10");
+        }
+        if self.passes == 0 {
+            return bad("passes", "must be at least 1");
+        }
+        if !self.free.iter().any(|f| *f) {
+            return bad("free", "at least one parameter must be free");
+        }
+        if !(self.step_tolerance.is_finite() && self.step_tolerance > 0.0) {
+            return bad("step_tolerance", "must be positive");
+        }
+        if self.eta_reentry_min_score.is_some_and(|x| !(x.is_finite() && x >= 0.0)) {
+            return bad("eta_reentry_min_score", "must be finite and >= 0");
+        }
+        let [lo, hi] = self.eta_bounds;
+        if !(lo.is_finite() && hi.is_finite() && lo <= 0.0 && hi >= 0.0) {
+            return bad("eta_bounds", "must be finite with lower <= 0 <= upper");
+        }
+        if self.resolution.iter().any(|r| !(r.is_finite() && *r > 0.0)) {
+            return bad("resolution", "must be positive");
+        }
+        if !(self.min_rcond.is_finite() && (0.0..1.0).contains(&self.min_rcond)) {
+            return bad("min_rcond", "must be in [0, 1)");
+        }
+        if !(self.nis_band[0] >= 0.0 && self.nis_band[1] > self.nis_band[0]) {
+            return bad("nis_band", "must be [lower, upper] with 0 <= lower < upper");
+        }
+        let heading = NoiseSource::HeadingWhite.index();
+        if self.eta_held[heading] && self.heading_scale == HeadingScale::TiedToPosition && !self.fix_noise {
+            return bad(
+                "eta_held",
+                "heading_white is known but its scale is tied to pose_white (heading noise `tied`): \
+                 use the separate heading scale, or state pose_white as known",
+            );
+        }
+        if let Some(t) = &self.hold_unobservable_at {
+            t.validate().map_err(|e| Error::InvalidOption {
+                field: "hold_unobservable_at",
+                reason: format!("{e}; give a usable θ (or None to hold at the start)"),
+            })?;
+        }
+        if !(self.position_floor_m.is_finite() && self.position_floor_m > 0.0) {
+            return bad("position_floor_m", "must be positive (it keeps S regular on a perfect reference)");
+        }
+        if let BiasCorrection::Bootstrap { replicates, .. } = self.bias_correction {
+            if replicates < 2 {
+                return bad("bias_correction", "the bootstrap needs at least 2 replicates");
+            }
+            if self.bootstrap_antithetic && !replicates.is_multiple_of(2) {
+                return bad(
+                    "bias_correction",
+                    "antithetic pairs (bootstrap_antithetic) need an even number of replicates",
+                );
+            }
+        }
+        if matches!(
+            self.wheel_noise_scale,
+            WheelNoiseScale::SmoothedFittedInput { half_width_samples: 0 }
+                | WheelNoiseScale::ReferenceInput { half_width_samples: 0 }
+        ) {
+            return bad("wheel_noise_scale", "the smoothed scales need half_width_samples >= 1");
+        }
+        if self.wheel_noise_scale != WheelNoiseScale::MeasuredInput && self.covariance != CovarianceMode::FollowsTheta {
+            return bad("wheel_noise_scale", "fitted_input needs covariance = follows_theta");
+        }
+        if self.estimate_time_constants {
+            self.time_constant_grid.validate()?;
+        }
+        self.noise.validate()
+    }
+}

@@ -1,0 +1,202 @@
+//! The Fisher-scoring problem: the windows of a drive and their summed filter passes.
+
+use nalgebra::{DMatrix, Matrix4};
+use rayon::prelude::*;
+
+use super::filter::{self, run_window, Mode, WindowSums};
+use super::{
+    EivInput, EivOptions, HeadingScale, InputJacobian, LateralNoise, NoiseModel, QuantisationLevel, QuantisationModel,
+    SideslipNoise, WheelNoiseScale, Window,
+};
+use crate::error::{Error, Result};
+use crate::model::Theta;
+
+/// Sums of all windows at one (θ, η).
+pub(super) struct Evaluation {
+    pub(super) total: WindowSums,
+    pub(super) windows: Vec<WindowSums>,
+    pub(super) mode: Mode,
+}
+
+pub(super) struct Problem<'a> {
+    pub(super) input: &'a EivInput<'a>,
+    pub(super) windows: Vec<Window>,
+    pub(super) noise: NoiseModel,
+    pub(super) quantisation: QuantisationModel,
+    /// [`QuantisationLevel::Given`]: q²/12 not scaled by η_0.
+    pub(super) quantisation_given: bool,
+    /// [`SideslipNoise::WhiteEquivalent`].
+    pub(super) sideslip_white: bool,
+    /// a_y and β noise held at the model's σ ([`LateralNoise::Stated`]).
+    pub(super) lateral_stated: bool,
+    pub(super) heading_separate: bool,
+    pub(super) fitted_input: bool,
+    pub(super) noise_input_half_width: usize,
+    pub(super) noise_input_from_reference: bool,
+    pub(super) input_jacobian: InputJacobian,
+    pub(super) position_floor_m: f64,
+    /// Filter passes over the drive: with derivatives, objective only.
+    pub(super) evaluations: std::cell::Cell<[usize; 2]>,
+    /// Lean iteration starts in [`scoring_pass`] (always on; off only in the
+    /// test that holds them to the full evaluations' results).
+    pub(super) lean_iterations: bool,
+}
+
+impl<'a> Problem<'a> {
+    /// The problem of `opts` (its quantisation level already resolved) over `windows`.
+    pub(super) fn new(input: &'a EivInput<'a>, windows: Vec<Window>, opts: &EivOptions) -> Self {
+        Problem {
+            input,
+            windows,
+            noise: opts.noise,
+            quantisation: opts.quantisation,
+            quantisation_given: opts.quantisation_level == QuantisationLevel::Given,
+            sideslip_white: opts.sideslip_noise == SideslipNoise::WhiteEquivalent,
+            lateral_stated: opts.lateral_noise == LateralNoise::Stated,
+            heading_separate: opts.heading_scale == HeadingScale::Separate,
+            fitted_input: opts.wheel_noise_scale != WheelNoiseScale::MeasuredInput,
+            noise_input_half_width: opts.wheel_noise_scale.half_width(),
+            noise_input_from_reference: matches!(opts.wheel_noise_scale, WheelNoiseScale::ReferenceInput { .. }),
+            input_jacobian: opts.input_jacobian,
+            position_floor_m: opts.position_floor_m,
+            evaluations: std::cell::Cell::new([0; 2]),
+            lean_iterations: true,
+        }
+    }
+}
+
+impl Problem<'_> {
+    pub(super) fn evaluate(&self, theta: &Theta, theta_ref: &Theta, eta: &[f64; 6], mode: Mode) -> Result<Evaluation> {
+        self.evaluate_with(theta, theta_ref, eta, mode, false)
+    }
+
+    /// [`Problem::evaluate`], with the null recursion of the innovation
+    /// diagnostics when `null` ([`filter::Variances::null_without_floors`]).
+    pub(super) fn evaluate_with(
+        &self,
+        theta: &Theta,
+        theta_ref: &Theta,
+        eta: &[f64; 6],
+        mode: Mode,
+        null: bool,
+    ) -> Result<Evaluation> {
+        let mut one = self.evaluate_many(&[(*theta, *eta)], theta_ref, mode, null)?;
+        one.pop().ok_or_else(|| Error::Numerical("no filter evaluation".into()))
+    }
+
+    /// [`Problem::evaluate_with`] at several points `(θ, η)` in one parallel
+    /// sweep over every (point, window) pair, so that two threads share the
+    /// work of all the points rather than each point's few windows. Each
+    /// point's totals are summed window by window in order: the results are
+    /// the same to the bit as evaluating the points one by one, whatever the
+    /// thread count.
+    pub(super) fn evaluate_many(
+        &self,
+        points: &[(Theta, [f64; 6])],
+        theta_ref: &Theta,
+        mode: Mode,
+        null: bool,
+    ) -> Result<Vec<Evaluation>> {
+        let mut count = self.evaluations.get();
+        count[usize::from(!mode.derivs)] += points.len();
+        self.evaluations.set(count);
+        let nw = self.windows.len();
+        let vars: Vec<filter::Variances> = points.iter().map(|(_, eta)| self.variances(eta, null)).collect();
+        let (input, windows) = (self.input, &self.windows);
+        let parts: Vec<Result<WindowSums>> = (0..points.len() * nw)
+            .into_par_iter()
+            .map(|t| {
+                let (pi, wi) = (t / nw, t % nw);
+                run_window(input, &windows[wi], &points[pi].0, theta_ref, &vars[pi], mode, None)
+            })
+            .collect();
+        let mut out = Vec::with_capacity(points.len());
+        let mut it = parts.into_iter();
+        for _ in 0..points.len() {
+            let mut total = WindowSums::zero();
+            let mut windows = Vec::with_capacity(nw);
+            for p in it.by_ref().take(nw) {
+                let p = p?;
+                total.add(&p);
+                windows.push(p);
+            }
+            out.push(Evaluation { total, windows, mode });
+        }
+        Ok(out)
+    }
+
+    /// Whether the filter's η derivatives give the θ-score's full
+    /// η-dependence (see [`noise_estimate_covariance`]): not with the
+    /// smoothed-share log-Jacobian weights, whose η-dependence it does not
+    /// differentiate.
+    pub(super) fn mixed_partials_by_symmetry(&self) -> bool {
+        !matches!(self.input_jacobian, InputJacobian::SmoothedShare | InputJacobian::SmoothedShareAll)
+    }
+
+    /// The filter's variances at η under this problem's noise options.
+    pub(super) fn variances(&self, eta: &[f64; 6], null: bool) -> filter::Variances {
+        let mut e = *eta;
+        if !self.heading_separate {
+            // Tied: η_3 scales the heading white noise too; η_5 has no effect.
+            e[5] = e[3];
+        }
+        let mut v = self.noise.variances(&e, self.input.sample_time_s);
+        v.quant_in_measurement = self.quantisation == QuantisationModel::Measurement;
+        v.quant_counting = self.quantisation == QuantisationModel::Counting;
+        if self.quantisation_given {
+            v.quant = self.noise.quantisation_step_rev_per_s * self.noise.quantisation_step_rev_per_s / 12.0;
+            v.quant_scaled = false;
+        }
+        if self.lateral_stated {
+            let unscaled = self.noise.variances(&[0.0; 6], self.input.sample_time_s);
+            (v.a_y, v.beta, v.lateral_scaled) = (unscaled.a_y, unscaled.beta, false);
+        }
+        if self.sideslip_white {
+            // The long-run variance of the Gauss-Markov error as white noise.
+            let a = v.a_beta;
+            (v.beta_white, v.beta) = (v.beta * (1.0 + a) / (1.0 - a), 0.0);
+        }
+        v.heading_separate = self.heading_separate;
+        v.fitted_input = self.fitted_input;
+        v.input_jacobian = self.input_jacobian;
+        v.noise_input_half_width = self.noise_input_half_width;
+        v.noise_input_from_reference = self.noise_input_from_reference;
+        v.position_floor_m = self.position_floor_m;
+        v.null_without_floors = null;
+        v
+    }
+}
+
+/// Per parameter: `√max(var(i), 0)` where `mask[i]`, 0 elsewhere.
+pub(super) fn free_sigma(mask: &[bool; 4], var: impl Fn(usize) -> f64) -> [f64; 4] {
+    std::array::from_fn(|i| if mask[i] { var(i).max(0.0).sqrt() } else { 0.0 })
+}
+
+pub(super) fn to_array(m: &Matrix4<f64>) -> [[f64; 4]; 4] {
+    std::array::from_fn(|i| std::array::from_fn(|j| m[(i, j)]))
+}
+
+/// Inverse of the free block of `h`, embedded in 4×4 (None when singular).
+pub(super) fn free_inverse(h: &Matrix4<f64>, free: &[bool; 4]) -> Option<Matrix4<f64>> {
+    let idx: Vec<usize> = (0..4).filter(|i| free[*i]).collect();
+    let p = idx.len();
+    let a = DMatrix::from_fn(p, p, |i, j| h[(idx[i], idx[j])]);
+    let inv = a.cholesky()?.inverse();
+    let mut out = Matrix4::zeros();
+    for (i, &fi) in idx.iter().enumerate() {
+        for (j, &fj) in idx.iter().enumerate() {
+            out[(fi, fj)] = inv[(i, j)];
+        }
+    }
+    Some(out)
+}
+
+pub(super) fn theta_add(theta: &Theta, step: &[f64; 4], lambda: f64) -> Theta {
+    let a = theta.to_array();
+    Theta {
+        c_e: a[0] + lambda * step[0],
+        c_d: a[1] + lambda * step[1],
+        t_r: a[2] + lambda * step[2],
+        d: a[3] + lambda * step[3],
+    }
+}

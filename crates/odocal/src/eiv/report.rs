@@ -1,0 +1,465 @@
+//! What a fit reports: parameters, warnings, diagnostics, passes, the bound.
+
+use super::TimeConstantFit;
+
+use serde::{Deserialize, Serialize};
+
+use super::{FirstOrderBias, NoiseModel, NoiseSource, Window};
+use crate::model::Theta;
+
+/// One of the four calibrated parameters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Parameter {
+    /// c_e.
+    #[serde(rename = "c_e")]
+    CE,
+    /// c_d.
+    #[serde(rename = "c_d")]
+    CD,
+    /// t_r.
+    #[serde(rename = "t_r")]
+    TR,
+    /// d.
+    #[serde(rename = "d")]
+    D,
+}
+
+/// The parameters in θ order.
+pub const PARAMETERS: [Parameter; 4] = [Parameter::CE, Parameter::CD, Parameter::TR, Parameter::D];
+
+impl std::fmt::Display for Parameter {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let i = PARAMETERS.iter().position(|p| p == self).unwrap_or(0);
+        f.write_str(crate::model::THETA_NAMES[i])
+    }
+}
+
+/// Why a scoring pass stopped. Reaching the iteration limit is an outcome, not an error.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "reason", rename_all = "snake_case")]
+pub enum Termination {
+    /// The proposed step was small against the standard errors (it is not taken).
+    StepTolerance {
+        /// `max |step_i|/σ_i` of the last step.
+        step_over_sigma: f64,
+        /// The tolerance.
+        threshold: f64,
+    },
+    /// `max_iterations` steps were taken; the last one was still this large.
+    MaxIterations {
+        /// The limit.
+        iterations: usize,
+        /// `max |step_i|/σ_i` of the last step.
+        step_over_sigma: f64,
+    },
+    /// No step length along the scoring direction lowered the objective.
+    CostIncreased {
+        /// Objective at the shortest step tried.
+        cost: f64,
+        /// Objective at the kept estimate.
+        previous: f64,
+        /// Halvings tried.
+        halvings: usize,
+    },
+}
+
+impl Termination {
+    /// True when the fit converged (step tolerance met).
+    pub fn converged(&self) -> bool {
+        matches!(self, Termination::StepTolerance { .. })
+    }
+}
+
+impl std::fmt::Display for Termination {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Termination::StepTolerance { step_over_sigma, threshold } => {
+                write!(f, "step tolerance: max|step|/σ {step_over_sigma:.2e} < {threshold}")
+            }
+            Termination::MaxIterations { iterations, step_over_sigma } => {
+                write!(f, "iteration limit: {iterations} (last max|step|/σ {step_over_sigma:.2e})")
+            }
+            Termination::CostIncreased { cost, previous, halvings } => {
+                write!(f, "cost increased: {cost:.6e} > {previous:.6e} after {halvings} halvings (step rejected)")
+            }
+        }
+    }
+}
+
+/// A component of the pose innovation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PoseComponent {
+    /// p_x.
+    X,
+    /// p_y.
+    Y,
+    /// ψ.
+    Heading,
+}
+
+/// A finding that makes the result less trustworthy: typed, with the
+/// window or parameter it concerns.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum EivWarning {
+    /// A noise scale reached its upper clamp: the noise model cannot explain
+    /// the data (the lower clamp only means a source is absent).
+    NoiseAtUpperClamp {
+        /// The source.
+        source: NoiseSource,
+        /// Its η.
+        eta: f64,
+    },
+    /// A window's NIS per degree of freedom is far above the divergence limit.
+    FilterDiverged {
+        /// Window index.
+        window: usize,
+        /// NIS per degree of freedom.
+        nis: f64,
+        /// The limit.
+        threshold: f64,
+    },
+    /// A window's NIS per degree of freedom is outside the consistency band
+    /// (with [`InnovationNull::FloorsAsRegularisation`](crate::eiv::InnovationNull::FloorsAsRegularisation), the band widened to
+    /// cover the NIS expected without the floors, see [`EivOptions::innovation_null`](crate::eiv::EivOptions::innovation_null)).
+    InconsistentInnovations {
+        /// Window index.
+        window: usize,
+        /// NIS per degree of freedom.
+        nis: f64,
+        /// The band.
+        band: [f64; 2],
+    },
+    /// A window's whitened innovations are correlated from one update to
+    /// the next beyond what the noise model explains: the lag-1
+    /// autocorrelation is more than `threshold` outside the interval
+    /// between 0 and `expected` (see [`EivOptions::innovation_null`](crate::eiv::EivOptions::innovation_null);
+    /// `threshold` is the limit on the side where it left the interval).
+    CorrelatedInnovations {
+        /// Window index.
+        window: usize,
+        /// The component.
+        component: PoseComponent,
+        /// Lag-1 autocorrelation.
+        lag1: f64,
+        /// Expected lag-1 autocorrelation when the data have none of the
+        /// measurement floors (0 with [`InnovationNull::FittedModel`](crate::eiv::InnovationNull::FittedModel)).
+        #[serde(default)]
+        expected: f64,
+        /// The limit.
+        threshold: f64,
+    },
+    /// θ from the two halves of the windows differs by more than its uncertainty allows.
+    UnstableAcrossHalves {
+        /// The parameter.
+        parameter: Parameter,
+        /// Difference over its standard deviation.
+        z: f64,
+        /// The limit.
+        threshold: f64,
+    },
+    /// The last pass did not converge.
+    NotConverged {
+        /// Why it stopped.
+        termination: Termination,
+    },
+    /// Parameters the data cannot determine; held at their starting value.
+    Unobservable {
+        /// The parameters.
+        parameters: Vec<Parameter>,
+    },
+}
+
+impl std::fmt::Display for EivWarning {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            EivWarning::NoiseAtUpperClamp { source, eta } => {
+                write!(f, "noise scale of {source:?} at its upper clamp (η = {eta:.2}): the noise model does not fit")
+            }
+            EivWarning::FilterDiverged { window, nis, threshold } => {
+                write!(f, "filter diverged in window {window}: NIS/dof {nis:.2} > {threshold}")
+            }
+            EivWarning::InconsistentInnovations { window, nis, band } => {
+                write!(f, "window {window}: NIS/dof {nis:.2} outside [{}, {}]", band[0], band[1])
+            }
+            EivWarning::CorrelatedInnovations { window, component, lag1, expected, threshold } => {
+                if *expected == 0.0 {
+                    write!(
+                        f,
+                        "window {window}: {component:?} innovations lag-1 correlation {lag1:.2} beyond ±{threshold}"
+                    )
+                } else {
+                    write!(
+                        f,
+                        "window {window}: {component:?} innovations lag-1 correlation {lag1:.2} more than {threshold} \
+                         outside [0, {expected:.2}] (expected without the measurement floors)"
+                    )
+                }
+            }
+            EivWarning::UnstableAcrossHalves { parameter, z, threshold } => {
+                write!(f, "{parameter} differs between the halves of the drive by {z:.1}σ (> {threshold})")
+            }
+            EivWarning::NotConverged { termination } => write!(f, "not converged: {termination}"),
+            EivWarning::Unobservable { parameters } => {
+                let names: Vec<String> = parameters.iter().map(|p| p.to_string()).collect();
+                write!(f, "not observable from these data (held fixed): {}", names.join(", "))
+            }
+        }
+    }
+}
+
+/// Observability from the information matrix `H_θ`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EivObservability {
+    /// Reciprocal condition number of the equilibrated `H_θ` over the free parameters.
+    pub rcond: f64,
+    /// Standard deviation of each parameter over its resolution (∞ when
+    /// singular; 0 for parameters not estimated).
+    pub sigma_over_resolution: [f64; 4],
+    /// Parameters held fixed because the data cannot determine them.
+    pub unobservable: Vec<Parameter>,
+    /// Parameters in a near-collinear combination of the free ones.
+    pub collinear: Vec<Parameter>,
+}
+
+/// Per-window consistency numbers.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WindowDiagnostics {
+    /// The window.
+    pub window: Window,
+    /// Measurement updates.
+    pub updates: usize,
+    /// NIS per degree of freedom, `Σ νᵀS⁻¹ν / (3·updates)` (1 when consistent).
+    pub nis: f64,
+    /// Lag-1 autocorrelation of the whitened innovations `[x, y, ψ]`.
+    pub lag1: [f64; 3],
+    /// Expected NIS per degree of freedom when the data have the fitted
+    /// noise but none of the measurement floors
+    /// ([`InnovationNull::FloorsAsRegularisation`](crate::eiv::InnovationNull::FloorsAsRegularisation); 1 with
+    /// [`InnovationNull::FittedModel`](crate::eiv::InnovationNull::FittedModel)).
+    #[serde(default = "one")]
+    pub nis_without_floors: f64,
+    /// Expected lag-1 autocorrelation `[x, y, ψ]` of the whitened
+    /// innovations under the same null (0 with [`InnovationNull::FittedModel`](crate::eiv::InnovationNull::FittedModel)).
+    #[serde(default)]
+    pub lag1_without_floors: [f64; 3],
+}
+
+pub(super) fn one() -> f64 {
+    1.0
+}
+
+/// θ re-estimated on each half of the windows (one scoring step from the estimate).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct HalvesCheck {
+    /// θ from the first half.
+    pub first: Theta,
+    /// θ from the second half.
+    pub second: Theta,
+    /// Difference over its standard deviation per parameter (0 for fixed ones).
+    pub z: [f64; 4],
+}
+
+/// One accepted scoring iteration.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct IterationRecord {
+    /// θ after the step.
+    pub theta: Theta,
+    /// η after the step.
+    pub eta: [f64; 6],
+    /// The objective M.
+    pub cost: f64,
+    /// `max |step|/σ` of the step.
+    pub step_over_sigma: f64,
+    /// Step length factor after halving (1 = full step).
+    pub step_factor: f64,
+}
+
+/// One scoring pass (covariance held at one reference θ).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PassReport {
+    /// Reference θ of the covariance recursion.
+    pub theta_reference: Theta,
+    /// θ at the end of the pass.
+    pub theta: Theta,
+    /// Objective at the start and at the end.
+    pub initial_cost: f64,
+    /// Objective at the end.
+    pub final_cost: f64,
+    /// Why it stopped.
+    pub termination: Termination,
+    /// Accepted iterations.
+    pub history: Vec<IterationRecord>,
+    /// `max |Δη_j|/σ_j` of the η scoring step remaining at the end (η not at
+    /// a clamp; `None` when η is fixed or the pass stopped before a step).
+    #[serde(default)]
+    pub eta_step_over_sigma: Option<f64>,
+}
+
+/// The result of an EIV calibration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EivReport {
+    /// The starting θ.
+    pub initial_theta: Theta,
+    /// The estimate.
+    pub theta: Theta,
+    /// Which parameters were estimated.
+    pub free: [bool; 4],
+    /// θ's covariance at the estimate (zero rows for fixed parameters):
+    /// `H_θ⁻¹`, or per parameter raised to the block sandwich's
+    /// ([`EivOptions::covariance_estimate`](crate::eiv::EivOptions::covariance_estimate)), plus what estimating η adds
+    /// ([`EivOptions::noise_estimate_in_covariance`](crate::eiv::EivOptions::noise_estimate_in_covariance)).
+    pub covariance: [[f64; 4]; 4],
+    /// Standard deviations `sqrt(diag covariance)`.
+    pub sigma: [f64; 4],
+    /// Standard deviations of the sandwich `H_θ⁻¹ B H_θ⁻¹`, B the sum of the
+    /// outer products of the per-update θ-scores (robust to a wrong noise scale).
+    pub sigma_sandwich: [f64; 4],
+    /// Standard deviations of the block sandwich `H_θ⁻¹ B_b H_θ⁻¹`, `B_b`
+    /// from the per-update θ-scores summed over 20 s blocks within each
+    /// window (centred, lag-1 Newey–West across neighbouring blocks): robust
+    /// to a wrong noise model *and* to serially correlated scores, which the
+    /// per-update [`EivReport::sigma_sandwich`] is not. NaN with
+    /// fewer than two blocks.
+    pub sigma_block: [f64; 4],
+    /// Standard deviations from the Gaussian Fisher information at the
+    /// estimate with both terms (`½ tr(S⁻¹∂S S⁻¹∂S)` included), jointly
+    /// with the estimated η (θ block of the inverse): the Cramér–Rao form
+    /// of [`cramer_rao_bound`](crate::eiv::cramer_rao_bound) at θ̂ and the fitted noise. Equal to the
+    /// mean-only information with the covariance held. Linearised along the
+    /// measured inputs (a fit has no other), whose noise counts as
+    /// excitation: under heavy wheel noise it understates t_r's and d's σ
+    /// (on the `high` preset t_r's by about half; it covered t_r in 22–25 %
+    /// of drives). A diagnostic; [`EivReport::sigma`] is raised to the block
+    /// sandwich, which measures the scores' actual spread.
+    pub sigma_fisher: [f64; 4],
+    /// The part of θ's σ that estimating η from the drive adds
+    /// ([`EivOptions::noise_estimate_in_covariance`](crate::eiv::EivOptions::noise_estimate_in_covariance)): `sqrt(diag A Σ_η Aᵀ)`.
+    /// Included in [`EivReport::covariance`] and [`EivReport::sigma`] when
+    /// that option is on; 0 with a fixed noise model or the option off.
+    #[serde(default)]
+    pub sigma_noise_estimate: [f64; 4],
+    /// `∂θ̂/∂η_j` at the estimate (`[parameter][source]`, in θ's units per
+    /// unit of η; [`EivOptions::noise_estimate_in_covariance`](crate::eiv::EivOptions::noise_estimate_in_covariance)): how far θ̂
+    /// moves when a source's variance is e-fold. Zero for sources not
+    /// estimated, with a fixed noise model or with the option off.
+    #[serde(default)]
+    pub theta_eta_sensitivity: [[f64; 6]; 4],
+    /// `∂η̂_j/∂θ_i` at the estimate (`[source][parameter]`, per unit of θ in
+    /// SI), from the expected information of the marginal likelihood M:
+    /// `−I_ηη⁻¹ I_ηθ` over the estimated sources. How the noise estimate
+    /// follows θ; with [`EivReport::theta_eta_sensitivity`] it gives the
+    /// feedback `A B` between θ̂ and η̂. Zero with a fixed noise model.
+    #[serde(default)]
+    pub eta_theta_sensitivity: [[f64; 4]; 6],
+    /// Estimated log-scale factors η (0 with `fix_noise`).
+    pub eta: [f64; 6],
+    /// Standard deviations of η (0 when fixed or at a clamp).
+    pub eta_sigma: [f64; 6],
+    /// Filter passes over the drive: `[with derivatives, objective only]`.
+    pub evaluations: [usize; 2],
+    /// The estimated noise model in physical units.
+    pub noise: NoiseModel,
+    /// Objective M at the start and the end of the last pass.
+    pub final_cost: f64,
+    /// Total accepted iterations over all passes.
+    pub iterations: usize,
+    /// Why the last pass stopped.
+    pub termination: Termination,
+    /// Every pass.
+    pub passes: Vec<PassReport>,
+    /// Observability at the estimate.
+    pub observability: EivObservability,
+    /// Per-window consistency.
+    pub windows: Vec<WindowDiagnostics>,
+    /// θ stability across halves (None with fewer than two windows).
+    pub halves: Option<HalvesCheck>,
+    /// Everything that makes the result less trustworthy.
+    pub warnings: Vec<EivWarning>,
+    /// The first-order bias of the profile cost's root at the estimate, a
+    /// diagnostic (None with the covariance held or a singular `H_θ`).
+    pub first_order_bias: Option<FirstOrderBias>,
+    /// The root of the profile cost before any [`BiasCorrection`](crate::eiv::BiasCorrection).
+    pub theta_uncorrected: Theta,
+    /// The bias subtracted by [`EivOptions::bias_correction`](crate::eiv::EivOptions::bias_correction) (`theta =
+    /// theta_uncorrected − bias_subtracted`; zeros without a correction).
+    pub bias_subtracted: [f64; 4],
+    /// What the bootstrap of [`EivOptions::bias_correction`](crate::eiv::EivOptions::bias_correction) adds to θ's σ
+    /// (already in [`EivReport::sigma`] and the covariance): the Monte Carlo
+    /// error of the subtracted bias, the replicates' covariance over the
+    /// number of replicates fitted, for the corrected parameters (zeros
+    /// without a correction).
+    #[serde(default)]
+    pub sigma_bias_correction: [f64; 4],
+    /// The bias correction's replicates that could not be fitted: (index,
+    /// error). The bias is then the mean over the complete antithetic pairs
+    /// (or the replicates) that were fitted; empty without a correction or
+    /// when every replicate was fitted.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub bias_replicates_failed: Vec<(usize, String)>,
+    /// Measurement updates used.
+    pub updates: usize,
+    /// Wall time, s.
+    pub timing_s: f64,
+    /// The time-constant search (None unless
+    /// [`EivOptions::estimate_time_constants`](crate::eiv::EivOptions::estimate_time_constants)); the chosen time constants
+    /// are also in [`EivReport::noise`].
+    #[serde(default)]
+    pub time_constants: Option<TimeConstantFit>,
+    /// The quantisation step read off the wheel readings' lattice, rev/s,
+    /// with [`QuantisationLevel::FromReadings`](crate::eiv::QuantisationLevel::FromReadings) (None when the readings lie
+    /// on no lattice or another level was asked for); then also
+    /// [`EivReport::noise`]'s q.
+    #[serde(default)]
+    pub quantisation_step_from_readings: Option<f64>,
+}
+
+impl std::fmt::Display for EivReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} | σ [{:.2e}, {:.2e}, {:.2e}, {:.2e}] | {} it ({}), {} window(s), {} warning(s)",
+            self.theta,
+            self.sigma[0],
+            self.sigma[1],
+            self.sigma[2],
+            self.sigma[3],
+            self.iterations,
+            self.termination,
+            self.windows.len(),
+            self.warnings.len()
+        )
+    }
+}
+
+/// The Cramér–Rao bound of θ for one drive.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CrbReport {
+    /// θ at which the bound is evaluated (θ_true).
+    pub theta: Theta,
+    /// Which parameters were free.
+    pub free: [bool; 4],
+    /// The Gaussian Fisher information of θ with both terms (4×4):
+    /// `Σ (∂ν/∂θ_i)ᵀS⁻¹(∂ν/∂θ_j) + ½ tr(S⁻¹ ∂S/∂θ_i S⁻¹ ∂S/∂θ_j)`, the
+    /// covariance recursion following θ.
+    pub information: [[f64; 4]; 4],
+    /// Its inverse over the free parameters (zero rows for fixed ones).
+    pub covariance: [[f64; 4]; 4],
+    /// `sqrt(diag)` of the covariance: the smallest standard deviation an
+    /// unbiased estimator can have.
+    pub sigma: [f64; 4],
+    /// The mean-only information `Σ (∂ν/∂θ)ᵀS⁻¹(∂ν/∂θ)` (no `∂S/∂θ` term;
+    /// for comparison).
+    pub information_mean_only: [[f64; 4]; 4],
+    /// `sqrt(diag)` of the inverse of the mean-only information (≥ `sigma`).
+    pub sigma_mean_only: [f64; 4],
+    /// The bound when the noise scales are unknown too: `sqrt(diag)` of the
+    /// θ block of the inverse of the joint Fisher information of θ and the
+    /// log-scales η of the noise sources present in the model (η as
+    /// nuisance parameters; ≥ `sigma`). This is the fair bound for EIV with
+    /// η estimated (the library default): the information that the size of
+    /// the innovations carries about θ (the trace term of `sigma`) is shared
+    /// with η. `None` when the joint matrix is singular.
+    pub sigma_noise_estimated: Option<[f64; 4]>,
+}

@@ -1,0 +1,593 @@
+//! One Fisher-scoring pass: θ and η steps, step halving, convergence.
+
+use nalgebra::{DMatrix, DVector};
+
+use super::filter::{Mode, WindowSums, NETA};
+use super::problem::{theta_add, Evaluation, Problem};
+use super::steps::{
+    damp_eta_step, eta_add, eta_step, fix_unobservable, score_norm, secant_eta_factor, theta_step, EtaStep,
+};
+use super::{CovarianceMode, EivOptions, IterationRecord, Parameter, PassReport, Termination};
+use crate::error::Result;
+use crate::model::Theta;
+
+pub(super) struct PassOutcome {
+    pub(super) theta: Theta,
+    pub(super) eta: [f64; 6],
+    pub(super) eval: Evaluation,
+    pub(super) report: PassReport,
+    pub(super) free: [bool; 4],
+    pub(super) unobservable: Vec<Parameter>,
+    pub(super) eta_sigma: [f64; 6],
+}
+
+/// Result of a line search: the accepted point, or the last cost tried.
+pub(super) enum Search {
+    Accepted { theta: Theta, eta: [f64; 6], ev: Box<Evaluation>, lambda: f64 },
+    Rejected { cost: f64 },
+}
+
+/// Whether a trial point is accepted, and its objective.
+pub(super) type Acceptance<'a> = dyn Fn(&Evaluation, &Theta, &[f64; 6]) -> (bool, f64) + 'a;
+
+/// Step halving along `(dθ, dη)` from `(θ, η)`. The full step is evaluated
+/// with derivatives (it is usually accepted); shorter steps with the
+/// objective only, unless `accept` needs the derivatives (`needs_derivs`).
+/// The accepted point is returned with derivatives.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn line_search(
+    prob: &Problem<'_>,
+    theta: &Theta,
+    eta: &[f64; 6],
+    dth: &[f64; 4],
+    deta: &[f64; 6],
+    theta_ref: &Theta,
+    full: Mode,
+    needs_derivs: bool,
+    opts: &EivOptions,
+    accept: &Acceptance<'_>,
+) -> Result<Search> {
+    let mut lambda = 1.0;
+    let mut last_cost = f64::NAN;
+    for h in 0..=opts.max_halvings {
+        let th = theta_add(theta, dth, lambda);
+        if th.validate().is_ok() {
+            let et = eta_add(eta, deta, lambda, opts.eta_bounds);
+            let mode = if h == 0 || needs_derivs { full } else { Mode::cost(full.follows_theta) };
+            if let Ok(t) = prob.evaluate(&th, theta_ref, &et, mode) {
+                let (ok, cost) = accept(&t, &th, &et);
+                if cost.is_finite() {
+                    last_cost = cost;
+                    if ok {
+                        let ev = if t.mode == full { t } else { prob.evaluate(&th, theta_ref, &et, full)? };
+                        return Ok(Search::Accepted { theta: th, eta: et, ev: Box::new(ev), lambda });
+                    }
+                }
+            }
+        }
+        lambda *= 0.5;
+    }
+    Ok(Search::Rejected { cost: last_cost })
+}
+
+/// `max |Δη_j|/σ_j` of an η step alone ([`step_ratio`] without θ).
+pub(super) fn eta_ratio(eta: &[f64; 6], deta: &[f64; 6], seta: &[f64; 6], bounds: [f64; 2]) -> f64 {
+    step_ratio(&[0.0; 4], &[0.0; 4], &[false; 4], eta, deta, seta, bounds)
+}
+
+/// `max |step_i|/σ_i` over the free θ and the η that move.
+pub(super) fn step_ratio(
+    dth: &[f64; 4],
+    sth: &[f64; 4],
+    free: &[bool; 4],
+    eta: &[f64; 6],
+    deta: &[f64; 6],
+    seta: &[f64; 6],
+    bounds: [f64; 2],
+) -> f64 {
+    let mut ratio = 0.0f64;
+    for i in 0..4 {
+        if free[i] && sth[i] > 0.0 {
+            ratio = ratio.max(dth[i].abs() / sth[i]);
+        }
+    }
+    for j in 0..NETA {
+        if seta[j] > 0.0 {
+            // A step that lands on a clamp counts by its size, not its σ.
+            let at_clamp = (eta[j] + deta[j] - bounds[0]).abs() < 1e-12 || (eta[j] + deta[j] - bounds[1]).abs() < 1e-12;
+            if !at_clamp || deta[j].abs() > 1e-12 {
+                ratio = ratio.max(deta[j].abs() / seta[j]);
+            }
+        }
+    }
+    ratio
+}
+
+/// With [`EivOptions::theta_convergence`]: `max_i |·|/σ_i` over the free θ of
+/// the remaining θ step and of the θ change the remaining η step would cause
+/// through the joint information, `dθ = −I_θθ⁻¹ I_θη dη` (blocks over the
+/// free θ and the η that move). Infinite when the θ block is singular.
+pub(super) fn theta_ratio(sums: &WindowSums, dth: &[f64; 4], sth: &[f64; 4], free: &[bool; 4], deta: &[f64; 6]) -> f64 {
+    let fi: Vec<usize> = (0..4).filter(|i| free[*i] && sth[*i] > 0.0).collect();
+    let p = fi.len();
+    if p == 0 {
+        return 0.0;
+    }
+    let a = DMatrix::from_fn(p, p, |i, k| sums.info[(fi[i], fi[k])]);
+    let b = DVector::from_fn(p, |i, _| -(0..NETA).map(|j| sums.info[(fi[i], 4 + j)] * deta[j]).sum::<f64>());
+    let Some(chol) = a.cholesky() else {
+        return f64::INFINITY;
+    };
+    let induced = chol.solve(&b);
+    fi.iter().enumerate().map(|(k, &i)| (dth[i].abs().max(induced[k].abs())) / sth[i]).fold(0.0f64, f64::max)
+}
+
+/// One scoring pass (with [`CovarianceMode::HeldAtReference`], at a fixed
+/// covariance reference).
+///
+/// With the covariance following θ, θ and η have different objectives (the
+/// profile cost J for θ, the marginal likelihood M for η), so each
+/// iteration takes a θ step halved on J at fixed η, then an η step halved
+/// on M at fixed θ (block coordinate). With the covariance held, one joint
+/// step on M (corrected score for θ).
+pub(super) fn scoring_pass(
+    prob: &Problem<'_>,
+    theta0: Theta,
+    eta0: [f64; 6],
+    theta_ref: Theta,
+    free0: [bool; 4],
+    check_observability: bool,
+    opts: &EivOptions,
+) -> Result<PassOutcome> {
+    let mut pass = Pass::start(prob, theta0, eta0, theta_ref, free0, check_observability, opts)?;
+    for it in 0..opts.max_iterations {
+        let Some(ratio) = pass.iterate()? else {
+            break;
+        };
+        if it + 1 == opts.max_iterations {
+            pass.termination = Termination::MaxIterations { iterations: opts.max_iterations, step_over_sigma: ratio };
+        }
+    }
+    pass.finish()
+}
+
+/// Relative tolerance of a step's acceptance: the objective may rise by
+/// rounding.
+fn tol(c: f64) -> f64 {
+    1e-12 * c.abs().max(1.0)
+}
+
+/// The state of one scoring pass.
+///
+/// Lean iterations: with the covariance following θ and η estimated, the
+/// evaluation an iteration starts from needs its η derivatives only for the
+/// convergence test, whose θ part alone decides while the θ step is ≥ the
+/// tolerance (the test takes the maximum over θ and η). So it is evaluated
+/// with the θ derivatives only (4 of the 10 covariance derivatives) and
+/// evaluated again in full only when its θ step is below the tolerance, or
+/// at the end; once that happened, later starts are evaluated in full
+/// directly. Steps and decisions are those of full evaluations (the θ
+/// entries are identical to the bit; test
+/// `lean_iteration_starts_give_the_full_evaluations_results_to_the_bit`);
+/// only `IterationRecord::step_over_sigma` of an unconverged iteration can
+/// be smaller (it lacks the η step at the iteration's start).
+struct Pass<'p> {
+    prob: &'p Problem<'p>,
+    opts: &'p EivOptions,
+    theta_ref: Theta,
+    free: [bool; 4],
+    unobservable: Vec<Parameter>,
+    follows: bool,
+    eta_derivs: bool,
+    /// The mode of a full evaluation, and of an iteration's start (lean or full).
+    full: Mode,
+    start_mode: Mode,
+    bounds: [f64; 2],
+    reentry: f64,
+    theta: Theta,
+    eta: [f64; 6],
+    ev: Evaluation,
+    initial_cost: f64,
+    history: Vec<IterationRecord>,
+    termination: Termination,
+    eta_sigma: [f64; 6],
+    /// With the covariance following θ and η estimated, the evaluation at
+    /// the end of a θ step only serves the η step that follows (its η
+    /// gradient and information), so it skips `∂P/∂θ` (4 of the 10
+    /// covariance derivatives); when that η step is not taken, the point is
+    /// evaluated again in full. After an iteration whose η did not move, the
+    /// θ step is evaluated in full directly (η at a clamp: the η step is
+    /// likely not taken again).
+    eta_moved: bool,
+    /// The previous iteration's η scoring step and the factor it was taken
+    /// with (secant damping, see `secant_eta_factor`).
+    last_eta_step: Option<([f64; 6], f64)>,
+    eta_last: Option<f64>,
+    /// The loop stopped after an iteration start that was evaluated lean
+    /// (its η step and σ are then taken from the final full evaluation).
+    stopped_at_lean_start: bool,
+    /// Once an iteration start had to be evaluated again in full (θ's step
+    /// below the tolerance, η's not yet), the later ones are evaluated in
+    /// full directly: θ stays settled while η finishes.
+    theta_settled: bool,
+}
+
+impl<'p> Pass<'p> {
+    /// The pass's first evaluation at `(θ_0, η_0)`, with the unobservable
+    /// parameters held when asked.
+    fn start(
+        prob: &'p Problem<'p>,
+        theta0: Theta,
+        eta0: [f64; 6],
+        theta_ref: Theta,
+        free0: [bool; 4],
+        check_observability: bool,
+        opts: &'p EivOptions,
+    ) -> Result<Self> {
+        let follows = opts.covariance == CovarianceMode::FollowsTheta;
+        let eta_derivs = !opts.fix_noise;
+        let full = Mode::full(follows, eta_derivs);
+        let lean = prob.lean_iterations && follows && eta_derivs && !opts.theta_convergence;
+        let start_mode = if lean { Mode::full(follows, false) } else { full };
+        let mut theta = theta0;
+        let mut ev = prob.evaluate(&theta, &theta_ref, &eta0, start_mode)?;
+        let (free, unobservable) = if check_observability && opts.fix_unobservable {
+            fix_unobservable(&ev.total.h_theta, &free0, opts)
+        } else {
+            (free0, Vec::new())
+        };
+        if let Some(held) = opts.hold_unobservable_at.filter(|_| free != free0) {
+            let (mut a, h) = (theta.to_array(), held.to_array());
+            for i in (0..4).filter(|i| free0[*i] && !free[*i]) {
+                a[i] = h[i];
+            }
+            theta = Theta::from_array(a);
+            theta.validate()?;
+            ev = prob.evaluate(&theta, &theta_ref, &eta0, start_mode)?;
+        }
+        let mut pass = Pass {
+            prob,
+            opts,
+            theta_ref,
+            free,
+            unobservable,
+            follows,
+            eta_derivs,
+            full,
+            start_mode,
+            bounds: opts.eta_bounds,
+            reentry: opts.eta_reentry_min_score.unwrap_or(f64::INFINITY),
+            theta,
+            eta: eta0,
+            ev,
+            initial_cost: 0.0,
+            history: Vec::new(),
+            termination: Termination::MaxIterations { iterations: opts.max_iterations, step_over_sigma: f64::NAN },
+            eta_sigma: [0.0; 6],
+            eta_moved: true,
+            last_eta_step: None,
+            eta_last: None,
+            stopped_at_lean_start: false,
+            theta_settled: false,
+        };
+        pass.initial_cost = pass.objective(&pass.ev, &pass.theta);
+        Ok(pass)
+    }
+
+    /// The objective of θ: the profile cost J with the covariance following
+    /// θ, else the corrected merit.
+    fn objective(&self, ev: &Evaluation, th: &Theta) -> f64 {
+        if self.follows {
+            ev.total.profile()
+        } else {
+            ev.total.corrected_merit(th, &self.theta_ref)
+        }
+    }
+
+    /// A θ-only evaluation whose θ step is below the tolerance is evaluated
+    /// again in full; `true` when that happened.
+    fn upgrade(&mut self) -> Result<bool> {
+        if self.ev.mode == self.full {
+            return Ok(false);
+        }
+        let (dth, sth) = theta_step(&self.ev.total, &self.free, self.follows)?;
+        if step_ratio(&dth, &sth, &self.free, &self.eta, &[0.0; 6], &[0.0; 6], self.bounds) < self.opts.step_tolerance {
+            self.ev = self.prob.evaluate(&self.theta, &self.theta_ref, &self.eta, self.full)?;
+            Ok(true)
+        } else {
+            Ok(false)
+        }
+    }
+
+    /// Stops the pass as converged at `ratio` (`max |step|/σ`).
+    fn converged(&mut self, ratio: f64) -> Option<f64> {
+        self.termination = Termination::StepTolerance { step_over_sigma: ratio, threshold: self.opts.step_tolerance };
+        None
+    }
+
+    /// One iteration. `None` when the pass stops (its `termination` says
+    /// why), else the iteration's `max |step|/σ`.
+    fn iterate(&mut self) -> Result<Option<f64>> {
+        let opts = self.opts;
+        self.theta_settled |= self.upgrade()?;
+        let at_full = self.ev.mode == self.full;
+        let (dth, sth) = theta_step(&self.ev.total, &self.free, self.follows)?;
+        let es = if self.eta_derivs && at_full {
+            eta_step(&self.ev.total, &self.eta, self.bounds, self.reentry, &opts.eta_held)
+        } else {
+            EtaStep::none()
+        };
+        let (deta, seta) = (es.step, es.sigma);
+        if at_full {
+            self.eta_sigma = seta;
+        }
+        let mut ratio = step_ratio(&dth, &sth, &self.free, &self.eta, &deta, &seta, self.bounds);
+        if es.leaving {
+            // A scale leaving its clamp: not converged, whatever its σ says.
+            ratio = ratio.max(1.0);
+        }
+        if self.eta_derivs && at_full {
+            self.eta_last = Some(eta_ratio(&self.eta, &deta, &seta, self.bounds));
+        }
+        if opts.theta_convergence && self.eta_derivs && !es.leaving {
+            let r = theta_ratio(&self.ev.total, &dth, &sth, &self.free, &deta);
+            if r < opts.step_tolerance {
+                return Ok(self.converged(r));
+            }
+        }
+        if ratio < opts.step_tolerance {
+            // Converged: the remaining step is negligible against σ, so it is not
+            // taken (the estimate is the point the derivatives were evaluated at).
+            return Ok(self.converged(ratio));
+        }
+        let previous = self.objective(&self.ev, &self.theta);
+        let lambda = if self.follows {
+            let Some(lambda) = self.theta_step_on_profile(&dth, previous, at_full)? else {
+                return Ok(None);
+            };
+            if self.eta_derivs {
+                let Some(r) = self.eta_step_on_marginal(ratio)? else {
+                    return Ok(None);
+                };
+                ratio = r;
+            }
+            lambda
+        } else {
+            let Some(lambda) = self.joint_step(&dth, &deta, previous)? else {
+                return Ok(None);
+            };
+            lambda
+        };
+        self.history.push(IterationRecord {
+            theta: self.theta,
+            eta: self.eta,
+            cost: self.objective(&self.ev, &self.theta),
+            step_over_sigma: ratio,
+            step_factor: lambda,
+        });
+        if ratio < opts.step_tolerance {
+            return Ok(self.converged(ratio));
+        }
+        if self.converged_after_step()? {
+            return Ok(None);
+        }
+        Ok(Some(ratio))
+    }
+
+    /// The θ step on the profile cost J at fixed η (cost-only halvings);
+    /// its step factor, or `None` when J could not be lowered.
+    fn theta_step_on_profile(&mut self, dth: &[f64; 4], previous: f64, at_full: bool) -> Result<Option<f64>> {
+        let (prob, opts, free, follows) = (self.prob, self.opts, self.free, self.follows);
+        let accept_j = |t: &Evaluation, th: &Theta, _: &[f64; 6]| {
+            let c = self.objective(t, th);
+            (c <= previous + tol(previous), c)
+        };
+        let theta_mode = if self.eta_derivs && self.eta_moved { Mode::eta_only(follows) } else { self.full };
+        let search = line_search(
+            prob,
+            &self.theta,
+            &self.eta,
+            dth,
+            &[0.0; 6],
+            &self.theta_ref,
+            theta_mode,
+            false,
+            opts,
+            &accept_j,
+        )?;
+        match search {
+            Search::Accepted { theta: th, ev: e, lambda: l, .. } => {
+                self.theta = th;
+                self.ev = *e;
+                Ok(Some(l))
+            }
+            Search::Rejected { cost } => {
+                // The θ-score holds the input log-Jacobian's weights, which
+                // depend on θ through S, so it is not J's exact gradient and
+                // near its root the scoring step need not lower J (a `high`
+                // drive can stop so, J up by 2.5e-11 relative, and fall back).
+                // The estimate is the score's root: take the full step when
+                // it shrinks the score in the scoring metric, as the joint
+                // step with the covariance held does.
+                let th = theta_add(&self.theta, dth, 1.0);
+                let before = score_norm(&self.ev.total, &free, follows);
+                let rescue = if th.validate().is_ok() {
+                    prob.evaluate(&th, &self.theta_ref, &self.eta, self.full).ok().filter(|t| {
+                        let after = score_norm(&t.total, &free, follows);
+                        after.is_finite() && after < before
+                    })
+                } else {
+                    None
+                };
+                match rescue {
+                    Some(t) => {
+                        self.theta = th;
+                        self.ev = t;
+                        Ok(Some(1.0))
+                    }
+                    None => {
+                        self.termination = Termination::CostIncreased { cost, previous, halvings: opts.max_halvings };
+                        self.stopped_at_lean_start = !at_full;
+                        Ok(None)
+                    }
+                }
+            }
+        }
+    }
+
+    /// The η step on the marginal likelihood M at fixed θ (cost-only
+    /// halvings); the iteration's `max |step|/σ` with it, or `None` when M
+    /// could not be lowered.
+    fn eta_step_on_marginal(&mut self, ratio: f64) -> Result<Option<f64>> {
+        let (prob, opts, bounds) = (self.prob, self.opts, self.bounds);
+        let es = eta_step(&self.ev.total, &self.eta, bounds, self.reentry, &opts.eta_held);
+        let (deta, seta) = (es.step, es.sigma);
+        self.eta_sigma = seta;
+        let mut ratio = ratio.max(eta_ratio(&self.eta, &deta, &seta, bounds));
+        if es.leaving {
+            ratio = ratio.max(1.0);
+        }
+        self.eta_moved = false;
+        // Lean: the next evaluation in full where this iteration is the
+        // last (its step below the tolerance) or θ has settled.
+        let next_mode = if self.theta_settled || ratio < opts.step_tolerance { self.full } else { self.start_mode };
+        if deta.iter().any(|x| *x != 0.0) {
+            let factor = if opts.eta_secant_damping { secant_eta_factor(&deta, self.last_eta_step) } else { 1.0 };
+            let deta_raw = deta;
+            let deta = damp_eta_step(&deta, &self.eta, factor, bounds);
+            let previous_m = self.ev.total.merit();
+            let accept_m = |t: &Evaluation, _: &Theta, _: &[f64; 6]| {
+                let c = t.total.merit();
+                (c <= previous_m + tol(previous_m), c)
+            };
+            match line_search(
+                prob,
+                &self.theta,
+                &self.eta,
+                &[0.0; 4],
+                &deta,
+                &self.theta_ref,
+                next_mode,
+                false,
+                opts,
+                &accept_m,
+            )? {
+                Search::Accepted { eta: et, ev: e, lambda: l, .. } => {
+                    self.eta = et;
+                    self.ev = *e;
+                    self.eta_moved = true;
+                    self.last_eta_step = Some((deta_raw, factor * l));
+                }
+                Search::Rejected { cost } => {
+                    self.termination =
+                        Termination::CostIncreased { cost, previous: previous_m, halvings: opts.max_halvings };
+                    self.ev = prob.evaluate(&self.theta, &self.theta_ref, &self.eta, self.full)?;
+                    return Ok(None);
+                }
+            }
+        }
+        // An η step not taken leaves the θ step's evaluation, without ∂P/∂θ.
+        if self.ev.mode != self.full && self.ev.mode != self.start_mode {
+            self.ev = prob.evaluate(&self.theta, &self.theta_ref, &self.eta, next_mode)?;
+        }
+        Ok(Some(ratio))
+    }
+
+    /// The joint step with the covariance held: accepted when the objective
+    /// falls, or when the corrected score (whose root is the estimate; the
+    /// bias term is not an exact gradient) shrinks in the Fisher metric.
+    /// Its step factor, or `None` when neither happened.
+    fn joint_step(&mut self, dth: &[f64; 4], deta: &[f64; 6], previous: f64) -> Result<Option<f64>> {
+        let (free, follows) = (self.free, self.follows);
+        let previous_q = score_norm(&self.ev.total, &free, follows);
+        let accept = |t: &Evaluation, th: &Theta, _: &[f64; 6]| {
+            let c = self.objective(t, th);
+            (c <= previous + tol(previous) || score_norm(&t.total, &free, follows) < previous_q, c)
+        };
+        let search = line_search(
+            self.prob,
+            &self.theta,
+            &self.eta,
+            dth,
+            deta,
+            &self.theta_ref,
+            self.full,
+            true,
+            self.opts,
+            &accept,
+        )?;
+        match search {
+            Search::Accepted { theta: th, eta: et, ev: e, lambda: l } => {
+                self.theta = th;
+                self.eta = et;
+                self.ev = *e;
+                Ok(Some(l))
+            }
+            Search::Rejected { cost } => {
+                self.termination = Termination::CostIncreased { cost, previous, halvings: self.opts.max_halvings };
+                Ok(None)
+            }
+        }
+    }
+
+    /// With the covariance following θ and η estimated: the convergence
+    /// tests on the steps remaining at the new point ([`EivOptions::final_step_check`],
+    /// [`EivOptions::theta_convergence`]). `true` when the pass has converged.
+    fn converged_after_step(&mut self) -> Result<bool> {
+        let opts = self.opts;
+        if self.eta_derivs && self.follows && opts.final_step_check {
+            // Lean: in full only where the θ step alone is below the tolerance.
+            self.theta_settled |= self.upgrade()?;
+        }
+        if !(self.eta_derivs && self.follows && self.ev.mode == self.full) {
+            return Ok(false);
+        }
+        // No filter evaluation: `ev` is in full mode here.
+        let (dth, sth) = theta_step(&self.ev.total, &self.free, self.follows)?;
+        let es = eta_step(&self.ev.total, &self.eta, self.bounds, self.reentry, &opts.eta_held);
+        let (deta, seta) = (es.step, es.sigma);
+        self.eta_last = Some(eta_ratio(&self.eta, &deta, &seta, self.bounds));
+        // A scale leaving its clamp is not converged, whatever its σ says.
+        if opts.final_step_check && !es.leaving {
+            let r = step_ratio(&dth, &sth, &self.free, &self.eta, &deta, &seta, self.bounds);
+            if r < opts.step_tolerance {
+                self.converged(r);
+                return Ok(true);
+            }
+        }
+        if opts.theta_convergence && !es.leaving {
+            let r = theta_ratio(&self.ev.total, &dth, &sth, &self.free, &deta);
+            if r < opts.step_tolerance {
+                self.converged(r);
+                return Ok(true);
+            }
+        }
+        Ok(false)
+    }
+
+    /// The pass's outcome at its last point (evaluated in full for the
+    /// report where the loop stopped at a lean evaluation).
+    fn finish(mut self) -> Result<PassOutcome> {
+        if self.ev.mode != self.full {
+            // Lean: the report needs the η derivatives at the estimate (the loop
+            // ran out of iterations, or a θ step from a lean start failed).
+            self.ev = self.prob.evaluate(&self.theta, &self.theta_ref, &self.eta, self.full)?;
+            let es = eta_step(&self.ev.total, &self.eta, self.bounds, self.reentry, &self.opts.eta_held);
+            self.eta_last = Some(eta_ratio(&self.eta, &es.step, &es.sigma, self.bounds));
+            if self.stopped_at_lean_start {
+                self.eta_sigma = es.sigma;
+            }
+        }
+        let report = PassReport {
+            theta_reference: self.theta_ref,
+            theta: self.theta,
+            initial_cost: self.initial_cost,
+            final_cost: self.objective(&self.ev, &self.theta),
+            termination: self.termination,
+            history: self.history,
+            eta_step_over_sigma: self.eta_last,
+        };
+        let (theta, eta, free, eta_sigma) = (self.theta, self.eta, self.free, self.eta_sigma);
+        Ok(PassOutcome { theta, eta, eval: self.ev, report, free, unobservable: self.unobservable, eta_sigma })
+    }
+}

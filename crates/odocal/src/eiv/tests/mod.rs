@@ -1,0 +1,13 @@
+//! Tests of the errors-in-variables estimator, by theme.
+
+mod bias_correction;
+mod covariance;
+mod crb;
+mod derivatives;
+mod diagnostics;
+mod fingerprints;
+mod noise_estimation;
+mod scoring;
+mod support;
+
+pub(crate) use support::StraightDrive;

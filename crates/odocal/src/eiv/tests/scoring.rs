@@ -1,0 +1,323 @@
+//! Fisher scoring: what the fits return and how they converge.
+
+use super::support::*;
+use crate::eiv::filter::run_window;
+use crate::eiv::filter::NETA;
+use crate::eiv::input::make_windows;
+use crate::eiv::problem::Problem;
+use crate::eiv::steps::eta_add;
+use crate::eiv::steps::eta_step;
+use crate::eiv::*;
+use crate::sim::{simulate, NoiseOptions, SimOptions};
+use crate::Theta;
+
+/// Noise-free, one substep: the model is exact; EIV must return θ_true to
+/// rounding (the correction term with η at its lower clamp moves it by
+/// ~1e-11).
+const EXACT_REL_TOL: f64 = 1e-8;
+
+#[test]
+fn noise_free_recovers_theta_true_and_eta_at_lower_clamp() {
+    let out = simulate(&SimOptions { length_km: 6.0, substeps: 1, ..SimOptions::noise_free(11) }).expect("sim");
+    let truth = out.sidecar.theta_true;
+    let input = input_of(&out.drive);
+    let start = Theta { c_e: 1.96, c_d: -0.001, t_r: 1.55, d: 0.0005 };
+    let opts = EivOptions::default();
+    let r = estimate(&input, &start, &opts).expect("eiv");
+    let (e, t) = (r.theta.to_array(), truth.to_array());
+    for i in 0..4 {
+        let rel = (e[i] - t[i]).abs() / t[i].abs();
+        assert!(rel <= EXACT_REL_TOL, "{}: {} vs {} (rel {rel:.2e}); {r}", PARAMETERS[i], e[i], t[i]);
+    }
+    for j in 0..NETA {
+        assert!(r.eta[j] <= opts.eta_bounds[0] + 1e-9, "η{j} = {} not at the lower clamp; {r}", r.eta[j]);
+    }
+    assert!(!r.warnings.iter().any(|w| matches!(w, EivWarning::NoiseAtUpperClamp { .. })), "{:?}", r.warnings);
+}
+
+/// The same with encoder quantisation modelled by counting (remainder
+/// states): θ_true to rounding. Ignored by default (a second 6 km fit is
+/// too slow for the debug test budget; a 1.5 km drive leaves t_r
+/// unobservable): `cargo test --release -p odocal --lib -- --ignored counting`.
+#[test]
+#[ignore = "slow in debug; run in release with --ignored"]
+fn noise_free_recovers_theta_true_with_counting_quantisation() {
+    let out = simulate(&SimOptions { length_km: 6.0, substeps: 1, ..SimOptions::noise_free(11) }).expect("sim");
+    let truth = out.sidecar.theta_true;
+    let input = input_of(&out.drive);
+    let start = Theta { c_e: 1.96, c_d: -0.001, t_r: 1.55, d: 0.0005 };
+    let opts = EivOptions { quantisation: QuantisationModel::Counting, ..Default::default() };
+    let r = estimate(&input, &start, &opts).expect("eiv");
+    let (e, t) = (r.theta.to_array(), truth.to_array());
+    for i in 0..4 {
+        let rel = (e[i] - t[i]).abs() / t[i].abs();
+        assert!(rel <= EXACT_REL_TOL, "{}: {} vs {} (rel {rel:.2e}); {r}", PARAMETERS[i], e[i], t[i]);
+    }
+}
+
+/// A white-noise drive (0.8 % per sample, the paper's size; seed 1 of the
+/// study's `white` preset) where batch G-N's t_r is measurably off (+3.0 %):
+/// EIV with the right (fixed) noise model is within 3 of its σ (+0.5 %)
+/// and closer than G-N.
+#[test]
+fn white_noise_drive_beats_batch_gauss_newton_on_t_r() {
+    let noise = NoiseOptions::white_wheel_only();
+    let out = simulate(&SimOptions { length_km: 12.0, noise: noise.clone(), ..SimOptions::paper(1) }).expect("sim");
+    let truth = out.sidecar.theta_true;
+    let gn = batch_gn_all(&out.drive);
+    let input = input_of(&out.drive);
+    let known = EivOptions {
+        noise: NoiseModel::from_sim(&noise, input.sample_time_s),
+        fix_noise: true,
+        ..EivOptions::default()
+    };
+    let r = estimate(&input, &gn, &known).expect("eiv");
+    let gn_err = (gn.t_r - truth.t_r).abs();
+    let eiv_err = (r.theta.t_r - truth.t_r).abs();
+    eprintln!(
+        "t_r: G-N {:.5} (err {gn_err:.2e}), EIV {:.5} ± {:.1e} (err {eiv_err:.2e}); {r}",
+        gn.t_r, r.theta.t_r, r.sigma[2]
+    );
+    // G-N is measurably off: more than 3 of EIV's σ.
+    assert!(gn_err > 3.0 * r.sigma[2], "G-N t_r error {gn_err:.2e} not measurable against σ {:.2e}", r.sigma[2]);
+    assert!(eiv_err <= 3.0 * r.sigma[2], "EIV t_r error {eiv_err:.2e} > 3σ = {:.2e}", 3.0 * r.sigma[2]);
+    assert!(eiv_err < gn_err);
+}
+
+/// With 2 % white wheel noise, η estimated from the production-car start
+/// and the heading white noise on its own scale, the fit runs away
+/// (measured: t_r +250 %, the per-wheel scale at its upper clamp; with the
+/// tied scale it returned c_e +9 … +11 % on seeds 1–2 instead). It must say
+/// so, so that `calibrate` falls back: a noise scale at its upper clamp or
+/// no convergence.
+#[test]
+fn runaway_estimated_noise_is_flagged() {
+    let noise = NoiseOptions { wheel_white_rel_sigma: 0.02, ..NoiseOptions::white_wheel_only() };
+    let out = simulate(&SimOptions { length_km: 8.0, noise, ..SimOptions::paper(3) }).expect("sim");
+    let truth = out.sidecar.theta_true;
+    let gn = batch_gn_all(&out.drive);
+    let opts = EivOptions { heading_scale: HeadingScale::Separate, ..EivOptions::default() };
+    let est = estimate(&input_of(&out.drive), &gn, &opts).expect("eiv");
+    let err = (est.theta.t_r - truth.t_r).abs();
+    if err > 3.0 * est.sigma[2] {
+        assert!(
+            est.warnings.iter().any(|w| matches!(
+                w,
+                EivWarning::NoiseAtUpperClamp { .. }
+                    | EivWarning::NotConverged { .. }
+                    | EivWarning::FilterDiverged { .. }
+            )),
+            "estimated-η fit off by {err:.2e} (σ {:.1e}) without a warning: {est}",
+            est.sigma[2]
+        );
+    }
+}
+
+#[test]
+fn report_is_identical_for_one_and_two_threads() {
+    let out = simulate(&SimOptions { length_km: 4.0, ..SimOptions::paper(21) }).expect("sim");
+    let input = input_of(&out.drive);
+    let opts = EivOptions { window_samples: 1500, ..Default::default() };
+    let start = Theta { c_e: 1.952, c_d: -0.0018, t_r: 1.54, d: 0.0007 };
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+        let mut r = pool.install(|| estimate(&input, &start, &opts)).expect("eiv");
+        r.timing_s = 0.0;
+        serde_json::to_string(&r).expect("json")
+    };
+    assert_eq!(run(1), run(2));
+}
+
+#[test]
+fn straight_drive_calibrates_c_e_and_names_the_rest() {
+    // A straight, noise-free drive: heading never changes.
+    let (n, ts) = (4000, 0.025);
+    let th = Theta::SIM_DEFAULT_TRUE;
+    let drive = StraightDrive::new(n, ts);
+    let input = drive.input();
+    let start = Theta { c_e: 1.96, ..th };
+    let r = estimate(&input, &start, &EivOptions::default()).expect("eiv");
+    assert!((r.theta.c_e - th.c_e).abs() < 1e-6, "{r}");
+    assert!(r.observability.unobservable.contains(&Parameter::TR), "{:?}", r.observability);
+    assert!(r.observability.unobservable.contains(&Parameter::D), "{:?}", r.observability);
+    assert!(!r.free[2] && !r.free[3] && r.free[0]);
+    assert!(r.warnings.iter().any(|w| matches!(w, EivWarning::Unobservable { .. })));
+
+    // A start whose unobservable t_r and d are far off (batch G-N's value on
+    // a straight drive is arbitrary): by default they stay at the start,
+    // with `hold_unobservable_at` at the given θ_0; c_e is estimated either way.
+    let bad_start = Theta { c_e: 1.96, t_r: 5.63, d: 0.01, ..th };
+    let at_start = estimate(&input, &bad_start, &EivOptions::default()).expect("eiv");
+    assert_eq!((at_start.theta.t_r, at_start.theta.d), (5.63, 0.01), "{at_start}");
+    let held = EivOptions { hold_unobservable_at: Some(th), ..Default::default() };
+    let at_theta0 = estimate(&input, &bad_start, &held).expect("eiv");
+    assert_eq!((at_theta0.theta.t_r, at_theta0.theta.d), (th.t_r, th.d), "{at_theta0}");
+    assert!((at_theta0.theta.c_e - th.c_e).abs() < 1e-6, "{at_theta0}");
+    let invalid = EivOptions { hold_unobservable_at: Some(Theta { t_r: f64::NAN, ..th }), ..Default::default() };
+    assert!(estimate(&input, &bad_start, &invalid).is_err());
+}
+
+#[test]
+fn updates_only_where_the_reference_was_measured() {
+    let out = simulate(&SimOptions { length_km: 1.0, ..SimOptions::paper(2) }).expect("sim");
+    let mut input = input_of(&out.drive);
+    let mask: Vec<bool> = (0..input.len()).map(|k| k % 4 == 0).collect();
+    input.reference_measured = Some(&mask);
+    let w = Window { index: 0, part: 0, start: 0, end: input.len() - 1 };
+    let v = NoiseModel::default().variances(&[0.0; 6], input.sample_time_s);
+    let th = Theta::SIM_DEFAULT_TRUE;
+    let s = run_window(&input, &w, &th, &th, &v, filter::Mode::full(false, false), None).expect("window");
+    assert_eq!(s.updates, (1..input.len()).filter(|k| k % 4 == 0).count());
+}
+
+/// `EivOptions::position_floor_m` is the position σ floor of R: on a
+/// perfect reference (the noise model's position white noise zero) the
+/// position variance of every innovation covariance grows by exactly the
+/// difference of the squared floors against the default 1 mm (heading
+/// unchanged), and a non-positive floor is rejected.
+#[test]
+fn position_floor_enters_the_innovation_covariance() {
+    let out = simulate(&SimOptions { length_km: 0.3, substeps: 1, ..SimOptions::noise_free(4) }).expect("sim");
+    let input = input_of(&out.drive);
+    let w = Window { index: 0, part: 0, start: 0, end: 200.min(input.len() - 1) };
+    let th = out.sidecar.theta_true;
+    let noise = NoiseModel::from_sim(&NoiseOptions::white_wheel_only(), input.sample_time_s);
+    let run = |floor: f64| {
+        let mut v = noise.variances(&[0.0; 6], input.sample_time_s);
+        v.position_floor_m = floor;
+        let mut rec = Vec::new();
+        run_window(&input, &w, &th, &th, &v, filter::Mode::full(true, false), Some(&mut rec)).expect("window");
+        rec
+    };
+    let (a, b) = (run(SPEC_POSITION_FLOOR_M), run(0.005));
+    assert!(!a.is_empty() && a.len() == b.len());
+    // The first update: P⁻ = P₀ + Q with P₀ = R, so S = 2R + H Q Hᵀ.
+    let want = 2.0 * (0.005f64.powi(2) - SPEC_POSITION_FLOOR_M.powi(2));
+    for c in 0..2 {
+        let got = b[0].s[(c, c)] - a[0].s[(c, c)];
+        assert!((got - want).abs() <= 1e-12, "S[{c},{c}] grew by {got:e}, want {want:e}");
+    }
+    assert!((b[0].s[(2, 2)] - a[0].s[(2, 2)]).abs() <= 1e-15, "the heading variance moved");
+    // Later updates: never less than the floor's share of R.
+    assert!(b.iter().all(|r| r.s[(0, 0)] >= 0.005f64.powi(2) && r.s[(1, 1)] >= 0.005f64.powi(2)));
+    for bad in [0.0, -1e-3, f64::NAN] {
+        let opts = EivOptions { position_floor_m: bad, ..EivOptions::default() };
+        assert!(opts.validate().is_err(), "floor {bad} accepted");
+    }
+}
+
+/// The separate heading scale, with every quantisation model, returns
+/// c_e on the noise-free straight drive (the other options the defaults).
+/// Regression: with the SPEC formulation's input log-Jacobian
+/// ([`InputJacobian::None`]) the θ/η iteration stops after two iterations
+/// at a second fixed point, c_e −0.057 % with η held well above its lower
+/// clamp (docs/study.md, EIV section); with [`InputJacobian::FilterShare`]
+/// the profile cost's minimum at that η is +0.026 %, not −0.057 %, so the
+/// point is not fixed and the fit reaches θ_true.
+#[test]
+fn separate_heading_scale_calibrates_c_e_on_the_noise_free_straight_drive() {
+    let (n, ts) = (4000, 0.025);
+    let th = Theta::SIM_DEFAULT_TRUE;
+    let drive = StraightDrive::new(n, ts);
+    let input = drive.input();
+    let start = Theta { c_e: 1.96, ..th };
+    for quantisation in [QuantisationModel::ProcessNoise, QuantisationModel::Measurement, QuantisationModel::Counting] {
+        let opts = EivOptions { heading_scale: HeadingScale::Separate, quantisation, ..EivOptions::default() };
+        let r = estimate(&input, &start, &opts).expect("eiv");
+        assert!((r.theta.c_e - th.c_e).abs() < 1e-6, "{quantisation:?}: {r}");
+        assert!(r.termination.converged(), "{quantisation:?}: {r}");
+        assert!(!r.free[2] && !r.free[3] && r.free[0], "{quantisation:?}: {:?}", r.free);
+    }
+}
+
+/// The η step is a descent direction of the marginal likelihood M, so step
+/// halving can always lower M. Regression: at this point of the noise-free
+/// straight drive (heading scale separate; where the fit from c_e = 1.96
+/// stood after one iteration) the scoring step of the variances, mapped to
+/// η by ln(1 + d) and clamped, pointed uphill (gᵀΔη = +249) and every
+/// halving was rejected, so the fit stopped with c_e 0.06 % off.
+#[test]
+fn eta_step_descends_on_the_noise_free_straight_drive() {
+    let (n, ts) = (4000, 0.025);
+    let drive = StraightDrive::new(n, ts);
+    let input = drive.input();
+    let opts = EivOptions { heading_scale: HeadingScale::Separate, ..EivOptions::default() };
+    let prob = Problem {
+        input: &input,
+        windows: make_windows(input.parts, opts.window_samples),
+        noise: opts.noise,
+        quantisation: opts.quantisation,
+        quantisation_given: false,
+        lateral_stated: false,
+        sideslip_white: false,
+        heading_separate: true,
+        fitted_input: false,
+        position_floor_m: opts.position_floor_m,
+        noise_input_half_width: 0,
+        noise_input_from_reference: false,
+        input_jacobian: opts.input_jacobian,
+        evaluations: std::cell::Cell::new([0; 2]),
+        lean_iterations: true,
+    };
+    let theta = Theta { c_e: 1.9488978137579984, c_d: -0.001998869480161304, t_r: 1.53, d: 0.0008 };
+    let eta = [-0.00903020194120505, 0.2628615557666504, 0.75, 0.1370901227620087, -2.5, -2.5];
+    let ev = prob.evaluate(&theta, &theta, &eta, filter::Mode::full(true, true)).expect("filter");
+    let step = eta_step(&ev.total, &eta, opts.eta_bounds, f64::INFINITY, &[false; 6]).step;
+    let slope: f64 = (0..NETA).map(|j| ev.total.grad[4 + j] * step[j]).sum();
+    assert!(slope < 0.0, "η step {step:?} is not a descent direction: gᵀΔη = {slope}");
+    let m0 = ev.total.merit();
+    let lowered = (0..=opts.max_halvings).any(|h| {
+        let et = eta_add(&eta, &step, 0.5f64.powi(h as i32), opts.eta_bounds);
+        let m = prob.evaluate(&theta, &theta, &et, filter::Mode::cost(true)).expect("filter").total.merit();
+        m < m0
+    });
+    assert!(lowered, "no halving of the η step {step:?} lowers M = {m0}");
+}
+
+/// At the iteration limit the default test judges the steps just taken; the
+/// fit of this drive takes n iterations, and the
+/// step remaining after the n-th is below the tolerance, so with
+/// [`EivOptions::final_step_check`] an n-iteration limit ends converged, at
+/// the same θ.
+#[test]
+fn final_step_check_converges_at_the_iteration_limit() {
+    let (out, base) = separate_counting_white_drive();
+    let input = input_of(&out.drive);
+    let truth = out.sidecar.theta_true;
+    let full = estimate(&input, &truth, &base).expect("eiv");
+    let history = full.passes.last().map(|p| p.history.clone()).unwrap_or_default();
+    let n = history.len();
+    assert!((2..base.max_iterations).contains(&n), "{full}");
+    // Without the option an n-iteration limit ends on this step: not converged.
+    assert!(history[n - 1].step_over_sigma >= 0.05, "{full}");
+    let opts = EivOptions { max_iterations: n, final_step_check: true, ..base };
+    let r = estimate(&input, &truth, &opts).expect("eiv");
+    assert!(r.termination.converged(), "{r}");
+    assert_eq!(r.theta, full.theta);
+    let without = estimate(&input, &truth, &EivOptions { final_step_check: false, ..opts }).expect("eiv");
+    assert!(!without.termination.converged(), "{without}");
+    assert_eq!(without.theta, full.theta);
+}
+
+/// With the heading scale separate, θ settles iterations before η does:
+/// on this 1 km white-noise drive (η estimated, counting
+/// quantisation) the default test needs 6 iterations; judged on θ
+/// ([`EivOptions::theta_convergence`]) the fit converges within 4 and θ
+/// agrees with the fully converged one to 0.05 σ.
+#[test]
+fn theta_convergence_stops_when_theta_has_settled() {
+    let (out, opts) = separate_counting_white_drive();
+    let input = input_of(&out.drive);
+    let full = estimate(&input, &out.sidecar.theta_true, &opts).expect("eiv");
+    let p = full.passes.last().expect("a pass");
+    assert!(full.termination.converged() && p.history.len() > 4, "{full}");
+    let short = EivOptions { max_iterations: 4, theta_convergence: true, ..opts };
+    let r = estimate(&input, &out.sidecar.theta_true, &short).expect("eiv");
+    assert!(r.termination.converged(), "{r}");
+    let eta_step = r.passes.last().and_then(|p| p.eta_step_over_sigma).expect("η step reported");
+    assert!(eta_step > 0.05, "η had not settled: {eta_step}");
+    let (a, b) = (r.theta.to_array(), full.theta.to_array());
+    for i in (0..4).filter(|i| full.sigma[*i] > 0.0) {
+        assert!((a[i] - b[i]).abs() < 0.05 * full.sigma[i], "θ_{i}: {} against {} (σ {})", a[i], b[i], full.sigma[i]);
+    }
+}
