@@ -1,10 +1,10 @@
 //! Shared fixtures of the EIV tests: inputs, filter records, drives.
 
+use crate::drive::segment::{calibration_segments, SegmentData, SegmentOptions};
 use crate::drive::Drive;
 use crate::eiv::filter::{run_window, InnovationRecord};
 use crate::eiv::*;
 use crate::identify::{batch_gauss_newton, IdentifyOptions};
-use crate::drive::segment::{calibration_segments, SegmentData, SegmentOptions};
 use crate::sim::{simulate, NoiseOptions, SimOptions};
 use crate::Theta;
 
