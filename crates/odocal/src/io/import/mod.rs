@@ -250,7 +250,7 @@ pub use manifest::{
     WheelSignal, WheelSpec,
 };
 pub use report::{ClockOffsetReport, DejitterReport, GapRecord, ImportReport, JitterReport, PartRecord, StreamReport};
-pub use settings::{CalibrationSpec, NoiseTable, ReferenceSpec, MAX_LEVER_ARM_M};
+pub use settings::{CalibrationTable, NoiseTable, ReferenceSpec, MAX_LEVER_ARM_M};
 
 use crate::drive::{Drive, Signals};
 use crate::error::{Error, Result};
@@ -413,7 +413,7 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
         warnings,
         noise: m.noise.clone(),
         reference: m.reference.clone(),
-        calibration: m.calibration,
+        calibration: m.calibration.clone(),
         elapsed_s: started.elapsed().as_secs_f64(),
     };
     Ok(ImportedDrive { drive: d, report })
