@@ -65,9 +65,7 @@ pub(super) fn noise_sources<'de, D: Deserializer<'de>>(
 }
 
 /// `"all"`, a number of segments, or that number as text.
-pub(super) fn final_segments<'de, D: Deserializer<'de>>(
-    d: D,
-) -> std::result::Result<Option<FinalSegments>, D::Error> {
+pub(super) fn final_segments<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<Option<FinalSegments>, D::Error> {
     struct V;
     impl Visitor<'_> for V {
         type Value = FinalSegments;
@@ -81,16 +79,16 @@ pub(super) fn final_segments<'de, D: Deserializer<'de>>(
             usize::try_from(v).map(FinalSegments::Random).map_err(E::custom)
         }
         fn visit_i64<E: de::Error>(self, v: i64) -> std::result::Result<FinalSegments, E> {
-            usize::try_from(v).map(FinalSegments::Random).map_err(|_| E::invalid_value(de::Unexpected::Signed(v), &self))
+            usize::try_from(v)
+                .map(FinalSegments::Random)
+                .map_err(|_| E::invalid_value(de::Unexpected::Signed(v), &self))
         }
     }
     d.deserialize_any(V).map(Some)
 }
 
 /// A noise model: the path of a noise-model file, or a table of its fields.
-pub(super) fn noise_model<'de, D: Deserializer<'de>>(
-    d: D,
-) -> std::result::Result<Option<NoiseModelSetting>, D::Error> {
+pub(super) fn noise_model<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<Option<NoiseModelSetting>, D::Error> {
     struct V;
     impl<'de> Visitor<'de> for V {
         type Value = NoiseModelSetting;

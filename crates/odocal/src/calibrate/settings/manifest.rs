@@ -52,8 +52,8 @@ fn read_calibration_table(manifest: &Path, calibration: &CalibrationTable) -> Re
         let line = calibration.lines.get(key).map(|l| format!(" (line {l})")).unwrap_or_default();
         Error::Manifest { path: manifest.to_path_buf(), reason: format!("calibration.{key}: {reason}{line}") }
     };
-    let settings: Settings = serde_path_to_error::deserialize(toml::Value::Table(calibration.table.clone()))
-        .map_err(|e| {
+    let settings: Settings =
+        serde_path_to_error::deserialize(toml::Value::Table(calibration.table.clone())).map_err(|e| {
             let key = e.path().iter().next().map(|s| s.to_string()).unwrap_or_default();
             err(&key, e.into_inner().message().to_string())
         })?;
@@ -96,7 +96,8 @@ impl ManifestSettings {
         calibration: Option<&CalibrationTable>,
     ) -> Result<Self> {
         let mut settings = calibration.map(|c| read_calibration_table(&manifest, c)).transpose()?.unwrap_or_default();
-        settings.noise_model = noise.map(|n| read_noise_table(&manifest, n).map(NoiseModelSetting::Stated)).transpose()?;
+        settings.noise_model =
+            noise.map(|n| read_noise_table(&manifest, n).map(NoiseModelSetting::Stated)).transpose()?;
         if let Some(r) = &reference {
             settings.lever_arm = r.lever_arm;
             settings.heading_offset = r.heading_offset;

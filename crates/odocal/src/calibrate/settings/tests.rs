@@ -58,7 +58,8 @@ fn every_key_is_a_field_and_the_precedence_is_key_by_key() {
 
 #[test]
 fn values_take_the_command_lines_text_and_lists_alike() {
-    let a = json_settings(json!({"fix": "c_d, t_r", "known_noise": "heading-white,pose_white", "final_segments": "all"}));
+    let a =
+        json_settings(json!({"fix": "c_d, t_r", "known_noise": "heading-white,pose_white", "final_segments": "all"}));
     let b = json_settings(json!({"fix": ["c_d", "t_r"], "known_noise": ["heading_white", "pose-white"]}));
     assert_eq!((a.fix, &a.known_noise), (b.fix, &b.known_noise));
     assert_eq!(a.final_segments, Some(FinalSegments::All));
@@ -72,7 +73,10 @@ fn values_take_the_command_lines_text_and_lists_alike() {
 #[test]
 fn bad_values_and_keys_name_the_key() {
     let e = |v| Settings::from_json(v).expect_err("bad").to_string();
-    assert_eq!(e(json!({"method": "newton"})), "invalid option `method`: invalid method 'newton': use three-step, batch-gn or eiv");
+    assert_eq!(
+        e(json!({"method": "newton"})),
+        "invalid option `method`: invalid method 'newton': use three-step, batch-gn or eiv"
+    );
     assert_eq!(
         e(json!({"lever_arm": [1.0]})),
         "invalid option `lever_arm`: invalid length 1, expected an array of length 2"
@@ -120,7 +124,10 @@ fn misplaced_keys_are_named_as_the_caller_gave_them() {
     assert_eq!(py, "invalid option `method`: batches, picks apply to method three-step only, not to batch-gn");
     let s = json_settings(json!({"method": "batch-gn", "fix_noise": true, "fallback": false, "correct_bias": 0}));
     let cli = s.to_options(Caller::CommandLine).expect_err("eiv keys").to_string();
-    assert_eq!(cli, "--fix-noise, --no-fallback, --no-bias-correction apply to --method eiv only, not to --method batch-gn");
+    assert_eq!(
+        cli,
+        "--fix-noise, --no-fallback, --no-bias-correction apply to --method eiv only, not to --method batch-gn"
+    );
     let s = json_settings(json!({"keep_one_way": true}));
     let cli = s.to_options(Caller::CommandLine).expect_err("eiv selects no segments").to_string();
     assert_eq!(
@@ -333,9 +340,10 @@ fn the_manifest_fills_what_the_caller_does_not_give() {
     assert!(e.filter.known_sources().is_empty(), "the caller's model replaces the manifest's known sources too");
     assert_eq!(outcomes(&r)[3], ("noise", SettingOutcome::Overridden));
     assert_eq!(r.account.noise_model_origin, Some(format!("--noise-model {}", file.path().display())));
-    assert_eq!(resolve(json!({}), &ManifestSettings::default()).account.noise_model_origin.as_deref(), Some(
-        "the production-car defaults (no --noise-model, no manifest [noise])"
-    ));
+    assert_eq!(
+        resolve(json!({}), &ManifestSettings::default()).account.noise_model_origin.as_deref(),
+        Some("the production-car defaults (no --noise-model, no manifest [noise])")
+    );
 }
 
 #[test]
@@ -393,7 +401,10 @@ fn keep_one_way_and_other_keys_of_a_method_are_used_overridden_or_ignored() {
     assert_eq!(resolve(json!({"method": "eiv"}), &m).options.method.name(), "eiv");
     let mut v = serde_json::json!({});
     resolve(json!({"method": "eiv"}), &m).account.add_to_json(&mut v).expect("json");
-    assert_eq!(v["manifest_settings"][0], json!({"key": "calibration.method", "manifest": m.manifest, "outcome": "overridden"}));
+    assert_eq!(
+        v["manifest_settings"][0],
+        json!({"key": "calibration.method", "manifest": m.manifest, "outcome": "overridden"})
+    );
     assert!(v["noise_model_origin"].is_string());
 }
 
@@ -423,7 +434,11 @@ fn drives_fitted_jointly_must_agree() {
     let merged = ManifestSettings::merge([&none, &a, &same]).expect("agree").expect("some");
     assert_eq!(merged.manifest, Path::new("m.toml"));
     assert_eq!(ManifestSettings::merge([&none]).expect("none"), None);
-    let other = ManifestSettings { manifest: "c.toml".into(), settings: a.settings.clone().without("noise_model"), ..a.clone() };
+    let other = ManifestSettings {
+        manifest: "c.toml".into(),
+        settings: a.settings.clone().without("noise_model"),
+        ..a.clone()
+    };
     let e = ManifestSettings::merge([&a, &other]).expect_err("differ").to_string();
     assert!(e.contains("m.toml and c.toml state different"), "{e}");
     let keep = ManifestSettings { settings: Settings { keep_one_way: Some(false), ..a.settings.clone() }, ..a.clone() };

@@ -51,11 +51,7 @@ pub struct Manifest {
     pub reference: Option<ReferenceSpec>,
     /// Calibration settings (`[calibration]`) as written, read by the
     /// calibration ([`CalibrationTable`]).
-    #[serde(
-        default,
-        deserialize_with = "super::settings::calibration_table",
-        skip_serializing_if = "Option::is_none"
-    )]
+    #[serde(default, deserialize_with = "super::settings::calibration_table", skip_serializing_if = "Option::is_none")]
     pub calibration: Option<CalibrationTable>,
 }
 
