@@ -1,9 +1,9 @@
 //! Values between Python and the library: JSON reports as Python objects,
 //! Python values as JSON (keyword options, θ), parameter-file paths.
 
-use pyo3::exceptions::{PyRuntimeError, PyTypeError};
+use pyo3::exceptions::{PyRuntimeError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::{PyBool, PyDict, PyList, PyString};
+use pyo3::types::{PyBool, PyDict, PyFloat, PyList, PyString};
 
 use odocal::model::Theta;
 
@@ -42,6 +42,13 @@ pub(crate) fn to_py<'py>(py: Python<'py>, v: &serde_json::Value) -> PyResult<Bou
     })
 }
 
+/// A float as JSON, which has no NaN or infinity.
+fn float(f: f64, what: &str) -> PyResult<serde_json::Value> {
+    serde_json::Number::from_f64(f)
+        .map(serde_json::Value::Number)
+        .ok_or_else(|| PyValueError::new_err(format!("{what}: {f} is not a finite number")))
+}
+
 /// A Python value as JSON, as the library reads keyword options: None,
 /// bool, int, float, str, a path (`os.PathLike`), a dict with str keys, or
 /// any other iterable (list, tuple, numpy array) as a list. `what` names
@@ -66,7 +73,10 @@ pub(crate) fn to_json(v: &Bound<'_, PyAny>, what: &str) -> PyResult<serde_json::
         }
         return Ok(Value::Object(m));
     }
-    // Integers (also numpy's, through `__index__`) before floats.
+    if let Ok(f) = v.cast::<PyFloat>() {
+        return float(f.value(), what);
+    }
+    // Integers (also numpy's, through `__index__`), then other floats (numpy's).
     if let Ok(i) = v.extract::<i64>() {
         return Ok(i.into());
     }
@@ -74,9 +84,7 @@ pub(crate) fn to_json(v: &Bound<'_, PyAny>, what: &str) -> PyResult<serde_json::
         return Ok(u.into());
     }
     if let Ok(f) = v.extract::<f64>() {
-        return serde_json::Number::from_f64(f)
-            .map(Value::Number)
-            .ok_or_else(|| PyTypeError::new_err(format!("{what}: {f} is not a finite number")));
+        return float(f, what);
     }
     if v.hasattr("__fspath__")? {
         let path = v.py().import("os")?.call_method1("fspath", (v,))?;
