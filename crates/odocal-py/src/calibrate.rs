@@ -37,6 +37,7 @@ struct CalibrationPlan {
 /// The keywords of `odocal.calibrate` besides the calibration settings.
 const RUN_KEYWORDS: [&str; 2] = ["holdout", "validate_on"];
 
+/// The half of the drive `holdout=` holds out.
 pub(crate) fn parse_holdout(s: &str) -> PyResult<Holdout> {
     match s {
         "first-half" | "first_half" => Ok(Holdout::FirstHalf),
@@ -52,6 +53,7 @@ pub(crate) fn parse_holdout(s: &str) -> PyResult<Holdout> {
 /// their manifests' `[reference]`.
 type ValidationDrives = (Holdout, Vec<(Arc<Drive>, Option<ReferenceSpec>)>);
 
+/// The drives of `validate_on=` (one drive or a list of them).
 fn validation_drives(v: &Bound<'_, PyAny>) -> PyResult<ValidationDrives> {
     let (joined, provs) = drives_arg(v, "validate_on")?;
     let drives: Vec<Arc<Drive>> = match v.cast::<PyDrive>() {
