@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use super::limits::{self, echo_num};
-use super::settings::{CalibrationSpec, NoiseTable, ReferenceSpec};
+use super::settings::{CalibrationTable, NoiseTable, ReferenceSpec};
 use crate::error::{Error, Result};
 use crate::model::Theta;
 
@@ -49,9 +49,10 @@ pub struct Manifest {
     /// heading offset and which of them to estimate.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reference: Option<ReferenceSpec>,
-    /// Calibration choices (`[calibration]`): `keep_one_way`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub calibration: Option<CalibrationSpec>,
+    /// Calibration settings (`[calibration]`) as written, read by the
+    /// calibration ([`CalibrationTable`]).
+    #[serde(default, deserialize_with = "super::settings::calibration_table", skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<CalibrationTable>,
 }
 
 /// Physical limits (`[limits]`): an imported signal beyond one is an error
@@ -725,9 +726,13 @@ impl Manifest {
             err(toml_message(e.inner(), text, Some(key)))
         })?;
         m.path = path.to_path_buf();
+        // The deserializer left byte offsets.
+        let line_of = |at: usize| text.get(..at).unwrap_or(text).matches('\n').count() + 1;
         if let Some(n) = &mut m.noise {
-            // The deserializer left the table's byte offset.
-            n.line = n.line.map(|at| text.get(..at).unwrap_or(text).matches('\n').count() + 1);
+            n.line = n.line.map(line_of);
+        }
+        if let Some(c) = &mut m.calibration {
+            c.lines.values_mut().for_each(|at| *at = line_of(*at));
         }
         m.check()?;
         Ok(m)

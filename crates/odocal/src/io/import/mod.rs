@@ -191,19 +191,18 @@
 //! heading_offset = -0.0099    # reference heading minus vehicle heading, rad (default 0)
 //! estimate = ["lever-arm", "heading-offset"]  # estimate them with θ (default: held)
 //!
-//! [calibration]               # optional: calibration choices
-//! keep_one_way = true         # keep the turning-only selection on one-way turns (default false)
+//! [calibration]               # optional: any calibration setting but the noise model and the
+//! method = "batch-gn"         # extrinsics (calibrate::settings::Settings: the CLI's flags,
+//! keep_one_way = true         # snake case), e.g. keep the turning-only selection on one-way turns
 //! ```
 //!
 //! `[noise]`, `[reference]` and `[calibration]` are calibration settings, not import
-//! settings: the import checks `[reference]` and `[calibration]`, keeps
-//! `[noise]` as written ([`NoiseTable`]) and carries them on the
-//! [`ImportReport`]; `odocal calibrate` reads them
+//! settings: the import checks `[reference]`, keeps `[noise]` and
+//! `[calibration]` as written ([`NoiseTable`], [`CalibrationTable`]) and
+//! carries them on the [`ImportReport`]; the calibration reads them
 //! ([`crate::calibrate::settings::ManifestSettings`]) and applies them
-//! unless the command line gives its own value
-//! (`--noise-model`, `--lever-arm`, `--heading-offset`, `--estimate`,
-//! `--keep-one-way` win),
-//! and its report says which was used.
+//! unless the command line (or a Python keyword) gives its own value, and
+//! its report says what became of each.
 //!
 //! Resource budgets (output samples, clock search, de-jitter window) are
 //! fixed and documented in [`limits`]; settings beyond them are rejected
@@ -250,7 +249,7 @@ pub use manifest::{
     WheelSignal, WheelSpec,
 };
 pub use report::{ClockOffsetReport, DejitterReport, GapRecord, ImportReport, JitterReport, PartRecord, StreamReport};
-pub use settings::{CalibrationSpec, NoiseTable, ReferenceSpec, MAX_LEVER_ARM_M};
+pub use settings::{CalibrationTable, NoiseTable, ReferenceSpec, MAX_LEVER_ARM_M};
 
 use crate::drive::{Drive, Signals};
 use crate::error::{Error, Result};
@@ -413,7 +412,7 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
         warnings,
         noise: m.noise.clone(),
         reference: m.reference.clone(),
-        calibration: m.calibration,
+        calibration: m.calibration.clone(),
         elapsed_s: started.elapsed().as_secs_f64(),
     };
     Ok(ImportedDrive { drive: d, report })
