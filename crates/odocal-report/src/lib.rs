@@ -38,8 +38,8 @@
 pub mod plots;
 mod sections;
 
-use odocal::model::{step, Theta, THETA_NAMES};
 use odocal::drive::segment::{Segment, SegmentData};
+use odocal::model::{step, Theta, THETA_NAMES};
 use odocal::Drive;
 
 /// Errors of the report renderer.

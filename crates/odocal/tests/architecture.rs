@@ -328,7 +328,6 @@ fn modules_use_only_lower_layers() {
 
 // ---- self-contained repository ----
 
-
 /// Build output and version control, relative to the root: not sources.
 const GENERATED: [&str; 6] = [".git", "target", "fuzz/target", "fuzz/artifacts", "fuzz/coverage", "out"];
 
