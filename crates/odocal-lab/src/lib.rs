@@ -17,6 +17,14 @@ use odocal::{CalibrationOptions, Drive, Method, Theta};
 /// The programs' result type.
 pub type Res<T> = Result<T, Box<dyn std::error::Error>>;
 
+/// Runs a program's body and, on an error, prints it and exits with status 1.
+pub fn main_with(run: impl FnOnce() -> Res<()>) {
+    if let Err(e) = run() {
+        eprintln!("error: {e}");
+        std::process::exit(1);
+    }
+}
+
 /// Command-line arguments: `--name value` options, `--name` switches (the
 /// names given to [`Args::parse`]) and positional values, read by name or
 /// position; [`Args::finish`] rejects what no read asked for. `--help`

@@ -13,7 +13,11 @@ use odocal_lab::{batch_gn_all, noise_preset, Args, Res};
 const USAGE: &str = "cecov_diag [--km 12] [--seeds 4] [--first-seed 1] [--preset coloured] [--profile]
     [--variants known,est,est-simtau,est-fix1]   (also est-from-sim, est-fix1-simtau)";
 
-fn main() -> Res<()> {
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
     let mut a = Args::parse(USAGE, &["profile"])?;
     let km: f64 = a.get("km", 12.0)?;
     let seeds: u64 = a.get("seeds", 4)?;

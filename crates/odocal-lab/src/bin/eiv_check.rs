@@ -53,7 +53,11 @@ fn mean_sd(x: &[f64]) -> (f64, f64) {
     (s.mean, s.sd)
 }
 
-fn main() -> Res<()> {
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
     let args = Args::parse(USAGE, &[])?;
     let km: f64 = args.pos(0, 12.0)?;
     let seeds: u64 = args.pos(1, 3)?;

@@ -21,7 +21,11 @@ use odocal_lab::{batch_gn_all, simulate_preset, Args, Res, PARAMETERS};
 
 const USAGE: &str = "eiv_efficiency [PRESET high] [SEEDS 10] [REPLICATES 10] [KM 12]";
 
-fn main() -> Res<()> {
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
     let args = Args::parse(USAGE, &[])?;
     let preset: String = args.pos(0, "high".to_string())?;
     let seeds: u64 = args.pos(1, 10)?;

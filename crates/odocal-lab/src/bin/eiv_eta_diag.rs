@@ -40,7 +40,11 @@ const USAGE: &str = "eiv_eta_diag [--km 12] [--seeds 4] [--presets paper,high] [
 /// (preset, variant, quantisation model), θ errors per seed, failed fits.
 type SummaryRow = ((String, String, String), Vec<[f64; 4]>, usize);
 
-fn main() -> Res<()> {
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
     let mut a = Args::parse(USAGE, &["history"])?;
     let km: f64 = a.get("km", 12.0)?;
     let seeds: u64 = a.get("seeds", 4)?;

@@ -15,7 +15,11 @@ use odocal_lab::{batch_gn_all, simulate_preset, Args, Res, PARAMETERS};
 const USAGE: &str = "eiv_eta_propagation [--km 12] [--seeds 10] [--presets paper,high] [--h 0.05] [--refits 1]
     (presets also white, coloured; --refits 0: no re-fits, the η term alone)";
 
-fn main() -> Res<()> {
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
     let mut a = Args::parse(USAGE, &[])?;
     let km: f64 = a.get("km", 12.0)?;
     let seeds: u64 = a.get("seeds", 10)?;

@@ -56,7 +56,11 @@ fn variant(base: &SimOptions, name: &str) -> Result<SimOptions, String> {
     Ok(o)
 }
 
-fn main() -> Res<()> {
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
     let args = Args::parse(USAGE, &[])?;
     let preset: String = args.pos(0, "high".to_string())?;
     let seeds: u64 = args.pos(1, 20)?;

@@ -60,7 +60,11 @@ fn methods() -> Res<Vec<(&'static str, Method)>> {
     ])
 }
 
-fn main() -> Res<()> {
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
     let args = Args::parse(USAGE, &[])?;
     let kms: Vec<f64> = args.pos(0, "12,24,48".to_string())?.split(',').map(str::parse).collect::<Result<_, _>>()?;
     let reps: usize = args.pos(1, 3usize)?.max(1);

@@ -165,7 +165,11 @@ fn heading_residuals(d: &Drive, th: &Theta, sigma: f64, scale: Scale, out: &mut 
     }
 }
 
-fn main() -> Res<()> {
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
     let mut a = Args::parse(USAGE, &[])?;
     let km: f64 = a.get("km", 12.0)?;
     let seeds: u64 = a.get("seeds", 8)?;

@@ -257,7 +257,11 @@ fn track(method: &str, fix: ParamSet) -> Res<()> {
     Ok(())
 }
 
-fn main() -> Res<()> {
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
     let args = Args::parse(USAGE, &[])?;
     let what: String = args.pos(0, "sim".to_string())?;
     match what.as_str() {

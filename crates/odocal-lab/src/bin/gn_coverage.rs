@@ -67,7 +67,11 @@ fn fit(r: &IdentifyReport, truth: &Theta, mount: &Extrinsics, joint: bool) -> Fi
     f
 }
 
-fn main() -> Res<()> {
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
     let args = Args::parse(USAGE, &[])?;
     let seeds: u64 = args.pos(0, 20)?;
     let km: f64 = args.pos(1, 12.0)?;

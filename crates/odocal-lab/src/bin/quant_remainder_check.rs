@@ -15,7 +15,11 @@ use odocal_lab::{Args, Res};
 
 const USAGE: &str = "quant_remainder_check [--km 12] [--seeds 4] [--presets paper,high]";
 
-fn main() -> Res<()> {
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
     let mut a = Args::parse(USAGE, &[])?;
     let km: f64 = a.get("km", 12.0)?;
     let seeds: u64 = a.get("seeds", 4)?;

@@ -303,7 +303,11 @@ fn tables(noise: &str, rs: &[&DriveResult]) -> String {
     o
 }
 
-fn main() -> Res<()> {
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
     let a = parse_args()?;
     let t0 = Instant::now();
     let mut results = Vec::new();

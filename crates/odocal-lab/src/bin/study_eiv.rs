@@ -621,7 +621,11 @@ fn summarise(preset: &str, results: &[DriveResult]) {
     println!("{t}");
 }
 
-fn main() -> Res<()> {
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
     let a = settings()?;
     let t0 = Instant::now();
     let mut all = Vec::new();

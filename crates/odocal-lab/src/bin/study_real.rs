@@ -37,7 +37,6 @@
 //! (stdout) and writes JSON with `--json`; a few minutes in release on two
 //! cores.
 
-use std::error::Error;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -86,7 +85,7 @@ const CAN_SPEED_STEP_M_PER_S: f64 = 0.01 / 3.6;
 /// `QuantisationModel::Counting`), but at 8–20 m/s it is ~1/30 of the
 /// production car's 0.8 % white wheel noise, so the model's shape there
 /// hardly matters.
-fn encoder_q(rel: &str) -> Result<(f64, String), Box<dyn Error>> {
+fn encoder_q(rel: &str) -> Res<(f64, String)> {
     use odocal::io::import::WheelSignal;
     let path = repo_path(rel);
     let m = odocal::Manifest::from_path(&path).map_err(|e| format!("{}: {e}", path.display()))?;
@@ -298,7 +297,7 @@ fn theta_cell(r: &CalibrationReport) -> String {
 }
 
 /// (a) calibrate on each test-track run, Ē_p on the other five.
-fn testtrack(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
+fn testtrack(methods: &[String], md: &mut String) -> Res<Value> {
     let mut drives = Vec::new();
     let mut qs = Vec::new();
     for (run, _) in TESTTRACK_RUNS {
@@ -453,7 +452,7 @@ fn testtrack(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error
 /// batch G-N (all segments) and `eiv-scg-nofallback`, and EIV's θ with one
 /// parameter at a time replaced by batch G-N's, each judged by the mean Ē_p
 /// on the other five runs.
-fn swap(md: &mut String) -> Result<Value, Box<dyn Error>> {
+fn swap(md: &mut String) -> Res<Value> {
     let mut drives = Vec::new();
     for (run, _) in TESTTRACK_RUNS {
         let rel = testtrack_manifest(run);
@@ -479,7 +478,7 @@ fn swap(md: &mut String) -> Result<Value, Box<dyn Error>> {
             .map(|(_, (n, d, _))| ValidationDrive { name: n, drive: d, reference: None })
             .collect();
         let cal = gn.extrinsics_for_validation(ParamSet::EMPTY);
-        let judge = |t: &odocal::Theta| -> Result<f64, Box<dyn Error>> {
+        let judge = |t: &odocal::Theta| -> Res<f64> {
             Ok(odocal::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?.mean_over_drives_m)
         };
         let (g, e) = (gn.theta, eiv.theta);
@@ -515,7 +514,7 @@ fn swap(md: &mut String) -> Result<Value, Box<dyn Error>> {
         let eiv = calibrate(&fit, &options("eiv-scg-nofallback", q)?, None)?;
         let others = [ValidationDrive { name: label, drive: &held, reference: None }];
         let cal = gn.extrinsics_for_validation(ParamSet::EMPTY);
-        let judge = |t: &odocal::Theta| -> Result<f64, Box<dyn Error>> {
+        let judge = |t: &odocal::Theta| -> Res<f64> {
             Ok(odocal::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?.mean_over_drives_m)
         };
         let (g, e) = (gn.theta, eiv.theta);
@@ -540,7 +539,7 @@ fn swap(md: &mut String) -> Result<Value, Box<dyn Error>> {
 }
 
 /// (b) the highway van, fitted on one half, Ē_p on the other.
-fn van(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
+fn van(methods: &[String], md: &mut String) -> Res<Value> {
     let drive = load(VAN_MANIFEST)?;
     let (q, how) = encoder_q(VAN_MANIFEST)?;
     eprintln!("van: encoder q = {q:.6e} rev/s ({how})");
@@ -610,7 +609,7 @@ fn van(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
 }
 
 /// (c) the RAV4: c_e, its σ, what is named unobservable or held.
-fn rav4(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
+fn rav4(methods: &[String], md: &mut String) -> Res<Value> {
     let drive = load(RAV4_MANIFEST)?;
     let (q, how) = encoder_q(RAV4_MANIFEST)?;
     eprintln!("rav4: encoder q = {q:.6e} rev/s ({how})");
@@ -702,7 +701,11 @@ fn rav4(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
     Ok(Value::Array(out))
 }
 
-fn main() -> Result<(), Box<dyn Error>> {
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
     let mut a = Args::parse(USAGE, &[])?;
     let methods = a.list("methods", &METHODS);
     let parts = a.list("parts", &["testtrack", "van", "rav4"]);

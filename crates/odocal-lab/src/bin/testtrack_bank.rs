@@ -10,7 +10,6 @@
 //! `w`: the wheel yaw rate divided by cos φ; `hH`: the reference moved back
 //! by H m × sin φ (antenna roll displacement), e.g. `fy`, `fy-w`, `fy-h2.0`.
 //! docs/validation.md ("The road bank") quotes `kin fy`.
-use std::error::Error;
 use std::path::Path;
 
 use odocal::io::import::{import, ImportedDrive, LateralAccelerationSpec, Manifest};
@@ -24,8 +23,8 @@ const USAGE: &str = "testtrack_bank VARIANT…   (kin, fy, fy-w, fy-h2.0, …)";
 const G: f64 = 9.80665;
 
 /// (gps time, roll) where both rear antennas are mode 6: roll > 0 left side lower.
-fn roll_series(dir: &Path) -> Result<(Vec<f64>, Vec<f64>), Box<dyn Error>> {
-    let read = |name: &str| -> Result<std::collections::BTreeMap<i64, [f64; 4]>, Box<dyn Error>> {
+fn roll_series(dir: &Path) -> Res<(Vec<f64>, Vec<f64>)> {
+    let read = |name: &str| -> Res<std::collections::BTreeMap<i64, [f64; 4]>> {
         let text = std::fs::read_to_string(dir.join(name))?;
         let mut out = std::collections::BTreeMap::new();
         let mut lines = text.lines();
@@ -69,7 +68,7 @@ fn interp(ts: &[f64], v: &[f64], t: f64) -> f64 {
     v[i - 1] * (1.0 - w) + v[i] * w
 }
 
-fn variant(d: &Drive, phi: &[f64], fy: bool, w: bool, h: f64) -> Result<Drive, Box<dyn Error>> {
+fn variant(d: &Drive, phi: &[f64], fy: bool, w: bool, h: f64) -> Res<Drive> {
     let mut s = d.measured().clone();
     if w {
         // wheels turn about the road normal: world yaw rate = wheel yaw rate / cos φ
@@ -94,7 +93,11 @@ fn variant(d: &Drive, phi: &[f64], fy: bool, w: bool, h: f64) -> Result<Drive, B
     Ok(with_signals(d, s)?)
 }
 
-fn main() -> Res<()> {
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
     let a = Args::parse(USAGE, &[])?;
     let variants = a.positional().to_vec();
     a.finish()?;

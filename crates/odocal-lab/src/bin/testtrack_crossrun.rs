@@ -24,7 +24,11 @@ const USAGE: &str = "testtrack_crossrun [--method eiv|three-step|batch-gn] [--mi
 --keep-one-way keeps the paper's turning-only segment selection on these
 one-direction runs (by default every segment is used there).";
 
-fn main() -> Res<()> {
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
     let mut a = Args::parse(USAGE, &["auto-fix", "keep-one-way", "pairs", "check"])?;
     let mut opts =
         CalibrationOptions { method: Method::from_name(&a.get("method", "eiv".to_string())?)?, ..Default::default() };

@@ -30,7 +30,11 @@ fn with_beta(d: &Drive, k: f64, shift: i64) -> Result<Drive, odocal::Error> {
     with_signals(d, s)
 }
 
-fn main() -> Res<()> {
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
     let mut a = Args::parse(USAGE, &[])?;
     let shift: i64 = a.get("heading-shift", 0)?;
     let dir: Option<PathBuf> = a.opt("track-dir")?;

@@ -18,7 +18,11 @@ use odocal_lab::{coverage, simulate_preset, Args, Res, PARAMETERS};
 const USAGE: &str = "three_step_coverage [SEEDS 20] [KM 12] [PRESET paper] [BATCHES 50]";
 const SIGMAS: [&str; 4] = ["step-3 model", "step-3 robust", "measured-input robust", "batch spread"];
 
-fn main() -> Res<()> {
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
     let args = Args::parse(USAGE, &[])?;
     let seeds: u64 = args.pos(0, 20)?;
     let km: f64 = args.pos(1, 12.0)?;
