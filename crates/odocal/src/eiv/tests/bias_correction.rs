@@ -34,7 +34,7 @@ fn bootstrap_is_identical_for_one_and_two_threads() {
 /// sideslip noise, which the bootstrap's replicates (simulated from the
 /// same model) shared. t_r is −1.1 % off here (2.3σ, an unlucky draw), so
 /// the assertion for every parameter is the 3σ one; 95 % coverage over
-/// seeds is measured in `examples/study_eiv.rs`.
+/// seeds is measured by `study_eiv` in crates/odocal-lab.
 #[test]
 fn bootstrap_brackets_the_truth_and_finds_no_c_e_bias_left() {
     let (out, opts) = known_noise_fit(6.0, 4);
@@ -79,7 +79,7 @@ fn bootstrap_brackets_the_truth_and_finds_no_c_e_bias_left() {
 /// same seed estimates (c_e only, or every parameter); the uncorrected
 /// root is the plain fit's θ, whose first-order bias diagnostic is there.
 /// Two replicates on 1 km keep it cheap (this checks the plumbing; the
-/// correction's effect over seeds is measured in `examples/study_eiv.rs`).
+/// correction's effect over seeds is measured by `study_eiv` in crates/odocal-lab).
 #[test]
 fn bootstrap_bias_correction_subtracts_the_bootstrap_bias() {
     let (out, opts) = known_noise_fit(1.0, 12);
@@ -281,7 +281,7 @@ fn bootstrap_refits_at_the_quantisation_level_of_the_fit() {
 /// `BootstrapInputs::Smoothed`: the replicate worlds run on the moving
 /// average of the measured inputs, so the same seed gives other replicates
 /// than with the measured inputs; a half-width of 0 is rejected. (Its effect
-/// on the bias estimate over seeds: `examples/study_eiv.rs --bootstrap-smooth`.)
+/// on the bias estimate over seeds: `study_eiv --bootstrap-smooth` in crates/odocal-lab.)
 #[test]
 fn smoothed_bootstrap_inputs_change_the_replicate_worlds() {
     let (out, opts) = known_noise_fit(1.0, 31);
