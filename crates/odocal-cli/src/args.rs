@@ -215,7 +215,7 @@ pub struct CalibrationArgs {
     /// bootstrap with B replicates (seed --bootstrap-seed); about B extra
     /// fits of time. It replaces the default correction of every parameter
     /// (see --correct-bias); the default fit has no c_e bias left for it to
-    /// remove (docs/study.md).
+    /// remove (docs/validation.md).
     #[arg(long, value_name = "B", help_heading = EIV_BIAS, hide_short_help = true,
           conflicts_with_all = ["correct_bias", "no_bias_correction"])]
     pub correct_c_e_bias: Option<usize>,

@@ -11,7 +11,7 @@ use crate::io::write_json;
 /// Arguments of `odocal import`.
 #[derive(Args)]
 pub struct ImportArgs {
-    /// The drive manifest (TOML; see examples/README.md).
+    /// The drive manifest (TOML; docs/reference.md, "The drive manifest").
     manifest: PathBuf,
     /// Output canonical CSV.
     #[arg(long)]

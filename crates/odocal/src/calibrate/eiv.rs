@@ -49,7 +49,7 @@
 //! ## Reference heading offset (estimated by default)
 //! With [`EivMethodOptions::estimate_heading_offset`] (the default) the
 //! start estimates the reference's heading offset δ even when the
-//! calibration does not ask for it, for a measured reason (docs/study.md):
+//! calibration does not ask for it, for a measured reason (docs/validation.md):
 //! the shipped test-track logs' reference heading is +15…+23 mrad off the
 //! vehicle axis. Batch G-N's c_d absorbs part of such an offset; the
 //! filter takes c_d from heading *increments*, which a constant offset
@@ -72,7 +72,7 @@
 //! error that is odd in the noise and keeps the bias), each re-fitted with
 //! that noise model held. θ's σ includes the correction's Monte Carlo
 //! error. It runs after the checks, only for a fit that is kept. Measured
-//! (docs/study.md): every parameter within |t| ≤ 2.8 of zero on
+//! (docs/validation.md): every parameter within |t| ≤ 2.8 of zero on
 //! every noisy preset (high t_r +0.46 %, t 1.9), the 95 % intervals cover
 //! the truth in ≥ 93.8 % of cases, t_r's RMS error falls (high 5.38 →
 //! 4.01× the Cramér–Rao bound, paper 1.69 → 1.62×), at 1.3–1.5× the time
@@ -166,7 +166,7 @@ impl Default for EivMethodOptions {
 /// ([`EivMethodOptions::correct_bias`]): two antithetic pairs. Measured
 /// (20 × 12 km per preset, η estimated): B = 4 and B = 10 remove
 /// the same bias (`high` t_r +1.097 % → +0.458 % and +0.456 %), and B = 4
-/// costs 1.3–1.5× a fit against about 2× (docs/study.md).
+/// costs 1.3–1.5× a fit against about 2× (docs/validation.md).
 pub const DEFAULT_BIAS_REPLICATES: usize = 4;
 
 /// The bootstrap bias correction of the EIV method

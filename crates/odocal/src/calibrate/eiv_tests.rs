@@ -414,7 +414,7 @@ fn given_extrinsics_are_applied_by_the_filter() {
     assert!(!held.contains("  "), "{held}");
 }
 
-/// The test-track diagnosis (docs/study.md, the EIV defaults on the real
+/// The test-track diagnosis (docs/validation.md, the EIV defaults on the real
 /// logs): a reference heading offset that the
 /// calibration does not model (+18 mrad, batch G-N's estimate on the six
 /// test-track runs) moves batch G-N's c_d (all segments: the EIV start and

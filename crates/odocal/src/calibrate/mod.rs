@@ -98,7 +98,7 @@ pub enum Method {
     BatchGn(BatchGnOptions),
     /// Errors-in-variables filter over every drive part (SPEC §10), started
     /// from batch G-N on all segments and falling back to it when its
-    /// consistency checks fail (default: docs/study.md measures it against
+    /// consistency checks fail (default: docs/validation.md measures it against
     /// batch G-N and the 3-step on simulated and real drives).
     Eiv(EivMethodOptions),
 }

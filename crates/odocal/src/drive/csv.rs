@@ -52,7 +52,7 @@ const NOT_CSV: [(&[u8], &str); 8] = [
     (
         b"\x89MCAP0\r\n",
         "a ROS 2 bag (MCAP), not a canonical drive CSV: draft a manifest that names its wheel, pose and IMU topics \
-         with `odocal inspect FILE --manifest OUT.toml` (README \"ROS 2 bags\"), check it and give the manifest \
+         with `odocal inspect FILE --manifest OUT.toml` (docs/guide.md, \"A ROS 2 bag\"), check it and give the manifest \
          (.toml) instead",
     ),
     (
@@ -68,7 +68,7 @@ const NOT_CSV: [(&[u8], &str); 8] = [
     (
         b"PAR1",
         "a Parquet file, not a canonical drive CSV: name it as a stream (`format = \"parquet\"`) in a manifest \
-         (.toml; README \"Parquet streams\") and give the manifest instead",
+         (.toml; docs/guide.md, \"Parquet streams\") and give the manifest instead",
     ),
     (b"\x1f\x8b", "gzip-compressed: decompress it first (`gunzip -k FILE`)"),
     (b"\x28\xb5\x2f\xfd", "zstd-compressed: decompress it first (`zstd -d FILE`)"),
