@@ -476,6 +476,9 @@ fn search_box(
     })
 }
 
+/// A point of the unit box with its Ē_p.
+type ScaledPoint = (Vec<f64>, f64);
+
 /// The swarm's seeds: the box centre (`centre`, with its Ē_p) and each of
 /// `starts` evaluated as given, then clamped into the box (re-evaluated
 /// there when it was outside); the best `particles` of them (stable order
@@ -485,9 +488,9 @@ fn seed_points(
     centre: (f64, Theta),
     starts: &[Theta],
     particles: usize,
-) -> ((f64, Theta), Vec<(Vec<f64>, f64)>) {
+) -> ((f64, Theta), Vec<ScaledPoint>) {
     let mut best = centre;
-    let mut seeds: Vec<(Vec<f64>, f64)> = vec![(obj.scaled(&centre.1), centre.0)];
+    let mut seeds: Vec<ScaledPoint> = vec![(obj.scaled(&centre.1), centre.0)];
     for s in starts {
         let e = obj.error_at(s);
         if e < best.0 {
@@ -508,7 +511,7 @@ fn seed_points(
 /// up to `particles`, each with a random velocity.
 fn initial_population(
     obj: &Objective<'_>,
-    seeds: Vec<(Vec<f64>, f64)>,
+    seeds: Vec<ScaledPoint>,
     particles: usize,
     rng: &mut ChaCha8Rng,
 ) -> Vec<Particle<Vec<f64>, f64>> {
