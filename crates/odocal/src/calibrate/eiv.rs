@@ -83,9 +83,9 @@
 //!
 //! ## Uncertainty and observability
 //! The covariance is the filter's at the estimate: per parameter the larger
-//! of `H_θ⁻¹` and a block sandwich ([`EivOptions::covariance_estimate`]),
+//! of `H_θ⁻¹` and a block sandwich (`EivOptions::covariance_estimate`),
 //! plus what estimating the noise scales from the same drive adds
-//! ([`EivOptions::noise_estimate_in_covariance`]). The reported
+//! (`EivOptions::noise_estimate_in_covariance`). The reported
 //! observability has `rcond` and the names (parameters held as not
 //! observable, or in a near-collinear combination) from the same `H_θ`.
 //! `sensitivity_m` (metres per resolution step) is the starting batch
@@ -256,7 +256,7 @@ impl EivDetail {
 /// noise source absent or over-estimated, as on a noise-free drive, where
 /// what is left of the innovations is rounding and is correlated). The
 /// band and the whiteness limits already allow for the measurement floors
-/// ([`eiv::InnovationNull`]).
+/// (`eiv::InnovationNull`).
 pub fn is_misspecification(w: &EivWarning, report: &EivReport) -> bool {
     match w {
         EivWarning::Unobservable { .. } => false,
