@@ -223,7 +223,7 @@ pub fn print_joint_fits(runs: &[Drive]) -> Res<()> {
     for hold_d in [true, false] {
         let o = batch_gn_all_options(hold_d);
         for (label, set) in [("CCW", &refs[..3]), ("CW", &refs[3..]), ("all", &refs[..])] {
-            let r = odocal::calibrate(&Drive::concat(set)?, &o, None)?;
+            let r = odocal::calibrate(&Drive::concat(set)?, &o)?;
             let t = r.theta;
             println!(
                 "joint {label:3} d {}: c_e {:.5} c_d {:+.3} mm t_r {:.4} d {:+.3}  Ē_p {:.3} (θ_0 {:.3}) {}",

@@ -88,7 +88,7 @@ fn validate<'py>(
         opts.extrinsics = f.extrinsics_for_drive(stated.as_ref()).0;
     }
     let inner = Arc::clone(&drive.get().drive);
-    let report = py.detach(|| with_threads(threads, || odocal::validate(&inner, &theta, &opts)))?.map_err(lib_err)?;
+    let report = py.detach(|| with_threads(threads, || odocal::validate(&inner, &theta, &opts, None)))?.map_err(lib_err)?;
     let mut v = json(&report)?;
     with_schema_version(&mut v);
     to_py(py, &v)

@@ -19,7 +19,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         return Err("usage: param_file FIT_DRIVE OTHER_DRIVE OUT.yaml|OUT.json".into());
     };
     let (drive, _) = load_drive(Path::new(fit))?;
-    let report = calibrate(&drive, &CalibrationOptions::default(), None)?;
+    let report = calibrate(&drive, &CalibrationOptions::default())?;
 
     // θ with its 1σ (None for held parameters), the verdict and provenance;
     // `.yaml` writes the ROS 2 `ros__parameters` layout, `.json` JSON.

@@ -22,7 +22,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
     for name in ["batch-gn", "three-step", "eiv"] {
         let options = CalibrationOptions { method: Method::from_name(name)?, ..Default::default() };
-        let report = calibrate(drive, &options, None)?;
+        let report = calibrate(drive, &options)?;
         let sigma = report.result_sigma().to_array();
         // Error over the reported σ: about ±2 or less for an unbiased estimate with an honest σ.
         let z: Vec<String> = error(&report.theta, &truth)

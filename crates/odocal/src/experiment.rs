@@ -595,7 +595,7 @@ impl<'a> Scorer<'a> {
         let mut ro = base.clone();
         ro.starts.extend(picked.iter().map(|p| p.theta));
         ro.starts.push(*final_theta);
-        let rm = reachable_minimum(self.drive, self.validation, &ro)?;
+        let rm = reachable_minimum(self.drive, self.validation, &ro, None)?;
         Ok(ReachableSummary {
             scored: self.scored(&rm.theta, rm.mean_position_error_m),
             evaluations: rm.evaluations,

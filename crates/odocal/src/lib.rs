@@ -95,17 +95,15 @@ pub struct ReadmeDoctests;
 
 pub use assess::position_error::ValidationReport;
 pub use assess::position_error::{mean_position_error, mean_position_error_with};
-pub use assess::reachable::{reachable_minimum, reachable_minimum_with_progress, ReachableOptions, ReachableReport};
+pub use assess::reachable::{reachable_minimum, ReachableOptions, ReachableReport};
 pub use assess::trust::{GuardViolation, Guards, TrustOptions, Verdict, VerdictLevel, VerdictReason};
 pub use assess::validate::{
-    validate, validate_drives, validate_with_progress, DriveValidation, MultiValidation, ValidateOptions,
-    ValidateReport,
+    validate, DriveValidation, MultiValidation, ValidateOptions, ValidateReport,
 };
 pub use assess::validation_drives::{validate_drives_with, CalibrationExtrinsics, ValidationDrive};
 pub use assess::warning::Warning;
-pub use calibrate::validate_on::calibrate_validated_on;
 pub use calibrate::{
-    calibrate, calibrate_held_out, calibrate_with_holdout, BatchGnOptions, CalibrationOptions, CalibrationReport,
+    calibrate, BatchGnOptions, Calibration, CalibrationOptions, CalibrationReport,
     EivDetail, EivMethodOptions, EivOutcome, FinalSegments, Holdout, Method, MethodDetail, ResultSigma, SigmaSource,
     ThreeStepOptions,
 };

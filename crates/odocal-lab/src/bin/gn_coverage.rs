@@ -103,7 +103,7 @@ fn run() -> Res<()> {
                         let mut o = odocal::CalibrationOptions::default();
                         o.identify.robust_block_steps = *block;
                         let t = Instant::now();
-                        let r = odocal::calibrate(&drive, &o, None)?;
+                        let r = odocal::calibrate(&drive, &o)?;
                         t_fit += t.elapsed().as_secs_f64();
                         let id = r.identification().ok_or("three-step has step 3")?;
                         per_block[b].push(fit(id, &sim.theta_true, &mount, false));

@@ -178,7 +178,7 @@ fn study_drive(noise: &str, seed: u64, a: &Settings) -> Res<DriveResult> {
         starts,
         ..ReachableOptions::around(&theta0)
     };
-    let rm = reachable_minimum(drive, val, &ro)?;
+    let rm = reachable_minimum(drive, val, &ro, None)?;
     let e_min = rm.mean_position_error_m;
     let ep = |t: &Theta| mean_position_error(drive, val, t).map(|v| v.mean_position_error_m);
     let mut methods = Vec::new();

@@ -181,7 +181,7 @@ fn calibrate_eiv(
         estimate_heading_offset: heading_offset,
         correct_bias: None,
     });
-    let r = calibrate(d, &CalibrationOptions { method, seed, ..Default::default() }, None)?;
+    let r = calibrate(d, &CalibrationOptions { method, seed, ..Default::default() })?;
     let time_s = t.elapsed().as_secs_f64();
     let MethodDetail::Eiv(detail) = &r.detail else {
         return Err("calibrate with Method::Eiv returned another method's detail".into());
@@ -397,7 +397,7 @@ fn study_drive(name: &str, seed: u64, a: &Settings) -> Res<DriveResult> {
     if seed <= a.three_step_seeds {
         let t = Instant::now();
         let opts = CalibrationOptions { method: Method::from_name("three-step")?, seed, ..Default::default() };
-        match calibrate(d, &opts, None) {
+        match calibrate(d, &opts) {
             Ok(r) => {
                 runs.insert(
                     "3-step".into(),

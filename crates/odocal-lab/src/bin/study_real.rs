@@ -43,7 +43,7 @@ use std::time::Instant;
 use odocal::calibrate::crossrun::{CrossRunFit, CrossRunRow, CrossRunTable, CROSS_RUN_OWN_FIT_RATIO};
 use odocal::eiv::{EivOptions, NoiseModel, QuantisationLevel};
 use odocal::{
-    calibrate, calibrate_with_holdout, CalibrationOptions, CalibrationReport, EivMethodOptions, EivOutcome, Holdout,
+    calibrate, CalibrationOptions, CalibrationReport, EivMethodOptions, EivOutcome, Holdout,
     Method, MethodDetail, ParamSet, ValidationDrive, VerdictLevel, Warning,
 };
 use odocal_lab::{load, repo_path, testtrack_manifest, Args, Res, RAV4_MANIFEST, TESTTRACK_RUNS, VAN_MANIFEST};
@@ -322,7 +322,7 @@ fn testtrack(methods: &[String], md: &mut String) -> Res<Value> {
         for (i, (name, drive)) in drives.iter().enumerate() {
             let opts = options(m, qs[i])?;
             let t = Instant::now();
-            let r = match calibrate(drive, &opts, None) {
+            let r = match calibrate(drive, &opts) {
                 Ok(r) => r,
                 Err(e) => {
                     rows.push(CrossRunRow { name: name.to_string(), fit: Err(e.to_string()) });
@@ -469,8 +469,8 @@ fn swap(md: &mut String) -> Res<Value> {
     for (i, (name, drive, q)) in drives.iter().enumerate() {
         let gn_opts = options("batch-gn-all", *q)?;
         let eiv_opts = options("eiv-scg-nofallback", *q)?;
-        let gn = calibrate(drive, &gn_opts, None)?;
-        let eiv = calibrate(drive, &eiv_opts, None)?;
+        let gn = calibrate(drive, &gn_opts)?;
+        let eiv = calibrate(drive, &eiv_opts)?;
         let others: Vec<ValidationDrive> = drives
             .iter()
             .enumerate()
@@ -510,8 +510,8 @@ fn swap(md: &mut String) -> Res<Value> {
     for (label, h) in [("first-half", Holdout::FirstHalf), ("second-half", Holdout::SecondHalf)] {
         let (fit, held) = h.split(&drive)?;
         let gn_opts = options("batch-gn-all", q)?;
-        let gn = calibrate(&fit, &gn_opts, None)?;
-        let eiv = calibrate(&fit, &options("eiv-scg-nofallback", q)?, None)?;
+        let gn = calibrate(&fit, &gn_opts)?;
+        let eiv = calibrate(&fit, &options("eiv-scg-nofallback", q)?)?;
         let others = [ValidationDrive { name: label, drive: &held, reference: None }];
         let cal = gn.extrinsics_for_validation(ParamSet::EMPTY);
         let judge = |t: &odocal::Theta| -> Res<f64> {
@@ -555,7 +555,7 @@ fn van(methods: &[String], md: &mut String) -> Res<Value> {
         let opts = options(m, q)?;
         for (label, h) in [("first-half", Holdout::FirstHalf), ("second-half", Holdout::SecondHalf)] {
             let t = Instant::now();
-            let r = match calibrate_with_holdout(&drive, &h, &opts, None) {
+            let r = match odocal::Calibration::new(&drive, &opts).holdout(&h).run() {
                 Ok(r) => r,
                 Err(e) => {
                     md.push_str(&format!("| {m} | {label} | failed: {} ||||||\n", e.to_string().replace('|', "\\|")));
@@ -626,7 +626,7 @@ fn rav4(methods: &[String], md: &mut String) -> Res<Value> {
             let opts = CalibrationOptions { auto_fix, ..options(m, q)? };
             let label = if auto_fix { "--auto-fix" } else { "default" };
             let t = Instant::now();
-            let r = match calibrate(&drive, &opts, None) {
+            let r = match calibrate(&drive, &opts) {
                 Ok(r) => r,
                 Err(e) => {
                     let text = e.to_string();

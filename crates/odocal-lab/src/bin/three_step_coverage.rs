@@ -38,7 +38,7 @@ fn run() -> Res<()> {
             method: Method::ThreeStep(ThreeStepOptions { initial_batches: batches, ..Default::default() }),
             ..Default::default()
         };
-        let r = odocal::calibrate(&s.drive, &opts, None)?;
+        let r = odocal::calibrate(&s.drive, &opts)?;
         let MethodDetail::ThreeStep(d) = &r.detail else { return Err("not a 3-step report".into()) };
         let truth = s.sidecar.theta_true.to_array();
         let theta = r.theta.to_array();

@@ -354,33 +354,13 @@ fn argmin_error(stage: &str, e: argmin::core::Error) -> Error {
 }
 
 /// Finds the reachable minimum `min_θ Ē_p(θ)` on `segments` of `drive` by a
-/// seeded particle swarm over the box of `opts`, refined by Nelder-Mead.
+/// seeded particle swarm over the box of `opts`, refined by Nelder-Mead;
+/// `progress` hears one stage per box searched (`"reachable: swarm"`,
+/// `"reachable: refine"`) advancing by one per evaluation of `Ē_p`.
 ///
 /// Errors when the options are invalid (naming the field), when there are no
 /// segments, or when `Ē_p` cannot be computed at the box centre.
-///
-/// # Example
-/// ```no_run
-/// use odocal::drive::segment::{validation_segments, ValidationSegmentOptions};
-/// use odocal::{reachable_minimum, Drive, ReachableOptions, Theta};
-/// # fn main() -> odocal::Result<()> {
-/// let drive = Drive::read_csv("drive.csv")?;
-/// let segments = validation_segments(&drive, &ValidationSegmentOptions::default())?;
-/// let calibrated: Theta = "1.951,-0.0021,1.529,0.0008".parse()?;
-/// let opts = ReachableOptions { starts: vec![calibrated], ..ReachableOptions::around(&Theta::PAPER_INITIAL) };
-/// let report = reachable_minimum(&drive, &segments, &opts)?;
-/// println!("{report}");
-/// # Ok(())
-/// # }
-/// ```
-pub fn reachable_minimum(drive: &Drive, segments: &[Segment], opts: &ReachableOptions) -> Result<ReachableReport> {
-    reachable_minimum_with_progress(drive, segments, opts, None)
-}
-
-/// [`reachable_minimum`], reporting progress: one stage per box searched
-/// (`"reachable: swarm"`, `"reachable: refine"`) advancing by one per
-/// evaluation of `Ē_p`.
-pub fn reachable_minimum_with_progress(
+pub fn reachable_minimum(
     drive: &Drive,
     segments: &[Segment],
     opts: &ReachableOptions,
@@ -617,7 +597,7 @@ mod tests {
         };
         let run = |extrinsics: Extrinsics| {
             let opts = ValidateOptions { extrinsics, reachable: Some(search.clone()), ..Default::default() };
-            validate(&s.drive, &truth, &opts).expect("validate")
+            validate(&s.drive, &truth, &opts, None).expect("validate")
         };
         let mounted = run(mount);
         let rm = mounted.reachable_minimum.as_ref().expect("searched");
@@ -630,6 +610,7 @@ mod tests {
             &s.drive,
             &validation_segments(&s.drive, &ValidationSegmentOptions::default()).expect("segments"),
             &search,
+            None,
         )
         .expect("search");
         eprintln!(
@@ -682,7 +663,7 @@ mod tests {
         let (drive, segs) = setup();
         let truth = Theta::SIM_DEFAULT_TRUE;
         let opts = ReachableOptions::around(&Theta::PAPER_INITIAL);
-        let r = reachable_minimum(&drive, &segs, &opts).expect("search");
+        let r = reachable_minimum(&drive, &segs, &opts, None).expect("search");
         eprintln!("{r}\n{}", r.termination);
         // The start is off: θ_0 is metres away.
         assert!(r.centre_mean_position_error_m > 1.0, "Ē_p(θ_0) = {}", r.centre_mean_position_error_m);
@@ -702,10 +683,10 @@ mod tests {
     fn reachable_is_deterministic_and_seed_dependent() {
         let (drive, segs) = setup();
         let opts = ReachableOptions { iterations: 10, refine_iterations: 20, seed: 42, ..Default::default() };
-        let a = reachable_minimum(&drive, &segs, &opts).expect("a");
-        let b = reachable_minimum(&drive, &segs, &opts).expect("b");
+        let a = reachable_minimum(&drive, &segs, &opts, None).expect("a");
+        let b = reachable_minimum(&drive, &segs, &opts, None).expect("b");
         assert_eq!(ReachableReport { time_s: 0.0, ..a.clone() }, ReachableReport { time_s: 0.0, ..b });
-        let c = reachable_minimum(&drive, &segs, &ReachableOptions { seed: 43, ..opts }).expect("c");
+        let c = reachable_minimum(&drive, &segs, &ReachableOptions { seed: 43, ..opts }, None).expect("c");
         assert_ne!(a.theta, c.theta, "a different seed should search differently");
     }
 
@@ -723,7 +704,7 @@ mod tests {
             starts: vec![outside, near],
             ..Default::default()
         };
-        let r = reachable_minimum(&drive, &segs, &opts).expect("search");
+        let r = reachable_minimum(&drive, &segs, &opts, None).expect("search");
         for s in [opts.centre(), outside, near] {
             let e = mean_position_error(&drive, &segs, &s).expect("valid").mean_position_error_m;
             assert!(r.mean_position_error_m <= e, "{r} vs start {s}: {e}");
@@ -737,7 +718,7 @@ mod tests {
             recentre: 0,
             ..opts
         };
-        let r = reachable_minimum(&drive, &segs, &opts).expect("search");
+        let r = reachable_minimum(&drive, &segs, &opts, None).expect("search");
         assert_eq!(r.theta, Theta::SIM_DEFAULT_TRUE);
     }
 
@@ -757,14 +738,14 @@ mod tests {
         };
         assert!(small.upper.t_r < truth.t_r);
         let flagged =
-            reachable_minimum(&drive, &segs, &ReachableOptions { recentre: 0, ..small.clone() }).expect("search");
+            reachable_minimum(&drive, &segs, &ReachableOptions { recentre: 0, ..small.clone() }, None).expect("search");
         assert!(!flagged.enclosed, "{flagged}");
         assert!(flagged.at_edge.contains(Param::TR), "{flagged}");
         assert_eq!(flagged.recentred, 0);
         assert!(flagged.to_string().contains("NOT ENCLOSED: t_r"), "{flagged}");
         assert!(small.upper.t_r - flagged.theta.t_r < EDGE_FRACTION * 0.48, "{flagged}");
 
-        let enclosed = reachable_minimum(&drive, &segs, &small).expect("search");
+        let enclosed = reachable_minimum(&drive, &segs, &small, None).expect("search");
         eprintln!("{enclosed}");
         assert!(enclosed.recentred >= 1, "{enclosed}");
         assert!(enclosed.recentred <= DEFAULT_RECENTRE);
@@ -788,10 +769,10 @@ mod tests {
             ("starts", ReachableOptions { starts: vec![Theta { t_r: -1.0, ..d.upper }], ..d.clone() }),
         ];
         for (field, o) in cases {
-            let e = reachable_minimum(&drive, &segs, &o).expect_err(field);
+            let e = reachable_minimum(&drive, &segs, &o, None).expect_err(field);
             assert!(e.to_string().contains(&format!("`{field}`")), "{field}: {e}");
         }
-        assert!(matches!(reachable_minimum(&drive, &[], &d), Err(Error::NoSegments(_))));
+        assert!(matches!(reachable_minimum(&drive, &[], &d, None), Err(Error::NoSegments(_))));
     }
 
     #[test]

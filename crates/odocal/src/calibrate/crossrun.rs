@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 use crate::assess::trust::{Verdict, VerdictLevel};
 use crate::assess::validate::MultiValidation;
 use crate::assess::validation_drives::{validate_drives_with, ValidationDrive};
-use crate::calibrate::{calibrate, CalibrationOptions};
+use crate::calibrate::{Calibration, CalibrationOptions};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
 use crate::model::param::ParamSet;
@@ -256,7 +256,11 @@ pub fn cross_run_groups(
             };
             &joint
         };
-        let r = match calibrate(drive, opts, progress) {
+        let mut run = Calibration::new(drive, opts);
+        if let Some(p) = progress {
+            run = run.progress(p);
+        }
+        let r = match run.run() {
             Ok(r) => r,
             Err(e) => {
                 rows.push(CrossRunRow { name, fit: Err(e.to_string()) });

@@ -8,6 +8,7 @@ use super::{
     ThreeStepDetail,
 };
 use crate::assess::trust::Verdict;
+use crate::assess::validate::MultiValidation;
 use crate::assess::warning::Warning;
 use crate::compensate::CompensationStep;
 use crate::identify::{IdentifyReport, Observability, RobustCovariance};
@@ -61,7 +62,7 @@ pub struct ValidationSummary {
     /// Validation segments.
     pub segments: usize,
     /// True when the validation ran on held-out data that the calibration
-    /// did not see (see [`super::calibrate_held_out`]).
+    /// did not see (see [`super::Calibration::holdout`]).
     pub held_out: bool,
 }
 
@@ -123,6 +124,10 @@ pub struct CalibrationReport {
     /// Parameters held at θ_0 by [`CalibrationOptions::auto_fix`], in the
     /// order they were held (`options.identify.free` shows the final set).
     pub auto_fixed: Vec<Param>,
+    /// Ē_p of θ and θ_0 on each validation drive, when the calibration was
+    /// validated on other drives ([`super::Calibration::validate_on`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub validate_on: Option<MultiValidation>,
     /// The options used.
     pub options: CalibrationOptions,
 }
@@ -138,7 +143,7 @@ impl CalibrationReport {
     /// use odocal::{calibrate, CalibrationOptions};
     ///
     /// let out = simulate(&SimOptions { length_km: 2.0, ..SimOptions::paper(1) })?;
-    /// let r = calibrate(&out.drive, &CalibrationOptions::default(), None)?;
+    /// let r = calibrate(&out.drive, &CalibrationOptions::default())?;
     /// let lines = r.method_details();
     /// assert!(lines.starts_with("EIV: ") || lines.starts_with("EIV: filter failed"), "{lines}");
     /// assert!(lines.contains("  result: "));

@@ -638,9 +638,9 @@ mod forced_divergence_tests {
         let threshold = crate::drive::segment::SegmentOptions::default().min_peak_yaw_rate_rad_per_s;
         assert!(peak < threshold, "the batch is straight: peak yaw rate {peak} rad/s");
 
-        let plain = calibrate(&sim.drive, &opts, None).expect("calibrate");
+        let plain = calibrate(&sim.drive, &opts).expect("calibrate");
         forced::set_first_batch(Some(straight.clone()));
-        let forced = calibrate(&sim.drive, &opts, None);
+        let forced = calibrate(&sim.drive, &opts);
         forced::set_first_batch(None);
         let forced = forced.expect("calibrate with the forced batch");
 
