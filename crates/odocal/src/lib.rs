@@ -63,24 +63,27 @@
 //! Input Compensation by Optimal Control", IFAC-PapersOnLine, 2022.
 
 #![deny(clippy::float_cmp)]
+#![warn(unreachable_pub)]
 // A drive of one continuous part is `vec![0..n]`: one range is the intent.
 #![allow(clippy::single_range_in_vec_init)]
 // Numerical loops index several parallel arrays at once; index loops read like the maths.
 #![allow(clippy::needless_range_loop)]
 
 // The modules in layers, lowest first; a module uses only its own subtree
-// and modules of lower layers (tests/architecture.rs checks it).
-pub mod assess; // 6
-pub mod calibrate; // 7
+// and modules of lower layers (tests/architecture.rs checks it). The public
+// ones are expert API (each says whom it is for); everything a user needs
+// to calibrate, validate, import and simulate is re-exported below.
+mod assess; // 6
+mod calibrate; // 7
 pub mod compensate; // 5
-pub mod drive; // 2
+mod drive; // 2
 pub mod eiv; // 5
-pub mod error; // 0
+mod error; // 0
 pub mod experiment;
 pub mod identify; // 4
 pub mod io; // 3
 pub mod model; // 1
-pub mod progress; // 0
+mod progress; // 0
 pub mod sim; // 3 // 8
 
 /// The `schema_version` of every JSON report the `odocal` tool writes
@@ -93,29 +96,37 @@ pub const REPORT_SCHEMA_VERSION: u32 = 1;
 #[doc = include_str!("../../../README.md")]
 pub struct ReadmeDoctests;
 
-pub use assess::position_error::ValidationReport;
-pub use assess::position_error::{mean_position_error, mean_position_error_with};
-pub use assess::reachable::{reachable_minimum, ReachableOptions, ReachableReport};
-pub use assess::trust::{GuardViolation, Guards, TrustOptions, Verdict, VerdictLevel, VerdictReason};
-pub use assess::validate::{
-    validate, DriveValidation, MultiValidation, ValidateOptions, ValidateReport,
-};
-pub use assess::validation_drives::{validate_drives_with, CalibrationExtrinsics, ValidationDrive};
-pub use assess::warning::Warning;
-pub use calibrate::{
-    calibrate, BatchGnOptions, Calibration, CalibrationOptions, CalibrationReport,
-    EivDetail, EivMethodOptions, EivOutcome, FinalSegments, Holdout, Method, MethodDetail, ResultSigma, SigmaSource,
-    ThreeStepOptions,
-};
-pub use compensate::qp::SolverKind;
-pub use compensate::{CompensateOptions, QpOptions};
-pub use drive::segment::{Segment, SegmentData, SegmentOptions, ValidationSegmentOptions};
-pub use drive::{Drive, Signals};
+// Errors and progress.
 pub use error::{Error, Result};
-pub use experiment::{Experiment, ExperimentOptions};
-pub use identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport, Observability, RobustCovariance, Termination};
-pub use io::import::{import, load_drive, ImportReport, ImportedDrive, Manifest};
+pub use progress::{Progress, ProgressFn};
+// θ, the parameters and the reference extrinsics.
 pub use model::extrinsics::{Extrinsics, ExtrinsicsEstimate};
 pub use model::param::{Param, ParamSet};
-pub use model::{Input, State, Theta};
-pub use progress::{Progress, ProgressFn};
+pub use model::Theta;
+// Drives.
+/// Calibration and validation segments: cutting a drive into the pieces
+/// the methods fit and Ē_p averages over. Expert API, for programs that
+/// run the steps ([`identify`], [`compensate`]) or score θ themselves.
+pub use drive::segment;
+pub use drive::{Drive, DriveBuilder, ExtraColumn, ExtraValues, Signals};
+pub use io::import::{import, load_drive, ImportReport, ImportedDrive, Manifest, ReferenceSpec};
+pub use io::param_file::{ParamFile, ParamMapping};
+pub use sim::{simulate, NoiseOptions, SimOptions, SimOutput, SimSidecar};
+// Calibration.
+/// The calibration settings as key–value pairs, one type for every front
+/// end: a manifest's tables, the command line's flags and Python's keywords
+/// become a [`settings::Settings`], resolved to [`CalibrationOptions`].
+/// For programs that take settings from users.
+pub use calibrate::settings;
+pub use calibrate::settings::Settings;
+pub use calibrate::{
+    calibrate, BatchGnOptions, Calibration, CalibrationOptions, CalibrationReport, EivMethodOptions, FinalSegments,
+    Holdout, Method, MethodDetail, ResultSigma, SigmaSource, ThreeStepOptions,
+};
+// Validation and the verdict.
+pub use assess::position_error::{mean_position_error, ValidationReport};
+pub use assess::reachable::{ReachableOptions, ReachableReport};
+pub use assess::trust::{TrustOptions, Verdict, VerdictLevel, VerdictReason};
+pub use assess::validate::{validate, DriveValidation, MultiValidation, ValidateOptions, ValidateReport};
+pub use assess::validation_drives::ValidationDrive;
+pub use assess::warning::Warning;

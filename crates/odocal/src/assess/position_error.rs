@@ -36,7 +36,7 @@ pub struct ValidationReport {
 }
 
 /// Mean position error E_p,s of one segment at θ.
-pub fn segment_position_error(seg: &SegmentData<'_>, theta: &Theta) -> f64 {
+pub(crate) fn segment_position_error(seg: &SegmentData<'_>, theta: &Theta) -> f64 {
     let mut x = seg.reference(0);
     let mut sum = 0.0;
     for k in 0..seg.steps() {
@@ -56,7 +56,7 @@ pub fn mean_position_error(drive: &Drive, segments: &[Segment], theta: &Theta) -
 /// reference point is compared with the measured one
 /// ([`segment_position_error_with`]). With zero extrinsics
 /// this is [`mean_position_error`], bit for bit.
-pub fn mean_position_error_with(
+pub(crate) fn mean_position_error_with(
     drive: &Drive,
     segments: &[Segment],
     theta: &Theta,
@@ -89,7 +89,7 @@ pub fn mean_position_error_with(
 /// model's reference pose): the segment starts from the axle pose the
 /// reference implies, and the model's reference point is compared with the
 /// measured one.
-pub fn segment_position_error_with(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics) -> f64 {
+pub(crate) fn segment_position_error_with(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics) -> f64 {
     let mut x = axle_pose(&seg.reference(0), e);
     let mut sum = 0.0;
     for k in 0..seg.steps() {

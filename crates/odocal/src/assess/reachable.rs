@@ -85,10 +85,10 @@ const SIMPLEX_STEP: f64 = 0.02;
 /// *on the edge* of the box (1 %: the swarm and the simplex, pushed back by
 /// the penalty, end right at a bound when the minimum is beyond it, while
 /// an interior minimum a hundredth of the width from a bound is rare).
-pub const EDGE_FRACTION: f64 = 0.01;
+pub(crate) const EDGE_FRACTION: f64 = 0.01;
 
 /// Default number of times the box is re-centred on a best point on its edge.
-pub const DEFAULT_RECENTRE: usize = 3;
+pub(crate) const DEFAULT_RECENTRE: usize = 3;
 
 fn default_recentre() -> usize {
     DEFAULT_RECENTRE
@@ -360,7 +360,7 @@ fn argmin_error(stage: &str, e: argmin::core::Error) -> Error {
 ///
 /// Errors when the options are invalid (naming the field), when there are no
 /// segments, or when `Ē_p` cannot be computed at the box centre.
-pub fn reachable_minimum(
+pub(crate) fn reachable_minimum(
     drive: &Drive,
     segments: &[Segment],
     opts: &ReachableOptions,

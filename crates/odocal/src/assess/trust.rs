@@ -186,7 +186,7 @@ impl std::fmt::Display for GuardViolation {
 /// Every guard `theta` fails: finite, each parameter of `free` in its region
 /// around `theta0`, at least one accepted step (`iterations`, when known),
 /// rcond at least [`Guards::min_rcond`].
-pub fn check_theta(
+pub(crate) fn check_theta(
     theta: &Theta,
     theta0: &Theta,
     free: ParamSet,
@@ -216,7 +216,7 @@ pub fn check_theta(
 /// Every guard estimated extrinsics fail: finite, each free one within its
 /// plausible region around 0 ([`Guards::lever_arm_abs_m`],
 /// [`Guards::heading_offset_abs_rad`]).
-pub fn check_extrinsics(e: &Extrinsics, free: ParamSet, guards: &Guards) -> Vec<GuardViolation> {
+pub(crate) fn check_extrinsics(e: &Extrinsics, free: ParamSet, guards: &Guards) -> Vec<GuardViolation> {
     if !e.to_array().iter().all(|v| v.is_finite()) {
         return vec![GuardViolation::NonFinite];
     }

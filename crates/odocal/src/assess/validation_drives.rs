@@ -168,7 +168,7 @@ impl std::fmt::Display for DriveExtrinsics {
 
 /// The extrinsics a validation drive whose manifest states `reference`
 /// uses under the calibration's `cal` (the rules of the module docs).
-pub fn drive_extrinsics(cal: &CalibrationExtrinsics, reference: Option<&ReferenceSpec>) -> DriveExtrinsics {
+pub(crate) fn drive_extrinsics(cal: &CalibrationExtrinsics, reference: Option<&ReferenceSpec>) -> DriveExtrinsics {
     // The drive's stated values, and which it lists as a start of an estimate only.
     let stated = |p: Param| -> Option<f64> {
         let r = reference?;
@@ -313,7 +313,7 @@ impl<'a> HeldOutDrives<'a> {
 /// # Errors
 /// [`Error::NoSegments`] naming a drive too short for one validation
 /// segment (or when `drives` is empty); non-finite errors.
-pub fn validate_drives_with(
+pub(crate) fn validate_drives_with(
     drives: &[ValidationDrive<'_>],
     theta: &Theta,
     theta0: &Theta,

@@ -312,7 +312,7 @@ impl std::fmt::Display for Warning {
 /// Lines for a human reader: warnings grouped by kind (in order of first
 /// appearance), at most `per_kind` of each, then `"… and N more <kind>
 /// warnings"` for the rest.
-pub fn summarize(warnings: &[Warning], per_kind: usize) -> Vec<String> {
+pub(crate) fn summarize(warnings: &[Warning], per_kind: usize) -> Vec<String> {
     let mut kinds: Vec<&'static str> = Vec::new();
     for w in warnings {
         if !kinds.contains(&w.kind()) {

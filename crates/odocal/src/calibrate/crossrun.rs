@@ -23,11 +23,11 @@ use crate::progress::ProgressFn;
 /// The ratio of the acceptance criterion: the mean over runs of the
 /// cross-run Ē_p should stay within this multiple of the mean of the runs'
 /// own fits.
-pub const CROSS_RUN_OWN_FIT_RATIO: f64 = 1.5;
+pub(crate) const CROSS_RUN_OWN_FIT_RATIO: f64 = 1.5;
 
 /// One drive's calibration and its validation on the others.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct CrossRunRow {
+pub(crate) struct CrossRunRow {
     /// The drive calibrated on.
     pub name: String,
     /// The calibration, or why it failed.
@@ -36,7 +36,7 @@ pub struct CrossRunRow {
 
 /// A drive's calibration and its validation on the other drives.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct CrossRunFit {
+pub(crate) struct CrossRunFit {
     /// The calibrated θ.
     pub theta: Theta,
     /// Its verdict.
@@ -51,14 +51,14 @@ pub struct CrossRunFit {
 
 /// Every drive's row, in the order given.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct CrossRunTable {
+pub(crate) struct CrossRunTable {
     /// The rows.
     pub rows: Vec<CrossRunRow>,
 }
 
 /// The cross-run criteria, measured.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct CrossRunCriteria {
+pub(crate) struct CrossRunCriteria {
     /// `(calibrated on, validated on, Ē_p of θ, Ē_p of θ_0)` wherever the
     /// calibrated θ is worse than θ_0 on another drive.
     pub worse_than_initial: Vec<(String, String, f64, f64)>,
@@ -84,14 +84,14 @@ impl CrossRunCriteria {
     /// True when every calibration produced a θ, no θ is worse than θ_0
     /// on another drive and the ratio is within `max_ratio` (the rejected
     /// count is for the caller to judge).
-    pub fn pass(&self) -> bool {
+    pub(crate) fn pass(&self) -> bool {
         self.failed == 0 && self.worse_than_initial.is_empty() && self.ratio <= self.max_ratio
     }
 }
 
 impl CrossRunTable {
     /// The criteria with the allowed ratio `max_ratio` (e.g. [`CROSS_RUN_OWN_FIT_RATIO`]).
-    pub fn criteria(&self, max_ratio: f64) -> CrossRunCriteria {
+    pub(crate) fn criteria(&self, max_ratio: f64) -> CrossRunCriteria {
         let fits: Vec<(&str, &CrossRunFit)> =
             self.rows.iter().filter_map(|r| r.fit.as_ref().ok().map(|f| (r.name.as_str(), f))).collect();
         let n = fits.len().max(1) as f64;
@@ -190,7 +190,7 @@ impl std::fmt::Display for CrossRunCriteria {
 ///
 /// # Errors
 /// Fewer than two drives; a validation's error, naming the drive.
-pub fn cross_run(
+pub(crate) fn cross_run(
     drives: &[(&str, &Drive)],
     opts: &CalibrationOptions,
     progress: Option<ProgressFn<'_>>,
@@ -216,7 +216,7 @@ pub fn cross_run(
 /// Fewer than two drives, an empty group, an index out of range or a group
 /// that covers every drive (nothing left to validate on); a validation's
 /// error, naming the group.
-pub fn cross_run_groups(
+pub(crate) fn cross_run_groups(
     drives: &[(&str, &Drive)],
     groups: &[Vec<usize>],
     opts: &CalibrationOptions,

@@ -167,7 +167,7 @@ impl Default for EivMethodOptions {
 /// (20 × 12 km per preset, η estimated): B = 4 and B = 10 remove
 /// the same bias (`high` t_r +1.097 % → +0.458 % and +0.456 %), and B = 4
 /// costs 1.3–1.5× a fit against about 2× (docs/validation.md).
-pub const DEFAULT_BIAS_REPLICATES: usize = 4;
+pub(crate) const DEFAULT_BIAS_REPLICATES: usize = 4;
 
 /// The bootstrap bias correction of the EIV method
 /// ([`EivMethodOptions::correct_bias`]; [`EivOptions::correct_bias`]).
@@ -257,7 +257,7 @@ impl EivDetail {
 /// what is left of the innovations is rounding and is correlated). The
 /// band and the whiteness limits already allow for the measurement floors
 /// ([`eiv::InnovationNull`]).
-pub fn is_misspecification(w: &EivWarning, report: &EivReport) -> bool {
+pub(crate) fn is_misspecification(w: &EivWarning, report: &EivReport) -> bool {
     match w {
         EivWarning::Unobservable { .. } => false,
         EivWarning::InconsistentInnovations { nis, band, .. } => *nis > band[1],
@@ -317,7 +317,7 @@ impl NoiseSpec {
 /// lateral_acceleration_sigma_m_per_s2 = 0.08   # the IMU's a_y noise ...
 /// lateral = "stated"                 # ... held, not scaled with the wheels'
 /// ```
-pub fn read_noise_model(path: &Path) -> Result<NoiseSpec> {
+pub(crate) fn read_noise_model(path: &Path) -> Result<NoiseSpec> {
     let text = std::fs::read_to_string(path).map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
     parse_noise_model(&text).map_err(|reason| Error::InvalidOption {
         field: "noise model file",
@@ -326,7 +326,7 @@ pub fn read_noise_model(path: &Path) -> Result<NoiseSpec> {
 }
 
 /// Parses the TOML of [`read_noise_model`] and checks the model.
-pub fn parse_noise_model(text: &str) -> std::result::Result<NoiseSpec, String> {
+pub(crate) fn parse_noise_model(text: &str) -> std::result::Result<NoiseSpec, String> {
     let table: toml::Table = toml::from_str(text).map_err(|e| e.message().to_string())?;
     noise_model_from_table(table)
 }
@@ -336,7 +336,7 @@ pub fn parse_noise_model(text: &str) -> std::result::Result<NoiseSpec, String> {
 /// fields keep the production-car defaults; an unknown field, a value of
 /// the wrong type or out of range, or an unknown source in `known` is an
 /// error naming the field.
-pub fn noise_model_from_table(mut table: toml::Table) -> std::result::Result<NoiseSpec, String> {
+pub(crate) fn noise_model_from_table(mut table: toml::Table) -> std::result::Result<NoiseSpec, String> {
     let known = match table.remove("known") {
         None => Vec::new(),
         Some(toml::Value::Array(list)) => {
@@ -374,7 +374,7 @@ pub fn noise_model_from_table(mut table: toml::Table) -> std::result::Result<Noi
 }
 
 /// The noise model as one line in physical units (σ in %, time constants in s).
-pub fn noise_summary(n: &NoiseModel) -> String {
+pub(crate) fn noise_summary(n: &NoiseModel) -> String {
     format!(
         "σ_white {:.3} %, q {:.4} rev/s, σ_c {:.3} % (τ_c {} s), σ_w {:.3} % (τ_w {} s); pose σ {:.3} m / {:.2} mrad, \
          drift {:.3} m / {:.2} mrad (τ {} s); σ_a {:.3} m/s², σ_β {:.2} mrad",

@@ -62,25 +62,24 @@ use crate::model::param::{Param, ParamSet};
 use crate::model::Theta;
 use crate::progress::ProgressFn;
 
-pub mod batch_gn;
-pub mod crossrun;
-pub mod eiv;
+pub(crate) mod batch_gn;
+pub(crate) mod crossrun;
+pub(crate) mod eiv;
 mod report;
 pub mod settings;
-pub mod three_step;
+pub(crate) mod three_step;
 mod turn_sense;
-pub mod validate_on;
+pub(crate) mod validate_on;
 
-pub use report::{
-    CalibrationReport, MethodDetail, ResultSigma, SegmentCounts, SigmaSource, ThetaScore, Timing, ValidationSummary,
-};
+pub use report::{CalibrationReport, MethodDetail, ResultSigma, SigmaSource};
+pub(crate) use report::{SegmentCounts, ThetaScore, Timing, ValidationSummary};
 
-pub use batch_gn::{BatchGnDetail, BatchGnOptions};
-pub use eiv::{CorrectBias, EivDetail, EivMethodOptions, EivOutcome, DEFAULT_BIAS_REPLICATES};
-pub use three_step::{
-    per_segment_identification, random_batches, score_batches, BatchResult, BatchSpread, FinalSegments, InitialStep,
-    RejectedBatch, ThreeStepDetail, ThreeStepOptions, ThreeStepUncertainty,
-};
+pub(crate) use batch_gn::BatchGnDetail;
+pub use batch_gn::BatchGnOptions;
+pub use eiv::EivMethodOptions;
+pub(crate) use eiv::{EivDetail, EivOutcome};
+pub(crate) use three_step::{per_segment_identification, score_batches, BatchResult, InitialStep, ThreeStepDetail};
+pub use three_step::{FinalSegments, ThreeStepOptions};
 
 /// Which calibration method to run, with its settings.
 ///
@@ -390,7 +389,7 @@ impl<'a> Calibration<'a> {
 /// A calibration with the intermediate data an experiment needs: the report,
 /// the segments used and (three-step only) the compensated inputs of step 2.
 #[derive(Debug, Clone, PartialEq)]
-pub struct DetailedCalibration {
+pub(crate) struct DetailedCalibration {
     /// The report [`calibrate`] returns.
     pub report: CalibrationReport,
     /// The calibration segments fitted (all segments when none turns
@@ -430,7 +429,7 @@ pub(crate) struct Selection {
 
 impl Selection {
     /// The options' Gauss-Newton settings with the selected free set.
-    pub fn identify(&self, opts: &CalibrationOptions) -> IdentifyOptions {
+    pub(crate) fn identify(&self, opts: &CalibrationOptions) -> IdentifyOptions {
         IdentifyOptions { free: self.free, ..opts.identify.clone() }
     }
 }
@@ -490,7 +489,7 @@ pub(crate) trait Estimator {
 
 /// A calibration of `drive`, validated on `held_out` when given, also
 /// returning the segments and step 2's compensated inputs.
-pub fn calibrate_detailed(
+pub(crate) fn calibrate_detailed(
     drive: &Drive,
     held_out: Option<&Drive>,
     opts: &CalibrationOptions,

@@ -40,7 +40,7 @@ use crate::progress::{emit, Progress, ProgressFn};
 
 /// Mixed into [`super::CalibrationOptions::seed`] to draw step 3's random
 /// batch ([`FinalSegments::Random`]) independently of step 1's batches.
-pub const FINAL_SEGMENTS_SEED_SALT: u64 = 0x5eed_f1a1;
+pub(crate) const FINAL_SEGMENTS_SEED_SALT: u64 = 0x5eed_f1a1;
 
 /// Which segments the final identification (step 3) uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -232,7 +232,7 @@ fn effective_segments(segments: &[Segment]) -> f64 {
 }
 
 /// Random batches of `size` distinct indices out of `n` (all when n ≤ size).
-pub fn random_batches(n: usize, size: usize, count: usize, seed: u64) -> Vec<Vec<usize>> {
+pub(crate) fn random_batches(n: usize, size: usize, count: usize, seed: u64) -> Vec<Vec<usize>> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut idx: Vec<usize> = (0..n).collect();
     (0..count)
@@ -262,7 +262,7 @@ pub(crate) fn equal_step_picks(n: usize, picks: usize) -> Vec<usize> {
 /// same on compensated inputs). Batches run in parallel; results come back in
 /// batch order whatever the thread count. A failed batch is an `Err` in its
 /// place, so callers decide whether to leave it out.
-pub fn score_batches(
+pub(crate) fn score_batches(
     drive: &Drive,
     data: &[SegmentData<'_>],
     batches: &[Vec<usize>],
@@ -305,7 +305,7 @@ pub fn score_batches(
 /// paper's Fig. 7/8. Pass compensated segment data
 /// ([`crate::compensate::CompensatedInputs::segment_data`]) to get the
 /// compensated-input estimates. Results are in segment order.
-pub fn per_segment_identification(
+pub(crate) fn per_segment_identification(
     drive: &Drive,
     data: &[SegmentData<'_>],
     validation: &[Segment],

@@ -7,7 +7,7 @@ use crate::model::limits::PhysicalLimits;
 /// Seconds between the last sample of one drive and the first of the next
 /// when [`Drive::concat`] has to shift a drive's clock (its time does not
 /// follow the previous drive's).
-pub const CONCAT_GAP_S: f64 = 1.0;
+pub(crate) const CONCAT_GAP_S: f64 = 1.0;
 
 impl Drive {
     /// The drives one after the other as one drive, each drive's parts kept

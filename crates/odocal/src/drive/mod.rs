@@ -44,25 +44,22 @@
 
 mod concat;
 mod csv;
-pub mod plausibility;
+pub(crate) mod plausibility;
 pub mod segment;
 
 use std::ops::Range;
 
-pub use self::concat::CONCAT_GAP_S;
-
 pub(crate) use self::csv::echo;
-pub use self::csv::REQUIRED_COLUMNS;
 use crate::error::{Error, Result};
 use crate::model::extrinsics::{axle_pose, Extrinsics};
 use crate::model::limits::PhysicalLimits;
 use crate::model::{Input, State};
 
 /// Relative tolerance on the uniformity of the sample step (SPEC: 1 %).
-pub const STEP_UNIFORMITY_TOL: f64 = 0.01;
+pub(crate) const STEP_UNIFORMITY_TOL: f64 = 0.01;
 
 /// Names of the seven signal columns of [`Signals`], in [`Signals::columns`] order.
-pub const SIGNAL_NAMES: [&str; 7] = ["px", "py", "psi", "n_rl", "n_rr", "beta", "a_y"];
+pub(crate) const SIGNAL_NAMES: [&str; 7] = ["px", "py", "psi", "n_rl", "n_rr", "beta", "a_y"];
 
 /// The seven signals of a drive sample by sample: reference pose and model
 /// inputs. The same type holds the measured columns and, for simulated
@@ -672,7 +669,7 @@ impl Drive {
 
 /// Unwraps an angle series in place: every step larger than π in magnitude
 /// is taken as a 2π wrap.
-pub fn unwrap_in_place(a: &mut [f64]) {
+pub(crate) fn unwrap_in_place(a: &mut [f64]) {
     let two_pi = 2.0 * std::f64::consts::PI;
     let mut offset = 0.0;
     let mut prev_raw = match a.first() {
@@ -696,7 +693,7 @@ pub fn unwrap_in_place(a: &mut [f64]) {
 /// under `e` ([`axle_pose`] per sample); wheels, parts and the
 /// reference-measured mask are kept, truth and extra columns dropped. The
 /// 3-step method's input compensation and the EIV filter run on it.
-pub fn axle_reference_drive(drive: &Drive, e: &Extrinsics) -> Result<Drive> {
+pub(crate) fn axle_reference_drive(drive: &Drive, e: &Extrinsics) -> Result<Drive> {
     let mut m = drive.measured().clone();
     for i in 0..drive.len() {
         let x = axle_pose(&drive.pose(i), e);

@@ -344,8 +344,7 @@ mod tests {
         assert!(r.validation.mean_position_error_m < 1e-6, "{}", r.validation.mean_position_error_m);
         assert_eq!(r.verdict.level, crate::assess::trust::VerdictLevel::Accepted, "{:?}", r.verdict);
         // Without extrinsics the same drive validates metres off.
-        let plain =
-            calibrate(&d, &CalibrationOptions { identify: Default::default(), ..gn.clone() }).expect("plain");
+        let plain = calibrate(&d, &CalibrationOptions { identify: Default::default(), ..gn.clone() }).expect("plain");
         assert!(plain.extrinsics.is_none());
         assert!(plain.validation.mean_position_error_m > 0.1, "{}", plain.validation.mean_position_error_m);
         // The 3-step method: steps 1 and 3 carry the extrinsics; step 2 tracks

@@ -282,13 +282,13 @@ impl FileFormat {
 /// Whether `path` names a parameter file by its extension (`.yaml`, `.yml`,
 /// `.json`: the files [`ParamFile::write`] writes and [`ParamFile::read`]
 /// reads), e.g. to tell one from a θ typed as text.
-pub fn is_param_file(path: &Path) -> bool {
+pub(crate) fn is_param_file(path: &Path) -> bool {
     FileFormat::of(path).is_some()
 }
 
 /// Largest parameter file [`ParamFile::read`] accepts, bytes (odocal writes
 /// about 1.5 kB).
-pub const MAX_PARAM_FILE_BYTES: u64 = 1 << 20;
+pub(crate) const MAX_PARAM_FILE_BYTES: u64 = 1 << 20;
 
 /// A value of the flat `ros__parameters` / `parameters` map.
 enum Flat {
@@ -607,7 +607,7 @@ fn yaml_str(s: &str) -> String {
 }
 
 /// Today's date (UTC) as `YYYY-MM-DD`, from the system clock.
-pub fn utc_date_today() -> String {
+pub(crate) fn utc_date_today() -> String {
     let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
     let (y, m, d) = civil_from_days((secs / 86_400) as i64);
     format!("{y:04}-{m:02}-{d:02}")

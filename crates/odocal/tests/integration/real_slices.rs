@@ -51,8 +51,7 @@ fn rav4_slice_without_turns_is_an_error_naming_the_parameters() {
     let opts = CalibrationOptions { segments: SegmentOptions { length_steps: 400, ..Default::default() }, ..options() };
     let e = calibrate(&imported.drive, &opts).expect_err("not observable");
     assert!(e.to_string().contains("c_d, t_r, d not observable"), "{e}");
-    let r =
-        calibrate(&imported.drive, &CalibrationOptions { auto_fix: true, ..opts.clone() }).expect("c_e alone");
+    let r = calibrate(&imported.drive, &CalibrationOptions { auto_fix: true, ..opts.clone() }).expect("c_e alone");
     assert_eq!(r.auto_fixed, vec![Param::CD, Param::TR, Param::D]);
     assert!((2.0 * 1.005..2.0 * 1.015).contains(&r.theta.c_e), "c_e = {}", r.theta.c_e);
 }

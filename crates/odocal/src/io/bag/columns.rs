@@ -91,7 +91,7 @@ pub(crate) enum JointField {
 }
 
 impl JointField {
-    pub fn name(self) -> &'static str {
+    pub(super) fn name(self) -> &'static str {
         match self {
             JointField::Position => "position",
             JointField::Velocity => "velocity",

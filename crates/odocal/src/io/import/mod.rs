@@ -228,7 +228,7 @@ mod clock;
 mod geodesy;
 mod grid;
 mod lateral;
-pub mod limits;
+pub(crate) mod limits;
 mod manifest;
 mod pose;
 mod report;
@@ -244,13 +244,11 @@ use std::ops::Range;
 use std::path::Path;
 use std::time::Instant;
 
-pub use manifest::{
-    AngleUnit, BagTime, BankSpec, ClockOffset, HeadingConvention, HeadingSpec, LateralAccelerationSpec, LimitsSpec,
-    Manifest, OutputSpec, PositionSpec, QualitySpec, SideslipSpec, SourceSpec, StreamSpec, TimeUnit, WheelColumn,
-    WheelSignal, WheelSpec,
-};
-pub use report::{ClockOffsetReport, DejitterReport, GapRecord, ImportReport, JitterReport, PartRecord, StreamReport};
-pub use settings::{CalibrationTable, NoiseTable, ReferenceSpec, MAX_LEVER_ARM_M};
+pub use manifest::Manifest;
+pub(crate) use manifest::{ClockOffset, LateralAccelerationSpec, PositionSpec, SideslipSpec};
+pub use report::ImportReport;
+pub use settings::ReferenceSpec;
+pub(crate) use settings::{CalibrationTable, NoiseTable};
 
 use crate::drive::{Drive, Signals};
 use crate::error::{Error, Result};
