@@ -16,14 +16,14 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use odocal::calibrate::EivMethodOptions;
-use odocal::drive::segment::{
-    calibration_segments, validation_segments, SegmentData, SegmentOptions, ValidationSegmentOptions,
-};
 use odocal::eiv::EivOptions;
 use odocal::identify::{batch_gauss_newton, batch_normal_equations, IdentifyOptions};
 use odocal::model::{step_jacobians, Input, State, Theta};
+use odocal::segment::{
+    calibration_segments, validation_segments, SegmentData, SegmentOptions, ValidationSegmentOptions,
+};
 use odocal::sim::{simulate, SimOptions};
+use odocal::EivMethodOptions;
 use odocal::{calibrate, CalibrationOptions, Method};
 
 fn drive(km: f64) -> odocal::Drive {

@@ -6,10 +6,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::Args;
-use odocal::calibrate::settings::{Caller, ManifestSettings, SettingsAccount};
+use odocal::settings::{Caller, ManifestSettings, SettingsAccount};
 use odocal::{
-    drive::segment, sim, CalibrationOptions, CalibrationReport, Drive, Holdout, Method, ParamSet,
-    Theta, VerdictLevel,
+    segment, sim, CalibrationOptions, CalibrationReport, Drive, Holdout, Method, ParamSet, Theta, VerdictLevel,
 };
 
 use crate::args::{CalibrationArgs, HalfArg, HelpArgs};
@@ -281,7 +280,7 @@ fn write_html_report(
             ("method".into(), r.method.clone()),
             ("input".into(), input.to_string()),
             ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
-            ("date".into(), odocal::io::param_file::utc_date_today()),
+            ("date".into(), odocal::ParamFile::utc_date_today()),
         ],
         params,
         truth: truth.map(|t| *t.0),

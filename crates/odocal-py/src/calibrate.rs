@@ -9,10 +9,10 @@ use pyo3::exceptions::{PyRuntimeError, PyTypeError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use odocal::calibrate::settings::{Caller, ManifestSettings, Resolved, Settings};
-use odocal::drive::Drive;
-use odocal::io::import::ReferenceSpec;
-use odocal::model::param::ParamSet;
+use odocal::settings::{Caller, ManifestSettings, Resolved, Settings};
+use odocal::Drive;
+use odocal::ParamSet;
+use odocal::ReferenceSpec;
 use odocal::{Holdout, Progress};
 
 use crate::convert::{to_json, to_py};
@@ -150,7 +150,7 @@ fn calibrate_json(
     let scored = held.unwrap_or(drive);
     if let (Some(side), Some(obj)) = (&prov.sidecar, v.as_object_mut()) {
         let t = side.theta_true;
-        let segs = odocal::drive::segment::validation_segments(scored, &opts.validation)?;
+        let segs = odocal::segment::validation_segments(scored, &opts.validation)?;
         let e = odocal::mean_position_error(scored, &segs, &t)?.mean_position_error_m;
         obj.insert("truth".into(), serde_json::json!({"theta": t, "mean_position_error_m": e}));
     }

@@ -1,7 +1,7 @@
 //! Writes a sample HTML report of a simulated drive calibrated with batch
 //! Gauss-Newton: `cargo run --release -p odocal-report --example sample_report -- OUT.html`.
 
-use odocal::{drive::segment, sim, Theta};
+use odocal::{segment, sim, Theta};
 use odocal_report::{write_html, ParamRow, ReportInput};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

@@ -9,8 +9,8 @@
 
 use std::path::Path;
 
-use odocal::drive::segment::validation_segments;
-use odocal::io::param_file::ParamFile;
+use odocal::segment::validation_segments;
+use odocal::ParamFile;
 use odocal::{calibrate, load_drive, mean_position_error, CalibrationOptions};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

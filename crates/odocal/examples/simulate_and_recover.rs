@@ -34,7 +34,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
 
     // Dead reckoning with the true θ: the floor that noise leaves on Ē_p.
-    let validation = odocal::drive::segment::validation_segments(drive, &Default::default())?;
+    let validation = odocal::segment::validation_segments(drive, &Default::default())?;
     let floor = mean_position_error(drive, &validation, &truth)?;
     println!("Ē_p with the true θ: {:.2} m", floor.mean_position_error_m);
     Ok(())

@@ -103,7 +103,7 @@ impl CramerRao {
 
     /// (θ − θ_true)/σ_CRB, when the bound is available and positive for
     /// every parameter.
-    pub fn ratio(&self, error: &Theta) -> Option<Theta> {
+    pub(crate) fn ratio(&self, error: &Theta) -> Option<Theta> {
         let s = self.sigma?;
         let (e, s) = (error.to_array(), s.to_array());
         if !s.iter().all(|x| x.is_finite() && *x > 0.0) {
@@ -114,7 +114,7 @@ impl CramerRao {
 }
 
 /// The bound at θ_true with the true noise model, or why it is not available.
-pub fn cramer_rao_column(drive: &Drive, theta_true: Option<&Theta>, noise: Option<&NoiseModel>) -> CramerRao {
+pub(crate) fn cramer_rao_column(drive: &Drive, theta_true: Option<&Theta>, noise: Option<&NoiseModel>) -> CramerRao {
     let (theta, noise) = match (theta_true, noise) {
         (Some(t), Some(n)) => (t, n),
         (None, _) => {
@@ -334,7 +334,7 @@ fn diff(a: &Theta, b: &Theta) -> Theta {
 }
 
 /// Median of the finite values (NaN when there are none).
-pub fn median(values: &[f64]) -> f64 {
+pub(crate) fn median(values: &[f64]) -> f64 {
     let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
     if v.is_empty() {
         return f64::NAN;

@@ -79,12 +79,12 @@ pub mod compensate; // 5
 mod drive; // 2
 pub mod eiv; // 5
 mod error; // 0
-pub mod experiment;
+pub mod experiment; // 8
 pub mod identify; // 4
 pub mod io; // 3
 pub mod model; // 1
 mod progress; // 0
-pub mod sim; // 3 // 8
+pub mod sim; // 3
 
 /// The `schema_version` of every JSON report the `odocal` tool writes
 /// (calibrate, validate, import, experiment). Raised when a field is
@@ -113,18 +113,31 @@ pub use io::import::{import, load_drive, ImportReport, ImportedDrive, Manifest, 
 pub use io::param_file::{ParamFile, ParamMapping};
 pub use sim::{simulate, NoiseOptions, SimOptions, SimOutput, SimSidecar};
 // Calibration.
+/// Cross-run checks: calibrate on each of several drives of one vehicle
+/// (or on groups of them) and validate on the others. Expert API, for
+/// judging whether a calibration carries over between drives.
+pub use calibrate::crossrun;
 /// The calibration settings as key–value pairs, one type for every front
 /// end: a manifest's tables, the command line's flags and Python's keywords
 /// become a [`settings::Settings`], resolved to [`CalibrationOptions`].
 /// For programs that take settings from users.
+/// The calibration settings as key–value pairs, one type for every front
+/// end: a manifest's tables, the command line's flags and Python's keywords
+/// become a [`settings::Settings`], resolved to [`CalibrationOptions`].
+/// Expert API, for programs that take settings from users.
 pub use calibrate::settings;
 pub use calibrate::settings::Settings;
 pub use calibrate::{
     calibrate, BatchGnOptions, Calibration, CalibrationOptions, CalibrationReport, EivMethodOptions, FinalSegments,
     Holdout, Method, MethodDetail, ResultSigma, SigmaSource, ThreeStepOptions,
 };
+// The methods' own report details.
+pub use calibrate::{BatchGnDetail, BatchSpread, EivDetail, EivOutcome, InitialStep, ThreeStepDetail};
+// The 3-step method's compensation settings.
+pub use compensate::qp::SolverKind;
+pub use compensate::{CompensateOptions, QpOptions};
 // Validation and the verdict.
-pub use assess::position_error::{mean_position_error, ValidationReport};
+pub use assess::position_error::{mean_position_error, segment_position_error, ValidationReport};
 pub use assess::reachable::{ReachableOptions, ReachableReport};
 pub use assess::trust::{TrustOptions, Verdict, VerdictLevel, VerdictReason};
 pub use assess::validate::{validate, DriveValidation, MultiValidation, ValidateOptions, ValidateReport};

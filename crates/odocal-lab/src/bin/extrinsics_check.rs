@@ -32,7 +32,7 @@
 //!   clockwise minus counter-clockwise +1.7 mm without, +2.3 mm with; δ ≈
 //!   +23 mrad on counter-clockwise runs, +7 to +10 mrad on clockwise ones.
 
-use odocal::drive::segment::validation_segments;
+use odocal::segment::validation_segments;
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{
     mean_position_error_with, CalibrationOptions, CalibrationReport, Drive, Extrinsics,

@@ -20,7 +20,7 @@
 
 use std::time::Instant;
 
-use odocal::drive::segment::{calibration_segments, SegmentData};
+use odocal::segment::{calibration_segments, SegmentData};
 use odocal::identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{Extrinsics, ParamSet, Theta};

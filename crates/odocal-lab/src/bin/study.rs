@@ -21,7 +21,7 @@ use std::time::Instant;
 use odocal::calibrate::{calibrate_detailed, random_batches, score_batches};
 use odocal::compensate::qp::SolverKind;
 use odocal::compensate::{compensate_segments, CompensateOptions, CompensatedInputs, QpOptions};
-use odocal::drive::segment::SegmentData;
+use odocal::segment::SegmentData;
 use odocal::identify::IdentifyOptions;
 use odocal::{mean_position_error, reachable_minimum, Drive, ReachableOptions, Segment, Theta};
 use odocal::{CalibrationOptions, Method, ThreeStepOptions};

@@ -54,7 +54,7 @@ use std::collections::BTreeMap;
 use std::time::Instant;
 
 use odocal::calibrate::{EivDetail, EivMethodOptions};
-use odocal::drive::segment::validation_segments;
+use odocal::segment::validation_segments;
 use odocal::eiv::{
     bootstrap, cramer_rao_bound, BootstrapInputs, BootstrapOptions, CovarianceEstimate, EivInput, EivOptions,
     EivReport, HeadingScale, InputJacobian, LateralNoise, NoiseModel, QuantisationLevel, QuantisationModel,

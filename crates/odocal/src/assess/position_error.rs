@@ -36,7 +36,7 @@ pub struct ValidationReport {
 }
 
 /// Mean position error E_p,s of one segment at θ.
-pub(crate) fn segment_position_error(seg: &SegmentData<'_>, theta: &Theta) -> f64 {
+pub fn segment_position_error(seg: &SegmentData<'_>, theta: &Theta) -> f64 {
     let mut x = seg.reference(0);
     let mut sum = 0.0;
     for k in 0..seg.steps() {

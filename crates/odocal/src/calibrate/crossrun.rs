@@ -23,11 +23,11 @@ use crate::progress::ProgressFn;
 /// The ratio of the acceptance criterion: the mean over runs of the
 /// cross-run Ē_p should stay within this multiple of the mean of the runs'
 /// own fits.
-pub(crate) const CROSS_RUN_OWN_FIT_RATIO: f64 = 1.5;
+pub const CROSS_RUN_OWN_FIT_RATIO: f64 = 1.5;
 
 /// One drive's calibration and its validation on the others.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub(crate) struct CrossRunRow {
+pub struct CrossRunRow {
     /// The drive calibrated on.
     pub name: String,
     /// The calibration, or why it failed.
@@ -36,7 +36,7 @@ pub(crate) struct CrossRunRow {
 
 /// A drive's calibration and its validation on the other drives.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub(crate) struct CrossRunFit {
+pub struct CrossRunFit {
     /// The calibrated θ.
     pub theta: Theta,
     /// Its verdict.
@@ -51,14 +51,14 @@ pub(crate) struct CrossRunFit {
 
 /// Every drive's row, in the order given.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub(crate) struct CrossRunTable {
+pub struct CrossRunTable {
     /// The rows.
     pub rows: Vec<CrossRunRow>,
 }
 
 /// The cross-run criteria, measured.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub(crate) struct CrossRunCriteria {
+pub struct CrossRunCriteria {
     /// `(calibrated on, validated on, Ē_p of θ, Ē_p of θ_0)` wherever the
     /// calibrated θ is worse than θ_0 on another drive.
     pub worse_than_initial: Vec<(String, String, f64, f64)>,
@@ -84,14 +84,14 @@ impl CrossRunCriteria {
     /// True when every calibration produced a θ, no θ is worse than θ_0
     /// on another drive and the ratio is within `max_ratio` (the rejected
     /// count is for the caller to judge).
-    pub(crate) fn pass(&self) -> bool {
+    pub fn pass(&self) -> bool {
         self.failed == 0 && self.worse_than_initial.is_empty() && self.ratio <= self.max_ratio
     }
 }
 
 impl CrossRunTable {
     /// The criteria with the allowed ratio `max_ratio` (e.g. [`CROSS_RUN_OWN_FIT_RATIO`]).
-    pub(crate) fn criteria(&self, max_ratio: f64) -> CrossRunCriteria {
+    pub fn criteria(&self, max_ratio: f64) -> CrossRunCriteria {
         let fits: Vec<(&str, &CrossRunFit)> =
             self.rows.iter().filter_map(|r| r.fit.as_ref().ok().map(|f| (r.name.as_str(), f))).collect();
         let n = fits.len().max(1) as f64;
@@ -216,7 +216,7 @@ pub(crate) fn cross_run(
 /// Fewer than two drives, an empty group, an index out of range or a group
 /// that covers every drive (nothing left to validate on); a validation's
 /// error, naming the group.
-pub(crate) fn cross_run_groups(
+pub fn cross_run_groups(
     drives: &[(&str, &Drive)],
     groups: &[Vec<usize>],
     opts: &CalibrationOptions,

@@ -63,7 +63,7 @@ use crate::model::Theta;
 use crate::progress::ProgressFn;
 
 pub(crate) mod batch_gn;
-pub(crate) mod crossrun;
+pub mod crossrun;
 pub(crate) mod eiv;
 mod report;
 pub mod settings;
@@ -74,12 +74,10 @@ pub(crate) mod validate_on;
 pub use report::{CalibrationReport, MethodDetail, ResultSigma, SigmaSource};
 pub(crate) use report::{SegmentCounts, ThetaScore, Timing, ValidationSummary};
 
-pub(crate) use batch_gn::BatchGnDetail;
-pub use batch_gn::BatchGnOptions;
-pub use eiv::EivMethodOptions;
-pub(crate) use eiv::{EivDetail, EivOutcome};
-pub(crate) use three_step::{per_segment_identification, score_batches, BatchResult, InitialStep, ThreeStepDetail};
-pub use three_step::{FinalSegments, ThreeStepOptions};
+pub use batch_gn::{BatchGnDetail, BatchGnOptions};
+pub use eiv::{EivDetail, EivMethodOptions, EivOutcome};
+pub(crate) use three_step::{per_segment_identification, score_batches, BatchResult};
+pub use three_step::{BatchSpread, FinalSegments, InitialStep, ThreeStepDetail, ThreeStepOptions};
 
 /// Which calibration method to run, with its settings.
 ///

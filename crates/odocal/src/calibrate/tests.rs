@@ -1,6 +1,6 @@
 //! Tests of the calibration methods and their shared part.
 
-use super::three_step::equal_step_picks;
+use super::three_step::{equal_step_picks, random_batches};
 use super::*;
 use crate::compensate::qp::SolverKind;
 use crate::compensate::QpOptions;

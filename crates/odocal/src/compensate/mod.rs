@@ -145,7 +145,7 @@ impl CompensateOptions {
 
 /// The compensated inputs of one segment and how they were obtained.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Compensation {
+pub(crate) struct Compensation {
     /// First sample of the segment in the drive.
     pub start: usize,
     /// Compensated rear-left wheel rotation, rev/s (K values).
@@ -174,7 +174,7 @@ pub struct Compensation {
 
 /// A QP solved by the fallback solver after the primary one stopped.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct QpFallback {
+pub(crate) struct QpFallback {
     /// The linearization (1-based).
     pub linearization: usize,
     /// The primary solver.
@@ -241,7 +241,7 @@ pub(crate) fn build_qp(
 /// solution and solves again until the inputs settle (at most
 /// `max_linearizations` solves). A QP failure is returned as an error for
 /// this segment; callers leave the segment out with a warning.
-pub fn compensate_segment(
+pub(crate) fn compensate_segment(
     seg: &SegmentData<'_>,
     theta: &Theta,
     solver: &dyn QpSolver,
@@ -255,7 +255,7 @@ pub fn compensate_segment(
 /// (typically [`crate::compensate::qp::clarabel::ClarabelSolver`]), and the event is
 /// recorded in [`Compensation::fallbacks`]. An infeasible or malformed QP is
 /// not retried (no solver can do better); it is returned as an error.
-pub fn compensate_segment_with_fallback(
+pub(crate) fn compensate_segment_with_fallback(
     seg: &SegmentData<'_>,
     theta: &Theta,
     solver: &dyn QpSolver,
@@ -401,7 +401,7 @@ pub enum CompensationWarning {
 
 impl CompensatedInputs {
     /// Segment data with the compensated wheel rotations.
-    pub fn segment_data<'a>(&'a self, drive: &'a Drive) -> Vec<SegmentData<'a>> {
+    pub(crate) fn segment_data<'a>(&'a self, drive: &'a Drive) -> Vec<SegmentData<'a>> {
         self.segments
             .iter()
             .enumerate()

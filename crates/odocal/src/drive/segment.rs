@@ -176,7 +176,7 @@ impl<'a> SegmentData<'a> {
     }
 
     /// The same segment with other wheel rotations (K values each).
-    pub fn with_wheels<'b>(&self, n_rl: &'b [f64], n_rr: &'b [f64]) -> SegmentData<'b>
+    pub(crate) fn with_wheels<'b>(&self, n_rl: &'b [f64], n_rr: &'b [f64]) -> SegmentData<'b>
     where
         'a: 'b,
     {

@@ -187,7 +187,7 @@ fn injected_failure(seed: u64, b: usize) -> Option<Error> {
 /// report depends only on the inputs and the seed, not on the thread count.
 ///
 /// Errors for invalid options or when fewer than two replicates could be fitted.
-pub fn bootstrap(
+pub(crate) fn bootstrap(
     input: &EivInput<'_>,
     report: &EivReport,
     opts: &EivOptions,

@@ -16,17 +16,17 @@
 use super::EivInput;
 
 /// Fewest distinct non-zero readings a lattice is accepted from.
-pub const MIN_LATTICE_LEVELS: usize = 20;
+pub(crate) const MIN_LATTICE_LEVELS: usize = 20;
 
 /// Largest distance of a reading from its lattice point, in steps, for the
 /// lattice to be accepted: a reading written with six decimals in rev/s
 /// is within 5e-7 rev/s of its value, far below 1e-3 of any step an
 /// encoder has at the sample rates odocal takes (q ≥ 1e-4 rev/s).
-pub const LATTICE_TOLERANCE_STEPS: f64 = 1e-3;
+pub(crate) const LATTICE_TOLERANCE_STEPS: f64 = 1e-3;
 
 /// Largest lattice index accepted: a "step" that makes the fastest reading
 /// more than this many steps is indistinguishable from no lattice.
-pub const MAX_LATTICE_INDEX: f64 = 1e7;
+pub(crate) const MAX_LATTICE_INDEX: f64 = 1e7;
 
 /// The quantisation step q (rev/s) of wheel readings that lie on a common
 /// lattice `k·q` (k whole), or `None` when they do not.
@@ -48,7 +48,7 @@ pub const MAX_LATTICE_INDEX: f64 = 1e7;
 /// let noisy: Vec<f64> = counted.iter().enumerate().map(|(k, v)| v * (1.0 + 1e-3 * (k as f64).sin())).collect();
 /// assert_eq!(quantisation_step_of_readings(&noisy, &noisy), None);
 /// ```
-pub fn quantisation_step_of_readings(n_rl: &[f64], n_rr: &[f64]) -> Option<f64> {
+pub(crate) fn quantisation_step_of_readings(n_rl: &[f64], n_rr: &[f64]) -> Option<f64> {
     let mut v: Vec<f64> = n_rl.iter().chain(n_rr).map(|x| x.abs()).filter(|x| x.is_finite() && *x > 0.0).collect();
     if v.is_empty() {
         return None;

@@ -221,20 +221,16 @@ mod steps;
 #[cfg(test)]
 pub(crate) mod tests;
 
-pub use bias_correction::apply_bias_correction;
+pub(crate) use bias_correction::apply_bias_correction;
 pub(crate) use bias_correction::first_order_bias;
-pub use bootstrap::{bootstrap, BootstrapInputs, BootstrapOptions, BootstrapReport};
+pub(crate) use bootstrap::{bootstrap, BootstrapInputs, BootstrapOptions, BootstrapReport};
 #[cfg(test)]
 pub(crate) use bootstrap::{FAIL_EVERY_REPLICATE_SEED, FAIL_ONE_REPLICATE_SEED};
-pub use covariance::ETA_SENSITIVITY_STEP;
-pub use crb::cramer_rao_bound;
-pub use estimate::{estimate, kernel_instruction_set};
-pub use input::{EivInput, Window};
-pub use lattice::{quantisation_step_of_readings, LATTICE_TOLERANCE_STEPS, MAX_LATTICE_INDEX, MIN_LATTICE_LEVELS};
-pub use modelling::{
-    BiasCorrection, FirstOrderBias, HeadingScale, LateralNoise, QuantisationLevel, QuantisationModel,
-    BIAS_BOOTSTRAP_SMOOTHING_SAMPLES,
-};
+pub(crate) use crb::cramer_rao_bound;
+pub(crate) use estimate::estimate;
+pub(crate) use input::{EivInput, Window};
+pub(crate) use modelling::{BiasCorrection, FirstOrderBias, BIAS_BOOTSTRAP_SMOOTHING_SAMPLES};
+pub use modelling::{HeadingScale, LateralNoise, QuantisationLevel, QuantisationModel};
 // The modelling alternatives of `EivOptions::research`: public with the
 // `research` feature, crate-internal (at their defaults) without it.
 #[cfg(not(feature = "research"))]
@@ -245,13 +241,14 @@ pub(crate) use modelling::{
 pub use modelling::{
     InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
 };
-pub use noise::{NoiseModel, NoiseSource, NOISE_SOURCES};
+pub(crate) use noise::NOISE_SOURCES;
+pub use noise::{NoiseModel, NoiseSource};
 pub use options::EivOptions;
 #[cfg(not(feature = "research"))]
 pub(crate) use options::{CovarianceEstimate, CovarianceMode, ResearchOptions};
 #[cfg(feature = "research")]
 pub use options::{CovarianceEstimate, CovarianceMode, ResearchOptions};
-pub use report::{
+pub(crate) use report::{
     CrbReport, EivObservability, EivReport, EivWarning, HalvesCheck, IterationRecord, Parameter, PassReport,
     PoseComponent, Termination, WindowDiagnostics, PARAMETERS,
 };

@@ -237,7 +237,7 @@ pub enum BiasCorrection {
 /// CLI's `--correct-bias` takes as the replicates' true inputs: ±20
 /// samples, ±0.5 s at 40 Hz (only K = 20 is measured; with the measured
 /// inputs as the truth the bootstrap finds no t_r bias).
-pub const BIAS_BOOTSTRAP_SMOOTHING_SAMPLES: usize = 20;
+pub(crate) const BIAS_BOOTSTRAP_SMOOTHING_SAMPLES: usize = 20;
 
 /// The first-order bias of the profile cost's root at the estimate, a
 /// diagnostic (measured as a correction in [`BiasCorrection`]'s table; it

@@ -123,7 +123,7 @@ impl std::str::FromStr for NoiseSource {
 }
 
 /// The sources in η order.
-pub const NOISE_SOURCES: [NoiseSource; 6] = [
+pub(crate) const NOISE_SOURCES: [NoiseSource; 6] = [
     NoiseSource::WheelWhite,
     NoiseSource::WheelCommon,
     NoiseSource::WheelDifferential,

@@ -23,7 +23,7 @@ pub enum Parameter {
 }
 
 /// The parameters in θ order.
-pub const PARAMETERS: [Parameter; 4] = [Parameter::CE, Parameter::CD, Parameter::TR, Parameter::D];
+pub(crate) const PARAMETERS: [Parameter; 4] = [Parameter::CE, Parameter::CD, Parameter::TR, Parameter::D];
 
 impl std::fmt::Display for Parameter {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -428,7 +428,7 @@ impl std::fmt::Display for EivReport {
 
 /// The Cramér–Rao bound of θ for one drive.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct CrbReport {
+pub(crate) struct CrbReport {
     /// θ at which the bound is evaluated (θ_true).
     pub theta: Theta,
     /// Which parameters were free.

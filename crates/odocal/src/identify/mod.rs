@@ -399,7 +399,7 @@ pub(crate) fn segment_cost(seg: &SegmentData<'_>, theta: &Theta, weights: &[f64;
 }
 
 /// Normal equations of one segment at θ, propagating the sensitivity.
-pub fn segment_normal_equations(seg: &SegmentData<'_>, theta: &Theta, weights: &[f64; 3]) -> NormalEquations {
+pub(crate) fn segment_normal_equations(seg: &SegmentData<'_>, theta: &Theta, weights: &[f64; 3]) -> NormalEquations {
     let w = Matrix3::from_diagonal(&Vector3::from(*weights));
     let mut x = seg.reference(0);
     let mut s = Matrix3x4::<f64>::zeros();
@@ -436,7 +436,7 @@ pub fn batch_normal_equations(segments: &[SegmentData<'_>], theta: &Theta, weigh
 /// problem's minimum): e.g. the 3-step result's on the measured inputs
 /// ([`crate::calibrate::ThreeStepUncertainty`]). θ's free entries only;
 /// `None` as for [`IdentifyReport::robust`].
-pub fn robust_covariance_at(
+pub(crate) fn robust_covariance_at(
     segments: &[SegmentData<'_>],
     theta: &Theta,
     opts: &IdentifyOptions,
@@ -458,7 +458,7 @@ pub fn robust_covariance_at(
 /// Observability diagnostics of the free block of `JᵀWJ` (θ only: free
 /// extrinsics are left out here; the identification with extrinsics runs
 /// [`observability_of`] over all seven).
-pub fn observability(ne: &NormalEquations, free: ParamSet, opts: &IdentifyOptions) -> Observability {
+pub(crate) fn observability(ne: &NormalEquations, free: ParamSet, opts: &IdentifyOptions) -> Observability {
     let jtwj = nalgebra::DMatrix::from_fn(4, 4, |i, j| ne.jtwj[(i, j)]);
     let (rcond, s, unobservable) =
         observability_of(&jtwj, ne.poses, free.intersection(ParamSet::THETA), &opts.resolution, opts);
@@ -470,7 +470,7 @@ pub fn observability(ne: &NormalEquations, free: ParamSet, opts: &IdentifyOption
 /// parameter: the reciprocal condition number of the equilibrated free
 /// block, the sensitivity of each parameter (0 when not free) and the
 /// parameters named not observable.
-pub fn observability_of(
+pub(crate) fn observability_of(
     jtwj: &nalgebra::DMatrix<f64>,
     poses: usize,
     free: ParamSet,

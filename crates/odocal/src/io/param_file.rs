@@ -106,6 +106,21 @@ const DESCRIPTIONS: [&str; 4] = [
 ];
 
 impl ParamFile {
+    /// Whether `path` names a parameter file by its extension (`.yaml`,
+    /// `.yml`, `.json`: the files [`ParamFile::write`] writes and
+    /// [`ParamFile::read`] reads), e.g. to tell one from a θ typed as text.
+    pub fn is_param_file(path: &Path) -> bool {
+        FileFormat::of(path).is_some()
+    }
+
+    /// Today's date (UTC) as `YYYY-MM-DD`, from the system clock: the
+    /// `date` of a file [`CalibrationReport::param_file`](crate::CalibrationReport::param_file) writes.
+    pub fn utc_date_today() -> String {
+        let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
+        let (y, m, d) = civil_from_days((secs / 86_400) as i64);
+        format!("{y:04}-{m:02}-{d:02}")
+    }
+
     /// Appends the reference extrinsics (`lever_x`, `lever_y` in m,
     /// `heading_offset` in rad) with their 1σ (`None` for held entries).
     pub fn add_extrinsics(&mut self, x: &crate::model::extrinsics::ExtrinsicsEstimate) {
@@ -147,7 +162,7 @@ impl ParamFile {
                 ("input".into(), input.into()),
                 ("method".into(), method.into()),
                 ("odocal_version".into(), env!("CARGO_PKG_VERSION").into()),
-                ("date".into(), utc_date_today()),
+                ("date".into(), ParamFile::utc_date_today()),
             ],
             mapping: ParamMapping::Odocal,
         }
@@ -277,13 +292,6 @@ impl FileFormat {
             _ => None,
         }
     }
-}
-
-/// Whether `path` names a parameter file by its extension (`.yaml`, `.yml`,
-/// `.json`: the files [`ParamFile::write`] writes and [`ParamFile::read`]
-/// reads), e.g. to tell one from a θ typed as text.
-pub(crate) fn is_param_file(path: &Path) -> bool {
-    FileFormat::of(path).is_some()
 }
 
 /// Largest parameter file [`ParamFile::read`] accepts, bytes (odocal writes
@@ -604,13 +612,6 @@ fn yaml_str(s: &str) -> String {
     }
     o.push('"');
     o
-}
-
-/// Today's date (UTC) as `YYYY-MM-DD`, from the system clock.
-pub(crate) fn utc_date_today() -> String {
-    let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
-    let (y, m, d) = civil_from_days((secs / 86_400) as i64);
-    format!("{y:04}-{m:02}-{d:02}")
 }
 
 /// Proleptic Gregorian date of a day count since 1970-01-01 (H. Hinnant's algorithm).

@@ -149,7 +149,7 @@ impl ExtrinsicsEstimate {
 /// The reference pose `[p_ref,x, p_ref,y, ψ_ref]` of the model's axle
 /// state `x` under extrinsics `e`.
 #[inline]
-pub fn reference_pose(x: &State, e: &Extrinsics) -> Vector3<f64> {
+pub(crate) fn reference_pose(x: &State, e: &Extrinsics) -> Vector3<f64> {
     let (s, c) = x[2].sin_cos();
     Vector3::new(x[0] + c * e.lever_x - s * e.lever_y, x[1] + s * e.lever_x + c * e.lever_y, x[2] + e.heading_offset)
 }
@@ -157,7 +157,7 @@ pub fn reference_pose(x: &State, e: &Extrinsics) -> Vector3<f64> {
 /// `(∂h/∂x, ∂h/∂e)` of [`reference_pose`] `h(x, e)`, each 3×3 (columns
 /// of `∂h/∂e`: lever_x, lever_y, heading_offset).
 #[inline]
-pub fn reference_jacobians(x: &State, e: &Extrinsics) -> (Matrix3<f64>, Matrix3<f64>) {
+pub(crate) fn reference_jacobians(x: &State, e: &Extrinsics) -> (Matrix3<f64>, Matrix3<f64>) {
     let (s, c) = x[2].sin_cos();
     let h_x =
         Matrix3::new(1.0, 0.0, -s * e.lever_x - c * e.lever_y, 0.0, 1.0, c * e.lever_x - s * e.lever_y, 0.0, 0.0, 1.0);
@@ -168,7 +168,7 @@ pub fn reference_jacobians(x: &State, e: &Extrinsics) -> (Matrix3<f64>, Matrix3<
 /// The axle state whose reference pose is `y` (the inverse of
 /// [`reference_pose`]): `ψ = ψ_ref − δ`, `p = p_ref − R(ψ)·l`.
 #[inline]
-pub fn axle_pose(y: &Vector3<f64>, e: &Extrinsics) -> State {
+pub(crate) fn axle_pose(y: &Vector3<f64>, e: &Extrinsics) -> State {
     let psi = y[2] - e.heading_offset;
     let (s, c) = psi.sin_cos();
     State::new(y[0] - (c * e.lever_x - s * e.lever_y), y[1] - (s * e.lever_x + c * e.lever_y), psi)
@@ -176,7 +176,7 @@ pub fn axle_pose(y: &Vector3<f64>, e: &Extrinsics) -> State {
 
 /// `∂g/∂e` of [`axle_pose`] `g(y, e)`, 3×3.
 #[inline]
-pub fn axle_pose_jacobian(y: &Vector3<f64>, e: &Extrinsics) -> Matrix3<f64> {
+pub(crate) fn axle_pose_jacobian(y: &Vector3<f64>, e: &Extrinsics) -> Matrix3<f64> {
     let psi = y[2] - e.heading_offset;
     let (s, c) = psi.sin_cos();
     // ∂p/∂δ = +dR/dψ·l (ψ falls by δ).

@@ -112,7 +112,7 @@ impl PhysicalLimits {
 /// # Errors
 /// [`Error::InvalidTheta`] naming the parameter, with a hint that θ is in SI
 /// units.
-pub fn check_theta(theta: &Theta) -> Result<()> {
+pub(crate) fn check_theta(theta: &Theta) -> Result<()> {
     theta.validate()?;
     const SI: &str = "θ is in SI units: c_e, c_d, t_r in metres (2 mm = 0.002), d in metres per m/s²";
     let fail = |what: String| Err(Error::InvalidTheta(format!("{what} ({SI})")));

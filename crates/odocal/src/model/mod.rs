@@ -18,9 +18,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 
-pub mod extrinsics;
-pub mod limits;
-pub mod param;
+pub(crate) mod extrinsics;
+pub(crate) mod limits;
+pub(crate) mod param;
 
 /// Model state `[p_x (m), p_y (m), ψ (rad, unwrapped)]`.
 pub type State = Vector3<f64>;
@@ -149,7 +149,7 @@ pub struct Input {
 
 /// Velocity and yaw rate of the model for one input sample.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Kinematics {
+pub(crate) struct Kinematics {
     /// Speed of the reference point, m/s.
     pub speed_m_per_s: f64,
     /// Yaw rate, rad/s.
@@ -158,7 +158,7 @@ pub struct Kinematics {
 
 /// Speed and yaw rate (2a, 2b) for one input and θ.
 #[inline]
-pub fn kinematics(u: &Input, theta: &Theta) -> Kinematics {
+pub(crate) fn kinematics(u: &Input, theta: &Theta) -> Kinematics {
     let (c_rl, c_rr) = theta.wheel_circumferences(u.a_y);
     Kinematics {
         speed_m_per_s: (u.n_rl * c_rl + u.n_rr * c_rr) / 2.0,
@@ -235,7 +235,7 @@ pub fn step_jacobians(x: &State, u: &Input, theta: &Theta, t_s: f64) -> StepJaco
 
 /// Wraps an angle to (−π, π].
 #[inline]
-pub fn wrap_angle(a: f64) -> f64 {
+pub(crate) fn wrap_angle(a: f64) -> f64 {
     let two_pi = 2.0 * std::f64::consts::PI;
     let mut r = a.rem_euclid(two_pi);
     if r > std::f64::consts::PI {

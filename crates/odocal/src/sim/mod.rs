@@ -66,14 +66,15 @@ mod options;
 mod route;
 
 use options::invalid;
-pub use options::{NoiseOptions, RouteOptions, SimOptions, SpeedOptions, VehicleOptions};
+pub(crate) use options::SpeedOptions;
+pub use options::{NoiseOptions, SimOptions};
 use route::{build_route, stream, Encoder, GaussMarkov, Route, SpeedProfile, White};
 
 /// Grid step of the speed profile along the route, m.
 const SPEED_GRID_M: f64 = 0.5;
 /// A sample counts as moving (for [`SimStats::wheel_rotation_rel_error_rms`])
 /// when its true speed exceeds this, m/s.
-pub const MOVING_SPEED_M_PER_S: f64 = 1.0;
+pub(crate) const MOVING_SPEED_M_PER_S: f64 = 1.0;
 /// Longest drive accepted, km (memory guard: about 40 MB of samples per 100 km).
 const MAX_LENGTH_KM: f64 = 2000.0;
 
@@ -357,6 +358,7 @@ mod tests {
     use super::*;
     use crate::drive::segment::{calibration_segments, SegmentData};
     use crate::identify::{batch_gauss_newton, IdentifyOptions};
+    use crate::sim::options::RouteOptions;
 
     /// Rounding over one f64 model step of ~0.5 m at coordinates up to ~2 km.
     const STEP_REPRODUCTION_TOL_M: f64 = 1e-9;

@@ -10,7 +10,7 @@
 
 use std::path::PathBuf;
 
-use odocal::drive::segment::{validation_segments, ValidationSegmentOptions};
+use odocal::segment::{validation_segments, ValidationSegmentOptions};
 use odocal::sim::{simulate, SimOptions};
 use odocal::{
     calibrate, Calibration, CalibrationOptions, CalibrationReport, FinalSegments, Holdout, Method, ThreeStepOptions,

@@ -1,7 +1,7 @@
 //! The real-drive slices in `tests/data/` import and calibrate to plausible
 //! values (fast: batch Gauss-Newton on ~2 min and 20 s of data).
 
-use odocal::drive::segment::{SegmentOptions, ValidationSegmentOptions};
+use odocal::segment::{SegmentOptions, ValidationSegmentOptions};
 use odocal::{calibrate, CalibrationOptions, Method, Param};
 use odocal::{import, Manifest};
 

@@ -35,7 +35,7 @@ const REFERENCE_KEYS: [&str; 3] = ["lever_arm", "heading_offset", "estimate"];
 ///
 /// # Errors
 /// [`Error::Manifest`] naming `noise`, the bad field and the table's line.
-pub fn read_noise_table(manifest: &Path, noise: &NoiseTable) -> Result<NoiseSpec> {
+pub(crate) fn read_noise_table(manifest: &Path, noise: &NoiseTable) -> Result<NoiseSpec> {
     noise_model_from_table(noise.table.clone()).map_err(|reason| Error::Manifest {
         path: manifest.to_path_buf(),
         reason: format!("noise: {reason}{}", noise.line.map(|l| format!(" (line {l})")).unwrap_or_default()),

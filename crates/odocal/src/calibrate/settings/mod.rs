@@ -40,8 +40,9 @@ mod resolve;
 #[cfg(test)]
 mod tests;
 
+pub use crate::io::import::{CalibrationTable, NoiseTable};
 pub use de::theta_from_json;
-pub use manifest::{import_report_json, read_noise_table, ManifestSettings};
+pub use manifest::{import_report_json, ManifestSettings};
 pub use resolve::{Caller, Resolved, SettingOutcome, SettingUse, SettingsAccount};
 
 /// Declares [`Settings`] and the methods that visit every key, so that a

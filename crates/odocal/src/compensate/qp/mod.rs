@@ -44,7 +44,7 @@ use std::str::FromStr;
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix3x2, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
-pub use crate::error::QpError;
+pub(crate) use crate::error::QpError;
 use crate::model::{step_jacobians, Input, Theta};
 
 /// One instance of the compensation QP. Vectors indexed by stage hold, at
@@ -171,7 +171,7 @@ pub trait QpSolver: Send + Sync {
 /// bound counts as active in [`QpSolution::active_bounds`]. Interior-point
 /// iterates stop about `tolerance × scale` from an active bound, far inside
 /// this; inactive bounds of realistic instances are ≥ 1e-3 away.
-pub const ACTIVE_BOUND_TOL: f64 = 1e-7;
+pub(crate) const ACTIVE_BOUND_TOL: f64 = 1e-7;
 
 impl StageQp {
     /// The constant `Σ δ_kᵀ R δ_k`: the objective at `w = 0` without the
@@ -234,7 +234,7 @@ impl StageQp {
 /// so stationarity reduces to complementarity: ν may be non-zero only at a
 /// bound of the right side.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct KktResidual {
+pub(crate) struct KktResidual {
     /// Largest dynamics residual (m, rad).
     pub dynamics: f64,
     /// Largest bound violation (m, rad, rev/s).
@@ -250,14 +250,14 @@ pub struct KktResidual {
 
 impl KktResidual {
     /// The largest of the four residuals.
-    pub fn max(&self) -> f64 {
+    pub(crate) fn max(&self) -> f64 {
         self.dynamics.max(self.bounds).max(self.stationarity).max(self.complementarity)
     }
 }
 
 /// KKT residuals of `sol` for `qp` (see [`KktResidual`]). Needs
 /// `sol.dynamics_duals`; returns [`QpError::Malformed`] without them.
-pub fn kkt_residual(qp: &StageQp, sol: &QpSolution) -> Result<KktResidual, QpError> {
+pub(crate) fn kkt_residual(qp: &StageQp, sol: &QpSolution) -> Result<KktResidual, QpError> {
     let lam =
         sol.dynamics_duals.as_ref().ok_or_else(|| QpError::Malformed("solution carries no dynamics duals".into()))?;
     let k = qp.stages();
@@ -304,7 +304,7 @@ pub fn kkt_residual(qp: &StageQp, sol: &QpSolution) -> Result<KktResidual, QpErr
 ///
 /// Meant for tests on small K: when no bound is active at the optimum, this
 /// is the solution of the bounded problem too.
-pub fn solve_equality_constrained(qp: &StageQp) -> Result<QpSolution, QpError> {
+pub(crate) fn solve_equality_constrained(qp: &StageQp) -> Result<QpSolution, QpError> {
     qp.check()?;
     let k = qp.stages();
     let n = 5 * k;

@@ -248,7 +248,7 @@ pub use manifest::Manifest;
 pub(crate) use manifest::{ClockOffset, LateralAccelerationSpec, PositionSpec, SideslipSpec};
 pub use report::ImportReport;
 pub use settings::ReferenceSpec;
-pub(crate) use settings::{CalibrationTable, NoiseTable};
+pub use settings::{CalibrationTable, NoiseTable};
 
 use crate::drive::{Drive, Signals};
 use crate::error::{Error, Result};
