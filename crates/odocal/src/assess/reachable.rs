@@ -174,12 +174,12 @@ impl ReachableOptions {
     }
 
     /// The centre of the box, `(lower + upper)/2`.
-    pub fn centre(&self) -> Theta {
+    pub(crate) fn centre(&self) -> Theta {
         Theta::from_vector(&((self.lower.to_vector() + self.upper.to_vector()) / 2.0))
     }
 
     /// Checks the options, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         let (lo, hi) = (self.lower.to_array(), self.upper.to_array());
         for i in 0..4 {
             if !lo[i].is_finite() {

@@ -107,7 +107,7 @@ impl Default for Guards {
 
 impl Guards {
     /// Checks the settings, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         for (v, field) in [
             (self.c_e_rel, "guards.c_e_rel"),
             (self.c_d_rel_c_e, "guards.c_d_rel_c_e"),
@@ -128,7 +128,7 @@ impl Guards {
 
     /// Half-width of the plausible region of `p` around `theta0`, SI units
     /// (the extrinsics' regions are centred on 0, whatever θ_0).
-    pub fn half_width(&self, p: Param, theta0: &Theta) -> f64 {
+    pub(crate) fn half_width(&self, p: Param, theta0: &Theta) -> f64 {
         match p {
             Param::CE => self.c_e_rel * theta0.c_e.abs(),
             Param::CD => self.c_d_rel_c_e * theta0.c_e.abs(),
@@ -295,7 +295,7 @@ impl Default for TrustOptions {
 
 impl TrustOptions {
     /// Checks the settings, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         self.guards.validate()?;
         for (v, field) in [
             (self.max_held_out_ratio, "trust.max_held_out_ratio"),
@@ -429,7 +429,7 @@ pub enum VerdictReason {
 
 impl VerdictReason {
     /// The level this reason alone implies.
-    pub fn level(&self) -> VerdictLevel {
+    pub(crate) fn level(&self) -> VerdictLevel {
         match self {
             VerdictReason::Implausible { .. } | VerdictReason::WorseThanInitial { .. } => VerdictLevel::Rejected,
             _ => VerdictLevel::Doubtful,
@@ -487,7 +487,7 @@ pub struct Verdict {
 
 impl Verdict {
     /// The verdict of these reasons.
-    pub fn from_reasons(reasons: Vec<VerdictReason>) -> Verdict {
+    pub(crate) fn from_reasons(reasons: Vec<VerdictReason>) -> Verdict {
         let level = reasons.iter().map(VerdictReason::level).max().unwrap_or(VerdictLevel::Accepted);
         Verdict { level, reasons }
     }

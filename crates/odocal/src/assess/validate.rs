@@ -129,7 +129,7 @@ impl MultiValidation {
     }
 
     /// The drives on which θ is worse than θ_0.
-    pub fn worse_than_initial(&self) -> impl Iterator<Item = &DriveValidation> {
+    pub(crate) fn worse_than_initial(&self) -> impl Iterator<Item = &DriveValidation> {
         self.drives
             .iter()
             .filter(|d| d.mean_position_error_m.is_nan() || d.mean_position_error_m > d.initial_mean_position_error_m)

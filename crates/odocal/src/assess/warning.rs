@@ -187,7 +187,7 @@ impl From<CompensationWarning> for Warning {
 
 impl Warning {
     /// A short name of the kind of warning (the JSON `"kind"`), for grouping.
-    pub fn kind(&self) -> &'static str {
+    pub(crate) fn kind(&self) -> &'static str {
         match self {
             Warning::Unobservable { .. } => "unobservable",
             Warning::AutoFixNoTurns { .. } => "auto_fix_no_turns",
@@ -209,7 +209,7 @@ impl Warning {
 
     /// True for a failed EIV consistency check whose θ is the report's
     /// result (the fallback was off): the verdict counts these.
-    pub fn misspecifies_result(&self) -> bool {
+    pub(crate) fn misspecifies_result(&self) -> bool {
         matches!(self, Warning::EivCheckFailed { fell_back: false, .. })
     }
 }

@@ -191,7 +191,7 @@ impl EivMethodOptions {
     /// The filter options the method runs: [`EivMethodOptions::filter`] with
     /// [`EivMethodOptions::correct_bias`] applied, unless `filter` sets its
     /// own [`EivOptions::bias_correction`].
-    pub fn effective_filter(&self) -> EivOptions {
+    pub(crate) fn effective_filter(&self) -> EivOptions {
         let mut f = self.filter.clone();
         if let (Some(c), BiasCorrection::None) = (self.correct_bias, f.bias_correction) {
             f.correct_bias(c.replicates, c.seed);
@@ -240,7 +240,7 @@ pub struct EivDetail {
 impl EivDetail {
     /// The noise model the fit ended with (the starting one with
     /// `fix_noise`), in physical units; `None` when the filter failed.
-    pub fn noise(&self) -> Option<&NoiseModel> {
+    pub(crate) fn noise(&self) -> Option<&NoiseModel> {
         self.eiv.as_ref().map(|e| &e.noise)
     }
 }
@@ -293,7 +293,7 @@ impl NoiseSpec {
     /// Starts `filter` from this model, holding the known sources (in
     /// addition to any it already holds), with its lateral-noise choice
     /// where it states one.
-    pub fn apply(&self, filter: &mut EivOptions) {
+    pub(crate) fn apply(&self, filter: &mut EivOptions) {
         filter.noise = self.model;
         filter.hold_known(&self.known);
         if let Some(l) = self.lateral {
@@ -695,7 +695,7 @@ impl EivDetail {
     /// noise levels; a bias correction; which estimate the result is (EIV
     /// or the batch G-N fallback); the bootstrap's intervals. Through
     /// [`crate::CalibrationReport::method_details`].
-    pub fn summary(&self, known: &[NoiseSource]) -> String {
+    pub(crate) fn summary(&self, known: &[NoiseSource]) -> String {
         let d = self;
         let mut out = String::new();
         match &d.eiv {

@@ -108,10 +108,10 @@ impl Default for Method {
 
 impl Method {
     /// The names of the methods, as `--method` takes them.
-    pub const NAMES: [&'static str; 3] = ["three-step", "batch-gn", "eiv"];
+    pub(crate) const NAMES: [&'static str; 3] = ["three-step", "batch-gn", "eiv"];
 
     /// The method's name (`"three-step"`, `"batch-gn"`, `"eiv"`).
-    pub fn name(&self) -> &'static str {
+    pub(crate) fn name(&self) -> &'static str {
         self.estimator().name()
     }
 
@@ -126,7 +126,7 @@ impl Method {
     }
 
     /// Checks the method's settings, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         self.estimator().validate()
     }
 
@@ -210,7 +210,7 @@ impl Default for CalibrationOptions {
 
 impl CalibrationOptions {
     /// Checks all options, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         self.theta0.validate()?;
         self.segments.validate()?;
         self.validation.validate()?;
@@ -223,7 +223,7 @@ impl CalibrationOptions {
     /// leaves `identify.free`, and for the heading offset the EIV start no
     /// longer estimates it by default
     /// ([`EivMethodOptions::estimate_heading_offset`]). What `--fix` does.
-    pub fn hold(&mut self, p: Param) {
+    pub(crate) fn hold(&mut self, p: Param) {
         self.identify.free.remove(p);
         if p == Param::HeadingOffset {
             self.hold_stated_heading_offset();
@@ -235,7 +235,7 @@ impl CalibrationOptions {
     /// `identify.extrinsics.heading_offset` instead of estimating it by
     /// default, as the other methods do; `identify.free` still estimates it
     /// when it holds δ (`--estimate heading-offset`).
-    pub fn hold_stated_heading_offset(&mut self) {
+    pub(crate) fn hold_stated_heading_offset(&mut self) {
         if let Method::Eiv(m) = &mut self.method {
             m.estimate_heading_offset = false;
         }

@@ -214,7 +214,7 @@ impl CalibrationReport {
     /// step-1 batch spread ([`super::ThreeStepUncertainty::batch_spread`]), since
     /// step 3's own σ sees only its compensated inputs; `None` otherwise
     /// (then the model covariance is all there is).
-    pub fn result_covariance(&self) -> Option<&[[f64; 4]; 4]> {
+    pub(crate) fn result_covariance(&self) -> Option<&[[f64; 4]; 4]> {
         outcome_covariance(&self.detail)
     }
 
@@ -260,7 +260,7 @@ pub enum SigmaSource {
 
 impl SigmaSource {
     /// The name in reports (`cluster-robust`, `batch-spread`, `model`).
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             SigmaSource::ClusterRobust => "cluster-robust",
             SigmaSource::BatchSpread => "batch-spread",

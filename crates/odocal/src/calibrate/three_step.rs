@@ -193,7 +193,7 @@ impl BatchSpread {
     /// The spread of `thetas` (each on `batch_size` segments) scaled to
     /// `effective_segments`; `None` with fewer than 3 estimates or
     /// `effective_segments ≤ batch_size`.
-    pub fn new(thetas: &[Theta], batch_size: usize, effective_segments: f64) -> Option<Self> {
+    pub(crate) fn new(thetas: &[Theta], batch_size: usize, effective_segments: f64) -> Option<Self> {
         let n = thetas.len();
         let b = batch_size as f64;
         if n < 3 || effective_segments <= b {

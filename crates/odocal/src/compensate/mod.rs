@@ -59,14 +59,14 @@ pub struct QpOptions {
 
 impl QpOptions {
     /// Checks both solvers' settings.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         self.structured.validate()?;
         self.clarabel.validate()?;
         Ok(())
     }
 
     /// The configured solver.
-    pub fn primary(&self) -> Box<dyn QpSolver> {
+    pub(crate) fn primary(&self) -> Box<dyn QpSolver> {
         match self.solver {
             SolverKind::Structured => Box::new(StructuredSolver { options: self.structured.clone() }),
             SolverKind::Clarabel => Box::new(ClarabelSolver { settings: self.clarabel.clone() }),
@@ -75,7 +75,7 @@ impl QpOptions {
 
     /// The fallback for QPs the primary solver does not finish: Clarabel
     /// behind the structured solver, none behind Clarabel.
-    pub fn fallback(&self) -> Option<Box<dyn QpSolver>> {
+    pub(crate) fn fallback(&self) -> Option<Box<dyn QpSolver>> {
         match self.solver {
             SolverKind::Structured => Some(Box::new(ClarabelSolver { settings: self.clarabel.clone() })),
             SolverKind::Clarabel => None,
@@ -123,7 +123,7 @@ impl Default for CompensateOptions {
 
 impl CompensateOptions {
     /// Checks the options, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         if self.pose_box.iter().any(|b| !(b.is_finite() && *b > 0.0)) {
             return Err(Error::InvalidOption { field: "pose_box", reason: "must be positive".into() });
         }

@@ -369,7 +369,7 @@ impl Drive {
     }
 
     /// Writes the canonical CSV to any writer.
-    pub fn write_csv_to<W: std::io::Write>(&self, w: W) -> std::io::Result<()> {
+    pub(crate) fn write_csv_to<W: std::io::Write>(&self, w: W) -> std::io::Result<()> {
         let mut wtr = ::csv::WriterBuilder::new().from_writer(w);
         let mut header: Vec<String> = std::iter::once("t".to_string())
             .chain(self.measured.columns().iter().map(|(n, _)| n.to_string()))

@@ -114,7 +114,7 @@ impl Signals {
     }
 
     /// The samples in `r` as new signals.
-    pub fn slice(&self, r: Range<usize>) -> Signals {
+    pub(crate) fn slice(&self, r: Range<usize>) -> Signals {
         let c = |v: &Vec<f64>| v[r.clone()].to_vec();
         Signals {
             px: c(&self.px),
@@ -140,7 +140,7 @@ pub enum ExtraValues {
 
 impl ExtraValues {
     /// Number of values.
-    pub fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         match self {
             ExtraValues::Numbers(v) => v.len(),
             ExtraValues::Text(v) => v.len(),
@@ -148,7 +148,7 @@ impl ExtraValues {
     }
 
     /// True when there are no values.
-    pub fn is_empty(&self) -> bool {
+    pub(crate) fn is_empty(&self) -> bool {
         self.len() == 0
     }
 
@@ -241,7 +241,7 @@ impl DriveBuilder {
 
     /// The physical limits the drive is checked against (default
     /// [`PhysicalLimits::default`], the table in [`crate::model::limits`]).
-    pub fn limits(mut self, limits: PhysicalLimits) -> Self {
+    pub(crate) fn limits(mut self, limits: PhysicalLimits) -> Self {
         self.limits = limits;
         self
     }
@@ -528,7 +528,7 @@ impl Drive {
         self.reference_measured.as_deref()
     }
     /// True when the reference pose was really measured at sample `i`.
-    pub fn is_reference_measured(&self, i: usize) -> bool {
+    pub(crate) fn is_reference_measured(&self, i: usize) -> bool {
         self.reference_measured.as_ref().is_none_or(|m| m[i])
     }
     /// Extra columns carried along.
@@ -589,7 +589,7 @@ impl Drive {
     ///
     /// # Errors
     /// As [`DriveBuilder::build`].
-    pub fn with_wheel_rotations(&self, n_rl: Vec<f64>, n_rr: Vec<f64>) -> Result<Drive> {
+    pub(crate) fn with_wheel_rotations(&self, n_rl: Vec<f64>, n_rr: Vec<f64>) -> Result<Drive> {
         let mut measured = self.measured.clone();
         measured.n_rl = n_rl;
         measured.n_rr = n_rr;
@@ -599,7 +599,7 @@ impl Drive {
     /// The samples with `t_start_s ≤ t < t_end_s` as a new drive; parts are
     /// clipped to the window (extra columns, the reference mask and the truth
     /// come along).
-    pub fn window(&self, t_start_s: f64, t_end_s: f64) -> Result<Drive> {
+    pub(crate) fn window(&self, t_start_s: f64, t_end_s: f64) -> Result<Drive> {
         let a = self.t.partition_point(|&t| t < t_start_s);
         let b = self.t.partition_point(|&t| t < t_end_s);
         if a >= b {

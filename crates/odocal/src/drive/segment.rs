@@ -34,7 +34,7 @@ impl Default for SegmentOptions {
 
 impl SegmentOptions {
     /// Checks the options, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         check_length_and_stride(self.length_steps, self.stride_steps)?;
         if self.min_peak_yaw_rate_rad_per_s.is_nan() || self.min_peak_yaw_rate_rad_per_s < 0.0 {
             return Err(Error::InvalidOption {
@@ -76,7 +76,7 @@ impl Default for ValidationSegmentOptions {
 
 impl ValidationSegmentOptions {
     /// Checks the options, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         check_length_and_stride(self.length_steps, self.stride_steps)
     }
 }

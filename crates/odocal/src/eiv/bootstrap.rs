@@ -335,7 +335,7 @@ impl BootstrapReport {
     /// estimated: the replicates' covariance over 2 stands in, the
     /// plain bootstrap's error for two replicates (an upper bound in the
     /// usual case that the pair's errors are negatively correlated).
-    pub fn mean_covariance(&self) -> [[f64; 4]; 4] {
+    pub(crate) fn mean_covariance(&self) -> [[f64; 4]; 4] {
         // The set whose spread is measured, and the number its mean averages.
         let (set, n) = match self.pair_means.len() {
             0 => (&self.replicates, self.replicates.len()),

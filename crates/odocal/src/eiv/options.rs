@@ -352,14 +352,14 @@ impl EivOptions {
     /// Holds the scales of `sources` at the starting model
     /// ([`EivOptions::eta_held`]): their levels in [`EivOptions::noise`] are
     /// known.
-    pub fn hold_known(&mut self, sources: &[NoiseSource]) {
+    pub(crate) fn hold_known(&mut self, sources: &[NoiseSource]) {
         for s in sources {
             self.eta_held[s.index()] = true;
         }
     }
 
     /// The sources [`EivOptions::eta_held`] holds, in η order.
-    pub fn known_sources(&self) -> Vec<NoiseSource> {
+    pub(crate) fn known_sources(&self) -> Vec<NoiseSource> {
         NOISE_SOURCES.into_iter().filter(|s| self.eta_held[s.index()]).collect()
     }
 
@@ -399,7 +399,7 @@ impl EivOptions {
     /// o.correct_bias(5, 0); // an odd B cannot be paired
     /// assert!(o.validate().is_err());
     /// ```
-    pub fn correct_bias(&mut self, replicates: usize, seed: u64) {
+    pub(crate) fn correct_bias(&mut self, replicates: usize, seed: u64) {
         self.bias_correction = BiasCorrection::Bootstrap { replicates, seed, all_parameters: true };
         self.bootstrap_inputs = BootstrapInputs::Smoothed { half_width_samples: BIAS_BOOTSTRAP_SMOOTHING_SAMPLES };
         self.bootstrap_antithetic = true;
@@ -411,7 +411,7 @@ impl EivOptions {
     /// ([`cramer_rao_bound`](crate::eiv::cramer_rao_bound), the experiment's
     /// and the studies') is computed with it, so that it depends on the noise
     /// model only, not on the estimator's bias corrections.
-    pub fn spec() -> Self {
+    pub(crate) fn spec() -> Self {
         EivOptions {
             research: ResearchOptions {
                 wheel_noise_scale: WheelNoiseScale::MeasuredInput,
@@ -424,7 +424,7 @@ impl EivOptions {
     }
 
     /// Checks the options, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         let bad = |field: &'static str, reason: &str| Err(Error::InvalidOption { field, reason: reason.into() });
         if self.window_samples < 10 {
             return bad("window_samples", "must be at least 10");

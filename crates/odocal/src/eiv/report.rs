@@ -63,7 +63,7 @@ pub enum Termination {
 
 impl Termination {
     /// True when the fit converged (step tolerance met).
-    pub fn converged(&self) -> bool {
+    pub(crate) fn converged(&self) -> bool {
         matches!(self, Termination::StepTolerance { .. })
     }
 }

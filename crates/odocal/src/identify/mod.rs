@@ -131,7 +131,7 @@ impl Default for IdentifyOptions {
 
 impl IdentifyOptions {
     /// Checks the options, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         if self.weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) {
             return Err(Error::InvalidOption { field: "weights", reason: "must be finite and non-negative".into() });
         }
@@ -160,7 +160,7 @@ impl IdentifyOptions {
     /// True when the identification involves the reference extrinsics:
     /// some of them are free, or held at a value other than 0. Otherwise
     /// the SPEC's θ-only path runs, unchanged.
-    pub fn uses_extrinsics(&self) -> bool {
+    pub(crate) fn uses_extrinsics(&self) -> bool {
         !self.free.intersection(ParamSet::EXTRINSICS).is_empty() || !self.extrinsics.is_zero()
     }
 }

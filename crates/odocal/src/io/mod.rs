@@ -6,5 +6,5 @@
 
 #[cfg(feature = "mcap")]
 pub mod bag;
-pub mod import;
-pub mod param_file;
+pub(crate) mod import;
+pub(crate) mod param_file;

@@ -123,7 +123,7 @@ impl ParamFile {
 
     /// Appends the reference extrinsics (`lever_x`, `lever_y` in m,
     /// `heading_offset` in rad) with their 1σ (`None` for held entries).
-    pub fn add_extrinsics(&mut self, x: &crate::model::extrinsics::ExtrinsicsEstimate) {
+    pub(crate) fn add_extrinsics(&mut self, x: &crate::model::extrinsics::ExtrinsicsEstimate) {
         let (value, sd) = (x.value.to_array(), x.std_dev.to_array());
         let what = [
             ("m", "pose reference lever arm from the rear-axle centre, forward"),
@@ -143,7 +143,7 @@ impl ParamFile {
 
     /// A file for θ with 1σ per entry (`None` = held), provenance filled with
     /// `input`, `method`, the odocal version and today's UTC date.
-    pub fn from_theta(theta: &Theta, sigma: [Option<f64>; 4], input: &str, method: &str) -> ParamFile {
+    pub(crate) fn from_theta(theta: &Theta, sigma: [Option<f64>; 4], input: &str, method: &str) -> ParamFile {
         let params = (0..4)
             .map(|i| ParamEntry {
                 name: THETA_NAMES[i].into(),
@@ -173,7 +173,7 @@ impl ParamFile {
     }
 
     /// The consumer keys of [`ParamFile::mapping`] with their values.
-    pub fn mapped(&self) -> Vec<(&'static str, f64)> {
+    pub(crate) fn mapped(&self) -> Vec<(&'static str, f64)> {
         match self.mapping {
             ParamMapping::Odocal => Vec::new(),
             ParamMapping::DiffDriveController => {
@@ -379,7 +379,7 @@ impl ParamFile {
     /// The reference extrinsics the file holds (0 for those it lacks) and
     /// which of them carry a σ, i.e. were estimated by the calibration that
     /// wrote it.
-    pub fn extrinsics(&self) -> (Extrinsics, ParamSet) {
+    pub(crate) fn extrinsics(&self) -> (Extrinsics, ParamSet) {
         let mut v = [0.0; 3];
         let mut estimated = ParamSet::EMPTY;
         for (i, p) in Param::EXTRINSICS.into_iter().enumerate() {

@@ -48,7 +48,7 @@ pub struct Extrinsics {
 
 impl Extrinsics {
     /// The reference at the rear-axle centre, aligned with the vehicle.
-    pub const ZERO: Extrinsics = Extrinsics { lever_x: 0.0, lever_y: 0.0, heading_offset: 0.0 };
+    pub(crate) const ZERO: Extrinsics = Extrinsics { lever_x: 0.0, lever_y: 0.0, heading_offset: 0.0 };
 
     /// True when every value is exactly 0 (the SPEC's reference).
     pub fn is_zero(&self) -> bool {
@@ -61,17 +61,17 @@ impl Extrinsics {
     }
 
     /// Builds the extrinsics from `[lever_x, lever_y, heading_offset]`.
-    pub fn from_array(a: [f64; 3]) -> Self {
+    pub(crate) fn from_array(a: [f64; 3]) -> Self {
         Extrinsics { lever_x: a[0], lever_y: a[1], heading_offset: a[2] }
     }
 
     /// The value of an extrinsics parameter; `None` for a θ parameter.
-    pub fn get(&self, p: Param) -> Option<f64> {
+    pub(crate) fn get(&self, p: Param) -> Option<f64> {
         p.extrinsics_index().map(|i| self.to_array()[i])
     }
 
     /// Checks that every value is finite.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         for (p, v) in Param::EXTRINSICS.iter().zip(self.to_array()) {
             if !v.is_finite() {
                 return Err(Error::InvalidOption { field: "extrinsics", reason: format!("{p} = {v} is not finite") });
@@ -132,7 +132,7 @@ pub struct RobustExtrinsics {
 
 impl ExtrinsicsEstimate {
     /// Held extrinsics: `value` = `initial`, no σ.
-    pub fn held(initial: Extrinsics) -> Self {
+    pub(crate) fn held(initial: Extrinsics) -> Self {
         ExtrinsicsEstimate {
             initial,
             value: initial,

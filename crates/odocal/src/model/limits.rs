@@ -65,7 +65,7 @@ impl Default for PhysicalLimits {
 impl PhysicalLimits {
     /// No limits at all (every check passes): for synthetic tests of the
     /// numerics only.
-    pub const NONE: PhysicalLimits = PhysicalLimits {
+    pub(crate) const NONE: PhysicalLimits = PhysicalLimits {
         min_sample_time_s: 0.0,
         max_sample_time_s: f64::INFINITY,
         max_wheel_rev_per_s: f64::INFINITY,
@@ -76,7 +76,7 @@ impl PhysicalLimits {
     };
 
     /// Checks the limits themselves (positive, min ≤ max).
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         let fields = [
             ("limits.min_sample_time_s", self.min_sample_time_s),
             ("limits.max_sample_time_s", self.max_sample_time_s),

@@ -47,11 +47,11 @@ pub enum Param {
 
 impl Param {
     /// The four parameters of θ, in vector order `[c_e, c_d, t_r, d]`.
-    pub const THETA: [Param; 4] = [Param::CE, Param::CD, Param::TR, Param::D];
+    pub(crate) const THETA: [Param; 4] = [Param::CE, Param::CD, Param::TR, Param::D];
     /// The reference extrinsics, in vector order `[lever_x, lever_y, heading_offset]`.
     pub const EXTRINSICS: [Param; 3] = [Param::LeverX, Param::LeverY, Param::HeadingOffset];
     /// Every parameter, in vector order.
-    pub const ALL: [Param; 7] =
+    pub(crate) const ALL: [Param; 7] =
         [Param::CE, Param::CD, Param::TR, Param::D, Param::LeverX, Param::LeverY, Param::HeadingOffset];
 
     /// The name used in reports and on the command line (`"c_e"`, …).
@@ -68,13 +68,13 @@ impl Param {
     }
 
     /// True for the four parameters of θ.
-    pub const fn is_theta(self) -> bool {
+    pub(crate) const fn is_theta(self) -> bool {
         (self as usize) < 4
     }
 
     /// Position among the extrinsics `[lever_x, lever_y, heading_offset]`,
     /// `None` for a θ parameter.
-    pub const fn extrinsics_index(self) -> Option<usize> {
+    pub(crate) const fn extrinsics_index(self) -> Option<usize> {
         match self {
             Param::LeverX => Some(0),
             Param::LeverY => Some(1),
@@ -84,18 +84,18 @@ impl Param {
     }
 
     /// Position in the parameter vector (θ's four first).
-    pub const fn index(self) -> usize {
+    pub(crate) const fn index(self) -> usize {
         self as usize
     }
 
     /// The parameter at vector position `i`, if there is one.
-    pub fn from_index(i: usize) -> Option<Param> {
+    pub(crate) fn from_index(i: usize) -> Option<Param> {
         Param::ALL.get(i).copied()
     }
 
     /// This parameter's value in θ; the extrinsics are not part of θ and
     /// read NaN here (use [`Param::value_in`]).
-    pub fn value(self, theta: &Theta) -> f64 {
+    pub(crate) fn value(self, theta: &Theta) -> f64 {
         match self {
             Param::CE => theta.c_e,
             Param::CD => theta.c_d,
@@ -106,7 +106,7 @@ impl Param {
     }
 
     /// This parameter's value in θ or in the extrinsics.
-    pub fn value_in(self, theta: &Theta, extrinsics: &Extrinsics) -> f64 {
+    pub(crate) fn value_in(self, theta: &Theta, extrinsics: &Extrinsics) -> f64 {
         extrinsics.get(self).unwrap_or_else(|| self.value(theta))
     }
 }
@@ -141,13 +141,13 @@ pub struct ParamSet(u32);
 
 impl ParamSet {
     /// No parameter.
-    pub const EMPTY: ParamSet = ParamSet(0);
+    pub(crate) const EMPTY: ParamSet = ParamSet(0);
     /// The four parameters of θ.
-    pub const THETA: ParamSet = ParamSet(0b1111);
+    pub(crate) const THETA: ParamSet = ParamSet(0b1111);
     /// The reference extrinsics (lever_x, lever_y, heading_offset).
-    pub const EXTRINSICS: ParamSet = ParamSet(0b111_0000);
+    pub(crate) const EXTRINSICS: ParamSet = ParamSet(0b111_0000);
     /// The lever arm (lever_x, lever_y); `lever-arm` in a parsed list.
-    pub const LEVER_ARM: ParamSet = ParamSet(0b011_0000);
+    pub(crate) const LEVER_ARM: ParamSet = ParamSet(0b011_0000);
 
     /// True when `p` is in the set.
     pub const fn contains(self, p: Param) -> bool {
@@ -156,18 +156,18 @@ impl ParamSet {
 
     /// The set with `p` added.
     #[must_use]
-    pub const fn with(self, p: Param) -> ParamSet {
+    pub(crate) const fn with(self, p: Param) -> ParamSet {
         ParamSet(self.0 | 1 << p as u32)
     }
 
     /// The set with `p` removed.
     #[must_use]
-    pub const fn without(self, p: Param) -> ParamSet {
+    pub(crate) const fn without(self, p: Param) -> ParamSet {
         ParamSet(self.0 & !(1 << p as u32))
     }
 
     /// Adds `p`.
-    pub fn insert(&mut self, p: Param) {
+    pub(crate) fn insert(&mut self, p: Param) {
         *self = self.with(p);
     }
 
@@ -178,12 +178,12 @@ impl ParamSet {
 
     /// The parameters in both sets.
     #[must_use]
-    pub const fn intersection(self, other: ParamSet) -> ParamSet {
+    pub(crate) const fn intersection(self, other: ParamSet) -> ParamSet {
         ParamSet(self.0 & other.0)
     }
 
     /// Number of parameters.
-    pub const fn len(self) -> usize {
+    pub(crate) const fn len(self) -> usize {
         self.0.count_ones() as usize
     }
 
@@ -194,23 +194,23 @@ impl ParamSet {
 
     /// The parameters in both this set and `other`'s complement.
     #[must_use]
-    pub const fn difference(self, other: ParamSet) -> ParamSet {
+    pub(crate) const fn difference(self, other: ParamSet) -> ParamSet {
         ParamSet(self.0 & !other.0)
     }
 
     /// The parameters in either set.
     #[must_use]
-    pub const fn union(self, other: ParamSet) -> ParamSet {
+    pub(crate) const fn union(self, other: ParamSet) -> ParamSet {
         ParamSet(self.0 | other.0)
     }
 
     /// The parameters in vector order.
-    pub fn iter(self) -> impl Iterator<Item = Param> {
+    pub(crate) fn iter(self) -> impl Iterator<Item = Param> {
         Param::ALL.into_iter().filter(move |p| self.contains(*p))
     }
 
     /// Vector positions of the parameters, ascending.
-    pub fn indices(self) -> Vec<usize> {
+    pub(crate) fn indices(self) -> Vec<usize> {
         self.iter().map(Param::index).collect()
     }
 }

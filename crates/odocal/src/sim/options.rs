@@ -121,7 +121,7 @@ impl Default for VehicleOptions {
 impl VehicleOptions {
     /// Rear-axle sideslip per unit lateral acceleration, rad per m/s² (negative:
     /// the rear axle drifts to the outside of the turn).
-    pub fn sideslip_gain_rad_per_m_per_s2(&self) -> f64 {
+    pub(crate) fn sideslip_gain_rad_per_m_per_s2(&self) -> f64 {
         -self.mass_kg * self.front_axle_to_cg_m / (self.wheelbase_m * self.rear_cornering_stiffness_n_per_rad)
     }
 }
@@ -182,7 +182,7 @@ impl Default for NoiseOptions {
 impl NoiseOptions {
     /// No noise at all: every measured column equals its truth column.
     /// (Time constants keep their paper values; they do not matter.)
-    pub fn off() -> Self {
+    pub(crate) fn off() -> Self {
         NoiseOptions {
             wheel_slip_per_m_per_s2: 0.0,
             wheel_coloured_rel_sigma: 0.0,
@@ -224,7 +224,7 @@ impl NoiseOptions {
 
     /// Only white noise on the wheel rotations, of the paper preset's size;
     /// everything else exact.
-    pub fn white_wheel_only() -> Self {
+    pub(crate) fn white_wheel_only() -> Self {
         NoiseOptions { wheel_white_rel_sigma: NoiseOptions::paper().wheel_white_rel_sigma, ..NoiseOptions::off() }
     }
 
@@ -232,7 +232,7 @@ impl NoiseOptions {
     /// differential relative errors, white noise and encoder quantisation —
     /// on a perfect reference, with no slip, a_y or sideslip noise (the
     /// "coloured" preset of the EIV studies).
-    pub fn coloured_wheels_only() -> Self {
+    pub(crate) fn coloured_wheels_only() -> Self {
         let p = NoiseOptions::paper();
         NoiseOptions {
             wheel_coloured_rel_sigma: p.wheel_coloured_rel_sigma,
@@ -245,7 +245,7 @@ impl NoiseOptions {
     }
 
     /// Every source 2.5× the paper preset (encoder resolution a quarter).
-    pub fn high() -> Self {
+    pub(crate) fn high() -> Self {
         let p = NoiseOptions::paper();
         NoiseOptions {
             encoder_ticks_per_revolution: p.encoder_ticks_per_revolution / 4,
@@ -258,7 +258,7 @@ impl NoiseOptions {
     /// revolution ÷ f (rounded), so the quantisation step × f; time constants
     /// kept. `paper_scaled(2.5)` is [`NoiseOptions::high`] but for the ticks
     /// (819 there, 512 in `high`).
-    pub fn paper_scaled(f: f64) -> Self {
+    pub(crate) fn paper_scaled(f: f64) -> Self {
         let p = NoiseOptions::paper();
         NoiseOptions {
             wheel_slip_per_m_per_s2: f * p.wheel_slip_per_m_per_s2,
@@ -397,7 +397,7 @@ impl SimOptions {
     }
 
     /// Checks every option, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         self.reference_mount.validate()?;
         check_positive("length_km", self.length_km)?;
         if self.length_km > MAX_LENGTH_KM {

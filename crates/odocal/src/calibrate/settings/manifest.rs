@@ -124,13 +124,13 @@ impl ManifestSettings {
     }
 
     /// True when the manifest states none.
-    pub fn is_empty(&self) -> bool {
+    pub(crate) fn is_empty(&self) -> bool {
         self.settings.is_empty() && self.reference.is_none()
     }
 
     /// The manifest key of a [`Settings`] key: `noise` for the noise model,
     /// `reference.KEY` for the extrinsics, else `calibration.KEY`.
-    pub fn key(&self, key: &str) -> String {
+    pub(crate) fn key(&self, key: &str) -> String {
         match key {
             "noise_model" => "noise".into(),
             k if REFERENCE_KEYS.contains(&k) => format!("reference.{k}"),

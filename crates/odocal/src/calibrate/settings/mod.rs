@@ -66,19 +66,19 @@ macro_rules! settings {
             /// These settings over `lower`: each key these state, else
             /// `lower`'s. The one precedence rule: the caller's settings
             /// over a manifest's over the defaults.
-            pub fn over(self, lower: Settings) -> Settings {
+            pub(crate) fn over(self, lower: Settings) -> Settings {
                 Settings { $( $key: self.$key.or(lower.$key), )* }
             }
 
             /// The keys these settings state, in the order of [`Settings::KEYS`].
-            pub fn stated(&self) -> Vec<&'static str> {
+            pub(crate) fn stated(&self) -> Vec<&'static str> {
                 let mut keys = Vec::new();
                 $( if self.$key.is_some() { keys.push(stringify!($key)); } )*
                 keys
             }
 
             /// These settings without `key` (the same when they do not state it).
-            pub fn without(mut self, key: &str) -> Settings {
+            pub(crate) fn without(mut self, key: &str) -> Settings {
                 match key {
                     $( stringify!($key) => self.$key = None, )*
                     _ => {}
@@ -280,7 +280,7 @@ impl NoiseModelSetting {
     ///
     /// # Errors
     /// The file's: [`Error::Io`], or [`Error::InvalidOption`] naming the bad field.
-    pub fn spec(&self) -> Result<NoiseSpec> {
+    pub(crate) fn spec(&self) -> Result<NoiseSpec> {
         match self {
             NoiseModelSetting::File(p) => read_noise_model(p),
             NoiseModelSetting::Stated(s) => Ok(s.clone()),
@@ -290,7 +290,7 @@ impl NoiseModelSetting {
 
 impl Settings {
     /// True when no key is stated.
-    pub fn is_empty(&self) -> bool {
+    pub(crate) fn is_empty(&self) -> bool {
         self.stated().is_empty()
     }
 

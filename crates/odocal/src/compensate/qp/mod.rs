@@ -76,12 +76,12 @@ pub struct StageQp {
 
 impl StageQp {
     /// Number of stages K.
-    pub fn stages(&self) -> usize {
+    pub(crate) fn stages(&self) -> usize {
         self.a.len()
     }
 
     /// Checks that every vector has the right length and bounds are ordered.
-    pub fn check(&self) -> Result<(), QpError> {
+    pub(crate) fn check(&self) -> Result<(), QpError> {
         let k = self.stages();
         let ok = k >= 1
             && self.b.len() == k
@@ -103,7 +103,7 @@ impl StageQp {
     }
 
     /// States `z_1..z_K` produced by inputs `w_0..w_{K−1}` through the dynamics.
-    pub fn rollout(&self, w: &[Vector2<f64>]) -> Vec<Vector3<f64>> {
+    pub(crate) fn rollout(&self, w: &[Vector2<f64>]) -> Vec<Vector3<f64>> {
         let mut z = Vector3::zeros();
         (0..self.stages())
             .map(|i| {
@@ -114,7 +114,7 @@ impl StageQp {
     }
 
     /// The objective at (w, z).
-    pub fn objective(&self, w: &[Vector2<f64>], z: &[Vector3<f64>]) -> f64 {
+    pub(crate) fn objective(&self, w: &[Vector2<f64>], z: &[Vector3<f64>]) -> f64 {
         let mut f = 0.0;
         for zk in z {
             f += zk.component_mul(zk).dot(&self.q);
@@ -127,7 +127,7 @@ impl StageQp {
     }
 
     /// Largest violation of any bound by (w, z) (0 when all hold).
-    pub fn max_bound_violation(&self, w: &[Vector2<f64>], z: &[Vector3<f64>]) -> f64 {
+    pub(crate) fn max_bound_violation(&self, w: &[Vector2<f64>], z: &[Vector3<f64>]) -> f64 {
         let mut v: f64 = 0.0;
         for i in 0..self.stages() {
             for j in 0..3 {
@@ -177,12 +177,12 @@ impl StageQp {
     /// The constant `Σ δ_kᵀ R δ_k`: the objective at `w = 0` without the
     /// state terms. General solvers drop it; it is added back so every
     /// solver reports [`StageQp::objective`].
-    pub fn objective_constant(&self) -> f64 {
+    pub(crate) fn objective_constant(&self) -> f64 {
         self.delta.iter().map(|d| d.component_mul(d).dot(&self.r)).sum()
     }
 
     /// Gradient of [`StageQp::objective`] at (w, z): `(∂f/∂w_k, ∂f/∂z_k)`.
-    pub fn gradient(&self, w: &[Vector2<f64>], z: &[Vector3<f64>]) -> (Vec<Vector2<f64>>, Vec<Vector3<f64>>) {
+    pub(crate) fn gradient(&self, w: &[Vector2<f64>], z: &[Vector3<f64>]) -> (Vec<Vector2<f64>>, Vec<Vector3<f64>>) {
         let gz = z.iter().map(|zk| 2.0 * self.q.component_mul(zk)).collect();
         let mut gw = vec![Vector2::zeros(); w.len()];
         for k in 1..w.len() {
@@ -195,7 +195,7 @@ impl StageQp {
 
     /// Largest absolute residual of the dynamics
     /// `z_k − A_k z_{k−1} − B_k w_{k−1} − c_k` (0 for a rollout).
-    pub fn dynamics_residual(&self, w: &[Vector2<f64>], z: &[Vector3<f64>]) -> f64 {
+    pub(crate) fn dynamics_residual(&self, w: &[Vector2<f64>], z: &[Vector3<f64>]) -> f64 {
         let mut prev = Vector3::zeros();
         let mut r: f64 = 0.0;
         for i in 0..self.stages() {
@@ -208,7 +208,7 @@ impl StageQp {
 
     /// Number of bounds within `tol` of (w, z) (a variable pinned by an
     /// equal lower and upper bound counts once).
-    pub fn count_active_bounds(&self, w: &[Vector2<f64>], z: &[Vector3<f64>], tol: f64) -> usize {
+    pub(crate) fn count_active_bounds(&self, w: &[Vector2<f64>], z: &[Vector3<f64>], tol: f64) -> usize {
         let mut n = 0;
         for i in 0..self.stages() {
             for j in 0..3 {
@@ -377,7 +377,7 @@ pub enum SolverKind {
 
 impl SolverKind {
     /// A solver of this kind with default settings.
-    pub fn solver(&self) -> Box<dyn QpSolver> {
+    pub(crate) fn solver(&self) -> Box<dyn QpSolver> {
         match self {
             SolverKind::Structured => Box::new(riccati::StructuredSolver::default()),
             SolverKind::Clarabel => Box::new(clarabel::ClarabelSolver::default()),
@@ -385,7 +385,7 @@ impl SolverKind {
     }
 
     /// The name used on the command line and in reports.
-    pub fn as_str(&self) -> &'static str {
+    pub(crate) fn as_str(&self) -> &'static str {
         match self {
             SolverKind::Structured => "structured",
             SolverKind::Clarabel => "clarabel",

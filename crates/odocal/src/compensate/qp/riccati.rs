@@ -106,7 +106,7 @@ impl Default for StructuredOptions {
 
 impl StructuredOptions {
     /// Checks every field; the error names the field.
-    pub fn validate(&self) -> Result<(), QpError> {
+    pub(crate) fn validate(&self) -> Result<(), QpError> {
         let pos = |v: f64, name: &str| {
             if v.is_finite() && v > 0.0 {
                 Ok(())

@@ -113,7 +113,7 @@ impl Default for OutputSpec {
 
 impl OutputSpec {
     /// θ_0 as a [`Theta`].
-    pub fn theta0(&self) -> Theta {
+    pub(crate) fn theta0(&self) -> Theta {
         Theta { c_e: self.theta0[0], c_d: self.theta0[1], t_r: self.theta0[2], d: self.theta0[3] }
     }
 }
@@ -183,7 +183,7 @@ pub enum TimeUnit {
 
 impl TimeUnit {
     /// Seconds per unit.
-    pub fn seconds(self) -> f64 {
+    pub(crate) fn seconds(self) -> f64 {
         match self {
             TimeUnit::S => 1.0,
             TimeUnit::Ms => 1e-3,
@@ -246,7 +246,7 @@ pub enum SourceSpec {
 
 impl SourceSpec {
     /// The file, relative to the manifest's folder.
-    pub fn file(&self) -> &Path {
+    pub(crate) fn file(&self) -> &Path {
         match self {
             SourceSpec::Csv { file } | SourceSpec::Mcap { file, .. } | SourceSpec::Parquet { file } => file,
         }
@@ -500,7 +500,7 @@ pub enum AngleUnit {
 
 impl AngleUnit {
     /// Radians per unit.
-    pub fn radians(self) -> f64 {
+    pub(crate) fn radians(self) -> f64 {
         match self {
             AngleUnit::Rad => 1.0,
             AngleUnit::Deg => std::f64::consts::PI / 180.0,
@@ -597,7 +597,7 @@ pub enum LateralAccelerationSpec {
 
 impl LateralAccelerationSpec {
     /// The road-bank correction of a derived a_y, when asked for.
-    pub fn bank(&self) -> Option<&BankSpec> {
+    pub(crate) fn bank(&self) -> Option<&BankSpec> {
         match self {
             LateralAccelerationSpec::FromWheels { bank, .. } | LateralAccelerationSpec::FromPose { bank, .. } => {
                 bank.as_deref()
@@ -669,9 +669,9 @@ pub struct BankSpec {
 impl BankSpec {
     /// Largest relative disagreement between the median measured antenna
     /// separation and `baseline_m` (a wrong stream, column or baseline).
-    pub const BASELINE_TOLERANCE: f64 = 0.1;
+    pub(crate) const BASELINE_TOLERANCE: f64 = 0.1;
     /// Upper bound of `max_roll_deg`.
-    pub const MAX_ROLL_LIMIT_DEG: f64 = 45.0;
+    pub(crate) const MAX_ROLL_LIMIT_DEG: f64 = 45.0;
 }
 
 fn default_max_roll_deg() -> f64 {
@@ -745,7 +745,7 @@ impl Manifest {
     }
 
     /// The folder stream files are relative to.
-    pub fn base_dir(&self) -> PathBuf {
+    pub(crate) fn base_dir(&self) -> PathBuf {
         self.path.parent().map(Path::to_path_buf).unwrap_or_default()
     }
 }

@@ -43,7 +43,7 @@ pub struct ReferenceSpec {
 
 impl ReferenceSpec {
     /// The parameters of `estimate`, or the error naming the bad entry.
-    pub fn estimate_set(&self) -> std::result::Result<ParamSet, String> {
+    pub(crate) fn estimate_set(&self) -> std::result::Result<ParamSet, String> {
         let mut set = ParamSet::EMPTY;
         for name in &self.estimate {
             let not_extrinsic = || {
