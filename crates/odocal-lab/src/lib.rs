@@ -245,7 +245,7 @@ pub fn print_joint_fits(runs: &[Drive]) -> Res<()> {
 /// other five) of the default method, batch G-N with d held and batch G-N,
 /// with each run's c_d and d; with `full`, the default's whole table.
 pub fn print_cross_runs(runs: &[Drive], full: bool) -> Res<()> {
-    use odocal::calibrate::crossrun::{cross_run, CROSS_RUN_OWN_FIT_RATIO};
+    use odocal::crossrun::{cross_run, CROSS_RUN_OWN_FIT_RATIO};
     let named: Vec<(&str, &Drive)> = TESTTRACK_RUNS.iter().map(|r| r.0).zip(runs.iter()).collect();
     for (label, o) in [
         ("default", CalibrationOptions::default()),

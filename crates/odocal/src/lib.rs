@@ -46,7 +46,7 @@
 //!
 //! ```
 //! # fn main() -> Result<(), odocal::Error> {
-//! use odocal::{drive::segment, identify, sim, Theta};
+//! use odocal::{identify, segment, sim, Theta};
 //! // A noise-free simulated drive: batch Gauss-Newton recovers the true θ.
 //! let sim = sim::simulate(&sim::SimOptions { length_km: 2.0, substeps: 1, ..sim::SimOptions::noise_free(1) })?;
 //! let drive = &sim.drive;
@@ -109,6 +109,9 @@ pub use model::Theta;
 /// run the steps ([`identify`], [`compensate`]) or score θ themselves.
 pub use drive::segment;
 pub use drive::{Drive, DriveBuilder, ExtraColumn, ExtraValues, Signals};
+/// The drive manifest as Rust types. Expert API, for programs that build or
+/// edit a manifest.
+pub use io::import::manifest;
 pub use io::import::{import, load_drive, ImportReport, ImportedDrive, Manifest, ReferenceSpec};
 pub use io::param_file::{ParamFile, ParamMapping};
 pub use sim::{simulate, NoiseOptions, SimOptions, SimOutput, SimSidecar};
@@ -132,7 +135,7 @@ pub use calibrate::{
     Holdout, Method, MethodDetail, ResultSigma, SigmaSource, ThreeStepOptions,
 };
 // The methods' own report details.
-pub use calibrate::{BatchGnDetail, BatchSpread, EivDetail, EivOutcome, InitialStep, ThreeStepDetail};
+pub use calibrate::{BatchGnDetail, BatchSpread, CorrectBias, EivDetail, EivOutcome, InitialStep, ThreeStepDetail};
 // The 3-step method's compensation settings.
 pub use compensate::qp::SolverKind;
 pub use compensate::{CompensateOptions, QpOptions};
@@ -143,3 +146,16 @@ pub use assess::trust::{TrustOptions, Verdict, VerdictLevel, VerdictReason};
 pub use assess::validate::{validate, DriveValidation, MultiValidation, ValidateOptions, ValidateReport};
 pub use assess::validation_drives::ValidationDrive;
 pub use assess::warning::Warning;
+
+/// What the studies in crates/odocal-lab use beyond the public API: the
+/// steps and diagnostics a study compares (feature `research`, off by
+/// default; not part of the stable API).
+#[cfg(feature = "research")]
+pub mod research {
+    pub use crate::assess::position_error::mean_position_error_with;
+    pub use crate::assess::reachable::reachable_minimum;
+    pub use crate::assess::validation_drives::{validate_drives_with, CalibrationExtrinsics};
+    pub use crate::calibrate::eiv::{is_misspecification, noise_summary};
+    pub use crate::calibrate::three_step::{random_batches, score_batches};
+    pub use crate::calibrate::{calibrate_detailed, DetailedCalibration};
+}

@@ -21,7 +21,7 @@
 
 use std::time::Instant;
 
-use odocal::calibrate::{CorrectBias, EivMethodOptions, MethodDetail};
+use odocal::{CorrectBias, EivMethodOptions, MethodDetail};
 use odocal::eiv::{EivOptions, QuantisationModel, ResearchOptions};
 use odocal::sim::{simulate, SimOptions};
 use odocal::{calibrate, CalibrationOptions, CalibrationReport, Method};

@@ -34,8 +34,9 @@
 
 use odocal::segment::validation_segments;
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
+use odocal::research::mean_position_error_with;
 use odocal::{
-    mean_position_error_with, CalibrationOptions, CalibrationReport, Drive, Extrinsics,
+    CalibrationOptions, CalibrationReport, Drive, Extrinsics,
     Holdout, Method, ParamSet, Theta,
 };
 use odocal_lab::{load, testtrack_runs, Args, Res, TESTTRACK_RUNS, VAN_MANIFEST};

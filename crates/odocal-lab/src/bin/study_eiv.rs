@@ -53,8 +53,8 @@
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use odocal::calibrate::{EivDetail, EivMethodOptions};
-use odocal::segment::validation_segments;
+use odocal::{EivDetail, EivMethodOptions};
+use odocal::segment::{validation_segments, ValidationSegmentOptions};
 use odocal::eiv::{
     bootstrap, cramer_rao_bound, BootstrapInputs, BootstrapOptions, CovarianceEstimate, EivInput, EivOptions,
     EivReport, HeadingScale, InputJacobian, LateralNoise, NoiseModel, QuantisationLevel, QuantisationModel,
@@ -62,7 +62,7 @@ use odocal::eiv::{
 };
 use odocal::{
     calibrate, mean_position_error, CalibrationOptions, CalibrationReport, Drive, Method, MethodDetail, Theta,
-    ValidationSegmentOptions, Warning,
+    Warning,
 };
 use odocal_lab::{
     coverage, error_scale, errors, noise_preset, simulate_preset, Args, Res, Summary, Table, ERROR_UNITS,
@@ -288,7 +288,7 @@ fn failed_checks(r: &CalibrationReport) -> Vec<String> {
 /// What one drive needs to judge a θ: Ē_p on its validation segments.
 struct Judge<'a> {
     drive: &'a Drive,
-    validation: Vec<odocal::Segment>,
+    validation: Vec<odocal::segment::Segment>,
 }
 
 impl Judge<'_> {

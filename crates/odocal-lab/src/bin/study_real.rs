@@ -40,7 +40,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use odocal::calibrate::crossrun::{CrossRunFit, CrossRunRow, CrossRunTable, CROSS_RUN_OWN_FIT_RATIO};
+use odocal::crossrun::{CrossRunFit, CrossRunRow, CrossRunTable, CROSS_RUN_OWN_FIT_RATIO};
 use odocal::eiv::{EivOptions, NoiseModel, QuantisationLevel};
 use odocal::{
     calibrate, CalibrationOptions, CalibrationReport, EivMethodOptions, EivOutcome, Holdout,
@@ -86,7 +86,7 @@ const CAN_SPEED_STEP_M_PER_S: f64 = 0.01 / 3.6;
 /// production car's 0.8 % white wheel noise, so the model's shape there
 /// hardly matters.
 fn encoder_q(rel: &str) -> Res<(f64, String)> {
-    use odocal::io::import::WheelSignal;
+    use odocal::manifest::WheelSignal;
     let path = repo_path(rel);
     let m = odocal::Manifest::from_path(&path).map_err(|e| format!("{}: {e}", path.display()))?;
     let h = 1.0 / m.output.rate_hz;
@@ -139,7 +139,7 @@ fn options(method: &str, q: f64) -> Res<CalibrationOptions> {
         "eiv-cb" => {
             // What the CLI's `--correct-bias 10` sets (seed 0, antithetic pairs).
             Method::Eiv(EivMethodOptions {
-                correct_bias: Some(odocal::calibrate::CorrectBias { replicates: 10, seed: 0 }),
+                correct_bias: Some(odocal::CorrectBias { replicates: 10, seed: 0 }),
                 fallback,
                 ..EivMethodOptions::default()
             })
@@ -253,7 +253,7 @@ fn eiv_detail_row(m: &str, fit: &str, r: &CalibrationReport) -> Option<(String, 
     let found: Vec<String> = e
         .warnings
         .iter()
-        .filter(|w| odocal::calibrate::eiv::is_misspecification(w, e))
+        .filter(|w| odocal::research::is_misspecification(w, e))
         .map(|w| w.to_string())
         .collect();
     let t = &e.theta;
@@ -337,7 +337,7 @@ fn testtrack(methods: &[String], md: &mut String) -> Res<Value> {
                 .map(|(_, (n, d))| ValidationDrive { name: n, drive: d, reference: None })
                 .collect();
             let cal = r.extrinsics_for_validation(ParamSet::EMPTY);
-            let v = odocal::validate_drives_with(&others, &r.theta, &opts.theta0, &cal, &opts.validation)?;
+            let v = odocal::research::validate_drives_with(&others, &r.theta, &opts.theta0, &cal, &opts.validation)?;
             let wall = t.elapsed().as_secs_f64();
             let fb = eiv_fallback(&r);
             if let Some((row, v)) = eiv_detail_row(m, name, &r) {
@@ -479,7 +479,7 @@ fn swap(md: &mut String) -> Res<Value> {
             .collect();
         let cal = gn.extrinsics_for_validation(ParamSet::EMPTY);
         let judge = |t: &odocal::Theta| -> Res<f64> {
-            Ok(odocal::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?.mean_over_drives_m)
+            Ok(odocal::research::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?.mean_over_drives_m)
         };
         let (g, e) = (gn.theta, eiv.theta);
         let mut cells = vec![judge(&g)?, judge(&e)?];
@@ -515,7 +515,7 @@ fn swap(md: &mut String) -> Res<Value> {
         let others = [ValidationDrive { name: label, drive: &held, reference: None }];
         let cal = gn.extrinsics_for_validation(ParamSet::EMPTY);
         let judge = |t: &odocal::Theta| -> Res<f64> {
-            Ok(odocal::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?.mean_over_drives_m)
+            Ok(odocal::research::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?.mean_over_drives_m)
         };
         let (g, e) = (gn.theta, eiv.theta);
         let cells = [

@@ -11,7 +11,7 @@
 //! ±1.96σ (nominal 95 %), the RMS σ and the RMS error. An honest σ has
 //! RMS σ ≈ RMS error and coverage near nominal.
 
-use odocal::calibrate::MethodDetail;
+use odocal::MethodDetail;
 use odocal::{CalibrationOptions, Method, Theta, ThreeStepOptions};
 use odocal_lab::{coverage, simulate_preset, Args, Res, PARAMETERS};
 

@@ -56,7 +56,7 @@ pub fn mean_position_error(drive: &Drive, segments: &[Segment], theta: &Theta) -
 /// reference point is compared with the measured one
 /// ([`segment_position_error_with`]). With zero extrinsics
 /// this is [`mean_position_error`], bit for bit.
-pub(crate) fn mean_position_error_with(
+pub fn mean_position_error_with(
     drive: &Drive,
     segments: &[Segment],
     theta: &Theta,

@@ -360,7 +360,7 @@ fn argmin_error(stage: &str, e: argmin::core::Error) -> Error {
 ///
 /// Errors when the options are invalid (naming the field), when there are no
 /// segments, or when `Ē_p` cannot be computed at the box centre.
-pub(crate) fn reachable_minimum(
+pub fn reachable_minimum(
     drive: &Drive,
     segments: &[Segment],
     opts: &ReachableOptions,

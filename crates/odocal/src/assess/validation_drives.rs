@@ -313,7 +313,7 @@ impl<'a> HeldOutDrives<'a> {
 /// # Errors
 /// [`Error::NoSegments`] naming a drive too short for one validation
 /// segment (or when `drives` is empty); non-finite errors.
-pub(crate) fn validate_drives_with(
+pub fn validate_drives_with(
     drives: &[ValidationDrive<'_>],
     theta: &Theta,
     theta0: &Theta,

@@ -190,7 +190,7 @@ impl std::fmt::Display for CrossRunCriteria {
 ///
 /// # Errors
 /// Fewer than two drives; a validation's error, naming the drive.
-pub(crate) fn cross_run(
+pub fn cross_run(
     drives: &[(&str, &Drive)],
     opts: &CalibrationOptions,
     progress: Option<ProgressFn<'_>>,

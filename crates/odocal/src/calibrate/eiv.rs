@@ -257,7 +257,7 @@ impl EivDetail {
 /// what is left of the innovations is rounding and is correlated). The
 /// band and the whiteness limits already allow for the measurement floors
 /// ([`eiv::InnovationNull`]).
-pub(crate) fn is_misspecification(w: &EivWarning, report: &EivReport) -> bool {
+pub fn is_misspecification(w: &EivWarning, report: &EivReport) -> bool {
     match w {
         EivWarning::Unobservable { .. } => false,
         EivWarning::InconsistentInnovations { nis, band, .. } => *nis > band[1],
@@ -374,7 +374,7 @@ pub(crate) fn noise_model_from_table(mut table: toml::Table) -> std::result::Res
 }
 
 /// The noise model as one line in physical units (σ in %, time constants in s).
-pub(crate) fn noise_summary(n: &NoiseModel) -> String {
+pub fn noise_summary(n: &NoiseModel) -> String {
     format!(
         "σ_white {:.3} %, q {:.4} rev/s, σ_c {:.3} % (τ_c {} s), σ_w {:.3} % (τ_w {} s); pose σ {:.3} m / {:.2} mrad, \
          drift {:.3} m / {:.2} mrad (τ {} s); σ_a {:.3} m/s², σ_β {:.2} mrad",

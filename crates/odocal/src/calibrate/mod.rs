@@ -75,7 +75,7 @@ pub use report::{CalibrationReport, MethodDetail, ResultSigma, SigmaSource};
 pub(crate) use report::{SegmentCounts, ThetaScore, Timing, ValidationSummary};
 
 pub use batch_gn::{BatchGnDetail, BatchGnOptions};
-pub use eiv::{EivDetail, EivMethodOptions, EivOutcome};
+pub use eiv::{CorrectBias, EivDetail, EivMethodOptions, EivOutcome};
 pub(crate) use three_step::{per_segment_identification, score_batches, BatchResult};
 pub use three_step::{BatchSpread, FinalSegments, InitialStep, ThreeStepDetail, ThreeStepOptions};
 
@@ -309,7 +309,7 @@ pub fn calibrate(drive: &Drive, opts: &CalibrationOptions) -> Result<Calibration
 /// let drive = simulate(&SimOptions { length_km: 4.0, ..SimOptions::paper(1) })?.drive;
 /// let opts = CalibrationOptions { method: Method::from_name("batch-gn")?, ..Default::default() };
 /// let report = Calibration::new(&drive, &opts)
-///     .holdout(Holdout::SecondHalf)
+///     .holdout(&Holdout::SecondHalf)
 ///     .progress(&|p: Progress| eprintln!("{p:?}"))
 ///     .run()?;
 /// // Ē_p on the second half, which the calibration did not see.
@@ -387,7 +387,7 @@ impl<'a> Calibration<'a> {
 /// A calibration with the intermediate data an experiment needs: the report,
 /// the segments used and (three-step only) the compensated inputs of step 2.
 #[derive(Debug, Clone, PartialEq)]
-pub(crate) struct DetailedCalibration {
+pub struct DetailedCalibration {
     /// The report [`calibrate`] returns.
     pub report: CalibrationReport,
     /// The calibration segments fitted (all segments when none turns
@@ -487,7 +487,7 @@ pub(crate) trait Estimator {
 
 /// A calibration of `drive`, validated on `held_out` when given, also
 /// returning the segments and step 2's compensated inputs.
-pub(crate) fn calibrate_detailed(
+pub fn calibrate_detailed(
     drive: &Drive,
     held_out: Option<&Drive>,
     opts: &CalibrationOptions,

@@ -232,7 +232,7 @@ fn effective_segments(segments: &[Segment]) -> f64 {
 }
 
 /// Random batches of `size` distinct indices out of `n` (all when n ≤ size).
-pub(crate) fn random_batches(n: usize, size: usize, count: usize, seed: u64) -> Vec<Vec<usize>> {
+pub fn random_batches(n: usize, size: usize, count: usize, seed: u64) -> Vec<Vec<usize>> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut idx: Vec<usize> = (0..n).collect();
     (0..count)
@@ -262,7 +262,7 @@ pub(crate) fn equal_step_picks(n: usize, picks: usize) -> Vec<usize> {
 /// same on compensated inputs). Batches run in parallel; results come back in
 /// batch order whatever the thread count. A failed batch is an `Err` in its
 /// place, so callers decide whether to leave it out.
-pub(crate) fn score_batches(
+pub fn score_batches(
     drive: &Drive,
     data: &[SegmentData<'_>],
     batches: &[Vec<usize>],

@@ -14,7 +14,7 @@ impl CalibrationReport {
     /// The reference extrinsics of this calibration as validation drives
     /// see them; `given` names the parameters the caller gave (e.g.
     /// `--lever-arm` gives `lever_x`, `lever_y`).
-    pub(crate) fn extrinsics_for_validation(&self, given: ParamSet) -> CalibrationExtrinsics {
+    pub fn extrinsics_for_validation(&self, given: ParamSet) -> CalibrationExtrinsics {
         CalibrationExtrinsics::of_estimate(self.extrinsics.as_ref(), self.options.identify.extrinsics, given)
     }
 }

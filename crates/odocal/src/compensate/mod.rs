@@ -401,7 +401,7 @@ pub enum CompensationWarning {
 
 impl CompensatedInputs {
     /// Segment data with the compensated wheel rotations.
-    pub(crate) fn segment_data<'a>(&'a self, drive: &'a Drive) -> Vec<SegmentData<'a>> {
+    pub fn segment_data<'a>(&'a self, drive: &'a Drive) -> Vec<SegmentData<'a>> {
         self.segments
             .iter()
             .enumerate()

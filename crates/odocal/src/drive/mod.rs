@@ -24,7 +24,7 @@
 //!
 //! ```
 //! # fn main() -> Result<(), odocal::Error> {
-//! use odocal::drive::{Drive, Signals};
+//! use odocal::{Drive, Signals};
 //! let n = 100;
 //! let t: Vec<f64> = (0..n).map(|k| k as f64 * 0.025).collect();
 //! let mut s = Signals::with_capacity(n);

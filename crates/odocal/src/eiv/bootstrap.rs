@@ -187,7 +187,7 @@ fn injected_failure(seed: u64, b: usize) -> Option<Error> {
 /// report depends only on the inputs and the seed, not on the thread count.
 ///
 /// Errors for invalid options or when fewer than two replicates could be fitted.
-pub(crate) fn bootstrap(
+pub fn bootstrap(
     input: &EivInput<'_>,
     report: &EivReport,
     opts: &EivOptions,
@@ -335,7 +335,7 @@ impl BootstrapReport {
     /// estimated: the replicates' covariance over 2 stands in, the
     /// plain bootstrap's error for two replicates (an upper bound in the
     /// usual case that the pair's errors are negatively correlated).
-    pub(crate) fn mean_covariance(&self) -> [[f64; 4]; 4] {
+    pub fn mean_covariance(&self) -> [[f64; 4]; 4] {
         // The set whose spread is measured, and the number its mean averages.
         let (set, n) = match self.pair_means.len() {
             0 => (&self.replicates, self.replicates.len()),

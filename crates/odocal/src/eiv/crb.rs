@@ -42,7 +42,7 @@ use crate::model::Theta;
 /// Applications*, §6.3 (innovations form of the likelihood); the Gaussian
 /// Fisher information `I = ∂μᵀΣ⁻¹∂μ + ½ tr(Σ⁻¹∂Σ Σ⁻¹∂Σ)` (e.g. S. M. Kay,
 /// *Fundamentals of Statistical Signal Processing: Estimation Theory*, §3.9).
-pub(crate) fn cramer_rao_bound(
+pub fn cramer_rao_bound(
     input: &EivInput<'_>,
     theta: &Theta,
     noise: &NoiseModel,

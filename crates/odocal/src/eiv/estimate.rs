@@ -29,7 +29,7 @@ use crate::model::Theta;
 /// let set = odocal::eiv::kernel_instruction_set();
 /// assert!(set == "avx2" || set == "baseline");
 /// ```
-pub(crate) fn kernel_instruction_set() -> &'static str {
+pub fn kernel_instruction_set() -> &'static str {
     match filter::kernels() {
         filter::Kernels::Avx2 => "avx2",
         filter::Kernels::Baseline => "baseline",
@@ -61,7 +61,7 @@ pub(crate) fn kernel_instruction_set() -> &'static str {
 /// assert!((report.theta.c_e - 1.95).abs() < 1e-6);
 /// # Ok(()) }
 /// ```
-pub(crate) fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) -> Result<EivReport> {
+pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) -> Result<EivReport> {
     let t0 = Instant::now();
     opts.validate()?;
     input.validate()?;

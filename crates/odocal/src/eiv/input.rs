@@ -8,7 +8,7 @@ use crate::error::{Error, Result};
 
 /// The data of a drive as plain slices (all of length N, samples).
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct EivInput<'a> {
+pub struct EivInput<'a> {
     /// Sample time t_s, s.
     pub sample_time_s: f64,
     /// Continuous parts of the drive, sample index ranges; windows never span two.
@@ -35,7 +35,7 @@ pub(crate) struct EivInput<'a> {
 impl<'a> EivInput<'a> {
     /// The columns of a checked [`Drive`](crate::Drive), its parts and its
     /// reference mask.
-    pub(crate) fn from_drive(d: &'a crate::Drive) -> Self {
+    pub fn from_drive(d: &'a crate::Drive) -> Self {
         EivInput {
             sample_time_s: d.sample_time_s(),
             parts: d.parts(),
@@ -77,7 +77,7 @@ impl<'a> EivInput<'a> {
     /// assert_ne!(truth.n_rl, measured.n_rl);
     /// # Ok::<(), odocal::Error>(())
     /// ```
-    pub(crate) fn from_drive_truth(d: &'a crate::Drive) -> Result<Self> {
+    pub fn from_drive_truth(d: &'a crate::Drive) -> Result<Self> {
         let t = d.truth().ok_or_else(|| Error::InvalidDrive {
             context: "EIV input".into(),
             reason: "the drive carries no truth columns (*_true): the bound at the truth needs a simulated drive"

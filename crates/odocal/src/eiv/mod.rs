@@ -204,10 +204,10 @@
 //!   TAC 19(6), 1974 (filter sensitivity recursions, Fisher scoring).
 
 mod bias_correction;
-mod bootstrap;
+pub mod bootstrap;
 mod covariance;
 mod crb;
-mod estimate;
+pub mod estimate;
 pub(crate) mod filter;
 mod input;
 mod lattice;
@@ -221,14 +221,15 @@ mod steps;
 #[cfg(test)]
 pub(crate) mod tests;
 
-pub(crate) use bias_correction::apply_bias_correction;
+pub use bias_correction::apply_bias_correction;
 pub(crate) use bias_correction::first_order_bias;
-pub(crate) use bootstrap::{bootstrap, BootstrapInputs, BootstrapOptions, BootstrapReport};
+pub use bootstrap::{bootstrap, BootstrapInputs, BootstrapOptions, BootstrapReport};
 #[cfg(test)]
 pub(crate) use bootstrap::{FAIL_EVERY_REPLICATE_SEED, FAIL_ONE_REPLICATE_SEED};
-pub(crate) use crb::cramer_rao_bound;
-pub(crate) use estimate::estimate;
-pub(crate) use input::{EivInput, Window};
+pub use crb::cramer_rao_bound;
+pub use lattice::quantisation_step_of_readings;
+pub use estimate::{estimate, kernel_instruction_set};
+pub use input::{EivInput, Window};
 pub(crate) use modelling::{BiasCorrection, FirstOrderBias, BIAS_BOOTSTRAP_SMOOTHING_SAMPLES};
 pub use modelling::{HeadingScale, LateralNoise, QuantisationLevel, QuantisationModel};
 // The modelling alternatives of `EivOptions::research`: public with the
@@ -248,7 +249,8 @@ pub use options::EivOptions;
 pub(crate) use options::{CovarianceEstimate, CovarianceMode, ResearchOptions};
 #[cfg(feature = "research")]
 pub use options::{CovarianceEstimate, CovarianceMode, ResearchOptions};
-pub(crate) use report::{
+pub(crate) use report::PARAMETERS;
+pub use report::{
     CrbReport, EivObservability, EivReport, EivWarning, HalvesCheck, IterationRecord, Parameter, PassReport,
-    PoseComponent, Termination, WindowDiagnostics, PARAMETERS,
+    PoseComponent, Termination, WindowDiagnostics,
 };

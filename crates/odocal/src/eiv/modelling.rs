@@ -48,7 +48,7 @@ use crate::error::{Error, Result};
 /// the default ([`EivOptions::research`](crate::eiv::EivOptions::research)).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
-pub(crate) enum InputJacobian {
+pub enum InputJacobian {
     /// No term.
     #[default]
     None,
@@ -92,7 +92,7 @@ pub(crate) enum InputJacobian {
 /// floors predicts.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
-pub(crate) enum InnovationNull {
+pub enum InnovationNull {
     /// The model as fitted, floors included: white innovations (lag-1 0)
     /// and NIS/dof 1.
     FittedModel,
@@ -113,10 +113,10 @@ pub(crate) enum InnovationNull {
 
 /// Default of [`EivOptions::position_floor_m`](crate::eiv::EivOptions::position_floor_m), m (SPEC §10 states 1 mm,
 /// [`SPEC_POSITION_FLOOR_M`]; see that option for why 5 mm).
-pub(crate) const DEFAULT_POSITION_FLOOR_M: f64 = 5e-3;
+pub const DEFAULT_POSITION_FLOOR_M: f64 = 5e-3;
 
 /// The position σ floor of SPEC §10, m.
-pub(crate) const SPEC_POSITION_FLOOR_M: f64 = 1e-3;
+pub const SPEC_POSITION_FLOOR_M: f64 = 1e-3;
 
 /// Which wheel rotation the relative wheel noise (white and Gauss-Markov)
 /// is proportional to in the filter's covariance.
@@ -139,7 +139,7 @@ pub(crate) const SPEC_POSITION_FLOOR_M: f64 = 1e-3;
 /// the default, `SmoothedFittedInput` with ±20 samples.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
-pub(crate) enum WheelNoiseScale {
+pub enum WheelNoiseScale {
     /// σ·ñ, the measured rotation (SPEC §10).
     #[default]
     MeasuredInput,
@@ -444,7 +444,7 @@ impl std::str::FromStr for LateralNoise {
 /// d −0.244 → −0.166 mm/(m/s²).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
-pub(crate) enum SideslipNoise {
+pub enum SideslipNoise {
     /// The error is a filter state `e_β` (the true sideslip is `β̃ − e_β`),
     /// Gauss-Markov like the wheels' coloured errors: one more state.
     #[default]

@@ -91,7 +91,7 @@ impl NoiseSource {
 
     /// The source's index in η ([`NOISE_SOURCES`] order, as
     /// [`EivOptions::eta_held`](crate::eiv::EivOptions::eta_held)): the declaration order.
-    pub(crate) fn index(self) -> usize {
+    pub fn index(self) -> usize {
         self as usize
     }
 }
@@ -135,7 +135,7 @@ pub(crate) const NOISE_SOURCES: [NoiseSource; 6] = [
 impl NoiseModel {
     /// Defaults for a production car: about 1 % relative wheel-rotation
     /// error on the CAN bus and a GNSS/INS reference good to decimetres.
-    pub(crate) const PRODUCTION_CAR: NoiseModel = NoiseModel {
+    pub const PRODUCTION_CAR: NoiseModel = NoiseModel {
         wheel_white_rel_sigma: 0.008,
         quantisation_step_rev_per_s: 0.02,
         wheel_common_rel_sigma: 0.002,
@@ -178,7 +178,7 @@ impl NoiseModel {
 
     /// The model with each group's standard deviations multiplied by
     /// `exp(η_j/2)` (variances by `exp(η_j)`).
-    pub(crate) fn scaled(&self, eta: &[f64; 6]) -> Self {
+    pub fn scaled(&self, eta: &[f64; 6]) -> Self {
         let f: [f64; 6] = std::array::from_fn(|j| (0.5 * eta[j]).exp());
         NoiseModel {
             wheel_white_rel_sigma: self.wheel_white_rel_sigma * f[0],

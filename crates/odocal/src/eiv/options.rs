@@ -20,7 +20,7 @@ use crate::model::Theta;
 /// measured consequences.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
-pub(crate) enum CovarianceMode {
+pub enum CovarianceMode {
     /// The covariance recursion is linearised at a reference θ (batch G-N's
     /// result, then each pass's result): `∂S/∂θ = 0` and θ solves the
     /// corrected score of the module docs.
@@ -35,7 +35,7 @@ pub(crate) enum CovarianceMode {
 /// [`EivReport::sigma`](crate::eiv::EivReport::sigma)) and used by the halves check.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
-pub(crate) enum CovarianceEstimate {
+pub enum CovarianceEstimate {
     /// `H_θ⁻¹`, the inverse of the scoring metric at the fitted noise model:
     /// right when the noise model is (the fitted scales of the right
     /// processes). On the `coloured` preset, η estimated from the
@@ -411,7 +411,7 @@ impl EivOptions {
     /// ([`cramer_rao_bound`](crate::eiv::cramer_rao_bound), the experiment's
     /// and the studies') is computed with it, so that it depends on the noise
     /// model only, not on the estimator's bias corrections.
-    pub(crate) fn spec() -> Self {
+    pub fn spec() -> Self {
         EivOptions {
             research: ResearchOptions {
                 wheel_noise_scale: WheelNoiseScale::MeasuredInput,

@@ -428,7 +428,7 @@ impl std::fmt::Display for EivReport {
 
 /// The Cramér–Rao bound of θ for one drive.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub(crate) struct CrbReport {
+pub struct CrbReport {
     /// θ at which the bound is evaluated (θ_true).
     pub theta: Theta,
     /// Which parameters were free.

@@ -539,7 +539,7 @@ pub(crate) fn observability_of(
 ///
 /// ```
 /// # fn main() -> Result<(), odocal::Error> {
-/// use odocal::{drive::segment, identify, sim, Theta};
+/// use odocal::{identify, segment, sim, Theta};
 /// let drive = sim::simulate(&sim::SimOptions { length_km: 2.0, ..sim::SimOptions::noise_free(7) })?.drive;
 /// let sel = segment::calibration_segments(&drive, &Default::default())?;
 /// let data: Vec<_> = sel.selected.iter().map(|s| segment::SegmentData::new(&drive, s)).collect();

@@ -325,7 +325,7 @@ impl ParamFile {
     /// the same parameters to the bit.
     ///
     /// ```
-    /// use odocal::io::param_file::ParamFile;
+    /// use odocal::ParamFile;
     /// use odocal::Theta;
     /// let dir = std::env::temp_dir().join(format!("odocal-doc-{}", std::process::id()));
     /// std::fs::create_dir_all(&dir)?;

@@ -47,11 +47,11 @@ pub enum Param {
 
 impl Param {
     /// The four parameters of θ, in vector order `[c_e, c_d, t_r, d]`.
-    pub(crate) const THETA: [Param; 4] = [Param::CE, Param::CD, Param::TR, Param::D];
+    pub const THETA: [Param; 4] = [Param::CE, Param::CD, Param::TR, Param::D];
     /// The reference extrinsics, in vector order `[lever_x, lever_y, heading_offset]`.
     pub const EXTRINSICS: [Param; 3] = [Param::LeverX, Param::LeverY, Param::HeadingOffset];
     /// Every parameter, in vector order.
-    pub(crate) const ALL: [Param; 7] =
+    pub const ALL: [Param; 7] =
         [Param::CE, Param::CD, Param::TR, Param::D, Param::LeverX, Param::LeverY, Param::HeadingOffset];
 
     /// The name used in reports and on the command line (`"c_e"`, …).
@@ -141,13 +141,13 @@ pub struct ParamSet(u32);
 
 impl ParamSet {
     /// No parameter.
-    pub(crate) const EMPTY: ParamSet = ParamSet(0);
+    pub const EMPTY: ParamSet = ParamSet(0);
     /// The four parameters of θ.
-    pub(crate) const THETA: ParamSet = ParamSet(0b1111);
+    pub const THETA: ParamSet = ParamSet(0b1111);
     /// The reference extrinsics (lever_x, lever_y, heading_offset).
-    pub(crate) const EXTRINSICS: ParamSet = ParamSet(0b111_0000);
+    pub const EXTRINSICS: ParamSet = ParamSet(0b111_0000);
     /// The lever arm (lever_x, lever_y); `lever-arm` in a parsed list.
-    pub(crate) const LEVER_ARM: ParamSet = ParamSet(0b011_0000);
+    pub const LEVER_ARM: ParamSet = ParamSet(0b011_0000);
 
     /// True when `p` is in the set.
     pub const fn contains(self, p: Param) -> bool {
@@ -156,18 +156,18 @@ impl ParamSet {
 
     /// The set with `p` added.
     #[must_use]
-    pub(crate) const fn with(self, p: Param) -> ParamSet {
+    pub const fn with(self, p: Param) -> ParamSet {
         ParamSet(self.0 | 1 << p as u32)
     }
 
     /// The set with `p` removed.
     #[must_use]
-    pub(crate) const fn without(self, p: Param) -> ParamSet {
+    pub const fn without(self, p: Param) -> ParamSet {
         ParamSet(self.0 & !(1 << p as u32))
     }
 
     /// Adds `p`.
-    pub(crate) fn insert(&mut self, p: Param) {
+    pub fn insert(&mut self, p: Param) {
         *self = self.with(p);
     }
 
@@ -178,12 +178,12 @@ impl ParamSet {
 
     /// The parameters in both sets.
     #[must_use]
-    pub(crate) const fn intersection(self, other: ParamSet) -> ParamSet {
+    pub const fn intersection(self, other: ParamSet) -> ParamSet {
         ParamSet(self.0 & other.0)
     }
 
     /// Number of parameters.
-    pub(crate) const fn len(self) -> usize {
+    pub const fn len(self) -> usize {
         self.0.count_ones() as usize
     }
 
@@ -194,18 +194,18 @@ impl ParamSet {
 
     /// The parameters in both this set and `other`'s complement.
     #[must_use]
-    pub(crate) const fn difference(self, other: ParamSet) -> ParamSet {
+    pub const fn difference(self, other: ParamSet) -> ParamSet {
         ParamSet(self.0 & !other.0)
     }
 
     /// The parameters in either set.
     #[must_use]
-    pub(crate) const fn union(self, other: ParamSet) -> ParamSet {
+    pub const fn union(self, other: ParamSet) -> ParamSet {
         ParamSet(self.0 | other.0)
     }
 
     /// The parameters in vector order.
-    pub(crate) fn iter(self) -> impl Iterator<Item = Param> {
+    pub fn iter(self) -> impl Iterator<Item = Param> {
         Param::ALL.into_iter().filter(move |p| self.contains(*p))
     }
 

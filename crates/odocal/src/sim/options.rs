@@ -182,7 +182,7 @@ impl Default for NoiseOptions {
 impl NoiseOptions {
     /// No noise at all: every measured column equals its truth column.
     /// (Time constants keep their paper values; they do not matter.)
-    pub(crate) fn off() -> Self {
+    pub fn off() -> Self {
         NoiseOptions {
             wheel_slip_per_m_per_s2: 0.0,
             wheel_coloured_rel_sigma: 0.0,
@@ -224,7 +224,7 @@ impl NoiseOptions {
 
     /// Only white noise on the wheel rotations, of the paper preset's size;
     /// everything else exact.
-    pub(crate) fn white_wheel_only() -> Self {
+    pub fn white_wheel_only() -> Self {
         NoiseOptions { wheel_white_rel_sigma: NoiseOptions::paper().wheel_white_rel_sigma, ..NoiseOptions::off() }
     }
 
@@ -232,7 +232,7 @@ impl NoiseOptions {
     /// differential relative errors, white noise and encoder quantisation —
     /// on a perfect reference, with no slip, a_y or sideslip noise (the
     /// "coloured" preset of the EIV studies).
-    pub(crate) fn coloured_wheels_only() -> Self {
+    pub fn coloured_wheels_only() -> Self {
         let p = NoiseOptions::paper();
         NoiseOptions {
             wheel_coloured_rel_sigma: p.wheel_coloured_rel_sigma,
@@ -245,7 +245,7 @@ impl NoiseOptions {
     }
 
     /// Every source 2.5× the paper preset (encoder resolution a quarter).
-    pub(crate) fn high() -> Self {
+    pub fn high() -> Self {
         let p = NoiseOptions::paper();
         NoiseOptions {
             encoder_ticks_per_revolution: p.encoder_ticks_per_revolution / 4,
@@ -258,7 +258,7 @@ impl NoiseOptions {
     /// revolution ÷ f (rounded), so the quantisation step × f; time constants
     /// kept. `paper_scaled(2.5)` is [`NoiseOptions::high`] but for the ticks
     /// (819 there, 512 in `high`).
-    pub(crate) fn paper_scaled(f: f64) -> Self {
+    pub fn paper_scaled(f: f64) -> Self {
         let p = NoiseOptions::paper();
         NoiseOptions {
             wheel_slip_per_m_per_s2: f * p.wheel_slip_per_m_per_s2,

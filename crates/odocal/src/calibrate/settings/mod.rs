@@ -103,7 +103,7 @@ settings! {
     ///
     /// ```
     /// # fn main() -> Result<(), odocal::Error> {
-    /// use odocal::calibrate::settings::{Caller, Settings};
+    /// use odocal::settings::{Caller, Settings};
     /// let caller = Settings::from_json(serde_json::json!({"method": "batch-gn", "fix": "d"}))?;
     /// let manifest: Settings = toml::from_str("segment_length = 400\nfix = [\"t_r\"]").expect("toml");
     /// let both = caller.clone().over(manifest);

@@ -1,5 +1,7 @@
-//! The drive manifest: which file each signal comes from, in which unit and
-//! convention. See the [module documentation](super) for the format.
+//! The drive manifest as Rust types: which file each signal comes from, in
+//! which unit and convention. Expert API, for programs that build or edit a
+//! manifest before [`crate::import`] (reading one is [`Manifest::from_path`]);
+//! the format is in docs/reference.md.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -13,8 +15,8 @@ use crate::model::Theta;
 mod check;
 
 /// A drive manifest (TOML): the streams of one recorded drive and where each
-/// model signal comes from. See the [module documentation](super) for the
-/// format and a full example.
+/// model signal comes from. The format, with a full example, is in
+/// docs/reference.md.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Manifest {

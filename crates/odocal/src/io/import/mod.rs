@@ -215,8 +215,8 @@
 //! ```no_run
 //! # fn main() -> odocal::Result<()> {
 //! use std::path::Path;
-//! let manifest = odocal::io::import::Manifest::from_path(Path::new("examples/psu-mapping-van/manifest.toml"))?;
-//! let imported = odocal::io::import::import(&manifest)?;
+//! let manifest = odocal::Manifest::from_path(Path::new("examples/psu-mapping-van/manifest.toml"))?;
+//! let imported = odocal::import(&manifest)?;
 //! println!("{}", imported.report);
 //! imported.drive.write_csv("drive.csv")?;
 //! # Ok(()) }
@@ -229,7 +229,7 @@ mod geodesy;
 mod grid;
 mod lateral;
 pub(crate) mod limits;
-mod manifest;
+pub mod manifest;
 mod pose;
 mod report;
 mod settings;
