@@ -63,7 +63,6 @@
 //! Input Compensation by Optimal Control", IFAC-PapersOnLine, 2022.
 
 #![deny(clippy::float_cmp)]
-#![warn(unreachable_pub)]
 // A drive of one continuous part is `vec![0..n]`: one range is the intent.
 #![allow(clippy::single_range_in_vec_init)]
 // Numerical loops index several parallel arrays at once; index loops read like the maths.

@@ -237,14 +237,6 @@ pub struct EivDetail {
     pub bootstrap: Option<Box<eiv::BootstrapReport>>,
 }
 
-impl EivDetail {
-    /// The noise model the fit ended with (the starting one with
-    /// `fix_noise`), in physical units; `None` when the filter failed.
-    pub(crate) fn noise(&self) -> Option<&NoiseModel> {
-        self.eiv.as_ref().map(|e| &e.noise)
-    }
-}
-
 /// True for a filter finding of `report` that says the model does not fit
 /// the data: a diverged window, a window's NIS above its band, correlated
 /// innovations in a window whose NIS is not below its band, θ unstable

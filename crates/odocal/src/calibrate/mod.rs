@@ -108,7 +108,7 @@ impl Default for Method {
 
 impl Method {
     /// The names of the methods, as `--method` takes them.
-    pub(crate) const NAMES: [&'static str; 3] = ["three-step", "batch-gn", "eiv"];
+    pub const NAMES: [&'static str; 3] = ["three-step", "batch-gn", "eiv"];
 
     /// The method's name (`"three-step"`, `"batch-gn"`, `"eiv"`).
     pub(crate) fn name(&self) -> &'static str {

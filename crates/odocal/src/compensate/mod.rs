@@ -241,6 +241,7 @@ pub(crate) fn build_qp(
 /// solution and solves again until the inputs settle (at most
 /// `max_linearizations` solves). A QP failure is returned as an error for
 /// this segment; callers leave the segment out with a warning.
+#[cfg(test)]
 pub(crate) fn compensate_segment(
     seg: &SegmentData<'_>,
     theta: &Theta,

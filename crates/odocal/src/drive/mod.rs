@@ -148,7 +148,7 @@ impl ExtraValues {
     }
 
     /// True when there are no values.
-    pub(crate) fn is_empty(&self) -> bool {
+    pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
 
@@ -241,7 +241,7 @@ impl DriveBuilder {
 
     /// The physical limits the drive is checked against (default
     /// [`PhysicalLimits::default`], the table in [`crate::model::limits`]).
-    pub(crate) fn limits(mut self, limits: PhysicalLimits) -> Self {
+    pub fn limits(mut self, limits: PhysicalLimits) -> Self {
         self.limits = limits;
         self
     }
@@ -528,6 +528,7 @@ impl Drive {
         self.reference_measured.as_deref()
     }
     /// True when the reference pose was really measured at sample `i`.
+    #[cfg(test)]
     pub(crate) fn is_reference_measured(&self, i: usize) -> bool {
         self.reference_measured.as_ref().is_none_or(|m| m[i])
     }
@@ -584,21 +585,10 @@ impl Drive {
         Ok(self)
     }
 
-    /// The same drive with the measured wheel rotations replaced (compensated
-    /// inputs, say), checked like any other drive.
-    ///
-    /// # Errors
-    /// As [`DriveBuilder::build`].
-    pub(crate) fn with_wheel_rotations(&self, n_rl: Vec<f64>, n_rr: Vec<f64>) -> Result<Drive> {
-        let mut measured = self.measured.clone();
-        measured.n_rl = n_rl;
-        measured.n_rr = n_rr;
-        self.rebuild(self.t.clone(), measured, self.truth.clone(), 0..self.len())
-    }
-
     /// The samples with `t_start_s ≤ t < t_end_s` as a new drive; parts are
     /// clipped to the window (extra columns, the reference mask and the truth
     /// come along).
+    #[cfg(test)]
     pub(crate) fn window(&self, t_start_s: f64, t_end_s: f64) -> Result<Drive> {
         let a = self.t.partition_point(|&t| t < t_start_s);
         let b = self.t.partition_point(|&t| t < t_end_s);

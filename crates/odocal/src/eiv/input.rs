@@ -96,12 +96,12 @@ impl<'a> EivInput<'a> {
     }
 
     /// Number of samples.
-    pub(crate) fn len(&self) -> usize {
+    pub fn len(&self) -> usize {
         self.px.len()
     }
 
     /// True when there are no samples.
-    pub(crate) fn is_empty(&self) -> bool {
+    pub fn is_empty(&self) -> bool {
         self.px.is_empty()
     }
 

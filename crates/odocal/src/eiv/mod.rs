@@ -227,9 +227,9 @@ pub use bootstrap::{bootstrap, BootstrapInputs, BootstrapOptions, BootstrapRepor
 #[cfg(test)]
 pub(crate) use bootstrap::{FAIL_EVERY_REPLICATE_SEED, FAIL_ONE_REPLICATE_SEED};
 pub use crb::cramer_rao_bound;
-pub use lattice::quantisation_step_of_readings;
 pub use estimate::{estimate, kernel_instruction_set};
 pub use input::{EivInput, Window};
+pub use lattice::quantisation_step_of_readings;
 pub(crate) use modelling::{BiasCorrection, FirstOrderBias, BIAS_BOOTSTRAP_SMOOTHING_SAMPLES};
 pub use modelling::{HeadingScale, LateralNoise, QuantisationLevel, QuantisationModel};
 // The modelling alternatives of `EivOptions::research`: public with the

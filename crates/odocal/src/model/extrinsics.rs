@@ -132,6 +132,7 @@ pub struct RobustExtrinsics {
 
 impl ExtrinsicsEstimate {
     /// Held extrinsics: `value` = `initial`, no σ.
+    #[cfg(test)]
     pub(crate) fn held(initial: Extrinsics) -> Self {
         ExtrinsicsEstimate {
             initial,

@@ -15,6 +15,7 @@
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
 use crate::error::{Error, ParamNames, Result};
+#[cfg(test)]
 use crate::model::extrinsics::Extrinsics;
 use crate::model::Theta;
 
@@ -68,6 +69,7 @@ impl Param {
     }
 
     /// True for the four parameters of θ.
+    #[cfg(test)]
     pub(crate) const fn is_theta(self) -> bool {
         (self as usize) < 4
     }
@@ -106,6 +108,7 @@ impl Param {
     }
 
     /// This parameter's value in θ or in the extrinsics.
+    #[cfg(test)]
     pub(crate) fn value_in(self, theta: &Theta, extrinsics: &Extrinsics) -> f64 {
         extrinsics.get(self).unwrap_or_else(|| self.value(theta))
     }

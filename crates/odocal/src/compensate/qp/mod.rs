@@ -41,7 +41,9 @@ pub mod riccati;
 use std::fmt;
 use std::str::FromStr;
 
-use nalgebra::{DMatrix, DVector, Matrix3, Matrix3x2, Vector2, Vector3};
+#[cfg(test)]
+use nalgebra::{DMatrix, DVector};
+use nalgebra::{Matrix3, Matrix3x2, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
 pub(crate) use crate::error::QpError;
@@ -102,17 +104,6 @@ impl StageQp {
         Ok(())
     }
 
-    /// States `z_1..z_K` produced by inputs `w_0..w_{K−1}` through the dynamics.
-    pub(crate) fn rollout(&self, w: &[Vector2<f64>]) -> Vec<Vector3<f64>> {
-        let mut z = Vector3::zeros();
-        (0..self.stages())
-            .map(|i| {
-                z = self.a[i] * z + self.b[i] * w[i] + self.c[i];
-                z
-            })
-            .collect()
-    }
-
     /// The objective at (w, z).
     pub(crate) fn objective(&self, w: &[Vector2<f64>], z: &[Vector3<f64>]) -> f64 {
         let mut f = 0.0;
@@ -127,6 +118,7 @@ impl StageQp {
     }
 
     /// Largest violation of any bound by (w, z) (0 when all hold).
+    #[cfg(test)]
     pub(crate) fn max_bound_violation(&self, w: &[Vector2<f64>], z: &[Vector3<f64>]) -> f64 {
         let mut v: f64 = 0.0;
         for i in 0..self.stages() {
@@ -174,14 +166,8 @@ pub trait QpSolver: Send + Sync {
 pub(crate) const ACTIVE_BOUND_TOL: f64 = 1e-7;
 
 impl StageQp {
-    /// The constant `Σ δ_kᵀ R δ_k`: the objective at `w = 0` without the
-    /// state terms. General solvers drop it; it is added back so every
-    /// solver reports [`StageQp::objective`].
-    pub(crate) fn objective_constant(&self) -> f64 {
-        self.delta.iter().map(|d| d.component_mul(d).dot(&self.r)).sum()
-    }
-
     /// Gradient of [`StageQp::objective`] at (w, z): `(∂f/∂w_k, ∂f/∂z_k)`.
+    #[cfg(test)]
     pub(crate) fn gradient(&self, w: &[Vector2<f64>], z: &[Vector3<f64>]) -> (Vec<Vector2<f64>>, Vec<Vector3<f64>>) {
         let gz = z.iter().map(|zk| 2.0 * self.q.component_mul(zk)).collect();
         let mut gw = vec![Vector2::zeros(); w.len()];
@@ -195,6 +181,7 @@ impl StageQp {
 
     /// Largest absolute residual of the dynamics
     /// `z_k − A_k z_{k−1} − B_k w_{k−1} − c_k` (0 for a rollout).
+    #[cfg(test)]
     pub(crate) fn dynamics_residual(&self, w: &[Vector2<f64>], z: &[Vector3<f64>]) -> f64 {
         let mut prev = Vector3::zeros();
         let mut r: f64 = 0.0;
@@ -234,6 +221,7 @@ impl StageQp {
 /// so stationarity reduces to complementarity: ν may be non-zero only at a
 /// bound of the right side.
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg(test)]
 pub(crate) struct KktResidual {
     /// Largest dynamics residual (m, rad).
     pub dynamics: f64,
@@ -248,6 +236,7 @@ pub(crate) struct KktResidual {
     pub complementarity: f64,
 }
 
+#[cfg(test)]
 impl KktResidual {
     /// The largest of the four residuals.
     pub(crate) fn max(&self) -> f64 {
@@ -257,6 +246,7 @@ impl KktResidual {
 
 /// KKT residuals of `sol` for `qp` (see [`KktResidual`]). Needs
 /// `sol.dynamics_duals`; returns [`QpError::Malformed`] without them.
+#[cfg(test)]
 pub(crate) fn kkt_residual(qp: &StageQp, sol: &QpSolution) -> Result<KktResidual, QpError> {
     let lam =
         sol.dynamics_duals.as_ref().ok_or_else(|| QpError::Malformed("solution carries no dynamics duals".into()))?;
@@ -304,6 +294,7 @@ pub(crate) fn kkt_residual(qp: &StageQp, sol: &QpSolution) -> Result<KktResidual
 ///
 /// Meant for tests on small K: when no bound is active at the optimum, this
 /// is the solution of the bounded problem too.
+#[cfg(test)]
 pub(crate) fn solve_equality_constrained(qp: &StageQp) -> Result<QpSolution, QpError> {
     qp.check()?;
     let k = qp.stages();
@@ -377,6 +368,7 @@ pub enum SolverKind {
 
 impl SolverKind {
     /// A solver of this kind with default settings.
+    #[cfg(test)]
     pub(crate) fn solver(&self) -> Box<dyn QpSolver> {
         match self {
             SolverKind::Structured => Box::new(riccati::StructuredSolver::default()),

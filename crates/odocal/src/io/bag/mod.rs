@@ -121,7 +121,7 @@ impl Table {
     }
 
     /// True when there are no rows.
-    pub(crate) fn is_empty(&self) -> bool {
+    pub fn is_empty(&self) -> bool {
         self.t_s.is_empty()
     }
 

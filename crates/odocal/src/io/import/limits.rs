@@ -39,6 +39,7 @@ pub(crate) const MAX_DEJITTER_WINDOW_S: f64 = 60.0;
 pub(crate) const MAX_DEJITTER_HALF_WINDOW: usize = 5_000;
 /// Most values (rows × columns read) one Parquet stream may declare; checked
 /// before any is read.
+#[cfg(feature = "parquet")]
 pub(crate) const MAX_STREAM_VALUES: usize = 100_000_000;
 /// Characters of a value echoed in a message.
 pub(crate) use crate::drive::echo;
