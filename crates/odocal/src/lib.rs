@@ -27,19 +27,19 @@
 //! 3. batch Gauss-Newton with the compensated inputs gives θ_B,F.
 //!
 //! Results are judged by dead-reckoning error on validation segments
-//! ([`assess`]). The exact statement, with every default, is the
+//! (`assess`). The exact statement, with every default, is the
 //! project's SPEC.md. [`calibrate()`] runs a whole calibration with any
-//! method ([`mod@calibrate`]); [`experiment::run`] reproduces the paper's §6.
+//! method (`mod@calibrate`); [`experiment::run`] reproduces the paper's §6.
 //!
 //! ## The modules
 //!
 //! In layers, lowest first; a module uses only modules of lower layers:
-//! [`error`] and [`progress`]; [`model`] (θ, the equations, parameters,
-//! extrinsics, physical limits); [`drive`] (drives, segments, plausibility);
+//! `error` and `progress`; [`model`] (θ, the equations, parameters,
+//! extrinsics, physical limits); `drive` (drives, segments, plausibility);
 //! [`mod@io`] (manifest import, bags, parameter files) and [`sim`];
 //! [`identify`] (Gauss-Newton); [`compensate`] (the QP) and [`eiv`];
-//! [`assess`] (Ē_p, reachable minimum, verdict, warnings);
-//! [`mod@calibrate`] (the methods, settings, validation on other drives,
+//! `assess` (Ē_p, reachable minimum, verdict, warnings);
+//! `mod@calibrate` (the methods, settings, validation on other drives,
 //! cross-run); [`experiment`].
 //!
 //! ## Example

@@ -128,12 +128,12 @@ pub struct ReachableOptions {
     pub starts: Vec<Theta>,
     /// When the best point is on the box edge, re-centre the box on it and
     /// search again, at most this many times (0: never). Default
-    /// [`DEFAULT_RECENTRE`] = 3.
+    /// `DEFAULT_RECENTRE` = 3.
     #[serde(default = "default_recentre")]
     pub recentre: usize,
     /// The pose reference's mount (lever arm, heading offset), held: every
     /// `Ē_p(θ)` of the search compares the model's antenna position with
-    /// the reference, as [`crate::assess::position_error::mean_position_error_with`] does,
+    /// the reference, as `crate::assess::position_error::mean_position_error_with` does,
     /// so the minimum is comparable with a validation on the same mount.
     /// [`validate`](crate::assess::validate::validate()) sets it from [`crate::ValidateOptions::extrinsics`].
     /// Default 0: the reference at the rear-axle centre.
@@ -226,7 +226,7 @@ impl ReachableOptions {
     }
 }
 
-/// The outcome of [`reachable_minimum`].
+/// The outcome of `reachable_minimum`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ReachableReport {
     /// The best θ found.
@@ -246,7 +246,7 @@ pub struct ReachableReport {
     /// best 0.0123 m; refinement: Solver converged after 143 iterations"`
     /// (of the last box searched).
     pub termination: String,
-    /// Parameters of [`theta`](Self::theta) within [`EDGE_FRACTION`] of a
+    /// Parameters of [`theta`](Self::theta) within `EDGE_FRACTION` of a
     /// bound of the last box searched: the minimum may lie beyond.
     #[serde(default)]
     pub at_edge: ParamSet,

@@ -70,7 +70,7 @@ pub struct Guards {
     /// parameters at all.
     pub min_rcond: f64,
     /// |lever arm| per axis (x forward, y left) of the pose reference at
-    /// most this, m, when estimated ([`crate::model::extrinsics`]). Default 5: an
+    /// most this, m, when estimated ([[`Extrinsics`](crate::Extrinsics)]). Default 5: an
     /// antenna or INS farther than 5 m from the rear axle is off a car or
     /// van (the PSU van's antennas sit about 0.9 m from it).
     #[serde(default = "default_lever_arm_abs_m")]
@@ -241,7 +241,7 @@ pub struct TrustOptions {
     /// different Ē_p; three times is more than route alone explains on the
     /// half-splits measured).
     pub max_held_out_ratio: f64,
-    /// A σ ([`crate::CalibrationReport::result_covariance`] where the
+    /// A σ (`crate::CalibrationReport::result_covariance` where the
     /// method has one, else the model σ) above this fraction of the parameter's guard half-width makes the
     /// result doubtful. Default 0.1.
     pub max_sigma_fraction: f64,
@@ -266,7 +266,7 @@ pub struct TrustOptions {
     /// 4.7 mm/(m/s²) in d.
     pub min_split_fraction: f64,
     /// A batch Gauss-Newton that gives the result and stopped at its
-    /// iteration limit ([`crate::IdentifyOptions::max_iterations`]) while
+    /// iteration limit (`crate::IdentifyOptions::max_iterations`) while
     /// its last accepted step still moved a free parameter by more than this
     /// many σ (the σ that stands for the result) makes the result doubtful:
     /// θ is not yet the optimum. Default 0.05, the step the EIV fit calls

@@ -93,7 +93,7 @@ pub struct DriveValidation {
     /// Validation segments of the drive.
     pub segments: usize,
     /// The reference extrinsics this drive used, where they are not all 0
-    /// or a stated value was overruled ([`crate::assess::validation_drives`]).
+    /// or a stated value was overruled (docs/guide.md, "Several drives of one vehicle").
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub extrinsics: Option<crate::assess::validation_drives::DriveExtrinsics>,
 }

@@ -121,7 +121,7 @@ pub struct EivMethodOptions {
     /// starting batch Gauss-Newton over all cut segments instead of the EIV
     /// θ. Default true.
     pub fallback: bool,
-    /// A parametric bootstrap of the EIV estimate ([`eiv::bootstrap`]:
+    /// A parametric bootstrap of the EIV estimate ([`eiv::bootstrap`](fn@eiv::bootstrap):
     /// re-simulate the fitted noise at the fitted θ on the drive's own
     /// inputs, re-fit, B times, seeded) for percentile intervals and the
     /// estimator's own bias. Run only when the EIV θ is the result (not
@@ -138,11 +138,11 @@ pub struct EivMethodOptions {
     /// already estimates δ.
     pub estimate_heading_offset: bool,
     /// Subtract the estimator's own bias from every parameter
-    /// ([`EivOptions::correct_bias`]: a parametric bootstrap of
+    /// (`EivOptions::correct_bias`: a parametric bootstrap of
     /// [`CorrectBias::replicates`] re-simulations in antithetic pairs on the
     /// smoothed trajectory, holding the fitted noise model), applied only
     /// to a fit that is kept (not after a fallback). Default
-    /// `Some(CorrectBias::default())`, B = [`DEFAULT_BIAS_REPLICATES`]
+    /// `Some(CorrectBias::default())`, B = `DEFAULT_BIAS_REPLICATES`
     /// (module docs, "Bias correction"); `None` returns the
     /// profile cost's root as is. Ignored when
     /// [`EivOptions::bias_correction`] is set in `filter` (that setting
@@ -170,12 +170,12 @@ impl Default for EivMethodOptions {
 pub(crate) const DEFAULT_BIAS_REPLICATES: usize = 4;
 
 /// The bootstrap bias correction of the EIV method
-/// ([`EivMethodOptions::correct_bias`]; [`EivOptions::correct_bias`]).
+/// ([`EivMethodOptions::correct_bias`]; `EivOptions::correct_bias`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct CorrectBias {
     /// Replicates B: an even number, at least 2 (antithetic pairs).
-    /// Default [`DEFAULT_BIAS_REPLICATES`].
+    /// Default `DEFAULT_BIAS_REPLICATES`.
     pub replicates: usize,
     /// Seed of the replicates' random streams. Default 0.
     pub seed: u64,

@@ -177,7 +177,7 @@ pub struct CalibrationOptions {
     /// estimating them (not in the paper; default false, the SPEC
     /// behaviour). When no segment turns enough, c_d, t_r and d are held and
     /// every segment is used; otherwise the observability check
-    /// ([`crate::identify::observability`]) runs on the selected segments at
+    /// (`crate::identify::observability`) runs on the selected segments at
     /// θ_0 and the named parameter with the smallest sensitivity is held,
     /// repeatedly, until none is named (c_e is never held). What was held is
     /// listed in [`CalibrationReport::auto_fixed`].
@@ -497,7 +497,7 @@ pub fn calibrate_detailed(
 }
 
 /// [`calibrate_detailed`]; with held-out drives that each have their own
-/// extrinsics ([`crate::assess::validation_drives`]), the held-out Ē_p gives every
+/// extrinsics ([docs/guide.md, "Several drives of one vehicle"]), the held-out Ē_p gives every
 /// segment its drive's.
 pub(crate) fn calibrate_core(
     drive: &Drive,
@@ -715,7 +715,7 @@ fn result_warnings(selection: &[Warning], method: Vec<Warning>, o: &Observabilit
 }
 
 /// θ and its covariance fitted on the held-out drive alone with the same
-/// options and free set (the cross-split check of [`crate::assess::trust`]); `None`
+/// options and free set (the cross-split check of [[`Verdict`](crate::Verdict)]); `None`
 /// when that fit fails (too short, nothing turns, …): the check is then
 /// left out rather than failing the calibration.
 fn split_fit(held_out: &Drive, opts: &CalibrationOptions, free: ParamSet) -> Option<(Theta, [[f64; 4]; 4])> {

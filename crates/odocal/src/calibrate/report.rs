@@ -97,7 +97,7 @@ pub struct CalibrationReport {
     /// Ē_p of the result.
     pub validation: ValidationSummary,
     /// Whether to trust the result: accepted, doubtful or rejected, with
-    /// the reasons ([`crate::assess::trust`]).
+    /// the reasons ([`Verdict`](crate::Verdict)).
     pub verdict: Verdict,
     /// θ_0 and its Ē_p.
     pub initial: ThetaScore,
@@ -107,7 +107,7 @@ pub struct CalibrationReport {
     pub segments: SegmentCounts,
     /// The reference sensor's extrinsics (lever arm, heading offset:
     /// initial and estimated values, σ, covariance) when the calibration
-    /// involved them ([`crate::identify::IdentifyOptions::uses_extrinsics`]); validation
+    /// involved them (`crate::identify::IdentifyOptions::uses_extrinsics`); validation
     /// (and θ_0's Ē_p, at the initial values) then compares the model's
     /// reference point with the measured one. Absent otherwise. For `eiv`
     /// they are its batch Gauss-Newton start's estimate and σ, held by the
@@ -135,7 +135,7 @@ pub struct CalibrationReport {
 impl CalibrationReport {
     /// The method's own account of the fit, in lines as `odocal calibrate`
     /// prints them and the HTML report shows them ("Method details"):
-    /// for EIV, [`EivDetail::summary`] with the sources the options held as
+    /// for EIV, `EivDetail::summary` with the sources the options held as
     /// known; empty for the other methods.
     ///
     /// ```
@@ -203,7 +203,7 @@ impl CalibrationReport {
     /// 5–13× smaller than the spread of 3-step estimates over seeds
     /// (`examples/gn_coverage.rs 20 12 paper 1300 three-step`), so it does
     /// not stand for the result; the 3-step's is its batch spread
-    /// ([`Self::result_covariance`]).
+    /// (`Self::result_covariance`).
     pub fn robust(&self) -> Option<&RobustCovariance> {
         outcome_robust(&self.detail)
     }
@@ -219,7 +219,7 @@ impl CalibrationReport {
     }
 
     /// The 1σ that stands for the result: the square roots of the
-    /// diagonal of [`Self::result_covariance`], else of the model
+    /// diagonal of `Self::result_covariance`, else of the model
     /// covariance (EIV's filter covariance, or a method's when nothing better was
     /// computed), with where it comes from. Held parameters (not free, or a
     /// zero covariance row: not estimated) have none. The verdict, the

@@ -1,7 +1,7 @@
 //! Calibration validated on other drives of the same vehicle
 //! (`calibrate --validate-on`, `validate_on=`), each validation drive with
 //! the reference extrinsics that apply to it
-//! ([`crate::assess::validation_drives`]).
+//! ([docs/guide.md, "Several drives of one vehicle"]).
 
 use super::{calibrate_core, CalibrationOptions, CalibrationReport};
 use crate::assess::validation_drives::{validate_drives_with, CalibrationExtrinsics, HeldOutDrives, ValidationDrive};

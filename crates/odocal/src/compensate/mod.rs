@@ -415,7 +415,7 @@ impl CompensatedInputs {
 /// Jobs run in parallel and are collected in a fixed order; a failed job is
 /// left out with a warning; a segment with no successful job is dropped. A
 /// QP the configured solver does not finish (iteration limit, numerical
-/// failure) is solved again by the fallback ([`QpOptions::fallback`]); such
+/// failure) is solved again by the fallback (`QpOptions::fallback`); such
 /// fallbacks are counted and reported as warnings.
 pub fn compensate_segments(
     drive: &Drive,

@@ -96,7 +96,7 @@ impl Signals {
         }
     }
 
-    /// The columns with their names, in [`SIGNAL_NAMES`] order.
+    /// The columns with their names, in `SIGNAL_NAMES` order.
     pub fn columns(&self) -> [(&'static str, &[f64]); 7] {
         [
             ("px", &self.px),
@@ -240,7 +240,7 @@ impl DriveBuilder {
     }
 
     /// The physical limits the drive is checked against (default
-    /// [`PhysicalLimits::default`], the table in [`crate::model::limits`]).
+    /// `PhysicalLimits::default`, the table in `crate::model::limits`).
     pub fn limits(mut self, limits: PhysicalLimits) -> Self {
         self.limits = limits;
         self
@@ -279,8 +279,8 @@ impl DriveBuilder {
 
     /// Checks everything and makes the drive: equal column lengths, finite
     /// values, strictly increasing time, a uniform step within each part
-    /// (within [`STEP_UNIFORMITY_TOL`]); infers t_s and unwraps the heading;
-    /// then checks the [`PhysicalLimits`].
+    /// (within `STEP_UNIFORMITY_TOL`); infers t_s and unwraps the heading;
+    /// then checks the `PhysicalLimits`.
     ///
     /// # Errors
     /// [`Error::InvalidSample`] naming the column and sample index, or

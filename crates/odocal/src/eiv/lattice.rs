@@ -34,8 +34,8 @@ pub(crate) const MAX_LATTICE_INDEX: f64 = 1e7;
 /// Readings that are zero or not finite are skipped (a standing wheel
 /// counts nothing); both wheels must share the step (they are read by the
 /// same kind of encoder at the same sample time). The lattice is accepted
-/// only with at least [`MIN_LATTICE_LEVELS`] distinct non-zero levels and
-/// every reading within [`LATTICE_TOLERANCE_STEPS`] of its lattice point.
+/// only with at least `MIN_LATTICE_LEVELS` distinct non-zero levels and
+/// every reading within `LATTICE_TOLERANCE_STEPS` of its lattice point.
 ///
 /// ```
 /// use odocal::eiv::quantisation_step_of_readings;

@@ -56,7 +56,7 @@
 //! CRB σ from [`cramer_rao_bound`], full Fisher information; "known" = the
 //! simulator's noise model from [`NoiseModel::from_sim`], fixed; "est." =
 //! η estimated from [`NoiseModel::PRODUCTION_CAR`]; "boot" = known minus
-//! the [`bootstrap`] bias, B = 10, seeds 1–20):
+//! the [`bootstrap`](fn@bootstrap) bias, B = 10, seeds 1–20):
 //!
 //! | preset | batch G-N t_r % | follows, known | follows, est. | CRB | known c_e % | known + boot c_e % | c_e CRB |
 //! |---|---|---|---|---|---|---|---|
@@ -160,14 +160,14 @@
 //! noise in metres scales with the circumferences, which bounds c_e far
 //! below what the increments alone give (see the study table).
 //!
-//! **Parametric bootstrap** ([`bootstrap`]): B re-simulations of the fitted
+//! **Parametric bootstrap** ([`bootstrap`](fn@bootstrap)): B re-simulations of the fitted
 //! noise model at θ̂ on the drive's own inputs, re-fitted with the same
 //! options (each replicate seeded on its own, so thread-count independent),
 //! giving percentile and basic intervals, the estimator's bias at θ̂ and the
 //! bias-corrected θ̂ − bias. This is the measured cure of the c_e bias:
-//! [`EivOptions::bias_correction`] = [`BiasCorrection::Bootstrap`] applies it
-//! inside [`estimate`] (its table; the analytic alternatives measured
-//! against it are [`FirstOrderBias`] and the fitted-input noise scale).
+//! [`EivOptions::bias_correction`] = `BiasCorrection::Bootstrap` applies it
+//! inside [`estimate`](fn@estimate) (its table; the analytic alternatives measured
+//! against it are `FirstOrderBias` and the fitted-input noise scale).
 //!
 //! ## Misspecification
 //!

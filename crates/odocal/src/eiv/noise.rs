@@ -89,7 +89,7 @@ impl NoiseSource {
         }
     }
 
-    /// The source's index in η ([`NOISE_SOURCES`] order, as
+    /// The source's index in η (`NOISE_SOURCES` order, as
     /// [`EivOptions::eta_held`](crate::eiv::EivOptions::eta_held)): the declaration order.
     pub fn index(self) -> usize {
         self as usize
@@ -104,7 +104,7 @@ impl std::fmt::Display for NoiseSource {
 
 impl std::str::FromStr for NoiseSource {
     type Err = Error;
-    /// A source by its [`NoiseSource::name`] (`-` for `_` accepted, as on
+    /// A source by its `NoiseSource::name` (`-` for `_` accepted, as on
     /// the command line).
     ///
     /// ```

@@ -71,7 +71,7 @@ pub struct IdentifyOptions {
     /// The reference sensor's extrinsics (lever arm, heading offset): the
     /// initial value of those in [`IdentifyOptions::free`] and the held
     /// value of the others. Default 0 (the reference is the rear-axle
-    /// centre, aligned with the vehicle: SPEC §1). See [`crate::model::extrinsics`].
+    /// centre, aligned with the vehicle: SPEC §1). See [`Extrinsics`](crate::Extrinsics).
     #[serde(default)]
     pub extrinsics: Extrinsics,
     /// Resolutions of the extrinsics for the observability check, `[lever_x
@@ -332,7 +332,7 @@ pub struct IdentifyReport {
     /// Residual poses used (Σ K).
     pub residual_poses: usize,
     /// The reference extrinsics (initial, estimate, σ, covariance), when
-    /// the identification involved them ([`IdentifyOptions::uses_extrinsics`]).
+    /// the identification involved them (`IdentifyOptions::uses_extrinsics`).
     /// `history` and `covariance` hold θ only.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub extrinsics: Option<ExtrinsicsEstimate>,
@@ -354,7 +354,7 @@ impl std::fmt::Display for IdentifyReport {
 
 /// Normal equations of one or more segments at one parameter vector:
 /// over θ (`N = 4`, the default) or over θ and the reference extrinsics
-/// (`N = 7`, [`crate::model::extrinsics`]).
+/// (`N = 7`, [`Extrinsics`](crate::Extrinsics)).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NormalEquations<const N: usize = 4> {
     /// `JᵀWJ`.

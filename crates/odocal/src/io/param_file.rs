@@ -342,7 +342,7 @@ impl ParamFile {
     /// # Errors
     /// [`Error::Io`]; [`Error::ParamFile`] naming the key for a file that is
     /// not a parameter file (another extension, larger than
-    /// [`MAX_PARAM_FILE_BYTES`], not YAML/JSON, a required parameter missing
+    /// `MAX_PARAM_FILE_BYTES`, not YAML/JSON, a required parameter missing
     /// or not a number, a physically absurd θ).
     pub fn read(path: &Path) -> Result<ParamFile> {
         let bad = |reason: String| Error::ParamFile { path: path.to_path_buf(), reason };
@@ -394,7 +394,7 @@ impl ParamFile {
     }
 
     /// The reference extrinsics to validate this file's θ with on a drive,
-    /// by the rules of [`crate::assess::validation_drives`]: one the calibration estimated
+    /// by the rules of docs/guide.md, "Several drives of one vehicle": one the calibration estimated
     /// (it has a σ) is the sensor's, so it holds for every drive of the
     /// vehicle; a held one gives way to what the drive's own manifest states
     /// (`drive_reference`, its `[reference]`), else the file's value. Also

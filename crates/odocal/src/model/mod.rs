@@ -113,7 +113,7 @@ impl std::fmt::Display for Theta {
 impl std::str::FromStr for Theta {
     type Err = Error;
     /// Parses `c_e,c_d,t_r,d` in SI units (the CLI's `--theta`) and checks
-    /// its absolute physical sanity ([`crate::model::limits::check_theta`]).
+    /// its absolute physical sanity (`crate::model::limits::check_theta`).
     fn from_str(s: &str) -> Result<Self> {
         let parts: Vec<&str> = s.split(',').map(str::trim).collect();
         if parts.len() != 4 {

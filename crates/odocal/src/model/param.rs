@@ -6,7 +6,7 @@
 //! same as the paper's symbols.
 //!
 //! The parameters are the four of θ, then the reference sensor's
-//! extrinsics (lever arm x/y and heading offset, [`crate::model::extrinsics`]),
+//! extrinsics (lever arm x/y and heading offset, [[`Extrinsics`](crate::Extrinsics)]),
 //! which are held at their given value (default 0) unless asked for. Later
 //! entries (noise scales) join as new variants after those:
 //! [`Param::index`] is the position in the full parameter vector, θ's four

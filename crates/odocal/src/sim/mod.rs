@@ -93,7 +93,7 @@ pub struct SimStats {
     /// Peak absolute true lateral acceleration, m/s².
     pub max_abs_lateral_acceleration_m_per_s2: f64,
     /// RMS of `(measured − true)/true` wheel rotation over both rear wheels
-    /// and every moving sample (true speed above [`MOVING_SPEED_M_PER_S`]).
+    /// and every moving sample (true speed above `MOVING_SPEED_M_PER_S`).
     pub wheel_rotation_rel_error_rms: f64,
 }
 

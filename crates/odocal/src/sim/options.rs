@@ -305,18 +305,18 @@ pub struct SimOptions {
     pub substeps: usize,
     /// The true parameters θ. Default [`Theta::SIM_DEFAULT_TRUE`].
     pub theta_true: Theta,
-    /// Route generator. Default [`RouteOptions::default`].
+    /// Route generator. Default `RouteOptions::default`.
     pub route: RouteOptions,
-    /// Speed profile. Default [`SpeedOptions::default`].
+    /// Speed profile. Default `SpeedOptions::default`.
     pub speed: SpeedOptions,
-    /// Vehicle (sideslip model). Default [`VehicleOptions::default`].
+    /// Vehicle (sideslip model). Default `VehicleOptions::default`.
     pub vehicle: VehicleOptions,
     /// Measurement errors. Default [`NoiseOptions::paper`].
     pub noise: NoiseOptions,
     /// Where the pose reference sits on the vehicle: the measured pose is
     /// the reference point `p + R(ψ)·[lever_x, lever_y]` with heading
     /// `ψ + heading_offset` of the true axle pose, plus the reference noise
-    /// ([`crate::model::extrinsics`]); the truth columns stay the axle's. Default 0
+    /// ([`Extrinsics`](crate::Extrinsics)); the truth columns stay the axle's. Default 0
     /// (the SPEC's reference; the output, sidecar included, is then
     /// byte-identical to a simulator without this setting).
     #[serde(skip_serializing_if = "Extrinsics::is_zero")]

@@ -158,7 +158,7 @@ pub(super) fn theta<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<Opti
 
 /// θ from JSON in the forms the `theta0` setting takes (`"c_e,c_d,t_r,d"`,
 /// four numbers, an object of the four, or the path of a parameter file),
-/// checked ([`Theta::validate`]).
+/// checked (`Theta::validate`).
 ///
 /// # Errors
 /// [`Error::InvalidTheta`] for a value of another form, else the parser's

@@ -23,7 +23,7 @@ pub struct ManifestSettings {
     /// `[noise]` as `noise_model`.
     pub settings: Settings,
     /// `[reference]` as stated: also the drive's own mount where it is a
-    /// validation drive ([`crate::assess::validation_drives`]).
+    /// validation drive (docs/guide.md, "Several drives of one vehicle").
     pub reference: Option<ReferenceSpec>,
 }
 
@@ -69,7 +69,7 @@ fn read_calibration_table(manifest: &Path, calibration: &CalibrationTable) -> Re
 }
 
 /// The import report as JSON, its `[noise]` read as the noise model it
-/// states ([`read_noise_table`]: every field, the defaults filled in, with
+/// states (`read_noise_table`: every field, the defaults filled in, with
 /// `known` and `lateral`), as the `odocal import` report and the Python
 /// package show it.
 ///

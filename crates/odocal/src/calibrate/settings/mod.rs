@@ -10,7 +10,7 @@
 //!   `[reference]` the extrinsics (`lever_arm`, `heading_offset`,
 //!   `estimate`), `[noise]` the noise model in place (the `noise_model`
 //!   key).
-//! - One precedence rule puts the sources together, [`Settings::over`]:
+//! - One precedence rule puts the sources together, `Settings::over`:
 //!   the caller's settings (flags, keywords) over the manifest's over the
 //!   defaults.
 //! - One function maps them to [`CalibrationOptions`],
@@ -92,7 +92,7 @@ macro_rules! settings {
 settings! {
     /// Calibration settings as a manifest, the command line or Python
     /// states them. Every key is optional; `None` means "not stated", and
-    /// the next source's value, else the default, applies ([`Settings::over`]).
+    /// the next source's value, else the default, applies (`Settings::over`).
     /// The key is the manifest key and the Python keyword; the flag is the
     /// key in kebab case (`min_yaw_rate`, `--min-yaw-rate`) unless noted.
     ///
@@ -268,7 +268,7 @@ settings! {
 /// A starting noise model as a setting states it.
 #[derive(Debug, Clone, PartialEq)]
 pub enum NoiseModelSetting {
-    /// A noise-model file (`--noise-model`; [`read_noise_model`]), read
+    /// A noise-model file (`--noise-model`; `read_noise_model`), read
     /// when the settings are resolved.
     File(PathBuf),
     /// A model stated in place (a manifest's `[noise]`, a table).
@@ -310,7 +310,7 @@ impl Settings {
     /// The extrinsic parameters these settings state values of
     /// (`lever_arm`: lever_x and lever_y, `heading_offset`): given by the
     /// caller, they apply to every validation drive too
-    /// ([`crate::assess::validation_drives`]).
+    /// (docs/guide.md, "Several drives of one vehicle").
     pub fn stated_extrinsics(&self) -> ParamSet {
         let mut s = ParamSet::EMPTY;
         if self.lever_arm.is_some() {

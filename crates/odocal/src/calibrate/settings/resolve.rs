@@ -241,7 +241,7 @@ impl Settings {
     /// # Errors
     /// [`Error::InvalidFlags`] (command line) or [`Error::InvalidOption`]
     /// (Python) naming the caller's key of another method; the errors of
-    /// [`Settings::to_options`].
+    /// `Settings::to_options`.
     pub fn resolve(&self, manifest: Option<&ManifestSettings>, caller: Caller) -> Result<Resolved> {
         let stated = manifest.map(|m| m.settings.clone()).unwrap_or_default();
         let method = self.method.clone().or_else(|| stated.method.clone()).unwrap_or_default();

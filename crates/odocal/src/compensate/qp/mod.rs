@@ -27,9 +27,9 @@
 //!
 //! Both solvers report `dynamics_duals` λ_k for the Lagrangian
 //! `L = f(w, z) + Σ_k λ_kᵀ (z_k − A_k z_{k−1} − B_k w_{k−1} − c_k) − μ_loᵀ(x − x_lo) − μ_hiᵀ(x_hi − x)`
-//! where `f` is [`StageQp::objective`] (no factor ½), so that at the optimum
+//! where `f` is `StageQp::objective` (no factor ½), so that at the optimum
 //! `∇f + Gᵀλ = μ_lo − μ_hi` with `μ_lo, μ_hi ≥ 0` the bound multipliers
-//! (see [`kkt_residual`], which recovers them from λ).
+//! (see `kkt_residual`, which recovers them from λ).
 
 // Stage loops index several parallel arrays and small fixed vectors at once;
 // index loops read like the maths there.

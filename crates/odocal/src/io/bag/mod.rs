@@ -52,7 +52,7 @@
 //! directory holding exactly one `.mcap` file is read as that file.
 //!
 //! Memory stays bounded on hostile input: records and decompressed chunks are
-//! capped (see [`MAX_RECORD_BYTES`]), a topic may not hold more messages than
+//! capped (see `MAX_RECORD_BYTES`), a topic may not hold more messages than
 //! the file has bytes, and malformed CDR is an error, never a panic.
 //!
 //! ## Example

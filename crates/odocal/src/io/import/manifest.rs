@@ -653,7 +653,7 @@ pub struct BankSpec {
     #[serde(default)]
     pub quality: Option<QualitySpec>,
     /// Distance between the antennas, m; their measured separation must
-    /// agree within [`BankSpec::BASELINE_TOLERANCE`].
+    /// agree within `BankSpec::BASELINE_TOLERANCE`.
     pub baseline_m: f64,
     /// Height of the left antenna above the right one on level ground, m. Default 0.
     #[serde(default)]
