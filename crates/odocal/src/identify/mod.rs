@@ -71,7 +71,7 @@ pub struct IdentifyOptions {
     /// The reference sensor's extrinsics (lever arm, heading offset): the
     /// initial value of those in [`IdentifyOptions::free`] and the held
     /// value of the others. Default 0 (the reference is the rear-axle
-    /// centre, aligned with the vehicle: SPEC §1). See [`Extrinsics`](crate::Extrinsics).
+    /// centre, aligned with the vehicle: SPEC §1). See [`Extrinsics`].
     #[serde(default)]
     pub extrinsics: Extrinsics,
     /// Resolutions of the extrinsics for the observability check, `[lever_x
@@ -354,7 +354,7 @@ impl std::fmt::Display for IdentifyReport {
 
 /// Normal equations of one or more segments at one parameter vector:
 /// over θ (`N = 4`, the default) or over θ and the reference extrinsics
-/// (`N = 7`, [`Extrinsics`](crate::Extrinsics)).
+/// (`N = 7`, [`Extrinsics`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NormalEquations<const N: usize = 4> {
     /// `JᵀWJ`.
