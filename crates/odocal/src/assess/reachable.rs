@@ -456,16 +456,15 @@ fn search_box(
     })
 }
 
+/// The best point evaluated, `(Ē_p, θ)`, and the swarm's seeds (scaled
+/// position, Ē_p).
+type Seeds = ((f64, Theta), Vec<(Vec<f64>, f64)>);
+
 /// The swarm's seeds: the box centre (`centre`, with its Ē_p) and each of
 /// `starts` evaluated as given, then clamped into the box (re-evaluated
 /// there when it was outside); the best `particles` of them (stable order
 /// for ties). Also the best point evaluated, `(Ē_p, θ)`.
-fn seed_points(
-    obj: &Objective<'_>,
-    centre: (f64, Theta),
-    starts: &[Theta],
-    particles: usize,
-) -> ((f64, Theta), Vec<(Vec<f64>, f64)>) {
+fn seed_points(obj: &Objective<'_>, centre: (f64, Theta), starts: &[Theta], particles: usize) -> Seeds {
     let mut best = centre;
     let mut seeds: Vec<(Vec<f64>, f64)> = vec![(obj.scaled(&centre.1), centre.0)];
     for s in starts {
