@@ -3,6 +3,9 @@
 //! with raw vs compensated inputs (Fig. 7/8, Table 1), θ_nom and the
 //! reachable minimum.
 //!
+//! Expert API: the `odocal experiment` command's computation, for programs
+//! that reproduce or extend the paper's evaluation.
+//!
 //! [`run`] computes every number; the `odocal experiment` command renders
 //! them as `report.md`, SVG figures and `experiment.json`.
 //!

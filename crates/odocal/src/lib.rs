@@ -26,21 +26,28 @@
 //!    estimates noise-free wheel rotations of every segment;
 //! 3. batch Gauss-Newton with the compensated inputs gives θ_B,F.
 //!
-//! Results are judged by dead-reckoning error on validation segments
-//! (`assess`). The exact statement, with every default, is the
-//! project's SPEC.md. [`calibrate()`] runs a whole calibration with any
-//! method (`mod@calibrate`); [`experiment::run`] reproduces the paper's §6.
+//! Results are judged by dead-reckoning error on validation segments. The
+//! exact statement, with every default, is the project's SPEC.md.
 //!
-//! ## The modules
+//! ## The front door
 //!
-//! In layers, lowest first; a module uses only modules of lower layers:
-//! `error` and `progress`; [`model`] (θ, the equations, parameters,
-//! extrinsics, physical limits); `drive` (drives, segments, plausibility);
-//! [`mod@io`] (manifest import, bags, parameter files) and [`sim`];
-//! [`identify`] (Gauss-Newton); [`compensate`] (the QP) and [`eiv`];
-//! `assess` (Ē_p, reachable minimum, verdict, warnings);
-//! `mod@calibrate` (the methods, settings, validation on other drives,
-//! cross-run); [`experiment`].
+//! The crate root holds what a program needs: a [`Drive`] (read with
+//! [`load_drive`] or [`import`], built with [`DriveBuilder`], or
+//! [`simulate`]d), [`calibrate()`] (or [`Calibration`] for held-out data,
+//! validation drives and progress) with [`CalibrationOptions`] and the
+//! [`CalibrationReport`] with its [`Verdict`], [`validate()`] for a θ on a
+//! drive, [`ParamFile`] to write and read the result, and [`Error`].
+//!
+//! ## Expert modules
+//!
+//! The public modules are for programs that run the method's steps or
+//! build their own front end: [`model`] (the equations and their
+//! derivatives), [`segment`] (cutting a drive into segments),
+//! [`identify`] (Gauss-Newton), [`compensate`] (the input-compensation QP),
+//! [`eiv`] (the errors-in-variables estimator), [`sim`] (the simulator),
+//! [`experiment`] (the paper's §6), [`mod@io`] (ROS 2 bags),
+//! [`manifest`] (the manifest as Rust types), [`settings`] (calibration
+//! settings as key–value pairs) and [`crossrun`] (cross-run checks).
 //!
 //! ## Example
 //!
@@ -70,8 +77,8 @@
 
 // The modules in layers, lowest first; a module uses only its own subtree
 // and modules of lower layers (tests/architecture.rs checks it). The public
-// ones are expert API (each says whom it is for); everything a user needs
-// to calibrate, validate, import and simulate is re-exported below.
+// ones are expert API, each saying whom it is for; what a user needs to
+// calibrate, validate, import and simulate is re-exported below.
 mod assess; // 6
 mod calibrate; // 7
 pub mod compensate; // 5
@@ -95,66 +102,49 @@ pub const REPORT_SCHEMA_VERSION: u32 = 1;
 #[doc = include_str!("../../../README.md")]
 pub struct ReadmeDoctests;
 
-// Errors and progress.
+// Errors, progress, θ, the parameters and the reference extrinsics.
 pub use error::{Error, Result};
+pub use model::{extrinsics::Extrinsics, extrinsics::ExtrinsicsEstimate, param::Param, param::ParamSet, Theta};
 pub use progress::{Progress, ProgressFn};
-// θ, the parameters and the reference extrinsics.
-pub use model::extrinsics::{Extrinsics, ExtrinsicsEstimate};
-pub use model::param::{Param, ParamSet};
-pub use model::Theta;
-// Drives.
-/// Calibration and validation segments: cutting a drive into the pieces
-/// the methods fit and Ē_p averages over. Expert API, for programs that
-/// run the steps ([`identify`], [`compensate`]) or score θ themselves.
-pub use drive::segment;
-pub use drive::{Drive, DriveBuilder, ExtraColumn, ExtraValues, Signals};
-/// The drive manifest as Rust types. Expert API, for programs that build or
-/// edit a manifest.
-pub use io::import::manifest;
-pub use io::import::{import, load_drive, ImportReport, ImportedDrive, Manifest, ReferenceSpec};
+// Drives: building, importing, simulating; parameter files. `segment` and
+// `manifest` are expert modules (their docs say for whom).
+pub use drive::{segment, Drive, DriveBuilder, ExtraColumn, ExtraValues, Signals};
+pub use io::import::{import, load_drive, manifest, ImportReport, ImportedDrive, Manifest, ReferenceSpec};
 pub use io::param_file::{ParamFile, ParamMapping};
 pub use sim::{simulate, NoiseOptions, SimOptions, SimOutput, SimSidecar};
-// Calibration.
-/// Cross-run checks: calibrate on each of several drives of one vehicle
-/// (or on groups of them) and validate on the others. Expert API, for
-/// judging whether a calibration carries over between drives.
-pub use calibrate::crossrun;
-/// The calibration settings as key–value pairs, one type for every front
-/// end: a manifest's tables, the command line's flags and Python's keywords
-/// become a [`settings::Settings`], resolved to [`CalibrationOptions`].
-/// For programs that take settings from users.
-/// The calibration settings as key–value pairs, one type for every front
-/// end: a manifest's tables, the command line's flags and Python's keywords
-/// become a [`settings::Settings`], resolved to [`CalibrationOptions`].
-/// Expert API, for programs that take settings from users.
-pub use calibrate::settings;
-pub use calibrate::settings::Settings;
+// Calibration: the entry points, the options, the report. `settings` and
+// `crossrun` are expert modules.
 pub use calibrate::{
-    calibrate, BatchGnOptions, Calibration, CalibrationOptions, CalibrationReport, EivMethodOptions, FinalSegments,
-    Holdout, Method, MethodDetail, ResultSigma, SigmaSource, ThreeStepOptions,
+    calibrate, crossrun, settings, settings::Settings, BatchGnDetail, BatchGnOptions, BatchSpread, Calibration,
+    CalibrationOptions, CalibrationReport, CorrectBias, EivDetail, EivMethodOptions, EivOutcome, FinalSegments,
+    Holdout, InitialStep, Method, MethodDetail, ResultSigma, SegmentCounts, SigmaSource, ThetaScore, ThreeStepDetail,
+    ThreeStepOptions, Timing, ValidationSummary,
 };
-// The methods' own report details.
-pub use calibrate::{BatchGnDetail, BatchSpread, CorrectBias, EivDetail, EivOutcome, InitialStep, ThreeStepDetail};
-// The 3-step method's compensation settings.
-pub use compensate::qp::SolverKind;
-pub use compensate::{CompensateOptions, QpOptions};
+pub use compensate::{qp::SolverKind, CompensateOptions, QpOptions};
 // Validation and the verdict.
-pub use assess::position_error::{mean_position_error, segment_position_error, ValidationReport};
-pub use assess::reachable::{ReachableOptions, ReachableReport};
-pub use assess::trust::{TrustOptions, Verdict, VerdictLevel, VerdictReason};
-pub use assess::validate::{validate, DriveValidation, MultiValidation, ValidateOptions, ValidateReport};
-pub use assess::validation_drives::ValidationDrive;
-pub use assess::warning::Warning;
+pub use assess::{
+    position_error::{mean_position_error, segment_position_error, ValidationReport},
+    reachable::{ReachableOptions, ReachableReport},
+    trust::{GuardViolation, Guards, TrustOptions, Verdict, VerdictLevel, VerdictReason},
+    validate::{validate, DriveValidation, MultiValidation, ValidateOptions, ValidateReport},
+    validation_drives::ValidationDrive,
+    warning::Warning,
+};
 
-/// What the studies in crates/odocal-lab use beyond the public API: the
-/// steps and diagnostics a study compares (feature `research`, off by
-/// default; not part of the stable API).
+/// What the studies in crates/odocal-lab use beyond the public API: steps
+/// and diagnostics a study compares (feature `research`, off by default;
+/// not part of the stable API).
 #[cfg(feature = "research")]
 pub mod research {
-    pub use crate::assess::position_error::mean_position_error_with;
-    pub use crate::assess::reachable::reachable_minimum;
-    pub use crate::assess::validation_drives::{validate_drives_with, CalibrationExtrinsics};
-    pub use crate::calibrate::eiv::{is_misspecification, noise_summary};
-    pub use crate::calibrate::three_step::{random_batches, score_batches};
-    pub use crate::calibrate::{calibrate_detailed, DetailedCalibration};
+    pub use crate::assess::{
+        position_error::mean_position_error_with,
+        reachable::reachable_minimum,
+        validation_drives::{validate_drives_with, CalibrationExtrinsics},
+    };
+    pub use crate::calibrate::{
+        calibrate_detailed,
+        eiv::{is_misspecification, noise_summary},
+        three_step::{random_batches, score_batches},
+        DetailedCalibration,
+    };
 }

@@ -1,6 +1,9 @@
 //! Cross-run checks: calibrate on each of several drives of one vehicle and
 //! validate on the others.
 //!
+//! Expert API: for judging whether a calibration carries over between
+//! the drives of one vehicle.
+//!
 //! A calibration that only fits the drive it came from is no calibration.
 //! [`cross_run`] calibrates every drive on its own and validates each θ on
 //! every other drive, beside θ_0; [`CrossRunTable::criteria`] sums the table

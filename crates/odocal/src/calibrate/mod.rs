@@ -72,7 +72,7 @@ mod turn_sense;
 pub(crate) mod validate_on;
 
 pub use report::{CalibrationReport, MethodDetail, ResultSigma, SigmaSource};
-pub(crate) use report::{SegmentCounts, ThetaScore, Timing, ValidationSummary};
+pub use report::{SegmentCounts, ThetaScore, Timing, ValidationSummary};
 
 pub use batch_gn::{BatchGnDetail, BatchGnOptions};
 pub use eiv::{CorrectBias, EivDetail, EivMethodOptions, EivOutcome};
@@ -343,7 +343,7 @@ impl<'a> Calibration<'a> {
     /// Calibrates on the whole drive and validates on `drives` (other
     /// drives of the same vehicle), each with the reference extrinsics that
     /// apply to it (`given` names the extrinsic parameters the caller gave
-    /// itself; the rules are in docs/guide.md, "Validation drives"). The
+    /// itself; the rules are in docs/guide.md, "Several drives of one vehicle"). The
     /// report's `validation` and `initial` are Ē_p over all their segments,
     /// as with [`Holdout::Other`] of the joined drives, and
     /// [`CalibrationReport::validate_on`] has each drive's row. Not together

@@ -1,5 +1,8 @@
 //! Input compensation by optimal control (SPEC §5, paper §4.1).
 //!
+//! Expert API: for programs that compensate segments themselves (the
+//! `odocal compensate` command) or compare the QP solvers ([`qp`]).
+//!
 //! For one segment and one fixed θ, estimate noise-free wheel rotations
 //! `n̂_rl, n̂_rr`. The model is linearized around the trajectory `x̄` run with
 //! the current input estimate `n̄` (first the measured `ñ`):

@@ -1,5 +1,9 @@
 //! Cutting a drive into calibration and validation segments (SPEC §3).
 //!
+//! Expert API: for programs that run the steps ([`crate::identify`],
+//! [`crate::compensate`]) or score θ on segments themselves; a calibration
+//! cuts its segments from [`crate::CalibrationOptions`].
+//!
 //! A segment of K steps starting at sample `i0` starts from the reference
 //! pose `ỹ_{i0}`, uses the inputs `u_{i0} … u_{i0+K−1}` and is compared with
 //! the reference at samples `i0+1 … i0+K`. Starts are `offset, offset +

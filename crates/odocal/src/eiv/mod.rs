@@ -2,6 +2,10 @@
 //! filter that models the noise on the wheel inputs, fitted by Fisher
 //! scoring with exact derivatives.
 //!
+//! Expert API: for programs that run the estimator on their own inputs,
+//! its Cramér–Rao bound or its bootstrap; [`crate::calibrate()`] with
+//! [`crate::Method::Eiv`] runs it with the fallback and the checks.
+//!
 //! ## The filter
 //!
 //! State (12): `z = [p_x, p_y, ψ, s_c, s_l, s_r, b_x, b_y, b_ψ, e_β, w_l, w_r]`:
@@ -221,36 +225,40 @@ mod steps;
 #[cfg(test)]
 pub(crate) mod tests;
 
-pub use bias_correction::apply_bias_correction;
 pub(crate) use bias_correction::first_order_bias;
-pub use bootstrap::{bootstrap, BootstrapInputs, BootstrapOptions, BootstrapReport};
 #[cfg(test)]
 pub(crate) use bootstrap::{FAIL_EVERY_REPLICATE_SEED, FAIL_ONE_REPLICATE_SEED};
-pub use crb::cramer_rao_bound;
-pub use estimate::{estimate, kernel_instruction_set};
-pub use input::{EivInput, Window};
-pub use lattice::quantisation_step_of_readings;
-pub(crate) use modelling::{BiasCorrection, FirstOrderBias, BIAS_BOOTSTRAP_SMOOTHING_SAMPLES};
-pub use modelling::{HeadingScale, LateralNoise, QuantisationLevel, QuantisationModel};
+pub(crate) use modelling::BIAS_BOOTSTRAP_SMOOTHING_SAMPLES;
+pub(crate) use noise::NOISE_SOURCES;
+pub(crate) use report::PARAMETERS;
+pub use {
+    bias_correction::apply_bias_correction,
+    bootstrap::{bootstrap, BootstrapInputs, BootstrapOptions, BootstrapReport},
+    crb::cramer_rao_bound,
+    estimate::{estimate, kernel_instruction_set},
+    input::{EivInput, Window},
+    lattice::quantisation_step_of_readings,
+    modelling::{BiasCorrection, FirstOrderBias, HeadingScale, LateralNoise, QuantisationLevel, QuantisationModel},
+    noise::{NoiseModel, NoiseSource},
+    options::EivOptions,
+    report::{
+        CrbReport, EivObservability, EivReport, EivWarning, HalvesCheck, IterationRecord, Parameter, PassReport,
+        PoseComponent, Termination, WindowDiagnostics,
+    },
+};
 // The modelling alternatives of `EivOptions::research`: public with the
 // `research` feature, crate-internal (at their defaults) without it.
 #[cfg(not(feature = "research"))]
-pub(crate) use modelling::{
-    InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
+pub(crate) use {
+    modelling::{
+        InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
+    },
+    options::{CovarianceEstimate, CovarianceMode, ResearchOptions},
 };
 #[cfg(feature = "research")]
-pub use modelling::{
-    InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
-};
-pub(crate) use noise::NOISE_SOURCES;
-pub use noise::{NoiseModel, NoiseSource};
-pub use options::EivOptions;
-#[cfg(not(feature = "research"))]
-pub(crate) use options::{CovarianceEstimate, CovarianceMode, ResearchOptions};
-#[cfg(feature = "research")]
-pub use options::{CovarianceEstimate, CovarianceMode, ResearchOptions};
-pub(crate) use report::PARAMETERS;
-pub use report::{
-    CrbReport, EivObservability, EivReport, EivWarning, HalvesCheck, IterationRecord, Parameter, PassReport,
-    PoseComponent, Termination, WindowDiagnostics,
+pub use {
+    modelling::{
+        InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
+    },
+    options::{CovarianceEstimate, CovarianceMode, ResearchOptions},
 };

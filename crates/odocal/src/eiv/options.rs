@@ -383,7 +383,7 @@ impl EivOptions {
     /// Subtracts the estimator's own bias from every parameter, estimated by
     /// a parametric bootstrap of `replicates` re-simulations (seed `seed`;
     /// an even number: antithetic pairs, [`EivOptions::bootstrap_antithetic`])
-    /// on the smoothed trajectory ([`BIAS_BOOTSTRAP_SMOOTHING_SAMPLES`]),
+    /// on the smoothed trajectory (`BIAS_BOOTSTRAP_SMOOTHING_SAMPLES`),
     /// each holding the fitted noise model:
     /// what the EIV method of `calibrate` applies by default (B = 4), the
     /// CLI's `--correct-bias B` and Python's `correct_bias=B`, measured in
@@ -399,7 +399,7 @@ impl EivOptions {
     /// o.correct_bias(5, 0); // an odd B cannot be paired
     /// assert!(o.validate().is_err());
     /// ```
-    pub(crate) fn correct_bias(&mut self, replicates: usize, seed: u64) {
+    pub fn correct_bias(&mut self, replicates: usize, seed: u64) {
         self.bias_correction = BiasCorrection::Bootstrap { replicates, seed, all_parameters: true };
         self.bootstrap_inputs = BootstrapInputs::Smoothed { half_width_samples: BIAS_BOOTSTRAP_SMOOTHING_SAMPLES };
         self.bootstrap_antithetic = true;
@@ -424,7 +424,7 @@ impl EivOptions {
     }
 
     /// Checks the options, naming the offending field.
-    pub(crate) fn validate(&self) -> Result<()> {
+    pub fn validate(&self) -> Result<()> {
         let bad = |field: &'static str, reason: &str| Err(Error::InvalidOption { field, reason: reason.into() });
         if self.window_samples < 10 {
             return bad("window_samples", "must be at least 10");

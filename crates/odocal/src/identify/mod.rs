@@ -1,5 +1,8 @@
 //! Gauss-Newton identification of θ (SPEC §4, paper §3).
 //!
+//! Expert API: for programs that run batch Gauss-Newton on segments they
+//! chose ([`crate::segment`]); [`crate::calibrate()`] runs it for every method.
+//!
 //! For each segment the model is run from the reference start pose with the
 //! given inputs; the residual `r_k = ỹ_k − ŷ_k(θ)` (heading wrapped) and the
 //! sensitivity `S_k = ∂ŷ_k/∂θ` are propagated together,

@@ -143,7 +143,7 @@ impl ParamFile {
 
     /// A file for θ with 1σ per entry (`None` = held), provenance filled with
     /// `input`, `method`, the odocal version and today's UTC date.
-    pub(crate) fn from_theta(theta: &Theta, sigma: [Option<f64>; 4], input: &str, method: &str) -> ParamFile {
+    pub fn from_theta(theta: &Theta, sigma: [Option<f64>; 4], input: &str, method: &str) -> ParamFile {
         let params = (0..4)
             .map(|i| ParamEntry {
                 name: THETA_NAMES[i].into(),

@@ -28,8 +28,9 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::model::Theta;
 
-/// Limits on the numbers of a drive. `Default` holds the documented table
-/// in the [module docs](self).
+/// Limits on the numbers of a drive. `Default` holds the limits listed in
+/// docs/reference.md: sample time 1 ms … 1 s, |n| ≤ 250 rev/s, reference
+/// speed ≤ 100 m/s and yaw rate ≤ 5 rad/s, |a_y| ≤ 40 m/s², |β| ≤ 1 rad.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct PhysicalLimits {
     /// Smallest plausible sample time, s. Default 1e-3.

@@ -1,5 +1,8 @@
 //! The wheel-odometry model (SPEC §1) and its analytic derivatives.
 //!
+//! Expert API: for programs that run the model or its derivatives themselves
+//! (dead reckoning, their own estimator). [`crate::Theta`] is also at the root.
+//!
 //! State `x = [p_x, p_y, ψ]`, inputs `u = [n_rl, n_rr, β, a_y]`, parameters
 //! `θ = [c_e, c_d, t_r, d]`:
 //!
@@ -21,6 +24,8 @@ use crate::error::{Error, Result};
 pub(crate) mod extrinsics;
 pub(crate) mod limits;
 pub(crate) mod param;
+
+pub use limits::PhysicalLimits;
 
 /// Model state `[p_x (m), p_y (m), ψ (rad, unwrapped)]`.
 pub type State = Vector3<f64>;

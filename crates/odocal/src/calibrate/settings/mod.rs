@@ -1,5 +1,8 @@
 //! The calibration settings, one type for every interface.
 //!
+//! Expert API: for front ends that take settings from users (the CLI, the
+//! Python package); a Rust program usually fills [`crate::CalibrationOptions`].
+//!
 //! A manifest's calibration tables, the command line's flags and Python's
 //! keywords all become a [`Settings`]: every key optional, named like the
 //! manifest key and the Python keyword (`min_yaw_rate`) and, in kebab case,
@@ -50,12 +53,12 @@ pub use resolve::{Caller, Resolved, SettingOutcome, SettingUse, SettingsAccount}
 macro_rules! settings {
     (
         $(#[$meta:meta])*
-        pub struct Settings {
+        $vis:vis struct Settings {
             $( $(#[$field_meta:meta])* pub $key:ident : Option<$ty:ty>, )*
         }
     ) => {
         $(#[$meta])*
-        pub struct Settings {
+        $vis struct Settings {
             $( $(#[$field_meta])* pub $key: Option<$ty>, )*
         }
 
@@ -66,7 +69,7 @@ macro_rules! settings {
             /// These settings over `lower`: each key these state, else
             /// `lower`'s. The one precedence rule: the caller's settings
             /// over a manifest's over the defaults.
-            pub(crate) fn over(self, lower: Settings) -> Settings {
+            pub fn over(self, lower: Settings) -> Settings {
                 Settings { $( $key: self.$key.or(lower.$key), )* }
             }
 
