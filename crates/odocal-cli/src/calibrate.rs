@@ -6,10 +6,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::Args;
-use odocal::calibrate::settings::{Caller, ManifestSettings, SettingsAccount};
+use odocal::settings::{Caller, ManifestSettings, SettingsAccount};
 use odocal::{
-    drive::segment, sim, CalibrationOptions, CalibrationReport, Drive, Holdout, Method, MultiValidation, ParamSet,
-    Theta, VerdictLevel,
+    segment, sim, CalibrationOptions, CalibrationReport, Drive, Holdout, Method, ParamSet, Theta, VerdictLevel,
 };
 
 use crate::args::{CalibrationArgs, HalfArg, HelpArgs};
@@ -139,13 +138,10 @@ fn run_calibration(
     let given = settings.stated_extrinsics();
     let others = load_validation_drives(&args.validate_on)?;
     let holdout = holdout(args.holdout, &others)?;
-    // The halves are copies only when a hold-out is asked for.
+    // The data the report's validation ran on (truth and HTML report).
     let split = holdout.as_ref().map(|h| h.split(drive)).transpose()?;
-    let (fit, held) = match &split {
-        Some((fit, held)) => (fit.as_ref(), Some(held.as_ref())),
-        None => (drive, None),
-    };
-    let (r, per_drive) = calibrate(drive, fit, held, &others, given, opts, bars)
+    let held = split.as_ref().map(|(_, held)| held.as_ref());
+    let r = calibrate(drive, holdout.as_ref(), &others, given, opts, bars)
         .map_err(|e| with_hint(e, source, args, &opts.method, bars))?;
     let wheel_scale = source.and_then(|(_, w)| w);
     let drive = held.unwrap_or(drive);
@@ -172,9 +168,6 @@ fn run_calibration(
     let outcome = if r.verdict.level == VerdictLevel::Rejected { Outcome::Rejected } else { Outcome::Done };
     if let Some(p) = json {
         let mut v = report_json(&r, truth_ref, wheel_scale)?;
-        if let (Some(m), Some(obj)) = (&per_drive, v.as_object_mut()) {
-            obj.insert("validate_on".into(), serde_json::to_value(m)?);
-        }
         account.add_to_json(&mut v)?;
         write_json(p, v)?;
         if p == Path::new("-") {
@@ -182,7 +175,7 @@ fn run_calibration(
             return Ok(outcome);
         }
     }
-    print_text_report(&r, truth_ref, wheel_scale, per_drive.as_ref(), account)?;
+    print_text_report(&r, truth_ref, wheel_scale, account)?;
     Ok(outcome)
 }
 
@@ -210,18 +203,17 @@ fn holdout(half: Option<HalfArg>, others: &[OtherDrive]) -> Result<Option<Holdou
     })
 }
 
-/// Runs the calibration on `fit`, validated on `held` or, with
+/// Runs the calibration of `drive`, validated on the `holdout` or, with
 /// `--validate-on`, on each other drive (`given`: the extrinsics the
 /// command line states, which apply to each).
 fn calibrate(
     drive: &Drive,
-    fit: &Drive,
-    held: Option<&Drive>,
+    holdout: Option<&Holdout>,
     others: &[OtherDrive],
     given: ParamSet,
     opts: &CalibrationOptions,
     bars: &Bars,
-) -> odocal::Result<(CalibrationReport, Option<MultiValidation>)> {
+) -> odocal::Result<CalibrationReport> {
     let cb = |e| bars.event(e);
     // Each validation drive with the extrinsics that apply to it (its own
     // manifest's `[reference]` where the calibration neither estimates nor
@@ -234,9 +226,11 @@ fn calibrate(
             reference: m.as_ref().and_then(|m| m.reference.as_ref()),
         })
         .collect();
-    match validation.is_empty() {
-        true => odocal::calibrate_held_out(fit, held, opts, Some(&cb)).map(|r| (r, None)),
-        false => odocal::calibrate_validated_on(drive, &validation, given, opts, Some(&cb)).map(|(r, m)| (r, Some(m))),
+    let run = odocal::Calibration::new(drive, opts).progress(&cb);
+    match (validation.is_empty(), holdout) {
+        (true, Some(h)) => run.holdout(h).run(),
+        (true, None) => run.run(),
+        (false, _) => run.validate_on(&validation, given).run(),
     }
 }
 
@@ -286,7 +280,7 @@ fn write_html_report(
             ("method".into(), r.method.clone()),
             ("input".into(), input.to_string()),
             ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
-            ("date".into(), odocal::io::param_file::utc_date_today()),
+            ("date".into(), odocal::ParamFile::utc_date_today()),
         ],
         params,
         truth: truth.map(|t| *t.0),
@@ -306,7 +300,6 @@ fn print_text_report(
     r: &CalibrationReport,
     truth: Option<(&Theta, f64)>,
     wheel_scale: Option<&str>,
-    per_drive: Option<&MultiValidation>,
     account: &SettingsAccount,
 ) -> Result<()> {
     let text = report::calibration(r, truth, wheel_scale);
@@ -315,7 +308,7 @@ fn print_text_report(
     std::io::stdout().flush()?;
     print_warnings(&r.warnings);
     print!("{rest}");
-    if let Some(m) = per_drive {
+    if let Some(m) = &r.validate_on {
         print!("{}", report::validate_on(m));
     }
     print!("{}", account.lines());

@@ -5,8 +5,8 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Result};
 use clap::Args;
-use odocal::drive::ExtraColumn;
-use odocal::{drive::segment, QpOptions, SolverKind};
+use odocal::ExtraColumn;
+use odocal::{segment, QpOptions, SolverKind};
 
 use crate::args::ThetaArg;
 use crate::io::{load_drive, print_warnings};

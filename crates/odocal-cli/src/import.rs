@@ -25,11 +25,11 @@ pub struct ImportArgs {
 pub fn run(a: ImportArgs) -> Result<()> {
     let m = odocal::Manifest::from_path(&a.manifest)?;
     // The calibration settings are checked too, so a bad one is named now.
-    odocal::calibrate::settings::ManifestSettings::of_manifest(&m)?;
+    odocal::settings::ManifestSettings::of_manifest(&m)?;
     let imported = odocal::import(&m)?;
     imported.drive.write_csv(&a.out)?;
     if let Some(p) = &a.json {
-        write_json(p, odocal::calibrate::settings::import_report_json(&imported.report)?)?;
+        write_json(p, odocal::settings::import_report_json(&imported.report)?)?;
         if p == Path::new("-") {
             return Ok(());
         }

@@ -3,7 +3,7 @@
 use std::path::Path;
 
 use anyhow::{Context, Result};
-use odocal::calibrate::settings::ManifestSettings;
+use odocal::settings::ManifestSettings;
 use odocal::sim::{self, SimSidecar};
 use odocal::{Drive, Warning};
 
@@ -54,7 +54,7 @@ pub fn write_json(path: &Path, mut value: serde_json::Value) -> Result<()> {
 /// Warnings to stderr, grouped by kind: at most [`WARNINGS_PER_KIND`] of
 /// each and a count of the rest (the JSON report lists all).
 pub fn print_warnings(warnings: &[Warning]) {
-    let lines = odocal::assess::warning::summarize(warnings, WARNINGS_PER_KIND);
+    let lines = odocal::Warning::summarize(warnings, WARNINGS_PER_KIND);
     let collapsed = lines.iter().any(|l| l.starts_with('…'));
     for l in lines {
         eprintln!("warning: {l}");

@@ -63,7 +63,7 @@ pub fn run(a: ValidateArgs, bars: &Bars) -> Result<()> {
         });
     }
     let cb = |e| bars.event(e);
-    let report = odocal::validate_with_progress(&drive, &a.theta.theta, &opts, Some(&cb))?;
+    let report = odocal::validate(&drive, &a.theta.theta, &opts, Some(&cb))?;
     bars.finish();
     if let Some(p) = &a.json {
         write_json(p, serde_json::to_value(&report)?)?;

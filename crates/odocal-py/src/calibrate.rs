@@ -9,10 +9,10 @@ use pyo3::exceptions::{PyRuntimeError, PyTypeError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use odocal::calibrate::settings::{Caller, ManifestSettings, Resolved, Settings};
-use odocal::drive::Drive;
-use odocal::io::import::ReferenceSpec;
-use odocal::model::param::ParamSet;
+use odocal::settings::{Caller, ManifestSettings, Resolved, Settings};
+use odocal::Drive;
+use odocal::ParamSet;
+use odocal::ReferenceSpec;
 use odocal::{Holdout, Progress};
 
 use crate::convert::{to_json, to_py};
@@ -127,10 +127,7 @@ fn calibrate_json(
     progress: Option<&(dyn Fn(Progress) + Sync)>,
 ) -> odocal::Result<serde_json::Value> {
     let split = plan.holdout.as_ref().map(|h| h.split(drive)).transpose()?;
-    let (fit, held): (&Drive, Option<&Drive>) = match &split {
-        Some((fit, held)) => (fit.as_ref(), Some(held.as_ref())),
-        None => (drive, None),
-    };
+    let held: Option<&Drive> = split.as_ref().map(|(_, held)| held.as_ref());
     let names: Vec<String> = (0..plan.validate_on.len()).map(|i| format!("validate_on[{i}]")).collect();
     let validation: Vec<odocal::ValidationDrive> = names
         .iter()
@@ -139,19 +136,21 @@ fn calibrate_json(
         .collect();
     // Validation drives: each with the extrinsics that apply to it (odocal::assess::validation_drives).
     let opts = &plan.resolved.options;
-    let (report, per_drive) = match validation.is_empty() {
-        true => (odocal::calibrate_held_out(fit, held, opts, progress)?, None),
-        false => {
-            let (r, m) = odocal::calibrate_validated_on(drive, &validation, plan.given_extrinsics, opts, progress)?;
-            (r, Some(m))
-        }
+    let mut run = odocal::Calibration::new(drive, opts);
+    if let Some(p) = progress {
+        run = run.progress(p);
+    }
+    let report = match (validation.is_empty(), &plan.holdout) {
+        (true, Some(h)) => run.holdout(h).run()?,
+        (true, None) => run.run()?,
+        (false, _) => run.validate_on(&validation, plan.given_extrinsics).run()?,
     };
     let json_err = |source| odocal::Error::Json { context: "calibration report".into(), source };
     let mut v = serde_json::to_value(&report).map_err(json_err)?;
     let scored = held.unwrap_or(drive);
     if let (Some(side), Some(obj)) = (&prov.sidecar, v.as_object_mut()) {
         let t = side.theta_true;
-        let segs = odocal::drive::segment::validation_segments(scored, &opts.validation)?;
+        let segs = odocal::segment::validation_segments(scored, &opts.validation)?;
         let e = odocal::mean_position_error(scored, &segs, &t)?.mean_position_error_m;
         obj.insert("truth".into(), serde_json::json!({"theta": t, "mean_position_error_m": e}));
     }
@@ -161,9 +160,6 @@ fn calibrate_json(
     if let Some(obj) = v.as_object_mut() {
         // The σ that stands for the result (as the CLI's JSON `sigma`).
         obj.insert("sigma".into(), serde_json::to_value(report.result_sigma()).map_err(json_err)?);
-        if let Some(m) = per_drive {
-            obj.insert("validate_on".into(), serde_json::to_value(m).map_err(json_err)?);
-        }
     }
     plan.resolved.account.add_to_json(&mut v)?;
     with_schema_version(&mut v);

@@ -11,10 +11,10 @@ use pyo3::exceptions::{PyKeyError, PyRuntimeError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList, PyString};
 
-use odocal::calibrate::settings::ManifestSettings;
-use odocal::drive::{Drive, ExtraColumn, ExtraValues, Signals};
-use odocal::io::import::{CalibrationTable, NoiseTable};
+use odocal::settings::ManifestSettings;
+use odocal::settings::{CalibrationTable, NoiseTable};
 use odocal::sim::SimSidecar;
+use odocal::{Drive, ExtraColumn, ExtraValues, Signals};
 
 use crate::convert::{json, to_py};
 use crate::lib_err;
@@ -146,10 +146,8 @@ fn read_manifest(path: &std::path::Path) -> odocal::Result<(Drive, Provenance)> 
     // The calibration settings are checked too, so a bad one is named now.
     ManifestSettings::of_manifest(&m)?;
     let imported = odocal::import(&m)?;
-    let import_report = serde_json::to_string_pretty(&odocal::calibrate::settings::import_report_json(
-        &imported.report,
-    )?)
-    .map_err(|source| odocal::Error::Json { context: format!("import report of {}", path.display()), source })?;
+    let import_report = serde_json::to_string_pretty(&odocal::settings::import_report_json(&imported.report)?)
+        .map_err(|source| odocal::Error::Json { context: format!("import report of {}", path.display()), source })?;
     let wheel_scale = Some(imported.report.wheel_scale.clone());
     Ok((imported.drive, Provenance { sidecar: None, import_report: Some(import_report), wheel_scale }))
 }

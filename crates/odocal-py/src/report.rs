@@ -6,8 +6,8 @@ use std::path::PathBuf;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-use odocal::drive::Drive;
 use odocal::model::Theta;
+use odocal::Drive;
 use odocal::Holdout;
 
 use crate::calibrate::parse_holdout;
@@ -37,7 +37,7 @@ pub(crate) fn _method_details(report_json: &str) -> PyResult<String> {
 /// it; library `ParamFile::read`) into the layout of the JSON file.
 #[pyfunction]
 pub(crate) fn read_params(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyAny>> {
-    let f = odocal::io::param_file::ParamFile::read(&path).map_err(lib_err)?;
+    let f = odocal::ParamFile::read(&path).map_err(lib_err)?;
     to_py(py, &f.to_json())
 }
 
@@ -86,8 +86,8 @@ pub(crate) fn _report_html(
     py.detach(move || -> Result<(), String> {
         let split = holdout.as_ref().map(|h| h.split(&inner)).transpose().map_err(|e| e.to_string())?;
         let scored: &Drive = split.as_ref().map_or(&inner, |(_, h)| h.as_ref());
-        let segs = odocal::drive::segment::validation_segments(scored, &report.options.validation)
-            .map_err(|e| e.to_string())?;
+        let segs =
+            odocal::segment::validation_segments(scored, &report.options.validation).map_err(|e| e.to_string())?;
         // The σ that stands for the result (the verdict's, the CLI's).
         let sigma = report.result_sigma().to_array();
         let theta0 = report.options.theta0;

@@ -21,7 +21,7 @@
 //!
 //! ```
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
-//! use odocal::{drive::segment, sim, Theta};
+//! use odocal::{segment, sim, Theta};
 //! use odocal_report::{render_html, ParamRow, ReportInput};
 //! let out = sim::simulate(&sim::SimOptions { length_km: 2.0, ..sim::SimOptions::paper(3) })?;
 //! let segs = segment::validation_segments(&out.drive, &Default::default())?;
@@ -38,8 +38,8 @@
 pub mod plots;
 mod sections;
 
-use odocal::drive::segment::{Segment, SegmentData};
 use odocal::model::{step, Theta, THETA_NAMES};
+use odocal::segment::{Segment, SegmentData};
 use odocal::Drive;
 
 /// Errors of the report renderer.
@@ -284,7 +284,7 @@ pre{white-space:pre-wrap;font-size:.85em;background:#f7f7f7;padding:.5em}";
 #[cfg(test)]
 mod tests {
     use super::*;
-    use odocal::{drive::segment, sim};
+    use odocal::{segment, sim};
 
     fn parse_all(xml: &str) {
         let mut r = quick_xml::Reader::from_str(xml);

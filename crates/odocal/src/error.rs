@@ -239,7 +239,7 @@ fn fmt_topics(topics: &[(String, String)]) -> String {
 impl Error {
     /// An I/O error on `path`. The OS message is kept once (not repeated in
     /// the source chain when printed with `{:#}`).
-    pub fn io(path: &std::path::Path, source: std::io::Error) -> Error {
+    pub(crate) fn io(path: &std::path::Path, source: std::io::Error) -> Error {
         Error::Io { path: path.to_path_buf(), source }
     }
 }

@@ -204,7 +204,8 @@ fn super_paths(code: &str) -> Vec<(usize, String)> {
 }
 
 /// The names `lib.rs` re-exports at the crate root, each with the module it
-/// comes from (`pub use assess::trust::{Verdict, …}` maps `Verdict` to `assess`).
+/// comes from (`pub use assess::trust::{Verdict, …}` and
+/// `pub use assess::{trust::Verdict, …}` map `Verdict` to `assess`).
 fn root_reexports(lib: &str) -> BTreeMap<String, String> {
     let code = code_only(lib);
     let mut out = BTreeMap::new();
@@ -212,10 +213,12 @@ fn root_reexports(lib: &str) -> BTreeMap<String, String> {
         let Some(path) = stmt.trim().strip_prefix("pub use ") else { continue };
         let module: String = path.chars().take_while(|c| is_ident(*c)).collect();
         let names = match (path.find('{'), path.rfind("::")) {
-            (Some(b), _) => path[b + 1..].trim_end_matches('}').to_string(),
+            (Some(b), _) => path[b + 1..].replace(['{', '}'], ""),
             (None, Some(c)) => path[c + 2..].to_string(),
             (None, None) => continue,
         };
+        // `assess::{trust::{Verdict, Guards}, warning::Warning}`: each name
+        // after its last `::`.
         for n in names.split(',') {
             let n = n.trim().rsplit("::").next().unwrap_or("").trim();
             if !n.is_empty() && n != "self" {

@@ -119,7 +119,7 @@ pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
     std::fs::write(&md_path, markdown::report_md(&exp, &outputs))
         .with_context(|| format!("writing {}", md_path.display()))?;
 
-    for l in odocal::assess::warning::summarize(&exp.warnings, SHOWN_WARNINGS) {
+    for l in odocal::Warning::summarize(&exp.warnings, SHOWN_WARNINGS) {
         eprintln!("warning: {l}");
     }
     println!(

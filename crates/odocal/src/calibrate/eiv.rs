@@ -121,7 +121,7 @@ pub struct EivMethodOptions {
     /// starting batch Gauss-Newton over all cut segments instead of the EIV
     /// θ. Default true.
     pub fallback: bool,
-    /// A parametric bootstrap of the EIV estimate ([`eiv::bootstrap`]:
+    /// A parametric bootstrap of the EIV estimate ([`eiv::bootstrap`](fn@eiv::bootstrap):
     /// re-simulate the fitted noise at the fitted θ on the drive's own
     /// inputs, re-fit, B times, seeded) for percentile intervals and the
     /// estimator's own bias. Run only when the EIV θ is the result (not
@@ -138,11 +138,11 @@ pub struct EivMethodOptions {
     /// already estimates δ.
     pub estimate_heading_offset: bool,
     /// Subtract the estimator's own bias from every parameter
-    /// ([`EivOptions::correct_bias`]: a parametric bootstrap of
+    /// (`EivOptions::correct_bias`: a parametric bootstrap of
     /// [`CorrectBias::replicates`] re-simulations in antithetic pairs on the
     /// smoothed trajectory, holding the fitted noise model), applied only
     /// to a fit that is kept (not after a fallback). Default
-    /// `Some(CorrectBias::default())`, B = [`DEFAULT_BIAS_REPLICATES`]
+    /// `Some(CorrectBias::default())`, B = `DEFAULT_BIAS_REPLICATES`
     /// (module docs, "Bias correction"); `None` returns the
     /// profile cost's root as is. Ignored when
     /// [`EivOptions::bias_correction`] is set in `filter` (that setting
@@ -167,15 +167,15 @@ impl Default for EivMethodOptions {
 /// (20 × 12 km per preset, η estimated): B = 4 and B = 10 remove
 /// the same bias (`high` t_r +1.097 % → +0.458 % and +0.456 %), and B = 4
 /// costs 1.3–1.5× a fit against about 2× (docs/validation.md).
-pub const DEFAULT_BIAS_REPLICATES: usize = 4;
+pub(crate) const DEFAULT_BIAS_REPLICATES: usize = 4;
 
 /// The bootstrap bias correction of the EIV method
-/// ([`EivMethodOptions::correct_bias`]; [`EivOptions::correct_bias`]).
+/// ([`EivMethodOptions::correct_bias`]; `EivOptions::correct_bias`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct CorrectBias {
     /// Replicates B: an even number, at least 2 (antithetic pairs).
-    /// Default [`DEFAULT_BIAS_REPLICATES`].
+    /// Default `DEFAULT_BIAS_REPLICATES`.
     pub replicates: usize,
     /// Seed of the replicates' random streams. Default 0.
     pub seed: u64,
@@ -191,7 +191,7 @@ impl EivMethodOptions {
     /// The filter options the method runs: [`EivMethodOptions::filter`] with
     /// [`EivMethodOptions::correct_bias`] applied, unless `filter` sets its
     /// own [`EivOptions::bias_correction`].
-    pub fn effective_filter(&self) -> EivOptions {
+    pub(crate) fn effective_filter(&self) -> EivOptions {
         let mut f = self.filter.clone();
         if let (Some(c), BiasCorrection::None) = (self.correct_bias, f.bias_correction) {
             f.correct_bias(c.replicates, c.seed);
@@ -235,14 +235,6 @@ pub struct EivDetail {
     /// ([`EivMethodOptions::bootstrap`]) and the EIV θ is the result.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub bootstrap: Option<Box<eiv::BootstrapReport>>,
-}
-
-impl EivDetail {
-    /// The noise model the fit ended with (the starting one with
-    /// `fix_noise`), in physical units; `None` when the filter failed.
-    pub fn noise(&self) -> Option<&NoiseModel> {
-        self.eiv.as_ref().map(|e| &e.noise)
-    }
 }
 
 /// True for a filter finding of `report` that says the model does not fit
@@ -293,7 +285,7 @@ impl NoiseSpec {
     /// Starts `filter` from this model, holding the known sources (in
     /// addition to any it already holds), with its lateral-noise choice
     /// where it states one.
-    pub fn apply(&self, filter: &mut EivOptions) {
+    pub(crate) fn apply(&self, filter: &mut EivOptions) {
         filter.noise = self.model;
         filter.hold_known(&self.known);
         if let Some(l) = self.lateral {
@@ -317,7 +309,7 @@ impl NoiseSpec {
 /// lateral_acceleration_sigma_m_per_s2 = 0.08   # the IMU's a_y noise ...
 /// lateral = "stated"                 # ... held, not scaled with the wheels'
 /// ```
-pub fn read_noise_model(path: &Path) -> Result<NoiseSpec> {
+pub(crate) fn read_noise_model(path: &Path) -> Result<NoiseSpec> {
     let text = std::fs::read_to_string(path).map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
     parse_noise_model(&text).map_err(|reason| Error::InvalidOption {
         field: "noise model file",
@@ -326,7 +318,7 @@ pub fn read_noise_model(path: &Path) -> Result<NoiseSpec> {
 }
 
 /// Parses the TOML of [`read_noise_model`] and checks the model.
-pub fn parse_noise_model(text: &str) -> std::result::Result<NoiseSpec, String> {
+pub(crate) fn parse_noise_model(text: &str) -> std::result::Result<NoiseSpec, String> {
     let table: toml::Table = toml::from_str(text).map_err(|e| e.message().to_string())?;
     noise_model_from_table(table)
 }
@@ -336,7 +328,7 @@ pub fn parse_noise_model(text: &str) -> std::result::Result<NoiseSpec, String> {
 /// fields keep the production-car defaults; an unknown field, a value of
 /// the wrong type or out of range, or an unknown source in `known` is an
 /// error naming the field.
-pub fn noise_model_from_table(mut table: toml::Table) -> std::result::Result<NoiseSpec, String> {
+pub(crate) fn noise_model_from_table(mut table: toml::Table) -> std::result::Result<NoiseSpec, String> {
     let known = match table.remove("known") {
         None => Vec::new(),
         Some(toml::Value::Array(list)) => {
@@ -695,7 +687,7 @@ impl EivDetail {
     /// noise levels; a bias correction; which estimate the result is (EIV
     /// or the batch G-N fallback); the bootstrap's intervals. Through
     /// [`crate::CalibrationReport::method_details`].
-    pub fn summary(&self, known: &[NoiseSource]) -> String {
+    pub(crate) fn summary(&self, known: &[NoiseSource]) -> String {
         let d = self;
         let mut out = String::new();
         match &d.eiv {

@@ -7,7 +7,7 @@ use super::{Drive, ExtraColumn, ExtraValues, Signals, SIGNAL_NAMES};
 use crate::error::{Error, Result};
 
 /// The columns a canonical drive CSV must have.
-pub const REQUIRED_COLUMNS: [&str; 8] = ["t", "px", "py", "psi", "n_rl", "n_rr", "beta", "a_y"];
+pub(crate) const REQUIRED_COLUMNS: [&str; 8] = ["t", "px", "py", "psi", "n_rl", "n_rr", "beta", "a_y"];
 const TRUTH_COLUMNS: [&str; 7] = ["px_true", "py_true", "psi_true", "n_rl_true", "n_rr_true", "beta_true", "a_y_true"];
 /// Optional column: 1 where the reference was really measured.
 const MASK_COLUMN: &str = "ref_measured";
@@ -369,7 +369,7 @@ impl Drive {
     }
 
     /// Writes the canonical CSV to any writer.
-    pub fn write_csv_to<W: std::io::Write>(&self, w: W) -> std::io::Result<()> {
+    pub(crate) fn write_csv_to<W: std::io::Write>(&self, w: W) -> std::io::Result<()> {
         let mut wtr = ::csv::WriterBuilder::new().from_writer(w);
         let mut header: Vec<String> = std::iter::once("t".to_string())
             .chain(self.measured.columns().iter().map(|(n, _)| n.to_string()))

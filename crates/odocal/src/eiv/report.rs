@@ -23,7 +23,7 @@ pub enum Parameter {
 }
 
 /// The parameters in θ order.
-pub const PARAMETERS: [Parameter; 4] = [Parameter::CE, Parameter::CD, Parameter::TR, Parameter::D];
+pub(crate) const PARAMETERS: [Parameter; 4] = [Parameter::CE, Parameter::CD, Parameter::TR, Parameter::D];
 
 impl std::fmt::Display for Parameter {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -63,7 +63,7 @@ pub enum Termination {
 
 impl Termination {
     /// True when the fit converged (step tolerance met).
-    pub fn converged(&self) -> bool {
+    pub(crate) fn converged(&self) -> bool {
         matches!(self, Termination::StepTolerance { .. })
     }
 }
@@ -378,7 +378,7 @@ pub struct EivReport {
     /// The first-order bias of the profile cost's root at the estimate, a
     /// diagnostic (None with the covariance held or a singular `H_θ`).
     pub first_order_bias: Option<FirstOrderBias>,
-    /// The root of the profile cost before any [`BiasCorrection`](crate::eiv::BiasCorrection).
+    /// The root of the profile cost before any `BiasCorrection`.
     pub theta_uncorrected: Theta,
     /// The bias subtracted by [`EivOptions::bias_correction`](crate::eiv::EivOptions::bias_correction) (`theta =
     /// theta_uncorrected − bias_subtracted`; zeros without a correction).

@@ -1,5 +1,9 @@
 //! The drive simulator (SPEC §8): city and suburb routes with a known true θ.
 //!
+//! Expert API beyond [`crate::simulate`] and [`crate::SimOptions`] (at the
+//! root): the route, speed, vehicle and noise settings and the sidecar file,
+//! for studies on drives with a known θ.
+//!
 //! Real logs of wheel rotations with a GNSS/INS reference rarely are public,
 //! and they never carry the true parameters. [`simulate`] makes drives that
 //! do, reproducibly from a seed.
@@ -66,14 +70,15 @@ mod options;
 mod route;
 
 use options::invalid;
-pub use options::{NoiseOptions, RouteOptions, SimOptions, SpeedOptions, VehicleOptions};
+pub(crate) use options::SpeedOptions;
+pub use options::{NoiseOptions, SimOptions};
 use route::{build_route, stream, Encoder, GaussMarkov, Route, SpeedProfile, White};
 
 /// Grid step of the speed profile along the route, m.
 const SPEED_GRID_M: f64 = 0.5;
 /// A sample counts as moving (for [`SimStats::wheel_rotation_rel_error_rms`])
 /// when its true speed exceeds this, m/s.
-pub const MOVING_SPEED_M_PER_S: f64 = 1.0;
+pub(crate) const MOVING_SPEED_M_PER_S: f64 = 1.0;
 /// Longest drive accepted, km (memory guard: about 40 MB of samples per 100 km).
 const MAX_LENGTH_KM: f64 = 2000.0;
 
@@ -92,7 +97,7 @@ pub struct SimStats {
     /// Peak absolute true lateral acceleration, m/s².
     pub max_abs_lateral_acceleration_m_per_s2: f64,
     /// RMS of `(measured − true)/true` wheel rotation over both rear wheels
-    /// and every moving sample (true speed above [`MOVING_SPEED_M_PER_S`]).
+    /// and every moving sample (true speed above `MOVING_SPEED_M_PER_S`).
     pub wheel_rotation_rel_error_rms: f64,
 }
 
@@ -357,6 +362,7 @@ mod tests {
     use super::*;
     use crate::drive::segment::{calibration_segments, SegmentData};
     use crate::identify::{batch_gauss_newton, IdentifyOptions};
+    use crate::sim::options::RouteOptions;
 
     /// Rounding over one f64 model step of ~0.5 m at coordinates up to ~2 km.
     const STEP_REPRODUCTION_TOL_M: f64 = 1e-9;

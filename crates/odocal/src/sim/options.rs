@@ -121,7 +121,7 @@ impl Default for VehicleOptions {
 impl VehicleOptions {
     /// Rear-axle sideslip per unit lateral acceleration, rad per m/s² (negative:
     /// the rear axle drifts to the outside of the turn).
-    pub fn sideslip_gain_rad_per_m_per_s2(&self) -> f64 {
+    pub(crate) fn sideslip_gain_rad_per_m_per_s2(&self) -> f64 {
         -self.mass_kg * self.front_axle_to_cg_m / (self.wheelbase_m * self.rear_cornering_stiffness_n_per_rad)
     }
 }
@@ -305,18 +305,18 @@ pub struct SimOptions {
     pub substeps: usize,
     /// The true parameters θ. Default [`Theta::SIM_DEFAULT_TRUE`].
     pub theta_true: Theta,
-    /// Route generator. Default [`RouteOptions::default`].
+    /// Route generator. Default `RouteOptions::default`.
     pub route: RouteOptions,
-    /// Speed profile. Default [`SpeedOptions::default`].
+    /// Speed profile. Default `SpeedOptions::default`.
     pub speed: SpeedOptions,
-    /// Vehicle (sideslip model). Default [`VehicleOptions::default`].
+    /// Vehicle (sideslip model). Default `VehicleOptions::default`.
     pub vehicle: VehicleOptions,
     /// Measurement errors. Default [`NoiseOptions::paper`].
     pub noise: NoiseOptions,
     /// Where the pose reference sits on the vehicle: the measured pose is
     /// the reference point `p + R(ψ)·[lever_x, lever_y]` with heading
     /// `ψ + heading_offset` of the true axle pose, plus the reference noise
-    /// ([`crate::model::extrinsics`]); the truth columns stay the axle's. Default 0
+    /// ([`Extrinsics`](crate::Extrinsics)); the truth columns stay the axle's. Default 0
     /// (the SPEC's reference; the output, sidecar included, is then
     /// byte-identical to a simulator without this setting).
     #[serde(skip_serializing_if = "Extrinsics::is_zero")]
@@ -397,7 +397,7 @@ impl SimOptions {
     }
 
     /// Checks every option, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         self.reference_mount.validate()?;
         check_positive("length_km", self.length_km)?;
         if self.length_km > MAX_LENGTH_KM {
