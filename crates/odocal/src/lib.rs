@@ -35,7 +35,8 @@
 //!
 //! In layers, lowest first; a module uses only modules of lower layers:
 //! [`error`] and [`progress`]; [`model`] (θ, the equations, parameters,
-//! extrinsics, physical limits); [`drive`] (drives, segments, plausibility);
+//! extrinsics, physical limits) and [`output`] (atomic writes, output paths
+//! checked against inputs); [`drive`] (drives, segments, plausibility);
 //! [`mod@io`] (manifest import, bags, parameter files) and [`sim`];
 //! [`identify`] (Gauss-Newton); [`compensate`] (the QP) and [`eiv`];
 //! [`assess`] (Ē_p, reachable minimum, verdict, warnings);
@@ -80,6 +81,7 @@ pub mod experiment;
 pub mod identify; // 4
 pub mod io; // 3
 pub mod model; // 1
+pub mod output; // 1
 pub mod progress; // 0
 pub mod sim; // 3 // 8
 

@@ -44,12 +44,14 @@
 
 mod concat;
 mod csv;
+mod fingerprint;
 pub mod plausibility;
 pub mod segment;
 
 use std::ops::Range;
 
 pub use self::concat::CONCAT_GAP_S;
+pub use self::fingerprint::refuse_duplicates;
 
 pub(crate) use self::csv::echo;
 pub use self::csv::REQUIRED_COLUMNS;
