@@ -276,6 +276,12 @@ pub fn figure_svg(title: &str, size: (u32, u32), grid: (usize, usize), panels: &
 /// atomically ([`odocal::output::write_atomically`]).
 pub fn figure(path: &Path, title: &str, size: (u32, u32), grid: (usize, usize), panels: &[Panel]) -> Result<()> {
     let mut svg = String::new();
-    draw_figure(SVGBackend::with_string(&mut svg, size).into_drawing_area(), &path.display().to_string(), title, grid, panels)?;
+    draw_figure(
+        SVGBackend::with_string(&mut svg, size).into_drawing_area(),
+        &path.display().to_string(),
+        title,
+        grid,
+        panels,
+    )?;
     odocal::output::write_text(path, &svg).map_err(crate::write_error)
 }

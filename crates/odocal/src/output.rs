@@ -244,8 +244,7 @@ pub fn check_collisions(inputs: &[FileRole], outputs: &[FileRole]) -> Result<()>
 }
 
 fn collision(output: &FileRole, other: &FileRole) -> Error {
-    let other_path =
-        if other.path == output.path { String::new() } else { format!(" ({})", other.path.display()) };
+    let other_path = if other.path == output.path { String::new() } else { format!(" ({})", other.path.display()) };
     Error::PathCollision {
         role: output.role.clone(),
         path: output.path.clone(),

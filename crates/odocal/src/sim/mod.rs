@@ -68,8 +68,8 @@ mod truth;
 
 use options::invalid;
 pub use options::{NoiseOptions, RouteOptions, SimOptions, SpeedOptions, VehicleOptions};
-pub use truth::{sidecar_for, SidecarMatch};
 use route::{build_route, stream, Encoder, GaussMarkov, Route, SpeedProfile, White};
+pub use truth::{sidecar_for, SidecarMatch};
 
 /// Grid step of the speed profile along the route, m.
 const SPEED_GRID_M: f64 = 0.5;

@@ -65,7 +65,10 @@ pub fn sidecar_for(drive_csv: &Path, drive: &Drive) -> SidecarMatch {
         Some(fp) if *fp == drive.fingerprint() => SidecarMatch::Bound(Box::new(sidecar)),
         Some(_) => SidecarMatch::Other {
             path,
-            reason: format!("it is the simulator sidecar of another drive: the samples of {} differ", drive_csv.display()),
+            reason: format!(
+                "it is the simulator sidecar of another drive: the samples of {} differ",
+                drive_csv.display()
+            ),
         },
         None => SidecarMatch::Other {
             path,
