@@ -18,6 +18,7 @@
 //!       method: "batch-gn"
 //!       odocal_version: "0.1.0"
 //!       date: "2026-11-23"
+//!       fingerprint: "6466b844…"  # the drives' Drive::fingerprint (odocal calibrate, Python)
 //! ```
 //!
 //! With [`ParamMapping::DiffDriveController`] the wheel parameters are also
