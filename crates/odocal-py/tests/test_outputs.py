@@ -95,7 +95,7 @@ def test_outputs_onto_the_drives_files_are_refused(tmp_path, drive_csv):
 def test_a_sidecar_of_another_drive_is_not_the_truth(tmp_path, small_drive):
     small_drive.to_csv(tmp_path / "d.csv")
     assert odocal.Drive.from_csv(tmp_path / "d.csv").theta_true is not None
-    other = odocal.simulate(seed=9, length_km=1.0, noise="off")
+    other = odocal.simulate(seed=9, length_km=3.0)
     shutil.copy(tmp_path / "d.json", tmp_path / "keep.json")
     other.to_csv(tmp_path / "d.csv")
     shutil.copy(tmp_path / "keep.json", tmp_path / "d.json")
