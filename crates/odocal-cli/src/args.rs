@@ -83,17 +83,19 @@ pub struct CalibrationArgs {
     /// segment is used.
     #[arg(long)]
     pub auto_fix: bool,
-    /// Write θ and 1σ to a ROS 2 .yaml or a .json.
+    /// Write θ and 1σ to a ROS 2 .yaml or a .json ("-": YAML to stdout).
     ///
     /// The calibrated parameters with their 1σ, units, verdict and
-    /// provenance: a ROS 2 parameter file (.yaml/.yml) or JSON (.json).
-    /// `--theta0` and `validate --theta` read it back.
+    /// provenance (with the drives' fingerprints): a ROS 2 parameter file
+    /// (.yaml/.yml) or JSON (.json); "-" writes the YAML to stdout instead of
+    /// the text report. `--theta0` and `validate --theta` read it back.
     #[arg(long)]
     pub params_out: Option<PathBuf>,
-    /// Write a self-contained HTML report here.
+    /// Write a self-contained HTML report here ("-": stdout).
     ///
     /// The verdict, θ, a map, per-segment errors, residuals and warnings, in
-    /// one file without scripts or network fetches.
+    /// one file without scripts or network fetches; "-" writes it to stdout
+    /// instead of the text report.
     #[arg(long)]
     pub report: Option<PathBuf>,
     /// Minimum peak yaw rate for a segment to be selected, rad/s.

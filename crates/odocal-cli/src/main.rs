@@ -7,7 +7,8 @@
 //!
 //! One module per subcommand (its arguments and its run function);
 //! [`args`] holds the calibration options `calibrate` and `demo` share,
-//! [`io`] the reading of drives and writing of reports.
+//! [`io`] the reading of drives and writing of reports, [`output`] the
+//! checks of output paths and the atomic writes.
 
 use std::process::ExitCode;
 
@@ -21,6 +22,7 @@ mod experiment;
 mod import;
 mod inspect;
 mod io;
+mod output;
 mod progress;
 mod report;
 mod simulate;

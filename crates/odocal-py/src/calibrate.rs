@@ -17,6 +17,7 @@ use odocal::{Holdout, Progress};
 
 use crate::convert::{to_json, to_py};
 use crate::drive::{drives_arg, Provenance, PyDrive};
+use crate::files::distinct_drives;
 use crate::run::{run_detached, with_threads};
 use crate::{lib_err, with_schema_version, OdocalError};
 
@@ -124,6 +125,7 @@ fn calibrate_json(
     drive: &Drive,
     prov: &Provenance,
     plan: &CalibrationPlan,
+    drives: Vec<serde_json::Value>,
     progress: Option<&(dyn Fn(Progress) + Sync)>,
 ) -> odocal::Result<serde_json::Value> {
     let split = plan.holdout.as_ref().map(|h| h.split(drive)).transpose()?;
@@ -160,6 +162,7 @@ fn calibrate_json(
     if let Some(obj) = v.as_object_mut() {
         // The σ that stands for the result (as the CLI's JSON `sigma`).
         obj.insert("sigma".into(), serde_json::to_value(report.result_sigma()).map_err(json_err)?);
+        obj.insert("drives".into(), serde_json::Value::Array(drives));
     }
     plan.resolved.account.add_to_json(&mut v)?;
     with_schema_version(&mut v);
@@ -178,6 +181,8 @@ pub(crate) fn calibrate<'py>(
     threads: Option<usize>,
     options: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<(Bound<'py, PyAny>, String)> {
+    let validate_on = options.map(|o| o.get_item("validate_on")).transpose()?.flatten();
+    let entries = distinct_drives(py, drive, validate_on.as_ref())?;
     let (inner, provs) = drives_arg(drive, "drive")?;
     let settings: Vec<ManifestSettings> =
         provs.iter().map(Provenance::settings).collect::<PyResult<Vec<_>>>()?.into_iter().flatten().collect();
@@ -188,13 +193,14 @@ pub(crate) fn calibrate<'py>(
         [one] => one.clone(),
         many => Provenance { wheel_scale: many.iter().find_map(|p| p.wheel_scale.clone()), ..Default::default() },
     };
-    let value = run_detached(py, progress, |cb| with_threads(threads, || calibrate_json(&inner, &prov, &plan, cb)))??
-        .map_err(|e| match e {
-        e @ odocal::Error::NotObservable { .. } => OdocalError::new_err(format!(
+    let value =
+        run_detached(py, progress, |cb| with_threads(threads, || calibrate_json(&inner, &prov, &plan, entries, cb)))??
+            .map_err(|e| match e {
+                e @ odocal::Error::NotObservable { .. } => OdocalError::new_err(format!(
             "{e}; in Python: fix=['c_d', 't_r', 'd'], min_yaw_rate=0 calibrates c_e alone, or pass auto_fix=True"
         )),
-        e => lib_err(e),
-    })?;
+                e => lib_err(e),
+            })?;
     let text = serde_json::to_string_pretty(&value).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
     Ok((to_py(py, &value)?, text))
 }

@@ -24,6 +24,7 @@ use odocal::sim::{NoiseOptions, SimOptions};
 mod calibrate;
 mod convert;
 mod drive;
+mod files;
 mod report;
 mod run;
 
@@ -91,6 +92,14 @@ fn validate<'py>(
     let report =
         py.detach(|| with_threads(threads, || odocal::validate(&inner, &theta, &opts, None)))?.map_err(lib_err)?;
     let mut v = json(&report)?;
+    if let Some(obj) = v.as_object_mut() {
+        let entry = serde_json::json!({
+            "role": "validation",
+            "path": drive.get().prov.source,
+            "fingerprint": py.detach(|| inner.fingerprint()),
+        });
+        obj.insert("drives".into(), serde_json::Value::Array(vec![entry]));
+    }
     with_schema_version(&mut v);
     to_py(py, &v)
 }

@@ -263,13 +263,22 @@ pub fn render_html(r: &ReportInput<'_>) -> Result<String> {
     Ok(h)
 }
 
-/// Renders the report and writes it to `path`.
+/// Renders the report and writes it to `path`, atomically
+/// ([`odocal::output::write_atomically`]).
 ///
 /// # Errors
 /// As [`render_html`], and [`ReportError::Io`].
 pub fn write_html(path: &std::path::Path, r: &ReportInput<'_>) -> Result<()> {
     let html = render_html(r)?;
-    std::fs::write(path, html).map_err(|source| ReportError::Io { path: path.to_path_buf(), source })
+    odocal::output::write_text(path, &html).map_err(write_error)
+}
+
+/// The report error of a failed write ([`odocal::output::write_text`]).
+pub(crate) fn write_error(e: odocal::Error) -> ReportError {
+    match e {
+        odocal::Error::Io { path, source } => ReportError::Io { path, source },
+        e => ReportError::Io { path: std::path::PathBuf::new(), source: std::io::Error::other(e.to_string()) },
+    }
 }
 
 const CSS: &str = "body{font-family:sans-serif;max-width:960px;margin:2em auto;color:#222;line-height:1.4}\

@@ -47,7 +47,9 @@
 //! [`eiv`] (the errors-in-variables estimator), [`sim`] (the simulator),
 //! [`experiment`] (the paper's §6), [`mod@io`] (ROS 2 bags),
 //! [`manifest`] (the manifest as Rust types), [`settings`] (calibration
-//! settings as key–value pairs) and [`crossrun`] (cross-run checks).
+//! settings as key–value pairs), [`crossrun`] (cross-run checks) and
+//! [`output`] (atomic writes and output paths checked against inputs, for a
+//! front end's own files).
 //!
 //! ## Example
 //!
@@ -89,6 +91,7 @@ pub mod experiment; // 8
 pub mod identify; // 4
 pub mod io; // 3
 pub mod model; // 1
+pub mod output; // 1
 mod progress; // 0
 pub mod sim; // 3
 
@@ -108,8 +111,10 @@ pub use model::{extrinsics::Extrinsics, extrinsics::ExtrinsicsEstimate, param::P
 pub use progress::{Progress, ProgressFn};
 // Drives: building, importing, simulating; parameter files. `segment` and
 // `manifest` are expert modules (their docs say for whom).
-pub use drive::{segment, Drive, DriveBuilder, ExtraColumn, ExtraValues, Signals};
-pub use io::import::{import, load_drive, manifest, ImportReport, ImportedDrive, Manifest, ReferenceSpec};
+pub use drive::{refuse_duplicates, segment, Drive, DriveBuilder, ExtraColumn, ExtraValues, Signals};
+pub use io::import::{
+    import, is_manifest_path, load_drive, manifest, ImportReport, ImportedDrive, Manifest, ReferenceSpec,
+};
 pub use io::param_file::{ParamFile, ParamMapping};
 pub use sim::{simulate, NoiseOptions, SimOptions, SimOutput, SimSidecar};
 // Calibration: the entry points, the options, the report. `settings` and

@@ -20,6 +20,7 @@ const LAYERS: &[(u32, &str)] = &[
     (0, "error"),      // Error, Result, QpError, ParamNames
     (0, "progress"),   // progress events
     (1, "model"),      // θ, the equations, parameters, extrinsics, physical limits
+    (1, "output"),     // atomic writes, output paths checked against inputs
     (2, "drive"),      // drives, CSV, concat, segments, plausibility checks
     (3, "io"),         // manifest import, bags, Parquet, parameter files
     (3, "sim"),        // the drive simulator

@@ -44,10 +44,13 @@
 
 mod concat;
 mod csv;
+mod fingerprint;
 pub(crate) mod plausibility;
 pub mod segment;
 
 use std::ops::Range;
+
+pub use self::fingerprint::refuse_duplicates;
 
 pub(crate) use self::csv::echo;
 use crate::error::{Error, Result};

@@ -18,6 +18,7 @@
 //!       method: "batch-gn"
 //!       odocal_version: "0.1.0"
 //!       date: "2026-11-23"
+//!       fingerprint: "6466b844…"  # the drives' Drive::fingerprint (odocal calibrate, Python)
 //! ```
 //!
 //! With [`ParamMapping::DiffDriveController`] the wheel parameters are also
@@ -250,12 +251,22 @@ impl ParamFile {
         })
     }
 
-    /// Writes YAML for a `.yaml`/`.yml` path, JSON for `.json`.
+    /// Writes YAML for a `.yaml`/`.yml` path, JSON for `.json`, atomically
+    /// ([`crate::output::write_atomically`]).
     ///
     /// # Errors
     /// [`Error::InvalidOption`] for another extension, [`Error::Io`].
     pub fn write(&self, path: &Path) -> Result<()> {
-        let text = match FileFormat::of(path) {
+        crate::output::write_text(path, &self.text_for(path)?)
+    }
+
+    /// The text [`ParamFile::write`] writes to `path`: YAML for a
+    /// `.yaml`/`.yml` path, JSON for `.json`.
+    ///
+    /// # Errors
+    /// [`Error::InvalidOption`] for another extension.
+    pub fn text_for(&self, path: &Path) -> Result<String> {
+        Ok(match FileFormat::of(path) {
             Some(FileFormat::Yaml) => self.to_ros2_yaml(),
             Some(FileFormat::Json) => {
                 let mut s = serde_json::to_string_pretty(&self.to_json())
@@ -269,8 +280,7 @@ impl ParamFile {
                     reason: format!("{}: use a .yaml, .yml or .json file name", path.display()),
                 })
             }
-        };
-        std::fs::write(path, text).map_err(|source| Error::io(path, source))
+        })
     }
 }
 

@@ -68,11 +68,13 @@ use crate::model::{self, Input, State, Theta};
 
 mod options;
 mod route;
+mod truth;
 
 use options::invalid;
 pub(crate) use options::SpeedOptions;
 pub use options::{NoiseOptions, SimOptions};
 use route::{build_route, stream, Encoder, GaussMarkov, Route, SpeedProfile, White};
+pub use truth::{sidecar_for, SidecarMatch};
 
 /// Grid step of the speed profile along the route, m.
 const SPEED_GRID_M: f64 = 0.5;
@@ -110,14 +112,19 @@ pub struct SimSidecar {
     pub settings: SimOptions,
     /// Summary numbers.
     pub stats: SimStats,
+    /// The [`Drive::fingerprint`] of the simulated drive: binds the
+    /// sidecar to its CSV ([`sidecar_for`]). `None` when not recorded.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drive_fingerprint: Option<String>,
 }
 
 impl SimSidecar {
-    /// Writes the sidecar as pretty JSON.
+    /// Writes the sidecar as pretty JSON, atomically
+    /// ([`crate::output::write_atomically`]).
     pub fn write_json(&self, path: &Path) -> Result<()> {
         let text = serde_json::to_string_pretty(self)
             .map_err(|source| Error::Json { context: format!("writing {}", path.display()), source })?;
-        std::fs::write(path, text + "\n").map_err(|source| Error::Io { path: path.to_path_buf(), source })
+        crate::output::write_text(path, &text)
     }
 
     /// Reads a sidecar written by [`SimSidecar::write_json`].
@@ -188,7 +195,8 @@ pub fn simulate(opts: &SimOptions) -> Result<SimOutput> {
     };
     let t = (0..n).map(|k| k as f64 / opts.sample_rate_hz).collect();
     let drive = Drive::builder(t, measured).truth(truth).sample_time_s(ts).context("simulator").build()?;
-    Ok(SimOutput { drive, sidecar: SimSidecar { theta_true: theta, settings: opts.clone(), stats } })
+    let drive_fingerprint = Some(drive.fingerprint());
+    Ok(SimOutput { drive, sidecar: SimSidecar { theta_true: theta, settings: opts.clone(), stats, drive_fingerprint } })
 }
 
 /// The true signals of a simulated drive.

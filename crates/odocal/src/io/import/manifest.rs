@@ -750,6 +750,25 @@ impl Manifest {
     pub(crate) fn base_dir(&self) -> PathBuf {
         self.path.parent().map(Path::to_path_buf).unwrap_or_default()
     }
+
+    /// The files the import reads, each with its stream's name: every
+    /// stream's file (a bag folder's files one by one), by stream name.
+    pub fn stream_files(&self) -> Vec<(String, PathBuf)> {
+        let mut out = Vec::new();
+        for (name, spec) in &self.streams {
+            let path = self.base_dir().join(spec.source.file());
+            match std::fs::read_dir(&path) {
+                Ok(entries) => {
+                    let mut files: Vec<PathBuf> =
+                        entries.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.is_file()).collect();
+                    files.sort();
+                    out.extend(files.into_iter().map(|f| (name.clone(), f)));
+                }
+                Err(_) => out.push((name.clone(), path)),
+            }
+        }
+        out
+    }
 }
 
 /// A one-line message for a TOML error: `key: message (line L)`.

@@ -267,11 +267,16 @@ pub struct ImportedDrive {
     pub report: ImportReport,
 }
 
+/// True for a path [`load_drive`] reads as a manifest (`.toml`), false for
+/// one it reads as a canonical CSV.
+pub fn is_manifest_path(path: &Path) -> bool {
+    path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("toml"))
+}
+
 /// Reads a drive from either a canonical CSV (SPEC §2) or a `.toml` manifest
 /// (imported with [`import`]); the report is `Some` for a manifest.
 pub fn load_drive(path: &Path) -> Result<(Drive, Option<ImportReport>)> {
-    let is_toml = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("toml"));
-    if is_toml {
+    if is_manifest_path(path) {
         let m = Manifest::from_path(path)?;
         let ImportedDrive { drive, report } = import(&m)?;
         Ok((drive, Some(report)))
