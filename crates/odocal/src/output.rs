@@ -81,6 +81,7 @@ where
         builder.permissions(std::fs::Permissions::from_mode(0o666));
     }
     let mut tmp = builder.tempfile_in(&dir).map_err(io)?;
+    let _in_flight = InFlight::new(tmp.path());
     {
         let mut w = std::io::BufWriter::new(tmp.as_file_mut());
         write(&mut w).map_err(io)?;
@@ -94,6 +95,42 @@ where
     tmp.persist(&target).map_err(|e| io(e.error))?;
     sync_dir(&dir);
     Ok(())
+}
+
+/// The temporary files being written now ([`remove_temporary_files`]).
+static IN_FLIGHT: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+/// A temporary file listed in [`IN_FLIGHT`] while it lives.
+struct InFlight(PathBuf);
+
+impl InFlight {
+    fn new(path: &Path) -> InFlight {
+        if let Ok(mut v) = IN_FLIGHT.lock() {
+            v.push(path.to_path_buf());
+        }
+        InFlight(path.to_path_buf())
+    }
+}
+
+impl Drop for InFlight {
+    fn drop(&mut self) {
+        if let Ok(mut v) = IN_FLIGHT.lock() {
+            v.retain(|p| *p != self.0);
+        }
+    }
+}
+
+/// Removes the temporary files of the writes in progress, for a program
+/// about to exit on a signal (Ctrl-C), which runs no destructors: the final
+/// paths keep their previous files and no temporary file is left behind.
+/// The `odocal` tool calls it from its signal handler.
+pub fn remove_temporary_files() {
+    // A write that holds the lock at the signal must not block the exit.
+    if let Ok(v) = IN_FLIGHT.try_lock() {
+        for p in v.iter() {
+            let _ = std::fs::remove_file(p);
+        }
+    }
 }
 
 /// Writes `text` to `path` atomically ([`write_atomically`]), ending it with

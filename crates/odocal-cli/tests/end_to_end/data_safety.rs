@@ -165,7 +165,9 @@ fn an_interrupted_simulate_leaves_the_previous_drive() {
     let now = read(&out);
     eprintln!("interrupted while writing: {interrupted}, exit status {status}");
     if interrupted && !status.success() {
+        assert_eq!(status.code(), Some(130), "{status}");
         assert_eq!(now, old, "an interrupted write changed the final path");
+        assert!(!writing(), "a temporary file was left behind");
     } else {
         assert!(status.success());
         let o = odocal(&["validate", s(&out), "--theta", "1.95,-0.002,1.53,0.0008"]);

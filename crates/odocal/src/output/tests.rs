@@ -193,7 +193,7 @@ proptest! {
         outputs in proptest::collection::vec(pick(), 0..4),
     ) {
         let d = setup();
-        let group_of = |p: &Pick| if cfg!(unix) || p.group != 2 || p.spelling % 2 == 0 { p.group } else { GROUPS };
+        let group_of = |p: &Pick| if cfg!(unix) || p.group != 2 || p.spelling.is_multiple_of(2) { p.group } else { GROUPS };
         let ins: Vec<FileRole> =
             inputs.iter().enumerate().map(|(i, p)| FileRole::new(format!("input {i}"), spell(d.path(), *p))).collect();
         let outs: Vec<FileRole> =
