@@ -528,6 +528,40 @@ mod tests {
     }
 
     #[test]
+    fn constant_errors_are_equivalent_to_the_equivalent_truth() {
+        // a_y, sideslip and heading biases only, the one-step model exact:
+        // the model with the equivalent θ and heading offset, run on the
+        // measured inputs from the axle pose the measured reference
+        // implies, reproduces the next measured reference pose.
+        let mut o = SimOptions { substeps: 1, ..SimOptions::noise_free(29) };
+        o.noise.lateral_acceleration_bias_m_per_s2 = -0.08;
+        o.noise.sideslip_bias_rad = 1.5e-3;
+        o.noise.heading_bias_rad = -0.02;
+        let (theta, mount) = o.equivalent_truth();
+        approx::assert_relative_eq!(theta.c_d, o.theta_true.c_d + 2.0 * o.theta_true.d * 0.08, max_relative = 1e-12);
+        approx::assert_relative_eq!(mount.heading_offset, -0.0185, max_relative = 1e-12);
+        let out = short(o.clone(), 2.0);
+        let d = &out.drive;
+        let axle = |k: usize| State::new(d.px()[k], d.py()[k], d.psi()[k] - mount.heading_offset);
+        let mut worst = 0.0f64;
+        for k in 0..d.len() - 1 {
+            let next = model::step(&axle(k), &d.input(k), &theta, d.sample_time_s());
+            worst = worst.max((next - axle(k + 1)).abs().max());
+        }
+        assert!(worst <= 1e-8, "equivalent truth off by {worst:e}");
+        // With the true θ and the heading bias alone it is not.
+        let mut worst = 0.0f64;
+        let axle = |k: usize| State::new(d.px()[k], d.py()[k], d.psi()[k] + 0.02);
+        for k in 0..d.len() - 1 {
+            let next = model::step(&axle(k), &d.input(k), &o.theta_true, d.sample_time_s());
+            worst = worst.max((next - axle(k + 1)).abs().max());
+        }
+        assert!(worst > 1e-5, "{worst:e}");
+        let plain = SimOptions::paper(1);
+        assert_eq!(plain.equivalent_truth(), (plain.theta_true, plain.reference_mount));
+    }
+
+    #[test]
     fn differential_time_constant_of_its_own() {
         let mut o = SimOptions { noise: NoiseOptions::off(), ..SimOptions::paper(23) };
         o.noise.wheel_coloured_differential_rel_sigma = 0.002;

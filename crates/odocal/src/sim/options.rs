@@ -449,6 +449,29 @@ impl SimOptions {
         SimOptions { noise: NoiseOptions::off(), ..SimOptions::paper(seed) }
     }
 
+    /// The true θ and reference extrinsics that the measured signals are
+    /// consistent with. A constant a_y error b
+    /// ([`NoiseOptions::lateral_acceleration_bias_m_per_s2`]) acts exactly as
+    /// c_d − 2·d·b (the model's wheel circumferences are
+    /// `c_e ± (c_d/2 + d·a_y)`), and a constant sideslip error
+    /// ([`NoiseOptions::sideslip_bias_rad`]) as a heading offset of the
+    /// reference (exactly so with a zero lever arm), as the heading bias
+    /// ([`NoiseOptions::heading_bias_rad`]) does. No calibration can tell
+    /// them apart, so an estimate is judged against this truth. Without
+    /// constant errors it is `(theta_true, reference_mount)`.
+    pub fn equivalent_truth(&self) -> (Theta, Extrinsics) {
+        let n = &self.noise;
+        let mut theta = self.theta_true;
+        let mut mount = self.reference_mount;
+        if n.lateral_acceleration_bias_m_per_s2 != 0.0 {
+            theta.c_d -= 2.0 * theta.d * n.lateral_acceleration_bias_m_per_s2;
+        }
+        if n.heading_bias_rad != 0.0 || n.sideslip_bias_rad != 0.0 {
+            mount.heading_offset += n.heading_bias_rad + n.sideslip_bias_rad;
+        }
+        (theta, mount)
+    }
+
     /// Checks every option, naming the offending field.
     pub fn validate(&self) -> Result<()> {
         self.reference_mount.validate()?;
