@@ -332,7 +332,37 @@ fn verdict_table(worlds: &[World], methods: &[String]) -> Table {
     t
 }
 
-/// RMS of error/CRB on the white-only worlds, per method and parameter.
+/// The default method's results split by outcome (its own estimate or the
+/// batch G-N fallback): coverage per parameter and the verdicts.
+fn eiv_outcome_table(worlds: &[World], methods: &[String]) -> Option<Table> {
+    let m = methods.iter().position(|x| x == "eiv")?;
+    let mut header = vec!["worlds".to_string(), "EIV result".to_string(), ">n".to_string()];
+    header.extend(ERROR_UNITS.iter().map(|u| format!(">{u} coverage")));
+    header.extend([">accepted".to_string(), ">accepted beyond 3σ".to_string()]);
+    let header: Vec<&str> = header.iter().map(String::as_str).collect();
+    let mut t = Table::new(&header);
+    for (group, ws) in groups(worlds) {
+        for (label, fallback) in [("own estimate", false), ("batch G-N fallback", true)] {
+            let rs: Vec<(&World, &Run)> =
+                runs_of(&ws, m).into_iter().filter(|(_, r)| r.fallback == Some(fallback)).collect();
+            let n = rs.len();
+            let mut row = vec![group.clone(), label.to_string(), n.to_string()];
+            for i in 0..4 {
+                let inside = rs.iter().filter(|(w, r)| z_scores(w, r)[i].abs() <= 1.96).count();
+                row.push(pct(inside, n));
+            }
+            let accepted: Vec<&(&World, &Run)> = rs.iter().filter(|(_, r)| r.verdict == VerdictLevel::Accepted).collect();
+            let beyond = accepted.iter().filter(|(w, r)| z_scores(w, r).iter().any(|z| z.abs() > 3.0)).count();
+            row.push(pct(accepted.len(), n));
+            row.push(format!("{beyond} ({})", pct(beyond, n)));
+            t.row(row);
+        }
+    }
+    Some(t)
+}
+
+/// RMS of error/CRB on the white-only worlds, per method and parameter
+/// (and for the default method, on the worlds where it did not fall back).
 fn bound_table(worlds: &[World], methods: &[String]) -> Option<Table> {
     let bounded: Vec<&World> = worlds.iter().filter(|w| w.crb.is_some()).collect();
     if bounded.is_empty() {
@@ -342,9 +372,19 @@ fn bound_table(worlds: &[World], methods: &[String]) -> Option<Table> {
     header.extend(ERROR_UNITS.iter().map(|u| format!(">{u}: RMS/CRB, bias/CRB")));
     let header: Vec<&str> = header.iter().map(String::as_str).collect();
     let mut t = Table::new(&header);
+    let mut rows: Vec<(String, Vec<(&World, &Run)>)> = Vec::new();
     for (m, name) in methods.iter().enumerate() {
         let rs = runs_of(&bounded, m);
-        let mut row = vec![name.clone(), rs.len().to_string()];
+        if name == "eiv" {
+            let own = rs.iter().copied().filter(|(_, r)| r.fallback == Some(false)).collect();
+            rows.push((name.clone(), rs));
+            rows.push(("eiv, own estimates (no fallback)".into(), own));
+        } else {
+            rows.push((name.clone(), rs));
+        }
+    }
+    for (name, rs) in rows {
+        let mut row = vec![name, rs.len().to_string()];
         for i in 0..4 {
             let r: Vec<f64> = rs
                 .iter()
@@ -377,6 +417,9 @@ fn print_tables(a: &Settings, worlds: &[World]) {
     );
     println!("### Accuracy and coverage\n\n{}", accuracy_table(worlds, &a.methods));
     println!("### Verdicts, fallback, held-out Ē_p\n\n{}", verdict_table(worlds, &a.methods));
+    if let Some(t) = eiv_outcome_table(worlds, &a.methods) {
+        println!("### The default by outcome: its own estimate or the batch G-N fallback\n\n{t}");
+    }
     match bound_table(worlds, &a.methods) {
         Some(t) => println!("### White-only worlds against the Cramér–Rao bound (mean-only)\n\n{t}"),
         None => println!("No white-only world: no comparison with the bound.\n"),
