@@ -243,39 +243,35 @@ fn pct(k: usize, n: usize) -> String {
     }
 }
 
+/// Per group and method, each parameter's bias (t), RMS error and 95 %
+/// coverage; and the RMS of error/σ over the four.
 fn accuracy_table(worlds: &[World], methods: &[String]) -> Table {
-    let mut t = Table::new(&[
-        "worlds",
-        "method",
-        "parameter",
-        ">n",
-        ">bias",
-        ">|t|",
-        ">RMS error",
-        ">RMS error/σ",
-        ">95 % coverage",
-    ]);
+    let mut header = vec!["worlds".to_string(), "method".to_string(), ">n".to_string()];
+    header.extend(ERROR_UNITS.iter().map(|u| format!(">{u}: bias (t) · RMS · coverage")));
+    header.push(">RMS error/σ".to_string());
+    let header: Vec<&str> = header.iter().map(String::as_str).collect();
+    let mut t = Table::new(&header);
     for (group, ws) in groups(worlds) {
         for (m, name) in methods.iter().enumerate() {
             let rs = runs_of(&ws, m);
+            let mut row = vec![group.clone(), name.clone(), rs.len().to_string()];
+            let mut z_all = Vec::new();
             for i in 0..4 {
                 let e: Vec<f64> = rs.iter().map(|(w, r)| errors(&r.theta, &w.truth)[i]).collect();
                 let sig: Vec<f64> = rs.iter().map(|(w, r)| r.sigma[i] * error_scale(&w.truth)[i]).collect();
-                let z: Vec<f64> = rs.iter().map(|(w, r)| z_scores(w, r)[i]).collect();
+                z_all.extend(rs.iter().map(|(w, r)| z_scores(w, r)[i]));
                 let s = Summary::of(&e);
-                let z_rms = Summary::of(&z).rms;
-                t.row([
-                    group.clone(),
-                    name.clone(),
-                    ERROR_UNITS[i].to_string(),
-                    s.n.to_string(),
-                    format!("{:+.4}", s.mean),
-                    format!("{:.1}", s.t()),
-                    format!("{:.4}", s.rms),
-                    format!("{z_rms:.2}"),
-                    format!("{:.0} %", 100.0 * coverage(&e, &sig, 1.96)),
-                ]);
+                let digits = if i == 0 { 4 } else { 3 };
+                row.push(format!(
+                    "{:+.digits$} ({:.1}) · {:.digits$} · {:.0} %",
+                    s.mean,
+                    s.t(),
+                    s.rms,
+                    100.0 * coverage(&e, &sig, 1.96)
+                ));
             }
+            row.push(format!("{:.2}", Summary::of(&z_all).rms));
+            t.row(row);
         }
     }
     t
@@ -296,6 +292,7 @@ fn verdict_table(worlds: &[World], methods: &[String]) -> Table {
         ">median",
         ">max",
         ">own Ē_p: mean",
+        ">δ RMS error",
     ]);
     for (group, ws) in groups(worlds) {
         for (m, name) in methods.iter().enumerate() {
@@ -312,6 +309,7 @@ fn verdict_table(worlds: &[World], methods: &[String]) -> Table {
             let excess: Vec<f64> = rs.iter().map(|(w, r)| r.e_p_held_m - w.e_p_held_true_m).collect();
             let own: Vec<f64> = rs.iter().map(|(_, r)| r.e_p_fit_m).collect();
             let max = excess.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            let delta: Vec<f64> = rs.iter().map(|(w, r)| (r.delta - w.delta) * 1e3).collect();
             t.row([
                 group.clone(),
                 name.clone(),
@@ -326,6 +324,7 @@ fn verdict_table(worlds: &[World], methods: &[String]) -> Table {
                 format!("{:+.3} m", median(&excess)),
                 format!("{max:+.3} m"),
                 format!("{:.3} m", Summary::of(&own).mean),
+                format!("{:.2} mrad", Summary::of(&delta).rms),
             ]);
         }
     }
