@@ -350,7 +350,8 @@ fn eiv_outcome_table(worlds: &[World], methods: &[String]) -> Option<Table> {
                 let inside = rs.iter().filter(|(w, r)| z_scores(w, r)[i].abs() <= 1.96).count();
                 row.push(pct(inside, n));
             }
-            let accepted: Vec<&(&World, &Run)> = rs.iter().filter(|(_, r)| r.verdict == VerdictLevel::Accepted).collect();
+            let accepted: Vec<&(&World, &Run)> =
+                rs.iter().filter(|(_, r)| r.verdict == VerdictLevel::Accepted).collect();
             let beyond = accepted.iter().filter(|(w, r)| z_scores(w, r).iter().any(|z| z.abs() > 3.0)).count();
             row.push(pct(accepted.len(), n));
             row.push(format!("{beyond} ({})", pct(beyond, n)));
