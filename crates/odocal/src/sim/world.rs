@@ -10,13 +10,13 @@
 //!
 //! ## The distribution
 //!
-//! A world is **white-only** with probability [`WHITE_ONLY_PROBABILITY`]:
+//! A world is **white-only** with probability 0.2:
 //! white wheel noise, white reference position and heading noise, nothing
 //! else (a_y and β exact, no quantisation, no constant errors) — a world
 //! whose noise the errors-in-variables model, and so its Cramér–Rao bound,
 //! represents exactly. Otherwise it is **full**: every source is drawn on
 //! its own. "LU" is log-uniform; a source marked "off 15 %" is 0 with
-//! probability [`SOURCE_OFF_PROBABILITY`], else drawn from its range.
+//! probability 0.15, else drawn from its range.
 //!
 //! | setting | full world | white-only world |
 //! |---|---|---|
@@ -47,14 +47,12 @@
 //! ## The regime
 //!
 //! Per wheel and sample, the relative rotation error has a white part —
-//! the white noise and the encoder's counting error at
-//! [`NOMINAL_SPEED_M_PER_S`] and 40 Hz, `√(1/6)/(ticks·t_s·n)` — and a
-//! common-mode part — the common coloured noise and the slip at the
-//! simulator's RMS longitudinal acceleration
-//! [`NOMINAL_ACCELERATION_RMS_M_PER_S2`]; each part is the root sum of
-//! squares of its sources. A world is
-//! - [`NoiseRegime::Quiet`] when both parts together are below
-//!   [`QUIET_WHEEL_ERROR`] (0.2 %),
+//! the white noise and the encoder's counting error at 12 m/s (the mean
+//! speed of the simulator's drives) and 40 Hz, `√(1/6)/(ticks·t_s·n)` —
+//! and a common-mode part — the common coloured noise and the slip at
+//! 0.9 m/s², the RMS longitudinal acceleration of the simulator's drives;
+//! each part is the root sum of squares of its sources. A world is
+//! - [`NoiseRegime::Quiet`] when both parts together are below 0.2 %,
 //! - else [`NoiseRegime::CommonModeSlip`] when the common-mode part is the
 //!   larger,
 //! - else [`NoiseRegime::White`].
@@ -76,26 +74,26 @@ use super::NoiseOptions;
 /// The random stream of the world draw (a drive's streams are 0–12).
 const WORLD_STREAM: u64 = 1000;
 
-/// Probability that a drawn world is white-only (see the module doc).
-pub const WHITE_ONLY_PROBABILITY: f64 = 0.2;
+/// Probability that a drawn world is white-only.
+const WHITE_ONLY_PROBABILITY: f64 = 0.2;
 /// Probability that a source of a full world marked "off 15 %" is off.
-pub const SOURCE_OFF_PROBABILITY: f64 = 0.15;
+const SOURCE_OFF_PROBABILITY: f64 = 0.15;
 /// Probability that a full world has no encoder quantisation.
-pub const NO_QUANTISATION_PROBABILITY: f64 = 0.3;
+const NO_QUANTISATION_PROBABILITY: f64 = 0.3;
 /// Speed at which the regime counts the encoder's counting error, m/s:
 /// the mean speed of the simulator's drives while moving (11.4–13.9 m/s
 /// on 12 km drives of seeds 1–4).
-pub const NOMINAL_SPEED_M_PER_S: f64 = 12.0;
+const NOMINAL_SPEED_M_PER_S: f64 = 12.0;
 /// RMS longitudinal acceleration of the simulator's drives, m/s²: the
 /// regime's slip size per sample (0.80–0.99 m/s² on 12 km drives of seeds
 /// 1–4).
-pub const NOMINAL_ACCELERATION_RMS_M_PER_S2: f64 = 0.9;
+const NOMINAL_ACCELERATION_RMS_M_PER_S2: f64 = 0.9;
 /// RMS over a drive of the longitudinal acceleration's 10 s mean, m/s²:
 /// the slip's share of a 10 s mean error (0.42–0.57 m/s², as above).
-pub const NOMINAL_ACCELERATION_RMS_10S_M_PER_S2: f64 = 0.5;
+const NOMINAL_ACCELERATION_RMS_10S_M_PER_S2: f64 = 0.5;
 /// Below this relative wheel error per sample (white and common-mode parts
-/// together) a world is [`NoiseRegime::Quiet`].
-pub const QUIET_WHEEL_ERROR: f64 = 0.002;
+/// together) a world is quiet.
+const QUIET_WHEEL_ERROR: f64 = 0.002;
 /// Sample time of the regime's numbers, s (the simulator's 40 Hz).
 const SAMPLE_TIME_S: f64 = 0.025;
 /// Averaging time of [`WorldSummary`]'s 10 s numbers, s.
@@ -115,23 +113,14 @@ pub enum NoiseRegime {
     CommonModeSlip,
 }
 
-impl NoiseRegime {
-    /// Every regime, in table order.
-    pub const ALL: [NoiseRegime; 3] = [NoiseRegime::Quiet, NoiseRegime::White, NoiseRegime::CommonModeSlip];
-
-    /// The name in tables: `quiet`, `white`, `common-mode/slip`.
-    pub fn name(self) -> &'static str {
-        match self {
+/// The name in tables: `quiet`, `white`, `common-mode/slip`.
+impl std::fmt::Display for NoiseRegime {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
             NoiseRegime::Quiet => "quiet",
             NoiseRegime::White => "white",
             NoiseRegime::CommonModeSlip => "common-mode/slip",
-        }
-    }
-}
-
-impl std::fmt::Display for NoiseRegime {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
+        })
     }
 }
 
@@ -373,7 +362,7 @@ mod tests {
         };
         let white_only = frac(&|w| w.1.white_only);
         assert!((0.17..0.23).contains(&white_only), "white-only {white_only}");
-        for r in NoiseRegime::ALL {
+        for r in [NoiseRegime::Quiet, NoiseRegime::White, NoiseRegime::CommonModeSlip] {
             let f = frac(&|w| w.1.regime == r);
             assert!(f > 0.1, "{r}: {f}");
         }
