@@ -51,7 +51,7 @@ pub struct DemoArgs {
     /// Route length, km.
     #[arg(long, default_value_t = 24.0)]
     length_km: f64,
-    /// paper (default), off, white or high noise.
+    /// paper (default), off, white, high or random:N noise.
     #[arg(long, default_value = "paper", hide_default_value = true)]
     noise: String,
     /// Also write the simulated drive here.

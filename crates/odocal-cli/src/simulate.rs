@@ -23,7 +23,9 @@ pub struct SimulateArgs {
     /// fingerprint) is written beside it, with the extension .json.
     #[arg(long)]
     out: PathBuf,
-    /// Noise preset: paper, off, white (white wheel noise only) or high.
+    /// Noise preset: paper, off, white (white wheel noise only), high, or
+    /// random:N, the random noise world of seed N (every source drawn from
+    /// a wide range; docs/reference.md, "Random noise worlds").
     #[arg(long, default_value = "paper")]
     noise: String,
     /// True θ as c_e,c_d,t_r,d in SI units (c_d in m, d in m per m/s²), or a
@@ -64,6 +66,17 @@ pub fn run(a: SimulateArgs, bars: &Bars) -> Result<()> {
     bars.finish();
     out.drive.write_csv(&a.out)?;
     out.sidecar.write_json(&side)?;
+    if a.noise.starts_with("random:") {
+        let w = sim::WorldSummary::of(&o.noise);
+        println!(
+            "noise world {}: {} ({}), wheel error per sample {:.2} % white, {:.2} % common-mode and slip",
+            a.noise,
+            w.regime,
+            if w.white_only { "white noise only" } else { "every source drawn" },
+            w.wheel_white_rel * 100.0,
+            w.wheel_common_slip_rel * 100.0
+        );
+    }
     let s = &out.sidecar.stats;
     println!(
         "wrote {} ({} samples, {:.2} km, {:.0} s, max yaw rate {:.2} rad/s, max |a_y| {:.2} m/s², wheel error {:.2} % rms) and {}",
