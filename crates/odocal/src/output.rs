@@ -22,11 +22,11 @@
 //! name. `-` (stdout) is never a file.
 //!
 //! ```
-//! # fn main() -> Result<(), odocal::Error> {
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! use odocal::output::{check_collisions, FileRole};
-//! let dir = tempfile::tempdir().map_err(|e| odocal::Error::io(std::path::Path::new("."), e))?;
+//! let dir = tempfile::tempdir()?;
 //! let drive = dir.path().join("drive.csv");
-//! std::fs::write(&drive, "t,px\n").map_err(|e| odocal::Error::io(&drive, e))?;
+//! std::fs::write(&drive, "t,px\n")?;
 //! let inputs = [FileRole::new("the drive being calibrated", &drive)];
 //! let outputs = [FileRole::new("--json", dir.path().join("./drive.csv"))];
 //! let e = check_collisions(&inputs, &outputs).unwrap_err().to_string();

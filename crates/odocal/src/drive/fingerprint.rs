@@ -30,8 +30,8 @@ impl Drive {
     /// [`Drive::write_csv`] and read back has the fingerprint it had.
     ///
     /// ```
-    /// # fn main() -> Result<(), odocal::Error> {
-    /// use odocal::drive::{Drive, Signals};
+    /// # fn main() -> Result<(), Box<dyn std::error::Error>> {
+    /// use odocal::{Drive, Signals};
     /// let t: Vec<f64> = (0..4).map(|k| k as f64 * 0.1).collect();
     /// let mut s = Signals::with_capacity(4);
     /// for k in 0..4 {
@@ -40,7 +40,7 @@ impl Drive {
     /// let d = Drive::builder(t, s).build()?;
     /// assert_eq!(d.fingerprint().len(), 64);
     /// let mut csv = Vec::new();
-    /// d.write_csv_to(&mut csv).map_err(|e| odocal::Error::io(std::path::Path::new("-"), e))?;
+    /// d.write_csv_to(&mut csv)?;
     /// let back = Drive::parse_csv(&csv, std::path::Path::new("d.csv"))?;
     /// assert_eq!(back.fingerprint(), d.fingerprint());
     /// # Ok(()) }
