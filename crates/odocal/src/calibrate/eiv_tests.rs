@@ -55,7 +55,10 @@ fn noise_free_drive_returns_theta_true() {
 /// smaller. (With η estimated from the production-car model this drive
 /// fails the checks and the method falls back: measured on 8 km with 2 %
 /// white noise, c_e ran to 2.22 m, unstable across halves, not converged.)
+/// In the slow tier (an accuracy claim); `eiv::tests::scoring` makes the
+/// same comparison with the estimator alone (seed 1) in the default tier.
 #[test]
+#[ignore = "slow tier, an accuracy claim (~9 s of CPU): cargo test --workspace -- --ignored"]
 fn white_noise_drive_beats_batch_gauss_newton_on_t_r() {
     let out =
         simulate(&SimOptions { length_km: 12.0, noise: NoiseOptions::white_wheel_only(), ..SimOptions::paper(3) })

@@ -1,19 +1,19 @@
 //! Cross-run check on the six test-track runs of 2024-08-05:
 //! calibrate on each run (or on a pair of runs), validate on the others.
 //!
-//! Measured (release, `cargo run --release -p odocal --example
-//! testtrack_crossrun -- …`; README, "Cross-run check on the test track",
-//! quotes the tables and the diagnosis): the track is banked (≈ 5.4° in
-//! the curves), and with the manifests' `[lateral_acceleration.bank]` (a_y
-//! the lateral specific force a_y·cos φ − g·sin φ, φ from the rear
-//! antennas) the 3-step on each single run meets the cross-run
-//! criterion: never worse than θ_0 on another run, mean cross-run Ē_p
-//! 2.30 m within 1.5 × the mean own fit 1.56 m (ratio 1.47), none
-//! rejected. Without the bank it does not (ratio 1.89, 3 of 30 pairs worse
-//! than θ_0): the counter-clockwise and clockwise runs want c_d 0.8 mm
-//! apart. With d held at 0 the bank cannot act (the term is d·g·sin φ) and
-//! the single-run criterion still fails (ratio 1.71–1.81). These tests
-//! assert:
+//! The lab program `testtrack_crossrun` prints the tables
+//! (`cargo run --release --manifest-path crates/odocal-lab/Cargo.toml --bin
+//! testtrack_crossrun`; docs/validation.md, "Test track: cross-run", quotes
+//! them and the diagnosis): the track is banked (≈ 5.4° in the curves), and
+//! with the manifests' `[lateral_acceleration.bank]` (a_y the lateral
+//! specific force a_y·cos φ − g·sin φ, φ from the rear antennas) the 3-step
+//! on each single run meets the cross-run criterion: never worse than θ_0
+//! on another run, mean cross-run Ē_p 2.30 m within 1.5 × the mean own fit
+//! 1.56 m (ratio 1.47), none rejected. Without the bank it does not (ratio
+//! 1.89, 3 of 30 pairs worse than θ_0): the counter-clockwise and clockwise
+//! runs want c_d 0.8 mm apart. With d held at 0 the bank cannot act (the
+//! term is d·g·sin φ) and the single-run criterion still fails (ratio
+//! 1.71–1.81). These tests assert:
 //! - the default method (eiv) and the 3-step on each run:
 //!   the full criterion (every run calibrates, never worse than θ_0 on
 //!   another run, ratio ≤ 1.5, at most two rejected and not all), and each
@@ -27,10 +27,11 @@
 //! - the same pairs with the 3-step: ratio ≤ 1.5, none failed, at most two
 //!   rejected.
 //!
-//! The first two run in every `cargo test` (about 10 s of CPU each,
-//! measured: the test profile is optimised); the others, about as long each,
-//! stay `#[ignore]`d to keep CI's test stage short: run them with `cargo test
-//! --release -p odocal --test integration testtrack_crossrun:: -- --ignored`.
+//! The default method's check runs in every `cargo test` (about 4 s of CPU
+//! in the test profile, which is optimised); the others take 5–10 s each
+//! and are in the slow tier, `#[ignore]`d: `cargo test --workspace --
+//! --ignored` runs them with the rest of that tier, `cargo test -p odocal
+//! --test integration testtrack_crossrun:: -- --ignored` alone.
 //! The data live in `data/` at the repository root.
 
 use odocal::crossrun::{cross_run_groups, CrossRunTable, CROSS_RUN_OWN_FIT_RATIO};
@@ -98,9 +99,9 @@ fn three_step() -> CalibrationOptions {
 }
 
 /// The default method (eiv) meets the criterion and is no worse than batch
-/// G-N on all segments across runs (measured: mean Ē_p on the other runs 1.59 m against 2.31 m; ratio 1.40). Not
-/// ignored: twelve calibrations and 60 validations take about 10 s of CPU in
-/// the test profile (opt-level 2), measured.
+/// G-N on all segments across runs (measured: mean Ē_p on the other runs
+/// 1.59 m against 2.31 m; ratio 1.40). In the default tier: twelve
+/// calibrations and 60 validations take about 4 s of CPU in the test profile.
 #[test]
 fn default_method_meets_the_cross_run_criterion_and_beats_batch_gn() {
     let t = table(&CalibrationOptions::default(), false);
@@ -119,6 +120,7 @@ fn default_method_meets_the_cross_run_criterion_and_beats_batch_gn() {
 /// The paper's 3-step meets it too (measured:
 /// 2.30 m on the others against 1.56 m own; ratio 1.47).
 #[test]
+#[ignore = "slow tier, six calibrations (~10 s of CPU): cargo test --workspace -- --ignored"]
 fn three_step_meets_the_cross_run_criterion_on_single_runs() {
     let t = table(&three_step(), false);
     let c = t.criteria(CROSS_RUN_OWN_FIT_RATIO);
@@ -127,7 +129,7 @@ fn three_step_meets_the_cross_run_criterion_on_single_runs() {
 }
 
 #[test]
-#[ignore = "six calibrations: slow in debug; run with --release -- --ignored"]
+#[ignore = "slow tier, six calibrations: cargo test --workspace -- --ignored"]
 fn batch_gn_with_d_held_improves_on_theta0_across_runs() {
     let t = table(&batch_gn_all_segments_d_held(), false);
     assert_each_theta_improves(&t);
@@ -138,7 +140,7 @@ fn batch_gn_with_d_held_improves_on_theta0_across_runs() {
 }
 
 #[test]
-#[ignore = "nine calibrations: slow in debug; run with --release -- --ignored"]
+#[ignore = "slow tier, nine calibrations: cargo test --workspace -- --ignored"]
 fn pairs_of_opposite_directions_meet_the_cross_run_criterion() {
     let t = table(&batch_gn_all_segments_d_held(), true);
     let c = t.criteria(CROSS_RUN_OWN_FIT_RATIO);
@@ -148,7 +150,7 @@ fn pairs_of_opposite_directions_meet_the_cross_run_criterion() {
 }
 
 #[test]
-#[ignore = "nine calibrations: slow in debug; run with --release -- --ignored"]
+#[ignore = "slow tier, nine calibrations: cargo test --workspace -- --ignored"]
 fn three_step_on_pairs_keeps_the_cross_run_ratio() {
     let t = table(&three_step(), true);
     let c = t.criteria(CROSS_RUN_OWN_FIT_RATIO);

@@ -36,11 +36,11 @@ fn noise_free_recovers_theta_true_and_eta_at_lower_clamp() {
 }
 
 /// The same with encoder quantisation modelled by counting (remainder
-/// states): θ_true to rounding. Ignored by default (a second 6 km fit is
-/// too slow for the debug test budget; a 1.5 km drive leaves t_r
-/// unobservable): `cargo test --release -p odocal --lib -- --ignored counting`.
+/// states): θ_true to rounding. In the slow tier (a second 6 km fit; a
+/// 1.5 km drive leaves t_r unobservable):
+/// `cargo test -p odocal --lib -- --ignored counting`.
 #[test]
-#[ignore = "slow in debug; run in release with --ignored"]
+#[ignore = "slow tier, a second 6 km fit: cargo test --workspace -- --ignored"]
 fn noise_free_recovers_theta_true_with_counting_quantisation() {
     let out = simulate(&SimOptions { length_km: 6.0, substeps: 1, ..SimOptions::noise_free(11) }).expect("sim");
     let truth = out.sidecar.theta_true;
