@@ -95,28 +95,15 @@ impl<const S: usize> Innovation<S> {
 /// The per-update work arrays of the covariance-derivative columns (only
 /// the entries of the propagated columns are written; the rest stay zero,
 /// as the records expect).
-pub(super) struct ColumnWork<const S: usize> {
+pub(super) struct ColumnWork<'w, const S: usize> {
     /// `∂S/∂p_j`.
-    pub(super) ds: [Matrix3<f64>; NP],
+    pub(super) ds: &'w mut [Matrix3<f64>; NP],
     /// `S⁻¹ ∂S/∂p_j`.
-    a: [Matrix3<f64>; NP],
+    pub(super) a: &'w mut [Matrix3<f64>; NP],
     /// Columns of `∂K ν`.
-    dkn: DZ<S>,
+    pub(super) dkn: &'w mut DZ<S>,
     /// `H ∂P⁻/∂p_j` (for ∂S and again in the Joseph form).
-    hdps: [M3xZ<S>; NP],
-}
-
-impl<const S: usize> ColumnWork<S> {
-    /// All zero.
-    #[inline(always)]
-    pub(super) fn zero() -> Self {
-        ColumnWork {
-            ds: [Matrix3::zeros(); NP],
-            a: [Matrix3::zeros(); NP],
-            dkn: DZ::<S>::zeros(),
-            hdps: [M3xZ::<S>::zeros(); NP],
-        }
-    }
+    pub(super) hdps: &'w mut [M3xZ<S>; NP],
 }
 
 /// What the window accumulates: its sums ([`WindowSums`]), the previous
@@ -183,16 +170,16 @@ impl Accumulator {
         lin: &Linearisation<S>,
         inn: &Innovation<S>,
         dp: &[MZ<S>; NP],
-        work: &mut ColumnWork<S>,
+        work: &mut ColumnWork<'_, S>,
         jacobian: &mut InputJacobianState<S>,
     ) -> SMatrix<f64, 3, 4> {
         let (mut info, g_t) = score_columns(setup, lin, inn, dp, work, &mut self.out);
-        jacobian.add_share_eta_terms(setup, inn, &work.ds, &mut self.out);
-        add_trace_information(setup.cols(), &work.a, &mut info);
+        jacobian.add_share_eta_terms(setup, inn, work.ds, &mut self.out);
+        add_trace_information(setup.cols(), work.a, &mut info);
         let out = &mut self.out;
         let mut dr = SMatrix::<f64, 3, 4>::zeros();
         if setup.theta_cols {
-            dr = whitened_derivatives(inn, &work.ds);
+            dr = whitened_derivatives(inn, work.ds);
             out.h_theta += dr.transpose() * dr;
         } else if !setup.follows {
             out.h_theta += info.fixed_view::<4, 4>(0, 0);
@@ -239,7 +226,7 @@ fn score_columns<const S: usize>(
     lin: &Linearisation<S>,
     inn: &Innovation<S>,
     dp: &[MZ<S>; NP],
-    work: &mut ColumnWork<S>,
+    work: &mut ColumnWork<'_, S>,
     out: &mut WindowSums,
 ) -> (MP, Vector4<f64>) {
     let (hd, sinv, sinv_nu) = (&inn.hd, &inn.sinv, &inn.sinv_nu);
@@ -375,7 +362,7 @@ pub(super) fn update_sensitivities<const S: usize, K: KernelCalls>(
     inn: &Innovation<S>,
     d: &mut DZ<S>,
     dp: &mut [MZ<S>; NP],
-    work: &ColumnWork<S>,
+    work: &ColumnWork<'_, S>,
 ) {
     *d -= inn.k * inn.hd;
     for &jj in setup.cols() {

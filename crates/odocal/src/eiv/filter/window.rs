@@ -513,7 +513,12 @@ pub(super) fn run_window_s<const S: usize, K: KernelCalls>(
     let mut xcov = [MZ::<S>::zeros(); 4];
     // ∂Q/∂θ_j and the θ-derivatives of F̄ applied to P⁺ (rows 0..3).
     let mut theta_terms = [M3xZ::<S>::zeros(); 4];
-    let mut work = ColumnWork::<S>::zero();
+    // Per-update work arrays (only the entries of `cols` are written; the
+    // rest stay zero, as the records expect).
+    let mut ds = [Matrix3::<f64>::zeros(); NP];
+    let mut a = [Matrix3::<f64>::zeros(); NP];
+    let mut dkn = DZ::<S>::zeros();
+    let mut hdps = [M3xZ::<S>::zeros(); NP];
     let mut jacobian = InputJacobianState::new(&setup);
     let mut acc = Accumulator::new();
     for i in window.start..window.end {
@@ -542,12 +547,13 @@ pub(super) fn run_window_s<const S: usize, K: KernelCalls>(
             null_moments::<S, K>(&setup, &lin, &inn, &mut p0, &mut c0, &mut acc.out);
         }
         if mode.derivs {
+            let mut work = ColumnWork { ds: &mut ds, a: &mut a, dkn: &mut dkn, hdps: &mut hdps };
             let dr = acc.add_derivatives(&setup, &lin, &inn, &dp, &mut work, &mut jacobian);
             if setup.corrected {
                 add_corrected_bias(&inn, &mut xcov, &mut acc.out);
             }
             if let Some(rec) = record.as_deref_mut() {
-                rec.push(InnovationRecord { nu: inn.nu, s: inn.s_mat, dnu: -inn.hd, ds: work.ds, r: inn.e, dr });
+                rec.push(InnovationRecord { nu: inn.nu, s: inn.s_mat, dnu: -inn.hd, ds: *work.ds, r: inn.e, dr });
             }
             update_sensitivities::<S, K>(&setup, &lin, &inn, &mut d, &mut dp, &work);
         }
