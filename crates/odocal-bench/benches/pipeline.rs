@@ -10,7 +10,7 @@
 //!   (linear growth expected);
 //! - `eiv_calibrate`: `calibrate` with batch G-N, EIV with the noise model
 //!   fixed and EIV with it estimated (the method's default), side by side on
-//!   12/24/48 km (`examples/eiv_speed.rs` is the quicker way to iterate).
+//!   12/24/48 km (`eiv_speed` in crates/odocal-lab is the quicker way to iterate).
 
 use std::hint::black_box;
 use std::time::Duration;

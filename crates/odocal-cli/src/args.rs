@@ -8,10 +8,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Result};
 use clap::{ArgAction, Args};
-use odocal::calibrate::settings::{ManifestSettings, SettingUse};
-use odocal::{CalibrationOptions, FinalSegments, Method, ParamSet, SolverKind, Theta, ThreeStepOptions};
-
-use crate::settings;
+use odocal::calibrate::settings::{NoiseModelSetting, Settings};
+use odocal::{FinalSegments, Method, ParamSet, SolverKind, Theta};
 
 /// Help heading of the segment and Gauss-Newton options.
 const SEGMENTS: &str = "Segments and Gauss-Newton";
@@ -38,8 +36,9 @@ pub struct HelpArgs {
     help_all: Option<bool>,
 }
 
-/// The options of a calibration (`calibrate`, `demo`); [`CalibrationArgs::options`]
-/// maps them, with a manifest's settings, to the library's options.
+/// The options of a calibration (`calibrate`, `demo`): the library's
+/// calibration settings ([`CalibrationArgs::settings`]) and the reports to
+/// write.
 #[derive(Args, Clone)]
 pub struct CalibrationArgs {
     /// three-step, batch-gn or eiv (default).
@@ -49,8 +48,8 @@ pub struct CalibrationArgs {
     /// when its consistency checks fail. three-step: the paper's method
     /// (random batches, input compensation by a QP, a final fit). batch-gn:
     /// one Gauss-Newton fit over the selected segments.
-    #[arg(long, default_value = "eiv", hide_default_value = true)]
-    pub method: Method,
+    #[arg(long)]
+    pub method: Option<Method>,
     /// θ_0: c_e,c_d,t_r,d (SI) or a parameter file.
     ///
     /// The initial guess. In SI units: c_d in m, d in m per m/s². A parameter file is one that
@@ -134,9 +133,9 @@ pub struct CalibrationArgs {
     /// vehicle heading): held, or the start of --estimate. Default 0.
     #[arg(long, allow_hyphen_values = true, help_heading = EXTRINSICS, hide_short_help = true)]
     pub heading_offset: Option<f64>,
-    /// Seed of the random batches.
-    #[arg(long, default_value_t = 0, help_heading = THREE_STEP, hide_short_help = true)]
-    pub seed: u64,
+    /// Seed of the random batches [default: 0].
+    #[arg(long, help_heading = THREE_STEP, hide_short_help = true)]
+    pub seed: Option<u64>,
     /// QP solver for input compensation, structured (default) or clarabel.
     #[arg(long, help_heading = THREE_STEP, hide_short_help = true)]
     pub qp_solver: Option<SolverKind>,
@@ -208,9 +207,10 @@ pub struct CalibrationArgs {
     #[arg(long, value_name = "B", help_heading = EIV_BIAS, hide_short_help = true)]
     pub bootstrap: Option<usize>,
     /// Seed of the bootstrap's replicates (--bootstrap, and the bias
-    /// correction: the default one and --correct-bias, --correct-c-e-bias).
-    #[arg(long, default_value_t = 0, help_heading = EIV_BIAS, hide_short_help = true)]
-    pub bootstrap_seed: u64,
+    /// correction: the default one and --correct-bias, --correct-c-e-bias)
+    /// [default: 0].
+    #[arg(long, help_heading = EIV_BIAS, hide_short_help = true)]
+    pub bootstrap_seed: Option<u64>,
     /// Subtract the estimator's own c_e bias only, estimated by a parametric
     /// bootstrap with B replicates (seed --bootstrap-seed); about B extra
     /// fits of time. It replaces the default correction of every parameter
@@ -264,185 +264,44 @@ pub enum HalfArg {
 }
 
 impl CalibrationArgs {
-    /// The method with the flags that belong to it; a flag of another
-    /// method is an error (batch-gn would otherwise ignore it silently).
-    fn method(&self) -> Result<Method> {
-        let three_step_flags = [
-            ("--batches", self.batches.is_some()),
-            ("--batch-size", self.batch_size.is_some()),
-            ("--picks", self.picks.is_some()),
-            ("--final-segments", self.final_segments.is_some()),
-            ("--qp-solver", self.qp_solver.is_some()),
-        ];
-        let eiv_flags = [
-            ("--noise-model", self.noise_model.is_some()),
-            ("--known-noise", !self.known_noise.is_empty()),
-            ("--fix-noise", self.fix_noise),
-            ("--no-fallback", self.no_fallback),
-            ("--eiv-window", self.eiv_window.is_some()),
-            ("--quantisation", self.quantisation.is_some()),
-            ("--quantisation-level", self.quantisation_level.is_some()),
-            ("--lateral-noise", self.lateral_noise.is_some()),
-            ("--heading-noise", self.heading_noise.is_some()),
-            ("--bootstrap", self.bootstrap.is_some()),
-            ("--bootstrap-seed", self.bootstrap_seed != 0),
-            ("--correct-c-e-bias", self.correct_c_e_bias.is_some()),
-            ("--correct-bias", self.correct_bias.is_some()),
-            ("--no-bias-correction", self.no_bias_correction),
-        ];
-        let reject = |flags: &[(&str, bool)], owner: &str, other: &Method| -> Result<()> {
-            let given: Vec<&str> = flags.iter().filter(|f| f.1).map(|f| f.0).collect();
-            if !given.is_empty() {
-                bail!(
-                    "{} appl{} to --method {owner} only, not to --method {other}",
-                    given.join(", "),
-                    if given.len() == 1 { "ies" } else { "y" }
-                );
-            }
-            Ok(())
-        };
-        if !matches!(self.method, Method::Eiv(_)) {
-            reject(&eiv_flags, "eiv", &self.method)?;
-        }
-        Ok(match &self.method {
-            Method::ThreeStep(defaults) => {
-                let mut o: ThreeStepOptions = defaults.clone();
-                if let Some(v) = self.batches {
-                    o.initial_batches = v;
-                }
-                if let Some(v) = self.batch_size {
-                    o.initial_batch_size = v;
-                }
-                if let Some(v) = self.picks {
-                    o.picks = v;
-                }
-                if let Some(v) = self.final_segments {
-                    o.final_segments = v;
-                }
-                if let Some(v) = self.qp_solver {
-                    o.qp.solver = v;
-                }
-                Method::ThreeStep(o)
-            }
-            Method::Eiv(defaults) => {
-                reject(&three_step_flags, "three-step", &self.method)?;
-                if self.keep_one_way {
-                    bail!("--keep-one-way applies to the segment-selecting methods (three-step, batch-gn), not to --method eiv");
-                }
-                let mut o = defaults.clone();
-                if let Some(p) = &self.noise_model {
-                    odocal::calibrate::eiv::read_noise_model(p)?.apply(&mut o.filter);
-                }
-                // A manifest's [noise] `known` adds to these when it applies.
-                o.filter.hold_known(&self.known_noise);
-                o.filter.fix_noise = self.fix_noise;
-                o.fallback = !self.no_fallback;
-                if let Some(v) = self.eiv_window {
-                    o.filter.window_samples = v;
-                }
-                if let Some(q) = self.quantisation {
-                    o.filter.quantisation = q;
-                }
-                if let Some(l) = self.quantisation_level {
-                    o.filter.quantisation_level = l;
-                }
-                if let Some(l) = self.lateral_noise {
-                    o.filter.lateral_noise = l;
-                }
-                if let Some(h) = self.heading_noise {
-                    o.filter.heading_scale = h;
-                }
-                if let Some(b) = self.correct_c_e_bias {
-                    o.filter.bias_correction = odocal::eiv::BiasCorrection::Bootstrap {
-                        replicates: b,
-                        seed: self.bootstrap_seed,
-                        all_parameters: false,
-                    };
-                }
-                // The default bias correction (B = 4) takes the bootstrap seed;
-                // --correct-bias sets B, --no-bias-correction turns it off.
-                o.correct_bias = if self.no_bias_correction {
-                    None
-                } else {
-                    let replicates = self.correct_bias.unwrap_or(odocal::calibrate::DEFAULT_BIAS_REPLICATES);
-                    Some(odocal::calibrate::CorrectBias { replicates, seed: self.bootstrap_seed })
-                };
-                if let Some(b) = self.bootstrap {
-                    o.bootstrap = Some(odocal::eiv::BootstrapOptions {
-                        replicates: b,
-                        seed: self.bootstrap_seed,
-                        ..Default::default()
-                    });
-                }
-                Method::Eiv(o)
-            }
-            other => {
-                reject(&three_step_flags, "three-step", other)?;
-                other.clone()
-            }
-        })
-    }
-
-    /// The options from the flags and, where a flag is not given, the
-    /// manifest's settings (what became of each is returned).
-    pub fn options(&self, manifest: Option<&ManifestSettings>) -> Result<(CalibrationOptions, Vec<SettingUse>)> {
-        let mut o = CalibrationOptions {
-            method: self.method()?,
+    /// The calibration settings the flags give (the library checks them
+    /// and maps them to its options).
+    pub fn settings(&self) -> Result<Settings> {
+        let lever_arm = self.lever_arm.as_deref().map(parse_lever_arm).transpose()?;
+        Ok(Settings {
+            method: self.method.clone(),
+            theta0: self.theta0.as_ref().map(|t| t.theta),
+            fix: self.fix,
+            auto_fix: self.auto_fix.then_some(true),
             seed: self.seed,
-            auto_fix: self.auto_fix,
-            ..Default::default()
-        };
-        if let Some(t) = &self.theta0 {
-            o.theta0 = t.theta;
-        }
-        let uses = manifest.map(|m| m.apply(&mut o, settings::given(self))).unwrap_or_default();
-        if let Some(e) = self.estimate {
-            let theta = e.intersection(ParamSet::THETA);
-            if !theta.is_empty() {
-                bail!(
-                    "--estimate takes lever-arm, heading-offset (or lever_x, lever_y, heading_offset), not {theta}: \
-                     θ is estimated by default (hold parameters with --fix)"
-                );
-            }
-            o.identify.free = o.identify.free.union(e);
-        }
-        if let Some(s) = &self.lever_arm {
-            let v: Vec<&str> = s.split(',').map(str::trim).collect();
-            let parsed: Vec<f64> = v.iter().filter_map(|x| x.parse::<f64>().ok()).collect();
-            if v.len() != 2 || parsed.len() != 2 {
-                bail!("--lever-arm takes X,Y in metres (x forward, y left), got '{s}'");
-            }
-            o.identify.extrinsics.lever_x = parsed[0];
-            o.identify.extrinsics.lever_y = parsed[1];
-        }
-        if let Some(v) = self.heading_offset {
-            o.identify.extrinsics.heading_offset = v;
-            o.hold_stated_heading_offset();
-        }
-        for p in self.fix.unwrap_or_default().iter() {
-            o.hold(p);
-        }
-        if let Some(v) = self.min_yaw_rate {
-            o.segments.min_peak_yaw_rate_rad_per_s = v;
-        }
-        if self.keep_one_way {
-            o.keep_one_way_selection = true;
-        }
-        if let Some(v) = self.segment_length {
-            o.segments.length_steps = v;
-        }
-        if let Some(v) = self.segment_stride {
-            o.segments.stride_steps = v;
-        }
-        if let Some(v) = self.validation_length {
-            o.validation.length_steps = v;
-            o.validation.stride_steps = (v / 2).max(1);
-        }
-        if let Some(v) = self.max_iterations {
-            o.identify.max_iterations = v;
-        }
-        o.validate()?;
-        Ok((o, uses))
+            max_iterations: self.max_iterations,
+            min_yaw_rate: self.min_yaw_rate,
+            keep_one_way: self.keep_one_way.then_some(true),
+            segment_length: self.segment_length,
+            segment_stride: self.segment_stride,
+            validation_length: self.validation_length,
+            estimate: self.estimate,
+            lever_arm,
+            heading_offset: self.heading_offset,
+            batches: self.batches,
+            batch_size: self.batch_size,
+            picks: self.picks,
+            final_segments: self.final_segments,
+            qp_solver: self.qp_solver,
+            noise_model: self.noise_model.clone().map(NoiseModelSetting::File),
+            known_noise: (!self.known_noise.is_empty()).then(|| self.known_noise.clone()),
+            fix_noise: self.fix_noise.then_some(true),
+            fallback: self.no_fallback.then_some(false),
+            eiv_window: self.eiv_window,
+            quantisation: self.quantisation,
+            quantisation_level: self.quantisation_level,
+            lateral_noise: self.lateral_noise,
+            heading_noise: self.heading_noise,
+            bootstrap: self.bootstrap,
+            bootstrap_seed: self.bootstrap_seed,
+            correct_c_e_bias: self.correct_c_e_bias,
+            correct_bias: if self.no_bias_correction { Some(0) } else { self.correct_bias },
+        })
     }
 }
 
@@ -465,6 +324,16 @@ impl std::str::FromStr for ThetaArg {
             return Ok(ThetaArg { theta: f.theta()?, file: Some((path.into(), f)) });
         }
         Ok(ThetaArg { theta: s.parse()?, file: None })
+    }
+}
+
+/// `--lever-arm X,Y`: two numbers, metres.
+fn parse_lever_arm(s: &str) -> Result<[f64; 2]> {
+    let v: Vec<&str> = s.split(',').map(str::trim).collect();
+    let parsed: Vec<f64> = v.iter().filter_map(|x| x.parse::<f64>().ok()).collect();
+    match parsed[..] {
+        [x, y] if v.len() == 2 => Ok([x, y]),
+        _ => bail!("--lever-arm takes X,Y in metres (x forward, y left), got '{s}'"),
     }
 }
 

@@ -6,16 +6,17 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::Args;
-use odocal::calibrate::settings::{ManifestSettings, SettingUse};
+use odocal::calibrate::settings::{Caller, ManifestSettings, SettingsAccount};
 use odocal::{
-    drive::segment, sim, CalibrationOptions, CalibrationReport, Drive, Holdout, MultiValidation, Theta, VerdictLevel,
+    drive::segment, sim, CalibrationOptions, CalibrationReport, Drive, Holdout, Method, MultiValidation, ParamSet,
+    Theta, VerdictLevel,
 };
 
 use crate::args::{CalibrationArgs, HalfArg, HelpArgs};
 use crate::io::{load_drive_with_scale, load_truth, print_warnings, write_json};
 use crate::progress::Bars;
 use crate::simulate::sim_options;
-use crate::{report, settings, Outcome};
+use crate::{report, Outcome};
 
 /// Arguments of `odocal calibrate`.
 #[derive(Args)]
@@ -131,8 +132,11 @@ fn run_calibration(
     truth_theta: Option<Theta>,
     bars: &Bars,
 ) -> Result<Outcome> {
-    let (opts, setting_uses) = args.options(manifest)?;
-    let noise_origin = settings::noise_origin(args, &setting_uses);
+    let settings = args.settings()?;
+    let resolved = settings.resolve(manifest, Caller::CommandLine)?;
+    let (opts, account) = (&resolved.options, &resolved.account);
+    // The extrinsics the command line gives apply to every validation drive.
+    let given = settings.stated_extrinsics();
     let others = load_validation_drives(&args.validate_on)?;
     let holdout = holdout(args.holdout, &others)?;
     // The halves are copies only when a hold-out is asked for.
@@ -141,8 +145,8 @@ fn run_calibration(
         Some((fit, held)) => (fit.as_ref(), Some(held.as_ref())),
         None => (drive, None),
     };
-    let (r, per_drive) =
-        calibrate(drive, fit, held, &others, args, &opts, bars).map_err(|e| with_hint(e, source, args, bars))?;
+    let (r, per_drive) = calibrate(drive, fit, held, &others, given, opts, bars)
+        .map_err(|e| with_hint(e, source, args, &opts.method, bars))?;
     let wheel_scale = source.and_then(|(_, w)| w);
     let drive = held.unwrap_or(drive);
     bars.finish();
@@ -163,7 +167,7 @@ fn run_calibration(
         f.write(p)?;
     }
     if let Some(p) = &args.report {
-        write_html_report(p, drive, &r, &opts, &input, truth_ref)?;
+        write_html_report(p, drive, &r, opts, &input, truth_ref)?;
     }
     let outcome = if r.verdict.level == VerdictLevel::Rejected { Outcome::Rejected } else { Outcome::Done };
     if let Some(p) = json {
@@ -171,14 +175,14 @@ fn run_calibration(
         if let (Some(m), Some(obj)) = (&per_drive, v.as_object_mut()) {
             obj.insert("validate_on".into(), serde_json::to_value(m)?);
         }
-        settings::add_to_json(&mut v, &setting_uses, noise_origin.as_deref())?;
+        account.add_to_json(&mut v)?;
         write_json(p, v)?;
         if p == Path::new("-") {
             print_warnings(&r.warnings);
             return Ok(outcome);
         }
     }
-    print_text_report(&r, truth_ref, wheel_scale, per_drive.as_ref(), &setting_uses, noise_origin.as_deref())?;
+    print_text_report(&r, truth_ref, wheel_scale, per_drive.as_ref(), account)?;
     Ok(outcome)
 }
 
@@ -207,13 +211,14 @@ fn holdout(half: Option<HalfArg>, others: &[OtherDrive]) -> Result<Option<Holdou
 }
 
 /// Runs the calibration on `fit`, validated on `held` or, with
-/// `--validate-on`, on each other drive.
+/// `--validate-on`, on each other drive (`given`: the extrinsics the
+/// command line states, which apply to each).
 fn calibrate(
     drive: &Drive,
     fit: &Drive,
     held: Option<&Drive>,
     others: &[OtherDrive],
-    args: &CalibrationArgs,
+    given: ParamSet,
     opts: &CalibrationOptions,
     bars: &Bars,
 ) -> odocal::Result<(CalibrationReport, Option<MultiValidation>)> {
@@ -229,7 +234,6 @@ fn calibrate(
             reference: m.as_ref().and_then(|m| m.reference.as_ref()),
         })
         .collect();
-    let given = settings::given_extrinsics(args);
     match validation.is_empty() {
         true => odocal::calibrate_held_out(fit, held, opts, Some(&cb)).map(|r| (r, None)),
         false => odocal::calibrate_validated_on(drive, &validation, given, opts, Some(&cb)).map(|(r, m)| (r, Some(m))),
@@ -242,6 +246,7 @@ fn with_hint(
     e: odocal::Error,
     source: Option<(&Path, Option<&str>)>,
     args: &CalibrationArgs,
+    method: &Method,
     bars: &Bars,
 ) -> anyhow::Error {
     if !matches!(e, odocal::Error::NotObservable { .. }) {
@@ -249,7 +254,7 @@ fn with_hint(
     }
     bars.finish();
     let hint = match source {
-        Some((p, _)) => format!("; run: {} (or add --auto-fix)", c_e_only_command(p, args)),
+        Some((p, _)) => format!("; run: {} (or add --auto-fix)", c_e_only_command(p, args, method)),
         None => "; or add --auto-fix".into(),
     };
     anyhow::anyhow!("{e}{hint}")
@@ -302,8 +307,7 @@ fn print_text_report(
     truth: Option<(&Theta, f64)>,
     wheel_scale: Option<&str>,
     per_drive: Option<&MultiValidation>,
-    setting_uses: &[SettingUse],
-    noise_origin: Option<&str>,
+    account: &SettingsAccount,
 ) -> Result<()> {
     let text = report::calibration(r, truth, wheel_scale);
     let (head, rest) = text.split_once('\n').unwrap_or((&text, ""));
@@ -314,7 +318,7 @@ fn print_text_report(
     if let Some(m) = per_drive {
         print!("{}", report::validate_on(m));
     }
-    print!("{}", settings::report(setting_uses, noise_origin));
+    print!("{}", account.lines());
     std::io::stdout().flush()?;
     Ok(())
 }
@@ -341,10 +345,10 @@ fn report_json(
     Ok(v)
 }
 
-/// The command line that calibrates c_e alone on `path`, with the user's
-/// other settings, for the error when c_d, t_r, d are not observable.
-fn c_e_only_command(path: &Path, args: &CalibrationArgs) -> String {
-    let mut cmd = format!("odocal calibrate {} --method {}", path.display(), args.method);
+/// The command line that calibrates c_e alone on `path` with `method`, with
+/// the user's other settings, for the error when c_d, t_r, d are not observable.
+fn c_e_only_command(path: &Path, args: &CalibrationArgs, method: &Method) -> String {
+    let mut cmd = format!("odocal calibrate {} --method {method}", path.display());
     if let Some(h) = args.holdout {
         cmd.push_str(match h {
             HalfArg::FirstHalf => " --holdout first-half",

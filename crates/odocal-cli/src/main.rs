@@ -23,7 +23,6 @@ mod inspect;
 mod io;
 mod progress;
 mod report;
-mod settings;
 mod simulate;
 mod validate;
 

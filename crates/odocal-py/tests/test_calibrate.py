@@ -85,8 +85,12 @@ def test_report_shortcuts(small_drive):
 
 
 def test_option_errors(small_drive):
-    with pytest.raises(TypeError, match="unknown option 'batchez'"):
+    with pytest.raises(TypeError, match="unknown option 'batchez'; options: method, theta0, .*, holdout, validate_on$"):
         odocal.calibrate(small_drive, batchez=3)
+    with pytest.raises(odocal.OdocalError, match="^invalid option `segment_length`: invalid type: string"):
+        odocal.calibrate(small_drive, "batch-gn", segment_length="long")
+    with pytest.raises(odocal.OdocalError, match="^invalid option `noise_model`: unknown field.s. wheel_whte"):
+        odocal.calibrate(small_drive, noise_model={"wheel_whte_rel_sigma": 0.01})
     with pytest.raises(odocal.OdocalError, match=r"^invalid option `initial_batches`: must be at least 1$"):
         odocal.calibrate(small_drive, "three-step", batches=0)
     with pytest.raises(odocal.OdocalError, match=r"'newton': use three-step, batch-gn or eiv"):

@@ -206,6 +206,27 @@ def test_keep_one_way_keyword_and_manifest_setting(odocal_bin, tmp_path):
     assert one_way_warnings(r) == [] and outcomes(r) == {"calibration.keep_one_way": "overridden"}
 
 
+def test_manifest_calibration_table_takes_any_setting(odocal_bin, csvs, tmp_path):
+    """The manifest's method is used unless one is given, and a key of another method is ignored,
+    saying so; the CLI reads the manifest the same way."""
+    manifest = tmp_path / "m.toml"
+    text = MANIFEST.format(csv=csvs[0].as_posix()).split("[noise]")[0]
+    manifest.write_text(text + '[calibration]\nmethod = "batch-gn"\nmin_yaw_rate = 0.2\nbatches = 6\npicks = 3\n')
+    m = odocal.Drive.from_manifest(manifest)
+    r = odocal.calibrate(m)
+    assert r.method == "batch-gn" and r.to_dict()["options"]["segments"]["min_peak_yaw_rate_rad_per_s"] == 0.2
+    assert outcomes(r) == {
+        "calibration.method": "used",
+        "calibration.min_yaw_rate": "used",
+        "calibration.batches": "ignored",
+        "calibration.picks": "ignored",
+    }
+    assert without_timing(r.to_dict()) == without_timing(cli_json(odocal_bin, "calibrate", manifest))
+    r = odocal.calibrate(m, "three-step", seed=2)
+    assert r.method == "three-step" and r.to_dict()["options"]["method"]["initial_batches"] == 6
+    assert outcomes(r)["calibration.method"] == "overridden" and outcomes(r)["calibration.batches"] == "used"
+
+
 def test_validate_on_applies_the_drives_own_reference(odocal_bin, csvs, tmp_path):
     manifest = tmp_path / "v.toml"
     text = MANIFEST.format(csv=csvs[1].as_posix()).split("[noise]")[0]

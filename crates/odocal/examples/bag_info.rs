@@ -1,8 +1,10 @@
 //! Lists a ROS 2 bag's topics like `ros2 bag info`, and with a topic also
-//! the first rows of its table.
+//! the first rows of its table: what a manifest's MCAP stream can read
+//! (feature `mcap`, on by default).
 //!
 //! ```sh
-//! cargo run -p odocal --example bag_info -- BAG.mcap [TOPIC [COLUMN ...]]
+//! cargo run -p odocal --example bag_info -- data/psu-mapping-van-2024-07-11/drive.mcap
+//! cargo run -p odocal --example bag_info -- BAG.mcap TOPIC [COLUMN ...]
 //! ```
 
 use odocal::io::bag::{self, TimeSource};

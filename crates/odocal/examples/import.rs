@@ -1,25 +1,36 @@
-//! Imports a drive manifest and writes the canonical CSV:
-//! `cargo run --release -p odocal --example import -- MANIFEST [OUT.csv]`.
+//! Imports a drive manifest (logs of wheel speeds, a reference pose and
+//! optionally an IMU, in CSV, MCAP or Parquet) into one drive, prints what
+//! the import did, counts the segments a calibration would use and writes
+//! the drive as odocal's CSV.
+//!
+//! ```sh
+//! cargo run --release -p odocal --example import -- examples/psu-mapping-van/manifest.toml van.csv
+//! ```
 
 use std::path::Path;
+
+use odocal::drive::segment::{calibration_segments, validation_segments};
+use odocal::{import, Manifest};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
     let manifest = args.get(1).ok_or("usage: import MANIFEST [OUT.csv]")?;
-    let m = odocal::io::import::Manifest::from_path(Path::new(manifest))?;
-    let imported = odocal::io::import::import(&m)?;
+    // Paths in a manifest are relative to the manifest (docs/reference.md, "The drive manifest").
+    let m = Manifest::from_path(Path::new(manifest))?;
+    let imported = import(&m)?;
+    // Streams, clock offset, gaps and the continuous parts kept.
     println!("{}", imported.report);
-    let sel = odocal::drive::segment::calibration_segments(&imported.drive, &odocal::SegmentOptions::default())?;
-    let val =
-        odocal::drive::segment::validation_segments(&imported.drive, &odocal::ValidationSegmentOptions::default())?;
+    let sel = calibration_segments(&imported.drive, &Default::default())?;
+    let val = validation_segments(&imported.drive, &Default::default())?;
     println!(
-        "  segments (SPEC defaults): {} cut, {} selected (peak yaw rate > 0.15 rad/s); {} validation segments",
+        "segments (SPEC defaults): {} cut, {} selected (peak yaw rate > 0.15 rad/s); {} validation segments",
         sel.all.len(),
         sel.selected.len(),
         val.len()
     );
     if let Some(out) = args.get(2) {
         imported.drive.write_csv(out)?;
+        println!("wrote {out}");
     }
     Ok(())
 }

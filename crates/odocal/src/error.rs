@@ -73,6 +73,11 @@ pub enum Error {
         /// What is wrong with it.
         reason: String,
     },
+    /// Command-line flags that cannot be used as given (a flag of another
+    /// method, a value a flag does not take); the message names the flags
+    /// (`--batches applies to --method three-step only, …`).
+    #[error("{0}")]
+    InvalidFlags(String),
     /// A parameter vector is invalid (not finite, non-positive track width...).
     #[error("invalid parameters: {0}")]
     InvalidTheta(String),

@@ -20,14 +20,15 @@ use crate::assess::position_error::mean_position_error;
 use crate::assess::reachable::{reachable_minimum, ReachableOptions};
 use crate::assess::warning::Warning;
 use crate::calibrate::{
-    calibrate_detailed, per_segment_identification, score_batches, BatchResult, CalibrationOptions, Method,
-    SegmentCounts, ThreeStepOptions,
+    calibrate_detailed, per_segment_identification, score_batches, BatchResult, CalibrationOptions, CalibrationReport,
+    InitialStep, Method, SegmentCounts, ThreeStepOptions,
 };
-use crate::compensate::CompensationStep;
-use crate::drive::segment::SegmentData;
+use crate::compensate::{CompensatedInputs, CompensationStep};
+use crate::drive::segment::{Segment, SegmentData};
 use crate::drive::Drive;
 use crate::eiv::{cramer_rao_bound, EivInput, EivOptions, NoiseModel};
 use crate::error::{Error, Result};
+use crate::identify::IdentifyOptions;
 use crate::model::{step, Theta};
 use crate::progress::{emit, Progress, ProgressFn};
 
@@ -384,29 +385,12 @@ pub fn run(
 ) -> Result<Experiment> {
     let mut timing = ExperimentTiming::default();
     let copts = &opts.calibration;
-    let three: &ThreeStepOptions = match &copts.method {
-        Method::ThreeStep(o) => o,
-        other => {
-            return Err(Error::InvalidOption {
-                field: "method",
-                reason: format!("the experiment runs the three-step method, not {other}"),
-            })
-        }
-    };
+    let three = three_step_options(copts)?;
 
     // The Cramér–Rao bound at θ_true with the true noise model.
     let t = Instant::now();
     let crb = cramer_rao_column(drive, theta_true, opts.noise.as_ref());
     timing.cramer_rao_bound = t.elapsed().as_secs_f64();
-    let scored = |theta: &Theta, e_p: f64| {
-        let error_vs_true = theta_true.map(|t| diff(theta, t));
-        Scored {
-            theta: *theta,
-            mean_position_error_m: e_p,
-            error_vs_true,
-            error_over_crb: error_vs_true.and_then(|e| crb.ratio(&e)),
-        }
-    };
 
     // The 3-step calibration (steps 1–3), keeping the compensated inputs.
     let t = Instant::now();
@@ -417,142 +401,286 @@ pub fn run(
         (Some(i), Some(c)) => (i, c),
         _ => return Err(Error::Numerical("the 3-step calibration returned no step 1/2 results".into())),
     };
-    let identify = &r.options.identify;
-    let validation = &det.validation;
-    let score = |theta: &Theta| -> Result<Scored> {
-        let v = mean_position_error(drive, validation, theta)?;
-        Ok(scored(theta, v.mean_position_error_m))
+    let ctx = Scorer {
+        drive,
+        theta_true,
+        crb,
+        validation: &det.validation,
+        theta0: &copts.theta0,
+        identify: &r.options.identify,
     };
-    let of = |b: &BatchResult| scored(&b.score.theta, b.score.mean_position_error_m);
 
     // Per-segment G-N, raw and compensated.
     let t = Instant::now();
     emit(progress, Progress::Stage { name: "per-segment G-N", total: 1 });
-    let raw_data: Vec<SegmentData> = det.selected.iter().map(|s| SegmentData::new(drive, s)).collect();
-    let comp_data = comp.segment_data(drive);
-    let raw_seg = per_segment_identification(drive, &raw_data, validation, &copts.theta0, identify);
-    let comp_seg = per_segment_identification(drive, &comp_data, validation, &copts.theta0, identify);
-    let comp_index = |start: usize| comp.segments.iter().position(|s| s.start == start);
-    let per_segment: Vec<SegmentRow> = det
-        .selected
-        .iter()
-        .zip(&raw_seg)
-        .map(|(s, rr)| SegmentRow {
-            start: s.start,
-            peak_yaw_rate_rad_per_s: s.peak_yaw_rate_rad_per_s,
-            raw: rr.as_ref().ok().map(of),
-            compensated: comp_index(s.start).and_then(|i| comp_seg[i].as_ref().ok().map(of)),
-        })
-        .collect();
+    let segs = ctx.per_segment(&det.selected, comp);
     emit(progress, Progress::Advance(1));
     timing.per_segment = t.elapsed().as_secs_f64();
 
     // The step-1 batches again, with compensated inputs.
     let t = Instant::now();
-    let comp_batches: Vec<Vec<usize>> =
-        init.batches.iter().map(|b| b.segment_starts.iter().filter_map(|&s| comp_index(s)).collect()).collect();
-    let comp_results = score_batches(drive, &comp_data, &comp_batches, validation, &copts.theta0, identify, None);
-    let batches: Vec<BatchRow> = init
-        .batches
-        .iter()
-        .zip(&comp_results)
-        .zip(&comp_batches)
-        .map(|((b, c), cb)| BatchRow {
-            segment_starts: b.segment_starts.clone(),
-            raw: of(b),
-            compensated: if cb.is_empty() { None } else { c.as_ref().ok().map(of) },
-            compensated_segments: cb.len(),
-        })
-        .collect();
+    let batches = ctx.compensated_batches(init, comp, &segs.comp_data);
     timing.compensated_batches = t.elapsed().as_secs_f64();
 
     // Reference points: truth, θ_nom, θ_0, θ_B,F and the reachable minimum.
-    let truth = theta_true.map(&score).transpose()?;
-    let nominal = score(&Theta::PAPER_NOMINAL)?;
-    let initial_guess = score(&copts.theta0)?;
-    let final_estimate = score(&r.theta)?;
-    let picked: Vec<Scored> = init.picked_batches.iter().map(|&i| of(&init.batches[i])).collect();
+    let truth = theta_true.map(|t| ctx.score(t)).transpose()?;
+    let nominal = ctx.score(&Theta::PAPER_NOMINAL)?;
+    let initial_guess = ctx.score(&copts.theta0)?;
+    let final_estimate = ctx.score(&r.theta)?;
+    let picked: Vec<Scored> = init.picked_batches.iter().map(|&i| ctx.of(&init.batches[i])).collect();
     let t = Instant::now();
-    let mut ro = opts.reachable.clone();
-    ro.starts.extend(picked.iter().map(|p| p.theta));
-    ro.starts.push(r.theta);
     emit(progress, Progress::Stage { name: "reachable minimum", total: 1 });
-    let rm = reachable_minimum(drive, validation, &ro)?;
+    let reach = ctx.reachable(&opts.reachable, &picked, &r.theta)?;
     emit(progress, Progress::Advance(1));
     timing.reachable_minimum = t.elapsed().as_secs_f64();
-    let reach = ReachableSummary {
-        scored: scored(&rm.theta, rm.mean_position_error_m),
-        evaluations: rm.evaluations,
-        time_s: rm.time_s,
-        termination: rm.termination.clone(),
-    };
 
     // Table 1: the compensated segment turning hardest, and the middle picked batch.
-    let seg_i = (0..comp.segments.len())
-        .filter(|&i| comp_seg[i].is_ok())
-        .max_by(|&x, &y| comp.segments[x].peak_yaw_rate_rad_per_s.total_cmp(&comp.segments[y].peak_yaw_rate_rad_per_s))
-        .ok_or_else(|| Error::NoSegments("no compensated segment could be identified on its own".into()))?;
-    let seg = comp.segments[seg_i];
-    let raw_i =
-        det.selected.iter().position(|s| s.start == seg.start).ok_or_else(|| {
-            Error::NoSegments(format!("the segment at sample {} is not among the selected", seg.start))
-        })?;
-    let batch_index = init
-        .picked_batches
-        .get(init.picked_batches.len() / 2)
-        .copied()
-        .filter(|&i| batches[i].compensated.is_some())
-        .or_else(|| batches.iter().position(|b| b.compensated.is_some()))
-        .ok_or_else(|| Error::NoSegments("no batch could be identified with compensated inputs".into()))?;
-    let no_batch = || Error::NoSegments("batch without compensated result".into());
-    let table1 = Table1 {
-        segment_start: seg.start,
-        segment_raw: raw_seg[raw_i].as_ref().map(of).map_err(|e| Error::Numerical(e.to_string()))?,
-        segment_compensated: comp_seg[seg_i].as_ref().map(of).map_err(|e| Error::Numerical(e.to_string()))?,
-        batch_index,
-        batch_starts: batches[batch_index].segment_starts.clone(),
-        batch_raw: batches[batch_index].raw,
-        batch_compensated: batches[batch_index].compensated.ok_or_else(no_batch)?,
-    };
-
+    let pick = table1_pick(&det.selected, comp, init, &segs, &batches)?;
+    let table1 = table1(&pick, comp, &segs, &batches, &ctx)?;
     // Figure 6: the Table 1 segment, dead reckoning at θ_B,F.
-    let (figure6, figure6_curves) = figure6_data(drive, &comp_data[seg_i], &raw_data[raw_i], &r.theta);
-    let identification = r
-        .identification()
-        .map(|id| {
-            format!(
-                "{} segments, {} iterations, {}, rcond {:.2e}",
-                id.segments, id.iterations, id.termination, id.observability.rcond
-            )
-        })
-        .unwrap_or_default();
+    let (figure6, figure6_curves) =
+        figure6_data(drive, &segs.comp_data[pick.segment], &segs.raw_data[pick.raw_segment], &r.theta);
 
     Ok(Experiment {
         segments: r.segments,
         qp_solver: three.qp.solver.to_string(),
         truth,
-        cramer_rao: crb,
+        cramer_rao: ctx.crb,
         nominal,
         initial_guess,
         batch_size: three.initial_batch_size,
         summary_batches_raw: summarize(batches.iter().map(|b| &b.raw)),
         summary_batches_compensated: summarize(batches.iter().filter_map(|b| b.compensated.as_ref())),
-        summary_segments_raw: summarize(per_segment.iter().filter_map(|s| s.raw.as_ref())),
-        summary_segments_compensated: summarize(per_segment.iter().filter_map(|s| s.compensated.as_ref())),
+        summary_segments_raw: summarize(segs.rows.iter().filter_map(|s| s.raw.as_ref())),
+        summary_segments_compensated: summarize(segs.rows.iter().filter_map(|s| s.compensated.as_ref())),
         batches,
         picked_batches: init.picked_batches.clone(),
         picked,
         final_estimate,
-        final_identification: identification,
+        final_identification: identification_line(r),
         reachable_minimum: reach,
         table1,
-        per_segment,
+        per_segment: segs.rows,
         compensation: comp.step.clone(),
         figure6,
         figure6_curves,
         warnings: r.warnings.clone(),
         timing_s: timing,
     })
+}
+
+/// The method options of the experiment's calibration, which must be the
+/// 3-step method (the experiment compares its steps).
+fn three_step_options(copts: &CalibrationOptions) -> Result<&ThreeStepOptions> {
+    match &copts.method {
+        Method::ThreeStep(o) => Ok(o),
+        other => Err(Error::InvalidOption {
+            field: "method",
+            reason: format!("the experiment runs the three-step method, not {other}"),
+        }),
+    }
+}
+
+/// Scores θ on the calibration's validation segments and reads it against
+/// the truth and its Cramér–Rao bound; also runs the experiment's extra
+/// identifications with the calibration's θ_0 and settings.
+struct Scorer<'a> {
+    /// The drive.
+    drive: &'a Drive,
+    /// θ_true, when known.
+    theta_true: Option<&'a Theta>,
+    /// The bound at θ_true.
+    crb: CramerRao,
+    /// The calibration's validation segments.
+    validation: &'a [Segment],
+    /// Start of every identification.
+    theta0: &'a Theta,
+    /// Identification settings of the calibration.
+    identify: &'a IdentifyOptions,
+}
+
+/// The selected segments identified alone, with measured and compensated
+/// inputs.
+struct PerSegment<'a> {
+    /// Each selected segment with its measured inputs.
+    raw_data: Vec<SegmentData<'a>>,
+    /// Each compensated segment (those whose compensation succeeded).
+    comp_data: Vec<SegmentData<'a>>,
+    /// G-N on each of `raw_data` alone.
+    raw: Vec<Result<BatchResult>>,
+    /// G-N on each of `comp_data` alone.
+    comp: Vec<Result<BatchResult>>,
+    /// One row per selected segment.
+    rows: Vec<SegmentRow>,
+}
+
+impl<'a> Scorer<'a> {
+    /// θ with its validation error `e_p`, and its error against the truth
+    /// in SI units and in units of σ_CRB.
+    fn scored(&self, theta: &Theta, e_p: f64) -> Scored {
+        let error_vs_true = self.theta_true.map(|t| diff(theta, t));
+        Scored {
+            theta: *theta,
+            mean_position_error_m: e_p,
+            error_vs_true,
+            error_over_crb: error_vs_true.and_then(|e| self.crb.ratio(&e)),
+        }
+    }
+
+    /// θ scored by its Ē_p on the validation segments.
+    fn score(&self, theta: &Theta) -> Result<Scored> {
+        let v = mean_position_error(self.drive, self.validation, theta)?;
+        Ok(self.scored(theta, v.mean_position_error_m))
+    }
+
+    /// A batch's estimate with the Ē_p it was scored with.
+    fn of(&self, b: &BatchResult) -> Scored {
+        self.scored(&b.score.theta, b.score.mean_position_error_m)
+    }
+
+    /// Pure G-N on every selected segment alone, once with the measured
+    /// and once with the compensated inputs; a row per selected segment
+    /// pairs the two (no compensated estimate when its compensation failed).
+    fn per_segment(&self, selected: &[Segment], comp: &'a CompensatedInputs) -> PerSegment<'a> {
+        let raw_data: Vec<SegmentData> = selected.iter().map(|s| SegmentData::new(self.drive, s)).collect();
+        let comp_data = comp.segment_data(self.drive);
+        let raw = per_segment_identification(self.drive, &raw_data, self.validation, self.theta0, self.identify);
+        let comp_seg = per_segment_identification(self.drive, &comp_data, self.validation, self.theta0, self.identify);
+        let rows: Vec<SegmentRow> = selected
+            .iter()
+            .zip(&raw)
+            .map(|(s, rr)| SegmentRow {
+                start: s.start,
+                peak_yaw_rate_rad_per_s: s.peak_yaw_rate_rad_per_s,
+                raw: rr.as_ref().ok().map(|b| self.of(b)),
+                compensated: compensated_index(comp, s.start)
+                    .and_then(|i| comp_seg[i].as_ref().ok().map(|b| self.of(b))),
+            })
+            .collect();
+        PerSegment { raw_data, comp_data, raw, comp: comp_seg, rows }
+    }
+
+    /// The step-1 batches again from θ_0 on the same segments with
+    /// compensated inputs (segments whose compensation failed left out),
+    /// each beside its raw result.
+    fn compensated_batches(
+        &self,
+        init: &InitialStep,
+        comp: &CompensatedInputs,
+        comp_data: &[SegmentData<'_>],
+    ) -> Vec<BatchRow> {
+        let comp_batches: Vec<Vec<usize>> = init
+            .batches
+            .iter()
+            .map(|b| b.segment_starts.iter().filter_map(|&s| compensated_index(comp, s)).collect())
+            .collect();
+        let comp_results =
+            score_batches(self.drive, comp_data, &comp_batches, self.validation, self.theta0, self.identify, None);
+        init.batches
+            .iter()
+            .zip(&comp_results)
+            .zip(&comp_batches)
+            .map(|((b, c), cb)| BatchRow {
+                segment_starts: b.segment_starts.clone(),
+                raw: self.of(b),
+                compensated: if cb.is_empty() { None } else { c.as_ref().ok().map(|b| self.of(b)) },
+                compensated_segments: cb.len(),
+            })
+            .collect()
+    }
+
+    /// The reachable minimum: the search of `base` with the picked θ_B,I
+    /// and θ_B,F added to its starts.
+    fn reachable(&self, base: &ReachableOptions, picked: &[Scored], final_theta: &Theta) -> Result<ReachableSummary> {
+        let mut ro = base.clone();
+        ro.starts.extend(picked.iter().map(|p| p.theta));
+        ro.starts.push(*final_theta);
+        let rm = reachable_minimum(self.drive, self.validation, &ro)?;
+        Ok(ReachableSummary {
+            scored: self.scored(&rm.theta, rm.mean_position_error_m),
+            evaluations: rm.evaluations,
+            time_s: rm.time_s,
+            termination: rm.termination.clone(),
+        })
+    }
+}
+
+/// Index among the compensated segments of the one starting at `start`.
+fn compensated_index(comp: &CompensatedInputs, start: usize) -> Option<usize> {
+    comp.segments.iter().position(|s| s.start == start)
+}
+
+/// Table 1's rows, as indices.
+struct Table1Pick {
+    /// The compensated segment turning hardest among those identified
+    /// (index into the compensated segments).
+    segment: usize,
+    /// The same segment among the selected ones.
+    raw_segment: usize,
+    /// The middle picked step-1 batch, or the first with a compensated
+    /// result when it has none.
+    batch: usize,
+}
+
+/// Picks Table 1's segment and batch.
+fn table1_pick(
+    selected: &[Segment],
+    comp: &CompensatedInputs,
+    init: &InitialStep,
+    segs: &PerSegment<'_>,
+    batches: &[BatchRow],
+) -> Result<Table1Pick> {
+    let segment = (0..comp.segments.len())
+        .filter(|&i| segs.comp[i].is_ok())
+        .max_by(|&x, &y| comp.segments[x].peak_yaw_rate_rad_per_s.total_cmp(&comp.segments[y].peak_yaw_rate_rad_per_s))
+        .ok_or_else(|| Error::NoSegments("no compensated segment could be identified on its own".into()))?;
+    let start = comp.segments[segment].start;
+    let raw_segment = selected
+        .iter()
+        .position(|s| s.start == start)
+        .ok_or_else(|| Error::NoSegments(format!("the segment at sample {start} is not among the selected")))?;
+    let batch = init
+        .picked_batches
+        .get(init.picked_batches.len() / 2)
+        .copied()
+        .filter(|&i| batches[i].compensated.is_some())
+        .or_else(|| batches.iter().position(|b| b.compensated.is_some()))
+        .ok_or_else(|| Error::NoSegments("no batch could be identified with compensated inputs".into()))?;
+    Ok(Table1Pick { segment, raw_segment, batch })
+}
+
+/// Table 1 from its picked segment and batch.
+fn table1(
+    pick: &Table1Pick,
+    comp: &CompensatedInputs,
+    segs: &PerSegment<'_>,
+    batches: &[BatchRow],
+    ctx: &Scorer<'_>,
+) -> Result<Table1> {
+    let no_batch = || Error::NoSegments("batch without compensated result".into());
+    let of = |b: &BatchResult| ctx.of(b);
+    let batch = &batches[pick.batch];
+    Ok(Table1 {
+        segment_start: comp.segments[pick.segment].start,
+        segment_raw: segs.raw[pick.raw_segment].as_ref().map(of).map_err(|e| Error::Numerical(e.to_string()))?,
+        segment_compensated: segs.comp[pick.segment].as_ref().map(of).map_err(|e| Error::Numerical(e.to_string()))?,
+        batch_index: pick.batch,
+        batch_starts: batch.segment_starts.clone(),
+        batch_raw: batch.raw,
+        batch_compensated: batch.compensated.ok_or_else(no_batch)?,
+    })
+}
+
+/// One line on the final identification (empty when the method has none).
+fn identification_line(r: &CalibrationReport) -> String {
+    r.identification()
+        .map(|id| {
+            format!(
+                "{} segments, {} iterations, {}, rcond {:.2e}",
+                id.segments, id.iterations, id.termination, id.observability.rcond
+            )
+        })
+        .unwrap_or_default()
 }
 
 /// Position error along a segment of dead reckoning at θ with the segment's inputs.

@@ -329,7 +329,8 @@ fn modules_use_only_lower_layers() {
 // ---- self-contained repository ----
 
 /// Build output and version control, relative to the root: not sources.
-const GENERATED: [&str; 6] = [".git", "target", "fuzz/target", "fuzz/artifacts", "fuzz/coverage", "out"];
+const GENERATED: [&str; 7] =
+    [".git", "target", "crates/odocal-lab/target", "fuzz/target", "fuzz/artifacts", "fuzz/coverage", "out"];
 
 /// Extensions of the text files that can refer to data: sources, tests,
 /// manifests, scripts and their documentation. Files without an extension

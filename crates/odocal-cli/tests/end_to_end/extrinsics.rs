@@ -30,7 +30,7 @@ fn estimate_hold_and_fix_extrinsics() {
 
     // Estimated: the noise-free simulated reference is at the axle (0). (Under
     // paper noise the G-N σ is far too small for the extrinsics: see
-    // examples/extrinsics_check.rs.)
+    // extrinsics_check in crates/odocal-lab.)
     let est = json(&odocal(&[
         "calibrate",
         d,

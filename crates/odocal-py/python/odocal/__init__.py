@@ -205,7 +205,7 @@ def _theta_arg(theta: ThetaLike) -> Any:
 
 def calibrate(
     drive: Union[Drive, Sequence[Drive]],
-    method: str = "eiv",
+    method: Optional[str] = None,
     *,
     progress: Optional[ProgressCallback] = None,
     threads: Optional[int] = None,
@@ -217,14 +217,17 @@ def calibrate(
     fitted jointly (as ``odocal calibrate A B``: segments never span two
     drives; their sample times must agree; a list has no single true θ).
 
-    ``method`` is ``"eiv"`` (default: the errors-in-variables filter over
-    the whole drive, started from batch G-N on all segments, falling back to
-    it when its consistency checks fail), ``"three-step"`` (the paper's
-    method, with input compensation) or ``"batch-gn"`` (raw batch
-    Gauss-Newton over all selected segments).
+    ``method`` is ``"eiv"`` (the default, unless the drive's manifest states
+    another: the errors-in-variables filter over the whole drive, started
+    from batch G-N on all segments, falling back to it when its consistency
+    checks fail), ``"three-step"`` (the paper's method, with input
+    compensation) or ``"batch-gn"`` (raw batch Gauss-Newton over all
+    selected segments).
 
-    Options are keyword arguments named like the CLI's flags (``--min-yaw-rate``
-    is ``min_yaw_rate=``); None means the default:
+    Options are keyword arguments, the library's calibration settings
+    (``odocal::calibrate::settings::Settings``): named like the keys of a
+    manifest's ``[calibration]`` and, in kebab case, the CLI's flags
+    (``--min-yaw-rate`` is ``min_yaw_rate=``); None means the default:
 
     - ``seed`` (int, 0): seed of the random batches;
     - ``qp_solver`` (``"structured"`` | ``"clarabel"``);
@@ -247,7 +250,7 @@ def calibrate(
       ``lever_arm`` (``[x, y]``, m), ``heading_offset`` (rad): the reference
       sensor's extrinsics, as ``--estimate``, ``--lever-arm``,
       ``--heading-offset``;
-    - ``noise_model`` (path of a noise-model TOML), ``known_noise`` (noise
+    - ``noise_model`` (path of a noise-model TOML, or a dict of its fields), ``known_noise`` (noise
       sources whose level in the starting model is known and held, a list
       or ``"heading_white,pose_white"``, as ``--known-noise``), ``fix_noise``,
       ``fallback``, ``eiv_window``, ``quantisation`` (``"process"`` |
@@ -258,12 +261,15 @@ def calibrate(
       bias correction that is on by default with B = 4 — the estimator's own
       bias subtracted from every parameter, estimated by a bootstrap in
       antithetic pairs, as ``--correct-bias``; ``0`` turns it off, as
-      ``--no-bias-correction``) with ``bootstrap_seed`` (its seed): method
+      ``--no-bias-correction``), ``correct_c_e_bias`` (B: correct c_e alone
+      instead), ``bootstrap`` (B: a parametric bootstrap's intervals and
+      bias in the report) with ``bootstrap_seed`` (their seed): method
       ``"eiv"`` only, as the CLI's flags.
 
     A drive read from a manifest carries the manifest's ``[noise]``,
     ``[reference]`` and ``[calibration]`` settings (``drive.import_report``); they apply unless
-    the matching keyword is given, and the report says what became of each
+    the matching keyword is given (a key of a method other than the one
+    used is ignored, saying so), and the report says what became of each
     (``"manifest_settings"``) and which noise model method ``"eiv"`` started
     from (``"noise_model_origin"``), as the CLI's JSON does.
 
@@ -274,8 +280,8 @@ def calibrate(
     the calibration has finished.
 
     Raises :class:`OdocalError` (a ``ValueError``) with the library's
-    message for bad options or data the method cannot use, ``TypeError``
-    for an unknown option.
+    message naming the option for bad options, or for data the method cannot
+    use; ``TypeError`` for an unknown option, naming the known ones.
     """
     report, text = _odocal.calibrate(drive, method, progress=progress, threads=threads, **options)
     scored_on = {k: options[k] for k in ("holdout", "validate_on") if options.get(k) is not None}

@@ -88,7 +88,7 @@ class Drive:
 
 def calibrate(
     drive: Union[Drive, Sequence[Drive]],
-    method: str = "three-step",
+    method: Optional[str] = None,
     *,
     progress: Optional[Callable[[str, int, int], Any]] = None,
     threads: Optional[int] = None,

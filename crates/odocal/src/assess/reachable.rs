@@ -292,6 +292,7 @@ impl std::fmt::Display for ReachableReport {
 }
 
 /// `Ē_p` as a function of scaled coordinates `u ∈ [0, 1]⁴`.
+#[derive(Clone)]
 struct Objective<'a> {
     drive: &'a Drive,
     segments: &'a [Segment],
@@ -429,8 +430,7 @@ fn search_box(
     let upper = opts.upper.to_array();
     let width = [upper[0] - lower[0], upper[1] - lower[1], upper[2] - lower[2], upper[3] - lower[3]];
     let extrinsics = &opts.extrinsics;
-    let objective = || Objective { drive, segments, lower, width, evaluations: &evaluations, progress, extrinsics };
-    let obj = objective();
+    let obj = Objective { drive, segments, lower, width, evaluations: &evaluations, progress, extrinsics };
     let swarm_total = 1 + 2 * opts.starts.len() + opts.particles * (opts.iterations + 1);
     emit(progress, Progress::Stage { name: "reachable: swarm", total: swarm_total as u64 });
 
@@ -438,90 +438,22 @@ fn search_box(
     let centre = opts.centre();
     let centre_error = mean_position_error_with(drive, segments, &centre, extrinsics)?.mean_position_error_m;
     evaluations.fetch_add(1, Ordering::Relaxed);
-    let mut best = (centre_error, centre);
-    let mut seeds: Vec<(Vec<f64>, f64)> = vec![(obj.scaled(&centre), centre_error)];
-    for s in &opts.starts {
-        let e = obj.error_at(s);
-        if e < best.0 {
-            best = (e, *s);
-        }
-        let u = obj.scaled(s);
-        let inside = u.iter().all(|x| (0.0..=1.0).contains(x));
-        let clamped: Vec<f64> = u.iter().map(|x| x.clamp(0.0, 1.0)).collect();
-        let e_clamped = if inside { e } else { obj.scaled_cost(&clamped) };
-        seeds.push((clamped, e_clamped));
-    }
-    // The best seeds (stable order for ties) join the swarm; the rest of it is random.
-    seeds.sort_by(|a, b| a.1.total_cmp(&b.1));
-    seeds.truncate(opts.particles);
-
+    let (mut best, seeds) = seed_points(&obj, (centre_error, centre), &opts.starts, opts.particles);
     let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
-    let mut population = Vec::with_capacity(opts.particles);
-    let random_unit =
-        |rng: &mut ChaCha8Rng, lo: f64| -> Vec<f64> { (0..4).map(|_| rng.random_range(lo..1.0)).collect() };
-    for (u, e) in seeds {
-        let v = random_unit(&mut rng, -1.0);
-        population.push(Particle::new(u, e, v));
-    }
-    while population.len() < opts.particles {
-        let u = random_unit(&mut rng, 0.0);
-        let v = random_unit(&mut rng, -1.0);
-        let e = obj.scaled_cost(&u);
-        population.push(Particle::new(u, e, v));
-    }
+    let population = initial_population(&obj, seeds, opts.particles, &mut rng);
 
-    // Stage 1: particle swarm in [0, 1]⁴. argmin's default inertia and
-    // acceleration factors (Clerc's standard PSO); the RNG replaces the
-    // OS-seeded default so the search is reproducible.
-    let swarm = ParticleSwarm::new((vec![0.0; 4], vec![1.0; 4]), opts.particles).with_rng_generator(rng.clone());
-    let res = Executor::new(objective(), swarm)
-        .configure(|s| s.population(population).max_iters(opts.iterations as u64))
-        .timer(false)
-        .run()
-        .map_err(|e| argmin_error("particle swarm", e))?;
-    let swarm_best = res
-        .state()
-        .get_best_param()
-        .map(|p| (p.cost, p.position.clone()))
-        .ok_or_else(|| Error::Numerical("reachable minimum: the swarm returned no particle".into()))?;
+    // Stage 1: particle swarm in [0, 1]⁴.
+    let (swarm_best, swarm_iterations) = swarm(&obj, population, &rng, opts)?;
     if swarm_best.0 < best.0 {
         best = (swarm_best.0, obj.theta(&swarm_best.1));
     }
     let global_best_m = best.0;
-    let mut termination = format!("swarm: {} iterations, best {:.6} m", res.state().get_iter(), global_best_m);
+    let mut termination = format!("swarm: {swarm_iterations} iterations, best {global_best_m:.6} m");
 
-    // Stage 2: Nelder-Mead from the swarm's best (always inside the box);
-    // one to two evaluations per iteration, four more at a shrink.
+    // Stage 2: Nelder-Mead from the swarm's best (always inside the box).
     if opts.refine_iterations > 0 {
         emit(progress, Progress::Stage { name: "reachable: refine", total: 2 * opts.refine_iterations as u64 + 5 });
-        let x0 = swarm_best.1;
-        let mut simplex = vec![x0.clone()];
-        for i in 0..4 {
-            let mut x = x0.clone();
-            x[i] += if x[i] + SIMPLEX_STEP <= 1.0 { SIMPLEX_STEP } else { -SIMPLEX_STEP };
-            simplex.push(x);
-        }
-        let nm = NelderMead::new(simplex)
-            .with_sd_tolerance(opts.refine_tolerance_m)
-            .map_err(|e| argmin_error("Nelder-Mead", e))?;
-        let res = Executor::new(objective(), nm)
-            .configure(|s| s.max_iters(opts.refine_iterations as u64))
-            .timer(false)
-            .run()
-            .map_err(|e| argmin_error("Nelder-Mead", e))?;
-        let state = res.state();
-        let reason = state.get_termination_reason().map_or("stopped", |r| r.text());
-        if let Some(p) = state.get_best_param() {
-            let cost = state.get_best_cost();
-            if cost < best.0 {
-                best = (cost, obj.theta(p));
-            }
-        }
-        termination.push_str(&format!(
-            "; refinement: {reason} after {} iterations, best {:.6} m",
-            state.get_iter(),
-            best.0
-        ));
+        termination.push_str(&refine(&obj, swarm_best.1, opts, &mut best)?);
     }
 
     let u = obj.scaled(&best.1);
@@ -542,6 +474,111 @@ fn search_box(
         upper: Some(opts.upper),
         extrinsics: opts.extrinsics,
     })
+}
+
+/// The swarm's seeds: the box centre (`centre`, with its Ē_p) and each of
+/// `starts` evaluated as given, then clamped into the box (re-evaluated
+/// there when it was outside); the best `particles` of them (stable order
+/// for ties). Also the best point evaluated, `(Ē_p, θ)`.
+fn seed_points(
+    obj: &Objective<'_>,
+    centre: (f64, Theta),
+    starts: &[Theta],
+    particles: usize,
+) -> ((f64, Theta), Vec<(Vec<f64>, f64)>) {
+    let mut best = centre;
+    let mut seeds: Vec<(Vec<f64>, f64)> = vec![(obj.scaled(&centre.1), centre.0)];
+    for s in starts {
+        let e = obj.error_at(s);
+        if e < best.0 {
+            best = (e, *s);
+        }
+        let u = obj.scaled(s);
+        let inside = u.iter().all(|x| (0.0..=1.0).contains(x));
+        let clamped: Vec<f64> = u.iter().map(|x| x.clamp(0.0, 1.0)).collect();
+        let e_clamped = if inside { e } else { obj.scaled_cost(&clamped) };
+        seeds.push((clamped, e_clamped));
+    }
+    seeds.sort_by(|a, b| a.1.total_cmp(&b.1));
+    seeds.truncate(particles);
+    (best, seeds)
+}
+
+/// The swarm's first population: the seeds, then random points of the box
+/// up to `particles`, each with a random velocity.
+fn initial_population(
+    obj: &Objective<'_>,
+    seeds: Vec<(Vec<f64>, f64)>,
+    particles: usize,
+    rng: &mut ChaCha8Rng,
+) -> Vec<Particle<Vec<f64>, f64>> {
+    let mut population = Vec::with_capacity(particles);
+    let random_unit =
+        |rng: &mut ChaCha8Rng, lo: f64| -> Vec<f64> { (0..4).map(|_| rng.random_range(lo..1.0)).collect() };
+    for (u, e) in seeds {
+        let v = random_unit(rng, -1.0);
+        population.push(Particle::new(u, e, v));
+    }
+    while population.len() < particles {
+        let u = random_unit(rng, 0.0);
+        let v = random_unit(rng, -1.0);
+        let e = obj.scaled_cost(&u);
+        population.push(Particle::new(u, e, v));
+    }
+    population
+}
+
+/// The particle swarm from `population`: argmin's default inertia and
+/// acceleration factors (Clerc's standard PSO); `rng` replaces the
+/// OS-seeded default so the search is reproducible. Its best `(Ē_p, u)`
+/// and its iterations.
+fn swarm(
+    obj: &Objective<'_>,
+    population: Vec<Particle<Vec<f64>, f64>>,
+    rng: &ChaCha8Rng,
+    opts: &ReachableOptions,
+) -> Result<((f64, Vec<f64>), u64)> {
+    let swarm = ParticleSwarm::new((vec![0.0; 4], vec![1.0; 4]), opts.particles).with_rng_generator(rng.clone());
+    let res = Executor::new(obj.clone(), swarm)
+        .configure(|s| s.population(population).max_iters(opts.iterations as u64))
+        .timer(false)
+        .run()
+        .map_err(|e| argmin_error("particle swarm", e))?;
+    let best = res
+        .state()
+        .get_best_param()
+        .map(|p| (p.cost, p.position.clone()))
+        .ok_or_else(|| Error::Numerical("reachable minimum: the swarm returned no particle".into()))?;
+    Ok((best, res.state().get_iter()))
+}
+
+/// Nelder-Mead from `x0` (one to two evaluations per iteration, four more
+/// at a shrink), replacing `best` when it finds a lower Ē_p; what it did,
+/// as the termination text goes on.
+fn refine(obj: &Objective<'_>, x0: Vec<f64>, opts: &ReachableOptions, best: &mut (f64, Theta)) -> Result<String> {
+    let mut simplex = vec![x0.clone()];
+    for i in 0..4 {
+        let mut x = x0.clone();
+        x[i] += if x[i] + SIMPLEX_STEP <= 1.0 { SIMPLEX_STEP } else { -SIMPLEX_STEP };
+        simplex.push(x);
+    }
+    let nm = NelderMead::new(simplex)
+        .with_sd_tolerance(opts.refine_tolerance_m)
+        .map_err(|e| argmin_error("Nelder-Mead", e))?;
+    let res = Executor::new(obj.clone(), nm)
+        .configure(|s| s.max_iters(opts.refine_iterations as u64))
+        .timer(false)
+        .run()
+        .map_err(|e| argmin_error("Nelder-Mead", e))?;
+    let state = res.state();
+    let reason = state.get_termination_reason().map_or("stopped", |r| r.text());
+    if let Some(p) = state.get_best_param() {
+        let cost = state.get_best_cost();
+        if cost < best.0 {
+            *best = (cost, obj.theta(p));
+        }
+    }
+    Ok(format!("; refinement: {reason} after {} iterations, best {:.6} m", state.get_iter(), best.0))
 }
 
 #[cfg(test)]

@@ -49,13 +49,13 @@
 //! ## Reference heading offset (estimated by default)
 //! With [`EivMethodOptions::estimate_heading_offset`] (the default) the
 //! start estimates the reference's heading offset δ even when the
-//! calibration does not ask for it. The reason is measured (docs/study.md,
-//! stops 14 and 15): the shipped test-track logs' reference heading is
-//! +15…+23 mrad off the vehicle axis. Batch G-N's c_d absorbs part of such
-//! an offset; the filter takes c_d from heading *increments*, which a
-//! constant offset does not move, so EIV's c_d is right but its dead
-//! reckoning was judged against a rotated reference and lost to batch G-N
-//! (test track, Ē_p on the other five runs: 2.57 m against 2.31 m; with δ
+//! calibration does not ask for it, for a measured reason (docs/study.md):
+//! the shipped test-track logs' reference heading is +15…+23 mrad off the
+//! vehicle axis. Batch G-N's c_d absorbs part of such an offset; the
+//! filter takes c_d from heading *increments*, which a constant offset
+//! does not move, so with δ held at zero EIV's c_d is right but its dead
+//! reckoning, judged against a rotated reference, loses to batch G-N (test
+//! track, Ē_p on the other five runs: 2.57 m against 2.31 m; with δ
 //! estimated 1.59 m). On simulated drives without an offset estimating δ
 //! changes every EIV RMS/CRB by ≤ 0.06 and fresh-drive Ē_p by ≤ 1 mm
 //! (20 seeds × 12 km, four presets). A stated offset is held instead
@@ -458,44 +458,13 @@ impl Estimator for EivMethodOptions {
         emit(progress, Progress::Stage { name: "EIV: batch Gauss-Newton start", total: 1 });
         let data: Vec<SegmentData> = selection.segments.iter().map(|s| SegmentData::new(prep.drive, s)).collect();
         let identify = selection.identify(opts);
-        // Batch G-N over all segments with every free parameter; only when
-        // its normal equations are singular (a straight drive) are the
-        // parameters the check at θ_0 names held for the start.
-        let (start, start_held) = match batch_gauss_newton(&data, &opts.theta0, &identify) {
-            Ok(r) => (r, Vec::new()),
-            Err(Error::NotObservable { .. }) => {
-                let held = hold_unobservable(&data, &opts.theta0, &identify);
-                let mut free = selection.free;
-                for p in &held {
-                    free.remove(*p);
-                }
-                // Nothing left to estimate: the filter starts from θ_0.
-                let iterations = if free.is_empty() { 0 } else { identify.max_iterations };
-                let held_opts = IdentifyOptions { free, max_iterations: iterations, ..identify.clone() };
-                (batch_gauss_newton(&data, &opts.theta0, &held_opts)?, held)
-            }
-            Err(e) => return Err(e),
-        };
+        let (start, start_held) = batch_start(&data, &opts.theta0, &identify, selection.free)?;
         emit(progress, Progress::Advance(1));
         let t_start = t.elapsed().as_secs_f64();
 
         let t = Instant::now();
         emit(progress, Progress::Stage { name: "EIV filter", total: 1 });
-        // A parameter the filter names unobservable is held at the start's
-        // value where batch G-N determined it, else at θ_0 (batch G-N's
-        // value of a parameter it could not determine is arbitrary: t_r =
-        // 5.63 m on the nearly straight RAV4 drive).
-        let determined = |i: usize| {
-            let p = Param::THETA[i];
-            selection.free.contains(p) && !start_held.contains(&p) && !start.observability.unobservable.contains(p)
-        };
-        let (s, t0) = (start.theta.to_array(), opts.theta0.to_array());
-        let held: [f64; 4] = std::array::from_fn(|i| if determined(i) { s[i] } else { t0[i] });
-        let filter = EivOptions {
-            free: mask(selection.free),
-            hold_unobservable_at: self.filter.hold_unobservable_at.or(Some(Theta::from_array(held))),
-            ..self.effective_filter()
-        };
+        let filter = self.filter_options(selection.free, &start, &start_held, &opts.theta0);
         // Two-stage extrinsics: the start's estimate (or the given values)
         // held; the filter, which models the axle only, runs on the axle
         // poses the reference implies under them.
@@ -505,27 +474,8 @@ impl Estimator for EivMethodOptions {
             Some(e) => Some(axle_reference_drive(prep.drive, e)?),
             None => None,
         };
-        let filter_drive = axle_drive.as_ref().unwrap_or(prep.drive);
-        // The bias correction (a bootstrap, B more fits) only for a fit that
-        // is kept: the filter runs without it, the checks decide, then it
-        // is applied.
-        let filter_input = EivInput::from_drive(filter_drive);
-        let uncorrected = EivOptions { bias_correction: BiasCorrection::None, ..filter.clone() };
-        let mut fit = eiv::estimate(&filter_input, &start.theta, &uncorrected);
-        // A correction that cannot be computed leaves the fit the checks
-        // accepted uncorrected, with a warning (not a fallback: the
-        // uncorrected root is the estimate the checks judged).
-        let mut correction_failed = None;
-        if let Ok(r) = &mut fit {
-            let misspecified = r.warnings.iter().any(|w| is_misspecification(w, r));
-            if !(self.fallback && misspecified) {
-                match eiv::apply_bias_correction(&filter_input, r, &filter) {
-                    Ok(()) => {}
-                    Err(e @ Error::InvalidOption { .. }) => fit = Err(e),
-                    Err(e) => correction_failed = Some(e.to_string()),
-                }
-            }
-        }
+        let filter_input = EivInput::from_drive(axle_drive.as_ref().unwrap_or(prep.drive));
+        let (fit, correction_failed) = self.fit(&filter_input, &start.theta, &filter);
         emit(progress, Progress::Advance(1));
         let t_eiv = t.elapsed().as_secs_f64();
         let timing = Timing { initial_identification: t_start, final_identification: t_eiv, ..Timing::default() };
@@ -535,15 +485,7 @@ impl Estimator for EivMethodOptions {
             Err(e) if self.fallback && !matches!(e, Error::InvalidOption { .. }) => (None, Some(e.to_string())),
             Err(e) => return Err(e),
         };
-        let (findings, notes): (Vec<EivWarning>, Vec<EivWarning>) = match &report {
-            Some(r) => r
-                .warnings
-                .iter()
-                .filter(|w| !matches!(w, EivWarning::Unobservable { .. }))
-                .cloned()
-                .partition(|w| is_misspecification(w, r)),
-            None => (Vec::new(), Vec::new()),
-        };
+        let (findings, notes) = findings_and_notes(report.as_deref());
         let fall_back = error.is_some() || (self.fallback && !findings.is_empty());
         let mut warnings: Vec<Warning> = findings
             .iter()
@@ -554,29 +496,19 @@ impl Estimator for EivMethodOptions {
             identification: start,
             start_held,
             eiv: report,
-            eiv_error: error.clone(),
+            eiv_error: error,
             noise_start: self.filter.noise,
             eiv_result: EivOutcome::BatchGnFallback,
             bootstrap: None,
         };
         if fall_back {
-            let reason = match &error {
+            let reason = match &detail.eiv_error {
                 Some(e) => format!("the filter failed: {e}"),
                 None => format!("{} consistency check(s) failed", findings.len()),
             };
             let eiv_theta = detail.eiv.as_ref().map(|r| r.theta);
             warnings.push(Warning::EivFallback { reason, segments: selection.segments.len(), eiv_theta });
-            let id = &detail.identification;
-            return Ok(MethodOutcome {
-                theta: id.theta,
-                iterations: Some(id.iterations),
-                covariance: id.covariance,
-                observability: id.observability.clone(),
-                detail: MethodDetail::Eiv(detail),
-                timing,
-                warnings,
-                compensated: None,
-            });
+            return Ok(fallback_outcome(detail, timing, warnings));
         }
         let Some(r) = detail.eiv.as_ref() else {
             return Err(Error::Numerical("the EIV fit returned no report".into()));
@@ -585,17 +517,7 @@ impl Estimator for EivMethodOptions {
             let estimated = identify.free.intersection(ParamSet::EXTRINSICS);
             warnings.push(Warning::EivExtrinsicsHeld { extrinsics, estimated });
         }
-        if let Some(error) = correction_failed {
-            warnings.push(Warning::EivBiasCorrectionFailed { error });
-        } else if let (Some((_, first_error)), BiasCorrection::Bootstrap { replicates, .. }) =
-            (r.bias_replicates_failed.first(), filter.bias_correction)
-        {
-            warnings.push(Warning::EivBiasCorrectionIncomplete {
-                failed: r.bias_replicates_failed.len(),
-                replicates,
-                first_error: first_error.clone(),
-            });
-        }
+        warnings.extend(bias_correction_warning(r, &filter, correction_failed));
         let bootstrap = match &self.bootstrap {
             Some(b) => {
                 emit(progress, Progress::Stage { name: "EIV bootstrap", total: 1 });
@@ -605,25 +527,163 @@ impl Estimator for EivMethodOptions {
             }
             None => None,
         };
-        let o = &r.observability;
-        let observability = Observability {
-            rcond: o.rcond,
-            sensitivity_m: detail.identification.observability.sensitivity_m,
-            unobservable: param_set(&o.unobservable).iter().chain(param_set(&o.collinear).iter()).collect(),
+        Ok(eiv_outcome(r, &detail, bootstrap, timing, warnings))
+    }
+}
+
+impl EivMethodOptions {
+    /// The filter options of the fit: the calibration's free set, and a
+    /// parameter the filter names unobservable held at the start's value
+    /// where batch G-N determined it, else at θ_0 (batch G-N's value of a
+    /// parameter it could not determine is arbitrary: t_r = 5.63 m on the
+    /// nearly straight RAV4 drive).
+    fn filter_options(
+        &self,
+        free: ParamSet,
+        start: &IdentifyReport,
+        start_held: &[Param],
+        theta0: &Theta,
+    ) -> EivOptions {
+        let determined = |i: usize| {
+            let p = Param::THETA[i];
+            free.contains(p) && !start_held.contains(&p) && !start.observability.unobservable.contains(p)
         };
-        let outcome = MethodOutcome {
-            theta: r.theta,
-            // The EIV fit continues the start's iterations (it may take no
-            // step when the start is already its optimum).
-            iterations: Some(detail.identification.iterations + r.iterations),
-            covariance: r.covariance,
-            observability,
-            detail: MethodDetail::Eiv(EivDetail { eiv_result: EivOutcome::Eiv, bootstrap, ..detail.clone() }),
-            timing,
-            warnings,
-            compensated: None,
-        };
-        Ok(outcome)
+        let (s, t0) = (start.theta.to_array(), theta0.to_array());
+        let held: [f64; 4] = std::array::from_fn(|i| if determined(i) { s[i] } else { t0[i] });
+        EivOptions {
+            free: mask(free),
+            hold_unobservable_at: self.filter.hold_unobservable_at.or(Some(Theta::from_array(held))),
+            ..self.effective_filter()
+        }
+    }
+
+    /// The filter from `theta` without the bias correction; then, unless
+    /// the fallback is on and the checks find the model misspecified, the
+    /// correction (a bootstrap, B more fits) applied to it — so the
+    /// correction runs only for a fit that is kept. A correction that
+    /// cannot be computed leaves the fit the checks accepted uncorrected and
+    /// is returned as the second value (a warning, not a fallback: the
+    /// uncorrected root is the estimate the checks judged); invalid
+    /// correction settings are the fit's error.
+    fn fit(&self, input: &EivInput<'_>, theta: &Theta, filter: &EivOptions) -> (Result<EivReport>, Option<String>) {
+        let uncorrected = EivOptions { bias_correction: BiasCorrection::None, ..filter.clone() };
+        let mut fit = eiv::estimate(input, theta, &uncorrected);
+        let mut correction_failed = None;
+        if let Ok(r) = &mut fit {
+            let misspecified = r.warnings.iter().any(|w| is_misspecification(w, r));
+            if !(self.fallback && misspecified) {
+                match eiv::apply_bias_correction(input, r, filter) {
+                    Ok(()) => {}
+                    Err(e @ Error::InvalidOption { .. }) => fit = Err(e),
+                    Err(e) => correction_failed = Some(e.to_string()),
+                }
+            }
+        }
+        (fit, correction_failed)
+    }
+}
+
+/// The start: batch G-N over all segments with every free parameter; only
+/// when its normal equations are singular (a straight drive) are the
+/// parameters the check at θ_0 names held for the start (returned beside
+/// it).
+fn batch_start(
+    data: &[SegmentData<'_>],
+    theta0: &Theta,
+    identify: &IdentifyOptions,
+    free: ParamSet,
+) -> Result<(IdentifyReport, Vec<Param>)> {
+    match batch_gauss_newton(data, theta0, identify) {
+        Ok(r) => Ok((r, Vec::new())),
+        Err(Error::NotObservable { .. }) => {
+            let held = hold_unobservable(data, theta0, identify);
+            let mut free = free;
+            for p in &held {
+                free.remove(*p);
+            }
+            // Nothing left to estimate: the filter starts from θ_0.
+            let iterations = if free.is_empty() { 0 } else { identify.max_iterations };
+            let held_opts = IdentifyOptions { free, max_iterations: iterations, ..identify.clone() };
+            Ok((batch_gauss_newton(data, theta0, &held_opts)?, held))
+        }
+        Err(e) => Err(e),
+    }
+}
+
+/// The filter's findings other than `Unobservable` (reported through the
+/// observability fields), split into misspecifications
+/// ([`is_misspecification`]) and notes; none when the filter failed.
+fn findings_and_notes(report: Option<&EivReport>) -> (Vec<EivWarning>, Vec<EivWarning>) {
+    match report {
+        Some(r) => r
+            .warnings
+            .iter()
+            .filter(|w| !matches!(w, EivWarning::Unobservable { .. }))
+            .cloned()
+            .partition(|w| is_misspecification(w, r)),
+        None => (Vec::new(), Vec::new()),
+    }
+}
+
+/// The fallback: the starting batch G-N's θ, covariance and observability.
+fn fallback_outcome(detail: EivDetail, timing: Timing, warnings: Vec<Warning>) -> MethodOutcome {
+    let id = &detail.identification;
+    MethodOutcome {
+        theta: id.theta,
+        iterations: Some(id.iterations),
+        covariance: id.covariance,
+        observability: id.observability.clone(),
+        detail: MethodDetail::Eiv(detail),
+        timing,
+        warnings,
+        compensated: None,
+    }
+}
+
+/// The warning on the bias correction of a kept fit: it failed (the fit
+/// is uncorrected), or some of its replicates could not be fitted.
+fn bias_correction_warning(r: &EivReport, filter: &EivOptions, correction_failed: Option<String>) -> Option<Warning> {
+    if let Some(error) = correction_failed {
+        Some(Warning::EivBiasCorrectionFailed { error })
+    } else if let (Some((_, first_error)), BiasCorrection::Bootstrap { replicates, .. }) =
+        (r.bias_replicates_failed.first(), filter.bias_correction)
+    {
+        Some(Warning::EivBiasCorrectionIncomplete {
+            failed: r.bias_replicates_failed.len(),
+            replicates,
+            first_error: first_error.clone(),
+        })
+    } else {
+        None
+    }
+}
+
+/// The EIV fit `r` as the result: its θ and covariance, the observability
+/// from its `H_θ` (with the start's sensitivity, module docs).
+fn eiv_outcome(
+    r: &EivReport,
+    detail: &EivDetail,
+    bootstrap: Option<Box<eiv::BootstrapReport>>,
+    timing: Timing,
+    warnings: Vec<Warning>,
+) -> MethodOutcome {
+    let o = &r.observability;
+    let observability = Observability {
+        rcond: o.rcond,
+        sensitivity_m: detail.identification.observability.sensitivity_m,
+        unobservable: param_set(&o.unobservable).iter().chain(param_set(&o.collinear).iter()).collect(),
+    };
+    MethodOutcome {
+        theta: r.theta,
+        // The EIV fit continues the start's iterations (it may take no
+        // step when the start is already its optimum).
+        iterations: Some(detail.identification.iterations + r.iterations),
+        covariance: r.covariance,
+        observability,
+        detail: MethodDetail::Eiv(EivDetail { eiv_result: EivOutcome::Eiv, bootstrap, ..detail.clone() }),
+        timing,
+        warnings,
+        compensated: None,
     }
 }
 

@@ -44,8 +44,9 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use crate::assess::position_error::mean_position_error_with;
+use crate::assess::position_error::ValidationReport;
 use crate::assess::trust::{judge, Evidence, TrustOptions};
-use crate::assess::validation_drives::CalibrationExtrinsics;
+use crate::assess::validation_drives::{CalibrationExtrinsics, HeldOutDrives};
 use crate::assess::warning::Warning;
 use crate::compensate::CompensatedInputs;
 use crate::drive::segment::{
@@ -56,7 +57,7 @@ use crate::error::{Error, Result};
 use crate::identify::{
     batch_normal_equations, observability, IdentifyOptions, IdentifyReport, Observability, RobustCovariance,
 };
-use crate::model::extrinsics::ExtrinsicsEstimate;
+use crate::model::extrinsics::{Extrinsics, ExtrinsicsEstimate};
 use crate::model::param::{Param, ParamSet};
 use crate::model::Theta;
 use crate::progress::ProgressFn;
@@ -442,7 +443,7 @@ pub fn calibrate_detailed(
 /// segment its drive's.
 pub(crate) fn calibrate_core(
     drive: &Drive,
-    held: Option<(&Drive, Option<&crate::assess::validation_drives::HeldOutDrives<'_>>)>,
+    held: Option<(&Drive, Option<&HeldOutDrives<'_>>)>,
     opts: &CalibrationOptions,
     progress: Option<ProgressFn<'_>>,
 ) -> Result<DetailedCalibration> {
@@ -450,25 +451,7 @@ pub(crate) fn calibrate_core(
     let held_refs = held.and_then(|h| h.1);
     opts.validate()?;
     let method = opts.method.estimator();
-    let mut identify = opts.identify.clone();
-    method.adjust_identify(&mut identify);
-    let adjusted;
-    let opts = if identify == opts.identify {
-        opts
-    } else {
-        adjusted = CalibrationOptions { identify, ..opts.clone() };
-        &adjusted
-    };
-    if opts.identify.uses_extrinsics() && !method.supports_extrinsics() {
-        return Err(Error::InvalidOption {
-            field: "identify.extrinsics",
-            reason: format!(
-                "method {} does not estimate or apply the reference extrinsics (lever arm, heading offset); \
-                 use batch-gn, three-step or eiv",
-                method.name()
-            ),
-        });
-    }
+    let opts = &*method_options(opts, method)?;
     let t_start = Instant::now();
     crate::drive::plausibility::check_conventions(drive, &opts.theta0, "drive")?;
     if let Some(h) = held_out {
@@ -483,58 +466,16 @@ pub(crate) fn calibrate_core(
             opts.validation.length_steps
         )));
     }
-    let (report_drive, report_segments) = match held_out {
-        Some(h) => {
-            let segs = validation_segments(h, &opts.validation)?;
-            if segs.is_empty() {
-                return Err(Error::NoSegments(format!(
-                    "the held-out drive ({} samples) is too short for one validation segment of {} steps",
-                    h.len(),
-                    opts.validation.length_steps
-                )));
-            }
-            (h, segs)
-        }
-        None => (drive, prep.validation.clone()),
-    };
-    let initial_val = match held_refs {
-        Some(h) => {
-            let cal = CalibrationExtrinsics::before(opts.identify.extrinsics, selection.free, h.given);
-            h.error(&report_segments, &opts.theta0, &cal, true)?
-        }
-        None => mean_position_error_with(report_drive, &report_segments, &opts.theta0, &opts.identify.extrinsics)?,
-    };
+    let reported = ReportValidation::new(&prep, held_out, held_refs)?;
+    let initial_val = reported.initial(opts, selection.free)?;
     let setup = t_start.elapsed().as_secs_f64();
 
     let outcome = method.run(&prep, &selection, progress)?;
-    let mut warnings = selection.warnings.clone();
-    warnings.extend(outcome.warnings);
-    if !outcome.observability.unobservable.is_empty() {
-        let o = &outcome.observability;
-        warnings.push(Warning::Unobservable {
-            stage: "final identification".into(),
-            params: o.unobservable,
-            sensitivity_m: o.sensitivity_m,
-            rcond: o.rcond,
-        });
-    }
+    let warnings = result_warnings(&selection.warnings, outcome.warnings, &outcome.observability);
     let extrinsics = if opts.identify.uses_extrinsics() { method_extrinsics(&outcome.detail) } else { None };
     let ext = extrinsics.as_ref().map_or(opts.identify.extrinsics, |e| e.value);
     let t = Instant::now();
-    let val = match held_refs {
-        Some(h) => {
-            let cal = CalibrationExtrinsics {
-                value: ext,
-                ..CalibrationExtrinsics::before(
-                    opts.identify.extrinsics,
-                    extrinsics.as_ref().map_or(ParamSet::EMPTY, |e| e.free),
-                    h.given,
-                )
-            };
-            h.error(&report_segments, &outcome.theta, &cal, false)?
-        }
-        None => mean_position_error_with(report_drive, &report_segments, &outcome.theta, &ext)?,
-    };
+    let val = reported.result(&outcome.theta, opts.identify.extrinsics, extrinsics.as_ref(), ext)?;
     let fit_m = match held_out {
         Some(_) => Some(mean_position_error_with(drive, &prep.validation, &outcome.theta, &ext)?.mean_position_error_m),
         None => None,
@@ -588,7 +529,11 @@ pub(crate) fn calibrate_core(
         initial: ThetaScore { theta: opts.theta0, mean_position_error_m: initial_val.mean_position_error_m },
         timing_s: timing,
         extrinsics,
-        segments: SegmentCounts { cut: selection.cut, selected: selection.selected, validation: report_segments.len() },
+        segments: SegmentCounts {
+            cut: selection.cut,
+            selected: selection.selected,
+            validation: reported.segments.len(),
+        },
         detail: outcome.detail,
         warnings,
         auto_fixed: selection.auto_fixed.clone(),
@@ -600,6 +545,114 @@ pub(crate) fn calibrate_core(
         validation: prep.validation,
         compensated: outcome.compensated,
     })
+}
+
+/// The options with the method's adjustment of the identification
+/// ([`Estimator::adjust_identify`]; borrowed as given when it changes
+/// nothing). Reference extrinsics with a method that cannot estimate or
+/// apply them are an error.
+fn method_options<'o>(opts: &'o CalibrationOptions, method: &dyn Estimator) -> Result<Cow<'o, CalibrationOptions>> {
+    let mut identify = opts.identify.clone();
+    method.adjust_identify(&mut identify);
+    let opts = if identify == opts.identify {
+        Cow::Borrowed(opts)
+    } else {
+        Cow::Owned(CalibrationOptions { identify, ..opts.clone() })
+    };
+    if opts.identify.uses_extrinsics() && !method.supports_extrinsics() {
+        return Err(Error::InvalidOption {
+            field: "identify.extrinsics",
+            reason: format!(
+                "method {} does not estimate or apply the reference extrinsics (lever arm, heading offset); \
+                 use batch-gn, three-step or eiv",
+                method.name()
+            ),
+        });
+    }
+    Ok(opts)
+}
+
+/// Where the calibration reports Ē_p: the validation segments of the
+/// calibration drive, or of the held-out drive (with each held-out drive's
+/// own extrinsics when it has its reference's).
+struct ReportValidation<'a> {
+    /// The drive the segments are on.
+    drive: &'a Drive,
+    /// Its validation segments.
+    segments: Vec<Segment>,
+    /// The held-out drives joined, when each has its own extrinsics.
+    held_refs: Option<&'a HeldOutDrives<'a>>,
+}
+
+impl<'a> ReportValidation<'a> {
+    /// The held-out drive's validation segments (at least one), else the
+    /// calibration drive's.
+    fn new(prep: &Prepared<'a>, held_out: Option<&'a Drive>, held_refs: Option<&'a HeldOutDrives<'a>>) -> Result<Self> {
+        let opts = prep.options;
+        let (drive, segments) = match held_out {
+            Some(h) => {
+                let segs = validation_segments(h, &opts.validation)?;
+                if segs.is_empty() {
+                    return Err(Error::NoSegments(format!(
+                        "the held-out drive ({} samples) is too short for one validation segment of {} steps",
+                        h.len(),
+                        opts.validation.length_steps
+                    )));
+                }
+                (h, segs)
+            }
+            None => (prep.drive, prep.validation.clone()),
+        };
+        Ok(ReportValidation { drive, segments, held_refs })
+    }
+
+    /// Ē_p at θ_0 with the extrinsics as given (`free`'s to be estimated).
+    fn initial(&self, opts: &CalibrationOptions, free: ParamSet) -> Result<ValidationReport> {
+        match self.held_refs {
+            Some(h) => {
+                let cal = CalibrationExtrinsics::before(opts.identify.extrinsics, free, h.given);
+                h.error(&self.segments, &opts.theta0, &cal, true)
+            }
+            None => mean_position_error_with(self.drive, &self.segments, &opts.theta0, &opts.identify.extrinsics),
+        }
+    }
+
+    /// Ē_p at the result θ with the extrinsics `ext` it used (`given` the
+    /// options' values, `estimate` the method's estimate when it made one).
+    fn result(
+        &self,
+        theta: &Theta,
+        given: Extrinsics,
+        estimate: Option<&ExtrinsicsEstimate>,
+        ext: Extrinsics,
+    ) -> Result<ValidationReport> {
+        match self.held_refs {
+            Some(h) => {
+                let cal = CalibrationExtrinsics {
+                    value: ext,
+                    ..CalibrationExtrinsics::before(given, estimate.map_or(ParamSet::EMPTY, |e| e.free), h.given)
+                };
+                h.error(&self.segments, theta, &cal, false)
+            }
+            None => mean_position_error_with(self.drive, &self.segments, theta, &ext),
+        }
+    }
+}
+
+/// The selection's warnings, the method's, and one when the final
+/// identification left parameters unobservable.
+fn result_warnings(selection: &[Warning], method: Vec<Warning>, o: &Observability) -> Vec<Warning> {
+    let mut warnings = selection.to_vec();
+    warnings.extend(method);
+    if !o.unobservable.is_empty() {
+        warnings.push(Warning::Unobservable {
+            stage: "final identification".into(),
+            params: o.unobservable,
+            sensitivity_m: o.sensitivity_m,
+            rcond: o.rcond,
+        });
+    }
+    warnings
 }
 
 /// θ and its covariance fitted on the held-out drive alone with the same

@@ -25,15 +25,16 @@ use serde::{Deserialize, Serialize};
 
 use super::{Estimator, MethodDetail, MethodOutcome, Prepared, Selection, ThetaScore, Timing};
 use crate::assess::position_error::mean_position_error_with;
-use crate::assess::trust::{check_theta, GuardViolation};
+use crate::assess::trust::{check_theta, GuardViolation, Guards};
 use crate::assess::warning::Warning;
-use crate::compensate::{compensate_segments, CompensateOptions, CompensationStep, QpOptions};
+use crate::compensate::{compensate_segments, CompensateOptions, CompensatedInputs, CompensationStep, QpOptions};
 use crate::drive::axle_reference_drive;
 use crate::drive::segment::{Segment, SegmentData};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
 use crate::identify::{batch_gauss_newton, robust_covariance_at, IdentifyOptions, IdentifyReport, RobustCovariance};
 use crate::model::extrinsics::Extrinsics;
+use crate::model::param::ParamSet;
 use crate::model::Theta;
 use crate::progress::{emit, Progress, ProgressFn};
 
@@ -361,95 +362,12 @@ impl Estimator for ThreeStepOptions {
 
         // Step 1.
         let t = Instant::now();
-        #[allow(unused_mut)]
-        let mut batches = random_batches(selected.len(), self.initial_batch_size, self.initial_batches, opts.seed);
-        emit(progress, Progress::Stage { name: "initial identification", total: batches.len() as u64 });
-        #[allow(unused_mut)]
-        let mut data: Vec<SegmentData> = selected.iter().map(|s| SegmentData::new(drive, s)).collect();
-        #[cfg(test)]
-        forced::apply(drive, &mut data, &mut batches);
-        let results = score_batches(drive, &data, &batches, &prep.validation, &opts.theta0, &identify, progress);
-        let mut ok = Vec::new();
-        let mut rejected = Vec::new();
-        for (i, r) in results.into_iter().enumerate() {
-            match r {
-                Ok(b) => {
-                    let violations = check_theta(
-                        &b.score.theta,
-                        &opts.theta0,
-                        identify.free,
-                        Some(b.iterations),
-                        b.rcond,
-                        &opts.trust.guards,
-                    );
-                    if !violations.is_empty() {
-                        warnings.push(Warning::BatchRejected { batch: i, violations: violations.clone() });
-                        rejected.push(RejectedBatch { index: ok.len(), violations });
-                    }
-                    ok.push(b);
-                }
-                Err(e) => warnings.push(Warning::BatchFailed { batch: i, reason: e.to_string() }),
-            }
-        }
-        if ok.is_empty() {
-            return Err(Error::Numerical("every initial batch identification failed".into()));
-        }
-        // Only plausible results are sorted and picked.
-        let mut order: Vec<usize> = (0..ok.len()).filter(|i| !rejected.iter().any(|r| r.index == *i)).collect();
-        if order.is_empty() {
-            let first = rejected.first().map(|r| r.violations.iter().map(ToString::to_string).collect::<Vec<_>>());
-            return Err(Error::Numerical(format!(
-                "every one of the {} step-1 results failed the plausibility guards (the first: {}); the data do \
-                 not determine θ near θ_0 — check θ_0, hold parameters (--fix) or use a drive with more turns",
-                ok.len(),
-                first.map(|v| v.join("; ")).unwrap_or_default()
-            )));
-        }
-        order.sort_by(|&a, &b| ok[a].score.mean_position_error_m.total_cmp(&ok[b].score.mean_position_error_m));
-        let picks = if order.len() < self.picks && !rejected.is_empty() {
-            warnings.push(Warning::FewUsableBatches { usable: order.len(), picks: self.picks });
-            order.len()
-        } else {
-            self.picks
-        };
-        let picked_batches: Vec<usize> = equal_step_picks(order.len(), picks).into_iter().map(|i| order[i]).collect();
-        let picked: Vec<ThetaScore> = picked_batches.iter().map(|&i| ok[i].score).collect();
+        let step1 = self.initial_step(prep, selected, &identify, progress, &mut warnings)?;
         timing.initial_identification = t.elapsed().as_secs_f64();
 
         // Step 2.
         let t = Instant::now();
-        let final_segs: Vec<Segment> = match self.final_segments {
-            FinalSegments::All => selected.clone(),
-            FinalSegments::Random(n) => random_batches(selected.len(), n, 1, opts.seed ^ FINAL_SEGMENTS_SEED_SALT)[0]
-                .iter()
-                .map(|&i| selected[i])
-                .collect(),
-        };
-        let thetas: Vec<Theta> = picked.iter().map(|p| p.theta).collect();
-        // With extrinsics, the QP tracks the axle poses the reference implies
-        // under the picked batches' mean extrinsics (the QP itself models the
-        // axle only); step 3 fits the original reference again.
-        let axle_drive = match identify.uses_extrinsics() {
-            true => {
-                let e: Vec<[f64; 3]> = picked_batches
-                    .iter()
-                    .map(|&i| ok[i].extrinsics.unwrap_or(identify.extrinsics).to_array())
-                    .collect();
-                let mean = Extrinsics::from_array(std::array::from_fn(|j| {
-                    e.iter().map(|a| a[j]).sum::<f64>() / e.len().max(1) as f64
-                }));
-                Some(axle_reference_drive(drive, &mean)?)
-            }
-            false => None,
-        };
-        let comp = compensate_segments(
-            axle_drive.as_ref().unwrap_or(drive),
-            &final_segs,
-            &thetas,
-            &self.compensate,
-            &self.qp,
-            progress,
-        )?;
+        let comp = self.compensation_step(drive, selected, &step1, &identify, opts.seed, progress)?;
         warnings.extend(comp.warnings.iter().cloned().map(Warning::from));
         if comp.segments.is_empty() {
             return Err(Error::NoSegments("input compensation failed on every segment".into()));
@@ -461,23 +379,9 @@ impl Estimator for ThreeStepOptions {
         emit(progress, Progress::Stage { name: "final identification", total: 1 });
         let report = batch_gauss_newton(&comp.segment_data(drive), &opts.theta0, &identify)?;
         emit(progress, Progress::Advance(1));
-        let measured_inputs = match identify.uses_extrinsics() {
-            true => None,
-            false => {
-                let raw: Vec<SegmentData> = comp.segments.iter().map(|s| SegmentData::new(drive, s)).collect();
-                robust_covariance_at(&raw, &report.theta, &identify)
-            }
-        };
-        let plausible: Vec<Theta> = order.iter().map(|&i| ok[i].score.theta).collect();
-        let uncertainty = Box::new(ThreeStepUncertainty {
-            measured_inputs,
-            batch_spread: BatchSpread::new(
-                &plausible,
-                self.initial_batch_size.min(selected.len()),
-                effective_segments(selected),
-            ),
-        });
+        let uncertainty = self.uncertainty(drive, selected, &comp, &report, &step1, &identify);
         timing.final_identification = t.elapsed().as_secs_f64();
+        let InitialResults { ok, rejected, picked_batches, picked, .. } = step1;
         Ok(MethodOutcome {
             theta: report.theta,
             iterations: Some(report.iterations),
@@ -494,6 +398,180 @@ impl Estimator for ThreeStepOptions {
             compensated: Some(comp),
         })
     }
+}
+
+/// Step 1's results.
+struct InitialResults {
+    /// Every batch identified, in batch order (failed batches left out).
+    ok: Vec<BatchResult>,
+    /// The results of `ok` that failed the plausibility guards.
+    rejected: Vec<RejectedBatch>,
+    /// Indices into `ok` of the plausible results, by increasing Ē_p.
+    order: Vec<usize>,
+    /// Indices into `ok` of the picked θ_B,I.
+    picked_batches: Vec<usize>,
+    /// The picked θ_B,I with their Ē_p.
+    picked: Vec<ThetaScore>,
+}
+
+impl ThreeStepOptions {
+    /// Step 1: batch Gauss-Newton from θ_0 on random batches of the
+    /// selected segments, each scored by Ē_p on the validation segments;
+    /// the plausible results sorted by Ē_p and `picks` of them taken at
+    /// equal steps (fewer when not enough are plausible).
+    fn initial_step(
+        &self,
+        prep: &Prepared<'_>,
+        selected: &[Segment],
+        identify: &IdentifyOptions,
+        progress: Option<ProgressFn<'_>>,
+        warnings: &mut Vec<Warning>,
+    ) -> Result<InitialResults> {
+        let (drive, opts) = (prep.drive, prep.options);
+        #[allow(unused_mut)]
+        let mut batches = random_batches(selected.len(), self.initial_batch_size, self.initial_batches, opts.seed);
+        emit(progress, Progress::Stage { name: "initial identification", total: batches.len() as u64 });
+        #[allow(unused_mut)]
+        let mut data: Vec<SegmentData> = selected.iter().map(|s| SegmentData::new(drive, s)).collect();
+        #[cfg(test)]
+        forced::apply(drive, &mut data, &mut batches);
+        let results = score_batches(drive, &data, &batches, &prep.validation, &opts.theta0, identify, progress);
+        let (ok, rejected) = screen_batches(results, &opts.theta0, identify.free, &opts.trust.guards, warnings);
+        if ok.is_empty() {
+            return Err(Error::Numerical("every initial batch identification failed".into()));
+        }
+        let order = plausible_by_error(&ok, &rejected)?;
+        let picks = if order.len() < self.picks && !rejected.is_empty() {
+            warnings.push(Warning::FewUsableBatches { usable: order.len(), picks: self.picks });
+            order.len()
+        } else {
+            self.picks
+        };
+        let picked_batches: Vec<usize> = equal_step_picks(order.len(), picks).into_iter().map(|i| order[i]).collect();
+        let picked: Vec<ThetaScore> = picked_batches.iter().map(|&i| ok[i].score).collect();
+        Ok(InitialResults { ok, rejected, order, picked_batches, picked })
+    }
+
+    /// Step 2: the inputs of the final segments (all selected, or a random
+    /// batch of them) compensated at every picked θ_B,I. With extrinsics the
+    /// QP tracks the axle poses the reference implies under the picked
+    /// batches' mean extrinsics (the QP itself models the axle only); step
+    /// 3 fits the original reference again.
+    fn compensation_step(
+        &self,
+        drive: &Drive,
+        selected: &[Segment],
+        step1: &InitialResults,
+        identify: &IdentifyOptions,
+        seed: u64,
+        progress: Option<ProgressFn<'_>>,
+    ) -> Result<CompensatedInputs> {
+        let final_segs: Vec<Segment> = match self.final_segments {
+            FinalSegments::All => selected.to_vec(),
+            FinalSegments::Random(n) => random_batches(selected.len(), n, 1, seed ^ FINAL_SEGMENTS_SEED_SALT)[0]
+                .iter()
+                .map(|&i| selected[i])
+                .collect(),
+        };
+        let thetas: Vec<Theta> = step1.picked.iter().map(|p| p.theta).collect();
+        let axle_drive = match identify.uses_extrinsics() {
+            true => {
+                let e: Vec<[f64; 3]> = step1
+                    .picked_batches
+                    .iter()
+                    .map(|&i| step1.ok[i].extrinsics.unwrap_or(identify.extrinsics).to_array())
+                    .collect();
+                let mean = Extrinsics::from_array(std::array::from_fn(|j| {
+                    e.iter().map(|a| a[j]).sum::<f64>() / e.len().max(1) as f64
+                }));
+                Some(axle_reference_drive(drive, &mean)?)
+            }
+            false => None,
+        };
+        compensate_segments(
+            axle_drive.as_ref().unwrap_or(drive),
+            &final_segs,
+            &thetas,
+            &self.compensate,
+            &self.qp,
+            progress,
+        )
+    }
+
+    /// The uncertainty of the result: the robust σ at θ with the measured
+    /// inputs of the compensated segments (without extrinsics), and the
+    /// spread of the plausible step-1 estimates.
+    fn uncertainty(
+        &self,
+        drive: &Drive,
+        selected: &[Segment],
+        comp: &CompensatedInputs,
+        report: &IdentifyReport,
+        step1: &InitialResults,
+        identify: &IdentifyOptions,
+    ) -> Box<ThreeStepUncertainty> {
+        let measured_inputs = match identify.uses_extrinsics() {
+            true => None,
+            false => {
+                let raw: Vec<SegmentData> = comp.segments.iter().map(|s| SegmentData::new(drive, s)).collect();
+                robust_covariance_at(&raw, &report.theta, identify)
+            }
+        };
+        let plausible: Vec<Theta> = step1.order.iter().map(|&i| step1.ok[i].score.theta).collect();
+        Box::new(ThreeStepUncertainty {
+            measured_inputs,
+            batch_spread: BatchSpread::new(
+                &plausible,
+                self.initial_batch_size.min(selected.len()),
+                effective_segments(selected),
+            ),
+        })
+    }
+}
+
+/// Step 1's batch results: the identified ones in order, each checked
+/// against the plausibility guards (a failure is rejected, not dropped);
+/// a warning per failed or rejected batch.
+fn screen_batches(
+    results: Vec<Result<BatchResult>>,
+    theta0: &Theta,
+    free: ParamSet,
+    guards: &Guards,
+    warnings: &mut Vec<Warning>,
+) -> (Vec<BatchResult>, Vec<RejectedBatch>) {
+    let mut ok = Vec::new();
+    let mut rejected = Vec::new();
+    for (i, r) in results.into_iter().enumerate() {
+        match r {
+            Ok(b) => {
+                let violations = check_theta(&b.score.theta, theta0, free, Some(b.iterations), b.rcond, guards);
+                if !violations.is_empty() {
+                    warnings.push(Warning::BatchRejected { batch: i, violations: violations.clone() });
+                    rejected.push(RejectedBatch { index: ok.len(), violations });
+                }
+                ok.push(b);
+            }
+            Err(e) => warnings.push(Warning::BatchFailed { batch: i, reason: e.to_string() }),
+        }
+    }
+    (ok, rejected)
+}
+
+/// Indices into `ok` of the plausible results (only those are sorted and
+/// picked), by increasing Ē_p; none plausible is an error.
+fn plausible_by_error(ok: &[BatchResult], rejected: &[RejectedBatch]) -> Result<Vec<usize>> {
+    let mut order: Vec<usize> = (0..ok.len()).filter(|i| !rejected.iter().any(|r| r.index == *i)).collect();
+    if order.is_empty() {
+        let first = rejected.first().map(|r| r.violations.iter().map(ToString::to_string).collect::<Vec<_>>());
+        return Err(Error::Numerical(format!(
+            "every one of the {} step-1 results failed the plausibility guards (the first: {}); the data do \
+             not determine θ near θ_0 — check θ_0, hold parameters (--fix) or use a drive with more turns",
+            ok.len(),
+            first.map(|v| v.join("; ")).unwrap_or_default()
+        )));
+    }
+    order.sort_by(|&a, &b| ok[a].score.mean_position_error_m.total_cmp(&ok[b].score.mean_position_error_m));
+    Ok(order)
 }
 
 /// Test-only hook: replace step 1's first random batch by chosen segments

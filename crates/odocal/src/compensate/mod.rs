@@ -468,43 +468,12 @@ pub fn compensate_segments(
     let mut qp_iters = 0usize;
     let (mut rel_sq, mut rel_n) = (0.0, 0usize);
     for (s, seg) in segments.iter().enumerate() {
-        let k = seg.steps;
-        let (mut a, mut b, mut count) = (vec![0.0; k], vec![0.0; k], 0usize);
-        for t in 0..thetas.len() {
-            match &results[s * thetas.len() + t] {
-                Ok(c) => {
-                    for i in 0..k {
-                        a[i] += c.n_rl[i];
-                        b[i] += c.n_rr[i];
-                    }
-                    count += 1;
-                    out.step.qp_solves += c.linearizations;
-                    qp_iters += c.qp_iterations;
-                    if !c.converged {
-                        out.step.unconverged_jobs += 1;
-                    }
-                    out.step.fallback_solves += c.fallbacks.len();
-                    out.warnings.extend(c.fallbacks.iter().map(|f| CompensationWarning::SolverFallback {
-                        segment_start: seg.start,
-                        theta_index: t + 1,
-                        linearization: f.linearization,
-                        solver: f.solver.clone(),
-                        fallback: f.fallback.clone(),
-                        reason: f.reason.to_string(),
-                    }));
-                }
-                Err(e) => {
-                    out.step.failed_jobs += 1;
-                    out.warnings.push(CompensationWarning::Failed { segment_start: seg.start, reason: e.to_string() });
-                }
-            }
-        }
-        if count == 0 {
+        let jobs_of_segment = &results[s * thetas.len()..(s + 1) * thetas.len()];
+        let Some((a, b)) = out.average_jobs(seg, jobs_of_segment, &mut qp_iters) else {
             continue;
-        }
-        for i in 0..k {
-            a[i] /= count as f64;
-            b[i] /= count as f64;
+        };
+        // The relative change of the inputs, where the wheel turns.
+        for i in 0..seg.steps {
             for (m, c) in [(drive.n_rl()[seg.start + i], a[i]), (drive.n_rr()[seg.start + i], b[i])] {
                 if m.abs() > 1e-3 {
                     rel_sq += ((c - m) / m).powi(2);
@@ -521,6 +490,59 @@ pub fn compensate_segments(
         if out.step.qp_solves > 0 { qp_iters as f64 / out.step.qp_solves as f64 } else { 0.0 };
     out.step.rms_relative_input_change = if rel_n > 0 { (rel_sq / rel_n as f64).sqrt() } else { 0.0 };
     Ok(out)
+}
+
+impl CompensatedInputs {
+    /// The mean compensated `(n_rl, n_rr)` of `seg` over its jobs (one per
+    /// θ, in order), or `None` when every job failed; counts the jobs'
+    /// solves, iterations (into `qp_iters`), failures and fallbacks, with a
+    /// warning per failure and per fallback solve.
+    fn average_jobs(
+        &mut self,
+        seg: &Segment,
+        jobs: &[Result<Compensation>],
+        qp_iters: &mut usize,
+    ) -> Option<(Vec<f64>, Vec<f64>)> {
+        let k = seg.steps;
+        let (mut a, mut b, mut count) = (vec![0.0; k], vec![0.0; k], 0usize);
+        for (t, job) in jobs.iter().enumerate() {
+            match job {
+                Ok(c) => {
+                    for i in 0..k {
+                        a[i] += c.n_rl[i];
+                        b[i] += c.n_rr[i];
+                    }
+                    count += 1;
+                    self.step.qp_solves += c.linearizations;
+                    *qp_iters += c.qp_iterations;
+                    if !c.converged {
+                        self.step.unconverged_jobs += 1;
+                    }
+                    self.step.fallback_solves += c.fallbacks.len();
+                    self.warnings.extend(c.fallbacks.iter().map(|f| CompensationWarning::SolverFallback {
+                        segment_start: seg.start,
+                        theta_index: t + 1,
+                        linearization: f.linearization,
+                        solver: f.solver.clone(),
+                        fallback: f.fallback.clone(),
+                        reason: f.reason.to_string(),
+                    }));
+                }
+                Err(e) => {
+                    self.step.failed_jobs += 1;
+                    self.warnings.push(CompensationWarning::Failed { segment_start: seg.start, reason: e.to_string() });
+                }
+            }
+        }
+        if count == 0 {
+            return None;
+        }
+        for i in 0..k {
+            a[i] /= count as f64;
+            b[i] /= count as f64;
+        }
+        Some((a, b))
+    }
 }
 
 #[cfg(test)]

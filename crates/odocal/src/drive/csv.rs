@@ -81,6 +81,228 @@ fn not_csv(bytes: &[u8]) -> Option<&'static str> {
     NOT_CSV.iter().find(|(magic, _)| bytes.starts_with(magic)).map(|(_, what)| *what)
 }
 
+/// The error at `line` (and `column`) of the CSV file `path`.
+fn csv_error(path: &Path, line: u64, column: Option<&str>, reason: String) -> Error {
+    Error::Csv { path: path.to_path_buf(), line, column: column.map(echo), reason }
+}
+
+/// A CSV reader's error, in words for the common cases.
+fn from_csv(path: &Path, e: ::csv::Error) -> Error {
+    let line = e.position().map(|p| p.line()).unwrap_or(0);
+    let reason = match e.kind() {
+        ::csv::ErrorKind::Utf8 { .. } => "invalid UTF-8 (the file must be UTF-8 text)".to_string(),
+        ::csv::ErrorKind::UnequalLengths { expected_len, len, .. } => {
+            format!("{len} fields, the header has {expected_len}")
+        }
+        _ => e.to_string(),
+    };
+    csv_error(path, line, None, reason)
+}
+
+/// Checks the header: every column named once, every required column
+/// present (with a hint when the separator looks wrong).
+fn check_header(headers: &[String], path: &Path) -> Result<()> {
+    let mut seen = std::collections::BTreeSet::new();
+    let dups: Vec<String> = headers.iter().filter(|h| !seen.insert(h.as_str())).map(|h| echo(h)).collect();
+    if !dups.is_empty() {
+        return Err(csv_error(
+            path,
+            1,
+            None,
+            format!("duplicate column name(s) {}: every column must be named once", list(&dups)),
+        ));
+    }
+    let missing: Vec<String> =
+        REQUIRED_COLUMNS.iter().filter(|c| !headers.iter().any(|h| h == *c)).map(|c| c.to_string()).collect();
+    if !missing.is_empty() {
+        let hint = if headers.len() == 1 && (headers[0].contains(';') || headers[0].contains('\t')) {
+            Some("the header looks separated by ';' or tabs: the canonical CSV is comma-separated".to_string())
+        } else {
+            None
+        };
+        return Err(Error::MissingColumns {
+            path: path.to_path_buf(),
+            missing,
+            found: listed(&headers.iter().map(|h| echo(h)).collect::<Vec<_>>()),
+            hint,
+        });
+    }
+    Ok(())
+}
+
+/// The cells of a canonical CSV by column, and the file line of each row.
+struct Columns {
+    /// Column names, in file order.
+    headers: Vec<String>,
+    /// Columns odocal uses (required, truth, mask, part): numbers only.
+    /// Others may hold text.
+    numeric: Vec<bool>,
+    /// Each column's numbers (emptied when the column turns to text).
+    nums: Vec<Vec<f64>>,
+    /// Each extra column's cells as text, once one of them is not a number.
+    text: Vec<Option<Vec<String>>>,
+    /// File line of each row.
+    lines: Vec<u64>,
+}
+
+impl Columns {
+    /// Reads every data row; a row with the wrong number of fields, a
+    /// non-number or a non-finite number in a column odocal uses, or no row
+    /// at all is an error.
+    fn read(rdr: &mut ::csv::Reader<&[u8]>, headers: Vec<String>, path: &Path) -> Result<Columns> {
+        let numeric: Vec<bool> = headers
+            .iter()
+            .map(|h| {
+                REQUIRED_COLUMNS.contains(&h.as_str())
+                    || TRUTH_COLUMNS.contains(&h.as_str())
+                    || h == MASK_COLUMN
+                    || h == PART_COLUMN
+            })
+            .collect();
+        let n = headers.len();
+        let mut cols = Columns { headers, numeric, nums: vec![Vec::new(); n], text: vec![None; n], lines: Vec::new() };
+        let mut record = ::csv::StringRecord::new();
+        let mut line = 1u64;
+        while rdr.read_record(&mut record).map_err(|e| from_csv(path, e))? {
+            line = record.position().map(|p| p.line()).unwrap_or(line + 1);
+            if record.len() != n {
+                return Err(csv_error(path, line, None, format!("{} fields, the header has {n}", record.len())));
+            }
+            for (j, field) in record.iter().enumerate() {
+                cols.push(j, field, line, path)?;
+            }
+            cols.lines.push(line);
+        }
+        if cols.lines.is_empty() {
+            return Err(Error::InvalidDrive {
+                context: path.display().to_string(),
+                reason: "the file has a header but no data rows".into(),
+            });
+        }
+        Ok(cols)
+    }
+
+    /// One cell of column `j`: a number, or text in an extra column from its
+    /// first cell that is not a number on (the numbers before it kept as
+    /// text).
+    fn push(&mut self, j: usize, field: &str, line: u64, path: &Path) -> Result<()> {
+        if let Some(tx) = self.text[j].as_mut() {
+            tx.push(field.to_string());
+            return Ok(());
+        }
+        let column = Some(self.headers[j].as_str());
+        match field.parse::<f64>() {
+            Ok(v) if v.is_finite() || !self.numeric[j] => self.nums[j].push(v),
+            Ok(_) => return Err(csv_error(path, line, column, format!("value '{}' is not finite", echo(field)))),
+            Err(_) if self.numeric[j] => {
+                return Err(csv_error(path, line, column, format!("'{}' is not a number", echo(field))))
+            }
+            Err(_) => {
+                let mut tx: Vec<String> = std::mem::take(&mut self.nums[j]).iter().map(|v| v.to_string()).collect();
+                tx.push(field.to_string());
+                self.text[j] = Some(tx);
+            }
+        }
+        Ok(())
+    }
+
+    /// Index of the column `name`.
+    fn find(&self, name: &str) -> Option<usize> {
+        self.headers.iter().position(|h| h == name)
+    }
+
+    /// File line of a sample (0 when unknown).
+    fn line_of(&self, sample: usize) -> u64 {
+        self.lines.get(sample).copied().unwrap_or(0)
+    }
+
+    /// Takes the numbers of the column `name` (empty when there is none).
+    fn take(&mut self, name: &str) -> Vec<f64> {
+        self.find(name).map(|j| std::mem::take(&mut self.nums[j])).unwrap_or_default()
+    }
+
+    /// Takes the model signals of the columns named with `suffix`.
+    fn signals(&mut self, suffix: &str) -> Signals {
+        let [px, py, psi, n_rl, n_rr, beta, a_y] = SIGNAL_NAMES.map(|c| self.take(&format!("{c}{suffix}")));
+        Signals { px, py, psi, n_rl, n_rr, beta, a_y }
+    }
+
+    /// The drive: time, measured signals, the truth when every truth column
+    /// is there, part ids, the reference mask, extra columns; an invalid
+    /// sample's error names its line and column.
+    fn into_drive(mut self, path: &Path) -> Result<Drive> {
+        let measured = self.signals("");
+        let truth = TRUTH_COLUMNS.iter().all(|c| self.find(c).is_some()).then(|| self.signals("_true"));
+        let t = self.take("t");
+        let mut b = Drive::builder(t, measured).context(path.display().to_string());
+        if let Some(tr) = truth {
+            b = b.truth(tr);
+        }
+        if let Some(ids) = self.part_ids(path)? {
+            b = b.part_ids(ids);
+        }
+        if let Some(mask) = self.reference_mask(path)? {
+            b = b.reference_measured(mask);
+        }
+        for extra in self.extra_columns() {
+            b = b.extra(extra);
+        }
+        b.build().map_err(|e| match e {
+            Error::InvalidSample { column, sample, reason, .. } => {
+                csv_error(path, self.line_of(sample), Some(&column), reason)
+            }
+            e => e,
+        })
+    }
+
+    /// The `part` column as integer ids, when there is one.
+    fn part_ids(&self, path: &Path) -> Result<Option<Vec<i64>>> {
+        let Some(j) = self.find(PART_COLUMN) else { return Ok(None) };
+        let mut ids = Vec::with_capacity(self.nums[j].len());
+        for (i, &v) in self.nums[j].iter().enumerate() {
+            if v.fract() != 0.0 || !(0.0..=1e15).contains(&v) {
+                return Err(csv_error(
+                    path,
+                    self.line_of(i),
+                    Some(PART_COLUMN),
+                    format!("part id {v} is not a non-negative integer (parts are numbered 0, 1, 2, …)"),
+                ));
+            }
+            ids.push(v as i64);
+        }
+        Ok(Some(ids))
+    }
+
+    /// The `ref_measured` column as flags (each exactly 0 or 1), when there
+    /// is one.
+    fn reference_mask(&self, path: &Path) -> Result<Option<Vec<bool>>> {
+        let Some(j) = self.find(MASK_COLUMN) else { return Ok(None) };
+        let mut mask = Vec::with_capacity(self.nums[j].len());
+        for (i, &v) in self.nums[j].iter().enumerate() {
+            let one = v.to_bits() == 1.0f64.to_bits();
+            if v != 0.0 && !one {
+                return Err(csv_error(path, self.line_of(i), Some(MASK_COLUMN), format!("{v} is not 0 or 1")));
+            }
+            mask.push(one);
+        }
+        Ok(Some(mask))
+    }
+
+    /// Takes the columns odocal does not use, as numbers or text.
+    fn extra_columns(&mut self) -> Vec<ExtraColumn> {
+        let mut extra = Vec::new();
+        for (j, h) in self.headers.iter().enumerate() {
+            let values = match self.text[j].take() {
+                Some(tx) => ExtraValues::Text(tx),
+                None if !self.numeric[j] => ExtraValues::Numbers(std::mem::take(&mut self.nums[j])),
+                None => continue,
+            };
+            extra.push(ExtraColumn { name: h.clone(), values });
+        }
+        extra
+    }
+}
+
 impl Drive {
     /// Reads a canonical drive CSV (SPEC §2). Accepts a UTF-8 BOM, CRLF line
     /// endings, extra columns (numbers or text, kept in [`Drive::extra`];
@@ -122,12 +344,6 @@ impl Drive {
             return Err(Error::InvalidDrive { context: path.display().to_string(), reason: what.into() });
         }
         let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF".as_slice()).unwrap_or(bytes);
-        let csv_error = |line: u64, column: Option<&str>, reason: String| Error::Csv {
-            path: path.to_path_buf(),
-            line,
-            column: column.map(echo),
-            reason,
-        };
         if bytes.iter().all(|b| b.is_ascii_whitespace()) {
             return Err(Error::InvalidDrive {
                 context: path.display().to_string(),
@@ -136,151 +352,10 @@ impl Drive {
             });
         }
         let mut rdr = ::csv::ReaderBuilder::new().has_headers(true).trim(::csv::Trim::All).from_reader(bytes);
-        let from_csv = |e: ::csv::Error| {
-            let line = e.position().map(|p| p.line()).unwrap_or(0);
-            let reason = match e.kind() {
-                ::csv::ErrorKind::Utf8 { .. } => "invalid UTF-8 (the file must be UTF-8 text)".to_string(),
-                ::csv::ErrorKind::UnequalLengths { expected_len, len, .. } => {
-                    format!("{len} fields, the header has {expected_len}")
-                }
-                _ => e.to_string(),
-            };
-            csv_error(line, None, reason)
-        };
-        let headers: Vec<String> = rdr.headers().map_err(from_csv)?.iter().map(|h| h.to_string()).collect();
-        let mut seen = std::collections::BTreeSet::new();
-        let dups: Vec<String> = headers.iter().filter(|h| !seen.insert(h.as_str())).map(|h| echo(h)).collect();
-        if !dups.is_empty() {
-            return Err(csv_error(
-                1,
-                None,
-                format!("duplicate column name(s) {}: every column must be named once", list(&dups)),
-            ));
-        }
-        let find = |name: &str| headers.iter().position(|h| h == name);
-        let missing: Vec<String> =
-            REQUIRED_COLUMNS.iter().filter(|c| find(c).is_none()).map(|c| c.to_string()).collect();
-        if !missing.is_empty() {
-            let hint = if headers.len() == 1 && (headers[0].contains(';') || headers[0].contains('\t')) {
-                Some("the header looks separated by ';' or tabs: the canonical CSV is comma-separated".to_string())
-            } else {
-                None
-            };
-            return Err(Error::MissingColumns {
-                path: path.to_path_buf(),
-                missing,
-                found: listed(&headers.iter().map(|h| echo(h)).collect::<Vec<_>>()),
-                hint,
-            });
-        }
-        // Columns odocal uses must be numbers; others may hold text.
-        let numeric: Vec<bool> = headers
-            .iter()
-            .map(|h| {
-                REQUIRED_COLUMNS.contains(&h.as_str())
-                    || TRUTH_COLUMNS.contains(&h.as_str())
-                    || h == MASK_COLUMN
-                    || h == PART_COLUMN
-            })
-            .collect();
-        let mut nums: Vec<Vec<f64>> = vec![Vec::new(); headers.len()];
-        let mut text: Vec<Option<Vec<String>>> = vec![None; headers.len()];
-        let mut lines: Vec<u64> = Vec::new();
-        let mut record = ::csv::StringRecord::new();
-        let mut line = 1u64;
-        while rdr.read_record(&mut record).map_err(from_csv)? {
-            line = record.position().map(|p| p.line()).unwrap_or(line + 1);
-            if record.len() != headers.len() {
-                return Err(csv_error(
-                    line,
-                    None,
-                    format!("{} fields, the header has {}", record.len(), headers.len()),
-                ));
-            }
-            for (j, field) in record.iter().enumerate() {
-                if let Some(tx) = text[j].as_mut() {
-                    tx.push(field.to_string());
-                    continue;
-                }
-                match field.parse::<f64>() {
-                    Ok(v) if v.is_finite() || !numeric[j] => nums[j].push(v),
-                    Ok(_) => {
-                        return Err(csv_error(
-                            line,
-                            Some(&headers[j]),
-                            format!("value '{}' is not finite", echo(field)),
-                        ))
-                    }
-                    Err(_) if numeric[j] => {
-                        return Err(csv_error(line, Some(&headers[j]), format!("'{}' is not a number", echo(field))))
-                    }
-                    Err(_) => {
-                        // An extra column with text: keep it as text from here on.
-                        let mut tx: Vec<String> = std::mem::take(&mut nums[j]).iter().map(|v| v.to_string()).collect();
-                        tx.push(field.to_string());
-                        text[j] = Some(tx);
-                    }
-                }
-            }
-            lines.push(line);
-        }
-        if lines.is_empty() {
-            return Err(Error::InvalidDrive {
-                context: path.display().to_string(),
-                reason: "the file has a header but no data rows".into(),
-            });
-        }
-        let line_of = |sample: usize| lines.get(sample).copied().unwrap_or(0);
-        let mut take =
-            |name: &str| -> Vec<f64> { find(name).map(|j| std::mem::take(&mut nums[j])).unwrap_or_default() };
-        let mut signals = |suffix: &str| -> Signals {
-            let [px, py, psi, n_rl, n_rr, beta, a_y] = SIGNAL_NAMES.map(|c| take(&format!("{c}{suffix}")));
-            Signals { px, py, psi, n_rl, n_rr, beta, a_y }
-        };
-        let measured = signals("");
-        let truth = TRUTH_COLUMNS.iter().all(|c| find(c).is_some()).then(|| signals("_true"));
-        let t = take("t");
-        let mut b = Drive::builder(t, measured).context(path.display().to_string());
-        if let Some(tr) = truth {
-            b = b.truth(tr);
-        }
-        if let Some(j) = find(PART_COLUMN) {
-            let mut ids = Vec::with_capacity(nums[j].len());
-            for (i, &v) in nums[j].iter().enumerate() {
-                if v.fract() != 0.0 || !(0.0..=1e15).contains(&v) {
-                    return Err(csv_error(
-                        line_of(i),
-                        Some(PART_COLUMN),
-                        format!("part id {v} is not a non-negative integer (parts are numbered 0, 1, 2, …)"),
-                    ));
-                }
-                ids.push(v as i64);
-            }
-            b = b.part_ids(ids);
-        }
-        if let Some(j) = find(MASK_COLUMN) {
-            let mut mask = Vec::with_capacity(nums[j].len());
-            for (i, &v) in nums[j].iter().enumerate() {
-                let one = v.to_bits() == 1.0f64.to_bits();
-                if v != 0.0 && !one {
-                    return Err(csv_error(line_of(i), Some(MASK_COLUMN), format!("{v} is not 0 or 1")));
-                }
-                mask.push(one);
-            }
-            b = b.reference_measured(mask);
-        }
-        for (j, h) in headers.iter().enumerate() {
-            let values = match text[j].take() {
-                Some(tx) => ExtraValues::Text(tx),
-                None if !numeric[j] => ExtraValues::Numbers(std::mem::take(&mut nums[j])),
-                None => continue,
-            };
-            b = b.extra(ExtraColumn { name: h.clone(), values });
-        }
-        b.build().map_err(|e| match e {
-            Error::InvalidSample { column, sample, reason, .. } => csv_error(line_of(sample), Some(&column), reason),
-            e => e,
-        })
+        let headers: Vec<String> =
+            rdr.headers().map_err(|e| from_csv(path, e))?.iter().map(|h| h.to_string()).collect();
+        check_header(&headers, path)?;
+        Columns::read(&mut rdr, headers, path)?.into_drive(path)
     }
 
     /// Writes the canonical CSV (with truth, `ref_measured` when present,

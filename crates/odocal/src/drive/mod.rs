@@ -303,113 +303,31 @@ impl DriveBuilder {
         } = self;
         limits.validate()?;
         let n = t.len();
-        let invalid = |reason: String| Error::InvalidDrive { context: context.clone(), reason };
-        let bad = |column: &str, sample: usize, reason: String| Error::InvalidSample {
-            context: context.clone(),
-            column: column.to_string(),
-            sample,
-            reason,
-        };
+        let err = BuildErrors { context: &context };
         if n == 0 {
-            return Err(invalid("no samples".into()));
+            return Err(err.invalid("no samples".into()));
         }
         if let Some(i) = t.iter().position(|v| !v.is_finite()) {
-            return Err(bad("t", i, format!("value {} is not finite", t[i])));
+            return Err(err.sample("t", i, format!("value {} is not finite", t[i])));
         }
-        let check = |sig: &Signals, suffix: &str| -> Result<()> {
-            for (name, col) in sig.columns() {
-                let name = format!("{name}{suffix}");
-                if col.len() != n {
-                    return Err(invalid(format!("column {name} has {} samples, t has {n}", col.len())));
-                }
-                if let Some(i) = col.iter().position(|v| !v.is_finite()) {
-                    return Err(bad(&name, i, format!("value {} is not finite", col[i])));
-                }
-            }
-            Ok(())
-        };
-        check(&measured, "")?;
+        check_signals(&measured, "", n, &err)?;
         if let Some(tr) = &truth {
-            check(tr, "_true")?;
+            check_signals(tr, "_true", n, &err)?;
         }
         if let Some(m) = &reference_measured {
             if m.len() != n {
-                return Err(invalid(format!("column ref_measured has {} samples, t has {n}", m.len())));
+                return Err(err.invalid(format!("column ref_measured has {} samples, t has {n}", m.len())));
             }
         }
         for c in &extra {
             if c.values.len() != n {
-                return Err(invalid(format!("column {} has {} samples, t has {n}", c.name, c.values.len())));
+                return Err(err.invalid(format!("column {} has {} samples, t has {n}", c.name, c.values.len())));
             }
         }
-        let parts = match parts {
-            PartSpec::One => vec![0..n],
-            PartSpec::Ids(ids) => {
-                if ids.len() != n {
-                    return Err(invalid(format!("column part has {} samples, t has {n}", ids.len())));
-                }
-                let mut parts = Vec::new();
-                let mut start = 0;
-                for i in 1..=n {
-                    if i == n || ids[i] != ids[i - 1] {
-                        parts.push(start..i);
-                        start = i;
-                    }
-                }
-                parts
-            }
-            PartSpec::Ranges(r) => {
-                let mut next = 0;
-                for p in &r {
-                    if p.start != next || p.end <= p.start {
-                        return Err(invalid(format!(
-                            "parts must be non-empty consecutive ranges covering every sample; got {r:?}"
-                        )));
-                    }
-                    next = p.end;
-                }
-                if next != n {
-                    return Err(invalid(format!("parts cover {next} samples, the drive has {n}")));
-                }
-                r
-            }
-        };
-        // Time strictly increasing everywhere.
-        for i in 1..n {
-            if t[i].partial_cmp(&t[i - 1]) != Some(std::cmp::Ordering::Greater) {
-                return Err(bad("t", i, format!("time is not strictly increasing ({} after {})", t[i], t[i - 1])));
-            }
-        }
-        // t_s: mean step over all parts; every step within 1 %.
-        let (mut span, mut steps) = (0.0, 0usize);
-        for r in &parts {
-            if r.len() >= 2 {
-                span += t[r.end - 1] - t[r.start];
-                steps += r.len() - 1;
-            }
-        }
-        let ts = match sample_time_s {
-            Some(ts) if ts.is_finite() && ts > 0.0 => ts,
-            Some(ts) => return Err(invalid(format!("sample time {ts} s is not a positive number"))),
-            None if steps == 0 => return Err(invalid(format!("{n} sample(s): too few to infer the sample time"))),
-            None => span / steps as f64,
-        };
-        for r in &parts {
-            for i in r.start + 1..r.end {
-                let dt = t[i] - t[i - 1];
-                if (dt - ts).abs() > STEP_UNIFORMITY_TOL * ts {
-                    return Err(bad(
-                        "t",
-                        i,
-                        format!(
-                            "sample step {dt:.6} s differs from the {} step {ts:.6} s by more than 1 %; \
-                             the time must be uniform (resample the log, or mark gaps with a 'part' column)",
-                            if sample_time_s.is_some() { "nominal" } else { "mean" }
-                        ),
-                    ));
-                }
-            }
-        }
+        let parts = resolve_parts(parts, n, &err)?;
+        check_increasing(&t, &err)?;
+        let ts = sample_time(&t, &parts, sample_time_s, &err)?;
+        check_uniform_steps(&t, &parts, ts, sample_time_s.is_some(), &err)?;
         unwrap_in_place(&mut measured.psi);
         if let Some(tr) = truth.as_mut() {
             unwrap_in_place(&mut tr.psi);
@@ -418,6 +336,126 @@ impl DriveBuilder {
         plausibility::check_limits(&drive, &limits, &context)?;
         Ok(drive)
     }
+}
+
+/// The errors of a drive being built, naming where its data come from.
+struct BuildErrors<'a> {
+    /// The builder's context.
+    context: &'a str,
+}
+
+impl BuildErrors<'_> {
+    /// A problem of the whole drive.
+    fn invalid(&self, reason: String) -> Error {
+        Error::InvalidDrive { context: self.context.to_string(), reason }
+    }
+
+    /// A problem of one sample of one column.
+    fn sample(&self, column: &str, sample: usize, reason: String) -> Error {
+        Error::InvalidSample { context: self.context.to_string(), column: column.to_string(), sample, reason }
+    }
+}
+
+/// Every column of `sig` (named with `suffix`) has `n` finite samples.
+fn check_signals(sig: &Signals, suffix: &str, n: usize, err: &BuildErrors<'_>) -> Result<()> {
+    for (name, col) in sig.columns() {
+        let name = format!("{name}{suffix}");
+        if col.len() != n {
+            return Err(err.invalid(format!("column {name} has {} samples, t has {n}", col.len())));
+        }
+        if let Some(i) = col.iter().position(|v| !v.is_finite()) {
+            return Err(err.sample(&name, i, format!("value {} is not finite", col[i])));
+        }
+    }
+    Ok(())
+}
+
+/// The parts as index ranges: one part; a new part wherever the id
+/// changes; or the given ranges, which must be non-empty, consecutive and
+/// cover the `n` samples.
+fn resolve_parts(parts: PartSpec, n: usize, err: &BuildErrors<'_>) -> Result<Vec<Range<usize>>> {
+    match parts {
+        PartSpec::One => Ok(vec![0..n]),
+        PartSpec::Ids(ids) => {
+            if ids.len() != n {
+                return Err(err.invalid(format!("column part has {} samples, t has {n}", ids.len())));
+            }
+            let mut parts = Vec::new();
+            let mut start = 0;
+            for i in 1..=n {
+                if i == n || ids[i] != ids[i - 1] {
+                    parts.push(start..i);
+                    start = i;
+                }
+            }
+            Ok(parts)
+        }
+        PartSpec::Ranges(r) => {
+            let mut next = 0;
+            for p in &r {
+                if p.start != next || p.end <= p.start {
+                    return Err(err.invalid(format!(
+                        "parts must be non-empty consecutive ranges covering every sample; got {r:?}"
+                    )));
+                }
+                next = p.end;
+            }
+            if next != n {
+                return Err(err.invalid(format!("parts cover {next} samples, the drive has {n}")));
+            }
+            Ok(r)
+        }
+    }
+}
+
+/// Time strictly increasing everywhere.
+fn check_increasing(t: &[f64], err: &BuildErrors<'_>) -> Result<()> {
+    for i in 1..t.len() {
+        if t[i].partial_cmp(&t[i - 1]) != Some(std::cmp::Ordering::Greater) {
+            return Err(err.sample("t", i, format!("time is not strictly increasing ({} after {})", t[i], t[i - 1])));
+        }
+    }
+    Ok(())
+}
+
+/// t_s: the nominal one when given (a positive number), else the mean step
+/// over all parts.
+fn sample_time(t: &[f64], parts: &[Range<usize>], nominal: Option<f64>, err: &BuildErrors<'_>) -> Result<f64> {
+    let (mut span, mut steps) = (0.0, 0usize);
+    for r in parts {
+        if r.len() >= 2 {
+            span += t[r.end - 1] - t[r.start];
+            steps += r.len() - 1;
+        }
+    }
+    match nominal {
+        Some(ts) if ts.is_finite() && ts > 0.0 => Ok(ts),
+        Some(ts) => Err(err.invalid(format!("sample time {ts} s is not a positive number"))),
+        None if steps == 0 => Err(err.invalid(format!("{} sample(s): too few to infer the sample time", t.len()))),
+        None => Ok(span / steps as f64),
+    }
+}
+
+/// Every step within a part is within [`STEP_UNIFORMITY_TOL`] of `ts`
+/// (the `nominal` step, or the mean).
+fn check_uniform_steps(t: &[f64], parts: &[Range<usize>], ts: f64, nominal: bool, err: &BuildErrors<'_>) -> Result<()> {
+    for r in parts {
+        for i in r.start + 1..r.end {
+            let dt = t[i] - t[i - 1];
+            if (dt - ts).abs() > STEP_UNIFORMITY_TOL * ts {
+                return Err(err.sample(
+                    "t",
+                    i,
+                    format!(
+                        "sample step {dt:.6} s differs from the {} step {ts:.6} s by more than 1 %; \
+                         the time must be uniform (resample the log, or mark gaps with a 'part' column)",
+                        if nominal { "nominal" } else { "mean" }
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 impl Drive {

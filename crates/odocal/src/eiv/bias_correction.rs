@@ -6,14 +6,13 @@ use std::time::Instant;
 
 use super::filter::WindowSums;
 use super::problem::{free_inverse, free_sigma, theta_add};
-use super::{BiasCorrection, BootstrapNoise, EivInput, EivOptions, EivReport, FirstOrderBias};
+use super::{BiasCorrection, EivInput, EivOptions, EivReport, FirstOrderBias};
 use crate::error::{Error, Result};
 
 /// Applies `opts.bias_correction` to a fit made without it (nothing for
 /// [`BiasCorrection::None`]): runs the [`bootstrap`] it names at the fit
-/// (replicates on `opts.bootstrap_inputs`, holding the fitted noise or
-/// re-estimating it, `opts.bootstrap_noise`; in antithetic pairs with
-/// `opts.bootstrap_antithetic`), subtracts its bias from `report.theta`
+/// (replicates on `opts.bootstrap_inputs`, each holding the fitted noise
+/// model; in antithetic pairs with `opts.bootstrap_antithetic`), subtracts its bias from `report.theta`
 /// (every free parameter or c_e only) and adds the bias's Monte Carlo
 /// covariance to `report.covariance` and `report.sigma`.
 ///
@@ -21,8 +20,7 @@ use crate::error::{Error, Result};
 /// deciding whether to fall back, so that a fit it replaces by batch
 /// Gauss-Newton costs no bootstrap. `report` must be that of [`estimate`](crate::eiv::estimate)
 /// on `input` with `opts` except for the correction (and with its
-/// `bias_subtracted` zero). With time constants chosen by the fit
-/// ([`EivReport::time_constants`]) the replicates hold them.
+/// `bias_subtracted` zero).
 ///
 /// ```
 /// # fn main() -> Result<(), odocal::Error> {
@@ -55,25 +53,12 @@ pub fn apply_bias_correction(input: &EivInput<'_>, report: &mut EivReport, opts:
     }
     let t0 = Instant::now();
     // The fit's own quantisation level (as `estimate` resolved it on the
-    // drive's readings) and time constants.
-    let mut opts = EivOptions {
-        estimate_time_constants: false,
-        ..opts.with_resolved_quantisation(report.quantisation_step_from_readings)
-    };
-    if let Some(tc) = &report.time_constants {
-        opts.noise.wheel_common_time_constant_s = tc.wheel_common_s;
-        opts.noise.wheel_differential_time_constant_s = tc.wheel_differential_s;
-        opts.noise.drift_time_constant_s = tc.drift_s;
-    }
-    let opts = &opts;
+    // drive's readings).
+    let opts = &opts.with_resolved_quantisation(report.quantisation_step_from_readings);
     // The replicates are fitted without correction (their mean estimates
-    // the uncorrected estimator's mean at θ̂).
-    let inner = match opts.bootstrap_noise {
-        BootstrapNoise::Reestimated => EivOptions { bias_correction: BiasCorrection::None, ..opts.clone() },
-        BootstrapNoise::HeldAtFit => {
-            EivOptions { bias_correction: BiasCorrection::None, noise: report.noise, fix_noise: true, ..opts.clone() }
-        }
-    };
+    // the uncorrected estimator's mean at θ̂), holding the fitted noise model.
+    let inner =
+        EivOptions { bias_correction: BiasCorrection::None, noise: report.noise, fix_noise: true, ..opts.clone() };
     let boot = bootstrap(
         input,
         &*report,

@@ -33,7 +33,7 @@ use rand_distr::StandardNormal;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::{estimate, BiasCorrection, EivInput, EivOptions, EivReport, InnovationNull, NoiseModel};
+use super::{estimate, BiasCorrection, EivInput, EivOptions, EivReport, InnovationNull, NoiseModel, ResearchOptions};
 use crate::error::{Error, Result};
 use crate::model::{step, Input, State, Theta};
 
@@ -107,7 +107,7 @@ impl Default for BootstrapOptions {
 
 /// The true inputs (wheel rotations, a_y, β) of a bootstrap replicate world.
 ///
-/// Why the choice (docs/study.md, "the remaining t_r bias on high"). With the
+/// Why the choice (measured with `study_eiv` in crates/odocal-lab). With the
 /// measured inputs as the truth, the replicate's true yaw rate carries the
 /// measured wheels' white noise (on `high` about 5 mrad per 25 ms step at
 /// 10 m/s, more than the turning itself), so the replicates see a far larger
@@ -213,8 +213,11 @@ pub fn bootstrap(
     let mut refit = EivOptions {
         free: report.free,
         fix_unobservable: false,
-        noise_estimate_in_covariance: false,
-        innovation_null: InnovationNull::FittedModel,
+        research: ResearchOptions {
+            noise_estimate_in_covariance: false,
+            innovation_null: InnovationNull::FittedModel,
+            ..resolved.research.clone()
+        },
         ..resolved
     };
     if matches!(refit.bias_correction, BiasCorrection::Bootstrap { .. }) {

@@ -1,6 +1,5 @@
 //! The estimator's entry points: a fit and its checks.
 
-use super::tau;
 use std::time::Instant;
 
 use nalgebra::Matrix4;
@@ -63,22 +62,6 @@ pub fn kernel_instruction_set() -> &'static str {
 /// # Ok(()) }
 /// ```
 pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) -> Result<EivReport> {
-    if opts.estimate_time_constants {
-        return tau::estimate_with_time_constants(input, theta_start, opts);
-    }
-    estimate_from(input, theta_start, &[0.0; 6], opts).map(|(report, _)| report)
-}
-
-/// [`estimate`] at the time constants of `opts.noise`, starting from η =
-/// `eta_start`; also returns the Gaussian negative log-likelihood
-/// `½ Σ (νᵀS⁻¹ν + log det S)` (without 2π terms) at the estimate, before
-/// any bias correction.
-pub(crate) fn estimate_from(
-    input: &EivInput<'_>,
-    theta_start: &Theta,
-    eta_start: &[f64; 6],
-    opts: &EivOptions,
-) -> Result<(EivReport, f64)> {
     let t0 = Instant::now();
     opts.validate()?;
     input.validate()?;
@@ -100,16 +83,15 @@ pub(crate) fn estimate_from(
         opts
     };
     let prob = Problem::new(input, windows, opts);
-    let fit = run_passes(&prob, theta_start, eta_start, opts)?;
+    let fit = run_passes(&prob, theta_start, opts)?;
     let (ev, free, theta) = (&fit.ev, fit.free, fit.theta);
     let unc = uncertainty(&prob, &fit, opts)?;
     let observability = observability_of(&ev.total.h_theta, &free, fit.unobservable.clone(), opts);
-    let first_order_bias =
-        if opts.covariance == CovarianceMode::FollowsTheta { first_order_bias(&ev.total, &free) } else { None };
+    let follows = opts.research.covariance == CovarianceMode::FollowsTheta;
+    let first_order_bias = if follows { first_order_bias(&ev.total, &free) } else { None };
     let mut warnings = fit_warnings(&fit, opts);
     let diags = window_diagnostics(&prob, &fit, opts, &mut warnings)?;
-    let halves =
-        halves_check(ev, &theta, &free, opts.covariance == CovarianceMode::FollowsTheta, opts.covariance_estimate);
+    let halves = halves_check(ev, &theta, &free, follows, opts.research.covariance_estimate);
     if let Some(h) = &halves {
         for i in 0..4 {
             if h.z[i].abs() > opts.max_half_z {
@@ -128,7 +110,6 @@ pub(crate) fn estimate_from(
         eta_sigma[5] = 0.0;
     }
     let iterations = fit.passes.iter().map(|p| p.history.len()).sum();
-    let neg_log_likelihood = 0.5 * (ev.total.quad + ev.total.logdet);
     let mut report = EivReport {
         initial_theta: *theta_start,
         theta,
@@ -160,11 +141,10 @@ pub(crate) fn estimate_from(
         warnings,
         updates: fit.ev.total.updates,
         timing_s: t0.elapsed().as_secs_f64(),
-        time_constants: None,
         quantisation_step_from_readings: q_found,
     };
     apply_bias_correction(input, &mut report, opts)?;
-    Ok((report, neg_log_likelihood))
+    Ok(report)
 }
 
 /// The scoring passes of a fit and where they ended.
@@ -194,18 +174,19 @@ impl Fit {
     }
 }
 
-/// Runs the scoring passes: one with the covariance following θ (there is
-/// no reference to update), else `opts.passes`, each with the reference at
-/// the previous pass's result. The first pass decides which parameters are
-/// observable.
-fn run_passes(prob: &Problem<'_>, theta_start: &Theta, eta_start: &[f64; 6], opts: &EivOptions) -> Result<Fit> {
+/// Runs the scoring passes from η = 0: one with the covariance following θ
+/// (there is no reference to update), else `research.passes`, each with the
+/// reference at the previous pass's result. The first pass decides which
+/// parameters are observable.
+fn run_passes(prob: &Problem<'_>, theta_start: &Theta, opts: &EivOptions) -> Result<Fit> {
     let mut theta = *theta_start;
-    let mut eta = if opts.fix_noise { [0.0; 6] } else { *eta_start };
+    let mut eta = [0.0; 6];
     let mut free = opts.free;
     let mut unobservable = Vec::new();
     let mut passes = Vec::new();
     let mut last: Option<(Evaluation, [f64; 6])> = None;
-    let passes_to_run = if opts.covariance == CovarianceMode::FollowsTheta { 1 } else { opts.passes };
+    let r = &opts.research;
+    let passes_to_run = if r.covariance == CovarianceMode::FollowsTheta { 1 } else { r.passes };
     for pass in 0..passes_to_run {
         let out = scoring_pass(prob, theta, eta, theta, free, pass == 0, opts)?;
         if pass == 0 {
@@ -250,29 +231,30 @@ fn uncertainty(prob: &Problem<'_>, fit: &Fit, opts: &EivOptions) -> Result<Uncer
         }
         None => [f64::NAN; 4],
     };
-    let cov_reported = match opts.covariance_estimate {
+    let cov_reported = match opts.research.covariance_estimate {
         CovarianceEstimate::Model => cov,
         CovarianceEstimate::LargerOfModelAndBlock => inflate_to_block(&cov, &ev.total.blocks),
     };
     let eta_free: [bool; 6] = std::array::from_fn(|j| !opts.fix_noise && fit.eta_sigma[j] > 0.0);
-    let (noise_cov, theta_eta_sensitivity) = if opts.noise_estimate_in_covariance && eta_free.iter().any(|f| *f) {
-        let theta_ref = fit.theta_reference();
-        let follows = opts.covariance == CovarianceMode::FollowsTheta;
-        let by_symmetry = prob.mixed_partials_by_symmetry();
-        noise_estimate_covariance(
-            prob,
-            &fit.theta,
-            &theta_ref,
-            &fit.eta,
-            &eta_free,
-            &ev.total,
-            &cov,
-            follows,
-            by_symmetry,
-        )?
-    } else {
-        (Matrix4::zeros(), [[0.0; 6]; 4])
-    };
+    let (noise_cov, theta_eta_sensitivity) =
+        if opts.research.noise_estimate_in_covariance && eta_free.iter().any(|f| *f) {
+            let theta_ref = fit.theta_reference();
+            let follows = opts.research.covariance == CovarianceMode::FollowsTheta;
+            let by_symmetry = prob.mixed_partials_by_symmetry();
+            noise_estimate_covariance(
+                prob,
+                &fit.theta,
+                &theta_ref,
+                &fit.eta,
+                &eta_free,
+                &ev.total,
+                &cov,
+                follows,
+                by_symmetry,
+            )?
+        } else {
+            (Matrix4::zeros(), [[0.0; 6]; 4])
+        };
     let sigma_noise_estimate: [f64; 4] = free_sigma(&free, |i| noise_cov[(i, i)]);
     let covariance = cov_reported + noise_cov;
     let sigma: [f64; 4] = free_sigma(&free, |i| covariance[(i, i)]);
@@ -339,11 +321,11 @@ fn window_diagnostics(
     opts: &EivOptions,
     warnings: &mut Vec<EivWarning>,
 ) -> Result<Vec<WindowDiagnostics>> {
-    let null_sums = match opts.innovation_null {
+    let null_sums = match opts.research.innovation_null {
         InnovationNull::FittedModel => None,
         InnovationNull::FloorsAsRegularisation => {
             let theta_ref = fit.theta_reference();
-            let mode = Mode::cost(opts.covariance == CovarianceMode::FollowsTheta);
+            let mode = Mode::cost(opts.research.covariance == CovarianceMode::FollowsTheta);
             Some(prob.evaluate_with(&fit.theta, &theta_ref, &fit.eta, mode, true)?.windows)
         }
     };
@@ -393,7 +375,7 @@ fn window_warnings(
     let comps = [PoseComponent::X, PoseComponent::Y, PoseComponent::Heading];
     for c in 0..3 {
         let (above, below) = (lag1[c] - lag1_0[c].max(0.0), lag1_0[c].min(0.0) - lag1[c]);
-        let below_limit = match opts.innovation_null {
+        let below_limit = match opts.research.innovation_null {
             InnovationNull::FittedModel => opts.max_lag1,
             InnovationNull::FloorsAsRegularisation => opts.max_lag1_below,
         };

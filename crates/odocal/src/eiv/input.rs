@@ -61,7 +61,7 @@ impl<'a> EivInput<'a> {
     /// yaw per 25 ms step), and the information about t_r and d, which grows
     /// with that excitation, is overstated: along the measured inputs the
     /// bound comes out about half the true one for t_r on `high`
-    /// (docs/study.md, the bound along the truth).
+    /// (`eiv_mismatch` in crates/odocal-lab with `CRB_MEASURED=1` measures it).
     ///
     /// # Errors
     /// [`Error::InvalidDrive`] when the drive carries no truth (a recorded

@@ -8,7 +8,7 @@
 //! the pose, the common-mode and per-wheel relative wheel-rotation errors
 //! (first-order Gauss-Markov, `s' = a·s + w`, `a = exp(−t_s/τ)`,
 //! `var w = σ²(1 − a²)`), the reference-pose drift (Gauss-Markov per axis
-//! and heading), the sideslip error ([`SideslipNoise`]) and the encoder
+//! and heading), the sideslip error (a Gauss-Markov state) and the encoder
 //! remainders of counting quantisation ([`QuantisationModel::Counting`];
 //! without it the filter runs the first 10 states). The true
 //! wheel rotations are `n_w = ñ_w·(1 − s_c − s_w) − e_w` with white
@@ -20,7 +20,7 @@
 //! ỹ_k = x_k + b_k + v_k,   R = diag(σ_p² + (1 mm)², σ_p² + (1 mm)², σ_ψ² + (1e-5 rad)²)
 //! ```
 //!
-//! (`f_β = ∂f/∂β`, `f_a = ∂f/∂a_y`; with [`SideslipNoise::WhiteEquivalent`]
+//! (`f_β = ∂f/∂β`, `f_a = ∂f/∂a_y`; with the research option `SideslipNoise::WhiteEquivalent`
 //! the sideslip error, Gauss-Markov with correlation time τ_β, enters as the
 //! white variance with the same long-run sum,
 //! `σ_β,eq² = σ_β²·(1 + a_β)/(1 − a_β)`, else as the state e_β). σ_a and σ_β are settable in
@@ -35,10 +35,10 @@
 //! Windows are independent, run in parallel and are summed in window order,
 //! so the result does not depend on the number of threads.
 //!
-//! **Covariance mode** ([`CovarianceMode`], SPEC §10 is ambiguous here).
+//! **Covariance mode** (`CovarianceMode`, a research option; SPEC §10 is ambiguous here).
 //! The covariance recursion (P, S, K) is linearised along the reference
 //! (reference heading, measured wheel rotations) at a θ:
-//! - [`CovarianceMode::FollowsTheta`] (default): at the current θ. S depends
+//! - following θ (the product's): at the current θ. S depends
 //!   on θ through `F_n Σ_n F_nᵀ`; `∂P/∂θ` is propagated exactly (the step
 //!   terms `F̄`, `F_n`, `∂f/∂a_y` are differentiated in forward mode) and θ
 //!   minimises the profile cost `J = ½Σ νᵀS(θ)⁻¹ν − Σ m log(1 − ŝ)`, the
@@ -47,16 +47,16 @@
 //!   `Σ (∂r/∂θ)ᵀ(∂r/∂θ)` of the whitened innovations `r = L⁻¹ν` (the
 //!   expected Hessian of J); θ steps are halved on J with objective-only
 //!   filter passes, η steps on the marginal likelihood M (block coordinate).
-//! - [`CovarianceMode::HeldAtReference`]: at a reference θ (batch G-N's
+//! - held at a reference (the research option `HeldAtReference`): at a reference θ (batch G-N's
 //!   result, then each pass's): `∂S/∂θ = 0`, so the θ cost is weighted least
 //!   squares on increments with a noisy regressor — attenuation bias, t_r
 //!   too large — which the corrected score below only partly removes.
 //!
-//! Measured (`examples/study_eiv.rs`, 12 km, seeds 1–20, error mean ± sd;
+//! Measured (`study_eiv` in crates/odocal-lab, 12 km, seeds 1–20, error mean ± sd;
 //! CRB σ from [`cramer_rao_bound`], full Fisher information; "known" = the
 //! simulator's noise model from [`NoiseModel::from_sim`], fixed; "est." =
 //! η estimated from [`NoiseModel::PRODUCTION_CAR`]; "boot" = known minus
-//! the [`bootstrap`] bias, B = 10, seeds 1–20; docs/study.md has the rest):
+//! the [`bootstrap`] bias, B = 10, seeds 1–20):
 //!
 //! | preset | batch G-N t_r % | follows, known | follows, est. | CRB | known c_e % | known + boot c_e % | c_e CRB |
 //! |---|---|---|---|---|---|---|---|
@@ -68,8 +68,8 @@
 //! (The table's fits tie the heading white noise to the position scale,
 //! [`HeadingScale::TiedToPosition`], and model quantisation as rate noise,
 //! [`QuantisationModel::ProcessNoise`]. The fits with the separate scale η_5
-//! and the other quantisation models: docs/study.md, EIV section, and
-//! `examples/eiv_eta_diag.rs`. In short: the "est." failure on paper and
+//! and the other quantisation models: `study_eiv` and `eiv_eta_diag` in
+//! crates/odocal-lab; docs/validation.md measures the defaults. In short: the "est." failure on paper and
 //! high comes from the tied position/heading scale — the heading keeps the
 //! production car's ratio, 0.49 mrad against the simulator's 0.30 — not
 //! from the time constants; and the known-noise t_r bias under high noise
@@ -143,7 +143,7 @@
 //! the 24 km paper drive, 6 of them with the θ or the η columns only), with
 //! the noise fixed 1 + iterations (3); the η term of the covariance one
 //! more per free parameter (4). docs/performance.md has the timings
-//! (`examples/eiv_speed.rs`). Results agree with the straightforward dense
+//! (`eiv_speed` in crates/odocal-lab). Results agree with the straightforward dense
 //! filter to ~1e-13 relative (test
 //! `results_match_the_recorded_results_of_the_unoptimised_filter`).
 //!
@@ -167,7 +167,7 @@
 //! bias-corrected θ̂ − bias. This is the measured cure of the c_e bias:
 //! [`EivOptions::bias_correction`] = [`BiasCorrection::Bootstrap`] applies it
 //! inside [`estimate`] (its table; the analytic alternatives measured
-//! against it are [`FirstOrderBias`] and [`WheelNoiseScale::FittedInput`]).
+//! against it are [`FirstOrderBias`] and the fitted-input noise scale).
 //!
 //! ## Misspecification
 //!
@@ -186,8 +186,8 @@
 //! passes), `steps` (the θ and η scoring steps), `scoring` (one scoring
 //! pass), `estimate` (the entry points and the per-window checks),
 //! `covariance` (θ's covariance beyond `H_θ⁻¹`), `bias_correction` and
-//! `bootstrap`, `crb` (the Cramér–Rao bound), `tau` (the time-constant
-//! grid), `lattice` (the quantisation step read off the readings) and
+//! `bootstrap`, `crb` (the Cramér–Rao bound), `lattice` (the quantisation
+//! step read off the readings) and
 //! `filter` (the augmented filter over one window).
 //!
 //! ## References
@@ -218,7 +218,6 @@ mod problem;
 mod report;
 mod scoring;
 mod steps;
-mod tau;
 #[cfg(test)]
 pub(crate) mod tests;
 
@@ -229,19 +228,30 @@ pub use bootstrap::{bootstrap, BootstrapInputs, BootstrapOptions, BootstrapRepor
 pub(crate) use bootstrap::{FAIL_EVERY_REPLICATE_SEED, FAIL_ONE_REPLICATE_SEED};
 pub use covariance::ETA_SENSITIVITY_STEP;
 pub use crb::cramer_rao_bound;
-pub(crate) use estimate::estimate_from;
 pub use estimate::{estimate, kernel_instruction_set};
 pub use input::{EivInput, Window};
 pub use lattice::{quantisation_step_of_readings, LATTICE_TOLERANCE_STEPS, MAX_LATTICE_INDEX, MIN_LATTICE_LEVELS};
 pub use modelling::{
-    BiasCorrection, BootstrapNoise, FirstOrderBias, HeadingScale, InnovationNull, InputJacobian, LateralNoise,
-    QuantisationLevel, QuantisationModel, SideslipNoise, WheelNoiseScale, BIAS_BOOTSTRAP_SMOOTHING_SAMPLES,
-    DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
+    BiasCorrection, FirstOrderBias, HeadingScale, LateralNoise, QuantisationLevel, QuantisationModel,
+    BIAS_BOOTSTRAP_SMOOTHING_SAMPLES,
+};
+// The modelling alternatives of `EivOptions::research`: public with the
+// `research` feature, crate-internal (at their defaults) without it.
+#[cfg(not(feature = "research"))]
+pub(crate) use modelling::{
+    InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
+};
+#[cfg(feature = "research")]
+pub use modelling::{
+    InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
 };
 pub use noise::{NoiseModel, NoiseSource, NOISE_SOURCES};
-pub use options::{CovarianceEstimate, CovarianceMode, EivOptions};
+pub use options::EivOptions;
+#[cfg(not(feature = "research"))]
+pub(crate) use options::{CovarianceEstimate, CovarianceMode, ResearchOptions};
+#[cfg(feature = "research")]
+pub use options::{CovarianceEstimate, CovarianceMode, ResearchOptions};
 pub use report::{
     CrbReport, EivObservability, EivReport, EivWarning, HalvesCheck, IterationRecord, Parameter, PassReport,
     PoseComponent, Termination, WindowDiagnostics, PARAMETERS,
 };
-pub use tau::{TimeConstantCandidate, TimeConstantFit, TimeConstantGrid, TIME_CONSTANT_RANGE_S};

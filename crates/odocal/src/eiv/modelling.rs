@@ -11,7 +11,7 @@ use crate::error::{Error, Result};
 /// the profile cost J of θ (against the c_e bias of the following-θ cost), with C_w,k the
 /// wheel circumference at sample k (3a, 3b; θ_ref the start of the fit) and
 /// weights u ≥ 0 per wheel and sample. Not part of the marginal likelihood
-/// M of the η step. Meant with [`WheelNoiseScale::FittedInput`].
+/// M of the η step. Meant with [`WheelNoiseScale::SmoothedFittedInput`].
 ///
 /// Why. A scalar model with exact increments `Δ_k = c·n_k·t_s` and relative
 /// white input noise `ñ_k = n_k(1 + ε_k)` has the exact negative
@@ -29,22 +29,23 @@ use crate::error::{Error, Result};
 /// white relative noise variance. So the weight that makes the score
 /// unbiased (to first order in the noise variance) is that share, 1 only
 /// where the increments are exact. That holds only when S does not depend
-/// on the noise: [`WheelNoiseScale::FittedInput`] scales the noise by the
-/// *measured* rotation (its own c_e bias is `+σ²` on white noise, not
-/// `−σ²`), so use [`WheelNoiseScale::SmoothedFittedInput`].
+/// on the noise: the fitted input scaled from the *measured* rotation
+/// itself has its own c_e bias (`+σ²` on white noise, not `−σ²`), so the
+/// term goes with [`WheelNoiseScale::SmoothedFittedInput`].
 ///
-/// Measured (`examples/study_eiv.rs`, 12 km, seeds 1–20, known noise; c_e
-/// error mean, bias t, RMS/CRB; docs/study.md "The c_e bias" has the rest):
+/// Measured (`study_eiv` in crates/odocal-lab, 12 km, seeds 1–20, known
+/// noise; c_e error mean, bias t, RMS/CRB):
 ///
 /// | variant | white | coloured | paper | high |
 /// |---|---|---|---|---|
 /// | none (measured input) | +0.0099 %, t 16, 3.7× | +0.098 %, t 17, 5.3× | +0.087 %, t 14, 3.8× | +0.55 %, t 35, 9.4× |
 /// | `SmoothedFittedInput` (±20) + `SmoothedShare` | +0.0006 %, t 0.9, 0.97× | +0.078 %, t 14, 4.3× | +0.011 %, t 1.7, 1.28× | +0.035 %, t 2.0, 1.39× |
 /// | `SmoothedFittedInput` (±20) + `FilterShare` | +0.0004 %, t 0.7, 0.96× | +0.072 %, t 13, 4.0× | +0.010 %, t 1.6, 1.27× | +0.030 %, t 1.8, 1.35× |
-/// | `FittedInput` + `Unit` | +0.012 %, t 19 | +0.185 %, t 35 | +0.33 %, t 52 | +2.1 %, t 103 |
+/// | fitted input, unsmoothed, + `Unit` | +0.012 %, t 19 | +0.185 %, t 35 | +0.33 %, t 52 | +2.1 %, t 103 |
 ///
-/// t_r, c_d, d unchanged within their spread. Not a default: the coloured
-/// preset (perfect reference) keeps +0.07 %.
+/// t_r, c_d, d unchanged within their spread; the coloured preset (perfect
+/// reference) keeps +0.07 %. `FilterShare` with the smoothed fitted input is
+/// the default ([`EivOptions::research`](crate::eiv::EivOptions::research)).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum InputJacobian {
@@ -129,39 +130,30 @@ pub const SPEC_POSITION_FLOOR_M: f64 = 1e-3;
 /// the covariance reference), which makes the wheel noise in metres
 /// independent of the circumferences (but not of t_r).
 ///
-/// Measured (12 km, 20 seeds, known noise; [`BiasCorrection`] has the
-/// table): the c_e bias flips sign, coloured +0.098 → −0.112 %, paper
+/// Measured (12 km, 20 seeds, known noise): with the fitted input taken
+/// from ñ itself the c_e bias flips sign, coloured +0.098 → −0.112 %, paper
 /// +0.087 → −0.131 % (t ≈ 20), as a scalar model predicts (`+2σ²` with the
 /// measured input, `−σ²`, attenuation, with the fitted one); t_r, c_d, d
-/// are unchanged within their spread. Opt-in, not a cure.
+/// are unchanged within their spread. Smoothed, and with the input
+/// log-Jacobian term ([`InputJacobian`] has the table), the bias is gone:
+/// the default, `SmoothedFittedInput` with ±20 samples.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum WheelNoiseScale {
     /// σ·ñ, the measured rotation (SPEC §10).
     #[default]
     MeasuredInput,
-    /// σ·n̂, `n̂ = ñ·C(θ_ref)/C(θ)` (only with [`CovarianceMode::FollowsTheta`](crate::eiv::CovarianceMode::FollowsTheta);
-    /// θ_ref is the start of the fit, batch G-N's θ). Encoder quantisation
-    /// (an absolute count error) is not rescaled.
-    FittedInput,
-    /// As [`WheelNoiseScale::FittedInput`], with ñ replaced by its moving
-    /// average over ±`half_width_samples` (within the filter window) in the
-    /// noise scale and the s-columns of the covariance transition (the mean
-    /// still uses ñ). With ñ itself the filter's variance `σ²ñ_k²` is
-    /// correlated with the error ε_k it weights (the +σ² of a scalar model
-    /// with exact increments); the average is nearly independent of ε_k.
+    /// σ·n̂, `n̂ = n̄·C(θ_ref)/C(θ)` with n̄ the moving average of ñ over
+    /// ±`half_width_samples` (within the filter window), in the noise scale
+    /// and the s-columns of the covariance transition (the mean still uses
+    /// ñ); only with [`CovarianceMode::FollowsTheta`](crate::eiv::CovarianceMode::FollowsTheta),
+    /// θ_ref the start of the fit, batch G-N's θ. With ñ itself the filter's
+    /// variance `σ²ñ_k²` is correlated with the error ε_k it weights (the
+    /// +σ² of a scalar model with exact increments); the average is nearly
+    /// independent of ε_k. Encoder quantisation (an absolute count error) is
+    /// not rescaled.
     SmoothedFittedInput {
         /// Half-width K of the moving average, samples (at least 1).
-        half_width_samples: usize,
-    },
-    /// As [`WheelNoiseScale::FittedInput`], with the rotation scaling the
-    /// relative noise (and the s-columns of the covariance transition) taken
-    /// from the reference: speed and yaw rate by central differences over
-    /// ±`half_width_samples` at θ_ref (`C_l n_l = v − ψ̇ t_r/2`,
-    /// `C_r n_r = v + ψ̇ t_r/2`, rev/s), so the scale is independent of both the
-    /// white and the Gauss-Markov wheel errors.
-    ReferenceInput {
-        /// Half-width K of the central difference, samples (at least 1).
         half_width_samples: usize,
     },
 }
@@ -170,9 +162,8 @@ impl WheelNoiseScale {
     /// Half-width of the moving average (0 without smoothing).
     pub(super) fn half_width(&self) -> usize {
         match self {
-            WheelNoiseScale::SmoothedFittedInput { half_width_samples }
-            | WheelNoiseScale::ReferenceInput { half_width_samples } => *half_width_samples,
-            _ => 0,
+            WheelNoiseScale::SmoothedFittedInput { half_width_samples } => *half_width_samples,
+            WheelNoiseScale::MeasuredInput => 0,
         }
     }
 }
@@ -180,17 +171,17 @@ impl WheelNoiseScale {
 /// A correction of the estimator's own bias applied to the estimate.
 ///
 /// With the sideslip error white-equivalent
-/// ([`SideslipNoise::WhiteEquivalent`]) the fit has a c_e bias of about
+/// (`SideslipNoise::WhiteEquivalent`) the fit has a c_e bias of about
 /// +0.1 % under coloured wheel noise, which the bootstrap removes on every
 /// preset (the known noise model fixed, 12 km, 20 seeds, B = 10: c_e t
 /// 14–35 → 0.5–0.8; the analytic first-order correction, [`FirstOrderBias`],
 /// does not). With the sideslip error a filter state (the default) the fit
 /// has no c_e bias left; what remains under heavy wheel noise is t_r's and
-/// d's. Measured (`examples/study_eiv.rs --km 12 --seeds 20 --methods
-/// est --bootstrap 10 --bootstrap-smooth 20`, η estimated, every parameter
-/// corrected, replicates on the smoothed trajectory holding the fitted noise
-/// model, [`BootstrapNoise::HeldAtFit`]; mean error (t), coverage of the 95 %
-/// interval over the four parameters):
+/// d's. Measured (`study_eiv --km 12 --seeds 20 --methods est --bootstrap
+/// 10 --bootstrap-smooth 20` in crates/odocal-lab, η estimated, every
+/// parameter corrected, replicates on the smoothed trajectory holding the
+/// fitted noise model; mean error (t), coverage of the 95 % interval over
+/// the four parameters):
 ///
 /// | preset | t_r uncorrected | t_r corrected | d corrected | largest \|t\| | coverage |
 /// |---|---|---|---|---|---|
@@ -213,6 +204,15 @@ impl WheelNoiseScale {
 /// (default none). The subtracted bias is a mean over the replicates (or
 /// pairs); its Monte Carlo covariance is added to θ's
 /// ([`EivReport::sigma_bias_correction`](crate::eiv::EivReport::sigma_bias_correction)).
+///
+/// The replicates hold the fitted noise model ([`EivReport::noise`](crate::eiv::EivReport::noise),
+/// `fix_noise`): they estimate the bias of θ̂ at the fitted noise. Measured
+/// against replicates that re-estimate the noise (the command above): t_r on
+/// `high` +0.531 % (t 1.9) held, −0.676 % (t −2.4; d t 3.0) re-estimated,
+/// which over-corrects (its replicates, in worlds made from the fitted
+/// noise model, shift t_r by 1.8 % where the drive's own fit is off by
+/// 1.1 %) at three times the cost; c_e alone is corrected the same either
+/// way (`--bootstrap-reestimate-seeds 20` gives the re-estimating rows).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum BiasCorrection {
@@ -238,32 +238,6 @@ pub enum BiasCorrection {
 /// samples, ±0.5 s at 40 Hz (only K = 20 is measured; with the measured
 /// inputs as the truth the bootstrap finds no t_r bias).
 pub const BIAS_BOOTSTRAP_SMOOTHING_SAMPLES: usize = 20;
-
-/// The noise model the replicates of [`BiasCorrection::Bootstrap`] are
-/// fitted with.
-///
-/// Measured (docs/study.md; `study_eiv --km 12 --seeds 20
-/// --methods est --bootstrap 10 --bootstrap-smooth 20`, η estimated, every
-/// parameter corrected, replicates on the smoothed trajectory): t_r mean
-/// error on `high` +1.097 % (t 4.5) uncorrected, +0.531 % (t 1.9) with
-/// [`BootstrapNoise::HeldAtFit`], −0.676 % (t −2.4; d t 3.0) with
-/// [`BootstrapNoise::Reestimated`], which over-corrects (its replicates, in
-/// worlds made from the fitted noise model, shift t_r by 1.8 % where the
-/// drive's own fit is off by 1.1 %) at three times the cost. c_e alone is
-/// corrected the same either way (high +0.0146 and +0.0159 %, paper
-/// +0.0052 % both).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum BootstrapNoise {
-    /// Every replicate is fitted with the fit's own options: the noise
-    /// scales re-estimated when the fit estimated them.
-    Reestimated,
-    /// Every replicate holds the fitted noise model ([`EivReport::noise`](crate::eiv::EivReport::noise),
-    /// `fix_noise`): it estimates the bias of θ̂ at the fitted noise, about
-    /// a third of the cost of re-estimating. The default.
-    #[default]
-    HeldAtFit,
-}
 
 /// The first-order bias of the profile cost's root at the estimate, a
 /// diagnostic (measured as a correction in [`BiasCorrection`]'s table; it
@@ -296,7 +270,7 @@ pub struct FirstOrderBias {
 
 /// Whether the heading white noise of the reference is scaled on its own.
 ///
-/// Measured (docs/study.md, EIV section): tied to the position scale, the
+/// Measured (`study_eiv` in crates/odocal-lab, 12 km): tied to the position scale, the
 /// estimated heading noise keeps the starting model's ratio (production
 /// car 0.02 m : 0.5 mrad against the simulator's 0.02 m : 0.3 mrad), and the
 /// estimated-noise t_r on paper noise was +2.7 / +5.3 / +4.2 % (seeds 1–3);
@@ -304,15 +278,15 @@ pub struct FirstOrderBias {
 /// 2 %-white-noise drive and on one of 20 `coloured` drives (t_r +250 % /
 /// +230 %, flagged). Together with [`QuantisationModel::Measurement`] it is
 /// the best combination on every simulated preset with η estimated (paper
-/// t_r −1.2 %, high +4.1 %; docs/study.md, EIV section). With the SPEC formulation
-/// ([`InputJacobian::None`]) the noise-free straight drive stops at a
+/// t_r −1.2 %, high +4.1 %). With SPEC §10's cost (no input log-Jacobian
+/// term, [`EivOptions::spec`](crate::eiv::EivOptions::spec)) the noise-free straight drive stops at a
 /// second fixed point of the θ/η iteration (c_e −0.057 %, η well above its
-/// lower clamp); with the default [`InputJacobian::FilterShare`] it does
-/// not (c_e to 1e-9). Without [`EivOptions::final_step_check`](crate::eiv::EivOptions::final_step_check) the
-/// separate scale stops at the iteration limit on 3 of 20 `white` drives
-/// with `Counting`, though converged. The default, with
-/// [`QuantisationModel::Counting`] and [`QuantisationLevel::FromReadings`]
-/// (docs/study.md, EIV section; 20 seeds ×
+/// lower clamp); with the default cost it does not (c_e to 1e-9). Unless
+/// convergence is also tested on the step that remains after the last
+/// iteration ([`EivOptions::step_tolerance`](crate::eiv::EivOptions::step_tolerance)), the separate scale stops
+/// at the iteration limit on 3 of 20 `white` drives with `Counting`, though
+/// converged. The default, with [`QuantisationModel::Counting`] and
+/// [`QuantisationLevel::FromReadings`] (20 seeds ×
 /// 12 km, η estimated: t_r +0.06 % white, +0.02 % coloured, +0.30 % paper,
 /// +1.50 % high, against +0.06 %, −0.01 %, +3.65 %, all-fallback tied with
 /// process-noise quantisation).
@@ -334,7 +308,7 @@ pub enum HeadingScale {
 /// wheel noise: from the production-car start (q/σ_white = 0.02 rev/s /
 /// 0.8 %) on the simulator's `high` preset (512 ticks: q = 0.078 rev/s with
 /// 2 % white noise) it comes out at 0.05 rev/s, and the heading channel's
-/// misfit moves t_r (docs/study.md, EIV section). Given, with
+/// misfit moves t_r. Given, with
 /// [`QuantisationModel::Counting`] and [`HeadingScale::Separate`], the
 /// `high` bias of t_r with η estimated is +1.5 % instead of +8.5 % (20 seeds ×
 /// 12 km; the known model +0.66 %). Use it with `Counting` only: with the
@@ -408,8 +382,7 @@ impl std::str::FromStr for QuantisationLevel {
 /// model's σ instead: the IMU's and the sideslip source's noise, settable
 /// in a noise-model file or a manifest's `[noise]`.
 ///
-/// Measured with the sideslip error white-equivalent
-/// ([`SideslipNoise::WhiteEquivalent`]; docs/study.md; 20 × 12 km drives, η estimated,
+/// Measured with the sideslip error white-equivalent (20 × 12 km drives, η estimated,
 /// production-car start; bias t = mean/se, tied → stated): `paper` t_r
 /// 4.2 → 3.2 (RMS 1.91 → 1.72× the CRB), d 3.1 → 2.2; `high` c_e 4.1 → 0.7,
 /// t_r 6.0 → 4.8, d 4.9 → 4.0; `white` c_e 4.1 → 0.5; `coloured` t_r
@@ -421,8 +394,7 @@ impl std::str::FromStr for QuantisationLevel {
 /// that σ (the tie drives every scale to its lower clamp and returns
 /// θ_true); the noise-free 6 km drive gives d to 5e-8 relative instead of
 /// 1e-8. An own scale for a_y and β would keep both; it is not written.
-/// With the sideslip error a filter state ([`SideslipNoise::GaussMarkovState`],
-/// the default) `Stated` does not change those simulated results (`high`
+/// With the sideslip error a filter state (the default) `Stated` does not change those simulated results (`high`
 /// t_r t 4.4 → 4.7): its gains above make up for the white-equivalent
 /// sideslip noise.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -460,8 +432,8 @@ impl std::str::FromStr for LateralNoise {
 /// constant [`NoiseModel::sideslip_time_constant_s`](crate::eiv::NoiseModel::sideslip_time_constant_s) (as the simulator's,
 /// and as a sideslip estimate filtered from the IMU behaves).
 ///
-/// The white equivalent puts the noise scales off at the truth on `high`
-/// (docs/study.md, EIV section): it overstates the sideslip error's effect
+/// The white equivalent puts the noise scales off at the truth on `high`:
+/// it overstates the sideslip error's effect
 /// over the few steps the filter's position innovations span by about the
 /// factor `(1+a)/(1−a)` (80 at τ = 1 s and 40 Hz), and the fit makes up for
 /// it by lowering the drift and position scales and raising the heading
@@ -487,15 +459,15 @@ pub enum SideslipNoise {
 /// Counting ticks carries the remainder over, so the counted rotation is
 /// within one tick of the true one at every sample: the error is bounded and
 /// white *in the pose*, not a white rate error that accumulates.
-/// Measured (docs/study.md, EIV section; 12 km, 20 seeds, known noise, t_r
+/// Measured (`study_eiv` in crates/odocal-lab; 12 km, 20 seeds, known noise, t_r
 /// error): `Measurement` paper −0.08 ± 0.30 % (RMS 1.35× the CRB) and high
 /// −1.2 ± 1.1 % (5.7×) against `ProcessNoise` +0.39 ± 0.30 % (2.2×) and
 /// +3.3 ± 1.2 % (12×); with η estimated from the production-car start,
 /// paper −1.2 ± 0.6 % / high +4.5 ± 5.0 % against +4.0 ± 1.0 % / +122 ± 33 %.
 /// Alone (heading scale tied) it changes little with η estimated (paper
 /// t_r +3.8 %, high +118 %); with [`HeadingScale::Separate`] it gives
-/// paper −1.2 %, high +4.5 % (docs/study.md, EIV section, where the pair
-/// also passes the noise-free straight and turning drives).
+/// paper −1.2 %, high +4.5 % (the pair also passes the noise-free straight
+/// and turning drives).
 /// [`QuantisationModel::Counting`] with the separate scale and the step
 /// read off the readings is the default.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -519,7 +491,7 @@ pub enum QuantisationModel {
     /// separate heading scale and the noise model known it is the best of the
     /// three (20 seeds × 12 km, t_r paper +0.17 %, high +0.66 %; its
     /// innovation checks flag none of 80 drives), with η estimated paper
-    /// +0.28 % but high +8.5 % (docs/study.md, EIV section), +1.5 % with the
+    /// +0.28 % but high +8.5 %, +1.5 % with the
     /// step held at the encoder's ([`QuantisationLevel::FromReadings`]).
     /// The default.
     Counting,

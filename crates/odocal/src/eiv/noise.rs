@@ -12,8 +12,7 @@ use crate::error::{Error, Result};
 /// Scale factor groups η: 0 = white + quantisation, 1 = common wheel
 /// Gauss-Markov, 2 = per-wheel Gauss-Markov, 3 = position white, 4 = pose
 /// drift (position and heading), 5 = heading white. σ_a and σ_β scale with
-/// η_0 (white input noise); the time constants are fixed unless
-/// [`EivOptions::estimate_time_constants`](crate::eiv::EivOptions::estimate_time_constants) (a grid profile, not a scale).
+/// η_0 (white input noise); the time constants are given, not estimated.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct NoiseModel {
@@ -72,7 +71,7 @@ pub enum NoiseSource {
     /// White reference-heading noise (η_5). Its own scale because a
     /// reference's heading and position noise come from different sensors:
     /// tied to the position scale, a wrong starting ratio biased t_r
-    /// (docs/study.md, EIV section).
+    /// ([`HeadingScale`](crate::eiv::HeadingScale) has the measurements).
     HeadingWhite,
 }
 

@@ -1,12 +1,11 @@
 //! The options of the EIV calibration and the covariance it reports.
 
 use super::BootstrapInputs;
-use super::TimeConstantGrid;
 
 use serde::{Deserialize, Serialize};
 
 use super::{
-    BiasCorrection, BootstrapNoise, HeadingScale, InnovationNull, InputJacobian, LateralNoise, NoiseModel, NoiseSource,
+    BiasCorrection, HeadingScale, InnovationNull, InputJacobian, LateralNoise, NoiseModel, NoiseSource,
     QuantisationLevel, QuantisationModel, SideslipNoise, WheelNoiseScale, BIAS_BOOTSTRAP_SMOOTHING_SAMPLES,
     DEFAULT_POSITION_FLOOR_M, NOISE_SOURCES, SPEC_POSITION_FLOOR_M,
 };
@@ -55,8 +54,8 @@ pub enum CovarianceEstimate {
     /// blocks (several correlation times of the wheel noise) and so stays
     /// honest when the noise model's time constants are wrong; the larger
     /// of the two keeps the model's σ where the blocks are few (a short
-    /// drive) and their estimate noisy. Measured against [`CovarianceEstimate::Model`] (docs/study.md;
-    /// 12 km, seeds 1–20): `coloured` c_e coverage 35 → 90 %, halves
+    /// drive) and their estimate noisy. Measured against [`CovarianceEstimate::Model`]
+    /// (12 km, seeds 1–20): `coloured` c_e coverage 35 → 90 %, halves
     /// fallbacks 7 → 0, what a user gets c_e 2.82× → 1.62× the Cramér–Rao
     /// bound; `white` identical; on `paper` the halves check does not
     /// reject two fits with t_r +4.7 and +3.9 % that it rejects with the
@@ -76,81 +75,11 @@ pub struct EivOptions {
     /// converges in 12; the simulated studies converge in ≤ 10).
     pub max_iterations: usize,
     /// Stop when `max |step_i|/σ_i` (free θ and η not at a clamp) is below
-    /// this. Default 0.05.
+    /// this, tested on the step taken and on the step that remains at the
+    /// new point (so the last iteration can end converged). Default 0.05.
     pub step_tolerance: f64,
     /// Step halvings tried before giving up on an iteration. Default 10.
     pub max_halvings: usize,
-    /// Damp the η step of the θ/η iteration by a secant estimate of its
-    /// overshoot (with the covariance following θ and η estimated). Default
-    /// true (see the measurements at `secant_eta_factor` in the source and
-    /// docs/study.md, EIV section).
-    pub eta_secant_damping: bool,
-    /// Score-test level at which a noise scale at its lower clamp re-enters
-    /// the fit: the source leaves the clamp when the score test of its scale
-    /// against the data, `g²/I` (g = ∂M/∂η, I its Fisher information, both
-    /// at the clamp), exceeds this and g < 0 (more of that noise lowers M).
-    /// `None` = never: a scale that reached the clamp stays there (at the
-    /// clamp its information is ~e⁻⁴⁰ of the others' and reads as "no
-    /// information"). Default `None`.
-    ///
-    /// Measured (docs/study.md; `coloured` preset, 12 km, seeds
-    /// 1–20): the production-car model's common-mode scale η₁ ends at the
-    /// clamp on 16 of 20 drives; re-entered (level 10), the fits' M is
-    /// 508–738 lower (seeds 2–6), but η₁ climbs back by about +3 per
-    /// iteration and 14 of 20 fits hit the 10-iteration limit (2 of 20 on
-    /// `white`), so it is not the default; c_e's σ stays too small with it
-    /// (coverage 55 %: the production car's τ_c is wrong, see
-    /// [`CovarianceEstimate::LargerOfModelAndBlock`]).
-    pub eta_reentry_min_score: Option<f64>,
-    /// Which covariance of θ the report carries (`covariance`, `sigma`) and
-    /// the halves check uses. Default
-    /// [`CovarianceEstimate::LargerOfModelAndBlock`] (see both for the
-    /// measurements).
-    pub covariance_estimate: CovarianceEstimate,
-    /// Add to θ's reported covariance what estimating the noise scales η
-    /// from the same drive adds to it: `A Σ_η Aᵀ` with
-    /// `A = ∂θ̂/∂η = −J⁻¹ ∂g_θ/∂η` (implicit function theorem at the
-    /// estimate; `g_θ` the θ-score, `J = ∂g_θ/∂θ`) and `Σ_η` the inverse of
-    /// η's information over the estimated scales. Both derivatives are
-    /// forward differences (1 % of σ) in θ of exact filter derivatives: J of
-    /// the θ-score, `∂g_θ/∂η` of the η-gradient of the profile cost (the
-    /// mixed partials are symmetric; the FilterShare log-Jacobian weights'
-    /// own η-dependence is summed exactly by the filter), so one more filter
-    /// pass with θ and η derivatives per free parameter (with the
-    /// smoothed-share weights or the covariance held, one more pass per
-    /// estimated scale too, displaced by [`ETA_SENSITIVITY_STEP`](crate::eiv::ETA_SENSITIVITY_STEP) in η),
-    /// instead of a second-order sensitivity recursion through the filter.
-    /// `A` is [`EivReport::theta_eta_sensitivity`](crate::eiv::EivReport::theta_eta_sensitivity), the added σ
-    /// [`EivReport::sigma_noise_estimate`](crate::eiv::EivReport::sigma_noise_estimate). No effect with
-    /// [`EivOptions::fix_noise`].
-    ///
-    /// Why: on the `high` preset t_r moves by ≈ 7–15 % per unit of the
-    /// heading white-noise scale η_5, whose own σ there is 0.04–0.12, so
-    /// the σ at a fixed η understates t_r's by up to 1.8× (docs/study.md).
-    /// Default true.
-    pub noise_estimate_in_covariance: bool,
-    /// Judge convergence of the θ/η iteration by what the user gets, θ:
-    /// also stop when θ's remaining scoring step is below
-    /// [`EivOptions::step_tolerance`]·σ_θ *and* so is the θ change that the
-    /// remaining η step would cause through the joint information,
-    /// `dθ ≈ −I_θθ⁻¹ I_θη dη` (η wandering that does not move θ is no reason
-    /// to distrust θ). The remaining η step is reported in
-    /// [`PassReport::eta_step_over_sigma`](crate::eiv::PassReport::eta_step_over_sigma). Default false (see
-    /// docs/study.md on the convergence of the η iteration).
-    pub theta_convergence: bool,
-    /// Test convergence at the end of each iteration on the step that
-    /// *remains* at the new point (θ and η, the usual
-    /// [`EivOptions::step_tolerance`] test; no extra filter evaluation: the
-    /// point is already evaluated in full) instead of only on the steps just
-    /// taken, so the last iteration of [`EivOptions::max_iterations`] can
-    /// end converged. With the covariance following θ and η estimated.
-    /// Default true (without it, on `white` with the separate heading scale
-    /// every `not_converged` fit has a remaining step of 0.001–0.002 σ; the
-    /// option changes no θ on 80 simulated fits).
-    pub final_step_check: bool,
-    /// Passes, each with the covariance reference θ at the previous result.
-    /// Default 2.
-    pub passes: usize,
     /// Which parameters are estimated (`[c_e, c_d, t_r, d]`). Default all.
     pub free: [bool; 4],
     /// Hold parameters that the data cannot determine (σ above their
@@ -162,16 +91,17 @@ pub struct EivOptions {
     /// Use [`EivOptions::noise`] as is (do not estimate η). Default false.
     pub fix_noise: bool,
     /// Clamp range of the log-scale factors η. Default [−20, 6]: variances
-    /// between 2e-9 and 400 times the starting model's.
+    /// between 2e-9 and 400 times the starting model's. A scale that reached
+    /// its lower clamp stays there.
     pub eta_bounds: [f64; 2],
     /// Noise sources (in [`NOISE_SOURCES`] order) whose level is *known*:
     /// their scale is held at the starting model (η_j = 0) while the others
     /// are estimated; ignored with [`EivOptions::fix_noise`]. Set it from a
     /// datasheet (e.g. the INS's heading σ) with [`EivOptions::hold_known`],
-    /// `--known-noise`, or a noise model's `known = [...]`. Measured (stop
-    /// 14, 20 × 12 km, `high`): holding the heading white noise at its true
-    /// σ took t_r's bias from +1.50 % to +0.54 %. A wrong stated level biases
-    /// instead. Default none.
+    /// `--known-noise`, or a noise model's `known = [...]`. Measured
+    /// (docs/validation.md, "Known noise levels"; 20 × 12 km, `high`):
+    /// holding the heading white noise at its true σ took t_r's bias from
+    /// +1.10 % to +0.52 %. A wrong stated level biases instead. Default none.
     pub eta_held: [bool; 6],
     /// Parameter resolutions `[c_e, c_d, t_r, d]`, SI units: a parameter
     /// whose standard deviation exceeds its resolution is not observable.
@@ -185,30 +115,23 @@ pub struct EivOptions {
     /// A window whose NIS per degree of freedom exceeds this has diverged. Default 10.
     pub divergence_nis: f64,
     /// Largest acceptable |lag-1 autocorrelation| of whitened innovations per
-    /// window, beyond the interval that [`EivOptions::innovation_null`]
-    /// allows. Default 0.5.
+    /// window, beyond the interval that the innovation checks' null allows
+    /// (the measurement floors taken as regularisation: the lag-1 and NIS a
+    /// window would have without them). Default 0.5.
     pub max_lag1: f64,
-    /// With [`InnovationNull::FloorsAsRegularisation`]: largest acceptable
-    /// lag-1 autocorrelation *below* the interval that the null allows
-    /// (`min(0, ρ₀) − lag-1`). Default 0.2. Negative correlation
-    /// is what a filter shows when the data have measurement noise the
-    /// model lacks (it follows the noise and corrects back); the floors and
-    /// surplus process noise only lag the filter behind the measurements
-    /// (positive correlation). Measured (docs/study.md, EIV section): heading
+    /// Largest acceptable lag-1 autocorrelation *below* the interval that
+    /// the innovation checks' null allows (`min(0, ρ₀) − lag-1`). Default
+    /// 0.2. Negative correlation is what a filter shows when the data have
+    /// measurement noise the model lacks (it follows the noise and corrects
+    /// back); the floors and surplus process noise only lag the filter
+    /// behind the measurements (positive correlation). Measured: heading
     /// lag-1 of good fits on the simulated presets ≥ −0.15; on the six
     /// test-track runs (heading white noise held near zero by the tied
     /// scale) −0.26 … −0.45, where EIV loses to batch G-N.
     pub max_lag1_below: f64,
-    /// What the innovation checks (NIS band, whiteness) take as consistent.
-    /// Default [`InnovationNull::FloorsAsRegularisation`] (see its docs for
-    /// the measurements).
-    pub innovation_null: InnovationNull,
     /// Largest acceptable |z| of the difference between θ from the two
     /// halves of the windows. Default 4.
     pub max_half_z: f64,
-    /// How the covariance recursion depends on θ. Default
-    /// [`CovarianceMode::FollowsTheta`].
-    pub covariance: CovarianceMode,
     /// How encoder quantisation enters the filter. Default
     /// [`QuantisationModel::Counting`] (see its docs for the measured
     /// trade-off).
@@ -222,51 +145,22 @@ pub struct EivOptions {
     /// [`LateralNoise::TiedToWheelWhite`] (see its docs for the measured
     /// trade-off).
     pub lateral_noise: LateralNoise,
-    /// How the filter models the error of the measured sideslip β. Default
-    /// [`SideslipNoise::GaussMarkovState`] (see its docs).
-    pub sideslip_noise: SideslipNoise,
     /// Whether the reference's heading white noise has its own scale η_5.
     /// Default [`HeadingScale::Separate`] (see its docs).
     pub heading_scale: HeadingScale,
-    /// Which wheel rotation scales the relative wheel noise in the
-    /// covariance. Default [`WheelNoiseScale::MeasuredInput`] (see its docs
-    /// for the measured alternatives).
-    pub wheel_noise_scale: WheelNoiseScale,
     /// Correction of the profile cost's bias applied to the estimate.
     /// Default [`BiasCorrection::None`] (see its docs).
     pub bias_correction: BiasCorrection,
     /// The true inputs of the replicate worlds of
     /// [`BiasCorrection::Bootstrap`]. Default [`BootstrapInputs::Measured`];
-    /// `Smoothed { half_width_samples: 20 }` removes the t_r bias on `high`
-    /// (docs/study.md, "the remaining t_r bias on high").
+    /// [`EivOptions::correct_bias`] sets `Smoothed { half_width_samples: 20 }`,
+    /// which removes the t_r bias on `high` (docs/validation.md, "Simulated
+    /// drives against the Cramér–Rao bound").
     pub bootstrap_inputs: BootstrapInputs,
-    /// The noise model of the replicates of [`BiasCorrection::Bootstrap`].
-    /// Default [`BootstrapNoise::HeldAtFit`] (re-estimating the noise in
-    /// the replicates gives the same c_e correction at three times the
-    /// cost, and over-corrects t_r).
-    pub bootstrap_noise: BootstrapNoise,
     /// The replicates of [`BiasCorrection::Bootstrap`] come in antithetic
     /// pairs ([`BootstrapOptions::antithetic`](crate::eiv::BootstrapOptions::antithetic); B must be even). Default
     /// false; [`EivOptions::correct_bias`] sets it.
     pub bootstrap_antithetic: bool,
-    /// Floor of the reference's position noise σ in the filter's `R`, m
-    /// (added in quadrature to the noise model's position white noise; it is
-    /// not scaled by η). Default 1e-3 (SPEC §10).
-    ///
-    /// Measured (docs/study.md, EIV section, "t_r under large white wheel
-    /// noise"; 12 km, seeds 1–20, the simulator's noise model fixed): on a
-    /// perfect reference with 2 % white wheel noise the 1 mm floor leaves
-    /// t_r +2.90 ± 1.56 % (bias t 8.3) and d −0.58 (t 8.2); with 5 mm,
-    /// t_r +0.23 ± 0.61 % (t 1.7) and d −0.04 (t 1.0), as the filter-free
-    /// heading-channel Deming estimator on the same drives (+0.22 ± 0.58 %).
-    /// The wheel noise is rank 2 in the 3-dof pose, so on a near-perfect
-    /// position reference one direction of the innovation is known to the
-    /// floor and the filter carries it from step to step (windows of 10
-    /// samples remove the bias too). On the `coloured` preset 5 mm also
-    /// lowers the c_e bias (+0.098 → +0.047 %); where the reference has
-    /// centimetres of position noise (`paper`, `high`) the floor changes
-    /// nothing.
-    pub position_floor_m: f64,
     /// Values at which parameters that the filter names unobservable (with
     /// [`EivOptions::fix_unobservable`]) are held. `None` (the default)
     /// holds them at the start θ given to [`estimate`](crate::eiv::estimate). `calibrate` passes
@@ -274,30 +168,151 @@ pub struct EivOptions {
     /// a parameter the data cannot determine can be far off (on the RAV4
     /// drive, t_r = 5.63 m, so the result was rejected as implausible).
     pub hold_unobservable_at: Option<Theta>,
-    /// Estimate the Gauss-Markov time constants (wheel τ_c, τ_w and the
-    /// reference drift τ) with the noise scales, by a profile of the
-    /// marginal likelihood over [`EivOptions::time_constant_grid`] (one fit
-    /// per candidate; [`TimeConstantGrid`] has the method and its cost).
-    /// The chosen values replace the starting model's in
-    /// [`EivReport::noise`](crate::eiv::EivReport::noise). Default false (the time constants of
-    /// [`EivOptions::noise`] are used as given).
-    ///
-    /// Measured (docs/study.md, EIV section; 12 km, η estimated from the
-    /// production-car model): it does **not** help. Paper noise, separate
-    /// heading scale, 20 seeds: t_r +0.87 ± 0.37 % against +0.83 ± 0.36 %
-    /// without it and +0.85 ± 0.38 % with the simulator's τ given (known
-    /// noise model: +0.39 ± 0.30 %); high noise (5 seeds) +22.9 % against
-    /// +17.4 %; on a perfect reference (coloured preset) the likelihood
-    /// prefers a degenerate τ_wheel → 0.06 s with t_r +40 … +70 % (flagged;
-    /// the fallback returns batch G-N). About 4.5–7.5× the wall time of a fit.
-    /// Kept as an opt-in diagnostic.
-    pub estimate_time_constants: bool,
-    /// Candidates of the time-constant search (used only with
-    /// [`EivOptions::estimate_time_constants`]).
-    pub time_constant_grid: TimeConstantGrid,
-    /// Log-Jacobian term of the relative white wheel noise added to the θ
-    /// cost. Default [`InputJacobian::None`] (see its docs).
-    pub input_jacobian: InputJacobian,
+    /// The estimator's modelling alternatives; public with the cargo
+    /// feature `research` (the studies of crates/odocal-lab), otherwise
+    /// always their defaults ([`EivOptions::spec`] aside).
+    #[serde(flatten)]
+    #[cfg_attr(not(feature = "research"), doc(hidden))]
+    pub research: ResearchOptions,
+}
+
+/// Declares [`ResearchOptions`] with its fields at visibility `$vis`:
+/// public with the `research` feature, crate-private without it.
+macro_rules! research_options {
+    ($vis:vis) => {
+        /// The estimator's modelling alternatives ([`EivOptions::research`]),
+        /// with the cargo feature `research`. Each default is the formulation
+        /// the product uses; the alternatives are what the studies compare
+        /// it with, and what the bootstrap's replicate fits and
+        /// [`EivOptions::spec`] (the Cramér–Rao bound's formulation) set.
+        #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+        #[serde(default)]
+        pub struct ResearchOptions {
+            /// How the covariance recursion depends on θ. Default
+            /// [`CovarianceMode::FollowsTheta`].
+            $vis covariance: CovarianceMode,
+            /// Passes with [`CovarianceMode::HeldAtReference`], each with the
+            /// covariance reference θ at the previous result (one pass when
+            /// the covariance follows θ). Default 2.
+            $vis passes: usize,
+            /// Which covariance of θ the report carries (`covariance`,
+            /// `sigma`) and the halves check uses. Default
+            /// [`CovarianceEstimate::LargerOfModelAndBlock`] (see both for the
+            /// measurements).
+            $vis covariance_estimate: CovarianceEstimate,
+            /// Damp the η step of the θ/η iteration by a secant estimate of
+            /// its overshoot (with the covariance following θ and η
+            /// estimated; see `secant_eta_factor` in the source for the
+            /// measurements). Default true.
+            $vis eta_secant_damping: bool,
+            /// What the innovation checks (NIS band, whiteness) take as
+            /// consistent. Default [`InnovationNull::FloorsAsRegularisation`]
+            /// (see its docs for the measurements); the bootstrap's replicate
+            /// fits, whose warnings are not read, use
+            /// [`InnovationNull::FittedModel`] (no extra filter pass).
+            $vis innovation_null: InnovationNull,
+            /// Add to θ's reported covariance what estimating the noise
+            /// scales η from the same drive adds to it: `A Σ_η Aᵀ` with
+            /// `A = ∂θ̂/∂η = −J⁻¹ ∂g_θ/∂η` (implicit function theorem at the
+            /// estimate; `g_θ` the θ-score, `J = ∂g_θ/∂θ`) and `Σ_η` the
+            /// inverse of η's information over the estimated scales. Both
+            /// derivatives are forward differences (1 % of σ) in θ of exact
+            /// filter derivatives: J of the θ-score, `∂g_θ/∂η` of the
+            /// η-gradient of the profile cost (the mixed partials are
+            /// symmetric; the FilterShare log-Jacobian weights' own
+            /// η-dependence is summed exactly by the filter), so one more
+            /// filter pass with θ and η derivatives per free parameter (with
+            /// the smoothed-share weights or the covariance held, one more
+            /// pass per estimated scale too, displaced by
+            /// [`ETA_SENSITIVITY_STEP`](crate::eiv::ETA_SENSITIVITY_STEP) in η),
+            /// instead of a second-order sensitivity recursion through the
+            /// filter. `A` is [`EivReport::theta_eta_sensitivity`](crate::eiv::EivReport::theta_eta_sensitivity),
+            /// the added σ [`EivReport::sigma_noise_estimate`](crate::eiv::EivReport::sigma_noise_estimate).
+            /// No effect with [`EivOptions::fix_noise`].
+            ///
+            /// Why: on the `high` preset t_r moves by ≈ 7–15 % per unit of
+            /// the heading white-noise scale η_5, whose own σ there is
+            /// 0.04–0.12, so the σ at a fixed η understates t_r's by up to
+            /// 1.8×. It costs about a quarter of the fit's time
+            /// (docs/performance.md). Default true; the bootstrap's replicate
+            /// fits, which use only θ, turn it off.
+            $vis noise_estimate_in_covariance: bool,
+            /// How the filter models the error of the measured sideslip β.
+            /// Default [`SideslipNoise::GaussMarkovState`] (see its docs).
+            $vis sideslip_noise: SideslipNoise,
+            /// Which wheel rotation scales the relative wheel noise in the
+            /// covariance. Default
+            /// [`WheelNoiseScale::SmoothedFittedInput`] with ±20 samples (see
+            /// its docs for the measured alternatives).
+            $vis wheel_noise_scale: WheelNoiseScale,
+            /// Log-Jacobian term of the relative white wheel noise added to
+            /// the θ cost. Default [`InputJacobian::FilterShare`] (see its
+            /// docs).
+            $vis input_jacobian: InputJacobian,
+            /// Floor of the reference's position noise σ in the filter's
+            /// `R`, m (added in quadrature to the noise model's position
+            /// white noise; it is not scaled by η). Default
+            /// [`DEFAULT_POSITION_FLOOR_M`], 5 mm (SPEC §10: 1 mm).
+            ///
+            /// Measured (12 km, seeds 1–20, the simulator's noise model
+            /// fixed): on a perfect reference with 2 % white wheel noise the
+            /// 1 mm floor leaves t_r +2.90 ± 1.56 % (bias t 8.3) and d −0.58
+            /// (t 8.2); with 5 mm, t_r +0.23 ± 0.61 % (t 1.7) and d −0.04 (t
+            /// 1.0), as the filter-free heading-channel Deming estimator on
+            /// the same drives (+0.22 ± 0.58 %). The wheel noise is rank 2 in
+            /// the 3-dof pose, so on a near-perfect position reference one
+            /// direction of the innovation is known to the floor and the
+            /// filter carries it from step to step (windows of 10 samples
+            /// remove the bias too). On the `coloured` preset 5 mm also
+            /// lowers the c_e bias (+0.098 → +0.047 %); where the reference
+            /// has centimetres of position noise (`paper`, `high`) the floor
+            /// changes nothing. `eiv_white_bias` in crates/odocal-lab
+            /// measures it.
+            $vis position_floor_m: f64,
+        }
+    };
+}
+
+#[cfg(feature = "research")]
+research_options!(pub);
+#[cfg(not(feature = "research"))]
+research_options!(pub(crate));
+
+impl Default for ResearchOptions {
+    fn default() -> Self {
+        ResearchOptions {
+            covariance: CovarianceMode::FollowsTheta,
+            passes: 2,
+            covariance_estimate: CovarianceEstimate::LargerOfModelAndBlock,
+            eta_secant_damping: true,
+            innovation_null: InnovationNull::FloorsAsRegularisation,
+            noise_estimate_in_covariance: true,
+            sideslip_noise: SideslipNoise::GaussMarkovState,
+            wheel_noise_scale: WheelNoiseScale::SmoothedFittedInput { half_width_samples: 20 },
+            input_jacobian: InputJacobian::FilterShare,
+            position_floor_m: DEFAULT_POSITION_FLOOR_M,
+        }
+    }
+}
+
+impl ResearchOptions {
+    /// Checks the options, naming the offending field.
+    fn validate(&self) -> Result<()> {
+        let bad = |field: &'static str, reason: &str| Err(Error::InvalidOption { field, reason: reason.into() });
+        if self.passes == 0 {
+            return bad("passes", "must be at least 1");
+        }
+        if !(self.position_floor_m.is_finite() && self.position_floor_m > 0.0) {
+            return bad("position_floor_m", "must be positive (it keeps S regular on a perfect reference)");
+        }
+        if self.wheel_noise_scale == (WheelNoiseScale::SmoothedFittedInput { half_width_samples: 0 }) {
+            return bad("wheel_noise_scale", "the smoothed scale needs half_width_samples >= 1");
+        }
+        if self.wheel_noise_scale != WheelNoiseScale::MeasuredInput && self.covariance != CovarianceMode::FollowsTheta {
+            return bad("wheel_noise_scale", "the fitted input needs covariance = follows_theta");
+        }
+        Ok(())
+    }
 }
 
 impl Default for EivOptions {
@@ -308,13 +323,6 @@ impl Default for EivOptions {
             max_iterations: 20,
             step_tolerance: 0.05,
             max_halvings: 10,
-            eta_secant_damping: true,
-            eta_reentry_min_score: None,
-            covariance_estimate: CovarianceEstimate::LargerOfModelAndBlock,
-            noise_estimate_in_covariance: true,
-            theta_convergence: false,
-            final_step_check: true,
-            passes: 2,
             free: [true; 4],
             fix_unobservable: true,
             noise: NoiseModel::PRODUCTION_CAR,
@@ -325,25 +333,17 @@ impl Default for EivOptions {
             nis_band: [0.5, 2.0],
             divergence_nis: 10.0,
             max_lag1: 0.5,
-            innovation_null: InnovationNull::FloorsAsRegularisation,
             max_lag1_below: 0.2,
             max_half_z: 4.0,
-            covariance: CovarianceMode::FollowsTheta,
             quantisation: QuantisationModel::Counting,
             heading_scale: HeadingScale::Separate,
             quantisation_level: QuantisationLevel::FromReadings,
             lateral_noise: LateralNoise::TiedToWheelWhite,
-            sideslip_noise: SideslipNoise::GaussMarkovState,
-            wheel_noise_scale: WheelNoiseScale::SmoothedFittedInput { half_width_samples: 20 },
             bias_correction: BiasCorrection::None,
             bootstrap_inputs: BootstrapInputs::Measured,
-            bootstrap_noise: BootstrapNoise::HeldAtFit,
             bootstrap_antithetic: false,
-            input_jacobian: InputJacobian::FilterShare,
-            position_floor_m: DEFAULT_POSITION_FLOOR_M,
             hold_unobservable_at: None,
-            estimate_time_constants: false,
-            time_constant_grid: TimeConstantGrid::default(),
+            research: ResearchOptions::default(),
         }
     }
 }
@@ -384,17 +384,16 @@ impl EivOptions {
     /// a parametric bootstrap of `replicates` re-simulations (seed `seed`;
     /// an even number: antithetic pairs, [`EivOptions::bootstrap_antithetic`])
     /// on the smoothed trajectory ([`BIAS_BOOTSTRAP_SMOOTHING_SAMPLES`]),
-    /// each holding the fitted noise model ([`BootstrapNoise::HeldAtFit`]):
+    /// each holding the fitted noise model:
     /// what the EIV method of `calibrate` applies by default (B = 4), the
     /// CLI's `--correct-bias B` and Python's `correct_bias=B`, measured in
     /// [`BiasCorrection`]'s docs.
     ///
     /// ```
-    /// use odocal::eiv::{BiasCorrection, BootstrapNoise, EivOptions};
+    /// use odocal::eiv::{BiasCorrection, EivOptions};
     /// let mut o = EivOptions::default();
     /// o.correct_bias(10, 0);
     /// assert_eq!(o.bias_correction, BiasCorrection::Bootstrap { replicates: 10, seed: 0, all_parameters: true });
-    /// assert_eq!(o.bootstrap_noise, BootstrapNoise::HeldAtFit);
     /// assert!(o.bootstrap_antithetic);
     /// assert!(o.validate().is_ok());
     /// o.correct_bias(5, 0); // an odd B cannot be paired
@@ -403,21 +402,23 @@ impl EivOptions {
     pub fn correct_bias(&mut self, replicates: usize, seed: u64) {
         self.bias_correction = BiasCorrection::Bootstrap { replicates, seed, all_parameters: true };
         self.bootstrap_inputs = BootstrapInputs::Smoothed { half_width_samples: BIAS_BOOTSTRAP_SMOOTHING_SAMPLES };
-        self.bootstrap_noise = BootstrapNoise::HeldAtFit;
         self.bootstrap_antithetic = true;
     }
 
     /// The defaults with SPEC §10's formulation of the cost and of `R`: the
     /// relative wheel noise scaled by the measured rotation, no input
-    /// log-Jacobian term, the 1 mm position floor. The studies'
-    /// Cramér–Rao bound is computed with it,
-    /// so that it depends on the noise model only, not on the estimator's
-    /// bias corrections.
+    /// log-Jacobian term, the 1 mm position floor. The Cramér–Rao bound
+    /// ([`cramer_rao_bound`](crate::eiv::cramer_rao_bound), the experiment's
+    /// and the studies') is computed with it, so that it depends on the noise
+    /// model only, not on the estimator's bias corrections.
     pub fn spec() -> Self {
         EivOptions {
-            wheel_noise_scale: WheelNoiseScale::MeasuredInput,
-            input_jacobian: InputJacobian::None,
-            position_floor_m: SPEC_POSITION_FLOOR_M,
+            research: ResearchOptions {
+                wheel_noise_scale: WheelNoiseScale::MeasuredInput,
+                input_jacobian: InputJacobian::None,
+                position_floor_m: SPEC_POSITION_FLOOR_M,
+                ..ResearchOptions::default()
+            },
             ..EivOptions::default()
         }
     }
@@ -428,17 +429,11 @@ impl EivOptions {
         if self.window_samples < 10 {
             return bad("window_samples", "must be at least 10");
         }
-        if self.passes == 0 {
-            return bad("passes", "must be at least 1");
-        }
         if !self.free.iter().any(|f| *f) {
             return bad("free", "at least one parameter must be free");
         }
         if !(self.step_tolerance.is_finite() && self.step_tolerance > 0.0) {
             return bad("step_tolerance", "must be positive");
-        }
-        if self.eta_reentry_min_score.is_some_and(|x| !(x.is_finite() && x >= 0.0)) {
-            return bad("eta_reentry_min_score", "must be finite and >= 0");
         }
         let [lo, hi] = self.eta_bounds;
         if !(lo.is_finite() && hi.is_finite() && lo <= 0.0 && hi >= 0.0) {
@@ -467,9 +462,6 @@ impl EivOptions {
                 reason: format!("{e}; give a usable θ (or None to hold at the start)"),
             })?;
         }
-        if !(self.position_floor_m.is_finite() && self.position_floor_m > 0.0) {
-            return bad("position_floor_m", "must be positive (it keeps S regular on a perfect reference)");
-        }
         if let BiasCorrection::Bootstrap { replicates, .. } = self.bias_correction {
             if replicates < 2 {
                 return bad("bias_correction", "the bootstrap needs at least 2 replicates");
@@ -481,19 +473,7 @@ impl EivOptions {
                 );
             }
         }
-        if matches!(
-            self.wheel_noise_scale,
-            WheelNoiseScale::SmoothedFittedInput { half_width_samples: 0 }
-                | WheelNoiseScale::ReferenceInput { half_width_samples: 0 }
-        ) {
-            return bad("wheel_noise_scale", "the smoothed scales need half_width_samples >= 1");
-        }
-        if self.wheel_noise_scale != WheelNoiseScale::MeasuredInput && self.covariance != CovarianceMode::FollowsTheta {
-            return bad("wheel_noise_scale", "fitted_input needs covariance = follows_theta");
-        }
-        if self.estimate_time_constants {
-            self.time_constant_grid.validate()?;
-        }
+        self.research.validate()?;
         self.noise.validate()
     }
 }

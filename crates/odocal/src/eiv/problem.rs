@@ -32,7 +32,6 @@ pub(super) struct Problem<'a> {
     pub(super) heading_separate: bool,
     pub(super) fitted_input: bool,
     pub(super) noise_input_half_width: usize,
-    pub(super) noise_input_from_reference: bool,
     pub(super) input_jacobian: InputJacobian,
     pub(super) position_floor_m: f64,
     /// Filter passes over the drive: with derivatives, objective only.
@@ -51,14 +50,13 @@ impl<'a> Problem<'a> {
             noise: opts.noise,
             quantisation: opts.quantisation,
             quantisation_given: opts.quantisation_level == QuantisationLevel::Given,
-            sideslip_white: opts.sideslip_noise == SideslipNoise::WhiteEquivalent,
+            sideslip_white: opts.research.sideslip_noise == SideslipNoise::WhiteEquivalent,
             lateral_stated: opts.lateral_noise == LateralNoise::Stated,
             heading_separate: opts.heading_scale == HeadingScale::Separate,
-            fitted_input: opts.wheel_noise_scale != WheelNoiseScale::MeasuredInput,
-            noise_input_half_width: opts.wheel_noise_scale.half_width(),
-            noise_input_from_reference: matches!(opts.wheel_noise_scale, WheelNoiseScale::ReferenceInput { .. }),
-            input_jacobian: opts.input_jacobian,
-            position_floor_m: opts.position_floor_m,
+            fitted_input: opts.research.wheel_noise_scale != WheelNoiseScale::MeasuredInput,
+            noise_input_half_width: opts.research.wheel_noise_scale.half_width(),
+            input_jacobian: opts.research.input_jacobian,
+            position_floor_m: opts.research.position_floor_m,
             evaluations: std::cell::Cell::new([0; 2]),
             lean_iterations: true,
         }
@@ -160,7 +158,6 @@ impl Problem<'_> {
         v.fitted_input = self.fitted_input;
         v.input_jacobian = self.input_jacobian;
         v.noise_input_half_width = self.noise_input_half_width;
-        v.noise_input_from_reference = self.noise_input_from_reference;
         v.position_floor_m = self.position_floor_m;
         v.null_without_floors = null;
         v

@@ -1,7 +1,5 @@
 //! What a fit reports: parameters, warnings, diagnostics, passes, the bound.
 
-use super::TimeConstantFit;
-
 use serde::{Deserialize, Serialize};
 
 use super::{FirstOrderBias, NoiseModel, NoiseSource, Window};
@@ -402,11 +400,6 @@ pub struct EivReport {
     pub updates: usize,
     /// Wall time, s.
     pub timing_s: f64,
-    /// The time-constant search (None unless
-    /// [`EivOptions::estimate_time_constants`](crate::eiv::EivOptions::estimate_time_constants)); the chosen time constants
-    /// are also in [`EivReport::noise`].
-    #[serde(default)]
-    pub time_constants: Option<TimeConstantFit>,
     /// The quantisation step read off the wheel readings' lattice, rev/s,
     /// with [`QuantisationLevel::FromReadings`](crate::eiv::QuantisationLevel::FromReadings) (None when the readings lie
     /// on no lattice or another level was asked for); then also

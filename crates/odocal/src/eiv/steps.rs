@@ -44,67 +44,38 @@ pub(super) fn score_norm(sums: &WindowSums, free: &[bool; 4], follows: bool) -> 
     }
 }
 
-/// The scoring step of η (log-transformed, clamped; see the module docs),
-/// its standard deviations and which η are held at a clamp.
-pub(super) fn eta_step(
-    sums: &WindowSums,
-    eta: &[f64; 6],
-    bounds: [f64; 2],
-    reentry_min_score: f64,
-    held: &[bool; 6],
-) -> EtaStep {
+/// The scoring step of η (log-transformed, clamped; see the module docs)
+/// and its standard deviations. A source at its lower clamp whose score
+/// points down stays there.
+pub(super) fn eta_step(sums: &WindowSums, eta: &[f64; 6], bounds: [f64; 2], held: &[bool; 6]) -> EtaStep {
     let tol = 1e-9;
     let g: [f64; 6] = std::array::from_fn(|j| sums.grad[4 + j]);
     // A noise source with no effect on the data has zero information: leave it.
     let scale = (0..NETA).map(|j| sums.i_eta[(j, j)]).fold(0.0f64, f64::max);
-    // Sources at the lower clamp that re-enter (EivOptions::eta_reentry_min_score):
-    // the score test g²/I of the scale against the data. Both g and I of
-    // such a source carry the factor exp(η) (exp(2η)), so the statistic does
-    // not depend on how deep in the clamp it sits.
-    let reenters: [bool; 6] = std::array::from_fn(|j| {
-        let i = sums.i_eta[(j, j)];
-        eta[j] <= bounds[0] + tol && g[j] < 0.0 && i > 0.0 && g[j] * g[j] > reentry_min_score * i
-    });
-    // Information of the variance factor exp(η) relative to the starting
-    // model: at the clamp `i_eta` is ~e⁻⁴⁰ of it and would read as none.
-    let rel_info = |j: usize| sums.i_eta[(j, j)] * (-2.0 * eta[j]).exp();
-    let rel_scale = (0..NETA).map(rel_info).fold(0.0f64, f64::max);
     let mut idx = Vec::new();
     for j in 0..NETA {
         let at_lo = eta[j] <= bounds[0] + tol && g[j] > 0.0;
         let at_hi = eta[j] >= bounds[1] - tol && g[j] < 0.0;
-        let no_info = if reenters[j] {
-            rel_info(j) <= 1e-12 * rel_scale.max(f64::MIN_POSITIVE)
-        } else {
-            sums.i_eta[(j, j)] <= 1e-12 * scale.max(f64::MIN_POSITIVE)
-        };
+        let no_info = sums.i_eta[(j, j)] <= 1e-12 * scale.max(f64::MIN_POSITIVE);
         if !(at_lo || at_hi || no_info || held[j]) {
             idx.push(j);
         }
     }
     let mut step = [0.0; 6];
     let mut sigma = [0.0; 6];
-    let leaving = idx.iter().any(|j| reenters[*j]);
     if idx.is_empty() {
-        return EtaStep { step, sigma, leaving };
+        return EtaStep { step, sigma };
     }
     let p = idx.len();
-    // With a source re-entering from the clamp its row is ~e⁻²⁰ of the
-    // others': solve the equilibrated system (unit diagonal) so that the
-    // ridge stays relative to each row.
-    let eq: Vec<f64> = (0..p)
-        .map(|i| if leaving { 1.0 / sums.i_eta[(idx[i], idx[i])].max(f64::MIN_POSITIVE).sqrt() } else { 1.0 })
-        .collect();
-    let a = DMatrix::from_fn(p, p, |i, k| sums.i_eta[(idx[i], idx[k])] * eq[i] * eq[k]);
+    let a = DMatrix::from_fn(p, p, |i, k| sums.i_eta[(idx[i], idx[k])]);
     let ridge = 1e-12 * (0..p).map(|i| a[(i, i)]).fold(0.0f64, f64::max);
     let a = a + DMatrix::identity(p, p) * ridge;
-    let b = DVector::from_fn(p, |i, _| -g[idx[i]] * eq[i]);
+    let b = DVector::from_fn(p, |i, _| -g[idx[i]]);
     let Some(chol) = a.cholesky() else {
-        return EtaStep { step, sigma, leaving: false };
+        return EtaStep { step, sigma };
     };
-    let d = chol.solve(&b).component_mul(&DVector::from_vec(eq.clone()));
-    let inv_eq = chol.inverse();
-    let inv = DMatrix::from_fn(p, p, |i, k| inv_eq[(i, k)] * eq[i] * eq[k]);
+    let d = chol.solve(&b);
+    let inv = chol.inverse();
     for (i, &j) in idx.iter().enumerate() {
         let dj = d[i];
         let de = if dj > -0.999 { (1.0 + dj).ln() } else { bounds[0] - eta[j] };
@@ -122,13 +93,12 @@ pub(super) fn eta_step(
     if slope >= 0.0 {
         step = eta_descent_step(sums, &g, eta, bounds, idx);
     }
-    let leaving = leaving && (0..NETA).any(|j| reenters[j] && step[j] > 0.0);
-    EtaStep { step, sigma, leaving }
+    EtaStep { step, sigma }
 }
 
 impl EtaStep {
     pub(super) fn none() -> Self {
-        EtaStep { step: [0.0; 6], sigma: [0.0; 6], leaving: false }
+        EtaStep { step: [0.0; 6], sigma: [0.0; 6] }
     }
 }
 
@@ -138,9 +108,6 @@ pub(super) struct EtaStep {
     pub(super) step: [f64; 6],
     /// Standard deviations of η (0 for held sources).
     pub(super) sigma: [f64; 6],
-    /// Whether a source leaves its lower clamp with this step (re-entry):
-    /// then the iteration has not converged, whatever the step's size in σ.
-    pub(super) leaving: bool,
 }
 
 /// Largest |Δη| of the fallback step of [`eta_step`] (a variance factor of e²).

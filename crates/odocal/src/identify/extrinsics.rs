@@ -272,7 +272,7 @@ mod tests {
 
     /// Paper noise on the reference pose's white part only (2 cm, 0.3 mrad)
     /// and the paper's 10 integration substeps. Measured over seeds 1–5 on
-    /// 6 km (`examples/extrinsics_check.rs sim 5 6 reference-white-only`):
+    /// 6 km (`extrinsics_check sim 5 6 reference-white-only` in crates/odocal-lab):
     /// errors up to 4.0 mm and 0.062 mrad, but 8–33 model σ: the σ assumes
     /// white residuals, while each segment starts from one noisy reference
     /// pose, an error the whole segment carries. So the bound here is on
@@ -301,9 +301,9 @@ mod tests {
 
     /// The full paper noise, 12 km, seed 1: the extrinsics are recovered
     /// within 3 cluster-robust σ, while the model σ is far too small for
-    /// the same errors. Over seeds 1–20 (`examples/gn_coverage.rs 20 12
-    /// paper 1300 joint`) all 20 were within 3 robust σ for l_x, l_y and δ;
-    /// 95 % intervals from the model σ covered 0–5 %.
+    /// the same errors. Over seeds 1–20 (`gn_coverage 20 12 paper 1300
+    /// joint` in crates/odocal-lab) all 20 were within 3 robust σ for l_x,
+    /// l_y and δ; 95 % intervals from the model σ covered 0–5 %.
     /// (0.3 s with the test profile's optimisation.)
     #[test]
     fn paper_noise_recovers_extrinsics_within_three_robust_sigma() {

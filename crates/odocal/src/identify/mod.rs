@@ -751,7 +751,7 @@ mod tests {
 
     /// The cluster-robust covariance on a 12 km paper-noise drive: there,
     /// present, over the clusters the options give, and much wider than the
-    /// model σ (5–120× over 20 seeds, `examples/gn_coverage.rs`); absent
+    /// model σ (5–120× over 20 seeds, `gn_coverage` in crates/odocal-lab); absent
     /// with fewer clusters than asked for. (0.2 s with the test profile's
     /// optimisation.)
     #[test]

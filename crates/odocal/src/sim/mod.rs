@@ -67,7 +67,7 @@ mod route;
 
 use options::invalid;
 pub use options::{NoiseOptions, RouteOptions, SimOptions, SpeedOptions, VehicleOptions};
-use route::{build_route, stream, Encoder, GaussMarkov, SpeedProfile, White};
+use route::{build_route, stream, Encoder, GaussMarkov, Route, SpeedProfile, White};
 
 /// Grid step of the speed profile along the route, m.
 const SPEED_GRID_M: f64 = 0.5;
@@ -164,15 +164,49 @@ pub fn simulate(opts: &SimOptions) -> Result<SimOutput> {
     let psi0 = route_rng.random_range(-std::f64::consts::PI..std::f64::consts::PI);
 
     let ts = 1.0 / opts.sample_rate_hz;
-    let sub = opts.substeps;
-    let dtf = ts / sub as f64;
     let n = (profile.duration() * opts.sample_rate_hz).floor() as usize + 1;
     if n < 2 {
         return Err(invalid("length_km", "the drive is shorter than two samples"));
     }
-    let beta_gain = opts.vehicle.sideslip_gain_rad_per_m_per_s2();
+    let truth = integrate_truth(opts, &route, &profile, psi0, n, ts);
+    let (measured, wheel_rotation_rel_error_rms) = measure(opts, &truth, ts);
 
-    // Truth, integrated at the fine step.
+    let Truth { signals: truth, max_yaw, max_ay, .. } = truth;
+    let distance_m = (1..n).map(|k| (truth.px[k] - truth.px[k - 1]).hypot(truth.py[k] - truth.py[k - 1])).sum::<f64>();
+    let stats = SimStats {
+        samples: n,
+        distance_m,
+        duration_s: (n - 1) as f64 * ts,
+        max_yaw_rate_rad_per_s: max_yaw,
+        max_abs_lateral_acceleration_m_per_s2: max_ay,
+        wheel_rotation_rel_error_rms,
+    };
+    let t = (0..n).map(|k| k as f64 / opts.sample_rate_hz).collect();
+    let drive = Drive::builder(t, measured).truth(truth).sample_time_s(ts).context("simulator").build()?;
+    Ok(SimOutput { drive, sidecar: SimSidecar { theta_true: theta, settings: opts.clone(), stats } })
+}
+
+/// The true signals of a simulated drive.
+struct Truth {
+    /// The pose at each sample; the inputs as their means over the
+    /// sample's substeps.
+    signals: Signals,
+    /// Longitudinal acceleration, m/s² (mean over the substeps).
+    a_x: Vec<f64>,
+    /// Largest |yaw rate|, rad/s.
+    max_yaw: f64,
+    /// Largest |a_y|, m/s².
+    max_ay: f64,
+}
+
+/// The truth: `n` samples along the route at the speed profile from
+/// heading `psi0`, the model integrated at the fine step `ts / substeps`
+/// with the inputs θ_true implies.
+fn integrate_truth(opts: &SimOptions, route: &Route, profile: &SpeedProfile, psi0: f64, n: usize, ts: f64) -> Truth {
+    let theta = opts.theta_true;
+    let sub = opts.substeps;
+    let dtf = ts / sub as f64;
+    let beta_gain = opts.vehicle.sideslip_gain_rad_per_m_per_s2();
     let mut truth = Signals::with_capacity(n);
     let mut a_x = Vec::with_capacity(n);
     let mut x = State::new(0.0, 0.0, psi0);
@@ -206,40 +240,98 @@ pub fn simulate(opts: &SimOptions) -> Result<SimOutput> {
         truth.a_y.push(sum[3] / div);
         a_x.push(sum[4] / div);
     }
+    Truth { signals: truth, a_x, max_yaw, max_ay }
+}
 
-    // Measurements.
+/// The noise sources of the sensors, each on its own random stream of the
+/// seed, sampled every `ts`.
+struct Sensors {
+    /// Slip common to both wheels (relative).
+    gm_common: GaussMarkov,
+    /// Rear-left wheel's own coloured error (relative).
+    gm_rl: GaussMarkov,
+    /// Rear-right wheel's own coloured error (relative).
+    gm_rr: GaussMarkov,
+    /// White wheel error (relative).
+    white_wheel: White,
+    /// Rear-left encoder (random tick phase).
+    enc_rl: Encoder,
+    /// Rear-right encoder (random tick phase).
+    enc_rr: Encoder,
+    /// Position drift east, m.
+    drift_x: GaussMarkov,
+    /// Position drift north, m.
+    drift_y: GaussMarkov,
+    /// White position noise, m.
+    white_pos: White,
+    /// Heading drift, rad.
+    drift_psi: GaussMarkov,
+    /// White heading noise, rad.
+    white_psi: White,
+    /// White a_y noise, m/s².
+    white_ay: White,
+    /// Sideslip error, rad.
+    beta_err: GaussMarkov,
+}
+
+impl Sensors {
+    /// The sources of the noise settings `no`.
+    fn new(no: &NoiseOptions, seed: u64, ts: f64) -> Sensors {
+        let tau_w = no.wheel_coloured_time_constant_s;
+        let gm_common = GaussMarkov::new(stream(seed, 1), no.wheel_coloured_rel_sigma, tau_w, ts);
+        let wheel_gm = |id| GaussMarkov::new(stream(seed, id), no.wheel_coloured_differential_rel_sigma, tau_w, ts);
+        let (gm_rl, gm_rr) = (wheel_gm(2), wheel_gm(12));
+        let white_wheel = White { rng: stream(seed, 3), sigma: no.wheel_white_rel_sigma };
+        let ticks = f64::from(no.encoder_ticks_per_revolution);
+        let mut phase_rng = stream(seed, 4);
+        let enc_rl = Encoder { ticks, revolutions: phase_rng.random::<f64>() / ticks.max(1.0) };
+        let enc_rr = Encoder { ticks, revolutions: phase_rng.random::<f64>() / ticks.max(1.0) };
+        let pos_gm =
+            |id| GaussMarkov::new(stream(seed, id), no.position_drift_sigma_m, no.position_drift_time_constant_s, ts);
+        let (drift_x, drift_y) = (pos_gm(5), pos_gm(6));
+        Sensors {
+            gm_common,
+            gm_rl,
+            gm_rr,
+            white_wheel,
+            enc_rl,
+            enc_rr,
+            drift_x,
+            drift_y,
+            white_pos: White { rng: stream(seed, 7), sigma: no.position_white_sigma_m },
+            drift_psi: GaussMarkov::new(
+                stream(seed, 8),
+                no.heading_drift_sigma_rad,
+                no.heading_drift_time_constant_s,
+                ts,
+            ),
+            white_psi: White { rng: stream(seed, 9), sigma: no.heading_white_sigma_rad },
+            white_ay: White { rng: stream(seed, 10), sigma: no.lateral_acceleration_white_sigma_m_per_s2 },
+            beta_err: GaussMarkov::new(stream(seed, 11), no.sideslip_sigma_rad, no.sideslip_time_constant_s, ts),
+        }
+    }
+}
+
+/// The measured signals: wheel rotations with slip, coloured and white
+/// errors through the encoders; the reference pose (at the mount) with
+/// drift and white noise; a_y and β with their errors. Also the RMS
+/// relative error of the measured wheel rotations while moving.
+fn measure(opts: &SimOptions, truth: &Truth, ts: f64) -> (Signals, f64) {
+    let theta = opts.theta_true;
     let no = &opts.noise;
-    let seed = opts.seed;
-    let tau_w = no.wheel_coloured_time_constant_s;
-    let mut gm_common = GaussMarkov::new(stream(seed, 1), no.wheel_coloured_rel_sigma, tau_w, ts);
-    let wheel_gm = |id| GaussMarkov::new(stream(seed, id), no.wheel_coloured_differential_rel_sigma, tau_w, ts);
-    let (mut gm_rl, mut gm_rr) = (wheel_gm(2), wheel_gm(12));
-    let mut white_wheel = White { rng: stream(seed, 3), sigma: no.wheel_white_rel_sigma };
-    let ticks = f64::from(no.encoder_ticks_per_revolution);
-    let mut phase_rng = stream(seed, 4);
-    let mut enc_rl = Encoder { ticks, revolutions: phase_rng.random::<f64>() / ticks.max(1.0) };
-    let mut enc_rr = Encoder { ticks, revolutions: phase_rng.random::<f64>() / ticks.max(1.0) };
-    let pos_gm =
-        |id| GaussMarkov::new(stream(seed, id), no.position_drift_sigma_m, no.position_drift_time_constant_s, ts);
-    let (mut drift_x, mut drift_y) = (pos_gm(5), pos_gm(6));
-    let mut white_pos = White { rng: stream(seed, 7), sigma: no.position_white_sigma_m };
-    let mut drift_psi =
-        GaussMarkov::new(stream(seed, 8), no.heading_drift_sigma_rad, no.heading_drift_time_constant_s, ts);
-    let mut white_psi = White { rng: stream(seed, 9), sigma: no.heading_white_sigma_rad };
-    let mut white_ay = White { rng: stream(seed, 10), sigma: no.lateral_acceleration_white_sigma_m_per_s2 };
-    let mut beta_err = GaussMarkov::new(stream(seed, 11), no.sideslip_sigma_rad, no.sideslip_time_constant_s, ts);
-
-    let mut measured = Signals::with_capacity(n);
+    let mut s = Sensors::new(no, opts.seed, ts);
+    let tr = &truth.signals;
+    let mut measured = Signals::with_capacity(tr.px.len());
     let (mut sq, mut count) = (0.0f64, 0usize);
-    for (k, &ax) in a_x.iter().enumerate() {
-        let slip = no.wheel_slip_per_m_per_s2 * ax + gm_common.next();
-        let rel_rl = slip + gm_rl.next() + white_wheel.next();
-        let rel_rr = slip + gm_rr.next() + white_wheel.next();
-        let n_rl = enc_rl.measure(truth.n_rl[k] * (1.0 + rel_rl), ts);
-        let n_rr = enc_rr.measure(truth.n_rr[k] * (1.0 + rel_rr), ts);
+    for (k, &ax) in truth.a_x.iter().enumerate() {
+        let slip = no.wheel_slip_per_m_per_s2 * ax + s.gm_common.next();
+        let rel_rl = slip + s.gm_rl.next() + s.white_wheel.next();
+        let rel_rr = slip + s.gm_rr.next() + s.white_wheel.next();
+        let n_rl = s.enc_rl.measure(tr.n_rl[k] * (1.0 + rel_rl), ts);
+        let n_rr = s.enc_rr.measure(tr.n_rr[k] * (1.0 + rel_rr), ts);
         measured.n_rl.push(n_rl);
         measured.n_rr.push(n_rr);
-        let tu = Input { n_rl: truth.n_rl[k], n_rr: truth.n_rr[k], beta: truth.beta[k], a_y: truth.a_y[k] };
+        let tu = Input { n_rl: tr.n_rl[k], n_rr: tr.n_rr[k], beta: tr.beta[k], a_y: tr.a_y[k] };
         if model::kinematics(&tu, &theta).speed_m_per_s > MOVING_SPEED_M_PER_S {
             for (m, t) in [(n_rl, tu.n_rl), (n_rr, tu.n_rr)] {
                 let e = (m - t) / t;
@@ -247,28 +339,17 @@ pub fn simulate(opts: &SimOptions) -> Result<SimOutput> {
                 count += 1;
             }
         }
-        let mut reference = State::new(truth.px[k], truth.py[k], truth.psi[k]);
+        let mut reference = State::new(tr.px[k], tr.py[k], tr.psi[k]);
         if !opts.reference_mount.is_zero() {
             reference = crate::model::extrinsics::reference_pose(&reference, &opts.reference_mount);
         }
-        measured.px.push(reference[0] + drift_x.next() + white_pos.next());
-        measured.py.push(reference[1] + drift_y.next() + white_pos.next());
-        measured.psi.push(reference[2] + drift_psi.next() + white_psi.next());
-        measured.a_y.push(truth.a_y[k] + white_ay.next());
-        measured.beta.push(truth.beta[k] + beta_err.next());
+        measured.px.push(reference[0] + s.drift_x.next() + s.white_pos.next());
+        measured.py.push(reference[1] + s.drift_y.next() + s.white_pos.next());
+        measured.psi.push(reference[2] + s.drift_psi.next() + s.white_psi.next());
+        measured.a_y.push(tr.a_y[k] + s.white_ay.next());
+        measured.beta.push(tr.beta[k] + s.beta_err.next());
     }
-    let distance_m = (1..n).map(|k| (truth.px[k] - truth.px[k - 1]).hypot(truth.py[k] - truth.py[k - 1])).sum::<f64>();
-    let stats = SimStats {
-        samples: n,
-        distance_m,
-        duration_s: (n - 1) as f64 * ts,
-        max_yaw_rate_rad_per_s: max_yaw,
-        max_abs_lateral_acceleration_m_per_s2: max_ay,
-        wheel_rotation_rel_error_rms: if count > 0 { (sq / count as f64).sqrt() } else { 0.0 },
-    };
-    let t = (0..n).map(|k| k as f64 / opts.sample_rate_hz).collect();
-    let drive = Drive::builder(t, measured).truth(truth).sample_time_s(ts).context("simulator").build()?;
-    Ok(SimOutput { drive, sidecar: SimSidecar { theta_true: theta, settings: opts.clone(), stats } })
+    (measured, if count > 0 { (sq / count as f64).sqrt() } else { 0.0 })
 }
 
 #[cfg(test)]

@@ -34,7 +34,7 @@ fn bootstrap_is_identical_for_one_and_two_threads() {
 /// sideslip noise, which the bootstrap's replicates (simulated from the
 /// same model) shared. t_r is −1.1 % off here (2.3σ, an unlucky draw), so
 /// the assertion for every parameter is the 3σ one; 95 % coverage over
-/// seeds is measured in `examples/study_eiv.rs`.
+/// seeds is measured by `study_eiv` in crates/odocal-lab.
 #[test]
 fn bootstrap_brackets_the_truth_and_finds_no_c_e_bias_left() {
     let (out, opts) = known_noise_fit(6.0, 4);
@@ -79,7 +79,7 @@ fn bootstrap_brackets_the_truth_and_finds_no_c_e_bias_left() {
 /// same seed estimates (c_e only, or every parameter); the uncorrected
 /// root is the plain fit's θ, whose first-order bias diagnostic is there.
 /// Two replicates on 1 km keep it cheap (this checks the plumbing; the
-/// correction's effect over seeds is measured in `examples/study_eiv.rs`).
+/// correction's effect over seeds is measured by `study_eiv` in crates/odocal-lab).
 #[test]
 fn bootstrap_bias_correction_subtracts_the_bootstrap_bias() {
     let (out, opts) = known_noise_fit(1.0, 12);
@@ -126,12 +126,12 @@ fn bootstrap_bias_correction_subtracts_the_bootstrap_bias() {
     assert!(matches!(bad.validate(), Err(Error::InvalidOption { field: "bias_correction", .. })));
 }
 
-/// With the noise scales estimated, [`BootstrapNoise::HeldAtFit`] fits the
-/// replicates with the fitted noise model held (what `--correct-bias`
-/// does): it subtracts exactly the bias of a bootstrap run with
+/// With the noise scales estimated, the bias correction fits the replicates
+/// with the fitted noise model held (what `--correct-bias` does): it
+/// subtracts exactly the bias of a bootstrap run with
 /// `EivOptions { noise: fit.noise, fix_noise: true }`, and another bias
-/// than the default re-estimating replicates. 2 km, 2 replicates: the
-/// plumbing (the effect over seeds is in docs/study.md).
+/// than replicates that re-estimate the noise. 2 km, 2 replicates: the
+/// plumbing (the effect over seeds is in [`BiasCorrection`]'s docs).
 #[test]
 fn held_noise_bias_correction_fits_the_replicates_with_the_fitted_noise() {
     let out = simulate(&SimOptions { length_km: 2.0, ..SimOptions::paper(5) }).expect("sim");
@@ -161,17 +161,12 @@ fn held_noise_bias_correction_fits_the_replicates_with_the_fitted_noise() {
     let held = EivOptions { noise: plain.noise, fix_noise: true, ..opts.clone() };
     let boot = bootstrap(&input, &plain, &held, &boot_opts).expect("bootstrap");
     let corr = BiasCorrection::Bootstrap { replicates: 2, seed: 4, all_parameters: true };
-    let run = |noise: BootstrapNoise| {
-        estimate(&input, &start, &EivOptions { bias_correction: corr, bootstrap_noise: noise, ..opts.clone() })
-            .expect("eiv")
-    };
-    let r = run(BootstrapNoise::HeldAtFit);
+    let r = estimate(&input, &start, &EivOptions { bias_correction: corr, ..opts.clone() }).expect("eiv");
     assert_eq!(r.theta_uncorrected, plain.theta);
     assert_eq!(r.bias_subtracted.map(f64::to_bits), boot.bias.map(f64::to_bits));
-    let re = run(BootstrapNoise::Reestimated);
-    assert_eq!(re.theta_uncorrected, plain.theta);
+    let reestimating = bootstrap(&input, &plain, &opts, &boot_opts).expect("bootstrap");
     assert_ne!(
-        re.bias_subtracted.map(f64::to_bits),
+        reestimating.bias.map(f64::to_bits),
         r.bias_subtracted.map(f64::to_bits),
         "re-estimating replicates gave the held-noise bias"
     );
@@ -286,7 +281,7 @@ fn bootstrap_refits_at_the_quantisation_level_of_the_fit() {
 /// `BootstrapInputs::Smoothed`: the replicate worlds run on the moving
 /// average of the measured inputs, so the same seed gives other replicates
 /// than with the measured inputs; a half-width of 0 is rejected. (Its effect
-/// on the bias estimate over seeds: `examples/study_eiv.rs --bootstrap-smooth`.)
+/// on the bias estimate over seeds: `study_eiv --bootstrap-smooth` in crates/odocal-lab.)
 #[test]
 fn smoothed_bootstrap_inputs_change_the_replicate_worlds() {
     let (out, opts) = known_noise_fit(1.0, 31);

@@ -74,12 +74,9 @@ fn larger_of_model_and_block_inflates_only_where_the_blocks_are_wider() {
 /// `coloured` preset): a noise model without the common-mode source (η₁ at
 /// its clamp in effect) reports c_e's σ several times too small; the block
 /// sandwich sees the spread of the block scores and is wider, and
-/// `LargerOfModelAndBlock` reports it and judges the halves with it. The
-/// estimated noise model started with η₁ at the lower clamp keeps it there
-/// (its information reads as none) unless `eta_reentry_min_score` lets it
-/// re-enter.
+/// `LargerOfModelAndBlock` reports it and judges the halves with it.
 #[test]
-fn coloured_common_mode_noise_block_sandwich_and_reentry() {
+fn coloured_common_mode_noise_block_sandwich() {
     let noise = NoiseOptions::coloured_wheels_only();
     let out = simulate(&SimOptions { length_km: 1.5, noise: noise.clone(), ..SimOptions::paper(3) }).expect("sim");
     let input = input_of(&out.drive);
@@ -90,7 +87,7 @@ fn coloured_common_mode_noise_block_sandwich_and_reentry() {
         noise: without_common,
         fix_noise: true,
         window_samples: 2000,
-        covariance_estimate: CovarianceEstimate::Model,
+        research: ResearchOptions { covariance_estimate: CovarianceEstimate::Model, ..Default::default() },
         ..Default::default()
     };
     let model = estimate(&input, &truth, &base).expect("fit");
@@ -103,7 +100,13 @@ fn coloured_common_mode_noise_block_sandwich_and_reentry() {
     let robust = estimate(
         &input,
         &truth,
-        &EivOptions { covariance_estimate: CovarianceEstimate::LargerOfModelAndBlock, ..base.clone() },
+        &EivOptions {
+            research: ResearchOptions {
+                covariance_estimate: CovarianceEstimate::LargerOfModelAndBlock,
+                ..base.research.clone()
+            },
+            ..base.clone()
+        },
     )
     .expect("fit");
     assert_eq!(robust.theta, model.theta, "the option changes the covariance only");
@@ -111,13 +114,4 @@ fn coloured_common_mode_noise_block_sandwich_and_reentry() {
     assert!((robust.covariance[0][0].sqrt() - robust.sigma[0]).abs() <= 1e-12 * robust.sigma[0]);
     let (zm, zr) = (model.halves.expect("halves").z[0], robust.halves.expect("halves").z[0]);
     assert!(zr.abs() < zm.abs(), "halves z of c_e: robust {zr} vs model {zm}");
-
-    // η₁ (common mode) starting at its lower clamp, η estimated.
-    let est = EivOptions { noise: sim_noise, fix_noise: false, max_iterations: 4, ..base };
-    let start = [0.0, est.eta_bounds[0], 0.0, est.eta_bounds[0], est.eta_bounds[0], est.eta_bounds[0]];
-    let (stuck, _) = estimate_from(&input, &truth, &start, &est).expect("fit");
-    assert!(stuck.eta[1] <= est.eta_bounds[0], "without re-entry η₁ stays at the clamp: {:?}", stuck.eta);
-    let re = EivOptions { eta_reentry_min_score: Some(10.0), ..est };
-    let (left, _) = estimate_from(&input, &truth, &start, &re).expect("fit");
-    assert!(left.eta[1] > re.eta_bounds[0] + 1.0, "with re-entry η₁ leaves the clamp: {:?}", left.eta);
 }

@@ -424,7 +424,7 @@ fn log_jacobian_eta_derivative_matches_finite_differences() {
         simulate(&SimOptions { length_km: 1.0, noise: NoiseOptions::high(), ..SimOptions::paper(3) }).expect("sim");
     let input = input_of(&out.drive);
     let opts = EivOptions::default();
-    assert_eq!(opts.input_jacobian, InputJacobian::FilterShare, "the default this test is about");
+    assert_eq!(opts.research.input_jacobian, InputJacobian::FilterShare, "the default this test is about");
     let prob = Problem::new(&input, make_windows(input.parts, opts.window_samples), &opts);
     let th = out.sidecar.theta_true;
     let th_ref = Theta { c_e: th.c_e * 1.002, t_r: th.t_r * 1.01, ..th };

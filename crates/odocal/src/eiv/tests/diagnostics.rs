@@ -19,7 +19,7 @@ fn white_drive_fit(lever_x: f64, null: InnovationNull) -> EivReport {
         fix_noise: true,
         window_samples: 1000,
         max_iterations: 3,
-        innovation_null: null,
+        research: ResearchOptions { innovation_null: null, ..Default::default() },
         ..Default::default()
     };
     estimate(&input, &out.sidecar.theta_true, &opts).expect("eiv")

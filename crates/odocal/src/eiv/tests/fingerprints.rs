@@ -87,18 +87,30 @@ const RECORDED: [Recorded; 5] = [
 /// noise, 10 iterations), spelt out so that a change of the defaults does
 /// not change the cases.
 fn recorded_base_options() -> EivOptions {
+    let spec = EivOptions::spec();
     EivOptions {
         window_samples: 2000,
         heading_scale: HeadingScale::TiedToPosition,
         quantisation: QuantisationModel::ProcessNoise,
         quantisation_level: QuantisationLevel::ScaledWithWhite,
-        eta_secant_damping: false,
-        innovation_null: InnovationNull::FittedModel,
-        covariance_estimate: CovarianceEstimate::Model,
-        noise_estimate_in_covariance: false,
-        sideslip_noise: SideslipNoise::WhiteEquivalent,
         max_iterations: 10,
-        ..EivOptions::spec()
+        research: ResearchOptions {
+            eta_secant_damping: false,
+            innovation_null: InnovationNull::FittedModel,
+            covariance_estimate: CovarianceEstimate::Model,
+            noise_estimate_in_covariance: false,
+            sideslip_noise: SideslipNoise::WhiteEquivalent,
+            ..spec.research.clone()
+        },
+        ..spec
+    }
+}
+
+/// `base` with the covariance held at a reference θ.
+fn held(base: &EivOptions) -> EivOptions {
+    EivOptions {
+        research: ResearchOptions { covariance: CovarianceMode::HeldAtReference, ..base.research.clone() },
+        ..base.clone()
     }
 }
 
@@ -112,13 +124,8 @@ fn recorded_options(case: &str, base: &EivOptions) -> EivOptions {
             quantisation: QuantisationModel::Measurement,
             ..base.clone()
         },
-        "held-estimated" => EivOptions { covariance: CovarianceMode::HeldAtReference, ..base.clone() },
-        _ => EivOptions {
-            covariance: CovarianceMode::HeldAtReference,
-            fix_noise: true,
-            quantisation: QuantisationModel::Measurement,
-            ..base.clone()
-        },
+        "held-estimated" => held(base),
+        _ => EivOptions { fix_noise: true, quantisation: QuantisationModel::Measurement, ..held(base) },
     }
 }
 
@@ -233,8 +240,8 @@ fn avx2_kernels_equal_the_baseline_to_the_bit() {
 /// below the tolerance) give the scoring pass of full evaluations to the
 /// bit: θ, η, η's σ, the termination, the remaining η step, every accepted
 /// iteration's θ, η, cost and step factor, and the final evaluation's sums.
-/// Also where the pass stops by the iteration limit, without the final step
-/// check and from a start far from the estimate. Fewer covariance columns,
+/// Also where the pass stops by the iteration limit and from a start far
+/// from the estimate. Fewer covariance columns,
 /// not fewer passes, is what it saves; the pass count is reported.
 #[test]
 #[allow(clippy::float_cmp)] // identity to the bit is the claim
@@ -249,7 +256,6 @@ fn lean_iteration_starts_give_the_full_evaluations_results_to_the_bit() {
             ("default", EivOptions::default(), gn),
             ("from afar", EivOptions::default(), far),
             ("iteration limit", EivOptions { max_iterations: 2, ..EivOptions::default() }, far),
-            ("no final step check", EivOptions { final_step_check: false, ..EivOptions::default() }, gn),
         ];
         for (name, opts, start) in variants {
             let q = opts.quantisation_level.step_found(&input);

@@ -130,7 +130,11 @@ fn noise_estimate_sensitivity_matches_refits_and_widens_sigma() {
     let gn = batch_gn_all(&out.drive);
     let opts = EivOptions::default();
     let r = estimate(&input, &gn, &opts).expect("eiv");
-    let off = estimate(&input, &gn, &EivOptions { noise_estimate_in_covariance: false, ..opts.clone() }).expect("eiv");
+    let off_opts = EivOptions {
+        research: ResearchOptions { noise_estimate_in_covariance: false, ..Default::default() },
+        ..opts.clone()
+    };
+    let off = estimate(&input, &gn, &off_opts).expect("eiv");
     assert_eq!(r.theta, off.theta, "the option changes the covariance only");
     assert!(off.sigma_noise_estimate.iter().all(|s| *s == 0.0), "option off: no η term");
     for i in 0..4 {

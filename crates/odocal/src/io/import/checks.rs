@@ -155,8 +155,37 @@ pub(crate) fn conventions(m: &Manifest, x: &Resampled<'_>, theta0: &Theta, warni
         ));
         return Ok(());
     }
-    // Each wheel's speed over the (unsigned) reference speed: ≈ +1 when the
-    // vehicle mostly drives forwards and the sign is right.
+    wheel_signs(m, x, &moving, theta0, warnings)?;
+    // The yaw rates' ratio is sign(r)·sd(ref)/sd(wheels) (symmetric in the
+    // noise of both), judged only where they correlate.
+    let (ww, wr) = smoothed_yaw_rates(x, theta0);
+    let y = YawMoments::of(&ww, &wr, &moving);
+    let (va, vb, c) = (y.va, y.vb, y.c);
+    let corr = y.cov / (va * vb).sqrt();
+    if !within(MIN_YAW_CORRELATION, corr.abs()) || !(va / c).sqrt().is_finite() || (va / c).sqrt() < TURNING_RAD_PER_S {
+        warnings.push(format!(
+            "heading unit and convention not checked: the drive turns too little (RMS wheel yaw rate {:.3} rad/s, \
+             needs {TURNING_RAD_PER_S}) or the yaw rates correlate too little (r = {corr:.2}, needs \
+             {MIN_YAW_CORRELATION})",
+            (va / c).sqrt()
+        ));
+        return Ok(());
+    }
+    let r = corr.signum() * (vb / va).sqrt();
+    heading_convention(m, r, warnings)
+}
+
+/// Each wheel's speed over the (unsigned) reference speed while moving:
+/// ≈ +1 when the vehicle mostly drives forwards and the sign is right. A
+/// negative median is an error naming the sign to flip; another far from
+/// 1 a warning.
+fn wheel_signs(
+    m: &Manifest,
+    x: &Resampled<'_>,
+    moving: &[usize],
+    theta0: &Theta,
+    warnings: &mut Vec<String>,
+) -> Result<()> {
     let mut flipped = Vec::new();
     for (n, key) in [(x.n_rl, "wheels.rear_left.sign"), (x.n_rr, "wheels.rear_right.sign")] {
         let mut r: Vec<f64> = moving.iter().map(|&k| n[k] * theta0.c_e / x.pose_speed(k)).collect();
@@ -171,23 +200,26 @@ pub(crate) fn conventions(m: &Manifest, x: &Resampled<'_>, theta0: &Theta, warni
             ));
         }
     }
-    if !flipped.is_empty() {
-        let keys: Vec<&str> = flipped.iter().map(|f| f.0).collect();
-        let both = if flipped.len() == 2 { " (or the vehicle drove backwards throughout)" } else { "" };
-        return Err(m.error(
-            keys[0],
-            format!(
-                "the wheel turns backwards while the reference moves (wheel speed / reference speed, median {:.3}); \
-                 flip {}{both}",
-                flipped[0].1,
-                keys.join(" and ")
-            ),
-        ));
+    if flipped.is_empty() {
+        return Ok(());
     }
-    // Yaw rates, smoothed over YAW_SMOOTHING_S within the parts: reference
-    // (heading differences) against wheels (model at θ_0). Their ratio is
-    // sign(r)·sd(ref)/sd(wheels) (symmetric in the noise of both), judged
-    // only where they correlate.
+    let keys: Vec<&str> = flipped.iter().map(|f| f.0).collect();
+    let both = if flipped.len() == 2 { " (or the vehicle drove backwards throughout)" } else { "" };
+    Err(m.error(
+        keys[0],
+        format!(
+            "the wheel turns backwards while the reference moves (wheel speed / reference speed, median {:.3}); \
+             flip {}{both}",
+            flipped[0].1,
+            keys.join(" and ")
+        ),
+    ))
+}
+
+/// The yaw rates of the wheels (the model at θ_0) and of the reference
+/// (central heading differences), each smoothed over [`YAW_SMOOTHING_S`]
+/// within the parts.
+fn smoothed_yaw_rates(x: &Resampled<'_>, theta0: &Theta) -> (Vec<f64>, Vec<f64>) {
     let n = x.n_rl.len();
     let (mut ww, mut wr) = (vec![0.0; n], vec![0.0; n]);
     for k in x.inner() {
@@ -202,28 +234,44 @@ pub(crate) fn conventions(m: &Manifest, x: &Resampled<'_>, theta0: &Theta, warni
             signal::moving_average(&mut wr, inner, width);
         }
     }
-    let (mut sa, mut sb, mut saa, mut sbb, mut sab) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for &k in &moving {
-        let (a, b) = (ww[k], wr[k]);
-        sa += a;
-        sb += b;
-        saa += a * a;
-        sbb += b * b;
-        sab += a * b;
+    (ww, wr)
+}
+
+/// Centred second moments of the wheels' (a) and the reference's (b) yaw
+/// rates over the moving samples, times their count.
+struct YawMoments {
+    /// Samples.
+    c: f64,
+    /// Σ(a − ā)².
+    va: f64,
+    /// Σ(b − b̄)².
+    vb: f64,
+    /// Σ(a − ā)(b − b̄).
+    cov: f64,
+}
+
+impl YawMoments {
+    /// The moments of `ww` (a) and `wr` (b) at the samples `moving`.
+    fn of(ww: &[f64], wr: &[f64], moving: &[usize]) -> YawMoments {
+        let (mut sa, mut sb, mut saa, mut sbb, mut sab) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for &k in moving {
+            let (a, b) = (ww[k], wr[k]);
+            sa += a;
+            sb += b;
+            saa += a * a;
+            sbb += b * b;
+            sab += a * b;
+        }
+        let c = moving.len() as f64;
+        YawMoments { c, va: saa - sa * sa / c, vb: sbb - sb * sb / c, cov: sab - sa * sb / c }
     }
-    let c = moving.len() as f64;
-    let (va, vb, cov) = (saa - sa * sa / c, sbb - sb * sb / c, sab - sa * sb / c);
-    let corr = cov / (va * vb).sqrt();
-    if !within(MIN_YAW_CORRELATION, corr.abs()) || !(va / c).sqrt().is_finite() || (va / c).sqrt() < TURNING_RAD_PER_S {
-        warnings.push(format!(
-            "heading unit and convention not checked: the drive turns too little (RMS wheel yaw rate {:.3} rad/s, \
-             needs {TURNING_RAD_PER_S}) or the yaw rates correlate too little (r = {corr:.2}, needs \
-             {MIN_YAW_CORRELATION})",
-            (va / c).sqrt()
-        ));
-        return Ok(());
-    }
-    let r = corr.signum() * (vb / va).sqrt();
+}
+
+/// Judges the reference's yaw rate over the wheels' (`r`): about 1 is
+/// right; about −1 is swapped wheel columns (a heading derived from the
+/// track) or the other heading convention; about 180/π or π/180 the other
+/// angle unit of a heading column. Anything else is a warning.
+fn heading_convention(m: &Manifest, r: f64, warnings: &mut Vec<String>) -> Result<()> {
     let derived = m.pose.heading.is_none();
     let deg = 180.0 / std::f64::consts::PI;
     let swapped = "or the wheel columns are swapped (wheels.rear_left.column / wheels.rear_right.column)";

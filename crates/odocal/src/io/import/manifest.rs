@@ -6,10 +6,11 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use super::limits::{self, echo_num};
-use super::settings::{CalibrationSpec, NoiseTable, ReferenceSpec};
+use super::settings::{CalibrationTable, NoiseTable, ReferenceSpec};
 use crate::error::{Error, Result};
 use crate::model::Theta;
+
+mod check;
 
 /// A drive manifest (TOML): the streams of one recorded drive and where each
 /// model signal comes from. See the [module documentation](super) for the
@@ -49,9 +50,10 @@ pub struct Manifest {
     /// heading offset and which of them to estimate.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reference: Option<ReferenceSpec>,
-    /// Calibration choices (`[calibration]`): `keep_one_way`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub calibration: Option<CalibrationSpec>,
+    /// Calibration settings (`[calibration]`) as written, read by the
+    /// calibration ([`CalibrationTable`]).
+    #[serde(default, deserialize_with = "super::settings::calibration_table", skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<CalibrationTable>,
 }
 
 /// Physical limits (`[limits]`): an imported signal beyond one is an error
@@ -725,9 +727,13 @@ impl Manifest {
             err(toml_message(e.inner(), text, Some(key)))
         })?;
         m.path = path.to_path_buf();
+        // The deserializer left byte offsets.
+        let line_of = |at: usize| text.get(..at).unwrap_or(text).matches('\n').count() + 1;
         if let Some(n) = &mut m.noise {
-            // The deserializer left the table's byte offset.
-            n.line = n.line.map(|at| text.get(..at).unwrap_or(text).matches('\n').count() + 1);
+            n.line = n.line.map(line_of);
+        }
+        if let Some(c) = &mut m.calibration {
+            c.lines.values_mut().for_each(|at| *at = line_of(*at));
         }
         m.check()?;
         Ok(m)
@@ -742,225 +748,6 @@ impl Manifest {
     pub fn base_dir(&self) -> PathBuf {
         self.path.parent().map(Path::to_path_buf).unwrap_or_default()
     }
-
-    /// Checks values and cross references, naming the key.
-    pub fn check(&self) -> Result<()> {
-        let o = &self.output;
-        let positive = |key: &str, v: f64| -> Result<()> {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(self.error(key, format!("must be a positive number, found {v}")))
-            }
-        };
-        let at_most = |key: &str, v: f64, max: f64, why: &str| -> Result<()> {
-            if v <= max {
-                Ok(())
-            } else {
-                Err(self.error(key, format!("{} is above the limit of {max}; {why}", echo_num(v))))
-            }
-        };
-        positive("output.rate_hz", o.rate_hz)?;
-        at_most(
-            "output.rate_hz",
-            o.rate_hz,
-            limits::MAX_OUTPUT_RATE_HZ,
-            "the model runs at tens of Hz (40 in the paper)",
-        )?;
-        if o.rate_hz < limits::MIN_OUTPUT_RATE_HZ {
-            return Err(self.error(
-                "output.rate_hz",
-                format!(
-                    "{} Hz is below {} Hz: give the rate in Hz, not the step",
-                    o.rate_hz,
-                    limits::MIN_OUTPUT_RATE_HZ
-                ),
-            ));
-        }
-        positive("output.max_gap_s", o.max_gap_s)?;
-        positive("output.max_clock_offset_s", o.max_clock_offset_s)?;
-        at_most(
-            "output.max_clock_offset_s",
-            o.max_clock_offset_s,
-            limits::MAX_CLOCK_OFFSET_S,
-            "clocks further apart mean a wrong time_column, time_unit or time_offset_s: fix those instead",
-        )?;
-        positive("limits.max_speed_m_per_s", self.limits.max_speed_m_per_s)?;
-        positive("limits.max_lateral_acceleration_m_per_s2", self.limits.max_lateral_acceleration_m_per_s2)?;
-        if !non_negative(o.min_part_s) {
-            return Err(self.error("output.min_part_s", format!("must be >= 0, found {}", o.min_part_s)));
-        }
-        if let ClockOffset::Seconds(v) = o.clock_offset {
-            if !v.is_finite() {
-                return Err(self.error("output.clock_offset", "must be \"auto\" or a finite number of seconds"));
-            }
-        }
-        o.theta0().validate().map_err(|e| self.error("output.theta0", e))?;
-        if self.streams.is_empty() {
-            return Err(self.error("streams", "no streams given"));
-        }
-        for (name, s) in &self.streams {
-            if let Some(r) = s.nominal_rate_hz {
-                let key = format!("streams.{name}.nominal_rate_hz");
-                positive(&key, r)?;
-                at_most(&key, r, limits::MAX_NOMINAL_RATE_HZ, "give the sensor's sample rate in Hz")?;
-            }
-            let key = format!("streams.{name}.dejitter_window_s");
-            positive(&key, s.dejitter_window_s)?;
-            at_most(&key, s.dejitter_window_s, limits::MAX_DEJITTER_WINDOW_S, "a few seconds follow clock drift")?;
-            if let Some(r) = s.nominal_rate_hz {
-                let half = s.dejitter_window_s * r / 2.0;
-                if half > limits::MAX_DEJITTER_HALF_WINDOW as f64 {
-                    return Err(self.error(
-                        &key,
-                        format!(
-                            "{} s at nominal_rate_hz = {r} is {} samples each side, above the limit of {}; \
-                             shorten the window",
-                            s.dejitter_window_s,
-                            echo_num(half.round()),
-                            limits::MAX_DEJITTER_HALF_WINDOW
-                        ),
-                    ));
-                }
-            }
-            if !s.time_offset_s.is_finite() {
-                return Err(self.error(&format!("streams.{name}.time_offset_s"), "must be finite"));
-            }
-        }
-        let stream_ref = |key: &str, name: &str| -> Result<()> {
-            if self.streams.contains_key(name) {
-                Ok(())
-            } else {
-                let known: Vec<&str> = self.streams.keys().map(String::as_str).collect();
-                Err(self.error(key, format!("no stream named '{name}' (streams: {})", known.join(", "))))
-            }
-        };
-        let sign = |key: &str, v: f64| -> Result<()> {
-            if (v.abs() - 1.0).abs() < f64::EPSILON {
-                Ok(())
-            } else {
-                Err(self.error(key, format!("must be 1 or -1, found {v}")))
-            }
-        };
-        let w = &self.wheels;
-        stream_ref("wheels.stream", &w.stream)?;
-        sign("wheels.rear_left.sign", w.rear_left.sign)?;
-        sign("wheels.rear_right.sign", w.rear_right.sign)?;
-        match w.signal {
-            WheelSignal::MPerS => match w.circumference_m {
-                Some(c) => positive("wheels.circumference_m", c)?,
-                None => return Err(self.error("wheels.circumference_m", "required for signal = \"m_per_s\"")),
-            },
-            WheelSignal::TicksCumulative | WheelSignal::TicksRaw => match w.ticks_per_rev {
-                Some(c) => positive("wheels.ticks_per_rev", c)?,
-                None => return Err(self.error("wheels.ticks_per_rev", "required for tick signals")),
-            },
-            WheelSignal::RevPerS | WheelSignal::RadPerS | WheelSignal::RadCumulative => {}
-        }
-        if w.signal == WheelSignal::TicksRaw {
-            match w.counter_bits {
-                Some(b) if (1..=64).contains(&b) => {}
-                Some(b) => return Err(self.error("wheels.counter_bits", format!("must be 1..=64, found {b}"))),
-                None => return Err(self.error("wheels.counter_bits", "required for signal = \"ticks_raw\"")),
-            }
-        }
-        stream_ref("pose.stream", &self.pose.stream)?;
-        if !non_negative(self.pose.derive_heading_min_speed_m_per_s) {
-            return Err(self.error("pose.derive_heading_min_speed_m_per_s", "must be >= 0"));
-        }
-        if let PositionSpec::LatLon { origin: Some(o), .. } = &self.pose.position {
-            if !(o[0].abs() <= 90.0 && o[1].abs() <= 360.0 && o[2].is_finite()) {
-                return Err(self.error("pose.position.origin", "expected [lat_deg, lon_deg, h_m]"));
-            }
-        }
-        if let Some(q) = &self.pose.quality {
-            if q.accept.is_empty() && q.max.is_none() && q.min.is_none() {
-                return Err(self.error(
-                    "pose.quality.accept",
-                    "no accepted values given (give `accept = [...]`, a threshold `max = ...` / `min = ...`, or both)",
-                ));
-            }
-            for (key, v) in [("pose.quality.max", q.max), ("pose.quality.min", q.min)] {
-                if v.is_some_and(|v| !v.is_finite()) {
-                    return Err(self.error(key, "must be a finite number"));
-                }
-            }
-        }
-        match &self.lateral_acceleration {
-            LateralAccelerationSpec::Imu { stream, sign: s, .. } => {
-                stream_ref("lateral_acceleration.stream", stream)?;
-                sign("lateral_acceleration.sign", *s)?;
-            }
-            LateralAccelerationSpec::FromWheels { smoothing_s, bank }
-            | LateralAccelerationSpec::FromPose { smoothing_s, bank } => {
-                if !non_negative(*smoothing_s) {
-                    return Err(self.error("lateral_acceleration.smoothing_s", "must be >= 0"));
-                }
-                if let Some(b) = bank {
-                    self.check_bank(b, &stream_ref, &positive)?;
-                }
-            }
-        }
-        if let SideslipSpec::Column { stream, sign: s, .. } = &self.sideslip {
-            stream_ref("sideslip.stream", stream)?;
-            sign("sideslip.sign", *s)?;
-        }
-        if let Some(r) = &self.reference {
-            r.check().map_err(|(key, reason)| self.error(key, reason))?;
-        }
-        Ok(())
-    }
-}
-
-impl Manifest {
-    /// Checks `[lateral_acceleration.bank]`.
-    fn check_bank(
-        &self,
-        b: &BankSpec,
-        stream_ref: &dyn Fn(&str, &str) -> Result<()>,
-        positive: &dyn Fn(&str, f64) -> Result<()>,
-    ) -> Result<()> {
-        const K: &str = "lateral_acceleration.bank";
-        stream_ref(&format!("{K}.left"), &b.left)?;
-        stream_ref(&format!("{K}.right"), &b.right)?;
-        if b.left == b.right {
-            return Err(self.error(
-                &format!("{K}.right"),
-                format!("the right antenna's stream is the left one's ('{}'): two antennas are needed", b.left),
-            ));
-        }
-        positive(&format!("{K}.baseline_m"), b.baseline_m)?;
-        if !(b.height_offset_m.is_finite() && b.height_offset_m.abs() < b.baseline_m) {
-            return Err(self.error(
-                &format!("{K}.height_offset_m"),
-                format!(
-                    "must be a finite number of metres smaller in size than baseline_m = {}, found {}",
-                    b.baseline_m,
-                    echo_num(b.height_offset_m)
-                ),
-            ));
-        }
-        if !(non_negative(b.smoothing_s) && b.smoothing_s.is_finite()) {
-            return Err(self.error(&format!("{K}.smoothing_s"), format!("must be >= 0, found {}", b.smoothing_s)));
-        }
-        if !(b.max_roll_deg > 0.0 && b.max_roll_deg <= BankSpec::MAX_ROLL_LIMIT_DEG) {
-            return Err(self.error(
-                &format!("{K}.max_roll_deg"),
-                format!("must be in (0, {}] degrees, found {}", BankSpec::MAX_ROLL_LIMIT_DEG, echo_num(b.max_roll_deg)),
-            ));
-        }
-        if let Some(q) = &b.quality {
-            if q.accept.is_empty() && q.max.is_none() && q.min.is_none() {
-                return Err(self.error(&format!("{K}.quality.accept"), "no accepted values given"));
-            }
-        }
-        Ok(())
-    }
-}
-
-/// `v ≥ 0` (false for NaN).
-fn non_negative(v: f64) -> bool {
-    v >= 0.0
 }
 
 /// A one-line message for a TOML error: `key: message (line L)`.

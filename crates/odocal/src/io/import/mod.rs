@@ -191,19 +191,18 @@
 //! heading_offset = -0.0099    # reference heading minus vehicle heading, rad (default 0)
 //! estimate = ["lever-arm", "heading-offset"]  # estimate them with θ (default: held)
 //!
-//! [calibration]               # optional: calibration choices
-//! keep_one_way = true         # keep the turning-only selection on one-way turns (default false)
+//! [calibration]               # optional: any calibration setting but the noise model and the
+//! method = "batch-gn"         # extrinsics (calibrate::settings::Settings: the CLI's flags,
+//! keep_one_way = true         # snake case), e.g. keep the turning-only selection on one-way turns
 //! ```
 //!
 //! `[noise]`, `[reference]` and `[calibration]` are calibration settings, not import
-//! settings: the import checks `[reference]` and `[calibration]`, keeps
-//! `[noise]` as written ([`NoiseTable`]) and carries them on the
-//! [`ImportReport`]; `odocal calibrate` reads them
+//! settings: the import checks `[reference]`, keeps `[noise]` and
+//! `[calibration]` as written ([`NoiseTable`], [`CalibrationTable`]) and
+//! carries them on the [`ImportReport`]; the calibration reads them
 //! ([`crate::calibrate::settings::ManifestSettings`]) and applies them
-//! unless the command line gives its own value
-//! (`--noise-model`, `--lever-arm`, `--heading-offset`, `--estimate`,
-//! `--keep-one-way` win),
-//! and its report says which was used.
+//! unless the command line (or a Python keyword) gives its own value, and
+//! its report says what became of each.
 //!
 //! Resource budgets (output samples, clock search, de-jitter window) are
 //! fixed and documented in [`limits`]; settings beyond them are rejected
@@ -241,6 +240,7 @@ pub(crate) mod tests;
 mod wheels;
 
 use std::collections::BTreeMap;
+use std::ops::Range;
 use std::path::Path;
 use std::time::Instant;
 
@@ -250,7 +250,7 @@ pub use manifest::{
     WheelSignal, WheelSpec,
 };
 pub use report::{ClockOffsetReport, DejitterReport, GapRecord, ImportReport, JitterReport, PartRecord, StreamReport};
-pub use settings::{CalibrationSpec, NoiseTable, ReferenceSpec, MAX_LEVER_ARM_M};
+pub use settings::{CalibrationTable, NoiseTable, ReferenceSpec, MAX_LEVER_ARM_M};
 
 use crate::drive::{Drive, Signals};
 use crate::error::{Error, Result};
@@ -299,30 +299,12 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
     let (ws, ps) = (&wheels.stream, &streams[&m.pose.stream]);
     let wheel_bad = grid::gaps_of(&ws.t, o.max_gap_s, "wheel");
     let mut pose = pose::build_pose(m, ps, &mut warnings)?;
-
-    // Budgets before anything is allocated from the spans.
-    let wheel_span = grid::Span::of(&format!("streams.{}", m.wheels.stream), &ws.t);
-    limits::check_overlap(m, &wheel_span, &grid::Span::of(&format!("streams.{} (pose)", m.pose.stream), &pose.t))?;
-    let clock_samples = ((wheel_span.end - wheel_span.start) / h).floor();
-    limits::check_samples(
-        m,
-        &format!("{} (the clock-offset search grid)", wheel_span.name),
-        wheel_span.end - wheel_span.start,
-    )?;
-    limits::check_correlation(m, clock_samples as usize)?;
+    check_budgets(m, &ws.t, &pose.t, h)?;
 
     let track = clock::WheelTrack { t: &ws.t, cum_l: &wheels.cum_l, cum_r: &wheels.cum_r, bad: &wheel_bad };
     let clock_offset = clock::align(m, &track, &pose, h, &theta0, &mut warnings)?;
     pose.shift(clock_offset.applied_s);
-    // The bank's roll, on the antennas' GNSS clock like the pose.
-    let roll = match m.lateral_acceleration.bank() {
-        Some(b) => {
-            let mut r = bank::roll(m, b, &streams[&b.left], &streams[&b.right], &mut warnings)?;
-            r.shift(clock_offset.applied_s);
-            Some(r)
-        }
-        None => None,
-    };
+    let roll = bank_roll(m, &streams, clock_offset.applied_s, &mut warnings)?;
 
     let (start, end) = grid::common_span(m, &spans(m, &streams, &pose, roll.as_ref()), h)?;
     limits::check_samples(m, "the common span of the streams", end - start)?;
@@ -337,63 +319,36 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
         g.mark(&b, interval);
     }
 
-    // Resample everything on the full grid.
-    let n_rl = signal::interval_rates(&ws.t, &wheels.cum_l, &g.t, h);
-    let n_rr = signal::interval_rates(&ws.t, &wheels.cum_r, &g.t, h);
-    let px = signal::interp_sorted(&pose.t, &pose.x, &g.t);
-    let py = signal::interp_sorted(&pose.t, &pose.y, &g.t);
-    let psi = signal::interp_sorted(&pose.t, &pose.psi, &g.t);
-    let beta = sideslip(m, &streams, &g.t);
+    let s = OnGrid::resample(m, &streams, &wheels, &pose, &g.t, h);
     let measured = g.measured(&pose.t);
-
     let grid::Parts { gaps, parts, kept } = g.parts(m)?;
-    let resampled =
-        checks::Resampled { h, origin_s: start, kept: &kept, n_rl: &n_rl, n_rr: &n_rr, px: &px, py: &py, psi: &psi };
+    let resampled = checks::Resampled {
+        h,
+        origin_s: start,
+        kept: &kept,
+        n_rl: &s.n_rl,
+        n_rr: &s.n_rr,
+        px: &s.px,
+        py: &s.py,
+        psi: &s.psi,
+    };
     checks::wheel_speeds(m, &resampled, &theta0)?;
     checks::conventions(m, &resampled, &theta0, &mut warnings)?;
     let inputs = lateral::Inputs {
         grid: &g.t,
         h,
-        n_rl: &n_rl,
-        n_rr: &n_rr,
-        px: &px,
-        py: &py,
-        psi: &psi,
+        n_rl: &s.n_rl,
+        n_rr: &s.n_rr,
+        px: &s.px,
+        py: &s.py,
+        psi: &s.psi,
         kept: &kept,
         roll: roll.as_ref(),
     };
     let (a_y, a_y_desc) = lateral::lateral_acceleration(m, &streams, &inputs, &theta0);
     checks::lateral_acceleration(m, &resampled, &a_y)?;
-    let jitter = wheels::jitter_report(m, &wheels, &g.t, h, &kept, &n_rl, &n_rr)?;
-
-    // Assemble the drive from the kept parts, through the checked constructor.
-    let mut sig = Signals::with_capacity(kept.iter().map(|r| r.len()).sum());
-    let mut t_out = Vec::with_capacity(sig.px.capacity());
-    let mut mask = Vec::with_capacity(sig.px.capacity());
-    let mut part_ranges = Vec::with_capacity(kept.len());
-    for r in &kept {
-        let s0 = t_out.len();
-        for k in r.clone() {
-            t_out.push(k as f64 * h);
-            sig.push([px[k], py[k], psi[k], n_rl[k], n_rr[k], beta[k], a_y[k]]);
-            mask.push(measured[k]);
-        }
-        part_ranges.push(s0..t_out.len());
-    }
-    let t_of = t_out.clone();
-    let d = Drive::builder(t_out, sig)
-        .parts(part_ranges)
-        .reference_measured(mask)
-        .sample_time_s(h)
-        .context(format!("import of {}", m.path.display()))
-        .build()
-        .map_err(|e| match e {
-            Error::InvalidSample { context, column, sample, reason } => Error::InvalidDrive {
-                context,
-                reason: format!("{column} at t = {:.3} s: {reason}", t_of.get(sample).copied().unwrap_or(f64::NAN)),
-            },
-            e => e,
-        })?;
+    let jitter = wheels::jitter_report(m, &wheels, &g.t, h, &kept, &s.n_rl, &s.n_rr)?;
+    let d = s.assemble(m, h, &kept, &a_y, &measured)?;
 
     let report = ImportReport {
         manifest: m.path.clone(),
@@ -413,10 +368,114 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
         warnings,
         noise: m.noise.clone(),
         reference: m.reference.clone(),
-        calibration: m.calibration,
+        calibration: m.calibration.clone(),
         elapsed_s: started.elapsed().as_secs_f64(),
     };
     Ok(ImportedDrive { drive: d, report })
+}
+
+/// The budgets, checked before anything is allocated from the spans: the
+/// wheel and pose streams overlap, and the clock-offset search grid over
+/// the wheel span and its correlation stay within their limits.
+fn check_budgets(m: &Manifest, wheel_t: &[f64], pose_t: &[f64], h: f64) -> Result<()> {
+    let wheel_span = grid::Span::of(&format!("streams.{}", m.wheels.stream), wheel_t);
+    limits::check_overlap(m, &wheel_span, &grid::Span::of(&format!("streams.{} (pose)", m.pose.stream), pose_t))?;
+    let clock_samples = ((wheel_span.end - wheel_span.start) / h).floor();
+    limits::check_samples(
+        m,
+        &format!("{} (the clock-offset search grid)", wheel_span.name),
+        wheel_span.end - wheel_span.start,
+    )?;
+    limits::check_correlation(m, clock_samples as usize)
+}
+
+/// The bank's roll when the manifest derives a_y with one, shifted by the
+/// clock offset: it is on the antennas' GNSS clock, like the pose.
+fn bank_roll(
+    m: &Manifest,
+    streams: &BTreeMap<String, Stream>,
+    offset_s: f64,
+    warnings: &mut Vec<String>,
+) -> Result<Option<bank::Roll>> {
+    match m.lateral_acceleration.bank() {
+        Some(b) => {
+            let mut r = bank::roll(m, b, &streams[&b.left], &streams[&b.right], warnings)?;
+            r.shift(offset_s);
+            Ok(Some(r))
+        }
+        None => Ok(None),
+    }
+}
+
+/// The model signals (all but a_y) on the full output grid.
+struct OnGrid {
+    /// Rear-left rotation speed over each step, rev/s.
+    n_rl: Vec<f64>,
+    /// Rear-right rotation speed over each step, rev/s.
+    n_rr: Vec<f64>,
+    /// Reference east, m.
+    px: Vec<f64>,
+    /// Reference north, m.
+    py: Vec<f64>,
+    /// Reference heading, rad.
+    psi: Vec<f64>,
+    /// Sideslip, rad.
+    beta: Vec<f64>,
+}
+
+impl OnGrid {
+    /// Resamples: wheel rotations as rates over each step, the pose
+    /// interpolated, the sideslip from its source.
+    fn resample(
+        m: &Manifest,
+        streams: &BTreeMap<String, Stream>,
+        wheels: &Wheels,
+        pose: &Pose,
+        grid: &[f64],
+        h: f64,
+    ) -> OnGrid {
+        let ws = &wheels.stream;
+        OnGrid {
+            n_rl: signal::interval_rates(&ws.t, &wheels.cum_l, grid, h),
+            n_rr: signal::interval_rates(&ws.t, &wheels.cum_r, grid, h),
+            px: signal::interp_sorted(&pose.t, &pose.x, grid),
+            py: signal::interp_sorted(&pose.t, &pose.y, grid),
+            psi: signal::interp_sorted(&pose.t, &pose.psi, grid),
+            beta: sideslip(m, streams, grid),
+        }
+    }
+
+    /// The drive from the kept parts, through the checked constructor (time
+    /// from 0 at the grid's start); an invalid sample's error gives its time.
+    fn assemble(&self, m: &Manifest, h: f64, kept: &[Range<usize>], a_y: &[f64], measured: &[bool]) -> Result<Drive> {
+        let mut sig = Signals::with_capacity(kept.iter().map(|r| r.len()).sum());
+        let mut t_out = Vec::with_capacity(sig.px.capacity());
+        let mut mask = Vec::with_capacity(sig.px.capacity());
+        let mut part_ranges = Vec::with_capacity(kept.len());
+        for r in kept {
+            let s0 = t_out.len();
+            for k in r.clone() {
+                t_out.push(k as f64 * h);
+                sig.push([self.px[k], self.py[k], self.psi[k], self.n_rl[k], self.n_rr[k], self.beta[k], a_y[k]]);
+                mask.push(measured[k]);
+            }
+            part_ranges.push(s0..t_out.len());
+        }
+        let t_of = t_out.clone();
+        Drive::builder(t_out, sig)
+            .parts(part_ranges)
+            .reference_measured(mask)
+            .sample_time_s(h)
+            .context(format!("import of {}", m.path.display()))
+            .build()
+            .map_err(|e| match e {
+                Error::InvalidSample { context, column, sample, reason } => Error::InvalidDrive {
+                    context,
+                    reason: format!("{column} at t = {:.3} s: {reason}", t_of.get(sample).copied().unwrap_or(f64::NAN)),
+                },
+                e => e,
+            })
+    }
 }
 
 /// The columns each stream must provide, with the manifest keys asking.

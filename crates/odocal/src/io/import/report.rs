@@ -44,9 +44,9 @@ pub struct ImportReport {
     /// The manifest's `[reference]` (reference extrinsics), when stated.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reference: Option<super::ReferenceSpec>,
-    /// The manifest's `[calibration]` (calibration choices), when stated.
+    /// The manifest's `[calibration]` (calibration settings) as written, when stated.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub calibration: Option<super::CalibrationSpec>,
+    pub calibration: Option<super::CalibrationTable>,
     /// Wall time of the import, s.
     pub elapsed_s: f64,
 }
@@ -257,8 +257,9 @@ impl std::fmt::Display for ImportReport {
                 false => writeln!(f, ", estimate {}", r.estimate.join(", "))?,
             }
         }
-        if let Some(k) = self.calibration.and_then(|c| c.keep_one_way) {
-            writeln!(f, "  [calibration]: keep_one_way = {k}")?;
+        if let Some(c) = self.calibration.as_ref().filter(|c| !c.table.is_empty()) {
+            let entries: Vec<String> = c.table.iter().map(|(k, v)| format!("{k} = {v}")).collect();
+            writeln!(f, "  [calibration]: {}", entries.join(", "))?;
         }
         for w in &self.warnings {
             writeln!(f, "  warning: {w}")?;

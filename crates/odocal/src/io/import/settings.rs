@@ -1,10 +1,12 @@
 //! Calibration settings a manifest states beside its streams, as plain
 //! data: the reference sensor's extrinsics (`[reference]`), calibration
-//! choices (`[calibration]`) and the sensor's noise (`[noise]`, kept as the
-//! TOML table it is). The importer parses and checks `[reference]` and
-//! `[calibration]` and carries all three on [`super::ImportReport`];
-//! [`crate::calibrate::settings`] reads `[noise]` and puts the settings
-//! into the calibration options.
+//! settings (`[calibration]`) and the sensor's noise (`[noise]`), the last
+//! two kept as the TOML tables they are. The importer parses and checks
+//! `[reference]` and carries all three on [`super::ImportReport`];
+//! [`crate::calibrate::settings`] reads `[noise]` and `[calibration]` and
+//! puts the settings into the calibration options.
+
+use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
@@ -81,21 +83,50 @@ impl ReferenceSpec {
     }
 }
 
-/// Calibration choices (`[calibration]`). Every key is optional.
+/// A manifest's `[calibration]` table as written: calibration settings,
+/// any key of [`crate::calibrate::settings::Settings`] but the noise model
+/// and the reference extrinsics (those are `[noise]` and `[reference]`).
+/// The importer keeps it uninterpreted, with the line of each key for
+/// messages; the calibration reads it.
 ///
 /// ```toml
 /// [calibration]
-/// keep_one_way = true   # keep the turning-only selection on one-way turns
+/// keep_one_way = true     # keep the turning-only selection on one-way turns
+/// min_yaw_rate = 0.1
 /// ```
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct CalibrationSpec {
-    /// Keep the paper's turning-only segment selection even when every
-    /// selected segment turns the same way
-    /// ([`crate::calibrate::CalibrationOptions::keep_one_way_selection`]; `--keep-one-way`).
-    /// Default none (false: the straight segments are added, with a warning).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub keep_one_way: Option<bool>,
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct CalibrationTable {
+    /// The table's keys and values.
+    pub table: toml::Table,
+    /// The manifest line (1-based) of each key's value, when read from a
+    /// manifest's text.
+    pub lines: BTreeMap<String, usize>,
+}
+
+impl Serialize for CalibrationTable {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        self.table.serialize(s)
+    }
+}
+
+impl<'de> Deserialize<'de> for CalibrationTable {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        Ok(CalibrationTable { table: toml::Table::deserialize(d)?, lines: BTreeMap::new() })
+    }
+}
+
+/// `[calibration]` with the byte offset of each value in `lines` (the
+/// manifest parser turns them into line numbers).
+pub(crate) fn calibration_table<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> std::result::Result<Option<CalibrationTable>, D::Error> {
+    let spanned = BTreeMap::<String, toml::Spanned<toml::Value>>::deserialize(d)?;
+    let mut out = CalibrationTable::default();
+    for (key, value) in spanned {
+        out.lines.insert(key.clone(), value.span().start);
+        out.table.insert(key, value.into_inner());
+    }
+    Ok(Some(out))
 }
 
 /// Largest lever arm a manifest may state, m (a vehicle's length).

@@ -32,7 +32,7 @@ use ::parquet::basic::{LogicalType, TimeUnit as PqTimeUnit, Type as Physical};
 use ::parquet::column::reader::{ColumnReader, ColumnReaderImpl};
 use ::parquet::data_type::DataType;
 use ::parquet::file::reader::{FileReader, SerializedFileReader};
-use ::parquet::schema::types::ColumnDescriptor;
+use ::parquet::schema::types::{ColumnDescPtr, ColumnDescriptor};
 
 use super::{Table, Wanted};
 use crate::error::Result;
@@ -74,19 +74,43 @@ pub(super) fn read(
     wanted: &[Wanted],
 ) -> Result<Table> {
     let file_key = format!("streams.{name}.file");
-    let shown = path.display();
+    let shown = path.display().to_string();
     let file = File::open(path).map_err(|e| m.error(&file_key, format!("cannot read {shown}: {e}")))?;
     let reader = SerializedFileReader::new(file)
         .map_err(|e| m.error(&file_key, format!("{shown} is not a readable Parquet file: {e}")))?;
-    let meta = reader.metadata();
-    let schema = meta.file_metadata().schema_descr();
-    let leaves = schema.columns();
+    let leaves = reader.metadata().file_metadata().schema_descr().columns();
 
     let time_key = format!("streams.{name}.time_column");
-    let mut all: Vec<(&str, &str)> = vec![(time, time_key.as_str())];
+    let plans = plan_columns(m, leaves, (time, &time_key), time_unit, wanted, &shown)?;
+    let rows = declared_rows(m, &file_key, &reader, plans.len(), &shown)?;
+    let data = read_columns(m, &file_key, &reader, &plans, rows, &shown)?;
+
+    let by_name: BTreeMap<&str, Vec<f64>> = plans.iter().map(|p| p.name).zip(data).collect();
+    let t_s = by_name.get(time).cloned().unwrap_or_default();
+    let columns: BTreeMap<String, Vec<f64>> = by_name
+        .into_iter()
+        .filter(|(c, _)| wanted.iter().any(|w| w.column == *c))
+        .map(|(c, v)| (c.to_string(), v))
+        .collect();
+    Ok(Table { t_s, columns, source: shown, lines: None })
+}
+
+/// A plan per distinct column, the time column (`(column, manifest key)`)
+/// first, then the `wanted` ones: the column must be a flat number, and a
+/// timestamp-typed time column must be read in its own unit.
+fn plan_columns<'a>(
+    m: &Manifest,
+    leaves: &[ColumnDescPtr],
+    time: (&'a str, &'a str),
+    time_unit: TimeUnit,
+    wanted: &'a [Wanted],
+    shown: &str,
+) -> Result<Vec<Plan<'a>>> {
+    let (time_column, time_key) = time;
+    let mut all: Vec<(&str, &str)> = vec![time];
     all.extend(wanted.iter().map(|w| (w.column.as_str(), w.key.as_str())));
     let mut plans: Vec<Plan> = Vec::new();
-    for &(column, key) in &all {
+    for (column, key) in all {
         if plans.iter().any(|p| p.name == column) {
             continue;
         }
@@ -110,61 +134,68 @@ pub(super) fn read(
                 ),
             )
         })?;
-        if column == time {
-            check_time_unit(m, &time_key, d, time_unit, &shown.to_string())?;
+        if column == time_column {
+            check_time_unit(m, time_key, d, time_unit, shown)?;
         }
         plans.push(Plan { name: column, key, leaf, kind });
     }
+    Ok(plans)
+}
 
-    // The budget, from the rows the file declares, before reading any data.
+/// The rows the file declares, within the budget of
+/// [`limits::MAX_STREAM_VALUES`] values for `columns` columns: checked
+/// before reading any data.
+fn declared_rows(
+    m: &Manifest,
+    file_key: &str,
+    reader: &SerializedFileReader<File>,
+    columns: usize,
+    shown: &str,
+) -> Result<u64> {
     let mut rows: u64 = 0;
-    for g in meta.row_groups() {
+    for g in reader.metadata().row_groups() {
         let n = u64::try_from(g.num_rows())
-            .map_err(|_| m.error(&file_key, format!("{shown} declares a row group of {} rows", g.num_rows())))?;
+            .map_err(|_| m.error(file_key, format!("{shown} declares a row group of {} rows", g.num_rows())))?;
         rows = rows.saturating_add(n);
     }
-    let values = rows.saturating_mul(plans.len() as u64);
+    let values = rows.saturating_mul(columns as u64);
     if values > limits::MAX_STREAM_VALUES as u64 {
         return Err(m.error(
-            &file_key,
+            file_key,
             format!(
-                "{shown} declares {rows} rows × {} columns read = {values} values, above the budget of {}; split \
-                 the file",
-                plans.len(),
+                "{shown} declares {rows} rows × {columns} columns read = {values} values, above the budget of {}; \
+                 split the file",
                 limits::MAX_STREAM_VALUES
             ),
         ));
     }
+    Ok(rows)
+}
 
+/// The planned columns' values, row group by row group; a null, a chunk
+/// with more or fewer rows than its group declares, or an unreadable chunk
+/// is an error naming the column.
+fn read_columns(
+    m: &Manifest,
+    file_key: &str,
+    reader: &SerializedFileReader<File>,
+    plans: &[Plan<'_>],
+    rows: u64,
+    shown: &str,
+) -> Result<Vec<Vec<f64>>> {
+    let leaves = reader.metadata().file_metadata().schema_descr().columns();
     let mut data: Vec<Vec<f64>> = plans.iter().map(|_| Vec::with_capacity(rows as usize)).collect();
     let mut first_row = 0usize;
     for g in 0..reader.num_row_groups() {
         let group = reader
             .get_row_group(g)
-            .map_err(|e| m.error(&file_key, format!("{shown}: cannot read row group {g}: {e}")))?;
+            .map_err(|e| m.error(file_key, format!("{shown}: cannot read row group {g}: {e}")))?;
         let n = usize::try_from(group.metadata().num_rows()).unwrap_or(0);
         for (p, out) in plans.iter().zip(data.iter_mut()) {
             let col = group.get_column_reader(p.leaf).map_err(|e| {
                 m.error(p.key, format!("{shown}: cannot read column '{}' in row group {g}: {e}", echo(p.name)))
             })?;
-            let max_def = leaves[p.leaf].max_def_level();
-            let got = match (p.kind, col) {
-                (Kind::Bool, ColumnReader::BoolColumnReader(r)) => {
-                    read_column(r, n, max_def, out, |v| if v { 1.0 } else { 0.0 })
-                }
-                (Kind::I32, ColumnReader::Int32ColumnReader(r)) => read_column(r, n, max_def, out, f64::from),
-                (Kind::U32, ColumnReader::Int32ColumnReader(r)) => {
-                    read_column(r, n, max_def, out, |v| f64::from(v as u32))
-                }
-                (Kind::I64, ColumnReader::Int64ColumnReader(r)) => read_column(r, n, max_def, out, |v| v as f64),
-                (Kind::U64, ColumnReader::Int64ColumnReader(r)) => {
-                    read_column(r, n, max_def, out, |v| (v as u64) as f64)
-                }
-                (Kind::F32, ColumnReader::FloatColumnReader(r)) => read_column(r, n, max_def, out, f64::from),
-                (Kind::F64, ColumnReader::DoubleColumnReader(r)) => read_column(r, n, max_def, out, |v| v),
-                _ => Err(ColumnError::Corrupt("its pages do not match its declared type".into())),
-            };
-            got.map_err(|e| {
+            read_chunk(p.kind, col, n, leaves[p.leaf].max_def_level(), out).map_err(|e| {
                 let reason = match e {
                     ColumnError::Null(i) => format!(
                         "column '{}' of {shown} has a null in row {} (counting from 0); every row needs a value: \
@@ -186,15 +217,30 @@ pub(super) fn read(
         }
         first_row += n;
     }
+    Ok(data)
+}
 
-    let by_name: BTreeMap<&str, Vec<f64>> = plans.iter().map(|p| p.name).zip(data).collect();
-    let t_s = by_name.get(time).cloned().unwrap_or_default();
-    let columns: BTreeMap<String, Vec<f64>> = by_name
-        .into_iter()
-        .filter(|(c, _)| wanted.iter().any(|w| w.column == *c))
-        .map(|(c, v)| (c.to_string(), v))
-        .collect();
-    Ok(Table { t_s, columns, source: shown.to_string(), lines: None })
+/// Appends one column chunk of `rows` values to `out`, converted as `kind`
+/// says; pages of another type than the column declares are corrupt.
+fn read_chunk(
+    kind: Kind,
+    col: ColumnReader,
+    n: usize,
+    max_def: i16,
+    out: &mut Vec<f64>,
+) -> std::result::Result<(), ColumnError> {
+    match (kind, col) {
+        (Kind::Bool, ColumnReader::BoolColumnReader(r)) => {
+            read_column(r, n, max_def, out, |v| if v { 1.0 } else { 0.0 })
+        }
+        (Kind::I32, ColumnReader::Int32ColumnReader(r)) => read_column(r, n, max_def, out, f64::from),
+        (Kind::U32, ColumnReader::Int32ColumnReader(r)) => read_column(r, n, max_def, out, |v| f64::from(v as u32)),
+        (Kind::I64, ColumnReader::Int64ColumnReader(r)) => read_column(r, n, max_def, out, |v| v as f64),
+        (Kind::U64, ColumnReader::Int64ColumnReader(r)) => read_column(r, n, max_def, out, |v| (v as u64) as f64),
+        (Kind::F32, ColumnReader::FloatColumnReader(r)) => read_column(r, n, max_def, out, f64::from),
+        (Kind::F64, ColumnReader::DoubleColumnReader(r)) => read_column(r, n, max_def, out, |v| v),
+        _ => Err(ColumnError::Corrupt("its pages do not match its declared type".into())),
+    }
 }
 
 /// Why a column chunk could not be read.

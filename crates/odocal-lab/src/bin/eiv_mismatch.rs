@@ -1,14 +1,12 @@
 //! Which departure of the simulator from the EIV filter's model costs the
-//! efficiency on `high`? (issue 9's efficiency target, stop 25.)
+//! efficiency on `high`? Also the reported σ against the bound
+//! (docs/validation.md, "Coverage of the reported σ": `eiv_mismatch high 20
+//! 12 as-is`, with `EST=1` the noise model estimated).
 //!
 //! The known-noise EIV fit (the simulator's noise model, fixed) is run on
 //! the same drives with one simulator effect switched off at a time, and its
 //! RMS error is read against the Cramér–Rao bound of that drive at θ_true
 //! (full Fisher, mean-only and with the noise scales unknown, CRB_η).
-//!
-//! ```text
-//! cargo run --release -p odocal --example eiv_mismatch -- [preset] [seeds] [km] [variants]
-//! ```
 //!
 //! Variants (comma-separated; default all): `as-is`, `no-slip` (no slip
 //! with acceleration), `one-substep` (truth integrated with the filter's
@@ -17,20 +15,19 @@
 //!
 //! The bound is linearised along the drive's true inputs
 //! (`EivInput::from_drive_truth`) with `EivOptions::spec()`. Environment:
-//! `CRB_MEASURED=1` linearises it along the measured inputs instead (the
-//! bound before stop 25); `CRB_KNOWN=1` computes it with the fit's own
-//! options; `START_TRUE=1` starts the fit at θ_true instead of batch G-N;
-//! `EST=1` estimates the noise model (uncorrected) instead of knowing it.
-//! docs/study.md, "Stop 25".
+//! `CRB_MEASURED=1` linearises it along the measured inputs instead (which
+//! overstates t_r's and d's information about 2× on `high`); `CRB_KNOWN=1`
+//! computes it with the fit's own options; `START_TRUE=1` starts the fit at
+//! θ_true instead of batch G-N; `EST=1` estimates the noise model
+//! (uncorrected) instead of knowing it.
 
-use std::error::Error;
-
-use odocal::drive::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::eiv::{cramer_rao_bound, estimate, EivInput, EivOptions, NoiseModel};
-use odocal::identify::{batch_gauss_newton, IdentifyOptions};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
+use odocal_lab::{batch_gn_all, Args, Res, PARAMETERS};
 
-const NAMES: [&str; 4] = ["c_e", "c_d", "t_r", "d"];
+const USAGE: &str =
+    "[EST=1] [START_TRUE=1] [CRB_KNOWN=1] [CRB_MEASURED=1] eiv_mismatch [PRESET high] [SEEDS 20] [KM 12]
+    [VARIANTS as-is,no-slip,one-substep,no-quant,no-lateral,none]";
 
 /// The simulator's departures from the filter's model, each a variant that switches it off.
 const DEPARTURES: [&str; 4] = ["no-slip", "one-substep", "no-quant", "no-lateral"];
@@ -59,16 +56,21 @@ fn variant(base: &SimOptions, name: &str) -> Result<SimOptions, String> {
     Ok(o)
 }
 
-fn main() -> Result<(), Box<dyn Error>> {
-    let args: Vec<String> = std::env::args().collect();
-    let preset = args.get(1).map(String::as_str).unwrap_or("high");
-    let seeds: u64 = args.get(2).map(|s| s.parse()).transpose()?.unwrap_or(20);
-    let km: f64 = args.get(3).map(|s| s.parse()).transpose()?.unwrap_or(12.0);
-    let variants: Vec<String> = args
-        .get(4)
-        .map(|s| s.split(',').map(str::to_string).collect())
-        .unwrap_or_else(|| std::iter::once("as-is").chain(DEPARTURES).chain(["none"]).map(String::from).collect());
-    let noise = NoiseOptions::by_name(preset)?;
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
+    let args = Args::parse(USAGE, &[])?;
+    let preset: String = args.pos(0, "high".to_string())?;
+    let seeds: u64 = args.pos(1, 20)?;
+    let km: f64 = args.pos(2, 12.0)?;
+    let variants: Vec<String> = args.positional().get(3).map_or_else(
+        || std::iter::once("as-is").chain(DEPARTURES).chain(["none"]).map(String::from).collect(),
+        |s| s.split(',').map(str::to_string).collect(),
+    );
+    args.finish()?;
+    let noise = NoiseOptions::by_name(&preset)?;
     let flag = |name: &str| std::env::var_os(name).is_some();
     let (start_true, estimated, crb_known, crb_measured) =
         (flag("START_TRUE"), flag("EST"), flag("CRB_KNOWN"), flag("CRB_MEASURED"));
@@ -89,10 +91,7 @@ fn main() -> Result<(), Box<dyn Error>> {
             let d = &out.drive;
             let truth = out.sidecar.theta_true.to_array();
             let input = EivInput::from_drive(d);
-            let sel = calibration_segments(d, &SegmentOptions::default())?;
-            let data: Vec<SegmentData> = sel.all.iter().map(|s| SegmentData::new(d, s)).collect();
-            let gn = IdentifyOptions { max_iterations: 20, ..Default::default() };
-            let mut start = batch_gauss_newton(&data, &odocal::Theta::PAPER_INITIAL, &gn)?.theta;
+            let mut start = batch_gn_all(d)?;
             if start_true {
                 start = out.sidecar.theta_true;
             }
@@ -108,7 +107,7 @@ fn main() -> Result<(), Box<dyn Error>> {
                 }
             };
             let crb_opts = if crb_known { known } else { EivOptions::spec() };
-            // CRB_MEASURED: linearised along the measured inputs (before stop 25).
+            // CRB_MEASURED: linearised along the measured inputs.
             let crb_input = if crb_measured { input } else { EivInput::from_drive_truth(d)? };
             let crb = cramer_rao_bound(&crb_input, &out.sidecar.theta_true, &true_noise, &crb_opts)?;
             let t = fit.theta.to_array();
@@ -136,7 +135,7 @@ fn main() -> Result<(), Box<dyn Error>> {
             let r = |b: f64| rms / (b / nf).sqrt();
             println!(
                 "| {v} | {} | {mean:+.3e} | {:.1} | {:.2} | {:.2} | {:.2} | {:.2} |",
-                NAMES[i],
+                PARAMETERS[i],
                 mean / (sd / nf.sqrt()),
                 r(crb2[i]),
                 r(mean2[i]),

@@ -6,24 +6,25 @@
 //! altitude difference) instead of the kinematic a_y, optionally moves the
 //! reference by the antenna's roll displacement h·sin φ, and refits.
 //!
-//! ```text
-//! cargo run --release -p odocal --example testtrack_bank -- VARIANT…
-//! ```
 //! VARIANT: `kin` (as imported); containing `fy`: the specific force;
 //! `w`: the wheel yaw rate divided by cos φ; `hH`: the reference moved back
 //! by H m × sin φ (antenna roll displacement), e.g. `fy`, `fy-w`, `fy-h2.0`.
-use std::error::Error;
-use std::path::PathBuf;
+//! docs/validation.md ("The road bank") quotes `kin fy`.
+use std::path::Path;
 
-use odocal::calibrate::crossrun::{cross_run, CROSS_RUN_OWN_FIT_RATIO};
-use odocal::{calibrate, CalibrationOptions, Drive, Method, Param};
+use odocal::io::import::{import, ImportedDrive, LateralAccelerationSpec, Manifest};
+use odocal::Drive;
+use odocal_lab::{
+    print_cross_runs, print_joint_fits, repo_path, testtrack_manifest, with_signals, Args, Res, TESTTRACK_RUNS,
+};
 
-const RUNS: [&str; 6] = ["14-45-26", "15-28-33", "16-06-28", "16-47-33", "17-45-46", "18-01-26"];
+const USAGE: &str = "testtrack_bank VARIANT…   (kin, fy, fy-w, fy-h2.0, …)";
+
 const G: f64 = 9.80665;
 
 /// (gps time, roll) where both rear antennas are mode 6: roll > 0 left side lower.
-fn roll_series(dir: &std::path::Path) -> Result<(Vec<f64>, Vec<f64>), Box<dyn Error>> {
-    let read = |name: &str| -> Result<std::collections::BTreeMap<i64, [f64; 4]>, Box<dyn Error>> {
+fn roll_series(dir: &Path) -> Res<(Vec<f64>, Vec<f64>)> {
+    let read = |name: &str| -> Res<std::collections::BTreeMap<i64, [f64; 4]>> {
         let text = std::fs::read_to_string(dir.join(name))?;
         let mut out = std::collections::BTreeMap::new();
         let mut lines = text.lines();
@@ -67,7 +68,7 @@ fn interp(ts: &[f64], v: &[f64], t: f64) -> f64 {
     v[i - 1] * (1.0 - w) + v[i] * w
 }
 
-fn variant(d: &Drive, phi: &[f64], fy: bool, w: bool, h: f64) -> Result<Drive, Box<dyn Error>> {
+fn variant(d: &Drive, phi: &[f64], fy: bool, w: bool, h: f64) -> Res<Drive> {
     let mut s = d.measured().clone();
     if w {
         // wheels turn about the road normal: world yaw rate = wheel yaw rate / cos φ
@@ -89,24 +90,26 @@ fn variant(d: &Drive, phi: &[f64], fy: bool, w: bool, h: f64) -> Result<Drive, B
             s.py[i] -= cs * off;
         }
     }
-    let mut b = Drive::builder(d.t().to_vec(), s).sample_time_s(d.sample_time_s()).parts(d.parts().to_vec());
-    if let Some(m) = d.reference_measured() {
-        b = b.reference_measured(m.to_vec());
-    }
-    Ok(b.build()?)
+    Ok(with_signals(d, s)?)
 }
 
-fn main() -> Result<(), Box<dyn Error>> {
-    let track = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/psu-mapping-van-testtrack");
-    let data = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/psu-mapping-van-testtrack-2024-08-05");
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
+    let a = Args::parse(USAGE, &[])?;
+    let variants = a.positional().to_vec();
+    a.finish()?;
+    let data = repo_path("data/psu-mapping-van-testtrack-2024-08-05");
     let mut base = Vec::new();
-    for run in RUNS {
+    for (run, _) in TESTTRACK_RUNS {
         // the manifests' a_y without their bank: the kinematic v·ω
-        let mut m = odocal::io::import::Manifest::from_path(&track.join(format!("run-{run}.toml")))?;
-        if let odocal::io::import::LateralAccelerationSpec::FromWheels { bank, .. } = &mut m.lateral_acceleration {
+        let mut m = Manifest::from_path(&repo_path(&testtrack_manifest(run)))?;
+        if let LateralAccelerationSpec::FromWheels { bank, .. } = &mut m.lateral_acceleration {
             *bank = None;
         }
-        let odocal::io::import::ImportedDrive { drive: d, report: rep } = odocal::io::import::import(&m)?;
+        let ImportedDrive { drive: d, report: rep } = import(&m)?;
         let (ts, ph) = roll_series(&data.join(format!("run-{run}")))?;
         // gps time → drive time
         let shift = -0.006 + rep.clock_offset.applied_s - rep.time_origin_s;
@@ -146,66 +149,14 @@ fn main() -> Result<(), Box<dyn Error>> {
         );
         base.push((d, phi));
     }
-    let gn = |fix_d: bool| {
-        let mut o = CalibrationOptions { method: Method::from_name("batch-gn").expect("m"), ..Default::default() };
-        o.segments.min_peak_yaw_rate_rad_per_s = 0.0;
-        if fix_d {
-            o.identify.free.remove(Param::D);
-        }
-        o
-    };
-    for v in std::env::args().skip(1) {
+    for v in variants {
         let fy = v.contains("fy");
         let w = v.contains('w');
         let h: f64 = v.split('h').nth(1).map(|x| x.parse()).transpose()?.unwrap_or(0.0);
         let drives: Vec<Drive> = base.iter().map(|(d, p)| variant(d, p, fy, w, h)).collect::<Result<_, _>>()?;
-        let refs: Vec<&Drive> = drives.iter().collect();
         println!("=== {v}: f_y {fy}, yaw / cos φ {w}, antenna height {h} m");
-        for fix_d in [true, false] {
-            let o = gn(fix_d);
-            for (label, set) in [("CCW", &refs[..3]), ("CW", &refs[3..]), ("all", &refs[..])] {
-                let j = Drive::concat(set)?;
-                let r = calibrate(&j, &o, None)?;
-                println!(
-                    "joint {label:3} fix_d={fix_d}: c_e {:.5} c_d {:+.3} mm t_r {:.4} d {:+.3}  Ē_p {:.3} (θ_0 {:.3}) {}",
-                    r.theta.c_e,
-                    r.theta.c_d * 1e3,
-                    r.theta.t_r,
-                    r.theta.d * 1e3,
-                    r.validation.mean_position_error_m,
-                    r.initial.mean_position_error_m,
-                    r.verdict.level
-                );
-            }
-        }
-        let named: Vec<(&str, &Drive)> = RUNS.iter().copied().zip(drives.iter()).collect();
-        for (label, o) in [("default", CalibrationOptions::default()), ("gn fix d", gn(true)), ("gn", gn(false))] {
-            let t = cross_run(&named, &o, None)?;
-            let c = t.criteria(CROSS_RUN_OWN_FIT_RATIO);
-            let cd: Vec<String> = t
-                .rows
-                .iter()
-                .map(|r| {
-                    r.fit
-                        .as_ref()
-                        .map(|f| format!("{:+.2}/{:+.2}", f.theta.c_d * 1e3, f.theta.d * 1e3))
-                        .unwrap_or("fail".into())
-                })
-                .collect();
-            println!(
-                "crossrun {label:9}: own {:.3} cross {:.3} ratio {:.2} worse {} rejected {} failed {}  c_d/d [{}]",
-                c.mean_own_m,
-                c.mean_cross_m,
-                c.ratio,
-                c.worse_than_initial.len(),
-                c.rejected,
-                c.failed,
-                cd.join(" ")
-            );
-            if label == "default" {
-                println!("{t}{c}");
-            }
-        }
+        print_joint_fits(&drives)?;
+        print_cross_runs(&drives, true)?;
     }
     Ok(())
 }

@@ -1,11 +1,8 @@
 //! Coverage of batch Gauss-Newton's 95 % intervals: the model σ
 //! (`σ̂²(JᵀWJ)⁻¹`, [`odocal::IdentifyReport::covariance`]) against the
 //! cluster-robust σ ([`odocal::RobustCovariance`]), over simulated drives
-//! with a known truth.
-//!
-//! ```text
-//! cargo run --release -p odocal --example gn_coverage -- [SEEDS] [KM] [PRESETS] [BLOCKS] [FIT]
-//! ```
+//! with a known truth (docs/validation.md, "Coverage of the reported σ" and
+//! "Reference extrinsics").
 //!
 //! Defaults: 20 seeds, 12 km, presets `off,white,paper,high`, cluster
 //! lengths `1300` samples, FIT `theta,joint`. FIT `theta`: reference at the
@@ -27,18 +24,12 @@ use odocal::drive::segment::{calibration_segments, SegmentData};
 use odocal::identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{Extrinsics, ParamSet, Theta};
+use odocal_lab::{t975, Args, Res, Summary};
+
+const USAGE: &str = "gn_coverage [SEEDS 20] [KM 12] [PRESETS off,white,paper,high] [BLOCKS 1300] [FIT theta,joint]";
 
 const MOUNT: Extrinsics = Extrinsics { lever_x: -0.9, lever_y: 0.05, heading_offset: -0.0099 };
 const NAMES: [&str; 7] = ["c_e", "c_d", "t_r", "d", "lever_x", "lever_y", "heading_offset"];
-
-/// Student-t 0.975 quantile with `df` degrees of freedom (Cornish-Fisher
-/// expansion about z = 1.96; within 0.3 % of tables for df ≥ 3).
-fn t975(df: f64) -> f64 {
-    let z: f64 = 1.959964;
-    z + (z.powi(3) + z) / (4.0 * df)
-        + (5.0 * z.powi(5) + 16.0 * z.powi(3) + 3.0 * z) / (96.0 * df * df)
-        + (3.0 * z.powi(7) + 19.0 * z.powi(5) + 17.0 * z.powi(3) - 15.0 * z) / (384.0 * df.powi(3))
-}
 
 /// Error, model σ, robust σ and cluster count of each estimated parameter.
 struct Fit {
@@ -76,14 +67,18 @@ fn fit(r: &IdentifyReport, truth: &Theta, mount: &Extrinsics, joint: bool) -> Fi
     f
 }
 
-fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let seeds: u64 = args.first().map(|s| s.parse()).transpose()?.unwrap_or(20);
-    let km: f64 = args.get(1).map(|s| s.parse()).transpose()?.unwrap_or(12.0);
-    let presets = args.get(2).cloned().unwrap_or_else(|| "off,white,paper,high".into());
-    let blocks: Vec<usize> =
-        args.get(3).map_or("1300", String::as_str).split(',').map(str::parse).collect::<Result<_, _>>()?;
-    let fits = args.get(4).cloned().unwrap_or_else(|| "theta,joint".into());
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
+    let args = Args::parse(USAGE, &[])?;
+    let seeds: u64 = args.pos(0, 20)?;
+    let km: f64 = args.pos(1, 12.0)?;
+    let presets: String = args.pos(2, "off,white,paper,high".to_string())?;
+    let blocks: Vec<usize> = args.pos(3, "1300".to_string())?.split(',').map(str::parse).collect::<Result<_, _>>()?;
+    let fits: String = args.pos(4, "theta,joint".to_string())?;
+    args.finish()?;
     for preset in presets.split(',') {
         for kind in fits.split(',') {
             let joint = kind == "joint";
@@ -145,8 +140,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     let c3 = within(&|f| 3.0 * f.robust[i]);
                     let rms = |k: &dyn Fn(&Fit) -> f64| (v.iter().map(|f| k(f).powi(2)).sum::<f64>() / n).sqrt();
                     let (re, rm, rr) = (rms(&|f| f.err[i]), rms(&|f| f.model[i]), rms(&|f| f.robust[i]));
-                    let mean = v.iter().map(|f| f.err[i]).sum::<f64>() / n;
-                    let sd = (v.iter().map(|f| (f.err[i] - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0)).sqrt();
+                    let s = Summary::of(&v.iter().map(|f| f.err[i]).collect::<Vec<_>>());
+                    let (mean, sd) = (s.mean, s.sd);
                     println!(
                         "{:<14} | {:>11.2} | {:>17.2} | {:>19.2} | {c3:>16.2} | {re:>9.3e} | {mean:>+9.2e} | {sd:>9.3e} | {rm:>11.3e} | {rr:>12.3e} | {:>12.1}",
                         name,

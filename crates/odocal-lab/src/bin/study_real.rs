@@ -1,115 +1,64 @@
-//! The real-log rows of the EIV study (docs/study.md): batch G-N,
-//! the 3-step method and EIV on the shipped logs, as `odocal calibrate` runs
-//! them (every method with its library defaults).
+//! batch Gauss-Newton, the 3-step method and EIV on the shipped real logs,
+//! as `odocal calibrate` runs them (docs/validation.md, "Real logs").
 //!
-//! ```text
-//! cargo run --release -p odocal --example study_real -- \
-//!     [--methods batch-gn,batch-gn-all,three-step,eiv,eiv-fixed] [--parts testtrack,van,rav4] \
-//!     (also eiv-stop11: fitted-model innovation checks, no secant damping of η;
-//!      eiv-nofallback: fallback off; eiv-sc, eiv-scg and their -nofallback variants:
-//!      separate heading scale with counting quantisation; eiv-cb (-nofallback): what
-//!      `--correct-bias 10` sets)
-//!     [--json study_real.json] [--markdown study_real.md]
-//! ```
+//! Methods (`--methods`, default the first five): `batch-gn` (`--method
+//! batch-gn`, yaw-rate selection), `batch-gn-all` (`--method batch-gn
+//! --min-yaw-rate 0`: every cut segment, the EIV method's start and
+//! fallback), `three-step` (`--method three-step`), `eiv` (the default
+//! method: noise estimated from the production-car start, bias correction,
+//! fallback on) and `eiv-fixed` (`--fix-noise`: the production-car noise
+//! model as is). Run only when named: `eiv-uncorrected`
+//! (`--no-bias-correction`), `eiv-hold-heading` (the reference heading
+//! offset held at 0), `eiv-cb` (`--correct-bias 10`), `eiv-scg` (the
+//! encoder's quantisation step given, see [`encoder_q`], the heading offset
+//! held), and with the suffixes `-nofallback` (the EIV θ whatever the checks
+//! say; `eiv-nofallback` too), `-x` (the start also estimates the lever arm
+//! and heading offset), `-h` (the heading offset alone) and `-tau` (a
+//! reference drift with a 2 s correlation time instead of 100 s).
 //!
-//! Methods: `batch-gn` (`--method batch-gn`, yaw-rate selection),
-//! `batch-gn-all` (`--method batch-gn --min-yaw-rate 0`: every cut
-//! segment, the EIV method's start and fallback), `three-step` (the
-//! default), `eiv` (`--method eiv`: noise estimated from the production-car
-//! start, fallback on) and `eiv-fixed` (`--method eiv --fix-noise`: the
-//! production-car noise model as is).
-//!
-//! Run only when named (alternative EIV noise-model shapes): `eiv-sc`
-//! (`HeadingScale::Separate` + `QuantisationModel::Counting`, the
-//! quantisation level scaled with the white wheel noise) and
-//! `eiv-scg` (the same with `QuantisationLevel::Given`: q held at the
-//! encoder's step, see [`encoder_q`]), each also as `…-nofallback` (the
-//! EIV θ whatever the checks say). `eiv-stop13` (`-nofallback`): tied
-//! heading scale, quantisation as process noise scaled with the white wheel
-//! noise, heading offset held.
-//!
-//! Parts:
-//! - `testtrack`: the six test-track runs of 2024-08-05
-//!   (`examples/psu-mapping-van-testtrack/`): calibrate on one run, Ē_p on
-//!   the other five ([`odocal::calibrate::crossrun`]'s table and criteria), verdict
-//!   counts, and for EIV how many fits fell back to batch G-N;
-//! - `van`: the highway van (`examples/psu-mapping-van/manifest.toml`)
-//!   fitted on one half, Ē_p on the held-out other half (`--holdout
-//!   first-half|second-half`), θ_0's Ē_p beside it, and for EIV whether it
-//!   fell back and why;
-//! - `rav4`: the comma2k19 RAV4 (`examples/comma2k19-rav4/`, 1 km, nearly
-//!   straight): c_e with its σ and which parameters are named unobservable
-//!   or held, with the defaults and with `--auto-fix`;
-//! - `swap` (only when named): per test-track run, `eiv-scg-nofallback`'s
-//!   θ with one parameter at a time from batch G-N (all segments), judged by
-//!   Ē_p on the other five runs (which parameter makes the difference), and
-//!   the same on the van's held-out halves.
+//! Parts (`--parts`, default the first three):
+//! - `testtrack`: the six test-track runs of 2024-08-05: calibrate on one
+//!   run, Ē_p on the other five ([`odocal::calibrate::crossrun`]'s table
+//!   and criteria), verdict counts, and for EIV how many fits fell back to
+//!   batch G-N;
+//! - `van`: the highway van fitted on one half, Ē_p on the held-out other
+//!   half (`--holdout first-half|second-half`), θ_0's Ē_p beside it, and
+//!   for EIV whether it fell back and why;
+//! - `rav4`: the comma2k19 RAV4 (1 km, nearly straight): c_e with its σ
+//!   and which parameters are named unobservable or held, with the
+//!   defaults and with `--auto-fix`;
+//! - `swap`: per test-track run, `eiv-scg-nofallback`'s θ with one
+//!   parameter at a time from batch G-N (all segments), judged by Ē_p on the
+//!   other five runs (which parameter makes the difference), and the same
+//!   on the van's held-out halves.
 //!
 //! σ is the one that stands for the result, as `--params-out` writes it
-//! ([`odocal::CalibrationReport::result_sigma`]): batch G-N's
-//! cluster-robust σ, the 3-step's batch spread, EIV's `H_θ⁻¹`, else the
-//! model σ (the source is named). Prints markdown tables (stdout) and writes JSON with
-//! `--json`. The data are in the repository's `data/`. Not a
-//! test: a few minutes in release on two cores.
+//! ([`odocal::CalibrationReport::result_sigma`]). Prints markdown tables
+//! (stdout) and writes JSON with `--json`; a few minutes in release on two
+//! cores.
 
-use std::error::Error;
 use std::path::PathBuf;
 use std::time::Instant;
 
 use odocal::calibrate::crossrun::{CrossRunFit, CrossRunRow, CrossRunTable, CROSS_RUN_OWN_FIT_RATIO};
-use odocal::eiv::{EivOptions, HeadingScale, NoiseModel, QuantisationLevel, QuantisationModel};
+use odocal::eiv::{EivOptions, NoiseModel, QuantisationLevel};
 use odocal::{
-    calibrate, calibrate_with_holdout, BatchGnOptions, CalibrationOptions, CalibrationReport, Drive, EivMethodOptions,
-    EivOutcome, Holdout, Method, MethodDetail, ParamSet, ValidationDrive, VerdictLevel, Warning,
+    calibrate, calibrate_with_holdout, CalibrationOptions, CalibrationReport, EivMethodOptions, EivOutcome, Holdout,
+    Method, MethodDetail, ParamSet, ValidationDrive, VerdictLevel, Warning,
 };
+use odocal_lab::{load, repo_path, testtrack_manifest, Args, Res, RAV4_MANIFEST, TESTTRACK_RUNS, VAN_MANIFEST};
 use serde_json::{json, Value};
 
-/// The six runs of 2024-08-05 (manifest `run-NAME.toml`).
-const RUNS: [&str; 6] = ["14-45-26", "15-28-33", "16-06-28", "16-47-33", "17-45-46", "18-01-26"];
+const USAGE: &str = "study_real [--methods batch-gn,batch-gn-all,three-step,eiv,eiv-fixed] [--parts testtrack,van,rav4]
+    [--json study_real.json] [--markdown study_real.md]
+
+Methods also: eiv-uncorrected, eiv-hold-heading, eiv-cb, eiv-scg, eiv-nofallback; suffixes -nofallback,
+-x, -h, -tau (see the source's header). Parts also: swap.";
 
 const METHODS: [&str; 5] = ["batch-gn", "batch-gn-all", "three-step", "eiv", "eiv-fixed"];
 
-/// Methods run only when named: `eiv-stop14` (`eiv` with the reference
-/// heading offset held at 0; the `eiv-stop*` and `eiv-sc*` variants hold it
-/// too), `eiv-stop11` (`eiv` with innovation checks against the fitted
-/// model and no secant damping of the η step), `eiv-nofallback` (`eiv` with the
-/// fallback off: the EIV θ whatever the checks say) and `eiv-uncorrected`
-/// (`eiv` without its default bias correction).
-const EXTRA_METHODS: [&str; 33] = [
-    "eiv-uncorrected",
-    "eiv-uncorrected-nofallback",
-    "eiv-stop14",
-    "eiv-stop14-nofallback",
-    "eiv-stop11",
-    "eiv-nofallback",
-    "eiv-sc",
-    "eiv-sc-nofallback",
-    "eiv-scg",
-    "eiv-scg-nofallback",
-    "batch-gn-all-x",
-    "eiv-scg-x",
-    "eiv-scg-x-nofallback",
-    "eiv-scg-tau",
-    "eiv-scg-tau-nofallback",
-    "eiv-scg-x-tau-nofallback",
-    "eiv-scg0",
-    "eiv-scg0-nofallback",
-    "eiv-scg-tc",
-    "eiv-scg-tc-nofallback",
-    "eiv-scg-x-tc",
-    "batch-gn-all-h",
-    "eiv-stop13",
-    "eiv-stop13-nofallback",
-    "eiv-stop13-h",
-    "eiv-h",
-    "eiv-cb",
-    "eiv-cb-nofallback",
-    "eiv-h-nofallback",
-    "eiv-scg-h",
-    "eiv-scg-h-nofallback",
-    "eiv-scg-h-tc",
-    "eiv-scg-h-tc-nofallback",
-];
+/// Base methods run only when named (each also with the suffixes of [`options`]).
+const EXTRA_METHODS: [&str; 5] = ["eiv-uncorrected", "eiv-hold-heading", "eiv-cb", "eiv-scg", "eiv-nofallback"];
 
 /// Correlation time of the reference's position and heading drift for the
 /// `-tau` methods, s (the production car's is 100 s).
@@ -136,9 +85,10 @@ const CAN_SPEED_STEP_M_PER_S: f64 = 0.01 / 3.6;
 /// `QuantisationModel::Counting`), but at 8–20 m/s it is ~1/30 of the
 /// production car's 0.8 % white wheel noise, so the model's shape there
 /// hardly matters.
-fn encoder_q(path: &std::path::Path) -> Result<(f64, String), Box<dyn Error>> {
+fn encoder_q(rel: &str) -> Res<(f64, String)> {
     use odocal::io::import::WheelSignal;
-    let m = odocal::Manifest::from_path(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let path = repo_path(rel);
+    let m = odocal::Manifest::from_path(&path).map_err(|e| format!("{}: {e}", path.display()))?;
     let h = 1.0 / m.output.rate_hz;
     let w = &m.wheels;
     match (w.signal, w.ticks_per_rev, w.circumference_m) {
@@ -152,145 +102,72 @@ fn encoder_q(path: &std::path::Path) -> Result<(f64, String), Box<dyn Error>> {
     }
 }
 
-/// The EIV options of the `eiv-sc*` shape: separate heading scale,
-/// counting quantisation; with `q`, the quantisation level given at q.
-fn candidate(q: Option<f64>, fallback: bool) -> Method {
-    let mut filter = EivOptions {
-        heading_scale: HeadingScale::Separate,
-        quantisation: QuantisationModel::Counting,
-        quantisation_level: QuantisationLevel::ScaledWithWhite,
-        ..EivOptions::default()
+/// The options `odocal calibrate` uses for a study method; `q` is the
+/// drive's encoder step ([`encoder_q`], used by `eiv-scg`).
+fn options(method: &str, q: f64) -> Res<CalibrationOptions> {
+    let (base, fallback) = match method.strip_suffix("-nofallback") {
+        Some(b) => (b, false),
+        None => (method, true),
     };
-    if let Some(q) = q {
-        filter.quantisation_level = QuantisationLevel::Given;
-        filter.noise = NoiseModel { quantisation_step_rev_per_s: q, ..filter.noise };
+    // Suffixes, outermost last: `-x`, `-h`, `-tau` (see the module docs).
+    let mut rest = base;
+    let mut suffixes = Vec::new();
+    for s in ["-tau", "-x", "-h"] {
+        if let Some(b) = rest.strip_suffix(s) {
+            suffixes.push(s);
+            rest = b;
+        }
     }
-    Method::Eiv(EivMethodOptions { filter, fallback, estimate_heading_offset: false, ..EivMethodOptions::default() })
-}
-
-/// The options `odocal calibrate --method …` uses for a study method; `q`
-/// is the drive's encoder step ([`encoder_q`], used by `eiv-scg`).
-fn options(method: &str, q: f64) -> Result<CalibrationOptions, Box<dyn Error>> {
     let mut o = CalibrationOptions::default();
-    // Diagnostic variants: `-x` also estimates the reference's
-    // lever arm and heading offset with θ in the start (the filter runs on
-    // the rear-axle poses they imply), `-h` the heading offset alone; `-tau` starts from a reference drift
-    // with a correlation time of SHORT_DRIFT_TAU_S instead of 100 s; `-tc`
-    // turns on `EivOptions::theta_convergence`.
-    let (base, x) = match method.strip_suffix("-nofallback") {
-        Some(b) => (b, "-nofallback"),
-        None => (method, ""),
+    let eiv = |filter: EivOptions, estimate_heading_offset: bool| {
+        Method::Eiv(EivMethodOptions { filter, fallback, estimate_heading_offset, ..EivMethodOptions::default() })
     };
-    let (base, tc) = match base.strip_suffix("-tc") {
-        Some(b) => (b, true),
-        None => (base, false),
-    };
-    let (base, tau) = match base.strip_suffix("-tau") {
-        Some(b) => (b, true),
-        None => (base, false),
-    };
-    let (base, lever) = match base.strip_suffix("-x") {
-        Some(b) => (b, true),
-        None => (base, false),
-    };
-    let (base, heading) = match base.strip_suffix("-h") {
-        Some(b) => (b, true),
-        None => (base, false),
-    };
-    if lever || heading || tau || tc {
-        if !EXTRA_METHODS.contains(&method) {
-            return Err(format!("unknown method {method}").into());
-        }
-        let mut o = options(&format!("{base}{x}"), q)?;
-        if lever {
-            o.identify.free = o.identify.free.union(ParamSet::EXTRINSICS);
-        }
-        if heading {
-            o.identify.free = o.identify.free.with(odocal::Param::HeadingOffset);
-        }
-        if let Method::Eiv(e) = &mut o.method {
-            if tau {
-                e.filter.noise.drift_time_constant_s = SHORT_DRIFT_TAU_S;
+    o.method = match rest {
+        "batch-gn" | "batch-gn-all" => {
+            if rest == "batch-gn-all" {
+                o.segments.min_peak_yaw_rate_rad_per_s = 0.0;
             }
-            if tc {
-                e.filter.theta_convergence = true;
-            }
+            Method::from_name("batch-gn")?
         }
-        return Ok(o);
-    }
-    match method {
-        "eiv-stop13" | "eiv-stop13-nofallback" => {
-            o.method = Method::Eiv(EivMethodOptions {
-                filter: EivOptions {
-                    heading_scale: HeadingScale::TiedToPosition,
-                    quantisation: QuantisationModel::ProcessNoise,
-                    quantisation_level: QuantisationLevel::ScaledWithWhite,
-                    ..EivOptions::default()
-                },
-                fallback: method == "eiv-stop13",
-                estimate_heading_offset: false,
+        "three-step" => Method::from_name("three-step")?,
+        "eiv" => eiv(EivOptions::default(), true),
+        "eiv-fixed" => eiv(EivOptions { fix_noise: true, ..EivOptions::default() }, true),
+        "eiv-hold-heading" => eiv(EivOptions::default(), false),
+        "eiv-uncorrected" => {
+            Method::Eiv(EivMethodOptions { correct_bias: None, fallback, ..EivMethodOptions::default() })
+        }
+        "eiv-cb" => {
+            // What the CLI's `--correct-bias 10` sets (seed 0, antithetic pairs).
+            Method::Eiv(EivMethodOptions {
+                correct_bias: Some(odocal::calibrate::CorrectBias { replicates: 10, seed: 0 }),
+                fallback,
                 ..EivMethodOptions::default()
             })
         }
-        "eiv-sc" => o.method = candidate(None, true),
-        "eiv-sc-nofallback" => o.method = candidate(None, false),
-        "eiv-scg" => o.method = candidate(Some(q), true),
-        "eiv-scg0" => o.method = candidate(Some(NoiseModel::PRODUCTION_CAR.quantisation_step_rev_per_s), true),
-        "eiv-scg0-nofallback" => {
-            o.method = candidate(Some(NoiseModel::PRODUCTION_CAR.quantisation_step_rev_per_s), false)
+        "eiv-scg" => {
+            let d = EivOptions::default();
+            let noise = NoiseModel { quantisation_step_rev_per_s: q, ..d.noise };
+            eiv(EivOptions { noise, quantisation_level: QuantisationLevel::Given, ..d }, false)
         }
-        "eiv-scg-nofallback" => o.method = candidate(Some(q), false),
-        "batch-gn" => o.method = Method::BatchGn(BatchGnOptions::default()),
-        "batch-gn-all" => {
-            o.method = Method::BatchGn(BatchGnOptions::default());
-            o.segments.min_peak_yaw_rate_rad_per_s = 0.0;
-        }
-        "three-step" => o.method = Method::default(),
-        "eiv" => o.method = Method::Eiv(EivMethodOptions::default()),
-        "eiv-stop14" | "eiv-stop14-nofallback" => {
-            o.method = Method::Eiv(EivMethodOptions {
-                fallback: method == "eiv-stop14",
-                estimate_heading_offset: false,
-                ..EivMethodOptions::default()
-            })
-        }
-        "eiv-stop11" => {
-            o.method = Method::Eiv(EivMethodOptions {
-                filter: EivOptions {
-                    eta_secant_damping: false,
-                    innovation_null: odocal::eiv::InnovationNull::FittedModel,
-                    ..EivOptions::default()
-                },
-                estimate_heading_offset: false,
-                ..EivMethodOptions::default()
-            })
-        }
-        "eiv-nofallback" => o.method = Method::Eiv(EivMethodOptions { fallback: false, ..EivMethodOptions::default() }),
-        // The default without its bias correction (`--no-bias-correction`).
-        "eiv-uncorrected" | "eiv-uncorrected-nofallback" => {
-            o.method = Method::Eiv(EivMethodOptions {
-                correct_bias: None,
-                fallback: method == "eiv-uncorrected",
-                ..EivMethodOptions::default()
-            })
-        }
-        // What the CLI's `--correct-bias 10` sets (seed 0, antithetic pairs).
-        "eiv-cb" | "eiv-cb-nofallback" => {
-            let mut filter = EivOptions::default();
-            filter.correct_bias(10, 0);
-            o.method =
-                Method::Eiv(EivMethodOptions { filter, fallback: method == "eiv-cb", ..EivMethodOptions::default() })
-        }
-        "eiv-fixed" => {
-            o.method = Method::Eiv(EivMethodOptions {
-                filter: EivOptions { fix_noise: true, ..EivOptions::default() },
-                ..EivMethodOptions::default()
-            })
-        }
-        other => {
+        _ => {
             return Err(
-                format!("unknown method {other}; use {} or {}", METHODS.join(", "), EXTRA_METHODS.join(", ")).into()
+                format!("unknown method {method}; use {} or {}", METHODS.join(", "), EXTRA_METHODS.join(", ")).into()
             )
+        }
+    };
+    let is_eiv = matches!(o.method, Method::Eiv(_));
+    if !is_eiv && (!fallback || suffixes.contains(&"-tau")) {
+        return Err(format!("{method}: -nofallback and -tau apply to the eiv methods").into());
+    }
+    for s in suffixes {
+        match s {
+            "-x" => o.identify.free = o.identify.free.union(ParamSet::EXTRINSICS),
+            "-h" => o.identify.free = o.identify.free.with(odocal::Param::HeadingOffset),
+            _ => {
+                if let Method::Eiv(e) = &mut o.method {
+                    e.filter.noise.drift_time_constant_s = SHORT_DRIFT_TAU_S;
+                }
+            }
         }
     }
     Ok(o)
@@ -419,22 +296,15 @@ fn theta_cell(r: &CalibrationReport) -> String {
     format!("{:.4} / {:+.2} / {:.3} / {:+.2}{x}", t.c_e, t.c_d * 1e3, t.t_r, t.d * 1e3)
 }
 
-fn load(path: &std::path::Path) -> Result<Drive, Box<dyn Error>> {
-    let (drive, _) = odocal::load_drive(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    Ok(drive)
-}
-
 /// (a) calibrate on each test-track run, Ē_p on the other five.
-fn testtrack(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/psu-mapping-van-testtrack");
+fn testtrack(methods: &[String], md: &mut String) -> Res<Value> {
     let mut drives = Vec::new();
     let mut qs = Vec::new();
-    for run in RUNS {
-        let path = dir.join(format!("run-{run}.toml"));
-        let (q, how) = encoder_q(&path)?;
+    for (run, _) in TESTTRACK_RUNS {
+        let (q, how) = encoder_q(&testtrack_manifest(run))?;
         eprintln!("testtrack {run}: encoder q = {q:.6e} rev/s ({how})");
         qs.push(q);
-        drives.push((run, load(&path)?));
+        drives.push((run, load(&testtrack_manifest(run))?));
     }
     md.push_str(
         "#### (a) Test track, 2024-08-05: fit on one run, Ē_p on the other five (m)\n\n\
@@ -582,12 +452,11 @@ fn testtrack(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error
 /// batch G-N (all segments) and `eiv-scg-nofallback`, and EIV's θ with one
 /// parameter at a time replaced by batch G-N's, each judged by the mean Ē_p
 /// on the other five runs.
-fn swap(md: &mut String) -> Result<Value, Box<dyn Error>> {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/psu-mapping-van-testtrack");
+fn swap(md: &mut String) -> Res<Value> {
     let mut drives = Vec::new();
-    for run in RUNS {
-        let path = dir.join(format!("run-{run}.toml"));
-        drives.push((run, load(&path)?, encoder_q(&path)?.0));
+    for (run, _) in TESTTRACK_RUNS {
+        let rel = testtrack_manifest(run);
+        drives.push((run, load(&rel)?, encoder_q(&rel)?.0));
     }
     md.push_str(
         "#### (d) Test track: EIV (`eiv-scg-nofallback`) with one parameter at a time from batch G-N (all \
@@ -609,7 +478,7 @@ fn swap(md: &mut String) -> Result<Value, Box<dyn Error>> {
             .map(|(_, (n, d, _))| ValidationDrive { name: n, drive: d, reference: None })
             .collect();
         let cal = gn.extrinsics_for_validation(ParamSet::EMPTY);
-        let judge = |t: &odocal::Theta| -> Result<f64, Box<dyn Error>> {
+        let judge = |t: &odocal::Theta| -> Res<f64> {
             Ok(odocal::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?.mean_over_drives_m)
         };
         let (g, e) = (gn.theta, eiv.theta);
@@ -621,7 +490,7 @@ fn swap(md: &mut String) -> Result<Value, Box<dyn Error>> {
         cells.push(judge(&odocal::Theta { c_e: e.c_e, ..g })?);
         cells.push(judge(&odocal::Theta { c_d: e.c_d, ..g })?);
         for (s, c) in sums.iter_mut().zip(&cells) {
-            *s += c / RUNS.len() as f64;
+            *s += c / TESTTRACK_RUNS.len() as f64;
         }
         md.push_str(&format!(
             "| {name} | {} |\n",
@@ -631,9 +500,8 @@ fn swap(md: &mut String) -> Result<Value, Box<dyn Error>> {
     }
     md.push_str(&format!("| mean | {} |\n\n", sums.iter().map(|c| format!("{c:.2}")).collect::<Vec<_>>().join(" | ")));
     // The same for the van: fitted on one half, Ē_p on the held-out half.
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/psu-mapping-van/manifest.toml");
-    let drive = load(&path)?;
-    let q = encoder_q(&path)?.0;
+    let drive = load(VAN_MANIFEST)?;
+    let q = encoder_q(VAN_MANIFEST)?.0;
     md.push_str(
         "Van (07-11), the same on the held-out half (m):\n\n\
          | held out | batch G-N | EIV | EIV, G-N's c_e | EIV, G-N's c_d | EIV, G-N's t_r | EIV, G-N's d \
@@ -646,7 +514,7 @@ fn swap(md: &mut String) -> Result<Value, Box<dyn Error>> {
         let eiv = calibrate(&fit, &options("eiv-scg-nofallback", q)?, None)?;
         let others = [ValidationDrive { name: label, drive: &held, reference: None }];
         let cal = gn.extrinsics_for_validation(ParamSet::EMPTY);
-        let judge = |t: &odocal::Theta| -> Result<f64, Box<dyn Error>> {
+        let judge = |t: &odocal::Theta| -> Res<f64> {
             Ok(odocal::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?.mean_over_drives_m)
         };
         let (g, e) = (gn.theta, eiv.theta);
@@ -671,10 +539,9 @@ fn swap(md: &mut String) -> Result<Value, Box<dyn Error>> {
 }
 
 /// (b) the highway van, fitted on one half, Ē_p on the other.
-fn van(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/psu-mapping-van/manifest.toml");
-    let drive = load(&path)?;
-    let (q, how) = encoder_q(&path)?;
+fn van(methods: &[String], md: &mut String) -> Res<Value> {
+    let drive = load(VAN_MANIFEST)?;
+    let (q, how) = encoder_q(VAN_MANIFEST)?;
     eprintln!("van: encoder q = {q:.6e} rev/s ({how})");
     md.push_str(
         "#### (b) Highway van (07-11): fit on one half, Ē_p on the held-out half (m)\n\n\
@@ -742,10 +609,9 @@ fn van(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
 }
 
 /// (c) the RAV4: c_e, its σ, what is named unobservable or held.
-fn rav4(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/comma2k19-rav4/manifest.toml");
-    let drive = load(&path)?;
-    let (q, how) = encoder_q(&path)?;
+fn rav4(methods: &[String], md: &mut String) -> Res<Value> {
+    let drive = load(RAV4_MANIFEST)?;
+    let (q, how) = encoder_q(RAV4_MANIFEST)?;
     eprintln!("rav4: encoder q = {q:.6e} rev/s ({how})");
     md.push_str(
         "#### (c) comma2k19 RAV4 (1 km, nearly straight): c_e and what is named\n\n\
@@ -835,22 +701,17 @@ fn rav4(methods: &[String], md: &mut String) -> Result<Value, Box<dyn Error>> {
     Ok(Value::Array(out))
 }
 
-fn main() -> Result<(), Box<dyn Error>> {
-    let mut methods: Vec<String> = METHODS.iter().map(|s| s.to_string()).collect();
-    let mut parts: Vec<String> = ["testtrack", "van", "rav4"].iter().map(|s| s.to_string()).collect();
-    let mut json_path: Option<PathBuf> = None;
-    let mut md_path: Option<PathBuf> = None;
-    let mut args = std::env::args().skip(1);
-    while let Some(a) = args.next() {
-        let mut value = || args.next().ok_or_else(|| format!("{a} needs a value"));
-        match a.as_str() {
-            "--methods" => methods = value()?.split(',').map(|s| s.trim().to_string()).collect(),
-            "--parts" => parts = value()?.split(',').map(|s| s.trim().to_string()).collect(),
-            "--json" => json_path = Some(PathBuf::from(value()?)),
-            "--markdown" => md_path = Some(PathBuf::from(value()?)),
-            other => return Err(format!("unknown argument {other}").into()),
-        }
-    }
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
+    let mut a = Args::parse(USAGE, &[])?;
+    let methods = a.list("methods", &METHODS);
+    let parts = a.list("parts", &["testtrack", "van", "rav4"]);
+    let json_path: Option<PathBuf> = a.opt("json")?;
+    let md_path: Option<PathBuf> = a.opt("markdown")?;
+    a.finish()?;
     for m in &methods {
         options(m, NoiseModel::PRODUCTION_CAR.quantisation_step_rev_per_s)?;
     }

@@ -1,74 +1,55 @@
-//! Diagnostic (stop 16): how much of θ̂'s spread comes from the noise scales
+//! How much of θ̂'s spread comes from the noise scales
 //! η having been estimated from the same drive? For each simulated drive it
 //! fits EIV with the default options (η estimated), then re-fits with the
 //! noise model held at the fitted one with η_j moved by ±h, one source at a
 //! time, to get the sensitivity s_j = ∂θ̂/∂η_j by central differences, and
 //! reports the propagated variance Σ_j s_j² σ²(η̂_j) next to the reported σ.
-//! Coverage of the truth by θ̂ ± 1.96 σ is printed for both.
-//!
-//! ```text
-//! cargo run --release -p odocal --example eiv_eta_propagation -- [--km 12] [--seeds 10] [--presets paper,high] (also white, coloured) [--h 0.05] [--refits 0]
-//! ```
+//! Coverage of the truth by θ̂ ± 1.96 σ is printed for both. The library's
+//! η term (`ResearchOptions::noise_estimate_in_covariance`, on by default)
+//! computes the same by the implicit function theorem; the line
+//! "library σ_η-term/σ_refit-term" compares the two.
 
-use std::error::Error;
+use odocal::eiv::{estimate, EivInput, EivOptions, ResearchOptions};
+use odocal_lab::{batch_gn_all, simulate_preset, Args, Res, PARAMETERS};
 
-use odocal::drive::segment::{calibration_segments, SegmentData, SegmentOptions};
-use odocal::eiv::{estimate, EivInput, EivOptions};
-use odocal::identify::{batch_gauss_newton, IdentifyOptions};
-use odocal::sim::{simulate, NoiseOptions, SimOptions};
-use odocal::Theta;
+const USAGE: &str = "eiv_eta_propagation [--km 12] [--seeds 10] [--presets paper,high] [--h 0.05] [--refits 1]
+    (presets also white, coloured; --refits 0: no re-fits, the η term alone)";
 
-type Res<T> = Result<T, Box<dyn Error>>;
+fn main() {
+    odocal_lab::main_with(run)
+}
 
-fn main() -> Res<()> {
-    let mut km = 12.0;
-    let mut seeds = 10u64;
-    let mut presets = vec!["paper".to_string(), "high".to_string()];
-    let mut h = 0.05;
-    let mut refits = true;
-    let mut it = std::env::args().skip(1);
-    while let Some(k) = it.next() {
-        let v = it.next().ok_or("missing value")?;
-        match k.as_str() {
-            "--km" => km = v.parse()?,
-            "--seeds" => seeds = v.parse()?,
-            "--presets" => presets = v.split(',').map(str::to_string).collect(),
-            "--h" => h = v.parse()?,
-            "--refits" => refits = v != "0",
-            _ => return Err(format!("unknown {k}").into()),
-        }
-    }
-    let names = ["c_e", "c_d", "t_r", "d"];
+fn run() -> Res<()> {
+    let mut a = Args::parse(USAGE, &[])?;
+    let km: f64 = a.get("km", 12.0)?;
+    let seeds: u64 = a.get("seeds", 10)?;
+    let presets = a.list("presets", &["paper", "high"]);
+    let h: f64 = a.get("h", 0.05)?;
+    let refits = a.get("refits", "1".to_string())? != "0";
+    a.finish()?;
+    let names = PARAMETERS;
     for p in &presets {
-        let noise = match p.as_str() {
-            "coloured" => NoiseOptions::coloured_wheels_only(),
-            _ => NoiseOptions::by_name(p)?,
-        };
         // Per parameter: cover (reported), cover (with η propagated), Σ err², Σ σ², Σ σ_tot².
         let mut acc = [[0.0f64; 5]; 4];
         let mut n = 0usize;
         for seed in 1..=seeds {
-            let sim = simulate(&SimOptions { length_km: km, noise: noise.clone(), ..SimOptions::paper(seed) })?;
+            let sim = simulate_preset(p, km, seed)?;
             let d = &sim.drive;
             let truth = sim.sidecar.theta_true.to_array();
-            let sel = calibration_segments(d, &SegmentOptions::default())?;
-            let data: Vec<SegmentData> = sel.all.iter().map(|s| SegmentData::new(d, s)).collect();
-            let gn = batch_gauss_newton(
-                &data,
-                &Theta::PAPER_INITIAL,
-                &IdentifyOptions { max_iterations: 20, ..Default::default() },
-            )?
-            .theta;
+            let gn = batch_gn_all(d)?;
             let input = EivInput::from_drive(d);
-            // One fit with the default options. The σ without the η term (the
-            // fit before stop 16) is the base: σ_old² = σ² − σ_η² (the option
-            // changes the covariance only; the library test holds it to 1e-9).
+            // One fit with the default options. The σ without the η term is
+            // the base: σ_old² = σ² − σ_η² (the option changes the covariance
+            // only; the library test holds it to 1e-9).
             let r = estimate(&input, &gn, &EivOptions::default())?;
             let sigma_old: [f64; 4] = std::array::from_fn(|i| {
                 (r.sigma[i] * r.sigma[i] - r.sigma_noise_estimate[i] * r.sigma_noise_estimate[i]).max(0.0).sqrt()
             });
             // The re-fits need only θ.
-            let opts = EivOptions { noise_estimate_in_covariance: false, ..EivOptions::default() };
+            let opts = EivOptions {
+                research: ResearchOptions { noise_estimate_in_covariance: false, ..Default::default() },
+                ..EivOptions::default()
+            };
             let th = r.theta.to_array();
             let mut var_prop = [0.0f64; 4];
             let mut sens = Vec::new();

@@ -1,60 +1,39 @@
 //! Diagnostic of c_e's uncertainty under coloured common-mode wheel noise
-//! (docs/study.md, "Stop 13"): per seed, c_e's error against each reported
+//! (the measurements behind `CovarianceEstimate`'s docs): per seed, c_e's
+//! error against each reported
 //! σ (H⁻¹, sandwich, Fisher) for the known and the estimated noise model and
 //! variants, where η₁ (the common-mode scale) goes, and the marginal
 //! likelihood M profiled over η₁ with the other scales held at the fitted
-//! values.
-//!
-//! ```text
-//! cargo run --release -p odocal --example cecov_diag -- [--km 12] [--seeds 4] [--preset coloured]
-//!     [--variants known,est,est-simtau,est-from-sim,est-fix1,est-fix1-simtau] [--profile 1]
-//! ```
+//! values (`--profile`). `CECOV_HISTORY=1` prints every iteration.
 
-use std::error::Error;
-
-use odocal::drive::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::eiv::{estimate, EivInput, EivOptions, EivReport, NoiseModel};
-use odocal::identify::{batch_gauss_newton, IdentifyOptions};
-use odocal::sim::{simulate, NoiseOptions, SimOptions};
-use odocal::Theta;
+use odocal::sim::{simulate, SimOptions};
+use odocal_lab::{batch_gn_all, noise_preset, Args, Res};
 
-type Res<T> = Result<T, Box<dyn Error>>;
+const USAGE: &str = "cecov_diag [--km 12] [--seeds 4] [--first-seed 1] [--preset coloured] [--profile]
+    [--variants known,est,est-simtau,est-fix1]   (also est-from-sim, est-fix1-simtau)";
 
-fn main() -> Res<()> {
-    let (mut km, mut seeds, mut preset, mut profile) = (12.0, 4u64, "coloured".to_string(), false);
-    let mut variants: Vec<String> = ["known", "est", "est-simtau", "est-fix1"].iter().map(|s| s.to_string()).collect();
-    let mut first_seed = 1u64;
-    let mut reentry = 10.0;
-    let mut it = std::env::args().skip(1);
-    while let Some(k) = it.next() {
-        let v = it.next().ok_or("missing value")?;
-        match k.as_str() {
-            "--km" => km = v.parse()?,
-            "--seeds" => seeds = v.parse()?,
-            "--first-seed" => first_seed = v.parse()?,
-            "--preset" => preset = v,
-            "--profile" => profile = v == "1",
-            "--reentry-score" => reentry = v.parse()?,
-            "--variants" => variants = v.split(',').map(str::to_string).collect(),
-            _ => return Err(format!("unknown {k}").into()),
-        }
-    }
-    let noise =
-        if preset == "coloured" { NoiseOptions::coloured_wheels_only() } else { NoiseOptions::by_name(&preset)? };
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
+    let mut a = Args::parse(USAGE, &["profile"])?;
+    let km: f64 = a.get("km", 12.0)?;
+    let seeds: u64 = a.get("seeds", 4)?;
+    let first_seed: u64 = a.get("first-seed", 1)?;
+    let preset: String = a.get("preset", "coloured".to_string())?;
+    let profile = a.flag("profile");
+    let variants = a.list("variants", &["known", "est", "est-simtau", "est-fix1"]);
+    a.finish()?;
+    let noise = noise_preset(&preset)?;
     // Per variant: (c_e error %, σ_H %, σ_sandwich %, σ_Fisher %).
     let mut rows: Vec<(String, Vec<[f64; 4]>)> = Vec::new();
     for seed in first_seed..first_seed + seeds {
         let sim = simulate(&SimOptions { length_km: km, noise: noise.clone(), ..SimOptions::paper(seed) })?;
         let d = &sim.drive;
         let truth = sim.sidecar.theta_true;
-        let sel = calibration_segments(d, &SegmentOptions::default())?;
-        let data: Vec<SegmentData> = sel.all.iter().map(|s| SegmentData::new(d, s)).collect();
-        let gn = batch_gauss_newton(
-            &data,
-            &Theta::PAPER_INITIAL,
-            &IdentifyOptions { max_iterations: 20, ..Default::default() },
-        )?
-        .theta;
+        let gn = batch_gn_all(d)?;
         let input = EivInput::from_drive(d);
         let sim_noise = NoiseModel::from_sim(&noise, d.sample_time_s());
         let pc = NoiseModel::PRODUCTION_CAR;
@@ -112,7 +91,6 @@ fn main() -> Res<()> {
             let opts = match v.as_str() {
                 "known" => EivOptions { noise: sim_noise, fix_noise: true, ..base.clone() },
                 "est" => base.clone(),
-                "est-re" => EivOptions { eta_reentry_min_score: Some(reentry), ..base.clone() },
                 "est-simtau" => EivOptions { noise: simtau, ..base.clone() },
                 "est-from-sim" => EivOptions { noise: sim_noise, ..base.clone() },
                 "est-fix1" | "est-fix1-simtau" => {

@@ -1,10 +1,5 @@
-//! An honest study of raw batch Gauss-Newton vs the 3-step compensated method
-//! on simulated drives (docs/study.md is written from its output).
-//!
-//! ```text
-//! cargo run --release -p odocal --example study -- [--km 6] [--seeds 5]
-//!     [--noises off,white,paper,high] [--batches 10] [--solver structured] [--json study.json]
-//! ```
+//! Raw batch Gauss-Newton against the 3-step compensated method on simulated
+//! drives (docs/validation.md, "The 3-step method": `study --km 6 --seeds 5`).
 //!
 //! For every noise preset and seed (seeds 1..=S) it simulates a drive and runs:
 //! - raw batch G-N from θ_0 on `--batches` random batches of N = 5 and N = 10
@@ -20,7 +15,6 @@
 //!
 //! Metrics: |θ − θ_true| per parameter and Ē_p − Ē_p,min.
 
-use std::error::Error;
 use std::fmt::Write as _;
 use std::time::Instant;
 
@@ -28,14 +22,14 @@ use odocal::calibrate::{calibrate_detailed, random_batches, score_batches};
 use odocal::compensate::qp::SolverKind;
 use odocal::compensate::{compensate_segments, CompensateOptions, CompensatedInputs, QpOptions};
 use odocal::drive::segment::SegmentData;
-use odocal::experiment::median;
 use odocal::identify::IdentifyOptions;
-use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{mean_position_error, reachable_minimum, Drive, ReachableOptions, Segment, Theta};
 use odocal::{CalibrationOptions, Method, ThreeStepOptions};
+use odocal_lab::{median, simulate_preset, Args, Res};
 use serde::Serialize;
 
-type Res<T> = Result<T, Box<dyn Error>>;
+const USAGE: &str = "study [--km 6] [--seeds 5] [--noises off,white,paper,high] [--batches 10] [--solver structured]
+    [--json study.json]";
 
 /// Mixed into a drive's seed to draw the random batches of the study.
 const RANDOM_BATCH_SEED_SALT: u64 = 0xa5;
@@ -68,7 +62,7 @@ struct DriveResult {
     time_s: f64,
 }
 
-struct Args {
+struct Settings {
     km: f64,
     seeds: u64,
     noises: Vec<String>,
@@ -77,25 +71,18 @@ struct Args {
     json: Option<String>,
 }
 
-fn parse_args() -> Res<Args> {
-    let mut a = Args { km: 6.0, seeds: 5, noises: vec![], batches: 10, solver: SolverKind::Structured, json: None };
-    let mut it = std::env::args().skip(1);
-    while let Some(k) = it.next() {
-        let mut v = || it.next().ok_or_else(|| format!("{k} needs a value"));
-        match k.as_str() {
-            "--km" => a.km = v()?.parse()?,
-            "--seeds" => a.seeds = v()?.parse()?,
-            "--noises" => a.noises = v()?.split(',').map(str::to_string).collect(),
-            "--batches" => a.batches = v()?.parse()?,
-            "--solver" => a.solver = v()?.parse()?,
-            "--json" => a.json = Some(v()?),
-            other => return Err(format!("unknown argument '{other}'").into()),
-        }
-    }
-    if a.noises.is_empty() {
-        a.noises = ["off", "white", "paper", "high"].iter().map(|s| s.to_string()).collect();
-    }
-    Ok(a)
+fn parse_args() -> Res<Settings> {
+    let mut a = Args::parse(USAGE, &[])?;
+    let s = Settings {
+        km: a.get("km", 6.0)?,
+        seeds: a.get("seeds", 5)?,
+        noises: a.list("noises", &["off", "white", "paper", "high"]),
+        batches: a.get("batches", 10)?,
+        solver: a.get("solver", SolverKind::Structured)?,
+        json: a.opt("json")?,
+    };
+    a.finish()?;
+    Ok(s)
 }
 
 fn abs_diff(a: &Theta, b: &Theta) -> [f64; 4] {
@@ -133,10 +120,9 @@ fn runs(
         .collect()
 }
 
-fn study_drive(noise: &str, seed: u64, a: &Args) -> Res<DriveResult> {
+fn study_drive(noise: &str, seed: u64, a: &Settings) -> Res<DriveResult> {
     let t0 = Instant::now();
-    let sim =
-        simulate(&SimOptions { length_km: a.km, noise: NoiseOptions::by_name(noise)?, ..SimOptions::paper(seed) })?;
+    let sim = simulate_preset(noise, a.km, seed)?;
     let drive = &sim.drive;
     let truth = sim.sidecar.theta_true;
     let qp = QpOptions { solver: a.solver, ..Default::default() };
@@ -317,7 +303,11 @@ fn tables(noise: &str, rs: &[&DriveResult]) -> String {
     o
 }
 
-fn main() -> Res<()> {
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
     let a = parse_args()?;
     let t0 = Instant::now();
     let mut results = Vec::new();

@@ -2,11 +2,8 @@
 //! a known truth: step 3's model σ and cluster-robust σ (both from the
 //! compensated inputs), the cluster-robust σ on the measured inputs at the
 //! 3-step θ, and the scaled spread of step 1's batch estimates
-//! ([`odocal::calibrate::ThreeStepUncertainty`]).
-//!
-//! ```text
-//! cargo run --release -p odocal --example three_step_coverage -- [SEEDS] [KM] [PRESET] [BATCHES]
-//! ```
+//! ([`odocal::calibrate::ThreeStepUncertainty`]); docs/validation.md,
+//! "Coverage of the reported σ".
 //!
 //! Defaults: 20 seeds (1..=20), 12 km, preset `paper`, 50 step-1 batches;
 //! otherwise the default calibration. Per parameter and σ it prints the
@@ -15,24 +12,28 @@
 //! RMS σ ≈ RMS error and coverage near nominal.
 
 use odocal::calibrate::MethodDetail;
-use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{CalibrationOptions, Method, Theta, ThreeStepOptions};
+use odocal_lab::{coverage, simulate_preset, Args, Res, PARAMETERS};
 
-const NAMES: [&str; 4] = ["c_e", "c_d", "t_r", "d"];
+const USAGE: &str = "three_step_coverage [SEEDS 20] [KM 12] [PRESET paper] [BATCHES 50]";
 const SIGMAS: [&str; 4] = ["step-3 model", "step-3 robust", "measured-input robust", "batch spread"];
 
-fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let seeds: u64 = args.first().map(|s| s.parse()).transpose()?.unwrap_or(20);
-    let km: f64 = args.get(1).map(|s| s.parse()).transpose()?.unwrap_or(12.0);
-    let preset = args.get(2).cloned().unwrap_or_else(|| "paper".into());
-    let batches: usize = args.get(3).map(|s| s.parse()).transpose()?.unwrap_or(50);
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
+    let args = Args::parse(USAGE, &[])?;
+    let seeds: u64 = args.pos(0, 20)?;
+    let km: f64 = args.pos(1, 12.0)?;
+    let preset: String = args.pos(2, "paper".to_string())?;
+    let batches: usize = args.pos(3, 50)?;
+    args.finish()?;
     // err[seed][param], sigma[kind][seed][param] (NaN where a kind is missing)
     let mut err: Vec<[f64; 4]> = Vec::new();
     let mut sigma: Vec<Vec<[f64; 4]>> = vec![Vec::new(); SIGMAS.len()];
     for seed in 1..=seeds {
-        let sim = SimOptions { length_km: km, noise: NoiseOptions::by_name(&preset)?, ..SimOptions::paper(seed) };
-        let s = simulate(&sim)?;
+        let s = simulate_preset(&preset, km, seed)?;
         let opts = CalibrationOptions {
             method: Method::ThreeStep(ThreeStepOptions { initial_batches: batches, ..Default::default() }),
             ..Default::default()
@@ -59,11 +60,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let n = err.len() as f64;
     println!("== 3-step ({batches} batches), preset {preset}: {seeds} seeds x {km} km");
     println!("param | σ | within ±1σ | within ±1.96σ | RMS σ | RMS err | mean err");
-    for (i, name) in NAMES.iter().enumerate() {
-        let rms_err = (err.iter().map(|e| e[i] * e[i]).sum::<f64>() / n).sqrt();
-        let mean = err.iter().map(|e| e[i]).sum::<f64>() / n;
+    for (i, name) in PARAMETERS.iter().enumerate() {
+        let e: Vec<f64> = err.iter().map(|e| e[i]).collect();
+        let rms_err = (e.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
+        let mean = e.iter().sum::<f64>() / n;
         for (k, kind) in SIGMAS.iter().enumerate() {
-            let within = |z: f64| err.iter().zip(&sigma[k]).filter(|(e, s)| e[i].abs() <= z * s[i]).count() as f64 / n;
+            let s: Vec<f64> = sigma[k].iter().map(|s| s[i]).collect();
+            let within = |z: f64| coverage(&e, &s, z);
             let rms_s = (sigma[k].iter().map(|s| s[i] * s[i]).sum::<f64>() / n).sqrt();
             println!(
                 "{name} | {kind} | {:.2} | {:.2} | {rms_s:.3e} | {rms_err:.3e} | {mean:+.2e}",

@@ -1,90 +1,80 @@
 //! Diagnostic of the EIV noise-scale (η) estimate: where do the scales go
-//! from different starting noise models? (docs/study.md, EIV section.)
+//! from different starting noise models, and what does θ do?
 //!
-//! ```text
-//! cargo run --release -p odocal --example eiv_eta_diag -- [--km 12] [--seeds 4] [--presets paper,high]
-//!     (presets also: noslip, nobeta, noquant, highnoquant, high-noslip, quantonly, quantwhite, white2, coloured,
-//!     and the quantisation-free paper ablations nq-noslip, nq-noay, nq-nodrift, nq-noposwhite,
-//!     nq-nocoloured, nq-nowheel; stop 14: `high-A+B…` = high with sources A, B… off, A one of
-//!     noslip, noquant, paperq, noay, nobeta, nodrift, noposwhite, noheadwhite, nocommon, nodiff,
-//!     nowhite, paperwhite, noref, nowheel; `scaleF` = every paper source × F)
-//!     [--variants known,est-pc,...] (est-pc-qgiven, est-from-sim-qgiven: the simulator's q given,
-//!     `QuantisationLevel::Given`; est-pc-simtau-qgiven, est-pc-simwheel-qgiven, est-pc-simdrift-qgiven: q
-//!     given and the simulator's time constants (all, wheel, drift); est-pc-simwheel / est-pc-simdrift: only those time constants from the simulator)
-//!     [--quantisation process,measurement,counting] [--heading separate|tied]
-//!     [--substeps 10] (the simulator's integration substeps per sample) [--window-samples N]
-//!     [--hold 1,5] (η sources held at the starting model, `EivOptions::eta_held`)
-//!     [--passes N] (`EivOptions::passes`) [--start truth] (start, and hold Q's first reference, at θ_true)
-//!     [--history 1]  (print every iteration's θ, η and step/σ, and each window's NIS and lag-1)
+//! Presets: `paper`, `high`, `white`, `off`, `coloured`; `noslip`, `nobeta`,
+//! `noquant`, `highnoquant`, `quantonly`, `quantwhite`, `white2`; the
+//! quantisation-free paper ablations `nq-noslip`, `nq-noay`, `nq-nodrift`,
+//! `nq-noposwhite`, `nq-nocoloured`, `nq-nowheel`; `high-A+B…` = high with
+//! sources A, B… off (A one of noslip, noquant, paperq, noay, nobeta,
+//! nodrift, noposwhite, noheadwhite, nocommon, nodiff, nowhite, paperwhite,
+//! noref, nowheel); `scaleF` = every paper source × F.
 //!
-//! (`--heading` defaults to `separate` here, unlike the library.) Several
-//! quantisation models (comma separated) run side by side on the same
-//! drives; the run ends with a table of the mean θ error, its standard
-//! error and t = mean/se over the seeds per preset, variant and model.
-//! ```
+//! Variants (starting noise models): `known` (the simulator's, fixed),
+//! `est-pc` (the production car's, estimated), `est-from-sim`, `est-pc-q`,
+//! `est-pc-truth`, `est-from-sim-truth` (started at, and c_e alone free
+//! from, θ_true), `est-pc-simtau`, `est-pc-head`, `est-pc-simtau-head`,
+//! `est-pc-simwheel`, `est-pc-simdrift` (the simulator's time constants or
+//! heading σ), and with the encoder's q given (`QuantisationLevel::Given`):
+//! `est-pc-qgiven`, `est-from-sim-qgiven`, `est-pc-simtau-qgiven`,
+//! `est-pc-simwheel-qgiven`, `est-pc-simdrift-qgiven`. Several quantisation
+//! models (comma separated) run side by side on the same drives; the run
+//! ends with a table of the mean θ error, its standard error and t =
+//! mean/se over the seeds per preset, variant and model. `--heading`
+//! defaults to `separate` here, as in the library; `--passes` applies with
+//! the covariance held (`ResearchOptions::passes`).
 
-use std::error::Error;
-
-use odocal::drive::segment::{calibration_segments, SegmentData, SegmentOptions};
-use odocal::eiv::{estimate, EivInput, EivOptions, HeadingScale, NoiseModel, QuantisationLevel, QuantisationModel};
-use odocal::identify::{batch_gauss_newton, IdentifyOptions};
+use odocal::eiv::{
+    estimate, EivInput, EivOptions, HeadingScale, NoiseModel, QuantisationLevel, QuantisationModel, ResearchOptions,
+};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::Theta;
+use odocal_lab::{batch_gn_all, Args, Res};
 
-type Res<T> = Result<T, Box<dyn Error>>;
+const USAGE: &str = "eiv_eta_diag [--km 12] [--seeds 4] [--presets paper,high] [--variants known,est-pc,…]
+    [--quantisation process,measurement,counting] [--heading separate|tied] [--substeps 10]
+    [--window-samples N] [--hold 1,5] [--passes N] [--start truth] [--history]
+
+--hold: η sources held at the starting model (EivOptions::eta_held); --start truth: start at θ_true;
+--history: every iteration's θ, η and step/σ, and each window's NIS and lag-1";
+
 /// (preset, variant, quantisation model), θ errors per seed, failed fits.
 type SummaryRow = ((String, String, String), Vec<[f64; 4]>, usize);
 
-fn main() -> Res<()> {
-    let mut km = 12.0;
-    let mut seeds = 4u64;
-    let mut presets = vec!["paper".to_string(), "high".to_string()];
-    let mut variants_arg: Option<Vec<String>> = None;
-    let mut quants = vec![("process", QuantisationModel::ProcessNoise)];
-    let mut heading = HeadingScale::Separate;
-    let mut history = false;
-    let mut substeps = SimOptions::paper(0).substeps;
-    let mut window_samples: Option<usize> = None;
-    let mut eta_held = [false; 6];
-    let mut passes: Option<usize> = None;
-    let mut start_truth = false;
-    let mut it = std::env::args().skip(1);
-    while let Some(k) = it.next() {
-        let v = it.next().ok_or("missing value")?;
-        match k.as_str() {
-            "--km" => km = v.parse()?,
-            "--seeds" => seeds = v.parse()?,
-            "--presets" => presets = v.split(',').map(str::to_string).collect(),
-            "--heading" => heading = if v == "tied" { HeadingScale::TiedToPosition } else { HeadingScale::Separate },
-            "--quantisation" => {
-                quants = Vec::new();
-                for name in v.split(',') {
-                    let m = match name {
-                        "process" => ("process", QuantisationModel::ProcessNoise),
-                        "measurement" => ("measurement", QuantisationModel::Measurement),
-                        "counting" => ("counting", QuantisationModel::Counting),
-                        other => {
-                            return Err(format!("--quantisation process|measurement|counting, got '{other}'").into())
-                        }
-                    };
-                    quants.push(m);
-                }
-            }
-            "--history" => history = v == "1" || v == "true",
-            "--substeps" => substeps = v.parse()?,
-            "--window-samples" => window_samples = Some(v.parse()?),
-            "--hold" => {
-                for j in v.split(',').filter(|x| !x.is_empty()) {
-                    let j: usize = j.parse()?;
-                    *eta_held.get_mut(j).ok_or("--hold takes source indices 0..=5")? = true;
-                }
-            }
-            "--variants" => variants_arg = Some(v.split(',').map(str::to_string).collect()),
-            "--passes" => passes = Some(v.parse()?),
-            "--start" => start_truth = v == "truth",
-            _ => return Err(format!("unknown {k}").into()),
-        }
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
+    let mut a = Args::parse(USAGE, &["history"])?;
+    let km: f64 = a.get("km", 12.0)?;
+    let seeds: u64 = a.get("seeds", 4)?;
+    let presets = a.list("presets", &["paper", "high"]);
+    let variants_arg: Option<Vec<String>> =
+        a.opt::<String>("variants")?.map(|v| v.split(',').map(str::to_string).collect());
+    let mut quants = Vec::new();
+    for name in a.list("quantisation", &["process"]) {
+        let m: QuantisationModel = name.parse()?;
+        quants.push((
+            match m {
+                QuantisationModel::ProcessNoise => "process",
+                QuantisationModel::Measurement => "measurement",
+                QuantisationModel::Counting => "counting",
+            },
+            m,
+        ));
     }
+    let heading: HeadingScale = a.get("heading", HeadingScale::Separate)?;
+    let history = a.flag("history");
+    let substeps: usize = a.get("substeps", SimOptions::paper(0).substeps)?;
+    let window_samples: Option<usize> = a.opt("window-samples")?;
+    let mut eta_held = [false; 6];
+    for j in a.list("hold", &[]) {
+        let j: usize = j.parse()?;
+        *eta_held.get_mut(j).ok_or("--hold takes source indices 0..=5")? = true;
+    }
+    let passes: Option<usize> = a.opt("passes")?;
+    let start_truth = a.get("start", String::new())? == "truth";
+    a.finish()?;
     // (preset, variant, quantisation model) → θ errors per seed: c_e %, c_d mm, t_r %, d ×1e3.
     let mut summary: Vec<SummaryRow> = Vec::new();
     for p in &presets {
@@ -133,7 +123,7 @@ fn main() -> Res<()> {
                 wheel_slip_per_m_per_s2: 0.0,
                 ..NoiseOptions::paper()
             },
-            // `high-a+b+…` (stop 14): the high preset with the named sources switched off, one
+            // `high-a+b+…`: the high preset with the named sources switched off, one
             // or more (see `ablate`); `scaleF`: every paper source × F (q by F too), F ∈ (0, 10].
             _ if p.starts_with("high-") => {
                 let mut n = NoiseOptions::high();
@@ -150,14 +140,7 @@ fn main() -> Res<()> {
                 simulate(&SimOptions { length_km: km, noise: noise.clone(), substeps, ..SimOptions::paper(seed) })?;
             let d = &sim.drive;
             let truth = sim.sidecar.theta_true;
-            let sel = calibration_segments(d, &SegmentOptions::default())?;
-            let data: Vec<SegmentData> = sel.all.iter().map(|s| SegmentData::new(d, s)).collect();
-            let gn = batch_gauss_newton(
-                &data,
-                &Theta::PAPER_INITIAL,
-                &IdentifyOptions { max_iterations: 20, ..Default::default() },
-            )?
-            .theta;
+            let gn = batch_gn_all(d)?;
             let input = EivInput::from_drive(d);
             let sim_noise = NoiseModel::from_sim(&noise, d.sample_time_s());
             let pc = NoiseModel::PRODUCTION_CAR;
@@ -188,7 +171,7 @@ fn main() -> Res<()> {
                     false,
                 ),
                 ("est-from-sim-qgiven", sim_noise, false),
-                // Stop 14: q given and the simulator's time constants (all, wheel only, drift only).
+                // q given and the simulator's time constants (all, wheel only, drift only).
                 (
                     "est-pc-simtau-qgiven",
                     NoiseModel { quantisation_step_rev_per_s: sim_noise.quantisation_step_rev_per_s, ..pc_tau },
@@ -267,10 +250,11 @@ fn main() -> Res<()> {
                     },
                     ..Default::default()
                 };
+                let research = ResearchOptions { passes: passes.unwrap_or(opts.research.passes), ..Default::default() };
                 let opts = EivOptions {
                     window_samples: window_samples.unwrap_or(opts.window_samples),
                     eta_held,
-                    passes: passes.unwrap_or(opts.passes),
+                    research,
                     ..opts
                 };
                 let start = if at_truth || start_truth { truth } else { gn };
@@ -347,7 +331,7 @@ fn main() -> Res<()> {
     Ok(())
 }
 
-/// The noise options with one source switched off (stop-14 ablations of `high`).
+/// The noise options with one source switched off (ablations of `high`).
 fn ablate(n: NoiseOptions, what: &str) -> Res<NoiseOptions> {
     Ok(match what {
         "noslip" => NoiseOptions { wheel_slip_per_m_per_s2: 0.0, ..n },

@@ -1,12 +1,9 @@
 //! EIV against batch Gauss-Newton (all segments) and the Cramér–Rao bound
-//! on simulated drives:
+//! on simulated drives, with the covariance recursion held at a reference
+//! or following θ (`ResearchOptions::covariance`).
 //!
-//! ```text
-//! cargo run --release -p odocal --example eiv_check -- [km] [seeds] [presets,comma,separated] [variants]
-//! ```
-//!
-//! Variants (comma separated; default all): `held` (covariance held at a
-//! reference, η estimated from the production-car start), `follows`
+//! Variants (comma separated; default the first four): `held` (covariance
+//! held at a reference, η estimated from the production-car start), `follows`
 //! (covariance follows θ, η estimated), `held-known` and `follows-known`
 //! (the simulator's true noise model, `NoiseModel::from_sim`, fixed),
 //! `held-simstart` and `follows-simstart` (η estimated, starting from the
@@ -18,32 +15,29 @@
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use odocal::drive::segment::{calibration_segments, SegmentData, SegmentOptions};
-use odocal::eiv::{cramer_rao_bound, estimate, CovarianceMode, EivInput, EivOptions, NoiseModel};
-use odocal::identify::{batch_gauss_newton, IdentifyOptions};
+use odocal::eiv::{cramer_rao_bound, estimate, CovarianceMode, EivInput, EivOptions, NoiseModel, ResearchOptions};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{Drive, Theta};
+use odocal_lab::{batch_gn_all as batch_gn, error_scale, Args, Res, Summary};
+
+const USAGE: &str =
+    "eiv_check [KM 12] [SEEDS 3] [PRESETS white,paper,high] [VARIANTS held,follows,held-known,follows-known]
+    [no-timing]";
 
 fn input_of(d: &Drive) -> EivInput<'_> {
     EivInput::from_drive(d)
 }
 
-fn batch_gn(d: &Drive) -> Result<Theta, odocal::Error> {
-    let sel = calibration_segments(d, &SegmentOptions::default())?;
-    let data: Vec<SegmentData> = sel.all.iter().map(|s| SegmentData::new(d, s)).collect();
-    Ok(batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &IdentifyOptions { max_iterations: 20, ..Default::default() })?
-        .theta)
-}
-
 fn options(variant: &str, noise: &NoiseOptions, ts: f64) -> EivOptions {
     let covariance =
         if variant.starts_with("held") { CovarianceMode::HeldAtReference } else { CovarianceMode::FollowsTheta };
+    let research = ResearchOptions { covariance, ..Default::default() };
     if variant.ends_with("known") {
-        EivOptions { covariance, noise: NoiseModel::from_sim(noise, ts), fix_noise: true, ..Default::default() }
+        EivOptions { research, noise: NoiseModel::from_sim(noise, ts), fix_noise: true, ..Default::default() }
     } else if variant.ends_with("simstart") {
-        EivOptions { covariance, noise: NoiseModel::from_sim(noise, ts), ..Default::default() }
+        EivOptions { research, noise: NoiseModel::from_sim(noise, ts), ..Default::default() }
     } else {
-        EivOptions { covariance, ..Default::default() }
+        EivOptions { research, ..Default::default() }
     }
 }
 
@@ -55,24 +49,23 @@ struct Acc {
 }
 
 fn mean_sd(x: &[f64]) -> (f64, f64) {
-    let n = x.len() as f64;
-    let m = x.iter().sum::<f64>() / n;
-    let v = if x.len() > 1 { x.iter().map(|a| (a - m) * (a - m)).sum::<f64>() / (n - 1.0) } else { 0.0 };
-    (m, v.sqrt())
+    let s = Summary::of(x);
+    (s.mean, s.sd)
 }
 
-fn main() -> Result<(), odocal::Error> {
-    let args: Vec<String> = std::env::args().collect();
-    let km: f64 = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(12.0);
-    let seeds: u64 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(3);
-    let presets: Vec<String> = args.get(3).map_or_else(
-        || vec!["white".into(), "paper".into(), "high".into()],
-        |s| s.split(',').map(String::from).collect(),
-    );
-    let variants: Vec<String> = args.get(4).map_or_else(
-        || ["held", "follows", "held-known", "follows-known"].iter().map(|s| s.to_string()).collect(),
-        |s| s.split(',').map(String::from).collect(),
-    );
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
+    let args = Args::parse(USAGE, &[])?;
+    let km: f64 = args.pos(0, 12.0)?;
+    let seeds: u64 = args.pos(1, 3)?;
+    let split = |s: String| s.split(',').map(String::from).collect::<Vec<_>>();
+    let presets = split(args.pos(2, "white,paper,high".to_string())?);
+    let variants = split(args.pos(3, "held,follows,held-known,follows-known".to_string())?);
+    let timing = args.positional().get(4).map(String::as_str) != Some("no-timing");
+    args.finish()?;
     let mut acc: BTreeMap<(String, String), Acc> = BTreeMap::new();
     println!(
         "preset seed variant | err [c_e %, c_d mm, t_r %, d mm/(m/s²)] | σ (sandwich t_r) | s | termination, warnings"
@@ -83,7 +76,7 @@ fn main() -> Result<(), odocal::Error> {
             let out = simulate(&SimOptions { length_km: km, noise: noise.clone(), ..SimOptions::paper(seed) })?;
             let d = &out.drive;
             let truth = out.sidecar.theta_true;
-            let scale = [100.0 / truth.c_e, 1e3, 100.0 / truth.t_r, 1e3];
+            let scale = error_scale(&truth);
             let err = |th: &Theta| -> [f64; 4] {
                 let (a, b) = (th.to_array(), truth.to_array());
                 std::array::from_fn(|i| (a[i] - b[i]) * scale[i])
@@ -144,7 +137,7 @@ fn main() -> Result<(), odocal::Error> {
         let tm = if a.time.is_empty() { f64::NAN } else { mean_sd(&a.time).0 };
         println!("{preset:5} {v:13} | {} | {tm:.2}", cols.join(" | "));
     }
-    if args.get(5).map(String::as_str) != Some("no-timing") {
+    if timing {
         // Speed: one 24 km paper drive, side by side with batch G-N.
         let out = simulate(&SimOptions { length_km: 24.0, ..SimOptions::paper(1) })?;
         let d = &out.drive;

@@ -1,5 +1,5 @@
-//! Where EIV's excess spread comes from (issue 9's efficiency target):
-//! the estimator itself, or the simulator's departures from the filter's
+//! Where EIV's excess spread over the Cramér–Rao bound comes from: the
+//! estimator itself, or the simulator's departures from the filter's
 //! model? In the *replicate world* of the parametric bootstrap the data
 //! are drawn from the filter's own model: at the fitted θ̂ with the fitted
 //! noise model, on the drive's own inputs. There the noise model is known
@@ -9,10 +9,6 @@
 //! is the estimator's (the profile cost J uses the innovations' mean, not
 //! their size); if they reach it, it is the mismatch.
 //!
-//! ```text
-//! cargo run --release -p odocal --example eiv_efficiency -- [preset] [seeds] [replicates] [km]
-//! ```
-//!
 //! Defaults: `high`, 10 seeds, 10 replicates, 12 km. Per drive: the fit
 //! (η estimated, uncorrected), B replicate fits with the fitted noise model
 //! held, and the bound of the replicate world (full Fisher and mean-only).
@@ -20,40 +16,32 @@
 //! root mean square of each bound. Every random choice is seeded (the drive
 //! by its seed, the replicates by the same seed).
 
-use std::error::Error;
-
-use odocal::drive::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::eiv::{bootstrap, cramer_rao_bound, estimate, BootstrapOptions, EivInput, EivOptions};
-use odocal::identify::{batch_gauss_newton, IdentifyOptions};
-use odocal::sim::{simulate, NoiseOptions, SimOptions};
+use odocal_lab::{batch_gn_all, simulate_preset, Args, Res, PARAMETERS};
 
-const NAMES: [&str; 4] = ["c_e", "c_d", "t_r", "d"];
+const USAGE: &str = "eiv_efficiency [PRESET high] [SEEDS 10] [REPLICATES 10] [KM 12]";
 
-fn main() -> Result<(), Box<dyn Error>> {
-    let args: Vec<String> = std::env::args().collect();
-    let preset = args.get(1).map(String::as_str).unwrap_or("high");
-    let seeds: u64 = args.get(2).map(|s| s.parse()).transpose()?.unwrap_or(10);
-    let replicates: usize = args.get(3).map(|s| s.parse()).transpose()?.unwrap_or(10);
-    let km: f64 = args.get(4).map(|s| s.parse()).transpose()?.unwrap_or(12.0);
-    let noise = match preset {
-        "high" => NoiseOptions::high(),
-        "paper" => NoiseOptions::paper(),
-        "white" => NoiseOptions::white_wheel_only(),
-        other => return Err(format!("unknown preset '{other}' (high, paper, white)").into()),
-    };
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
+    let args = Args::parse(USAGE, &[])?;
+    let preset: String = args.pos(0, "high".to_string())?;
+    let seeds: u64 = args.pos(1, 10)?;
+    let replicates: usize = args.pos(2, 10)?;
+    let km: f64 = args.pos(3, 12.0)?;
+    args.finish()?;
     // Pooled sums: squared replicate errors, squared bounds (full, mean-only), counts.
     let (mut err2, mut full2, mut mean2) = ([0.0f64; 4], [0.0f64; 4], [0.0f64; 4]);
     let (mut n_rep, mut n_drive) = (0usize, 0usize);
     println!("preset {preset}, {km} km, seeds 1..={seeds}, {replicates} replicates each");
     println!("seed | replicate sd / full-Fisher CRB of the replicate world (c_e, c_d, t_r, d)");
     for seed in 1..=seeds {
-        let out = simulate(&SimOptions { length_km: km, noise: noise.clone(), ..SimOptions::paper(seed) })?;
+        let out = simulate_preset(&preset, km, seed)?;
         let d = &out.drive;
         let input = EivInput::from_drive(d);
-        let sel = calibration_segments(d, &SegmentOptions::default())?;
-        let data: Vec<SegmentData> = sel.all.iter().map(|s| SegmentData::new(d, s)).collect();
-        let gn = IdentifyOptions { max_iterations: 20, ..Default::default() };
-        let start = batch_gauss_newton(&data, &odocal::Theta::PAPER_INITIAL, &gn)?.theta;
+        let start = batch_gn_all(d)?;
         let opts = EivOptions::default();
         let fit = estimate(&input, &start, &opts)?;
         // The replicate world: θ̂ and the fitted noise model, known.
@@ -92,7 +80,7 @@ fn main() -> Result<(), Box<dyn Error>> {
     for i in 0..4 {
         let rms = (err2[i] / n_rep as f64).sqrt();
         let (f, m) = ((full2[i] / n_drive as f64).sqrt(), (mean2[i] / n_drive as f64).sqrt());
-        println!("| {} | {rms:.4e} | {:.2} | {:.2} |", NAMES[i], rms / f, rms / m);
+        println!("| {} | {rms:.4e} | {:.2} | {:.2} |", PARAMETERS[i], rms / f, rms / m);
     }
     Ok(())
 }

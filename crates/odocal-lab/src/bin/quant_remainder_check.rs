@@ -1,6 +1,5 @@
 //! Is the encoder's counting error an MA(1) input error with independent
 //! remainders, as [`odocal::eiv::QuantisationModel::Counting`] assumes?
-//! (docs/study.md, EIV section, "Stop 12".)
 //!
 //! On a simulated drive with white relative wheel noise and quantisation
 //! only (the preset's sizes), `d_k = ñ_k − n_k` (measured minus true rate)
@@ -10,31 +9,22 @@
 //! speed band (ticks counted per sample): the lag-1, lag-2 and lag-3
 //! autocovariances in units of q²/12, and the samples where the wheel
 //! counts nothing.
-//!
-//! ```text
-//! cargo run --release -p odocal --example quant_remainder_check -- [--km 12] [--seeds 4] [--presets paper,high]
-//! ```
-
-use std::error::Error;
 
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
+use odocal_lab::{Args, Res};
 
-type Res<T> = Result<T, Box<dyn Error>>;
+const USAGE: &str = "quant_remainder_check [--km 12] [--seeds 4] [--presets paper,high]";
 
-fn main() -> Res<()> {
-    let mut km = 12.0;
-    let mut seeds = 4u64;
-    let mut presets = vec!["paper".to_string(), "high".to_string()];
-    let mut it = std::env::args().skip(1);
-    while let Some(k) = it.next() {
-        let v = it.next().ok_or("missing value")?;
-        match k.as_str() {
-            "--km" => km = v.parse()?,
-            "--seeds" => seeds = v.parse()?,
-            "--presets" => presets = v.split(',').map(str::to_string).collect(),
-            _ => return Err(format!("unknown {k}").into()),
-        }
-    }
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
+    let mut a = Args::parse(USAGE, &[])?;
+    let km: f64 = a.get("km", 12.0)?;
+    let seeds: u64 = a.get("seeds", 4)?;
+    let presets = a.list("presets", &["paper", "high"]);
+    a.finish()?;
     // Bands of ticks counted per sample (measured).
     let bands = [(0.0, 0.5), (0.5, 4.0), (4.0, 32.0), (32.0, f64::INFINITY)];
     for p in &presets {

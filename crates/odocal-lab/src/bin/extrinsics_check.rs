@@ -1,16 +1,10 @@
 //! Reference-sensor extrinsics (lever arm, heading offset) measured: with
 //! and without estimating them, on simulated drives with a known mount, on
-//! the PSU van's highway log and on its six test-track runs.
-//!
-//! ```text
-//! cargo run --release -p odocal --example extrinsics_check -- sim [SEEDS] [KM] [NOISE]
-//! cargo run --release -p odocal --example extrinsics_check -- van METHOD
-//! cargo run --release -p odocal --example extrinsics_check -- track METHOD [HELD]
-//! ```
+//! the PSU van's highway log and on its six test-track runs
+//! (docs/validation.md, "Reference extrinsics").
 //!
 //! METHOD is `batch-gn` (all segments: `--min-yaw-rate 0` on the van, the
-//! default selection on the track) or `three-step` (default settings). Run
-//! from the repository root (the manifests' data paths are relative to them).
+//! default selection on the track) or `three-step` (default settings).
 //! - `sim`: paper noise, reference at l = (−0.9, 0.05) m, δ = −9.9 mrad;
 //!   batch G-N over θ and the extrinsics on each seed; error over σ.
 //! - `van`: `examples/psu-mapping-van/manifest.toml`, whole drive and both
@@ -21,16 +15,15 @@
 //!   and with extrinsics (HELD: parameters held at θ_0, e.g. `d`); c_d per
 //!   direction over the runs not rejected (runs 14-45-26, 15-28-33,
 //!   16-06-28 counter-clockwise, the others clockwise).
-
 //!
-//! Measured on this tree (2026-11-23, batch-gn):
+//! Measured (batch-gn):
 //! - sim, 6 km, seeds 1–5: noise off (10 substeps) errors ≤ 0.1 mm; white
 //!   reference noise only ≤ 4 mm and 0.06 mrad; paper noise |l_x| errors
 //!   0.02–0.96 m and δ 0.2–6.4 mrad, 20–55 model σ (the G-N σ assumes white
 //!   residuals; the wheel/sideslip noise, not the reference's, moves them).
 //!   The cluster-robust σ (printed beside it; needs ≥ 10 clusters, about
 //!   6 km or more of turning drive) covers them: on 12 km, seeds 1–20, every
-//!   extrinsics error lies within 3 robust σ (`examples/gn_coverage.rs`).
+//!   extrinsics error lies within 3 robust σ (`gn_coverage 20 12 paper 1300 joint`).
 //! - van, `--min-yaw-rate 0`: Ē_p whole 22.38 → 20.86 m, held-out first half
 //!   24.51 → 24.20 m, second half 26.42 → 23.91 m with extrinsics, but the
 //!   estimates (l_x −2.8, −0.2, −6.0 m; δ +25 to +37 mrad) disagree with each
@@ -39,24 +32,21 @@
 //!   clockwise minus counter-clockwise +1.7 mm without, +2.3 mm with; δ ≈
 //!   +23 mrad on counter-clockwise runs, +7 to +10 mrad on clockwise ones.
 
-use std::path::Path;
-
 use odocal::drive::segment::validation_segments;
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{
     calibrate_with_holdout, mean_position_error_with, CalibrationOptions, CalibrationReport, Drive, Extrinsics,
     Holdout, Method, ParamSet, Theta,
 };
+use odocal_lab::{load, testtrack_runs, Args, Res, TESTTRACK_RUNS, VAN_MANIFEST};
+
+const USAGE: &str = "extrinsics_check sim [SEEDS 5] [KM 8] [NOISE paper]
+extrinsics_check van [METHOD batch-gn]
+extrinsics_check track [METHOD batch-gn] [HELD]
+
+NOISE: paper, off, reference, no-reference, white-reference, reference-white-only";
 
 const MOUNT: Extrinsics = Extrinsics { lever_x: -0.9, lever_y: 0.05, heading_offset: -0.0099 };
-const RUNS: [(&str, &str); 6] = [
-    ("14-45-26", "ccw"),
-    ("15-28-33", "ccw"),
-    ("16-06-28", "ccw"),
-    ("16-47-33", "cw"),
-    ("17-45-46", "cw"),
-    ("18-01-26", "cw"),
-];
 
 fn options(method: &str, with_extrinsics: bool, all_segments: bool) -> Result<CalibrationOptions, odocal::Error> {
     let mut o = CalibrationOptions { method: method.parse::<Method>()?, ..Default::default() };
@@ -172,8 +162,8 @@ fn sim(seeds: u64, km: f64, preset: &str) -> Result<(), odocal::Error> {
     Ok(())
 }
 
-fn van(method: &str) -> Result<(), odocal::Error> {
-    let (drive, _) = odocal::load_drive(Path::new("examples/psu-mapping-van/manifest.toml"))?;
+fn van(method: &str) -> Res<()> {
+    let drive = load(VAN_MANIFEST)?;
     let all = method == "batch-gn";
     println!("PSU van, method {method}{}", if all { " --min-yaw-rate 0" } else { "" });
     println!("data | extrinsics | Ē_p θ_0 m | Ē_p m | c_d mm | t_r m | extrinsics ± σ | verdict");
@@ -211,18 +201,14 @@ fn cross_error(drive: &Drive, theta: &Theta, e: &Extrinsics) -> Result<f64, odoc
     Ok(mean_position_error_with(drive, &segs, theta, e)?.mean_position_error_m)
 }
 
-fn track(method: &str, fix: ParamSet) -> Result<(), odocal::Error> {
-    let mut drives = Vec::new();
-    for (run, _) in RUNS {
-        let p = format!("examples/psu-mapping-van-testtrack/run-{run}.toml");
-        drives.push(odocal::load_drive(Path::new(&p))?.0);
-    }
+fn track(method: &str, fix: ParamSet) -> Res<()> {
+    let drives: Vec<Drive> = testtrack_runs()?.into_iter().map(|(_, d)| d).collect();
     println!("test track, method {method} (default selection), held: [{fix}]; Ē_p on the other five runs");
     println!("run | dir | extrinsics | own Ē_p m | others Ē_p m (θ_0 m) | c_e m | c_d mm | t_r m | d mm/(m/s²) | extrinsics ± σ | verdict");
     for with in [false, true] {
         let mut cd = (Vec::new(), Vec::new());
         let mut cross = Vec::new();
-        for (i, (run, dir)) in RUNS.iter().enumerate() {
+        for (i, (run, dir)) in TESTTRACK_RUNS.iter().enumerate() {
             let mut o = options(method, with, false)?;
             o.identify.free = o.identify.free.difference(fix);
             let r = match odocal::calibrate(&drives[i], &o, None) {
@@ -271,19 +257,18 @@ fn track(method: &str, fix: ParamSet) -> Result<(), odocal::Error> {
     Ok(())
 }
 
-fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let what = args.first().map(String::as_str).unwrap_or("sim");
-    let method = args.get(1).map(String::as_str).unwrap_or("batch-gn");
-    match what {
-        "sim" => sim(
-            args.get(1).and_then(|s| s.parse().ok()).unwrap_or(5),
-            args.get(2).and_then(|s| s.parse().ok()).unwrap_or(8.0),
-            args.get(3).map(String::as_str).unwrap_or("paper"),
-        )?,
-        "van" => van(method)?,
-        "track" => track(method, args.get(2).map(|s| s.parse()).transpose()?.unwrap_or_default())?,
-        other => return Err(format!("unknown part '{other}': sim, van or track").into()),
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
+    let args = Args::parse(USAGE, &[])?;
+    let what: String = args.pos(0, "sim".to_string())?;
+    match what.as_str() {
+        "sim" => sim(args.pos(1, 5)?, args.pos(2, 8.0)?, &args.pos(3, "paper".to_string())?)?,
+        "van" => van(&args.pos(1, "batch-gn".to_string())?)?,
+        "track" => track(&args.pos(1, "batch-gn".to_string())?, args.pos(2, ParamSet::EMPTY)?)?,
+        other => return Err(format!("unknown part '{other}'\n\n{USAGE}").into()),
     }
-    Ok(())
+    args.finish()
 }

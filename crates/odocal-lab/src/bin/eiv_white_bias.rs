@@ -1,6 +1,6 @@
 //! Where does EIV's t_r bias with the known noise model under large white
-//! wheel noise come from? (docs/study.md, EIV section, "t_r bias under large
-//! white wheel noise".)
+//! wheel noise come from? (The measurements behind the 5 mm position floor,
+//! `ResearchOptions::position_floor_m`.)
 //!
 //! Per seed, on one simulated drive with white relative wheel noise only
 //! (perfect reference, no quantisation, no slip), it prints the t_r, c_d, d
@@ -15,28 +15,29 @@
 //!   (the per-sample profile cost, S following θ, F_n and Σ_n at the measured
 //!   input), minimised by Gauss-Newton on the whitened residuals.
 //!
-//! ```text
-//! cargo run --release -p odocal --example eiv_white_bias -- [--km 12] [--seeds 8] [--sigma 0.02]
-//!     [--substeps 1] [--first-seed 1] [--eiv known,w10,p0.02,...] [--sim-pos σ_m] [--sim-head σ_rad]
-//!     [--preset white|paper|high|highnoquant|coloured] [--per-sample on|off]
-//!
-//! (`--preset` replaces the white-noise drive built from `--sigma`/`--sim-*`;
-//! the `CRB σ` row's mean column is the mean Cramér–Rao σ over the drives,
-//! `CRBmean σ` its mean-only version (without `½ tr(S⁻¹∂S S⁻¹∂S)`),
-//! `CRB5 σ` the full bound with a 5 mm position floor.)
-//! ```
-
-use std::error::Error;
+//! The EIV fits start from SPEC §10's formulation (`EivOptions::spec`: the
+//! measured-input noise scale, no input log-Jacobian term, the 1 mm floor)
+//! with the heading tied to the position scale. `--preset` replaces the
+//! white-noise drive built from `--sigma`/`--sim-*`; the `CRB σ` row's mean
+//! column is the mean Cramér–Rao σ over the drives, `CRBmean σ` its
+//! mean-only version (without `½ tr(S⁻¹∂S S⁻¹∂S)`), `CRB5 σ` the full bound
+//! with a 5 mm position floor.
 
 use nalgebra::{Matrix3, Vector3};
-use odocal::drive::segment::{calibration_segments, SegmentData, SegmentOptions};
-use odocal::eiv::{estimate, CovarianceMode, EivInput, EivOptions, HeadingScale, NoiseModel};
-use odocal::identify::{batch_gauss_newton, IdentifyOptions};
+use odocal::eiv::{estimate, CovarianceMode, EivInput, EivOptions, HeadingScale, NoiseModel, ResearchOptions};
 use odocal::model::{step_jacobians, wrap_angle, Input, State};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{Drive, Theta};
+use odocal_lab::{batch_gn_all, errors, format_errors, noise_preset, Args, Res};
 
-type Res<T> = Result<T, Box<dyn Error>>;
+const USAGE: &str = "eiv_white_bias [--km 12] [--seeds 8] [--first-seed 1] [--sigma 0.02] [--substeps 10]
+    [--eiv known,…] [--sim-pos σ_m] [--sim-head σ_rad] [--preset white|paper|high|highnoquant|coloured]
+    [--per-sample on|off]
+
+--eiv: variants, tokens joined by '+': `known` (the simulator's model), `held` (covariance held at the
+reference), `est` (η estimated from the production-car model; put it first), `w<N>` (window samples),
+`p<σ_m>` / `h<σ_rad>` (reference white noise assumed by the filter), `x<σ>` (white wheel σ assumed),
+`f<σ_m>` (the position floor)";
 
 const POS_FLOOR: f64 = 1e-3;
 const HEAD_FLOOR: f64 = 1e-5;
@@ -164,33 +165,22 @@ fn heading_residuals(d: &Drive, th: &Theta, sigma: f64, scale: Scale, out: &mut 
     }
 }
 
-fn main() -> Res<()> {
-    let mut km = 12.0;
-    let mut seeds = 8u64;
-    let mut first = 1u64;
-    let mut sigma = 0.02;
-    let mut substeps = 10usize;
-    let mut eiv_modes = vec!["known".to_string()];
-    let (mut sim_pos, mut sim_head) = (0.0, 0.0);
-    let mut preset: Option<String> = None;
-    let mut per_sample = true;
-    let mut it = std::env::args().skip(1);
-    while let Some(k) = it.next() {
-        let v = it.next().ok_or("missing value")?;
-        match k.as_str() {
-            "--km" => km = v.parse()?,
-            "--seeds" => seeds = v.parse()?,
-            "--first-seed" => first = v.parse()?,
-            "--sigma" => sigma = v.parse()?,
-            "--substeps" => substeps = v.parse()?,
-            "--sim-pos" => sim_pos = v.parse()?,
-            "--sim-head" => sim_head = v.parse()?,
-            "--preset" => preset = Some(v),
-            "--per-sample" => per_sample = v == "on",
-            "--eiv" => eiv_modes = v.split(',').filter(|s| !s.is_empty()).map(str::to_string).collect(),
-            _ => return Err(format!("unknown {k}").into()),
-        }
-    }
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
+    let mut a = Args::parse(USAGE, &[])?;
+    let km: f64 = a.get("km", 12.0)?;
+    let seeds: u64 = a.get("seeds", 8)?;
+    let first: u64 = a.get("first-seed", 1)?;
+    let sigma: f64 = a.get("sigma", 0.02)?;
+    let substeps: usize = a.get("substeps", 10)?;
+    let eiv_modes = a.list("eiv", &["known"]);
+    let (sim_pos, sim_head): (f64, f64) = (a.get("sim-pos", 0.0)?, a.get("sim-head", 0.0)?);
+    let preset: Option<String> = a.opt("preset")?;
+    let per_sample = a.get("per-sample", "on".to_string())? == "on";
+    a.finish()?;
     let noise = NoiseOptions {
         wheel_white_rel_sigma: sigma,
         position_white_sigma_m: sim_pos,
@@ -199,9 +189,8 @@ fn main() -> Res<()> {
     };
     let noise = match preset.as_deref() {
         None => noise,
-        Some("coloured") => NoiseOptions::coloured_wheels_only(),
         Some("highnoquant") => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::high() },
-        Some(p) => NoiseOptions::by_name(p)?,
+        Some(p) => noise_preset(p)?,
     };
     let mut rows: Vec<(String, Vec<[f64; 4]>)> = Vec::new();
     let mut push = |label: &str, e: [f64; 4]| {
@@ -215,29 +204,15 @@ fn main() -> Res<()> {
         let sim = simulate(&SimOptions { length_km: km, noise: noise.clone(), substeps, ..SimOptions::paper(seed) })?;
         let d = &sim.drive;
         let truth = sim.sidecar.theta_true;
-        let err = |t: &Theta| {
-            let (a, b) = (t.to_array(), truth.to_array());
-            [(a[0] - b[0]) / b[0] * 100.0, (a[1] - b[1]) * 1e3, (a[2] - b[2]) / b[2] * 100.0, (a[3] - b[3]) * 1e3]
-        };
-        let fmt = |e: [f64; 4]| format!("c_e {:+.4}% c_d {:+.3}mm t_r {:+.3}% d {:+.3}", e[0], e[1], e[2], e[3]);
-        let sel = calibration_segments(d, &SegmentOptions::default())?;
-        let data: Vec<SegmentData> = sel.all.iter().map(|s| SegmentData::new(d, s)).collect();
-        let gn = batch_gauss_newton(
-            &data,
-            &Theta::PAPER_INITIAL,
-            &IdentifyOptions { max_iterations: 20, ..Default::default() },
-        )?
-        .theta;
+        let err = |t: &Theta| errors(t, &truth);
+        let fmt = |e: [f64; 4]| format_errors(&e);
+        let gn = batch_gn_all(d)?;
         println!("seed {seed}: G-N {}", fmt(err(&gn)));
         push("G-N", err(&gn));
         let input = EivInput::from_drive(d);
         let sim_noise = NoiseModel::from_sim(&noise, d.sample_time_s());
         for mode in &eiv_modes {
-            // A variant: tokens joined by '+': `known` (the simulator's model),
-            // `held` (covariance held at the reference), `est` (η estimated from the
-            // production-car model, the library's iteration defaults; put it first), `w<N>` (window samples),
-            // `p<σ_m>` / `h<σ_rad>` (reference white noise assumed by the filter),
-            // `x<σ>` (white wheel σ assumed), `f<σ_m>` (`EivOptions::position_floor_m`).
+            // A variant: tokens joined by '+' (USAGE).
             let mut opts = EivOptions {
                 noise: sim_noise,
                 fix_noise: true,
@@ -253,7 +228,7 @@ fn main() -> Res<()> {
                     opts.max_iterations = 10;
                     opts.step_tolerance = 0.05;
                 } else if tok == "held" {
-                    opts.covariance = CovarianceMode::HeldAtReference;
+                    opts.research.covariance = CovarianceMode::HeldAtReference;
                 } else if let Some(v) = tok.strip_prefix('w') {
                     opts.window_samples = v.parse()?;
                 } else if let Some(v) = tok.strip_prefix('p') {
@@ -261,7 +236,7 @@ fn main() -> Res<()> {
                 } else if let Some(v) = tok.strip_prefix('h') {
                     opts.noise.heading_white_sigma_rad = v.parse()?;
                 } else if let Some(v) = tok.strip_prefix('f') {
-                    opts.position_floor_m = v.parse()?;
+                    opts.research.position_floor_m = v.parse()?;
                 } else if let Some(v) = tok.strip_prefix('x') {
                     opts.noise.wheel_white_rel_sigma = v.parse()?;
                 }
@@ -292,7 +267,10 @@ fn main() -> Res<()> {
             &along,
             &truth,
             &sim_noise,
-            &EivOptions { position_floor_m: 0.005, ..EivOptions::spec() },
+            &EivOptions {
+                research: ResearchOptions { position_floor_m: 0.005, ..EivOptions::spec().research },
+                ..EivOptions::spec()
+            },
         )?;
         let cs = crb5.sigma;
         push("CRB5 σ", [cs[0] / truth.c_e * 100.0, cs[1] * 1e3, cs[2] / truth.t_r * 100.0, cs[3] * 1e3]);

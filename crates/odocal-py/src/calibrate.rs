@@ -1,0 +1,204 @@
+//! `odocal.calibrate`: the keyword options read into the library's
+//! calibration settings ([`Settings`]: the same keys as a manifest's and,
+//! in kebab case, the CLI's flags), the calibration run without the GIL,
+//! and the CLI's JSON report.
+
+use std::sync::Arc;
+
+use pyo3::exceptions::{PyRuntimeError, PyTypeError};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use odocal::calibrate::settings::{Caller, ManifestSettings, Resolved, Settings};
+use odocal::drive::Drive;
+use odocal::io::import::ReferenceSpec;
+use odocal::model::param::ParamSet;
+use odocal::{Holdout, Progress};
+
+use crate::convert::{to_json, to_py};
+use crate::drive::{drives_arg, Provenance, PyDrive};
+use crate::run::{run_detached, with_threads};
+use crate::{lib_err, with_schema_version, OdocalError};
+
+/// What to run: the calibration options and where the report validates.
+struct CalibrationPlan {
+    /// The options, and what became of the manifest's settings.
+    resolved: Resolved,
+    /// The half held out (`holdout`) or the `validate_on` drives joined.
+    holdout: Option<Holdout>,
+    /// The `validate_on` drives one by one (several: Ē_p per drive too),
+    /// each with its manifest's `[reference]`.
+    validate_on: Vec<(Arc<Drive>, Option<ReferenceSpec>)>,
+    /// The extrinsic parameters the keywords give (`lever_arm`,
+    /// `heading_offset`): they apply to every validation drive.
+    given_extrinsics: ParamSet,
+}
+
+/// The keywords of `odocal.calibrate` besides the calibration settings.
+const RUN_KEYWORDS: [&str; 2] = ["holdout", "validate_on"];
+
+/// The half of the drive `holdout=` holds out.
+pub(crate) fn parse_holdout(s: &str) -> PyResult<Holdout> {
+    match s {
+        "first-half" | "first_half" => Ok(Holdout::FirstHalf),
+        "second-half" | "second_half" => Ok(Holdout::SecondHalf),
+        s => Err(lib_err(odocal::Error::InvalidOption {
+            field: "holdout",
+            reason: format!("'{s}': use first-half or second-half (the half held out)"),
+        })),
+    }
+}
+
+/// The `validate_on` drives: joined (the hold-out), and one by one with
+/// their manifests' `[reference]`.
+type ValidationDrives = (Holdout, Vec<(Arc<Drive>, Option<ReferenceSpec>)>);
+
+/// The drives of `validate_on=` (one drive or a list of them).
+fn validation_drives(v: &Bound<'_, PyAny>) -> PyResult<ValidationDrives> {
+    let (joined, provs) = drives_arg(v, "validate_on")?;
+    let drives: Vec<Arc<Drive>> = match v.cast::<PyDrive>() {
+        Ok(_) => vec![Arc::clone(&joined)],
+        Err(_) => v.try_iter()?.map(|d| Ok(Arc::clone(&d?.cast::<PyDrive>()?.get().drive))).collect::<PyResult<_>>()?,
+    };
+    let references = provs.iter().map(|p| Ok(p.settings()?.and_then(|s| s.reference))).collect::<PyResult<Vec<_>>>()?;
+    Ok((Holdout::Other(Drive::clone(&joined)), drives.into_iter().zip(references).collect()))
+}
+
+/// The calibration of `method` and the keyword options: the keywords are
+/// the library's settings ([`Settings::from_json`]), over the manifest's
+/// ([`Settings::resolve`]); `holdout` and `validate_on` choose where the
+/// report validates. None means "not given", as an absent flag. An unknown
+/// keyword raises `TypeError` naming the known ones; a bad value
+/// `OdocalError` naming the keyword.
+fn plan(
+    method: Option<&str>,
+    kwargs: Option<&Bound<'_, PyDict>>,
+    manifest: Option<&ManifestSettings>,
+) -> PyResult<CalibrationPlan> {
+    let mut keys = serde_json::Map::new();
+    if let Some(m) = method {
+        keys.insert("method".into(), m.into());
+    }
+    let (mut holdout, mut validate_on) = (None, None);
+    for (key, v) in kwargs.into_iter().flat_map(|kw| kw.iter()) {
+        let key: String = key.extract()?;
+        if v.is_none() {
+            continue;
+        }
+        match key.as_str() {
+            "holdout" => holdout = Some(parse_holdout(&v.extract::<String>()?)?),
+            "validate_on" => validate_on = Some(validation_drives(&v)?),
+            k if Settings::KEYS.contains(&k) => {
+                let value = to_json(&v, k)?;
+                keys.insert(key, value);
+            }
+            _ => {
+                let known: Vec<&str> = Settings::KEYS.iter().chain(&RUN_KEYWORDS).copied().collect();
+                return Err(PyTypeError::new_err(format!(
+                    "calibrate() got an unknown option '{key}'; options: {}",
+                    known.join(", ")
+                )));
+            }
+        }
+    }
+    if holdout.is_some() && validate_on.is_some() {
+        return Err(lib_err(odocal::Error::InvalidOption {
+            field: "validate_on",
+            reason: "give holdout or validate_on, not both".into(),
+        }));
+    }
+    let settings = Settings::from_json(serde_json::Value::Object(keys)).map_err(lib_err)?;
+    let resolved = settings.resolve(manifest, Caller::Python).map_err(lib_err)?;
+    let (validate_on, validate_on_drives) = validate_on.unzip();
+    Ok(CalibrationPlan {
+        resolved,
+        holdout: holdout.or(validate_on),
+        validate_on: validate_on_drives.unwrap_or_default(),
+        given_extrinsics: settings.stated_extrinsics(),
+    })
+}
+
+/// The CLI's JSON report: the library report plus `truth` (simulated
+/// drives) and `wheel_scale` (manifest imports), as `odocal calibrate --json`.
+fn calibrate_json(
+    drive: &Drive,
+    prov: &Provenance,
+    plan: &CalibrationPlan,
+    progress: Option<&(dyn Fn(Progress) + Sync)>,
+) -> odocal::Result<serde_json::Value> {
+    let split = plan.holdout.as_ref().map(|h| h.split(drive)).transpose()?;
+    let (fit, held): (&Drive, Option<&Drive>) = match &split {
+        Some((fit, held)) => (fit.as_ref(), Some(held.as_ref())),
+        None => (drive, None),
+    };
+    let names: Vec<String> = (0..plan.validate_on.len()).map(|i| format!("validate_on[{i}]")).collect();
+    let validation: Vec<odocal::ValidationDrive> = names
+        .iter()
+        .zip(&plan.validate_on)
+        .map(|(name, (d, r))| odocal::ValidationDrive { name, drive: d, reference: r.as_ref() })
+        .collect();
+    // Validation drives: each with the extrinsics that apply to it (odocal::assess::validation_drives).
+    let opts = &plan.resolved.options;
+    let (report, per_drive) = match validation.is_empty() {
+        true => (odocal::calibrate_held_out(fit, held, opts, progress)?, None),
+        false => {
+            let (r, m) = odocal::calibrate_validated_on(drive, &validation, plan.given_extrinsics, opts, progress)?;
+            (r, Some(m))
+        }
+    };
+    let json_err = |source| odocal::Error::Json { context: "calibration report".into(), source };
+    let mut v = serde_json::to_value(&report).map_err(json_err)?;
+    let scored = held.unwrap_or(drive);
+    if let (Some(side), Some(obj)) = (&prov.sidecar, v.as_object_mut()) {
+        let t = side.theta_true;
+        let segs = odocal::drive::segment::validation_segments(scored, &opts.validation)?;
+        let e = odocal::mean_position_error(scored, &segs, &t)?.mean_position_error_m;
+        obj.insert("truth".into(), serde_json::json!({"theta": t, "mean_position_error_m": e}));
+    }
+    if let (Some(w), Some(obj)) = (&prov.wheel_scale, v.as_object_mut()) {
+        obj.insert("wheel_scale".into(), serde_json::json!(w));
+    }
+    if let Some(obj) = v.as_object_mut() {
+        // The σ that stands for the result (as the CLI's JSON `sigma`).
+        obj.insert("sigma".into(), serde_json::to_value(report.result_sigma()).map_err(json_err)?);
+        if let Some(m) = per_drive {
+            obj.insert("validate_on".into(), serde_json::to_value(m).map_err(json_err)?);
+        }
+    }
+    plan.resolved.account.add_to_json(&mut v)?;
+    with_schema_version(&mut v);
+    Ok(v)
+}
+
+/// Calibrates `drive` (see the Python docstring of `odocal.calibrate`).
+/// Returns `(report dict, report JSON text)`.
+#[pyfunction]
+#[pyo3(signature = (drive, method=None, *, progress=None, threads=None, **options))]
+pub(crate) fn calibrate<'py>(
+    py: Python<'py>,
+    drive: &Bound<'py, PyAny>,
+    method: Option<&str>,
+    progress: Option<Py<PyAny>>,
+    threads: Option<usize>,
+    options: Option<&Bound<'py, PyDict>>,
+) -> PyResult<(Bound<'py, PyAny>, String)> {
+    let (inner, provs) = drives_arg(drive, "drive")?;
+    let settings: Vec<ManifestSettings> =
+        provs.iter().map(Provenance::settings).collect::<PyResult<Vec<_>>>()?.into_iter().flatten().collect();
+    let manifest = ManifestSettings::merge(&settings).map_err(lib_err)?;
+    let plan = plan(method, options, manifest.as_ref())?;
+    // Several drives: no single truth (as the CLI); how to read c_e from the first that says.
+    let prov = match provs.as_slice() {
+        [one] => one.clone(),
+        many => Provenance { wheel_scale: many.iter().find_map(|p| p.wheel_scale.clone()), ..Default::default() },
+    };
+    let value = run_detached(py, progress, |cb| with_threads(threads, || calibrate_json(&inner, &prov, &plan, cb)))??
+        .map_err(|e| match e {
+        e @ odocal::Error::NotObservable { .. } => OdocalError::new_err(format!(
+            "{e}; in Python: fix=['c_d', 't_r', 'd'], min_yaw_rate=0 calibrates c_e alone, or pass auto_fix=True"
+        )),
+        e => lib_err(e),
+    })?;
+    let text = serde_json::to_string_pretty(&value).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+    Ok((to_py(py, &value)?, text))
+}

@@ -1,0 +1,120 @@
+//! Values between Python and the library: JSON reports as Python objects,
+//! Python values as JSON (keyword options, θ), parameter-file paths.
+
+use pyo3::exceptions::{PyRuntimeError, PyTypeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::{PyBool, PyDict, PyFloat, PyList, PyString};
+
+use odocal::model::Theta;
+
+use crate::lib_err;
+
+/// A value serialised for Python (through [`to_py`]).
+pub(crate) fn json<T: serde::Serialize>(v: &T) -> PyResult<serde_json::Value> {
+    serde_json::to_value(v).map_err(|e| PyRuntimeError::new_err(format!("serialising a report: {e}")))
+}
+
+/// A JSON value as plain Python objects (dict, list, str, int, float, bool,
+/// None), the same as `json.loads` of its text.
+pub(crate) fn to_py<'py>(py: Python<'py>, v: &serde_json::Value) -> PyResult<Bound<'py, PyAny>> {
+    use serde_json::Value;
+    Ok(match v {
+        Value::Null => py.None().into_bound(py),
+        Value::Bool(b) => b.into_pyobject(py)?.to_owned().into_any(),
+        Value::Number(n) => {
+            if let Some(i) = n.as_i64() {
+                i.into_pyobject(py)?.into_any()
+            } else if let Some(u) = n.as_u64() {
+                u.into_pyobject(py)?.into_any()
+            } else {
+                n.as_f64().unwrap_or(f64::NAN).into_pyobject(py)?.into_any()
+            }
+        }
+        Value::String(s) => PyString::new(py, s).into_any(),
+        Value::Array(a) => PyList::new(py, a.iter().map(|x| to_py(py, x)).collect::<PyResult<Vec<_>>>()?)?.into_any(),
+        Value::Object(m) => {
+            let d = PyDict::new(py);
+            for (k, x) in m {
+                d.set_item(k, to_py(py, x)?)?;
+            }
+            d.into_any()
+        }
+    })
+}
+
+/// A float as JSON, which has no NaN or infinity.
+fn float(f: f64, what: &str) -> PyResult<serde_json::Value> {
+    serde_json::Number::from_f64(f)
+        .map(serde_json::Value::Number)
+        .ok_or_else(|| PyValueError::new_err(format!("{what}: {f} is not a finite number")))
+}
+
+/// A Python value as JSON, as the library reads keyword options: None,
+/// bool, int, float, str, a path (`os.PathLike`), a dict with str keys, or
+/// any other iterable (list, tuple, numpy array) as a list. `what` names
+/// the value in the error for anything else.
+pub(crate) fn to_json(v: &Bound<'_, PyAny>, what: &str) -> PyResult<serde_json::Value> {
+    use serde_json::Value;
+    if v.is_none() {
+        return Ok(Value::Null);
+    }
+    if let Ok(b) = v.cast::<PyBool>() {
+        return Ok(Value::Bool(b.is_true()));
+    }
+    if let Ok(s) = v.cast::<PyString>() {
+        return Ok(Value::String(s.to_str()?.to_string()));
+    }
+    if let Ok(d) = v.cast::<PyDict>() {
+        let mut m = serde_json::Map::new();
+        for (k, x) in d.iter() {
+            let key: String =
+                k.extract().map_err(|_| PyTypeError::new_err(format!("{what}: a dict's keys must be text")))?;
+            m.insert(key, to_json(&x, what)?);
+        }
+        return Ok(Value::Object(m));
+    }
+    if let Ok(f) = v.cast::<PyFloat>() {
+        return float(f.value(), what);
+    }
+    // Integers (also numpy's, through `__index__`), then other floats (numpy's).
+    if let Ok(i) = v.extract::<i64>() {
+        return Ok(i.into());
+    }
+    if let Ok(u) = v.extract::<u64>() {
+        return Ok(u.into());
+    }
+    if let Ok(f) = v.extract::<f64>() {
+        return float(f, what);
+    }
+    if v.hasattr("__fspath__")? {
+        let path = v.py().import("os")?.call_method1("fspath", (v,))?;
+        return to_json(&path, what);
+    }
+    match v.try_iter() {
+        Ok(items) => Ok(Value::Array(items.map(|x| to_json(&x?, what)).collect::<PyResult<_>>()?)),
+        Err(_) => Err(PyTypeError::new_err(format!(
+            "{what}: cannot take a {} (give None, a bool, number, text, path, dict or list)",
+            v.get_type().name()?
+        ))),
+    }
+}
+
+/// The parameter file a θ argument names: a text ending in `.yaml`, `.yml`
+/// or `.json` (the Python layer turns path objects into text), read by the
+/// library; `None` for any other argument.
+pub(crate) fn params_file_arg(v: &Bound<'_, PyAny>) -> PyResult<Option<odocal::io::param_file::ParamFile>> {
+    let Ok(s) = v.cast::<PyString>() else { return Ok(None) };
+    let path = std::path::Path::new(s.to_str()?);
+    if odocal::io::param_file::is_param_file(path) {
+        return odocal::io::param_file::ParamFile::read(path).map(Some).map_err(lib_err);
+    }
+    Ok(None)
+}
+
+/// θ from a dict `{"c_e", "c_d", "t_r", "d"}`, a sequence of four numbers,
+/// the CLI's text `"c_e,c_d,t_r,d"` or the path of a parameter file
+/// (`--params-out`'s), read and checked by the library as the `theta0`
+/// setting is.
+pub(crate) fn extract_theta(v: &Bound<'_, PyAny>) -> PyResult<Theta> {
+    odocal::calibrate::settings::theta_from_json(to_json(v, "θ")?).map_err(lib_err)
+}

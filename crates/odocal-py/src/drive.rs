@@ -1,0 +1,445 @@
+//! `odocal.Drive`: a drive made from arrays, read from a CSV or imported
+//! from a manifest, with where it came from ([`Provenance`]), and its
+//! pickling.
+
+use std::ops::Range;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use numpy::{AllowTypeChange, IntoPyArray, PyArray1, PyArray2, PyArrayLike1};
+use pyo3::exceptions::{PyKeyError, PyRuntimeError, PyTypeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::{PyBytes, PyDict, PyList, PyString};
+
+use odocal::calibrate::settings::ManifestSettings;
+use odocal::drive::{Drive, ExtraColumn, ExtraValues, Signals};
+use odocal::io::import::{CalibrationTable, NoiseTable};
+use odocal::sim::SimSidecar;
+
+use crate::convert::{json, to_py};
+use crate::lib_err;
+
+/// Names of the drive columns `Drive.to_numpy()` returns, in order.
+pub(crate) const COLUMNS: [&str; 8] = ["t", "px", "py", "psi", "n_rl", "n_rr", "beta", "a_y"];
+
+/// Where a drive came from, beyond its samples: the simulator's sidecar
+/// (true θ) and a manifest import's report. The CLI uses the same facts.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Provenance {
+    /// The simulator sidecar (as for `drive.json` beside a CSV).
+    pub(crate) sidecar: Option<SimSidecar>,
+    /// The import report of a manifest, as JSON text.
+    pub(crate) import_report: Option<String>,
+    /// What one model revolution is (manifest imports).
+    pub(crate) wheel_scale: Option<String>,
+}
+
+impl Provenance {
+    /// The manifest's calibration settings (`[noise]`, `[reference]`, `[calibration]`), read
+    /// back from the import report (so they survive pickling with it).
+    pub(crate) fn settings(&self) -> PyResult<Option<ManifestSettings>> {
+        let Some(text) = &self.import_report else { return Ok(None) };
+        let bad = |e: serde_json::Error| PyRuntimeError::new_err(format!("import report: {e}"));
+        let v: serde_json::Value = serde_json::from_str(text).map_err(bad)?;
+        let field = |k: &str| v.get(k).filter(|x| !x.is_null()).cloned();
+        let noise: Option<NoiseTable> = field("noise").map(serde_json::from_value).transpose().map_err(bad)?;
+        let calibration: Option<CalibrationTable> =
+            field("calibration").map(serde_json::from_value).transpose().map_err(bad)?;
+        let settings = ManifestSettings::new(
+            field("manifest").map(serde_json::from_value).transpose().map_err(bad)?.unwrap_or_default(),
+            noise.as_ref(),
+            field("reference").map(serde_json::from_value).transpose().map_err(bad)?,
+            calibration.as_ref(),
+        )
+        .map_err(lib_err)?;
+        Ok(Some(settings))
+    }
+}
+
+/// One drive, or several of one vehicle joined with `Drive::concat`
+/// (segments and parts never span two): the argument `drive` of
+/// `calibrate` and `validate_on`. Returns the drive and each one's provenance.
+pub(crate) fn drives_arg(v: &Bound<'_, PyAny>, what: &str) -> PyResult<(Arc<Drive>, Vec<Provenance>)> {
+    if let Ok(d) = v.cast::<PyDrive>() {
+        let d = d.get();
+        return Ok((Arc::clone(&d.drive), vec![d.prov.clone()]));
+    }
+    let not_drives = || PyTypeError::new_err(format!("{what}: give an odocal.Drive or a list of them"));
+    if v.cast::<PyString>().is_ok() {
+        return Err(not_drives());
+    }
+    let items: Vec<Bound<'_, PyAny>> = v.try_iter().map_err(|_| not_drives())?.collect::<PyResult<_>>()?;
+    let mut drives = Vec::with_capacity(items.len());
+    for item in &items {
+        drives.push(item.cast::<PyDrive>().map_err(|_| not_drives())?.get());
+    }
+    match drives.as_slice() {
+        [] => Err(lib_err(odocal::Error::InvalidOption { field: "drive", reason: format!("{what}: no drives given") })),
+        [one] => Ok((Arc::clone(&one.drive), vec![one.prov.clone()])),
+        many => {
+            let refs: Vec<&Drive> = many.iter().map(|d| d.drive.as_ref()).collect();
+            let joined = Drive::concat(&refs).map_err(lib_err)?;
+            Ok((Arc::new(joined), many.iter().map(|d| d.prov.clone()).collect()))
+        }
+    }
+}
+
+/// A drive: one uniformly sampled time series of reference poses and model
+/// inputs, checked by the library's constructor.
+#[pyclass(module = "odocal", name = "Drive", frozen)]
+pub(crate) struct PyDrive {
+    pub(crate) drive: Arc<Drive>,
+    pub(crate) prov: Provenance,
+}
+
+impl PyDrive {
+    pub(crate) fn new(drive: Drive, prov: Provenance) -> Self {
+        PyDrive { drive: Arc::new(drive), prov }
+    }
+}
+
+fn vec_f64(a: &PyArrayLike1<'_, f64, AllowTypeChange>) -> Vec<f64> {
+    a.as_array().to_vec()
+}
+
+fn f64_bytes(v: &[f64]) -> Vec<u8> {
+    v.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+
+fn f64_from_bytes(b: &[u8], what: &str) -> PyResult<Vec<f64>> {
+    if !b.len().is_multiple_of(8) {
+        return Err(PyValueError::new_err(format!("drive state: {what} is not a whole number of f64")));
+    }
+    Ok(b.chunks_exact(8)
+        .map(|c| {
+            let mut a = [0u8; 8];
+            a.copy_from_slice(c);
+            f64::from_le_bytes(a)
+        })
+        .collect())
+}
+
+fn signals_state(s: &Signals) -> Vec<Vec<u8>> {
+    s.columns().iter().map(|(_, c)| f64_bytes(c)).collect()
+}
+
+fn signals_from_state(cols: Vec<Vec<u8>>) -> PyResult<Signals> {
+    if cols.len() != 7 {
+        return Err(PyValueError::new_err("drive state: expected 7 signal columns"));
+    }
+    let mut it = cols.into_iter().map(|b| f64_from_bytes(&b, "a signal column"));
+    let mut next = || it.next().unwrap_or_else(|| Ok(Vec::new()));
+    Ok(Signals { px: next()?, py: next()?, psi: next()?, n_rl: next()?, n_rr: next()?, beta: next()?, a_y: next()? })
+}
+
+/// A drive's loader for a CSV: the drive, and the simulator sidecar beside
+/// it when there is one (as the CLI's `calibrate` reads it).
+fn read_csv_with_sidecar(path: &std::path::Path) -> odocal::Result<(Drive, Provenance)> {
+    let drive = Drive::read_csv(path)?;
+    let side = odocal::sim::sidecar_path(path);
+    let sidecar = if side.exists() { SimSidecar::read_json(&side).ok() } else { None };
+    Ok((drive, Provenance { sidecar, ..Default::default() }))
+}
+
+fn read_manifest(path: &std::path::Path) -> odocal::Result<(Drive, Provenance)> {
+    let m = odocal::Manifest::from_path(path)?;
+    // The calibration settings are checked too, so a bad one is named now.
+    ManifestSettings::of_manifest(&m)?;
+    let imported = odocal::import(&m)?;
+    let import_report = serde_json::to_string_pretty(&odocal::calibrate::settings::import_report_json(
+        &imported.report,
+    )?)
+    .map_err(|source| odocal::Error::Json { context: format!("import report of {}", path.display()), source })?;
+    let wheel_scale = Some(imported.report.wheel_scale.clone());
+    Ok((imported.drive, Provenance { sidecar: None, import_report: Some(import_report), wheel_scale }))
+}
+
+#[pymethods]
+impl PyDrive {
+    /// Makes a drive from 1-D arrays (anything numpy converts to float64),
+    /// checked by the library: equal lengths, finite values, strictly
+    /// increasing and uniform time (within 1 % per part). `beta` defaults to
+    /// zeros; `part` holds per-sample integer ids (a new part starts where
+    /// the id changes); `sample_time_s` is the nominal step when known.
+    ///
+    /// Raises `OdocalError` naming the column and the sample.
+    #[staticmethod]
+    #[pyo3(signature = (t, px, py, psi, n_rl, n_rr, a_y, beta=None, part=None, sample_time_s=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn from_arrays(
+        gil: Python<'_>,
+        t: PyArrayLike1<'_, f64, AllowTypeChange>,
+        px: PyArrayLike1<'_, f64, AllowTypeChange>,
+        py: PyArrayLike1<'_, f64, AllowTypeChange>,
+        psi: PyArrayLike1<'_, f64, AllowTypeChange>,
+        n_rl: PyArrayLike1<'_, f64, AllowTypeChange>,
+        n_rr: PyArrayLike1<'_, f64, AllowTypeChange>,
+        a_y: PyArrayLike1<'_, f64, AllowTypeChange>,
+        beta: Option<PyArrayLike1<'_, f64, AllowTypeChange>>,
+        part: Option<PyArrayLike1<'_, i64, AllowTypeChange>>,
+        sample_time_s: Option<f64>,
+    ) -> PyResult<Self> {
+        let t = vec_f64(&t);
+        let beta = match beta {
+            Some(b) => vec_f64(&b),
+            None => vec![0.0; t.len()],
+        };
+        let signals = Signals {
+            px: vec_f64(&px),
+            py: vec_f64(&py),
+            psi: vec_f64(&psi),
+            n_rl: vec_f64(&n_rl),
+            n_rr: vec_f64(&n_rr),
+            beta,
+            a_y: vec_f64(&a_y),
+        };
+        let part = part.map(|p| p.as_array().to_vec());
+        let drive = gil
+            .detach(move || {
+                let mut b = Drive::builder(t, signals).context("numpy arrays");
+                if let Some(ids) = part {
+                    b = b.part_ids(ids);
+                }
+                if let Some(ts) = sample_time_s {
+                    b = b.sample_time_s(ts);
+                }
+                b.build()
+            })
+            .map_err(lib_err)?;
+        Ok(PyDrive::new(drive, Provenance::default()))
+    }
+
+    /// Reads a canonical CSV (SPEC §2). A simulator sidecar beside it
+    /// (`drive.json` for `drive.csv`) gives the true θ, as in the CLI.
+    #[staticmethod]
+    fn from_csv(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
+        let (drive, prov) = py.detach(|| read_csv_with_sidecar(&path)).map_err(lib_err)?;
+        Ok(PyDrive::new(drive, prov))
+    }
+
+    /// Imports a multi-stream log described by a drive manifest (`.toml`).
+    #[staticmethod]
+    fn from_manifest(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
+        let (drive, prov) = py.detach(|| read_manifest(&path)).map_err(lib_err)?;
+        Ok(PyDrive::new(drive, prov))
+    }
+
+    /// Reads a canonical CSV or, for a `.toml` path, imports a manifest
+    /// (what the CLI's `calibrate DRIVE` accepts).
+    #[staticmethod]
+    fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
+        let is_toml = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("toml"));
+        if is_toml {
+            Self::from_manifest(py, path)
+        } else {
+            Self::from_csv(py, path)
+        }
+    }
+
+    /// Names of the columns of `to_numpy()`, in order.
+    #[getter]
+    fn columns(&self) -> Vec<&'static str> {
+        COLUMNS.to_vec()
+    }
+
+    /// The measured columns as a float64 array of shape (samples, 8), in
+    /// `columns` order (the heading `psi` is unwrapped).
+    fn to_numpy<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        let d = &self.drive;
+        let cols: [&[f64]; 8] = [d.t(), d.px(), d.py(), d.psi(), d.n_rl(), d.n_rr(), d.beta(), d.a_y()];
+        let n = d.len();
+        let mut flat = Vec::with_capacity(n * cols.len());
+        for i in 0..n {
+            flat.extend(cols.iter().map(|c| c[i]));
+        }
+        // The shape matches the data by construction.
+        numpy::ndarray::Array2::from_shape_vec((n, cols.len()), flat)
+            .map(|a| a.into_pyarray(py))
+            .unwrap_or_else(|_| PyArray2::zeros(py, (0, cols.len()), false))
+    }
+
+    /// One column as a float64 array: a name of `columns`, a truth column
+    /// (`px_true`, …, simulated drives) or a numeric extra column.
+    fn column<'py>(&self, py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let d = &self.drive;
+        if name == "t" {
+            return Ok(PyArray1::from_slice(py, d.t()));
+        }
+        if let Some((_, c)) = d.measured().columns().into_iter().find(|(n, _)| *n == name) {
+            return Ok(PyArray1::from_slice(py, c));
+        }
+        if let (Some(base), Some(truth)) = (name.strip_suffix("_true"), d.truth()) {
+            if let Some((_, c)) = truth.columns().into_iter().find(|(n, _)| *n == base) {
+                return Ok(PyArray1::from_slice(py, c));
+            }
+        }
+        if let Some(c) = d.extra_column(name).and_then(|c| c.as_numbers()) {
+            return Ok(PyArray1::from_slice(py, c));
+        }
+        Err(PyKeyError::new_err(format!("the drive has no numeric column '{name}'")))
+    }
+
+    /// Per-sample part index (0, 1, …) as an int64 array.
+    fn part_ids<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<i64>> {
+        let mut ids = vec![0i64; self.drive.len()];
+        for (p, r) in self.drive.parts().iter().enumerate() {
+            ids[r.clone()].fill(p as i64);
+        }
+        ids.into_pyarray(py)
+    }
+
+    /// Continuous parts as `(start, stop)` sample index pairs.
+    #[getter]
+    fn parts(&self) -> Vec<(usize, usize)> {
+        self.drive.parts().iter().map(|r| (r.start, r.end)).collect()
+    }
+
+    /// Sample time t_s, s.
+    #[getter]
+    fn sample_time_s(&self) -> f64 {
+        self.drive.sample_time_s()
+    }
+
+    /// Reference path length, m.
+    #[getter]
+    fn distance_m(&self) -> f64 {
+        self.drive.distance_m()
+    }
+
+    /// The true θ of a simulated drive (`{"c_e": …, "c_d": …, "t_r": …, "d": …}`), else None.
+    #[getter]
+    fn theta_true<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
+        self.prov.sidecar.as_ref().map(|s| to_py(py, &json(&s.theta_true)?)).transpose()
+    }
+
+    /// The simulator sidecar (true θ, settings, statistics) of a simulated
+    /// drive as a dict, else None.
+    #[getter]
+    fn simulation<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
+        self.prov.sidecar.as_ref().map(|s| to_py(py, &json(s)?)).transpose()
+    }
+
+    /// The import report of a drive read from a manifest, as a dict, else None.
+    #[getter]
+    fn import_report<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
+        match &self.prov.import_report {
+            None => Ok(None),
+            Some(text) => {
+                let v: serde_json::Value =
+                    serde_json::from_str(text).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+                Ok(Some(to_py(py, &v)?))
+            }
+        }
+    }
+
+    /// Writes the canonical CSV; for a simulated drive also the sidecar
+    /// (`drive.json` beside `drive.csv`), as `odocal simulate` does.
+    fn to_csv(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        let drive = Arc::clone(&self.drive);
+        let sidecar = self.prov.sidecar.clone();
+        py.detach(move || {
+            drive.write_csv(&path)?;
+            if let Some(s) = sidecar {
+                s.write_json(&odocal::sim::sidecar_path(&path))?;
+            }
+            Ok(())
+        })
+        .map_err(lib_err)
+    }
+
+    fn __len__(&self) -> usize {
+        self.drive.len()
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "<odocal.Drive: {} samples in {} part(s), t_s {} s, {:.2} km{}>",
+            self.drive.len(),
+            self.drive.parts().len(),
+            self.drive.sample_time_s(),
+            self.drive.distance_m() / 1e3,
+            if self.prov.sidecar.is_some() { ", simulated" } else { "" }
+        )
+    }
+
+    /// Pickling (Ray and multiprocessing send drives this way): the exact
+    /// columns, parts and sample time, rebuilt through the checked constructor.
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyAny>, (Bound<'py, PyDict>,))> {
+        let d = &self.drive;
+        let state = PyDict::new(py);
+        state.set_item("t", PyBytes::new(py, &f64_bytes(d.t())))?;
+        let bytes_list = |cols: Vec<Vec<u8>>| -> PyResult<Bound<'py, PyList>> {
+            PyList::new(py, cols.iter().map(|b| PyBytes::new(py, b)))
+        };
+        state.set_item("measured", bytes_list(signals_state(d.measured()))?)?;
+        state.set_item("truth", d.truth().map(|t| bytes_list(signals_state(t))).transpose()?)?;
+        state.set_item("parts", self.parts())?;
+        state.set_item("ref_measured", d.reference_measured().map(|m| m.to_vec()))?;
+        let extra = PyList::empty(py);
+        for c in d.extra() {
+            let values: Bound<'py, PyAny> = match &c.values {
+                ExtraValues::Numbers(v) => PyBytes::new(py, &f64_bytes(v)).into_any(),
+                ExtraValues::Text(v) => PyList::new(py, v)?.into_any(),
+            };
+            extra.append((c.name.as_str(), values))?;
+        }
+        state.set_item("extra", extra)?;
+        state.set_item("sample_time_s", d.sample_time_s())?;
+        let sidecar = self.prov.sidecar.as_ref().map(json).transpose()?.map(|v| v.to_string());
+        state.set_item("sidecar", sidecar)?;
+        state.set_item("import_report", self.prov.import_report.as_deref())?;
+        state.set_item("wheel_scale", self.prov.wheel_scale.as_deref())?;
+        let ctor = py.import("odocal._odocal")?.getattr("_drive_from_state")?;
+        Ok((ctor, (state,)))
+    }
+}
+
+/// Rebuilds a pickled drive (see `Drive.__reduce__`).
+#[pyfunction]
+pub(crate) fn _drive_from_state(py: Python<'_>, state: &Bound<'_, PyDict>) -> PyResult<PyDrive> {
+    let get = |k: &str| -> PyResult<Bound<'_, PyAny>> {
+        state.get_item(k)?.ok_or_else(|| PyValueError::new_err(format!("drive state: no '{k}'")))
+    };
+    let t = f64_from_bytes(&get("t")?.extract::<Vec<u8>>()?, "t")?;
+    let measured = signals_from_state(get("measured")?.extract()?)?;
+    let truth = get("truth")?.extract::<Option<Vec<Vec<u8>>>>()?.map(signals_from_state).transpose()?;
+    let parts: Vec<Range<usize>> =
+        get("parts")?.extract::<Vec<(usize, usize)>>()?.into_iter().map(|(a, b)| a..b).collect();
+    let ref_measured: Option<Vec<bool>> = get("ref_measured")?.extract()?;
+    let mut extra = Vec::new();
+    for item in get("extra")?.cast::<PyList>()?.iter() {
+        let (name, values): (String, Bound<'_, PyAny>) = item.extract()?;
+        let values = if let Ok(b) = values.cast::<PyBytes>() {
+            ExtraValues::Numbers(f64_from_bytes(b.as_bytes(), "an extra column")?)
+        } else {
+            ExtraValues::Text(values.extract()?)
+        };
+        extra.push(ExtraColumn { name, values });
+    }
+    let ts: f64 = get("sample_time_s")?.extract()?;
+    let sidecar = match get("sidecar")?.extract::<Option<String>>()? {
+        Some(s) => Some(serde_json::from_str(&s).map_err(|e| PyValueError::new_err(format!("drive state: {e}")))?),
+        None => None,
+    };
+    let prov = Provenance {
+        sidecar,
+        import_report: get("import_report")?.extract()?,
+        wheel_scale: get("wheel_scale")?.extract()?,
+    };
+    let drive = py
+        .detach(move || {
+            let mut b = Drive::builder(t, measured).context("pickled drive").parts(parts).sample_time_s(ts);
+            if let Some(tr) = truth {
+                b = b.truth(tr);
+            }
+            if let Some(m) = ref_measured {
+                b = b.reference_measured(m);
+            }
+            for c in extra {
+                b = b.extra(c);
+            }
+            b.build()
+        })
+        .map_err(lib_err)?;
+    Ok(PyDrive::new(drive, prov))
+}

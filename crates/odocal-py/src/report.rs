@@ -1,0 +1,116 @@
+//! Calibration reports after the fit: the method's account, parameter
+//! files and the HTML report.
+
+use std::path::PathBuf;
+
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+
+use odocal::drive::Drive;
+use odocal::model::Theta;
+use odocal::Holdout;
+
+use crate::calibrate::parse_holdout;
+use crate::convert::to_py;
+use crate::drive::drives_arg;
+use crate::{lib_err, OdocalError};
+
+/// The error for JSON text that is not a calibration report.
+fn not_a_report(e: serde_json::Error) -> PyErr {
+    PyValueError::new_err(format!("not a calibration report: {e}"))
+}
+
+/// A calibration report from its JSON text (the Python report's `_json`).
+pub(crate) fn report_from_json(report_json: &str) -> PyResult<odocal::CalibrationReport> {
+    serde_json::from_str(report_json).map_err(not_a_report)
+}
+
+/// The method's own account of the fit (`CalibrationReport::method_details`
+/// of the library: the EIV lines the CLI prints; empty for the other
+/// methods) of a calibration report's JSON text.
+#[pyfunction]
+pub(crate) fn _method_details(report_json: &str) -> PyResult<String> {
+    Ok(report_from_json(report_json)?.method_details())
+}
+
+/// Reads a parameter file (ROS 2 YAML or JSON, as `--params-out` writes
+/// it; library `ParamFile::read`) into the layout of the JSON file.
+#[pyfunction]
+pub(crate) fn read_params(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyAny>> {
+    let f = odocal::io::param_file::ParamFile::read(&path).map_err(lib_err)?;
+    to_py(py, &f.to_json())
+}
+
+/// Writes the parameter file of a calibration report (its JSON text) as
+/// `odocal calibrate --params-out` does: YAML for `.yaml`/`.yml`, JSON for
+/// `.json` (library `CalibrationReport::param_file`).
+#[pyfunction]
+#[pyo3(signature = (report_json, path, *, input, node, mapping))]
+pub(crate) fn _write_params(report_json: &str, path: PathBuf, input: &str, node: &str, mapping: &str) -> PyResult<()> {
+    let mut f = report_from_json(report_json)?.param_file(input);
+    f.node = node.to_string();
+    f.mapping = mapping.parse().map_err(lib_err)?;
+    f.write(&path).map_err(lib_err)
+}
+
+/// Writes the HTML report (odocal-report) of a calibration report (its
+/// JSON text) on the drive it was validated on: `drive`, its held-out half
+/// (`holdout`), or `validate_on`. Maps the JSON report to the renderer's
+/// input in this one place.
+#[pyfunction]
+#[pyo3(signature = (drive, report_json, path, *, holdout=None, validate_on=None, title=None))]
+pub(crate) fn _report_html(
+    py: Python<'_>,
+    drive: &Bound<'_, PyAny>,
+    report_json: &str,
+    path: PathBuf,
+    holdout: Option<&str>,
+    validate_on: Option<&Bound<'_, PyAny>>,
+    title: Option<String>,
+) -> PyResult<()> {
+    let value: serde_json::Value = serde_json::from_str(report_json).map_err(not_a_report)?;
+    let truth: Option<Theta> = value
+        .get("truth")
+        .and_then(|t| t.get("theta"))
+        .map(|t| serde_json::from_value(t.clone()))
+        .transpose()
+        .map_err(not_a_report)?;
+    let report: odocal::CalibrationReport = serde_json::from_value(value).map_err(not_a_report)?;
+    let holdout = match (holdout, validate_on) {
+        (Some(h), _) => Some(parse_holdout(h)?),
+        (None, Some(d)) => Some(Holdout::Other(Drive::clone(&drives_arg(d, "validate_on")?.0))),
+        (None, None) => None,
+    };
+    let inner = drives_arg(drive, "drive")?.0;
+    let title = title.unwrap_or_else(|| "odocal calibration".into());
+    py.detach(move || -> Result<(), String> {
+        let split = holdout.as_ref().map(|h| h.split(&inner)).transpose().map_err(|e| e.to_string())?;
+        let scored: &Drive = split.as_ref().map_or(&inner, |(_, h)| h.as_ref());
+        let segs = odocal::drive::segment::validation_segments(scored, &report.options.validation)
+            .map_err(|e| e.to_string())?;
+        // The σ that stands for the result (the verdict's, the CLI's).
+        let sigma = report.result_sigma().to_array();
+        let theta0 = report.options.theta0;
+        let mut input = odocal_report::ReportInput {
+            provenance: vec![
+                ("method".into(), report.method.to_string()),
+                ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
+                ("from".into(), "Python (odocal.CalibrationReport.to_html)".into()),
+            ],
+            params: odocal_report::ParamRow::theta_rows(&theta0, &report.theta, Some(sigma), truth.as_ref()),
+            truth,
+            verdict: Some((
+                report.verdict.level.to_string(),
+                report.verdict.reasons.iter().map(|r| r.to_string()).collect(),
+            )),
+            warnings: report.warnings.iter().map(|w| w.to_string()).collect(),
+            method_details: report.method_details().lines().map(str::to_string).collect(),
+            ..odocal_report::ReportInput::new(title, scored, &segs, theta0, report.theta)
+        };
+        if let Some(step) = report.initial_step() {
+            input.batches = step.batches.iter().map(|b| (b.score.theta, b.score.mean_position_error_m)).collect();
+        }
+        odocal_report::write_html(&path, &input).map_err(|e| e.to_string())
+    })
+    .map_err(OdocalError::new_err)
+}

@@ -1,0 +1,176 @@
+//! How the values of [`super::Settings`] deserialize: text the way the
+//! command line takes it, and the lists, numbers and tables TOML and JSON
+//! give. A bad value's message is the library's parser's.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+
+use serde::de::{self, Deserializer, MapAccess, SeqAccess, Visitor};
+use serde::Deserialize;
+
+use super::NoiseModelSetting;
+use crate::calibrate::eiv::noise_model_from_table;
+use crate::calibrate::FinalSegments;
+use crate::eiv::NoiseSource;
+use crate::error::{Error, Result};
+use crate::io::param_file::{is_param_file, ParamFile};
+use crate::model::param::ParamSet;
+use crate::model::Theta;
+
+/// A value given as text and parsed by the library (`FromStr`): a method,
+/// a solver, a quantisation model…
+pub(super) fn parsed<'de, D, T>(d: D) -> std::result::Result<Option<T>, D::Error>
+where
+    D: Deserializer<'de>,
+    T: FromStr<Err = Error>,
+{
+    let text = String::deserialize(d)?;
+    text.parse().map(Some).map_err(de::Error::custom)
+}
+
+/// Text with commas, or a list of texts, joined with commas.
+struct TextOrList(&'static str);
+
+impl<'de> Visitor<'de> for TextOrList {
+    type Value = String;
+    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        write!(f, "{} as text with commas or a list of names", self.0)
+    }
+    fn visit_str<E: de::Error>(self, v: &str) -> std::result::Result<String, E> {
+        Ok(v.to_string())
+    }
+    fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> std::result::Result<String, A::Error> {
+        let mut names = Vec::new();
+        while let Some(n) = seq.next_element::<String>()? {
+            names.push(n);
+        }
+        Ok(names.join(","))
+    }
+}
+
+/// Parameters: `"c_d,t_r,d"` or `["c_d", "t_r", "d"]` (also `lever-arm`,
+/// `heading-offset`).
+pub(super) fn param_set<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<Option<ParamSet>, D::Error> {
+    let text = d.deserialize_any(TextOrList("parameters"))?;
+    text.parse().map(Some).map_err(de::Error::custom)
+}
+
+/// Noise sources: `"heading_white,pose_white"` or a list of names.
+pub(super) fn noise_sources<'de, D: Deserializer<'de>>(
+    d: D,
+) -> std::result::Result<Option<Vec<NoiseSource>>, D::Error> {
+    let text = d.deserialize_any(TextOrList("noise sources"))?;
+    text.split(',').map(|n| n.trim().parse()).collect::<Result<Vec<_>>>().map(Some).map_err(de::Error::custom)
+}
+
+/// `"all"`, a number of segments, or that number as text.
+pub(super) fn final_segments<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<Option<FinalSegments>, D::Error> {
+    struct V;
+    impl Visitor<'_> for V {
+        type Value = FinalSegments;
+        fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+            f.write_str("\"all\" or a number of segments")
+        }
+        fn visit_str<E: de::Error>(self, v: &str) -> std::result::Result<FinalSegments, E> {
+            v.parse().map_err(E::custom)
+        }
+        fn visit_u64<E: de::Error>(self, v: u64) -> std::result::Result<FinalSegments, E> {
+            usize::try_from(v).map(FinalSegments::Random).map_err(E::custom)
+        }
+        fn visit_i64<E: de::Error>(self, v: i64) -> std::result::Result<FinalSegments, E> {
+            usize::try_from(v)
+                .map(FinalSegments::Random)
+                .map_err(|_| E::invalid_value(de::Unexpected::Signed(v), &self))
+        }
+    }
+    d.deserialize_any(V).map(Some)
+}
+
+/// A noise model: the path of a noise-model file, or a table of its fields.
+pub(super) fn noise_model<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<Option<NoiseModelSetting>, D::Error> {
+    struct V;
+    impl<'de> Visitor<'de> for V {
+        type Value = NoiseModelSetting;
+        fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+            f.write_str("the path of a noise-model file or a table of noise-model fields")
+        }
+        fn visit_str<E: de::Error>(self, v: &str) -> std::result::Result<NoiseModelSetting, E> {
+            Ok(NoiseModelSetting::File(PathBuf::from(v)))
+        }
+        fn visit_map<A: MapAccess<'de>>(self, map: A) -> std::result::Result<NoiseModelSetting, A::Error> {
+            let table = toml::Table::deserialize(de::value::MapAccessDeserializer::new(map))?;
+            noise_model_from_table(table).map(NoiseModelSetting::Stated).map_err(de::Error::custom)
+        }
+    }
+    d.deserialize_any(V).map(Some)
+}
+
+/// θ from text: `"c_e,c_d,t_r,d"` (checked) or the path of a parameter file.
+fn theta_from_text(v: &str) -> Result<Theta> {
+    let path = Path::new(v);
+    if is_param_file(path) {
+        // `read` has checked θ.
+        return ParamFile::read(path)?.theta();
+    }
+    v.parse()
+}
+
+/// θ from four numbers (unchecked).
+fn theta_from_numbers(v: &[f64]) -> Result<Theta> {
+    let [c_e, c_d, t_r, d] = v[..] else {
+        return Err(Error::InvalidTheta(format!("expected 4 values c_e, c_d, t_r, d, got {}", v.len())));
+    };
+    Ok(Theta { c_e, c_d, t_r, d })
+}
+
+/// The forms θ takes, for messages.
+const THETA_FORMS: &str = "θ as \"c_e,c_d,t_r,d\", four numbers, a table {c_e, c_d, t_r, d} or a parameter file";
+
+/// θ as `"c_e,c_d,t_r,d"`, four numbers, a table of the four, or the path
+/// of a parameter file.
+struct ThetaVisitor;
+
+impl<'de> Visitor<'de> for ThetaVisitor {
+    type Value = Theta;
+    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        f.write_str(THETA_FORMS)
+    }
+    fn visit_str<E: de::Error>(self, v: &str) -> std::result::Result<Theta, E> {
+        theta_from_text(v).map_err(E::custom)
+    }
+    fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> std::result::Result<Theta, A::Error> {
+        let mut v = Vec::with_capacity(4);
+        while let Some(x) = seq.next_element::<f64>()? {
+            v.push(x);
+        }
+        theta_from_numbers(&v).map_err(de::Error::custom)
+    }
+    fn visit_map<A: MapAccess<'de>>(self, map: A) -> std::result::Result<Theta, A::Error> {
+        Theta::deserialize(de::value::MapAccessDeserializer::new(map))
+    }
+}
+
+/// θ_0 in any of the forms of [`ThetaVisitor`].
+pub(super) fn theta<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<Option<Theta>, D::Error> {
+    d.deserialize_any(ThetaVisitor).map(Some)
+}
+
+/// θ from JSON in the forms the `theta0` setting takes (`"c_e,c_d,t_r,d"`,
+/// four numbers, an object of the four, or the path of a parameter file),
+/// checked ([`Theta::validate`]).
+///
+/// # Errors
+/// [`Error::InvalidTheta`] for a value of another form, else the parser's
+/// or the check's error.
+pub fn theta_from_json(value: serde_json::Value) -> Result<Theta> {
+    let bad = |e: serde_json::Error| Error::InvalidTheta(format!("{e}; give {THETA_FORMS}"));
+    let theta = match value {
+        serde_json::Value::String(s) => theta_from_text(&s)?,
+        v @ serde_json::Value::Array(_) => theta_from_numbers(&serde_json::from_value::<Vec<f64>>(v).map_err(bad)?)?,
+        v @ serde_json::Value::Object(_) => serde_json::from_value(v).map_err(bad)?,
+        v => return Err(Error::InvalidTheta(format!("{v}: give {THETA_FORMS}"))),
+    };
+    theta.validate()?;
+    Ok(theta)
+}

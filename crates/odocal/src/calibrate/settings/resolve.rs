@@ -1,0 +1,428 @@
+//! From settings to calibration options: which keys a method uses, the
+//! caller's settings over a manifest's, the one mapping to
+//! [`CalibrationOptions`], and the account of what became of each
+//! manifest setting.
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+
+use serde::Serialize;
+
+use super::{ManifestSettings, NoiseModelSetting, Settings};
+use crate::calibrate::eiv::{CorrectBias, EivMethodOptions};
+use crate::calibrate::three_step::ThreeStepOptions;
+use crate::calibrate::{CalibrationOptions, Method};
+use crate::eiv::{BiasCorrection, BootstrapOptions};
+use crate::error::{Error, Result};
+use crate::model::param::ParamSet;
+
+/// Who gives the caller's settings, for the words of messages and of the
+/// account.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Caller {
+    /// The `odocal` command line: a key is named by its flag (`--min-yaw-rate`).
+    CommandLine,
+    /// Python's keyword arguments (`min_yaw_rate`).
+    Python,
+}
+
+impl Caller {
+    /// How this caller names `key` as `settings` state it: the keyword, or
+    /// the flag (`--no-fallback` for `fallback`, `--no-bias-correction`
+    /// for `correct_bias` 0).
+    pub fn name(self, key: &str, settings: &Settings) -> String {
+        match self {
+            Caller::Python => key.to_string(),
+            Caller::CommandLine => match key {
+                "fallback" => "--no-fallback".into(),
+                "correct_bias" if settings.correct_bias == Some(0) => "--no-bias-correction".into(),
+                _ => format!("--{}", key.replace('_', "-")),
+            },
+        }
+    }
+
+    /// The method `name` in a message: the one a key belongs to (`owner`)
+    /// or the one chosen.
+    fn method(self, name: &str, owner: bool) -> String {
+        match (self, owner) {
+            (Caller::CommandLine, _) => format!("--method {name}"),
+            (Caller::Python, true) => format!("method {name}"),
+            (Caller::Python, false) => name.to_string(),
+        }
+    }
+
+    /// The error for the caller's `key`: `what` is wrong with it.
+    fn invalid(self, key: &'static str, settings: &Settings, what: String) -> Error {
+        match self {
+            Caller::CommandLine => Error::InvalidFlags(format!("{} {what}", self.name(key, settings))),
+            Caller::Python => Error::InvalidOption { field: key, reason: what },
+        }
+    }
+
+    /// The error for the caller's `keys`, which the chosen method does not
+    /// use: `what` says which methods do.
+    fn misplaced(self, keys: &[&'static str], settings: &Settings, what: String) -> Error {
+        let names: Vec<String> = keys.iter().map(|k| self.name(k, settings)).collect();
+        let text = format!("{} appl{} to {what}", names.join(", "), if keys.len() == 1 { "ies" } else { "y" });
+        match self {
+            Caller::CommandLine => Error::InvalidFlags(text),
+            Caller::Python => Error::InvalidOption { field: "method", reason: text },
+        }
+    }
+
+    /// Who gave a setting that won over a manifest's, in words.
+    fn words(self) -> &'static str {
+        match self {
+            Caller::CommandLine => "the command line",
+            Caller::Python => "a keyword",
+        }
+    }
+}
+
+/// Keys only some methods use.
+struct MethodKeys {
+    keys: &'static [&'static str],
+    /// Whether the method uses them.
+    uses: fn(&Method) -> bool,
+    /// The methods that use them, as `caller` names them.
+    owner: fn(Caller) -> String,
+    /// Why a manifest's key is ignored by `method`.
+    ignored: fn(key: &str, method: &Method) -> String,
+}
+
+/// Every key that only some methods use, by the methods that use them.
+static METHOD_KEYS: [MethodKeys; 4] = [
+    MethodKeys {
+        keys: &[
+            "noise_model",
+            "known_noise",
+            "fix_noise",
+            "fallback",
+            "eiv_window",
+            "quantisation",
+            "quantisation_level",
+            "lateral_noise",
+            "heading_noise",
+            "bootstrap",
+            "bootstrap_seed",
+            "correct_c_e_bias",
+            "correct_bias",
+        ],
+        uses: |m| matches!(m, Method::Eiv(_)),
+        owner: |c| format!("{} only", c.method("eiv", true)),
+        ignored: |key, m| match key {
+            "noise_model" => format!("method {m} does not use a noise model"),
+            _ => format!("applies to method eiv only, not to {m}"),
+        },
+    },
+    MethodKeys {
+        keys: &["batches", "batch_size", "picks", "final_segments", "qp_solver"],
+        uses: |m| matches!(m, Method::ThreeStep(_)),
+        owner: |c| format!("{} only", c.method("three-step", true)),
+        ignored: |_, m| format!("applies to method three-step only, not to {m}"),
+    },
+    MethodKeys {
+        keys: &["keep_one_way"],
+        uses: |m| !matches!(m, Method::Eiv(_)),
+        owner: |_| "the segment-selecting methods (three-step, batch-gn)".into(),
+        ignored: |_, _| "method eiv fits every segment, it does not select turning ones".into(),
+    },
+    MethodKeys {
+        keys: &["estimate", "lever_arm", "heading_offset"],
+        uses: |m| m.estimator().supports_extrinsics(),
+        owner: |_| "the methods that model the reference extrinsics".into(),
+        ignored: |_, m| format!("method {m} does not model the reference extrinsics"),
+    },
+];
+
+/// The keys-of-some-methods that `method` does not use, if `key` is one.
+fn unused_by(key: &str, method: &Method) -> Option<&'static MethodKeys> {
+    METHOD_KEYS.iter().find(|g| g.keys.contains(&key) && !(g.uses)(method))
+}
+
+/// What became of one manifest setting.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case", tag = "outcome")]
+pub enum SettingOutcome {
+    /// Put into the calibration options.
+    Used,
+    /// The caller gave its own value, which was used instead.
+    Overridden,
+    /// Not used, for the reason given.
+    Ignored {
+        /// Why.
+        reason: String,
+    },
+}
+
+/// One manifest setting and what became of it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct SettingUse {
+    /// The manifest key (`noise`, `reference.lever_arm`,
+    /// `calibration.keep_one_way`, …; `noise.lateral` when the caller's
+    /// `lateral_noise` wins over the `[noise]` table's `lateral`).
+    pub key: String,
+    /// The manifest it comes from.
+    pub manifest: PathBuf,
+    /// What became of it.
+    #[serde(flatten)]
+    pub outcome: SettingOutcome,
+}
+
+/// Where a calibration's settings came from: what became of each manifest
+/// setting and which starting noise model method eiv used. The text report
+/// prints [`SettingsAccount::lines`]; the JSON report has the same as
+/// `manifest_settings` and `noise_model_origin`
+/// ([`SettingsAccount::add_to_json`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SettingsAccount {
+    /// Who gave the settings that win over the manifest's.
+    #[serde(skip)]
+    pub caller: Caller,
+    /// Each manifest setting and what became of it.
+    #[serde(rename = "manifest_settings", skip_serializing_if = "Vec::is_empty")]
+    pub uses: Vec<SettingUse>,
+    /// Where method eiv's starting noise model came from, in words; `None`
+    /// for another method.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub noise_model_origin: Option<String>,
+}
+
+impl SettingsAccount {
+    /// The report's lines on the settings, each ending in a newline ("" when
+    /// there is nothing to say).
+    pub fn lines(&self) -> String {
+        let mut o = String::new();
+        if let Some(n) = &self.noise_model_origin {
+            let _ = writeln!(o, "starting noise model: {n}");
+        }
+        for u in &self.uses {
+            let _ = write!(o, "manifest setting {} from {}: ", u.key, u.manifest.display());
+            let _ = match &u.outcome {
+                SettingOutcome::Used => writeln!(o, "used"),
+                SettingOutcome::Overridden => writeln!(o, "overridden by {}", self.caller.words()),
+                SettingOutcome::Ignored { reason } => writeln!(o, "ignored ({reason})"),
+            };
+        }
+        o
+    }
+
+    /// Adds `manifest_settings` (when a manifest states any) and
+    /// `noise_model_origin` (method eiv) to a JSON report.
+    ///
+    /// # Errors
+    /// [`Error::Json`] if the account does not serialise (it always does).
+    pub fn add_to_json(&self, report: &mut serde_json::Value) -> Result<()> {
+        let json = |source| Error::Json { context: "settings account".into(), source };
+        if let (serde_json::Value::Object(fields), Some(obj)) =
+            (serde_json::to_value(self).map_err(json)?, report.as_object_mut())
+        {
+            obj.extend(fields);
+        }
+        Ok(())
+    }
+}
+
+/// Calibration options and where their settings came from.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Resolved {
+    /// The options to calibrate with.
+    pub options: CalibrationOptions,
+    /// What became of the manifest's settings.
+    pub account: SettingsAccount,
+}
+
+impl Settings {
+    /// The calibration options of these settings, the caller's, over the
+    /// `manifest`'s, over the defaults, and what became of each manifest
+    /// setting. A key the method does not use is an error when the caller
+    /// gives it and ignored (saying so) when the manifest does.
+    ///
+    /// # Errors
+    /// [`Error::InvalidFlags`] (command line) or [`Error::InvalidOption`]
+    /// (Python) naming the caller's key of another method; the errors of
+    /// [`Settings::to_options`].
+    pub fn resolve(&self, manifest: Option<&ManifestSettings>, caller: Caller) -> Result<Resolved> {
+        let stated = manifest.map(|m| m.settings.clone()).unwrap_or_default();
+        let method = self.method.clone().or_else(|| stated.method.clone()).unwrap_or_default();
+        self.check_method_keys(&method, caller)?;
+        let mut uses = Vec::new();
+        let mut used = stated.clone();
+        if let Some(m) = manifest {
+            let caller_keys = self.stated();
+            for key in stated.stated() {
+                let outcome = match unused_by(key, &method) {
+                    _ if caller_keys.contains(&key) => SettingOutcome::Overridden,
+                    Some(g) => {
+                        used = used.without(key);
+                        SettingOutcome::Ignored { reason: (g.ignored)(key, &method) }
+                    }
+                    None => SettingOutcome::Used,
+                };
+                let lateral_overridden = key == "noise_model"
+                    && outcome == SettingOutcome::Used
+                    && self.lateral_noise.is_some()
+                    && matches!(&stated.noise_model, Some(NoiseModelSetting::Stated(n)) if n.lateral.is_some());
+                uses.push(SettingUse { key: m.key(key), manifest: m.manifest.clone(), outcome });
+                if lateral_overridden {
+                    let key = "noise.lateral".into();
+                    uses.push(SettingUse { key, manifest: m.manifest.clone(), outcome: SettingOutcome::Overridden });
+                }
+            }
+        }
+        let noise_model_origin = matches!(method, Method::Eiv(_)).then(|| match (&self.noise_model, manifest) {
+            (Some(NoiseModelSetting::File(p)), _) => format!("--noise-model {}", p.display()),
+            (Some(NoiseModelSetting::Stated(_)), _) => "the noise_model table given".into(),
+            (None, Some(m)) if used.noise_model.is_some() => format!("[noise] of {}", m.manifest.display()),
+            (None, _) => "the production-car defaults (no --noise-model, no manifest [noise])".into(),
+        });
+        let options = self.clone().over(used).to_options(caller)?;
+        Ok(Resolved { options, account: SettingsAccount { caller, uses, noise_model_origin } })
+    }
+
+    /// The error for the first set of keys these settings state that
+    /// `method` does not use.
+    fn check_method_keys(&self, method: &Method, caller: Caller) -> Result<()> {
+        let stated = self.stated();
+        for g in METHOD_KEYS.iter().filter(|g| !(g.uses)(method)) {
+            let given: Vec<&'static str> = g.keys.iter().copied().filter(|k| stated.contains(k)).collect();
+            if !given.is_empty() {
+                let what = format!("{}, not to {}", (g.owner)(caller), caller.method(method.name(), false));
+                return Err(caller.misplaced(&given, self, what));
+            }
+        }
+        Ok(())
+    }
+
+    /// The calibration options of these settings over the defaults: the
+    /// one mapping of settings to [`CalibrationOptions`]. `caller` names
+    /// the keys in messages. `fix` applies last, so it holds an extrinsic
+    /// `estimate` frees too.
+    ///
+    /// # Errors
+    /// [`Error::InvalidFlags`] or [`Error::InvalidOption`] naming the key:
+    /// of another method, `estimate` naming θ, an odd `correct_bias`, a
+    /// `bootstrap_seed` that seeds nothing; a noise-model file's errors;
+    /// the options' check ([`CalibrationOptions::validate`]).
+    pub fn to_options(&self, caller: Caller) -> Result<CalibrationOptions> {
+        let mut o = CalibrationOptions { method: self.method.clone().unwrap_or_default(), ..Default::default() };
+        self.check_method_keys(&o.method, caller)?;
+        set(&mut o.theta0, &self.theta0);
+        set(&mut o.seed, &self.seed);
+        set(&mut o.auto_fix, &self.auto_fix);
+        match &mut o.method {
+            Method::ThreeStep(t) => self.three_step_options(t),
+            Method::Eiv(e) => self.eiv_options(e, caller)?,
+            Method::BatchGn(_) => {}
+        }
+        self.extrinsics(&mut o, caller)?;
+        for p in self.fix.unwrap_or_default().iter() {
+            o.hold(p);
+        }
+        set(&mut o.identify.max_iterations, &self.max_iterations);
+        set(&mut o.segments.min_peak_yaw_rate_rad_per_s, &self.min_yaw_rate);
+        set(&mut o.keep_one_way_selection, &self.keep_one_way);
+        set(&mut o.segments.length_steps, &self.segment_length);
+        set(&mut o.segments.stride_steps, &self.segment_stride);
+        if let Some(k) = self.validation_length {
+            o.validation.length_steps = k;
+            o.validation.stride_steps = (k / 2).max(1);
+        }
+        o.validate()?;
+        Ok(o)
+    }
+
+    /// The lever arm and heading offset (a stated heading offset is held
+    /// by method eiv's start), and the extrinsics to estimate.
+    fn extrinsics(&self, o: &mut CalibrationOptions, caller: Caller) -> Result<()> {
+        if let Some([x, y]) = self.lever_arm {
+            (o.identify.extrinsics.lever_x, o.identify.extrinsics.lever_y) = (x, y);
+        }
+        if let Some(h) = self.heading_offset {
+            o.identify.extrinsics.heading_offset = h;
+            o.hold_stated_heading_offset();
+        }
+        if let Some(e) = self.estimate {
+            let theta = e.intersection(ParamSet::THETA);
+            if !theta.is_empty() {
+                let fix = if caller == Caller::CommandLine { "--fix" } else { "fix=" };
+                let what = format!(
+                    "takes lever-arm, heading-offset (or lever_x, lever_y, heading_offset), not {theta}: θ is \
+                     estimated by default (hold parameters with {fix})"
+                );
+                return Err(caller.invalid("estimate", self, what));
+            }
+            o.identify.free = o.identify.free.union(e);
+        }
+        Ok(())
+    }
+
+    /// The three-step method's settings.
+    fn three_step_options(&self, t: &mut ThreeStepOptions) {
+        set(&mut t.initial_batches, &self.batches);
+        set(&mut t.initial_batch_size, &self.batch_size);
+        set(&mut t.picks, &self.picks);
+        set(&mut t.final_segments, &self.final_segments);
+        set(&mut t.qp.solver, &self.qp_solver);
+    }
+
+    /// Method eiv's settings: the starting noise model (then the sources
+    /// held and the lateral noise, which win over the model's), the
+    /// filter's settings, the bias correction and the bootstrap.
+    fn eiv_options(&self, e: &mut EivMethodOptions, caller: Caller) -> Result<()> {
+        if let Some(n) = &self.noise_model {
+            n.spec()?.apply(&mut e.filter);
+        }
+        e.filter.hold_known(self.known_noise.as_deref().unwrap_or_default());
+        set(&mut e.filter.fix_noise, &self.fix_noise);
+        set(&mut e.fallback, &self.fallback);
+        set(&mut e.filter.window_samples, &self.eiv_window);
+        set(&mut e.filter.quantisation, &self.quantisation);
+        set(&mut e.filter.quantisation_level, &self.quantisation_level);
+        set(&mut e.filter.lateral_noise, &self.lateral_noise);
+        set(&mut e.filter.heading_scale, &self.heading_noise);
+        let seed = self.bootstrap_seed.unwrap_or(0);
+        if let Some(b) = self.correct_c_e_bias {
+            if self.correct_bias.is_some() {
+                let other = caller.name("correct_bias", self);
+                let what = format!("replaces the bias correction of every parameter: give it without {other}");
+                return Err(caller.invalid("correct_c_e_bias", self, what));
+            }
+            e.filter.bias_correction = BiasCorrection::Bootstrap { replicates: b, seed, all_parameters: false };
+        }
+        match self.correct_bias {
+            Some(0) if self.bootstrap_seed.is_some() && self.bootstrap.is_none() && self.correct_c_e_bias.is_none() => {
+                let off = if caller == Caller::CommandLine { "--no-bias-correction" } else { "correct_bias=0" };
+                let what = format!("is the seed of the bias correction, which {off} turns off");
+                return Err(caller.invalid("bootstrap_seed", self, what));
+            }
+            Some(0) => e.correct_bias = None,
+            Some(b) if !b.is_multiple_of(2) => {
+                return Err(Error::InvalidOption {
+                    field: "correct_bias",
+                    reason: format!(
+                        "must be 0 (no correction) or an even number of at least 2 (the replicates come in \
+                         antithetic pairs), got {b}"
+                    ),
+                })
+            }
+            Some(b) => e.correct_bias = Some(CorrectBias { replicates: b, seed }),
+            None => {
+                if let Some(c) = &mut e.correct_bias {
+                    c.seed = seed;
+                }
+            }
+        }
+        if let Some(b) = self.bootstrap {
+            e.bootstrap = Some(BootstrapOptions { replicates: b, seed, ..Default::default() });
+        }
+        Ok(())
+    }
+}
+
+/// `target = value` when a value is stated.
+fn set<T: Clone>(target: &mut T, value: &Option<T>) {
+    if let Some(v) = value {
+        *target = v.clone();
+    }
+}
