@@ -362,13 +362,16 @@ fn theta_covariance_terms<const S: usize>(
     debug_assert!(*p == MZ::<S>::transpose(p), "P⁺ not exactly symmetric");
     // The s-columns −F_n n̂ with their θ-derivatives (n̂ = ñ·g, g = 1
     // without `fitted_input`).
+    let fitted_terms;
     let (fs_l, fs_r) = if setup.fitted {
-        (rt.fn_l.map(|x| x * lin.gw[0]), rt.fn_r.map(|x| x * lin.gw[1]))
+        let gw = lin.gw;
+        fitted_terms = (rt.fn_l.map(|x| x * gw[0]), rt.fn_r.map(|x| x * gw[1]));
+        (&fitted_terms.0, &fitted_terms.1)
     } else {
-        (rt.fn_l, rt.fn_r)
+        (&rt.fn_l, &rt.fn_r)
     };
     for (jt, tt) in theta_terms.iter_mut().enumerate() {
-        theta_term(setup, lin, rt, (&fs_l, &fs_r), jt, p, tt);
+        theta_term(setup, lin, rt, (fs_l, fs_r), jt, p, tt);
     }
 }
 
@@ -383,7 +386,7 @@ fn theta_term<const S: usize>(
     p: &MZ<S>,
     tt: &mut M3xZ<S>,
 ) {
-    let (v, nls, nrs, counting, gw) = (setup.v, lin.nls, lin.nrs, lin.counting, &lin.gw);
+    let (v, nls, nrs, counting, gw) = (setup.v, lin.nls, lin.nrs, lin.counting, lin.gw);
     let dfl = dvec_of(&rt.fn_l, jt);
     let dfr = dvec_of(&rt.fn_r, jt);
     let (dsl, dsr) = (dvec_of(fs_l, jt), dvec_of(fs_r, jt));
@@ -396,16 +399,17 @@ fn theta_term<const S: usize>(
             dfxw.set_column(w, &(-df));
         }
     }
-    let gt = d_transition_times_p(&[d02, d12, 0.0], &dfxs, &dfxw, p);
+    let mut gt = MZx3::<S>::zeros();
+    d_transition_times_p(&[d02, d12, 0.0], &dfxs, &dfxw, p, &mut gt);
     times_transition_transpose(lin, &gt, tt);
     // ∂Q_x/∂θ_j (symmetric part added as half of A + Aᵀ).
     let dfa = dvec_of(&rt.f_a, jt);
     let dfb = Vector3::new(d02, d12, 0.0);
-    let (fn_l, fn_r) = (lin.fn_l, lin.fn_r);
-    let mut half_dq = fn_l * dfl.transpose() * lin.wl
-        + fn_r * dfr.transpose() * lin.wr
-        + lin.f_b * dfb.transpose() * v.beta_white
-        + lin.f_a * dfa.transpose() * v.a_y;
+    let (fn_l, fn_r, f_a, f_b, wl, wr) = (lin.fn_l, lin.fn_r, lin.f_a, lin.f_b, lin.wl, lin.wr);
+    let mut half_dq = fn_l * dfl.transpose() * wl
+        + fn_r * dfr.transpose() * wr
+        + f_b * dfb.transpose() * v.beta_white
+        + f_a * dfa.transpose() * v.a_y;
     if setup.fitted {
         // ∂(σ²ñ²g²)/∂θ_j = 2σ²ñ²g ∂g/∂θ_j; half of it in the half.
         let dwl = v.white_rel * nls * nls * gw[0].v * gw[0].d[jt];
@@ -428,8 +432,8 @@ fn theta_term<const S: usize>(
 }
 
 /// `G = ∂F̄ P⁺` (rows 0..3 only; `∂F̄` has the heading, s, sideslip and
-/// remainder columns `dfr2`, `dfxs`, `−dfr2`, `dfxw`), stored transposed
-/// (Gᵀ, S×3): row rr of G is a combination of rows of P⁺, read as its
+/// remainder columns `dfr2`, `dfxs`, `−dfr2`, `dfxw`), written transposed
+/// into `gt` (Gᵀ, S×3): row rr of G is a combination of rows of P⁺, read as its
 /// columns (P⁺ is exactly symmetric), so the inner loop runs down
 /// contiguous memory; the sums are the same to the bit.
 #[inline(always)]
@@ -438,8 +442,8 @@ fn d_transition_times_p<const S: usize>(
     dfxs: &Matrix3<f64>,
     dfxw: &M3x2,
     p: &MZ<S>,
-) -> MZx3<S> {
-    let mut gt = MZx3::<S>::zeros();
+    gt: &mut MZx3<S>,
+) {
     for rr in 0..3 {
         let (a2, a3, a4, a5) = (dfr2[rr], dfxs[(rr, 0)], dfxs[(rr, 1)], dfxs[(rr, 2)]);
         let (a9, a10) = (dfxw[(rr, 0)], dfxw[(rr, 1)]);
@@ -450,13 +454,12 @@ fn d_transition_times_p<const S: usize>(
                 + a10 * p10;
         }
     }
-    gt
 }
 
 /// `tt = G F̄ᵀ` for `gt = Gᵀ` ([`d_transition_times_p`]).
 #[inline(always)]
 fn times_transition_transpose<const S: usize>(lin: &Linearisation<S>, gt: &MZx3<S>, tt: &mut M3xZ<S>) {
-    let (f02, f12, fxs_ref, fxw_ref, diag) = (lin.f02, lin.f12, &lin.fxs_ref, &lin.fxw_ref, &lin.diag);
+    let (f02, f12, fxs_ref, fxw_ref, diag) = (lin.f02, lin.f12, lin.fxs_ref, lin.fxw_ref, lin.diag);
     for rr in 0..3 {
         for ci in 0..S {
             tt[(rr, ci)] = if ci < 3 {

@@ -45,23 +45,45 @@ pub(super) struct Innovation<const S: usize> {
 }
 
 impl<const S: usize> Innovation<S> {
-    /// The innovation of the reference measured at sample `k1` against the
-    /// predicted mean, covariance P⁻ and sensitivities D⁻.
+    /// All zero, before the window's first update.
     #[inline(always)]
-    pub(super) fn of(
+    pub(super) fn zero() -> Self {
+        Innovation {
+            k1: 0,
+            nu: Vector3::zeros(),
+            hp: M3xZ::<S>::zeros(),
+            r_k: Matrix3::zeros(),
+            s_mat: Matrix3::zeros(),
+            sinv: Matrix3::zeros(),
+            l: Matrix3::zeros(),
+            logdet: 0.0,
+            e: Vector3::zeros(),
+            sinv_nu: Vector3::zeros(),
+            k: MZx3::<S>::zeros(),
+            hd: SMatrix::zeros(),
+        }
+    }
+
+    /// The innovation of the reference measured at sample `lin.i + 1`
+    /// against the predicted mean, covariance P⁻ and sensitivities D⁻,
+    /// written over `self` (in place: the window loop keeps one
+    /// `Innovation` and never moves its arrays).
+    #[inline(always)]
+    pub(super) fn update(
+        &mut self,
         setup: &WindowSetup<'_, S>,
         lin: &Linearisation<S>,
         mean: &MeanState,
         p: &MZ<S>,
         d: &DZ<S>,
-    ) -> Result<Self> {
+    ) -> Result<()> {
         let (input, k1) = (setup.input, lin.i + 1);
         let y = Vector3::new(input.px[k1], input.py[k1], input.psi[k1]);
         let yhat = mean.x + mean.b;
         let nu = Vector3::new(y[0] - yhat[0], y[1] - yhat[1], wrap_angle(y[2] - yhat[2]));
-        let hp: M3xZ<S> = h_rows(p);
+        self.hp = h_rows(p);
         let r_k = setup.r + lin.r_q;
-        let s_mat = h_cols(&hp) + r_k;
+        let s_mat = h_cols(&self.hp) + r_k;
         let Some(chol) = s_mat.cholesky() else {
             return Err(Error::Numerical(format!(
                 "EIV filter: innovation covariance not positive definite in window {} at sample {k1}",
@@ -70,12 +92,13 @@ impl<const S: usize> Innovation<S> {
         };
         let sinv = chol.inverse();
         let l = chol.l();
-        let logdet = 2.0 * (l[(0, 0)].ln() + l[(1, 1)].ln() + l[(2, 2)].ln());
-        let e = l.solve_lower_triangular(&nu).unwrap_or_else(Vector3::zeros);
-        let sinv_nu = sinv * nu;
-        let k: MZx3<S> = hp.transpose() * sinv;
-        let hd = if setup.mode.derivs { h_rows(d) } else { SMatrix::zeros() };
-        Ok(Innovation { k1, nu, hp, r_k, s_mat, sinv, l, logdet, e, sinv_nu, k, hd })
+        self.logdet = 2.0 * (l[(0, 0)].ln() + l[(1, 1)].ln() + l[(2, 2)].ln());
+        self.e = l.solve_lower_triangular(&nu).unwrap_or_else(Vector3::zeros);
+        self.sinv_nu = sinv * nu;
+        self.k = self.hp.transpose() * sinv;
+        self.hd = if setup.mode.derivs { h_rows(d) } else { SMatrix::zeros() };
+        (self.k1, self.nu, self.r_k, self.s_mat, self.sinv, self.l) = (k1, nu, r_k, s_mat, sinv, l);
+        Ok(())
     }
 
     /// `∂R_k/∂p_j`: quantisation (η_0; θ through ∂f/∂n when following),
@@ -104,6 +127,8 @@ pub(super) struct ColumnWork<'w, const S: usize> {
     pub(super) dkn: &'w mut DZ<S>,
     /// `H ∂P⁻/∂p_j` (for ∂S and again in the Joseph form).
     pub(super) hdps: &'w mut [M3xZ<S>; NP],
+    /// `∂R_k/∂p_j` ([`Innovation::d_r`]; for ∂S and again in the Joseph form).
+    pub(super) dr: &'w mut [Matrix3<f64>; NP],
 }
 
 /// What the window accumulates: its sums ([`WindowSums`]), the previous
@@ -173,7 +198,11 @@ impl Accumulator {
         work: &mut ColumnWork<'_, S>,
         jacobian: &mut InputJacobianState<S>,
     ) -> SMatrix<f64, 3, 4> {
-        let (mut info, g_t) = score_columns(setup, lin, inn, dp, work, &mut self.out);
+        // The mean part of the information, (HD)ᵀ S⁻¹ (HD).
+        let sh = inn.sinv * inn.hd;
+        let mut info = inn.hd.transpose() * sh;
+        self.out.info_mean_theta += info.fixed_view::<4, 4>(0, 0);
+        let g_t = score_columns(setup, lin, inn, dp, work, &mut self.out);
         jacobian.add_share_eta_terms(setup, inn, work.ds, &mut self.out);
         add_trace_information(setup.cols(), work.a, &mut info);
         let out = &mut self.out;
@@ -217,9 +246,8 @@ impl Accumulator {
 }
 
 /// The gradient of the objective through ν and through the propagated
-/// `∂S/∂p_j`, the mean part of the information, and per propagated column
-/// `∂S_j`, `S⁻¹∂S_j` and the column of `∂K ν` (in `work`). Returns the
-/// information so far and the θ-score of `½ νᵀS⁻¹ν`.
+/// `∂S/∂p_j`, and per propagated column `∂R_j`, `∂S_j`, `S⁻¹∂S_j` and the
+/// column of `∂K ν` (in `work`). Returns the θ-score of `½ νᵀS⁻¹ν`.
 #[inline(always)]
 fn score_columns<const S: usize>(
     setup: &WindowSetup<'_, S>,
@@ -228,15 +256,12 @@ fn score_columns<const S: usize>(
     dp: &[MZ<S>; NP],
     work: &mut ColumnWork<'_, S>,
     out: &mut WindowSums,
-) -> (MP, Vector4<f64>) {
-    let (hd, sinv, sinv_nu) = (&inn.hd, &inn.sinv, &inn.sinv_nu);
+) -> Vector4<f64> {
+    let (hd, sinv, sinv_nu) = (&inn.hd, inn.sinv, inn.sinv_nu);
     // Gradient of ½νᵀS⁻¹ν through ν: νᵀS⁻¹ ∂ν = −(HD)ᵀ S⁻¹ ν.
     let gnu = hd.transpose() * sinv_nu;
     out.grad -= gnu;
     out.grad_profile -= gnu;
-    let sh = sinv * hd;
-    let info = hd.transpose() * sh;
-    out.info_mean_theta += info.fixed_view::<4, 4>(0, 0);
     let mut g_t = Vector4::<f64>::zeros();
     for c in 0..4 {
         g_t[c] = -gnu[c];
@@ -244,7 +269,8 @@ fn score_columns<const S: usize>(
     for &jj in setup.cols() {
         work.hdps[jj] = h_rows(&dp[jj]);
         let hdp = &work.hdps[jj];
-        work.ds[jj] = h_cols(hdp) + Innovation::d_r(setup, lin, jj);
+        work.dr[jj] = Innovation::d_r(setup, lin, jj);
+        work.ds[jj] = h_cols(hdp) + work.dr[jj];
         work.a[jj] = sinv * work.ds[jj];
         let ds_snu = work.ds[jj] * sinv_nu;
         let gq = -0.5 * sinv_nu.dot(&ds_snu);
@@ -259,7 +285,7 @@ fn score_columns<const S: usize>(
         let col = hdp.transpose() * sinv_nu - inn.k * ds_snu;
         work.dkn.set_column(jj, &col);
     }
-    (info, g_t)
+    g_t
 }
 
 /// `½ tr(S⁻¹∂S_i S⁻¹∂S_j)` over the propagated columns, added to `info`;
@@ -290,7 +316,7 @@ fn add_trace_information(cols: &[usize], a: &[Matrix3<f64>; NP], info: &mut MP) 
 /// turning signal.
 #[inline(always)]
 fn whitened_derivatives<const S: usize>(inn: &Innovation<S>, ds: &[Matrix3<f64>; NP]) -> SMatrix<f64, 3, 4> {
-    let (l, hd, r_w) = (&inn.l, &inn.hd, inn.e);
+    let (l, hd, r_w) = (inn.l, &inn.hd, inn.e);
     let mut dr = SMatrix::<f64, 3, 4>::zeros();
     for jt in 0..4 {
         let dnu_j = -Vector3::new(hd[(0, jt)], hd[(1, jt)], hd[(2, jt)]);
@@ -358,7 +384,6 @@ pub(super) fn null_moments<const S: usize, K: KernelCalls>(
 #[inline(always)]
 pub(super) fn update_sensitivities<const S: usize, K: KernelCalls>(
     setup: &WindowSetup<'_, S>,
-    lin: &Linearisation<S>,
     inn: &Innovation<S>,
     d: &mut DZ<S>,
     dp: &mut [MZ<S>; NP],
@@ -371,7 +396,7 @@ pub(super) fn update_sensitivities<const S: usize, K: KernelCalls>(
         }
     }
     for &jj in setup.cols() {
-        let dr = Innovation::d_r(setup, lin, jj);
-        K::joseph_in_place_with(&mut dp[jj], &inn.k, (dr != Matrix3::zeros()).then_some(&dr), &work.hdps[jj]);
+        let dr = &work.dr[jj];
+        K::joseph_in_place_with(&mut dp[jj], &inn.k, (*dr != Matrix3::zeros()).then_some(dr), &work.hdps[jj]);
     }
 }

@@ -168,9 +168,11 @@ impl<'a, const S: usize> WindowSetup<'a, S> {
         &self.cols_buf[..self.ncols]
     }
 
-    /// The covariance recursion's terms at sample `i` ([`Linearisation`]).
+    /// Writes the covariance recursion's terms at sample `i` over `lin`
+    /// ([`Linearisation`]; in place, so that the window loop keeps one and
+    /// never moves its arrays).
     #[inline(always)]
-    pub(super) fn linearise(&self, i: usize) -> Linearisation<S> {
+    pub(super) fn linearise(&self, i: usize, lin: &mut Linearisation<S>) {
         let (input, v) = (self.input, self.v);
         let (nl, nr) = (input.n_rl[i], input.n_rr[i]);
         let (nls, nrs) = if self.smooth_l.is_empty() {
@@ -180,18 +182,17 @@ impl<'a, const S: usize> WindowSetup<'a, S> {
         };
         let (beta, a_y) = (input.beta[i], input.a_y[i]);
         let uref = Input { n_rl: nl, n_rr: nr, beta, a_y };
-        let (rv, rt) = if self.theta_cols {
-            let rt = reference_terms::<4>(input.psi[i], &uref, self.theta_cov, self.ts);
-            (rt.values(), Some(rt))
-        } else {
-            (reference_terms::<0>(input.psi[i], &uref, self.theta_cov, self.ts).values(), None)
+        lin.rt = self.theta_cols.then(|| reference_terms::<4>(input.psi[i], &uref, self.theta_cov, self.ts));
+        let rv = match &lin.rt {
+            Some(rt) => rt.values(),
+            None => reference_terms::<0>(input.psi[i], &uref, self.theta_cov, self.ts).values(),
         };
         let (fn_l, fn_r, f_a) = (rv.fn_l, rv.fn_r, rv.f_a);
         // With `fitted_input` the relative wheel noise is scaled by the fitted
         // true input n̂ = ñ·g, g = C(θ_ref)/C(θ): the s-columns of F̄ are
         // −F_n n̂ and the white variance is σ²n̂² (g = 1 otherwise).
         let gw = if self.fitted { fitted_input_factors(a_y, self.theta, self.theta_ref) } else { [Dual::cst(1.0); 2] };
-        let fxs_ref = if self.fitted {
+        lin.fxs_ref = if self.fitted {
             let (sl, sr) = (fn_l * gw[0].v, fn_r * gw[1].v);
             Matrix3::from_columns(&[-sl * nls - sr * nrs, -sl * nls, -sr * nrs])
         } else {
@@ -206,44 +207,21 @@ impl<'a, const S: usize> WindowSetup<'a, S> {
         // nothing (standstill) the remainder is carried over unchanged: no
         // error, no new draw (F row 1).
         let counting = [v.quant_counting && nl != 0.0, v.quant_counting && nr != 0.0];
-        let mut diag = self.base_diag;
-        let mut fxw_ref = M3x2::zeros();
+        lin.diag = self.base_diag;
+        lin.fxw_ref = M3x2::zeros();
         for (w, f_w) in [fn_l, fn_r].into_iter().enumerate() {
             if counting[w] {
-                diag[IW + w] = 0.0;
-                fxw_ref.set_column(w, &(-f_w));
+                lin.diag[IW + w] = 0.0;
+                lin.fxw_ref.set_column(w, &(-f_w));
             }
         }
         let (wl, wr) = white_variances(v, self.fitted, (nl, nr), (nls, nrs), &gw);
-        let (r_q, r_q_theta) = measurement_quantisation(v, &fn_l, &fn_r, rt.as_ref());
+        lin.r_q = measurement_quantisation(v, &fn_l, &fn_r, lin.rt.as_ref(), &mut lin.r_q_theta);
         let f_b = Vector3::new(rv.f02, rv.f12, 0.0);
-        let (q_x, q_x_eta0) = process_noise(v, (nl, nr), (wl, wr), (&fn_l, &fn_r, &f_a, &f_b));
-        Linearisation {
-            i,
-            nl,
-            nr,
-            nls,
-            nrs,
-            uref,
-            rt,
-            f02: rv.f02,
-            f12: rv.f12,
-            fn_l,
-            fn_r,
-            f_a,
-            f_b,
-            gw,
-            fxs_ref,
-            fxw_ref,
-            counting,
-            diag,
-            wl,
-            wr,
-            r_q,
-            r_q_theta,
-            q_x,
-            q_x_eta0,
-        }
+        (lin.q_x, lin.q_x_eta0) = process_noise(v, (nl, nr), (wl, wr), (&fn_l, &fn_r, &f_a, &f_b));
+        (lin.i, lin.nl, lin.nr, lin.nls, lin.nrs, lin.uref) = (i, nl, nr, nls, nrs, uref);
+        (lin.f02, lin.f12, lin.fn_l, lin.fn_r, lin.f_a, lin.f_b) = (rv.f02, rv.f12, fn_l, fn_r, f_a, f_b);
+        (lin.gw, lin.counting, lin.wl, lin.wr) = (gw, counting, wl, wr);
     }
 }
 
@@ -341,10 +319,42 @@ pub(super) struct Linearisation<const S: usize> {
 }
 
 impl<const S: usize> Linearisation<S> {
+    /// All zero, before the window's first sample.
+    #[inline(always)]
+    pub(super) fn zero() -> Self {
+        let z3 = Vector3::zeros();
+        Linearisation {
+            i: 0,
+            nl: 0.0,
+            nr: 0.0,
+            nls: 0.0,
+            nrs: 0.0,
+            uref: Input::default(),
+            rt: None,
+            f02: 0.0,
+            f12: 0.0,
+            fn_l: z3,
+            fn_r: z3,
+            f_a: z3,
+            f_b: z3,
+            gw: [Dual::cst(0.0); 2],
+            fxs_ref: Matrix3::zeros(),
+            fxw_ref: M3x2::zeros(),
+            counting: [false; 2],
+            diag: [0.0; S],
+            wl: 0.0,
+            wr: 0.0,
+            r_q: Matrix3::zeros(),
+            r_q_theta: [Matrix3::zeros(); 4],
+            q_x: Matrix3::zeros(),
+            q_x_eta0: Matrix3::zeros(),
+        }
+    }
+
     /// The structured transition F̄ of the sample.
     #[inline(always)]
-    pub(super) fn transition(&self) -> Transition<'_, S> {
-        Transition { f02: self.f02, f12: self.f12, fxs: &self.fxs_ref, fxw: &self.fxw_ref, diag: &self.diag }
+    pub(super) fn transition(&self) -> Transition<S> {
+        Transition { f02: self.f02, f12: self.f12, fxs: self.fxs_ref, fxw: self.fxw_ref, diag: self.diag }
     }
 }
 
@@ -386,27 +396,30 @@ fn white_variances(
 
 /// Quantisation as measurement noise (`quant_in_measurement`):
 /// `R_q = q²/12·(f_l f_lᵀ + f_r f_rᵀ)` and, with the θ-gradients of the
-/// terms, `∂R_q/∂θ` (zeros otherwise).
+/// terms, `∂R_q/∂θ` into `r_q_theta` (zeros otherwise).
 #[inline(always)]
 fn measurement_quantisation(
     v: &Variances,
     fn_l: &Vector3<f64>,
     fn_r: &Vector3<f64>,
     rt: Option<&ReferenceTerms<4>>,
-) -> (Matrix3<f64>, [Matrix3<f64>; 4]) {
-    let mut r_q_theta = [Matrix3::<f64>::zeros(); 4];
+    r_q_theta: &mut [Matrix3<f64>; 4],
+) -> Matrix3<f64> {
     if !v.quant_in_measurement {
-        return (Matrix3::zeros(), r_q_theta);
+        *r_q_theta = [Matrix3::zeros(); 4];
+        return Matrix3::zeros();
     }
-    let r_q = (fn_l * fn_l.transpose() + fn_r * fn_r.transpose()) * v.quant;
-    if let Some(rt) = rt {
-        for (jt, d_rq) in r_q_theta.iter_mut().enumerate() {
-            let (dfl, dfr) = (dvec_of(&rt.fn_l, jt), dvec_of(&rt.fn_r, jt));
-            let a = fn_l * dfl.transpose() + fn_r * dfr.transpose();
-            *d_rq = (a + a.transpose()) * v.quant;
+    match rt {
+        Some(rt) => {
+            for (jt, d_rq) in r_q_theta.iter_mut().enumerate() {
+                let (dfl, dfr) = (dvec_of(&rt.fn_l, jt), dvec_of(&rt.fn_r, jt));
+                let a = fn_l * dfl.transpose() + fn_r * dfr.transpose();
+                *d_rq = (a + a.transpose()) * v.quant;
+            }
         }
+        None => *r_q_theta = [Matrix3::zeros(); 4],
     }
-    (r_q, r_q_theta)
+    (fn_l * fn_l.transpose() + fn_r * fn_r.transpose()) * v.quant
 }
 
 /// The pose block of the process noise `Q_x` (white wheel noise, a_y's
@@ -519,10 +532,13 @@ pub(super) fn run_window_s<const S: usize, K: KernelCalls>(
     let mut a = [Matrix3::<f64>::zeros(); NP];
     let mut dkn = DZ::<S>::zeros();
     let mut hdps = [M3xZ::<S>::zeros(); NP];
+    let mut dr_k = [Matrix3::<f64>::zeros(); NP];
     let mut jacobian = InputJacobianState::new(&setup);
     let mut acc = Accumulator::new();
+    let mut lin = Linearisation::zero();
+    let mut inn = Innovation::zero();
     for i in window.start..window.end {
-        let lin = setup.linearise(i);
+        setup.linearise(i, &mut lin);
         // The prediction.
         if i == window.start && v.quant_in_measurement {
             add_initial_count_offset(&setup, &lin, &mut p, &mut p0, &mut dp);
@@ -540,14 +556,14 @@ pub(super) fn run_window_s<const S: usize, K: KernelCalls>(
         if input.reference_measured.is_some_and(|m| !m[i + 1]) {
             continue;
         }
-        let inn = Innovation::of(&setup, &lin, &mean, &p, &d)?;
+        inn.update(&setup, &lin, &mean, &p, &d)?;
         jacobian.update::<K>(&setup, &inn, &mut acc.out);
         acc.add_innovation(&inn, window.index)?;
         if setup.null {
             null_moments::<S, K>(&setup, &lin, &inn, &mut p0, &mut c0, &mut acc.out);
         }
         if mode.derivs {
-            let mut work = ColumnWork { ds: &mut ds, a: &mut a, dkn: &mut dkn, hdps: &mut hdps };
+            let mut work = ColumnWork { ds: &mut ds, a: &mut a, dkn: &mut dkn, hdps: &mut hdps, dr: &mut dr_k };
             let dr = acc.add_derivatives(&setup, &lin, &inn, &dp, &mut work, &mut jacobian);
             if setup.corrected {
                 add_corrected_bias(&inn, &mut xcov, &mut acc.out);
@@ -555,7 +571,7 @@ pub(super) fn run_window_s<const S: usize, K: KernelCalls>(
             if let Some(rec) = record.as_deref_mut() {
                 rec.push(InnovationRecord { nu: inn.nu, s: inn.s_mat, dnu: -inn.hd, ds: *work.ds, r: inn.e, dr });
             }
-            update_sensitivities::<S, K>(&setup, &lin, &inn, &mut d, &mut dp, &work);
+            update_sensitivities::<S, K>(&setup, &inn, &mut d, &mut dp, &work);
         }
         mean.correct(&(inn.k * inn.nu));
         K::joseph_in_place_with(&mut p, &inn.k, Some(&inn.r_k), &inn.hp);
