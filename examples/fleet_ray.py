@@ -22,7 +22,7 @@ whose verdict is `accepted`.
 Without `--address` a local Ray is started (usage statistics and the
 dashboard off: it needs no network); with `--address auto` or
 `--address ray://HOST:10001` the script joins an existing cluster. See
-docs/fleet.md.
+docs/guide.md, "A fleet on Ray".
 """
 
 from __future__ import annotations

@@ -16,14 +16,14 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use odocal::calibrate::EivMethodOptions;
-use odocal::drive::segment::{
-    calibration_segments, validation_segments, SegmentData, SegmentOptions, ValidationSegmentOptions,
-};
 use odocal::eiv::EivOptions;
 use odocal::identify::{batch_gauss_newton, batch_normal_equations, IdentifyOptions};
 use odocal::model::{step_jacobians, Input, State, Theta};
+use odocal::segment::{
+    calibration_segments, validation_segments, SegmentData, SegmentOptions, ValidationSegmentOptions,
+};
 use odocal::sim::{simulate, SimOptions};
+use odocal::EivMethodOptions;
 use odocal::{calibrate, CalibrationOptions, Method};
 
 fn drive(km: f64) -> odocal::Drive {
@@ -76,7 +76,7 @@ fn bench_three_step(c: &mut Criterion) {
     for km in [6.0, 12.0, 24.0, 48.0] {
         let d = drive(km);
         g.bench_with_input(BenchmarkId::from_parameter(format!("{km}km")), &d, |b, d| {
-            b.iter(|| calibrate(d, &CalibrationOptions::default(), None).expect("calibrate"))
+            b.iter(|| calibrate(d, &CalibrationOptions::default()).expect("calibrate"))
         });
     }
     g.finish();
@@ -99,7 +99,7 @@ fn bench_eiv(c: &mut Criterion) {
         ] {
             let opts = CalibrationOptions { method, ..Default::default() };
             g.bench_with_input(BenchmarkId::new(name, format!("{km}km")), &d, |b, d| {
-                b.iter(|| calibrate(d, &opts, None).expect("calibrate"))
+                b.iter(|| calibrate(d, &opts).expect("calibrate"))
             });
         }
     }

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Result};
 use clap::{ArgAction, Args};
-use odocal::calibrate::settings::{NoiseModelSetting, Settings};
+use odocal::settings::{NoiseModelSetting, Settings};
 use odocal::{FinalSegments, Method, ParamSet, SolverKind, Theta};
 
 /// Help heading of the segment and Gauss-Newton options.
@@ -83,17 +83,19 @@ pub struct CalibrationArgs {
     /// segment is used.
     #[arg(long)]
     pub auto_fix: bool,
-    /// Write θ and 1σ to a ROS 2 .yaml or a .json.
+    /// Write θ and 1σ to a ROS 2 .yaml or a .json ("-": YAML to stdout).
     ///
     /// The calibrated parameters with their 1σ, units, verdict and
-    /// provenance: a ROS 2 parameter file (.yaml/.yml) or JSON (.json).
-    /// `--theta0` and `validate --theta` read it back.
+    /// provenance (with the drives' fingerprints): a ROS 2 parameter file
+    /// (.yaml/.yml) or JSON (.json); "-" writes the YAML to stdout instead of
+    /// the text report. `--theta0` and `validate --theta` read it back.
     #[arg(long)]
     pub params_out: Option<PathBuf>,
-    /// Write a self-contained HTML report here.
+    /// Write a self-contained HTML report here ("-": stdout).
     ///
     /// The verdict, θ, a map, per-segment errors, residuals and warnings, in
-    /// one file without scripts or network fetches.
+    /// one file without scripts or network fetches; "-" writes it to stdout
+    /// instead of the text report.
     #[arg(long)]
     pub report: Option<PathBuf>,
     /// Minimum peak yaw rate for a segment to be selected, rad/s.
@@ -154,7 +156,7 @@ pub struct CalibrationArgs {
     /// Starting noise model, a TOML file of noise-model fields (e.g.
     /// `wheel_white_rel_sigma = 0.01`; missing fields keep the production-car
     /// defaults; `known = ["heading_white"]` holds stated levels; see
-    /// `odocal::calibrate::eiv::read_noise_model`).
+    /// docs/reference.md).
     #[arg(long, help_heading = EIV_NOISE, hide_short_help = true)]
     pub noise_model: Option<PathBuf>,
     /// Noise sources whose level in the starting model is known (e.g. from
@@ -215,7 +217,7 @@ pub struct CalibrationArgs {
     /// bootstrap with B replicates (seed --bootstrap-seed); about B extra
     /// fits of time. It replaces the default correction of every parameter
     /// (see --correct-bias); the default fit has no c_e bias left for it to
-    /// remove (docs/study.md).
+    /// remove (docs/validation.md).
     #[arg(long, value_name = "B", help_heading = EIV_BIAS, hide_short_help = true,
           conflicts_with_all = ["correct_bias", "no_bias_correction"])]
     pub correct_c_e_bias: Option<usize>,
@@ -241,7 +243,7 @@ pub struct CalibrationArgs {
     /// Also write the parameters under a consumer's keys: odocal (none) or
     /// diff_drive_controller (wheel_separation, wheel_radius, radius multipliers).
     #[arg(long, default_value = "odocal", help_heading = PARAM_FILE, hide_short_help = true)]
-    pub params_mapping: odocal::io::param_file::ParamMapping,
+    pub params_mapping: odocal::ParamMapping,
 }
 
 /// A clap parser of a library enum named on the command line: the names
@@ -311,16 +313,16 @@ impl CalibrationArgs {
 pub struct ThetaArg {
     pub theta: Theta,
     /// The parameter file θ came from, when it did.
-    pub file: Option<(PathBuf, odocal::io::param_file::ParamFile)>,
+    pub file: Option<(PathBuf, odocal::ParamFile)>,
 }
 
 impl std::str::FromStr for ThetaArg {
     type Err = odocal::Error;
     fn from_str(s: &str) -> std::result::Result<Self, Self::Err> {
         let path = Path::new(s);
-        if odocal::io::param_file::is_param_file(path) {
+        if odocal::ParamFile::is_param_file(path) {
             // `read` has checked θ (`theta()` cannot fail after it).
-            let f = odocal::io::param_file::ParamFile::read(path)?;
+            let f = odocal::ParamFile::read(path)?;
             return Ok(ThetaArg { theta: f.theta()?, file: Some((path.into(), f)) });
         }
         Ok(ThetaArg { theta: s.parse()?, file: None })

@@ -6,14 +6,15 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::Args;
-use odocal::calibrate::settings::{Caller, ManifestSettings, SettingsAccount};
+use odocal::output::is_stdout;
+use odocal::settings::{Caller, ManifestSettings, SettingsAccount};
 use odocal::{
-    drive::segment, sim, CalibrationOptions, CalibrationReport, Drive, Holdout, Method, MultiValidation, ParamSet,
-    Theta, VerdictLevel,
+    segment, sim, CalibrationOptions, CalibrationReport, Drive, Holdout, Method, ParamSet, Theta, VerdictLevel,
 };
 
 use crate::args::{CalibrationArgs, HalfArg, HelpArgs};
-use crate::io::{load_drive_with_scale, load_truth, print_warnings, write_json};
+use crate::io::{drive_entry, load_drive_with_scale, load_truth, print_warnings, write_json};
+use crate::output::{refuse_sidecar_onto_drive, refuse_stdout, write_text, Files};
 use crate::progress::Bars;
 use crate::simulate::sim_options;
 use crate::{report, Outcome};
@@ -50,7 +51,7 @@ pub struct DemoArgs {
     /// Route length, km.
     #[arg(long, default_value_t = 24.0)]
     length_km: f64,
-    /// paper (default), off, white or high noise.
+    /// paper (default), off, white, high or random:N noise.
     #[arg(long, default_value = "paper", hide_default_value = true)]
     noise: String,
     /// Also write the simulated drive here.
@@ -69,6 +70,11 @@ pub struct DemoArgs {
 
 /// Calibrates the drive(s) named on the command line.
 pub fn calibrate_cmd(a: CalibrateArgs, bars: &Bars) -> Result<Outcome> {
+    let mut files = Files::default();
+    for p in &a.drive {
+        files.drive("the drive being calibrated", p);
+    }
+    calibration_files(&mut files, &a.calibration, a.json.as_deref())?;
     let mut drives = Vec::with_capacity(a.drive.len());
     let mut wheel_scale = None;
     let mut manifests = Vec::new();
@@ -78,20 +84,38 @@ pub fn calibrate_cmd(a: CalibrateArgs, bars: &Bars) -> Result<Outcome> {
         manifests.extend(m);
         drives.push(d);
     }
+    let others = load_validation_drives(&a.calibration.validate_on)?;
+    let fingerprints = distinct_drives(&a.drive, &drives, &others)?;
     let manifest = ManifestSettings::merge(&manifests)?;
     let first = &a.drive[0];
     let (drive, truth) = if drives.len() == 1 {
-        (drives.swap_remove(0), load_truth(first).map(|s| s.theta_true))
+        let truth = load_truth(first, &drives[0]).map(|s| s.theta_true);
+        (drives.swap_remove(0), truth)
     } else {
         let refs: Vec<&Drive> = drives.iter().collect();
         (Drive::concat(&refs).context("calibrating several drives jointly")?, None)
     };
-    let source = Some((first.as_path(), wheel_scale.as_deref()));
-    run_calibration(&drive, source, manifest.as_ref(), &a.calibration, a.json.as_deref(), truth, bars)
+    let job = Job {
+        drive: &drive,
+        source: Some((first.as_path(), wheel_scale.as_deref())),
+        manifest: manifest.as_ref(),
+        truth,
+        others,
+        fingerprints,
+    };
+    run_calibration(job, &a.calibration, a.json.as_deref(), bars)
 }
 
 /// Simulates a drive, calibrates it and compares the result with the truth.
 pub fn demo_cmd(a: DemoArgs, bars: &Bars) -> Result<Outcome> {
+    let mut files = Files::default();
+    if let Some(p) = &a.out {
+        refuse_stdout("--out", p, "the demo writes the drive's sidecar beside it")?;
+        refuse_sidecar_onto_drive("--out", p)?;
+    }
+    files.output("--out", a.out.as_deref());
+    files.output("the sidecar beside --out (its name with .json)", a.out.as_deref().map(sim::sidecar_path).as_deref());
+    calibration_files(&mut files, &a.calibration, a.json.as_deref())?;
     let o = sim_options(a.sim_seed, a.length_km, &a.noise)?;
     bars.stage("simulating");
     let sim = sim::simulate(&o)?;
@@ -100,7 +124,9 @@ pub fn demo_cmd(a: DemoArgs, bars: &Bars) -> Result<Outcome> {
         sim.drive.write_csv(p)?;
         sim.sidecar.write_json(&sim::sidecar_path(p))?;
     }
-    if a.json.as_deref() != Some(Path::new("-")) {
+    let others = load_validation_drives(&a.calibration.validate_on)?;
+    let fingerprints = distinct_drives(&[PathBuf::from("simulated drive")], std::slice::from_ref(&sim.drive), &others)?;
+    if !files.any_stdout() {
         let s = &sim.sidecar.stats;
         println!(
             "simulated {:.1} km, {:.0} s, seed {}, noise '{}' ({:.2} % rms wheel error); true θ: {}\n",
@@ -112,40 +138,93 @@ pub fn demo_cmd(a: DemoArgs, bars: &Bars) -> Result<Outcome> {
             sim.sidecar.theta_true
         );
     }
-    run_calibration(&sim.drive, None, None, &a.calibration, a.json.as_deref(), Some(sim.sidecar.theta_true), bars)
+    let job = Job {
+        drive: &sim.drive,
+        source: None,
+        manifest: None,
+        truth: Some(sim.sidecar.theta_true),
+        others,
+        fingerprints,
+    };
+    run_calibration(job, &a.calibration, a.json.as_deref(), bars)
+}
+
+/// The files a calibration reads besides its drives (`--validate-on`,
+/// `--theta0`, `--noise-model`) and writes (`--json`, `--report`,
+/// `--params-out`), added to `files` and checked.
+fn calibration_files(files: &mut Files, args: &CalibrationArgs, json: Option<&Path>) -> Result<()> {
+    for p in &args.validate_on {
+        files.drive("the --validate-on drive", p);
+    }
+    if let Some((p, _)) = args.theta0.as_ref().and_then(|t| t.file.as_ref()) {
+        files.input("the --theta0 parameter file", p);
+    }
+    if let Some(p) = &args.noise_model {
+        files.input("the --noise-model file", p);
+    }
+    files
+        .output("--json", json)
+        .output("--report", args.report.as_deref())
+        .output("--params-out", args.params_out.as_deref());
+    files.check()
+}
+
+/// Refuses a drive given twice (the same samples): among the calibration
+/// drives `named`, and between them and the `--validate-on` drives.
+/// Returns each drive's report entry (role, path, fingerprint).
+fn distinct_drives(paths: &[PathBuf], drives: &[Drive], others: &[OtherDrive]) -> Result<Vec<serde_json::Value>> {
+    let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
+    let several = names.len() > 1;
+    let mut all: Vec<(String, &Drive)> = names
+        .iter()
+        .zip(drives)
+        .enumerate()
+        .map(|(i, (n, d))| (if several { format!("drive {} ({n})", i + 1) } else { n.clone() }, d))
+        .collect();
+    all.extend(others.iter().map(|(name, d, _)| (format!("the --validate-on drive {name}"), d)));
+    let refs: Vec<(&str, &Drive)> = all.iter().map(|(n, d)| (n.as_str(), *d)).collect();
+    let prints = odocal::refuse_duplicates(&refs)?;
+    let roles = names
+        .iter()
+        .map(|n| ("calibration", n.as_str()))
+        .chain(others.iter().map(|(n, _, _)| ("validation", n.as_str())));
+    Ok(roles.zip(&prints).map(|((role, name), fp)| drive_entry(role, name, fp)).collect())
 }
 
 /// A `--validate-on` drive: its name, the drive and its manifest's settings.
 type OtherDrive = (String, Drive, Option<ManifestSettings>);
 
-/// Calibrates `drive` and writes every report asked for.
-///
-/// `source` is the input file and how to read c_e (ticks per revolution or
-/// nominal circumference) when the drive came from a manifest; `None` for a
-/// simulated drive, whose truth is `truth_theta`.
-fn run_calibration(
-    drive: &Drive,
-    source: Option<(&Path, Option<&str>)>,
-    manifest: Option<&ManifestSettings>,
-    args: &CalibrationArgs,
-    json: Option<&Path>,
-    truth_theta: Option<Theta>,
-    bars: &Bars,
-) -> Result<Outcome> {
+/// What a calibration runs on.
+struct Job<'a> {
+    /// The drive (several joined).
+    drive: &'a Drive,
+    /// The input file and how to read c_e (ticks per revolution or nominal
+    /// circumference) when the drive came from a manifest; `None` for a
+    /// simulated drive.
+    source: Option<(&'a Path, Option<&'a str>)>,
+    /// The manifests' calibration settings.
+    manifest: Option<&'a ManifestSettings>,
+    /// The true θ, for a simulated drive (or one whose sidecar is bound to it).
+    truth: Option<Theta>,
+    /// The `--validate-on` drives.
+    others: Vec<OtherDrive>,
+    /// Each drive's report entry (role, path, fingerprint).
+    fingerprints: Vec<serde_json::Value>,
+}
+
+/// Calibrates the job's drive and writes every report asked for.
+fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, bars: &Bars) -> Result<Outcome> {
+    let Job { drive, source, manifest, truth: truth_theta, others, fingerprints } = job;
     let settings = args.settings()?;
     let resolved = settings.resolve(manifest, Caller::CommandLine)?;
     let (opts, account) = (&resolved.options, &resolved.account);
     // The extrinsics the command line gives apply to every validation drive.
     let given = settings.stated_extrinsics();
-    let others = load_validation_drives(&args.validate_on)?;
     let holdout = holdout(args.holdout, &others)?;
-    // The halves are copies only when a hold-out is asked for.
+    // The data the report's validation ran on (truth and HTML report).
     let split = holdout.as_ref().map(|h| h.split(drive)).transpose()?;
-    let (fit, held) = match &split {
-        Some((fit, held)) => (fit.as_ref(), Some(held.as_ref())),
-        None => (drive, None),
-    };
-    let (r, per_drive) = calibrate(drive, fit, held, &others, given, opts, bars)
+    let held = split.as_ref().map(|(_, held)| held.as_ref());
+    let r = calibrate(drive, holdout.as_ref(), &others, given, opts, bars)
         .map_err(|e| with_hint(e, source, args, &opts.method, bars))?;
     let wheel_scale = source.and_then(|(_, w)| w);
     let drive = held.unwrap_or(drive);
@@ -159,31 +238,43 @@ fn run_calibration(
     };
     let truth_ref = truth.as_ref().map(|(t, e)| (t, *e));
     let input = source.map(|(p, _)| p.display().to_string()).unwrap_or_else(|| "simulated drive".into());
+    let prints = calibration_fingerprints(&fingerprints);
     if let Some(p) = &args.params_out {
         // The σ that stands for the result (the verdict's, the JSON's `sigma`).
         let mut f = r.param_file(&input);
         f.node = args.params_node.clone();
         f.mapping = args.params_mapping;
-        f.write(p)?;
+        f.provenance.push(("fingerprint".into(), prints.clone()));
+        let text = if is_stdout(p) { f.to_ros2_yaml() } else { f.text_for(p)? };
+        write_text(p, &text)?;
     }
     if let Some(p) = &args.report {
-        write_html_report(p, drive, &r, opts, &input, truth_ref)?;
+        write_html_report(p, drive, &r, opts, (&input, &prints), truth_ref)?;
     }
     let outcome = if r.verdict.level == VerdictLevel::Rejected { Outcome::Rejected } else { Outcome::Done };
     if let Some(p) = json {
         let mut v = report_json(&r, truth_ref, wheel_scale)?;
-        if let (Some(m), Some(obj)) = (&per_drive, v.as_object_mut()) {
-            obj.insert("validate_on".into(), serde_json::to_value(m)?);
+        if let Some(obj) = v.as_object_mut() {
+            obj.insert("drives".into(), serde_json::Value::Array(fingerprints));
         }
         account.add_to_json(&mut v)?;
         write_json(p, v)?;
-        if p == Path::new("-") {
-            print_warnings(&r.warnings);
-            return Ok(outcome);
-        }
     }
-    print_text_report(&r, truth_ref, wheel_scale, per_drive.as_ref(), account)?;
+    let on_stdout = [json, args.report.as_deref(), args.params_out.as_deref()].into_iter().flatten().any(is_stdout);
+    if on_stdout {
+        print_warnings(&r.warnings);
+        return Ok(outcome);
+    }
+    print_text_report(&r, truth_ref, wheel_scale, account)?;
     Ok(outcome)
+}
+
+/// The fingerprints of the calibration drives (not the validation drives),
+/// comma separated: a parameter file's and the HTML report's provenance.
+fn calibration_fingerprints(entries: &[serde_json::Value]) -> String {
+    let of_role = |e: &&serde_json::Value| e["role"] == "calibration";
+    let prints: Vec<&str> = entries.iter().filter(of_role).filter_map(|e| e["fingerprint"].as_str()).collect();
+    prints.join(", ")
 }
 
 /// Reads the `--validate-on` drives.
@@ -210,18 +301,17 @@ fn holdout(half: Option<HalfArg>, others: &[OtherDrive]) -> Result<Option<Holdou
     })
 }
 
-/// Runs the calibration on `fit`, validated on `held` or, with
+/// Runs the calibration of `drive`, validated on the `holdout` or, with
 /// `--validate-on`, on each other drive (`given`: the extrinsics the
 /// command line states, which apply to each).
 fn calibrate(
     drive: &Drive,
-    fit: &Drive,
-    held: Option<&Drive>,
+    holdout: Option<&Holdout>,
     others: &[OtherDrive],
     given: ParamSet,
     opts: &CalibrationOptions,
     bars: &Bars,
-) -> odocal::Result<(CalibrationReport, Option<MultiValidation>)> {
+) -> odocal::Result<CalibrationReport> {
     let cb = |e| bars.event(e);
     // Each validation drive with the extrinsics that apply to it (its own
     // manifest's `[reference]` where the calibration neither estimates nor
@@ -234,9 +324,11 @@ fn calibrate(
             reference: m.as_ref().and_then(|m| m.reference.as_ref()),
         })
         .collect();
-    match validation.is_empty() {
-        true => odocal::calibrate_held_out(fit, held, opts, Some(&cb)).map(|r| (r, None)),
-        false => odocal::calibrate_validated_on(drive, &validation, given, opts, Some(&cb)).map(|(r, m)| (r, Some(m))),
+    let run = odocal::Calibration::new(drive, opts).progress(&cb);
+    match (validation.is_empty(), holdout) {
+        (true, Some(h)) => run.holdout(h).run(),
+        (true, None) => run.run(),
+        (false, _) => run.validate_on(&validation, given).run(),
     }
 }
 
@@ -260,13 +352,13 @@ fn with_hint(
     anyhow::anyhow!("{e}{hint}")
 }
 
-/// Writes the HTML report of the calibration (`--report`).
+/// Writes the HTML report of the calibration (`--report`; `-`: stdout).
 fn write_html_report(
     path: &Path,
     drive: &Drive,
     r: &CalibrationReport,
     opts: &CalibrationOptions,
-    input: &str,
+    (input, fingerprint): (&str, &str),
     truth: Option<(&Theta, f64)>,
 ) -> Result<()> {
     let val = segment::validation_segments(drive, &opts.validation)?;
@@ -285,8 +377,9 @@ fn write_html_report(
         provenance: vec![
             ("method".into(), r.method.clone()),
             ("input".into(), input.to_string()),
+            ("fingerprint".into(), fingerprint.to_string()),
             ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
-            ("date".into(), odocal::io::param_file::utc_date_today()),
+            ("date".into(), odocal::ParamFile::utc_date_today()),
         ],
         params,
         truth: truth.map(|t| *t.0),
@@ -296,8 +389,7 @@ fn write_html_report(
         method_details: r.method_details().lines().map(str::to_string).collect(),
         ..odocal_report::ReportInput::new(input.to_string(), drive, &val, r.initial.theta, r.theta)
     };
-    odocal_report::write_html(path, &html)?;
-    Ok(())
+    write_text(path, &odocal_report::render_html(&html)?)
 }
 
 /// The report for humans: the heading first, then the warnings (stderr),
@@ -306,7 +398,6 @@ fn print_text_report(
     r: &CalibrationReport,
     truth: Option<(&Theta, f64)>,
     wheel_scale: Option<&str>,
-    per_drive: Option<&MultiValidation>,
     account: &SettingsAccount,
 ) -> Result<()> {
     let text = report::calibration(r, truth, wheel_scale);
@@ -315,7 +406,7 @@ fn print_text_report(
     std::io::stdout().flush()?;
     print_warnings(&r.warnings);
     print!("{rest}");
-    if let Some(m) = per_drive {
+    if let Some(m) = &r.validate_on {
         print!("{}", report::validate_on(m));
     }
     print!("{}", account.lines());

@@ -5,11 +5,13 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Result};
 use clap::Args;
-use odocal::drive::ExtraColumn;
-use odocal::{drive::segment, QpOptions, SolverKind};
+use odocal::output::is_stdout;
+use odocal::ExtraColumn;
+use odocal::{segment, QpOptions, SolverKind};
 
 use crate::args::ThetaArg;
 use crate::io::{load_drive, print_warnings};
+use crate::output::{write_drive, Files};
 use crate::progress::Bars;
 
 /// Arguments of `odocal compensate`.
@@ -20,7 +22,8 @@ pub struct CompensateArgs {
     /// θ as c_e,c_d,t_r,d (SI), or a parameter file (.yaml, .yml, .json).
     #[arg(long, allow_hyphen_values = true)]
     theta: ThetaArg,
-    /// Output CSV (the drive plus n_rl_comp, n_rr_comp, compensated columns).
+    /// Output CSV (the drive plus n_rl_comp, n_rr_comp, compensated
+    /// columns; "-" for stdout).
     #[arg(long)]
     out: PathBuf,
     /// QP solver: structured or clarabel.
@@ -33,6 +36,12 @@ pub struct CompensateArgs {
 
 /// Compensates every segment and writes the drive with the new columns.
 pub fn run(a: CompensateArgs, bars: &Bars) -> Result<()> {
+    let mut files = Files::default();
+    files.drive("the drive being compensated", &a.drive);
+    if let Some((p, _)) = &a.theta.file {
+        files.input("the --theta parameter file", p);
+    }
+    files.output("--out", Some(&a.out)).check()?;
     let drive = load_drive(&a.drive)?;
     if a.segment_length < 2 {
         bail!("--segment-length must be at least 2");
@@ -62,8 +71,8 @@ pub fn run(a: CompensateArgs, bars: &Bars) -> Result<()> {
         .with_extra(ExtraColumn::numbers("n_rl_comp", c_rl))?
         .with_extra(ExtraColumn::numbers("n_rr_comp", c_rr))?
         .with_extra(ExtraColumn::numbers("compensated", flag))?;
-    drive.write_csv(&a.out)?;
-    println!(
+    write_drive(&drive, &a.out)?;
+    let summary = format!(
         "wrote {}: {} of {} segments compensated ({} QP solves, rms input change {:.3} %)",
         a.out.display(),
         comp.step.segments,
@@ -71,5 +80,11 @@ pub fn run(a: CompensateArgs, bars: &Bars) -> Result<()> {
         comp.step.qp_solves,
         comp.step.rms_relative_input_change * 100.0
     );
+    // With the CSV on stdout, the summary goes to stderr.
+    if is_stdout(&a.out) {
+        eprintln!("{summary}");
+    } else {
+        println!("{summary}");
+    }
     Ok(())
 }

@@ -1,19 +1,21 @@
 //! `odocal import`: a multi-stream log described by a manifest into a
 //! canonical drive CSV.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::Args;
+use odocal::output::is_stdout;
 
 use crate::io::write_json;
+use crate::output::{write_drive, Files};
 
 /// Arguments of `odocal import`.
 #[derive(Args)]
 pub struct ImportArgs {
-    /// The drive manifest (TOML; see examples/README.md).
+    /// The drive manifest (TOML; docs/reference.md, "The drive manifest").
     manifest: PathBuf,
-    /// Output canonical CSV.
+    /// Output canonical CSV ("-" for stdout; the report then goes to stderr).
     #[arg(long)]
     out: PathBuf,
     /// Write the import report as JSON here ("-" for stdout).
@@ -23,18 +25,31 @@ pub struct ImportArgs {
 
 /// Imports the log, writes the CSV and prints (or writes) the import report.
 pub fn run(a: ImportArgs) -> Result<()> {
+    let mut files = Files::default();
+    files.manifest("the manifest being imported", &a.manifest);
+    files.output("--out", Some(&a.out)).output("--json", a.json.as_deref()).check()?;
     let m = odocal::Manifest::from_path(&a.manifest)?;
     // The calibration settings are checked too, so a bad one is named now.
-    odocal::calibrate::settings::ManifestSettings::of_manifest(&m)?;
+    odocal::settings::ManifestSettings::of_manifest(&m)?;
     let imported = odocal::import(&m)?;
-    imported.drive.write_csv(&a.out)?;
+    write_drive(&imported.drive, &a.out)?;
     if let Some(p) = &a.json {
-        write_json(p, odocal::calibrate::settings::import_report_json(&imported.report)?)?;
-        if p == Path::new("-") {
+        let mut v = odocal::settings::import_report_json(&imported.report)?;
+        if let Some(obj) = v.as_object_mut() {
+            obj.insert("fingerprint".into(), imported.drive.fingerprint().into());
+        }
+        write_json(p, v)?;
+        if is_stdout(p) {
             return Ok(());
         }
     }
-    println!("{}", imported.report.to_string().trim_end());
-    println!("wrote {}", a.out.display());
+    // With the CSV on stdout, the report goes to stderr.
+    let report = imported.report.to_string();
+    if is_stdout(&a.out) {
+        eprintln!("{}", report.trim_end());
+    } else {
+        println!("{}", report.trim_end());
+        println!("wrote {}", a.out.display());
+    }
     Ok(())
 }

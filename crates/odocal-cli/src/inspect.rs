@@ -6,6 +6,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
+use odocal::output::is_stdout;
+
+use crate::output::Files;
 
 /// Arguments of `odocal inspect`.
 #[derive(Args)]
@@ -63,16 +66,24 @@ fn bag_path_for(bag: &Path, out: Option<&Path>) -> Result<String> {
 }
 
 fn draft(bag: &Path, out: &Path) -> Result<()> {
-    let to_stdout = out == Path::new("-");
+    let to_stdout = is_stdout(out);
     if !to_stdout && out.exists() {
         bail!("{}: exists; remove it or give another name (a draft never overwrites a manifest)", out.display());
     }
+    let mut files = Files::default();
+    files.input("the bag", bag);
+    if let Ok(entries) = std::fs::read_dir(bag) {
+        for e in entries.flatten() {
+            files.input(format!("a file of the bag {}", bag.display()), &e.path());
+        }
+    }
+    files.output("--manifest", Some(out)).check()?;
     let file = bag_path_for(bag, (!to_stdout).then_some(out))?;
     let text = odocal::io::bag::draft_manifest(bag, &file)?;
     if to_stdout {
         print!("{text}");
     } else {
-        std::fs::write(out, &text).with_context(|| format!("writing {}", out.display()))?;
+        odocal::output::write_text(out, &text)?;
         println!(
             "wrote {} (check the lines marked CHECK, then: odocal import {} --out drive.csv)",
             out.display(),

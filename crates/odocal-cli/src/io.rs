@@ -2,8 +2,8 @@
 
 use std::path::Path;
 
-use anyhow::{Context, Result};
-use odocal::calibrate::settings::ManifestSettings;
+use anyhow::Result;
+use odocal::settings::ManifestSettings;
 use odocal::sim::{self, SimSidecar};
 use odocal::{Drive, Warning};
 
@@ -17,7 +17,15 @@ pub fn load_drive(path: &Path) -> Result<Drive> {
 /// manifest (e.g. "c_e is metres per 40360 ticks") and the manifest's
 /// calibration settings (`[noise]`, `[reference]`).
 pub fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>, Option<ManifestSettings>)> {
-    let (drive, report) = odocal::load_drive(path)?;
+    let (drive, report) = if odocal::is_manifest_path(path) {
+        odocal::load_drive(path)?
+    } else {
+        let (drive, warnings) = Drive::read_csv_with_warnings(path)?;
+        for w in warnings {
+            eprintln!("warning: {w}");
+        }
+        (drive, None)
+    };
     let settings = report.as_ref().map(ManifestSettings::of_report).transpose()?;
     if report.is_some() {
         eprintln!(
@@ -31,30 +39,36 @@ pub fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>, Opti
     Ok((drive, report.map(|r| r.wheel_scale), settings))
 }
 
-/// The simulator's sidecar beside a drive, when there is one.
-pub fn load_truth(drive_path: &Path) -> Option<SimSidecar> {
-    let p = sim::sidecar_path(drive_path);
-    p.exists().then(|| SimSidecar::read_json(&p).ok()).flatten()
+/// The simulator's sidecar beside a drive, when there is one and it
+/// records this drive's fingerprint; a sidecar of another drive is ignored
+/// with a note on stderr.
+pub fn load_truth(drive_path: &Path, drive: &Drive) -> Option<SimSidecar> {
+    let m = sim::sidecar_for(drive_path, drive);
+    if let Some(note) = m.note() {
+        eprintln!("note: {note}");
+    }
+    m.bound()
 }
 
-/// Writes a JSON report with its `schema_version` ("-": stdout).
+/// Writes a JSON report with its `schema_version` ("-": stdout), atomically.
 pub fn write_json(path: &Path, mut value: serde_json::Value) -> Result<()> {
     if let Some(obj) = value.as_object_mut() {
         obj.insert("schema_version".into(), odocal::REPORT_SCHEMA_VERSION.into());
     }
     let text = serde_json::to_string_pretty(&value)?;
-    if path == Path::new("-") {
-        println!("{text}");
-    } else {
-        std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
-    }
-    Ok(())
+    crate::output::write_text(path, &text)
+}
+
+/// A drive's entry in a JSON report: its role (`calibration`,
+/// `validation`), its path and its fingerprint.
+pub fn drive_entry(role: &str, path: &str, fingerprint: &str) -> serde_json::Value {
+    serde_json::json!({"role": role, "path": path, "fingerprint": fingerprint})
 }
 
 /// Warnings to stderr, grouped by kind: at most [`WARNINGS_PER_KIND`] of
 /// each and a count of the rest (the JSON report lists all).
 pub fn print_warnings(warnings: &[Warning]) {
-    let lines = odocal::assess::warning::summarize(warnings, WARNINGS_PER_KIND);
+    let lines = odocal::Warning::summarize(warnings, WARNINGS_PER_KIND);
     let collapsed = lines.iter().any(|l| l.starts_with('…'));
     for l in lines {
         eprintln!("warning: {l}");

@@ -3,11 +3,14 @@
 //! Human-readable output goes to stdout, progress bars and warnings to
 //! stderr; errors are one line on stderr and exit code 1 (2 for usage
 //! errors). `calibrate` exits with [`EXIT_REJECTED`] when the verdict is
-//! `rejected` (the report is still written).
+//! `rejected` (the report is still written). Interrupted (Ctrl-C, SIGTERM,
+//! SIGHUP), it removes the temporary file of an output being written and
+//! exits with 130.
 //!
 //! One module per subcommand (its arguments and its run function);
 //! [`args`] holds the calibration options `calibrate` and `demo` share,
-//! [`io`] the reading of drives and writing of reports.
+//! [`io`] the reading of drives and writing of reports, [`output`] the
+//! checks of output paths and the atomic writes.
 
 use std::process::ExitCode;
 
@@ -21,6 +24,7 @@ mod experiment;
 mod import;
 mod inspect;
 mod io;
+mod output;
 mod progress;
 mod report;
 mod simulate;
@@ -115,7 +119,16 @@ enum Outcome {
     Rejected,
 }
 
+/// Exit code after Ctrl-C (SIGINT) or SIGTERM: 128 + 2, as a shell reports it.
+const EXIT_INTERRUPTED: i32 = 130;
+
 fn main() -> ExitCode {
+    // Interrupted, odocal leaves no temporary file of an output behind (the
+    // final path keeps its previous file: odocal::output).
+    let _ = ctrlc::set_handler(|| {
+        odocal::output::remove_temporary_files();
+        std::process::exit(EXIT_INTERRUPTED);
+    });
     let cli = Cli::parse();
     match run(cli) {
         Ok(Outcome::Done) => ExitCode::SUCCESS,

@@ -327,7 +327,7 @@ pub fn validate_on(m: &MultiValidation) -> String {
 }
 
 /// The 3-step method's step-1 batch-spread σ, when it has one.
-fn three_step_spread(r: &CalibrationReport) -> Option<&odocal::calibrate::BatchSpread> {
+fn three_step_spread(r: &CalibrationReport) -> Option<&odocal::BatchSpread> {
     match &r.detail {
         MethodDetail::ThreeStep(d) => d.uncertainty.batch_spread.as_ref(),
         _ => None,

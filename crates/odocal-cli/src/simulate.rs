@@ -7,6 +7,7 @@ use clap::Args;
 use odocal::sim::{self, NoiseOptions, SimOptions};
 
 use crate::args::ThetaArg;
+use crate::output::{refuse_sidecar_onto_drive, refuse_stdout, Files};
 use crate::progress::Bars;
 
 /// Arguments of `odocal simulate`.
@@ -18,10 +19,13 @@ pub struct SimulateArgs {
     /// Route length, km.
     #[arg(long, default_value_t = 24.0)]
     length_km: f64,
-    /// Output CSV; the sidecar JSON is written beside it.
+    /// Output CSV; the sidecar JSON (the truth, bound to the CSV by its
+    /// fingerprint) is written beside it, with the extension .json.
     #[arg(long)]
     out: PathBuf,
-    /// Noise preset: paper, off, white (white wheel noise only) or high.
+    /// Noise preset: paper, off, white (white wheel noise only), high, or
+    /// random:N, the random noise world of seed N (every source drawn from
+    /// a wide range; docs/reference.md, "Random noise worlds").
     #[arg(long, default_value = "paper")]
     noise: String,
     /// True θ as c_e,c_d,t_r,d in SI units (c_d in m, d in m per m/s²), or a
@@ -41,6 +45,15 @@ pub fn sim_options(seed: u64, length_km: f64, noise: &str) -> Result<SimOptions>
 
 /// Simulates the drive and writes its CSV and sidecar JSON.
 pub fn run(a: SimulateArgs, bars: &Bars) -> Result<()> {
+    refuse_stdout("--out", &a.out, "simulate writes the drive's sidecar (the truth) beside the CSV")?;
+    refuse_sidecar_onto_drive("--out", &a.out)?;
+    let side = sim::sidecar_path(&a.out);
+    let mut files = Files::default();
+    if let Some((p, _)) = a.theta.as_ref().and_then(|t| t.file.as_ref()) {
+        files.input("the --theta parameter file", p);
+    }
+    files.output("--out", Some(&a.out)).output("the sidecar beside --out (its name with .json)", Some(&side));
+    files.check()?;
     let mut o = sim_options(a.seed, a.length_km, &a.noise)?;
     if let Some(t) = &a.theta {
         o.theta_true = t.theta;
@@ -52,8 +65,18 @@ pub fn run(a: SimulateArgs, bars: &Bars) -> Result<()> {
     let out = sim::simulate(&o)?;
     bars.finish();
     out.drive.write_csv(&a.out)?;
-    let side = sim::sidecar_path(&a.out);
     out.sidecar.write_json(&side)?;
+    if a.noise.starts_with("random:") {
+        let w = sim::WorldSummary::of(&o.noise);
+        println!(
+            "noise world {}: {} ({}), wheel error per sample {:.2} % white, {:.2} % common-mode and slip",
+            a.noise,
+            w.regime,
+            if w.white_only { "white noise only" } else { "every source drawn" },
+            w.wheel_white_rel * 100.0,
+            w.wheel_common_slip_rel * 100.0
+        );
+    }
     let s = &out.sidecar.stats;
     println!(
         "wrote {} ({} samples, {:.2} km, {:.0} s, max yaw rate {:.2} rad/s, max |a_y| {:.2} m/s², wheel error {:.2} % rms) and {}",

@@ -1,14 +1,16 @@
 //! `odocal validate`: Ē_p of a given θ on a drive's validation segments,
 //! and optionally the reachable minimum of Ē_p.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::Args;
+use odocal::output::is_stdout;
 use odocal::{Theta, ValidateOptions};
 
 use crate::args::ThetaArg;
-use crate::io::{load_drive_with_scale, write_json};
+use crate::io::{drive_entry, load_drive_with_scale, write_json};
+use crate::output::Files;
 use crate::progress::Bars;
 
 /// Arguments of `odocal validate`.
@@ -42,6 +44,15 @@ pub struct ValidateArgs {
 
 /// Validates θ and prints (or writes) the report.
 pub fn run(a: ValidateArgs, bars: &Bars) -> Result<()> {
+    let mut files = Files::default();
+    files.drive("the drive being validated", &a.drive);
+    if let Some((p, _)) = &a.theta.file {
+        files.input("the --theta parameter file", p);
+    }
+    if let Some((p, _)) = a.theta0.as_ref().and_then(|t| t.file.as_ref()) {
+        files.input("the --theta0 parameter file", p);
+    }
+    files.output("--json", a.json.as_deref()).check()?;
     let (drive, _, settings) = load_drive_with_scale(&a.drive)?;
     let mut opts = ValidateOptions::default();
     // A manifest's [reference]: the drive's own mount.
@@ -63,11 +74,16 @@ pub fn run(a: ValidateArgs, bars: &Bars) -> Result<()> {
         });
     }
     let cb = |e| bars.event(e);
-    let report = odocal::validate_with_progress(&drive, &a.theta.theta, &opts, Some(&cb))?;
+    let report = odocal::validate(&drive, &a.theta.theta, &opts, Some(&cb))?;
     bars.finish();
     if let Some(p) = &a.json {
-        write_json(p, serde_json::to_value(&report)?)?;
-        if p == Path::new("-") {
+        let mut v = serde_json::to_value(&report)?;
+        if let Some(obj) = v.as_object_mut() {
+            let entry = drive_entry("validation", &a.drive.display().to_string(), &drive.fingerprint());
+            obj.insert("drives".into(), serde_json::Value::Array(vec![entry]));
+        }
+        write_json(p, v)?;
+        if is_stdout(p) {
             return Ok(());
         }
     }

@@ -9,7 +9,7 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
-use odocal::drive::segment::{calibration_segments, SegmentData, SegmentOptions};
+use odocal::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::identify::{batch_gauss_newton, IdentifyOptions};
 use odocal::sim::{simulate, NoiseOptions, SimOptions, SimOutput};
 use odocal::{CalibrationOptions, Drive, Method, Theta};
@@ -223,7 +223,7 @@ pub fn print_joint_fits(runs: &[Drive]) -> Res<()> {
     for hold_d in [true, false] {
         let o = batch_gn_all_options(hold_d);
         for (label, set) in [("CCW", &refs[..3]), ("CW", &refs[3..]), ("all", &refs[..])] {
-            let r = odocal::calibrate(&Drive::concat(set)?, &o, None)?;
+            let r = odocal::calibrate(&Drive::concat(set)?, &o)?;
             let t = r.theta;
             println!(
                 "joint {label:3} d {}: c_e {:.5} c_d {:+.3} mm t_r {:.4} d {:+.3}  Ē_p {:.3} (θ_0 {:.3}) {}",
@@ -245,7 +245,7 @@ pub fn print_joint_fits(runs: &[Drive]) -> Res<()> {
 /// other five) of the default method, batch G-N with d held and batch G-N,
 /// with each run's c_d and d; with `full`, the default's whole table.
 pub fn print_cross_runs(runs: &[Drive], full: bool) -> Res<()> {
-    use odocal::calibrate::crossrun::{cross_run, CROSS_RUN_OWN_FIT_RATIO};
+    use odocal::crossrun::{cross_run, CROSS_RUN_OWN_FIT_RATIO};
     let named: Vec<(&str, &Drive)> = TESTTRACK_RUNS.iter().map(|r| r.0).zip(runs.iter()).collect();
     for (label, o) in [
         ("default", CalibrationOptions::default()),

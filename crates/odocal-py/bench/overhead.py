@@ -4,7 +4,7 @@ library's own total (report timing_s.total) on the same drive.
     python crates/odocal-py/bench/overhead.py [--length-km 24] [--repeats 5]
 
 Not a test: run it by hand on a quiet machine (numbers in the report and
-docs/fleet.md).
+docs/guide.md, "A fleet on Ray").
 """
 
 import argparse

@@ -9,14 +9,15 @@ use pyo3::exceptions::{PyRuntimeError, PyTypeError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use odocal::calibrate::settings::{Caller, ManifestSettings, Resolved, Settings};
-use odocal::drive::Drive;
-use odocal::io::import::ReferenceSpec;
-use odocal::model::param::ParamSet;
+use odocal::settings::{Caller, ManifestSettings, Resolved, Settings};
+use odocal::Drive;
+use odocal::ParamSet;
+use odocal::ReferenceSpec;
 use odocal::{Holdout, Progress};
 
 use crate::convert::{to_json, to_py};
 use crate::drive::{drives_arg, Provenance, PyDrive};
+use crate::files::distinct_drives;
 use crate::run::{run_detached, with_threads};
 use crate::{lib_err, with_schema_version, OdocalError};
 
@@ -124,13 +125,11 @@ fn calibrate_json(
     drive: &Drive,
     prov: &Provenance,
     plan: &CalibrationPlan,
+    drives: Vec<serde_json::Value>,
     progress: Option<&(dyn Fn(Progress) + Sync)>,
 ) -> odocal::Result<serde_json::Value> {
     let split = plan.holdout.as_ref().map(|h| h.split(drive)).transpose()?;
-    let (fit, held): (&Drive, Option<&Drive>) = match &split {
-        Some((fit, held)) => (fit.as_ref(), Some(held.as_ref())),
-        None => (drive, None),
-    };
+    let held: Option<&Drive> = split.as_ref().map(|(_, held)| held.as_ref());
     let names: Vec<String> = (0..plan.validate_on.len()).map(|i| format!("validate_on[{i}]")).collect();
     let validation: Vec<odocal::ValidationDrive> = names
         .iter()
@@ -139,19 +138,21 @@ fn calibrate_json(
         .collect();
     // Validation drives: each with the extrinsics that apply to it (odocal::assess::validation_drives).
     let opts = &plan.resolved.options;
-    let (report, per_drive) = match validation.is_empty() {
-        true => (odocal::calibrate_held_out(fit, held, opts, progress)?, None),
-        false => {
-            let (r, m) = odocal::calibrate_validated_on(drive, &validation, plan.given_extrinsics, opts, progress)?;
-            (r, Some(m))
-        }
+    let mut run = odocal::Calibration::new(drive, opts);
+    if let Some(p) = progress {
+        run = run.progress(p);
+    }
+    let report = match (validation.is_empty(), &plan.holdout) {
+        (true, Some(h)) => run.holdout(h).run()?,
+        (true, None) => run.run()?,
+        (false, _) => run.validate_on(&validation, plan.given_extrinsics).run()?,
     };
     let json_err = |source| odocal::Error::Json { context: "calibration report".into(), source };
     let mut v = serde_json::to_value(&report).map_err(json_err)?;
     let scored = held.unwrap_or(drive);
     if let (Some(side), Some(obj)) = (&prov.sidecar, v.as_object_mut()) {
         let t = side.theta_true;
-        let segs = odocal::drive::segment::validation_segments(scored, &opts.validation)?;
+        let segs = odocal::segment::validation_segments(scored, &opts.validation)?;
         let e = odocal::mean_position_error(scored, &segs, &t)?.mean_position_error_m;
         obj.insert("truth".into(), serde_json::json!({"theta": t, "mean_position_error_m": e}));
     }
@@ -161,9 +162,7 @@ fn calibrate_json(
     if let Some(obj) = v.as_object_mut() {
         // The σ that stands for the result (as the CLI's JSON `sigma`).
         obj.insert("sigma".into(), serde_json::to_value(report.result_sigma()).map_err(json_err)?);
-        if let Some(m) = per_drive {
-            obj.insert("validate_on".into(), serde_json::to_value(m).map_err(json_err)?);
-        }
+        obj.insert("drives".into(), serde_json::Value::Array(drives));
     }
     plan.resolved.account.add_to_json(&mut v)?;
     with_schema_version(&mut v);
@@ -182,6 +181,8 @@ pub(crate) fn calibrate<'py>(
     threads: Option<usize>,
     options: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<(Bound<'py, PyAny>, String)> {
+    let validate_on = options.map(|o| o.get_item("validate_on")).transpose()?.flatten();
+    let entries = distinct_drives(py, drive, validate_on.as_ref())?;
     let (inner, provs) = drives_arg(drive, "drive")?;
     let settings: Vec<ManifestSettings> =
         provs.iter().map(Provenance::settings).collect::<PyResult<Vec<_>>>()?.into_iter().flatten().collect();
@@ -192,13 +193,14 @@ pub(crate) fn calibrate<'py>(
         [one] => one.clone(),
         many => Provenance { wheel_scale: many.iter().find_map(|p| p.wheel_scale.clone()), ..Default::default() },
     };
-    let value = run_detached(py, progress, |cb| with_threads(threads, || calibrate_json(&inner, &prov, &plan, cb)))??
-        .map_err(|e| match e {
-        e @ odocal::Error::NotObservable { .. } => OdocalError::new_err(format!(
+    let value =
+        run_detached(py, progress, |cb| with_threads(threads, || calibrate_json(&inner, &prov, &plan, entries, cb)))??
+            .map_err(|e| match e {
+                e @ odocal::Error::NotObservable { .. } => OdocalError::new_err(format!(
             "{e}; in Python: fix=['c_d', 't_r', 'd'], min_yaw_rate=0 calibrates c_e alone, or pass auto_fix=True"
         )),
-        e => lib_err(e),
-    })?;
+                e => lib_err(e),
+            })?;
     let text = serde_json::to_string_pretty(&value).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
     Ok((to_py(py, &value)?, text))
 }

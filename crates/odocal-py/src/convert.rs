@@ -102,11 +102,11 @@ pub(crate) fn to_json(v: &Bound<'_, PyAny>, what: &str) -> PyResult<serde_json::
 /// The parameter file a θ argument names: a text ending in `.yaml`, `.yml`
 /// or `.json` (the Python layer turns path objects into text), read by the
 /// library; `None` for any other argument.
-pub(crate) fn params_file_arg(v: &Bound<'_, PyAny>) -> PyResult<Option<odocal::io::param_file::ParamFile>> {
+pub(crate) fn params_file_arg(v: &Bound<'_, PyAny>) -> PyResult<Option<odocal::ParamFile>> {
     let Ok(s) = v.cast::<PyString>() else { return Ok(None) };
     let path = std::path::Path::new(s.to_str()?);
-    if odocal::io::param_file::is_param_file(path) {
-        return odocal::io::param_file::ParamFile::read(path).map(Some).map_err(lib_err);
+    if odocal::ParamFile::is_param_file(path) {
+        return odocal::ParamFile::read(path).map(Some).map_err(lib_err);
     }
     Ok(None)
 }
@@ -116,5 +116,5 @@ pub(crate) fn params_file_arg(v: &Bound<'_, PyAny>) -> PyResult<Option<odocal::i
 /// (`--params-out`'s), read and checked by the library as the `theta0`
 /// setting is.
 pub(crate) fn extract_theta(v: &Bound<'_, PyAny>) -> PyResult<Theta> {
-    odocal::calibrate::settings::theta_from_json(to_json(v, "θ")?).map_err(lib_err)
+    odocal::settings::theta_from_json(to_json(v, "θ")?).map_err(lib_err)
 }

@@ -11,12 +11,13 @@ use pyo3::exceptions::{PyKeyError, PyRuntimeError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList, PyString};
 
-use odocal::calibrate::settings::ManifestSettings;
-use odocal::drive::{Drive, ExtraColumn, ExtraValues, Signals};
-use odocal::io::import::{CalibrationTable, NoiseTable};
+use odocal::settings::ManifestSettings;
+use odocal::settings::{CalibrationTable, NoiseTable};
 use odocal::sim::SimSidecar;
+use odocal::{Drive, ExtraColumn, ExtraValues, Signals};
 
 use crate::convert::{json, to_py};
+use crate::files::{check_outputs, warn_all};
 use crate::lib_err;
 
 /// Names of the drive columns `Drive.to_numpy()` returns, in order.
@@ -32,6 +33,8 @@ pub(crate) struct Provenance {
     pub(crate) import_report: Option<String>,
     /// What one model revolution is (manifest imports).
     pub(crate) wheel_scale: Option<String>,
+    /// The file the drive was read from (a CSV or a manifest), as given.
+    pub(crate) source: Option<String>,
 }
 
 impl Provenance {
@@ -132,13 +135,16 @@ fn signals_from_state(cols: Vec<Vec<u8>>) -> PyResult<Signals> {
     Ok(Signals { px: next()?, py: next()?, psi: next()?, n_rl: next()?, n_rr: next()?, beta: next()?, a_y: next()? })
 }
 
-/// A drive's loader for a CSV: the drive, and the simulator sidecar beside
-/// it when there is one (as the CLI's `calibrate` reads it).
-fn read_csv_with_sidecar(path: &std::path::Path) -> odocal::Result<(Drive, Provenance)> {
-    let drive = Drive::read_csv(path)?;
-    let side = odocal::sim::sidecar_path(path);
-    let sidecar = if side.exists() { SimSidecar::read_json(&side).ok() } else { None };
-    Ok((drive, Provenance { sidecar, ..Default::default() }))
+/// A drive's loader for a CSV: the drive, the simulator sidecar beside it
+/// when there is one that records the drive's fingerprint (as the CLI's
+/// `calibrate` reads it), and the reader's warnings (a sidecar of another
+/// drive among them).
+fn read_csv_with_sidecar(path: &std::path::Path) -> odocal::Result<(Drive, Provenance, Vec<String>)> {
+    let (drive, mut warnings) = Drive::read_csv_with_warnings(path)?;
+    let sidecar = odocal::sim::sidecar_for(path, &drive);
+    warnings.extend(sidecar.note());
+    let source = Some(path.display().to_string());
+    Ok((drive, Provenance { sidecar: sidecar.bound(), source, ..Default::default() }, warnings))
 }
 
 fn read_manifest(path: &std::path::Path) -> odocal::Result<(Drive, Provenance)> {
@@ -146,12 +152,11 @@ fn read_manifest(path: &std::path::Path) -> odocal::Result<(Drive, Provenance)> 
     // The calibration settings are checked too, so a bad one is named now.
     ManifestSettings::of_manifest(&m)?;
     let imported = odocal::import(&m)?;
-    let import_report = serde_json::to_string_pretty(&odocal::calibrate::settings::import_report_json(
-        &imported.report,
-    )?)
-    .map_err(|source| odocal::Error::Json { context: format!("import report of {}", path.display()), source })?;
+    let import_report = serde_json::to_string_pretty(&odocal::settings::import_report_json(&imported.report)?)
+        .map_err(|source| odocal::Error::Json { context: format!("import report of {}", path.display()), source })?;
     let wheel_scale = Some(imported.report.wheel_scale.clone());
-    Ok((imported.drive, Provenance { sidecar: None, import_report: Some(import_report), wheel_scale }))
+    let source = Some(path.display().to_string());
+    Ok((imported.drive, Provenance { sidecar: None, import_report: Some(import_report), wheel_scale, source }))
 }
 
 #[pymethods]
@@ -210,10 +215,13 @@ impl PyDrive {
     }
 
     /// Reads a canonical CSV (SPEC §2). A simulator sidecar beside it
-    /// (`drive.json` for `drive.csv`) gives the true θ, as in the CLI.
+    /// (`drive.json` for `drive.csv`) that records this drive's fingerprint
+    /// gives the true θ, as in the CLI; a sidecar of another drive is
+    /// ignored with a `UserWarning`, as is a last line without a newline.
     #[staticmethod]
     fn from_csv(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
-        let (drive, prov) = py.detach(|| read_csv_with_sidecar(&path)).map_err(lib_err)?;
+        let (drive, prov, warnings) = py.detach(|| read_csv_with_sidecar(&path)).map_err(lib_err)?;
+        warn_all(py, &warnings)?;
         Ok(PyDrive::new(drive, prov))
     }
 
@@ -294,6 +302,22 @@ impl PyDrive {
         self.drive.parts().iter().map(|r| (r.start, r.end)).collect()
     }
 
+    /// The drive's fingerprint: SHA-256 (hex) of its canonical samples
+    /// (time, the seven signals, parts and sample time), the same whether
+    /// the drive was read from a CSV, imported through a manifest or made
+    /// from arrays (the library's `Drive::fingerprint`).
+    #[getter]
+    fn fingerprint(&self, py: Python<'_>) -> String {
+        let d = Arc::clone(&self.drive);
+        py.detach(move || d.fingerprint())
+    }
+
+    /// The file the drive was read from (a CSV or a manifest), else None.
+    #[getter]
+    fn source(&self) -> Option<String> {
+        self.prov.source.clone()
+    }
+
     /// Sample time t_s, s.
     #[getter]
     fn sample_time_s(&self) -> f64 {
@@ -333,8 +357,23 @@ impl PyDrive {
     }
 
     /// Writes the canonical CSV; for a simulated drive also the sidecar
-    /// (`drive.json` beside `drive.csv`), as `odocal simulate` does.
+    /// (`drive.json` beside `drive.csv`), as `odocal simulate` does. Both
+    /// are written atomically; a path that is one of the drive's own files
+    /// (its CSV, manifest, stream files, sidecar) is refused.
     fn to_csv(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        let side = odocal::sim::sidecar_path(&path);
+        let mut outputs = vec![("to_csv(path)", path.as_path())];
+        if self.prov.sidecar.is_some() {
+            if side == path {
+                return Err(PyValueError::new_err(format!(
+                    "{}: the sidecar of a simulated drive is written beside the CSV under the name with .json, \
+                     which is this file; give a name ending in .csv",
+                    path.display()
+                )));
+            }
+            outputs.push(("the sidecar to_csv writes beside path", side.as_path()));
+        }
+        check_outputs(&[&self.prov], &outputs)?;
         let drive = Arc::clone(&self.drive);
         let sidecar = self.prov.sidecar.clone();
         py.detach(move || {
@@ -389,6 +428,7 @@ impl PyDrive {
         state.set_item("sidecar", sidecar)?;
         state.set_item("import_report", self.prov.import_report.as_deref())?;
         state.set_item("wheel_scale", self.prov.wheel_scale.as_deref())?;
+        state.set_item("source", self.prov.source.as_deref())?;
         let ctor = py.import("odocal._odocal")?.getattr("_drive_from_state")?;
         Ok((ctor, (state,)))
     }
@@ -425,6 +465,7 @@ pub(crate) fn _drive_from_state(py: Python<'_>, state: &Bound<'_, PyDict>) -> Py
         sidecar,
         import_report: get("import_report")?.extract()?,
         wheel_scale: get("wheel_scale")?.extract()?,
+        source: state.get_item("source")?.map(|s| s.extract()).transpose()?.flatten(),
     };
     let drive = py
         .detach(move || {

@@ -2,11 +2,11 @@
 //! by the pure-Python package in `python/odocal` (`import odocal`).
 //!
 //! The bindings are a thin layer over the library, like the CLI:
-//! - every drive made from arrays goes through [`odocal::drive::DriveBuilder::build`],
+//! - every drive made from arrays goes through [`odocal::DriveBuilder::build`],
 //!   and every library error becomes `odocal.OdocalError` (a `ValueError`)
 //!   with the library's message;
 //! - keyword options are the library's calibration settings
-//!   ([`odocal::calibrate::settings::Settings`], the keys of a manifest's
+//!   ([`odocal::settings::Settings`], the keys of a manifest's
 //!   `[calibration]` and, in kebab case, the CLI's flags), read and mapped
 //!   by the library ([`calibrate`]);
 //! - reports leave as JSON ([`serde_json::Value`] → Python objects, and the
@@ -24,6 +24,7 @@ use odocal::sim::{NoiseOptions, SimOptions};
 mod calibrate;
 mod convert;
 mod drive;
+mod files;
 mod report;
 mod run;
 
@@ -88,8 +89,17 @@ fn validate<'py>(
         opts.extrinsics = f.extrinsics_for_drive(stated.as_ref()).0;
     }
     let inner = Arc::clone(&drive.get().drive);
-    let report = py.detach(|| with_threads(threads, || odocal::validate(&inner, &theta, &opts)))?.map_err(lib_err)?;
+    let report =
+        py.detach(|| with_threads(threads, || odocal::validate(&inner, &theta, &opts, None)))?.map_err(lib_err)?;
     let mut v = json(&report)?;
+    if let Some(obj) = v.as_object_mut() {
+        let entry = serde_json::json!({
+            "role": "validation",
+            "path": drive.get().prov.source,
+            "fingerprint": py.detach(|| inner.fingerprint()),
+        });
+        obj.insert("drives".into(), serde_json::Value::Array(vec![entry]));
+    }
     with_schema_version(&mut v);
     to_py(py, &v)
 }

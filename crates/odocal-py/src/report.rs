@@ -6,13 +6,14 @@ use std::path::PathBuf;
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 
-use odocal::drive::Drive;
 use odocal::model::Theta;
+use odocal::Drive;
 use odocal::Holdout;
 
 use crate::calibrate::parse_holdout;
 use crate::convert::to_py;
-use crate::drive::drives_arg;
+use crate::drive::{drives_arg, PyDrive};
+use crate::files::{calibration_fingerprints, check_outputs};
 use crate::{lib_err, OdocalError};
 
 /// The error for JSON text that is not a calibration report.
@@ -37,20 +38,49 @@ pub(crate) fn _method_details(report_json: &str) -> PyResult<String> {
 /// it; library `ParamFile::read`) into the layout of the JSON file.
 #[pyfunction]
 pub(crate) fn read_params(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyAny>> {
-    let f = odocal::io::param_file::ParamFile::read(&path).map_err(lib_err)?;
+    let f = odocal::ParamFile::read(&path).map_err(lib_err)?;
     to_py(py, &f.to_json())
 }
 
 /// Writes the parameter file of a calibration report (its JSON text) as
 /// `odocal calibrate --params-out` does: YAML for `.yaml`/`.yml`, JSON for
 /// `.json` (library `CalibrationReport::param_file`).
+///
+/// `drives` are the drives of the calibration: a path that is one of their
+/// files is refused. The provenance gains the calibration drives'
+/// fingerprints (the report's `drives`).
 #[pyfunction]
-#[pyo3(signature = (report_json, path, *, input, node, mapping))]
-pub(crate) fn _write_params(report_json: &str, path: PathBuf, input: &str, node: &str, mapping: &str) -> PyResult<()> {
-    let mut f = report_from_json(report_json)?.param_file(input);
+#[pyo3(signature = (report_json, path, *, input, node, mapping, drives=None))]
+pub(crate) fn _write_params(
+    report_json: &str,
+    path: PathBuf,
+    input: &str,
+    node: &str,
+    mapping: &str,
+    drives: Option<&Bound<'_, PyAny>>,
+) -> PyResult<()> {
+    check_against(drives, "write_params(path)", &path)?;
+    let value: serde_json::Value = serde_json::from_str(report_json).map_err(not_a_report)?;
+    let fingerprints = calibration_fingerprints(&value);
+    let mut f = serde_json::from_value::<odocal::CalibrationReport>(value).map_err(not_a_report)?.param_file(input);
     f.node = node.to_string();
     f.mapping = mapping.parse().map_err(lib_err)?;
+    if let Some(fp) = fingerprints {
+        f.provenance.push(("fingerprint".into(), fp));
+    }
     f.write(&path).map_err(lib_err)
+}
+
+/// Refuses an output `path` that is a file of one of `drives` (a list of
+/// `odocal.Drive`).
+fn check_against(drives: Option<&Bound<'_, PyAny>>, role: &str, path: &std::path::Path) -> PyResult<()> {
+    let mut provs = Vec::new();
+    if let Some(list) = drives {
+        for item in list.try_iter()? {
+            provs.push(item?.cast::<PyDrive>()?.get().prov.clone());
+        }
+    }
+    check_outputs(&provs.iter().collect::<Vec<_>>(), &[(role, path)])
 }
 
 /// Writes the HTML report (odocal-report) of a calibration report (its
@@ -58,7 +88,8 @@ pub(crate) fn _write_params(report_json: &str, path: PathBuf, input: &str, node:
 /// (`holdout`), or `validate_on`. Maps the JSON report to the renderer's
 /// input in this one place.
 #[pyfunction]
-#[pyo3(signature = (drive, report_json, path, *, holdout=None, validate_on=None, title=None))]
+#[pyo3(signature = (drive, report_json, path, *, holdout=None, validate_on=None, title=None, drives=None))]
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn _report_html(
     py: Python<'_>,
     drive: &Bound<'_, PyAny>,
@@ -67,8 +98,11 @@ pub(crate) fn _report_html(
     holdout: Option<&str>,
     validate_on: Option<&Bound<'_, PyAny>>,
     title: Option<String>,
+    drives: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<()> {
+    check_against(drives, "to_html(path)", &path)?;
     let value: serde_json::Value = serde_json::from_str(report_json).map_err(not_a_report)?;
+    let fingerprint = calibration_fingerprints(&value);
     let truth: Option<Theta> = value
         .get("truth")
         .and_then(|t| t.get("theta"))
@@ -86,8 +120,8 @@ pub(crate) fn _report_html(
     py.detach(move || -> Result<(), String> {
         let split = holdout.as_ref().map(|h| h.split(&inner)).transpose().map_err(|e| e.to_string())?;
         let scored: &Drive = split.as_ref().map_or(&inner, |(_, h)| h.as_ref());
-        let segs = odocal::drive::segment::validation_segments(scored, &report.options.validation)
-            .map_err(|e| e.to_string())?;
+        let segs =
+            odocal::segment::validation_segments(scored, &report.options.validation).map_err(|e| e.to_string())?;
         // The σ that stands for the result (the verdict's, the CLI's).
         let sigma = report.result_sigma().to_array();
         let theta0 = report.options.theta0;
@@ -96,7 +130,10 @@ pub(crate) fn _report_html(
                 ("method".into(), report.method.to_string()),
                 ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
                 ("from".into(), "Python (odocal.CalibrationReport.to_html)".into()),
-            ],
+            ]
+            .into_iter()
+            .chain(fingerprint.map(|f| ("fingerprint".into(), f)))
+            .collect(),
             params: odocal_report::ParamRow::theta_rows(&theta0, &report.theta, Some(sigma), truth.as_ref()),
             truth,
             verdict: Some((

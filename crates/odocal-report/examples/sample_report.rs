@@ -1,7 +1,7 @@
 //! Writes a sample HTML report of a simulated drive calibrated with batch
 //! Gauss-Newton: `cargo run --release -p odocal-report --example sample_report -- OUT.html`.
 
-use odocal::{drive::segment, sim, Theta};
+use odocal::{segment, sim, Theta};
 use odocal_report::{write_html, ParamRow, ReportInput};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -9,7 +9,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let out = sim::simulate(&sim::SimOptions { length_km: 6.0, ..sim::SimOptions::paper(1) })?;
     let drive = &out.drive;
     let opts = odocal::CalibrationOptions { method: odocal::Method::BatchGn(Default::default()), ..Default::default() };
-    let report = odocal::calibrate(drive, &opts, None)?;
+    let report = odocal::calibrate(drive, &opts)?;
     let segs = segment::validation_segments(drive, &Default::default())?;
     let truth = out.sidecar.theta_true;
     let th0 = Theta::PAPER_INITIAL;

@@ -21,7 +21,7 @@
 //!
 //! ```
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
-//! use odocal::{drive::segment, sim, Theta};
+//! use odocal::{segment, sim, Theta};
 //! use odocal_report::{render_html, ParamRow, ReportInput};
 //! let out = sim::simulate(&sim::SimOptions { length_km: 2.0, ..sim::SimOptions::paper(3) })?;
 //! let segs = segment::validation_segments(&out.drive, &Default::default())?;
@@ -38,8 +38,8 @@
 pub mod plots;
 mod sections;
 
-use odocal::drive::segment::{Segment, SegmentData};
 use odocal::model::{step, Theta, THETA_NAMES};
+use odocal::segment::{Segment, SegmentData};
 use odocal::Drive;
 
 /// Errors of the report renderer.
@@ -263,13 +263,22 @@ pub fn render_html(r: &ReportInput<'_>) -> Result<String> {
     Ok(h)
 }
 
-/// Renders the report and writes it to `path`.
+/// Renders the report and writes it to `path`, atomically
+/// ([`odocal::output::write_atomically`]).
 ///
 /// # Errors
 /// As [`render_html`], and [`ReportError::Io`].
 pub fn write_html(path: &std::path::Path, r: &ReportInput<'_>) -> Result<()> {
     let html = render_html(r)?;
-    std::fs::write(path, html).map_err(|source| ReportError::Io { path: path.to_path_buf(), source })
+    odocal::output::write_text(path, &html).map_err(write_error)
+}
+
+/// The report error of a failed write ([`odocal::output::write_text`]).
+pub(crate) fn write_error(e: odocal::Error) -> ReportError {
+    match e {
+        odocal::Error::Io { path, source } => ReportError::Io { path, source },
+        e => ReportError::Io { path: std::path::PathBuf::new(), source: std::io::Error::other(e.to_string()) },
+    }
 }
 
 const CSS: &str = "body{font-family:sans-serif;max-width:960px;margin:2em auto;color:#222;line-height:1.4}\
@@ -284,7 +293,7 @@ pre{white-space:pre-wrap;font-size:.85em;background:#f7f7f7;padding:.5em}";
 #[cfg(test)]
 mod tests {
     use super::*;
-    use odocal::{drive::segment, sim};
+    use odocal::{segment, sim};
 
     fn parse_all(xml: &str) {
         let mut r = quick_xml::Reader::from_str(xml);

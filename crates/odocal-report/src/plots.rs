@@ -272,7 +272,16 @@ pub fn figure_svg(title: &str, size: (u32, u32), grid: (usize, usize), panels: &
     Ok(out)
 }
 
-/// Writes an SVG figure of `rows × cols` panels (row-major) under a title.
+/// Writes an SVG figure of `rows × cols` panels (row-major) under a title,
+/// atomically ([`odocal::output::write_atomically`]).
 pub fn figure(path: &Path, title: &str, size: (u32, u32), grid: (usize, usize), panels: &[Panel]) -> Result<()> {
-    draw_figure(SVGBackend::new(path, size).into_drawing_area(), &path.display().to_string(), title, grid, panels)
+    let mut svg = String::new();
+    draw_figure(
+        SVGBackend::with_string(&mut svg, size).into_drawing_area(),
+        &path.display().to_string(),
+        title,
+        grid,
+        panels,
+    )?;
+    odocal::output::write_text(path, &svg).map_err(crate::write_error)
 }

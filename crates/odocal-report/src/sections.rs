@@ -2,9 +2,9 @@
 
 use std::fmt::Write as _;
 
-use odocal::assess::position_error::segment_position_error;
-use odocal::drive::segment::SegmentData;
 use odocal::model::step;
+use odocal::segment::SegmentData;
+use odocal::segment_position_error;
 
 use crate::plots::{self, figure_svg, Panel, Series};
 use crate::{dead_reckoning, esc, thin, ReportInput, Result, CSS};

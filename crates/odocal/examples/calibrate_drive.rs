@@ -26,7 +26,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     if let Some(name) = std::env::args().nth(2) {
         options.method = Method::from_name(&name)?;
     }
-    let report = calibrate(&drive, &options, None)?;
+    let report = calibrate(&drive, &options)?;
 
     // The σ that stands for the result (the verdict and the parameter file use it).
     let sigma = report.result_sigma();

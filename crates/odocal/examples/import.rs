@@ -9,7 +9,7 @@
 
 use std::path::Path;
 
-use odocal::drive::segment::{calibration_segments, validation_segments};
+use odocal::segment::{calibration_segments, validation_segments};
 use odocal::{import, Manifest};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

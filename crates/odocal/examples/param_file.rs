@@ -9,8 +9,8 @@
 
 use std::path::Path;
 
-use odocal::drive::segment::validation_segments;
-use odocal::io::param_file::ParamFile;
+use odocal::segment::validation_segments;
+use odocal::ParamFile;
 use odocal::{calibrate, load_drive, mean_position_error, CalibrationOptions};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -19,7 +19,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         return Err("usage: param_file FIT_DRIVE OTHER_DRIVE OUT.yaml|OUT.json".into());
     };
     let (drive, _) = load_drive(Path::new(fit))?;
-    let report = calibrate(&drive, &CalibrationOptions::default(), None)?;
+    let report = calibrate(&drive, &CalibrationOptions::default())?;
 
     // θ with its 1σ (None for held parameters), the verdict and provenance;
     // `.yaml` writes the ROS 2 `ros__parameters` layout, `.json` JSON.

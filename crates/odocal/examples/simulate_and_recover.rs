@@ -22,7 +22,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
     for name in ["batch-gn", "three-step", "eiv"] {
         let options = CalibrationOptions { method: Method::from_name(name)?, ..Default::default() };
-        let report = calibrate(drive, &options, None)?;
+        let report = calibrate(drive, &options)?;
         let sigma = report.result_sigma().to_array();
         // Error over the reported σ: about ±2 or less for an unbiased estimate with an honest σ.
         let z: Vec<String> = error(&report.theta, &truth)
@@ -34,7 +34,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
 
     // Dead reckoning with the true θ: the floor that noise leaves on Ē_p.
-    let validation = odocal::drive::segment::validation_segments(drive, &Default::default())?;
+    let validation = odocal::segment::validation_segments(drive, &Default::default())?;
     let floor = mean_position_error(drive, &validation, &truth)?;
     println!("Ē_p with the true θ: {:.2} m", floor.mean_position_error_m);
     Ok(())

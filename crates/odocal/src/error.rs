@@ -151,6 +151,30 @@ pub enum Error {
         #[source]
         source: serde_json::Error,
     },
+    /// An output path names a file the same command reads, or another of
+    /// its outputs (the same canonical path, or the same inode).
+    #[error("{role} {} is also {other}; writing it would destroy that file: give {role} another path", path.display())]
+    PathCollision {
+        /// The output as the user named it (`--json`, `--out`).
+        role: String,
+        /// Its path, as given.
+        path: PathBuf,
+        /// The role (and path) of the file it would overwrite.
+        other: String,
+    },
+    /// The same drive (the same samples: [`crate::Drive::fingerprint`]) is
+    /// given twice.
+    #[error("{second} is the same drive as {first} (the same samples, fingerprint {}…): give each drive once; \
+             a drive counted twice shrinks σ as if it were new data, and a copy of the calibration data is no \
+             validation", fingerprint.get(..12).unwrap_or(fingerprint))]
+    DuplicateDrive {
+        /// The first drive, by role and name.
+        first: String,
+        /// The drive that repeats it.
+        second: String,
+        /// Their fingerprint.
+        fingerprint: String,
+    },
     /// A ROS 2 bag has no topic of the requested name.
     #[error("{path}: no topic '{topic}' in the bag; its topics: {}", fmt_topics(available))]
     BagTopicNotFound {
@@ -239,7 +263,7 @@ fn fmt_topics(topics: &[(String, String)]) -> String {
 impl Error {
     /// An I/O error on `path`. The OS message is kept once (not repeated in
     /// the source chain when printed with `{:#}`).
-    pub fn io(path: &std::path::Path, source: std::io::Error) -> Error {
+    pub(crate) fn io(path: &std::path::Path, source: std::io::Error) -> Error {
         Error::Io { path: path.to_path_buf(), source }
     }
 }

@@ -3,6 +3,9 @@
 //! with raw vs compensated inputs (Fig. 7/8, Table 1), θ_nom and the
 //! reachable minimum.
 //!
+//! Expert API: the `odocal experiment` command's computation, for programs
+//! that reproduce or extend the paper's evaluation.
+//!
 //! [`run`] computes every number; the `odocal experiment` command renders
 //! them as `report.md`, SVG figures and `experiment.json`.
 //!
@@ -103,7 +106,7 @@ impl CramerRao {
 
     /// (θ − θ_true)/σ_CRB, when the bound is available and positive for
     /// every parameter.
-    pub fn ratio(&self, error: &Theta) -> Option<Theta> {
+    pub(crate) fn ratio(&self, error: &Theta) -> Option<Theta> {
         let s = self.sigma?;
         let (e, s) = (error.to_array(), s.to_array());
         if !s.iter().all(|x| x.is_finite() && *x > 0.0) {
@@ -114,7 +117,7 @@ impl CramerRao {
 }
 
 /// The bound at θ_true with the true noise model, or why it is not available.
-pub fn cramer_rao_column(drive: &Drive, theta_true: Option<&Theta>, noise: Option<&NoiseModel>) -> CramerRao {
+pub(crate) fn cramer_rao_column(drive: &Drive, theta_true: Option<&Theta>, noise: Option<&NoiseModel>) -> CramerRao {
     let (theta, noise) = match (theta_true, noise) {
         (Some(t), Some(n)) => (t, n),
         (None, _) => {
@@ -334,7 +337,7 @@ fn diff(a: &Theta, b: &Theta) -> Theta {
 }
 
 /// Median of the finite values (NaN when there are none).
-pub fn median(values: &[f64]) -> f64 {
+pub(crate) fn median(values: &[f64]) -> f64 {
     let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
     if v.is_empty() {
         return f64::NAN;
@@ -595,7 +598,7 @@ impl<'a> Scorer<'a> {
         let mut ro = base.clone();
         ro.starts.extend(picked.iter().map(|p| p.theta));
         ro.starts.push(*final_theta);
-        let rm = reachable_minimum(self.drive, self.validation, &ro)?;
+        let rm = reachable_minimum(self.drive, self.validation, &ro, None)?;
         Ok(ReachableSummary {
             scored: self.scored(&rm.theta, rm.mean_position_error_m),
             evaluations: rm.evaluations,

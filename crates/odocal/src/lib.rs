@@ -26,27 +26,36 @@
 //!    estimates noise-free wheel rotations of every segment;
 //! 3. batch Gauss-Newton with the compensated inputs gives θ_B,F.
 //!
-//! Results are judged by dead-reckoning error on validation segments
-//! ([`assess`]). The exact statement, with every default, is the
-//! project's SPEC.md. [`calibrate()`] runs a whole calibration with any
-//! method ([`mod@calibrate`]); [`experiment::run`] reproduces the paper's §6.
+//! Results are judged by dead-reckoning error on validation segments. The
+//! exact statement, with every default, is the project's SPEC.md.
 //!
-//! ## The modules
+//! ## The front door
 //!
-//! In layers, lowest first; a module uses only modules of lower layers:
-//! [`error`] and [`progress`]; [`model`] (θ, the equations, parameters,
-//! extrinsics, physical limits); [`drive`] (drives, segments, plausibility);
-//! [`mod@io`] (manifest import, bags, parameter files) and [`sim`];
-//! [`identify`] (Gauss-Newton); [`compensate`] (the QP) and [`eiv`];
-//! [`assess`] (Ē_p, reachable minimum, verdict, warnings);
-//! [`mod@calibrate`] (the methods, settings, validation on other drives,
-//! cross-run); [`experiment`].
+//! The crate root holds what a program needs: a [`Drive`] (read with
+//! [`load_drive`] or [`import`], built with [`DriveBuilder`], or
+//! [`simulate`]d), [`calibrate()`] (or [`Calibration`] for held-out data,
+//! validation drives and progress) with [`CalibrationOptions`] and the
+//! [`CalibrationReport`] with its [`Verdict`], [`validate()`] for a θ on a
+//! drive, [`ParamFile`] to write and read the result, and [`Error`].
+//!
+//! ## Expert modules
+//!
+//! The public modules are for programs that run the method's steps or
+//! build their own front end: [`model`] (the equations and their
+//! derivatives), [`segment`] (cutting a drive into segments),
+//! [`identify`] (Gauss-Newton), [`compensate`] (the input-compensation QP),
+//! [`eiv`] (the errors-in-variables estimator), [`sim`] (the simulator),
+//! [`experiment`] (the paper's §6), [`mod@io`] (ROS 2 bags),
+//! [`manifest`] (the manifest as Rust types), [`settings`] (calibration
+//! settings as key–value pairs), [`crossrun`] (cross-run checks) and
+//! [`output`] (atomic writes and output paths checked against inputs, for a
+//! front end's own files).
 //!
 //! ## Example
 //!
 //! ```
 //! # fn main() -> Result<(), odocal::Error> {
-//! use odocal::{drive::segment, identify, sim, Theta};
+//! use odocal::{identify, segment, sim, Theta};
 //! // A noise-free simulated drive: batch Gauss-Newton recovers the true θ.
 //! let sim = sim::simulate(&sim::SimOptions { length_km: 2.0, substeps: 1, ..sim::SimOptions::noise_free(1) })?;
 //! let drive = &sim.drive;
@@ -69,19 +78,22 @@
 #![allow(clippy::needless_range_loop)]
 
 // The modules in layers, lowest first; a module uses only its own subtree
-// and modules of lower layers (tests/architecture.rs checks it).
-pub mod assess; // 6
-pub mod calibrate; // 7
+// and modules of lower layers (tests/architecture.rs checks it). The public
+// ones are expert API, each saying whom it is for; what a user needs to
+// calibrate, validate, import and simulate is re-exported below.
+mod assess; // 6
+mod calibrate; // 7
 pub mod compensate; // 5
-pub mod drive; // 2
+mod drive; // 2
 pub mod eiv; // 5
-pub mod error; // 0
-pub mod experiment;
+mod error; // 0
+pub mod experiment; // 8
 pub mod identify; // 4
 pub mod io; // 3
 pub mod model; // 1
-pub mod progress; // 0
-pub mod sim; // 3 // 8
+pub mod output; // 1
+mod progress; // 0
+pub mod sim; // 3
 
 /// The `schema_version` of every JSON report the `odocal` tool writes
 /// (calibrate, validate, import, experiment). Raised when a field is
@@ -93,31 +105,51 @@ pub const REPORT_SCHEMA_VERSION: u32 = 1;
 #[doc = include_str!("../../../README.md")]
 pub struct ReadmeDoctests;
 
-pub use assess::position_error::ValidationReport;
-pub use assess::position_error::{mean_position_error, mean_position_error_with};
-pub use assess::reachable::{reachable_minimum, reachable_minimum_with_progress, ReachableOptions, ReachableReport};
-pub use assess::trust::{GuardViolation, Guards, TrustOptions, Verdict, VerdictLevel, VerdictReason};
-pub use assess::validate::{
-    validate, validate_drives, validate_with_progress, DriveValidation, MultiValidation, ValidateOptions,
-    ValidateReport,
-};
-pub use assess::validation_drives::{validate_drives_with, CalibrationExtrinsics, ValidationDrive};
-pub use assess::warning::Warning;
-pub use calibrate::validate_on::calibrate_validated_on;
-pub use calibrate::{
-    calibrate, calibrate_held_out, calibrate_with_holdout, BatchGnOptions, CalibrationOptions, CalibrationReport,
-    EivDetail, EivMethodOptions, EivOutcome, FinalSegments, Holdout, Method, MethodDetail, ResultSigma, SigmaSource,
-    ThreeStepOptions,
-};
-pub use compensate::qp::SolverKind;
-pub use compensate::{CompensateOptions, QpOptions};
-pub use drive::segment::{Segment, SegmentData, SegmentOptions, ValidationSegmentOptions};
-pub use drive::{Drive, Signals};
+// Errors, progress, θ, the parameters and the reference extrinsics.
 pub use error::{Error, Result};
-pub use experiment::{Experiment, ExperimentOptions};
-pub use identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport, Observability, RobustCovariance, Termination};
-pub use io::import::{import, load_drive, ImportReport, ImportedDrive, Manifest};
-pub use model::extrinsics::{Extrinsics, ExtrinsicsEstimate};
-pub use model::param::{Param, ParamSet};
-pub use model::{Input, State, Theta};
+pub use model::{extrinsics::Extrinsics, extrinsics::ExtrinsicsEstimate, param::Param, param::ParamSet, Theta};
 pub use progress::{Progress, ProgressFn};
+// Drives: building, importing, simulating; parameter files. `segment` and
+// `manifest` are expert modules (their docs say for whom).
+pub use drive::{refuse_duplicates, segment, Drive, DriveBuilder, ExtraColumn, ExtraValues, Signals};
+pub use io::import::{
+    import, is_manifest_path, load_drive, manifest, ImportReport, ImportedDrive, Manifest, ReferenceSpec,
+};
+pub use io::param_file::{ParamFile, ParamMapping};
+pub use sim::{simulate, NoiseOptions, SimOptions, SimOutput, SimSidecar};
+// Calibration: the entry points, the options, the report. `settings` and
+// `crossrun` are expert modules.
+pub use calibrate::{
+    calibrate, crossrun, settings, settings::Settings, BatchGnDetail, BatchGnOptions, BatchSpread, Calibration,
+    CalibrationOptions, CalibrationReport, CorrectBias, EivDetail, EivMethodOptions, EivOutcome, FinalSegments,
+    Holdout, InitialStep, Method, MethodDetail, ResultSigma, SegmentCounts, SigmaSource, ThetaScore, ThreeStepDetail,
+    ThreeStepOptions, Timing, ValidationSummary,
+};
+pub use compensate::{qp::SolverKind, CompensateOptions, QpOptions};
+// Validation and the verdict.
+pub use assess::{
+    position_error::{mean_position_error, segment_position_error, ValidationReport},
+    reachable::{ReachableOptions, ReachableReport},
+    trust::{GuardViolation, Guards, TrustOptions, Verdict, VerdictLevel, VerdictReason},
+    validate::{validate, DriveValidation, MultiValidation, ValidateOptions, ValidateReport},
+    validation_drives::ValidationDrive,
+    warning::Warning,
+};
+
+/// What the studies in crates/odocal-lab use beyond the public API: steps
+/// and diagnostics a study compares (feature `research`, off by default;
+/// not part of the stable API).
+#[cfg(feature = "research")]
+pub mod research {
+    pub use crate::assess::{
+        position_error::mean_position_error_with,
+        reachable::reachable_minimum,
+        validation_drives::{validate_drives_with, CalibrationExtrinsics},
+    };
+    pub use crate::calibrate::{
+        calibrate_detailed,
+        eiv::{is_misspecification, noise_summary},
+        three_step::{random_batches, score_batches},
+        DetailedCalibration,
+    };
+}

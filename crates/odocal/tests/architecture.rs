@@ -20,6 +20,7 @@ const LAYERS: &[(u32, &str)] = &[
     (0, "error"),      // Error, Result, QpError, ParamNames
     (0, "progress"),   // progress events
     (1, "model"),      // θ, the equations, parameters, extrinsics, physical limits
+    (1, "output"),     // atomic writes, output paths checked against inputs
     (2, "drive"),      // drives, CSV, concat, segments, plausibility checks
     (3, "io"),         // manifest import, bags, Parquet, parameter files
     (3, "sim"),        // the drive simulator
@@ -204,7 +205,8 @@ fn super_paths(code: &str) -> Vec<(usize, String)> {
 }
 
 /// The names `lib.rs` re-exports at the crate root, each with the module it
-/// comes from (`pub use assess::trust::{Verdict, …}` maps `Verdict` to `assess`).
+/// comes from (`pub use assess::trust::{Verdict, …}` and
+/// `pub use assess::{trust::Verdict, …}` map `Verdict` to `assess`).
 fn root_reexports(lib: &str) -> BTreeMap<String, String> {
     let code = code_only(lib);
     let mut out = BTreeMap::new();
@@ -212,10 +214,12 @@ fn root_reexports(lib: &str) -> BTreeMap<String, String> {
         let Some(path) = stmt.trim().strip_prefix("pub use ") else { continue };
         let module: String = path.chars().take_while(|c| is_ident(*c)).collect();
         let names = match (path.find('{'), path.rfind("::")) {
-            (Some(b), _) => path[b + 1..].trim_end_matches('}').to_string(),
+            (Some(b), _) => path[b + 1..].replace(['{', '}'], ""),
             (None, Some(c)) => path[c + 2..].to_string(),
             (None, None) => continue,
         };
+        // `assess::{trust::{Verdict, Guards}, warning::Warning}`: each name
+        // after its last `::`.
         for n in names.split(',') {
             let n = n.trim().rsplit("::").next().unwrap_or("").trim();
             if !n.is_empty() && n != "self" {

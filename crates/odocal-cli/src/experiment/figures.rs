@@ -8,6 +8,15 @@ use odocal_report::plots::{self, figure, HLine, Panel, Series};
 
 use super::PARAMS;
 
+/// The file names of Fig. 4–8.
+pub const FIGURES: [&str; 5] = [
+    "fig4_batch_errors.svg",
+    "fig5_picked_theta.svg",
+    "fig6_compensation.svg",
+    "fig7_segment_theta.svg",
+    "fig8_errors.svg",
+];
+
 /// Writes Fig. 4–8 into `dir`; returns their file names.
 pub fn write_figures(dir: &Path, e: &Experiment, c: &Figure6Curves) -> Result<Vec<String>> {
     Ok(vec![fig4(dir, e)?, fig5(dir, e)?, fig6(dir, e, c)?, fig7(dir, e)?, fig8(dir, e)?])
@@ -49,7 +58,7 @@ fn fig4(dir: &Path, e: &Experiment) -> Result<String> {
         e.batches.iter().enumerate().map(|(i, b)| (i, b.raw.mean_position_error_m)).collect();
     sorted.sort_by(|x, y| x.1.total_cmp(&y.1));
     let rank = |i: usize| sorted.iter().position(|s| s.0 == i).map_or(f64::NAN, |r| (r + 1) as f64);
-    let name = "fig4_batch_errors.svg";
+    let name = FIGURES[0];
     figure(
         &dir.join(name),
         &format!("Fig. 4: sorted Ē_p of {} batch G-N calibrations (N = {})", e.batches.len(), e.batch_size),
@@ -81,7 +90,7 @@ fn fig4(dir: &Path, e: &Experiment) -> Result<String> {
 
 /// Fig. 5: the picked θ_B,I.
 fn fig5(dir: &Path, e: &Experiment) -> Result<String> {
-    let name = "fig5_picked_theta.svg";
+    let name = FIGURES[1];
     let panels: Vec<Panel> = PARAMS
         .iter()
         .map(|(p, unit, f)| Panel {
@@ -124,7 +133,7 @@ fn wheel_panel(title: &str, m: &[(f64, f64)], cc: &[(f64, f64)], tr: &Option<Vec
 
 /// Fig. 6: wheel rotations and dead-reckoning errors on one segment.
 fn fig6(dir: &Path, e: &Experiment, c: &Figure6Curves) -> Result<String> {
-    let name = "fig6_compensation.svg";
+    let name = FIGURES[2];
     let diffs = |x: &[(f64, f64)], t: &[(f64, f64)]| -> Vec<(f64, f64)> {
         x.iter().zip(t).map(|(a, b)| (a.0, a.1 - b.1)).collect()
     };
@@ -171,7 +180,7 @@ fn fig6(dir: &Path, e: &Experiment, c: &Figure6Curves) -> Result<String> {
 
 /// Fig. 7: per-segment θ, raw vs compensated.
 fn fig7(dir: &Path, e: &Experiment) -> Result<String> {
-    let name = "fig7_segment_theta.svg";
+    let name = FIGURES[3];
     let panels: Vec<Panel> = PARAMS
         .iter()
         .map(|(p, unit, f)| {
@@ -212,7 +221,7 @@ fn fig7(dir: &Path, e: &Experiment) -> Result<String> {
 
 /// Fig. 8: Ē_p per segment and per batch, raw vs compensated.
 fn fig8(dir: &Path, e: &Experiment) -> Result<String> {
-    let name = "fig8_errors.svg";
+    let name = FIGURES[4];
     let seg_raw: Vec<(f64, f64)> = e
         .per_segment
         .iter()

@@ -14,6 +14,7 @@ use odocal::sim::{self, NoiseOptions, SimOptions};
 use odocal::{CalibrationOptions, Drive, Method, QpOptions, ReachableOptions, SolverKind, Theta, ThreeStepOptions};
 use serde::Serialize;
 
+use crate::output::{refuse_stdout, Files};
 use crate::progress::Bars;
 
 mod figures;
@@ -41,9 +42,15 @@ pub struct ExperimentArgs {
     /// Number of random batches of N = 10 segments of the first fit.
     #[arg(long, default_value_t = 50)]
     pub batches: usize,
-    /// Output directory (created if missing).
+    /// Output directory (created if missing). A directory that already
+    /// holds an experiment's files (report.md, experiment.json, the
+    /// figures) is refused, unless --force.
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace the files of an experiment already in --out (other files
+    /// there are left alone).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// Where the drive came from.
@@ -86,6 +93,7 @@ pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
     if a.batches == 0 {
         bail!("--batches must be at least 1");
     }
+    check_out_dir(&a)?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
 
     let t = Instant::now();
@@ -115,11 +123,10 @@ pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
     let outputs = Outputs { drive: info, figures, timing };
 
     let json_path = write_json(&a.out, &exp, &outputs)?;
-    let md_path = a.out.join("report.md");
-    std::fs::write(&md_path, markdown::report_md(&exp, &outputs))
-        .with_context(|| format!("writing {}", md_path.display()))?;
+    let md_path = a.out.join(REPORT_MD);
+    odocal::output::write_text(&md_path, &markdown::report_md(&exp, &outputs))?;
 
-    for l in odocal::assess::warning::summarize(&exp.warnings, SHOWN_WARNINGS) {
+    for l in odocal::Warning::summarize(&exp.warnings, SHOWN_WARNINGS) {
         eprintln!("warning: {l}");
     }
     println!(
@@ -133,15 +140,47 @@ pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
     Ok(())
 }
 
-/// A drive CSV with the truth from its simulator sidecar, when it has one.
+/// The report's file name in `--out`.
+const REPORT_MD: &str = "report.md";
+/// The JSON's file name in `--out`.
+const EXPERIMENT_JSON: &str = "experiment.json";
+
+/// Refuses an `--out` that is stdout, or that holds an experiment's files
+/// already (unless `--force`), and outputs that would overwrite the drive
+/// or its sidecar.
+fn check_out_dir(a: &ExperimentArgs) -> Result<()> {
+    refuse_stdout("--out", &a.out, "the experiment writes a folder of files")?;
+    let names = [REPORT_MD, EXPERIMENT_JSON].into_iter().chain(figures::FIGURES);
+    let outputs: Vec<PathBuf> = names.map(|n| a.out.join(n)).collect();
+    if !a.force {
+        if let Some(p) = outputs.iter().find(|p| p.exists()) {
+            bail!(
+                "--out {}: holds an experiment already ({} exists); give a new folder, or add --force to replace \
+                 the experiment's files there",
+                a.out.display(),
+                p.display()
+            );
+        }
+    }
+    let mut files = Files::default();
+    if let Some(d) = &a.drive {
+        files.drive("the --drive", d);
+    }
+    for p in &outputs {
+        let name = p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        files.output(format!("--out's {name}"), Some(p));
+    }
+    files.check()
+}
+
+/// A drive CSV with the truth from its simulator sidecar, when it has one
+/// that records the drive's fingerprint.
 fn read_drive(path: &Path) -> Result<DriveAndTruth> {
-    let drive = Drive::read_csv(path)?;
-    let side = sim::sidecar_path(path);
-    let sidecar = if side.exists() {
-        Some(sim::SimSidecar::read_json(&side).with_context(|| format!("reading {}", side.display()))?)
-    } else {
-        None
-    };
+    let (drive, warnings) = Drive::read_csv_with_warnings(path)?;
+    for w in warnings {
+        eprintln!("warning: {w}");
+    }
+    let sidecar = crate::io::load_truth(path, &drive);
     let info = DriveInfo {
         source: path.display().to_string(),
         samples: drive.len(),
@@ -179,7 +218,7 @@ fn simulate_drive(a: &ExperimentArgs, bars: &Bars) -> Result<DriveAndTruth> {
 /// Writes `experiment.json`: the library's numbers with the drive, the
 /// figures and the timing; returns its path.
 fn write_json(dir: &Path, exp: &Experiment, outputs: &Outputs) -> Result<PathBuf> {
-    let json_path = dir.join("experiment.json");
+    let json_path = dir.join(EXPERIMENT_JSON);
     let mut json = serde_json::to_value(exp)?;
     if let Some(obj) = json.as_object_mut() {
         obj.insert("schema_version".into(), odocal::REPORT_SCHEMA_VERSION.into());
@@ -188,7 +227,7 @@ fn write_json(dir: &Path, exp: &Experiment, outputs: &Outputs) -> Result<PathBuf
         obj.insert("timing_s".into(), serde_json::to_value(&outputs.timing)?);
     }
     let text = serde_json::to_string_pretty(&json)?;
-    std::fs::write(&json_path, text + "\n").with_context(|| format!("writing {}", json_path.display()))?;
+    odocal::output::write_text(&json_path, &text)?;
     Ok(json_path)
 }
 

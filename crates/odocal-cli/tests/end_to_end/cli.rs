@@ -171,6 +171,24 @@ fn simulate_calibrate_validate_contract_and_determinism() {
 }
 
 #[test]
+fn simulate_random_noise_world() {
+    let d = tempfile::tempdir().expect("tmp");
+    let drive = d.path().join("world.csv");
+    let dstr = drive.to_str().expect("utf8");
+    let o = odocal(&["simulate", "--seed", "2", "--length-km", "1", "--noise", "random:7", "--out", dstr]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("noise world random:7: "), "{}", stdout(&o));
+    let side: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.path().join("world.json")).expect("sidecar")).expect("json");
+    let (world, _) = ::odocal::sim::NoiseOptions::random_world(7);
+    let noise: ::odocal::sim::NoiseOptions = serde_json::from_value(side["settings"]["noise"].clone()).expect("noise");
+    assert_eq!(noise, world);
+    let o = odocal(&["simulate", "--length-km", "1", "--noise", "random:x", "--out", dstr]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("random:"), "{}", stderr(&o));
+}
+
+#[test]
 fn demo_runs_and_compares_with_truth() {
     // The default method is eiv.
     let o = odocal(&["demo", "--length-km", "3", "--json", "-"]);

@@ -92,7 +92,7 @@ fn known_noise_sources_are_held_at_the_stated_level() {
             "{}",
             text(&o.stdout)
         );
-        // Stop 16: the estimated levels widen θ's σ, and the terminal says by how much.
+        // The estimated levels widen θ's σ, and the terminal says by how much.
         let widened = r["eiv"]["sigma_noise_estimate"].as_array().expect("sigma_noise_estimate");
         assert!(widened.iter().any(|x| x.as_f64().is_some_and(|v| v > 0.0)), "{widened:?}");
         assert!(text(&o.stdout).contains("  σ widened for the estimated noise levels: c_e ×"), "{}", text(&o.stdout));
@@ -173,7 +173,7 @@ fn eiv_noise_model_shape_flags_reach_the_options() {
     assert!(text(&o.stderr).contains("possible values: process, measurement, counting"), "{}", text(&o.stderr));
 }
 
-/// The default bias correction (B = 4, since stop 21) and `--correct-bias
+/// The default bias correction (B = 4) and `--correct-bias
 /// B`: every parameter corrected by a bootstrap in antithetic pairs on the
 /// smoothed trajectory whose replicates hold the fitted noise model; θ's σ
 /// carries the correction's Monte Carlo error; `--no-bias-correction`

@@ -8,9 +8,9 @@ use crate::common;
 use std::path::Path;
 
 use common::{calibrate_json, canonical_manifest, odocal, setting_outcome, text};
-use odocal::drive::Signals;
 use odocal::model::{step, wheel_rotations, Input, State, Theta};
 use odocal::Drive;
+use odocal::Signals;
 
 /// A noise-free oval (300 m straights, 40 m radius half circles) driven
 /// counter-clockwise at 10 m/s for 1.3 laps at 40 Hz: every turning

@@ -10,6 +10,7 @@ mod common;
 mod bad_input;
 mod bag;
 mod cli;
+mod data_safety;
 mod eiv;
 mod experiment;
 mod extrinsics;

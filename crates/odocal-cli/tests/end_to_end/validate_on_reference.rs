@@ -10,8 +10,8 @@ use crate::common;
 use std::path::Path;
 
 use common::{calibrate_json, canonical_manifest, odocal, text};
-use odocal::model::extrinsics::Extrinsics;
 use odocal::sim::{simulate, SimOptions};
+use odocal::Extrinsics;
 
 fn calibrate(fit: &Path, extra: &[&str]) -> serde_json::Value {
     calibrate_json(fit, &[&["--method", "batch-gn"], extra].concat())

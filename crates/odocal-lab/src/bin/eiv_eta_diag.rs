@@ -218,7 +218,7 @@ fn run() -> Res<()> {
                 )
             };
             println!("{p} {seed}: G-N {}", err(&gn));
-            println!("      truth: {}", odocal::calibrate::eiv::noise_summary(&sim_noise));
+            println!("      truth: {}", odocal::research::noise_summary(&sim_noise));
             for ((label, nm, fix), &(qname, quant)) in
                 all.iter().flat_map(|a| quants.iter().map(move |q| (a, q))).map(|(a, q)| (*a, q))
             {
@@ -273,7 +273,7 @@ fn run() -> Res<()> {
                             nis_m,
                             r.timing_s
                         );
-                        println!("      noise: {}", odocal::calibrate::eiv::noise_summary(&r.noise));
+                        println!("      noise: {}", odocal::research::noise_summary(&r.noise));
                         for w in &r.warnings {
                             println!("      warning: {w}");
                         }

@@ -21,7 +21,7 @@
 
 use std::time::Instant;
 
-use odocal::calibrate::{CorrectBias, EivMethodOptions, MethodDetail};
+use odocal::{CorrectBias, EivMethodOptions, MethodDetail};
 use odocal::eiv::{EivOptions, QuantisationModel, ResearchOptions};
 use odocal::sim::{simulate, SimOptions};
 use odocal::{calibrate, CalibrationOptions, CalibrationReport, Method};
@@ -91,7 +91,7 @@ fn run() -> Res<()> {
             let mut last: Option<CalibrationReport> = None;
             for _ in 0..reps {
                 let t = Instant::now();
-                let r = calibrate(d, &opts, None)?;
+                let r = calibrate(d, &opts)?;
                 times.push(t.elapsed().as_secs_f64());
                 last = Some(r);
             }

@@ -32,10 +32,11 @@
 //!   clockwise minus counter-clockwise +1.7 mm without, +2.3 mm with; δ ≈
 //!   +23 mrad on counter-clockwise runs, +7 to +10 mrad on clockwise ones.
 
-use odocal::drive::segment::validation_segments;
+use odocal::segment::validation_segments;
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
+use odocal::research::mean_position_error_with;
 use odocal::{
-    calibrate_with_holdout, mean_position_error_with, CalibrationOptions, CalibrationReport, Drive, Extrinsics,
+    CalibrationOptions, CalibrationReport, Drive, Extrinsics,
     Holdout, Method, ParamSet, Theta,
 };
 use odocal_lab::{load, testtrack_runs, Args, Res, TESTTRACK_RUNS, VAN_MANIFEST};
@@ -137,7 +138,7 @@ fn sim(seeds: u64, km: f64, preset: &str) -> Result<(), odocal::Error> {
             ..SimOptions::paper(seed)
         })?
         .drive;
-        let r = odocal::calibrate(&drive, &options("batch-gn", true, false)?, None)?;
+        let r = odocal::calibrate(&drive, &options("batch-gn", true, false)?)?;
         let x = r.extrinsics.as_ref().ok_or_else(|| odocal::Error::Numerical("no extrinsics".into()))?;
         let err: Vec<f64> = x.value.to_array().iter().zip(MOUNT.to_array()).map(|(a, b)| a - b).collect();
         let sd = x.std_dev.to_array();
@@ -175,8 +176,8 @@ fn van(method: &str) -> Res<()> {
         for with in [false, true] {
             let o = options(method, with, all)?;
             let r = match &h {
-                None => odocal::calibrate(&drive, &o, None),
-                Some(h) => calibrate_with_holdout(&drive, h, &o, None),
+                None => odocal::calibrate(&drive, &o),
+                Some(h) => odocal::Calibration::new(&drive, &o).holdout(h).run(),
             };
             match r {
                 Ok(r) => println!(
@@ -211,7 +212,7 @@ fn track(method: &str, fix: ParamSet) -> Res<()> {
         for (i, (run, dir)) in TESTTRACK_RUNS.iter().enumerate() {
             let mut o = options(method, with, false)?;
             o.identify.free = o.identify.free.difference(fix);
-            let r = match odocal::calibrate(&drives[i], &o, None) {
+            let r = match odocal::calibrate(&drives[i], &o) {
                 Ok(r) => r,
                 Err(e) => {
                     println!("{run} | {dir} | error: {e}");

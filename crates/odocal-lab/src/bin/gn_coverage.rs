@@ -20,7 +20,7 @@
 
 use std::time::Instant;
 
-use odocal::drive::segment::{calibration_segments, SegmentData};
+use odocal::segment::{calibration_segments, SegmentData};
 use odocal::identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{Extrinsics, ParamSet, Theta};
@@ -103,7 +103,7 @@ fn run() -> Res<()> {
                         let mut o = odocal::CalibrationOptions::default();
                         o.identify.robust_block_steps = *block;
                         let t = Instant::now();
-                        let r = odocal::calibrate(&drive, &o, None)?;
+                        let r = odocal::calibrate(&drive, &o)?;
                         t_fit += t.elapsed().as_secs_f64();
                         let id = r.identification().ok_or("three-step has step 3")?;
                         per_block[b].push(fit(id, &sim.theta_true, &mount, false));

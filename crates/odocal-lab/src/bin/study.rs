@@ -18,12 +18,13 @@
 use std::fmt::Write as _;
 use std::time::Instant;
 
-use odocal::calibrate::{calibrate_detailed, random_batches, score_batches};
+use odocal::research::{calibrate_detailed, random_batches, reachable_minimum, score_batches};
 use odocal::compensate::qp::SolverKind;
 use odocal::compensate::{compensate_segments, CompensateOptions, CompensatedInputs, QpOptions};
-use odocal::drive::segment::SegmentData;
+use odocal::segment::SegmentData;
 use odocal::identify::IdentifyOptions;
-use odocal::{mean_position_error, reachable_minimum, Drive, ReachableOptions, Segment, Theta};
+use odocal::segment::Segment;
+use odocal::{mean_position_error, Drive, ReachableOptions, Theta};
 use odocal::{CalibrationOptions, Method, ThreeStepOptions};
 use odocal_lab::{median, simulate_preset, Args, Res};
 use serde::Serialize;
@@ -178,7 +179,7 @@ fn study_drive(noise: &str, seed: u64, a: &Settings) -> Res<DriveResult> {
         starts,
         ..ReachableOptions::around(&theta0)
     };
-    let rm = reachable_minimum(drive, val, &ro)?;
+    let rm = reachable_minimum(drive, val, &ro, None)?;
     let e_min = rm.mean_position_error_m;
     let ep = |t: &Theta| mean_position_error(drive, val, t).map(|v| v.mean_position_error_m);
     let mut methods = Vec::new();

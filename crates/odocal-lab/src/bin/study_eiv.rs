@@ -53,8 +53,8 @@
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use odocal::calibrate::{EivDetail, EivMethodOptions};
-use odocal::drive::segment::validation_segments;
+use odocal::{EivDetail, EivMethodOptions};
+use odocal::segment::{validation_segments, ValidationSegmentOptions};
 use odocal::eiv::{
     bootstrap, cramer_rao_bound, BootstrapInputs, BootstrapOptions, CovarianceEstimate, EivInput, EivOptions,
     EivReport, HeadingScale, InputJacobian, LateralNoise, NoiseModel, QuantisationLevel, QuantisationModel,
@@ -62,7 +62,7 @@ use odocal::eiv::{
 };
 use odocal::{
     calibrate, mean_position_error, CalibrationOptions, CalibrationReport, Drive, Method, MethodDetail, Theta,
-    ValidationSegmentOptions, Warning,
+    Warning,
 };
 use odocal_lab::{
     coverage, error_scale, errors, noise_preset, simulate_preset, Args, Res, Summary, Table, ERROR_UNITS,
@@ -181,7 +181,7 @@ fn calibrate_eiv(
         estimate_heading_offset: heading_offset,
         correct_bias: None,
     });
-    let r = calibrate(d, &CalibrationOptions { method, seed, ..Default::default() }, None)?;
+    let r = calibrate(d, &CalibrationOptions { method, seed, ..Default::default() })?;
     let time_s = t.elapsed().as_secs_f64();
     let MethodDetail::Eiv(detail) = &r.detail else {
         return Err("calibrate with Method::Eiv returned another method's detail".into());
@@ -288,7 +288,7 @@ fn failed_checks(r: &CalibrationReport) -> Vec<String> {
 /// What one drive needs to judge a θ: Ē_p on its validation segments.
 struct Judge<'a> {
     drive: &'a Drive,
-    validation: Vec<odocal::Segment>,
+    validation: Vec<odocal::segment::Segment>,
 }
 
 impl Judge<'_> {
@@ -397,7 +397,7 @@ fn study_drive(name: &str, seed: u64, a: &Settings) -> Res<DriveResult> {
     if seed <= a.three_step_seeds {
         let t = Instant::now();
         let opts = CalibrationOptions { method: Method::from_name("three-step")?, seed, ..Default::default() };
-        match calibrate(d, &opts, None) {
+        match calibrate(d, &opts) {
             Ok(r) => {
                 runs.insert(
                     "3-step".into(),

@@ -40,10 +40,10 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use odocal::calibrate::crossrun::{CrossRunFit, CrossRunRow, CrossRunTable, CROSS_RUN_OWN_FIT_RATIO};
+use odocal::crossrun::{CrossRunFit, CrossRunRow, CrossRunTable, CROSS_RUN_OWN_FIT_RATIO};
 use odocal::eiv::{EivOptions, NoiseModel, QuantisationLevel};
 use odocal::{
-    calibrate, calibrate_with_holdout, CalibrationOptions, CalibrationReport, EivMethodOptions, EivOutcome, Holdout,
+    calibrate, CalibrationOptions, CalibrationReport, EivMethodOptions, EivOutcome, Holdout,
     Method, MethodDetail, ParamSet, ValidationDrive, VerdictLevel, Warning,
 };
 use odocal_lab::{load, repo_path, testtrack_manifest, Args, Res, RAV4_MANIFEST, TESTTRACK_RUNS, VAN_MANIFEST};
@@ -86,7 +86,7 @@ const CAN_SPEED_STEP_M_PER_S: f64 = 0.01 / 3.6;
 /// production car's 0.8 % white wheel noise, so the model's shape there
 /// hardly matters.
 fn encoder_q(rel: &str) -> Res<(f64, String)> {
-    use odocal::io::import::WheelSignal;
+    use odocal::manifest::WheelSignal;
     let path = repo_path(rel);
     let m = odocal::Manifest::from_path(&path).map_err(|e| format!("{}: {e}", path.display()))?;
     let h = 1.0 / m.output.rate_hz;
@@ -139,7 +139,7 @@ fn options(method: &str, q: f64) -> Res<CalibrationOptions> {
         "eiv-cb" => {
             // What the CLI's `--correct-bias 10` sets (seed 0, antithetic pairs).
             Method::Eiv(EivMethodOptions {
-                correct_bias: Some(odocal::calibrate::CorrectBias { replicates: 10, seed: 0 }),
+                correct_bias: Some(odocal::CorrectBias { replicates: 10, seed: 0 }),
                 fallback,
                 ..EivMethodOptions::default()
             })
@@ -253,7 +253,7 @@ fn eiv_detail_row(m: &str, fit: &str, r: &CalibrationReport) -> Option<(String, 
     let found: Vec<String> = e
         .warnings
         .iter()
-        .filter(|w| odocal::calibrate::eiv::is_misspecification(w, e))
+        .filter(|w| odocal::research::is_misspecification(w, e))
         .map(|w| w.to_string())
         .collect();
     let t = &e.theta;
@@ -322,7 +322,7 @@ fn testtrack(methods: &[String], md: &mut String) -> Res<Value> {
         for (i, (name, drive)) in drives.iter().enumerate() {
             let opts = options(m, qs[i])?;
             let t = Instant::now();
-            let r = match calibrate(drive, &opts, None) {
+            let r = match calibrate(drive, &opts) {
                 Ok(r) => r,
                 Err(e) => {
                     rows.push(CrossRunRow { name: name.to_string(), fit: Err(e.to_string()) });
@@ -337,7 +337,7 @@ fn testtrack(methods: &[String], md: &mut String) -> Res<Value> {
                 .map(|(_, (n, d))| ValidationDrive { name: n, drive: d, reference: None })
                 .collect();
             let cal = r.extrinsics_for_validation(ParamSet::EMPTY);
-            let v = odocal::validate_drives_with(&others, &r.theta, &opts.theta0, &cal, &opts.validation)?;
+            let v = odocal::research::validate_drives_with(&others, &r.theta, &opts.theta0, &cal, &opts.validation)?;
             let wall = t.elapsed().as_secs_f64();
             let fb = eiv_fallback(&r);
             if let Some((row, v)) = eiv_detail_row(m, name, &r) {
@@ -469,8 +469,8 @@ fn swap(md: &mut String) -> Res<Value> {
     for (i, (name, drive, q)) in drives.iter().enumerate() {
         let gn_opts = options("batch-gn-all", *q)?;
         let eiv_opts = options("eiv-scg-nofallback", *q)?;
-        let gn = calibrate(drive, &gn_opts, None)?;
-        let eiv = calibrate(drive, &eiv_opts, None)?;
+        let gn = calibrate(drive, &gn_opts)?;
+        let eiv = calibrate(drive, &eiv_opts)?;
         let others: Vec<ValidationDrive> = drives
             .iter()
             .enumerate()
@@ -479,7 +479,7 @@ fn swap(md: &mut String) -> Res<Value> {
             .collect();
         let cal = gn.extrinsics_for_validation(ParamSet::EMPTY);
         let judge = |t: &odocal::Theta| -> Res<f64> {
-            Ok(odocal::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?.mean_over_drives_m)
+            Ok(odocal::research::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?.mean_over_drives_m)
         };
         let (g, e) = (gn.theta, eiv.theta);
         let mut cells = vec![judge(&g)?, judge(&e)?];
@@ -510,12 +510,12 @@ fn swap(md: &mut String) -> Res<Value> {
     for (label, h) in [("first-half", Holdout::FirstHalf), ("second-half", Holdout::SecondHalf)] {
         let (fit, held) = h.split(&drive)?;
         let gn_opts = options("batch-gn-all", q)?;
-        let gn = calibrate(&fit, &gn_opts, None)?;
-        let eiv = calibrate(&fit, &options("eiv-scg-nofallback", q)?, None)?;
+        let gn = calibrate(&fit, &gn_opts)?;
+        let eiv = calibrate(&fit, &options("eiv-scg-nofallback", q)?)?;
         let others = [ValidationDrive { name: label, drive: &held, reference: None }];
         let cal = gn.extrinsics_for_validation(ParamSet::EMPTY);
         let judge = |t: &odocal::Theta| -> Res<f64> {
-            Ok(odocal::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?.mean_over_drives_m)
+            Ok(odocal::research::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?.mean_over_drives_m)
         };
         let (g, e) = (gn.theta, eiv.theta);
         let cells = [
@@ -555,7 +555,7 @@ fn van(methods: &[String], md: &mut String) -> Res<Value> {
         let opts = options(m, q)?;
         for (label, h) in [("first-half", Holdout::FirstHalf), ("second-half", Holdout::SecondHalf)] {
             let t = Instant::now();
-            let r = match calibrate_with_holdout(&drive, &h, &opts, None) {
+            let r = match odocal::Calibration::new(&drive, &opts).holdout(&h).run() {
                 Ok(r) => r,
                 Err(e) => {
                     md.push_str(&format!("| {m} | {label} | failed: {} ||||||\n", e.to_string().replace('|', "\\|")));
@@ -626,7 +626,7 @@ fn rav4(methods: &[String], md: &mut String) -> Res<Value> {
             let opts = CalibrationOptions { auto_fix, ..options(m, q)? };
             let label = if auto_fix { "--auto-fix" } else { "default" };
             let t = Instant::now();
-            let r = match calibrate(&drive, &opts, None) {
+            let r = match calibrate(&drive, &opts) {
                 Ok(r) => r,
                 Err(e) => {
                     let text = e.to_string();

@@ -12,7 +12,8 @@
 //! docs/validation.md ("The road bank") quotes `kin fy`.
 use std::path::Path;
 
-use odocal::io::import::{import, ImportedDrive, LateralAccelerationSpec, Manifest};
+use odocal::manifest::LateralAccelerationSpec;
+use odocal::{import, ImportedDrive, Manifest};
 use odocal::Drive;
 use odocal_lab::{
     print_cross_runs, print_joint_fits, repo_path, testtrack_manifest, with_signals, Args, Res, TESTTRACK_RUNS,

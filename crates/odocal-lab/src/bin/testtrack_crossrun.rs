@@ -14,7 +14,7 @@
 
 use std::path::PathBuf;
 
-use odocal::calibrate::crossrun::{cross_run_groups, CROSS_RUN_OWN_FIT_RATIO};
+use odocal::crossrun::{cross_run_groups, CROSS_RUN_OWN_FIT_RATIO};
 use odocal::{CalibrationOptions, Method, ParamSet};
 use odocal_lab::{testtrack_runs, Args, Res};
 

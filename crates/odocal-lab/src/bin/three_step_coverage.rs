@@ -11,7 +11,7 @@
 //! ±1.96σ (nominal 95 %), the RMS σ and the RMS error. An honest σ has
 //! RMS σ ≈ RMS error and coverage near nominal.
 
-use odocal::calibrate::MethodDetail;
+use odocal::MethodDetail;
 use odocal::{CalibrationOptions, Method, Theta, ThreeStepOptions};
 use odocal_lab::{coverage, simulate_preset, Args, Res, PARAMETERS};
 
@@ -38,7 +38,7 @@ fn run() -> Res<()> {
             method: Method::ThreeStep(ThreeStepOptions { initial_batches: batches, ..Default::default() }),
             ..Default::default()
         };
-        let r = odocal::calibrate(&s.drive, &opts, None)?;
+        let r = odocal::calibrate(&s.drive, &opts)?;
         let MethodDetail::ThreeStep(d) = &r.detail else { return Err("not a 3-step report".into()) };
         let truth = s.sidecar.theta_true.to_array();
         let theta = r.theta.to_array();

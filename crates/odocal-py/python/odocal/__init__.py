@@ -165,7 +165,19 @@ class CalibrationReport:
         """
         if self._drive is None:
             raise ValueError("this report has no drive to draw (make it with odocal.calibrate)")
-        _odocal._report_html(self._drive, self._json, os.fspath(path), title=title, **self._scored_on)
+        _odocal._report_html(
+            self._drive, self._json, os.fspath(path), title=title, drives=self._input_drives(), **self._scored_on
+        )
+
+    def _input_drives(self) -> list:
+        """The drives the report was made from (calibration and ``validate_on``), one by one."""
+        out: list = []
+        for d in (self._drive, self._scored_on.get("validate_on")):
+            if isinstance(d, Drive):
+                out.append(d)
+            elif d is not None:
+                out.extend(d)
+        return out
 
     def write_params(
         self,
@@ -180,9 +192,14 @@ class CalibrationReport:
         under ``node``), JSON for ``.json``; θ with the σ that stands for the
         result (``result_sigma``; ``<name>_held: true`` for held ones), the
         reference extrinsics, the verdict and provenance (``input`` names the
-        data). ``mapping="diff_drive_controller"`` adds that controller's keys.
-        :func:`read_params` and every θ argument read it back."""
-        _odocal._write_params(self._json, os.fspath(path), input=input, node=node, mapping=mapping)
+        data; ``fingerprint`` the calibration drives' :attr:`Drive.fingerprint`).
+        ``mapping="diff_drive_controller"`` adds that controller's keys.
+        :func:`read_params` and every θ argument read it back. The file is
+        written atomically; a path that is a file of the report's drives (a
+        CSV, manifest, stream file or sidecar) raises :class:`OdocalError`."""
+        _odocal._write_params(
+            self._json, os.fspath(path), input=input, node=node, mapping=mapping, drives=self._input_drives()
+        )
 
     def __repr__(self) -> str:
         t = self._dict["theta"]
@@ -278,6 +295,12 @@ def calibrate(
     total)`` is called on the calling thread, with the GIL, at most about
     ten times a second. An exception it raises (or Ctrl-C) is re-raised once
     the calibration has finished.
+
+    The report's ``"drives"`` lists each drive's role (``"calibration"``,
+    ``"validation"``), the file it was read from and its
+    :attr:`Drive.fingerprint`. The same drive given twice (in ``drive``, or
+    as a ``validate_on`` copy of a calibration drive) raises
+    :class:`OdocalError` naming both.
 
     Raises :class:`OdocalError` (a ``ValueError``) with the library's
     message naming the option for bad options, or for data the method cannot

@@ -82,8 +82,16 @@ class Drive:
     @property
     def import_report(self) -> Optional[dict[str, Any]]:
         """The import report of a drive read from a manifest, else None."""
+    @property
+    def fingerprint(self) -> str:
+        """SHA-256 (hex) of the canonical samples: the same for the same drive read from a CSV,
+        imported through a manifest or made from arrays."""
+    @property
+    def source(self) -> Optional[str]:
+        """The file the drive was read from (a CSV or a manifest), else None."""
     def to_csv(self, path: _Path) -> None:
-        """Writes the canonical CSV (and the sidecar JSON of a simulated drive)."""
+        """Writes the canonical CSV (and the sidecar JSON of a simulated drive), atomically; a path
+        that is one of the drive's own files raises OdocalError."""
     def __len__(self) -> int: ...
 
 def calibrate(
@@ -126,9 +134,18 @@ def _report_html(
     holdout: Optional[str] = None,
     validate_on: Optional[Union[Drive, Sequence[Drive]]] = None,
     title: Optional[str] = None,
+    drives: Optional[Sequence[Drive]] = None,
 ) -> None: ...
 def _method_details(report_json: str) -> str: ...
 def read_params(path: _Path) -> dict[str, Any]:
     """A parameter file (ROS 2 YAML or JSON, as ``--params-out`` writes it) in the JSON file's layout:
     ``{"schema_version", "node", "parameters", "units", "verdict", "verdict_reasons", "provenance"}``."""
-def _write_params(report_json: str, path: _Path, *, input: str, node: str, mapping: str) -> None: ...
+def _write_params(
+    report_json: str,
+    path: _Path,
+    *,
+    input: str,
+    node: str,
+    mapping: str,
+    drives: Optional[Sequence[Drive]] = None,
+) -> None: ...

@@ -4,9 +4,9 @@
 //! Ē_p ([`reachable`]), the trust checks and verdict ([`trust`]) and the
 //! warnings a calibration reports ([`warning`]).
 
-pub mod position_error;
-pub mod reachable;
-pub mod trust;
-pub mod validate;
-pub mod validation_drives;
-pub mod warning;
+pub(crate) mod position_error;
+pub(crate) mod reachable;
+pub(crate) mod trust;
+pub(crate) mod validate;
+pub(crate) mod validation_drives;
+pub(crate) mod warning;

@@ -9,7 +9,7 @@
 //! ```
 //!
 //! `Ē_p` is the mean over segments. With reference extrinsics
-//! ([`crate::model::extrinsics`]) each segment starts from the axle pose the
+//! ([[`Extrinsics`](crate::Extrinsics)]) each segment starts from the axle pose the
 //! reference implies and the model's reference point is compared with the
 //! measured one.
 
@@ -89,7 +89,7 @@ pub fn mean_position_error_with(
 /// model's reference pose): the segment starts from the axle pose the
 /// reference implies, and the model's reference point is compared with the
 /// measured one.
-pub fn segment_position_error_with(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics) -> f64 {
+pub(crate) fn segment_position_error_with(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics) -> f64 {
     let mut x = axle_pose(&seg.reference(0), e);
     let mut sum = 0.0;
     for k in 0..seg.steps() {

@@ -85,10 +85,10 @@ const SIMPLEX_STEP: f64 = 0.02;
 /// *on the edge* of the box (1 %: the swarm and the simplex, pushed back by
 /// the penalty, end right at a bound when the minimum is beyond it, while
 /// an interior minimum a hundredth of the width from a bound is rare).
-pub const EDGE_FRACTION: f64 = 0.01;
+pub(crate) const EDGE_FRACTION: f64 = 0.01;
 
 /// Default number of times the box is re-centred on a best point on its edge.
-pub const DEFAULT_RECENTRE: usize = 3;
+pub(crate) const DEFAULT_RECENTRE: usize = 3;
 
 fn default_recentre() -> usize {
     DEFAULT_RECENTRE
@@ -128,12 +128,12 @@ pub struct ReachableOptions {
     pub starts: Vec<Theta>,
     /// When the best point is on the box edge, re-centre the box on it and
     /// search again, at most this many times (0: never). Default
-    /// [`DEFAULT_RECENTRE`] = 3.
+    /// `DEFAULT_RECENTRE` = 3.
     #[serde(default = "default_recentre")]
     pub recentre: usize,
     /// The pose reference's mount (lever arm, heading offset), held: every
     /// `Ē_p(θ)` of the search compares the model's antenna position with
-    /// the reference, as [`crate::assess::position_error::mean_position_error_with`] does,
+    /// the reference, as `crate::assess::position_error::mean_position_error_with` does,
     /// so the minimum is comparable with a validation on the same mount.
     /// [`validate`](crate::assess::validate::validate()) sets it from [`crate::ValidateOptions::extrinsics`].
     /// Default 0: the reference at the rear-axle centre.
@@ -174,12 +174,12 @@ impl ReachableOptions {
     }
 
     /// The centre of the box, `(lower + upper)/2`.
-    pub fn centre(&self) -> Theta {
+    pub(crate) fn centre(&self) -> Theta {
         Theta::from_vector(&((self.lower.to_vector() + self.upper.to_vector()) / 2.0))
     }
 
     /// Checks the options, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         let (lo, hi) = (self.lower.to_array(), self.upper.to_array());
         for i in 0..4 {
             if !lo[i].is_finite() {
@@ -226,7 +226,7 @@ impl ReachableOptions {
     }
 }
 
-/// The outcome of [`reachable_minimum`].
+/// The outcome of `reachable_minimum`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ReachableReport {
     /// The best θ found.
@@ -246,7 +246,7 @@ pub struct ReachableReport {
     /// best 0.0123 m; refinement: Solver converged after 143 iterations"`
     /// (of the last box searched).
     pub termination: String,
-    /// Parameters of [`theta`](Self::theta) within [`EDGE_FRACTION`] of a
+    /// Parameters of [`theta`](Self::theta) within `EDGE_FRACTION` of a
     /// bound of the last box searched: the minimum may lie beyond.
     #[serde(default)]
     pub at_edge: ParamSet,
@@ -354,33 +354,13 @@ fn argmin_error(stage: &str, e: argmin::core::Error) -> Error {
 }
 
 /// Finds the reachable minimum `min_θ Ē_p(θ)` on `segments` of `drive` by a
-/// seeded particle swarm over the box of `opts`, refined by Nelder-Mead.
+/// seeded particle swarm over the box of `opts`, refined by Nelder-Mead;
+/// `progress` hears one stage per box searched (`"reachable: swarm"`,
+/// `"reachable: refine"`) advancing by one per evaluation of `Ē_p`.
 ///
 /// Errors when the options are invalid (naming the field), when there are no
 /// segments, or when `Ē_p` cannot be computed at the box centre.
-///
-/// # Example
-/// ```no_run
-/// use odocal::drive::segment::{validation_segments, ValidationSegmentOptions};
-/// use odocal::{reachable_minimum, Drive, ReachableOptions, Theta};
-/// # fn main() -> odocal::Result<()> {
-/// let drive = Drive::read_csv("drive.csv")?;
-/// let segments = validation_segments(&drive, &ValidationSegmentOptions::default())?;
-/// let calibrated: Theta = "1.951,-0.0021,1.529,0.0008".parse()?;
-/// let opts = ReachableOptions { starts: vec![calibrated], ..ReachableOptions::around(&Theta::PAPER_INITIAL) };
-/// let report = reachable_minimum(&drive, &segments, &opts)?;
-/// println!("{report}");
-/// # Ok(())
-/// # }
-/// ```
-pub fn reachable_minimum(drive: &Drive, segments: &[Segment], opts: &ReachableOptions) -> Result<ReachableReport> {
-    reachable_minimum_with_progress(drive, segments, opts, None)
-}
-
-/// [`reachable_minimum`], reporting progress: one stage per box searched
-/// (`"reachable: swarm"`, `"reachable: refine"`) advancing by one per
-/// evaluation of `Ē_p`.
-pub fn reachable_minimum_with_progress(
+pub fn reachable_minimum(
     drive: &Drive,
     segments: &[Segment],
     opts: &ReachableOptions,
@@ -476,6 +456,9 @@ fn search_box(
     })
 }
 
+/// A point of the unit box with its Ē_p.
+type ScaledPoint = (Vec<f64>, f64);
+
 /// The swarm's seeds: the box centre (`centre`, with its Ē_p) and each of
 /// `starts` evaluated as given, then clamped into the box (re-evaluated
 /// there when it was outside); the best `particles` of them (stable order
@@ -485,9 +468,9 @@ fn seed_points(
     centre: (f64, Theta),
     starts: &[Theta],
     particles: usize,
-) -> ((f64, Theta), Vec<(Vec<f64>, f64)>) {
+) -> ((f64, Theta), Vec<ScaledPoint>) {
     let mut best = centre;
-    let mut seeds: Vec<(Vec<f64>, f64)> = vec![(obj.scaled(&centre.1), centre.0)];
+    let mut seeds: Vec<ScaledPoint> = vec![(obj.scaled(&centre.1), centre.0)];
     for s in starts {
         let e = obj.error_at(s);
         if e < best.0 {
@@ -508,7 +491,7 @@ fn seed_points(
 /// up to `particles`, each with a random velocity.
 fn initial_population(
     obj: &Objective<'_>,
-    seeds: Vec<(Vec<f64>, f64)>,
+    seeds: Vec<ScaledPoint>,
     particles: usize,
     rng: &mut ChaCha8Rng,
 ) -> Vec<Particle<Vec<f64>, f64>> {
@@ -617,7 +600,7 @@ mod tests {
         };
         let run = |extrinsics: Extrinsics| {
             let opts = ValidateOptions { extrinsics, reachable: Some(search.clone()), ..Default::default() };
-            validate(&s.drive, &truth, &opts).expect("validate")
+            validate(&s.drive, &truth, &opts, None).expect("validate")
         };
         let mounted = run(mount);
         let rm = mounted.reachable_minimum.as_ref().expect("searched");
@@ -630,6 +613,7 @@ mod tests {
             &s.drive,
             &validation_segments(&s.drive, &ValidationSegmentOptions::default()).expect("segments"),
             &search,
+            None,
         )
         .expect("search");
         eprintln!(
@@ -682,7 +666,7 @@ mod tests {
         let (drive, segs) = setup();
         let truth = Theta::SIM_DEFAULT_TRUE;
         let opts = ReachableOptions::around(&Theta::PAPER_INITIAL);
-        let r = reachable_minimum(&drive, &segs, &opts).expect("search");
+        let r = reachable_minimum(&drive, &segs, &opts, None).expect("search");
         eprintln!("{r}\n{}", r.termination);
         // The start is off: θ_0 is metres away.
         assert!(r.centre_mean_position_error_m > 1.0, "Ē_p(θ_0) = {}", r.centre_mean_position_error_m);
@@ -702,10 +686,10 @@ mod tests {
     fn reachable_is_deterministic_and_seed_dependent() {
         let (drive, segs) = setup();
         let opts = ReachableOptions { iterations: 10, refine_iterations: 20, seed: 42, ..Default::default() };
-        let a = reachable_minimum(&drive, &segs, &opts).expect("a");
-        let b = reachable_minimum(&drive, &segs, &opts).expect("b");
+        let a = reachable_minimum(&drive, &segs, &opts, None).expect("a");
+        let b = reachable_minimum(&drive, &segs, &opts, None).expect("b");
         assert_eq!(ReachableReport { time_s: 0.0, ..a.clone() }, ReachableReport { time_s: 0.0, ..b });
-        let c = reachable_minimum(&drive, &segs, &ReachableOptions { seed: 43, ..opts }).expect("c");
+        let c = reachable_minimum(&drive, &segs, &ReachableOptions { seed: 43, ..opts }, None).expect("c");
         assert_ne!(a.theta, c.theta, "a different seed should search differently");
     }
 
@@ -723,7 +707,7 @@ mod tests {
             starts: vec![outside, near],
             ..Default::default()
         };
-        let r = reachable_minimum(&drive, &segs, &opts).expect("search");
+        let r = reachable_minimum(&drive, &segs, &opts, None).expect("search");
         for s in [opts.centre(), outside, near] {
             let e = mean_position_error(&drive, &segs, &s).expect("valid").mean_position_error_m;
             assert!(r.mean_position_error_m <= e, "{r} vs start {s}: {e}");
@@ -737,7 +721,7 @@ mod tests {
             recentre: 0,
             ..opts
         };
-        let r = reachable_minimum(&drive, &segs, &opts).expect("search");
+        let r = reachable_minimum(&drive, &segs, &opts, None).expect("search");
         assert_eq!(r.theta, Theta::SIM_DEFAULT_TRUE);
     }
 
@@ -757,14 +741,14 @@ mod tests {
         };
         assert!(small.upper.t_r < truth.t_r);
         let flagged =
-            reachable_minimum(&drive, &segs, &ReachableOptions { recentre: 0, ..small.clone() }).expect("search");
+            reachable_minimum(&drive, &segs, &ReachableOptions { recentre: 0, ..small.clone() }, None).expect("search");
         assert!(!flagged.enclosed, "{flagged}");
         assert!(flagged.at_edge.contains(Param::TR), "{flagged}");
         assert_eq!(flagged.recentred, 0);
         assert!(flagged.to_string().contains("NOT ENCLOSED: t_r"), "{flagged}");
         assert!(small.upper.t_r - flagged.theta.t_r < EDGE_FRACTION * 0.48, "{flagged}");
 
-        let enclosed = reachable_minimum(&drive, &segs, &small).expect("search");
+        let enclosed = reachable_minimum(&drive, &segs, &small, None).expect("search");
         eprintln!("{enclosed}");
         assert!(enclosed.recentred >= 1, "{enclosed}");
         assert!(enclosed.recentred <= DEFAULT_RECENTRE);
@@ -788,10 +772,10 @@ mod tests {
             ("starts", ReachableOptions { starts: vec![Theta { t_r: -1.0, ..d.upper }], ..d.clone() }),
         ];
         for (field, o) in cases {
-            let e = reachable_minimum(&drive, &segs, &o).expect_err(field);
+            let e = reachable_minimum(&drive, &segs, &o, None).expect_err(field);
             assert!(e.to_string().contains(&format!("`{field}`")), "{field}: {e}");
         }
-        assert!(matches!(reachable_minimum(&drive, &[], &d), Err(Error::NoSegments(_))));
+        assert!(matches!(reachable_minimum(&drive, &[], &d, None), Err(Error::NoSegments(_))));
     }
 
     #[test]

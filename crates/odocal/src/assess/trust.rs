@@ -70,7 +70,7 @@ pub struct Guards {
     /// parameters at all.
     pub min_rcond: f64,
     /// |lever arm| per axis (x forward, y left) of the pose reference at
-    /// most this, m, when estimated ([`crate::model::extrinsics`]). Default 5: an
+    /// most this, m, when estimated ([[`Extrinsics`](crate::Extrinsics)]). Default 5: an
     /// antenna or INS farther than 5 m from the rear axle is off a car or
     /// van (the PSU van's antennas sit about 0.9 m from it).
     #[serde(default = "default_lever_arm_abs_m")]
@@ -107,7 +107,7 @@ impl Default for Guards {
 
 impl Guards {
     /// Checks the settings, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         for (v, field) in [
             (self.c_e_rel, "guards.c_e_rel"),
             (self.c_d_rel_c_e, "guards.c_d_rel_c_e"),
@@ -128,7 +128,7 @@ impl Guards {
 
     /// Half-width of the plausible region of `p` around `theta0`, SI units
     /// (the extrinsics' regions are centred on 0, whatever θ_0).
-    pub fn half_width(&self, p: Param, theta0: &Theta) -> f64 {
+    pub(crate) fn half_width(&self, p: Param, theta0: &Theta) -> f64 {
         match p {
             Param::CE => self.c_e_rel * theta0.c_e.abs(),
             Param::CD => self.c_d_rel_c_e * theta0.c_e.abs(),
@@ -186,7 +186,7 @@ impl std::fmt::Display for GuardViolation {
 /// Every guard `theta` fails: finite, each parameter of `free` in its region
 /// around `theta0`, at least one accepted step (`iterations`, when known),
 /// rcond at least [`Guards::min_rcond`].
-pub fn check_theta(
+pub(crate) fn check_theta(
     theta: &Theta,
     theta0: &Theta,
     free: ParamSet,
@@ -216,7 +216,7 @@ pub fn check_theta(
 /// Every guard estimated extrinsics fail: finite, each free one within its
 /// plausible region around 0 ([`Guards::lever_arm_abs_m`],
 /// [`Guards::heading_offset_abs_rad`]).
-pub fn check_extrinsics(e: &Extrinsics, free: ParamSet, guards: &Guards) -> Vec<GuardViolation> {
+pub(crate) fn check_extrinsics(e: &Extrinsics, free: ParamSet, guards: &Guards) -> Vec<GuardViolation> {
     if !e.to_array().iter().all(|v| v.is_finite()) {
         return vec![GuardViolation::NonFinite];
     }
@@ -241,7 +241,7 @@ pub struct TrustOptions {
     /// different Ē_p; three times is more than route alone explains on the
     /// half-splits measured).
     pub max_held_out_ratio: f64,
-    /// A σ ([`crate::CalibrationReport::result_covariance`] where the
+    /// A σ (`crate::CalibrationReport::result_covariance` where the
     /// method has one, else the model σ) above this fraction of the parameter's guard half-width makes the
     /// result doubtful. Default 0.1.
     pub max_sigma_fraction: f64,
@@ -266,7 +266,7 @@ pub struct TrustOptions {
     /// 4.7 mm/(m/s²) in d.
     pub min_split_fraction: f64,
     /// A batch Gauss-Newton that gives the result and stopped at its
-    /// iteration limit ([`crate::IdentifyOptions::max_iterations`]) while
+    /// iteration limit (`crate::IdentifyOptions::max_iterations`) while
     /// its last accepted step still moved a free parameter by more than this
     /// many σ (the σ that stands for the result) makes the result doubtful:
     /// θ is not yet the optimum. Default 0.05, the step the EIV fit calls
@@ -295,7 +295,7 @@ impl Default for TrustOptions {
 
 impl TrustOptions {
     /// Checks the settings, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         self.guards.validate()?;
         for (v, field) in [
             (self.max_held_out_ratio, "trust.max_held_out_ratio"),
@@ -429,7 +429,7 @@ pub enum VerdictReason {
 
 impl VerdictReason {
     /// The level this reason alone implies.
-    pub fn level(&self) -> VerdictLevel {
+    pub(crate) fn level(&self) -> VerdictLevel {
         match self {
             VerdictReason::Implausible { .. } | VerdictReason::WorseThanInitial { .. } => VerdictLevel::Rejected,
             _ => VerdictLevel::Doubtful,
@@ -487,7 +487,7 @@ pub struct Verdict {
 
 impl Verdict {
     /// The verdict of these reasons.
-    pub fn from_reasons(reasons: Vec<VerdictReason>) -> Verdict {
+    pub(crate) fn from_reasons(reasons: Vec<VerdictReason>) -> Verdict {
         let level = reasons.iter().map(VerdictReason::level).max().unwrap_or(VerdictLevel::Accepted);
         Verdict { level, reasons }
     }

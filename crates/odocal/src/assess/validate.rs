@@ -1,12 +1,13 @@
 //! Validation of a calibrated θ by dead reckoning (SPEC §7): [`validate`]
 //! is the `validate` command, Ē_p ([`super::position_error`]) of a θ and,
 //! optionally, the reachable minimum ([`super::reachable`]) on the same
-//! segments; [`validate_drives`] validates on several drives.
+//! segments; [`MultiValidation`] is the table of validation on several
+//! drives ([`super::validation_drives`]).
 
 use serde::{Deserialize, Serialize};
 
 use super::position_error::{mean_position_error_with, ValidationReport};
-use super::reachable::{reachable_minimum_with_progress, ReachableOptions, ReachableReport};
+use super::reachable::{reachable_minimum, ReachableOptions, ReachableReport};
 use crate::drive::segment::{validation_segments, ValidationSegmentOptions};
 use crate::drive::Drive;
 use crate::error::Result;
@@ -46,23 +47,23 @@ pub struct ValidateReport {
 }
 
 /// Ē_p of θ on the validation segments of `drive` and, with
-/// [`ValidateOptions::reachable`], the reachable minimum on the same segments.
+/// [`ValidateOptions::reachable`], the reachable minimum on the same
+/// segments; `progress` hears the reachable-minimum search (one stage per
+/// box searched, advancing by one per evaluation of Ē_p).
 ///
 /// ```
 /// # fn main() -> Result<(), odocal::Error> {
-/// use odocal::{sim, validate, Theta, ValidateOptions};
-/// let s = sim::simulate(&sim::SimOptions { length_km: 2.0, substeps: 1, ..sim::SimOptions::noise_free(1) })?;
-/// let r = validate(&s.drive, &s.sidecar.theta_true, &ValidateOptions::default())?;
+/// use odocal::{simulate, validate, SimOptions, ValidateOptions};
+/// let s = simulate(&SimOptions { length_km: 2.0, substeps: 1, ..SimOptions::noise_free(1) })?;
+/// let r = validate(&s.drive, &s.sidecar.theta_true, &ValidateOptions::default(), None)?;
 /// assert!(r.validation.mean_position_error_m < 1e-6);
 /// # Ok(()) }
 /// ```
-pub fn validate(drive: &Drive, theta: &Theta, opts: &ValidateOptions) -> Result<ValidateReport> {
-    validate_with_progress(drive, theta, opts, None)
-}
-
-/// [`validate`], reporting the reachable-minimum search's progress
-/// ([`reachable_minimum_with_progress`]).
-pub fn validate_with_progress(
+///
+/// # Errors
+/// Invalid options or θ, a drive too short for one validation segment,
+/// non-finite errors.
+pub fn validate(
     drive: &Drive,
     theta: &Theta,
     opts: &ValidateOptions,
@@ -73,7 +74,7 @@ pub fn validate_with_progress(
     let reachable_minimum = match &opts.reachable {
         Some(r) => {
             let r = ReachableOptions { extrinsics: opts.extrinsics, ..r.clone() };
-            Some(reachable_minimum_with_progress(drive, &segs, &r, progress)?)
+            Some(reachable_minimum(drive, &segs, &r, progress)?)
         }
         None => None,
     };
@@ -92,7 +93,7 @@ pub struct DriveValidation {
     /// Validation segments of the drive.
     pub segments: usize,
     /// The reference extrinsics this drive used, where they are not all 0
-    /// or a stated value was overruled ([`crate::assess::validation_drives`]).
+    /// or a stated value was overruled (docs/guide.md, "Several drives of one vehicle").
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub extrinsics: Option<crate::assess::validation_drives::DriveExtrinsics>,
 }
@@ -128,32 +129,9 @@ impl MultiValidation {
     }
 
     /// The drives on which θ is worse than θ_0.
-    pub fn worse_than_initial(&self) -> impl Iterator<Item = &DriveValidation> {
+    pub(crate) fn worse_than_initial(&self) -> impl Iterator<Item = &DriveValidation> {
         self.drives
             .iter()
             .filter(|d| d.mean_position_error_m.is_nan() || d.mean_position_error_m > d.initial_mean_position_error_m)
     }
-}
-
-/// Ē_p of `theta` and of `theta0` on the validation segments of each named
-/// drive (cross-run checks: calibrate on one drive, validate on others),
-/// with the reference at the rear-axle centre. For drives with reference
-/// extrinsics (the calibration's, or their own manifests'), use
-/// [`crate::assess::validation_drives::validate_drives_with`].
-///
-/// # Errors
-/// [`crate::Error::NoSegments`] naming a drive too short for one validation
-/// segment (or when `drives` is empty); the errors of
-/// [`super::position_error::mean_position_error`].
-pub fn validate_drives(
-    drives: &[(&str, &Drive)],
-    theta: &Theta,
-    theta0: &Theta,
-    segments: &ValidationSegmentOptions,
-) -> Result<MultiValidation> {
-    let drives: Vec<crate::assess::validation_drives::ValidationDrive> = drives
-        .iter()
-        .map(|(name, drive)| crate::assess::validation_drives::ValidationDrive { name, drive, reference: None })
-        .collect();
-    crate::assess::validation_drives::validate_drives_with(&drives, theta, theta0, &Default::default(), segments)
 }

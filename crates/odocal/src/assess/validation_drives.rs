@@ -80,7 +80,7 @@ impl CalibrationExtrinsics {
     /// The extrinsics of a calibration: its estimate (`None` when it held
     /// every extrinsic, at `held`); `given` names the parameters the caller
     /// gave (e.g. `--lever-arm` gives `lever_x`, `lever_y`).
-    pub fn of_estimate(estimate: Option<&ExtrinsicsEstimate>, held: Extrinsics, given: ParamSet) -> Self {
+    pub(crate) fn of_estimate(estimate: Option<&ExtrinsicsEstimate>, held: Extrinsics, given: ParamSet) -> Self {
         match estimate {
             Some(e) => CalibrationExtrinsics { initial: e.initial, value: e.value, estimated: e.free, given },
             None => CalibrationExtrinsics { initial: held, value: held, estimated: ParamSet::EMPTY, given },
@@ -88,7 +88,7 @@ impl CalibrationExtrinsics {
     }
 
     /// Before the estimate: the start values `x`, `free`'s extrinsics as estimated.
-    pub fn before(x: Extrinsics, free: ParamSet, given: ParamSet) -> Self {
+    pub(crate) fn before(x: Extrinsics, free: ParamSet, given: ParamSet) -> Self {
         let estimated = free.intersection(ParamSet::EXTRINSICS);
         CalibrationExtrinsics { initial: x, value: x, estimated, given }
     }
@@ -168,7 +168,7 @@ impl std::fmt::Display for DriveExtrinsics {
 
 /// The extrinsics a validation drive whose manifest states `reference`
 /// uses under the calibration's `cal` (the rules of the module docs).
-pub fn drive_extrinsics(cal: &CalibrationExtrinsics, reference: Option<&ReferenceSpec>) -> DriveExtrinsics {
+pub(crate) fn drive_extrinsics(cal: &CalibrationExtrinsics, reference: Option<&ReferenceSpec>) -> DriveExtrinsics {
     // The drive's stated values, and which it lists as a start of an estimate only.
     let stated = |p: Param| -> Option<f64> {
         let r = reference?;

@@ -187,7 +187,7 @@ impl From<CompensationWarning> for Warning {
 
 impl Warning {
     /// A short name of the kind of warning (the JSON `"kind"`), for grouping.
-    pub fn kind(&self) -> &'static str {
+    pub(crate) fn kind(&self) -> &'static str {
         match self {
             Warning::Unobservable { .. } => "unobservable",
             Warning::AutoFixNoTurns { .. } => "auto_fix_no_turns",
@@ -209,7 +209,7 @@ impl Warning {
 
     /// True for a failed EIV consistency check whose θ is the report's
     /// result (the fallback was off): the verdict counts these.
-    pub fn misspecifies_result(&self) -> bool {
+    pub(crate) fn misspecifies_result(&self) -> bool {
         matches!(self, Warning::EivCheckFailed { fell_back: false, .. })
     }
 }
@@ -309,25 +309,27 @@ impl std::fmt::Display for Warning {
     }
 }
 
-/// Lines for a human reader: warnings grouped by kind (in order of first
-/// appearance), at most `per_kind` of each, then `"… and N more <kind>
-/// warnings"` for the rest.
-pub fn summarize(warnings: &[Warning], per_kind: usize) -> Vec<String> {
-    let mut kinds: Vec<&'static str> = Vec::new();
-    for w in warnings {
-        if !kinds.contains(&w.kind()) {
-            kinds.push(w.kind());
+impl Warning {
+    /// Lines for a human reader: warnings grouped by kind (in order of first
+    /// appearance), at most `per_kind` of each, then `"… and N more <kind>
+    /// warnings"` for the rest.
+    pub fn summarize(warnings: &[Warning], per_kind: usize) -> Vec<String> {
+        let mut kinds: Vec<&'static str> = Vec::new();
+        for w in warnings {
+            if !kinds.contains(&w.kind()) {
+                kinds.push(w.kind());
+            }
         }
-    }
-    let mut out = Vec::new();
-    for k in kinds {
-        let of_kind: Vec<&Warning> = warnings.iter().filter(|w| w.kind() == k).collect();
-        out.extend(of_kind.iter().take(per_kind).map(|w| w.to_string()));
-        if of_kind.len() > per_kind {
-            out.push(format!("… and {} more {} warnings", of_kind.len() - per_kind, k.replace('_', " ")));
+        let mut out = Vec::new();
+        for k in kinds {
+            let of_kind: Vec<&Warning> = warnings.iter().filter(|w| w.kind() == k).collect();
+            out.extend(of_kind.iter().take(per_kind).map(|w| w.to_string()));
+            if of_kind.len() > per_kind {
+                out.push(format!("… and {} more {} warnings", of_kind.len() - per_kind, k.replace('_', " ")));
+            }
         }
+        out
     }
-    out
 }
 
 #[cfg(test)]
@@ -340,7 +342,7 @@ mod tests {
             .map(|i| Warning::CompensationFailed { segment_start: i * 100, reason: format!("job {i}") })
             .collect();
         w.insert(1, Warning::BatchFailed { batch: 3, reason: "singular".into() });
-        let lines = summarize(&w, 3);
+        let lines = Warning::summarize(&w, 3);
         assert_eq!(lines.len(), 5, "{lines:?}");
         assert_eq!(lines[0], "compensation left out: job 0");
         assert_eq!(lines[3], "… and 497 more compensation failed warnings");

@@ -1,6 +1,9 @@
 //! Cross-run checks: calibrate on each of several drives of one vehicle and
 //! validate on the others.
 //!
+//! Expert API: for judging whether a calibration carries over between
+//! the drives of one vehicle.
+//!
 //! A calibration that only fits the drive it came from is no calibration.
 //! [`cross_run`] calibrates every drive on its own and validates each θ on
 //! every other drive, beside θ_0; [`CrossRunTable::criteria`] sums the table
@@ -13,7 +16,7 @@ use serde::{Deserialize, Serialize};
 use crate::assess::trust::{Verdict, VerdictLevel};
 use crate::assess::validate::MultiValidation;
 use crate::assess::validation_drives::{validate_drives_with, ValidationDrive};
-use crate::calibrate::{calibrate, CalibrationOptions};
+use crate::calibrate::{Calibration, CalibrationOptions};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
 use crate::model::param::ParamSet;
@@ -256,7 +259,11 @@ pub fn cross_run_groups(
             };
             &joint
         };
-        let r = match calibrate(drive, opts, progress) {
+        let mut run = Calibration::new(drive, opts);
+        if let Some(p) = progress {
+            run = run.progress(p);
+        }
+        let r = match run.run() {
             Ok(r) => r,
             Err(e) => {
                 rows.push(CrossRunRow { name, fit: Err(e.to_string()) });

@@ -49,7 +49,7 @@
 //! ## Reference heading offset (estimated by default)
 //! With [`EivMethodOptions::estimate_heading_offset`] (the default) the
 //! start estimates the reference's heading offset δ even when the
-//! calibration does not ask for it, for a measured reason (docs/study.md):
+//! calibration does not ask for it, for a measured reason (docs/validation.md):
 //! the shipped test-track logs' reference heading is +15…+23 mrad off the
 //! vehicle axis. Batch G-N's c_d absorbs part of such an offset; the
 //! filter takes c_d from heading *increments*, which a constant offset
@@ -72,7 +72,7 @@
 //! error that is odd in the noise and keeps the bias), each re-fitted with
 //! that noise model held. θ's σ includes the correction's Monte Carlo
 //! error. It runs after the checks, only for a fit that is kept. Measured
-//! (docs/study.md): every parameter within |t| ≤ 2.8 of zero on
+//! (docs/validation.md): every parameter within |t| ≤ 2.8 of zero on
 //! every noisy preset (high t_r +0.46 %, t 1.9), the 95 % intervals cover
 //! the truth in ≥ 93.8 % of cases, t_r's RMS error falls (high 5.38 →
 //! 4.01× the Cramér–Rao bound, paper 1.69 → 1.62×), at 1.3–1.5× the time
@@ -83,9 +83,9 @@
 //!
 //! ## Uncertainty and observability
 //! The covariance is the filter's at the estimate: per parameter the larger
-//! of `H_θ⁻¹` and a block sandwich ([`EivOptions::covariance_estimate`]),
+//! of `H_θ⁻¹` and a block sandwich (`EivOptions::covariance_estimate`),
 //! plus what estimating the noise scales from the same drive adds
-//! ([`EivOptions::noise_estimate_in_covariance`]). The reported
+//! (`EivOptions::noise_estimate_in_covariance`). The reported
 //! observability has `rcond` and the names (parameters held as not
 //! observable, or in a near-collinear combination) from the same `H_θ`.
 //! `sensitivity_m` (metres per resolution step) is the starting batch
@@ -121,7 +121,7 @@ pub struct EivMethodOptions {
     /// starting batch Gauss-Newton over all cut segments instead of the EIV
     /// θ. Default true.
     pub fallback: bool,
-    /// A parametric bootstrap of the EIV estimate ([`eiv::bootstrap`]:
+    /// A parametric bootstrap of the EIV estimate ([`eiv::bootstrap`](fn@eiv::bootstrap):
     /// re-simulate the fitted noise at the fitted θ on the drive's own
     /// inputs, re-fit, B times, seeded) for percentile intervals and the
     /// estimator's own bias. Run only when the EIV θ is the result (not
@@ -138,11 +138,11 @@ pub struct EivMethodOptions {
     /// already estimates δ.
     pub estimate_heading_offset: bool,
     /// Subtract the estimator's own bias from every parameter
-    /// ([`EivOptions::correct_bias`]: a parametric bootstrap of
+    /// (`EivOptions::correct_bias`: a parametric bootstrap of
     /// [`CorrectBias::replicates`] re-simulations in antithetic pairs on the
     /// smoothed trajectory, holding the fitted noise model), applied only
     /// to a fit that is kept (not after a fallback). Default
-    /// `Some(CorrectBias::default())`, B = [`DEFAULT_BIAS_REPLICATES`]
+    /// `Some(CorrectBias::default())`, B = `DEFAULT_BIAS_REPLICATES`
     /// (module docs, "Bias correction"); `None` returns the
     /// profile cost's root as is. Ignored when
     /// [`EivOptions::bias_correction`] is set in `filter` (that setting
@@ -166,16 +166,16 @@ impl Default for EivMethodOptions {
 /// ([`EivMethodOptions::correct_bias`]): two antithetic pairs. Measured
 /// (20 × 12 km per preset, η estimated): B = 4 and B = 10 remove
 /// the same bias (`high` t_r +1.097 % → +0.458 % and +0.456 %), and B = 4
-/// costs 1.3–1.5× a fit against about 2× (docs/study.md).
-pub const DEFAULT_BIAS_REPLICATES: usize = 4;
+/// costs 1.3–1.5× a fit against about 2× (docs/validation.md).
+pub(crate) const DEFAULT_BIAS_REPLICATES: usize = 4;
 
 /// The bootstrap bias correction of the EIV method
-/// ([`EivMethodOptions::correct_bias`]; [`EivOptions::correct_bias`]).
+/// ([`EivMethodOptions::correct_bias`]; `EivOptions::correct_bias`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct CorrectBias {
     /// Replicates B: an even number, at least 2 (antithetic pairs).
-    /// Default [`DEFAULT_BIAS_REPLICATES`].
+    /// Default `DEFAULT_BIAS_REPLICATES`.
     pub replicates: usize,
     /// Seed of the replicates' random streams. Default 0.
     pub seed: u64,
@@ -191,7 +191,7 @@ impl EivMethodOptions {
     /// The filter options the method runs: [`EivMethodOptions::filter`] with
     /// [`EivMethodOptions::correct_bias`] applied, unless `filter` sets its
     /// own [`EivOptions::bias_correction`].
-    pub fn effective_filter(&self) -> EivOptions {
+    pub(crate) fn effective_filter(&self) -> EivOptions {
         let mut f = self.filter.clone();
         if let (Some(c), BiasCorrection::None) = (self.correct_bias, f.bias_correction) {
             f.correct_bias(c.replicates, c.seed);
@@ -237,14 +237,6 @@ pub struct EivDetail {
     pub bootstrap: Option<Box<eiv::BootstrapReport>>,
 }
 
-impl EivDetail {
-    /// The noise model the fit ended with (the starting one with
-    /// `fix_noise`), in physical units; `None` when the filter failed.
-    pub fn noise(&self) -> Option<&NoiseModel> {
-        self.eiv.as_ref().map(|e| &e.noise)
-    }
-}
-
 /// True for a filter finding of `report` that says the model does not fit
 /// the data: a diverged window, a window's NIS above its band, correlated
 /// innovations in a window whose NIS is not below its band, θ unstable
@@ -256,7 +248,7 @@ impl EivDetail {
 /// noise source absent or over-estimated, as on a noise-free drive, where
 /// what is left of the innovations is rounding and is correlated). The
 /// band and the whiteness limits already allow for the measurement floors
-/// ([`eiv::InnovationNull`]).
+/// (`eiv::InnovationNull`).
 pub fn is_misspecification(w: &EivWarning, report: &EivReport) -> bool {
     match w {
         EivWarning::Unobservable { .. } => false,
@@ -293,7 +285,7 @@ impl NoiseSpec {
     /// Starts `filter` from this model, holding the known sources (in
     /// addition to any it already holds), with its lateral-noise choice
     /// where it states one.
-    pub fn apply(&self, filter: &mut EivOptions) {
+    pub(crate) fn apply(&self, filter: &mut EivOptions) {
         filter.noise = self.model;
         filter.hold_known(&self.known);
         if let Some(l) = self.lateral {
@@ -317,7 +309,7 @@ impl NoiseSpec {
 /// lateral_acceleration_sigma_m_per_s2 = 0.08   # the IMU's a_y noise ...
 /// lateral = "stated"                 # ... held, not scaled with the wheels'
 /// ```
-pub fn read_noise_model(path: &Path) -> Result<NoiseSpec> {
+pub(crate) fn read_noise_model(path: &Path) -> Result<NoiseSpec> {
     let text = std::fs::read_to_string(path).map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
     parse_noise_model(&text).map_err(|reason| Error::InvalidOption {
         field: "noise model file",
@@ -326,7 +318,7 @@ pub fn read_noise_model(path: &Path) -> Result<NoiseSpec> {
 }
 
 /// Parses the TOML of [`read_noise_model`] and checks the model.
-pub fn parse_noise_model(text: &str) -> std::result::Result<NoiseSpec, String> {
+pub(crate) fn parse_noise_model(text: &str) -> std::result::Result<NoiseSpec, String> {
     let table: toml::Table = toml::from_str(text).map_err(|e| e.message().to_string())?;
     noise_model_from_table(table)
 }
@@ -336,7 +328,7 @@ pub fn parse_noise_model(text: &str) -> std::result::Result<NoiseSpec, String> {
 /// fields keep the production-car defaults; an unknown field, a value of
 /// the wrong type or out of range, or an unknown source in `known` is an
 /// error naming the field.
-pub fn noise_model_from_table(mut table: toml::Table) -> std::result::Result<NoiseSpec, String> {
+pub(crate) fn noise_model_from_table(mut table: toml::Table) -> std::result::Result<NoiseSpec, String> {
     let known = match table.remove("known") {
         None => Vec::new(),
         Some(toml::Value::Array(list)) => {
@@ -695,7 +687,7 @@ impl EivDetail {
     /// noise levels; a bias correction; which estimate the result is (EIV
     /// or the batch G-N fallback); the bootstrap's intervals. Through
     /// [`crate::CalibrationReport::method_details`].
-    pub fn summary(&self, known: &[NoiseSource]) -> String {
+    pub(crate) fn summary(&self, known: &[NoiseSource]) -> String {
         let d = self;
         let mut out = String::new();
         match &d.eiv {

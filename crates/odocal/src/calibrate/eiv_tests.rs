@@ -31,7 +31,7 @@ fn noise_free_drive_returns_theta_true() {
     let out = simulate(&SimOptions { length_km: 6.0, substeps: 1, ..SimOptions::noise_free(11) }).expect("sim");
     let truth = out.sidecar.theta_true;
     let opts = CalibrationOptions { method: eiv_method(EivOptions::default(), true), ..Default::default() };
-    let r = calibrate(&out.drive, &opts, None).expect("calibrate");
+    let r = calibrate(&out.drive, &opts).expect("calibrate");
     let d = detail(&r);
     assert_eq!(d.eiv_result, EivOutcome::Eiv, "{:?}", r.warnings);
     assert_eq!(r.method, "eiv");
@@ -63,7 +63,7 @@ fn white_noise_drive_beats_batch_gauss_newton_on_t_r() {
     let truth = out.sidecar.theta_true;
     let mut opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
     opts.segments.min_peak_yaw_rate_rad_per_s = 0.0;
-    let gn = calibrate(&out.drive, &opts, None).expect("batch-gn");
+    let gn = calibrate(&out.drive, &opts).expect("batch-gn");
     let known = NoiseModel::from_sim(&out.sidecar.settings.noise, out.drive.sample_time_s());
     let filter = EivOptions { noise: known, fix_noise: true, ..Default::default() };
     // The reference is perfect and the fixed noise model says so: the
@@ -72,11 +72,11 @@ fn white_noise_drive_beats_batch_gauss_newton_on_t_r() {
     // by moving θ (measured: t_r ran to 0.044 m, not converged; 0.1 mrad
     // does the same). The checks catch it and the method falls back.
     let opts = CalibrationOptions { method: eiv_method(filter.clone(), true), ..Default::default() };
-    let r = calibrate(&out.drive, &opts, None).expect("eiv");
+    let r = calibrate(&out.drive, &opts).expect("eiv");
     assert_eq!(detail(&r).eiv_result, EivOutcome::BatchGnFallback, "{:?}", r.warnings);
     assert_eq!(r.theta, detail(&r).identification.theta);
     let method = Method::Eiv(EivMethodOptions { filter, estimate_heading_offset: false, ..Default::default() });
-    let r = calibrate(&out.drive, &CalibrationOptions { method, ..Default::default() }, None).expect("eiv");
+    let r = calibrate(&out.drive, &CalibrationOptions { method, ..Default::default() }).expect("eiv");
     assert_eq!(detail(&r).eiv_result, EivOutcome::Eiv, "fell back: {:?}", r.warnings);
     let sigma = r.std_dev().t_r;
     let gn_err = (gn.theta.t_r - truth.t_r).abs();
@@ -94,7 +94,7 @@ fn report_is_identical_for_one_and_two_threads() {
     let opts = CalibrationOptions { method: eiv_method(filter, false), ..Default::default() };
     let run = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
-        let mut r = pool.install(|| calibrate(&out.drive, &opts, None)).expect("eiv");
+        let mut r = pool.install(|| calibrate(&out.drive, &opts)).expect("eiv");
         r.timing_s = Timing::default();
         if let MethodDetail::Eiv(d) = &mut r.detail {
             if let Some(e) = d.eiv.as_mut() {
@@ -130,7 +130,7 @@ fn wrong_noise_model_falls_back_to_batch_gauss_newton() {
     let mut filter = EivOptions { noise: tiny, fix_noise: true, ..Default::default() };
     filter.correct_bias(2, 1);
     let opts = CalibrationOptions { method: eiv_method(filter.clone(), true), ..Default::default() };
-    let r = calibrate(&out.drive, &opts, None).expect("calibrate");
+    let r = calibrate(&out.drive, &opts).expect("calibrate");
     let d = detail(&r);
     assert_eq!(d.eiv_result, EivOutcome::BatchGnFallback);
     // The fit that is not used was not bias-corrected (no bootstrap ran).
@@ -161,7 +161,7 @@ fn wrong_noise_model_falls_back_to_batch_gauss_newton() {
     assert!(!r.verdict.reasons.iter().any(|x| matches!(x, VerdictReason::Misspecified { .. })));
 
     let opts = CalibrationOptions { method: eiv_method(filter, false), ..Default::default() };
-    let kept = calibrate(&out.drive, &opts, None).expect("calibrate");
+    let kept = calibrate(&out.drive, &opts).expect("calibrate");
     let d = detail(&kept);
     assert_eq!(d.eiv_result, EivOutcome::Eiv);
     assert_eq!(Some(kept.theta), d.eiv.as_ref().map(|e| e.theta));
@@ -181,7 +181,7 @@ fn held_parameters_stay_at_theta0() {
     let mut opts = CalibrationOptions { method: eiv_method(EivOptions::default(), true), ..Default::default() };
     opts.theta0 = Theta { d: truth.d, ..Theta::PAPER_INITIAL };
     opts.identify.free = ParamSet::THETA.without(Param::D);
-    let r = calibrate(&out.drive, &opts, None).expect("calibrate");
+    let r = calibrate(&out.drive, &opts).expect("calibrate");
     assert_eq!(r.theta.d, truth.d);
     assert_eq!(r.covariance[3], [0.0; 4]);
     assert_eq!(detail(&r).eiv.as_ref().map(|e| e.free), Some([true, true, true, false]));
@@ -210,7 +210,7 @@ fn straight_drive_calibrates_c_e_and_names_the_rest() {
     };
     let drive = crate::Drive::builder(t, signals).build().expect("drive");
     let opts = CalibrationOptions { method: eiv_method(EivOptions::default(), true), ..Default::default() };
-    let r = calibrate(&drive, &opts, None).expect("calibrate");
+    let r = calibrate(&drive, &opts).expect("calibrate");
     assert_eq!(detail(&r).eiv_result, EivOutcome::Eiv, "{:?}", r.warnings);
     assert!((r.theta.c_e / th.c_e - 1.0).abs() < 1e-6, "{}", r.theta);
     assert!((r.theta.c_d - th.c_d).abs() < 1e-8, "{}", r.theta);
@@ -291,7 +291,7 @@ fn bootstrap_option_reports_replicates_of_the_returned_estimate() {
             // The default bias correction too: the bootstrap is of the corrected θ.
             ..Default::default()
         });
-        calibrate(&out.drive, &CalibrationOptions { method, ..Default::default() }, None).expect("eiv")
+        calibrate(&out.drive, &CalibrationOptions { method, ..Default::default() }).expect("eiv")
     };
     let a = run(1);
     let d = detail(&a);
@@ -334,7 +334,7 @@ fn eiv_on_mounted_drive(
     let method =
         Method::Eiv(EivMethodOptions { filter, estimate_heading_offset, correct_bias: None, ..Default::default() });
     let opts = CalibrationOptions { method, identify, ..Default::default() };
-    (calibrate(&out.drive, &opts, None).expect("eiv"), out.sidecar.theta_true)
+    (calibrate(&out.drive, &opts).expect("eiv"), out.sidecar.theta_true)
 }
 
 /// Largest relative difference of two θ.
@@ -414,7 +414,7 @@ fn given_extrinsics_are_applied_by_the_filter() {
     assert!(!held.contains("  "), "{held}");
 }
 
-/// The test-track diagnosis (docs/study.md, the EIV defaults on the real
+/// The test-track diagnosis (docs/validation.md, the EIV defaults on the real
 /// logs): a reference heading offset that the
 /// calibration does not model (+18 mrad, batch G-N's estimate on the six
 /// test-track runs) moves batch G-N's c_d (all segments: the EIV start and
@@ -490,7 +490,7 @@ fn the_start_estimates_the_heading_offset_by_default() {
 fn a_step_that_shrinks_the_score_is_taken_when_the_profile_cost_cannot_fall() {
     let out =
         simulate(&SimOptions { length_km: 12.0, noise: NoiseOptions::high(), ..SimOptions::paper(3) }).expect("sim");
-    let r = calibrate(&out.drive, &CalibrationOptions::default(), None).expect("calibrate");
+    let r = calibrate(&out.drive, &CalibrationOptions::default()).expect("calibrate");
     let d = detail(&r);
     let eiv = d.eiv.as_ref().expect("the EIV fit ran");
     assert!(eiv.termination.converged(), "{eiv}");
@@ -512,7 +512,7 @@ fn a_failed_bias_correction_keeps_the_uncorrected_fit_and_says_so() {
     let run = |correct_bias: Option<CorrectBias>| {
         let filter = EivOptions { window_samples: 1500, ..Default::default() };
         let method = Method::Eiv(EivMethodOptions { filter, fallback: true, correct_bias, ..Default::default() });
-        calibrate(&out.drive, &CalibrationOptions { method, ..Default::default() }, None).expect("calibrate")
+        calibrate(&out.drive, &CalibrationOptions { method, ..Default::default() }).expect("calibrate")
     };
     let plain = run(None);
     assert_eq!(detail(&plain).eiv_result, EivOutcome::Eiv, "{:?}", plain.warnings);

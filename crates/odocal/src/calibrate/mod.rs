@@ -46,7 +46,7 @@ use serde::{Deserialize, Serialize};
 use crate::assess::position_error::mean_position_error_with;
 use crate::assess::position_error::ValidationReport;
 use crate::assess::trust::{judge, Evidence, TrustOptions};
-use crate::assess::validation_drives::{CalibrationExtrinsics, HeldOutDrives};
+use crate::assess::validation_drives::{CalibrationExtrinsics, HeldOutDrives, ValidationDrive};
 use crate::assess::warning::Warning;
 use crate::compensate::CompensatedInputs;
 use crate::drive::segment::{
@@ -62,25 +62,22 @@ use crate::model::param::{Param, ParamSet};
 use crate::model::Theta;
 use crate::progress::ProgressFn;
 
-pub mod batch_gn;
+pub(crate) mod batch_gn;
 pub mod crossrun;
-pub mod eiv;
+pub(crate) mod eiv;
 mod report;
 pub mod settings;
-pub mod three_step;
+pub(crate) mod three_step;
 mod turn_sense;
-pub mod validate_on;
+pub(crate) mod validate_on;
 
-pub use report::{
-    CalibrationReport, MethodDetail, ResultSigma, SegmentCounts, SigmaSource, ThetaScore, Timing, ValidationSummary,
-};
+pub use report::{CalibrationReport, MethodDetail, ResultSigma, SigmaSource};
+pub use report::{SegmentCounts, ThetaScore, Timing, ValidationSummary};
 
 pub use batch_gn::{BatchGnDetail, BatchGnOptions};
-pub use eiv::{CorrectBias, EivDetail, EivMethodOptions, EivOutcome, DEFAULT_BIAS_REPLICATES};
-pub use three_step::{
-    per_segment_identification, random_batches, score_batches, BatchResult, BatchSpread, FinalSegments, InitialStep,
-    RejectedBatch, ThreeStepDetail, ThreeStepOptions, ThreeStepUncertainty,
-};
+pub use eiv::{CorrectBias, EivDetail, EivMethodOptions, EivOutcome};
+pub(crate) use three_step::{per_segment_identification, score_batches, BatchResult};
+pub use three_step::{BatchSpread, FinalSegments, InitialStep, ThreeStepDetail, ThreeStepOptions};
 
 /// Which calibration method to run, with its settings.
 ///
@@ -98,7 +95,7 @@ pub enum Method {
     BatchGn(BatchGnOptions),
     /// Errors-in-variables filter over every drive part (SPEC §10), started
     /// from batch G-N on all segments and falling back to it when its
-    /// consistency checks fail (default: docs/study.md measures it against
+    /// consistency checks fail (default: docs/validation.md measures it against
     /// batch G-N and the 3-step on simulated and real drives).
     Eiv(EivMethodOptions),
 }
@@ -114,7 +111,7 @@ impl Method {
     pub const NAMES: [&'static str; 3] = ["three-step", "batch-gn", "eiv"];
 
     /// The method's name (`"three-step"`, `"batch-gn"`, `"eiv"`).
-    pub fn name(&self) -> &'static str {
+    pub(crate) fn name(&self) -> &'static str {
         self.estimator().name()
     }
 
@@ -129,7 +126,7 @@ impl Method {
     }
 
     /// Checks the method's settings, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         self.estimator().validate()
     }
 
@@ -180,7 +177,7 @@ pub struct CalibrationOptions {
     /// estimating them (not in the paper; default false, the SPEC
     /// behaviour). When no segment turns enough, c_d, t_r and d are held and
     /// every segment is used; otherwise the observability check
-    /// ([`crate::identify::observability`]) runs on the selected segments at
+    /// (`crate::identify::observability`) runs on the selected segments at
     /// θ_0 and the named parameter with the smallest sensitivity is held,
     /// repeatedly, until none is named (c_e is never held). What was held is
     /// listed in [`CalibrationReport::auto_fixed`].
@@ -213,7 +210,7 @@ impl Default for CalibrationOptions {
 
 impl CalibrationOptions {
     /// Checks all options, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         self.theta0.validate()?;
         self.segments.validate()?;
         self.validation.validate()?;
@@ -226,7 +223,7 @@ impl CalibrationOptions {
     /// leaves `identify.free`, and for the heading offset the EIV start no
     /// longer estimates it by default
     /// ([`EivMethodOptions::estimate_heading_offset`]). What `--fix` does.
-    pub fn hold(&mut self, p: Param) {
+    pub(crate) fn hold(&mut self, p: Param) {
         self.identify.free.remove(p);
         if p == Param::HeadingOffset {
             self.hold_stated_heading_offset();
@@ -238,7 +235,7 @@ impl CalibrationOptions {
     /// `identify.extrinsics.heading_offset` instead of estimating it by
     /// default, as the other methods do; `identify.free` still estimates it
     /// when it holds δ (`--estimate heading-offset`).
-    pub fn hold_stated_heading_offset(&mut self) {
+    pub(crate) fn hold_stated_heading_offset(&mut self) {
         if let Method::Eiv(m) = &mut self.method {
             m.estimate_heading_offset = false;
         }
@@ -284,48 +281,109 @@ impl Holdout {
     }
 }
 
-/// Runs a calibration of `drive` with `opts` (SPEC §6).
+/// Runs a calibration of `drive` with `opts` (SPEC §6), validated on the
+/// drive itself. For validation on held-out or other drives, or a progress
+/// callback, use [`Calibration`].
 ///
 /// ```
 /// # fn main() -> Result<(), odocal::Error> {
-/// use odocal::{calibrate, sim, CalibrationOptions, Method, ThreeStepOptions};
-/// let drive = sim::simulate(&sim::SimOptions { length_km: 3.0, ..sim::SimOptions::paper(1) })?.drive;
+/// use odocal::{calibrate, simulate, CalibrationOptions, Method, SimOptions, ThreeStepOptions};
+/// let drive = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) })?.drive;
 /// let method = Method::ThreeStep(ThreeStepOptions { initial_batches: 8, ..Default::default() });
-/// let report = calibrate(&drive, &CalibrationOptions { method, ..Default::default() }, None)?;
+/// let report = calibrate(&drive, &CalibrationOptions { method, ..Default::default() })?;
 /// assert!(report.validation.mean_position_error_m < report.initial.mean_position_error_m);
 /// # Ok(()) }
 /// ```
-pub fn calibrate(
-    drive: &Drive,
-    opts: &CalibrationOptions,
-    progress: Option<ProgressFn<'_>>,
-) -> Result<CalibrationReport> {
-    calibrate_held_out(drive, None, opts, progress)
+pub fn calibrate(drive: &Drive, opts: &CalibrationOptions) -> Result<CalibrationReport> {
+    Calibration::new(drive, opts).run()
 }
 
-/// Runs a calibration on `drive` and, when `held_out` is given, reports
-/// `validation` and `initial` Ē_p on the held-out drive instead (the
-/// calibration, including the choice of θ_B,I in step 1, sees only `drive`).
-pub fn calibrate_held_out(
-    drive: &Drive,
-    held_out: Option<&Drive>,
-    opts: &CalibrationOptions,
-    progress: Option<ProgressFn<'_>>,
-) -> Result<CalibrationReport> {
-    calibrate_detailed(drive, held_out, opts, progress).map(|d| d.report)
+/// A calibration with its optional inputs: where the report's validation
+/// runs (a held-out half, another drive, or several validation drives each
+/// with its own reference extrinsics) and a progress callback. [`calibrate`]
+/// is `Calibration::new(drive, opts).run()`.
+///
+/// ```
+/// # fn main() -> Result<(), odocal::Error> {
+/// use odocal::{simulate, Calibration, CalibrationOptions, Holdout, Method, Progress, SimOptions};
+/// let drive = simulate(&SimOptions { length_km: 4.0, ..SimOptions::paper(1) })?.drive;
+/// let opts = CalibrationOptions { method: Method::from_name("batch-gn")?, ..Default::default() };
+/// let report = Calibration::new(&drive, &opts)
+///     .holdout(&Holdout::SecondHalf)
+///     .progress(&|p: Progress| eprintln!("{p:?}"))
+///     .run()?;
+/// // Ē_p on the second half, which the calibration did not see.
+/// assert!(report.validation.held_out);
+/// # Ok(()) }
+/// ```
+#[derive(Clone, Copy)]
+pub struct Calibration<'a> {
+    drive: &'a Drive,
+    opts: &'a CalibrationOptions,
+    holdout: Option<&'a Holdout>,
+    validate_on: &'a [ValidationDrive<'a>],
+    given: ParamSet,
+    progress: Option<ProgressFn<'a>>,
 }
 
-/// [`calibrate_held_out`] with the fit and held-out drives chosen by `holdout`.
-pub fn calibrate_with_holdout(
-    drive: &Drive,
-    holdout: &Holdout,
-    opts: &CalibrationOptions,
-    progress: Option<ProgressFn<'_>>,
-) -> Result<CalibrationReport> {
-    let (fit, held) = holdout.split(drive)?;
-    calibrate_held_out(&fit, Some(&held), opts, progress)
-}
+impl<'a> Calibration<'a> {
+    /// A calibration of `drive` with `opts`, validated on `drive` itself.
+    pub fn new(drive: &'a Drive, opts: &'a CalibrationOptions) -> Self {
+        Calibration { drive, opts, holdout: None, validate_on: &[], given: ParamSet::EMPTY, progress: None }
+    }
 
+    /// Validates on data the calibration does not see: a half of the drive
+    /// or another drive ([`Holdout`]). The report's `validation` and
+    /// `initial` are Ē_p on the held-out data; the calibration, including
+    /// the choice of θ_B,I in step 1, sees only the rest.
+    pub fn holdout(self, holdout: &'a Holdout) -> Self {
+        Calibration { holdout: Some(holdout), ..self }
+    }
+
+    /// Calibrates on the whole drive and validates on `drives` (other
+    /// drives of the same vehicle), each with the reference extrinsics that
+    /// apply to it (`given` names the extrinsic parameters the caller gave
+    /// itself; the rules are in docs/guide.md, "Several drives of one vehicle"). The
+    /// report's `validation` and `initial` are Ē_p over all their segments,
+    /// as with [`Holdout::Other`] of the joined drives, and
+    /// [`CalibrationReport::validate_on`] has each drive's row. Not together
+    /// with [`Calibration::holdout`].
+    pub fn validate_on(self, drives: &'a [ValidationDrive<'a>], given: ParamSet) -> Self {
+        Calibration { validate_on: drives, given, ..self }
+    }
+
+    /// Reports the stages and their progress to `progress`.
+    pub fn progress(self, progress: ProgressFn<'a>) -> Self {
+        Calibration { progress: Some(progress), ..self }
+    }
+
+    /// Runs the calibration (SPEC §6).
+    ///
+    /// # Errors
+    /// Invalid options, a drive too short or without the data a method
+    /// needs, numerical failures; with validation drives, also those of
+    /// joining them ([`Drive::concat`]) and of their validation; both a
+    /// hold-out and validation drives: [`Error::InvalidOption`].
+    pub fn run(self) -> Result<CalibrationReport> {
+        if self.validate_on.is_empty() {
+            return match self.holdout {
+                None => calibrate_core(self.drive, None, self.opts, self.progress),
+                Some(h) => {
+                    let (fit, held) = h.split(self.drive)?;
+                    calibrate_core(&fit, Some((&held, None)), self.opts, self.progress)
+                }
+            }
+            .map(|d| d.report);
+        }
+        if self.holdout.is_some() {
+            return Err(Error::InvalidOption {
+                field: "validate_on",
+                reason: "give a hold-out or validation drives, not both".into(),
+            });
+        }
+        validate_on::calibrate_validated_on(self.drive, self.validate_on, self.given, self.opts, self.progress)
+    }
+}
 /// A calibration with the intermediate data an experiment needs: the report,
 /// the segments used and (three-step only) the compensated inputs of step 2.
 #[derive(Debug, Clone, PartialEq)]
@@ -369,7 +427,7 @@ pub(crate) struct Selection {
 
 impl Selection {
     /// The options' Gauss-Newton settings with the selected free set.
-    pub fn identify(&self, opts: &CalibrationOptions) -> IdentifyOptions {
+    pub(crate) fn identify(&self, opts: &CalibrationOptions) -> IdentifyOptions {
         IdentifyOptions { free: self.free, ..opts.identify.clone() }
     }
 }
@@ -427,8 +485,8 @@ pub(crate) trait Estimator {
     ) -> Result<MethodOutcome>;
 }
 
-/// [`calibrate_held_out`], also returning the segments and step 2's
-/// compensated inputs.
+/// A calibration of `drive`, validated on `held_out` when given, also
+/// returning the segments and step 2's compensated inputs.
 pub fn calibrate_detailed(
     drive: &Drive,
     held_out: Option<&Drive>,
@@ -439,7 +497,7 @@ pub fn calibrate_detailed(
 }
 
 /// [`calibrate_detailed`]; with held-out drives that each have their own
-/// extrinsics ([`crate::assess::validation_drives`]), the held-out Ē_p gives every
+/// extrinsics ([docs/guide.md, "Several drives of one vehicle"]), the held-out Ē_p gives every
 /// segment its drive's.
 pub(crate) fn calibrate_core(
     drive: &Drive,
@@ -537,6 +595,7 @@ pub(crate) fn calibrate_core(
         detail: outcome.detail,
         warnings,
         auto_fixed: selection.auto_fixed.clone(),
+        validate_on: None,
         options,
     };
     Ok(DetailedCalibration {
@@ -656,7 +715,7 @@ fn result_warnings(selection: &[Warning], method: Vec<Warning>, o: &Observabilit
 }
 
 /// θ and its covariance fitted on the held-out drive alone with the same
-/// options and free set (the cross-split check of [`crate::assess::trust`]); `None`
+/// options and free set (the cross-split check of [[`Verdict`](crate::Verdict)]); `None`
 /// when that fit fails (too short, nothing turns, …): the check is then
 /// left out rather than failing the calibration.
 fn split_fit(held_out: &Drive, opts: &CalibrationOptions, free: ParamSet) -> Option<(Theta, [[f64; 4]; 4])> {

@@ -8,6 +8,7 @@ use super::{
     ThreeStepDetail,
 };
 use crate::assess::trust::Verdict;
+use crate::assess::validate::MultiValidation;
 use crate::assess::warning::Warning;
 use crate::compensate::CompensationStep;
 use crate::identify::{IdentifyReport, Observability, RobustCovariance};
@@ -61,7 +62,7 @@ pub struct ValidationSummary {
     /// Validation segments.
     pub segments: usize,
     /// True when the validation ran on held-out data that the calibration
-    /// did not see (see [`super::calibrate_held_out`]).
+    /// did not see (see [`super::Calibration::holdout`]).
     pub held_out: bool,
 }
 
@@ -96,7 +97,7 @@ pub struct CalibrationReport {
     /// Ē_p of the result.
     pub validation: ValidationSummary,
     /// Whether to trust the result: accepted, doubtful or rejected, with
-    /// the reasons ([`crate::assess::trust`]).
+    /// the reasons ([`Verdict`](crate::Verdict)).
     pub verdict: Verdict,
     /// θ_0 and its Ē_p.
     pub initial: ThetaScore,
@@ -106,7 +107,7 @@ pub struct CalibrationReport {
     pub segments: SegmentCounts,
     /// The reference sensor's extrinsics (lever arm, heading offset:
     /// initial and estimated values, σ, covariance) when the calibration
-    /// involved them ([`crate::identify::IdentifyOptions::uses_extrinsics`]); validation
+    /// involved them (`crate::identify::IdentifyOptions::uses_extrinsics`); validation
     /// (and θ_0's Ē_p, at the initial values) then compares the model's
     /// reference point with the measured one. Absent otherwise. For `eiv`
     /// they are its batch Gauss-Newton start's estimate and σ, held by the
@@ -123,6 +124,10 @@ pub struct CalibrationReport {
     /// Parameters held at θ_0 by [`CalibrationOptions::auto_fix`], in the
     /// order they were held (`options.identify.free` shows the final set).
     pub auto_fixed: Vec<Param>,
+    /// Ē_p of θ and θ_0 on each validation drive, when the calibration was
+    /// validated on other drives ([`super::Calibration::validate_on`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub validate_on: Option<MultiValidation>,
     /// The options used.
     pub options: CalibrationOptions,
 }
@@ -130,7 +135,7 @@ pub struct CalibrationReport {
 impl CalibrationReport {
     /// The method's own account of the fit, in lines as `odocal calibrate`
     /// prints them and the HTML report shows them ("Method details"):
-    /// for EIV, [`EivDetail::summary`] with the sources the options held as
+    /// for EIV, `EivDetail::summary` with the sources the options held as
     /// known; empty for the other methods.
     ///
     /// ```
@@ -138,7 +143,7 @@ impl CalibrationReport {
     /// use odocal::{calibrate, CalibrationOptions};
     ///
     /// let out = simulate(&SimOptions { length_km: 2.0, ..SimOptions::paper(1) })?;
-    /// let r = calibrate(&out.drive, &CalibrationOptions::default(), None)?;
+    /// let r = calibrate(&out.drive, &CalibrationOptions::default())?;
     /// let lines = r.method_details();
     /// assert!(lines.starts_with("EIV: ") || lines.starts_with("EIV: filter failed"), "{lines}");
     /// assert!(lines.contains("  result: "));
@@ -198,7 +203,7 @@ impl CalibrationReport {
     /// 5–13× smaller than the spread of 3-step estimates over seeds
     /// (`examples/gn_coverage.rs 20 12 paper 1300 three-step`), so it does
     /// not stand for the result; the 3-step's is its batch spread
-    /// ([`Self::result_covariance`]).
+    /// (`Self::result_covariance`).
     pub fn robust(&self) -> Option<&RobustCovariance> {
         outcome_robust(&self.detail)
     }
@@ -209,12 +214,12 @@ impl CalibrationReport {
     /// step-1 batch spread ([`super::ThreeStepUncertainty::batch_spread`]), since
     /// step 3's own σ sees only its compensated inputs; `None` otherwise
     /// (then the model covariance is all there is).
-    pub fn result_covariance(&self) -> Option<&[[f64; 4]; 4]> {
+    pub(crate) fn result_covariance(&self) -> Option<&[[f64; 4]; 4]> {
         outcome_covariance(&self.detail)
     }
 
     /// The 1σ that stands for the result: the square roots of the
-    /// diagonal of [`Self::result_covariance`], else of the model
+    /// diagonal of `Self::result_covariance`, else of the model
     /// covariance (EIV's filter covariance, or a method's when nothing better was
     /// computed), with where it comes from. Held parameters (not free, or a
     /// zero covariance row: not estimated) have none. The verdict, the
@@ -255,7 +260,7 @@ pub enum SigmaSource {
 
 impl SigmaSource {
     /// The name in reports (`cluster-robust`, `batch-spread`, `model`).
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             SigmaSource::ClusterRobust => "cluster-robust",
             SigmaSource::BatchSpread => "batch-spread",

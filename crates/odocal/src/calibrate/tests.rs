@@ -1,6 +1,6 @@
 //! Tests of the calibration methods and their shared part.
 
-use super::three_step::equal_step_picks;
+use super::three_step::{equal_step_picks, random_batches};
 use super::*;
 use crate::compensate::qp::SolverKind;
 use crate::compensate::QpOptions;
@@ -75,7 +75,7 @@ fn three_step_noise_free_recovers_truth() {
     let truth = sim.sidecar.theta_true;
     let method = Method::ThreeStep(ThreeStepOptions { initial_batches: 6, ..Default::default() });
     let opts = CalibrationOptions { method, ..Default::default() };
-    let r = calibrate(&sim.drive, &opts, None).expect("calibrate");
+    let r = calibrate(&sim.drive, &opts).expect("calibrate");
     let rel = |a: f64, b: f64| ((a - b) / b).abs();
     assert!(rel(opts.theta0.t_r, truth.t_r) > 0.04, "the start is off");
     assert!(rel(r.theta.c_e, truth.c_e) < 5e-5, "{}", r.theta);
@@ -96,7 +96,7 @@ fn holdout_with_estimated_extrinsics_is_judged_without_panicking() {
     let drive = simulate(&SimOptions { length_km: 2.0, ..SimOptions::noise_free(3) }).expect("sim").drive;
     let identify = IdentifyOptions { free: ParamSet::THETA.union(ParamSet::EXTRINSICS), ..Default::default() };
     let opts = CalibrationOptions { method: Method::BatchGn(Default::default()), identify, ..Default::default() };
-    let r = calibrate_with_holdout(&drive, &Holdout::FirstHalf, &opts, None).expect("calibrate");
+    let r = Calibration::new(&drive, &opts).holdout(&Holdout::FirstHalf).run().expect("calibrate");
     let x = r.extrinsics.as_ref().expect("extrinsics estimated");
     assert_eq!(x.free, ParamSet::EXTRINSICS);
     assert!(x.value.to_array().iter().all(|v| v.is_finite()), "{x:?}");
@@ -124,7 +124,7 @@ fn method_settings_and_report_detail_in_json() {
         final_segments: FinalSegments::Random(3),
         ..Default::default()
     });
-    let r = calibrate(&drive, &CalibrationOptions { method, ..Default::default() }, None).expect("3-step");
+    let r = calibrate(&drive, &CalibrationOptions { method, ..Default::default() }).expect("3-step");
     let v = serde_json::to_value(&r).expect("json");
     assert_eq!(v["method"], "three-step");
     assert_eq!(v["options"]["method"]["name"], "three-step");
@@ -137,7 +137,7 @@ fn method_settings_and_report_detail_in_json() {
     assert_eq!(back, r);
 
     let opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
-    let r = calibrate(&drive, &opts, None).expect("batch-gn");
+    let r = calibrate(&drive, &opts).expect("batch-gn");
     let v = serde_json::to_value(&r).expect("json");
     assert_eq!(v["method"], "batch-gn");
     assert!(v.get("initial_step").is_none() && v.get("compensation").is_none(), "{v}");
@@ -185,7 +185,7 @@ fn implausible_step1_batches_are_never_picked() {
         ..Default::default()
     };
     opts.trust.guards.t_r_rel = 0.07 / 1.6;
-    let r = calibrate(&sim.drive, &opts, None).expect("calibrate");
+    let r = calibrate(&sim.drive, &opts).expect("calibrate");
     let init = r.initial_step().expect("three-step");
     assert!(!init.rejected.is_empty(), "some batches fall outside the guard");
     assert!(init.rejected.len() < init.batches.len(), "and some inside");
@@ -211,7 +211,7 @@ fn implausible_step1_batches_are_never_picked() {
 
     // With every result outside the region the calibration stops with a clear error.
     opts.trust.guards.c_e_rel = 1e-6;
-    let e = calibrate(&sim.drive, &opts, None).expect_err("nothing plausible");
+    let e = calibrate(&sim.drive, &opts).expect_err("nothing plausible");
     assert!(e.to_string().contains("failed the plausibility guards"), "{e}");
 }
 
@@ -219,7 +219,7 @@ fn implausible_step1_batches_are_never_picked() {
 fn every_report_has_a_verdict() {
     let sim = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim");
     let opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
-    let r = calibrate(&sim.drive, &opts, None).expect("batch-gn");
+    let r = calibrate(&sim.drive, &opts).expect("batch-gn");
     assert_eq!(r.verdict.level, crate::assess::trust::VerdictLevel::Accepted, "{:?}", r.verdict);
     // Validated on a drive of another vehicle (θ = [2.1, 1 mm, 1.66, 0]):
     // θ_0 = [2.0, 0, 1.6, 0] is closer in every parameter than the
@@ -230,7 +230,8 @@ fn every_report_has_a_verdict() {
         ..SimOptions::paper(2)
     })
     .expect("sim");
-    let r = calibrate_held_out(&sim.drive, Some(&other.drive), &opts, None).expect("held out");
+    let holdout = Holdout::Other(other.drive);
+    let r = Calibration::new(&sim.drive, &opts).holdout(&holdout).run().expect("held out");
     assert_eq!(r.verdict.level, crate::assess::trust::VerdictLevel::Rejected, "{:?}", r.verdict);
     assert!(matches!(
         r.verdict.reasons[0],
@@ -247,7 +248,7 @@ fn an_unconverged_gauss_newton_result_is_doubtful() {
     let sim = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim");
     let mut opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
     opts.identify.max_iterations = 1;
-    let r = calibrate(&sim.drive, &opts, None).expect("batch-gn");
+    let r = calibrate(&sim.drive, &opts).expect("batch-gn");
     let reason = r.verdict.reasons.iter().find(|x| matches!(x, VerdictReason::NotConverged { .. }));
     let Some(VerdictReason::NotConverged { stage, iterations, step_sigmas, .. }) = reason else {
         panic!("{:?}", r.verdict)
@@ -256,7 +257,7 @@ fn an_unconverged_gauss_newton_result_is_doubtful() {
     assert!(*step_sigmas > 1.0, "one step from θ_0 moves θ by many σ: {step_sigmas}");
     assert!(r.verdict.level >= crate::assess::trust::VerdictLevel::Doubtful);
     opts.identify.max_iterations = 5;
-    let r = calibrate(&sim.drive, &opts, None).expect("batch-gn");
+    let r = calibrate(&sim.drive, &opts).expect("batch-gn");
     assert!(!r.verdict.reasons.iter().any(|x| matches!(x, VerdictReason::NotConverged { .. })), "{:?}", r.verdict);
 }
 
@@ -266,7 +267,7 @@ fn an_unconverged_gauss_newton_result_is_doubtful() {
 fn three_step_result_covariance_is_the_batch_spread() {
     let sim = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim");
     let method = Method::ThreeStep(ThreeStepOptions { initial_batches: 8, picks: 3, ..Default::default() });
-    let r = calibrate(&sim.drive, &CalibrationOptions { method, ..Default::default() }, None).expect("3-step");
+    let r = calibrate(&sim.drive, &CalibrationOptions { method, ..Default::default() }).expect("3-step");
     let MethodDetail::ThreeStep(d) = &r.detail else { panic!("3-step detail") };
     let spread = d.uncertainty.batch_spread.as_ref().expect("batch spread");
     assert_eq!(r.result_covariance(), Some(&spread.covariance));
@@ -278,7 +279,7 @@ fn three_step_result_covariance_is_the_batch_spread() {
     assert!(r.robust().is_none(), "robust() stays batch-gn's");
     // batch-gn: the cluster-robust covariance, when computed
     let opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
-    let r = calibrate(&sim.drive, &opts, None).expect("batch-gn");
+    let r = calibrate(&sim.drive, &opts).expect("batch-gn");
     assert_eq!(r.result_covariance(), r.robust().map(|x| &x.covariance));
 }
 
@@ -317,8 +318,8 @@ mod solver_tests {
     #[test]
     fn three_step_same_theta_with_either_qp_solver() {
         let drive = short_drive();
-        let s = calibrate(&drive, &short_opts(SolverKind::Structured), None).unwrap();
-        let c = calibrate(&drive, &short_opts(SolverKind::Clarabel), None).unwrap();
+        let s = calibrate(&drive, &short_opts(SolverKind::Structured)).unwrap();
+        let c = calibrate(&drive, &short_opts(SolverKind::Clarabel)).unwrap();
         let (sc, cc) = (s.compensation().unwrap(), c.compensation().unwrap());
         assert_eq!((sc.failed_jobs, cc.failed_jobs), (0, 0));
         assert_eq!(sc.fallback_solves, 0);
@@ -339,7 +340,7 @@ mod solver_tests {
         let opts = short_opts(SolverKind::Structured);
         let run = |threads: usize| {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-            pool.install(|| calibrate(&drive, &opts, None).unwrap())
+            pool.install(|| calibrate(&drive, &opts).unwrap())
         };
         let one = without_timing(&run(1));
         for threads in [2, 4] {
@@ -359,7 +360,7 @@ fn the_param_file_has_the_result_sigma_not_the_model_sigma() {
     use crate::sim::{simulate, SimOptions};
     let sim = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim");
     let method = Method::ThreeStep(ThreeStepOptions { initial_batches: 8, picks: 3, ..Default::default() });
-    let r = calibrate(&sim.drive, &CalibrationOptions { method, ..Default::default() }, None).expect("3-step");
+    let r = calibrate(&sim.drive, &CalibrationOptions { method, ..Default::default() }).expect("3-step");
     let spread = r.result_covariance().expect("batch spread");
     let f = r.param_file("drive.csv");
     let s = r.result_sigma();
@@ -375,7 +376,7 @@ fn the_param_file_has_the_result_sigma_not_the_model_sigma() {
     assert_eq!(f.verdict.as_deref(), Some(r.verdict.level.to_string().as_str()));
 
     let opts = CalibrationOptions { method: Method::BatchGn(Default::default()), ..Default::default() };
-    let mut r = calibrate(&sim.drive, &opts, None).expect("batch-gn");
+    let mut r = calibrate(&sim.drive, &opts).expect("batch-gn");
     // 3 km: too few clusters for the cluster-robust σ, so the model σ, and labelled so
     assert!(r.robust().is_none());
     assert_eq!(r.result_sigma().source, SigmaSource::Model);

@@ -10,7 +10,7 @@
 //!    compensated input is the mean of those.
 //! 3. *Final identification*: batch G-N from θ_0 with the compensated inputs.
 //!
-//! Reference extrinsics ([`crate::model::extrinsics`]): steps 1 and 3 estimate (or
+//! Reference extrinsics ([[`Extrinsics`](crate::Extrinsics)]): steps 1 and 3 estimate (or
 //! hold) them with θ through the shared identification; step 2's QP does
 //! not estimate them, it tracks the axle poses implied by the picked
 //! batches' mean extrinsics.
@@ -40,7 +40,7 @@ use crate::progress::{emit, Progress, ProgressFn};
 
 /// Mixed into [`super::CalibrationOptions::seed`] to draw step 3's random
 /// batch ([`FinalSegments::Random`]) independently of step 1's batches.
-pub const FINAL_SEGMENTS_SEED_SALT: u64 = 0x5eed_f1a1;
+pub(crate) const FINAL_SEGMENTS_SEED_SALT: u64 = 0x5eed_f1a1;
 
 /// Which segments the final identification (step 3) uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -193,7 +193,7 @@ impl BatchSpread {
     /// The spread of `thetas` (each on `batch_size` segments) scaled to
     /// `effective_segments`; `None` with fewer than 3 estimates or
     /// `effective_segments ≤ batch_size`.
-    pub fn new(thetas: &[Theta], batch_size: usize, effective_segments: f64) -> Option<Self> {
+    pub(crate) fn new(thetas: &[Theta], batch_size: usize, effective_segments: f64) -> Option<Self> {
         let n = thetas.len();
         let b = batch_size as f64;
         if n < 3 || effective_segments <= b {
@@ -305,7 +305,7 @@ pub fn score_batches(
 /// paper's Fig. 7/8. Pass compensated segment data
 /// ([`crate::compensate::CompensatedInputs::segment_data`]) to get the
 /// compensated-input estimates. Results are in segment order.
-pub fn per_segment_identification(
+pub(crate) fn per_segment_identification(
     drive: &Drive,
     data: &[SegmentData<'_>],
     validation: &[Segment],
@@ -638,9 +638,9 @@ mod forced_divergence_tests {
         let threshold = crate::drive::segment::SegmentOptions::default().min_peak_yaw_rate_rad_per_s;
         assert!(peak < threshold, "the batch is straight: peak yaw rate {peak} rad/s");
 
-        let plain = calibrate(&sim.drive, &opts, None).expect("calibrate");
+        let plain = calibrate(&sim.drive, &opts).expect("calibrate");
         forced::set_first_batch(Some(straight.clone()));
-        let forced = calibrate(&sim.drive, &opts, None);
+        let forced = calibrate(&sim.drive, &opts);
         forced::set_first_batch(None);
         let forced = forced.expect("calibrate with the forced batch");
 

@@ -109,7 +109,7 @@ mod tests {
         let opts = CalibrationOptions { method: Method::from_name("batch-gn").expect("method"), ..Default::default() };
         for (sign, sense) in [(1.0, TurnSense::Left), (-1.0, TurnSense::Right)] {
             let d = oval(sign);
-            let r = calibrate(&d, &opts, None).expect("calibrate");
+            let r = calibrate(&d, &opts).expect("calibrate");
             let (cut, selected) = (r.segments.cut, r.segments.selected);
             assert!(0 < selected && selected < cut, "{cut} cut, {selected} selected");
             let w: Vec<&Warning> = r.warnings.iter().filter(|w| w.kind() == "one_way_turns").collect();
@@ -120,7 +120,7 @@ mod tests {
             );
             // the paper's selection on request: no warning
             let keep = CalibrationOptions { keep_one_way_selection: true, ..opts.clone() };
-            let r = calibrate(&d, &keep, None).expect("calibrate");
+            let r = calibrate(&d, &keep).expect("calibrate");
             assert!(r.warnings.iter().all(|w| w.kind() != "one_way_turns"), "{:?}", r.warnings);
         }
     }

@@ -1,10 +1,9 @@
 //! Calibration validated on other drives of the same vehicle
 //! (`calibrate --validate-on`, `validate_on=`), each validation drive with
 //! the reference extrinsics that apply to it
-//! ([`crate::assess::validation_drives`]).
+//! ([docs/guide.md, "Several drives of one vehicle"]).
 
 use super::{calibrate_core, CalibrationOptions, CalibrationReport};
-use crate::assess::validate::MultiValidation;
 use crate::assess::validation_drives::{validate_drives_with, CalibrationExtrinsics, HeldOutDrives, ValidationDrive};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
@@ -24,26 +23,23 @@ impl CalibrationReport {
 /// drives of the same vehicle), each validation drive with its own
 /// extrinsics (module docs): the report's `validation` and `initial` are
 /// Ē_p over all their segments, as with [`crate::Holdout::Other`] of the
-/// joined drives, and the [`MultiValidation`] has each drive's row.
-/// `given` names the extrinsic parameters the caller gave itself.
-///
-/// # Errors
-/// Those of [`crate::calibrate_held_out`], of joining the drives
-/// ([`Drive::concat`]) and of [`validate_drives_with`].
-pub fn calibrate_validated_on(
+/// joined drives, and its `validate_on` has each drive's row. `given` names
+/// the extrinsic parameters the caller gave itself.
+pub(super) fn calibrate_validated_on(
     drive: &Drive,
     validation: &[ValidationDrive<'_>],
     given: ParamSet,
     opts: &CalibrationOptions,
     progress: Option<ProgressFn<'_>>,
-) -> Result<(CalibrationReport, MultiValidation)> {
+) -> Result<CalibrationReport> {
     if validation.is_empty() {
         return Err(Error::NoSegments("no validation drive given".into()));
     }
     let given = given.intersection(ParamSet::EXTRINSICS);
     let held = HeldOutDrives::new(validation, given)?;
-    let report = calibrate_core(drive, Some((&held.joined, Some(&held))), opts, progress)?.report;
+    let mut report = calibrate_core(drive, Some((&held.joined, Some(&held))), opts, progress)?.report;
     let cal = report.extrinsics_for_validation(given);
     let per = validate_drives_with(validation, &report.theta, &report.initial.theta, &cal, &opts.validation)?;
-    Ok((report, per))
+    report.validate_on = Some(per);
+    Ok(report)
 }

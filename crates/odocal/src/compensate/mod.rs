@@ -1,5 +1,8 @@
 //! Input compensation by optimal control (SPEC §5, paper §4.1).
 //!
+//! Expert API: for programs that compensate segments themselves (the
+//! `odocal compensate` command) or compare the QP solvers ([`qp`]).
+//!
 //! For one segment and one fixed θ, estimate noise-free wheel rotations
 //! `n̂_rl, n̂_rr`. The model is linearized around the trajectory `x̄` run with
 //! the current input estimate `n̄` (first the measured `ñ`):
@@ -59,14 +62,14 @@ pub struct QpOptions {
 
 impl QpOptions {
     /// Checks both solvers' settings.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         self.structured.validate()?;
         self.clarabel.validate()?;
         Ok(())
     }
 
     /// The configured solver.
-    pub fn primary(&self) -> Box<dyn QpSolver> {
+    pub(crate) fn primary(&self) -> Box<dyn QpSolver> {
         match self.solver {
             SolverKind::Structured => Box::new(StructuredSolver { options: self.structured.clone() }),
             SolverKind::Clarabel => Box::new(ClarabelSolver { settings: self.clarabel.clone() }),
@@ -75,7 +78,7 @@ impl QpOptions {
 
     /// The fallback for QPs the primary solver does not finish: Clarabel
     /// behind the structured solver, none behind Clarabel.
-    pub fn fallback(&self) -> Option<Box<dyn QpSolver>> {
+    pub(crate) fn fallback(&self) -> Option<Box<dyn QpSolver>> {
         match self.solver {
             SolverKind::Structured => Some(Box::new(ClarabelSolver { settings: self.clarabel.clone() })),
             SolverKind::Clarabel => None,
@@ -123,7 +126,7 @@ impl Default for CompensateOptions {
 
 impl CompensateOptions {
     /// Checks the options, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         if self.pose_box.iter().any(|b| !(b.is_finite() && *b > 0.0)) {
             return Err(Error::InvalidOption { field: "pose_box", reason: "must be positive".into() });
         }
@@ -145,7 +148,7 @@ impl CompensateOptions {
 
 /// The compensated inputs of one segment and how they were obtained.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Compensation {
+pub(crate) struct Compensation {
     /// First sample of the segment in the drive.
     pub start: usize,
     /// Compensated rear-left wheel rotation, rev/s (K values).
@@ -174,7 +177,7 @@ pub struct Compensation {
 
 /// A QP solved by the fallback solver after the primary one stopped.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct QpFallback {
+pub(crate) struct QpFallback {
     /// The linearization (1-based).
     pub linearization: usize,
     /// The primary solver.
@@ -241,7 +244,8 @@ pub(crate) fn build_qp(
 /// solution and solves again until the inputs settle (at most
 /// `max_linearizations` solves). A QP failure is returned as an error for
 /// this segment; callers leave the segment out with a warning.
-pub fn compensate_segment(
+#[cfg(test)]
+pub(crate) fn compensate_segment(
     seg: &SegmentData<'_>,
     theta: &Theta,
     solver: &dyn QpSolver,
@@ -255,7 +259,7 @@ pub fn compensate_segment(
 /// (typically [`crate::compensate::qp::clarabel::ClarabelSolver`]), and the event is
 /// recorded in [`Compensation::fallbacks`]. An infeasible or malformed QP is
 /// not retried (no solver can do better); it is returned as an error.
-pub fn compensate_segment_with_fallback(
+pub(crate) fn compensate_segment_with_fallback(
     seg: &SegmentData<'_>,
     theta: &Theta,
     solver: &dyn QpSolver,
@@ -414,7 +418,7 @@ impl CompensatedInputs {
 /// Jobs run in parallel and are collected in a fixed order; a failed job is
 /// left out with a warning; a segment with no successful job is dropped. A
 /// QP the configured solver does not finish (iteration limit, numerical
-/// failure) is solved again by the fallback ([`QpOptions::fallback`]); such
+/// failure) is solved again by the fallback (`QpOptions::fallback`); such
 /// fallbacks are counted and reported as warnings.
 pub fn compensate_segments(
     drive: &Drive,

@@ -7,7 +7,7 @@ use crate::model::limits::PhysicalLimits;
 /// Seconds between the last sample of one drive and the first of the next
 /// when [`Drive::concat`] has to shift a drive's clock (its time does not
 /// follow the previous drive's).
-pub const CONCAT_GAP_S: f64 = 1.0;
+pub(crate) const CONCAT_GAP_S: f64 = 1.0;
 
 impl Drive {
     /// The drives one after the other as one drive, each drive's parts kept
@@ -16,7 +16,7 @@ impl Drive {
     ///
     /// Time: a drive whose first stamp follows the previous drive's last
     /// keeps its stamps; otherwise its stamps are shifted to start
-    /// [`CONCAT_GAP_S`] after the previous drive's last (only differences
+    /// `CONCAT_GAP_S` after the previous drive's last (only differences
     /// within a part enter the model). The truth is kept when every drive
     /// has it, the reference mask when any has it (samples of a drive
     /// without one count as measured); extra columns are dropped. The

@@ -7,7 +7,7 @@ use super::{Drive, ExtraColumn, ExtraValues, Signals, SIGNAL_NAMES};
 use crate::error::{Error, Result};
 
 /// The columns a canonical drive CSV must have.
-pub const REQUIRED_COLUMNS: [&str; 8] = ["t", "px", "py", "psi", "n_rl", "n_rr", "beta", "a_y"];
+pub(crate) const REQUIRED_COLUMNS: [&str; 8] = ["t", "px", "py", "psi", "n_rl", "n_rr", "beta", "a_y"];
 const TRUTH_COLUMNS: [&str; 7] = ["px_true", "py_true", "psi_true", "n_rl_true", "n_rr_true", "beta_true", "a_y_true"];
 /// Optional column: 1 where the reference was really measured.
 const MASK_COLUMN: &str = "ref_measured";
@@ -52,7 +52,7 @@ const NOT_CSV: [(&[u8], &str); 8] = [
     (
         b"\x89MCAP0\r\n",
         "a ROS 2 bag (MCAP), not a canonical drive CSV: draft a manifest that names its wheel, pose and IMU topics \
-         with `odocal inspect FILE --manifest OUT.toml` (README \"ROS 2 bags\"), check it and give the manifest \
+         with `odocal inspect FILE --manifest OUT.toml` (docs/guide.md, \"A ROS 2 bag\"), check it and give the manifest \
          (.toml) instead",
     ),
     (
@@ -68,7 +68,7 @@ const NOT_CSV: [(&[u8], &str); 8] = [
     (
         b"PAR1",
         "a Parquet file, not a canonical drive CSV: name it as a stream (`format = \"parquet\"`) in a manifest \
-         (.toml; README \"Parquet streams\") and give the manifest instead",
+         (.toml; docs/guide.md, \"Parquet streams\") and give the manifest instead",
     ),
     (b"\x1f\x8b", "gzip-compressed: decompress it first (`gunzip -k FILE`)"),
     (b"\x28\xb5\x2f\xfd", "zstd-compressed: decompress it first (`zstd -d FILE`)"),
@@ -97,6 +97,40 @@ fn from_csv(path: &Path, e: ::csv::Error) -> Error {
         _ => e.to_string(),
     };
     csv_error(path, line, None, reason)
+}
+
+/// The line number of the last line of `bytes` that is not blank.
+fn last_line(bytes: &[u8]) -> u64 {
+    let end = bytes.iter().rposition(|b| !b.is_ascii_whitespace()).map_or(0, |i| i + 1);
+    bytes[..end].iter().filter(|&&b| b == b'\n').count() as u64 + 1
+}
+
+/// A row with too few fields on the last line: says the file looks cut off.
+fn short_last_row(e: Error, bytes: &[u8]) -> Error {
+    match e {
+        Error::Csv { path, line, column, reason } if line == last_line(bytes) && reason.contains("the header has") => {
+            let reason = format!(
+                "{reason}: the last row is short, the file looks cut off (an interrupted write?); \
+                 restore or re-create it, or delete the partial row"
+            );
+            Error::Csv { path, line, column, reason }
+        }
+        e => e,
+    }
+}
+
+/// The warning for a file whose last line has no newline at its end: fine
+/// for a file made by hand, a sign of a cut-off file otherwise.
+fn tail_warning(bytes: &[u8], path: &Path) -> Option<String> {
+    if bytes.last().is_none_or(|&b| b == b'\n') {
+        return None;
+    }
+    Some(format!(
+        "{}: line {}, the last line, has no newline at its end: check that the file is complete (a file cut off \
+         by an interrupted write ends this way; a hand-made one may)",
+        path.display(),
+        last_line(bytes)
+    ))
 }
 
 /// Checks the header: every column named once, every required column
@@ -318,6 +352,17 @@ impl Drive {
     /// but a ROS bag, a Parquet file or a compressed archive (known by its
     /// first bytes), saying what to do instead.
     pub fn read_csv(path: impl AsRef<Path>) -> Result<Drive> {
+        Ok(Self::read_csv_with_warnings(path)?.0)
+    }
+
+    /// [`Drive::read_csv`], also returning what the reader noticed that is
+    /// not an error: a last line without a newline at its end (a hand-made
+    /// file, or one cut off by an interrupted write).
+    ///
+    /// # Errors
+    /// As [`Drive::read_csv`]; a short last row is an error naming the file
+    /// and the line.
+    pub fn read_csv_with_warnings(path: impl AsRef<Path>) -> Result<(Drive, Vec<String>)> {
         let path = path.as_ref();
         if path.is_dir() {
             // A rosbag2 directory (metadata.yaml beside .mcap or .db3 files) or
@@ -335,7 +380,8 @@ impl Drive {
         std::fs::File::open(path)
             .and_then(|mut f| f.read_to_end(&mut bytes))
             .map_err(|source| Error::io(path, source))?;
-        Self::parse_csv(&bytes, path)
+        let drive = Self::parse_csv(&bytes, path)?;
+        Ok((drive, tail_warning(&bytes, path).into_iter().collect()))
     }
 
     /// Parses canonical CSV from bytes; `path` is used in error messages.
@@ -355,17 +401,18 @@ impl Drive {
         let headers: Vec<String> =
             rdr.headers().map_err(|e| from_csv(path, e))?.iter().map(|h| h.to_string()).collect();
         check_header(&headers, path)?;
-        Columns::read(&mut rdr, headers, path)?.into_drive(path)
+        let cols = Columns::read(&mut rdr, headers, path).map_err(|e| short_last_row(e, bytes))?;
+        cols.into_drive(path)
     }
 
     /// Writes the canonical CSV (with truth, `ref_measured` when present,
     /// `part` when there are several parts, and extra columns). Numbers are
     /// written in full precision (shortest round-trip form), so a write/read
-    /// round trip is exact.
+    /// round trip is exact. The file is written atomically
+    /// ([`crate::output::write_atomically`]): an interrupted write leaves
+    /// the previous file (or none), never a part of the drive.
     pub fn write_csv(&self, path: impl AsRef<Path>) -> Result<()> {
-        let path = path.as_ref();
-        let file = std::fs::File::create(path).map_err(|source| Error::io(path, source))?;
-        self.write_csv_to(std::io::BufWriter::new(file)).map_err(|source| Error::io(path, source))
+        crate::output::write_atomically(path.as_ref(), |w| self.write_csv_to(w))
     }
 
     /// Writes the canonical CSV to any writer.
@@ -519,6 +566,35 @@ mod tests {
         assert!(m.contains("empty"), "{m}");
         let m = parse("t,px,py,psi,n_rl,n_rr,beta,a_y\n").expect_err("no rows").to_string();
         assert!(m.contains("no data rows"), "{m}");
+    }
+
+    #[test]
+    fn a_short_last_row_is_an_error_naming_the_line() {
+        let s = csv_text(6, 0.025);
+        let cut = &s[..s.len() - 6];
+        let m = parse(cut).expect_err("short row").to_string();
+        assert!(m.starts_with("d.csv: line 7: 6 fields, the header has 8: the last row is short"), "{m}");
+        // A short row elsewhere is not called the last.
+        let mid = s.replacen("0.05,0.5,0,0,5,5,0,0\n", "0.05,0.5,0\n", 1);
+        let m = parse(&mid).expect_err("short row").to_string();
+        assert!(m.contains("line 4") && !m.contains("last row"), "{m}");
+    }
+
+    #[test]
+    fn a_last_line_without_newline_is_read_with_a_warning() {
+        let d = tmp_csv(csv_text(6, 0.025).trim_end());
+        let (drive, warnings) = Drive::read_csv_with_warnings(d.path()).expect("valid");
+        assert_eq!(drive.len(), 6);
+        assert_eq!(warnings.len(), 1, "{warnings:?}");
+        assert!(warnings[0].contains("line 7, the last line, has no newline"), "{}", warnings[0]);
+        let d = tmp_csv(&csv_text(6, 0.025));
+        assert!(Drive::read_csv_with_warnings(d.path()).expect("valid").1.is_empty());
+    }
+
+    fn tmp_csv(text: &str) -> tempfile::NamedTempFile {
+        let mut f = tempfile::NamedTempFile::new().expect("tmp");
+        std::io::Write::write_all(&mut f, text.as_bytes()).expect("write");
+        f
     }
 
     #[test]

@@ -24,7 +24,7 @@
 //!
 //! ```
 //! # fn main() -> Result<(), odocal::Error> {
-//! use odocal::drive::{Drive, Signals};
+//! use odocal::{Drive, Signals};
 //! let n = 100;
 //! let t: Vec<f64> = (0..n).map(|k| k as f64 * 0.025).collect();
 //! let mut s = Signals::with_capacity(n);
@@ -44,25 +44,25 @@
 
 mod concat;
 mod csv;
-pub mod plausibility;
+mod fingerprint;
+pub(crate) mod plausibility;
 pub mod segment;
 
 use std::ops::Range;
 
-pub use self::concat::CONCAT_GAP_S;
+pub use self::fingerprint::refuse_duplicates;
 
 pub(crate) use self::csv::echo;
-pub use self::csv::REQUIRED_COLUMNS;
 use crate::error::{Error, Result};
 use crate::model::extrinsics::{axle_pose, Extrinsics};
 use crate::model::limits::PhysicalLimits;
 use crate::model::{Input, State};
 
 /// Relative tolerance on the uniformity of the sample step (SPEC: 1 %).
-pub const STEP_UNIFORMITY_TOL: f64 = 0.01;
+pub(crate) const STEP_UNIFORMITY_TOL: f64 = 0.01;
 
 /// Names of the seven signal columns of [`Signals`], in [`Signals::columns`] order.
-pub const SIGNAL_NAMES: [&str; 7] = ["px", "py", "psi", "n_rl", "n_rr", "beta", "a_y"];
+pub(crate) const SIGNAL_NAMES: [&str; 7] = ["px", "py", "psi", "n_rl", "n_rr", "beta", "a_y"];
 
 /// The seven signals of a drive sample by sample: reference pose and model
 /// inputs. The same type holds the measured columns and, for simulated
@@ -99,7 +99,7 @@ impl Signals {
         }
     }
 
-    /// The columns with their names, in [`SIGNAL_NAMES`] order.
+    /// The columns with their names, in `SIGNAL_NAMES` order.
     pub fn columns(&self) -> [(&'static str, &[f64]); 7] {
         [
             ("px", &self.px),
@@ -117,7 +117,7 @@ impl Signals {
     }
 
     /// The samples in `r` as new signals.
-    pub fn slice(&self, r: Range<usize>) -> Signals {
+    pub(crate) fn slice(&self, r: Range<usize>) -> Signals {
         let c = |v: &Vec<f64>| v[r.clone()].to_vec();
         Signals {
             px: c(&self.px),
@@ -143,7 +143,7 @@ pub enum ExtraValues {
 
 impl ExtraValues {
     /// Number of values.
-    pub fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         match self {
             ExtraValues::Numbers(v) => v.len(),
             ExtraValues::Text(v) => v.len(),
@@ -243,7 +243,7 @@ impl DriveBuilder {
     }
 
     /// The physical limits the drive is checked against (default
-    /// [`PhysicalLimits::default`], the table in [`crate::model::limits`]).
+    /// `PhysicalLimits::default`, the table in `crate::model::limits`).
     pub fn limits(mut self, limits: PhysicalLimits) -> Self {
         self.limits = limits;
         self
@@ -282,8 +282,8 @@ impl DriveBuilder {
 
     /// Checks everything and makes the drive: equal column lengths, finite
     /// values, strictly increasing time, a uniform step within each part
-    /// (within [`STEP_UNIFORMITY_TOL`]); infers t_s and unwraps the heading;
-    /// then checks the [`PhysicalLimits`].
+    /// (within `STEP_UNIFORMITY_TOL`); infers t_s and unwraps the heading;
+    /// then checks the `PhysicalLimits`.
     ///
     /// # Errors
     /// [`Error::InvalidSample`] naming the column and sample index, or
@@ -531,7 +531,8 @@ impl Drive {
         self.reference_measured.as_deref()
     }
     /// True when the reference pose was really measured at sample `i`.
-    pub fn is_reference_measured(&self, i: usize) -> bool {
+    #[cfg(test)]
+    pub(crate) fn is_reference_measured(&self, i: usize) -> bool {
         self.reference_measured.as_ref().is_none_or(|m| m[i])
     }
     /// Extra columns carried along.
@@ -587,22 +588,11 @@ impl Drive {
         Ok(self)
     }
 
-    /// The same drive with the measured wheel rotations replaced (compensated
-    /// inputs, say), checked like any other drive.
-    ///
-    /// # Errors
-    /// As [`DriveBuilder::build`].
-    pub fn with_wheel_rotations(&self, n_rl: Vec<f64>, n_rr: Vec<f64>) -> Result<Drive> {
-        let mut measured = self.measured.clone();
-        measured.n_rl = n_rl;
-        measured.n_rr = n_rr;
-        self.rebuild(self.t.clone(), measured, self.truth.clone(), 0..self.len())
-    }
-
     /// The samples with `t_start_s ≤ t < t_end_s` as a new drive; parts are
     /// clipped to the window (extra columns, the reference mask and the truth
     /// come along).
-    pub fn window(&self, t_start_s: f64, t_end_s: f64) -> Result<Drive> {
+    #[cfg(test)]
+    pub(crate) fn window(&self, t_start_s: f64, t_end_s: f64) -> Result<Drive> {
         let a = self.t.partition_point(|&t| t < t_start_s);
         let b = self.t.partition_point(|&t| t < t_end_s);
         if a >= b {
@@ -672,7 +662,7 @@ impl Drive {
 
 /// Unwraps an angle series in place: every step larger than π in magnitude
 /// is taken as a 2π wrap.
-pub fn unwrap_in_place(a: &mut [f64]) {
+pub(crate) fn unwrap_in_place(a: &mut [f64]) {
     let two_pi = 2.0 * std::f64::consts::PI;
     let mut offset = 0.0;
     let mut prev_raw = match a.first() {
@@ -696,7 +686,7 @@ pub fn unwrap_in_place(a: &mut [f64]) {
 /// under `e` ([`axle_pose`] per sample); wheels, parts and the
 /// reference-measured mask are kept, truth and extra columns dropped. The
 /// 3-step method's input compensation and the EIV filter run on it.
-pub fn axle_reference_drive(drive: &Drive, e: &Extrinsics) -> Result<Drive> {
+pub(crate) fn axle_reference_drive(drive: &Drive, e: &Extrinsics) -> Result<Drive> {
     let mut m = drive.measured().clone();
     for i in 0..drive.len() {
         let x = axle_pose(&drive.pose(i), e);

@@ -13,7 +13,7 @@ use super::Drive;
 /// # Errors
 /// [`Error::InvalidDrive`] for the sample time, [`Error::InvalidSample`]
 /// for a value out of range.
-pub fn check_limits(drive: &Drive, limits: &PhysicalLimits, context: &str) -> Result<()> {
+pub(crate) fn check_limits(drive: &Drive, limits: &PhysicalLimits, context: &str) -> Result<()> {
     let ts = drive.sample_time_s();
     if !(limits.min_sample_time_s..=limits.max_sample_time_s).contains(&ts) {
         let hint = if ts > limits.max_sample_time_s && ts <= 1e3 * limits.max_sample_time_s {
@@ -124,7 +124,7 @@ pub fn check_limits(drive: &Drive, limits: &PhysicalLimits, context: &str) -> Re
 ///
 /// # Errors
 /// [`Error::InvalidDrive`] naming the convention to check.
-pub fn check_conventions(drive: &Drive, theta0: &Theta, context: &str) -> Result<()> {
+pub(crate) fn check_conventions(drive: &Drive, theta0: &Theta, context: &str) -> Result<()> {
     use crate::model::{kinematics, wrap_angle};
     let ts = drive.sample_time_s();
     let (px, py, psi) = (drive.px(), drive.py(), drive.psi());

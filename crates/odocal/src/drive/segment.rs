@@ -1,5 +1,9 @@
 //! Cutting a drive into calibration and validation segments (SPEC §3).
 //!
+//! Expert API: for programs that run the steps ([`crate::identify`],
+//! [`crate::compensate`]) or score θ on segments themselves; a calibration
+//! cuts its segments from [`crate::CalibrationOptions`].
+//!
 //! A segment of K steps starting at sample `i0` starts from the reference
 //! pose `ỹ_{i0}`, uses the inputs `u_{i0} … u_{i0+K−1}` and is compared with
 //! the reference at samples `i0+1 … i0+K`. Starts are `offset, offset +
@@ -34,7 +38,7 @@ impl Default for SegmentOptions {
 
 impl SegmentOptions {
     /// Checks the options, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         check_length_and_stride(self.length_steps, self.stride_steps)?;
         if self.min_peak_yaw_rate_rad_per_s.is_nan() || self.min_peak_yaw_rate_rad_per_s < 0.0 {
             return Err(Error::InvalidOption {
@@ -76,7 +80,7 @@ impl Default for ValidationSegmentOptions {
 
 impl ValidationSegmentOptions {
     /// Checks the options, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         check_length_and_stride(self.length_steps, self.stride_steps)
     }
 }
@@ -176,7 +180,7 @@ impl<'a> SegmentData<'a> {
     }
 
     /// The same segment with other wheel rotations (K values each).
-    pub fn with_wheels<'b>(&self, n_rl: &'b [f64], n_rr: &'b [f64]) -> SegmentData<'b>
+    pub(crate) fn with_wheels<'b>(&self, n_rl: &'b [f64], n_rr: &'b [f64]) -> SegmentData<'b>
     where
         'a: 'b,
     {

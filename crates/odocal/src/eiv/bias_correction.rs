@@ -10,15 +10,15 @@ use super::{BiasCorrection, EivInput, EivOptions, EivReport, FirstOrderBias};
 use crate::error::{Error, Result};
 
 /// Applies `opts.bias_correction` to a fit made without it (nothing for
-/// [`BiasCorrection::None`]): runs the [`bootstrap`] it names at the fit
+/// `BiasCorrection::None`): runs the [`bootstrap`](fn@bootstrap) it names at the fit
 /// (replicates on `opts.bootstrap_inputs`, each holding the fitted noise
 /// model; in antithetic pairs with `opts.bootstrap_antithetic`), subtracts its bias from `report.theta`
 /// (every free parameter or c_e only) and adds the bias's Monte Carlo
 /// covariance to `report.covariance` and `report.sigma`.
 ///
-/// [`estimate`](crate::eiv::estimate) calls it at its end; `calibrate` calls it itself after
+/// [`estimate`](fn@crate::eiv::estimate) calls it at its end; `calibrate` calls it itself after
 /// deciding whether to fall back, so that a fit it replaces by batch
-/// Gauss-Newton costs no bootstrap. `report` must be that of [`estimate`](crate::eiv::estimate)
+/// Gauss-Newton costs no bootstrap. `report` must be that of [`estimate`](fn@crate::eiv::estimate)
 /// on `input` with `opts` except for the correction (and with its
 /// `bias_subtracted` zero).
 ///

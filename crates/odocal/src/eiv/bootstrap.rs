@@ -22,7 +22,7 @@
 //! Each replicate is fitted with the same options as the original fit
 //! (same starting noise model, same `fix_noise`), from θ̂, with the
 //! original's free parameters (but without a bootstrap bias correction,
-//! [`super::BiasCorrection::Bootstrap`], inside). The spread of the replicates estimates the
+//! `super::BiasCorrection::Bootstrap`, inside). The spread of the replicates estimates the
 //! estimator's sampling distribution; their mean minus θ̂ its bias (at θ̂
 //! and the fitted noise), which gives the bias-corrected estimate
 //! `θ̂ − bias`.

@@ -9,10 +9,10 @@ use crate::error::Result;
 use crate::model::Theta;
 
 /// Step in η of the forward difference of the θ-score
-/// ([`EivOptions::noise_estimate_in_covariance`](crate::eiv::EivOptions::noise_estimate_in_covariance)): 1e-4, i.e. a 0.01 %
+/// (`EivOptions::noise_estimate_in_covariance`): 1e-4, i.e. a 0.01 %
 /// change of the source's variance. The score is smooth in η (one-sided
 /// error ≈ h/2 relative); its sums have ≥ 10 significant digits to spare.
-pub const ETA_SENSITIVITY_STEP: f64 = 1e-4;
+pub(crate) const ETA_SENSITIVITY_STEP: f64 = 1e-4;
 
 /// The covariance that estimating η adds to θ̂: `A Σ_η Aᵀ` with
 /// `A = −J⁻¹ ∂g_θ/∂η` over the free η ([`EivOptions::noise_estimate_in_covariance`];

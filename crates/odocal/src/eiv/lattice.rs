@@ -16,17 +16,17 @@
 use super::EivInput;
 
 /// Fewest distinct non-zero readings a lattice is accepted from.
-pub const MIN_LATTICE_LEVELS: usize = 20;
+pub(crate) const MIN_LATTICE_LEVELS: usize = 20;
 
 /// Largest distance of a reading from its lattice point, in steps, for the
 /// lattice to be accepted: a reading written with six decimals in rev/s
 /// is within 5e-7 rev/s of its value, far below 1e-3 of any step an
 /// encoder has at the sample rates odocal takes (q ≥ 1e-4 rev/s).
-pub const LATTICE_TOLERANCE_STEPS: f64 = 1e-3;
+pub(crate) const LATTICE_TOLERANCE_STEPS: f64 = 1e-3;
 
 /// Largest lattice index accepted: a "step" that makes the fastest reading
 /// more than this many steps is indistinguishable from no lattice.
-pub const MAX_LATTICE_INDEX: f64 = 1e7;
+pub(crate) const MAX_LATTICE_INDEX: f64 = 1e7;
 
 /// The quantisation step q (rev/s) of wheel readings that lie on a common
 /// lattice `k·q` (k whole), or `None` when they do not.
@@ -34,8 +34,8 @@ pub const MAX_LATTICE_INDEX: f64 = 1e7;
 /// Readings that are zero or not finite are skipped (a standing wheel
 /// counts nothing); both wheels must share the step (they are read by the
 /// same kind of encoder at the same sample time). The lattice is accepted
-/// only with at least [`MIN_LATTICE_LEVELS`] distinct non-zero levels and
-/// every reading within [`LATTICE_TOLERANCE_STEPS`] of its lattice point.
+/// only with at least `MIN_LATTICE_LEVELS` distinct non-zero levels and
+/// every reading within `LATTICE_TOLERANCE_STEPS` of its lattice point.
 ///
 /// ```
 /// use odocal::eiv::quantisation_step_of_readings;

@@ -2,6 +2,10 @@
 //! filter that models the noise on the wheel inputs, fitted by Fisher
 //! scoring with exact derivatives.
 //!
+//! Expert API: for programs that run the estimator on their own inputs,
+//! its Cramér–Rao bound or its bootstrap; [`crate::calibrate()`] with
+//! [`crate::Method::Eiv`] runs it with the fallback and the checks.
+//!
 //! ## The filter
 //!
 //! State (12): `z = [p_x, p_y, ψ, s_c, s_l, s_r, b_x, b_y, b_ψ, e_β, w_l, w_r]`:
@@ -56,7 +60,7 @@
 //! CRB σ from [`cramer_rao_bound`], full Fisher information; "known" = the
 //! simulator's noise model from [`NoiseModel::from_sim`], fixed; "est." =
 //! η estimated from [`NoiseModel::PRODUCTION_CAR`]; "boot" = known minus
-//! the [`bootstrap`] bias, B = 10, seeds 1–20):
+//! the [`bootstrap`](fn@bootstrap) bias, B = 10, seeds 1–20):
 //!
 //! | preset | batch G-N t_r % | follows, known | follows, est. | CRB | known c_e % | known + boot c_e % | c_e CRB |
 //! |---|---|---|---|---|---|---|---|
@@ -160,14 +164,14 @@
 //! noise in metres scales with the circumferences, which bounds c_e far
 //! below what the increments alone give (see the study table).
 //!
-//! **Parametric bootstrap** ([`bootstrap`]): B re-simulations of the fitted
+//! **Parametric bootstrap** ([`bootstrap`](fn@bootstrap)): B re-simulations of the fitted
 //! noise model at θ̂ on the drive's own inputs, re-fitted with the same
 //! options (each replicate seeded on its own, so thread-count independent),
 //! giving percentile and basic intervals, the estimator's bias at θ̂ and the
 //! bias-corrected θ̂ − bias. This is the measured cure of the c_e bias:
-//! [`EivOptions::bias_correction`] = [`BiasCorrection::Bootstrap`] applies it
-//! inside [`estimate`] (its table; the analytic alternatives measured
-//! against it are [`FirstOrderBias`] and the fitted-input noise scale).
+//! [`EivOptions::bias_correction`] = `BiasCorrection::Bootstrap` applies it
+//! inside [`estimate`](fn@estimate) (its table; the analytic alternatives measured
+//! against it are `FirstOrderBias` and the fitted-input noise scale).
 //!
 //! ## Misspecification
 //!
@@ -204,10 +208,10 @@
 //!   TAC 19(6), 1974 (filter sensitivity recursions, Fisher scoring).
 
 mod bias_correction;
-mod bootstrap;
+pub mod bootstrap;
 mod covariance;
 mod crb;
-mod estimate;
+pub mod estimate;
 pub(crate) mod filter;
 mod input;
 mod lattice;
@@ -221,37 +225,40 @@ mod steps;
 #[cfg(test)]
 pub(crate) mod tests;
 
-pub use bias_correction::apply_bias_correction;
 pub(crate) use bias_correction::first_order_bias;
-pub use bootstrap::{bootstrap, BootstrapInputs, BootstrapOptions, BootstrapReport};
 #[cfg(test)]
 pub(crate) use bootstrap::{FAIL_EVERY_REPLICATE_SEED, FAIL_ONE_REPLICATE_SEED};
-pub use covariance::ETA_SENSITIVITY_STEP;
-pub use crb::cramer_rao_bound;
-pub use estimate::{estimate, kernel_instruction_set};
-pub use input::{EivInput, Window};
-pub use lattice::{quantisation_step_of_readings, LATTICE_TOLERANCE_STEPS, MAX_LATTICE_INDEX, MIN_LATTICE_LEVELS};
-pub use modelling::{
-    BiasCorrection, FirstOrderBias, HeadingScale, LateralNoise, QuantisationLevel, QuantisationModel,
-    BIAS_BOOTSTRAP_SMOOTHING_SAMPLES,
+pub(crate) use modelling::BIAS_BOOTSTRAP_SMOOTHING_SAMPLES;
+pub(crate) use noise::NOISE_SOURCES;
+pub(crate) use report::PARAMETERS;
+pub use {
+    bias_correction::apply_bias_correction,
+    bootstrap::{bootstrap, BootstrapInputs, BootstrapOptions, BootstrapReport},
+    crb::cramer_rao_bound,
+    estimate::{estimate, kernel_instruction_set},
+    input::{EivInput, Window},
+    lattice::quantisation_step_of_readings,
+    modelling::{BiasCorrection, FirstOrderBias, HeadingScale, LateralNoise, QuantisationLevel, QuantisationModel},
+    noise::{NoiseModel, NoiseSource},
+    options::EivOptions,
+    report::{
+        CrbReport, EivObservability, EivReport, EivWarning, HalvesCheck, IterationRecord, Parameter, PassReport,
+        PoseComponent, Termination, WindowDiagnostics,
+    },
 };
 // The modelling alternatives of `EivOptions::research`: public with the
 // `research` feature, crate-internal (at their defaults) without it.
 #[cfg(not(feature = "research"))]
-pub(crate) use modelling::{
-    InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
+pub(crate) use {
+    modelling::{
+        InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
+    },
+    options::{CovarianceEstimate, CovarianceMode, ResearchOptions},
 };
 #[cfg(feature = "research")]
-pub use modelling::{
-    InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
-};
-pub use noise::{NoiseModel, NoiseSource, NOISE_SOURCES};
-pub use options::EivOptions;
-#[cfg(not(feature = "research"))]
-pub(crate) use options::{CovarianceEstimate, CovarianceMode, ResearchOptions};
-#[cfg(feature = "research")]
-pub use options::{CovarianceEstimate, CovarianceMode, ResearchOptions};
-pub use report::{
-    CrbReport, EivObservability, EivReport, EivWarning, HalvesCheck, IterationRecord, Parameter, PassReport,
-    PoseComponent, Termination, WindowDiagnostics, PARAMETERS,
+pub use {
+    modelling::{
+        InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
+    },
+    options::{CovarianceEstimate, CovarianceMode, ResearchOptions},
 };

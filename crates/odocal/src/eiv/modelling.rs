@@ -200,7 +200,7 @@ impl WheelNoiseScale {
 /// 4.01× the bound, paper 1.69 → 1.62×), coverage 93.8 / 96.3 / 97.5 /
 /// 95.0 %. It is the EIV method's default in `calibrate`
 /// (`calibrate::EivMethodOptions::correct_bias`, the CLI's `--correct-bias
-/// B` / `--no-bias-correction`); [`estimate`](crate::eiv::estimate) applies what this field says
+/// B` / `--no-bias-correction`); [`estimate`](fn@crate::eiv::estimate) applies what this field says
 /// (default none). The subtracted bias is a mean over the replicates (or
 /// pairs); its Monte Carlo covariance is added to θ's
 /// ([`EivReport::sigma_bias_correction`](crate::eiv::EivReport::sigma_bias_correction)).
@@ -219,7 +219,7 @@ pub enum BiasCorrection {
     /// The root of the profile cost as is.
     #[default]
     None,
-    /// The parametric [`bootstrap`](crate::eiv::bootstrap) bias (B re-simulations of the fitted
+    /// The parametric [`bootstrap`](fn@crate::eiv::bootstrap) bias (B re-simulations of the fitted
     /// noise at θ̂, each re-fitted without correction) subtracted:
     /// `θ̂ − (mean of the replicates − θ̂)`, for c_e only or for every free
     /// parameter. About B more fits.
@@ -237,7 +237,7 @@ pub enum BiasCorrection {
 /// CLI's `--correct-bias` takes as the replicates' true inputs: ±20
 /// samples, ±0.5 s at 40 Hz (only K = 20 is measured; with the measured
 /// inputs as the truth the bootstrap finds no t_r bias).
-pub const BIAS_BOOTSTRAP_SMOOTHING_SAMPLES: usize = 20;
+pub(crate) const BIAS_BOOTSTRAP_SMOOTHING_SAMPLES: usize = 20;
 
 /// The first-order bias of the profile cost's root at the estimate, a
 /// diagnostic (measured as a correction in [`BiasCorrection`]'s table; it

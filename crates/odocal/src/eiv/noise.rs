@@ -78,7 +78,7 @@ pub enum NoiseSource {
 impl NoiseSource {
     /// The source's name: `wheel_white`, `wheel_common`,
     /// `wheel_differential`, `pose_white`, `pose_drift`, `heading_white`.
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             NoiseSource::WheelWhite => "wheel_white",
             NoiseSource::WheelCommon => "wheel_common",
@@ -89,7 +89,7 @@ impl NoiseSource {
         }
     }
 
-    /// The source's index in η ([`NOISE_SOURCES`] order, as
+    /// The source's index in η (`NOISE_SOURCES` order, as
     /// [`EivOptions::eta_held`](crate::eiv::EivOptions::eta_held)): the declaration order.
     pub fn index(self) -> usize {
         self as usize
@@ -104,7 +104,7 @@ impl std::fmt::Display for NoiseSource {
 
 impl std::str::FromStr for NoiseSource {
     type Err = Error;
-    /// A source by its [`NoiseSource::name`] (`-` for `_` accepted, as on
+    /// A source by its `NoiseSource::name` (`-` for `_` accepted, as on
     /// the command line).
     ///
     /// ```
@@ -123,7 +123,7 @@ impl std::str::FromStr for NoiseSource {
 }
 
 /// The sources in η order.
-pub const NOISE_SOURCES: [NoiseSource; 6] = [
+pub(crate) const NOISE_SOURCES: [NoiseSource; 6] = [
     NoiseSource::WheelWhite,
     NoiseSource::WheelCommon,
     NoiseSource::WheelDifferential,
@@ -196,7 +196,7 @@ impl NoiseModel {
     }
 
     /// Checks the model, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         let sig = [
             ("noise.wheel_white_rel_sigma", self.wheel_white_rel_sigma),
             ("noise.quantisation_step_rev_per_s", self.quantisation_step_rev_per_s),

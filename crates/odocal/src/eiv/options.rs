@@ -94,10 +94,10 @@ pub struct EivOptions {
     /// between 2e-9 and 400 times the starting model's. A scale that reached
     /// its lower clamp stays there.
     pub eta_bounds: [f64; 2],
-    /// Noise sources (in [`NOISE_SOURCES`] order) whose level is *known*:
+    /// Noise sources (in `NOISE_SOURCES` order) whose level is *known*:
     /// their scale is held at the starting model (η_j = 0) while the others
     /// are estimated; ignored with [`EivOptions::fix_noise`]. Set it from a
-    /// datasheet (e.g. the INS's heading σ) with [`EivOptions::hold_known`],
+    /// datasheet (e.g. the INS's heading σ) with `EivOptions::hold_known`,
     /// `--known-noise`, or a noise model's `known = [...]`. Measured
     /// (docs/validation.md, "Known noise levels"; 20 × 12 km, `high`):
     /// holding the heading white noise at its true σ took t_r's bias from
@@ -149,21 +149,21 @@ pub struct EivOptions {
     /// Default [`HeadingScale::Separate`] (see its docs).
     pub heading_scale: HeadingScale,
     /// Correction of the profile cost's bias applied to the estimate.
-    /// Default [`BiasCorrection::None`] (see its docs).
+    /// Default `BiasCorrection::None` (see its docs).
     pub bias_correction: BiasCorrection,
     /// The true inputs of the replicate worlds of
-    /// [`BiasCorrection::Bootstrap`]. Default [`BootstrapInputs::Measured`];
-    /// [`EivOptions::correct_bias`] sets `Smoothed { half_width_samples: 20 }`,
+    /// `BiasCorrection::Bootstrap`. Default [`BootstrapInputs::Measured`];
+    /// `EivOptions::correct_bias` sets `Smoothed { half_width_samples: 20 }`,
     /// which removes the t_r bias on `high` (docs/validation.md, "Simulated
     /// drives against the Cramér–Rao bound").
     pub bootstrap_inputs: BootstrapInputs,
-    /// The replicates of [`BiasCorrection::Bootstrap`] come in antithetic
+    /// The replicates of `BiasCorrection::Bootstrap` come in antithetic
     /// pairs ([`BootstrapOptions::antithetic`](crate::eiv::BootstrapOptions::antithetic); B must be even). Default
-    /// false; [`EivOptions::correct_bias`] sets it.
+    /// false; `EivOptions::correct_bias` sets it.
     pub bootstrap_antithetic: bool,
     /// Values at which parameters that the filter names unobservable (with
     /// [`EivOptions::fix_unobservable`]) are held. `None` (the default)
-    /// holds them at the start θ given to [`estimate`](crate::eiv::estimate). `calibrate` passes
+    /// holds them at the start θ given to [`estimate`](fn@crate::eiv::estimate). `calibrate` passes
     /// the calibration's θ_0: the start is batch G-N's estimate, which for
     /// a parameter the data cannot determine can be far off (on the RAV4
     /// drive, t_r = 5.63 m, so the result was rejected as implausible).
@@ -352,14 +352,14 @@ impl EivOptions {
     /// Holds the scales of `sources` at the starting model
     /// ([`EivOptions::eta_held`]): their levels in [`EivOptions::noise`] are
     /// known.
-    pub fn hold_known(&mut self, sources: &[NoiseSource]) {
+    pub(crate) fn hold_known(&mut self, sources: &[NoiseSource]) {
         for s in sources {
             self.eta_held[s.index()] = true;
         }
     }
 
     /// The sources [`EivOptions::eta_held`] holds, in η order.
-    pub fn known_sources(&self) -> Vec<NoiseSource> {
+    pub(crate) fn known_sources(&self) -> Vec<NoiseSource> {
         NOISE_SOURCES.into_iter().filter(|s| self.eta_held[s.index()]).collect()
     }
 
@@ -383,7 +383,7 @@ impl EivOptions {
     /// Subtracts the estimator's own bias from every parameter, estimated by
     /// a parametric bootstrap of `replicates` re-simulations (seed `seed`;
     /// an even number: antithetic pairs, [`EivOptions::bootstrap_antithetic`])
-    /// on the smoothed trajectory ([`BIAS_BOOTSTRAP_SMOOTHING_SAMPLES`]),
+    /// on the smoothed trajectory (`BIAS_BOOTSTRAP_SMOOTHING_SAMPLES`),
     /// each holding the fitted noise model:
     /// what the EIV method of `calibrate` applies by default (B = 4), the
     /// CLI's `--correct-bias B` and Python's `correct_bias=B`, measured in

@@ -23,7 +23,7 @@ pub enum Parameter {
 }
 
 /// The parameters in θ order.
-pub const PARAMETERS: [Parameter; 4] = [Parameter::CE, Parameter::CD, Parameter::TR, Parameter::D];
+pub(crate) const PARAMETERS: [Parameter; 4] = [Parameter::CE, Parameter::CD, Parameter::TR, Parameter::D];
 
 impl std::fmt::Display for Parameter {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -63,7 +63,7 @@ pub enum Termination {
 
 impl Termination {
     /// True when the fit converged (step tolerance met).
-    pub fn converged(&self) -> bool {
+    pub(crate) fn converged(&self) -> bool {
         matches!(self, Termination::StepTolerance { .. })
     }
 }
@@ -119,8 +119,8 @@ pub enum EivWarning {
         threshold: f64,
     },
     /// A window's NIS per degree of freedom is outside the consistency band
-    /// (with [`InnovationNull::FloorsAsRegularisation`](crate::eiv::InnovationNull::FloorsAsRegularisation), the band widened to
-    /// cover the NIS expected without the floors, see [`EivOptions::innovation_null`](crate::eiv::EivOptions::innovation_null)).
+    /// (with `InnovationNull::FloorsAsRegularisation`, the band widened to
+    /// cover the NIS expected without the floors, see `EivOptions::innovation_null`).
     InconsistentInnovations {
         /// Window index.
         window: usize,
@@ -132,7 +132,7 @@ pub enum EivWarning {
     /// A window's whitened innovations are correlated from one update to
     /// the next beyond what the noise model explains: the lag-1
     /// autocorrelation is more than `threshold` outside the interval
-    /// between 0 and `expected` (see [`EivOptions::innovation_null`](crate::eiv::EivOptions::innovation_null);
+    /// between 0 and `expected` (see `EivOptions::innovation_null`;
     /// `threshold` is the limit on the side where it left the interval).
     CorrelatedInnovations {
         /// Window index.
@@ -142,7 +142,7 @@ pub enum EivWarning {
         /// Lag-1 autocorrelation.
         lag1: f64,
         /// Expected lag-1 autocorrelation when the data have none of the
-        /// measurement floors (0 with [`InnovationNull::FittedModel`](crate::eiv::InnovationNull::FittedModel)).
+        /// measurement floors (0 with `InnovationNull::FittedModel`).
         #[serde(default)]
         expected: f64,
         /// The limit.
@@ -234,12 +234,12 @@ pub struct WindowDiagnostics {
     pub lag1: [f64; 3],
     /// Expected NIS per degree of freedom when the data have the fitted
     /// noise but none of the measurement floors
-    /// ([`InnovationNull::FloorsAsRegularisation`](crate::eiv::InnovationNull::FloorsAsRegularisation); 1 with
-    /// [`InnovationNull::FittedModel`](crate::eiv::InnovationNull::FittedModel)).
+    /// (`InnovationNull::FloorsAsRegularisation`; 1 with
+    /// `InnovationNull::FittedModel`).
     #[serde(default = "one")]
     pub nis_without_floors: f64,
     /// Expected lag-1 autocorrelation `[x, y, ψ]` of the whitened
-    /// innovations under the same null (0 with [`InnovationNull::FittedModel`](crate::eiv::InnovationNull::FittedModel)).
+    /// innovations under the same null (0 with `InnovationNull::FittedModel`).
     #[serde(default)]
     pub lag1_without_floors: [f64; 3],
 }
@@ -306,8 +306,8 @@ pub struct EivReport {
     pub free: [bool; 4],
     /// θ's covariance at the estimate (zero rows for fixed parameters):
     /// `H_θ⁻¹`, or per parameter raised to the block sandwich's
-    /// ([`EivOptions::covariance_estimate`](crate::eiv::EivOptions::covariance_estimate)), plus what estimating η adds
-    /// ([`EivOptions::noise_estimate_in_covariance`](crate::eiv::EivOptions::noise_estimate_in_covariance)).
+    /// (`EivOptions::covariance_estimate`), plus what estimating η adds
+    /// (`EivOptions::noise_estimate_in_covariance`).
     pub covariance: [[f64; 4]; 4],
     /// Standard deviations `sqrt(diag covariance)`.
     pub sigma: [f64; 4],
@@ -333,13 +333,13 @@ pub struct EivReport {
     /// sandwich, which measures the scores' actual spread.
     pub sigma_fisher: [f64; 4],
     /// The part of θ's σ that estimating η from the drive adds
-    /// ([`EivOptions::noise_estimate_in_covariance`](crate::eiv::EivOptions::noise_estimate_in_covariance)): `sqrt(diag A Σ_η Aᵀ)`.
+    /// (`EivOptions::noise_estimate_in_covariance`): `sqrt(diag A Σ_η Aᵀ)`.
     /// Included in [`EivReport::covariance`] and [`EivReport::sigma`] when
     /// that option is on; 0 with a fixed noise model or the option off.
     #[serde(default)]
     pub sigma_noise_estimate: [f64; 4],
     /// `∂θ̂/∂η_j` at the estimate (`[parameter][source]`, in θ's units per
-    /// unit of η; [`EivOptions::noise_estimate_in_covariance`](crate::eiv::EivOptions::noise_estimate_in_covariance)): how far θ̂
+    /// unit of η; `EivOptions::noise_estimate_in_covariance`): how far θ̂
     /// moves when a source's variance is e-fold. Zero for sources not
     /// estimated, with a fixed noise model or with the option off.
     #[serde(default)]
@@ -378,7 +378,7 @@ pub struct EivReport {
     /// The first-order bias of the profile cost's root at the estimate, a
     /// diagnostic (None with the covariance held or a singular `H_θ`).
     pub first_order_bias: Option<FirstOrderBias>,
-    /// The root of the profile cost before any [`BiasCorrection`](crate::eiv::BiasCorrection).
+    /// The root of the profile cost before any `BiasCorrection`.
     pub theta_uncorrected: Theta,
     /// The bias subtracted by [`EivOptions::bias_correction`](crate::eiv::EivOptions::bias_correction) (`theta =
     /// theta_uncorrected − bias_subtracted`; zeros without a correction).

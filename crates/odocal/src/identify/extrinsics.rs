@@ -1,5 +1,5 @@
 //! Identification of θ with the reference extrinsics
-//! ([`crate::model::extrinsics`]): batch Gauss-Newton over the seven-vector
+//! ([[`Extrinsics`](crate::Extrinsics)]): batch Gauss-Newton over the seven-vector
 //! `[c_e, c_d, t_r, d, lever_x, lever_y, heading_offset]`.
 
 use nalgebra::{DMatrix, Matrix3, Matrix3x4, SMatrix, SVector, Vector3};
@@ -338,14 +338,13 @@ mod tests {
             ..Default::default()
         };
         let gn = CalibrationOptions { method: Method::BatchGn(Default::default()), identify, ..Default::default() };
-        let r = calibrate(&d, &gn, None).expect("batch-gn");
+        let r = calibrate(&d, &gn).expect("batch-gn");
         let x = r.extrinsics.as_ref().expect("extrinsics in the report");
         assert!((x.value.lever_x - VAN.lever_x).abs() < 1e-8, "{}", x.value);
         assert!(r.validation.mean_position_error_m < 1e-6, "{}", r.validation.mean_position_error_m);
         assert_eq!(r.verdict.level, crate::assess::trust::VerdictLevel::Accepted, "{:?}", r.verdict);
         // Without extrinsics the same drive validates metres off.
-        let plain =
-            calibrate(&d, &CalibrationOptions { identify: Default::default(), ..gn.clone() }, None).expect("plain");
+        let plain = calibrate(&d, &CalibrationOptions { identify: Default::default(), ..gn.clone() }).expect("plain");
         assert!(plain.extrinsics.is_none());
         assert!(plain.validation.mean_position_error_m > 0.1, "{}", plain.validation.mean_position_error_m);
         // The 3-step method: steps 1 and 3 carry the extrinsics; step 2 tracks
@@ -357,7 +356,7 @@ mod tests {
             final_segments: FinalSegments::Random(6),
             ..Default::default()
         });
-        let r = calibrate(&d, &CalibrationOptions { method, ..gn }, None).expect("three-step");
+        let r = calibrate(&d, &CalibrationOptions { method, ..gn }).expect("three-step");
         let x = r.extrinsics.as_ref().expect("extrinsics in the report");
         assert!((x.value.lever_x - VAN.lever_x).abs() < 0.05, "{}", x.value);
         assert!((x.value.heading_offset - VAN.heading_offset).abs() < 2e-4, "{}", x.value);

@@ -1,6 +1,6 @@
 //! The one batch Gauss-Newton loop (SPEC §4) behind
 //! [`crate::identify::batch_gauss_newton`], over θ alone (N = 4) and over
-//! θ with the reference extrinsics (N = 7, [`crate::model::extrinsics`]).
+//! θ with the reference extrinsics (N = 7, [[`Extrinsics`](crate::Extrinsics)]).
 //!
 //! What varies between the two is a [`Problem`]: the residuals and
 //! Jacobian of one segment at a parameter vector (as its normal

@@ -1,5 +1,8 @@
 //! Gauss-Newton identification of θ (SPEC §4, paper §3).
 //!
+//! Expert API: for programs that run batch Gauss-Newton on segments they
+//! chose ([`crate::segment`]); [`crate::calibrate()`] runs it for every method.
+//!
 //! For each segment the model is run from the reference start pose with the
 //! given inputs; the residual `r_k = ỹ_k − ŷ_k(θ)` (heading wrapped) and the
 //! sensitivity `S_k = ∂ŷ_k/∂θ` are propagated together,
@@ -71,7 +74,7 @@ pub struct IdentifyOptions {
     /// The reference sensor's extrinsics (lever arm, heading offset): the
     /// initial value of those in [`IdentifyOptions::free`] and the held
     /// value of the others. Default 0 (the reference is the rear-axle
-    /// centre, aligned with the vehicle: SPEC §1). See [`crate::model::extrinsics`].
+    /// centre, aligned with the vehicle: SPEC §1). See [`Extrinsics`].
     #[serde(default)]
     pub extrinsics: Extrinsics,
     /// Resolutions of the extrinsics for the observability check, `[lever_x
@@ -131,7 +134,7 @@ impl Default for IdentifyOptions {
 
 impl IdentifyOptions {
     /// Checks the options, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         if self.weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) {
             return Err(Error::InvalidOption { field: "weights", reason: "must be finite and non-negative".into() });
         }
@@ -160,7 +163,7 @@ impl IdentifyOptions {
     /// True when the identification involves the reference extrinsics:
     /// some of them are free, or held at a value other than 0. Otherwise
     /// the SPEC's θ-only path runs, unchanged.
-    pub fn uses_extrinsics(&self) -> bool {
+    pub(crate) fn uses_extrinsics(&self) -> bool {
         !self.free.intersection(ParamSet::EXTRINSICS).is_empty() || !self.extrinsics.is_zero()
     }
 }
@@ -332,7 +335,7 @@ pub struct IdentifyReport {
     /// Residual poses used (Σ K).
     pub residual_poses: usize,
     /// The reference extrinsics (initial, estimate, σ, covariance), when
-    /// the identification involved them ([`IdentifyOptions::uses_extrinsics`]).
+    /// the identification involved them (`IdentifyOptions::uses_extrinsics`).
     /// `history` and `covariance` hold θ only.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub extrinsics: Option<ExtrinsicsEstimate>,
@@ -354,7 +357,7 @@ impl std::fmt::Display for IdentifyReport {
 
 /// Normal equations of one or more segments at one parameter vector:
 /// over θ (`N = 4`, the default) or over θ and the reference extrinsics
-/// (`N = 7`, [`crate::model::extrinsics`]).
+/// (`N = 7`, [`Extrinsics`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NormalEquations<const N: usize = 4> {
     /// `JᵀWJ`.
@@ -399,7 +402,7 @@ pub(crate) fn segment_cost(seg: &SegmentData<'_>, theta: &Theta, weights: &[f64;
 }
 
 /// Normal equations of one segment at θ, propagating the sensitivity.
-pub fn segment_normal_equations(seg: &SegmentData<'_>, theta: &Theta, weights: &[f64; 3]) -> NormalEquations {
+pub(crate) fn segment_normal_equations(seg: &SegmentData<'_>, theta: &Theta, weights: &[f64; 3]) -> NormalEquations {
     let w = Matrix3::from_diagonal(&Vector3::from(*weights));
     let mut x = seg.reference(0);
     let mut s = Matrix3x4::<f64>::zeros();
@@ -436,7 +439,7 @@ pub fn batch_normal_equations(segments: &[SegmentData<'_>], theta: &Theta, weigh
 /// problem's minimum): e.g. the 3-step result's on the measured inputs
 /// ([`crate::calibrate::ThreeStepUncertainty`]). θ's free entries only;
 /// `None` as for [`IdentifyReport::robust`].
-pub fn robust_covariance_at(
+pub(crate) fn robust_covariance_at(
     segments: &[SegmentData<'_>],
     theta: &Theta,
     opts: &IdentifyOptions,
@@ -458,7 +461,7 @@ pub fn robust_covariance_at(
 /// Observability diagnostics of the free block of `JᵀWJ` (θ only: free
 /// extrinsics are left out here; the identification with extrinsics runs
 /// [`observability_of`] over all seven).
-pub fn observability(ne: &NormalEquations, free: ParamSet, opts: &IdentifyOptions) -> Observability {
+pub(crate) fn observability(ne: &NormalEquations, free: ParamSet, opts: &IdentifyOptions) -> Observability {
     let jtwj = nalgebra::DMatrix::from_fn(4, 4, |i, j| ne.jtwj[(i, j)]);
     let (rcond, s, unobservable) =
         observability_of(&jtwj, ne.poses, free.intersection(ParamSet::THETA), &opts.resolution, opts);
@@ -470,7 +473,7 @@ pub fn observability(ne: &NormalEquations, free: ParamSet, opts: &IdentifyOption
 /// parameter: the reciprocal condition number of the equilibrated free
 /// block, the sensitivity of each parameter (0 when not free) and the
 /// parameters named not observable.
-pub fn observability_of(
+pub(crate) fn observability_of(
     jtwj: &nalgebra::DMatrix<f64>,
     poses: usize,
     free: ParamSet,
@@ -539,7 +542,7 @@ pub fn observability_of(
 ///
 /// ```
 /// # fn main() -> Result<(), odocal::Error> {
-/// use odocal::{drive::segment, identify, sim, Theta};
+/// use odocal::{identify, segment, sim, Theta};
 /// let drive = sim::simulate(&sim::SimOptions { length_km: 2.0, ..sim::SimOptions::noise_free(7) })?.drive;
 /// let sel = segment::calibration_segments(&drive, &Default::default())?;
 /// let data: Vec<_> = sel.selected.iter().map(|s| segment::SegmentData::new(&drive, s)).collect();

@@ -18,6 +18,7 @@
 //!       method: "batch-gn"
 //!       odocal_version: "0.1.0"
 //!       date: "2026-11-23"
+//!       fingerprint: "6466b844…"  # the drives' Drive::fingerprint (odocal calibrate, Python)
 //! ```
 //!
 //! With [`ParamMapping::DiffDriveController`] the wheel parameters are also
@@ -106,9 +107,24 @@ const DESCRIPTIONS: [&str; 4] = [
 ];
 
 impl ParamFile {
+    /// Whether `path` names a parameter file by its extension (`.yaml`,
+    /// `.yml`, `.json`: the files [`ParamFile::write`] writes and
+    /// [`ParamFile::read`] reads), e.g. to tell one from a θ typed as text.
+    pub fn is_param_file(path: &Path) -> bool {
+        FileFormat::of(path).is_some()
+    }
+
+    /// Today's date (UTC) as `YYYY-MM-DD`, from the system clock: the
+    /// `date` of a file [`CalibrationReport::param_file`](crate::CalibrationReport::param_file) writes.
+    pub fn utc_date_today() -> String {
+        let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
+        let (y, m, d) = civil_from_days((secs / 86_400) as i64);
+        format!("{y:04}-{m:02}-{d:02}")
+    }
+
     /// Appends the reference extrinsics (`lever_x`, `lever_y` in m,
     /// `heading_offset` in rad) with their 1σ (`None` for held entries).
-    pub fn add_extrinsics(&mut self, x: &crate::model::extrinsics::ExtrinsicsEstimate) {
+    pub(crate) fn add_extrinsics(&mut self, x: &crate::model::extrinsics::ExtrinsicsEstimate) {
         let (value, sd) = (x.value.to_array(), x.std_dev.to_array());
         let what = [
             ("m", "pose reference lever arm from the rear-axle centre, forward"),
@@ -147,7 +163,7 @@ impl ParamFile {
                 ("input".into(), input.into()),
                 ("method".into(), method.into()),
                 ("odocal_version".into(), env!("CARGO_PKG_VERSION").into()),
-                ("date".into(), utc_date_today()),
+                ("date".into(), ParamFile::utc_date_today()),
             ],
             mapping: ParamMapping::Odocal,
         }
@@ -158,7 +174,7 @@ impl ParamFile {
     }
 
     /// The consumer keys of [`ParamFile::mapping`] with their values.
-    pub fn mapped(&self) -> Vec<(&'static str, f64)> {
+    pub(crate) fn mapped(&self) -> Vec<(&'static str, f64)> {
         match self.mapping {
             ParamMapping::Odocal => Vec::new(),
             ParamMapping::DiffDriveController => {
@@ -235,12 +251,22 @@ impl ParamFile {
         })
     }
 
-    /// Writes YAML for a `.yaml`/`.yml` path, JSON for `.json`.
+    /// Writes YAML for a `.yaml`/`.yml` path, JSON for `.json`, atomically
+    /// ([`crate::output::write_atomically`]).
     ///
     /// # Errors
     /// [`Error::InvalidOption`] for another extension, [`Error::Io`].
     pub fn write(&self, path: &Path) -> Result<()> {
-        let text = match FileFormat::of(path) {
+        crate::output::write_text(path, &self.text_for(path)?)
+    }
+
+    /// The text [`ParamFile::write`] writes to `path`: YAML for a
+    /// `.yaml`/`.yml` path, JSON for `.json`.
+    ///
+    /// # Errors
+    /// [`Error::InvalidOption`] for another extension.
+    pub fn text_for(&self, path: &Path) -> Result<String> {
+        Ok(match FileFormat::of(path) {
             Some(FileFormat::Yaml) => self.to_ros2_yaml(),
             Some(FileFormat::Json) => {
                 let mut s = serde_json::to_string_pretty(&self.to_json())
@@ -254,8 +280,7 @@ impl ParamFile {
                     reason: format!("{}: use a .yaml, .yml or .json file name", path.display()),
                 })
             }
-        };
-        std::fs::write(path, text).map_err(|source| Error::io(path, source))
+        })
     }
 }
 
@@ -279,16 +304,9 @@ impl FileFormat {
     }
 }
 
-/// Whether `path` names a parameter file by its extension (`.yaml`, `.yml`,
-/// `.json`: the files [`ParamFile::write`] writes and [`ParamFile::read`]
-/// reads), e.g. to tell one from a θ typed as text.
-pub fn is_param_file(path: &Path) -> bool {
-    FileFormat::of(path).is_some()
-}
-
 /// Largest parameter file [`ParamFile::read`] accepts, bytes (odocal writes
 /// about 1.5 kB).
-pub const MAX_PARAM_FILE_BYTES: u64 = 1 << 20;
+pub(crate) const MAX_PARAM_FILE_BYTES: u64 = 1 << 20;
 
 /// A value of the flat `ros__parameters` / `parameters` map.
 enum Flat {
@@ -317,7 +335,7 @@ impl ParamFile {
     /// the same parameters to the bit.
     ///
     /// ```
-    /// use odocal::io::param_file::ParamFile;
+    /// use odocal::ParamFile;
     /// use odocal::Theta;
     /// let dir = std::env::temp_dir().join(format!("odocal-doc-{}", std::process::id()));
     /// std::fs::create_dir_all(&dir)?;
@@ -334,7 +352,7 @@ impl ParamFile {
     /// # Errors
     /// [`Error::Io`]; [`Error::ParamFile`] naming the key for a file that is
     /// not a parameter file (another extension, larger than
-    /// [`MAX_PARAM_FILE_BYTES`], not YAML/JSON, a required parameter missing
+    /// `MAX_PARAM_FILE_BYTES`, not YAML/JSON, a required parameter missing
     /// or not a number, a physically absurd θ).
     pub fn read(path: &Path) -> Result<ParamFile> {
         let bad = |reason: String| Error::ParamFile { path: path.to_path_buf(), reason };
@@ -371,7 +389,7 @@ impl ParamFile {
     /// The reference extrinsics the file holds (0 for those it lacks) and
     /// which of them carry a σ, i.e. were estimated by the calibration that
     /// wrote it.
-    pub fn extrinsics(&self) -> (Extrinsics, ParamSet) {
+    pub(crate) fn extrinsics(&self) -> (Extrinsics, ParamSet) {
         let mut v = [0.0; 3];
         let mut estimated = ParamSet::EMPTY;
         for (i, p) in Param::EXTRINSICS.into_iter().enumerate() {
@@ -386,7 +404,7 @@ impl ParamFile {
     }
 
     /// The reference extrinsics to validate this file's θ with on a drive,
-    /// by the rules of [`crate::assess::validation_drives`]: one the calibration estimated
+    /// by the rules of docs/guide.md, "Several drives of one vehicle": one the calibration estimated
     /// (it has a σ) is the sensor's, so it holds for every drive of the
     /// vehicle; a held one gives way to what the drive's own manifest states
     /// (`drive_reference`, its `[reference]`), else the file's value. Also
@@ -604,13 +622,6 @@ fn yaml_str(s: &str) -> String {
     }
     o.push('"');
     o
-}
-
-/// Today's date (UTC) as `YYYY-MM-DD`, from the system clock.
-pub fn utc_date_today() -> String {
-    let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
-    let (y, m, d) = civil_from_days((secs / 86_400) as i64);
-    format!("{y:04}-{m:02}-{d:02}")
 }
 
 /// Proleptic Gregorian date of a day count since 1970-01-01 (H. Hinnant's algorithm).

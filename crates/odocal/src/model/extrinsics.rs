@@ -61,17 +61,17 @@ impl Extrinsics {
     }
 
     /// Builds the extrinsics from `[lever_x, lever_y, heading_offset]`.
-    pub fn from_array(a: [f64; 3]) -> Self {
+    pub(crate) fn from_array(a: [f64; 3]) -> Self {
         Extrinsics { lever_x: a[0], lever_y: a[1], heading_offset: a[2] }
     }
 
     /// The value of an extrinsics parameter; `None` for a θ parameter.
-    pub fn get(&self, p: Param) -> Option<f64> {
+    pub(crate) fn get(&self, p: Param) -> Option<f64> {
         p.extrinsics_index().map(|i| self.to_array()[i])
     }
 
     /// Checks that every value is finite.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         for (p, v) in Param::EXTRINSICS.iter().zip(self.to_array()) {
             if !v.is_finite() {
                 return Err(Error::InvalidOption { field: "extrinsics", reason: format!("{p} = {v} is not finite") });
@@ -132,7 +132,8 @@ pub struct RobustExtrinsics {
 
 impl ExtrinsicsEstimate {
     /// Held extrinsics: `value` = `initial`, no σ.
-    pub fn held(initial: Extrinsics) -> Self {
+    #[cfg(test)]
+    pub(crate) fn held(initial: Extrinsics) -> Self {
         ExtrinsicsEstimate {
             initial,
             value: initial,
@@ -149,7 +150,7 @@ impl ExtrinsicsEstimate {
 /// The reference pose `[p_ref,x, p_ref,y, ψ_ref]` of the model's axle
 /// state `x` under extrinsics `e`.
 #[inline]
-pub fn reference_pose(x: &State, e: &Extrinsics) -> Vector3<f64> {
+pub(crate) fn reference_pose(x: &State, e: &Extrinsics) -> Vector3<f64> {
     let (s, c) = x[2].sin_cos();
     Vector3::new(x[0] + c * e.lever_x - s * e.lever_y, x[1] + s * e.lever_x + c * e.lever_y, x[2] + e.heading_offset)
 }
@@ -157,7 +158,7 @@ pub fn reference_pose(x: &State, e: &Extrinsics) -> Vector3<f64> {
 /// `(∂h/∂x, ∂h/∂e)` of [`reference_pose`] `h(x, e)`, each 3×3 (columns
 /// of `∂h/∂e`: lever_x, lever_y, heading_offset).
 #[inline]
-pub fn reference_jacobians(x: &State, e: &Extrinsics) -> (Matrix3<f64>, Matrix3<f64>) {
+pub(crate) fn reference_jacobians(x: &State, e: &Extrinsics) -> (Matrix3<f64>, Matrix3<f64>) {
     let (s, c) = x[2].sin_cos();
     let h_x =
         Matrix3::new(1.0, 0.0, -s * e.lever_x - c * e.lever_y, 0.0, 1.0, c * e.lever_x - s * e.lever_y, 0.0, 0.0, 1.0);
@@ -168,7 +169,7 @@ pub fn reference_jacobians(x: &State, e: &Extrinsics) -> (Matrix3<f64>, Matrix3<
 /// The axle state whose reference pose is `y` (the inverse of
 /// [`reference_pose`]): `ψ = ψ_ref − δ`, `p = p_ref − R(ψ)·l`.
 #[inline]
-pub fn axle_pose(y: &Vector3<f64>, e: &Extrinsics) -> State {
+pub(crate) fn axle_pose(y: &Vector3<f64>, e: &Extrinsics) -> State {
     let psi = y[2] - e.heading_offset;
     let (s, c) = psi.sin_cos();
     State::new(y[0] - (c * e.lever_x - s * e.lever_y), y[1] - (s * e.lever_x + c * e.lever_y), psi)
@@ -176,7 +177,7 @@ pub fn axle_pose(y: &Vector3<f64>, e: &Extrinsics) -> State {
 
 /// `∂g/∂e` of [`axle_pose`] `g(y, e)`, 3×3.
 #[inline]
-pub fn axle_pose_jacobian(y: &Vector3<f64>, e: &Extrinsics) -> Matrix3<f64> {
+pub(crate) fn axle_pose_jacobian(y: &Vector3<f64>, e: &Extrinsics) -> Matrix3<f64> {
     let psi = y[2] - e.heading_offset;
     let (s, c) = psi.sin_cos();
     // ∂p/∂δ = +dR/dψ·l (ψ falls by δ).

@@ -28,8 +28,9 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Error, Result};
 use crate::model::Theta;
 
-/// Limits on the numbers of a drive. `Default` holds the documented table
-/// in the [module docs](self).
+/// Limits on the numbers of a drive. `Default` holds the limits listed in
+/// docs/reference.md: sample time 1 ms … 1 s, |n| ≤ 250 rev/s, reference
+/// speed ≤ 100 m/s and yaw rate ≤ 5 rad/s, |a_y| ≤ 40 m/s², |β| ≤ 1 rad.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct PhysicalLimits {
     /// Smallest plausible sample time, s. Default 1e-3.
@@ -65,7 +66,7 @@ impl Default for PhysicalLimits {
 impl PhysicalLimits {
     /// No limits at all (every check passes): for synthetic tests of the
     /// numerics only.
-    pub const NONE: PhysicalLimits = PhysicalLimits {
+    pub(crate) const NONE: PhysicalLimits = PhysicalLimits {
         min_sample_time_s: 0.0,
         max_sample_time_s: f64::INFINITY,
         max_wheel_rev_per_s: f64::INFINITY,
@@ -76,7 +77,7 @@ impl PhysicalLimits {
     };
 
     /// Checks the limits themselves (positive, min ≤ max).
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         let fields = [
             ("limits.min_sample_time_s", self.min_sample_time_s),
             ("limits.max_sample_time_s", self.max_sample_time_s),
@@ -112,7 +113,7 @@ impl PhysicalLimits {
 /// # Errors
 /// [`Error::InvalidTheta`] naming the parameter, with a hint that θ is in SI
 /// units.
-pub fn check_theta(theta: &Theta) -> Result<()> {
+pub(crate) fn check_theta(theta: &Theta) -> Result<()> {
     theta.validate()?;
     const SI: &str = "θ is in SI units: c_e, c_d, t_r in metres (2 mm = 0.002), d in metres per m/s²";
     let fail = |what: String| Err(Error::InvalidTheta(format!("{what} ({SI})")));

@@ -1,5 +1,8 @@
 //! The wheel-odometry model (SPEC §1) and its analytic derivatives.
 //!
+//! Expert API: for programs that run the model or its derivatives themselves
+//! (dead reckoning, their own estimator). [`crate::Theta`] is also at the root.
+//!
 //! State `x = [p_x, p_y, ψ]`, inputs `u = [n_rl, n_rr, β, a_y]`, parameters
 //! `θ = [c_e, c_d, t_r, d]`:
 //!
@@ -18,9 +21,11 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 
-pub mod extrinsics;
-pub mod limits;
-pub mod param;
+pub(crate) mod extrinsics;
+pub(crate) mod limits;
+pub(crate) mod param;
+
+pub use limits::PhysicalLimits;
 
 /// Model state `[p_x (m), p_y (m), ψ (rad, unwrapped)]`.
 pub type State = Vector3<f64>;
@@ -81,7 +86,7 @@ impl Theta {
     }
 
     /// Checks that θ is usable: all finite, `c_e > 0` and `t_r > 0`.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         for (name, v) in THETA_NAMES.iter().zip(self.to_array()) {
             if !v.is_finite() {
                 return Err(Error::InvalidTheta(format!("{name} = {v} is not finite")));
@@ -113,7 +118,7 @@ impl std::fmt::Display for Theta {
 impl std::str::FromStr for Theta {
     type Err = Error;
     /// Parses `c_e,c_d,t_r,d` in SI units (the CLI's `--theta`) and checks
-    /// its absolute physical sanity ([`crate::model::limits::check_theta`]).
+    /// its absolute physical sanity (`crate::model::limits::check_theta`).
     fn from_str(s: &str) -> Result<Self> {
         let parts: Vec<&str> = s.split(',').map(str::trim).collect();
         if parts.len() != 4 {
@@ -149,7 +154,7 @@ pub struct Input {
 
 /// Velocity and yaw rate of the model for one input sample.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Kinematics {
+pub(crate) struct Kinematics {
     /// Speed of the reference point, m/s.
     pub speed_m_per_s: f64,
     /// Yaw rate, rad/s.
@@ -158,7 +163,7 @@ pub struct Kinematics {
 
 /// Speed and yaw rate (2a, 2b) for one input and θ.
 #[inline]
-pub fn kinematics(u: &Input, theta: &Theta) -> Kinematics {
+pub(crate) fn kinematics(u: &Input, theta: &Theta) -> Kinematics {
     let (c_rl, c_rr) = theta.wheel_circumferences(u.a_y);
     Kinematics {
         speed_m_per_s: (u.n_rl * c_rl + u.n_rr * c_rr) / 2.0,

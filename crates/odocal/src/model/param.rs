@@ -6,7 +6,7 @@
 //! same as the paper's symbols.
 //!
 //! The parameters are the four of θ, then the reference sensor's
-//! extrinsics (lever arm x/y and heading offset, [`crate::model::extrinsics`]),
+//! extrinsics (lever arm x/y and heading offset, [[`Extrinsics`](crate::Extrinsics)]),
 //! which are held at their given value (default 0) unless asked for. Later
 //! entries (noise scales) join as new variants after those:
 //! [`Param::index`] is the position in the full parameter vector, θ's four
@@ -15,6 +15,7 @@
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
 use crate::error::{Error, ParamNames, Result};
+#[cfg(test)]
 use crate::model::extrinsics::Extrinsics;
 use crate::model::Theta;
 
@@ -68,13 +69,14 @@ impl Param {
     }
 
     /// True for the four parameters of θ.
-    pub const fn is_theta(self) -> bool {
+    #[cfg(test)]
+    pub(crate) const fn is_theta(self) -> bool {
         (self as usize) < 4
     }
 
     /// Position among the extrinsics `[lever_x, lever_y, heading_offset]`,
     /// `None` for a θ parameter.
-    pub const fn extrinsics_index(self) -> Option<usize> {
+    pub(crate) const fn extrinsics_index(self) -> Option<usize> {
         match self {
             Param::LeverX => Some(0),
             Param::LeverY => Some(1),
@@ -84,18 +86,18 @@ impl Param {
     }
 
     /// Position in the parameter vector (θ's four first).
-    pub const fn index(self) -> usize {
+    pub(crate) const fn index(self) -> usize {
         self as usize
     }
 
     /// The parameter at vector position `i`, if there is one.
-    pub fn from_index(i: usize) -> Option<Param> {
+    pub(crate) fn from_index(i: usize) -> Option<Param> {
         Param::ALL.get(i).copied()
     }
 
     /// This parameter's value in θ; the extrinsics are not part of θ and
     /// read NaN here (use [`Param::value_in`]).
-    pub fn value(self, theta: &Theta) -> f64 {
+    pub(crate) fn value(self, theta: &Theta) -> f64 {
         match self {
             Param::CE => theta.c_e,
             Param::CD => theta.c_d,
@@ -106,7 +108,8 @@ impl Param {
     }
 
     /// This parameter's value in θ or in the extrinsics.
-    pub fn value_in(self, theta: &Theta, extrinsics: &Extrinsics) -> f64 {
+    #[cfg(test)]
+    pub(crate) fn value_in(self, theta: &Theta, extrinsics: &Extrinsics) -> f64 {
         extrinsics.get(self).unwrap_or_else(|| self.value(theta))
     }
 }
@@ -210,7 +213,7 @@ impl ParamSet {
     }
 
     /// Vector positions of the parameters, ascending.
-    pub fn indices(self) -> Vec<usize> {
+    pub(crate) fn indices(self) -> Vec<usize> {
         self.iter().map(Param::index).collect()
     }
 }

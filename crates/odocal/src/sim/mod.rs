@@ -1,5 +1,9 @@
 //! The drive simulator (SPEC §8): city and suburb routes with a known true θ.
 //!
+//! Expert API beyond [`crate::simulate`] and [`crate::SimOptions`] (at the
+//! root): the route, speed, vehicle and noise settings and the sidecar file,
+//! for studies on drives with a known θ.
+//!
 //! Real logs of wheel rotations with a GNSS/INS reference rarely are public,
 //! and they never carry the true parameters. [`simulate`] makes drives that
 //! do, reproducibly from a seed.
@@ -45,13 +49,23 @@
 //!    over each sample interval (the remainder carries over). The reference
 //!    pose gets a slow Gauss-Markov drift plus white noise on position and
 //!    heading; a_y gets white noise (IMU), β a Gauss-Markov error (filtered
-//!    estimate). Each source has its own setting; [`NoiseOptions::off`]
+//!    estimate); the reference heading, a_y and β can carry a constant
+//!    error too. Each source has its own setting; [`NoiseOptions::off`]
 //!    makes every measured column equal to its truth column.
 //!
 //! Each noise source draws from its own ChaCha8 stream of the seed, so
 //! switching one source off leaves the route, the truth and the other
 //! sources' realisations unchanged; the same options give byte-identical
 //! output on every platform.
+//!
+//! ## Random noise worlds
+//!
+//! The presets ([`NoiseOptions::paper`] and its relatives) are dominated by
+//! white wheel noise. [`NoiseOptions::random_world`] draws a whole noise
+//! world from wide ranges instead — each source's size, its correlation
+//! time, the constant errors — reproducibly from a world seed, and
+//! [`WorldSummary`] says which kind of wheel noise dominates it
+//! ([`NoiseRegime`]). `odocal simulate --noise random:N` simulates world N.
 
 use std::path::{Path, PathBuf};
 
@@ -64,20 +78,24 @@ use crate::model::{self, Input, State, Theta};
 
 mod options;
 mod route;
+mod truth;
+mod world;
 
 use options::invalid;
-pub use options::{NoiseOptions, RouteOptions, SimOptions, SpeedOptions, VehicleOptions};
+pub(crate) use options::SpeedOptions;
+pub use options::{NoiseOptions, SimOptions};
 use route::{build_route, stream, Encoder, GaussMarkov, Route, SpeedProfile, White};
+pub use truth::{sidecar_for, SidecarMatch};
+pub use world::{NoiseRegime, WorldSummary};
 
 /// Grid step of the speed profile along the route, m.
 const SPEED_GRID_M: f64 = 0.5;
 /// A sample counts as moving (for [`SimStats::wheel_rotation_rel_error_rms`])
 /// when its true speed exceeds this, m/s.
-pub const MOVING_SPEED_M_PER_S: f64 = 1.0;
+pub(crate) const MOVING_SPEED_M_PER_S: f64 = 1.0;
 /// Longest drive accepted, km (memory guard: about 40 MB of samples per 100 km).
 const MAX_LENGTH_KM: f64 = 2000.0;
 
-/// Options of the route generator. Ranges `[min, max]` are sampled uniformly
 /// Summary numbers of a simulated drive (all from the truth).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SimStats {
@@ -92,7 +110,7 @@ pub struct SimStats {
     /// Peak absolute true lateral acceleration, m/s².
     pub max_abs_lateral_acceleration_m_per_s2: f64,
     /// RMS of `(measured − true)/true` wheel rotation over both rear wheels
-    /// and every moving sample (true speed above [`MOVING_SPEED_M_PER_S`]).
+    /// and every moving sample (true speed above `MOVING_SPEED_M_PER_S`).
     pub wheel_rotation_rel_error_rms: f64,
 }
 
@@ -105,14 +123,19 @@ pub struct SimSidecar {
     pub settings: SimOptions,
     /// Summary numbers.
     pub stats: SimStats,
+    /// The [`Drive::fingerprint`] of the simulated drive: binds the
+    /// sidecar to its CSV ([`sidecar_for`]). `None` when not recorded.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drive_fingerprint: Option<String>,
 }
 
 impl SimSidecar {
-    /// Writes the sidecar as pretty JSON.
+    /// Writes the sidecar as pretty JSON, atomically
+    /// ([`crate::output::write_atomically`]).
     pub fn write_json(&self, path: &Path) -> Result<()> {
         let text = serde_json::to_string_pretty(self)
             .map_err(|source| Error::Json { context: format!("writing {}", path.display()), source })?;
-        std::fs::write(path, text + "\n").map_err(|source| Error::Io { path: path.to_path_buf(), source })
+        crate::output::write_text(path, &text)
     }
 
     /// Reads a sidecar written by [`SimSidecar::write_json`].
@@ -183,7 +206,8 @@ pub fn simulate(opts: &SimOptions) -> Result<SimOutput> {
     };
     let t = (0..n).map(|k| k as f64 / opts.sample_rate_hz).collect();
     let drive = Drive::builder(t, measured).truth(truth).sample_time_s(ts).context("simulator").build()?;
-    Ok(SimOutput { drive, sidecar: SimSidecar { theta_true: theta, settings: opts.clone(), stats } })
+    let drive_fingerprint = Some(drive.fingerprint());
+    Ok(SimOutput { drive, sidecar: SimSidecar { theta_true: theta, settings: opts.clone(), stats, drive_fingerprint } })
 }
 
 /// The true signals of a simulated drive.
@@ -279,7 +303,8 @@ impl Sensors {
     fn new(no: &NoiseOptions, seed: u64, ts: f64) -> Sensors {
         let tau_w = no.wheel_coloured_time_constant_s;
         let gm_common = GaussMarkov::new(stream(seed, 1), no.wheel_coloured_rel_sigma, tau_w, ts);
-        let wheel_gm = |id| GaussMarkov::new(stream(seed, id), no.wheel_coloured_differential_rel_sigma, tau_w, ts);
+        let tau_d = no.wheel_coloured_differential_time_constant_s.unwrap_or(tau_w);
+        let wheel_gm = |id| GaussMarkov::new(stream(seed, id), no.wheel_coloured_differential_rel_sigma, tau_d, ts);
         let (gm_rl, gm_rr) = (wheel_gm(2), wheel_gm(12));
         let white_wheel = White { rng: stream(seed, 3), sigma: no.wheel_white_rel_sigma };
         let ticks = f64::from(no.encoder_ticks_per_revolution);
@@ -345,11 +370,20 @@ fn measure(opts: &SimOptions, truth: &Truth, ts: f64) -> (Signals, f64) {
         }
         measured.px.push(reference[0] + s.drift_x.next() + s.white_pos.next());
         measured.py.push(reference[1] + s.drift_y.next() + s.white_pos.next());
-        measured.psi.push(reference[2] + s.drift_psi.next() + s.white_psi.next());
-        measured.a_y.push(tr.a_y[k] + s.white_ay.next());
-        measured.beta.push(tr.beta[k] + s.beta_err.next());
+        measured.psi.push(with_bias(reference[2] + s.drift_psi.next() + s.white_psi.next(), no.heading_bias_rad));
+        measured.a_y.push(with_bias(tr.a_y[k] + s.white_ay.next(), no.lateral_acceleration_bias_m_per_s2));
+        measured.beta.push(with_bias(tr.beta[k] + s.beta_err.next(), no.sideslip_bias_rad));
     }
     (measured, if count > 0 { (sq / count as f64).sqrt() } else { 0.0 })
+}
+
+/// `v` plus a constant error `bias`; `v` itself, bit for bit, without one.
+fn with_bias(v: f64, bias: f64) -> f64 {
+    if bias == 0.0 {
+        v
+    } else {
+        v + bias
+    }
 }
 
 #[cfg(test)]
@@ -357,6 +391,7 @@ mod tests {
     use super::*;
     use crate::drive::segment::{calibration_segments, SegmentData};
     use crate::identify::{batch_gauss_newton, IdentifyOptions};
+    use crate::sim::options::RouteOptions;
 
     /// Rounding over one f64 model step of ~0.5 m at coordinates up to ~2 km.
     const STEP_REPRODUCTION_TOL_M: f64 = 1e-9;
@@ -462,6 +497,135 @@ mod tests {
         for (name, r) in crate::model::THETA_NAMES.iter().zip(rel_errors(&est, &truth_theta)) {
             assert!(r <= SUBSTEP_RECOVERY_REL_TOL, "substeps 10: {name} off by {r:e} ({est})");
         }
+    }
+
+    #[test]
+    fn new_sources_at_their_defaults_change_nothing() {
+        let paper = short(SimOptions::paper(17), 1.0);
+        // The per-wheel time constant stated equal to the common one.
+        let mut stated = SimOptions::paper(17);
+        stated.noise.wheel_coloured_differential_time_constant_s = Some(stated.noise.wheel_coloured_time_constant_s);
+        assert_eq!(csv_bytes(&short(stated, 1.0).drive), csv_bytes(&paper.drive));
+        // Defaults are left out of the sidecar.
+        let text = serde_json::to_string(&paper.sidecar).expect("json");
+        for key in ["differential_time_constant", "heading_bias", "lateral_acceleration_bias", "sideslip_bias"] {
+            assert!(!text.contains(key), "{key} in {text}");
+        }
+        // A sidecar without the new keys reads back with their defaults.
+        let back: SimSidecar = serde_json::from_str(&text).expect("read back");
+        assert_eq!(back.settings, paper.sidecar.settings);
+    }
+
+    #[test]
+    fn constant_errors_add_to_their_columns_only() {
+        let base = short(SimOptions::paper(19), 1.0);
+        let mut o = SimOptions::paper(19);
+        o.noise.heading_bias_rad = 0.02;
+        o.noise.lateral_acceleration_bias_m_per_s2 = -0.07;
+        o.noise.sideslip_bias_rad = 0.0015;
+        let biased = short(o, 1.0);
+        let (b, d) = (&base.drive, &biased.drive);
+        assert_eq!((d.px(), d.py(), d.n_rl(), d.n_rr()), (b.px(), b.py(), b.n_rl(), b.n_rr()));
+        for (got, want, bias) in [(d.psi(), b.psi(), 0.02), (d.a_y(), b.a_y(), -0.07), (d.beta(), b.beta(), 0.0015)] {
+            assert!(got.iter().zip(want).all(|(g, w)| (g - w - bias).abs() < 1e-12));
+        }
+        // A heading bias acts as the reference mount's heading offset.
+        let mount = SimOptions {
+            reference_mount: crate::model::extrinsics::Extrinsics { heading_offset: 0.02, ..Default::default() },
+            ..SimOptions::paper(19)
+        };
+        let mut bias = SimOptions::paper(19);
+        bias.noise.heading_bias_rad = 0.02;
+        let (m, h) = (short(mount, 1.0), short(bias, 1.0));
+        assert_eq!((m.drive.px(), m.drive.py()), (h.drive.px(), h.drive.py()));
+        assert!(m.drive.psi().iter().zip(h.drive.psi()).all(|(a, b)| (a - b).abs() < 1e-12));
+    }
+
+    #[test]
+    fn constant_errors_are_equivalent_to_the_equivalent_truth() {
+        // a_y, sideslip and heading biases only, the one-step model exact:
+        // the model with the equivalent θ and heading offset, run on the
+        // measured inputs from the axle pose the measured reference
+        // implies, reproduces the next measured reference pose.
+        let mut o = SimOptions { substeps: 1, ..SimOptions::noise_free(29) };
+        o.noise.lateral_acceleration_bias_m_per_s2 = -0.08;
+        o.noise.sideslip_bias_rad = 1.5e-3;
+        o.noise.heading_bias_rad = -0.02;
+        let (theta, mount) = o.equivalent_truth();
+        approx::assert_relative_eq!(theta.c_d, o.theta_true.c_d + 2.0 * o.theta_true.d * 0.08, max_relative = 1e-12);
+        approx::assert_relative_eq!(mount.heading_offset, -0.0185, max_relative = 1e-12);
+        let out = short(o.clone(), 2.0);
+        let d = &out.drive;
+        let axle = |k: usize| State::new(d.px()[k], d.py()[k], d.psi()[k] - mount.heading_offset);
+        let mut worst = 0.0f64;
+        for k in 0..d.len() - 1 {
+            let next = model::step(&axle(k), &d.input(k), &theta, d.sample_time_s());
+            worst = worst.max((next - axle(k + 1)).abs().max());
+        }
+        assert!(worst <= 1e-8, "equivalent truth off by {worst:e}");
+        // With the true θ and the heading bias alone it is not.
+        let mut worst = 0.0f64;
+        let axle = |k: usize| State::new(d.px()[k], d.py()[k], d.psi()[k] + 0.02);
+        for k in 0..d.len() - 1 {
+            let next = model::step(&axle(k), &d.input(k), &o.theta_true, d.sample_time_s());
+            worst = worst.max((next - axle(k + 1)).abs().max());
+        }
+        assert!(worst > 1e-5, "{worst:e}");
+        let plain = SimOptions::paper(1);
+        assert_eq!(plain.equivalent_truth(), (plain.theta_true, plain.reference_mount));
+    }
+
+    #[test]
+    fn differential_time_constant_of_its_own() {
+        let mut o = SimOptions { noise: NoiseOptions::off(), ..SimOptions::paper(23) };
+        o.noise.wheel_coloured_differential_rel_sigma = 0.002;
+        let same = short(o.clone(), 1.0);
+        o.noise.wheel_coloured_differential_time_constant_s = Some(0.2);
+        let fast = short(o, 1.0);
+        // A shorter correlation time: the per-wheel error changes faster
+        // from sample to sample.
+        let step_rms = |out: &SimOutput| {
+            let d = &out.drive;
+            let tr = truth(d);
+            let e: Vec<f64> =
+                d.n_rl().iter().zip(&tr.n_rl).filter(|(_, t)| **t > 1.0).map(|(m, t)| m / t - 1.0).collect();
+            let steps = e.windows(2).map(|w| (w[1] - w[0]).powi(2)).sum::<f64>() / (e.len() - 1) as f64;
+            steps.sqrt()
+        };
+        let (a, b) = (step_rms(&same), step_rms(&fast));
+        assert!(b > 3.0 * a, "τ 5 s: {a:e}, τ 0.2 s: {b:e}");
+    }
+
+    #[test]
+    fn noise_free_world_recovers_theta() {
+        // A random world with every error at 0 keeps its time constants:
+        // the measured columns equal the truth, and calibration finds θ_true.
+        let (mut n, _) = NoiseOptions::random_world(5);
+        let tau = n.wheel_coloured_differential_time_constant_s;
+        n = NoiseOptions {
+            wheel_coloured_time_constant_s: n.wheel_coloured_time_constant_s,
+            wheel_coloured_differential_time_constant_s: tau,
+            position_drift_time_constant_s: n.position_drift_time_constant_s,
+            heading_drift_time_constant_s: n.heading_drift_time_constant_s,
+            sideslip_time_constant_s: n.sideslip_time_constant_s,
+            ..NoiseOptions::off()
+        };
+        assert!(tau.is_some());
+        let out = short(SimOptions { substeps: 1, noise: n, ..SimOptions::paper(21) }, 3.0);
+        let tr = truth(&out.drive);
+        assert_eq!((out.drive.n_rl(), out.drive.psi(), out.drive.beta()), (&tr.n_rl[..], &tr.psi[..], &tr.beta[..]));
+        let (est, _) = identify(&out);
+        for (name, r) in crate::model::THETA_NAMES.iter().zip(rel_errors(&est, &Theta::SIM_DEFAULT_TRUE)) {
+            assert!(r <= EXACT_RECOVERY_REL_TOL, "{name} off by {r:e} ({est})");
+        }
+    }
+
+    #[test]
+    fn random_world_drive_is_reproducible() {
+        let o = SimOptions { noise: NoiseOptions::by_name("random:11").expect("world"), ..SimOptions::paper(2) };
+        let (a, b) = (short(o.clone(), 1.0), short(o, 1.0));
+        assert_eq!(csv_bytes(&a.drive), csv_bytes(&b.drive));
+        assert_eq!(a.sidecar.settings.noise, NoiseOptions::random_world(11).0);
     }
 
     #[test]
@@ -591,6 +755,23 @@ mod tests {
                     ..Default::default()
                 },
                 "noise.wheel_white_rel_sigma",
+            ),
+            (
+                SimOptions {
+                    noise: NoiseOptions { heading_bias_rad: f64::INFINITY, ..NoiseOptions::paper() },
+                    ..Default::default()
+                },
+                "noise.heading_bias_rad",
+            ),
+            (
+                SimOptions {
+                    noise: NoiseOptions {
+                        wheel_coloured_differential_time_constant_s: Some(0.0),
+                        ..NoiseOptions::paper()
+                    },
+                    ..Default::default()
+                },
+                "noise.wheel_coloured_differential_time_constant_s",
             ),
             (
                 SimOptions {

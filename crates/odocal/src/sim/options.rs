@@ -7,6 +7,7 @@ use crate::error::{Error, Result};
 use crate::model::extrinsics::Extrinsics;
 use crate::model::Theta;
 
+/// Options of the route generator. Ranges `[min, max]` are sampled uniformly
 /// unless said otherwise.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
@@ -121,7 +122,7 @@ impl Default for VehicleOptions {
 impl VehicleOptions {
     /// Rear-axle sideslip per unit lateral acceleration, rad per m/s² (negative:
     /// the rear axle drifts to the outside of the turn).
-    pub fn sideslip_gain_rad_per_m_per_s2(&self) -> f64 {
+    pub(crate) fn sideslip_gain_rad_per_m_per_s2(&self) -> f64 {
         -self.mass_kg * self.front_axle_to_cg_m / (self.wheelbase_m * self.rear_cornering_stiffness_n_per_rad)
     }
 }
@@ -143,8 +144,16 @@ pub struct NoiseOptions {
     /// rate directly and is not removed by input compensation: 0.002 here
     /// biases raw batch G-N on t_r by about 20 % on a 24 km drive.
     pub wheel_coloured_differential_rel_sigma: f64,
-    /// Correlation time of both coloured wheel errors, s. Paper 5.
+    /// Correlation time of the coloured wheel error common to both wheels
+    /// (and of the per-wheel one unless
+    /// [`NoiseOptions::wheel_coloured_differential_time_constant_s`] gives
+    /// its own), s. Paper 5.
     pub wheel_coloured_time_constant_s: f64,
+    /// Correlation time of the per-wheel coloured error, s; `None`: the
+    /// common error's ([`NoiseOptions::wheel_coloured_time_constant_s`]).
+    /// Paper `None`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub wheel_coloured_differential_time_constant_s: Option<f64>,
     /// Standard deviation of the white relative wheel rotation error, per
     /// wheel and sample, dimensionless. Paper 0.008.
     pub wheel_white_rel_sigma: f64,
@@ -165,12 +174,31 @@ pub struct NoiseOptions {
     pub heading_drift_time_constant_s: f64,
     /// Standard deviation of the white heading noise of the reference, rad. Paper 0.0003.
     pub heading_white_sigma_rad: f64,
+    /// Constant error of the reference heading, rad: the reference's own
+    /// heading bias, which a calibration estimates as the heading offset
+    /// δ. It adds to [`SimOptions::reference_mount`]'s heading offset and,
+    /// with a zero lever arm, acts exactly like it. Paper 0.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub heading_bias_rad: f64,
     /// Standard deviation of the white noise on the lateral acceleration, m/s². Paper 0.05.
     pub lateral_acceleration_white_sigma_m_per_s2: f64,
+    /// Constant error of the lateral acceleration (an accelerometer bias or
+    /// a tilted mount), m/s². Paper 0.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub lateral_acceleration_bias_m_per_s2: f64,
     /// Standard deviation of the sideslip estimate error (Gauss-Markov), rad. Paper 0.002.
     pub sideslip_sigma_rad: f64,
     /// Correlation time of the sideslip error, s. Paper 1.
     pub sideslip_time_constant_s: f64,
+    /// Constant error of the sideslip estimate, rad. Paper 0.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub sideslip_bias_rad: f64,
+}
+
+/// True for a setting at 0 (it is then left out of the sidecar, which
+/// stays as it is without the setting).
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 impl Default for NoiseOptions {
@@ -208,6 +236,7 @@ impl NoiseOptions {
             wheel_coloured_rel_sigma: 0.002,
             wheel_coloured_differential_rel_sigma: 0.0002,
             wheel_coloured_time_constant_s: 5.0,
+            wheel_coloured_differential_time_constant_s: None,
             wheel_white_rel_sigma: 0.008,
             encoder_ticks_per_revolution: 2048,
             position_drift_sigma_m: 0.25,
@@ -216,9 +245,12 @@ impl NoiseOptions {
             heading_drift_sigma_rad: 0.003,
             heading_drift_time_constant_s: 30.0,
             heading_white_sigma_rad: 0.0003,
+            heading_bias_rad: 0.0,
             lateral_acceleration_white_sigma_m_per_s2: 0.05,
+            lateral_acceleration_bias_m_per_s2: 0.0,
             sideslip_sigma_rad: 0.002,
             sideslip_time_constant_s: 1.0,
+            sideslip_bias_rad: 0.0,
         }
     }
 
@@ -276,17 +308,30 @@ impl NoiseOptions {
         }
     }
 
-    /// A preset by name: `off`, `paper`, `white` (white wheel noise only) or `high`.
+    /// A preset by name: `off`, `paper`, `white` (white wheel noise only),
+    /// `high`, or `random:N`, the random noise world of seed N
+    /// ([`NoiseOptions::random_world`]).
     pub fn by_name(name: &str) -> Result<Self> {
         match name {
             "off" => Ok(NoiseOptions::off()),
             "paper" => Ok(NoiseOptions::paper()),
             "white" => Ok(NoiseOptions::white_wheel_only()),
             "high" => Ok(NoiseOptions::high()),
-            other => Err(Error::InvalidOption {
-                field: "noise",
-                reason: format!("unknown noise preset '{other}'; expected one of off, paper, white, high"),
-            }),
+            other => match other.strip_prefix("random:") {
+                Some(seed) => match seed.trim().parse::<u64>() {
+                    Ok(seed) => Ok(NoiseOptions::random_world(seed).0),
+                    Err(_) => Err(Error::InvalidOption {
+                        field: "noise",
+                        reason: format!("'{other}': the world seed after 'random:' must be a whole number ≥ 0"),
+                    }),
+                },
+                None => Err(Error::InvalidOption {
+                    field: "noise",
+                    reason: format!(
+                        "unknown noise preset '{other}'; expected one of off, paper, white, high, random:N"
+                    ),
+                }),
+            },
         }
     }
 }
@@ -305,18 +350,18 @@ pub struct SimOptions {
     pub substeps: usize,
     /// The true parameters θ. Default [`Theta::SIM_DEFAULT_TRUE`].
     pub theta_true: Theta,
-    /// Route generator. Default [`RouteOptions::default`].
+    /// Route generator. Default `RouteOptions::default`.
     pub route: RouteOptions,
-    /// Speed profile. Default [`SpeedOptions::default`].
+    /// Speed profile. Default `SpeedOptions::default`.
     pub speed: SpeedOptions,
-    /// Vehicle (sideslip model). Default [`VehicleOptions::default`].
+    /// Vehicle (sideslip model). Default `VehicleOptions::default`.
     pub vehicle: VehicleOptions,
     /// Measurement errors. Default [`NoiseOptions::paper`].
     pub noise: NoiseOptions,
     /// Where the pose reference sits on the vehicle: the measured pose is
     /// the reference point `p + R(ψ)·[lever_x, lever_y]` with heading
     /// `ψ + heading_offset` of the true axle pose, plus the reference noise
-    /// ([`crate::model::extrinsics`]); the truth columns stay the axle's. Default 0
+    /// ([`Extrinsics`](crate::Extrinsics)); the truth columns stay the axle's. Default 0
     /// (the SPEC's reference; the output, sidecar included, is then
     /// byte-identical to a simulator without this setting).
     #[serde(skip_serializing_if = "Extrinsics::is_zero")]
@@ -346,6 +391,14 @@ fn check_non_negative(field: &'static str, v: f64) -> Result<()> {
         Ok(())
     } else {
         Err(invalid(field, format!("must be a non-negative finite number, got {v}")))
+    }
+}
+
+fn check_finite(field: &'static str, v: f64) -> Result<()> {
+    if v.is_finite() {
+        Ok(())
+    } else {
+        Err(invalid(field, format!("must be a finite number, got {v}")))
     }
 }
 
@@ -396,8 +449,31 @@ impl SimOptions {
         SimOptions { noise: NoiseOptions::off(), ..SimOptions::paper(seed) }
     }
 
+    /// The true θ and reference extrinsics that the measured signals are
+    /// consistent with. A constant a_y error b
+    /// ([`NoiseOptions::lateral_acceleration_bias_m_per_s2`]) acts exactly as
+    /// c_d − 2·d·b (the model's wheel circumferences are
+    /// `c_e ± (c_d/2 + d·a_y)`), and a constant sideslip error
+    /// ([`NoiseOptions::sideslip_bias_rad`]) as a heading offset of the
+    /// reference (exactly so with a zero lever arm), as the heading bias
+    /// ([`NoiseOptions::heading_bias_rad`]) does. No calibration can tell
+    /// them apart, so an estimate is judged against this truth. Without
+    /// constant errors it is `(theta_true, reference_mount)`.
+    pub fn equivalent_truth(&self) -> (Theta, Extrinsics) {
+        let n = &self.noise;
+        let mut theta = self.theta_true;
+        let mut mount = self.reference_mount;
+        if n.lateral_acceleration_bias_m_per_s2 != 0.0 {
+            theta.c_d -= 2.0 * theta.d * n.lateral_acceleration_bias_m_per_s2;
+        }
+        if n.heading_bias_rad != 0.0 || n.sideslip_bias_rad != 0.0 {
+            mount.heading_offset += n.heading_bias_rad + n.sideslip_bias_rad;
+        }
+        (theta, mount)
+    }
+
     /// Checks every option, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         self.reference_mount.validate()?;
         check_positive("length_km", self.length_km)?;
         if self.length_km > MAX_LENGTH_KM {
@@ -447,6 +523,9 @@ impl SimOptions {
         check_non_negative("noise.wheel_coloured_rel_sigma", n.wheel_coloured_rel_sigma)?;
         check_non_negative("noise.wheel_coloured_differential_rel_sigma", n.wheel_coloured_differential_rel_sigma)?;
         check_positive("noise.wheel_coloured_time_constant_s", n.wheel_coloured_time_constant_s)?;
+        if let Some(tau) = n.wheel_coloured_differential_time_constant_s {
+            check_positive("noise.wheel_coloured_differential_time_constant_s", tau)?;
+        }
         check_non_negative("noise.wheel_white_rel_sigma", n.wheel_white_rel_sigma)?;
         check_non_negative("noise.position_drift_sigma_m", n.position_drift_sigma_m)?;
         check_positive("noise.position_drift_time_constant_s", n.position_drift_time_constant_s)?;
@@ -454,12 +533,15 @@ impl SimOptions {
         check_non_negative("noise.heading_drift_sigma_rad", n.heading_drift_sigma_rad)?;
         check_positive("noise.heading_drift_time_constant_s", n.heading_drift_time_constant_s)?;
         check_non_negative("noise.heading_white_sigma_rad", n.heading_white_sigma_rad)?;
+        check_finite("noise.heading_bias_rad", n.heading_bias_rad)?;
         check_non_negative(
             "noise.lateral_acceleration_white_sigma_m_per_s2",
             n.lateral_acceleration_white_sigma_m_per_s2,
         )?;
+        check_finite("noise.lateral_acceleration_bias_m_per_s2", n.lateral_acceleration_bias_m_per_s2)?;
         check_non_negative("noise.sideslip_sigma_rad", n.sideslip_sigma_rad)?;
         check_positive("noise.sideslip_time_constant_s", n.sideslip_time_constant_s)?;
+        check_finite("noise.sideslip_bias_rad", n.sideslip_bias_rad)?;
         Ok(())
     }
 }

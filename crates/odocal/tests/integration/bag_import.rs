@@ -172,8 +172,9 @@ fn quality_thresholds() {
     let q = m.pose.quality.expect("quality");
     assert!(q.accepts(0.0004) && q.accepts(0.01) && q.accepts(0.0));
     assert!(!q.accepts(100.0) && !q.accepts(-1.0) && !q.accepts(f64::NAN));
-    let both = odocal::io::import::QualitySpec { column: "q".into(), accept: vec![2.0], max: Some(1.5), min: None };
-    assert!(!both.accepts(2.0), "every given test must pass");
+    let both = "quality = { column = \"q\", accept = [2.0], max = 1.5 }";
+    let m = Manifest::parse(&small_manifest(csv, both), Path::new("m.toml")).expect("manifest");
+    assert!(!m.pose.quality.expect("quality").accepts(2.0), "every given test must pass");
 }
 
 /// Without the `mcap` feature a bag stream is an error naming the feature.

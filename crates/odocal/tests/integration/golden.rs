@@ -10,11 +10,10 @@
 
 use std::path::PathBuf;
 
-use odocal::drive::segment::{validation_segments, ValidationSegmentOptions};
+use odocal::segment::{validation_segments, ValidationSegmentOptions};
 use odocal::sim::{simulate, SimOptions};
 use odocal::{
-    calibrate_held_out, calibrate_with_holdout, CalibrationOptions, CalibrationReport, FinalSegments, Holdout, Method,
-    ThreeStepOptions,
+    calibrate, Calibration, CalibrationOptions, CalibrationReport, FinalSegments, Holdout, Method, ThreeStepOptions,
 };
 use odocal::{mean_position_error, Drive};
 use serde_json::{json, Value};
@@ -106,11 +105,12 @@ fn halves(drive: &Drive) -> (Drive, Drive) {
 
 fn current() -> Value {
     let drive = simulate(&SimOptions { length_km: 4.0, ..SimOptions::paper(SIM_SEED) }).expect("sim").drive;
-    let gn = calibrate_held_out(&drive, None, &batch_gn(), None).expect("batch-gn");
-    let ts = calibrate_held_out(&drive, None, &three_step(), None).expect("three-step");
+    let gn = calibrate(&drive, &batch_gn()).expect("batch-gn");
+    let ts = calibrate(&drive, &three_step()).expect("three-step");
     let (fit, held) = halves(&drive);
-    let gn_held = calibrate_held_out(&fit, Some(&held), &batch_gn(), None).expect("batch-gn held out");
-    let ts_held = calibrate_with_holdout(&drive, &Holdout::SecondHalf, &three_step(), None).expect("3-step held out");
+    let held = Holdout::Other(held);
+    let gn_held = Calibration::new(&fit, &batch_gn()).holdout(&held).run().expect("batch-gn held out");
+    let ts_held = Calibration::new(&drive, &three_step()).holdout(&Holdout::SecondHalf).run().expect("3-step held out");
     let segs = validation_segments(&drive, &ValidationSegmentOptions::default()).expect("segments");
     let val = mean_position_error(&drive, &segs, &ts.theta).expect("validate");
     json!({

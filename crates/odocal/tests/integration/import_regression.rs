@@ -1,7 +1,6 @@
 //! The importer's numbers on the real-drive slices are pinned bit for bit:
-//! restructuring the importer (issue 8) must not change a single output value.
-//! The expected hashes were computed by the importer of main at 8f30b25,
-//! before the import was split into modules.
+//! a change to the importer's structure must not change a single output
+//! value. The expected hashes are the importer's output as released.
 
 use odocal::{import, Manifest};
 

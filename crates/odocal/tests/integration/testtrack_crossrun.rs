@@ -33,7 +33,7 @@
 //! --release -p odocal --test integration testtrack_crossrun:: -- --ignored`.
 //! The data live in `data/` at the repository root.
 
-use odocal::calibrate::crossrun::{cross_run_groups, CrossRunTable, CROSS_RUN_OWN_FIT_RATIO};
+use odocal::crossrun::{cross_run_groups, CrossRunTable, CROSS_RUN_OWN_FIT_RATIO};
 use odocal::{CalibrationOptions, Drive, Method, Param, VerdictLevel};
 
 /// Three counter-clockwise runs, then three clockwise ones.

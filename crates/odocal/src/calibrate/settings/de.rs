@@ -14,7 +14,7 @@ use crate::calibrate::eiv::noise_model_from_table;
 use crate::calibrate::FinalSegments;
 use crate::eiv::NoiseSource;
 use crate::error::{Error, Result};
-use crate::io::param_file::{is_param_file, ParamFile};
+use crate::io::param_file::ParamFile;
 use crate::model::param::ParamSet;
 use crate::model::Theta;
 
@@ -109,7 +109,7 @@ pub(super) fn noise_model<'de, D: Deserializer<'de>>(d: D) -> std::result::Resul
 /// θ from text: `"c_e,c_d,t_r,d"` (checked) or the path of a parameter file.
 fn theta_from_text(v: &str) -> Result<Theta> {
     let path = Path::new(v);
-    if is_param_file(path) {
+    if ParamFile::is_param_file(path) {
         // `read` has checked θ.
         return ParamFile::read(path)?.theta();
     }
@@ -158,7 +158,7 @@ pub(super) fn theta<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<Opti
 
 /// θ from JSON in the forms the `theta0` setting takes (`"c_e,c_d,t_r,d"`,
 /// four numbers, an object of the four, or the path of a parameter file),
-/// checked ([`Theta::validate`]).
+/// checked (`Theta::validate`).
 ///
 /// # Errors
 /// [`Error::InvalidTheta`] for a value of another form, else the parser's

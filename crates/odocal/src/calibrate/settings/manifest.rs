@@ -23,7 +23,7 @@ pub struct ManifestSettings {
     /// `[noise]` as `noise_model`.
     pub settings: Settings,
     /// `[reference]` as stated: also the drive's own mount where it is a
-    /// validation drive ([`crate::assess::validation_drives`]).
+    /// validation drive (docs/guide.md, "Several drives of one vehicle").
     pub reference: Option<ReferenceSpec>,
 }
 
@@ -35,7 +35,7 @@ const REFERENCE_KEYS: [&str; 3] = ["lever_arm", "heading_offset", "estimate"];
 ///
 /// # Errors
 /// [`Error::Manifest`] naming `noise`, the bad field and the table's line.
-pub fn read_noise_table(manifest: &Path, noise: &NoiseTable) -> Result<NoiseSpec> {
+pub(crate) fn read_noise_table(manifest: &Path, noise: &NoiseTable) -> Result<NoiseSpec> {
     noise_model_from_table(noise.table.clone()).map_err(|reason| Error::Manifest {
         path: manifest.to_path_buf(),
         reason: format!("noise: {reason}{}", noise.line.map(|l| format!(" (line {l})")).unwrap_or_default()),
@@ -69,7 +69,7 @@ fn read_calibration_table(manifest: &Path, calibration: &CalibrationTable) -> Re
 }
 
 /// The import report as JSON, its `[noise]` read as the noise model it
-/// states ([`read_noise_table`]: every field, the defaults filled in, with
+/// states (`read_noise_table`: every field, the defaults filled in, with
 /// `known` and `lateral`), as the `odocal import` report and the Python
 /// package show it.
 ///
@@ -124,13 +124,13 @@ impl ManifestSettings {
     }
 
     /// True when the manifest states none.
-    pub fn is_empty(&self) -> bool {
+    pub(crate) fn is_empty(&self) -> bool {
         self.settings.is_empty() && self.reference.is_none()
     }
 
     /// The manifest key of a [`Settings`] key: `noise` for the noise model,
     /// `reference.KEY` for the extrinsics, else `calibration.KEY`.
-    pub fn key(&self, key: &str) -> String {
+    pub(crate) fn key(&self, key: &str) -> String {
         match key {
             "noise_model" => "noise".into(),
             k if REFERENCE_KEYS.contains(&k) => format!("reference.{k}"),

@@ -1,5 +1,8 @@
 //! The calibration settings, one type for every interface.
 //!
+//! Expert API: for front ends that take settings from users (the CLI, the
+//! Python package); a Rust program usually fills [`crate::CalibrationOptions`].
+//!
 //! A manifest's calibration tables, the command line's flags and Python's
 //! keywords all become a [`Settings`]: every key optional, named like the
 //! manifest key and the Python keyword (`min_yaw_rate`) and, in kebab case,
@@ -10,7 +13,7 @@
 //!   `[reference]` the extrinsics (`lever_arm`, `heading_offset`,
 //!   `estimate`), `[noise]` the noise model in place (the `noise_model`
 //!   key).
-//! - One precedence rule puts the sources together, [`Settings::over`]:
+//! - One precedence rule puts the sources together, `Settings::over`:
 //!   the caller's settings (flags, keywords) over the manifest's over the
 //!   defaults.
 //! - One function maps them to [`CalibrationOptions`],
@@ -40,8 +43,9 @@ mod resolve;
 #[cfg(test)]
 mod tests;
 
+pub use crate::io::import::{CalibrationTable, NoiseTable};
 pub use de::theta_from_json;
-pub use manifest::{import_report_json, read_noise_table, ManifestSettings};
+pub use manifest::{import_report_json, ManifestSettings};
 pub use resolve::{Caller, Resolved, SettingOutcome, SettingUse, SettingsAccount};
 
 /// Declares [`Settings`] and the methods that visit every key, so that a
@@ -49,12 +53,12 @@ pub use resolve::{Caller, Resolved, SettingOutcome, SettingUse, SettingsAccount}
 macro_rules! settings {
     (
         $(#[$meta:meta])*
-        pub struct Settings {
+        $vis:vis struct Settings {
             $( $(#[$field_meta:meta])* pub $key:ident : Option<$ty:ty>, )*
         }
     ) => {
         $(#[$meta])*
-        pub struct Settings {
+        $vis struct Settings {
             $( $(#[$field_meta])* pub $key: Option<$ty>, )*
         }
 
@@ -70,14 +74,14 @@ macro_rules! settings {
             }
 
             /// The keys these settings state, in the order of [`Settings::KEYS`].
-            pub fn stated(&self) -> Vec<&'static str> {
+            pub(crate) fn stated(&self) -> Vec<&'static str> {
                 let mut keys = Vec::new();
                 $( if self.$key.is_some() { keys.push(stringify!($key)); } )*
                 keys
             }
 
             /// These settings without `key` (the same when they do not state it).
-            pub fn without(mut self, key: &str) -> Settings {
+            pub(crate) fn without(mut self, key: &str) -> Settings {
                 match key {
                     $( stringify!($key) => self.$key = None, )*
                     _ => {}
@@ -91,7 +95,7 @@ macro_rules! settings {
 settings! {
     /// Calibration settings as a manifest, the command line or Python
     /// states them. Every key is optional; `None` means "not stated", and
-    /// the next source's value, else the default, applies ([`Settings::over`]).
+    /// the next source's value, else the default, applies (`Settings::over`).
     /// The key is the manifest key and the Python keyword; the flag is the
     /// key in kebab case (`min_yaw_rate`, `--min-yaw-rate`) unless noted.
     ///
@@ -102,7 +106,7 @@ settings! {
     ///
     /// ```
     /// # fn main() -> Result<(), odocal::Error> {
-    /// use odocal::calibrate::settings::{Caller, Settings};
+    /// use odocal::settings::{Caller, Settings};
     /// let caller = Settings::from_json(serde_json::json!({"method": "batch-gn", "fix": "d"}))?;
     /// let manifest: Settings = toml::from_str("segment_length = 400\nfix = [\"t_r\"]").expect("toml");
     /// let both = caller.clone().over(manifest);
@@ -267,7 +271,7 @@ settings! {
 /// A starting noise model as a setting states it.
 #[derive(Debug, Clone, PartialEq)]
 pub enum NoiseModelSetting {
-    /// A noise-model file (`--noise-model`; [`read_noise_model`]), read
+    /// A noise-model file (`--noise-model`; `read_noise_model`), read
     /// when the settings are resolved.
     File(PathBuf),
     /// A model stated in place (a manifest's `[noise]`, a table).
@@ -279,7 +283,7 @@ impl NoiseModelSetting {
     ///
     /// # Errors
     /// The file's: [`Error::Io`], or [`Error::InvalidOption`] naming the bad field.
-    pub fn spec(&self) -> Result<NoiseSpec> {
+    pub(crate) fn spec(&self) -> Result<NoiseSpec> {
         match self {
             NoiseModelSetting::File(p) => read_noise_model(p),
             NoiseModelSetting::Stated(s) => Ok(s.clone()),
@@ -289,7 +293,7 @@ impl NoiseModelSetting {
 
 impl Settings {
     /// True when no key is stated.
-    pub fn is_empty(&self) -> bool {
+    pub(crate) fn is_empty(&self) -> bool {
         self.stated().is_empty()
     }
 
@@ -309,7 +313,7 @@ impl Settings {
     /// The extrinsic parameters these settings state values of
     /// (`lever_arm`: lever_x and lever_y, `heading_offset`): given by the
     /// caller, they apply to every validation drive too
-    /// ([`crate::assess::validation_drives`]).
+    /// (docs/guide.md, "Several drives of one vehicle").
     pub fn stated_extrinsics(&self) -> ParamSet {
         let mut s = ParamSet::EMPTY;
         if self.lever_arm.is_some() {

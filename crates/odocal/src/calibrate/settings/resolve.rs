@@ -30,7 +30,7 @@ impl Caller {
     /// How this caller names `key` as `settings` state it: the keyword, or
     /// the flag (`--no-fallback` for `fallback`, `--no-bias-correction`
     /// for `correct_bias` 0).
-    pub fn name(self, key: &str, settings: &Settings) -> String {
+    pub(crate) fn name(self, key: &str, settings: &Settings) -> String {
         match self {
             Caller::Python => key.to_string(),
             Caller::CommandLine => match key {
@@ -241,7 +241,7 @@ impl Settings {
     /// # Errors
     /// [`Error::InvalidFlags`] (command line) or [`Error::InvalidOption`]
     /// (Python) naming the caller's key of another method; the errors of
-    /// [`Settings::to_options`].
+    /// `Settings::to_options`.
     pub fn resolve(&self, manifest: Option<&ManifestSettings>, caller: Caller) -> Result<Resolved> {
         let stated = manifest.map(|m| m.settings.clone()).unwrap_or_default();
         let method = self.method.clone().or_else(|| stated.method.clone()).unwrap_or_default();
@@ -304,7 +304,7 @@ impl Settings {
     /// of another method, `estimate` naming θ, an odd `correct_bias`, a
     /// `bootstrap_seed` that seeds nothing; a noise-model file's errors;
     /// the options' check ([`CalibrationOptions::validate`]).
-    pub fn to_options(&self, caller: Caller) -> Result<CalibrationOptions> {
+    pub(crate) fn to_options(&self, caller: Caller) -> Result<CalibrationOptions> {
         let mut o = CalibrationOptions { method: self.method.clone().unwrap_or_default(), ..Default::default() };
         self.check_method_keys(&o.method, caller)?;
         set(&mut o.theta0, &self.theta0);

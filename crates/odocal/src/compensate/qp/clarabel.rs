@@ -50,7 +50,7 @@ impl Default for ClarabelOptions {
 
 impl ClarabelOptions {
     /// Checks every field; the error names the field.
-    pub fn validate(&self) -> Result<(), QpError> {
+    pub(crate) fn validate(&self) -> Result<(), QpError> {
         for (v, name) in [(self.tol_gap, "tol_gap"), (self.tol_feas, "tol_feas")] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(QpError::Malformed(format!(

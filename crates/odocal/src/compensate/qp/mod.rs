@@ -27,9 +27,9 @@
 //!
 //! Both solvers report `dynamics_duals` λ_k for the Lagrangian
 //! `L = f(w, z) + Σ_k λ_kᵀ (z_k − A_k z_{k−1} − B_k w_{k−1} − c_k) − μ_loᵀ(x − x_lo) − μ_hiᵀ(x_hi − x)`
-//! where `f` is [`StageQp::objective`] (no factor ½), so that at the optimum
+//! where `f` is `StageQp::objective` (no factor ½), so that at the optimum
 //! `∇f + Gᵀλ = μ_lo − μ_hi` with `μ_lo, μ_hi ≥ 0` the bound multipliers
-//! (see [`kkt_residual`], which recovers them from λ).
+//! (see `kkt_residual`, which recovers them from λ).
 
 // Stage loops index several parallel arrays and small fixed vectors at once;
 // index loops read like the maths there.
@@ -41,10 +41,12 @@ pub mod riccati;
 use std::fmt;
 use std::str::FromStr;
 
-use nalgebra::{DMatrix, DVector, Matrix3, Matrix3x2, Vector2, Vector3};
+#[cfg(test)]
+use nalgebra::{DMatrix, DVector};
+use nalgebra::{Matrix3, Matrix3x2, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
-pub use crate::error::QpError;
+pub(crate) use crate::error::QpError;
 use crate::model::{step_jacobians, Input, Theta};
 
 /// One instance of the compensation QP. Vectors indexed by stage hold, at
@@ -76,12 +78,12 @@ pub struct StageQp {
 
 impl StageQp {
     /// Number of stages K.
-    pub fn stages(&self) -> usize {
+    pub(crate) fn stages(&self) -> usize {
         self.a.len()
     }
 
     /// Checks that every vector has the right length and bounds are ordered.
-    pub fn check(&self) -> Result<(), QpError> {
+    pub(crate) fn check(&self) -> Result<(), QpError> {
         let k = self.stages();
         let ok = k >= 1
             && self.b.len() == k
@@ -102,19 +104,8 @@ impl StageQp {
         Ok(())
     }
 
-    /// States `z_1..z_K` produced by inputs `w_0..w_{K−1}` through the dynamics.
-    pub fn rollout(&self, w: &[Vector2<f64>]) -> Vec<Vector3<f64>> {
-        let mut z = Vector3::zeros();
-        (0..self.stages())
-            .map(|i| {
-                z = self.a[i] * z + self.b[i] * w[i] + self.c[i];
-                z
-            })
-            .collect()
-    }
-
     /// The objective at (w, z).
-    pub fn objective(&self, w: &[Vector2<f64>], z: &[Vector3<f64>]) -> f64 {
+    pub(crate) fn objective(&self, w: &[Vector2<f64>], z: &[Vector3<f64>]) -> f64 {
         let mut f = 0.0;
         for zk in z {
             f += zk.component_mul(zk).dot(&self.q);
@@ -127,7 +118,8 @@ impl StageQp {
     }
 
     /// Largest violation of any bound by (w, z) (0 when all hold).
-    pub fn max_bound_violation(&self, w: &[Vector2<f64>], z: &[Vector3<f64>]) -> f64 {
+    #[cfg(test)]
+    pub(crate) fn max_bound_violation(&self, w: &[Vector2<f64>], z: &[Vector3<f64>]) -> f64 {
         let mut v: f64 = 0.0;
         for i in 0..self.stages() {
             for j in 0..3 {
@@ -171,18 +163,12 @@ pub trait QpSolver: Send + Sync {
 /// bound counts as active in [`QpSolution::active_bounds`]. Interior-point
 /// iterates stop about `tolerance × scale` from an active bound, far inside
 /// this; inactive bounds of realistic instances are ≥ 1e-3 away.
-pub const ACTIVE_BOUND_TOL: f64 = 1e-7;
+pub(crate) const ACTIVE_BOUND_TOL: f64 = 1e-7;
 
 impl StageQp {
-    /// The constant `Σ δ_kᵀ R δ_k`: the objective at `w = 0` without the
-    /// state terms. General solvers drop it; it is added back so every
-    /// solver reports [`StageQp::objective`].
-    pub fn objective_constant(&self) -> f64 {
-        self.delta.iter().map(|d| d.component_mul(d).dot(&self.r)).sum()
-    }
-
     /// Gradient of [`StageQp::objective`] at (w, z): `(∂f/∂w_k, ∂f/∂z_k)`.
-    pub fn gradient(&self, w: &[Vector2<f64>], z: &[Vector3<f64>]) -> (Vec<Vector2<f64>>, Vec<Vector3<f64>>) {
+    #[cfg(test)]
+    pub(crate) fn gradient(&self, w: &[Vector2<f64>], z: &[Vector3<f64>]) -> (Vec<Vector2<f64>>, Vec<Vector3<f64>>) {
         let gz = z.iter().map(|zk| 2.0 * self.q.component_mul(zk)).collect();
         let mut gw = vec![Vector2::zeros(); w.len()];
         for k in 1..w.len() {
@@ -195,7 +181,8 @@ impl StageQp {
 
     /// Largest absolute residual of the dynamics
     /// `z_k − A_k z_{k−1} − B_k w_{k−1} − c_k` (0 for a rollout).
-    pub fn dynamics_residual(&self, w: &[Vector2<f64>], z: &[Vector3<f64>]) -> f64 {
+    #[cfg(test)]
+    pub(crate) fn dynamics_residual(&self, w: &[Vector2<f64>], z: &[Vector3<f64>]) -> f64 {
         let mut prev = Vector3::zeros();
         let mut r: f64 = 0.0;
         for i in 0..self.stages() {
@@ -208,7 +195,7 @@ impl StageQp {
 
     /// Number of bounds within `tol` of (w, z) (a variable pinned by an
     /// equal lower and upper bound counts once).
-    pub fn count_active_bounds(&self, w: &[Vector2<f64>], z: &[Vector3<f64>], tol: f64) -> usize {
+    pub(crate) fn count_active_bounds(&self, w: &[Vector2<f64>], z: &[Vector3<f64>], tol: f64) -> usize {
         let mut n = 0;
         for i in 0..self.stages() {
             for j in 0..3 {
@@ -234,7 +221,8 @@ impl StageQp {
 /// so stationarity reduces to complementarity: ν may be non-zero only at a
 /// bound of the right side.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct KktResidual {
+#[cfg(test)]
+pub(crate) struct KktResidual {
     /// Largest dynamics residual (m, rad).
     pub dynamics: f64,
     /// Largest bound violation (m, rad, rev/s).
@@ -248,16 +236,18 @@ pub struct KktResidual {
     pub complementarity: f64,
 }
 
+#[cfg(test)]
 impl KktResidual {
     /// The largest of the four residuals.
-    pub fn max(&self) -> f64 {
+    pub(crate) fn max(&self) -> f64 {
         self.dynamics.max(self.bounds).max(self.stationarity).max(self.complementarity)
     }
 }
 
 /// KKT residuals of `sol` for `qp` (see [`KktResidual`]). Needs
 /// `sol.dynamics_duals`; returns [`QpError::Malformed`] without them.
-pub fn kkt_residual(qp: &StageQp, sol: &QpSolution) -> Result<KktResidual, QpError> {
+#[cfg(test)]
+pub(crate) fn kkt_residual(qp: &StageQp, sol: &QpSolution) -> Result<KktResidual, QpError> {
     let lam =
         sol.dynamics_duals.as_ref().ok_or_else(|| QpError::Malformed("solution carries no dynamics duals".into()))?;
     let k = qp.stages();
@@ -304,7 +294,8 @@ pub fn kkt_residual(qp: &StageQp, sol: &QpSolution) -> Result<KktResidual, QpErr
 ///
 /// Meant for tests on small K: when no bound is active at the optimum, this
 /// is the solution of the bounded problem too.
-pub fn solve_equality_constrained(qp: &StageQp) -> Result<QpSolution, QpError> {
+#[cfg(test)]
+pub(crate) fn solve_equality_constrained(qp: &StageQp) -> Result<QpSolution, QpError> {
     qp.check()?;
     let k = qp.stages();
     let n = 5 * k;
@@ -377,7 +368,8 @@ pub enum SolverKind {
 
 impl SolverKind {
     /// A solver of this kind with default settings.
-    pub fn solver(&self) -> Box<dyn QpSolver> {
+    #[cfg(test)]
+    pub(crate) fn solver(&self) -> Box<dyn QpSolver> {
         match self {
             SolverKind::Structured => Box::new(riccati::StructuredSolver::default()),
             SolverKind::Clarabel => Box::new(clarabel::ClarabelSolver::default()),
@@ -385,7 +377,7 @@ impl SolverKind {
     }
 
     /// The name used on the command line and in reports.
-    pub fn as_str(&self) -> &'static str {
+    pub(crate) fn as_str(&self) -> &'static str {
         match self {
             SolverKind::Structured => "structured",
             SolverKind::Clarabel => "clarabel",

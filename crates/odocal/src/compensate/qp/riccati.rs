@@ -84,7 +84,7 @@ pub struct StructuredOptions {
     /// being squeezed between two slacks that cannot both stay positive
     /// (standstill: `ñ = 0` gives `0.95ñ ≤ n ≤ 1.05ñ` zero width). Pinning
     /// at the midpoint moves it at most `fixed_width / 2` from any point of
-    /// the box, far inside [`ACTIVE_BOUND_TOL`]. Default 1e-10.
+    /// the box, far inside `ACTIVE_BOUND_TOL`. Default 1e-10.
     pub fixed_width: f64,
 }
 
@@ -106,7 +106,7 @@ impl Default for StructuredOptions {
 
 impl StructuredOptions {
     /// Checks every field; the error names the field.
-    pub fn validate(&self) -> Result<(), QpError> {
+    pub(crate) fn validate(&self) -> Result<(), QpError> {
         let pos = |v: f64, name: &str| {
             if v.is_finite() && v > 0.0 {
                 Ok(())
@@ -148,9 +148,9 @@ impl StructuredOptions {
 /// method and why it exists). Typically 10–20 iterations; each costs two
 /// O(K) passes over fixed-size stage matrices.
 ///
-/// On an infeasible problem it returns [`QpError::Infeasible`] with the
+/// On an infeasible problem it returns `QpError::Infeasible` with the
 /// stalled primal residual and the diverging multiplier; on
-/// [`QpError::MaxIterations`] or [`QpError::Numerical`] a caller may fall
+/// `QpError::MaxIterations` or `QpError::Numerical` a caller may fall
 /// back to [`super::clarabel::ClarabelSolver`].
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct StructuredSolver {

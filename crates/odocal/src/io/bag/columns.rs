@@ -36,7 +36,7 @@ const JOINT_COLS: &[&str] = &["position.<joint name>", "velocity.<joint name>"];
 
 impl MessageType {
     /// Every supported type.
-    pub const ALL: [MessageType; 6] = [
+    pub(crate) const ALL: [MessageType; 6] = [
         MessageType::JointState,
         MessageType::PoseWithCovarianceStamped,
         MessageType::PoseStamped,
@@ -47,12 +47,12 @@ impl MessageType {
 
     /// The type from its ROS 2 name (`sensor_msgs/msg/JointState`), as MCAP
     /// schema records name it; `None` for a type odocal does not read.
-    pub fn from_ros_name(name: &str) -> Option<Self> {
+    pub(crate) fn from_ros_name(name: &str) -> Option<Self> {
         Self::ALL.into_iter().find(|t| t.ros_name() == name)
     }
 
     /// The ROS 2 type name, e.g. `sensor_msgs/msg/JointState`.
-    pub fn ros_name(self) -> &'static str {
+    pub(crate) fn ros_name(self) -> &'static str {
         match self {
             MessageType::JointState => "sensor_msgs/msg/JointState",
             MessageType::PoseWithCovarianceStamped => "geometry_msgs/msg/PoseWithCovarianceStamped",
@@ -91,7 +91,7 @@ pub(crate) enum JointField {
 }
 
 impl JointField {
-    pub fn name(self) -> &'static str {
+    pub(super) fn name(self) -> &'static str {
         match self {
             JointField::Position => "position",
             JointField::Velocity => "velocity",

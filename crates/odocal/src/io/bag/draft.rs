@@ -65,13 +65,15 @@ fn joint<'a>(names: &[&'a str], side: &str, fallback: usize) -> (Option<&'a str>
 /// when it has no wheel (`JointState`) or no pose topic odocal reads.
 pub fn draft_manifest(bag: &Path, file: &str) -> Result<String> {
     let info = inspect(bag)?;
-    let missing = |what: &str| Error::Bag {
+    let missing = |what: &str| {
+        Error::Bag {
         path: bag.to_path_buf(),
         topic: None,
         reason: format!(
-            "no {what} topic odocal reads (it reads {}); write the manifest by hand (examples/README.md)",
+            "no {what} topic odocal reads (it reads {}); write the manifest by hand (docs/reference.md, \"The drive manifest\")",
             MessageType::ALL.iter().map(|t| t.ros_name()).collect::<Vec<_>>().join(", ")
         ),
+    }
     };
     let (wheels, _) = pick(&info.topics, &[MessageType::JointState]).ok_or_else(|| missing("wheel (JointState)"))?;
     let pose_types = [
@@ -106,7 +108,7 @@ pub fn draft_manifest(bag: &Path, file: &str) -> Result<String> {
     let _ = writeln!(w, "# Draft manifest for {}, written by `odocal inspect --manifest`.", quoted(file));
     let _ = writeln!(w, "# The topics were chosen by message type: confirm every line marked CHECK, then");
     let _ = writeln!(w, "#   odocal import THIS.toml --out drive.csv     (or give THIS.toml to calibrate).");
-    let _ = writeln!(w, "# The format: examples/README.md. Paths are relative to this file.");
+    let _ = writeln!(w, "# The format: docs/reference.md, \"The drive manifest\". Paths are relative to this file.");
     let _ = writeln!(w, "\n[output]\nrate_hz = 40.0\nmax_gap_s = 0.5\nclock_offset = \"auto\"");
     let _ = writeln!(w, "theta0 = [2.0, 0.0, 1.6, 0.0]   # c_e per wheel revolution (2 pi rad of joint angle)");
 

@@ -52,7 +52,7 @@
 //! directory holding exactly one `.mcap` file is read as that file.
 //!
 //! Memory stays bounded on hostile input: records and decompressed chunks are
-//! capped (see [`MAX_RECORD_BYTES`]), a topic may not hold more messages than
+//! capped (see `MAX_RECORD_BYTES`), a topic may not hold more messages than
 //! the file has bytes, and malformed CDR is an error, never a panic.
 //!
 //! ## Example
@@ -97,7 +97,7 @@ use crate::error::{fmt_ns, Error, Result};
 /// corrupt length field cannot make it allocate more. Real bags cut chunks at
 /// about 1 MiB (rosbag2's default is 768 KiB); a single message larger than
 /// this (a 256 MiB point cloud) is refused.
-pub const MAX_RECORD_BYTES: usize = 256 << 20;
+pub(crate) const MAX_RECORD_BYTES: usize = 256 << 20;
 
 /// The first bytes of an SQLite 3 database, i.e. of a `.db3` bag.
 const SQLITE_MAGIC: &[u8] = b"SQLite format 3\0";
@@ -258,7 +258,7 @@ pub struct BagInfo {
 
 impl BagInfo {
     /// Time from the first to the last message (s, log time); 0 without messages.
-    pub fn duration_s(&self) -> f64 {
+    pub(crate) fn duration_s(&self) -> f64 {
         match (self.start_log_time_ns, self.end_log_time_ns) {
             (Some(a), Some(b)) => ns_to_s(i128::from(b) - i128::from(a)),
             _ => 0.0,
@@ -286,7 +286,7 @@ pub struct TopicInfo {
 impl TopicInfo {
     /// Mean message rate (Hz) over the log times, `(count − 1) / (last − first)`;
     /// `None` with fewer than two messages or no time span.
-    pub fn rate_hz(&self) -> Option<f64> {
+    pub(crate) fn rate_hz(&self) -> Option<f64> {
         let (a, b) = (self.first_log_time_ns?, self.last_log_time_ns?);
         (self.count >= 2 && b > a).then(|| (self.count - 1) as f64 / ns_to_s(i128::from(b) - i128::from(a)))
     }

@@ -20,7 +20,7 @@ pub(crate) struct Time {
 
 impl Time {
     /// Nanoseconds since the epoch (exact).
-    pub fn total_ns(self) -> i128 {
+    pub(super) fn total_ns(self) -> i128 {
         i128::from(self.sec) * 1_000_000_000 + i128::from(self.nanosec)
     }
 }
@@ -59,7 +59,7 @@ impl Quaternion {
     /// Yaw (rotation about z, counter-clockwise, rad) of the ZYX Euler
     /// decomposition: `atan2(2(wz + xy), 1 − 2(y² + z²))`. For a yaw-only
     /// quaternion `(0, 0, sin(ψ/2), cos(ψ/2))` this is ψ wrapped to [−π, π].
-    pub fn yaw_rad(&self) -> f64 {
+    pub(super) fn yaw_rad(&self) -> f64 {
         let siny_cosp = 2.0 * (self.w * self.z + self.x * self.y);
         let cosy_cosp = 1.0 - 2.0 * (self.y * self.y + self.z * self.z);
         siny_cosp.atan2(cosy_cosp)

@@ -42,7 +42,7 @@ pub(crate) struct Roll {
 
 impl Roll {
     /// Moves the roll onto the wheel clock: adds `offset_s` to every time.
-    pub fn shift(&mut self, offset_s: f64) {
+    pub(super) fn shift(&mut self, offset_s: f64) {
         for t in self.t.iter_mut() {
             *t += offset_s;
         }

@@ -74,12 +74,12 @@ pub(crate) fn estimate(
 }
 
 /// Lowest speed correlation at which `"auto"` applies its estimate.
-pub const MIN_CLOCK_CORRELATION: f64 = 0.5;
+pub(super) const MIN_CLOCK_CORRELATION: f64 = 0.5;
 /// A second correlation peak within this of the best makes the estimate
 /// ambiguous.
-pub const MIN_PEAK_MARGIN: f64 = 0.02;
+pub(super) const MIN_PEAK_MARGIN: f64 = 0.02;
 /// The yaw-rate cross-check counts when its correlation reaches this.
-pub const MIN_YAW_CHECK_CORRELATION: f64 = 0.8;
+pub(super) const MIN_YAW_CHECK_CORRELATION: f64 = 0.8;
 
 /// Why the speed estimate is not clearly better than the manifest's offset
 /// (the streams' `time_offset_s` alone), or `None` when it is: the speed

@@ -58,7 +58,7 @@ pub(crate) struct Span {
 
 impl Span {
     /// The span of the stamps `t` (not empty).
-    pub fn of(name: &str, t: &[f64]) -> Span {
+    pub(crate) fn of(name: &str, t: &[f64]) -> Span {
         Span { name: name.to_string(), start: t[0], end: t[t.len() - 1] }
     }
 }
@@ -109,26 +109,26 @@ pub(crate) struct Grid {
 
 impl Grid {
     /// The grid over `[start, end)`, all samples valid.
-    pub fn new(start: f64, end: f64, h: f64) -> Grid {
+    pub(super) fn new(start: f64, end: f64, h: f64) -> Grid {
         let n = ((end - start) / h).floor() as usize;
         super::limits::note_grid(n);
         Grid { start, h, t: (0..n).map(|k| start + k as f64 * h).collect(), invalid: vec![None; n] }
     }
 
     /// Samples.
-    pub fn len(&self) -> usize {
+    pub(super) fn len(&self) -> usize {
         self.t.len()
     }
 
     /// Invalidates the samples overlapping `bad` (intervals `[g, g+h]` when
     /// `interval`, else points).
-    pub fn mark(&mut self, bad: &[BadInterval], interval: bool) {
+    pub(super) fn mark(&mut self, bad: &[BadInterval], interval: bool) {
         mark(&mut self.invalid, self.start, self.h, bad, interval);
     }
 
     /// The continuous parts (runs of valid samples) and gaps (runs of
     /// invalid ones); parts shorter than `min_part_s` are dropped.
-    pub fn parts(&self, m: &Manifest) -> Result<Parts> {
+    pub(super) fn parts(&self, m: &Manifest) -> Result<Parts> {
         let (n, h, o) = (self.len(), self.h, &m.output);
         let mut runs: Vec<(Range<usize>, bool)> = Vec::new();
         let mut k = 0;
@@ -191,7 +191,7 @@ impl Grid {
     /// interpolation reproduces a measurement exactly only at its own time,
     /// so the nearest output sample is the one within h/2 of it; every
     /// other sample is interpolated between measurements.
-    pub fn measured(&self, pose_t: &[f64]) -> Vec<bool> {
+    pub(super) fn measured(&self, pose_t: &[f64]) -> Vec<bool> {
         let mut mask = vec![false; self.len()];
         for &tp in pose_t {
             let f = (tp - self.start) / self.h;

@@ -20,26 +20,27 @@ use super::manifest::Manifest;
 use crate::error::{Error, Result};
 
 /// Most output samples an import may allocate.
-pub const MAX_OUTPUT_SAMPLES: usize = 10_000_000;
+pub(crate) const MAX_OUTPUT_SAMPLES: usize = 10_000_000;
 /// Lowest output rate, Hz.
-pub const MIN_OUTPUT_RATE_HZ: f64 = 1.0;
+pub(crate) const MIN_OUTPUT_RATE_HZ: f64 = 1.0;
 /// Highest output rate, Hz.
-pub const MAX_OUTPUT_RATE_HZ: f64 = 10_000.0;
+pub(crate) const MAX_OUTPUT_RATE_HZ: f64 = 10_000.0;
 /// Largest clock-offset search range, ± s.
-pub const MAX_CLOCK_OFFSET_S: f64 = 60.0;
+pub(crate) const MAX_CLOCK_OFFSET_S: f64 = 60.0;
 /// Most multiply-adds of the clock-offset search (grid samples × lags × 2).
-pub const MAX_CORRELATION_WORK: f64 = 4e9;
+pub(crate) const MAX_CORRELATION_WORK: f64 = 4e9;
 /// Highest nominal stream rate, Hz.
-pub const MAX_NOMINAL_RATE_HZ: f64 = 100_000.0;
+pub(crate) const MAX_NOMINAL_RATE_HZ: f64 = 100_000.0;
 /// Highest nominal rate relative to a stream's mean rate.
-pub const MAX_NOMINAL_OVER_MEAN_RATE: f64 = 20.0;
+pub(crate) const MAX_NOMINAL_OVER_MEAN_RATE: f64 = 20.0;
 /// Longest de-jitter window, s.
-pub const MAX_DEJITTER_WINDOW_S: f64 = 60.0;
+pub(crate) const MAX_DEJITTER_WINDOW_S: f64 = 60.0;
 /// Most samples each side of the de-jitter window.
-pub const MAX_DEJITTER_HALF_WINDOW: usize = 5_000;
+pub(crate) const MAX_DEJITTER_HALF_WINDOW: usize = 5_000;
 /// Most values (rows × columns read) one Parquet stream may declare; checked
 /// before any is read.
-pub const MAX_STREAM_VALUES: usize = 100_000_000;
+#[cfg(feature = "parquet")]
+pub(crate) const MAX_STREAM_VALUES: usize = 100_000_000;
 /// Characters of a value echoed in a message.
 pub(crate) use crate::drive::echo;
 

@@ -1,5 +1,7 @@
-//! The drive manifest: which file each signal comes from, in which unit and
-//! convention. See the [module documentation](super) for the format.
+//! The drive manifest as Rust types: which file each signal comes from, in
+//! which unit and convention. Expert API, for programs that build or edit a
+//! manifest before [`crate::import`] (reading one is [`Manifest::from_path`]);
+//! the format is in docs/reference.md.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -13,8 +15,8 @@ use crate::model::Theta;
 mod check;
 
 /// A drive manifest (TOML): the streams of one recorded drive and where each
-/// model signal comes from. See the [module documentation](super) for the
-/// format and a full example.
+/// model signal comes from. The format, with a full example, is in
+/// docs/reference.md.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Manifest {
@@ -113,7 +115,7 @@ impl Default for OutputSpec {
 
 impl OutputSpec {
     /// θ_0 as a [`Theta`].
-    pub fn theta0(&self) -> Theta {
+    pub(crate) fn theta0(&self) -> Theta {
         Theta { c_e: self.theta0[0], c_d: self.theta0[1], t_r: self.theta0[2], d: self.theta0[3] }
     }
 }
@@ -183,7 +185,7 @@ pub enum TimeUnit {
 
 impl TimeUnit {
     /// Seconds per unit.
-    pub fn seconds(self) -> f64 {
+    pub(crate) fn seconds(self) -> f64 {
         match self {
             TimeUnit::S => 1.0,
             TimeUnit::Ms => 1e-3,
@@ -246,7 +248,7 @@ pub enum SourceSpec {
 
 impl SourceSpec {
     /// The file, relative to the manifest's folder.
-    pub fn file(&self) -> &Path {
+    pub(crate) fn file(&self) -> &Path {
         match self {
             SourceSpec::Csv { file } | SourceSpec::Mcap { file, .. } | SourceSpec::Parquet { file } => file,
         }
@@ -500,7 +502,7 @@ pub enum AngleUnit {
 
 impl AngleUnit {
     /// Radians per unit.
-    pub fn radians(self) -> f64 {
+    pub(crate) fn radians(self) -> f64 {
         match self {
             AngleUnit::Rad => 1.0,
             AngleUnit::Deg => std::f64::consts::PI / 180.0,
@@ -597,7 +599,7 @@ pub enum LateralAccelerationSpec {
 
 impl LateralAccelerationSpec {
     /// The road-bank correction of a derived a_y, when asked for.
-    pub fn bank(&self) -> Option<&BankSpec> {
+    pub(crate) fn bank(&self) -> Option<&BankSpec> {
         match self {
             LateralAccelerationSpec::FromWheels { bank, .. } | LateralAccelerationSpec::FromPose { bank, .. } => {
                 bank.as_deref()
@@ -651,7 +653,7 @@ pub struct BankSpec {
     #[serde(default)]
     pub quality: Option<QualitySpec>,
     /// Distance between the antennas, m; their measured separation must
-    /// agree within [`BankSpec::BASELINE_TOLERANCE`].
+    /// agree within `BankSpec::BASELINE_TOLERANCE`.
     pub baseline_m: f64,
     /// Height of the left antenna above the right one on level ground, m. Default 0.
     #[serde(default)]
@@ -669,9 +671,9 @@ pub struct BankSpec {
 impl BankSpec {
     /// Largest relative disagreement between the median measured antenna
     /// separation and `baseline_m` (a wrong stream, column or baseline).
-    pub const BASELINE_TOLERANCE: f64 = 0.1;
+    pub(crate) const BASELINE_TOLERANCE: f64 = 0.1;
     /// Upper bound of `max_roll_deg`.
-    pub const MAX_ROLL_LIMIT_DEG: f64 = 45.0;
+    pub(crate) const MAX_ROLL_LIMIT_DEG: f64 = 45.0;
 }
 
 fn default_max_roll_deg() -> f64 {
@@ -745,8 +747,27 @@ impl Manifest {
     }
 
     /// The folder stream files are relative to.
-    pub fn base_dir(&self) -> PathBuf {
+    pub(crate) fn base_dir(&self) -> PathBuf {
         self.path.parent().map(Path::to_path_buf).unwrap_or_default()
+    }
+
+    /// The files the import reads, each with its stream's name: every
+    /// stream's file (a bag folder's files one by one), by stream name.
+    pub fn stream_files(&self) -> Vec<(String, PathBuf)> {
+        let mut out = Vec::new();
+        for (name, spec) in &self.streams {
+            let path = self.base_dir().join(spec.source.file());
+            match std::fs::read_dir(&path) {
+                Ok(entries) => {
+                    let mut files: Vec<PathBuf> =
+                        entries.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.is_file()).collect();
+                    files.sort();
+                    out.extend(files.into_iter().map(|f| (name.clone(), f)));
+                }
+                Err(_) => out.push((name.clone(), path)),
+            }
+        }
+        out
     }
 }
 

@@ -215,8 +215,8 @@
 //! ```no_run
 //! # fn main() -> odocal::Result<()> {
 //! use std::path::Path;
-//! let manifest = odocal::io::import::Manifest::from_path(Path::new("examples/psu-mapping-van/manifest.toml"))?;
-//! let imported = odocal::io::import::import(&manifest)?;
+//! let manifest = odocal::Manifest::from_path(Path::new("examples/psu-mapping-van/manifest.toml"))?;
+//! let imported = odocal::import(&manifest)?;
 //! println!("{}", imported.report);
 //! imported.drive.write_csv("drive.csv")?;
 //! # Ok(()) }
@@ -228,8 +228,8 @@ mod clock;
 mod geodesy;
 mod grid;
 mod lateral;
-pub mod limits;
-mod manifest;
+pub(crate) mod limits;
+pub mod manifest;
 mod pose;
 mod report;
 mod settings;
@@ -244,13 +244,11 @@ use std::ops::Range;
 use std::path::Path;
 use std::time::Instant;
 
-pub use manifest::{
-    AngleUnit, BagTime, BankSpec, ClockOffset, HeadingConvention, HeadingSpec, LateralAccelerationSpec, LimitsSpec,
-    Manifest, OutputSpec, PositionSpec, QualitySpec, SideslipSpec, SourceSpec, StreamSpec, TimeUnit, WheelColumn,
-    WheelSignal, WheelSpec,
-};
-pub use report::{ClockOffsetReport, DejitterReport, GapRecord, ImportReport, JitterReport, PartRecord, StreamReport};
-pub use settings::{CalibrationTable, NoiseTable, ReferenceSpec, MAX_LEVER_ARM_M};
+pub use manifest::Manifest;
+pub(crate) use manifest::{ClockOffset, LateralAccelerationSpec, PositionSpec, SideslipSpec};
+pub use report::ImportReport;
+pub use settings::ReferenceSpec;
+pub use settings::{CalibrationTable, NoiseTable};
 
 use crate::drive::{Drive, Signals};
 use crate::error::{Error, Result};
@@ -269,11 +267,16 @@ pub struct ImportedDrive {
     pub report: ImportReport,
 }
 
+/// True for a path [`load_drive`] reads as a manifest (`.toml`), false for
+/// one it reads as a canonical CSV.
+pub fn is_manifest_path(path: &Path) -> bool {
+    path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("toml"))
+}
+
 /// Reads a drive from either a canonical CSV (SPEC §2) or a `.toml` manifest
 /// (imported with [`import`]); the report is `Some` for a manifest.
 pub fn load_drive(path: &Path) -> Result<(Drive, Option<ImportReport>)> {
-    let is_toml = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("toml"));
-    if is_toml {
+    if is_manifest_path(path) {
         let m = Manifest::from_path(path)?;
         let ImportedDrive { drive, report } = import(&m)?;
         Ok((drive, Some(report)))

@@ -26,7 +26,7 @@ pub(crate) struct Pose {
 
 impl Pose {
     /// Moves the pose onto the wheel clock: adds `offset_s` to every time.
-    pub fn shift(&mut self, offset_s: f64) {
+    pub(super) fn shift(&mut self, offset_s: f64) {
         for t in self.t.iter_mut() {
             *t += offset_s;
         }

@@ -15,7 +15,7 @@ use crate::model::param::ParamSet;
 
 /// The reference sensor's extrinsics (`[reference]`): where the pose
 /// reference sits on the vehicle and whether to estimate that with θ
-/// (see [`crate::model::extrinsics`]). Every key is optional.
+/// (see [`Extrinsics`](crate::Extrinsics)). Every key is optional.
 ///
 /// ```toml
 /// [reference]
@@ -43,7 +43,7 @@ pub struct ReferenceSpec {
 
 impl ReferenceSpec {
     /// The parameters of `estimate`, or the error naming the bad entry.
-    pub fn estimate_set(&self) -> std::result::Result<ParamSet, String> {
+    pub(crate) fn estimate_set(&self) -> std::result::Result<ParamSet, String> {
         let mut set = ParamSet::EMPTY;
         for name in &self.estimate {
             let not_extrinsic = || {
@@ -130,7 +130,7 @@ pub(crate) fn calibration_table<'de, D: serde::Deserializer<'de>>(
 }
 
 /// Largest lever arm a manifest may state, m (a vehicle's length).
-pub const MAX_LEVER_ARM_M: f64 = 20.0;
+pub(crate) const MAX_LEVER_ARM_M: f64 = 20.0;
 
 /// A manifest's `[noise]` table as written: the sensor's noise model, the
 /// start of `--method eiv`, read by the calibration

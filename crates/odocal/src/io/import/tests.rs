@@ -7,6 +7,8 @@ use std::path::{Path, PathBuf};
 use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
 
+use super::manifest::{SourceSpec, WheelColumn, WheelSignal};
+use super::report::StreamReport;
 use super::source::Stream;
 use super::wheels::wheel_revolutions;
 use super::*;

@@ -118,7 +118,7 @@ impl Wheels {
     /// read as 0 for one sample). Such a row, kept, makes two output wheel
     /// speeds of ± thousands of rev/s. A jump that does not return is left
     /// for the speed check to report.
-    pub fn new(m: &Manifest, s: &Stream, warnings: &mut Vec<String>) -> Result<Wheels> {
+    pub(super) fn new(m: &Manifest, s: &Stream, warnings: &mut Vec<String>) -> Result<Wheels> {
         let w = &m.wheels;
         let cum_l = wheel_revolutions(m, s, &w.rear_left, "wheels.rear_left")?;
         let cum_r = wheel_revolutions(m, s, &w.rear_right, "wheels.rear_right")?;

@@ -9,9 +9,9 @@
 
 use std::path::Path;
 
-use odocal::calibrate::settings::ManifestSettings;
-use odocal::io::import::{import, Manifest};
+use odocal::settings::ManifestSettings;
 use odocal::Drive;
+use odocal::{import, Manifest};
 
 /// Longest acceptable error message, bytes: echoed fields are truncated.
 pub const MAX_MESSAGE_BYTES: usize = 2000;
@@ -88,7 +88,7 @@ pub fn import_bundle(data: &[u8]) -> Outcome {
         }
     }
     let Some(path) = manifest_path else { return Outcome::Error("no m.toml section".into()) };
-    match odocal::io::import::load_drive(&path) {
+    match odocal::load_drive(&path) {
         Ok((d, _)) => check_drive(&d),
         Err(e) => check_message(e.to_string()),
     }

@@ -8,7 +8,7 @@ use crate::io::import::limits::{self, echo_num};
 
 impl Manifest {
     /// Checks values and cross references, naming the key.
-    pub fn check(&self) -> Result<()> {
+    pub(crate) fn check(&self) -> Result<()> {
         self.check_output()?;
         self.check_streams()?;
         self.check_wheels()?;

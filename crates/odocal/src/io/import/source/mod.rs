@@ -123,7 +123,7 @@ pub(crate) struct Stream {
 
 impl Stream {
     /// The stream without the rows whose `keep` is false.
-    pub fn without_rows(&self, keep: &[bool]) -> Stream {
+    pub(super) fn without_rows(&self, keep: &[bool]) -> Stream {
         let f = |v: &[f64]| v.iter().zip(keep).filter(|(_, k)| **k).map(|(x, _)| *x).collect::<Vec<f64>>();
         Stream {
             path: self.path.clone(),
@@ -136,13 +136,13 @@ impl Stream {
     }
 
     /// Column `name` (empty when it was not read).
-    pub fn col(&self, name: &str) -> &[f64] {
+    pub(super) fn col(&self, name: &str) -> &[f64] {
         self.cols.get(name).map(Vec::as_slice).unwrap_or(&[])
     }
 
     /// An error about row `i` of column `column`: the file line where the
     /// format has lines, else the row and its time.
-    pub fn error_at(&self, i: usize, column: Option<&str>, reason: impl Into<String>) -> Error {
+    pub(super) fn error_at(&self, i: usize, column: Option<&str>, reason: impl Into<String>) -> Error {
         let reason = reason.into();
         match &self.lines {
             Some(lines) => Error::Csv {

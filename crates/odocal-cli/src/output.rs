@@ -1,0 +1,125 @@
+//! The files a command reads and writes: outputs checked against the
+//! inputs and each other before any work ([`Files::check`]), `-` for
+//! stdout, and every file written atomically (the library's
+//! [`odocal::output`]).
+
+use std::io::Write;
+use std::path::Path;
+
+use anyhow::{bail, Result};
+use odocal::output::{check_collisions, is_stdout, FileRole};
+
+/// The inputs and outputs of one command, by role.
+#[derive(Default)]
+pub struct Files {
+    inputs: Vec<FileRole>,
+    outputs: Vec<FileRole>,
+}
+
+impl Files {
+    /// An input file in a role ("the --theta parameter file").
+    pub fn input(&mut self, role: impl Into<String>, path: &Path) -> &mut Self {
+        self.inputs.push(FileRole::new(role, path));
+        self
+    }
+
+    /// A drive the command reads in a role ("the drive being calibrated"):
+    /// the CSV and the simulator sidecar beside it, or the manifest and
+    /// every stream file it names.
+    pub fn drive(&mut self, role: &str, path: &Path) -> &mut Self {
+        if odocal::is_manifest_path(path) {
+            return self.manifest(role, path);
+        }
+        self.input(role, path);
+        if let Some(side) = odocal::sim::SidecarMatch::path(path) {
+            self.input(format!("the simulator sidecar of {}", path.display()), &side);
+        }
+        self
+    }
+
+    /// A manifest the command reads, and every stream file it names.
+    pub fn manifest(&mut self, role: &str, path: &Path) -> &mut Self {
+        self.input(role, path);
+        // A manifest that cannot be read fails later, with the importer's message.
+        if let Ok(m) = odocal::Manifest::from_path(path) {
+            for (stream, file) in m.stream_files() {
+                self.input(format!("stream '{stream}' of the manifest {}", path.display()), &file);
+            }
+        }
+        self
+    }
+
+    /// An output in a role ("--json"), when it is asked for.
+    pub fn output(&mut self, role: impl Into<String>, path: Option<&Path>) -> &mut Self {
+        if let Some(p) = path {
+            self.outputs.push(FileRole::new(role, p));
+        }
+        self
+    }
+
+    /// Refuses an output that is an input or another output, and two
+    /// outputs on stdout.
+    pub fn check(&self) -> Result<()> {
+        let stdout: Vec<&str> = self.outputs.iter().filter(|o| is_stdout(&o.path)).map(|o| o.role.as_str()).collect();
+        if let [first, second, ..] = stdout[..] {
+            bail!("{first} and {second} both go to stdout (-): give one of them a file name");
+        }
+        check_collisions(&self.inputs, &self.outputs)?;
+        Ok(())
+    }
+
+    /// True when an output goes to stdout (the text report then stays off it).
+    pub fn any_stdout(&self) -> bool {
+        self.outputs.iter().any(|o| is_stdout(&o.path))
+    }
+}
+
+/// Refuses `-` (stdout) for an output that cannot go there (a directory,
+/// a drive with its sidecar), saying why.
+pub fn refuse_stdout(role: &str, path: &Path, why: &str) -> Result<()> {
+    if is_stdout(path) {
+        bail!("{role} -: {why}; give a path");
+    }
+    Ok(())
+}
+
+/// Refuses a drive `--out` whose sidecar path (the name with `.json`) is
+/// itself: the truth would replace the drive.
+pub fn refuse_sidecar_onto_drive(role: &str, path: &Path) -> Result<()> {
+    if odocal::sim::sidecar_path(path) == path {
+        bail!(
+            "{role} {}: the sidecar (the truth) is written beside the drive CSV under the name with .json, which is \
+             this file; give {role} a name ending in .csv",
+            path.display()
+        );
+    }
+    Ok(())
+}
+
+/// Writes `text` to `path` atomically, or to stdout for `-`; it ends with
+/// a newline either way.
+pub fn write_text(path: &Path, text: &str) -> Result<()> {
+    if is_stdout(path) {
+        let mut out = std::io::stdout().lock();
+        out.write_all(text.as_bytes())?;
+        if !text.ends_with('\n') {
+            out.write_all(b"\n")?;
+        }
+        out.flush()?;
+    } else {
+        odocal::output::write_text(path, text)?;
+    }
+    Ok(())
+}
+
+/// Writes a drive CSV to `path` atomically, or to stdout for `-`.
+pub fn write_drive(drive: &odocal::Drive, path: &Path) -> Result<()> {
+    if is_stdout(path) {
+        let mut out = std::io::stdout().lock();
+        drive.write_csv_to(&mut out)?;
+        out.flush()?;
+    } else {
+        drive.write_csv(path)?;
+    }
+    Ok(())
+}

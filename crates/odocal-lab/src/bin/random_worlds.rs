@@ -1,0 +1,560 @@
+//! The calibration methods on random noise worlds: simulated drives whose
+//! noise settings are drawn from wide ranges
+//! (`odocal::sim::NoiseOptions::random_world`; the distribution and the
+//! regime rule are in docs/reference.md, "Random noise worlds"), not from
+//! the white-noise dominated presets the default was chosen on
+//! (docs/validation.md, "Random noise worlds").
+//!
+//! World i (i = 0..N) has world seed S + i; its drive is simulated with
+//! that seed as the drive seed too (paper route and speed options, true θ
+//! [`Theta::SIM_DEFAULT_TRUE`], `--length-km` long). Estimates are judged
+//! against the truth the data are consistent with
+//! (`SimOptions::equivalent_truth`): c_d shifted by −2·d·(a_y bias), and
+//! the reference heading offset δ = heading bias + sideslip bias; no
+//! calibration can tell these apart. Methods, all through
+//! `odocal::calibrate` as a user runs them:
+//! - `eiv`: the default (`calibrate` without options);
+//! - `batch-gn`: `--method batch-gn --estimate heading-offset`;
+//! - `three-step`: `--method three-step --estimate heading-offset`.
+//!
+//! Per method and parameter (c_e, t_r in %, c_d in mm, d in mm/(m/s²)):
+//! mean error (bias) with t = |mean|/(sd/√n), RMS error, RMS of error/σ,
+//! coverage of the reported 95 % interval (|error| ≤ 1.96 σ of the
+//! result's σ, `CalibrationReport::result_sigma`), and on the white-only
+//! worlds (white wheel and reference noise: the noise the bound
+//! represents) the RMS of error/CRB, the mean-only Cramér–Rao bound at
+//! θ_true with the true noise model (`eiv::cramer_rao_bound`,
+//! `EivOptions::spec`). Per method: verdicts (accepted / doubtful /
+//! rejected), results accepted with some parameter beyond 3 σ, the EIV
+//! fallback rate, and Ē_p on held-out data: a fresh drive of the same world
+//! (seed + 10 000, same noise settings, never seen by a fit), dead reckoned
+//! with the estimated θ and extrinsics, less Ē_p of the equivalent truth
+//! (θ and δ) there. Overall and by regime.
+//!
+//! Output: Markdown tables on stdout; with `--out DIR`, `DIR/results.csv`
+//! (a row per world × method) and `DIR/worlds.csv` (a row per world: its
+//! noise settings). Worlds run in parallel (rayon; `--threads`), the
+//! output is the same for any thread count. Progress and wall times go to
+//! stderr.
+
+use std::fmt::Write as _;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use odocal::research::mean_position_error_with;
+use odocal::segment::{validation_segments, Segment, ValidationSegmentOptions};
+use odocal::eiv::{cramer_rao_bound, EivInput, EivOptions, NoiseModel};
+use odocal::sim::{simulate, NoiseOptions, NoiseRegime, SimOptions, WorldSummary};
+use odocal::{
+    calibrate, CalibrationOptions, CalibrationReport, Drive, EivOutcome, Extrinsics, Method,
+    MethodDetail, Param, Theta, VerdictLevel,
+};
+use odocal_lab::{coverage, error_scale, errors, median, Args, Res, Summary, Table, ERROR_UNITS, FRESH_SEED_OFFSET};
+use rayon::prelude::*;
+
+const USAGE: &str = "random_worlds [--worlds 100] [--length-km 12] [--seed 1] [--methods eiv,batch-gn,three-step]
+    [--out DIR] [--threads N]
+
+World i has world seed S + i (drive seed too); every method runs through odocal::calibrate.";
+
+/// The methods the study knows, by their `--method` names.
+const METHODS: [&str; 3] = ["eiv", "batch-gn", "three-step"];
+
+struct Settings {
+    worlds: u64,
+    km: f64,
+    seed: u64,
+    methods: Vec<String>,
+    out: Option<PathBuf>,
+}
+
+fn settings() -> Res<(Settings, Option<usize>)> {
+    let mut a = Args::parse(USAGE, &[])?;
+    let s = Settings {
+        worlds: a.get("worlds", 100)?,
+        km: a.get("length-km", 12.0)?,
+        seed: a.get("seed", 1)?,
+        methods: a.list("methods", &METHODS),
+        out: a.opt("out")?,
+    };
+    let threads = a.opt("threads")?;
+    a.finish()?;
+    if let Some(m) = s.methods.iter().find(|m| !METHODS.contains(&m.as_str())) {
+        return Err(format!("unknown method '{m}'; expected some of {}", METHODS.join(", ")).into());
+    }
+    Ok((s, threads))
+}
+
+/// The options a user's `calibrate` runs with for `method`.
+fn options(method: &str) -> Res<CalibrationOptions> {
+    let mut o = CalibrationOptions { method: Method::from_name(method)?, ..Default::default() };
+    if method != "eiv" {
+        // `--estimate heading-offset`; the default method estimates δ by itself.
+        o.identify.free = o.identify.free.with(Param::HeadingOffset);
+    }
+    Ok(o)
+}
+
+/// One method's result on one world's drive.
+struct Run {
+    theta: Theta,
+    /// The result's 1σ (NaN where none), SI.
+    sigma: [f64; 4],
+    sigma_source: String,
+    verdict: VerdictLevel,
+    /// EIV only: the result is the batch G-N fallback.
+    fallback: Option<bool>,
+    /// The estimated (or held) reference heading offset, rad.
+    delta: f64,
+    /// Ē_p on the drive's own validation segments, m.
+    e_p_fit_m: f64,
+    /// Ē_p on the fresh drive of the same world, m.
+    e_p_held_m: f64,
+    time_s: f64,
+}
+
+/// One world: its settings, bound, the truth's held-out Ē_p and the runs.
+struct World {
+    index: u64,
+    seed: u64,
+    noise: NoiseOptions,
+    summary: WorldSummary,
+    /// The equivalent truth: θ and the reference heading offset δ.
+    truth: Theta,
+    delta: f64,
+    /// Mean-only Cramér–Rao bound (SI), white-only worlds only.
+    crb: Option<[f64; 4]>,
+    /// Ē_p of θ_true with the true δ on the fresh drive, m.
+    e_p_held_true_m: f64,
+    /// Per method (in `Settings::methods` order): the run or its error.
+    runs: Vec<Result<Run, String>>,
+}
+
+/// The fresh drive and its validation segments.
+struct HeldOut {
+    drive: Drive,
+    segments: Vec<Segment>,
+}
+
+impl HeldOut {
+    fn e_p(&self, theta: &Theta, ext: &Extrinsics) -> Res<f64> {
+        Ok(mean_position_error_with(&self.drive, &self.segments, theta, ext)?.mean_position_error_m)
+    }
+}
+
+fn run_method(method: &str, drive: &Drive, held: &HeldOut) -> Res<Run> {
+    let opts = options(method)?;
+    let t = Instant::now();
+    let r: CalibrationReport = calibrate(drive, &opts)?;
+    let time_s = t.elapsed().as_secs_f64();
+    let ext = r.extrinsics.as_ref().map_or(r.options.identify.extrinsics, |e| e.value);
+    let fallback = match &r.detail {
+        MethodDetail::Eiv(d) => Some(d.eiv_result == EivOutcome::BatchGnFallback),
+        _ => None,
+    };
+    let rs = r.result_sigma();
+    Ok(Run {
+        theta: r.theta,
+        sigma: rs.to_array().map(|s| s.unwrap_or(f64::NAN)),
+        sigma_source: rs.source.to_string(),
+        verdict: r.verdict.level,
+        fallback,
+        delta: ext.heading_offset,
+        e_p_fit_m: r.validation.mean_position_error_m,
+        e_p_held_m: held.e_p(&r.theta, &ext)?,
+        time_s,
+    })
+}
+
+fn study_world(index: u64, a: &Settings) -> Res<World> {
+    let seed = a.seed + index;
+    let (noise, summary) = NoiseOptions::random_world(seed);
+    let sim = SimOptions { length_km: a.km, noise: noise.clone(), ..SimOptions::paper(seed) };
+    let out = simulate(&sim)?;
+    let drive = &out.drive;
+    let (truth, true_ext) = sim.equivalent_truth();
+    let fresh = simulate(&SimOptions { seed: seed + FRESH_SEED_OFFSET, ..sim })?.drive;
+    let segments = validation_segments(&fresh, &ValidationSegmentOptions::default())?;
+    let held = HeldOut { drive: fresh, segments };
+    let e_p_held_true_m = held.e_p(&truth, &true_ext)?;
+    let crb = if summary.white_only {
+        let model = NoiseModel::from_sim(&noise, drive.sample_time_s());
+        let input = EivInput::from_drive_truth(drive)?;
+        match cramer_rao_bound(&input, &truth, &model, &EivOptions::spec()) {
+            Ok(c) => Some(c.sigma_mean_only),
+            Err(e) => {
+                eprintln!("world {index}: no bound: {e}");
+                None
+            }
+        }
+    } else {
+        None
+    };
+    let runs = a.methods.iter().map(|m| run_method(m, drive, &held).map_err(|e| e.to_string())).collect();
+    Ok(World { index, seed, noise, summary, truth, delta: true_ext.heading_offset, crb, e_p_held_true_m, runs })
+}
+
+/// A world's line on stderr.
+fn progress_line(w: &World, methods: &[String]) -> String {
+    let mut line = format!("world {} ({}, seed {}):", w.index, w.summary.regime, w.seed);
+    for (m, r) in methods.iter().zip(&w.runs) {
+        match r {
+            Ok(r) => {
+                let e = errors(&r.theta, &w.truth).map(|v| format!("{v:+.3}"));
+                let fb = if r.fallback == Some(true) { " fallback" } else { "" };
+                let _ = write!(line, " | {m} [{}] {}{fb} {:.1}s", e.join(" "), r.verdict, r.time_s);
+            }
+            Err(e) => {
+                let _ = write!(line, " | {m} failed: {e}");
+            }
+        }
+    }
+    line
+}
+
+/// The worlds of a table row: all, or one regime's.
+fn groups(worlds: &[World]) -> Vec<(String, Vec<&World>)> {
+    let mut g = vec![("all".to_string(), worlds.iter().collect::<Vec<_>>())];
+    for r in [NoiseRegime::Quiet, NoiseRegime::White, NoiseRegime::CommonModeSlip] {
+        let v: Vec<&World> = worlds.iter().filter(|w| w.summary.regime == r).collect();
+        if !v.is_empty() {
+            g.push((r.to_string(), v));
+        }
+    }
+    g
+}
+
+/// The successful runs of method `m` (index) in `worlds`.
+fn runs_of<'a>(worlds: &[&'a World], m: usize) -> Vec<(&'a World, &'a Run)> {
+    worlds.iter().filter_map(|w| w.runs[m].as_ref().ok().map(|r| (*w, r))).collect()
+}
+
+/// |error| / σ of each parameter (NaN where σ is missing).
+fn z_scores(w: &World, r: &Run) -> [f64; 4] {
+    let e = errors(&r.theta, &w.truth);
+    let s = error_scale(&w.truth);
+    std::array::from_fn(|i| e[i] / (r.sigma[i] * s[i]))
+}
+
+fn pct(k: usize, n: usize) -> String {
+    if n == 0 {
+        "–".into()
+    } else {
+        format!("{:.0} %", 100.0 * k as f64 / n as f64)
+    }
+}
+
+/// Per group and method, each parameter's bias (t), RMS error and 95 %
+/// coverage; and the RMS of error/σ over the four.
+fn accuracy_table(worlds: &[World], methods: &[String]) -> Table {
+    let mut header = vec!["worlds".to_string(), "method".to_string(), ">n".to_string()];
+    header.extend(ERROR_UNITS.iter().map(|u| format!(">{u}: bias (t) · RMS · coverage")));
+    header.push(">RMS error/σ".to_string());
+    let header: Vec<&str> = header.iter().map(String::as_str).collect();
+    let mut t = Table::new(&header);
+    for (group, ws) in groups(worlds) {
+        for (m, name) in methods.iter().enumerate() {
+            let rs = runs_of(&ws, m);
+            let mut row = vec![group.clone(), name.clone(), rs.len().to_string()];
+            let mut z_all = Vec::new();
+            for i in 0..4 {
+                let e: Vec<f64> = rs.iter().map(|(w, r)| errors(&r.theta, &w.truth)[i]).collect();
+                let sig: Vec<f64> = rs.iter().map(|(w, r)| r.sigma[i] * error_scale(&w.truth)[i]).collect();
+                z_all.extend(rs.iter().map(|(w, r)| z_scores(w, r)[i]));
+                let s = Summary::of(&e);
+                let digits = if i == 0 { 4 } else { 3 };
+                row.push(format!(
+                    "{:+.digits$} ({:.1}) · {:.digits$} · {:.0} %",
+                    s.mean,
+                    s.t(),
+                    s.rms,
+                    100.0 * coverage(&e, &sig, 1.96)
+                ));
+            }
+            row.push(format!("{:.2}", Summary::of(&z_all).rms));
+            t.row(row);
+        }
+    }
+    t
+}
+
+fn verdict_table(worlds: &[World], methods: &[String]) -> Table {
+    let mut t = Table::new(&[
+        "worlds",
+        "method",
+        ">n",
+        ">failed",
+        ">accepted",
+        ">doubtful",
+        ">rejected",
+        ">accepted beyond 3σ",
+        ">EIV fallback",
+        ">held-out Ē_p − truth's: mean",
+        ">median",
+        ">max",
+        ">own Ē_p: mean",
+        ">δ RMS error",
+    ]);
+    for (group, ws) in groups(worlds) {
+        for (m, name) in methods.iter().enumerate() {
+            let rs = runs_of(&ws, m);
+            let n = rs.len();
+            let level = |l: VerdictLevel| rs.iter().filter(|(_, r)| r.verdict == l).count();
+            let beyond = rs
+                .iter()
+                .filter(|(w, r)| {
+                    r.verdict == VerdictLevel::Accepted && z_scores(w, r).iter().any(|z| z.is_finite() && z.abs() > 3.0)
+                })
+                .count();
+            let fallback = rs.iter().filter(|(_, r)| r.fallback == Some(true)).count();
+            let excess: Vec<f64> = rs.iter().map(|(w, r)| r.e_p_held_m - w.e_p_held_true_m).collect();
+            let own: Vec<f64> = rs.iter().map(|(_, r)| r.e_p_fit_m).collect();
+            let max = excess.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            let delta: Vec<f64> = rs.iter().map(|(w, r)| (r.delta - w.delta) * 1e3).collect();
+            t.row([
+                group.clone(),
+                name.clone(),
+                n.to_string(),
+                (ws.len() - n).to_string(),
+                pct(level(VerdictLevel::Accepted), n),
+                pct(level(VerdictLevel::Doubtful), n),
+                pct(level(VerdictLevel::Rejected), n),
+                format!("{beyond} ({})", pct(beyond, n)),
+                if name == "eiv" { format!("{fallback} ({})", pct(fallback, n)) } else { "–".into() },
+                format!("{:+.3} m", Summary::of(&excess).mean),
+                format!("{:+.3} m", median(&excess)),
+                format!("{max:+.3} m"),
+                format!("{:.3} m", Summary::of(&own).mean),
+                format!("{:.2} mrad", Summary::of(&delta).rms),
+            ]);
+        }
+    }
+    t
+}
+
+/// The default method's results split by outcome (its own estimate or the
+/// batch G-N fallback): coverage per parameter and the verdicts.
+fn eiv_outcome_table(worlds: &[World], methods: &[String]) -> Option<Table> {
+    let m = methods.iter().position(|x| x == "eiv")?;
+    let mut header = vec!["worlds".to_string(), "EIV result".to_string(), ">n".to_string()];
+    header.extend(ERROR_UNITS.iter().map(|u| format!(">{u} coverage")));
+    header.extend([">accepted".to_string(), ">accepted beyond 3σ".to_string()]);
+    let header: Vec<&str> = header.iter().map(String::as_str).collect();
+    let mut t = Table::new(&header);
+    for (group, ws) in groups(worlds) {
+        for (label, fallback) in [("own estimate", false), ("batch G-N fallback", true)] {
+            let rs: Vec<(&World, &Run)> =
+                runs_of(&ws, m).into_iter().filter(|(_, r)| r.fallback == Some(fallback)).collect();
+            let n = rs.len();
+            let mut row = vec![group.clone(), label.to_string(), n.to_string()];
+            for i in 0..4 {
+                let inside = rs.iter().filter(|(w, r)| z_scores(w, r)[i].abs() <= 1.96).count();
+                row.push(pct(inside, n));
+            }
+            let accepted: Vec<&(&World, &Run)> =
+                rs.iter().filter(|(_, r)| r.verdict == VerdictLevel::Accepted).collect();
+            let beyond = accepted.iter().filter(|(w, r)| z_scores(w, r).iter().any(|z| z.abs() > 3.0)).count();
+            row.push(pct(accepted.len(), n));
+            row.push(format!("{beyond} ({})", pct(beyond, n)));
+            t.row(row);
+        }
+    }
+    Some(t)
+}
+
+/// RMS of error/CRB on the white-only worlds, per method and parameter
+/// (and for the default method, on the worlds where it did not fall back).
+fn bound_table(worlds: &[World], methods: &[String]) -> Option<Table> {
+    let bounded: Vec<&World> = worlds.iter().filter(|w| w.crb.is_some()).collect();
+    if bounded.is_empty() {
+        return None;
+    }
+    let mut header = vec!["method".to_string(), ">n".to_string()];
+    header.extend(ERROR_UNITS.iter().map(|u| format!(">{u}: RMS/CRB, bias/CRB")));
+    let header: Vec<&str> = header.iter().map(String::as_str).collect();
+    let mut t = Table::new(&header);
+    let mut rows: Vec<(String, Vec<(&World, &Run)>)> = Vec::new();
+    for (m, name) in methods.iter().enumerate() {
+        let rs = runs_of(&bounded, m);
+        if name == "eiv" {
+            let own = rs.iter().copied().filter(|(_, r)| r.fallback == Some(false)).collect();
+            rows.push((name.clone(), rs));
+            rows.push(("eiv, own estimates (no fallback)".into(), own));
+        } else {
+            rows.push((name.clone(), rs));
+        }
+    }
+    for (name, rs) in rows {
+        let mut row = vec![name, rs.len().to_string()];
+        for i in 0..4 {
+            let r: Vec<f64> = rs
+                .iter()
+                .filter_map(|(w, r)| w.crb.map(|c| errors(&r.theta, &w.truth)[i] / (c[i] * error_scale(&w.truth)[i])))
+                .collect();
+            let s = Summary::of(&r);
+            row.push(format!("{:.2}, {:+.2} (t {:.1})", s.rms, s.mean, s.t()));
+        }
+        t.row(row);
+    }
+    Some(t)
+}
+
+fn print_tables(a: &Settings, worlds: &[World]) {
+    let count = |r: NoiseRegime| worlds.iter().filter(|w| w.summary.regime == r).count();
+    let white_only = worlds.iter().filter(|w| w.summary.white_only).count();
+    println!(
+        "## Random noise worlds: {} worlds x {} km (world seeds {}..={}), methods {}\n",
+        worlds.len(),
+        a.km,
+        a.seed,
+        a.seed + a.worlds.saturating_sub(1),
+        a.methods.join(", ")
+    );
+    println!(
+        "Regimes: quiet {}, white {}, common-mode/slip {}; white-only (bound) worlds {white_only}.\n",
+        count(NoiseRegime::Quiet),
+        count(NoiseRegime::White),
+        count(NoiseRegime::CommonModeSlip)
+    );
+    println!("### Accuracy and coverage\n\n{}", accuracy_table(worlds, &a.methods));
+    println!("### Verdicts, fallback, held-out Ē_p\n\n{}", verdict_table(worlds, &a.methods));
+    if let Some(t) = eiv_outcome_table(worlds, &a.methods) {
+        println!("### The default by outcome: its own estimate or the batch G-N fallback\n\n{t}");
+    }
+    match bound_table(worlds, &a.methods) {
+        Some(t) => println!("### White-only worlds against the Cramér–Rao bound (mean-only)\n\n{t}"),
+        None => println!("No white-only world: no comparison with the bound.\n"),
+    }
+}
+
+/// A CSV cell of a number (empty when not finite).
+fn num(v: f64) -> String {
+    if v.is_finite() {
+        format!("{v:.6e}")
+    } else {
+        String::new()
+    }
+}
+
+fn write_csvs(dir: &std::path::Path, a: &Settings, worlds: &[World]) -> Res<()> {
+    std::fs::create_dir_all(dir)?;
+    let mut w_csv = String::from(
+        "world,world_seed,regime,white_only,wheel_white_rel,wheel_common_slip_rel,wheel_white_rel_10s,\
+         wheel_common_slip_rel_10s,wheel_white_rel_sigma,wheel_coloured_rel_sigma,wheel_coloured_time_constant_s,\
+         wheel_coloured_differential_rel_sigma,wheel_coloured_differential_time_constant_s,wheel_slip_per_m_per_s2,\
+         encoder_ticks_per_revolution,position_drift_sigma_m,position_drift_time_constant_s,position_white_sigma_m,\
+         heading_bias_rad,heading_drift_sigma_rad,heading_drift_time_constant_s,heading_white_sigma_rad,\
+         lateral_acceleration_white_sigma_m_per_s2,lateral_acceleration_bias_m_per_s2,sideslip_sigma_rad,\
+         sideslip_time_constant_s,sideslip_bias_rad\n",
+    );
+    for w in worlds {
+        let (s, n) = (&w.summary, &w.noise);
+        let cells = [
+            w.index.to_string(),
+            w.seed.to_string(),
+            s.regime.to_string(),
+            s.white_only.to_string(),
+            num(s.wheel_white_rel),
+            num(s.wheel_common_slip_rel),
+            num(s.wheel_white_rel_10s),
+            num(s.wheel_common_slip_rel_10s),
+            num(n.wheel_white_rel_sigma),
+            num(n.wheel_coloured_rel_sigma),
+            num(n.wheel_coloured_time_constant_s),
+            num(n.wheel_coloured_differential_rel_sigma),
+            n.wheel_coloured_differential_time_constant_s.map_or(String::new(), num),
+            num(n.wheel_slip_per_m_per_s2),
+            n.encoder_ticks_per_revolution.to_string(),
+            num(n.position_drift_sigma_m),
+            num(n.position_drift_time_constant_s),
+            num(n.position_white_sigma_m),
+            num(n.heading_bias_rad),
+            num(n.heading_drift_sigma_rad),
+            num(n.heading_drift_time_constant_s),
+            num(n.heading_white_sigma_rad),
+            num(n.lateral_acceleration_white_sigma_m_per_s2),
+            num(n.lateral_acceleration_bias_m_per_s2),
+            num(n.sideslip_sigma_rad),
+            num(n.sideslip_time_constant_s),
+            num(n.sideslip_bias_rad),
+        ];
+        w_csv.push_str(&cells.join(","));
+        w_csv.push('\n');
+    }
+    std::fs::write(dir.join("worlds.csv"), w_csv)?;
+    let mut header = vec!["world", "world_seed", "regime", "white_only", "method", "status", "verdict", "fallback"];
+    header.extend(["sigma_source", "err_c_e_pct", "err_c_d_mm", "err_t_r_pct", "err_d_mm_per_m_per_s2"]);
+    header.extend(["sigma_c_e_pct", "sigma_c_d_mm", "sigma_t_r_pct", "sigma_d_mm_per_m_per_s2"]);
+    header.extend(["crb_c_e_pct", "crb_c_d_mm", "crb_t_r_pct", "crb_d_mm_per_m_per_s2"]);
+    header.extend(["c_d_shift_mm", "delta_true_mrad", "delta_mrad", "e_p_own_m", "e_p_held_out_m"]);
+    header.push("e_p_held_out_truth_m");
+    let mut r_csv = header.join(",") + "\n";
+    for w in worlds {
+        for (m, run) in a.methods.iter().zip(&w.runs) {
+            let mut cells = vec![
+                w.index.to_string(),
+                w.seed.to_string(),
+                w.summary.regime.to_string(),
+                w.summary.white_only.to_string(),
+                m.clone(),
+            ];
+            let scale = error_scale(&w.truth);
+            let crb: Vec<String> = (0..4).map(|i| w.crb.map_or(String::new(), |c| num(c[i] * scale[i]))).collect();
+            match run {
+                Ok(r) => {
+                    cells.push("ok".into());
+                    cells.push(r.verdict.to_string());
+                    cells.push(r.fallback.map_or(String::new(), |f| f.to_string()));
+                    cells.push(r.sigma_source.clone());
+                    cells.extend(errors(&r.theta, &w.truth).map(num));
+                    cells.extend((0..4).map(|i| num(r.sigma[i] * scale[i])));
+                    cells.extend(crb);
+                    cells.push(num((w.truth.c_d - Theta::SIM_DEFAULT_TRUE.c_d) * 1e3));
+                    cells.push(num(w.delta * 1e3));
+                    cells.push(num(r.delta * 1e3));
+                    cells.extend([num(r.e_p_fit_m), num(r.e_p_held_m), num(w.e_p_held_true_m)]);
+                }
+                Err(e) => {
+                    cells.push(format!("\"error: {}\"", e.replace('"', "'")));
+                    cells.resize(header.len(), String::new());
+                }
+            }
+            r_csv.push_str(&cells.join(","));
+            r_csv.push('\n');
+        }
+    }
+    std::fs::write(dir.join("results.csv"), r_csv)?;
+    Ok(())
+}
+
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+fn run() -> Res<()> {
+    let (a, threads) = settings()?;
+    if let Some(n) = threads {
+        rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
+    }
+    let t0 = Instant::now();
+    let worlds: Vec<World> = (0..a.worlds)
+        .into_par_iter()
+        .map(|i| {
+            let w = study_world(i, &a).map_err(|e| format!("world {i}: {e}"))?;
+            eprintln!("{}", progress_line(&w, &a.methods));
+            Ok(w)
+        })
+        .collect::<Result<_, String>>()?;
+    print_tables(&a, &worlds);
+    if let Some(dir) = &a.out {
+        write_csvs(dir, &a, &worlds)?;
+    }
+    let mut times = String::new();
+    for (m, name) in a.methods.iter().enumerate() {
+        let all: Vec<&World> = worlds.iter().collect();
+        let t: Vec<f64> = runs_of(&all, m).iter().map(|(_, r)| r.time_s).collect();
+        let _ = write!(times, " {name} {:.1} s", Summary::of(&t).mean);
+    }
+    eprintln!("wall time {:.0} s; mean calibration time per drive:{times}", t0.elapsed().as_secs_f64());
+    Ok(())
+}

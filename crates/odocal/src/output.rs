@@ -1,0 +1,293 @@
+//! Writing output files safely: every file odocal writes (drive CSVs,
+//! sidecars, reports, parameter files, figures) goes through
+//! [`write_atomically`], and every command checks its output paths against
+//! its inputs and each other first ([`check_collisions`]).
+//!
+//! # Atomic writes
+//!
+//! [`write_atomically`] writes to a temporary file in the target's folder
+//! (`.NAME.XXXXXX.tmp`), flushes it, syncs it to disk and renames it over
+//! the target. A reader never sees a half-written file: an error (a full
+//! disk, a failing writer) leaves the previous file untouched and removes the
+//! temporary one. A new file gets the usual permissions (`0666` less the
+//! umask); a replaced file keeps its own. A symbolic link is followed: the
+//! file it points to is replaced, the link stays. Special files that exist
+//! (`/dev/null`, a FIFO, a terminal) are written to directly.
+//!
+//! # Collisions
+//!
+//! A file is the same as another when both name the same canonical path or,
+//! when they exist, the same device and inode (hard links). An output that
+//! does not exist yet is named by its folder's canonical path and its file
+//! name. `-` (stdout) is never a file.
+//!
+//! ```
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! use odocal::output::{check_collisions, FileRole};
+//! let dir = tempfile::tempdir()?;
+//! let drive = dir.path().join("drive.csv");
+//! std::fs::write(&drive, "t,px\n")?;
+//! let inputs = [FileRole::new("the drive being calibrated", &drive)];
+//! let outputs = [FileRole::new("--json", dir.path().join("./drive.csv"))];
+//! let e = check_collisions(&inputs, &outputs).unwrap_err().to_string();
+//! assert!(e.contains("--json") && e.contains("is also the drive being calibrated"), "{e}");
+//! # Ok(()) }
+//! ```
+
+use std::io::Write;
+use std::path::{Component, Path, PathBuf};
+
+use crate::error::{Error, Result};
+
+/// True for `-`, which stands for stdout where an output path is asked for.
+pub fn is_stdout(path: &Path) -> bool {
+    path.as_os_str() == "-"
+}
+
+/// Writes `path` through `write`, atomically: to a temporary file in the
+/// same folder, flushed and synced, then renamed over `path`. When `write`
+/// (or the disk) fails, `path` keeps its previous content (or stays absent)
+/// and no temporary file is left behind.
+///
+/// # Errors
+/// [`Error::Io`] naming `path`: the folder cannot be written, `path` is a
+/// directory, or `write`, the flush, the sync or the rename failed.
+pub fn write_atomically<F>(path: &Path, write: F) -> Result<()>
+where
+    F: FnOnce(&mut dyn Write) -> std::io::Result<()>,
+{
+    let io = |source| Error::io(path, source);
+    let target = resolve_link(path);
+    match std::fs::metadata(&target) {
+        Ok(m) if m.is_dir() => {
+            return Err(io(std::io::Error::new(std::io::ErrorKind::IsADirectory, "is a directory, not a file")))
+        }
+        // A device, a FIFO, a socket: there is nothing to replace.
+        Ok(m) if !m.is_file() => return write_in_place(&target, write).map_err(io),
+        _ => {}
+    }
+    let dir = match target.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let name = target.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let prefix = format!(".{name}.");
+    let mut builder = tempfile::Builder::new();
+    builder.prefix(&prefix).suffix(".tmp");
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        // What `File::create` gives a new file: 0666 less the umask.
+        builder.permissions(std::fs::Permissions::from_mode(0o666));
+    }
+    let mut tmp = builder.tempfile_in(&dir).map_err(io)?;
+    let _in_flight = InFlight::new(tmp.path());
+    {
+        let mut w = std::io::BufWriter::new(tmp.as_file_mut());
+        write(&mut w).map_err(io)?;
+        w.flush().map_err(io)?;
+    }
+    tmp.as_file().sync_all().map_err(io)?;
+    if let Ok(m) = std::fs::metadata(&target) {
+        // A replaced file keeps its permissions.
+        std::fs::set_permissions(tmp.path(), m.permissions()).map_err(io)?;
+    }
+    tmp.persist(&target).map_err(|e| io(e.error))?;
+    sync_dir(&dir);
+    Ok(())
+}
+
+/// The temporary files being written now ([`remove_temporary_files`]).
+static IN_FLIGHT: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+/// A temporary file listed in [`IN_FLIGHT`] while it lives.
+struct InFlight(PathBuf);
+
+impl InFlight {
+    fn new(path: &Path) -> InFlight {
+        if let Ok(mut v) = IN_FLIGHT.lock() {
+            v.push(path.to_path_buf());
+        }
+        InFlight(path.to_path_buf())
+    }
+}
+
+impl Drop for InFlight {
+    fn drop(&mut self) {
+        if let Ok(mut v) = IN_FLIGHT.lock() {
+            v.retain(|p| *p != self.0);
+        }
+    }
+}
+
+/// Removes the temporary files of the writes in progress, for a program
+/// about to exit on a signal (Ctrl-C), which runs no destructors: the final
+/// paths keep their previous files and no temporary file is left behind.
+/// The `odocal` tool calls it from its signal handler.
+pub fn remove_temporary_files() {
+    // A write that holds the lock at the signal must not block the exit.
+    if let Ok(v) = IN_FLIGHT.try_lock() {
+        for p in v.iter() {
+            let _ = std::fs::remove_file(p);
+        }
+    }
+}
+
+/// Writes `text` to `path` atomically ([`write_atomically`]), ending it with
+/// a newline when it does not end with one.
+pub fn write_text(path: &Path, text: &str) -> Result<()> {
+    write_atomically(path, |w| {
+        w.write_all(text.as_bytes())?;
+        if !text.ends_with('\n') {
+            w.write_all(b"\n")?;
+        }
+        Ok(())
+    })
+}
+
+/// The file a symbolic link points to (followed to the end), else `path`.
+fn resolve_link(path: &Path) -> PathBuf {
+    let is_link = std::fs::symlink_metadata(path).is_ok_and(|m| m.file_type().is_symlink());
+    if !is_link {
+        return path.to_path_buf();
+    }
+    // A dangling link: write where it points, as `File::create` would.
+    std::fs::canonicalize(path).unwrap_or_else(|_| {
+        let mut p = path.to_path_buf();
+        for _ in 0..40 {
+            match std::fs::read_link(&p) {
+                Ok(t) => p = p.parent().map_or(t.clone(), |d| d.join(&t)),
+                Err(_) => break,
+            }
+        }
+        p
+    })
+}
+
+/// Writes a special file (a device, a FIFO) directly.
+fn write_in_place<F>(path: &Path, write: F) -> std::io::Result<()>
+where
+    F: FnOnce(&mut dyn Write) -> std::io::Result<()>,
+{
+    let file = std::fs::OpenOptions::new().write(true).open(path)?;
+    let mut w = std::io::BufWriter::new(file);
+    write(&mut w)?;
+    w.flush()
+}
+
+/// Syncs a folder, so the rename survives a crash (best effort: not every
+/// platform can open a folder).
+fn sync_dir(dir: &Path) {
+    #[cfg(unix)]
+    if let Ok(d) = std::fs::File::open(dir) {
+        let _ = d.sync_all();
+    }
+    #[cfg(not(unix))]
+    let _ = dir;
+}
+
+/// A file a command reads or writes, and the role it plays there, as the
+/// user named it (`"--json"`, `"the drive being calibrated"`); errors say
+/// "`ROLE PATH` is also `OTHER ROLE`".
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FileRole {
+    /// What the file is to the command.
+    pub role: String,
+    /// The path as given.
+    pub path: PathBuf,
+}
+
+impl FileRole {
+    /// A file in a role.
+    pub fn new(role: impl Into<String>, path: impl Into<PathBuf>) -> FileRole {
+        FileRole { role: role.into(), path: path.into() }
+    }
+}
+
+/// What identifies a file: its canonical path and, when it exists, its
+/// device and inode.
+#[derive(Debug, Clone)]
+struct FileId {
+    path: PathBuf,
+    inode: Option<(u64, u64)>,
+}
+
+impl FileId {
+    fn of(path: &Path) -> FileId {
+        if let Ok(c) = std::fs::canonicalize(path) {
+            return FileId { inode: inode(&c), path: c };
+        }
+        // Not there (yet): the canonical folder and the file name.
+        let abs = lexical_absolute(path);
+        let canonical = match (abs.parent(), abs.file_name()) {
+            (Some(dir), Some(name)) => std::fs::canonicalize(dir).map(|d| d.join(name)).unwrap_or(abs),
+            _ => abs,
+        };
+        FileId { path: canonical, inode: None }
+    }
+
+    fn same(&self, other: &FileId) -> bool {
+        self.path == other.path || (self.inode.is_some() && self.inode == other.inode)
+    }
+}
+
+#[cfg(unix)]
+fn inode(path: &Path) -> Option<(u64, u64)> {
+    use std::os::unix::fs::MetadataExt;
+    std::fs::metadata(path).ok().map(|m| (m.dev(), m.ino()))
+}
+
+#[cfg(not(unix))]
+fn inode(_: &Path) -> Option<(u64, u64)> {
+    None
+}
+
+/// `path` made absolute against the working folder, with `.` and `..`
+/// resolved lexically (for paths that do not exist).
+fn lexical_absolute(path: &Path) -> PathBuf {
+    let abs = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
+    let mut out = PathBuf::new();
+    for c in abs.components() {
+        match c {
+            Component::CurDir => {}
+            Component::ParentDir => {
+                out.pop();
+            }
+            c => out.push(c.as_os_str()),
+        }
+    }
+    out
+}
+
+/// Refuses outputs that would overwrite an input or another output of the
+/// same command: each of `outputs` (but `-`, stdout) is compared with every
+/// input and every other output.
+///
+/// # Errors
+/// [`Error::PathCollision`] naming the output, its path and the role of the
+/// file it would overwrite.
+pub fn check_collisions(inputs: &[FileRole], outputs: &[FileRole]) -> Result<()> {
+    let outs: Vec<(&FileRole, FileId)> =
+        outputs.iter().filter(|o| !is_stdout(&o.path)).map(|o| (o, FileId::of(&o.path))).collect();
+    let ins: Vec<(&FileRole, FileId)> =
+        inputs.iter().filter(|i| !is_stdout(&i.path)).map(|i| (i, FileId::of(&i.path))).collect();
+    for (k, (o, id)) in outs.iter().enumerate() {
+        let clash = ins.iter().chain(&outs[..k]).find(|(_, other)| id.same(other));
+        if let Some((other, _)) = clash {
+            return Err(collision(o, other));
+        }
+    }
+    Ok(())
+}
+
+fn collision(output: &FileRole, other: &FileRole) -> Error {
+    let other_path = if other.path == output.path { String::new() } else { format!(" ({})", other.path.display()) };
+    Error::PathCollision {
+        role: output.role.clone(),
+        path: output.path.clone(),
+        other: format!("{}{other_path}", other.role),
+    }
+}
+
+#[cfg(test)]
+mod tests;
