@@ -170,7 +170,7 @@ pub(super) fn run_window_sized<K: KernelCalls>(
 /// ([`OutOfLine`]): inlined at their call sites they make the baseline
 /// 5–10 % slower and every build of the crate slower to compile.
 pub(super) trait KernelCalls {
-    fn propagate_in_place<const S: usize>(p: &mut MZ<S>, t: &Transition<'_, S>);
+    fn propagate_in_place<const S: usize>(p: &mut MZ<S>, t: &Transition<S>);
     fn joseph_in_place<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, d: Option<&Matrix3<f64>>);
     fn joseph_in_place_with<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, d: Option<&Matrix3<f64>>, ha: &M3xZ<S>);
 }
@@ -183,7 +183,7 @@ pub(super) struct OutOfLine;
 
 impl KernelCalls for Inlined {
     #[inline(always)]
-    fn propagate_in_place<const S: usize>(p: &mut MZ<S>, t: &Transition<'_, S>) {
+    fn propagate_in_place<const S: usize>(p: &mut MZ<S>, t: &Transition<S>) {
         propagate_in_place(p, t);
     }
     #[inline(always)]
@@ -198,7 +198,7 @@ impl KernelCalls for Inlined {
 
 impl KernelCalls for OutOfLine {
     #[inline(never)]
-    fn propagate_in_place<const S: usize>(p: &mut MZ<S>, t: &Transition<'_, S>) {
+    fn propagate_in_place<const S: usize>(p: &mut MZ<S>, t: &Transition<S>) {
         propagate_in_place(p, t);
     }
     #[inline(never)]

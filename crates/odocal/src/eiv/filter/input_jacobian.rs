@@ -4,9 +4,184 @@
 
 use nalgebra::{Matrix3, Vector3};
 
+use super::dispatch::KernelCalls;
+use super::kernels::{h_cols, h_rows};
 use super::sums::WindowSums;
-use super::NP;
+use super::update::Innovation;
+use super::window::{Linearisation, WindowSetup};
+use super::{MZ, NP};
+use crate::eiv::InputJacobian;
 use crate::model::Theta;
+
+/// What the input log-Jacobian term of one window carries from sample to
+/// sample: the per-wheel sums at unit weight (Unit, SmoothedShare), the
+/// wheel inputs waiting for the next update (FilterShare), and for the
+/// smoothed shares `∂P/∂λ` with the weights it gives.
+pub(super) struct InputJacobianState<const S: usize> {
+    unit_sums: [WindowSums; 2],
+    pending: Vec<PendingInput>,
+    /// `∂P/∂λ` for [left, right, common]: left/right = that wheel's white
+    /// relative noise (and, with SmoothedShareAll, its Gauss-Markov s_w),
+    /// common = s_c (SmoothedShareAll only; half to each wheel).
+    dp_lambda: [MZ<S>; 3],
+    /// `Σ tr(S⁻¹ H ∂P/∂λ Hᵀ)` per entry of `dp_lambda`.
+    w_smoothed: [f64; 3],
+}
+
+impl<const S: usize> InputJacobianState<S> {
+    /// The state at the start of the window.
+    #[inline(always)]
+    pub(super) fn new(setup: &WindowSetup<'_, S>) -> Self {
+        let v = setup.v;
+        let mut dp_lambda = [MZ::<S>::zeros(); 3];
+        if setup.all_sources {
+            dp_lambda[0][(4, 4)] = v.wheel;
+            dp_lambda[1][(5, 5)] = v.wheel;
+            dp_lambda[2][(3, 3)] = v.common;
+        }
+        InputJacobianState {
+            unit_sums: [WindowSums::zero(), WindowSums::zero()],
+            pending: Vec::new(),
+            dp_lambda,
+            w_smoothed: [0.0; 3],
+        }
+    }
+
+    /// The prediction step at one sample: each turning wheel's term (at unit
+    /// weight, or waiting for the update's share) and the propagation of
+    /// `∂P/∂λ`.
+    #[inline(always)]
+    pub(super) fn predict<K: KernelCalls>(&mut self, setup: &WindowSetup<'_, S>, lin: &Linearisation<S>) {
+        let (v, gw, nls, nrs) = (setup.v, &lin.gw, lin.nls, lin.nrs);
+        let lc = log_circumference_ratio(lin.uref.a_y, setup.theta, setup.theta_ref);
+        // The relative white noise variance of each wheel (rev², the
+        // fitted-input factor included; quantisation excluded).
+        let g2 = if setup.fitted { [gw[0].v * gw[0].v, gw[1].v * gw[1].v] } else { [1.0, 1.0] };
+        let rel = [v.white_rel * nls * nls * g2[0], v.white_rel * nrs * nrs * g2[1]];
+        for (w, (n_w, f_w)) in [(lin.nl, lin.fn_l), (lin.nr, lin.fn_r)].into_iter().enumerate() {
+            if n_w == 0.0 {
+                continue;
+            }
+            self.unit_sums[w].turning[w] += 1.0;
+            match setup.jac_mode {
+                InputJacobian::FilterShare | InputJacobian::FilterShareSecondOrder => {
+                    if rel[w] > 0.0 {
+                        self.pending.push((w, rel[w], f_w, lc[w].0, lc[w].1));
+                    }
+                }
+                _ => add_jacobian_term(&mut self.unit_sums[w], 1.0, lc[w].0, &lc[w].1),
+            }
+        }
+        if !setup.smoothed {
+            return;
+        }
+        let ft = lin.transition();
+        for (w, f_w) in [lin.fn_l, lin.fn_r].into_iter().enumerate() {
+            let dpl = &mut self.dp_lambda[w];
+            K::propagate_in_place(dpl, &ft);
+            let q = f_w * f_w.transpose() * rel[w];
+            for r_ in 0..3 {
+                for c_ in 0..3 {
+                    dpl[(r_, c_)] += q[(r_, c_)];
+                }
+            }
+            if setup.all_sources {
+                dpl[(4 + w, 4 + w)] += setup.q_s[1 + w];
+            }
+        }
+        if setup.all_sources {
+            let dpc = &mut self.dp_lambda[2];
+            K::propagate_in_place(dpc, &ft);
+            dpc[(3, 3)] += setup.q_s[0];
+        }
+    }
+
+    /// FilterShare with η derivatives: its terms wait for `∂S/∂η`
+    /// ([`InputJacobianState::add_share_eta_terms`]).
+    #[inline(always)]
+    fn share_eta(setup: &WindowSetup<'_, S>) -> bool {
+        let filter_share = matches!(setup.jac_mode, InputJacobian::FilterShare | InputJacobian::FilterShareSecondOrder);
+        filter_share && setup.mode.derivs && setup.mode.eta
+    }
+
+    /// The measurement update: FilterShare's pending terms (without η
+    /// derivatives), or the smoothed shares' weights and the Joseph update
+    /// of `∂P/∂λ`.
+    #[inline(always)]
+    pub(super) fn update<K: KernelCalls>(
+        &mut self,
+        setup: &WindowSetup<'_, S>,
+        inn: &Innovation<S>,
+        out: &mut WindowSums,
+    ) {
+        let second_order = setup.jac_mode == InputJacobian::FilterShareSecondOrder;
+        let filter_share = second_order || setup.jac_mode == InputJacobian::FilterShare;
+        if filter_share && !Self::share_eta(setup) {
+            add_filter_share_terms(out, &mut self.pending, &inn.sinv, second_order, None);
+        } else if setup.smoothed {
+            let n_l = if setup.all_sources { 3 } else { 2 };
+            for (w, dpl) in self.dp_lambda.iter_mut().take(n_l).enumerate() {
+                let ds_l = h_cols(&h_rows(dpl));
+                self.w_smoothed[w] += (inn.sinv * ds_l).trace();
+                K::joseph_in_place(dpl, &inn.k, None);
+            }
+        }
+    }
+
+    /// FilterShare with η derivatives: the pending terms with their
+    /// η-derivatives, given the update's `∂S/∂p_j`.
+    #[inline(always)]
+    pub(super) fn add_share_eta_terms(
+        &mut self,
+        setup: &WindowSetup<'_, S>,
+        inn: &Innovation<S>,
+        ds: &[Matrix3<f64>; NP],
+        out: &mut WindowSums,
+    ) {
+        if Self::share_eta(setup) {
+            let second_order = setup.jac_mode == InputJacobian::FilterShareSecondOrder;
+            add_filter_share_terms(out, &mut self.pending, &inn.sinv, second_order, Some((setup.cols(), ds)));
+        }
+    }
+
+    /// Adds the window's input log-Jacobian terms to `out` once every sample
+    /// has been filtered: Unit and SmoothedShare put the same weight on
+    /// every turning sample of the window (FilterShare was added update by
+    /// update).
+    #[inline(always)]
+    pub(super) fn finish(&self, setup: &WindowSetup<'_, S>, out: &mut WindowSums) {
+        if setup.all_sources {
+            // The smoothed share of the Gauss-Markov noise replaces the ŝ
+            // correction in J (kept in M): `jacobian` carries −correction.
+            out.jacobian -= out.correction;
+        }
+        if setup.jac_mode == InputJacobian::None {
+            return;
+        }
+        for (w, u) in self.unit_sums.iter().enumerate() {
+            let m = u.turning[w];
+            out.turning[w] += m;
+            let scale = match setup.jac_mode {
+                InputJacobian::Unit => 1.0,
+                InputJacobian::SmoothedShare if m > 0.0 => self.w_smoothed[w] / m,
+                InputJacobian::SmoothedShareAll if m > 0.0 => (self.w_smoothed[w] + 0.5 * self.w_smoothed[2]) / m,
+                _ => 0.0,
+            };
+            if scale > 0.0 {
+                out.jacobian += scale * u.jacobian;
+                out.grad_jacobian += u.grad_jacobian * scale;
+                out.hess_jacobian += u.hess_jacobian * scale;
+                out.jacobian_weight[w] += scale * m;
+            }
+        }
+        if setup.mode.derivs {
+            for c in 0..4 {
+                out.grad_profile[c] += out.grad_jacobian[c];
+            }
+            out.h_theta += out.hess_jacobian;
+        }
+    }
+}
 
 /// `ln(C_w(θ)/C_w(θ_ref))` per wheel `[left, right]` at lateral
 /// acceleration `a_y` and its θ-gradient `∇C_w/C_w` (θ order

@@ -12,20 +12,20 @@ use super::{M3x2, M3xZ, MZx3, IB, IW, MZ};
 /// [0, 0, 0, 0, diag(a_w)]]`, `F_x = I + e_0 f02 e_2ᵀ + e_1 f12 e_2ᵀ`, `F_xβ = −(f02, f12, 0)ᵀ` (the
 /// sideslip enters the step as the heading does, `φ = ψ + ωt_s/2 + β`), `diag` the diagonal of rows 3..S.
 #[derive(Clone, Copy)]
-pub(super) struct Transition<'a, const S: usize> {
+pub(super) struct Transition<const S: usize> {
     pub(super) f02: f64,
     pub(super) f12: f64,
-    pub(super) fxs: &'a Matrix3<f64>,
-    pub(super) fxw: &'a M3x2,
-    pub(super) diag: &'a [f64; S],
+    pub(super) fxs: Matrix3<f64>,
+    pub(super) fxw: M3x2,
+    pub(super) diag: [f64; S],
 }
 
-impl<const S: usize> Transition<'_, S> {
+impl<const S: usize> Transition<S> {
     /// Rows 0..3 of `F v` for the vector with entries `v(k)` (the dense rows
     /// of F; [`propagate`] writes the same sums out column-wise).
     #[inline(always)]
     pub(super) fn top(&self, v: impl Fn(usize) -> f64) -> [f64; 3] {
-        let (fxs, fxw) = (self.fxs, self.fxw);
+        let (fxs, fxw) = (&self.fxs, &self.fxw);
         let fr = [self.f02, self.f12, 0.0];
         let (v2, v3, v4, v5, vb) = (v(2), v(3), v(4), v(5), v(IB));
         let (v9, v10) = if S > IW { (v(IW), v(IW + 1)) } else { (0.0, 0.0) };
@@ -44,7 +44,7 @@ impl<const S: usize> Transition<'_, S> {
 /// symmetric. (The filter calls [`propagate_in_place`]; this copy is for the
 /// kernel tests.)
 #[cfg(test)]
-pub(super) fn propagate<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>) -> MZ<S> {
+pub(super) fn propagate<const S: usize>(p: &MZ<S>, t: &Transition<S>) -> MZ<S> {
     let mut out = *p;
     propagate_in_place(&mut out, t);
     out
@@ -56,7 +56,7 @@ pub(super) fn propagate<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>) -> MZ<
 /// through `W`, computed first, and every other lower-triangle entry
 /// `diag_c·diag_i·P[i, c]` only on the same entry of P.
 #[inline(always)]
-pub(super) fn propagate_in_place<const S: usize>(p: &mut MZ<S>, t: &Transition<'_, S>) {
+pub(super) fn propagate_in_place<const S: usize>(p: &mut MZ<S>, t: &Transition<S>) {
     // W = P F_topᵀ: row r of W is F_top applied to row r of P. Computed
     // column by column (`W[:, c] = Σ_k F[c, k] P[:, k]`, the sum in the order
     // of [`Transition::top`], so every entry is the same to the bit): the
@@ -91,7 +91,7 @@ pub(super) fn propagate_in_place<const S: usize>(p: &mut MZ<S>, t: &Transition<'
     }
     // Rows 3..S: diagonal rows of F.
     // (Column by column, down contiguous memory.)
-    let diag = t.diag;
+    let diag = &t.diag;
     for c in 0..3 {
         for i in 3..S {
             out[(i, c)] = diag[i] * w[(i, c)];
@@ -222,7 +222,7 @@ pub(super) fn joseph_general<const S: usize>(a: &MZ<S>, k: &MZx3<S>) -> MZ<S> {
 
 /// `F A Fᵀ` as [`propagate`] for any `A` (not only symmetric ones).
 #[inline(always)]
-pub(super) fn propagate_general<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>) -> MZ<S> {
+pub(super) fn propagate_general<const S: usize>(p: &MZ<S>, t: &Transition<S>) -> MZ<S> {
     // M = F P (row operations).
     let mut m = MZ::<S>::zeros();
     for j in 0..S {
@@ -250,7 +250,7 @@ pub(super) fn propagate_general<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>
 
 /// `F C` for an S×3 `C` and the structured transition of [`propagate`].
 #[inline(always)]
-pub(super) fn propagate_cols<const S: usize>(c: &MZx3<S>, t: &Transition<'_, S>) -> MZx3<S> {
+pub(super) fn propagate_cols<const S: usize>(c: &MZx3<S>, t: &Transition<S>) -> MZx3<S> {
     let mut out = MZx3::<S>::zeros();
     for j in 0..3 {
         let col = t.top(|k| c[(k, j)]);
@@ -355,7 +355,7 @@ mod kernel_tests {
             f.fixed_view_mut::<3, 3>(0, 3).copy_from(&fxs);
             f.fixed_view_mut::<3, 2>(0, IW).copy_from(&fxw);
             let dense = f * p * f.transpose();
-            let t = Transition { f02, f12, fxs: &fxs, fxw: &fxw, diag: &diag };
+            let t = Transition { f02, f12, fxs, fxw, diag };
             let fast = propagate(&p, &t);
             assert_close(&fast, &dense, "propagate");
             assert_eq!(fast, fast.transpose(), "propagate is not exactly symmetric");
@@ -400,7 +400,7 @@ mod kernel_tests {
 
     /// The row-wise `F P Fᵀ` (through [`Transition::top`]), the
     /// bitwise reference of [`propagate`].
-    fn propagate_rowwise<const S: usize>(p: &MZ<S>, t: &Transition<'_, S>) -> MZ<S> {
+    fn propagate_rowwise<const S: usize>(p: &MZ<S>, t: &Transition<S>) -> MZ<S> {
         let mut w = MZx3::<S>::zeros();
         for r in 0..S {
             let row = t.top(|k| p[(r, k)]);

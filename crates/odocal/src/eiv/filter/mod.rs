@@ -35,9 +35,11 @@
 mod dispatch;
 mod dual;
 mod input_jacobian;
+mod predict;
 mod kernels;
 mod reference;
 mod sums;
+mod update;
 mod window;
 
 use nalgebra::{SMatrix, SVector};
