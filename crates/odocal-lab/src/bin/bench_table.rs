@@ -333,9 +333,9 @@ fn thread_table(plan: &Plan, cells: &[Cell]) -> Table {
             };
             peak = peak.max(c.peak_mb());
             row.push(if m == METHODS[0] {
-                format!("1 ({:.2} s)", c.wall())
+                format!("1 ({:.2} s; CPU {:.2} s)", c.wall(), c.cpu())
             } else {
-                format!("**{}** ({:.2} s)", ratio(c.wall(), b.wall()), c.wall())
+                format!("**{}** ({:.2} s; CPU {})", ratio(c.wall(), b.wall()), c.wall(), ratio(c.cpu(), b.cpu()))
             });
         }
         row.push(format!("{peak:.0} MB"));
@@ -436,7 +436,8 @@ fn run() -> Res<()> {
     println!("load average at the end: {}", load_average());
     println!(
         "medians of {} interleaved repetitions; wall time of `calibrate` (the drive read from CSV before, not \
-         counted); ratios against batch-gn with the same threads and drive\n",
+         counted) and, beside it, the ratio of CPU times (user + system of the worker process); ratios \
+         against batch-gn with the same threads and drive\n",
         plan.reps
     );
     println!(
