@@ -300,13 +300,20 @@ fn measure(plan: &Plan, cells: &mut [Cell], fleet: &mut Fleet) -> Res<()> {
         for (i, c) in cells.iter_mut().enumerate() {
             eprint!("\rrepetition {}/{}: {} of {total} cells       ", rep + 1, plan.reps, i + 1);
             let child = worker_command(&drive_path(plan, c.km), c.method, c.threads)?.spawn()?;
-            c.runs.push(wait_sample(child, c.method)?);
+            let sample = wait_sample(child, c.method)?;
+            // Every sample as it comes, so an interrupted run leaves its data.
+            eprintln!(
+                "\rsample: {} km, {}, {} thread(s): {:.3} s wall, {:.2} s CPU, {:.0} kB peak",
+                c.km, c.method, c.threads, sample.wall, sample.cpu, sample.peak_kb
+            );
+            c.runs.push(sample);
         }
         if plan.fleet_drives > 0 {
             eprint!("\rrepetition {}/{}: fleet                 ", rep + 1, plan.reps);
             let path = drive_path(plan, plan.fleet_km);
             fleet.serial.push(fleet_serial(plan, &path)?);
             fleet.parallel.push(fleet_parallel(plan, &path)?);
+            eprintln!("\rsample: fleet: {:.2} s serial, {:.2} s parallel", fleet.serial[rep], fleet.parallel[rep]);
         }
     }
     eprintln!();
