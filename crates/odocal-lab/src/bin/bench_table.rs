@@ -24,7 +24,7 @@
 //! - **length**: the same on 6/12/24/48/96 km with 2 threads (or fewer
 //!   cores), with the cost per km and per sample relative to 24 km;
 //! - **fleet**: `--fleet-drives` runs of the default method on the 12 km
-//!   drive, one thread each, as many processes at once as there are cores,
+//!   drive (`--fleet-km`), one thread each, as many processes at once as there are cores,
 //!   against the same runs one after another.
 //!
 //! `--quick`: lengths 6/12/24 km and a fleet on the 6 km drive (a few
@@ -39,7 +39,7 @@ use odocal::{calibrate, CalibrationOptions, Drive, Method};
 use odocal_lab::{median, Args, Res, Table};
 
 const USAGE: &str = "bench_table [--quick] [--reps 3] [--seed 1] [--threads 1,2,CORES] [--lengths 6,12,24,48,96] \
-                     [--fleet-drives 2×CORES] [--out DIR]\n       bench_table --worker DRIVE.csv METHOD THREADS";
+                     [--fleet-drives 2×CORES] [--fleet-km 12] [--out DIR]\n       bench_table --worker DRIVE.csv METHOD THREADS";
 
 /// The methods of the table, by their CLI names; the first is the reference.
 const METHODS: [&str; 3] = ["batch-gn", "eiv", "three-step"];
@@ -199,6 +199,7 @@ fn plan() -> Res<Plan> {
     }
     lengths.sort_by(f64::total_cmp);
     let fleet_drives = args.get("fleet-drives", 2 * cores)?;
+    let fleet_km = args.get("fleet-km", if quick { 6.0 } else { 12.0 })?;
     let out: Option<String> = args.opt("out")?;
     args.finish()?;
     let keep_dir = out.is_some();
@@ -210,7 +211,7 @@ fn plan() -> Res<Plan> {
         threads,
         lengths,
         length_threads: 2.min(cores),
-        fleet_km: if quick { 6.0 } else { 12.0 },
+        fleet_km,
         fleet_drives,
         cores,
         dir,
