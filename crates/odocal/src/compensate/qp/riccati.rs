@@ -208,13 +208,17 @@ struct Work {
     dt_hi: Vec<V5>,
     dl_lo: Vec<V5>,
     dl_hi: Vec<V5>,
+    /// Complementarity targets of the current Newton step, per stage.
+    rc: Vec<(V5, V5)>,
     /// Affine directions kept for the corrector term.
     aff_t_lo: Vec<V5>,
     aff_t_hi: Vec<V5>,
     aff_l_lo: Vec<V5>,
     aff_l_hi: Vec<V5>,
-    /// Riccati factors: P_{i+1}, H_uu⁻¹, H_us, feed-forward.
-    p_next: Vec<Matrix5<f64>>,
+    /// Riccati factors: the blocks `P11`, `P12` of P_{i+1} (the vector
+    /// pass reads no other), H_uu⁻¹, H_us, feed-forward.
+    p11: Vec<Matrix3<f64>>,
+    p12: Vec<Matrix3x2<f64>>,
     huu_inv: Vec<Matrix2<f64>>,
     hus: Vec<SMatrix<f64, 2, 5>>,
     kff: Vec<Vector2<f64>>,
@@ -247,11 +251,13 @@ impl Work {
             dt_hi: v5(),
             dl_lo: v5(),
             dl_hi: v5(),
+            rc: vec![(V5::zeros(), V5::zeros()); k],
             aff_t_lo: v5(),
             aff_t_hi: v5(),
             aff_l_lo: v5(),
             aff_l_hi: v5(),
-            p_next: vec![Matrix5::zeros(); k],
+            p11: vec![Matrix3::zeros(); k],
+            p12: vec![Matrix3x2::zeros(); k],
             huu_inv: vec![Matrix2::zeros(); k],
             hus: vec![SMatrix::<f64, 2, 5>::zeros(); k],
             kff: vec![Vector2::zeros(); k],
@@ -281,13 +287,14 @@ impl StructuredSolver {
     /// Gradient of f at the packed iterate into `out` (w and z parts).
     fn gradient(qp: &StageQp, x: &[V5], out: &mut [V5]) {
         let k = x.len();
+        let (out, delta) = (&mut out[..k], &qp.delta[..k - 1]);
         let r2 = 2.0 * qp.r;
         for i in 0..k {
             let gz = 2.0 * qp.q.component_mul(&zpart(&x[i]));
             out[i] = pack(&Vector2::zeros(), &gz);
         }
         for i in 1..k {
-            let d = r2.component_mul(&(wpart(&x[i]) - wpart(&x[i - 1]) + qp.delta[i - 1]));
+            let d = r2.component_mul(&(wpart(&x[i]) - wpart(&x[i - 1]) + delta[i - 1]));
             out[i][0] += d[0];
             out[i][1] += d[1];
             out[i - 1][0] -= d[0];
@@ -298,17 +305,22 @@ impl StructuredSolver {
     /// Fills r_d, r_p, r_lo, r_hi and returns their norms.
     fn residuals(qp: &StageQp, wk: &mut Work) -> Residuals {
         let k = qp.stages();
-        Self::gradient(qp, &wk.x, &mut wk.r_d);
+        Self::gradient(qp, &wk.x[..k], &mut wk.r_d);
+        let (x, y, free) = (&wk.x[..k], &wk.y[..k], &wk.free[..k]);
+        let (a, b, c, delta) = (&qp.a[..k], &qp.b[..k], &qp.c[..k], &qp.delta[..k - 1]);
+        let (r_d, r_p, r_lo, r_hi) = (&mut wk.r_d[..k], &mut wk.r_p[..k], &mut wk.r_lo[..k], &mut wk.r_hi[..k]);
+        let (lo, hi, t_lo, t_hi) = (&wk.lo[..k], &wk.hi[..k], &wk.t_lo[..k], &wk.t_hi[..k]);
+        let (l_lo, l_hi) = (&wk.l_lo[..k], &wk.l_hi[..k]);
         let mut grad_scale: f64 = 0.0;
         let mut grad_scale_z: f64 = 0.0;
         let mut objective = 0.0;
         for i in 0..k {
-            grad_scale = grad_scale.max(wpart(&wk.r_d[i]).amax());
-            grad_scale_z = grad_scale_z.max(zpart(&wk.r_d[i]).amax());
-            let z = zpart(&wk.x[i]);
+            grad_scale = grad_scale.max(wpart(&r_d[i]).amax());
+            grad_scale_z = grad_scale_z.max(zpart(&r_d[i]).amax());
+            let z = zpart(&x[i]);
             objective += z.component_mul(&z).dot(&qp.q);
             if i > 0 {
-                let d = wpart(&wk.x[i]) - wpart(&wk.x[i - 1]) + qp.delta[i - 1];
+                let d = wpart(&x[i]) - wpart(&x[i - 1]) + delta[i - 1];
                 objective += d.component_mul(&d).dot(&qp.r);
             }
         }
@@ -318,26 +330,26 @@ impl StructuredSolver {
         let mut gap = 0.0;
         let mut zprev = Vector3::zeros();
         for i in 0..k {
-            let w = wpart(&wk.x[i]);
-            let z = zpart(&wk.x[i]);
+            let w = wpart(&x[i]);
+            let z = zpart(&x[i]);
             // Gᵀy: z_{i+1} gets y_{i+1} − A_{i+2}ᵀ y_{i+2}; w_i gets −B_{i+1}ᵀ y_{i+1}.
-            let mut gy_z = wk.y[i];
+            let mut gy_z = y[i];
             if i + 1 < k {
-                gy_z -= qp.a[i + 1].transpose() * wk.y[i + 1];
+                gy_z -= a[i + 1].transpose() * y[i + 1];
             }
-            let gy_w = -(qp.b[i].transpose() * wk.y[i]);
-            wk.r_d[i] += pack(&gy_w, &gy_z) - wk.l_lo[i] + wk.l_hi[i];
+            let gy_w = -(b[i].transpose() * y[i]);
+            r_d[i] += pack(&gy_w, &gy_z) - l_lo[i] + l_hi[i];
             // A pinned variable's stationarity is absorbed by the multiplier
             // of its equality `x = v`.
-            wk.r_d[i].component_mul_assign(&wk.free[i]);
-            dual = dual.max(wpart(&wk.r_d[i]).amax());
-            dual_z = dual_z.max(zpart(&wk.r_d[i]).amax());
-            wk.r_p[i] = z - qp.a[i] * zprev - qp.b[i] * w - qp.c[i];
+            r_d[i].component_mul_assign(&free[i]);
+            dual = dual.max(wpart(&r_d[i]).amax());
+            dual_z = dual_z.max(zpart(&r_d[i]).amax());
+            r_p[i] = z - a[i] * zprev - b[i] * w - c[i];
             zprev = z;
-            wk.r_lo[i] = (wk.x[i] - wk.lo[i] - wk.t_lo[i]).component_mul(&wk.free[i]);
-            wk.r_hi[i] = (wk.hi[i] - wk.x[i] - wk.t_hi[i]).component_mul(&wk.free[i]);
-            primal = primal.max(wk.r_p[i].amax()).max(wk.r_lo[i].amax()).max(wk.r_hi[i].amax());
-            gap += wk.t_lo[i].dot(&wk.l_lo[i]) + wk.t_hi[i].dot(&wk.l_hi[i]);
+            r_lo[i] = (x[i] - lo[i] - t_lo[i]).component_mul(&free[i]);
+            r_hi[i] = (hi[i] - x[i] - t_hi[i]).component_mul(&free[i]);
+            primal = primal.max(r_p[i].amax()).max(r_lo[i].amax()).max(r_hi[i].amax());
+            gap += t_lo[i].dot(&l_lo[i]) + t_hi[i].dot(&l_hi[i]);
         }
         let mu = if wk.n_free > 0 { gap / (2 * wk.n_free) as f64 } else { 0.0 };
         Residuals { primal, dual, gap, mu, objective, grad_scale, dual_z, grad_scale_z }
@@ -350,17 +362,21 @@ impl StructuredSolver {
         let q2 = Matrix3::from_diagonal(&(2.0 * qp.q));
         let r2 = Matrix2::from_diagonal(&(2.0 * qp.r));
         // Terminal cost-to-go: P_K = blockdiag(2Q + Σ_z, 0).
+        let (sigma, free, qa, qb) = (&wk.sigma[..k], &wk.free[..k], &qp.a[..k], &qp.b[..k]);
+        let (p11s, p12s) = (&mut wk.p11[..k], &mut wk.p12[..k]);
+        let (huu_invs, huss) = (&mut wk.huu_inv[..k], &mut wk.hus[..k]);
         let mut p = Matrix5::zeros();
-        p.fixed_view_mut::<3, 3>(0, 0).copy_from(&(q2 + Matrix3::from_diagonal(&zpart(&wk.sigma[k - 1]))));
+        p.fixed_view_mut::<3, 3>(0, 0).copy_from(&(q2 + Matrix3::from_diagonal(&zpart(&sigma[k - 1]))));
         for i in (0..k).rev() {
-            wk.p_next[i] = p;
             let p11: Matrix3<f64> = p.fixed_view::<3, 3>(0, 0).into_owned();
             let p12: Matrix3x2<f64> = p.fixed_view::<3, 2>(0, 3).into_owned();
+            p11s[i] = p11;
+            p12s[i] = p12;
             let p22: Matrix2<f64> = p.fixed_view::<2, 2>(3, 3).into_owned();
-            let a = &qp.a[i];
-            let b = &qp.b[i];
+            let a = &qa[i];
+            let b = &qb[i];
             let g = p11 * b + p12;
-            let mut huu = b.transpose() * g + p12.transpose() * b + p22 + Matrix2::from_diagonal(&wpart(&wk.sigma[i]));
+            let mut huu = b.transpose() * g + p12.transpose() * b + p22 + Matrix2::from_diagonal(&wpart(&sigma[i]));
             if i > 0 {
                 huu += r2;
             }
@@ -368,7 +384,7 @@ impl StructuredSolver {
             // definiteness checked on the leading minors. A pinned input is
             // no decision variable: H_uu is inverted on the free inputs only
             // and padded with zeros, so its step (and feedback) is 0.
-            let huu_inv = match (wk.free[i][0] > 0.0, wk.free[i][1] > 0.0) {
+            let huu_inv = match (free[i][0] > 0.0, free[i][1] > 0.0) {
                 (true, true) => {
                     let (h00, h01, h11) = (huu[(0, 0)], 0.5 * (huu[(0, 1)] + huu[(1, 0)]), huu[(1, 1)]);
                     let det = h00 * h11 - h01 * h01;
@@ -395,18 +411,18 @@ impl StructuredSolver {
                     inv
                 }
             };
-            wk.huu_inv[i] = huu_inv;
+            huu_invs[i] = huu_inv;
             if i == 0 {
                 break; // s_0 = 0: P_0 is never used.
             }
             let mut hus = SMatrix::<f64, 2, 5>::zeros();
             hus.fixed_view_mut::<2, 3>(0, 0).copy_from(&(g.transpose() * a));
             hus.fixed_view_mut::<2, 2>(0, 3).copy_from(&(-r2));
-            wk.hus[i] = hus;
+            huss[i] = hus;
             // P_i = blockdiag(2Q + Σ_z + AᵀP11A, 2R) − H_usᵀ H_uu⁻¹ H_us.
             let mut pn = Matrix5::zeros();
             pn.fixed_view_mut::<3, 3>(0, 0)
-                .copy_from(&(q2 + Matrix3::from_diagonal(&zpart(&wk.sigma[i - 1])) + a.transpose() * p11 * a));
+                .copy_from(&(q2 + Matrix3::from_diagonal(&zpart(&sigma[i - 1])) + a.transpose() * p11 * a));
             pn.fixed_view_mut::<2, 2>(3, 3).copy_from(&r2);
             pn -= hus.transpose() * (huu_inv * hus);
             p = 0.5 * (pn + pn.transpose());
@@ -418,92 +434,138 @@ impl StructuredSolver {
     /// dynamics offset `−r_p` with the current factorisation; writes `dx`.
     fn solve_lq(qp: &StageQp, wk: &mut Work) {
         let k = qp.stages();
+        let (a, b, r_p, rt) = (&qp.a[..k], &qp.b[..k], &wk.r_p[..k], &wk.rt[..k]);
+        let (p11, p12, huu_inv, hus) = (&wk.p11[..k], &wk.p12[..k], &wk.huu_inv[..k], &wk.hus[..k]);
+        let (kffs, dx) = (&mut wk.kff[..k], &mut wk.dx[..k]);
         // Backward vector pass: cost-to-go gradient p.
         let mut p = V5::zeros();
-        p.fixed_rows_mut::<3>(0).copy_from(&zpart(&wk.rt[k - 1]));
+        p.fixed_rows_mut::<3>(0).copy_from(&zpart(&rt[k - 1]));
         for i in (0..k).rev() {
-            let pm = &wk.p_next[i];
-            let chat = -wk.r_p[i];
-            let e1 = pm.fixed_view::<3, 3>(0, 0) * chat + p.fixed_rows::<3>(0);
-            let e2 = pm.fixed_view::<3, 2>(0, 3).transpose() * chat + p.fixed_rows::<2>(3);
-            let hu = wpart(&wk.rt[i]) + qp.b[i].transpose() * e1 + e2;
-            let kff = -(wk.huu_inv[i] * hu);
-            wk.kff[i] = kff;
+            let chat = -r_p[i];
+            let e1 = p11[i] * chat + p.fixed_rows::<3>(0);
+            let e2 = p12[i].transpose() * chat + p.fixed_rows::<2>(3);
+            let hu = wpart(&rt[i]) + b[i].transpose() * e1 + e2;
+            let kff = -(huu_inv[i] * hu);
+            kffs[i] = kff;
             if i == 0 {
                 break;
             }
-            let hs_z = zpart(&wk.rt[i - 1]) + qp.a[i].transpose() * e1;
+            let hs_z = zpart(&rt[i - 1]) + a[i].transpose() * e1;
             let mut pn = V5::zeros();
             pn.fixed_rows_mut::<3>(0).copy_from(&hs_z);
-            p = pn + wk.hus[i].transpose() * kff;
+            p = pn + hus[i].transpose() * kff;
         }
         // Forward rollout: u_i = −H_uu⁻¹ H_us s_i + kff_i.
         let mut s = V5::zeros();
         for i in 0..k {
-            let u = if i == 0 { wk.kff[0] } else { wk.kff[i] - wk.huu_inv[i] * (wk.hus[i] * s) };
-            let dz = qp.a[i] * s.fixed_rows::<3>(0) + qp.b[i] * u - wk.r_p[i];
-            wk.dx[i] = pack(&u, &dz);
+            let u = if i == 0 { kffs[0] } else { kffs[i] - huu_inv[i] * (hus[i] * s) };
+            let dz = a[i] * s.fixed_rows::<3>(0) + b[i] * u - r_p[i];
+            dx[i] = pack(&u, &dz);
             s = V5::new(dz[0], dz[1], dz[2], u[0], u[1]);
         }
     }
 
-    /// Sets `rt` from the complementarity targets `rc_lo`, `rc_hi`
-    /// (given per element by the closure), solves for `dx`, and recovers
-    /// `dt`, `dl`.
-    fn newton_direction(qp: &StageQp, wk: &mut Work, rc: impl Fn(&Work, usize) -> (V5, V5)) {
+    /// The complementarity residuals `rc_lo`, `rc_hi` of every stage that
+    /// the Newton step targets, into `rc`: `t·μ` for the predictor
+    /// (`target` None); `t·μ + Δt_aff·Δμ_aff − σμ` for the corrector
+    /// (`target` σμ).
+    fn complementarity(wk: &Work, target: Option<f64>, rc: &mut [(V5, V5)]) {
+        let k = rc.len();
+        let (t_lo, t_hi, l_lo, l_hi) = (&wk.t_lo[..k], &wk.t_hi[..k], &wk.l_lo[..k], &wk.l_hi[..k]);
+        match target {
+            None => {
+                for i in 0..k {
+                    rc[i] = (t_lo[i].component_mul(&l_lo[i]), t_hi[i].component_mul(&l_hi[i]));
+                }
+            }
+            Some(target) => {
+                let (at_lo, at_hi, al_lo, al_hi) =
+                    (&wk.aff_t_lo[..k], &wk.aff_t_hi[..k], &wk.aff_l_lo[..k], &wk.aff_l_hi[..k]);
+                for i in 0..k {
+                    rc[i] = (
+                        t_lo[i].component_mul(&l_lo[i]) + at_lo[i].component_mul(&al_lo[i]) - V5::repeat(target),
+                        t_hi[i].component_mul(&l_hi[i]) + at_hi[i].component_mul(&al_hi[i]) - V5::repeat(target),
+                    );
+                }
+            }
+        }
+    }
+
+    /// Sets `rt` from the complementarity targets ([`Self::complementarity`]),
+    /// solves for `dx`, and recovers `dt`, `dl`.
+    fn newton_direction(qp: &StageQp, wk: &mut Work, target: Option<f64>) {
         let k = qp.stages();
-        for i in 0..k {
-            let (rc_lo, rc_hi) = rc(wk, i);
-            let a = (rc_lo + wk.l_lo[i].component_mul(&wk.r_lo[i])).component_div(&wk.t_lo[i]);
-            let b = (rc_hi + wk.l_hi[i].component_mul(&wk.r_hi[i])).component_div(&wk.t_hi[i]);
-            wk.rt[i] = wk.r_d[i] + a - b;
+        let mut rc = std::mem::take(&mut wk.rc);
+        Self::complementarity(wk, target, &mut rc[..k]);
+        {
+            let (rc, r_d, rt) = (&rc[..k], &wk.r_d[..k], &mut wk.rt[..k]);
+            let (t_lo, t_hi, l_lo, l_hi) = (&wk.t_lo[..k], &wk.t_hi[..k], &wk.l_lo[..k], &wk.l_hi[..k]);
+            let (r_lo, r_hi) = (&wk.r_lo[..k], &wk.r_hi[..k]);
+            for i in 0..k {
+                let (rc_lo, rc_hi) = rc[i];
+                let a = (rc_lo + l_lo[i].component_mul(&r_lo[i])).component_div(&t_lo[i]);
+                let b = (rc_hi + l_hi[i].component_mul(&r_hi[i])).component_div(&t_hi[i]);
+                rt[i] = r_d[i] + a - b;
+            }
         }
         Self::solve_lq(qp, wk);
-        for i in 0..k {
-            let (rc_lo, rc_hi) = rc(wk, i);
-            let dx = wk.dx[i];
-            wk.dt_lo[i] = dx + wk.r_lo[i];
-            wk.dt_hi[i] = wk.r_hi[i] - dx;
-            // Pinned variables keep slacks and (zero) multipliers unchanged.
-            let f = &wk.free[i];
-            wk.dl_lo[i] = -(rc_lo + wk.l_lo[i].component_mul(&wk.dt_lo[i])).component_div(&wk.t_lo[i]).component_mul(f);
-            wk.dl_hi[i] = -(rc_hi + wk.l_hi[i].component_mul(&wk.dt_hi[i])).component_div(&wk.t_hi[i]).component_mul(f);
+        {
+            let (rc, dx, free) = (&rc[..k], &wk.dx[..k], &wk.free[..k]);
+            let (t_lo, t_hi, l_lo, l_hi) = (&wk.t_lo[..k], &wk.t_hi[..k], &wk.l_lo[..k], &wk.l_hi[..k]);
+            let (r_lo, r_hi) = (&wk.r_lo[..k], &wk.r_hi[..k]);
+            let (dt_lo, dt_hi) = (&mut wk.dt_lo[..k], &mut wk.dt_hi[..k]);
+            let (dl_lo, dl_hi) = (&mut wk.dl_lo[..k], &mut wk.dl_hi[..k]);
+            for i in 0..k {
+                let (rc_lo, rc_hi) = rc[i];
+                let dx = dx[i];
+                dt_lo[i] = dx + r_lo[i];
+                dt_hi[i] = r_hi[i] - dx;
+                // Pinned variables keep slacks and (zero) multipliers unchanged.
+                let f = &free[i];
+                dl_lo[i] = -(rc_lo + l_lo[i].component_mul(&dt_lo[i])).component_div(&t_lo[i]).component_mul(f);
+                dl_hi[i] = -(rc_hi + l_hi[i].component_mul(&dt_hi[i])).component_div(&t_hi[i]).component_mul(f);
+            }
         }
+        wk.rc = rc;
     }
 
     /// Largest α ≤ 1 keeping all slacks and multipliers non-negative.
     ///
-    /// Branch-free: with every `a > 0`, `α_max = 1 / max(1, max(−d/a))`.
+    /// With every `a > 0`, `α_max = 1 / max(1, max(−d/a))`; the maximum is
+    /// exact in any order (a NaN ratio is skipped, as by `f64::max`).
     fn max_step(wk: &Work) -> f64 {
-        fn worst(v: &[V5], dv: &[V5]) -> f64 {
-            let mut m = [0.0f64; 5];
-            for (a, d) in v.iter().zip(dv) {
+        let k = wk.t_lo.len();
+        let pairs = [(&wk.t_lo[..k], &wk.dt_lo[..k]), (&wk.t_hi[..k], &wk.dt_hi[..k])];
+        let pairs_l = [(&wk.l_lo[..k], &wk.dl_lo[..k]), (&wk.l_hi[..k], &wk.dl_hi[..k])];
+        let mut m = [1.0f64; 5];
+        for (v, dv) in pairs.into_iter().chain(pairs_l) {
+            for i in 0..k {
+                let (a, d) = (&v[i], &dv[i]);
                 for j in 0..5 {
-                    m[j] = m[j].max(-d[j] / a[j]);
+                    let r = -d[j] / a[j];
+                    if r > m[j] {
+                        m[j] = r;
+                    }
                 }
             }
-            m.iter().fold(0.0f64, |x, &y| x.max(y))
         }
-        let r = worst(&wk.t_lo, &wk.dt_lo)
-            .max(worst(&wk.t_hi, &wk.dt_hi))
-            .max(worst(&wk.l_lo, &wk.dl_lo))
-            .max(worst(&wk.l_hi, &wk.dl_hi));
-        1.0 / r.max(1.0)
+        1.0 / m.iter().fold(1.0f64, |x, &y| if y > x { y } else { x })
     }
 
     /// Multiplier step from stationarity in z (backward recursion):
     /// `Δy_k = −(2Q + Σ_z)Δz_k − r̃_z,k + A_{k+1}ᵀ Δy_{k+1}`.
     fn dual_direction(qp: &StageQp, wk: &mut Work) {
         let k = qp.stages();
+        let (dx, sigma, rt, a, dys) = (&wk.dx[..k], &wk.sigma[..k], &wk.rt[..k], &qp.a[..k], &mut wk.dy[..k]);
         let mut next = Vector3::zeros();
         for i in (0..k).rev() {
-            let dz = zpart(&wk.dx[i]);
-            let h = (2.0 * qp.q + zpart(&wk.sigma[i])).component_mul(&dz);
-            let mut dy = -h - zpart(&wk.rt[i]);
+            let dz = zpart(&dx[i]);
+            let h = (2.0 * qp.q + zpart(&sigma[i])).component_mul(&dz);
+            let mut dy = -h - zpart(&rt[i]);
             if i + 1 < k {
-                dy += qp.a[i + 1].transpose() * next;
+                dy += a[i + 1].transpose() * next;
             }
-            wk.dy[i] = dy;
+            dys[i] = dy;
             next = dy;
         }
     }
@@ -687,21 +749,13 @@ impl StructuredSolver {
                 )));
             }
 
-            for i in 0..k {
-                wk.sigma[i] = wk.l_lo[i].component_div(&wk.t_lo[i]) + wk.l_hi[i].component_div(&wk.t_hi[i]);
-            }
+            Self::barrier_hessian(wk);
             Self::factorize(qp, wk)?;
 
             // Predictor (affine scaling): target t·μ = 0.
-            Self::newton_direction(qp, wk, |w, i| {
-                (w.t_lo[i].component_mul(&w.l_lo[i]), w.t_hi[i].component_mul(&w.l_hi[i]))
-            });
+            Self::newton_direction(qp, wk, None);
             let alpha_aff = Self::max_step(wk);
-            let mut gap_aff = 0.0;
-            for i in 0..k {
-                gap_aff += (wk.t_lo[i] + alpha_aff * wk.dt_lo[i]).dot(&(wk.l_lo[i] + alpha_aff * wk.dl_lo[i]))
-                    + (wk.t_hi[i] + alpha_aff * wk.dt_hi[i]).dot(&(wk.l_hi[i] + alpha_aff * wk.dl_hi[i]));
-            }
+            let gap_aff = Self::affine_gap(wk, alpha_aff);
             let sigma_c = (gap_aff / res.gap).clamp(0.0, 1.0).powi(3);
             let target = sigma_c * res.mu;
             std::mem::swap(&mut wk.aff_t_lo, &mut wk.dt_lo);
@@ -710,30 +764,57 @@ impl StructuredSolver {
             std::mem::swap(&mut wk.aff_l_hi, &mut wk.dl_hi);
 
             // Corrector: target t·μ = σμ, with the second-order term.
-            Self::newton_direction(qp, wk, |w, i| {
-                (
-                    w.t_lo[i].component_mul(&w.l_lo[i]) + w.aff_t_lo[i].component_mul(&w.aff_l_lo[i])
-                        - V5::repeat(target),
-                    w.t_hi[i].component_mul(&w.l_hi[i]) + w.aff_t_hi[i].component_mul(&w.aff_l_hi[i])
-                        - V5::repeat(target),
-                )
-            });
+            Self::newton_direction(qp, wk, Some(target));
             Self::dual_direction(qp, wk);
             let alpha = (opt.step_fraction * Self::max_step(wk)).min(1.0);
-            for i in 0..k {
-                wk.x[i] += alpha * wk.dx[i];
-                wk.y[i] += alpha * wk.dy[i];
-                wk.t_lo[i] += alpha * wk.dt_lo[i];
-                wk.t_hi[i] += alpha * wk.dt_hi[i];
-                wk.l_lo[i] += alpha * wk.dl_lo[i];
-                wk.l_hi[i] += alpha * wk.dl_hi[i];
-            }
+            Self::take_step(wk, alpha);
         }
         Err(QpError::MaxIterations { iterations: opt.max_iterations, residual: last_residual })
     }
 }
 
 impl StructuredSolver {
+    /// The barrier Hessian's diagonal `Σ = μ_lo/t_lo + μ_hi/t_hi`.
+    fn barrier_hessian(wk: &mut Work) {
+        let k = wk.sigma.len();
+        let (t_lo, t_hi, l_lo, l_hi) = (&wk.t_lo[..k], &wk.t_hi[..k], &wk.l_lo[..k], &wk.l_hi[..k]);
+        for (i, sigma) in wk.sigma.iter_mut().enumerate() {
+            *sigma = l_lo[i].component_div(&t_lo[i]) + l_hi[i].component_div(&t_hi[i]);
+        }
+    }
+
+    /// The total complementarity `Σ t·μ` after a step of `alpha` along the
+    /// current direction.
+    fn affine_gap(wk: &Work, alpha: f64) -> f64 {
+        let k = wk.t_lo.len();
+        let (t_lo, t_hi, l_lo, l_hi) = (&wk.t_lo[..k], &wk.t_hi[..k], &wk.l_lo[..k], &wk.l_hi[..k]);
+        let (dt_lo, dt_hi, dl_lo, dl_hi) = (&wk.dt_lo[..k], &wk.dt_hi[..k], &wk.dl_lo[..k], &wk.dl_hi[..k]);
+        let mut gap = 0.0;
+        for i in 0..k {
+            gap += (t_lo[i] + alpha * dt_lo[i]).dot(&(l_lo[i] + alpha * dl_lo[i]))
+                + (t_hi[i] + alpha * dt_hi[i]).dot(&(l_hi[i] + alpha * dl_hi[i]));
+        }
+        gap
+    }
+
+    /// Moves the iterate a step of `alpha` along the current direction.
+    fn take_step(wk: &mut Work, alpha: f64) {
+        fn axpy<T: Copy + std::ops::AddAssign>(x: &mut [T], d: &[T], alpha: f64)
+        where
+            f64: std::ops::Mul<T, Output = T>,
+        {
+            for (x, d) in x.iter_mut().zip(d) {
+                *x += alpha * *d;
+            }
+        }
+        axpy(&mut wk.x, &wk.dx, alpha);
+        axpy(&mut wk.y, &wk.dy, alpha);
+        axpy(&mut wk.t_lo, &wk.dt_lo, alpha);
+        axpy(&mut wk.t_hi, &wk.dt_hi, alpha);
+        axpy(&mut wk.l_lo, &wk.dl_lo, alpha);
+        axpy(&mut wk.l_hi, &wk.dl_hi, alpha);
+    }
+
     /// Packs the converged iterate into a [`QpSolution`].
     fn finish(&self, qp: &StageQp, wk: &Work, iterations: usize) -> QpSolution {
         let w: Vec<Vector2<f64>> = wk.x.iter().map(wpart).collect();
