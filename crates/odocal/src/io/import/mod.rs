@@ -300,7 +300,7 @@ pub fn load_drive(path: &Path) -> Result<(Drive, Option<ImportReport>)> {
 /// let manifest = Manifest::from_path(path.as_ref())?;
 /// let imported = import(&manifest)?;
 /// println!("{}", imported.report); // what was read, estimated, split and dropped
-/// assert!(imported.drive.len() > 1000);
+/// assert!(!imported.drive.is_empty());
 /// # Ok(()) }
 /// ```
 pub fn import(m: &Manifest) -> Result<ImportedDrive> {
