@@ -275,6 +275,16 @@ pub fn is_manifest_path(path: &Path) -> bool {
 
 /// Reads a drive from either a canonical CSV (SPEC §2) or a `.toml` manifest
 /// (imported with [`import`]); the report is `Some` for a manifest.
+///
+/// ```
+/// # fn main() -> Result<(), odocal::Error> {
+/// // A 60 s slice of a comma2k19 drive that the crate's tests ship.
+/// let manifest = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/comma2k19-rav4/manifest.toml");
+/// let (drive, report) = odocal::load_drive(manifest.as_ref())?;
+/// assert!(!drive.is_empty());
+/// assert!(report.is_some(), "a manifest comes with its import report");
+/// # Ok(()) }
+/// ```
 pub fn load_drive(path: &Path) -> Result<(Drive, Option<ImportReport>)> {
     if is_manifest_path(path) {
         let m = Manifest::from_path(path)?;
@@ -287,6 +297,17 @@ pub fn load_drive(path: &Path) -> Result<(Drive, Option<ImportReport>)> {
 
 /// Imports a drive described by a manifest: reads the streams, estimates the
 /// clock offset, resamples to the output rate and splits at gaps.
+///
+/// ```
+/// # fn main() -> Result<(), odocal::Error> {
+/// use odocal::{import, Manifest};
+/// let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/comma2k19-rav4/manifest.toml");
+/// let manifest = Manifest::from_path(path.as_ref())?;
+/// let imported = import(&manifest)?;
+/// println!("{}", imported.report); // what was read, estimated, split and dropped
+/// assert!(!imported.drive.is_empty());
+/// # Ok(()) }
+/// ```
 pub fn import(m: &Manifest) -> Result<ImportedDrive> {
     let started = Instant::now();
     let o = &m.output;
