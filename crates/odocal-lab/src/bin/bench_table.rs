@@ -67,7 +67,7 @@ fn worker(argv: &[String]) -> Res<()> {
     let opts = CalibrationOptions { method: Method::from_name(method)?, ..Default::default() };
     let cpu0 = cpu_seconds()?;
     let t = Instant::now();
-    calibrate(&drive, &opts, None)?;
+    calibrate(&drive, &opts)?;
     let wall = t.elapsed().as_secs_f64();
     let cpu = cpu_seconds()? - cpu0;
     println!("{wall} {cpu} {} {}", peak_rss_kb()?, drive.len());

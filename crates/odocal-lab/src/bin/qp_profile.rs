@@ -14,7 +14,7 @@
 //! bit-identical change of the solver keeps.
 
 use odocal::compensate::{compensate_segments, CompensateOptions, QpOptions};
-use odocal::drive::segment::{calibration_segments, SegmentOptions};
+use odocal::segment::{calibration_segments, SegmentOptions};
 use odocal::Theta;
 use odocal_lab::{batch_gn_all, simulate_preset, Args, Res};
 

@@ -35,8 +35,8 @@
 mod dispatch;
 mod dual;
 mod input_jacobian;
-mod predict;
 mod kernels;
+mod predict;
 mod reference;
 mod sums;
 mod update;
