@@ -224,7 +224,7 @@ fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, ba
     // The data the report's validation ran on (truth and HTML report).
     let split = holdout.as_ref().map(|h| h.split(drive)).transpose()?;
     let held = split.as_ref().map(|(_, held)| held.as_ref());
-    let r = calibrate(drive, holdout.as_ref(), &others, given, opts, bars)
+    let r = calibrate(drive, holdout.as_ref(), &others, (given, args.carry_heading_offset), opts, bars)
         .map_err(|e| with_hint(e, source, args, &opts.method, bars))?;
     let wheel_scale = source.and_then(|(_, w)| w);
     let drive = held.unwrap_or(drive);
@@ -303,12 +303,13 @@ fn holdout(half: Option<HalfArg>, others: &[OtherDrive]) -> Result<Option<Holdou
 
 /// Runs the calibration of `drive`, validated on the `holdout` or, with
 /// `--validate-on`, on each other drive (`given`: the extrinsics the
-/// command line states, which apply to each).
+/// command line states, which apply to each, and whether an estimated
+/// heading offset is carried to them).
 fn calibrate(
     drive: &Drive,
     holdout: Option<&Holdout>,
     others: &[OtherDrive],
-    given: ParamSet,
+    (given, carry_heading_offset): (ParamSet, bool),
     opts: &CalibrationOptions,
     bars: &Bars,
 ) -> odocal::Result<CalibrationReport> {
@@ -328,7 +329,7 @@ fn calibrate(
     match (validation.is_empty(), holdout) {
         (true, Some(h)) => run.holdout(h).run(),
         (true, None) => run.run(),
-        (false, _) => run.validate_on(&validation, given).run(),
+        (false, _) => run.validate_on(&validation, given).carry_heading_offset(carry_heading_offset).run(),
     }
 }
 

@@ -128,6 +128,7 @@ pub use calibrate::{
 pub use compensate::{qp::SolverKind, CompensateOptions, QpOptions};
 // Validation and the verdict.
 pub use assess::{
+    heading_offset::HeadingOffsetFit,
     position_error::{mean_position_error, segment_position_error, ValidationReport},
     reachable::{ReachableOptions, ReachableReport},
     trust::{GuardViolation, Guards, TrustOptions, Verdict, VerdictLevel, VerdictReason},

@@ -24,11 +24,14 @@ impl CalibrationReport {
 /// extrinsics (module docs): the report's `validation` and `initial` are
 /// Ē_p over all their segments, as with [`crate::Holdout::Other`] of the
 /// joined drives, and its `validate_on` has each drive's row. `given` names
-/// the extrinsic parameters the caller gave itself.
+/// the extrinsic parameters the caller gave itself; an estimated heading
+/// offset is re-estimated on each validation drive unless
+/// `carry_heading_offset`.
 pub(super) fn calibrate_validated_on(
     drive: &Drive,
     validation: &[ValidationDrive<'_>],
     given: ParamSet,
+    carry_heading_offset: bool,
     opts: &CalibrationOptions,
     progress: Option<ProgressFn<'_>>,
 ) -> Result<CalibrationReport> {
@@ -36,9 +39,10 @@ pub(super) fn calibrate_validated_on(
         return Err(Error::NoSegments("no validation drive given".into()));
     }
     let given = given.intersection(ParamSet::EXTRINSICS);
-    let held = HeldOutDrives::new(validation, given)?;
+    let mut held = HeldOutDrives::new(validation, given)?;
+    held.carry_heading_offset = carry_heading_offset;
     let mut report = calibrate_core(drive, Some((&held.joined, Some(&held))), opts, progress)?.report;
-    let cal = report.extrinsics_for_validation(given);
+    let cal = CalibrationExtrinsics { carry_heading_offset, ..report.extrinsics_for_validation(given) };
     let per = validate_drives_with(validation, &report.theta, &report.initial.theta, &cal, &opts.validation)?;
     report.validate_on = Some(per);
     Ok(report)

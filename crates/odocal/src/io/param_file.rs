@@ -403,6 +403,13 @@ impl ParamFile {
         (Extrinsics::from_array(v), estimated)
     }
 
+    /// True when the calibration estimated the reference's heading offset
+    /// (it has a σ): validation then re-estimates each drive's own
+    /// ([`crate::ValidateOptions::reestimate_heading_offset`]) unless told to carry it.
+    pub fn estimated_heading_offset(&self) -> bool {
+        self.extrinsics().1.contains(Param::HeadingOffset)
+    }
+
     /// The reference extrinsics to validate this file's θ with on a drive,
     /// by the rules of docs/guide.md, "Several drives of one vehicle": one the calibration estimated
     /// (it has a σ) is the sensor's, so it holds for every drive of the
