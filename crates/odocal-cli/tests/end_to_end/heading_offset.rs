@@ -81,3 +81,42 @@ fn validation_re_estimates_the_drive_s_own_heading_offset_unless_carried() {
     assert!(row["mean_position_error_m"].as_f64().expect("Ē_p") > 0.1, "{row}");
     assert!(on["validation"]["mean_position_error_m"].as_f64().expect("Ē_p") > 0.1, "{on}");
 }
+
+/// The text between `start` and the next `end` after it in `s`.
+fn between<'a>(s: &'a str, start: &str, end: &str) -> &'a str {
+    let i = s.find(start).unwrap_or_else(|| panic!("no {start:?} in the page")) + start.len();
+    let j = s[i..].find(end).expect("end") + i;
+    &s[i..j]
+}
+
+/// The HTML report of a calibration with estimated extrinsics (the default
+/// method estimates the heading offset; the simulated reference has one)
+/// shows the JSON's Ē_p of θ_0 and of θ, and its σ, for θ and the extrinsics.
+#[test]
+fn the_html_report_shows_the_json_s_mean_position_error_and_sigma() {
+    let d = tempfile::tempdir().expect("tmp");
+    let drive = common::simulated_drive(d.path(), "drive.csv", &["--seed", "2", "--length-km", "5"]);
+    let (json, html) = (d.path().join("c.json"), d.path().join("r.html"));
+    let path = |p: &Path| p.to_str().expect("utf8").to_owned();
+    let o = odocal(&["calibrate", &drive, "--json", &path(&json), "--report", &path(&html)]);
+    assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", stderr(&o));
+    let r: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("json");
+    let page = std::fs::read_to_string(&html).expect("html");
+    let x = &r["extrinsics"];
+    assert!(x["value"]["heading_offset"].as_f64().expect("δ").abs() > 1e-4, "{x}");
+    let ep = |v: &serde_json::Value| format!("{:.3}", v["mean_position_error_m"].as_f64().expect("Ē_p"));
+    assert_eq!(between(&page, "<tr><td>calibrated</td><td><b>", "</b>"), ep(&r["validation"]));
+    assert_eq!(between(&page, "<tr><td>θ_0 (initial)</td><td>", "</td>"), ep(&r["initial"]));
+    // σ: the fifth cell of each parameter's row.
+    let sigma_cell = |name: &str| -> String {
+        let row = between(&page, &format!("<tr><td>{name}</td>"), "</tr>");
+        row.split("<td>").nth(4).expect("σ cell").trim_end_matches("</td>").to_owned()
+    };
+    for (name, scale) in [("c_e", 1.0), ("c_d", 1e3), ("t_r", 1.0), ("d", 1e3)] {
+        let want = r["sigma"][name].as_f64().map_or("held".to_owned(), |s| format!("{:.6}", s * scale));
+        assert_eq!(sigma_cell(name), want, "{name}");
+    }
+    let robust = x["robust"]["std_dev"]["heading_offset"].as_f64();
+    let delta_sd = robust.or(x["std_dev"]["heading_offset"].as_f64()).expect("σ of δ");
+    assert_eq!(sigma_cell("heading_offset"), format!("{:.6}", delta_sd * 1e3));
+}

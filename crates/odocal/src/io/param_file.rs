@@ -125,7 +125,7 @@ impl ParamFile {
     /// Appends the reference extrinsics (`lever_x`, `lever_y` in m,
     /// `heading_offset` in rad) with their 1σ (`None` for held entries).
     pub(crate) fn add_extrinsics(&mut self, x: &crate::model::extrinsics::ExtrinsicsEstimate) {
-        let (value, sd) = (x.value.to_array(), x.std_dev.to_array());
+        let (value, sd) = (x.value.to_array(), x.result_std_dev().to_array());
         let what = [
             ("m", "pose reference lever arm from the rear-axle centre, forward"),
             ("m", "pose reference lever arm from the rear-axle centre, left"),
