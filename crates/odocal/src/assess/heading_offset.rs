@@ -92,7 +92,7 @@ mod tests {
         let start = Extrinsics { heading_offset: 0.0188, ..mount };
         let fit = fit_heading_offset(&s.drive, &segs, &s.sidecar.theta_true, &start).expect("fit");
         assert!((fit.value - mount.heading_offset).abs() < 1e-10, "{fit:?}");
-        assert_eq!(fit.calibration, 0.0188);
+        assert_eq!(fit.calibration.to_bits(), 0.0188f64.to_bits());
         assert_eq!(fit.segments, segs.len());
         assert_eq!(fit.to_string(), "heading offset re-estimated on this drive: 14.2 mrad (calibration's 18.8)");
     }
