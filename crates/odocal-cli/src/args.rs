@@ -75,6 +75,13 @@ pub struct CalibrationArgs {
     /// instead of the calibration drive: Ē_p per drive and over all of them.
     #[arg(long, conflicts_with = "holdout", value_delimiter = ',')]
     pub validate_on: Vec<PathBuf>,
+    /// Carry the estimated heading offset to the --validate-on drives.
+    ///
+    /// By default each validation drive's own heading offset is
+    /// re-estimated with θ and the lever arm held: it is the reference's
+    /// heading bias as much as a mount angle, and it changes from drive to drive.
+    #[arg(long, requires = "validate_on")]
+    pub carry_heading_offset: bool,
     /// Hold what the data cannot determine at θ_0.
     ///
     /// The parameters the observability check names as not determined by

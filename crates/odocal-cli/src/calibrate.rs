@@ -97,6 +97,7 @@ pub fn calibrate_cmd(a: CalibrateArgs, bars: &Bars) -> Result<Outcome> {
     };
     let job = Job {
         drive: &drive,
+        input: a.drive.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "),
         source: Some((first.as_path(), wheel_scale.as_deref())),
         manifest: manifest.as_ref(),
         truth,
@@ -140,6 +141,7 @@ pub fn demo_cmd(a: DemoArgs, bars: &Bars) -> Result<Outcome> {
     }
     let job = Job {
         drive: &sim.drive,
+        input: "simulated drive".into(),
         source: None,
         manifest: None,
         truth: Some(sim.sidecar.theta_true),
@@ -198,6 +200,8 @@ type OtherDrive = (String, Drive, Option<ManifestSettings>);
 struct Job<'a> {
     /// The drive (several joined).
     drive: &'a Drive,
+    /// The input as the reports name it: every drive file, comma-separated.
+    input: String,
     /// The input file and how to read c_e (ticks per revolution or nominal
     /// circumference) when the drive came from a manifest; `None` for a
     /// simulated drive.
@@ -214,7 +218,7 @@ struct Job<'a> {
 
 /// Calibrates the job's drive and writes every report asked for.
 fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, bars: &Bars) -> Result<Outcome> {
-    let Job { drive, source, manifest, truth: truth_theta, others, fingerprints } = job;
+    let Job { drive, input, source, manifest, truth: truth_theta, others, fingerprints } = job;
     let settings = args.settings()?;
     let resolved = settings.resolve(manifest, Caller::CommandLine)?;
     let (opts, account) = (&resolved.options, &resolved.account);
@@ -224,7 +228,7 @@ fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, ba
     // The data the report's validation ran on (truth and HTML report).
     let split = holdout.as_ref().map(|h| h.split(drive)).transpose()?;
     let held = split.as_ref().map(|(_, held)| held.as_ref());
-    let r = calibrate(drive, holdout.as_ref(), &others, given, opts, bars)
+    let r = calibrate(drive, holdout.as_ref(), &others, (given, args.carry_heading_offset), opts, bars)
         .map_err(|e| with_hint(e, source, args, &opts.method, bars))?;
     let wheel_scale = source.and_then(|(_, w)| w);
     let drive = held.unwrap_or(drive);
@@ -237,7 +241,6 @@ fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, ba
         None => None,
     };
     let truth_ref = truth.as_ref().map(|(t, e)| (t, *e));
-    let input = source.map(|(p, _)| p.display().to_string()).unwrap_or_else(|| "simulated drive".into());
     let prints = calibration_fingerprints(&fingerprints);
     if let Some(p) = &args.params_out {
         // The σ that stands for the result (the verdict's, the JSON's `sigma`).
@@ -249,7 +252,8 @@ fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, ba
         write_text(p, &text)?;
     }
     if let Some(p) = &args.report {
-        write_html_report(p, drive, &r, opts, (&input, &prints), truth_ref)?;
+        let starts = drive_starts(others.iter().map(|(_, d, _)| d.len()));
+        write_html_report(p, (drive, &starts), &r, opts, (&input, &prints), truth_ref)?;
     }
     let outcome = if r.verdict.level == VerdictLevel::Rejected { Outcome::Rejected } else { Outcome::Done };
     if let Some(p) = json {
@@ -303,12 +307,13 @@ fn holdout(half: Option<HalfArg>, others: &[OtherDrive]) -> Result<Option<Holdou
 
 /// Runs the calibration of `drive`, validated on the `holdout` or, with
 /// `--validate-on`, on each other drive (`given`: the extrinsics the
-/// command line states, which apply to each).
+/// command line states, which apply to each, and whether an estimated
+/// heading offset is carried to them).
 fn calibrate(
     drive: &Drive,
     holdout: Option<&Holdout>,
     others: &[OtherDrive],
-    given: ParamSet,
+    (given, carry_heading_offset): (ParamSet, bool),
     opts: &CalibrationOptions,
     bars: &Bars,
 ) -> odocal::Result<CalibrationReport> {
@@ -328,7 +333,7 @@ fn calibrate(
     match (validation.is_empty(), holdout) {
         (true, Some(h)) => run.holdout(h).run(),
         (true, None) => run.run(),
-        (false, _) => run.validate_on(&validation, given).run(),
+        (false, _) => run.validate_on(&validation, given).carry_heading_offset(carry_heading_offset).run(),
     }
 }
 
@@ -352,10 +357,23 @@ fn with_hint(
     anyhow::anyhow!("{e}{hint}")
 }
 
-/// Writes the HTML report of the calibration (`--report`; `-`: stdout).
+/// The first sample of each of drives of `lengths` samples joined one
+/// after the other ([`Drive::concat`]).
+fn drive_starts(lengths: impl Iterator<Item = usize>) -> Vec<usize> {
+    lengths
+        .scan(0, |n, len| {
+            let start = *n;
+            *n += len;
+            Some(start)
+        })
+        .collect()
+}
+
+/// Writes the HTML report of the calibration (`--report`; `-`: stdout;
+/// `starts`: the first sample of each `--validate-on` drive in `drive`).
 fn write_html_report(
     path: &Path,
-    drive: &Drive,
+    (drive, starts): (&Drive, &[usize]),
     r: &CalibrationReport,
     opts: &CalibrationOptions,
     (input, fingerprint): (&str, &str),
@@ -387,6 +405,7 @@ fn write_html_report(
         batches,
         warnings: r.warnings.iter().map(|w| w.to_string()).collect(),
         method_details: r.method_details().lines().map(str::to_string).collect(),
+        segment_extrinsics: r.validation_extrinsics(starts, &val),
         ..odocal_report::ReportInput::new(input.to_string(), drive, &val, r.initial.theta, r.theta)
     };
     write_text(path, &odocal_report::render_html(&html)?)

@@ -23,6 +23,12 @@ pub struct ValidateArgs {
     /// it estimated (held ones give way to the drive's manifest [reference]).
     #[arg(long, allow_hyphen_values = true)]
     theta: ThetaArg,
+    /// Carry the heading offset a parameter file estimated to this drive.
+    /// By default the drive's own heading offset is re-estimated with θ and
+    /// the lever arm held (the reference's heading bias changes from drive
+    /// to drive).
+    #[arg(long)]
+    carry_heading_offset: bool,
     /// Validation segment length K_v, samples (stride K_v/2).
     #[arg(long)]
     validation_length: Option<usize>,
@@ -61,6 +67,8 @@ pub fn run(a: ValidateArgs, bars: &Bars) -> Result<()> {
         opts.extrinsics = x;
     }
     let extrinsics_from = theta_file_extrinsics(&a, stated.as_ref(), &mut opts);
+    opts.reestimate_heading_offset =
+        !a.carry_heading_offset && a.theta.file.as_ref().is_some_and(|(_, f)| f.estimated_heading_offset());
     if let Some(v) = a.validation_length {
         opts.segments.length_steps = v;
         opts.segments.stride_steps = (v / 2).max(1);
@@ -121,6 +129,9 @@ fn print_report(a: &ValidateArgs, report: &odocal::ValidateReport, extrinsics_fr
     }
     if !report.extrinsics.is_zero() {
         println!("reference extrinsics: {} ({extrinsics_from})", report.extrinsics);
+    }
+    if let Some(fit) = &report.heading_offset_fit {
+        println!("{fit} (--carry-heading-offset carries the calibration's)");
     }
     println!("mean position error Ē_p: {:.4} m over {} validation segments", r.mean_position_error_m, r.segments);
     if let Some(rm) = &report.reachable_minimum {

@@ -33,10 +33,13 @@ struct CalibrationPlan {
     /// The extrinsic parameters the keywords give (`lever_arm`,
     /// `heading_offset`): they apply to every validation drive.
     given_extrinsics: ParamSet,
+    /// Carry an estimated heading offset to the `validate_on` drives
+    /// (`carry_heading_offset=True`) instead of re-estimating each drive's.
+    carry_heading_offset: bool,
 }
 
 /// The keywords of `odocal.calibrate` besides the calibration settings.
-const RUN_KEYWORDS: [&str; 2] = ["holdout", "validate_on"];
+const RUN_KEYWORDS: [&str; 3] = ["holdout", "validate_on", "carry_heading_offset"];
 
 /// The half of the drive `holdout=` holds out.
 pub(crate) fn parse_holdout(s: &str) -> PyResult<Holdout> {
@@ -80,7 +83,7 @@ fn plan(
     if let Some(m) = method {
         keys.insert("method".into(), m.into());
     }
-    let (mut holdout, mut validate_on) = (None, None);
+    let (mut holdout, mut validate_on, mut carry_heading_offset) = (None, None, false);
     for (key, v) in kwargs.into_iter().flat_map(|kw| kw.iter()) {
         let key: String = key.extract()?;
         if v.is_none() {
@@ -89,6 +92,7 @@ fn plan(
         match key.as_str() {
             "holdout" => holdout = Some(parse_holdout(&v.extract::<String>()?)?),
             "validate_on" => validate_on = Some(validation_drives(&v)?),
+            "carry_heading_offset" => carry_heading_offset = v.extract::<bool>()?,
             k if Settings::KEYS.contains(&k) => {
                 let value = to_json(&v, k)?;
                 keys.insert(key, value);
@@ -116,6 +120,7 @@ fn plan(
         holdout: holdout.or(validate_on),
         validate_on: validate_on_drives.unwrap_or_default(),
         given_extrinsics: settings.stated_extrinsics(),
+        carry_heading_offset,
     })
 }
 
@@ -145,7 +150,9 @@ fn calibrate_json(
     let report = match (validation.is_empty(), &plan.holdout) {
         (true, Some(h)) => run.holdout(h).run()?,
         (true, None) => run.run()?,
-        (false, _) => run.validate_on(&validation, plan.given_extrinsics).run()?,
+        (false, _) => {
+            run.validate_on(&validation, plan.given_extrinsics).carry_heading_offset(plan.carry_heading_offset).run()?
+        }
     };
     let json_err = |source| odocal::Error::Json { context: "calibration report".into(), source };
     let mut v = serde_json::to_value(&report).map_err(json_err)?;

@@ -52,9 +52,12 @@ fn lib_err(e: odocal::Error) -> PyErr {
 
 /// Mean position error Ē_p of θ on the validation segments of `drive`
 /// (the CLI's `validate --json`): a dict with `theta`,
-/// `mean_position_error_m`, `segments` and `per_segment_m`.
+/// `mean_position_error_m`, `segments` and `per_segment_m`. When θ comes
+/// from a calibration that estimated the heading offset, the drive's own
+/// is re-estimated with θ held (`heading_offset_fit`) unless
+/// `carry_heading_offset=True`.
 #[pyfunction]
-#[pyo3(signature = (drive, theta, *, validation_length=None, threads=None, report_json=None))]
+#[pyo3(signature = (drive, theta, *, validation_length=None, threads=None, report_json=None, carry_heading_offset=false))]
 fn validate<'py>(
     py: Python<'py>,
     drive: &Bound<'py, PyDrive>,
@@ -62,6 +65,7 @@ fn validate<'py>(
     validation_length: Option<usize>,
     threads: Option<usize>,
     report_json: Option<&str>,
+    carry_heading_offset: bool,
 ) -> PyResult<Bound<'py, PyAny>> {
     // A parameter file is read once: its θ (checked by `read`) and extrinsics.
     let file = params_file_arg(theta)?;
@@ -87,6 +91,8 @@ fn validate<'py>(
     }
     if let Some(f) = &file {
         opts.extrinsics = f.extrinsics_for_drive(stated.as_ref()).0;
+        // An estimated heading offset is the reference's per-drive bias: fitted on this drive.
+        opts.reestimate_heading_offset = !carry_heading_offset && f.estimated_heading_offset();
     }
     let inner = Arc::clone(&drive.get().drive);
     let report =

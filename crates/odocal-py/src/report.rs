@@ -115,6 +115,19 @@ pub(crate) fn _report_html(
         (None, Some(d)) => Some(Holdout::Other(Drive::clone(&drives_arg(d, "validate_on")?.0))),
         (None, None) => None,
     };
+    // The first sample of each validation drive in the joined drive.
+    let mut starts = Vec::new();
+    if let Some(d) = validate_on {
+        let lengths: Vec<usize> = match d.cast::<PyDrive>() {
+            Ok(one) => vec![one.get().drive.len()],
+            Err(_) => d.try_iter()?.map(|x| Ok(x?.cast::<PyDrive>()?.get().drive.len())).collect::<PyResult<_>>()?,
+        };
+        let mut n = 0;
+        for len in lengths {
+            starts.push(n);
+            n += len;
+        }
+    }
     let inner = drives_arg(drive, "drive")?.0;
     let title = title.unwrap_or_else(|| "odocal calibration".into());
     py.detach(move || -> Result<(), String> {
@@ -142,6 +155,7 @@ pub(crate) fn _report_html(
             )),
             warnings: report.warnings.iter().map(|w| w.to_string()).collect(),
             method_details: report.method_details().lines().map(str::to_string).collect(),
+            segment_extrinsics: report.validation_extrinsics(&starts, &segs),
             ..odocal_report::ReportInput::new(title, scored, &segs, theta0, report.theta)
         };
         if let Some(step) = report.initial_step() {

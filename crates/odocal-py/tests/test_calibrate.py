@@ -73,7 +73,13 @@ def test_report_shortcuts(small_drive):
     c = r.covariance
     assert c.shape == (4, 4)
     np.testing.assert_allclose(c, c.T, rtol=1e-12, atol=0)
-    assert all(r.sigma[k] == pytest.approx(np.sqrt(c[i, i])) and r.sigma[k] > 0 for i, k in enumerate(odocal.THETA_NAMES))
+    assert all(
+        r.model_sigma[k] == pytest.approx(np.sqrt(c[i, i])) and r.model_sigma[k] > 0
+        for i, k in enumerate(odocal.THETA_NAMES)
+    )
+    # The σ that stands for the result is the JSON's.
+    assert r.sigma == {k: d["sigma"][k] for k in odocal.THETA_NAMES}
+    assert r.result_sigma["source"] == d["sigma"]["source"]
     assert r.validation == d["validation"] and r.mean_position_error_m == d["validation"]["mean_position_error_m"]
     assert r.mean_position_error_m < r.initial["mean_position_error_m"]
     assert r.truth["theta"] == small_drive.theta_true
@@ -332,16 +338,23 @@ def test_params_files_round_trip_and_equal_the_cli(odocal_bin, drive_csv, tmp_pa
         for k in odocal.THETA_NAMES:
             assert params.get(k + "_sigma") == rs[k], (k, params, rs)
         assert back["verdict"] == report.verdict["level"]
-        # A file is a θ: validate takes its θ and the heading offset its calibration estimated,
-        # so it gives the calibration's own Ē_p to the bit; the bare θ (no offset) does not.
-        v = odocal.validate(drive, ours)
+        # A file is a θ: validate takes its θ and the heading offset its calibration estimated;
+        # carried, it gives the calibration's own Ē_p to the bit; the bare θ (no offset) does not.
+        v = odocal.validate(drive, ours, carry_heading_offset=True)
         assert v["mean_position_error_m"] == report.mean_position_error_m
         assert v["extrinsics"]["heading_offset"] == params["heading_offset"] != 0.0
+        assert "heading_offset_fit" not in v
         bare = ",".join(repr(report.theta[k]) for k in odocal.THETA_NAMES)
         assert odocal.validate(drive, bare)["mean_position_error_m"] != report.mean_position_error_m
-        assert odocal.validate(drive, str(ours))["mean_position_error_m"] == report.mean_position_error_m
+        carried = odocal.validate(drive, str(ours), carry_heading_offset=True)
+        assert carried["mean_position_error_m"] == report.mean_position_error_m
         # The report itself as θ carries the same extrinsics.
-        assert odocal.validate(drive, report)["mean_position_error_m"] == report.mean_position_error_m
+        carried = odocal.validate(drive, report, carry_heading_offset=True)
+        assert carried["mean_position_error_m"] == report.mean_position_error_m
+        # By default the drive's own heading offset is re-estimated, starting from the file's.
+        fit = odocal.validate(drive, ours)["heading_offset_fit"]
+        assert fit["calibration"] == params["heading_offset"]
+        assert abs(fit["value"] - fit["calibration"]) < 2e-3
     bad = tmp_path / "bad.yaml"
     bad.write_text("odocal:\n  ros__parameters:\n    c_e: 1.95\n")
     with pytest.raises(odocal.OdocalError, match="bad.yaml: node `odocal`: no `c_d`"):

@@ -250,3 +250,20 @@ def test_validate_on_applies_the_drives_own_reference(odocal_bin, csvs, tmp_path
     x = r.to_dict()["validate_on"]["drives"][0]["extrinsics"]
     assert x["source"]["heading_offset"] == "given"
     assert [c["param"] for c in x["conflicts"]] == ["heading_offset"]
+
+
+def test_validate_on_re_estimates_each_drive_s_heading_offset_unless_carried(odocal_bin, csvs):
+    a, b, _ = csvs
+    da, db = odocal.Drive.from_csv(a), odocal.Drive.from_csv(b)
+    keys = dict(estimate="heading-offset")
+    r = odocal.calibrate(da, "batch-gn", validate_on=[db], **keys).to_dict()
+    x = r["validate_on"]["drives"][0]["extrinsics"]
+    assert x["source"]["heading_offset"] == "reestimated"
+    assert x["heading_offset_fit"]["calibration"] == r["extrinsics"]["value"]["heading_offset"]
+    assert x["value"]["heading_offset"] == x["heading_offset_fit"]["value"]
+    cli = cli_json(odocal_bin, "calibrate", a, "--method", "batch-gn", "--estimate", "heading-offset", "--validate-on", b)
+    assert cli["validate_on"]["drives"][0]["extrinsics"] == x
+    carried = odocal.calibrate(da, "batch-gn", validate_on=[db], carry_heading_offset=True, **keys).to_dict()
+    y = carried["validate_on"]["drives"][0]["extrinsics"]
+    assert y["source"]["heading_offset"] == "estimated" and "heading_offset_fit" not in y
+    assert y["value"]["heading_offset"] == r["extrinsics"]["value"]["heading_offset"]

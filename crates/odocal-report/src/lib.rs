@@ -38,9 +38,9 @@
 pub mod plots;
 mod sections;
 
-use odocal::model::{step, Theta, THETA_NAMES};
+use odocal::model::{Theta, THETA_NAMES};
 use odocal::segment::{Segment, SegmentData};
-use odocal::Drive;
+use odocal::{Drive, Extrinsics};
 
 /// Errors of the report renderer.
 #[derive(Debug, thiserror::Error)]
@@ -110,9 +110,10 @@ impl ParamRow {
 
 impl ParamRow {
     /// Rows for the reference extrinsics (lever arm in m, heading offset in
-    /// mrad); held entries have no σ.
+    /// mrad) with the σ that stands for them
+    /// ([`odocal::ExtrinsicsEstimate::result_std_dev`]); held entries have no σ.
     pub fn extrinsics_rows(x: &odocal::ExtrinsicsEstimate) -> Vec<ParamRow> {
-        let (init, val, sd) = (x.initial.to_array(), x.value.to_array(), x.std_dev.to_array());
+        let (init, val, sd) = (x.initial.to_array(), x.value.to_array(), x.result_std_dev().to_array());
         odocal::Param::EXTRINSICS
             .into_iter()
             .enumerate()
@@ -166,6 +167,11 @@ pub struct ReportInput<'a> {
     pub method_details: Vec<String>,
     /// How many validation segments the map shows (default 4).
     pub map_segments: usize,
+    /// The reference extrinsics `[θ_0's, θ's]` of each validation segment
+    /// (e.g. [`odocal::CalibrationReport::validation_extrinsics`]), so that
+    /// the errors and the map are those the calibration's Ē_p is made of.
+    /// Empty: the reference at the rear-axle centre for every segment.
+    pub segment_extrinsics: Vec<[Extrinsics; 2]>,
 }
 
 impl<'a> ReportInput<'a> {
@@ -192,7 +198,13 @@ impl<'a> ReportInput<'a> {
             warnings: Vec::new(),
             method_details: Vec::new(),
             map_segments: 4,
+            segment_extrinsics: Vec::new(),
         }
+    }
+
+    /// The extrinsics `[θ_0's, θ's]` of validation segment `i`.
+    fn extrinsics_of(&self, i: usize) -> [Extrinsics; 2] {
+        self.segment_extrinsics.get(i).copied().unwrap_or([Extrinsics::ZERO; 2])
     }
 }
 
@@ -212,16 +224,10 @@ fn esc(s: &str) -> String {
     o
 }
 
-/// Dead reckoning of one segment from its reference start pose: (x, y) per sample.
-fn dead_reckoning(seg: &SegmentData<'_>, theta: &Theta) -> Vec<(f64, f64)> {
-    let mut x = seg.reference(0);
-    let mut out = Vec::with_capacity(seg.steps() + 1);
-    out.push((x[0], x[1]));
-    for k in 0..seg.steps() {
-        x = step(&x, &seg.input(k), theta, seg.sample_time_s);
-        out.push((x[0], x[1]));
-    }
-    out
+/// Dead reckoning of one segment from its reference start pose under the
+/// extrinsics `e`: the reference point's (x, y) per sample.
+fn dead_reckoning(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics) -> Vec<(f64, f64)> {
+    odocal::dead_reckoned_reference(seg, theta, e)
 }
 
 /// Thins a polyline to at most `max` points (keeps the last).

@@ -4,12 +4,13 @@ use std::fmt::Write as _;
 
 use odocal::model::step;
 use odocal::segment::SegmentData;
-use odocal::segment_position_error;
+use odocal::{segment_position_error, segment_position_error_with};
 
 use crate::plots::{self, figure_svg, Panel, Series};
 use crate::{dead_reckoning, esc, thin, ReportInput, Result, CSS};
 
-/// E_p,s of each validation segment for θ_0, the calibrated θ and the truth.
+/// E_p,s of each validation segment for θ_0, the calibrated θ and the
+/// truth (the truth with θ's extrinsics), each with its segment's extrinsics.
 pub(crate) struct SegmentErrors {
     /// θ_0's.
     pub initial: Vec<f64>,
@@ -21,10 +22,17 @@ pub(crate) struct SegmentErrors {
 
 impl SegmentErrors {
     pub fn new(r: &ReportInput<'_>, segs: &[SegmentData<'_>]) -> Self {
+        let each = |theta: &odocal::Theta, which: usize| -> Vec<f64> {
+            let error = |(i, s): (usize, &SegmentData<'_>)| match r.extrinsics_of(i)[which] {
+                e if e.is_zero() => segment_position_error(s, theta),
+                e => segment_position_error_with(s, theta, &e),
+            };
+            segs.iter().enumerate().map(error).collect()
+        };
         SegmentErrors {
-            initial: segs.iter().map(|s| segment_position_error(s, &r.theta0)).collect(),
-            calibrated: segs.iter().map(|s| segment_position_error(s, &r.theta)).collect(),
-            truth: r.truth.map(|t| segs.iter().map(|s| segment_position_error(s, &t)).collect()),
+            initial: each(&r.theta0, 0),
+            calibrated: each(&r.theta, 1),
+            truth: r.truth.map(|t| each(&t, 1)),
         }
     }
 }
@@ -165,12 +173,12 @@ pub(crate) fn map(h: &mut String, r: &ReportInput<'_>, segs: &[SegmentData<'_>],
         let first = j == 0;
         map_series.push(Series::line(
             if first { "dead reckoning θ_0" } else { "" },
-            thin(dead_reckoning(&segs[i], &r.theta0), 1500),
+            thin(dead_reckoning(&segs[i], &r.theta0, &r.extrinsics_of(i)[0]), 1500),
             plots::ORANGE,
         ));
         map_series.push(Series::line(
             if first { "dead reckoning calibrated" } else { "" },
-            thin(dead_reckoning(&segs[i], &r.theta), 1500),
+            thin(dead_reckoning(&segs[i], &r.theta, &r.extrinsics_of(i)[1]), 1500),
             plots::BLUE,
         ));
     }
@@ -288,7 +296,8 @@ fn position_error_panel(r: &ReportInput<'_>, segs: &[SegmentData<'_>]) -> Panel 
     let mut pos_series = Vec::new();
     let mut ys = Vec::new();
     for (j, (s, seg)) in r.validation_segments.iter().zip(segs).enumerate() {
-        let (a, b) = (dead_reckoning(seg, &r.theta0), dead_reckoning(seg, &r.theta));
+        let [e0, e1] = r.extrinsics_of(j);
+        let (a, b) = (dead_reckoning(seg, &r.theta0, &e0), dead_reckoning(seg, &r.theta, &e1));
         let err_of = |d: &[(f64, f64)]| -> Vec<(f64, f64)> {
             d.iter()
                 .enumerate()

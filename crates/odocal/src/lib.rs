@@ -128,7 +128,11 @@ pub use calibrate::{
 pub use compensate::{qp::SolverKind, CompensateOptions, QpOptions};
 // Validation and the verdict.
 pub use assess::{
-    position_error::{mean_position_error, segment_position_error, ValidationReport},
+    heading_offset::HeadingOffsetFit,
+    position_error::{
+        dead_reckoned_reference, mean_position_error, segment_position_error, segment_position_error_with,
+        ValidationReport,
+    },
     reachable::{ReachableOptions, ReachableReport},
     trust::{GuardViolation, Guards, TrustOptions, Verdict, VerdictLevel, VerdictReason},
     validate::{validate, DriveValidation, MultiValidation, ValidateOptions, ValidateReport},

@@ -15,6 +15,7 @@ mod eiv;
 mod experiment;
 mod extrinsics;
 mod golden;
+mod heading_offset;
 mod help;
 mod keep_one_way;
 mod manifest_settings;

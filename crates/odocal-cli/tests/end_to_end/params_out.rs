@@ -100,9 +100,10 @@ fn params_file_json_and_text_give_the_result_sigma() {
 
 /// A parameter file `--params-out` wrote is a θ for `validate --theta` (and
 /// `--theta0`): read back to the bit, with the heading offset it estimated
-/// (the default method, EIV, estimates it with its batch G-N start),
-/// it gives the calibration's own Ē_p exactly; the bare numbers, without
-/// the offset, do not.
+/// (the default method, EIV, estimates it with its batch G-N start)
+/// carried, it gives the calibration's own Ē_p exactly; the bare numbers,
+/// without the offset, do not. By default `validate` re-estimates the
+/// drive's own heading offset from the file's.
 #[test]
 fn a_params_file_validates_like_the_calibration_that_wrote_it() {
     let d = tempfile::tempdir().expect("tmp");
@@ -118,14 +119,19 @@ fn a_params_file_validates_like_the_calibration_that_wrote_it() {
     let own = c["validation"]["mean_position_error_m"].as_f64().expect("Ē_p");
     let offset = c["extrinsics"]["value"]["heading_offset"].as_f64().expect("heading offset");
     assert!(offset.abs() > 1e-4, "the simulated reference has a heading offset to estimate: {offset}");
-    let ep = |theta: &str| {
-        let o = odocal(&["validate", dstr, "--theta", theta, "--json", "-"]);
+    let validate = |theta: &str, extra: &[&str]| -> Value {
+        let o = odocal(&[&["validate", dstr, "--theta", theta, "--json", "-"], extra].concat());
         assert!(o.status.success(), "{}", stderr(&o));
-        let v: Value = serde_json::from_str(&stdout(&o)).expect("json");
-        v["mean_position_error_m"].as_f64().expect("Ē_p")
+        serde_json::from_str(&stdout(&o)).expect("json")
     };
+    let ep = |theta: &str| validate(theta, &["--carry-heading-offset"])["mean_position_error_m"].as_f64().expect("Ē_p");
     assert_eq!(ep(&path(&yaml)).to_bits(), own.to_bits());
     assert_eq!(ep(&path(&pjson)).to_bits(), own.to_bits());
+    let fitted = validate(&path(&yaml), &[]);
+    assert_eq!(fitted["heading_offset_fit"]["calibration"].as_f64(), Some(offset), "{fitted}");
+    let refit = fitted["extrinsics"]["heading_offset"].as_f64().expect("δ");
+    assert_eq!(fitted["heading_offset_fit"]["value"].as_f64(), Some(refit));
+    assert!((refit - offset).abs() < 2e-3, "the drive's own δ {refit} vs the calibration's {offset}");
     let t = &c["theta"];
     let numbers = ["c_e", "c_d", "t_r", "d"].map(|k| format!("{:?}", t[k].as_f64().expect("θ"))).join(",");
     assert_ne!(ep(&numbers).to_bits(), own.to_bits(), "without the heading offset Ē_p differs");

@@ -102,17 +102,29 @@ class CalibrationReport:
 
     @property
     def sigma(self) -> dict:
-        """1σ of each parameter (square root of the covariance diagonal), same keys as ``theta``."""
+        """The 1σ that stands for the result, same keys as ``theta`` (``None``
+        for a held parameter): the CLI's JSON ``sigma``, the σ of the verdict,
+        the text report, the HTML report and ``--params-out``. Its source is in
+        :attr:`result_sigma`; the model σ in :attr:`model_sigma`."""
+        s = self._dict.get("sigma")
+        if s is None:  # reports without a result σ: the model σ
+            return self.model_sigma
+        return {k: s.get(k) for k in THETA_NAMES}
+
+    @property
+    def model_sigma(self) -> dict:
+        """The model 1σ of each parameter (square root of the diagonal of
+        :attr:`covariance`), same keys as ``theta``; it assumes white
+        residuals and understates the uncertainty under input noise."""
         c = self.covariance
         return {k: float(np.sqrt(max(c[i, i], 0.0))) for i, k in enumerate(THETA_NAMES)}
 
     @property
     def result_sigma(self) -> Optional[dict]:
-        """The 1σ that stands for the result, as the verdict, the CLI's JSON and
-        ``--params-out`` give it: ``{"source": "cluster-robust" | "batch-spread" |
-        "model", "c_e": …, "c_d": …, "t_r": …, "d": …}`` (``None`` for a held
-        parameter). Unlike :attr:`sigma` (the model σ, which understates the
-        uncertainty under input noise). ``None`` for reports without it."""
+        """The 1σ that stands for the result with its source: ``{"source":
+        "cluster-robust" | "batch-spread" | "model", "c_e": …, "c_d": …,
+        "t_r": …, "d": …}`` (``None`` for a held parameter); :attr:`sigma`
+        without the source. ``None`` for reports without it."""
         s = self._dict.get("sigma")
         return dict(s) if s is not None else None
 
@@ -317,6 +329,7 @@ def validate(
     *,
     validation_length: Optional[int] = None,
     threads: Optional[int] = None,
+    carry_heading_offset: bool = False,
 ) -> dict:
     """Mean position error Ē_p of ``theta`` by dead reckoning on the validation segments of ``drive``.
 
@@ -326,10 +339,18 @@ def validate(
     (``.yaml``, ``.yml``, ``.json``, as :meth:`CalibrationReport.write_params` and
     ``--params-out`` write it). With a report or a file, the reference extrinsics its
     calibration estimated are used too (held ones give way to the drive's manifest
-    ``[reference]``), as ``odocal validate --theta FILE`` does: on the calibration's own
-    drive that is its own Ē_p.
+    ``[reference]``), as ``odocal validate --theta FILE`` does. A heading offset the
+    calibration estimated is the reference's per-drive bias: this drive's own is
+    re-estimated with θ and the lever arm held (``heading_offset_fit``: ``value``,
+    ``calibration``, ``std_dev`` in rad, ``segments``) unless ``carry_heading_offset=True``,
+    which carries the calibration's (on the calibration's own drive that gives its own Ē_p).
     """
     report_json = theta._json if isinstance(theta, CalibrationReport) else None
     return _odocal.validate(
-        drive, _theta_arg(theta), validation_length=validation_length, threads=threads, report_json=report_json
+        drive,
+        _theta_arg(theta),
+        validation_length=validation_length,
+        threads=threads,
+        report_json=report_json,
+        carry_heading_offset=carry_heading_offset,
     )

@@ -111,9 +111,12 @@ def validate(
     validation_length: Optional[int] = None,
     threads: Optional[int] = None,
     report_json: Optional[str] = None,
+    carry_heading_offset: bool = False,
 ) -> dict[str, Any]:
     """Ē_p of θ on the validation segments of the drive (with ``report_json``, the extrinsics
-    that report's calibration estimated)."""
+    that report's calibration estimated). A heading offset the calibration estimated is
+    re-estimated on this drive with θ held (``heading_offset_fit``) unless
+    ``carry_heading_offset``."""
 
 def simulate(
     seed: int = 0,

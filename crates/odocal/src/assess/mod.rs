@@ -4,6 +4,7 @@
 //! Ē_p ([`reachable`]), the trust checks and verdict ([`trust`]) and the
 //! warnings a calibration reports ([`warning`]).
 
+pub(crate) mod heading_offset;
 pub(crate) mod position_error;
 pub(crate) mod reachable;
 pub(crate) mod trust;

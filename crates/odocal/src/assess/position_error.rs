@@ -88,8 +88,8 @@ pub fn mean_position_error_with(
 /// Mean position error E_p,s of one segment at (θ, e) (SPEC §7 with the
 /// model's reference pose): the segment starts from the axle pose the
 /// reference implies, and the model's reference point is compared with the
-/// measured one.
-pub(crate) fn segment_position_error_with(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics) -> f64 {
+/// measured one. With `e` all 0 it is [`segment_position_error`]'s value.
+pub fn segment_position_error_with(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics) -> f64 {
     let mut x = axle_pose(&seg.reference(0), e);
     let mut sum = 0.0;
     for k in 0..seg.steps() {
@@ -98,4 +98,20 @@ pub(crate) fn segment_position_error_with(seg: &SegmentData<'_>, theta: &Theta, 
         sum += (seg.px[k + 1] - y[0]).hypot(seg.py[k + 1] - y[1]);
     }
     sum / seg.steps() as f64
+}
+
+/// The dead-reckoned positions of the reference point over one segment at
+/// (θ, e), from the axle pose the segment's first reference pose implies
+/// (K+1 points; what [`segment_position_error_with`] compares).
+pub fn dead_reckoned_reference(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics) -> Vec<(f64, f64)> {
+    let mut x = axle_pose(&seg.reference(0), e);
+    let mut out = Vec::with_capacity(seg.steps() + 1);
+    let y = reference_pose(&x, e);
+    out.push((y[0], y[1]));
+    for k in 0..seg.steps() {
+        x = step(&x, &seg.input(k), theta, seg.sample_time_s);
+        let y = reference_pose(&x, e);
+        out.push((y[0], y[1]));
+    }
+    out
 }

@@ -6,6 +6,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::heading_offset::{fit_heading_offset, with_fit, HeadingOffsetFit};
 use super::position_error::{mean_position_error_with, ValidationReport};
 use super::reachable::{reachable_minimum, ReachableOptions, ReachableReport};
 use crate::drive::segment::{validation_segments, ValidationSegmentOptions};
@@ -29,6 +30,12 @@ pub struct ValidateOptions {
     /// [`crate::io::import::ReferenceSpec::extrinsics`]). Default 0: the axle.
     #[serde(default)]
     pub extrinsics: Extrinsics,
+    /// Re-estimate the drive's own heading offset δ with θ and the lever arm
+    /// held ([`ValidateReport::heading_offset_fit`]), starting from
+    /// [`ValidateOptions::extrinsics`]. The CLI and Python set it whenever
+    /// θ comes from a calibration that estimated δ. Default false (δ as given).
+    #[serde(default)]
+    pub reestimate_heading_offset: bool,
 }
 
 /// The `validate` report (SPEC §9): Ē_p of θ and, when asked, the reachable
@@ -44,6 +51,10 @@ pub struct ValidateReport {
     /// The reference extrinsics Ē_p of θ used, when not all 0.
     #[serde(default, skip_serializing_if = "Extrinsics::is_zero")]
     pub extrinsics: Extrinsics,
+    /// The drive's heading offset re-estimated with θ held, when asked
+    /// ([`ValidateOptions::reestimate_heading_offset`]); `extrinsics` holds it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub heading_offset_fit: Option<HeadingOffsetFit>,
 }
 
 /// Ē_p of θ on the validation segments of `drive` and, with
@@ -70,15 +81,22 @@ pub fn validate(
     progress: Option<ProgressFn<'_>>,
 ) -> Result<ValidateReport> {
     let segs = validation_segments(drive, &opts.segments)?;
-    let validation = mean_position_error_with(drive, &segs, theta, &opts.extrinsics)?;
+    let heading_offset_fit = if opts.reestimate_heading_offset && !segs.is_empty() {
+        theta.validate()?;
+        Some(fit_heading_offset(drive, &segs, theta, &opts.extrinsics)?)
+    } else {
+        None
+    };
+    let extrinsics = heading_offset_fit.as_ref().map_or(opts.extrinsics, |f| with_fit(&opts.extrinsics, f));
+    let validation = mean_position_error_with(drive, &segs, theta, &extrinsics)?;
     let reachable_minimum = match &opts.reachable {
         Some(r) => {
-            let r = ReachableOptions { extrinsics: opts.extrinsics, ..r.clone() };
+            let r = ReachableOptions { extrinsics, ..r.clone() };
             Some(reachable_minimum(drive, &segs, &r, progress)?)
         }
         None => None,
     };
-    Ok(ValidateReport { validation, reachable_minimum, extrinsics: opts.extrinsics })
+    Ok(ValidateReport { validation, reachable_minimum, extrinsics, heading_offset_fit })
 }
 
 /// Ē_p of θ and of θ_0 on one of several validation drives.

@@ -18,14 +18,23 @@
 //!    describes that drive's recording (a sensor can be re-mounted).
 //! 4. Otherwise **the calibration's held value** (its own manifest's, or 0).
 //!
+//! An estimated heading offset δ is the exception to rule 1: δ is the
+//! reference's heading bias as much as a mount angle, and it changes from
+//! drive to drive. Unless the caller carries it
+//! ([`CalibrationExtrinsics::carry_heading_offset`]), each validation drive
+//! gets its own δ, fitted with θ and the lever arm held
+//! ([`super::heading_offset`]), starting from the calibration's.
+//!
 //! θ_0's Ē_p on the drive uses the same values, with an estimated parameter
 //! at the value the estimate started from (as the calibration's own
-//! `initial` Ē_p). Each drive's [`DriveExtrinsics`] says which values were
-//! used, from where, and lists the conflicts.
+//! `initial` Ē_p; a re-estimated δ is fitted for θ_0 too). Each drive's
+//! [`DriveExtrinsics`] says which values were used, from where, and lists
+//! the conflicts.
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use super::heading_offset::{fit_heading_offset, with_fit, HeadingOffsetFit};
 use super::position_error::{segment_position_error, segment_position_error_with, ValidationReport};
 use super::validate::{DriveValidation, MultiValidation};
 use crate::drive::segment::{validation_segments, Segment, SegmentData, ValidationSegmentOptions};
@@ -48,6 +57,9 @@ pub enum ExtrinsicSource {
     Drive,
     /// The calibration's held value: its manifest's, or 0 (rule 4).
     Calibration,
+    /// Fitted on this drive with θ and the lever arm held (the heading
+    /// offset the calibration estimated, unless carried).
+    Reestimated,
 }
 
 impl std::fmt::Display for ExtrinsicSource {
@@ -57,6 +69,7 @@ impl std::fmt::Display for ExtrinsicSource {
             ExtrinsicSource::Given => "the command line",
             ExtrinsicSource::Drive => "the drive's manifest",
             ExtrinsicSource::Calibration => "the calibration's value",
+            ExtrinsicSource::Reestimated => "re-estimated on this drive",
         })
     }
 }
@@ -74,6 +87,10 @@ pub struct CalibrationExtrinsics {
     /// The parameters the caller gave itself (they win over every
     /// validation drive's manifest).
     pub given: ParamSet,
+    /// Carry an estimated heading offset to every validation drive instead
+    /// of re-estimating it on each (module docs). Default false.
+    #[serde(default)]
+    pub carry_heading_offset: bool,
 }
 
 impl CalibrationExtrinsics {
@@ -82,15 +99,32 @@ impl CalibrationExtrinsics {
     /// gave (e.g. `--lever-arm` gives `lever_x`, `lever_y`).
     pub(crate) fn of_estimate(estimate: Option<&ExtrinsicsEstimate>, held: Extrinsics, given: ParamSet) -> Self {
         match estimate {
-            Some(e) => CalibrationExtrinsics { initial: e.initial, value: e.value, estimated: e.free, given },
-            None => CalibrationExtrinsics { initial: held, value: held, estimated: ParamSet::EMPTY, given },
+            Some(e) => CalibrationExtrinsics {
+                initial: e.initial,
+                value: e.value,
+                estimated: e.free,
+                given,
+                carry_heading_offset: false,
+            },
+            None => CalibrationExtrinsics {
+                initial: held,
+                value: held,
+                estimated: ParamSet::EMPTY,
+                given,
+                carry_heading_offset: false,
+            },
         }
     }
 
     /// Before the estimate: the start values `x`, `free`'s extrinsics as estimated.
     pub(crate) fn before(x: Extrinsics, free: ParamSet, given: ParamSet) -> Self {
         let estimated = free.intersection(ParamSet::EXTRINSICS);
-        CalibrationExtrinsics { initial: x, value: x, estimated, given }
+        CalibrationExtrinsics { initial: x, value: x, estimated, given, carry_heading_offset: false }
+    }
+
+    /// True when validation drives re-estimate their heading offset.
+    pub(crate) fn reestimates_heading_offset(&self) -> bool {
+        self.estimated.contains(Param::HeadingOffset) && !self.carry_heading_offset
     }
 }
 
@@ -150,6 +184,10 @@ pub struct DriveExtrinsics {
     /// The drive's stated values that were not used.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub conflicts: Vec<ExtrinsicConflict>,
+    /// The heading offset fitted on this drive for θ, when re-estimated
+    /// (`value` holds it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub heading_offset_fit: Option<HeadingOffsetFit>,
 }
 
 impl std::fmt::Display for DriveExtrinsics {
@@ -162,7 +200,11 @@ impl std::fmt::Display for DriveExtrinsics {
         } else {
             write!(f, " [x: {}, y: {}]", s.lever_x, s.lever_y)?;
         }
-        write!(f, ", heading offset {:+.2} mrad [{}]", v.heading_offset * 1e3, s.heading_offset)
+        write!(f, ", heading offset {:+.2} mrad [{}", v.heading_offset * 1e3, s.heading_offset)?;
+        if let Some(fit) = &self.heading_offset_fit {
+            write!(f, "; calibration's {:+.2} mrad", fit.calibration * 1e3)?;
+        }
+        f.write_str("]")
     }
 }
 
@@ -207,7 +249,30 @@ pub(crate) fn drive_extrinsics(cal: &CalibrationExtrinsics, reference: Option<&R
         initial: Extrinsics::from_array(initial),
         source: ExtrinsicSources { lever_x: source[0], lever_y: source[1], heading_offset: source[2] },
         conflicts,
+        heading_offset_fit: None,
     }
+}
+
+/// [`drive_extrinsics`], with the heading offset re-estimated on `drive`'s
+/// `segments` for θ and for θ_0 when `cal` says so (module docs).
+fn fitted_drive_extrinsics(
+    cal: &CalibrationExtrinsics,
+    reference: Option<&ReferenceSpec>,
+    drive: &Drive,
+    segments: &[Segment],
+    theta: &Theta,
+    theta0: &Theta,
+) -> Result<DriveExtrinsics> {
+    let mut x = drive_extrinsics(cal, reference);
+    if cal.reestimates_heading_offset() && x.source.heading_offset == ExtrinsicSource::Estimated {
+        let fit = fit_heading_offset(drive, segments, theta, &x.value)?;
+        let fit0 = fit_heading_offset(drive, segments, theta0, &x.initial)?;
+        x.value = with_fit(&x.value, &fit);
+        x.initial = with_fit(&x.initial, &fit0);
+        x.source.heading_offset = ExtrinsicSource::Reestimated;
+        x.heading_offset_fit = Some(fit);
+    }
+    Ok(x)
 }
 
 /// One validation drive: its name (e.g. its file), samples and the
@@ -266,6 +331,9 @@ pub(crate) struct HeldOutDrives<'a> {
     references: Vec<Option<&'a ReferenceSpec>>,
     /// The parameters the caller gave.
     pub given: ParamSet,
+    /// Carry an estimated heading offset instead of re-estimating it on
+    /// each drive ([`CalibrationExtrinsics::carry_heading_offset`]).
+    pub carry_heading_offset: bool,
 }
 
 impl<'a> HeldOutDrives<'a> {
@@ -278,7 +346,13 @@ impl<'a> HeldOutDrives<'a> {
             starts.push(n);
             n += d.drive.len();
         }
-        Ok(HeldOutDrives { joined, starts, references: drives.iter().map(|d| d.reference).collect(), given })
+        Ok(HeldOutDrives {
+            joined,
+            starts,
+            references: drives.iter().map(|d| d.reference).collect(),
+            given,
+            carry_heading_offset: false,
+        })
     }
 
     /// Ē_p of θ (or of θ_0 with `initial`) over the joined drive's
@@ -290,13 +364,21 @@ impl<'a> HeldOutDrives<'a> {
         cal: &CalibrationExtrinsics,
         initial: bool,
     ) -> Result<ValidationReport> {
-        let per_drive: Vec<DriveExtrinsics> = self.references.iter().map(|r| drive_extrinsics(cal, *r)).collect();
-        for x in &per_drive {
+        let cal = &CalibrationExtrinsics { carry_heading_offset: self.carry_heading_offset, ..*cal };
+        let drive_of = |s: &Segment| self.starts.partition_point(|&b| b <= s.start).saturating_sub(1);
+        let mut per_drive = Vec::with_capacity(self.references.len());
+        for (i, r) in self.references.iter().enumerate() {
+            let mine: Vec<Segment> = segments.iter().filter(|s| drive_of(s) == i).cloned().collect();
+            let x = if mine.is_empty() {
+                drive_extrinsics(cal, *r)
+            } else {
+                fitted_drive_extrinsics(cal, *r, &self.joined, &mine, theta, theta)?
+            };
             x.value.validate()?;
+            per_drive.push(x);
         }
         mean_error_by(&self.joined, segments, theta, |s| {
-            let i = self.starts.partition_point(|&b| b <= s.start).saturating_sub(1);
-            let x = &per_drive[i];
+            let x = &per_drive[drive_of(s)];
             if initial {
                 x.initial
             } else {
@@ -334,7 +416,7 @@ pub fn validate_drives_with(
                 segments.length_steps
             )));
         }
-        let x = drive_extrinsics(cal, d.reference);
+        let x = fitted_drive_extrinsics(cal, d.reference, d.drive, &segs, theta, theta0)?;
         x.value.validate()?;
         let applies = !(x.value.is_zero() && x.initial.is_zero() && x.conflicts.is_empty());
         out.push(DriveValidation {
@@ -395,6 +477,7 @@ mod tests {
             value: Extrinsics { lever_x: -0.8, lever_y: 0.1, heading_offset: 0.002 },
             estimated: ParamSet::LEVER_ARM,
             given: ParamSet::EMPTY,
+            carry_heading_offset: false,
         };
         // No manifest: estimate for the lever arm, the calibration's held heading offset.
         let x = drive_extrinsics(&cal, None);
@@ -425,5 +508,61 @@ mod tests {
         assert_eq!(x.source.heading_offset, ExtrinsicSource::Given);
         assert_eq!(x.conflicts.len(), 1);
         assert_eq!(x.conflicts[0].source, ExtrinsicSource::Given);
+    }
+
+    #[test]
+    fn each_validation_drive_gets_its_own_heading_offset_unless_carried() {
+        use crate::sim::{simulate, SimOptions};
+        let sim = |seed, delta| {
+            let mount = Extrinsics { lever_x: -0.9, lever_y: 0.05, heading_offset: delta };
+            simulate(&SimOptions {
+                length_km: 2.0,
+                substeps: 1,
+                reference_mount: mount,
+                ..SimOptions::noise_free(seed)
+            })
+            .expect("simulate")
+        };
+        let (a, b) = (sim(11, 0.0142), sim(12, 0.0225));
+        let theta = a.sidecar.theta_true;
+        // A calibration that estimated the whole mount at 18.8 mrad.
+        let estimated = Extrinsics { lever_x: -0.9, lever_y: 0.05, heading_offset: 0.0188 };
+        let cal = CalibrationExtrinsics {
+            initial: Extrinsics::ZERO,
+            value: estimated,
+            estimated: ParamSet::EXTRINSICS,
+            given: ParamSet::EMPTY,
+            carry_heading_offset: false,
+        };
+        let drives = [
+            ValidationDrive { name: "a", drive: &a.drive, reference: None },
+            ValidationDrive { name: "b", drive: &b.drive, reference: None },
+        ];
+        let opts = ValidationSegmentOptions::default();
+        let m = validate_drives_with(&drives, &theta, &theta, &cal, &opts).expect("validate");
+        for (row, want) in m.drives.iter().zip([0.0142, 0.0225]) {
+            let x = row.extrinsics.as_ref().expect("extrinsics");
+            assert_eq!(x.source.heading_offset, ExtrinsicSource::Reestimated);
+            assert_eq!(x.source.lever_x, ExtrinsicSource::Estimated);
+            assert!((x.value.heading_offset - want).abs() < 1e-10, "{x}");
+            assert_eq!(x.heading_offset_fit.map(|f| f.calibration), Some(0.0188));
+            assert!(row.mean_position_error_m < 1e-6, "{}: {}", row.name, row.mean_position_error_m);
+            assert!(x.to_string().contains("[re-estimated on this drive; calibration's +18.80 mrad]"), "{x}");
+        }
+        // The joined held-out drives: each segment with its own drive's fitted δ.
+        let held = HeldOutDrives::new(&drives, ParamSet::EMPTY).expect("join");
+        let segs = validation_segments(&held.joined, &opts).expect("segments");
+        assert!(held.error(&segs, &theta, &cal, false).expect("error").mean_position_error_m < 1e-6);
+        // Carried: the calibration's 18.8 mrad on both drives, metres off.
+        let carried = CalibrationExtrinsics { carry_heading_offset: true, ..cal };
+        let m = validate_drives_with(&drives, &theta, &theta, &carried, &opts).expect("validate");
+        for row in &m.drives {
+            let x = row.extrinsics.as_ref().expect("extrinsics");
+            assert_eq!(x.source.heading_offset, ExtrinsicSource::Estimated);
+            assert!(x.heading_offset_fit.is_none());
+            assert!(row.mean_position_error_m > 0.1, "{}: {}", row.name, row.mean_position_error_m);
+        }
+        let held = HeldOutDrives { carry_heading_offset: true, ..held };
+        assert!(held.error(&segs, &theta, &cal, false).expect("error").mean_position_error_m > 0.1);
     }
 }

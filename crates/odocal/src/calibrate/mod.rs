@@ -323,13 +323,22 @@ pub struct Calibration<'a> {
     holdout: Option<&'a Holdout>,
     validate_on: &'a [ValidationDrive<'a>],
     given: ParamSet,
+    carry_heading_offset: bool,
     progress: Option<ProgressFn<'a>>,
 }
 
 impl<'a> Calibration<'a> {
     /// A calibration of `drive` with `opts`, validated on `drive` itself.
     pub fn new(drive: &'a Drive, opts: &'a CalibrationOptions) -> Self {
-        Calibration { drive, opts, holdout: None, validate_on: &[], given: ParamSet::EMPTY, progress: None }
+        Calibration {
+            drive,
+            opts,
+            holdout: None,
+            validate_on: &[],
+            given: ParamSet::EMPTY,
+            carry_heading_offset: false,
+            progress: None,
+        }
     }
 
     /// Validates on data the calibration does not see: a half of the drive
@@ -350,6 +359,15 @@ impl<'a> Calibration<'a> {
     /// with [`Calibration::holdout`].
     pub fn validate_on(self, drives: &'a [ValidationDrive<'a>], given: ParamSet) -> Self {
         Calibration { validate_on: drives, given, ..self }
+    }
+
+    /// With [`Calibration::validate_on`]: carry the heading offset the
+    /// calibration estimated to every validation drive instead of fitting
+    /// each drive's own with θ and the lever arm held (the default; the
+    /// heading offset is the reference's per-drive bias as much as a mount
+    /// angle).
+    pub fn carry_heading_offset(self, carry: bool) -> Self {
+        Calibration { carry_heading_offset: carry, ..self }
     }
 
     /// Reports the stages and their progress to `progress`.
@@ -381,7 +399,14 @@ impl<'a> Calibration<'a> {
                 reason: "give a hold-out or validation drives, not both".into(),
             });
         }
-        validate_on::calibrate_validated_on(self.drive, self.validate_on, self.given, self.opts, self.progress)
+        validate_on::calibrate_validated_on(
+            self.drive,
+            self.validate_on,
+            self.given,
+            self.carry_heading_offset,
+            self.opts,
+            self.progress,
+        )
     }
 }
 /// A calibration with the intermediate data an experiment needs: the report,

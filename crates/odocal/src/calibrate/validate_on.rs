@@ -5,12 +5,37 @@
 
 use super::{calibrate_core, CalibrationOptions, CalibrationReport};
 use crate::assess::validation_drives::{validate_drives_with, CalibrationExtrinsics, HeldOutDrives, ValidationDrive};
+use crate::drive::segment::Segment;
 use crate::drive::Drive;
 use crate::error::{Error, Result};
+use crate::model::extrinsics::Extrinsics;
 use crate::model::param::ParamSet;
 use crate::progress::ProgressFn;
 
 impl CalibrationReport {
+    /// The reference extrinsics behind this report's `initial` and
+    /// `validation` Ē_p on each of `segments` (the validation segments of
+    /// the drive the report validated on): `[θ_0's, θ's]` per segment.
+    /// With validation drives ([`CalibrationReport::validate_on`]),
+    /// `drive_starts` gives the first sample of each in the joined drive and
+    /// each segment takes its drive's row; otherwise every segment takes
+    /// the calibration's start and result.
+    pub fn validation_extrinsics(&self, drive_starts: &[usize], segments: &[Segment]) -> Vec<[Extrinsics; 2]> {
+        let start = self.options.identify.extrinsics;
+        let result = self.extrinsics.as_ref().map_or(start, |x| x.value);
+        let rows = self.validate_on.as_ref().map(|m| &m.drives);
+        segments
+            .iter()
+            .map(|s| match rows {
+                Some(rows) if rows.len() == drive_starts.len() => {
+                    let i = drive_starts.partition_point(|&b| b <= s.start).saturating_sub(1);
+                    rows[i].extrinsics.as_ref().map_or([Extrinsics::ZERO; 2], |x| [x.initial, x.value])
+                }
+                _ => [start, result],
+            })
+            .collect()
+    }
+
     /// The reference extrinsics of this calibration as validation drives
     /// see them; `given` names the parameters the caller gave (e.g.
     /// `--lever-arm` gives `lever_x`, `lever_y`).
@@ -24,11 +49,14 @@ impl CalibrationReport {
 /// extrinsics (module docs): the report's `validation` and `initial` are
 /// Ē_p over all their segments, as with [`crate::Holdout::Other`] of the
 /// joined drives, and its `validate_on` has each drive's row. `given` names
-/// the extrinsic parameters the caller gave itself.
+/// the extrinsic parameters the caller gave itself; an estimated heading
+/// offset is re-estimated on each validation drive unless
+/// `carry_heading_offset`.
 pub(super) fn calibrate_validated_on(
     drive: &Drive,
     validation: &[ValidationDrive<'_>],
     given: ParamSet,
+    carry_heading_offset: bool,
     opts: &CalibrationOptions,
     progress: Option<ProgressFn<'_>>,
 ) -> Result<CalibrationReport> {
@@ -36,9 +64,10 @@ pub(super) fn calibrate_validated_on(
         return Err(Error::NoSegments("no validation drive given".into()));
     }
     let given = given.intersection(ParamSet::EXTRINSICS);
-    let held = HeldOutDrives::new(validation, given)?;
+    let mut held = HeldOutDrives::new(validation, given)?;
+    held.carry_heading_offset = carry_heading_offset;
     let mut report = calibrate_core(drive, Some((&held.joined, Some(&held))), opts, progress)?.report;
-    let cal = report.extrinsics_for_validation(given);
+    let cal = CalibrationExtrinsics { carry_heading_offset, ..report.extrinsics_for_validation(given) };
     let per = validate_drives_with(validation, &report.theta, &report.initial.theta, &cal, &opts.validation)?;
     report.validate_on = Some(per);
     Ok(report)

@@ -125,7 +125,7 @@ impl ParamFile {
     /// Appends the reference extrinsics (`lever_x`, `lever_y` in m,
     /// `heading_offset` in rad) with their 1σ (`None` for held entries).
     pub(crate) fn add_extrinsics(&mut self, x: &crate::model::extrinsics::ExtrinsicsEstimate) {
-        let (value, sd) = (x.value.to_array(), x.std_dev.to_array());
+        let (value, sd) = (x.value.to_array(), x.result_std_dev().to_array());
         let what = [
             ("m", "pose reference lever arm from the rear-axle centre, forward"),
             ("m", "pose reference lever arm from the rear-axle centre, left"),
@@ -401,6 +401,13 @@ impl ParamFile {
             }
         }
         (Extrinsics::from_array(v), estimated)
+    }
+
+    /// True when the calibration estimated the reference's heading offset
+    /// (it has a σ): validation then re-estimates each drive's own
+    /// ([`crate::ValidateOptions::reestimate_heading_offset`]) unless told to carry it.
+    pub fn estimated_heading_offset(&self) -> bool {
+        self.extrinsics().1.contains(Param::HeadingOffset)
     }
 
     /// The reference extrinsics to validate this file's θ with on a drive,

@@ -1,0 +1,122 @@
+//! The reference's heading offset δ belongs to each drive: `validate` and
+//! `calibrate --validate-on` re-estimate the validation drive's own δ with
+//! θ held when the calibration estimated δ, and `--carry-heading-offset`
+//! carries the calibration's instead. Noise-free simulated drives whose
+//! references are turned by 18.8 and 14.2 mrad.
+
+use crate::common;
+
+use std::path::Path;
+
+use common::{calibrate_json, odocal, stderr, stdout};
+use odocal::sim::{simulate, SimOptions};
+use odocal::Extrinsics;
+
+/// A noise-free 3 km drive whose reference heading is turned by `delta`.
+fn drive(dir: &Path, name: &str, seed: u64, delta: f64) -> String {
+    let mount = Extrinsics { heading_offset: delta, ..Extrinsics::ZERO };
+    let s =
+        simulate(&SimOptions { length_km: 3.0, substeps: 1, reference_mount: mount, ..SimOptions::noise_free(seed) })
+            .expect("simulate");
+    let p = dir.join(name);
+    s.drive.write_csv(&p).expect("write");
+    p.to_str().expect("utf8").to_owned()
+}
+
+fn validate(args: &[&str]) -> (serde_json::Value, String) {
+    let mut all = vec!["validate"];
+    all.extend_from_slice(args);
+    let json = odocal(&[all.as_slice(), &["--json", "-"]].concat());
+    assert!(json.status.success(), "{}", stderr(&json));
+    let text = odocal(&all);
+    assert!(text.status.success(), "{}", stderr(&text));
+    (serde_json::from_slice(&json.stdout).expect("json"), stdout(&text))
+}
+
+#[test]
+fn validation_re_estimates_the_drive_s_own_heading_offset_unless_carried() {
+    let d = tempfile::tempdir().expect("tmp");
+    let fit = drive(d.path(), "fit.csv", 31, 0.0188);
+    let other = drive(d.path(), "other.csv", 32, 0.0142);
+    let params = d.path().join("p.yaml");
+    let p = params.to_str().expect("utf8");
+    let cal = calibrate_json(
+        Path::new(&fit),
+        &["--method", "batch-gn", "--estimate", "heading-offset", "--max-iterations", "30", "--params-out", p],
+    );
+    let delta = cal["extrinsics"]["value"]["heading_offset"].as_f64().expect("δ");
+    assert!((delta - 0.0188).abs() < 1e-9, "calibration's δ {delta}");
+
+    // Re-estimated (the default): the drive's own δ, θ exact, Ē_p at round-off.
+    let (v, text) = validate(&[&other, "--theta", p]);
+    let fit_d = v["heading_offset_fit"]["value"].as_f64().expect("heading_offset_fit");
+    assert!((fit_d - 0.0142).abs() < 1e-9, "re-estimated δ {fit_d}");
+    assert_eq!(v["heading_offset_fit"]["calibration"].as_f64(), Some(delta));
+    assert_eq!(v["extrinsics"]["heading_offset"].as_f64(), Some(fit_d));
+    let own = v["mean_position_error_m"].as_f64().expect("Ē_p");
+    assert!(own < 1e-6, "Ē_p with the drive's own δ: {own} m");
+    assert!(text.contains("heading offset re-estimated on this drive: 14.2 mrad (calibration's 18.8)"), "{text}");
+
+    // Carried: the calibration's δ, which tilts every path of this drive.
+    let (v, text) = validate(&[&other, "--theta", p, "--carry-heading-offset"]);
+    assert!(v["heading_offset_fit"].is_null(), "{v}");
+    assert_eq!(v["extrinsics"]["heading_offset"].as_f64(), Some(delta));
+    let carried = v["mean_position_error_m"].as_f64().expect("Ē_p");
+    assert!(carried > 0.1, "Ē_p with the calibration's δ: {carried} m");
+    assert!(!text.contains("re-estimated"), "{text}");
+
+    // --validate-on: the same per validation drive.
+    let base = ["--method", "batch-gn", "--estimate", "heading-offset", "--max-iterations", "30"];
+    let on = calibrate_json(Path::new(&fit), &[&base[..], &["--validate-on", &other]].concat());
+    let row = &on["validate_on"]["drives"][0];
+    assert_eq!(row["extrinsics"]["source"]["heading_offset"], "reestimated", "{row}");
+    let x = row["extrinsics"]["value"]["heading_offset"].as_f64().expect("δ");
+    assert!((x - 0.0142).abs() < 1e-9, "{row}");
+    assert!(row["mean_position_error_m"].as_f64().expect("Ē_p") < 1e-6, "{row}");
+    assert!(on["validation"]["mean_position_error_m"].as_f64().expect("Ē_p") < 1e-6, "{on}");
+    let on =
+        calibrate_json(Path::new(&fit), &[&base[..], &["--validate-on", &other, "--carry-heading-offset"]].concat());
+    let row = &on["validate_on"]["drives"][0];
+    assert_eq!(row["extrinsics"]["source"]["heading_offset"], "estimated", "{row}");
+    assert!(row["mean_position_error_m"].as_f64().expect("Ē_p") > 0.1, "{row}");
+    assert!(on["validation"]["mean_position_error_m"].as_f64().expect("Ē_p") > 0.1, "{on}");
+}
+
+/// The text between `start` and the next `end` after it in `s`.
+fn between<'a>(s: &'a str, start: &str, end: &str) -> &'a str {
+    let i = s.find(start).unwrap_or_else(|| panic!("no {start:?} in the page")) + start.len();
+    let j = s[i..].find(end).expect("end") + i;
+    &s[i..j]
+}
+
+/// The HTML report of a calibration with estimated extrinsics (the default
+/// method estimates the heading offset; the simulated reference has one)
+/// shows the JSON's Ē_p of θ_0 and of θ, and its σ, for θ and the extrinsics.
+#[test]
+fn the_html_report_shows_the_json_s_mean_position_error_and_sigma() {
+    let d = tempfile::tempdir().expect("tmp");
+    let drive = common::simulated_drive(d.path(), "drive.csv", &["--seed", "2", "--length-km", "5"]);
+    let (json, html) = (d.path().join("c.json"), d.path().join("r.html"));
+    let path = |p: &Path| p.to_str().expect("utf8").to_owned();
+    let o = odocal(&["calibrate", &drive, "--json", &path(&json), "--report", &path(&html)]);
+    assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", stderr(&o));
+    let r: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("json");
+    let page = std::fs::read_to_string(&html).expect("html");
+    let x = &r["extrinsics"];
+    assert!(x["value"]["heading_offset"].as_f64().expect("δ").abs() > 1e-4, "{x}");
+    let ep = |v: &serde_json::Value| format!("{:.3}", v["mean_position_error_m"].as_f64().expect("Ē_p"));
+    assert_eq!(between(&page, "<tr><td>calibrated</td><td><b>", "</b>"), ep(&r["validation"]));
+    assert_eq!(between(&page, "<tr><td>θ_0 (initial)</td><td>", "</td>"), ep(&r["initial"]));
+    // σ: the fifth cell of each parameter's row.
+    let sigma_cell = |name: &str| -> String {
+        let row = between(&page, &format!("<tr><td>{name}</td>"), "</tr>");
+        row.split("<td>").nth(4).expect("σ cell").trim_end_matches("</td>").to_owned()
+    };
+    for (name, scale) in [("c_e", 1.0), ("c_d", 1e3), ("t_r", 1.0), ("d", 1e3)] {
+        let want = r["sigma"][name].as_f64().map_or("held".to_owned(), |s| format!("{:.6}", s * scale));
+        assert_eq!(sigma_cell(name), want, "{name}");
+    }
+    let robust = x["robust"]["std_dev"]["heading_offset"].as_f64();
+    let delta_sd = robust.or(x["std_dev"]["heading_offset"].as_f64()).expect("σ of δ");
+    assert_eq!(sigma_cell("heading_offset"), format!("{:.6}", delta_sd * 1e3));
+}

@@ -1,0 +1,157 @@
+//! Test-track cross-run and the highway van's halves with the reference's
+//! heading offset δ carried from the calibration and re-estimated on the
+//! validation drive (docs/validation.md, "Test track: cross-run").
+//!
+//! Each of the six test-track runs is calibrated with the settings the CLI
+//! uses (`odocal calibrate RUN.toml`: its manifest's settings, the default
+//! method); its own fit is the report's Ē_p on the run itself. Its θ and
+//! extrinsics are then validated on each of the other five runs as
+//! `odocal validate OTHER.toml --theta RUN.yaml` does, once with δ carried
+//! (`--carry-heading-offset`) and once with each run's own δ re-estimated
+//! with θ and the lever arm held (the default). Cross-run is the mean over
+//! the 30 pairs; θ_0's Ē_p on the same pairs (its δ treated alike) is the
+//! floor nobody should fall below. Then the van (2024-07-11): calibrated
+//! on one half, validated on the other, against the other half's own fit,
+//! in both directions.
+//!
+//! Run: `cargo run --release --manifest-path crates/odocal-lab/Cargo.toml
+//! --bin crossrun_heading [-- --skip-van]`.
+
+use odocal::research::{validate_drives_with, CalibrationExtrinsics};
+use odocal::settings::{Caller, ManifestSettings, Settings};
+use odocal::{Calibration, CalibrationOptions, CalibrationReport, Drive, Holdout, ParamSet, ValidationDrive};
+use odocal_lab::{repo_path, testtrack_manifest, Args, Res, Table, TESTTRACK_RUNS, VAN_MANIFEST};
+
+const USAGE: &str = "crossrun_heading [--skip-van]";
+
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+/// A manifest imported, with the calibration options `odocal calibrate` resolves for it.
+fn load_with_options(rel: &str) -> Res<(Drive, CalibrationOptions)> {
+    let path = repo_path(rel);
+    let (drive, report) = odocal::load_drive(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let manifest = report.as_ref().map(ManifestSettings::of_report).transpose()?;
+    let options = Settings::default().resolve(manifest.as_ref(), Caller::CommandLine)?.options;
+    Ok((drive, options))
+}
+
+/// Ē_p of the calibration `r` and of θ_0 on `drive`, δ carried or re-estimated.
+fn judge(r: &CalibrationReport, drive: &Drive, opts: &CalibrationOptions, carry: bool) -> Res<(f64, f64, f64)> {
+    let cal = CalibrationExtrinsics { carry_heading_offset: carry, ..r.extrinsics_for_validation(ParamSet::EMPTY) };
+    let others = [ValidationDrive { name: "other", drive, reference: None }];
+    let v = validate_drives_with(&others, &r.theta, &opts.theta0, &cal, &opts.validation)?;
+    let row = &v.drives[0];
+    let delta = row.extrinsics.as_ref().map_or(0.0, |x| x.value.heading_offset);
+    Ok((row.mean_position_error_m, row.initial_mean_position_error_m, delta))
+}
+
+fn mean(v: &[f64]) -> f64 {
+    v.iter().sum::<f64>() / v.len().max(1) as f64
+}
+
+fn testtrack() -> Res<()> {
+    let mut runs = Vec::new();
+    for (name, _) in TESTTRACK_RUNS {
+        let (drive, opts) = load_with_options(&testtrack_manifest(name))?;
+        let r = Calibration::new(&drive, &opts).run()?;
+        runs.push((name, drive, opts, r));
+    }
+    let mut t = Table::new(&[
+        "calibrated on",
+        "δ mrad",
+        "own Ē_p m",
+        "cross, δ carried m",
+        "cross, δ re-estimated m",
+        "θ_0 cross, re-estimated m",
+        "re-estimated δ on the others, mrad",
+    ]);
+    let (mut own, mut carried, mut reest, mut init) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let mut worse = 0;
+    for (name, _, opts, r) in &runs {
+        let (mut c, mut e, mut i, mut deltas) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for (other, drive, _, _) in &runs {
+            if other == name {
+                continue;
+            }
+            c.push(judge(r, drive, opts, true)?.0);
+            let (ep, ep0, delta) = judge(r, drive, opts, false)?;
+            worse += usize::from(ep > ep0);
+            e.push(ep);
+            i.push(ep0);
+            deltas.push(format!("{:.1}", delta * 1e3));
+        }
+        let delta = r.extrinsics.as_ref().map_or(0.0, |x| x.value.heading_offset);
+        own.push(r.validation.mean_position_error_m);
+        t.row([
+            name.to_string(),
+            format!("{:.1}", delta * 1e3),
+            format!("{:.3}", r.validation.mean_position_error_m),
+            format!("{:.3}", mean(&c)),
+            format!("{:.3}", mean(&e)),
+            format!("{:.3}", mean(&i)),
+            deltas.join(", "),
+        ]);
+        carried.extend(c);
+        reest.extend(e);
+        init.extend(i);
+    }
+    println!("Test track, six runs, 30 pairs:\n\n{t}");
+    let m = mean(&own);
+    println!(
+        "mean own fit {m:.3} m; cross-run δ carried {:.3} m ({:.2}×), δ re-estimated {:.3} m ({:.2}×); \
+         θ_0 {:.3} m; pairs worse than θ_0 (re-estimated): {worse} of {}\n",
+        mean(&carried),
+        mean(&carried) / m,
+        mean(&reest),
+        mean(&reest) / m,
+        mean(&init),
+        reest.len()
+    );
+    Ok(())
+}
+
+fn van() -> Res<()> {
+    let (drive, opts) = load_with_options(VAN_MANIFEST)?;
+    let mut t = Table::new(&[
+        "calibrated on",
+        "validated on",
+        "its own fit m",
+        "δ carried m",
+        "δ re-estimated m",
+        "ratio (re-estimated)",
+        "θ_0 m",
+    ]);
+    for (fit_half, held_half, h) in
+        [("first half", "second half", Holdout::SecondHalf), ("second half", "first half", Holdout::FirstHalf)]
+    {
+        let (fit, held) = h.split(&drive)?;
+        let r = Calibration::new(&fit, &opts).run()?;
+        let own = Calibration::new(&held, &opts).run()?.validation.mean_position_error_m;
+        let carried = judge(&r, &held, &opts, true)?.0;
+        let (reest, initial, _) = judge(&r, &held, &opts, false)?;
+        t.row([
+            fit_half.to_string(),
+            held_half.to_string(),
+            format!("{own:.3}"),
+            format!("{carried:.3}"),
+            format!("{reest:.3}"),
+            format!("{:.2}", reest / own),
+            format!("{initial:.3}"),
+        ]);
+    }
+    println!("Highway van (2024-07-11), halves:\n\n{t}");
+    Ok(())
+}
+
+fn run() -> Res<()> {
+    let a = Args::parse(USAGE, &["skip-van"])?;
+    let skip_van = a.flag("skip-van");
+    a.finish()?;
+    testtrack()?;
+    if !skip_van {
+        van()?;
+    }
+    Ok(())
+}
