@@ -96,6 +96,7 @@ pub fn calibrate_cmd(a: CalibrateArgs, bars: &Bars) -> Result<Outcome> {
         (Drive::concat(&refs).context("calibrating several drives jointly")?, None)
     };
     let job = Job {
+        separate: &drives,
         drive: &drive,
         source: Some((first.as_path(), wheel_scale.as_deref())),
         manifest: manifest.as_ref(),
@@ -145,6 +146,7 @@ pub fn demo_cmd(a: DemoArgs, bars: &Bars) -> Result<Outcome> {
         truth: Some(sim.sidecar.theta_true),
         others,
         fingerprints,
+        separate: &[],
     };
     run_calibration(job, &a.calibration, a.json.as_deref(), bars)
 }
@@ -210,11 +212,14 @@ struct Job<'a> {
     others: Vec<OtherDrive>,
     /// Each drive's report entry (role, path, fingerprint).
     fingerprints: Vec<serde_json::Value>,
+    /// The drives `drive` was joined from, when several (their separate
+    /// fits give the between-drive σ: `CalibrationReport::pool_drives`).
+    separate: &'a [Drive],
 }
 
 /// Calibrates the job's drive and writes every report asked for.
 fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, bars: &Bars) -> Result<Outcome> {
-    let Job { drive, source, manifest, truth: truth_theta, others, fingerprints } = job;
+    let Job { drive, source, manifest, truth: truth_theta, others, fingerprints, separate } = job;
     let settings = args.settings()?;
     let resolved = settings.resolve(manifest, Caller::CommandLine)?;
     let (opts, account) = (&resolved.options, &resolved.account);
@@ -224,8 +229,13 @@ fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, ba
     // The data the report's validation ran on (truth and HTML report).
     let split = holdout.as_ref().map(|h| h.split(drive)).transpose()?;
     let held = split.as_ref().map(|(_, held)| held.as_ref());
-    let r = calibrate(drive, holdout.as_ref(), &others, given, opts, bars)
+    let mut r = calibrate(drive, holdout.as_ref(), &others, given, opts, bars)
         .map_err(|e| with_hint(e, source, args, &opts.method, bars))?;
+    if separate.len() >= 2 && holdout.is_none() {
+        // Several drives: the between-drive σ from their separate fits.
+        bars.stage("fitting each drive alone for the between-drive σ");
+        r.pool_drives(&separate.iter().collect::<Vec<_>>())?;
+    }
     let wheel_scale = source.and_then(|(_, w)| w);
     let drive = held.unwrap_or(drive);
     bars.finish();
@@ -422,9 +432,11 @@ fn report_json(
     wheel_scale: Option<&str>,
 ) -> Result<serde_json::Value> {
     let mut v = serde_json::to_value(r)?;
-    // The σ that stands for the result (the verdict's, --params-out's).
+    // The σ that stands for the result (the verdict's, --params-out's): for
+    // the next drive; and the method's within-drive σ.
     if let Some(obj) = v.as_object_mut() {
         obj.insert("sigma".into(), serde_json::to_value(r.result_sigma())?);
+        obj.insert("sigma_within_drive".into(), serde_json::to_value(r.within_drive_sigma())?);
     }
     // The `method` of the report (SPEC §9) is the name; its settings are in `options.method`.
     if let (Some((t, e)), Some(obj)) = (truth, v.as_object_mut()) {

@@ -590,6 +590,44 @@ fn unconverged_step(
         .max_by(|a, b| a.1.total_cmp(&b.1))
 }
 
+/// True for a reason that comes from θ's σ for the next drive (a large σ
+/// of a θ parameter, a fallback far from EIV's own estimate):
+/// [`sigma_reasons`] redoes them when that σ changes.
+pub(crate) fn is_sigma_reason(r: &VerdictReason) -> bool {
+    match r {
+        VerdictReason::LargeUncertainty { param, .. } => ParamSet::THETA.contains(*param),
+        VerdictReason::FallbackDisagrees { .. } => true,
+        _ => false,
+    }
+}
+
+/// The verdict's reasons from θ's σ for the next drive `n`: a σ above
+/// [`TrustOptions::max_sigma_fraction`] of the guard half-width, and after
+/// an EIV fallback the gap ([`fallback_gap_reasons`]).
+pub(crate) fn sigma_reasons(
+    theta: &Theta,
+    theta0: &Theta,
+    free: ParamSet,
+    n: &NextDriveSigma,
+    opts: &TrustOptions,
+) -> Vec<VerdictReason> {
+    let mut reasons: Vec<VerdictReason> = free
+        .intersection(ParamSet::THETA)
+        .iter()
+        .filter_map(|p| {
+            let h = opts.guards.half_width(p, theta0);
+            let sigma = n.sigma[p.index()]?;
+            (sigma.is_finite() && sigma > opts.max_sigma_fraction * h).then_some(VerdictReason::LargeUncertainty {
+                param: p,
+                sigma,
+                fraction: sigma / h,
+            })
+        })
+        .collect();
+    reasons.extend(fallback_gap_reasons(theta, free, n, opts));
+    reasons
+}
+
 /// After an EIV fallback, the parameters whose batch Gauss-Newton value
 /// lies more than [`TrustOptions::max_fallback_gap_sigmas`] of the σ
 /// without the gap (`√(within² + between²)`) from EIV's own estimate.

@@ -258,6 +258,53 @@ impl CalibrationReport {
     }
 }
 
+impl CalibrationReport {
+    /// With several drives of one vehicle calibrated jointly (`drives`, the
+    /// drives the report's drive was joined from): fits each drive
+    /// separately with batch Gauss-Newton (the report's free parameters and
+    /// extrinsics settings; every cut segment, as EIV), pools them per
+    /// parameter by random effects ([`crate::pooling::dersimonian_laird`]
+    /// on each drive's within-drive σ) and makes the between-drive σ of
+    /// [`Self::result_sigma`] their τ (at least the prior). The joint fit's
+    /// θ stays the result: it is the report's method on all the data,
+    /// while the separate fits are batch G-N's, which carries an
+    /// errors-in-variables bias under input noise; the pooled θ is
+    /// reported beside it (`next_drive_sigma.pooled`). The verdict's σ
+    /// checks are redone with the new σ. A drive whose separate fit fails
+    /// (too short, nothing to fit) is left out; with fewer than two fits
+    /// left, the report keeps the prior. Returns the number of drives
+    /// pooled.
+    ///
+    /// # Errors
+    /// None from the separate fits (they are left out); an error only when
+    /// the report has no next-drive σ ([`Error::InvalidOption`](crate::Error)).
+    pub fn pool_drives(&mut self, drives: &[&crate::Drive]) -> crate::Result<usize> {
+        let Some(next) = self.next_drive_sigma.as_mut() else {
+            return Err(crate::Error::InvalidOption {
+                field: "next_drive_sigma",
+                reason: "the report has no σ for the next drive to pool into".into(),
+            });
+        };
+        let mut o = CalibrationOptions { method: Method::BatchGn(Default::default()), ..self.options.clone() };
+        o.segments.min_peak_yaw_rate_rad_per_s = 0.0;
+        o.auto_fix = false;
+        o.trust.max_split_sigmas = 0.0;
+        let fits: Vec<CalibrationReport> = drives.iter().filter_map(|d| super::calibrate(d, &o).ok()).collect();
+        if fits.len() < 2 {
+            return Ok(0);
+        }
+        let theta = fits.iter().map(|r| r.theta).collect();
+        let sigma = fits.iter().map(|r| r.within_drive_sigma().to_array()).collect();
+        next.with_pooled(crate::pooling::PooledDrives::new("batch-gn".into(), theta, sigma));
+        let reasons = std::mem::take(&mut self.verdict.reasons);
+        let free = self.options.identify.free;
+        let mut kept: Vec<_> = reasons.into_iter().filter(|r| !crate::assess::trust::is_sigma_reason(r)).collect();
+        kept.extend(crate::assess::trust::sigma_reasons(&self.theta, &self.initial.theta, free, next, &self.options.trust));
+        self.verdict = Verdict::from_reasons(kept);
+        Ok(fits.len())
+    }
+}
+
 /// The within-drive σ of a method's result (see
 /// [`CalibrationReport::within_drive_sigma`]).
 pub(crate) fn within_sigma_of(detail: &MethodDetail, covariance: &[[f64; 4]; 4], free: ParamSet) -> ResultSigma {
