@@ -388,6 +388,7 @@ fn write_html_report(
             ("method".into(), r.method.clone()),
             ("input".into(), input.to_string()),
             ("fingerprint".into(), fingerprint.to_string()),
+            ("σ of θ".into(), r.result_sigma().covers.to_string()),
             ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
             ("date".into(), odocal::ParamFile::utc_date_today()),
         ],

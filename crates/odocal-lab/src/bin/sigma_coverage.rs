@@ -37,6 +37,9 @@ struct Fit {
     theta: [f64; 4],
     next: [Option<f64>; 4],
     within: [Option<f64>; 4],
+    /// The within-drive part of the next-drive σ (for a parameter EIV held
+    /// at its start's estimate: the start's σ).
+    within_part: [Option<f64>; 4],
     verdict: String,
     outcome: String,
 }
@@ -51,6 +54,7 @@ fn fit(name: &str, r: &CalibrationReport) -> Fit {
         theta: r.theta.to_array(),
         next: r.result_sigma().to_array(),
         within: r.within_drive_sigma().to_array(),
+        within_part: r.next_drive_sigma.as_ref().map_or([None; 4], |n| n.within_drive),
         verdict: r.verdict.level.to_string(),
         outcome,
     }
@@ -145,11 +149,19 @@ fn print_design(design: &[Fit]) {
     let sds: [f64; 4] = std::array::from_fn(|i| sd(&design.iter().map(|f| f.theta[i]).collect::<Vec<_>>()));
     let ce = design.iter().map(|f| f.theta[0]).sum::<f64>() / design.len() as f64;
     let tr = design.iter().map(|f| f.theta[2]).sum::<f64>() / design.len() as f64;
-    let rel = [sds[0] / ce, sds[1] / ce, sds[2] / tr, sds[3] / tr];
+    let scale = [ce, ce, tr, tr];
+    let rel: [f64; 4] = std::array::from_fn(|i| sds[i] / scale[i]);
+    let theta: Vec<Theta> = design.iter().map(|f| Theta::from_array(f.theta)).collect();
+    let pooled = PooledDrives::new("eiv".into(), theta, design.iter().map(|f| f.within_part).collect());
+    let tau: [f64; 4] = std::array::from_fn(|i| pooled.params[i].map_or(f64::NAN, |p| p.tau / scale[i]));
     let p = BETWEEN_DRIVE_PRIOR;
     println!("### Design spread (three earliest runs) and the library's prior\n");
     let mut t = Table::new(&["", "c_e (of c_e)", "c_d (of c_e)", "t_r (of t_r)", "d (of t_r, per m/s²)"]);
     t.row(std::iter::once("design runs' sd, relative".to_string()).chain(rel.iter().map(|r| format!("{r:.2e}"))));
+    t.row(
+        std::iter::once("design runs' τ (DerSimonian–Laird on their within-drive σ), relative".to_string())
+            .chain(tau.iter().map(|r| format!("{r:.2e}"))),
+    );
     t.row(
         std::iter::once("BETWEEN_DRIVE_PRIOR".to_string())
             .chain([p.c_e, p.c_d, p.t_r, p.d].iter().map(|r| format!("{r:.2e}"))),
@@ -160,7 +172,7 @@ fn print_design(design: &[Fit]) {
 /// DerSimonian–Laird over the six runs with their within-drive σ.
 fn print_pooling(fits: &[Fit]) {
     let theta: Vec<Theta> = fits.iter().map(|f| Theta::from_array(f.theta)).collect();
-    let sigma: Vec<[Option<f64>; 4]> = fits.iter().map(|f| f.within).collect();
+    let sigma: Vec<[Option<f64>; 4]> = fits.iter().map(|f| f.within_part).collect();
     let p = PooledDrives::new("eiv".into(), theta, sigma);
     println!("### Random-effects pooling of the six runs (DerSimonian–Laird, within-drive σ)\n");
     let mut t = Table::new(&["parameter", "pooled", "σ of the pooled mean", "τ (between-drive)", "Q", "drives"]);

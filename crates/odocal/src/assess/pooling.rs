@@ -12,7 +12,7 @@
 //! JSON `sigma`) is therefore the σ for the next drive, per parameter
 //!
 //! ```text
-//! σ_next = √(σ_within² + gap² + τ²)
+//! σ_next = √(σ_within² + gap²/3 + τ²)
 //! ```
 //!
 //! - `σ_within`: the method's within-drive σ
@@ -23,7 +23,11 @@
 //!   Gauss-Newton start (the fallback), the distance between EIV's own
 //!   estimate and the fallback's: batch G-N carries an errors-in-variables
 //!   bias under input noise that its own σ does not cover, and the two
-//!   estimates bracket it. 0 otherwise.
+//!   estimates bracket it. With the truth anywhere between them (uniform),
+//!   the fallback's error has RMS gap/√3. 0 otherwise, and 0 when EIV's
+//!   own θ fails a plausibility guard (a diverged filter says nothing about
+//!   the fallback's bias). A gap above 3 σ of the rest makes the verdict
+//!   doubtful ([`crate::TrustOptions::max_fallback_gap_sigmas`]).
 //! - `τ`: the between-drive σ. With one drive, the documented prior
 //!   [`BETWEEN_DRIVE_PRIOR`] (relative floors measured on the test-track
 //!   runs); with several drives
@@ -107,7 +111,7 @@ pub struct BetweenDrivePrior {
 
 /// The prior between-drive spread ([`BetweenDrivePrior`]).
 pub const BETWEEN_DRIVE_PRIOR: BetweenDrivePrior =
-    BetweenDrivePrior { c_e: 3.6e-4, c_d: 7.5e-5, t_r: 2.9e-3, d: 3.0e-5 };
+    BetweenDrivePrior { c_e: 3.8e-4, c_d: 7.5e-5, t_r: 2.9e-3, d: 2.8e-5 };
 
 impl BetweenDrivePrior {
     /// The prior between-drive σ at θ, `[c_e, c_d, t_r, d]` in SI units.
@@ -136,7 +140,7 @@ pub const NEXT_DRIVE_SIGMA_LABEL: &str = "σ for the next drive: within-drive �
 /// (SI units; `None` for a parameter held). In JSON `next_drive_sigma`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct NextDriveSigma {
-    /// `√(within² + fallback_gap² + between²)`: the σ that stands for the result.
+    /// `√(within² + fallback_gap²/3 + between²)`: the σ that stands for the result.
     pub sigma: [Option<f64>; 4],
     /// The method's within-drive σ (for a parameter the EIV filter held at
     /// its start's estimate: the start's σ).
@@ -171,7 +175,8 @@ impl NextDriveSigma {
     /// Sets `sigma` from its parts.
     fn combine(&mut self) {
         self.sigma = std::array::from_fn(|i| {
-            self.within_drive[i].map(|w| (w * w + self.fallback_gap[i].powi(2) + self.between_drive[i].powi(2)).sqrt())
+            self.within_drive[i]
+                .map(|w| (w * w + self.fallback_gap[i].powi(2) / 3.0 + self.between_drive[i].powi(2)).sqrt())
         });
     }
 
@@ -326,7 +331,7 @@ mod tests {
         let b = BETWEEN_DRIVE_PRIOR.sigma(&theta);
         assert!(close(b[0], 2.0 * BETWEEN_DRIVE_PRIOR.c_e, 1e-15));
         assert!(close(b[3], 1.5 * BETWEEN_DRIVE_PRIOR.d, 1e-15));
-        assert!(close(s.sigma[0].unwrap(), (9e-8 + 16e-8 + b[0] * b[0]).sqrt(), 1e-12));
+        assert!(close(s.sigma[0].unwrap(), (9e-8 + 16e-8 / 3.0 + b[0] * b[0]).sqrt(), 1e-12));
         assert_eq!(s.sigma[2], None, "a held parameter has none");
         assert!(close(s.without_gap()[0].unwrap(), (9e-8 + b[0] * b[0]).sqrt(), 1e-12));
         let mut m = s.clone();

@@ -813,8 +813,8 @@ mod tests {
         assert_eq!(*param, Param::TR);
         assert!((sigmas - 3.1).abs() < 1e-9, "{sigmas}");
         assert!(v.reasons[0].to_string().contains("EIV's own estimate"), "{}", v.reasons[0]);
-        // a gap of 40 % of t_r's guard half-width makes σ large too
-        let huge = NextDriveSigma::one_drive(&th, within, [0.0, 0.0, 0.19, 0.0]);
+        // a gap of 60 % of t_r's guard half-width makes σ large too (gap/√3)
+        let huge = NextDriveSigma::one_drive(&th, within, [0.0, 0.0, 0.29, 0.0]);
         let v = judge(&Evidence { next_drive: Some(&huge), ..evidence(&th, &cov) }, &opts);
         assert!(v.reasons.iter().any(|r| matches!(r, VerdictReason::LargeUncertainty { param: Param::TR, .. })), "{v:?}");
     }

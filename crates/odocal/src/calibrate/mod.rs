@@ -543,7 +543,7 @@ pub(crate) fn calibrate_core(
         _ => None,
     };
     let within = report::within_sigma_of(&outcome.detail, &outcome.covariance, selection.free);
-    let next_drive = report::next_drive_of(&outcome.theta, &outcome.detail, &within, selection.free);
+    let next_drive = report::next_drive_of(&outcome.theta, &outcome.detail, &within, selection.free, opts);
     let verdict = judge(
         &Evidence {
             theta: &outcome.theta,

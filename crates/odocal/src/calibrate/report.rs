@@ -323,8 +323,15 @@ pub(crate) fn within_sigma_of(detail: &MethodDetail, covariance: &[[f64; 4]; 4],
 /// The σ for the next drive of one drive's result ([`crate::pooling`]):
 /// the within-drive σ (for a free parameter the EIV filter held at its
 /// batch Gauss-Newton start's estimate, the start's σ), after an EIV
-/// fallback the gap to EIV's own estimate, and the prior between-drive σ.
-pub(crate) fn next_drive_of(theta: &Theta, detail: &MethodDetail, within: &ResultSigma, free: ParamSet) -> NextDriveSigma {
+/// fallback the gap to EIV's own estimate when that passes the
+/// plausibility guards, and the prior between-drive σ.
+pub(crate) fn next_drive_of(
+    theta: &Theta,
+    detail: &MethodDetail,
+    within: &ResultSigma,
+    free: ParamSet,
+    opts: &CalibrationOptions,
+) -> NextDriveSigma {
     let mut w = within.to_array();
     let mut gap = [0.0; 4];
     if let MethodDetail::Eiv(d) = detail {
@@ -337,7 +344,10 @@ pub(crate) fn next_drive_of(theta: &Theta, detail: &MethodDetail, within: &Resul
                 *w = Some(v.max(0.0).sqrt());
             }
         }
-        if let (EivOutcome::BatchGnFallback, Some(e)) = (d.eiv_result, &d.eiv) {
+        let eiv = d.eiv.as_ref().filter(|e| {
+            crate::assess::trust::check_theta(&e.theta, &opts.theta0, free, None, 1.0, &opts.trust.guards).is_empty()
+        });
+        if let (EivOutcome::BatchGnFallback, Some(e)) = (d.eiv_result, eiv) {
             let (a, b) = (e.theta.to_array(), theta.to_array());
             for i in 0..4 {
                 let g = (a[i] - b[i]).abs();
