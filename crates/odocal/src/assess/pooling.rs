@@ -270,7 +270,7 @@ mod tests {
     #[test]
     fn agreement_within_sigma_gives_no_between_spread() {
         let r = dersimonian_laird(&[1.0, 1.1, 0.95], &[1.0, 0.5, 1.0]).expect("pooled");
-        assert_eq!(r.tau, 0.0);
+        assert_eq!(r.tau.to_bits(), 0f64.to_bits());
         let w = [1.0, 4.0, 1.0];
         let mean = (1.0 + 4.0 * 1.1 + 0.95) / 6.0;
         assert!(close(r.mean, mean, 1e-12));
@@ -318,7 +318,7 @@ mod tests {
             .filter(|seed| {
                 let mut rng = rand::rngs::StdRng::seed_from_u64(1000 + seed);
                 let y: Vec<f64> = (0..drives).map(|_| 2.0 + 0.001 * rng.sample::<f64, _>(StandardNormal)).collect();
-                dersimonian_laird(&y, &[0.001; 8]).expect("pooled").tau == 0.0
+                dersimonian_laird(&y, &[0.001; 8]).expect("pooled").tau <= 0.0
             })
             .count();
         assert!(zero > 40, "{zero} of 100 seeds gave τ̂ = 0");
@@ -331,9 +331,9 @@ mod tests {
         let b = BETWEEN_DRIVE_PRIOR.sigma(&theta);
         assert!(close(b[0], 2.0 * BETWEEN_DRIVE_PRIOR.c_e, 1e-15));
         assert!(close(b[3], 1.5 * BETWEEN_DRIVE_PRIOR.d, 1e-15));
-        assert!(close(s.sigma[0].unwrap(), (9e-8 + 16e-8 / 3.0 + b[0] * b[0]).sqrt(), 1e-12));
+        assert!(close(s.sigma[0].expect("c_e"), (9e-8 + 16e-8 / 3.0 + b[0] * b[0]).sqrt(), 1e-12));
         assert_eq!(s.sigma[2], None, "a held parameter has none");
-        assert!(close(s.without_gap()[0].unwrap(), (9e-8 + b[0] * b[0]).sqrt(), 1e-12));
+        assert!(close(s.without_gap()[0].expect("c_e"), (9e-8 + b[0] * b[0]).sqrt(), 1e-12));
         let mut m = s.clone();
         let p = PooledDrives::new(
             "batch-gn".into(),
@@ -343,6 +343,6 @@ mod tests {
         m.with_pooled(p);
         assert_eq!(m.between_source, BetweenDriveSource::RandomEffects);
         assert!(m.between_drive[0] > 0.005, "{:?}", m.between_drive);
-        assert_eq!(m.between_drive[1], b[1], "the prior is a floor");
+        assert_eq!(m.between_drive[1].to_bits(), b[1].to_bits(), "the prior is a floor");
     }
 }

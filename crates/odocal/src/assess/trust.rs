@@ -816,7 +816,10 @@ mod tests {
         // a gap of 60 % of t_r's guard half-width makes σ large too (gap/√3)
         let huge = NextDriveSigma::one_drive(&th, within, [0.0, 0.0, 0.29, 0.0]);
         let v = judge(&Evidence { next_drive: Some(&huge), ..evidence(&th, &cov) }, &opts);
-        assert!(v.reasons.iter().any(|r| matches!(r, VerdictReason::LargeUncertainty { param: Param::TR, .. })), "{v:?}");
+        assert!(
+            v.reasons.iter().any(|r| matches!(r, VerdictReason::LargeUncertainty { param: Param::TR, .. })),
+            "{v:?}"
+        );
     }
 
     /// An identification report that took `steps` (θ after each step) from

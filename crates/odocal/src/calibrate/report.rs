@@ -299,7 +299,13 @@ impl CalibrationReport {
         let reasons = std::mem::take(&mut self.verdict.reasons);
         let free = self.options.identify.free;
         let mut kept: Vec<_> = reasons.into_iter().filter(|r| !crate::assess::trust::is_sigma_reason(r)).collect();
-        kept.extend(crate::assess::trust::sigma_reasons(&self.theta, &self.initial.theta, free, next, &self.options.trust));
+        kept.extend(crate::assess::trust::sigma_reasons(
+            &self.theta,
+            &self.initial.theta,
+            free,
+            next,
+            &self.options.trust,
+        ));
         self.verdict = Verdict::from_reasons(kept);
         Ok(fits.len())
     }
