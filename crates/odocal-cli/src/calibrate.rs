@@ -231,8 +231,9 @@ fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, ba
     let held = split.as_ref().map(|(_, held)| held.as_ref());
     let mut r = calibrate(drive, holdout.as_ref(), &others, given, opts, bars)
         .map_err(|e| with_hint(e, source, args, &opts.method, bars))?;
-    if separate.len() >= 2 && holdout.is_none() {
-        // Several drives: the between-drive σ from their separate fits.
+    // Several drives fitted whole (not a half of them held out): the
+    // between-drive σ from their separate fits.
+    if separate.len() >= 2 && !matches!(holdout, Some(Holdout::FirstHalf | Holdout::SecondHalf)) {
         bars.stage("fitting each drive alone for the between-drive σ");
         r.pool_drives(&separate.iter().collect::<Vec<_>>())?;
     }
