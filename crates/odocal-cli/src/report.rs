@@ -233,9 +233,9 @@ fn theta_columns(r: &CalibrationReport, truth: Option<(&Theta, f64)>) -> Vec<(&'
     let mut cols = vec![("θ_0", Some(r.initial.theta)), ("calibrated", Some(r.theta))];
     // Held parameters print "held", not a σ of 0: those not free and those
     // the method held itself (EIV holds what it cannot observe at its start;
-    // a zero covariance row), by the rule of the JSON `sigma`.
+    // a zero covariance row), by the rule of the JSON `sigma_within_drive`.
     let sd = r.std_dev().to_array();
-    let estimated = r.result_sigma().to_array();
+    let estimated = r.within_drive_sigma().to_array();
     let sigma: [f64; 4] = std::array::from_fn(|i| if estimated[i].is_some() { sd[i] } else { f64::NAN });
     cols.push(("± 1σ (model)", Some(Theta { c_e: sigma[0], c_d: sigma[1], t_r: sigma[2], d: sigma[3] })));
     // The cluster-robust σ (residuals correlated along and across segments).

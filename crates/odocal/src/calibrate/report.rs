@@ -344,7 +344,7 @@ pub(crate) fn next_drive_of(
         let start = &d.identification;
         let start_sd = start.robust.as_ref().map_or(start.covariance, |r| r.covariance);
         for (i, w) in w.iter_mut().enumerate() {
-            let free_here = Param::from_index(i).is_some_and(|p| free.contains(p));
+            let free_here = Param::from_index(i).is_some_and(|p| free.contains(p) && !d.start_held.contains(&p));
             let v = start_sd[i][i];
             if w.is_none() && free_here && start.covariance[i][i] > 0.0 && v.is_finite() {
                 *w = Some(v.max(0.0).sqrt());
