@@ -96,6 +96,7 @@ pub fn calibrate_cmd(a: CalibrateArgs, bars: &Bars) -> Result<Outcome> {
         (Drive::concat(&refs).context("calibrating several drives jointly")?, None)
     };
     let job = Job {
+        separate: &drives,
         drive: &drive,
         input: a.drive.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "),
         source: Some((first.as_path(), wheel_scale.as_deref())),
@@ -147,6 +148,7 @@ pub fn demo_cmd(a: DemoArgs, bars: &Bars) -> Result<Outcome> {
         truth: Some(sim.sidecar.theta_true),
         others,
         fingerprints,
+        separate: &[],
     };
     run_calibration(job, &a.calibration, a.json.as_deref(), bars)
 }
@@ -214,11 +216,14 @@ struct Job<'a> {
     others: Vec<OtherDrive>,
     /// Each drive's report entry (role, path, fingerprint).
     fingerprints: Vec<serde_json::Value>,
+    /// The drives `drive` was joined from, when several (their separate
+    /// fits give the between-drive σ: `CalibrationReport::pool_drives`).
+    separate: &'a [Drive],
 }
 
 /// Calibrates the job's drive and writes every report asked for.
 fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, bars: &Bars) -> Result<Outcome> {
-    let Job { drive, input, source, manifest, truth: truth_theta, others, fingerprints } = job;
+    let Job { drive, input, source, manifest, truth: truth_theta, others, fingerprints, separate } = job;
     let settings = args.settings()?;
     let resolved = settings.resolve(manifest, Caller::CommandLine)?;
     let (opts, account) = (&resolved.options, &resolved.account);
@@ -228,8 +233,14 @@ fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, ba
     // The data the report's validation ran on (truth and HTML report).
     let split = holdout.as_ref().map(|h| h.split(drive)).transpose()?;
     let held = split.as_ref().map(|(_, held)| held.as_ref());
-    let r = calibrate(drive, holdout.as_ref(), &others, (given, args.carry_heading_offset), opts, bars)
+    let mut r = calibrate(drive, holdout.as_ref(), &others, (given, args.carry_heading_offset), opts, bars)
         .map_err(|e| with_hint(e, source, args, &opts.method, bars))?;
+    // Several drives fitted whole (not a half of them held out): the
+    // between-drive σ from their separate fits.
+    if separate.len() >= 2 && !matches!(holdout, Some(Holdout::FirstHalf | Holdout::SecondHalf)) {
+        bars.stage("fitting each drive alone for the between-drive σ");
+        r.pool_drives(&separate.iter().collect::<Vec<_>>())?;
+    }
     let wheel_scale = source.and_then(|(_, w)| w);
     let drive = held.unwrap_or(drive);
     bars.finish();
@@ -396,6 +407,7 @@ fn write_html_report(
             ("method".into(), r.method.clone()),
             ("input".into(), input.to_string()),
             ("fingerprint".into(), fingerprint.to_string()),
+            ("σ of θ".into(), r.result_sigma().covers.to_string()),
             ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
             ("date".into(), odocal::ParamFile::utc_date_today()),
         ],
@@ -441,9 +453,11 @@ fn report_json(
     wheel_scale: Option<&str>,
 ) -> Result<serde_json::Value> {
     let mut v = serde_json::to_value(r)?;
-    // The σ that stands for the result (the verdict's, --params-out's).
+    // The σ that stands for the result (the verdict's, --params-out's): for
+    // the next drive; and the method's within-drive σ.
     if let Some(obj) = v.as_object_mut() {
         obj.insert("sigma".into(), serde_json::to_value(r.result_sigma())?);
+        obj.insert("sigma_within_drive".into(), serde_json::to_value(r.within_drive_sigma())?);
     }
     // The `method` of the report (SPEC §9) is the name; its settings are in `options.method`.
     if let (Some((t, e)), Some(obj)) = (truth, v.as_object_mut()) {

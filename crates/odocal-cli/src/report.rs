@@ -2,6 +2,7 @@
 
 use std::fmt::Write as _;
 
+use odocal::pooling::BetweenDriveSource;
 use odocal::{
     CalibrationReport, EivDetail, EivOutcome, ExtrinsicsEstimate, Method, MethodDetail, MultiValidation, Param,
     SigmaSource, Theta, Verdict, VerdictLevel,
@@ -232,9 +233,9 @@ fn theta_columns(r: &CalibrationReport, truth: Option<(&Theta, f64)>) -> Vec<(&'
     let mut cols = vec![("θ_0", Some(r.initial.theta)), ("calibrated", Some(r.theta))];
     // Held parameters print "held", not a σ of 0: those not free and those
     // the method held itself (EIV holds what it cannot observe at its start;
-    // a zero covariance row), by the rule of the JSON `sigma`.
+    // a zero covariance row), by the rule of the JSON `sigma_within_drive`.
     let sd = r.std_dev().to_array();
-    let estimated = r.result_sigma().to_array();
+    let estimated = r.within_drive_sigma().to_array();
     let sigma: [f64; 4] = std::array::from_fn(|i| if estimated[i].is_some() { sd[i] } else { f64::NAN });
     cols.push(("± 1σ (model)", Some(Theta { c_e: sigma[0], c_d: sigma[1], t_r: sigma[2], d: sigma[3] })));
     // The cluster-robust σ (residuals correlated along and across segments).
@@ -248,6 +249,11 @@ fn theta_columns(r: &CalibrationReport, truth: Option<(&Theta, f64)>) -> Vec<(&'
         let sd = b.std_dev().to_array();
         let s: [f64; 4] = std::array::from_fn(|i| if sigma[i].is_nan() { f64::NAN } else { sd[i] });
         cols.push(("± 1σ (spread)", Some(Theta { c_e: s[0], c_d: s[1], t_r: s[2], d: s[3] })));
+    }
+    // The σ that stands for the result: for the next drive.
+    if r.next_drive_sigma.is_some() {
+        let s = r.result_sigma().to_array().map(|s| s.unwrap_or(f64::NAN));
+        cols.push(("± 1σ (next drive)", Some(Theta::from_array(s))));
     }
     if let Some((t, _)) = truth {
         cols.push(("truth", Some(*t)));
@@ -268,7 +274,29 @@ fn result_notes(out: &mut String, r: &CalibrationReport, wheel_scale: Option<&st
         SigmaSource::BatchSpread => "spread",
         SigmaSource::Model => "model",
     };
-    let _ = writeln!(out, "  σ of the result (verdict, --params-out, --report, JSON `sigma`): ± 1σ ({column})");
+    match &r.next_drive_sigma {
+        Some(n) => {
+            let between = match n.between_source {
+                BetweenDriveSource::Prior => "the documented prior".to_string(),
+                BetweenDriveSource::RandomEffects => {
+                    format!("{} drives pooled", n.pooled.as_ref().map_or(0, |p| p.theta.len()))
+                }
+            };
+            let gap = if n.fallback_gap.iter().any(|g| *g > 0.0) { " ⊕ gap to EIV's own estimate" } else { "" };
+            let _ = writeln!(
+                out,
+                "  σ of the result (verdict, --params-out, --report, JSON `sigma`): ± 1σ (next drive) = {}\n    \
+                 within-drive ± 1σ ({column}, JSON `sigma_within_drive`){gap} ⊕ between-drive ({between})",
+                odocal::pooling::NEXT_DRIVE_SIGMA_LABEL
+            );
+        }
+        None => {
+            let _ = writeln!(out, "  σ of the result (verdict, --params-out, --report, JSON `sigma`): ± 1σ ({column})");
+        }
+    }
+    if let Some(p) = r.next_drive_sigma.as_ref().and_then(|n| n.pooled.as_ref()) {
+        pooled_lines(out, p);
+    }
     if let Some(w) = wheel_scale {
         let _ = writeln!(out, "  wheels: {w}");
     }
@@ -279,6 +307,28 @@ fn result_notes(out: &mut String, r: &CalibrationReport, wheel_scale: Option<&st
     let unobs = r.observability.unobservable;
     if !unobs.is_empty() {
         let _ = writeln!(out, "  NOT OBSERVABLE from these data (estimates not to be trusted): {unobs}");
+    }
+}
+
+/// The block of a several-drive calibration: each drive fitted alone, the
+/// random-effects pooling per parameter.
+fn pooled_lines(out: &mut String, p: &odocal::pooling::PooledDrives) {
+    let _ = writeln!(
+        out,
+        "  between drives ({} drives, each fitted alone with {}; random effects, DerSimonian–Laird):",
+        p.theta.len(),
+        p.method
+    );
+    let _ = writeln!(out, "    {:<4} {:>14} {:>18} {:>18}", "", "pooled", "σ of pooled mean", "τ between-drive");
+    for (i, name) in ["c_e", "c_d", "t_r", "d"].iter().enumerate() {
+        match p.params[i] {
+            Some(e) => {
+                let _ = writeln!(out, "    {name:<4} {:>14.6} {:>18.3e} {:>18.3e}", e.mean, e.mean_sigma, e.tau);
+            }
+            None => {
+                let _ = writeln!(out, "    {name:<4} {:>14}", "held");
+            }
+        }
     }
 }
 

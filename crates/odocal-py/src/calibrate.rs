@@ -169,6 +169,7 @@ fn calibrate_json(
     if let Some(obj) = v.as_object_mut() {
         // The σ that stands for the result (as the CLI's JSON `sigma`).
         obj.insert("sigma".into(), serde_json::to_value(report.result_sigma()).map_err(json_err)?);
+        obj.insert("sigma_within_drive".into(), serde_json::to_value(report.within_drive_sigma()).map_err(json_err)?);
         obj.insert("drives".into(), serde_json::Value::Array(drives));
     }
     plan.resolved.account.add_to_json(&mut v)?;

@@ -143,6 +143,7 @@ pub(crate) fn _report_html(
                 ("method".into(), report.method.to_string()),
                 ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
                 ("from".into(), "Python (odocal.CalibrationReport.to_html)".into()),
+                ("σ of θ".into(), report.result_sigma().covers.to_string()),
             ]
             .into_iter()
             .chain(fingerprint.map(|f| ("fingerprint".into(), f)))

@@ -335,8 +335,14 @@ def test_params_files_round_trip_and_equal_the_cli(odocal_bin, drive_csv, tmp_pa
         params = back["parameters"]
         assert [params[k] for k in odocal.THETA_NAMES] == [report.theta[k] for k in odocal.THETA_NAMES]
         rs = report.result_sigma
+        assert rs["covers"] == "next-drive"
+        within = report.within_drive_sigma
+        assert within["covers"] == "within-drive"
         for k in odocal.THETA_NAMES:
             assert params.get(k + "_sigma") == rs[k], (k, params, rs)
+            if rs[k] is not None and within[k] is not None:
+                assert rs[k] >= within[k], (k, rs, within)
+        assert back["provenance"]["sigma_covers"] == "σ for the next drive: within-drive ⊕ between-drive"
         assert back["verdict"] == report.verdict["level"]
         # A file is a θ: validate takes its θ and the heading offset its calibration estimated;
         # carried, it gives the calibration's own Ē_p to the bit; the bare θ (no offset) does not.

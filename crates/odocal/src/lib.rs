@@ -122,11 +122,12 @@ pub use sim::{simulate, NoiseOptions, SimOptions, SimOutput, SimSidecar};
 pub use calibrate::{
     calibrate, crossrun, settings, settings::Settings, BatchGnDetail, BatchGnOptions, BatchSpread, Calibration,
     CalibrationOptions, CalibrationReport, CorrectBias, EivDetail, EivMethodOptions, EivOutcome, FinalSegments,
-    Holdout, InitialStep, Method, MethodDetail, ResultSigma, SegmentCounts, SigmaSource, ThetaScore, ThreeStepDetail,
-    ThreeStepOptions, Timing, ValidationSummary,
+    Holdout, InitialStep, Method, MethodDetail, ResultSigma, SegmentCounts, SigmaCovers, SigmaSource, ThetaScore,
+    ThreeStepDetail, ThreeStepOptions, Timing, ValidationSummary,
 };
 pub use compensate::{qp::SolverKind, CompensateOptions, QpOptions};
 // Validation and the verdict.
+pub use assess::pooling;
 pub use assess::{
     heading_offset::HeadingOffsetFit,
     position_error::{

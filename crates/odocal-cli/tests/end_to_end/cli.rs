@@ -456,6 +456,19 @@ fn several_drives_jointly_and_validation_on_several() {
         both["segments"],
         one["segments"]
     );
+    // …and each fitted alone too: their random-effects pooling gives the
+    // between-drive part of the σ for the next drive.
+    let next = &both["next_drive_sigma"];
+    assert_eq!(next["between_source"], "random-effects", "{next}");
+    assert_eq!(next["pooled"]["theta"].as_array().map(Vec::len), Some(2), "{next}");
+    assert_eq!(one["next_drive_sigma"]["between_source"], "prior");
+    let tau = next["pooled"]["params"][0]["tau"].as_f64().expect("τ of c_e");
+    let between = next["between_drive"][0].as_f64().expect("between-drive σ of c_e");
+    assert!(between >= tau, "{between} < {tau}");
+    assert_eq!(both["sigma"]["c_e"], next["sigma"][0]);
+    let text = stdout(&odocal(&["calibrate", s[0], s[1], "--method", "batch-gn"]));
+    assert!(text.contains("  between drives (2 drives, each fitted alone with batch-gn;"), "{text}");
+    assert!(text.contains("between-drive (2 drives pooled)"), "{text}");
     // Drives of different sample rates are not fitted together.
     let slow = d.path().join("slow.csv");
     let mut rows = String::from("t,px,py,psi,n_rl,n_rr,beta,a_y\n");

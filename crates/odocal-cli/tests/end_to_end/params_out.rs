@@ -53,13 +53,27 @@ fn params_file_json_and_text_give_the_result_sigma() {
     let out = stdout(&o);
     assert_eq!(r["sigma"]["source"], "batch-spread", "{}", r["sigma"]);
     assert!(y.contains("sigma: \"batch-spread\""), "{y}");
-    assert!(out.contains("σ of the result (verdict, --params-out, --report, JSON `sigma`): ± 1σ (spread)"), "{out}");
+    assert_eq!(r["sigma"]["covers"], "next-drive", "{}", r["sigma"]);
+    assert_eq!(r["sigma_within_drive"]["covers"], "within-drive", "{}", r["sigma_within_drive"]);
+    assert!(y.contains("sigma_covers: \"σ for the next drive: within-drive ⊕ between-drive\""), "{y}");
+    assert!(
+        out.contains(
+            "σ of the result (verdict, --params-out, --report, JSON `sigma`): ± 1σ (next drive) = σ for the next \
+             drive: within-drive ⊕ between-drive"
+        ),
+        "{out}"
+    );
+    assert!(out.contains("within-drive ± 1σ (spread, JSON `sigma_within_drive`)"), "{out}");
     let spread = &r["uncertainty"]["batch_spread"]["covariance"];
+    let between = &r["next_drive_sigma"]["between_drive"];
     for (i, name) in ["c_e", "c_d", "t_r", "d"].into_iter().enumerate() {
         let s = sqrt_diag(spread, i);
         let file = yaml_number(&y, &format!("{name}_sigma")).expect("sigma in the file");
-        assert_eq!(file.to_bits(), s.to_bits(), "{name}: file {file} vs batch spread {s}");
-        assert_eq!(r["sigma"][name].as_f64(), Some(s), "{name}");
+        let b = between[i].as_f64().expect("between-drive σ");
+        let next = (s * s + b * b).sqrt();
+        assert!((file - next).abs() <= 1e-12 * next, "{name}: file {file} vs batch spread ⊕ prior {next}");
+        assert_eq!(r["sigma"][name].as_f64(), Some(file), "{name}");
+        assert_eq!(r["sigma_within_drive"][name].as_f64(), Some(s), "{name}");
         let model = sqrt_diag(&r["covariance"], i);
         assert!(s > 10.0 * model, "{name}: the model σ {model} is what the file must not hold (spread {s})");
     }
@@ -90,8 +104,11 @@ fn params_file_json_and_text_give_the_result_sigma() {
     let robust = &r["identification"]["robust"]["covariance"];
     for (i, name) in ["c_e", "c_d", "t_r"].into_iter().enumerate() {
         let s = sqrt_diag(robust, i);
-        assert_eq!(p["parameters"][format!("{name}_sigma")].as_f64(), Some(s), "{name}: {p}");
-        assert_eq!(r["sigma"][name].as_f64(), Some(s), "{name}");
+        let b = r["next_drive_sigma"]["between_drive"][i].as_f64().expect("between-drive σ");
+        let file = p["parameters"][format!("{name}_sigma")].as_f64().expect("σ");
+        assert!((file - (s * s + b * b).sqrt()).abs() <= 1e-12 * file, "{name}: {p}");
+        assert_eq!(r["sigma"][name].as_f64(), Some(file), "{name}");
+        assert_eq!(r["sigma_within_drive"][name].as_f64(), Some(s), "{name}");
     }
     assert_eq!(p["parameters"]["d_held"], true, "{p}");
     assert!(r["sigma"]["d"].is_null(), "{}", r["sigma"]);

@@ -121,11 +121,23 @@ class CalibrationReport:
 
     @property
     def result_sigma(self) -> Optional[dict]:
-        """The 1σ that stands for the result with its source: ``{"source":
-        "cluster-robust" | "batch-spread" | "model", "c_e": …, "c_d": …,
-        "t_r": …, "d": …}`` (``None`` for a held parameter); :attr:`sigma`
-        without the source. ``None`` for reports without it."""
+        """The 1σ that stands for the result with its source, as the verdict,
+        the CLI's JSON and ``--params-out`` give it: the σ for the next drive
+        (within-drive ⊕ between-drive), ``{"source": "cluster-robust" |
+        "batch-spread" | "model", "covers": "next-drive", "c_e": …, "c_d": …,
+        "t_r": …, "d": …}`` (``None`` for a held parameter; ``source`` names
+        the covariance of its within-drive part). :attr:`sigma` is the same
+        without the source; :attr:`model_sigma` and :attr:`within_drive_sigma`
+        are the narrower σ. ``None`` for reports without it."""
         s = self._dict.get("sigma")
+        return dict(s) if s is not None else None
+
+    @property
+    def within_drive_sigma(self) -> Optional[dict]:
+        """The method's within-drive 1σ (how well this drive determines θ, not
+        how far the next drive's θ lies), same keys as :attr:`result_sigma`
+        with ``"covers": "within-drive"``. ``None`` for reports without it."""
+        s = self._dict.get("sigma_within_drive")
         return dict(s) if s is not None else None
 
     @property

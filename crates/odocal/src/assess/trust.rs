@@ -31,10 +31,17 @@
 //!   on the returned θ ([`crate::Warning::EivCheckFailed`]), or the batch
 //!   Gauss-Newton that gives θ (batch-gn, the EIV fallback, the 3-step's
 //!   step 3) stopped at its iteration limit while its last step still moved
-//!   a parameter by more than [`TrustOptions::max_final_step_sigmas`] σ.
+//!   a parameter by more than [`TrustOptions::max_final_step_sigmas`] σ,
+//!   or the result is EIV's batch G-N fallback and EIV's own estimate lies
+//!   more than [`TrustOptions::max_fallback_gap_sigmas`] σ from it.
+//!
+//! The large-σ check uses the σ that stands for the result, the σ for the
+//! next drive ([`crate::pooling`]); the cross-split and convergence checks
+//! the method's within-drive σ.
 
 use serde::{Deserialize, Serialize};
 
+use crate::assess::pooling::NextDriveSigma;
 use crate::error::{Error, Result};
 use crate::identify::{IdentifyReport, Termination};
 use crate::model::extrinsics::{Extrinsics, ExtrinsicsEstimate};
@@ -241,8 +248,8 @@ pub struct TrustOptions {
     /// different Ē_p; three times is more than route alone explains on the
     /// half-splits measured).
     pub max_held_out_ratio: f64,
-    /// A σ (`crate::CalibrationReport::result_covariance` where the
-    /// method has one, else the model σ) above this fraction of the parameter's guard half-width makes the
+    /// A σ (the σ for the next drive, [`crate::CalibrationReport::result_sigma`])
+    /// above this fraction of the parameter's guard half-width makes the
     /// result doubtful. Default 0.1.
     pub max_sigma_fraction: f64,
     /// A parameter farther than this fraction of its guard half-width from
@@ -277,6 +284,20 @@ pub struct TrustOptions {
     /// last step was below 1e-5 σ, on the van's halves (EIV fallbacks)
     /// below 1.5e-3 σ.
     pub max_final_step_sigmas: f64,
+    /// After an EIV fallback, a free parameter whose batch Gauss-Newton
+    /// value lies more than this many σ (the σ for the next drive without
+    /// the gap, [`crate::pooling::NextDriveSigma::without_gap`]) from EIV's
+    /// own estimate makes the result doubtful
+    /// ([`VerdictReason::FallbackDisagrees`]): batch G-N's
+    /// errors-in-variables bias may be that large. Default 3: the verdict
+    /// then never accepts a fallback whose distance to EIV's estimate is
+    /// beyond 3 σ of what it would report without the gap.
+    #[serde(default = "default_max_fallback_gap_sigmas")]
+    pub max_fallback_gap_sigmas: f64,
+}
+
+fn default_max_fallback_gap_sigmas() -> f64 {
+    3.0
 }
 
 impl Default for TrustOptions {
@@ -289,6 +310,7 @@ impl Default for TrustOptions {
             max_split_sigmas: 5.0,
             min_split_fraction: 0.25,
             max_final_step_sigmas: 0.05,
+            max_fallback_gap_sigmas: default_max_fallback_gap_sigmas(),
         }
     }
 }
@@ -302,6 +324,7 @@ impl TrustOptions {
             (self.max_sigma_fraction, "trust.max_sigma_fraction"),
             (self.near_bound_fraction, "trust.near_bound_fraction"),
             (self.max_final_step_sigmas, "trust.max_final_step_sigmas"),
+            (self.max_fallback_gap_sigmas, "trust.max_fallback_gap_sigmas"),
         ] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(Error::InvalidOption { field, reason: format!("must be positive, got {v}") });
@@ -393,6 +416,22 @@ pub enum VerdictReason {
         /// The combined model σ `√(σ_fit² + σ_held²)`, SI.
         sigma: f64,
     },
+    /// The result is EIV's batch Gauss-Newton fallback, and EIV's own
+    /// estimate lies farther from it than the fallback's σ without that gap
+    /// allows (doubtful): batch G-N's errors-in-variables bias may be as
+    /// large. The σ for the next drive includes the gap.
+    FallbackDisagrees {
+        /// The parameter.
+        param: Param,
+        /// The fallback's value, SI.
+        fallback: f64,
+        /// |EIV's own estimate − the fallback's|, SI.
+        gap: f64,
+        /// The σ for the next drive without the gap, SI.
+        sigma: f64,
+        /// `gap / sigma`.
+        sigmas: f64,
+    },
     /// Held-out Ē_p much above the fitting data's (doubtful).
     HeldOutMuchWorse {
         /// Ē_p on the held-out data, m.
@@ -459,6 +498,12 @@ impl std::fmt::Display for VerdictReason {
                  (σ {sigma:.2e}); the data do not agree on {param}",
                 (fit - held_out).abs() / sigma
             ),
+            VerdictReason::FallbackDisagrees { param, fallback, gap, sigma, sigmas } => write!(
+                f,
+                "{param} = {fallback:.6} is the batch Gauss-Newton fallback; EIV's own estimate lies {gap:.2e} away, \
+                 {sigmas:.1} × the σ without that gap ({sigma:.2e}): batch G-N's errors-in-variables bias may be as \
+                 large (the σ for the next drive includes it)"
+            ),
             VerdictReason::HeldOutMuchWorse { held_out_m, fit_m, max_ratio } => {
                 write!(f, "held-out Ē_p {held_out_m:.3} m is more than {max_ratio} × the fitting data's {fit_m:.3} m")
             }
@@ -515,6 +560,9 @@ pub(crate) struct Evidence<'a> {
     pub misspecified: usize,
     /// The batch Gauss-Newton that gives θ, when one does.
     pub identification: Option<(&'a str, &'a IdentifyReport)>,
+    /// The σ for the next drive ([`crate::pooling`]): the large-σ check's
+    /// σ, and after an EIV fallback the gap to EIV's own estimate.
+    pub next_drive: Option<&'a NextDriveSigma>,
 }
 
 /// The free θ parameter that moved most, in σ of `covariance`, in the last
@@ -540,6 +588,68 @@ fn unconverged_step(
         })
         .filter(|(_, r)| r.is_finite() && *r > max_sigmas)
         .max_by(|a, b| a.1.total_cmp(&b.1))
+}
+
+/// True for a reason that comes from θ's σ for the next drive (a large σ
+/// of a θ parameter, a fallback far from EIV's own estimate):
+/// [`sigma_reasons`] redoes them when that σ changes.
+pub(crate) fn is_sigma_reason(r: &VerdictReason) -> bool {
+    match r {
+        VerdictReason::LargeUncertainty { param, .. } => ParamSet::THETA.contains(*param),
+        VerdictReason::FallbackDisagrees { .. } => true,
+        _ => false,
+    }
+}
+
+/// The verdict's reasons from θ's σ for the next drive `n`: a σ above
+/// [`TrustOptions::max_sigma_fraction`] of the guard half-width, and after
+/// an EIV fallback the gap ([`fallback_gap_reasons`]).
+pub(crate) fn sigma_reasons(
+    theta: &Theta,
+    theta0: &Theta,
+    free: ParamSet,
+    n: &NextDriveSigma,
+    opts: &TrustOptions,
+) -> Vec<VerdictReason> {
+    let mut reasons: Vec<VerdictReason> = free
+        .intersection(ParamSet::THETA)
+        .iter()
+        .filter_map(|p| {
+            let h = opts.guards.half_width(p, theta0);
+            let sigma = n.sigma[p.index()]?;
+            (sigma.is_finite() && sigma > opts.max_sigma_fraction * h).then_some(VerdictReason::LargeUncertainty {
+                param: p,
+                sigma,
+                fraction: sigma / h,
+            })
+        })
+        .collect();
+    reasons.extend(fallback_gap_reasons(theta, free, n, opts));
+    reasons
+}
+
+/// After an EIV fallback, the parameters whose batch Gauss-Newton value
+/// lies more than [`TrustOptions::max_fallback_gap_sigmas`] of the σ
+/// without the gap (`√(within² + between²)`) from EIV's own estimate.
+pub(crate) fn fallback_gap_reasons(
+    theta: &Theta,
+    free: ParamSet,
+    n: &NextDriveSigma,
+    opts: &TrustOptions,
+) -> Vec<VerdictReason> {
+    let base = n.without_gap();
+    free.intersection(ParamSet::THETA)
+        .iter()
+        .filter_map(|p| {
+            let (i, gap) = (p.index(), n.fallback_gap[p.index()]);
+            let sigma = base[i]?;
+            let sigmas = gap / sigma;
+            (sigma > 0.0 && sigmas.is_finite() && sigmas > opts.max_fallback_gap_sigmas).then(|| {
+                let fallback = p.value(theta);
+                VerdictReason::FallbackDisagrees { param: p, fallback, gap, sigma, sigmas }
+            })
+        })
+        .collect()
 }
 
 /// The verdict on a calibration (see the module docs).
@@ -582,10 +692,14 @@ pub(crate) fn judge(e: &Evidence<'_>, opts: &TrustOptions) -> Verdict {
         if fraction.is_finite() && fraction > opts.near_bound_fraction && fraction <= 1.0 {
             reasons.push(VerdictReason::AtGuardBound { param: p, value: p.value(e.theta), fraction });
         }
-        let sigma = e.covariance[p.index()][p.index()].sqrt();
+        let within = e.covariance[p.index()][p.index()].sqrt();
+        let sigma = e.next_drive.and_then(|n| n.sigma[p.index()]).unwrap_or(within);
         if sigma.is_finite() && sigma > opts.max_sigma_fraction * h {
             reasons.push(VerdictReason::LargeUncertainty { param: p, sigma, fraction: sigma / h });
         }
+    }
+    if let Some(n) = e.next_drive {
+        reasons.extend(fallback_gap_reasons(e.theta, e.free, n, opts));
     }
     if let (Some((other, other_cov)), true) = (&e.split, opts.max_split_sigmas > 0.0) {
         // θ only: the held-out fit's θ and covariance carry no extrinsics
@@ -670,7 +784,42 @@ mod tests {
             extrinsics: None,
             misspecified: 0,
             identification: None,
+            next_drive: None,
         }
+    }
+
+    /// A fallback whose EIV estimate lies beyond 3 σ (without the gap) is
+    /// doubtful, and the large-σ check sees the σ for the next drive.
+    #[test]
+    fn a_fallback_far_from_eiv_is_doubtful() {
+        use crate::assess::pooling::NextDriveSigma;
+        let th = Theta { c_e: 2.0, c_d: 0.0, t_r: 1.55, d: 0.0 };
+        let cov: [[f64; 4]; 4] =
+            [[1e-10, 0.0, 0.0, 0.0], [0.0, 1e-12, 0.0, 0.0], [0.0, 0.0, 1e-8, 0.0], [0.0, 0.0, 0.0, 1e-12]];
+        let within = std::array::from_fn(|i| Some(cov[i][i].sqrt()));
+        let opts = TrustOptions::default();
+        let none = NextDriveSigma::one_drive(&th, within, [0.0; 4]);
+        let v = judge(&Evidence { next_drive: Some(&none), ..evidence(&th, &cov) }, &opts);
+        assert_eq!(v.level, VerdictLevel::Accepted, "{v:?}");
+        // t_r's σ without the gap: √(1e-8 + (prior × 1.55)²)
+        let base = none.without_gap()[2].expect("t_r");
+        let near = NextDriveSigma::one_drive(&th, within, [0.0, 0.0, 2.9 * base, 0.0]);
+        let v = judge(&Evidence { next_drive: Some(&near), ..evidence(&th, &cov) }, &opts);
+        assert_eq!(v.level, VerdictLevel::Accepted, "{v:?}");
+        let far = NextDriveSigma::one_drive(&th, within, [0.0, 0.0, 3.1 * base, 0.0]);
+        let v = judge(&Evidence { next_drive: Some(&far), ..evidence(&th, &cov) }, &opts);
+        assert_eq!(v.level, VerdictLevel::Doubtful, "{v:?}");
+        let VerdictReason::FallbackDisagrees { param, sigmas, .. } = &v.reasons[0] else { panic!("{v:?}") };
+        assert_eq!(*param, Param::TR);
+        assert!((sigmas - 3.1).abs() < 1e-9, "{sigmas}");
+        assert!(v.reasons[0].to_string().contains("EIV's own estimate"), "{}", v.reasons[0]);
+        // a gap of 60 % of t_r's guard half-width makes σ large too (gap/√3)
+        let huge = NextDriveSigma::one_drive(&th, within, [0.0, 0.0, 0.29, 0.0]);
+        let v = judge(&Evidence { next_drive: Some(&huge), ..evidence(&th, &cov) }, &opts);
+        assert!(
+            v.reasons.iter().any(|r| matches!(r, VerdictReason::LargeUncertainty { param: Param::TR, .. })),
+            "{v:?}"
+        );
     }
 
     /// An identification report that took `steps` (θ after each step) from

@@ -144,9 +144,17 @@ fn wrong_noise_model_falls_back_to_batch_gauss_newton() {
     assert_eq!(r.covariance, d.identification.covariance);
     // Its σ is the batch G-N start's cluster-robust σ, as for batch-gn.
     let robust = d.identification.robust.as_ref().expect("the start's cluster-robust covariance");
-    let rs = r.result_sigma();
+    let rs = r.within_drive_sigma();
     assert_eq!(rs.source, crate::calibrate::SigmaSource::ClusterRobust);
     assert_eq!(rs.t_r, Some(robust.covariance[2][2].sqrt()));
+    // The σ that stands for it, for the next drive, adds the gap to EIV's
+    // own estimate (as gap/√3) and the between-drive prior.
+    let next = r.next_drive_sigma.as_ref().expect("next-drive σ");
+    let gap = (unused.theta.t_r - r.theta.t_r).abs();
+    assert_eq!(next.fallback_gap[2], gap);
+    let t_r = r.result_sigma().t_r.expect("t_r");
+    let expected = (robust.covariance[2][2] + gap * gap / 3.0 + next.between_drive[2].powi(2)).sqrt();
+    assert!((t_r - expected).abs() <= 1e-12 * expected, "{t_r} vs {expected}");
     let window_finding = r.warnings.iter().any(|w| {
         matches!(
             w,

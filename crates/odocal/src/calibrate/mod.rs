@@ -71,7 +71,7 @@ pub(crate) mod three_step;
 mod turn_sense;
 pub(crate) mod validate_on;
 
-pub use report::{CalibrationReport, MethodDetail, ResultSigma, SigmaSource};
+pub use report::{CalibrationReport, MethodDetail, ResultSigma, SigmaCovers, SigmaSource};
 pub use report::{SegmentCounts, ThetaScore, Timing, ValidationSummary};
 
 pub use batch_gn::{BatchGnDetail, BatchGnOptions};
@@ -567,6 +567,8 @@ pub(crate) fn calibrate_core(
         Some(h) if opts.trust.max_split_sigmas > 0.0 => split_fit(h, opts, selection.free),
         _ => None,
     };
+    let within = report::within_sigma_of(&outcome.detail, &outcome.covariance, selection.free);
+    let next_drive = report::next_drive_of(&outcome.theta, &outcome.detail, &within, selection.free, opts);
     let verdict = judge(
         &Evidence {
             theta: &outcome.theta,
@@ -587,6 +589,7 @@ pub(crate) fn calibrate_core(
             extrinsics: extrinsics.as_ref(),
             misspecified: warnings.iter().filter(|w| w.misspecifies_result()).count(),
             identification: result_identification(&outcome.detail),
+            next_drive: Some(&next_drive),
         },
         &opts.trust,
     );
@@ -621,6 +624,7 @@ pub(crate) fn calibrate_core(
         warnings,
         auto_fixed: selection.auto_fixed.clone(),
         validate_on: None,
+        next_drive_sigma: Some(next_drive),
         options,
     };
     Ok(DetailedCalibration {

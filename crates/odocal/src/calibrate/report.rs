@@ -4,9 +4,10 @@
 use serde::{Deserialize, Serialize};
 
 use super::{
-    outcome_covariance, outcome_robust, BatchGnDetail, CalibrationOptions, EivDetail, InitialStep, Method,
+    outcome_covariance, outcome_robust, BatchGnDetail, CalibrationOptions, EivDetail, EivOutcome, InitialStep, Method,
     ThreeStepDetail,
 };
+use crate::assess::pooling::NextDriveSigma;
 use crate::assess::trust::Verdict;
 use crate::assess::validate::MultiValidation;
 use crate::assess::warning::Warning;
@@ -14,7 +15,7 @@ use crate::compensate::CompensationStep;
 use crate::identify::{IdentifyReport, Observability, RobustCovariance};
 use crate::io::param_file::ParamFile;
 use crate::model::extrinsics::ExtrinsicsEstimate;
-use crate::model::param::Param;
+use crate::model::param::{Param, ParamSet};
 use crate::model::Theta;
 
 /// θ with its mean validation position error.
@@ -128,6 +129,10 @@ pub struct CalibrationReport {
     /// validated on other drives ([`super::Calibration::validate_on`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub validate_on: Option<MultiValidation>,
+    /// The σ for the next drive and its parts (within-drive, EIV fallback
+    /// gap, between-drive; [`crate::pooling`]): [`Self::result_sigma`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub next_drive_sigma: Option<NextDriveSigma>,
     /// The options used.
     pub options: CalibrationOptions,
 }
@@ -218,26 +223,147 @@ impl CalibrationReport {
         outcome_covariance(&self.detail)
     }
 
-    /// The 1σ that stands for the result: the square roots of the
-    /// diagonal of `Self::result_covariance`, else of the model
-    /// covariance (EIV's filter covariance, or a method's when nothing better was
-    /// computed), with where it comes from. Held parameters (not free, or a
-    /// zero covariance row: not estimated) have none. The verdict, the
-    /// parameter file ([`CalibrationReport::param_file`]), the
-    /// HTML report and the CLI's JSON `sigma` all give this σ.
-    pub fn result_sigma(&self) -> ResultSigma {
-        let (source, c) = match (&self.detail, self.result_covariance()) {
-            (MethodDetail::BatchGn(_) | MethodDetail::Eiv(_), Some(c)) => (SigmaSource::ClusterRobust, c),
-            (MethodDetail::ThreeStep(_), Some(c)) => (SigmaSource::BatchSpread, c),
-            (_, c) => (SigmaSource::Model, c.unwrap_or(&self.covariance)),
-        };
-        let free = self.options.identify.free;
-        let sd: [Option<f64>; 4] = std::array::from_fn(|i| {
-            let estimated = Param::from_index(i).is_some_and(|p| free.contains(p)) && self.covariance[i][i] != 0.0;
-            estimated.then(|| c[i][i].max(0.0).sqrt())
-        });
-        ResultSigma { source, c_e: sd[0], c_d: sd[1], t_r: sd[2], d: sd[3] }
+    /// The method's within-drive 1σ: the square roots of the diagonal of
+    /// `Self::result_covariance`, else of the model covariance (EIV's filter
+    /// covariance, or a method's when nothing better was computed), with
+    /// where it comes from. Held parameters (not free, or a zero covariance
+    /// row: not estimated) have none. It says how well this drive
+    /// determines θ, not how far the next drive's θ lies: that is
+    /// [`Self::result_sigma`]. In the CLI's JSON `sigma_within_drive`.
+    pub fn within_drive_sigma(&self) -> ResultSigma {
+        within_sigma_of(&self.detail, &self.covariance, self.options.identify.free)
     }
+
+    /// The 1σ that stands for the result: the σ for the next drive of the
+    /// same vehicle, `√(within-drive² + fallback gap² + between-drive²)`
+    /// per parameter ([`crate::pooling`], [`Self::next_drive_sigma`]).
+    /// The verdict, the parameter file ([`CalibrationReport::param_file`]),
+    /// the HTML report and the CLI's JSON `sigma` all give this σ. A report
+    /// without `next_drive_sigma` (written by an older odocal) gives the
+    /// within-drive σ ([`Self::within_drive_sigma`]), labelled so
+    /// (`covers`).
+    pub fn result_sigma(&self) -> ResultSigma {
+        let within = self.within_drive_sigma();
+        match &self.next_drive_sigma {
+            Some(n) => ResultSigma {
+                covers: SigmaCovers::NextDrive,
+                c_e: n.sigma[0],
+                c_d: n.sigma[1],
+                t_r: n.sigma[2],
+                d: n.sigma[3],
+                ..within
+            },
+            None => within,
+        }
+    }
+}
+
+impl CalibrationReport {
+    /// With several drives of one vehicle calibrated jointly (`drives`, the
+    /// drives the report's drive was joined from): fits each drive
+    /// separately with batch Gauss-Newton (the report's free parameters and
+    /// extrinsics settings; every cut segment, as EIV), pools them per
+    /// parameter by random effects ([`crate::pooling::dersimonian_laird`]
+    /// on each drive's within-drive σ) and makes the between-drive σ of
+    /// [`Self::result_sigma`] their τ (at least the prior). The joint fit's
+    /// θ stays the result: it is the report's method on all the data,
+    /// while the separate fits are batch G-N's, which carries an
+    /// errors-in-variables bias under input noise; the pooled θ is
+    /// reported beside it (`next_drive_sigma.pooled`). The verdict's σ
+    /// checks are redone with the new σ. A drive whose separate fit fails
+    /// (too short, nothing to fit) is left out; with fewer than two fits
+    /// left, the report keeps the prior. Returns the number of drives
+    /// pooled.
+    ///
+    /// # Errors
+    /// None from the separate fits (they are left out); an error only when
+    /// the report has no next-drive σ ([`Error::InvalidOption`](crate::Error)).
+    pub fn pool_drives(&mut self, drives: &[&crate::Drive]) -> crate::Result<usize> {
+        let Some(next) = self.next_drive_sigma.as_mut() else {
+            return Err(crate::Error::InvalidOption {
+                field: "next_drive_sigma",
+                reason: "the report has no σ for the next drive to pool into".into(),
+            });
+        };
+        let mut o = CalibrationOptions { method: Method::BatchGn(Default::default()), ..self.options.clone() };
+        o.segments.min_peak_yaw_rate_rad_per_s = 0.0;
+        o.auto_fix = false;
+        o.trust.max_split_sigmas = 0.0;
+        let fits: Vec<CalibrationReport> = drives.iter().filter_map(|d| super::calibrate(d, &o).ok()).collect();
+        if fits.len() < 2 {
+            return Ok(0);
+        }
+        let theta = fits.iter().map(|r| r.theta).collect();
+        let sigma = fits.iter().map(|r| r.within_drive_sigma().to_array()).collect();
+        next.with_pooled(crate::pooling::PooledDrives::new("batch-gn".into(), theta, sigma));
+        let reasons = std::mem::take(&mut self.verdict.reasons);
+        let free = self.options.identify.free;
+        let mut kept: Vec<_> = reasons.into_iter().filter(|r| !crate::assess::trust::is_sigma_reason(r)).collect();
+        kept.extend(crate::assess::trust::sigma_reasons(
+            &self.theta,
+            &self.initial.theta,
+            free,
+            next,
+            &self.options.trust,
+        ));
+        self.verdict = Verdict::from_reasons(kept);
+        Ok(fits.len())
+    }
+}
+
+/// The within-drive σ of a method's result (see
+/// [`CalibrationReport::within_drive_sigma`]).
+pub(crate) fn within_sigma_of(detail: &MethodDetail, covariance: &[[f64; 4]; 4], free: ParamSet) -> ResultSigma {
+    let (source, c) = match (detail, outcome_covariance(detail)) {
+        (MethodDetail::BatchGn(_) | MethodDetail::Eiv(_), Some(c)) => (SigmaSource::ClusterRobust, c),
+        (MethodDetail::ThreeStep(_), Some(c)) => (SigmaSource::BatchSpread, c),
+        (_, c) => (SigmaSource::Model, c.unwrap_or(covariance)),
+    };
+    let sd: [Option<f64>; 4] = std::array::from_fn(|i| {
+        let estimated = Param::from_index(i).is_some_and(|p| free.contains(p)) && covariance[i][i] != 0.0;
+        estimated.then(|| c[i][i].max(0.0).sqrt())
+    });
+    ResultSigma { source, covers: SigmaCovers::WithinDrive, c_e: sd[0], c_d: sd[1], t_r: sd[2], d: sd[3] }
+}
+
+/// The σ for the next drive of one drive's result ([`crate::pooling`]):
+/// the within-drive σ (for a free parameter the EIV filter held at its
+/// batch Gauss-Newton start's estimate, the start's σ), after an EIV
+/// fallback the gap to EIV's own estimate when that passes the
+/// plausibility guards, and the prior between-drive σ.
+pub(crate) fn next_drive_of(
+    theta: &Theta,
+    detail: &MethodDetail,
+    within: &ResultSigma,
+    free: ParamSet,
+    opts: &CalibrationOptions,
+) -> NextDriveSigma {
+    let mut w = within.to_array();
+    let mut gap = [0.0; 4];
+    if let MethodDetail::Eiv(d) = detail {
+        let start = &d.identification;
+        let start_sd = start.robust.as_ref().map_or(start.covariance, |r| r.covariance);
+        for (i, w) in w.iter_mut().enumerate() {
+            let free_here = Param::from_index(i).is_some_and(|p| free.contains(p) && !d.start_held.contains(&p));
+            let v = start_sd[i][i];
+            if w.is_none() && free_here && start.covariance[i][i] > 0.0 && v.is_finite() {
+                *w = Some(v.max(0.0).sqrt());
+            }
+        }
+        let eiv = d.eiv.as_ref().filter(|e| {
+            crate::assess::trust::check_theta(&e.theta, &opts.theta0, free, None, 1.0, &opts.trust.guards).is_empty()
+        });
+        if let (EivOutcome::BatchGnFallback, Some(e)) = (d.eiv_result, eiv) {
+            let (a, b) = (e.theta.to_array(), theta.to_array());
+            for i in 0..4 {
+                let g = (a[i] - b[i]).abs();
+                if e.free[i] && w[i].is_some() && g.is_finite() {
+                    gap[i] = g;
+                }
+            }
+        }
+    }
+    NextDriveSigma::one_drive(theta, w, gap)
 }
 
 /// Which covariance a result's σ comes from ([`CalibrationReport::result_sigma`]).
@@ -275,13 +401,39 @@ impl std::fmt::Display for SigmaSource {
     }
 }
 
+/// What a σ covers ([`ResultSigma::covers`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SigmaCovers {
+    /// The spread of θ on the next drive of the same vehicle: within-drive
+    /// ⊕ between-drive ([`crate::pooling`]).
+    NextDrive,
+    /// This drive only: the method's within-drive σ.
+    #[default]
+    WithinDrive,
+}
+
+impl std::fmt::Display for SigmaCovers {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            SigmaCovers::NextDrive => crate::pooling::NEXT_DRIVE_SIGMA_LABEL,
+            SigmaCovers::WithinDrive => "within-drive σ",
+        })
+    }
+}
+
 /// The 1σ of a calibration's result, per parameter (SI units; `None` for
-/// a parameter held), and which covariance it comes from. In JSON:
-/// `{"source": "batch-spread", "c_e": …, "c_d": …, "t_r": …, "d": null}`.
+/// a parameter held), which covariance its within-drive part comes from
+/// and what it covers. In JSON:
+/// `{"source": "batch-spread", "covers": "next-drive", "c_e": …, "c_d": …, "t_r": …, "d": null}`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct ResultSigma {
-    /// Which covariance.
+    /// Which covariance the within-drive part comes from.
     pub source: SigmaSource,
+    /// What the σ covers: the next drive (within-drive ⊕ between-drive) or
+    /// this drive only.
+    #[serde(default)]
+    pub covers: SigmaCovers,
     /// 1σ of c_e, m.
     pub c_e: Option<f64>,
     /// 1σ of c_d, m.
@@ -301,17 +453,18 @@ impl ResultSigma {
 
 impl CalibrationReport {
     /// The parameter file of this calibration: θ with the σ that stands for
-    /// the result ([`CalibrationReport::result_sigma`]: batch-gn's
-    /// cluster-robust σ, the 3-step's batch spread, EIV's filter covariance;
-    /// the same σ as the verdict, the HTML report and the CLI's JSON
+    /// the result ([`CalibrationReport::result_sigma`]: the σ for the next
+    /// drive; the same σ as the verdict, the HTML report and the CLI's JSON
     /// `sigma`), `<name>_held` for held parameters, the reference
     /// extrinsics when the calibration involved them, the verdict with its
     /// reasons, and provenance (`input`, `method`, `sigma`: which covariance
-    /// the σ comes from, the odocal version, today's date).
+    /// the within-drive part comes from, `sigma_covers`: what the σ covers,
+    /// the odocal version, today's date).
     pub fn param_file(&self, input: &str) -> ParamFile {
         let sigma = self.result_sigma();
         let mut f = ParamFile::from_theta(&self.theta, sigma.to_array(), input, &self.method);
         f.provenance.insert(2, ("sigma".into(), sigma.source.name().into()));
+        f.provenance.insert(3, ("sigma_covers".into(), sigma.covers.to_string()));
         if let Some(x) = &self.extrinsics {
             f.add_extrinsics(x);
         }

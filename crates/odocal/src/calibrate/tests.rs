@@ -356,7 +356,7 @@ mod solver_tests {
 /// written as held. (The CLI test `params_out` covers the robust σ.)
 #[test]
 fn the_param_file_has_the_result_sigma_not_the_model_sigma() {
-    use crate::calibrate::{calibrate, CalibrationOptions, Method, SigmaSource, ThreeStepOptions};
+    use crate::calibrate::{calibrate, CalibrationOptions, Method, SigmaCovers, SigmaSource, ThreeStepOptions};
     use crate::sim::{simulate, SimOptions};
     let sim = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim");
     let method = Method::ThreeStep(ThreeStepOptions { initial_batches: 8, picks: 3, ..Default::default() });
@@ -364,15 +364,23 @@ fn the_param_file_has_the_result_sigma_not_the_model_sigma() {
     let spread = r.result_covariance().expect("batch spread");
     let f = r.param_file("drive.csv");
     let s = r.result_sigma();
+    let within = r.within_drive_sigma();
     assert_eq!(s.source, SigmaSource::BatchSpread);
+    assert_eq!(s.covers, SigmaCovers::NextDrive);
+    assert_eq!(within.covers, SigmaCovers::WithinDrive);
+    let between = crate::pooling::BETWEEN_DRIVE_PRIOR.sigma(&r.theta);
     for (i, e) in f.params.iter().enumerate() {
         let sigma = e.sigma.expect("free");
-        assert_eq!(sigma.to_bits(), spread[i][i].sqrt().to_bits(), "{}", e.name);
+        assert_eq!(within.to_array()[i].map(f64::to_bits), Some(spread[i][i].sqrt().to_bits()), "{}", e.name);
+        let next = (spread[i][i] + between[i] * between[i]).sqrt();
+        assert!((sigma - next).abs() <= 1e-12 * next, "{}: {sigma} vs {next}", e.name);
         assert_eq!(Some(sigma), s.to_array()[i], "{}", e.name);
         let model = r.covariance[i][i].sqrt();
         assert!(sigma > 10.0 * model, "{}: file σ {sigma} vs model σ {model}", e.name);
     }
     assert!(f.provenance.contains(&("sigma".into(), "batch-spread".into())), "{:?}", f.provenance);
+    let covers = crate::pooling::NEXT_DRIVE_SIGMA_LABEL.to_string();
+    assert!(f.provenance.contains(&("sigma_covers".into(), covers)), "{:?}", f.provenance);
     assert_eq!(f.verdict.as_deref(), Some(r.verdict.level.to_string().as_str()));
 
     let opts = CalibrationOptions { method: Method::BatchGn(Default::default()), ..Default::default() };
@@ -381,9 +389,13 @@ fn the_param_file_has_the_result_sigma_not_the_model_sigma() {
     assert!(r.robust().is_none());
     assert_eq!(r.result_sigma().source, SigmaSource::Model);
     let f = r.param_file("drive.csv");
-    assert_eq!(f.params[2].sigma, Some(r.std_dev().t_r));
+    assert_eq!(r.within_drive_sigma().t_r, Some(r.std_dev().t_r));
+    let b = crate::pooling::BETWEEN_DRIVE_PRIOR.sigma(&r.theta)[2];
+    assert_eq!(f.params[2].sigma, Some((r.std_dev().t_r.powi(2) + b * b).sqrt()));
     assert!(f.provenance.contains(&("sigma".into(), "model".into())), "{:?}", f.provenance);
     // a zero covariance row means "not estimated" (EIV holds what it cannot determine)
+    // (in the within-drive σ, which a report without the next-drive σ gives)
     r.covariance[3] = [0.0; 4];
+    r.next_drive_sigma = None;
     assert_eq!(r.param_file("drive.csv").params[3].sigma, None);
 }

@@ -1,0 +1,215 @@
+//! Does the σ a result reports cover the next drive? (docs/validation.md,
+//! "Coverage of the reported σ").
+//!
+//! The six test-track runs of 2024-08-05, each calibrated alone with the
+//! default (`odocal calibrate RUN.toml`). For each run and parameter, the
+//! run's 95 % interval θ̂ ± 1.96 σ (the σ that stands for the result, JSON
+//! `sigma`: the σ for the next drive) must contain the pooled estimate of
+//! the other five runs (their mean) in ≥ 80 % of run × parameter cases,
+//! while the median half-width stays ≤ 2.5 × the observed between-run sd
+//! (sample sd of the six estimates). The between-drive prior
+//! (`odocal::pooling::BETWEEN_DRIVE_PRIOR`) was designed on the three
+//! earliest runs (14-45-26, 15-28-33, 16-06-28: their sd, printed here as
+//! "design spread") and is confirmed on the other three (16-47-33,
+//! 17-45-46, 18-01-26): the table reports both halves separately, and the
+//! same with the within-drive σ (`sigma_within_drive`) for comparison.
+//!
+//! Then the highway van (examples/psu-mapping-van, 2024-07-11) split in
+//! halves: each half calibrated alone, its interval against the other
+//! half's estimate. Last, the DerSimonian–Laird pooling of the six runs
+//! (`odocal::pooling::PooledDrives`, within-drive σ) with its τ.
+
+use odocal::pooling::{PooledDrives, BETWEEN_DRIVE_PRIOR};
+use odocal::{calibrate, CalibrationOptions, CalibrationReport, Calibration, Holdout, Theta};
+use odocal_lab::{load, median, testtrack_runs, Args, Res, Table, PARAMETERS, VAN_MANIFEST};
+
+const USAGE: &str = "sigma_coverage [--no-van]";
+
+/// Per parameter: the unit's scale for printing and its name.
+const SHOW: [(f64, &str); 4] = [(1.0, "m"), (1e3, "mm"), (1.0, "m"), (1e3, "mm/(m/s²)")];
+
+fn main() {
+    odocal_lab::main_with(run)
+}
+
+struct Fit {
+    name: String,
+    theta: [f64; 4],
+    next: [Option<f64>; 4],
+    within: [Option<f64>; 4],
+    /// The within-drive part of the next-drive σ (for a parameter EIV held
+    /// at its start's estimate: the start's σ).
+    within_part: [Option<f64>; 4],
+    verdict: String,
+    outcome: String,
+}
+
+fn fit(name: &str, r: &CalibrationReport) -> Fit {
+    let outcome = match &r.detail {
+        odocal::MethodDetail::Eiv(d) => format!("{:?}", d.eiv_result),
+        _ => r.method.clone(),
+    };
+    Fit {
+        name: name.to_string(),
+        theta: r.theta.to_array(),
+        next: r.result_sigma().to_array(),
+        within: r.within_drive_sigma().to_array(),
+        within_part: r.next_drive_sigma.as_ref().map_or([None; 4], |n| n.within_drive),
+        verdict: r.verdict.level.to_string(),
+        outcome,
+    }
+}
+
+fn sd(x: &[f64]) -> f64 {
+    let m = x.iter().sum::<f64>() / x.len() as f64;
+    (x.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (x.len() - 1) as f64).sqrt()
+}
+
+fn run() -> Res<()> {
+    let a = Args::parse(USAGE, &["no-van"])?;
+    let van = !a.flag("no-van");
+    a.finish()?;
+    let opts = CalibrationOptions::default();
+    let runs = testtrack_runs()?;
+    let mut fits = Vec::new();
+    for (name, d) in &runs {
+        let r = calibrate(d, &opts)?;
+        eprintln!("{name}: {} ({})", r.verdict.level, r.method);
+        fits.push(fit(name, &r));
+    }
+    print_runs(&fits);
+    let all_sd: [f64; 4] = std::array::from_fn(|i| sd(&fits.iter().map(|f| f.theta[i]).collect::<Vec<_>>()));
+    print_design(&fits[..3]);
+    println!("### Coverage of the other runs' pooled estimate (95 % interval, ±1.96 σ)\n");
+    let mut t = Table::new(&[
+        "runs",
+        "σ",
+        "c_e: covered · half-width/sd",
+        "c_d",
+        "t_r",
+        "d",
+        "all four covered",
+    ]);
+    for (label, range) in [("design (14-45-26, 15-28-33, 16-06-28)", 0..3), ("confirm (16-47-33, 17-45-46, 18-01-26)", 3..6)]
+    {
+        for (which, next) in [("next drive (`sigma`)", true), ("within drive (`sigma_within_drive`)", false)] {
+            let mut row = vec![label.to_string(), which.to_string()];
+            let mut hit_all = (0, 0);
+            for (p, s) in all_sd.iter().enumerate() {
+                let (mut hit, mut n, mut half) = (0, 0, Vec::new());
+                for i in range.clone() {
+                    let others: Vec<f64> = (0..6).filter(|&j| j != i).map(|j| fits[j].theta[p]).collect();
+                    let pooled = others.iter().sum::<f64>() / others.len() as f64;
+                    let sigma = if next { fits[i].next[p] } else { fits[i].within[p] };
+                    n += 1;
+                    if let Some(sg) = sigma {
+                        half.push(1.96 * sg);
+                        hit += usize::from((fits[i].theta[p] - pooled).abs() <= 1.96 * sg);
+                    }
+                }
+                hit_all = (hit_all.0 + hit, hit_all.1 + n);
+                let ratio = if half.is_empty() { f64::NAN } else { median(&half) / s };
+                row.push(format!("{hit}/{n} · {ratio:.2}"));
+            }
+            row.push(format!("{}/{} ({:.0} %)", hit_all.0, hit_all.1, 100.0 * hit_all.0 as f64 / hit_all.1 as f64));
+            t.row(row);
+        }
+    }
+    println!("{t}");
+    println!(
+        "Between-run sd over the six runs: c_e {:.3e} m, c_d {:.3} mm, t_r {:.3e} m, d {:.3} mm/(m/s²).\n",
+        all_sd[0],
+        all_sd[1] * 1e3,
+        all_sd[2],
+        all_sd[3] * 1e3
+    );
+    print_pooling(&fits);
+    if van {
+        van_halves(&opts)?;
+    }
+    Ok(())
+}
+
+fn print_runs(fits: &[Fit]) {
+    println!("### The six runs, default calibration\n");
+    let mut t = Table::new(&["run", "result", "verdict", "c_e m", "c_d mm", "t_r m", "d mm/(m/s²)"]);
+    for f in fits {
+        let mut row = vec![f.name.clone(), f.outcome.clone(), f.verdict.clone()];
+        for (p, (scale, _)) in SHOW.iter().enumerate() {
+            let s = |x: Option<f64>| x.map_or("held".to_string(), |x| format!("{:.2e}", x * scale));
+            row.push(format!("{:.5} ± {} (within {})", f.theta[p] * scale, s(f.next[p]), s(f.within[p])));
+        }
+        t.row(row);
+    }
+    println!("{t}");
+}
+
+/// The design runs' spread against the prior the library states.
+fn print_design(design: &[Fit]) {
+    let sds: [f64; 4] = std::array::from_fn(|i| sd(&design.iter().map(|f| f.theta[i]).collect::<Vec<_>>()));
+    let ce = design.iter().map(|f| f.theta[0]).sum::<f64>() / design.len() as f64;
+    let tr = design.iter().map(|f| f.theta[2]).sum::<f64>() / design.len() as f64;
+    let scale = [ce, ce, tr, tr];
+    let rel: [f64; 4] = std::array::from_fn(|i| sds[i] / scale[i]);
+    let theta: Vec<Theta> = design.iter().map(|f| Theta::from_array(f.theta)).collect();
+    let pooled = PooledDrives::new("eiv".into(), theta, design.iter().map(|f| f.within_part).collect());
+    let tau: [f64; 4] = std::array::from_fn(|i| pooled.params[i].map_or(f64::NAN, |p| p.tau / scale[i]));
+    let p = BETWEEN_DRIVE_PRIOR;
+    println!("### Design spread (three earliest runs) and the library's prior\n");
+    let mut t = Table::new(&["", "c_e (of c_e)", "c_d (of c_e)", "t_r (of t_r)", "d (of t_r, per m/s²)"]);
+    t.row(std::iter::once("design runs' sd, relative".to_string()).chain(rel.iter().map(|r| format!("{r:.2e}"))));
+    t.row(
+        std::iter::once("design runs' τ (DerSimonian–Laird on their within-drive σ), relative".to_string())
+            .chain(tau.iter().map(|r| format!("{r:.2e}"))),
+    );
+    t.row(
+        std::iter::once("BETWEEN_DRIVE_PRIOR".to_string())
+            .chain([p.c_e, p.c_d, p.t_r, p.d].iter().map(|r| format!("{r:.2e}"))),
+    );
+    println!("{t}");
+}
+
+/// DerSimonian–Laird over the six runs with their within-drive σ.
+fn print_pooling(fits: &[Fit]) {
+    let theta: Vec<Theta> = fits.iter().map(|f| Theta::from_array(f.theta)).collect();
+    let sigma: Vec<[Option<f64>; 4]> = fits.iter().map(|f| f.within_part).collect();
+    let p = PooledDrives::new("eiv".into(), theta, sigma);
+    println!("### Random-effects pooling of the six runs (DerSimonian–Laird, within-drive σ)\n");
+    let mut t = Table::new(&["parameter", "pooled", "σ of the pooled mean", "τ (between-drive)", "Q", "drives"]);
+    for (i, name) in PARAMETERS.iter().enumerate() {
+        let (scale, unit) = SHOW[i];
+        match p.params[i] {
+            Some(r) => t.row([
+                format!("{name} ({unit})"),
+                format!("{:.5}", r.mean * scale),
+                format!("{:.2e}", r.mean_sigma * scale),
+                format!("{:.2e}", r.tau * scale),
+                format!("{:.0}", r.q),
+                r.drives.to_string(),
+            ]),
+            None => t.row([format!("{name} ({unit})"), "–".into(), "–".into(), "–".into(), "–".into(), "–".into()]),
+        }
+    }
+    println!("{t}");
+}
+
+/// The van's halves: each half's interval against the other half's θ.
+fn van_halves(opts: &CalibrationOptions) -> Res<()> {
+    let d = load(VAN_MANIFEST)?;
+    // Holdout::FirstHalf holds the first half out: the fit is on the second.
+    let second = fit("second half", &Calibration::new(&d, opts).holdout(&Holdout::FirstHalf).run()?);
+    let first = fit("first half", &Calibration::new(&d, opts).holdout(&Holdout::SecondHalf).run()?);
+    println!("### Highway van (07-11) in halves: each half's 95 % interval against the other half's estimate\n");
+    let mut t = Table::new(&["fitted on", "result", "verdict", "c_e", "c_d", "t_r", "d"]);
+    for (a, b) in [(&first, &second), (&second, &first)] {
+        let mut row = vec![a.name.clone(), a.outcome.clone(), a.verdict.clone()];
+        for p in 0..4 {
+            let z = |s: Option<f64>| s.map_or("held".to_string(), |s| format!("{:.1}", (a.theta[p] - b.theta[p]).abs() / s));
+            row.push(format!("{} σ (within: {} σ)", z(a.next[p]), z(a.within[p])));
+        }
+        t.row(row);
+    }
+    println!("{t}");
+    println!("Covered when the distance is at most 1.96 σ.\n");
+    Ok(())
+}

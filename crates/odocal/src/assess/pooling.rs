@@ -1,0 +1,348 @@
+//! The σ that predicts the next drive of the same vehicle.
+//!
+//! A calibration's own σ (batch-gn's cluster-robust σ, the 3-step's batch
+//! spread, EIV's filter covariance) is a *within-drive* σ: it says how well
+//! this drive determines θ. The next drive of the same vehicle differs by
+//! more: tyre temperature and pressure, load, the reference's own biases
+//! and the roads change from drive to drive. On the six test-track runs of
+//! one afternoon (docs/validation.md, "Coverage of the reported σ") the
+//! between-run spread of c_e was about 15× the within-drive σ, of t_r 30×.
+//!
+//! The σ that stands for a result ([`crate::CalibrationReport::result_sigma`],
+//! JSON `sigma`) is therefore the σ for the next drive, per parameter
+//!
+//! ```text
+//! σ_next = √(σ_within² + gap²/3 + τ²)
+//! ```
+//!
+//! - `σ_within`: the method's within-drive σ
+//!   ([`crate::CalibrationReport::within_drive_sigma`]); for a parameter the
+//!   EIV filter held at its batch Gauss-Newton start's estimate, the
+//!   start's σ.
+//! - `gap`: when EIV's checks failed and the result is its batch
+//!   Gauss-Newton start (the fallback), the distance between EIV's own
+//!   estimate and the fallback's: batch G-N carries an errors-in-variables
+//!   bias under input noise that its own σ does not cover, and the two
+//!   estimates bracket it. With the truth anywhere between them (uniform),
+//!   the fallback's error has RMS gap/√3. 0 otherwise, and 0 when EIV's
+//!   own θ fails a plausibility guard (a diverged filter says nothing about
+//!   the fallback's bias). A gap above 3 σ of the rest makes the verdict
+//!   doubtful ([`crate::TrustOptions::max_fallback_gap_sigmas`]).
+//! - `τ`: the between-drive σ. With one drive, the documented prior
+//!   [`BETWEEN_DRIVE_PRIOR`] (relative floors measured on the test-track
+//!   runs); with several drives
+//!   ([`crate::CalibrationReport::pool_drives`]), the DerSimonian–Laird
+//!   random-effects estimate on the drives' separate fits
+//!   ([`dersimonian_laird`]), never below the prior (with a handful of
+//!   drives τ̂ is often 0 by chance).
+
+use serde::{Deserialize, Serialize};
+
+use crate::model::Theta;
+
+/// A random-effects pooling of one parameter over several drives
+/// ([`dersimonian_laird`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RandomEffects {
+    /// The pooled estimate: the mean weighted by `1/(σ_i² + τ²)`.
+    pub mean: f64,
+    /// 1σ of the pooled mean, `1/√Σ(1/(σ_i² + τ²))`.
+    pub mean_sigma: f64,
+    /// The between-drive σ τ.
+    pub tau: f64,
+    /// Cochran's Q of the fixed-effect fit.
+    pub q: f64,
+    /// Number of drives.
+    pub drives: usize,
+}
+
+/// DerSimonian–Laird random effects: `estimates[i]` with within-drive 1σ
+/// `sigmas[i]` are modelled as `μ + b_i + e_i`, `b_i ~ N(0, τ²)`,
+/// `e_i ~ N(0, σ_i²)`. τ² is the method-of-moments estimate
+/// `max(0, (Q − (k−1)) / (Σw − Σw²/Σw))`, `w = 1/σ²`, `Q = Σw(y − ȳ_w)²`.
+/// `None` with fewer than two drives, different lengths, or a σ that is not
+/// finite and positive.
+///
+/// ```
+/// use odocal::pooling::dersimonian_laird;
+/// let r = dersimonian_laird(&[1.0, 2.0, 4.0], &[1.0, 1.0, 1.0]).unwrap();
+/// assert!((r.tau * r.tau - 4.0 / 3.0).abs() < 1e-12);
+/// assert!((r.mean - 7.0 / 3.0).abs() < 1e-12);
+/// ```
+pub fn dersimonian_laird(estimates: &[f64], sigmas: &[f64]) -> Option<RandomEffects> {
+    let k = estimates.len();
+    if k < 2 || sigmas.len() != k || sigmas.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
+        return None;
+    }
+    if estimates.iter().any(|y| !y.is_finite()) {
+        return None;
+    }
+    let w: Vec<f64> = sigmas.iter().map(|s| 1.0 / (s * s)).collect();
+    let sw: f64 = w.iter().sum();
+    let sw2: f64 = w.iter().map(|w| w * w).sum();
+    let fixed = w.iter().zip(estimates).map(|(w, y)| w * y).sum::<f64>() / sw;
+    let q: f64 = w.iter().zip(estimates).map(|(w, y)| w * (y - fixed).powi(2)).sum();
+    let c = sw - sw2 / sw;
+    let tau2 = if c > 0.0 { ((q - (k - 1) as f64) / c).max(0.0) } else { 0.0 };
+    let ws: Vec<f64> = sigmas.iter().map(|s| 1.0 / (s * s + tau2)).collect();
+    let sws: f64 = ws.iter().sum();
+    let mean = ws.iter().zip(estimates).map(|(w, y)| w * y).sum::<f64>() / sws;
+    Some(RandomEffects { mean, mean_sigma: sws.sqrt().recip(), tau: tau2.sqrt(), q, drives: k })
+}
+
+/// The prior between-drive σ of one drive, relative: per parameter a
+/// fraction of a scale of θ (c_e and c_d of c_e, t_r and d of t_r; d's per
+/// m/s²). Measured as the spread (sample sd) of the default calibration's
+/// estimates over the three earliest test-track runs of 2024-08-05
+/// (14-45-26, 15-28-33, 16-06-28), confirmed on the other three
+/// (docs/validation.md, "Coverage of the reported σ"; lab
+/// `sigma_coverage`); docs/method.md, "The σ for the next drive".
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct BetweenDrivePrior {
+    /// σ of c_e over c_e.
+    pub c_e: f64,
+    /// σ of c_d over c_e.
+    pub c_d: f64,
+    /// σ of t_r over t_r.
+    pub t_r: f64,
+    /// σ of d over t_r (per m/s²).
+    pub d: f64,
+}
+
+/// The prior between-drive spread ([`BetweenDrivePrior`]).
+pub const BETWEEN_DRIVE_PRIOR: BetweenDrivePrior =
+    BetweenDrivePrior { c_e: 3.8e-4, c_d: 7.5e-5, t_r: 2.9e-3, d: 2.8e-5 };
+
+impl BetweenDrivePrior {
+    /// The prior between-drive σ at θ, `[c_e, c_d, t_r, d]` in SI units.
+    pub fn sigma(&self, theta: &Theta) -> [f64; 4] {
+        let (ce, tr) = (theta.c_e.abs(), theta.t_r.abs());
+        [self.c_e * ce, self.c_d * ce, self.t_r * tr, self.d * tr]
+    }
+}
+
+/// Where the between-drive σ τ comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum BetweenDriveSource {
+    /// One drive: the documented prior ([`BETWEEN_DRIVE_PRIOR`]).
+    Prior,
+    /// Several drives: DerSimonian–Laird on their separate fits, at least
+    /// the prior ([`PooledDrives`]).
+    RandomEffects,
+}
+
+/// The label of the σ that stands for a result, the same in the text
+/// report, the parameter file, the HTML report and Python.
+pub const NEXT_DRIVE_SIGMA_LABEL: &str = "σ for the next drive: within-drive ⊕ between-drive";
+
+/// The parts of the σ for the next drive, per parameter `[c_e, c_d, t_r, d]`
+/// (SI units; `None` for a parameter held). In JSON `next_drive_sigma`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NextDriveSigma {
+    /// `√(within² + fallback_gap²/3 + between²)`: the σ that stands for the result.
+    pub sigma: [Option<f64>; 4],
+    /// The method's within-drive σ (for a parameter the EIV filter held at
+    /// its start's estimate: the start's σ).
+    pub within_drive: [Option<f64>; 4],
+    /// After an EIV fallback: |EIV's own θ − the fallback's θ|; zeros otherwise.
+    pub fallback_gap: [f64; 4],
+    /// The between-drive σ τ.
+    pub between_drive: [f64; 4],
+    /// Where τ comes from.
+    pub between_source: BetweenDriveSource,
+    /// With several drives: their separate fits and the pooling.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pooled: Option<PooledDrives>,
+}
+
+impl NextDriveSigma {
+    /// The σ for the next drive of one drive's calibration: the prior τ at θ.
+    pub(crate) fn one_drive(theta: &Theta, within_drive: [Option<f64>; 4], fallback_gap: [f64; 4]) -> Self {
+        let between_drive = BETWEEN_DRIVE_PRIOR.sigma(theta);
+        let mut s = NextDriveSigma {
+            sigma: [None; 4],
+            within_drive,
+            fallback_gap,
+            between_drive,
+            between_source: BetweenDriveSource::Prior,
+            pooled: None,
+        };
+        s.combine();
+        s
+    }
+
+    /// Sets `sigma` from its parts.
+    fn combine(&mut self) {
+        self.sigma = std::array::from_fn(|i| {
+            self.within_drive[i]
+                .map(|w| (w * w + self.fallback_gap[i].powi(2) / 3.0 + self.between_drive[i].powi(2)).sqrt())
+        });
+    }
+
+    /// `sigma` without the fallback gap, `√(within² + between²)`: the σ the
+    /// result would have if its estimator had no errors-in-variables bias.
+    pub fn without_gap(&self) -> [Option<f64>; 4] {
+        std::array::from_fn(|i| self.within_drive[i].map(|w| (w * w + self.between_drive[i].powi(2)).sqrt()))
+    }
+
+    /// With several drives: τ from their random-effects pooling, at least
+    /// the prior.
+    pub(crate) fn with_pooled(&mut self, pooled: PooledDrives) {
+        for (i, p) in pooled.params.iter().enumerate() {
+            if let Some(p) = p {
+                self.between_drive[i] = self.between_drive[i].max(p.tau);
+            }
+        }
+        self.between_source = BetweenDriveSource::RandomEffects;
+        self.pooled = Some(pooled);
+        self.combine();
+    }
+}
+
+/// Several drives' separate fits and their random-effects pooling
+/// (DerSimonian–Laird, per parameter).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PooledDrives {
+    /// The method of the separate fits.
+    pub method: String,
+    /// Each drive's θ.
+    pub theta: Vec<Theta>,
+    /// Each drive's within-drive σ, `[c_e, c_d, t_r, d]`.
+    pub sigma: Vec<[Option<f64>; 4]>,
+    /// Per parameter the pooling (`None` for a parameter held or a drive
+    /// without its σ).
+    pub params: [Option<RandomEffects>; 4],
+}
+
+impl PooledDrives {
+    /// Pools the separate fits `theta[i]` with σ `sigma[i]`.
+    pub fn new(method: String, theta: Vec<Theta>, sigma: Vec<[Option<f64>; 4]>) -> Self {
+        let params = std::array::from_fn(|i| {
+            let y: Vec<f64> = theta.iter().map(|t| t.to_array()[i]).collect();
+            let s: Option<Vec<f64>> = sigma.iter().map(|s| s[i]).collect();
+            dersimonian_laird(&y, &s?)
+        });
+        PooledDrives { method, theta, sigma, params }
+    }
+
+    /// The pooled θ (θ_0's value where a parameter was not pooled).
+    pub fn pooled_theta(&self, theta0: &Theta) -> Theta {
+        let t0 = theta0.to_array();
+        Theta::from_array(std::array::from_fn(|i| self.params[i].map_or(t0[i], |p| p.mean)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn close(a: f64, b: f64, tol: f64) -> bool {
+        (a - b).abs() <= tol * b.abs().max(1e-300)
+    }
+
+    /// Three equal-σ drives 1, 2, 4 (σ 1): ȳ = 7/3, Q = 42/9, C = 2,
+    /// τ² = (42/9 − 2)/2 = 4/3, SE = √((1 + 4/3)/3).
+    #[test]
+    fn equal_sigmas_by_hand() {
+        let r = dersimonian_laird(&[1.0, 2.0, 4.0], &[1.0; 3]).expect("pooled");
+        assert!(close(r.q, 42.0 / 9.0, 1e-12), "{r:?}");
+        assert!(close(r.tau * r.tau, 4.0 / 3.0, 1e-12), "{r:?}");
+        assert!(close(r.mean, 7.0 / 3.0, 1e-12), "{r:?}");
+        assert!(close(r.mean_sigma, ((1.0 + 4.0 / 3.0) / 3.0f64).sqrt(), 1e-12), "{r:?}");
+        assert_eq!(r.drives, 3);
+    }
+
+    /// Two drives 0 ± 1 and 3 ± 2: w = 1, ¼; ȳ_w = 0.6; Q = 0.36 + 1.44 =
+    /// 1.8; C = 1.25 − 1.0625/1.25 = 0.4; τ² = 0.8/0.4 = 2; w* = ⅓, ⅙;
+    /// μ = (3/6)/(1/2) = 1; SE = √2.
+    #[test]
+    fn unequal_sigmas_by_hand() {
+        let r = dersimonian_laird(&[0.0, 3.0], &[1.0, 2.0]).expect("pooled");
+        assert!(close(r.q, 1.8, 1e-12), "{r:?}");
+        assert!(close(r.tau * r.tau, 2.0, 1e-12), "{r:?}");
+        assert!(close(r.mean, 1.0, 1e-12), "{r:?}");
+        assert!(close(r.mean_sigma, 2f64.sqrt(), 1e-12), "{r:?}");
+    }
+
+    /// Drives that agree better than their σ say: τ = 0 and the pooled mean
+    /// is the fixed-effect one.
+    #[test]
+    fn agreement_within_sigma_gives_no_between_spread() {
+        let r = dersimonian_laird(&[1.0, 1.1, 0.95], &[1.0, 0.5, 1.0]).expect("pooled");
+        assert_eq!(r.tau.to_bits(), 0f64.to_bits());
+        let w = [1.0, 4.0, 1.0];
+        let mean = (1.0 + 4.0 * 1.1 + 0.95) / 6.0;
+        assert!(close(r.mean, mean, 1e-12));
+        assert!(close(r.mean_sigma, (1.0 / w.iter().sum::<f64>()).sqrt(), 1e-12));
+    }
+
+    #[test]
+    fn degenerate_inputs_are_refused() {
+        assert!(dersimonian_laird(&[1.0], &[1.0]).is_none());
+        assert!(dersimonian_laird(&[1.0, 2.0], &[1.0]).is_none());
+        assert!(dersimonian_laird(&[1.0, 2.0], &[1.0, 0.0]).is_none());
+        assert!(dersimonian_laird(&[1.0, f64::NAN], &[1.0, 1.0]).is_none());
+    }
+
+    /// Per-drive θ drawn with a known between-drive sd τ and measured with
+    /// known within-drive σ: over many seeds the estimated τ recovers it
+    /// within its sampling error.
+    #[test]
+    fn simulated_drives_recover_the_between_drive_sigma() {
+        use rand::{Rng, SeedableRng};
+        use rand_distr::StandardNormal;
+        let (tau, drives, seeds) = (0.002, 8usize, 400u64);
+        let mut taus = Vec::new();
+        let mut covered = 0;
+        for seed in 0..seeds {
+            let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+            let mut z = || -> f64 { rng.sample(StandardNormal) };
+            let sig: Vec<f64> = (0..drives).map(|i| 0.0005 + 0.0002 * i as f64).collect();
+            let y: Vec<f64> = sig.iter().map(|s| 2.0 + tau * z() + s * z()).collect();
+            let r = dersimonian_laird(&y, &sig).expect("pooled");
+            taus.push(r.tau);
+            // the pooled mean's 95 % interval covers the true mean
+            covered += usize::from((r.mean - 2.0).abs() <= 1.96 * r.mean_sigma);
+        }
+        let mean_tau = taus.iter().sum::<f64>() / taus.len() as f64;
+        let sd = (taus.iter().map(|t| (t - mean_tau).powi(2)).sum::<f64>() / (taus.len() - 1) as f64).sqrt();
+        // DL's τ is biased low with few drives (√ of a truncated moment
+        // estimate): within 15 % of τ, and each seed within 3 sd.
+        assert!((mean_tau - tau).abs() < 0.15 * tau, "mean τ̂ {mean_tau} vs τ {tau} (sd {sd})");
+        assert!(sd < 0.5 * tau, "τ̂ sd {sd}");
+        let cover = covered as f64 / seeds as f64;
+        assert!(cover > 0.88, "pooled mean coverage {cover}");
+        // and without between-drive spread, τ̂ is mostly 0
+        let zero = (0..100u64)
+            .filter(|seed| {
+                let mut rng = rand::rngs::StdRng::seed_from_u64(1000 + seed);
+                let y: Vec<f64> = (0..drives).map(|_| 2.0 + 0.001 * rng.sample::<f64, _>(StandardNormal)).collect();
+                dersimonian_laird(&y, &[0.001; 8]).expect("pooled").tau <= 0.0
+            })
+            .count();
+        assert!(zero > 40, "{zero} of 100 seeds gave τ̂ = 0");
+    }
+
+    #[test]
+    fn the_next_drive_sigma_adds_its_parts_in_quadrature() {
+        let theta = Theta { c_e: 2.0, c_d: 0.001, t_r: 1.5, d: 0.001 };
+        let s = NextDriveSigma::one_drive(&theta, [Some(3e-4), Some(1e-5), None, Some(2e-5)], [4e-4, 0.0, 0.0, 0.0]);
+        let b = BETWEEN_DRIVE_PRIOR.sigma(&theta);
+        assert!(close(b[0], 2.0 * BETWEEN_DRIVE_PRIOR.c_e, 1e-15));
+        assert!(close(b[3], 1.5 * BETWEEN_DRIVE_PRIOR.d, 1e-15));
+        assert!(close(s.sigma[0].expect("c_e"), (9e-8 + 16e-8 / 3.0 + b[0] * b[0]).sqrt(), 1e-12));
+        assert_eq!(s.sigma[2], None, "a held parameter has none");
+        assert!(close(s.without_gap()[0].expect("c_e"), (9e-8 + b[0] * b[0]).sqrt(), 1e-12));
+        let mut m = s.clone();
+        let p = PooledDrives::new(
+            "batch-gn".into(),
+            vec![theta, Theta { c_e: 2.01, ..theta }],
+            vec![[Some(1e-4), Some(1e-5), Some(1e-4), Some(1e-5)]; 2],
+        );
+        m.with_pooled(p);
+        assert_eq!(m.between_source, BetweenDriveSource::RandomEffects);
+        assert!(m.between_drive[0] > 0.005, "{:?}", m.between_drive);
+        assert_eq!(m.between_drive[1].to_bits(), b[1].to_bits(), "the prior is a floor");
+    }
+}
