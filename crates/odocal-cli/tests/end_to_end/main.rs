@@ -19,4 +19,5 @@ mod help;
 mod keep_one_way;
 mod manifest_settings;
 mod params_out;
+mod silent_wrong;
 mod validate_on_reference;

@@ -116,12 +116,14 @@ fn theta_from_text(v: &str) -> Result<Theta> {
     v.parse()
 }
 
-/// θ from four numbers (unchecked).
+/// θ from four numbers, checked as `--theta` is.
 fn theta_from_numbers(v: &[f64]) -> Result<Theta> {
     let [c_e, c_d, t_r, d] = v[..] else {
         return Err(Error::InvalidTheta(format!("expected 4 values c_e, c_d, t_r, d, got {}", v.len())));
     };
-    Ok(Theta { c_e, c_d, t_r, d })
+    let theta = Theta { c_e, c_d, t_r, d };
+    crate::model::limits::check_theta(&theta)?;
+    Ok(theta)
 }
 
 /// The forms θ takes, for messages.

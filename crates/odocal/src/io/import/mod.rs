@@ -233,7 +233,7 @@ pub mod manifest;
 mod pose;
 mod report;
 mod settings;
-mod signal;
+pub(crate) mod signal;
 mod source;
 #[cfg(test)]
 pub(crate) mod tests;
@@ -352,6 +352,7 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
     checks::lateral_acceleration(m, &resampled, &a_y)?;
     let jitter = wheels::jitter_report(m, &wheels, &g.t, h, &kept, &s.n_rl, &s.n_rr)?;
     let d = s.assemble(m, h, &kept, &a_y, &measured)?;
+    checks::lateral_convention(m, &d)?;
 
     let report = ImportReport {
         manifest: m.path.clone(),
