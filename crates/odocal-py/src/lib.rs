@@ -54,7 +54,7 @@ fn lib_err(e: odocal::Error) -> PyErr {
 /// (the CLI's `validate --json`): a dict with `theta`,
 /// `mean_position_error_m`, `segments` and `per_segment_m`.
 #[pyfunction]
-#[pyo3(signature = (drive, theta, *, validation_length=None, threads=None, report_json=None))]
+#[pyo3(signature = (drive, theta, *, validation_length=None, threads=None, report_json=None, params_node=None))]
 fn validate<'py>(
     py: Python<'py>,
     drive: &Bound<'py, PyDrive>,
@@ -62,9 +62,15 @@ fn validate<'py>(
     validation_length: Option<usize>,
     threads: Option<usize>,
     report_json: Option<&str>,
+    params_node: Option<&str>,
 ) -> PyResult<Bound<'py, PyAny>> {
     // A parameter file is read once: its θ (checked by `read`) and extrinsics.
-    let file = params_file_arg(theta)?;
+    let file = params_file_arg(theta, params_node)?;
+    if params_node.is_some() && file.is_none() {
+        return Err(pyo3::exceptions::PyValueError::new_err(
+            "params_node names a node of a parameter file, but theta is not the path of one",
+        ));
+    }
     let theta = match &file {
         Some(f) => f.theta().map_err(lib_err)?,
         None => extract_theta(theta)?,

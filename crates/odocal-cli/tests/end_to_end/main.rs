@@ -16,6 +16,7 @@ mod experiment;
 mod extrinsics;
 mod golden;
 mod help;
+mod hostile;
 mod keep_one_way;
 mod manifest_settings;
 mod params_out;

@@ -317,6 +317,7 @@ def validate(
     *,
     validation_length: Optional[int] = None,
     threads: Optional[int] = None,
+    params_node: Optional[str] = None,
 ) -> dict:
     """Mean position error Ē_p of ``theta`` by dead reckoning on the validation segments of ``drive``.
 
@@ -327,9 +328,15 @@ def validate(
     ``--params-out`` write it). With a report or a file, the reference extrinsics its
     calibration estimated are used too (held ones give way to the drive's manifest
     ``[reference]``), as ``odocal validate --theta FILE`` does: on the calibration's own
-    drive that is its own Ē_p.
+    drive that is its own Ē_p. ``params_node`` names the node of a parameter file that holds
+    several nodes' parameters (such a file is refused without it).
     """
     report_json = theta._json if isinstance(theta, CalibrationReport) else None
     return _odocal.validate(
-        drive, _theta_arg(theta), validation_length=validation_length, threads=threads, report_json=report_json
+        drive,
+        _theta_arg(theta),
+        validation_length=validation_length,
+        threads=threads,
+        report_json=report_json,
+        params_node=params_node,
     )

@@ -8,4 +8,5 @@
 #[cfg(feature = "mcap")]
 pub mod bag;
 pub(crate) mod import;
+pub mod limited;
 pub(crate) mod param_file;

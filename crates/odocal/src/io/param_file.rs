@@ -371,11 +371,14 @@ impl ParamFile {
         let Some(format) = FileFormat::of(path) else {
             return Err(bad("not a parameter file: use the .yaml, .yml or .json file `--params-out` wrote".into()));
         };
-        let len = std::fs::metadata(path).map_err(|source| Error::io(path, source))?.len();
-        if len > MAX_PARAM_FILE_BYTES {
-            return Err(bad(format!("{len} bytes: not a parameter file (odocal writes about 1.5 kB)")));
-        }
-        let text = std::fs::read_to_string(path).map_err(|source| Error::io(path, source))?;
+        let text = crate::io::limited::read_text_limited(path, MAX_PARAM_FILE_BYTES, "a parameter file").map_err(
+            |source| match source.kind() {
+                std::io::ErrorKind::InvalidData | std::io::ErrorKind::InvalidInput => {
+                    bad(format!("{source} (odocal writes about 1.5 kB)"))
+                }
+                _ => Error::io(path, source),
+            },
+        )?;
         let (node, flat) = match format {
             FileFormat::Yaml => flat_yaml(&text, node),
             FileFormat::Json => flat_json(&text).and_then(|(n, flat)| match node {
@@ -514,8 +517,10 @@ impl ParamFile {
 /// and several such nodes, or several YAML documents, are refused.
 fn flat_yaml(text: &str, want: Option<&str>) -> std::result::Result<(String, Vec<(String, Flat)>), String> {
     use yaml_rust2::Yaml;
+    refuse_aliases(text)?;
     let docs = yaml_rust2::YamlLoader::load_from_str(text).map_err(|e| format!("not YAML: {e}"))?;
-    let pick = "give the node to read (CLI: validate --params-node NAME, calibrate --theta0-node NAME)";
+    let pick =
+        "give the node to read (CLI: validate --params-node NAME, calibrate --theta0-node NAME; Python: params_node=)";
     if docs.len() > 1 && want.is_none() {
         return Err(format!("{} YAML documents (`---`): a parameter file holds one; {pick}", docs.len()));
     }
@@ -589,6 +594,28 @@ fn flat_yaml(text: &str, want: Option<&str>) -> std::result::Result<(String, Vec
         }
     }
     Ok((chosen.0, out))
+}
+
+/// Refuses YAML aliases (`*name`) before the document is built: a loader
+/// copies the anchored node at every alias, so a few hundred bytes of
+/// nested aliases expand to gigabytes. odocal's parameter files have none.
+fn refuse_aliases(text: &str) -> std::result::Result<(), String> {
+    use yaml_rust2::parser::{Event, Parser};
+    let mut parser = Parser::new_from_str(text);
+    loop {
+        match parser.next_token() {
+            Ok((Event::StreamEnd, _)) => return Ok(()),
+            Ok((Event::Alias(_), mark)) => {
+                return Err(format!(
+                    "line {}: a YAML alias (`*name`); a parameter file holds plain values, without anchors \
+                     and aliases",
+                    mark.line()
+                ))
+            }
+            Ok(_) => {}
+            Err(e) => return Err(format!("not YAML: {e}")),
+        }
+    }
 }
 
 /// The node and its flattened `parameters` of odocal's JSON parameter file

@@ -393,7 +393,10 @@ impl fmt::Display for BagInfo {
             writeln!(
                 f,
                 "{lead}Topic: {:<w_topic$} | Type: {:<w_type$} | Count: {:>w_count$} | Rate: {rate:>9} | Serialization Format: {}{note}",
-                t.topic, t.message_type, t.count, t.message_encoding
+                crate::output::visible(&t.topic),
+                crate::output::visible(&t.message_type),
+                t.count,
+                crate::output::visible(&t.message_encoding)
             )?;
         }
         if self.topics.is_empty() {
@@ -598,6 +601,7 @@ impl Bag {
     fn open(path: &Path) -> Result<Bag> {
         let io = |e: std::io::Error| Error::Io { path: path.to_path_buf(), source: e };
         let file_path = if path.is_dir() { bag_in_dir(path)? } else { path.to_path_buf() };
+        crate::io::limited::require_regular_file(&file_path, "an MCAP bag").map_err(io)?;
         let mut file = File::open(&file_path).map_err(io)?;
         let len = file.metadata().map_err(io)?.len();
         let mut head = [0u8; 16];
@@ -728,7 +732,7 @@ fn scan_error(e: &mcap::McapError, read: u64, summary: Option<&mcap::Summary>) -
             "corrupt MCAP file: the data section fails its CRC check (stored {saved:#010x}, computed \
              {calculated:#010x}): its bytes are damaged"
         ),
-        e => format!("corrupt or truncated MCAP file, in {}: {e}", chunk_at(read, summary)),
+        e => format!("corrupt or truncated MCAP file: {e} (in {})", chunk_at(read, summary)),
     }
 }
 

@@ -715,7 +715,8 @@ pub enum SideslipSpec {
 impl Manifest {
     /// Reads and checks a manifest file.
     pub fn from_path(path: &Path) -> Result<Manifest> {
-        let text = std::fs::read_to_string(path).map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
+        let text = crate::io::limited::read_text_limited(path, crate::io::limited::MAX_SETTINGS_BYTES, "a manifest")
+            .map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
         Self::parse(&text, path)
     }
 
