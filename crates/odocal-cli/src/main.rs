@@ -170,12 +170,16 @@ fn main() -> ExitCode {
 }
 
 /// Whether writing failed because the reader of stdout has gone (an
-/// `EPIPE` anywhere in the error's chain, the library's I/O errors included).
+/// `EPIPE` anywhere in the error's chain, the library's I/O errors and an
+/// I/O error wrapped by the CSV writer included).
 fn closed_pipe(e: &anyhow::Error) -> bool {
+    let broken = |io: &std::io::Error| {
+        io.kind() == std::io::ErrorKind::BrokenPipe
+            || io.get_ref().is_some_and(|inner| inner.to_string().contains("Broken pipe"))
+    };
     e.chain().any(|c| {
-        c.downcast_ref::<std::io::Error>().is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
-            || matches!(c.downcast_ref::<odocal::Error>(), Some(odocal::Error::Io { source, .. })
-                if source.kind() == std::io::ErrorKind::BrokenPipe)
+        c.downcast_ref::<std::io::Error>().is_some_and(broken)
+            || matches!(c.downcast_ref::<odocal::Error>(), Some(odocal::Error::Io { source, .. }) if broken(source))
     })
 }
 

@@ -318,5 +318,6 @@ fn collision(output: &FileRole, other: &FileRole) -> Error {
     }
 }
 
+pub mod limited;
 #[cfg(test)]
 mod tests;

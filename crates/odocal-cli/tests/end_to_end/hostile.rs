@@ -103,3 +103,24 @@ fn a_closed_stdout_ends_the_command_quietly() {
     assert!(matches!(o.status.code(), Some(0 | 141)), "{:?}: {e}", o.status);
     assert!(!e.contains("panicked"), "{e}");
 }
+
+#[test]
+fn stamps_that_never_advance_are_named() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let d = simulated_drive(dir.path(), "d.csv", &["--length-km", "1"]);
+    let text = std::fs::read_to_string(&d).expect("drive");
+    let mut lines = text.lines();
+    let mut out = format!("{},stamp\n", lines.next().expect("header"));
+    for l in lines {
+        out.push_str(&format!("{l},0\n"));
+    }
+    std::fs::write(dir.path().join("z.csv"), out).expect("write");
+    let m = dir.path().join("m.toml");
+    let manifest =
+        crate::common::canonical_manifest("z.csv", "").replace("time_column = \"t\"", "time_column = \"stamp\"");
+    std::fs::write(&m, manifest).expect("write");
+    let o = odocal(&["import", s(&m), "--out", s(&dir.path().join("x.csv"))]);
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(e.contains("streams.d: the time column 'stamp' holds one time (0 s) in all"), "{e}");
+}

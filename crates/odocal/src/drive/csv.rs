@@ -20,10 +20,17 @@ pub(crate) const ECHO_CHARS: usize = 40;
 /// characters, then "…" and the full length, with control characters
 /// escaped ([`crate::output::visible`]; every reader uses this one).
 pub(crate) fn echo(field: &str) -> String {
-    let mut it = field.chars();
-    let head: String = it.by_ref().take(ECHO_CHARS).collect();
+    clip(field, ECHO_CHARS)
+}
+
+/// `text` cut after `max_chars` characters ("…" and the full length
+/// follow), with control characters escaped: a message quoting a
+/// user's text (a parser's message naming a 1 MB key) stays short.
+pub(crate) fn clip(text: &str, max_chars: usize) -> String {
+    let mut it = text.chars();
+    let head: String = it.by_ref().take(max_chars).collect();
     if it.next().is_some() {
-        format!("{}… ({} bytes)", crate::output::visible(&head), field.len())
+        format!("{}… ({} bytes)", crate::output::visible(&head), text.len())
     } else {
         crate::output::visible(&head).into_owned()
     }
@@ -376,7 +383,7 @@ impl Drive {
             };
             return Err(Error::InvalidDrive { context: path.display().to_string(), reason: reason.into() });
         }
-        let bytes = crate::io::limited::read_limited(path, crate::io::limited::MAX_DATA_BYTES, "a drive CSV")
+        let bytes = crate::output::limited::read_limited(path, crate::output::limited::MAX_DATA_BYTES, "a drive CSV")
             .map_err(|source| Error::io(path, source))?;
         let drive = Self::parse_csv(&bytes, path)?;
         Ok((drive, tail_warning(&bytes, path).into_iter().collect()))

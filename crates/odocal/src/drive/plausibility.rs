@@ -268,12 +268,11 @@ impl LateralFit {
 
 /// [`LateralFit`] of a drive; `None` when no moving sample has neighbours.
 pub(crate) fn lateral_fit(drive: &Drive) -> Option<LateralFit> {
-    use crate::io::import::signal::{moving_average, odd_width};
     let ts = drive.sample_time_s();
     let (px, py, psi, a_y) = (drive.px(), drive.py(), drive.psi(), drive.a_y());
     let n = drive.len();
     let (mut x, mut a, mut v) = (vec![0.0; n], a_y.to_vec(), vec![0.0; n]);
-    let width = odd_width(LATERAL_SMOOTHING_S, ts);
+    let width = 2 * ((LATERAL_SMOOTHING_S / ts / 2.0).round() as usize) + 1;
     let mut inner = Vec::new();
     for r in drive.parts() {
         if r.len() < 3 {
@@ -307,6 +306,24 @@ pub(crate) fn lateral_fit(drive: &Drive) -> Option<LateralFit> {
         rms_m_per_s2: (sxx / c).sqrt(),
         samples: inner.len(),
     })
+}
+
+/// Centred moving average over `width` samples (odd) within `range`,
+/// truncated at its ends.
+fn moving_average(x: &mut [f64], range: std::ops::Range<usize>, width: usize) {
+    let half = width / 2;
+    if half == 0 || range.len() < 2 {
+        return;
+    }
+    let src: Vec<f64> = x[range.clone()].to_vec();
+    let mut pre = vec![0.0; src.len() + 1];
+    for (i, v) in src.iter().enumerate() {
+        pre[i + 1] = pre[i] + v;
+    }
+    for i in 0..src.len() {
+        let (lo, hi) = (i.saturating_sub(half), (i + half + 1).min(src.len()));
+        x[range.start + i] = (pre[hi] - pre[lo]) / (hi - lo) as f64;
+    }
 }
 
 #[cfg(test)]

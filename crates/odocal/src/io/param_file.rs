@@ -371,7 +371,7 @@ impl ParamFile {
         let Some(format) = FileFormat::of(path) else {
             return Err(bad("not a parameter file: use the .yaml, .yml or .json file `--params-out` wrote".into()));
         };
-        let text = crate::io::limited::read_text_limited(path, MAX_PARAM_FILE_BYTES, "a parameter file").map_err(
+        let text = crate::output::limited::read_text_limited(path, MAX_PARAM_FILE_BYTES, "a parameter file").map_err(
             |source| match source.kind() {
                 std::io::ErrorKind::InvalidData | std::io::ErrorKind::InvalidInput => {
                     bad(format!("{source} (odocal writes about 1.5 kB)"))

@@ -145,13 +145,13 @@ pub(crate) const MAX_LEVER_ARM_M: f64 = 20.0;
 pub(crate) fn check_extrinsics(x: &crate::Extrinsics) -> std::result::Result<(), (&'static str, String)> {
     for (key, v) in [("lever_x", x.lever_x), ("lever_y", x.lever_y)] {
         if !(v.is_finite() && v.abs() <= MAX_LEVER_ARM_M) {
-            let v = crate::io::import::limits::echo_num(v);
+            let v = if v.abs() >= 1e9 { format!("{v:e}") } else { v.to_string() };
             return Err((key, format!("{v} m is not within ±{MAX_LEVER_ARM_M} m (the lever arm is in metres)")));
         }
     }
     let h = x.heading_offset;
     if !(h.is_finite() && h.abs() <= std::f64::consts::PI) {
-        let h = crate::io::import::limits::echo_num(h);
+        let h = if h.abs() >= 1e9 { format!("{h:e}") } else { h.to_string() };
         return Err(("heading_offset", format!("{h} rad is not within ±π rad (the heading offset is in radians)")));
     }
     Ok(())

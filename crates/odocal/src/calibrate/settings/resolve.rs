@@ -351,7 +351,7 @@ impl Settings {
         for ((key, max), v) in super::COUNT_CEILINGS.iter().zip(counts) {
             if let Some(v) = v.filter(|v| v > max) {
                 let max = *max;
-                return Err(caller.invalid(*key, self, format!("= {v} is above its ceiling of {max}")));
+                return Err(caller.invalid(key, self, format!("= {v} is above its ceiling of {max}")));
             }
         }
         Ok(())

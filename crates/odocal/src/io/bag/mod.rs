@@ -226,6 +226,7 @@ pub fn read_topic(path: &Path, topic: &str, columns: &[&str], time: TimeSource) 
     if out.t_s.is_empty() {
         return Err(bag_err(&bag.path, topic, format!("no messages ({})", plan.ty)));
     }
+    clock_steps(&bag.path, topic, &out.t_s, time)?;
     Ok(out.finish(plan, format!("{}:{topic}", bag.path.display())))
 }
 
@@ -565,6 +566,14 @@ impl Collect {
             // Plan and decoder are built from the same type, so `None` cannot happen.
             self.values[k].push(v.unwrap_or(f64::NAN));
         }
+        if time == TimeSource::HeaderStamp && stamp.nanosec >= 1_000_000_000 {
+            let reason = format!(
+                "message {index}: header stamp nanosec = {} is not below 10⁹: the stamps are corrupt; use the log time \
+                 (time = \"log\" in a manifest)",
+                stamp.nanosec
+            );
+            return Err(bag_err(path, topic, reason));
+        }
         self.t_s.push(match time {
             TimeSource::HeaderStamp => ns_to_s(stamp.total_ns()),
             TimeSource::LogTime => ns_to_s(i128::from(m.log_time)),
@@ -601,7 +610,7 @@ impl Bag {
     fn open(path: &Path) -> Result<Bag> {
         let io = |e: std::io::Error| Error::Io { path: path.to_path_buf(), source: e };
         let file_path = if path.is_dir() { bag_in_dir(path)? } else { path.to_path_buf() };
-        crate::io::limited::require_regular_file(&file_path, "an MCAP bag").map_err(io)?;
+        crate::output::limited::require_regular_file(&file_path, "an MCAP bag").map_err(io)?;
         let mut file = File::open(&file_path).map_err(io)?;
         let len = file.metadata().map_err(io)?.len();
         let mut head = [0u8; 16];
@@ -764,6 +773,24 @@ impl<R: Read> Read for Counted<'_, R> {
         self.read.set(self.read.get() + n as u64);
         Ok(n)
     }
+}
+
+/// Refuses stamps that are all the same (never set): the rows would have
+/// no order and the stream no rate.
+fn clock_steps(path: &Path, topic: &str, t_s: &[f64], time: TimeSource) -> Result<()> {
+    let fix = match time {
+        TimeSource::HeaderStamp => "use the log time (time = \"log\" in a manifest) or fix the recorder's stamps",
+        TimeSource::LogTime => "the bag's log times are corrupt",
+    };
+    if t_s.len() > 1 && t_s.iter().all(|t| t.to_bits() == t_s[0].to_bits()) {
+        let reason = format!(
+            "all {} messages have the same time stamp ({} s): the stamps are not set; {fix}",
+            t_s.len(),
+            t_s[0]
+        );
+        return Err(bag_err(path, topic, reason));
+    }
+    Ok(())
 }
 
 /// Reads until `buf` is full or the file ends; returns the bytes read.

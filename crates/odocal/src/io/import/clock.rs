@@ -194,7 +194,7 @@ fn searched(
         Some(c) if doubt(first.0, first.1, h).is_none() && at_edge(&c, range, h) => c.offset_s,
         _ => return Ok(first),
     };
-    let wide = (WIDEN_FACTOR * range).max(WIDE_CLOCK_OFFSET_S).min(super::limits::MAX_CLOCK_OFFSET_S);
+    let wide = (WIDEN_FACTOR * range).clamp(WIDE_CLOCK_OFFSET_S, super::limits::MAX_CLOCK_OFFSET_S);
     let grid_samples = ((w.t[w.t.len() - 1] - w.t[0]) / h).floor().max(0.0) as usize;
     let fits = wide > range
         && super::limits::correlation_work(wide, m.output.rate_hz, grid_samples) <= super::limits::MAX_CORRELATION_WORK;

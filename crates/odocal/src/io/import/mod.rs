@@ -233,7 +233,7 @@ pub mod manifest;
 mod pose;
 mod report;
 mod settings;
-pub(crate) mod signal;
+mod signal;
 mod source;
 #[cfg(test)]
 pub(crate) mod tests;
