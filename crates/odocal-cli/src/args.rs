@@ -57,6 +57,12 @@ pub struct CalibrationArgs {
     /// its θ is taken.
     #[arg(long, allow_hyphen_values = true)]
     pub theta0: Option<ThetaArg>,
+    /// The node of the --theta0 parameter file to read.
+    ///
+    /// A ROS 2 parameter file may hold several nodes' parameters (or several
+    /// YAML documents); when more than one holds odocal's, name the node.
+    #[arg(long)]
+    pub theta0_node: Option<String>,
     /// Parameters held at θ_0 (e.g. c_d,t_r,d).
     ///
     /// Comma separated: c_e, c_d, t_r, d (and lever_x, lever_y,
@@ -279,7 +285,7 @@ impl CalibrationArgs {
         let lever_arm = self.lever_arm.as_deref().map(parse_lever_arm).transpose()?;
         Ok(Settings {
             method: self.method.clone(),
-            theta0: self.theta0.as_ref().map(|t| t.theta),
+            theta0: self.theta0.as_ref().map(|t| t.resolved(self.theta0_node.as_deref())).transpose()?.map(|t| t.theta),
             fix: self.fix,
             auto_fix: self.auto_fix.then_some(true),
             seed: self.seed,
@@ -316,11 +322,15 @@ impl CalibrationArgs {
 
 /// θ on the command line: `c_e,c_d,t_r,d` (SI units), or the path of a
 /// parameter file odocal wrote (`--params-out`: `.yaml`, `.yml`, `.json`).
+/// A file that holds several nodes' parameters waits for `--params-node`
+/// ([`ThetaArg::resolved`]).
 #[derive(Debug, Clone)]
 pub struct ThetaArg {
     pub theta: Theta,
     /// The parameter file θ came from, when it did.
     pub file: Option<(PathBuf, odocal::ParamFile)>,
+    /// A parameter file that needs a node named to be read, and why.
+    pending: Option<(PathBuf, String)>,
 }
 
 impl std::str::FromStr for ThetaArg {
@@ -329,10 +339,40 @@ impl std::str::FromStr for ThetaArg {
         let path = Path::new(s);
         if odocal::ParamFile::is_param_file(path) {
             // `read` has checked θ (`theta()` cannot fail after it).
-            let f = odocal::ParamFile::read(path)?;
-            return Ok(ThetaArg { theta: f.theta()?, file: Some((path.into(), f)) });
+            return match odocal::ParamFile::read(path) {
+                Ok(f) => Ok(ThetaArg { theta: f.theta()?, file: Some((path.into(), f)), pending: None }),
+                Err(e) if e.to_string().contains("--params-node") => {
+                    let nan = Theta { c_e: f64::NAN, c_d: f64::NAN, t_r: f64::NAN, d: f64::NAN };
+                    Ok(ThetaArg { theta: nan, file: None, pending: Some((path.into(), e.to_string())) })
+                }
+                Err(e) => Err(e),
+            };
         }
-        Ok(ThetaArg { theta: s.parse()?, file: None })
+        Ok(ThetaArg { theta: s.parse()?, file: None, pending: None })
+    }
+}
+
+impl ThetaArg {
+    /// The parameter file named, read or waiting for its node.
+    pub fn path(&self) -> Option<&Path> {
+        self.file.as_ref().map(|f| f.0.as_path()).or(self.pending.as_ref().map(|p| p.0.as_path()))
+    }
+
+    /// This θ with its parameter file read at the node `node`
+    /// (`--params-node`); without one, a file holding several nodes'
+    /// parameters is an error that says to name one.
+    pub fn resolved(&self, node: Option<&str>) -> Result<ThetaArg> {
+        match (self.path(), node) {
+            (Some(path), Some(node)) => {
+                let f = odocal::ParamFile::read_node(path, Some(node))?;
+                Ok(ThetaArg { theta: f.theta()?, file: Some((path.into(), f)), pending: None })
+            }
+            (None, Some(_)) => bail!("--params-node names a node of a parameter file, but θ was given as numbers"),
+            (_, None) => match &self.pending {
+                Some((_, why)) => bail!("{why}"),
+                None => Ok(self.clone()),
+            },
+        }
     }
 }
 

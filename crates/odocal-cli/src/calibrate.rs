@@ -12,7 +12,7 @@ use odocal::{
     segment, sim, CalibrationOptions, CalibrationReport, Drive, Holdout, Method, ParamSet, Theta, VerdictLevel,
 };
 
-use crate::args::{CalibrationArgs, HalfArg, HelpArgs};
+use crate::args::{CalibrationArgs, HalfArg, HelpArgs, ThetaArg};
 use crate::io::{drive_entry, load_drive_with_scale, load_truth, print_warnings, write_json};
 use crate::output::{refuse_sidecar_onto_drive, refuse_stdout, write_text, Files};
 use crate::progress::Bars;
@@ -160,7 +160,7 @@ fn calibration_files(files: &mut Files, args: &CalibrationArgs, json: Option<&Pa
     for p in &args.validate_on {
         files.drive("the --validate-on drive", p);
     }
-    if let Some((p, _)) = args.theta0.as_ref().and_then(|t| t.file.as_ref()) {
+    if let Some(p) = args.theta0.as_ref().and_then(ThetaArg::path) {
         files.input("the --theta0 parameter file", p);
     }
     if let Some(p) = &args.noise_model {

@@ -35,7 +35,8 @@ pub struct CompensateArgs {
 }
 
 /// Compensates every segment and writes the drive with the new columns.
-pub fn run(a: CompensateArgs, bars: &Bars) -> Result<()> {
+pub fn run(mut a: CompensateArgs, bars: &Bars) -> Result<()> {
+    a.theta = a.theta.resolved(None)?;
     let mut files = Files::default();
     files.drive("the drive being compensated", &a.drive);
     if let Some((p, _)) = &a.theta.file {

@@ -27,7 +27,7 @@ pub fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>, Opti
         (drive, None)
     };
     let settings = report.as_ref().map(ManifestSettings::of_report).transpose()?;
-    if report.is_some() {
+    if let Some(r) = &report {
         eprintln!(
             "imported {}: {} samples in {} part(s), {:.2} km (run `odocal import` for the full import report)",
             path.display(),
@@ -35,6 +35,11 @@ pub fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>, Opti
             drive.parts().len(),
             drive.distance_m() / 1e3
         );
+        // What the import warned about (a clock offset not applied, a yaw-rate
+        // ratio far from 1) bears on the result: shown as `import` shows it.
+        for w in &r.warnings {
+            eprintln!("warning: {}: {w}", path.display());
+        }
     }
     Ok((drive, report.map(|r| r.wheel_scale), settings))
 }

@@ -122,6 +122,30 @@ enum Outcome {
 /// Exit code after Ctrl-C (SIGINT) or SIGTERM: 128 + 2, as a shell reports it.
 const EXIT_INTERRUPTED: i32 = 130;
 
+/// Exit code when stdout is a closed pipe (`odocal inspect bag | head`):
+/// 128 + SIGPIPE (13), as a shell reports a tool the signal ended.
+const EXIT_BROKEN_PIPE: i32 = 141;
+
+/// Ends the process quietly with [`EXIT_BROKEN_PIPE`] when printing fails
+/// because the reader of stdout has gone (`println!` panics with "Broken
+/// pipe"); any other panic is reported as usual.
+fn quiet_on_closed_pipe() {
+    let default = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let text = info
+            .payload()
+            .downcast_ref::<String>()
+            .map(String::as_str)
+            .or_else(|| info.payload().downcast_ref::<&str>().copied())
+            .unwrap_or("");
+        if text.contains("Broken pipe") {
+            odocal::output::remove_temporary_files();
+            std::process::exit(EXIT_BROKEN_PIPE);
+        }
+        default(info);
+    }));
+}
+
 fn main() -> ExitCode {
     // Interrupted, odocal leaves no temporary file of an output behind (the
     // final path keeps its previous file: odocal::output).
@@ -129,15 +153,34 @@ fn main() -> ExitCode {
         odocal::output::remove_temporary_files();
         std::process::exit(EXIT_INTERRUPTED);
     });
+    quiet_on_closed_pipe();
     let cli = Cli::parse();
     match run(cli) {
         Ok(Outcome::Done) => ExitCode::SUCCESS,
         Ok(Outcome::Rejected) => ExitCode::from(EXIT_REJECTED),
+        Err(e) if closed_pipe(&e) => {
+            odocal::output::remove_temporary_files();
+            ExitCode::from(EXIT_BROKEN_PIPE as u8)
+        }
         Err(e) => {
             eprintln!("error: {}", one_line(&e));
             ExitCode::FAILURE
         }
     }
+}
+
+/// Whether writing failed because the reader of stdout has gone (an
+/// `EPIPE` anywhere in the error's chain, the library's I/O errors and an
+/// I/O error wrapped by the CSV writer included).
+fn closed_pipe(e: &anyhow::Error) -> bool {
+    let broken = |io: &std::io::Error| {
+        io.kind() == std::io::ErrorKind::BrokenPipe
+            || io.get_ref().is_some_and(|inner| inner.to_string().contains("Broken pipe"))
+    };
+    e.chain().any(|c| {
+        c.downcast_ref::<std::io::Error>().is_some_and(broken)
+            || matches!(c.downcast_ref::<odocal::Error>(), Some(odocal::Error::Io { source, .. }) if broken(source))
+    })
 }
 
 /// The error and its causes on one line, leaving out a cause whose text the
@@ -159,6 +202,8 @@ fn one_line(e: &anyhow::Error) -> String {
 
 fn run(cli: Cli) -> Result<Outcome> {
     if let Some(n) = cli.threads {
+        let max = odocal::settings::MAX_THREADS;
+        anyhow::ensure!(n <= max, "--threads {n} is above the ceiling of {max} worker threads");
         rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("--threads")?;
     }
     let bars = progress::Bars::new(cli.quiet);

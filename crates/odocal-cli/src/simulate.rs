@@ -44,7 +44,8 @@ pub fn sim_options(seed: u64, length_km: f64, noise: &str) -> Result<SimOptions>
 }
 
 /// Simulates the drive and writes its CSV and sidecar JSON.
-pub fn run(a: SimulateArgs, bars: &Bars) -> Result<()> {
+pub fn run(mut a: SimulateArgs, bars: &Bars) -> Result<()> {
+    a.theta = a.theta.map(|t| t.resolved(None)).transpose()?;
     refuse_stdout("--out", &a.out, "simulate writes the drive's sidecar (the truth) beside the CSV")?;
     refuse_sidecar_onto_drive("--out", &a.out)?;
     let side = sim::sidecar_path(&a.out);

@@ -43,13 +43,19 @@ pub struct ValidateArgs {
     /// Seed of the reachable-minimum search.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// The node of the --theta (and --theta0) parameter file to read, when
+    /// it holds several nodes' parameters or several YAML documents.
+    #[arg(long)]
+    params_node: Option<String>,
     /// Write the JSON report here ("-" for stdout).
     #[arg(long)]
     json: Option<PathBuf>,
 }
 
 /// Validates θ and prints (or writes) the report.
-pub fn run(a: ValidateArgs, bars: &Bars) -> Result<()> {
+pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<()> {
+    a.theta = a.theta.resolved(a.params_node.as_deref())?;
+    a.theta0 = a.theta0.map(|t| t.resolved(a.params_node.as_deref())).transpose()?;
     let mut files = Files::default();
     files.drive("the drive being validated", &a.drive);
     if let Some((p, _)) = &a.theta.file {

@@ -76,6 +76,11 @@ pub(crate) fn to_json(v: &Bound<'_, PyAny>, what: &str) -> PyResult<serde_json::
     if let Ok(f) = v.cast::<PyFloat>() {
         return float(f.value(), what);
     }
+    // A complex number (Python's or numpy's) is no real number: its
+    // imaginary part would be dropped silently.
+    if v.cast::<pyo3::types::PyComplex>().is_ok() || v.get_type().name()?.to_str()?.starts_with("complex") {
+        return Err(PyTypeError::new_err(format!("{what}: a complex number is not a real number")));
+    }
     // Integers (also numpy's, through `__index__`), then other floats (numpy's).
     if let Ok(i) = v.extract::<i64>() {
         return Ok(i.into());
@@ -101,12 +106,13 @@ pub(crate) fn to_json(v: &Bound<'_, PyAny>, what: &str) -> PyResult<serde_json::
 
 /// The parameter file a θ argument names: a text ending in `.yaml`, `.yml`
 /// or `.json` (the Python layer turns path objects into text), read by the
-/// library; `None` for any other argument.
-pub(crate) fn params_file_arg(v: &Bound<'_, PyAny>) -> PyResult<Option<odocal::ParamFile>> {
+/// library at the node `node` (`params_node=`; `None`: the one node with
+/// odocal's parameters); `None` for any other argument.
+pub(crate) fn params_file_arg(v: &Bound<'_, PyAny>, node: Option<&str>) -> PyResult<Option<odocal::ParamFile>> {
     let Ok(s) = v.cast::<PyString>() else { return Ok(None) };
     let path = std::path::Path::new(s.to_str()?);
     if odocal::ParamFile::is_param_file(path) {
-        return odocal::ParamFile::read(path).map(Some).map_err(lib_err);
+        return odocal::ParamFile::read_node(path, node).map(Some).map_err(lib_err);
     }
     Ok(None)
 }

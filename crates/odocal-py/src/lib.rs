@@ -57,7 +57,7 @@ fn lib_err(e: odocal::Error) -> PyErr {
 /// is re-estimated with θ held (`heading_offset_fit`) unless
 /// `carry_heading_offset=True`.
 #[pyfunction]
-#[pyo3(signature = (drive, theta, *, validation_length=None, threads=None, report_json=None, carry_heading_offset=false))]
+#[pyo3(signature = (drive, theta, *, validation_length=None, threads=None, report_json=None, carry_heading_offset=false, params_node=None))]
 fn validate<'py>(
     py: Python<'py>,
     drive: &Bound<'py, PyDrive>,
@@ -66,9 +66,15 @@ fn validate<'py>(
     threads: Option<usize>,
     report_json: Option<&str>,
     carry_heading_offset: bool,
+    params_node: Option<&str>,
 ) -> PyResult<Bound<'py, PyAny>> {
     // A parameter file is read once: its θ (checked by `read`) and extrinsics.
-    let file = params_file_arg(theta)?;
+    let file = params_file_arg(theta, params_node)?;
+    if params_node.is_some() && file.is_none() {
+        return Err(pyo3::exceptions::PyValueError::new_err(
+            "params_node names a node of a parameter file, but theta is not the path of one",
+        ));
+    }
     let theta = match &file {
         Some(f) => f.theta().map_err(lib_err)?,
         None => extract_theta(theta)?,

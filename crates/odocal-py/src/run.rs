@@ -14,6 +14,10 @@ pub(crate) fn with_threads<T: Send>(threads: Option<usize>, f: impl FnOnce() -> 
     match threads {
         None => Ok(f()),
         Some(0) => Err(PyValueError::new_err("threads must be at least 1")),
+        Some(n) if n > odocal::settings::MAX_THREADS => Err(PyValueError::new_err(format!(
+            "threads = {n} is above the ceiling of {} worker threads",
+            odocal::settings::MAX_THREADS
+        ))),
         Some(n) => {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(n)

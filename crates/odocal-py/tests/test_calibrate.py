@@ -367,3 +367,21 @@ def test_params_files_round_trip_and_equal_the_cli(odocal_bin, drive_csv, tmp_pa
         odocal.validate(drive, bad)
     with pytest.raises(odocal.OdocalError, match="no `c_d`"):
         odocal.read_params(bad)
+
+
+def test_params_files_are_checked_and_several_nodes_need_params_node(drive_csv, tmp_path):
+    """A parameter file's extrinsics get the plausibility checks; a file with two nodes needs params_node."""
+    drive = odocal.Drive.from_csv(drive_csv)
+    node = "{n}:\n  ros__parameters:\n    c_e: 2.0\n    c_d: 0.0\n    t_r: 1.6\n    d: 0.0\n{extra}"
+    lever = tmp_path / "lever.yaml"
+    lever.write_text(node.format(n="odocal", extra="    lever_x: 1.0e300\n"))
+    with pytest.raises(odocal.OdocalError, match="key `lever_x`: .* not within ±20 m"):
+        odocal.validate(drive, lever)
+    two = tmp_path / "two.yaml"
+    two.write_text(node.format(n="a", extra="") + node.format(n="b", extra="    lever_x: 0.5\n"))
+    with pytest.raises(odocal.OdocalError, match="several nodes hold odocal's parameters .*params_node="):
+        odocal.read_params(two)
+    with pytest.raises(odocal.OdocalError, match="several nodes"):
+        odocal.validate(drive, two)
+    assert odocal.read_params(two, params_node="b")["parameters"]["lever_x"] == 0.5
+    assert odocal.validate(drive, two, params_node="b")["extrinsics"]["lever_x"] == 0.5

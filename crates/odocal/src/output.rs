@@ -34,6 +34,35 @@
 //! # Ok(()) }
 //! ```
 
+/// `text` as a terminal or a message may show it: control characters
+/// (newlines, escape sequences, NUL), the line and paragraph separators,
+/// the bidirectional-text controls and the BOM escaped visibly (`\n`,
+/// `\u{1b}`), everything else as is. Every name taken from a file or a
+/// path and echoed (a topic, a column, a key) goes through it.
+///
+/// ```
+/// assert_eq!(odocal::output::visible("a\x1b[2Jb\nc"), "a\\u{1b}[2Jb\\nc");
+/// assert_eq!(odocal::output::visible("/vehicle/odom"), "/vehicle/odom");
+/// ```
+pub fn visible(text: &str) -> std::borrow::Cow<'_, str> {
+    let hidden = |c: char| {
+        c.is_control()
+            || matches!(c, '\u{2028}' | '\u{2029}' | '\u{202a}'..='\u{202e}' | '\u{2066}'..='\u{2069}' | '\u{feff}')
+    };
+    if !text.chars().any(hidden) {
+        return std::borrow::Cow::Borrowed(text);
+    }
+    let mut out = String::with_capacity(text.len() + 8);
+    for c in text.chars() {
+        if hidden(c) {
+            out.extend(c.escape_default());
+        } else {
+            out.push(c);
+        }
+    }
+    std::borrow::Cow::Owned(out)
+}
+
 use std::io::Write;
 use std::path::{Component, Path, PathBuf};
 
@@ -289,5 +318,6 @@ fn collision(output: &FileRole, other: &FileRole) -> Error {
     }
 }
 
+pub mod limited;
 #[cfg(test)]
 mod tests;

@@ -33,7 +33,7 @@ fn header(o: &mut String, e: &Experiment, out: &Outputs) {
     let _ = writeln!(
         o,
         "Drive: {} — {} samples, {:.2} km, t_s = {} s{}.  \nSegments: {} cut, {} selected, {} validation. QP solver: {}.\n",
-        out.drive.source,
+        md_text(&out.drive.source),
         out.drive.samples,
         out.drive.distance_km,
         out.drive.sample_time_s,
@@ -164,7 +164,7 @@ fn figures_and_warnings(o: &mut String, e: &Experiment, out: &Outputs) {
     if !e.warnings.is_empty() {
         let _ = writeln!(o, "## Warnings\n");
         for w in &e.warnings {
-            let _ = writeln!(o, "- {w}");
+            let _ = writeln!(o, "- {}", md_text(&w.to_string()));
         }
         o.push('\n');
     }
@@ -301,6 +301,32 @@ fn crb_section(o: &mut String, c: &CramerRao, rows: &[(String, Scored)], time_s:
     let _ = writeln!(o, "\nComputed in {time_s:.2} s (one filter pass with derivatives).");
 }
 
+/// Text from the user (a path, a warning quoting one) as Markdown shows it
+/// literally: control characters escaped, HTML's `<`, `>`, `&` as entities
+/// (a renderer would run `<img onerror=…>`), and Markdown's punctuation
+/// backslash-escaped (no link, emphasis or table cell is started).
+fn md_text(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    let mut buf = [0u8; 4];
+    for c in text.chars() {
+        if let std::borrow::Cow::Owned(escaped) = odocal::output::visible(c.encode_utf8(&mut buf)) {
+            out.push_str(&escaped);
+            continue;
+        }
+        match c {
+            '<' => out.push_str("&lt;"),
+            '>' => out.push_str("&gt;"),
+            '&' => out.push_str("&amp;"),
+            '\\' | '`' | '*' | '_' | '[' | ']' | '(' | ')' | '#' | '!' | '|' | '{' | '}' => {
+                out.push('\\');
+                out.push(c);
+            }
+            c => out.push(c),
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -340,5 +366,11 @@ mod tests {
         crb_section(&mut o, &none, &[("θ_B,F".into(), scored(None, None))], 0.0);
         assert!(o.contains("Not available: the true θ is not known"), "{o}");
         assert!(!o.contains("| θ_B,F |"), "{o}");
+    }
+
+    #[test]
+    fn user_text_cannot_inject_html_or_markdown() {
+        let t = super::md_text("x<img src=x onerror=alert(1)>[a](b)\n# h");
+        assert_eq!(t, "x&lt;img src=x onerror=alert\\(1\\)&gt;\\[a\\]\\(b\\)\\n\\# h");
     }
 }

@@ -342,6 +342,7 @@ def validate(
     validation_length: Optional[int] = None,
     threads: Optional[int] = None,
     carry_heading_offset: bool = False,
+    params_node: Optional[str] = None,
 ) -> dict:
     """Mean position error Ē_p of ``theta`` by dead reckoning on the validation segments of ``drive``.
 
@@ -356,6 +357,8 @@ def validate(
     re-estimated with θ and the lever arm held (``heading_offset_fit``: ``value``,
     ``calibration``, ``std_dev`` in rad, ``segments``) unless ``carry_heading_offset=True``,
     which carries the calibration's (on the calibration's own drive that gives its own Ē_p).
+    ``params_node`` names the node of a parameter file that holds several nodes'
+    parameters (such a file is refused without it).
     """
     report_json = theta._json if isinstance(theta, CalibrationReport) else None
     return _odocal.validate(
@@ -365,4 +368,5 @@ def validate(
         threads=threads,
         report_json=report_json,
         carry_heading_offset=carry_heading_offset,
+        params_node=params_node,
     )

@@ -112,6 +112,7 @@ def validate(
     threads: Optional[int] = None,
     report_json: Optional[str] = None,
     carry_heading_offset: bool = False,
+    params_node: Optional[str] = None,
 ) -> dict[str, Any]:
     """Ē_p of θ on the validation segments of the drive (with ``report_json``, the extrinsics
     that report's calibration estimated). A heading offset the calibration estimated is
@@ -140,8 +141,9 @@ def _report_html(
     drives: Optional[Sequence[Drive]] = None,
 ) -> None: ...
 def _method_details(report_json: str) -> str: ...
-def read_params(path: _Path) -> dict[str, Any]:
-    """A parameter file (ROS 2 YAML or JSON, as ``--params-out`` writes it) in the JSON file's layout:
+def read_params(path: _Path, *, params_node: Optional[str] = None) -> dict[str, Any]:
+    """A parameter file (ROS 2 YAML or JSON, as ``--params-out`` writes it; the node ``params_node``,
+    or the one node holding odocal's parameters) in the JSON file's layout:
     ``{"schema_version", "node", "parameters", "units", "verdict", "verdict_reasons", "provenance"}``."""
 def _write_params(
     report_json: str,

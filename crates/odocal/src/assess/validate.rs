@@ -71,15 +71,20 @@ pub struct ValidateReport {
 /// # Ok(()) }
 /// ```
 ///
+/// The drive's wheel, heading and lateral-acceleration conventions are
+/// checked first, at θ, as `calibrate` checks them at θ_0.
+///
 /// # Errors
-/// Invalid options or θ, a drive too short for one validation segment,
-/// non-finite errors.
+/// [`Error::InvalidDrive`](crate::Error::InvalidDrive) for a convention
+/// the drive breaks; invalid options or θ, a drive too short for one
+/// validation segment, non-finite errors.
 pub fn validate(
     drive: &Drive,
     theta: &Theta,
     opts: &ValidateOptions,
     progress: Option<ProgressFn<'_>>,
 ) -> Result<ValidateReport> {
+    crate::drive::plausibility::check_conventions(drive, theta, "drive")?;
     let segs = validation_segments(drive, &opts.segments)?;
     let heading_offset_fit = if opts.reestimate_heading_offset && !segs.is_empty() {
         theta.validate()?;

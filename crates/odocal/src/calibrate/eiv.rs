@@ -310,7 +310,9 @@ impl NoiseSpec {
 /// lateral = "stated"                 # ... held, not scaled with the wheels'
 /// ```
 pub(crate) fn read_noise_model(path: &Path) -> Result<NoiseSpec> {
-    let text = std::fs::read_to_string(path).map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
+    let text =
+        crate::output::limited::read_text_limited(path, crate::output::limited::MAX_SETTINGS_BYTES, "a noise model")
+            .map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
     parse_noise_model(&text).map_err(|reason| Error::InvalidOption {
         field: "noise model file",
         reason: format!("{}: {reason}", path.display()),

@@ -1,6 +1,5 @@
 //! The canonical drive CSV (SPEC §2): reader and writer.
 
-use std::io::Read;
 use std::path::Path;
 
 use super::{Drive, ExtraColumn, ExtraValues, Signals, SIGNAL_NAMES};
@@ -18,14 +17,22 @@ const PART_COLUMN: &str = "part";
 pub(crate) const ECHO_CHARS: usize = 40;
 
 /// A value as echoed in an error message: at most [`ECHO_CHARS`]
-/// characters, then "…" and the full length (every reader uses this one).
+/// characters, then "…" and the full length, with control characters
+/// escaped ([`crate::output::visible`]; every reader uses this one).
 pub(crate) fn echo(field: &str) -> String {
-    let mut it = field.chars();
-    let head: String = it.by_ref().take(ECHO_CHARS).collect();
+    clip(field, ECHO_CHARS)
+}
+
+/// `text` cut after `max_chars` characters ("…" and the full length
+/// follow), with control characters escaped: a message quoting a
+/// user's text (a parser's message naming a 1 MB key) stays short.
+pub(crate) fn clip(text: &str, max_chars: usize) -> String {
+    let mut it = text.chars();
+    let head: String = it.by_ref().take(max_chars).collect();
     if it.next().is_some() {
-        format!("{head}… ({} bytes)", field.len())
+        format!("{}… ({} bytes)", crate::output::visible(&head), text.len())
     } else {
-        head
+        crate::output::visible(&head).into_owned()
     }
 }
 
@@ -34,7 +41,7 @@ const LIST_NAMES: usize = 12;
 
 /// The first [`LIST_NAMES`] names, then "… (N more)".
 fn listed(names: &[String]) -> Vec<String> {
-    let mut v: Vec<String> = names.iter().take(LIST_NAMES).cloned().collect();
+    let mut v: Vec<String> = names.iter().take(LIST_NAMES).map(|n| echo(n)).collect();
     if names.len() > LIST_NAMES {
         v.push(format!("… ({} more)", names.len() - LIST_NAMES));
     }
@@ -376,9 +383,7 @@ impl Drive {
             };
             return Err(Error::InvalidDrive { context: path.display().to_string(), reason: reason.into() });
         }
-        let mut bytes = Vec::new();
-        std::fs::File::open(path)
-            .and_then(|mut f| f.read_to_end(&mut bytes))
+        let bytes = crate::output::limited::read_limited(path, crate::output::limited::MAX_DATA_BYTES, "a drive CSV")
             .map_err(|source| Error::io(path, source))?;
         let drive = Self::parse_csv(&bytes, path)?;
         Ok((drive, tail_warning(&bytes, path).into_iter().collect()))

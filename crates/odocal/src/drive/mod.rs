@@ -52,7 +52,7 @@ use std::ops::Range;
 
 pub use self::fingerprint::refuse_duplicates;
 
-pub(crate) use self::csv::echo;
+pub(crate) use self::csv::{clip, echo};
 use crate::error::{Error, Result};
 use crate::model::extrinsics::{axle_pose, Extrinsics};
 use crate::model::limits::PhysicalLimits;
@@ -431,6 +431,11 @@ fn sample_time(t: &[f64], parts: &[Range<usize>], nominal: Option<f64>, err: &Bu
     match nominal {
         Some(ts) if ts.is_finite() && ts > 0.0 => Ok(ts),
         Some(ts) => Err(err.invalid(format!("sample time {ts} s is not a positive number"))),
+        None if steps == 0 && parts.len() > 1 => Err(err.invalid(format!(
+            "{} parts of one sample each: the part ids change at every sample; a part is a continuous stretch with \
+             one id (e.g. 0, 0, 0, 1, 1, 1)",
+            parts.len()
+        ))),
         None if steps == 0 => Err(err.invalid(format!("{} sample(s): too few to infer the sample time", t.len()))),
         None => Ok(span / steps as f64),
     }
@@ -748,6 +753,13 @@ mod tests {
         assert!(d.is_reference_measured(4) && !d.is_reference_measured(5));
         let w = d.window(0.1, 1.0).expect("window");
         assert!(w.is_reference_measured(0) && !w.is_reference_measured(1));
+    }
+
+    #[test]
+    fn part_ids_changing_at_every_sample_are_named() {
+        let ids = (0..10).map(|k| k % 2).collect();
+        let e = Drive::builder(times(10), signals(10)).part_ids(ids).build().expect_err("alternating").to_string();
+        assert!(e.contains("10 parts of one sample each: the part ids change at every sample"), "{e}");
     }
 
     #[test]

@@ -106,8 +106,8 @@ pub(crate) fn check_limits(drive: &Drive, limits: &PhysicalLimits, context: &str
     Ok(())
 }
 
-/// Checks the wheel and heading conventions of a drive against its own
-/// reference at θ_0, so that a wrong sign or convention is named instead of
+/// Checks the wheel, heading and lateral-acceleration conventions of a
+/// drive against its own reference at θ_0 (validate: at the θ validated), so that a wrong sign or convention is named instead of
 /// calibrated into a confident wrong θ:
 ///
 /// - the wheel speed at θ_0 must move the same way as the reference and be
@@ -117,7 +117,9 @@ pub(crate) fn check_limits(drive: &Drive, limits: &PhysicalLimits, context: &str
 ///   (a heading measured clockwise from north, in degrees, or with a large
 ///   mounting offset);
 /// - the wheel-derived yaw rate must turn the same way as the reference's
-///   (left and right wheels swapped, a clockwise heading).
+///   (left and right wheels swapped, a clockwise heading);
+/// - a_y must follow the reference's v·ω with a slope from −0.15 to 2
+///   ([`LateralFit`]: a_y negated, or in ft/s²).
 ///
 /// Only samples where the reference moves faster than 2 m/s count; a drive
 /// with too few of them is not judged (returns `Ok`).
@@ -156,30 +158,172 @@ pub(crate) fn check_conventions(drive: &Drive, theta0: &Theta, context: &str) ->
     let ratio = median(&mut ratios);
     if ratio < 0.0 {
         return fail(format!(
-            "the wheels turn backwards while the reference moves (wheel speed / reference speed, median {ratio:.3}):              flip the sign of n_rl and n_rr"
+            "the wheels turn backwards while the reference moves (wheel speed / reference speed, median {ratio:.3}): \
+             flip the sign of n_rl and n_rr"
         ));
     }
     if !(0.5..=2.0).contains(&ratio) {
         return fail(format!(
-            "the wheel speed at θ_0 is {ratio:.3} × the reference speed (median): one wheel's sign flipped, wheel              speeds not in rev/s, or θ_0's c_e far off"
+            "the wheel speed at θ_0 is {ratio:.3} × the reference speed (median): one wheel's sign flipped, wheel \
+             speeds not in rev/s, or the c_e it is judged at far off (calibrate's θ_0, validate's θ)"
         ));
     }
     let offset = median(&mut offsets);
     if offset.abs() > 0.3 {
         return fail(format!(
-            "the heading differs from the direction of travel by {offset:.3} rad (median): psi must be radians,              counter-clockwise from the x axis (ENU), pointing forward"
+            "the heading differs from the direction of travel by {offset:.3} rad (median): psi must be radians, \
+             counter-clockwise from the x axis (ENU), pointing forward"
         ));
     }
     if yaw.len() >= 100 {
         let agree = yaw.iter().filter(|(a, b)| a * b > 0.0).count() as f64 / yaw.len() as f64;
         if agree < 0.25 {
             return fail(format!(
-                "the wheel-derived yaw rate turns against the reference's on {:.0} % of turning samples: left and                  right wheels swapped, or the heading is clockwise",
+                "the wheel-derived yaw rate turns against the reference's on {:.0} % of turning samples: left and \
+                 right wheels swapped, or the heading is clockwise",
                 100.0 * (1.0 - agree)
             ));
         }
     }
+    if let Some(reason) = lateral_fit(drive).and_then(|f| f.problem("column 'a_y'")) {
+        return fail(reason.1);
+    }
     Ok(())
+}
+
+/// Smoothing of a_y and of the reference's v·ω for [`lateral_fit`], s.
+const LATERAL_SMOOTHING_S: f64 = 1.0;
+/// Least RMS of the reference's smoothed v·ω for [`lateral_fit`] to judge, m/s².
+const LATERAL_MIN_RMS_M_PER_S2: f64 = 0.03;
+/// Least |correlation| of a_y and v·ω for [`lateral_fit`] to judge.
+const LATERAL_MIN_CORRELATION: f64 = 0.3;
+/// Most negative slope of a_y on v·ω accepted (a wrong sign gives ≈ −1; a
+/// road banked more than its turns need can give a slightly negative one).
+const LATERAL_MIN_SLOPE: f64 = -0.15;
+/// Largest slope of a_y on v·ω accepted (ft/s² gives ≈ 3.28).
+const LATERAL_MAX_SLOPE: f64 = 2.0;
+
+/// The regression of a drive's a_y on the reference's lateral acceleration
+/// v·ω (speed and yaw rate from central differences of the pose), both
+/// smoothed over [`LATERAL_SMOOTHING_S`] within the parts, over the samples
+/// where the reference moves faster than 2 m/s. The canonical convention
+/// (m/s², positive to the left) gives a slope near +1; the sideslip's rate,
+/// noise and a road bank move it (a banked test track's a_y, the lateral
+/// specific force, gives 0.2 … 0.6).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct LateralFit {
+    /// Slope of a_y on v·ω (centred least squares).
+    pub slope: f64,
+    /// Pearson correlation of a_y and v·ω.
+    pub correlation: f64,
+    /// RMS of the centred v·ω, m/s².
+    pub rms_m_per_s2: f64,
+    /// Samples used.
+    pub samples: usize,
+}
+
+/// Which way a_y disagrees with the reference.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum LateralProblem {
+    /// a_y has the opposite sign of v·ω.
+    Sign,
+    /// a_y is many times v·ω: another unit.
+    Scale,
+}
+
+impl LateralFit {
+    /// What is wrong with the a_y named `what`, with the reason to show;
+    /// `None` when the fit cannot judge (too few moving samples, too little
+    /// turning, too weak a correlation) or finds the convention right.
+    pub(crate) fn problem(&self, what: &str) -> Option<(LateralProblem, String)> {
+        let judged = self.samples >= 200
+            && self.rms_m_per_s2 >= LATERAL_MIN_RMS_M_PER_S2
+            && self.correlation.abs() >= LATERAL_MIN_CORRELATION;
+        let stats = format!(
+            "slope {:+.3} of a_y on the reference's v·ω over {} moving samples, correlation {:+.2}; the canonical \
+             convention, m/s² positive to the left, gives ≈ +1",
+            self.slope, self.samples, self.correlation
+        );
+        if !judged || !self.slope.is_finite() {
+            None
+        } else if self.slope < LATERAL_MIN_SLOPE {
+            Some((
+                LateralProblem::Sign,
+                format!("the lateral acceleration has the wrong sign ({stats}): negate {what}"),
+            ))
+        } else if self.slope > LATERAL_MAX_SLOPE {
+            Some((
+                LateralProblem::Scale,
+                format!(
+                    "the lateral acceleration is {:.2} × the reference's v·ω ({stats}; ft/s² gives 3.28): convert \
+                     {what} to m/s²",
+                    self.slope
+                ),
+            ))
+        } else {
+            None
+        }
+    }
+}
+
+/// [`LateralFit`] of a drive; `None` when no moving sample has neighbours.
+pub(crate) fn lateral_fit(drive: &Drive) -> Option<LateralFit> {
+    let ts = drive.sample_time_s();
+    let (px, py, psi, a_y) = (drive.px(), drive.py(), drive.psi(), drive.a_y());
+    let n = drive.len();
+    let (mut x, mut a, mut v) = (vec![0.0; n], a_y.to_vec(), vec![0.0; n]);
+    let width = 2 * ((LATERAL_SMOOTHING_S / ts / 2.0).round() as usize) + 1;
+    let mut inner = Vec::new();
+    for r in drive.parts() {
+        if r.len() < 3 {
+            continue;
+        }
+        for i in r.start + 1..r.end - 1 {
+            v[i] = (px[i + 1] - px[i - 1]).hypot(py[i + 1] - py[i - 1]) / (2.0 * ts);
+            x[i] = v[i] * (psi[i + 1] - psi[i - 1]) / (2.0 * ts);
+        }
+        let range = r.start + 1..r.end - 1;
+        for s in [&mut x, &mut a, &mut v] {
+            moving_average(s, range.clone(), width);
+        }
+        inner.extend(range.filter(|&i| v[i] > 2.0));
+    }
+    if inner.is_empty() {
+        return None;
+    }
+    let c = inner.len() as f64;
+    let (mx, ma) = (inner.iter().map(|&i| x[i]).sum::<f64>() / c, inner.iter().map(|&i| a[i]).sum::<f64>() / c);
+    let (mut sxx, mut saa, mut sxa) = (0.0, 0.0, 0.0);
+    for &i in &inner {
+        let (dx, da) = (x[i] - mx, a[i] - ma);
+        sxx += dx * dx;
+        saa += da * da;
+        sxa += dx * da;
+    }
+    Some(LateralFit {
+        slope: sxa / sxx,
+        correlation: sxa / (sxx * saa).sqrt(),
+        rms_m_per_s2: (sxx / c).sqrt(),
+        samples: inner.len(),
+    })
+}
+
+/// Centred moving average over `width` samples (odd) within `range`,
+/// truncated at its ends.
+fn moving_average(x: &mut [f64], range: std::ops::Range<usize>, width: usize) {
+    let half = width / 2;
+    if half == 0 || range.len() < 2 {
+        return;
+    }
+    let src: Vec<f64> = x[range.clone()].to_vec();
+    let mut pre = vec![0.0; src.len() + 1];
+    for (i, v) in src.iter().enumerate() {
+        pre[i + 1] = pre[i] + v;
+    }
+    for i in 0..src.len() {
+        let (lo, hi) = (i.saturating_sub(half), (i + half + 1).min(src.len()));
+        x[range.start + i] = (pre[hi] - pre[lo]) / (hi - lo) as f64;
+    }
 }
 
 #[cfg(test)]

@@ -355,18 +355,40 @@ impl ParamFile {
     /// `MAX_PARAM_FILE_BYTES`, not YAML/JSON, a required parameter missing
     /// or not a number, a physically absurd θ).
     pub fn read(path: &Path) -> Result<ParamFile> {
+        Self::read_node(path, None)
+    }
+
+    /// [`ParamFile::read`] of the node named `node` (a ROS 2 parameter file
+    /// may hold several nodes' parameters); `None` takes the one node with
+    /// odocal's parameters, and refuses a file where several nodes (or
+    /// YAML documents) hold them.
+    ///
+    /// # Errors
+    /// As [`ParamFile::read`]; also [`Error::ParamFile`] when `node` is not
+    /// in the file, or when it is `None` and the file is ambiguous.
+    pub fn read_node(path: &Path, node: Option<&str>) -> Result<ParamFile> {
         let bad = |reason: String| Error::ParamFile { path: path.to_path_buf(), reason };
         let Some(format) = FileFormat::of(path) else {
             return Err(bad("not a parameter file: use the .yaml, .yml or .json file `--params-out` wrote".into()));
         };
-        let len = std::fs::metadata(path).map_err(|source| Error::io(path, source))?.len();
-        if len > MAX_PARAM_FILE_BYTES {
-            return Err(bad(format!("{len} bytes: not a parameter file (odocal writes about 1.5 kB)")));
-        }
-        let text = std::fs::read_to_string(path).map_err(|source| Error::io(path, source))?;
+        let text = crate::output::limited::read_text_limited(path, MAX_PARAM_FILE_BYTES, "a parameter file").map_err(
+            |source| match source.kind() {
+                std::io::ErrorKind::InvalidData | std::io::ErrorKind::InvalidInput => {
+                    bad(format!("{source} (odocal writes about 1.5 kB)"))
+                }
+                _ => Error::io(path, source),
+            },
+        )?;
         let (node, flat) = match format {
-            FileFormat::Yaml => flat_yaml(&text),
-            FileFormat::Json => flat_json(&text),
+            FileFormat::Yaml => flat_yaml(&text, node),
+            FileFormat::Json => flat_json(&text).and_then(|(n, flat)| match node {
+                Some(want) if want != n => Err(format!(
+                    "no node `{}` (the file's node is `{}`)",
+                    crate::drive::echo(want),
+                    crate::drive::echo(&n)
+                )),
+                _ => Ok((n, flat)),
+            }),
         }
         .map_err(bad)?;
         Self::from_flat(node, flat).map_err(bad)
@@ -491,38 +513,61 @@ impl ParamFile {
             if get("wheel_separation").is_some() { ParamMapping::DiffDriveController } else { ParamMapping::Odocal };
         let f = ParamFile { node, params, verdict, verdict_reasons, provenance, mapping };
         f.theta().map_err(|e| e.to_string())?;
+        crate::model::limits::check_extrinsics(&f.extrinsics().0).map_err(|(k, r)| format!("key `{k}`: {r}"))?;
         Ok(f)
     }
 }
 
 /// The node and its flattened `ros__parameters` of a ROS 2 parameter file:
-/// nested maps as `a.b`, list items as `a[i]`.
-fn flat_yaml(text: &str) -> std::result::Result<(String, Vec<(String, Flat)>), String> {
+/// nested maps as `a.b`, list items as `a[i]`. The node is `want` when
+/// given; else the one node whose parameters have `c_e` (or the only node),
+/// and several such nodes, or several YAML documents, are refused.
+fn flat_yaml(text: &str, want: Option<&str>) -> std::result::Result<(String, Vec<(String, Flat)>), String> {
     use yaml_rust2::Yaml;
+    refuse_aliases(text)?;
     let docs = yaml_rust2::YamlLoader::load_from_str(text).map_err(|e| format!("not YAML: {e}"))?;
-    let Some(Yaml::Hash(nodes)) = docs.first() else {
-        return Err("not a ROS 2 parameter file (expected `NODE:` then `ros__parameters:`)".into());
-    };
+    let pick =
+        "give the node to read (CLI: validate --params-node NAME, calibrate --theta0-node NAME; Python: params_node=)";
+    if docs.len() > 1 && want.is_none() {
+        return Err(format!("{} YAML documents (`---`): a parameter file holds one; {pick}", docs.len()));
+    }
     let mut found = Vec::new();
-    for (k, v) in nodes {
-        let name = match k {
-            Yaml::String(s) => s.clone(),
-            other => format!("{other:?}"),
+    for doc in &docs {
+        let Yaml::Hash(nodes) = doc else {
+            return Err("not a ROS 2 parameter file (expected `NODE:` then `ros__parameters:`)".into());
         };
-        if let Yaml::Hash(h) = &v["ros__parameters"] {
-            found.push((name, h));
+        for (k, v) in nodes {
+            let name = match k {
+                Yaml::String(s) => s.clone(),
+                other => format!("{other:?}"),
+            };
+            if let Yaml::Hash(h) = &v["ros__parameters"] {
+                found.push((name, h));
+            }
         }
     }
+    let names = |f: &[(String, &yaml_rust2::yaml::Hash)]| {
+        f.iter().map(|(n, _)| crate::drive::echo(n)).collect::<Vec<_>>().join(", ")
+    };
     let has_c_e = |h: &&yaml_rust2::yaml::Hash| h.contains_key(&Yaml::String("c_e".into()));
-    let chosen = match found.iter().position(|(_, h)| has_c_e(h)) {
-        Some(i) => found.swap_remove(i),
-        None if found.len() == 1 => found.swap_remove(0),
-        None if found.is_empty() => {
-            return Err("not a ROS 2 parameter file: no node with `ros__parameters`".into());
+    let chosen = if let Some(want) = want {
+        let mut hits: Vec<usize> = (0..found.len()).filter(|&i| found[i].0 == want).collect();
+        match hits.len() {
+            1 => found.swap_remove(hits.remove(0)),
+            0 => return Err(format!("no node `{}` (nodes: {})", crate::drive::echo(want), names(&found))),
+            n => return Err(format!("node `{}` appears {n} times", crate::drive::echo(want))),
         }
-        None => {
-            let names: Vec<&str> = found.iter().map(|(n, _)| n.as_str()).collect();
-            return Err(format!("no node's `ros__parameters` has `c_e` (nodes: {})", names.join(", ")));
+    } else {
+        let with_c_e: Vec<usize> = (0..found.len()).filter(|&i| has_c_e(&found[i].1)).collect();
+        match (with_c_e.len(), found.len()) {
+            (1, _) => found.swap_remove(with_c_e[0]),
+            (0, 1) => found.swap_remove(0),
+            (0, 0) => return Err("not a ROS 2 parameter file: no node with `ros__parameters`".into()),
+            (0, _) => return Err(format!("no node's `ros__parameters` has `c_e` (nodes: {})", names(&found))),
+            _ => {
+                let both: Vec<_> = with_c_e.iter().map(|&i| (found[i].0.clone(), found[i].1)).collect();
+                return Err(format!("several nodes hold odocal's parameters ({}); {pick}", names(&both)));
+            }
         }
     };
     fn walk(prefix: &str, y: &Yaml, out: &mut Vec<(String, Flat)>) {
@@ -556,6 +601,28 @@ fn flat_yaml(text: &str) -> std::result::Result<(String, Vec<(String, Flat)>), S
         }
     }
     Ok((chosen.0, out))
+}
+
+/// Refuses YAML aliases (`*name`) before the document is built: a loader
+/// copies the anchored node at every alias, so a few hundred bytes of
+/// nested aliases expand to gigabytes. odocal's parameter files have none.
+fn refuse_aliases(text: &str) -> std::result::Result<(), String> {
+    use yaml_rust2::parser::{Event, Parser};
+    let mut parser = Parser::new_from_str(text);
+    loop {
+        match parser.next_token() {
+            Ok((Event::StreamEnd, _)) => return Ok(()),
+            Ok((Event::Alias(_), mark)) => {
+                return Err(format!(
+                    "line {}: a YAML alias (`*name`); a parameter file holds plain values, without anchors \
+                     and aliases",
+                    mark.line()
+                ))
+            }
+            Ok(_) => {}
+            Err(e) => return Err(format!("not YAML: {e}")),
+        }
+    }
 }
 
 /// The node and its flattened `parameters` of odocal's JSON parameter file
@@ -621,7 +688,8 @@ fn yaml_str(s: &str) -> String {
             '"' => o.push_str("\\\""),
             '\\' => o.push_str("\\\\"),
             '\n' => o.push_str("\\n"),
-            c if c.is_control() => {
+            // Line and paragraph separators and the BOM: PyYAML refuses them raw.
+            c if c.is_control() || matches!(c, '\u{2028}' | '\u{2029}' | '\u{feff}') => {
                 let _ = write!(o, "\\u{:04x}", c as u32);
             }
             c => o.push(c),

@@ -132,6 +132,31 @@ pub(crate) fn check_theta(theta: &Theta) -> Result<()> {
     Ok(())
 }
 
+/// Largest plausible lever arm component of the pose reference, m.
+pub(crate) const MAX_LEVER_ARM_M: f64 = 20.0;
+
+/// Absolute physical sanity of reference extrinsics read from a user's
+/// file (a parameter file; a manifest's `[reference]` is checked alike):
+/// each lever-arm component finite and within ±[`MAX_LEVER_ARM_M`], the
+/// heading offset finite and within ±π rad.
+///
+/// # Errors
+/// The key (`lever_x`, `lever_y`, `heading_offset`) and the reason.
+pub(crate) fn check_extrinsics(x: &crate::Extrinsics) -> std::result::Result<(), (&'static str, String)> {
+    for (key, v) in [("lever_x", x.lever_x), ("lever_y", x.lever_y)] {
+        if !(v.is_finite() && v.abs() <= MAX_LEVER_ARM_M) {
+            let v = if v.abs() >= 1e9 { format!("{v:e}") } else { v.to_string() };
+            return Err((key, format!("{v} m is not within ±{MAX_LEVER_ARM_M} m (the lever arm is in metres)")));
+        }
+    }
+    let h = x.heading_offset;
+    if !(h.is_finite() && h.abs() <= std::f64::consts::PI) {
+        let h = if h.abs() >= 1e9 { format!("{h:e}") } else { h.to_string() };
+        return Err(("heading_offset", format!("{h} rad is not within ±π rad (the heading offset is in radians)")));
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -140,7 +140,12 @@ impl SimSidecar {
 
     /// Reads a sidecar written by [`SimSidecar::write_json`].
     pub fn read_json(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
+        let text = crate::output::limited::read_text_limited(
+            path,
+            crate::output::limited::MAX_SETTINGS_BYTES,
+            "a simulator sidecar",
+        )
+        .map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
         serde_json::from_str(&text).map_err(|source| Error::Json { context: path.display().to_string(), source })
     }
 }

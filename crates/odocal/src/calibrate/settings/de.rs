@@ -116,12 +116,14 @@ fn theta_from_text(v: &str) -> Result<Theta> {
     v.parse()
 }
 
-/// θ from four numbers (unchecked).
+/// θ from four numbers, checked as `--theta` is.
 fn theta_from_numbers(v: &[f64]) -> Result<Theta> {
     let [c_e, c_d, t_r, d] = v[..] else {
         return Err(Error::InvalidTheta(format!("expected 4 values c_e, c_d, t_r, d, got {}", v.len())));
     };
-    Ok(Theta { c_e, c_d, t_r, d })
+    let theta = Theta { c_e, c_d, t_r, d };
+    crate::model::limits::check_theta(&theta)?;
+    Ok(theta)
 }
 
 /// The forms θ takes, for messages.
@@ -168,7 +170,15 @@ pub fn theta_from_json(value: serde_json::Value) -> Result<Theta> {
     let theta = match value {
         serde_json::Value::String(s) => theta_from_text(&s)?,
         v @ serde_json::Value::Array(_) => theta_from_numbers(&serde_json::from_value::<Vec<f64>>(v).map_err(bad)?)?,
-        v @ serde_json::Value::Object(_) => serde_json::from_value(v).map_err(bad)?,
+        serde_json::Value::Object(m) => {
+            if let Some(k) = m.keys().find(|k| !["c_e", "c_d", "t_r", "d"].contains(&k.as_str())) {
+                return Err(Error::InvalidTheta(format!(
+                    "unknown key '{}': θ has c_e, c_d, t_r and d",
+                    crate::drive::echo(k)
+                )));
+            }
+            serde_json::from_value(serde_json::Value::Object(m)).map_err(bad)?
+        }
         v => return Err(Error::InvalidTheta(format!("{v}: give {THETA_FORMS}"))),
     };
     theta.validate()?;

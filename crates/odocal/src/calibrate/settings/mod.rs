@@ -40,6 +40,33 @@ use crate::model::Theta;
 mod de;
 mod manifest;
 mod resolve;
+
+/// The ceilings of the count settings, checked before anything is
+/// allocated from them (the command line, Python and a manifest's
+/// `[calibration]` alike): `(key, largest value)`.
+///
+/// | key | ceiling |
+/// |---|---|
+/// | `max_iterations` | 100,000 |
+/// | `segment_length`, `segment_stride`, `validation_length`, `eiv_window` | 10,000,000 samples |
+/// | `batches`, `batch_size`, `picks` | 100,000 |
+/// | `bootstrap`, `correct_c_e_bias`, `correct_bias` | 100,000 replicates |
+pub const COUNT_CEILINGS: [(&str, usize); 11] = [
+    ("max_iterations", 100_000),
+    ("segment_length", 10_000_000),
+    ("segment_stride", 10_000_000),
+    ("validation_length", 10_000_000),
+    ("eiv_window", 10_000_000),
+    ("batches", 100_000),
+    ("batch_size", 100_000),
+    ("picks", 100_000),
+    ("bootstrap", 100_000),
+    ("correct_c_e_bias", 100_000),
+    ("correct_bias", 100_000),
+];
+
+/// Most worker threads a caller may ask for (`--threads`, Python `threads=`).
+pub const MAX_THREADS: usize = 1024;
 #[cfg(test)]
 mod tests;
 

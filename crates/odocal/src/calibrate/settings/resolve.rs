@@ -305,6 +305,7 @@ impl Settings {
     /// `bootstrap_seed` that seeds nothing; a noise-model file's errors;
     /// the options' check ([`CalibrationOptions::validate`]).
     pub(crate) fn to_options(&self, caller: Caller) -> Result<CalibrationOptions> {
+        self.check_ceilings(caller)?;
         let mut o = CalibrationOptions { method: self.method.clone().unwrap_or_default(), ..Default::default() };
         self.check_method_keys(&o.method, caller)?;
         set(&mut o.theta0, &self.theta0);
@@ -330,6 +331,30 @@ impl Settings {
         }
         o.validate()?;
         Ok(o)
+    }
+
+    /// Every count setting at most its ceiling ([`super::COUNT_CEILINGS`]).
+    fn check_ceilings(&self, caller: Caller) -> Result<()> {
+        let counts: [Option<usize>; 11] = [
+            self.max_iterations,
+            self.segment_length,
+            self.segment_stride,
+            self.validation_length,
+            self.eiv_window,
+            self.batches,
+            self.batch_size,
+            self.picks,
+            self.bootstrap,
+            self.correct_c_e_bias,
+            self.correct_bias,
+        ];
+        for ((key, max), v) in super::COUNT_CEILINGS.iter().zip(counts) {
+            if let Some(v) = v.filter(|v| v > max) {
+                let max = *max;
+                return Err(caller.invalid(key, self, format!("= {v} is above its ceiling of {max}")));
+            }
+        }
+        Ok(())
     }
 
     /// The lever arm and heading offset (a stated heading offset is held

@@ -116,7 +116,8 @@ pub fn draft_manifest(bag: &Path, file: &str) -> Result<String> {
     let stream = |w: &mut String, name: &str, t: &TopicInfo| {
         let rate = t.rate_hz().map(|r| format!("{r:.1} Hz")).unwrap_or_else(|| "rate unknown".into());
         let _ = writeln!(w, "\n[streams.{name}]\nformat = \"mcap\"\nfile = {}", quoted(file));
-        let _ = writeln!(w, "topic = {}   # {}, {} messages, {rate}", quoted(&t.topic), t.message_type, t.count);
+        let ty = crate::output::visible(&t.message_type);
+        let _ = writeln!(w, "topic = {}   # {ty}, {} messages, {rate}", quoted(&t.topic), t.count);
     };
     stream(w, "wheels", wheels);
     let _ = writeln!(w, "time = \"header\"   # CHECK: \"log\" if the header stamps are not on the other topics' clock");
@@ -141,7 +142,12 @@ pub fn draft_manifest(bag: &Path, file: &str) -> Result<String> {
     let _ = writeln!(w, "rear_left = {{ column = {} }}{}", quoted(&format!("{field}.{left}")), mark(left_guess));
     let _ = writeln!(w, "rear_right = {{ column = {} }}{}", quoted(&format!("{field}.{right}")), mark(right_guess));
     if left_guess || right_guess {
-        let _ = writeln!(w, "# the joints of {}: {}", wheels.topic, names.join(", "));
+        let _ = writeln!(
+            w,
+            "# the joints of {}: {}",
+            crate::output::visible(&wheels.topic),
+            crate::output::visible(&names.join(", "))
+        );
     }
 
     let _ = writeln!(w, "\n[pose]\nstream = \"pose\"");

@@ -182,7 +182,7 @@ pub fn read_topic(path: &Path, topic: &str, columns: &[&str], time: TimeSource) 
     let mut types: HashMap<u16, MessageType> = HashMap::new();
     let mut out = Collect::default();
     let path_buf = bag.path.clone();
-    bag.scan(|m| {
+    bag.scan(summary.as_ref(), |m| {
         if m.channel.topic != topic {
             seen_topics.entry(m.channel.id).or_insert_with(|| (m.channel.topic.clone(), schema_name(&m.channel)));
             return Ok(());
@@ -226,6 +226,7 @@ pub fn read_topic(path: &Path, topic: &str, columns: &[&str], time: TimeSource) 
     if out.t_s.is_empty() {
         return Err(bag_err(&bag.path, topic, format!("no messages ({})", plan.ty)));
     }
+    clock_steps(&bag.path, topic, &out.t_s, time)?;
     Ok(out.finish(plan, format!("{}:{topic}", bag.path.display())))
 }
 
@@ -331,7 +332,7 @@ pub fn inspect(path: &Path) -> Result<BagInfo> {
     }
     let mut by_channel: HashMap<u16, (String, String, String)> = HashMap::new();
     let (mut count, mut start, mut end) = (0u64, None::<u64>, None::<u64>);
-    bag.scan(|m| {
+    bag.scan(summary.as_ref(), |m| {
         let k = by_channel.entry(m.channel.id).or_insert_with(|| key(&m.channel));
         let t = topics.entry(k.clone()).or_insert_with(|| new_topic(k));
         t.count += 1;
@@ -393,7 +394,10 @@ impl fmt::Display for BagInfo {
             writeln!(
                 f,
                 "{lead}Topic: {:<w_topic$} | Type: {:<w_type$} | Count: {:>w_count$} | Rate: {rate:>9} | Serialization Format: {}{note}",
-                t.topic, t.message_type, t.count, t.message_encoding
+                crate::output::visible(&t.topic),
+                crate::output::visible(&t.message_type),
+                t.count,
+                crate::output::visible(&t.message_encoding)
             )?;
         }
         if self.topics.is_empty() {
@@ -562,6 +566,14 @@ impl Collect {
             // Plan and decoder are built from the same type, so `None` cannot happen.
             self.values[k].push(v.unwrap_or(f64::NAN));
         }
+        if time == TimeSource::HeaderStamp && stamp.nanosec >= 1_000_000_000 {
+            let reason = format!(
+                "message {index}: header stamp nanosec = {} is not below 10⁹: the stamps are corrupt; use the log time \
+                 (time = \"log\" in a manifest)",
+                stamp.nanosec
+            );
+            return Err(bag_err(path, topic, reason));
+        }
         self.t_s.push(match time {
             TimeSource::HeaderStamp => ns_to_s(stamp.total_ns()),
             TimeSource::LogTime => ns_to_s(i128::from(m.log_time)),
@@ -598,6 +610,7 @@ impl Bag {
     fn open(path: &Path) -> Result<Bag> {
         let io = |e: std::io::Error| Error::Io { path: path.to_path_buf(), source: e };
         let file_path = if path.is_dir() { bag_in_dir(path)? } else { path.to_path_buf() };
+        crate::output::limited::require_regular_file(&file_path, "an MCAP bag").map_err(io)?;
         let mut file = File::open(&file_path).map_err(io)?;
         let len = file.metadata().map_err(io)?.len();
         let mut head = [0u8; 16];
@@ -664,11 +677,31 @@ impl Bag {
         }
     }
 
-    /// Reads every message in file order, calling `f` on each.
-    fn scan(&mut self, mut f: impl FnMut(&mcap::Message) -> Result<()>) -> Result<()> {
+    /// Reads every message in file order, calling `f` on each, with the
+    /// chunks' and the data section's CRCs verified. With the file's
+    /// `summary`, a chunk whose index declares no uncompressed bytes is
+    /// refused before reading, and the messages read must be as many as its
+    /// statistics record declares (a chunk that declares fewer bytes than it
+    /// holds is otherwise skipped silently).
+    fn scan(&mut self, summary: Option<&mcap::Summary>, mut f: impl FnMut(&mcap::Message) -> Result<()>) -> Result<()> {
+        let corrupt = |reason: String| Error::Bag { path: self.path.clone(), topic: None, reason };
+        if let Some(c) =
+            summary.and_then(|s| s.chunk_indexes.iter().find(|c| c.uncompressed_size == 0 && c.compressed_size > 0))
+        {
+            return Err(corrupt(format!(
+                "corrupt MCAP file: the chunk at byte offset {} declares 0 uncompressed bytes for {} compressed ones",
+                c.chunk_start_offset, c.compressed_size
+            )));
+        }
         self.file.rewind().map_err(|e| Error::Io { path: self.path.clone(), source: e })?;
-        let opts = mcap::sans_io::LinearReaderOptions::default().with_record_length_limit(MAX_RECORD_BYTES);
-        let mut reader = mcap::io::MessageReader::new_with_options(BufReader::new(&mut self.file), opts);
+        let opts = mcap::sans_io::LinearReaderOptions::default()
+            .with_record_length_limit(MAX_RECORD_BYTES)
+            .with_validate_chunk_crcs(true)
+            .with_validate_data_section_crc(true);
+        let position = std::cell::Cell::new(0u64);
+        let source = Counted { inner: BufReader::new(&mut self.file), read: &position };
+        let mut reader = mcap::io::MessageReader::new_with_options(source, opts);
+        let mut count = 0u64;
         loop {
             // mcap 0.26's linear reader can panic on a damaged file (an
             // unchecked `compressed_remaining -= len` in an uncompressed chunk
@@ -676,25 +709,88 @@ impl Bag {
             // overflow panic in debug builds, found by the damaged-bag
             // proptest). A damaged file must give an error, never a panic, so
             // the reader's step is isolated; our own callback `f` is not.
-            let next =
-                std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| reader.next())).map_err(|_| Error::Bag {
-                    path: self.path.clone(),
-                    topic: None,
-                    reason: "corrupt MCAP file: a record's length does not fit its chunk".into(),
-                })?;
+            let next = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| reader.next()))
+                .map_err(|_| corrupt("corrupt MCAP file: a record's length does not fit its chunk".into()))?;
             let Some(m) = next else { break };
-            let m = m.map_err(|e| Error::Bag {
-                path: self.path.clone(),
-                topic: None,
-                reason: match e {
-                    mcap::McapError::Io(io) => format!("reading the MCAP file failed: {io}"),
-                    e => format!("corrupt or truncated MCAP file: {e}"),
-                },
-            })?;
+            let m = m.map_err(|e| corrupt(scan_error(&e, position.get(), summary)))?;
+            count += 1;
             f(&m)?;
         }
-        Ok(())
+        match summary.and_then(|s| s.stats.as_ref()) {
+            Some(st) if st.message_count != count => Err(corrupt(format!(
+                "corrupt MCAP file: its statistics record declares {} messages, {count} were read (a chunk \
+                 declares the wrong size or was cut)",
+                st.message_count
+            ))),
+            _ => Ok(()),
+        }
     }
+}
+
+/// The message of a reading error `e` found after `read` bytes of the file,
+/// naming the chunk it is in ([`chunk_at`]).
+fn scan_error(e: &mcap::McapError, read: u64, summary: Option<&mcap::Summary>) -> String {
+    match e {
+        mcap::McapError::Io(io) => format!("reading the MCAP file failed: {io}"),
+        mcap::McapError::BadChunkCrc { saved, calculated } => format!(
+            "corrupt MCAP file: {} fails its CRC check (stored {saved:#010x}, computed {calculated:#010x}): its \
+             bytes are damaged",
+            chunk_at(read, summary)
+        ),
+        mcap::McapError::BadDataCrc { saved, calculated } => format!(
+            "corrupt MCAP file: the data section fails its CRC check (stored {saved:#010x}, computed \
+             {calculated:#010x}): its bytes are damaged"
+        ),
+        e => format!("corrupt or truncated MCAP file: {e} (in {})", chunk_at(read, summary)),
+    }
+}
+
+/// The chunk the reader was in after reading `read` bytes: the last one
+/// starting before, from the summary's chunk indexes, else the offset.
+fn chunk_at(read: u64, summary: Option<&mcap::Summary>) -> String {
+    summary
+        .and_then(|s| {
+            let n = s.chunk_indexes.len();
+            s.chunk_indexes.iter().enumerate().rev().find(|(_, c)| c.chunk_start_offset < read).map(|(i, c)| {
+                format!("chunk {} of {n} (byte offset {}, {} bytes)", i + 1, c.chunk_start_offset, c.chunk_length)
+            })
+        })
+        .unwrap_or_else(|| format!("the record before byte offset {read}"))
+}
+
+/// A reader that counts the bytes it hands out, so an error of the MCAP
+/// reader can say where in the file it happened.
+struct Counted<'a, R> {
+    /// The source.
+    inner: R,
+    /// Bytes read so far.
+    read: &'a std::cell::Cell<u64>,
+}
+
+impl<R: Read> Read for Counted<'_, R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.read.set(self.read.get() + n as u64);
+        Ok(n)
+    }
+}
+
+/// Refuses stamps that are all the same (never set): the rows would have
+/// no order and the stream no rate.
+fn clock_steps(path: &Path, topic: &str, t_s: &[f64], time: TimeSource) -> Result<()> {
+    let fix = match time {
+        TimeSource::HeaderStamp => "use the log time (time = \"log\" in a manifest) or fix the recorder's stamps",
+        TimeSource::LogTime => "the bag's log times are corrupt",
+    };
+    if t_s.len() > 1 && t_s.iter().all(|t| t.to_bits() == t_s[0].to_bits()) {
+        let reason = format!(
+            "all {} messages have the same time stamp ({} s): the stamps are not set; {fix}",
+            t_s.len(),
+            t_s[0]
+        );
+        return Err(bag_err(path, topic, reason));
+    }
+    Ok(())
 }
 
 /// Reads until `buf` is full or the file ends; returns the bytes read.

@@ -318,3 +318,22 @@ fn heading_convention(m: &Manifest, r: f64, warnings: &mut Vec<String>) -> Resul
         Ok(())
     }
 }
+
+/// An IMU's a_y against the reference's v·ω
+/// ([`LateralFit`](crate::drive::plausibility::LateralFit)) on the imported
+/// drive: a wrong sign or unit is an error naming the key and the column.
+/// A derived a_y is v·ω by construction and is not judged here.
+pub(crate) fn lateral_convention(m: &Manifest, d: &crate::Drive) -> Result<()> {
+    use crate::drive::plausibility::{lateral_fit, LateralProblem};
+    let LateralAccelerationSpec::Imu { stream, column, sign } = &m.lateral_acceleration else {
+        return Ok(());
+    };
+    let what = format!("the column '{column}' of stream '{stream}'");
+    match lateral_fit(d).and_then(|f| f.problem(&what)) {
+        Some((LateralProblem::Sign, reason)) => {
+            Err(m.error("lateral_acceleration.sign", format!("{reason} (set lateral_acceleration.sign = {})", -sign)))
+        }
+        Some((LateralProblem::Scale, reason)) => Err(m.error("lateral_acceleration.column", reason)),
+        None => Ok(()),
+    }
+}

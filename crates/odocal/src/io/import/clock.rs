@@ -24,16 +24,15 @@ pub(crate) struct WheelTrack<'a> {
     pub bad: &'a [BadInterval],
 }
 
-/// The speed and yaw-rate cross-correlations over ±`max_clock_offset_s`, on
-/// a grid of step `h` over the wheel stream's span.
+/// The speed and yaw-rate cross-correlations over ±`range_s`, on a grid of
+/// step `h` over the wheel stream's span.
 pub(crate) fn estimate(
-    m: &Manifest,
     w: &WheelTrack<'_>,
     pose: &Pose,
     h: f64,
     theta0: &Theta,
+    range_s: f64,
 ) -> (Option<Correlation>, Option<Correlation>) {
-    let o = &m.output;
     let n_grid = ((w.t[w.t.len() - 1] - w.t[0]) / h).floor() as usize;
     super::limits::note_grid(n_grid);
     let grid: Vec<f64> = (0..n_grid).map(|k| w.t[0] + k as f64 * h).collect();
@@ -69,7 +68,7 @@ pub(crate) fn estimate(
         }
         v
     };
-    let max_lag = (o.max_clock_offset_s / h).ceil() as usize;
+    let max_lag = (range_s / h).ceil() as usize;
     (signal::cross_correlate(&vw, &on_grid(&vp), h, max_lag), signal::cross_correlate(&ww, &on_grid(&wp), h, max_lag))
 }
 
@@ -116,7 +115,9 @@ pub(crate) fn doubt(est: Option<Correlation>, yaw: Option<Correlation>, h: f64) 
 /// Estimates the offset, decides which offset to apply (for `"auto"`, the
 /// estimate unless [`doubt`] finds it not clearly better than the
 /// manifest's, then 0 s on top of the streams' `time_offset_s`, with a
-/// warning; a number is applied as given), and reports both.
+/// warning; a number is applied as given), and reports both. An `"auto"`
+/// estimate at the edge of its search ([`searched`]) is searched again over
+/// a wider range, once, and refused when it stays at the edge.
 pub(crate) fn align(
     m: &Manifest,
     w: &WheelTrack<'_>,
@@ -126,7 +127,10 @@ pub(crate) fn align(
     warnings: &mut Vec<String>,
 ) -> Result<ClockOffsetReport> {
     let o = &m.output;
-    let (est, est_yaw) = estimate(m, w, pose, h, theta0);
+    let (est, est_yaw) = match o.clock_offset {
+        ClockOffset::Auto => searched(m, w, pose, h, theta0, warnings)?,
+        ClockOffset::Seconds(_) => estimate(w, pose, h, theta0, o.max_clock_offset_s),
+    };
     let doubt = doubt(est, est_yaw, h);
     let applied = match (o.clock_offset, &doubt) {
         (ClockOffset::Seconds(v), _) => v,
@@ -157,4 +161,68 @@ pub(crate) fn align(
             ClockOffset::Seconds(_) => "fixed".into(),
         },
     })
+}
+
+/// The widened search range for an estimate at the edge of the manifest's:
+/// this many times it, at least [`WIDE_CLOCK_OFFSET_S`], at most the limit.
+const WIDEN_FACTOR: f64 = 5.0;
+/// Least widened search range, ± s.
+const WIDE_CLOCK_OFFSET_S: f64 = 10.0;
+
+/// Whether an estimate lies at the edge of the search over ±`range_s`
+/// (within 5 % of the range or two samples `h`, whichever is more): the
+/// correlation still rises beyond it, so the offset was not found.
+fn at_edge(c: &Correlation, range_s: f64, h: f64) -> bool {
+    c.offset_s.abs() >= range_s - (0.05 * range_s).max(2.0 * h)
+}
+
+/// The `"auto"` estimate: over ±`max_clock_offset_s`; when that one would
+/// be applied but lies [`at_edge`], once more over the widened range (a
+/// warning says so), and an error naming `output.clock_offset` when the
+/// widened estimate is at its edge too or not clear.
+fn searched(
+    m: &Manifest,
+    w: &WheelTrack<'_>,
+    pose: &Pose,
+    h: f64,
+    theta0: &Theta,
+    warnings: &mut Vec<String>,
+) -> Result<(Option<Correlation>, Option<Correlation>)> {
+    let range = m.output.max_clock_offset_s;
+    let first = estimate(w, pose, h, theta0, range);
+    let edge = match first.0 {
+        Some(c) if doubt(first.0, first.1, h).is_none() && at_edge(&c, range, h) => c.offset_s,
+        _ => return Ok(first),
+    };
+    let wide = (WIDEN_FACTOR * range).clamp(WIDE_CLOCK_OFFSET_S, super::limits::MAX_CLOCK_OFFSET_S);
+    let grid_samples = ((w.t[w.t.len() - 1] - w.t[0]) / h).floor().max(0.0) as usize;
+    let fits = wide > range
+        && super::limits::correlation_work(wide, m.output.rate_hz, grid_samples) <= super::limits::MAX_CORRELATION_WORK;
+    let second = if fits { estimate(w, pose, h, theta0, wide) } else { (None, None) };
+    let searched_s = if fits { wide } else { range };
+    let found = second.0.filter(|c| doubt(second.0, second.1, h).is_none() && !at_edge(c, wide, h));
+    let Some(c) = found else {
+        let why = match second.0 {
+            _ if !fits => "a wider search is beyond the search limits".to_string(),
+            Some(c) if at_edge(&c, wide, h) => format!("it is {:+.4} s, at the edge again", c.offset_s),
+            Some(_) => doubt(second.0, second.1, h).unwrap_or_default(),
+            None => "no moving wheel and pose data overlap".to_string(),
+        };
+        return Err(m.error(
+            "output.clock_offset",
+            format!(
+                "\"auto\" found no clock offset: the estimate {edge:+.4} s lies at the edge of the search \
+                 (output.max_clock_offset_s = {range} s), and searching ±{searched_s} s did not find it ({why}). \
+                 Set output.clock_offset to the offset in seconds (pose time + offset = wheel time), or correct \
+                 the streams' time_offset_s"
+            ),
+        ));
+    };
+    warnings.push(format!(
+        "output.clock_offset = \"auto\": the estimate {edge:+.4} s lay at the edge of the search (±{range} s), so \
+         ±{wide} s was searched: {:+.4} s (correlation {:.4}) is applied. Set output.max_clock_offset_s above it, \
+         or output.clock_offset in seconds, to say so in the manifest",
+        c.offset_s, c.peak
+    ));
+    Ok(second)
 }

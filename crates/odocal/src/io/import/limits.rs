@@ -88,8 +88,7 @@ pub(crate) fn check_samples(m: &Manifest, what: &str, span_s: f64) -> Result<()>
 /// The clock-offset search over `grid_samples` samples must stay within
 /// [`MAX_CORRELATION_WORK`].
 pub(crate) fn check_correlation(m: &Manifest, grid_samples: usize) -> Result<()> {
-    let lags = 2.0 * (m.output.max_clock_offset_s * m.output.rate_hz).ceil() + 1.0;
-    let work = 2.0 * lags * grid_samples as f64;
+    let work = correlation_work(m.output.max_clock_offset_s, m.output.rate_hz, grid_samples);
     if work <= MAX_CORRELATION_WORK {
         return Ok(());
     }
@@ -103,6 +102,13 @@ pub(crate) fn check_correlation(m: &Manifest, grid_samples: usize) -> Result<()>
             echo_num(work)
         ),
     ))
+}
+
+/// Multiply-adds of a clock-offset search over ±`range_s` at `rate_hz` on
+/// `grid_samples` samples.
+pub(crate) fn correlation_work(range_s: f64, rate_hz: f64, grid_samples: usize) -> f64 {
+    let lags = 2.0 * (range_s * rate_hz).ceil() + 1.0;
+    2.0 * lags * grid_samples as f64
 }
 
 /// Checks, before any resampling, that the wheel and pose streams can

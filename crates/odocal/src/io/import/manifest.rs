@@ -715,7 +715,9 @@ pub enum SideslipSpec {
 impl Manifest {
     /// Reads and checks a manifest file.
     pub fn from_path(path: &Path) -> Result<Manifest> {
-        let text = std::fs::read_to_string(path).map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
+        let text =
+            crate::output::limited::read_text_limited(path, crate::output::limited::MAX_SETTINGS_BYTES, "a manifest")
+                .map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
         Self::parse(&text, path)
     }
 
@@ -787,6 +789,10 @@ fn toml_message(e: &toml::de::Error, text: &str, key: Option<String>) -> String 
     }
     let line = e.span().map(|s| text.get(..s.start).unwrap_or(text).matches('\n').count() + 1);
     let at = line.map(|l| format!(" (line {l})")).unwrap_or_default();
+    // The parser quotes the offending text: a key of a megabyte would be a
+    // line of a megabyte.
+    let msg = crate::drive::clip(&msg, 400);
+    let key = key.map(|k| crate::drive::clip(&k, 200));
     match key {
         Some(k) => format!("{k}: {msg}{at}"),
         None => format!("{msg}{at}"),

@@ -373,6 +373,7 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
     checks::lateral_acceleration(m, &resampled, &a_y)?;
     let jitter = wheels::jitter_report(m, &wheels, &g.t, h, &kept, &s.n_rl, &s.n_rr)?;
     let d = s.assemble(m, h, &kept, &a_y, &measured)?;
+    checks::lateral_convention(m, &d)?;
 
     let report = ImportReport {
         manifest: m.path.clone(),

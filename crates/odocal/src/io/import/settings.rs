@@ -130,7 +130,7 @@ pub(crate) fn calibration_table<'de, D: serde::Deserializer<'de>>(
 }
 
 /// Largest lever arm a manifest may state, m (a vehicle's length).
-pub(crate) const MAX_LEVER_ARM_M: f64 = 20.0;
+pub(crate) use crate::model::limits::MAX_LEVER_ARM_M;
 
 /// A manifest's `[noise]` table as written: the sensor's noise model, the
 /// start of `--method eiv`, read by the calibration

@@ -62,8 +62,14 @@ impl Manifest {
             if !v.is_finite() {
                 return Err(self.error("output.clock_offset", "must be \"auto\" or a finite number of seconds"));
             }
+            self.require_at_most(
+                "output.clock_offset",
+                v.abs(),
+                limits::MAX_CLOCK_OFFSET_S,
+                "clocks further apart mean a wrong time_column, time_unit or time_offset_s: fix those instead",
+            )?;
         }
-        o.theta0().validate().map_err(|e| self.error("output.theta0", e))
+        crate::model::limits::check_theta(&o.theta0()).map_err(|e| self.error("output.theta0", e))
     }
 
     /// `[streams]`: at least one; per stream a nominal rate and a dejitter

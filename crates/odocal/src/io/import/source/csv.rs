@@ -12,7 +12,8 @@ use crate::io::import::manifest::Manifest;
 /// Reads the time column `time` and the `wanted` columns of `path`.
 pub(super) fn read(m: &Manifest, name: &str, path: &Path, time: &str, wanted: &[Wanted]) -> Result<Table> {
     let key = format!("streams.{name}.file");
-    let bytes = std::fs::read(path).map_err(|e| m.error(&key, format!("cannot read {}: {e}", path.display())))?;
+    let bytes = crate::output::limited::read_limited(path, crate::output::limited::MAX_DATA_BYTES, "a CSV stream file")
+        .map_err(|e| m.error(&key, format!("cannot read {}: {e}", path.display())))?;
     let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF".as_slice()).unwrap_or(&bytes);
     let mut rdr = ::csv::ReaderBuilder::new().has_headers(true).trim(::csv::Trim::All).from_reader(bytes);
     let csv_err = |e: ::csv::Error| Error::Csv {

@@ -209,6 +209,17 @@ pub(crate) fn read_stream(m: &Manifest, name: &str, wanted: &[Wanted]) -> Result
     let lines = table.lines.map(|l| filter(l, &keep));
     let cols: BTreeMap<String, Vec<f64>> = table.columns.into_iter().map(|(c, v)| (c, filter(v, &keep))).collect();
     let n = t_raw.len();
+    if n < 2 && rows > 1 {
+        return Err(m.error(
+            &format!("streams.{name}"),
+            format!(
+                "the time column '{}' holds one time ({} s) in all {rows} rows: the stamps are not set (all zero?); \
+                 give a column whose time advances",
+                crate::drive::echo(&time_column),
+                t_raw[0]
+            ),
+        ));
+    }
     let span = [t_raw[0], t_raw[n - 1]];
     let mean_rate_hz = if n > 1 { (n - 1) as f64 / (span[1] - span[0]) } else { 0.0 };
     let (t, dejitter) = match spec.nominal_rate_hz {
