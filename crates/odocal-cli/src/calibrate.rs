@@ -36,6 +36,15 @@ pub struct CalibrateArgs {
     /// "-" writes it to stdout instead of the text report.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// Record the result in this vehicle's history (with --db).
+    ///
+    /// One row per drive and method: a drive already recorded for the
+    /// vehicle by the same method is recognised and not counted twice.
+    #[arg(long, requires = "db", value_name = "ID")]
+    vehicle: Option<String>,
+    /// The history database (SQLite; created if missing) for --vehicle.
+    #[arg(long, requires = "vehicle", value_name = "FILE")]
+    db: Option<PathBuf>,
     #[command(flatten)]
     help: HelpArgs,
 }
@@ -74,6 +83,7 @@ pub fn calibrate_cmd(a: CalibrateArgs, bars: &Bars) -> Result<Outcome> {
     for p in &a.drive {
         files.drive("the drive being calibrated", p);
     }
+    files.output("--db", a.db.as_deref());
     calibration_files(&mut files, &a.calibration, a.json.as_deref())?;
     let mut drives = Vec::with_capacity(a.drive.len());
     let mut wheel_scale = None;
@@ -102,6 +112,7 @@ pub fn calibrate_cmd(a: CalibrateArgs, bars: &Bars) -> Result<Outcome> {
         truth,
         others,
         fingerprints,
+        history: a.vehicle.as_deref().zip(a.db.as_deref()).map(|h| (h, a.drive.as_slice())),
     };
     run_calibration(job, &a.calibration, a.json.as_deref(), bars)
 }
@@ -145,6 +156,7 @@ pub fn demo_cmd(a: DemoArgs, bars: &Bars) -> Result<Outcome> {
         truth: Some(sim.sidecar.theta_true),
         others,
         fingerprints,
+        history: None,
     };
     run_calibration(job, &a.calibration, a.json.as_deref(), bars)
 }
@@ -210,11 +222,14 @@ struct Job<'a> {
     others: Vec<OtherDrive>,
     /// Each drive's report entry (role, path, fingerprint).
     fingerprints: Vec<serde_json::Value>,
+    /// The vehicle and history database to record the result in, and the
+    /// drive files (`--vehicle`, `--db`).
+    history: Option<((&'a str, &'a Path), &'a [PathBuf])>,
 }
 
 /// Calibrates the job's drive and writes every report asked for.
 fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, bars: &Bars) -> Result<Outcome> {
-    let Job { drive, source, manifest, truth: truth_theta, others, fingerprints } = job;
+    let Job { drive, source, manifest, truth: truth_theta, others, fingerprints, history } = job;
     let settings = args.settings()?;
     let resolved = settings.resolve(manifest, Caller::CommandLine)?;
     let (opts, account) = (&resolved.options, &resolved.account);
@@ -227,8 +242,12 @@ fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, ba
     let r = calibrate(drive, holdout.as_ref(), &others, given, opts, bars)
         .map_err(|e| with_hint(e, source, args, &opts.method, bars))?;
     let wheel_scale = source.and_then(|(_, w)| w);
-    let drive = held.unwrap_or(drive);
     bars.finish();
+    if let Some((vehicle_db, sources)) = history {
+        let prints = calibration_fingerprints(&fingerprints);
+        crate::history::record_calibration(vehicle_db, drive, sources, &prints, &r)?;
+    }
+    let drive = held.unwrap_or(drive);
     let truth = match truth_theta {
         Some(t) => {
             let val = segment::validation_segments(drive, &opts.validation)?;

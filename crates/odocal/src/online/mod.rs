@@ -485,6 +485,11 @@ impl Calibrator {
         (part_start + i) as f64 * self.sample_time_s
     }
 
+    /// The sample time the calibrator was made for, s.
+    pub fn sample_time_s(&self) -> f64 {
+        self.sample_time_s
+    }
+
     /// The current estimate of θ.
     pub fn theta(&self) -> Theta {
         Theta { c_e: self.x[0], c_d: self.x[1], t_r: self.x[2], d: self.x[3] }
