@@ -60,6 +60,8 @@ struct Stored {
     theta: Theta,
     sigma: Option<Theta>,
     origin: String,
+    /// A recorded calibration (else θ_0, an initial guess).
+    calibrated: bool,
 }
 
 /// Replays the drives and writes what the gates pass.
@@ -78,11 +80,12 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
     }
     let mut db = History::open(&a.db)?;
     let mut stored = match db.latest(&a.vehicle)? {
-        Some(r) => Stored { theta: r.record.theta, sigma: r.record.sigma, origin: format!("history row {}", r.id) },
+        Some(r) => Stored { theta: r.record.theta, sigma: r.record.sigma, origin: format!("history row {}", r.id), calibrated: true },
         None => Stored {
             theta: a.theta0.as_ref().map_or(Theta::PAPER_INITIAL, |t| t.theta),
             sigma: None,
             origin: "θ_0".into(),
+            calibrated: false,
         },
     };
     let gates = Gates { steady_s: a.steady_s, ..Gates::default() };
@@ -119,7 +122,7 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
             done = n;
         })?;
         bars.finish();
-        let decision = gates.decide(c, &stored.theta);
+        let decision = gates.decide(c, &stored.theta, stored.calibrated);
         let summary = c.drive_summary();
         let t = drive.t();
         let drive_time_s = t.last().copied().unwrap_or(0.0) - t.first().copied().unwrap_or(0.0);
@@ -150,7 +153,7 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
                 f.provenance.push(("fingerprint".into(), fingerprint.clone()));
                 write_text(p, &f.text_for(p)?).with_context(|| format!("--params-out {}", p.display()))?;
             }
-            stored = Stored { theta: decision.theta, sigma: Some(decision.sigma), origin: source.clone() };
+            stored = Stored { theta: decision.theta, sigma: Some(decision.sigma), origin: source.clone(), calibrated: true };
         }
         if !quiet_stdout {
             let e = summary.prequential_mean_position_error_m.map_or("-".into(), |e| format!("{e:.3} m"));

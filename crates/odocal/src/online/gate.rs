@@ -3,12 +3,13 @@
 //!
 //! An update is proposed only when every gate passes:
 //! 1. **σ**: each parameter's σ is below its threshold;
-//! 2. **steady**: θ has stayed within one σ of its current value for
-//!    [`Gates::steady_s`] of informative driving (folded, turning segments:
-//!    idling and straight driving do not count);
+//! 2. **steady**: each parameter has stayed within its σ threshold of its
+//!    current value for [`Gates::steady_s`] of informative driving (folded,
+//!    turning segments: idling and straight driving do not count);
 //! 3. **bounded change**: each parameter moved from the stored value by at
 //!    most its limit; a larger change is *flagged* for a person instead of
-//!    written;
+//!    written. A stored θ that is only an initial guess (no calibration
+//!    recorded yet) is not a bound;
 //! 4. **held-out**: on the drive's most recent validation segments the
 //!    online estimate (the θ known when each started) dead-reckons better
 //!    than the stored θ.
@@ -29,8 +30,8 @@ pub struct Gates {
     pub max_sigma_t_r_m: f64,
     /// Largest σ of `d`, m/(m/s²). Default 1e-3.
     pub max_sigma_d: f64,
-    /// Informative driving over which θ must have stayed within one σ, s.
-    /// Default 10.
+    /// Informative driving over which each parameter must have stayed
+    /// within its σ threshold of its current value, s. Default 10.
     pub steady_s: f64,
     /// Largest change of `c_e` from the stored value written without a
     /// person, as a fraction. Default 0.01 (1 %).
@@ -97,8 +98,9 @@ pub struct GateDecision {
 
 impl Gates {
     /// Judges the calibrator's current θ against `stored` (the parameters in
-    /// use).
-    pub fn decide(&self, cal: &Calibrator, stored: &Theta) -> GateDecision {
+    /// use); `calibrated`: `stored` is a recorded calibration (else an
+    /// initial guess, which does not bound the change).
+    pub fn decide(&self, cal: &Calibrator, stored: &Theta, calibrated: bool) -> GateDecision {
         let (theta, sigma) = (cal.theta(), cal.sigma());
         let (th, sd, st) = (theta.to_array(), sigma.to_array(), stored.to_array());
         let mut held = Vec::new();
@@ -109,7 +111,7 @@ impl Gates {
                 held.push(format!("σ of {} {:.3e} above {:.3e}", THETA_NAMES[i], sd[i], max_sigma[i]));
             }
         }
-        let steady = cal.steady_for_s(1.0);
+        let steady = cal.steady_for_s(max_sigma);
         if steady < self.steady_s {
             held.push(format!("steady for {steady:.1} s of informative driving, fewer than {:.1} s", self.steady_s));
         }
@@ -134,7 +136,7 @@ impl Gates {
             self.max_change_d,
         ];
         let flagged: Vec<String> = (0..4)
-            .filter(|&i| !((th[i] - st[i]).abs() <= max_change[i]))
+            .filter(|&i| calibrated && !((th[i] - st[i]).abs() <= max_change[i]))
             .map(|i| format!("{} changes by {:.3e}, beyond {:.3e}", THETA_NAMES[i], th[i] - st[i], max_change[i]))
             .collect();
         let (action, reasons) = if !held.is_empty() {

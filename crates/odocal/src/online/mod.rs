@@ -57,7 +57,7 @@ use crate::drive::Drive;
 use crate::error::{Error, Result};
 use crate::identify::extrinsics_normal_equations;
 use crate::model::extrinsics::Extrinsics;
-use crate::model::Theta;
+use crate::model::{wrap_angle, Theta};
 
 pub mod gate;
 mod options;
@@ -240,6 +240,16 @@ pub struct Calibrator {
 /// Counters of the current drive.
 #[derive(Debug, Clone, Default)]
 struct DriveState {
+    /// The heading offset seen in the direction of travel: Σ wₖδₖ and Σ wₖ
+    /// ([`Calibrator::course_heading_offset`]).
+    course_sum: f64,
+    course_weight: f64,
+    /// The last sample of the current part `(px, py, psi)`.
+    last_pose: Option<[f64; 3]>,
+    /// The sideslip of the last sample.
+    last_beta: f64,
+    /// The next sample of the part to observe.
+    course_next: usize,
     samples: usize,
     folded: usize,
     scored: usize,
@@ -307,6 +317,8 @@ impl Calibrator {
     /// not completed are dropped.
     pub fn begin_part(&mut self) {
         self.buf.clear();
+        self.drive.last_pose = None;
+        self.drive.course_next = 0;
         self.part_clock_s = self.clock_s;
         self.next_cal = self.opts.segments.offset_steps;
         self.next_val = self.opts.validation.offset_steps;
@@ -347,9 +359,56 @@ impl Calibrator {
         self.drive.samples += n;
         self.clock_s += n as f64 * self.sample_time_s;
         self.process();
+        self.observe_course(self.buf.len);
         let keep_from = self.pending.front().map_or(self.next_val, |p| p.start).min(self.next_cal);
         self.buf.trim(keep_from, self.opts.validation.length_steps);
         Ok(())
+    }
+
+    /// Adds the steps up to sample `i` of the part (inclusive) to the
+    /// heading offset seen in the direction of travel: over a step of the
+    /// reference point the course is the vehicle's heading plus the
+    /// sideslip (the model's `ψ + ω·t_s/2 + β`), so
+    /// `δₖ = (ψ̃ₖ + ψ̃ₖ₊₁)/2 − βₖ − atan2(Δy, Δx)`, weighted by the step's
+    /// length (steps slower than 1 m/s are left out).
+    fn observe_course(&mut self, i: usize) {
+        let min_step = self.sample_time_s;
+        let (c, base) = (&self.buf.cols, self.buf.base);
+        let d = &mut self.drive;
+        while d.course_next <= i && d.course_next < self.buf.len {
+            let j = d.course_next - base;
+            let now = [c[0][j], c[1][j], c[2][j]];
+            if let Some(prev) = d.last_pose {
+                let (dx, dy) = (now[0] - prev[0], now[1] - prev[1]);
+                let len = dx.hypot(dy);
+                if len > min_step {
+                    let delta = wrap_angle(0.5 * (prev[2] + now[2]) - d.last_beta - dy.atan2(dx));
+                    d.course_sum += len * delta;
+                    d.course_weight += len;
+                }
+            }
+            d.last_pose = Some(now);
+            d.last_beta = c[5][j];
+            d.course_next += 1;
+        }
+    }
+
+    /// The current drive's heading offset from the direction of travel
+    /// (the module's first estimate of δ, before a segment is folded), rad;
+    /// `None` before the vehicle has moved.
+    pub fn course_heading_offset(&self) -> Option<f64> {
+        let d = &self.drive;
+        (d.course_weight > 0.0).then(|| d.course_sum / d.course_weight)
+    }
+
+    /// δ as known now: the filter's once the drive has a folded segment,
+    /// else the one from the direction of travel (0 before any motion).
+    fn heading_offset_now(&self) -> f64 {
+        if self.drive.folded > 0 || !self.opts.heading_offset {
+            self.x[4]
+        } else {
+            self.course_heading_offset().unwrap_or(0.0)
+        }
     }
 
     /// Handles every event the samples received so far allow, in sample
@@ -367,11 +426,13 @@ impl Calibrator {
             let val_end = self.pending.front().map(|p| p.start + kv);
             let candidates = [Some(cal_end), Some(val_start), val_end];
             let Some(next) = candidates.iter().flatten().copied().filter(|&i| i < have).min() else { break };
+            self.observe_course(next);
             if next == cal_end {
                 self.fold(self.next_cal);
                 self.next_cal += stride;
             } else if next == val_start {
-                self.pending.push_back(Pending { start: val_start, theta: self.theta(), heading_offset: self.x[4] });
+                let heading_offset = self.heading_offset_now();
+                self.pending.push_back(Pending { start: val_start, theta: self.theta(), heading_offset });
                 self.next_val += self.opts.validation.stride_steps;
             } else if let Some(p) = self.pending.pop_front() {
                 self.score(&p);
@@ -422,6 +483,9 @@ impl Calibrator {
             return;
         }
         self.add_process_noise(start + k);
+        if self.drive.folded == 0 && self.opts.heading_offset {
+            self.x[4] = self.heading_offset_now();
+        }
         let seg = self.buf.segment(start, k, self.sample_time_s);
         let Some(lambda0) = self.p.try_inverse() else { return };
         let x0 = self.x;
@@ -517,15 +581,15 @@ impl Calibrator {
         self.informative_s
     }
 
-    /// The informative time over which θ has stayed within `sigmas` of
-    /// its current σ of the current θ, in every parameter, s (at most the
-    /// options' `steady_window_s`).
-    pub fn steady_for_s(&self, sigmas: f64) -> f64 {
-        let (now, sd) = (self.theta().to_array(), self.sigma().to_array());
+    /// The informative time over which every parameter of θ has stayed
+    /// within `tolerance` (`[c_e, c_d, t_r, d]`) of its current value, s
+    /// (at most the options' `steady_window_s`).
+    pub fn steady_for_s(&self, tolerance: [f64; 4]) -> f64 {
+        let now = self.theta().to_array();
         let mut since = self.informative_s;
         for (t, theta) in self.track.iter().rev() {
             let th = theta.to_array();
-            if (0..4).any(|i| (th[i] - now[i]).abs() > sigmas * sd[i]) {
+            if (0..4).any(|i| !((th[i] - now[i]).abs() <= tolerance[i])) {
                 break;
             }
             since = *t;

@@ -42,6 +42,10 @@ fn the_heading_offset_is_estimated_per_drive() {
     cal.push_drive(&shifted, 1000, |_| {}).expect("push");
     let (delta, sd) = cal.heading_offset();
     assert!((delta - 0.02).abs() < 1e-4, "δ = {delta} ± {sd}");
+    // The direction of travel gives it too (the simulator's sideslip is
+    // the model's, so only the step's mid-heading approximation remains).
+    let course = cal.course_heading_offset().expect("moved");
+    assert!((course - 0.02).abs() < 1e-3, "course δ = {course}");
     assert!((cal.theta().c_e - truth.c_e).abs() < 1e-4 * truth.c_e, "{}", cal.theta());
     // A new drive starts δ anew.
     cal.push_drive(&d, 1000, |_| {}).expect("push");
@@ -91,15 +95,16 @@ fn gates_write_only_a_better_steady_estimate() {
     cal.set_stored(Some(stored));
     cal.push_drive(&d, 1000, |_| {}).expect("push");
     let gates = Gates::default();
-    let ok = gates.decide(&cal, &stored);
+    let ok = gates.decide(&cal, &stored, true);
     assert_eq!(ok.action, Action::Write, "{:?}", ok.reasons);
     // A stored θ far off: the change is flagged for a person.
     let far = Theta { c_e: truth.c_e * 1.05, ..truth };
-    assert_eq!(gates.decide(&cal, &far).action, Action::Flag);
+    assert_eq!(gates.decide(&cal, &far, true).action, Action::Flag);
+    assert_eq!(gates.decide(&cal, &far, false).action, Action::Write, "an initial guess bounds nothing");
     // Before any data: held, with reasons.
     let mut fresh = Calibrator::new(stored, None, d.sample_time_s(), OnlineOptions::default()).expect("cal");
     fresh.begin_drive();
-    let held = gates.decide(&fresh, &stored);
+    let held = gates.decide(&fresh, &stored, true);
     assert_eq!(held.action, Action::Hold);
     assert!(held.reasons.iter().any(|r| r.contains("σ of c_e")), "{:?}", held.reasons);
 }
