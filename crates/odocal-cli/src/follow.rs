@@ -53,6 +53,12 @@ pub struct FollowArgs {
     /// an update is written.
     #[arg(long, default_value_t = 10.0, value_name = "S")]
     steady_s: f64,
+    /// Weight of one segment's normal equations [default: stride/length].
+    ///
+    /// Smaller values make the estimate average over more segments
+    /// (steadier, slower to follow a change).
+    #[arg(long, value_name = "F")]
+    information_scale: Option<f64>,
 }
 
 /// The parameters in use: θ, its σ, and where they came from.
@@ -109,7 +115,10 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
         }
         let c = match cal.as_mut() {
             Some(c) => c,
-            None => cal.insert(Calibrator::new(stored.theta, stored.sigma, drive.sample_time_s(), OnlineOptions::default())?),
+            None => {
+                let opts = OnlineOptions { information_scale: a.information_scale, ..OnlineOptions::default() };
+                cal.insert(Calibrator::new(stored.theta, stored.sigma, drive.sample_time_s(), opts)?)
+            }
         };
         if (drive.sample_time_s() - c.sample_time_s()).abs() > 1e-9 {
             bail!("{source}: sample time differs from the first drive's");
