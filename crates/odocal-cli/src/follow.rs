@@ -53,12 +53,15 @@ pub struct FollowArgs {
     /// an update is written.
     #[arg(long, default_value_t = 10.0, value_name = "S")]
     steady_s: f64,
-    /// Weight of one segment's normal equations [default: stride/length].
+    /// Weight of one segment's normal equations [default: 0.005].
     ///
     /// Smaller values make the estimate average over more segments
     /// (steadier, slower to follow a change).
     #[arg(long, value_name = "F")]
     information_scale: Option<f64>,
+    /// Fold only segments whose peak yaw rate exceeds this, rad/s [default: 0, every segment].
+    #[arg(long, value_name = "RAD_PER_S")]
+    min_yaw_rate: Option<f64>,
 }
 
 /// The parameters in use: θ, its σ, and where they came from.
@@ -116,7 +119,13 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
         let c = match cal.as_mut() {
             Some(c) => c,
             None => {
-                let opts = OnlineOptions { information_scale: a.information_scale, ..OnlineOptions::default() };
+                let mut opts = OnlineOptions::default();
+                if let Some(f) = a.information_scale {
+                    opts.information_scale = f;
+                }
+                if let Some(r) = a.min_yaw_rate {
+                    opts.segments.min_peak_yaw_rate_rad_per_s = r;
+                }
                 cal.insert(Calibrator::new(stored.theta, stored.sigma, drive.sample_time_s(), opts)?)
             }
         };

@@ -9,8 +9,8 @@
 //! ## The method: recursive Gauss-Newton over the paper's segments
 //!
 //! The samples are cut into the calibration's segments as they arrive
-//! (650 steps every 100, [`crate::segment`]). When a segment completes and
-//! turns enough (peak yaw rate above the threshold), its dead-reckoning
+//! (650 steps every 100, [`crate::segment`]). When a segment completes
+//! (and turns enough, when a yaw-rate threshold is set), its dead-reckoning
 //! residual is linearised at the current estimate and folded into an
 //! information-form state over `x = [c_e, c_d, t_r, d, δ]`, `δ` the
 //! reference's heading offset on the current drive:
@@ -22,9 +22,10 @@
 //! ```
 //!
 //! with `J`, `r` the segment's Jacobian and residual from the library's
-//! Gauss-Newton (the rollout with reference extrinsics), `f` the share of
-//! new samples in the segment (stride / length: consecutive segments share
-//! most samples), `s²` a running estimate of the weighted residual
+//! Gauss-Newton (the rollout with reference extrinsics), `f` a segment's
+//! weight ([`OnlineOptions::information_scale`]: consecutive segments share
+//! most samples and a segment's residuals are correlated), `s²` a running
+//! estimate of the weighted residual
 //! variance and `Q` the random walk of [`RandomWalk`]. Each fold costs
 //! a few rollouts of one segment (a few hundred microseconds), and the
 //! state is a 5-vector and a 5×5 matrix; the sample buffer holds at most
@@ -489,10 +490,7 @@ impl Calibrator {
         let seg = self.buf.segment(start, k, self.sample_time_s);
         let Some(lambda0) = self.p.try_inverse() else { return };
         let x0 = self.x;
-        let share = self
-            .opts
-            .information_scale
-            .unwrap_or(self.opts.segments.stride_steps as f64 / self.opts.segments.length_steps as f64);
+        let share = self.opts.information_scale;
         let Some((_, _, cost0)) = self.normal_equations(&seg, &x0, 1.0) else { return };
         let seg_variance = (cost0 / (3 * k) as f64).max(MIN_RESIDUAL_VARIANCE);
         let s2 = self.residual_variance.unwrap_or(seg_variance);
@@ -516,6 +514,9 @@ impl Calibrator {
             Some(v) => v + RESIDUAL_VARIANCE_GAIN * (seg_variance - v),
         });
         self.drive.folded += 1;
+        if peak <= self.opts.informative_yaw_rate_rad_per_s {
+            return;
+        }
         self.informative_s += self.opts.segments.stride_steps as f64 * self.sample_time_s;
         self.track.push_back((self.informative_s, self.theta()));
         while self.track.front().is_some_and(|(t, _)| *t < self.informative_s - self.opts.steady_window_s) {
@@ -575,8 +576,9 @@ impl Calibrator {
         (self.x[4], self.p[(4, 4)].max(0.0).sqrt())
     }
 
-    /// Driving time since informative segments began to be folded: the new
-    /// samples of every folded segment (stride × sample time each), s.
+    /// Informative driving so far: the new samples (stride × sample time)
+    /// of every folded segment that turned more than the options'
+    /// `informative_yaw_rate_rad_per_s`, s.
     pub fn informative_time_s(&self) -> f64 {
         self.informative_s
     }

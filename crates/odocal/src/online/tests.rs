@@ -24,7 +24,7 @@ fn noise_free_drive_converges_to_the_truth() {
     let (th, t) = (cal.theta(), truth);
     assert!((th.c_e - t.c_e).abs() < 1e-5 * t.c_e, "{th} vs {t}");
     assert!((th.c_d - t.c_d).abs() < 1e-5, "{th} vs {t}");
-    assert!((th.t_r - t.t_r).abs() < 1e-4, "{th} vs {t}");
+    assert!((th.t_r - t.t_r).abs() < 1e-3, "{th} vs {t}");
     assert!((th.d - t.d).abs() < 1e-5, "{th} vs {t}");
     let s = cal.drive_summary();
     assert!(s.folded_segments > 10 && s.validation_segments > 5, "{s:?}");
