@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use odocal::history::{CalibrationRecord, Decision, History};
-use odocal::online::gate::{Action, Gates};
+use odocal::online::gate::{Action, GateDecision, Gates};
 use odocal::online::{Calibrator, OnlineOptions};
 use odocal::{ParamFile, Progress, Theta};
 use serde_json::{json, Value};
@@ -82,21 +82,16 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
     if let Some((p, _)) = a.theta0.as_ref().and_then(|t| t.file.as_ref()) {
         files.input("the --theta0 parameter file", p);
     }
-    files.output("--db", Some(&a.db)).output("--json", a.json.as_deref()).output("--params-out", a.params_out.as_deref());
+    files
+        .output("--db", Some(&a.db))
+        .output("--json", a.json.as_deref())
+        .output("--params-out", a.params_out.as_deref());
     files.check()?;
     if !(a.steady_s.is_finite() && a.steady_s >= 0.0) {
         bail!("--steady-s must be a non-negative number of seconds, got {}", a.steady_s);
     }
     let mut db = History::open(&a.db)?;
-    let mut stored = match db.latest(&a.vehicle)? {
-        Some(r) => Stored { theta: r.record.theta, sigma: r.record.sigma, origin: format!("history row {}", r.id), calibrated: true },
-        None => Stored {
-            theta: a.theta0.as_ref().map_or(Theta::PAPER_INITIAL, |t| t.theta),
-            sigma: None,
-            origin: "θ_0".into(),
-            calibrated: false,
-        },
-    };
+    let mut stored = starting_point(&db, &a)?;
     let gates = Gates { steady_s: a.steady_s, ..Gates::default() };
     let quiet_stdout = a.json.as_deref().is_some_and(odocal::output::is_stdout);
     if !quiet_stdout {
@@ -110,7 +105,11 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
         let fingerprint = drive.fingerprint();
         if db.has_decisions(&a.vehicle, &fingerprint)? {
             if !quiet_stdout {
-                println!("{source}: already followed for vehicle '{}' (fingerprint {}…); skipped", a.vehicle, &fingerprint[..12]);
+                println!(
+                    "{source}: already followed for vehicle '{}' (fingerprint {}…); skipped",
+                    a.vehicle,
+                    &fingerprint[..12]
+                );
             }
             entries.push(json!({"source": source, "fingerprint": fingerprint, "already_recorded": true,
                 "prequential_mean_position_error_m": null, "updates": []}));
@@ -118,16 +117,7 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
         }
         let c = match cal.as_mut() {
             Some(c) => c,
-            None => {
-                let mut opts = OnlineOptions::default();
-                if let Some(f) = a.information_scale {
-                    opts.information_scale = f;
-                }
-                if let Some(r) = a.min_yaw_rate {
-                    opts.segments.min_peak_yaw_rate_rad_per_s = r;
-                }
-                cal.insert(Calibrator::new(stored.theta, stored.sigma, drive.sample_time_s(), opts)?)
-            }
+            None => cal.insert(calibrator(&a, &stored, drive.sample_time_s())?),
         };
         if (drive.sample_time_s() - c.sample_time_s()).abs() > 1e-9 {
             bail!("{source}: sample time differs from the first drive's");
@@ -156,22 +146,7 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
         })?;
         let (delta, _) = c.heading_offset();
         if decision.action == Action::Write {
-            let rec = CalibrationRecord {
-                sources: vec![source.clone()],
-                t_start_s: t.first().copied().unwrap_or(0.0),
-                t_end_s: t.last().copied().unwrap_or(0.0),
-                sigma: Some(decision.sigma),
-                heading_offset_rad: Some(delta),
-                ..CalibrationRecord::new(&a.vehicle, &fingerprint, METHOD, decision.theta)
-            };
-            db.record(&rec)?;
-            if let Some(p) = &a.params_out {
-                let s = decision.sigma.to_array().map(Some);
-                let mut f = ParamFile::from_theta(&decision.theta, s, &source, METHOD);
-                f.provenance.push(("fingerprint".into(), fingerprint.clone()));
-                write_text(p, &f.text_for(p)?).with_context(|| format!("--params-out {}", p.display()))?;
-            }
-            stored = Stored { theta: decision.theta, sigma: Some(decision.sigma), origin: source.clone(), calibrated: true };
+            stored = write_back(&mut db, &a, &decision, (&source, &fingerprint), &drive, delta)?;
         }
         if !quiet_stdout {
             let e = summary.prequential_mean_position_error_m.map_or("-".into(), |e| format!("{e:.3} m"));
@@ -203,8 +178,68 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
     Ok(())
 }
 
+/// The parameters to start from: the vehicle's most recent row in the
+/// history, else `--theta0` (default θ_0).
+fn starting_point(db: &History, a: &FollowArgs) -> Result<Stored> {
+    Ok(match db.latest(&a.vehicle)? {
+        Some(r) => Stored {
+            theta: r.record.theta,
+            sigma: r.record.sigma,
+            origin: format!("history row {}", r.id),
+            calibrated: true,
+        },
+        None => Stored {
+            theta: a.theta0.as_ref().map_or(Theta::PAPER_INITIAL, |t| t.theta),
+            sigma: None,
+            origin: "θ_0".into(),
+            calibrated: false,
+        },
+    })
+}
+
+/// The online calibrator for the first drive, with the command line's options.
+fn calibrator(a: &FollowArgs, stored: &Stored, sample_time_s: f64) -> Result<Calibrator> {
+    let mut opts = OnlineOptions::default();
+    if let Some(f) = a.information_scale {
+        opts.information_scale = f;
+    }
+    if let Some(r) = a.min_yaw_rate {
+        opts.segments.min_peak_yaw_rate_rad_per_s = r;
+    }
+    Ok(Calibrator::new(stored.theta, stored.sigma, sample_time_s, opts)?)
+}
+
+/// Writes a passed update: a `calibrations` row and the parameter file
+/// (atomically). Returns the new stored parameters.
+fn write_back(
+    db: &mut History,
+    a: &FollowArgs,
+    decision: &GateDecision,
+    (source, fingerprint): (&str, &str),
+    drive: &odocal::Drive,
+    heading_offset_rad: f64,
+) -> Result<Stored> {
+    let t = drive.t();
+    let rec = CalibrationRecord {
+        sources: vec![source.to_string()],
+        t_start_s: t.first().copied().unwrap_or(0.0),
+        t_end_s: t.last().copied().unwrap_or(0.0),
+        sigma: Some(decision.sigma),
+        heading_offset_rad: Some(heading_offset_rad),
+        ..CalibrationRecord::new(&a.vehicle, fingerprint, METHOD, decision.theta)
+    };
+    db.record(&rec)?;
+    if let Some(p) = &a.params_out {
+        let s = decision.sigma.to_array().map(Some);
+        let mut f = ParamFile::from_theta(&decision.theta, s, source, METHOD);
+        f.provenance.push(("fingerprint".into(), fingerprint.to_string()));
+        write_text(p, &f.text_for(p)?).with_context(|| format!("--params-out {}", p.display()))?;
+    }
+    Ok(Stored { theta: decision.theta, sigma: Some(decision.sigma), origin: source.to_string(), calibrated: true })
+}
+
 /// A decision in the JSON report.
-fn update_json(d: &odocal::online::gate::GateDecision, drive_time_s: f64) -> Value {
+fn update_json(d: &GateDecision, drive_time_s: f64) -> Value {
     json!({
         "decision": d.action.to_string(),
         "reasons": d.reasons,

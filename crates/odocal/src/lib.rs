@@ -92,10 +92,10 @@ mod error; // 0
 pub mod experiment; // 8
 #[cfg(feature = "history")]
 pub mod history; // 9
-pub mod online; // 9
 pub mod identify; // 4
 pub mod io; // 3
 pub mod model; // 1
+pub mod online; // 9
 pub mod output; // 1
 mod progress; // 0
 pub mod sim; // 3

@@ -226,10 +226,8 @@ impl History {
     /// writers.
     pub fn record(&mut self, rec: &CalibrationRecord) -> Result<Recorded> {
         let err = sql_err(&self.path);
-        let sources = serde_json::to_string(&rec.sources).map_err(|e| Error::History {
-            path: self.path.clone(),
-            reason: format!("source names: {e}"),
-        })?;
+        let sources = serde_json::to_string(&rec.sources)
+            .map_err(|e| Error::History { path: self.path.clone(), reason: format!("source names: {e}") })?;
         let s = sigma_params(&rec.sigma);
         let n = self
             .conn

@@ -36,8 +36,7 @@ pub fn drift_between(rows: &[HistoryRow]) -> Vec<DriftFlag> {
     for w in rows.windows(2) {
         let (a, b) = (&w[0], &w[1]);
         let (Some(sa), Some(sb)) = (a.record.sigma, b.record.sigma) else { continue };
-        let (ta, tb, sa, sb) =
-            (a.record.theta.to_array(), b.record.theta.to_array(), sa.to_array(), sb.to_array());
+        let (ta, tb, sa, sb) = (a.record.theta.to_array(), b.record.theta.to_array(), sa.to_array(), sb.to_array());
         for i in 0..4 {
             let change = tb[i] - ta[i];
             let combined = (sa[i] * sa[i] + sb[i] * sb[i]).sqrt();

@@ -107,7 +107,7 @@ impl Gates {
         let max_sigma =
             [self.max_sigma_c_e_relative * th[0].abs(), self.max_sigma_c_d_m, self.max_sigma_t_r_m, self.max_sigma_d];
         for i in 0..4 {
-            if !(sd[i] <= max_sigma[i]) {
+            if exceeds(sd[i], max_sigma[i]) {
                 held.push(format!("σ of {} {:.3e} above {:.3e}", THETA_NAMES[i], sd[i], max_sigma[i]));
             }
         }
@@ -136,7 +136,7 @@ impl Gates {
             self.max_change_d,
         ];
         let flagged: Vec<String> = (0..4)
-            .filter(|&i| calibrated && !((th[i] - st[i]).abs() <= max_change[i]))
+            .filter(|&i| calibrated && exceeds((th[i] - st[i]).abs(), max_change[i]))
             .map(|i| format!("{} changes by {:.3e}, beyond {:.3e}", THETA_NAMES[i], th[i] - st[i], max_change[i]))
             .collect();
         let (action, reasons) = if !held.is_empty() {
@@ -153,4 +153,9 @@ impl Gates {
         };
         GateDecision { action, reasons, theta, sigma }
     }
+}
+
+/// True when `v` is above `limit` or not a number.
+pub(crate) fn exceeds(v: f64, limit: f64) -> bool {
+    v.is_nan() || v > limit
 }

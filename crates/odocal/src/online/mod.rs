@@ -591,7 +591,7 @@ impl Calibrator {
         let mut since = self.informative_s;
         for (t, theta) in self.track.iter().rev() {
             let th = theta.to_array();
-            if (0..4).any(|i| !((th[i] - now[i]).abs() <= tolerance[i])) {
+            if (0..4).any(|i| gate::exceeds((th[i] - now[i]).abs(), tolerance[i])) {
                 break;
             }
             since = *t;

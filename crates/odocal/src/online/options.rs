@@ -147,7 +147,10 @@ impl OnlineOptions {
         }
         let rw = &self.random_walk;
         if [rw.c_e_relative, rw.c_d_m, rw.t_r_m, rw.d].iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
-            return Err(Error::InvalidOption { field: "random_walk", reason: "must be finite and non-negative".into() });
+            return Err(Error::InvalidOption {
+                field: "random_walk",
+                reason: "must be finite and non-negative".into(),
+            });
         }
         if self.weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) {
             return Err(Error::InvalidOption { field: "weights", reason: "must be finite and non-negative".into() });

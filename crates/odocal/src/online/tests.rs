@@ -18,8 +18,8 @@ fn with_heading_offset(d: &Drive, delta: f64) -> Drive {
 #[test]
 fn noise_free_drive_converges_to_the_truth() {
     let (d, truth) = noise_free(6.0, 3);
-    let mut cal = Calibrator::new(Theta::PAPER_INITIAL, None, d.sample_time_s(), OnlineOptions::default())
-        .expect("calibrator");
+    let mut cal =
+        Calibrator::new(Theta::PAPER_INITIAL, None, d.sample_time_s(), OnlineOptions::default()).expect("calibrator");
     cal.push_drive(&d, 333, |_| {}).expect("push");
     let (th, t) = (cal.theta(), truth);
     assert!((th.c_e - t.c_e).abs() < 1e-5 * t.c_e, "{th} vs {t}");
