@@ -36,6 +36,15 @@ pub struct CalibrateArgs {
     /// "-" writes it to stdout instead of the text report.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// Record the result in this vehicle's history (with --db).
+    ///
+    /// One row per drive and method: a drive already recorded for the
+    /// vehicle by the same method is recognised and not counted twice.
+    #[arg(long, requires = "db", value_name = "ID")]
+    vehicle: Option<String>,
+    /// The history database (SQLite; created if missing) for --vehicle.
+    #[arg(long, requires = "vehicle", value_name = "FILE")]
+    db: Option<PathBuf>,
     #[command(flatten)]
     help: HelpArgs,
 }
@@ -74,6 +83,7 @@ pub fn calibrate_cmd(a: CalibrateArgs, bars: &Bars) -> Result<Outcome> {
     for p in &a.drive {
         files.drive("the drive being calibrated", p);
     }
+    files.output("--db", a.db.as_deref());
     calibration_files(&mut files, &a.calibration, a.json.as_deref())?;
     let mut drives = Vec::with_capacity(a.drive.len());
     let mut wheel_scale = None;
@@ -104,6 +114,7 @@ pub fn calibrate_cmd(a: CalibrateArgs, bars: &Bars) -> Result<Outcome> {
         truth,
         others,
         fingerprints,
+        history: a.vehicle.as_deref().zip(a.db.as_deref()).map(|h| (h, a.drive.as_slice())),
     };
     run_calibration(job, &a.calibration, a.json.as_deref(), bars)
 }
@@ -149,6 +160,7 @@ pub fn demo_cmd(a: DemoArgs, bars: &Bars) -> Result<Outcome> {
         others,
         fingerprints,
         separate: &[],
+        history: None,
     };
     run_calibration(job, &a.calibration, a.json.as_deref(), bars)
 }
@@ -219,11 +231,14 @@ struct Job<'a> {
     /// The drives `drive` was joined from, when several (their separate
     /// fits give the between-drive σ: `CalibrationReport::pool_drives`).
     separate: &'a [Drive],
+    /// The vehicle and history database to record the result in, and the
+    /// drive files (`--vehicle`, `--db`).
+    history: Option<((&'a str, &'a Path), &'a [PathBuf])>,
 }
 
 /// Calibrates the job's drive and writes every report asked for.
 fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, bars: &Bars) -> Result<Outcome> {
-    let Job { drive, input, source, manifest, truth: truth_theta, others, fingerprints, separate } = job;
+    let Job { drive, input, source, manifest, truth: truth_theta, others, fingerprints, separate, history } = job;
     let settings = args.settings()?;
     let resolved = settings.resolve(manifest, Caller::CommandLine)?;
     let (opts, account) = (&resolved.options, &resolved.account);
@@ -242,8 +257,12 @@ fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, ba
         r.pool_drives(&separate.iter().collect::<Vec<_>>())?;
     }
     let wheel_scale = source.and_then(|(_, w)| w);
-    let drive = held.unwrap_or(drive);
     bars.finish();
+    if let Some((vehicle_db, sources)) = history {
+        let prints = calibration_fingerprints(&fingerprints);
+        crate::history::record_calibration(vehicle_db, drive, sources, &prints, &r)?;
+    }
+    let drive = held.unwrap_or(drive);
     let truth = match truth_theta {
         Some(t) => {
             let val = segment::validation_segments(drive, &opts.validation)?;

@@ -21,6 +21,8 @@ mod args;
 mod calibrate;
 mod compensate;
 mod experiment;
+mod follow;
+mod history;
 mod import;
 mod inspect;
 mod io;
@@ -106,6 +108,16 @@ enum Command {
     /// Topics, types, counts and rates, and the manifest columns of each
     /// topic odocal reads; with --manifest, a draft manifest.
     Inspect(inspect::InspectArgs),
+    /// Replay drives in time order as if live: online calibration with
+    /// gated write-back.
+    ///
+    /// Each drive streams through the online calibrator (a recursive
+    /// Gauss-Newton); at its end the write-back gates decide whether the
+    /// estimate replaces the vehicle's stored parameters. Decisions and
+    /// written updates go to the history database.
+    Follow(follow::FollowArgs),
+    /// A vehicle's calibration history: rows, drift flags, pooled estimate.
+    History(history::HistoryArgs),
 }
 
 /// Exit code of `calibrate` when the verdict is `rejected`.
@@ -218,5 +230,7 @@ fn run(cli: Cli) -> Result<Outcome> {
         Command::Experiment(a) => done(experiment::run(a, &bars)),
         Command::Import(a) => done(import::run(a)),
         Command::Inspect(a) => done(inspect::run(a)),
+        Command::Follow(a) => done(follow::run(a, &bars)),
+        Command::History(a) => done(history::run(a)),
     }
 }

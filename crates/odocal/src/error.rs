@@ -244,6 +244,15 @@ pub enum Error {
         /// What is wrong.
         reason: String,
     },
+    /// The vehicle history database could not be opened, migrated, read or
+    /// written ([`crate::history`]).
+    #[error("{path}: history database: {reason}")]
+    History {
+        /// The database file.
+        path: PathBuf,
+        /// What went wrong.
+        reason: String,
+    },
 }
 
 /// Nanoseconds as exact decimal seconds: `1720717537428161000` →

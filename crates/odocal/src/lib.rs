@@ -49,7 +49,9 @@
 //! [`manifest`] (the manifest as Rust types), [`settings`] (calibration
 //! settings as key–value pairs), [`crossrun`] (cross-run checks) and
 //! [`output`] (atomic writes and output paths checked against inputs, for a
-//! front end's own files).
+//! front end's own files), [`online`] (calibration that keeps up with a
+//! streaming drive) and `history` (a per-vehicle calibration history in
+//! SQLite, feature `history`).
 //!
 //! ## Example
 //!
@@ -88,9 +90,12 @@ mod drive; // 2
 pub mod eiv; // 5
 mod error; // 0
 pub mod experiment; // 8
+#[cfg(feature = "history")]
+pub mod history; // 9
 pub mod identify; // 4
 pub mod io; // 3
 pub mod model; // 1
+pub mod online; // 9
 pub mod output; // 1
 mod progress; // 0
 pub mod sim; // 3

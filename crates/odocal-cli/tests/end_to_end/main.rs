@@ -14,6 +14,7 @@ mod data_safety;
 mod eiv;
 mod experiment;
 mod extrinsics;
+mod follow;
 mod golden;
 mod heading_offset;
 mod help;

@@ -49,7 +49,12 @@ fn rollout(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics, mut visit: impl
 }
 
 /// Normal equations of one segment at (θ, e) ([`rollout`]).
-fn segment_normal_equations(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics, w: &[f64; 3]) -> NormalEquations<N> {
+pub(crate) fn segment_normal_equations(
+    seg: &SegmentData<'_>,
+    theta: &Theta,
+    e: &Extrinsics,
+    w: &[f64; 3],
+) -> NormalEquations<N> {
     let wm = Matrix3::from_diagonal(&Vector3::from(*w));
     let mut ne = NormalEquations { poses: seg.steps(), ..NormalEquations::zero() };
     rollout(seg, theta, e, |k, y, jac| {

@@ -34,6 +34,9 @@ use crate::model::{step_jacobians, wrap_angle, Theta};
 mod extrinsics;
 mod gauss_newton;
 
+/// Normal equations of one segment over `[θ, lever_x, lever_y, heading_offset]`.
+pub(crate) use extrinsics::segment_normal_equations as extrinsics_normal_equations;
+
 /// Options of the Gauss-Newton identification.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct IdentifyOptions {

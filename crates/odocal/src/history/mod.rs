@@ -1,0 +1,369 @@
+//! A per-vehicle history of calibrations in an SQLite file (feature
+//! `history`, on by default).
+//!
+//! For programs that keep a vehicle's calibration current: `odocal
+//! calibrate --vehicle ID --db FILE` and `odocal follow` record here, and
+//! `odocal history` reads it. One row of the table `calibrations` per
+//! recorded drive and method: θ with σ, the verdict, the time span, the
+//! source files, the odocal version and the drive's
+//! [fingerprint](crate::Drive::fingerprint). A drive already recorded for a
+//! vehicle with the same method is recognised and not counted twice
+//! ([`Recorded::AlreadyRecorded`]). The table `decisions` logs the gated
+//! write-back of `odocal follow`, one row per decision.
+//!
+//! The file is in WAL mode with a busy timeout, so several processes may
+//! read and write it at once; each write is one transaction. The schema
+//! is versioned (`PRAGMA user_version`) and migrated on [`History::open`];
+//! docs/reference.md lists its tables and columns.
+//!
+//! ```
+//! # fn main() -> Result<(), odocal::Error> {
+//! use odocal::history::{CalibrationRecord, History, Recorded};
+//! use odocal::Theta;
+//! let dir = tempfile::tempdir().map_err(|e| odocal::Error::Numerical(e.to_string()))?;
+//! let mut db = History::open(dir.path().join("van.sqlite"))?;
+//! let rec = CalibrationRecord::new("van-1", "ab12", "eiv", Theta::PAPER_NOMINAL);
+//! assert!(matches!(db.record(&rec)?, Recorded::New(_)));
+//! assert!(matches!(db.record(&rec)?, Recorded::AlreadyRecorded(_)));
+//! assert_eq!(db.rows("van-1")?.len(), 1);
+//! # Ok(()) }
+//! ```
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use rusqlite::{params, Connection, OptionalExtension, Row};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::model::Theta;
+
+mod pooled;
+mod schema;
+
+pub use pooled::{drift_between, pooled_estimate, DriftFlag, Pooled};
+
+/// How long a writer waits for another process's transaction to finish.
+const BUSY_TIMEOUT: Duration = Duration::from_secs(30);
+
+/// One calibration of one drive, as recorded.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationRecord {
+    /// The vehicle's identifier (any text the user chooses).
+    pub vehicle: String,
+    /// The drive's [fingerprint](crate::Drive::fingerprint).
+    pub fingerprint: String,
+    /// The files the drive was read from.
+    pub sources: Vec<String>,
+    /// First and last sample time of the drive, s.
+    pub t_start_s: f64,
+    /// Last sample time, s.
+    pub t_end_s: f64,
+    /// The method (`eiv`, `three-step`, `batch-gn`, `online`, …).
+    pub method: String,
+    /// The estimate.
+    pub theta: Theta,
+    /// Its standard deviation, when known.
+    pub sigma: Option<Theta>,
+    /// The reference's heading offset on this drive, rad, when estimated.
+    pub heading_offset_rad: Option<f64>,
+    /// The verdict (`trusted`, `check`, `reject`, …), when judged.
+    pub verdict: Option<String>,
+}
+
+impl CalibrationRecord {
+    /// A record with the required fields; the others empty or zero.
+    pub fn new(vehicle: &str, fingerprint: &str, method: &str, theta: Theta) -> Self {
+        CalibrationRecord {
+            vehicle: vehicle.to_string(),
+            fingerprint: fingerprint.to_string(),
+            sources: Vec::new(),
+            t_start_s: 0.0,
+            t_end_s: 0.0,
+            method: method.to_string(),
+            theta,
+            sigma: None,
+            heading_offset_rad: None,
+            verdict: None,
+        }
+    }
+}
+
+/// A row of the table `calibrations`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct HistoryRow {
+    /// The row id (increasing in recording order).
+    pub id: i64,
+    /// When it was recorded, UTC, ISO 8601 (`2026-11-29T04:05:06.789Z`).
+    pub recorded_at: String,
+    /// The odocal version that recorded it.
+    pub odocal_version: String,
+    /// What was recorded.
+    #[serde(flatten)]
+    pub record: CalibrationRecord,
+}
+
+/// The outcome of [`History::record`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Recorded {
+    /// A new row, with its id.
+    New(i64),
+    /// The vehicle's history already holds this drive (same fingerprint)
+    /// calibrated by the same method: nothing was added; the existing row's id.
+    AlreadyRecorded(i64),
+}
+
+/// A write-back decision of the online calibration (table `decisions`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Decision {
+    /// The vehicle.
+    pub vehicle: String,
+    /// The drive's fingerprint.
+    pub fingerprint: String,
+    /// The drive's source (file or manifest).
+    pub source: String,
+    /// Time into the drive, s (from its first sample).
+    pub drive_time_s: f64,
+    /// `written`, `held` or `flagged` (a change too large to write without a person).
+    pub decision: String,
+    /// Why: the gates that held it, or what was written.
+    pub reasons: Vec<String>,
+    /// The proposed θ.
+    pub theta: Theta,
+    /// Its σ.
+    pub sigma: Option<Theta>,
+}
+
+/// An open history database.
+#[derive(Debug)]
+pub struct History {
+    conn: Connection,
+    path: PathBuf,
+}
+
+fn sql_err(path: &Path) -> impl Fn(rusqlite::Error) -> Error {
+    let path = path.to_path_buf();
+    move |e| Error::History { path: path.clone(), reason: e.to_string() }
+}
+
+const ROW_COLUMNS: &str = "id, recorded_at, odocal_version, vehicle, fingerprint, sources, t_start_s, t_end_s, \
+     method, c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, heading_offset_rad, verdict";
+
+fn theta_at(r: &Row<'_>, i: usize) -> rusqlite::Result<Theta> {
+    Ok(Theta { c_e: r.get(i)?, c_d: r.get(i + 1)?, t_r: r.get(i + 2)?, d: r.get(i + 3)? })
+}
+
+fn sigma_at(r: &Row<'_>, i: usize) -> rusqlite::Result<Option<Theta>> {
+    let v: [Option<f64>; 4] = [r.get(i)?, r.get(i + 1)?, r.get(i + 2)?, r.get(i + 3)?];
+    Ok(match v {
+        [Some(c_e), Some(c_d), Some(t_r), Some(d)] => Some(Theta { c_e, c_d, t_r, d }),
+        _ => None,
+    })
+}
+
+fn history_row(r: &Row<'_>) -> rusqlite::Result<HistoryRow> {
+    let sources: String = r.get(5)?;
+    Ok(HistoryRow {
+        id: r.get(0)?,
+        recorded_at: r.get(1)?,
+        odocal_version: r.get(2)?,
+        record: CalibrationRecord {
+            vehicle: r.get(3)?,
+            fingerprint: r.get(4)?,
+            sources: serde_json::from_str(&sources).unwrap_or_else(|_| vec![sources.clone()]),
+            t_start_s: r.get(6)?,
+            t_end_s: r.get(7)?,
+            method: r.get(8)?,
+            theta: theta_at(r, 9)?,
+            sigma: sigma_at(r, 13)?,
+            heading_offset_rad: r.get(17)?,
+            verdict: r.get(18)?,
+        },
+    })
+}
+
+fn sigma_params(s: &Option<Theta>) -> [Option<f64>; 4] {
+    s.map_or([None; 4], |s| [Some(s.c_e), Some(s.c_d), Some(s.t_r), Some(s.d)])
+}
+
+/// The current time in the database's format (UTC, milliseconds).
+const NOW: &str = "strftime('%Y-%m-%dT%H:%M:%fZ', 'now')";
+
+impl History {
+    /// Opens (creating if need be) the history at `path`, switches it to
+    /// WAL mode and brings its schema to this odocal's version. A file
+    /// written by a newer odocal (a higher schema version) is refused.
+    pub fn open(path: impl AsRef<Path>) -> Result<History> {
+        let path = path.as_ref().to_path_buf();
+        let err = sql_err(&path);
+        let mut conn = Connection::open(&path).map_err(&err)?;
+        conn.busy_timeout(BUSY_TIMEOUT).map_err(&err)?;
+        // WAL: readers do not block the writer and a crash mid-write leaves
+        // the last committed state. Setting it needs a moment of exclusive
+        // access; the busy timeout covers a concurrent opener.
+        let mode: String = conn.query_row("PRAGMA journal_mode = WAL", [], |r| r.get(0)).map_err(&err)?;
+        if !mode.eq_ignore_ascii_case("wal") {
+            return Err(Error::History { path, reason: format!("could not switch to WAL mode (journal mode {mode})") });
+        }
+        conn.pragma_update(None, "synchronous", "NORMAL").map_err(&err)?;
+        schema::migrate(&mut conn).map_err(|reason| Error::History { path: path.clone(), reason })?;
+        Ok(History { conn, path })
+    }
+
+    /// The database file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The schema version of the open file (after migration: this odocal's).
+    pub fn schema_version(&self) -> Result<i64> {
+        self.conn.query_row("PRAGMA user_version", [], |r| r.get(0)).map_err(sql_err(&self.path))
+    }
+
+    /// Records a calibration, unless the vehicle's history already holds
+    /// the same drive (fingerprint) calibrated by the same method
+    /// ([`Recorded::AlreadyRecorded`]). One transaction; safe with other
+    /// writers.
+    pub fn record(&mut self, rec: &CalibrationRecord) -> Result<Recorded> {
+        let err = sql_err(&self.path);
+        let sources = serde_json::to_string(&rec.sources)
+            .map_err(|e| Error::History { path: self.path.clone(), reason: format!("source names: {e}") })?;
+        let s = sigma_params(&rec.sigma);
+        let n = self
+            .conn
+            .execute(
+                &format!(
+                    "INSERT INTO calibrations (vehicle, recorded_at, fingerprint, sources, t_start_s, t_end_s, method, \
+                     c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, heading_offset_rad, verdict, \
+                     odocal_version) VALUES (?1, {NOW}, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, \
+                     ?15, ?16, ?17) ON CONFLICT (vehicle, fingerprint, method) DO NOTHING"
+                ),
+                params![
+                    rec.vehicle,
+                    rec.fingerprint,
+                    sources,
+                    rec.t_start_s,
+                    rec.t_end_s,
+                    rec.method,
+                    rec.theta.c_e,
+                    rec.theta.c_d,
+                    rec.theta.t_r,
+                    rec.theta.d,
+                    s[0],
+                    s[1],
+                    s[2],
+                    s[3],
+                    rec.heading_offset_rad,
+                    rec.verdict,
+                    env!("CARGO_PKG_VERSION"),
+                ],
+            )
+            .map_err(&err)?;
+        if n == 1 {
+            return Ok(Recorded::New(self.conn.last_insert_rowid()));
+        }
+        let id = self
+            .conn
+            .query_row(
+                "SELECT id FROM calibrations WHERE vehicle = ?1 AND fingerprint = ?2 AND method = ?3",
+                params![rec.vehicle, rec.fingerprint, rec.method],
+                |r| r.get(0),
+            )
+            .map_err(&err)?;
+        Ok(Recorded::AlreadyRecorded(id))
+    }
+
+    /// The vehicle's calibrations in recording order.
+    pub fn rows(&self, vehicle: &str) -> Result<Vec<HistoryRow>> {
+        let err = sql_err(&self.path);
+        let mut st = self
+            .conn
+            .prepare(&format!("SELECT {ROW_COLUMNS} FROM calibrations WHERE vehicle = ?1 ORDER BY id"))
+            .map_err(&err)?;
+        let rows = st.query_map(params![vehicle], history_row).map_err(&err)?;
+        rows.collect::<rusqlite::Result<Vec<_>>>().map_err(&err)
+    }
+
+    /// The vehicle's most recent calibration, if any.
+    pub fn latest(&self, vehicle: &str) -> Result<Option<HistoryRow>> {
+        self.conn
+            .query_row(
+                &format!("SELECT {ROW_COLUMNS} FROM calibrations WHERE vehicle = ?1 ORDER BY id DESC LIMIT 1"),
+                params![vehicle],
+                history_row,
+            )
+            .optional()
+            .map_err(sql_err(&self.path))
+    }
+
+    /// Every parameter change between consecutive rows of the vehicle's
+    /// history beyond three combined σ ([`drift_between`]).
+    pub fn drift(&self, vehicle: &str) -> Result<Vec<DriftFlag>> {
+        Ok(drift_between(&self.rows(vehicle)?))
+    }
+
+    /// The pooled estimate over the vehicle's rows (those with an id in
+    /// `ids`, or all when `None`): [`pooled_estimate`]. `None` without rows.
+    pub fn pooled(&self, vehicle: &str, ids: Option<&[i64]>) -> Result<Option<Pooled>> {
+        let rows: Vec<HistoryRow> =
+            self.rows(vehicle)?.into_iter().filter(|r| ids.is_none_or(|ids| ids.contains(&r.id))).collect();
+        Ok(pooled_estimate(&rows))
+    }
+
+    /// Logs a write-back decision; returns its row id.
+    pub fn record_decision(&mut self, d: &Decision) -> Result<i64> {
+        let err = sql_err(&self.path);
+        let reasons = serde_json::to_string(&d.reasons)
+            .map_err(|e| Error::History { path: self.path.clone(), reason: format!("reasons: {e}") })?;
+        let s = sigma_params(&d.sigma);
+        self.conn
+            .execute(
+                &format!(
+                    "INSERT INTO decisions (vehicle, decided_at, fingerprint, source, drive_time_s, decision, \
+                     reasons, c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, odocal_version) \
+                     VALUES (?1, {NOW}, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15)"
+                ),
+                params![
+                    d.vehicle,
+                    d.fingerprint,
+                    d.source,
+                    d.drive_time_s,
+                    d.decision,
+                    reasons,
+                    d.theta.c_e,
+                    d.theta.c_d,
+                    d.theta.t_r,
+                    d.theta.d,
+                    s[0],
+                    s[1],
+                    s[2],
+                    s[3],
+                    env!("CARGO_PKG_VERSION"),
+                ],
+            )
+            .map_err(&err)?;
+        Ok(self.conn.last_insert_rowid())
+    }
+
+    /// True when decisions were logged for this vehicle and drive: the
+    /// drive was followed before.
+    pub fn has_decisions(&self, vehicle: &str, fingerprint: &str) -> Result<bool> {
+        self.conn
+            .query_row(
+                "SELECT EXISTS (SELECT 1 FROM decisions WHERE vehicle = ?1 AND fingerprint = ?2)",
+                params![vehicle, fingerprint],
+                |r| r.get(0),
+            )
+            .map_err(sql_err(&self.path))
+    }
+
+    /// The number of decisions logged for the vehicle.
+    pub fn decision_count(&self, vehicle: &str) -> Result<usize> {
+        self.conn
+            .query_row("SELECT COUNT(*) FROM decisions WHERE vehicle = ?1", params![vehicle], |r| r.get(0))
+            .map_err(sql_err(&self.path))
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,81 @@
+//! The history database's schema: an ordered list of migrations, the
+//! schema version in SQLite's `PRAGMA user_version`.
+
+use rusqlite::{Connection, TransactionBehavior};
+
+/// The migrations, in order: migration `i` (0-based) takes the database
+/// from schema version `i` to `i + 1`. A file with version 0 (new or empty)
+/// runs all of them; one with a version above `MIGRATIONS.len()` was
+/// written by a newer odocal and is refused.
+pub(super) const MIGRATIONS: &[&str] = &[
+    // Version 1: calibrations and write-back decisions.
+    "CREATE TABLE calibrations (
+        id INTEGER PRIMARY KEY,
+        vehicle TEXT NOT NULL,
+        recorded_at TEXT NOT NULL,
+        fingerprint TEXT NOT NULL,
+        sources TEXT NOT NULL,
+        t_start_s REAL NOT NULL,
+        t_end_s REAL NOT NULL,
+        method TEXT NOT NULL,
+        c_e REAL NOT NULL,
+        c_d REAL NOT NULL,
+        t_r REAL NOT NULL,
+        d REAL NOT NULL,
+        sigma_c_e REAL,
+        sigma_c_d REAL,
+        sigma_t_r REAL,
+        sigma_d REAL,
+        heading_offset_rad REAL,
+        verdict TEXT,
+        odocal_version TEXT NOT NULL
+    );
+    CREATE UNIQUE INDEX calibrations_drive ON calibrations (vehicle, fingerprint, method);
+    CREATE INDEX calibrations_vehicle ON calibrations (vehicle, recorded_at);
+    CREATE TABLE decisions (
+        id INTEGER PRIMARY KEY,
+        vehicle TEXT NOT NULL,
+        decided_at TEXT NOT NULL,
+        fingerprint TEXT NOT NULL,
+        source TEXT NOT NULL,
+        drive_time_s REAL NOT NULL,
+        decision TEXT NOT NULL,
+        reasons TEXT NOT NULL,
+        c_e REAL NOT NULL,
+        c_d REAL NOT NULL,
+        t_r REAL NOT NULL,
+        d REAL NOT NULL,
+        sigma_c_e REAL,
+        sigma_c_d REAL,
+        sigma_t_r REAL,
+        sigma_d REAL,
+        odocal_version TEXT NOT NULL
+    );
+    CREATE INDEX decisions_drive ON decisions (vehicle, fingerprint);",
+];
+
+/// The schema version this odocal writes.
+pub(super) const SCHEMA_VERSION: i64 = MIGRATIONS.len() as i64;
+
+/// Brings the database to [`SCHEMA_VERSION`], each migration in its own
+/// immediate transaction (so two processes opening a new file at once
+/// migrate it once). `Err` holds the reason.
+pub(super) fn migrate(conn: &mut Connection) -> Result<(), String> {
+    loop {
+        let tx = conn.transaction_with_behavior(TransactionBehavior::Immediate).map_err(|e| e.to_string())?;
+        let version: i64 = tx.query_row("PRAGMA user_version", [], |r| r.get(0)).map_err(|e| e.to_string())?;
+        if version > SCHEMA_VERSION {
+            return Err(format!(
+                "schema version {version} is newer than this odocal's ({SCHEMA_VERSION}): use a newer odocal"
+            ));
+        }
+        if version == SCHEMA_VERSION {
+            return Ok(());
+        }
+        // `version` is in 0..SCHEMA_VERSION here.
+        let sql = MIGRATIONS[version as usize];
+        tx.execute_batch(sql).map_err(|e| format!("migration to schema version {}: {e}", version + 1))?;
+        tx.pragma_update(None, "user_version", version + 1).map_err(|e| e.to_string())?;
+        tx.commit().map_err(|e| e.to_string())?;
+    }
+}

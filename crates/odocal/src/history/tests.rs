@@ -1,0 +1,139 @@
+use super::*;
+
+fn theta(c_e: f64) -> Theta {
+    Theta { c_e, c_d: -0.002, t_r: 1.53, d: 0.0008 }
+}
+
+fn sigma(s: f64) -> Option<Theta> {
+    Some(Theta { c_e: s, c_d: s, t_r: s, d: s })
+}
+
+fn record(vehicle: &str, fp: &str, c_e: f64, s: f64) -> CalibrationRecord {
+    CalibrationRecord {
+        sources: vec![format!("{fp}.csv")],
+        t_start_s: 0.0,
+        t_end_s: 60.0,
+        sigma: sigma(s),
+        verdict: Some("trusted".into()),
+        heading_offset_rad: Some(0.01),
+        ..CalibrationRecord::new(vehicle, fp, "eiv", theta(c_e))
+    }
+}
+
+#[test]
+fn an_empty_file_is_migrated_to_the_current_schema() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("h.sqlite");
+    std::fs::write(&path, b"").expect("empty file");
+    let db = History::open(&path).expect("open");
+    assert_eq!(db.schema_version().expect("version"), schema::SCHEMA_VERSION);
+    assert!(db.rows("v").expect("rows").is_empty());
+    drop(db);
+    // Reopening runs no migration again.
+    let db = History::open(&path).expect("reopen");
+    assert_eq!(db.schema_version().expect("version"), schema::SCHEMA_VERSION);
+}
+
+#[test]
+fn a_newer_schema_is_refused() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("h.sqlite");
+    let conn = Connection::open(&path).expect("open");
+    conn.pragma_update(None, "user_version", schema::SCHEMA_VERSION + 1).expect("pragma");
+    drop(conn);
+    let e = History::open(&path).expect_err("newer");
+    assert!(e.to_string().contains("newer"), "{e}");
+}
+
+#[test]
+fn a_drive_is_recorded_once_per_vehicle_and_method() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
+    let rec = record("van", "fp1", 1.95, 1e-3);
+    let Recorded::New(id) = db.record(&rec).expect("first") else { panic!("not new") };
+    assert_eq!(db.record(&rec).expect("second"), Recorded::AlreadyRecorded(id));
+    // Another method, another vehicle: new rows.
+    assert!(matches!(db.record(&CalibrationRecord { method: "online".into(), ..rec.clone() }), Ok(Recorded::New(_))));
+    assert!(matches!(db.record(&CalibrationRecord { vehicle: "car".into(), ..rec.clone() }), Ok(Recorded::New(_))));
+    let rows = db.rows("van").expect("rows");
+    assert_eq!(rows.len(), 2);
+    assert_eq!(rows[0].record, rec);
+    assert_eq!(rows[0].odocal_version, env!("CARGO_PKG_VERSION"));
+    assert!(rows[0].recorded_at.ends_with('Z') && rows[0].recorded_at.len() == 24, "{}", rows[0].recorded_at);
+    assert_eq!(db.latest("van").expect("latest").map(|r| r.id), Some(rows[1].id));
+    assert!(db.latest("none").expect("latest").is_none());
+}
+
+#[test]
+fn concurrent_writers_lose_nothing() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("h.sqlite");
+    let threads: Vec<_> = (0..4)
+        .map(|t| {
+            let path = path.clone();
+            std::thread::spawn(move || {
+                let mut db = History::open(&path).expect("open");
+                for i in 0..25 {
+                    // Every thread also records the shared drives "s0".."s4".
+                    db.record(&record("van", &format!("t{t}-{i}"), 1.95, 1e-3)).expect("record");
+                    db.record(&record("van", &format!("s{}", i % 5), 1.95, 1e-3)).expect("record shared");
+                    db.record_decision(&Decision {
+                        vehicle: "van".into(),
+                        fingerprint: format!("t{t}"),
+                        source: "x".into(),
+                        drive_time_s: i as f64,
+                        decision: "held".into(),
+                        reasons: vec!["sigma".into()],
+                        theta: theta(1.95),
+                        sigma: None,
+                    })
+                    .expect("decision");
+                }
+            })
+        })
+        .collect();
+    for t in threads {
+        t.join().expect("thread");
+    }
+    let db = History::open(&path).expect("open");
+    assert_eq!(db.rows("van").expect("rows").len(), 4 * 25 + 5);
+    assert_eq!(db.decision_count("van").expect("count"), 100);
+    let check: String = db.conn.query_row("PRAGMA integrity_check", [], |r| r.get(0)).expect("check");
+    assert_eq!(check, "ok");
+}
+
+#[test]
+fn drift_is_flagged_beyond_three_combined_sigma() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
+    // σ = 1 mm each: combined 1.414 mm, threshold 4.24 mm.
+    db.record(&record("van", "a", 1.950, 1e-3)).expect("a");
+    db.record(&record("van", "b", 1.954, 1e-3)).expect("b"); // 4 mm: not flagged
+    db.record(&record("van", "c", 1.960, 1e-3)).expect("c"); // 6 mm: flagged
+    let flags = db.drift("van").expect("drift");
+    assert_eq!(flags.len(), 1, "{flags:?}");
+    assert_eq!(flags[0].parameter, "c_e");
+    assert!((flags[0].change - 0.006).abs() < 1e-12);
+    assert!((flags[0].combined_sigma - 2f64.sqrt() * 1e-3).abs() < 1e-15);
+    let rows = db.rows("van").expect("rows");
+    assert_eq!((flags[0].from_id, flags[0].to_id), (rows[1].id, rows[2].id));
+}
+
+#[test]
+fn pooled_is_the_inverse_variance_mean() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
+    db.record(&record("van", "a", 1.0, 1.0)).expect("a");
+    db.record(&record("van", "b", 2.0, 0.5)).expect("b");
+    let p = db.pooled("van", None).expect("pooled").expect("rows");
+    // Weights 1 and 4: (1 + 8) / 5.
+    assert!((p.mean.c_e - 1.8).abs() < 1e-12);
+    assert!((p.between_drive_sd.c_e - 0.5f64.sqrt()).abs() < 1e-12);
+    // Model se 1/√5 = 0.447 against spread se 0.5: the larger.
+    assert!((p.sigma_of_mean.c_e - 0.5).abs() < 1e-12);
+    let first = db.rows("van").expect("rows")[0].id;
+    let one = db.pooled("van", Some(&[first])).expect("pooled").expect("rows");
+    assert_eq!(one.rows, 1);
+    assert!((one.mean.c_e - 1.0).abs() < 1e-12 && one.between_drive_sd.c_e.is_nan());
+    assert!(db.pooled("none", None).expect("pooled").is_none());
+}

@@ -1,0 +1,122 @@
+use super::gate::{Action, Gates};
+use super::*;
+use crate::drive::Signals;
+use crate::sim::{simulate, SimOptions};
+
+fn noise_free(km: f64, seed: u64) -> (Drive, Theta) {
+    let out = simulate(&SimOptions { length_km: km, ..SimOptions::noise_free(seed) }).expect("simulate");
+    (out.drive, out.sidecar.theta_true)
+}
+
+/// The drive with `delta` added to the reference heading.
+fn with_heading_offset(d: &Drive, delta: f64) -> Drive {
+    let m = d.measured();
+    let signals = Signals { psi: m.psi.iter().map(|p| p + delta).collect(), ..m.clone() };
+    Drive::builder(d.t().to_vec(), signals).parts(d.parts().to_vec()).build().expect("drive")
+}
+
+#[test]
+fn noise_free_drive_converges_to_the_truth() {
+    let (d, truth) = noise_free(6.0, 3);
+    let mut cal =
+        Calibrator::new(Theta::PAPER_INITIAL, None, d.sample_time_s(), OnlineOptions::default()).expect("calibrator");
+    cal.push_drive(&d, 333, |_| {}).expect("push");
+    let (th, t) = (cal.theta(), truth);
+    assert!((th.c_e - t.c_e).abs() < 1e-5 * t.c_e, "{th} vs {t}");
+    assert!((th.c_d - t.c_d).abs() < 1e-5, "{th} vs {t}");
+    assert!((th.t_r - t.t_r).abs() < 1e-3, "{th} vs {t}");
+    assert!((th.d - t.d).abs() < 1e-5, "{th} vs {t}");
+    let s = cal.drive_summary();
+    assert!(s.folded_segments > 10 && s.validation_segments > 5, "{s:?}");
+    // The prequential error is small once converged (the first segments
+    // ran with θ₀).
+    assert!(s.prequential_mean_position_error_m.expect("scored") < 10.0, "{s:?}");
+    assert!(cal.sigma().c_e < 1e-3 * t.c_e);
+}
+
+#[test]
+fn the_heading_offset_is_estimated_per_drive() {
+    let (d, truth) = noise_free(4.0, 5);
+    let shifted = with_heading_offset(&d, 0.02);
+    let mut cal = Calibrator::new(truth, None, d.sample_time_s(), OnlineOptions::default()).expect("calibrator");
+    cal.push_drive(&shifted, 1000, |_| {}).expect("push");
+    let (delta, sd) = cal.heading_offset();
+    assert!((delta - 0.02).abs() < 1e-4, "δ = {delta} ± {sd}");
+    // The direction of travel gives it too (the simulator's sideslip is
+    // the model's, so only the step's mid-heading approximation remains).
+    let course = cal.course_heading_offset().expect("moved");
+    assert!((course - 0.02).abs() < 1e-3, "course δ = {course}");
+    assert!((cal.theta().c_e - truth.c_e).abs() < 1e-4 * truth.c_e, "{}", cal.theta());
+    // A new drive starts δ anew.
+    cal.push_drive(&d, 1000, |_| {}).expect("push");
+    assert!(cal.heading_offset().0.abs() < 1e-4, "δ = {:?}", cal.heading_offset());
+}
+
+#[test]
+fn memory_does_not_grow_with_the_drive() {
+    let opts = OnlineOptions::default();
+    let bound = opts.validation.length_steps + 1 + opts.validation.length_steps + 500;
+    let mut peaks = Vec::new();
+    for km in [2.0, 12.0] {
+        let (d, _) = noise_free(km, 7);
+        let mut cal = Calibrator::new(Theta::PAPER_INITIAL, None, d.sample_time_s(), opts.clone()).expect("cal");
+        let mut peak = 0;
+        cal.begin_drive();
+        for a in (0..d.len()).step_by(500) {
+            cal.push(&Chunk::of(&d, a..(a + 500).min(d.len()))).expect("push");
+            peak = peak.max(cal.buffered_samples());
+        }
+        assert!(peak <= bound, "{km} km: {peak} samples buffered, bound {bound}");
+        assert!(cal.track.len() <= (opts.steady_window_s / (100.0 * d.sample_time_s())) as usize + 2);
+        peaks.push(peak);
+    }
+    // Flat within 10 % from a 2 km to a 12 km drive (the phase of the
+    // segments against the chunks moves the peak a little).
+    assert!((peaks[1] as f64 - peaks[0] as f64).abs() <= 0.1 * peaks[0] as f64, "{peaks:?}");
+}
+
+#[test]
+fn chunking_does_not_change_the_estimate() {
+    let (d, _) = noise_free(2.0, 9);
+    let run = |chunk| {
+        let mut cal =
+            Calibrator::new(Theta::PAPER_INITIAL, None, d.sample_time_s(), OnlineOptions::default()).expect("cal");
+        cal.push_drive(&d, chunk, |_| {}).expect("push");
+        (cal.theta(), cal.drive_summary())
+    };
+    assert_eq!(run(1), run(4096));
+}
+
+#[test]
+fn gates_write_only_a_better_steady_estimate() {
+    let (d, truth) = noise_free(6.0, 11);
+    let stored = Theta { c_e: truth.c_e * 1.004, ..truth };
+    let mut cal = Calibrator::new(stored, None, d.sample_time_s(), OnlineOptions::default()).expect("cal");
+    cal.set_stored(Some(stored));
+    cal.push_drive(&d, 1000, |_| {}).expect("push");
+    let gates = Gates::default();
+    let ok = gates.decide(&cal, &stored, true);
+    assert_eq!(ok.action, Action::Write, "{:?}", ok.reasons);
+    // A stored θ far off: the change is flagged for a person.
+    let far = Theta { c_e: truth.c_e * 1.05, ..truth };
+    assert_eq!(gates.decide(&cal, &far, true).action, Action::Flag);
+    assert_eq!(gates.decide(&cal, &far, false).action, Action::Write, "an initial guess bounds nothing");
+    // Before any data: held, with reasons.
+    let mut fresh = Calibrator::new(stored, None, d.sample_time_s(), OnlineOptions::default()).expect("cal");
+    fresh.begin_drive();
+    let held = gates.decide(&fresh, &stored, true);
+    assert_eq!(held.action, Action::Hold);
+    assert!(held.reasons.iter().any(|r| r.contains("σ of c_e")), "{:?}", held.reasons);
+}
+
+#[test]
+fn bad_chunks_are_refused() {
+    let mut cal = Calibrator::new(Theta::PAPER_INITIAL, None, 0.025, OnlineOptions::default()).expect("cal");
+    let a = [0.0; 3];
+    let b = [0.0; 2];
+    let c = Chunk { px: &a, py: &a, psi: &a, n_rl: &a, n_rr: &a, beta: &a, a_y: &b };
+    assert!(cal.push(&c).is_err());
+    let nan = [0.0, f64::NAN, 0.0];
+    let c = Chunk { n_rl: &nan, a_y: &a, ..c };
+    assert!(cal.push(&c).expect_err("nan").to_string().contains("n_rl"));
+}
