@@ -91,7 +91,7 @@ def test_report_shortcuts(small_drive):
 
 
 def test_option_errors(small_drive):
-    with pytest.raises(TypeError, match="unknown option 'batchez'; options: method, theta0, .*, holdout, validate_on$"):
+    with pytest.raises(TypeError, match="unknown option 'batchez'; options: method, theta0, .*, holdout, validate_on, carry_heading_offset$"):
         odocal.calibrate(small_drive, batchez=3)
     with pytest.raises(odocal.OdocalError, match="^invalid option `segment_length`: invalid type: string"):
         odocal.calibrate(small_drive, "batch-gn", segment_length="long")
