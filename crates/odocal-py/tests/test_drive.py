@@ -149,3 +149,19 @@ def test_manifest():
     assert len(d) > 1000 and len(d.parts) >= 1
     assert d.import_report["samples"] == len(d)
     assert d.theta_true is None
+
+
+def test_from_arrays_refuses_a_huge_size_before_copying():
+    """A huge column raises ValueError before anything is copied (a zero-stride view costs no memory)."""
+    big = np.broadcast_to(0.0, (60_000_000,))
+    with pytest.raises(ValueError, match="more than the 50000000 a drive from arrays may hold"):
+        odocal.Drive.from_arrays(big, big, big, big, big, big, big)
+
+
+def test_complex_numbers_and_extra_theta_keys_are_refused(small_drive):
+    with pytest.raises(TypeError, match="a complex number is not a real number"):
+        odocal.validate(small_drive, [2 + 0j, 0.0, 1.6, 0.0])
+    with pytest.raises(odocal.OdocalError, match="unknown key 'lever'"):
+        odocal.validate(small_drive, {"c_e": 2.0, "c_d": 0.0, "t_r": 1.6, "d": 0.0, "lever": 1.0})
+    with pytest.raises(ValueError, match="threads = 100000 is above the ceiling"):
+        odocal.validate(small_drive, "2,0,1.6,0", threads=100000)

@@ -566,14 +566,6 @@ impl Collect {
             // Plan and decoder are built from the same type, so `None` cannot happen.
             self.values[k].push(v.unwrap_or(f64::NAN));
         }
-        if time == TimeSource::HeaderStamp && stamp.nanosec >= 1_000_000_000 {
-            let reason = format!(
-                "message {index}: header stamp nanosec = {} is not below 10⁹: the stamps are corrupt; use the log time \
-                 (time = \"log\" in a manifest)",
-                stamp.nanosec
-            );
-            return Err(bag_err(path, topic, reason));
-        }
         self.t_s.push(match time {
             TimeSource::HeaderStamp => ns_to_s(stamp.total_ns()),
             TimeSource::LogTime => ns_to_s(i128::from(m.log_time)),
