@@ -131,7 +131,18 @@ fn top_level_help_lists_every_subcommand() {
     let o = odocal(&["--help"]);
     assert!(o.status.success(), "{}", stderr(&o));
     let help = stdout(&o);
-    for cmd in ["simulate", "calibrate", "validate", "compensate", "demo", "experiment", "import", "inspect"] {
+    for cmd in [
+        "simulate",
+        "calibrate",
+        "validate",
+        "compensate",
+        "demo",
+        "experiment",
+        "import",
+        "inspect",
+        "follow",
+        "history",
+    ] {
         assert!(help.lines().any(|l| l.trim_start().starts_with(&format!("{cmd} "))), "{cmd} missing:\n{help}");
     }
 }

@@ -41,7 +41,7 @@ use crate::model::Theta;
 mod pooled;
 mod schema;
 
-pub use pooled::{drift_between, pooled_estimate, DriftFlag, Pooled};
+pub use pooled::{drift_between, pooled_estimate, DriftFlag, Pooled, DRIFT_SIGMAS};
 
 /// How long a writer waits for another process's transaction to finish.
 const BUSY_TIMEOUT: Duration = Duration::from_secs(30);
