@@ -319,14 +319,16 @@ fn pooled_lines(out: &mut String, p: &odocal::pooling::PooledDrives) {
         p.theta.len(),
         p.method
     );
-    let _ = writeln!(out, "    {:<4} {:>14} {:>18} {:>18}", "", "pooled", "σ of pooled mean", "τ between-drive");
-    for (i, name) in ["c_e", "c_d", "t_r", "d"].iter().enumerate() {
+    let _ = writeln!(out, "    {:<18} {:>12} {:>18} {:>18}", "", "pooled", "σ of pooled mean", "τ between-drive");
+    let rows = [("c_e  m", 1.0), ("c_d  mm", 1e3), ("t_r  m", 1.0), ("d    mm/(m/s²)", 1e3)];
+    for (i, (name, scale)) in rows.iter().enumerate() {
         match p.params[i] {
             Some(e) => {
-                let _ = writeln!(out, "    {name:<4} {:>14.6} {:>18.3e} {:>18.3e}", e.mean, e.mean_sigma, e.tau);
+                let (m, s, t) = (e.mean * scale, e.mean_sigma * scale, e.tau * scale);
+                let _ = writeln!(out, "    {name:<18} {m:>12.6} {s:>18.3e} {t:>18.3e}");
             }
             None => {
-                let _ = writeln!(out, "    {name:<4} {:>14}", "held");
+                let _ = writeln!(out, "    {name:<18} {:>12}", "held");
             }
         }
     }

@@ -131,6 +131,7 @@ fn calibrate_json(
     prov: &Provenance,
     plan: &CalibrationPlan,
     drives: Vec<serde_json::Value>,
+    separate: &[Arc<Drive>],
     progress: Option<&(dyn Fn(Progress) + Sync)>,
 ) -> odocal::Result<serde_json::Value> {
     let split = plan.holdout.as_ref().map(|h| h.split(drive)).transpose()?;
@@ -147,13 +148,17 @@ fn calibrate_json(
     if let Some(p) = progress {
         run = run.progress(p);
     }
-    let report = match (validation.is_empty(), &plan.holdout) {
+    let mut report = match (validation.is_empty(), &plan.holdout) {
         (true, Some(h)) => run.holdout(h).run()?,
         (true, None) => run.run()?,
         (false, _) => {
             run.validate_on(&validation, plan.given_extrinsics).carry_heading_offset(plan.carry_heading_offset).run()?
         }
     };
+    // Several drives fitted whole: the between-drive σ from their separate fits (as the CLI).
+    if separate.len() >= 2 && !matches!(plan.holdout, Some(Holdout::FirstHalf | Holdout::SecondHalf)) {
+        report.pool_drives(&separate.iter().map(|d| d.as_ref()).collect::<Vec<_>>())?;
+    }
     let json_err = |source| odocal::Error::Json { context: "calibration report".into(), source };
     let mut v = serde_json::to_value(&report).map_err(json_err)?;
     let scored = held.unwrap_or(drive);
@@ -192,6 +197,13 @@ pub(crate) fn calibrate<'py>(
     let validate_on = options.map(|o| o.get_item("validate_on")).transpose()?.flatten();
     let entries = distinct_drives(py, drive, validate_on.as_ref())?;
     let (inner, provs) = drives_arg(drive, "drive")?;
+    let separate: Vec<Arc<Drive>> = match drive.cast::<PyDrive>() {
+        Ok(_) => Vec::new(),
+        Err(_) => drive
+            .try_iter()?
+            .filter_map(|x| x.ok().and_then(|x| x.cast::<PyDrive>().ok().map(|d| Arc::clone(&d.get().drive))))
+            .collect(),
+    };
     let settings: Vec<ManifestSettings> =
         provs.iter().map(Provenance::settings).collect::<PyResult<Vec<_>>>()?.into_iter().flatten().collect();
     let manifest = ManifestSettings::merge(&settings).map_err(lib_err)?;
@@ -201,14 +213,15 @@ pub(crate) fn calibrate<'py>(
         [one] => one.clone(),
         many => Provenance { wheel_scale: many.iter().find_map(|p| p.wheel_scale.clone()), ..Default::default() },
     };
-    let value =
-        run_detached(py, progress, |cb| with_threads(threads, || calibrate_json(&inner, &prov, &plan, entries, cb)))??
-            .map_err(|e| match e {
-                e @ odocal::Error::NotObservable { .. } => OdocalError::new_err(format!(
+    let value = run_detached(py, progress, |cb| {
+        with_threads(threads, || calibrate_json(&inner, &prov, &plan, entries, &separate, cb))
+    })??
+    .map_err(|e| match e {
+        e @ odocal::Error::NotObservable { .. } => OdocalError::new_err(format!(
             "{e}; in Python: fix=['c_d', 't_r', 'd'], min_yaw_rate=0 calibrates c_e alone, or pass auto_fix=True"
         )),
-                e => lib_err(e),
-            })?;
+        e => lib_err(e),
+    })?;
     let text = serde_json::to_string_pretty(&value).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
     Ok((to_py(py, &value)?, text))
 }
