@@ -58,6 +58,8 @@ fn lib_err(e: odocal::Error) -> PyErr {
 /// `carry_heading_offset=True`.
 #[pyfunction]
 #[pyo3(signature = (drive, theta, *, validation_length=None, threads=None, report_json=None, carry_heading_offset=false, params_node=None))]
+// One argument per Python keyword: pyo3 maps them by name.
+#[allow(clippy::too_many_arguments)]
 fn validate<'py>(
     py: Python<'py>,
     drive: &Bound<'py, PyDrive>,
