@@ -150,6 +150,14 @@ pub fn draft_manifest(bag: &Path, file: &str) -> Result<String> {
         );
     }
 
+    write_pose_tables(w, pose_type);
+    write_lateral_acceleration(w, imu.is_some());
+    let _ = writeln!(w, "\n[sideslip]\nsource = \"zero\"");
+    Ok(m)
+}
+
+/// The draft's `[pose]` tables for a pose topic of this message type.
+fn write_pose_tables(w: &mut String, pose_type: MessageType) {
     let _ = writeln!(w, "\n[pose]\nstream = \"pose\"");
     if pose_type == MessageType::NavSatFix {
         let _ = writeln!(
@@ -174,16 +182,14 @@ pub fn draft_manifest(bag: &Path, file: &str) -> Result<String> {
             let _ = writeln!(w, "column = \"cov_x\"\nmax = 0.01");
         }
     }
+}
 
-    match imu {
-        Some(_) => {
-            let _ = writeln!(w, "\n[lateral_acceleration]\nsource = \"imu\"\nstream = \"imu\"\ncolumn = \"acc_y\"");
-            let _ = writeln!(w, "sign = 1   # CHECK: REP-103 body axes (y left); -1 if the IMU's y points right");
-        }
-        None => {
-            let _ = writeln!(w, "\n[lateral_acceleration]\nsource = \"from_wheels\"   # no Imu topic in the bag");
-        }
+/// The draft's `[lateral_acceleration]` table: the IMU's when the bag has one.
+fn write_lateral_acceleration(w: &mut String, has_imu: bool) {
+    if has_imu {
+        let _ = writeln!(w, "\n[lateral_acceleration]\nsource = \"imu\"\nstream = \"imu\"\ncolumn = \"acc_y\"");
+        let _ = writeln!(w, "sign = 1   # CHECK: REP-103 body axes (y left); -1 if the IMU's y points right");
+    } else {
+        let _ = writeln!(w, "\n[lateral_acceleration]\nsource = \"from_wheels\"   # no Imu topic in the bag");
     }
-    let _ = writeln!(w, "\n[sideslip]\nsource = \"zero\"");
-    Ok(m)
 }
