@@ -77,7 +77,9 @@ pub fn run(a: HistoryArgs) -> Result<()> {
         println!("\npooled over {} row(s) (inverse-variance mean ± its σ; between-drive sd):", p.rows);
         let (m, s, b) = (p.mean.to_array(), p.sigma_of_mean.to_array(), p.between_drive_sd.to_array());
         for (i, name) in odocal::model::THETA_NAMES.iter().enumerate() {
-            println!("  {name:<4} {:>12.6} ± {:.2e}   between-drive sd {:.2e}", m[i], s[i], b[i]);
+            // One row has no spread between drives.
+            let sd = if b[i].is_finite() { format!("{:.2e}", b[i]) } else { "— (needs two rows)".into() };
+            println!("  {name:<4} {:>12.6} ± {:.2e}   between-drive sd {sd}", m[i], s[i]);
         }
     }
     Ok(())
