@@ -308,9 +308,9 @@ pub(crate) fn lateral_fit(drive: &Drive) -> Option<LateralFit> {
     })
 }
 
-/// Centred moving average over `width` samples (odd) within `range`,
+/// Centred moving average over `width` samples (odd, ≥ 1) within `range`,
 /// truncated at its ends.
-fn moving_average(x: &mut [f64], range: std::ops::Range<usize>, width: usize) {
+pub(crate) fn moving_average(x: &mut [f64], range: std::ops::Range<usize>, width: usize) {
     let half = width / 2;
     if half == 0 || range.len() < 2 {
         return;

@@ -160,23 +160,7 @@ pub(crate) fn smooth_parts(x: &mut [f64], parts: &[std::ops::Range<usize>], span
     }
 }
 
-/// Centred moving average over `width` samples (odd, ≥ 1) within `range`.
-pub(crate) fn moving_average(x: &mut [f64], range: std::ops::Range<usize>, width: usize) {
-    let half = width / 2;
-    if half == 0 || range.len() < 2 {
-        return;
-    }
-    let src: Vec<f64> = x[range.clone()].to_vec();
-    let mut pre = vec![0.0; src.len() + 1];
-    for (i, v) in src.iter().enumerate() {
-        pre[i + 1] = pre[i] + v;
-    }
-    for i in 0..src.len() {
-        let lo = i.saturating_sub(half);
-        let hi = (i + half + 1).min(src.len());
-        x[range.start + i] = (pre[hi] - pre[lo]) / (hi - lo) as f64;
-    }
-}
+pub(crate) use crate::drive::plausibility::moving_average;
 
 /// The clock offset found by cross-correlation.
 #[derive(Debug, Clone, Copy)]
