@@ -282,7 +282,13 @@ fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, ba
         write_text(p, &text)?;
     }
     if let Some(p) = &args.report {
-        let starts = drive_starts(others.iter().map(|(_, d, _)| d.len()));
+        // The drives the segments come from: the --validate-on drives, or
+        // the calibration's own (each with its heading offset after a joint fit).
+        let starts = if others.is_empty() {
+            drive.drive_starts().to_vec()
+        } else {
+            drive_starts(others.iter().map(|(_, d, _)| d.len()))
+        };
         write_html_report(p, (drive, &starts), &r, opts, (&input, &prints), truth_ref)?;
     }
     let outcome = if r.verdict.level == VerdictLevel::Rejected { Outcome::Rejected } else { Outcome::Done };
@@ -400,7 +406,8 @@ fn drive_starts(lengths: impl Iterator<Item = usize>) -> Vec<usize> {
 }
 
 /// Writes the HTML report of the calibration (`--report`; `-`: stdout;
-/// `starts`: the first sample of each `--validate-on` drive in `drive`).
+/// `starts`: the first sample of each `--validate-on` drive in `drive`, or
+/// of each calibration drive).
 fn write_html_report(
     path: &Path,
     (drive, starts): (&Drive, &[usize]),

@@ -121,7 +121,8 @@ pub(crate) fn _report_html(
         (None, Some(d)) => Some(Holdout::Other(Drive::clone(&drives_arg(d, "validate_on")?.0))),
         (None, None) => None,
     };
-    // The first sample of each validation drive in the joined drive.
+    // The first sample of each validation drive in the joined drive, or
+    // of each calibration drive.
     let mut starts = Vec::new();
     if let Some(d) = validate_on {
         let lengths: Vec<usize> = match d.cast::<PyDrive>() {
@@ -135,6 +136,10 @@ pub(crate) fn _report_html(
         }
     }
     let inner = drives_arg(drive, "drive")?.0;
+    if validate_on.is_none() {
+        // The calibration's own drives (each with its heading offset after a joint fit).
+        starts = inner.drive_starts().to_vec();
+    }
     let title = title.unwrap_or_else(|| "odocal calibration".into());
     py.detach(move || -> Result<(), String> {
         let split = holdout.as_ref().map(|h| h.split(&inner)).transpose().map_err(|e| e.to_string())?;

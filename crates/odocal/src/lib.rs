@@ -112,7 +112,10 @@ pub struct ReadmeDoctests;
 
 // Errors, progress, θ, the parameters and the reference extrinsics.
 pub use error::{Error, Result};
-pub use model::{extrinsics::Extrinsics, extrinsics::ExtrinsicsEstimate, param::Param, param::ParamSet, Theta};
+pub use model::{
+    extrinsics::DriveHeadingOffset, extrinsics::Extrinsics, extrinsics::ExtrinsicsEstimate, param::Param,
+    param::ParamSet, Theta,
+};
 pub use progress::{Progress, ProgressFn};
 // Drives: building, importing, simulating; parameter files. `segment` and
 // `manifest` are expert modules (their docs say for whom).

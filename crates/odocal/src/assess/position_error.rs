@@ -85,6 +85,33 @@ pub fn mean_position_error_with(
     Ok(ValidationReport { theta: *theta, mean_position_error_m: mean, segments: segments.len(), per_segment_m })
 }
 
+/// [`mean_position_error_with`] with each segment's own extrinsics
+/// `extrinsics(segment)` (a joint calibration's drives, each with its own
+/// reference heading offset).
+pub(crate) fn mean_position_error_by(
+    drive: &Drive,
+    segments: &[Segment],
+    theta: &Theta,
+    extrinsics: impl Fn(&Segment) -> Extrinsics + Sync,
+) -> Result<ValidationReport> {
+    theta.validate()?;
+    if segments.is_empty() {
+        return Err(Error::NoSegments(format!(
+            "the drive ({} samples) is too short for one validation segment",
+            drive.len()
+        )));
+    }
+    let per_segment_m: Vec<f64> = segments
+        .par_iter()
+        .map(|s| segment_position_error_with(&SegmentData::new(drive, s), theta, &extrinsics(s)))
+        .collect();
+    let mean = per_segment_m.iter().sum::<f64>() / per_segment_m.len() as f64;
+    if !mean.is_finite() {
+        return Err(Error::Numerical(format!("validation error is not finite at θ = {theta}")));
+    }
+    Ok(ValidationReport { theta: *theta, mean_position_error_m: mean, segments: segments.len(), per_segment_m })
+}
+
 /// Mean position error E_p,s of one segment at (θ, e) (SPEC §7 with the
 /// model's reference pose): the segment starts from the axle pose the
 /// reference implies, and the model's reference point is compared with the

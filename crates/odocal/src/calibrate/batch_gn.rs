@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 use super::{Estimator, MethodDetail, MethodOutcome, Prepared, Selection, Timing};
 use crate::drive::segment::SegmentData;
 use crate::error::Result;
-use crate::identify::{batch_gauss_newton, IdentifyReport};
+use crate::identify::{batch_gauss_newton_drives, IdentifyReport};
 use crate::progress::{emit, Progress, ProgressFn};
 
 /// Settings of batch Gauss-Newton beyond the shared ones (none yet: the
@@ -47,7 +47,8 @@ impl Estimator for BatchGnOptions {
         let t = Instant::now();
         emit(progress, Progress::Stage { name: "batch Gauss-Newton", total: 1 });
         let data: Vec<SegmentData> = selection.segments.iter().map(|s| SegmentData::new(prep.drive, s)).collect();
-        let report = batch_gauss_newton(&data, &prep.options.theta0, &selection.identify(prep.options))?;
+        let identify = selection.identify(prep.options);
+        let report = batch_gauss_newton_drives(&data, prep.drive.drive_starts(), &prep.options.theta0, &identify)?;
         emit(progress, Progress::Advance(1));
         Ok(MethodOutcome {
             theta: report.theta,

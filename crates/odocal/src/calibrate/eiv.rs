@@ -99,11 +99,11 @@ use serde::{Deserialize, Serialize};
 
 use super::{hold_unobservable, Estimator, MethodDetail, MethodOutcome, Prepared, Selection, Timing};
 use crate::assess::warning::Warning;
-use crate::drive::axle_reference_drive;
+use crate::drive::axle_reference_drive_by;
 use crate::drive::segment::SegmentData;
 use crate::eiv::{self, BiasCorrection, EivInput, EivOptions, EivReport, EivWarning, NoiseModel, NoiseSource};
 use crate::error::{Error, Result};
-use crate::identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport, Observability};
+use crate::identify::{batch_gauss_newton_drives, IdentifyOptions, IdentifyReport, Observability};
 use crate::model::param::{Param, ParamSet};
 use crate::model::Theta;
 use crate::progress::{emit, Progress, ProgressFn};
@@ -452,7 +452,8 @@ impl Estimator for EivMethodOptions {
         emit(progress, Progress::Stage { name: "EIV: batch Gauss-Newton start", total: 1 });
         let data: Vec<SegmentData> = selection.segments.iter().map(|s| SegmentData::new(prep.drive, s)).collect();
         let identify = selection.identify(opts);
-        let (start, start_held) = batch_start(&data, &opts.theta0, &identify, selection.free)?;
+        let starts = prep.drive.drive_starts();
+        let (start, start_held) = batch_start((&data, starts), &opts.theta0, &identify, selection.free)?;
         emit(progress, Progress::Advance(1));
         let t_start = t.elapsed().as_secs_f64();
 
@@ -464,9 +465,13 @@ impl Estimator for EivMethodOptions {
         // poses the reference implies under them.
         let held_extrinsics =
             identify.uses_extrinsics().then(|| start.extrinsics.as_ref().map_or(identify.extrinsics, |x| x.value));
-        let axle_drive = match &held_extrinsics {
-            Some(e) => Some(axle_reference_drive(prep.drive, e)?),
-            None => None,
+        // A joint calibration's drives each with their own heading offset.
+        let axle_drive = match (&held_extrinsics, &start.extrinsics) {
+            (Some(_), Some(x)) if !x.per_drive.is_empty() => {
+                Some(axle_reference_drive_by(prep.drive, |i| x.for_drive(prep.drive.drive_of_sample(i)))?)
+            }
+            (Some(e), _) => Some(axle_reference_drive_by(prep.drive, |_| *e)?),
+            (None, _) => None,
         };
         let filter_input = EivInput::from_drive(axle_drive.as_ref().unwrap_or(prep.drive));
         let (fit, correction_failed) = self.fit(&filter_input, &start.theta, &filter);
@@ -582,12 +587,12 @@ impl EivMethodOptions {
 /// parameters the check at θ_0 names held for the start (returned beside
 /// it).
 fn batch_start(
-    data: &[SegmentData<'_>],
+    (data, drive_starts): (&[SegmentData<'_>], &[usize]),
     theta0: &Theta,
     identify: &IdentifyOptions,
     free: ParamSet,
 ) -> Result<(IdentifyReport, Vec<Param>)> {
-    match batch_gauss_newton(data, theta0, identify) {
+    match batch_gauss_newton_drives(data, drive_starts, theta0, identify) {
         Ok(r) => Ok((r, Vec::new())),
         Err(Error::NotObservable { .. }) => {
             let held = hold_unobservable(data, theta0, identify);
@@ -598,7 +603,7 @@ fn batch_start(
             // Nothing left to estimate: the filter starts from θ_0.
             let iterations = if free.is_empty() { 0 } else { identify.max_iterations };
             let held_opts = IdentifyOptions { free, max_iterations: iterations, ..identify.clone() };
-            Ok((batch_gauss_newton(data, theta0, &held_opts)?, held))
+            Ok((batch_gauss_newton_drives(data, drive_starts, theta0, &held_opts)?, held))
         }
         Err(e) => Err(e),
     }

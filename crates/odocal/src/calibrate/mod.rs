@@ -43,8 +43,8 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use crate::assess::position_error::mean_position_error_with;
 use crate::assess::position_error::ValidationReport;
+use crate::assess::position_error::{mean_position_error_by, mean_position_error_with};
 use crate::assess::trust::{judge, Evidence, TrustOptions};
 use crate::assess::validation_drives::{CalibrationExtrinsics, HeldOutDrives, ValidationDrive};
 use crate::assess::warning::Warning;
@@ -560,7 +560,9 @@ pub(crate) fn calibrate_core(
     let t = Instant::now();
     let val = reported.result(&outcome.theta, opts.identify.extrinsics, extrinsics.as_ref(), ext)?;
     let fit_m = match held_out {
-        Some(_) => Some(mean_position_error_with(drive, &prep.validation, &outcome.theta, &ext)?.mean_position_error_m),
+        Some(_) => {
+            Some(own_error(drive, &prep.validation, &outcome.theta, &ext, extrinsics.as_ref())?.mean_position_error_m)
+        }
         None => None,
     };
     let split = match held_out {
@@ -670,6 +672,8 @@ struct ReportValidation<'a> {
     segments: Vec<Segment>,
     /// The held-out drives joined, when each has its own extrinsics.
     held_refs: Option<&'a HeldOutDrives<'a>>,
+    /// True when `drive` is held-out data, not the calibration drive.
+    held_out: bool,
 }
 
 impl<'a> ReportValidation<'a> {
@@ -691,7 +695,7 @@ impl<'a> ReportValidation<'a> {
             }
             None => (prep.drive, prep.validation.clone()),
         };
-        Ok(ReportValidation { drive, segments, held_refs })
+        Ok(ReportValidation { drive, segments, held_refs, held_out: held_out.is_some() })
     }
 
     /// Ē_p at θ_0 with the extrinsics as given (`free`'s to be estimated).
@@ -722,8 +726,27 @@ impl<'a> ReportValidation<'a> {
                 };
                 h.error(&self.segments, theta, &cal, false)
             }
-            None => mean_position_error_with(self.drive, &self.segments, theta, &ext),
+            None if self.held_out => mean_position_error_with(self.drive, &self.segments, theta, &ext),
+            None => own_error(self.drive, &self.segments, theta, &ext, estimate),
         }
+    }
+}
+
+/// Ē_p of θ on `segments` of the calibration drive with the extrinsics
+/// `ext`; after a joint calibration with a heading offset per drive
+/// ([`ExtrinsicsEstimate::per_drive`]) each segment takes its drive's.
+fn own_error(
+    drive: &Drive,
+    segments: &[Segment],
+    theta: &Theta,
+    ext: &Extrinsics,
+    estimate: Option<&ExtrinsicsEstimate>,
+) -> Result<ValidationReport> {
+    match estimate {
+        Some(x) if !x.per_drive.is_empty() => {
+            mean_position_error_by(drive, segments, theta, |s| x.for_drive(drive.drive_of_sample(s.start)))
+        }
+        _ => mean_position_error_with(drive, segments, theta, ext),
     }
 }
 

@@ -19,10 +19,20 @@ impl CalibrationReport {
     /// With validation drives ([`CalibrationReport::validate_on`]),
     /// `drive_starts` gives the first sample of each in the joined drive and
     /// each segment takes its drive's row; otherwise every segment takes
-    /// the calibration's start and result.
+    /// the calibration's start and result, and after a joint calibration
+    /// validated on its own drives (`drive_starts`: the calibration
+    /// drive's, [`Drive::drive_starts`]) the result with the segment's
+    /// drive's heading offset ([`crate::ExtrinsicsEstimate::per_drive`]).
     pub fn validation_extrinsics(&self, drive_starts: &[usize], segments: &[Segment]) -> Vec<[Extrinsics; 2]> {
         let start = self.options.identify.extrinsics;
         let result = self.extrinsics.as_ref().map_or(start, |x| x.value);
+        let own = self.extrinsics.as_ref().filter(|x| !x.per_drive.is_empty() && !self.validation.held_out);
+        if let Some(x) = own {
+            return segments
+                .iter()
+                .map(|s| [start, x.for_drive(drive_starts.partition_point(|&b| b <= s.start).saturating_sub(1))])
+                .collect();
+        }
         let rows = self.validate_on.as_ref().map(|m| &m.drives);
         segments
             .iter()

@@ -59,12 +59,14 @@ impl Drive {
         let any_mask = drives.iter().any(|d| d.reference_measured.is_some());
         let mut mask = any_mask.then(|| Vec::with_capacity(n));
         let mut parts = Vec::new();
+        let mut starts = Vec::new();
         for d in drives {
             let offset = match (t.last(), d.t.first()) {
                 (Some(&last), Some(&start)) if start <= last => last + CONCAT_GAP_S - start,
                 _ => 0.0,
             };
             let base = t.len();
+            starts.extend(d.drive_starts.iter().map(|s| base + s));
             t.extend(d.t.iter().map(|v| v + offset));
             append(&mut measured, &d.measured);
             if let (Some(all), Some(tr)) = (truth.as_mut(), d.truth.as_ref()) {
@@ -83,7 +85,9 @@ impl Drive {
         b.limits = PhysicalLimits::NONE;
         b.truth = truth;
         b.reference_measured = mask;
-        b.build()
+        let mut joined = b.build()?;
+        joined.drive_starts = starts;
+        Ok(joined)
     }
 }
 

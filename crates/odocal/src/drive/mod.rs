@@ -199,6 +199,9 @@ pub struct Drive {
     extra: Vec<ExtraColumn>,
     parts: Vec<Range<usize>>,
     sample_time_s: f64,
+    /// The first sample of each drive this one was joined from
+    /// ([`Drive::concat`]); `[0]` for one drive.
+    drive_starts: Vec<usize>,
 }
 
 /// How the parts of a drive are given to the [`DriveBuilder`].
@@ -332,7 +335,8 @@ impl DriveBuilder {
         if let Some(tr) = truth.as_mut() {
             unwrap_in_place(&mut tr.psi);
         }
-        let drive = Drive { t, measured, truth, reference_measured, extra, parts, sample_time_s: ts };
+        let drive =
+            Drive { t, measured, truth, reference_measured, extra, parts, sample_time_s: ts, drive_starts: vec![0] };
         plausibility::check_limits(&drive, &limits, &context)?;
         Ok(drive)
     }
@@ -552,6 +556,18 @@ impl Drive {
     pub fn parts(&self) -> &[Range<usize>] {
         &self.parts
     }
+    /// The first sample of each drive this one was joined from
+    /// ([`Drive::concat`], in the order given); `[0]` for a drive that was
+    /// not joined. A joint calibration fits each drive's own reference
+    /// heading offset.
+    pub fn drive_starts(&self) -> &[usize] {
+        &self.drive_starts
+    }
+    /// The index (into [`Drive::drive_starts`]) of the drive that sample
+    /// `i` came from.
+    pub fn drive_of_sample(&self, i: usize) -> usize {
+        self.drive_starts.partition_point(|&b| b <= i).saturating_sub(1)
+    }
     /// Sample time t_s, s.
     pub fn sample_time_s(&self) -> f64 {
         self.sample_time_s
@@ -661,7 +677,16 @@ impl Drive {
             .iter()
             .map(|c| ExtraColumn { name: c.name.clone(), values: c.values.slice(r.clone()) })
             .collect();
-        b.build()
+        let mut d = b.build()?;
+        // The joined drives that reach into `r`, from where they do.
+        d.drive_starts = self
+            .drive_starts
+            .iter()
+            .enumerate()
+            .filter(|(i, &s)| s < r.end && self.drive_starts.get(i + 1).is_none_or(|&next| next > r.start))
+            .map(|(_, &s)| s.max(r.start) - r.start)
+            .collect();
+        Ok(d)
     }
 }
 
@@ -692,9 +717,15 @@ pub(crate) fn unwrap_in_place(a: &mut [f64]) {
 /// reference-measured mask are kept, truth and extra columns dropped. The
 /// 3-step method's input compensation and the EIV filter run on it.
 pub(crate) fn axle_reference_drive(drive: &Drive, e: &Extrinsics) -> Result<Drive> {
+    axle_reference_drive_by(drive, |_| *e)
+}
+
+/// [`axle_reference_drive`] with the extrinsics of each sample `e(i)` (a
+/// joint calibration's drives each with their own heading offset).
+pub(crate) fn axle_reference_drive_by(drive: &Drive, e: impl Fn(usize) -> Extrinsics) -> Result<Drive> {
     let mut m = drive.measured().clone();
     for i in 0..drive.len() {
-        let x = axle_pose(&drive.pose(i), e);
+        let x = axle_pose(&drive.pose(i), &e(i));
         (m.px[i], m.py[i], m.psi[i]) = (x[0], x[1], x[2]);
     }
     let mut b = Drive::builder(drive.t().to_vec(), m)
@@ -704,7 +735,9 @@ pub(crate) fn axle_reference_drive(drive: &Drive, e: &Extrinsics) -> Result<Driv
     if let Some(mask) = drive.reference_measured() {
         b = b.reference_measured(mask.to_vec());
     }
-    b.build()
+    let mut d = b.build()?;
+    d.drive_starts.clone_from(&drive.drive_starts);
+    Ok(d)
 }
 
 #[cfg(test)]

@@ -68,7 +68,7 @@ pub(crate) fn segment_normal_equations(
 }
 
 /// Weighted cost of one segment at (θ, e).
-fn segment_cost(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics, w: &[f64; 3]) -> f64 {
+pub(super) fn segment_cost(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics, w: &[f64; 3]) -> f64 {
     let mut x = axle_pose(&seg.reference(0), e);
     let mut cost = 0.0;
     for k in 0..seg.steps() {
@@ -124,6 +124,7 @@ pub(crate) fn batch_gauss_newton_with_extrinsics(
             std_dev: Extrinsics::from_array(std::array::from_fn(|i| c[(4 + i, 4 + i)].sqrt())),
             covariance: std::array::from_fn(|i| std::array::from_fn(|j| c[(4 + i, 4 + j)])),
         }),
+        per_drive: Vec::new(),
     };
     Ok(IdentifyReport {
         initial_theta: *theta0,

@@ -33,6 +33,7 @@ use crate::model::{step_jacobians, wrap_angle, Theta};
 
 mod extrinsics;
 mod gauss_newton;
+mod per_drive;
 
 /// Normal equations of one segment over `[θ, lever_x, lever_y, heading_offset]`.
 pub(crate) use extrinsics::segment_normal_equations as extrinsics_normal_equations;
@@ -485,9 +486,23 @@ pub(crate) fn observability_of(
 ) -> (f64, Vec<f64>, ParamSet) {
     let n = jtwj.nrows();
     let idx: Vec<usize> = free.indices().into_iter().filter(|i| *i < n).collect();
+    observability_of_entries(jtwj, poses, &idx, resolution, opts)
+}
+
+/// [`observability_of`] over the entries `idx` of the parameter vector;
+/// entries past the heading offset's (a joint calibration's per-drive
+/// offsets) are named as the heading offset.
+pub(crate) fn observability_of_entries(
+    jtwj: &nalgebra::DMatrix<f64>,
+    poses: usize,
+    idx: &[usize],
+    resolution: &[f64],
+    opts: &IdentifyOptions,
+) -> (f64, Vec<f64>, ParamSet) {
+    let n = jtwj.nrows();
     let poses = poses.max(1) as f64;
     let mut sensitivity = vec![0.0; n];
-    for &i in &idx {
+    for &i in idx {
         sensitivity[i] = (jtwj[(i, i)].max(0.0) / poses).sqrt() * resolution[i];
     }
     // Physically scaled matrix: Hs = S H S / poses (S = resolutions).
@@ -532,7 +547,8 @@ pub(crate) fn observability_of(
             }
         }
     }
-    let unobservable = (0..n).filter(|i| weak[*i]).filter_map(Param::from_index).collect();
+    let heading_offset = Param::HeadingOffset.index();
+    let unobservable = (0..n).filter(|i| weak[*i]).filter_map(|i| Param::from_index(i.min(heading_offset))).collect();
     (rcond, sensitivity, unobservable)
 }
 
@@ -597,6 +613,26 @@ pub fn batch_gauss_newton(
         residual_poses: ne.poses,
         extrinsics: None,
     })
+}
+
+/// [`batch_gauss_newton`] on segments of a drive joined from several
+/// (`drive_starts`: [`crate::Drive::drive_starts`]): with the heading
+/// offset free and segments from two drives or more, each drive gets its
+/// own offset (one θ, one lever arm); otherwise [`batch_gauss_newton`]
+/// itself.
+pub(crate) fn batch_gauss_newton_drives(
+    segments: &[SegmentData<'_>],
+    drive_starts: &[usize],
+    theta0: &Theta,
+    opts: &IdentifyOptions,
+) -> Result<IdentifyReport> {
+    let drives = per_drive::Drives { starts: drive_starts };
+    if !drives.per_drive(segments, opts) {
+        return batch_gauss_newton(segments, theta0, opts);
+    }
+    opts.validate()?;
+    theta0.validate()?;
+    per_drive::batch_gauss_newton_per_drive(segments, &drives, theta0, opts)
 }
 
 /// The top-left 4×4 (θ) block of an N×N matrix as arrays.

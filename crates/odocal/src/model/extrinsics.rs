@@ -118,6 +118,38 @@ pub struct ExtrinsicsEstimate {
     /// ([`crate::identify::RobustCovariance`]), when computed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub robust: Option<RobustExtrinsics>,
+    /// A joint calibration of several drives ([`crate::Drive::concat`])
+    /// with the heading offset estimated: each drive's own offset (the
+    /// reference's heading bias changes from drive to drive), in drive
+    /// order. `value.heading_offset` is then their mean (the value carried
+    /// to another drive by `--carry-heading-offset`) and
+    /// `std_dev.heading_offset` its σ. Empty otherwise.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub per_drive: Vec<DriveHeadingOffset>,
+}
+
+/// One drive's reference heading offset in a joint calibration
+/// ([`ExtrinsicsEstimate::per_drive`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct DriveHeadingOffset {
+    /// The drive's index among the drives joined
+    /// ([`crate::Drive::drive_starts`]).
+    pub drive: usize,
+    /// Its heading offset, rad.
+    pub value: f64,
+    /// Its model 1σ, rad.
+    pub std_dev: f64,
+    /// Its cluster-robust 1σ, rad, when computed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub robust_std_dev: Option<f64>,
+}
+
+impl DriveHeadingOffset {
+    /// The 1σ that stands for the value: the cluster-robust one when
+    /// computed, else the model one (as [`ExtrinsicsEstimate::result_std_dev`]).
+    pub fn result_std_dev(&self) -> f64 {
+        self.robust_std_dev.unwrap_or(self.std_dev)
+    }
 }
 
 /// The extrinsics part of the cluster-robust covariance
@@ -137,6 +169,16 @@ impl ExtrinsicsEstimate {
         self.robust.as_ref().map_or(self.std_dev, |r| r.std_dev)
     }
 
+    /// The extrinsics that apply to drive `k` of a joint calibration: its
+    /// own heading offset when [`ExtrinsicsEstimate::per_drive`] has it,
+    /// else `value`.
+    pub fn for_drive(&self, k: usize) -> Extrinsics {
+        match self.per_drive.iter().find(|p| p.drive == k) {
+            Some(p) => Extrinsics { heading_offset: p.value, ..self.value },
+            None => self.value,
+        }
+    }
+
     /// Held extrinsics: `value` = `initial`, no σ.
     #[cfg(test)]
     pub(crate) fn held(initial: Extrinsics) -> Self {
@@ -149,6 +191,7 @@ impl ExtrinsicsEstimate {
             cross_covariance: [[0.0; 3]; 4],
             sensitivity_m: [0.0; 3],
             robust: None,
+            per_drive: Vec::new(),
         }
     }
 }
