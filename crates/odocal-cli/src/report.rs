@@ -19,9 +19,14 @@ fn row(out: &mut String, name: &str, unit: &str, values: &[Option<f64>], scale: 
     let _ = write!(out, "  {name:<4} {unit:<14}");
     for v in values {
         match v {
-            // A σ of NaN marks a parameter held at θ_0 (not estimated).
+            // A σ of NaN marks a parameter held at θ_0 (not estimated); +∞
+            // one that moved without a σ from this column's covariance
+            // (the EIV filter held it at its start's estimate).
             Some(v) if v.is_nan() => {
                 let _ = write!(out, " {:>13}", "held");
+            }
+            Some(v) if v.is_infinite() && v.is_sign_positive() => {
+                let _ = write!(out, " {:>13}", "–");
             }
             Some(v) => {
                 let _ = write!(out, " {:>13.*}", prec, v * scale);
@@ -70,6 +75,19 @@ pub fn extrinsics_table(x: &ExtrinsicsEstimate) -> String {
         };
         let robust = x.robust.as_ref().map(|rb| if x.free.contains(p) { rb.std_dev.to_array()[i] } else { f64::NAN });
         row(&mut out, name, unit, &[Some(init[i]), Some(val[i]), Some(sigma), robust], scale, prec);
+    }
+    if !x.per_drive.is_empty() {
+        out.push_str("  heading offset per drive (δ above is their mean, the value carried to other drives):\n");
+        for p in &x.per_drive {
+            let robust = p.robust_std_dev.map_or(String::new(), |s| format!(", {:.4} robust", s * 1e3));
+            let _ = writeln!(
+                out,
+                "    drive {}: δ = {:.4} mrad ± {:.4} model{robust} (1σ)",
+                p.drive + 1,
+                p.value * 1e3,
+                p.std_dev * 1e3
+            );
+        }
     }
     out
 }
@@ -234,25 +252,31 @@ fn theta_columns(r: &CalibrationReport, truth: Option<(&Theta, f64)>) -> Vec<(&'
     // Held parameters print "held", not a σ of 0: those not free and those
     // the method held itself (EIV holds what it cannot observe at its start;
     // a zero covariance row), by the rule of the JSON `sigma_within_drive`.
+    // "held" only for a parameter that did not move from θ_0.
     let sd = r.std_dev().to_array();
     let estimated = r.within_drive_sigma().to_array();
-    let sigma: [f64; 4] = std::array::from_fn(|i| if estimated[i].is_some() { sd[i] } else { f64::NAN });
+    let (start, value) = (r.initial.theta.to_array(), r.theta.to_array());
+    let sigma: [f64; 4] = std::array::from_fn(|i| match estimated[i] {
+        Some(_) => sd[i],
+        None if value[i].to_bits() != start[i].to_bits() => f64::INFINITY,
+        None => f64::NAN,
+    });
     cols.push(("± 1σ (model)", Some(Theta { c_e: sigma[0], c_d: sigma[1], t_r: sigma[2], d: sigma[3] })));
     // The cluster-robust σ (residuals correlated along and across segments).
     if let Some(rb) = r.robust() {
         let sd = rb.std_dev().to_array();
-        let s: [f64; 4] = std::array::from_fn(|i| if sigma[i].is_nan() { f64::NAN } else { sd[i] });
+        let s: [f64; 4] = std::array::from_fn(|i| if sigma[i].is_finite() { sd[i] } else { sigma[i] });
         cols.push(("± 1σ (robust)", Some(Theta { c_e: s[0], c_d: s[1], t_r: s[2], d: s[3] })));
     }
     // The 3-step's step-1 batch spread.
     if let Some(b) = three_step_spread(r) {
         let sd = b.std_dev().to_array();
-        let s: [f64; 4] = std::array::from_fn(|i| if sigma[i].is_nan() { f64::NAN } else { sd[i] });
+        let s: [f64; 4] = std::array::from_fn(|i| if sigma[i].is_finite() { sd[i] } else { sigma[i] });
         cols.push(("± 1σ (spread)", Some(Theta { c_e: s[0], c_d: s[1], t_r: s[2], d: s[3] })));
     }
     // The σ that stands for the result: for the next drive.
     if r.next_drive_sigma.is_some() {
-        let s = r.result_sigma().to_array().map(|s| s.unwrap_or(f64::NAN));
+        let s: [f64; 4] = std::array::from_fn(|i| r.result_sigma().to_array()[i].unwrap_or(sigma[i]));
         cols.push(("± 1σ (next drive)", Some(Theta::from_array(s))));
     }
     if let Some((t, _)) = truth {

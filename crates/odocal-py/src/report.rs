@@ -168,6 +168,11 @@ pub(crate) fn _report_html(
             warnings: report.warnings.iter().map(|w| w.to_string()).collect(),
             method_details: report.method_details().lines().map(str::to_string).collect(),
             segment_extrinsics: report.validation_extrinsics(&starts, &segs),
+            // The σ that stands for the result, labelled once (as the text's column).
+            sigma_label: match report.result_sigma().covers {
+                odocal::SigmaCovers::NextDrive => "± 1σ (next drive)".into(),
+                odocal::SigmaCovers::WithinDrive => "± 1σ (within drive)".into(),
+            },
             ..odocal_report::ReportInput::new(title, scored, &segs, theta0, report.theta)
         };
         if let Some(step) = report.initial_step() {

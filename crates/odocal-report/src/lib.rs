@@ -78,7 +78,8 @@ pub struct ParamRow {
     pub initial: f64,
     /// Calibrated value, SI.
     pub calibrated: f64,
-    /// 1σ, SI; `None` when the parameter was held.
+    /// 1σ, SI; `None` when the parameter has none: shown as "held" when it
+    /// did not move from its initial value, else "–".
     pub sigma: Option<f64>,
     /// The truth, SI, when known.
     pub truth: Option<f64>,
@@ -172,6 +173,9 @@ pub struct ReportInput<'a> {
     /// the errors and the map are those the calibration's Ē_p is made of.
     /// Empty: the reference at the rear-axle centre for every segment.
     pub segment_extrinsics: Vec<[Extrinsics; 2]>,
+    /// The σ column's heading: the σ that stands for the result, labelled
+    /// once (e.g. `± 1σ (next drive)`). Default `± 1σ`.
+    pub sigma_label: String,
 }
 
 impl<'a> ReportInput<'a> {
@@ -199,6 +203,7 @@ impl<'a> ReportInput<'a> {
             method_details: Vec::new(),
             map_segments: 4,
             segment_extrinsics: Vec::new(),
+            sigma_label: "± 1σ".into(),
         }
     }
 
@@ -337,7 +342,13 @@ mod tests {
         for id in ["verdict", "parameters", "method", "validation", "map", "batches", "residuals", "warnings"] {
             assert!(html.contains(&format!("<section id=\"{id}\">")), "section {id}");
         }
-        assert!(html.contains("<td>held</td>"));
+        // c_d has no σ and moved: no "held"; a parameter that did not move is held.
+        assert!(!html.contains("<td>held</td>") && html.contains("<td>–</td>"));
+        let still = ReportInput {
+            params: ParamRow::theta_rows(&th0, &th0, Some([Some(1e-4), None, Some(1e-3), Some(1e-5)]), None),
+            ..input.clone()
+        };
+        assert!(render_html(&still).expect("render").contains("<td>held</td>"));
         assert!(html.contains("&lt;warning&gt;") && !html.contains("<warning>"));
         assert!(!html.contains("<script"), "no scripts");
         assert!(!html.contains("src=\"http") && !html.contains("href=\"http"), "no network fetches");

@@ -75,7 +75,12 @@ pub(crate) fn verdict(h: &mut String, r: &ReportInput<'_>) {
 
 /// Section 1: the parameter table, then the method's own account of the fit.
 pub(crate) fn parameters(h: &mut String, r: &ReportInput<'_>) {
-    h.push_str("<section id=\"parameters\">\n<h2>Parameters</h2>\n<table>\n<tr><th>parameter</th><th>unit</th><th>initial</th><th>calibrated</th><th>± 1σ</th>");
+    let _ = write!(
+        h,
+        "<section id=\"parameters\">\n<h2>Parameters</h2>\n<table>\n<tr><th>parameter</th><th>unit</th>\
+         <th>initial</th><th>calibrated</th><th>{}</th>",
+        esc(&r.sigma_label)
+    );
     let has_truth = r.params.iter().any(|p| p.truth.is_some());
     if has_truth {
         h.push_str("<th>truth</th><th>error</th>");
@@ -83,7 +88,12 @@ pub(crate) fn parameters(h: &mut String, r: &ReportInput<'_>) {
     h.push_str("</tr>\n");
     for p in &r.params {
         let f = |v: f64| format!("{:.6}", v * p.scale);
-        let sigma = p.sigma.map(f).unwrap_or_else(|| "held".into());
+        // "held" only for a parameter that did not move.
+        let sigma = match p.sigma {
+            Some(v) => f(v),
+            None if p.calibrated.to_bits() == p.initial.to_bits() => "held".into(),
+            None => "–".into(),
+        };
         let _ = write!(
             h,
             "<tr><td>{}</td><td>{}</td><td>{}</td><td><b>{}</b></td><td>{}</td>",

@@ -140,6 +140,18 @@ impl ParamFile {
                 description: what[i].1.into(),
             });
         }
+        if !x.per_drive.is_empty() {
+            // A joint calibration: heading_offset above is the drives' mean.
+            let per: Vec<String> = x
+                .per_drive
+                .iter()
+                .map(|p| format!("drive {}: {:.6e} ± {:.1e} rad", p.drive + 1, p.value, p.result_std_dev()))
+                .collect();
+            self.provenance.push(("heading_offset_per_drive".into(), per.join("; ")));
+            if let Some(e) = self.params.iter_mut().find(|e| e.name == "heading_offset") {
+                e.description = "pose reference heading minus vehicle heading, mean of the drives' own".into();
+            }
+        }
     }
 
     /// A file for θ with 1σ per entry (`None` = held), provenance filled with
