@@ -120,3 +120,37 @@ fn the_html_report_shows_the_json_s_mean_position_error_and_sigma() {
     let delta_sd = robust.or(x["std_dev"]["heading_offset"].as_f64()).expect("σ of δ");
     assert_eq!(sigma_cell("heading_offset"), format!("{:.6}", delta_sd * 1e3));
 }
+
+/// Two drives calibrated jointly: one θ, each drive's own δ (JSON
+/// `heading_offset_per_drive` with the drives' paths and fingerprints, the
+/// text's list, the parameter file's provenance), their mean as the
+/// carried value.
+#[test]
+fn a_joint_calibration_fits_each_drive_s_heading_offset() {
+    let d = tempfile::tempdir().expect("tmp");
+    let a = drive(d.path(), "a.csv", 33, 0.0188);
+    let b = drive(d.path(), "b.csv", 34, 0.0142);
+    let params = d.path().join("p.yaml");
+    let p = params.to_str().expect("utf8");
+    let args = ["calibrate", &a, &b, "--method", "batch-gn", "--estimate", "heading-offset", "--max-iterations", "30"];
+    let o = odocal(&[args.as_slice(), &["--json", "-", "--params-out", p]].concat());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+    let per = v["heading_offset_per_drive"].as_array().expect("heading_offset_per_drive");
+    assert_eq!(per.len(), 2, "{per:?}");
+    for (row, (path, want)) in per.iter().zip([(&a, 0.0188), (&b, 0.0142)]) {
+        let got = row["value"].as_f64().expect("value");
+        assert!((got - want).abs() < 1e-9, "{path}: δ {got} vs {want}");
+        assert_eq!(row["source"].as_str(), Some(path.as_str()));
+        assert!(row["sigma"].as_f64().is_some_and(|s| s >= 0.0), "{row}");
+        let fp = v["drives"].as_array().expect("drives").iter().find(|e| e["path"] == path.as_str()).expect("entry");
+        assert_eq!(row["fingerprint"], fp["fingerprint"]);
+    }
+    let mean = v["extrinsics"]["value"]["heading_offset"].as_f64().expect("δ");
+    assert!((mean - 0.5 * (0.0188 + 0.0142)).abs() < 1e-9, "carried δ {mean}");
+    assert!(v["validation"]["mean_position_error_m"].as_f64().expect("Ē_p") < 1e-6, "{}", v["validation"]);
+    let yaml = std::fs::read_to_string(&params).expect("params");
+    assert!(yaml.contains("heading_offset_per_drive: \"drive 1: 1.88"), "{yaml}");
+    let text = stdout(&odocal(&args));
+    assert!(text.contains("heading offset per drive") && text.contains("drive 2: δ = 14.2000 mrad"), "{text}");
+}

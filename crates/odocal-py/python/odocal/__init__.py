@@ -257,6 +257,11 @@ def calibrate(
     ``drive`` is one :class:`Drive` or a list of drives of one vehicle,
     fitted jointly (as ``odocal calibrate A B``: segments never span two
     drives; their sample times must agree; a list has no single true θ).
+    The drives share θ and the lever arm; when the heading offset is
+    estimated (the default method does) each drive gets its own: the
+    report's ``heading_offset_per_drive`` lists them (``source``,
+    ``fingerprint``, ``value``, ``sigma`` in rad) and
+    ``extrinsics.value.heading_offset`` is their mean.
 
     ``method`` is ``"eiv"`` (the default, unless the drive's manifest states
     another: the errors-in-variables filter over the whole drive, started

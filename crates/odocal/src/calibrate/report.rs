@@ -329,7 +329,8 @@ pub(crate) fn within_sigma_of(detail: &MethodDetail, covariance: &[[f64; 4]; 4],
 /// The σ for the next drive of one drive's result ([`crate::pooling`]):
 /// the within-drive σ (for a free parameter the EIV filter held at its
 /// batch Gauss-Newton start's estimate, the start's σ, when the start
-/// estimated it: the value came from there, so it is not held), after an EIV
+/// estimated it and found it observable: the value came from there, so it
+/// is not held; one the start named not observable stays at θ_0), after an EIV
 /// fallback the gap to EIV's own estimate when that passes the
 /// plausibility guards, and the prior between-drive σ.
 pub(crate) fn next_drive_of(
@@ -345,7 +346,9 @@ pub(crate) fn next_drive_of(
         let start = &d.identification;
         let start_sd = start.robust.as_ref().map_or(start.covariance, |r| r.covariance);
         for (i, w) in w.iter_mut().enumerate() {
-            let free_here = Param::from_index(i).is_some_and(|p| free.contains(p) && !d.start_held.contains(&p));
+            let free_here = Param::from_index(i).is_some_and(|p| {
+                free.contains(p) && !d.start_held.contains(&p) && !start.observability.unobservable.contains(p)
+            });
             let v = start_sd[i][i];
             if w.is_none() && free_here && start.covariance[i][i] > 0.0 && v.is_finite() {
                 *w = Some(v.max(0.0).sqrt());
