@@ -267,3 +267,17 @@ def test_validate_on_re_estimates_each_drive_s_heading_offset_unless_carried(odo
     y = carried["validate_on"]["drives"][0]["extrinsics"]
     assert y["source"]["heading_offset"] == "estimated" and "heading_offset_fit" not in y
     assert y["value"]["heading_offset"] == r["extrinsics"]["value"]["heading_offset"]
+
+
+def test_a_joint_calibration_reports_each_drive_s_heading_offset(odocal_bin, csvs):
+    """The default method estimates the heading offset: one per drive, as the CLI's."""
+    a, b, _ = csvs
+    cli = cli_json(odocal_bin, "calibrate", a, b)
+    r = odocal.calibrate([odocal.Drive.from_csv(p) for p in (a, b)]).to_dict()
+    per = r["heading_offset_per_drive"]
+    assert len(per) == 2
+    assert [(p["value"], p["sigma"], p["fingerprint"]) for p in per] == [
+        (p["value"], p["sigma"], p["fingerprint"]) for p in cli["heading_offset_per_drive"]
+    ]
+    assert [p["value"] for p in per] == [p["value"] for p in r["extrinsics"]["per_drive"]]
+    assert r["extrinsics"]["value"]["heading_offset"] == pytest.approx(np.mean([p["value"] for p in per]), abs=1e-15)
