@@ -201,7 +201,7 @@ impl History {
         // WAL: readers do not block the writer and a crash mid-write leaves
         // the last committed state. Setting it needs a moment of exclusive
         // access; the busy timeout covers a concurrent opener.
-        let mode: String = conn.query_row("PRAGMA journal_mode = WAL", [], |r| r.get(0)).map_err(&err)?;
+        let mode = switch_to_wal(&conn).map_err(&err)?;
         if !mode.eq_ignore_ascii_case("wal") {
             return Err(Error::History { path, reason: format!("could not switch to WAL mode (journal mode {mode})") });
         }
@@ -362,6 +362,26 @@ impl History {
         self.conn
             .query_row("SELECT COUNT(*) FROM decisions WHERE vehicle = ?1", params![vehicle], |r| r.get(0))
             .map_err(sql_err(&self.path))
+    }
+}
+
+/// Switches the connection to WAL mode. Two processes opening a new file at
+/// once can both hold a read lock while asking for the exclusive one the
+/// switch needs; SQLite then answers "database is locked" at once, without
+/// its busy handler (waiting could deadlock). The switch is retried until
+/// the busy timeout has passed.
+fn switch_to_wal(conn: &Connection) -> rusqlite::Result<String> {
+    let start = std::time::Instant::now();
+    loop {
+        match conn.query_row("PRAGMA journal_mode = WAL", [], |r| r.get::<_, String>(0)) {
+            Err(rusqlite::Error::SqliteFailure(e, _))
+                if matches!(e.code, rusqlite::ErrorCode::DatabaseBusy | rusqlite::ErrorCode::DatabaseLocked)
+                    && start.elapsed() < BUSY_TIMEOUT =>
+            {
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            other => return other,
+        }
     }
 }
 
