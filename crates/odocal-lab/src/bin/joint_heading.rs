@@ -42,7 +42,8 @@ fn mean(v: &[f64]) -> f64 {
 /// Mean Ē_p of `r` on `others`, each with its own δ re-estimated.
 fn held_out(r: &CalibrationReport, others: &[(&str, &Drive)], opts: &CalibrationOptions) -> Res<f64> {
     let cal = CalibrationExtrinsics { carry_heading_offset: false, ..r.extrinsics_for_validation(ParamSet::EMPTY) };
-    let v: Vec<ValidationDrive> = others.iter().map(|(name, drive)| ValidationDrive { name, drive, reference: None }).collect();
+    let v: Vec<ValidationDrive> =
+        others.iter().map(|(name, drive)| ValidationDrive { name, drive, reference: None }).collect();
     let m = validate_drives_with(&v, &r.theta, &opts.theta0, &cal, &opts.validation)?;
     Ok(mean(&m.drives.iter().map(|d| d.mean_position_error_m).collect::<Vec<_>>()))
 }
@@ -86,8 +87,7 @@ fn run() -> Res<()> {
         if method != "eiv" {
             opts.identify.free = opts.identify.free.with(Param::HeadingOffset);
         }
-        let others: Vec<(&str, &Drive)> =
-            (0..6).filter(|i| !g.contains(i)).map(|i| (runs[i].0, &runs[i].1)).collect();
+        let others: Vec<(&str, &Drive)> = (0..6).filter(|i| !g.contains(i)).map(|i| (runs[i].0, &runs[i].1)).collect();
         let per = Calibration::new(&joined, &opts).run()?;
         let one = Calibration::new(&shared, &opts).run()?;
         let (hp, ho) = (held_out(&per, &others, &opts)?, held_out(&one, &others, &opts)?);

@@ -30,7 +30,7 @@
 //!   `--from-csv FILE` prints the tables and the verdict from such a file
 //!   (a run stopped early included).
 //!
-//! Then the rule (issue text, "A default chosen by a scoreboard"): the
+//! Then the rule (docs/validation.md, "Choosing the default"): the
 //! eligible methods are those with |t| ≤ 3 and coverage ≥ 90 % for every
 //! parameter over all worlds, with the σ the method reports; among them,
 //! those within 5 % of the best on real Ē_p (test-track cross-run and van
@@ -156,9 +156,11 @@ fn testtrack_part(methods: &[String]) -> Res<Vec<(String, f64, f64)>> {
     Ok(out)
 }
 
-/// Per method: the held-out Ē_p of each direction and its ratio to the
+/// Per method: the held-out Ē_p of both directions and their ratios to the
 /// other half's own fit.
-fn van_part(methods: &[String]) -> Res<Vec<(String, [f64; 2], [f64; 2])>> {
+type VanRows = Vec<(String, [f64; 2], [f64; 2])>;
+
+fn van_part(methods: &[String]) -> Res<VanRows> {
     let (drive, opts) = load_with_options(VAN_MANIFEST)?;
     let (first, second) = Holdout::SecondHalf.split(&drive)?;
     let halves = [first.into_owned(), second.into_owned()];
@@ -332,10 +334,7 @@ fn worlds_tables(rows: &[Row], methods: &[String]) -> Eligibility {
                 min_cov = min_cov.min(cov);
                 row.push(format!("{tt:.1} · {:.0} % · {:.0} %", 100.0 * cov, 100.0 * coverage(&e, &w, 1.96)));
             }
-            let beyond = rs
-                .iter()
-                .filter(|r| r.accepted && (0..4).any(|i| r.err[i].abs() > 3.0 * r.sigma[i]))
-                .count();
+            let beyond = rs.iter().filter(|r| r.accepted && (0..4).any(|i| r.err[i].abs() > 3.0 * r.sigma[i])).count();
             row.push(format!("{beyond} of {}", rs.len()));
             let ex: Vec<f64> = rs.iter().map(|r| r.excess_e_p_m).collect();
             row.push(format!("{:+.3}", Summary::of(&ex).mean));
@@ -365,7 +364,7 @@ struct WorldSettings {
 fn verdict(
     elig: Option<&Eligibility>,
     track: Option<&[(String, f64, f64)]>,
-    van: Option<&[(String, [f64; 2], [f64; 2])]>,
+    van: Option<&VanRows>,
     time: Option<&[(String, f64)]>,
 ) {
     let mut text = String::from("### The rule\n\n");
@@ -455,6 +454,6 @@ fn run() -> Res<()> {
         None => None,
     };
     let elig = rows.as_ref().map(|r| worlds_tables(r, &methods));
-    verdict(elig.as_ref(), track.as_deref(), van.as_deref(), time.as_deref());
+    verdict(elig.as_ref(), track.as_deref(), van.as_ref(), time.as_deref());
     Ok(())
 }
