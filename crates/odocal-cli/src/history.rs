@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use clap::Args;
 use odocal::history::{CalibrationRecord, History, HistoryRow, Recorded};
-use odocal::{CalibrationReport, Drive, Theta};
+use odocal::{CalibrationReport, Drive};
 
 use crate::output::{write_text, Files};
 
@@ -124,24 +124,10 @@ pub fn record_calibration(
     r: &CalibrationReport,
 ) -> Result<()> {
     let mut h = History::open(db)?;
-    let s = r.result_sigma().to_array();
-    let sigma = match s {
-        [Some(c_e), Some(c_d), Some(t_r), Some(d)] => Some(Theta { c_e, c_d, t_r, d }),
-        _ => None,
-    };
     let t = drive.t();
-    let rec = CalibrationRecord {
-        vehicle: vehicle.to_string(),
-        fingerprint: fingerprint.to_string(),
-        sources: sources.iter().map(|p| p.display().to_string()).collect(),
-        t_start_s: t.first().copied().unwrap_or(0.0),
-        t_end_s: t.last().copied().unwrap_or(0.0),
-        method: r.method.clone(),
-        theta: r.theta,
-        sigma,
-        heading_offset_rad: r.extrinsics.as_ref().map(|x| x.value.heading_offset),
-        verdict: Some(r.verdict.level.to_string()),
-    };
+    let span = (t.first().copied().unwrap_or(0.0), t.last().copied().unwrap_or(0.0));
+    let names = sources.iter().map(|p| p.display().to_string()).collect();
+    let rec = CalibrationRecord::of_report(vehicle, fingerprint, names, span, r);
     match h.record(&rec).with_context(|| format!("recording in {}", db.display()))? {
         Recorded::New(id) => eprintln!("recorded in {} as row {id} of vehicle '{vehicle}'", db.display()),
         Recorded::AlreadyRecorded(id) => eprintln!(
