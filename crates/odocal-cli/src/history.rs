@@ -24,6 +24,10 @@ pub struct HistoryArgs {
     /// Write the rows, drift flags and pooled estimate as JSON ("-": stdout).
     #[arg(long)]
     json: Option<PathBuf>,
+    /// Write a self-contained HTML page: each parameter over the recorded
+    /// calibrations with ±σ bars and the drift flags marked, and the tables.
+    #[arg(long, value_name = "FILE.html")]
+    report: Option<PathBuf>,
 }
 
 /// Prints (or writes as JSON) the vehicle's history.
@@ -32,12 +36,27 @@ pub fn run(a: HistoryArgs) -> Result<()> {
         anyhow::bail!("{}: no such history database", a.db.display());
     }
     let mut files = Files::default();
-    files.input("the history database", &a.db).output("--json", a.json.as_deref());
+    files
+        .input("the history database", &a.db)
+        .output("--json", a.json.as_deref())
+        .output("--report", a.report.as_deref());
     files.check()?;
     let db = History::open(&a.db)?;
     let rows = db.rows(&a.vehicle)?;
     let drift = db.drift(&a.vehicle)?;
     let pooled = db.pooled(&a.vehicle, a.pool.as_deref())?;
+    if let Some(p) = &a.report {
+        let html = odocal_report::history::render_history_html(&a.vehicle, &rows, &drift, pooled.as_ref())?;
+        if odocal::output::is_stdout(p) {
+            if a.json.as_deref().is_some_and(odocal::output::is_stdout) {
+                anyhow::bail!("--report - and --json -: only one of them can go to stdout");
+            }
+            write_text(p, &html)?;
+            return Ok(());
+        }
+        write_text(p, &html).with_context(|| format!("--report {}", p.display()))?;
+        eprintln!("wrote {}", p.display());
+    }
     if let Some(p) = &a.json {
         let v = serde_json::json!({
             "vehicle": a.vehicle,
