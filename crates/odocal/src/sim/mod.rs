@@ -583,7 +583,7 @@ mod tests {
         let back: SimSidecar = serde_json::from_str(&text).expect("read back");
         assert_eq!(back.settings.drift, o.drift);
         let bad = SimOptions { drift: DriftOptions { c_e_relative_per_hour: f64::NAN, c_d_step: None }, ..o };
-        assert!(simulate(&bad).unwrap_err().to_string().contains("drift.c_e_relative_per_hour"));
+        assert!(simulate(&bad).expect_err("a NaN ramp").to_string().contains("drift.c_e_relative_per_hour"));
     }
 
     #[test]
