@@ -45,7 +45,8 @@ fn parameter_svg(i: usize, rows: &[HistoryRow], drift: &[DriftFlag], pooled: Opt
             .margin(8)
             .x_label_area_size(38)
             .y_label_area_size(80)
-            .build_cartesian_2d(0.5..x_hi, (lo - pad)..(hi + pad))
+            // Headroom above the data for the legend.
+            .build_cartesian_2d(0.5..x_hi, (lo - pad)..(hi + pad + 0.5 * (hi - lo)))
             .map_err(err)?;
         let digits = (1.0 - (hi - lo).max(1e-12).log10().floor()).clamp(0.0, 8.0) as usize + 1;
         let fy = move |v: &f64| format!("{v:.digits$}");
