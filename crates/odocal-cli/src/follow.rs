@@ -90,6 +90,10 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
     if !(a.steady_s.is_finite() && a.steady_s >= 0.0) {
         bail!("--steady-s must be a non-negative number of seconds, got {}", a.steady_s);
     }
+    // A drive that is not there is named before the history is opened (and created).
+    if let Some(p) = a.drive.iter().find(|p| !p.exists()) {
+        bail!("{}: no such drive file", p.display());
+    }
     let mut db = History::open(&a.db)?;
     let mut stored = starting_point(&db, &a)?;
     let gates = Gates { steady_s: a.steady_s, ..Gates::default() };

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use clap::Args;
 use odocal::history::{CalibrationRecord, History, HistoryRow, Recorded};
-use odocal::{CalibrationReport, Drive, Theta};
+use odocal::{CalibrationReport, Drive};
 
 use crate::output::{write_text, Files};
 
@@ -24,6 +24,10 @@ pub struct HistoryArgs {
     /// Write the rows, drift flags and pooled estimate as JSON ("-": stdout).
     #[arg(long)]
     json: Option<PathBuf>,
+    /// Write a self-contained HTML page: each parameter over the recorded
+    /// calibrations with ±σ bars and the drift flags marked, and the tables.
+    #[arg(long, value_name = "FILE.html")]
+    report: Option<PathBuf>,
 }
 
 /// Prints (or writes as JSON) the vehicle's history.
@@ -32,12 +36,27 @@ pub fn run(a: HistoryArgs) -> Result<()> {
         anyhow::bail!("{}: no such history database", a.db.display());
     }
     let mut files = Files::default();
-    files.input("the history database", &a.db).output("--json", a.json.as_deref());
+    files
+        .input("the history database", &a.db)
+        .output("--json", a.json.as_deref())
+        .output("--report", a.report.as_deref());
     files.check()?;
     let db = History::open(&a.db)?;
     let rows = db.rows(&a.vehicle)?;
     let drift = db.drift(&a.vehicle)?;
     let pooled = db.pooled(&a.vehicle, a.pool.as_deref())?;
+    if let Some(p) = &a.report {
+        let html = odocal_report::history::render_history_html(&a.vehicle, &rows, &drift, pooled.as_ref())?;
+        if odocal::output::is_stdout(p) {
+            if a.json.as_deref().is_some_and(odocal::output::is_stdout) {
+                anyhow::bail!("--report - and --json -: only one of them can go to stdout");
+            }
+            write_text(p, &html)?;
+            return Ok(());
+        }
+        write_text(p, &html).with_context(|| format!("--report {}", p.display()))?;
+        eprintln!("wrote {}", p.display());
+    }
     if let Some(p) = &a.json {
         let v = serde_json::json!({
             "vehicle": a.vehicle,
@@ -124,24 +143,10 @@ pub fn record_calibration(
     r: &CalibrationReport,
 ) -> Result<()> {
     let mut h = History::open(db)?;
-    let s = r.result_sigma().to_array();
-    let sigma = match s {
-        [Some(c_e), Some(c_d), Some(t_r), Some(d)] => Some(Theta { c_e, c_d, t_r, d }),
-        _ => None,
-    };
     let t = drive.t();
-    let rec = CalibrationRecord {
-        vehicle: vehicle.to_string(),
-        fingerprint: fingerprint.to_string(),
-        sources: sources.iter().map(|p| p.display().to_string()).collect(),
-        t_start_s: t.first().copied().unwrap_or(0.0),
-        t_end_s: t.last().copied().unwrap_or(0.0),
-        method: r.method.clone(),
-        theta: r.theta,
-        sigma,
-        heading_offset_rad: r.extrinsics.as_ref().map(|x| x.value.heading_offset),
-        verdict: Some(r.verdict.level.to_string()),
-    };
+    let span = (t.first().copied().unwrap_or(0.0), t.last().copied().unwrap_or(0.0));
+    let names = sources.iter().map(|p| p.display().to_string()).collect();
+    let rec = CalibrationRecord::of_report(vehicle, fingerprint, names, span, r);
     match h.record(&rec).with_context(|| format!("recording in {}", db.display()))? {
         Recorded::New(id) => eprintln!("recorded in {} as row {id} of vehicle '{vehicle}'", db.display()),
         Recorded::AlreadyRecorded(id) => eprintln!(

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::Args;
-use odocal::sim::{self, NoiseOptions, SimOptions};
+use odocal::sim::{self, CdStep, NoiseOptions, SimOptions};
 
 use crate::args::ThetaArg;
 use crate::output::{refuse_sidecar_onto_drive, refuse_stdout, Files};
@@ -35,6 +35,32 @@ pub struct SimulateArgs {
     /// Integration substeps per output sample (1 makes the model exact).
     #[arg(long)]
     substeps: Option<usize>,
+    /// Let c_e drift linearly: its change per hour of driving as a fraction
+    /// of its starting value (-0.003: falling 0.3 % an hour). The sidecar
+    /// records the drift and θ at the end (theta_true_end).
+    #[arg(long, allow_hyphen_values = true, value_name = "FRACTION")]
+    ce_ramp_per_hour: Option<f64>,
+    /// A step of c_d: MM millimetres added from SECONDS into the drive on
+    /// (0.5@1800: +0.5 mm after 30 min).
+    #[arg(long, allow_hyphen_values = true, value_name = "MM@SECONDS", value_parser = parse_cd_step)]
+    cd_step: Option<CdStep>,
+}
+
+/// `MM@SECONDS` of --cd-step.
+fn parse_cd_step(s: &str) -> Result<CdStep, String> {
+    let (mm, at) = s.split_once('@').ok_or_else(|| format!("'{s}': expected MM@SECONDS, e.g. 0.5@1800"))?;
+    let num = |v: &str, what: &str| {
+        v.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|x| x.is_finite())
+            .ok_or_else(|| format!("'{s}': {what} '{v}' is not a finite number"))
+    };
+    let (change_mm, at_s) = (num(mm, "the change (mm)")?, num(at, "the time (s)")?);
+    if at_s < 0.0 {
+        return Err(format!("'{s}': the time must not be negative"));
+    }
+    Ok(CdStep { change_m: change_mm * 1e-3, at_s })
 }
 
 /// The simulator's options for a seed, a route length and a noise preset.
@@ -62,6 +88,10 @@ pub fn run(mut a: SimulateArgs, bars: &Bars) -> Result<()> {
     if let Some(s) = a.substeps {
         o.substeps = s;
     }
+    if let Some(r) = a.ce_ramp_per_hour {
+        o.drift.c_e_relative_per_hour = r;
+    }
+    o.drift.c_d_step = a.cd_step;
     bars.stage("simulating");
     let out = sim::simulate(&o)?;
     bars.finish();
@@ -90,5 +120,8 @@ pub fn run(mut a: SimulateArgs, bars: &Bars) -> Result<()> {
         s.wheel_rotation_rel_error_rms * 100.0,
         side.display()
     );
+    if let Some(end) = out.sidecar.theta_true_end {
+        println!("the true θ drifts from {} at the start to {} at the end", out.sidecar.theta_true, end);
+    }
     Ok(())
 }

@@ -25,6 +25,8 @@ mod calibrate;
 mod convert;
 mod drive;
 mod files;
+mod history;
+mod online;
 mod report;
 mod run;
 
@@ -157,6 +159,8 @@ fn simulate(
 fn _odocal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("OdocalError", m.py().get_type::<OdocalError>())?;
     m.add_class::<PyDrive>()?;
+    m.add_class::<online::PyCalibrator>()?;
+    m.add_class::<history::PyHistory>()?;
     m.add_function(wrap_pyfunction!(calibrate::calibrate, m)?)?;
     m.add_function(wrap_pyfunction!(validate, m)?)?;
     m.add_function(wrap_pyfunction!(simulate, m)?)?;

@@ -16,7 +16,9 @@
 //!    dead-reckoning position error along the validation segments;
 //! 7. the warnings.
 //!
-//! [`plots`] holds the small SVG figure kit that the experiment figures use
+//! [`history::render_history_html`] draws a vehicle's calibration history
+//! (each parameter over the recorded calibrations with its σ and the drift
+//! flags). [`plots`] holds the small SVG figure kit that the experiment figures use
 //! too (plotters with its SVG backend only).
 //!
 //! ```
@@ -35,6 +37,7 @@
 //! # Ok(()) }
 //! ```
 
+pub mod history;
 pub mod plots;
 mod sections;
 

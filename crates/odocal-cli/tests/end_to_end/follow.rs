@@ -110,3 +110,60 @@ fn calibrate_records_a_drive_once() {
     let o = odocal(&["history", "van", "--db", db_s]);
     assert!(o.status.success() && stdout(&o).contains("batch-gn"), "{}", stdout(&o));
 }
+
+#[test]
+fn history_report_plots_each_parameter_with_the_rows() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let db = dir.path().join("h.sqlite");
+    let db_s = db.to_str().expect("utf8");
+    for (name, seed) in [("a.csv", "5"), ("b.csv", "6")] {
+        let d = simulated_drive(dir.path(), name, &["--seed", seed, "--length-km", "3"]);
+        let o = odocal(&["calibrate", &d, "--method", "batch-gn", "--vehicle", "van <&>", "--db", db_s]);
+        assert!(o.status.code() != Some(1), "{}", stderr(&o));
+    }
+    let report = dir.path().join("van.html");
+    let o = odocal(&["history", "van <&>", "--db", db_s, "--report", report.to_str().expect("utf8")]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let html = std::fs::read_to_string(&report).expect("report written");
+    assert_eq!(html.matches("<svg").count(), 4, "one plot per parameter");
+    for name in ["c_e", "c_d", "t_r", "d"] {
+        assert!(html.contains(&format!("<figure id=\"plot-{name}\">")), "{name}");
+    }
+    assert!(html.contains("van &lt;&amp;&gt;") && !html.contains("van <&>"));
+    let o = odocal(&["history", "van <&>", "--db", db_s, "--json", "-"]);
+    let v: Value = serde_json::from_str(&stdout(&o)).expect("history json");
+    let rows = v["rows"].as_array().expect("rows");
+    assert_eq!(rows.len(), 2);
+    for r in rows {
+        let c_e = r["theta"]["c_e"].as_f64().expect("c_e");
+        assert!(html.contains(&format!("{c_e:.6}")), "row value {c_e} missing");
+        assert!(html.contains(r["recorded_at"].as_str().expect("recorded_at")));
+    }
+    // A database that is not one: a clear error, no report.
+    let bad = dir.path().join("bad.sqlite");
+    std::fs::write(&bad, "not a database\n".repeat(100)).expect("write");
+    let out = dir.path().join("bad.html");
+    let o = odocal(&["history", "van", "--db", bad.to_str().expect("utf8"), "--report", out.to_str().expect("utf8")]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("bad.sqlite") && !out.exists(), "{}", stderr(&o));
+}
+
+#[test]
+fn simulate_with_drift_records_it_in_the_sidecar() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let args = ["--seed", "7", "--length-km", "2", "--ce-ramp-per-hour", "-0.003", "--cd-step", "0.5@60"];
+    let d = simulated_drive(dir.path(), "drift.csv", &args);
+    let side = json_file(&std::path::Path::new(&d).with_extension("json"));
+    assert_eq!(side["settings"]["drift"]["c_e_relative_per_hour"], -0.003);
+    assert_eq!(side["settings"]["drift"]["c_d_step"]["at_s"], 60.0);
+    let (start, end) = (&side["theta_true"], &side["theta_true_end"]);
+    assert!(end["c_e"].as_f64().expect("c_e") < start["c_e"].as_f64().expect("c_e"));
+    let dc_d = end["c_d"].as_f64().expect("c_d") - start["c_d"].as_f64().expect("c_d");
+    assert!((dc_d - 5e-4).abs() < 1e-12, "{dc_d}");
+    let plain = simulated_drive(dir.path(), "plain.csv", &["--seed", "7", "--length-km", "2"]);
+    let side = std::fs::read_to_string(std::path::Path::new(&plain).with_extension("json")).expect("sidecar");
+    assert!(!side.contains("theta_true_end") && !side.contains("\"drift\""));
+    let o = odocal(&["simulate", "--out", dir.path().join("x.csv").to_str().expect("utf8"), "--cd-step", "0.5"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("MM@SECONDS"), "{}", stderr(&o));
+}

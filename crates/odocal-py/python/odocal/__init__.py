@@ -29,14 +29,18 @@ import numpy as np
 
 from . import _odocal
 from ._odocal import COLUMNS, Drive, OdocalError, __version__, read_params, simulate
+from ._odocal import History as _History
+from . import online
 
 __all__ = [
     "COLUMNS",
     "THETA_NAMES",
     "CalibrationReport",
     "Drive",
+    "History",
     "OdocalError",
     "calibrate",
+    "online",
     "read_params",
     "simulate",
     "validate",
@@ -232,6 +236,51 @@ class CalibrationReport:
             f"t_r={t['t_r']:.6f} m, d={t['d'] * 1e3:.4f} mm/(m/s²); "
             f"Ē_p {self.mean_position_error_m:.3f} m>"
         )
+
+
+class History(_History):
+    """A vehicle's calibration history: the SQLite file that ``odocal
+    calibrate --vehicle ID --db FILE`` and ``odocal follow`` write.
+
+    ``History(path)`` opens it (creating it when missing; several processes
+    may read and write it at once). ``rows(vehicle)``: the table
+    ``calibrations`` as a list of dicts; ``drift(vehicle)``: changes between
+    consecutive rows beyond three combined σ; ``pooled(vehicle, ids=None)``:
+    the inverse-variance mean with the between-drive sd;
+    ``decisions(vehicle)``: the write-back decisions of ``odocal follow``;
+    ``latest(vehicle)``. Errors raise :class:`OdocalError`.
+    """
+
+    def record(
+        self,
+        report: Union["CalibrationReport", Mapping[str, Any]],
+        *,
+        vehicle: Optional[str] = None,
+        drive: Optional[Drive] = None,
+    ) -> dict:
+        """Records a calibration for ``vehicle``, unless its history already
+        holds the same drive (fingerprint) calibrated by the same method.
+
+        ``report`` is a :class:`CalibrationReport` (θ, its σ, verdict,
+        method and the calibration drives' fingerprints and files, as
+        ``odocal calibrate --vehicle --db`` records them; the time span from
+        the report's drive) or a dict of the table's fields (``vehicle``,
+        ``fingerprint``, ``method``, ``theta``; optional ``sigma``,
+        ``sources``, ``t_start_s``, ``t_end_s``, ``heading_offset_rad``,
+        ``verdict``). Returns ``{"id": row id, "new": False when it was
+        already recorded}``.
+        """
+        if isinstance(report, CalibrationReport):
+            if vehicle is None:
+                raise TypeError("record(report): give vehicle=")
+            d = drive if drive is not None else report._drive
+            if not isinstance(d, Drive):
+                d = None
+            return self._record_report(report._json, vehicle, d)
+        rec = dict(report)
+        if vehicle is not None:
+            rec["vehicle"] = vehicle
+        return self._record_dict(rec)
 
 
 def _theta_arg(theta: ThetaLike) -> Any:

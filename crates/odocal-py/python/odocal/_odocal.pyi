@@ -154,3 +154,89 @@ def _write_params(
     mapping: str,
     drives: Optional[Sequence[Drive]] = None,
 ) -> None: ...
+
+class Calibrator:
+    """The online calibrator (``odocal.online.Calibrator``): a recursive
+    Gauss-Newton over the calibration segments of a stream of samples."""
+
+    def __init__(
+        self,
+        theta0: Optional[_ThetaLike] = None,
+        sigma0: Optional[_ThetaLike] = None,
+        sample_time_s: float = 0.025,
+        *,
+        gates: Optional[Mapping[str, Any]] = None,
+        **options: Any,
+    ) -> None:
+        """``theta0`` (default: the paper's initial θ) with sd ``sigma0`` (default: the
+        options' prior); ``options`` are the library's ``OnlineOptions`` fields
+        (``information_scale``, ``random_walk={"c_e_relative": …}``, ``segments={…}``, …),
+        ``gates`` the write-back gates' fields (``steady_s``, ``max_sigma_c_e_relative``, …).
+        An unknown key raises TypeError naming the known ones; a bad value OdocalError."""
+    def push(
+        self,
+        t: Optional[_ArrayLike],
+        px: _ArrayLike,
+        py: _ArrayLike,
+        psi: _ArrayLike,
+        n_rl: _ArrayLike,
+        n_rr: _ArrayLike,
+        a_y: _ArrayLike,
+        beta: Optional[_ArrayLike] = None,
+    ) -> None:
+        """The next samples, in time order, as ``Drive.from_arrays`` takes them (``psi`` is
+        unwrapped across chunks). With ``t``: each step the sample time (within 1 %) or a gap
+        of more than 1.5 sample times, after which a new part starts."""
+    def push_drive(self, drive: Drive, chunk: int = 400) -> None:
+        """A whole drive as a new drive, in chunks."""
+    def new_drive(self) -> None:
+        """A new drive: the heading offset starts anew; θ and its covariance carry over."""
+    def new_part(self) -> None:
+        """A new continuous part of the current drive."""
+    @property
+    def theta(self) -> dict[str, float]: ...
+    @property
+    def sigma(self) -> dict[str, float]: ...
+    @property
+    def covariance(self) -> npt.NDArray[np.float64]:
+        """5×5 covariance of ``[c_e, c_d, t_r, d, heading_offset]``."""
+    @property
+    def heading_offset(self) -> tuple[float, float]:
+        """The drive's heading offset and its sd, rad."""
+    @property
+    def sample_time_s(self) -> float: ...
+    @property
+    def informative_time_s(self) -> float: ...
+    @property
+    def buffered_samples(self) -> int: ...
+    @property
+    def summary(self) -> dict[str, Any]:
+        """``samples``, ``folded_segments``, ``validation_segments``,
+        ``prequential_mean_position_error_m``, ``stored_mean_position_error_m``."""
+    @property
+    def recent_validation(self) -> list[dict[str, Any]]: ...
+    @property
+    def stored(self) -> Optional[dict[str, float]]:
+        """The parameters in use (compared on each validation segment and by the gates)."""
+    @stored.setter
+    def stored(self, theta: Optional[_ThetaLike]) -> None: ...
+    @property
+    def gates(self) -> dict[str, Any]: ...
+    def decide(self, stored: Optional[_ThetaLike] = None, calibrated: bool = True) -> dict[str, Any]:
+        """The gates' decision: ``{"action": "write" | "hold" | "flag", "reasons", "theta", "sigma"}``."""
+
+class History:
+    """A vehicle's calibration history (SQLite); use ``odocal.History``."""
+
+    def __init__(self, path: _Path) -> None: ...
+    @property
+    def path(self) -> PathLike[str]: ...
+    @property
+    def schema_version(self) -> int: ...
+    def rows(self, vehicle: str) -> list[dict[str, Any]]: ...
+    def latest(self, vehicle: str) -> Optional[dict[str, Any]]: ...
+    def drift(self, vehicle: str) -> list[dict[str, Any]]: ...
+    def pooled(self, vehicle: str, ids: Optional[Sequence[int]] = None) -> Optional[dict[str, Any]]: ...
+    def decisions(self, vehicle: str) -> list[dict[str, Any]]: ...
+    def _record_report(self, report_json: str, vehicle: str, drive: Optional[Drive] = None) -> dict[str, Any]: ...
+    def _record_dict(self, record: Mapping[str, Any]) -> dict[str, Any]: ...

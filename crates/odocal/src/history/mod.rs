@@ -35,6 +35,7 @@ use std::time::Duration;
 use rusqlite::{params, Connection, OptionalExtension, Row};
 use serde::{Deserialize, Serialize};
 
+use crate::calibrate::CalibrationReport;
 use crate::error::{Error, Result};
 use crate::model::Theta;
 
@@ -89,6 +90,35 @@ impl CalibrationRecord {
     }
 }
 
+impl CalibrationRecord {
+    /// The record of an offline calibration: θ, the σ that stands for the
+    /// result (when every parameter has one), the estimated heading offset
+    /// and the verdict of `report`; `fingerprint` names the calibration
+    /// drive(s), `sources` their files and `span_s` their first and last
+    /// sample time.
+    pub fn of_report(
+        vehicle: &str,
+        fingerprint: &str,
+        sources: Vec<String>,
+        span_s: (f64, f64),
+        report: &CalibrationReport,
+    ) -> Self {
+        let sigma = match report.result_sigma().to_array() {
+            [Some(c_e), Some(c_d), Some(t_r), Some(d)] => Some(Theta { c_e, c_d, t_r, d }),
+            _ => None,
+        };
+        CalibrationRecord {
+            sources,
+            t_start_s: span_s.0,
+            t_end_s: span_s.1,
+            sigma,
+            heading_offset_rad: report.extrinsics.as_ref().map(|x| x.value.heading_offset),
+            verdict: Some(report.verdict.level.to_string()),
+            ..CalibrationRecord::new(vehicle, fingerprint, &report.method, report.theta)
+        }
+    }
+}
+
 /// A row of the table `calibrations`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct HistoryRow {
@@ -132,6 +162,20 @@ pub struct Decision {
     pub theta: Theta,
     /// Its σ.
     pub sigma: Option<Theta>,
+}
+
+/// A row of the table `decisions`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DecisionRow {
+    /// The row id (increasing in logging order).
+    pub id: i64,
+    /// When it was decided, UTC, ISO 8601.
+    pub decided_at: String,
+    /// The odocal version that decided it.
+    pub odocal_version: String,
+    /// The decision.
+    #[serde(flatten)]
+    pub decision: Decision,
 }
 
 /// An open history database.
@@ -178,6 +222,25 @@ fn history_row(r: &Row<'_>) -> rusqlite::Result<HistoryRow> {
             sigma: sigma_at(r, 13)?,
             heading_offset_rad: r.get(17)?,
             verdict: r.get(18)?,
+        },
+    })
+}
+
+fn decision_row(r: &Row<'_>) -> rusqlite::Result<DecisionRow> {
+    let reasons: String = r.get(6)?;
+    Ok(DecisionRow {
+        id: r.get(0)?,
+        decided_at: r.get(1)?,
+        odocal_version: r.get(2)?,
+        decision: Decision {
+            vehicle: r.get(3)?,
+            fingerprint: r.get(4)?,
+            source: r.get(5)?,
+            reasons: serde_json::from_str(&reasons).unwrap_or_else(|_| vec![reasons.clone()]),
+            drive_time_s: r.get(7)?,
+            decision: r.get(8)?,
+            theta: theta_at(r, 9)?,
+            sigma: sigma_at(r, 13)?,
         },
     })
 }
@@ -343,6 +406,21 @@ impl History {
             )
             .map_err(&err)?;
         Ok(self.conn.last_insert_rowid())
+    }
+
+    /// The vehicle's logged write-back decisions in logging order.
+    pub fn decisions(&self, vehicle: &str) -> Result<Vec<DecisionRow>> {
+        let err = sql_err(&self.path);
+        let mut st = self
+            .conn
+            .prepare(
+                "SELECT id, decided_at, odocal_version, vehicle, fingerprint, source, reasons, drive_time_s, \
+                 decision, c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d FROM decisions \
+                 WHERE vehicle = ?1 ORDER BY id",
+            )
+            .map_err(&err)?;
+        let rows = st.query_map(params![vehicle], decision_row).map_err(&err)?;
+        rows.collect::<rusqlite::Result<Vec<_>>>().map_err(&err)
     }
 
     /// True when decisions were logged for this vehicle and drive: the

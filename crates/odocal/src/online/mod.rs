@@ -117,6 +117,36 @@ impl<'a> Chunk<'a> {
     }
 }
 
+/// Unwraps a heading that arrives chunk by chunk, as [`Drive`] unwraps a
+/// whole column: every step larger than π in magnitude is taken as a 2π
+/// wrap, with the same arithmetic, so a stream unwrapped chunk by chunk
+/// equals the drive's column bit for bit.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct HeadingUnwrap {
+    offset: f64,
+    prev_raw: Option<f64>,
+}
+
+impl HeadingUnwrap {
+    /// Unwraps the next samples in place, continuing from the last chunk.
+    pub fn unwrap(&mut self, psi: &mut [f64]) {
+        let two_pi = 2.0 * std::f64::consts::PI;
+        for v in psi.iter_mut() {
+            let raw = *v;
+            if let Some(prev) = self.prev_raw {
+                let d = raw - prev;
+                if d > std::f64::consts::PI {
+                    self.offset -= two_pi * ((d + std::f64::consts::PI) / two_pi).floor();
+                } else if d < -std::f64::consts::PI {
+                    self.offset += two_pi * ((-d + std::f64::consts::PI) / two_pi).floor();
+                }
+                *v = raw + self.offset;
+            }
+            self.prev_raw = Some(raw);
+        }
+    }
+}
+
 /// One validation segment scored when it completed.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct ValidationScore {

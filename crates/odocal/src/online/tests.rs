@@ -120,3 +120,21 @@ fn bad_chunks_are_refused() {
     let c = Chunk { n_rl: &nan, a_y: &a, ..c };
     assert!(cal.push(&c).expect_err("nan").to_string().contains("n_rl"));
 }
+
+#[test]
+fn a_heading_unwrapped_chunk_by_chunk_equals_the_drive_column() {
+    let raw: Vec<f64> = (0..500).map(|i| crate::model::wrap_angle(0.05 * i as f64 - 1.0)).collect();
+    let mut whole = raw.clone();
+    crate::drive::unwrap_in_place(&mut whole);
+    let mut u = HeadingUnwrap::default();
+    let mut chunked = Vec::new();
+    for c in raw.chunks(37) {
+        let mut c = c.to_vec();
+        u.unwrap(&mut c);
+        chunked.extend(c);
+    }
+    assert_eq!(
+        whole.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+        chunked.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+    );
+}

@@ -83,7 +83,7 @@ mod world;
 
 use options::invalid;
 pub(crate) use options::SpeedOptions;
-pub use options::{NoiseOptions, SimOptions};
+pub use options::{CdStep, DriftOptions, NoiseOptions, SimOptions};
 use route::{build_route, stream, Encoder, GaussMarkov, Route, SpeedProfile, White};
 pub use truth::{sidecar_for, SidecarMatch};
 pub use world::{NoiseRegime, WorldSummary};
@@ -127,6 +127,10 @@ pub struct SimSidecar {
     /// sidecar to its CSV ([`sidecar_for`]). `None` when not recorded.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub drive_fingerprint: Option<String>,
+    /// With drifting parameters ([`SimOptions::drift`]): the true θ at the
+    /// last sample (`theta_true` is θ at the first). `None` without drift.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub theta_true_end: Option<Theta>,
 }
 
 impl SimSidecar {
@@ -196,6 +200,10 @@ pub fn simulate(opts: &SimOptions) -> Result<SimOutput> {
     if n < 2 {
         return Err(invalid("length_km", "the drive is shorter than two samples"));
     }
+    let theta_end = (!opts.drift.is_zero()).then(|| opts.drift.theta_at(&theta, (n - 1) as f64 * ts));
+    if let Some(th) = theta_end {
+        th.validate().map_err(|e| invalid("drift", format!("θ at the end of the drive: {e}")))?;
+    }
     let truth = integrate_truth(opts, &route, &profile, psi0, n, ts);
     let (measured, wheel_rotation_rel_error_rms) = measure(opts, &truth, ts);
 
@@ -212,7 +220,16 @@ pub fn simulate(opts: &SimOptions) -> Result<SimOutput> {
     let t = (0..n).map(|k| k as f64 / opts.sample_rate_hz).collect();
     let drive = Drive::builder(t, measured).truth(truth).sample_time_s(ts).context("simulator").build()?;
     let drive_fingerprint = Some(drive.fingerprint());
-    Ok(SimOutput { drive, sidecar: SimSidecar { theta_true: theta, settings: opts.clone(), stats, drive_fingerprint } })
+    Ok(SimOutput {
+        drive,
+        sidecar: SimSidecar {
+            theta_true: theta,
+            settings: opts.clone(),
+            stats,
+            drive_fingerprint,
+            theta_true_end: theta_end,
+        },
+    })
 }
 
 /// The true signals of a simulated drive.
@@ -230,9 +247,11 @@ struct Truth {
 
 /// The truth: `n` samples along the route at the speed profile from
 /// heading `psi0`, the model integrated at the fine step `ts / substeps`
-/// with the inputs θ_true implies.
+/// with the inputs θ_true implies (θ at each fine step's midpoint time when
+/// the parameters drift).
 fn integrate_truth(opts: &SimOptions, route: &Route, profile: &SpeedProfile, psi0: f64, n: usize, ts: f64) -> Truth {
-    let theta = opts.theta_true;
+    let theta0 = opts.theta_true;
+    let drifting = !opts.drift.is_zero();
     let sub = opts.substeps;
     let dtf = ts / sub as f64;
     let beta_gain = opts.vehicle.sideslip_gain_rad_per_m_per_s2();
@@ -253,6 +272,7 @@ fn integrate_truth(opts: &SimOptions, route: &Route, profile: &SpeedProfile, psi
             let omega = m.v * kappa;
             let a_y = m.v * omega;
             let beta = beta_gain * a_y;
+            let theta = if drifting { opts.drift.theta_at(&theta0, t_mid) } else { theta0 };
             let (n_rl, n_rr) = model::wheel_rotations(m.v, omega, a_y, &theta);
             let u = Input { n_rl, n_rr, beta, a_y };
             x = model::step(&x, &u, &theta, dtf);
@@ -519,6 +539,51 @@ mod tests {
         // A sidecar without the new keys reads back with their defaults.
         let back: SimSidecar = serde_json::from_str(&text).expect("read back");
         assert_eq!(back.settings, paper.sidecar.settings);
+    }
+
+    #[test]
+    fn no_drift_by_default_changes_nothing() {
+        let paper = short(SimOptions::paper(17), 1.0);
+        // A drift of zero stated explicitly: the same bytes, the same sidecar.
+        let mut stated = SimOptions::paper(17);
+        stated.drift = DriftOptions { c_e_relative_per_hour: 0.0, c_d_step: None };
+        let again = short(stated, 1.0);
+        assert_eq!(csv_bytes(&again.drive), csv_bytes(&paper.drive));
+        let text = serde_json::to_string(&paper.sidecar).expect("json");
+        assert_eq!(serde_json::to_string(&again.sidecar).expect("json"), text);
+        assert!(!text.contains("\"drift\"") && !text.contains("theta_true_end"), "{text}");
+        assert!(paper.sidecar.theta_true_end.is_none());
+    }
+
+    #[test]
+    fn drifting_parameters_are_in_the_truth_and_the_sidecar() {
+        let mut o = SimOptions { substeps: 1, ..SimOptions::noise_free(23) };
+        o.drift = DriftOptions { c_e_relative_per_hour: -0.03, c_d_step: Some(CdStep { change_m: 2e-3, at_s: 60.0 }) };
+        let out = short(o.clone(), 3.0);
+        let d = &out.drive;
+        let ts = d.sample_time_s();
+        // With one substep the model reproduces each truth step with θ at the step's midpoint.
+        let tr = truth(d);
+        let step_error = |k: usize, theta: &Theta| {
+            let x = State::new(tr.px[k], tr.py[k], tr.psi[k]);
+            let u = Input { n_rl: tr.n_rl[k], n_rr: tr.n_rr[k], beta: tr.beta[k], a_y: tr.a_y[k] };
+            (model::step(&x, &u, theta, ts) - State::new(tr.px[k + 1], tr.py[k + 1], tr.psi[k + 1])).abs().max()
+        };
+        let (mut drifting, mut fixed) = (0.0f64, 0.0f64);
+        for k in 0..d.len() - 1 {
+            drifting = drifting.max(step_error(k, &o.drift.theta_at(&o.theta_true, (k as f64 + 0.5) * ts)));
+            fixed = fixed.max(step_error(k, &o.theta_true));
+        }
+        assert!(drifting < 1e-9 && fixed > 1e-4, "{drifting:e} {fixed:e}");
+        let end = out.sidecar.theta_true_end.expect("θ at the end");
+        let hours = (d.len() - 1) as f64 * ts / 3600.0;
+        approx::assert_relative_eq!(end.c_e, o.theta_true.c_e * (1.0 - 0.03 * hours), max_relative = 1e-12);
+        approx::assert_relative_eq!(end.c_d, o.theta_true.c_d + 2e-3, max_relative = 1e-12);
+        let text = serde_json::to_string(&out.sidecar).expect("json");
+        let back: SimSidecar = serde_json::from_str(&text).expect("read back");
+        assert_eq!(back.settings.drift, o.drift);
+        let bad = SimOptions { drift: DriftOptions { c_e_relative_per_hour: f64::NAN, c_d_step: None }, ..o };
+        assert!(simulate(&bad).expect_err("a NaN ramp").to_string().contains("drift.c_e_relative_per_hour"));
     }
 
     #[test]

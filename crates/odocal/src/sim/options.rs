@@ -336,6 +336,62 @@ impl NoiseOptions {
     }
 }
 
+/// A step change of `c_d` during a drive (a tyre change, a pressure loss).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct CdStep {
+    /// The change of `c_d`, m.
+    pub change_m: f64,
+    /// When it happens, s from the start of the drive.
+    pub at_s: f64,
+}
+
+/// Parameters that drift during a drive: the true θ at time `t` is
+/// [`DriftOptions::theta_at`]. Default: no drift (θ constant, and the
+/// simulator's output byte-identical to one without this setting).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct DriftOptions {
+    /// `c_e`'s linear change per hour of driving, as a fraction of its
+    /// value at the start (tyres warming: about −0.003). Default 0.
+    pub c_e_relative_per_hour: f64,
+    /// A step of `c_d`. Default none.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub c_d_step: Option<CdStep>,
+}
+
+impl DriftOptions {
+    /// True when nothing drifts.
+    pub fn is_zero(&self) -> bool {
+        self.c_e_relative_per_hour == 0.0 && self.c_d_step.is_none()
+    }
+
+    /// The true θ at `t_s` seconds into the drive, from `theta0` at its
+    /// start: `c_e·(1 + r·t/3600)` and `c_d + Δ` from the step's time on.
+    /// `theta0` itself when nothing drifts.
+    pub fn theta_at(&self, theta0: &Theta, t_s: f64) -> Theta {
+        if self.is_zero() {
+            return *theta0;
+        }
+        let mut th = *theta0;
+        th.c_e = theta0.c_e * (1.0 + self.c_e_relative_per_hour * t_s / 3600.0);
+        if let Some(step) = self.c_d_step {
+            if t_s >= step.at_s {
+                th.c_d += step.change_m;
+            }
+        }
+        th
+    }
+
+    pub(crate) fn validate(&self) -> Result<()> {
+        check_finite("drift.c_e_relative_per_hour", self.c_e_relative_per_hour)?;
+        if let Some(s) = self.c_d_step {
+            check_finite("drift.c_d_step.change_m", s.change_m)?;
+            check_non_negative("drift.c_d_step.at_s", s.at_s)?;
+        }
+        Ok(())
+    }
+}
+
 /// Everything the simulator needs. [`SimOptions::paper`] holds the SPEC defaults.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
@@ -366,6 +422,12 @@ pub struct SimOptions {
     /// byte-identical to a simulator without this setting).
     #[serde(skip_serializing_if = "Extrinsics::is_zero")]
     pub reference_mount: Extrinsics,
+    /// Parameters that drift during the drive ([`DriftOptions`]); the
+    /// sidecar's `theta_true` is θ at the start. Default none (and then
+    /// not written to the sidecar, so the output is byte-identical to a
+    /// simulator without this setting).
+    #[serde(skip_serializing_if = "DriftOptions::is_zero")]
+    pub drift: DriftOptions,
 }
 
 impl Default for SimOptions {
@@ -441,6 +503,7 @@ impl SimOptions {
             vehicle: VehicleOptions::default(),
             noise: NoiseOptions::paper(),
             reference_mount: Extrinsics::ZERO,
+            drift: DriftOptions::default(),
         }
     }
 
@@ -475,6 +538,7 @@ impl SimOptions {
     /// Checks every option, naming the offending field.
     pub(crate) fn validate(&self) -> Result<()> {
         self.reference_mount.validate()?;
+        self.drift.validate()?;
         check_positive("length_km", self.length_km)?;
         if self.length_km > MAX_LENGTH_KM {
             return Err(invalid(

@@ -1,0 +1,166 @@
+//! `odocal.History`: a vehicle's calibration history in an SQLite file
+//! ([`odocal::history::History`]), rows as dicts.
+
+use std::path::PathBuf;
+use std::sync::Mutex;
+
+use pyo3::exceptions::PyRuntimeError;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use odocal::history::{CalibrationRecord, History, Recorded};
+
+use crate::convert::{json, to_json, to_py};
+use crate::drive::PyDrive;
+use crate::lib_err;
+use crate::report::report_from_json;
+
+/// A vehicle's calibration history (the file `odocal calibrate --vehicle
+/// --db` and `odocal follow` write).
+#[pyclass(module = "odocal", name = "History", frozen, subclass)]
+pub(crate) struct PyHistory {
+    db: Mutex<History>,
+}
+
+impl PyHistory {
+    fn with<T>(&self, f: impl FnOnce(&mut History) -> odocal::Result<T>) -> PyResult<T> {
+        let mut db = self.db.lock().map_err(|_| PyRuntimeError::new_err("the history is poisoned by a panic"))?;
+        f(&mut db).map_err(lib_err)
+    }
+}
+
+/// A record's outcome as `{"id": …, "new": bool}`.
+fn recorded<'py>(py: Python<'py>, r: Recorded) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    let (id, new) = match r {
+        Recorded::New(id) => (id, true),
+        Recorded::AlreadyRecorded(id) => (id, false),
+    };
+    d.set_item("id", id)?;
+    d.set_item("new", new)?;
+    Ok(d)
+}
+
+#[pymethods]
+impl PyHistory {
+    /// Opens (creating if need be) the history at `path`, bringing its
+    /// schema to this odocal's version. Raises `OdocalError` for a file
+    /// that is not an odocal history or was written by a newer odocal.
+    #[new]
+    fn new(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
+        let db = py.detach(|| History::open(&path)).map_err(lib_err)?;
+        Ok(PyHistory { db: Mutex::new(db) })
+    }
+
+    /// The database file.
+    #[getter]
+    fn path(&self) -> PyResult<PathBuf> {
+        self.with(|db| Ok(db.path().to_path_buf()))
+    }
+
+    /// The schema version of the file.
+    #[getter]
+    fn schema_version(&self) -> PyResult<i64> {
+        self.with(|db| db.schema_version())
+    }
+
+    /// The vehicle's calibrations in recording order, one dict per row
+    /// (the columns of the table `calibrations`; `theta` and `sigma` as dicts).
+    fn rows<'py>(&self, py: Python<'py>, vehicle: &str) -> PyResult<Bound<'py, PyAny>> {
+        let rows = self.with(|db| db.rows(vehicle))?;
+        to_py(py, &json(&rows)?)
+    }
+
+    /// The vehicle's most recent row, or None.
+    fn latest<'py>(&self, py: Python<'py>, vehicle: &str) -> PyResult<Bound<'py, PyAny>> {
+        let row = self.with(|db| db.latest(vehicle))?;
+        to_py(py, &json(&row)?)
+    }
+
+    /// Every parameter change between consecutive rows beyond three
+    /// combined σ: dicts with `parameter`, `from_id`, `from_recorded_at`,
+    /// `to_id`, `to_recorded_at`, `change`, `combined_sigma`.
+    fn drift<'py>(&self, py: Python<'py>, vehicle: &str) -> PyResult<Bound<'py, PyAny>> {
+        let flags = self.with(|db| db.drift(vehicle))?;
+        to_py(py, &json(&flags)?)
+    }
+
+    /// The pooled estimate over the vehicle's rows (those with an id in
+    /// `ids`, or all): `{"rows", "mean", "sigma_of_mean",
+    /// "between_drive_sd"}`, or None without rows.
+    #[pyo3(signature = (vehicle, ids=None))]
+    fn pooled<'py>(&self, py: Python<'py>, vehicle: &str, ids: Option<Vec<i64>>) -> PyResult<Bound<'py, PyAny>> {
+        let p = self.with(|db| db.pooled(vehicle, ids.as_deref()))?;
+        to_py(py, &json(&p)?)
+    }
+
+    /// The vehicle's logged write-back decisions (table `decisions`), in order.
+    fn decisions<'py>(&self, py: Python<'py>, vehicle: &str) -> PyResult<Bound<'py, PyAny>> {
+        let d = self.with(|db| db.decisions(vehicle))?;
+        to_py(py, &json(&d)?)
+    }
+
+    /// Records a calibration report's JSON text for `vehicle` (the
+    /// drives' fingerprints and files from its `"drives"`, the time span
+    /// from `drive`). Use `History.record`.
+    #[pyo3(signature = (report_json, vehicle, drive=None))]
+    fn _record_report<'py>(
+        &self,
+        py: Python<'py>,
+        report_json: &str,
+        vehicle: &str,
+        drive: Option<&Bound<'_, PyDrive>>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let report = report_from_json(report_json)?;
+        let v: serde_json::Value =
+            serde_json::from_str(report_json).map_err(|e| PyRuntimeError::new_err(format!("report: {e}")))?;
+        let entries: Vec<&serde_json::Value> = v["drives"]
+            .as_array()
+            .map(|a| a.iter().filter(|e| e["role"] == "calibration").collect())
+            .unwrap_or_default();
+        let prints: Vec<&str> = entries.iter().filter_map(|e| e["fingerprint"].as_str()).collect();
+        let fingerprint = match (prints.is_empty(), drive) {
+            (false, _) => prints.join(", "),
+            (true, Some(d)) => d.get().drive.fingerprint(),
+            (true, None) => {
+                return Err(lib_err(odocal::Error::InvalidOption {
+                    field: "report",
+                    reason: "names no calibration drive's fingerprint; give the drive".into(),
+                }))
+            }
+        };
+        let sources = entries.iter().filter_map(|e| e["path"].as_str().map(String::from)).collect();
+        let span = drive.map_or((0.0, 0.0), |d| {
+            let t = d.get().drive.t();
+            (t.first().copied().unwrap_or(0.0), t.last().copied().unwrap_or(0.0))
+        });
+        let rec = CalibrationRecord::of_report(vehicle, &fingerprint, sources, span, &report);
+        let r = self.with(|db| db.record(&rec))?;
+        recorded(py, r)
+    }
+
+    /// Records a row given as a dict of the table's fields (`vehicle`,
+    /// `fingerprint`, `method`, `theta`; optional `sigma`, `sources`,
+    /// `t_start_s`, `t_end_s`, `heading_offset_rad`, `verdict`). Use
+    /// `History.record`.
+    fn _record_dict<'py>(&self, py: Python<'py>, record: &Bound<'_, PyDict>) -> PyResult<Bound<'py, PyDict>> {
+        let mut v = to_json(record.as_any(), "record")?;
+        if let Some(m) = v.as_object_mut() {
+            let defaults = [("sources", serde_json::json!([])), ("t_start_s", 0.0.into()), ("t_end_s", 0.0.into())];
+            for (k, d) in defaults {
+                m.entry(k).or_insert(d);
+            }
+            for k in ["sigma", "heading_offset_rad", "verdict"] {
+                m.entry(k).or_insert(serde_json::Value::Null);
+            }
+        }
+        let rec: CalibrationRecord = serde_json::from_value(v)
+            .map_err(|e| lib_err(odocal::Error::InvalidOption { field: "record", reason: e.to_string() }))?;
+        let r = self.with(|db| db.record(&rec))?;
+        recorded(py, r)
+    }
+
+    fn __repr__(&self) -> PyResult<String> {
+        self.with(|db| Ok(format!("<odocal.History {}>", db.path().display())))
+    }
+}

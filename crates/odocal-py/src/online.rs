@@ -1,0 +1,341 @@
+//! `odocal.online.Calibrator`: the library's online calibrator
+//! ([`odocal::online::Calibrator`]) fed with numpy arrays, and its
+//! write-back gates ([`odocal::online::gate::Gates`]).
+
+use numpy::{AllowTypeChange, PyArray2, PyArrayLike1};
+use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use serde::de::DeserializeOwned;
+use serde::Serialize;
+
+use odocal::online::gate::Gates;
+use odocal::online::{Calibrator, Chunk, HeadingUnwrap, OnlineOptions};
+use odocal::Theta;
+
+use crate::convert::{extract_theta, json, to_json, to_py};
+use crate::drive::PyDrive;
+use crate::lib_err;
+
+/// Steps between pushed samples larger than this many sample times are a
+/// gap: a new continuous part starts after them.
+const GAP_STEPS: f64 = 1.5;
+
+/// Relative tolerance of a step against the sample time (as a drive's).
+const STEP_TOLERANCE: f64 = 0.01;
+
+/// `defaults` (a library options struct) with the keys of `given` put over
+/// it, nested tables key by key; an unknown key raises `TypeError` naming it
+/// and the known ones; a bad value, `OdocalError` with serde's message.
+pub(crate) fn overlay<T: Serialize + DeserializeOwned>(
+    defaults: &T,
+    given: Option<&Bound<'_, PyDict>>,
+    what: &str,
+) -> PyResult<T> {
+    let mut v = json(defaults)?;
+    if let Some(d) = given {
+        merge(&mut v, to_json(d.as_any(), what)?, what)?;
+    }
+    serde_json::from_value(v)
+        .map_err(|e| lib_err(odocal::Error::InvalidOption { field: "options", reason: format!("{what}: {e}") }))
+}
+
+fn merge(base: &mut serde_json::Value, given: serde_json::Value, path: &str) -> PyResult<()> {
+    use serde_json::Value;
+    let (Value::Object(b), Value::Object(g)) = (&mut *base, &given) else {
+        *base = given;
+        return Ok(());
+    };
+    for (k, x) in g {
+        let Some(slot) = b.get_mut(k) else {
+            let known: Vec<&str> = b.keys().map(String::as_str).collect();
+            return Err(PyTypeError::new_err(format!("{path}: no option '{k}' (known: {})", known.join(", "))));
+        };
+        if slot.is_object() && x.is_object() {
+            merge(slot, x.clone(), &format!("{path}.{k}"))?;
+        } else {
+            *slot = x.clone();
+        }
+    }
+    Ok(())
+}
+
+type Column<'py> = PyArrayLike1<'py, f64, AllowTypeChange>;
+
+/// The online calibrator: a recursive Gauss-Newton over the calibration
+/// segments of a stream of samples.
+#[pyclass(module = "odocal.online", name = "Calibrator")]
+pub(crate) struct PyCalibrator {
+    cal: Calibrator,
+    gates: Gates,
+    unwrap: HeadingUnwrap,
+    last_t: Option<f64>,
+}
+
+impl PyCalibrator {
+    /// Checks a chunk's times against the sample time; returns the sample
+    /// indices where a new part starts (after a gap), the first possibly 0.
+    fn part_starts(&self, t: &[f64]) -> PyResult<Vec<usize>> {
+        let ts = self.cal.sample_time_s();
+        let mut starts = Vec::new();
+        let mut prev = self.last_t;
+        for (i, &ti) in t.iter().enumerate() {
+            if !ti.is_finite() {
+                return Err(lib_err(odocal::Error::InvalidOption {
+                    field: "t",
+                    reason: format!("sample {i}: time {ti} is not finite"),
+                }));
+            }
+            if let Some(p) = prev {
+                let step = ti - p;
+                if step > GAP_STEPS * ts {
+                    starts.push(i);
+                } else if (step - ts).abs() > STEP_TOLERANCE * ts {
+                    return Err(lib_err(odocal::Error::InvalidOption {
+                        field: "t",
+                        reason: format!(
+                            "sample {i}: step {step} s from the previous sample is not the sample time {ts} s \
+                             (within 1 %) nor a gap (more than {GAP_STEPS} sample times)"
+                        ),
+                    }));
+                }
+            }
+            prev = Some(ti);
+        }
+        Ok(starts)
+    }
+}
+
+#[pymethods]
+impl PyCalibrator {
+    /// A calibrator starting at `theta0` (default: the paper's initial θ)
+    /// with sd `sigma0` (default: the options' prior) for samples every
+    /// `sample_time_s` seconds. Other keywords are the library's
+    /// `OnlineOptions` fields (nested ones as dicts: `random_walk={"c_e_relative": 1e-3}`);
+    /// `gates` is a dict of the write-back gates' fields.
+    #[new]
+    #[pyo3(signature = (theta0=None, sigma0=None, sample_time_s=0.025, *, gates=None, **options))]
+    fn new(
+        theta0: Option<&Bound<'_, PyAny>>,
+        sigma0: Option<&Bound<'_, PyAny>>,
+        sample_time_s: f64,
+        gates: Option<&Bound<'_, PyDict>>,
+        options: Option<&Bound<'_, PyDict>>,
+    ) -> PyResult<Self> {
+        let theta0 = theta0.map(extract_theta).transpose()?.unwrap_or(Theta::PAPER_INITIAL);
+        let sigma0 = sigma0.map(extract_theta).transpose()?;
+        let opts: OnlineOptions = overlay(&OnlineOptions::default(), options, "options")?;
+        let gates: Gates = overlay(&Gates::default(), gates, "gates")?;
+        let cal = Calibrator::new(theta0, sigma0, sample_time_s, opts).map_err(lib_err)?;
+        Ok(PyCalibrator { cal, gates, unwrap: HeadingUnwrap::default(), last_t: None })
+    }
+
+    /// Takes the next samples of the current drive, in time order: the
+    /// columns of `Drive.from_arrays` (`beta` defaults to zeros; `psi` is
+    /// unwrapped across chunks). With `t`, each step must be the sample
+    /// time (within 1 %), or a gap of more than 1.5 sample times, after
+    /// which a new continuous part starts; without it, the samples follow
+    /// the previous ones. Raises `OdocalError` for columns of different
+    /// lengths, values that are not finite or times that do not fit.
+    #[pyo3(signature = (t, px, py, psi, n_rl, n_rr, a_y, beta=None))]
+    #[allow(clippy::too_many_arguments)] // one argument per column, as Drive.from_arrays
+    fn push(
+        &mut self,
+        gil: Python<'_>,
+        t: Option<Column<'_>>,
+        px: Column<'_>,
+        py: Column<'_>,
+        psi: Column<'_>,
+        n_rl: Column<'_>,
+        n_rr: Column<'_>,
+        a_y: Column<'_>,
+        beta: Option<Column<'_>>,
+    ) -> PyResult<()> {
+        let n = px.as_array().len();
+        let beta = beta.map_or_else(|| vec![0.0; n], |b| b.as_array().to_vec());
+        let mut psi = psi.as_array().to_vec();
+        let cols = [px.as_array().to_vec(), py.as_array().to_vec(), n_rl.as_array().to_vec(), n_rr.as_array().to_vec()];
+        let a_y = a_y.as_array().to_vec();
+        let t = t.map(|t| t.as_array().to_vec());
+        let lengths = [cols[0].len(), cols[1].len(), psi.len(), cols[2].len(), cols[3].len(), beta.len(), a_y.len()];
+        if let Some(bad) =
+            lengths.iter().position(|&l| l != n).or_else(|| t.as_ref().filter(|t| t.len() != n).map(|_| 7))
+        {
+            let names = ["px", "py", "psi", "n_rl", "n_rr", "beta", "a_y", "t"];
+            return Err(lib_err(odocal::Error::InvalidOption {
+                field: "chunk",
+                reason: format!("column {} has a length other than px's ({n})", names[bad]),
+            }));
+        }
+        let starts = match &t {
+            Some(t) => self.part_starts(t)?,
+            None => Vec::new(),
+        };
+        self.unwrap.unwrap(&mut psi);
+        let this = &mut *self;
+        gil.detach(|| {
+            let mut bounds: Vec<usize> = std::iter::once(0).chain(starts.iter().copied()).collect();
+            bounds.push(n);
+            for w in bounds.windows(2) {
+                let r = w[0]..w[1];
+                if starts.contains(&w[0]) {
+                    this.cal.begin_part();
+                }
+                let chunk = Chunk {
+                    px: &cols[0][r.clone()],
+                    py: &cols[1][r.clone()],
+                    psi: &psi[r.clone()],
+                    n_rl: &cols[2][r.clone()],
+                    n_rr: &cols[3][r.clone()],
+                    beta: &beta[r.clone()],
+                    a_y: &a_y[r],
+                };
+                this.cal.push(&chunk)?;
+            }
+            Ok::<(), odocal::Error>(())
+        })
+        .map_err(lib_err)?;
+        if let Some(last) = t.as_ref().and_then(|t| t.last()) {
+            self.last_t = Some(*last);
+        }
+        Ok(())
+    }
+
+    /// Pushes a whole `odocal.Drive` as a new drive, part by part, in
+    /// chunks of `chunk` samples (what `odocal follow` does).
+    #[pyo3(signature = (drive, chunk=400))]
+    fn push_drive(&mut self, gil: Python<'_>, drive: &Bound<'_, PyDrive>, chunk: usize) -> PyResult<()> {
+        let d = std::sync::Arc::clone(&drive.get().drive);
+        if (d.sample_time_s() - self.cal.sample_time_s()).abs() > 1e-9 {
+            return Err(PyValueError::new_err(format!(
+                "the drive's sample time {} s is not the calibrator's {} s",
+                d.sample_time_s(),
+                self.cal.sample_time_s()
+            )));
+        }
+        let cal = &mut self.cal;
+        gil.detach(|| cal.push_drive(&d, chunk, |_| {})).map_err(lib_err)?;
+        self.unwrap = HeadingUnwrap::default();
+        self.last_t = None;
+        Ok(())
+    }
+
+    /// Starts a new drive: the heading offset starts anew, the drive's
+    /// counters are cleared; θ and its covariance carry over.
+    fn new_drive(&mut self) {
+        self.cal.begin_drive();
+        self.unwrap = HeadingUnwrap::default();
+        self.last_t = None;
+    }
+
+    /// Starts a new continuous part of the current drive (after a gap that
+    /// `t` does not show).
+    fn new_part(&mut self) {
+        self.cal.begin_part();
+    }
+
+    /// The current θ: `{"c_e", "c_d", "t_r", "d"}`.
+    #[getter]
+    fn theta<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        to_py(py, &json(&self.cal.theta())?)
+    }
+
+    /// θ's standard deviation, same keys.
+    #[getter]
+    fn sigma<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        to_py(py, &json(&self.cal.sigma())?)
+    }
+
+    /// The 5×5 covariance of `[c_e, c_d, t_r, d, heading_offset]`.
+    #[getter]
+    fn covariance<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let rows: Vec<Vec<f64>> = self.cal.covariance().iter().map(|r| r.to_vec()).collect();
+        Ok(PyArray2::from_vec2(py, &rows)?)
+    }
+
+    /// The current drive's heading offset (reference minus vehicle) and its sd, rad.
+    #[getter]
+    fn heading_offset(&self) -> (f64, f64) {
+        self.cal.heading_offset()
+    }
+
+    /// The sample time the calibrator was made for, s.
+    #[getter]
+    fn sample_time_s(&self) -> f64 {
+        self.cal.sample_time_s()
+    }
+
+    /// Informative (turning) driving folded in so far, s.
+    #[getter]
+    fn informative_time_s(&self) -> f64 {
+        self.cal.informative_time_s()
+    }
+
+    /// Samples held in the buffer (bounded, whatever the drive's length).
+    #[getter]
+    fn buffered_samples(&self) -> usize {
+        self.cal.buffered_samples()
+    }
+
+    /// What the calibrator saw of the current drive: `samples`,
+    /// `folded_segments`, `validation_segments`,
+    /// `prequential_mean_position_error_m`, `stored_mean_position_error_m`.
+    #[getter]
+    fn summary<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        to_py(py, &json(&self.cal.drive_summary())?)
+    }
+
+    /// The drive's most recently scored validation segments, oldest first:
+    /// dicts with `start_s`, `prequential_m`, `stored_m`.
+    #[getter]
+    fn recent_validation<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let v: Vec<_> = self.cal.recent_validation().copied().collect();
+        to_py(py, &json(&v)?)
+    }
+
+    /// The parameters in use, compared with the online θ on each
+    /// validation segment and by the gates (`None`: none).
+    #[getter]
+    fn get_stored<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        to_py(py, &json(&self.cal.stored_theta())?)
+    }
+
+    #[setter]
+    fn set_stored(&mut self, theta: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
+        let theta = theta.filter(|t| !t.is_none()).map(extract_theta).transpose()?;
+        self.cal.set_stored(theta);
+        Ok(())
+    }
+
+    /// The write-back gates' thresholds, as a dict.
+    #[getter]
+    fn gates<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        to_py(py, &json(&self.gates)?)
+    }
+
+    /// The gates' decision on the current estimate against `stored`
+    /// (default: the stored θ): `{"action": "write" | "hold" | "flag",
+    /// "reasons": [...], "theta": {...}, "sigma": {...}}`. `calibrated`:
+    /// `stored` is a recorded calibration (else an initial guess, which
+    /// does not bound the change).
+    #[pyo3(signature = (stored=None, calibrated=true))]
+    fn decide<'py>(
+        &self,
+        py: Python<'py>,
+        stored: Option<&Bound<'_, PyAny>>,
+        calibrated: bool,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let stored = match stored {
+            Some(s) => extract_theta(s)?,
+            None => self
+                .cal
+                .stored_theta()
+                .ok_or_else(|| PyValueError::new_err("no stored θ: give stored= or set calibrator.stored first"))?,
+        };
+        to_py(py, &json(&self.gates.decide(&self.cal, &stored, calibrated))?)
+    }
+
+    fn __repr__(&self) -> String {
+        format!("<odocal.online.Calibrator θ = {} ± {}>", self.cal.theta(), self.cal.sigma())
+    }
+}

@@ -1,0 +1,192 @@
+"""odocal.online.Calibrator and odocal.History against the library and the CLI."""
+
+import json
+import sqlite3
+import subprocess
+
+import numpy as np
+import pytest
+
+import odocal
+import odocal.online
+
+
+@pytest.fixture(scope="module")
+def clean_drive() -> "odocal.Drive":
+    """A 4 km noise-free simulated drive (seed 2)."""
+    return odocal.simulate(seed=2, length_km=4.0, noise="off")
+
+
+def push_in_chunks(cal, drive, chunk=400, with_t=True):
+    a = drive.to_numpy()
+    for i in range(0, len(drive), chunk):
+        c = a[i:i + chunk]
+        cal.push(c[:, 0] if with_t else None, c[:, 1], c[:, 2], c[:, 3], c[:, 4], c[:, 5], c[:, 7], beta=c[:, 6])
+
+
+def test_calibrator_converges_on_a_noise_free_drive(clean_drive):
+    cal = odocal.online.Calibrator(sample_time_s=clean_drive.sample_time_s)
+    push_in_chunks(cal, clean_drive)
+    truth = clean_drive.theta_true
+    assert abs(cal.theta["c_e"] / truth["c_e"] - 1) < 1e-4
+    assert abs(cal.theta["c_d"] - truth["c_d"]) < 1e-4
+    assert set(cal.sigma) == {"c_e", "c_d", "t_r", "d"}
+    assert cal.sigma["c_e"] < 1e-3 * truth["c_e"]
+    s = cal.summary
+    assert s["samples"] == len(clean_drive)
+    assert s["folded_segments"] > 10 and s["validation_segments"] > 3
+    assert cal.covariance.shape == (5, 5)
+    value, sd = cal.heading_offset
+    assert abs(value) < 1e-3 and sd > 0
+    # Memory is bounded: at most two validation segments and a chunk.
+    assert cal.buffered_samples <= 2 * 1300 + 400
+
+
+def test_chunks_of_arrays_equal_the_library_replay_of_the_drive(clean_drive):
+    a = odocal.online.Calibrator(sample_time_s=clean_drive.sample_time_s)
+    push_in_chunks(a, clean_drive, chunk=123)
+    b = odocal.online.Calibrator(sample_time_s=clean_drive.sample_time_s)
+    b.push_drive(clean_drive, chunk=400)
+    assert a.theta == b.theta
+    assert a.summary == b.summary
+    # Without t the samples follow on: the same again.
+    c = odocal.online.Calibrator(sample_time_s=clean_drive.sample_time_s)
+    push_in_chunks(c, clean_drive, chunk=500, with_t=False)
+    assert c.theta == b.theta
+
+
+def test_a_wrapped_heading_is_unwrapped_across_chunks(clean_drive):
+    a = clean_drive.to_numpy()
+    wrapped = np.angle(np.exp(1j * a[:, 3]))
+    assert np.max(np.abs(np.diff(wrapped))) > 3.0, "the drive should turn through ±π"
+    cal = odocal.online.Calibrator(sample_time_s=clean_drive.sample_time_s)
+    for i in range(0, len(a), 300):
+        c = a[i:i + 300]
+        cal.push(c[:, 0], c[:, 1], c[:, 2], wrapped[i:i + 300], c[:, 4], c[:, 5], c[:, 7], beta=c[:, 6])
+    ref = odocal.online.Calibrator(sample_time_s=clean_drive.sample_time_s)
+    ref.push_drive(clean_drive)
+    for k in ("c_e", "c_d", "t_r", "d"):
+        assert cal.theta[k] == pytest.approx(ref.theta[k], rel=1e-9, abs=1e-12)
+
+
+def test_a_gap_in_time_starts_a_new_part(clean_drive):
+    a = clean_drive.to_numpy()[:3000].copy()
+    a[1500:, 0] += 60.0
+    cal = odocal.online.Calibrator(sample_time_s=clean_drive.sample_time_s)
+    cal.push(a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4], a[:, 5], a[:, 7])
+    assert cal.summary["samples"] == 3000
+
+
+def test_bad_input_raises_odocal_error(clean_drive):
+    a = clean_drive.to_numpy()[:500]
+    cal = odocal.online.Calibrator(sample_time_s=clean_drive.sample_time_s)
+    with pytest.raises(odocal.OdocalError, match="length"):
+        cal.push(a[:, 0], a[:, 1], a[:-1, 2], a[:, 3], a[:, 4], a[:, 5], a[:, 7])
+    bad = a[:, 4].copy()
+    bad[7] = np.nan
+    with pytest.raises(odocal.OdocalError, match="n_rl"):
+        cal.push(None, a[:, 1], a[:, 2], a[:, 3], bad, a[:, 5], a[:, 7])
+    t = a[:, 0].copy()
+    t[10:] += 0.3 * clean_drive.sample_time_s
+    with pytest.raises(odocal.OdocalError, match="sample 10"):
+        cal.push(t, a[:, 1], a[:, 2], a[:, 3], a[:, 4], a[:, 5], a[:, 7])
+    with pytest.raises(TypeError, match="information_scal"):
+        odocal.online.Calibrator(information_scal=0.01)
+    with pytest.raises(odocal.OdocalError, match="information_scale"):
+        odocal.online.Calibrator(information_scale=-1.0)
+    with pytest.raises(odocal.OdocalError, match="sample_time_s"):
+        odocal.online.Calibrator(sample_time_s=0.0)
+    with pytest.raises(ValueError, match="stored"):
+        cal.decide()
+
+
+def test_options_and_gates_reach_the_library(clean_drive):
+    cal = odocal.online.Calibrator(
+        [0.97, 0.0, 1.5, 0.0],
+        sample_time_s=clean_drive.sample_time_s,
+        random_walk={"c_e_relative": 0.0},
+        gates={"steady_s": 0.0, "max_change_c_e_relative": 1e-6},
+    )
+    assert cal.gates["steady_s"] == 0.0
+    cal.stored = [0.97, 0.0, 1.5, 0.0]
+    assert cal.stored == {"c_e": 0.97, "c_d": 0.0, "t_r": 1.5, "d": 0.0}
+    cal.push_drive(clean_drive)
+    d = cal.decide()
+    assert d["action"] in ("write", "hold", "flag")
+    assert d["theta"] == cal.theta
+    # θ moved far from the stored guess: a recorded calibration bounds the change.
+    assert d["action"] in ("flag", "hold")
+    assert any("c_e changes" in r for r in d["reasons"])
+    assert cal.decide(calibrated=False)["action"] in ("write", "hold")
+
+
+def test_history_records_rows_flags_drift_and_pools(tmp_path, small_drive):
+    db = odocal.History(tmp_path / "van.sqlite")
+    assert db.schema_version >= 1
+    base = {"vehicle": "van", "method": "online", "theta": {"c_e": 0.97, "c_d": 1e-4, "t_r": 1.5, "d": 0.0},
+            "sigma": {"c_e": 1e-4, "c_d": 1e-5, "t_r": 1e-3, "d": 1e-5}}
+    first = db.record({**base, "fingerprint": "a"})
+    assert first["new"] is True
+    assert db.record({**base, "fingerprint": "a"}) == {"id": first["id"], "new": False}
+    moved = {**base["theta"], "c_d": 1e-3}
+    db.record({**base, "fingerprint": "b", "theta": moved, "sources": ["b.csv"]})
+    rows = db.rows("van")
+    assert [r["fingerprint"] for r in rows] == ["a", "b"]
+    assert rows[1]["sources"] == ["b.csv"] and rows[1]["theta"]["c_d"] == 1e-3
+    flags = db.drift("van")
+    assert [f["parameter"] for f in flags] == ["c_d"]
+    assert flags[0]["from_id"] == rows[0]["id"] and flags[0]["to_id"] == rows[1]["id"]
+    p = db.pooled("van")
+    assert p["rows"] == 2 and p["between_drive_sd"]["c_d"] > 0
+    assert db.pooled("van", ids=[rows[0]["id"]])["rows"] == 1
+    assert db.pooled("nobody") is None and db.rows("nobody") == []
+    report = odocal.calibrate(small_drive, method="batch-gn")
+    r = db.record(report, vehicle="van")
+    assert r["new"] is True
+    assert db.record(report, vehicle="van")["new"] is False
+    row = db.latest("van")
+    assert row["fingerprint"] == small_drive.fingerprint and row["method"] == "batch-gn"
+    assert row["theta"] == report.theta and row["verdict"] is not None
+    with pytest.raises(odocal.OdocalError):
+        db.record({"vehicle": "van", "fingerprint": "c"})
+
+
+def test_history_refuses_a_file_that_is_not_one(tmp_path):
+    p = tmp_path / "not.sqlite"
+    p.write_text("this is not a database\n" * 100)
+    with pytest.raises(odocal.OdocalError, match="not.sqlite"):
+        odocal.History(p)
+
+
+def test_a_database_written_by_follow_opens_with_sqlite3(tmp_path, odocal_bin):
+    paths = []
+    for seed in (4, 5):
+        d = odocal.simulate(seed=seed, length_km=3.0)
+        paths.append(tmp_path / f"run{seed}.csv")
+        d.to_csv(paths[-1])
+    db = tmp_path / "van.sqlite"
+    out = tmp_path / "follow.json"
+    cmd = [str(odocal_bin), "follow", *map(str, paths), "--vehicle", "van-1", "--db", str(db), "--json", str(out),
+           "--steady-s", "0"]
+    subprocess.run(cmd, check=True, capture_output=True, text=True)
+    report = json.loads(out.read_text())
+    assert [d["source"] for d in report["drives"]] == [str(p) for p in paths]
+    for d in report["drives"]:
+        assert set(d) >= {"source", "fingerprint", "prequential_mean_position_error_m", "updates"}
+        assert d["updates"][0]["decision"] in ("written", "held", "flagged")
+    con = sqlite3.connect(db)
+    decisions = con.execute("SELECT vehicle, fingerprint, decision, c_e FROM decisions ORDER BY id").fetchall()
+    assert [r[1] for r in decisions] == [d["fingerprint"] for d in report["drives"]]
+    assert all(r[0] == "van-1" and r[3] > 0 for r in decisions)
+    written = con.execute("SELECT fingerprint, method, c_e, sigma_c_e FROM calibrations WHERE vehicle = 'van-1'").fetchall()
+    assert len(written) == sum(d["updates"][0]["decision"] == "written" for d in report["drives"])
+    assert all(m == "online" and s > 0 for _, m, _, s in written)
+    con.close()
+    h = odocal.History(db)
+    assert [d["decision"] for d in h.decisions("van-1")] == [r[2] for r in decisions]
+    assert len(h.rows("van-1")) == len(written)
+    # The same drives again add nothing.
+    subprocess.run(cmd, check=True, capture_output=True, text=True)
+    con = sqlite3.connect(db)
+    assert con.execute("SELECT COUNT(*) FROM decisions").fetchone()[0] == len(decisions)
+    con.close()
