@@ -35,14 +35,11 @@ pub fn run(a: InspectArgs) -> Result<()> {
     if !readable.is_empty() {
         println!("Manifest columns (format = \"mcap\", topic = ...):");
         for (t, ty) in readable {
-            println!("  {}: {}", t.topic, ty.columns().join(", "));
+            println!("  {}: {}", odocal::output::visible(&t.topic), ty.columns().join(", "));
             if ty == odocal::io::bag::MessageType::JointState && t.count > 0 {
                 // The joint names a manifest's columns need (those of the first message).
-                let table =
-                    odocal::io::bag::read_topic(&a.bag, &t.topic, &[], odocal::io::bag::TimeSource::HeaderStamp)?;
-                let joints: std::collections::BTreeSet<&str> =
-                    table.joints("position").into_iter().chain(table.joints("velocity")).collect();
-                println!("    joints: {}", joints.into_iter().collect::<Vec<_>>().join(", "));
+                let joints = odocal::io::bag::joint_names(&a.bag, &t.topic)?;
+                println!("    joints: {}", odocal::output::visible(&joints.join(", ")));
             }
         }
         println!("A draft manifest of the drive: odocal inspect {} --manifest OUT.toml", a.bag.display());
