@@ -126,7 +126,7 @@ fn stamps_that_never_advance_are_named() {
 }
 
 /// An MCAP record: opcode, declared length (`None`: the body's), body.
-fn mcap_record(op: u8, body: &[u8], declared: Option<u64>) -> Vec<u8> {
+pub(crate) fn mcap_record(op: u8, body: &[u8], declared: Option<u64>) -> Vec<u8> {
     let mut r = vec![op];
     r.extend(declared.unwrap_or(body.len() as u64).to_le_bytes());
     r.extend(body);
@@ -134,7 +134,7 @@ fn mcap_record(op: u8, body: &[u8], declared: Option<u64>) -> Vec<u8> {
 }
 
 /// An MCAP string: `uint32` length (declared, or the real one), bytes.
-fn mcap_string(s: &str, declared: Option<u32>) -> Vec<u8> {
+pub(crate) fn mcap_string(s: &str, declared: Option<u32>) -> Vec<u8> {
     let mut r = declared.unwrap_or(s.len() as u32).to_le_bytes().to_vec();
     r.extend(s.as_bytes());
     r
@@ -143,7 +143,7 @@ fn mcap_string(s: &str, declared: Option<u32>) -> Vec<u8> {
 /// An unchunked MCAP file: magic, header, a JointState schema, the channel
 /// `/j` (its topic length declared as `topic_len`), the `messages`, data
 /// end, footer, magic.
-fn mcap_file(topic_len: Option<u32>, messages: &[Vec<u8>]) -> Vec<u8> {
+pub(crate) fn mcap_file(topic_len: Option<u32>, messages: &[Vec<u8>]) -> Vec<u8> {
     let mut f = b"\x89MCAP0\r\n".to_vec();
     f.extend(mcap_record(0x01, &[mcap_string("ros2", None), mcap_string("", None)].concat(), None));
     let schema = [

@@ -128,7 +128,7 @@ fn short_last_row(e: Error, bytes: &[u8]) -> Error {
 
 /// The warning for a file whose last line has no newline at its end: fine
 /// for a file made by hand, a sign of a cut-off file otherwise.
-fn tail_warning(bytes: &[u8], path: &Path) -> Option<String> {
+pub(crate) fn tail_warning(bytes: &[u8], path: &Path) -> Option<String> {
     if bytes.last().is_none_or(|&b| b == b'\n') {
         return None;
     }
@@ -140,9 +140,36 @@ fn tail_warning(bytes: &[u8], path: &Path) -> Option<String> {
     ))
 }
 
-/// Checks the header: every column named once, every required column
-/// present (with a hint when the separator looks wrong).
+/// Refuses a header whose column names hold a NUL byte or another control
+/// character, naming the column by position: such a name matches nothing,
+/// and "missing column" would send the user looking for the wrong cause.
+pub(crate) fn header_characters(headers: &[String], path: &Path) -> Result<()> {
+    for (i, h) in headers.iter().enumerate() {
+        if let Some(c) = h.chars().find(|c| c.is_control()) {
+            let what =
+                if c == '\0' { "a NUL byte".to_string() } else { format!("the control character U+{:04X}", c as u32) };
+            return Err(csv_error(
+                path,
+                1,
+                None,
+                format!(
+                    "column {} of the header of {} ('{}') contains {what}: the file is damaged or not text; \
+                     fix the header",
+                    i + 1,
+                    path.display(),
+                    echo(h)
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Checks the header: no control characters, every column named once,
+/// every required column present (with a hint when the separator looks
+/// wrong).
 fn check_header(headers: &[String], path: &Path) -> Result<()> {
+    header_characters(headers, path)?;
     let mut seen = std::collections::BTreeSet::new();
     let dups: Vec<String> = headers.iter().filter(|h| !seen.insert(h.as_str())).map(|h| echo(h)).collect();
     if !dups.is_empty() {

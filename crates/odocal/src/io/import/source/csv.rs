@@ -23,6 +23,7 @@ pub(super) fn read(m: &Manifest, name: &str, path: &Path, time: &str, wanted: &[
         reason: e.to_string(),
     };
     let headers: Vec<String> = rdr.headers().map_err(csv_err)?.iter().map(str::to_string).collect();
+    crate::drive::csv::header_characters(&headers, path)?;
     let mut all: Vec<Wanted> = vec![Wanted { column: time.to_string(), key: format!("streams.{name}.time_column") }];
     all.extend(wanted.iter().cloned());
     let mut idx = Vec::new();
@@ -65,7 +66,8 @@ pub(super) fn read(m: &Manifest, name: &str, path: &Path, time: &str, wanted: &[
     for (c, w) in all.iter().enumerate().skip(1) {
         columns.insert(w.column.clone(), std::mem::take(&mut data[c]));
     }
-    Ok(Table { t_s, columns, source: path.display().to_string(), lines: Some(lines) })
+    let warnings = crate::drive::csv::tail_warning(bytes, path).into_iter().collect();
+    Ok(Table { t_s, columns, source: path.display().to_string(), lines: Some(lines), warnings })
 }
 
 /// The header for a message: at most 30 names, each echoed short.
