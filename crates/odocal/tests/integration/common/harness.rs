@@ -97,6 +97,7 @@ pub fn import_bundle(data: &[u8]) -> Outcome {
 /// A ROS 2 bag (MCAP): the bytes written to a temporary `.mcap` file, then
 /// `inspect` and every topic read with all its columns (header stamps, and
 /// the log time), as `odocal inspect` and a `format = "mcap"` stream do.
+#[cfg(feature = "mcap")]
 pub fn bag(data: &[u8]) -> Outcome {
     let dir = tempfile::tempdir().expect("tempdir");
     let path = dir.path().join("fuzz.mcap");
