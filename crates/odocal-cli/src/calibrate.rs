@@ -386,7 +386,10 @@ fn with_hint(
     bars: &Bars,
 ) -> anyhow::Error {
     if !matches!(e, odocal::Error::NotObservable { .. }) {
-        return e.into();
+        return match source {
+            Some((p, _)) => crate::io::name_drive(e, p).into(),
+            None => e.into(),
+        };
     }
     bars.finish();
     let hint = match source {

@@ -18,16 +18,19 @@ pub struct InspectArgs {
     /// Write a draft manifest that imports the bag (wheel, pose and IMU
     /// topics chosen by message type; guesses marked CHECK) to this file, or
     /// to stdout without a file name (then nothing else is printed). An
-    /// existing file is not overwritten.
+    /// existing file is not replaced unless `--force` is given.
     #[arg(long, value_name = "OUT.toml", num_args = 0..=1, default_missing_value = "-")]
     manifest: Option<PathBuf>,
+    /// Replace an existing `--manifest` file.
+    #[arg(long, requires = "manifest")]
+    force: bool,
 }
 
 /// Prints the bag's topics, types, counts and rates, then the columns a
 /// manifest can take from each readable topic; or writes a draft manifest.
 pub fn run(a: InspectArgs) -> Result<()> {
     if let Some(out) = &a.manifest {
-        return draft(&a.bag, out);
+        return draft(&a.bag, out, a.force);
     }
     let info = odocal::io::bag::inspect(&a.bag)?;
     print!("{info}");
@@ -35,14 +38,11 @@ pub fn run(a: InspectArgs) -> Result<()> {
     if !readable.is_empty() {
         println!("Manifest columns (format = \"mcap\", topic = ...):");
         for (t, ty) in readable {
-            println!("  {}: {}", t.topic, ty.columns().join(", "));
+            println!("  {}: {}", odocal::output::visible(&t.topic), ty.columns().join(", "));
             if ty == odocal::io::bag::MessageType::JointState && t.count > 0 {
                 // The joint names a manifest's columns need (those of the first message).
-                let table =
-                    odocal::io::bag::read_topic(&a.bag, &t.topic, &[], odocal::io::bag::TimeSource::HeaderStamp)?;
-                let joints: std::collections::BTreeSet<&str> =
-                    table.joints("position").into_iter().chain(table.joints("velocity")).collect();
-                println!("    joints: {}", joints.into_iter().collect::<Vec<_>>().join(", "));
+                let joints = odocal::io::bag::joint_names(&a.bag, &t.topic)?;
+                println!("    joints: {}", odocal::output::visible(&joints.join(", ")));
             }
         }
         println!("A draft manifest of the drive: odocal inspect {} --manifest OUT.toml", a.bag.display());
@@ -65,10 +65,11 @@ fn bag_path_for(bag: &Path, out: Option<&Path>) -> Result<String> {
     Ok(bag.display().to_string())
 }
 
-fn draft(bag: &Path, out: &Path) -> Result<()> {
+fn draft(bag: &Path, out: &Path, force: bool) -> Result<()> {
     let to_stdout = is_stdout(out);
-    if !to_stdout && out.exists() {
-        bail!("{}: exists; remove it or give another name (a draft never overwrites a manifest)", out.display());
+    let exists = || format!("{}: exists; give another name, or --force to replace it", out.display());
+    if !to_stdout && !force && out.symlink_metadata().is_ok() {
+        bail!(exists());
     }
     let mut files = Files::default();
     files.input("the bag", bag);
@@ -83,7 +84,17 @@ fn draft(bag: &Path, out: &Path) -> Result<()> {
     if to_stdout {
         print!("{text}");
     } else {
-        odocal::output::write_text(out, &text)?;
+        if force {
+            odocal::output::write_text(out, &text)?;
+        } else {
+            // Created only if still absent: a file that appeared meanwhile is kept.
+            odocal::output::write_text_new(out, &text).map_err(|e| match &e {
+                odocal::Error::Io { source, .. } if source.kind() == std::io::ErrorKind::AlreadyExists => {
+                    anyhow::anyhow!(exists())
+                }
+                _ => e.into(),
+            })?;
+        }
         println!(
             "wrote {} (check the lines marked CHECK, then: odocal import {} --out drive.csv)",
             out.display(),

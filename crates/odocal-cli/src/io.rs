@@ -7,6 +7,11 @@ use odocal::settings::ManifestSettings;
 use odocal::sim::{self, SimSidecar};
 use odocal::{Drive, Warning};
 
+/// What the importer warned about for every manifest this command read
+/// (`path: warning`), for the JSON report's `import_warnings` (the command
+/// reads its drives before it writes its one report).
+static IMPORT_WARNINGS: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Vec::new());
+
 /// Reads a drive: a canonical CSV, or a `.toml` manifest of a multi-stream log
 /// (its import summary goes to stderr).
 pub fn load_drive(path: &Path) -> Result<Drive> {
@@ -40,8 +45,22 @@ pub fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>, Opti
         for w in &r.warnings {
             eprintln!("warning: {}: {w}", path.display());
         }
+        if let Ok(mut all) = IMPORT_WARNINGS.lock() {
+            all.extend(r.warnings.iter().map(|w| format!("{}: {w}", path.display())));
+        }
     }
     Ok((drive, report.map(|r| r.wheel_scale), settings))
+}
+
+/// An error about "drive" (the library's name for the drive it was given,
+/// e.g. a failed convention check) named by the file the drive was read from.
+pub fn name_drive(e: odocal::Error, path: &Path) -> odocal::Error {
+    match e {
+        odocal::Error::InvalidDrive { context, reason } if context == "drive" => {
+            odocal::Error::InvalidDrive { context: path.display().to_string(), reason }
+        }
+        e => e,
+    }
 }
 
 /// The simulator's sidecar beside a drive, when there is one and it
@@ -55,10 +74,15 @@ pub fn load_truth(drive_path: &Path, drive: &Drive) -> Option<SimSidecar> {
     m.bound()
 }
 
-/// Writes a JSON report with its `schema_version` ("-": stdout), atomically.
+/// Writes a JSON report with its `schema_version` and, when a manifest
+/// read for it warned, its `import_warnings` ("-": stdout), atomically.
 pub fn write_json(path: &Path, mut value: serde_json::Value) -> Result<()> {
     if let Some(obj) = value.as_object_mut() {
         obj.insert("schema_version".into(), odocal::REPORT_SCHEMA_VERSION.into());
+        let imported = IMPORT_WARNINGS.lock().map(|w| w.clone()).unwrap_or_default();
+        if !imported.is_empty() {
+            obj.insert("import_warnings".into(), imported.into());
+        }
     }
     let text = serde_json::to_string_pretty(&value)?;
     crate::output::write_text(path, &text)

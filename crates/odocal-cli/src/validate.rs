@@ -88,7 +88,8 @@ pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<()> {
         });
     }
     let cb = |e| bars.event(e);
-    let report = odocal::validate(&drive, &a.theta.theta, &opts, Some(&cb))?;
+    let report =
+        odocal::validate(&drive, &a.theta.theta, &opts, Some(&cb)).map_err(|e| crate::io::name_drive(e, &a.drive))?;
     bars.finish();
     if let Some(p) = &a.json {
         let mut v = serde_json::to_value(&report)?;

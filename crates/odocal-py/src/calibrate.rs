@@ -95,6 +95,7 @@ fn plan(
             "carry_heading_offset" => carry_heading_offset = v.extract::<bool>()?,
             k if Settings::KEYS.contains(&k) => {
                 let value = to_json(&v, k)?;
+                crate::convert::refuse_bool_for_number(k, &value)?;
                 keys.insert(key, value);
             }
             _ => {

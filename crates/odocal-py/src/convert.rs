@@ -122,5 +122,50 @@ pub(crate) fn params_file_arg(v: &Bound<'_, PyAny>, node: Option<&str>) -> PyRes
 /// (`--params-out`'s), read and checked by the library as the `theta0`
 /// setting is.
 pub(crate) fn extract_theta(v: &Bound<'_, PyAny>) -> PyResult<Theta> {
-    odocal::settings::theta_from_json(to_json(v, "θ")?).map_err(lib_err)
+    let json = to_json(v, "θ")?;
+    if let Some(at) = theta_bool(&json) {
+        return Err(PyTypeError::new_err(format!(
+            "θ: {at} is a bool, not a number (True and False are not values of θ); give numbers"
+        )));
+    }
+    odocal::settings::theta_from_json(json).map_err(lib_err)
+}
+
+/// Where θ's JSON holds a bool: `c_e = True` (a dict's key or a list's
+/// place) or the value itself; `None` without one.
+fn theta_bool(v: &serde_json::Value) -> Option<String> {
+    use serde_json::Value;
+    const NAMES: [&str; 4] = ["c_e", "c_d", "t_r", "d"];
+    let py = |b: bool| if b { "True" } else { "False" };
+    match v {
+        Value::Bool(b) => Some(py(*b).to_string()),
+        Value::Array(a) => a.iter().enumerate().find_map(|(i, x)| {
+            let b = x.as_bool()?;
+            Some(format!("{} = {} (item {i})", NAMES.get(i).unwrap_or(&"?"), py(b)))
+        }),
+        Value::Object(m) => m.iter().find_map(|(k, x)| Some(format!("{k} = {}", py(x.as_bool()?)))),
+        _ => None,
+    }
+}
+
+/// A keyword option's value that holds a bool where the setting `key`
+/// takes a number: a `TypeError` naming the key (a bool is an int to
+/// Python, so `bootstrap=True` would otherwise mean 1). Bools of boolean
+/// settings pass.
+pub(crate) fn refuse_bool_for_number(key: &str, value: &serde_json::Value) -> PyResult<()> {
+    let has_bool = match value {
+        serde_json::Value::Bool(_) => true,
+        serde_json::Value::Array(a) => a.iter().any(|x| x.as_bool().is_some()),
+        _ => false,
+    };
+    if !has_bool {
+        return Ok(());
+    }
+    let alone = serde_json::json!({ key: value });
+    if odocal::settings::Settings::from_json(alone).is_ok() {
+        return Ok(());
+    }
+    Err(PyTypeError::new_err(format!(
+        "{key}: {value} holds a bool where a number is expected (True and False are not numbers here)"
+    )))
 }

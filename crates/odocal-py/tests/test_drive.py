@@ -165,3 +165,15 @@ def test_complex_numbers_and_extra_theta_keys_are_refused(small_drive):
         odocal.validate(small_drive, {"c_e": 2.0, "c_d": 0.0, "t_r": 1.6, "d": 0.0, "lever": 1.0})
     with pytest.raises(ValueError, match="threads = 100000 is above the ceiling"):
         odocal.validate(small_drive, "2,0,1.6,0", threads=100000)
+
+
+def test_bools_where_numbers_are_expected_are_type_errors(small_drive):
+    """True and False are ints to Python: as θ values or numeric options they raise TypeError naming the key."""
+    with pytest.raises(TypeError, match=r"θ: c_d = True \(item 1\) is a bool, not a number"):
+        odocal.validate(small_drive, [2.0, True, 1.6, 0.0])
+    with pytest.raises(TypeError, match=r"θ: d = False is a bool, not a number"):
+        odocal.validate(small_drive, {"c_e": 2.0, "c_d": 0.0, "t_r": 1.6, "d": False})
+    with pytest.raises(TypeError, match=r"theta0: \[2.0,0.0,true,0.0\] holds a bool where a number is expected"):
+        odocal.calibrate(small_drive, theta0=[2.0, 0.0, True, 0.0])
+    with pytest.raises(TypeError, match=r"bootstrap: true holds a bool where a number is expected"):
+        odocal.calibrate(small_drive, bootstrap=True)

@@ -85,9 +85,34 @@ pub fn write_atomically<F>(path: &Path, write: F) -> Result<()>
 where
     F: FnOnce(&mut dyn Write) -> std::io::Result<()>,
 {
+    write_file(path, write, true)
+}
+
+/// Writes a new file at `path` as [`write_atomically`] does, but never
+/// replaces one: the rename into place fails when `path` exists, also when
+/// it appeared while the file was being written (no check-then-write race).
+///
+/// # Errors
+/// As [`write_atomically`]; [`Error::Io`] of kind `AlreadyExists` when
+/// `path` exists.
+pub fn write_new<F>(path: &Path, write: F) -> Result<()>
+where
+    F: FnOnce(&mut dyn Write) -> std::io::Result<()>,
+{
+    write_file(path, write, false)
+}
+
+/// [`write_atomically`] (`replace`) or [`write_new`].
+fn write_file<F>(path: &Path, write: F, replace: bool) -> Result<()>
+where
+    F: FnOnce(&mut dyn Write) -> std::io::Result<()>,
+{
     let io = |source| Error::io(path, source);
     let target = resolve_link(path);
     match std::fs::metadata(&target) {
+        Ok(_) if !replace => {
+            return Err(io(std::io::Error::new(std::io::ErrorKind::AlreadyExists, "exists; it is not replaced")))
+        }
         Ok(m) if m.is_dir() => {
             return Err(io(std::io::Error::new(std::io::ErrorKind::IsADirectory, "is a directory, not a file")))
         }
@@ -121,7 +146,11 @@ where
         // A replaced file keeps its permissions.
         std::fs::set_permissions(tmp.path(), m.permissions()).map_err(io)?;
     }
-    tmp.persist(&target).map_err(|e| io(e.error))?;
+    if replace {
+        tmp.persist(&target).map_err(|e| io(e.error))?;
+    } else {
+        tmp.persist_noclobber(&target).map_err(|e| io(e.error))?;
+    }
     sync_dir(&dir);
     Ok(())
 }
@@ -165,13 +194,21 @@ pub fn remove_temporary_files() {
 /// Writes `text` to `path` atomically ([`write_atomically`]), ending it with
 /// a newline when it does not end with one.
 pub fn write_text(path: &Path, text: &str) -> Result<()> {
-    write_atomically(path, |w| {
-        w.write_all(text.as_bytes())?;
-        if !text.ends_with('\n') {
-            w.write_all(b"\n")?;
-        }
-        Ok(())
-    })
+    write_atomically(path, |w| write_with_newline(w, text))
+}
+
+/// Writes `text` to a new file at `path` ([`write_new`]: an existing file is
+/// never replaced), ending it with a newline.
+pub fn write_text_new(path: &Path, text: &str) -> Result<()> {
+    write_new(path, |w| write_with_newline(w, text))
+}
+
+fn write_with_newline(w: &mut dyn Write, text: &str) -> std::io::Result<()> {
+    w.write_all(text.as_bytes())?;
+    if !text.ends_with('\n') {
+        w.write_all(b"\n")?;
+    }
+    Ok(())
 }
 
 /// The file a symbolic link points to (followed to the end), else `path`.

@@ -90,7 +90,8 @@ fn inspect_lists_topics_types_counts_and_rates() {
 }
 
 /// `inspect --manifest OUT` writes a draft that `odocal import` takes as it
-/// stands (the bag named relative to it); it never overwrites a file; without
+/// stands (the bag named relative to it); it replaces a file only with
+/// `--force`; without
 /// a file name the draft alone goes to stdout.
 #[test]
 fn inspect_drafts_a_manifest_that_imports() {
@@ -107,9 +108,15 @@ fn inspect_drafts_a_manifest_that_imports() {
     let o = odocal(&["import", &s(&out), "--out", &s(&csv)]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(std::fs::metadata(&csv).expect("csv").len() > 100_000);
+    std::fs::write(&out, "# the user's edits\n").expect("edit");
     let o = odocal(&["inspect", &s(&bag), "--manifest", &s(&out)]);
     assert_eq!(o.status.code(), Some(1));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("exists"), "{}", String::from_utf8_lossy(&o.stderr));
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(e.contains("van.toml: exists; give another name, or --force to replace it"), "{e}");
+    assert_eq!(std::fs::read_to_string(&out).expect("kept"), "# the user's edits\n");
+    let o = odocal(&["inspect", &s(&bag), "--manifest", &s(&out), "--force"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(std::fs::read_to_string(&out).expect("draft").starts_with("# Draft manifest"));
     let o = odocal(&["inspect", &s(&bag), "--manifest"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let printed = String::from_utf8_lossy(&o.stdout);

@@ -124,3 +124,99 @@ fn stamps_that_never_advance_are_named() {
     assert_eq!(o.status.code(), Some(1), "{e}");
     assert!(e.contains("streams.d: the time column 'stamp' holds one time (0 s) in all"), "{e}");
 }
+
+/// An MCAP record: opcode, declared length (`None`: the body's), body.
+pub(crate) fn mcap_record(op: u8, body: &[u8], declared: Option<u64>) -> Vec<u8> {
+    let mut r = vec![op];
+    r.extend(declared.unwrap_or(body.len() as u64).to_le_bytes());
+    r.extend(body);
+    r
+}
+
+/// An MCAP string: `uint32` length (declared, or the real one), bytes.
+pub(crate) fn mcap_string(s: &str, declared: Option<u32>) -> Vec<u8> {
+    let mut r = declared.unwrap_or(s.len() as u32).to_le_bytes().to_vec();
+    r.extend(s.as_bytes());
+    r
+}
+
+/// An unchunked MCAP file: magic, header, a JointState schema, the channel
+/// `/j` (its topic length declared as `topic_len`), the `messages`, data
+/// end, footer, magic.
+pub(crate) fn mcap_file(topic_len: Option<u32>, messages: &[Vec<u8>]) -> Vec<u8> {
+    let mut f = b"\x89MCAP0\r\n".to_vec();
+    f.extend(mcap_record(0x01, &[mcap_string("ros2", None), mcap_string("", None)].concat(), None));
+    let schema = [
+        &1u16.to_le_bytes()[..],
+        &mcap_string("sensor_msgs/msg/JointState", None),
+        &mcap_string("ros2msg", None),
+        &[0; 4],
+    ];
+    f.extend(mcap_record(0x03, &schema.concat(), None));
+    let channel = [&[1, 0, 1, 0][..], &mcap_string("/j", topic_len), &mcap_string("cdr", None), &[0; 4]];
+    f.extend(mcap_record(0x04, &channel.concat(), None));
+    for (i, data) in messages.iter().enumerate() {
+        let t = 1_000_000_000 + i as u64 * 10_000_000;
+        let head = [&1u16.to_le_bytes()[..], &0u32.to_le_bytes(), &t.to_le_bytes(), &t.to_le_bytes()].concat();
+        f.extend(mcap_record(0x05, &[head, data.clone()].concat(), None));
+    }
+    f.extend(mcap_record(0x0F, &[0; 4], None));
+    f.extend(mcap_record(0x02, &[0; 20], None));
+    f.extend(b"\x89MCAP0\r\n");
+    f
+}
+
+/// A 173-byte MCAP whose topic name declares 4 GiB, and a 778 KiB one of
+/// JointState messages whose arrays declare 2³¹ elements: `inspect` and
+/// `import` end in an error naming the record or the array, within 1 GB.
+#[test]
+fn mcap_lengths_beyond_the_bytes_left_are_refused_before_allocating() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let topic = dir.path().join("topic.mcap");
+    std::fs::write(&topic, mcap_file(Some(u32::MAX), &[])).expect("write");
+    let want = "the channel record at byte offset 85 declares a topic name of 4294967295 bytes, but only 13 remain";
+    refused_within_1gb(&["inspect", s(&topic)], &["topic.mcap: corrupt MCAP file", want]);
+
+    // Each message: CDR header, a stamp, frame "b", then one array of
+    // name/position/velocity/effort declaring 2^31 elements, the others one.
+    let messages: Vec<Vec<u8>> = (0..6000u32)
+        .map(|i| {
+            let mut counts = [1u32; 4];
+            counts[(i % 4) as usize] = 1 << 31;
+            let mut b = vec![0, 1, 0, 0];
+            b.extend(100i32.to_le_bytes());
+            b.extend((i * 1000).to_le_bytes());
+            b.extend(2u32.to_le_bytes());
+            b.extend(b"b\0\0\0");
+            b.extend(counts[0].to_le_bytes());
+            b.extend(2u32.to_le_bytes());
+            b.extend(b"a\0\0\0");
+            for c in &counts[1..] {
+                b.extend(c.to_le_bytes());
+                b.extend([0; 4]);
+                b.extend(0.5f64.to_le_bytes());
+            }
+            b.extend([0; 32]);
+            b
+        })
+        .collect();
+    let joints = dir.path().join("joints.mcap");
+    let bytes = mcap_file(None, &messages);
+    assert!(bytes.len() > 700 << 10, "{}", bytes.len());
+    std::fs::write(&joints, bytes).expect("write");
+    let array = "message 0 (log time 1.000000000 s) is not a sensor_msgs/msg/JointState: its name array declares \
+                 2147483648 elements, more than the";
+    refused_within_1gb(&["inspect", s(&joints)], &["joints.mcap: topic '/j'", array]);
+    let m = dir.path().join("m.toml");
+    let slice = Path::new(env!("CARGO_MANIFEST_DIR")).join("../odocal/tests/data/psu-mapping-van/drive-slice.mcap");
+    let manifest = format!(
+        "[streams.wheels]\nformat = \"mcap\"\nfile = \"joints.mcap\"\ntopic = \"/j\"\n\n[streams.pose]\n\
+         format = \"mcap\"\nfile = \"{}\"\ntopic = \"/localization/pose_with_covariance\"\n\n[wheels]\n\
+         stream = \"wheels\"\nsignal = \"rad_cumulative\"\nrear_left = {{ column = \"position.a\" }}\n\
+         rear_right = {{ column = \"position.a\" }}\n\n[pose]\nstream = \"pose\"\n\
+         position = {{ kind = \"local\", x = \"x\", y = \"y\" }}\n",
+        slice.display()
+    );
+    std::fs::write(&m, manifest).expect("write");
+    refused_within_1gb(&["import", s(&m), "--out", s(&dir.path().join("o.csv"))], &["joints.mcap", array]);
+}

@@ -21,6 +21,7 @@ mod help;
 mod hostile;
 mod keep_one_way;
 mod manifest_settings;
+mod misleading;
 mod params_out;
 mod silent_wrong;
 mod validate_on_reference;

@@ -56,9 +56,11 @@ fn lateral_acceleration_of_the_wrong_sign_or_unit_is_refused() {
     for p in [&neg, &feet] {
         let (sign, unit) =
             (["wrong sign", "negate column 'a_y'"], ["ft/s² gives 3.28", "convert column 'a_y' to m/s²"]);
-        let needles = if p == &neg { sign } else { unit };
-        refused(&["calibrate", s(p)], &needles);
-        refused(&["validate", s(p), theta[0], theta[1]], &needles);
+        let [why, fix] = if p == &neg { sign } else { unit };
+        // The message names the file, not "drive".
+        let file = format!("error: {}: ", s(p));
+        refused(&["calibrate", s(p)], &[why, fix, &file]);
+        refused(&["validate", s(p), theta[0], theta[1]], &[why, fix, &file]);
     }
 }
 

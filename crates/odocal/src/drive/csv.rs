@@ -129,19 +129,51 @@ fn short_last_row(e: Error, bytes: &[u8]) -> Error {
 /// The warning for a file whose last line has no newline at its end: fine
 /// for a file made by hand, a sign of a cut-off file otherwise.
 fn tail_warning(bytes: &[u8], path: &Path) -> Option<String> {
-    if bytes.last().is_none_or(|&b| b == b'\n') {
+    tail_warning_at(bytes.last().copied(), last_line(bytes), path)
+}
+
+/// [`tail_warning`] from the file's last byte and the number of its last
+/// line, for a file read as a stream.
+pub(crate) fn tail_warning_at(last_byte: Option<u8>, last_line: u64, path: &Path) -> Option<String> {
+    if last_byte.is_none_or(|b| b == b'\n') {
         return None;
     }
     Some(format!(
-        "{}: line {}, the last line, has no newline at its end: check that the file is complete (a file cut off \
-         by an interrupted write ends this way; a hand-made one may)",
-        path.display(),
-        last_line(bytes)
+        "{}: line {last_line}, the last line, has no newline at its end: check that the file is complete (a file \
+         cut off by an interrupted write ends this way; a hand-made one may)",
+        path.display()
     ))
 }
 
-/// Checks the header: every column named once, every required column
-/// present (with a hint when the separator looks wrong).
+/// Refuses a header whose column names hold a NUL byte or another control
+/// character (a tab aside), naming the column by position: such a name matches nothing,
+/// and "missing column" would send the user looking for the wrong cause.
+pub(crate) fn header_characters(headers: &[String], path: &Path) -> Result<()> {
+    for (i, h) in headers.iter().enumerate() {
+        // A tab is left to the separator hint of the missing-column message.
+        if let Some(c) = h.chars().find(|c| c.is_control() && *c != '\t') {
+            let what =
+                if c == '\0' { "a NUL byte".to_string() } else { format!("the control character U+{:04X}", c as u32) };
+            return Err(csv_error(
+                path,
+                1,
+                None,
+                format!(
+                    "column {} of the header of {} ('{}') contains {what}: the file is damaged or not text; \
+                     fix the header",
+                    i + 1,
+                    path.display(),
+                    echo(h)
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Checks the header: every column named once, no control characters,
+/// every required column present (with a hint when the separator looks
+/// wrong).
 fn check_header(headers: &[String], path: &Path) -> Result<()> {
     let mut seen = std::collections::BTreeSet::new();
     let dups: Vec<String> = headers.iter().filter(|h| !seen.insert(h.as_str())).map(|h| echo(h)).collect();
@@ -153,6 +185,7 @@ fn check_header(headers: &[String], path: &Path) -> Result<()> {
             format!("duplicate column name(s) {}: every column must be named once", list(&dups)),
         ));
     }
+    header_characters(headers, path)?;
     let missing: Vec<String> =
         REQUIRED_COLUMNS.iter().filter(|c| !headers.iter().any(|h| h == *c)).map(|c| c.to_string()).collect();
     if !missing.is_empty() {

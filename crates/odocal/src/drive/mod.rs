@@ -43,7 +43,7 @@
 //! ```
 
 mod concat;
-mod csv;
+pub(crate) mod csv;
 mod fingerprint;
 pub(crate) mod plausibility;
 pub mod segment;

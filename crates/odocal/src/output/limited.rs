@@ -73,6 +73,57 @@ pub fn read_limited(path: &Path, cap: u64, what: &str) -> std::io::Result<Vec<u8
     Ok(bytes)
 }
 
+/// A regular file read as a stream, at most `cap` bytes of it: reading past
+/// the cap is an [`ErrorKind::InvalidData`] error. It remembers the last
+/// byte read (a text file should end with a newline).
+pub struct LimitedFile {
+    inner: std::io::Take<std::fs::File>,
+    cap: u64,
+    what: String,
+    read: u64,
+    last: Option<u8>,
+}
+
+impl LimitedFile {
+    /// The last byte read so far; `None` before any.
+    pub fn last_byte(&self) -> Option<u8> {
+        self.last
+    }
+}
+
+impl Read for LimitedFile {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.read += n as u64;
+        if self.read > self.cap {
+            let (cap, what) = (self.cap, &self.what);
+            return Err(Error::new(
+                ErrorKind::InvalidData,
+                format!("more than {cap} bytes, the limit for {what}: not {what}, or split it"),
+            ));
+        }
+        if n > 0 {
+            self.last = Some(buf[n - 1]);
+        }
+        Ok(n)
+    }
+}
+
+/// Opens the regular file `path` for reading at most `cap` bytes as a
+/// stream ([`LimitedFile`]): [`read_limited`] without holding the bytes.
+///
+/// # Errors
+/// [`require_regular_file`]'s; opening errors.
+pub fn open_limited(path: &Path, cap: u64, what: &str) -> std::io::Result<LimitedFile> {
+    require_regular_file(path, what)?;
+    let file = std::fs::File::open(path)?;
+    let t = file.metadata()?.file_type();
+    if !t.is_file() {
+        return Err(Error::new(ErrorKind::InvalidInput, format!("{} where {what} is expected", kind_of(t))));
+    }
+    Ok(LimitedFile { inner: file.take(cap.saturating_add(1)), cap, what: what.to_string(), read: 0, last: None })
+}
+
 /// [`read_limited`] as UTF-8 text.
 ///
 /// # Errors
@@ -98,5 +149,13 @@ mod tests {
         assert_eq!(read_limited(&p, 10, "x").expect("at the limit").len(), 10);
         let e = read_limited(&p, 9, "a manifest").expect_err("over");
         assert!(e.to_string().contains("more than 9 bytes"), "{e}");
+        let mut f = open_limited(&p, 10, "x").expect("open");
+        let mut all = Vec::new();
+        f.read_to_end(&mut all).expect("at the limit");
+        assert_eq!((all.len(), f.last_byte()), (10, Some(b'9')));
+        let mut f = open_limited(&p, 9, "a CSV stream file").expect("open");
+        let e = f.read_to_end(&mut Vec::new()).expect_err("over");
+        assert!(e.to_string().contains("more than 9 bytes, the limit for a CSV stream file"), "{e}");
+        assert!(open_limited(Path::new("/dev/zero"), 10, "x").is_err());
     }
 }

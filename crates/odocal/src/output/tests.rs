@@ -205,3 +205,26 @@ proptest! {
         prop_assert_eq!(got.is_err(), clash, "{:?}", got);
     }
 }
+
+/// `write_new` creates a file but never replaces one, also when the file
+/// appears while it writes (the rename refuses it), and leaves no temporary
+/// file behind.
+#[test]
+fn a_new_file_never_replaces_one() {
+    let d = tmp();
+    let p = d.path().join("m.toml");
+    write_text_new(&p, "draft").expect("new");
+    assert_eq!(std::fs::read_to_string(&p).expect("read"), "draft\n");
+    let e = write_text_new(&p, "again").expect_err("exists");
+    assert!(matches!(&e, Error::Io { source, .. } if source.kind() == std::io::ErrorKind::AlreadyExists), "{e}");
+    let q = d.path().join("n.toml");
+    let e = write_new(&q, |w| {
+        std::fs::write(&q, "the user's file\n")?;
+        w.write_all(b"draft\n")
+    })
+    .expect_err("appeared meanwhile");
+    assert!(matches!(&e, Error::Io { source, .. } if source.kind() == std::io::ErrorKind::AlreadyExists), "{e}");
+    assert_eq!(std::fs::read_to_string(&q).expect("read"), "the user's file\n");
+    assert_eq!(std::fs::read_to_string(&p).expect("read"), "draft\n");
+    assert!(others(d.path(), &["m.toml", "n.toml"]).is_empty());
+}

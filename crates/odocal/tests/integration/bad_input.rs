@@ -115,3 +115,36 @@ proptest! {
         let _ = harness::manifest(&mutate(m, &ops));
     }
 }
+
+/// Every bag reproducer (MCAP lengths beyond what remains, damaged chunks)
+/// gives an error naming the record and its offset; the small valid bag
+/// reads.
+#[cfg(feature = "mcap")]
+#[test]
+fn bag_reproducers_name_their_cause() {
+    let expect: &[(&str, &[&str])] = &[
+        ("hostile_bigrec.mcap", &["the channel record (opcode 0x04) at byte offset 86 declares 209715200 bytes"]),
+        ("hostile_inner.mcap", &["the message record (opcode 0x05) at byte offset 165 declares 209715200 bytes"]),
+        ("hostile_innerz.mcap", &["a record (opcode 0x05)", "declares 209715200 bytes, more than the chunk or file"]),
+        ("hostile_record.mcap", &["the channel record (opcode 0x04) at byte offset 86 declares 4294967296 bytes"]),
+        ("hostile_topic.mcap", &["the channel record at byte offset 86 declares a topic name of 4294967295 bytes"]),
+        ("hostile_topicz.mcap", &["does not parse (a string, map or field declares more bytes than the record"]),
+        ("hostile_unc.mcap", &["fuzz.mcap: corrupt or truncated MCAP file"]),
+        ("joint_states.mcap", &[]),
+    ];
+    harness::replay(&corpus("bag"), expect, harness::bag);
+}
+
+/// Every parameter-file reproducer gives the error naming its cause; the
+/// valid files read.
+#[test]
+fn params_reproducers_name_their_cause() {
+    let expect: &[(&str, &[&str])] = &[
+        ("alias_bomb.yaml", &["fuzz.yaml", "a YAML alias"]),
+        ("implausible.yaml", &["fuzz.yaml", "lever_x"]),
+        ("odocal.json", &[]),
+        ("odocal.yaml", &[]),
+        ("two_documents.yaml", &["fuzz.yaml", "2 YAML documents (`---`)", "--params-node"]),
+    ];
+    harness::replay(&corpus("params"), expect, harness::params);
+}

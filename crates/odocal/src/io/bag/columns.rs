@@ -123,15 +123,15 @@ pub(crate) fn resolve(ty: MessageType, name: &str) -> Option<Column> {
 }
 
 /// A decoded message, reduced to what the columns need.
-pub(crate) enum Decoded {
+pub(crate) enum Decoded<'a> {
     /// Joint names and their arrays.
-    Joints(msg::JointState),
+    Joints(msg::Joints<'a>),
     /// Values in the order of the type's column list.
     Fixed(Vec<f64>),
 }
 
 /// Decodes a message of type `ty`; returns its header stamp and contents.
-pub(crate) fn decode(ty: MessageType, data: &[u8]) -> Result<(msg::Time, Decoded), String> {
+pub(crate) fn decode(ty: MessageType, data: &[u8]) -> Result<(msg::Time, Decoded<'_>), String> {
     fn pose_values(p: &msg::PoseWithCovariance) -> [f64; 7] {
         let c = &p.covariance.0;
         let q = &p.pose.orientation;
@@ -139,8 +139,8 @@ pub(crate) fn decode(ty: MessageType, data: &[u8]) -> Result<(msg::Time, Decoded
     }
     Ok(match ty {
         MessageType::JointState => {
-            let m: msg::JointState = msg::decode(data)?;
-            (m.header.stamp, Decoded::Joints(m))
+            let m = msg::decode_joints(data)?;
+            (m.stamp, Decoded::Joints(m))
         }
         MessageType::PoseWithCovarianceStamped => {
             let m: msg::PoseWithCovarianceStamped = msg::decode(data)?;

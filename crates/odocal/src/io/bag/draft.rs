@@ -19,7 +19,7 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
-use super::{inspect, read_topic, MessageType, TimeSource, TopicInfo};
+use super::{first_message, inspect, MessageType, TopicInfo};
 use crate::error::{Error, Result};
 
 /// A TOML basic string (quoted and escaped).
@@ -61,7 +61,7 @@ fn joint<'a>(names: &[&'a str], side: &str, fallback: usize) -> (Option<&'a str>
 /// absolute).
 ///
 /// # Errors
-/// What [`inspect`] and [`read_topic`] return for the bag; [`Error::Bag`]
+/// What [`inspect`] and [`read_topic`](super::read_topic) return for the bag; [`Error::Bag`]
 /// when it has no wheel (`JointState`) or no pose topic odocal reads.
 pub fn draft_manifest(bag: &Path, file: &str) -> Result<String> {
     let info = inspect(bag)?;
@@ -86,7 +86,7 @@ pub fn draft_manifest(bag: &Path, file: &str) -> Result<String> {
     let imu = pick(&info.topics, &[MessageType::Imu]).map(|(t, _)| t);
 
     // The joints the first message names, and which fields they carry.
-    let table = read_topic(bag, &wheels.topic, &[], TimeSource::HeaderStamp)?;
+    let table = first_message(bag, &wheels.topic)?;
     let (positions, velocities) = (table.joints("position"), table.joints("velocity"));
     let (field, signal, names) = if positions.len() >= 2 {
         ("position", "rad_cumulative", positions)

@@ -78,6 +78,7 @@
 mod columns;
 mod draft;
 mod msg;
+mod records;
 #[cfg(test)]
 mod tests;
 
@@ -89,6 +90,7 @@ use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::fmt;
 use std::fs::File;
 use std::io::{BufReader, Read, Seek};
+use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 
 use crate::error::{fmt_ns, Error, Result};
@@ -159,6 +161,30 @@ pub enum TimeSource {
 /// [`Error::Bag`] for a file that is not MCAP, is corrupt or truncated, a
 /// topic without messages, or a message that does not decode.
 pub fn read_topic(path: &Path, topic: &str, columns: &[&str], time: TimeSource) -> Result<Table> {
+    read(path, topic, columns, time, false)
+}
+
+/// The joint names of the first message of the `JointState` topic `topic`
+/// (those with a position or a velocity), sorted: the names a manifest's
+/// `position.<joint>` / `velocity.<joint>` columns take. Reads up to that
+/// message only. A topic of another type has none (an empty list).
+///
+/// # Errors
+/// As [`read_topic`].
+pub fn joint_names(path: &Path, topic: &str) -> Result<Vec<String>> {
+    let table = first_message(path, topic)?;
+    let names: BTreeSet<&str> = table.joints("position").into_iter().chain(table.joints("velocity")).collect();
+    Ok(names.into_iter().map(str::to_string).collect())
+}
+
+/// The first message of a `JointState` topic as a one-row table of every
+/// joint's position and velocity.
+pub(crate) fn first_message(path: &Path, topic: &str) -> Result<Table> {
+    read(path, topic, &[], TimeSource::HeaderStamp, true)
+}
+
+/// [`read_topic`], stopping after the topic's first message when `first_only`.
+fn read(path: &Path, topic: &str, columns: &[&str], time: TimeSource, first_only: bool) -> Result<Table> {
     let mut bag = Bag::open(path)?;
     let summary = bag.summary();
     let mut plan: Option<Plan> = None;
@@ -185,7 +211,7 @@ pub fn read_topic(path: &Path, topic: &str, columns: &[&str], time: TimeSource) 
     bag.scan(summary.as_ref(), |m| {
         if m.channel.topic != topic {
             seen_topics.entry(m.channel.id).or_insert_with(|| (m.channel.topic.clone(), schema_name(&m.channel)));
-            return Ok(());
+            return Ok(ControlFlow::Continue(()));
         }
         let ty = match types.get(&m.channel.id) {
             Some(ty) => *ty,
@@ -198,7 +224,7 @@ pub fn read_topic(path: &Path, topic: &str, columns: &[&str], time: TimeSource) 
         if plan.is_none() {
             plan = Some(Plan::new(&path_buf, topic, ty, columns)?);
         }
-        let Some(plan) = plan.as_mut() else { return Ok(()) };
+        let Some(plan) = plan.as_mut() else { return Ok(ControlFlow::Continue(())) };
         if plan.ty != ty {
             let reason = format!("its channels carry two message types, {} and {ty}", plan.ty);
             return Err(bag_err(&path_buf, topic, reason));
@@ -210,7 +236,8 @@ pub fn read_topic(path: &Path, topic: &str, columns: &[&str], time: TimeSource) 
                 format!("more messages than the file has bytes ({file_len}): a corrupt or hostile file"),
             ));
         }
-        out.push(&path_buf, topic, plan, m, time)
+        out.push(&path_buf, topic, plan, m, time)?;
+        Ok(if first_only { ControlFlow::Break(()) } else { ControlFlow::Continue(()) })
     })?;
     let Some(plan) = plan else {
         return Err(Error::BagTopicNotFound {
@@ -341,7 +368,7 @@ pub fn inspect(path: &Path) -> Result<BagInfo> {
         count += 1;
         start = Some(start.map_or(m.log_time, |v| v.min(m.log_time)));
         end = Some(end.map_or(m.log_time, |v| v.max(m.log_time)));
-        Ok(())
+        Ok(ControlFlow::Continue(()))
     })?;
     let (compression, chunk_count) = match &summary {
         Some(s) => {
@@ -503,7 +530,15 @@ struct Collect {
     values: Vec<Vec<f64>>,
     /// Per column, the joint's index in the last message's name list.
     joint_idx: Vec<usize>,
+    /// The previous message's header stamp (ns), in file order.
+    last_stamp_ns: Option<i128>,
 }
+
+/// The largest step back of a topic's header stamps, from one message to the
+/// next in file order, that is taken for messages arriving out of order (the
+/// rows are sorted by time); a larger one is the publisher's clock stepping
+/// back, which sorting would interleave with the earlier rows.
+const MAX_STAMP_STEP_BACK_NS: i128 = 500_000_000;
 
 impl Collect {
     fn push(&mut self, path: &Path, topic: &str, plan: &mut Plan, m: &mcap::Message, time: TimeSource) -> Result<()> {
@@ -512,11 +547,14 @@ impl Collect {
         let (stamp, decoded) = columns::decode(plan.ty, &m.data).map_err(|e| {
             bag_err(path, topic, format!("message {index} (log time {log_time} s) is not a {}: {e}", plan.ty))
         })?;
+        if time == TimeSource::HeaderStamp {
+            self.check_stamp(stamp, index, &log_time).map_err(|reason| bag_err(path, topic, reason))?;
+        }
         if plan.all && index == 0 {
             if let Decoded::Joints(j) = &decoded {
                 for field in [JointField::Position, JointField::Velocity] {
                     for n in &j.name {
-                        let c = Column::Joint { field, joint: n.clone() };
+                        let c = Column::Joint { field, joint: n.to_string() };
                         plan.cols.push((format!("{}.{n}", field.name()), c));
                     }
                 }
@@ -531,7 +569,7 @@ impl Collect {
                 (Column::Fixed(i), Decoded::Fixed(v)) => v.get(*i).copied(),
                 (Column::Joint { field, joint }, Decoded::Joints(j)) => {
                     let cached = self.joint_idx[k];
-                    let i = if j.name.get(cached) == Some(joint) {
+                    let i = if j.name.get(cached).is_some_and(|n| n == joint) {
                         cached
                     } else {
                         j.name.iter().position(|n| n == joint).ok_or_else(|| Error::BagJoint {
@@ -540,7 +578,7 @@ impl Collect {
                             joint: joint.clone(),
                             index,
                             log_time_ns: m.log_time,
-                            present: j.name.clone(),
+                            present: j.name.iter().map(|n| n.to_string()).collect(),
                         })?
                     };
                     self.joint_idx[k] = i;
@@ -573,6 +611,34 @@ impl Collect {
         Ok(())
     }
 
+    /// Refuses a header stamp whose `nanosec` is not below 10⁹ and one that
+    /// steps back more than [`MAX_STAMP_STEP_BACK_NS`] from the previous
+    /// message's.
+    fn check_stamp(&mut self, stamp: msg::Time, index: u64, log_time: &str) -> std::result::Result<(), String> {
+        const FIX: &str = "fix the publisher's stamps or read the log time (time = \"log\" in the manifest's stream)";
+        if stamp.nanosec >= 1_000_000_000 {
+            return Err(format!(
+                "message {index} (log time {log_time} s) has header.stamp.nanosec = {}, not below 10^9 (sec = {}): \
+                 not a valid ROS time; {FIX}",
+                stamp.nanosec, stamp.sec
+            ));
+        }
+        let ns = stamp.total_ns();
+        if let Some(prev) = self.last_stamp_ns.filter(|&p| p - ns > MAX_STAMP_STEP_BACK_NS) {
+            return Err(format!(
+                "the header clock steps back {} s at message {index} (log time {log_time} s): its stamp {} s is \
+                 before message {}'s {} s (more than {} s back is a clock step, not messages out of order); {FIX}",
+                ns_to_s(prev - ns),
+                ns_to_s(ns),
+                index - 1,
+                ns_to_s(prev),
+                ns_to_s(MAX_STAMP_STEP_BACK_NS)
+            ));
+        }
+        self.last_stamp_ns = Some(ns);
+        Ok(())
+    }
+
     /// Sorts the rows by time (stably) and names the columns.
     fn finish(self, plan: Plan, source: String) -> Table {
         let Collect { mut t_s, mut values, .. } = self;
@@ -594,6 +660,9 @@ struct Bag {
     path: PathBuf,
     file: File,
     len: u64,
+    /// The longest record the MCAP reader may read: no longer than the file
+    /// or its largest chunk ([`records::check_lengths`]).
+    record_limit: usize,
 }
 
 impl Bag {
@@ -618,7 +687,10 @@ impl Bag {
                 reason: "not an MCAP file (it does not start with the MCAP magic bytes)".into(),
             });
         }
-        Ok(Bag { path: file_path, file, len })
+        file.seek(std::io::SeekFrom::Start(mcap::MAGIC.len() as u64)).map_err(io)?;
+        let record_limit = records::check_lengths(&mut file, mcap::MAGIC.len() as u64, len)
+            .map_err(|reason| Error::Bag { path: file_path.clone(), topic: None, reason })?;
+        Ok(Bag { path: file_path, file, len, record_limit })
     }
 
     /// The summary section, when the file has a readable one. A missing or
@@ -626,7 +698,7 @@ impl Bag {
     /// reports what is wrong with the file, at the place it goes wrong.
     fn summary(&mut self) -> Option<mcap::Summary> {
         use mcap::sans_io::{SummaryReadEvent, SummaryReader, SummaryReaderOptions};
-        let opts = SummaryReaderOptions::default().with_file_size(self.len).with_record_length_limit(MAX_RECORD_BYTES);
+        let opts = SummaryReaderOptions::default().with_file_size(self.len).with_record_length_limit(self.record_limit);
         let mut reader = SummaryReader::new_with_options(opts);
         // As in `scan`: a panic of the mcap reader on a damaged file means
         // no usable summary.
@@ -669,13 +741,18 @@ impl Bag {
         }
     }
 
-    /// Reads every message in file order, calling `f` on each, with the
+    /// Reads every message in file order, calling `f` on each until it
+    /// returns `Break`, with the
     /// chunks' and the data section's CRCs verified. With the file's
     /// `summary`, a chunk whose index declares no uncompressed bytes is
     /// refused before reading, and the messages read must be as many as its
     /// statistics record declares (a chunk that declares fewer bytes than it
     /// holds is otherwise skipped silently).
-    fn scan(&mut self, summary: Option<&mcap::Summary>, mut f: impl FnMut(&mcap::Message) -> Result<()>) -> Result<()> {
+    fn scan(
+        &mut self,
+        summary: Option<&mcap::Summary>,
+        mut f: impl FnMut(&mcap::Message) -> Result<ControlFlow<()>>,
+    ) -> Result<()> {
         let corrupt = |reason: String| Error::Bag { path: self.path.clone(), topic: None, reason };
         if let Some(c) =
             summary.and_then(|s| s.chunk_indexes.iter().find(|c| c.uncompressed_size == 0 && c.compressed_size > 0))
@@ -687,7 +764,7 @@ impl Bag {
         }
         self.file.rewind().map_err(|e| Error::Io { path: self.path.clone(), source: e })?;
         let opts = mcap::sans_io::LinearReaderOptions::default()
-            .with_record_length_limit(MAX_RECORD_BYTES)
+            .with_record_length_limit(self.record_limit)
             .with_validate_chunk_crcs(true)
             .with_validate_data_section_crc(true);
         let position = std::cell::Cell::new(0u64);
@@ -706,7 +783,9 @@ impl Bag {
             let Some(m) = next else { break };
             let m = m.map_err(|e| corrupt(scan_error(&e, position.get(), summary)))?;
             count += 1;
-            f(&m)?;
+            if f(&m)?.is_break() {
+                return Ok(());
+            }
         }
         match summary.and_then(|s| s.stats.as_ref()) {
             Some(st) if st.message_count != count => Err(corrupt(format!(
@@ -733,6 +812,16 @@ fn scan_error(e: &mcap::McapError, read: u64, summary: Option<&mcap::Summary>) -
             "corrupt MCAP file: the data section fails its CRC check (stored {saved:#010x}, computed \
              {calculated:#010x}): its bytes are damaged"
         ),
+        mcap::McapError::Parse(_) => format!(
+            "corrupt MCAP file: a record in {} does not parse (a string, map or field declares more bytes than \
+             the record holds)",
+            chunk_at(read, summary)
+        ),
+        mcap::McapError::RecordTooLarge { opcode, len } => format!(
+            "corrupt MCAP file: a record (opcode {opcode:#04x}) in {} declares {len} bytes, more than the chunk or \
+             file holding it",
+            chunk_at(read, summary)
+        ),
         e => format!("corrupt or truncated MCAP file: {e} (in {})", chunk_at(read, summary)),
     }
 }
@@ -747,7 +836,7 @@ fn chunk_at(read: u64, summary: Option<&mcap::Summary>) -> String {
                 format!("chunk {} of {n} (byte offset {}, {} bytes)", i + 1, c.chunk_start_offset, c.chunk_length)
             })
         })
-        .unwrap_or_else(|| format!("the record before byte offset {read}"))
+        .unwrap_or_else(|| format!("the part of the file before byte offset {read}"))
 }
 
 /// A reader that counts the bytes it hands out, so an error of the MCAP

@@ -136,7 +136,9 @@ pub(crate) struct TwistWithCovariance {
     pub covariance: Cov6,
 }
 
-/// `sensor_msgs/msg/JointState`.
+/// `sensor_msgs/msg/JointState` (for writing test bags; reading goes
+/// through [`decode_joints`]).
+#[cfg(test)]
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub(crate) struct JointState {
     pub header: Header,
@@ -225,6 +227,136 @@ pub(crate) fn decode<T: de::DeserializeOwned>(data: &[u8]) -> Result<T, String> 
         ));
     };
     r.map(|(v, _)| v).map_err(|e| format!("not valid CDR: {e}"))
+}
+
+/// The most joints odocal reads from one `JointState` message. Real robots
+/// publish tens; the ceiling keeps a hostile message from making every row
+/// of a topic hold hundreds of thousands of columns.
+pub(crate) const MAX_JOINTS: usize = 65_536;
+
+/// A decoded `sensor_msgs/msg/JointState`, its joint names borrowed from the
+/// message bytes; `effort` is checked but not kept (odocal does not read it).
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Joints<'a> {
+    pub stamp: Time,
+    pub name: Vec<&'a str>,
+    pub position: Vec<f64>,
+    pub velocity: Vec<f64>,
+}
+
+/// A CDR reader over one message body that checks every declared length
+/// against the bytes left before allocating anything for it.
+struct Cdr<'a> {
+    body: &'a [u8],
+    at: usize,
+    big_endian: bool,
+}
+
+impl<'a> Cdr<'a> {
+    fn left(&self) -> usize {
+        self.body.len() - self.at
+    }
+
+    /// The next `n` bytes, after aligning to `align` (relative to the body's start).
+    /// Nothing is taken (and no padding skipped) for `n` = 0, as a CDR
+    /// reader reads no element of an empty sequence.
+    fn take(&mut self, align: usize, n: usize, what: &str) -> Result<&'a [u8], String> {
+        if n == 0 {
+            return Ok(&[]);
+        }
+        let start = self.at.next_multiple_of(align);
+        let end = start.checked_add(n).filter(|&e| e <= self.body.len()).ok_or_else(|| {
+            format!("the message ends inside {what} ({n} bytes needed, {} left)", self.body.len().saturating_sub(start))
+        })?;
+        self.at = end;
+        Ok(&self.body[start..end])
+    }
+
+    fn u32(&mut self, what: &str) -> Result<u32, String> {
+        let b: [u8; 4] = self.take(4, 4, what)?.try_into().map_err(|_| format!("{what}: 4 bytes expected"))?;
+        Ok(if self.big_endian { u32::from_be_bytes(b) } else { u32::from_le_bytes(b) })
+    }
+
+    fn f64(&mut self, what: &str) -> Result<f64, String> {
+        let b: [u8; 8] = self.take(8, 8, what)?.try_into().map_err(|_| format!("{what}: 8 bytes expected"))?;
+        Ok(if self.big_endian { f64::from_be_bytes(b) } else { f64::from_le_bytes(b) })
+    }
+
+    /// A CDR string: a `uint32` length that counts the terminating NUL, then the bytes.
+    fn string(&mut self, what: &str) -> Result<&'a str, String> {
+        let n = self.u32(what)? as usize;
+        if n > self.left() {
+            return Err(format!("{what} declares {n} bytes, more than the {} left in the message", self.left()));
+        }
+        let bytes = self.take(1, n, what)?;
+        // The length counts the terminating NUL: the last byte is dropped
+        // whatever it is, as ROS 2's CDR readers do.
+        let text = bytes.split_last().map_or(bytes, |(_, text)| text);
+        std::str::from_utf8(text).map_err(|e| format!("{what} is not UTF-8: {e}"))
+    }
+
+    /// The element count of a sequence whose elements take at least
+    /// `min_bytes` each, checked against the bytes left and `MAX_JOINTS`.
+    fn count(&mut self, what: &str, min_bytes: usize) -> Result<usize, String> {
+        let n = self.u32(what)? as usize;
+        let room = self.left() / min_bytes;
+        if n > room {
+            return Err(format!(
+                "its {what} array declares {n} elements, more than the {} bytes left in the message hold",
+                self.left()
+            ));
+        }
+        if n > MAX_JOINTS {
+            return Err(format!(
+                "its {what} array has {n} elements; odocal reads at most {MAX_JOINTS} joints per message"
+            ));
+        }
+        Ok(n)
+    }
+
+    fn f64_seq(&mut self, what: &str) -> Result<Vec<f64>, String> {
+        let n = self.count(what, 8)?;
+        let mut v = Vec::with_capacity(n);
+        for _ in 0..n {
+            v.push(self.f64(what)?);
+        }
+        Ok(v)
+    }
+}
+
+/// Decodes a `sensor_msgs/msg/JointState` (4-byte encapsulation header, then
+/// CDR) without trusting its lengths: every string and array length is
+/// checked against the bytes left in the message before anything is
+/// allocated for it, and a message may name at most [`MAX_JOINTS`] joints.
+/// Reads the same values as the serde decoding of [`JointState`].
+pub(crate) fn decode_joints(data: &[u8]) -> Result<Joints<'_>, String> {
+    let (head, body) = data
+        .split_at_checked(4)
+        .ok_or_else(|| format!("{} bytes, shorter than the 4-byte CDR encapsulation header", data.len()))?;
+    let big_endian = match [head[0], head[1]] {
+        CDR_LE => false,
+        CDR_BE => true,
+        kind => {
+            return Err(format!(
+                "encapsulation {:#04x}{:02x} is not plain CDR (0x0000 big endian or 0x0001 little endian)",
+                kind[0], kind[1]
+            ))
+        }
+    };
+    let mut c = Cdr { body, at: 0, big_endian };
+    let sec = c.u32("header.stamp.sec")? as i32;
+    let nanosec = c.u32("header.stamp.nanosec")?;
+    c.string("header.frame_id")?;
+    let n = c.count("name", 4)?;
+    let mut name = Vec::with_capacity(n);
+    for _ in 0..n {
+        name.push(c.string("a joint name")?);
+    }
+    let position = c.f64_seq("position")?;
+    let velocity = c.f64_seq("velocity")?;
+    let effort = c.count("effort", 8)?;
+    c.take(8, effort * 8, "effort")?;
+    Ok(Joints { stamp: Time { sec, nanosec }, name, position, velocity })
 }
 
 /// Encodes a message as ROS 2 writes it (little-endian CDR with its

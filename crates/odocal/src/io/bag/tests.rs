@@ -99,7 +99,7 @@ fn pose_msgs() -> Vec<Topic> {
             position: msg::Vector3 { x: 10.0 + f, y: -5.0 - f / 3.0, z: 0.25 },
             orientation: yaw_quat(-PI + 0.3 * f),
         };
-        let h = header(T0 + 1, i * 100_000_000, "map");
+        let h = header(T0 + 1 + (i / 10) as i32, (i % 10) * 100_000_000, "map");
         let pc = msg::PoseWithCovariance { pose, covariance: cov6(0.0004 * f, 0.0005, 2.5e-5) };
         pwc.push((u64::from(i) * 100_000_000, encode(&msg::PoseWithCovarianceStamped { header: h.clone(), pose: pc })));
         ps.push((u64::from(i) * 100_000_000, encode(&msg::PoseStamped { header: h.clone(), pose })));
@@ -126,7 +126,7 @@ fn fix_and_imu() -> Vec<Topic> {
     for i in 0..10u32 {
         let f = f64::from(i);
         let m = msg::NavSatFix {
-            header: header(T0 + 2, i * 100_000_000, "gnss"),
+            header: header(T0 + 2 + (i / 10) as i32, (i % 10) * 100_000_000, "gnss"),
             status: msg::NavSatStatus { status: (i % 4) as i8 - 2, service: 1 },
             latitude: 40.442130345 + f * 1e-6,
             longitude: -79.760361018,
@@ -278,17 +278,18 @@ fn all_joint_columns_come_from_the_first_message() {
 fn rows_are_sorted_by_the_chosen_time() {
     let dir = tempfile::tempdir().expect("tempdir");
     let p = dir.path().join("order.mcap");
-    let mk = |sec: i32, x: f64| {
+    let mk = |tenths: u32, x: f64| {
         encode(&msg::PoseStamped {
-            header: header(sec, 0, "map"),
+            header: header(0, tenths * 100_000_000, "map"),
             pose: msg::Pose { position: msg::Vector3 { x, y: 0.0, z: 0.0 }, ..Default::default() },
         })
     };
-    // Log times increase; stamps go 3, 1, 2, 1 (ties keep file order).
+    // Log times increase; stamps go 0.3, 0.1, 0.2, 0.1 s (out of order by
+    // less than a clock step; ties keep file order).
     let messages = vec![(1, mk(3, 30.0)), (2, mk(1, 10.0)), (3, mk(2, 20.0)), (4, mk(1, 11.0))];
     write_bag(&p, None, true, &[Topic { name: "/p", ty: "geometry_msgs/msg/PoseStamped", encoding: "cdr", messages }]);
     let t = read_topic(&p, "/p", &["x"], TimeSource::HeaderStamp).expect("read");
-    assert_eq!(bits(&t.t_s), bits(&[1.0, 1.0, 2.0, 3.0]));
+    assert_eq!(bits(&t.t_s), bits(&[0.1, 0.1, 0.2, 0.3]));
     assert_eq!(bits(&t.columns["x"]), bits(&[10.0, 11.0, 20.0, 30.0]));
     let t = read_topic(&p, "/p", &["x"], TimeSource::LogTime).expect("read");
     assert_eq!(bits(&t.columns["x"]), bits(&[30.0, 10.0, 20.0, 11.0]));
@@ -412,7 +413,7 @@ fn short_joint_arrays_non_cdr_and_bad_messages_are_errors() {
         err(&p, "/g", &["position.a"]),
         format!(
             "{d}: topic '/g': message 0 (log time 0.000000007 s) is not a sensor_msgs/msg/JointState: \
-             not valid CDR: unexpected end of input"
+             the message ends inside name (4 bytes needed, 0 left)"
         )
     );
     assert_eq!(
@@ -483,12 +484,9 @@ fn sqlite_bags_non_mcap_and_truncated_files_are_refused_clearly() {
     let cut = dir.path().join("cut.mcap");
     std::fs::write(&cut, &bytes[..bytes.len() / 2]).expect("write");
     let e = err(&cut, "/joints", &["position.left"]);
-    let cut_message = format!(
-        "{}: corrupt or truncated MCAP file: MCAP file ended in the middle of a record (in the record before byte \
-         offset ",
-        cut.display()
-    );
-    assert!(e.starts_with(&cut_message), "{e}");
+    let cut_message =
+        format!("{}: corrupt or truncated MCAP file: the chunk record (opcode 0x06) at byte offset ", cut.display());
+    assert!(e.starts_with(&cut_message) && e.contains("remain in the file"), "{e}");
     assert_eq!(inspect(&cut).expect_err("truncated").to_string(), e);
 }
 
@@ -597,5 +595,188 @@ proptest! {
         let _ = read_topic(&p, "/joints", &["position.left"], TimeSource::HeaderStamp);
         let _ = read_topic(&p, "/fix", &[], TimeSource::LogTime);
         let _ = inspect(&p);
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 256, ..ProptestConfig::default() })]
+
+    /// The length-checking `JointState` decoder reads what the serde CDR
+    /// decoder reads, on valid messages and on damaged ones: where serde
+    /// decodes, it decodes to the same values.
+    #[test]
+    fn joint_decoder_agrees_with_serde(
+        n in 0usize..5,
+        extra in 0usize..3,
+        effort in 0usize..3,
+        frame in "[a-z]{0,7}",
+        big_endian in any::<bool>(),
+        cut in 0usize..400,
+        flips in proptest::collection::vec((0usize..400, any::<u8>()), 0..4),
+    ) {
+        let m = msg::JointState {
+            header: header(T0, 123_456_789, &frame),
+            name: (0..n).map(|i| "j".repeat(i + 1)).collect(),
+            position: (0..n + extra).map(|i| i as f64 * 0.5 - 1.0).collect(),
+            velocity: (0..n).map(|i| -(i as f64)).collect(),
+            effort: vec![2.5; effort],
+        };
+        let mut data = if big_endian {
+            let mut out = vec![0x00, 0x00, 0x00, 0x00];
+            out.extend(cdr_encoding::to_vec::<_, byteorder::BigEndian>(&m).expect("encode"));
+            out
+        } else {
+            encode(&m)
+        };
+        let j = msg::decode_joints(&data).expect("valid message");
+        prop_assert_eq!(j.stamp, m.header.stamp);
+        prop_assert_eq!(&j.name, &m.name.iter().map(String::as_str).collect::<Vec<_>>());
+        prop_assert_eq!(bits(&j.position), bits(&m.position));
+        prop_assert_eq!(bits(&j.velocity), bits(&m.velocity));
+        for (i, b) in flips {
+            let len = data.len();
+            data[i % len] = b;
+        }
+        data.truncate(cut.min(data.len()));
+        if let Ok(s) = msg::decode::<msg::JointState>(&data) {
+            let j = msg::decode_joints(&data).expect("serde decoded it");
+            prop_assert_eq!(&j.name, &s.name.iter().map(String::as_str).collect::<Vec<_>>());
+            prop_assert_eq!(bits(&j.position), bits(&s.position));
+            prop_assert_eq!(bits(&j.velocity), bits(&s.velocity));
+        }
+    }
+}
+
+/// A `JointState` whose arrays declare 2³¹ elements is refused, naming the
+/// array, before anything is allocated for it; so is one naming more joints
+/// than odocal reads.
+#[test]
+fn joint_arrays_declaring_more_than_the_message_holds_are_refused() {
+    let m = msg::JointState {
+        header: header(T0, 0, "b"),
+        name: vec!["a".into()],
+        position: vec![1.0],
+        velocity: vec![2.0],
+        effort: vec![],
+    };
+    let good = encode(&m);
+    // The name count follows the header: 4 (encapsulation) + 8 (stamp) + 4 + 2 ("b\0"), padded to 20.
+    let mut bad = good.clone();
+    bad[20..24].copy_from_slice(&(1u32 << 31).to_le_bytes());
+    let e = msg::decode_joints(&bad).expect_err("huge name array");
+    assert!(e.contains("its name array declares 2147483648 elements, more than the"), "{e}");
+    let many = msg::JointState { name: vec![String::new(); msg::MAX_JOINTS + 1], ..m };
+    let e = msg::decode_joints(&encode(&many)).expect_err("too many joints");
+    assert!(e.contains("its name array has 65537 elements; odocal reads at most 65536 joints per message"), "{e}");
+}
+
+/// Header stamps with `nanosec` ≥ 10⁹ and a header clock stepping back are
+/// errors naming the topic, the message and the step; messages out of order
+/// by less are sorted (`rows_are_sorted_by_the_chosen_time`).
+#[test]
+fn invalid_nanosec_and_a_clock_stepping_back_are_named() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mk = |sec: i32, nanosec: u32| {
+        encode(&msg::PoseStamped { header: header(sec, nanosec, "map"), pose: msg::Pose::default() })
+    };
+    let cases = [
+        (
+            "nanosec.mcap",
+            vec![(1, mk(5, 0)), (2, mk(5, 2_000_000_000))],
+            "topic '/p': message 1 (log time 0.000000002 s) has header.stamp.nanosec = 2000000000, not below 10^9 \
+             (sec = 5)",
+        ),
+        (
+            "step.mcap",
+            vec![(1, mk(100, 0)), (2, mk(100, 500_000_000)), (3, mk(90, 0))],
+            "topic '/p': the header clock steps back 10.5 s at message 2 (log time 0.000000003 s): its stamp 90 s is \
+             before message 1's 100.5 s",
+        ),
+    ];
+    for (name, messages, want) in cases {
+        let p = dir.path().join(name);
+        write_bag(
+            &p,
+            None,
+            true,
+            &[Topic { name: "/p", ty: "geometry_msgs/msg/PoseStamped", encoding: "cdr", messages }],
+        );
+        let e = err(&p, "/p", &["x"]);
+        assert!(e.contains(want) && e.contains("time = \"log\""), "{e}");
+        read_topic(&p, "/p", &["x"], TimeSource::LogTime).expect("the log time is fine");
+    }
+}
+
+/// MCAP lengths larger than what remains (a record longer than the file, a
+/// topic name longer than its record, a record longer than its chunk) are
+/// errors naming the record and its offset, found before any allocation.
+#[test]
+fn mcap_lengths_larger_than_what_remains_are_named() {
+    fn rec(op: u8, body: &[u8], declared: Option<u64>) -> Vec<u8> {
+        let mut r = vec![op];
+        r.extend(declared.unwrap_or(body.len() as u64).to_le_bytes());
+        r.extend(body);
+        r
+    }
+    fn string(s: &str, declared: Option<u32>) -> Vec<u8> {
+        let mut r = declared.unwrap_or(s.len() as u32).to_le_bytes().to_vec();
+        r.extend(s.as_bytes());
+        r
+    }
+    let schema = rec(
+        0x03,
+        &[
+            &1u16.to_le_bytes()[..],
+            &string("geometry_msgs/msg/PoseStamped", None),
+            &string("ros2msg", None),
+            &0u32.to_le_bytes(),
+        ]
+        .concat(),
+        None,
+    );
+    let channel = |topic_len: Option<u32>, rec_len: Option<u64>| {
+        rec(
+            0x04,
+            &[&[1, 0, 1, 0][..], &string("/p", topic_len), &string("cdr", None), &0u32.to_le_bytes()].concat(),
+            rec_len,
+        )
+    };
+    let file = |records: &[Vec<u8>]| {
+        let mut f = mcap::MAGIC.to_vec();
+        f.extend(rec(0x01, &[string("ros2", None), string("x", None)].concat(), None));
+        for r in records {
+            f.extend(r);
+        }
+        f.extend(rec(0x0F, &0u32.to_le_bytes(), None));
+        f.extend(rec(0x02, &[0u8; 20], None));
+        f.extend(mcap::MAGIC);
+        f
+    };
+    let chunk = |records: Vec<u8>| {
+        let body = [
+            &[0u8; 16][..],
+            &(records.len() as u64).to_le_bytes(),
+            &0u32.to_le_bytes(),
+            &string("", None),
+            &(records.len() as u64).to_le_bytes(),
+            &records,
+        ]
+        .concat();
+        rec(0x06, &body, None)
+    };
+    let message = rec(0x05, &[0u8; 22], Some(200 << 20));
+    let cases = [
+        (file(&[schema.clone(), channel(Some(u32::MAX), None)]), "the channel record at byte offset 89 declares a topic name of 4294967295 bytes, but only 13 remain in the record"),
+        (file(&[schema.clone(), channel(None, Some(1 << 32))]), "the channel record (opcode 0x04) at byte offset 89 declares 4294967296 bytes, but only"),
+        (file(&[chunk([schema.clone(), channel(None, None), message].concat())]), "the message record (opcode 0x05) at byte offset 168 declares 209715200 bytes, but only 22 remain in its chunk (at byte offset 30)"),
+    ];
+    let dir = tempfile::tempdir().expect("tempdir");
+    for (i, (bytes, want)) in cases.iter().enumerate() {
+        let p = dir.path().join(format!("{i}.mcap"));
+        std::fs::write(&p, bytes).expect("write");
+        for e in [inspect(&p).map(|_| ()), read_topic(&p, "/p", &["x"], TimeSource::HeaderStamp).map(|_| ())] {
+            let e = e.expect_err("hostile lengths").to_string();
+            assert!(e.contains(&format!("{i}.mcap: corrupt")) && e.contains(want), "{e}");
+        }
     }
 }

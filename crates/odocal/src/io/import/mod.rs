@@ -314,8 +314,8 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
     let h = 1.0 / o.rate_hz;
     let theta0: Theta = o.theta0();
 
-    let mut warnings = Vec::new();
-    let mut streams = read_streams(m)?;
+    let mut warnings = m.unused_wheel_keys();
+    let mut streams = read_streams(m, &mut warnings)?;
     let wheels = Wheels::new(m, &streams[&m.wheels.stream], &mut warnings)?;
     if let Some(ws) = streams.get_mut(&m.wheels.stream) {
         *ws = wheels.stream.clone();
@@ -552,10 +552,10 @@ fn wanted_columns(m: &Manifest) -> BTreeMap<String, Vec<Wanted>> {
 }
 
 /// Reads every stream a signal refers to.
-fn read_streams(m: &Manifest) -> Result<BTreeMap<String, Stream>> {
+fn read_streams(m: &Manifest, warnings: &mut Vec<String>) -> Result<BTreeMap<String, Stream>> {
     let mut streams = BTreeMap::new();
     for (name, wanted) in &wanted_columns(m) {
-        streams.insert(name.clone(), source::read_stream(m, name, wanted)?);
+        streams.insert(name.clone(), source::read_stream(m, name, wanted, warnings)?);
     }
     Ok(streams)
 }

@@ -94,6 +94,56 @@ pub fn import_bundle(data: &[u8]) -> Outcome {
     }
 }
 
+/// A ROS 2 bag (MCAP): the bytes written to a temporary `.mcap` file, then
+/// `inspect` and every topic read with all its columns (header stamps, and
+/// the log time), as `odocal inspect` and a `format = "mcap"` stream do.
+#[cfg(feature = "mcap")]
+pub fn bag(data: &[u8]) -> Outcome {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("fuzz.mcap");
+    std::fs::write(&path, data).expect("write");
+    let info = match odocal::io::bag::inspect(&path) {
+        Ok(info) => info,
+        Err(e) => return check_message(e.to_string()),
+    };
+    let _ = check_message(info.to_string());
+    let mut last = Outcome::Parsed;
+    for t in &info.topics {
+        for time in [odocal::io::bag::TimeSource::HeaderStamp, odocal::io::bag::TimeSource::LogTime] {
+            last = match odocal::io::bag::read_topic(&path, &t.topic, &[], time) {
+                Ok(table) => {
+                    assert!(table.columns.values().all(|c| c.len() == table.len()));
+                    assert!(table.t_s.windows(2).all(|w| w[0] <= w[1]));
+                    Outcome::Drive(table.len())
+                }
+                Err(e) => check_message(e.to_string()),
+            };
+        }
+        let _ = odocal::io::bag::joint_names(&path, &t.topic);
+    }
+    last
+}
+
+/// A parameter file (`--theta`, `--params-out`'s YAML or JSON): the bytes
+/// written to a temporary `.yaml` file (`.json` when they start with `{`)
+/// and read as `--theta` reads it.
+pub fn params(data: &[u8]) -> Outcome {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let name = if data.first() == Some(&b'{') { "fuzz.json" } else { "fuzz.yaml" };
+    let path = dir.path().join(name);
+    std::fs::write(&path, data).expect("write");
+    match odocal::ParamFile::read(&path) {
+        Ok(f) => match f.theta() {
+            Ok(t) => {
+                assert!([t.c_e, t.c_d, t.t_r, t.d].iter().all(|v| v.is_finite()), "{t:?}");
+                Outcome::Parsed
+            }
+            Err(e) => check_message(e.to_string()),
+        },
+        Err(e) => check_message(e.to_string()),
+    }
+}
+
 /// Imports a manifest already parsed (used by the fuzz target on bundles).
 pub fn import_manifest(m: &Manifest) -> Outcome {
     match import(m) {
@@ -162,7 +212,7 @@ pub fn replay(files: &[std::path::PathBuf], expect: &[(&str, &[&str])], reader: 
         assert_eq!(path.file_name().and_then(|n| n.to_str()), Some(*name));
         let o = reader(&std::fs::read(path).expect("read"));
         if needles.is_empty() {
-            assert!(matches!(o, Outcome::Drive(_)), "{name}: {o:?}");
+            assert!(matches!(o, Outcome::Drive(_) | Outcome::Parsed), "{name}: {o:?}");
             continue;
         }
         let Outcome::Error(m) = &o else { panic!("{name}: expected an error, got {o:?}") };

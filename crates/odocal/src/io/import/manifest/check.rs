@@ -144,6 +144,43 @@ impl Manifest {
         Ok(())
     }
 
+    /// The `[wheels]` keys the chosen signal does not use, each as a notice
+    /// (`wheels.circumference_m = 2 does not apply to …: ignored`): a key
+    /// meant for another signal usually means the signal is the wrong one.
+    pub(crate) fn unused_wheel_keys(&self) -> Vec<String> {
+        let w = &self.wheels;
+        let signal =
+            serde_json::to_value(w.signal).ok().and_then(|v| v.as_str().map(str::to_string)).unwrap_or_default();
+        let ticks = matches!(w.signal, WheelSignal::TicksCumulative | WheelSignal::TicksRaw);
+        let unused = [
+            (
+                "circumference_m",
+                w.circumference_m.filter(|_| w.signal != WheelSignal::MPerS).map(|v| v.to_string()),
+                "m_per_s",
+            ),
+            (
+                "ticks_per_rev",
+                w.ticks_per_rev.filter(|_| !ticks).map(|v| v.to_string()),
+                "ticks_cumulative and ticks_raw",
+            ),
+            (
+                "counter_bits",
+                w.counter_bits.filter(|_| w.signal != WheelSignal::TicksRaw).map(|v| v.to_string()),
+                "ticks_raw",
+            ),
+        ];
+        unused
+            .into_iter()
+            .filter_map(|(key, value, only)| {
+                Some(format!(
+                    "wheels.{key} = {} does not apply to signal = \"{signal}\" (only to {only}): ignored; check \
+                     wheels.signal",
+                    value?
+                ))
+            })
+            .collect()
+    }
+
     /// `[pose]`: an existing stream, a non-negative speed for derived
     /// headings, a latitude/longitude origin in range, a quality filter that
     /// accepts something and has finite thresholds.

@@ -2,6 +2,7 @@
 //! sample, numbers in the columns read (other columns are not looked at).
 
 use std::collections::BTreeMap;
+use std::io::BufRead;
 use std::path::Path;
 
 use super::{Table, Wanted};
@@ -12,17 +13,28 @@ use crate::io::import::manifest::Manifest;
 /// Reads the time column `time` and the `wanted` columns of `path`.
 pub(super) fn read(m: &Manifest, name: &str, path: &Path, time: &str, wanted: &[Wanted]) -> Result<Table> {
     let key = format!("streams.{name}.file");
-    let bytes = crate::output::limited::read_limited(path, crate::output::limited::MAX_DATA_BYTES, "a CSV stream file")
-        .map_err(|e| m.error(&key, format!("cannot read {}: {e}", path.display())))?;
-    let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF".as_slice()).unwrap_or(&bytes);
-    let mut rdr = ::csv::ReaderBuilder::new().has_headers(true).trim(::csv::Trim::All).from_reader(bytes);
-    let csv_err = |e: ::csv::Error| Error::Csv {
-        path: path.to_path_buf(),
-        line: e.position().map(|p| p.line()).unwrap_or(0),
-        column: None,
-        reason: e.to_string(),
+    let cannot_read = |e: &dyn std::fmt::Display| m.error(&key, format!("cannot read {}: {e}", path.display()));
+    // Read as a stream, row by row into the columns asked for: the file's
+    // text is never held whole.
+    let file = crate::output::limited::open_limited(path, crate::output::limited::MAX_DATA_BYTES, "a CSV stream file")
+        .map_err(|e| cannot_read(&e))?;
+    let mut buffered = std::io::BufReader::with_capacity(1 << 16, file);
+    let head = buffered.fill_buf().map_err(|e| cannot_read(&e))?;
+    if head.starts_with(b"\xEF\xBB\xBF") {
+        buffered.consume(3);
+    }
+    let mut rdr = ::csv::ReaderBuilder::new().has_headers(true).trim(::csv::Trim::All).from_reader(buffered);
+    let csv_err = |e: ::csv::Error| match e.kind() {
+        ::csv::ErrorKind::Io(io) => cannot_read(io),
+        _ => Error::Csv {
+            path: path.to_path_buf(),
+            line: e.position().map(|p| p.line()).unwrap_or(0),
+            column: None,
+            reason: e.to_string(),
+        },
     };
     let headers: Vec<String> = rdr.headers().map_err(csv_err)?.iter().map(str::to_string).collect();
+    crate::drive::csv::header_characters(&headers, path)?;
     let mut all: Vec<Wanted> = vec![Wanted { column: time.to_string(), key: format!("streams.{name}.time_column") }];
     all.extend(wanted.iter().cloned());
     let mut idx = Vec::new();
@@ -65,7 +77,9 @@ pub(super) fn read(m: &Manifest, name: &str, path: &Path, time: &str, wanted: &[
     for (c, w) in all.iter().enumerate().skip(1) {
         columns.insert(w.column.clone(), std::mem::take(&mut data[c]));
     }
-    Ok(Table { t_s, columns, source: path.display().to_string(), lines: Some(lines) })
+    let last_byte = rdr.get_ref().get_ref().last_byte();
+    let warnings = crate::drive::csv::tail_warning_at(last_byte, line, path).into_iter().collect();
+    Ok(Table { t_s, columns, source: path.display().to_string(), lines: Some(lines), warnings })
 }
 
 /// The header for a message: at most 30 names, each echoed short.

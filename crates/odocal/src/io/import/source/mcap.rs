@@ -40,7 +40,7 @@ pub(super) fn read(
         };
         m.error(&key.unwrap_or_else(|| format!("streams.{name}.topic")), e)
     })?;
-    Ok(Table { t_s: table.t_s, columns: table.columns, source: table.source, lines: None })
+    Ok(Table { t_s: table.t_s, columns: table.columns, source: table.source, lines: None, warnings: Vec::new() })
 }
 
 /// The manifest key of the first wanted column `is` matches.

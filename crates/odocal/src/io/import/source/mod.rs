@@ -58,6 +58,8 @@ pub(crate) struct Table {
     pub source: String,
     /// The file line of each row, when the format has lines (CSV).
     pub lines: Option<Vec<u64>>,
+    /// What the reader noticed (a CSV's last line without a newline).
+    pub warnings: Vec<String>,
 }
 
 impl Table {
@@ -166,12 +168,13 @@ impl Stream {
 /// Reads the columns `wanted` of stream `name`: its table, the time in
 /// seconds plus `time_offset_s`, time that goes backwards rejected, repeated
 /// stamps dropped (and counted), de-jittered when the stream has a
-/// `nominal_rate_hz`.
-pub(crate) fn read_stream(m: &Manifest, name: &str, wanted: &[Wanted]) -> Result<Stream> {
+/// `nominal_rate_hz`. What the reader noticed goes to `warnings`.
+pub(crate) fn read_stream(m: &Manifest, name: &str, wanted: &[Wanted], warnings: &mut Vec<String>) -> Result<Stream> {
     let spec = &m.streams[name];
     let path = m.base_dir().join(spec.source.file());
     let key = format!("streams.{name}.file");
     let table = read_table(m, name, wanted)?;
+    warnings.extend(table.warnings.iter().map(|w| format!("streams.{name}: {w}")));
     if table.t_s.is_empty() {
         return Err(m.error(&key, format!("{} has no data rows", table.source)));
     }

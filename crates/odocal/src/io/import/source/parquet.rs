@@ -92,7 +92,7 @@ pub(super) fn read(
         .filter(|(c, _)| wanted.iter().any(|w| w.column == *c))
         .map(|(c, v)| (c.to_string(), v))
         .collect();
-    Ok(Table { t_s, columns, source: shown, lines: None })
+    Ok(Table { t_s, columns, source: shown, lines: None, warnings: Vec::new() })
 }
 
 /// A plan per distinct column, the time column (`(column, manifest key)`)

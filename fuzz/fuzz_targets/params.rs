@@ -1,0 +1,9 @@
+//! Fuzz target: `cargo +nightly fuzz run params corpus/params`.
+#![no_main]
+
+#[path = "../../crates/odocal/tests/integration/common/harness.rs"]
+mod harness;
+
+libfuzzer_sys::fuzz_target!(|data: &[u8]| {
+    let _ = harness::params(data);
+});
