@@ -4,15 +4,16 @@
 //!
 //! The walk reads the opcode and length of each top-level record and seeks
 //! past its body. For a chunk it also reads the chunk header (its declared
-//! uncompressed size, compression and records length); the records of an
-//! uncompressed chunk are walked the same way. Schema and channel records
-//! outside compressed chunks have their string lengths checked, so a topic
-//! name declaring 4 GiB in a tiny file is named as such. What the walk
-//! cannot see (the records inside a compressed chunk) is bounded by the
-//! record length limit it returns: no record may be longer than the file or
-//! than the largest chunk's declared uncompressed size.
+//! uncompressed size, compression and records length); the records of a
+//! chunk are walked the same way, a compressed chunk's after decompressing
+//! it into a buffer of at most its declared uncompressed size (itself
+//! capped). Schema and channel records have their string lengths checked,
+//! so a topic name declaring 4 GiB in a tiny file is named as such. The
+//! walk also returns a record length limit for the reader: no record may be
+//! longer than the file or than the largest chunk's declared uncompressed
+//! size.
 
-use std::io::{BufReader, Read, Seek};
+use std::io::{BufReader, Cursor, Read, Seek};
 
 use super::MAX_RECORD_BYTES;
 
@@ -147,6 +148,7 @@ impl<R: Read + Seek> Walk<R> {
                 "declares {uncompressed} uncompressed bytes, above odocal's limit of {MAX_RECORD_BYTES} for one chunk"
             )));
         }
+        let within = format!("its chunk (at byte offset {offset})");
         if name.is_empty() {
             if uncompressed != records_len {
                 return Err(bad(format!(
@@ -154,16 +156,64 @@ impl<R: Read + Seek> Walk<R> {
                 )));
             }
             let records_end = self.at + records_len;
-            while self.at + 9 <= records_end {
-                let (op, inner) = self.record_header(records_end, &format!("its chunk (at byte offset {offset})"))?;
-                let body_start = self.at;
-                if matches!(op, SCHEMA | CHANNEL) {
-                    self.strings(op, inner)?;
-                }
-                self.skip_to(body_start + inner)?;
-            }
+            self.chunk_records(records_end, &within)?;
+        } else {
+            let records = self.decompressed(&name, records_len, uncompressed, &bad)?;
+            let len = records.len() as u64;
+            let mut inner = Walk { r: BufReader::new(Cursor::new(records)), at: 0 };
+            // The inner walk's offsets count from the start of the
+            // decompressed records: say so.
+            inner.chunk_records(len, "the decompressed records").map_err(|e| {
+                format!("{e} (offsets within the decompressed records of the chunk at byte offset {offset})")
+            })?;
         }
         Ok(uncompressed)
+    }
+
+    /// Walks the records of a chunk up to `records_end`, checking their
+    /// lengths and the strings of schema and channel records.
+    fn chunk_records(&mut self, records_end: u64, within: &str) -> Result<(), String> {
+        while self.at + 9 <= records_end {
+            let (op, inner) = self.record_header(records_end, within)?;
+            let body_start = self.at;
+            if matches!(op, SCHEMA | CHANNEL) {
+                self.strings(op, inner)?;
+            }
+            self.skip_to(body_start + inner)?;
+        }
+        Ok(())
+    }
+
+    /// Decompresses a chunk's `records_len` bytes of records into at most
+    /// `uncompressed` bytes (more is an error). The walk's offset follows
+    /// the bytes the decoder read; the caller skips to the chunk's end.
+    fn decompressed(
+        &mut self,
+        name: &[u8],
+        records_len: u64,
+        uncompressed: u64,
+        bad: &dyn Fn(String) -> String,
+    ) -> Result<Vec<u8>, String> {
+        let mut compressed = (&mut self.r).take(records_len);
+        let mut out = Vec::new();
+        let read = match name {
+            b"zstd" => zstd::stream::read::Decoder::new(&mut compressed)
+                .and_then(|d| d.take(uncompressed + 1).read_to_end(&mut out)),
+            b"lz4" => lz4::Decoder::new(&mut compressed).and_then(|d| d.take(uncompressed + 1).read_to_end(&mut out)),
+            _ => {
+                return Err(bad(format!(
+                    "uses the compression '{}', which odocal cannot read (zstd, lz4 or none)",
+                    String::from_utf8_lossy(name)
+                )))
+            }
+        };
+        let consumed = records_len - compressed.limit();
+        read.map_err(|e| bad(format!("could not be decompressed: {e}")))?;
+        self.at += consumed;
+        if out.len() as u64 > uncompressed {
+            return Err(bad(format!("decompresses to more than the {uncompressed} bytes it declares")));
+        }
+        Ok(out)
     }
 
     /// Checks the string (and schema data) lengths of a schema or channel
@@ -204,5 +254,80 @@ impl<R: Read + Seek> Walk<R> {
             return Err(format!("corrupt MCAP file: the record at byte offset {offset} is too short for its ids"));
         }
         self.skip_to(self.at + n)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn record(op: u8, body: &[u8]) -> Vec<u8> {
+        let mut r = vec![op];
+        r.extend_from_slice(&(body.len() as u64).to_le_bytes());
+        r.extend_from_slice(body);
+        r
+    }
+
+    fn string(s: &str) -> Vec<u8> {
+        let mut b = (s.len() as u32).to_le_bytes().to_vec();
+        b.extend_from_slice(s.as_bytes());
+        b
+    }
+
+    /// A file of a header and one chunk compressed with `compression`
+    /// holding one channel record whose topic name declares `topic_len`
+    /// bytes (followed by the 13 bytes of a short topic).
+    fn file_with_chunk(compression: &str, topic_len: u32) -> Vec<u8> {
+        let mut channel = Vec::new();
+        channel.extend_from_slice(&1u16.to_le_bytes());
+        channel.extend_from_slice(&0u16.to_le_bytes());
+        channel.extend_from_slice(&topic_len.to_le_bytes());
+        channel.extend_from_slice(b"/a");
+        channel.extend_from_slice(&string("cdr"));
+        channel.extend_from_slice(&0u32.to_le_bytes());
+        let records = record(CHANNEL, &channel);
+        let packed = match compression {
+            "zstd" => zstd::bulk::compress(&records, 3).expect("zstd"),
+            _ => records.clone(),
+        };
+        let mut chunk = Vec::new();
+        chunk.extend_from_slice(&0u64.to_le_bytes());
+        chunk.extend_from_slice(&0u64.to_le_bytes());
+        chunk.extend_from_slice(&(records.len() as u64).to_le_bytes());
+        chunk.extend_from_slice(&0u32.to_le_bytes());
+        chunk.extend_from_slice(&string(compression));
+        chunk.extend_from_slice(&(packed.len() as u64).to_le_bytes());
+        chunk.extend_from_slice(&packed);
+        let mut f = b"\x89MCAP0\r\n".to_vec();
+        f.extend(record(0x01, &[string("ros2"), string("test")].concat()));
+        f.extend(record(CHUNK, &chunk));
+        f.extend(record(DATA_END, &0u32.to_le_bytes()));
+        f.extend(record(FOOTER, &[0u8; 20]));
+        f.extend_from_slice(b"\x89MCAP0\r\n");
+        f
+    }
+
+    fn walk(f: &[u8]) -> Result<usize, String> {
+        let mut c = Cursor::new(f);
+        c.set_position(8);
+        check_lengths(c, 8, f.len() as u64)
+    }
+
+    #[test]
+    fn a_topic_length_inside_a_compressed_chunk_is_checked() {
+        // The honest file walks clean, compressed or not.
+        assert!(walk(&file_with_chunk("zstd", 2)).is_ok());
+        assert!(walk(&file_with_chunk("", 2)).is_ok());
+        // A topic name declaring 4 GiB is refused before the reader sees it.
+        let e = walk(&file_with_chunk("zstd", u32::MAX - 15)).expect_err("a 4 GiB topic name");
+        assert!(e.contains("decompressed records of the chunk at byte offset") && e.contains("topic name"), "{e}");
+        let e = walk(&file_with_chunk("", u32::MAX - 15)).expect_err("a 4 GiB topic name");
+        assert!(e.contains("topic name"), "{e}");
+    }
+
+    #[test]
+    fn an_unknown_compression_is_named() {
+        let e = walk(&file_with_chunk("brotli", 2)).expect_err("unknown compression");
+        assert!(e.contains("'brotli'"), "{e}");
     }
 }
