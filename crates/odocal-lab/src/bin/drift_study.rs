@@ -29,7 +29,7 @@ use odocal::{Drive, Theta};
 use odocal_lab::{Args, Res};
 use rayon::prelude::*;
 
-const USAGE: &str = "drift_study [--seeds N] [--first-seed S] [--ramp-only] [--ramp FRACTION] [--burn-in S] [--step-mm MM]
+const USAGE: &str = "drift_study [--seeds N] [--first-seed S] [--ramp-only] [--sigma-factors A,B,C,D] [--ramp FRACTION] [--burn-in S] [--step-mm MM]
     [--random-walk-ce F] [--random-walk-cd M] [--information-scale F]";
 
 /// Samples per pushed chunk (10 s at 40 Hz).
@@ -180,9 +180,9 @@ fn step_run(seed: u64, step_m: f64, k: &Knobs) -> Res<StepRun> {
 /// Prints the runs; `lag s` is the mean error (minus the same seed's mean
 /// error without drift, `base`, which takes out the estimator's own bias)
 /// over the ramp's slope.
-fn print_ramp(label: &str, runs: &[RampRun], base: &[RampRun], slope_per_s: f64) {
+fn print_ramp(label: &str, runs: &[RampRun], base: &[RampRun], slope_per_s: f64, factors: [f64; 4]) {
     println!("\n{label}");
-    print_errors(runs);
+    print_errors(runs, factors);
     println!(
         "{:>4} {:>7} {:>6} {:>6} {:>6} {:>6} {:>10} {:>10} {:>10} {:>7} {:>8}",
         "seed", "from s", "c_e", "c_d", "t_r", "d", "mean err", "rms c_e", "mean σ", "rms/σ", "lag s"
@@ -226,11 +226,12 @@ fn print_ramp(label: &str, runs: &[RampRun], base: &[RampRun], slope_per_s: f64)
 
 /// Per parameter over all seeds and evaluated times: mean error, RMS
 /// error, mean and median σ, RMS ÷ mean σ, coverage of ±2σ, median
-/// half-width ÷ RMS, and the factor on σ that 90 % coverage would need.
-fn print_errors(runs: &[RampRun]) {
+/// half-width ÷ RMS, and the factor on σ that 90 % coverage would need;
+/// σ multiplied by `factors` (`--sigma-factors`) first.
+fn print_errors(runs: &[RampRun], factors: [f64; 4]) {
     println!("{:>4} {:>11} {:>11} {:>11} {:>11} {:>7} {:>7} {:>9} {:>8}", "par", "mean err", "rms err", "mean σ", "median σ", "rms/σ", "±2σ", "2σmed/rms", "k for 90");
     for (i, name) in ["c_e", "c_d", "t_r", "d"].iter().enumerate() {
-        let all: Vec<(f64, f64)> = runs.iter().flat_map(|r| r.trace[i].iter().copied()).collect();
+        let all: Vec<(f64, f64)> = runs.iter().flat_map(|r| r.trace[i].iter().map(|p| (p.0, p.1 * factors[i]))).collect();
         let n = all.len() as f64;
         let mean = all.iter().map(|p| p.0).sum::<f64>() / n;
         let rms = (all.iter().map(|p| p.0 * p.0).sum::<f64>() / n).sqrt();
@@ -251,6 +252,11 @@ fn run() -> Res<()> {
     let seeds: u64 = a.get("seeds", 6)?;
     let first_seed: u64 = a.get("first-seed", 1)?;
     let ramp_only = a.flag("ramp-only");
+    let factors: Vec<f64> = match a.opt::<String>("sigma-factors")? {
+        Some(v) => v.split(',').map(str::parse).collect::<Result<_, _>>()?,
+        None => vec![1.0; 4],
+    };
+    let factors: [f64; 4] = factors.try_into().map_err(|_| "--sigma-factors takes four numbers")?;
     let ramp: f64 = a.get("ramp", 0.003)?;
     let step_mm: f64 = a.get("step-mm", 1.0)?;
     let k = Knobs {
@@ -282,8 +288,9 @@ fn run() -> Res<()> {
         &ramps,
         &flat,
         slope,
+        factors,
     );
-    print_ramp("control: no drift (the same seeds)", &flat, &flat, 0.0);
+    print_ramp("control: no drift (the same seeds)", &flat, &flat, 0.0, factors);
     if ramp_only {
         return Ok(());
     }
