@@ -229,9 +229,13 @@ fn print_ramp(label: &str, runs: &[RampRun], base: &[RampRun], slope_per_s: f64,
 /// half-width ÷ RMS, and the factor on σ that 90 % coverage would need;
 /// σ multiplied by `factors` (`--sigma-factors`) first.
 fn print_errors(runs: &[RampRun], factors: [f64; 4]) {
-    println!("{:>4} {:>11} {:>11} {:>11} {:>11} {:>7} {:>7} {:>9} {:>8}", "par", "mean err", "rms err", "mean σ", "median σ", "rms/σ", "±2σ", "2σmed/rms", "k for 90");
+    println!(
+        "{:>4} {:>11} {:>11} {:>11} {:>11} {:>7} {:>7} {:>9} {:>8}",
+        "par", "mean err", "rms err", "mean σ", "median σ", "rms/σ", "±2σ", "2σmed/rms", "k for 90"
+    );
     for (i, name) in ["c_e", "c_d", "t_r", "d"].iter().enumerate() {
-        let all: Vec<(f64, f64)> = runs.iter().flat_map(|r| r.trace[i].iter().map(|p| (p.0, p.1 * factors[i]))).collect();
+        let all: Vec<(f64, f64)> =
+            runs.iter().flat_map(|r| r.trace[i].iter().map(|p| (p.0, p.1 * factors[i]))).collect();
         let n = all.len() as f64;
         let mean = all.iter().map(|p| p.0).sum::<f64>() / n;
         let rms = (all.iter().map(|p| p.0 * p.0).sum::<f64>() / n).sqrt();
@@ -243,7 +247,12 @@ fn print_errors(runs: &[RampRun], factors: [f64; 4]) {
         let mut z: Vec<f64> = all.iter().map(|p| p.0.abs() / (2.0 * p.1)).collect();
         z.sort_by(f64::total_cmp);
         let k90 = z[((0.9 * n) as usize).min(z.len() - 1)];
-        println!("{name:>4} {mean:>11.3e} {rms:>11.3e} {msig:>11.3e} {med:>11.3e} {:>7.2} {:>6.1}% {:>9.2} {k90:>8.2}", rms / msig, 100.0 * cov, 2.0 * med / rms);
+        println!(
+            "{name:>4} {mean:>11.3e} {rms:>11.3e} {msig:>11.3e} {med:>11.3e} {:>7.2} {:>6.1}% {:>9.2} {k90:>8.2}",
+            rms / msig,
+            100.0 * cov,
+            2.0 * med / rms
+        );
     }
 }
 
