@@ -9,8 +9,8 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
-use odocal::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::identify::{batch_gauss_newton, IdentifyOptions};
+use odocal::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::sim::{simulate, NoiseOptions, SimOptions, SimOutput};
 use odocal::{CalibrationOptions, Drive, Method, Theta};
 

@@ -29,7 +29,7 @@ use odocal::{Drive, Theta};
 use odocal_lab::{Args, Res};
 use rayon::prelude::*;
 
-const USAGE: &str = "drift_study [--seeds N] [--ramp FRACTION] [--burn-in S] [--step-mm MM]
+const USAGE: &str = "drift_study [--seeds N] [--first-seed S] [--ramp-only] [--sigma-factors A,B,C,D] [--ramp FRACTION] [--burn-in S] [--step-mm MM]
     [--random-walk-ce F] [--random-walk-cd M] [--information-scale F]";
 
 /// Samples per pushed chunk (10 s at 40 Hz).
@@ -97,6 +97,8 @@ struct RampRun {
     mean_err_ce: f64,
     evaluated: usize,
     start_s: f64,
+    /// Per parameter, at every evaluated time: (error, σ).
+    trace: [Vec<(f64, f64)>; 4],
 }
 
 fn ramp_run(seed: u64, ramp: f64, k: &Knobs) -> Res<RampRun> {
@@ -106,6 +108,7 @@ fn ramp_run(seed: u64, ramp: f64, k: &Knobs) -> Res<RampRun> {
     let mut cal = Calibrator::new(Theta::PAPER_INITIAL, None, ts, options(k))?;
     let (mut inside, mut n, mut sq, mut sig, mut err) = ([0usize; 4], 0usize, 0.0, 0.0, 0.0);
     let mut start_s = f64::NAN;
+    let mut trace: [Vec<(f64, f64)>; 4] = Default::default();
     push_first(&mut cal, &d, len, |cal, b| {
         if cal.informative_time_s() < k.burn_in_s {
             return;
@@ -117,6 +120,7 @@ fn ramp_run(seed: u64, ramp: f64, k: &Knobs) -> Res<RampRun> {
         let (th, s) = (cal.theta().to_array(), cal.sigma().to_array());
         for i in 0..4 {
             inside[i] += usize::from((th[i] - truth[i]).abs() <= 2.0 * s[i]);
+            trace[i].push((th[i] - truth[i], s[i]));
         }
         let e = th[0] - truth[0];
         (n, sq, sig, err) = (n + 1, sq + e * e, sig + s[0], err + e);
@@ -132,6 +136,7 @@ fn ramp_run(seed: u64, ramp: f64, k: &Knobs) -> Res<RampRun> {
         mean_err_ce: err / nf,
         evaluated: n,
         start_s,
+        trace,
     })
 }
 
@@ -175,8 +180,9 @@ fn step_run(seed: u64, step_m: f64, k: &Knobs) -> Res<StepRun> {
 /// Prints the runs; `lag s` is the mean error (minus the same seed's mean
 /// error without drift, `base`, which takes out the estimator's own bias)
 /// over the ramp's slope.
-fn print_ramp(label: &str, runs: &[RampRun], base: &[RampRun], slope_per_s: f64) {
+fn print_ramp(label: &str, runs: &[RampRun], base: &[RampRun], slope_per_s: f64, factors: [f64; 4]) {
     println!("\n{label}");
+    print_errors(runs, factors);
     println!(
         "{:>4} {:>7} {:>6} {:>6} {:>6} {:>6} {:>10} {:>10} {:>10} {:>7} {:>8}",
         "seed", "from s", "c_e", "c_d", "t_r", "d", "mean err", "rms c_e", "mean σ", "rms/σ", "lag s"
@@ -218,9 +224,48 @@ fn print_ramp(label: &str, runs: &[RampRun], base: &[RampRun], slope_per_s: f64)
     );
 }
 
+/// Per parameter over all seeds and evaluated times: mean error, RMS
+/// error, mean and median σ, RMS ÷ mean σ, coverage of ±2σ, median
+/// half-width ÷ RMS, and the factor on σ that 90 % coverage would need;
+/// σ multiplied by `factors` (`--sigma-factors`) first.
+fn print_errors(runs: &[RampRun], factors: [f64; 4]) {
+    println!(
+        "{:>4} {:>11} {:>11} {:>11} {:>11} {:>7} {:>7} {:>9} {:>8}",
+        "par", "mean err", "rms err", "mean σ", "median σ", "rms/σ", "±2σ", "2σmed/rms", "k for 90"
+    );
+    for (i, name) in ["c_e", "c_d", "t_r", "d"].iter().enumerate() {
+        let all: Vec<(f64, f64)> =
+            runs.iter().flat_map(|r| r.trace[i].iter().map(|p| (p.0, p.1 * factors[i]))).collect();
+        let n = all.len() as f64;
+        let mean = all.iter().map(|p| p.0).sum::<f64>() / n;
+        let rms = (all.iter().map(|p| p.0 * p.0).sum::<f64>() / n).sqrt();
+        let msig = all.iter().map(|p| p.1).sum::<f64>() / n;
+        let mut sig: Vec<f64> = all.iter().map(|p| p.1).collect();
+        sig.sort_by(f64::total_cmp);
+        let med = sig[sig.len() / 2];
+        let cov = all.iter().filter(|p| p.0.abs() <= 2.0 * p.1).count() as f64 / n;
+        let mut z: Vec<f64> = all.iter().map(|p| p.0.abs() / (2.0 * p.1)).collect();
+        z.sort_by(f64::total_cmp);
+        let k90 = z[((0.9 * n) as usize).min(z.len() - 1)];
+        println!(
+            "{name:>4} {mean:>11.3e} {rms:>11.3e} {msig:>11.3e} {med:>11.3e} {:>7.2} {:>6.1}% {:>9.2} {k90:>8.2}",
+            rms / msig,
+            100.0 * cov,
+            2.0 * med / rms
+        );
+    }
+}
+
 fn run() -> Res<()> {
-    let mut a = Args::parse(USAGE, &[])?;
+    let mut a = Args::parse(USAGE, &["ramp-only"])?;
     let seeds: u64 = a.get("seeds", 6)?;
+    let first_seed: u64 = a.get("first-seed", 1)?;
+    let ramp_only = a.flag("ramp-only");
+    let factors: Vec<f64> = match a.opt::<String>("sigma-factors")? {
+        Some(v) => v.split(',').map(str::parse).collect::<Result<_, _>>()?,
+        None => vec![1.0; 4],
+    };
+    let factors: [f64; 4] = factors.try_into().map_err(|_| "--sigma-factors takes four numbers")?;
     let ramp: f64 = a.get("ramp", 0.003)?;
     let step_mm: f64 = a.get("step-mm", 1.0)?;
     let k = Knobs {
@@ -235,7 +280,7 @@ fn run() -> Res<()> {
         "online options: random walk c_e {:.2e}/√h (relative), c_d {:.2e} m/√h; information scale {}",
         o.random_walk.c_e_relative, o.random_walk.c_d_m, o.information_scale
     );
-    let ids: Vec<u64> = (1..=seeds).collect();
+    let ids: Vec<u64> = (first_seed..first_seed + seeds).collect();
     let slope = -ramp * Theta::SIM_DEFAULT_TRUE.c_e / 3600.0;
     let flat =
         ids.par_iter().map(|&s| ramp_run(s, 0.0, &k).map_err(|e| e.to_string())).collect::<Result<Vec<_>, String>>();
@@ -252,8 +297,12 @@ fn run() -> Res<()> {
         &ramps,
         &flat,
         slope,
+        factors,
     );
-    print_ramp("control: no drift (the same seeds)", &flat, &flat, 0.0);
+    print_ramp("control: no drift (the same seeds)", &flat, &flat, 0.0, factors);
+    if ramp_only {
+        return Ok(());
+    }
     for (label, m) in
         [(format!("c_d step of {step_mm} mm 10 min into drive B"), step_mm * 1e-3), ("control: no step".into(), 0.0)]
     {

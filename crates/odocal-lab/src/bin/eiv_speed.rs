@@ -21,10 +21,10 @@
 
 use std::time::Instant;
 
-use odocal::{CorrectBias, EivMethodOptions, MethodDetail};
 use odocal::eiv::{EivOptions, QuantisationModel, ResearchOptions};
 use odocal::sim::{simulate, SimOptions};
 use odocal::{calibrate, CalibrationOptions, CalibrationReport, Method};
+use odocal::{CorrectBias, EivMethodOptions, MethodDetail};
 use odocal_lab::{Args, Res};
 
 const USAGE: &str = "eiv_speed [KM,KM,… 12,24,48] [REPS 3] [SEED 1] [FINGERPRINT.json|- -] [METHODS all]";

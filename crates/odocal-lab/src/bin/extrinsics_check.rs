@@ -32,13 +32,10 @@
 //!   clockwise minus counter-clockwise +1.7 mm without, +2.3 mm with; δ ≈
 //!   +23 mrad on counter-clockwise runs, +7 to +10 mrad on clockwise ones.
 
+use odocal::research::mean_position_error_with;
 use odocal::segment::validation_segments;
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
-use odocal::research::mean_position_error_with;
-use odocal::{
-    CalibrationOptions, CalibrationReport, Drive, Extrinsics,
-    Holdout, Method, ParamSet, Theta,
-};
+use odocal::{CalibrationOptions, CalibrationReport, Drive, Extrinsics, Holdout, Method, ParamSet, Theta};
 use odocal_lab::{load, testtrack_runs, Args, Res, TESTTRACK_RUNS, VAN_MANIFEST};
 
 const USAGE: &str = "extrinsics_check sim [SEEDS 5] [KM 8] [NOISE paper]

@@ -20,8 +20,8 @@
 
 use std::time::Instant;
 
-use odocal::segment::{calibration_segments, SegmentData};
 use odocal::identify::{batch_gauss_newton, IdentifyOptions, IdentifyReport};
+use odocal::segment::{calibration_segments, SegmentData};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{Extrinsics, ParamSet, Theta};
 use odocal_lab::{t975, Args, Res, Summary};

@@ -41,13 +41,13 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::time::Instant;
 
+use odocal::eiv::{cramer_rao_bound, EivInput, EivOptions, NoiseModel};
 use odocal::research::mean_position_error_with;
 use odocal::segment::{validation_segments, Segment, ValidationSegmentOptions};
-use odocal::eiv::{cramer_rao_bound, EivInput, EivOptions, NoiseModel};
 use odocal::sim::{simulate, NoiseOptions, NoiseRegime, SimOptions, WorldSummary};
 use odocal::{
-    calibrate, CalibrationOptions, CalibrationReport, Drive, EivOutcome, Extrinsics, Method,
-    MethodDetail, Param, Theta, VerdictLevel, VerdictReason,
+    calibrate, CalibrationOptions, CalibrationReport, Drive, EivOutcome, Extrinsics, Method, MethodDetail, Param,
+    Theta, VerdictLevel, VerdictReason,
 };
 use odocal_lab::{coverage, error_scale, errors, median, Args, Res, Summary, Table, ERROR_UNITS, FRESH_SEED_OFFSET};
 use rayon::prelude::*;
@@ -367,7 +367,8 @@ fn eiv_outcome_table(worlds: &[World], methods: &[String]) -> Option<Table> {
     let mut t = Table::new(&header);
     for (group, ws) in groups(worlds) {
         let cases = [("own estimate", false, true), ("batch G-N fallback", true, true)];
-        let before = [("own estimate, within-drive σ", false, false), ("batch G-N fallback, within-drive σ", true, false)];
+        let before =
+            [("own estimate, within-drive σ", false, false), ("batch G-N fallback, within-drive σ", true, false)];
         for (label, fallback, next) in cases.into_iter().chain(before) {
             let rs: Vec<(&World, &Run)> =
                 runs_of(&ws, m).into_iter().filter(|(_, r)| r.fallback == Some(fallback)).collect();

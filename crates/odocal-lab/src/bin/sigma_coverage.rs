@@ -20,7 +20,7 @@
 //! (`odocal::pooling::PooledDrives`, within-drive σ) with its τ.
 
 use odocal::pooling::{PooledDrives, BETWEEN_DRIVE_PRIOR};
-use odocal::{calibrate, CalibrationOptions, CalibrationReport, Calibration, Holdout, Theta};
+use odocal::{calibrate, Calibration, CalibrationOptions, CalibrationReport, Holdout, Theta};
 use odocal_lab::{load, median, testtrack_runs, Args, Res, Table, PARAMETERS, VAN_MANIFEST};
 
 const USAGE: &str = "sigma_coverage [--no-van]";
@@ -81,16 +81,9 @@ fn run() -> Res<()> {
     let all_sd: [f64; 4] = std::array::from_fn(|i| sd(&fits.iter().map(|f| f.theta[i]).collect::<Vec<_>>()));
     print_design(&fits[..3]);
     println!("### Coverage of the other runs' pooled estimate (95 % interval, ±1.96 σ)\n");
-    let mut t = Table::new(&[
-        "runs",
-        "σ",
-        "c_e: covered · half-width/sd",
-        "c_d",
-        "t_r",
-        "d",
-        "all four covered",
-    ]);
-    for (label, range) in [("design (14-45-26, 15-28-33, 16-06-28)", 0..3), ("confirm (16-47-33, 17-45-46, 18-01-26)", 3..6)]
+    let mut t = Table::new(&["runs", "σ", "c_e: covered · half-width/sd", "c_d", "t_r", "d", "all four covered"]);
+    for (label, range) in
+        [("design (14-45-26, 15-28-33, 16-06-28)", 0..3), ("confirm (16-47-33, 17-45-46, 18-01-26)", 3..6)]
     {
         for (which, next) in [("next drive (`sigma`)", true), ("within drive (`sigma_within_drive`)", false)] {
             let mut row = vec![label.to_string(), which.to_string()];
@@ -204,7 +197,9 @@ fn van_halves(opts: &CalibrationOptions) -> Res<()> {
     for (a, b) in [(&first, &second), (&second, &first)] {
         let mut row = vec![a.name.clone(), a.outcome.clone(), a.verdict.clone()];
         for p in 0..4 {
-            let z = |s: Option<f64>| s.map_or("held".to_string(), |s| format!("{:.1}", (a.theta[p] - b.theta[p]).abs() / s));
+            let z = |s: Option<f64>| {
+                s.map_or("held".to_string(), |s| format!("{:.1}", (a.theta[p] - b.theta[p]).abs() / s))
+            };
             row.push(format!("{} σ (within: {} σ)", z(a.next[p]), z(a.within[p])));
         }
         t.row(row);

@@ -18,12 +18,12 @@
 use std::fmt::Write as _;
 use std::time::Instant;
 
-use odocal::research::{calibrate_detailed, random_batches, reachable_minimum, score_batches};
 use odocal::compensate::qp::SolverKind;
 use odocal::compensate::{compensate_segments, CompensateOptions, CompensatedInputs, QpOptions};
-use odocal::segment::SegmentData;
 use odocal::identify::IdentifyOptions;
+use odocal::research::{calibrate_detailed, random_batches, reachable_minimum, score_batches};
 use odocal::segment::Segment;
+use odocal::segment::SegmentData;
 use odocal::{mean_position_error, Drive, ReachableOptions, Theta};
 use odocal::{CalibrationOptions, Method, ThreeStepOptions};
 use odocal_lab::{median, simulate_preset, Args, Res};

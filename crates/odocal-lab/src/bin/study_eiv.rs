@@ -53,17 +53,16 @@
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use odocal::{EivDetail, EivMethodOptions};
-use odocal::segment::{validation_segments, ValidationSegmentOptions};
 use odocal::eiv::{
     bootstrap, cramer_rao_bound, BootstrapInputs, BootstrapOptions, CovarianceEstimate, EivInput, EivOptions,
     EivReport, HeadingScale, InputJacobian, LateralNoise, NoiseModel, QuantisationLevel, QuantisationModel,
     ResearchOptions,
 };
+use odocal::segment::{validation_segments, ValidationSegmentOptions};
 use odocal::{
-    calibrate, mean_position_error, CalibrationOptions, CalibrationReport, Drive, Method, MethodDetail, Theta,
-    Warning,
+    calibrate, mean_position_error, CalibrationOptions, CalibrationReport, Drive, Method, MethodDetail, Theta, Warning,
 };
+use odocal::{EivDetail, EivMethodOptions};
 use odocal_lab::{
     coverage, error_scale, errors, noise_preset, simulate_preset, Args, Res, Summary, Table, ERROR_UNITS,
     FRESH_SEED_OFFSET,

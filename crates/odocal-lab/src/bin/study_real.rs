@@ -43,8 +43,8 @@ use std::time::Instant;
 use odocal::crossrun::{CrossRunFit, CrossRunRow, CrossRunTable, CROSS_RUN_OWN_FIT_RATIO};
 use odocal::eiv::{EivOptions, NoiseModel, QuantisationLevel};
 use odocal::{
-    calibrate, CalibrationOptions, CalibrationReport, EivMethodOptions, EivOutcome, Holdout,
-    Method, MethodDetail, ParamSet, ValidationDrive, VerdictLevel, Warning,
+    calibrate, CalibrationOptions, CalibrationReport, EivMethodOptions, EivOutcome, Holdout, Method, MethodDetail,
+    ParamSet, ValidationDrive, VerdictLevel, Warning,
 };
 use odocal_lab::{load, repo_path, testtrack_manifest, Args, Res, RAV4_MANIFEST, TESTTRACK_RUNS, VAN_MANIFEST};
 use serde_json::{json, Value};
@@ -250,12 +250,8 @@ fn eiv_detail_row(m: &str, fit: &str, r: &CalibrationReport) -> Option<(String, 
         n.position_white_sigma_m,
         n.heading_white_sigma_rad * 1e3
     );
-    let found: Vec<String> = e
-        .warnings
-        .iter()
-        .filter(|w| odocal::research::is_misspecification(w, e))
-        .map(|w| w.to_string())
-        .collect();
+    let found: Vec<String> =
+        e.warnings.iter().filter(|w| odocal::research::is_misspecification(w, e)).map(|w| w.to_string()).collect();
     let t = &e.theta;
     let row = format!(
         "| {m} | {fit} | {:.4} / {:+.2} / {:.3} / {:+.2} | {} | {} | {} | {noise} | {}, {} |\n",
@@ -479,7 +475,8 @@ fn swap(md: &mut String) -> Res<Value> {
             .collect();
         let cal = gn.extrinsics_for_validation(ParamSet::EMPTY);
         let judge = |t: &odocal::Theta| -> Res<f64> {
-            Ok(odocal::research::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?.mean_over_drives_m)
+            Ok(odocal::research::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?
+                .mean_over_drives_m)
         };
         let (g, e) = (gn.theta, eiv.theta);
         let mut cells = vec![judge(&g)?, judge(&e)?];
@@ -515,7 +512,8 @@ fn swap(md: &mut String) -> Res<Value> {
         let others = [ValidationDrive { name: label, drive: &held, reference: None }];
         let cal = gn.extrinsics_for_validation(ParamSet::EMPTY);
         let judge = |t: &odocal::Theta| -> Res<f64> {
-            Ok(odocal::research::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?.mean_over_drives_m)
+            Ok(odocal::research::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?
+                .mean_over_drives_m)
         };
         let (g, e) = (gn.theta, eiv.theta);
         let cells = [

@@ -13,8 +13,8 @@
 use std::path::Path;
 
 use odocal::manifest::LateralAccelerationSpec;
-use odocal::{import, ImportedDrive, Manifest};
 use odocal::Drive;
+use odocal::{import, ImportedDrive, Manifest};
 use odocal_lab::{
     print_cross_runs, print_joint_fits, repo_path, testtrack_manifest, with_signals, Args, Res, TESTTRACK_RUNS,
 };

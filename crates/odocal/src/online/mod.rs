@@ -26,7 +26,10 @@
 //! weight ([`OnlineOptions::information_scale`]: consecutive segments share
 //! most samples and a segment's residuals are correlated), `s²` a running
 //! estimate of the weighted residual
-//! variance and `Q` the random walk of [`RandomWalk`]. Each fold costs
+//! variance and `Q` the random walk of [`RandomWalk`]. The σ reported
+//! ([`Calibrator::sigma`]) is `P`'s, times per-parameter factors
+//! ([`OnlineOptions::sigma_factors`]) that make it cover the truth on
+//! simulated drives; `P` itself drives the updates unchanged. Each fold costs
 //! a few rollouts of one segment (a few hundred microseconds), and the
 //! state is a 5-vector and a 5×5 matrix; the sample buffer holds at most
 //! one validation segment and a little more. A new drive resets `δ` (its
@@ -292,6 +295,10 @@ struct DriveState {
 impl Calibrator {
     /// A calibrator starting at `theta0` with sd `sigma0` (`None`: the
     /// options' prior), for samples every `sample_time_s` seconds.
+    /// `sigma0` is a reported σ (as [`Calibrator::sigma`] gives it): the
+    /// recursion starts from it divided by the options' `sigma_factors`,
+    /// so a calibrator restarted from another's θ and σ continues its
+    /// recursion.
     pub fn new(theta0: Theta, sigma0: Option<Theta>, sample_time_s: f64, opts: OnlineOptions) -> Result<Calibrator> {
         opts.validate()?;
         if !(sample_time_s.is_finite() && sample_time_s > 0.0) {
@@ -299,7 +306,10 @@ impl Calibrator {
         }
         theta0.validate()?;
         let sd = match sigma0 {
-            Some(s) if s.to_array().iter().all(|v| v.is_finite() && *v > 0.0) => s.to_array(),
+            Some(s) if s.to_array().iter().all(|v| v.is_finite() && *v > 0.0) => {
+                let f = opts.sigma_factors;
+                std::array::from_fn(|i| s.to_array()[i] / f[i])
+            }
             _ => opts.prior_sd(&theta0),
         };
         let t = theta0.to_array();
@@ -590,14 +600,19 @@ impl Calibrator {
         Theta { c_e: self.x[0], c_d: self.x[1], t_r: self.x[2], d: self.x[3] }
     }
 
-    /// θ's standard deviation.
+    /// θ's standard deviation: the recursion's, times the options'
+    /// [`OnlineOptions::sigma_factors`].
     pub fn sigma(&self) -> Theta {
-        Theta::from_array(std::array::from_fn(|i| self.p[(i, i)].max(0.0).sqrt()))
+        let f = self.opts.sigma_factors;
+        Theta::from_array(std::array::from_fn(|i| f[i] * self.p[(i, i)].max(0.0).sqrt()))
     }
 
-    /// The covariance of `[c_e, c_d, t_r, d, δ]`.
+    /// The covariance of `[c_e, c_d, t_r, d, δ]`, θ's rows and columns
+    /// scaled by the options' [`OnlineOptions::sigma_factors`] (δ's by 1),
+    /// so that its diagonal is [`Calibrator::sigma`] squared.
     pub fn covariance(&self) -> [[f64; 5]; 5] {
-        std::array::from_fn(|i| std::array::from_fn(|j| self.p[(i, j)]))
+        let f = |i: usize| self.opts.sigma_factors.get(i).copied().unwrap_or(1.0);
+        std::array::from_fn(|i| std::array::from_fn(|j| f(i) * f(j) * self.p[(i, j)]))
     }
 
     /// The current drive's heading offset δ (reference heading minus the
