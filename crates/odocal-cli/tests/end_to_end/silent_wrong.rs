@@ -157,7 +157,10 @@ fn a_chunk_declaring_no_uncompressed_bytes_is_an_error() {
     b[pos + 9 + 16..pos + 9 + 24].fill(0);
     let bag = dir.path().join("zero.mcap");
     std::fs::write(&bag, &b).expect("write");
-    refused(&["inspect", s(&bag)], &["corrupt MCAP file", "messages,", "were read"]);
+    refused(
+        &["inspect", s(&bag)],
+        &["corrupt MCAP file: the chunk at byte offset", "decompresses to more than the 0 bytes it declares"],
+    );
 }
 
 /// A ROS 2 parameter file of the nodes `(name, extra lines)`, θ the paper's θ_0.
