@@ -23,6 +23,14 @@ const CHANNEL: u8 = 0x04;
 const FOOTER: u8 = 0x02;
 const DATA_END: u8 = 0x0F;
 
+/// The largest uncompressed size a compressed chunk may declare. A chunk is
+/// decompressed whole (by this walk, then by the reader), so this bounds the
+/// memory a few kilobytes of compressed zeros can demand; writers cut chunks
+/// far smaller (rosbag2's default is 768 KiB, the MCAP libraries' 4 MiB or
+/// less). Uncompressed chunks are bytes of the file itself and need no cap
+/// beyond the file's length.
+const MAX_COMPRESSED_CHUNK_BYTES: u64 = 64 << 20;
+
 /// The record kind of an opcode, for messages.
 fn kind(op: u8) -> &'static str {
     match op {
@@ -146,6 +154,13 @@ impl<R: Read + Seek> Walk<R> {
         if uncompressed > MAX_RECORD_BYTES as u64 {
             return Err(bad(format!(
                 "declares {uncompressed} uncompressed bytes, above odocal's limit of {MAX_RECORD_BYTES} for one chunk"
+            )));
+        }
+        if !name.is_empty() && uncompressed > MAX_COMPRESSED_CHUNK_BYTES {
+            return Err(bad(format!(
+                "declares {uncompressed} uncompressed bytes for {records_len} compressed bytes, above odocal's limit \
+                 of {MAX_COMPRESSED_CHUNK_BYTES} bytes (64 MiB) for a compressed chunk; rewrite the bag with smaller \
+                 chunks (rosbag2 writes chunks of 768 KiB)"
             )));
         }
         let within = format!("its chunk (at byte offset {offset})");
@@ -278,6 +293,12 @@ mod tests {
     /// holding one channel record whose topic name declares `topic_len`
     /// bytes (followed by the 13 bytes of a short topic).
     fn file_with_chunk(compression: &str, topic_len: u32) -> Vec<u8> {
+        file_with_chunk_declaring(compression, topic_len, None)
+    }
+
+    /// As `file_with_chunk`, the chunk declaring `declared` uncompressed
+    /// bytes when given (instead of its records' true length).
+    fn file_with_chunk_declaring(compression: &str, topic_len: u32, declared: Option<u64>) -> Vec<u8> {
         let mut channel = Vec::new();
         channel.extend_from_slice(&1u16.to_le_bytes());
         channel.extend_from_slice(&0u16.to_le_bytes());
@@ -293,7 +314,7 @@ mod tests {
         let mut chunk = Vec::new();
         chunk.extend_from_slice(&0u64.to_le_bytes());
         chunk.extend_from_slice(&0u64.to_le_bytes());
-        chunk.extend_from_slice(&(records.len() as u64).to_le_bytes());
+        chunk.extend_from_slice(&declared.unwrap_or(records.len() as u64).to_le_bytes());
         chunk.extend_from_slice(&0u32.to_le_bytes());
         chunk.extend_from_slice(&string(compression));
         chunk.extend_from_slice(&(packed.len() as u64).to_le_bytes());
@@ -323,6 +344,19 @@ mod tests {
         assert!(e.contains("decompressed records of the chunk at byte offset") && e.contains("topic name"), "{e}");
         let e = walk(&file_with_chunk("", u32::MAX - 15)).expect_err("a 4 GiB topic name");
         assert!(e.contains("topic name"), "{e}");
+    }
+
+    #[test]
+    fn a_compressed_chunk_may_not_declare_more_than_64_mib() {
+        // Right at the cap the declared size is accepted by the header check
+        // (the decoder then finds fewer bytes than declared, which is fine).
+        assert!(walk(&file_with_chunk_declaring("zstd", 2, Some(MAX_COMPRESSED_CHUNK_BYTES))).is_ok());
+        let e = walk(&file_with_chunk_declaring("zstd", 2, Some(MAX_COMPRESSED_CHUNK_BYTES + 1)))
+            .expect_err("a chunk above the cap");
+        assert!(e.contains("chunk at byte offset") && e.contains("64 MiB") && e.contains("smaller chunks"), "{e}");
+        // An uncompressed chunk is bounded by the file itself, not by this cap.
+        let e = walk(&file_with_chunk_declaring("", 2, Some(MAX_COMPRESSED_CHUNK_BYTES + 1))).expect_err("mismatch");
+        assert!(e.contains("is uncompressed but declares"), "{e}");
     }
 
     #[test]
