@@ -219,7 +219,7 @@ pub(crate) fn calibrate<'py>(
     drive: &Bound<'py, PyAny>,
     method: Option<&str>,
     progress: Option<Py<PyAny>>,
-    threads: Option<usize>,
+    #[pyo3(from_py_with = crate::convert::opt_count)] threads: Option<usize>,
     options: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<(Bound<'py, PyAny>, String)> {
     let validate_on = options.map(|o| o.get_item("validate_on")).transpose()?.flatten();

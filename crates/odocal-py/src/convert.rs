@@ -169,3 +169,46 @@ pub(crate) fn refuse_bool_for_number(key: &str, value: &serde_json::Value) -> Py
         "{key}: {value} holds a bool where a number is expected (True and False are not numbers here)"
     )))
 }
+
+/// Refuses a Python bool where a number is asked for: `True` is an `int`
+/// to Python, so `threads=True` would otherwise mean one thread.
+fn not_bool(v: &Bound<'_, PyAny>) -> PyResult<()> {
+    if v.is_instance_of::<PyBool>() {
+        return Err(PyTypeError::new_err(format!("a number is needed here, not the bool {v}")));
+    }
+    Ok(())
+}
+
+/// A count argument (`threads=`, `substeps=`, …): an int, not a bool.
+pub(crate) fn count(v: &Bound<'_, PyAny>) -> PyResult<usize> {
+    not_bool(v)?;
+    v.extract()
+}
+
+/// An optional count argument: None, or an int that is not a bool.
+pub(crate) fn opt_count(v: &Bound<'_, PyAny>) -> PyResult<Option<usize>> {
+    if v.is_none() {
+        return Ok(None);
+    }
+    count(v).map(Some)
+}
+
+/// A seed: an int that is not a bool.
+pub(crate) fn seed(v: &Bound<'_, PyAny>) -> PyResult<u64> {
+    not_bool(v)?;
+    v.extract()
+}
+
+/// A real-number argument: an int or float, not a bool (nor a complex).
+pub(crate) fn real(v: &Bound<'_, PyAny>) -> PyResult<f64> {
+    not_bool(v)?;
+    v.extract()
+}
+
+/// An optional real-number argument: None, or `real`.
+pub(crate) fn opt_real(v: &Bound<'_, PyAny>) -> PyResult<Option<f64>> {
+    if v.is_none() {
+        return Ok(None);
+    }
+    real(v).map(Some)
+}

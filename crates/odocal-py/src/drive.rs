@@ -199,7 +199,7 @@ impl PyDrive {
         a_y: PyArrayLike1<'_, f64, AllowTypeChange>,
         beta: Option<PyArrayLike1<'_, f64, AllowTypeChange>>,
         part: Option<PyArrayLike1<'_, i64, AllowTypeChange>>,
-        sample_time_s: Option<f64>,
+        #[pyo3(from_py_with = crate::convert::opt_real)] sample_time_s: Option<f64>,
     ) -> PyResult<Self> {
         let len = |a: &PyArrayLike1<'_, f64, AllowTypeChange>| a.as_array().len();
         let mut columns = vec![

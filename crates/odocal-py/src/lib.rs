@@ -66,8 +66,8 @@ fn validate<'py>(
     py: Python<'py>,
     drive: &Bound<'py, PyDrive>,
     theta: &Bound<'py, PyAny>,
-    validation_length: Option<usize>,
-    threads: Option<usize>,
+    #[pyo3(from_py_with = convert::opt_count)] validation_length: Option<usize>,
+    #[pyo3(from_py_with = convert::opt_count)] threads: Option<usize>,
     report_json: Option<&str>,
     carry_heading_offset: bool,
     params_node: Option<&str>,
@@ -132,11 +132,11 @@ pub(crate) fn with_schema_version(v: &mut serde_json::Value) {
 #[pyo3(signature = (seed=0, length_km=24.0, noise="paper", *, theta=None, substeps=None))]
 fn simulate(
     py: Python<'_>,
-    seed: u64,
-    length_km: f64,
+    #[pyo3(from_py_with = convert::seed)] seed: u64,
+    #[pyo3(from_py_with = convert::real)] length_km: f64,
     noise: &str,
     theta: Option<&Bound<'_, PyAny>>,
-    substeps: Option<usize>,
+    #[pyo3(from_py_with = convert::opt_count)] substeps: Option<usize>,
 ) -> PyResult<PyDrive> {
     let mut o = SimOptions {
         seed,

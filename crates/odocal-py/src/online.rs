@@ -118,7 +118,7 @@ impl PyCalibrator {
     fn new(
         theta0: Option<&Bound<'_, PyAny>>,
         sigma0: Option<&Bound<'_, PyAny>>,
-        sample_time_s: f64,
+        #[pyo3(from_py_with = crate::convert::real)] sample_time_s: f64,
         gates: Option<&Bound<'_, PyDict>>,
         options: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
@@ -204,7 +204,12 @@ impl PyCalibrator {
     /// Pushes a whole `odocal.Drive` as a new drive, part by part, in
     /// chunks of `chunk` samples (what `odocal follow` does).
     #[pyo3(signature = (drive, chunk=400))]
-    fn push_drive(&mut self, gil: Python<'_>, drive: &Bound<'_, PyDrive>, chunk: usize) -> PyResult<()> {
+    fn push_drive(
+        &mut self,
+        gil: Python<'_>,
+        drive: &Bound<'_, PyDrive>,
+        #[pyo3(from_py_with = crate::convert::count)] chunk: usize,
+    ) -> PyResult<()> {
         let d = std::sync::Arc::clone(&drive.get().drive);
         if (d.sample_time_s() - self.cal.sample_time_s()).abs() > 1e-9 {
             return Err(PyValueError::new_err(format!(

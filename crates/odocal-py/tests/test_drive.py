@@ -177,3 +177,23 @@ def test_bools_where_numbers_are_expected_are_type_errors(small_drive):
         odocal.calibrate(small_drive, theta0=[2.0, 0.0, True, 0.0])
     with pytest.raises(TypeError, match=r"bootstrap: true holds a bool where a number is expected"):
         odocal.calibrate(small_drive, bootstrap=True)
+
+
+def test_bools_for_counts_and_reals_are_type_errors(small_drive):
+    """Keyword arguments typed as counts or reals refuse True/False, naming the argument."""
+    cases = [
+        lambda: odocal.calibrate(small_drive, method="batch-gn", threads=True),
+        lambda: odocal.validate(small_drive, "2,0,1.6,0", threads=False),
+        lambda: odocal.validate(small_drive, "2,0,1.6,0", validation_length=True),
+        lambda: odocal.simulate(seed=True, length_km=0.5),
+        lambda: odocal.simulate(length_km=True),
+        lambda: odocal.simulate(length_km=0.5, substeps=True),
+        lambda: from_columns(columns(small_drive), sample_time_s=True),
+        lambda: odocal.online.Calibrator(sample_time_s=True),
+        lambda: odocal.online.Calibrator().push_drive(small_drive, chunk=True),
+    ]
+    for case in cases:
+        with pytest.raises(TypeError, match="not the bool"):
+            case()
+    # Ints stay numbers where reals are asked for.
+    assert odocal.simulate(seed=1, length_km=1).sample_time_s > 0
