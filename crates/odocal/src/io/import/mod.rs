@@ -316,11 +316,11 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
 
     let mut warnings = m.unused_wheel_keys();
     let mut streams = read_streams(m, &mut warnings)?;
-    let wheels = Wheels::new(m, &streams[&m.wheels.stream], &mut warnings)?;
-    if let Some(ws) = streams.get_mut(&m.wheels.stream) {
-        *ws = wheels.stream.clone();
+    let (wheels, cleaned) = Wheels::new(m, &streams[&m.wheels.stream], &mut warnings)?;
+    if let (Some(cleaned), Some(ws)) = (cleaned, streams.get_mut(&m.wheels.stream)) {
+        *ws = cleaned;
     }
-    let (ws, ps) = (&wheels.stream, &streams[&m.pose.stream]);
+    let (ws, ps) = (&streams[&m.wheels.stream], &streams[&m.pose.stream]);
     let wheel_bad = grid::gaps_of(&ws.t, o.max_gap_s, "wheel");
     let mut pose = pose::build_pose(m, ps, &mut warnings)?;
     check_budgets(m, &ws.t, &pose.t, h)?;
@@ -371,7 +371,7 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
     };
     let (a_y, a_y_desc) = lateral::lateral_acceleration(m, &streams, &inputs, &theta0);
     checks::lateral_acceleration(m, &resampled, &a_y)?;
-    let jitter = wheels::jitter_report(m, &wheels, &g.t, h, &kept, &s.n_rl, &s.n_rr)?;
+    let jitter = wheels::jitter_report(m, &streams[&m.wheels.stream], &g.t, h, &kept, &s.n_rl, &s.n_rr)?;
     let d = s.assemble(m, h, &kept, &a_y, &measured)?;
     checks::lateral_convention(m, &d)?;
 
@@ -459,7 +459,7 @@ impl OnGrid {
         grid: &[f64],
         h: f64,
     ) -> OnGrid {
-        let ws = &wheels.stream;
+        let ws = &streams[&m.wheels.stream];
         OnGrid {
             n_rl: signal::interval_rates(&ws.t, &wheels.cum_l, grid, h),
             n_rr: signal::interval_rates(&ws.t, &wheels.cum_r, grid, h),

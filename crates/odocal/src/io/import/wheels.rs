@@ -100,10 +100,9 @@ const MAX_CORRUPT_ROWS: usize = 5;
 const CORRUPT_SLACK_S: f64 = 0.05;
 
 /// Both wheels' cumulative rotation on the wheel stream's stamps, corrupt
-/// rows removed.
+/// rows removed (the stream itself stays in the import's map of streams,
+/// replaced by its rows without the corrupt ones when there were some).
 pub(crate) struct Wheels {
-    /// The wheel stream without its corrupt rows.
-    pub stream: Stream,
     /// Rear-left, rev.
     pub cum_l: Vec<f64>,
     /// Rear-right, rev.
@@ -117,15 +116,18 @@ impl Wheels {
     /// [`MAX_CORRUPT_ROWS`], return to a reachable count (e.g. a counter
     /// read as 0 for one sample). Such a row, kept, makes two output wheel
     /// speeds of ± thousands of rev/s. A jump that does not return is left
-    /// for the speed check to report.
-    pub(super) fn new(m: &Manifest, s: &Stream, warnings: &mut Vec<String>) -> Result<Wheels> {
+    /// for the speed check to report. Returns the wheels and, when rows
+    /// were dropped, the stream without them (which replaces `s`); the
+    /// stream is not copied otherwise: a 1 kHz wheel log is most of an
+    /// import's memory.
+    pub(super) fn new(m: &Manifest, s: &Stream, warnings: &mut Vec<String>) -> Result<(Wheels, Option<Stream>)> {
         let w = &m.wheels;
         let cum_l = wheel_revolutions(m, s, &w.rear_left, "wheels.rear_left")?;
         let cum_r = wheel_revolutions(m, s, &w.rear_right, "wheels.rear_right")?;
         let keep = corrupt_rows(m, &s.t, &cum_l, &cum_r);
         let dropped: Vec<usize> = (0..keep.len()).filter(|&i| !keep[i]).collect();
         if dropped.is_empty() {
-            return Ok(Wheels { stream: s.clone(), cum_l, cum_r });
+            return Ok((Wheels { cum_l, cum_r }, None));
         }
         let at: Vec<String> = dropped
             .iter()
@@ -147,7 +149,7 @@ impl Wheels {
         stream.report.corrupt_rows_dropped = dropped.len();
         let cum_l = wheel_revolutions(m, &stream, &w.rear_left, "wheels.rear_left")?;
         let cum_r = wheel_revolutions(m, &stream, &w.rear_right, "wheels.rear_right")?;
-        Ok(Wheels { stream, cum_l, cum_r })
+        Ok((Wheels { cum_l, cum_r }, Some(stream)))
     }
 }
 
@@ -196,19 +198,28 @@ fn corrupt_rows(m: &Manifest, t: &[f64], cum_l: &[f64], cum_r: &[f64]) -> Vec<bo
 /// 1 rev/s) is an error naming the stream.
 pub(crate) fn jitter_report(
     m: &Manifest,
-    wheels: &Wheels,
+    ws: &Stream,
     grid: &[f64],
     h: f64,
     kept: &[Range<usize>],
     n_rl: &[f64],
     n_rr: &[f64],
 ) -> Result<Option<JitterReport>> {
-    let ws = &wheels.stream;
     if ws.report.dejitter.is_none() {
         return Ok(None);
     }
     let w = &m.wheels;
-    let raw_stream = Stream { t: ws.t_raw.clone(), ..ws.clone() };
+    // The wheel columns on the raw stamps (only those: the stream may hold
+    // other columns, e.g. an IMU's).
+    let wheel_cols = [&w.rear_left.column, &w.rear_right.column];
+    let raw_stream = Stream {
+        path: ws.path.clone(),
+        t: ws.t_raw.clone(),
+        t_raw: Vec::new(),
+        cols: ws.cols.iter().filter(|(c, _)| wheel_cols.contains(c)).map(|(c, v)| (c.clone(), v.clone())).collect(),
+        lines: ws.lines.clone(),
+        report: ws.report.clone(),
+    };
     let raw = |wheel: &WheelColumn, key: &str| -> Result<Vec<f64>> {
         let cum = wheel_revolutions(m, &raw_stream, wheel, key)?;
         Ok(signal::interval_rates(&raw_stream.t, &cum, grid, h))

@@ -173,14 +173,14 @@ pub(crate) fn read_stream(m: &Manifest, name: &str, wanted: &[Wanted], warnings:
     let spec = &m.streams[name];
     let path = m.base_dir().join(spec.source.file());
     let key = format!("streams.{name}.file");
-    let table = read_table(m, name, wanted)?;
+    let mut table = read_table(m, name, wanted)?;
     warnings.extend(table.warnings.iter().map(|w| format!("streams.{name}: {w}")));
     if table.t_s.is_empty() {
         return Err(m.error(&key, format!("{} has no data rows", table.source)));
     }
     let time_column = spec.time_column.clone().unwrap_or_else(|| "time".into());
     let scale = spec.time_unit.seconds();
-    let mut time: Vec<f64> = table.t_s.clone();
+    let mut time: Vec<f64> = std::mem::take(&mut table.t_s);
     for (i, t) in time.iter_mut().enumerate() {
         if !t.is_finite() {
             return Err(table.row_error(&path, i, &time_column, "time is not finite".into()));
@@ -264,6 +264,10 @@ pub(crate) fn read_stream(m: &Manifest, name: &str, wanted: &[Wanted], warnings:
 }
 
 /// The elements of `v` whose `keep` is true.
-fn filter<T>(v: Vec<T>, keep: &[bool]) -> Vec<T> {
-    v.into_iter().zip(keep).filter(|(_, k)| **k).map(|(x, _)| x).collect()
+/// `v` without the rows whose `keep` is false, in place (a stream's
+/// columns can be most of an import's memory).
+fn filter<T>(mut v: Vec<T>, keep: &[bool]) -> Vec<T> {
+    let mut rows = keep.iter();
+    v.retain(|_| rows.next().copied().unwrap_or(true));
+    v
 }
