@@ -9,7 +9,7 @@ use clap::Args;
 use odocal::history::{CalibrationRecord, Decision, History};
 use odocal::online::gate::{Action, GateDecision, Gates};
 use odocal::online::{Calibrator, OnlineOptions};
-use odocal::{ParamFile, Progress, Theta};
+use odocal::{Drive, DriveStream, ParamFile, Progress, Theta};
 use serde_json::{json, Value};
 
 use crate::args::ThetaArg;
@@ -104,9 +104,9 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
     let mut cal: Option<Calibrator> = None;
     let mut entries = Vec::with_capacity(a.drive.len());
     for path in &a.drive {
-        let (drive, _, _) = load_drive_with_scale(path)?;
+        let drive = Replay::open(path)?;
         let source = path.display().to_string();
-        let fingerprint = drive.fingerprint();
+        let fingerprint = drive.fingerprint()?;
         if db.has_decisions(&a.vehicle, &fingerprint)? {
             if !quiet_stdout {
                 println!(
@@ -129,15 +129,15 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
         c.set_stored(Some(stored.theta));
         bars.event(Progress::Stage { name: "following", total: drive.len() as u64 });
         let mut done = 0;
-        c.push_drive(&drive, CHUNK, |n| {
+        drive.push(c, |n| {
             bars.event(Progress::Advance((n - done) as u64));
             done = n;
         })?;
         bars.finish();
         let decision = gates.decide(c, &stored.theta, stored.calibrated);
         let summary = c.drive_summary();
-        let t = drive.t();
-        let drive_time_s = t.last().copied().unwrap_or(0.0) - t.first().copied().unwrap_or(0.0);
+        let (t_start_s, t_end_s) = drive.time_span_s();
+        let drive_time_s = t_end_s - t_start_s;
         db.record_decision(&Decision {
             vehicle: a.vehicle.clone(),
             fingerprint: fingerprint.clone(),
@@ -150,7 +150,7 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
         })?;
         let (delta, _) = c.heading_offset();
         if decision.action == Action::Write {
-            stored = write_back(&mut db, &a, &decision, (&source, &fingerprint), &drive, delta)?;
+            stored = write_back(&mut db, &a, &decision, (&source, &fingerprint), drive.time_span_s(), delta)?;
         }
         if !quiet_stdout {
             let e = summary.prequential_mean_position_error_m.map_or("-".into(), |e| format!("{e:.3} m"));
@@ -180,6 +180,65 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
         write_text(p, &serde_json::to_string_pretty(&json!({ "drives": entries }))?)?;
     }
     Ok(())
+}
+
+/// A drive to replay: a canonical CSV read as a stream (memory flat in its
+/// length), or a manifest's streams imported whole.
+enum Replay {
+    Stream(DriveStream),
+    Whole(Drive),
+}
+
+impl Replay {
+    /// Opens the drive at `path`, printing what its reader warns about.
+    fn open(path: &std::path::Path) -> Result<Replay> {
+        if odocal::is_manifest_path(path) {
+            return Ok(Replay::Whole(load_drive_with_scale(path)?.0));
+        }
+        let stream = DriveStream::open(path)?;
+        for w in stream.warnings() {
+            eprintln!("warning: {w}");
+        }
+        Ok(Replay::Stream(stream))
+    }
+
+    fn fingerprint(&self) -> Result<String> {
+        Ok(match self {
+            Replay::Stream(s) => s.fingerprint()?,
+            Replay::Whole(d) => d.fingerprint(),
+        })
+    }
+
+    fn sample_time_s(&self) -> f64 {
+        match self {
+            Replay::Stream(s) => s.sample_time_s(),
+            Replay::Whole(d) => d.sample_time_s(),
+        }
+    }
+
+    fn len(&self) -> usize {
+        match self {
+            Replay::Stream(s) => s.len(),
+            Replay::Whole(d) => d.len(),
+        }
+    }
+
+    /// The first and the last time stamp, s.
+    fn time_span_s(&self) -> (f64, f64) {
+        match self {
+            Replay::Stream(s) => s.time_span_s(),
+            Replay::Whole(d) => (d.t().first().copied().unwrap_or(0.0), d.t().last().copied().unwrap_or(0.0)),
+        }
+    }
+
+    /// Pushes the drive as a new drive in chunks of [`CHUNK`] samples.
+    fn push(&self, c: &mut Calibrator, each: impl FnMut(usize)) -> Result<()> {
+        match self {
+            Replay::Stream(s) => c.push_stream(s, CHUNK, each)?,
+            Replay::Whole(d) => c.push_drive(d, CHUNK, each)?,
+        }
+        Ok(())
+    }
 }
 
 /// The parameters to start from: the vehicle's most recent row in the
@@ -220,14 +279,13 @@ fn write_back(
     a: &FollowArgs,
     decision: &GateDecision,
     (source, fingerprint): (&str, &str),
-    drive: &odocal::Drive,
+    (t_start_s, t_end_s): (f64, f64),
     heading_offset_rad: f64,
 ) -> Result<Stored> {
-    let t = drive.t();
     let rec = CalibrationRecord {
         sources: vec![source.to_string()],
-        t_start_s: t.first().copied().unwrap_or(0.0),
-        t_end_s: t.last().copied().unwrap_or(0.0),
+        t_start_s,
+        t_end_s,
         sigma: Some(decision.sigma),
         heading_offset_rad: Some(heading_offset_rad),
         ..CalibrationRecord::new(&a.vehicle, fingerprint, METHOD, decision.theta)
