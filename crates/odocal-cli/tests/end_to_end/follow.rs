@@ -167,3 +167,51 @@ fn simulate_with_drift_records_it_in_the_sidecar() {
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(stderr(&o).contains("MM@SECONDS"), "{}", stderr(&o));
 }
+
+/// A CSV drive is replayed as a stream: its fingerprint is the drive's
+/// (the simulator's sidecar records it from the drive in memory), a gap
+/// (`part` column) is followed, and a bad row is named as `calibrate`
+/// names it.
+#[test]
+fn follow_streams_csv_drives_with_the_whole_readers_fingerprint_and_errors() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let a = simulated_drive(dir.path(), "a.csv", &["--seed", "7", "--length-km", "2"]);
+    let sidecar = json_file(&dir.path().join("a.json"));
+    // The same drive with a gap of 4 s after its first half.
+    let text = std::fs::read_to_string(&a).expect("drive");
+    let rows: Vec<&str> = text.lines().collect();
+    let half = rows.len() / 2;
+    let mut gapped = format!("{},part\n", rows[0]);
+    for (i, row) in rows.iter().enumerate().skip(1) {
+        let (t, rest) = row.split_once(',').expect("row");
+        let t: f64 = t.parse().expect("t");
+        let (t, part) = if i < half { (t, 0) } else { (t + 4.0, 1) };
+        gapped.push_str(&format!("{t},{rest},{part}\n"));
+    }
+    let b = dir.path().join("b.csv");
+    std::fs::write(&b, gapped).expect("write");
+    let db = dir.path().join("h.sqlite");
+    let json = dir.path().join("f.json");
+    let (b_s, db_s, json_s) = (b.to_str().expect("utf8"), db.to_str().expect("utf8"), json.to_str().expect("utf8"));
+    let o = odocal(&["follow", &a, b_s, "--vehicle", "van", "--db", db_s, "--json", json_s]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v = json_file(&json);
+    let drives = v["drives"].as_array().expect("drives");
+    assert_eq!(drives[0]["fingerprint"], sidecar["drive_fingerprint"]);
+    assert_ne!(drives[1]["fingerprint"], drives[0]["fingerprint"], "parts are part of the fingerprint");
+    assert_eq!(drives[1]["samples"], drives[0]["samples"]);
+    assert!(drives[1]["validation_segments"].as_u64().expect("segments") > 0, "{}", drives[1]);
+
+    // A row out of time order: the whole reader's message, with its line.
+    let bad = dir.path().join("bad.csv");
+    let mut lines: Vec<String> = text.lines().map(str::to_owned).collect();
+    lines.swap(100, 101);
+    std::fs::write(&bad, lines.join("\n") + "\n").expect("write");
+    let bad_s = bad.to_str().expect("utf8");
+    let o = odocal(&["follow", bad_s, "--vehicle", "van", "--db", db_s]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let c = odocal(&["calibrate", bad_s, "--method", "batch-gn"]);
+    let message = |s: String| s.lines().find(|l| l.contains("line 102")).map(str::to_owned);
+    assert!(message(stderr(&o)).is_some(), "{}", stderr(&o));
+    assert_eq!(message(stderr(&o)), message(stderr(&c)), "{}", stderr(&c));
+}
