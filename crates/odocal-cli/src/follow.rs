@@ -258,14 +258,14 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
 /// length), or a manifest's streams imported whole.
 enum Replay {
     Stream(DriveStream),
-    Whole(Drive),
+    Whole(Box<Drive>),
 }
 
 impl Replay {
     /// Opens the drive at `path`, printing what its reader warns about.
     fn open(path: &std::path::Path) -> Result<Replay> {
         if odocal::is_manifest_path(path) {
-            return Ok(Replay::Whole(load_drive_with_scale(path)?.0));
+            return Ok(Replay::Whole(Box::new(load_drive_with_scale(path)?.0)));
         }
         let stream = DriveStream::open(path)?;
         for w in stream.warnings() {

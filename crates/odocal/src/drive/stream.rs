@@ -277,7 +277,7 @@ fn scan(path: &Path, limits: &PhysicalLimits) -> std::result::Result<DriveStream
     let mut rdr = ::csv::ReaderBuilder::new().has_headers(true).trim(::csv::Trim::All).from_reader(input);
     let headers: Vec<String> = rdr.headers().map_err(|e| refused(&e))?.iter().map(str::to_string).collect();
     check_header(&headers, path).map_err(|e| refused(&e))?;
-    let mut scanner = Scanner::new(&headers, limits.clone())?;
+    let mut scanner = Scanner::new(&headers, *limits)?;
     let mut record = ::csv::StringRecord::new();
     let mut line = 1u64;
     while rdr.read_record(&mut record).map_err(|e| refused(&e))? {

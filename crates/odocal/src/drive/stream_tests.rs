@@ -126,7 +126,7 @@ fn errors_are_the_whole_readers() {
         ("nan and later text", g.replacen("0.05,0.5", "0.05,inf", 1).replacen("0.1,1", "0.1,x", 1).into_bytes()),
         ("not increasing", g.replacen("0.05,", "0.01,", 1).into_bytes()),
         ("not uniform", g.replacen("0.1,", "0.11,", 1).into_bytes()),
-        ("short last row", g[..g.len() - 6].as_bytes().to_vec()),
+        ("short last row", g.as_bytes()[..g.len() - 6].to_vec()),
         ("short row", g.replacen("0.05,0.5,0,0,5,5,0,0\n", "0.05,0.5,0\n", 1).into_bytes()),
         ("one row", good(1, 0.025).into_bytes()),
         ("milliseconds", good(6, 25.0).into_bytes()),
