@@ -54,7 +54,7 @@ mod stream;
 use std::ops::Range;
 
 pub use self::fingerprint::refuse_duplicates;
-pub use self::stream::{Chunks, DriveStream, StreamChunk};
+pub use self::stream::{DriveStream, StreamChunk, StreamChunks};
 
 pub(crate) use self::csv::{clip, echo};
 use crate::error::{Error, Result};

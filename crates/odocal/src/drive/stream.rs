@@ -159,8 +159,8 @@ impl DriveStream {
 
     /// The samples in chunks of at most `size` (at least 1), part by part
     /// in time order; a chunk never spans two parts.
-    pub fn chunks(&self, size: usize) -> Chunks<'_> {
-        Chunks { stream: self, size: size.max(1), part: 0, next: 0 }
+    pub fn chunks(&self, size: usize) -> StreamChunks<'_> {
+        StreamChunks { stream: self, size: size.max(1), part: 0, next: 0 }
     }
 
     /// The samples `r` as a chunk of part `part`.
@@ -190,14 +190,14 @@ impl DriveStream {
 
 /// The chunks of a [`DriveStream`] ([`DriveStream::chunks`]).
 #[derive(Debug)]
-pub struct Chunks<'a> {
+pub struct StreamChunks<'a> {
     stream: &'a DriveStream,
     size: usize,
     part: usize,
     next: usize,
 }
 
-impl Iterator for Chunks<'_> {
+impl Iterator for StreamChunks<'_> {
     type Item = Result<StreamChunk>;
 
     fn next(&mut self) -> Option<Result<StreamChunk>> {

@@ -5,6 +5,9 @@
 //! canonical samples chunk by chunk and keeps θ with its σ at any time, in
 //! memory that does not grow with the drive's length. `odocal follow`
 //! replays drives through it and gates what it writes back ([`gate`]).
+//! [`Calibrator::push_drive`] pushes a drive in memory,
+//! [`Calibrator::push_stream`] a drive CSV read as a stream
+//! ([`crate::DriveStream`]), in the same chunks and with the same results.
 //!
 //! ## The method: recursive Gauss-Newton over the paper's segments
 //!
