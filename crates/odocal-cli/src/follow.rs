@@ -8,8 +8,8 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use odocal::history::{CalibrationRecord, Decision, History};
 use odocal::online::gate::{Action, GateDecision, Gates};
-use odocal::online::{Calibrator, OnlineOptions};
-use odocal::{ParamFile, Progress, Theta};
+use odocal::online::{Calibrator, OnlineOptions, RandomWalk};
+use odocal::{Drive, DriveStream, ParamFile, Progress, Theta};
 use serde_json::{json, Value};
 
 use crate::args::ThetaArg;
@@ -51,17 +51,89 @@ pub struct FollowArgs {
     theta0: Option<ThetaArg>,
     /// Informative driving (s) over which θ must stay within one σ before
     /// an update is written.
-    #[arg(long, default_value_t = 10.0, value_name = "S")]
+    #[arg(long, default_value_t = 10.0, value_name = "S", help_heading = GATES)]
     steady_s: f64,
     /// Weight of one segment's normal equations [default: 0.005].
     ///
     /// Smaller values make the estimate average over more segments
     /// (steadier, slower to follow a change).
-    #[arg(long, value_name = "F")]
+    #[arg(long, value_name = "F", help_heading = ONLINE)]
     information_scale: Option<f64>,
     /// Fold only segments whose peak yaw rate exceeds this, rad/s [default: 0, every segment].
-    #[arg(long, value_name = "RAD_PER_S")]
+    #[arg(long, value_name = "RAD_PER_S", help_heading = ONLINE)]
     min_yaw_rate: Option<f64>,
+    #[command(flatten)]
+    expert: ExpertArgs,
+}
+
+/// Help heading of the online calibrator's options.
+const ONLINE: &str = "Online calibrator";
+/// Help heading of the write-back gates' thresholds.
+const GATES: &str = "Write-back gates";
+
+/// The online calibrator's and the gates' settings with documented
+/// defaults (`odocal::online::OnlineOptions`, `odocal::online::gate::Gates`),
+/// shown by `--help`, not `-h`.
+#[derive(Args)]
+struct ExpertArgs {
+    /// Factors on the recursion's sd of c_e,c_d,t_r,d for the σ reported
+    /// [default: 1.1,4.6,6.3,4.1].
+    ///
+    /// The factors that make ±2σ cover the truth 90 % of the time on
+    /// simulated drives (docs/validation.md); θ's updates do not use them.
+    #[arg(long, value_name = "F,F,F,F", help_heading = ONLINE, hide_short_help = true)]
+    sigma_factors: Option<Four>,
+    /// The parameters' random walk: sd after one hour of driving of
+    /// c_e (fraction), c_d (m), t_r (m), d (m/(m/s²)) [default: 7e-4,2.5e-4,5e-3,2.5e-4].
+    ///
+    /// How fast θ may drift; 0 holds a parameter constant.
+    #[arg(long, value_name = "CE,CD,TR,D", help_heading = ONLINE, hide_short_help = true)]
+    random_walk: Option<Four>,
+    /// θ's sd when the history holds no σ for the vehicle: c_e (fraction),
+    /// c_d (m), t_r (fraction), d (m/(m/s²)) [default: 0.02,5e-3,0.05,2e-3].
+    #[arg(long, value_name = "CE,CD,TR,D", help_heading = ONLINE, hide_short_help = true)]
+    prior_sd: Option<Four>,
+    /// The reference heading offset's sd at the start of each drive, rad [default: 0.05].
+    #[arg(long, value_name = "RAD", help_heading = ONLINE, hide_short_help = true)]
+    heading_offset_prior_sd: Option<f64>,
+    /// A folded segment is informative driving when its peak yaw rate
+    /// exceeds this, rad/s [default: 0.15].
+    #[arg(long, value_name = "RAD_PER_S", help_heading = ONLINE, hide_short_help = true)]
+    informative_yaw_rate: Option<f64>,
+    /// Gauss-Newton iterations per folded segment [default: 2].
+    #[arg(long, value_name = "N", help_heading = ONLINE, hide_short_help = true)]
+    iterations_per_segment: Option<usize>,
+    /// Informative driving over which θ's track is kept for the steadiness gate, s [default: 120].
+    #[arg(long, value_name = "S", help_heading = ONLINE, hide_short_help = true)]
+    steady_window_s: Option<f64>,
+    /// Validation segments of the held-out gate (the drive's most recent) [default: 3].
+    #[arg(long, value_name = "N", help_heading = ONLINE, hide_short_help = true)]
+    recent_validation_segments: Option<usize>,
+    /// Largest σ written of c_e (fraction), c_d (m), t_r (m), d (m/(m/s²))
+    /// [default: 1e-3,1e-3,0.02,1e-3].
+    #[arg(long, value_name = "CE,CD,TR,D", help_heading = GATES, hide_short_help = true)]
+    max_sigma: Option<Four>,
+    /// Largest change from the stored calibration written without a person
+    /// (larger ones are flagged): c_e (fraction), c_d (m), t_r (m), d
+    /// (m/(m/s²)) [default: 0.01,5e-3,0.05,5e-3].
+    #[arg(long, value_name = "CE,CD,TR,D", help_heading = GATES, hide_short_help = true)]
+    max_change: Option<Four>,
+}
+
+/// Four numbers, `a,b,c,d`: one per parameter of θ.
+#[derive(Debug, Clone, Copy)]
+struct Four([f64; 4]);
+
+impl std::str::FromStr for Four {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Four, String> {
+        let v: Vec<f64> = s
+            .split(',')
+            .map(|x| x.trim().parse::<f64>().map_err(|_| format!("'{}' is not a number", x.trim())))
+            .collect::<std::result::Result<_, _>>()?;
+        let v: [f64; 4] = v.try_into().map_err(|v: Vec<f64>| format!("4 numbers expected, got {}", v.len()))?;
+        Ok(Four(v))
+    }
 }
 
 /// The parameters in use: θ, its σ, and where they came from.
@@ -94,9 +166,9 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
     if let Some(p) = a.drive.iter().find(|p| !p.exists()) {
         bail!("{}: no such drive file", p.display());
     }
+    let (opts, gates) = (online_options(&a)?, gates(&a)?);
     let mut db = History::open(&a.db)?;
     let mut stored = starting_point(&db, &a)?;
-    let gates = Gates { steady_s: a.steady_s, ..Gates::default() };
     let quiet_stdout = a.json.as_deref().is_some_and(odocal::output::is_stdout);
     if !quiet_stdout {
         println!("vehicle '{}': starting from {} ({})", a.vehicle, stored.theta, stored.origin);
@@ -104,9 +176,9 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
     let mut cal: Option<Calibrator> = None;
     let mut entries = Vec::with_capacity(a.drive.len());
     for path in &a.drive {
-        let (drive, _, _) = load_drive_with_scale(path)?;
+        let drive = Replay::open(path)?;
         let source = path.display().to_string();
-        let fingerprint = drive.fingerprint();
+        let fingerprint = drive.fingerprint()?;
         if db.has_decisions(&a.vehicle, &fingerprint)? {
             if !quiet_stdout {
                 println!(
@@ -121,7 +193,7 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
         }
         let c = match cal.as_mut() {
             Some(c) => c,
-            None => cal.insert(calibrator(&a, &stored, drive.sample_time_s())?),
+            None => cal.insert(Calibrator::new(stored.theta, stored.sigma, drive.sample_time_s(), opts.clone())?),
         };
         if (drive.sample_time_s() - c.sample_time_s()).abs() > 1e-9 {
             bail!("{source}: sample time differs from the first drive's");
@@ -129,15 +201,15 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
         c.set_stored(Some(stored.theta));
         bars.event(Progress::Stage { name: "following", total: drive.len() as u64 });
         let mut done = 0;
-        c.push_drive(&drive, CHUNK, |n| {
+        drive.push(c, |n| {
             bars.event(Progress::Advance((n - done) as u64));
             done = n;
         })?;
         bars.finish();
         let decision = gates.decide(c, &stored.theta, stored.calibrated);
         let summary = c.drive_summary();
-        let t = drive.t();
-        let drive_time_s = t.last().copied().unwrap_or(0.0) - t.first().copied().unwrap_or(0.0);
+        let (t_start_s, t_end_s) = drive.time_span_s();
+        let drive_time_s = t_end_s - t_start_s;
         db.record_decision(&Decision {
             vehicle: a.vehicle.clone(),
             fingerprint: fingerprint.clone(),
@@ -150,7 +222,7 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
         })?;
         let (delta, _) = c.heading_offset();
         if decision.action == Action::Write {
-            stored = write_back(&mut db, &a, &decision, (&source, &fingerprint), &drive, delta)?;
+            stored = write_back(&mut db, &a, &decision, (&source, &fingerprint), drive.time_span_s(), delta)?;
         }
         if !quiet_stdout {
             let e = summary.prequential_mean_position_error_m.map_or("-".into(), |e| format!("{e:.3} m"));
@@ -182,6 +254,65 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
     Ok(())
 }
 
+/// A drive to replay: a canonical CSV read as a stream (memory flat in its
+/// length), or a manifest's streams imported whole.
+enum Replay {
+    Stream(DriveStream),
+    Whole(Box<Drive>),
+}
+
+impl Replay {
+    /// Opens the drive at `path`, printing what its reader warns about.
+    fn open(path: &std::path::Path) -> Result<Replay> {
+        if odocal::is_manifest_path(path) {
+            return Ok(Replay::Whole(Box::new(load_drive_with_scale(path)?.0)));
+        }
+        let stream = DriveStream::open(path)?;
+        for w in stream.warnings() {
+            eprintln!("warning: {w}");
+        }
+        Ok(Replay::Stream(stream))
+    }
+
+    fn fingerprint(&self) -> Result<String> {
+        Ok(match self {
+            Replay::Stream(s) => s.fingerprint()?,
+            Replay::Whole(d) => d.fingerprint(),
+        })
+    }
+
+    fn sample_time_s(&self) -> f64 {
+        match self {
+            Replay::Stream(s) => s.sample_time_s(),
+            Replay::Whole(d) => d.sample_time_s(),
+        }
+    }
+
+    fn len(&self) -> usize {
+        match self {
+            Replay::Stream(s) => s.len(),
+            Replay::Whole(d) => d.len(),
+        }
+    }
+
+    /// The first and the last time stamp, s.
+    fn time_span_s(&self) -> (f64, f64) {
+        match self {
+            Replay::Stream(s) => s.time_span_s(),
+            Replay::Whole(d) => (d.t().first().copied().unwrap_or(0.0), d.t().last().copied().unwrap_or(0.0)),
+        }
+    }
+
+    /// Pushes the drive as a new drive in chunks of [`CHUNK`] samples.
+    fn push(&self, c: &mut Calibrator, each: impl FnMut(usize)) -> Result<()> {
+        match self {
+            Replay::Stream(s) => c.push_stream(s, CHUNK, each)?,
+            Replay::Whole(d) => c.push_drive(d, CHUNK, each)?,
+        }
+        Ok(())
+    }
+}
+
 /// The parameters to start from: the vehicle's most recent row in the
 /// history, else `--theta0` (default θ_0).
 fn starting_point(db: &History, a: &FollowArgs) -> Result<Stored> {
@@ -201,16 +332,53 @@ fn starting_point(db: &History, a: &FollowArgs) -> Result<Stored> {
     })
 }
 
-/// The online calibrator for the first drive, with the command line's options.
-fn calibrator(a: &FollowArgs, stored: &Stored, sample_time_s: f64) -> Result<Calibrator> {
-    let mut opts = OnlineOptions::default();
+/// The online calibrator's options from the command line, checked (by a
+/// calibrator made with them) before any drive is read.
+fn online_options(a: &FollowArgs) -> Result<OnlineOptions> {
+    let mut o = OnlineOptions::default();
+    let e = &a.expert;
     if let Some(f) = a.information_scale {
-        opts.information_scale = f;
+        o.information_scale = f;
     }
     if let Some(r) = a.min_yaw_rate {
-        opts.segments.min_peak_yaw_rate_rad_per_s = r;
+        o.segments.min_peak_yaw_rate_rad_per_s = r;
     }
-    Ok(Calibrator::new(stored.theta, stored.sigma, sample_time_s, opts)?)
+    if let Some(Four(f)) = e.sigma_factors {
+        o.sigma_factors = f;
+    }
+    if let Some(Four([c_e_relative, c_d_m, t_r_m, d])) = e.random_walk {
+        o.random_walk = RandomWalk { c_e_relative, c_d_m, t_r_m, d };
+    }
+    if let Some(Four(p)) = e.prior_sd {
+        (o.prior_relative_c_e, o.prior_c_d_m, o.prior_relative_t_r, o.prior_d) = (p[0], p[1], p[2], p[3]);
+    }
+    let set = |slot: &mut f64, v: Option<f64>| *slot = v.unwrap_or(*slot);
+    set(&mut o.heading_offset_prior_sd_rad, e.heading_offset_prior_sd);
+    set(&mut o.informative_yaw_rate_rad_per_s, e.informative_yaw_rate);
+    set(&mut o.steady_window_s, e.steady_window_s);
+    o.iterations_per_segment = e.iterations_per_segment.unwrap_or(o.iterations_per_segment);
+    o.recent_validation_segments = e.recent_validation_segments.unwrap_or(o.recent_validation_segments);
+    Calibrator::new(Theta::PAPER_INITIAL, None, 0.025, o.clone())?;
+    Ok(o)
+}
+
+/// The write-back gates from the command line; every threshold a positive number.
+fn gates(a: &FollowArgs) -> Result<Gates> {
+    let mut g = Gates { steady_s: a.steady_s, ..Gates::default() };
+    if let Some(Four(m)) = a.expert.max_sigma {
+        (g.max_sigma_c_e_relative, g.max_sigma_c_d_m, g.max_sigma_t_r_m, g.max_sigma_d) = (m[0], m[1], m[2], m[3]);
+    }
+    if let Some(Four(m)) = a.expert.max_change {
+        (g.max_change_c_e_relative, g.max_change_c_d_m, g.max_change_t_r_m, g.max_change_d) = (m[0], m[1], m[2], m[3]);
+    }
+    for (flag, v) in [("--max-sigma", a.expert.max_sigma), ("--max-change", a.expert.max_change)] {
+        if let Some(Four(v)) = v {
+            if v.iter().any(|x| !(x.is_finite() && *x > 0.0)) {
+                bail!("{flag} must be four positive numbers, got {v:?}");
+            }
+        }
+    }
+    Ok(g)
 }
 
 /// Writes a passed update: a `calibrations` row and the parameter file
@@ -220,14 +388,13 @@ fn write_back(
     a: &FollowArgs,
     decision: &GateDecision,
     (source, fingerprint): (&str, &str),
-    drive: &odocal::Drive,
+    (t_start_s, t_end_s): (f64, f64),
     heading_offset_rad: f64,
 ) -> Result<Stored> {
-    let t = drive.t();
     let rec = CalibrationRecord {
         sources: vec![source.to_string()],
-        t_start_s: t.first().copied().unwrap_or(0.0),
-        t_end_s: t.last().copied().unwrap_or(0.0),
+        t_start_s,
+        t_end_s,
         sigma: Some(decision.sigma),
         heading_offset_rad: Some(heading_offset_rad),
         ..CalibrationRecord::new(&a.vehicle, fingerprint, METHOD, decision.theta)

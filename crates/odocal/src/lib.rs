@@ -119,7 +119,10 @@ pub use model::{
 pub use progress::{Progress, ProgressFn};
 // Drives: building, importing, simulating; parameter files. `segment` and
 // `manifest` are expert modules (their docs say for whom).
-pub use drive::{refuse_duplicates, segment, Drive, DriveBuilder, ExtraColumn, ExtraValues, Signals};
+pub use drive::{
+    refuse_duplicates, segment, Drive, DriveBuilder, DriveStream, ExtraColumn, ExtraValues, Signals, StreamChunk,
+    StreamChunks,
+};
 pub use io::import::{
     import, is_manifest_path, load_drive, manifest, ImportReport, ImportedDrive, Manifest, ReferenceSpec,
 };

@@ -167,3 +167,104 @@ fn simulate_with_drift_records_it_in_the_sidecar() {
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(stderr(&o).contains("MM@SECONDS"), "{}", stderr(&o));
 }
+
+/// A CSV drive is replayed as a stream: its fingerprint is the drive's
+/// (the simulator's sidecar records it from the drive in memory), a gap
+/// (`part` column) is followed, and a bad row is named as `calibrate`
+/// names it.
+#[test]
+fn follow_streams_csv_drives_with_the_whole_readers_fingerprint_and_errors() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let a = simulated_drive(dir.path(), "a.csv", &["--seed", "7", "--length-km", "2"]);
+    let sidecar = json_file(&dir.path().join("a.json"));
+    // The same drive with a gap of 4 s after its first half.
+    let text = std::fs::read_to_string(&a).expect("drive");
+    let rows: Vec<&str> = text.lines().collect();
+    let half = rows.len() / 2;
+    let mut gapped = format!("{},part\n", rows[0]);
+    for (i, row) in rows.iter().enumerate().skip(1) {
+        let (t, rest) = row.split_once(',').expect("row");
+        let t: f64 = t.parse().expect("t");
+        let (t, part) = if i < half { (t, 0) } else { (t + 4.0, 1) };
+        gapped.push_str(&format!("{t},{rest},{part}\n"));
+    }
+    let b = dir.path().join("b.csv");
+    std::fs::write(&b, gapped).expect("write");
+    let db = dir.path().join("h.sqlite");
+    let json = dir.path().join("f.json");
+    let (b_s, db_s, json_s) = (b.to_str().expect("utf8"), db.to_str().expect("utf8"), json.to_str().expect("utf8"));
+    let o = odocal(&["follow", &a, b_s, "--vehicle", "van", "--db", db_s, "--json", json_s]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v = json_file(&json);
+    let drives = v["drives"].as_array().expect("drives");
+    assert_eq!(drives[0]["fingerprint"], sidecar["drive_fingerprint"]);
+    assert_ne!(drives[1]["fingerprint"], drives[0]["fingerprint"], "parts are part of the fingerprint");
+    assert_eq!(drives[1]["samples"], drives[0]["samples"]);
+    assert!(drives[1]["validation_segments"].as_u64().expect("segments") > 0, "{}", drives[1]);
+
+    // A row out of time order: the whole reader's message, with its line.
+    let bad = dir.path().join("bad.csv");
+    let mut lines: Vec<String> = text.lines().map(str::to_owned).collect();
+    lines.swap(100, 101);
+    std::fs::write(&bad, lines.join("\n") + "\n").expect("write");
+    let bad_s = bad.to_str().expect("utf8");
+    let o = odocal(&["follow", bad_s, "--vehicle", "van", "--db", db_s]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let c = odocal(&["calibrate", bad_s, "--method", "batch-gn"]);
+    let message = |s: String| s.lines().find(|l| l.contains("line 102")).map(str::to_owned);
+    assert!(message(stderr(&o)).is_some(), "{}", stderr(&o));
+    assert_eq!(message(stderr(&o)), message(stderr(&c)), "{}", stderr(&c));
+}
+
+/// The calibrator's and the gates' settings are flags under their own
+/// headings in `--help` (not in `-h`), and they act.
+#[test]
+fn follow_exposes_the_online_and_gate_settings() {
+    let help = stdout(&odocal(&["follow", "--help"]));
+    let online = help.find("Online calibrator:").expect("heading");
+    let gates = help.find("Write-back gates:").expect("heading");
+    for flag in ["--sigma-factors", "--random-walk", "--prior-sd", "--information-scale", "--informative-yaw-rate"] {
+        let at = help.find(&format!("--{}", &flag[2..])).unwrap_or_else(|| panic!("{flag}:\n{help}"));
+        assert!(at > online, "{flag} not under its heading:\n{help}");
+    }
+    assert!(gates < online, "{help}");
+    for flag in ["--steady-s", "--max-sigma", "--max-change"] {
+        assert!(help[gates..online].contains(flag), "{flag} not under its heading:\n{help}");
+    }
+    assert!(help.contains("1.1,4.6,6.3,4.1"), "{help}");
+    assert!(!stdout(&odocal(&["follow", "-h"])).contains("--sigma-factors"));
+
+    let dir = tempfile::tempdir().expect("tempdir");
+    let a = simulated_drive(dir.path(), "a.csv", &["--seed", "9", "--length-km", "2"]);
+    let run = |name: &str, extra: &[&str]| {
+        let db = dir.path().join(format!("{name}.sqlite"));
+        let json = dir.path().join(format!("{name}.json"));
+        let mut args = vec!["follow", a.as_str(), "--vehicle", "van", "--db", db.to_str().expect("utf8")];
+        args.extend(["--json", json.to_str().expect("utf8")]);
+        args.extend_from_slice(extra);
+        let o = odocal(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        json_file(&json)["drives"][0]["updates"][0].clone()
+    };
+    let plain = run("plain", &[]);
+    let doubled = run("doubled", &["--sigma-factors", "2.2,9.2,12.6,8.2"]);
+    assert_eq!(plain["theta"], doubled["theta"]);
+    for p in ["c_e", "c_d", "t_r", "d"] {
+        let (s1, s2) = (plain["sigma"][p].as_f64().expect("σ"), doubled["sigma"][p].as_f64().expect("σ"));
+        assert!((s2 / s1 - 2.0).abs() < 1e-9, "{p}: {s1} {s2}");
+    }
+    // A σ threshold no estimate meets holds the update, naming the gate.
+    let held = run("held", &["--max-sigma", "1e-12,1e-12,1e-12,1e-12"]);
+    assert_eq!(held["decision"], "held", "{held}");
+    assert!(held["reasons"][0].as_str().expect("reason").starts_with("σ of c_e"), "{held}");
+    // Bad values: a usage error, or an error naming the option.
+    let db = dir.path().join("bad.sqlite");
+    let db = db.to_str().expect("utf8");
+    let o = odocal(&["follow", &a, "--vehicle", "v", "--db", db, "--random-walk", "1,2,3"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let o = odocal(&["follow", &a, "--vehicle", "v", "--db", db, "--sigma-factors", "1,0,1,1"]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("sigma_factors"), "{}", stderr(&o));
+    let o = odocal(&["follow", &a, "--vehicle", "v", "--db", db, "--max-change", "1,1,1,-1"]);
+    assert!(stderr(&o).contains("--max-change must be four positive numbers"), "{}", stderr(&o));
+}

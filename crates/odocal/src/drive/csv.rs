@@ -7,11 +7,12 @@ use crate::error::{Error, Result};
 
 /// The columns a canonical drive CSV must have.
 pub(crate) const REQUIRED_COLUMNS: [&str; 8] = ["t", "px", "py", "psi", "n_rl", "n_rr", "beta", "a_y"];
-const TRUTH_COLUMNS: [&str; 7] = ["px_true", "py_true", "psi_true", "n_rl_true", "n_rr_true", "beta_true", "a_y_true"];
+pub(crate) const TRUTH_COLUMNS: [&str; 7] =
+    ["px_true", "py_true", "psi_true", "n_rl_true", "n_rr_true", "beta_true", "a_y_true"];
 /// Optional column: 1 where the reference was really measured.
-const MASK_COLUMN: &str = "ref_measured";
+pub(crate) const MASK_COLUMN: &str = "ref_measured";
 /// Optional column: integer part ids.
-const PART_COLUMN: &str = "part";
+pub(crate) const PART_COLUMN: &str = "part";
 
 /// Longest echo of a field in an error message, characters.
 pub(crate) const ECHO_CHARS: usize = 40;
@@ -84,7 +85,7 @@ const NOT_CSV: [(&[u8], &str); 8] = [
 ];
 
 /// What a file is when its first bytes say it is not CSV text ([`NOT_CSV`]).
-fn not_csv(bytes: &[u8]) -> Option<&'static str> {
+pub(crate) fn not_csv(bytes: &[u8]) -> Option<&'static str> {
     NOT_CSV.iter().find(|(magic, _)| bytes.starts_with(magic)).map(|(_, what)| *what)
 }
 
@@ -174,7 +175,7 @@ pub(crate) fn header_characters(headers: &[String], path: &Path) -> Result<()> {
 /// Checks the header: every column named once, no control characters,
 /// every required column present (with a hint when the separator looks
 /// wrong).
-fn check_header(headers: &[String], path: &Path) -> Result<()> {
+pub(crate) fn check_header(headers: &[String], path: &Path) -> Result<()> {
     let mut seen = std::collections::BTreeSet::new();
     let dups: Vec<String> = headers.iter().filter(|h| !seen.insert(h.as_str())).map(|h| echo(h)).collect();
     if !dups.is_empty() {

@@ -2,6 +2,8 @@
 //! drive is known whether it was read from a CSV, imported through a
 //! manifest or made from arrays.
 
+use std::ops::Range;
+
 use sha2::{Digest, Sha256};
 
 use super::{Drive, SIGNAL_NAMES};
@@ -46,31 +48,58 @@ impl Drive {
     /// # Ok(()) }
     /// ```
     pub fn fingerprint(&self) -> String {
-        let mut h = Sha256::new();
-        h.update(DOMAIN);
-        let count = |n: usize| (n as u64).to_le_bytes();
-        h.update(count(self.len()));
-        h.update(count(self.parts.len()));
-        for p in &self.parts {
-            h.update(count(p.start));
-            h.update(count(p.end));
-        }
-        h.update(((self.sample_time_s * 1e9).round() as i64).to_le_bytes());
+        let mut f = Fingerprinter::new(self.len(), &self.parts, self.sample_time_s);
         let mut columns: Vec<&[f64]> = vec![&self.t];
         columns.extend(self.measured.columns().iter().map(|(_, c)| *c));
         debug_assert_eq!(columns.len(), SIGNAL_NAMES.len() + 1);
-        let mut buf = Vec::with_capacity(8 * 4096);
         for c in columns {
             for chunk in c.chunks(4096) {
-                buf.clear();
-                for &v in chunk {
-                    let bits = if v == 0.0 { 0 } else { v.to_bits() };
-                    buf.extend_from_slice(&bits.to_le_bytes());
-                }
-                h.update(&buf);
+                f.values(chunk);
             }
         }
-        h.finalize().iter().map(|b| format!("{b:02x}")).collect()
+        f.finish()
+    }
+}
+
+/// The hash of [`Drive::fingerprint`] fed piece by piece: the counts, parts
+/// and sample time first, then the columns' values in order, in pieces of
+/// any size (a streamed drive's columns are read back from disk).
+pub(crate) struct Fingerprinter {
+    hash: Sha256,
+    buf: Vec<u8>,
+}
+
+impl Fingerprinter {
+    /// Starts the hash of a drive of `len` samples in `parts`, sampled every
+    /// `sample_time_s`.
+    pub(crate) fn new(len: usize, parts: &[Range<usize>], sample_time_s: f64) -> Fingerprinter {
+        let mut h = Sha256::new();
+        h.update(DOMAIN);
+        let count = |n: usize| (n as u64).to_le_bytes();
+        h.update(count(len));
+        h.update(count(parts.len()));
+        for p in parts {
+            h.update(count(p.start));
+            h.update(count(p.end));
+        }
+        h.update(((sample_time_s * 1e9).round() as i64).to_le_bytes());
+        Fingerprinter { hash: h, buf: Vec::with_capacity(8 * 4096) }
+    }
+
+    /// The next values of the columns `t, px, py, psi, n_rl, n_rr, beta,
+    /// a_y`, one column after the other.
+    pub(crate) fn values(&mut self, values: &[f64]) {
+        self.buf.clear();
+        for &v in values {
+            let bits = if v == 0.0 { 0 } else { v.to_bits() };
+            self.buf.extend_from_slice(&bits.to_le_bytes());
+        }
+        self.hash.update(&self.buf);
+    }
+
+    /// The fingerprint: lowercase hex, 64 characters.
+    pub(crate) fn finish(self) -> String {
+        self.hash.finalize().iter().map(|b| format!("{b:02x}")).collect()
     }
 }
 

@@ -18,7 +18,9 @@
 //! [`Drive::read_csv`] / [`Drive::write_csv`]: columns `t, px, py, psi, n_rl,
 //! n_rr, beta, a_y` in any order, optional `ref_measured` (0/1) and `part`
 //! (integer), truth columns `*_true` for simulated drives, and any extra
-//! columns (numbers or text), carried along unchanged.
+//! columns (numbers or text), carried along unchanged. [`DriveStream`]
+//! reads the same file as a stream, in chunks, in memory that does not
+//! grow with the drive.
 //!
 //! # Example
 //!
@@ -47,10 +49,12 @@ pub(crate) mod csv;
 mod fingerprint;
 pub(crate) mod plausibility;
 pub mod segment;
+mod stream;
 
 use std::ops::Range;
 
 pub use self::fingerprint::refuse_duplicates;
+pub use self::stream::{DriveStream, StreamChunk, StreamChunks};
 
 pub(crate) use self::csv::{clip, echo};
 use crate::error::{Error, Result};

@@ -5,6 +5,9 @@
 //! canonical samples chunk by chunk and keeps θ with its σ at any time, in
 //! memory that does not grow with the drive's length. `odocal follow`
 //! replays drives through it and gates what it writes back ([`gate`]).
+//! [`Calibrator::push_drive`] pushes a drive in memory,
+//! [`Calibrator::push_stream`] a drive CSV read as a stream
+//! ([`crate::DriveStream`]), in the same chunks and with the same results.
 //!
 //! ## The method: recursive Gauss-Newton over the paper's segments
 //!
@@ -57,7 +60,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::assess::position_error::segment_position_error_with;
 use crate::drive::segment::SegmentData;
-use crate::drive::Drive;
+use crate::drive::{Drive, DriveStream, Signals, StreamChunk};
 use crate::error::{Error, Result};
 use crate::identify::extrinsics_normal_equations;
 use crate::model::extrinsics::Extrinsics;
@@ -113,6 +116,12 @@ impl<'a> Chunk<'a> {
             beta: &drive.beta()[r.clone()],
             a_y: &drive.a_y()[r],
         }
+    }
+
+    /// All samples of `signals` (a [`StreamChunk`]'s).
+    pub fn of_signals(signals: &'a Signals) -> Chunk<'a> {
+        let s = signals;
+        Chunk { px: &s.px, py: &s.py, psi: &s.psi, n_rl: &s.n_rl, n_rr: &s.n_rr, beta: &s.beta, a_y: &s.a_y }
     }
 
     fn columns(&self) -> [&'a [f64]; 7] {
@@ -685,6 +694,26 @@ impl Calibrator {
                 each(b);
                 a = b;
             }
+        }
+        Ok(())
+    }
+
+    /// Pushes a streamed drive as a new drive, as [`Calibrator::push_drive`]
+    /// pushes the drive read whole: the same chunks, part by part, so the
+    /// same results; `each` is called after every chunk with the samples
+    /// pushed so far.
+    ///
+    /// # Errors
+    /// The stream's read errors; [`Calibrator::push`]'s.
+    pub fn push_stream(&mut self, stream: &DriveStream, chunk: usize, mut each: impl FnMut(usize)) -> Result<()> {
+        self.begin_drive();
+        for c in stream.chunks(chunk) {
+            let c: StreamChunk = c?;
+            if c.starts_part && c.part > 0 {
+                self.begin_part();
+            }
+            self.push(&Chunk::of_signals(&c.signals))?;
+            each(c.start + c.t.len());
         }
         Ok(())
     }

@@ -168,3 +168,33 @@ fn sigma_is_of_the_size_of_the_error_on_noisy_drives() {
     // The test can fail: the recursion's own sd (factors 1) is too narrow.
     assert!((1..4).any(|i| (sq[i] / n).sqrt() > 2.5 * own[i] / n), "{sq:?} {own:?}");
 }
+
+/// A drive replayed from its CSV as a stream gives the results of the
+/// drive read whole, bit for bit (the same chunks, parts and sample time).
+#[test]
+fn a_streamed_drive_gives_the_whole_drives_results() {
+    let out = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(11) }).expect("simulate");
+    let d = &out.drive;
+    let k = d.len() / 2;
+    let t: Vec<f64> = d.t().iter().enumerate().map(|(i, &t)| if i < k { t } else { t + 3.0 }).collect();
+    let gapped = Drive::builder(t, d.measured().clone()).parts(vec![0..k, k..d.len()]).build().expect("drive");
+    let dir = tempfile::tempdir().expect("tmp");
+    let p = dir.path().join("d.csv");
+    gapped.write_csv(&p).expect("write");
+    let whole = Drive::read_csv(&p).expect("whole");
+    let stream = crate::drive::DriveStream::open(&p).expect("stream");
+    let run = |push: &dyn Fn(&mut Calibrator, &mut Vec<usize>)| {
+        let mut cal = Calibrator::new(Theta::PAPER_INITIAL, None, stream.sample_time_s(), OnlineOptions::default())
+            .expect("calibrator");
+        cal.set_stored(Some(Theta::PAPER_NOMINAL));
+        let mut progress = Vec::new();
+        push(&mut cal, &mut progress);
+        (cal.theta(), cal.sigma(), cal.heading_offset(), cal.drive_summary(), progress)
+    };
+    let a = run(&|c, p| c.push_drive(&whole, 400, |n| p.push(n)).expect("push"));
+    let b = run(&|c, p| c.push_stream(&stream, 400, |n| p.push(n)).expect("push"));
+    assert!(a.3.validation_segments > 3 && a.3.folded_segments > 10, "{:?}", a.3);
+    assert_eq!(format!("{a:?}"), format!("{b:?}"));
+    let to_bits = |th: Theta| th.to_array().map(f64::to_bits);
+    assert_eq!((to_bits(a.0), to_bits(a.1)), (to_bits(b.0), to_bits(b.1)));
+}

@@ -1,0 +1,112 @@
+//! A drive CSV read as a stream ([`odocal::DriveStream`]) and replayed
+//! through the online calibrator in memory that does not grow with the
+//! drive: the peak heap, counted by this test binary's allocator, of a
+//! drive 8 times as long is within 10 % of the short one's (and the whole
+//! reader's grows with it, so the count can tell).
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::io::Write;
+use std::path::Path;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use odocal::online::{Calibrator, OnlineOptions};
+use odocal::{Drive, DriveStream, Theta};
+
+/// The system allocator, counting the bytes held and their peak.
+struct Counting;
+
+static HELD: AtomicUsize = AtomicUsize::new(0);
+static PEAK: AtomicUsize = AtomicUsize::new(0);
+
+// Counting needs the allocator interface, which is `unsafe` by contract;
+// every call is passed on to `System` unchanged.
+#[allow(unsafe_code)]
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        let p = unsafe { System.alloc(layout) };
+        if !p.is_null() {
+            let now = HELD.fetch_add(layout.size(), Ordering::Relaxed) + layout.size();
+            PEAK.fetch_max(now, Ordering::Relaxed);
+        }
+        p
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) };
+        HELD.fetch_sub(layout.size(), Ordering::Relaxed);
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        let p = unsafe { System.realloc(ptr, layout, new_size) };
+        if !p.is_null() {
+            HELD.fetch_sub(layout.size(), Ordering::Relaxed);
+            let now = HELD.fetch_add(new_size, Ordering::Relaxed) + new_size;
+            PEAK.fetch_max(now, Ordering::Relaxed);
+        }
+        p
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: Counting = Counting;
+
+/// Writes a drive of `n` samples at 40 Hz: 10 m/s on a slow weave, two
+/// parts (a gap of 2 s in the middle).
+fn write_drive(path: &Path, n: usize) {
+    let mut w = std::io::BufWriter::new(std::fs::File::create(path).expect("create"));
+    writeln!(w, "t,px,py,psi,n_rl,n_rr,beta,a_y,part").expect("write");
+    let (mut x, mut y) = (0.0f64, 0.0f64);
+    for k in 0..n {
+        let part = usize::from(k >= n / 2);
+        let t = k as f64 * 0.025 + 2.0 * part as f64;
+        let psi = 0.3 * (k as f64 * 0.002).sin();
+        let w_rad = 0.3 * 0.002 * (k as f64 * 0.002).cos() / 0.025;
+        let (n_rl, n_rr) = ((10.0 - 0.8 * w_rad) / 2.0, (10.0 + 0.8 * w_rad) / 2.0);
+        writeln!(w, "{t},{x},{y},{psi},{n_rl},{n_rr},0,{},{part}", 10.0 * w_rad).expect("write");
+        x += 0.25 * psi.cos();
+        y += 0.25 * psi.sin();
+    }
+    w.flush().expect("flush");
+}
+
+/// The peak heap above what was held before `f` ran, bytes.
+fn peak_of(f: impl FnOnce()) -> usize {
+    let base = HELD.load(Ordering::Relaxed);
+    PEAK.store(base, Ordering::Relaxed);
+    f();
+    PEAK.load(Ordering::Relaxed) - base
+}
+
+/// Opens, fingerprints and replays the drive at `path` as a stream.
+fn replay(path: &Path) -> usize {
+    let stream = DriveStream::open(path).expect("stream");
+    assert_eq!(stream.fingerprint().expect("fingerprint").len(), 64);
+    let mut cal = Calibrator::new(Theta::PAPER_NOMINAL, None, stream.sample_time_s(), OnlineOptions::default())
+        .expect("calibrator");
+    let mut pushed = 0;
+    cal.push_stream(&stream, 400, |n| pushed = n).expect("push");
+    assert_eq!(pushed, stream.len());
+    assert!(cal.drive_summary().folded_segments > 0);
+    pushed
+}
+
+// One test in this binary: the counts are the process's.
+#[test]
+fn streamed_replay_memory_is_flat_in_the_drive_length() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let (short, long) = (dir.path().join("short.csv"), dir.path().join("long.csv"));
+    write_drive(&short, 12_000);
+    write_drive(&long, 96_000);
+    let p_short = peak_of(|| assert_eq!(replay(&short), 12_000));
+    let p_long = peak_of(|| assert_eq!(replay(&long), 96_000));
+    assert!(
+        (p_long as f64) < 1.1 * p_short as f64,
+        "peak heap {p_long} B for 96,000 samples against {p_short} B for 12,000"
+    );
+    // The whole reader holds the drive: its peak grows with it.
+    let w_short = peak_of(|| assert_eq!(Drive::read_csv(&short).expect("whole").len(), 12_000));
+    let w_long = peak_of(|| assert_eq!(Drive::read_csv(&long).expect("whole").len(), 96_000));
+    eprintln!("peak heap, B: streamed {p_short} and {p_long}, whole {w_short} and {w_long}");
+    assert!(w_long > 4 * w_short, "whole reads: {w_long} B against {w_short} B");
+    assert!(p_long < w_long / 4, "streamed {p_long} B, whole {w_long} B");
+}
