@@ -255,7 +255,7 @@ impl SourceSpec {
     }
 
     /// The `format` value.
-    pub(crate) fn format(&self) -> &'static str {
+    pub fn format(&self) -> &'static str {
         match self {
             SourceSpec::Csv { .. } => "csv",
             SourceSpec::Mcap { .. } => "mcap",
