@@ -8,8 +8,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Result};
 use clap::{ArgAction, Args};
+use odocal::compensate::qp::SolverKind;
 use odocal::settings::{NoiseModelSetting, Settings};
-use odocal::{FinalSegments, Method, ParamSet, SolverKind, Theta};
+use odocal::{FinalSegments, Method, ParamSet, Theta};
 
 /// Help heading of the segment and Gauss-Newton options.
 const SEGMENTS: &str = "Segments and Gauss-Newton";

@@ -295,7 +295,7 @@ fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, ba
     if let Some(p) = json {
         let mut v = report_json(&r, truth_ref, wheel_scale)?;
         if let Some(obj) = v.as_object_mut() {
-            if let Some(per) = heading_offset_per_drive(&r, &fingerprints) {
+            if let Some(per) = r.heading_offset_per_drive(&fingerprints) {
                 obj.insert("heading_offset_per_drive".into(), per);
             }
             obj.insert("drives".into(), serde_json::Value::Array(fingerprints));
@@ -484,31 +484,6 @@ fn print_text_report(
 
 /// The JSON report: the library's report with the σ of the result, the
 /// truth when known and how to read c_e.
-/// A joint calibration's heading offset of each drive, `[{source,
-/// fingerprint, value, sigma}]` (rad; σ the one that stands for the
-/// value), the drives named by their report entries; `None` without one
-/// offset per drive.
-fn heading_offset_per_drive(r: &CalibrationReport, drives: &[serde_json::Value]) -> Option<serde_json::Value> {
-    let per = &r.extrinsics.as_ref()?.per_drive;
-    if per.is_empty() {
-        return None;
-    }
-    let calibration: Vec<&serde_json::Value> = drives.iter().filter(|d| d["role"] == "calibration").collect();
-    let rows = per
-        .iter()
-        .map(|p| {
-            let entry = calibration.get(p.drive);
-            serde_json::json!({
-                "source": entry.map_or(serde_json::Value::Null, |e| e["path"].clone()),
-                "fingerprint": entry.map_or(serde_json::Value::Null, |e| e["fingerprint"].clone()),
-                "value": p.value,
-                "sigma": p.result_std_dev(),
-            })
-        })
-        .collect();
-    Some(serde_json::Value::Array(rows))
-}
-
 fn report_json(
     r: &CalibrationReport,
     truth: Option<(&Theta, f64)>,

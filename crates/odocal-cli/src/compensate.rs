@@ -5,9 +5,10 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Result};
 use clap::Args;
+use odocal::compensate::{qp::SolverKind, CompensateOptions, QpOptions};
 use odocal::output::is_stdout;
+use odocal::segment;
 use odocal::ExtraColumn;
-use odocal::{segment, QpOptions, SolverKind};
 
 use crate::args::ThetaArg;
 use crate::io::{load_drive, print_warnings};
@@ -56,7 +57,7 @@ pub fn run(mut a: CompensateArgs, bars: &Bars) -> Result<()> {
         &drive,
         &segs,
         &[a.theta.theta],
-        &odocal::CompensateOptions::default(),
+        &CompensateOptions::default(),
         &QpOptions { solver: a.qp_solver, ..Default::default() },
         Some(&cb),
     )?;

@@ -176,7 +176,7 @@ fn calibrate_json(
         // The σ that stands for the result (as the CLI's JSON `sigma`).
         obj.insert("sigma".into(), serde_json::to_value(report.result_sigma()).map_err(json_err)?);
         obj.insert("sigma_within_drive".into(), serde_json::to_value(report.within_drive_sigma()).map_err(json_err)?);
-        if let Some(per) = heading_offset_per_drive(&report, &drives) {
+        if let Some(per) = report.heading_offset_per_drive(&drives) {
             obj.insert("heading_offset_per_drive".into(), per);
         }
         obj.insert("drives".into(), serde_json::Value::Array(drives));
@@ -184,30 +184,6 @@ fn calibrate_json(
     plan.resolved.account.add_to_json(&mut v)?;
     with_schema_version(&mut v);
     Ok(v)
-}
-
-/// A joint calibration's heading offset of each drive (as the CLI's JSON
-/// `heading_offset_per_drive`: `[{source, fingerprint, value, sigma}]`,
-/// rad); `None` without one offset per drive.
-fn heading_offset_per_drive(r: &odocal::CalibrationReport, drives: &[serde_json::Value]) -> Option<serde_json::Value> {
-    let per = &r.extrinsics.as_ref()?.per_drive;
-    if per.is_empty() {
-        return None;
-    }
-    let calibration: Vec<&serde_json::Value> = drives.iter().filter(|d| d["role"] == "calibration").collect();
-    let rows = per
-        .iter()
-        .map(|p| {
-            let entry = calibration.get(p.drive);
-            serde_json::json!({
-                "source": entry.map_or(serde_json::Value::Null, |e| e["path"].clone()),
-                "fingerprint": entry.map_or(serde_json::Value::Null, |e| e["fingerprint"].clone()),
-                "value": p.value,
-                "sigma": p.result_std_dev(),
-            })
-        })
-        .collect();
-    Some(serde_json::Value::Array(rows))
 }
 
 /// Calibrates `drive` (see the Python docstring of `odocal.calibrate`).

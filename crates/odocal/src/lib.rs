@@ -74,6 +74,9 @@
 //! Input Compensation by Optimal Control", IFAC-PapersOnLine, 2022.
 
 #![deny(clippy::float_cmp)]
+// With `research` every public item is reachable (the research-only ones
+// through `research` and `eiv`); without it those stay crate-internal.
+#![cfg_attr(feature = "research", warn(unreachable_pub))]
 // A drive of one continuous part is `vec![0..n]`: one range is the intent.
 #![allow(clippy::single_range_in_vec_init)]
 // Numerical loops index several parallel arrays at once; index loops read like the maths.
@@ -116,7 +119,7 @@ pub use model::{
     extrinsics::DriveHeadingOffset, extrinsics::Extrinsics, extrinsics::ExtrinsicsEstimate, param::Param,
     param::ParamSet, Theta,
 };
-pub use progress::{Progress, ProgressFn};
+pub use progress::Progress;
 // Drives: building, importing, simulating; parameter files. `segment` and
 // `manifest` are expert modules (their docs say for whom).
 pub use drive::{
@@ -131,12 +134,11 @@ pub use sim::{simulate, NoiseOptions, SimOptions, SimOutput, SimSidecar};
 // Calibration: the entry points, the options, the report. `settings` and
 // `crossrun` are expert modules.
 pub use calibrate::{
-    calibrate, crossrun, settings, settings::Settings, BatchGnDetail, BatchGnOptions, BatchSpread, Calibration,
-    CalibrationOptions, CalibrationReport, CorrectBias, EivDetail, EivMethodOptions, EivOutcome, FinalSegments,
-    Holdout, InitialStep, Method, MethodDetail, ResultSigma, SegmentCounts, SigmaCovers, SigmaSource, ThetaScore,
-    ThreeStepDetail, ThreeStepOptions, Timing, ValidationSummary,
+    calibrate, crossrun, settings, BatchGnDetail, BatchGnOptions, BatchSpread, Calibration, CalibrationOptions,
+    CalibrationReport, CorrectBias, EivDetail, EivMethodOptions, EivOutcome, FinalSegments, Holdout, InitialStep,
+    Method, MethodDetail, ResultSigma, SegmentCounts, SigmaCovers, SigmaSource, ThetaScore, ThreeStepDetail,
+    ThreeStepOptions, Timing, ValidationSummary,
 };
-pub use compensate::{qp::SolverKind, CompensateOptions, QpOptions};
 // Validation and the verdict.
 pub use assess::pooling;
 pub use assess::{

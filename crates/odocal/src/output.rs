@@ -95,7 +95,7 @@ where
 /// # Errors
 /// As [`write_atomically`]; [`Error::Io`] of kind `AlreadyExists` when
 /// `path` exists.
-pub fn write_new<F>(path: &Path, write: F) -> Result<()>
+pub(crate) fn write_new<F>(path: &Path, write: F) -> Result<()>
 where
     F: FnOnce(&mut dyn Write) -> std::io::Result<()>,
 {
@@ -197,8 +197,8 @@ pub fn write_text(path: &Path, text: &str) -> Result<()> {
     write_atomically(path, |w| write_with_newline(w, text))
 }
 
-/// Writes `text` to a new file at `path` ([`write_new`]: an existing file is
-/// never replaced), ending it with a newline.
+/// Writes `text` to a new file at `path` (as [`write_atomically`] does, but
+/// an existing file is never replaced), ending it with a newline.
 pub fn write_text_new(path: &Path, text: &str) -> Result<()> {
     write_new(path, |w| write_with_newline(w, text))
 }
@@ -355,6 +355,6 @@ fn collision(output: &FileRole, other: &FileRole) -> Error {
     }
 }
 
-pub mod limited;
+pub(crate) mod limited;
 #[cfg(test)]
 mod tests;

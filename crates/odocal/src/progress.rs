@@ -15,7 +15,7 @@ pub enum Progress {
 }
 
 /// A progress callback (may be called from several threads).
-pub type ProgressFn<'a> = &'a (dyn Fn(Progress) + Sync);
+pub(crate) type ProgressFn<'a> = &'a (dyn Fn(Progress) + Sync);
 
 /// Reports one event when there is a callback.
 pub(crate) fn emit(progress: Option<ProgressFn<'_>>, event: Progress) {

@@ -8,10 +8,11 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
+use odocal::compensate::{qp::SolverKind, QpOptions};
 use odocal::eiv::NoiseModel;
 use odocal::experiment::{self, Experiment, ExperimentOptions, ExperimentTiming};
 use odocal::sim::{self, NoiseOptions, SimOptions};
-use odocal::{CalibrationOptions, Drive, Method, QpOptions, ReachableOptions, SolverKind, Theta, ThreeStepOptions};
+use odocal::{CalibrationOptions, Drive, Method, ReachableOptions, Theta, ThreeStepOptions};
 use serde::Serialize;
 
 use crate::output::{refuse_stdout, Files};

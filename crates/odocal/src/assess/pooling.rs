@@ -115,7 +115,7 @@ pub const BETWEEN_DRIVE_PRIOR: BetweenDrivePrior =
 
 impl BetweenDrivePrior {
     /// The prior between-drive σ at θ, `[c_e, c_d, t_r, d]` in SI units.
-    pub fn sigma(&self, theta: &Theta) -> [f64; 4] {
+    pub(crate) fn sigma(&self, theta: &Theta) -> [f64; 4] {
         let (ce, tr) = (theta.c_e.abs(), theta.t_r.abs());
         [self.c_e * ce, self.c_d * ce, self.t_r * tr, self.d * tr]
     }
@@ -182,7 +182,7 @@ impl NextDriveSigma {
 
     /// `sigma` without the fallback gap, `√(within² + between²)`: the σ the
     /// result would have if its estimator had no errors-in-variables bias.
-    pub fn without_gap(&self) -> [Option<f64>; 4] {
+    pub(crate) fn without_gap(&self) -> [Option<f64>; 4] {
         std::array::from_fn(|i| self.within_drive[i].map(|w| (w * w + self.between_drive[i].powi(2)).sqrt()))
     }
 
@@ -224,12 +224,6 @@ impl PooledDrives {
             dersimonian_laird(&y, &s?)
         });
         PooledDrives { method, theta, sigma, params }
-    }
-
-    /// The pooled θ (θ_0's value where a parameter was not pooled).
-    pub fn pooled_theta(&self, theta0: &Theta) -> Theta {
-        let t0 = theta0.to_array();
-        Theta::from_array(std::array::from_fn(|i| self.params[i].map_or(t0[i], |p| p.mean)))
     }
 }
 

@@ -64,30 +64,13 @@ pub fn mean_position_error_with(
 ) -> Result<ValidationReport> {
     theta.validate()?;
     extrinsics.validate()?;
-    if segments.is_empty() {
-        return Err(Error::NoSegments(format!(
-            "the drive ({} samples) is too short for one validation segment",
-            drive.len()
-        )));
-    }
-    let per_segment_m: Vec<f64> = if extrinsics.is_zero() {
-        segments.par_iter().map(|s| segment_position_error(&SegmentData::new(drive, s), theta)).collect()
-    } else {
-        segments
-            .par_iter()
-            .map(|s| segment_position_error_with(&SegmentData::new(drive, s), theta, extrinsics))
-            .collect()
-    };
-    let mean = per_segment_m.iter().sum::<f64>() / per_segment_m.len() as f64;
-    if !mean.is_finite() {
-        return Err(Error::Numerical(format!("validation error is not finite at θ = {theta}")));
-    }
-    Ok(ValidationReport { theta: *theta, mean_position_error_m: mean, segments: segments.len(), per_segment_m })
+    mean_position_error_by(drive, segments, theta, |_| *extrinsics)
 }
 
 /// [`mean_position_error_with`] with each segment's own extrinsics
 /// `extrinsics(segment)` (a joint calibration's drives, each with its own
-/// reference heading offset).
+/// reference heading offset). A segment with zero extrinsics gets
+/// [`segment_position_error`], the same value bit for bit.
 pub(crate) fn mean_position_error_by(
     drive: &Drive,
     segments: &[Segment],
@@ -103,7 +86,14 @@ pub(crate) fn mean_position_error_by(
     }
     let per_segment_m: Vec<f64> = segments
         .par_iter()
-        .map(|s| segment_position_error_with(&SegmentData::new(drive, s), theta, &extrinsics(s)))
+        .map(|s| {
+            let (data, e) = (SegmentData::new(drive, s), extrinsics(s));
+            if e.is_zero() {
+                segment_position_error(&data, theta)
+            } else {
+                segment_position_error_with(&data, theta, &e)
+            }
+        })
         .collect();
     let mean = per_segment_m.iter().sum::<f64>() / per_segment_m.len() as f64;
     if !mean.is_finite() {

@@ -286,7 +286,7 @@ pub struct TrustOptions {
     pub max_final_step_sigmas: f64,
     /// After an EIV fallback, a free parameter whose batch Gauss-Newton
     /// value lies more than this many σ (the σ for the next drive without
-    /// the gap, [`crate::pooling::NextDriveSigma::without_gap`]) from EIV's
+    /// the gap, [`crate::pooling::NextDriveSigma`] less its gap term) from EIV's
     /// own estimate makes the result doubtful
     /// ([`VerdictReason::FallbackDisagrees`]): batch G-N's
     /// errors-in-variables bias may be that large. Default 3: the verdict

@@ -31,13 +31,12 @@
 //! [`DriveExtrinsics`] says which values were used, from where, and lists
 //! the conflicts.
 
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::heading_offset::{fit_heading_offset, with_fit, HeadingOffsetFit};
-use super::position_error::{segment_position_error, segment_position_error_with, ValidationReport};
+use super::position_error::{mean_position_error_by, ValidationReport};
 use super::validate::{DriveValidation, MultiValidation};
-use crate::drive::segment::{validation_segments, Segment, SegmentData, ValidationSegmentOptions};
+use crate::drive::segment::{validation_segments, Segment, ValidationSegmentOptions};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
 use crate::io::import::ReferenceSpec;
@@ -287,39 +286,6 @@ pub struct ValidationDrive<'a> {
     pub reference: Option<&'a ReferenceSpec>,
 }
 
-/// E_p,s of one segment at θ with extrinsics `e` (the SPEC's error when zero).
-fn segment_error(drive: &Drive, s: &Segment, theta: &Theta, e: &Extrinsics) -> f64 {
-    let data = SegmentData::new(drive, s);
-    if e.is_zero() {
-        segment_position_error(&data, theta)
-    } else {
-        segment_position_error_with(&data, theta, e)
-    }
-}
-
-/// Ē_p of θ on `drive` with each drive's extrinsics: `e` gives them for a
-/// segment (parallel over segments, deterministic).
-fn mean_error_by(
-    drive: &Drive,
-    segments: &[Segment],
-    theta: &Theta,
-    e: impl Fn(&Segment) -> Extrinsics + Sync,
-) -> Result<ValidationReport> {
-    theta.validate()?;
-    if segments.is_empty() {
-        return Err(Error::NoSegments(format!(
-            "the drive ({} samples) is too short for one validation segment",
-            drive.len()
-        )));
-    }
-    let per_segment_m: Vec<f64> = segments.par_iter().map(|s| segment_error(drive, s, theta, &e(s))).collect();
-    let mean = per_segment_m.iter().sum::<f64>() / per_segment_m.len() as f64;
-    if !mean.is_finite() {
-        return Err(Error::Numerical(format!("validation error is not finite at θ = {theta}")));
-    }
-    Ok(ValidationReport { theta: *theta, mean_position_error_m: mean, segments: segments.len(), per_segment_m })
-}
-
 /// The validation drives joined ([`Drive::concat`]) with what is needed to
 /// give each of its segments its own drive's extrinsics.
 pub(crate) struct HeldOutDrives<'a> {
@@ -377,7 +343,7 @@ impl<'a> HeldOutDrives<'a> {
             x.value.validate()?;
             per_drive.push(x);
         }
-        mean_error_by(&self.joined, segments, theta, |s| {
+        mean_position_error_by(&self.joined, segments, theta, |s| {
             let x = &per_drive[drive_of(s)];
             if initial {
                 x.initial
@@ -421,8 +387,9 @@ pub fn validate_drives_with(
         let applies = !(x.value.is_zero() && x.initial.is_zero() && x.conflicts.is_empty());
         out.push(DriveValidation {
             name: d.name.to_string(),
-            mean_position_error_m: mean_error_by(d.drive, &segs, theta, |_| x.value)?.mean_position_error_m,
-            initial_mean_position_error_m: mean_error_by(d.drive, &segs, theta0, |_| x.initial)?.mean_position_error_m,
+            mean_position_error_m: mean_position_error_by(d.drive, &segs, theta, |_| x.value)?.mean_position_error_m,
+            initial_mean_position_error_m: mean_position_error_by(d.drive, &segs, theta0, |_| x.initial)?
+                .mean_position_error_m,
             segments: segs.len(),
             extrinsics: applies.then_some(x),
         });

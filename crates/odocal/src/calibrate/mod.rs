@@ -30,7 +30,7 @@
 //! selection, progress) -> Result<MethodOutcome>`, and `select` when the
 //! method does not fit the turning segments (the default). Then add `Method::MyMethod(MyMethodOptions)` and
 //! `MethodDetail::MyMethod(MyMethodDetail)`, and one arm in
-//! `Method::estimator`, `Method::from_name` and [`Method::NAMES`]. The shared
+//! `Method::estimator`, `Method::from_name` and `Method::NAMES` (the tests' list). The shared
 //! preparation, validation, report, JSON and CLI (`--method my-method`) need
 //! no change.
 //!
@@ -108,7 +108,8 @@ impl Default for Method {
 
 impl Method {
     /// The names of the methods, as `--method` takes them.
-    pub const NAMES: [&'static str; 3] = ["three-step", "batch-gn", "eiv"];
+    #[cfg(test)]
+    pub(crate) const NAMES: [&'static str; 3] = ["three-step", "batch-gn", "eiv"];
 
     /// The method's name (`"three-step"`, `"batch-gn"`, `"eiv"`).
     pub(crate) fn name(&self) -> &'static str {

@@ -223,6 +223,35 @@ impl CalibrationReport {
         outcome_covariance(&self.detail)
     }
 
+    /// A joint calibration's heading offset of each drive, as the JSON
+    /// reports' `heading_offset_per_drive`: `[{source, fingerprint, value,
+    /// sigma}]` (rad; σ the one that stands for the value,
+    /// [`DriveHeadingOffset::result_std_dev`](crate::DriveHeadingOffset::result_std_dev)).
+    /// `drives` are the reports' drive entries (objects with `role`,
+    /// `path`, `fingerprint`); a drive is named by the entry of its index
+    /// among those with role `"calibration"`. `None` without one offset per
+    /// drive.
+    pub fn heading_offset_per_drive(&self, drives: &[serde_json::Value]) -> Option<serde_json::Value> {
+        let per = &self.extrinsics.as_ref()?.per_drive;
+        if per.is_empty() {
+            return None;
+        }
+        let calibration: Vec<&serde_json::Value> = drives.iter().filter(|d| d["role"] == "calibration").collect();
+        let rows = per
+            .iter()
+            .map(|p| {
+                let entry = calibration.get(p.drive);
+                serde_json::json!({
+                    "source": entry.map_or(serde_json::Value::Null, |e| e["path"].clone()),
+                    "fingerprint": entry.map_or(serde_json::Value::Null, |e| e["fingerprint"].clone()),
+                    "value": p.value,
+                    "sigma": p.result_std_dev(),
+                })
+            })
+            .collect();
+        Some(serde_json::Value::Array(rows))
+    }
+
     /// The method's within-drive 1σ: the square roots of the diagonal of
     /// `Self::result_covariance`, else of the model covariance (EIV's filter
     /// covariance, or a method's when nothing better was computed), with

@@ -154,11 +154,6 @@ impl ExtraValues {
         }
     }
 
-    /// True when there are no values.
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
     fn slice(&self, r: Range<usize>) -> ExtraValues {
         match self {
             ExtraValues::Numbers(v) => ExtraValues::Numbers(v[r].to_vec()),
@@ -569,7 +564,7 @@ impl Drive {
     }
     /// The index (into [`Drive::drive_starts`]) of the drive that sample
     /// `i` came from.
-    pub fn drive_of_sample(&self, i: usize) -> usize {
+    pub(crate) fn drive_of_sample(&self, i: usize) -> usize {
         self.drive_starts.partition_point(|&b| b <= i).saturating_sub(1)
     }
     /// Sample time t_s, s.

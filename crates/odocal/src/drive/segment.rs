@@ -191,19 +191,19 @@ impl<'a> SegmentData<'a> {
 
     /// Number of steps K.
     #[inline]
-    pub fn steps(&self) -> usize {
+    pub(crate) fn steps(&self) -> usize {
         self.n_rl.len()
     }
 
     /// Input at step k (0 ≤ k < K).
     #[inline]
-    pub fn input(&self, k: usize) -> Input {
+    pub(crate) fn input(&self, k: usize) -> Input {
         Input { n_rl: self.n_rl[k], n_rr: self.n_rr[k], beta: self.beta[k], a_y: self.a_y[k] }
     }
 
     /// Reference pose at k (0 ≤ k ≤ K); k = 0 is the start pose x_0.
     #[inline]
-    pub fn reference(&self, k: usize) -> State {
+    pub(crate) fn reference(&self, k: usize) -> State {
         State::new(self.px[k], self.py[k], self.psi[k])
     }
 }

@@ -436,7 +436,8 @@ impl History {
     }
 
     /// The number of decisions logged for the vehicle.
-    pub fn decision_count(&self, vehicle: &str) -> Result<usize> {
+    #[cfg(test)]
+    pub(crate) fn decision_count(&self, vehicle: &str) -> Result<usize> {
         self.conn
             .query_row("SELECT COUNT(*) FROM decisions WHERE vehicle = ?1", params![vehicle], |r| r.get(0))
             .map_err(sql_err(&self.path))

@@ -5,10 +5,7 @@
 use nalgebra::{DMatrix, Matrix3, Matrix3x4, SMatrix, SVector, Vector3};
 
 use super::gauss_newton;
-use super::{
-    observability_of, pose_residual, to_array4, IdentifyOptions, IdentifyReport, IterationRecord, NormalEquations,
-    Observability, RobustCovariance,
-};
+use super::{observability_of, pose_residual, IdentifyOptions, IdentifyReport, NormalEquations};
 use crate::drive::segment::SegmentData;
 use crate::error::{Error, Result};
 use crate::model::extrinsics::{
@@ -106,45 +103,24 @@ pub(crate) fn batch_gauss_newton_with_extrinsics(
     let scale =
         Vec7::from_column_slice(&[theta0.c_e.abs().max(1.0), 1e-3, theta0.t_r.abs().max(1.0), 1e-3, 1.0, 1.0, 1e-3]);
     let out = gauss_newton::run(&problem, segments, &join(theta0, &e0), &free, &scale, opts)?;
-    let (theta, ext) = split(&out.x);
-    let ne = out.total;
-    let (rcond, sens, unobservable) = problem.observability(&ne);
-    let cov = gauss_newton::model_covariance(&ne, &free);
-    let robust = gauss_newton::cluster_robust_covariance(&ne, &out.per_segment, segments, &free, opts);
-    let history = out.history.iter().map(|(x, cost)| IterationRecord { theta: split(x).0, cost: *cost }).collect();
-    let estimate = ExtrinsicsEstimate {
-        initial: e0,
-        value: ext,
-        free: opts.free.intersection(ParamSet::EXTRINSICS),
-        std_dev: Extrinsics::from_array(std::array::from_fn(|i| cov[(4 + i, 4 + i)].sqrt())),
-        covariance: std::array::from_fn(|i| std::array::from_fn(|j| cov[(4 + i, 4 + j)])),
-        cross_covariance: std::array::from_fn(|i| std::array::from_fn(|j| cov[(i, 4 + j)])),
-        sensitivity_m: [sens[4], sens[5], sens[6]],
-        robust: robust.as_ref().map(|(c, _)| RobustExtrinsics {
-            std_dev: Extrinsics::from_array(std::array::from_fn(|i| c[(4 + i, 4 + i)].sqrt())),
-            covariance: std::array::from_fn(|i| std::array::from_fn(|j| c[(4 + i, 4 + j)])),
-        }),
-        per_drive: Vec::new(),
-    };
-    Ok(IdentifyReport {
-        initial_theta: *theta0,
-        theta,
-        initial_cost: out.initial_cost,
-        final_cost: ne.cost,
-        iterations: out.history.len(),
-        termination: out.termination,
-        history,
-        covariance: to_array4(&cov),
-        robust: robust.map(|(c, clusters)| RobustCovariance {
-            covariance: to_array4(&c),
-            clusters,
-            block_steps: opts.robust_block_steps,
-        }),
-        observability: Observability { rcond, sensitivity_m: [sens[0], sens[1], sens[2], sens[3]], unobservable },
-        segments: segments.len(),
-        residual_poses: ne.poses,
-        extrinsics: Some(estimate),
-    })
+    let (_, ext) = split(&out.x);
+    let observability = problem.observability(&out.total);
+    Ok(gauss_newton::joint_report(segments, theta0, &out, &free, observability, opts, |cov, robust, sens| {
+        ExtrinsicsEstimate {
+            initial: e0,
+            value: ext,
+            free: opts.free.intersection(ParamSet::EXTRINSICS),
+            std_dev: Extrinsics::from_array(std::array::from_fn(|i| cov[(4 + i, 4 + i)].sqrt())),
+            covariance: std::array::from_fn(|i| std::array::from_fn(|j| cov[(4 + i, 4 + j)])),
+            cross_covariance: std::array::from_fn(|i| std::array::from_fn(|j| cov[(i, 4 + j)])),
+            sensitivity_m: [sens[4], sens[5], sens[6]],
+            robust: robust.map(|c| RobustExtrinsics {
+                std_dev: Extrinsics::from_array(std::array::from_fn(|i| c[(4 + i, 4 + i)].sqrt())),
+                covariance: std::array::from_fn(|i| std::array::from_fn(|j| c[(4 + i, 4 + j)])),
+            }),
+            per_drive: Vec::new(),
+        }
+    }))
 }
 
 /// The joint θ-and-extrinsics problem of the Gauss-Newton loop.

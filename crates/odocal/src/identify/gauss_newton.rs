@@ -13,9 +13,15 @@
 use nalgebra::{DMatrix, DVector, SMatrix, SVector};
 use rayon::prelude::*;
 
-use super::{IdentifyOptions, NormalEquations, Termination};
+use super::{
+    to_array4, IdentifyOptions, IdentifyReport, IterationRecord, NormalEquations, Observability, RobustCovariance,
+    Termination,
+};
 use crate::drive::segment::SegmentData;
 use crate::error::{Error, Result};
+use crate::model::extrinsics::ExtrinsicsEstimate;
+use crate::model::param::ParamSet;
+use crate::model::Theta;
 
 /// The residual/Jacobian supplier of the loop over an N-parameter vector.
 pub(crate) trait Problem<const N: usize>: Sync {
@@ -231,6 +237,47 @@ pub(crate) fn cluster_robust_covariance<const N: usize>(
         }
     }
     Some((cov, g))
+}
+
+/// The report of a fit of θ with the reference extrinsics, whose vector
+/// starts with θ: the model and cluster-robust covariances over `free`
+/// are computed here and handed, with the sensitivities of
+/// `observability` (`rcond`, sensitivity per entry, unobservable set), to
+/// `extrinsics`, which builds the extrinsics part from them.
+pub(crate) fn joint_report<const N: usize>(
+    segments: &[SegmentData<'_>],
+    theta0: &Theta,
+    out: &Outcome<N>,
+    free: &[usize],
+    (rcond, sens, unobservable): (f64, Vec<f64>, ParamSet),
+    opts: &IdentifyOptions,
+    extrinsics: impl FnOnce(&SMatrix<f64, N, N>, Option<&SMatrix<f64, N, N>>, &[f64]) -> ExtrinsicsEstimate,
+) -> IdentifyReport {
+    let theta_of = |x: &SVector<f64, N>| Theta { c_e: x[0], c_d: x[1], t_r: x[2], d: x[3] };
+    let ne = &out.total;
+    let cov = model_covariance(ne, free);
+    let robust = cluster_robust_covariance(ne, &out.per_segment, segments, free, opts);
+    let estimate = extrinsics(&cov, robust.as_ref().map(|(c, _)| c), &sens);
+    let history = out.history.iter().map(|(x, cost)| IterationRecord { theta: theta_of(x), cost: *cost }).collect();
+    IdentifyReport {
+        initial_theta: *theta0,
+        theta: theta_of(&out.x),
+        initial_cost: out.initial_cost,
+        final_cost: ne.cost,
+        iterations: out.history.len(),
+        termination: out.termination,
+        history,
+        covariance: to_array4(&cov),
+        robust: robust.map(|(c, clusters)| RobustCovariance {
+            covariance: to_array4(&c),
+            clusters,
+            block_steps: opts.robust_block_steps,
+        }),
+        observability: Observability { rcond, sensitivity_m: [sens[0], sens[1], sens[2], sens[3]], unobservable },
+        segments: segments.len(),
+        residual_poses: ne.poses,
+        extrinsics: Some(estimate),
+    }
 }
 
 #[cfg(test)]

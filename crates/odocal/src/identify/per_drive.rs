@@ -16,10 +16,7 @@ use nalgebra::{DMatrix, SMatrix, SVector};
 
 use super::extrinsics::segment_cost as segment_cost_at;
 use super::gauss_newton;
-use super::{
-    observability_of_entries, to_array4, IdentifyOptions, IdentifyReport, IterationRecord, NormalEquations,
-    Observability, RobustCovariance,
-};
+use super::{observability_of_entries, IdentifyOptions, IdentifyReport, NormalEquations};
 use crate::drive::segment::SegmentData;
 use crate::error::{Error, Result};
 use crate::model::extrinsics::{DriveHeadingOffset, Extrinsics, ExtrinsicsEstimate, RobustExtrinsics};
@@ -156,61 +153,36 @@ pub(crate) fn batch_gauss_newton_per_drive(
     let mut resolution: Vec<f64> = opts.resolution.iter().chain(&opts.extrinsics_resolution).copied().collect();
     resolution.resize(n, opts.extrinsics_resolution[2]);
     let jtwj = DMatrix::from_fn(n, n, |i, j| ne.jtwj[(i, j)]);
-    let (rcond, sens, unobservable) = observability_of_entries(&jtwj, ne.poses, &free, &resolution, opts);
-    let cov = gauss_newton::model_covariance(ne, &free);
-    let robust = gauss_newton::cluster_robust_covariance(ne, &out.per_segment, segments, &free, opts);
+    let observability = observability_of_entries(&jtwj, ne.poses, &free, &resolution, opts);
     let offsets: Vec<usize> = (0..d).filter(|&k| used[k]).collect();
-    let (theta, _) = theta_and_extrinsics(&out.x, 0);
-    let condensed = |c: &MatN| condense(c, &offsets);
-    let cov7 = condensed(&cov);
-    let robust7 = robust.as_ref().map(|(c, _)| condensed(c));
-    let per_drive = offsets
-        .iter()
-        .map(|&k| DriveHeadingOffset {
-            drive: k,
-            value: out.x[6 + k],
-            std_dev: cov[(6 + k, 6 + k)].sqrt(),
-            robust_std_dev: robust.as_ref().map(|(c, _)| c[(6 + k, 6 + k)].sqrt()),
-        })
-        .collect::<Vec<_>>();
-    let mean = per_drive.iter().map(|p| p.value).sum::<f64>() / per_drive.len().max(1) as f64;
-    let sd = |c: &SMatrix<f64, 7, 7>| Extrinsics::from_array(std::array::from_fn(|i| c[(4 + i, 4 + i)].sqrt()));
-    let block = |c: &SMatrix<f64, 7, 7>| std::array::from_fn(|i| std::array::from_fn(|j| c[(4 + i, 4 + j)]));
-    let estimate = ExtrinsicsEstimate {
-        initial: e0,
-        value: Extrinsics { lever_x: out.x[4], lever_y: out.x[5], heading_offset: mean },
-        free: opts.free.intersection(ParamSet::EXTRINSICS),
-        std_dev: sd(&cov7),
-        covariance: block(&cov7),
-        cross_covariance: std::array::from_fn(|i| std::array::from_fn(|j| cov7[(i, 4 + j)])),
-        sensitivity_m: [sens[4], sens[5], offsets.iter().map(|&k| sens[6 + k]).fold(0.0, f64::max)],
-        robust: robust7.as_ref().map(|c| RobustExtrinsics { std_dev: sd(c), covariance: block(c) }),
-        per_drive,
-    };
-    let history = out
-        .history
-        .iter()
-        .map(|(x, cost)| IterationRecord { theta: theta_and_extrinsics(x, 0).0, cost: *cost })
-        .collect();
-    Ok(IdentifyReport {
-        initial_theta: *theta0,
-        theta,
-        initial_cost: out.initial_cost,
-        final_cost: ne.cost,
-        iterations: out.history.len(),
-        termination: out.termination,
-        history,
-        covariance: to_array4(&cov),
-        robust: robust.map(|(c, clusters)| RobustCovariance {
-            covariance: to_array4(&c),
-            clusters,
-            block_steps: opts.robust_block_steps,
-        }),
-        observability: Observability { rcond, sensitivity_m: [sens[0], sens[1], sens[2], sens[3]], unobservable },
-        segments: segments.len(),
-        residual_poses: ne.poses,
-        extrinsics: Some(estimate),
-    })
+    Ok(gauss_newton::joint_report(segments, theta0, &out, &free, observability, opts, |cov, robust, sens| {
+        let condensed = |c: &MatN| condense(c, &offsets);
+        let cov7 = condensed(cov);
+        let robust7 = robust.map(condensed);
+        let per_drive = offsets
+            .iter()
+            .map(|&k| DriveHeadingOffset {
+                drive: k,
+                value: out.x[6 + k],
+                std_dev: cov[(6 + k, 6 + k)].sqrt(),
+                robust_std_dev: robust.map(|c| c[(6 + k, 6 + k)].sqrt()),
+            })
+            .collect::<Vec<_>>();
+        let mean = per_drive.iter().map(|p| p.value).sum::<f64>() / per_drive.len().max(1) as f64;
+        let sd = |c: &SMatrix<f64, 7, 7>| Extrinsics::from_array(std::array::from_fn(|i| c[(4 + i, 4 + i)].sqrt()));
+        let block = |c: &SMatrix<f64, 7, 7>| std::array::from_fn(|i| std::array::from_fn(|j| c[(4 + i, 4 + j)]));
+        ExtrinsicsEstimate {
+            initial: e0,
+            value: Extrinsics { lever_x: out.x[4], lever_y: out.x[5], heading_offset: mean },
+            free: opts.free.intersection(ParamSet::EXTRINSICS),
+            std_dev: sd(&cov7),
+            covariance: block(&cov7),
+            cross_covariance: std::array::from_fn(|i| std::array::from_fn(|j| cov7[(i, 4 + j)])),
+            sensitivity_m: [sens[4], sens[5], offsets.iter().map(|&k| sens[6 + k]).fold(0.0, f64::max)],
+            robust: robust7.as_ref().map(|c| RobustExtrinsics { std_dev: sd(c), covariance: block(c) }),
+            per_drive,
+        }
+    }))
 }
 
 /// The covariance of `[θ, lever_x, lever_y, mean of the offsets]` from

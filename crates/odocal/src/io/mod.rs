@@ -8,6 +8,4 @@
 #[cfg(feature = "mcap")]
 pub mod bag;
 pub(crate) mod import;
-/// Bounded reading of the user's files ([`crate::output::limited`]).
-pub use crate::output::limited;
 pub(crate) mod param_file;

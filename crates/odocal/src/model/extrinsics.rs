@@ -172,7 +172,7 @@ impl ExtrinsicsEstimate {
     /// The extrinsics that apply to drive `k` of a joint calibration: its
     /// own heading offset when [`ExtrinsicsEstimate::per_drive`] has it,
     /// else `value`.
-    pub fn for_drive(&self, k: usize) -> Extrinsics {
+    pub(crate) fn for_drive(&self, k: usize) -> Extrinsics {
         match self.per_drive.iter().find(|p| p.drive == k) {
             Some(p) => Extrinsics { heading_offset: p.value, ..self.value },
             None => self.value,

@@ -52,7 +52,7 @@ impl Param {
     /// The reference extrinsics, in vector order `[lever_x, lever_y, heading_offset]`.
     pub const EXTRINSICS: [Param; 3] = [Param::LeverX, Param::LeverY, Param::HeadingOffset];
     /// Every parameter, in vector order.
-    pub const ALL: [Param; 7] =
+    pub(crate) const ALL: [Param; 7] =
         [Param::CE, Param::CD, Param::TR, Param::D, Param::LeverX, Param::LeverY, Param::HeadingOffset];
 
     /// The name used in reports and on the command line (`"c_e"`, …).
@@ -150,7 +150,7 @@ impl ParamSet {
     /// The reference extrinsics (lever_x, lever_y, heading_offset).
     pub const EXTRINSICS: ParamSet = ParamSet(0b111_0000);
     /// The lever arm (lever_x, lever_y); `lever-arm` in a parsed list.
-    pub const LEVER_ARM: ParamSet = ParamSet(0b011_0000);
+    pub(crate) const LEVER_ARM: ParamSet = ParamSet(0b011_0000);
 
     /// True when `p` is in the set.
     pub const fn contains(self, p: Param) -> bool {
@@ -170,7 +170,7 @@ impl ParamSet {
     }
 
     /// Adds `p`.
-    pub fn insert(&mut self, p: Param) {
+    pub(crate) fn insert(&mut self, p: Param) {
         *self = self.with(p);
     }
 
@@ -181,12 +181,13 @@ impl ParamSet {
 
     /// The parameters in both sets.
     #[must_use]
-    pub const fn intersection(self, other: ParamSet) -> ParamSet {
+    pub(crate) const fn intersection(self, other: ParamSet) -> ParamSet {
         ParamSet(self.0 & other.0)
     }
 
     /// Number of parameters.
-    pub const fn len(self) -> usize {
+    #[cfg(test)]
+    pub(crate) const fn len(self) -> usize {
         self.0.count_ones() as usize
     }
 

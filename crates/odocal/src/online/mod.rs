@@ -446,7 +446,7 @@ impl Calibrator {
     /// The current drive's heading offset from the direction of travel
     /// (the module's first estimate of δ, before a segment is folded), rad;
     /// `None` before the vehicle has moved.
-    pub fn course_heading_offset(&self) -> Option<f64> {
+    pub(crate) fn course_heading_offset(&self) -> Option<f64> {
         let d = &self.drive;
         (d.course_weight > 0.0).then(|| d.course_sum / d.course_weight)
     }
@@ -640,7 +640,7 @@ impl Calibrator {
     /// The informative time over which every parameter of θ has stayed
     /// within `tolerance` (`[c_e, c_d, t_r, d]`) of its current value, s
     /// (at most the options' `steady_window_s`).
-    pub fn steady_for_s(&self, tolerance: [f64; 4]) -> f64 {
+    pub(crate) fn steady_for_s(&self, tolerance: [f64; 4]) -> f64 {
         let now = self.theta().to_array();
         let mut since = self.informative_s;
         for (t, theta) in self.track.iter().rev() {

@@ -35,7 +35,7 @@ impl Default for RandomWalk {
 
 impl RandomWalk {
     /// The per-hour sd of each parameter at θ.
-    pub fn sd_per_hour(&self, theta: &Theta) -> [f64; 4] {
+    pub(crate) fn sd_per_hour(&self, theta: &Theta) -> [f64; 4] {
         [self.c_e_relative * theta.c_e.abs(), self.c_d_m, self.t_r_m, self.d]
     }
 }

@@ -12,9 +12,9 @@ use std::io::{Error, ErrorKind, Read};
 use std::path::Path;
 
 /// Largest settings file (manifest, noise model, parameter file, sidecar).
-pub const MAX_SETTINGS_BYTES: u64 = 1 << 20;
+pub(crate) const MAX_SETTINGS_BYTES: u64 = 1 << 20;
 /// Largest data file read whole (a drive CSV, a CSV stream file).
-pub const MAX_DATA_BYTES: u64 = 4 << 30;
+pub(crate) const MAX_DATA_BYTES: u64 = 4 << 30;
 
 /// What a non-regular file is, for the message.
 fn kind_of(t: std::fs::FileType) -> &'static str {
@@ -40,7 +40,7 @@ fn kind_of(t: std::fs::FileType) -> &'static str {
 /// # Errors
 /// An [`ErrorKind::InvalidInput`] error naming what the path is and `what`
 /// it should be; the metadata's own error.
-pub fn require_regular_file(path: &Path, what: &str) -> std::io::Result<()> {
+pub(crate) fn require_regular_file(path: &Path, what: &str) -> std::io::Result<()> {
     let t = std::fs::metadata(path)?.file_type();
     if t.is_file() {
         Ok(())
@@ -55,7 +55,7 @@ pub fn require_regular_file(path: &Path, what: &str) -> std::io::Result<()> {
 /// # Errors
 /// [`require_regular_file`]'s; an [`ErrorKind::InvalidData`] error when the
 /// file holds more than `cap` bytes (counted while reading); read errors.
-pub fn read_limited(path: &Path, cap: u64, what: &str) -> std::io::Result<Vec<u8>> {
+pub(crate) fn read_limited(path: &Path, cap: u64, what: &str) -> std::io::Result<Vec<u8>> {
     require_regular_file(path, what)?;
     let file = std::fs::File::open(path)?;
     let t = file.metadata()?.file_type();
@@ -76,7 +76,7 @@ pub fn read_limited(path: &Path, cap: u64, what: &str) -> std::io::Result<Vec<u8
 /// A regular file read as a stream, at most `cap` bytes of it: reading past
 /// the cap is an [`ErrorKind::InvalidData`] error. It remembers the last
 /// byte read (a text file should end with a newline).
-pub struct LimitedFile {
+pub(crate) struct LimitedFile {
     inner: std::io::Take<std::fs::File>,
     cap: u64,
     what: String,
@@ -86,7 +86,7 @@ pub struct LimitedFile {
 
 impl LimitedFile {
     /// The last byte read so far; `None` before any.
-    pub fn last_byte(&self) -> Option<u8> {
+    pub(crate) fn last_byte(&self) -> Option<u8> {
         self.last
     }
 }
@@ -114,7 +114,7 @@ impl Read for LimitedFile {
 ///
 /// # Errors
 /// [`require_regular_file`]'s; opening errors.
-pub fn open_limited(path: &Path, cap: u64, what: &str) -> std::io::Result<LimitedFile> {
+pub(crate) fn open_limited(path: &Path, cap: u64, what: &str) -> std::io::Result<LimitedFile> {
     require_regular_file(path, what)?;
     let file = std::fs::File::open(path)?;
     let t = file.metadata()?.file_type();
@@ -128,7 +128,7 @@ pub fn open_limited(path: &Path, cap: u64, what: &str) -> std::io::Result<Limite
 ///
 /// # Errors
 /// As [`read_limited`]; [`ErrorKind::InvalidData`] for text that is not UTF-8.
-pub fn read_text_limited(path: &Path, cap: u64, what: &str) -> std::io::Result<String> {
+pub(crate) fn read_text_limited(path: &Path, cap: u64, what: &str) -> std::io::Result<String> {
     String::from_utf8(read_limited(path, cap, what)?)
         .map_err(|e| Error::new(ErrorKind::InvalidData, format!("not UTF-8 text ({what}): {e}")))
 }

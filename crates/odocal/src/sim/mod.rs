@@ -143,7 +143,7 @@ impl SimSidecar {
     }
 
     /// Reads a sidecar written by [`SimSidecar::write_json`].
-    pub fn read_json(path: &Path) -> Result<Self> {
+    pub(crate) fn read_json(path: &Path) -> Result<Self> {
         let text = crate::output::limited::read_text_limited(
             path,
             crate::output::limited::MAX_SETTINGS_BYTES,

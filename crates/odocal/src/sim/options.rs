@@ -361,7 +361,7 @@ pub struct DriftOptions {
 
 impl DriftOptions {
     /// True when nothing drifts.
-    pub fn is_zero(&self) -> bool {
+    pub(crate) fn is_zero(&self) -> bool {
         self.c_e_relative_per_hour == 0.0 && self.c_d_step.is_none()
     }
 

@@ -51,7 +51,7 @@ mod resolve;
 /// | `segment_length`, `segment_stride`, `validation_length`, `eiv_window` | 10,000,000 samples |
 /// | `batches`, `batch_size`, `picks` | 100,000 |
 /// | `bootstrap`, `correct_c_e_bias`, `correct_bias` | 100,000 replicates |
-pub const COUNT_CEILINGS: [(&str, usize); 11] = [
+pub(crate) const COUNT_CEILINGS: [(&str, usize); 11] = [
     ("max_iterations", 100_000),
     ("segment_length", 10_000_000),
     ("segment_stride", 10_000_000),
@@ -73,7 +73,7 @@ mod tests;
 pub use crate::io::import::{CalibrationTable, NoiseTable};
 pub use de::theta_from_json;
 pub use manifest::{import_report_json, ManifestSettings};
-pub use resolve::{Caller, Resolved, SettingOutcome, SettingUse, SettingsAccount};
+pub use resolve::{Caller, Resolved, SettingsAccount};
 
 /// Declares [`Settings`] and the methods that visit every key, so that a
 /// key is named once: its field.

@@ -143,7 +143,7 @@ fn unused_by(key: &str, method: &Method) -> Option<&'static MethodKeys> {
 /// What became of one manifest setting.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case", tag = "outcome")]
-pub enum SettingOutcome {
+pub(crate) enum SettingOutcome {
     /// Put into the calibration options.
     Used,
     /// The caller gave its own value, which was used instead.
@@ -157,7 +157,7 @@ pub enum SettingOutcome {
 
 /// One manifest setting and what became of it.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
-pub struct SettingUse {
+pub(crate) struct SettingUse {
     /// The manifest key (`noise`, `reference.lever_arm`,
     /// `calibration.keep_one_way`, …; `noise.lateral` when the caller's
     /// `lateral_noise` wins over the `[noise]` table's `lateral`).
@@ -181,7 +181,7 @@ pub struct SettingsAccount {
     pub caller: Caller,
     /// Each manifest setting and what became of it.
     #[serde(rename = "manifest_settings", skip_serializing_if = "Vec::is_empty")]
-    pub uses: Vec<SettingUse>,
+    pub(crate) uses: Vec<SettingUse>,
     /// Where method eiv's starting noise model came from, in words; `None`
     /// for another method.
     #[serde(skip_serializing_if = "Option::is_none")]

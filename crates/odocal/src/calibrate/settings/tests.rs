@@ -4,6 +4,7 @@ use std::path::Path;
 
 use serde_json::json;
 
+use super::resolve::SettingOutcome;
 use super::*;
 use crate::calibrate::eiv::NoiseSpec;
 use crate::calibrate::CalibrationOptions;

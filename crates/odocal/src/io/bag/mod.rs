@@ -134,7 +134,7 @@ impl Table {
 
     /// The joints of a `JointState` table that have a `field` column
     /// (`"position"` or `"velocity"`: the names in `field.<joint>`), sorted.
-    pub fn joints(&self, field: &str) -> Vec<&str> {
+    pub(crate) fn joints(&self, field: &str) -> Vec<&str> {
         self.columns.keys().filter_map(|k| k.strip_prefix(field)?.strip_prefix('.')).collect()
     }
 }
