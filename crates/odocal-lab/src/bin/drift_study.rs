@@ -17,7 +17,9 @@
 //! its end is a history row, and the history's drift flag
 //! ([`odocal::history::drift_between`], a change beyond three combined σ)
 //! is read between the two rows. The control: drive B without the step
-//! (a flag there is a false alarm).
+//! (a flag there is a false alarm). `--step-mm` takes a list of step
+//! sizes (one table each, then a summary of the flagged counts);
+//! `--step-only` skips the ramp.
 //!
 //! `--random-walk-ce F` and `--random-walk-cd M` set the process noise
 //! (per-hour sd of c_e as a fraction, of c_d in m).
@@ -29,7 +31,7 @@ use odocal::{Drive, Theta};
 use odocal_lab::{Args, Res};
 use rayon::prelude::*;
 
-const USAGE: &str = "drift_study [--seeds N] [--first-seed S] [--ramp-only] [--sigma-factors A,B,C,D] [--ramp FRACTION] [--burn-in S] [--step-mm MM]
+const USAGE: &str = "drift_study [--seeds N] [--first-seed S] [--ramp-only | --step-only] [--sigma-factors A,B,C,D] [--ramp FRACTION] [--burn-in S] [--step-mm MM[,MM..]]
     [--random-walk-ce F] [--random-walk-cd M] [--information-scale F]";
 
 /// Samples per pushed chunk (10 s at 40 Hz).
@@ -256,37 +258,14 @@ fn print_errors(runs: &[RampRun], factors: [f64; 4]) {
     }
 }
 
-fn run() -> Res<()> {
-    let mut a = Args::parse(USAGE, &["ramp-only"])?;
-    let seeds: u64 = a.get("seeds", 6)?;
-    let first_seed: u64 = a.get("first-seed", 1)?;
-    let ramp_only = a.flag("ramp-only");
-    let factors: Vec<f64> = match a.opt::<String>("sigma-factors")? {
-        Some(v) => v.split(',').map(str::parse).collect::<Result<_, _>>()?,
-        None => vec![1.0; 4],
-    };
-    let factors: [f64; 4] = factors.try_into().map_err(|_| "--sigma-factors takes four numbers")?;
-    let ramp: f64 = a.get("ramp", 0.003)?;
-    let step_mm: f64 = a.get("step-mm", 1.0)?;
-    let k = Knobs {
-        burn_in_s: a.get("burn-in", 300.0)?,
-        rw_ce: a.opt("random-walk-ce")?,
-        rw_cd: a.opt("random-walk-cd")?,
-        information_scale: a.opt("information-scale")?,
-    };
-    a.finish()?;
-    let o = options(&k);
-    println!(
-        "online options: random walk c_e {:.2e}/√h (relative), c_d {:.2e} m/√h; information scale {}",
-        o.random_walk.c_e_relative, o.random_walk.c_d_m, o.information_scale
-    );
-    let ids: Vec<u64> = (first_seed..first_seed + seeds).collect();
+/// The ramp's tables: with the drift and the same seeds without.
+fn ramp_tables(ids: &[u64], ramp: f64, k: &Knobs, factors: [f64; 4]) -> Res<()> {
     let slope = -ramp * Theta::SIM_DEFAULT_TRUE.c_e / 3600.0;
     let flat =
-        ids.par_iter().map(|&s| ramp_run(s, 0.0, &k).map_err(|e| e.to_string())).collect::<Result<Vec<_>, String>>();
+        ids.par_iter().map(|&s| ramp_run(s, 0.0, k).map_err(|e| e.to_string())).collect::<Result<Vec<_>, String>>();
     let flat = flat.map_err(|e| e.to_string())?;
     let ramps =
-        ids.par_iter().map(|&s| ramp_run(s, ramp, &k).map_err(|e| e.to_string())).collect::<Result<Vec<_>, String>>();
+        ids.par_iter().map(|&s| ramp_run(s, ramp, k).map_err(|e| e.to_string())).collect::<Result<Vec<_>, String>>();
     let ramps = ramps.map_err(|e| e.to_string())?;
     print_ramp(
         &format!(
@@ -300,28 +279,72 @@ fn run() -> Res<()> {
         factors,
     );
     print_ramp("control: no drift (the same seeds)", &flat, &flat, 0.0, factors);
+    Ok(())
+}
+
+fn run() -> Res<()> {
+    let mut a = Args::parse(USAGE, &["ramp-only", "step-only"])?;
+    let seeds: u64 = a.get("seeds", 6)?;
+    let first_seed: u64 = a.get("first-seed", 1)?;
+    let ramp_only = a.flag("ramp-only");
+    let step_only = a.flag("step-only");
+    let factors: Vec<f64> = match a.opt::<String>("sigma-factors")? {
+        Some(v) => v.split(',').map(str::parse).collect::<Result<_, _>>()?,
+        None => vec![1.0; 4],
+    };
+    let factors: [f64; 4] = factors.try_into().map_err(|_| "--sigma-factors takes four numbers")?;
+    let ramp: f64 = a.get("ramp", 0.003)?;
+    let steps_mm: Vec<f64> = match a.opt::<String>("step-mm")? {
+        Some(v) => v.split(',').map(str::parse).collect::<Result<_, _>>()?,
+        None => vec![1.0],
+    };
+    let k = Knobs {
+        burn_in_s: a.get("burn-in", 300.0)?,
+        rw_ce: a.opt("random-walk-ce")?,
+        rw_cd: a.opt("random-walk-cd")?,
+        information_scale: a.opt("information-scale")?,
+    };
+    a.finish()?;
+    let o = options(&k);
+    println!(
+        "online options: random walk c_e {:.2e}/√h (relative), c_d {:.2e} m/√h; information scale {}",
+        o.random_walk.c_e_relative, o.random_walk.c_d_m, o.information_scale
+    );
+    let ids: Vec<u64> = (first_seed..first_seed + seeds).collect();
+    if !step_only {
+        ramp_tables(&ids, ramp, &k, factors)?;
+    }
     if ramp_only {
         return Ok(());
     }
-    for (label, m) in
-        [(format!("c_d step of {step_mm} mm 10 min into drive B"), step_mm * 1e-3), ("control: no step".into(), 0.0)]
-    {
-        let runs =
-            ids.par_iter().map(|&s| step_run(s, m, &k).map_err(|e| e.to_string())).collect::<Result<Vec<_>, String>>();
+    let mut summary = Vec::new();
+    let cases = steps_mm.iter().map(|&mm| (format!("c_d step of {mm} mm 10 min into drive B"), mm));
+    for (label, mm) in cases.chain([("control: no step".to_string(), 0.0)]) {
+        let runs = ids
+            .par_iter()
+            .map(|&s| step_run(s, mm * 1e-3, &k).map_err(|e| e.to_string()))
+            .collect::<Result<Vec<_>, String>>();
         let runs = runs.map_err(|e| e.to_string())?;
         println!("\n{label}: the history's drift flag between the rows of drive A and drive B");
         println!("{:>4} {:>10} {:>10} {:>6} {:>8}", "seed", "Δc_d mm", "comb σ mm", "×σ", "flagged");
-        for (i, r) in runs.iter().enumerate() {
+        for (s, r) in ids.iter().zip(&runs) {
             println!(
                 "{:>4} {:>10.3} {:>10.3} {:>6.1} {:>8}",
-                i + 1,
+                s,
                 r.change * 1e3,
                 r.combined * 1e3,
                 r.change.abs() / r.combined,
                 if r.flagged { "yes" } else { "no" }
             );
         }
-        println!(" flagged: {} of {}", runs.iter().filter(|r| r.flagged).count(), runs.len());
+        let flagged = runs.iter().filter(|r| r.flagged).count();
+        println!(" flagged: {} of {}", flagged, runs.len());
+        let mean_combined = runs.iter().map(|r| r.combined).sum::<f64>() / runs.len() as f64;
+        summary.push((mm, flagged, runs.len(), mean_combined));
+    }
+    println!("\nstep mm  flagged  mean comb σ mm  step/(3·comb σ)");
+    for (mm, f, n, c) in summary {
+        println!("{:>7} {:>4} of {:<3} {:>14.3} {:>16.2}", mm, f, n, c * 1e3, mm * 1e-3 / (3.0 * c));
     }
     Ok(())
 }
