@@ -1,7 +1,7 @@
 //! Corrections of the estimator's own bias (bootstrap, first order).
 
 use super::bootstrap;
-use super::BootstrapOptions;
+use super::{BootstrapOptions, BootstrapRefit};
 use std::time::Instant;
 
 use super::filter::WindowSums;
@@ -68,6 +68,7 @@ pub fn apply_bias_correction(input: &EivInput<'_>, report: &mut EivReport, opts:
             seed,
             true_inputs: opts.bootstrap_inputs,
             antithetic: opts.bootstrap_antithetic,
+            refit: BootstrapRefit::OneStep,
             ..Default::default()
         },
     )?;

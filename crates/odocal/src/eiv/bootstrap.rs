@@ -33,6 +33,7 @@ use rand_distr::StandardNormal;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use super::estimate::one_step;
 use super::{estimate, BiasCorrection, EivInput, EivOptions, EivReport, InnovationNull, NoiseModel, ResearchOptions};
 use crate::error::{Error, Result};
 use crate::model::{step, Input, State, Theta};
@@ -58,6 +59,26 @@ pub struct BootstrapOptions {
     /// noise (to first order all of its spread) and keeps the even part,
     /// whose mean is the bias. Default false.
     pub antithetic: bool,
+    /// How each replicate is re-fitted. Default [`BootstrapRefit::Converged`].
+    pub refit: BootstrapRefit,
+}
+
+/// How [`bootstrap`] re-fits a replicate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub enum BootstrapRefit {
+    /// [`estimate`](fn@estimate) to convergence, from θ̂.
+    #[default]
+    Converged,
+    /// One Fisher-scoring step from θ̂: a single filter pass per replicate
+    /// instead of two or more (the "k-step bootstrap" with k = 1). With the
+    /// noise model held (`EivOptions::fix_noise`) and the covariance
+    /// following θ only; otherwise, and where the step leaves the valid
+    /// range of θ, the replicate is fitted to convergence. A replicate
+    /// whose converged fit takes one full step (the usual case from θ̂) gets
+    /// the same θ to the bit; elsewhere the later steps are left out. What
+    /// the bias correction ([`EivOptions::correct_bias`]) uses; measured
+    /// against converged replicates in docs/performance.md.
+    OneStep,
 }
 
 impl BootstrapOptions {
@@ -101,6 +122,7 @@ impl Default for BootstrapOptions {
             level: 0.95,
             true_inputs: BootstrapInputs::Measured,
             antithetic: false,
+            refit: BootstrapRefit::Converged,
         }
     }
 }
@@ -241,7 +263,10 @@ pub fn bootstrap(
             }
             let data = replicate(input, smoothed.as_ref(), &theta_hat, &report.noise, boot.seed, stream, sign);
             let rin = data.input(input);
-            estimate(&rin, &theta_hat, &refit).map(|r| r.theta)
+            match boot.refit {
+                BootstrapRefit::Converged => estimate(&rin, &theta_hat, &refit).map(|r| r.theta),
+                BootstrapRefit::OneStep => one_step(&rin, &theta_hat, &refit),
+            }
         })
         .collect();
     let pair_means: Vec<Theta> = if boot.antithetic {

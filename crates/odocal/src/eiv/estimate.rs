@@ -147,6 +147,53 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
     Ok(report)
 }
 
+/// θ after one Fisher-scoring step from `theta_start` with the noise model
+/// held (`opts.fix_noise`, the covariance following θ): one filter pass at
+/// the start, `θ_start + Δθ`, no line search and no convergence test. The
+/// bias correction's replicates are fitted so ([`super::apply_bias_correction`]).
+///
+/// Where the fit of [`estimate`] ends after its first iteration with the
+/// full step (a replicate started at the estimate it re-fits usually does),
+/// this is its θ to the bit: the same pass, step and sum. Elsewhere it
+/// leaves out the later steps, which the bias correction's measured
+/// tolerance covers (docs/performance.md). Falls back to [`estimate`] for
+/// other options, and where the step leaves the valid range of θ.
+pub(super) fn one_step(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) -> Result<Theta> {
+    let follows = opts.research.covariance == CovarianceMode::FollowsTheta;
+    if !(follows && opts.fix_noise) || opts.fix_unobservable {
+        return estimate(input, theta_start, opts).map(|r| r.theta);
+    }
+    opts.validate()?;
+    input.validate()?;
+    theta_start.validate()?;
+    let windows = make_windows(input.parts, opts.window_samples);
+    if windows.is_empty() {
+        return Err(Error::NoSegments("EIV needs a drive part of at least two samples".into()));
+    }
+    let q_found = opts.quantisation_level.step_found(input);
+    let resolved;
+    let opts = if opts.quantisation_level == QuantisationLevel::FromReadings {
+        resolved = opts.with_resolved_quantisation(q_found);
+        &resolved
+    } else {
+        opts
+    };
+    let prob = Problem::new(input, windows, opts);
+    // The first evaluation and step of `scoring_pass` (its start mode with
+    // the noise held is the full mode without η derivatives).
+    let ev = prob.evaluate(theta_start, theta_start, &[0.0; 6], Mode::full(true, false))?;
+    let (dth, sth) = theta_step(&ev.total, &opts.free, true)?;
+    let ratio = super::scoring::step_ratio(&dth, &sth, &opts.free, &[0.0; 6], &[0.0; 6], &[0.0; 6], opts.eta_bounds);
+    if ratio < opts.step_tolerance {
+        return Ok(*theta_start);
+    }
+    let theta = theta_add(theta_start, &dth, 1.0);
+    if theta.validate().is_err() {
+        return estimate(input, theta_start, opts).map(|r| r.theta);
+    }
+    Ok(theta)
+}
+
 /// The scoring passes of a fit and where they ended.
 struct Fit {
     theta: Theta,

@@ -142,11 +142,14 @@
 //! only use is the η step after it, skips `∂P/∂θ`; the evaluation an
 //! iteration starts from skips `∂P/∂η` until its θ step is below the
 //! tolerance (then it is evaluated again in full for the convergence test;
-//! steps and decisions are those of full evaluations). A fit with η
-//! estimated typically takes 2 + 2 × iterations derivative passes (10 on
-//! the 24 km paper drive, 6 of them with the θ or the η columns only), with
-//! the noise fixed 1 + iterations (3); the η term of the covariance one
-//! more per free parameter (4). docs/performance.md has the timings
+//! steps and decisions are those of full evaluations; the start after an
+//! iteration that was nearly converged is evaluated in full directly). A
+//! fit with η estimated typically takes 1 + 2 × iterations derivative
+//! passes (9 on the 24 km paper drive, 8 of them with the θ or the η
+//! columns only), with the noise fixed 1 + iterations (3); the η term of
+//! the covariance one more per free parameter (4). The bias correction's
+//! replicates take one pass each (one scoring step from the estimate,
+//! [`BootstrapRefit::OneStep`]). docs/performance.md has the timings
 //! (`eiv_speed` in crates/odocal-lab). Results agree with the straightforward dense
 //! filter to ~1e-13 relative (test
 //! `results_match_the_recorded_results_of_the_unoptimised_filter`).
@@ -233,7 +236,7 @@ pub(crate) use noise::NOISE_SOURCES;
 pub(crate) use report::PARAMETERS;
 pub use {
     bias_correction::apply_bias_correction,
-    bootstrap::{bootstrap, BootstrapInputs, BootstrapOptions, BootstrapReport},
+    bootstrap::{bootstrap, BootstrapInputs, BootstrapOptions, BootstrapRefit, BootstrapReport},
     crb::cramer_rao_bound,
     estimate::{estimate, kernel_instruction_set},
     input::{EivInput, Window},

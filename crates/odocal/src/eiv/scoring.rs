@@ -130,6 +130,16 @@ pub(super) fn scoring_pass(
     pass.finish()
 }
 
+/// A lean pass evaluates the point after an iteration whose `max |step|/σ`
+/// is below this many step tolerances in full: near the estimate the
+/// scoring iteration shrinks the step 6–15× per iteration (measured on
+/// simulated `paper` and `high` drives, 12 and 24 km), so the next start is
+/// most likely converged and needs its η derivatives for the convergence
+/// test; a lean evaluation there would be followed by a full one at the
+/// same point. Where the guess is wrong the iteration costs the η columns
+/// it did not need, and its result is the same.
+const LIKELY_LAST: f64 = 5.0;
+
 /// Relative tolerance of a step's acceptance: the objective may rise by
 /// rounding.
 fn tol(c: f64) -> f64 {
@@ -145,7 +155,8 @@ fn tol(c: f64) -> f64 {
 /// with the θ derivatives only (4 of the 10 covariance derivatives) and
 /// evaluated again in full only when its θ step is below the tolerance, or
 /// at the end; once that happened, later starts are evaluated in full
-/// directly. Steps and decisions are those of full evaluations (the θ
+/// directly, and so is the start after an iteration whose step was within
+/// [`LIKELY_LAST`] tolerances. Steps and decisions are those of full evaluations (the θ
 /// entries are identical to the bit; test
 /// `lean_iteration_starts_give_the_full_evaluations_results_to_the_bit`);
 /// only `IterationRecord::step_over_sigma` of an unconverged iteration can
@@ -412,9 +423,12 @@ impl<'p> Pass<'p> {
         self.eta_sigma = seta;
         let ratio = ratio.max(eta_ratio(&self.eta, &deta, &seta, bounds));
         self.eta_moved = false;
-        // Lean: the next evaluation in full where this iteration is the
-        // last (its step below the tolerance) or θ has settled.
-        let next_mode = if self.theta_settled || ratio < opts.step_tolerance { self.full } else { self.start_mode };
+        // Lean: the next evaluation in full where θ has settled or this
+        // iteration is likely the last but one (its step below
+        // `LIKELY_LAST` tolerances: the next start is then most likely
+        // converged, and a lean start would be evaluated twice).
+        let likely_last = ratio < LIKELY_LAST * opts.step_tolerance;
+        let next_mode = if self.theta_settled || likely_last { self.full } else { self.start_mode };
         if deta.iter().any(|x| *x != 0.0) {
             let factor =
                 if opts.research.eta_secant_damping { secant_eta_factor(&deta, self.last_eta_step) } else { 1.0 };
