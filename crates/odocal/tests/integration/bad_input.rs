@@ -124,7 +124,11 @@ proptest! {
 fn bag_reproducers_name_their_cause() {
     let expect: &[(&str, &[&str])] = &[
         ("hostile_bigrec.mcap", &["the channel record (opcode 0x04) at byte offset 86 declares 209715200 bytes"]),
-        ("hostile_header.mcap", &["the header record declares a library of 4291060737 bytes, but only 0 remain"]),
+        ("hostile_chunk_index.mcap", &["the chunk index record at byte offset", "declares a compression of"]),
+        (
+            "hostile_header.mcap",
+            &["the header record at byte offset 8 declares a library of 4291060737 bytes, but only 0 remain"],
+        ),
         ("hostile_inner.mcap", &["the message record (opcode 0x05) at byte offset 165 declares 209715200 bytes"]),
         (
             "hostile_innerz.mcap",

@@ -17,10 +17,18 @@ use std::io::{BufReader, Cursor, Read, Seek};
 
 use super::MAX_RECORD_BYTES;
 
-const CHUNK: u8 = 0x06;
+const HEADER: u8 = 0x01;
+const FOOTER: u8 = 0x02;
 const SCHEMA: u8 = 0x03;
 const CHANNEL: u8 = 0x04;
-const FOOTER: u8 = 0x02;
+const CHUNK: u8 = 0x06;
+const MESSAGE_INDEX: u8 = 0x07;
+const CHUNK_INDEX: u8 = 0x08;
+const ATTACHMENT: u8 = 0x09;
+const ATTACHMENT_INDEX: u8 = 0x0A;
+const STATISTICS: u8 = 0x0B;
+const METADATA: u8 = 0x0C;
+const METADATA_INDEX: u8 = 0x0D;
 const DATA_END: u8 = 0x0F;
 
 /// The largest uncompressed size a compressed chunk may declare. A chunk is
@@ -64,8 +72,7 @@ pub(super) fn check_lengths(r: impl Read + Seek, start: u64, len: u64) -> Result
         let body_start = w.at;
         match op {
             CHUNK => limit = limit.max(w.chunk(rec_len)?),
-            SCHEMA | CHANNEL => w.strings(op, rec_len)?,
-            _ => {}
+            _ => w.strings(op, rec_len)?,
         }
         w.skip_to(body_start + rec_len)?;
         if op == FOOTER {
@@ -191,9 +198,7 @@ impl<R: Read + Seek> Walk<R> {
         while self.at + 9 <= records_end {
             let (op, inner) = self.record_header(records_end, within)?;
             let body_start = self.at;
-            if matches!(op, SCHEMA | CHANNEL) {
-                self.strings(op, inner)?;
-            }
+            self.strings(op, inner)?;
             self.skip_to(body_start + inner)?;
         }
         Ok(())
@@ -231,30 +236,39 @@ impl<R: Read + Seek> Walk<R> {
         Ok(out)
     }
 
-    /// Checks the string (and schema data) lengths of a schema or channel
-    /// record of `rec_len` bytes against the bytes left in it.
+    /// Checks the length-prefixed fields (strings, byte arrays, maps) of a
+    /// record of `rec_len` bytes against the bytes left in it: the MCAP
+    /// parser reserves a string's declared length before reading it.
     fn strings(&mut self, op: u8, rec_len: u64) -> Result<(), String> {
+        let Some(fields) = layout(op) else { return Ok(()) };
         let offset = self.at - 9;
         let end = self.at + rec_len;
-        let fields: &[&str] = if op == SCHEMA {
-            self.skip_ids(2, end, offset)?;
-            &["name", "encoding", "data"]
-        } else {
-            self.skip_ids(4, end, offset)?;
-            &["topic name", "message encoding", "metadata"]
-        };
         for field in fields {
-            if end - self.at < 4 {
+            let (name, prefix) = match *field {
+                Field::Skip(n) => {
+                    if end - self.at < n {
+                        return Err(format!(
+                            "corrupt MCAP file: the {} record at byte offset {offset} is too short for its fixed fields",
+                            kind(op)
+                        ));
+                    }
+                    self.skip_to(self.at + n)?;
+                    continue;
+                }
+                Field::Len32(name) => (name, 4),
+                Field::Len64(name) => (name, 8),
+            };
+            if end - self.at < prefix {
                 return Err(format!(
-                    "corrupt MCAP file: the {} record at byte offset {offset} ends before its {field}",
+                    "corrupt MCAP file: the {} record at byte offset {offset} ends before its {name}",
                     kind(op)
                 ));
             }
-            let n = u64::from(self.u32()?);
+            let n = if prefix == 4 { u64::from(self.u32()?) } else { self.u64()? };
             let left = end - self.at;
             if n > left {
                 return Err(format!(
-                    "corrupt MCAP file: the {} record at byte offset {offset} declares a {field} of {n} bytes, but \
+                    "corrupt MCAP file: the {} record at byte offset {offset} declares a {name} of {n} bytes, but \
                      only {left} remain in the record",
                     kind(op)
                 ));
@@ -263,13 +277,34 @@ impl<R: Read + Seek> Walk<R> {
         }
         Ok(())
     }
+}
 
-    fn skip_ids(&mut self, n: u64, end: u64, offset: u64) -> Result<(), String> {
-        if end - self.at < n {
-            return Err(format!("corrupt MCAP file: the record at byte offset {offset} is too short for its ids"));
-        }
-        self.skip_to(self.at + n)
-    }
+/// A field of a record, for the length checks: fixed-size fields to skip,
+/// or a field whose length comes first (as 4 or 8 bytes).
+enum Field {
+    Skip(u64),
+    Len32(&'static str),
+    Len64(&'static str),
+}
+
+/// The fields of the records that hold length-prefixed fields, up to the
+/// last of those (MCAP specification, records section); `None` for the
+/// others. A chunk's own header is checked by `Walk::chunk`.
+fn layout(op: u8) -> Option<&'static [Field]> {
+    use Field::{Len32, Len64, Skip};
+    Some(match op {
+        HEADER => &[Len32("profile"), Len32("library")],
+        SCHEMA => &[Skip(2), Len32("name"), Len32("encoding"), Len32("data")],
+        CHANNEL => &[Skip(4), Len32("topic name"), Len32("message encoding"), Len32("metadata")],
+        MESSAGE_INDEX => &[Skip(2), Len32("records")],
+        CHUNK_INDEX => &[Skip(32), Len32("message index offsets"), Skip(8), Len32("compression")],
+        ATTACHMENT => &[Skip(16), Len32("name"), Len32("media type"), Len64("data")],
+        ATTACHMENT_INDEX => &[Skip(40), Len32("name"), Len32("media type")],
+        STATISTICS => &[Skip(42), Len32("channel message counts")],
+        METADATA => &[Len32("name"), Len32("metadata")],
+        METADATA_INDEX => &[Skip(16), Len32("name")],
+        _ => return None,
+    })
 }
 
 #[cfg(test)]
