@@ -1,5 +1,6 @@
 //! The estimator's entry points: a fit and its checks.
 
+use std::borrow::Cow;
 use std::time::Instant;
 
 use nalgebra::Matrix4;
@@ -63,25 +64,8 @@ pub fn kernel_instruction_set() -> &'static str {
 /// ```
 pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) -> Result<EivReport> {
     let t0 = Instant::now();
-    opts.validate()?;
-    input.validate()?;
-    theta_start.validate()?;
-    let windows = make_windows(input.parts, opts.window_samples);
-    if windows.is_empty() {
-        return Err(Error::NoSegments("EIV needs a drive part of at least two samples".into()));
-    }
-    // `FromReadings` is resolved once here, on the drive's readings: the
-    // rest of the fit sees `Given` with the step found, or `ScaledWithWhite`
-    // (and so does a bootstrap of the fit: `bootstrap` resolves it from the
-    // report, not from its replicates' readings).
-    let q_found = opts.quantisation_level.step_found(input);
-    let resolved;
-    let opts = if opts.quantisation_level == QuantisationLevel::FromReadings {
-        resolved = opts.with_resolved_quantisation(q_found);
-        &resolved
-    } else {
-        opts
-    };
+    let (windows, opts, q_found) = prepare(input, theta_start, opts)?;
+    let opts = &*opts;
     let prob = Problem::new(input, windows, opts);
     let fit = run_passes(&prob, theta_start, opts)?;
     let (ev, free, theta) = (&fit.ev, fit.free, fit.theta);
@@ -163,21 +147,8 @@ pub(super) fn one_step(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOpti
     if !(follows && opts.fix_noise) || opts.fix_unobservable {
         return estimate(input, theta_start, opts).map(|r| r.theta);
     }
-    opts.validate()?;
-    input.validate()?;
-    theta_start.validate()?;
-    let windows = make_windows(input.parts, opts.window_samples);
-    if windows.is_empty() {
-        return Err(Error::NoSegments("EIV needs a drive part of at least two samples".into()));
-    }
-    let q_found = opts.quantisation_level.step_found(input);
-    let resolved;
-    let opts = if opts.quantisation_level == QuantisationLevel::FromReadings {
-        resolved = opts.with_resolved_quantisation(q_found);
-        &resolved
-    } else {
-        opts
-    };
+    let (windows, opts, _) = prepare(input, theta_start, opts)?;
+    let opts = &*opts;
     let prob = Problem::new(input, windows, opts);
     // The first evaluation and step of `scoring_pass` (its start mode with
     // the noise held is the full mode without η derivatives).
@@ -192,6 +163,34 @@ pub(super) fn one_step(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOpti
         return estimate(input, theta_start, opts).map(|r| r.theta);
     }
     Ok(theta)
+}
+
+/// What every fit starts with: the options, the input and the start
+/// checked, the windows made, and `FromReadings` quantisation resolved once,
+/// on the drive's readings — the rest of the fit sees `Given` with the step
+/// found, or `ScaledWithWhite` (and so does a bootstrap of the fit:
+/// `bootstrap` resolves it from the report, not from its replicates'
+/// readings). Returns the windows, the options to fit with and the step
+/// found in the readings.
+fn prepare<'o>(
+    input: &EivInput<'_>,
+    theta_start: &Theta,
+    opts: &'o EivOptions,
+) -> Result<(Vec<Window>, Cow<'o, EivOptions>, Option<f64>)> {
+    opts.validate()?;
+    input.validate()?;
+    theta_start.validate()?;
+    let windows = make_windows(input.parts, opts.window_samples);
+    if windows.is_empty() {
+        return Err(Error::NoSegments("EIV needs a drive part of at least two samples".into()));
+    }
+    let q_found = opts.quantisation_level.step_found(input);
+    let opts = if opts.quantisation_level == QuantisationLevel::FromReadings {
+        Cow::Owned(opts.with_resolved_quantisation(q_found))
+    } else {
+        Cow::Borrowed(opts)
+    };
+    Ok((windows, opts, q_found))
 }
 
 /// The scoring passes of a fit and where they ended.
