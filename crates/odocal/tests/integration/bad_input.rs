@@ -124,6 +124,7 @@ proptest! {
 fn bag_reproducers_name_their_cause() {
     let expect: &[(&str, &[&str])] = &[
         ("hostile_bigrec.mcap", &["the channel record (opcode 0x04) at byte offset 86 declares 209715200 bytes"]),
+        ("hostile_channel_metadata.mcap", &["the channel record at byte offset", "has a string in its metadata"]),
         ("hostile_chunk_index.mcap", &["the chunk index record at byte offset", "declares a compression of"]),
         (
             "hostile_header.mcap",

@@ -255,7 +255,7 @@ impl<R: Read + Seek> Walk<R> {
                     self.skip_to(self.at + n)?;
                     continue;
                 }
-                Field::Len32(name) => (name, 4),
+                Field::Len32(name) | Field::StrMap(name) => (name, 4),
                 Field::Len64(name) => (name, 8),
             };
             if end - self.at < prefix {
@@ -273,6 +273,30 @@ impl<R: Read + Seek> Walk<R> {
                     kind(op)
                 ));
             }
+            if matches!(field, Field::StrMap(_)) {
+                self.string_map(op, offset, name, self.at + n)?;
+            } else {
+                self.skip_to(self.at + n)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Checks the keys and values of a map of strings that ends at `end`:
+    /// each string's declared length within what is left of the map.
+    fn string_map(&mut self, op: u8, offset: u64, name: &str, end: u64) -> Result<(), String> {
+        while self.at < end {
+            let left = end - self.at;
+            let n = if left >= 4 { u64::from(self.u32()?) } else { u64::MAX };
+            if n > left.saturating_sub(4) {
+                return Err(format!(
+                    "corrupt MCAP file: the {} record at byte offset {offset} has a string in its {name} declaring \
+                     {} bytes, but only {} remain in the {name}",
+                    kind(op),
+                    if n == u64::MAX { "more".to_string() } else { n.to_string() },
+                    left.saturating_sub(4)
+                ));
+            }
             self.skip_to(self.at + n)?;
         }
         Ok(())
@@ -285,23 +309,26 @@ enum Field {
     Skip(u64),
     Len32(&'static str),
     Len64(&'static str),
+    /// A map of strings to strings (4-byte length, then length-prefixed
+    /// keys and values).
+    StrMap(&'static str),
 }
 
 /// The fields of the records that hold length-prefixed fields, up to the
 /// last of those (MCAP specification, records section); `None` for the
 /// others. A chunk's own header is checked by `Walk::chunk`.
 fn layout(op: u8) -> Option<&'static [Field]> {
-    use Field::{Len32, Len64, Skip};
+    use Field::{Len32, Len64, Skip, StrMap};
     Some(match op {
         HEADER => &[Len32("profile"), Len32("library")],
         SCHEMA => &[Skip(2), Len32("name"), Len32("encoding"), Len32("data")],
-        CHANNEL => &[Skip(4), Len32("topic name"), Len32("message encoding"), Len32("metadata")],
+        CHANNEL => &[Skip(4), Len32("topic name"), Len32("message encoding"), StrMap("metadata")],
         MESSAGE_INDEX => &[Skip(2), Len32("records")],
         CHUNK_INDEX => &[Skip(32), Len32("message index offsets"), Skip(8), Len32("compression")],
         ATTACHMENT => &[Skip(16), Len32("name"), Len32("media type"), Len64("data")],
         ATTACHMENT_INDEX => &[Skip(40), Len32("name"), Len32("media type")],
         STATISTICS => &[Skip(42), Len32("channel message counts")],
-        METADATA => &[Len32("name"), Len32("metadata")],
+        METADATA => &[Len32("name"), StrMap("metadata")],
         METADATA_INDEX => &[Skip(16), Len32("name")],
         _ => return None,
     })
