@@ -201,6 +201,14 @@ impl<R: Read + Seek> Walk<R> {
             self.strings(op, inner)?;
             self.skip_to(body_start + inner)?;
         }
+        // A chunk's records fill it: bytes too few for a record header
+        // would be read by the MCAP reader as a record reaching past it.
+        if self.at < records_end {
+            return Err(format!(
+                "corrupt MCAP file: {within} ends with {} byte(s) that are not a whole record",
+                records_end - self.at
+            ));
+        }
         Ok(())
     }
 
