@@ -238,12 +238,13 @@ pub struct CalibrationArgs {
     /// Replicates B of the bias correction that is on by default (B = 4):
     /// the estimator's own bias is subtracted from every parameter, estimated
     /// by a parametric bootstrap of B re-simulations in antithetic pairs (B
-    /// even; seed --bootstrap-seed) on the smoothed trajectory, each holding
-    /// the fitted noise model; θ's σ includes its Monte Carlo error. It
-    /// removes the bias heavy wheel noise puts on t_r (simulated `high`
-    /// preset, 20 drives: t_r +1.10 % → +0.46 %, every parameter within
-    /// |t| ≤ 1.9, 94 % coverage) at 1.3–1.5× the time of the uncorrected fit
-    /// (B = 4). It runs only for a fit that is kept.
+    /// even; seed --bootstrap-seed) on the smoothed trajectory, each fitted
+    /// by one scoring step from the estimate with the fitted noise model
+    /// held; θ's σ includes its Monte Carlo error. It removes the bias heavy
+    /// wheel noise puts on t_r (simulated `high` preset, 20 drives, with
+    /// replicates fitted to convergence: t_r +1.10 % → +0.46 %, every
+    /// parameter within |t| ≤ 1.9, 94 % coverage; one-step replicates remove
+    /// about 12 % less of it there). It runs only for a fit that is kept.
     #[arg(long, value_name = "B", help_heading = EIV_BIAS, hide_short_help = true,
           value_parser = parse_even_replicates, conflicts_with = "no_bias_correction")]
     pub correct_bias: Option<usize>,
