@@ -125,7 +125,8 @@ fn bag_reproducers_name_their_cause() {
     let expect: &[(&str, &[&str])] = &[
         ("hostile_bigrec.mcap", &["the channel record (opcode 0x04) at byte offset 86 declares 209715200 bytes"]),
         ("hostile_channel_metadata.mcap", &["the channel record at byte offset", "has a string in its metadata"]),
-        ("hostile_chunk_index.mcap", &["the chunk index record at byte offset", "declares a compression of"]),
+        ("hostile_chunk_index.mcap", &["the chunk index record at byte offset 30 declares a message index offsets of 4 bytes, not a whole"]),
+        ("hostile_chunk_index2.mcap", &["the chunk index record at byte offset 30 declares a message index offsets of 23 bytes, not a whole number of its 10-byte entries"]),
         ("hostile_chunk_tail.mcap", &["its chunk (at byte offset 30) ends with 6 byte(s) that are not a whole record"]),
         (
             "hostile_header.mcap",

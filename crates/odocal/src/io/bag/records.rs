@@ -263,7 +263,7 @@ impl<R: Read + Seek> Walk<R> {
                     self.skip_to(self.at + n)?;
                     continue;
                 }
-                Field::Len32(name) | Field::StrMap(name) => (name, 4),
+                Field::Len32(name) | Field::StrMap(name) | Field::Entries(name, _) => (name, 4),
                 Field::Len64(name) => (name, 8),
             };
             if end - self.at < prefix {
@@ -280,6 +280,15 @@ impl<R: Read + Seek> Walk<R> {
                      only {left} remain in the record",
                     kind(op)
                 ));
+            }
+            if let Field::Entries(_, size) = *field {
+                if n % size != 0 {
+                    return Err(format!(
+                        "corrupt MCAP file: the {} record at byte offset {offset} declares a {name} of {n} bytes, \
+                         not a whole number of its {size}-byte entries",
+                        kind(op)
+                    ));
+                }
             }
             if matches!(field, Field::StrMap(_)) {
                 self.string_map(op, offset, name, self.at + n)?;
@@ -320,22 +329,26 @@ enum Field {
     /// A map of strings to strings (4-byte length, then length-prefixed
     /// keys and values).
     StrMap(&'static str),
+    /// A map or array of fixed-size entries (4-byte length, then entries of
+    /// this many bytes): a length between entries would shift every field
+    /// after it.
+    Entries(&'static str, u64),
 }
 
 /// The fields of the records that hold length-prefixed fields, up to the
 /// last of those (MCAP specification, records section); `None` for the
 /// others. A chunk's own header is checked by `Walk::chunk`.
 fn layout(op: u8) -> Option<&'static [Field]> {
-    use Field::{Len32, Len64, Skip, StrMap};
+    use Field::{Entries, Len32, Len64, Skip, StrMap};
     Some(match op {
         HEADER => &[Len32("profile"), Len32("library")],
         SCHEMA => &[Skip(2), Len32("name"), Len32("encoding"), Len32("data")],
         CHANNEL => &[Skip(4), Len32("topic name"), Len32("message encoding"), StrMap("metadata")],
-        MESSAGE_INDEX => &[Skip(2), Len32("records")],
-        CHUNK_INDEX => &[Skip(32), Len32("message index offsets"), Skip(8), Len32("compression")],
+        MESSAGE_INDEX => &[Skip(2), Entries("records", 16)],
+        CHUNK_INDEX => &[Skip(32), Entries("message index offsets", 10), Skip(8), Len32("compression")],
         ATTACHMENT => &[Skip(16), Len32("name"), Len32("media type"), Len64("data")],
         ATTACHMENT_INDEX => &[Skip(40), Len32("name"), Len32("media type")],
-        STATISTICS => &[Skip(42), Len32("channel message counts")],
+        STATISTICS => &[Skip(42), Entries("channel message counts", 10)],
         METADATA => &[Len32("name"), StrMap("metadata")],
         METADATA_INDEX => &[Skip(16), Len32("name")],
         _ => return None,
