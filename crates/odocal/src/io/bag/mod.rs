@@ -721,7 +721,8 @@ impl Bag {
         reader.finish()
     }
 
-    /// The header record's profile and library.
+    /// The header record's profile and library (its string lengths were
+    /// checked by the length walk at [`Bag::open`]).
     fn header(&mut self) -> Result<(String, String)> {
         let corrupt = |reason: String| Error::Bag { path: self.path.clone(), topic: None, reason };
         self.file.rewind().map_err(|e| Error::Io { path: self.path.clone(), source: e })?;
@@ -735,23 +736,6 @@ impl Bag {
         }
         let mut body = vec![0u8; len as usize];
         self.file.read_exact(&mut body).map_err(|_| corrupt("truncated MCAP file: the header record is cut".into()))?;
-        // The MCAP parser reserves a string's declared length before reading
-        // it: check both strings against the record first.
-        let mut at = 0usize;
-        for field in ["profile", "library"] {
-            let declared = body.get(at..at + 4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize);
-            let left = body.len().saturating_sub(at + 4);
-            match declared {
-                Some(n) if n <= left => at += 4 + n,
-                Some(n) => {
-                    return Err(corrupt(format!(
-                        "corrupt MCAP file: the header record declares a {field} of {n} bytes, but only {left} \
-                         remain in the record"
-                    )))
-                }
-                None => return Err(corrupt(format!("corrupt MCAP file: the header record ends before its {field}"))),
-            }
-        }
         match mcap::parse_record(mcap::records::op::HEADER, &body) {
             Ok(mcap::records::Record::Header(h)) => Ok((h.profile, h.library)),
             Ok(_) | Err(_) => Err(corrupt("corrupt MCAP file: the header record does not parse".into())),
