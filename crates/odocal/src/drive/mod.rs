@@ -55,6 +55,7 @@ use std::ops::Range;
 
 pub use self::fingerprint::refuse_duplicates;
 pub use self::stream::{DriveStream, StreamChunk, StreamChunks};
+pub(crate) use self::stream::Unwrap;
 
 pub(crate) use self::csv::{clip, echo};
 use crate::error::{Error, Result};

@@ -501,13 +501,13 @@ impl Scanner {
 /// Unwraps a heading sample by sample with the arithmetic of
 /// [`super::unwrap_in_place`] (the first sample as it is).
 #[derive(Debug, Default)]
-struct Unwrap {
+pub(crate) struct Unwrap {
     offset: f64,
     prev_raw: Option<f64>,
 }
 
 impl Unwrap {
-    fn next(&mut self, raw: f64) -> f64 {
+    pub(crate) fn next(&mut self, raw: f64) -> f64 {
         let Some(prev) = self.prev_raw.replace(raw) else { return raw };
         let two_pi = 2.0 * std::f64::consts::PI;
         let d = raw - prev;

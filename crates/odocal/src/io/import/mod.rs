@@ -235,6 +235,7 @@ mod report;
 mod settings;
 mod signal;
 mod source;
+pub(crate) mod stream;
 #[cfg(test)]
 pub(crate) mod tests;
 mod wheels;

@@ -1,0 +1,470 @@
+//! The import of a manifest's streams as their messages arrive
+//! ([`RawStream`], and [`ManifestStream`] reading the CSV files of a
+//! manifest incrementally): canonical samples come out as soon as every
+//! stream has passed their time, in memory that does not grow with the
+//! drive.
+//!
+//! Each step is the whole import's ([`import`](super::import)) with the
+//! same arithmetic, on a window of the streams instead of all of them:
+//!
+//! - **de-jittering** fits each stamp over the ±`dejitter_window_s`/2
+//!   samples around it, held in a window (a stamp whose fit would not
+//!   follow the previous one keeps its raw stamp, where the whole import
+//!   keeps the raw stamps of the whole run);
+//! - **wheels, pose, IMU and sideslip** are cumulated, converted and
+//!   unwrapped row by row, and interpolated at the output times from the
+//!   rows around them;
+//! - the **clock offset** is estimated once, on a *warm-up prefix*: the
+//!   first [`StreamOptions::warm_up_s`] of the wheel stream (and the rows of
+//!   the other streams up to the same time). The streams are held until
+//!   then; the offset is fixed from then on. A drive no longer than the
+//!   warm-up is estimated on all of it, as the whole import does; a longer
+//!   one on its start (the estimate's uncertainty is reported);
+//! - the checks that judge the **whole drive** run on the warm-up prefix
+//!   (the pose's speed, the wheel counter's width); the per-sample limits
+//!   on every sample; parts shorter than `min_part_s` are held until they
+//!   are long enough or end.
+//!
+//! Not streamed (refused by [`RawStream::new`] with the reason; the whole
+//! import reads them): `mcap` and `parquet` sources, a heading derived from
+//! the track, a lateral acceleration from the pose, a road bank, and the
+//! dropping of corrupt wheel rows (a corrupt row stops the streamed import
+//! at the wheel speed check). The wheel and heading convention checks and
+//! the jitter report of the whole import are not made.
+
+mod condition;
+mod engine;
+mod parts;
+mod reader;
+mod tracks;
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+pub use reader::ManifestStream;
+
+use super::manifest::{LateralAccelerationSpec, Manifest, SourceSpec};
+use super::report::{ClockOffsetReport, ImportReport};
+use super::source::Stream;
+use super::{clock, grid, pose, wheels};
+use crate::drive::Signals;
+use crate::error::{Error, Result};
+use condition::{Conditioner, Row};
+use engine::Engine;
+
+/// Settings of the streamed import.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StreamOptions {
+    /// Wheel-stream time over which the clock offset is estimated before
+    /// any sample comes out, s (default [`StreamOptions::DEFAULT_WARM_UP_S`]).
+    pub warm_up_s: f64,
+}
+
+impl StreamOptions {
+    /// The default warm-up, s: long enough for the clock estimate to see
+    /// several turns and speed changes, short enough that the held streams
+    /// stay small (5 min of a 1 kHz wheel log is 300,000 rows).
+    pub const DEFAULT_WARM_UP_S: f64 = 300.0;
+}
+
+impl Default for StreamOptions {
+    fn default() -> StreamOptions {
+        StreamOptions { warm_up_s: StreamOptions::DEFAULT_WARM_UP_S }
+    }
+}
+
+/// Canonical samples of a streamed import, all of one part.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImportChunk {
+    /// The kept part they belong to (0, 1, …).
+    pub part: usize,
+    /// The index of the first of them among the drive's samples.
+    pub start: usize,
+    /// True when the first of them starts its part.
+    pub starts_part: bool,
+    /// Drive time, s (0 at the drive's origin, as [`import`](super::import)'s).
+    pub t: Vec<f64>,
+    /// The signals, the heading unwrapped over the drive.
+    pub signals: Signals,
+    /// Whether the reference was measured at each sample ([`crate::Drive::reference_measured`]).
+    pub reference_measured: Vec<bool>,
+}
+
+/// Why a manifest cannot be imported as a stream (`None` when it can).
+pub fn not_streamable(m: &Manifest) -> Option<String> {
+    if let Some((name, s)) = m.streams.iter().find(|(_, s)| !matches!(s.source, SourceSpec::Csv { .. })) {
+        return Some(format!("streams.{name} is a {} source, read whole", s.source.format()));
+    }
+    if m.pose.heading.is_none() {
+        return Some("the heading is derived from the track ([pose.heading] is not given)".into());
+    }
+    if matches!(m.lateral_acceleration, LateralAccelerationSpec::FromPose { .. }) {
+        return Some("lateral_acceleration.source = \"from_pose\"".into());
+    }
+    if m.lateral_acceleration.bank().is_some() {
+        return Some("[lateral_acceleration.bank] (the roll is smoothed over the whole drive)".into());
+    }
+    None
+}
+
+/// The import of a manifest's streams message by message, for a live
+/// system or a replay in time order (see the module's docs).
+///
+/// Each stream's messages are pushed in time order
+/// ([`RawStream::push_message`]); canonical samples come out
+/// ([`RawStream::take_chunk`]) once every stream has passed their time and
+/// the warm-up is over. [`RawStream::finish`] ends the drive.
+///
+/// ```
+/// # fn main() -> Result<(), odocal::Error> {
+/// use odocal::online::{ManifestStream, StreamOptions};
+/// let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/comma2k19-rav4/manifest.toml");
+/// let manifest = odocal::Manifest::from_path(path.as_ref())?;
+/// let mut stream = ManifestStream::open(&manifest, StreamOptions::default())?;
+/// let mut samples = 0;
+/// while let Some(chunk) = stream.next_chunk(400)? {
+///     samples += chunk.t.len();
+/// }
+/// assert_eq!(samples, odocal::import(&manifest)?.drive.len());
+/// # Ok(()) }
+/// ```
+#[derive(Debug)]
+pub struct RawStream {
+    m: Manifest,
+    opts: StreamOptions,
+    h: f64,
+    /// Each stream's conditioning and its column names.
+    streams: BTreeMap<String, (Conditioner, Vec<String>)>,
+    engine: Option<Engine>,
+    clock: Option<ClockOffsetReport>,
+    warnings: Vec<String>,
+    taken: usize,
+    last_part: Option<usize>,
+    report: Option<ImportReport>,
+    started: Instant,
+}
+
+impl RawStream {
+    /// The streamed import of `manifest`.
+    ///
+    /// # Errors
+    /// [`Error::Manifest`] when the manifest asks for what is not streamed
+    /// ([`not_streamable`]) or the warm-up is not a positive number of seconds.
+    pub fn new(manifest: &Manifest, opts: StreamOptions) -> Result<RawStream> {
+        if let Some(why) = not_streamable(manifest) {
+            return Err(manifest.error(
+                "streams",
+                format!("the manifest cannot be imported as a stream: {why}; odocal::import reads it whole"),
+            ));
+        }
+        if !(opts.warm_up_s.is_finite() && opts.warm_up_s > 0.0) {
+            return Err(manifest.error("warm_up_s", format!("{} is not a positive number of seconds", opts.warm_up_s)));
+        }
+        let mut streams = BTreeMap::new();
+        for (name, wanted) in super::wanted_columns(manifest) {
+            let mut cols: Vec<String> = Vec::new();
+            for w in wanted {
+                if !cols.contains(&w.column) {
+                    cols.push(w.column);
+                }
+            }
+            streams.insert(name.clone(), (Conditioner::new(manifest, &name), cols));
+        }
+        Ok(RawStream {
+            m: manifest.clone(),
+            h: 1.0 / manifest.output.rate_hz,
+            opts,
+            streams,
+            engine: None,
+            clock: None,
+            warnings: manifest.unused_wheel_keys(),
+            taken: 0,
+            last_part: None,
+            report: None,
+            started: Instant::now(),
+        })
+    }
+
+    /// The streams the manifest reads, with the columns each message
+    /// carries, in the order [`RawStream::push_message`] takes them.
+    pub fn columns(&self) -> impl Iterator<Item = (&str, &[String])> {
+        self.streams.iter().map(|(n, (_, c))| (n.as_str(), c.as_slice()))
+    }
+
+    /// Takes one message of stream `stream`: its time `t` in the stream's
+    /// `time_unit` (before `time_offset_s`), and the values of its columns
+    /// ([`RawStream::columns`]). Messages of one stream come in time order.
+    ///
+    /// # Errors
+    /// An unknown stream or a wrong number of values; the whole import's
+    /// errors about the stream's rows (time going backwards, a value that
+    /// is not finite, a limit exceeded), naming the row.
+    pub fn push_message(&mut self, stream: &str, t: f64, values: &[f64]) -> Result<()> {
+        self.push_row(stream, t, values.to_vec(), None)
+    }
+
+    pub(crate) fn push_row(&mut self, stream: &str, t: f64, values: Vec<f64>, line: Option<u64>) -> Result<()> {
+        let Some((c, cols)) = self.streams.get_mut(stream) else {
+            return Err(self.m.error("streams", format!("no stream '{stream}' is read by the manifest")));
+        };
+        if values.len() != cols.len() {
+            return Err(self.m.error(
+                &format!("streams.{stream}"),
+                format!("a message has {} values; the stream's columns are {}", values.len(), cols.join(", ")),
+            ));
+        }
+        if c.ended {
+            return Err(self.m.error(&format!("streams.{stream}"), "a message after the stream's end"));
+        }
+        c.push(t, values, line)?;
+        self.advance()
+    }
+
+    /// No more messages of `stream` come.
+    ///
+    /// # Errors
+    /// As [`RawStream::push_message`].
+    pub fn end_stream(&mut self, stream: &str) -> Result<()> {
+        match self.streams.get_mut(stream) {
+            Some((c, _)) => c.end(),
+            None => return Err(self.m.error("streams", format!("no stream '{stream}' is read by the manifest"))),
+        }
+        self.advance()
+    }
+
+    /// Ends every stream and the drive: the last samples come out, and the
+    /// report ([`RawStream::report`]).
+    ///
+    /// # Errors
+    /// The whole import's errors about the drive as a whole: streams that
+    /// do not overlap, no part of at least `min_part_s`.
+    pub fn finish(&mut self) -> Result<()> {
+        for (c, _) in self.streams.values_mut() {
+            if !c.ended {
+                c.end();
+            }
+        }
+        self.advance()?;
+        let (m, h) = (&self.m, self.h);
+        let Some(e) = self.engine.as_mut() else { return Err(m.error("streams", "the streams hold no rows")) };
+        e.wheel.ended = true;
+        e.pose.ended = true;
+        for c in [e.imu.as_mut(), e.side.as_mut()].into_iter().flatten() {
+            c.track.ended = true;
+        }
+        let spans = e.spans(m).ok_or_else(|| m.error("streams", "no streams"))?;
+        let (start, end) = grid::common_span(m, &spans, h)?;
+        e.try_start(m);
+        e.n_end = Some(((end - start) / h).floor() as usize);
+        e.step(m)?;
+        let Some(asm) = e.asm.as_mut() else { return Err(m.error("streams", "no streams")) };
+        asm.close_run(m)?;
+        if asm.kept_parts == 0 {
+            return Err(Error::InvalidDrive {
+                context: m.path.display().to_string(),
+                reason: format!(
+                    "no continuous part of at least output.min_part_s = {} s ({} parts, {} gaps); lower \
+                     min_part_s or check the gaps",
+                    m.output.min_part_s,
+                    asm.parts.len(),
+                    asm.gaps.len()
+                ),
+            });
+        }
+        let clock = self.clock.clone().ok_or_else(|| m.error("output.clock_offset", "no clock offset was estimated"))?;
+        self.report = Some(self.make_report(start, end, clock));
+        Ok(())
+    }
+
+    /// Up to `max` (at least 1) canonical samples of one part that are
+    /// ready, oldest first; `None` when none is.
+    pub fn take_chunk(&mut self, max: usize) -> Option<ImportChunk> {
+        let asm = self.engine.as_mut()?.asm.as_mut()?;
+        let part = asm.out.front()?.part;
+        let n = asm.out.iter().take(max.max(1)).take_while(|s| s.part == part).count();
+        let mut signals = Signals::with_capacity(n);
+        let (mut t, mut measured) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        for s in asm.out.drain(..n) {
+            t.push(s.t);
+            signals.push(s.sig);
+            measured.push(s.measured);
+        }
+        let starts_part = self.last_part != Some(part);
+        self.last_part = Some(part);
+        let start = self.taken;
+        self.taken += n;
+        Some(ImportChunk { part, start, starts_part, t, signals, reference_measured: measured })
+    }
+
+    /// Samples ready of the oldest part with samples ready, and whether
+    /// that part has ended.
+    pub(crate) fn front_part(&self) -> (usize, bool) {
+        let Some(asm) = self.engine.as_ref().and_then(|e| e.asm.as_ref()) else { return (0, false) };
+        let Some(part) = asm.out.front().map(|s| s.part) else { return (0, false) };
+        let n = asm.out.iter().take_while(|s| s.part == part).count();
+        (n, n < asm.out.len() || asm.kept_parts > part)
+    }
+
+    /// The clock offset, once the warm-up is over.
+    pub fn clock_offset(&self) -> Option<&ClockOffsetReport> {
+        self.clock.as_ref()
+    }
+
+    /// What was read, estimated, split and dropped, after
+    /// [`RawStream::finish`] (the whole import's report; no jitter report).
+    pub fn report(&self) -> Option<&ImportReport> {
+        self.report.as_ref()
+    }
+
+    /// Rows held by the streamed import (the warm-up, the de-jitter
+    /// windows, the rows around the next output time), and samples ready.
+    pub fn held(&self) -> usize {
+        let conditioned: usize = self.streams.values().map(|(c, _)| c.ready.len()).sum();
+        let e = self.engine.as_ref().map_or(0, |e| {
+            e.wheel.t.len()
+                + e.pose.t.len()
+                + [e.imu.as_ref(), e.side.as_ref()].into_iter().flatten().map(|c| c.track.t.len()).sum::<usize>()
+                + e.asm.as_ref().map_or(0, |a| a.out.len())
+        });
+        conditioned + e
+    }
+
+    /// Moves conditioned rows on: the warm-up's decision, then the tracks
+    /// and the output.
+    fn advance(&mut self) -> Result<()> {
+        if self.engine.is_none() && !self.decide()? {
+            return Ok(());
+        }
+        let Some(e) = self.engine.as_mut() else { return Ok(()) };
+        let m = &self.m;
+        for (name, (c, _)) in self.streams.iter_mut() {
+            while let Some(row) = c.ready.pop_front() {
+                e.push(m, name, &row)?;
+            }
+            if c.ended {
+                match name {
+                    n if *n == m.wheels.stream => e.wheel.ended = true,
+                    n if *n == m.pose.stream => e.pose.ended = true,
+                    _ => {}
+                }
+                for col in [e.imu.as_mut(), e.side.as_mut()].into_iter().flatten() {
+                    if col.stream == *name {
+                        col.track.ended = true;
+                    }
+                }
+            }
+        }
+        e.try_start(m);
+        e.step(m)
+    }
+
+    /// Once every stream is past the warm-up (or has ended): the clock
+    /// offset from the warm-up prefix, and the engine. False while waiting.
+    fn decide(&mut self) -> Result<bool> {
+        let m = &self.m;
+        let Some(w0) = self.streams[&m.wheels.stream].0.ready.front().map(|r| r.t) else {
+            if self.streams.values().all(|(c, _)| c.ended) {
+                return Err(self.empty_stream());
+            }
+            return Ok(false);
+        };
+        let t_w = w0 + self.opts.warm_up_s;
+        let past = |c: &Conditioner| c.ended || c.ready.back().is_some_and(|r| r.t > t_w);
+        if !self.streams.values().all(|(c, _)| past(c)) {
+            return Ok(false);
+        }
+        if let Some((name, _)) = self.streams.iter().find(|(_, (c, _))| c.ready.is_empty()) {
+            return Err(m.error(&format!("streams.{name}.file"), format!("{} has no data rows", name)));
+        }
+        let prefix = |name: &str| -> Stream {
+            let (c, cols) = &self.streams[name];
+            prefix_stream(c, cols, t_w)
+        };
+        let (ws, ps) = (prefix(&m.wheels.stream), prefix(&m.pose.stream));
+        let h = self.h;
+        let w = &m.wheels;
+        let cum_l = wheels::wheel_revolutions(m, &ws, &w.rear_left, "wheels.rear_left")?;
+        let cum_r = wheels::wheel_revolutions(m, &ws, &w.rear_right, "wheels.rear_right")?;
+        let wheel_bad = grid::gaps_of(&ws.t, m.output.max_gap_s, "wheel");
+        let pose = pose::build_pose(m, &ps, &mut self.warnings)?;
+        super::check_budgets(m, &ws.t, &pose.t, h)?;
+        let track = clock::WheelTrack { t: &ws.t, cum_l: &cum_l, cum_r: &cum_r, bad: &wheel_bad };
+        let theta0 = m.output.theta0();
+        let clock = clock::align(m, &track, &pose, h, &theta0, &mut self.warnings)?;
+        let offset = clock.applied_s;
+        self.clock = Some(clock);
+        let index = |stream: &str, col: &str| self.streams[stream].1.iter().position(|c| c == col).unwrap_or(0);
+        self.engine = Some(Engine::new(m, h, offset, index));
+        Ok(true)
+    }
+
+    fn empty_stream(&self) -> Error {
+        let name = &self.m.wheels.stream;
+        self.m.error(&format!("streams.{name}.file"), format!("{name} has no data rows"))
+    }
+
+    /// The report once the drive has ended.
+    fn make_report(&self, start: f64, end: f64, clock_offset: ClockOffsetReport) -> ImportReport {
+        let (m, h) = (&self.m, self.h);
+        let mut warnings = self.warnings.clone();
+        for (c, _) in self.streams.values() {
+            if c.fallbacks() > 0 {
+                warnings.push(format!(
+                    "streams.{}: {} de-jittered stamp(s) did not follow the previous one and kept their raw stamp \
+                     (or were dropped)",
+                    c.name,
+                    c.fallbacks()
+                ));
+            }
+        }
+        let asm = self.engine.as_ref().and_then(|e| e.asm.as_ref());
+        let samples = asm.map_or(0, |a| a.samples);
+        let theta0 = m.output.theta0();
+        ImportReport {
+            manifest: m.path.clone(),
+            streams: self.streams.values().map(|(c, _)| c.report()).collect(),
+            output_rate_hz: m.output.rate_hz,
+            time_origin_s: start,
+            common_span_s: [0.0, end - start],
+            clock_offset,
+            gaps: asm.map(|a| a.gaps.clone()).unwrap_or_default(),
+            parts: asm.map(|a| a.parts.clone()).unwrap_or_default(),
+            samples,
+            duration_s: samples as f64 * h,
+            distance_m: asm.map_or(0.0, |a| a.distance_m),
+            wheel_scale: wheels::wheel_scale(m),
+            lateral_acceleration: match &m.lateral_acceleration {
+                LateralAccelerationSpec::Imu { stream, column, sign } => {
+                    format!("IMU column '{column}' of stream '{stream}' × {sign:+}, mean over each output interval")
+                }
+                LateralAccelerationSpec::FromWheels { smoothing_s, .. } => {
+                    format!("from wheels: v·ω of the model at θ_0 = {theta0}, smoothed over {smoothing_s} s")
+                }
+                LateralAccelerationSpec::FromPose { .. } => String::new(),
+            },
+            jitter: None,
+            warnings,
+            noise: m.noise.clone(),
+            reference: m.reference.clone(),
+            calibration: m.calibration.clone(),
+            elapsed_s: self.started.elapsed().as_secs_f64(),
+        }
+    }
+}
+
+/// The rows of a stream up to `t_w` as the whole import's [`Stream`].
+fn prefix_stream(c: &Conditioner, cols: &[String], t_w: f64) -> Stream {
+    let n = c.ready.iter().take_while(|r| r.t <= t_w).count().max(2).min(c.ready.len());
+    let rows = || c.ready.iter().take(n);
+    Stream {
+        path: c.path().to_path_buf(),
+        t: rows().map(|r| r.t).collect(),
+        t_raw: rows().map(|r| r.t_raw).collect(),
+        cols: cols.iter().enumerate().map(|(i, name)| (name.clone(), rows().map(|r| r.values[i]).collect())).collect(),
+        lines: rows().map(|r| r.line).collect(),
+        report: c.report(),
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,376 @@
+//! The output samples of the streamed import, in time order: runs of
+//! valid samples become parts once they are `min_part_s` long (shorter ones
+//! are dropped), a_y is smoothed within each part and judged, and the
+//! kept samples are handed out; gaps and parts are recorded for the report.
+
+use std::collections::VecDeque;
+
+use super::super::limits::{echo_num, within};
+use super::super::manifest::{LateralAccelerationSpec, Manifest, WheelSignal};
+use super::super::report::{GapRecord, PartRecord};
+use crate::error::Result;
+
+/// One output sample before the parts: its grid index, the signals
+/// `[px, py, ψ, n_rl, n_rr, β, a_y]` (a_y before smoothing), whether the
+/// reference was measured at it, and why it is invalid (`None`: valid).
+#[derive(Debug, Clone)]
+pub(crate) struct GridSample {
+    pub k: usize,
+    pub sig: [f64; 7],
+    pub measured: bool,
+    pub invalid: Option<String>,
+}
+
+/// A kept output sample.
+#[derive(Debug, Clone)]
+pub(crate) struct OutSample {
+    /// Index of its part among the kept parts.
+    pub part: usize,
+    /// Drive time, s (grid index × step).
+    pub t: f64,
+    /// `[px, py, ψ, n_rl, n_rr, β, a_y]`, ψ unwrapped over the drive.
+    pub sig: [f64; 7],
+    /// True when the reference was measured at this sample.
+    pub measured: bool,
+}
+
+/// A centred moving average over a part that grows as samples arrive,
+/// with the arithmetic of [`moving_average`](super::super::signal::moving_average):
+/// prefix sums from the part's start, each output once its window is complete.
+#[derive(Debug)]
+struct Smoother {
+    half: usize,
+    /// Prefix sums `pre[base..]`.
+    pre: VecDeque<f64>,
+    base: usize,
+    /// Inputs fed.
+    n: usize,
+    /// Index of the next output.
+    next: usize,
+}
+
+impl Smoother {
+    fn new(half: usize) -> Smoother {
+        Smoother { half, pre: VecDeque::from([0.0]), base: 0, n: 0, next: 0 }
+    }
+
+    fn pre(&self, i: usize) -> f64 {
+        self.pre[i - self.base]
+    }
+
+    /// Feeds `x`; returns the outputs that became complete.
+    fn feed(&mut self, x: f64, out: &mut Vec<f64>) {
+        let last = *self.pre.back().unwrap_or(&0.0);
+        self.pre.push_back(last + x);
+        self.n += 1;
+        while self.next + self.half < self.n {
+            self.output(self.next + self.half + 1, out);
+        }
+    }
+
+    /// The part has ended: the remaining outputs.
+    fn finish(&mut self, out: &mut Vec<f64>) {
+        while self.next < self.n {
+            self.output((self.next + self.half + 1).min(self.n), out);
+        }
+    }
+
+    fn output(&mut self, hi: usize, out: &mut Vec<f64>) {
+        let lo = self.next.saturating_sub(self.half);
+        out.push((self.pre(hi) - self.pre(lo)) / (hi - lo) as f64);
+        self.next += 1;
+        while self.base + self.half < self.next && self.pre.len() > 1 {
+            self.pre.pop_front();
+            self.base += 1;
+        }
+    }
+}
+
+/// A two-stage smoothing of a_y within a part: the lateral acceleration's
+/// own smoothing, then the judging window of the limit check (skipped for
+/// an IMU's a_y, judged as it is); `half == 0` leaves a stage out.
+#[derive(Debug)]
+struct PartPipe {
+    first: Option<Smoother>,
+    judge: Option<Smoother>,
+    /// Samples waiting for their smoothed a_y (first stage) and judged a_y.
+    waiting: VecDeque<GridSample>,
+    /// Smoothed a_y of the oldest waiting samples without a judged value yet.
+    smoothed: VecDeque<f64>,
+    judged: VecDeque<f64>,
+}
+
+/// The runs, parts, checks and output of the streamed import.
+#[derive(Debug)]
+pub(crate) struct Assembler {
+    h: f64,
+    origin_s: f64,
+    min_samples: usize,
+    c_e: f64,
+    half_first: usize,
+    half_judge: usize,
+    /// Valid samples of a run not yet `min_part_s` long.
+    run: Vec<GridSample>,
+    /// The current run: first grid index, valid?
+    run_start: Option<(usize, bool)>,
+    run_len: usize,
+    gap_reasons: Vec<String>,
+    pipe: Option<PartPipe>,
+    unwrap: crate::drive::Unwrap,
+    prev_xy: Option<(f64, f64)>,
+    /// Kept samples ready to be taken.
+    pub out: VecDeque<OutSample>,
+    /// The runs so far.
+    pub gaps: Vec<GapRecord>,
+    pub parts: Vec<PartRecord>,
+    /// Kept parts and samples so far.
+    pub kept_parts: usize,
+    pub samples: usize,
+    /// Reference path length of the kept samples, m.
+    pub distance_m: f64,
+}
+
+/// The judging window of a derived a_y, s (as the whole import's check).
+const A_Y_CHECK_SMOOTHING_S: f64 = 0.5;
+
+impl Assembler {
+    /// The assembly of `m`'s output at step `h`; grid index 0 is at
+    /// wheel-clock time `origin_s`.
+    pub(crate) fn new(m: &Manifest, h: f64, origin_s: f64) -> Assembler {
+        let half = |span_s: f64| super::super::signal::odd_width(span_s, h) / 2;
+        let (half_first, half_judge) = match &m.lateral_acceleration {
+            LateralAccelerationSpec::Imu { .. } => (0, 0),
+            LateralAccelerationSpec::FromWheels { smoothing_s, .. }
+            | LateralAccelerationSpec::FromPose { smoothing_s, .. } => (half(*smoothing_s), half(A_Y_CHECK_SMOOTHING_S)),
+        };
+        Assembler {
+            h,
+            origin_s,
+            min_samples: ((m.output.min_part_s / h).ceil() as usize).max(2),
+            c_e: m.output.theta0[0],
+            half_first,
+            half_judge,
+            run: Vec::new(),
+            run_start: None,
+            run_len: 0,
+            gap_reasons: Vec::new(),
+            pipe: None,
+            unwrap: Default::default(),
+            prev_xy: None,
+            out: VecDeque::new(),
+            gaps: Vec::new(),
+            parts: Vec::new(),
+            kept_parts: 0,
+            samples: 0,
+            distance_m: 0.0,
+        }
+    }
+
+    /// Where sample `k` is, for messages.
+    fn at(&self, k: usize) -> String {
+        let t = k as f64 * self.h;
+        format!("t = {t:.3} s (wheel clock {:.3} s)", self.origin_s + t)
+    }
+
+    /// Takes the next grid sample (grid indices consecutive from 0).
+    pub(crate) fn push(&mut self, m: &Manifest, s: GridSample) -> Result<()> {
+        let ok = s.invalid.is_none();
+        match self.run_start {
+            Some((_, was_ok)) if was_ok == ok => {}
+            Some(_) => {
+                self.close_run(m)?;
+                self.run_start = Some((s.k, ok));
+            }
+            None => self.run_start = Some((s.k, ok)),
+        }
+        self.run_len += 1;
+        if !ok {
+            if let Some(r) = &s.invalid {
+                if !self.gap_reasons.contains(r) {
+                    self.gap_reasons.push(r.clone());
+                }
+            }
+            return Ok(());
+        }
+        if self.pipe.is_some() {
+            return self.feed(m, s);
+        }
+        self.run.push(s);
+        if self.run.len() >= self.min_samples {
+            self.pipe = Some(PartPipe {
+                first: (self.half_first > 0).then(|| Smoother::new(self.half_first)),
+                judge: (self.half_judge > 0).then(|| Smoother::new(self.half_judge)),
+                waiting: VecDeque::new(),
+                smoothed: VecDeque::new(),
+                judged: VecDeque::new(),
+            });
+            for s in std::mem::take(&mut self.run) {
+                self.feed(m, s)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Ends the current run (at the end of the drive too).
+    pub(crate) fn close_run(&mut self, m: &Manifest) -> Result<()> {
+        let Some((k0, ok)) = self.run_start.take() else { return Ok(()) };
+        let h = self.h;
+        let (t0, t1) = (k0 as f64 * h, (k0 + self.run_len - 1) as f64 * h);
+        let len = std::mem::take(&mut self.run_len);
+        if !ok {
+            self.gaps.push(GapRecord { t_start_s: t0, t_end_s: t1 + h, reasons: std::mem::take(&mut self.gap_reasons) });
+            return Ok(());
+        }
+        let keep = self.pipe.is_some();
+        self.parts.push(PartRecord {
+            t_start_s: t0,
+            t_end_s: t1,
+            samples: len,
+            kept: keep,
+            dropped_because: (!keep).then(|| {
+                format!("{:.2} s is shorter than output.min_part_s = {} s", len as f64 * h, m.output.min_part_s)
+            }),
+        });
+        self.run.clear();
+        if let Some(mut p) = self.pipe.take() {
+            let mut out = Vec::new();
+            if let Some(f) = p.first.as_mut() {
+                f.finish(&mut out);
+            }
+            self.smoothed_ready(m, &mut p, out)?;
+            let mut out = Vec::new();
+            if let Some(j) = p.judge.as_mut() {
+                j.finish(&mut out);
+            }
+            p.judged.extend(out);
+            self.emit_ready(m, &mut p)?;
+            self.kept_parts += 1;
+            self.prev_xy = None;
+        }
+        Ok(())
+    }
+
+    /// A valid sample of a kept part: the wheel speed check, then the
+    /// smoothing stages.
+    fn feed(&mut self, m: &Manifest, s: GridSample) -> Result<()> {
+        self.check_wheels(m, &s)?;
+        let Some(mut p) = self.pipe.take() else { return Ok(()) };
+        let a = s.sig[6];
+        p.waiting.push_back(s);
+        let mut out = Vec::new();
+        match p.first.as_mut() {
+            Some(f) => f.feed(a, &mut out),
+            None => out.push(a),
+        }
+        let r = self.smoothed_ready(m, &mut p, out);
+        self.pipe = Some(p);
+        r
+    }
+
+    /// First-stage outputs: into the judging stage, then out when judged.
+    fn smoothed_ready(&mut self, m: &Manifest, p: &mut PartPipe, smoothed: Vec<f64>) -> Result<()> {
+        let mut judged = Vec::new();
+        for a in smoothed {
+            p.smoothed.push_back(a);
+            match p.judge.as_mut() {
+                Some(j) => j.feed(a, &mut judged),
+                None => judged.push(a),
+            }
+        }
+        p.judged.extend(judged);
+        self.emit_ready(m, p)
+    }
+
+    /// Hands out the samples whose a_y is smoothed and judged.
+    fn emit_ready(&mut self, m: &Manifest, p: &mut PartPipe) -> Result<()> {
+        while let Some(judged) = p.judged.pop_front() {
+            let (Some(mut s), Some(a)) = (p.waiting.pop_front(), p.smoothed.pop_front()) else { break };
+            if !within(judged, m.limits.max_lateral_acceleration_m_per_s2) {
+                return Err(self.lateral_error(m, judged, s.k));
+            }
+            s.sig[6] = a;
+            s.sig[2] = self.unwrap.next(s.sig[2]);
+            if let Some((x0, y0)) = self.prev_xy {
+                self.distance_m += (s.sig[0] - x0).hypot(s.sig[1] - y0);
+            }
+            self.prev_xy = Some((s.sig[0], s.sig[1]));
+            self.samples += 1;
+            self.out.push_back(OutSample { part: self.kept_parts, t: s.k as f64 * self.h, sig: s.sig, measured: s.measured });
+        }
+        Ok(())
+    }
+
+    /// Each wheel's speed at θ_0 within `limits.max_speed_m_per_s`.
+    fn check_wheels(&self, m: &Manifest, s: &GridSample) -> Result<()> {
+        let max = m.limits.max_speed_m_per_s;
+        for (n, key) in [(s.sig[3], "wheels.rear_left"), (s.sig[4], "wheels.rear_right")] {
+            let v = n * self.c_e;
+            if within(v, max) {
+                continue;
+            }
+            let hint = match m.wheels.signal {
+                WheelSignal::RevPerS | WheelSignal::RadPerS | WheelSignal::MPerS => {
+                    "; if the column counts ticks, use signal = \"ticks_cumulative\" or \"ticks_raw\""
+                }
+                WheelSignal::TicksRaw => "; check wheels.counter_bits and wheels.ticks_per_rev",
+                WheelSignal::TicksCumulative => "; check wheels.ticks_per_rev",
+                WheelSignal::RadCumulative => "; check that the column is an angle in rad (not ticks)",
+            };
+            return Err(m.error(
+                key,
+                format!(
+                    "{} rev/s at {} is {} m/s at θ_0 (c_e = {} m), above limits.max_speed_m_per_s = {max}{hint}",
+                    echo_num(n),
+                    self.at(s.k),
+                    echo_num(v),
+                    self.c_e
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    fn lateral_error(&self, m: &Manifest, a_y: f64, k: usize) -> crate::Error {
+        let max = m.limits.max_lateral_acceleration_m_per_s2;
+        let (key, hint) = match &m.lateral_acceleration {
+            LateralAccelerationSpec::Imu { .. } => ("lateral_acceleration.column", "; is the column in g or the wrong axis?"),
+            LateralAccelerationSpec::FromWheels { .. } => {
+                ("lateral_acceleration", "; the wheel speeds jump there (a corrupt encoder sample?)")
+            }
+            LateralAccelerationSpec::FromPose { .. } => ("lateral_acceleration", "; the reference pose or heading jumps there"),
+        };
+        m.error(
+            key,
+            format!(
+                "a_y = {} m/s² at {} (judged over {A_Y_CHECK_SMOOTHING_S} s unless from an IMU) is above \
+                 limits.max_lateral_acceleration_m_per_s2 = {max}{hint}",
+                echo_num(a_y),
+                self.at(k)
+            ),
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_smoother_is_the_moving_average() {
+        let x: Vec<f64> = (0..50).map(|i| (i as f64 * 0.37).sin() * 3.0 + i as f64 * 0.01).collect();
+        for half in [1usize, 2, 5, 30] {
+            let mut whole = x.clone();
+            crate::drive::plausibility::moving_average(&mut whole, 0..x.len(), 2 * half + 1);
+            let mut s = Smoother::new(half);
+            let mut out = Vec::new();
+            for &v in &x {
+                s.feed(v, &mut out);
+            }
+            s.finish(&mut out);
+            assert_eq!(out.len(), x.len());
+            for (a, b) in out.iter().zip(&whole) {
+                assert_eq!(a.to_bits(), b.to_bits(), "half {half}");
+            }
+        }
+    }
+}
