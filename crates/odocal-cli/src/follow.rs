@@ -8,7 +8,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use odocal::history::{CalibrationRecord, Decision, History};
 use odocal::online::gate::{Action, GateDecision, Gates};
-use odocal::online::{Calibrator, OnlineOptions, RandomWalk};
+use odocal::online::{Calibrator, ManifestStream, OnlineOptions, RandomWalk, StreamOptions};
 use odocal::{Drive, DriveStream, ParamFile, Progress, Theta};
 use serde_json::{json, Value};
 
@@ -254,8 +254,10 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
     Ok(())
 }
 
-/// A drive to replay: a canonical CSV read as a stream (memory flat in its
-/// length), or a manifest's streams imported whole.
+/// A drive to replay: a canonical CSV or a manifest's CSV streams read as a
+/// stream (memory flat in its length; a manifest's samples are kept on
+/// disk), or a manifest the streamed import does not take
+/// (`odocal::online::not_streamable`) imported whole.
 enum Replay {
     Stream(DriveStream),
     Whole(Box<Drive>),
@@ -265,7 +267,12 @@ impl Replay {
     /// Opens the drive at `path`, printing what its reader warns about.
     fn open(path: &std::path::Path) -> Result<Replay> {
         if odocal::is_manifest_path(path) {
-            return Ok(Replay::Whole(Box::new(load_drive_with_scale(path)?.0)));
+            let m = odocal::Manifest::from_path(path)?;
+            if let Some(why) = odocal::online::not_streamable(&m) {
+                eprintln!("note: {}: imported whole ({why})", path.display());
+                return Ok(Replay::Whole(Box::new(load_drive_with_scale(path)?.0)));
+            }
+            return Ok(Replay::Stream(streamed_manifest(path, &m)?));
         }
         let stream = DriveStream::open(path)?;
         for w in stream.warnings() {
@@ -311,6 +318,30 @@ impl Replay {
         }
         Ok(())
     }
+}
+
+/// A manifest imported as a stream ([`ManifestStream`]) into a
+/// [`DriveStream`] (its samples on disk), with the import's warnings shown.
+fn streamed_manifest(path: &std::path::Path, m: &odocal::Manifest) -> Result<DriveStream> {
+    let mut s = ManifestStream::open(m, StreamOptions::default())?;
+    let stream = DriveStream::spool(path, 1.0 / m.output.rate_hz, || {
+        Ok(s.next_chunk(CHUNK)?.map(|c| (c.t, c.signals, c.starts_part)))
+    })?;
+    if let Some(r) = s.report() {
+        eprintln!(
+            "imported {} as a stream: {} samples in {} part(s), {:.2} km, clock offset {:+.4} s from the first {} s",
+            path.display(),
+            r.samples,
+            r.parts.iter().filter(|p| p.kept).count(),
+            r.distance_m / 1e3,
+            r.clock_offset.applied_s,
+            StreamOptions::DEFAULT_WARM_UP_S
+        );
+        for w in &r.warnings {
+            eprintln!("warning: {}: {w}", path.display());
+        }
+    }
+    Ok(stream)
 }
 
 /// The parameters to start from: the vehicle's most recent row in the

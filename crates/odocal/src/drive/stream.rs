@@ -103,6 +103,55 @@ impl DriveStream {
         }
     }
 
+    /// Keeps the canonical samples of a streamed import on disk as a
+    /// stream: `next` hands out chunks of one part each (time stamps,
+    /// signals with the heading unwrapped, and whether the chunk starts a
+    /// part) until `None`; the drive's sample time is `sample_time_s`.
+    /// `path` names the source in messages.
+    ///
+    /// # Errors
+    /// `next`'s; [`Error::Io`] when the temporary files cannot be written.
+    pub fn spool(
+        path: &Path,
+        sample_time_s: f64,
+        mut next: impl FnMut() -> Result<Option<(Vec<f64>, Signals, bool)>>,
+    ) -> Result<DriveStream> {
+        let io = |e: std::io::Error| Error::io(Path::new("a temporary file"), e);
+        let mut out = (0..KEPT)
+            .map(|_| tempfile::tempfile().map(|f| BufWriter::with_capacity(1 << 16, f)))
+            .collect::<std::io::Result<Vec<_>>>()
+            .map_err(io)?;
+        let (mut len, mut parts, mut span) = (0usize, Vec::<Range<usize>>::new(), (f64::NAN, f64::NAN));
+        while let Some((t, s, starts_part)) = next()? {
+            if starts_part || parts.is_empty() {
+                parts.push(len..len);
+            }
+            for (k, col) in [&t, &s.px, &s.py, &s.psi, &s.n_rl, &s.n_rr, &s.beta, &s.a_y].into_iter().enumerate() {
+                for v in col {
+                    out[k].write_all(&v.to_le_bytes()).map_err(io)?;
+                }
+            }
+            if len == 0 {
+                span.0 = t.first().copied().unwrap_or(f64::NAN);
+            }
+            span.1 = t.last().copied().unwrap_or(span.1);
+            len += t.len();
+            if let Some(p) = parts.last_mut() {
+                p.end = len;
+            }
+        }
+        let columns = out.into_iter().map(|w| w.into_inner().map_err(|e| io(e.into_error()))).collect::<Result<_>>()?;
+        Ok(DriveStream {
+            path: path.to_path_buf(),
+            len,
+            parts,
+            sample_time_s,
+            time_span_s: span,
+            columns,
+            warnings: Vec::new(),
+        })
+    }
+
     /// The file read.
     pub fn path(&self) -> &Path {
         &self.path

@@ -49,7 +49,7 @@ use super::source::Stream;
 use super::{clock, grid, pose, wheels};
 use crate::drive::Signals;
 use crate::error::{Error, Result};
-use condition::{Conditioner, Row};
+use condition::Conditioner;
 use engine::Engine;
 
 /// Settings of the streamed import.
