@@ -68,3 +68,64 @@ fn unsupported_manifests_are_refused_with_the_reason() {
     let e = RawStream::new(&m, StreamOptions::default()).expect_err("bank").to_string();
     assert!(e.contains("cannot be imported as a stream") && e.contains("bank"), "{e}");
 }
+
+/// A shipped manifest without its road bank (which is not streamed).
+fn without_bank(rel: &str) -> Manifest {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join(rel);
+    let text = std::fs::read_to_string(&p).expect("read");
+    let mut out = String::new();
+    let mut skip = false;
+    for line in text.lines() {
+        if line.trim_start().starts_with('[') {
+            skip = line.trim() == "[lateral_acceleration.bank]";
+        }
+        if !skip {
+            out.push_str(line);
+            out.push('\n');
+        }
+    }
+    Manifest::parse(&out, &p).expect("manifest")
+}
+
+/// The calibration (batch Gauss-Newton, defaults) of `d`: θ and σ.
+fn fit(d: &Drive) -> ([f64; 4], [f64; 4]) {
+    let r = crate::calibrate(d, &crate::CalibrationOptions::default()).expect("calibrate");
+    (r.theta.to_array(), std::array::from_fn(|i| r.covariance[i][i].sqrt()))
+}
+
+/// A drive longer than the warm-up: the clock offset from the prefix, the
+/// samples on the whole import's time base, and what the difference does to
+/// the calibration.
+#[test]
+fn a_drive_longer_than_the_warm_up_stays_within_the_clock_estimates_tolerance() {
+    let cases = [
+        ("../../examples/psu-mapping-van/manifest.toml", 60.0),
+        ("../../examples/psu-mapping-van/manifest.toml", 150.0),
+        ("../../examples/psu-mapping-van/manifest.toml", 300.0),
+        ("../../examples/psu-mapping-van-testtrack/run-14-45-26.toml", 60.0),
+        ("../../examples/psu-mapping-van-testtrack/run-16-47-33.toml", 60.0),
+        ("../../examples/comma2k19-rav4/manifest.toml", 20.0),
+    ];
+    for (rel, warm_up_s) in cases {
+        let m = without_bank(rel);
+        let whole = crate::io::import::import(&m).expect("import");
+        let (d, r) = streamed(&m, StreamOptions { warm_up_s }, 400);
+        let dtau = r.clock_offset.applied_s - whole.report.clock_offset.applied_s;
+        let dorigin = r.time_origin_s - whole.report.time_origin_s;
+        let (a, sa) = fit(&whole.drive);
+        let (b, _) = fit(&d);
+        let in_sigma: Vec<f64> = (0..4).map(|i| (b[i] - a[i]) / sa[i]).collect();
+        eprintln!(
+            "{rel} warm-up {warm_up_s} s: τ whole {:+.5} s, streamed {:+.5} s (Δ {:+.2} ms, uncertainty {:.2} ms); \
+             origin Δ {:+.4} s; samples {} vs {}; Δθ/σ = {:+.3?}",
+            whole.report.clock_offset.applied_s,
+            r.clock_offset.applied_s,
+            dtau * 1e3,
+            whole.report.clock_offset.uncertainty_s.unwrap_or(f64::NAN) * 1e3,
+            dorigin,
+            d.len(),
+            whole.drive.len(),
+            in_sigma
+        );
+    }
+}
