@@ -272,7 +272,15 @@ impl Replay {
                 eprintln!("note: {}: imported whole ({why})", path.display());
                 return Ok(Replay::Whole(Box::new(load_drive_with_scale(path)?.0)));
             }
-            return Ok(Replay::Stream(streamed_manifest(path, &m)?));
+            return match streamed_manifest(path, &m) {
+                Ok(s) => Ok(Replay::Stream(s)),
+                // The whole import drops corrupt wheel rows, which the
+                // stream does not, and words its errors about the whole drive.
+                Err(e) => {
+                    eprintln!("note: {}: imported whole (the streamed import stopped: {e:#})", path.display());
+                    Ok(Replay::Whole(Box::new(load_drive_with_scale(path)?.0)))
+                }
+            };
         }
         let stream = DriveStream::open(path)?;
         for w in stream.warnings() {
