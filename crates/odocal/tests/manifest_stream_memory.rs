@@ -101,6 +101,7 @@ x = "px"
 y = "py"
 [pose.heading]
 column = "psi"
+convention = "enu"
 [lateral_acceleration]
 source = "imu"
 stream = "drive"
