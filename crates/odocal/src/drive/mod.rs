@@ -54,8 +54,8 @@ mod stream;
 use std::ops::Range;
 
 pub use self::fingerprint::refuse_duplicates;
-pub use self::stream::{DriveStream, StreamChunk, StreamChunks};
 pub(crate) use self::stream::Unwrap;
+pub use self::stream::{DriveStream, StreamChunk, StreamChunks};
 
 pub(crate) use self::csv::{clip, echo};
 use crate::error::{Error, Result};

@@ -271,7 +271,8 @@ impl RawStream {
                 ),
             });
         }
-        let clock = self.clock.clone().ok_or_else(|| m.error("output.clock_offset", "no clock offset was estimated"))?;
+        let clock =
+            self.clock.clone().ok_or_else(|| m.error("output.clock_offset", "no clock offset was estimated"))?;
         self.report = Some(self.make_report(start, end, clock));
         Ok(())
     }

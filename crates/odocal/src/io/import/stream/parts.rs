@@ -141,7 +141,9 @@ impl Assembler {
         let (half_first, half_judge) = match &m.lateral_acceleration {
             LateralAccelerationSpec::Imu { .. } => (0, 0),
             LateralAccelerationSpec::FromWheels { smoothing_s, .. }
-            | LateralAccelerationSpec::FromPose { smoothing_s, .. } => (half(*smoothing_s), half(A_Y_CHECK_SMOOTHING_S)),
+            | LateralAccelerationSpec::FromPose { smoothing_s, .. } => {
+                (half(*smoothing_s), half(A_Y_CHECK_SMOOTHING_S))
+            }
         };
         Assembler {
             h,
@@ -218,7 +220,11 @@ impl Assembler {
         let (t0, t1) = (k0 as f64 * h, (k0 + self.run_len - 1) as f64 * h);
         let len = std::mem::take(&mut self.run_len);
         if !ok {
-            self.gaps.push(GapRecord { t_start_s: t0, t_end_s: t1 + h, reasons: std::mem::take(&mut self.gap_reasons) });
+            self.gaps.push(GapRecord {
+                t_start_s: t0,
+                t_end_s: t1 + h,
+                reasons: std::mem::take(&mut self.gap_reasons),
+            });
             return Ok(());
         }
         let keep = self.pipe.is_some();
@@ -295,7 +301,12 @@ impl Assembler {
             }
             self.prev_xy = Some((s.sig[0], s.sig[1]));
             self.samples += 1;
-            self.out.push_back(OutSample { part: self.kept_parts, t: s.k as f64 * self.h, sig: s.sig, measured: s.measured });
+            self.out.push_back(OutSample {
+                part: self.kept_parts,
+                t: s.k as f64 * self.h,
+                sig: s.sig,
+                measured: s.measured,
+            });
         }
         Ok(())
     }
@@ -333,11 +344,15 @@ impl Assembler {
     fn lateral_error(&self, m: &Manifest, a_y: f64, k: usize) -> crate::Error {
         let max = m.limits.max_lateral_acceleration_m_per_s2;
         let (key, hint) = match &m.lateral_acceleration {
-            LateralAccelerationSpec::Imu { .. } => ("lateral_acceleration.column", "; is the column in g or the wrong axis?"),
+            LateralAccelerationSpec::Imu { .. } => {
+                ("lateral_acceleration.column", "; is the column in g or the wrong axis?")
+            }
             LateralAccelerationSpec::FromWheels { .. } => {
                 ("lateral_acceleration", "; the wheel speeds jump there (a corrupt encoder sample?)")
             }
-            LateralAccelerationSpec::FromPose { .. } => ("lateral_acceleration", "; the reference pose or heading jumps there"),
+            LateralAccelerationSpec::FromPose { .. } => {
+                ("lateral_acceleration", "; the reference pose or heading jumps there")
+            }
         };
         m.error(
             key,

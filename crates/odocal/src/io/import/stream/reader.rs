@@ -45,7 +45,8 @@ impl CsvRows {
             buffered.consume(3);
         }
         let mut reader = ::csv::ReaderBuilder::new().has_headers(true).trim(::csv::Trim::All).from_reader(buffered);
-        let headers: Vec<String> = reader.headers().map_err(|e| csv_error(&path, e))?.iter().map(str::to_string).collect();
+        let headers: Vec<String> =
+            reader.headers().map_err(|e| csv_error(&path, e))?.iter().map(str::to_string).collect();
         crate::drive::csv::header_characters(&headers, &path)?;
         let time = spec.time_column.as_deref().unwrap_or_default();
         let mut idx = Vec::new();
@@ -54,12 +55,7 @@ impl CsvRows {
         for (col, key) in wanted {
             match headers.iter().position(|h| *h == col) {
                 Some(j) => idx.push(j),
-                None => {
-                    return Err(m.error(
-                        &key,
-                        format!("column '{}' not found in {}", echo(&col), path.display()),
-                    ))
-                }
+                None => return Err(m.error(&key, format!("column '{}' not found in {}", echo(&col), path.display()))),
             }
         }
         Ok(CsvRows {

@@ -259,7 +259,8 @@ impl PoseBuilder {
         let (x, y) = match &p.position {
             PositionSpec::Local { .. } => (a, b),
             PositionSpec::LatLon { lat, lon, origin, .. } => {
-                for (col, val, max, key) in [(lat, a, 90.0, "pose.position.lat"), (lon, b, 180.0, "pose.position.lon")] {
+                for (col, val, max, key) in [(lat, a, 90.0, "pose.position.lat"), (lon, b, 180.0, "pose.position.lon")]
+                {
                     if !within(val, max) {
                         return Err(Error::Csv {
                             path: path.to_path_buf(),
