@@ -141,7 +141,7 @@ fn a_drive_longer_than_the_warm_up_stays_within_the_clock_estimates_tolerance() 
         let u = whole.report.clock_offset.uncertainty_s.unwrap_or(0.0);
         assert!(dtau.abs() <= u.max(1e-12) || dtau == 0.0, "{rel}: Δτ {dtau} s, uncertainty {u} s");
         // (A parameter the drive does not resolve has no σ; it must not move.)
-        assert!((0..4).all(|i| b[i] == a[i] || in_sigma[i].abs() < 1.5), "{rel}: Δθ/σ {in_sigma:?}");
+        assert!((0..4).all(|i| b[i].to_bits() == a[i].to_bits() || in_sigma[i].abs() < 1.5), "{rel}: Δθ/σ {in_sigma:?}");
         compared += 1;
     }
     assert!(compared >= 4, "{compared} drives compared");
