@@ -274,8 +274,8 @@ impl Replay {
             }
             return match streamed_manifest(path, &m) {
                 Ok(s) => Ok(Replay::Stream(s)),
-                // The whole import drops corrupt wheel rows, which the
-                // stream does not, and words its errors about the whole drive.
+                // The whole import's error (or result) is the reference:
+                // the stream judges some whole-drive checks on its warm-up.
                 Err(e) => {
                     eprintln!("note: {}: imported whole (the streamed import stopped: {e:#})", path.display());
                     Ok(Replay::Whole(Box::new(load_drive_with_scale(path)?.0)))

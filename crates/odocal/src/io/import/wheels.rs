@@ -93,11 +93,11 @@ pub(crate) fn speed_noise_pct(n: &[f64], parts: &[std::ops::Range<usize>]) -> f6
 const MAX_WIDE_STEP_FRACTION: f64 = 0.05;
 
 /// Rows a corrupt counter value may span (a jump out and back).
-const MAX_CORRUPT_ROWS: usize = 5;
+pub(super) const MAX_CORRUPT_ROWS: usize = 5;
 /// Stamp slack of the corrupt-row test, s: a jump is impossible when it
 /// needs more than `limits.max_speed_m_per_s` over the stamp difference
 /// plus this.
-const CORRUPT_SLACK_S: f64 = 0.05;
+pub(super) const CORRUPT_SLACK_S: f64 = 0.05;
 
 /// Both wheels' cumulative rotation on the wheel stream's stamps, corrupt
 /// rows removed (the stream itself stays in the import's map of streams,

@@ -9,6 +9,7 @@ use std::path::PathBuf;
 use super::super::grid::{self, BadInterval};
 use super::super::manifest::{LateralAccelerationSpec, Manifest, SideslipSpec};
 use super::condition::Row;
+use super::corrupt::CorruptFilter;
 use super::parts::{Assembler, GridSample};
 use super::tracks::{PoseBuilder, Rotation, Track};
 use crate::error::Result;
@@ -58,6 +59,7 @@ pub(crate) struct Engine {
     pose_path: PathBuf,
     pub wheel: Track<2>,
     rot: [Rotation; 2],
+    pub corrupt: CorruptFilter,
     pub pose: Track<3>,
     pose_b: PoseBuilder,
     pub imu: Option<Column>,
@@ -102,6 +104,12 @@ impl Engine {
             SideslipSpec::Zero => None,
         };
         let base = m.base_dir();
+        let rotations = || {
+            [
+                Rotation::new(m, &w.rear_left, index(&w.stream, &w.rear_left.column), "wheels.rear_left"),
+                Rotation::new(m, &w.rear_right, index(&w.stream, &w.rear_right.column), "wheels.rear_right"),
+            ]
+        };
         Engine {
             h,
             theta0: m.output.theta0(),
@@ -109,10 +117,8 @@ impl Engine {
             wheel_path: base.join(m.streams[&w.stream].source.file()),
             pose_path: base.join(m.streams[&m.pose.stream].source.file()),
             wheel: Track::new(),
-            rot: [
-                Rotation::new(m, &w.rear_left, index(&w.stream, &w.rear_left.column), "wheels.rear_left"),
-                Rotation::new(m, &w.rear_right, index(&w.stream, &w.rear_right.column), "wheels.rear_right"),
-            ],
+            rot: rotations(),
+            corrupt: CorruptFilter::new(m, rotations()),
             pose: Track::new(),
             pose_b: PoseBuilder::new(m, |c| index(&m.pose.stream, c)),
             imu,
@@ -129,9 +135,9 @@ impl Engine {
     pub(crate) fn push(&mut self, m: &Manifest, name: &str, row: &Row) -> Result<()> {
         let max_gap = m.output.max_gap_s;
         if name == m.wheels.stream {
-            let l = self.rot[0].next(&self.wheel_path, row)?;
-            let r = self.rot[1].next(&self.wheel_path, row)?;
-            self.wheel.push(row.t, 0.0, [l, r], max_gap, "wheel");
+            let mut kept = Vec::new();
+            self.corrupt.push(&self.wheel_path, row.clone(), &mut kept)?;
+            self.push_wheels(m, kept)?;
         }
         if name == m.pose.stream {
             let before = self.pose.t.len();
@@ -145,6 +151,36 @@ impl Engine {
         for c in [self.imu.as_mut(), self.side.as_mut()].into_iter().flatten() {
             if c.stream == name {
                 c.push(row, max_gap);
+            }
+        }
+        Ok(())
+    }
+
+    /// The wheel rows kept by the corrupt-row filter into the wheel track.
+    fn push_wheels(&mut self, m: &Manifest, kept: Vec<Row>) -> Result<()> {
+        for row in kept {
+            let l = self.rot[0].next(&self.wheel_path, &row)?;
+            let r = self.rot[1].next(&self.wheel_path, &row)?;
+            self.wheel.push(row.t, 0.0, [l, r], m.output.max_gap_s, "wheel");
+        }
+        Ok(())
+    }
+
+    /// Stream `name` has ended: its tracks end (the wheel rows still
+    /// waiting for the corrupt-row decision are decided first).
+    pub(crate) fn end_stream(&mut self, m: &Manifest, name: &str) -> Result<()> {
+        if name == m.wheels.stream && !self.wheel.ended {
+            let mut kept = Vec::new();
+            self.corrupt.end(&mut kept);
+            self.push_wheels(m, kept)?;
+            self.wheel.ended = true;
+        }
+        if name == m.pose.stream {
+            self.pose.ended = true;
+        }
+        for c in [self.imu.as_mut(), self.side.as_mut()].into_iter().flatten() {
+            if c.stream == name {
+                c.track.ended = true;
             }
         }
         Ok(())

@@ -27,12 +27,13 @@
 //!
 //! Not streamed (refused by [`RawStream::new`] with the reason; the whole
 //! import reads them): `mcap` and `parquet` sources, a heading derived from
-//! the track, a lateral acceleration from the pose, a road bank, and the
-//! dropping of corrupt wheel rows (a corrupt row stops the streamed import
-//! at the wheel speed check). The wheel and heading convention checks and
-//! the jitter report of the whole import are not made.
+//! the track, a lateral acceleration from the pose, a road bank. The wheel
+//! and heading convention checks and the jitter report of the whole import
+//! are not made. Corrupt wheel rows are dropped by the whole import's rule,
+//! each decided once the rows after it that the rule looks at are in.
 
 mod condition;
+mod corrupt;
 mod engine;
 mod parts;
 mod reader;
@@ -247,10 +248,8 @@ impl RawStream {
         self.advance()?;
         let (m, h) = (&self.m, self.h);
         let Some(e) = self.engine.as_mut() else { return Err(m.error("streams", "the streams hold no rows")) };
-        e.wheel.ended = true;
-        e.pose.ended = true;
-        for c in [e.imu.as_mut(), e.side.as_mut()].into_iter().flatten() {
-            c.track.ended = true;
+        for name in self.streams.keys() {
+            e.end_stream(m, name)?;
         }
         let spans = e.spans(m).ok_or_else(|| m.error("streams", "no streams"))?;
         let (start, end) = grid::common_span(m, &spans, h)?;
@@ -343,16 +342,7 @@ impl RawStream {
                 e.push(m, name, &row)?;
             }
             if c.ended {
-                match name {
-                    n if *n == m.wheels.stream => e.wheel.ended = true,
-                    n if *n == m.pose.stream => e.pose.ended = true,
-                    _ => {}
-                }
-                for col in [e.imu.as_mut(), e.side.as_mut()].into_iter().flatten() {
-                    if col.stream == *name {
-                        col.track.ended = true;
-                    }
-                }
+                e.end_stream(m, name)?;
             }
         }
         e.try_start(m);
@@ -383,9 +373,10 @@ impl RawStream {
         };
         let (ws, ps) = (prefix(&m.wheels.stream), prefix(&m.pose.stream));
         let h = self.h;
-        let w = &m.wheels;
-        let cum_l = wheels::wheel_revolutions(m, &ws, &w.rear_left, "wheels.rear_left")?;
-        let cum_r = wheels::wheel_revolutions(m, &ws, &w.rear_right, "wheels.rear_right")?;
+        // The prefix without its corrupt rows (the stream reports them as it drops them).
+        let (wh, cleaned) = wheels::Wheels::new(m, &ws, &mut Vec::new())?;
+        let ws = cleaned.unwrap_or(ws);
+        let (cum_l, cum_r) = (wh.cum_l, wh.cum_r);
         let wheel_bad = grid::gaps_of(&ws.t, m.output.max_gap_s, "wheel");
         let pose = pose::build_pose(m, &ps, &mut self.warnings)?;
         super::check_budgets(m, &ws.t, &pose.t, h)?;
@@ -418,12 +409,26 @@ impl RawStream {
                 ));
             }
         }
+        let mut streams: Vec<_> = self.streams.values().map(|(c, _)| c.report()).collect();
+        if let Some(f) = self.engine.as_ref().map(|e| &e.corrupt).filter(|f| f.dropped > 0) {
+            warnings.push(format!(
+                "streams.{}: {} corrupt wheel row(s) dropped (a count jump beyond limits.max_speed_m_per_s that \
+                 returns), at {}{}",
+                m.wheels.stream,
+                f.dropped,
+                f.first.join(", "),
+                if f.dropped > 3 { ", …" } else { "" }
+            ));
+            for s in streams.iter_mut().filter(|s| s.name == m.wheels.stream) {
+                s.corrupt_rows_dropped = f.dropped;
+            }
+        }
         let asm = self.engine.as_ref().and_then(|e| e.asm.as_ref());
         let samples = asm.map_or(0, |a| a.samples);
         let theta0 = m.output.theta0();
         ImportReport {
             manifest: m.path.clone(),
-            streams: self.streams.values().map(|(c, _)| c.report()).collect(),
+            streams,
             output_rate_hz: m.output.rate_hz,
             time_origin_s: start,
             common_span_s: [0.0, end - start],
