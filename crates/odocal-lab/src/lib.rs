@@ -1,8 +1,9 @@
 //! What the lab's programs share: argument parsing ([`Args`]), the
 //! batch Gauss-Newton start ([`batch_gn_all`]), simulated and real drives
 //! ([`simulate_preset`], [`testtrack_runs`], [`repo_path`]), error units and
-//! statistics ([`errors`], [`Summary`], [`coverage`]) and markdown tables
-//! ([`Table`]). The programs are in `src/bin/`; README.md lists them.
+//! statistics ([`errors`], [`Summary`], [`coverage`]), markdown tables
+//! ([`Table`]) and cross-run checks ([`crossrun`]). The programs are in
+//! `src/bin/`; README.md lists them.
 
 use std::collections::BTreeMap;
 use std::fmt;
@@ -13,6 +14,8 @@ use odocal::identify::{batch_gauss_newton, IdentifyOptions};
 use odocal::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::sim::{simulate, NoiseOptions, SimOptions, SimOutput};
 use odocal::{CalibrationOptions, Drive, Method, Theta};
+
+pub mod crossrun;
 
 /// The programs' result type.
 pub type Res<T> = Result<T, Box<dyn std::error::Error>>;
@@ -245,7 +248,7 @@ pub fn print_joint_fits(runs: &[Drive]) -> Res<()> {
 /// other five) of the default method, batch G-N with d held and batch G-N,
 /// with each run's c_d and d; with `full`, the default's whole table.
 pub fn print_cross_runs(runs: &[Drive], full: bool) -> Res<()> {
-    use odocal::crossrun::{cross_run, CROSS_RUN_OWN_FIT_RATIO};
+    use crate::crossrun::{cross_run, CROSS_RUN_OWN_FIT_RATIO};
     let named: Vec<(&str, &Drive)> = TESTTRACK_RUNS.iter().map(|r| r.0).zip(runs.iter()).collect();
     for (label, o) in [
         ("default", CalibrationOptions::default()),

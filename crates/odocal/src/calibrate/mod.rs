@@ -63,7 +63,6 @@ use crate::model::Theta;
 use crate::progress::ProgressFn;
 
 pub(crate) mod batch_gn;
-pub mod crossrun;
 pub(crate) mod eiv;
 mod report;
 pub mod settings;
