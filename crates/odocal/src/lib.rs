@@ -161,7 +161,7 @@ pub mod research {
     pub use crate::assess::{position_error::mean_position_error_with, reachable::reachable_minimum};
     pub use crate::calibrate::{
         calibrate_detailed,
-        eiv::{is_misspecification, noise_summary},
+        eiv::is_misspecification,
         three_step::{random_batches, score_batches},
         DetailedCalibration,
     };
