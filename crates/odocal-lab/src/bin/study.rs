@@ -18,7 +18,7 @@
 use std::fmt::Write as _;
 use std::time::Instant;
 
-use odocal::compensate::qp::SolverKind;
+use odocal::compensate::SolverKind;
 use odocal::compensate::{compensate_segments, CompensateOptions, CompensatedInputs, QpOptions};
 use odocal::identify::IdentifyOptions;
 use odocal::research::{calibrate_detailed, random_batches, reachable_minimum, score_batches};

@@ -69,7 +69,7 @@ impl Theta {
     }
 
     /// `[c_e, c_d, t_r, d]` as a vector.
-    pub(crate) fn to_vector(&self) -> Vector4<f64> {
+    pub(crate) fn to_vector(self) -> Vector4<f64> {
         Vector4::new(self.c_e, self.c_d, self.t_r, self.d)
     }
 
