@@ -64,6 +64,7 @@ use crate::progress::ProgressFn;
 
 pub(crate) mod batch_gn;
 pub(crate) mod eiv;
+mod render;
 mod report;
 pub mod settings;
 pub(crate) mod three_step;
