@@ -1,7 +1,8 @@
 //! Input compensation by optimal control (SPEC §5, paper §4.1).
 //!
 //! Expert API: for programs that compensate segments themselves (the
-//! `odocal compensate` command) or compare the QP solvers ([`qp`]).
+//! `odocal compensate` command) or compare the QP solvers
+//! ([`SolverKind`]).
 //!
 //! For one segment and one fixed θ, estimate noise-free wheel rotations
 //! `n̂_rl, n̂_rr`. The model is linearized around the trajectory `x̄` run with

@@ -346,9 +346,10 @@ pub struct CdStep {
     pub at_s: f64,
 }
 
-/// Parameters that drift during a drive: the true θ at time `t` is
-/// [`DriftOptions::theta_at`]. Default: no drift (θ constant, and the
-/// simulator's output byte-identical to one without this setting).
+/// Parameters that drift during a drive: the true θ at `t` seconds into
+/// the drive is `c_e·(1 + r·t/3600)` (r = `c_e_relative_per_hour`) and
+/// `c_d + Δ` from the step's time on. Default: no drift (θ constant, and
+/// the simulator's output byte-identical to one without this setting).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct DriftOptions {
