@@ -3,12 +3,11 @@
 //! `cargo bench -p odocal-bench --bench pipeline` — groups:
 //! - `model`: one model step with all Jacobians;
 //! - `simulate`: the default 24 km paper-noise drive;
-//! - `identify`: one batch Gauss-Newton iteration (normal equations) and a
-//!   full batch G-N over all selected segments of the 24 km drive;
-//! - `validate`: Ē_p of one θ on all validation segments;
+//! - `validate`: Ē_p of one θ on all validation segments of the 24 km drive;
 //! - `three_step`: the full default 3-step calibration on 6/12/24/48 km
 //!   (linear growth expected);
-//! - `eiv_calibrate`: `calibrate` with batch G-N, EIV with the noise model
+//! - `eiv_calibrate`: `calibrate` with batch G-N (the 3-step's and the
+//!   EIV's start), EIV with the noise model
 //!   fixed and EIV with it estimated (the method's default), side by side on
 //!   12/24/48 km (`eiv_speed` in crates/odocal-lab is the quicker way to iterate).
 
@@ -17,11 +16,8 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use odocal::eiv::EivOptions;
-use odocal::identify::{batch_gauss_newton, batch_normal_equations, IdentifyOptions};
 use odocal::model::{step_jacobians, Input, State, Theta};
-use odocal::segment::{
-    calibration_segments, validation_segments, SegmentData, SegmentOptions, ValidationSegmentOptions,
-};
+use odocal::segment::{validation_segments, ValidationSegmentOptions};
 use odocal::sim::{simulate, SimOptions};
 use odocal::EivMethodOptions;
 use odocal::{calibrate, CalibrationOptions, Method};
@@ -45,20 +41,8 @@ fn bench_simulate(c: &mut Criterion) {
     g.finish();
 }
 
-fn bench_identify(c: &mut Criterion) {
+fn bench_validate(c: &mut Criterion) {
     let d = drive(24.0);
-    let sel = calibration_segments(&d, &SegmentOptions::default()).expect("segments");
-    let data: Vec<SegmentData> = sel.selected.iter().map(|s| SegmentData::new(&d, s)).collect();
-    let mut g = c.benchmark_group("identify_24km");
-    g.sample_size(10);
-    let w = IdentifyOptions::default().weights;
-    g.bench_function("gn_iteration_all_selected", |b| {
-        b.iter(|| batch_normal_equations(black_box(&data), &Theta::PAPER_INITIAL, &w))
-    });
-    g.bench_function("batch_gn_all_selected", |b| {
-        b.iter(|| batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &IdentifyOptions::default()).expect("gn"))
-    });
-    g.finish();
     let val = validation_segments(&d, &ValidationSegmentOptions::default()).expect("validation");
     let mut g = c.benchmark_group("validate_24km");
     g.sample_size(10);
@@ -106,5 +90,5 @@ fn bench_eiv(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, bench_model, bench_simulate, bench_identify, bench_three_step, bench_eiv);
+criterion_group!(benches, bench_model, bench_simulate, bench_validate, bench_three_step, bench_eiv);
 criterion_main!(benches);

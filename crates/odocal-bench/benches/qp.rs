@@ -1,43 +1,39 @@
-//! One compensation QP (K = 650, SPEC default segment length): the
-//! structured Riccati interior-point solver against Clarabel, on the same
-//! seeded instances, side by side in one group.
+//! The 3-step method's input compensation (step 2) through its public
+//! entry point, `compensate_segments`: the first selected segments of a
+//! simulated paper drive (K = 650 steps each, SPEC default), compensated at
+//! the paper's θ_0 with the structured Riccati interior-point solver and
+//! with Clarabel, side by side in one group. Each compensation runs its
+//! re-linearisation loop (warm-started QPs) to convergence, as in a
+//! calibration; "tight" halves the wheel-rotation box, so more bounds are
+//! active.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use odocal::compensate::qp::clarabel::ClarabelSolver;
-use odocal::compensate::qp::riccati::StructuredSolver;
-use odocal::compensate::qp::{random_instance, QpSolver};
+use odocal::compensate::{compensate_segments, CompensateOptions, QpOptions, SolverKind};
+use odocal::segment::{calibration_segments, SegmentOptions};
+use odocal::sim::{simulate, SimOptions};
+use odocal::Theta;
 use std::hint::black_box;
 
-const STAGES: usize = 650;
+/// Segments compensated per iteration.
+const SEGMENTS: usize = 4;
 
 fn qp_solve(c: &mut Criterion) {
-    let mut group = c.benchmark_group("qp_solve_k650");
-    let solvers: [(&str, Box<dyn QpSolver>); 2] =
-        [("structured", Box::new(StructuredSolver::default())), ("clarabel", Box::new(ClarabelSolver::default()))];
-    for (label, tightness) in [("loose", 0.0), ("tight", 0.95)] {
-        let instances: Vec<_> = (0..4).map(|seed| random_instance(seed, STAGES, tightness)).collect();
-        for (name, solver) in &solvers {
-            group.bench_with_input(BenchmarkId::new(*name, label), &instances, |b, instances| {
-                let mut i = 0;
+    let drive = simulate(&SimOptions { length_km: 6.0, ..SimOptions::paper(1) }).expect("simulate").drive;
+    let selection = calibration_segments(&drive, &SegmentOptions::default()).expect("segments");
+    let segments: Vec<_> = selection.selected.iter().take(SEGMENTS).cloned().collect();
+    let thetas = [Theta::PAPER_INITIAL];
+    let mut group = c.benchmark_group("compensate_4_segments_k650");
+    group.sample_size(10);
+    for (label, input_box_rel) in [("loose", 0.05), ("tight", 0.025)] {
+        let opts = CompensateOptions { input_box_rel, ..Default::default() };
+        for (name, solver) in [("structured", SolverKind::Structured), ("clarabel", SolverKind::Clarabel)] {
+            let qp = QpOptions { solver, ..Default::default() };
+            group.bench_function(BenchmarkId::new(name, label), |b| {
                 b.iter(|| {
-                    i = (i + 1) % instances.len();
-                    black_box(solver.solve(black_box(&instances[i]), None))
+                    compensate_segments(black_box(&drive), &segments, &thetas, &opts, &qp, None).expect("compensate")
                 })
             });
         }
-    }
-    // Warm start from the solution of a nearby instance (as in the
-    // re-linearisation loop).
-    let qp0 = random_instance(7, STAGES, 0.0);
-    let structured = StructuredSolver::default();
-    if let Ok(prev) = structured.solve(&qp0, None) {
-        let mut qp = qp0.clone();
-        for c in &mut qp.c {
-            *c *= 1.01;
-        }
-        group.bench_function(BenchmarkId::new("structured_warm", "loose"), |b| {
-            b.iter(|| black_box(structured.solve(black_box(&qp), Some(&prev))))
-        });
     }
     group.finish();
 }

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Result};
 use clap::{ArgAction, Args};
-use odocal::compensate::qp::SolverKind;
+use odocal::compensate::SolverKind;
 use odocal::settings::{NoiseModelSetting, Settings};
 use odocal::{FinalSegments, Method, ParamSet, Theta};
 

@@ -17,7 +17,7 @@ use crate::io::{drive_entry, load_drive_with_scale, load_truth, print_warnings, 
 use crate::output::{refuse_sidecar_onto_drive, refuse_stdout, write_text, Files};
 use crate::progress::Bars;
 use crate::simulate::sim_options;
-use crate::{report, Outcome};
+use crate::Outcome;
 
 /// Arguments of `odocal calibrate`.
 #[derive(Args)]
@@ -468,14 +468,14 @@ fn print_text_report(
     wheel_scale: Option<&str>,
     account: &SettingsAccount,
 ) -> Result<()> {
-    let text = report::calibration(r, truth, wheel_scale);
+    let text = r.render_text(truth, wheel_scale);
     let (head, rest) = text.split_once('\n').unwrap_or((&text, ""));
     println!("{head}");
     std::io::stdout().flush()?;
     print_warnings(&r.warnings);
     print!("{rest}");
     if let Some(m) = &r.validate_on {
-        print!("{}", report::validate_on(m));
+        print!("{m}");
     }
     print!("{}", account.lines());
     std::io::stdout().flush()?;

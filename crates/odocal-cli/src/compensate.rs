@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Result};
 use clap::Args;
-use odocal::compensate::{qp::SolverKind, CompensateOptions, QpOptions};
+use odocal::compensate::{CompensateOptions, QpOptions, SolverKind};
 use odocal::output::is_stdout;
 use odocal::segment;
 use odocal::ExtraColumn;

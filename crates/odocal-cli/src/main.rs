@@ -28,7 +28,6 @@ mod inspect;
 mod io;
 mod output;
 mod progress;
-mod report;
 mod simulate;
 mod validate;
 

@@ -1,8 +1,9 @@
 //! What the lab's programs share: argument parsing ([`Args`]), the
 //! batch Gauss-Newton start ([`batch_gn_all`]), simulated and real drives
 //! ([`simulate_preset`], [`testtrack_runs`], [`repo_path`]), error units and
-//! statistics ([`errors`], [`Summary`], [`coverage`]) and markdown tables
-//! ([`Table`]). The programs are in `src/bin/`; README.md lists them.
+//! statistics ([`errors`], [`Summary`], [`coverage`]), markdown tables
+//! ([`Table`]) and cross-run checks ([`crossrun`]). The programs are in
+//! `src/bin/`; README.md lists them.
 
 use std::collections::BTreeMap;
 use std::fmt;
@@ -13,6 +14,8 @@ use odocal::identify::{batch_gauss_newton, IdentifyOptions};
 use odocal::segment::{calibration_segments, SegmentData, SegmentOptions};
 use odocal::sim::{simulate, NoiseOptions, SimOptions, SimOutput};
 use odocal::{CalibrationOptions, Drive, Method, Theta};
+
+pub mod crossrun;
 
 /// The programs' result type.
 pub type Res<T> = Result<T, Box<dyn std::error::Error>>;
@@ -144,9 +147,86 @@ pub fn batch_gn_all(drive: &Drive) -> Result<Theta, odocal::Error> {
 /// `coloured`: the paper preset's wheel noise on a perfect reference.
 pub fn noise_preset(name: &str) -> Result<NoiseOptions, odocal::Error> {
     match name {
-        "coloured" => Ok(NoiseOptions::coloured_wheels_only()),
+        "coloured" => Ok(coloured_wheels_only()),
         _ => NoiseOptions::by_name(name),
     }
+}
+
+/// The paper preset's wheel noise only — coloured common and differential
+/// relative errors, white noise and encoder quantisation — on a perfect
+/// reference, with no slip, a_y or sideslip noise (the "coloured" preset of
+/// the EIV studies).
+pub fn coloured_wheels_only() -> NoiseOptions {
+    let p = NoiseOptions::paper();
+    NoiseOptions {
+        wheel_coloured_rel_sigma: p.wheel_coloured_rel_sigma,
+        wheel_coloured_differential_rel_sigma: p.wheel_coloured_differential_rel_sigma,
+        wheel_coloured_time_constant_s: p.wheel_coloured_time_constant_s,
+        wheel_white_rel_sigma: p.wheel_white_rel_sigma,
+        encoder_ticks_per_revolution: p.encoder_ticks_per_revolution,
+        ..NoiseOptions::off()
+    }
+}
+
+/// Only white noise on the wheel rotations, of the paper preset's size;
+/// everything else exact (the simulator's `white` preset).
+pub fn white_wheel_only() -> NoiseOptions {
+    NoiseOptions { wheel_white_rel_sigma: NoiseOptions::paper().wheel_white_rel_sigma, ..NoiseOptions::off() }
+}
+
+/// Every source of the paper preset scaled by `f`: its standard deviations
+/// and the slip coefficient × f, the encoder ticks per revolution ÷ f
+/// (rounded), so the quantisation step × f; time constants kept.
+/// `paper_scaled(2.5)` is the `high` preset but for the ticks (819 there,
+/// 512 in `high`).
+pub fn paper_scaled(f: f64) -> NoiseOptions {
+    let p = NoiseOptions::paper();
+    NoiseOptions {
+        wheel_slip_per_m_per_s2: f * p.wheel_slip_per_m_per_s2,
+        wheel_coloured_rel_sigma: f * p.wheel_coloured_rel_sigma,
+        wheel_coloured_differential_rel_sigma: f * p.wheel_coloured_differential_rel_sigma,
+        wheel_white_rel_sigma: f * p.wheel_white_rel_sigma,
+        encoder_ticks_per_revolution: (f64::from(p.encoder_ticks_per_revolution) / f).round() as u32,
+        position_drift_sigma_m: f * p.position_drift_sigma_m,
+        position_white_sigma_m: f * p.position_white_sigma_m,
+        heading_drift_sigma_rad: f * p.heading_drift_sigma_rad,
+        heading_white_sigma_rad: f * p.heading_white_sigma_rad,
+        lateral_acceleration_white_sigma_m_per_s2: f * p.lateral_acceleration_white_sigma_m_per_s2,
+        sideslip_sigma_rad: f * p.sideslip_sigma_rad,
+        ..p
+    }
+}
+
+/// An EIV noise model as one line in physical units (σ in %, time
+/// constants in s).
+pub fn noise_summary(n: &odocal::eiv::NoiseModel) -> String {
+    format!(
+        "σ_white {:.3} %, q {:.4} rev/s, σ_c {:.3} % (τ_c {} s), σ_w {:.3} % (τ_w {} s); pose σ {:.3} m / {:.2} mrad, \
+         drift {:.3} m / {:.2} mrad (τ {} s); σ_a {:.3} m/s², σ_β {:.2} mrad",
+        n.wheel_white_rel_sigma * 100.0,
+        n.quantisation_step_rev_per_s,
+        n.wheel_common_rel_sigma * 100.0,
+        n.wheel_common_time_constant_s,
+        n.wheel_differential_rel_sigma * 100.0,
+        n.wheel_differential_time_constant_s,
+        n.position_white_sigma_m,
+        n.heading_white_sigma_rad * 1e3,
+        n.position_drift_sigma_m,
+        n.heading_drift_sigma_rad * 1e3,
+        n.drift_time_constant_s,
+        n.lateral_acceleration_sigma_m_per_s2,
+        n.sideslip_sigma_rad * 1e3
+    )
+}
+
+/// Wraps an angle to (−π, π].
+pub fn wrap_angle(a: f64) -> f64 {
+    let two_pi = 2.0 * std::f64::consts::PI;
+    let mut r = a.rem_euclid(two_pi);
+    if r > std::f64::consts::PI {
+        r -= two_pi;
+    }
+    r
 }
 
 /// A simulated drive of the paper's route: `km` long, noise `preset`
@@ -245,7 +325,7 @@ pub fn print_joint_fits(runs: &[Drive]) -> Res<()> {
 /// other five) of the default method, batch G-N with d held and batch G-N,
 /// with each run's c_d and d; with `full`, the default's whole table.
 pub fn print_cross_runs(runs: &[Drive], full: bool) -> Res<()> {
-    use odocal::crossrun::{cross_run, CROSS_RUN_OWN_FIT_RATIO};
+    use crate::crossrun::{cross_run, CROSS_RUN_OWN_FIT_RATIO};
     let named: Vec<(&str, &Drive)> = TESTTRACK_RUNS.iter().map(|r| r.0).zip(runs.iter()).collect();
     for (label, o) in [
         ("default", CalibrationOptions::default()),

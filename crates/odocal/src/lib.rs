@@ -47,9 +47,8 @@
 //! [`eiv`] (the errors-in-variables estimator), [`sim`] (the simulator),
 //! [`experiment`] (the paper's §6), [`mod@io`] (ROS 2 bags),
 //! [`manifest`] (the manifest as Rust types), [`settings`] (calibration
-//! settings as key–value pairs), [`crossrun`] (cross-run checks) and
-//! [`output`] (atomic writes and output paths checked against inputs, for a
-//! front end's own files), [`online`] (calibration that keeps up with a
+//! settings as key–value pairs), [`output`] (atomic writes and output
+//! paths checked against inputs, for a front end's own files), [`online`] (calibration that keeps up with a
 //! streaming drive) and `history` (a per-vehicle calibration history in
 //! SQLite, feature `history`).
 //!
@@ -131,10 +130,10 @@ pub use io::import::{
 };
 pub use io::param_file::{ParamFile, ParamMapping};
 pub use sim::{simulate, NoiseOptions, SimOptions, SimOutput, SimSidecar};
-// Calibration: the entry points, the options, the report. `settings` and
-// `crossrun` are expert modules.
+// Calibration: the entry points, the options, the report. `settings` is an
+// expert module.
 pub use calibrate::{
-    calibrate, crossrun, settings, BatchGnDetail, BatchGnOptions, BatchSpread, Calibration, CalibrationOptions,
+    calibrate, settings, BatchGnDetail, BatchGnOptions, BatchSpread, Calibration, CalibrationOptions,
     CalibrationReport, CorrectBias, EivDetail, EivMethodOptions, EivOutcome, FinalSegments, Holdout, InitialStep,
     Method, MethodDetail, ResultSigma, SegmentCounts, SigmaCovers, SigmaSource, ThetaScore, ThreeStepDetail,
     ThreeStepOptions, Timing, ValidationSummary,
@@ -159,14 +158,10 @@ pub use assess::{
 /// not part of the stable API).
 #[cfg(feature = "research")]
 pub mod research {
-    pub use crate::assess::{
-        position_error::mean_position_error_with,
-        reachable::reachable_minimum,
-        validation_drives::{validate_drives_with, CalibrationExtrinsics},
-    };
+    pub use crate::assess::{position_error::mean_position_error_with, reachable::reachable_minimum};
     pub use crate::calibrate::{
         calibrate_detailed,
-        eiv::{is_misspecification, noise_summary},
+        eiv::is_misspecification,
         three_step::{random_batches, score_batches},
         DetailedCalibration,
     };

@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use odocal::compensate::{qp::SolverKind, QpOptions};
+use odocal::compensate::{QpOptions, SolverKind};
 use odocal::eiv::NoiseModel;
 use odocal::experiment::{self, Experiment, ExperimentOptions, ExperimentTiming};
 use odocal::sim::{self, NoiseOptions, SimOptions};

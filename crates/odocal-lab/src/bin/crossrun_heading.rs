@@ -17,9 +17,8 @@
 //! Run: `cargo run --release --manifest-path crates/odocal-lab/Cargo.toml
 //! --bin crossrun_heading [-- --skip-van]`.
 
-use odocal::research::{validate_drives_with, CalibrationExtrinsics};
 use odocal::settings::{Caller, ManifestSettings, Settings};
-use odocal::{Calibration, CalibrationOptions, CalibrationReport, Drive, Holdout, ParamSet, ValidationDrive};
+use odocal::{Calibration, CalibrationOptions, CalibrationReport, Drive, Holdout, ValidationDrive};
 use odocal_lab::{repo_path, testtrack_manifest, Args, Res, Table, TESTTRACK_RUNS, VAN_MANIFEST};
 
 const USAGE: &str = "crossrun_heading [--skip-van]";
@@ -38,10 +37,9 @@ fn load_with_options(rel: &str) -> Res<(Drive, CalibrationOptions)> {
 }
 
 /// Ē_p of the calibration `r` and of θ_0 on `drive`, δ carried or re-estimated.
-fn judge(r: &CalibrationReport, drive: &Drive, opts: &CalibrationOptions, carry: bool) -> Res<(f64, f64, f64)> {
-    let cal = CalibrationExtrinsics { carry_heading_offset: carry, ..r.extrinsics_for_validation(ParamSet::EMPTY) };
+fn judge(r: &CalibrationReport, drive: &Drive, carry: bool) -> Res<(f64, f64, f64)> {
     let others = [ValidationDrive { name: "other", drive, reference: None }];
-    let v = validate_drives_with(&others, &r.theta, &opts.theta0, &cal, &opts.validation)?;
+    let v = r.validate_on_drives(&others, carry)?;
     let row = &v.drives[0];
     let delta = row.extrinsics.as_ref().map_or(0.0, |x| x.value.heading_offset);
     Ok((row.mean_position_error_m, row.initial_mean_position_error_m, delta))
@@ -69,14 +67,14 @@ fn testtrack() -> Res<()> {
     ]);
     let (mut own, mut carried, mut reest, mut init) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let mut worse = 0;
-    for (name, _, opts, r) in &runs {
+    for (name, _, _, r) in &runs {
         let (mut c, mut e, mut i, mut deltas) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for (other, drive, _, _) in &runs {
             if other == name {
                 continue;
             }
-            c.push(judge(r, drive, opts, true)?.0);
-            let (ep, ep0, delta) = judge(r, drive, opts, false)?;
+            c.push(judge(r, drive, true)?.0);
+            let (ep, ep0, delta) = judge(r, drive, false)?;
             worse += usize::from(ep > ep0);
             e.push(ep);
             i.push(ep0);
@@ -129,8 +127,8 @@ fn van() -> Res<()> {
         let (fit, held) = h.split(&drive)?;
         let r = Calibration::new(&fit, &opts).run()?;
         let own = Calibration::new(&held, &opts).run()?.validation.mean_position_error_m;
-        let carried = judge(&r, &held, &opts, true)?.0;
-        let (reest, initial, _) = judge(&r, &held, &opts, false)?;
+        let carried = judge(&r, &held, true)?.0;
+        let (reest, initial, _) = judge(&r, &held, false)?;
         t.row([
             fit_half.to_string(),
             held_half.to_string(),

@@ -82,9 +82,9 @@ fn run() -> Res<()> {
             "noslip" => NoiseOptions { wheel_slip_per_m_per_s2: 0.0, ..NoiseOptions::paper() },
             "nobeta" => NoiseOptions { wheel_slip_per_m_per_s2: 0.0, sideslip_sigma_rad: 0.0, ..NoiseOptions::paper() },
             "quantonly" => NoiseOptions { encoder_ticks_per_revolution: 256, ..NoiseOptions::off() },
-            "quantwhite" => NoiseOptions { encoder_ticks_per_revolution: 256, ..NoiseOptions::white_wheel_only() },
-            "white2" => NoiseOptions { wheel_white_rel_sigma: 0.02, ..NoiseOptions::white_wheel_only() },
-            "coloured" => NoiseOptions::coloured_wheels_only(),
+            "quantwhite" => NoiseOptions { encoder_ticks_per_revolution: 256, ..odocal_lab::white_wheel_only() },
+            "white2" => NoiseOptions { wheel_white_rel_sigma: 0.02, ..odocal_lab::white_wheel_only() },
+            "coloured" => odocal_lab::coloured_wheels_only(),
             "noquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::paper() },
             "highnoquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::high() },
             // Ablations of the paper preset without quantisation (`nq-…`: one more source off).
@@ -132,7 +132,7 @@ fn run() -> Res<()> {
                 }
                 n
             }
-            _ if p.starts_with("scale") => NoiseOptions::paper_scaled(p["scale".len()..].parse()?),
+            _ if p.starts_with("scale") => odocal_lab::paper_scaled(p["scale".len()..].parse()?),
             _ => NoiseOptions::by_name(p)?,
         };
         for seed in 1..=seeds {
@@ -218,7 +218,7 @@ fn run() -> Res<()> {
                 )
             };
             println!("{p} {seed}: G-N {}", err(&gn));
-            println!("      truth: {}", odocal::research::noise_summary(&sim_noise));
+            println!("      truth: {}", odocal_lab::noise_summary(&sim_noise));
             for ((label, nm, fix), &(qname, quant)) in
                 all.iter().flat_map(|a| quants.iter().map(move |q| (a, q))).map(|(a, q)| (*a, q))
             {
@@ -273,7 +273,7 @@ fn run() -> Res<()> {
                             nis_m,
                             r.timing_s
                         );
-                        println!("      noise: {}", odocal::research::noise_summary(&r.noise));
+                        println!("      noise: {}", odocal_lab::noise_summary(&r.noise));
                         for w in &r.warnings {
                             println!("      warning: {w}");
                         }

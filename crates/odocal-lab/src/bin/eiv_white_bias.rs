@@ -25,9 +25,10 @@
 
 use nalgebra::{Matrix3, Vector3};
 use odocal::eiv::{estimate, CovarianceMode, EivInput, EivOptions, HeadingScale, NoiseModel, ResearchOptions};
-use odocal::model::{step_jacobians, wrap_angle, Input, State};
+use odocal::model::{step_jacobians, Input, State};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{Drive, Theta};
+use odocal_lab::wrap_angle;
 use odocal_lab::{batch_gn_all, errors, format_errors, noise_preset, Args, Res};
 
 const USAGE: &str = "eiv_white_bias [--km 12] [--seeds 8] [--first-seed 1] [--sigma 0.02] [--substeps 10]
@@ -85,14 +86,14 @@ fn gn_whitened(
     free: [bool; 4],
     f: &dyn Fn(&Drive, &Theta, &mut Vec<f64>),
 ) -> (Theta, f64, usize) {
-    let mut th = start.to_vector();
+    let mut th = nalgebra::Vector4::from(start.to_array());
     let hstep = [1e-6, 1e-7, 1e-6, 1e-7];
     let (mut r0, mut rp, mut rm) = (Vec::new(), Vec::new(), Vec::new());
     let mut cost = f64::INFINITY;
     let mut it = 0;
     for _ in 0..30 {
         it += 1;
-        f(d, &Theta::from_vector(&th), &mut r0);
+        f(d, &Theta::from_array(th.into()), &mut r0);
         cost = 0.5 * r0.iter().map(|x| x * x).sum::<f64>();
         let mut jac: Vec<Vec<f64>> = Vec::new();
         let idx: Vec<usize> = (0..4).filter(|i| free[*i]).collect();
@@ -100,8 +101,8 @@ fn gn_whitened(
             let (mut a, mut b) = (th, th);
             a[i] += hstep[i];
             b[i] -= hstep[i];
-            f(d, &Theta::from_vector(&a), &mut rp);
-            f(d, &Theta::from_vector(&b), &mut rm);
+            f(d, &Theta::from_array(a.into()), &mut rp);
+            f(d, &Theta::from_array(b.into()), &mut rm);
             jac.push(rp.iter().zip(&rm).map(|(p, q)| (p - q) / (2.0 * hstep[i])).collect());
         }
         let n = idx.len();
@@ -122,7 +123,7 @@ fn gn_whitened(
             for (a, &i) in idx.iter().enumerate() {
                 t2[i] += fac * step[a];
             }
-            f(d, &Theta::from_vector(&t2), &mut rp);
+            f(d, &Theta::from_array(t2.into()), &mut rp);
             let c2 = 0.5 * rp.iter().map(|x| x * x).sum::<f64>();
             if c2 <= cost {
                 th = t2;
@@ -136,7 +137,7 @@ fn gn_whitened(
             break;
         }
     }
-    (Theta::from_vector(&th), cost, it)
+    (Theta::from_array(th.into()), cost, it)
 }
 
 /// Heading channel alone: `Σ (t_r Δψ_k − x̃_k)² / σ_x,k²`, with
@@ -152,7 +153,7 @@ fn heading_residuals(d: &Drive, th: &Theta, sigma: f64, scale: Scale, out: &mut 
         if nl == 0.0 && nr == 0.0 {
             continue;
         }
-        let (c_rl, c_rr) = th.wheel_circumferences(m.a_y[k]);
+        let (c_rl, c_rr) = (th.c_e + th.c_d / 2.0 + th.d * m.a_y[k], th.c_e - th.c_d / 2.0 - th.d * m.a_y[k]);
         let (sl, sr) = match (scale, tru) {
             (Scale::True, Some(t)) => (t.n_rl[k], t.n_rr[k]),
             _ => (nl, nr),
@@ -185,7 +186,7 @@ fn run() -> Res<()> {
         wheel_white_rel_sigma: sigma,
         position_white_sigma_m: sim_pos,
         heading_white_sigma_rad: sim_head,
-        ..NoiseOptions::white_wheel_only()
+        ..odocal_lab::white_wheel_only()
     };
     let noise = match preset.as_deref() {
         None => noise,

@@ -16,9 +16,8 @@
 //! Run: `cargo run --release --manifest-path crates/odocal-lab/Cargo.toml
 //! --bin joint_heading [-- --method batch-gn]`.
 
-use odocal::research::{validate_drives_with, CalibrationExtrinsics};
 use odocal::settings::{Caller, ManifestSettings, Settings};
-use odocal::{Calibration, CalibrationOptions, CalibrationReport, Drive, Method, Param, ParamSet, ValidationDrive};
+use odocal::{Calibration, CalibrationOptions, CalibrationReport, Drive, Method, Param, ValidationDrive};
 use odocal_lab::{repo_path, testtrack_manifest, with_signals, Args, Res, Table, TESTTRACK_RUNS};
 
 const USAGE: &str = "joint_heading [--method eiv|batch-gn|three-step]";
@@ -40,11 +39,10 @@ fn mean(v: &[f64]) -> f64 {
 }
 
 /// Mean Ē_p of `r` on `others`, each with its own δ re-estimated.
-fn held_out(r: &CalibrationReport, others: &[(&str, &Drive)], opts: &CalibrationOptions) -> Res<f64> {
-    let cal = CalibrationExtrinsics { carry_heading_offset: false, ..r.extrinsics_for_validation(ParamSet::EMPTY) };
+fn held_out(r: &CalibrationReport, others: &[(&str, &Drive)]) -> Res<f64> {
     let v: Vec<ValidationDrive> =
         others.iter().map(|(name, drive)| ValidationDrive { name, drive, reference: None }).collect();
-    let m = validate_drives_with(&v, &r.theta, &opts.theta0, &cal, &opts.validation)?;
+    let m = r.validate_on_drives(&v, false)?;
     Ok(mean(&m.drives.iter().map(|d| d.mean_position_error_m).collect::<Vec<_>>()))
 }
 
@@ -90,7 +88,7 @@ fn run() -> Res<()> {
         let others: Vec<(&str, &Drive)> = (0..6).filter(|i| !g.contains(i)).map(|i| (runs[i].0, &runs[i].1)).collect();
         let per = Calibration::new(&joined, &opts).run()?;
         let one = Calibration::new(&shared, &opts).run()?;
-        let (hp, ho) = (held_out(&per, &others, &opts)?, held_out(&one, &others, &opts)?);
+        let (hp, ho) = (held_out(&per, &others)?, held_out(&one, &others)?);
         let name = g.iter().map(|&i| runs[i].0).collect::<Vec<_>>().join("+");
         eprintln!("{name}: per-drive {hp:.3} m, one δ {ho:.3} m");
         t.row([

@@ -40,13 +40,13 @@ use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::PathBuf;
 
-use odocal::research::{mean_position_error_with, validate_drives_with, CalibrationExtrinsics};
+use odocal::research::mean_position_error_with;
 use odocal::segment::{validation_segments, ValidationSegmentOptions};
 use odocal::settings::{Caller, ManifestSettings, Settings};
 use odocal::sim::{simulate, NoiseOptions, NoiseRegime, SimOptions};
 use odocal::{
-    calibrate, Calibration, CalibrationOptions, CalibrationReport, Drive, Holdout, Method, Param, ParamSet,
-    ValidationDrive, VerdictLevel,
+    calibrate, Calibration, CalibrationOptions, CalibrationReport, Drive, Holdout, Method, Param, ValidationDrive,
+    VerdictLevel,
 };
 use odocal_lab::{
     coverage, error_scale, errors, repo_path, testtrack_manifest, Args, Res, Summary, Table, ERROR_UNITS,
@@ -114,10 +114,9 @@ fn load_with_options(rel: &str) -> Res<(Drive, CalibrationOptions)> {
 }
 
 /// Ē_p of the calibration `r` on `drive`, δ re-estimated there.
-fn held_out_e_p(r: &CalibrationReport, drive: &Drive, opts: &CalibrationOptions) -> Res<f64> {
-    let cal = CalibrationExtrinsics { carry_heading_offset: false, ..r.extrinsics_for_validation(ParamSet::EMPTY) };
+fn held_out_e_p(r: &CalibrationReport, drive: &Drive) -> Res<f64> {
     let others = [ValidationDrive { name: "other", drive, reference: None }];
-    let v = validate_drives_with(&others, &r.theta, &opts.theta0, &cal, &opts.validation)?;
+    let v = r.validate_on_drives(&others, false)?;
     Ok(v.drives[0].mean_position_error_m)
 }
 
@@ -138,10 +137,10 @@ fn testtrack_part(methods: &[String]) -> Res<Vec<(String, f64, f64)>> {
         }
         let own: Vec<f64> = fits.iter().map(|(r, _)| r.validation.mean_position_error_m).collect();
         let mut cross = Vec::new();
-        for (i, (r, o)) in fits.iter().enumerate() {
+        for (i, (r, _)) in fits.iter().enumerate() {
             for (j, (drive, _)) in runs.iter().enumerate() {
                 if i != j {
-                    cross.push(held_out_e_p(r, drive, o)?);
+                    cross.push(held_out_e_p(r, drive)?);
                 }
             }
         }
@@ -179,7 +178,7 @@ fn van_part(methods: &[String]) -> Res<VanRows> {
         let fits: Vec<CalibrationReport> =
             halves.iter().map(|h| Calibration::new(h, &o).run()).collect::<Result<_, _>>()?;
         let own = [0, 1].map(|i| fits[i].validation.mean_position_error_m);
-        let held = [held_out_e_p(&fits[0], &halves[1], &o)?, held_out_e_p(&fits[1], &halves[0], &o)?];
+        let held = [held_out_e_p(&fits[0], &halves[1])?, held_out_e_p(&fits[1], &halves[0])?];
         let ratio = [held[0] / own[1], held[1] / own[0]];
         eprintln!("van: {m} own {own:?} held {held:?}");
         t.row([

@@ -18,7 +18,7 @@
 use std::fmt::Write as _;
 use std::time::Instant;
 
-use odocal::compensate::qp::SolverKind;
+use odocal::compensate::SolverKind;
 use odocal::compensate::{compensate_segments, CompensateOptions, CompensatedInputs, QpOptions};
 use odocal::identify::IdentifyOptions;
 use odocal::research::{calibrate_detailed, random_batches, reachable_minimum, score_batches};
@@ -94,9 +94,9 @@ fn abs_diff(a: &Theta, b: &Theta) -> [f64; 4] {
 fn mean_theta(ts: &[Theta]) -> Theta {
     let mut v = nalgebra::Vector4::zeros();
     for t in ts {
-        v += t.to_vector();
+        v += nalgebra::Vector4::from(t.to_array());
     }
-    Theta::from_vector(&(v / ts.len().max(1) as f64))
+    Theta::from_array((v / ts.len().max(1) as f64).into())
 }
 
 /// G-N from θ_0 on random batches of `n` segments of `data` (all when `n` is None).

@@ -40,12 +40,12 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use odocal::crossrun::{CrossRunFit, CrossRunRow, CrossRunTable, CROSS_RUN_OWN_FIT_RATIO};
 use odocal::eiv::{EivOptions, NoiseModel, QuantisationLevel};
 use odocal::{
     calibrate, CalibrationOptions, CalibrationReport, EivMethodOptions, EivOutcome, Holdout, Method, MethodDetail,
     ParamSet, ValidationDrive, VerdictLevel, Warning,
 };
+use odocal_lab::crossrun::{CrossRunFit, CrossRunRow, CrossRunTable, CROSS_RUN_OWN_FIT_RATIO};
 use odocal_lab::{load, repo_path, testtrack_manifest, Args, Res, RAV4_MANIFEST, TESTTRACK_RUNS, VAN_MANIFEST};
 use serde_json::{json, Value};
 
@@ -332,8 +332,7 @@ fn testtrack(methods: &[String], md: &mut String) -> Res<Value> {
                 .filter(|(j, _)| *j != i)
                 .map(|(_, (n, d))| ValidationDrive { name: n, drive: d, reference: None })
                 .collect();
-            let cal = r.extrinsics_for_validation(ParamSet::EMPTY);
-            let v = odocal::research::validate_drives_with(&others, &r.theta, &opts.theta0, &cal, &opts.validation)?;
+            let v = r.validate_on_drives(&others, false)?;
             let wall = t.elapsed().as_secs_f64();
             let fb = eiv_fallback(&r);
             if let Some((row, v)) = eiv_detail_row(m, name, &r) {
@@ -473,10 +472,9 @@ fn swap(md: &mut String) -> Res<Value> {
             .filter(|(j, _)| *j != i)
             .map(|(_, (n, d, _))| ValidationDrive { name: n, drive: d, reference: None })
             .collect();
-        let cal = gn.extrinsics_for_validation(ParamSet::EMPTY);
         let judge = |t: &odocal::Theta| -> Res<f64> {
-            Ok(odocal::research::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?
-                .mean_over_drives_m)
+            let r = odocal::CalibrationReport { theta: *t, ..gn.clone() };
+            Ok(r.validate_on_drives(&others, false)?.mean_over_drives_m)
         };
         let (g, e) = (gn.theta, eiv.theta);
         let mut cells = vec![judge(&g)?, judge(&e)?];
@@ -510,10 +508,9 @@ fn swap(md: &mut String) -> Res<Value> {
         let gn = calibrate(&fit, &gn_opts)?;
         let eiv = calibrate(&fit, &options("eiv-scg-nofallback", q)?)?;
         let others = [ValidationDrive { name: label, drive: &held, reference: None }];
-        let cal = gn.extrinsics_for_validation(ParamSet::EMPTY);
         let judge = |t: &odocal::Theta| -> Res<f64> {
-            Ok(odocal::research::validate_drives_with(&others, t, &gn_opts.theta0, &cal, &gn_opts.validation)?
-                .mean_over_drives_m)
+            let r = odocal::CalibrationReport { theta: *t, ..gn.clone() };
+            Ok(r.validate_on_drives(&others, false)?.mean_over_drives_m)
         };
         let (g, e) = (gn.theta, eiv.theta);
         let cells = [

@@ -14,8 +14,8 @@
 
 use std::path::PathBuf;
 
-use odocal::crossrun::{cross_run_groups, CROSS_RUN_OWN_FIT_RATIO};
 use odocal::{CalibrationOptions, Method, ParamSet};
+use odocal_lab::crossrun::{cross_run_groups, CROSS_RUN_OWN_FIT_RATIO};
 use odocal_lab::{testtrack_runs, Args, Res};
 
 const USAGE: &str = "testtrack_crossrun [--method eiv|three-step|batch-gn] [--min-yaw-rate R] [--segment-length K]

@@ -124,7 +124,7 @@ impl BetweenDrivePrior {
 /// Where the between-drive σ τ comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
-pub enum BetweenDriveSource {
+pub(crate) enum BetweenDriveSource {
     /// One drive: the documented prior ([`BETWEEN_DRIVE_PRIOR`]).
     Prior,
     /// Several drives: DerSimonian–Laird on their separate fits, at least
@@ -150,7 +150,7 @@ pub struct NextDriveSigma {
     /// The between-drive σ τ.
     pub between_drive: [f64; 4],
     /// Where τ comes from.
-    pub between_source: BetweenDriveSource,
+    pub(crate) between_source: BetweenDriveSource,
     /// With several drives: their separate fits and the pooling.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pooled: Option<PooledDrives>,

@@ -150,11 +150,4 @@ impl MultiValidation {
             drives,
         }
     }
-
-    /// The drives on which θ is worse than θ_0.
-    pub(crate) fn worse_than_initial(&self) -> impl Iterator<Item = &DriveValidation> {
-        self.drives
-            .iter()
-            .filter(|d| d.mean_position_error_m.is_nan() || d.mean_position_error_m > d.initial_mean_position_error_m)
-    }
 }

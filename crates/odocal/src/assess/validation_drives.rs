@@ -76,7 +76,7 @@ impl std::fmt::Display for ExtrinsicSource {
 /// The reference extrinsics of a calibration, as validation drives see
 /// them: what was estimated, what the caller gave, the held and final values.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
-pub struct CalibrationExtrinsics {
+pub(crate) struct CalibrationExtrinsics {
     /// The start of the estimate and the value of held parameters.
     pub initial: Extrinsics,
     /// The result (equal to `initial` for held parameters).
@@ -361,7 +361,7 @@ impl<'a> HeldOutDrives<'a> {
 /// # Errors
 /// [`Error::NoSegments`] naming a drive too short for one validation
 /// segment (or when `drives` is empty); non-finite errors.
-pub fn validate_drives_with(
+pub(crate) fn validate_drives_with(
     drives: &[ValidationDrive<'_>],
     theta: &Theta,
     theta0: &Theta,

@@ -370,7 +370,7 @@ pub(crate) fn noise_model_from_table(mut table: toml::Table) -> std::result::Res
 }
 
 /// The noise model as one line in physical units (σ in %, time constants in s).
-pub fn noise_summary(n: &NoiseModel) -> String {
+pub(crate) fn noise_summary(n: &NoiseModel) -> String {
     format!(
         "σ_white {:.3} %, q {:.4} rev/s, σ_c {:.3} % (τ_c {} s), σ_w {:.3} % (τ_w {} s); pose σ {:.3} m / {:.2} mrad, \
          drift {:.3} m / {:.2} mrad (τ {} s); σ_a {:.3} m/s², σ_β {:.2} mrad",

@@ -63,8 +63,8 @@ use crate::model::Theta;
 use crate::progress::ProgressFn;
 
 pub(crate) mod batch_gn;
-pub mod crossrun;
 pub(crate) mod eiv;
+mod render;
 mod report;
 pub mod settings;
 pub(crate) mod three_step;

@@ -405,7 +405,8 @@ pub(crate) fn next_drive_of(
 pub enum SigmaSource {
     /// batch-gn's cluster-robust covariance ([`RobustCovariance`]).
     ClusterRobust,
-    /// The 3-step method's step-1 batch spread ([`super::BatchSpread`]).
+    /// The 3-step method's step-1 batch spread: the sample covariance of its
+    /// plausible batch estimates, scaled to all the data.
     BatchSpread,
     /// The model covariance ([`CalibrationReport::covariance`]): EIV's
     /// filter covariance (per parameter the larger of `H_θ⁻¹` and a block

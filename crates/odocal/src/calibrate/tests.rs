@@ -2,8 +2,8 @@
 
 use super::three_step::{equal_step_picks, random_batches};
 use super::*;
-use crate::compensate::qp::SolverKind;
 use crate::compensate::QpOptions;
+use crate::compensate::SolverKind;
 use crate::drive::segment::{
     calibration_segments, validation_segments, Segment, SegmentOptions, ValidationSegmentOptions,
 };

@@ -49,8 +49,28 @@ impl CalibrationReport {
     /// The reference extrinsics of this calibration as validation drives
     /// see them; `given` names the parameters the caller gave (e.g.
     /// `--lever-arm` gives `lever_x`, `lever_y`).
-    pub fn extrinsics_for_validation(&self, given: ParamSet) -> CalibrationExtrinsics {
+    pub(crate) fn extrinsics_for_validation(&self, given: ParamSet) -> CalibrationExtrinsics {
         CalibrationExtrinsics::of_estimate(self.extrinsics.as_ref(), self.options.identify.extrinsics, given)
+    }
+
+    /// Ē_p of this calibration's θ and of its θ_0 on the validation
+    /// segments of each of `drives` (other drives of the same vehicle,
+    /// after the calibration: what [`Calibration::validate_on`](crate::Calibration::validate_on)
+    /// does during it), each drive with the reference extrinsics that apply
+    /// to it; an estimated heading offset is re-estimated on each drive
+    /// unless `carry_heading_offset`. Cross-run checks (calibrate on each
+    /// drive, validate on the others) are built from it.
+    ///
+    /// # Errors
+    /// [`Error::NoSegments`] naming a drive too short for one validation
+    /// segment (or when `drives` is empty); non-finite errors.
+    pub fn validate_on_drives(
+        &self,
+        drives: &[ValidationDrive<'_>],
+        carry_heading_offset: bool,
+    ) -> Result<crate::assess::validate::MultiValidation> {
+        let cal = CalibrationExtrinsics { carry_heading_offset, ..self.extrinsics_for_validation(ParamSet::EMPTY) };
+        validate_drives_with(drives, &self.theta, &self.options.theta0, &cal, &self.options.validation)
     }
 }
 

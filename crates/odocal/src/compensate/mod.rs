@@ -1,7 +1,8 @@
 //! Input compensation by optimal control (SPEC §5, paper §4.1).
 //!
 //! Expert API: for programs that compensate segments themselves (the
-//! `odocal compensate` command) or compare the QP solvers ([`qp`]).
+//! `odocal compensate` command) or compare the QP solvers
+//! ([`SolverKind`]).
 //!
 //! For one segment and one fixed θ, estimate noise-free wheel rotations
 //! `n̂_rl, n̂_rr`. The model is linearized around the trajectory `x̄` run with
@@ -20,7 +21,7 @@
 //! ```
 //!
 //! with `Q = diag(1, 1, 10)`, `R = diag(1000, 1000)` is posed in deviation
-//! variables `z = x − ỹ`, `w = n − ñ` ([`crate::compensate::qp::StageQp`]) and solved; the
+//! variables `z = x − ỹ`, `w = n − ñ` (`qp::StageQp`) and solved; the
 //! model is re-linearized around the solution until the inputs change by
 //! less than a tolerance (at most 5 linearizations).
 //!
@@ -40,11 +41,13 @@ use crate::drive::Drive;
 use crate::error::{Error, Result};
 use crate::model::{step_jacobians, Input, Theta};
 use crate::progress::{Progress, ProgressFn};
-use qp::clarabel::{ClarabelOptions, ClarabelSolver};
-use qp::riccati::{StructuredOptions, StructuredSolver};
-use qp::{QpError, QpSolution, QpSolver, SolverKind, StageQp};
+use qp::clarabel::ClarabelSolver;
+use qp::riccati::StructuredSolver;
+use qp::{QpError, QpSolution, QpSolver, StageQp};
 
-pub mod qp;
+mod qp;
+
+pub use qp::{clarabel::ClarabelOptions, riccati::StructuredOptions, SolverKind};
 
 /// Which QP solver compensation uses, and the settings of each.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
@@ -256,7 +259,7 @@ pub(crate) fn compensate_segment(
 
 /// [`compensate_segment`] with a fallback: a QP on which `solver` stops at
 /// its iteration limit or fails numerically is solved again by `fallback`
-/// (typically [`crate::compensate::qp::clarabel::ClarabelSolver`]), and the event is
+/// (typically Clarabel), and the event is
 /// recorded in [`Compensation::fallbacks`]. An infeasible or malformed QP is
 /// not retried (no solver can do better); it is returned as an error.
 pub(crate) fn compensate_segment_with_fallback(
@@ -552,7 +555,7 @@ impl CompensatedInputs {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::compensate::qp::SolverKind;
+    use crate::compensate::SolverKind;
     use crate::drive::segment::{cut, SegmentData};
     use crate::drive::{Drive, Signals};
     use crate::model::{step, State};

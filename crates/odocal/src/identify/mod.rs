@@ -363,7 +363,7 @@ impl std::fmt::Display for IdentifyReport {
 /// over θ (`N = 4`, the default) or over θ and the reference extrinsics
 /// (`N = 7`, [`Extrinsics`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct NormalEquations<const N: usize = 4> {
+pub(crate) struct NormalEquations<const N: usize = 4> {
     /// `JᵀWJ`.
     pub jtwj: SMatrix<f64, N, N>,
     /// `JᵀWR`.
@@ -427,7 +427,11 @@ pub(crate) fn segment_normal_equations(seg: &SegmentData<'_>, theta: &Theta, wei
 
 /// Normal equations summed over segments, computed in parallel and summed in
 /// segment order (deterministic whatever the thread count).
-pub fn batch_normal_equations(segments: &[SegmentData<'_>], theta: &Theta, weights: &[f64; 3]) -> NormalEquations {
+pub(crate) fn batch_normal_equations(
+    segments: &[SegmentData<'_>],
+    theta: &Theta,
+    weights: &[f64; 3],
+) -> NormalEquations {
     let parts: Vec<NormalEquations> =
         segments.par_iter().map(|s| segment_normal_equations(s, theta, weights)).collect();
     let mut total = NormalEquations::zero();

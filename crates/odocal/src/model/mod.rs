@@ -59,7 +59,7 @@ impl Theta {
     pub const SIM_DEFAULT_TRUE: Theta = Theta { c_e: 1.950, c_d: -0.002, t_r: 1.530, d: 0.0008 };
 
     /// Builds θ from `[c_e, c_d, t_r, d]`.
-    pub fn from_vector(v: &Vector4<f64>) -> Self {
+    pub(crate) fn from_vector(v: &Vector4<f64>) -> Self {
         Theta { c_e: v[0], c_d: v[1], t_r: v[2], d: v[3] }
     }
 
@@ -69,7 +69,7 @@ impl Theta {
     }
 
     /// `[c_e, c_d, t_r, d]` as a vector.
-    pub fn to_vector(&self) -> Vector4<f64> {
+    pub(crate) fn to_vector(self) -> Vector4<f64> {
         Vector4::new(self.c_e, self.c_d, self.t_r, self.d)
     }
 
@@ -81,7 +81,7 @@ impl Theta {
     /// Effective rear wheel circumferences `(c_rl, c_rr)` at lateral
     /// acceleration `a_y` (3a, 3b), m.
     #[inline]
-    pub fn wheel_circumferences(&self, a_y: f64) -> (f64, f64) {
+    pub(crate) fn wheel_circumferences(&self, a_y: f64) -> (f64, f64) {
         (self.c_e + self.c_d / 2.0 + self.d * a_y, self.c_e - self.c_d / 2.0 - self.d * a_y)
     }
 
@@ -240,7 +240,7 @@ pub fn step_jacobians(x: &State, u: &Input, theta: &Theta, t_s: f64) -> StepJaco
 
 /// Wraps an angle to (−π, π].
 #[inline]
-pub fn wrap_angle(a: f64) -> f64 {
+pub(crate) fn wrap_angle(a: f64) -> f64 {
     let two_pi = 2.0 * std::f64::consts::PI;
     let mut r = a.rem_euclid(two_pi);
     if r > std::f64::consts::PI {

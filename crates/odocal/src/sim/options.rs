@@ -256,7 +256,7 @@ impl NoiseOptions {
 
     /// Only white noise on the wheel rotations, of the paper preset's size;
     /// everything else exact.
-    pub fn white_wheel_only() -> Self {
+    pub(crate) fn white_wheel_only() -> Self {
         NoiseOptions { wheel_white_rel_sigma: NoiseOptions::paper().wheel_white_rel_sigma, ..NoiseOptions::off() }
     }
 
@@ -264,7 +264,8 @@ impl NoiseOptions {
     /// differential relative errors, white noise and encoder quantisation —
     /// on a perfect reference, with no slip, a_y or sideslip noise (the
     /// "coloured" preset of the EIV studies).
-    pub fn coloured_wheels_only() -> Self {
+    #[cfg(test)]
+    pub(crate) fn coloured_wheels_only() -> Self {
         let p = NoiseOptions::paper();
         NoiseOptions {
             wheel_coloured_rel_sigma: p.wheel_coloured_rel_sigma,
@@ -290,7 +291,7 @@ impl NoiseOptions {
     /// revolution ÷ f (rounded), so the quantisation step × f; time constants
     /// kept. `paper_scaled(2.5)` is [`NoiseOptions::high`] but for the ticks
     /// (819 there, 512 in `high`).
-    pub fn paper_scaled(f: f64) -> Self {
+    fn paper_scaled(f: f64) -> Self {
         let p = NoiseOptions::paper();
         NoiseOptions {
             wheel_slip_per_m_per_s2: f * p.wheel_slip_per_m_per_s2,
@@ -345,9 +346,10 @@ pub struct CdStep {
     pub at_s: f64,
 }
 
-/// Parameters that drift during a drive: the true θ at time `t` is
-/// [`DriftOptions::theta_at`]. Default: no drift (θ constant, and the
-/// simulator's output byte-identical to one without this setting).
+/// Parameters that drift during a drive: the true θ at `t` seconds into
+/// the drive is `c_e·(1 + r·t/3600)` (r = `c_e_relative_per_hour`) and
+/// `c_d + Δ` from the step's time on. Default: no drift (θ constant, and
+/// the simulator's output byte-identical to one without this setting).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct DriftOptions {
@@ -368,7 +370,7 @@ impl DriftOptions {
     /// The true θ at `t_s` seconds into the drive, from `theta0` at its
     /// start: `c_e·(1 + r·t/3600)` and `c_d + Δ` from the step's time on.
     /// `theta0` itself when nothing drifts.
-    pub fn theta_at(&self, theta0: &Theta, t_s: f64) -> Theta {
+    pub(crate) fn theta_at(&self, theta0: &Theta, t_s: f64) -> Theta {
         if self.is_zero() {
             return *theta0;
         }

@@ -31,7 +31,7 @@ use serde::Deserialize;
 
 use super::eiv::{read_noise_model, NoiseSpec};
 use super::{FinalSegments, Method};
-use crate::compensate::qp::SolverKind;
+use crate::compensate::SolverKind;
 use crate::eiv::{HeadingScale, LateralNoise, NoiseSource, QuantisationLevel, QuantisationModel};
 use crate::error::{Error, Result};
 use crate::model::param::{Param, ParamSet};

@@ -26,7 +26,8 @@ use nalgebra::{Vector2, Vector3};
 
 use super::{QpError, QpSolution, QpSolver, StageQp, ACTIVE_BOUND_TOL};
 
-/// Settings of [`ClarabelSolver`].
+/// Settings of the Clarabel solver ([`SolverKind::Clarabel`](super::SolverKind::Clarabel),
+/// and the structured solver's fallback).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ClarabelOptions {
     /// Absolute and relative duality-gap tolerance (Clarabel `tol_gap_abs`,
@@ -69,7 +70,7 @@ impl ClarabelOptions {
 /// system each iteration). Slower than [`super::riccati::StructuredSolver`]
 /// but independent of it: the cross-check and the fallback.
 #[derive(Debug, Clone, PartialEq, Default)]
-pub struct ClarabelSolver {
+pub(crate) struct ClarabelSolver {
     /// Tolerances and limits.
     pub settings: ClarabelOptions,
 }

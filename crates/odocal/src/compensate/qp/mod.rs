@@ -35,8 +35,8 @@
 // index loops read like the maths there.
 #![allow(clippy::needless_range_loop)]
 
-pub mod clarabel;
-pub mod riccati;
+pub(crate) mod clarabel;
+pub(crate) mod riccati;
 
 use std::fmt;
 use std::str::FromStr;
@@ -47,13 +47,14 @@ use nalgebra::{Matrix3, Matrix3x2, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
 pub(crate) use crate::error::QpError;
+#[cfg(test)]
 use crate::model::{step_jacobians, Input, Theta};
 
 /// One instance of the compensation QP. Vectors indexed by stage hold, at
 /// index `i`, the quantity of step `k = i + 1` (dynamics, state bounds) or
 /// of input `i` (input bounds), as documented per field.
 #[derive(Debug, Clone, PartialEq)]
-pub struct StageQp {
+pub(crate) struct StageQp {
     /// `A_k` for k = 1..K (index k−1), 3×3.
     pub a: Vec<Matrix3<f64>>,
     /// `B_k` for k = 1..K (index k−1), 3×2.
@@ -135,7 +136,7 @@ impl StageQp {
 
 /// A solution of a [`StageQp`].
 #[derive(Debug, Clone, PartialEq)]
-pub struct QpSolution {
+pub(crate) struct QpSolution {
     /// Input deviations `w_0..w_{K−1}`.
     pub w: Vec<Vector2<f64>>,
     /// State deviations `z_1..z_K`.
@@ -152,7 +153,7 @@ pub struct QpSolution {
 }
 
 /// A solver for [`StageQp`].
-pub trait QpSolver: Send + Sync {
+pub(crate) trait QpSolver: Send + Sync {
     /// Short name (`"clarabel"`, `"structured"`).
     fn name(&self) -> &'static str;
     /// Solves the QP; `warm_start` may be a previous solution of a nearby problem.
@@ -355,14 +356,17 @@ pub(crate) fn solve_equality_constrained(qp: &StageQp) -> Result<QpSolution, QpE
     })
 }
 
-/// Which [`QpSolver`] to use; parses from `"structured"` or `"clarabel"`.
+/// Which solver the compensation QP uses; parses from `"structured"` or
+/// `"clarabel"`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum SolverKind {
-    /// [`riccati::StructuredSolver`] with default options (the default).
+    /// The structured solver: a primal-dual interior-point method whose
+    /// Newton steps are Riccati recursions, O(K) per iteration (the
+    /// default), with Clarabel as its fallback.
     #[default]
     Structured,
-    /// [`clarabel::ClarabelSolver`] with default settings.
+    /// Clarabel, the general sparse conic solver (no fallback).
     Clarabel,
 }
 
@@ -426,7 +430,8 @@ impl FromStr for SolverKind {
 /// `tightness ≈ 0.9` activates many input bounds, `≈ 0.97` state bounds
 /// too; from about 0.98 on, some instances have no feasible point.
 /// Values of `tightness` are clamped to [0, 0.999].
-pub fn random_instance(seed: u64, stages: usize, tightness: f64) -> StageQp {
+#[cfg(test)]
+pub(crate) fn random_instance(seed: u64, stages: usize, tightness: f64) -> StageQp {
     use rand::SeedableRng;
     use rand_distr::{Distribution, StandardNormal};
     const T_S: f64 = 0.025;

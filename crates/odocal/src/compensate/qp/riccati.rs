@@ -48,7 +48,7 @@ use nalgebra::{Matrix2, Matrix3, Matrix3x2, Matrix5, SMatrix, Vector2, Vector3, 
 
 use super::{QpError, QpSolution, QpSolver, StageQp, ACTIVE_BOUND_TOL};
 
-/// Options of [`StructuredSolver`].
+/// Options of the structured solver ([`SolverKind::Structured`](super::SolverKind::Structured)).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct StructuredOptions {
     /// Relative tolerance on the primal residuals (dynamics and slack
@@ -153,7 +153,7 @@ impl StructuredOptions {
 /// `QpError::MaxIterations` or `QpError::Numerical` a caller may fall
 /// back to [`super::clarabel::ClarabelSolver`].
 #[derive(Debug, Clone, PartialEq, Default)]
-pub struct StructuredSolver {
+pub(crate) struct StructuredSolver {
     /// Tolerances, limits and warm-start settings.
     pub options: StructuredOptions,
 }

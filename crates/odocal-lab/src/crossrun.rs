@@ -1,27 +1,21 @@
 //! Cross-run checks: calibrate on each of several drives of one vehicle and
 //! validate on the others.
 //!
-//! Expert API: for judging whether a calibration carries over between
-//! the drives of one vehicle.
-//!
 //! A calibration that only fits the drive it came from is no calibration.
 //! [`cross_run`] calibrates every drive on its own and validates each θ on
-//! every other drive, beside θ_0; [`CrossRunTable::criteria`] sums the table
-//! up: never worse than θ_0 on another drive, the mean
-//! cross-run Ē_p within a ratio of the mean of the drives' own fits, and how
-//! many calibrations were rejected.
+//! every other drive ([`odocal::CalibrationReport::validate_on_drives`]),
+//! beside θ_0; [`CrossRunTable::criteria`] sums the table up: never worse
+//! than θ_0 on another drive, the mean cross-run Ē_p within a ratio of the
+//! mean of the drives' own fits, and how many calibrations were rejected.
 
 use serde::{Deserialize, Serialize};
 
-use crate::assess::trust::{Verdict, VerdictLevel};
-use crate::assess::validate::MultiValidation;
-use crate::assess::validation_drives::{validate_drives_with, ValidationDrive};
-use crate::calibrate::{Calibration, CalibrationOptions};
-use crate::drive::Drive;
-use crate::error::{Error, Result};
-use crate::model::param::ParamSet;
-use crate::model::Theta;
-use crate::progress::ProgressFn;
+use odocal::{
+    Calibration, CalibrationOptions, Drive, DriveValidation, Error, MultiValidation, Progress, Theta, ValidationDrive,
+};
+use odocal::{Verdict, VerdictLevel};
+
+type Result<T> = std::result::Result<T, Error>;
 
 /// The ratio of the acceptance criterion: the mean over runs of the
 /// cross-run Ē_p should stay within this multiple of the mean of the runs'
@@ -101,7 +95,7 @@ impl CrossRunTable {
         let worse_than_initial = fits
             .iter()
             .flat_map(|(name, r)| {
-                r.others.worse_than_initial().map(|d| {
+                worse_than_initial(&r.others).map(|d| {
                     (name.to_string(), d.name.clone(), d.mean_position_error_m, d.initial_mean_position_error_m)
                 })
             })
@@ -120,6 +114,13 @@ impl CrossRunTable {
             runs: self.rows.len(),
         }
     }
+}
+
+/// The drives on which θ is worse than θ_0.
+fn worse_than_initial(m: &MultiValidation) -> impl Iterator<Item = &DriveValidation> {
+    m.drives
+        .iter()
+        .filter(|d| d.mean_position_error_m.is_nan() || d.mean_position_error_m > d.initial_mean_position_error_m)
 }
 
 impl std::fmt::Display for CrossRunTable {
@@ -196,7 +197,7 @@ impl std::fmt::Display for CrossRunCriteria {
 pub fn cross_run(
     drives: &[(&str, &Drive)],
     opts: &CalibrationOptions,
-    progress: Option<ProgressFn<'_>>,
+    progress: Option<&(dyn Fn(Progress) + Sync)>,
 ) -> Result<CrossRunTable> {
     let groups: Vec<Vec<usize>> = (0..drives.len()).map(|i| vec![i]).collect();
     cross_run_groups(drives, &groups, opts, progress)
@@ -223,7 +224,7 @@ pub fn cross_run_groups(
     drives: &[(&str, &Drive)],
     groups: &[Vec<usize>],
     opts: &CalibrationOptions,
-    progress: Option<ProgressFn<'_>>,
+    progress: Option<&(dyn Fn(Progress) + Sync)>,
 ) -> Result<CrossRunTable> {
     if drives.len() < 2 {
         return Err(Error::InvalidOption {
@@ -277,8 +278,8 @@ pub fn cross_run_groups(
             .map(|(_, (name, drive))| ValidationDrive { name, drive, reference: None })
             .collect();
         // The calibration's extrinsics (estimated or held) on every other drive.
-        let cal = r.extrinsics_for_validation(ParamSet::EMPTY);
-        let others = validate_drives_with(&others, &r.theta, &opts.theta0, &cal, &opts.validation)
+        let others = r
+            .validate_on_drives(&others, false)
             .map_err(|e| Error::Numerical(format!("cross-run, θ of {name}: {e}")))?;
         let fit = CrossRunFit {
             theta: r.theta,
@@ -295,7 +296,7 @@ pub fn cross_run_groups(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::drive::Signals;
+    use odocal::Signals;
 
     fn tiny_drive() -> Drive {
         let mut s = Signals::with_capacity(3);

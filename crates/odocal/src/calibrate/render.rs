@@ -1,12 +1,16 @@
-//! Human-readable output of reports.
+//! The calibration report for humans: the text `odocal calibrate` prints
+//! ([`CalibrationReport::render_text`]) and the validation drives' block
+//! (`MultiValidation`'s `Display`).
 
 use std::fmt::Write as _;
 
-use odocal::pooling::BetweenDriveSource;
-use odocal::{
-    CalibrationReport, EivDetail, EivOutcome, ExtrinsicsEstimate, Method, MethodDetail, MultiValidation, Param,
-    SigmaSource, Theta, Verdict, VerdictLevel,
-};
+use crate::assess::pooling::{BetweenDriveSource, PooledDrives, NEXT_DRIVE_SIGMA_LABEL};
+use crate::assess::trust::{Verdict, VerdictLevel};
+use crate::assess::validate::MultiValidation;
+use crate::calibrate::{BatchSpread, CalibrationReport, EivDetail, EivOutcome, Method, MethodDetail, SigmaSource};
+use crate::model::extrinsics::ExtrinsicsEstimate;
+use crate::model::param::Param;
+use crate::model::Theta;
 
 fn eiv_detail(r: &CalibrationReport) -> Option<&EivDetail> {
     match &r.detail {
@@ -40,7 +44,7 @@ fn row(out: &mut String, name: &str, unit: &str, values: &[Option<f64>], scale: 
 }
 
 /// A θ table with one column per entry (c_d and d also in mm, as the paper prints them).
-pub fn theta_table(columns: &[(&str, Option<Theta>)]) -> String {
+fn theta_table(columns: &[(&str, Option<Theta>)]) -> String {
     let mut out = String::new();
     let _ = write!(out, "  {:<4} {:<14}", "", "");
     for (name, _) in columns {
@@ -58,7 +62,7 @@ pub fn theta_table(columns: &[(&str, Option<Theta>)]) -> String {
 /// The reference extrinsics: initial, calibrated (or held) value, model 1σ
 /// and, when computed, the cluster-robust 1σ, under their own column names
 /// (the θ table's columns above may differ: truth, spread, EIV).
-pub fn extrinsics_table(x: &ExtrinsicsEstimate) -> String {
+fn extrinsics_table(x: &ExtrinsicsEstimate) -> String {
     let mut out = String::from("  reference extrinsics (lever arm from the rear-axle centre, x forward, y left):\n");
     let _ = write!(out, "  {:<4} {:<14}", "", "");
     for name in ["initial", "calibrated", "± 1σ (model)", "± 1σ (robust)"] {
@@ -93,7 +97,7 @@ pub fn extrinsics_table(x: &ExtrinsicsEstimate) -> String {
 }
 
 /// Relative error of each parameter against the truth (c_d, d: absolute in mm).
-pub fn error_line(est: &Theta, truth: &Theta) -> String {
+fn error_line(est: &Theta, truth: &Theta) -> String {
     format!(
         "c_e {:+.4} %, c_d {:+.4} mm, t_r {:+.4} %, d {:+.4} mm/(m/s²)",
         (est.c_e / truth.c_e - 1.0) * 100.0,
@@ -104,7 +108,7 @@ pub fn error_line(est: &Theta, truth: &Theta) -> String {
 }
 
 /// The verdict line and one line per reason.
-pub fn verdict(v: &Verdict) -> String {
+fn verdict(v: &Verdict) -> String {
     let mut out = format!("  verdict: {}", v.level.to_string().to_uppercase());
     if v.reasons.is_empty() {
         out.push_str(" (no reason for doubt found)");
@@ -119,11 +123,32 @@ pub fn verdict(v: &Verdict) -> String {
     out
 }
 
-/// The calibration report for humans.
-///
-/// `wheel_scale` says how to read c_e for an imported drive (ticks per
-/// revolution or nominal circumference); it is printed under the θ table.
-pub fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_scale: Option<&str>) -> String {
+impl CalibrationReport {
+    /// The report for humans, as `odocal calibrate` prints it: the method
+    /// and segments, the method's steps, the θ table (with the truth
+    /// column when `truth` gives a simulated drive's θ and its Ē_p), the
+    /// extrinsics, the verdict, the σ of the result, the validation and the
+    /// times. `wheel_scale` says how to read c_e for an imported drive
+    /// (ticks per revolution or nominal circumference); it is printed under
+    /// the θ table. The first line is the heading; the warnings
+    /// ([`CalibrationReport::warnings`]) are not included.
+    ///
+    /// ```
+    /// # fn main() -> Result<(), odocal::Error> {
+    /// use odocal::{calibrate, simulate, CalibrationOptions, Method, SimOptions};
+    /// let sim = simulate(&SimOptions { length_km: 4.0, substeps: 1, ..SimOptions::noise_free(1) })?;
+    /// let opts = CalibrationOptions { method: Method::from_name("batch-gn")?, ..Default::default() };
+    /// let text = calibrate(&sim.drive, &opts)?.render_text(None, None);
+    /// assert!(text.starts_with("odocal calibrate — method batch-gn\n"));
+    /// assert!(text.contains("verdict: "));
+    /// # Ok(()) }
+    /// ```
+    pub fn render_text(&self, truth: Option<(&Theta, f64)>, wheel_scale: Option<&str>) -> String {
+        calibration(self, truth, wheel_scale)
+    }
+}
+
+fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_scale: Option<&str>) -> String {
     let mut out = String::new();
     let _ = writeln!(out, "odocal calibrate — method {}", r.method);
     segments_line(&mut out, r);
@@ -311,7 +336,7 @@ fn result_notes(out: &mut String, r: &CalibrationReport, wheel_scale: Option<&st
                 out,
                 "  σ of the result (verdict, --params-out, --report, JSON `sigma`): ± 1σ (next drive) = {}\n    \
                  within-drive ± 1σ ({column}, JSON `sigma_within_drive`){gap} ⊕ between-drive ({between})",
-                odocal::pooling::NEXT_DRIVE_SIGMA_LABEL
+                NEXT_DRIVE_SIGMA_LABEL
             );
         }
         None => {
@@ -336,7 +361,7 @@ fn result_notes(out: &mut String, r: &CalibrationReport, wheel_scale: Option<&st
 
 /// The block of a several-drive calibration: each drive fitted alone, the
 /// random-effects pooling per parameter.
-fn pooled_lines(out: &mut String, p: &odocal::pooling::PooledDrives) {
+fn pooled_lines(out: &mut String, p: &PooledDrives) {
     let _ = writeln!(
         out,
         "  between drives ({} drives, each fitted alone with {}; random effects, DerSimonian–Laird):",
@@ -374,9 +399,16 @@ fn validation_lines(out: &mut String, r: &CalibrationReport, truth: Option<(&The
     }
 }
 
-/// Ē_p of the calibrated θ and of θ_0 on each `--validate-on` drive and
-/// their mean over the drives.
-pub fn validate_on(m: &MultiValidation) -> String {
+/// Ē_p of the calibrated θ and of θ_0 on each validation drive (`odocal
+/// calibrate --validate-on`) and their mean over the drives, as the tool
+/// prints them.
+impl std::fmt::Display for MultiValidation {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&validate_on(self))
+    }
+}
+
+fn validate_on(m: &MultiValidation) -> String {
     let mut out = String::from("validation drives (Ē_p calibrated / θ_0, m):\n");
     for d in &m.drives {
         let worse = if d.mean_position_error_m > d.initial_mean_position_error_m { "  worse than θ_0" } else { "" };
@@ -403,7 +435,7 @@ pub fn validate_on(m: &MultiValidation) -> String {
 }
 
 /// The 3-step method's step-1 batch-spread σ, when it has one.
-fn three_step_spread(r: &CalibrationReport) -> Option<&odocal::BatchSpread> {
+fn three_step_spread(r: &CalibrationReport) -> Option<&BatchSpread> {
     match &r.detail {
         MethodDetail::ThreeStep(d) => d.uncertainty.batch_spread.as_ref(),
         _ => None,
