@@ -198,12 +198,15 @@ impl Accumulator {
         work: &mut ColumnWork<'_, S>,
         jacobian: &mut InputJacobianState<S>,
     ) -> SMatrix<f64, 3, 4> {
+        let g_t = score_columns(setup, lin, inn, dp, work, &mut self.out);
+        jacobian.add_share_eta_terms(setup, inn, work.ds, &mut self.out);
+        if !setup.mode.info {
+            return SMatrix::zeros();
+        }
         // The mean part of the information, (HD)ᵀ S⁻¹ (HD).
         let sh = inn.sinv * inn.hd;
         let mut info = inn.hd.transpose() * sh;
         self.out.info_mean_theta += info.fixed_view::<4, 4>(0, 0);
-        let g_t = score_columns(setup, lin, inn, dp, work, &mut self.out);
-        jacobian.add_share_eta_terms(setup, inn, work.ds, &mut self.out);
         add_trace_information(setup.cols(), work.a, &mut info);
         let out = &mut self.out;
         let mut dr = SMatrix::<f64, 3, 4>::zeros();
