@@ -392,7 +392,14 @@ pub(super) fn update_sensitivities<const S: usize, K: KernelCalls>(
     dp: &mut [MZ<S>; NP],
     work: &ColumnWork<'_, S>,
 ) {
-    *d -= inn.k * inn.hd;
+    if setup.sensitivity_cols() == NP {
+        *d -= inn.k * inn.hd;
+    } else {
+        // Without η derivatives the η columns of D (and of HD) stay zero.
+        let kh = inn.k * inn.hd.fixed_columns::<4>(0);
+        let mut dt = d.fixed_columns_mut::<4>(0);
+        dt -= kh;
+    }
     for &jj in setup.cols() {
         for r_ in 0..S {
             d[(r_, jj)] += work.dkn[(r_, jj)];
