@@ -181,9 +181,9 @@ pub(crate) struct Mode {
     pub eta_skip: u8,
     /// With `derivs`: also the information matrices (`info`, `i_eta`,
     /// `h_theta`, `info_mean_theta`), the outer products of the θ-scores
-    /// (`opg`, `blocks`). `false` leaves them zero, for an evaluation whose
-    /// only use is its gradients: the objective and the gradients are the
-    /// same to the bit.
+    /// (`opg`, `blocks`). `false` leaves them incomplete, for an evaluation
+    /// whose only use is its gradients: the objective and the gradients are
+    /// the same to the bit.
     pub info: bool,
 }
 
