@@ -84,7 +84,9 @@ pub(super) fn noise_estimate_covariance(
     }
     // By symmetry only the free η's columns are needed (a scale at its clamp is not estimated).
     let skip = if by_symmetry { (0..NETA).filter(|j| !eta_free[*j]).fold(0u8, |m, j| m | (1 << j)) } else { 0 };
-    let evs = prob.evaluate_many(&points, theta_ref, Mode::full(follows, by_symmetry).skipping_eta(skip), false)?;
+    // Only the displaced points' θ-scores and η gradients are used: no information matrices.
+    let mode = Mode::full(follows, by_symmetry).skipping_eta(skip).gradients_only();
+    let evs = prob.evaluate_many(&points, theta_ref, mode, false)?;
     let (ev_theta, ev_eta) = evs.split_at(q);
     let mut jac = DMatrix::zeros(q, q);
     for (c, (ev, hk)) in ev_theta.iter().zip(&steps).enumerate() {

@@ -84,7 +84,7 @@ impl MeanState {
         if setup.mode.derivs {
             add_correction_gradient(out, d, &m, &one_minus, setup.all_sources);
             let j = step_jacobians(&self.x, &ueff, setup.theta, ts);
-            predict_sensitivities(&j, lin, d);
+            predict_sensitivities(&j, lin, d, setup.sensitivity_cols());
             self.x = j.next;
         } else {
             self.x = crate::model::step(&self.x, &ueff, setup.theta, ts);
@@ -143,9 +143,10 @@ fn add_correction_gradient<const S: usize>(
 }
 
 /// `D⁻ = F D⁺ + [f_θ | 0]` in place, column by column, F the Jacobian of
-/// the step at the mean.
+/// the step at the mean; only the first `ncols` columns (the others stay
+/// zero, [`WindowSetup::sensitivity_cols`]).
 #[inline(always)]
-fn predict_sensitivities<const S: usize>(j: &StepJacobians, lin: &Linearisation<S>, d: &mut DZ<S>) {
+fn predict_sensitivities<const S: usize>(j: &StepJacobians, lin: &Linearisation<S>, d: &mut DZ<S>, ncols: usize) {
     let (nl, nr, counting, diag) = (lin.nl, lin.nr, lin.counting, &lin.diag);
     let (gl, gr) = (j.f_n.column(0) * nl, j.f_n.column(1) * nr);
     let fxs = Matrix3::from_columns(&[-(gl + gr), -gl, -gr]);
@@ -156,7 +157,7 @@ fn predict_sensitivities<const S: usize>(j: &StepJacobians, lin: &Linearisation<
             fxw.set_column(w, &(-j.f_n.column(w)));
         }
     }
-    for c in 0..NP {
+    for c in 0..ncols {
         let (d0, d1, d2) = (d[(0, c)], d[(1, c)], d[(2, c)]);
         let (d3, d4, d5) = (d[(3, c)], d[(4, c)], d[(5, c)]);
         let (d9, d10) = if S > IW { (d[(IW, c)], d[(IW + 1, c)]) } else { (0.0, 0.0) };

@@ -198,12 +198,15 @@ impl Accumulator {
         work: &mut ColumnWork<'_, S>,
         jacobian: &mut InputJacobianState<S>,
     ) -> SMatrix<f64, 3, 4> {
+        let g_t = score_columns(setup, lin, inn, dp, work, &mut self.out);
+        jacobian.add_share_eta_terms(setup, inn, work.ds, &mut self.out);
+        if !setup.mode.info {
+            return SMatrix::zeros();
+        }
         // The mean part of the information, (HD)ᵀ S⁻¹ (HD).
         let sh = inn.sinv * inn.hd;
         let mut info = inn.hd.transpose() * sh;
         self.out.info_mean_theta += info.fixed_view::<4, 4>(0, 0);
-        let g_t = score_columns(setup, lin, inn, dp, work, &mut self.out);
-        jacobian.add_share_eta_terms(setup, inn, work.ds, &mut self.out);
         add_trace_information(setup.cols(), work.a, &mut info);
         let out = &mut self.out;
         let mut dr = SMatrix::<f64, 3, 4>::zeros();
@@ -389,7 +392,14 @@ pub(super) fn update_sensitivities<const S: usize, K: KernelCalls>(
     dp: &mut [MZ<S>; NP],
     work: &ColumnWork<'_, S>,
 ) {
-    *d -= inn.k * inn.hd;
+    if setup.sensitivity_cols() == NP {
+        *d -= inn.k * inn.hd;
+    } else {
+        // Without η derivatives the η columns of D (and of HD) stay zero.
+        let kh = inn.k * inn.hd.fixed_columns::<4>(0);
+        let mut dt = d.fixed_columns_mut::<4>(0);
+        dt -= kh;
+    }
     for &jj in setup.cols() {
         for r_ in 0..S {
             d[(r_, jj)] += work.dkn[(r_, jj)];

@@ -168,6 +168,19 @@ impl<'a, const S: usize> WindowSetup<'a, S> {
         &self.cols_buf[..self.ncols]
     }
 
+    /// The columns of the sensitivities D that the pass computes: all of
+    /// them with η derivatives, else the θ columns (`∂ẑ/∂η` is then zero:
+    /// η enters the mean only through the gains' derivatives, which are
+    /// not propagated).
+    #[inline(always)]
+    pub(super) fn sensitivity_cols(&self) -> usize {
+        if self.mode.eta {
+            NP
+        } else {
+            4
+        }
+    }
+
     /// Writes the covariance recursion's terms at sample `i` over `lin`
     /// ([`Linearisation`]; in place, so that the window loop keeps one and
     /// never moves its arrays).

@@ -93,6 +93,29 @@ fn evaluate_many_equals_evaluating_the_points_one_by_one() {
     }
 }
 
+/// A pass with `Mode::info` off (the noise-estimate term's displaced
+/// passes) gives the objective and the gradients of the same pass with
+/// the information matrices, to the bit.
+#[test]
+fn gradients_only_passes_give_the_full_passes_gradients_to_the_bit() {
+    let out = simulate(&SimOptions { length_km: 1.5, ..SimOptions::paper(8) }).expect("sim");
+    let input = input_of(&out.drive);
+    let opts = EivOptions { window_samples: 700, ..EivOptions::default() };
+    let prob = Problem::new(&input, make_windows(input.parts, opts.window_samples), &opts);
+    let th = out.sidecar.theta_true;
+    let eta = [0.1, 0.0, 0.0, -0.2, 0.0, 0.3];
+    for mode in [filter::Mode::full(true, true).skipping_eta(4), filter::Mode::full(true, false)] {
+        let full = prob.evaluate(&th, &th, &eta, mode).expect("filter").total;
+        let lean = prob.evaluate(&th, &th, &eta, mode.gradients_only()).expect("filter").total;
+        assert_eq!((lean.quad, lean.logdet, lean.correction), (full.quad, full.logdet, full.correction));
+        assert_eq!(lean.grad, full.grad);
+        assert_eq!(lean.grad_profile, full.grad_profile);
+        assert_eq!(lean.grad_jacobian_eta, full.grad_jacobian_eta);
+        assert!(full.info != filter::MP::zeros() && lean.info == filter::MP::zeros());
+        assert!(full.opg != nalgebra::Matrix4::zeros() && lean.opg == nalgebra::Matrix4::zeros());
+    }
+}
+
 /// `EivOptions::eta_held`: a held noise scale stays at the starting model
 /// (η_j = 0, the model's σ reported unchanged) while the others are
 /// estimated; without the hold the same fit moves it (the production car's
