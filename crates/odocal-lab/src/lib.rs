@@ -174,51 +174,6 @@ pub fn white_wheel_only() -> NoiseOptions {
     NoiseOptions { wheel_white_rel_sigma: NoiseOptions::paper().wheel_white_rel_sigma, ..NoiseOptions::off() }
 }
 
-/// Every source of the paper preset scaled by `f`: its standard deviations
-/// and the slip coefficient × f, the encoder ticks per revolution ÷ f
-/// (rounded), so the quantisation step × f; time constants kept.
-/// `paper_scaled(2.5)` is the `high` preset but for the ticks (819 there,
-/// 512 in `high`).
-pub fn paper_scaled(f: f64) -> NoiseOptions {
-    let p = NoiseOptions::paper();
-    NoiseOptions {
-        wheel_slip_per_m_per_s2: f * p.wheel_slip_per_m_per_s2,
-        wheel_coloured_rel_sigma: f * p.wheel_coloured_rel_sigma,
-        wheel_coloured_differential_rel_sigma: f * p.wheel_coloured_differential_rel_sigma,
-        wheel_white_rel_sigma: f * p.wheel_white_rel_sigma,
-        encoder_ticks_per_revolution: (f64::from(p.encoder_ticks_per_revolution) / f).round() as u32,
-        position_drift_sigma_m: f * p.position_drift_sigma_m,
-        position_white_sigma_m: f * p.position_white_sigma_m,
-        heading_drift_sigma_rad: f * p.heading_drift_sigma_rad,
-        heading_white_sigma_rad: f * p.heading_white_sigma_rad,
-        lateral_acceleration_white_sigma_m_per_s2: f * p.lateral_acceleration_white_sigma_m_per_s2,
-        sideslip_sigma_rad: f * p.sideslip_sigma_rad,
-        ..p
-    }
-}
-
-/// An EIV noise model as one line in physical units (σ in %, time
-/// constants in s).
-pub fn noise_summary(n: &odocal::eiv::NoiseModel) -> String {
-    format!(
-        "σ_white {:.3} %, q {:.4} rev/s, σ_c {:.3} % (τ_c {} s), σ_w {:.3} % (τ_w {} s); pose σ {:.3} m / {:.2} mrad, \
-         drift {:.3} m / {:.2} mrad (τ {} s); σ_a {:.3} m/s², σ_β {:.2} mrad",
-        n.wheel_white_rel_sigma * 100.0,
-        n.quantisation_step_rev_per_s,
-        n.wheel_common_rel_sigma * 100.0,
-        n.wheel_common_time_constant_s,
-        n.wheel_differential_rel_sigma * 100.0,
-        n.wheel_differential_time_constant_s,
-        n.position_white_sigma_m,
-        n.heading_white_sigma_rad * 1e3,
-        n.position_drift_sigma_m,
-        n.heading_drift_sigma_rad * 1e3,
-        n.drift_time_constant_s,
-        n.lateral_acceleration_sigma_m_per_s2,
-        n.sideslip_sigma_rad * 1e3
-    )
-}
-
 /// Wraps an angle to (−π, π].
 pub fn wrap_angle(a: f64) -> f64 {
     let two_pi = 2.0 * std::f64::consts::PI;

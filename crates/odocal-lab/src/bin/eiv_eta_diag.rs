@@ -132,7 +132,7 @@ fn run() -> Res<()> {
                 }
                 n
             }
-            _ if p.starts_with("scale") => odocal_lab::paper_scaled(p["scale".len()..].parse()?),
+            _ if p.starts_with("scale") => odocal::sim::NoiseOptions::paper_scaled(p["scale".len()..].parse()?),
             _ => NoiseOptions::by_name(p)?,
         };
         for seed in 1..=seeds {
@@ -218,7 +218,7 @@ fn run() -> Res<()> {
                 )
             };
             println!("{p} {seed}: G-N {}", err(&gn));
-            println!("      truth: {}", odocal_lab::noise_summary(&sim_noise));
+            println!("      truth: {}", sim_noise);
             for ((label, nm, fix), &(qname, quant)) in
                 all.iter().flat_map(|a| quants.iter().map(move |q| (a, q))).map(|(a, q)| (*a, q))
             {
@@ -273,7 +273,7 @@ fn run() -> Res<()> {
                             nis_m,
                             r.timing_s
                         );
-                        println!("      noise: {}", odocal_lab::noise_summary(&r.noise));
+                        println!("      noise: {}", r.noise);
                         for w in &r.warnings {
                             println!("      warning: {w}");
                         }

@@ -369,27 +369,6 @@ pub(crate) fn noise_model_from_table(mut table: toml::Table) -> std::result::Res
     Ok(NoiseSpec { model, known, lateral })
 }
 
-/// The noise model as one line in physical units (σ in %, time constants in s).
-pub(crate) fn noise_summary(n: &NoiseModel) -> String {
-    format!(
-        "σ_white {:.3} %, q {:.4} rev/s, σ_c {:.3} % (τ_c {} s), σ_w {:.3} % (τ_w {} s); pose σ {:.3} m / {:.2} mrad, \
-         drift {:.3} m / {:.2} mrad (τ {} s); σ_a {:.3} m/s², σ_β {:.2} mrad",
-        n.wheel_white_rel_sigma * 100.0,
-        n.quantisation_step_rev_per_s,
-        n.wheel_common_rel_sigma * 100.0,
-        n.wheel_common_time_constant_s,
-        n.wheel_differential_rel_sigma * 100.0,
-        n.wheel_differential_time_constant_s,
-        n.position_white_sigma_m,
-        n.heading_white_sigma_rad * 1e3,
-        n.position_drift_sigma_m,
-        n.heading_drift_sigma_rad * 1e3,
-        n.drift_time_constant_s,
-        n.lateral_acceleration_sigma_m_per_s2,
-        n.sideslip_sigma_rad * 1e3
-    )
-}
-
 fn mask(free: ParamSet) -> [bool; 4] {
     std::array::from_fn(|i| Param::from_index(i).is_some_and(|p| free.contains(p)))
 }
@@ -691,7 +670,7 @@ fn eiv_outcome(
 impl EivDetail {
     /// The EIV fit in lines as the CLI prints them: the filter's windows,
     /// updates, iterations, termination and passes; the noise model at the
-    /// start and as estimated (physical units, [`noise_summary`]); the
+    /// start and as estimated (physical units, `NoiseModel`'s `Display`); the
     /// `known` sources held at the start; the σ widening for the estimated
     /// noise levels; a bias correction; which estimate the result is (EIV
     /// or the batch G-N fallback); the bootstrap's intervals. Through
@@ -711,17 +690,12 @@ impl EivDetail {
                     e.evaluations[0] + e.evaluations[1]
                 );
                 let fixed = e.eta.iter().all(|x| *x == 0.0) && e.eta_sigma.iter().all(|x| *x == 0.0);
-                let _ = writeln!(out, "  noise, start:     {}", noise_summary(&d.noise_start));
+                let _ = writeln!(out, "  noise, start:     {}", d.noise_start);
                 if !known.is_empty() {
                     let names: Vec<&str> = known.iter().map(|s| s.name()).collect();
                     let _ = writeln!(out, "  known (held at the start): {}", names.join(", "));
                 }
-                let _ = writeln!(
-                    out,
-                    "  noise, {}: {}",
-                    if fixed { "fixed    " } else { "estimated" },
-                    noise_summary(&e.noise)
-                );
+                let _ = writeln!(out, "  noise, {}: {}", if fixed { "fixed    " } else { "estimated" }, e.noise);
                 if e.sigma_noise_estimate.iter().any(|x| *x > 0.0) {
                     // σ with the η term over σ without it, per estimated parameter.
                     let names = ["c_e", "c_d", "t_r", "d"];

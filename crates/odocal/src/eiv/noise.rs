@@ -48,6 +48,32 @@ pub struct NoiseModel {
     pub sideslip_time_constant_s: f64,
 }
 
+/// The noise model as one line in physical units (σ in %, time constants
+/// in s), as the calibration report prints it.
+impl std::fmt::Display for NoiseModel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let n = self;
+        write!(
+            f,
+            "σ_white {:.3} %, q {:.4} rev/s, σ_c {:.3} % (τ_c {} s), σ_w {:.3} % (τ_w {} s); pose σ {:.3} m / {:.2} mrad, \
+             drift {:.3} m / {:.2} mrad (τ {} s); σ_a {:.3} m/s², σ_β {:.2} mrad",
+            n.wheel_white_rel_sigma * 100.0,
+            n.quantisation_step_rev_per_s,
+            n.wheel_common_rel_sigma * 100.0,
+            n.wheel_common_time_constant_s,
+            n.wheel_differential_rel_sigma * 100.0,
+            n.wheel_differential_time_constant_s,
+            n.position_white_sigma_m,
+            n.heading_white_sigma_rad * 1e3,
+            n.position_drift_sigma_m,
+            n.heading_drift_sigma_rad * 1e3,
+            n.drift_time_constant_s,
+            n.lateral_acceleration_sigma_m_per_s2,
+            n.sideslip_sigma_rad * 1e3
+        )
+    }
+}
+
 impl Default for NoiseModel {
     fn default() -> Self {
         NoiseModel::PRODUCTION_CAR

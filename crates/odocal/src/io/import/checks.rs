@@ -51,33 +51,42 @@ impl Resampled<'_> {
 
 /// Each wheel's speed at θ_0 within `limits.max_speed_m_per_s`.
 pub(crate) fn wheel_speeds(m: &Manifest, x: &Resampled<'_>, theta0: &Theta) -> Result<()> {
-    let max = m.limits.max_speed_m_per_s;
     for (n, key) in [(x.n_rl, "wheels.rear_left"), (x.n_rr, "wheels.rear_right")] {
         for k in x.kept.iter().flat_map(|r| r.clone()) {
-            let v = n[k] * theta0.c_e;
-            if !within(v, max) {
-                let hint = match m.wheels.signal {
-                    WheelSignal::RevPerS | WheelSignal::RadPerS | WheelSignal::MPerS => {
-                        "; if the column counts ticks, use signal = \"ticks_cumulative\" or \"ticks_raw\""
-                    }
-                    WheelSignal::TicksRaw => "; check wheels.counter_bits and wheels.ticks_per_rev",
-                    WheelSignal::TicksCumulative => "; check wheels.ticks_per_rev",
-                    WheelSignal::RadCumulative => "; check that the column is an angle in rad (not ticks)",
-                };
-                return Err(m.error(
-                    key,
-                    format!(
-                        "{} rev/s at {} is {} m/s at θ_0 (c_e = {} m), above limits.max_speed_m_per_s = {max}{hint}",
-                        echo_num(n[k]),
-                        x.at(k),
-                        echo_num(v),
-                        theta0.c_e
-                    ),
-                ));
-            }
+            wheel_speed(m, key, n[k], theta0.c_e, || x.at(k))?;
         }
     }
     Ok(())
+}
+
+/// One wheel reading `n` (rev/s) at θ_0's `c_e` within
+/// `limits.max_speed_m_per_s`; else the error naming the wheel's `key`,
+/// where it happened (`at`, built only then) and what to check for the
+/// manifest's wheel signal.
+pub(crate) fn wheel_speed(m: &Manifest, key: &str, n: f64, c_e: f64, at: impl FnOnce() -> String) -> Result<()> {
+    let max = m.limits.max_speed_m_per_s;
+    let v = n * c_e;
+    if within(v, max) {
+        return Ok(());
+    }
+    let hint = match m.wheels.signal {
+        WheelSignal::RevPerS | WheelSignal::RadPerS | WheelSignal::MPerS => {
+            "; if the column counts ticks, use signal = \"ticks_cumulative\" or \"ticks_raw\""
+        }
+        WheelSignal::TicksRaw => "; check wheels.counter_bits and wheels.ticks_per_rev",
+        WheelSignal::TicksCumulative => "; check wheels.ticks_per_rev",
+        WheelSignal::RadCumulative => "; check that the column is an angle in rad (not ticks)",
+    };
+    Err(m.error(
+        key,
+        format!(
+            "{} rev/s at {} is {} m/s at θ_0 (c_e = {} m), above limits.max_speed_m_per_s = {max}{hint}",
+            echo_num(n),
+            at(),
+            echo_num(v),
+            c_e
+        ),
+    ))
 }
 
 /// Window of the moving average a derived a_y is judged on, s: the

@@ -6,7 +6,7 @@
 use std::collections::VecDeque;
 
 use super::super::limits::{echo_num, within};
-use super::super::manifest::{LateralAccelerationSpec, Manifest, WheelSignal};
+use super::super::manifest::{LateralAccelerationSpec, Manifest};
 use super::super::report::{GapRecord, PartRecord};
 use crate::error::Result;
 
@@ -313,30 +313,8 @@ impl Assembler {
 
     /// Each wheel's speed at θ_0 within `limits.max_speed_m_per_s`.
     fn check_wheels(&self, m: &Manifest, s: &GridSample) -> Result<()> {
-        let max = m.limits.max_speed_m_per_s;
         for (n, key) in [(s.sig[3], "wheels.rear_left"), (s.sig[4], "wheels.rear_right")] {
-            let v = n * self.c_e;
-            if within(v, max) {
-                continue;
-            }
-            let hint = match m.wheels.signal {
-                WheelSignal::RevPerS | WheelSignal::RadPerS | WheelSignal::MPerS => {
-                    "; if the column counts ticks, use signal = \"ticks_cumulative\" or \"ticks_raw\""
-                }
-                WheelSignal::TicksRaw => "; check wheels.counter_bits and wheels.ticks_per_rev",
-                WheelSignal::TicksCumulative => "; check wheels.ticks_per_rev",
-                WheelSignal::RadCumulative => "; check that the column is an angle in rad (not ticks)",
-            };
-            return Err(m.error(
-                key,
-                format!(
-                    "{} rev/s at {} is {} m/s at θ_0 (c_e = {} m), above limits.max_speed_m_per_s = {max}{hint}",
-                    echo_num(n),
-                    self.at(s.k),
-                    echo_num(v),
-                    self.c_e
-                ),
-            ));
+            super::super::checks::wheel_speed(m, key, n, self.c_e, || self.at(s.k))?;
         }
         Ok(())
     }
