@@ -34,8 +34,7 @@ pub(crate) struct Resampled<'a> {
 
 impl Resampled<'_> {
     fn at(&self, k: usize) -> String {
-        let t = k as f64 * self.h;
-        format!("t = {t:.3} s (wheel clock {:.3} s)", self.origin_s + t)
+        grid_time(k, self.h, self.origin_s)
     }
 
     /// Samples of the kept parts with a central difference: `(k0, k, k1)`.
@@ -92,7 +91,7 @@ pub(crate) fn wheel_speed(m: &Manifest, key: &str, n: f64, c_e: f64, at: impl Fn
 /// Window of the moving average a derived a_y is judged on, s: the
 /// limit is about motion, and the wheel-derived a_y of a highway drive has
 /// single-sample noise of ±10 m/s² (speed noise × yaw-rate noise at 30 m/s).
-const A_Y_CHECK_SMOOTHING_S: f64 = 0.5;
+pub(crate) const A_Y_CHECK_SMOOTHING_S: f64 = 0.5;
 
 /// |a_y| within `limits.max_lateral_acceleration_m_per_s2`: an IMU's
 /// interval means as they are, a derived a_y after a centred moving average
@@ -107,29 +106,42 @@ pub(crate) fn lateral_acceleration(m: &Manifest, x: &Resampled<'_>, a_y: &[f64])
     let a_y = &judged;
     for k in x.kept.iter().flat_map(|r| r.clone()) {
         if !within(a_y[k], max) {
-            let (key, hint) = match &m.lateral_acceleration {
-                LateralAccelerationSpec::Imu { .. } => {
-                    ("lateral_acceleration.column", "; is the column in g or the wrong axis?")
-                }
-                LateralAccelerationSpec::FromWheels { .. } => {
-                    ("lateral_acceleration", "; the wheel speeds jump there (a corrupt encoder sample?)")
-                }
-                LateralAccelerationSpec::FromPose { .. } => {
-                    ("lateral_acceleration", "; the reference pose or heading jumps there")
-                }
-            };
-            return Err(m.error(
-                key,
-                format!(
-                    "a_y = {} m/s² at {} (judged over {A_Y_CHECK_SMOOTHING_S} s unless from an IMU) is above \
-                     limits.max_lateral_acceleration_m_per_s2 = {max}{hint}",
-                    echo_num(a_y[k]),
-                    x.at(k)
-                ),
-            ));
+            return Err(lateral_acceleration_error(m, a_y[k], &x.at(k)));
         }
     }
     Ok(())
+}
+
+/// The error of a judged a_y above `limits.max_lateral_acceleration_m_per_s2`
+/// at `at`, naming the manifest key and the likely cause for its source.
+pub(crate) fn lateral_acceleration_error(m: &Manifest, a_y: f64, at: &str) -> crate::Error {
+    let max = m.limits.max_lateral_acceleration_m_per_s2;
+    let (key, hint) = match &m.lateral_acceleration {
+        LateralAccelerationSpec::Imu { .. } => {
+            ("lateral_acceleration.column", "; is the column in g or the wrong axis?")
+        }
+        LateralAccelerationSpec::FromWheels { .. } => {
+            ("lateral_acceleration", "; the wheel speeds jump there (a corrupt encoder sample?)")
+        }
+        LateralAccelerationSpec::FromPose { .. } => {
+            ("lateral_acceleration", "; the reference pose or heading jumps there")
+        }
+    };
+    m.error(
+        key,
+        format!(
+            "a_y = {} m/s² at {at} (judged over {A_Y_CHECK_SMOOTHING_S} s unless from an IMU) is above \
+             limits.max_lateral_acceleration_m_per_s2 = {max}{hint}",
+            echo_num(a_y)
+        ),
+    )
+}
+
+/// Where output sample `k` of a grid of step `h` (s) starting at
+/// wheel-clock time `origin_s` is, for messages.
+pub(crate) fn grid_time(k: usize, h: f64, origin_s: f64) -> String {
+    let t = k as f64 * h;
+    format!("t = {t:.3} s (wheel clock {:.3} s)", origin_s + t)
 }
 
 /// Moving samples (reference faster than this, m/s) the convention checks use.

@@ -5,7 +5,8 @@
 
 use std::collections::VecDeque;
 
-use super::super::limits::{echo_num, within};
+use super::super::checks::{grid_time, lateral_acceleration_error, wheel_speed, A_Y_CHECK_SMOOTHING_S};
+use super::super::limits::within;
 use super::super::manifest::{LateralAccelerationSpec, Manifest};
 use super::super::report::{GapRecord, PartRecord};
 use crate::error::Result;
@@ -130,9 +131,6 @@ pub(crate) struct Assembler {
     pub distance_m: f64,
 }
 
-/// The judging window of a derived a_y, s (as the whole import's check).
-const A_Y_CHECK_SMOOTHING_S: f64 = 0.5;
-
 impl Assembler {
     /// The assembly of `m`'s output at step `h`; grid index 0 is at
     /// wheel-clock time `origin_s`.
@@ -170,8 +168,7 @@ impl Assembler {
 
     /// Where sample `k` is, for messages.
     fn at(&self, k: usize) -> String {
-        let t = k as f64 * self.h;
-        format!("t = {t:.3} s (wheel clock {:.3} s)", self.origin_s + t)
+        grid_time(k, self.h, self.origin_s)
     }
 
     /// Takes the next grid sample (grid indices consecutive from 0).
@@ -292,7 +289,7 @@ impl Assembler {
         while let Some(judged) = p.judged.pop_front() {
             let (Some(mut s), Some(a)) = (p.waiting.pop_front(), p.smoothed.pop_front()) else { break };
             if !within(judged, m.limits.max_lateral_acceleration_m_per_s2) {
-                return Err(self.lateral_error(m, judged, s.k));
+                return Err(lateral_acceleration_error(m, judged, &self.at(s.k)));
             }
             s.sig[6] = a;
             s.sig[2] = self.unwrap.next(s.sig[2]);
@@ -314,33 +311,9 @@ impl Assembler {
     /// Each wheel's speed at θ_0 within `limits.max_speed_m_per_s`.
     fn check_wheels(&self, m: &Manifest, s: &GridSample) -> Result<()> {
         for (n, key) in [(s.sig[3], "wheels.rear_left"), (s.sig[4], "wheels.rear_right")] {
-            super::super::checks::wheel_speed(m, key, n, self.c_e, || self.at(s.k))?;
+            wheel_speed(m, key, n, self.c_e, || self.at(s.k))?;
         }
         Ok(())
-    }
-
-    fn lateral_error(&self, m: &Manifest, a_y: f64, k: usize) -> crate::Error {
-        let max = m.limits.max_lateral_acceleration_m_per_s2;
-        let (key, hint) = match &m.lateral_acceleration {
-            LateralAccelerationSpec::Imu { .. } => {
-                ("lateral_acceleration.column", "; is the column in g or the wrong axis?")
-            }
-            LateralAccelerationSpec::FromWheels { .. } => {
-                ("lateral_acceleration", "; the wheel speeds jump there (a corrupt encoder sample?)")
-            }
-            LateralAccelerationSpec::FromPose { .. } => {
-                ("lateral_acceleration", "; the reference pose or heading jumps there")
-            }
-        };
-        m.error(
-            key,
-            format!(
-                "a_y = {} m/s² at {} (judged over {A_Y_CHECK_SMOOTHING_S} s unless from an IMU) is above \
-                 limits.max_lateral_acceleration_m_per_s2 = {max}{hint}",
-                echo_num(a_y),
-                self.at(k)
-            ),
-        )
     }
 }
 
