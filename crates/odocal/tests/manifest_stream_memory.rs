@@ -10,9 +10,9 @@ use std::path::Path;
 #[path = "support/memory.rs"]
 mod memory;
 
-use memory::{peak_of, write_drive};
-use odocal::online::{Calibrator, ManifestStream, OnlineOptions, StreamOptions};
-use odocal::{DriveStream, Manifest, Theta};
+use memory::{peak_of, replay_stream, write_drive};
+use odocal::online::{ManifestStream, StreamOptions};
+use odocal::{DriveStream, Manifest};
 
 /// A manifest over the drive CSV `csv`: its columns as the streams'
 /// (wheels in rev/s, the pose with its heading, a_y as an IMU's), the
@@ -53,14 +53,7 @@ fn replay(path: &Path) -> usize {
     let mut s = ManifestStream::open(&m, StreamOptions::default()).expect("stream");
     let stream = DriveStream::spool(path, 0.025, || Ok(s.next_chunk(400)?.map(|c| (c.t, c.signals, c.starts_part))))
         .expect("spool");
-    assert_eq!(stream.fingerprint().expect("fingerprint").len(), 64);
-    let mut cal = Calibrator::new(Theta::PAPER_NOMINAL, None, stream.sample_time_s(), OnlineOptions::default())
-        .expect("calibrator");
-    let mut pushed = 0;
-    cal.push_stream(&stream, 400, |n| pushed = n).expect("push");
-    assert_eq!(pushed, stream.len());
-    assert!(cal.drive_summary().folded_segments > 0);
-    pushed
+    replay_stream(&stream)
 }
 
 // One test in this binary: the counts are the process's.

@@ -1,11 +1,15 @@
 //! Shared by the memory tests (each its own test binary, so each counts
 //! only its own allocations): a counting global allocator, the peak heap
-//! of a closure, and a synthetic drive CSV of any length.
+//! of a closure, a synthetic drive CSV of any length, and the replay of a
+//! streamed drive through the online calibrator.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::io::Write;
 use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
+
+use odocal::online::{Calibrator, OnlineOptions};
+use odocal::{DriveStream, Theta};
 
 /// The system allocator, counting the bytes held and their peak.
 struct Counting;
@@ -70,4 +74,17 @@ pub fn peak_of(f: impl FnOnce()) -> usize {
     PEAK.store(base, Ordering::Relaxed);
     f();
     PEAK.load(Ordering::Relaxed) - base
+}
+
+/// Fingerprints `stream` and replays it through the online calibrator in
+/// chunks of 400 samples; the number of samples pushed.
+pub fn replay_stream(stream: &DriveStream) -> usize {
+    assert_eq!(stream.fingerprint().expect("fingerprint").len(), 64);
+    let mut cal = Calibrator::new(Theta::PAPER_NOMINAL, None, stream.sample_time_s(), OnlineOptions::default())
+        .expect("calibrator");
+    let mut pushed = 0;
+    cal.push_stream(stream, 400, |n| pushed = n).expect("push");
+    assert_eq!(pushed, stream.len());
+    assert!(cal.drive_summary().folded_segments > 0);
+    pushed
 }
