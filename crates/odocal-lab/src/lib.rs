@@ -147,41 +147,9 @@ pub fn batch_gn_all(drive: &Drive) -> Result<Theta, odocal::Error> {
 /// `coloured`: the paper preset's wheel noise on a perfect reference.
 pub fn noise_preset(name: &str) -> Result<NoiseOptions, odocal::Error> {
     match name {
-        "coloured" => Ok(coloured_wheels_only()),
+        "coloured" => Ok(NoiseOptions::coloured_wheels_only()),
         _ => NoiseOptions::by_name(name),
     }
-}
-
-/// The paper preset's wheel noise only — coloured common and differential
-/// relative errors, white noise and encoder quantisation — on a perfect
-/// reference, with no slip, a_y or sideslip noise (the "coloured" preset of
-/// the EIV studies).
-pub fn coloured_wheels_only() -> NoiseOptions {
-    let p = NoiseOptions::paper();
-    NoiseOptions {
-        wheel_coloured_rel_sigma: p.wheel_coloured_rel_sigma,
-        wheel_coloured_differential_rel_sigma: p.wheel_coloured_differential_rel_sigma,
-        wheel_coloured_time_constant_s: p.wheel_coloured_time_constant_s,
-        wheel_white_rel_sigma: p.wheel_white_rel_sigma,
-        encoder_ticks_per_revolution: p.encoder_ticks_per_revolution,
-        ..NoiseOptions::off()
-    }
-}
-
-/// Only white noise on the wheel rotations, of the paper preset's size;
-/// everything else exact (the simulator's `white` preset).
-pub fn white_wheel_only() -> NoiseOptions {
-    NoiseOptions { wheel_white_rel_sigma: NoiseOptions::paper().wheel_white_rel_sigma, ..NoiseOptions::off() }
-}
-
-/// Wraps an angle to (−π, π].
-pub fn wrap_angle(a: f64) -> f64 {
-    let two_pi = 2.0 * std::f64::consts::PI;
-    let mut r = a.rem_euclid(two_pi);
-    if r > std::f64::consts::PI {
-        r -= two_pi;
-    }
-    r
 }
 
 /// A simulated drive of the paper's route: `km` long, noise `preset`

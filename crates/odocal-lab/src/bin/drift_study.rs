@@ -37,19 +37,6 @@ const USAGE: &str = "drift_study [--seeds N] [--first-seed S] [--ramp-only | --s
 /// Samples per pushed chunk (10 s at 40 Hz).
 const CHUNK: usize = 400;
 
-/// The simulator's true θ at `t_s` seconds into the drive, from `theta0` at
-/// its start: `c_e·(1 + r·t/3600)` and `c_d + Δ` from the step's time on.
-fn theta_at(drift: &odocal::sim::DriftOptions, theta0: &Theta, t_s: f64) -> Theta {
-    let mut th = *theta0;
-    th.c_e = theta0.c_e * (1.0 + drift.c_e_relative_per_hour * t_s / 3600.0);
-    if let Some(step) = drift.c_d_step {
-        if t_s >= step.at_s {
-            th.c_d += step.change_m;
-        }
-    }
-    th
-}
-
 fn main() {
     odocal_lab::main_with(run)
 }
@@ -131,7 +118,7 @@ fn ramp_run(seed: u64, ramp: f64, k: &Knobs) -> Res<RampRun> {
         if start_s.is_nan() {
             start_s = (b - 1) as f64 * ts;
         }
-        let truth = theta_at(&o.drift, &o.theta_true, (b - 1) as f64 * ts).to_array();
+        let truth = o.drift.theta_at(&o.theta_true, (b - 1) as f64 * ts).to_array();
         let (th, s) = (cal.theta().to_array(), cal.sigma().to_array());
         for i in 0..4 {
             inside[i] += usize::from((th[i] - truth[i]).abs() <= 2.0 * s[i]);

@@ -82,9 +82,9 @@ fn run() -> Res<()> {
             "noslip" => NoiseOptions { wheel_slip_per_m_per_s2: 0.0, ..NoiseOptions::paper() },
             "nobeta" => NoiseOptions { wheel_slip_per_m_per_s2: 0.0, sideslip_sigma_rad: 0.0, ..NoiseOptions::paper() },
             "quantonly" => NoiseOptions { encoder_ticks_per_revolution: 256, ..NoiseOptions::off() },
-            "quantwhite" => NoiseOptions { encoder_ticks_per_revolution: 256, ..odocal_lab::white_wheel_only() },
-            "white2" => NoiseOptions { wheel_white_rel_sigma: 0.02, ..odocal_lab::white_wheel_only() },
-            "coloured" => odocal_lab::coloured_wheels_only(),
+            "quantwhite" => NoiseOptions { encoder_ticks_per_revolution: 256, ..NoiseOptions::white_wheel_only() },
+            "white2" => NoiseOptions { wheel_white_rel_sigma: 0.02, ..NoiseOptions::white_wheel_only() },
+            "coloured" => NoiseOptions::coloured_wheels_only(),
             "noquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::paper() },
             "highnoquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::high() },
             // Ablations of the paper preset without quantisation (`nq-…`: one more source off).

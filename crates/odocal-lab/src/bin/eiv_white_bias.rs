@@ -28,7 +28,7 @@ use odocal::eiv::{estimate, CovarianceMode, EivInput, EivOptions, HeadingScale, 
 use odocal::model::{step_jacobians, Input, State};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{Drive, Theta};
-use odocal_lab::wrap_angle;
+use odocal::model::wrap_angle;
 use odocal_lab::{batch_gn_all, errors, format_errors, noise_preset, Args, Res};
 
 const USAGE: &str = "eiv_white_bias [--km 12] [--seeds 8] [--first-seed 1] [--sigma 0.02] [--substeps 10]
@@ -186,7 +186,7 @@ fn run() -> Res<()> {
         wheel_white_rel_sigma: sigma,
         position_white_sigma_m: sim_pos,
         heading_white_sigma_rad: sim_head,
-        ..odocal_lab::white_wheel_only()
+        ..NoiseOptions::white_wheel_only()
     };
     let noise = match preset.as_deref() {
         None => noise,

@@ -240,7 +240,7 @@ pub fn step_jacobians(x: &State, u: &Input, theta: &Theta, t_s: f64) -> StepJaco
 
 /// Wraps an angle to (−π, π].
 #[inline]
-pub(crate) fn wrap_angle(a: f64) -> f64 {
+pub fn wrap_angle(a: f64) -> f64 {
     let two_pi = 2.0 * std::f64::consts::PI;
     let mut r = a.rem_euclid(two_pi);
     if r > std::f64::consts::PI {

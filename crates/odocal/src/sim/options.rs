@@ -255,8 +255,8 @@ impl NoiseOptions {
     }
 
     /// Only white noise on the wheel rotations, of the paper preset's size;
-    /// everything else exact.
-    pub(crate) fn white_wheel_only() -> Self {
+    /// everything else exact (the `white` preset).
+    pub fn white_wheel_only() -> Self {
         NoiseOptions { wheel_white_rel_sigma: NoiseOptions::paper().wheel_white_rel_sigma, ..NoiseOptions::off() }
     }
 
@@ -264,8 +264,7 @@ impl NoiseOptions {
     /// differential relative errors, white noise and encoder quantisation —
     /// on a perfect reference, with no slip, a_y or sideslip noise (the
     /// "coloured" preset of the EIV studies).
-    #[cfg(test)]
-    pub(crate) fn coloured_wheels_only() -> Self {
+    pub fn coloured_wheels_only() -> Self {
         let p = NoiseOptions::paper();
         NoiseOptions {
             wheel_coloured_rel_sigma: p.wheel_coloured_rel_sigma,
@@ -370,7 +369,7 @@ impl DriftOptions {
     /// The true θ at `t_s` seconds into the drive, from `theta0` at its
     /// start: `c_e·(1 + r·t/3600)` and `c_d + Δ` from the step's time on.
     /// `theta0` itself when nothing drifts.
-    pub(crate) fn theta_at(&self, theta0: &Theta, t_s: f64) -> Theta {
+    pub fn theta_at(&self, theta0: &Theta, t_s: f64) -> Theta {
         if self.is_zero() {
             return *theta0;
         }
