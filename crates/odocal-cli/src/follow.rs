@@ -332,7 +332,7 @@ impl Replay {
 /// [`DriveStream`] (its samples on disk), with the import's warnings shown.
 fn streamed_manifest(path: &std::path::Path, m: &odocal::Manifest) -> Result<DriveStream> {
     let mut s = ManifestStream::open(m, StreamOptions::default())?;
-    let stream = DriveStream::spool(path, 1.0 / m.output.rate_hz, || {
+    let stream = DriveStream::spool(path, m.sample_time_s(), || {
         Ok(s.next_chunk(CHUNK)?.map(|c| (c.t, c.signals, c.starts_part)))
     })?;
     if let Some(r) = s.report() {

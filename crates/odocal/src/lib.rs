@@ -45,8 +45,7 @@
 //! derivatives), [`segment`] (cutting a drive into segments),
 //! [`identify`] (Gauss-Newton), [`compensate`] (the input-compensation QP),
 //! [`eiv`] (the errors-in-variables estimator), [`sim`] (the simulator),
-//! [`experiment`] (the paper's §6), [`mod@io`] (ROS 2 bags),
-//! [`manifest`] (the manifest as Rust types), [`settings`] (calibration
+//! [`experiment`] (the paper's §6), [`mod@io`] (ROS 2 bags), [`settings`] (calibration
 //! settings as key–value pairs), [`output`] (atomic writes and output
 //! paths checked against inputs, for a front end's own files), [`online`] (calibration that keeps up with a
 //! streaming drive) and `history` (a per-vehicle calibration history in
@@ -119,15 +118,13 @@ pub use model::{
     param::ParamSet, Theta,
 };
 pub use progress::Progress;
-// Drives: building, importing, simulating; parameter files. `segment` and
-// `manifest` are expert modules (their docs say for whom).
+// Drives: building, importing, simulating; parameter files. `segment` is
+// an expert module (its docs say for whom).
 pub use drive::{
     refuse_duplicates, segment, Drive, DriveBuilder, DriveStream, ExtraColumn, ExtraValues, Signals, StreamChunk,
     StreamChunks,
 };
-pub use io::import::{
-    import, is_manifest_path, load_drive, manifest, ImportReport, ImportedDrive, Manifest, ReferenceSpec,
-};
+pub use io::import::{import, is_manifest_path, load_drive, ImportReport, ImportedDrive, Manifest, ReferenceSpec};
 pub use io::param_file::{ParamFile, ParamMapping};
 pub use sim::{simulate, NoiseOptions, SimOptions, SimOutput, SimSidecar};
 // Calibration: the entry points, the options, the report. `settings` is an

@@ -86,16 +86,17 @@ const CAN_SPEED_STEP_M_PER_S: f64 = 0.01 / 3.6;
 /// production car's 0.8 % white wheel noise, so the model's shape there
 /// hardly matters.
 fn encoder_q(rel: &str) -> Res<(f64, String)> {
-    use odocal::manifest::WheelSignal;
     let path = repo_path(rel);
-    let m = odocal::Manifest::from_path(&path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let h = 1.0 / m.output.rate_hz;
-    let w = &m.wheels;
-    match (w.signal, w.ticks_per_rev, w.circumference_m) {
-        (WheelSignal::TicksCumulative | WheelSignal::TicksRaw, Some(tpr), _) if tpr > 0.0 => {
+    // The manifest's TOML is its interface: the keys are docs/reference.md's.
+    let h = odocal::Manifest::from_path(&path).map_err(|e| format!("{}: {e}", path.display()))?.sample_time_s();
+    let m: toml::Table = toml::from_str(&std::fs::read_to_string(&path)?)?;
+    let w = m.get("wheels").ok_or("no [wheels]")?;
+    let num = |key: &str| w.get(key).and_then(|v| v.as_float().or_else(|| v.as_integer().map(|i| i as f64)));
+    match (w.get("signal").and_then(toml::Value::as_str), num("ticks_per_rev"), num("circumference_m")) {
+        (Some("ticks_cumulative" | "ticks_raw"), Some(tpr), _) if tpr > 0.0 => {
             Ok((1.0 / (tpr * h), format!("1/({tpr} ticks × {h} s)")))
         }
-        (WheelSignal::MPerS, _, Some(c)) if c > 0.0 => {
+        (Some("m_per_s"), _, Some(c)) if c > 0.0 => {
             Ok((CAN_SPEED_STEP_M_PER_S / c, format!("{CAN_SPEED_STEP_M_PER_S:.6} m/s CAN lattice / {c} m")))
         }
         (s, ..) => Err(format!("{}: no quantisation step known for wheel signal {s:?}", path.display()).into()),

@@ -1,7 +1,8 @@
-//! The drive manifest as Rust types: which file each signal comes from, in
-//! which unit and convention. Expert API, for programs that build or edit a
-//! manifest before [`crate::import`] (reading one is [`Manifest::from_path`]);
-//! the format is in docs/reference.md.
+//! The drive manifest: which file each signal comes from, in which unit and
+//! convention. A program reads one with [`Manifest::from_path`] (or
+//! [`Manifest::parse`] for text it built or edited) and hands it to
+//! [`crate::import`]; the TOML format, documented in docs/reference.md, is
+//! the interface, and the types behind it are the crate's own.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -26,23 +27,23 @@ pub struct Manifest {
     pub path: PathBuf,
     /// Output rate, gaps, clock offset. All fields have defaults.
     #[serde(default)]
-    pub output: OutputSpec,
+    pub(crate) output: OutputSpec,
     /// The recorded streams (files), by name. Signals refer to these names.
-    pub streams: BTreeMap<String, StreamSpec>,
+    pub(crate) streams: BTreeMap<String, StreamSpec>,
     /// Rear wheel rotation.
-    pub wheels: WheelSpec,
+    pub(crate) wheels: WheelSpec,
     /// Reference pose.
-    pub pose: PoseSpec,
+    pub(crate) pose: PoseSpec,
     /// Lateral acceleration a_y. Default: derived from the wheels.
     #[serde(default)]
-    pub lateral_acceleration: LateralAccelerationSpec,
+    pub(crate) lateral_acceleration: LateralAccelerationSpec,
     /// Sideslip β. Default: zero.
     #[serde(default)]
-    pub sideslip: SideslipSpec,
+    pub(crate) sideslip: SideslipSpec,
     /// Physical limits the imported signals must respect. All fields have
     /// defaults; raise them for a vehicle that really exceeds them.
     #[serde(default)]
-    pub limits: LimitsSpec,
+    pub(crate) limits: LimitsSpec,
     /// The sensor's noise (`[noise]`): the starting noise model of
     /// `--method eiv` as written, read by the calibration like a
     /// `--noise-model` file ([`NoiseTable`]).
@@ -63,13 +64,13 @@ pub struct Manifest {
 /// corrupt sample rather than a real motion.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
-pub struct LimitsSpec {
+pub(crate) struct LimitsSpec {
     /// Largest plausible vehicle speed, m/s: each wheel's speed at θ_0 and
     /// the reference pose's speed between samples. Default 100 (360 km/h).
-    pub max_speed_m_per_s: f64,
+    pub(crate) max_speed_m_per_s: f64,
     /// Largest plausible |a_y|, m/s² (a_y from the wheels, the pose or an
     /// IMU). Default 15 (about 1.5 g; racing cars reach 3–5 g).
-    pub max_lateral_acceleration_m_per_s2: f64,
+    pub(crate) max_lateral_acceleration_m_per_s2: f64,
 }
 
 impl Default for LimitsSpec {
@@ -81,23 +82,23 @@ impl Default for LimitsSpec {
 /// Output settings (`[output]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
-pub struct OutputSpec {
+pub(crate) struct OutputSpec {
     /// Output sample rate, Hz. Default 40 (t_s = 0.025 s, as in the paper).
-    pub rate_hz: f64,
+    pub(crate) rate_hz: f64,
     /// A stream gap longer than this splits the drive into parts, s. Default 0.5.
-    pub max_gap_s: f64,
+    pub(crate) max_gap_s: f64,
     /// Parts shorter than this are dropped (and reported), s. Default 30.
-    pub min_part_s: f64,
+    pub(crate) min_part_s: f64,
     /// Offset added to the pose stream's time to put it on the wheel clock:
     /// `"auto"` (estimate by cross-correlating speeds, and apply) or seconds.
     /// Default `"auto"`.
-    pub clock_offset: ClockOffset,
+    pub(crate) clock_offset: ClockOffset,
     /// The offset search range for `"auto"`, ± seconds. Default 2.
-    pub max_clock_offset_s: f64,
+    pub(crate) max_clock_offset_s: f64,
     /// θ_0 = `[c_e, c_d, t_r, d]` (SI) used to turn wheel rotation into speed
     /// and yaw rate where the import needs them (clock offset, a_y
     /// `from_wheels`). Default the paper's `[2.0, 0, 1.6, 0]`.
-    pub theta0: [f64; 4],
+    pub(crate) theta0: [f64; 4],
 }
 
 impl Default for OutputSpec {
@@ -122,7 +123,7 @@ impl OutputSpec {
 
 /// The clock offset between the wheel and pose streams (`output.clock_offset`).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub enum ClockOffset {
+pub(crate) enum ClockOffset {
     /// Estimate it from the data and apply the estimate.
     #[default]
     Auto,
@@ -171,7 +172,7 @@ impl<'de> Deserialize<'de> for ClockOffset {
 /// Unit of a time column.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
-pub enum TimeUnit {
+pub(crate) enum TimeUnit {
     /// Seconds.
     #[default]
     S,
@@ -199,30 +200,30 @@ impl TimeUnit {
 /// `format`, CSV by default) and how to read its time.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(try_from = "RawStreamSpec", into = "RawStreamSpec")]
-pub struct StreamSpec {
+pub(crate) struct StreamSpec {
     /// The file and its format.
-    pub source: SourceSpec,
+    pub(crate) source: SourceSpec,
     /// The time column. Required for CSV and Parquet; for MCAP, `None` uses
     /// the message time stamps the bag reader returns.
-    pub time_column: Option<String>,
+    pub(crate) time_column: Option<String>,
     /// Unit of the time column. Default `"s"`.
-    pub time_unit: TimeUnit,
+    pub(crate) time_unit: TimeUnit,
     /// Added to the stream's time (after the unit conversion), s. Default 0.
-    pub time_offset_s: f64,
+    pub(crate) time_offset_s: f64,
     /// The stream's nominal sample rate, Hz. When given, time-stamp jitter is
     /// removed: each sample gets an integer sample index (missing samples
     /// skip indices) and its stamp is replaced by a local least-squares fit
     /// `t = t0 + k·T` over `dejitter_window_s`. Give it only for streams that
     /// are sampled at a fixed rate and stamped on arrival (encoders).
-    pub nominal_rate_hz: Option<f64>,
+    pub(crate) nominal_rate_hz: Option<f64>,
     /// Length of the local fit window for de-jittering, s. Default 2.
-    pub dejitter_window_s: f64,
+    pub(crate) dejitter_window_s: f64,
 }
 
 /// Where a stream's rows come from (`streams.<name>.format`, default `"csv"`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "format", rename_all = "lowercase")]
-pub enum SourceSpec {
+pub(crate) enum SourceSpec {
     /// A CSV file with a header row (`format = "csv"`, the default).
     Csv {
         /// The file, relative to the manifest's folder.
@@ -255,7 +256,7 @@ impl SourceSpec {
     }
 
     /// The `format` value.
-    pub fn format(&self) -> &'static str {
+    pub(crate) fn format(&self) -> &'static str {
         match self {
             SourceSpec::Csv { .. } => "csv",
             SourceSpec::Mcap { .. } => "mcap",
@@ -268,7 +269,7 @@ impl SourceSpec {
 /// (`streams.<name>.time`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
-pub enum BagTime {
+pub(crate) enum BagTime {
     /// `header.stamp` (when the data were measured, on the publisher's clock).
     #[default]
     Header,
@@ -374,7 +375,7 @@ fn default_dejitter_window() -> f64 {
 /// How the wheel rotation is recorded (`wheels.signal`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
-pub enum WheelSignal {
+pub(crate) enum WheelSignal {
     /// Rotation speed, revolutions per second.
     RevPerS,
     /// Rotation speed, radians per second.
@@ -395,37 +396,37 @@ pub enum WheelSignal {
 /// The rear wheel rotation (`[wheels]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct WheelSpec {
+pub(crate) struct WheelSpec {
     /// The stream (name in `[streams]`) holding both wheel columns.
-    pub stream: String,
+    pub(crate) stream: String,
     /// How the rotation is recorded.
-    pub signal: WheelSignal,
+    pub(crate) signal: WheelSignal,
     /// Nominal circumference for `m_per_s`, m.
     #[serde(default)]
-    pub circumference_m: Option<f64>,
+    pub(crate) circumference_m: Option<f64>,
     /// Ticks per model revolution for `ticks_cumulative` / `ticks_raw`. The
     /// calibrated c_e is metres per `ticks_per_rev` ticks.
     #[serde(default)]
-    pub ticks_per_rev: Option<f64>,
+    pub(crate) ticks_per_rev: Option<f64>,
     /// Counter width for `ticks_raw`, bits (1..=64); differences are taken
     /// modulo 2^bits into the signed range.
     #[serde(default)]
-    pub counter_bits: Option<u32>,
+    pub(crate) counter_bits: Option<u32>,
     /// Rear-left wheel.
-    pub rear_left: WheelColumn,
+    pub(crate) rear_left: WheelColumn,
     /// Rear-right wheel.
-    pub rear_right: WheelColumn,
+    pub(crate) rear_right: WheelColumn,
 }
 
 /// One wheel's column.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct WheelColumn {
+pub(crate) struct WheelColumn {
     /// The column.
-    pub column: String,
+    pub(crate) column: String,
     /// +1 or −1: the sign that makes forward driving positive. Default +1.
     #[serde(default = "one")]
-    pub sign: f64,
+    pub(crate) sign: f64,
 }
 
 fn one() -> f64 {
@@ -435,27 +436,27 @@ fn one() -> f64 {
 /// The reference pose (`[pose]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct PoseSpec {
+pub(crate) struct PoseSpec {
     /// The stream (name in `[streams]`) holding the pose columns.
-    pub stream: String,
+    pub(crate) stream: String,
     /// Position columns.
-    pub position: PositionSpec,
+    pub(crate) position: PositionSpec,
     /// Heading column; when absent the heading is derived from the track.
     #[serde(default)]
-    pub heading: Option<HeadingSpec>,
+    pub(crate) heading: Option<HeadingSpec>,
     /// Below this speed the derived heading is held, m/s. Default 1.
     #[serde(default = "one")]
-    pub derive_heading_min_speed_m_per_s: f64,
+    pub(crate) derive_heading_min_speed_m_per_s: f64,
     /// Quality column and its accepted values; samples with other values
     /// split the drive.
     #[serde(default)]
-    pub quality: Option<QualitySpec>,
+    pub(crate) quality: Option<QualitySpec>,
 }
 
 /// Position columns (`[pose.position]`, tagged by `kind`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
-pub enum PositionSpec {
+pub(crate) enum PositionSpec {
     /// Local metric x (east) / y (north) columns, m.
     Local {
         /// x column, m.
@@ -482,7 +483,7 @@ pub enum PositionSpec {
 /// Heading convention.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
-pub enum HeadingConvention {
+pub(crate) enum HeadingConvention {
     /// ENU: counter-clockwise from east (the model's convention).
     Enu,
     /// NED: clockwise from north (compass).
@@ -492,7 +493,7 @@ pub enum HeadingConvention {
 /// Angle unit.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
-pub enum AngleUnit {
+pub(crate) enum AngleUnit {
     /// Radians.
     #[default]
     Rad,
@@ -513,14 +514,14 @@ impl AngleUnit {
 /// Heading column (`[pose.heading]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct HeadingSpec {
+pub(crate) struct HeadingSpec {
     /// The column.
-    pub column: String,
+    pub(crate) column: String,
     /// Convention.
-    pub convention: HeadingConvention,
+    pub(crate) convention: HeadingConvention,
     /// Unit. Default `"rad"`.
     #[serde(default)]
-    pub unit: AngleUnit,
+    pub(crate) unit: AngleUnit,
 }
 
 /// Pose quality (`[pose.quality]`): a sample is accepted when its value is
@@ -528,23 +529,23 @@ pub struct HeadingSpec {
 /// least one of them is required.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct QualitySpec {
+pub(crate) struct QualitySpec {
     /// The column.
-    pub column: String,
+    pub(crate) column: String,
     /// Accepted values (e.g. `[6]` for RTK fixed). Default: any value.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub accept: Vec<f64>,
+    pub(crate) accept: Vec<f64>,
     /// Largest accepted value (e.g. `max = 0.01` on a covariance `cov_x`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub max: Option<f64>,
+    pub(crate) max: Option<f64>,
     /// Smallest accepted value (e.g. `min = 2` on a NavSatFix `status`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub min: Option<f64>,
+    pub(crate) min: Option<f64>,
 }
 
 impl QualitySpec {
     /// True when `v` passes every test given (NaN passes none).
-    pub fn accepts(&self, v: f64) -> bool {
+    pub(crate) fn accepts(&self, v: f64) -> bool {
         (self.accept.is_empty() || self.accept.iter().any(|a| (a - v).abs() < 1e-9))
             && self.max.is_none_or(|max| v <= max)
             && self.min.is_none_or(|min| v >= min)
@@ -564,7 +565,7 @@ impl QualitySpec {
 /// Lateral acceleration source (`[lateral_acceleration]`, tagged by `source`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "source", rename_all = "snake_case", deny_unknown_fields)]
-pub enum LateralAccelerationSpec {
+pub(crate) enum LateralAccelerationSpec {
     /// An IMU column, m/s² (its interval mean over each output step).
     Imu {
         /// The stream.
@@ -638,34 +639,34 @@ impl LateralAccelerationSpec {
 /// ```
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct BankSpec {
+pub(crate) struct BankSpec {
     /// The stream (name in `[streams]`) of the left antenna.
-    pub left: String,
+    pub(crate) left: String,
     /// The stream of the right antenna.
-    pub right: String,
+    pub(crate) right: String,
     /// Latitude column (both streams), WGS84 degrees.
-    pub lat: String,
+    pub(crate) lat: String,
     /// Longitude column (both streams), WGS84 degrees.
-    pub lon: String,
+    pub(crate) lon: String,
     /// Altitude column (both streams), m.
-    pub alt: String,
+    pub(crate) alt: String,
     /// Quality column (both streams) and its accepted values. Default: every sample.
     #[serde(default)]
-    pub quality: Option<QualitySpec>,
+    pub(crate) quality: Option<QualitySpec>,
     /// Distance between the antennas, m; their measured separation must
     /// agree within `BankSpec::BASELINE_TOLERANCE`.
-    pub baseline_m: f64,
+    pub(crate) baseline_m: f64,
     /// Height of the left antenna above the right one on level ground, m. Default 0.
     #[serde(default)]
-    pub height_offset_m: f64,
+    pub(crate) height_offset_m: f64,
     /// Centred moving-average window of the roll on the output grid, s. Default 1.
     #[serde(default = "one")]
-    pub smoothing_s: f64,
+    pub(crate) smoothing_s: f64,
     /// Largest plausible |roll|, degrees (roads are banked by a few degrees;
     /// ramps and test tracks by up to ~10–15). A few samples beyond it are
     /// dropped as glitches (a warning), more than 1 % is an error. Default 20.
     #[serde(default = "default_max_roll_deg")]
-    pub max_roll_deg: f64,
+    pub(crate) max_roll_deg: f64,
 }
 
 impl BankSpec {
@@ -693,7 +694,7 @@ impl Default for LateralAccelerationSpec {
 /// Sideslip source (`[sideslip]`, tagged by `source`).
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(tag = "source", rename_all = "snake_case", deny_unknown_fields)]
-pub enum SideslipSpec {
+pub(crate) enum SideslipSpec {
     /// β = 0.
     #[default]
     Zero,
@@ -741,6 +742,11 @@ impl Manifest {
         }
         m.check()?;
         Ok(m)
+    }
+
+    /// The sample time of the imported drive, s (`[output] rate_hz`).
+    pub fn sample_time_s(&self) -> f64 {
+        1.0 / self.output.rate_hz
     }
 
     /// The manifest error for `key`.
@@ -796,5 +802,46 @@ fn toml_message(e: &toml::de::Error, text: &str, key: Option<String>) -> String 
     match key {
         Some(k) => format!("{k}: {msg}{at}"),
         None => format!("{msg}{at}"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The `[pose] quality` of a small manifest with `quality` as written.
+    fn quality(quality: &str) -> QualitySpec {
+        let text = format!(
+            r#"
+[streams.wheels]
+file = "w.csv"
+time_column = "t"
+
+[streams.pose]
+file = "p.csv"
+time_column = "t"
+
+[wheels]
+stream = "wheels"
+signal = "rad_cumulative"
+rear_left = {{ column = "l" }}
+rear_right = {{ column = "r" }}
+
+[pose]
+stream = "pose"
+position = {{ kind = "local", x = "x", y = "y" }}
+{quality}
+"#
+        );
+        Manifest::parse(&text, Path::new("m.toml")).expect("manifest").pose.quality.expect("quality")
+    }
+
+    #[test]
+    fn quality_thresholds_accept_what_every_given_test_passes() {
+        let q = quality("quality = { column = \"q\", max = 0.01, min = 0 }");
+        assert!(q.accepts(0.0004) && q.accepts(0.01) && q.accepts(0.0));
+        assert!(!q.accepts(100.0) && !q.accepts(-1.0) && !q.accepts(f64::NAN));
+        let both = quality("quality = { column = \"q\", accept = [2.0], max = 1.5 }");
+        assert!(!both.accepts(2.0), "every given test must pass");
     }
 }

@@ -229,7 +229,7 @@ mod geodesy;
 mod grid;
 mod lateral;
 pub(crate) mod limits;
-pub mod manifest;
+pub(crate) mod manifest;
 mod pose;
 mod report;
 mod settings;
