@@ -63,7 +63,8 @@ pub fn run(mut a: CompensateArgs, bars: &Bars) -> Result<()> {
     )?;
     bars.finish();
     print_warnings(&comp.warnings.iter().cloned().map(odocal::Warning::from).collect::<Vec<_>>());
-    let (mut c_rl, mut c_rr, mut flag) = (drive.n_rl().to_vec(), drive.n_rr().to_vec(), vec![0.0; drive.len()]);
+    let (mut c_rl, mut c_rr, mut flag) =
+        (drive.measured().n_rl.to_vec(), drive.measured().n_rr.to_vec(), vec![0.0; drive.len()]);
     for (i, s) in comp.segments.iter().enumerate() {
         c_rl[s.start..s.start + s.steps].copy_from_slice(&comp.n_rl[i]);
         c_rr[s.start..s.start + s.steps].copy_from_slice(&comp.n_rr[i]);

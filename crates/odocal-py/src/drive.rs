@@ -288,7 +288,8 @@ impl PyDrive {
     /// `columns` order (the heading `psi` is unwrapped).
     fn to_numpy<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
         let d = &self.drive;
-        let cols: [&[f64]; 8] = [d.t(), d.px(), d.py(), d.psi(), d.n_rl(), d.n_rr(), d.beta(), d.a_y()];
+        let s = d.measured();
+        let cols: [&[f64]; 8] = [d.t(), &s.px, &s.py, &s.psi, &s.n_rl, &s.n_rr, &s.beta, &s.a_y];
         let n = d.len();
         let mut flat = Vec::with_capacity(n * cols.len());
         for i in 0..n {

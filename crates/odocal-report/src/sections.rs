@@ -167,7 +167,7 @@ pub(crate) fn map(h: &mut String, r: &ReportInput<'_>, segs: &[SegmentData<'_>],
     h.push_str("<section id=\"map\">\n<h2>The drive</h2>\n");
     let mut map_series = Vec::new();
     for p in drive.parts() {
-        let pts: Vec<(f64, f64)> = (p.start..p.end).map(|i| (drive.px()[i], drive.py()[i])).collect();
+        let pts: Vec<(f64, f64)> = (p.start..p.end).map(|i| (drive.measured().px[i], drive.measured().py[i])).collect();
         map_series.push(Series::line(
             if map_series.is_empty() { "reference" } else { "" },
             thin(pts, 4000),
@@ -276,8 +276,8 @@ fn yaw_rate_residual_panel(r: &ReportInput<'_>) -> Panel {
         for i in p.start..p.end.saturating_sub(1) {
             let x = drive.pose(i);
             let u = drive.input(i);
-            let r1 = drive.psi()[i + 1] - step(&x, &u, &r.theta, ts)[2];
-            let r0 = drive.psi()[i + 1] - step(&x, &u, &r.theta0, ts)[2];
+            let r1 = drive.measured().psi[i + 1] - step(&x, &u, &r.theta, ts)[2];
+            let r0 = drive.measured().psi[i + 1] - step(&x, &u, &r.theta0, ts)[2];
             heading.push((drive.t()[i], r1 / ts));
             heading0.push((drive.t()[i], r0 / ts));
         }

@@ -47,7 +47,7 @@ fn run() -> Res<()> {
             let ts = d.sample_time_s();
             let truth = d.truth().ok_or("no truth")?;
             let q = 1.0 / (ticks * ts);
-            for (meas, tru) in [(d.n_rl(), &truth.n_rl), (d.n_rr(), &truth.n_rr)] {
+            for (meas, tru) in [(&d.measured().n_rl, &truth.n_rl), (&d.measured().n_rr, &truth.n_rr)] {
                 let e: Vec<f64> = meas.iter().zip(tru.iter()).map(|(m, t)| (m - t) / q).collect();
                 for k in 3..e.len() {
                     let counted = meas[k].abs() / q;

@@ -79,12 +79,12 @@ fn variant(d: &Drive, phi: &[f64], fy: bool, w: bool, h: f64) -> Res<Drive> {
         }
     }
     if fy {
-        s.a_y = d.a_y().iter().zip(phi).map(|(a, p)| a * p.cos() - G * p.sin()).collect();
+        s.a_y = d.measured().a_y.iter().zip(phi).map(|(a, p)| a * p.cos() - G * p.sin()).collect();
     }
     if h != 0.0 {
         // antenna moved h·sin φ to the left (+y) of the axle: take it back
         for (i, p) in phi.iter().enumerate() {
-            let (sn, cs) = d.psi()[i].sin_cos();
+            let (sn, cs) = d.measured().psi[i].sin_cos();
             let off = h * p.sin();
             s.px[i] -= -sn * off;
             s.py[i] -= cs * off;
@@ -130,13 +130,13 @@ fn run() -> Res<()> {
             let v: Vec<f64> = (0..d.len()).filter(|i| f(*i)).map(|i| phi[i]).collect();
             (v.iter().sum::<f64>() / v.len().max(1) as f64 * 1e3, v.len())
         };
-        let turn = m(&|i| d.a_y()[i].abs() > 0.5);
-        let straight = m(&|i| d.a_y()[i].abs() < 0.1);
+        let turn = m(&|i| d.measured().a_y[i].abs() > 0.5);
+        let straight = m(&|i| d.measured().a_y[i].abs() < 0.1);
         let fyc: Vec<f64> = (0..d.len())
-            .filter(|i| d.a_y()[*i].abs() > 0.5)
-            .map(|i| d.a_y()[i] * phi[i].cos() - G * phi[i].sin())
+            .filter(|i| d.measured().a_y[*i].abs() > 0.5)
+            .map(|i| d.measured().a_y[i] * phi[i].cos() - G * phi[i].sin())
             .collect();
-        let ayc: Vec<f64> = (0..d.len()).filter(|i| d.a_y()[*i].abs() > 0.5).map(|i| d.a_y()[i]).collect();
+        let ayc: Vec<f64> = (0..d.len()).filter(|i| d.measured().a_y[*i].abs() > 0.5).map(|i| d.measured().a_y[i]).collect();
         eprintln!(
             "{run}: clock {:+.3} s, {} roll samples; roll in turns {:+.1} mrad (n {}), straights {:+.1} mrad (n {}); \
              a_y in turns {:+.3}, f_y {:+.3}",

@@ -22,10 +22,10 @@ const USAGE: &str = "testtrack_diagnose [--heading-shift M] [--track-dir DIR] K1
 /// (earlier for shift < 0).
 fn with_beta(d: &Drive, k: f64, shift: i64) -> Result<Drive, odocal::Error> {
     let mut s = d.measured().clone();
-    s.beta = d.a_y().iter().map(|a| k * a).collect();
+    s.beta = d.measured().a_y.iter().map(|a| k * a).collect();
     if shift != 0 {
         let n = s.psi.len() as i64;
-        s.psi = (0..n).map(|i| d.psi()[(i + shift).clamp(0, n - 1) as usize]).collect();
+        s.psi = (0..n).map(|i| d.measured().psi[(i + shift).clamp(0, n - 1) as usize]).collect();
     }
     with_signals(d, s)
 }

@@ -499,31 +499,31 @@ impl Drive {
         &self.t
     }
     /// Reference x position, m.
-    pub fn px(&self) -> &[f64] {
+    pub(crate) fn px(&self) -> &[f64] {
         &self.measured.px
     }
     /// Reference y position, m.
-    pub fn py(&self) -> &[f64] {
+    pub(crate) fn py(&self) -> &[f64] {
         &self.measured.py
     }
     /// Reference heading, rad, unwrapped.
-    pub fn psi(&self) -> &[f64] {
+    pub(crate) fn psi(&self) -> &[f64] {
         &self.measured.psi
     }
     /// Measured rear-left wheel rotation speed, rev/s.
-    pub fn n_rl(&self) -> &[f64] {
+    pub(crate) fn n_rl(&self) -> &[f64] {
         &self.measured.n_rl
     }
     /// Measured rear-right wheel rotation speed, rev/s.
-    pub fn n_rr(&self) -> &[f64] {
+    pub(crate) fn n_rr(&self) -> &[f64] {
         &self.measured.n_rr
     }
     /// Sideslip angle, rad.
-    pub fn beta(&self) -> &[f64] {
+    pub(crate) fn beta(&self) -> &[f64] {
         &self.measured.beta
     }
     /// Lateral acceleration, m/s², positive to the left.
-    pub fn a_y(&self) -> &[f64] {
+    pub(crate) fn a_y(&self) -> &[f64] {
         &self.measured.a_y
     }
     /// All measured signals.

@@ -52,11 +52,7 @@ pub fn kernel_instruction_set() -> &'static str {
 /// # fn main() -> Result<(), odocal::Error> {
 /// use odocal::{eiv, sim, Theta};
 /// let out = sim::simulate(&sim::SimOptions { length_km: 1.0, substeps: 1, ..sim::SimOptions::noise_free(3) })?;
-/// let d = &out.drive;
-/// let input = eiv::EivInput {
-///     sample_time_s: d.sample_time_s(), parts: d.parts(), px: d.px(), py: d.py(), psi: d.psi(),
-///     n_rl: d.n_rl(), n_rr: d.n_rr(), beta: d.beta(), a_y: d.a_y(), reference_measured: None,
-/// };
+/// let input = eiv::EivInput::from_drive(&out.drive);
 /// let start = Theta { c_e: 1.951, ..out.sidecar.theta_true };
 /// let report = eiv::estimate(&input, &start, &eiv::EivOptions::default())?;
 /// assert!((report.theta.c_e - 1.95).abs() < 1e-6);

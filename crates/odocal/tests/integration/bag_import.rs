@@ -47,11 +47,11 @@ fn full_bag_imports_as_the_ros_time_csv_manifest() {
     );
     let max_diff = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(p, q)| (p - q).abs()).fold(0.0, f64::max);
     assert!(a.t().iter().zip(b.t()).all(|(p, q)| p.to_bits() == q.to_bits()), "times differ");
-    let pos = max_diff(a.px(), b.px()).max(max_diff(a.py(), b.py()));
+    let pos = max_diff(&a.measured().px, &b.measured().px).max(max_diff(&a.measured().py, &b.measured().py));
     assert!(pos <= 1e-3, "positions differ by {pos} m");
-    let wheels = max_diff(a.n_rl(), b.n_rl()).max(max_diff(a.n_rr(), b.n_rr()));
+    let wheels = max_diff(&a.measured().n_rl, &b.measured().n_rl).max(max_diff(&a.measured().n_rr, &b.measured().n_rr));
     assert!(wheels <= 1e-6, "wheel rotations differ by {wheels} rev/s");
-    let psi = max_diff(a.psi(), b.psi());
+    let psi = max_diff(&a.measured().psi, &b.measured().psi);
     assert!(psi <= 1e-9, "headings differ by {psi} rad");
     // Quality: the bag's covariance threshold rejects exactly the rows the
     // CSV's both_fix6 = 0 rejects.
@@ -106,11 +106,11 @@ quality = { column = "cov_x", max = 0.01 }
     assert!(!header.report.gaps.is_empty(), "the slice starts with rejected pose quality");
     let why = header.report.gaps[0].reasons.join("; ");
     assert!(why.contains("cov_x"), "{why}");
-    let moving = d.n_rl().iter().filter(|n| **n > 1.0).count();
+    let moving = d.measured().n_rl.iter().filter(|n| **n > 1.0).count();
     assert!(moving > d.len() / 2, "the van drives through most of the slice ({moving} of {} samples)", d.len());
     let log = run("log");
     assert_eq!(log.drive.parts(), d.parts());
-    assert_eq!(log.drive.px(), d.px());
+    assert_eq!(log.drive.measured().px, d.measured().px);
 }
 
 /// A two-stream manifest with the stream keys `wheels_keys` and the pose

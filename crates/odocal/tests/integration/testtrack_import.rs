@@ -25,8 +25,8 @@ fn no_test_track_run_imports_a_wheel_speed_beyond_the_vans() {
         let imported = import(&m).unwrap_or_else(|e| panic!("{run}: {e}"));
         let d = &imported.drive;
         let c_e = toml["output"]["theta0"][0].as_float().expect("output.theta0");
-        let v = d.n_rl().iter().chain(d.n_rr()).map(|n| (n * c_e).abs()).fold(0.0, f64::max);
-        let a = d.a_y().iter().map(|a| a.abs()).fold(0.0, f64::max);
+        let v = d.measured().n_rl.iter().chain(&d.measured().n_rr).map(|n| (n * c_e).abs()).fold(0.0, f64::max);
+        let a = d.measured().a_y.iter().map(|a| a.abs()).fold(0.0, f64::max);
         assert!(v < MAX_TRACK_SPEED_M_PER_S, "{run}: wheel speed {v} m/s\n{}", imported.report);
         assert!(a < MAX_TRACK_A_Y, "{run}: a_y {a} m/s²\n{}", imported.report);
         assert!(d.parts().len() == 1 && d.len() > 5000, "{run}: {}", imported.report);
