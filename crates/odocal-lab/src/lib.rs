@@ -213,7 +213,7 @@ pub fn batch_gn_all_options(hold_d: bool) -> CalibrationOptions {
     let mut o = CalibrationOptions { method: Method::BatchGn(Default::default()), ..Default::default() };
     o.segments.min_peak_yaw_rate_rad_per_s = 0.0;
     if hold_d {
-        o.identify.free.remove(odocal::Param::D);
+        o.identify.free = o.identify.free.without(odocal::Param::D);
     }
     o
 }

@@ -118,8 +118,8 @@ impl ParamRow {
     /// ([`odocal::ExtrinsicsEstimate::result_std_dev`]); held entries have no σ.
     pub fn extrinsics_rows(x: &odocal::ExtrinsicsEstimate) -> Vec<ParamRow> {
         let (init, val, sd) = (x.initial.to_array(), x.value.to_array(), x.result_std_dev().to_array());
-        odocal::Param::EXTRINSICS
-            .into_iter()
+        odocal::ParamSet::EXTRINSICS
+            .iter()
             .enumerate()
             .map(|(i, p)| {
                 let (unit, scale) = if i == 2 { ("mrad", 1e3) } else { ("m", 1.0) };

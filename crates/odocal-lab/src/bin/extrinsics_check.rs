@@ -265,7 +265,7 @@ fn run() -> Res<()> {
     match what.as_str() {
         "sim" => sim(args.pos(1, 5)?, args.pos(2, 8.0)?, &args.pos(3, "paper".to_string())?)?,
         "van" => van(&args.pos(1, "batch-gn".to_string())?)?,
-        "track" => track(&args.pos(1, "batch-gn".to_string())?, args.pos(2, ParamSet::EMPTY)?)?,
+        "track" => track(&args.pos(1, "batch-gn".to_string())?, args.pos(2, ParamSet::default())?)?,
         other => return Err(format!("unknown part '{other}'\n\n{USAGE}").into()),
     }
     args.finish()

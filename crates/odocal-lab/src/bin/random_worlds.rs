@@ -46,7 +46,7 @@ use odocal::research::mean_position_error_with;
 use odocal::segment::{validation_segments, Segment, ValidationSegmentOptions};
 use odocal::sim::{simulate, NoiseOptions, NoiseRegime, SimOptions, WorldSummary};
 use odocal::{
-    calibrate, CalibrationOptions, CalibrationReport, Drive, EivOutcome, Extrinsics, Method, MethodDetail, Param,
+    calibrate, CalibrationOptions, CalibrationReport, Drive, EivOutcome, Extrinsics, Method, MethodDetail, Param, ParamSet,
     Theta, VerdictLevel, VerdictReason,
 };
 use odocal_lab::{coverage, error_scale, errors, median, Args, Res, Summary, Table, ERROR_UNITS, FRESH_SEED_OFFSET};
@@ -163,7 +163,7 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut) -> Res<Run> {
     let accepted_within = r.verdict.reasons.iter().all(|reason| match reason {
         VerdictReason::FallbackDisagrees { .. } => true,
         VerdictReason::LargeUncertainty { param, sigma, fraction } => {
-            let w = Param::THETA.iter().position(|q| q == param).map_or(f64::NAN, |i| within[i]);
+            let w = ParamSet::THETA.iter().position(|q| q == *param).map_or(f64::NAN, |i| within[i]);
             !(w > 0.1 * sigma / fraction)
         }
         _ => false,

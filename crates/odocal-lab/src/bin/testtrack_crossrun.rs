@@ -34,8 +34,8 @@ fn run() -> Res<()> {
         CalibrationOptions { method: Method::from_name(&a.get("method", "eiv".to_string())?)?, ..Default::default() };
     opts.segments.min_peak_yaw_rate_rad_per_s = a.get("min-yaw-rate", opts.segments.min_peak_yaw_rate_rad_per_s)?;
     opts.segments.length_steps = a.get("segment-length", opts.segments.length_steps)?;
-    for p in a.get("fix", ParamSet::EMPTY)?.iter() {
-        opts.identify.free.remove(p);
+    for p in a.get("fix", ParamSet::default())?.iter() {
+        opts.identify.free = opts.identify.free.without(p);
     }
     opts.auto_fix = a.flag("auto-fix");
     opts.keep_one_way_selection = a.flag("keep-one-way");

@@ -48,9 +48,9 @@ pub enum Param {
 
 impl Param {
     /// The four parameters of θ, in vector order `[c_e, c_d, t_r, d]`.
-    pub const THETA: [Param; 4] = [Param::CE, Param::CD, Param::TR, Param::D];
+    pub(crate) const THETA: [Param; 4] = [Param::CE, Param::CD, Param::TR, Param::D];
     /// The reference extrinsics, in vector order `[lever_x, lever_y, heading_offset]`.
-    pub const EXTRINSICS: [Param; 3] = [Param::LeverX, Param::LeverY, Param::HeadingOffset];
+    pub(crate) const EXTRINSICS: [Param; 3] = [Param::LeverX, Param::LeverY, Param::HeadingOffset];
     /// Every parameter, in vector order.
     pub(crate) const ALL: [Param; 7] =
         [Param::CE, Param::CD, Param::TR, Param::D, Param::LeverX, Param::LeverY, Param::HeadingOffset];
@@ -143,8 +143,8 @@ impl std::str::FromStr for Param {
 pub struct ParamSet(u32);
 
 impl ParamSet {
-    /// No parameter.
-    pub const EMPTY: ParamSet = ParamSet(0);
+    /// No parameter (as `ParamSet::default()`).
+    pub(crate) const EMPTY: ParamSet = ParamSet(0);
     /// The four parameters of θ.
     pub const THETA: ParamSet = ParamSet(0b1111);
     /// The reference extrinsics (lever_x, lever_y, heading_offset).
@@ -175,7 +175,7 @@ impl ParamSet {
     }
 
     /// Removes `p`.
-    pub fn remove(&mut self, p: Param) {
+    pub(crate) fn remove(&mut self, p: Param) {
         *self = self.without(p);
     }
 
