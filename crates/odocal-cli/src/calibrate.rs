@@ -293,13 +293,7 @@ fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, ba
     }
     let outcome = if r.verdict.level == VerdictLevel::Rejected { Outcome::Rejected } else { Outcome::Done };
     if let Some(p) = json {
-        let mut v = report_json(&r, truth_ref, wheel_scale)?;
-        if let Some(obj) = v.as_object_mut() {
-            if let Some(per) = r.heading_offset_per_drive(&fingerprints) {
-                obj.insert("heading_offset_per_drive".into(), per);
-            }
-            obj.insert("drives".into(), serde_json::Value::Array(fingerprints));
-        }
+        let mut v = r.to_json(fingerprints, truth_ref, wheel_scale)?;
         account.add_to_json(&mut v)?;
         write_json(p, v)?;
     }
@@ -423,17 +417,6 @@ fn write_html_report(
     truth: Option<(&Theta, f64)>,
 ) -> Result<()> {
     let val = segment::validation_segments(drive, &opts.validation)?;
-    let batches = r
-        .initial_step()
-        .map(|s| s.batches.iter().map(|b| (b.score.theta, b.score.mean_position_error_m)).collect())
-        .unwrap_or_default();
-    let mut params = odocal_report::ParamRow::theta_rows(
-        &r.initial.theta,
-        &r.theta,
-        Some(r.result_sigma().to_array()),
-        truth.map(|t| t.0),
-    );
-    params.extend(r.extrinsics.as_ref().map(odocal_report::ParamRow::extrinsics_rows).unwrap_or_default());
     let html = odocal_report::ReportInput {
         provenance: vec![
             ("method".into(), r.method.clone()),
@@ -443,19 +426,7 @@ fn write_html_report(
             ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
             ("date".into(), odocal::ParamFile::utc_date_today()),
         ],
-        params,
-        truth: truth.map(|t| *t.0),
-        verdict: Some((r.verdict.level.to_string(), r.verdict.reasons.iter().map(|x| x.to_string()).collect())),
-        batches,
-        warnings: r.warnings.iter().map(|w| w.to_string()).collect(),
-        method_details: r.method_details().lines().map(str::to_string).collect(),
-        segment_extrinsics: r.validation_extrinsics(starts, &val),
-        // The σ that stands for the result, labelled once (as the text's column).
-        sigma_label: match r.result_sigma().covers {
-            odocal::SigmaCovers::NextDrive => "± 1σ (next drive)".into(),
-            odocal::SigmaCovers::WithinDrive => "± 1σ (within drive)".into(),
-        },
-        ..odocal_report::ReportInput::new(input.to_string(), drive, &val, r.initial.theta, r.theta)
+        ..odocal_report::ReportInput::of_calibration(input, r, (drive, &val, starts), truth.map(|t| t.0))
     };
     write_text(path, &odocal_report::render_html(&html)?)
 }
@@ -480,30 +451,6 @@ fn print_text_report(
     print!("{}", account.lines());
     std::io::stdout().flush()?;
     Ok(())
-}
-
-/// The JSON report: the library's report with the σ of the result, the
-/// truth when known and how to read c_e.
-fn report_json(
-    r: &CalibrationReport,
-    truth: Option<(&Theta, f64)>,
-    wheel_scale: Option<&str>,
-) -> Result<serde_json::Value> {
-    let mut v = serde_json::to_value(r)?;
-    // The σ that stands for the result (the verdict's, --params-out's): for
-    // the next drive; and the method's within-drive σ.
-    if let Some(obj) = v.as_object_mut() {
-        obj.insert("sigma".into(), serde_json::to_value(r.result_sigma())?);
-        obj.insert("sigma_within_drive".into(), serde_json::to_value(r.within_drive_sigma())?);
-    }
-    // The `method` of the report (SPEC §9) is the name; its settings are in `options.method`.
-    if let (Some((t, e)), Some(obj)) = (truth, v.as_object_mut()) {
-        obj.insert("truth".into(), serde_json::json!({"theta": t, "mean_position_error_m": e}));
-    }
-    if let (Some(w), Some(obj)) = (wheel_scale, v.as_object_mut()) {
-        obj.insert("wheel_scale".into(), serde_json::json!(w));
-    }
-    Ok(v)
 }
 
 /// The command line that calibrates c_e alone on `path` with `method`, with

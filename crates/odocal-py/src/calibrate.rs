@@ -19,7 +19,7 @@ use crate::convert::{to_json, to_py};
 use crate::drive::{drives_arg, Provenance, PyDrive};
 use crate::files::distinct_drives;
 use crate::run::{run_detached, with_threads};
-use crate::{lib_err, with_schema_version, OdocalError};
+use crate::{lib_err, OdocalError};
 
 /// What to run: the calibration options and where the report validates.
 struct CalibrationPlan {
@@ -160,29 +160,16 @@ fn calibrate_json(
     if separate.len() >= 2 && !matches!(plan.holdout, Some(Holdout::FirstHalf | Holdout::SecondHalf)) {
         report.pool_drives(&separate.iter().map(|d| d.as_ref()).collect::<Vec<_>>())?;
     }
-    let json_err = |source| odocal::Error::Json { context: "calibration report".into(), source };
-    let mut v = serde_json::to_value(&report).map_err(json_err)?;
     let scored = held.unwrap_or(drive);
-    if let (Some(side), Some(obj)) = (&prov.sidecar, v.as_object_mut()) {
-        let t = side.theta_true;
-        let segs = odocal::segment::validation_segments(scored, &opts.validation)?;
-        let e = odocal::mean_position_error(scored, &segs, &t)?.mean_position_error_m;
-        obj.insert("truth".into(), serde_json::json!({"theta": t, "mean_position_error_m": e}));
-    }
-    if let (Some(w), Some(obj)) = (&prov.wheel_scale, v.as_object_mut()) {
-        obj.insert("wheel_scale".into(), serde_json::json!(w));
-    }
-    if let Some(obj) = v.as_object_mut() {
-        // The σ that stands for the result (as the CLI's JSON `sigma`).
-        obj.insert("sigma".into(), serde_json::to_value(report.result_sigma()).map_err(json_err)?);
-        obj.insert("sigma_within_drive".into(), serde_json::to_value(report.within_drive_sigma()).map_err(json_err)?);
-        if let Some(per) = report.heading_offset_per_drive(&drives) {
-            obj.insert("heading_offset_per_drive".into(), per);
+    let truth = match &prov.sidecar {
+        Some(side) => {
+            let segs = odocal::segment::validation_segments(scored, &opts.validation)?;
+            Some((side.theta_true, odocal::mean_position_error(scored, &segs, &side.theta_true)?.mean_position_error_m))
         }
-        obj.insert("drives".into(), serde_json::Value::Array(drives));
-    }
+        None => None,
+    };
+    let mut v = report.to_json(drives, truth.as_ref().map(|(t, e)| (t, *e)), prov.wheel_scale.as_deref())?;
     plan.resolved.account.add_to_json(&mut v)?;
-    with_schema_version(&mut v);
     Ok(v)
 }
 

@@ -146,10 +146,7 @@ pub(crate) fn _report_html(
         let scored: &Drive = split.as_ref().map_or(&inner, |(_, h)| h.as_ref());
         let segs =
             odocal::segment::validation_segments(scored, &report.options.validation).map_err(|e| e.to_string())?;
-        // The σ that stands for the result (the verdict's, the CLI's).
-        let sigma = report.result_sigma().to_array();
-        let theta0 = report.options.theta0;
-        let mut input = odocal_report::ReportInput {
+        let input = odocal_report::ReportInput {
             provenance: vec![
                 ("method".into(), report.method.to_string()),
                 ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
@@ -159,25 +156,8 @@ pub(crate) fn _report_html(
             .into_iter()
             .chain(fingerprint.map(|f| ("fingerprint".into(), f)))
             .collect(),
-            params: odocal_report::ParamRow::theta_rows(&theta0, &report.theta, Some(sigma), truth.as_ref()),
-            truth,
-            verdict: Some((
-                report.verdict.level.to_string(),
-                report.verdict.reasons.iter().map(|r| r.to_string()).collect(),
-            )),
-            warnings: report.warnings.iter().map(|w| w.to_string()).collect(),
-            method_details: report.method_details().lines().map(str::to_string).collect(),
-            segment_extrinsics: report.validation_extrinsics(&starts, &segs),
-            // The σ that stands for the result, labelled once (as the text's column).
-            sigma_label: match report.result_sigma().covers {
-                odocal::SigmaCovers::NextDrive => "± 1σ (next drive)".into(),
-                odocal::SigmaCovers::WithinDrive => "± 1σ (within drive)".into(),
-            },
-            ..odocal_report::ReportInput::new(title, scored, &segs, theta0, report.theta)
+            ..odocal_report::ReportInput::of_calibration(title, &report, (scored, &segs, &starts), truth.as_ref())
         };
-        if let Some(step) = report.initial_step() {
-            input.batches = step.batches.iter().map(|b| (b.score.theta, b.score.mean_position_error_m)).collect();
-        }
         odocal_report::write_html(&path, &input).map_err(|e| e.to_string())
     })
     .map_err(OdocalError::new_err)

@@ -210,6 +210,43 @@ impl<'a> ReportInput<'a> {
         }
     }
 
+    /// The input for a calibration `report` on the drive it was validated
+    /// on (`drive`, its validation segments `segments`; `starts`: the first
+    /// sample of each drive joined in it), with the true θ when known: the
+    /// parameter table with the σ that stands for the result (and the
+    /// reference extrinsics when estimated), the verdict, the step-1
+    /// estimates, the warnings, the method's account and each segment's
+    /// extrinsics. The provenance lines are the caller's.
+    pub fn of_calibration(
+        title: impl Into<String>,
+        report: &odocal::CalibrationReport,
+        (drive, segments, starts): (&'a Drive, &'a [Segment], &[usize]),
+        truth: Option<&Theta>,
+    ) -> Self {
+        let r = report;
+        let mut params = ParamRow::theta_rows(&r.initial.theta, &r.theta, Some(r.result_sigma().to_array()), truth);
+        params.extend(r.extrinsics.as_ref().map(ParamRow::extrinsics_rows).unwrap_or_default());
+        let batches = r
+            .initial_step()
+            .map(|s| s.batches.iter().map(|b| (b.score.theta, b.score.mean_position_error_m)).collect())
+            .unwrap_or_default();
+        ReportInput {
+            params,
+            truth: truth.copied(),
+            verdict: Some((r.verdict.level.to_string(), r.verdict.reasons.iter().map(|x| x.to_string()).collect())),
+            batches,
+            warnings: r.warnings.iter().map(|w| w.to_string()).collect(),
+            method_details: r.method_details().lines().map(str::to_string).collect(),
+            segment_extrinsics: r.validation_extrinsics(starts, segments),
+            // The σ that stands for the result, labelled once (as the text's column).
+            sigma_label: match r.result_sigma().covers {
+                odocal::SigmaCovers::NextDrive => "± 1σ (next drive)".into(),
+                odocal::SigmaCovers::WithinDrive => "± 1σ (within drive)".into(),
+            },
+            ..ReportInput::new(title, drive, segments, r.initial.theta, r.theta)
+        }
+    }
+
     /// The extrinsics `[θ_0's, θ's]` of validation segment `i`.
     fn extrinsics_of(&self, i: usize) -> [Extrinsics; 2] {
         self.segment_extrinsics.get(i).copied().unwrap_or([Extrinsics::ZERO; 2])

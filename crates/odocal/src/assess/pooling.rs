@@ -33,7 +33,7 @@
 //!   runs); with several drives
 //!   ([`crate::CalibrationReport::pool_drives`]), the DerSimonian–Laird
 //!   random-effects estimate on the drives' separate fits
-//!   ([`dersimonian_laird`]), never below the prior (with a handful of
+//!   (`dersimonian_laird`), never below the prior (with a handful of
 //!   drives τ̂ is often 0 by chance).
 
 use serde::{Deserialize, Serialize};
@@ -41,7 +41,7 @@ use serde::{Deserialize, Serialize};
 use crate::model::Theta;
 
 /// A random-effects pooling of one parameter over several drives
-/// ([`dersimonian_laird`]).
+/// (`dersimonian_laird`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct RandomEffects {
     /// The pooled estimate: the mean weighted by `1/(σ_i² + τ²)`.
@@ -69,7 +69,7 @@ pub struct RandomEffects {
 /// assert!((r.tau * r.tau - 4.0 / 3.0).abs() < 1e-12);
 /// assert!((r.mean - 7.0 / 3.0).abs() < 1e-12);
 /// ```
-pub fn dersimonian_laird(estimates: &[f64], sigmas: &[f64]) -> Option<RandomEffects> {
+pub(crate) fn dersimonian_laird(estimates: &[f64], sigmas: &[f64]) -> Option<RandomEffects> {
     let k = estimates.len();
     if k < 2 || sigmas.len() != k || sigmas.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
         return None;
@@ -134,7 +134,7 @@ pub(crate) enum BetweenDriveSource {
 
 /// The label of the σ that stands for a result, the same in the text
 /// report, the parameter file, the HTML report and Python.
-pub const NEXT_DRIVE_SIGMA_LABEL: &str = "σ for the next drive: within-drive ⊕ between-drive";
+pub(crate) const NEXT_DRIVE_SIGMA_LABEL: &str = "σ for the next drive: within-drive ⊕ between-drive";
 
 /// The parts of the σ for the next drive, per parameter `[c_e, c_d, t_r, d]`
 /// (SI units; `None` for a parameter held). In JSON `next_drive_sigma`.

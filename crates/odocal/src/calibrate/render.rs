@@ -1,6 +1,7 @@
-//! The calibration report for humans: the text `odocal calibrate` prints
-//! ([`CalibrationReport::render_text`]) and the validation drives' block
-//! (`MultiValidation`'s `Display`).
+//! The calibration report rendered: the text `odocal calibrate` prints
+//! ([`CalibrationReport::render_text`]), the validation drives' block
+//! (`MultiValidation`'s `Display`) and the JSON report
+//! ([`CalibrationReport::to_json`]).
 
 use std::fmt::Write as _;
 
@@ -124,6 +125,55 @@ fn verdict(v: &Verdict) -> String {
 }
 
 impl CalibrationReport {
+    /// The JSON report, as `odocal calibrate --json` writes it and the
+    /// Python package returns it: the report's fields with its
+    /// `schema_version`; `sigma`, the σ that stands for the result
+    /// ([`Self::result_sigma`]), and `sigma_within_drive`
+    /// ([`Self::within_drive_sigma`]); `drives`, the front end's entries of
+    /// the drives (objects with `role`, `path`, `fingerprint`), with a joint
+    /// fit's `heading_offset_per_drive`; and, when given, `truth` (a
+    /// simulated drive's θ and its mean position error on the validation
+    /// segments) and `wheel_scale` (how to read c_e of an imported drive).
+    ///
+    /// ```
+    /// # fn main() -> Result<(), odocal::Error> {
+    /// use odocal::{calibrate, simulate, CalibrationOptions, Method, SimOptions};
+    /// let sim = simulate(&SimOptions { length_km: 4.0, substeps: 1, ..SimOptions::noise_free(1) })?;
+    /// let opts = CalibrationOptions { method: Method::from_name("batch-gn")?, ..Default::default() };
+    /// let json = calibrate(&sim.drive, &opts)?.to_json(Vec::new(), None, None)?;
+    /// assert_eq!(json["method"], "batch-gn");
+    /// assert!(json["sigma"]["c_e"].is_number());
+    /// # Ok(()) }
+    /// ```
+    ///
+    /// # Errors
+    /// [`Error::Json`](crate::Error::Json) when the report cannot be
+    /// written as JSON.
+    pub fn to_json(
+        &self,
+        drives: Vec<serde_json::Value>,
+        truth: Option<(&Theta, f64)>,
+        wheel_scale: Option<&str>,
+    ) -> crate::Result<serde_json::Value> {
+        let json = |source| crate::Error::Json { context: "calibration report".into(), source };
+        let mut v = serde_json::to_value(self).map_err(json)?;
+        let Some(obj) = v.as_object_mut() else { return Ok(v) };
+        obj.insert("schema_version".into(), crate::REPORT_SCHEMA_VERSION.into());
+        obj.insert("sigma".into(), serde_json::to_value(self.result_sigma()).map_err(json)?);
+        obj.insert("sigma_within_drive".into(), serde_json::to_value(self.within_drive_sigma()).map_err(json)?);
+        if let Some((t, e)) = truth {
+            obj.insert("truth".into(), serde_json::json!({"theta": t, "mean_position_error_m": e}));
+        }
+        if let Some(w) = wheel_scale {
+            obj.insert("wheel_scale".into(), serde_json::json!(w));
+        }
+        if let Some(per) = self.heading_offset_per_drive(&drives) {
+            obj.insert("heading_offset_per_drive".into(), per);
+        }
+        obj.insert("drives".into(), serde_json::Value::Array(drives));
+        Ok(v)
+    }
+
     /// The report for humans, as `odocal calibrate` prints it: the method
     /// and segments, the method's steps, the θ table (with the truth
     /// column when `truth` gives a simulated drive's θ and its Ē_p), the

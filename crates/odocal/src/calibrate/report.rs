@@ -209,7 +209,7 @@ impl CalibrationReport {
     /// (`examples/gn_coverage.rs 20 12 paper 1300 three-step`), so it does
     /// not stand for the result; the 3-step's is its batch spread
     /// (`Self::result_covariance`).
-    pub fn robust(&self) -> Option<&RobustCovariance> {
+    pub(crate) fn robust(&self) -> Option<&RobustCovariance> {
         outcome_robust(&self.detail)
     }
 
@@ -231,7 +231,7 @@ impl CalibrationReport {
     /// `path`, `fingerprint`); a drive is named by the entry of its index
     /// among those with role `"calibration"`. `None` without one offset per
     /// drive.
-    pub fn heading_offset_per_drive(&self, drives: &[serde_json::Value]) -> Option<serde_json::Value> {
+    pub(crate) fn heading_offset_per_drive(&self, drives: &[serde_json::Value]) -> Option<serde_json::Value> {
         let per = &self.extrinsics.as_ref()?.per_drive;
         if per.is_empty() {
             return None;
@@ -292,7 +292,7 @@ impl CalibrationReport {
     /// drives the report's drive was joined from): fits each drive
     /// separately with batch Gauss-Newton (the report's free parameters and
     /// extrinsics settings; every cut segment, as EIV), pools them per
-    /// parameter by random effects ([`crate::pooling::dersimonian_laird`]
+    /// parameter by random effects (`dersimonian_laird`
     /// on each drive's within-drive σ) and makes the between-drive σ of
     /// [`Self::result_sigma`] their τ (at least the prior). The joint fit's
     /// θ stays the result: it is the report's method on all the data,
