@@ -4,7 +4,7 @@ use std::fmt::Write as _;
 
 use odocal::model::step;
 use odocal::segment::SegmentData;
-use odocal::{segment_position_error, segment_position_error_with};
+use odocal::segment_position_error_with;
 
 use crate::plots::{self, figure_svg, Panel, Series};
 use crate::{dead_reckoning, esc, thin, ReportInput, Result, CSS};
@@ -23,10 +23,8 @@ pub(crate) struct SegmentErrors {
 impl SegmentErrors {
     pub fn new(r: &ReportInput<'_>, segs: &[SegmentData<'_>]) -> Self {
         let each = |theta: &odocal::Theta, which: usize| -> Vec<f64> {
-            let error = |(i, s): (usize, &SegmentData<'_>)| match r.extrinsics_of(i)[which] {
-                e if e.is_zero() => segment_position_error(s, theta),
-                e => segment_position_error_with(s, theta, &e),
-            };
+            let error =
+                |(i, s): (usize, &SegmentData<'_>)| segment_position_error_with(s, theta, &r.extrinsics_of(i)[which]);
             segs.iter().enumerate().map(error).collect()
         };
         SegmentErrors {

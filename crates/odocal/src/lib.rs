@@ -139,10 +139,7 @@ pub use calibrate::{
 pub use assess::pooling;
 pub use assess::{
     heading_offset::HeadingOffsetFit,
-    position_error::{
-        dead_reckoned_reference, mean_position_error, segment_position_error, segment_position_error_with,
-        ValidationReport,
-    },
+    position_error::{dead_reckoned_reference, mean_position_error, segment_position_error_with, ValidationReport},
     reachable::{ReachableOptions, ReachableReport},
     trust::{GuardViolation, Guards, TrustOptions, Verdict, VerdictLevel, VerdictReason},
     validate::{validate, DriveValidation, MultiValidation, ValidateOptions, ValidateReport},

@@ -36,7 +36,7 @@ pub struct ValidationReport {
 }
 
 /// Mean position error E_p,s of one segment at θ.
-pub fn segment_position_error(seg: &SegmentData<'_>, theta: &Theta) -> f64 {
+pub(crate) fn segment_position_error(seg: &SegmentData<'_>, theta: &Theta) -> f64 {
     let mut x = seg.reference(0);
     let mut sum = 0.0;
     for k in 0..seg.steps() {
@@ -70,7 +70,7 @@ pub fn mean_position_error_with(
 /// [`mean_position_error_with`] with each segment's own extrinsics
 /// `extrinsics(segment)` (a joint calibration's drives, each with its own
 /// reference heading offset). A segment with zero extrinsics gets
-/// [`segment_position_error`], the same value bit for bit.
+/// `segment_position_error`, the same value bit for bit.
 pub(crate) fn mean_position_error_by(
     drive: &Drive,
     segments: &[Segment],
@@ -105,7 +105,7 @@ pub(crate) fn mean_position_error_by(
 /// Mean position error E_p,s of one segment at (θ, e) (SPEC §7 with the
 /// model's reference pose): the segment starts from the axle pose the
 /// reference implies, and the model's reference point is compared with the
-/// measured one. With `e` all 0 it is [`segment_position_error`]'s value.
+/// measured one. With `e` all 0 it is the plain E_p,s (SPEC §7), bit for bit.
 pub fn segment_position_error_with(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics) -> f64 {
     let mut x = axle_pose(&seg.reference(0), e);
     let mut sum = 0.0;
@@ -131,4 +131,26 @@ pub fn dead_reckoned_reference(seg: &SegmentData<'_>, theta: &Theta, e: &Extrins
         out.push((y[0], y[1]));
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::drive::segment::validation_segments;
+    use crate::sim::{simulate, SimOptions};
+
+    /// Zero extrinsics give the plain E_p,s bit for bit, so a front end may
+    /// always call `segment_position_error_with`.
+    #[test]
+    fn zero_extrinsics_are_the_plain_error_bit_for_bit() {
+        let sim = simulate(&SimOptions { length_km: 2.0, substeps: 1, ..SimOptions::paper(5) }).expect("sim");
+        let segs = validation_segments(&sim.drive, &Default::default()).expect("segments");
+        let theta = Theta { c_e: 1.97, ..Theta::PAPER_NOMINAL };
+        for s in &segs {
+            let data = SegmentData::new(&sim.drive, s);
+            let plain = segment_position_error(&data, &theta);
+            let with = segment_position_error_with(&data, &theta, &Extrinsics::ZERO);
+            assert_eq!(plain.to_bits(), with.to_bits());
+        }
+    }
 }
