@@ -549,7 +549,8 @@ impl Drive {
         &self.extra
     }
     /// The extra column `name`, if present.
-    pub fn extra_column(&self, name: &str) -> Option<&ExtraColumn> {
+    #[cfg(test)]
+    pub(crate) fn extra_column(&self, name: &str) -> Option<&ExtraColumn> {
         self.extra.iter().find(|c| c.name == name)
     }
     /// Continuous parts as index ranges, in order, covering every sample.
