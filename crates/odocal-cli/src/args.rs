@@ -341,7 +341,7 @@ impl std::str::FromStr for ThetaArg {
         let path = Path::new(s);
         if odocal::ParamFile::is_param_file(path) {
             // `read` has checked θ (`theta()` cannot fail after it).
-            return match odocal::ParamFile::read(path) {
+            return match odocal::ParamFile::read(path, None) {
                 Ok(f) => Ok(ThetaArg { theta: f.theta()?, file: Some((path.into(), f)), pending: None }),
                 Err(e) if e.to_string().contains("--params-node") => {
                     let nan = Theta { c_e: f64::NAN, c_d: f64::NAN, t_r: f64::NAN, d: f64::NAN };
@@ -366,7 +366,7 @@ impl ThetaArg {
     pub fn resolved(&self, node: Option<&str>) -> Result<ThetaArg> {
         match (self.path(), node) {
             (Some(path), Some(node)) => {
-                let f = odocal::ParamFile::read_node(path, Some(node))?;
+                let f = odocal::ParamFile::read(path, Some(node))?;
                 Ok(ThetaArg { theta: f.theta()?, file: Some((path.into(), f)), pending: None })
             }
             (None, Some(_)) => bail!("--params-node names a node of a parameter file, but θ was given as numbers"),

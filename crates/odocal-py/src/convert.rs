@@ -112,7 +112,7 @@ pub(crate) fn params_file_arg(v: &Bound<'_, PyAny>, node: Option<&str>) -> PyRes
     let Ok(s) = v.cast::<PyString>() else { return Ok(None) };
     let path = std::path::Path::new(s.to_str()?);
     if odocal::ParamFile::is_param_file(path) {
-        return odocal::ParamFile::read_node(path, node).map(Some).map_err(lib_err);
+        return odocal::ParamFile::read(path, node).map(Some).map_err(lib_err);
     }
     Ok(None)
 }

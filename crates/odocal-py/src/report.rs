@@ -35,7 +35,7 @@ pub(crate) fn _method_details(report_json: &str) -> PyResult<String> {
 }
 
 /// Reads a parameter file (ROS 2 YAML or JSON, as `--params-out` writes
-/// it; library `ParamFile::read_node`) into the layout of the JSON file:
+/// it; library `ParamFile::read`) into the layout of the JSON file:
 /// the node `params_node`, or the one node with odocal's parameters.
 #[pyfunction]
 #[pyo3(signature = (path, *, params_node=None))]
@@ -44,7 +44,7 @@ pub(crate) fn read_params<'py>(
     path: PathBuf,
     params_node: Option<&str>,
 ) -> PyResult<Bound<'py, PyAny>> {
-    let f = odocal::ParamFile::read_node(&path, params_node).map_err(lib_err)?;
+    let f = odocal::ParamFile::read(&path, params_node).map_err(lib_err)?;
     to_py(py, &f.to_json())
 }
 

@@ -28,7 +28,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!("{}", file.to_ros2_yaml());
 
     // Read back: the same θ, to the printed precision of the file.
-    let back = ParamFile::read(Path::new(out))?;
+    let back = ParamFile::read(Path::new(out), None)?;
     let theta = back.theta()?;
     println!("read back θ = {theta} (calibrated: {})", report.theta);
 

@@ -344,7 +344,9 @@ impl ParamFile {
     /// a held parameter; `lever_x`, `lever_y`, `heading_offset`, the verdict
     /// and the provenance are read when present; other keys (a consumer's,
     /// e.g. `wheel_separation`) are ignored. Writing the result again gives
-    /// the same parameters to the bit.
+    /// the same parameters to the bit. `node` names the ROS 2 node to read
+    /// (a parameter file may hold several nodes' parameters); `None` takes
+    /// the one node with odocal's parameters.
     ///
     /// ```
     /// use odocal::ParamFile;
@@ -354,7 +356,7 @@ impl ParamFile {
     /// let path = dir.join("odocal.yaml");
     /// let theta = Theta { c_e: 1.951448, c_d: -0.0021, t_r: 1.5649, d: 0.0008 };
     /// ParamFile::from_theta(&theta, [Some(2.1e-5), None, Some(3e-3), Some(1e-4)], "drive.csv", "eiv").write(&path)?;
-    /// let back = ParamFile::read(&path)?;
+    /// let back = ParamFile::read(&path, None)?;
     /// assert_eq!(back.theta()?, theta);
     /// assert_eq!(back.params[1].sigma, None); // c_d was held
     /// # std::fs::remove_dir_all(&dir)?;
@@ -365,20 +367,10 @@ impl ParamFile {
     /// [`Error::Io`]; [`Error::ParamFile`] naming the key for a file that is
     /// not a parameter file (another extension, larger than
     /// `MAX_PARAM_FILE_BYTES`, not YAML/JSON, a required parameter missing
-    /// or not a number, a physically absurd θ).
-    pub fn read(path: &Path) -> Result<ParamFile> {
-        Self::read_node(path, None)
-    }
-
-    /// [`ParamFile::read`] of the node named `node` (a ROS 2 parameter file
-    /// may hold several nodes' parameters); `None` takes the one node with
-    /// odocal's parameters, and refuses a file where several nodes (or
-    /// YAML documents) hold them.
-    ///
-    /// # Errors
-    /// As [`ParamFile::read`]; also [`Error::ParamFile`] when `node` is not
-    /// in the file, or when it is `None` and the file is ambiguous.
-    pub fn read_node(path: &Path, node: Option<&str>) -> Result<ParamFile> {
+    /// or not a number, a physically absurd θ); when `node` is not in the
+    /// file, or when it is `None` and several nodes (or YAML documents)
+    /// hold odocal's parameters.
+    pub fn read(path: &Path, node: Option<&str>) -> Result<ParamFile> {
         let bad = |reason: String| Error::ParamFile { path: path.to_path_buf(), reason };
         let Some(format) = FileFormat::of(path) else {
             return Err(bad("not a parameter file: use the .yaml, .yml or .json file `--params-out` wrote".into()));
@@ -782,12 +774,12 @@ mod tests {
         let f = with_extrinsics(sample());
         let yaml = dir.path().join("odocal.yaml");
         f.write(&yaml).expect("write yaml");
-        let back = ParamFile::read(&yaml).expect("read yaml");
+        let back = ParamFile::read(&yaml, None).expect("read yaml");
         assert_eq!(back, f);
         assert_eq!(back.to_ros2_yaml(), f.to_ros2_yaml());
         let json = dir.path().join("odocal.json");
         f.write(&json).expect("write json");
-        let mut back = ParamFile::read(&json).expect("read json");
+        let mut back = ParamFile::read(&json, None).expect("read json");
         // JSON objects are unordered: compare the provenance as a set.
         back.provenance.sort();
         let mut g = f.clone();
@@ -819,7 +811,7 @@ mod tests {
         let dir = tempfile::tempdir().expect("tempdir");
         let path = dir.path().join(name);
         std::fs::write(&path, text).expect("write");
-        ParamFile::read(&path)
+        ParamFile::read(&path, None)
     }
 
     #[test]

@@ -111,7 +111,7 @@ fn theta_from_text(v: &str) -> Result<Theta> {
     let path = Path::new(v);
     if ParamFile::is_param_file(path) {
         // `read` has checked θ.
-        return ParamFile::read(path)?.theta();
+        return ParamFile::read(path, None)?.theta();
     }
     v.parse()
 }

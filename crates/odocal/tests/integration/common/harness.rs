@@ -132,7 +132,7 @@ pub fn params(data: &[u8]) -> Outcome {
     let name = if data.first() == Some(&b'{') { "fuzz.json" } else { "fuzz.yaml" };
     let path = dir.path().join(name);
     std::fs::write(&path, data).expect("write");
-    match odocal::ParamFile::read(&path) {
+    match odocal::ParamFile::read(&path, None) {
         Ok(f) => match f.theta() {
             Ok(t) => {
                 assert!([t.c_e, t.c_d, t.t_r, t.d].iter().all(|v| v.is_finite()), "{t:?}");
