@@ -19,7 +19,7 @@ use crate::convert::{to_json, to_py};
 use crate::drive::{drives_arg, Provenance, PyDrive};
 use crate::files::distinct_drives;
 use crate::run::{run_detached, with_threads};
-use crate::{lib_err, OdocalError};
+use crate::{lib_err, with_schema_version, OdocalError};
 
 /// What to run: the calibration options and where the report validates.
 struct CalibrationPlan {
@@ -170,6 +170,7 @@ fn calibrate_json(
     };
     let mut v = report.to_json(drives, truth.as_ref().map(|(t, e)| (t, *e)), prov.wheel_scale.as_deref())?;
     plan.resolved.account.add_to_json(&mut v)?;
+    with_schema_version(&mut v);
     Ok(v)
 }
 

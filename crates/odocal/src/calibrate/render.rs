@@ -126,8 +126,9 @@ fn verdict(v: &Verdict) -> String {
 
 impl CalibrationReport {
     /// The JSON report, as `odocal calibrate --json` writes it and the
-    /// Python package returns it: the report's fields with its
-    /// `schema_version`; `sigma`, the σ that stands for the result
+    /// Python package returns it (the front end adds `schema_version`,
+    /// [`REPORT_SCHEMA_VERSION`](crate::REPORT_SCHEMA_VERSION), and its
+    /// settings account): the report's fields; `sigma`, the σ that stands for the result
     /// ([`Self::result_sigma`]), and `sigma_within_drive`
     /// ([`Self::within_drive_sigma`]); `drives`, the front end's entries of
     /// the drives (objects with `role`, `path`, `fingerprint`), with a joint
@@ -158,7 +159,6 @@ impl CalibrationReport {
         let json = |source| crate::Error::Json { context: "calibration report".into(), source };
         let mut v = serde_json::to_value(self).map_err(json)?;
         let Some(obj) = v.as_object_mut() else { return Ok(v) };
-        obj.insert("schema_version".into(), crate::REPORT_SCHEMA_VERSION.into());
         obj.insert("sigma".into(), serde_json::to_value(self.result_sigma()).map_err(json)?);
         obj.insert("sigma_within_drive".into(), serde_json::to_value(self.within_drive_sigma()).map_err(json)?);
         if let Some((t, e)) = truth {
