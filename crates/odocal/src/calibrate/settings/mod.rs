@@ -96,7 +96,7 @@ macro_rules! settings {
             /// These settings over `lower`: each key these state, else
             /// `lower`'s. The one precedence rule: the caller's settings
             /// over a manifest's over the defaults.
-            pub(crate) fn over(self, lower: Settings) -> Settings {
+            pub fn over(self, lower: Settings) -> Settings {
                 Settings { $( $key: self.$key.or(lower.$key), )* }
             }
 
