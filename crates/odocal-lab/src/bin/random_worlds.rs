@@ -32,8 +32,9 @@
 //! (θ and δ) there. Overall and by regime.
 //!
 //! Output: Markdown tables on stdout; with `--out DIR`, `DIR/results.csv`
-//! (a row per world × method) and `DIR/worlds.csv` (a row per world: its
-//! noise settings). Worlds run in parallel (rayon; `--threads`), the
+//! (a row per world × method; for the default method also its own EIV
+//! estimate before any fallback, error and σ, its fitted η and its check
+//! findings) and `DIR/worlds.csv` (a row per world: its noise settings). Worlds run in parallel (rayon; `--threads`), the
 //! output is the same for any thread count. Progress and wall times go to
 //! stderr.
 
