@@ -175,7 +175,8 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut) -> Res<Run> {
         VerdictReason::FallbackDisagrees { .. } => true,
         VerdictReason::LargeUncertainty { param, sigma, fraction } => {
             let w = Param::THETA.iter().position(|q| q == param).map_or(f64::NAN, |i| within[i]);
-            !(w > 0.1 * sigma / fraction)
+            // Not above (NaN counts as not above).
+            w.partial_cmp(&(0.1 * sigma / fraction)) != Some(std::cmp::Ordering::Greater)
         }
         _ => false,
     });
@@ -545,7 +546,12 @@ fn write_csvs(dir: &std::path::Path, a: &Settings, worlds: &[World]) -> Res<()> 
     header.extend(["crb_c_e_pct", "crb_c_d_mm", "crb_t_r_pct", "crb_d_mm_per_m_per_s2"]);
     header.extend(["c_d_shift_mm", "delta_true_mrad", "delta_mrad", "e_p_own_m", "e_p_held_out_m"]);
     header.push("e_p_held_out_truth_m");
-    header.extend(["eiv_own_err_c_e_pct", "eiv_own_err_c_d_mm", "eiv_own_err_t_r_pct", "eiv_own_err_d_mm_per_m_per_s2"]);
+    header.extend([
+        "eiv_own_err_c_e_pct",
+        "eiv_own_err_c_d_mm",
+        "eiv_own_err_t_r_pct",
+        "eiv_own_err_d_mm_per_m_per_s2",
+    ]);
     header.extend(["eiv_own_sigma_c_e_pct", "eiv_own_sigma_c_d_mm", "eiv_own_sigma_t_r_pct"]);
     header.extend(["eiv_own_sigma_d_mm_per_m_per_s2", "eiv_eta", "eiv_findings"]);
     let mut r_csv = header.join(",") + "\n";
