@@ -24,7 +24,10 @@
 //! `Unobservable`: NIS per window outside its band, filter divergence in a
 //! window, correlated innovations, θ unstable across halves of the drive,
 //! a noise scale at its upper clamp, a fit that did not converge) becomes a
-//! [`Warning::EivCheckFailed`]. When there is at least one and
+//! [`Warning::EivCheckFailed`]. A fit with a finding and a noise scale at
+//! its lower clamp, or unconverged, is first fitted once more with the
+//! sources released (`refit_with_sources_released`); the refit replaces
+//! it when it has no finding. When there is still at least one and
 //! [`EivMethodOptions::fallback`] is on (the default), the report's θ is the
 //! starting batch Gauss-Newton (all cut segments, no yaw-rate selection),
 //! with its covariance and observability, and [`Warning::EivFallback`] says
