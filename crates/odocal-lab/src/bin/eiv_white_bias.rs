@@ -25,10 +25,10 @@
 
 use nalgebra::{Matrix3, Vector3};
 use odocal::eiv::{estimate, CovarianceMode, EivInput, EivOptions, HeadingScale, NoiseModel, ResearchOptions};
+use odocal::model::wrap_angle;
 use odocal::model::{step_jacobians, Input, State};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{Drive, Theta};
-use odocal::model::wrap_angle;
 use odocal_lab::{batch_gn_all, errors, format_errors, noise_preset, Args, Res};
 
 const USAGE: &str = "eiv_white_bias [--km 12] [--seeds 8] [--first-seed 1] [--sigma 0.02] [--substeps 10]

@@ -32,8 +32,9 @@
 //! (θ and δ) there. Overall and by regime.
 //!
 //! Output: Markdown tables on stdout; with `--out DIR`, `DIR/results.csv`
-//! (a row per world × method) and `DIR/worlds.csv` (a row per world: its
-//! noise settings). Worlds run in parallel (rayon; `--threads`), the
+//! (a row per world × method; for the default method also its own EIV
+//! estimate before any fallback, error and σ, its fitted η and its check
+//! findings) and `DIR/worlds.csv` (a row per world: its noise settings). Worlds run in parallel (rayon; `--threads`), the
 //! output is the same for any thread count. Progress and wall times go to
 //! stderr.
 
@@ -46,8 +47,8 @@ use odocal::research::mean_position_error_with;
 use odocal::segment::{validation_segments, Segment, ValidationSegmentOptions};
 use odocal::sim::{simulate, NoiseOptions, NoiseRegime, SimOptions, WorldSummary};
 use odocal::{
-    calibrate, CalibrationOptions, CalibrationReport, Drive, EivOutcome, Extrinsics, Method, MethodDetail, Param, ParamSet,
-    Theta, VerdictLevel, VerdictReason,
+    calibrate, CalibrationOptions, CalibrationReport, Drive, EivOutcome, Extrinsics, Method, MethodDetail, Param,
+    ParamSet, Theta, VerdictLevel, VerdictReason,
 };
 use odocal_lab::{coverage, error_scale, errors, median, Args, Res, Summary, Table, ERROR_UNITS, FRESH_SEED_OFFSET};
 use rayon::prelude::*;
@@ -110,6 +111,9 @@ struct Run {
     accepted_within: bool,
     /// EIV only: the result is the batch G-N fallback.
     fallback: Option<bool>,
+    /// EIV only: the filter's own θ and its 1σ (SI) before any fallback,
+    /// its findings (kinds, `;`-separated) and its fitted η.
+    eiv_own: Option<(Theta, [f64; 4], String, [f64; 6])>,
     /// The estimated (or held) reference heading offset, rad.
     delta: f64,
     /// Ē_p on the drive's own validation segments, m.
@@ -158,13 +162,21 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut) -> Res<Run> {
         MethodDetail::Eiv(d) => Some(d.eiv_result == EivOutcome::BatchGnFallback),
         _ => None,
     };
+    let eiv_own = match &r.detail {
+        MethodDetail::Eiv(d) => d.eiv.as_ref().map(|e| {
+            let kinds: Vec<String> = e.warnings.iter().map(finding_kind).collect();
+            (e.theta, e.sigma, kinds.join(";"), e.eta)
+        }),
+        _ => None,
+    };
     let rs = r.result_sigma();
     let within = r.within_drive_sigma().to_array().map(|s| s.unwrap_or(f64::NAN));
     let accepted_within = r.verdict.reasons.iter().all(|reason| match reason {
         VerdictReason::FallbackDisagrees { .. } => true,
         VerdictReason::LargeUncertainty { param, sigma, fraction } => {
             let w = ParamSet::THETA.iter().position(|q| q == *param).map_or(f64::NAN, |i| within[i]);
-            !(w > 0.1 * sigma / fraction)
+            // Not above (NaN counts as not above).
+            w.partial_cmp(&(0.1 * sigma / fraction)) != Some(std::cmp::Ordering::Greater)
         }
         _ => false,
     });
@@ -176,11 +188,27 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut) -> Res<Run> {
         verdict: r.verdict.level,
         accepted_within,
         fallback,
+        eiv_own,
         delta: ext.heading_offset,
         e_p_fit_m: r.validation.mean_position_error_m,
         e_p_held_m: held.e_p(&r.theta, &ext)?,
         time_s,
     })
+}
+
+/// A filter finding's kind, with its detail (component and lag-1, source
+/// and η, parameter and z, termination).
+fn finding_kind(w: &odocal::eiv::EivWarning) -> String {
+    use odocal::eiv::EivWarning as W;
+    match w {
+        W::NoiseAtUpperClamp { source, eta } => format!("clamp:{source:?}:{eta:.1}"),
+        W::FilterDiverged { window, .. } => format!("diverged:w{window}"),
+        W::InconsistentInnovations { window, nis, .. } => format!("nis:w{window}:{nis:.2}"),
+        W::CorrelatedInnovations { window, component, lag1, .. } => format!("lag1:w{window}:{component:?}:{lag1:.2}"),
+        W::UnstableAcrossHalves { parameter, z, .. } => format!("halves:{parameter}:{z:.1}"),
+        W::NotConverged { termination } => format!("notconverged:{termination}").replace(',', " "),
+        W::Unobservable { .. } => "unobservable".into(),
+    }
 }
 
 fn study_world(index: u64, a: &Settings) -> Res<World> {
@@ -518,6 +546,14 @@ fn write_csvs(dir: &std::path::Path, a: &Settings, worlds: &[World]) -> Res<()> 
     header.extend(["crb_c_e_pct", "crb_c_d_mm", "crb_t_r_pct", "crb_d_mm_per_m_per_s2"]);
     header.extend(["c_d_shift_mm", "delta_true_mrad", "delta_mrad", "e_p_own_m", "e_p_held_out_m"]);
     header.push("e_p_held_out_truth_m");
+    header.extend([
+        "eiv_own_err_c_e_pct",
+        "eiv_own_err_c_d_mm",
+        "eiv_own_err_t_r_pct",
+        "eiv_own_err_d_mm_per_m_per_s2",
+    ]);
+    header.extend(["eiv_own_sigma_c_e_pct", "eiv_own_sigma_c_d_mm", "eiv_own_sigma_t_r_pct"]);
+    header.extend(["eiv_own_sigma_d_mm_per_m_per_s2", "eiv_eta", "eiv_findings"]);
     let mut r_csv = header.join(",") + "\n";
     for w in worlds {
         for (m, run) in a.methods.iter().zip(&w.runs) {
@@ -543,6 +579,16 @@ fn write_csvs(dir: &std::path::Path, a: &Settings, worlds: &[World]) -> Res<()> 
                     cells.push(num(w.delta * 1e3));
                     cells.push(num(r.delta * 1e3));
                     cells.extend([num(r.e_p_fit_m), num(r.e_p_held_m), num(w.e_p_held_true_m)]);
+                    match &r.eiv_own {
+                        Some((theta, sigma, kinds, eta)) => {
+                            cells.extend(errors(theta, &w.truth).map(num));
+                            cells.extend((0..4).map(|i| num(sigma[i] * scale[i])));
+                            let eta: Vec<String> = eta.iter().map(|e| format!("{e:.2}")).collect();
+                            cells.push(eta.join(" "));
+                            cells.push(kinds.clone());
+                        }
+                        None => cells.resize(header.len(), String::new()),
+                    }
                 }
                 Err(e) => {
                     cells.push(format!("\"error: {}\"", e.replace('"', "'")));

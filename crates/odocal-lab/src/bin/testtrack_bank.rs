@@ -136,7 +136,8 @@ fn run() -> Res<()> {
             .filter(|i| d.measured().a_y[*i].abs() > 0.5)
             .map(|i| d.measured().a_y[i] * phi[i].cos() - G * phi[i].sin())
             .collect();
-        let ayc: Vec<f64> = (0..d.len()).filter(|i| d.measured().a_y[*i].abs() > 0.5).map(|i| d.measured().a_y[i]).collect();
+        let ayc: Vec<f64> =
+            (0..d.len()).filter(|i| d.measured().a_y[*i].abs() > 0.5).map(|i| d.measured().a_y[i]).collect();
         eprintln!(
             "{run}: clock {:+.3} s, {} roll samples; roll in turns {:+.1} mrad (n {}), straights {:+.1} mrad (n {}); \
              a_y in turns {:+.3}, f_y {:+.3}",

@@ -24,7 +24,10 @@
 //! `Unobservable`: NIS per window outside its band, filter divergence in a
 //! window, correlated innovations, θ unstable across halves of the drive,
 //! a noise scale at its upper clamp, a fit that did not converge) becomes a
-//! [`Warning::EivCheckFailed`]. When there is at least one and
+//! [`Warning::EivCheckFailed`]. A fit with a finding and a noise scale at
+//! its lower clamp, or unconverged, is first fitted once more with the
+//! sources released (`refit_with_sources_released`); the refit replaces
+//! it when it has no finding. When there is still at least one and
 //! [`EivMethodOptions::fallback`] is on (the default), the report's θ is the
 //! starting batch Gauss-Newton (all cut segments, no yaw-rate selection),
 //! with its covariance and observability, and [`Warning::EivFallback`] says
@@ -548,6 +551,11 @@ impl EivMethodOptions {
     fn fit(&self, input: &EivInput<'_>, theta: &Theta, filter: &EivOptions) -> (Result<EivReport>, Option<String>) {
         let uncorrected = EivOptions { bias_correction: BiasCorrection::None, ..filter.clone() };
         let mut fit = eiv::estimate(input, theta, &uncorrected);
+        if let Ok(r) = &fit {
+            if let Some(again) = refit_with_sources_released(input, theta, &uncorrected, r) {
+                fit = Ok(again);
+            }
+        }
         let mut correction_failed = None;
         if let Ok(r) = &mut fit {
             let misspecified = r.warnings.iter().any(|w| is_misspecification(w, r));
@@ -561,6 +569,57 @@ impl EivMethodOptions {
         }
         (fit, correction_failed)
     }
+}
+
+/// The lower clamp of the noise scales in the refit of
+/// [`refit_with_sources_released`]: a variance factor of e⁻⁸ (σ 1.8 % of
+/// the starting model's), low enough to stand for an absent source and
+/// high enough that the source's score still moves it (at the default
+/// clamp, −20, a source's information is ~1e-17 of its starting value and
+/// the step leaves it there).
+const RELEASED_LOWER_CLAMP: f64 = -8.0;
+
+/// The refit of [`refit_with_sources_released`] may take this many times
+/// the options' iterations.
+const REFIT_ITERATION_FACTOR: usize = 2;
+
+/// A fit that failed the checks with some noise scale at its lower clamp
+/// or without converging, fitted again from the same start with the lower
+/// clamp at [`RELEASED_LOWER_CLAMP`] and [`REFIT_ITERATION_FACTOR`] times
+/// the iterations; the refit when it passes the checks (otherwise the
+/// first fit and its findings stand).
+///
+/// A source the first scoring steps find absent (`d ≤ −1`, which a joint
+/// step through correlated sources gives at a start far from the fit)
+/// jumps to the lower clamp and cannot come back, and the others absorb
+/// its noise: the reference heading's white noise at the clamp leaves
+/// heading innovations at lag-1 ≈ −0.5 (the filter follows each heading
+/// reading), the white wheel noise at the clamp drives the common-mode
+/// scale to its upper clamp. Refitted with the sources able to return,
+/// the model holds the noise the data have. A fit stopped by the
+/// iteration limit (the block-coordinate θ/η steps can zig-zag along a
+/// ridge of correlated noise scales) gets the iterations to finish.
+fn refit_with_sources_released(
+    input: &EivInput<'_>,
+    theta: &Theta,
+    filter: &EivOptions,
+    first: &EivReport,
+) -> Option<EivReport> {
+    let lower = filter.eta_bounds[0];
+    let misspecified = first.warnings.iter().any(|w| is_misspecification(w, first));
+    let clamped = lower < RELEASED_LOWER_CLAMP
+        && first.eta.iter().zip(&filter.eta_held).any(|(e, held)| !held && *e <= lower + 1e-9);
+    let unconverged = !first.termination.converged();
+    if filter.fix_noise || !misspecified || !(clamped || unconverged) {
+        return None;
+    }
+    let released = EivOptions {
+        eta_bounds: [lower.max(RELEASED_LOWER_CLAMP), filter.eta_bounds[1]],
+        max_iterations: REFIT_ITERATION_FACTOR * filter.max_iterations,
+        ..filter.clone()
+    };
+    let again = eiv::estimate(input, theta, &released).ok()?;
+    (!again.warnings.iter().any(|w| is_misspecification(w, &again))).then_some(again)
 }
 
 /// The start: batch G-N over all segments with every free parameter; only

@@ -92,7 +92,9 @@ pub struct EivOptions {
     pub fix_noise: bool,
     /// Clamp range of the log-scale factors η. Default [−20, 6]: variances
     /// between 2e-9 and 400 times the starting model's. A scale that reached
-    /// its lower clamp stays there.
+    /// its lower clamp stays there (its information there is ~1e-17 of its
+    /// start); `calibrate` refits a fit that fails its checks with a scale
+    /// there with the lower clamp at −8, where a source can return.
     pub eta_bounds: [f64; 2],
     /// Noise sources (in `NOISE_SOURCES` order) whose level is *known*:
     /// their scale is held at the starting model (η_j = 0) while the others
