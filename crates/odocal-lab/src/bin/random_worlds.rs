@@ -172,7 +172,7 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut) -> Res<Run> {
     let rs = r.result_sigma();
     let within = r.within_drive_sigma().to_array().map(|s| s.unwrap_or(f64::NAN));
     let accepted_within = r.verdict.reasons.iter().all(|reason| match reason {
-        VerdictReason::FallbackDisagrees { .. } => true,
+        VerdictReason::FallbackDisagrees { .. } | VerdictReason::RefitDisagrees { .. } => true,
         VerdictReason::LargeUncertainty { param, sigma, fraction } => {
             let w = ParamSet::THETA.iter().position(|q| q == *param).map_or(f64::NAN, |i| within[i]);
             // Not above (NaN counts as not above).

@@ -138,8 +138,16 @@ pub struct NextDriveSigma {
     /// The method's within-drive σ (for a parameter the EIV filter held at
     /// its start's estimate: the start's σ).
     pub within_drive: [Option<f64>; 4],
-    /// After an EIV fallback: |EIV's own θ − the fallback's θ|; zeros otherwise.
+    /// The gap between the EIV method's two estimates: after an EIV
+    /// fallback |EIV's own θ − the fallback's θ|; when the result is EIV's
+    /// refit ([`Self::gap_is_refit`]) |the refit's θ − its batch
+    /// Gauss-Newton start's θ|; zeros otherwise.
     pub fallback_gap: [f64; 4],
+    /// `fallback_gap` is the refit's gap to its batch Gauss-Newton start
+    /// (the result is EIV's refit with the noise sources released), not a
+    /// fallback's gap to EIV's own estimate. In JSON only when true.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub gap_is_refit: bool,
     /// The between-drive σ τ.
     pub between_drive: [f64; 4],
     /// Where τ comes from.
@@ -157,6 +165,7 @@ impl NextDriveSigma {
             sigma: [None; 4],
             within_drive,
             fallback_gap,
+            gap_is_refit: false,
             between_drive,
             between_source: BetweenDriveSource::Prior,
             pooled: None,

@@ -291,7 +291,9 @@ pub struct TrustOptions {
     /// ([`VerdictReason::FallbackDisagrees`]): batch G-N's
     /// errors-in-variables bias may be that large. Default 3: the verdict
     /// then never accepts a fallback whose distance to EIV's estimate is
-    /// beyond 3 σ of what it would report without the gap.
+    /// beyond 3 σ of what it would report without the gap. The same limit
+    /// applies to EIV's refit and its batch Gauss-Newton start
+    /// ([`VerdictReason::RefitDisagrees`]).
     #[serde(default = "default_max_fallback_gap_sigmas")]
     pub max_fallback_gap_sigmas: f64,
 }
@@ -432,6 +434,23 @@ pub enum VerdictReason {
         /// `gap / sigma`.
         sigmas: f64,
     },
+    /// The result is EIV's refit with the noise sources released (its first
+    /// fit failed its checks), and the refit lies farther from its batch
+    /// Gauss-Newton start than the σ without that gap allows (doubtful):
+    /// the two estimators disagree and the data do not say which is right.
+    /// The σ for the next drive includes the gap.
+    RefitDisagrees {
+        /// The parameter.
+        param: Param,
+        /// The refit's value, SI.
+        estimate: f64,
+        /// |the refit's estimate − the batch Gauss-Newton start's|, SI.
+        gap: f64,
+        /// The σ for the next drive without the gap, SI.
+        sigma: f64,
+        /// `gap / sigma`.
+        sigmas: f64,
+    },
     /// Held-out Ē_p much above the fitting data's (doubtful).
     HeldOutMuchWorse {
         /// Ē_p on the held-out data, m.
@@ -503,6 +522,12 @@ impl std::fmt::Display for VerdictReason {
                 "{param} = {fallback:.6} is the batch Gauss-Newton fallback; EIV's own estimate lies {gap:.2e} away, \
                  {sigmas:.1} × the σ without that gap ({sigma:.2e}): batch G-N's errors-in-variables bias may be as \
                  large (the σ for the next drive includes it)"
+            ),
+            VerdictReason::RefitDisagrees { param, estimate, gap, sigma, sigmas } => write!(
+                f,
+                "{param} = {estimate:.6} is EIV's refit (its first fit failed its checks); the batch Gauss-Newton \
+                 start lies {gap:.2e} away, {sigmas:.1} × the σ without that gap ({sigma:.2e}): the estimators \
+                 disagree (the σ for the next drive includes the gap)"
             ),
             VerdictReason::HeldOutMuchWorse { held_out_m, fit_m, max_ratio } => {
                 write!(f, "held-out Ē_p {held_out_m:.3} m is more than {max_ratio} × the fitting data's {fit_m:.3} m")
@@ -596,7 +621,7 @@ fn unconverged_step(
 pub(crate) fn is_sigma_reason(r: &VerdictReason) -> bool {
     match r {
         VerdictReason::LargeUncertainty { param, .. } => ParamSet::THETA.contains(*param),
-        VerdictReason::FallbackDisagrees { .. } => true,
+        VerdictReason::FallbackDisagrees { .. } | VerdictReason::RefitDisagrees { .. } => true,
         _ => false,
     }
 }
@@ -630,7 +655,9 @@ pub(crate) fn sigma_reasons(
 
 /// After an EIV fallback, the parameters whose batch Gauss-Newton value
 /// lies more than [`TrustOptions::max_fallback_gap_sigmas`] of the σ
-/// without the gap (`√(within² + between²)`) from EIV's own estimate.
+/// without the gap (`√(within² + between²)`) from EIV's own estimate; when
+/// the result is EIV's refit, the parameters the refit moved that far from
+/// its batch Gauss-Newton start.
 pub(crate) fn fallback_gap_reasons(
     theta: &Theta,
     free: ParamSet,
@@ -645,8 +672,12 @@ pub(crate) fn fallback_gap_reasons(
             let sigma = base[i]?;
             let sigmas = gap / sigma;
             (sigma > 0.0 && sigmas.is_finite() && sigmas > opts.max_fallback_gap_sigmas).then(|| {
-                let fallback = p.value(theta);
-                VerdictReason::FallbackDisagrees { param: p, fallback, gap, sigma, sigmas }
+                let value = p.value(theta);
+                if n.gap_is_refit {
+                    VerdictReason::RefitDisagrees { param: p, estimate: value, gap, sigma, sigmas }
+                } else {
+                    VerdictReason::FallbackDisagrees { param: p, fallback: value, gap, sigma, sigmas }
+                }
             })
         })
         .collect()
@@ -820,6 +851,14 @@ mod tests {
             v.reasons.iter().any(|r| matches!(r, VerdictReason::LargeUncertainty { param: Param::TR, .. })),
             "{v:?}"
         );
+        // the same gap from a refit to its batch G-N start is a refit's reason
+        let mut refit = far.clone();
+        refit.gap_is_refit = true;
+        let v = judge(&Evidence { next_drive: Some(&refit), ..evidence(&th, &cov) }, &opts);
+        assert_eq!(v.level, VerdictLevel::Doubtful, "{v:?}");
+        let VerdictReason::RefitDisagrees { param, estimate, .. } = &v.reasons[0] else { panic!("{v:?}") };
+        assert_eq!((*param, *estimate), (Param::TR, th.t_r));
+        assert!(v.reasons[0].to_string().contains("EIV's refit"), "{}", v.reasons[0]);
     }
 
     /// An identification report that took `steps` (θ after each step) from

@@ -236,6 +236,13 @@ pub struct EivDetail {
     pub noise_start: NoiseModel,
     /// Which estimate the report's θ is.
     pub eiv_result: EivOutcome,
+    /// The EIV fit is the refit with the noise sources released (the first
+    /// fit failed its checks with a noise scale at its lower clamp or
+    /// unconverged; module docs). Its gap to the batch Gauss-Newton start
+    /// enters the σ for the next drive and the verdict as a fallback's gap
+    /// does. In JSON only when true.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub refit: bool,
     /// The parametric bootstrap, when asked for
     /// ([`EivMethodOptions::bootstrap`]) and the EIV θ is the result.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -458,7 +465,7 @@ impl Estimator for EivMethodOptions {
             (None, _) => None,
         };
         let filter_input = EivInput::from_drive(axle_drive.as_ref().unwrap_or(prep.drive));
-        let (fit, correction_failed) = self.fit(&filter_input, &start.theta, &filter);
+        let (fit, correction_failed, refit) = self.fit(&filter_input, &start.theta, &filter);
         emit(progress, Progress::Advance(1));
         let t_eiv = t.elapsed().as_secs_f64();
         let timing = Timing { initial_identification: t_start, final_identification: t_eiv, ..Timing::default() };
@@ -482,6 +489,7 @@ impl Estimator for EivMethodOptions {
             eiv_error: error,
             noise_start: self.filter.noise,
             eiv_result: EivOutcome::BatchGnFallback,
+            refit,
             bootstrap: None,
         };
         if fall_back {
@@ -548,12 +556,19 @@ impl EivMethodOptions {
     /// is returned as the second value (a warning, not a fallback: the
     /// uncorrected root is the estimate the checks judged); invalid
     /// correction settings are the fit's error.
-    fn fit(&self, input: &EivInput<'_>, theta: &Theta, filter: &EivOptions) -> (Result<EivReport>, Option<String>) {
+    fn fit(
+        &self,
+        input: &EivInput<'_>,
+        theta: &Theta,
+        filter: &EivOptions,
+    ) -> (Result<EivReport>, Option<String>, bool) {
         let uncorrected = EivOptions { bias_correction: BiasCorrection::None, ..filter.clone() };
         let mut fit = eiv::estimate(input, theta, &uncorrected);
+        let mut refit = false;
         if let Ok(r) = &fit {
             if let Some(again) = refit_with_sources_released(input, theta, &uncorrected, r) {
                 fit = Ok(again);
+                refit = true;
             }
         }
         let mut correction_failed = None;
@@ -567,7 +582,7 @@ impl EivMethodOptions {
                 }
             }
         }
-        (fit, correction_failed)
+        (fit, correction_failed, refit)
     }
 }
 
@@ -792,6 +807,7 @@ impl EivDetail {
             out,
             "  result: {}",
             match d.eiv_result {
+                EivOutcome::Eiv if d.refit => "EIV estimate (refitted with the noise sources released; its gap to the batch G-N start is in σ)",
                 EivOutcome::Eiv => "EIV estimate",
                 EivOutcome::BatchGnFallback =>
                     "BATCH G-N FALLBACK (all segments): the EIV checks failed (see the warnings; with the fallback off, --no-fallback, EIV's θ is kept)",

@@ -589,4 +589,30 @@ fn a_noise_scale_stuck_at_its_lower_clamp_is_released_by_the_refit() {
     for (i, (a, b)) in r.theta.to_array().iter().zip(truth.to_array()).enumerate() {
         assert!((a - b).abs() <= 3.0 * eiv.sigma[i], "parameter {i}: {a} vs {b}, σ {}", eiv.sigma[i]);
     }
+    // The result says it is a refit, and its σ for the next drive carries
+    // the gap to the batch G-N start as a fallback's does.
+    assert!(d.refit);
+    let next = r.next_drive_sigma.as_ref().expect("next-drive σ");
+    assert!(next.gap_is_refit);
+    let gap = (r.theta.t_r - d.identification.theta.t_r).abs();
+    assert!(gap > 0.0);
+    assert_eq!(next.fallback_gap[2], gap);
+    let json = serde_json::to_value(d).expect("json");
+    assert_eq!(json["refit"], serde_json::json!(true));
+}
+
+/// A fit that passes its checks at once is no refit, and neither its
+/// detail nor its σ's JSON mention one.
+#[test]
+fn a_fit_that_passes_its_checks_is_no_refit() {
+    let out = simulate(&SimOptions { length_km: 3.0, substeps: 1, ..SimOptions::noise_free(11) }).expect("sim");
+    let r = calibrate(&out.drive, &CalibrationOptions::default()).expect("calibrate");
+    let d = detail(&r);
+    assert_eq!(d.eiv_result, EivOutcome::Eiv, "{:?}", r.warnings);
+    assert!(!d.refit);
+    let next = r.next_drive_sigma.as_ref().expect("next-drive σ");
+    assert!(!next.gap_is_refit);
+    assert_eq!(next.fallback_gap, [0.0; 4]);
+    assert!(serde_json::to_value(d).expect("json").get("refit").is_none());
+    assert!(serde_json::to_value(next).expect("json").get("gap_is_refit").is_none());
 }

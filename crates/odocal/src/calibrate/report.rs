@@ -361,7 +361,8 @@ pub(crate) fn within_sigma_of(detail: &MethodDetail, covariance: &[[f64; 4]; 4],
 /// estimated it and found it observable: the value came from there, so it
 /// is not held; one the start named not observable stays at θ_0), after an EIV
 /// fallback the gap to EIV's own estimate when that passes the
-/// plausibility guards, and the prior between-drive σ.
+/// plausibility guards (when the result is EIV's refit, the gap to its
+/// batch Gauss-Newton start), and the prior between-drive σ.
 pub(crate) fn next_drive_of(
     theta: &Theta,
     detail: &MethodDetail,
@@ -386,17 +387,26 @@ pub(crate) fn next_drive_of(
         let eiv = d.eiv.as_ref().filter(|e| {
             crate::assess::trust::check_theta(&e.theta, &opts.theta0, free, None, 1.0, &opts.trust.guards).is_empty()
         });
-        if let (EivOutcome::BatchGnFallback, Some(e)) = (d.eiv_result, eiv) {
-            let (a, b) = (e.theta.to_array(), theta.to_array());
+        // The other estimate: EIV's own after a fallback, the batch G-N
+        // start after a refit.
+        let other = match (d.eiv_result, eiv) {
+            (EivOutcome::BatchGnFallback, Some(e)) => Some((e.theta, e.free)),
+            (EivOutcome::Eiv, Some(e)) if d.refit => Some((start.theta, e.free)),
+            _ => None,
+        };
+        if let Some((other, other_free)) = other {
+            let (a, b) = (other.to_array(), theta.to_array());
             for i in 0..4 {
                 let g = (a[i] - b[i]).abs();
-                if e.free[i] && w[i].is_some() && g.is_finite() {
+                if other_free[i] && w[i].is_some() && g.is_finite() {
                     gap[i] = g;
                 }
             }
         }
     }
-    NextDriveSigma::one_drive(theta, w, gap)
+    let mut n = NextDriveSigma::one_drive(theta, w, gap);
+    n.gap_is_refit = matches!(detail, MethodDetail::Eiv(d) if d.refit && d.eiv_result == EivOutcome::Eiv);
+    n
 }
 
 /// Which covariance a result's σ comes from ([`CalibrationReport::result_sigma`]).
