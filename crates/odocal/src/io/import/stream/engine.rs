@@ -11,6 +11,7 @@ use super::super::manifest::{LateralAccelerationSpec, Manifest, SideslipSpec};
 use super::condition::Row;
 use super::corrupt::CorruptFilter;
 use super::parts::{Assembler, GridSample};
+use super::roll::RollBuilder;
 use super::tracks::{PoseBuilder, Rotation, Track};
 use crate::error::Result;
 use crate::model::{kinematics, Input, Theta};
@@ -64,6 +65,8 @@ pub(crate) struct Engine {
     pose_b: PoseBuilder,
     pub imu: Option<Column>,
     pub side: Option<Column>,
+    /// The road bank's roll, when the manifest corrects a_y for it.
+    pub roll: Option<RollBuilder>,
     /// Wheel-clock time of grid index 0, once every track has started.
     pub start: Option<f64>,
     /// Grid indices the pose was measured at, not yet passed.
@@ -103,6 +106,7 @@ impl Engine {
             }
             SideslipSpec::Zero => None,
         };
+        let roll = m.lateral_acceleration.bank().map(|b| RollBuilder::new(m, b, offset_s, &index));
         let base = m.base_dir();
         let rotations = || {
             [
@@ -123,6 +127,7 @@ impl Engine {
             pose_b: PoseBuilder::new(m, |c| index(&m.pose.stream, c)),
             imu,
             side,
+            roll,
             start: None,
             marks: VecDeque::new(),
             k: 0,
@@ -153,6 +158,9 @@ impl Engine {
                 c.push(row, max_gap);
             }
         }
+        if let Some(r) = self.roll.as_mut() {
+            r.push(name, row)?;
+        }
         Ok(())
     }
 
@@ -182,6 +190,9 @@ impl Engine {
             if c.stream == name {
                 c.track.ended = true;
             }
+        }
+        if let Some(r) = self.roll.as_mut() {
+            r.end_stream(name);
         }
         Ok(())
     }
@@ -218,6 +229,13 @@ impl Engine {
                 spans.push(grid::Span { name: format!("streams.{name}"), start: t.first?, end: t.last()? });
             }
         }
+        if let Some(r) = &self.roll {
+            spans.push(grid::Span {
+                name: "lateral_acceleration.bank (roll, both antennas accepted, after the clock offset)".into(),
+                start: r.track.first?,
+                end: r.track.last()?,
+            });
+        }
         Some(spans)
     }
 
@@ -240,8 +258,14 @@ impl Engine {
     /// True when every track holds what output time `q` depends on (false
     /// once every track has ended: the end of the grid decides then).
     fn ready(&self, q: f64) -> bool {
-        let all_ended = self.wheel.ended && self.pose.ended && self.tracks().all(|(_, t)| t.ended);
-        !all_ended && self.wheel.covers(q) && self.pose.covers(q) && self.tracks().all(|(_, t)| t.covers(q))
+        let roll = self.roll.as_ref().map(|r| &r.track);
+        let all_ended =
+            self.wheel.ended && self.pose.ended && self.tracks().all(|(_, t)| t.ended) && roll.is_none_or(|t| t.ended);
+        !all_ended
+            && self.wheel.covers(q)
+            && self.pose.covers(q)
+            && self.tracks().all(|(_, t)| t.covers(q))
+            && roll.is_none_or(|t| t.covers(q))
     }
 
     /// Computes and assembles every output sample whose inputs are in.
@@ -267,6 +291,9 @@ impl Engine {
             for c in [self.imu.as_mut(), self.side.as_mut()].into_iter().flatten() {
                 c.track.prune(next, h);
             }
+            if let Some(r) = self.roll.as_mut() {
+                r.track.prune(next, h);
+            }
         }
     }
 
@@ -277,6 +304,9 @@ impl Engine {
         let mut invalid = first_hit(&self.wheel.bad, g, h, true);
         if invalid.is_none() {
             invalid = first_hit(&self.pose.bad, g, h, false);
+        }
+        if let (None, Some(r)) = (&invalid, &self.roll) {
+            invalid = first_hit(&r.track.bad, g, h, false);
         }
         for c in [self.imu.as_ref(), self.side.as_ref()].into_iter().flatten() {
             if invalid.is_none() && c.extra {
@@ -302,7 +332,8 @@ impl Engine {
         }
         let measured = self.marks.front() == Some(&k);
         let sig = [self.pose.at(g, 0), self.pose.at(g, 1), self.pose.at(g, 2), n_rl, n_rr, beta, a_y];
-        GridSample { k, sig, measured, invalid }
+        let phi = self.roll.as_ref().map_or(0.0, |r| r.track.at(g, 0));
+        GridSample { k, sig, phi, measured, invalid }
     }
 }
 

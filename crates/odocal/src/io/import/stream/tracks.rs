@@ -251,7 +251,9 @@ impl PoseBuilder {
         if let (Some(q), Some(val)) = (&p.quality, v(QUALITY)) {
             if !q.accepts(val) {
                 self.rejected += 1;
-                self.rejected_values.push(val);
+                if !self.rejected_values.iter().any(|r| (r - val).abs() < 1e-9) {
+                    self.rejected_values.push(val);
+                }
                 return Ok(());
             }
         }
