@@ -317,6 +317,8 @@ impl Engine {
         let n_rr = (self.wheel.at(e, 1) - self.wheel.at(g, 1)) / h;
         let a_y = match (&m.lateral_acceleration, &self.imu) {
             (LateralAccelerationSpec::Imu { .. }, Some(c)) => (c.track.at(e, 0) - c.track.at(g, 0)) / h,
+            // derived from the pose of the samples either side, in the parts
+            (LateralAccelerationSpec::FromPose { .. }, _) => 0.0,
             _ => {
                 let mut a = 0.0;
                 for _ in 0..3 {

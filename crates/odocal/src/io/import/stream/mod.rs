@@ -28,6 +28,9 @@
 //!   window (0.25 s each side) comes after both, so the output lags the
 //!   input by the larger half-width of the two plus 0.25 s (0.75 s on the
 //!   shipped van manifests);
+//! - a lateral acceleration **from the pose** (speed × yaw rate of the
+//!   reference over the samples either side, within the part) is derived
+//!   one output sample late, when the next sample of the part is in;
 //! - the checks that judge the **whole drive** run on the warm-up prefix
 //!   (the pose's speed, the wheel counter's width, the antennas' median
 //!   separation against `baseline_m` and their glitch fraction); the
@@ -40,7 +43,7 @@
 //!
 //! Not streamed (refused by [`RawStream::new`] with the reason; the whole
 //! import reads them): `mcap` and `parquet` sources, a heading derived from
-//! the track, a lateral acceleration from the pose. The wheel
+//! the track (smoothed and judged over the whole drive). The wheel
 //! and heading convention checks and the jitter report of the whole import
 //! are not made. Corrupt wheel rows are dropped by the whole import's rule,
 //! each decided once the rows after it that the rule looks at are in.
@@ -112,9 +115,6 @@ pub fn not_streamable(m: &Manifest) -> Option<String> {
     }
     if m.pose.heading.is_none() {
         return Some("the heading is derived from the track ([pose.heading] is not given)".into());
-    }
-    if matches!(m.lateral_acceleration, LateralAccelerationSpec::FromPose { .. }) {
-        return Some("lateral_acceleration.source = \"from_pose\"".into());
     }
     None
 }
@@ -463,17 +463,13 @@ impl RawStream {
                 LateralAccelerationSpec::Imu { stream, column, sign } => {
                     format!("IMU column '{column}' of stream '{stream}' × {sign:+}, mean over each output interval")
                 }
-                LateralAccelerationSpec::FromWheels { smoothing_s, bank } => {
-                    let mut desc =
-                        format!("from wheels: v·ω of the model at θ_0 = {theta0}, smoothed over {smoothing_s} s");
-                    let roll = self.engine.as_ref().and_then(|e| e.roll.as_ref());
-                    if let (Some(b), Some(r), Some(a)) = (bank, roll, asm) {
-                        let mean = a.phi_sum / a.samples.max(1) as f64;
-                        desc.push_str(&bank::description(b, r.pairs, r.beyond, mean, a.phi_max));
-                    }
-                    desc
-                }
-                LateralAccelerationSpec::FromPose { .. } => String::new(),
+                LateralAccelerationSpec::FromWheels { smoothing_s, .. } => self.with_bank(format!(
+                    "from wheels: v·ω of the model at θ_0 = {theta0}, smoothed over {smoothing_s} s"
+                )),
+                LateralAccelerationSpec::FromPose { smoothing_s, .. } => self.with_bank(format!(
+                    "from pose: speed × yaw rate of the reference, smoothed over {smoothing_s} s (feeds the \
+                     reference yaw rate into the model through d)"
+                )),
             },
             jitter: None,
             warnings,
@@ -482,6 +478,20 @@ impl RawStream {
             calibration: m.calibration.clone(),
             elapsed_s: self.started.elapsed().as_secs_f64(),
         }
+    }
+}
+
+impl RawStream {
+    /// `desc` of a derived a_y followed by the road bank's account, when
+    /// the manifest has one.
+    fn with_bank(&self, mut desc: String) -> String {
+        let roll = self.engine.as_ref().and_then(|e| e.roll.as_ref());
+        let asm = self.engine.as_ref().and_then(|e| e.asm.as_ref());
+        if let (Some(b), Some(r), Some(a)) = (self.m.lateral_acceleration.bank(), roll, asm) {
+            let mean = a.phi_sum / a.samples.max(1) as f64;
+            desc.push_str(&bank::description(b, r.pairs, r.beyond, mean, a.phi_max));
+        }
+        desc
     }
 }
 

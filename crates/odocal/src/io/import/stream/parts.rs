@@ -112,6 +112,34 @@ struct PartPipe {
     smoothed: VecDeque<f64>,
     phis: VecDeque<f64>,
     judged: VecDeque<f64>,
+    /// a_y from the pose: the sample waiting for its successor, and the
+    /// pose `[px, py, ψ]` of the one before it in the part.
+    pose_wait: Option<GridSample>,
+    pose_before: Option<[f64; 3]>,
+}
+
+impl PartPipe {
+    /// The sample waiting for its successor `next` (`None`: the part has
+    /// ended) with a_y from the pose, as the whole import derives it: the
+    /// reference's speed × yaw rate over the samples either side of it
+    /// within the part.
+    fn from_pose(&mut self, next: Option<GridSample>, h: f64) -> Option<GridSample> {
+        let Some(mut c) = self.pose_wait.take() else {
+            self.pose_wait = next;
+            return None;
+        };
+        let pose = |s: &GridSample| [s.sig[0], s.sig[1], s.sig[2]];
+        let p0 = self.pose_before.unwrap_or(pose(&c));
+        let p1 = next.as_ref().map_or(pose(&c), pose);
+        let steps = usize::from(self.pose_before.is_some()) + usize::from(next.is_some());
+        let dt = steps as f64 * h;
+        let v = (p1[0] - p0[0]).hypot(p1[1] - p0[1]) / dt;
+        let om = (p1[2] - p0[2]) / dt;
+        c.sig[6] = v * om;
+        self.pose_before = Some(pose(&c));
+        self.pose_wait = next;
+        Some(c)
+    }
 }
 
 /// The runs, parts, checks and output of the streamed import.
@@ -125,6 +153,8 @@ pub(crate) struct Assembler {
     half_judge: usize,
     /// Half the roll's smoothing window, when there is a bank.
     half_roll: Option<usize>,
+    /// a_y is derived from the pose (`from_pose`).
+    from_pose: bool,
     /// Valid samples of a run not yet `min_part_s` long.
     run: Vec<GridSample>,
     /// The current run: first grid index, valid?
@@ -169,6 +199,7 @@ impl Assembler {
             half_first,
             half_judge,
             half_roll: m.lateral_acceleration.bank().map(|b| half(b.smoothing_s)),
+            from_pose: matches!(m.lateral_acceleration, LateralAccelerationSpec::FromPose { .. }),
             run: Vec::new(),
             run_start: None,
             run_len: 0,
@@ -229,6 +260,8 @@ impl Assembler {
                 smoothed: VecDeque::new(),
                 phis: VecDeque::new(),
                 judged: VecDeque::new(),
+                pose_wait: None,
+                pose_before: None,
             });
             for s in std::mem::take(&mut self.run) {
                 self.feed(m, s)?;
@@ -263,6 +296,9 @@ impl Assembler {
         });
         self.run.clear();
         if let Some(mut p) = self.pipe.take() {
+            if let Some(s) = p.from_pose(None, h) {
+                self.smooth(m, &mut p, s)?;
+            }
             if let Some(f) = p.first.as_mut() {
                 let mut out = Vec::new();
                 f.finish(&mut out);
@@ -286,11 +322,22 @@ impl Assembler {
         Ok(())
     }
 
-    /// A valid sample of a kept part: the wheel speed check, then the
-    /// smoothing stages.
+    /// A valid sample of a kept part: the wheel speed check, a_y from the
+    /// pose (one sample later), then the smoothing stages.
     fn feed(&mut self, m: &Manifest, s: GridSample) -> Result<()> {
         self.check_wheels(m, &s)?;
         let Some(mut p) = self.pipe.take() else { return Ok(()) };
+        let ready = if self.from_pose { p.from_pose(Some(s), self.h) } else { Some(s) };
+        let r = match ready {
+            Some(s) => self.smooth(m, &mut p, s),
+            None => Ok(()),
+        };
+        self.pipe = Some(p);
+        r
+    }
+
+    /// A sample with its a_y into the smoothing stages.
+    fn smooth(&mut self, m: &Manifest, p: &mut PartPipe, s: GridSample) -> Result<()> {
         let (a, phi) = (s.sig[6], s.phi);
         p.waiting.push_back(s);
         let mut out = Vec::new();
@@ -307,9 +354,7 @@ impl Assembler {
             }
             p.phi_q.extend(out);
         }
-        let r = self.smoothed_ready(m, &mut p);
-        self.pipe = Some(p);
-        r
+        self.smoothed_ready(m, p)
     }
 
     /// Smoothed a_y (with a bank, combined with the smoothed roll into the

@@ -82,11 +82,66 @@ fn a_drive_within_the_warm_up_is_the_whole_import_bit_for_bit() {
 fn unsupported_manifests_are_refused_with_the_reason() {
     let m = manifest("../../examples/psu-mapping-van/manifest.toml");
     assert_eq!(not_streamable(&m), None, "a road bank is streamed");
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/psu-mapping-van/manifest.toml");
-    let text = std::fs::read_to_string(&p).expect("read").replace("source = \"from_wheels\"", "source = \"from_pose\"");
-    let m = Manifest::parse(&text, &p).expect("manifest");
-    let e = RawStream::new(&m, StreamOptions::default()).expect_err("from_pose").to_string();
-    assert!(e.contains("cannot be imported as a stream") && e.contains("from_pose"), "{e}");
+    // Without [pose.heading] the heading is derived from the track over the whole drive.
+    let m = variant("../../examples/psu-mapping-van/manifest.toml", |t| without(t, "[pose.heading]"));
+    let m = match m {
+        Ok(m) => m,
+        Err(e) => panic!("{e}"),
+    };
+    let e = RawStream::new(&m, StreamOptions::default()).expect_err("derived heading").to_string();
+    assert!(e.contains("cannot be imported as a stream") && e.contains("derived from the track"), "{e}");
+}
+
+/// Manifest text without its table `header` (its keys included).
+fn without(text: &str, header: &str) -> String {
+    let mut out = String::new();
+    let mut skip = false;
+    for line in text.lines() {
+        if line.trim_start().starts_with('[') {
+            skip = line.trim() == header;
+        }
+        if !skip {
+            out.push_str(line);
+            out.push('\n');
+        }
+    }
+    out
+}
+
+/// A shipped manifest with its text edited by `edit`.
+fn variant(rel: &str, edit: impl Fn(&str) -> String) -> crate::Result<Manifest> {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join(rel);
+    Manifest::parse(&edit(&std::fs::read_to_string(&p).expect("read")), &p)
+}
+
+/// a_y from the pose (speed × yaw rate of the reference, one sample of
+/// look-ahead), with and without the road bank: the whole import's bit for bit.
+#[test]
+fn a_y_from_the_pose_is_streamed_bit_for_bit() {
+    for (rel, bank) in [
+        ("../../examples/psu-mapping-van-testtrack/run-16-06-28.toml", true),
+        ("../../examples/psu-mapping-van-testtrack/run-14-45-26.toml", false),
+        ("tests/data/psu-mapping-van/manifest.toml", false),
+    ] {
+        let m = variant(rel, |t| {
+            let t = t.replace("source = \"from_wheels\"", "source = \"from_pose\"");
+            if bank {
+                t
+            } else {
+                without(&t, "[lateral_acceleration.bank]")
+            }
+        });
+        let m = match m {
+            Ok(m) => m,
+            Err(e) => panic!("{rel}: {e}"),
+        };
+        assert!(matches!(m.lateral_acceleration, LateralAccelerationSpec::FromPose { .. }), "{rel}");
+        assert_eq!(m.lateral_acceleration.bank().is_some(), bank, "{rel}");
+        let whole = crate::io::import::import(&m).expect("import");
+        let (d, r) = streamed(&m, StreamOptions::default(), 400);
+        assert_eq!(d.fingerprint(), whole.drive.fingerprint(), "{rel}");
+        assert_eq!(r.lateral_acceleration, whole.report.lateral_acceleration, "{rel}");
+    }
 }
 
 /// The calibration (the default method and options) of `d`: θ and σ.
