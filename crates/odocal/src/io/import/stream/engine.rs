@@ -147,11 +147,7 @@ impl Engine {
         if name == m.pose.stream {
             let before = self.pose.t.len();
             self.pose_b.push(m, &self.pose_path, row, self.offset_s, &mut self.pose)?;
-            if self.pose.t.len() > before {
-                if let Some(&tp) = self.pose.t.back() {
-                    self.mark(tp);
-                }
-            }
+            self.mark_from(before);
         }
         for c in [self.imu.as_mut(), self.side.as_mut()].into_iter().flatten() {
             if c.stream == name {
@@ -183,7 +179,10 @@ impl Engine {
             self.push_wheels(m, kept)?;
             self.wheel.ended = true;
         }
-        if name == m.pose.stream {
+        if name == m.pose.stream && !self.pose.ended {
+            let before = self.pose.t.len();
+            self.pose_b.end(m, self.offset_s, &mut self.pose);
+            self.mark_from(before);
             self.pose.ended = true;
         }
         for c in [self.imu.as_mut(), self.side.as_mut()].into_iter().flatten() {
@@ -195,6 +194,19 @@ impl Engine {
             r.end_stream(name);
         }
         Ok(())
+    }
+
+    /// Pose samples waiting for their derived heading.
+    pub(crate) fn pose_held(&self) -> usize {
+        self.pose_b.held()
+    }
+
+    /// Marks the pose samples of the track from index `before` on.
+    fn mark_from(&mut self, before: usize) {
+        let new: Vec<f64> = self.pose.t.iter().skip(before).copied().collect();
+        for tp in new {
+            self.mark(tp);
+        }
     }
 
     /// Marks the grid sample nearest to a pose sample at `tp` (wheel clock).

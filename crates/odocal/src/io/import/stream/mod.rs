@@ -28,6 +28,12 @@
 //!   window (0.25 s each side) comes after both, so the output lags the
 //!   input by the larger half-width of the two plus 0.25 s (0.75 s on the
 //!   shipped van manifests);
+//! - a **heading derived from the track** (no `[pose.heading]`) is the
+//!   whole import's direction of motion between accepted pose samples,
+//!   unwrapped and averaged onto them: each sample's heading waits for the
+//!   next sample, and the samples at the start wait until the vehicle
+//!   first moves faster than `derive_heading_min_speed_m_per_s` (their
+//!   heading is back-filled from that direction);
 //! - a lateral acceleration **from the pose** (speed × yaw rate of the
 //!   reference over the samples either side, within the part) is derived
 //!   one output sample late, when the next sample of the part is in;
@@ -42,8 +48,7 @@
 //! import's bit for bit, road bank included.
 //!
 //! Not streamed (refused by [`RawStream::new`] with the reason; the whole
-//! import reads them): `mcap` and `parquet` sources, a heading derived from
-//! the track (smoothed and judged over the whole drive). The wheel
+//! import reads them): `mcap` and `parquet` sources. The wheel
 //! and heading convention checks and the jitter report of the whole import
 //! are not made. Corrupt wheel rows are dropped by the whole import's rule,
 //! each decided once the rows after it that the rule looks at are in.
@@ -51,6 +56,7 @@
 mod condition;
 mod corrupt;
 mod engine;
+mod heading;
 mod parts;
 mod reader;
 mod roll;
@@ -112,9 +118,6 @@ pub struct ImportChunk {
 pub fn not_streamable(m: &Manifest) -> Option<String> {
     if let Some((name, s)) = m.streams.iter().find(|(_, s)| !matches!(s.source, SourceSpec::Csv { .. })) {
         return Some(format!("streams.{name} is a {} source, read whole", s.source.format()));
-    }
-    if m.pose.heading.is_none() {
-        return Some("the heading is derived from the track ([pose.heading] is not given)".into());
     }
     None
 }
@@ -340,6 +343,7 @@ impl RawStream {
                 + [e.imu.as_ref(), e.side.as_ref()].into_iter().flatten().map(|c| c.track.t.len()).sum::<usize>()
                 + e.asm.as_ref().map_or(0, |a| a.out.len())
                 + e.roll.as_ref().map_or(0, |r| r.held())
+                + e.pose_held()
         });
         conditioned + e
     }

@@ -123,7 +123,7 @@ impl PartPipe {
     /// ended) with a_y from the pose, as the whole import derives it: the
     /// reference's speed × yaw rate over the samples either side of it
     /// within the part.
-    fn from_pose(&mut self, next: Option<GridSample>, h: f64) -> Option<GridSample> {
+    fn a_y_from_pose(&mut self, next: Option<GridSample>, h: f64) -> Option<GridSample> {
         let Some(mut c) = self.pose_wait.take() else {
             self.pose_wait = next;
             return None;
@@ -296,7 +296,7 @@ impl Assembler {
         });
         self.run.clear();
         if let Some(mut p) = self.pipe.take() {
-            if let Some(s) = p.from_pose(None, h) {
+            if let Some(s) = p.a_y_from_pose(None, h) {
                 self.smooth(m, &mut p, s)?;
             }
             if let Some(f) = p.first.as_mut() {
@@ -327,7 +327,7 @@ impl Assembler {
     fn feed(&mut self, m: &Manifest, s: GridSample) -> Result<()> {
         self.check_wheels(m, &s)?;
         let Some(mut p) = self.pipe.take() else { return Ok(()) };
-        let ready = if self.from_pose { p.from_pose(Some(s), self.h) } else { Some(s) };
+        let ready = if self.from_pose { p.a_y_from_pose(Some(s), self.h) } else { Some(s) };
         let r = match ready {
             Some(s) => self.smooth(m, &mut p, s),
             None => Ok(()),

@@ -82,14 +82,32 @@ fn a_drive_within_the_warm_up_is_the_whole_import_bit_for_bit() {
 fn unsupported_manifests_are_refused_with_the_reason() {
     let m = manifest("../../examples/psu-mapping-van/manifest.toml");
     assert_eq!(not_streamable(&m), None, "a road bank is streamed");
-    // Without [pose.heading] the heading is derived from the track over the whole drive.
-    let m = variant("../../examples/psu-mapping-van/manifest.toml", |t| without(t, "[pose.heading]"));
-    let m = match m {
-        Ok(m) => m,
-        Err(e) => panic!("{e}"),
-    };
-    let e = RawStream::new(&m, StreamOptions::default()).expect_err("derived heading").to_string();
-    assert!(e.contains("cannot be imported as a stream") && e.contains("derived from the track"), "{e}");
+    let m = manifest("../../examples/psu-mapping-van/manifest-mcap.toml");
+    let e = RawStream::new(&m, StreamOptions::default()).expect_err("mcap").to_string();
+    assert!(e.contains("cannot be imported as a stream") && e.contains("mcap"), "{e}");
+}
+
+/// The heading derived from the track (no `[pose.heading]`; the samples at
+/// the start wait until the vehicle moves): the whole import's bit for bit.
+#[test]
+fn a_heading_derived_from_the_track_is_streamed_bit_for_bit() {
+    for rel in [
+        "../../examples/psu-mapping-van-testtrack/run-16-06-28.toml",
+        "../../examples/psu-mapping-van-testtrack/run-14-45-26.toml",
+        "tests/data/psu-mapping-van/manifest.toml",
+        "tests/data/comma2k19-rav4/manifest.toml",
+    ] {
+        let m = match variant(rel, |t| without(t, "[pose.heading]")) {
+            Ok(m) => m,
+            Err(e) => panic!("{rel}: {e}"),
+        };
+        assert!(m.pose.heading.is_none() && not_streamable(&m).is_none(), "{rel}");
+        let whole = crate::io::import::import(&m).expect("import");
+        let (d, r) = streamed(&m, StreamOptions::default(), 400);
+        assert_eq!(d.fingerprint(), whole.drive.fingerprint(), "{rel}");
+        assert_eq!(d.reference_measured(), whole.drive.reference_measured(), "{rel}");
+        assert_eq!(r.clock_offset.applied_s.to_bits(), whole.report.clock_offset.applied_s.to_bits(), "{rel}");
+    }
 }
 
 /// Manifest text without its table `header` (its keys included).
