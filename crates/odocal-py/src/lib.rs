@@ -29,6 +29,7 @@ mod history;
 mod online;
 mod report;
 mod run;
+mod stream;
 
 use convert::{extract_theta, json, params_file_arg, to_py};
 use drive::{Provenance, PyDrive, COLUMNS};
@@ -160,6 +161,7 @@ fn _odocal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("OdocalError", m.py().get_type::<OdocalError>())?;
     m.add_class::<PyDrive>()?;
     m.add_class::<online::PyCalibrator>()?;
+    m.add_class::<stream::PyRawStream>()?;
     m.add_class::<history::PyHistory>()?;
     m.add_function(wrap_pyfunction!(calibrate::calibrate, m)?)?;
     m.add_function(wrap_pyfunction!(validate, m)?)?;

@@ -216,6 +216,35 @@ fn follow_streams_csv_drives_with_the_whole_readers_fingerprint_and_errors() {
     assert_eq!(message(stderr(&o)), message(stderr(&c)), "{}", stderr(&c));
 }
 
+/// A shipped test-track manifest, road bank and all, is followed as a
+/// stream (no note of a whole import), with the whole import's samples:
+/// the fingerprint, samples and prequential error of the drive `odocal
+/// import` writes from it.
+#[test]
+fn follow_streams_a_shipped_banked_manifest_with_the_whole_imports_samples() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let m = format!("{}/../../examples/psu-mapping-van-testtrack/run-16-06-28.toml", env!("CARGO_MANIFEST_DIR"));
+    assert!(std::fs::read_to_string(&m).expect("manifest").contains("[lateral_acceleration.bank]"));
+    let path = |name: &str| dir.path().join(name).to_str().expect("utf8").to_owned();
+    let csv = path("run.csv");
+    let o = odocal(&["import", &m, "--out", &csv]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let mut drives = Vec::new();
+    for (input, db, json) in [(&m, path("a.sqlite"), path("a.json")), (&csv, path("b.sqlite"), path("b.json"))] {
+        let o = odocal(&["follow", input, "--vehicle", "van", "--db", &db, "--json", &json]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        if input == &m {
+            assert!(stderr(&o).contains("as a stream"), "{}", stderr(&o));
+            assert!(!stderr(&o).contains("imported whole"), "{}", stderr(&o));
+        }
+        drives.push(json_file(std::path::Path::new(&json))["drives"][0].clone());
+    }
+    for key in ["fingerprint", "samples", "validation_segments", "prequential_mean_position_error_m"] {
+        assert_eq!(drives[0][key], drives[1][key], "{key}");
+    }
+    assert!(drives[0]["validation_segments"].as_u64().expect("segments") > 0);
+}
+
 /// The calibrator's and the gates' settings are flags under their own
 /// headings in `--help` (not in `-h`), and they act.
 #[test]

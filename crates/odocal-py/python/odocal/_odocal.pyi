@@ -155,6 +155,42 @@ def _write_params(
     drives: Optional[Sequence[Drive]] = None,
 ) -> None: ...
 
+class RawStream:
+    """The streamed import (``odocal.online.RawStream``): a manifest's streams pushed
+    message by message, canonical samples taken as they become ready."""
+
+    def __init__(self, manifest: _Path, *, warm_up_s: float = 300.0) -> None:
+        """The streamed import of the manifest at ``manifest`` (its streams are pushed,
+        not read); the clock offset is estimated on the first ``warm_up_s`` seconds of the
+        wheel stream. Raises OdocalError for a manifest that is not streamed (naming why)."""
+    @property
+    def streams(self) -> dict[str, dict[str, Any]]:
+        """Per stream: ``file``, ``time_column`` and the ``columns`` each message carries,
+        in the order ``push_message`` takes its values."""
+    def push_message(self, stream: str, t: float, values: Sequence[float]) -> None:
+        """One message of ``stream``: time ``t`` in the stream's time unit (before its
+        ``time_offset_s``) and the values of its columns. Raises OdocalError naming the
+        stream (unknown, wrong number of values) or the row and column (the import's checks)."""
+    def push_messages(self, stream: str, t: _ArrayLike, values: npt.NDArray[np.float64]) -> None:
+        """Several messages of ``stream``: times (n) and values (n × columns)."""
+    def end_stream(self, stream: str) -> None:
+        """No more messages of ``stream`` come."""
+    def finish(self) -> None:
+        """Ends every stream and the drive: the last samples become ready, ``report`` is set."""
+    def take_chunk(self, max: int = 400) -> Optional[dict[str, Any]]:
+        """Up to ``max`` ready samples of one part, or None: ``part``, ``start``,
+        ``starts_part``, ``reference_measured`` and ``samples`` (arrays ``t``, ``px``,
+        ``py``, ``psi``, ``n_rl``, ``n_rr``, ``a_y``, ``beta``: ``Calibrator.push``'s arguments)."""
+    @property
+    def clock_offset(self) -> Optional[dict[str, Any]]:
+        """The clock offset once the warm-up is over."""
+    @property
+    def report(self) -> Optional[dict[str, Any]]:
+        """The import report after ``finish()``."""
+    @property
+    def held(self) -> int:
+        """Rows and samples held now."""
+
 class Calibrator:
     """The online calibrator (``odocal.online.Calibrator``): a recursive
     Gauss-Newton over the calibration segments of a stream of samples."""

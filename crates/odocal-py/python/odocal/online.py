@@ -19,8 +19,16 @@ True
 Write-back: set ``cal.stored`` to the parameters in use; ``cal.decide()``
 returns the gates' decision (``"write"``, ``"hold"`` or ``"flag"``, with
 the reasons), as ``odocal follow`` logs it.
+
+:class:`RawStream` turns a live system's raw messages (wheel ticks or
+rates, pose, IMU, GNSS antennas, as a manifest describes its streams) into
+canonical samples as they arrive: ``push_message(stream, t, values)`` in
+time order per stream, ``take_chunk()`` for the samples ready (their
+``"samples"`` are ``Calibrator.push``'s arguments), ``finish()`` at the end.
+The clock offset is estimated on the first ``warm_up_s`` seconds (default
+300) of the wheel stream; memory does not grow with the drive.
 """
 
-from ._odocal import Calibrator
+from ._odocal import Calibrator, RawStream
 
-__all__ = ["Calibrator"]
+__all__ = ["Calibrator", "RawStream"]

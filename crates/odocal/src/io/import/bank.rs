@@ -25,7 +25,7 @@ const MAX_GLITCH_FRACTION: f64 = 0.01;
 /// Largest time difference at which a right-antenna sample counts as taken
 /// at a left one's stamp (both on GNSS time), s; otherwise it is
 /// interpolated.
-const SAME_EPOCH_S: f64 = 1e-3;
+pub(crate) const SAME_EPOCH_S: f64 = 1e-3;
 
 /// The roll on the antennas' own (paired) samples.
 #[derive(Debug, Clone)]
@@ -116,7 +116,7 @@ fn antenna(
 /// `v` at `t` from samples `(ts, vs)`: the sample itself within
 /// [`SAME_EPOCH_S`], else linear between the two around `t` when they are
 /// at most `max_gap` apart.
-fn at(ts: &[f64], vs: &[[f64; 3]], t: f64, max_gap: f64) -> Option<[f64; 3]> {
+pub(crate) fn at(ts: &[f64], vs: &[[f64; 3]], t: f64, max_gap: f64) -> Option<[f64; 3]> {
     let j = ts.partition_point(|x| *x < t);
     for k in [j.checked_sub(1), Some(j)].into_iter().flatten() {
         if ts.get(k).is_some_and(|x| (x - t).abs() <= SAME_EPOCH_S) {
@@ -184,28 +184,62 @@ pub(crate) fn roll(
             ),
         ));
     }
-    if let Some(&(t0, s0)) = beyond.first() {
-        let what = format!(
-            "{} of {} antenna pairs give a roll beyond {KEY}.max_roll_deg = {}° (first at antenna time {t0:.3} s: \
-             sin φ = {})",
-            beyond.len(),
-            sep.len(),
-            b.max_roll_deg,
-            echo_num(s0)
-        );
-        if beyond.len() as f64 > MAX_GLITCH_FRACTION * sep.len() as f64 && beyond.len() > 2 {
-            return Err(m.error(
-                &format!("{KEY}.max_roll_deg"),
-                format!("{what}; is {KEY}.alt the altitude in metres, height_offset_m right, the vehicle rolled over?"),
-            ));
-        }
-        warnings.push(format!("{what}: dropped as altitude glitches"));
-    }
+    judge_glitches(m, b, beyond.len(), beyond.first().copied(), sep.len(), warnings)?;
     if t.len() < 2 {
         return Err(m.error(&format!("{KEY}.max_roll_deg"), "fewer than two antenna pairs within the roll limit"));
     }
     let bad = gaps_of(&t, m.output.max_gap_s, "roll (both antennas accepted)");
     Ok(Roll { t, phi, bad, dropped: beyond.len() })
+}
+
+/// The glitch rule over `pairs` antenna pairs of which `beyond` gave a roll
+/// beyond `max_roll_deg`, the first at antenna time `first.0` with sin φ
+/// `first.1`: more than [`MAX_GLITCH_FRACTION`] of them (and more than two)
+/// is an error naming the key, fewer are dropped with a warning.
+pub(crate) fn judge_glitches(
+    m: &Manifest,
+    b: &BankSpec,
+    beyond: usize,
+    first: Option<(f64, f64)>,
+    pairs: usize,
+    warnings: &mut Vec<String>,
+) -> Result<()> {
+    let Some((t0, s0)) = first else { return Ok(()) };
+    let what = format!(
+        "{beyond} of {pairs} antenna pairs give a roll beyond {KEY}.max_roll_deg = {}° (first at antenna time {t0:.3} s: \
+         sin φ = {})",
+        b.max_roll_deg,
+        echo_num(s0)
+    );
+    if beyond as f64 > MAX_GLITCH_FRACTION * pairs as f64 && beyond > 2 {
+        return Err(m.error(
+            &format!("{KEY}.max_roll_deg"),
+            format!("{what}; is {KEY}.alt the altitude in metres, height_offset_m right, the vehicle rolled over?"),
+        ));
+    }
+    warnings.push(format!("{what}: dropped as altitude glitches"));
+    Ok(())
+}
+
+/// What the import says about the bank's correction of a_y: `pairs` antenna
+/// pairs, `dropped` of them as glitches, the smoothed roll's mean and
+/// largest magnitude over the kept samples, rad.
+pub(crate) fn description(b: &BankSpec, pairs: usize, dropped: usize, mean: f64, max: f64) -> String {
+    format!(
+        "; minus the bank's lateral gravity, a_y·cos φ − g·sin φ, with the roll φ from the antennas '{}' \
+         (left) and '{}' (right), baseline {} m, height offset {} m, {} pairs ({} dropped beyond {}°), \
+         smoothed over {} s: mean φ {:+.1} mrad, largest |φ| {:.1} mrad",
+        b.left,
+        b.right,
+        b.baseline_m,
+        b.height_offset_m,
+        pairs,
+        dropped,
+        b.max_roll_deg,
+        b.smoothing_s,
+        mean * 1e3,
+        max * 1e3
+    )
 }
 
 /// The roll on the output grid: interpolated linearly, then a centred

@@ -51,21 +51,7 @@ pub(crate) fn lateral_acceleration(
         let n = kept.len().max(1) as f64;
         let mean = kept.iter().sum::<f64>() / n;
         let max = kept.iter().fold(0.0_f64, |m, p| m.max(p.abs()));
-        desc.push_str(&format!(
-            "; minus the bank's lateral gravity, a_y·cos φ − g·sin φ, with the roll φ from the antennas '{}' \
-             (left) and '{}' (right), baseline {} m, height offset {} m, {} pairs ({} dropped beyond {}°), \
-             smoothed over {} s: mean φ {:+.1} mrad, largest |φ| {:.1} mrad",
-            b.left,
-            b.right,
-            b.baseline_m,
-            b.height_offset_m,
-            roll.t.len() + roll.dropped,
-            roll.dropped,
-            b.max_roll_deg,
-            b.smoothing_s,
-            mean * 1e3,
-            max * 1e3
-        ));
+        desc.push_str(&bank::description(b, roll.t.len() + roll.dropped, roll.dropped, mean, max));
     }
     (a, desc)
 }

@@ -143,7 +143,7 @@ pub(crate) fn build_pose(m: &Manifest, s: &Stream, warnings: &mut Vec<String>) -
 
 /// Heading from the track: direction of motion between consecutive samples,
 /// held below `min_speed`, averaged back onto the samples, unwrapped.
-fn derive_heading(t: &[f64], x: &[f64], y: &[f64], min_speed: f64) -> Vec<f64> {
+pub(crate) fn derive_heading(t: &[f64], x: &[f64], y: &[f64], min_speed: f64) -> Vec<f64> {
     let n = t.len();
     let mut mid: Vec<Option<f64>> = (0..n - 1)
         .map(|j| {

@@ -11,6 +11,7 @@ use super::super::manifest::{LateralAccelerationSpec, Manifest, SideslipSpec};
 use super::condition::Row;
 use super::corrupt::CorruptFilter;
 use super::parts::{Assembler, GridSample};
+use super::roll::RollBuilder;
 use super::tracks::{PoseBuilder, Rotation, Track};
 use crate::error::Result;
 use crate::model::{kinematics, Input, Theta};
@@ -64,6 +65,8 @@ pub(crate) struct Engine {
     pose_b: PoseBuilder,
     pub imu: Option<Column>,
     pub side: Option<Column>,
+    /// The road bank's roll, when the manifest corrects a_y for it.
+    pub roll: Option<RollBuilder>,
     /// Wheel-clock time of grid index 0, once every track has started.
     pub start: Option<f64>,
     /// Grid indices the pose was measured at, not yet passed.
@@ -103,6 +106,7 @@ impl Engine {
             }
             SideslipSpec::Zero => None,
         };
+        let roll = m.lateral_acceleration.bank().map(|b| RollBuilder::new(m, b, offset_s, &index));
         let base = m.base_dir();
         let rotations = || {
             [
@@ -123,6 +127,7 @@ impl Engine {
             pose_b: PoseBuilder::new(m, |c| index(&m.pose.stream, c)),
             imu,
             side,
+            roll,
             start: None,
             marks: VecDeque::new(),
             k: 0,
@@ -142,16 +147,15 @@ impl Engine {
         if name == m.pose.stream {
             let before = self.pose.t.len();
             self.pose_b.push(m, &self.pose_path, row, self.offset_s, &mut self.pose)?;
-            if self.pose.t.len() > before {
-                if let Some(&tp) = self.pose.t.back() {
-                    self.mark(tp);
-                }
-            }
+            self.mark_from(before);
         }
         for c in [self.imu.as_mut(), self.side.as_mut()].into_iter().flatten() {
             if c.stream == name {
                 c.push(row, max_gap);
             }
+        }
+        if let Some(r) = self.roll.as_mut() {
+            r.push(name, row)?;
         }
         Ok(())
     }
@@ -175,7 +179,10 @@ impl Engine {
             self.push_wheels(m, kept)?;
             self.wheel.ended = true;
         }
-        if name == m.pose.stream {
+        if name == m.pose.stream && !self.pose.ended {
+            let before = self.pose.t.len();
+            self.pose_b.end(m, self.offset_s, &mut self.pose);
+            self.mark_from(before);
             self.pose.ended = true;
         }
         for c in [self.imu.as_mut(), self.side.as_mut()].into_iter().flatten() {
@@ -183,7 +190,23 @@ impl Engine {
                 c.track.ended = true;
             }
         }
+        if let Some(r) = self.roll.as_mut() {
+            r.end_stream(name);
+        }
         Ok(())
+    }
+
+    /// Pose samples waiting for their derived heading.
+    pub(crate) fn pose_held(&self) -> usize {
+        self.pose_b.held()
+    }
+
+    /// Marks the pose samples of the track from index `before` on.
+    fn mark_from(&mut self, before: usize) {
+        let new: Vec<f64> = self.pose.t.iter().skip(before).copied().collect();
+        for tp in new {
+            self.mark(tp);
+        }
     }
 
     /// Marks the grid sample nearest to a pose sample at `tp` (wheel clock).
@@ -218,6 +241,13 @@ impl Engine {
                 spans.push(grid::Span { name: format!("streams.{name}"), start: t.first?, end: t.last()? });
             }
         }
+        if let Some(r) = &self.roll {
+            spans.push(grid::Span {
+                name: "lateral_acceleration.bank (roll, both antennas accepted, after the clock offset)".into(),
+                start: r.track.first?,
+                end: r.track.last()?,
+            });
+        }
         Some(spans)
     }
 
@@ -240,8 +270,14 @@ impl Engine {
     /// True when every track holds what output time `q` depends on (false
     /// once every track has ended: the end of the grid decides then).
     fn ready(&self, q: f64) -> bool {
-        let all_ended = self.wheel.ended && self.pose.ended && self.tracks().all(|(_, t)| t.ended);
-        !all_ended && self.wheel.covers(q) && self.pose.covers(q) && self.tracks().all(|(_, t)| t.covers(q))
+        let roll = self.roll.as_ref().map(|r| &r.track);
+        let all_ended =
+            self.wheel.ended && self.pose.ended && self.tracks().all(|(_, t)| t.ended) && roll.is_none_or(|t| t.ended);
+        !all_ended
+            && self.wheel.covers(q)
+            && self.pose.covers(q)
+            && self.tracks().all(|(_, t)| t.covers(q))
+            && roll.is_none_or(|t| t.covers(q))
     }
 
     /// Computes and assembles every output sample whose inputs are in.
@@ -267,6 +303,9 @@ impl Engine {
             for c in [self.imu.as_mut(), self.side.as_mut()].into_iter().flatten() {
                 c.track.prune(next, h);
             }
+            if let Some(r) = self.roll.as_mut() {
+                r.track.prune(next, h);
+            }
         }
     }
 
@@ -278,6 +317,9 @@ impl Engine {
         if invalid.is_none() {
             invalid = first_hit(&self.pose.bad, g, h, false);
         }
+        if let (None, Some(r)) = (&invalid, &self.roll) {
+            invalid = first_hit(&r.track.bad, g, h, false);
+        }
         for c in [self.imu.as_ref(), self.side.as_ref()].into_iter().flatten() {
             if invalid.is_none() && c.extra {
                 invalid = first_hit(&c.track.bad, g, h, c.integrate);
@@ -287,6 +329,8 @@ impl Engine {
         let n_rr = (self.wheel.at(e, 1) - self.wheel.at(g, 1)) / h;
         let a_y = match (&m.lateral_acceleration, &self.imu) {
             (LateralAccelerationSpec::Imu { .. }, Some(c)) => (c.track.at(e, 0) - c.track.at(g, 0)) / h,
+            // derived from the pose of the samples either side, in the parts
+            (LateralAccelerationSpec::FromPose { .. }, _) => 0.0,
             _ => {
                 let mut a = 0.0;
                 for _ in 0..3 {
@@ -302,7 +346,8 @@ impl Engine {
         }
         let measured = self.marks.front() == Some(&k);
         let sig = [self.pose.at(g, 0), self.pose.at(g, 1), self.pose.at(g, 2), n_rl, n_rr, beta, a_y];
-        GridSample { k, sig, measured, invalid }
+        let phi = self.roll.as_ref().map_or(0.0, |r| r.track.at(g, 0));
+        GridSample { k, sig, phi, measured, invalid }
     }
 }
 

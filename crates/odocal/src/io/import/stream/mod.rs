@@ -20,14 +20,35 @@
 //!   then; the offset is fixed from then on. A drive no longer than the
 //!   warm-up is estimated on all of it, as the whole import does; a longer
 //!   one on its start (the estimate's uncertainty is reported);
+//! - the **road bank**'s roll (`[lateral_acceleration.bank]`) pairs each
+//!   accepted left-antenna sample with the right antenna as soon as the
+//!   right antenna's rows decide the pairing, and its centred moving
+//!   average over `smoothing_s` waits for half its width of samples after
+//!   each output, in parallel with a_y's own smoothing; the limit's judging
+//!   window (0.25 s each side) comes after both, so the output lags the
+//!   input by the larger half-width of the two plus 0.25 s (0.75 s on the
+//!   shipped van manifests);
+//! - a **heading derived from the track** (no `[pose.heading]`) is the
+//!   whole import's direction of motion between accepted pose samples,
+//!   unwrapped and averaged onto them: each sample's heading waits for the
+//!   next sample, and the samples at the start wait until the vehicle
+//!   first moves faster than `derive_heading_min_speed_m_per_s` (their
+//!   heading is back-filled from that direction);
+//! - a lateral acceleration **from the pose** (speed × yaw rate of the
+//!   reference over the samples either side, within the part) is derived
+//!   one output sample late, when the next sample of the part is in;
 //! - the checks that judge the **whole drive** run on the warm-up prefix
-//!   (the pose's speed, the wheel counter's width); the per-sample limits
-//!   on every sample; parts shorter than `min_part_s` are held until they
-//!   are long enough or end.
+//!   (the pose's speed, the wheel counter's width, the antennas' median
+//!   separation against `baseline_m` and their glitch fraction); the
+//!   glitch fraction is judged again over every antenna pair when the drive
+//!   ends; the per-sample limits on every sample; parts shorter than
+//!   `min_part_s` are held until they are long enough or end.
+//!
+//! With the clock offset of the whole import, the samples are the whole
+//! import's bit for bit, road bank included.
 //!
 //! Not streamed (refused by [`RawStream::new`] with the reason; the whole
-//! import reads them): `mcap` and `parquet` sources, a heading derived from
-//! the track, a lateral acceleration from the pose, a road bank. The wheel
+//! import reads them): `mcap` and `parquet` sources. The wheel
 //! and heading convention checks and the jitter report of the whole import
 //! are not made. Corrupt wheel rows are dropped by the whole import's rule,
 //! each decided once the rows after it that the rule looks at are in.
@@ -35,8 +56,10 @@
 mod condition;
 mod corrupt;
 mod engine;
+mod heading;
 mod parts;
 mod reader;
+mod roll;
 mod tracks;
 
 use std::collections::BTreeMap;
@@ -47,7 +70,7 @@ pub use reader::ManifestStream;
 use super::manifest::{LateralAccelerationSpec, Manifest, SourceSpec};
 use super::report::{ClockOffsetReport, ImportReport};
 use super::source::Stream;
-use super::{clock, grid, pose, wheels};
+use super::{bank, clock, grid, pose, wheels};
 use crate::drive::Signals;
 use crate::error::{Error, Result};
 use condition::Conditioner;
@@ -95,15 +118,6 @@ pub struct ImportChunk {
 pub fn not_streamable(m: &Manifest) -> Option<String> {
     if let Some((name, s)) = m.streams.iter().find(|(_, s)| !matches!(s.source, SourceSpec::Csv { .. })) {
         return Some(format!("streams.{name} is a {} source, read whole", s.source.format()));
-    }
-    if m.pose.heading.is_none() {
-        return Some("the heading is derived from the track ([pose.heading] is not given)".into());
-    }
-    if matches!(m.lateral_acceleration, LateralAccelerationSpec::FromPose { .. }) {
-        return Some("lateral_acceleration.source = \"from_pose\"".into());
-    }
-    if m.lateral_acceleration.bank().is_some() {
-        return Some("[lateral_acceleration.bank] (the roll is smoothed over the whole drive)".into());
     }
     None
 }
@@ -256,6 +270,9 @@ impl RawStream {
         e.try_start(m);
         e.n_end = Some(((end - start) / h).floor() as usize);
         e.step(m)?;
+        if let (Some(b), Some(r)) = (m.lateral_acceleration.bank(), e.roll.as_ref()) {
+            bank::judge_glitches(m, b, r.beyond, r.first_beyond, r.pairs, &mut self.warnings)?;
+        }
         let Some(asm) = e.asm.as_mut() else { return Err(m.error("streams", "no streams")) };
         asm.close_run(m)?;
         if asm.kept_parts == 0 {
@@ -325,6 +342,8 @@ impl RawStream {
                 + e.pose.t.len()
                 + [e.imu.as_ref(), e.side.as_ref()].into_iter().flatten().map(|c| c.track.t.len()).sum::<usize>()
                 + e.asm.as_ref().map_or(0, |a| a.out.len())
+                + e.roll.as_ref().map_or(0, |r| r.held())
+                + e.pose_held()
         });
         conditioned + e
     }
@@ -380,6 +399,11 @@ impl RawStream {
         let wheel_bad = grid::gaps_of(&ws.t, m.output.max_gap_s, "wheel");
         let pose = pose::build_pose(m, &ps, &mut self.warnings)?;
         super::check_budgets(m, &ws.t, &pose.t, h)?;
+        if let Some(b) = m.lateral_acceleration.bank() {
+            // The pairs' whole-drive checks on the prefix (the glitches are
+            // counted and reported over the whole drive).
+            bank::roll(m, b, &prefix(&b.left), &prefix(&b.right), &mut Vec::new())?;
+        }
         let track = clock::WheelTrack { t: &ws.t, cum_l: &cum_l, cum_r: &cum_r, bad: &wheel_bad };
         let theta0 = m.output.theta0();
         let clock = clock::align(m, &track, &pose, h, &theta0, &mut self.warnings)?;
@@ -443,10 +467,13 @@ impl RawStream {
                 LateralAccelerationSpec::Imu { stream, column, sign } => {
                     format!("IMU column '{column}' of stream '{stream}' × {sign:+}, mean over each output interval")
                 }
-                LateralAccelerationSpec::FromWheels { smoothing_s, .. } => {
-                    format!("from wheels: v·ω of the model at θ_0 = {theta0}, smoothed over {smoothing_s} s")
-                }
-                LateralAccelerationSpec::FromPose { .. } => String::new(),
+                LateralAccelerationSpec::FromWheels { smoothing_s, .. } => self.with_bank(format!(
+                    "from wheels: v·ω of the model at θ_0 = {theta0}, smoothed over {smoothing_s} s"
+                )),
+                LateralAccelerationSpec::FromPose { smoothing_s, .. } => self.with_bank(format!(
+                    "from pose: speed × yaw rate of the reference, smoothed over {smoothing_s} s (feeds the \
+                     reference yaw rate into the model through d)"
+                )),
             },
             jitter: None,
             warnings,
@@ -455,6 +482,20 @@ impl RawStream {
             calibration: m.calibration.clone(),
             elapsed_s: self.started.elapsed().as_secs_f64(),
         }
+    }
+}
+
+impl RawStream {
+    /// `desc` of a derived a_y followed by the road bank's account, when
+    /// the manifest has one.
+    fn with_bank(&self, mut desc: String) -> String {
+        let roll = self.engine.as_ref().and_then(|e| e.roll.as_ref());
+        let asm = self.engine.as_ref().and_then(|e| e.asm.as_ref());
+        if let (Some(b), Some(r), Some(a)) = (self.m.lateral_acceleration.bank(), roll, asm) {
+            let mean = a.phi_sum / a.samples.max(1) as f64;
+            desc.push_str(&bank::description(b, r.pairs, r.beyond, mean, a.phi_max));
+        }
+        desc
     }
 }
 

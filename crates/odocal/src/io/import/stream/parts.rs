@@ -1,10 +1,12 @@
 //! The output samples of the streamed import, in time order: runs of
 //! valid samples become parts once they are `min_part_s` long (shorter ones
-//! are dropped), a_y is smoothed within each part and judged, and the
-//! kept samples are handed out; gaps and parts are recorded for the report.
+//! are dropped), a_y (and the road bank's roll) is smoothed within each
+//! part, corrected for the bank and judged, and the kept samples are handed
+//! out; gaps and parts are recorded for the report.
 
 use std::collections::VecDeque;
 
+use super::super::bank::specific_force;
 use super::super::checks::{grid_time, lateral_acceleration_error, wheel_speed, A_Y_CHECK_SMOOTHING_S};
 use super::super::limits::within;
 use super::super::manifest::{LateralAccelerationSpec, Manifest};
@@ -12,12 +14,14 @@ use super::super::report::{GapRecord, PartRecord};
 use crate::error::Result;
 
 /// One output sample before the parts: its grid index, the signals
-/// `[px, py, ψ, n_rl, n_rr, β, a_y]` (a_y before smoothing), whether the
-/// reference was measured at it, and why it is invalid (`None`: valid).
+/// `[px, py, ψ, n_rl, n_rr, β, a_y]` (a_y before smoothing), the road
+/// bank's roll (before smoothing; 0 without a bank), whether the reference
+/// was measured at it, and why it is invalid (`None`: valid).
 #[derive(Debug, Clone)]
 pub(crate) struct GridSample {
     pub k: usize,
     pub sig: [f64; 7],
+    pub phi: f64,
     pub measured: bool,
     pub invalid: Option<String>,
 }
@@ -87,18 +91,55 @@ impl Smoother {
     }
 }
 
-/// A two-stage smoothing of a_y within a part: the lateral acceleration's
-/// own smoothing, then the judging window of the limit check (skipped for
-/// an IMU's a_y, judged as it is); `half == 0` leaves a stage out.
+/// The smoothing of a_y within a part: the lateral acceleration's own
+/// smoothing and, with a road bank, the roll's, combined into the specific
+/// force, then the judging window of the limit check (skipped for an IMU's
+/// a_y, judged as it is); `half == 0` leaves a stage out.
 #[derive(Debug)]
 struct PartPipe {
     first: Option<Smoother>,
+    /// The roll's smoothing, when there is a bank (`Some(None)`: a bank,
+    /// not smoothed).
+    roll: Option<Option<Smoother>>,
     judge: Option<Smoother>,
     /// Samples waiting for their smoothed a_y (first stage) and judged a_y.
     waiting: VecDeque<GridSample>,
-    /// Smoothed a_y of the oldest waiting samples without a judged value yet.
+    /// Smoothed a_y and roll of the oldest waiting samples, not yet combined.
+    a_q: VecDeque<f64>,
+    phi_q: VecDeque<f64>,
+    /// The final a_y (and roll) of the oldest waiting samples without a
+    /// judged value yet.
     smoothed: VecDeque<f64>,
+    phis: VecDeque<f64>,
     judged: VecDeque<f64>,
+    /// a_y from the pose: the sample waiting for its successor, and the
+    /// pose `[px, py, ψ]` of the one before it in the part.
+    pose_wait: Option<GridSample>,
+    pose_before: Option<[f64; 3]>,
+}
+
+impl PartPipe {
+    /// The sample waiting for its successor `next` (`None`: the part has
+    /// ended) with a_y from the pose, as the whole import derives it: the
+    /// reference's speed × yaw rate over the samples either side of it
+    /// within the part.
+    fn a_y_from_pose(&mut self, next: Option<GridSample>, h: f64) -> Option<GridSample> {
+        let Some(mut c) = self.pose_wait.take() else {
+            self.pose_wait = next;
+            return None;
+        };
+        let pose = |s: &GridSample| [s.sig[0], s.sig[1], s.sig[2]];
+        let p0 = self.pose_before.unwrap_or(pose(&c));
+        let p1 = next.as_ref().map_or(pose(&c), pose);
+        let steps = usize::from(self.pose_before.is_some()) + usize::from(next.is_some());
+        let dt = steps as f64 * h;
+        let v = (p1[0] - p0[0]).hypot(p1[1] - p0[1]) / dt;
+        let om = (p1[2] - p0[2]) / dt;
+        c.sig[6] = v * om;
+        self.pose_before = Some(pose(&c));
+        self.pose_wait = next;
+        Some(c)
+    }
 }
 
 /// The runs, parts, checks and output of the streamed import.
@@ -110,6 +151,10 @@ pub(crate) struct Assembler {
     c_e: f64,
     half_first: usize,
     half_judge: usize,
+    /// Half the roll's smoothing window, when there is a bank.
+    half_roll: Option<usize>,
+    /// a_y is derived from the pose (`from_pose`).
+    from_pose: bool,
     /// Valid samples of a run not yet `min_part_s` long.
     run: Vec<GridSample>,
     /// The current run: first grid index, valid?
@@ -129,6 +174,9 @@ pub(crate) struct Assembler {
     pub samples: usize,
     /// Reference path length of the kept samples, m.
     pub distance_m: f64,
+    /// The smoothed roll over the kept samples: sum and largest |φ|, rad.
+    pub phi_sum: f64,
+    pub phi_max: f64,
 }
 
 impl Assembler {
@@ -150,6 +198,8 @@ impl Assembler {
             c_e: m.output.theta0[0],
             half_first,
             half_judge,
+            half_roll: m.lateral_acceleration.bank().map(|b| half(b.smoothing_s)),
+            from_pose: matches!(m.lateral_acceleration, LateralAccelerationSpec::FromPose { .. }),
             run: Vec::new(),
             run_start: None,
             run_len: 0,
@@ -163,6 +213,9 @@ impl Assembler {
             kept_parts: 0,
             samples: 0,
             distance_m: 0.0,
+            // the start of a sum over no term, as the whole import's mean
+            phi_sum: std::iter::empty::<f64>().sum(),
+            phi_max: 0.0,
         }
     }
 
@@ -196,12 +249,19 @@ impl Assembler {
         }
         self.run.push(s);
         if self.run.len() >= self.min_samples {
+            let smoother = |half: usize| (half > 0).then(|| Smoother::new(half));
             self.pipe = Some(PartPipe {
-                first: (self.half_first > 0).then(|| Smoother::new(self.half_first)),
-                judge: (self.half_judge > 0).then(|| Smoother::new(self.half_judge)),
+                first: smoother(self.half_first),
+                roll: self.half_roll.map(smoother),
+                judge: smoother(self.half_judge),
                 waiting: VecDeque::new(),
+                a_q: VecDeque::new(),
+                phi_q: VecDeque::new(),
                 smoothed: VecDeque::new(),
+                phis: VecDeque::new(),
                 judged: VecDeque::new(),
+                pose_wait: None,
+                pose_before: None,
             });
             for s in std::mem::take(&mut self.run) {
                 self.feed(m, s)?;
@@ -236,11 +296,20 @@ impl Assembler {
         });
         self.run.clear();
         if let Some(mut p) = self.pipe.take() {
-            let mut out = Vec::new();
-            if let Some(f) = p.first.as_mut() {
-                f.finish(&mut out);
+            if let Some(s) = p.a_y_from_pose(None, h) {
+                self.smooth(m, &mut p, s)?;
             }
-            self.smoothed_ready(m, &mut p, out)?;
+            if let Some(f) = p.first.as_mut() {
+                let mut out = Vec::new();
+                f.finish(&mut out);
+                p.a_q.extend(out);
+            }
+            if let Some(Some(r)) = p.roll.as_mut() {
+                let mut out = Vec::new();
+                r.finish(&mut out);
+                p.phi_q.extend(out);
+            }
+            self.smoothed_ready(m, &mut p)?;
             let mut out = Vec::new();
             if let Some(j) = p.judge.as_mut() {
                 j.finish(&mut out);
@@ -253,27 +322,52 @@ impl Assembler {
         Ok(())
     }
 
-    /// A valid sample of a kept part: the wheel speed check, then the
-    /// smoothing stages.
+    /// A valid sample of a kept part: the wheel speed check, a_y from the
+    /// pose (one sample later), then the smoothing stages.
     fn feed(&mut self, m: &Manifest, s: GridSample) -> Result<()> {
         self.check_wheels(m, &s)?;
         let Some(mut p) = self.pipe.take() else { return Ok(()) };
-        let a = s.sig[6];
+        let ready = if self.from_pose { p.a_y_from_pose(Some(s), self.h) } else { Some(s) };
+        let r = match ready {
+            Some(s) => self.smooth(m, &mut p, s),
+            None => Ok(()),
+        };
+        self.pipe = Some(p);
+        r
+    }
+
+    /// A sample with its a_y into the smoothing stages.
+    fn smooth(&mut self, m: &Manifest, p: &mut PartPipe, s: GridSample) -> Result<()> {
+        let (a, phi) = (s.sig[6], s.phi);
         p.waiting.push_back(s);
         let mut out = Vec::new();
         match p.first.as_mut() {
             Some(f) => f.feed(a, &mut out),
             None => out.push(a),
         }
-        let r = self.smoothed_ready(m, &mut p, out);
-        self.pipe = Some(p);
-        r
+        p.a_q.extend(out);
+        if let Some(roll) = p.roll.as_mut() {
+            let mut out = Vec::new();
+            match roll {
+                Some(r) => r.feed(phi, &mut out),
+                None => out.push(phi),
+            }
+            p.phi_q.extend(out);
+        }
+        self.smoothed_ready(m, p)
     }
 
-    /// First-stage outputs: into the judging stage, then out when judged.
-    fn smoothed_ready(&mut self, m: &Manifest, p: &mut PartPipe, smoothed: Vec<f64>) -> Result<()> {
+    /// Smoothed a_y (with a bank, combined with the smoothed roll into the
+    /// specific force): into the judging stage, then out when judged.
+    fn smoothed_ready(&mut self, m: &Manifest, p: &mut PartPipe) -> Result<()> {
         let mut judged = Vec::new();
-        for a in smoothed {
+        while !p.a_q.is_empty() && (p.roll.is_none() || !p.phi_q.is_empty()) {
+            let Some(mut a) = p.a_q.pop_front() else { break };
+            if p.roll.is_some() {
+                let Some(phi) = p.phi_q.pop_front() else { break };
+                a = specific_force(a, phi);
+                p.phis.push_back(phi);
+            }
             p.smoothed.push_back(a);
             match p.judge.as_mut() {
                 Some(j) => j.feed(a, &mut judged),
@@ -292,6 +386,10 @@ impl Assembler {
                 return Err(lateral_acceleration_error(m, judged, &self.at(s.k)));
             }
             s.sig[6] = a;
+            if let Some(phi) = p.phis.pop_front() {
+                self.phi_sum += phi;
+                self.phi_max = self.phi_max.max(phi.abs());
+            }
             s.sig[2] = self.unwrap.next(s.sig[2]);
             if let Some((x0, y0)) = self.prev_xy {
                 self.distance_m += (s.sig[0] - x0).hypot(s.sig[1] - y0);

@@ -204,6 +204,8 @@ pub(crate) struct PoseBuilder {
     rejected: usize,
     rejected_values: Vec<f64>,
     last_good: Option<f64>,
+    /// The heading derived from the track, without a heading column.
+    derived: Option<super::heading::TrackHeading>,
 }
 
 /// Column slots of [`PoseBuilder`].
@@ -234,6 +236,7 @@ impl PoseBuilder {
             rejected: 0,
             rejected_values: Vec::new(),
             last_good: None,
+            derived: p.heading.is_none().then(|| super::heading::TrackHeading::new(p.derive_heading_min_speed_m_per_s)),
         }
     }
 
@@ -251,7 +254,9 @@ impl PoseBuilder {
         if let (Some(q), Some(val)) = (&p.quality, v(QUALITY)) {
             if !q.accepts(val) {
                 self.rejected += 1;
-                self.rejected_values.push(val);
+                if !self.rejected_values.iter().any(|r| (r - val).abs() < 1e-9) {
+                    self.rejected_values.push(val);
+                }
                 return Ok(());
             }
         }
@@ -316,7 +321,33 @@ impl PoseBuilder {
             _ => f64::NAN,
         };
         self.last_good = Some(row.t);
-        track.push(row.t, offset_s, [x, y, psi], m.output.max_gap_s, "pose");
+        match self.derived.as_mut() {
+            None => track.push(row.t, offset_s, [x, y, psi], m.output.max_gap_s, "pose"),
+            Some(d) => {
+                let mut out = Vec::new();
+                d.push((row.t, x, y), &mut out);
+                for [t, x, y, psi] in out {
+                    track.push(t, offset_s, [x, y, psi], m.output.max_gap_s, "pose");
+                }
+            }
+        }
         Ok(())
+    }
+
+    /// The pose stream has ended: the samples still waiting for their
+    /// derived heading go into `track`.
+    pub(crate) fn end(&mut self, m: &Manifest, offset_s: f64, track: &mut Track<3>) {
+        if let Some(d) = self.derived.as_mut() {
+            let mut out = Vec::new();
+            d.end(&mut out);
+            for [t, x, y, psi] in out {
+                track.push(t, offset_s, [x, y, psi], m.output.max_gap_s, "pose");
+            }
+        }
+    }
+
+    /// Pose samples waiting for their derived heading.
+    pub(crate) fn held(&self) -> usize {
+        self.derived.as_ref().map_or(0, |d| d.held())
     }
 }

@@ -1,0 +1,162 @@
+//! `odocal.online.RawStream`: the library's streamed import
+//! ([`odocal::online::RawStream`]) fed message by message from Python, its
+//! canonical samples taken as numpy arrays.
+
+use numpy::{AllowTypeChange, IntoPyArray, PyArray2, PyArrayLike1, PyArrayMethods, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use odocal::manifest::SourceSpec;
+use odocal::online::{RawStream, StreamOptions};
+use odocal::Manifest;
+
+use crate::convert::{json, to_py};
+use crate::lib_err;
+
+/// The import of a manifest's streams as their messages arrive: canonical
+/// samples come out once every stream has passed their time.
+#[pyclass(module = "odocal.online", name = "RawStream")]
+pub(crate) struct PyRawStream {
+    raw: RawStream,
+    manifest: Manifest,
+}
+
+#[pymethods]
+impl PyRawStream {
+    /// The streamed import of the manifest at `manifest` (its streams are
+    /// pushed, not read), the clock offset estimated on the first
+    /// `warm_up_s` seconds of the wheel stream. Raises `OdocalError` for a
+    /// manifest that is not streamed (the reason named) or a bad warm-up.
+    #[new]
+    #[pyo3(signature = (manifest, *, warm_up_s=StreamOptions::DEFAULT_WARM_UP_S))]
+    fn new(
+        manifest: std::path::PathBuf,
+        #[pyo3(from_py_with = crate::convert::real)] warm_up_s: f64,
+    ) -> PyResult<Self> {
+        let m = Manifest::from_path(&manifest).map_err(lib_err)?;
+        let raw = RawStream::new(&m, StreamOptions { warm_up_s }).map_err(lib_err)?;
+        Ok(PyRawStream { raw, manifest: m })
+    }
+
+    /// The streams the manifest reads: for each name, its `file`,
+    /// `time_column` and the `columns` each message carries, in the order
+    /// `push_message` takes its values.
+    #[getter]
+    fn streams<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let out = PyDict::new(py);
+        for (name, cols) in self.raw.columns() {
+            let spec = &self.manifest.streams[name];
+            let (SourceSpec::Csv { file } | SourceSpec::Mcap { file, .. } | SourceSpec::Parquet { file }) =
+                &spec.source;
+            let d = PyDict::new(py);
+            d.set_item("file", self.manifest.path.parent().unwrap_or(std::path::Path::new("")).join(file))?;
+            d.set_item("time_column", spec.time_column.clone())?;
+            d.set_item("columns", cols.to_vec())?;
+            out.set_item(name, d)?;
+        }
+        Ok(out)
+    }
+
+    /// One message of stream `stream`: its time `t` in the stream's
+    /// `time_unit` (before `time_offset_s`) and the values of its columns
+    /// (`streams[stream]["columns"]`). Messages of one stream come in time
+    /// order. Raises `OdocalError` naming the stream (an unknown one, a
+    /// wrong number of values) or the row and column (the whole import's
+    /// checks of the rows).
+    fn push_message(&mut self, py: Python<'_>, stream: &str, t: f64, values: Vec<f64>) -> PyResult<()> {
+        let raw = &mut self.raw;
+        py.detach(|| raw.push_message(stream, t, &values)).map_err(lib_err)
+    }
+
+    /// Several messages of stream `stream` at once: times `t` (n) and
+    /// `values` (n × columns), as `push_message` one by one.
+    fn push_messages(
+        &mut self,
+        py: Python<'_>,
+        stream: &str,
+        t: PyArrayLike1<'_, f64, AllowTypeChange>,
+        values: &Bound<'_, PyArray2<f64>>,
+    ) -> PyResult<()> {
+        let t = t.as_slice()?.to_vec();
+        let shape = values.shape();
+        if shape[0] != t.len() {
+            return Err(lib_err(odocal::Error::InvalidOption {
+                field: "values",
+                reason: format!("{} rows of values for {} times (stream '{stream}')", shape[0], t.len()),
+            }));
+        }
+        let v = values.to_owned_array();
+        let raw = &mut self.raw;
+        py.detach(|| {
+            for (i, ti) in t.iter().enumerate() {
+                raw.push_message(stream, *ti, &v.row(i).to_vec())?;
+            }
+            Ok(())
+        })
+        .map_err(lib_err)
+    }
+
+    /// No more messages of `stream` come.
+    fn end_stream(&mut self, stream: &str) -> PyResult<()> {
+        self.raw.end_stream(stream).map_err(lib_err)
+    }
+
+    /// Ends every stream and the drive: the last samples become ready and
+    /// `report` is set. Raises `OdocalError` for the whole import's errors
+    /// about the drive (streams that do not overlap, no part long enough).
+    fn finish(&mut self, py: Python<'_>) -> PyResult<()> {
+        let raw = &mut self.raw;
+        py.detach(|| raw.finish()).map_err(lib_err)
+    }
+
+    /// Up to `max` ready samples of one part, oldest first, or None: a dict
+    /// with `part`, `start` (the index of the first among the drive's
+    /// samples), `starts_part`, `reference_measured` (bool array) and
+    /// `samples`, a dict of arrays `t`, `px`, `py`, `psi`, `n_rl`, `n_rr`,
+    /// `a_y`, `beta`: the arguments of `Calibrator.push`.
+    #[pyo3(signature = (max=400))]
+    fn take_chunk<'py>(&mut self, py: Python<'py>, max: usize) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let Some(c) = self.raw.take_chunk(max) else { return Ok(None) };
+        let d = PyDict::new(py);
+        d.set_item("part", c.part)?;
+        d.set_item("start", c.start)?;
+        d.set_item("starts_part", c.starts_part)?;
+        d.set_item("reference_measured", c.reference_measured.into_pyarray(py))?;
+        let s = PyDict::new(py);
+        let g = c.signals;
+        s.set_item("t", c.t.into_pyarray(py))?;
+        for (name, col) in [
+            ("px", g.px),
+            ("py", g.py),
+            ("psi", g.psi),
+            ("n_rl", g.n_rl),
+            ("n_rr", g.n_rr),
+            ("a_y", g.a_y),
+            ("beta", g.beta),
+        ] {
+            s.set_item(name, col.into_pyarray(py))?;
+        }
+        d.set_item("samples", s)?;
+        Ok(Some(d))
+    }
+
+    /// The clock offset once the warm-up is over (a dict, as in the import
+    /// report), else None.
+    #[getter]
+    fn clock_offset<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
+        self.raw.clock_offset().map(|c| to_py(py, &json(c)?)).transpose()
+    }
+
+    /// The import report after `finish()` (a dict of the library's
+    /// `ImportReport`, without the jitter report), else None.
+    #[getter]
+    fn report<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
+        self.raw.report().map(|r| to_py(py, &json(r)?)).transpose()
+    }
+
+    /// Rows and samples the import holds now.
+    #[getter]
+    fn held(&self) -> usize {
+        self.raw.held()
+    }
+}
