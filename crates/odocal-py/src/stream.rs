@@ -6,7 +6,6 @@ use numpy::{AllowTypeChange, IntoPyArray, PyArray2, PyArrayLike1, PyArrayMethods
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use odocal::manifest::SourceSpec;
 use odocal::online::{RawStream, StreamOptions};
 use odocal::Manifest;
 
@@ -44,13 +43,11 @@ impl PyRawStream {
     #[getter]
     fn streams<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let out = PyDict::new(py);
+        let files = self.manifest.stream_files();
         for (name, cols) in self.raw.columns() {
-            let spec = &self.manifest.streams[name];
-            let (SourceSpec::Csv { file } | SourceSpec::Mcap { file, .. } | SourceSpec::Parquet { file }) =
-                &spec.source;
             let d = PyDict::new(py);
-            d.set_item("file", self.manifest.path.parent().unwrap_or(std::path::Path::new("")).join(file))?;
-            d.set_item("time_column", spec.time_column.clone())?;
+            d.set_item("file", files.iter().find(|(n, _)| n == name).map(|(_, f)| f))?;
+            d.set_item("time_column", self.manifest.time_column(name))?;
             d.set_item("columns", cols.to_vec())?;
             out.set_item(name, d)?;
         }

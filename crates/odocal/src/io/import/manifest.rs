@@ -749,6 +749,13 @@ impl Manifest {
         1.0 / self.output.rate_hz
     }
 
+    /// The time column of stream `stream` (`streams.<stream>.time_column`;
+    /// `None` for an unknown stream or an MCAP source, whose messages carry
+    /// their own time).
+    pub fn time_column(&self, stream: &str) -> Option<&str> {
+        self.streams.get(stream)?.time_column.as_deref()
+    }
+
     /// The manifest error for `key`.
     pub(crate) fn error(&self, key: &str, reason: impl std::fmt::Display) -> Error {
         Error::Manifest { path: self.path.clone(), reason: format!("{key}: {reason}") }
