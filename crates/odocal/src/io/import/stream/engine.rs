@@ -79,9 +79,16 @@ pub(crate) struct Engine {
 }
 
 impl Engine {
-    /// The engine of `m`, the pose moved by `offset_s`; `index(stream,
-    /// column)` finds a column in its stream's rows.
-    pub(crate) fn new(m: &Manifest, h: f64, offset_s: f64, index: impl Fn(&str, &str) -> usize) -> Engine {
+    /// The engine of `m`, the pose moved by `offset_s`, a heading derived
+    /// from the track held for at most `max_hold_s` before the first
+    /// motion; `index(stream, column)` finds a column in its stream's rows.
+    pub(crate) fn new(
+        m: &Manifest,
+        h: f64,
+        offset_s: f64,
+        max_hold_s: f64,
+        index: impl Fn(&str, &str) -> usize,
+    ) -> Engine {
         let w = &m.wheels;
         let column = |stream: &str, col: &str, factor: f64, integrate: bool, what: String| Column {
             stream: stream.to_string(),
@@ -124,7 +131,7 @@ impl Engine {
             rot: rotations(),
             corrupt: CorruptFilter::new(m, rotations()),
             pose: Track::new(),
-            pose_b: PoseBuilder::new(m, |c| index(&m.pose.stream, c)),
+            pose_b: PoseBuilder::new(m, max_hold_s, |c| index(&m.pose.stream, c)),
             imu,
             side,
             roll,
@@ -199,6 +206,25 @@ impl Engine {
     /// Pose samples waiting for their derived heading.
     pub(crate) fn pose_held(&self) -> usize {
         self.pose_b.held()
+    }
+
+    /// The longest span of stream time any track holds, s (the wheel
+    /// track's while the pose waits for a stream behind, and so on).
+    pub(crate) fn held_span_s(&self) -> f64 {
+        fn span<const N: usize>(t: &Track<N>) -> f64 {
+            match (t.t.front(), t.t.back()) {
+                (Some(a), Some(b)) => b - a,
+                _ => 0.0,
+            }
+        }
+        let mut most = span(&self.wheel).max(span(&self.pose));
+        for c in [self.imu.as_ref(), self.side.as_ref()].into_iter().flatten() {
+            most = most.max(span(&c.track));
+        }
+        if let Some(r) = &self.roll {
+            most = most.max(span(&r.track)).max(r.held_span_s());
+        }
+        most
     }
 
     /// Marks the pose samples of the track from index `before` on.
@@ -283,6 +309,9 @@ impl Engine {
     /// Computes and assembles every output sample whose inputs are in.
     pub(crate) fn step(&mut self, m: &Manifest) -> Result<()> {
         let (Some(start), h) = (self.start, self.h) else { return Ok(()) };
+        // Rows before the next output time that no output uses (those
+        // before the grid's origin, on a stream that starts early).
+        self.prune(start + self.k as f64 * h);
         loop {
             let k = self.k;
             if self.n_end.is_some_and(|n| k >= n) {
@@ -297,15 +326,20 @@ impl Engine {
                 a.push(m, s)?;
             }
             self.k += 1;
-            let next = start + self.k as f64 * h;
-            self.wheel.prune(next, h);
-            self.pose.prune(next, h);
-            for c in [self.imu.as_mut(), self.side.as_mut()].into_iter().flatten() {
-                c.track.prune(next, h);
-            }
-            if let Some(r) = self.roll.as_mut() {
-                r.track.prune(next, h);
-            }
+            self.prune(start + self.k as f64 * h);
+        }
+    }
+
+    /// Drops what no output at or after `next` uses.
+    fn prune(&mut self, next: f64) {
+        let h = self.h;
+        self.wheel.prune(next, h);
+        self.pose.prune(next, h);
+        for c in [self.imu.as_mut(), self.side.as_mut()].into_iter().flatten() {
+            c.track.prune(next, h);
+        }
+        if let Some(r) = self.roll.as_mut() {
+            r.track.prune(next, h);
         }
     }
 

@@ -33,7 +33,12 @@
 //!   unwrapped and averaged onto them: each sample's heading waits for the
 //!   next sample, and the samples at the start wait until the vehicle
 //!   first moves faster than `derive_heading_min_speed_m_per_s` (their
-//!   heading is back-filled from that direction);
+//!   heading is back-filled from that direction) — for at most
+//!   [`StreamOptions::warm_up_s`] of pose time: a longer standstill before
+//!   the first motion releases its oldest samples without a heading, and
+//!   the output samples before the samples still held are invalid (a gap,
+//!   "pose heading unknown"; the whole import keeps them in a part with
+//!   the back-filled heading; the samples after are the whole import's);
 //! - a lateral acceleration **from the pose** (speed × yaw rate of the
 //!   reference over the samples either side, within the part) is derived
 //!   one output sample late, when the next sample of the part is in;
@@ -46,6 +51,17 @@
 //!
 //! With the clock offset of the whole import, the samples are the whole
 //! import's bit for bit, road bank included.
+//!
+//! The rows held are bounded: the warm-up holds `warm_up_s` of the wheel
+//! stream (and the other streams to the same time); after it, each track
+//! holds the rows around the next output time, and rows before the grid's
+//! origin are dropped. A stream that stops sending while the others go on
+//! makes them wait: once the rows held span more than 2 × `warm_up_s` and
+//! that stream's last message is more than `warm_up_s` behind the newest,
+//! [`RawStream::push_message`] fails with an error naming it (end the
+//! stream with [`RawStream::end_stream`] if it has stopped). A stretch of
+//! pose samples of rejected quality holds the other streams' rows for its
+//! length (the pose's messages keep coming, so no stream is behind).
 //!
 //! Not streamed (refused by [`RawStream::new`] with the reason; the whole
 //! import reads them): `mcap` and `parquet` sources. The wheel
@@ -213,7 +229,8 @@ impl RawStream {
     /// # Errors
     /// An unknown stream or a wrong number of values; the whole import's
     /// errors about the stream's rows (time going backwards, a value that
-    /// is not finite, a limit exceeded), naming the row.
+    /// is not finite, a limit exceeded), naming the row; a stream that
+    /// stalled while the others went on, naming it (see the module's docs).
     pub fn push_message(&mut self, stream: &str, t: f64, values: &[f64]) -> Result<()> {
         self.push_row(stream, t, values.to_vec(), None)
     }
@@ -365,7 +382,44 @@ impl RawStream {
             }
         }
         e.try_start(m);
-        e.step(m)
+        e.step(m)?;
+        self.check_stall()
+    }
+
+    /// The rows held must not grow without bound while one stream stops
+    /// sending and the others go on: once a stream's or track's held rows
+    /// span more than twice the warm-up and a stream's last message is
+    /// more than the warm-up behind the newest, that stream is named in
+    /// an error.
+    fn check_stall(&self) -> Result<()> {
+        let bound = 2.0 * self.opts.warm_up_s;
+        let queued = self.streams.values().map(|(c, _)| match (c.ready.front(), c.ready.back()) {
+            (Some(a), Some(b)) => b.t - a.t,
+            _ => 0.0,
+        });
+        let held = queued.chain(self.engine.as_ref().map(|e| e.held_span_s())).fold(0.0, f64::max);
+        if held <= bound {
+            return Ok(());
+        }
+        let newest = self.streams.values().filter_map(|(c, _)| c.last_stamp()).fold(f64::NEG_INFINITY, f64::max);
+        let behind = self
+            .streams
+            .values()
+            .filter(|(c, _)| !c.ended)
+            .map(|(c, _)| (c, c.last_stamp().unwrap_or(f64::NEG_INFINITY)))
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+        match behind {
+            Some((c, last)) if newest - last > self.opts.warm_up_s => Err(self.m.error(
+                &format!("streams.{}", c.name),
+                format!(
+                    "the stream stalled: its last message is at {} while the others went on to {newest:.3} s; the \
+                     streamed import holds their rows until it catches up, at most 2 × warm_up_s = {bound} s of \
+                     them; end the stream (end_stream) if it has stopped, or push the streams in time order",
+                    if last.is_finite() { format!("{last:.3} s") } else { "— (none yet)".to_string() },
+                ),
+            )),
+            _ => Ok(()),
+        }
     }
 
     /// Once every stream is past the warm-up (or has ended): the clock
@@ -410,7 +464,7 @@ impl RawStream {
         let offset = clock.applied_s;
         self.clock = Some(clock);
         let index = |stream: &str, col: &str| self.streams[stream].1.iter().position(|c| c == col).unwrap_or(0);
-        self.engine = Some(Engine::new(m, h, offset, index));
+        self.engine = Some(Engine::new(m, h, offset, self.opts.warm_up_s, index));
         Ok(true)
     }
 
