@@ -44,7 +44,12 @@
 //!   one output sample late, when the next sample of the part is in;
 //! - the checks that judge the **whole drive** run on the warm-up prefix
 //!   (the pose's speed, the wheel counter's width, the antennas' median
-//!   separation against `baseline_m` and their glitch fraction); the
+//!   separation against `baseline_m` and their glitch fraction, and, on
+//!   the prefix imported as the whole import imports a drive, the wheel
+//!   signs, the heading's unit and convention or swapped wheel columns,
+//!   and an IMU's a_y sign and scale, with the whole import's messages and
+//!   warnings: the same as the whole import's for a drive within the
+//!   warm-up, the prefix's figures for a longer one); the
 //!   glitch fraction is judged again over every antenna pair when the drive
 //!   ends; the per-sample limits on every sample; parts shorter than
 //!   `min_part_s` are held until they are long enough or end.
@@ -64,9 +69,8 @@
 //! length (the pose's messages keep coming, so no stream is behind).
 //!
 //! Not streamed (refused by [`RawStream::new`] with the reason; the whole
-//! import reads them): `mcap` and `parquet` sources. The wheel
-//! and heading convention checks and the jitter report of the whole import
-//! are not made. Corrupt wheel rows are dropped by the whole import's rule,
+//! import reads them): `mcap` and `parquet` sources. Corrupt wheel rows
+//! are dropped by the whole import's rule,
 //! each decided once the rows after it that the rule looks at are in.
 
 mod condition;
@@ -74,6 +78,7 @@ mod corrupt;
 mod engine;
 mod heading;
 mod parts;
+mod prefix;
 mod reader;
 mod roll;
 mod tracks;
@@ -444,25 +449,34 @@ impl RawStream {
             let (c, cols) = &self.streams[name];
             prefix_stream(c, cols, t_w)
         };
-        let (ws, ps) = (prefix(&m.wheels.stream), prefix(&m.pose.stream));
+        let mut streams: BTreeMap<String, Stream> = self.streams.keys().map(|n| (n.clone(), prefix(n))).collect();
         let h = self.h;
         // The prefix without its corrupt rows (the stream reports them as it drops them).
-        let (wh, cleaned) = wheels::Wheels::new(m, &ws, &mut Vec::new())?;
-        let ws = cleaned.unwrap_or(ws);
-        let (cum_l, cum_r) = (wh.cum_l, wh.cum_r);
-        let wheel_bad = grid::gaps_of(&ws.t, m.output.max_gap_s, "wheel");
-        let pose = pose::build_pose(m, &ps, &mut self.warnings)?;
-        super::check_budgets(m, &ws.t, &pose.t, h)?;
-        if let Some(b) = m.lateral_acceleration.bank() {
-            // The pairs' whole-drive checks on the prefix (the glitches are
-            // counted and reported over the whole drive).
-            bank::roll(m, b, &prefix(&b.left), &prefix(&b.right), &mut Vec::new())?;
+        let (wh, cleaned) = wheels::Wheels::new(m, &streams[&m.wheels.stream], &mut Vec::new())?;
+        if let (Some(c), Some(ws)) = (cleaned, streams.get_mut(&m.wheels.stream)) {
+            *ws = c;
         }
-        let track = clock::WheelTrack { t: &ws.t, cum_l: &cum_l, cum_r: &cum_r, bad: &wheel_bad };
+        let ws = &streams[&m.wheels.stream];
+        let wheel_bad = grid::gaps_of(&ws.t, m.output.max_gap_s, "wheel");
+        let mut pose = pose::build_pose(m, &streams[&m.pose.stream], &mut self.warnings)?;
+        super::check_budgets(m, &ws.t, &pose.t, h)?;
+        // The pairs' whole-drive checks on the prefix (the glitches are
+        // counted and reported over the whole drive).
+        let mut roll = match m.lateral_acceleration.bank() {
+            Some(b) => Some(bank::roll(m, b, &streams[&b.left], &streams[&b.right], &mut Vec::new())?),
+            None => None,
+        };
+        let track = clock::WheelTrack { t: &ws.t, cum_l: &wh.cum_l, cum_r: &wh.cum_r, bad: &wheel_bad };
         let theta0 = m.output.theta0();
         let clock = clock::align(m, &track, &pose, h, &theta0, &mut self.warnings)?;
         let offset = clock.applied_s;
         self.clock = Some(clock);
+        pose.shift(offset);
+        if let Some(r) = roll.as_mut() {
+            r.shift(offset);
+        }
+        let p = prefix::Prefix { streams: &streams, wheels: &wh, pose: &pose, roll: roll.as_ref() };
+        prefix::check_conventions(m, &p, h, &mut self.warnings)?;
         let index = |stream: &str, col: &str| self.streams[stream].1.iter().position(|c| c == col).unwrap_or(0);
         self.engine = Some(Engine::new(m, h, offset, self.opts.warm_up_s, index));
         Ok(true)

@@ -420,3 +420,63 @@ fn a_stalled_stream_is_named_once_the_rows_held_reach_the_bound() {
     let (_, r, _) = syn.push(&mut s, 32.0);
     assert!(r.as_ref().err().is_none_or(|e| !e.to_string().contains("stalled")), "{r:?}");
 }
+
+/// The streamed import's error, reading the whole manifest.
+fn streamed_error(m: &Manifest, opts: StreamOptions) -> String {
+    let mut s = ManifestStream::open(m, opts).expect("open");
+    loop {
+        match s.next_chunk(400) {
+            Ok(Some(_)) => {}
+            Ok(None) => panic!("{}: no error", m.path.display()),
+            Err(e) => return e.to_string(),
+        }
+    }
+}
+
+/// The wheel and heading convention checks and the IMU's a_y check judge
+/// the warm-up prefix: a drive within the warm-up is refused with the whole
+/// import's message; a longer one names the same key (the figures are the
+/// prefix's).
+#[test]
+fn a_stream_with_a_wrong_convention_is_refused_as_the_whole_import_refuses_it() {
+    let rav4 = "tests/data/comma2k19-rav4/manifest.toml";
+    let van = "tests/data/psu-mapping-van/manifest.toml";
+    let track = "../../examples/psu-mapping-van-testtrack/run-14-45-26.toml";
+    type Edit = fn(&str) -> String;
+    let cases: [(&str, Edit, &str); 6] = [
+        (rav4, |t| t.replace("{ column = \"rl_mps\" }", "{ column = \"rl_mps\", sign = -1 }"), "wheels.rear_left.sign"),
+        (
+            van,
+            |t| t.replace("{ column = \"right_ticks_cum\" }", "{ column = \"right_ticks_cum\", sign = -1 }"),
+            "wheels.rear_right.sign",
+        ),
+        (track, |t| t.replace("unit = \"rad\"", "unit = \"deg\""), "pose.heading.unit"),
+        (track, |t| t.replace("convention = \"enu\"", "convention = \"ned\""), "pose.heading.convention"),
+        (
+            track,
+            |t| {
+                without(t, "[pose.heading]")
+                    .replace("{ column = \"left_ticks_cum\" }", "{ column = \"RIGHT\" }")
+                    .replace("{ column = \"right_ticks_cum\" }", "{ column = \"left_ticks_cum\" }")
+                    .replace("{ column = \"RIGHT\" }", "{ column = \"right_ticks_cum\" }")
+            },
+            "wheels.rear_left.column",
+        ),
+        (rav4, |t| t.replace("sign = -1", "sign = 1"), "lateral_acceleration.sign"),
+    ];
+    for (rel, edit, key) in cases {
+        let m = match variant(rel, edit) {
+            Ok(m) => m,
+            Err(e) => panic!("{rel}: {e}"),
+        };
+        let whole = match crate::io::import::import(&m) {
+            Ok(i) => panic!("{rel}, {key}: the whole import takes it: {:?}", i.report.warnings),
+            Err(e) => e.to_string(),
+        };
+        assert!(whole.contains(key), "{rel}: {whole}");
+        let within = streamed_error(&m, StreamOptions { warm_up_s: 1000.0 });
+        assert_eq!(within, whole, "{rel}");
+        let prefix = streamed_error(&m, StreamOptions { warm_up_s: 120.0 });
+        assert!(prefix.contains(key), "{rel}, a 120 s warm-up: {prefix}");
+    }
+}
