@@ -309,9 +309,18 @@ impl RawStream {
                 ),
             });
         }
+        let jitter = match m.streams[&m.wheels.stream].nominal_rate_hz {
+            Some(_) => {
+                let (raw, dejittered) = asm.noise.pct();
+                Some(wheels::jitter_of(m, raw, dejittered)?)
+            }
+            None => None,
+        };
         let clock =
             self.clock.clone().ok_or_else(|| m.error("output.clock_offset", "no clock offset was estimated"))?;
-        self.report = Some(self.make_report(start, end, clock));
+        let mut report = self.make_report(start, end, clock);
+        report.jitter = jitter;
+        self.report = Some(report);
         Ok(())
     }
 
@@ -350,7 +359,7 @@ impl RawStream {
     }
 
     /// What was read, estimated, split and dropped, after
-    /// [`RawStream::finish`] (the whole import's report; no jitter report).
+    /// [`RawStream::finish`] (the whole import's report).
     pub fn report(&self) -> Option<&ImportReport> {
         self.report.as_ref()
     }

@@ -66,6 +66,7 @@ fn a_drive_within_the_warm_up_is_the_whole_import_bit_for_bit() {
         assert_eq!(r.parts.len(), whole.report.parts.len());
         assert_eq!(r.gaps.len(), whole.report.gaps.len());
         assert_eq!(r.distance_m.to_bits(), whole.drive.distance_m().to_bits());
+        assert_eq!(jitter_bits(&r), jitter_bits(&whole.report), "{rel}: the jitter report");
         // the road bank's roll: its pairs, glitches and statistics
         assert_eq!(r.lateral_acceleration, whole.report.lateral_acceleration, "{rel}");
         let glitches =
@@ -76,6 +77,12 @@ fn a_drive_within_the_warm_up_is_the_whole_import_bit_for_bit() {
             whole.report.gaps.iter().map(|g| &g.reasons).collect::<Vec<_>>()
         );
     }
+}
+
+/// The jitter report's figures, bit for bit (`None` without a de-jittered
+/// wheel stream).
+fn jitter_bits(r: &ImportReport) -> Option<[u64; 2]> {
+    r.jitter.as_ref().map(|j| [j.wheel_speed_noise_raw_pct.to_bits(), j.wheel_speed_noise_dejittered_pct.to_bits()])
 }
 
 #[test]
@@ -246,6 +253,8 @@ fn with_the_clock_offset_given_a_long_banked_drive_is_the_whole_import_bit_for_b
         assert!(whole.drive.len() as f64 * 0.025 > 120.0, "{rel}: longer than the warm-up");
         assert_eq!(d.fingerprint(), whole.drive.fingerprint(), "{rel}");
         assert_eq!(r.lateral_acceleration, whole.report.lateral_acceleration, "{rel}");
+        assert!(r.jitter.is_some(), "{rel}: the encoders are de-jittered");
+        assert_eq!(jitter_bits(&r), jitter_bits(&whole.report), "{rel}: the jitter report");
     }
 }
 
