@@ -258,6 +258,9 @@ fn with_the_clock_offset_given_a_long_banked_drive_is_the_whole_import_bit_for_b
     }
 }
 
+/// An output sample: time and signals.
+type Sample = (f64, [f64; 7]);
+
 /// A drive on two streams, wheels `w` at 50 Hz (rev/s) and a local pose
 /// `p` at 10 Hz without a heading: standing still for `still_s`, then
 /// driving `drive_s` along gentle curves (consistent with θ_0).
@@ -340,7 +343,7 @@ y = "y"
     /// Pushes the messages in time order (pose messages up to `pose_until`
     /// s only), taking the samples as they come; the most rows held at
     /// once, the first error, and the samples (time, signals).
-    fn push(&self, s: &mut RawStream, pose_until: f64) -> (usize, crate::Result<()>, Vec<(f64, [f64; 7])>) {
+    fn push(&self, s: &mut RawStream, pose_until: f64) -> (usize, crate::Result<()>, Vec<Sample>) {
         let (mut i, mut j, mut most) = (0, 0, 0);
         let mut taken = Vec::new();
         let mut take = |s: &mut RawStream| {
