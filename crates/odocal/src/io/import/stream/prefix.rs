@@ -56,6 +56,8 @@ pub(crate) fn check_conventions(m: &Manifest, p: &Prefix<'_>, h: f64, warnings: 
         py: &s.py,
         psi: &s.psi,
     };
+    // The wheel speeds first, as the whole import judges them.
+    checks::wheel_speeds(m, &resampled, &theta0)?;
     checks::conventions(m, &resampled, &theta0, warnings)?;
     if !matches!(m.lateral_acceleration, super::super::LateralAccelerationSpec::Imu { .. }) {
         return Ok(());
