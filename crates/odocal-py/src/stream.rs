@@ -145,7 +145,7 @@ impl PyRawStream {
     }
 
     /// The import report after `finish()` (a dict of the library's
-    /// `ImportReport`, without the jitter report), else None.
+    /// `ImportReport`), else None.
     #[getter]
     fn report<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
         self.raw.report().map(|r| to_py(py, &json(r)?)).transpose()

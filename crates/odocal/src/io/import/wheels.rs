@@ -226,15 +226,16 @@ pub(crate) fn jitter_report(
     };
     let nl_raw = raw(&w.rear_left, "wheels.rear_left")?;
     let nr_raw = raw(&w.rear_right, "wheels.rear_right")?;
-    let both = |a: &[f64], b: &[f64]| {
-        let x = speed_noise_pct(a, kept);
-        let y = speed_noise_pct(b, kept);
-        ((x * x + y * y) / 2.0).sqrt()
-    };
-    let r = JitterReport {
-        wheel_speed_noise_raw_pct: both(&nl_raw, &nr_raw),
-        wheel_speed_noise_dejittered_pct: both(n_rl, n_rr),
-    };
+    let noise = |n: &[f64]| speed_noise_pct(n, kept);
+    jitter_of(m, [noise(&nl_raw), noise(&nr_raw)], [noise(n_rl), noise(n_rr)]).map(Some)
+}
+
+/// The jitter report from each wheel's speed noise (per cent, left and
+/// right) with the raw and the de-jittered stamps.
+pub(crate) fn jitter_of(m: &Manifest, raw: [f64; 2], dejittered: [f64; 2]) -> Result<JitterReport> {
+    let w = &m.wheels;
+    let both = |[x, y]: [f64; 2]| ((x * x + y * y) / 2.0).sqrt();
+    let r = JitterReport { wheel_speed_noise_raw_pct: both(raw), wheel_speed_noise_dejittered_pct: both(dejittered) };
     if !(r.wheel_speed_noise_raw_pct.is_finite() && r.wheel_speed_noise_dejittered_pct.is_finite()) {
         return Err(m.error(
             &format!("streams.{}", w.stream),
@@ -242,7 +243,7 @@ pub(crate) fn jitter_report(
              wheels.signal, ticks_per_rev and counter_bits",
         ));
     }
-    Ok(Some(r))
+    Ok(r)
 }
 
 /// What one model "revolution" is, i.e. how to read c_e.

@@ -115,6 +115,11 @@ impl Conditioner {
         }
     }
 
+    /// The stamp of the last message kept, s (unit and offset applied).
+    pub(crate) fn last_stamp(&self) -> Option<f64> {
+        self.last
+    }
+
     /// The stream's file.
     pub(crate) fn path(&self) -> &std::path::Path {
         &self.path

@@ -60,6 +60,9 @@ pub(crate) struct Engine {
     pose_path: PathBuf,
     pub wheel: Track<2>,
     rot: [Rotation; 2],
+    /// The wheels on their raw stamps, for the jitter report, when the
+    /// wheel stream is de-jittered.
+    raw: Option<(Track<2>, [Rotation; 2])>,
     pub corrupt: CorruptFilter,
     pub pose: Track<3>,
     pose_b: PoseBuilder,
@@ -79,9 +82,16 @@ pub(crate) struct Engine {
 }
 
 impl Engine {
-    /// The engine of `m`, the pose moved by `offset_s`; `index(stream,
-    /// column)` finds a column in its stream's rows.
-    pub(crate) fn new(m: &Manifest, h: f64, offset_s: f64, index: impl Fn(&str, &str) -> usize) -> Engine {
+    /// The engine of `m`, the pose moved by `offset_s`, a heading derived
+    /// from the track held for at most `max_hold_s` before the first
+    /// motion; `index(stream, column)` finds a column in its stream's rows.
+    pub(crate) fn new(
+        m: &Manifest,
+        h: f64,
+        offset_s: f64,
+        max_hold_s: f64,
+        index: impl Fn(&str, &str) -> usize,
+    ) -> Engine {
         let w = &m.wheels;
         let column = |stream: &str, col: &str, factor: f64, integrate: bool, what: String| Column {
             stream: stream.to_string(),
@@ -122,9 +132,10 @@ impl Engine {
             pose_path: base.join(m.streams[&m.pose.stream].source.file()),
             wheel: Track::new(),
             rot: rotations(),
+            raw: m.streams[&w.stream].nominal_rate_hz.map(|_| (Track::new(), rotations())),
             corrupt: CorruptFilter::new(m, rotations()),
             pose: Track::new(),
-            pose_b: PoseBuilder::new(m, |c| index(&m.pose.stream, c)),
+            pose_b: PoseBuilder::new(m, max_hold_s, |c| index(&m.pose.stream, c)),
             imu,
             side,
             roll,
@@ -162,10 +173,16 @@ impl Engine {
 
     /// The wheel rows kept by the corrupt-row filter into the wheel track.
     fn push_wheels(&mut self, m: &Manifest, kept: Vec<Row>) -> Result<()> {
-        for row in kept {
+        for mut row in kept {
             let l = self.rot[0].next(&self.wheel_path, &row)?;
             let r = self.rot[1].next(&self.wheel_path, &row)?;
             self.wheel.push(row.t, 0.0, [l, r], m.output.max_gap_s, "wheel");
+            if let Some((track, rot)) = self.raw.as_mut() {
+                row.t = row.t_raw;
+                let l = rot[0].next(&self.wheel_path, &row)?;
+                let r = rot[1].next(&self.wheel_path, &row)?;
+                track.push(row.t, 0.0, [l, r], f64::INFINITY, "wheel");
+            }
         }
         Ok(())
     }
@@ -178,6 +195,9 @@ impl Engine {
             self.corrupt.end(&mut kept);
             self.push_wheels(m, kept)?;
             self.wheel.ended = true;
+            if let Some((track, _)) = self.raw.as_mut() {
+                track.ended = true;
+            }
         }
         if name == m.pose.stream && !self.pose.ended {
             let before = self.pose.t.len();
@@ -199,6 +219,25 @@ impl Engine {
     /// Pose samples waiting for their derived heading.
     pub(crate) fn pose_held(&self) -> usize {
         self.pose_b.held()
+    }
+
+    /// The longest span of stream time any track holds, s (the wheel
+    /// track's while the pose waits for a stream behind, and so on).
+    pub(crate) fn held_span_s(&self) -> f64 {
+        fn span<const N: usize>(t: &Track<N>) -> f64 {
+            match (t.t.front(), t.t.back()) {
+                (Some(a), Some(b)) => b - a,
+                _ => 0.0,
+            }
+        }
+        let mut most = span(&self.wheel).max(span(&self.pose));
+        for c in [self.imu.as_ref(), self.side.as_ref()].into_iter().flatten() {
+            most = most.max(span(&c.track));
+        }
+        if let Some(r) = &self.roll {
+            most = most.max(span(&r.track)).max(r.held_span_s());
+        }
+        most
     }
 
     /// Marks the pose samples of the track from index `before` on.
@@ -275,6 +314,7 @@ impl Engine {
             self.wheel.ended && self.pose.ended && self.tracks().all(|(_, t)| t.ended) && roll.is_none_or(|t| t.ended);
         !all_ended
             && self.wheel.covers(q)
+            && self.raw.as_ref().is_none_or(|(t, _)| t.covers(q))
             && self.pose.covers(q)
             && self.tracks().all(|(_, t)| t.covers(q))
             && roll.is_none_or(|t| t.covers(q))
@@ -283,6 +323,9 @@ impl Engine {
     /// Computes and assembles every output sample whose inputs are in.
     pub(crate) fn step(&mut self, m: &Manifest) -> Result<()> {
         let (Some(start), h) = (self.start, self.h) else { return Ok(()) };
+        // Rows before the next output time that no output uses (those
+        // before the grid's origin, on a stream that starts early).
+        self.prune(start + self.k as f64 * h);
         loop {
             let k = self.k;
             if self.n_end.is_some_and(|n| k >= n) {
@@ -297,15 +340,23 @@ impl Engine {
                 a.push(m, s)?;
             }
             self.k += 1;
-            let next = start + self.k as f64 * h;
-            self.wheel.prune(next, h);
-            self.pose.prune(next, h);
-            for c in [self.imu.as_mut(), self.side.as_mut()].into_iter().flatten() {
-                c.track.prune(next, h);
-            }
-            if let Some(r) = self.roll.as_mut() {
-                r.track.prune(next, h);
-            }
+            self.prune(start + self.k as f64 * h);
+        }
+    }
+
+    /// Drops what no output at or after `next` uses.
+    fn prune(&mut self, next: f64) {
+        let h = self.h;
+        self.wheel.prune(next, h);
+        if let Some((t, _)) = self.raw.as_mut() {
+            t.prune(next, h);
+        }
+        self.pose.prune(next, h);
+        for c in [self.imu.as_mut(), self.side.as_mut()].into_iter().flatten() {
+            c.track.prune(next, h);
+        }
+        if let Some(r) = self.roll.as_mut() {
+            r.track.prune(next, h);
         }
     }
 
@@ -327,6 +378,7 @@ impl Engine {
         }
         let n_rl = (self.wheel.at(e, 0) - self.wheel.at(g, 0)) / h;
         let n_rr = (self.wheel.at(e, 1) - self.wheel.at(g, 1)) / h;
+        let raw = self.raw.as_ref().map(|(t, _)| [0, 1].map(|i| (t.at(e, i) - t.at(g, i)) / h));
         let a_y = match (&m.lateral_acceleration, &self.imu) {
             (LateralAccelerationSpec::Imu { .. }, Some(c)) => (c.track.at(e, 0) - c.track.at(g, 0)) / h,
             // derived from the pose of the samples either side, in the parts
@@ -347,7 +399,7 @@ impl Engine {
         let measured = self.marks.front() == Some(&k);
         let sig = [self.pose.at(g, 0), self.pose.at(g, 1), self.pose.at(g, 2), n_rl, n_rr, beta, a_y];
         let phi = self.roll.as_ref().map_or(0.0, |r| r.track.at(g, 0));
-        GridSample { k, sig, phi, measured, invalid }
+        GridSample { k, sig, phi, measured, invalid, raw }
     }
 }
 

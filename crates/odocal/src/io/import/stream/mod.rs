@@ -33,13 +33,23 @@
 //!   unwrapped and averaged onto them: each sample's heading waits for the
 //!   next sample, and the samples at the start wait until the vehicle
 //!   first moves faster than `derive_heading_min_speed_m_per_s` (their
-//!   heading is back-filled from that direction);
+//!   heading is back-filled from that direction) — for at most
+//!   [`StreamOptions::warm_up_s`] of pose time: a longer standstill before
+//!   the first motion releases its oldest samples without a heading, and
+//!   the output samples before the samples still held are invalid (a gap,
+//!   "pose heading unknown"; the whole import keeps them in a part with
+//!   the back-filled heading; the samples after are the whole import's);
 //! - a lateral acceleration **from the pose** (speed × yaw rate of the
 //!   reference over the samples either side, within the part) is derived
 //!   one output sample late, when the next sample of the part is in;
 //! - the checks that judge the **whole drive** run on the warm-up prefix
 //!   (the pose's speed, the wheel counter's width, the antennas' median
-//!   separation against `baseline_m` and their glitch fraction); the
+//!   separation against `baseline_m` and their glitch fraction, and, on
+//!   the prefix imported as the whole import imports a drive, the wheel
+//!   signs, the heading's unit and convention or swapped wheel columns,
+//!   and an IMU's a_y sign and scale, with the whole import's messages and
+//!   warnings: the same as the whole import's for a drive within the
+//!   warm-up, the prefix's figures for a longer one); the
 //!   glitch fraction is judged again over every antenna pair when the drive
 //!   ends; the per-sample limits on every sample; parts shorter than
 //!   `min_part_s` are held until they are long enough or end.
@@ -47,10 +57,20 @@
 //! With the clock offset of the whole import, the samples are the whole
 //! import's bit for bit, road bank included.
 //!
+//! The rows held are bounded: the warm-up holds `warm_up_s` of the wheel
+//! stream (and the other streams to the same time); after it, each track
+//! holds the rows around the next output time, and rows before the grid's
+//! origin are dropped. A stream that stops sending while the others go on
+//! makes them wait: once the rows held span more than 2 × `warm_up_s` and
+//! that stream's last message is more than `warm_up_s` behind the newest,
+//! [`RawStream::push_message`] fails with an error naming it (end the
+//! stream with [`RawStream::end_stream`] if it has stopped). A stretch of
+//! pose samples of rejected quality holds the other streams' rows for its
+//! length (the pose's messages keep coming, so no stream is behind).
+//!
 //! Not streamed (refused by [`RawStream::new`] with the reason; the whole
-//! import reads them): `mcap` and `parquet` sources. The wheel
-//! and heading convention checks and the jitter report of the whole import
-//! are not made. Corrupt wheel rows are dropped by the whole import's rule,
+//! import reads them): `mcap` and `parquet` sources. Corrupt wheel rows
+//! are dropped by the whole import's rule,
 //! each decided once the rows after it that the rule looks at are in.
 
 mod condition;
@@ -58,6 +78,7 @@ mod corrupt;
 mod engine;
 mod heading;
 mod parts;
+mod prefix;
 mod reader;
 mod roll;
 mod tracks;
@@ -213,7 +234,8 @@ impl RawStream {
     /// # Errors
     /// An unknown stream or a wrong number of values; the whole import's
     /// errors about the stream's rows (time going backwards, a value that
-    /// is not finite, a limit exceeded), naming the row.
+    /// is not finite, a limit exceeded), naming the row; a stream that
+    /// stalled while the others went on, naming it (see the module's docs).
     pub fn push_message(&mut self, stream: &str, t: f64, values: &[f64]) -> Result<()> {
         self.push_row(stream, t, values.to_vec(), None)
     }
@@ -287,9 +309,18 @@ impl RawStream {
                 ),
             });
         }
+        let jitter = match m.streams[&m.wheels.stream].nominal_rate_hz {
+            Some(_) => {
+                let (raw, dejittered) = asm.noise.pct();
+                Some(wheels::jitter_of(m, raw, dejittered)?)
+            }
+            None => None,
+        };
         let clock =
             self.clock.clone().ok_or_else(|| m.error("output.clock_offset", "no clock offset was estimated"))?;
-        self.report = Some(self.make_report(start, end, clock));
+        let mut report = self.make_report(start, end, clock);
+        report.jitter = jitter;
+        self.report = Some(report);
         Ok(())
     }
 
@@ -328,7 +359,7 @@ impl RawStream {
     }
 
     /// What was read, estimated, split and dropped, after
-    /// [`RawStream::finish`] (the whole import's report; no jitter report).
+    /// [`RawStream::finish`] (the whole import's report).
     pub fn report(&self) -> Option<&ImportReport> {
         self.report.as_ref()
     }
@@ -365,7 +396,44 @@ impl RawStream {
             }
         }
         e.try_start(m);
-        e.step(m)
+        e.step(m)?;
+        self.check_stall()
+    }
+
+    /// The rows held must not grow without bound while one stream stops
+    /// sending and the others go on: once a stream's or track's held rows
+    /// span more than twice the warm-up and a stream's last message is
+    /// more than the warm-up behind the newest, that stream is named in
+    /// an error.
+    fn check_stall(&self) -> Result<()> {
+        let bound = 2.0 * self.opts.warm_up_s;
+        let queued = self.streams.values().map(|(c, _)| match (c.ready.front(), c.ready.back()) {
+            (Some(a), Some(b)) => b.t - a.t,
+            _ => 0.0,
+        });
+        let held = queued.chain(self.engine.as_ref().map(|e| e.held_span_s())).fold(0.0, f64::max);
+        if held <= bound {
+            return Ok(());
+        }
+        let newest = self.streams.values().filter_map(|(c, _)| c.last_stamp()).fold(f64::NEG_INFINITY, f64::max);
+        let behind = self
+            .streams
+            .values()
+            .filter(|(c, _)| !c.ended)
+            .map(|(c, _)| (c, c.last_stamp().unwrap_or(f64::NEG_INFINITY)))
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+        match behind {
+            Some((c, last)) if newest - last > self.opts.warm_up_s => Err(self.m.error(
+                &format!("streams.{}", c.name),
+                format!(
+                    "the stream stalled: its last message is at {} while the others went on to {newest:.3} s; the \
+                     streamed import holds their rows until it catches up, at most 2 × warm_up_s = {bound} s of \
+                     them; end the stream (end_stream) if it has stopped, or push the streams in time order",
+                    if last.is_finite() { format!("{last:.3} s") } else { "— (none yet)".to_string() },
+                ),
+            )),
+            _ => Ok(()),
+        }
     }
 
     /// Once every stream is past the warm-up (or has ended): the clock
@@ -390,27 +458,36 @@ impl RawStream {
             let (c, cols) = &self.streams[name];
             prefix_stream(c, cols, t_w)
         };
-        let (ws, ps) = (prefix(&m.wheels.stream), prefix(&m.pose.stream));
+        let mut streams: BTreeMap<String, Stream> = self.streams.keys().map(|n| (n.clone(), prefix(n))).collect();
         let h = self.h;
         // The prefix without its corrupt rows (the stream reports them as it drops them).
-        let (wh, cleaned) = wheels::Wheels::new(m, &ws, &mut Vec::new())?;
-        let ws = cleaned.unwrap_or(ws);
-        let (cum_l, cum_r) = (wh.cum_l, wh.cum_r);
-        let wheel_bad = grid::gaps_of(&ws.t, m.output.max_gap_s, "wheel");
-        let pose = pose::build_pose(m, &ps, &mut self.warnings)?;
-        super::check_budgets(m, &ws.t, &pose.t, h)?;
-        if let Some(b) = m.lateral_acceleration.bank() {
-            // The pairs' whole-drive checks on the prefix (the glitches are
-            // counted and reported over the whole drive).
-            bank::roll(m, b, &prefix(&b.left), &prefix(&b.right), &mut Vec::new())?;
+        let (wh, cleaned) = wheels::Wheels::new(m, &streams[&m.wheels.stream], &mut Vec::new())?;
+        if let (Some(c), Some(ws)) = (cleaned, streams.get_mut(&m.wheels.stream)) {
+            *ws = c;
         }
-        let track = clock::WheelTrack { t: &ws.t, cum_l: &cum_l, cum_r: &cum_r, bad: &wheel_bad };
+        let ws = &streams[&m.wheels.stream];
+        let wheel_bad = grid::gaps_of(&ws.t, m.output.max_gap_s, "wheel");
+        let mut pose = pose::build_pose(m, &streams[&m.pose.stream], &mut self.warnings)?;
+        super::check_budgets(m, &ws.t, &pose.t, h)?;
+        // The pairs' whole-drive checks on the prefix (the glitches are
+        // counted and reported over the whole drive).
+        let mut roll = match m.lateral_acceleration.bank() {
+            Some(b) => Some(bank::roll(m, b, &streams[&b.left], &streams[&b.right], &mut Vec::new())?),
+            None => None,
+        };
+        let track = clock::WheelTrack { t: &ws.t, cum_l: &wh.cum_l, cum_r: &wh.cum_r, bad: &wheel_bad };
         let theta0 = m.output.theta0();
         let clock = clock::align(m, &track, &pose, h, &theta0, &mut self.warnings)?;
         let offset = clock.applied_s;
         self.clock = Some(clock);
+        pose.shift(offset);
+        if let Some(r) = roll.as_mut() {
+            r.shift(offset);
+        }
+        let p = prefix::Prefix { streams: &streams, wheels: &wh, pose: &pose, roll: roll.as_ref() };
+        prefix::check_conventions(m, &p, h, &mut self.warnings)?;
         let index = |stream: &str, col: &str| self.streams[stream].1.iter().position(|c| c == col).unwrap_or(0);
-        self.engine = Some(Engine::new(m, h, offset, index));
+        self.engine = Some(Engine::new(m, h, offset, self.opts.warm_up_s, index));
         Ok(true)
     }
 

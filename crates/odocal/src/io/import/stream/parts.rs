@@ -24,6 +24,9 @@ pub(crate) struct GridSample {
     pub phi: f64,
     pub measured: bool,
     pub invalid: Option<String>,
+    /// The wheels' speeds on the raw stamps (the jitter report's), when
+    /// the wheel stream is de-jittered.
+    pub raw: Option<[f64; 2]>,
 }
 
 /// A kept output sample.
@@ -37,6 +40,46 @@ pub(crate) struct OutSample {
     pub sig: [f64; 7],
     /// True when the reference was measured at this sample.
     pub measured: bool,
+}
+
+/// The speed noise of the jitter report ([`speed_noise_pct`](super::super::wheels::speed_noise_pct))
+/// as the kept samples come: the sums over the samples of each part with a
+/// sample either side, for the wheels with raw and de-jittered stamps.
+#[derive(Debug, Default)]
+pub(crate) struct SpeedNoise {
+    /// The part and speeds `[raw l, raw r, l, r]` of the last two samples.
+    last: VecDeque<(usize, [f64; 4])>,
+    s2: [f64; 4],
+    sn: [f64; 4],
+    c: [usize; 4],
+}
+
+impl SpeedNoise {
+    fn push(&mut self, part: usize, n: [f64; 4]) {
+        if self.last.front().is_some_and(|(p, _)| *p != part) || self.last.back().is_some_and(|(p, _)| *p != part) {
+            self.last.clear();
+        }
+        self.last.push_back((part, n));
+        if self.last.len() < 3 {
+            return;
+        }
+        let (a, b, c) = (self.last[0].1, self.last[1].1, self.last[2].1);
+        for i in 0..4 {
+            if b[i].abs() > 1.0 {
+                let d2 = c[i] - 2.0 * b[i] + a[i];
+                self.s2[i] += d2 * d2 / 6.0;
+                self.sn[i] += b[i] * b[i];
+                self.c[i] += 1;
+            }
+        }
+        self.last.pop_front();
+    }
+
+    /// The noise, per cent: `[raw l, raw r]` and `[l, r]`.
+    pub(crate) fn pct(&self) -> ([f64; 2], [f64; 2]) {
+        let p = |i: usize| if self.c[i] == 0 { f64::NAN } else { 100.0 * (self.s2[i] / self.sn[i]).sqrt() };
+        ([p(0), p(1)], [p(2), p(3)])
+    }
 }
 
 /// A centred moving average over a part that grows as samples arrive,
@@ -177,6 +220,8 @@ pub(crate) struct Assembler {
     /// The smoothed roll over the kept samples: sum and largest |φ|, rad.
     pub phi_sum: f64,
     pub phi_max: f64,
+    /// The jitter report's speed noise, when the wheels are de-jittered.
+    pub noise: SpeedNoise,
 }
 
 impl Assembler {
@@ -216,6 +261,7 @@ impl Assembler {
             // the start of a sum over no term, as the whole import's mean
             phi_sum: std::iter::empty::<f64>().sum(),
             phi_max: 0.0,
+            noise: SpeedNoise::default(),
         }
     }
 
@@ -396,6 +442,9 @@ impl Assembler {
             }
             self.prev_xy = Some((s.sig[0], s.sig[1]));
             self.samples += 1;
+            if let Some([l, r]) = s.raw {
+                self.noise.push(self.kept_parts, [l, r, s.sig[3], s.sig[4]]);
+            }
             self.out.push_back(OutSample {
                 part: self.kept_parts,
                 t: s.k as f64 * self.h,

@@ -90,6 +90,8 @@ pub(crate) struct RollBuilder {
     right_v: Vec<[f64; 3]>,
     /// The time of the right antenna's last row, accepted or not.
     right_last_row: Option<f64>,
+    /// The time of the left antenna's last row, accepted or not.
+    left_last_row: Option<f64>,
     /// Pairs (both antennas at a left stamp), and those beyond the roll
     /// limit (with the first: antenna time, sin φ).
     pub pairs: usize,
@@ -122,6 +124,7 @@ impl RollBuilder {
             right_t: Vec::new(),
             right_v: Vec::new(),
             right_last_row: None,
+            left_last_row: None,
             pairs: 0,
             beyond: 0,
             first_beyond: None,
@@ -136,6 +139,7 @@ impl RollBuilder {
             if let Some(v) = self.left.accepted(&self.b, row)? {
                 self.pending.push_back((row.t, v[2]));
             }
+            self.left_last_row = Some(row.t);
         }
         if name == self.right.name {
             if let Some(v) = self.right.accepted(&self.b, row)? {
@@ -145,6 +149,15 @@ impl RollBuilder {
             self.right_last_row = Some(row.t);
         }
         self.pair_ready();
+        // Left samples to come are later than the left antenna's last row
+        // (through a stretch of rejected left samples too).
+        if let Some(next) = self.pending.front().map(|p| p.0).or(self.left_last_row) {
+            let j = self.right_t.partition_point(|x| *x < next);
+            if j > 64 {
+                self.right_t.drain(..j - 1);
+                self.right_v.drain(..j - 1);
+            }
+        }
         Ok(())
     }
 
@@ -197,6 +210,20 @@ impl RollBuilder {
                 self.right_v.drain(..j - 1);
             }
         }
+    }
+
+    /// The longest span of antenna time held: the left samples waiting for
+    /// the right antenna, the right samples waiting for left ones, s.
+    pub(crate) fn held_span_s(&self) -> f64 {
+        let left = match (self.pending.front(), self.pending.back()) {
+            (Some(a), Some(b)) => b.0 - a.0,
+            _ => 0.0,
+        };
+        let right = match (self.right_t.first(), self.right_t.last()) {
+            (Some(a), Some(b)) => b - a,
+            _ => 0.0,
+        };
+        left.max(right)
     }
 
     /// Samples held: waiting left ones, right ones and the track's.

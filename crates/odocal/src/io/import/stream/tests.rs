@@ -66,6 +66,7 @@ fn a_drive_within_the_warm_up_is_the_whole_import_bit_for_bit() {
         assert_eq!(r.parts.len(), whole.report.parts.len());
         assert_eq!(r.gaps.len(), whole.report.gaps.len());
         assert_eq!(r.distance_m.to_bits(), whole.drive.distance_m().to_bits());
+        assert_eq!(jitter_bits(&r), jitter_bits(&whole.report), "{rel}: the jitter report");
         // the road bank's roll: its pairs, glitches and statistics
         assert_eq!(r.lateral_acceleration, whole.report.lateral_acceleration, "{rel}");
         let glitches =
@@ -76,6 +77,12 @@ fn a_drive_within_the_warm_up_is_the_whole_import_bit_for_bit() {
             whole.report.gaps.iter().map(|g| &g.reasons).collect::<Vec<_>>()
         );
     }
+}
+
+/// The jitter report's figures, bit for bit (`None` without a de-jittered
+/// wheel stream).
+fn jitter_bits(r: &ImportReport) -> Option<[u64; 2]> {
+    r.jitter.as_ref().map(|j| [j.wheel_speed_noise_raw_pct.to_bits(), j.wheel_speed_noise_dejittered_pct.to_bits()])
 }
 
 #[test]
@@ -246,5 +253,242 @@ fn with_the_clock_offset_given_a_long_banked_drive_is_the_whole_import_bit_for_b
         assert!(whole.drive.len() as f64 * 0.025 > 120.0, "{rel}: longer than the warm-up");
         assert_eq!(d.fingerprint(), whole.drive.fingerprint(), "{rel}");
         assert_eq!(r.lateral_acceleration, whole.report.lateral_acceleration, "{rel}");
+        assert!(r.jitter.is_some(), "{rel}: the encoders are de-jittered");
+        assert_eq!(jitter_bits(&r), jitter_bits(&whole.report), "{rel}: the jitter report");
+    }
+}
+
+/// An output sample: time and signals.
+type Sample = (f64, [f64; 7]);
+
+/// A drive on two streams, wheels `w` at 50 Hz (rev/s) and a local pose
+/// `p` at 10 Hz without a heading: standing still for `still_s`, then
+/// driving `drive_s` along gentle curves (consistent with θ_0).
+struct Synthetic {
+    wheels: Vec<(f64, [f64; 2])>,
+    pose: Vec<(f64, [f64; 2])>,
+}
+
+impl Synthetic {
+    fn new(still_s: f64, drive_s: f64) -> Synthetic {
+        let (c_e, t_r) = (2.0, 1.6);
+        let end = still_s + drive_s;
+        let motion = |t: f64| -> (f64, f64) {
+            let u = t - still_s;
+            if u <= 0.0 {
+                (0.0, 0.0)
+            } else {
+                let v = 8.0 * (u / 5.0).min(1.0);
+                (v, 0.15 * (u / 23.0).sin() * (v / 8.0))
+            }
+        };
+        let wheels = (0..=(end * 50.0) as usize)
+            .map(|k| {
+                let t = k as f64 * 0.02;
+                let (v, om) = motion(t);
+                (t, [(v - 0.5 * om * t_r) / c_e, (v + 0.5 * om * t_r) / c_e])
+            })
+            .collect();
+        let (mut x, mut y, mut psi) = (12.0f64, -3.0f64, 0.4f64);
+        let mut pose = Vec::new();
+        let dt = 0.001;
+        for k in 0..=(end / dt) as usize {
+            let t = k as f64 * dt;
+            if k % 100 == 0 {
+                pose.push((t, [x, y]));
+            }
+            let (v, om) = motion(t);
+            x += v * psi.cos() * dt;
+            y += v * psi.sin() * dt;
+            psi += om * dt;
+        }
+        Synthetic { wheels, pose }
+    }
+
+    /// The manifest over the files in `dir` (written by [`Synthetic::write`]).
+    fn manifest(dir: &Path) -> Manifest {
+        let text = r#"[output]
+clock_offset = 0.0
+[streams.w]
+file = "w.csv"
+time_column = "t"
+[streams.p]
+file = "p.csv"
+time_column = "t"
+[wheels]
+stream = "w"
+signal = "rev_per_s"
+rear_left = { column = "l" }
+rear_right = { column = "r" }
+[pose]
+stream = "p"
+[pose.position]
+kind = "local"
+x = "x"
+y = "y"
+"#;
+        Manifest::parse(text, &dir.join("m.toml")).expect("manifest")
+    }
+
+    fn write(&self, dir: &Path) {
+        for (name, head, rows) in [("w.csv", "t,l,r", &self.wheels), ("p.csv", "t,x,y", &self.pose)] {
+            let mut s = format!("{head}\n");
+            for (t, v) in rows.iter() {
+                s.push_str(&format!("{t},{},{}\n", v[0], v[1]));
+            }
+            std::fs::write(dir.join(name), s).expect("write");
+        }
+    }
+
+    /// Pushes the messages in time order (pose messages up to `pose_until`
+    /// s only), taking the samples as they come; the most rows held at
+    /// once, the first error, and the samples (time, signals).
+    fn push(&self, s: &mut RawStream, pose_until: f64) -> (usize, crate::Result<()>, Vec<Sample>) {
+        let (mut i, mut j, mut most) = (0, 0, 0);
+        let mut taken = Vec::new();
+        let mut take = |s: &mut RawStream| {
+            while let Some(c) = s.take_chunk(400) {
+                for k in 0..c.t.len() {
+                    let g = &c.signals;
+                    taken.push((c.t[k], [g.px[k], g.py[k], g.psi[k], g.n_rl[k], g.n_rr[k], g.beta[k], g.a_y[k]]));
+                }
+            }
+        };
+        while i < self.wheels.len() || j < self.pose.len() {
+            let wheel_next = j >= self.pose.len() || (i < self.wheels.len() && self.wheels[i].0 <= self.pose[j].0);
+            let r = if wheel_next {
+                i += 1;
+                s.push_message("w", self.wheels[i - 1].0, &self.wheels[i - 1].1)
+            } else {
+                j += 1;
+                if self.pose[j - 1].0 > pose_until {
+                    continue;
+                }
+                s.push_message("p", self.pose[j - 1].0, &self.pose[j - 1].1)
+            };
+            if r.is_err() {
+                return (most, r, taken);
+            }
+            take(s);
+            most = most.max(s.held());
+        }
+        let r = s.finish();
+        take(s);
+        (most, r, taken)
+    }
+}
+
+/// A heading derived from the track and a standstill at the start longer
+/// than the hold (the warm-up): the rows held stay bounded whatever the
+/// standstill's length; the standstill beyond the hold is a gap, and every
+/// sample out of the stream is the whole import's, bit for bit.
+#[test]
+fn a_long_standstill_before_the_first_motion_is_held_for_at_most_the_warm_up() {
+    let opts = StreamOptions { warm_up_s: 20.0 };
+    let mut peaks = Vec::new();
+    for still_s in [100.0, 1000.0] {
+        let dir = tempfile::tempdir().expect("tmp");
+        let syn = Synthetic::new(still_s, 120.0);
+        syn.write(dir.path());
+        let m = Synthetic::manifest(dir.path());
+        let whole = crate::io::import::import(&m).expect("import");
+        let mut s = RawStream::new(&m, opts.clone()).expect("stream");
+        let (most, r, taken) = syn.push(&mut s, f64::INFINITY);
+        r.expect("streamed");
+        peaks.push(most);
+        let d = &whole.drive;
+        let first = d.t().partition_point(|&t| t < taken[0].0);
+        assert_eq!(d.len() - first, taken.len(), "standstill {still_s} s: the samples after the hold");
+        assert!(taken[0].0 > still_s - 20.0 - 1.0 && taken[0].0 < still_s - 20.0 + 1.0, "{}", taken[0].0);
+        for (k, (t, sig)) in taken.iter().enumerate() {
+            let w = d.measured();
+            let want = [w.px[first + k], w.py[first + k], w.psi[first + k], w.n_rl[first + k], w.n_rr[first + k]];
+            assert_eq!(t.to_bits(), d.t()[first + k].to_bits());
+            for (a, b) in sig.iter().zip(want) {
+                assert_eq!(a.to_bits(), b.to_bits(), "standstill {still_s} s, t = {t}");
+            }
+        }
+        let report = s.report().expect("report");
+        assert!(report.gaps.iter().any(|g| g.reasons.iter().any(|r| r.contains("pose heading unknown"))));
+    }
+    eprintln!("rows held at most: {peaks:?}");
+    assert!((peaks[1] as f64) < 1.1 * peaks[0] as f64, "held {peaks:?}");
+}
+
+/// A stream that stops sending while the others go on: an error naming it
+/// once the rows held span twice the warm-up, not before.
+#[test]
+fn a_stalled_stream_is_named_once_the_rows_held_reach_the_bound() {
+    let syn = Synthetic::new(2.0, 200.0);
+    let m = Synthetic::manifest(Path::new("/nonexistent"));
+    let mut s = RawStream::new(&m, StreamOptions { warm_up_s: 20.0 }).expect("stream");
+    let (most, r, _) = syn.push(&mut s, 100.0);
+    let e = r.expect_err("stalled").to_string();
+    assert!(e.contains("streams.p") && e.contains("stalled") && e.contains("100.000 s"), "{e}");
+    assert!(most < 50 * 45, "held {most} rows");
+    // The pose stopping 30 s before the wheels: within the bound.
+    let syn = Synthetic::new(2.0, 60.0);
+    let mut s = RawStream::new(&m, StreamOptions { warm_up_s: 20.0 }).expect("stream");
+    let (_, r, _) = syn.push(&mut s, 32.0);
+    assert!(r.as_ref().err().is_none_or(|e| !e.to_string().contains("stalled")), "{r:?}");
+}
+
+/// The streamed import's error, reading the whole manifest.
+fn streamed_error(m: &Manifest, opts: StreamOptions) -> String {
+    let mut s = ManifestStream::open(m, opts).expect("open");
+    loop {
+        match s.next_chunk(400) {
+            Ok(Some(_)) => {}
+            Ok(None) => panic!("{}: no error", m.path.display()),
+            Err(e) => return e.to_string(),
+        }
+    }
+}
+
+/// The wheel and heading convention checks and the IMU's a_y check judge
+/// the warm-up prefix: a drive within the warm-up is refused with the whole
+/// import's message; a longer one names the same key (the figures are the
+/// prefix's).
+#[test]
+fn a_stream_with_a_wrong_convention_is_refused_as_the_whole_import_refuses_it() {
+    let rav4 = "tests/data/comma2k19-rav4/manifest.toml";
+    let van = "tests/data/psu-mapping-van/manifest.toml";
+    let track = "../../examples/psu-mapping-van-testtrack/run-14-45-26.toml";
+    type Edit = fn(&str) -> String;
+    let cases: [(&str, Edit, &str); 6] = [
+        (rav4, |t| t.replace("{ column = \"rl_mps\" }", "{ column = \"rl_mps\", sign = -1 }"), "wheels.rear_left.sign"),
+        (
+            van,
+            |t| t.replace("{ column = \"right_ticks_cum\" }", "{ column = \"right_ticks_cum\", sign = -1 }"),
+            "wheels.rear_right.sign",
+        ),
+        (track, |t| t.replace("unit = \"rad\"", "unit = \"deg\""), "pose.heading.unit"),
+        (track, |t| t.replace("convention = \"enu\"", "convention = \"ned\""), "pose.heading.convention"),
+        (
+            track,
+            |t| {
+                without(t, "[pose.heading]")
+                    .replace("{ column = \"left_ticks_cum\" }", "{ column = \"RIGHT\" }")
+                    .replace("{ column = \"right_ticks_cum\" }", "{ column = \"left_ticks_cum\" }")
+                    .replace("{ column = \"RIGHT\" }", "{ column = \"right_ticks_cum\" }")
+            },
+            "wheels.rear_left.column",
+        ),
+        (rav4, |t| t.replace("sign = -1", "sign = 1"), "lateral_acceleration.sign"),
+    ];
+    for (rel, edit, key) in cases {
+        let m = match variant(rel, edit) {
+            Ok(m) => m,
+            Err(e) => panic!("{rel}: {e}"),
+        };
+        let whole = match crate::io::import::import(&m) {
+            Ok(i) => panic!("{rel}, {key}: the whole import takes it: {:?}", i.report.warnings),
+            Err(e) => e.to_string(),
+        };
+        assert!(whole.contains(key), "{rel}: {whole}");
+        let within = streamed_error(&m, StreamOptions { warm_up_s: 1000.0 });
+        assert_eq!(within, whole, "{rel}");
+        let prefix = streamed_error(&m, StreamOptions { warm_up_s: 120.0 });
+        assert!(prefix.contains(key), "{rel}, a 120 s warm-up: {prefix}");
     }
 }

@@ -206,6 +206,8 @@ pub(crate) struct PoseBuilder {
     last_good: Option<f64>,
     /// The heading derived from the track, without a heading column.
     derived: Option<super::heading::TrackHeading>,
+    /// The longest hold of samples before the first motion, s.
+    max_hold_s: f64,
 }
 
 /// Column slots of [`PoseBuilder`].
@@ -216,8 +218,10 @@ const HEADING: usize = 3;
 const QUALITY: usize = 4;
 
 impl PoseBuilder {
-    /// The pose of `m`, the columns found by `index`.
-    pub(crate) fn new(m: &Manifest, index: impl Fn(&str) -> usize) -> PoseBuilder {
+    /// The pose of `m`, the columns found by `index`; a heading derived
+    /// from the track holds the samples before the first motion for at
+    /// most `max_hold_s` of pose time.
+    pub(crate) fn new(m: &Manifest, max_hold_s: f64, index: impl Fn(&str) -> usize) -> PoseBuilder {
         let p = &m.pose;
         let mut cols = [None; 5];
         match &p.position {
@@ -236,7 +240,11 @@ impl PoseBuilder {
             rejected: 0,
             rejected_values: Vec::new(),
             last_good: None,
-            derived: p.heading.is_none().then(|| super::heading::TrackHeading::new(p.derive_heading_min_speed_m_per_s)),
+            derived: p
+                .heading
+                .is_none()
+                .then(|| super::heading::TrackHeading::new(p.derive_heading_min_speed_m_per_s, max_hold_s)),
+            max_hold_s,
         }
     }
 
@@ -324,14 +332,40 @@ impl PoseBuilder {
         match self.derived.as_mut() {
             None => track.push(row.t, offset_s, [x, y, psi], m.output.max_gap_s, "pose"),
             Some(d) => {
-                let mut out = Vec::new();
-                d.push((row.t, x, y), &mut out);
+                let (mut out, mut released) = (Vec::new(), Vec::new());
+                d.push((row.t, x, y), &mut out, &mut released);
+                if !released.is_empty() {
+                    self.release(m, released, offset_s, track);
+                }
                 for [t, x, y, psi] in out {
                     track.push(t, offset_s, [x, y, psi], m.output.max_gap_s, "pose");
                 }
             }
         }
         Ok(())
+    }
+
+    /// Samples before the first motion released without a heading: into
+    /// the track (heading 0), and every output sample before the oldest
+    /// sample still held made invalid.
+    fn release(&mut self, m: &Manifest, released: Vec<(f64, f64, f64)>, offset_s: f64, track: &mut Track<3>) {
+        for (t, x, y) in released {
+            track.push(t, offset_s, [x, y, 0.0], m.output.max_gap_s, "pose");
+        }
+        let Some(to) = self.derived.as_ref().and_then(|d| d.first_waiting()) else { return };
+        let to = to + offset_s;
+        match track.bad.iter_mut().find(|b| b.from == f64::NEG_INFINITY) {
+            Some(b) => b.to = to,
+            None => track.bad.push_back(BadInterval {
+                from: f64::NEG_INFINITY,
+                to,
+                reason: format!(
+                    "pose heading unknown: the vehicle stood still for more than {} s before it first moved \
+                     faster than pose.derive_heading_min_speed_m_per_s (the heading is derived from the track)",
+                    self.max_hold_s
+                ),
+            }),
+        }
     }
 
     /// The pose stream has ended: the samples still waiting for their
