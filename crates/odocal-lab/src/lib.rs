@@ -16,6 +16,7 @@ use odocal::sim::{simulate, NoiseOptions, SimOptions, SimOutput};
 use odocal::{CalibrationOptions, Drive, Method, Theta};
 
 pub mod crossrun;
+pub mod report_json;
 
 /// The programs' result type.
 pub type Res<T> = Result<T, Box<dyn std::error::Error>>;

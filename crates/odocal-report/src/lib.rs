@@ -226,10 +226,7 @@ impl<'a> ReportInput<'a> {
         let r = report;
         let mut params = ParamRow::theta_rows(&r.initial.theta, &r.theta, Some(r.result_sigma().to_array()), truth);
         params.extend(r.extrinsics.as_ref().map(ParamRow::extrinsics_rows).unwrap_or_default());
-        let batches = r
-            .initial_step()
-            .map(|s| s.batches.iter().map(|b| (b.score.theta, b.score.mean_position_error_m)).collect())
-            .unwrap_or_default();
+        let batches = step_one_batches(r);
         ReportInput {
             params,
             truth: truth.copied(),
@@ -251,6 +248,21 @@ impl<'a> ReportInput<'a> {
     fn extrinsics_of(&self, i: usize) -> [Extrinsics; 2] {
         self.segment_extrinsics.get(i).copied().unwrap_or([Extrinsics::ZERO; 2])
     }
+}
+
+/// Step 1's batch results of a 3-step calibration, each θ_B with its Ē_p,
+/// read from the report's JSON (`initial_step.batches`); empty for the
+/// other methods.
+fn step_one_batches(r: &odocal::CalibrationReport) -> Vec<(Theta, f64)> {
+    let Ok(v) = serde_json::to_value(r) else { return Vec::new() };
+    let Some(batches) = v["initial_step"]["batches"].as_array() else { return Vec::new() };
+    batches
+        .iter()
+        .filter_map(|b| {
+            let theta: Theta = serde_json::from_value(b["score"]["theta"].clone()).ok()?;
+            Some((theta, b["score"]["mean_position_error_m"].as_f64().unwrap_or(f64::NAN)))
+        })
+        .collect()
 }
 
 /// Escapes text for HTML.
@@ -396,6 +408,23 @@ mod tests {
         let body = html.trim_start_matches("<!DOCTYPE html>\n");
         parse_all(body);
         assert!(html.matches("<svg").count() >= 4);
+    }
+
+    #[test]
+    fn step_one_batches_come_from_the_three_step_report() {
+        let out = sim::simulate(&sim::SimOptions { length_km: 3.0, ..sim::SimOptions::paper(2) }).expect("sim");
+        let opts =
+            odocal::CalibrationOptions { method: odocal::Method::ThreeStep(Default::default()), ..Default::default() };
+        let r = odocal::calibrate(&out.drive, &opts).expect("3-step");
+        let v = serde_json::to_value(&r).expect("json");
+        let want = v["initial_step"]["batches"].as_array().expect("step 1's batches").len();
+        let got = step_one_batches(&r);
+        assert!(want > 0 && got.len() == want, "{} of {want}", got.len());
+        let first = &v["initial_step"]["batches"][0]["score"];
+        assert_eq!(got[0].0.c_e.to_bits(), first["theta"]["c_e"].as_f64().expect("c_e").to_bits());
+        assert_eq!(got[0].1.to_bits(), first["mean_position_error_m"].as_f64().expect("Ē_p").to_bits());
+        let eiv = odocal::calibrate(&out.drive, &odocal::CalibrationOptions::default()).expect("eiv");
+        assert!(step_one_batches(&eiv).is_empty(), "EIV has no step 1");
     }
 
     #[test]

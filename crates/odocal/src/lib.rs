@@ -130,9 +130,8 @@ pub use sim::{simulate, NoiseOptions, SimOptions, SimOutput, SimSidecar};
 // Calibration: the entry points, the options, the report. `settings` is an
 // expert module.
 pub use calibrate::{
-    calibrate, settings, BatchGnDetail, BatchGnOptions, BatchSpread, Calibration, CalibrationOptions,
-    CalibrationReport, CorrectBias, EivDetail, EivMethodOptions, EivOutcome, FinalSegments, Holdout, InitialStep,
-    Method, MethodDetail, ResultSigma, SegmentCounts, SigmaCovers, SigmaSource, ThetaScore, ThreeStepDetail,
+    calibrate, settings, BatchGnOptions, Calibration, CalibrationOptions, CalibrationReport, CorrectBias,
+    EivMethodOptions, FinalSegments, Holdout, Method, ResultSigma, SegmentCounts, SigmaCovers, SigmaSource, ThetaScore,
     ThreeStepOptions, Timing, ValidationSummary,
 };
 // Validation and the verdict.

@@ -24,7 +24,8 @@ use std::time::Instant;
 use odocal::eiv::{EivOptions, QuantisationModel, ResearchOptions};
 use odocal::sim::{simulate, SimOptions};
 use odocal::{calibrate, CalibrationOptions, CalibrationReport, Method};
-use odocal::{CorrectBias, EivMethodOptions, MethodDetail};
+use odocal::{CorrectBias, EivMethodOptions};
+use odocal_lab::report_json::eiv_part;
 use odocal_lab::{Args, Res};
 
 const USAGE: &str = "eiv_speed [KM,KM,… 12,24,48] [REPS 3] [SEED 1] [FINGERPRINT.json|- -] [METHODS all]";
@@ -100,7 +101,7 @@ fn run() -> Res<()> {
             let all: Vec<String> = times.iter().map(|t| format!("{t:.2}")).collect();
             let (mut passes, mut it, mut windows) = (String::new(), String::new(), String::new());
             let mut entry = serde_json::json!({ "km": km, "method": name, "theta": r.theta });
-            if let MethodDetail::Eiv(e) = &r.detail {
+            if let Some(e) = eiv_part(&r) {
                 if let Some(f) = &e.eiv {
                     passes = format!("{:?}", f.evaluations);
                     it = f.iterations.to_string();

@@ -47,9 +47,10 @@ use odocal::research::mean_position_error_with;
 use odocal::segment::{validation_segments, Segment, ValidationSegmentOptions};
 use odocal::sim::{simulate, NoiseOptions, NoiseRegime, SimOptions, WorldSummary};
 use odocal::{
-    calibrate, CalibrationOptions, CalibrationReport, Drive, EivOutcome, Extrinsics, Method, MethodDetail, Param,
-    ParamSet, Theta, VerdictLevel, VerdictReason,
+    calibrate, CalibrationOptions, CalibrationReport, Drive, Extrinsics, Method, Param, ParamSet, Theta, VerdictLevel,
+    VerdictReason,
 };
+use odocal_lab::report_json::{eiv_part, EivPart};
 use odocal_lab::{coverage, error_scale, errors, median, Args, Res, Summary, Table, ERROR_UNITS, FRESH_SEED_OFFSET};
 use rayon::prelude::*;
 
@@ -158,12 +159,10 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut) -> Res<Run> {
     let r: CalibrationReport = calibrate(drive, &opts)?;
     let time_s = t.elapsed().as_secs_f64();
     let ext = r.extrinsics.as_ref().map_or(r.options.identify.extrinsics, |e| e.value);
-    let fallback = match &r.detail {
-        MethodDetail::Eiv(d) => Some(d.eiv_result == EivOutcome::BatchGnFallback),
-        _ => None,
-    };
-    let eiv_own = match &r.detail {
-        MethodDetail::Eiv(d) => d.eiv.as_ref().map(|e| {
+    let eiv = eiv_part(&r);
+    let fallback = eiv.as_ref().map(EivPart::fell_back);
+    let eiv_own = match &eiv {
+        Some(d) => d.eiv.as_ref().map(|e| {
             let kinds: Vec<String> = e.warnings.iter().map(finding_kind).collect();
             (e.theta, e.sigma, kinds.join(";"), e.eta)
         }),

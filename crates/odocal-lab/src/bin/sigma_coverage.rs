@@ -45,9 +45,10 @@ struct Fit {
 }
 
 fn fit(name: &str, r: &CalibrationReport) -> Fit {
-    let outcome = match &r.detail {
-        odocal::MethodDetail::Eiv(d) => format!("{:?}", d.eiv_result),
-        _ => r.method.clone(),
+    let outcome = match odocal_lab::report_json::eiv_part(r) {
+        Some(d) if d.fell_back() => "BatchGnFallback".to_string(),
+        Some(_) => "Eiv".to_string(),
+        None => r.method.clone(),
     };
     Fit {
         name: name.to_string(),

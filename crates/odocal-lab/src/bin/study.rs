@@ -26,6 +26,7 @@ use odocal::segment::Segment;
 use odocal::segment::SegmentData;
 use odocal::{mean_position_error, Drive, ReachableOptions, Theta};
 use odocal::{CalibrationOptions, Method, ThreeStepOptions};
+use odocal_lab::report_json::three_step_part;
 use odocal_lab::{median, simulate_preset, Args, Res};
 use serde::Serialize;
 
@@ -132,7 +133,7 @@ fn study_drive(noise: &str, seed: u64, a: &Settings) -> Res<DriveResult> {
     let det = calibrate_detailed(drive, None, &opts, None)?;
     let (val, sel) = (&det.validation, &det.selected);
     let comp = det.compensated.as_ref().ok_or("3-step returned no compensated inputs")?;
-    let init = det.report.initial_step().ok_or("3-step returned no step 1")?;
+    let init = three_step_part(&det.report).ok_or("3-step returned no step 1")?.initial_step;
     let (theta0, id) = (opts.theta0, opts.identify.clone());
     let raw: Vec<SegmentData> = sel.iter().map(|s| SegmentData::new(drive, s)).collect();
     let cdata = comp.segment_data(drive);

@@ -59,10 +59,9 @@ use odocal::eiv::{
     ResearchOptions,
 };
 use odocal::segment::{validation_segments, ValidationSegmentOptions};
-use odocal::{
-    calibrate, mean_position_error, CalibrationOptions, CalibrationReport, Drive, Method, MethodDetail, Theta, Warning,
-};
-use odocal::{EivDetail, EivMethodOptions};
+use odocal::EivMethodOptions;
+use odocal::{calibrate, mean_position_error, CalibrationOptions, CalibrationReport, Drive, Method, Theta, Warning};
+use odocal_lab::report_json::{eiv_part, EivPart};
 use odocal_lab::{
     coverage, error_scale, errors, noise_preset, simulate_preset, Args, Res, Summary, Table, ERROR_UNITS,
     FRESH_SEED_OFFSET,
@@ -171,7 +170,7 @@ fn calibrate_eiv(
     filter: EivOptions,
     seed: u64,
     heading_offset: bool,
-) -> Res<(CalibrationReport, EivDetail, f64)> {
+) -> Res<(CalibrationReport, EivPart, f64)> {
     let t = Instant::now();
     let method = Method::Eiv(EivMethodOptions {
         filter,
@@ -182,10 +181,9 @@ fn calibrate_eiv(
     });
     let r = calibrate(d, &CalibrationOptions { method, seed, ..Default::default() })?;
     let time_s = t.elapsed().as_secs_f64();
-    let MethodDetail::Eiv(detail) = &r.detail else {
-        return Err("calibrate with Method::Eiv returned another method's detail".into());
+    let Some(detail) = eiv_part(&r) else {
+        return Err("calibrate with Method::Eiv returned another method's report".into());
     };
-    let detail = detail.clone();
     Ok((r, detail, time_s))
 }
 

@@ -42,10 +42,11 @@ use std::time::Instant;
 
 use odocal::eiv::{EivOptions, NoiseModel, QuantisationLevel};
 use odocal::{
-    calibrate, CalibrationOptions, CalibrationReport, EivMethodOptions, EivOutcome, Holdout, Method, MethodDetail,
-    ParamSet, ValidationDrive, VerdictLevel, Warning,
+    calibrate, CalibrationOptions, CalibrationReport, EivMethodOptions, Holdout, Method, ParamSet, ValidationDrive,
+    VerdictLevel, Warning,
 };
 use odocal_lab::crossrun::{CrossRunFit, CrossRunRow, CrossRunTable, CROSS_RUN_OWN_FIT_RATIO};
+use odocal_lab::report_json::eiv_part;
 use odocal_lab::{load, repo_path, testtrack_manifest, Args, Res, RAV4_MANIFEST, TESTTRACK_RUNS, VAN_MANIFEST};
 use serde_json::{json, Value};
 
@@ -182,8 +183,8 @@ fn result_sigma(r: &CalibrationReport) -> [Option<f64>; 4] {
 
 /// EIV: `Some((fell back, reasons))`; `None` for the other methods.
 fn eiv_fallback(r: &CalibrationReport) -> Option<(bool, Vec<String>)> {
-    let MethodDetail::Eiv(d) = &r.detail else { return None };
-    let fell = d.eiv_result == EivOutcome::BatchGnFallback;
+    let d = eiv_part(r)?;
+    let fell = d.fell_back();
     let mut reasons: Vec<String> = r
         .warnings
         .iter()
@@ -216,8 +217,8 @@ const EIV_DETAIL_HEADER: &str = "| method | fit | EIV θ (c_e m / c_d mm / t_r m
 /// report's θ is the fallback), every finding that fired, η with its clamp
 /// state and the estimated noise in physical units. `None` for other methods.
 fn eiv_detail_row(m: &str, fit: &str, r: &CalibrationReport) -> Option<(String, Value)> {
-    let MethodDetail::Eiv(d) = &r.detail else { return None };
-    let fell = d.eiv_result == EivOutcome::BatchGnFallback;
+    let d = eiv_part(r)?;
+    let fell = d.fell_back();
     let Some(e) = &d.eiv else {
         let why = d.eiv_error.clone().unwrap_or_default();
         return Some((
@@ -340,7 +341,7 @@ fn testtrack(methods: &[String], md: &mut String) -> Res<Value> {
                 detail_md.push_str(&row);
                 details.push(v);
             }
-            if let MethodDetail::Eiv(d) = &r.detail {
+            if let Some(d) = eiv_part(&r) {
                 if let Some(e) = &d.eiv {
                     // The EIV fit's consistency numbers (stderr), to read the checks against.
                     eprintln!(
@@ -474,7 +475,8 @@ fn swap(md: &mut String) -> Res<Value> {
             .map(|(_, (n, d, _))| ValidationDrive { name: n, drive: d, reference: None })
             .collect();
         let judge = |t: &odocal::Theta| -> Res<f64> {
-            let r = odocal::CalibrationReport { theta: *t, ..gn.clone() };
+            let mut r = gn.clone();
+            r.theta = *t;
             Ok(r.validate_on_drives(&others, false)?.mean_over_drives_m)
         };
         let (g, e) = (gn.theta, eiv.theta);
@@ -510,7 +512,8 @@ fn swap(md: &mut String) -> Res<Value> {
         let eiv = calibrate(&fit, &options("eiv-scg-nofallback", q)?)?;
         let others = [ValidationDrive { name: label, drive: &held, reference: None }];
         let judge = |t: &odocal::Theta| -> Res<f64> {
-            let r = odocal::CalibrationReport { theta: *t, ..gn.clone() };
+            let mut r = gn.clone();
+            r.theta = *t;
             Ok(r.validate_on_drives(&others, false)?.mean_over_drives_m)
         };
         let (g, e) = (gn.theta, eiv.theta);
@@ -639,7 +642,7 @@ fn rav4(methods: &[String], md: &mut String) -> Res<Value> {
             let wall = t.elapsed().as_secs_f64();
             let sigma = result_sigma(&r);
             let mut held: Vec<String> = r.auto_fixed.iter().map(|p| p.name().to_string()).collect();
-            if let MethodDetail::Eiv(d) = &r.detail {
+            if let Some(d) = eiv_part(&r) {
                 held.extend(d.start_held.iter().map(|p| format!("{} (start)", p.name())));
             }
             let fb = eiv_fallback(&r);

@@ -11,8 +11,8 @@
 //! ±1.96σ (nominal 95 %), the RMS σ and the RMS error. An honest σ has
 //! RMS σ ≈ RMS error and coverage near nominal.
 
-use odocal::MethodDetail;
 use odocal::{CalibrationOptions, Method, Theta, ThreeStepOptions};
+use odocal_lab::report_json::{std_dev_of, three_step_part};
 use odocal_lab::{coverage, simulate_preset, Args, Res, PARAMETERS};
 
 const USAGE: &str = "three_step_coverage [SEEDS 20] [KM 12] [PRESET paper] [BATCHES 50]";
@@ -39,7 +39,7 @@ fn run() -> Res<()> {
             ..Default::default()
         };
         let r = odocal::calibrate(&s.drive, &opts)?;
-        let MethodDetail::ThreeStep(d) = &r.detail else { return Err("not a 3-step report".into()) };
+        let Some(d) = three_step_part(&r) else { return Err("not a 3-step report".into()) };
         let truth = s.sidecar.theta_true.to_array();
         let theta = r.theta.to_array();
         err.push(std::array::from_fn(|i| theta[i] - truth[i]));
@@ -48,7 +48,7 @@ fn run() -> Res<()> {
         sigma[0].push(sd(r.std_dev()));
         sigma[1].push(d.identification.robust.as_ref().map_or(nan, |b| sd(b.std_dev())));
         sigma[2].push(d.uncertainty.measured_inputs.as_ref().map_or(nan, |b| sd(b.std_dev())));
-        sigma[3].push(d.uncertainty.batch_spread.as_ref().map_or(nan, |b| sd(b.std_dev())));
+        sigma[3].push(d.uncertainty.batch_spread.as_ref().map_or(nan, |b| sd(std_dev_of(&b.covariance))));
         eprintln!(
             "seed {seed}: θ − truth = [{:+.2e}, {:+.2e}, {:+.2e}, {:+.2e}]",
             err[err.len() - 1][0],

@@ -20,7 +20,7 @@ pub struct BatchGnOptions {}
 
 /// What batch Gauss-Newton reports.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct BatchGnDetail {
+pub(crate) struct BatchGnDetail {
     /// The identification.
     pub identification: IdentifyReport,
 }

@@ -208,7 +208,7 @@ impl EivMethodOptions {
 /// Which estimate the report's θ is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
-pub enum EivOutcome {
+pub(crate) enum EivOutcome {
     /// The EIV estimate.
     Eiv,
     /// The starting batch Gauss-Newton over all cut segments (the fallback).
@@ -218,7 +218,7 @@ pub enum EivOutcome {
 /// What the EIV method reports. In JSON its fields stand at the top level
 /// of the report (`identification`, `eiv`, `eiv_result`, ...).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct EivDetail {
+pub(crate) struct EivDetail {
     /// The starting batch Gauss-Newton over all cut segments (also the
     /// fallback result).
     pub identification: IdentifyReport,

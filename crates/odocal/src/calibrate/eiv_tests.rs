@@ -19,7 +19,7 @@ fn eiv_method(filter: EivOptions, fallback: bool) -> Method {
 
 fn detail(r: &crate::CalibrationReport) -> &EivDetail {
     match &r.detail {
-        crate::MethodDetail::Eiv(d) => d,
+        crate::calibrate::MethodDetail::Eiv(d) => d,
         other => panic!("not an EIV detail: {other:?}"),
     }
 }
@@ -46,7 +46,7 @@ fn noise_free_drive_returns_theta_true() {
     // The JSON report reads back as an EIV report (the untagged detail).
     let back: crate::CalibrationReport =
         serde_json::from_value(serde_json::to_value(&r).expect("json")).expect("read back");
-    assert!(matches!(back.detail, crate::MethodDetail::Eiv(_)));
+    assert!(matches!(back.detail, crate::calibrate::MethodDetail::Eiv(_)));
 }
 
 /// A drive with white wheel noise (the white preset): batch G-N over all segments (the EIV

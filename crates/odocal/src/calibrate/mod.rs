@@ -71,13 +71,17 @@ pub(crate) mod three_step;
 mod turn_sense;
 pub(crate) mod validate_on;
 
-pub use report::{CalibrationReport, MethodDetail, ResultSigma, SigmaCovers, SigmaSource};
+pub(crate) use report::MethodDetail;
+pub use report::{CalibrationReport, ResultSigma, SigmaCovers, SigmaSource};
 pub use report::{SegmentCounts, ThetaScore, Timing, ValidationSummary};
 
-pub use batch_gn::{BatchGnDetail, BatchGnOptions};
-pub use eiv::{CorrectBias, EivDetail, EivMethodOptions, EivOutcome};
+pub(crate) use batch_gn::BatchGnDetail;
+pub use batch_gn::BatchGnOptions;
+pub use eiv::{CorrectBias, EivMethodOptions};
+pub(crate) use eiv::{EivDetail, EivOutcome};
 pub(crate) use three_step::{per_segment_identification, score_batches, BatchResult};
-pub use three_step::{BatchSpread, FinalSegments, InitialStep, ThreeStepDetail, ThreeStepOptions};
+pub(crate) use three_step::{BatchSpread, InitialStep, ThreeStepDetail};
+pub use three_step::{FinalSegments, ThreeStepOptions};
 
 /// Which calibration method to run, with its settings.
 ///

@@ -72,7 +72,7 @@ pub struct ValidationSummary {
 /// `identification`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(untagged)]
-pub enum MethodDetail {
+pub(crate) enum MethodDetail {
     /// The 3-step method's steps 1–3.
     ThreeStep(ThreeStepDetail),
     /// The EIV method's start, fit and fallback (before `BatchGn`: both
@@ -118,7 +118,7 @@ pub struct CalibrationReport {
     pub extrinsics: Option<ExtrinsicsEstimate>,
     /// The method's own results.
     #[serde(flatten)]
-    pub detail: MethodDetail,
+    pub(crate) detail: MethodDetail,
     /// Things the user should know (unobservable parameters, dropped
     /// segments, solver fallbacks).
     pub warnings: Vec<Warning>,
@@ -169,7 +169,7 @@ impl CalibrationReport {
 
     /// The final Gauss-Newton identification (batch-gn: the only one;
     /// three-step: step 3; eiv: the starting batch G-N on all segments).
-    pub fn identification(&self) -> Option<&IdentifyReport> {
+    pub(crate) fn identification(&self) -> Option<&IdentifyReport> {
         match &self.detail {
             MethodDetail::ThreeStep(d) => Some(&d.identification),
             MethodDetail::BatchGn(d) => Some(&d.identification),
@@ -178,7 +178,7 @@ impl CalibrationReport {
     }
 
     /// Step 1 of the 3-step method.
-    pub fn initial_step(&self) -> Option<&InitialStep> {
+    pub(crate) fn initial_step(&self) -> Option<&InitialStep> {
         match &self.detail {
             MethodDetail::ThreeStep(d) => Some(&d.initial_step),
             MethodDetail::BatchGn(_) | MethodDetail::Eiv(_) => None,
@@ -186,7 +186,7 @@ impl CalibrationReport {
     }
 
     /// Step 2 of the 3-step method.
-    pub fn compensation(&self) -> Option<&CompensationStep> {
+    pub(crate) fn compensation(&self) -> Option<&CompensationStep> {
         match &self.detail {
             MethodDetail::ThreeStep(d) => Some(&d.compensation),
             MethodDetail::BatchGn(_) | MethodDetail::Eiv(_) => None,

@@ -100,7 +100,7 @@ impl Default for ThreeStepOptions {
 
 /// Step 1 of the 3-step method.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct InitialStep {
+pub(crate) struct InitialStep {
     /// Every batch result, in batch order, with the segment starts used.
     pub batches: Vec<BatchResult>,
     /// The picked θ_B,I (best first).
@@ -132,7 +132,7 @@ pub struct BatchResult {
 
 /// A step-1 result that failed a plausibility guard.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct RejectedBatch {
+pub(crate) struct RejectedBatch {
     /// Index into [`InitialStep::batches`].
     pub index: usize,
     /// The guards it failed.
@@ -141,7 +141,7 @@ pub struct RejectedBatch {
 
 /// What the 3-step method reports.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ThreeStepDetail {
+pub(crate) struct ThreeStepDetail {
     /// Step 1.
     pub initial_step: InitialStep,
     /// Step 2.
@@ -159,7 +159,7 @@ pub struct ThreeStepDetail {
 /// step 3 re-fits on inputs compensated with θ near its own result, so its
 /// residuals are too small to measure the result's error.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
-pub struct ThreeStepUncertainty {
+pub(crate) struct ThreeStepUncertainty {
     /// The cluster-robust covariance ([`RobustCovariance`]) of batch
     /// Gauss-Newton on step 3's segments with the *measured* inputs,
     /// evaluated at the 3-step θ ([`crate::identify::robust_covariance_at`]).
@@ -178,7 +178,7 @@ pub struct ThreeStepUncertainty {
 /// units; `n` is the selected segments' distinct samples over the segment
 /// length (overlapping segments share samples).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct BatchSpread {
+pub(crate) struct BatchSpread {
     /// Covariance of θ, 4×4, row-major, SI units squared.
     pub covariance: [[f64; 4]; 4],
     /// Batch estimates used.
@@ -209,7 +209,7 @@ impl BatchSpread {
     }
 
     /// One-σ of θ.
-    pub fn std_dev(&self) -> Theta {
+    pub(crate) fn std_dev(&self) -> Theta {
         let c = &self.covariance;
         Theta { c_e: c[0][0].sqrt(), c_d: c[1][1].sqrt(), t_r: c[2][2].sqrt(), d: c[3][3].sqrt() }
     }
