@@ -333,16 +333,7 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
 
     let (start, end) = grid::common_span(m, &spans(m, &streams, &pose, roll.as_ref()), h)?;
     limits::check_samples(m, "the common span of the streams", end - start)?;
-    let mut g = Grid::new(start, end, h);
-    g.mark(&wheel_bad, true);
-    g.mark(&pose.bad, false);
-    if let Some(r) = &roll {
-        g.mark(&r.bad, false);
-    }
-    for (name, interval) in extra_streams(m) {
-        let b = grid::gaps_of(&streams[&name].t, o.max_gap_s, &format!("{name} stream"));
-        g.mark(&b, interval);
-    }
+    let g = marked_grid(m, (start, end, h), &streams, &wheel_bad, &pose, roll.as_ref());
 
     let s = OnGrid::resample(m, &streams, &wheels, &pose, &g.t, h);
     let measured = g.measured(&pose.t);
@@ -564,6 +555,32 @@ fn read_streams(m: &Manifest, warnings: &mut Vec<String>) -> Result<BTreeMap<Str
 /// The streams other than the wheels and the pose whose gaps invalidate
 /// samples: `(name, interval)` (IMU gaps invalidate intervals, sideslip
 /// gaps points).
+/// The output grid over `[start, end]` with every stream's gaps marked:
+/// the wheel gaps `wheel_bad` (intervals), the pose's and the roll's bad
+/// stretches (samples), then the extra streams' gaps as
+/// [`extra_streams`] says. Shared by the whole import and the streamed
+/// import's warm-up prefix check.
+fn marked_grid(
+    m: &Manifest,
+    (start, end, h): (f64, f64, f64),
+    streams: &BTreeMap<String, Stream>,
+    wheel_bad: &[grid::BadInterval],
+    pose: &Pose,
+    roll: Option<&bank::Roll>,
+) -> Grid {
+    let mut g = Grid::new(start, end, h);
+    g.mark(wheel_bad, true);
+    g.mark(&pose.bad, false);
+    if let Some(r) = roll {
+        g.mark(&r.bad, false);
+    }
+    for (name, interval) in extra_streams(m) {
+        let b = grid::gaps_of(&streams[&name].t, m.output.max_gap_s, &format!("{name} stream"));
+        g.mark(&b, interval);
+    }
+    g
+}
+
 fn extra_streams(m: &Manifest) -> Vec<(String, bool)> {
     let mut extra: Vec<(String, bool)> = Vec::new();
     if let LateralAccelerationSpec::Imu { stream, .. } = &m.lateral_acceleration {

@@ -8,12 +8,12 @@
 use std::collections::BTreeMap;
 
 use super::super::bank::Roll;
-use super::super::grid::{self, Grid};
+use super::super::grid;
 use super::super::manifest::Manifest;
 use super::super::pose::Pose;
 use super::super::source::Stream;
 use super::super::wheels::Wheels;
-use super::super::{checks, extra_streams, lateral, spans, OnGrid};
+use super::super::{checks, lateral, marked_grid, spans, OnGrid};
 use crate::error::Result;
 use crate::model::Theta;
 
@@ -35,15 +35,8 @@ pub(crate) fn check_conventions(m: &Manifest, p: &Prefix<'_>, h: f64, warnings: 
     let theta0: Theta = o.theta0();
     let Ok((start, end)) = grid::common_span(m, &spans(m, p.streams, p.pose, p.roll), h) else { return Ok(()) };
     let ws = &p.streams[&m.wheels.stream];
-    let mut g = Grid::new(start, end, h);
-    g.mark(&grid::gaps_of(&ws.t, o.max_gap_s, "wheel"), true);
-    g.mark(&p.pose.bad, false);
-    if let Some(r) = p.roll {
-        g.mark(&r.bad, false);
-    }
-    for (name, interval) in extra_streams(m) {
-        g.mark(&grid::gaps_of(&p.streams[&name].t, o.max_gap_s, &format!("{name} stream")), interval);
-    }
+    let wheel_bad = grid::gaps_of(&ws.t, o.max_gap_s, "wheel");
+    let g = marked_grid(m, (start, end, h), p.streams, &wheel_bad, p.pose, p.roll);
     let s = OnGrid::resample(m, p.streams, p.wheels, p.pose, &g.t, h);
     let Ok(grid::Parts { kept, .. }) = g.parts(m) else { return Ok(()) };
     let resampled = checks::Resampled {
