@@ -283,7 +283,7 @@ impl Replay {
             };
         }
         let stream = DriveStream::open(path)?;
-        for w in stream.warnings() {
+        for w in &stream.warnings {
             eprintln!("warning: {w}");
         }
         Ok(Replay::Stream(stream))
@@ -298,7 +298,7 @@ impl Replay {
 
     fn sample_time_s(&self) -> f64 {
         match self {
-            Replay::Stream(s) => s.sample_time_s(),
+            Replay::Stream(s) => s.sample_time_s,
             Replay::Whole(d) => d.sample_time_s(),
         }
     }
@@ -313,7 +313,7 @@ impl Replay {
     /// The first and the last time stamp, s.
     fn time_span_s(&self) -> (f64, f64) {
         match self {
-            Replay::Stream(s) => s.time_span_s(),
+            Replay::Stream(s) => s.time_span_s,
             Replay::Whole(d) => (d.t().first().copied().unwrap_or(0.0), d.t().last().copied().unwrap_or(0.0)),
         }
     }

@@ -25,7 +25,7 @@ pub fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>, Opti
     let (drive, report) = if odocal::is_manifest_path(path) {
         odocal::load_drive(path)?
     } else {
-        let (drive, warnings) = Drive::read_csv_with_warnings(path)?;
+        let (drive, warnings) = Drive::read_csv(path)?;
         for w in warnings {
             eprintln!("warning: {w}");
         }

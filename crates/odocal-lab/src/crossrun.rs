@@ -303,7 +303,7 @@ mod tests {
         for i in 0..3 {
             s.push([i as f64 * 0.25, 0.0, 0.0, 5.0, 5.0, 0.0, 0.0]);
         }
-        Drive::builder(vec![0.0, 0.025, 0.05], s).build().expect("drive")
+        odocal::DriveBuilder { t: vec![0.0, 0.025, 0.05], measured: s, ..Default::default() }.build().expect("drive")
     }
 
     #[test]

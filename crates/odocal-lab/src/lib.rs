@@ -200,11 +200,14 @@ pub fn testtrack_runs() -> Res<Vec<(&'static str, Drive)>> {
 /// `drive` with its measured signals replaced by `signals` (same times,
 /// sample time, parts and reference-measured flags).
 pub fn with_signals(drive: &Drive, signals: odocal::Signals) -> Result<Drive, odocal::Error> {
-    let mut b =
-        Drive::builder(drive.t().to_vec(), signals).sample_time_s(drive.sample_time_s()).parts(drive.parts().to_vec());
-    if let Some(m) = drive.reference_measured() {
-        b = b.reference_measured(m.to_vec());
-    }
+    let b = odocal::DriveBuilder {
+        t: drive.t().to_vec(),
+        measured: signals,
+        sample_time_s: Some(drive.sample_time_s()),
+        parts: Some(drive.parts().to_vec()),
+        reference_measured: drive.reference_measured().map(<[bool]>::to_vec),
+        ..Default::default()
+    };
     b.build()
 }
 

@@ -14,7 +14,7 @@ use pyo3::types::{PyBytes, PyDict, PyList, PyString};
 use odocal::settings::ManifestSettings;
 use odocal::settings::{CalibrationTable, NoiseTable};
 use odocal::sim::SimSidecar;
-use odocal::{Drive, ExtraColumn, ExtraValues, Signals};
+use odocal::{Drive, DriveBuilder, ExtraColumn, ExtraValues, Signals};
 
 use crate::convert::{json, to_py};
 use crate::files::{check_outputs, warn_all};
@@ -157,7 +157,7 @@ fn signals_from_state(cols: Vec<Vec<u8>>) -> PyResult<Signals> {
 /// `calibrate` reads it), and the reader's warnings (a sidecar of another
 /// drive among them).
 fn read_csv_with_sidecar(path: &std::path::Path) -> odocal::Result<(Drive, Provenance, Vec<String>)> {
-    let (drive, mut warnings) = Drive::read_csv_with_warnings(path)?;
+    let (drive, mut warnings) = Drive::read_csv(path)?;
     let sidecar = odocal::sim::sidecar_for(path, &drive);
     warnings.extend(sidecar.note());
     let source = Some(path.display().to_string());
@@ -235,13 +235,14 @@ impl PyDrive {
         let part = part.map(|p| p.as_array().to_vec());
         let drive = gil
             .detach(move || {
-                let mut b = Drive::builder(t, signals).context("numpy arrays");
-                if let Some(ids) = part {
-                    b = b.part_ids(ids);
-                }
-                if let Some(ts) = sample_time_s {
-                    b = b.sample_time_s(ts);
-                }
+                let b = DriveBuilder {
+                    context: "numpy arrays".into(),
+                    t,
+                    measured: signals,
+                    part_ids: part,
+                    sample_time_s,
+                    ..Default::default()
+                };
                 b.build()
             })
             .map_err(lib_err)?;
@@ -504,16 +505,17 @@ pub(crate) fn _drive_from_state(py: Python<'_>, state: &Bound<'_, PyDict>) -> Py
     };
     let drive = py
         .detach(move || {
-            let mut b = Drive::builder(t, measured).context("pickled drive").parts(parts).sample_time_s(ts);
-            if let Some(tr) = truth {
-                b = b.truth(tr);
-            }
-            if let Some(m) = ref_measured {
-                b = b.reference_measured(m);
-            }
-            for c in extra {
-                b = b.extra(c);
-            }
+            let b = DriveBuilder {
+                context: "pickled drive".into(),
+                t,
+                measured,
+                truth,
+                reference_measured: ref_measured,
+                extra,
+                parts: Some(parts),
+                sample_time_s: Some(ts),
+                ..Default::default()
+            };
             b.build()
         })
         .map_err(lib_err)?;

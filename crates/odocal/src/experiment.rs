@@ -792,11 +792,15 @@ mod tests {
         let no_noise = cramer_rao_column(&sim.drive, Some(&truth), None);
         assert!(no_noise.sigma.is_none() && no_noise.unavailable.as_deref().is_some_and(|r| r.contains("noise")));
         assert_eq!(no_noise.ratio(&truth), None);
-        let bare = Drive::builder(sim.drive.t().to_vec(), sim.drive.measured().clone())
-            .sample_time_s(sim.drive.sample_time_s())
-            .context("no truth")
-            .build()
-            .expect("drive");
+        let bare = crate::drive::DriveBuilder {
+            t: sim.drive.t().to_vec(),
+            measured: sim.drive.measured().clone(),
+            sample_time_s: Some(sim.drive.sample_time_s()),
+            context: "no truth".into(),
+            ..Default::default()
+        }
+        .build()
+        .expect("drive");
         let no_columns = cramer_rao_column(&bare, Some(&truth), Some(&noise));
         assert!(
             no_columns.sigma.is_none()

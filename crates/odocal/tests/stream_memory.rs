@@ -32,8 +32,8 @@ fn streamed_replay_memory_is_flat_in_the_drive_length() {
         "peak heap {p_long} B for 96,000 samples against {p_short} B for 12,000"
     );
     // The whole reader holds the drive: its peak grows with it.
-    let w_short = peak_of(|| assert_eq!(Drive::read_csv(&short).expect("whole").len(), 12_000));
-    let w_long = peak_of(|| assert_eq!(Drive::read_csv(&long).expect("whole").len(), 96_000));
+    let w_short = peak_of(|| assert_eq!(Drive::read_csv(&short).expect("whole").0.len(), 12_000));
+    let w_long = peak_of(|| assert_eq!(Drive::read_csv(&long).expect("whole").0.len(), 96_000));
     eprintln!("peak heap, B: streamed {p_short} and {p_long}, whole {w_short} and {w_long}");
     assert!(w_long > 4 * w_short, "whole reads: {w_long} B against {w_short} B");
     assert!(p_long < w_long / 4, "streamed {p_long} B, whole {w_long} B");

@@ -29,7 +29,9 @@ fn oval() -> Drive {
         s.push([x[0], x[1], x[2], n_rl, n_rr, 0.0, a_y]);
         x = step(&x, &Input { n_rl, n_rr, beta: 0.0, a_y }, &theta, t_s);
     }
-    Drive::builder((0..n).map(|i| i as f64 * t_s).collect(), s).build().expect("oval")
+    odocal::DriveBuilder { t: (0..n).map(|i| i as f64 * t_s).collect(), measured: s, ..Default::default() }
+        .build()
+        .expect("oval")
 }
 
 /// A manifest importing the canonical CSV `drive.csv` beside it, with `extra` appended.

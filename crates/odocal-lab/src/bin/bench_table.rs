@@ -63,7 +63,7 @@ fn worker(argv: &[String]) -> Res<()> {
     };
     let threads: usize = threads.parse()?;
     rayon::ThreadPoolBuilder::new().num_threads(threads).build_global()?;
-    let drive = Drive::read_csv(path)?;
+    let (drive, _warnings) = Drive::read_csv(path)?;
     let opts = CalibrationOptions { method: Method::from_name(method)?, ..Default::default() };
     let cpu0 = cpu_seconds()?;
     let t = Instant::now();

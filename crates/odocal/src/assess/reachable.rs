@@ -648,10 +648,14 @@ mod tests {
             x = step(&x, &Input { n_rl, n_rr, beta, a_y }, theta, TS);
         }
         let [t, px, py, psi, n_rl, n_rr, beta, a_y] = cols;
-        Drive::builder(t, Signals { px, py, psi, n_rl, n_rr, beta, a_y })
-            .context("synthetic")
-            .build()
-            .expect("valid drive")
+        crate::drive::DriveBuilder {
+            t,
+            measured: Signals { px, py, psi, n_rl, n_rr, beta, a_y },
+            context: "synthetic".into(),
+            ..Default::default()
+        }
+        .build()
+        .expect("valid drive")
     }
 
     fn setup() -> (Drive, Vec<Segment>) {

@@ -219,7 +219,7 @@ fn straight_drive_calibrates_c_e_and_names_the_rest() {
         beta: sd.zero.clone(),
         a_y: sd.zero,
     };
-    let drive = crate::Drive::builder(t, signals).build().expect("drive");
+    let drive = crate::DriveBuilder { t, measured: signals, ..Default::default() }.build().expect("drive");
     let opts = CalibrationOptions { method: eiv_method(EivOptions::default(), true), ..Default::default() };
     let r = calibrate(&drive, &opts).expect("calibrate");
     assert_eq!(detail(&r).eiv_result, EivOutcome::Eiv, "{:?}", r.warnings);

@@ -79,7 +79,9 @@ mod tests {
         for (i, p) in psi.iter().enumerate() {
             s.push([i as f64 * 0.25, 0.0, *p, 5.0, 5.0, 0.0, 0.0]);
         }
-        Drive::builder((0..n).map(|i| i as f64 * 0.025).collect(), s).build().expect("drive")
+        crate::drive::DriveBuilder { t: (0..n).map(|i| i as f64 * 0.025).collect(), measured: s, ..Default::default() }
+            .build()
+            .expect("drive")
     }
 
     /// A noise-free oval (300 m straights, 40 m radius half circles) at
@@ -101,7 +103,9 @@ mod tests {
             s.push([x[0], x[1], x[2], n_rl, n_rr, 0.0, a_y]);
             x = step(&x, &Input { n_rl, n_rr, beta: 0.0, a_y }, &theta, t_s);
         }
-        Drive::builder((0..n).map(|i| i as f64 * t_s).collect(), s).build().expect("oval")
+        crate::drive::DriveBuilder { t: (0..n).map(|i| i as f64 * t_s).collect(), measured: s, ..Default::default() }
+            .build()
+            .expect("oval")
     }
 
     #[test]

@@ -587,7 +587,9 @@ mod tests {
             beta: vec![0.0; n],
             a_y: vec![a_y; n],
         };
-        Drive::builder(cols[0].clone(), sig).context("circle").build().expect("valid")
+        crate::drive::DriveBuilder { t: cols[0].clone(), measured: sig, context: "circle".into(), ..Default::default() }
+            .build()
+            .expect("valid")
     }
 
     /// Noise-free, constant inputs: the measured inputs are optimal (zero

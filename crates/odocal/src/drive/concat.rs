@@ -80,12 +80,19 @@ impl Drive {
             }
             parts.extend(d.parts.iter().map(|p| base + p.start..base + p.end));
         }
-        let mut b: DriveBuilder = Drive::builder(t, measured).context("joined drives").parts(parts).sample_time_s(ts);
-        // Every drive passed its own limits when it was built.
-        b.limits = PhysicalLimits::NONE;
-        b.truth = truth;
-        b.reference_measured = mask;
-        let mut joined = b.build()?;
+        let mut joined = DriveBuilder {
+            context: "joined drives".into(),
+            t,
+            measured,
+            truth,
+            reference_measured: mask,
+            parts: Some(parts),
+            sample_time_s: Some(ts),
+            // Every drive passed its own limits when it was built.
+            limits: PhysicalLimits::NONE,
+            ..Default::default()
+        }
+        .build()?;
         joined.drive_starts = starts;
         Ok(joined)
     }
@@ -112,7 +119,7 @@ mod tests {
             s.push([k as f64, 0.0, 0.01 * k as f64, 5.0, 5.0, 0.0, 0.0]);
         }
         let t = (0..n).map(|k| t0 + k as f64 * ts).collect();
-        Drive::builder(t, s).parts(parts).build().expect("drive")
+        DriveBuilder { t, measured: s, parts: Some(parts), ..Default::default() }.build().expect("drive")
     }
 
     #[test]

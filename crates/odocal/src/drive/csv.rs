@@ -2,7 +2,7 @@
 
 use std::path::Path;
 
-use super::{Drive, ExtraColumn, ExtraValues, Signals, SIGNAL_NAMES};
+use super::{Drive, DriveBuilder, ExtraColumn, ExtraValues, Signals, SIGNAL_NAMES};
 use crate::error::{Error, Result};
 
 /// The columns a canonical drive CSV must have.
@@ -309,19 +309,16 @@ impl Columns {
         let measured = self.signals("");
         let truth = TRUTH_COLUMNS.iter().all(|c| self.find(c).is_some()).then(|| self.signals("_true"));
         let t = self.take("t");
-        let mut b = Drive::builder(t, measured).context(path.display().to_string());
-        if let Some(tr) = truth {
-            b = b.truth(tr);
-        }
-        if let Some(ids) = self.part_ids(path)? {
-            b = b.part_ids(ids);
-        }
-        if let Some(mask) = self.reference_mask(path)? {
-            b = b.reference_measured(mask);
-        }
-        for extra in self.extra_columns() {
-            b = b.extra(extra);
-        }
+        let b = DriveBuilder {
+            context: path.display().to_string(),
+            t,
+            measured,
+            truth,
+            part_ids: self.part_ids(path)?,
+            reference_measured: self.reference_mask(path)?,
+            extra: self.extra_columns(),
+            ..Default::default()
+        };
         b.build().map_err(|e| match e {
             Error::InvalidSample { column, sample, reason, .. } => {
                 csv_error(path, self.line_of(sample), Some(&column), reason)
@@ -379,31 +376,23 @@ impl Columns {
 }
 
 impl Drive {
-    /// Reads a canonical drive CSV (SPEC §2). Accepts a UTF-8 BOM, CRLF line
-    /// endings, extra columns (numbers or text, kept in [`Drive::extra`];
-    /// truth columns in [`Drive::truth`]) and any column order. An optional
-    /// integer `part` column marks continuous parts of a drive with gaps; an
-    /// optional 0/1 `ref_measured` column marks where the reference was
-    /// really measured.
+    /// Reads a canonical drive CSV (SPEC §2), with what the reader noticed
+    /// that is not an error: a last line without a newline at its end (a
+    /// hand-made file, or one cut off by an interrupted write). Accepts a
+    /// UTF-8 BOM, CRLF line endings, extra columns (numbers or text, kept in
+    /// [`Drive::extra`]; truth columns in [`Drive::truth`]) and any column
+    /// order. An optional integer `part` column marks continuous parts of a
+    /// drive with gaps; an optional 0/1 `ref_measured` column marks where
+    /// the reference was really measured.
     ///
     /// # Errors
     /// [`Error::Io`], [`Error::Csv`] naming the line and column,
     /// [`Error::MissingColumns`] listing what was found,
     /// [`Error::InvalidDrive`] for a directory or a file that is not CSV text
     /// but a ROS bag, a Parquet file or a compressed archive (known by its
-    /// first bytes), saying what to do instead.
-    pub fn read_csv(path: impl AsRef<Path>) -> Result<Drive> {
-        Ok(Self::read_csv_with_warnings(path)?.0)
-    }
-
-    /// [`Drive::read_csv`], also returning what the reader noticed that is
-    /// not an error: a last line without a newline at its end (a hand-made
-    /// file, or one cut off by an interrupted write).
-    ///
-    /// # Errors
-    /// As [`Drive::read_csv`]; a short last row is an error naming the file
-    /// and the line.
-    pub fn read_csv_with_warnings(path: impl AsRef<Path>) -> Result<(Drive, Vec<String>)> {
+    /// first bytes), saying what to do instead. A short last row is an error
+    /// naming the file and the line.
+    pub fn read_csv(path: impl AsRef<Path>) -> Result<(Drive, Vec<String>)> {
         let path = path.as_ref();
         if path.is_dir() {
             // A rosbag2 directory (metadata.yaml beside .mcap or .db3 files) or
@@ -622,12 +611,12 @@ mod tests {
     #[test]
     fn a_last_line_without_newline_is_read_with_a_warning() {
         let d = tmp_csv(csv_text(6, 0.025).trim_end());
-        let (drive, warnings) = Drive::read_csv_with_warnings(d.path()).expect("valid");
+        let (drive, warnings) = Drive::read_csv(d.path()).expect("valid");
         assert_eq!(drive.len(), 6);
         assert_eq!(warnings.len(), 1, "{warnings:?}");
         assert!(warnings[0].contains("line 7, the last line, has no newline"), "{}", warnings[0]);
         let d = tmp_csv(&csv_text(6, 0.025));
-        assert!(Drive::read_csv_with_warnings(d.path()).expect("valid").1.is_empty());
+        assert!(Drive::read_csv(d.path()).expect("valid").1.is_empty());
     }
 
     fn tmp_csv(text: &str) -> tempfile::NamedTempFile {

@@ -39,7 +39,7 @@ impl Drive {
     /// for k in 0..4 {
     ///     s.push([k as f64, 0.0, 0.0, 5.0, 5.0, 0.0, 0.0]);
     /// }
-    /// let d = Drive::builder(t, s).build()?;
+    /// let d = crate::drive::DriveBuilder { t, measured: s, ..Default::default() }.build()?;
     /// assert_eq!(d.fingerprint().len(), 64);
     /// let mut csv = Vec::new();
     /// d.write_csv_to(&mut csv)?;
@@ -134,7 +134,7 @@ mod tests {
         for k in 0..n {
             s.push([k as f64 * 0.25 + shift, 0.0, 0.0, 5.0, 5.0, 0.0, 0.0]);
         }
-        Drive::builder(t, s).build().expect("valid")
+        crate::drive::DriveBuilder { t, measured: s, ..Default::default() }.build().expect("valid")
     }
 
     /// The fingerprint of a fixed drive, as documented: pins the byte order.
@@ -177,7 +177,13 @@ mod tests {
         let with = d.clone().with_extra(ExtraColumn::numbers("flag", vec![1.0; 50])).expect("extra");
         assert_eq!(with.fingerprint(), d.fingerprint());
         // Parts do.
-        let parts = Drive::builder(d.t().to_vec(), d.measured().clone()).parts(vec![0..20, 20..50]).build();
+        let parts = crate::drive::DriveBuilder {
+            t: d.t().to_vec(),
+            measured: d.measured().clone(),
+            parts: Some(vec![0..20, 20..50]),
+            ..Default::default()
+        }
+        .build();
         assert_ne!(parts.expect("parts").fingerprint(), d.fingerprint());
     }
 

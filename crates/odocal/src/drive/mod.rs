@@ -26,20 +26,21 @@
 //!
 //! ```
 //! # fn main() -> Result<(), odocal::Error> {
-//! use odocal::{Drive, Signals};
+//! use odocal::{DriveBuilder, Signals};
 //! let n = 100;
 //! let t: Vec<f64> = (0..n).map(|k| k as f64 * 0.025).collect();
 //! let mut s = Signals::with_capacity(n);
 //! for k in 0..n {
 //!     s.push([k as f64 * 0.25, 0.0, 0.0, 5.0, 5.0, 0.0, 0.0]);
 //! }
-//! let drive = Drive::builder(t, s).context("my arrays").build()?;
+//! let drive = DriveBuilder { t, measured: s, context: "my arrays".into(), ..Default::default() }.build()?;
 //! assert_eq!(drive.len(), 100);
 //! assert!((drive.sample_time_s() - 0.025).abs() < 1e-12);
 //! // Bad data is rejected, naming the column and the sample.
 //! let mut bad = drive.measured().clone();
 //! bad.n_rl[7] = f64::NAN;
-//! let e = Drive::builder(drive.t().to_vec(), bad).context("my arrays").build().unwrap_err();
+//! let b = DriveBuilder { t: drive.t().to_vec(), measured: bad, context: "my arrays".into(), ..Default::default() };
+//! let e = b.build().unwrap_err();
 //! assert_eq!(e.to_string(), "my arrays: column 'n_rl', sample 7: value NaN is not finite");
 //! # Ok(()) }
 //! ```
@@ -204,85 +205,73 @@ pub struct Drive {
     drive_starts: Vec<usize>,
 }
 
-/// How the parts of a drive are given to the [`DriveBuilder`].
-#[derive(Debug, Clone, PartialEq)]
-enum PartSpec {
-    One,
-    Ids(Vec<i64>),
-    Ranges(Vec<Range<usize>>),
-}
-
-/// The checked constructor of a [`Drive`]: give the time and the measured
-/// signals, optionally the truth, parts, a reference mask and extra columns,
-/// then [`build`](DriveBuilder::build).
+/// The checked constructor of a [`Drive`]: the time and the measured
+/// signals, optionally the truth, parts, a reference mask and extra columns;
+/// fill the fields (the rest from [`Default`]) and call
+/// [`build`](DriveBuilder::build).
+///
+/// ```
+/// # fn main() -> Result<(), odocal::Error> {
+/// use odocal::{DriveBuilder, Signals};
+/// let mut s = Signals::with_capacity(4);
+/// for k in 0..4 {
+///     s.push([k as f64 * 0.25, 0.0, 0.0, 5.0, 5.0, 0.0, 0.0]);
+/// }
+/// let t = vec![0.0, 0.025, 0.05, 0.075];
+/// let drive = DriveBuilder { t, measured: s, part_ids: Some(vec![0, 0, 1, 1]), ..Default::default() }.build()?;
+/// assert_eq!(drive.parts(), &[0..2, 2..4]);
+/// # Ok(()) }
+/// ```
 #[derive(Debug, Clone)]
 #[must_use = "a builder does nothing until .build()"]
 pub struct DriveBuilder {
-    context: String,
-    t: Vec<f64>,
-    measured: Signals,
-    truth: Option<Signals>,
-    reference_measured: Option<Vec<bool>>,
-    extra: Vec<ExtraColumn>,
-    parts: PartSpec,
-    sample_time_s: Option<f64>,
-    limits: PhysicalLimits,
+    /// Where the data come from (a path, "simulator", "numpy arrays"), used
+    /// in error messages. Default `"drive"`.
+    pub context: String,
+    /// Time stamps, s, strictly increasing.
+    pub t: Vec<f64>,
+    /// The measured signals, one value per time stamp.
+    pub measured: Signals,
+    /// The noise-free truth (simulated drives).
+    pub truth: Option<Signals>,
+    /// Per-sample flag: true where the reference pose was really measured
+    /// (not interpolated or held). `None` means every sample is measured.
+    pub reference_measured: Option<Vec<bool>>,
+    /// Extra columns carried along with the drive.
+    pub extra: Vec<ExtraColumn>,
+    /// Per-sample part ids: a new part starts wherever the id changes.
+    /// Give this or [`parts`](DriveBuilder::parts), not both; neither
+    /// makes one part.
+    pub part_ids: Option<Vec<i64>>,
+    /// Parts as consecutive index ranges that cover every sample in order.
+    pub parts: Option<Vec<Range<usize>>>,
+    /// The nominal sample time, s, when the source knows it (a simulator, a
+    /// resampler): steps are checked against it instead of their mean, and
+    /// it is kept exactly as given. `None` infers it from the time stamps.
+    pub sample_time_s: Option<f64>,
+    /// The physical limits the drive is checked against (default
+    /// `PhysicalLimits::default`, the table in `odocal::model::limits`).
+    pub limits: PhysicalLimits,
+}
+
+impl Default for DriveBuilder {
+    fn default() -> Self {
+        DriveBuilder {
+            context: "drive".into(),
+            t: Vec::new(),
+            measured: Signals::default(),
+            truth: None,
+            reference_measured: None,
+            extra: Vec::new(),
+            part_ids: None,
+            parts: None,
+            sample_time_s: None,
+            limits: PhysicalLimits::default(),
+        }
+    }
 }
 
 impl DriveBuilder {
-    /// The nominal sample time, s, when the source knows it (a simulator, a
-    /// resampler): steps are checked against it instead of their mean, and
-    /// it is kept exactly as given.
-    pub fn sample_time_s(mut self, t_s: f64) -> Self {
-        self.sample_time_s = Some(t_s);
-        self
-    }
-
-    /// Where the data come from (a path, "simulator", "numpy arrays"), used
-    /// in error messages. Default `"drive"`.
-    pub fn context(mut self, context: impl Into<String>) -> Self {
-        self.context = context.into();
-        self
-    }
-
-    /// The physical limits the drive is checked against (default
-    /// `PhysicalLimits::default`, the table in `crate::model::limits`).
-    pub fn limits(mut self, limits: PhysicalLimits) -> Self {
-        self.limits = limits;
-        self
-    }
-
-    /// The noise-free truth (simulated drives).
-    pub fn truth(mut self, truth: Signals) -> Self {
-        self.truth = Some(truth);
-        self
-    }
-
-    /// Per-sample part ids: a new part starts wherever the id changes.
-    pub fn part_ids(mut self, ids: Vec<i64>) -> Self {
-        self.parts = PartSpec::Ids(ids);
-        self
-    }
-
-    /// Parts as consecutive index ranges that cover every sample in order.
-    pub fn parts(mut self, parts: Vec<Range<usize>>) -> Self {
-        self.parts = PartSpec::Ranges(parts);
-        self
-    }
-
-    /// Per-sample flag: true where the reference pose was really measured
-    /// (not interpolated or held). Absent means every sample is measured.
-    pub fn reference_measured(mut self, mask: Vec<bool>) -> Self {
-        self.reference_measured = Some(mask);
-        self
-    }
-
-    /// Adds an extra column carried along with the drive.
-    pub fn extra(mut self, column: ExtraColumn) -> Self {
-        self.extra.push(column);
-        self
-    }
-
     /// Checks everything and makes the drive: equal column lengths, finite
     /// values, strictly increasing time, a uniform step within each part
     /// (within `STEP_UNIFORMITY_TOL`); infers t_s and unwraps the heading;
@@ -300,6 +289,7 @@ impl DriveBuilder {
             mut truth,
             reference_measured,
             extra,
+            part_ids,
             parts,
             sample_time_s,
             limits,
@@ -327,7 +317,7 @@ impl DriveBuilder {
                 return Err(err.invalid(format!("column {} has {} samples, t has {n}", c.name, c.values.len())));
             }
         }
-        let parts = resolve_parts(parts, n, &err)?;
+        let parts = resolve_parts(part_ids, parts, n, &err)?;
         check_increasing(&t, &err)?;
         let ts = sample_time(&t, &parts, sample_time_s, &err)?;
         check_uniform_steps(&t, &parts, ts, sample_time_s.is_some(), &err)?;
@@ -377,10 +367,16 @@ fn check_signals(sig: &Signals, suffix: &str, n: usize, err: &BuildErrors<'_>) -
 /// The parts as index ranges: one part; a new part wherever the id
 /// changes; or the given ranges, which must be non-empty, consecutive and
 /// cover the `n` samples.
-fn resolve_parts(parts: PartSpec, n: usize, err: &BuildErrors<'_>) -> Result<Vec<Range<usize>>> {
-    match parts {
-        PartSpec::One => Ok(vec![0..n]),
-        PartSpec::Ids(ids) => {
+fn resolve_parts(
+    ids: Option<Vec<i64>>,
+    ranges: Option<Vec<Range<usize>>>,
+    n: usize,
+    err: &BuildErrors<'_>,
+) -> Result<Vec<Range<usize>>> {
+    match (ids, ranges) {
+        (None, None) => Ok(vec![0..n]),
+        (Some(_), Some(_)) => Err(err.invalid("both part ids and part ranges given; give one of them".into())),
+        (Some(ids), None) => {
             if ids.len() != n {
                 return Err(err.invalid(format!("column part has {} samples, t has {n}", ids.len())));
             }
@@ -394,7 +390,7 @@ fn resolve_parts(parts: PartSpec, n: usize, err: &BuildErrors<'_>) -> Result<Vec
             }
             Ok(parts)
         }
-        PartSpec::Ranges(r) => {
+        (None, Some(r)) => {
             let mut next = 0;
             for p in &r {
                 if p.start != next || p.end <= p.start {
@@ -468,22 +464,6 @@ fn check_uniform_steps(t: &[f64], parts: &[Range<usize>], ts: f64, nominal: bool
 }
 
 impl Drive {
-    /// Starts the checked constructor with the time stamps (s) and the
-    /// measured signals. See [`DriveBuilder`].
-    pub fn builder(t: Vec<f64>, measured: Signals) -> DriveBuilder {
-        DriveBuilder {
-            context: "drive".into(),
-            t,
-            measured,
-            truth: None,
-            reference_measured: None,
-            extra: Vec::new(),
-            parts: PartSpec::One,
-            sample_time_s: None,
-            limits: PhysicalLimits::default(),
-        }
-    }
-
     /// Number of samples.
     pub fn len(&self) -> usize {
         self.t.len()
@@ -668,17 +648,23 @@ impl Drive {
             })
             .collect();
         // Keep the parent's t_s: a sub-drive is sampled like the drive it came from.
-        let mut b = Drive::builder(t, measured).context("drive").parts(parts).sample_time_s(self.sample_time_s);
-        // Samples of a drive that passed its limits: no need to check again.
-        b.limits = PhysicalLimits::NONE;
-        b.truth = truth;
-        b.reference_measured = self.reference_measured.as_ref().map(|m| m[r.clone()].to_vec());
-        b.extra = self
-            .extra
-            .iter()
-            .map(|c| ExtraColumn { name: c.name.clone(), values: c.values.slice(r.clone()) })
-            .collect();
-        let mut d = b.build()?;
+        let mut d = DriveBuilder {
+            t,
+            measured,
+            truth,
+            reference_measured: self.reference_measured.as_ref().map(|m| m[r.clone()].to_vec()),
+            extra: self
+                .extra
+                .iter()
+                .map(|c| ExtraColumn { name: c.name.clone(), values: c.values.slice(r.clone()) })
+                .collect(),
+            parts: Some(parts),
+            sample_time_s: Some(self.sample_time_s),
+            // Samples of a drive that passed its limits: no need to check again.
+            limits: PhysicalLimits::NONE,
+            ..Default::default()
+        }
+        .build()?;
         // The joined drives that reach into `r`, from where they do.
         d.drive_starts = self
             .drive_starts
@@ -729,14 +715,16 @@ pub(crate) fn axle_reference_drive_by(drive: &Drive, e: impl Fn(usize) -> Extrin
         let x = axle_pose(&drive.pose(i), &e(i));
         (m.px[i], m.py[i], m.psi[i]) = (x[0], x[1], x[2]);
     }
-    let mut b = Drive::builder(drive.t().to_vec(), m)
-        .parts(drive.parts().to_vec())
-        .sample_time_s(drive.sample_time_s())
-        .context("axle reference");
-    if let Some(mask) = drive.reference_measured() {
-        b = b.reference_measured(mask.to_vec());
+    let mut d = DriveBuilder {
+        t: drive.t().to_vec(),
+        measured: m,
+        parts: Some(drive.parts().to_vec()),
+        sample_time_s: Some(drive.sample_time_s()),
+        context: "axle reference".into(),
+        reference_measured: drive.reference_measured().map(<[bool]>::to_vec),
+        ..Default::default()
     }
-    let mut d = b.build()?;
+    .build()?;
     d.drive_starts.clone_from(&drive.drive_starts);
     Ok(d)
 }
@@ -761,29 +749,63 @@ mod tests {
     fn builder_names_column_and_sample() {
         let mut s = signals(10);
         s.a_y[4] = f64::INFINITY;
-        let e = Drive::builder(times(10), s).context("arrays").build().expect_err("inf");
+        let e = DriveBuilder { t: times(10), measured: s, context: "arrays".into(), ..Default::default() }
+            .build()
+            .expect_err("inf");
         assert_eq!(e.to_string(), "arrays: column 'a_y', sample 4: value inf is not finite");
         let mut t = times(10);
         t[6] = t[5];
-        let e = Drive::builder(t, signals(10)).context("arrays").build().expect_err("time");
+        let e = DriveBuilder { t, measured: signals(10), context: "arrays".into(), ..Default::default() }
+            .build()
+            .expect_err("time");
         assert!(e.to_string().starts_with("arrays: column 't', sample 6: time is not strictly increasing"), "{e}");
         let mut tr = signals(10);
         tr.px[2] = f64::NAN;
-        let e = Drive::builder(times(10), signals(10)).truth(tr).context("sim").build().expect_err("truth");
+        let e = DriveBuilder {
+            t: times(10),
+            measured: signals(10),
+            truth: Some(tr),
+            context: "sim".into(),
+            ..Default::default()
+        }
+        .build()
+        .expect_err("truth");
         assert_eq!(e.to_string(), "sim: column 'px_true', sample 2: value NaN is not finite");
-        let e = Drive::builder(times(9), signals(10)).build().expect_err("length");
+        let e = DriveBuilder { t: times(9), measured: signals(10), ..Default::default() }.build().expect_err("length");
         assert!(e.to_string().contains("column px has 10 samples, t has 9"), "{e}");
     }
 
     #[test]
     fn builder_checks_parts_and_mask() {
-        let d = Drive::builder(times(10), signals(10)).parts(vec![0..4, 4..10]).build().expect("ok");
+        let d =
+            DriveBuilder { t: times(10), measured: signals(10), parts: Some(vec![0..4, 4..10]), ..Default::default() }
+                .build()
+                .expect("ok");
         assert_eq!(d.parts(), &[0..4, 4..10]);
-        assert!(Drive::builder(times(10), signals(10)).parts(vec![0..4, 5..10]).build().is_err());
-        assert!(Drive::builder(times(10), signals(10)).parts(vec![0..4]).build().is_err());
-        assert!(Drive::builder(times(10), signals(10)).reference_measured(vec![true; 9]).build().is_err());
+        assert!(DriveBuilder {
+            t: times(10),
+            measured: signals(10),
+            parts: Some(vec![0..4, 5..10]),
+            ..Default::default()
+        }
+        .build()
+        .is_err());
+        assert!(DriveBuilder { t: times(10), measured: signals(10), parts: Some(vec![0..4]), ..Default::default() }
+            .build()
+            .is_err());
+        assert!(DriveBuilder {
+            t: times(10),
+            measured: signals(10),
+            reference_measured: Some(vec![true; 9]),
+            ..Default::default()
+        }
+        .build()
+        .is_err());
         let mask: Vec<bool> = (0..10).map(|k| k % 4 == 0).collect();
-        let d = Drive::builder(times(10), signals(10)).reference_measured(mask).build().expect("ok");
+        let d =
+            DriveBuilder { t: times(10), measured: signals(10), reference_measured: Some(mask), ..Default::default() }
+                .build()
+                .expect("ok");
         assert!(d.is_reference_measured(4) && !d.is_reference_measured(5));
         let w = d.window(0.1, 1.0).expect("window");
         assert!(w.is_reference_measured(0) && !w.is_reference_measured(1));
@@ -792,16 +814,23 @@ mod tests {
     #[test]
     fn part_ids_changing_at_every_sample_are_named() {
         let ids = (0..10).map(|k| k % 2).collect();
-        let e = Drive::builder(times(10), signals(10)).part_ids(ids).build().expect_err("alternating").to_string();
+        let e = DriveBuilder { t: times(10), measured: signals(10), part_ids: Some(ids), ..Default::default() }
+            .build()
+            .expect_err("alternating")
+            .to_string();
         assert!(e.contains("10 parts of one sample each: the part ids change at every sample"), "{e}");
     }
 
     #[test]
     fn split_at_time_keeps_everything() {
-        let d = Drive::builder(times(10), signals(10))
-            .extra(ExtraColumn::numbers("x", (0..10).map(f64::from).collect()))
-            .build()
-            .expect("ok");
+        let d = DriveBuilder {
+            t: times(10),
+            measured: signals(10),
+            extra: vec![ExtraColumn::numbers("x", (0..10).map(f64::from).collect())],
+            ..Default::default()
+        }
+        .build()
+        .expect("ok");
         let (a, b) = d.split_at_time(0.1).expect("split");
         assert_eq!((a.len(), b.len()), (4, 6));
         assert_eq!(b.extra_column("x").and_then(ExtraColumn::as_numbers), Some(&[4.0, 5.0, 6.0, 7.0, 8.0, 9.0][..]));

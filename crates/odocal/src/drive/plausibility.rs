@@ -338,7 +338,13 @@ mod tests {
             s.push([k as f64 * 10.0 * ts, 0.0, 0.0, 5.0, 5.0, 0.0, 0.0]);
         }
         edit(&mut s);
-        Drive::builder((0..n).map(|k| k as f64 * ts).collect(), s).context("d").build()
+        crate::drive::DriveBuilder {
+            t: (0..n).map(|k| k as f64 * ts).collect(),
+            measured: s,
+            context: "d".into(),
+            ..Default::default()
+        }
+        .build()
     }
 
     #[test]
@@ -379,7 +385,7 @@ mod tests {
         let edit = |f: &dyn Fn(&mut Signals)| {
             let mut s = d.measured().clone();
             f(&mut s);
-            Drive::builder(d.t().to_vec(), s).build().expect("drive")
+            crate::drive::DriveBuilder { t: d.t().to_vec(), measured: s, ..Default::default() }.build().expect("drive")
         };
         let neg = edit(&|s| {
             s.n_rl.iter_mut().for_each(|v| *v = -*v);

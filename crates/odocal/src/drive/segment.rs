@@ -221,12 +221,21 @@ mod tests {
         let t: Vec<f64> = (0..n).map(|i| i as f64 * 0.025).collect();
         let psi: Vec<f64> = (0..n).map(|i| if i > turn_from { (i - turn_from) as f64 * 0.01 } else { 0.0 }).collect();
         let z = vec![0.0; n];
-        Drive::builder(
+        crate::drive::DriveBuilder {
             t,
-            Signals { px: z.clone(), py: z.clone(), psi, n_rl: z.clone(), n_rr: z.clone(), beta: z.clone(), a_y: z },
-        )
-        .context("test")
-        .parts(parts)
+            measured: Signals {
+                px: z.clone(),
+                py: z.clone(),
+                psi,
+                n_rl: z.clone(),
+                n_rr: z.clone(),
+                beta: z.clone(),
+                a_y: z,
+            },
+            context: "test".into(),
+            parts: Some(parts),
+            ..Default::default()
+        }
         .build()
         .expect("valid")
     }

@@ -52,7 +52,7 @@ const BLOCK: usize = 4096;
 /// let path = dir.path().join("d.csv");
 /// out.drive.write_csv(&path)?;
 /// let stream = DriveStream::open(&path)?;
-/// assert_eq!(stream.fingerprint()?, Drive::read_csv(&path)?.fingerprint());
+/// assert_eq!(stream.fingerprint()?, Drive::read_csv(&path)?.0.fingerprint());
 /// let mut n = 0;
 /// for chunk in stream.chunks(400) {
 ///     n += chunk?.t.len();
@@ -62,14 +62,21 @@ const BLOCK: usize = 4096;
 /// ```
 #[derive(Debug)]
 pub struct DriveStream {
-    path: PathBuf,
+    /// The file read (or the source a spooled stream names in messages).
+    pub path: PathBuf,
+    /// Sample time t_s, s, as [`Drive::sample_time_s`] (the mean step).
+    pub sample_time_s: f64,
+    /// The first and the last time stamp, s.
+    pub time_span_s: (f64, f64),
+    /// What the reader noticed that is not an error, as
+    /// [`Drive::read_csv`] returns it.
+    pub warnings: Vec<String>,
+    /// Number of samples; with `parts`, what the spilled columns hold, so
+    /// both stay private.
     len: usize,
     parts: Vec<Range<usize>>,
-    sample_time_s: f64,
-    time_span_s: (f64, f64),
     /// The kept columns, 8-byte little-endian values.
     columns: Vec<File>,
-    warnings: Vec<String>,
 }
 
 /// Samples of a [`DriveStream`], all of one part.
@@ -152,11 +159,6 @@ impl DriveStream {
         })
     }
 
-    /// The file read.
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
-
     /// Number of samples.
     pub fn len(&self) -> usize {
         self.len
@@ -170,22 +172,6 @@ impl DriveStream {
     /// Continuous parts as index ranges, as [`Drive::parts`].
     pub fn parts(&self) -> &[Range<usize>] {
         &self.parts
-    }
-
-    /// Sample time t_s, s, as [`Drive::sample_time_s`] (the mean step).
-    pub fn sample_time_s(&self) -> f64 {
-        self.sample_time_s
-    }
-
-    /// The first and the last time stamp, s.
-    pub fn time_span_s(&self) -> (f64, f64) {
-        self.time_span_s
-    }
-
-    /// What the reader noticed that is not an error, as
-    /// [`Drive::read_csv_with_warnings`] returns it.
-    pub fn warnings(&self) -> &[String] {
-        &self.warnings
     }
 
     /// The drive's fingerprint, equal to [`Drive::fingerprint`] of the drive

@@ -20,7 +20,16 @@ fn drive_with_parts() -> Drive {
         name: "note".into(),
         values: crate::drive::ExtraValues::Text((0..d.len()).map(|i| format!("n{i}")).collect()),
     };
-    Drive::builder(t, d.measured().clone()).truth(truth).parts(vec![0..k, k..d.len()]).extra(note).build().expect("d")
+    crate::drive::DriveBuilder {
+        t,
+        measured: d.measured().clone(),
+        truth: Some(truth),
+        parts: Some(vec![0..k, k..d.len()]),
+        extra: vec![note],
+        ..Default::default()
+    }
+    .build()
+    .expect("d")
 }
 
 fn write(dir: &tempfile::TempDir, name: &str, text: &[u8]) -> PathBuf {
@@ -33,9 +42,9 @@ fn write(dir: &tempfile::TempDir, name: &str, text: &[u8]) -> PathBuf {
 fn assert_same(stream: &DriveStream, whole: &Drive, size: usize) {
     assert_eq!(stream.len(), whole.len());
     assert_eq!(stream.parts(), whole.parts());
-    assert_eq!(stream.sample_time_s().to_bits(), whole.sample_time_s().to_bits());
+    assert_eq!(stream.sample_time_s.to_bits(), whole.sample_time_s.to_bits());
     let t = whole.t();
-    assert_eq!(bits(&[stream.time_span_s().0, stream.time_span_s().1]), bits(&[t[0], t[t.len() - 1]]));
+    assert_eq!(bits(&[stream.time_span_s.0, stream.time_span_s.1]), bits(&[t[0], t[t.len() - 1]]));
     assert_eq!(stream.fingerprint().expect("fingerprint"), whole.fingerprint());
     let mut next = 0;
     let mut chunks = 0;
@@ -65,24 +74,27 @@ fn chunks_equal_the_drive_read_whole() {
     let d = drive_with_parts();
     let p = dir.path().join("parts.csv");
     d.write_csv(&p).expect("write");
-    let (whole, warnings) = Drive::read_csv_with_warnings(&p).expect("whole");
+    let (whole, warnings) = Drive::read_csv(&p).expect("whole");
     assert_eq!(whole.parts().len(), 2);
     let stream = DriveStream::open(&p).expect("stream");
-    assert_eq!(stream.warnings(), warnings.as_slice());
+    assert_eq!(stream.warnings, warnings.as_slice());
     for size in [400, 333, 1, 100_000] {
         assert_same(&stream, &whole, size);
     }
     // One part, no truth, no newline at the end, a BOM and CRLF.
     let one = simulate(&SimOptions { length_km: 1.0, ..SimOptions::paper(8) }).expect("sim").drive;
-    let one = Drive::builder(one.t().to_vec(), one.measured().clone()).build().expect("one");
+    let one =
+        crate::drive::DriveBuilder { t: one.t().to_vec(), measured: one.measured().clone(), ..Default::default() }
+            .build()
+            .expect("one");
     let mut text = b"\xEF\xBB\xBF".to_vec();
     one.write_csv_to(&mut text).expect("csv");
     let text = String::from_utf8(text).expect("utf8").trim_end().replace('\n', "\r\n");
     let p = write(&dir, "one.csv", text.as_bytes());
-    let (whole, warnings) = Drive::read_csv_with_warnings(&p).expect("whole");
+    let (whole, warnings) = Drive::read_csv(&p).expect("whole");
     let stream = DriveStream::open(&p).expect("stream");
     assert_eq!(warnings.len(), 1);
-    assert_eq!(stream.warnings(), warnings.as_slice());
+    assert_eq!(stream.warnings, warnings.as_slice());
     assert_same(&stream, &whole, 400);
 }
 
@@ -97,7 +109,7 @@ fn a_wrapped_heading_is_unwrapped_as_whole() {
         psi += 0.3 * if k < 200 { 1.0 } else { -1.0 };
     }
     let p = write(&dir, "wrap.csv", s.as_bytes());
-    let whole = Drive::read_csv(&p).expect("whole");
+    let whole = Drive::read_csv(&p).expect("whole").0;
     assert!(whole.psi().iter().any(|v| v.abs() > 10.0), "the heading winds up");
     assert_same(&DriveStream::open(&p).expect("stream"), &whole, 64);
 }
@@ -180,9 +192,9 @@ fn edge_cases_are_accepted_as_whole() {
     ];
     for (i, text) in cases.iter().enumerate() {
         let p = write(&dir, &format!("edge{i}.csv"), text.as_bytes());
-        let (whole, warnings) = Drive::read_csv_with_warnings(&p).expect("whole");
+        let (whole, warnings) = Drive::read_csv(&p).expect("whole");
         let stream = DriveStream::open(&p).expect("stream");
-        assert_eq!(stream.warnings(), warnings.as_slice(), "case {i}");
+        assert_eq!(stream.warnings, warnings.as_slice(), "case {i}");
         assert_same(&stream, &whole, 2);
     }
 }

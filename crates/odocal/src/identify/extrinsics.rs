@@ -384,7 +384,9 @@ mod tests {
             sig.a_y.push(0.0);
             x = crate::model::step(&x, &u, &th, ts);
         }
-        let d = crate::drive::Drive::builder(t, sig).context("straight").build().expect("drive");
+        let d = crate::drive::DriveBuilder { t, measured: sig, context: "straight".into(), ..Default::default() }
+            .build()
+            .expect("drive");
         let data: Vec<SegmentData> =
             crate::drive::segment::cut(&d, 0, 650, 100).iter().map(|s| SegmentData::new(&d, s)).collect();
         let opts = IdentifyOptions {

@@ -702,10 +702,14 @@ mod tests {
             x = step(&x, &u, &th, ts);
         }
         let z = vec![0.0; n];
-        Drive::builder(t, Signals { px, py, psi, n_rl: nl, n_rr: nr, beta: z.clone(), a_y: z })
-            .context("straight")
-            .build()
-            .expect("valid")
+        crate::drive::DriveBuilder {
+            t,
+            measured: Signals { px, py, psi, n_rl: nl, n_rr: nr, beta: z.clone(), a_y: z },
+            context: "straight".into(),
+            ..Default::default()
+        }
+        .build()
+        .expect("valid")
     }
 
     #[test]

@@ -12,7 +12,14 @@ fn noise_free(km: f64, seed: u64) -> (Drive, Theta) {
 fn with_heading_offset(d: &Drive, delta: f64) -> Drive {
     let m = d.measured();
     let signals = Signals { psi: m.psi.iter().map(|p| p + delta).collect(), ..m.clone() };
-    Drive::builder(d.t().to_vec(), signals).parts(d.parts().to_vec()).build().expect("drive")
+    crate::drive::DriveBuilder {
+        t: d.t().to_vec(),
+        measured: signals,
+        parts: Some(d.parts().to_vec()),
+        ..Default::default()
+    }
+    .build()
+    .expect("drive")
 }
 
 #[test]
@@ -177,14 +184,21 @@ fn a_streamed_drive_gives_the_whole_drives_results() {
     let d = &out.drive;
     let k = d.len() / 2;
     let t: Vec<f64> = d.t().iter().enumerate().map(|(i, &t)| if i < k { t } else { t + 3.0 }).collect();
-    let gapped = Drive::builder(t, d.measured().clone()).parts(vec![0..k, k..d.len()]).build().expect("drive");
+    let gapped = crate::drive::DriveBuilder {
+        t,
+        measured: d.measured().clone(),
+        parts: Some(vec![0..k, k..d.len()]),
+        ..Default::default()
+    }
+    .build()
+    .expect("drive");
     let dir = tempfile::tempdir().expect("tmp");
     let p = dir.path().join("d.csv");
     gapped.write_csv(&p).expect("write");
-    let whole = Drive::read_csv(&p).expect("whole");
+    let whole = Drive::read_csv(&p).expect("whole").0;
     let stream = crate::drive::DriveStream::open(&p).expect("stream");
     let run = |push: &dyn Fn(&mut Calibrator, &mut Vec<usize>)| {
-        let mut cal = Calibrator::new(Theta::PAPER_INITIAL, None, stream.sample_time_s(), OnlineOptions::default())
+        let mut cal = Calibrator::new(Theta::PAPER_INITIAL, None, stream.sample_time_s, OnlineOptions::default())
             .expect("calibrator");
         cal.set_stored(Some(Theta::PAPER_NOMINAL));
         let mut progress = Vec::new();

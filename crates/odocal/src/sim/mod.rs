@@ -72,7 +72,7 @@ use std::path::{Path, PathBuf};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::drive::{Drive, Signals};
+use crate::drive::{Drive, DriveBuilder, Signals};
 use crate::error::{Error, Result};
 use crate::model::{self, Input, State, Theta};
 
@@ -218,7 +218,15 @@ pub fn simulate(opts: &SimOptions) -> Result<SimOutput> {
         wheel_rotation_rel_error_rms,
     };
     let t = (0..n).map(|k| k as f64 / opts.sample_rate_hz).collect();
-    let drive = Drive::builder(t, measured).truth(truth).sample_time_s(ts).context("simulator").build()?;
+    let drive = DriveBuilder {
+        t,
+        measured,
+        truth: Some(truth),
+        sample_time_s: Some(ts),
+        context: "simulator".into(),
+        ..Default::default()
+    }
+    .build()?;
     let drive_fingerprint = Some(drive.fingerprint());
     Ok(SimOutput {
         drive,

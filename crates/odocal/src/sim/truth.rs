@@ -93,11 +93,11 @@ mod tests {
         a.drive.write_csv(&csv).expect("csv");
         assert_eq!(sidecar_for(&csv, &a.drive), SidecarMatch::None);
         a.sidecar.write_json(&sidecar_path(&csv)).expect("json");
-        let read = Drive::read_csv(&csv).expect("read");
+        let read = Drive::read_csv(&csv).expect("read").0;
         assert_eq!(sidecar_for(&csv, &read).bound(), Some(a.sidecar.clone()));
         // Another drive written over the CSV: the sidecar is not its truth.
         b.drive.write_csv(&csv).expect("csv");
-        let other = sidecar_for(&csv, &Drive::read_csv(&csv).expect("read"));
+        let other = sidecar_for(&csv, &Drive::read_csv(&csv).expect("read").0);
         assert!(other.note().is_some_and(|n| n.contains("another drive")), "{other:?}");
         // A sidecar without a fingerprint is not bound either.
         let mut old = a.sidecar.clone();

@@ -80,7 +80,7 @@ pub fn peak_of(f: impl FnOnce()) -> usize {
 /// chunks of 400 samples; the number of samples pushed.
 pub fn replay_stream(stream: &DriveStream) -> usize {
     assert_eq!(stream.fingerprint().expect("fingerprint").len(), 64);
-    let mut cal = Calibrator::new(Theta::PAPER_NOMINAL, None, stream.sample_time_s(), OnlineOptions::default())
+    let mut cal = Calibrator::new(Theta::PAPER_NOMINAL, None, stream.sample_time_s, OnlineOptions::default())
         .expect("calibrator");
     let mut pushed = 0;
     cal.push_stream(stream, 400, |n| pushed = n).expect("push");

@@ -251,7 +251,7 @@ pub use report::ImportReport;
 pub use settings::ReferenceSpec;
 pub use settings::{CalibrationTable, NoiseTable};
 
-use crate::drive::{Drive, Signals};
+use crate::drive::{Drive, DriveBuilder, Signals};
 use crate::error::{Error, Result};
 use crate::model::Theta;
 use grid::Grid;
@@ -292,7 +292,7 @@ pub fn load_drive(path: &Path) -> Result<(Drive, Option<ImportReport>)> {
         let ImportedDrive { drive, report } = import(&m)?;
         Ok((drive, Some(report)))
     } else {
-        Ok((Drive::read_csv(path)?, None))
+        Ok((Drive::read_csv(path)?.0, None))
     }
 }
 
@@ -479,19 +479,23 @@ impl OnGrid {
             part_ranges.push(s0..t_out.len());
         }
         let t_of = t_out.clone();
-        Drive::builder(t_out, sig)
-            .parts(part_ranges)
-            .reference_measured(mask)
-            .sample_time_s(h)
-            .context(format!("import of {}", m.path.display()))
-            .build()
-            .map_err(|e| match e {
-                Error::InvalidSample { context, column, sample, reason } => Error::InvalidDrive {
-                    context,
-                    reason: format!("{column} at t = {:.3} s: {reason}", t_of.get(sample).copied().unwrap_or(f64::NAN)),
-                },
-                e => e,
-            })
+        DriveBuilder {
+            t: t_out,
+            measured: sig,
+            parts: Some(part_ranges),
+            reference_measured: Some(mask),
+            sample_time_s: Some(h),
+            context: format!("import of {}", m.path.display()),
+            ..Default::default()
+        }
+        .build()
+        .map_err(|e| match e {
+            Error::InvalidSample { context, column, sample, reason } => Error::InvalidDrive {
+                context,
+                reason: format!("{column} at t = {:.3} s: {reason}", t_of.get(sample).copied().unwrap_or(f64::NAN)),
+            },
+            e => e,
+        })
     }
 }
 

@@ -33,12 +33,16 @@ fn streamed(m: &Manifest, opts: StreamOptions, chunk: usize) -> (Drive, ImportRe
         }
     }
     let report = s.report().expect("report").clone();
-    let d = Drive::builder(t, sig)
-        .parts(parts)
-        .reference_measured(mask)
-        .sample_time_s(1.0 / m.output.rate_hz)
-        .build()
-        .expect("drive");
+    let d = crate::drive::DriveBuilder {
+        t,
+        measured: sig,
+        parts: Some(parts),
+        reference_measured: Some(mask),
+        sample_time_s: Some(1.0 / m.output.rate_hz),
+        ..Default::default()
+    }
+    .build()
+    .expect("drive");
     (d, report)
 }
 
