@@ -362,11 +362,11 @@ fn calibrate(
             reference: m.as_ref().and_then(|m| m.reference.as_ref()),
         })
         .collect();
-    let run = odocal::Calibration::new(drive, opts).progress(&cb);
+    let run = odocal::Calibration { progress: Some(&cb), ..odocal::Calibration::new(drive, opts) };
     match (validation.is_empty(), holdout) {
-        (true, Some(h)) => run.holdout(h).run(),
+        (true, Some(h)) => odocal::Calibration { holdout: Some(h), ..run }.run(),
         (true, None) => run.run(),
-        (false, _) => run.validate_on(&validation, given).carry_heading_offset(carry_heading_offset).run(),
+        (false, _) => odocal::Calibration { validate_on: &validation, given, carry_heading_offset, ..run }.run(),
     }
 }
 

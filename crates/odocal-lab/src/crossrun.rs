@@ -260,11 +260,7 @@ pub fn cross_run_groups(
             };
             &joint
         };
-        let mut run = Calibration::new(drive, opts);
-        if let Some(p) = progress {
-            run = run.progress(p);
-        }
-        let r = match run.run() {
+        let r = match (Calibration { progress, ..Calibration::new(drive, opts) }).run() {
             Ok(r) => r,
             Err(e) => {
                 rows.push(CrossRunRow { name, fit: Err(e.to_string()) });

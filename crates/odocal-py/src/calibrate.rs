@@ -145,16 +145,17 @@ fn calibrate_json(
         .collect();
     // Validation drives: each with the extrinsics that apply to it (odocal::assess::validation_drives).
     let opts = &plan.resolved.options;
-    let mut run = odocal::Calibration::new(drive, opts);
-    if let Some(p) = progress {
-        run = run.progress(p);
-    }
+    let run = odocal::Calibration { progress, ..odocal::Calibration::new(drive, opts) };
     let mut report = match (validation.is_empty(), &plan.holdout) {
-        (true, Some(h)) => run.holdout(h).run()?,
+        (true, Some(h)) => odocal::Calibration { holdout: Some(h), ..run }.run()?,
         (true, None) => run.run()?,
-        (false, _) => {
-            run.validate_on(&validation, plan.given_extrinsics).carry_heading_offset(plan.carry_heading_offset).run()?
+        (false, _) => odocal::Calibration {
+            validate_on: &validation,
+            given: plan.given_extrinsics,
+            carry_heading_offset: plan.carry_heading_offset,
+            ..run
         }
+        .run()?,
     };
     // Several drives fitted whole: the between-drive σ from their separate fits (as the CLI).
     if separate.len() >= 2 && !matches!(plan.holdout, Some(Holdout::FirstHalf | Holdout::SecondHalf)) {

@@ -174,7 +174,7 @@ fn van(method: &str) -> Res<()> {
             let o = options(method, with, all)?;
             let r = match &h {
                 None => odocal::calibrate(&drive, &o),
-                Some(h) => odocal::Calibration::new(&drive, &o).holdout(h).run(),
+                Some(h) => odocal::Calibration { holdout: Some(h), ..odocal::Calibration::new(&drive, &o) }.run(),
             };
             match r {
                 Ok(r) => println!(

@@ -191,8 +191,8 @@ fn print_pooling(fits: &[Fit]) {
 fn van_halves(opts: &CalibrationOptions) -> Res<()> {
     let d = load(VAN_MANIFEST)?;
     // Holdout::FirstHalf holds the first half out: the fit is on the second.
-    let second = fit("second half", &Calibration::new(&d, opts).holdout(&Holdout::FirstHalf).run()?);
-    let first = fit("first half", &Calibration::new(&d, opts).holdout(&Holdout::SecondHalf).run()?);
+    let second = fit("second half", &Calibration { holdout: Some(&Holdout::FirstHalf), ..Calibration::new(&d, opts) }.run()?);
+    let first = fit("first half", &Calibration { holdout: Some(&Holdout::SecondHalf), ..Calibration::new(&d, opts) }.run()?);
     println!("### Highway van (07-11) in halves: each half's 95 % interval against the other half's estimate\n");
     let mut t = Table::new(&["fitted on", "result", "verdict", "c_e", "c_d", "t_r", "d"]);
     for (a, b) in [(&first, &second), (&second, &first)] {

@@ -554,7 +554,7 @@ fn van(methods: &[String], md: &mut String) -> Res<Value> {
         let opts = options(m, q)?;
         for (label, h) in [("first-half", Holdout::FirstHalf), ("second-half", Holdout::SecondHalf)] {
             let t = Instant::now();
-            let r = match odocal::Calibration::new(&drive, &opts).holdout(&h).run() {
+            let r = match (odocal::Calibration { holdout: Some(&h), ..odocal::Calibration::new(&drive, &opts) }).run() {
                 Ok(r) => r,
                 Err(e) => {
                     md.push_str(&format!("| {m} | {label} | failed: {} ||||||\n", e.to_string().replace('|', "\\|")));

@@ -60,7 +60,7 @@ use crate::identify::{
 use crate::model::extrinsics::{Extrinsics, ExtrinsicsEstimate};
 use crate::model::param::{Param, ParamSet};
 use crate::model::Theta;
-use crate::progress::ProgressFn;
+use crate::progress::{Progress, ProgressFn};
 
 pub(crate) mod batch_gn;
 pub(crate) mod eiv;
@@ -306,78 +306,67 @@ pub fn calibrate(drive: &Drive, opts: &CalibrationOptions) -> Result<Calibration
 /// A calibration with its optional inputs: where the report's validation
 /// runs (a held-out half, another drive, or several validation drives each
 /// with its own reference extrinsics) and a progress callback. [`calibrate`]
-/// is `Calibration::new(drive, opts).run()`.
+/// is `Calibration::new(drive, options).run()`.
 ///
 /// ```
 /// # fn main() -> Result<(), odocal::Error> {
 /// use odocal::{simulate, Calibration, CalibrationOptions, Holdout, Method, Progress, SimOptions};
 /// let drive = simulate(&SimOptions { length_km: 4.0, ..SimOptions::paper(1) })?.drive;
 /// let opts = CalibrationOptions { method: Method::from_name("batch-gn")?, ..Default::default() };
-/// let report = Calibration::new(&drive, &opts)
-///     .holdout(&Holdout::SecondHalf)
-///     .progress(&|p: Progress| eprintln!("{p:?}"))
-///     .run()?;
+/// let progress = |p: Progress| eprintln!("{p:?}");
+/// let run = Calibration {
+///     holdout: Some(&Holdout::SecondHalf),
+///     progress: Some(&progress),
+///     ..Calibration::new(&drive, &opts)
+/// };
+/// let report = run.run()?;
 /// // Ē_p on the second half, which the calibration did not see.
 /// assert!(report.validation.held_out);
 /// # Ok(()) }
 /// ```
 #[derive(Clone, Copy)]
 pub struct Calibration<'a> {
-    drive: &'a Drive,
-    opts: &'a CalibrationOptions,
-    holdout: Option<&'a Holdout>,
-    validate_on: &'a [ValidationDrive<'a>],
-    given: ParamSet,
-    carry_heading_offset: bool,
-    progress: Option<ProgressFn<'a>>,
+    /// The drive to calibrate on.
+    pub drive: &'a Drive,
+    /// What to estimate and how.
+    pub options: &'a CalibrationOptions,
+    /// Validate on data the calibration does not see: a half of the drive
+    /// or another drive ([`Holdout`]). The report's `validation` and
+    /// `initial` are Ē_p on the held-out data; the calibration, including
+    /// the choice of θ_B,I in step 1, sees only the rest. Not together
+    /// with `validate_on`.
+    pub holdout: Option<&'a Holdout>,
+    /// Calibrate on the whole drive and validate on these drives (other
+    /// drives of the same vehicle), each with the reference extrinsics that
+    /// apply to it (the rules are in docs/guide.md, "Several drives of one
+    /// vehicle"). The report's `validation` and `initial` are Ē_p over all
+    /// their segments, as with [`Holdout::Other`] of the joined drives, and
+    /// [`CalibrationReport::validate_on`] has each drive's row.
+    pub validate_on: &'a [ValidationDrive<'a>],
+    /// With `validate_on`: the extrinsic parameters the caller gave itself.
+    pub given: ParamSet,
+    /// With `validate_on`: carry the heading offset the calibration
+    /// estimated to every validation drive instead of fitting each drive's
+    /// own with θ and the lever arm held (the default, `false`; the heading
+    /// offset is the reference's per-drive bias as much as a mount angle).
+    pub carry_heading_offset: bool,
+    /// Receives the stages and their progress.
+    pub progress: Option<&'a (dyn Fn(Progress) + Sync)>,
 }
 
 impl<'a> Calibration<'a> {
-    /// A calibration of `drive` with `opts`, validated on `drive` itself.
-    pub fn new(drive: &'a Drive, opts: &'a CalibrationOptions) -> Self {
+    /// A calibration of `drive` with `options`, validated on `drive` itself;
+    /// set the other fields with struct update syntax.
+    pub fn new(drive: &'a Drive, options: &'a CalibrationOptions) -> Self {
         Calibration {
             drive,
-            opts,
+            options,
             holdout: None,
             validate_on: &[],
             given: ParamSet::EMPTY,
             carry_heading_offset: false,
             progress: None,
         }
-    }
-
-    /// Validates on data the calibration does not see: a half of the drive
-    /// or another drive ([`Holdout`]). The report's `validation` and
-    /// `initial` are Ē_p on the held-out data; the calibration, including
-    /// the choice of θ_B,I in step 1, sees only the rest.
-    pub fn holdout(self, holdout: &'a Holdout) -> Self {
-        Calibration { holdout: Some(holdout), ..self }
-    }
-
-    /// Calibrates on the whole drive and validates on `drives` (other
-    /// drives of the same vehicle), each with the reference extrinsics that
-    /// apply to it (`given` names the extrinsic parameters the caller gave
-    /// itself; the rules are in docs/guide.md, "Several drives of one vehicle"). The
-    /// report's `validation` and `initial` are Ē_p over all their segments,
-    /// as with [`Holdout::Other`] of the joined drives, and
-    /// [`CalibrationReport::validate_on`] has each drive's row. Not together
-    /// with [`Calibration::holdout`].
-    pub fn validate_on(self, drives: &'a [ValidationDrive<'a>], given: ParamSet) -> Self {
-        Calibration { validate_on: drives, given, ..self }
-    }
-
-    /// With [`Calibration::validate_on`]: carry the heading offset the
-    /// calibration estimated to every validation drive instead of fitting
-    /// each drive's own with θ and the lever arm held (the default; the
-    /// heading offset is the reference's per-drive bias as much as a mount
-    /// angle).
-    pub fn carry_heading_offset(self, carry: bool) -> Self {
-        Calibration { carry_heading_offset: carry, ..self }
-    }
-
-    /// Reports the stages and their progress to `progress`.
-    pub fn progress(self, progress: ProgressFn<'a>) -> Self {
-        Calibration { progress: Some(progress), ..self }
     }
 
     /// Runs the calibration (SPEC §6).
@@ -390,10 +379,10 @@ impl<'a> Calibration<'a> {
     pub fn run(self) -> Result<CalibrationReport> {
         if self.validate_on.is_empty() {
             return match self.holdout {
-                None => calibrate_core(self.drive, None, self.opts, self.progress),
+                None => calibrate_core(self.drive, None, self.options, self.progress),
                 Some(h) => {
                     let (fit, held) = h.split(self.drive)?;
-                    calibrate_core(&fit, Some((&held, None)), self.opts, self.progress)
+                    calibrate_core(&fit, Some((&held, None)), self.options, self.progress)
                 }
             }
             .map(|d| d.report);
@@ -409,7 +398,7 @@ impl<'a> Calibration<'a> {
             self.validate_on,
             self.given,
             self.carry_heading_offset,
-            self.opts,
+            self.options,
             self.progress,
         )
     }

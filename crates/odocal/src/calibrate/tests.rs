@@ -96,7 +96,8 @@ fn holdout_with_estimated_extrinsics_is_judged_without_panicking() {
     let drive = simulate(&SimOptions { length_km: 2.0, ..SimOptions::noise_free(3) }).expect("sim").drive;
     let identify = IdentifyOptions { free: ParamSet::THETA.union(ParamSet::EXTRINSICS), ..Default::default() };
     let opts = CalibrationOptions { method: Method::BatchGn(Default::default()), identify, ..Default::default() };
-    let r = Calibration::new(&drive, &opts).holdout(&Holdout::FirstHalf).run().expect("calibrate");
+    let r =
+        Calibration { holdout: Some(&Holdout::FirstHalf), ..Calibration::new(&drive, &opts) }.run().expect("calibrate");
     let x = r.extrinsics.as_ref().expect("extrinsics estimated");
     assert_eq!(x.free, ParamSet::EXTRINSICS);
     assert!(x.value.to_array().iter().all(|v| v.is_finite()), "{x:?}");
@@ -231,7 +232,7 @@ fn every_report_has_a_verdict() {
     })
     .expect("sim");
     let holdout = Holdout::Other(other.drive);
-    let r = Calibration::new(&sim.drive, &opts).holdout(&holdout).run().expect("held out");
+    let r = Calibration { holdout: Some(&holdout), ..Calibration::new(&sim.drive, &opts) }.run().expect("held out");
     assert_eq!(r.verdict.level, crate::assess::trust::VerdictLevel::Rejected, "{:?}", r.verdict);
     assert!(matches!(
         r.verdict.reasons[0],

@@ -113,8 +113,11 @@ fn current() -> Value {
     let ts = calibrate(&drive, &three_step()).expect("three-step");
     let (fit, held) = halves(&drive);
     let held = Holdout::Other(held);
-    let gn_held = Calibration::new(&fit, &batch_gn()).holdout(&held).run().expect("batch-gn held out");
-    let ts_held = Calibration::new(&drive, &three_step()).holdout(&Holdout::SecondHalf).run().expect("3-step held out");
+    let gn_held =
+        Calibration { holdout: Some(&held), ..Calibration::new(&fit, &batch_gn()) }.run().expect("batch-gn held out");
+    let ts_held = Calibration { holdout: Some(&Holdout::SecondHalf), ..Calibration::new(&drive, &three_step()) }
+        .run()
+        .expect("3-step held out");
     let segs = validation_segments(&drive, &ValidationSegmentOptions::default()).expect("segments");
     let val = mean_position_error(&drive, &segs, &ts.theta).expect("validate");
     json!({
