@@ -55,7 +55,7 @@ impl PyHistory {
     /// The database file.
     #[getter]
     fn path(&self) -> PyResult<PathBuf> {
-        self.with(|db| Ok(db.path().to_path_buf()))
+        self.with(|db| Ok(db.path.to_path_buf()))
     }
 
     /// The schema version of the file.
@@ -161,6 +161,6 @@ impl PyHistory {
     }
 
     fn __repr__(&self) -> PyResult<String> {
-        self.with(|db| Ok(format!("<odocal.History {}>", db.path().display())))
+        self.with(|db| Ok(format!("<odocal.History {}>", db.path.display())))
     }
 }

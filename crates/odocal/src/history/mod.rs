@@ -181,8 +181,9 @@ pub struct DecisionRow {
 /// An open history database.
 #[derive(Debug)]
 pub struct History {
+    /// The database file.
+    pub path: PathBuf,
     conn: Connection,
-    path: PathBuf,
 }
 
 fn sql_err(path: &Path) -> impl Fn(rusqlite::Error) -> Error {
@@ -271,11 +272,6 @@ impl History {
         conn.pragma_update(None, "synchronous", "NORMAL").map_err(&err)?;
         schema::migrate(&mut conn).map_err(|reason| Error::History { path: path.clone(), reason })?;
         Ok(History { conn, path })
-    }
-
-    /// The database file.
-    pub fn path(&self) -> &Path {
-        &self.path
     }
 
     /// The schema version of the open file (after migration: this odocal's).

@@ -120,7 +120,7 @@ impl<'a> Chunk<'a> {
     }
 
     /// All samples of `signals` (a [`StreamChunk`]'s).
-    pub fn of_signals(signals: &'a Signals) -> Chunk<'a> {
+    pub(crate) fn of_signals(signals: &'a Signals) -> Chunk<'a> {
         let s = signals;
         Chunk { px: &s.px, py: &s.py, psi: &s.psi, n_rl: &s.n_rl, n_rr: &s.n_rr, beta: &s.beta, a_y: &s.a_y }
     }

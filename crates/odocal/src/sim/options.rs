@@ -256,7 +256,7 @@ impl NoiseOptions {
 
     /// Only white noise on the wheel rotations, of the paper preset's size;
     /// everything else exact (the `white` preset).
-    pub fn white_wheel_only() -> Self {
+    pub(crate) fn white_wheel_only() -> Self {
         NoiseOptions { wheel_white_rel_sigma: NoiseOptions::paper().wheel_white_rel_sigma, ..NoiseOptions::off() }
     }
 
