@@ -198,7 +198,7 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
         if (drive.sample_time_s() - c.sample_time_s()).abs() > 1e-9 {
             bail!("{source}: sample time differs from the first drive's");
         }
-        c.set_stored(Some(stored.theta));
+        c.stored = Some(stored.theta);
         bars.event(Progress::Stage { name: "following", total: drive.len() as u64 });
         let mut done = 0;
         drive.push(c, |n| {

@@ -302,13 +302,13 @@ impl PyCalibrator {
     /// validation segment and by the gates (`None`: none).
     #[getter]
     fn get_stored<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        to_py(py, &json(&self.cal.stored_theta())?)
+        to_py(py, &json(&self.cal.stored)?)
     }
 
     #[setter]
     fn set_stored(&mut self, theta: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
         let theta = theta.filter(|t| !t.is_none()).map(extract_theta).transpose()?;
-        self.cal.set_stored(theta);
+        self.cal.stored = theta;
         Ok(())
     }
 
@@ -334,7 +334,7 @@ impl PyCalibrator {
             Some(s) => extract_theta(s)?,
             None => self
                 .cal
-                .stored_theta()
+                .stored
                 .ok_or_else(|| PyValueError::new_err("no stored θ: give stored= or set calibrator.stored first"))?,
         };
         to_py(py, &json(&self.gates.decide(&self.cal, &stored, calibrated))?)

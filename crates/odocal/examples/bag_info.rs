@@ -22,10 +22,10 @@ fn main() -> Result<(), odocal::Error> {
         Some(topic) => {
             let cols: Vec<&str> = args[2..].iter().map(String::as_str).collect();
             let table = bag::read_topic(path, topic, &cols, TimeSource::HeaderStamp)?;
-            println!("{}: {} rows", table.source, table.len());
+            println!("{}: {} rows", table.source, table.t_s.len());
             let names: Vec<&String> = table.columns.keys().collect();
             println!("t_s {}", names.iter().map(|n| n.as_str()).collect::<Vec<_>>().join(" "));
-            for i in 0..table.len().min(5) {
+            for i in 0..table.t_s.len().min(5) {
                 let row: Vec<String> = table.columns.values().map(|c| format!("{}", c[i])).collect();
                 println!("{:.6} {}", table.t_s[i], row.join(" "));
             }

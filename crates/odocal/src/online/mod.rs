@@ -167,7 +167,7 @@ pub struct ValidationScore {
     pub start_s: f64,
     /// Its E_p,s with the θ and δ known when it started, m.
     pub prequential_m: f64,
-    /// Its E_p,s with the stored θ ([`Calibrator::set_stored`]) and the
+    /// Its E_p,s with the stored θ ([`Calibrator::stored`]) and the
     /// same δ, m; `None` without a stored θ.
     pub stored_m: Option<f64>,
 }
@@ -277,7 +277,10 @@ pub struct Calibrator {
     residual_variance: Option<f64>,
     informative_s: f64,
     track: VecDeque<(f64, Theta)>,
-    stored: Option<Theta>,
+    /// The θ to compare the online estimate with on each validation
+    /// segment (the parameters in use); `None` (the default) scores the
+    /// online estimate only.
+    pub stored: Option<Theta>,
     drive: DriveState,
 }
 
@@ -374,17 +377,6 @@ impl Calibrator {
         self.next_cal = self.opts.segments.offset_steps;
         self.next_val = self.opts.validation.offset_steps;
         self.pending.clear();
-    }
-
-    /// The θ (and δ, [`Calibrator::stored_theta`]) to compare the online
-    /// estimate with on each validation segment: the parameters in use.
-    pub fn set_stored(&mut self, theta: Option<Theta>) {
-        self.stored = theta;
-    }
-
-    /// The θ set by [`Calibrator::set_stored`].
-    pub fn stored_theta(&self) -> Option<Theta> {
-        self.stored
     }
 
     /// Takes the next samples of the current part, in time order; folds

@@ -99,7 +99,7 @@ fn gates_write_only_a_better_steady_estimate() {
     let (d, truth) = noise_free(6.0, 11);
     let stored = Theta { c_e: truth.c_e * 1.004, ..truth };
     let mut cal = Calibrator::new(stored, None, d.sample_time_s(), OnlineOptions::default()).expect("cal");
-    cal.set_stored(Some(stored));
+    cal.stored = Some(stored);
     cal.push_drive(&d, 1000, |_| {}).expect("push");
     let gates = Gates::default();
     let ok = gates.decide(&cal, &stored, true);
@@ -200,7 +200,7 @@ fn a_streamed_drive_gives_the_whole_drives_results() {
     let run = |push: &dyn Fn(&mut Calibrator, &mut Vec<usize>)| {
         let mut cal = Calibrator::new(Theta::PAPER_INITIAL, None, stream.sample_time_s, OnlineOptions::default())
             .expect("calibrator");
-        cal.set_stored(Some(Theta::PAPER_NOMINAL));
+        cal.stored = Some(Theta::PAPER_NOMINAL);
         let mut progress = Vec::new();
         push(&mut cal, &mut progress);
         (cal.theta(), cal.sigma(), cal.heading_offset(), cal.drive_summary(), progress)

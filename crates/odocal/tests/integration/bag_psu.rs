@@ -56,7 +56,7 @@ fn check_wheels(table: &bag::Table, csv_path: &Path) -> usize {
     let (it, il, ir) = (col(&h, "ros_time_s"), col(&h, "left_ticks_cum"), col(&h, "right_ticks_cum"));
     let by_time: HashMap<u64, usize> = table.t_s.iter().enumerate().map(|(i, t)| (t.to_bits(), i)).collect();
     let rad_per_tick = 2.0 * PI / 40360.0;
-    let (left, right) = (table.column(LEFT).expect("left"), table.column(RIGHT).expect("right"));
+    let (left, right) = (&table.columns[LEFT], &table.columns[RIGHT]);
     let mut matched = 0;
     for r in &rows {
         let Some(&i) = by_time.get(&num(&r[it]).to_bits()) else { continue };
@@ -112,7 +112,7 @@ fn slice_has_the_documented_topics_and_counts() {
     assert_eq!(info.message_count, 16_224);
     for t in &info.topics {
         let table = bag::read_topic(&p, &t.topic, &[], TimeSource::HeaderStamp).expect("read");
-        assert_eq!(table.len() as u64, t.count, "{}", t.topic);
+        assert_eq!(table.t_s.len() as u64, t.count, "{}", t.topic);
         // Every stamp equals the log time here (MCAP.md).
         let log = bag::read_topic(&p, &t.topic, &[], TimeSource::LogTime).expect("read");
         assert_eq!(table, bag::Table { source: table.source.clone(), ..log });
@@ -146,7 +146,7 @@ Topic information: Topic: /localization/pose_with_covariance   | Type: geometry_
 fn slice_wheels_are_the_encoder_ticks_in_radians() {
     let p = fixture("drive-slice.mcap");
     let t = bag::read_topic(&p, JOINTS, &[LEFT, RIGHT], TimeSource::HeaderStamp).expect("read");
-    assert_eq!(t.len(), 11_832);
+    assert_eq!(t.t_s.len(), 11_832);
     // The slice is the first 11,832 encoder rows; every one matches.
     assert_eq!(check_wheels(&t, &full_log("encoders.csv")), 11_832);
     assert_eq!((t.columns[LEFT][0], t.columns[RIGHT][0]), (0.0, 0.0));
@@ -168,7 +168,7 @@ fn slice_pose_and_gnss_match_their_csvs() {
         let (h, rows) = csv(&full_log(file));
         let (it, ilat, ilon, ialt, imode) =
             (col(&h, "ros_time_s"), col(&h, "lat_deg"), col(&h, "lon_deg"), col(&h, "alt_m"), col(&h, "fix_mode"));
-        assert_eq!(fix.len(), n);
+        assert_eq!(fix.t_s.len(), n);
         for (i, r) in rows.iter().take(n).enumerate() {
             assert_eq!(fix.t_s[i].to_bits(), num(&r[it]).to_bits(), "{topic} row {i}");
             assert_eq!(fix.columns["latitude"][i].to_bits(), num(&r[ilat]).to_bits(), "{topic} row {i}");
@@ -192,15 +192,15 @@ fn slice_pose_and_gnss_match_their_csvs() {
 fn full_bag_matches_the_fixture_csv_rows() {
     let p = full_log("drive.mcap");
     let t = bag::read_topic(&p, JOINTS, &[LEFT, RIGHT], TimeSource::HeaderStamp).expect("read");
-    assert_eq!(t.len(), 57_470);
+    assert_eq!(t.t_s.len(), 57_470);
     // The fixture's 13,000 encoder rows (ros time 1720717700–830) are all in the bag.
     assert_eq!(check_wheels(&t, &fixture("encoders.csv")), 13_000);
     let pose = bag::read_topic(&p, POSE, &[], TimeSource::HeaderStamp).expect("pose");
-    assert_eq!(pose.len(), 5_232);
+    assert_eq!(pose.t_s.len(), 5_232);
     // Fixture pose rows are selected by GPS time; all 1,191 have a bag message.
     assert_eq!(check_pose(&pose, &fixture("pose_rear_antenna_mid.csv")), 1_191);
     // MCAP.md's spot values for the last joint message.
-    let n = t.len() - 1;
+    let n = t.t_s.len() - 1;
     assert_eq!(t.columns[LEFT][n].to_bits(), 39005.79643703454f64.to_bits());
     assert_eq!(t.columns[RIGHT][n].to_bits(), 39075.74700206227f64.to_bits());
 }

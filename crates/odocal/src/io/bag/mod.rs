@@ -70,8 +70,8 @@
 //!     &["position.rear_left_wheel_joint", "position.rear_right_wheel_joint"],
 //!     TimeSource::HeaderStamp,
 //! )?;
-//! let left = wheels.column("position.rear_left_wheel_joint").unwrap_or_default();
-//! println!("{} rows from {}; last left wheel angle {:?} rad", wheels.len(), wheels.source, left.last());
+//! let left = &wheels.columns["position.rear_left_wheel_joint"];
+//! println!("{} rows from {}; last left wheel angle {:?} rad", wheels.t_s.len(), wheels.source, left.last());
 //! # Ok(()) }
 //! ```
 
@@ -117,21 +117,6 @@ pub struct Table {
 }
 
 impl Table {
-    /// Number of rows.
-    pub fn len(&self) -> usize {
-        self.t_s.len()
-    }
-
-    /// True when there are no rows.
-    pub fn is_empty(&self) -> bool {
-        self.t_s.is_empty()
-    }
-
-    /// A column by name.
-    pub fn column(&self, name: &str) -> Option<&[f64]> {
-        self.columns.get(name).map(Vec::as_slice)
-    }
-
     /// The joints of a `JointState` table that have a `field` column
     /// (`"position"` or `"velocity"`: the names in `field.<joint>`), sorted.
     pub(crate) fn joints(&self, field: &str) -> Vec<&str> {

@@ -112,9 +112,9 @@ pub fn bag(data: &[u8]) -> Outcome {
         for time in [odocal::io::bag::TimeSource::HeaderStamp, odocal::io::bag::TimeSource::LogTime] {
             last = match odocal::io::bag::read_topic(&path, &t.topic, &[], time) {
                 Ok(table) => {
-                    assert!(table.columns.values().all(|c| c.len() == table.len()));
+                    assert!(table.columns.values().all(|c| c.len() == table.t_s.len()));
                     assert!(table.t_s.windows(2).all(|w| w[0] <= w[1]));
-                    Outcome::Drive(table.len())
+                    Outcome::Drive(table.t_s.len())
                 }
                 Err(e) => check_message(e.to_string()),
             };
