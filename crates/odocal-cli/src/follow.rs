@@ -179,7 +179,7 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
         let drive = Replay::open(path)?;
         let source = path.display().to_string();
         let fingerprint = drive.fingerprint()?;
-        if db.has_decisions(&a.vehicle, &fingerprint)? {
+        if db.decisions(&a.vehicle)?.iter().any(|d| d.decision.fingerprint == fingerprint) {
             if !quiet_stdout {
                 println!(
                     "{source}: already followed for vehicle '{}' (fingerprint {}…); skipped",
@@ -355,7 +355,7 @@ fn streamed_manifest(path: &std::path::Path, m: &odocal::Manifest) -> Result<Dri
 /// The parameters to start from: the vehicle's most recent row in the
 /// history, else `--theta0` (default θ_0).
 fn starting_point(db: &History, a: &FollowArgs) -> Result<Stored> {
-    Ok(match db.latest(&a.vehicle)? {
+    Ok(match db.rows(&a.vehicle)?.pop() {
         Some(r) => Stored {
             theta: r.record.theta,
             sigma: r.record.sigma,

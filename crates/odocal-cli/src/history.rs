@@ -43,7 +43,7 @@ pub fn run(a: HistoryArgs) -> Result<()> {
     files.check()?;
     let db = History::open(&a.db)?;
     let rows = db.rows(&a.vehicle)?;
-    let drift = db.drift(&a.vehicle)?;
+    let drift = odocal::history::drift_between(&db.rows(&a.vehicle)?);
     let pooled = db.pooled(&a.vehicle, a.pool.as_deref())?;
     if let Some(p) = &a.report {
         let html = odocal_report::history::render_history_html(&a.vehicle, &rows, &drift, pooled.as_ref())?;

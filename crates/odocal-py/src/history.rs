@@ -73,7 +73,7 @@ impl PyHistory {
 
     /// The vehicle's most recent row, or None.
     fn latest<'py>(&self, py: Python<'py>, vehicle: &str) -> PyResult<Bound<'py, PyAny>> {
-        let row = self.with(|db| db.latest(vehicle))?;
+        let row = self.with(|db| db.rows(vehicle))?.pop();
         to_py(py, &json(&row)?)
     }
 
@@ -81,7 +81,7 @@ impl PyHistory {
     /// combined σ: dicts with `parameter`, `from_id`, `from_recorded_at`,
     /// `to_id`, `to_recorded_at`, `change`, `combined_sigma`.
     fn drift<'py>(&self, py: Python<'py>, vehicle: &str) -> PyResult<Bound<'py, PyAny>> {
-        let flags = self.with(|db| db.drift(vehicle))?;
+        let flags = odocal::history::drift_between(&self.with(|db| db.rows(vehicle))?);
         to_py(py, &json(&flags)?)
     }
 

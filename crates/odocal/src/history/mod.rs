@@ -32,7 +32,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use rusqlite::{params, Connection, OptionalExtension, Row};
+use rusqlite::{params, Connection, Row};
 use serde::{Deserialize, Serialize};
 
 use crate::calibrate::CalibrationReport;
@@ -343,24 +343,6 @@ impl History {
         rows.collect::<rusqlite::Result<Vec<_>>>().map_err(&err)
     }
 
-    /// The vehicle's most recent calibration, if any.
-    pub fn latest(&self, vehicle: &str) -> Result<Option<HistoryRow>> {
-        self.conn
-            .query_row(
-                &format!("SELECT {ROW_COLUMNS} FROM calibrations WHERE vehicle = ?1 ORDER BY id DESC LIMIT 1"),
-                params![vehicle],
-                history_row,
-            )
-            .optional()
-            .map_err(sql_err(&self.path))
-    }
-
-    /// Every parameter change between consecutive rows of the vehicle's
-    /// history beyond three combined σ ([`drift_between`]).
-    pub fn drift(&self, vehicle: &str) -> Result<Vec<DriftFlag>> {
-        Ok(drift_between(&self.rows(vehicle)?))
-    }
-
     /// The pooled estimate over the vehicle's rows (those with an id in
     /// `ids`, or all when `None`): [`pooled_estimate`]. `None` without rows.
     pub fn pooled(&self, vehicle: &str, ids: Option<&[i64]>) -> Result<Option<Pooled>> {
@@ -417,18 +399,6 @@ impl History {
             .map_err(&err)?;
         let rows = st.query_map(params![vehicle], decision_row).map_err(&err)?;
         rows.collect::<rusqlite::Result<Vec<_>>>().map_err(&err)
-    }
-
-    /// True when decisions were logged for this vehicle and drive: the
-    /// drive was followed before.
-    pub fn has_decisions(&self, vehicle: &str, fingerprint: &str) -> Result<bool> {
-        self.conn
-            .query_row(
-                "SELECT EXISTS (SELECT 1 FROM decisions WHERE vehicle = ?1 AND fingerprint = ?2)",
-                params![vehicle, fingerprint],
-                |r| r.get(0),
-            )
-            .map_err(sql_err(&self.path))
     }
 
     /// The number of decisions logged for the vehicle.

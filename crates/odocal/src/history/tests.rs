@@ -60,8 +60,8 @@ fn a_drive_is_recorded_once_per_vehicle_and_method() {
     assert_eq!(rows[0].record, rec);
     assert_eq!(rows[0].odocal_version, env!("CARGO_PKG_VERSION"));
     assert!(rows[0].recorded_at.ends_with('Z') && rows[0].recorded_at.len() == 24, "{}", rows[0].recorded_at);
-    assert_eq!(db.latest("van").expect("latest").map(|r| r.id), Some(rows[1].id));
-    assert!(db.latest("none").expect("latest").is_none());
+    assert_eq!(db.rows("van").expect("rows").last().map(|r| r.id), Some(rows[1].id));
+    assert!(db.rows("none").expect("rows").is_empty());
 }
 
 #[test]
@@ -110,7 +110,7 @@ fn drift_is_flagged_beyond_three_combined_sigma() {
     db.record(&record("van", "a", 1.950, 1e-3)).expect("a");
     db.record(&record("van", "b", 1.954, 1e-3)).expect("b"); // 4 mm: not flagged
     db.record(&record("van", "c", 1.960, 1e-3)).expect("c"); // 6 mm: flagged
-    let flags = db.drift("van").expect("drift");
+    let flags = drift_between(&db.rows("van").expect("rows"));
     assert_eq!(flags.len(), 1, "{flags:?}");
     assert_eq!(flags[0].parameter, "c_e");
     assert!((flags[0].change - 0.006).abs() < 1e-12);
