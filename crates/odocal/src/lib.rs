@@ -121,18 +121,29 @@ pub use progress::Progress;
 // Drives: building, importing, simulating; parameter files. `segment` is
 // an expert module (its docs say for whom).
 pub use drive::{
-    refuse_duplicates, segment, Drive, DriveBuilder, DriveStream, ExtraColumn, ExtraValues, Signals, StreamChunk,
-    StreamChunks,
+    fingerprint::refuse_duplicates,
+    segment,
+    stream::{DriveStream, StreamChunk, StreamChunks},
+    Drive, DriveBuilder, ExtraColumn, ExtraValues, Signals,
 };
-pub use io::import::{import, is_manifest_path, load_drive, ImportReport, ImportedDrive, Manifest, ReferenceSpec};
+pub use io::import::{
+    import, is_manifest_path, load_drive, manifest::Manifest, report::ImportReport, settings::ReferenceSpec,
+    ImportedDrive,
+};
 pub use io::param_file::{ParamFile, ParamMapping};
 pub use sim::{simulate, NoiseOptions, SimOptions, SimOutput, SimSidecar};
 // Calibration: the entry points, the options, the report. `settings` is an
 // expert module.
 pub use calibrate::{
-    calibrate, settings, BatchGnOptions, Calibration, CalibrationOptions, CalibrationReport, CorrectBias,
-    EivMethodOptions, FinalSegments, Holdout, Method, ResultSigma, SegmentCounts, SigmaCovers, SigmaSource, ThetaScore,
-    ThreeStepOptions, Timing, ValidationSummary,
+    batch_gn::BatchGnOptions,
+    calibrate,
+    eiv::{CorrectBias, EivMethodOptions},
+    report::{
+        CalibrationReport, ResultSigma, SegmentCounts, SigmaCovers, SigmaSource, ThetaScore, Timing, ValidationSummary,
+    },
+    settings,
+    three_step::{FinalSegments, ThreeStepOptions},
+    Calibration, CalibrationOptions, Holdout, Method,
 };
 // Validation and the verdict.
 pub use assess::pooling;

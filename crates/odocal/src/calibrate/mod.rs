@@ -65,23 +65,23 @@ use crate::progress::{Progress, ProgressFn};
 pub(crate) mod batch_gn;
 pub(crate) mod eiv;
 mod render;
-mod report;
+pub(crate) mod report;
 pub mod settings;
 pub(crate) mod three_step;
 mod turn_sense;
 pub(crate) mod validate_on;
 
 pub(crate) use report::MethodDetail;
-pub use report::{CalibrationReport, ResultSigma, SigmaCovers, SigmaSource};
-pub use report::{SegmentCounts, ThetaScore, Timing, ValidationSummary};
+pub(crate) use report::{CalibrationReport, SigmaSource};
+pub(crate) use report::{SegmentCounts, ThetaScore, Timing, ValidationSummary};
 
 pub(crate) use batch_gn::BatchGnDetail;
-pub use batch_gn::BatchGnOptions;
-pub use eiv::{CorrectBias, EivMethodOptions};
+pub(crate) use batch_gn::BatchGnOptions;
+pub(crate) use eiv::EivMethodOptions;
 pub(crate) use eiv::{EivDetail, EivOutcome};
 pub(crate) use three_step::{per_segment_identification, score_batches, BatchResult};
 pub(crate) use three_step::{BatchSpread, InitialStep, ThreeStepDetail};
-pub use three_step::{FinalSegments, ThreeStepOptions};
+pub(crate) use three_step::{FinalSegments, ThreeStepOptions};
 
 /// Which calibration method to run, with its settings.
 ///
@@ -263,7 +263,8 @@ pub enum Holdout {
 
 impl Holdout {
     /// The drive to calibrate on and the held-out drive. The halves are
-    /// split at the middle of `[t_0, t_last + t_s)` ([`Drive::split_at_time`]).
+    /// split at the middle of `[t_0, t_last + t_s)`; parts are clipped to
+    /// each half.
     pub fn split<'a>(&'a self, drive: &'a Drive) -> Result<(Cow<'a, Drive>, Cow<'a, Drive>)> {
         let halves = || -> Result<(Drive, Drive)> {
             if drive.is_empty() {

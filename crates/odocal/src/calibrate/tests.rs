@@ -357,7 +357,8 @@ mod solver_tests {
 /// written as held. (The CLI test `params_out` covers the robust σ.)
 #[test]
 fn the_param_file_has_the_result_sigma_not_the_model_sigma() {
-    use crate::calibrate::{calibrate, CalibrationOptions, Method, SigmaCovers, SigmaSource, ThreeStepOptions};
+    use crate::calibrate::report::SigmaCovers;
+    use crate::calibrate::{calibrate, CalibrationOptions, Method, SigmaSource, ThreeStepOptions};
     use crate::sim::{simulate, SimOptions};
     let sim = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim");
     let method = Method::ThreeStep(ThreeStepOptions { initial_batches: 8, picks: 3, ..Default::default() });

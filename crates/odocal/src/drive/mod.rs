@@ -47,16 +47,15 @@
 
 mod concat;
 pub(crate) mod csv;
-mod fingerprint;
+pub(crate) mod fingerprint;
 pub(crate) mod plausibility;
 pub mod segment;
-mod stream;
+pub(crate) mod stream;
 
 use std::ops::Range;
 
-pub use self::fingerprint::refuse_duplicates;
 pub(crate) use self::stream::Unwrap;
-pub use self::stream::{DriveStream, StreamChunk, StreamChunks};
+pub(crate) use self::stream::{DriveStream, StreamChunk};
 
 pub(crate) use self::csv::{clip, echo};
 use crate::error::{Error, Result};
@@ -615,7 +614,7 @@ impl Drive {
     /// # Errors
     /// [`Error::InvalidDrive`] when either side would be empty or too short to
     /// infer the sample time.
-    pub fn split_at_time(&self, t_split_s: f64) -> Result<(Drive, Drive)> {
+    pub(crate) fn split_at_time(&self, t_split_s: f64) -> Result<(Drive, Drive)> {
         let k = self.t.partition_point(|&t| t < t_split_s);
         if k == 0 || k >= self.len() {
             return Err(Error::InvalidDrive {

@@ -69,7 +69,7 @@ use crate::model::{wrap_angle, Theta};
 pub mod gate;
 mod options;
 
-pub use crate::io::import::stream::{not_streamable, ImportChunk, ManifestStream, RawStream, StreamOptions};
+pub use crate::io::import::stream::{not_streamable, reader::ManifestStream, ImportChunk, RawStream, StreamOptions};
 pub use options::{OnlineOptions, RandomWalk};
 
 type Vec5 = SVector<f64, 5>;

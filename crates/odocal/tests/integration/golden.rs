@@ -103,8 +103,8 @@ fn pin(r: &CalibrationReport) -> Value {
 
 /// The first half of the drive by time (calibration) and the second (held out).
 fn halves(drive: &Drive) -> (Drive, Drive) {
-    let (t0, t1) = (drive.t()[0], drive.t()[drive.len() - 1] + drive.sample_time_s());
-    drive.split_at_time(0.5 * (t0 + t1)).expect("split")
+    let (fit, held) = Holdout::SecondHalf.split(drive).expect("split");
+    (fit.into_owned(), held.into_owned())
 }
 
 fn current() -> Value {

@@ -231,8 +231,8 @@ mod lateral;
 pub(crate) mod limits;
 pub(crate) mod manifest;
 mod pose;
-mod report;
-mod settings;
+pub(crate) mod report;
+pub(crate) mod settings;
 mod signal;
 mod source;
 pub(crate) mod stream;
@@ -245,11 +245,11 @@ use std::ops::Range;
 use std::path::Path;
 use std::time::Instant;
 
-pub use manifest::Manifest;
+pub(crate) use manifest::Manifest;
 pub(crate) use manifest::{ClockOffset, LateralAccelerationSpec, PositionSpec, SideslipSpec};
-pub use report::ImportReport;
-pub use settings::ReferenceSpec;
-pub use settings::{CalibrationTable, NoiseTable};
+pub(crate) use report::ImportReport;
+pub(crate) use settings::ReferenceSpec;
+pub(crate) use settings::{CalibrationTable, NoiseTable};
 
 use crate::drive::{Drive, DriveBuilder, Signals};
 use crate::error::{Error, Result};

@@ -79,14 +79,12 @@ mod engine;
 mod heading;
 mod parts;
 mod prefix;
-mod reader;
+pub(crate) mod reader;
 mod roll;
 mod tracks;
 
 use std::collections::BTreeMap;
 use std::time::Instant;
-
-pub use reader::ManifestStream;
 
 use super::manifest::{LateralAccelerationSpec, Manifest, SourceSpec};
 use super::report::{ClockOffsetReport, ImportReport};

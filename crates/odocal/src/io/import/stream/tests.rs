@@ -2,6 +2,7 @@
 
 use std::path::Path;
 
+use super::reader::ManifestStream;
 use super::*;
 use crate::drive::Drive;
 
