@@ -335,7 +335,7 @@ fn streamed_manifest(path: &std::path::Path, m: &odocal::Manifest) -> Result<Dri
     let stream = DriveStream::spool(path, m.sample_time_s(), || {
         Ok(s.next_chunk(CHUNK)?.map(|c| (c.t, c.signals, c.starts_part)))
     })?;
-    if let Some(r) = s.report() {
+    if let Some(r) = s.raw().report() {
         eprintln!(
             "imported {} as a stream: {} samples in {} part(s), {:.2} km, clock offset {:+.4} s from the first {} s",
             path.display(),

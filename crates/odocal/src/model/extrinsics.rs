@@ -51,7 +51,7 @@ impl Extrinsics {
     pub const ZERO: Extrinsics = Extrinsics { lever_x: 0.0, lever_y: 0.0, heading_offset: 0.0 };
 
     /// True when every value is exactly 0 (the SPEC's reference).
-    pub fn is_zero(&self) -> bool {
+    pub(crate) fn is_zero(&self) -> bool {
         self.to_array().iter().all(|v| *v == 0.0)
     }
 

@@ -185,11 +185,6 @@ impl ManifestStream {
         Ok(())
     }
 
-    /// The report, after the last chunk.
-    pub fn report(&self) -> Option<&ImportReport> {
-        self.raw.report()
-    }
-
     /// The streamed import underneath.
     pub fn raw(&self) -> &RawStream {
         &self.raw

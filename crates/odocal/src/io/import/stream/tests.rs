@@ -33,7 +33,7 @@ fn streamed(m: &Manifest, opts: StreamOptions, chunk: usize) -> (Drive, ImportRe
             p.end = t.len();
         }
     }
-    let report = s.report().expect("report").clone();
+    let report = s.raw().report().expect("report").clone();
     let d = crate::drive::DriveBuilder {
         t,
         measured: sig,
