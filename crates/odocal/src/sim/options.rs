@@ -264,7 +264,8 @@ impl NoiseOptions {
     /// differential relative errors, white noise and encoder quantisation —
     /// on a perfect reference, with no slip, a_y or sideslip noise (the
     /// "coloured" preset of the EIV studies).
-    pub fn coloured_wheels_only() -> Self {
+    #[cfg(test)]
+    pub(crate) fn coloured_wheels_only() -> Self {
         let p = NoiseOptions::paper();
         NoiseOptions {
             wheel_coloured_rel_sigma: p.wheel_coloured_rel_sigma,
@@ -290,7 +291,7 @@ impl NoiseOptions {
     /// revolution ÷ f (rounded), so the quantisation step × f; time constants
     /// kept. `paper_scaled(2.5)` is [`NoiseOptions::high`] but for the ticks
     /// (819 there, 512 in `high`).
-    pub fn paper_scaled(f: f64) -> Self {
+    pub(crate) fn paper_scaled(f: f64) -> Self {
         let p = NoiseOptions::paper();
         NoiseOptions {
             wheel_slip_per_m_per_s2: f * p.wheel_slip_per_m_per_s2,

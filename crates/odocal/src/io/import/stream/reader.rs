@@ -9,7 +9,6 @@ use super::{ImportChunk, RawStream, StreamOptions};
 use crate::error::{Error, Result};
 use crate::io::import::limits::echo;
 use crate::io::import::manifest::{Manifest, SourceSpec};
-use crate::io::import::report::ImportReport;
 
 /// One CSV stream file being read.
 struct CsvRows {
