@@ -392,6 +392,19 @@ impl Drive {
     /// but a ROS bag, a Parquet file or a compressed archive (known by its
     /// first bytes), saying what to do instead. A short last row is an error
     /// naming the file and the line.
+    ///
+    /// ```
+    /// # fn main() -> Result<(), Box<dyn std::error::Error>> {
+    /// use odocal::{simulate, Drive, SimOptions};
+    /// let drive = simulate(&SimOptions { length_km: 0.5, ..SimOptions::paper(1) })?.drive;
+    /// let dir = tempfile::tempdir()?;
+    /// let path = dir.path().join("drive.csv");
+    /// drive.write_csv(&path)?;
+    /// let (read, warnings) = Drive::read_csv(&path)?;
+    /// assert_eq!(read.fingerprint(), drive.fingerprint());
+    /// assert!(warnings.is_empty());
+    /// # Ok(()) }
+    /// ```
     pub fn read_csv(path: impl AsRef<Path>) -> Result<(Drive, Vec<String>)> {
         let path = path.as_ref();
         if path.is_dir() {
