@@ -108,18 +108,7 @@ pub(super) fn noise_estimate_covariance(
             jac[(r, c)] = dg[i];
         }
     }
-    let jinv = match jac.try_inverse() {
-        Some(ji) if (0..q).all(|i| ji[(i, i)] > 0.0) => {
-            let mut m = Matrix4::zeros();
-            for (r, &i) in fidx.iter().enumerate() {
-                for (c, &k) in fidx.iter().enumerate() {
-                    m[(i, k)] = ji[(r, c)];
-                }
-            }
-            m
-        }
-        _ => *cov,
-    };
+    let jinv = embedded_inverse(jac, &fidx).unwrap_or(*cov);
     // ∂g_θ/∂η_j (4-vector) per free η.
     let dg_deta: Vec<nalgebra::Vector4<f64>> = if by_symmetry {
         idx.iter()
@@ -145,6 +134,22 @@ pub(super) fn noise_estimate_covariance(
     }
     let out = &a * cov_eta * a.transpose();
     Ok((Matrix4::from_fn(|i, k| out[(i, k)]), sens))
+}
+
+/// The inverse of `jac` (over the parameters `fidx`) embedded in 4×4;
+/// `None` when it is singular or a diagonal entry is not positive.
+fn embedded_inverse(jac: DMatrix<f64>, fidx: &[usize]) -> Option<Matrix4<f64>> {
+    let ji = jac.try_inverse()?;
+    if !(0..fidx.len()).all(|i| ji[(i, i)] > 0.0) {
+        return None;
+    }
+    let mut m = Matrix4::zeros();
+    for (r, &i) in fidx.iter().enumerate() {
+        for (c, &k) in fidx.iter().enumerate() {
+            m[(i, k)] = ji[(r, c)];
+        }
+    }
+    Some(m)
 }
 
 /// [`CovarianceEstimate::LargerOfModelAndBlock`]: `cov` (an `H_θ⁻¹`)
