@@ -46,74 +46,76 @@ pub(super) fn noise_estimate_covariance(
     let cov_eta = chol.inverse();
     let g0 = theta_score(sums, follows);
     let h = ETA_SENSITIVITY_STEP;
-    // The observed Jacobian of the θ-score, ∂g_θ/∂θ, by forward differences
-    // of 1 % of each free parameter's σ: the t_r–d block of H_θ is nearly
-    // singular, and the few-% difference between the scoring metric H_θ and
+    // The Jacobian of the θ-score, J = ∂g_θ/∂θ: observed (forward
+    // differences of 1 % of the parameter's σ) in the columns of t_r and d,
+    // the scoring metric H_θ's in those of c_e and c_d. The t_r–d block of
+    // H_θ is nearly singular, and there the few-% difference between H_θ and
     // the observed Jacobian moved ∂t_r/∂η by 1.5× on a 4 km `high` drive
-    // (the refits of the test agree with the observed one).
+    // (the refits of the test agree with the observed one). In the columns
+    // of the well-determined c_e and c_d the metric serves (`A` within 5 %
+    // of the refits on the same drive, every entry), and the displaced
+    // passes of c_e and c_d then need no `∂P/∂θ` (4 of their 9 covariance
+    // columns).
+    let observed = |k: usize| k >= 2;
     let fidx: Vec<usize> = (0..4).filter(|i| cov[(*i, *i)] > 0.0).collect();
     let q = fidx.len();
     // ∂g_θ/∂η by symmetry of the mixed partials: with the covariance
     // following θ, g_θ = ∂F/∂θ + G_T, F = ½Σνᵀ S⁻¹ν − Σ m log(1 − ŝ) and G_T
     // the input log-Jacobian's θ-score with its weights u held, so
     // ∂g_θ/∂η_j = ∂/∂θ (∂F/∂η_j) + ∂G_T/∂η_j. The first is the forward
-    // difference in θ of `grad_profile`'s η entries at the θ-displaced points
-    // the observed Jacobian needs anyway (evaluated with η derivatives), the
-    // second is summed exactly by the filter (`grad_jacobian_eta`). That needs
-    // 4 filter passes instead of 4 + one per free η. Where u depends on η in a
-    // way the filter does not differentiate (the smoothed shares) or with the
-    // covariance held (the corrected score's bias term), η is displaced instead.
+    // difference in θ of `grad_profile`'s η entries at θ-displaced points
+    // (one per free θ, evaluated with η derivatives; those of J's observed
+    // columns with θ's too), the second is summed exactly by the filter
+    // (`grad_jacobian_eta`). That needs 4 filter passes instead of 2 + one
+    // per free η. Where u depends on η in a way the filter does not
+    // differentiate (the smoothed shares) or with the covariance held (the
+    // corrected score's bias term), η is displaced instead.
     let by_symmetry = mixed_partials_by_symmetry && follows;
-    // Every displaced point (θ first, then η), evaluated in one sweep.
     let steps: Vec<f64> = fidx.iter().map(|&k| 0.01 * cov[(k, k)].sqrt()).collect();
-    let mut points: Vec<(Theta, [f64; 6])> = fidx
+    // The displaced free θ (indices into `fidx`).
+    let displaced: Vec<usize> = (0..q).filter(|&c| by_symmetry || observed(fidx[c])).collect();
+    // By symmetry only the free η's columns are needed (a scale at its clamp is not estimated).
+    let skip = if by_symmetry { (0..NETA).filter(|j| !eta_free[*j]).fold(0u8, |m, j| m | (1 << j)) } else { 0 };
+    // Only the displaced points' θ-scores and η gradients are used: no information matrices.
+    let mode = Mode::full(follows, by_symmetry).skipping_eta(skip).gradients_only();
+    let eta_mode = Mode::eta_only(follows).skipping_eta(skip).gradients_only();
+    // Every displaced point (θ first, then η), evaluated in one sweep.
+    let mut points: Vec<(Theta, [f64; 6], Mode)> = displaced
         .iter()
-        .zip(&steps)
-        .map(|(&k, &hk)| {
+        .map(|&c| {
             let mut t = theta.to_array();
-            t[k] += hk;
-            (Theta::from_array(t), *eta)
+            t[fidx[c]] += steps[c];
+            (Theta::from_array(t), *eta, if observed(fidx[c]) { mode } else { eta_mode })
         })
         .collect();
     if !by_symmetry {
         points.extend(idx.iter().map(|&j| {
             let mut e = *eta;
             e[j] += h;
-            (*theta, e)
+            (*theta, e, mode)
         }));
     }
-    // By symmetry only the free η's columns are needed (a scale at its clamp is not estimated).
-    let skip = if by_symmetry { (0..NETA).filter(|j| !eta_free[*j]).fold(0u8, |m, j| m | (1 << j)) } else { 0 };
-    // Only the displaced points' θ-scores and η gradients are used: no information matrices.
-    let mode = Mode::full(follows, by_symmetry).skipping_eta(skip).gradients_only();
-    let evs = prob.evaluate_many(&points, theta_ref, mode, false)?;
-    let (ev_theta, ev_eta) = evs.split_at(q);
+    let evs = prob.evaluate_many(&points, theta_ref, false)?;
+    let (ev_theta, ev_eta) = evs.split_at(displaced.len());
     let mut jac = DMatrix::zeros(q, q);
-    for (c, (ev, hk)) in ev_theta.iter().zip(&steps).enumerate() {
-        let dg = (theta_score(&ev.total, follows) - g0) / *hk;
+    for c in 0..q {
+        let k = fidx[c];
+        let dg = match displaced.iter().position(|&d| d == c) {
+            Some(n) if observed(k) => (theta_score(&ev_theta[n].total, follows) - g0) / steps[c],
+            _ => sums.h_theta.column(k).into_owned(),
+        };
         for (r, &i) in fidx.iter().enumerate() {
             jac[(r, c)] = dg[i];
         }
     }
-    let jinv = match jac.try_inverse() {
-        Some(ji) if (0..q).all(|i| ji[(i, i)] > 0.0) => {
-            let mut m = Matrix4::zeros();
-            for (r, &i) in fidx.iter().enumerate() {
-                for (c, &k) in fidx.iter().enumerate() {
-                    m[(i, k)] = ji[(r, c)];
-                }
-            }
-            m
-        }
-        _ => *cov,
-    };
+    let jinv = embedded_inverse(jac, &fidx).unwrap_or(*cov);
     // ∂g_θ/∂η_j (4-vector) per free η.
     let dg_deta: Vec<nalgebra::Vector4<f64>> = if by_symmetry {
         idx.iter()
             .map(|&j| {
                 let mut dg = sums.grad_jacobian_eta[j];
-                for ((ev, hk), &i) in ev_theta.iter().zip(&steps).zip(&fidx) {
-                    dg[i] += (ev.total.grad_profile[4 + j] - sums.grad_profile[4 + j]) / *hk;
+                for (ev, &c) in ev_theta.iter().zip(&displaced) {
+                    dg[fidx[c]] += (ev.total.grad_profile[4 + j] - sums.grad_profile[4 + j]) / steps[c];
                 }
                 dg
             })
@@ -132,6 +134,22 @@ pub(super) fn noise_estimate_covariance(
     }
     let out = &a * cov_eta * a.transpose();
     Ok((Matrix4::from_fn(|i, k| out[(i, k)]), sens))
+}
+
+/// The inverse of `jac` (over the parameters `fidx`) embedded in 4×4;
+/// `None` when it is singular or a diagonal entry is not positive.
+fn embedded_inverse(jac: DMatrix<f64>, fidx: &[usize]) -> Option<Matrix4<f64>> {
+    let ji = jac.try_inverse()?;
+    if !(0..fidx.len()).all(|i| ji[(i, i)] > 0.0) {
+        return None;
+    }
+    let mut m = Matrix4::zeros();
+    for (r, &i) in fidx.iter().enumerate() {
+        for (c, &k) in fidx.iter().enumerate() {
+            m[(i, k)] = ji[(r, c)];
+        }
+    }
+    Some(m)
 }
 
 /// [`CovarianceEstimate::LargerOfModelAndBlock`]: `cov` (an `H_θ⁻¹`)

@@ -219,16 +219,18 @@ macro_rules! research_options {
             /// estimate; `g_θ` the θ-score, `J = ∂g_θ/∂θ`) and `Σ_η` the
             /// inverse of η's information over the estimated scales. Both
             /// derivatives are forward differences (1 % of σ) in θ of exact
-            /// filter derivatives: J of the θ-score, `∂g_θ/∂η` of the
-            /// η-gradient of the profile cost (the mixed partials are
-            /// symmetric; the FilterShare log-Jacobian weights' own
-            /// η-dependence is summed exactly by the filter), so one more
-            /// filter pass with θ and η derivatives per free parameter (with
-            /// the smoothed-share weights or the covariance held, one more
-            /// pass per estimated scale too, displaced by
-            /// [`ETA_SENSITIVITY_STEP`](crate::eiv::ETA_SENSITIVITY_STEP) in η),
-            /// instead of a second-order sensitivity recursion through the
-            /// filter. `A` is [`EivReport::theta_eta_sensitivity`](crate::eiv::EivReport::theta_eta_sensitivity),
+            /// filter derivatives: J's columns of t_r and d of the θ-score
+            /// (those of c_e and c_d are the scoring metric `H_θ`'s),
+            /// `∂g_θ/∂η` of the η-gradient of the profile cost (the mixed
+            /// partials are symmetric; the FilterShare log-Jacobian weights'
+            /// own η-dependence is summed exactly by the filter): one more
+            /// filter pass per free parameter, with the η derivatives, and
+            /// for t_r and d the θ derivatives too, instead of a second-order
+            /// sensitivity recursion through the filter. With the
+            /// smoothed-share weights or the covariance held, `∂g_θ/∂η`
+            /// comes from one more pass per estimated scale, displaced by
+            /// [`ETA_SENSITIVITY_STEP`](crate::eiv::ETA_SENSITIVITY_STEP) in η,
+            /// and only t_r and d are displaced in θ. `A` is [`EivReport::theta_eta_sensitivity`](crate::eiv::EivReport::theta_eta_sensitivity),
             /// the added σ [`EivReport::sigma_noise_estimate`](crate::eiv::EivReport::sigma_noise_estimate).
             /// No effect with [`EivOptions::fix_noise`].
             ///

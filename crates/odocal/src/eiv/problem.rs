@@ -78,39 +78,40 @@ impl Problem<'_> {
         mode: Mode,
         null: bool,
     ) -> Result<Evaluation> {
-        let mut one = self.evaluate_many(&[(*theta, *eta)], theta_ref, mode, null)?;
+        let mut one = self.evaluate_many(&[(*theta, *eta, mode)], theta_ref, null)?;
         one.pop().ok_or_else(|| Error::Numerical("no filter evaluation".into()))
     }
 
-    /// [`Problem::evaluate_with`] at several points `(θ, η)` in one parallel
-    /// sweep over every (point, window) pair, so that two threads share the
-    /// work of all the points rather than each point's few windows. Each
-    /// point's totals are summed window by window in order: the results are
-    /// the same to the bit as evaluating the points one by one, whatever the
-    /// thread count.
+    /// [`Problem::evaluate_with`] at several points `(θ, η)`, each in its
+    /// own mode, in one parallel sweep over every (point, window) pair, so
+    /// that two threads share the work of all the points rather than each
+    /// point's few windows. Each point's totals are summed window by window
+    /// in order: the results are the same to the bit as evaluating the
+    /// points one by one, whatever the thread count.
     pub(super) fn evaluate_many(
         &self,
-        points: &[(Theta, [f64; 6])],
+        points: &[(Theta, [f64; 6], Mode)],
         theta_ref: &Theta,
-        mode: Mode,
         null: bool,
     ) -> Result<Vec<Evaluation>> {
         let mut count = self.evaluations.get();
-        count[usize::from(!mode.derivs)] += points.len();
+        for (_, _, mode) in points {
+            count[usize::from(!mode.derivs)] += 1;
+        }
         self.evaluations.set(count);
         let nw = self.windows.len();
-        let vars: Vec<filter::Variances> = points.iter().map(|(_, eta)| self.variances(eta, null)).collect();
+        let vars: Vec<filter::Variances> = points.iter().map(|(_, eta, _)| self.variances(eta, null)).collect();
         let (input, windows) = (self.input, &self.windows);
         let parts: Vec<Result<WindowSums>> = (0..points.len() * nw)
             .into_par_iter()
             .map(|t| {
                 let (pi, wi) = (t / nw, t % nw);
-                run_window(input, &windows[wi], &points[pi].0, theta_ref, &vars[pi], mode, None)
+                run_window(input, &windows[wi], &points[pi].0, theta_ref, &vars[pi], points[pi].2, None)
             })
             .collect();
         let mut out = Vec::with_capacity(points.len());
         let mut it = parts.into_iter();
-        for _ in 0..points.len() {
+        for (_, _, mode) in points {
             let mut total = WindowSums::zero();
             let mut windows = Vec::with_capacity(nw);
             for p in it.by_ref().take(nw) {
@@ -118,7 +119,7 @@ impl Problem<'_> {
                 total.add(&p);
                 windows.push(p);
             }
-            out.push(Evaluation { total, windows, mode });
+            out.push(Evaluation { total, windows, mode: *mode });
         }
         Ok(out)
     }

@@ -69,7 +69,8 @@ fn evaluate_many_equals_evaluating_the_points_one_by_one() {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
         pool.install(|| {
             let prob = Problem::new(&input, windows.clone(), &opts);
-            let many = prob.evaluate_many(&points, &th, mode, false).expect("filter");
+            let with_modes: Vec<_> = points.iter().map(|(t, e)| (*t, *e, mode)).collect();
+            let many = prob.evaluate_many(&with_modes, &th, false).expect("filter");
             let count = prob.evaluations.get();
             let pairs: Vec<_> = points
                 .iter()
@@ -237,7 +238,9 @@ fn noise_estimate_term_by_symmetry_matches_displaced_eta() {
     let after = prob.evaluations.get();
     let free_theta = r.free.iter().filter(|f| **f).count();
     assert_eq!(mid[0] - before[0], free_theta, "one pass per free θ");
-    assert_eq!(after[0] - mid[0], free_theta + eta_free.iter().filter(|f| **f).count());
+    // Displaced η: one pass per free η, and one per free θ of J's observed columns (t_r, d).
+    let observed = (2..4).filter(|i| r.free[*i]).count();
+    assert_eq!(after[0] - mid[0], observed + eta_free.iter().filter(|f| **f).count());
     for i in 0..4 {
         let s = cov[(i, i)].sqrt();
         for j in 0..6 {
