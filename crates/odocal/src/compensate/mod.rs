@@ -476,10 +476,11 @@ impl CompensatedInputs {
 }
 
 /// Compensates every segment once per θ in `thetas` and averages (step 2).
-/// Segments run in parallel, each segment's jobs in the order of `thetas`
-/// (the first QP of each warm-started from the job before it, see
-/// [`compensate_from`]); results are collected in a fixed order; a failed job is
-/// left out with a warning; a segment with no successful job is dropped. A
+/// Segments run in parallel, each segment's jobs in the order of `thetas`:
+/// the first QP of a job (linearized around the measured inputs, the same
+/// QP up to θ) is warm-started from the previous job's first solution,
+/// which changes its solution only within the solver's tolerances. Results
+/// are collected in a fixed order; a failed job is left out with a warning; a segment with no successful job is dropped. A
 /// QP the configured solver does not finish (iteration limit, numerical
 /// failure) is solved again by the fallback (`QpOptions::fallback`); such
 /// fallbacks are counted and reported as warnings.
