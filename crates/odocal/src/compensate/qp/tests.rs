@@ -48,7 +48,7 @@ proptest! {
         let qp = random_instance(seed, k, tight);
         // At tightness 0.97 an occasional instance has no feasible point
         // (e.g. seed 8960, k 46): then both solvers must say so.
-        let (s, c) = match (StructuredSolver::default().solve(&qp, None), ClarabelSolver::default().solve(&qp, None)) {
+        let (s, c) = match (StructuredSolver::tight().solve(&qp, None), ClarabelSolver::default().solve(&qp, None)) {
             (Err(QpError::Infeasible(_)), Err(QpError::Infeasible(_))) => return Ok(()),
             // A numerical failure of the structured solver on a nearly
             // infeasible box (tightness 0.97; about 0.6 % of instances, see
@@ -66,7 +66,7 @@ proptest! {
 #[test]
 fn known_flat_instance_agrees() {
     let qp = random_instance(3020, 54, 0.9);
-    let s = StructuredSolver::default().solve(&qp, None).unwrap();
+    let s = StructuredSolver::tight().solve(&qp, None).unwrap();
     let c = ClarabelSolver::default().solve(&qp, None).unwrap();
     assert_agree(&qp, &s, &c);
 }
@@ -75,7 +75,7 @@ fn known_flat_instance_agrees() {
 fn tight_instances_activate_bounds_and_still_agree() {
     for seed in 0..4 {
         let qp = random_instance(seed, 60, 0.97);
-        let s = StructuredSolver::default().solve(&qp, None).unwrap();
+        let s = StructuredSolver::tight().solve(&qp, None).unwrap();
         let c = ClarabelSolver::default().solve(&qp, None).unwrap();
         assert!(s.active_bounds > 0 && c.active_bounds > 0, "seed {seed}: no active bound");
         assert_agree(&qp, &s, &c);
@@ -86,7 +86,7 @@ fn tight_instances_activate_bounds_and_still_agree() {
 fn structured_solution_satisfies_kkt() {
     for (seed, k, tight) in [(11, 200, 0.0), (12, 200, 0.9), (13, 120, 0.97)] {
         let qp = random_instance(seed, k, tight);
-        let s = StructuredSolver::default().solve(&qp, None).unwrap();
+        let s = StructuredSolver::tight().solve(&qp, None).unwrap();
         let r = kkt_residual(&qp, &s).unwrap();
         // Converged to 1e-9 relative: dynamics exact to rounding, distance
         // to the optimum (scaled natural residual) ~1e-9 of O(0.1) values,
@@ -101,7 +101,7 @@ fn structured_solution_satisfies_kkt() {
 #[test]
 fn kkt_residual_detects_wrong_duals() {
     let qp = random_instance(14, 30, 0.0);
-    let mut s = StructuredSolver::default().solve(&qp, None).unwrap();
+    let mut s = StructuredSolver::tight().solve(&qp, None).unwrap();
     if let Some(l) = s.dynamics_duals.as_mut() {
         l[10] += Vector3::new(0.0, 1e-3, 0.0);
     }
@@ -116,7 +116,7 @@ fn without_active_bounds_both_equal_the_direct_kkt_solve() {
         assert_eq!(d.active_bounds, 0, "seed {seed}: test needs an instance without active bounds");
         assert!(qp.max_bound_violation(&d.w, &d.z) <= 0.0);
         for s in
-            [StructuredSolver::default().solve(&qp, None).unwrap(), ClarabelSolver::default().solve(&qp, None).unwrap()]
+            [StructuredSolver::tight().solve(&qp, None).unwrap(), ClarabelSolver::default().solve(&qp, None).unwrap()]
         {
             assert_agree(&qp, &s, &d);
             let (ls, ld) = (s.dynamics_duals.as_ref().unwrap(), d.dynamics_duals.as_ref().unwrap());
@@ -179,7 +179,7 @@ fn perturbed(qp: &StageQp, seed: u64) -> StageQp {
 
 #[test]
 fn warm_start_needs_no_more_iterations_and_gives_the_same_answer() {
-    let solver = StructuredSolver::default();
+    let solver = StructuredSolver::tight();
     for (seed, k, tight) in [(40, 650, 0.0), (41, 300, 0.9), (42, 200, 0.97)] {
         let qp0 = random_instance(seed, k, tight);
         let prev = solver.solve(&qp0, None).unwrap();
@@ -231,7 +231,7 @@ fn zero_width_input_boxes_are_pinned() {
                 qp.w_hi[i][j] = 0.0;
             }
         }
-        let s = StructuredSolver::default().solve(&qp, None).unwrap();
+        let s = StructuredSolver::tight().solve(&qp, None).unwrap();
         let c = ClarabelSolver::default().solve(&qp, None).unwrap();
         assert_agree(&qp, &s, &c);
         assert!(s.w[150..260].iter().all(|w| w.amax() == 0.0));
@@ -239,7 +239,7 @@ fn zero_width_input_boxes_are_pinned() {
         let r = kkt_residual(&qp, &s).unwrap();
         assert!(r.stationarity < 1e-8 && r.complementarity < 1e-8 * s.objective.max(1.0), "{r:?}");
         // Warm start from Clarabel's solution (as after a fallback).
-        let warm = StructuredSolver::default().solve(&qp, Some(&c)).unwrap();
+        let warm = StructuredSolver::tight().solve(&qp, Some(&c)).unwrap();
         assert_agree(&qp, &warm, &c);
     }
 }
@@ -249,7 +249,7 @@ fn zero_width_state_box_is_a_numerical_error() {
     let mut qp = random_instance(23, 20, 0.0);
     qp.z_lo[5][1] = 0.1;
     qp.z_hi[5][1] = 0.1;
-    let e = StructuredSolver::default().solve(&qp, None).unwrap_err();
+    let e = StructuredSolver::tight().solve(&qp, None).unwrap_err();
     assert!(matches!(e, QpError::Numerical(ref m) if m.contains("zero-width state box")), "{e}");
 }
 
@@ -264,7 +264,7 @@ fn structured_failures_are_rare_and_only_on_nearly_infeasible_boxes() {
         let k = 5 + (seed as usize * 7919) % 55;
         for (i, tight) in [0.0, 0.9, 0.97].into_iter().enumerate() {
             let qp = random_instance(seed, k, tight);
-            match StructuredSolver::default().solve(&qp, None) {
+            match StructuredSolver::tight().solve(&qp, None) {
                 Ok(_) | Err(QpError::Infeasible(_)) => {}
                 Err(_) => failures[i] += 1,
             }
