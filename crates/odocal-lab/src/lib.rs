@@ -169,28 +169,6 @@ pub fn coloured_wheels_only() -> NoiseOptions {
     }
 }
 
-/// Every source of the paper preset scaled by `f`: its standard deviations
-/// and the slip coefficient × f, the encoder ticks per revolution ÷ f
-/// (rounded), so the quantisation step × f; time constants kept (the
-/// simulator's `high` preset is this at 2.5 with a quarter of the ticks).
-pub fn paper_scaled(f: f64) -> NoiseOptions {
-    let p = NoiseOptions::paper();
-    NoiseOptions {
-        wheel_slip_per_m_per_s2: f * p.wheel_slip_per_m_per_s2,
-        wheel_coloured_rel_sigma: f * p.wheel_coloured_rel_sigma,
-        wheel_coloured_differential_rel_sigma: f * p.wheel_coloured_differential_rel_sigma,
-        wheel_white_rel_sigma: f * p.wheel_white_rel_sigma,
-        encoder_ticks_per_revolution: (f64::from(p.encoder_ticks_per_revolution) / f).round() as u32,
-        position_drift_sigma_m: f * p.position_drift_sigma_m,
-        position_white_sigma_m: f * p.position_white_sigma_m,
-        heading_drift_sigma_rad: f * p.heading_drift_sigma_rad,
-        heading_white_sigma_rad: f * p.heading_white_sigma_rad,
-        lateral_acceleration_white_sigma_m_per_s2: f * p.lateral_acceleration_white_sigma_m_per_s2,
-        sideslip_sigma_rad: f * p.sideslip_sigma_rad,
-        ..p
-    }
-}
-
 /// A simulated drive of the paper's route: `km` long, noise `preset`
 /// ([`noise_preset`]), seed `seed`.
 pub fn simulate_preset(preset: &str, km: f64, seed: u64) -> Result<SimOutput, odocal::Error> {

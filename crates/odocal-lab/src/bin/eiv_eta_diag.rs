@@ -132,7 +132,7 @@ fn run() -> Res<()> {
                 }
                 n
             }
-            _ if p.starts_with("scale") => odocal_lab::paper_scaled(p["scale".len()..].parse()?),
+            _ if p.starts_with("scale") => NoiseOptions::paper_scaled(p["scale".len()..].parse()?),
             _ => NoiseOptions::by_name(p)?,
         };
         for seed in 1..=seeds {

@@ -291,7 +291,7 @@ impl NoiseOptions {
     /// revolution ÷ f (rounded), so the quantisation step × f; time constants
     /// kept. `paper_scaled(2.5)` is [`NoiseOptions::high`] but for the ticks
     /// (819 there, 512 in `high`).
-    pub(crate) fn paper_scaled(f: f64) -> Self {
+    pub fn paper_scaled(f: f64) -> Self {
         let p = NoiseOptions::paper();
         NoiseOptions {
             wheel_slip_per_m_per_s2: f * p.wheel_slip_per_m_per_s2,
