@@ -145,27 +145,11 @@ pub fn batch_gn_all(drive: &Drive) -> Result<Theta, odocal::Error> {
 }
 
 /// The simulator's noise presets by name (`NoiseOptions::by_name`) and
-/// `coloured` ([`coloured_wheels_only`]).
+/// `coloured` ([`NoiseOptions::coloured_wheels_only`]).
 pub fn noise_preset(name: &str) -> Result<NoiseOptions, odocal::Error> {
     match name {
-        "coloured" => Ok(coloured_wheels_only()),
+        "coloured" => Ok(NoiseOptions::coloured_wheels_only()),
         _ => NoiseOptions::by_name(name),
-    }
-}
-
-/// The paper preset's wheel noise only — coloured common and differential
-/// relative errors, white noise and encoder quantisation — on a perfect
-/// reference, with no slip, a_y or sideslip noise (the "coloured" preset
-/// of the EIV studies).
-pub fn coloured_wheels_only() -> NoiseOptions {
-    let p = NoiseOptions::paper();
-    NoiseOptions {
-        wheel_coloured_rel_sigma: p.wheel_coloured_rel_sigma,
-        wheel_coloured_differential_rel_sigma: p.wheel_coloured_differential_rel_sigma,
-        wheel_coloured_time_constant_s: p.wheel_coloured_time_constant_s,
-        wheel_white_rel_sigma: p.wheel_white_rel_sigma,
-        encoder_ticks_per_revolution: p.encoder_ticks_per_revolution,
-        ..NoiseOptions::off()
     }
 }
 

@@ -84,7 +84,7 @@ fn run() -> Res<()> {
             "quantonly" => NoiseOptions { encoder_ticks_per_revolution: 256, ..NoiseOptions::off() },
             "quantwhite" => NoiseOptions { encoder_ticks_per_revolution: 256, ..NoiseOptions::by_name("white")? },
             "white2" => NoiseOptions { wheel_white_rel_sigma: 0.02, ..NoiseOptions::by_name("white")? },
-            "coloured" => odocal_lab::coloured_wheels_only(),
+            "coloured" => NoiseOptions::coloured_wheels_only(),
             "noquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::paper() },
             "highnoquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::high() },
             // Ablations of the paper preset without quantisation (`nq-…`: one more source off).

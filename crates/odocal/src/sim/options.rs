@@ -264,8 +264,7 @@ impl NoiseOptions {
     /// differential relative errors, white noise and encoder quantisation —
     /// on a perfect reference, with no slip, a_y or sideslip noise (the
     /// "coloured" preset of the EIV studies).
-    #[cfg(test)]
-    pub(crate) fn coloured_wheels_only() -> Self {
+    pub fn coloured_wheels_only() -> Self {
         let p = NoiseOptions::paper();
         NoiseOptions {
             wheel_coloured_rel_sigma: p.wheel_coloured_rel_sigma,
