@@ -231,7 +231,9 @@ pub(crate) fn build_qp(
         // z_k = A z_{k−1} + B w_{k−1} + c_k with
         // c_k = f(x̄, ū) + A (ỹ_{k−1} − x̄_{k−1}) + B (ñ_{k−1} − n̄_{k−1}) − ỹ_k.
         let c = j.next + j.f_x * (seg.reference(k) - x_lin) + j.f_n * (n_meas - n_lin) - seg.reference(k + 1);
-        qp.a.push(j.f_x);
+        // The model's pose Jacobian is the identity but for its heading column.
+        debug_assert!(qp::heading_column(&j.f_x).is_some(), "step Jacobian {}", j.f_x);
+        qp.a.push(Vector2::new(j.f_x[(0, 2)], j.f_x[(1, 2)]));
         qp.b.push(j.f_n);
         qp.c.push(c);
         let half = n_meas.abs() * opts.input_box_rel;

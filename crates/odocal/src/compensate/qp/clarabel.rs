@@ -24,7 +24,7 @@ use ::clarabel::solver::{
 };
 use nalgebra::{Vector2, Vector3};
 
-use super::{QpError, QpSolution, QpSolver, StageQp, ACTIVE_BOUND_TOL};
+use super::{a_matrix, QpError, QpSolution, QpSolver, StageQp, ACTIVE_BOUND_TOL};
 
 /// Settings of the Clarabel solver ([`SolverKind::Clarabel`](super::SolverKind::Clarabel),
 /// and the structured solver's fallback).
@@ -134,10 +134,11 @@ fn assemble(qp: &StageQp) -> Assembled {
                 av.push(-qp.b[i][(r, j)]);
             }
             if i > 0 {
+                let a = a_matrix(&qp.a[i]);
                 for j in 0..3 {
                     ar.push(row);
                     ac.push(zi(i - 1, j));
-                    av.push(-qp.a[i][(r, j)]);
+                    av.push(-a[(r, j)]);
                 }
             }
             b[row] = qp.c[i][r];

@@ -55,8 +55,11 @@ use crate::model::{step_jacobians, Input, Theta};
 /// of input `i` (input bounds), as documented per field.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct StageQp {
-    /// `A_k` for k = 1..K (index k−1), 3×3.
-    pub a: Vec<Matrix3<f64>>,
+    /// The heading column of `A_k` for k = 1..K (index k−1): the model's
+    /// step Jacobian in the pose is `A_k = [[1, 0, a_k[0]], [0, 1, a_k[1]],
+    /// [0, 0, 1]]` (`∂x/∂ψ`, `∂y/∂ψ`; position and heading enter a step
+    /// additively), stored as these two entries. [`a_matrix`] rebuilds it.
+    pub a: Vec<Vector2<f64>>,
     /// `B_k` for k = 1..K (index k−1), 3×2.
     pub b: Vec<Matrix3x2<f64>>,
     /// Affine term `c_k` for k = 1..K (index k−1).
@@ -134,6 +137,19 @@ impl StageQp {
     }
 }
 
+/// The 3×3 step Jacobian `A_k` from its heading column `a` ([`StageQp::a`]).
+pub(crate) fn a_matrix(a: &Vector2<f64>) -> Matrix3<f64> {
+    Matrix3::new(1.0, 0.0, a[0], 0.0, 1.0, a[1], 0.0, 0.0, 1.0)
+}
+
+/// The heading column of a step Jacobian in the pose, the form
+/// [`StageQp::a`] stores; `None` unless `f_x` is the identity but for
+/// `∂x/∂ψ` and `∂y/∂ψ`.
+pub(crate) fn heading_column(f_x: &Matrix3<f64>) -> Option<Vector2<f64>> {
+    let a = Vector2::new(f_x[(0, 2)], f_x[(1, 2)]);
+    (a_matrix(&a) == *f_x).then_some(a)
+}
+
 /// A solution of a [`StageQp`].
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct QpSolution {
@@ -187,7 +203,7 @@ impl StageQp {
         let mut prev = Vector3::zeros();
         let mut r: f64 = 0.0;
         for i in 0..self.stages() {
-            let e = z[i] - self.a[i] * prev - self.b[i] * w[i] - self.c[i];
+            let e = z[i] - a_matrix(&self.a[i]) * prev - self.b[i] * w[i] - self.c[i];
             r = r.max(e.amax());
             prev = z[i];
         }
@@ -266,7 +282,7 @@ pub(crate) fn kkt_residual(qp: &StageQp, sol: &QpSolution) -> Result<KktResidual
         // ν_z_k = ∂f/∂z_k + λ_k − A_{k+1}ᵀ λ_{k+1}
         let mut nz = gz[i] + lam[i];
         if i + 1 < k {
-            nz -= qp.a[i + 1].transpose() * lam[i + 1];
+            nz -= a_matrix(&qp.a[i + 1]).transpose() * lam[i + 1];
         }
         // ν_w_k = ∂f/∂w_k − B_{k+1}ᵀ λ_{k+1}
         let nw = gw[i] - qp.b[i].transpose() * lam[i];
@@ -336,7 +352,7 @@ pub(crate) fn solve_equality_constrained(qp: &StageQp) -> Result<QpSolution, QpE
             }
             if i > 0 {
                 for j in 0..3 {
-                    put(zi(i - 1, j), -qp.a[i][(r, j)]);
+                    put(zi(i - 1, j), -a_matrix(&qp.a[i])[(r, j)]);
                 }
             }
             rhs[row] = qp.c[i][r];
@@ -472,7 +488,7 @@ pub(crate) fn random_instance(seed: u64, stages: usize, tightness: f64) -> Stage
         let e = Vector3::new(0.03 * g(), 0.03 * g(), 0.005 * g());
         let heading = Vector3::new(x[2].cos(), x[2].sin(), 0.0);
         qp.c.push(j.f_x * e_prev - e + heading * (0.01 * v * g()));
-        qp.a.push(j.f_x);
+        qp.a.push(heading_column(&j.f_x).expect("the model's step Jacobian"));
         qp.b.push(j.f_n);
         e_prev = e;
         x = j.next;

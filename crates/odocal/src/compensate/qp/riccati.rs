@@ -44,7 +44,7 @@
 //! - S. Mehrotra, "On the implementation of a primal-dual interior point
 //!   method", SIAM J. Optim. 2 (1992) 575–601.
 
-use nalgebra::{Matrix2, Matrix3, Matrix3x2, Matrix5, SMatrix, Vector2, Vector3, Vector5};
+use nalgebra::{Vector2, Vector3};
 
 use super::{QpError, QpSolution, QpSolver, StageQp, ACTIVE_BOUND_TOL};
 
@@ -174,115 +174,300 @@ impl StructuredSolver {
     }
 }
 
-/// `[w_i; z_{i+1}]` packed per stage: rows 0..2 input, rows 2..5 state.
-type V5 = Vector5<f64>;
+/// A per-stage value packed `[w_i; z_{i+1}]`: entries 0..2 input, 2..5 state.
+type S5 = [f64; 5];
+/// A per-stage state value.
+type S3 = [f64; 3];
+/// A per-stage input value.
+type S2 = [f64; 2];
 
-fn wpart(v: &V5) -> Vector2<f64> {
-    Vector2::new(v[0], v[1])
+/// `A v` for `A = [[1, 0, a0], [0, 1, a1], [0, 0, 1]]` (see [`StageQp::a`]).
+#[inline(always)]
+fn a_mul(a: &S2, v: &S3) -> S3 {
+    [v[0] + a[0] * v[2], v[1] + a[1] * v[2], v[2]]
 }
 
-fn zpart(v: &V5) -> Vector3<f64> {
-    Vector3::new(v[2], v[3], v[4])
+/// `Aᵀ v` for `A = [[1, 0, a0], [0, 1, a1], [0, 0, 1]]`.
+#[inline(always)]
+fn at_mul(a: &S2, v: &S3) -> S3 {
+    [v[0], v[1], a[0] * v[0] + a[1] * v[1] + v[2]]
 }
 
-fn pack(w: &Vector2<f64>, z: &Vector3<f64>) -> V5 {
-    V5::new(w[0], w[1], z[0], z[1], z[2])
+/// `B_iᵀ v` for `B_i` given by its columns.
+#[inline(always)]
+fn bt_mul(b: &[S3; 2], v: &S3) -> S2 {
+    [b[0][0] * v[0] + b[0][1] * v[1] + b[0][2] * v[2], b[1][0] * v[0] + b[1][1] * v[1] + b[1][2] * v[2]]
 }
 
-/// Buffers of one solve, allocated once.
+/// The stage's heading column of `A` and the columns of `B`.
+#[inline(always)]
+fn stage_ab(qp: &StageQp, i: usize) -> (&S2, &[S3; 2]) {
+    (&qp.a[i].data.0[0], &qp.b[i].data.0)
+}
+
+/// The Riccati factors of stage i that the vector passes read.
+#[derive(Debug, Clone, Copy, Default)]
+struct StageFactor {
+    /// Cost-to-go Hessian block of `z_{i+1}`, its own stage cost
+    /// `2Q + Σ_z` included (3×3, symmetric).
+    p11: [S3; 3],
+    /// Cross block of `z_{i+1}` and `w_i` (3×2, `p12[row][col]`).
+    p12: [S2; 3],
+    /// `H_uu⁻¹` (2×2, symmetric; zero rows and columns for pinned inputs).
+    hinv: [S2; 2],
+    /// The state block of `H_us`, `G = (P11 B + P12)ᵀ A` (2×3, `g[row][col]`).
+    g: [S3; 2],
+}
+
+/// The cost-to-go Hessian of `s_{i+1} = [z_{i+1}; w_i]` carried backward,
+/// without `z_{i+1}`'s own stage cost (added by the stage that owns it).
+#[derive(Debug, Clone, Copy, Default)]
+struct CostToGo {
+    p11: [S3; 3],
+    p12: [S2; 3],
+    p22: [S2; 2],
+}
+
+/// Closed-form inverse of the symmetric 2×2 `H_uu = [[h00, h01], [h01, h11]]`;
+/// positive definiteness checked on the leading minors. A pinned input is
+/// no decision variable: `H_uu` is inverted on the free inputs only and
+/// padded with zeros, so its step (and feedback) is 0.
+#[inline(always)]
+fn invert_huu(i: usize, h00: f64, h01: f64, h11: f64, free: &S5) -> Result<[S2; 2], QpError> {
+    if free[0] > 0.0 && free[1] > 0.0 {
+        let det = h00 * h11 - h01 * h01;
+        if !(h00 > 0.0 && det > f64::EPSILON * h00 * h11) {
+            return Err(QpError::Numerical(format!(
+                "Riccati recursion: input Hessian not positive definite at stage {i} (det {det:.3e})"
+            )));
+        }
+        let inv = 1.0 / det;
+        return Ok([[h11 * inv, -h01 * inv], [-h01 * inv, h00 * inv]]);
+    }
+    let mut out = [[0.0; 2]; 2];
+    for (j, h) in [(0, h00), (1, h11)] {
+        if free[j] > 0.0 {
+            if h.is_nan() || h <= 0.0 {
+                return Err(QpError::Numerical(format!(
+                    "Riccati recursion: input Hessian not positive at stage {i} (h {h:.3e})"
+                )));
+            }
+            out[j][j] = 1.0 / h;
+        }
+    }
+    Ok(out)
+}
+
+/// One step of the backward Riccati factorisation at stage i.
+///
+/// Adds `z_{i+1}`'s stage cost `2Q + Σ_z` to the carried cost-to-go `ctg`
+/// of `s_{i+1}`, forms `H_uu = [B; I]ᵀ P [B; I] + Σ_w (+ 2R)` and
+/// `H_us = [(P11 B + P12)ᵀ A, −2R]`, and returns the stage's
+/// factor with the cost-to-go of `s_i`,
+/// `blockdiag(AᵀP11A, 2R) − H_usᵀ H_uu⁻¹ H_us` (z_i's stage cost left to
+/// stage i−1). Every product is written out for the sparse `A` and the
+/// diagonal `R`; symmetric blocks are formed from their upper triangle.
+#[inline(always)]
+fn factor_stage(
+    i: usize,
+    ctg: &CostToGo,
+    (q2, r2): (&S3, &S2),
+    sigma: &S5,
+    free: &S5,
+    (a, b): (&S2, &[S3; 2]),
+) -> Result<(StageFactor, CostToGo), QpError> {
+    let mut p11 = ctg.p11;
+    for j in 0..3 {
+        p11[j][j] += q2[j] + sigma[2 + j];
+    }
+    let p12 = ctg.p12;
+    // g = P11 B + P12 (3×2).
+    let mut g = [[0.0; 2]; 3];
+    for r in 0..3 {
+        for j in 0..2 {
+            g[r][j] = p11[r][0] * b[j][0] + p11[r][1] * b[j][1] + p11[r][2] * b[j][2] + p12[r][j];
+        }
+    }
+    // H_uu = Bᵀ g + P12ᵀ B + P22 + Σ_w, plus 2R where w_{i−1} exists.
+    let h = |j: usize, l: usize| {
+        b[j][0] * g[0][l]
+            + b[j][1] * g[1][l]
+            + b[j][2] * g[2][l]
+            + (p12[0][j] * b[l][0] + p12[1][j] * b[l][1] + p12[2][j] * b[l][2])
+            + ctg.p22[j][l]
+    };
+    let rate = if i > 0 { *r2 } else { [0.0; 2] };
+    let hinv = invert_huu(i, h(0, 0) + sigma[0] + rate[0], h(0, 1), h(1, 1) + sigma[1] + rate[1], free)?;
+    // G = gᵀ A.
+    let gt = |j: usize| [g[0][j], g[1][j], a[0] * g[0][j] + a[1] * g[1][j] + g[2][j]];
+    let gg = [gt(0), gt(1)];
+    let f = StageFactor { p11, p12, hinv, g: gg };
+    if i == 0 {
+        return Ok((f, CostToGo::default())); // s_0 = 0: P_0 is never used.
+    }
+    // M = H_uu⁻¹ G (2×3).
+    let mrow = |j: usize| {
+        let (h0, h1) = (hinv[j][0], hinv[j][1]);
+        [h0 * gg[0][0] + h1 * gg[1][0], h0 * gg[0][1] + h1 * gg[1][1], h0 * gg[0][2] + h1 * gg[1][2]]
+    };
+    let m = [mrow(0), mrow(1)];
+    // AᵀP11A: only the heading row and column change, through v = P11 (a0, a1, 1).
+    let v = [
+        p11[0][0] * a[0] + p11[0][1] * a[1] + p11[0][2],
+        p11[1][0] * a[0] + p11[1][1] * a[1] + p11[1][2],
+        p11[2][0] * a[0] + p11[2][1] * a[1] + p11[2][2],
+    ];
+    let ata =
+        [[p11[0][0], p11[0][1], v[0]], [p11[1][0], p11[1][1], v[1]], [v[0], v[1], a[0] * v[0] + a[1] * v[1] + v[2]]];
+    let mut next = CostToGo::default();
+    for r in 0..3 {
+        for c in r..3 {
+            let e = ata[r][c] - (gg[0][r] * m[0][c] + gg[1][r] * m[1][c]);
+            next.p11[r][c] = e;
+            next.p11[c][r] = e;
+        }
+        // −Gᵀ H_uu⁻¹ (−2R) = Mᵀ 2R.
+        next.p12[r] = [m[0][r] * r2[0], m[1][r] * r2[1]];
+    }
+    // 2R − 2R H_uu⁻¹ 2R.
+    next.p22 = [
+        [r2[0] - r2[0] * hinv[0][0] * r2[0], -(r2[0] * hinv[0][1] * r2[1])],
+        [-(r2[1] * hinv[1][0] * r2[0]), r2[1] - r2[1] * hinv[1][1] * r2[1]],
+    ];
+    Ok((f, next))
+}
+
+/// One step of the Riccati vector pass at stage i for the linear term `rt`
+/// and the dynamics offset `−r_p`: updates the carried cost-to-go gradient
+/// `(pz, pw)` of `s_{i+1}` (without `z_{i+1}`'s own term, added here) to
+/// that of `s_i`, and returns the feed-forward `kff = −H_uu⁻¹ h_u`.
+#[inline(always)]
+fn vector_stage(f: &StageFactor, rt: &S5, r_p: &S3, (a, b): (&S2, &[S3; 2]), r2: &S2, p: (&mut S3, &mut S2)) -> S2 {
+    let (pz, pw) = p;
+    let ch = [-r_p[0], -r_p[1], -r_p[2]];
+    let row = |r: usize| f.p11[r][0] * ch[0] + f.p11[r][1] * ch[1] + f.p11[r][2] * ch[2] + (pz[r] + rt[2 + r]);
+    let e1 = [row(0), row(1), row(2)];
+    let col = |j: usize| f.p12[0][j] * ch[0] + f.p12[1][j] * ch[1] + f.p12[2][j] * ch[2] + pw[j];
+    let e2 = [col(0), col(1)];
+    let bte = bt_mul(b, &e1);
+    let hu = [rt[0] + bte[0] + e2[0], rt[1] + bte[1] + e2[1]];
+    let kff = [-(f.hinv[0][0] * hu[0] + f.hinv[0][1] * hu[1]), -(f.hinv[1][0] * hu[0] + f.hinv[1][1] * hu[1])];
+    let ae = at_mul(a, &e1);
+    for r in 0..3 {
+        pz[r] = ae[r] + (f.g[0][r] * kff[0] + f.g[1][r] * kff[1]);
+    }
+    *pw = [-(r2[0] * kff[0]), -(r2[1] * kff[1])];
+    kff
+}
+
+/// One step of the forward rollout at stage i from `s_i = (sz, sw)`:
+/// `u_i = kff_i − H_uu⁻¹ H_us s_i`, `Δz_{i+1} = A s_z + B u_i − r_p`.
+#[inline(always)]
+fn rollout_stage(i: usize, f: &StageFactor, kff: &S2, (a, b): (&S2, &[S3; 2]), r2: &S2, r_p: &S3, s: (&S3, &S2)) -> S5 {
+    let (sz, sw) = s;
+    let u = if i == 0 {
+        *kff
+    } else {
+        let hs = |j: usize| f.g[j][0] * sz[0] + f.g[j][1] * sz[1] + f.g[j][2] * sz[2] - r2[j] * sw[j];
+        let hs = [hs(0), hs(1)];
+        [kff[0] - (f.hinv[0][0] * hs[0] + f.hinv[0][1] * hs[1]), kff[1] - (f.hinv[1][0] * hs[0] + f.hinv[1][1] * hs[1])]
+    };
+    let az = a_mul(a, sz);
+    let dz = |r: usize| az[r] + (b[0][r] * u[0] + b[1][r] * u[1]) - r_p[r];
+    [u[0], u[1], dz(0), dz(1), dz(2)]
+}
+
+/// Raises `m` to `r` when `r` is larger (a NaN ratio is skipped).
+#[inline(always)]
+fn raise(m: &mut f64, r: f64) {
+    if r > *m {
+        *m = r;
+    }
+}
+
+/// Buffers of one solve, allocated once per thread and size.
 struct Work {
     /// 1 for a variable of the interior-point iteration, 0 for one pinned
     /// by a zero-width box (see [`StructuredOptions::fixed_width`]).
-    free: Vec<V5>,
+    free: Vec<S5>,
     /// Number of free variables (each has two bounds).
     n_free: usize,
     /// Primal iterate per stage.
-    x: Vec<V5>,
+    x: Vec<S5>,
     /// Dynamics multipliers λ_{i+1}.
-    y: Vec<Vector3<f64>>,
-    lo: Vec<V5>,
-    hi: Vec<V5>,
-    t_lo: Vec<V5>,
-    t_hi: Vec<V5>,
-    l_lo: Vec<V5>,
-    l_hi: Vec<V5>,
+    y: Vec<S3>,
+    lo: Vec<S5>,
+    hi: Vec<S5>,
+    t_lo: Vec<S5>,
+    t_hi: Vec<S5>,
+    l_lo: Vec<S5>,
+    l_hi: Vec<S5>,
     /// Dual residual ∇f + Gᵀy − μ_lo + μ_hi.
-    r_d: Vec<V5>,
+    r_d: Vec<S5>,
     /// Dynamics residual of z_{i+1}.
-    r_p: Vec<Vector3<f64>>,
+    r_p: Vec<S3>,
     /// `x − lo − t_lo`, `hi − x − t_hi`.
-    r_lo: Vec<V5>,
-    r_hi: Vec<V5>,
-    /// Barrier Hessian diagonal Σ.
-    sigma: Vec<V5>,
-    /// Reduced linear term r̃_d of the Newton LQ problem.
-    rt: Vec<V5>,
-    /// Newton direction (affine, then combined).
-    dx: Vec<V5>,
-    dy: Vec<Vector3<f64>>,
-    dt_lo: Vec<V5>,
-    dt_hi: Vec<V5>,
-    dl_lo: Vec<V5>,
-    dl_hi: Vec<V5>,
-    /// Complementarity targets of the current Newton step, per stage.
-    rc: Vec<(V5, V5)>,
-    /// Affine directions kept for the corrector term.
-    aff_t_lo: Vec<V5>,
-    aff_t_hi: Vec<V5>,
-    aff_l_lo: Vec<V5>,
-    aff_l_hi: Vec<V5>,
-    /// Riccati factors: the blocks `P11`, `P12` of P_{i+1} (the vector
-    /// pass reads no other), H_uu⁻¹, H_us, feed-forward.
-    p11: Vec<Matrix3<f64>>,
-    p12: Vec<Matrix3x2<f64>>,
-    huu_inv: Vec<Matrix2<f64>>,
-    hus: Vec<SMatrix<f64, 2, 5>>,
-    kff: Vec<Vector2<f64>>,
+    r_lo: Vec<S5>,
+    r_hi: Vec<S5>,
+    /// `1/t_lo`, `1/t_hi` of the current iterate.
+    inv_t_lo: Vec<S5>,
+    inv_t_hi: Vec<S5>,
+    /// State part of the barrier Hessian diagonal `Σ = μ_lo/t_lo + μ_hi/t_hi`.
+    sigma_z: Vec<S3>,
+    /// Reduced linear term r̃_d of the Newton LQ problem (predictor, then corrector).
+    rt: Vec<S5>,
+    /// The affine step's `Δt·Δμ`, for the corrector's complementarity targets.
+    prod_lo: Vec<S5>,
+    prod_hi: Vec<S5>,
+    /// Riccati factors and feed-forward terms.
+    factor: Vec<StageFactor>,
+    kff: Vec<S2>,
+    /// The corrector's Newton direction.
+    dx: Vec<S5>,
+    dt_lo: Vec<S5>,
+    dt_hi: Vec<S5>,
+    dl_lo: Vec<S5>,
+    dl_hi: Vec<S5>,
 }
 
 impl Work {
     fn new(k: usize) -> Self {
-        let v5 = || vec![V5::zeros(); k];
-        let v3 = || vec![Vector3::zeros(); k];
+        let v5 = || vec![[0.0; 5]; k];
+        let v3 = || vec![[0.0; 3]; k];
         Self {
-            free: vec![V5::repeat(1.0); k],
+            free: vec![[1.0; 5]; k],
             n_free: 5 * k,
             x: v5(),
             y: v3(),
             lo: v5(),
             hi: v5(),
-            t_lo: v5(),
-            t_hi: v5(),
+            t_lo: vec![[1.0; 5]; k],
+            t_hi: vec![[1.0; 5]; k],
             l_lo: v5(),
             l_hi: v5(),
             r_d: v5(),
             r_p: v3(),
             r_lo: v5(),
             r_hi: v5(),
-            sigma: v5(),
+            inv_t_lo: v5(),
+            inv_t_hi: v5(),
+            sigma_z: v3(),
             rt: v5(),
+            prod_lo: v5(),
+            prod_hi: v5(),
+            factor: vec![StageFactor::default(); k],
+            kff: vec![[0.0; 2]; k],
             dx: v5(),
-            dy: v3(),
             dt_lo: v5(),
             dt_hi: v5(),
             dl_lo: v5(),
             dl_hi: v5(),
-            rc: vec![(V5::zeros(), V5::zeros()); k],
-            aff_t_lo: v5(),
-            aff_t_hi: v5(),
-            aff_l_lo: v5(),
-            aff_l_hi: v5(),
-            p11: vec![Matrix3::zeros(); k],
-            p12: vec![Matrix3x2::zeros(); k],
-            huu_inv: vec![Matrix2::zeros(); k],
-            hus: vec![SMatrix::<f64, 2, 5>::zeros(); k],
-            kff: vec![Vector2::zeros(); k],
         }
     }
 }
 
 /// Norms of the current residuals.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, Default)]
 struct Residuals {
     primal: f64,
     dual: f64,
@@ -297,291 +482,229 @@ struct Residuals {
     /// Dual residual over the states (`dual` is over the inputs).
     dual_z: f64,
     grad_scale_z: f64,
+    /// Largest bound multiplier.
+    l_max: f64,
 }
 
 impl StructuredSolver {
-    /// Gradient of f at the packed iterate into `out` (w and z parts).
-    fn gradient(qp: &StageQp, x: &[V5], out: &mut [V5]) {
-        let k = x.len();
-        let (out, delta) = (&mut out[..k], &qp.delta[..k - 1]);
-        let r2 = 2.0 * qp.r;
-        for i in 0..k {
-            let gz = 2.0 * qp.q.component_mul(&zpart(&x[i]));
-            out[i] = pack(&Vector2::zeros(), &gz);
-        }
-        for i in 1..k {
-            let d = r2.component_mul(&(wpart(&x[i]) - wpart(&x[i - 1]) + delta[i - 1]));
-            out[i][0] += d[0];
-            out[i][1] += d[1];
-            out[i - 1][0] -= d[0];
-            out[i - 1][1] -= d[1];
-        }
-    }
-
-    /// Fills r_d, r_p, r_lo, r_hi and returns their norms.
+    /// Fills r_d, r_p, r_lo, r_hi and returns their norms, in one pass.
     fn residuals(qp: &StageQp, wk: &mut Work) -> Residuals {
         let k = qp.stages();
-        Self::gradient(qp, &wk.x[..k], &mut wk.r_d);
-        let (x, y, free) = (&wk.x[..k], &wk.y[..k], &wk.free[..k]);
-        let (a, b, c, delta) = (&qp.a[..k], &qp.b[..k], &qp.c[..k], &qp.delta[..k - 1]);
-        let (r_d, r_p, r_lo, r_hi) = (&mut wk.r_d[..k], &mut wk.r_p[..k], &mut wk.r_lo[..k], &mut wk.r_hi[..k]);
+        let (q, r) = (&qp.q.data.0[0], &qp.r.data.0[0]);
+        let (q2, r2) = ([2.0 * q[0], 2.0 * q[1], 2.0 * q[2]], [2.0 * r[0], 2.0 * r[1]]);
+        let (x, y, free, delta, c) = (&wk.x[..k], &wk.y[..k], &wk.free[..k], &qp.delta[..k - 1], &qp.c[..k]);
         let (lo, hi, t_lo, t_hi) = (&wk.lo[..k], &wk.hi[..k], &wk.t_lo[..k], &wk.t_hi[..k]);
         let (l_lo, l_hi) = (&wk.l_lo[..k], &wk.l_hi[..k]);
-        let mut grad_scale: f64 = 0.0;
-        let mut grad_scale_z: f64 = 0.0;
-        let mut objective = 0.0;
+        let (r_d, r_p, r_lo, r_hi) = (&mut wk.r_d[..k], &mut wk.r_p[..k], &mut wk.r_lo[..k], &mut wk.r_hi[..k]);
+        let mut res = Residuals::default();
+        let mut zprev = [0.0; 3];
+        // The input-rate difference w_i − w_{i−1} + δ_i (0 for i = 0).
+        let mut d = [0.0; 2];
         for i in 0..k {
-            grad_scale = grad_scale.max(wpart(&r_d[i]).amax());
-            grad_scale_z = grad_scale_z.max(zpart(&r_d[i]).amax());
-            let z = zpart(&x[i]);
-            objective += z.component_mul(&z).dot(&qp.q);
+            let xi = &x[i];
+            let d_next = if i + 1 < k {
+                let xn = &x[i + 1];
+                [xn[0] - xi[0] + delta[i].x, xn[1] - xi[1] + delta[i].y]
+            } else {
+                [0.0; 2]
+            };
+            let mut grad = [0.0; 5];
+            for j in 0..2 {
+                grad[j] = (0.0 + r2[j] * d[j]) - r2[j] * d_next[j];
+                res.grad_scale = res.grad_scale.max(grad[j].abs());
+            }
+            for j in 0..3 {
+                grad[2 + j] = q2[j] * xi[2 + j];
+                res.grad_scale_z = res.grad_scale_z.max(grad[2 + j].abs());
+            }
+            res.objective += xi[2] * xi[2] * q[0] + xi[3] * xi[3] * q[1] + xi[4] * xi[4] * q[2];
             if i > 0 {
-                let d = wpart(&x[i]) - wpart(&x[i - 1]) + delta[i - 1];
-                objective += d.component_mul(&d).dot(&qp.r);
+                res.objective += d[0] * d[0] * r[0] + d[1] * d[1] * r[1];
             }
-        }
-        let mut primal: f64 = 0.0;
-        let mut dual: f64 = 0.0;
-        let mut dual_z: f64 = 0.0;
-        let mut gap = 0.0;
-        let mut zprev = Vector3::zeros();
-        for i in 0..k {
-            let w = wpart(&x[i]);
-            let z = zpart(&x[i]);
+            d = d_next;
             // Gᵀy: z_{i+1} gets y_{i+1} − A_{i+2}ᵀ y_{i+2}; w_i gets −B_{i+1}ᵀ y_{i+1}.
-            let mut gy_z = y[i];
-            if i + 1 < k {
-                gy_z -= a[i + 1].transpose() * y[i + 1];
-            }
-            let gy_w = -(b[i].transpose() * y[i]);
-            r_d[i] += pack(&gy_w, &gy_z) - l_lo[i] + l_hi[i];
+            let (_, b) = stage_ab(qp, i);
+            let ay = if i + 1 < k { at_mul(stage_ab(qp, i + 1).0, &y[i + 1]) } else { [0.0; 3] };
+            let btl = bt_mul(b, &y[i]);
+            let gy = [-btl[0], -btl[1], y[i][0] - ay[0], y[i][1] - ay[1], y[i][2] - ay[2]];
             // A pinned variable's stationarity is absorbed by the multiplier
             // of its equality `x = v`.
-            r_d[i].component_mul_assign(&free[i]);
-            dual = dual.max(wpart(&r_d[i]).amax());
-            dual_z = dual_z.max(zpart(&r_d[i]).amax());
-            r_p[i] = z - a[i] * zprev - b[i] * w - c[i];
+            for j in 0..5 {
+                let f = free[i][j];
+                r_d[i][j] = (grad[j] + gy[j] - l_lo[i][j] + l_hi[i][j]) * f;
+                r_lo[i][j] = (xi[j] - lo[i][j] - t_lo[i][j]) * f;
+                r_hi[i][j] = (hi[i][j] - xi[j] - t_hi[i][j]) * f;
+                res.primal = res.primal.max(r_lo[i][j].abs()).max(r_hi[i][j].abs());
+                res.gap += t_lo[i][j] * l_lo[i][j] + t_hi[i][j] * l_hi[i][j];
+                res.l_max = res.l_max.max(l_lo[i][j]).max(l_hi[i][j]);
+            }
+            res.dual = res.dual.max(r_d[i][0].abs()).max(r_d[i][1].abs());
+            res.dual_z = res.dual_z.max(r_d[i][2].abs()).max(r_d[i][3].abs()).max(r_d[i][4].abs());
+            let z = [xi[2], xi[3], xi[4]];
+            let az = a_mul(stage_ab(qp, i).0, &zprev);
+            let bw = [
+                b[0][0] * xi[0] + b[1][0] * xi[1],
+                b[0][1] * xi[0] + b[1][1] * xi[1],
+                b[0][2] * xi[0] + b[1][2] * xi[1],
+            ];
+            for j in 0..3 {
+                r_p[i][j] = z[j] - az[j] - bw[j] - c[i][j];
+                res.primal = res.primal.max(r_p[i][j].abs());
+            }
             zprev = z;
-            r_lo[i] = (x[i] - lo[i] - t_lo[i]).component_mul(&free[i]);
-            r_hi[i] = (hi[i] - x[i] - t_hi[i]).component_mul(&free[i]);
-            primal = primal.max(r_p[i].amax()).max(r_lo[i].amax()).max(r_hi[i].amax());
-            gap += t_lo[i].dot(&l_lo[i]) + t_hi[i].dot(&l_hi[i]);
         }
-        let mu = if wk.n_free > 0 { gap / (2 * wk.n_free) as f64 } else { 0.0 };
-        Residuals { primal, dual, gap, mu, objective, grad_scale, dual_z, grad_scale_z }
+        res.mu = if wk.n_free > 0 { res.gap / (2 * wk.n_free) as f64 } else { 0.0 };
+        res
     }
 
-    /// Backward Riccati factorisation of the Newton LQ problem for the
-    /// current Σ (depends on Σ only; shared by predictor and corrector).
-    fn factorize(qp: &StageQp, wk: &mut Work) -> Result<(), QpError> {
+    /// Backward pass: the Riccati factorisation of the Newton LQ problem for
+    /// the current Σ (shared by predictor and corrector), fused with the
+    /// predictor's vector pass (complementarity target `t·μ`, so
+    /// `r̃_d = r_d + μ_lo + Σ_lo r_lo − μ_hi − Σ_hi r_hi`).
+    fn factorize_predict(qp: &StageQp, wk: &mut Work) -> Result<(), QpError> {
         let k = qp.stages();
-        let q2 = Matrix3::from_diagonal(&(2.0 * qp.q));
-        let r2 = Matrix2::from_diagonal(&(2.0 * qp.r));
-        // Terminal cost-to-go: P_K = blockdiag(2Q + Σ_z, 0).
-        let (sigma, free, qa, qb) = (&wk.sigma[..k], &wk.free[..k], &qp.a[..k], &qp.b[..k]);
-        let (p11s, p12s) = (&mut wk.p11[..k], &mut wk.p12[..k]);
-        let (huu_invs, huss) = (&mut wk.huu_inv[..k], &mut wk.hus[..k]);
-        let mut p = Matrix5::zeros();
-        p.fixed_view_mut::<3, 3>(0, 0).copy_from(&(q2 + Matrix3::from_diagonal(&zpart(&sigma[k - 1]))));
+        let (q2, r2) = (2.0 * qp.q, 2.0 * qp.r);
+        let (q2, r2) = (&q2.data.0[0], &r2.data.0[0]);
+        let (t_lo, t_hi, l_lo, l_hi) = (&wk.t_lo[..k], &wk.t_hi[..k], &wk.l_lo[..k], &wk.l_hi[..k]);
+        let (r_d, r_lo, r_hi, r_p, free) = (&wk.r_d[..k], &wk.r_lo[..k], &wk.r_hi[..k], &wk.r_p[..k], &wk.free[..k]);
+        let (inv_t_lo, inv_t_hi, sigma_z) = (&mut wk.inv_t_lo[..k], &mut wk.inv_t_hi[..k], &mut wk.sigma_z[..k]);
+        let (rt, factor, kff) = (&mut wk.rt[..k], &mut wk.factor[..k], &mut wk.kff[..k]);
+        let mut ctg = CostToGo::default();
+        let (mut pz, mut pw) = ([0.0; 3], [0.0; 2]);
         for i in (0..k).rev() {
-            let p11: Matrix3<f64> = p.fixed_view::<3, 3>(0, 0).into_owned();
-            let p12: Matrix3x2<f64> = p.fixed_view::<3, 2>(0, 3).into_owned();
-            p11s[i] = p11;
-            p12s[i] = p12;
-            let p22: Matrix2<f64> = p.fixed_view::<2, 2>(3, 3).into_owned();
-            let a = &qa[i];
-            let b = &qb[i];
-            let g = p11 * b + p12;
-            let mut huu = b.transpose() * g + p12.transpose() * b + p22 + Matrix2::from_diagonal(&wpart(&sigma[i]));
-            if i > 0 {
-                huu += r2;
+            let mut sigma = [0.0; 5];
+            for j in 0..5 {
+                let (a, b) = (1.0 / t_lo[i][j], 1.0 / t_hi[i][j]);
+                let (s_lo, s_hi) = (l_lo[i][j] * a, l_hi[i][j] * b);
+                sigma[j] = s_lo + s_hi;
+                rt[i][j] = r_d[i][j] + l_lo[i][j] + s_lo * r_lo[i][j] - l_hi[i][j] - s_hi * r_hi[i][j];
+                inv_t_lo[i][j] = a;
+                inv_t_hi[i][j] = b;
             }
-            // Closed-form inverse of the symmetric 2×2 H_uu; positive
-            // definiteness checked on the leading minors. A pinned input is
-            // no decision variable: H_uu is inverted on the free inputs only
-            // and padded with zeros, so its step (and feedback) is 0.
-            let huu_inv = match (free[i][0] > 0.0, free[i][1] > 0.0) {
-                (true, true) => {
-                    let (h00, h01, h11) = (huu[(0, 0)], 0.5 * (huu[(0, 1)] + huu[(1, 0)]), huu[(1, 1)]);
-                    let det = h00 * h11 - h01 * h01;
-                    if !(h00 > 0.0 && det > f64::EPSILON * h00 * h11) {
-                        return Err(QpError::Numerical(format!(
-                            "Riccati recursion: input Hessian not positive definite at stage {i} (det {det:.3e})"
-                        )));
-                    }
-                    Matrix2::new(h11, -h01, -h01, h00) / det
-                }
-                (f0, f1) => {
-                    let mut inv = Matrix2::zeros();
-                    for (j, free) in [(0, f0), (1, f1)] {
-                        if free {
-                            let h = huu[(j, j)];
-                            if h.is_nan() || h <= 0.0 {
-                                return Err(QpError::Numerical(format!(
-                                    "Riccati recursion: input Hessian not positive at stage {i} (h {h:.3e})"
-                                )));
-                            }
-                            inv[(j, j)] = 1.0 / h;
-                        }
-                    }
-                    inv
-                }
-            };
-            huu_invs[i] = huu_inv;
-            if i == 0 {
-                break; // s_0 = 0: P_0 is never used.
-            }
-            let mut hus = SMatrix::<f64, 2, 5>::zeros();
-            hus.fixed_view_mut::<2, 3>(0, 0).copy_from(&(g.transpose() * a));
-            hus.fixed_view_mut::<2, 2>(0, 3).copy_from(&(-r2));
-            huss[i] = hus;
-            // P_i = blockdiag(2Q + Σ_z + AᵀP11A, 2R) − H_usᵀ H_uu⁻¹ H_us.
-            let mut pn = Matrix5::zeros();
-            pn.fixed_view_mut::<3, 3>(0, 0)
-                .copy_from(&(q2 + Matrix3::from_diagonal(&zpart(&sigma[i - 1])) + a.transpose() * p11 * a));
-            pn.fixed_view_mut::<2, 2>(3, 3).copy_from(&r2);
-            pn -= hus.transpose() * (huu_inv * hus);
-            p = 0.5 * (pn + pn.transpose());
+            sigma_z[i] = [sigma[2], sigma[3], sigma[4]];
+            let ab = stage_ab(qp, i);
+            let (f, next) = factor_stage(i, &ctg, (q2, r2), &sigma, &free[i], ab)?;
+            kff[i] = vector_stage(&f, &rt[i], &r_p[i], ab, r2, (&mut pz, &mut pw));
+            factor[i] = f;
+            ctg = next;
         }
         Ok(())
     }
 
-    /// Solves the Newton LQ problem for the linear term `wk.rt` and the
-    /// dynamics offset `−r_p` with the current factorisation; writes `dx`.
-    fn solve_lq(qp: &StageQp, wk: &mut Work) {
+    /// Forward pass of the predictor: rolls out the affine direction, keeps
+    /// its `Δt·Δμ` and returns the largest step `α_aff ≤ 1` keeping slacks
+    /// and multipliers non-negative with the complementarity after it,
+    /// `Σ (t + αΔt)(μ + αΔμ)` (from `gap`).
+    fn predict_forward(qp: &StageQp, wk: &mut Work, gap: f64) -> (f64, f64) {
         let k = qp.stages();
-        let (a, b, r_p, rt) = (&qp.a[..k], &qp.b[..k], &wk.r_p[..k], &wk.rt[..k]);
-        let (p11, p12, huu_inv, hus) = (&wk.p11[..k], &wk.p12[..k], &wk.huu_inv[..k], &wk.hus[..k]);
-        let (kffs, dx) = (&mut wk.kff[..k], &mut wk.dx[..k]);
-        // Backward vector pass: cost-to-go gradient p.
-        let mut p = V5::zeros();
-        p.fixed_rows_mut::<3>(0).copy_from(&zpart(&rt[k - 1]));
-        for i in (0..k).rev() {
-            let chat = -r_p[i];
-            let e1 = p11[i] * chat + p.fixed_rows::<3>(0);
-            let e2 = p12[i].transpose() * chat + p.fixed_rows::<2>(3);
-            let hu = wpart(&rt[i]) + b[i].transpose() * e1 + e2;
-            let kff = -(huu_inv[i] * hu);
-            kffs[i] = kff;
-            if i == 0 {
-                break;
-            }
-            let hs_z = zpart(&rt[i - 1]) + a[i].transpose() * e1;
-            let mut pn = V5::zeros();
-            pn.fixed_rows_mut::<3>(0).copy_from(&hs_z);
-            p = pn + hus[i].transpose() * kff;
-        }
-        // Forward rollout: u_i = −H_uu⁻¹ H_us s_i + kff_i.
-        let mut s = V5::zeros();
-        for i in 0..k {
-            let u = if i == 0 { kffs[0] } else { kffs[i] - huu_inv[i] * (hus[i] * s) };
-            let dz = a[i] * s.fixed_rows::<3>(0) + b[i] * u - r_p[i];
-            dx[i] = pack(&u, &dz);
-            s = V5::new(dz[0], dz[1], dz[2], u[0], u[1]);
-        }
-    }
-
-    /// The complementarity residuals `rc_lo`, `rc_hi` of every stage that
-    /// the Newton step targets, into `rc`: `t·μ` for the predictor
-    /// (`target` None); `t·μ + Δt_aff·Δμ_aff − σμ` for the corrector
-    /// (`target` σμ).
-    fn complementarity(wk: &Work, target: Option<f64>, rc: &mut [(V5, V5)]) {
-        let k = rc.len();
+        let r2 = 2.0 * qp.r;
+        let r2 = &r2.data.0[0];
+        let (factor, kff, r_p, free) = (&wk.factor[..k], &wk.kff[..k], &wk.r_p[..k], &wk.free[..k]);
+        let (r_lo, r_hi, inv_t_lo, inv_t_hi) = (&wk.r_lo[..k], &wk.r_hi[..k], &wk.inv_t_lo[..k], &wk.inv_t_hi[..k]);
         let (t_lo, t_hi, l_lo, l_hi) = (&wk.t_lo[..k], &wk.t_hi[..k], &wk.l_lo[..k], &wk.l_hi[..k]);
-        match target {
-            None => {
-                for i in 0..k {
-                    rc[i] = (t_lo[i].component_mul(&l_lo[i]), t_hi[i].component_mul(&l_hi[i]));
-                }
+        let (prod_lo, prod_hi) = (&mut wk.prod_lo[..k], &mut wk.prod_hi[..k]);
+        let (mut m, mut s1, mut s2) = (1.0f64, 0.0, 0.0);
+        let (mut sz, mut sw) = ([0.0; 3], [0.0; 2]);
+        for i in 0..k {
+            let dx = rollout_stage(i, &factor[i], &kff[i], stage_ab(qp, i), r2, &r_p[i], (&sz, &sw));
+            for j in 0..5 {
+                let (dtl, dth) = (dx[j] + r_lo[i][j], r_hi[i][j] - dx[j]);
+                let (ll, lh) = (l_lo[i][j], l_hi[i][j]);
+                let dll = -(ll + ll * inv_t_lo[i][j] * dtl) * free[i][j];
+                let dlh = -(lh + lh * inv_t_hi[i][j] * dth) * free[i][j];
+                raise(&mut m, -dtl * inv_t_lo[i][j]);
+                raise(&mut m, -dth * inv_t_hi[i][j]);
+                raise(&mut m, -dll / ll);
+                raise(&mut m, -dlh / lh);
+                prod_lo[i][j] = dtl * dll;
+                prod_hi[i][j] = dth * dlh;
+                s1 += (t_lo[i][j] * dll + ll * dtl) + (t_hi[i][j] * dlh + lh * dth);
+                s2 += prod_lo[i][j] + prod_hi[i][j];
             }
-            Some(target) => {
-                let (at_lo, at_hi, al_lo, al_hi) =
-                    (&wk.aff_t_lo[..k], &wk.aff_t_hi[..k], &wk.aff_l_lo[..k], &wk.aff_l_hi[..k]);
-                for i in 0..k {
-                    rc[i] = (
-                        t_lo[i].component_mul(&l_lo[i]) + at_lo[i].component_mul(&al_lo[i]) - V5::repeat(target),
-                        t_hi[i].component_mul(&l_hi[i]) + at_hi[i].component_mul(&al_hi[i]) - V5::repeat(target),
-                    );
-                }
-            }
+            sz = [dx[2], dx[3], dx[4]];
+            sw = [dx[0], dx[1]];
         }
+        let alpha = 1.0 / m;
+        (alpha, gap + alpha * s1 + alpha * alpha * s2)
     }
 
-    /// Sets `rt` from the complementarity targets ([`Self::complementarity`]),
-    /// solves for `dx`, and recovers `dt`, `dl`.
-    fn newton_direction(qp: &StageQp, wk: &mut Work, target: Option<f64>) {
+    /// Backward vector pass of the corrector: complementarity target
+    /// `t·μ + Δt_aff·Δμ_aff − σμ` (`target` = σμ).
+    fn correct_backward(qp: &StageQp, wk: &mut Work, target: f64) {
         let k = qp.stages();
-        let mut rc = std::mem::take(&mut wk.rc);
-        Self::complementarity(wk, target, &mut rc[..k]);
-        {
-            let (rc, r_d, rt) = (&rc[..k], &wk.r_d[..k], &mut wk.rt[..k]);
-            let (t_lo, t_hi, l_lo, l_hi) = (&wk.t_lo[..k], &wk.t_hi[..k], &wk.l_lo[..k], &wk.l_hi[..k]);
-            let (r_lo, r_hi) = (&wk.r_lo[..k], &wk.r_hi[..k]);
-            for i in 0..k {
-                let (rc_lo, rc_hi) = rc[i];
-                let a = (rc_lo + l_lo[i].component_mul(&r_lo[i])).component_div(&t_lo[i]);
-                let b = (rc_hi + l_hi[i].component_mul(&r_hi[i])).component_div(&t_hi[i]);
-                rt[i] = r_d[i] + a - b;
-            }
-        }
-        Self::solve_lq(qp, wk);
-        {
-            let (rc, dx, free) = (&rc[..k], &wk.dx[..k], &wk.free[..k]);
-            let (t_lo, t_hi, l_lo, l_hi) = (&wk.t_lo[..k], &wk.t_hi[..k], &wk.l_lo[..k], &wk.l_hi[..k]);
-            let (r_lo, r_hi) = (&wk.r_lo[..k], &wk.r_hi[..k]);
-            let (dt_lo, dt_hi) = (&mut wk.dt_lo[..k], &mut wk.dt_hi[..k]);
-            let (dl_lo, dl_hi) = (&mut wk.dl_lo[..k], &mut wk.dl_hi[..k]);
-            for i in 0..k {
-                let (rc_lo, rc_hi) = rc[i];
-                let dx = dx[i];
-                dt_lo[i] = dx + r_lo[i];
-                dt_hi[i] = r_hi[i] - dx;
-                // Pinned variables keep slacks and (zero) multipliers unchanged.
-                let f = &free[i];
-                dl_lo[i] = -(rc_lo + l_lo[i].component_mul(&dt_lo[i])).component_div(&t_lo[i]).component_mul(f);
-                dl_hi[i] = -(rc_hi + l_hi[i].component_mul(&dt_hi[i])).component_div(&t_hi[i]).component_mul(f);
-            }
-        }
-        wk.rc = rc;
-    }
-
-    /// Largest α ≤ 1 keeping all slacks and multipliers non-negative.
-    ///
-    /// With every `a > 0`, `α_max = 1 / max(1, max(−d/a))`; the maximum is
-    /// exact in any order (a NaN ratio is skipped, as by `f64::max`).
-    fn max_step(wk: &Work) -> f64 {
-        let k = wk.t_lo.len();
-        let pairs = [(&wk.t_lo[..k], &wk.dt_lo[..k]), (&wk.t_hi[..k], &wk.dt_hi[..k])];
-        let pairs_l = [(&wk.l_lo[..k], &wk.dl_lo[..k]), (&wk.l_hi[..k], &wk.dl_hi[..k])];
-        let mut m = [1.0f64; 5];
-        for (v, dv) in pairs.into_iter().chain(pairs_l) {
-            for i in 0..k {
-                let (a, d) = (&v[i], &dv[i]);
-                for j in 0..5 {
-                    let r = -d[j] / a[j];
-                    if r > m[j] {
-                        m[j] = r;
-                    }
-                }
-            }
-        }
-        1.0 / m.iter().fold(1.0f64, |x, &y| if y > x { y } else { x })
-    }
-
-    /// Multiplier step from stationarity in z (backward recursion):
-    /// `Δy_k = −(2Q + Σ_z)Δz_k − r̃_z,k + A_{k+1}ᵀ Δy_{k+1}`.
-    fn dual_direction(qp: &StageQp, wk: &mut Work) {
-        let k = qp.stages();
-        let (dx, sigma, rt, a, dys) = (&wk.dx[..k], &wk.sigma[..k], &wk.rt[..k], &qp.a[..k], &mut wk.dy[..k]);
-        let mut next = Vector3::zeros();
+        let r2 = 2.0 * qp.r;
+        let r2 = &r2.data.0[0];
+        let (factor, r_p, inv_t_lo, inv_t_hi) = (&wk.factor[..k], &wk.r_p[..k], &wk.inv_t_lo[..k], &wk.inv_t_hi[..k]);
+        let (prod_lo, prod_hi, rt, kff) = (&wk.prod_lo[..k], &wk.prod_hi[..k], &mut wk.rt[..k], &mut wk.kff[..k]);
+        let (mut pz, mut pw) = ([0.0; 3], [0.0; 2]);
         for i in (0..k).rev() {
-            let dz = zpart(&dx[i]);
-            let h = (2.0 * qp.q + zpart(&sigma[i])).component_mul(&dz);
-            let mut dy = -h - zpart(&rt[i]);
-            if i + 1 < k {
-                dy += a[i + 1].transpose() * next;
+            for j in 0..5 {
+                rt[i][j] += (prod_lo[i][j] - target) * inv_t_lo[i][j] - (prod_hi[i][j] - target) * inv_t_hi[i][j];
             }
-            dys[i] = dy;
+            kff[i] = vector_stage(&factor[i], &rt[i], &r_p[i], stage_ab(qp, i), r2, (&mut pz, &mut pw));
+        }
+    }
+
+    /// Forward pass of the corrector: rolls out the direction, recovers
+    /// `Δt`, `Δμ` and returns the largest step `α ≤ 1` keeping slacks and
+    /// multipliers non-negative.
+    fn correct_forward(qp: &StageQp, wk: &mut Work, target: f64) -> f64 {
+        let k = qp.stages();
+        let r2 = 2.0 * qp.r;
+        let r2 = &r2.data.0[0];
+        let (factor, kff, r_p, free) = (&wk.factor[..k], &wk.kff[..k], &wk.r_p[..k], &wk.free[..k]);
+        let (r_lo, r_hi, inv_t_lo, inv_t_hi) = (&wk.r_lo[..k], &wk.r_hi[..k], &wk.inv_t_lo[..k], &wk.inv_t_hi[..k]);
+        let (l_lo, l_hi, prod_lo, prod_hi) = (&wk.l_lo[..k], &wk.l_hi[..k], &wk.prod_lo[..k], &wk.prod_hi[..k]);
+        let (dxs, dt_lo, dt_hi) = (&mut wk.dx[..k], &mut wk.dt_lo[..k], &mut wk.dt_hi[..k]);
+        let (dl_lo, dl_hi) = (&mut wk.dl_lo[..k], &mut wk.dl_hi[..k]);
+        let mut m = 1.0f64;
+        let (mut sz, mut sw) = ([0.0; 3], [0.0; 2]);
+        for i in 0..k {
+            let dx = rollout_stage(i, &factor[i], &kff[i], stage_ab(qp, i), r2, &r_p[i], (&sz, &sw));
+            for j in 0..5 {
+                let (dtl, dth) = (dx[j] + r_lo[i][j], r_hi[i][j] - dx[j]);
+                let (ll, lh) = (l_lo[i][j], l_hi[i][j]);
+                // Pinned variables keep slacks and (zero) multipliers unchanged.
+                let dll = -(ll + (prod_lo[i][j] - target + ll * dtl) * inv_t_lo[i][j]) * free[i][j];
+                let dlh = -(lh + (prod_hi[i][j] - target + lh * dth) * inv_t_hi[i][j]) * free[i][j];
+                raise(&mut m, -dtl * inv_t_lo[i][j]);
+                raise(&mut m, -dth * inv_t_hi[i][j]);
+                raise(&mut m, -dll / ll);
+                raise(&mut m, -dlh / lh);
+                (dt_lo[i][j], dt_hi[i][j], dl_lo[i][j], dl_hi[i][j]) = (dtl, dth, dll, dlh);
+            }
+            dxs[i] = dx;
+            sz = [dx[2], dx[3], dx[4]];
+            sw = [dx[0], dx[1]];
+        }
+        1.0 / m
+    }
+
+    /// Backward pass: the multiplier step from stationarity in z,
+    /// `Δy_k = −(2Q + Σ_z)Δz_k − r̃_z,k + A_{k+1}ᵀ Δy_{k+1}`, and the step of
+    /// `alpha` along the whole direction.
+    fn take_step(qp: &StageQp, wk: &mut Work, alpha: f64) {
+        let k = qp.stages();
+        let q2 = 2.0 * qp.q;
+        let (dx, sigma_z, rt) = (&wk.dx[..k], &wk.sigma_z[..k], &wk.rt[..k]);
+        let (dt_lo, dt_hi, dl_lo, dl_hi) = (&wk.dt_lo[..k], &wk.dt_hi[..k], &wk.dl_lo[..k], &wk.dl_hi[..k]);
+        let (x, y, t_lo, t_hi) = (&mut wk.x[..k], &mut wk.y[..k], &mut wk.t_lo[..k], &mut wk.t_hi[..k]);
+        let (l_lo, l_hi) = (&mut wk.l_lo[..k], &mut wk.l_hi[..k]);
+        let mut next = [0.0; 3];
+        for i in (0..k).rev() {
+            let an = if i + 1 < k { at_mul(stage_ab(qp, i + 1).0, &next) } else { [0.0; 3] };
+            let mut dy = [0.0; 3];
+            for r in 0..3 {
+                dy[r] = -(q2[r] + sigma_z[i][r]) * dx[i][2 + r] - rt[i][2 + r] + an[r];
+                y[i][r] += alpha * dy[r];
+            }
+            for j in 0..5 {
+                x[i][j] += alpha * dx[i][j];
+                t_lo[i][j] += alpha * dt_lo[i][j];
+                t_hi[i][j] += alpha * dt_hi[i][j];
+                l_lo[i][j] += alpha * dl_lo[i][j];
+                l_hi[i][j] += alpha * dl_hi[i][j];
+            }
             next = dy;
         }
     }
@@ -594,8 +717,9 @@ impl StructuredSolver {
         let tol = self.options.fixed_width;
         wk.n_free = 5 * k;
         for i in 0..k {
-            wk.lo[i] = pack(&qp.w_lo[i], &qp.z_lo[i]);
-            wk.hi[i] = pack(&qp.w_hi[i], &qp.z_hi[i]);
+            let (wl, wh, zl, zh) = (&qp.w_lo[i], &qp.w_hi[i], &qp.z_lo[i], &qp.z_hi[i]);
+            wk.lo[i] = [wl[0], wl[1], zl[0], zl[1], zl[2]];
+            wk.hi[i] = [wh[0], wh[1], zh[0], zh[1], zh[2]];
             for j in 0..5 {
                 let fixed = wk.hi[i][j] - wk.lo[i][j] <= tol;
                 if fixed && j >= 2 {
@@ -632,51 +756,58 @@ impl StructuredSolver {
         }
     }
 
+    /// Warm starting point: the previous solution moved into the interior
+    /// of the boxes, its dynamics duals, and bound multipliers recovered
+    /// from stationarity there.
+    fn initialize_warm(&self, qp: &StageQp, wk: &mut Work, sol: &QpSolution) {
+        let k = qp.stages();
+        let shift = self.options.warm_start_shift;
+        let duals = sol.dynamics_duals.as_ref().filter(|l| l.len() == k);
+        for i in 0..k {
+            let (w, z) = (&sol.w[i], &sol.z[i]);
+            let x = [w[0], w[1], z[0], z[1], z[2]];
+            for j in 0..5 {
+                let (lo, hi) = (wk.lo[i][j], wk.hi[i][j]);
+                let m = shift * (hi - lo);
+                wk.x[i][j] = x[j].clamp(lo + m, hi - m);
+            }
+            wk.y[i] = duals.map_or([0.0; 3], |l| [l[i][0], l[i][1], l[i][2]]);
+        }
+        // Bound multipliers recovered from stationarity at the previous
+        // point: ν = ∇f + Gᵀy = μ_lo − μ_hi.
+        for v in wk.l_lo.iter_mut().chain(wk.l_hi.iter_mut()) {
+            *v = [0.0; 5];
+        }
+        Self::residuals(qp, wk); // r_d = ν with zero bound multipliers
+        let mu = self.options.warm_start_mu;
+        for i in 0..k {
+            for j in 0..5 {
+                let width = wk.hi[i][j] - wk.lo[i][j];
+                let floor = (shift * width).max(f64::MIN_POSITIVE.sqrt());
+                let t_lo = (wk.x[i][j] - wk.lo[i][j]).max(floor);
+                let t_hi = (wk.hi[i][j] - wk.x[i][j]).max(floor);
+                let nu = wk.r_d[i][j];
+                wk.t_lo[i][j] = t_lo;
+                wk.t_hi[i][j] = t_hi;
+                wk.l_lo[i][j] = nu.max(0.0).max(mu / t_lo);
+                wk.l_hi[i][j] = (-nu).max(0.0).max(mu / t_hi);
+            }
+        }
+    }
+
     /// Cold or warm starting point.
     fn initialize(&self, qp: &StageQp, wk: &mut Work, warm: Option<&QpSolution>) -> Result<(), QpError> {
         let k = qp.stages();
         self.mark_fixed(qp, wk)?;
-        let warm = warm.filter(|s| s.w.len() == k && s.z.len() == k);
-        match warm {
-            Some(sol) => {
-                let shift = self.options.warm_start_shift;
-                for i in 0..k {
-                    let x = pack(&sol.w[i], &sol.z[i]);
-                    for j in 0..5 {
-                        let (lo, hi) = (wk.lo[i][j], wk.hi[i][j]);
-                        let m = shift * (hi - lo);
-                        wk.x[i][j] = x[j].clamp(lo + m, hi - m);
-                    }
-                    wk.y[i] = sol.dynamics_duals.as_ref().filter(|l| l.len() == k).map_or(Vector3::zeros(), |l| l[i]);
-                }
-                // Bound multipliers recovered from stationarity at the
-                // previous point: ν = ∇f + Gᵀy = μ_lo − μ_hi.
-                for v in wk.l_lo.iter_mut().chain(wk.l_hi.iter_mut()) {
-                    *v = V5::zeros();
-                }
-                Self::residuals(qp, wk); // r_d = ν with zero bound multipliers
-                let mu = self.options.warm_start_mu;
-                for i in 0..k {
-                    for j in 0..5 {
-                        let width = wk.hi[i][j] - wk.lo[i][j];
-                        let floor = (shift * width).max(f64::MIN_POSITIVE.sqrt());
-                        let t_lo = (wk.x[i][j] - wk.lo[i][j]).max(floor);
-                        let t_hi = (wk.hi[i][j] - wk.x[i][j]).max(floor);
-                        let nu = wk.r_d[i][j];
-                        wk.t_lo[i][j] = t_lo;
-                        wk.t_hi[i][j] = t_hi;
-                        wk.l_lo[i][j] = nu.max(0.0).max(mu / t_lo);
-                        wk.l_hi[i][j] = (-nu).max(0.0).max(mu / t_hi);
-                    }
-                }
-            }
+        match warm.filter(|s| s.w.len() == k && s.z.len() == k) {
+            Some(sol) => self.initialize_warm(qp, wk, sol),
             None => {
                 // Inputs 0 (the measurements) pulled into their boxes, states
                 // by rollout; slacks at least a quarter of the box width,
                 // multipliers 1.
-                let mut zprev = Vector3::zeros();
+                let mut zprev = [0.0; 3];
                 for i in 0..k {
-                    let mut w = Vector2::zeros();
+                    let mut w = [0.0; 2];
                     for j in 0..2 {
                         let (lo, hi) = (qp.w_lo[i][j], qp.w_hi[i][j]);
                         w[j] = if wk.free[i][j] == 0.0 {
@@ -685,17 +816,19 @@ impl StructuredSolver {
                             0.0f64.clamp(lo + 0.25 * (hi - lo), hi - 0.25 * (hi - lo))
                         };
                     }
-                    let z = qp.a[i] * zprev + qp.b[i] * w + qp.c[i];
+                    let (a, b) = stage_ab(qp, i);
+                    let az = a_mul(a, &zprev);
+                    let z = [0, 1, 2].map(|r| az[r] + (b[0][r] * w[0] + b[1][r] * w[1]) + qp.c[i][r]);
                     zprev = z;
-                    wk.x[i] = pack(&w, &z);
-                    wk.y[i] = Vector3::zeros();
+                    wk.x[i] = [w[0], w[1], z[0], z[1], z[2]];
+                    wk.y[i] = [0.0; 3];
                     for j in 0..5 {
                         let floor = (0.25 * (wk.hi[i][j] - wk.lo[i][j])).max(1e-8);
                         wk.t_lo[i][j] = (wk.x[i][j] - wk.lo[i][j]).max(floor);
                         wk.t_hi[i][j] = (wk.hi[i][j] - wk.x[i][j]).max(floor);
                     }
-                    wk.l_lo[i] = V5::repeat(1.0);
-                    wk.l_hi[i] = V5::repeat(1.0);
+                    wk.l_lo[i] = [1.0; 5];
+                    wk.l_hi[i] = [1.0; 5];
                 }
             }
         }
@@ -736,7 +869,8 @@ impl StructuredSolver {
 
         let mut scale_p: f64 = 1.0;
         for i in 0..k {
-            scale_p = scale_p.max(1.0 + qp.c[i].amax()).max(1.0 + wk.lo[i].amax()).max(1.0 + wk.hi[i].amax());
+            let amax = |v: &S5| v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+            scale_p = scale_p.max(1.0 + qp.c[i].amax()).max(1.0 + amax(&wk.lo[i])).max(1.0 + amax(&wk.hi[i]));
         }
         let mut last_residual = f64::NAN;
         for iteration in 0..=opt.max_iterations {
@@ -756,90 +890,37 @@ impl StructuredSolver {
                 break;
             }
             // Infeasibility: primal residual stuck while multipliers diverge.
-            let lmax = wk.l_lo.iter().chain(&wk.l_hi).fold(0.0f64, |m, v| m.max(v.amax()));
-            if !primal_ok && lmax > opt.infeasibility_multiplier * (1.0 + res.grad_scale) {
+            if !primal_ok && res.l_max > opt.infeasibility_multiplier * (1.0 + res.grad_scale) {
                 return Err(QpError::Infeasible(format!(
-                    "primal residual stalled at {:.2e} while a bound multiplier grew to {lmax:.2e} \
+                    "primal residual stalled at {:.2e} while a bound multiplier grew to {:.2e} \
                      (iteration {iteration}): no input sequence keeps the states within their bounds",
-                    res.primal
+                    res.primal, res.l_max
                 )));
             }
 
-            Self::barrier_hessian(wk);
-            Self::factorize(qp, wk)?;
-
             // Predictor (affine scaling): target t·μ = 0.
-            Self::newton_direction(qp, wk, None);
-            let alpha_aff = Self::max_step(wk);
-            let gap_aff = Self::affine_gap(wk, alpha_aff);
+            Self::factorize_predict(qp, wk)?;
+            let (_, gap_aff) = Self::predict_forward(qp, wk, res.gap);
             let sigma_c = (gap_aff / res.gap).clamp(0.0, 1.0).powi(3);
             let target = sigma_c * res.mu;
-            std::mem::swap(&mut wk.aff_t_lo, &mut wk.dt_lo);
-            std::mem::swap(&mut wk.aff_t_hi, &mut wk.dt_hi);
-            std::mem::swap(&mut wk.aff_l_lo, &mut wk.dl_lo);
-            std::mem::swap(&mut wk.aff_l_hi, &mut wk.dl_hi);
 
             // Corrector: target t·μ = σμ, with the second-order term.
-            Self::newton_direction(qp, wk, Some(target));
-            Self::dual_direction(qp, wk);
-            let alpha = (opt.step_fraction * Self::max_step(wk)).min(1.0);
-            Self::take_step(wk, alpha);
+            Self::correct_backward(qp, wk, target);
+            let alpha = (opt.step_fraction * Self::correct_forward(qp, wk, target)).min(1.0);
+            Self::take_step(qp, wk, alpha);
         }
         Err(QpError::MaxIterations { iterations: opt.max_iterations, residual: last_residual })
-    }
-}
-
-impl StructuredSolver {
-    /// The barrier Hessian's diagonal `Σ = μ_lo/t_lo + μ_hi/t_hi`.
-    fn barrier_hessian(wk: &mut Work) {
-        let k = wk.sigma.len();
-        let (t_lo, t_hi, l_lo, l_hi) = (&wk.t_lo[..k], &wk.t_hi[..k], &wk.l_lo[..k], &wk.l_hi[..k]);
-        for (i, sigma) in wk.sigma.iter_mut().enumerate() {
-            *sigma = l_lo[i].component_div(&t_lo[i]) + l_hi[i].component_div(&t_hi[i]);
-        }
-    }
-
-    /// The total complementarity `Σ t·μ` after a step of `alpha` along the
-    /// current direction.
-    fn affine_gap(wk: &Work, alpha: f64) -> f64 {
-        let k = wk.t_lo.len();
-        let (t_lo, t_hi, l_lo, l_hi) = (&wk.t_lo[..k], &wk.t_hi[..k], &wk.l_lo[..k], &wk.l_hi[..k]);
-        let (dt_lo, dt_hi, dl_lo, dl_hi) = (&wk.dt_lo[..k], &wk.dt_hi[..k], &wk.dl_lo[..k], &wk.dl_hi[..k]);
-        let mut gap = 0.0;
-        for i in 0..k {
-            gap += (t_lo[i] + alpha * dt_lo[i]).dot(&(l_lo[i] + alpha * dl_lo[i]))
-                + (t_hi[i] + alpha * dt_hi[i]).dot(&(l_hi[i] + alpha * dl_hi[i]));
-        }
-        gap
-    }
-
-    /// Moves the iterate a step of `alpha` along the current direction.
-    fn take_step(wk: &mut Work, alpha: f64) {
-        fn axpy<T: Copy + std::ops::AddAssign>(x: &mut [T], d: &[T], alpha: f64)
-        where
-            f64: std::ops::Mul<T, Output = T>,
-        {
-            for (x, d) in x.iter_mut().zip(d) {
-                *x += alpha * *d;
-            }
-        }
-        axpy(&mut wk.x, &wk.dx, alpha);
-        axpy(&mut wk.y, &wk.dy, alpha);
-        axpy(&mut wk.t_lo, &wk.dt_lo, alpha);
-        axpy(&mut wk.t_hi, &wk.dt_hi, alpha);
-        axpy(&mut wk.l_lo, &wk.dl_lo, alpha);
-        axpy(&mut wk.l_hi, &wk.dl_hi, alpha);
     }
 
     /// Packs the converged iterate into a [`QpSolution`].
     fn finish(&self, qp: &StageQp, wk: &Work, iterations: usize) -> QpSolution {
-        let w: Vec<Vector2<f64>> = wk.x.iter().map(wpart).collect();
-        let z: Vec<Vector3<f64>> = wk.x.iter().map(zpart).collect();
+        let w: Vec<Vector2<f64>> = wk.x.iter().map(|x| Vector2::new(x[0], x[1])).collect();
+        let z: Vec<Vector3<f64>> = wk.x.iter().map(|x| Vector3::new(x[2], x[3], x[4])).collect();
         QpSolution {
             objective: qp.objective(&w, &z),
             iterations,
             active_bounds: qp.count_active_bounds(&w, &z, ACTIVE_BOUND_TOL),
-            dynamics_duals: Some(wk.y.clone()),
+            dynamics_duals: Some(wk.y.iter().map(|y| Vector3::new(y[0], y[1], y[2])).collect()),
             w,
             z,
         }
