@@ -386,83 +386,61 @@ fn raise(m: &mut f64, r: f64) {
 }
 
 /// Buffers of one solve, allocated once per thread and size.
-struct Work {
+/// Everything the iteration keeps for one stage, side by side: every pass
+/// walks the stages in order and reads or writes most of these.
+#[derive(Debug, Clone, Copy, Default)]
+struct Stage {
     /// 1 for a variable of the interior-point iteration, 0 for one pinned
     /// by a zero-width box (see [`StructuredOptions::fixed_width`]).
-    free: Vec<S5>,
+    free: S5,
+    /// Primal iterate.
+    x: S5,
+    lo: S5,
+    hi: S5,
+    t_lo: S5,
+    t_hi: S5,
+    l_lo: S5,
+    l_hi: S5,
+    /// Dynamics multiplier λ_{i+1}.
+    y: S3,
+    /// Dual residual ∇f + Gᵀy − μ_lo + μ_hi.
+    r_d: S5,
+    /// Dynamics residual of z_{i+1}.
+    r_p: S3,
+    /// `x − lo − t_lo`, `hi − x − t_hi`.
+    r_lo: S5,
+    r_hi: S5,
+    /// `1/t_lo`, `1/t_hi` of the current iterate.
+    inv_t_lo: S5,
+    inv_t_hi: S5,
+    /// State part of the barrier Hessian diagonal `Σ = μ_lo/t_lo + μ_hi/t_hi`.
+    sigma_z: S3,
+    /// Reduced linear term r̃_d of the Newton LQ problem (predictor, then corrector).
+    rt: S5,
+    /// The affine step's `Δt·Δμ`, for the corrector's complementarity targets.
+    prod_lo: S5,
+    prod_hi: S5,
+    /// Riccati factors and feed-forward term.
+    factor: StageFactor,
+    kff: S2,
+    /// The corrector's Newton direction.
+    dx: S5,
+    dt_lo: S5,
+    dt_hi: S5,
+    dl_lo: S5,
+    dl_hi: S5,
+}
+
+/// Buffers of one solve, allocated once per thread and size.
+struct Work {
+    st: Vec<Stage>,
     /// Number of free variables (each has two bounds).
     n_free: usize,
-    /// Primal iterate per stage.
-    x: Vec<S5>,
-    /// Dynamics multipliers λ_{i+1}.
-    y: Vec<S3>,
-    lo: Vec<S5>,
-    hi: Vec<S5>,
-    t_lo: Vec<S5>,
-    t_hi: Vec<S5>,
-    l_lo: Vec<S5>,
-    l_hi: Vec<S5>,
-    /// Dual residual ∇f + Gᵀy − μ_lo + μ_hi.
-    r_d: Vec<S5>,
-    /// Dynamics residual of z_{i+1}.
-    r_p: Vec<S3>,
-    /// `x − lo − t_lo`, `hi − x − t_hi`.
-    r_lo: Vec<S5>,
-    r_hi: Vec<S5>,
-    /// `1/t_lo`, `1/t_hi` of the current iterate.
-    inv_t_lo: Vec<S5>,
-    inv_t_hi: Vec<S5>,
-    /// State part of the barrier Hessian diagonal `Σ = μ_lo/t_lo + μ_hi/t_hi`.
-    sigma_z: Vec<S3>,
-    /// Reduced linear term r̃_d of the Newton LQ problem (predictor, then corrector).
-    rt: Vec<S5>,
-    /// The affine step's `Δt·Δμ`, for the corrector's complementarity targets.
-    prod_lo: Vec<S5>,
-    prod_hi: Vec<S5>,
-    /// Riccati factors and feed-forward terms.
-    factor: Vec<StageFactor>,
-    kff: Vec<S2>,
-    /// The corrector's Newton direction.
-    dx: Vec<S5>,
-    dt_lo: Vec<S5>,
-    dt_hi: Vec<S5>,
-    dl_lo: Vec<S5>,
-    dl_hi: Vec<S5>,
 }
 
 impl Work {
     fn new(k: usize) -> Self {
-        let v5 = || vec![[0.0; 5]; k];
-        let v3 = || vec![[0.0; 3]; k];
-        Self {
-            free: vec![[1.0; 5]; k],
-            n_free: 5 * k,
-            x: v5(),
-            y: v3(),
-            lo: v5(),
-            hi: v5(),
-            t_lo: vec![[1.0; 5]; k],
-            t_hi: vec![[1.0; 5]; k],
-            l_lo: v5(),
-            l_hi: v5(),
-            r_d: v5(),
-            r_p: v3(),
-            r_lo: v5(),
-            r_hi: v5(),
-            inv_t_lo: v5(),
-            inv_t_hi: v5(),
-            sigma_z: v3(),
-            rt: v5(),
-            prod_lo: v5(),
-            prod_hi: v5(),
-            factor: vec![StageFactor::default(); k],
-            kff: vec![[0.0; 2]; k],
-            dx: v5(),
-            dt_lo: v5(),
-            dt_hi: v5(),
-            dl_lo: v5(),
-            dl_hi: v5(),
-        }
+        Self { st: vec![Stage { t_lo: [1.0; 5], t_hi: [1.0; 5], ..Stage::default() }; k], n_free: 5 * k }
     }
 }
 
@@ -482,8 +460,6 @@ struct Residuals {
     /// Dual residual over the states (`dual` is over the inputs).
     dual_z: f64,
     grad_scale_z: f64,
-    /// Largest bound multiplier.
-    l_max: f64,
 }
 
 impl StructuredSolver {
@@ -492,30 +468,29 @@ impl StructuredSolver {
         let k = qp.stages();
         let (q, r) = (&qp.q.data.0[0], &qp.r.data.0[0]);
         let (q2, r2) = ([2.0 * q[0], 2.0 * q[1], 2.0 * q[2]], [2.0 * r[0], 2.0 * r[1]]);
-        let (x, y, free, delta, c) = (&wk.x[..k], &wk.y[..k], &wk.free[..k], &qp.delta[..k - 1], &qp.c[..k]);
-        let (lo, hi, t_lo, t_hi) = (&wk.lo[..k], &wk.hi[..k], &wk.t_lo[..k], &wk.t_hi[..k]);
-        let (l_lo, l_hi) = (&wk.l_lo[..k], &wk.l_hi[..k]);
-        let (r_d, r_p, r_lo, r_hi) = (&mut wk.r_d[..k], &mut wk.r_p[..k], &mut wk.r_lo[..k], &mut wk.r_hi[..k]);
+        let (delta, c, st) = (&qp.delta[..k - 1], &qp.c[..k], &mut wk.st[..k]);
         let mut res = Residuals::default();
         let mut zprev = [0.0; 3];
         // The input-rate difference w_i − w_{i−1} + δ_i (0 for i = 0).
         let mut d = [0.0; 2];
         for i in 0..k {
-            let xi = &x[i];
-            let d_next = if i + 1 < k {
-                let xn = &x[i + 1];
-                [xn[0] - xi[0] + delta[i].x, xn[1] - xi[1] + delta[i].y]
+            let (d_next, ay) = if i + 1 < k {
+                let (wn, yn) = (&st[i + 1].x, &st[i + 1].y);
+                let xi = &st[i].x;
+                ([wn[0] - xi[0] + delta[i].x, wn[1] - xi[1] + delta[i].y], at_mul(stage_ab(qp, i + 1).0, yn))
             } else {
-                [0.0; 2]
+                ([0.0; 2], [0.0; 3])
             };
+            let s = &mut st[i];
+            let xi = s.x;
             let mut grad = [0.0; 5];
             for j in 0..2 {
                 grad[j] = (0.0 + r2[j] * d[j]) - r2[j] * d_next[j];
-                res.grad_scale = res.grad_scale.max(grad[j].abs());
+                raise(&mut res.grad_scale, grad[j].abs());
             }
             for j in 0..3 {
                 grad[2 + j] = q2[j] * xi[2 + j];
-                res.grad_scale_z = res.grad_scale_z.max(grad[2 + j].abs());
+                raise(&mut res.grad_scale_z, grad[2 + j].abs());
             }
             res.objective += xi[2] * xi[2] * q[0] + xi[3] * xi[3] * q[1] + xi[4] * xi[4] * q[2];
             if i > 0 {
@@ -523,38 +498,54 @@ impl StructuredSolver {
             }
             d = d_next;
             // Gᵀy: z_{i+1} gets y_{i+1} − A_{i+2}ᵀ y_{i+2}; w_i gets −B_{i+1}ᵀ y_{i+1}.
-            let (_, b) = stage_ab(qp, i);
-            let ay = if i + 1 < k { at_mul(stage_ab(qp, i + 1).0, &y[i + 1]) } else { [0.0; 3] };
-            let btl = bt_mul(b, &y[i]);
-            let gy = [-btl[0], -btl[1], y[i][0] - ay[0], y[i][1] - ay[1], y[i][2] - ay[2]];
+            let (a, b) = stage_ab(qp, i);
+            let btl = bt_mul(b, &s.y);
+            let gy = [-btl[0], -btl[1], s.y[0] - ay[0], s.y[1] - ay[1], s.y[2] - ay[2]];
             // A pinned variable's stationarity is absorbed by the multiplier
             // of its equality `x = v`.
+            let mut primal = res.primal;
             for j in 0..5 {
-                let f = free[i][j];
-                r_d[i][j] = (grad[j] + gy[j] - l_lo[i][j] + l_hi[i][j]) * f;
-                r_lo[i][j] = (xi[j] - lo[i][j] - t_lo[i][j]) * f;
-                r_hi[i][j] = (hi[i][j] - xi[j] - t_hi[i][j]) * f;
-                res.primal = res.primal.max(r_lo[i][j].abs()).max(r_hi[i][j].abs());
-                res.gap += t_lo[i][j] * l_lo[i][j] + t_hi[i][j] * l_hi[i][j];
-                res.l_max = res.l_max.max(l_lo[i][j]).max(l_hi[i][j]);
+                let f = s.free[j];
+                s.r_d[j] = (grad[j] + gy[j] - s.l_lo[j] + s.l_hi[j]) * f;
+                s.r_lo[j] = (xi[j] - s.lo[j] - s.t_lo[j]) * f;
+                s.r_hi[j] = (s.hi[j] - xi[j] - s.t_hi[j]) * f;
+                raise(&mut primal, s.r_lo[j].abs());
+                raise(&mut primal, s.r_hi[j].abs());
+                res.gap += s.t_lo[j] * s.l_lo[j] + s.t_hi[j] * s.l_hi[j];
             }
-            res.dual = res.dual.max(r_d[i][0].abs()).max(r_d[i][1].abs());
-            res.dual_z = res.dual_z.max(r_d[i][2].abs()).max(r_d[i][3].abs()).max(r_d[i][4].abs());
+            raise(&mut res.dual, s.r_d[0].abs());
+            raise(&mut res.dual, s.r_d[1].abs());
+            raise(&mut res.dual_z, s.r_d[2].abs());
+            raise(&mut res.dual_z, s.r_d[3].abs());
+            raise(&mut res.dual_z, s.r_d[4].abs());
             let z = [xi[2], xi[3], xi[4]];
-            let az = a_mul(stage_ab(qp, i).0, &zprev);
+            let az = a_mul(a, &zprev);
             let bw = [
                 b[0][0] * xi[0] + b[1][0] * xi[1],
                 b[0][1] * xi[0] + b[1][1] * xi[1],
                 b[0][2] * xi[0] + b[1][2] * xi[1],
             ];
             for j in 0..3 {
-                r_p[i][j] = z[j] - az[j] - bw[j] - c[i][j];
-                res.primal = res.primal.max(r_p[i][j].abs());
+                s.r_p[j] = z[j] - az[j] - bw[j] - c[i][j];
+                raise(&mut primal, s.r_p[j].abs());
             }
+            res.primal = primal;
             zprev = z;
         }
         res.mu = if wk.n_free > 0 { res.gap / (2 * wk.n_free) as f64 } else { 0.0 };
         res
+    }
+
+    /// The largest bound multiplier.
+    fn max_multiplier(wk: &Work) -> f64 {
+        let mut m = 0.0;
+        for s in &wk.st {
+            for j in 0..5 {
+                raise(&mut m, s.l_lo[j]);
+                raise(&mut m, s.l_hi[j]);
+            }
+        }
+        m
     }
 
     /// Backward pass: the Riccati factorisation of the Newton LQ problem for
@@ -565,67 +556,66 @@ impl StructuredSolver {
         let k = qp.stages();
         let (q2, r2) = (2.0 * qp.q, 2.0 * qp.r);
         let (q2, r2) = (&q2.data.0[0], &r2.data.0[0]);
-        let (t_lo, t_hi, l_lo, l_hi) = (&wk.t_lo[..k], &wk.t_hi[..k], &wk.l_lo[..k], &wk.l_hi[..k]);
-        let (r_d, r_lo, r_hi, r_p, free) = (&wk.r_d[..k], &wk.r_lo[..k], &wk.r_hi[..k], &wk.r_p[..k], &wk.free[..k]);
-        let (inv_t_lo, inv_t_hi, sigma_z) = (&mut wk.inv_t_lo[..k], &mut wk.inv_t_hi[..k], &mut wk.sigma_z[..k]);
-        let (rt, factor, kff) = (&mut wk.rt[..k], &mut wk.factor[..k], &mut wk.kff[..k]);
+        let st = &mut wk.st[..k];
         let mut ctg = CostToGo::default();
         let (mut pz, mut pw) = ([0.0; 3], [0.0; 2]);
         for i in (0..k).rev() {
+            let s = &mut st[i];
             let mut sigma = [0.0; 5];
             for j in 0..5 {
-                let (a, b) = (1.0 / t_lo[i][j], 1.0 / t_hi[i][j]);
-                let (s_lo, s_hi) = (l_lo[i][j] * a, l_hi[i][j] * b);
+                let (a, b) = (1.0 / s.t_lo[j], 1.0 / s.t_hi[j]);
+                let (s_lo, s_hi) = (s.l_lo[j] * a, s.l_hi[j] * b);
                 sigma[j] = s_lo + s_hi;
-                rt[i][j] = r_d[i][j] + l_lo[i][j] + s_lo * r_lo[i][j] - l_hi[i][j] - s_hi * r_hi[i][j];
-                inv_t_lo[i][j] = a;
-                inv_t_hi[i][j] = b;
+                s.rt[j] = s.r_d[j] + s.l_lo[j] + s_lo * s.r_lo[j] - s.l_hi[j] - s_hi * s.r_hi[j];
+                s.inv_t_lo[j] = a;
+                s.inv_t_hi[j] = b;
             }
-            sigma_z[i] = [sigma[2], sigma[3], sigma[4]];
+            s.sigma_z = [sigma[2], sigma[3], sigma[4]];
             let ab = stage_ab(qp, i);
-            let (f, next) = factor_stage(i, &ctg, (q2, r2), &sigma, &free[i], ab)?;
-            kff[i] = vector_stage(&f, &rt[i], &r_p[i], ab, r2, (&mut pz, &mut pw));
-            factor[i] = f;
+            let (f, next) = factor_stage(i, &ctg, (q2, r2), &sigma, &s.free, ab)?;
+            s.kff = vector_stage(&f, &s.rt, &s.r_p, ab, r2, (&mut pz, &mut pw));
+            s.factor = f;
             ctg = next;
         }
         Ok(())
     }
 
     /// Forward pass of the predictor: rolls out the affine direction, keeps
-    /// its `Δt·Δμ` and returns the largest step `α_aff ≤ 1` keeping slacks
-    /// and multipliers non-negative with the complementarity after it,
-    /// `Σ (t + αΔt)(μ + αΔμ)` (from `gap`).
-    fn predict_forward(qp: &StageQp, wk: &mut Work, gap: f64) -> (f64, f64) {
+    /// its `Δt·Δμ`, and returns the complementarity `Σ (t + αΔt)(μ + αΔμ)`
+    /// after the largest step `α ≤ 1` that keeps slacks and multipliers
+    /// non-negative.
+    ///
+    /// With the affine target, `Δμ = −μ (1 + ρ)` for `ρ = Δt/t`: the slack
+    /// limits α by `−ρ`, the multiplier by `1 + ρ`, and
+    /// `Σ (t Δμ + μ Δt) = −Σ t μ = −gap`, so the complementarity after the
+    /// step is `(1 − α) gap + α² Σ Δt Δμ`.
+    fn predict_forward(qp: &StageQp, wk: &mut Work, gap: f64) -> f64 {
         let k = qp.stages();
         let r2 = 2.0 * qp.r;
         let r2 = &r2.data.0[0];
-        let (factor, kff, r_p, free) = (&wk.factor[..k], &wk.kff[..k], &wk.r_p[..k], &wk.free[..k]);
-        let (r_lo, r_hi, inv_t_lo, inv_t_hi) = (&wk.r_lo[..k], &wk.r_hi[..k], &wk.inv_t_lo[..k], &wk.inv_t_hi[..k]);
-        let (t_lo, t_hi, l_lo, l_hi) = (&wk.t_lo[..k], &wk.t_hi[..k], &wk.l_lo[..k], &wk.l_hi[..k]);
-        let (prod_lo, prod_hi) = (&mut wk.prod_lo[..k], &mut wk.prod_hi[..k]);
-        let (mut m, mut s1, mut s2) = (1.0f64, 0.0, 0.0);
+        let st = &mut wk.st[..k];
+        let (mut m, mut s2) = (1.0f64, 0.0);
         let (mut sz, mut sw) = ([0.0; 3], [0.0; 2]);
         for i in 0..k {
-            let dx = rollout_stage(i, &factor[i], &kff[i], stage_ab(qp, i), r2, &r_p[i], (&sz, &sw));
+            let s = &mut st[i];
+            let dx = rollout_stage(i, &s.factor, &s.kff, stage_ab(qp, i), r2, &s.r_p, (&sz, &sw));
             for j in 0..5 {
-                let (dtl, dth) = (dx[j] + r_lo[i][j], r_hi[i][j] - dx[j]);
-                let (ll, lh) = (l_lo[i][j], l_hi[i][j]);
-                let dll = -(ll + ll * inv_t_lo[i][j] * dtl) * free[i][j];
-                let dlh = -(lh + lh * inv_t_hi[i][j] * dth) * free[i][j];
-                raise(&mut m, -dtl * inv_t_lo[i][j]);
-                raise(&mut m, -dth * inv_t_hi[i][j]);
-                raise(&mut m, -dll / ll);
-                raise(&mut m, -dlh / lh);
-                prod_lo[i][j] = dtl * dll;
-                prod_hi[i][j] = dth * dlh;
-                s1 += (t_lo[i][j] * dll + ll * dtl) + (t_hi[i][j] * dlh + lh * dth);
-                s2 += prod_lo[i][j] + prod_hi[i][j];
+                let (dtl, dth) = (dx[j] + s.r_lo[j], s.r_hi[j] - dx[j]);
+                let (rho_lo, rho_hi) = (dtl * s.inv_t_lo[j], dth * s.inv_t_hi[j]);
+                let (f_lo, f_hi) = ((1.0 + rho_lo) * s.free[j], (1.0 + rho_hi) * s.free[j]);
+                raise(&mut m, -rho_lo);
+                raise(&mut m, -rho_hi);
+                raise(&mut m, f_lo);
+                raise(&mut m, f_hi);
+                s.prod_lo[j] = -(dtl * s.l_lo[j] * f_lo);
+                s.prod_hi[j] = -(dth * s.l_hi[j] * f_hi);
+                s2 += s.prod_lo[j] + s.prod_hi[j];
             }
             sz = [dx[2], dx[3], dx[4]];
             sw = [dx[0], dx[1]];
         }
         let alpha = 1.0 / m;
-        (alpha, gap + alpha * s1 + alpha * alpha * s2)
+        (1.0 - alpha) * gap + alpha * alpha * s2
     }
 
     /// Backward vector pass of the corrector: complementarity target
@@ -634,14 +624,14 @@ impl StructuredSolver {
         let k = qp.stages();
         let r2 = 2.0 * qp.r;
         let r2 = &r2.data.0[0];
-        let (factor, r_p, inv_t_lo, inv_t_hi) = (&wk.factor[..k], &wk.r_p[..k], &wk.inv_t_lo[..k], &wk.inv_t_hi[..k]);
-        let (prod_lo, prod_hi, rt, kff) = (&wk.prod_lo[..k], &wk.prod_hi[..k], &mut wk.rt[..k], &mut wk.kff[..k]);
+        let st = &mut wk.st[..k];
         let (mut pz, mut pw) = ([0.0; 3], [0.0; 2]);
         for i in (0..k).rev() {
+            let s = &mut st[i];
             for j in 0..5 {
-                rt[i][j] += (prod_lo[i][j] - target) * inv_t_lo[i][j] - (prod_hi[i][j] - target) * inv_t_hi[i][j];
+                s.rt[j] += (s.prod_lo[j] - target) * s.inv_t_lo[j] - (s.prod_hi[j] - target) * s.inv_t_hi[j];
             }
-            kff[i] = vector_stage(&factor[i], &rt[i], &r_p[i], stage_ab(qp, i), r2, (&mut pz, &mut pw));
+            s.kff = vector_stage(&s.factor, &s.rt, &s.r_p, stage_ab(qp, i), r2, (&mut pz, &mut pw));
         }
     }
 
@@ -652,28 +642,25 @@ impl StructuredSolver {
         let k = qp.stages();
         let r2 = 2.0 * qp.r;
         let r2 = &r2.data.0[0];
-        let (factor, kff, r_p, free) = (&wk.factor[..k], &wk.kff[..k], &wk.r_p[..k], &wk.free[..k]);
-        let (r_lo, r_hi, inv_t_lo, inv_t_hi) = (&wk.r_lo[..k], &wk.r_hi[..k], &wk.inv_t_lo[..k], &wk.inv_t_hi[..k]);
-        let (l_lo, l_hi, prod_lo, prod_hi) = (&wk.l_lo[..k], &wk.l_hi[..k], &wk.prod_lo[..k], &wk.prod_hi[..k]);
-        let (dxs, dt_lo, dt_hi) = (&mut wk.dx[..k], &mut wk.dt_lo[..k], &mut wk.dt_hi[..k]);
-        let (dl_lo, dl_hi) = (&mut wk.dl_lo[..k], &mut wk.dl_hi[..k]);
+        let st = &mut wk.st[..k];
         let mut m = 1.0f64;
         let (mut sz, mut sw) = ([0.0; 3], [0.0; 2]);
         for i in 0..k {
-            let dx = rollout_stage(i, &factor[i], &kff[i], stage_ab(qp, i), r2, &r_p[i], (&sz, &sw));
+            let s = &mut st[i];
+            let dx = rollout_stage(i, &s.factor, &s.kff, stage_ab(qp, i), r2, &s.r_p, (&sz, &sw));
             for j in 0..5 {
-                let (dtl, dth) = (dx[j] + r_lo[i][j], r_hi[i][j] - dx[j]);
-                let (ll, lh) = (l_lo[i][j], l_hi[i][j]);
+                let (dtl, dth) = (dx[j] + s.r_lo[j], s.r_hi[j] - dx[j]);
+                let (ll, lh) = (s.l_lo[j], s.l_hi[j]);
                 // Pinned variables keep slacks and (zero) multipliers unchanged.
-                let dll = -(ll + (prod_lo[i][j] - target + ll * dtl) * inv_t_lo[i][j]) * free[i][j];
-                let dlh = -(lh + (prod_hi[i][j] - target + lh * dth) * inv_t_hi[i][j]) * free[i][j];
-                raise(&mut m, -dtl * inv_t_lo[i][j]);
-                raise(&mut m, -dth * inv_t_hi[i][j]);
+                let dll = -(ll + (s.prod_lo[j] - target + ll * dtl) * s.inv_t_lo[j]) * s.free[j];
+                let dlh = -(lh + (s.prod_hi[j] - target + lh * dth) * s.inv_t_hi[j]) * s.free[j];
+                raise(&mut m, -dtl * s.inv_t_lo[j]);
+                raise(&mut m, -dth * s.inv_t_hi[j]);
                 raise(&mut m, -dll / ll);
                 raise(&mut m, -dlh / lh);
-                (dt_lo[i][j], dt_hi[i][j], dl_lo[i][j], dl_hi[i][j]) = (dtl, dth, dll, dlh);
+                (s.dt_lo[j], s.dt_hi[j], s.dl_lo[j], s.dl_hi[j]) = (dtl, dth, dll, dlh);
             }
-            dxs[i] = dx;
+            s.dx = dx;
             sz = [dx[2], dx[3], dx[4]];
             sw = [dx[0], dx[1]];
         }
@@ -686,24 +673,22 @@ impl StructuredSolver {
     fn take_step(qp: &StageQp, wk: &mut Work, alpha: f64) {
         let k = qp.stages();
         let q2 = 2.0 * qp.q;
-        let (dx, sigma_z, rt) = (&wk.dx[..k], &wk.sigma_z[..k], &wk.rt[..k]);
-        let (dt_lo, dt_hi, dl_lo, dl_hi) = (&wk.dt_lo[..k], &wk.dt_hi[..k], &wk.dl_lo[..k], &wk.dl_hi[..k]);
-        let (x, y, t_lo, t_hi) = (&mut wk.x[..k], &mut wk.y[..k], &mut wk.t_lo[..k], &mut wk.t_hi[..k]);
-        let (l_lo, l_hi) = (&mut wk.l_lo[..k], &mut wk.l_hi[..k]);
+        let st = &mut wk.st[..k];
         let mut next = [0.0; 3];
         for i in (0..k).rev() {
             let an = if i + 1 < k { at_mul(stage_ab(qp, i + 1).0, &next) } else { [0.0; 3] };
+            let s = &mut st[i];
             let mut dy = [0.0; 3];
             for r in 0..3 {
-                dy[r] = -(q2[r] + sigma_z[i][r]) * dx[i][2 + r] - rt[i][2 + r] + an[r];
-                y[i][r] += alpha * dy[r];
+                dy[r] = -(q2[r] + s.sigma_z[r]) * s.dx[2 + r] - s.rt[2 + r] + an[r];
+                s.y[r] += alpha * dy[r];
             }
             for j in 0..5 {
-                x[i][j] += alpha * dx[i][j];
-                t_lo[i][j] += alpha * dt_lo[i][j];
-                t_hi[i][j] += alpha * dt_hi[i][j];
-                l_lo[i][j] += alpha * dl_lo[i][j];
-                l_hi[i][j] += alpha * dl_hi[i][j];
+                s.x[j] += alpha * s.dx[j];
+                s.t_lo[j] += alpha * s.dt_lo[j];
+                s.t_hi[j] += alpha * s.dt_hi[j];
+                s.l_lo[j] += alpha * s.dl_lo[j];
+                s.l_hi[j] += alpha * s.dl_hi[j];
             }
             next = dy;
         }
@@ -716,12 +701,12 @@ impl StructuredSolver {
         let k = qp.stages();
         let tol = self.options.fixed_width;
         wk.n_free = 5 * k;
-        for i in 0..k {
+        for (i, s) in wk.st[..k].iter_mut().enumerate() {
             let (wl, wh, zl, zh) = (&qp.w_lo[i], &qp.w_hi[i], &qp.z_lo[i], &qp.z_hi[i]);
-            wk.lo[i] = [wl[0], wl[1], zl[0], zl[1], zl[2]];
-            wk.hi[i] = [wh[0], wh[1], zh[0], zh[1], zh[2]];
+            s.lo = [wl[0], wl[1], zl[0], zl[1], zl[2]];
+            s.hi = [wh[0], wh[1], zh[0], zh[1], zh[2]];
             for j in 0..5 {
-                let fixed = wk.hi[i][j] - wk.lo[i][j] <= tol;
+                let fixed = s.hi[j] - s.lo[j] <= tol;
                 if fixed && j >= 2 {
                     return Err(QpError::Numerical(format!(
                         "zero-width state box at stage {i}, component {}: pinned states are not supported by \
@@ -729,7 +714,7 @@ impl StructuredSolver {
                         j - 2
                     )));
                 }
-                wk.free[i][j] = if fixed { 0.0 } else { 1.0 };
+                s.free[j] = if fixed { 0.0 } else { 1.0 };
                 wk.n_free -= usize::from(fixed);
             }
         }
@@ -740,17 +725,17 @@ impl StructuredSolver {
     /// `[v − 1, v + 1]`, unit slacks and zero multipliers: their slack
     /// residuals are 0 and stay so, and they add nothing to the gap.
     fn pin_fixed(wk: &mut Work) {
-        for i in 0..wk.x.len() {
+        for s in &mut wk.st {
             for j in 0..5 {
-                if wk.free[i][j] == 0.0 {
-                    let v = 0.5 * (wk.lo[i][j] + wk.hi[i][j]);
-                    wk.x[i][j] = v;
-                    wk.lo[i][j] = v - 1.0;
-                    wk.hi[i][j] = v + 1.0;
-                    wk.t_lo[i][j] = 1.0;
-                    wk.t_hi[i][j] = 1.0;
-                    wk.l_lo[i][j] = 0.0;
-                    wk.l_hi[i][j] = 0.0;
+                if s.free[j] == 0.0 {
+                    let v = 0.5 * (s.lo[j] + s.hi[j]);
+                    s.x[j] = v;
+                    s.lo[j] = v - 1.0;
+                    s.hi[j] = v + 1.0;
+                    s.t_lo[j] = 1.0;
+                    s.t_hi[j] = 1.0;
+                    s.l_lo[j] = 0.0;
+                    s.l_hi[j] = 0.0;
                 }
             }
         }
@@ -763,34 +748,32 @@ impl StructuredSolver {
         let k = qp.stages();
         let shift = self.options.warm_start_shift;
         let duals = sol.dynamics_duals.as_ref().filter(|l| l.len() == k);
-        for i in 0..k {
+        for (i, s) in wk.st[..k].iter_mut().enumerate() {
             let (w, z) = (&sol.w[i], &sol.z[i]);
             let x = [w[0], w[1], z[0], z[1], z[2]];
             for j in 0..5 {
-                let (lo, hi) = (wk.lo[i][j], wk.hi[i][j]);
-                let m = shift * (hi - lo);
-                wk.x[i][j] = x[j].clamp(lo + m, hi - m);
+                let m = shift * (s.hi[j] - s.lo[j]);
+                s.x[j] = x[j].clamp(s.lo[j] + m, s.hi[j] - m);
             }
-            wk.y[i] = duals.map_or([0.0; 3], |l| [l[i][0], l[i][1], l[i][2]]);
-        }
-        // Bound multipliers recovered from stationarity at the previous
-        // point: ν = ∇f + Gᵀy = μ_lo − μ_hi.
-        for v in wk.l_lo.iter_mut().chain(wk.l_hi.iter_mut()) {
-            *v = [0.0; 5];
+            s.y = duals.map_or([0.0; 3], |l| [l[i][0], l[i][1], l[i][2]]);
+            // Bound multipliers recovered from stationarity at this point
+            // (next): ν = ∇f + Gᵀy = μ_lo − μ_hi.
+            s.l_lo = [0.0; 5];
+            s.l_hi = [0.0; 5];
         }
         Self::residuals(qp, wk); // r_d = ν with zero bound multipliers
         let mu = self.options.warm_start_mu;
-        for i in 0..k {
+        for s in &mut wk.st[..k] {
             for j in 0..5 {
-                let width = wk.hi[i][j] - wk.lo[i][j];
+                let width = s.hi[j] - s.lo[j];
                 let floor = (shift * width).max(f64::MIN_POSITIVE.sqrt());
-                let t_lo = (wk.x[i][j] - wk.lo[i][j]).max(floor);
-                let t_hi = (wk.hi[i][j] - wk.x[i][j]).max(floor);
-                let nu = wk.r_d[i][j];
-                wk.t_lo[i][j] = t_lo;
-                wk.t_hi[i][j] = t_hi;
-                wk.l_lo[i][j] = nu.max(0.0).max(mu / t_lo);
-                wk.l_hi[i][j] = (-nu).max(0.0).max(mu / t_hi);
+                let t_lo = (s.x[j] - s.lo[j]).max(floor);
+                let t_hi = (s.hi[j] - s.x[j]).max(floor);
+                let nu = s.r_d[j];
+                s.t_lo[j] = t_lo;
+                s.t_hi[j] = t_hi;
+                s.l_lo[j] = nu.max(0.0).max(mu / t_lo);
+                s.l_hi[j] = (-nu).max(0.0).max(mu / t_hi);
             }
         }
     }
@@ -806,11 +789,11 @@ impl StructuredSolver {
                 // by rollout; slacks at least a quarter of the box width,
                 // multipliers 1.
                 let mut zprev = [0.0; 3];
-                for i in 0..k {
+                for (i, s) in wk.st[..k].iter_mut().enumerate() {
                     let mut w = [0.0; 2];
                     for j in 0..2 {
                         let (lo, hi) = (qp.w_lo[i][j], qp.w_hi[i][j]);
-                        w[j] = if wk.free[i][j] == 0.0 {
+                        w[j] = if s.free[j] == 0.0 {
                             0.5 * (lo + hi)
                         } else {
                             0.0f64.clamp(lo + 0.25 * (hi - lo), hi - 0.25 * (hi - lo))
@@ -820,15 +803,15 @@ impl StructuredSolver {
                     let az = a_mul(a, &zprev);
                     let z = [0, 1, 2].map(|r| az[r] + (b[0][r] * w[0] + b[1][r] * w[1]) + qp.c[i][r]);
                     zprev = z;
-                    wk.x[i] = [w[0], w[1], z[0], z[1], z[2]];
-                    wk.y[i] = [0.0; 3];
+                    s.x = [w[0], w[1], z[0], z[1], z[2]];
+                    s.y = [0.0; 3];
                     for j in 0..5 {
-                        let floor = (0.25 * (wk.hi[i][j] - wk.lo[i][j])).max(1e-8);
-                        wk.t_lo[i][j] = (wk.x[i][j] - wk.lo[i][j]).max(floor);
-                        wk.t_hi[i][j] = (wk.hi[i][j] - wk.x[i][j]).max(floor);
+                        let floor = (0.25 * (s.hi[j] - s.lo[j])).max(1e-8);
+                        s.t_lo[j] = (s.x[j] - s.lo[j]).max(floor);
+                        s.t_hi[j] = (s.hi[j] - s.x[j]).max(floor);
                     }
-                    wk.l_lo[i] = [1.0; 5];
-                    wk.l_hi[i] = [1.0; 5];
+                    s.l_lo = [1.0; 5];
+                    s.l_hi = [1.0; 5];
                 }
             }
         }
@@ -849,7 +832,7 @@ impl QpSolver for StructuredSolver {
         // Reuse this thread's buffers when the size matches (every solve
         // overwrites each buffer before reading it): the compensation runs
         // thousands of same-K solves per thread.
-        let mut wk = WORK.with(|c| c.borrow_mut().take()).filter(|w| w.x.len() == k).unwrap_or_else(|| Work::new(k));
+        let mut wk = WORK.with(|c| c.borrow_mut().take()).filter(|w| w.st.len() == k).unwrap_or_else(|| Work::new(k));
         let result = self.solve_in(qp, warm_start, &mut wk);
         WORK.with(|c| *c.borrow_mut() = Some(wk));
         result
@@ -868,9 +851,9 @@ impl StructuredSolver {
         self.initialize(qp, wk, warm_start)?;
 
         let mut scale_p: f64 = 1.0;
-        for i in 0..k {
+        for (i, s) in wk.st[..k].iter().enumerate() {
             let amax = |v: &S5| v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
-            scale_p = scale_p.max(1.0 + qp.c[i].amax()).max(1.0 + amax(&wk.lo[i])).max(1.0 + amax(&wk.hi[i]));
+            scale_p = scale_p.max(1.0 + qp.c[i].amax()).max(1.0 + amax(&s.lo)).max(1.0 + amax(&s.hi));
         }
         let mut last_residual = f64::NAN;
         for iteration in 0..=opt.max_iterations {
@@ -890,17 +873,20 @@ impl StructuredSolver {
                 break;
             }
             // Infeasibility: primal residual stuck while multipliers diverge.
-            if !primal_ok && res.l_max > opt.infeasibility_multiplier * (1.0 + res.grad_scale) {
-                return Err(QpError::Infeasible(format!(
-                    "primal residual stalled at {:.2e} while a bound multiplier grew to {:.2e} \
-                     (iteration {iteration}): no input sequence keeps the states within their bounds",
-                    res.primal, res.l_max
-                )));
+            if !primal_ok {
+                let l_max = Self::max_multiplier(wk);
+                if l_max > opt.infeasibility_multiplier * (1.0 + res.grad_scale) {
+                    return Err(QpError::Infeasible(format!(
+                        "primal residual stalled at {:.2e} while a bound multiplier grew to {l_max:.2e} \
+                         (iteration {iteration}): no input sequence keeps the states within their bounds",
+                        res.primal
+                    )));
+                }
             }
 
             // Predictor (affine scaling): target t·μ = 0.
             Self::factorize_predict(qp, wk)?;
-            let (_, gap_aff) = Self::predict_forward(qp, wk, res.gap);
+            let gap_aff = Self::predict_forward(qp, wk, res.gap);
             let sigma_c = (gap_aff / res.gap).clamp(0.0, 1.0).powi(3);
             let target = sigma_c * res.mu;
 
@@ -914,13 +900,13 @@ impl StructuredSolver {
 
     /// Packs the converged iterate into a [`QpSolution`].
     fn finish(&self, qp: &StageQp, wk: &Work, iterations: usize) -> QpSolution {
-        let w: Vec<Vector2<f64>> = wk.x.iter().map(|x| Vector2::new(x[0], x[1])).collect();
-        let z: Vec<Vector3<f64>> = wk.x.iter().map(|x| Vector3::new(x[2], x[3], x[4])).collect();
+        let w: Vec<Vector2<f64>> = wk.st.iter().map(|s| Vector2::new(s.x[0], s.x[1])).collect();
+        let z: Vec<Vector3<f64>> = wk.st.iter().map(|s| Vector3::new(s.x[2], s.x[3], s.x[4])).collect();
         QpSolution {
             objective: qp.objective(&w, &z),
             iterations,
             active_bounds: qp.count_active_bounds(&w, &z, ACTIVE_BOUND_TOL),
-            dynamics_duals: Some(wk.y.iter().map(|y| Vector3::new(y[0], y[1], y[2])).collect()),
+            dynamics_duals: Some(wk.st.iter().map(|s| Vector3::new(s.y[0], s.y[1], s.y[2])).collect()),
             w,
             z,
         }
