@@ -14,10 +14,13 @@
 //! - box constraints give a *diagonal* barrier Hessian Σ, so every Newton
 //!   step is an equality-constrained LQ problem with the same dynamics;
 //! - that LQ problem is solved exactly by a backward Riccati recursion and a
-//!   forward rollout, with fixed-size 5×5/2×2 matrices and no heap traffic
-//!   (all buffers are allocated once per solve);
+//!   forward rollout, with no heap traffic (per-thread buffers, one record
+//!   per stage); the products are written out for the model's step
+//!   Jacobian, the identity but for its heading column ([`StageQp::a`]),
+//!   and the diagonal `Q`, `R` and Σ;
 //! - the Mehrotra corrector reuses the factorisation (only the vector pass
-//!   is repeated).
+//!   is repeated); the factorisation runs in one backward pass with the
+//!   predictor's vector pass.
 //!
 //! The input-rate term `(w_k − w_{k−1} + δ_k)ᵀR(…)` couples consecutive
 //! inputs; augmenting the state with the previous input,
