@@ -80,6 +80,20 @@
 // Numerical loops index several parallel arrays at once; index loops read like the maths.
 #![allow(clippy::needless_range_loop)]
 
+/// Declares an item `pub` with feature `research` (for the studies in
+/// crates/odocal-lab) and crate-internal without it: research-only API.
+macro_rules! research_pub {
+    ($(#[$attr:meta])* $kind:ident $name:ident $($rest:tt)*) => {
+        $(#[$attr])*
+        #[cfg(feature = "research")]
+        pub $kind $name $($rest)*
+        $(#[$attr])*
+        #[cfg(not(feature = "research"))]
+        #[allow(dead_code)]
+        pub(crate) $kind $name $($rest)*
+    };
+}
+
 // The modules in layers, lowest first; a module uses only its own subtree
 // and modules of lower layers (tests/architecture.rs checks it). The public
 // ones are expert API, each saying whom it is for; what a user needs to
