@@ -317,7 +317,10 @@ impl PyDrive {
                 return Ok(PyArray1::from_slice(py, c));
             }
         }
-        if let Some(c) = d.extra().iter().find(|c| c.name == name).and_then(|c| c.as_numbers()) {
+        if let Some(c) = d.extra().iter().find(|c| c.name == name).and_then(|c| match &c.values {
+            odocal::ExtraValues::Numbers(v) => Some(v),
+            odocal::ExtraValues::Text(_) => None,
+        }) {
             return Ok(PyArray1::from_slice(py, c));
         }
         Err(PyKeyError::new_err(format!("the drive has no numeric column '{name}'")))
