@@ -31,7 +31,7 @@ impl Files {
             return self.manifest(role, path);
         }
         self.input(role, path);
-        if let Some(side) = odocal::sim::SidecarMatch::path(path) {
+        if let Some(side) = odocal::sim::sidecar_file(path) {
             self.input(format!("the simulator sidecar of {}", path.display()), &side);
         }
         self
