@@ -123,7 +123,7 @@ pub const REPORT_SCHEMA_VERSION: u32 = 1;
 /// The README's code examples, compiled and run as doc-tests.
 #[cfg(doctest)]
 #[doc = include_str!("../../../README.md")]
-pub struct ReadmeDoctests;
+struct ReadmeDoctests;
 
 // Errors, progress, θ, the parameters and the reference extrinsics.
 pub use error::{Error, Result};
