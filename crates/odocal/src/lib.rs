@@ -137,7 +137,7 @@ pub use progress::Progress;
 pub use drive::{
     fingerprint::refuse_duplicates,
     segment,
-    stream::{DriveStream, StreamChunk, StreamChunks},
+    stream::{DriveStream, StreamChunk},
     Drive, DriveBuilder, ExtraColumn, ExtraValues, Signals,
 };
 pub use io::import::{

@@ -201,7 +201,7 @@ impl DriveStream {
 
     /// The samples in chunks of at most `size` (at least 1), part by part
     /// in time order; a chunk never spans two parts.
-    pub fn chunks(&self, size: usize) -> StreamChunks<'_> {
+    pub fn chunks(&self, size: usize) -> impl Iterator<Item = Result<StreamChunk>> + '_ {
         StreamChunks { stream: self, size: size.max(1), part: 0, next: 0 }
     }
 
@@ -232,7 +232,7 @@ impl DriveStream {
 
 /// The chunks of a [`DriveStream`] ([`DriveStream::chunks`]).
 #[derive(Debug)]
-pub struct StreamChunks<'a> {
+struct StreamChunks<'a> {
     stream: &'a DriveStream,
     size: usize,
     part: usize,
