@@ -8,7 +8,7 @@ use clap::Args;
 use odocal::compensate::{CompensateOptions, QpOptions, SolverKind};
 use odocal::output::is_stdout;
 use odocal::segment;
-use odocal::ExtraColumn;
+use odocal::{ExtraColumn, ExtraValues};
 
 use crate::args::ThetaArg;
 use crate::io::{load_drive, print_warnings};
@@ -71,9 +71,9 @@ pub fn run(mut a: CompensateArgs, bars: &Bars) -> Result<()> {
         flag[s.start..s.start + s.steps].fill(1.0);
     }
     let drive = drive
-        .with_extra(ExtraColumn::numbers("n_rl_comp", c_rl))?
-        .with_extra(ExtraColumn::numbers("n_rr_comp", c_rr))?
-        .with_extra(ExtraColumn::numbers("compensated", flag))?;
+        .with_extra(ExtraColumn { name: "n_rl_comp".into(), values: ExtraValues::Numbers(c_rl) })?
+        .with_extra(ExtraColumn { name: "n_rr_comp".into(), values: ExtraValues::Numbers(c_rr) })?
+        .with_extra(ExtraColumn { name: "compensated".into(), values: ExtraValues::Numbers(flag) })?;
     write_drive(&drive, &a.out)?;
     let summary = format!(
         "wrote {}: {} of {} segments compensated ({} QP solves, rms input change {:.3} %)",

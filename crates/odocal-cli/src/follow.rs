@@ -195,7 +195,7 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
             Some(c) => c,
             None => cal.insert(Calibrator::new(stored.theta, stored.sigma, drive.sample_time_s(), opts.clone())?),
         };
-        if (drive.sample_time_s() - c.sample_time_s()).abs() > 1e-9 {
+        if (drive.sample_time_s() - c.status().sample_time_s).abs() > 1e-9 {
             bail!("{source}: sample time differs from the first drive's");
         }
         c.stored = Some(stored.theta);
@@ -207,7 +207,8 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
         })?;
         bars.finish();
         let decision = gates.decide(c, &stored.theta, stored.calibrated);
-        let summary = c.drive_summary();
+        let status = c.status();
+        let summary = status.drive;
         let (t_start_s, t_end_s) = drive.time_span_s();
         let drive_time_s = t_end_s - t_start_s;
         db.record_decision(&Decision {
@@ -220,7 +221,7 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
             theta: decision.theta,
             sigma: Some(decision.sigma),
         })?;
-        let (delta, _) = c.heading_offset();
+        let delta = status.heading_offset_rad;
         if decision.action == Action::Write {
             stored = write_back(&mut db, &a, &decision, (&source, &fingerprint), drive.time_span_s(), delta)?;
         }

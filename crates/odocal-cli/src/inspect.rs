@@ -34,7 +34,7 @@ pub fn run(a: InspectArgs) -> Result<()> {
     }
     let info = odocal::io::bag::inspect(&a.bag)?;
     print!("{info}");
-    let readable: Vec<_> = info.topics.iter().filter_map(|t| Some((t, t.supported_type()?))).collect();
+    let readable: Vec<_> = info.topics.iter().filter_map(|t| Some((t, t.supported_type?))).collect();
     if !readable.is_empty() {
         println!("Manifest columns (format = \"mcap\", topic = ...):");
         for (t, ty) in readable {

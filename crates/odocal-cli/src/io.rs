@@ -68,10 +68,10 @@ pub fn name_drive(e: odocal::Error, path: &Path) -> odocal::Error {
 /// with a note on stderr.
 pub fn load_truth(drive_path: &Path, drive: &Drive) -> Option<SimSidecar> {
     let m = sim::sidecar_for(drive_path, drive);
-    if let Some(note) = m.note() {
+    if let Some(note) = &m.note {
         eprintln!("note: {note}");
     }
-    m.bound()
+    m.sidecar
 }
 
 /// Writes a JSON report with its `schema_version` and, when a manifest

@@ -19,7 +19,7 @@ pub struct Files {
 impl Files {
     /// An input file in a role ("the --theta parameter file").
     pub fn input(&mut self, role: impl Into<String>, path: &Path) -> &mut Self {
-        self.inputs.push(FileRole::new(role, path));
+        self.inputs.push(FileRole { role: role.into(), path: path.into() });
         self
     }
 
@@ -31,7 +31,7 @@ impl Files {
             return self.manifest(role, path);
         }
         self.input(role, path);
-        if let Some(side) = odocal::sim::SidecarMatch::path(path) {
+        if let Some(side) = odocal::sim::sidecar_file(path) {
             self.input(format!("the simulator sidecar of {}", path.display()), &side);
         }
         self
@@ -52,7 +52,7 @@ impl Files {
     /// An output in a role ("--json"), when it is asked for.
     pub fn output(&mut self, role: impl Into<String>, path: Option<&Path>) -> &mut Self {
         if let Some(p) = path {
-            self.outputs.push(FileRole::new(role, p));
+            self.outputs.push(FileRole { role: role.into(), path: p.into() });
         }
         self
     }

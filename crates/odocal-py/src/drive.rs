@@ -159,9 +159,9 @@ fn signals_from_state(cols: Vec<Vec<u8>>) -> PyResult<Signals> {
 fn read_csv_with_sidecar(path: &std::path::Path) -> odocal::Result<(Drive, Provenance, Vec<String>)> {
     let (drive, mut warnings) = Drive::read_csv(path)?;
     let sidecar = odocal::sim::sidecar_for(path, &drive);
-    warnings.extend(sidecar.note());
+    warnings.extend(sidecar.note);
     let source = Some(path.display().to_string());
-    Ok((drive, Provenance { sidecar: sidecar.bound(), source, ..Default::default() }, warnings))
+    Ok((drive, Provenance { sidecar: sidecar.sidecar, source, ..Default::default() }, warnings))
 }
 
 fn read_manifest(path: &std::path::Path) -> odocal::Result<(Drive, Provenance)> {
@@ -317,7 +317,10 @@ impl PyDrive {
                 return Ok(PyArray1::from_slice(py, c));
             }
         }
-        if let Some(c) = d.extra().iter().find(|c| c.name == name).and_then(|c| c.as_numbers()) {
+        if let Some(c) = d.extra().iter().find(|c| c.name == name).and_then(|c| match &c.values {
+            odocal::ExtraValues::Numbers(v) => Some(v),
+            odocal::ExtraValues::Text(_) => None,
+        }) {
             return Ok(PyArray1::from_slice(py, c));
         }
         Err(PyKeyError::new_err(format!("the drive has no numeric column '{name}'")))

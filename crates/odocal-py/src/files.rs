@@ -22,19 +22,19 @@ pub(crate) fn inputs_of(prov: &Provenance) -> Vec<FileRole> {
     let Some(src) = &prov.source else { return Vec::new() };
     let path = Path::new(src);
     if odocal::is_manifest_path(path) {
-        let mut out = vec![FileRole::new(format!("the manifest {src} of the drive"), path)];
+        let mut out = vec![FileRole { role: format!("the manifest {src} of the drive"), path: path.into() }];
         if let Ok(m) = odocal::Manifest::from_path(path) {
             out.extend(
                 m.stream_files()
                     .into_iter()
-                    .map(|(s, f)| FileRole::new(format!("stream '{s}' of the manifest {src}"), f)),
+                    .map(|(s, f)| FileRole { role: format!("stream '{s}' of the manifest {src}"), path: f }),
             );
         }
         out
     } else {
-        let mut out = vec![FileRole::new(format!("the CSV {src} the drive was read from"), path)];
-        if let Some(side) = odocal::sim::SidecarMatch::path(path) {
-            out.push(FileRole::new(format!("the simulator sidecar of {src}"), side));
+        let mut out = vec![FileRole { role: format!("the CSV {src} the drive was read from"), path: path.into() }];
+        if let Some(side) = odocal::sim::sidecar_file(path) {
+            out.push(FileRole { role: format!("the simulator sidecar of {src}"), path: side });
         }
         out
     }
@@ -44,7 +44,7 @@ pub(crate) fn inputs_of(prov: &Provenance) -> Vec<FileRole> {
 /// drives `inputs` were read from, or each other.
 pub(crate) fn check_outputs(inputs: &[&Provenance], outputs: &[(&str, &Path)]) -> PyResult<()> {
     let ins: Vec<FileRole> = inputs.iter().flat_map(|p| inputs_of(p)).collect();
-    let outs: Vec<FileRole> = outputs.iter().map(|(r, p)| FileRole::new(*r, *p)).collect();
+    let outs: Vec<FileRole> = outputs.iter().map(|(r, p)| FileRole { role: (*r).into(), path: (*p).into() }).collect();
     check_collisions(&ins, &outs).map_err(lib_err)
 }
 

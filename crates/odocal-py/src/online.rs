@@ -76,7 +76,7 @@ impl PyCalibrator {
     /// Checks a chunk's times against the sample time; returns the sample
     /// indices where a new part starts (after a gap), the first possibly 0.
     fn part_starts(&self, t: &[f64]) -> PyResult<Vec<usize>> {
-        let ts = self.cal.sample_time_s();
+        let ts = self.cal.status().sample_time_s;
         let mut starts = Vec::new();
         let mut prev = self.last_t;
         for (i, &ti) in t.iter().enumerate() {
@@ -211,11 +211,12 @@ impl PyCalibrator {
         #[pyo3(from_py_with = crate::convert::count)] chunk: usize,
     ) -> PyResult<()> {
         let d = std::sync::Arc::clone(&drive.get().drive);
-        if (d.sample_time_s() - self.cal.sample_time_s()).abs() > 1e-9 {
+        let ts = self.cal.status().sample_time_s;
+        if (d.sample_time_s() - ts).abs() > 1e-9 {
             return Err(PyValueError::new_err(format!(
                 "the drive's sample time {} s is not the calibrator's {} s",
                 d.sample_time_s(),
-                self.cal.sample_time_s()
+                ts
             )));
         }
         let cal = &mut self.cal;
@@ -242,44 +243,45 @@ impl PyCalibrator {
     /// The current θ: `{"c_e", "c_d", "t_r", "d"}`.
     #[getter]
     fn theta<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        to_py(py, &json(&self.cal.theta())?)
+        to_py(py, &json(&self.cal.status().theta)?)
     }
 
     /// θ's standard deviation, same keys.
     #[getter]
     fn sigma<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        to_py(py, &json(&self.cal.sigma())?)
+        to_py(py, &json(&self.cal.status().sigma)?)
     }
 
     /// The 5×5 covariance of `[c_e, c_d, t_r, d, heading_offset]`.
     #[getter]
     fn covariance<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let rows: Vec<Vec<f64>> = self.cal.covariance().iter().map(|r| r.to_vec()).collect();
+        let rows: Vec<Vec<f64>> = self.cal.status().covariance.iter().map(|r| r.to_vec()).collect();
         Ok(PyArray2::from_vec2(py, &rows)?)
     }
 
     /// The current drive's heading offset (reference minus vehicle) and its sd, rad.
     #[getter]
     fn heading_offset(&self) -> (f64, f64) {
-        self.cal.heading_offset()
+        let s = self.cal.status();
+        (s.heading_offset_rad, s.heading_offset_sd_rad)
     }
 
     /// The sample time the calibrator was made for, s.
     #[getter]
     fn sample_time_s(&self) -> f64 {
-        self.cal.sample_time_s()
+        self.cal.status().sample_time_s
     }
 
     /// Informative (turning) driving folded in so far, s.
     #[getter]
     fn informative_time_s(&self) -> f64 {
-        self.cal.informative_time_s()
+        self.cal.status().informative_time_s
     }
 
     /// Samples held in the buffer (bounded, whatever the drive's length).
     #[getter]
     fn buffered_samples(&self) -> usize {
-        self.cal.buffered_samples()
+        self.cal.status().buffered_samples
     }
 
     /// What the calibrator saw of the current drive: `samples`,
@@ -287,15 +289,14 @@ impl PyCalibrator {
     /// `prequential_mean_position_error_m`, `stored_mean_position_error_m`.
     #[getter]
     fn summary<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        to_py(py, &json(&self.cal.drive_summary())?)
+        to_py(py, &json(&self.cal.status().drive)?)
     }
 
     /// The drive's most recently scored validation segments, oldest first:
     /// dicts with `start_s`, `prequential_m`, `stored_m`.
     #[getter]
     fn recent_validation<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        let v: Vec<_> = self.cal.recent_validation().copied().collect();
-        to_py(py, &json(&v)?)
+        to_py(py, &json(&self.cal.status().recent_validation)?)
     }
 
     /// The parameters in use, compared with the online θ on each
@@ -341,6 +342,7 @@ impl PyCalibrator {
     }
 
     fn __repr__(&self) -> String {
-        format!("<odocal.online.Calibrator θ = {} ± {}>", self.cal.theta(), self.cal.sigma())
+        let s = self.cal.status();
+        format!("<odocal.online.Calibrator θ = {} ± {}>", s.theta, s.sigma)
     }
 }

@@ -118,7 +118,8 @@ impl PyRawStream {
         d.set_item("part", c.part)?;
         d.set_item("start", c.start)?;
         d.set_item("starts_part", c.starts_part)?;
-        d.set_item("reference_measured", c.reference_measured.into_pyarray(py))?;
+        let measured = c.reference_measured.unwrap_or_else(|| vec![true; c.t.len()]);
+        d.set_item("reference_measured", measured.into_pyarray(py))?;
         let s = PyDict::new(py);
         let g = c.signals;
         s.set_item("t", c.t.into_pyarray(py))?;

@@ -80,6 +80,20 @@
 // Numerical loops index several parallel arrays at once; index loops read like the maths.
 #![allow(clippy::needless_range_loop)]
 
+/// Declares an item `pub` with feature `research` (for the studies in
+/// crates/odocal-lab) and crate-internal without it: research-only API.
+macro_rules! research_pub {
+    ($(#[$attr:meta])* $kind:ident $name:ident $($rest:tt)*) => {
+        $(#[$attr])*
+        #[cfg(feature = "research")]
+        pub $kind $name $($rest)*
+        $(#[$attr])*
+        #[cfg(not(feature = "research"))]
+        #[allow(dead_code)]
+        pub(crate) $kind $name $($rest)*
+    };
+}
+
 // The modules in layers, lowest first; a module uses only its own subtree
 // and modules of lower layers (tests/architecture.rs checks it). The public
 // ones are expert API, each saying whom it is for; what a user needs to
@@ -109,7 +123,7 @@ pub const REPORT_SCHEMA_VERSION: u32 = 1;
 /// The README's code examples, compiled and run as doc-tests.
 #[cfg(doctest)]
 #[doc = include_str!("../../../README.md")]
-pub struct ReadmeDoctests;
+struct ReadmeDoctests;
 
 // Errors, progress, θ, the parameters and the reference extrinsics.
 pub use error::{Error, Result};
@@ -123,7 +137,7 @@ pub use progress::Progress;
 pub use drive::{
     fingerprint::refuse_duplicates,
     segment,
-    stream::{DriveStream, StreamChunk, StreamChunks},
+    stream::{DriveStream, StreamChunk},
     Drive, DriveBuilder, ExtraColumn, ExtraValues, Signals,
 };
 pub use io::import::{

@@ -27,8 +27,8 @@
 //! let dir = tempfile::tempdir()?;
 //! let drive = dir.path().join("drive.csv");
 //! std::fs::write(&drive, "t,px\n")?;
-//! let inputs = [FileRole::new("the drive being calibrated", &drive)];
-//! let outputs = [FileRole::new("--json", dir.path().join("./drive.csv"))];
+//! let inputs = [FileRole { role: "the drive being calibrated".into(), path: drive.clone() }];
+//! let outputs = [FileRole { role: "--json".into(), path: dir.path().join("./drive.csv") }];
 //! let e = check_collisions(&inputs, &outputs).unwrap_err().to_string();
 //! assert!(e.contains("--json") && e.contains("is also the drive being calibrated"), "{e}");
 //! # Ok(()) }
@@ -261,13 +261,6 @@ pub struct FileRole {
     pub role: String,
     /// The path as given.
     pub path: PathBuf,
-}
-
-impl FileRole {
-    /// A file in a role.
-    pub fn new(role: impl Into<String>, path: impl Into<PathBuf>) -> FileRole {
-        FileRole { role: role.into(), path: path.into() }
-    }
 }
 
 /// What identifies a file: its canonical path and, when it exists, its

@@ -112,14 +112,15 @@ fn ramp_run(seed: u64, ramp: f64, k: &Knobs) -> Res<RampRun> {
     let mut start_s = f64::NAN;
     let mut trace: [Vec<(f64, f64)>; 4] = Default::default();
     push_first(&mut cal, &d, len, |cal, b| {
-        if cal.informative_time_s() < k.burn_in_s {
+        let st = cal.status();
+        if st.informative_time_s < k.burn_in_s {
             return;
         }
         if start_s.is_nan() {
             start_s = (b - 1) as f64 * ts;
         }
         let truth = o.drift.theta_at(&o.theta_true, (b - 1) as f64 * ts).to_array();
-        let (th, s) = (cal.theta().to_array(), cal.sigma().to_array());
+        let (th, s) = (st.theta.to_array(), st.sigma.to_array());
         for i in 0..4 {
             inside[i] += usize::from((th[i] - truth[i]).abs() <= 2.0 * s[i]);
             trace[i].push((th[i] - truth[i], s[i]));
@@ -167,9 +168,11 @@ fn step_run(seed: u64, step_m: f64, k: &Knobs) -> Res<StepRun> {
     let ts = a.sample_time_s();
     let mut cal = Calibrator::new(Theta::PAPER_INITIAL, None, ts, options(k))?;
     push_first(&mut cal, &a, na, |_, _| {})?;
-    let row_a = row(1, cal.theta(), cal.sigma());
+    let st = cal.status();
+    let row_a = row(1, st.theta, st.sigma);
     push_first(&mut cal, &b, nb, |_, _| {})?;
-    let row_b = row(2, cal.theta(), cal.sigma());
+    let st = cal.status();
+    let row_b = row(2, st.theta, st.sigma);
     let flags = drift_between(&[row_a.clone(), row_b.clone()]);
     let (sa, sb) = (row_a.record.sigma.map_or(0.0, |s| s.c_d), row_b.record.sigma.map_or(0.0, |s| s.c_d));
     Ok(StepRun {

@@ -29,7 +29,7 @@
 //!   the fallback's bias). A gap above 3 σ of the rest makes the verdict
 //!   doubtful ([`crate::TrustOptions::max_fallback_gap_sigmas`]).
 //! - `τ`: the between-drive σ. With one drive, the documented prior
-//!   [`BETWEEN_DRIVE_PRIOR`] (relative floors measured on the test-track
+//!   `BETWEEN_DRIVE_PRIOR` (relative floors measured on the test-track
 //!   runs); with several drives
 //!   ([`crate::CalibrationReport::pool_drives`]), the DerSimonian–Laird
 //!   random-effects estimate on the drives' separate fits
@@ -83,28 +83,32 @@ pub(crate) fn dersimonian_laird(estimates: &[f64], sigmas: &[f64]) -> Option<Ran
     Some(RandomEffects { mean, mean_sigma: sws.sqrt().recip(), tau: tau2.sqrt(), q, drives: k })
 }
 
-/// The prior between-drive σ of one drive, relative: per parameter a
-/// fraction of a scale of θ (c_e and c_d of c_e, t_r and d of t_r; d's per
-/// m/s²). Measured as the spread (sample sd) of the default calibration's
-/// estimates over the three earliest test-track runs of 2024-08-05
-/// (14-45-26, 15-28-33, 16-06-28), confirmed on the other three
-/// (docs/validation.md, "Coverage of the reported σ"; lab
-/// `sigma_coverage`); docs/method.md, "The σ for the next drive".
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct BetweenDrivePrior {
-    /// σ of c_e over c_e.
-    pub c_e: f64,
-    /// σ of c_d over c_e.
-    pub c_d: f64,
-    /// σ of t_r over t_r.
-    pub t_r: f64,
-    /// σ of d over t_r (per m/s²).
-    pub d: f64,
+research_pub! {
+    /// The prior between-drive σ of one drive, relative: per parameter a
+    /// fraction of a scale of θ (c_e and c_d of c_e, t_r and d of t_r; d's per
+    /// m/s²). Measured as the spread (sample sd) of the default calibration's
+    /// estimates over the three earliest test-track runs of 2024-08-05
+    /// (14-45-26, 15-28-33, 16-06-28), confirmed on the other three
+    /// (docs/validation.md, "Coverage of the reported σ"; lab
+    /// `sigma_coverage`); docs/method.md, "The σ for the next drive".
+    #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+    struct BetweenDrivePrior {
+        /// σ of c_e over c_e.
+        pub c_e: f64,
+        /// σ of c_d over c_e.
+        pub c_d: f64,
+        /// σ of t_r over t_r.
+        pub t_r: f64,
+        /// σ of d over t_r (per m/s²).
+        pub d: f64,
+    }
 }
 
-/// The prior between-drive spread ([`BetweenDrivePrior`]).
-pub const BETWEEN_DRIVE_PRIOR: BetweenDrivePrior =
-    BetweenDrivePrior { c_e: 3.8e-4, c_d: 7.5e-5, t_r: 2.9e-3, d: 2.8e-5 };
+research_pub! {
+    /// The prior between-drive spread ([`BetweenDrivePrior`]).
+    const BETWEEN_DRIVE_PRIOR: BetweenDrivePrior =
+        BetweenDrivePrior { c_e: 3.8e-4, c_d: 7.5e-5, t_r: 2.9e-3, d: 2.8e-5 };
+}
 
 impl BetweenDrivePrior {
     /// The prior between-drive σ at θ, `[c_e, c_d, t_r, d]` in SI units.
@@ -218,14 +222,16 @@ pub struct PooledDrives {
 }
 
 impl PooledDrives {
-    /// Pools the separate fits `theta[i]` with σ `sigma[i]`.
-    pub fn new(method: String, theta: Vec<Theta>, sigma: Vec<[Option<f64>; 4]>) -> Self {
-        let params = std::array::from_fn(|i| {
-            let y: Vec<f64> = theta.iter().map(|t| t.to_array()[i]).collect();
-            let s: Option<Vec<f64>> = sigma.iter().map(|s| s[i]).collect();
-            dersimonian_laird(&y, &s?)
-        });
-        PooledDrives { method, theta, sigma, params }
+    research_pub! {
+        /// Pools the separate fits `theta[i]` with σ `sigma[i]`.
+        fn new(method: String, theta: Vec<Theta>, sigma: Vec<[Option<f64>; 4]>) -> Self {
+            let params = std::array::from_fn(|i| {
+                let y: Vec<f64> = theta.iter().map(|t| t.to_array()[i]).collect();
+                let s: Option<Vec<f64>> = sigma.iter().map(|s| s[i]).collect();
+                dersimonian_laird(&y, &s?)
+            });
+            PooledDrives { method, theta, sigma, params }
+        }
     }
 }
 

@@ -51,20 +51,22 @@ pub fn mean_position_error(drive: &Drive, segments: &[Segment], theta: &Theta) -
     mean_position_error_with(drive, segments, theta, &Extrinsics::ZERO)
 }
 
-/// Ē_p of θ with the pose reference mounted at `extrinsics`: each segment
-/// starts from the axle pose the reference implies and the model's
-/// reference point is compared with the measured one
-/// ([`segment_position_error_with`]). With zero extrinsics
-/// this is [`mean_position_error`], bit for bit.
-pub fn mean_position_error_with(
-    drive: &Drive,
-    segments: &[Segment],
-    theta: &Theta,
-    extrinsics: &Extrinsics,
-) -> Result<ValidationReport> {
-    theta.validate()?;
-    extrinsics.validate()?;
-    mean_position_error_by(drive, segments, theta, |_| *extrinsics)
+research_pub! {
+    /// Ē_p of θ with the pose reference mounted at `extrinsics`: each segment
+    /// starts from the axle pose the reference implies and the model's
+    /// reference point is compared with the measured one
+    /// ([`segment_position_error_with`]). With zero extrinsics
+    /// this is [`mean_position_error`], bit for bit.
+    fn mean_position_error_with(
+        drive: &Drive,
+        segments: &[Segment],
+        theta: &Theta,
+        extrinsics: &Extrinsics,
+    ) -> Result<ValidationReport> {
+        theta.validate()?;
+        extrinsics.validate()?;
+        mean_position_error_by(drive, segments, theta, |_| *extrinsics)
+    }
 }
 
 /// [`mean_position_error_with`] with each segment's own extrinsics

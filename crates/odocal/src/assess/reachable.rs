@@ -353,47 +353,49 @@ fn argmin_error(stage: &str, e: argmin::core::Error) -> Error {
     Error::Numerical(format!("reachable minimum, {stage}: {e}"))
 }
 
-/// Finds the reachable minimum `min_θ Ē_p(θ)` on `segments` of `drive` by a
-/// seeded particle swarm over the box of `opts`, refined by Nelder-Mead;
-/// `progress` hears one stage per box searched (`"reachable: swarm"`,
-/// `"reachable: refine"`) advancing by one per evaluation of `Ē_p`.
-///
-/// Errors when the options are invalid (naming the field), when there are no
-/// segments, or when `Ē_p` cannot be computed at the box centre.
-pub fn reachable_minimum(
-    drive: &Drive,
-    segments: &[Segment],
-    opts: &ReachableOptions,
-    progress: Option<ProgressFn<'_>>,
-) -> Result<ReachableReport> {
-    let started = Instant::now();
-    // `search_box` validates the options (and each re-centred box).
-    let mut report = search_box(drive, segments, opts, progress)?;
-    let mut evaluations = report.evaluations;
-    let mut recentred = 0;
-    let centre_error = report.centre_mean_position_error_m;
-    let mut box_opts = opts.clone();
-    while !report.at_edge.is_empty() && recentred < opts.recentre {
-        // Same widths around the best point; the best point and the
-        // caller's starts seed the new search.
-        let best = report.theta;
-        let half = (box_opts.upper.to_vector() - box_opts.lower.to_vector()) / 2.0;
-        let c = best.to_vector();
-        box_opts.lower = Theta::from_vector(&(c - half));
-        box_opts.upper = Theta::from_vector(&(c + half));
-        box_opts.starts = std::iter::once(best).chain(opts.starts.iter().copied()).collect();
-        box_opts.seed = opts.seed.wrapping_add(recentred as u64 + 1);
-        recentred += 1;
-        let next = search_box(drive, segments, &box_opts, progress)?;
-        evaluations += next.evaluations;
-        // The new search is seeded with the best point, so never worse.
-        report = next;
+research_pub! {
+    /// Finds the reachable minimum `min_θ Ē_p(θ)` on `segments` of `drive` by a
+    /// seeded particle swarm over the box of `opts`, refined by Nelder-Mead;
+    /// `progress` hears one stage per box searched (`"reachable: swarm"`,
+    /// `"reachable: refine"`) advancing by one per evaluation of `Ē_p`.
+    ///
+    /// Errors when the options are invalid (naming the field), when there are no
+    /// segments, or when `Ē_p` cannot be computed at the box centre.
+    fn reachable_minimum(
+        drive: &Drive,
+        segments: &[Segment],
+        opts: &ReachableOptions,
+        progress: Option<ProgressFn<'_>>,
+    ) -> Result<ReachableReport> {
+        let started = Instant::now();
+        // `search_box` validates the options (and each re-centred box).
+        let mut report = search_box(drive, segments, opts, progress)?;
+        let mut evaluations = report.evaluations;
+        let mut recentred = 0;
+        let centre_error = report.centre_mean_position_error_m;
+        let mut box_opts = opts.clone();
+        while !report.at_edge.is_empty() && recentred < opts.recentre {
+            // Same widths around the best point; the best point and the
+            // caller's starts seed the new search.
+            let best = report.theta;
+            let half = (box_opts.upper.to_vector() - box_opts.lower.to_vector()) / 2.0;
+            let c = best.to_vector();
+            box_opts.lower = Theta::from_vector(&(c - half));
+            box_opts.upper = Theta::from_vector(&(c + half));
+            box_opts.starts = std::iter::once(best).chain(opts.starts.iter().copied()).collect();
+            box_opts.seed = opts.seed.wrapping_add(recentred as u64 + 1);
+            recentred += 1;
+            let next = search_box(drive, segments, &box_opts, progress)?;
+            evaluations += next.evaluations;
+            // The new search is seeded with the best point, so never worse.
+            report = next;
+        }
+        report.evaluations = evaluations;
+        report.recentred = recentred;
+        report.centre_mean_position_error_m = centre_error;
+        report.time_s = started.elapsed().as_secs_f64();
+        Ok(report)
     }
-    report.evaluations = evaluations;
-    report.recentred = recentred;
-    report.centre_mean_position_error_m = centre_error;
-    report.time_s = started.elapsed().as_secs_f64();
-    Ok(report)
 }
 
 /// One search in the box of `opts` (see the module docs).

@@ -404,19 +404,21 @@ impl<'a> Calibration<'a> {
         )
     }
 }
-/// A calibration with the intermediate data an experiment needs: the report,
-/// the segments used and (three-step only) the compensated inputs of step 2.
-#[derive(Debug, Clone, PartialEq)]
-pub struct DetailedCalibration {
-    /// The report [`calibrate`] returns.
-    pub report: CalibrationReport,
-    /// The calibration segments fitted (all segments when none turns
-    /// enough and `auto_fix` is on).
-    pub selected: Vec<Segment>,
-    /// The validation segments of the calibration drive.
-    pub validation: Vec<Segment>,
-    /// Step 2's compensated inputs (three-step only).
-    pub compensated: Option<CompensatedInputs>,
+research_pub! {
+    /// A calibration with the intermediate data an experiment needs: the report,
+    /// the segments used and (three-step only) the compensated inputs of step 2.
+    #[derive(Debug, Clone, PartialEq)]
+    struct DetailedCalibration {
+        /// The report [`calibrate`] returns.
+        pub report: CalibrationReport,
+        /// The calibration segments fitted (all segments when none turns
+        /// enough and `auto_fix` is on).
+        pub selected: Vec<Segment>,
+        /// The validation segments of the calibration drive.
+        pub validation: Vec<Segment>,
+        /// Step 2's compensated inputs (three-step only).
+        pub compensated: Option<CompensatedInputs>,
+    }
 }
 
 /// What the shared preparation hands to a method.
@@ -505,15 +507,17 @@ pub(crate) trait Estimator {
     ) -> Result<MethodOutcome>;
 }
 
-/// A calibration of `drive`, validated on `held_out` when given, also
-/// returning the segments and step 2's compensated inputs.
-pub fn calibrate_detailed(
-    drive: &Drive,
-    held_out: Option<&Drive>,
-    opts: &CalibrationOptions,
-    progress: Option<ProgressFn<'_>>,
-) -> Result<DetailedCalibration> {
-    calibrate_core(drive, held_out.map(|h| (h, None)), opts, progress)
+research_pub! {
+    /// A calibration of `drive`, validated on `held_out` when given, also
+    /// returning the segments and step 2's compensated inputs.
+    fn calibrate_detailed(
+        drive: &Drive,
+        held_out: Option<&Drive>,
+        opts: &CalibrationOptions,
+        progress: Option<ProgressFn<'_>>,
+    ) -> Result<DetailedCalibration> {
+        calibrate_core(drive, held_out.map(|h| (h, None)), opts, progress)
+    }
 }
 
 /// [`calibrate_detailed`]; with held-out drives that each have their own

@@ -193,10 +193,12 @@ impl CalibrationReport {
         }
     }
 
-    /// One-σ model standard deviations of θ (square roots of the covariance diagonal).
-    pub fn std_dev(&self) -> Theta {
-        let c = &self.covariance;
-        Theta { c_e: c[0][0].sqrt(), c_d: c[1][1].sqrt(), t_r: c[2][2].sqrt(), d: c[3][3].sqrt() }
+    research_pub! {
+        /// One-σ model standard deviations of θ (square roots of the covariance diagonal).
+        fn std_dev(&self) -> Theta {
+            let c = &self.covariance;
+            Theta { c_e: c[0][0].sqrt(), c_d: c[1][1].sqrt(), t_r: c[2][2].sqrt(), d: c[3][3].sqrt() }
+        }
     }
 
     /// The cluster-robust covariance of the result ([`RobustCovariance`]:

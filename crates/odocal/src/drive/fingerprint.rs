@@ -126,7 +126,7 @@ pub fn refuse_duplicates(drives: &[(&str, &Drive)]) -> Result<Vec<String>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::drive::{ExtraColumn, Signals};
+    use crate::drive::{ExtraColumn, ExtraValues, Signals};
 
     fn drive(n: usize, shift: f64) -> Drive {
         let t: Vec<f64> = (0..n).map(|k| k as f64 * 0.025).collect();
@@ -174,7 +174,10 @@ mod tests {
         assert_ne!(d.fingerprint(), drive(50, 1e-12).fingerprint());
         assert_ne!(d.fingerprint(), drive(49, 0.0).fingerprint());
         // An extra column does not make another drive.
-        let with = d.clone().with_extra(ExtraColumn::numbers("flag", vec![1.0; 50])).expect("extra");
+        let with = d
+            .clone()
+            .with_extra(ExtraColumn { name: "flag".into(), values: ExtraValues::Numbers(vec![1.0; 50]) })
+            .expect("extra");
         assert_eq!(with.fingerprint(), d.fingerprint());
         // Parts do.
         let parts = crate::drive::DriveBuilder {

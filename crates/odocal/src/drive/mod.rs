@@ -173,21 +173,6 @@ pub struct ExtraColumn {
     pub values: ExtraValues,
 }
 
-impl ExtraColumn {
-    /// A numeric extra column.
-    pub fn numbers(name: impl Into<String>, values: Vec<f64>) -> ExtraColumn {
-        ExtraColumn { name: name.into(), values: ExtraValues::Numbers(values) }
-    }
-
-    /// The numbers of a numeric column (`None` for text).
-    pub fn as_numbers(&self) -> Option<&[f64]> {
-        match &self.values {
-            ExtraValues::Numbers(v) => Some(v),
-            ExtraValues::Text(_) => None,
-        }
-    }
-}
-
 /// One drive, stored column by column; made only by [`DriveBuilder::build`]
 /// (or the readers that call it), so every `Drive` has passed its checks.
 #[derive(Debug, Clone, PartialEq)]
@@ -825,14 +810,20 @@ mod tests {
         let d = DriveBuilder {
             t: times(10),
             measured: signals(10),
-            extra: vec![ExtraColumn::numbers("x", (0..10).map(f64::from).collect())],
+            extra: vec![ExtraColumn {
+                name: "x".into(),
+                values: ExtraValues::Numbers((0..10).map(f64::from).collect()),
+            }],
             ..Default::default()
         }
         .build()
         .expect("ok");
         let (a, b) = d.split_at_time(0.1).expect("split");
         assert_eq!((a.len(), b.len()), (4, 6));
-        assert_eq!(b.extra_column("x").and_then(ExtraColumn::as_numbers), Some(&[4.0, 5.0, 6.0, 7.0, 8.0, 9.0][..]));
+        assert_eq!(
+            b.extra_column("x").map(|c| &c.values),
+            Some(&ExtraValues::Numbers(vec![4.0, 5.0, 6.0, 7.0, 8.0, 9.0]))
+        );
         assert!(d.split_at_time(-1.0).is_err());
         let (a, _) = d.split_at_time(0.025).expect("one sample keeps the parent's t_s");
         assert_eq!((a.len(), a.sample_time_s()), (1, d.sample_time_s()));

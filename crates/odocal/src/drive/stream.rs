@@ -79,19 +79,26 @@ pub struct DriveStream {
     columns: Vec<File>,
 }
 
-/// Samples of a [`DriveStream`], all of one part.
+/// Canonical samples of a stream, all of one part: of a [`DriveStream`]
+/// or of a streamed import (`online::RawStream`, `online::ManifestStream`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct StreamChunk {
-    /// The part they belong to (an index into [`DriveStream::parts`]).
+    /// The part they belong to (0, 1, …; for a [`DriveStream`] an index
+    /// into [`DriveStream::parts`]).
     pub part: usize,
-    /// The index of the first of them in the drive.
+    /// The index of the first of them among the drive's samples.
     pub start: usize,
     /// True when the first of them starts its part.
     pub starts_part: bool,
-    /// Time stamps, s.
+    /// Time stamps, s (for an import, 0 at the drive's origin as
+    /// [`import`](crate::import)'s).
     pub t: Vec<f64>,
     /// The signals, the heading unwrapped as [`Drive`] unwraps it.
     pub signals: Signals,
+    /// Whether the reference was measured at each sample
+    /// ([`Drive::reference_measured`]); `None` from a [`DriveStream`],
+    /// which keeps no such column.
+    pub reference_measured: Option<Vec<bool>>,
 }
 
 impl DriveStream {
@@ -194,7 +201,7 @@ impl DriveStream {
 
     /// The samples in chunks of at most `size` (at least 1), part by part
     /// in time order; a chunk never spans two parts.
-    pub fn chunks(&self, size: usize) -> StreamChunks<'_> {
+    pub fn chunks(&self, size: usize) -> impl Iterator<Item = Result<StreamChunk>> + '_ {
         StreamChunks { stream: self, size: size.max(1), part: 0, next: 0 }
     }
 
@@ -207,7 +214,7 @@ impl DriveStream {
         }
         let [t, px, py, psi, n_rl, n_rr, beta, a_y] = c;
         let signals = Signals { px, py, psi, n_rl, n_rr, beta, a_y };
-        Ok(StreamChunk { part, start: r.start, starts_part, t, signals })
+        Ok(StreamChunk { part, start: r.start, starts_part, t, signals, reference_measured: None })
     }
 
     /// Values `r` of kept column `k`.
@@ -225,7 +232,7 @@ impl DriveStream {
 
 /// The chunks of a [`DriveStream`] ([`DriveStream::chunks`]).
 #[derive(Debug)]
-pub struct StreamChunks<'a> {
+struct StreamChunks<'a> {
     stream: &'a DriveStream,
     size: usize,
     part: usize,

@@ -238,15 +238,17 @@ pub fn step_jacobians(x: &State, u: &Input, theta: &Theta, t_s: f64) -> StepJaco
     StepJacobians { next, f_x, f_n, f_theta }
 }
 
-/// Wraps an angle to (−π, π].
-#[inline]
-pub fn wrap_angle(a: f64) -> f64 {
-    let two_pi = 2.0 * std::f64::consts::PI;
-    let mut r = a.rem_euclid(two_pi);
-    if r > std::f64::consts::PI {
-        r -= two_pi;
+research_pub! {
+    /// Wraps an angle to (−π, π].
+    #[inline]
+    fn wrap_angle(a: f64) -> f64 {
+        let two_pi = 2.0 * std::f64::consts::PI;
+        let mut r = a.rem_euclid(two_pi);
+        if r > std::f64::consts::PI {
+            r -= two_pi;
+        }
+        r
     }
-    r
 }
 
 #[cfg(test)]

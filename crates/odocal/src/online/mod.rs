@@ -30,7 +30,7 @@
 //! most samples and a segment's residuals are correlated), `s²` a running
 //! estimate of the weighted residual
 //! variance and `Q` the random walk of [`RandomWalk`]. The σ reported
-//! ([`Calibrator::sigma`]) is `P`'s, times per-parameter factors
+//! ([`Status::sigma`]) is `P`'s, times per-parameter factors
 //! ([`OnlineOptions::sigma_factors`]) that make it cover the truth on
 //! simulated drives; `P` itself drives the updates unchanged. Each fold costs
 //! a few rollouts of one segment (a few hundred microseconds), and the
@@ -69,7 +69,7 @@ use crate::model::{wrap_angle, Theta};
 pub mod gate;
 mod options;
 
-pub use crate::io::import::stream::{not_streamable, reader::ManifestStream, ImportChunk, RawStream, StreamOptions};
+pub use crate::io::import::stream::{not_streamable, reader::ManifestStream, RawStream, StreamOptions};
 pub use options::{OnlineOptions, RandomWalk};
 
 type Vec5 = SVector<f64, 5>;
@@ -187,6 +187,38 @@ pub struct DriveSummary {
     pub stored_mean_position_error_m: Option<f64>,
 }
 
+/// A snapshot of a [`Calibrator`] ([`Calibrator::status`]).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Status {
+    /// The current estimate of θ.
+    pub theta: Theta,
+    /// θ's standard deviation: the recursion's, times the options'
+    /// [`OnlineOptions::sigma_factors`].
+    pub sigma: Theta,
+    /// The covariance of `[c_e, c_d, t_r, d, δ]`, θ's rows and columns
+    /// scaled by the options' [`OnlineOptions::sigma_factors`] (δ's by 1),
+    /// so that its diagonal is `sigma` squared.
+    pub covariance: [[f64; 5]; 5],
+    /// The current drive's heading offset δ (reference heading minus the
+    /// vehicle's), rad.
+    pub heading_offset_rad: f64,
+    /// δ's standard deviation, rad.
+    pub heading_offset_sd_rad: f64,
+    /// The sample time the calibrator was made for, s.
+    pub sample_time_s: f64,
+    /// Informative driving so far: the new samples (stride × sample time)
+    /// of every folded segment that turned more than the options'
+    /// `informative_yaw_rate_rad_per_s`, s.
+    pub informative_time_s: f64,
+    /// Samples held in the buffer: bounded by the longest segment and its
+    /// stride plus one chunk, whatever the drive's length.
+    pub buffered_samples: usize,
+    /// What the calibrator saw of the current drive.
+    pub drive: DriveSummary,
+    /// The current drive's most recently scored validation segments, oldest first.
+    pub recent_validation: Vec<ValidationScore>,
+}
+
 /// The sample columns kept for the segments still to complete.
 #[derive(Debug, Default, Clone)]
 struct Buffer {
@@ -255,7 +287,7 @@ struct Pending {
 ///     cal.push(&Chunk::of(d, start..(start + 400).min(d.len())))?;
 /// }
 /// let truth = out.sidecar.theta_true;
-/// assert!((cal.theta().c_e - truth.c_e).abs() < 1e-3 * truth.c_e);
+/// assert!((cal.status().theta.c_e - truth.c_e).abs() < 1e-3 * truth.c_e);
 /// # Ok(()) }
 /// ```
 #[derive(Debug, Clone)]
@@ -308,7 +340,7 @@ struct DriveState {
 impl Calibrator {
     /// A calibrator starting at `theta0` with sd `sigma0` (`None`: the
     /// options' prior), for samples every `sample_time_s` seconds.
-    /// `sigma0` is a reported σ (as [`Calibrator::sigma`] gives it): the
+    /// `sigma0` is a reported σ (as [`Status::sigma`] gives it): the
     /// recursion starts from it divided by the options' `sigma_factors`,
     /// so a calibrator restarted from another's θ and σ continues its
     /// recursion.
@@ -592,42 +624,30 @@ impl Calibrator {
         (part_start + i) as f64 * self.sample_time_s
     }
 
-    /// The sample time the calibrator was made for, s.
-    pub fn sample_time_s(&self) -> f64 {
-        self.sample_time_s
-    }
-
     /// The current estimate of θ.
-    pub fn theta(&self) -> Theta {
+    pub(crate) fn theta(&self) -> Theta {
         Theta { c_e: self.x[0], c_d: self.x[1], t_r: self.x[2], d: self.x[3] }
     }
 
     /// θ's standard deviation: the recursion's, times the options'
     /// [`OnlineOptions::sigma_factors`].
-    pub fn sigma(&self) -> Theta {
+    pub(crate) fn sigma(&self) -> Theta {
         let f = self.opts.sigma_factors;
         Theta::from_array(std::array::from_fn(|i| f[i] * self.p[(i, i)].max(0.0).sqrt()))
     }
 
     /// The covariance of `[c_e, c_d, t_r, d, δ]`, θ's rows and columns
     /// scaled by the options' [`OnlineOptions::sigma_factors`] (δ's by 1),
-    /// so that its diagonal is [`Calibrator::sigma`] squared.
-    pub fn covariance(&self) -> [[f64; 5]; 5] {
+    /// so that its diagonal is `sigma` squared.
+    pub(crate) fn covariance(&self) -> [[f64; 5]; 5] {
         let f = |i: usize| self.opts.sigma_factors.get(i).copied().unwrap_or(1.0);
         std::array::from_fn(|i| std::array::from_fn(|j| f(i) * f(j) * self.p[(i, j)]))
     }
 
     /// The current drive's heading offset δ (reference heading minus the
     /// vehicle's), rad, and its sd.
-    pub fn heading_offset(&self) -> (f64, f64) {
+    pub(crate) fn heading_offset(&self) -> (f64, f64) {
         (self.x[4], self.p[(4, 4)].max(0.0).sqrt())
-    }
-
-    /// Informative driving so far: the new samples (stride × sample time)
-    /// of every folded segment that turned more than the options'
-    /// `informative_yaw_rate_rad_per_s`, s.
-    pub fn informative_time_s(&self) -> f64 {
-        self.informative_s
     }
 
     /// The informative time over which every parameter of θ has stayed
@@ -647,12 +667,12 @@ impl Calibrator {
     }
 
     /// The current drive's most recently scored validation segments, oldest first.
-    pub fn recent_validation(&self) -> impl Iterator<Item = &ValidationScore> {
+    pub(crate) fn recent_validation(&self) -> impl Iterator<Item = &ValidationScore> {
         self.drive.recent.iter()
     }
 
     /// What the calibrator saw of the current drive.
-    pub fn drive_summary(&self) -> DriveSummary {
+    pub(crate) fn drive_summary(&self) -> DriveSummary {
         let d = &self.drive;
         let mean = |sum: f64| (d.scored > 0 && sum.is_finite()).then(|| sum / d.scored as f64);
         DriveSummary {
@@ -666,8 +686,25 @@ impl Calibrator {
 
     /// Samples held in the buffer: bounded by the longest segment and its
     /// stride plus one chunk, whatever the drive's length.
-    pub fn buffered_samples(&self) -> usize {
+    pub(crate) fn buffered_samples(&self) -> usize {
         self.buf.cols[0].len()
+    }
+
+    /// A snapshot of the estimate and the counters, as plain data.
+    pub fn status(&self) -> Status {
+        let (heading_offset_rad, heading_offset_sd_rad) = self.heading_offset();
+        Status {
+            theta: self.theta(),
+            sigma: self.sigma(),
+            covariance: self.covariance(),
+            heading_offset_rad,
+            heading_offset_sd_rad,
+            sample_time_s: self.sample_time_s,
+            informative_time_s: self.informative_s,
+            buffered_samples: self.buffered_samples(),
+            drive: self.drive_summary(),
+            recent_validation: self.drive.recent.iter().copied().collect(),
+        }
     }
 
     /// Pushes a whole drive as a new drive, part by part, in chunks of

@@ -93,7 +93,7 @@ pub struct OnlineOptions {
     pub information_scale: f64,
     /// Factors on the sd of `[c_e, c_d, t_r, d]` that the recursion's
     /// covariance gives, for the σ the calibrator reports
-    /// ([`super::Calibrator::sigma`]); the recursion itself (θ's updates)
+    /// ([`super::Status::sigma`]); the recursion itself (θ's updates)
     /// does not use them. One segment weight cannot make the covariance
     /// cover every parameter: the weight that fits c_e's spread leaves the
     /// recursion's sd of c_d, t_r and d 4–8 times below their errors, and

@@ -113,29 +113,41 @@ fn an_output_onto_an_input_is_refused_by_any_name() {
     let input = d.path().join("in.csv");
     std::fs::write(&input, "x").expect("seed");
     std::fs::create_dir(d.path().join("sub")).expect("mkdir");
-    let ins = [FileRole::new("the drive being calibrated", &input)];
+    let ins = [FileRole { role: "the drive being calibrated".into(), path: input.clone() }];
     for alias in [input.clone(), d.path().join("./in.csv"), d.path().join("sub/../in.csv")] {
-        let e = check_collisions(&ins, &[FileRole::new("--json", &alias)]).expect_err("collision").to_string();
+        let e = check_collisions(&ins, &[FileRole { role: "--json".into(), path: alias.clone() }])
+            .expect_err("collision")
+            .to_string();
         assert!(e.starts_with(&format!("--json {} is also the drive being calibrated", alias.display())), "{e}");
     }
     #[cfg(unix)]
     {
         let hard = d.path().join("hard.csv");
         std::fs::hard_link(&input, &hard).expect("hard link");
-        assert!(check_collisions(&ins, &[FileRole::new("--report", &hard)]).is_err(), "hard link");
+        assert!(
+            check_collisions(&ins, &[FileRole { role: "--report".into(), path: hard.clone() }]).is_err(),
+            "hard link"
+        );
         let soft = d.path().join("soft.csv");
         std::os::unix::fs::symlink(&input, &soft).expect("symlink");
-        assert!(check_collisions(&ins, &[FileRole::new("--report", &soft)]).is_err(), "symlink");
+        assert!(
+            check_collisions(&ins, &[FileRole { role: "--report".into(), path: soft.clone() }]).is_err(),
+            "symlink"
+        );
     }
-    check_collisions(&ins, &[FileRole::new("--json", d.path().join("out.json"))]).expect("a new file");
-    check_collisions(&ins, &[FileRole::new("--json", "-"), FileRole::new("--report", "-")]).expect("stdout");
+    check_collisions(&ins, &[FileRole { role: "--json".into(), path: d.path().join("out.json") }]).expect("a new file");
+    check_collisions(
+        &ins,
+        &[FileRole { role: "--json".into(), path: "-".into() }, FileRole { role: "--report".into(), path: "-".into() }],
+    )
+    .expect("stdout");
 }
 
 #[test]
 fn two_outputs_onto_one_new_file_are_refused() {
     let d = tmp();
-    let a = FileRole::new("--out", d.path().join("x.csv"));
-    let b = FileRole::new("--json", d.path().join("sub/../x.csv"));
+    let a = FileRole { role: "--out".into(), path: d.path().join("x.csv") };
+    let b = FileRole { role: "--json".into(), path: d.path().join("sub/../x.csv") };
     std::fs::create_dir(d.path().join("sub")).expect("mkdir");
     let e = check_collisions(&[], &[a, b]).expect_err("same file").to_string();
     assert!(e.contains("--json") && e.contains("is also --out ("), "{e}");
@@ -195,9 +207,9 @@ proptest! {
         let d = setup();
         let group_of = |p: &Pick| if cfg!(unix) || p.group != 2 || p.spelling.is_multiple_of(2) { p.group } else { GROUPS };
         let ins: Vec<FileRole> =
-            inputs.iter().enumerate().map(|(i, p)| FileRole::new(format!("input {i}"), spell(d.path(), *p))).collect();
+            inputs.iter().enumerate().map(|(i, p)| FileRole { role: format!("input {i}"), path: spell(d.path(), *p) }).collect();
         let outs: Vec<FileRole> =
-            outputs.iter().enumerate().map(|(i, p)| FileRole::new(format!("output {i}"), spell(d.path(), *p))).collect();
+            outputs.iter().enumerate().map(|(i, p)| FileRole { role: format!("output {i}"), path: spell(d.path(), *p) }).collect();
         let clash = outputs.iter().enumerate().any(|(k, o)| {
             inputs.iter().any(|i| group_of(i) == group_of(o)) || outputs[..k].iter().any(|x| group_of(x) == group_of(o))
         });

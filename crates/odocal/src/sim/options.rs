@@ -260,19 +260,21 @@ impl NoiseOptions {
         NoiseOptions { wheel_white_rel_sigma: NoiseOptions::paper().wheel_white_rel_sigma, ..NoiseOptions::off() }
     }
 
-    /// The paper preset's wheel noise only — coloured common and
-    /// differential relative errors, white noise and encoder quantisation —
-    /// on a perfect reference, with no slip, a_y or sideslip noise (the
-    /// "coloured" preset of the EIV studies).
-    pub fn coloured_wheels_only() -> Self {
-        let p = NoiseOptions::paper();
-        NoiseOptions {
-            wheel_coloured_rel_sigma: p.wheel_coloured_rel_sigma,
-            wheel_coloured_differential_rel_sigma: p.wheel_coloured_differential_rel_sigma,
-            wheel_coloured_time_constant_s: p.wheel_coloured_time_constant_s,
-            wheel_white_rel_sigma: p.wheel_white_rel_sigma,
-            encoder_ticks_per_revolution: p.encoder_ticks_per_revolution,
-            ..NoiseOptions::off()
+    research_pub! {
+        /// The paper preset's wheel noise only — coloured common and
+        /// differential relative errors, white noise and encoder quantisation —
+        /// on a perfect reference, with no slip, a_y or sideslip noise (the
+        /// "coloured" preset of the EIV studies).
+        fn coloured_wheels_only() -> Self {
+            let p = NoiseOptions::paper();
+            NoiseOptions {
+                wheel_coloured_rel_sigma: p.wheel_coloured_rel_sigma,
+                wheel_coloured_differential_rel_sigma: p.wheel_coloured_differential_rel_sigma,
+                wheel_coloured_time_constant_s: p.wheel_coloured_time_constant_s,
+                wheel_white_rel_sigma: p.wheel_white_rel_sigma,
+                encoder_ticks_per_revolution: p.encoder_ticks_per_revolution,
+                ..NoiseOptions::off()
+            }
         }
     }
 
@@ -285,26 +287,28 @@ impl NoiseOptions {
         }
     }
 
-    /// Every source of the paper preset scaled by `f`: its standard
-    /// deviations and the slip coefficient × f, the encoder ticks per
-    /// revolution ÷ f (rounded), so the quantisation step × f; time constants
-    /// kept. `paper_scaled(2.5)` is [`NoiseOptions::high`] but for the ticks
-    /// (819 there, 512 in `high`).
-    pub fn paper_scaled(f: f64) -> Self {
-        let p = NoiseOptions::paper();
-        NoiseOptions {
-            wheel_slip_per_m_per_s2: f * p.wheel_slip_per_m_per_s2,
-            wheel_coloured_rel_sigma: f * p.wheel_coloured_rel_sigma,
-            wheel_coloured_differential_rel_sigma: f * p.wheel_coloured_differential_rel_sigma,
-            wheel_white_rel_sigma: f * p.wheel_white_rel_sigma,
-            encoder_ticks_per_revolution: (f64::from(p.encoder_ticks_per_revolution) / f).round() as u32,
-            position_drift_sigma_m: f * p.position_drift_sigma_m,
-            position_white_sigma_m: f * p.position_white_sigma_m,
-            heading_drift_sigma_rad: f * p.heading_drift_sigma_rad,
-            heading_white_sigma_rad: f * p.heading_white_sigma_rad,
-            lateral_acceleration_white_sigma_m_per_s2: f * p.lateral_acceleration_white_sigma_m_per_s2,
-            sideslip_sigma_rad: f * p.sideslip_sigma_rad,
-            ..p
+    research_pub! {
+        /// Every source of the paper preset scaled by `f`: its standard
+        /// deviations and the slip coefficient × f, the encoder ticks per
+        /// revolution ÷ f (rounded), so the quantisation step × f; time constants
+        /// kept. `paper_scaled(2.5)` is [`NoiseOptions::high`] but for the ticks
+        /// (819 there, 512 in `high`).
+        fn paper_scaled(f: f64) -> Self {
+            let p = NoiseOptions::paper();
+            NoiseOptions {
+                wheel_slip_per_m_per_s2: f * p.wheel_slip_per_m_per_s2,
+                wheel_coloured_rel_sigma: f * p.wheel_coloured_rel_sigma,
+                wheel_coloured_differential_rel_sigma: f * p.wheel_coloured_differential_rel_sigma,
+                wheel_white_rel_sigma: f * p.wheel_white_rel_sigma,
+                encoder_ticks_per_revolution: (f64::from(p.encoder_ticks_per_revolution) / f).round() as u32,
+                position_drift_sigma_m: f * p.position_drift_sigma_m,
+                position_white_sigma_m: f * p.position_white_sigma_m,
+                heading_drift_sigma_rad: f * p.heading_drift_sigma_rad,
+                heading_white_sigma_rad: f * p.heading_white_sigma_rad,
+                lateral_acceleration_white_sigma_m_per_s2: f * p.lateral_acceleration_white_sigma_m_per_s2,
+                sideslip_sigma_rad: f * p.sideslip_sigma_rad,
+                ..p
+            }
         }
     }
 
@@ -366,21 +370,23 @@ impl DriftOptions {
         self.c_e_relative_per_hour == 0.0 && self.c_d_step.is_none()
     }
 
-    /// The true θ at `t_s` seconds into the drive, from `theta0` at its
-    /// start: `c_e·(1 + r·t/3600)` and `c_d + Δ` from the step's time on.
-    /// `theta0` itself when nothing drifts.
-    pub fn theta_at(&self, theta0: &Theta, t_s: f64) -> Theta {
-        if self.is_zero() {
-            return *theta0;
-        }
-        let mut th = *theta0;
-        th.c_e = theta0.c_e * (1.0 + self.c_e_relative_per_hour * t_s / 3600.0);
-        if let Some(step) = self.c_d_step {
-            if t_s >= step.at_s {
-                th.c_d += step.change_m;
+    research_pub! {
+        /// The true θ at `t_s` seconds into the drive, from `theta0` at its
+        /// start: `c_e·(1 + r·t/3600)` and `c_d + Δ` from the step's time on.
+        /// `theta0` itself when nothing drifts.
+        fn theta_at(&self, theta0: &Theta, t_s: f64) -> Theta {
+            if self.is_zero() {
+                return *theta0;
             }
+            let mut th = *theta0;
+            th.c_e = theta0.c_e * (1.0 + self.c_e_relative_per_hour * t_s / 3600.0);
+            if let Some(step) = self.c_d_step {
+                if t_s >= step.at_s {
+                    th.c_d += step.change_m;
+                }
+            }
+            th
         }
-        th
     }
 
     pub(crate) fn validate(&self) -> Result<()> {
@@ -513,27 +519,29 @@ impl SimOptions {
         SimOptions { noise: NoiseOptions::off(), ..SimOptions::paper(seed) }
     }
 
-    /// The true θ and reference extrinsics that the measured signals are
-    /// consistent with. A constant a_y error b
-    /// ([`NoiseOptions::lateral_acceleration_bias_m_per_s2`]) acts exactly as
-    /// c_d − 2·d·b (the model's wheel circumferences are
-    /// `c_e ± (c_d/2 + d·a_y)`), and a constant sideslip error
-    /// ([`NoiseOptions::sideslip_bias_rad`]) as a heading offset of the
-    /// reference (exactly so with a zero lever arm), as the heading bias
-    /// ([`NoiseOptions::heading_bias_rad`]) does. No calibration can tell
-    /// them apart, so an estimate is judged against this truth. Without
-    /// constant errors it is `(theta_true, reference_mount)`.
-    pub fn equivalent_truth(&self) -> (Theta, Extrinsics) {
-        let n = &self.noise;
-        let mut theta = self.theta_true;
-        let mut mount = self.reference_mount;
-        if n.lateral_acceleration_bias_m_per_s2 != 0.0 {
-            theta.c_d -= 2.0 * theta.d * n.lateral_acceleration_bias_m_per_s2;
+    research_pub! {
+        /// The true θ and reference extrinsics that the measured signals are
+        /// consistent with. A constant a_y error b
+        /// ([`NoiseOptions::lateral_acceleration_bias_m_per_s2`]) acts exactly as
+        /// c_d − 2·d·b (the model's wheel circumferences are
+        /// `c_e ± (c_d/2 + d·a_y)`), and a constant sideslip error
+        /// ([`NoiseOptions::sideslip_bias_rad`]) as a heading offset of the
+        /// reference (exactly so with a zero lever arm), as the heading bias
+        /// ([`NoiseOptions::heading_bias_rad`]) does. No calibration can tell
+        /// them apart, so an estimate is judged against this truth. Without
+        /// constant errors it is `(theta_true, reference_mount)`.
+        fn equivalent_truth(&self) -> (Theta, Extrinsics) {
+            let n = &self.noise;
+            let mut theta = self.theta_true;
+            let mut mount = self.reference_mount;
+            if n.lateral_acceleration_bias_m_per_s2 != 0.0 {
+                theta.c_d -= 2.0 * theta.d * n.lateral_acceleration_bias_m_per_s2;
+            }
+            if n.heading_bias_rad != 0.0 || n.sideslip_bias_rad != 0.0 {
+                mount.heading_offset += n.heading_bias_rad + n.sideslip_bias_rad;
+            }
+            (theta, mount)
         }
-        if n.heading_bias_rad != 0.0 || n.sideslip_bias_rad != 0.0 {
-            mount.heading_offset += n.heading_bias_rad + n.sideslip_bias_rad;
-        }
-        (theta, mount)
     }
 
     /// Checks every option, naming the offending field.

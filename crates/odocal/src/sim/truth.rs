@@ -6,77 +6,46 @@ use std::path::{Path, PathBuf};
 use super::{sidecar_path, SimSidecar};
 use crate::drive::Drive;
 
-/// What lies beside a drive CSV where its simulator sidecar would be
-/// ([`sidecar_path`]).
-#[derive(Debug, Clone, PartialEq)]
-pub enum SidecarMatch {
-    /// No sidecar: no file, or one that is not a simulator sidecar.
-    None,
-    /// The sidecar of this drive: its recorded fingerprint is the drive's.
-    Bound(Box<SimSidecar>),
-    /// A simulator sidecar of another drive (or one that records no
-    /// fingerprint): its truth must not be shown for this drive.
-    Other {
-        /// The sidecar file.
-        path: PathBuf,
-        /// Why it does not belong to the drive, in words.
-        reason: String,
-    },
+/// The simulator sidecar beside a drive CSV, checked against the drive
+/// ([`sidecar_for`]).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SidecarMatch {
+    /// The sidecar, when it records the drive's [`Drive::fingerprint`].
+    pub sidecar: Option<SimSidecar>,
+    /// A note for the user when a simulator sidecar lies beside the drive
+    /// but is not its truth (it records another drive or no fingerprint):
+    /// it is ignored.
+    pub note: Option<String>,
 }
 
-impl SidecarMatch {
-    /// The sidecar when it belongs to the drive.
-    pub fn bound(self) -> Option<SimSidecar> {
-        match self {
-            SidecarMatch::Bound(s) => Some(*s),
-            _ => None,
-        }
-    }
-
-    /// A note for the user when a sidecar lies beside the drive but belongs
-    /// to another one.
-    pub fn note(&self) -> Option<String> {
-        match self {
-            SidecarMatch::Other { path, reason } => {
-                Some(format!("{} is not the truth of this drive ({reason}); it is ignored", path.display()))
-            }
-            _ => None,
-        }
-    }
-
-    /// The sidecar file, when one lies beside the drive (bound or not).
-    pub fn path(drive_csv: &Path) -> Option<PathBuf> {
-        let p = sidecar_path(drive_csv);
-        SimSidecar::read_json(&p).is_ok().then_some(p)
-    }
+/// The simulator sidecar file beside `drive_csv` ([`sidecar_path`]), when
+/// one lies there (bound to the drive or not).
+pub fn sidecar_file(drive_csv: &Path) -> Option<PathBuf> {
+    let p = sidecar_path(drive_csv);
+    SimSidecar::read_json(&p).is_ok().then_some(p)
 }
 
 /// The simulator sidecar beside `drive_csv`, checked against `drive` (read
 /// from that file): bound when it records the drive's
-/// [`Drive::fingerprint`], [`SidecarMatch::Other`] when it records another
-/// one or none, [`SidecarMatch::None`] when there is no sidecar.
+/// [`Drive::fingerprint`], with a note when it records another one or none,
+/// empty when there is no sidecar.
 pub fn sidecar_for(drive_csv: &Path, drive: &Drive) -> SidecarMatch {
     let path = sidecar_path(drive_csv);
     if path == drive_csv {
-        return SidecarMatch::None;
+        return SidecarMatch::default();
     }
-    let Ok(sidecar) = SimSidecar::read_json(&path) else { return SidecarMatch::None };
-    match &sidecar.drive_fingerprint {
-        Some(fp) if *fp == drive.fingerprint() => SidecarMatch::Bound(Box::new(sidecar)),
-        Some(_) => SidecarMatch::Other {
-            path,
-            reason: format!(
-                "it is the simulator sidecar of another drive: the samples of {} differ",
-                drive_csv.display()
-            ),
-        },
-        None => SidecarMatch::Other {
-            path,
-            reason: "it records no drive fingerprint, so it cannot be matched to the drive; simulate again to get \
-                     one"
-            .into(),
-        },
-    }
+    let Ok(sidecar) = SimSidecar::read_json(&path) else { return SidecarMatch::default() };
+    let reason = match &sidecar.drive_fingerprint {
+        Some(fp) if *fp == drive.fingerprint() => return SidecarMatch { sidecar: Some(sidecar), note: None },
+        Some(_) => {
+            format!("it is the simulator sidecar of another drive: the samples of {} differ", drive_csv.display())
+        }
+        None => {
+            "it records no drive fingerprint, so it cannot be matched to the drive; simulate again to get one".into()
+        }
+    };
+    let note = format!("{} is not the truth of this drive ({reason}); it is ignored", path.display());
+    SidecarMatch { sidecar: None, note: Some(note) }
 }
 
 #[cfg(test)]
@@ -91,22 +60,24 @@ mod tests {
         let (a, b) = (simulate(&o(1)).expect("sim"), simulate(&o(2)).expect("sim"));
         let csv = dir.path().join("drive.csv");
         a.drive.write_csv(&csv).expect("csv");
-        assert_eq!(sidecar_for(&csv, &a.drive), SidecarMatch::None);
+        assert_eq!(sidecar_for(&csv, &a.drive), SidecarMatch::default());
         a.sidecar.write_json(&sidecar_path(&csv)).expect("json");
         let read = Drive::read_csv(&csv).expect("read").0;
-        assert_eq!(sidecar_for(&csv, &read).bound(), Some(a.sidecar.clone()));
+        assert_eq!(sidecar_for(&csv, &read).sidecar, Some(a.sidecar.clone()));
+        assert_eq!(sidecar_file(&csv), Some(sidecar_path(&csv)));
         // Another drive written over the CSV: the sidecar is not its truth.
         b.drive.write_csv(&csv).expect("csv");
         let other = sidecar_for(&csv, &Drive::read_csv(&csv).expect("read").0);
-        assert!(other.note().is_some_and(|n| n.contains("another drive")), "{other:?}");
+        assert!(other.note.as_ref().is_some_and(|n| n.contains("another drive")), "{other:?}");
         // A sidecar without a fingerprint is not bound either.
         let mut old = a.sidecar.clone();
         old.drive_fingerprint = None;
         old.write_json(&sidecar_path(&csv)).expect("json");
         let m = sidecar_for(&csv, &read);
-        assert!(m.note().is_some_and(|n| n.contains("no drive fingerprint")), "{m:?}");
+        assert!(m.note.as_ref().is_some_and(|n| n.contains("no drive fingerprint")), "{m:?}");
         // A JSON file that is not a sidecar is no sidecar.
         std::fs::write(sidecar_path(&csv), "{\"method\": \"eiv\"}\n").expect("write");
-        assert_eq!(sidecar_for(&csv, &read), SidecarMatch::None);
+        assert_eq!(sidecar_for(&csv, &read), SidecarMatch::default());
+        assert_eq!(sidecar_file(&csv), None);
     }
 }

@@ -85,6 +85,6 @@ pub fn replay_stream(stream: &DriveStream) -> usize {
     let mut pushed = 0;
     cal.push_stream(stream, 400, |n| pushed = n).expect("push");
     assert_eq!(pushed, stream.len());
-    assert!(cal.drive_summary().folded_segments > 0);
+    assert!(cal.status().drive.folded_segments > 0);
     pushed
 }

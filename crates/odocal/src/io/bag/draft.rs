@@ -31,11 +31,7 @@ fn quoted(s: &str) -> String {
 /// most messages among those of that type.
 fn pick<'a>(topics: &'a [TopicInfo], types: &[MessageType]) -> Option<(&'a TopicInfo, MessageType)> {
     types.iter().find_map(|ty| {
-        topics
-            .iter()
-            .filter(|t| t.supported_type() == Some(*ty) && t.count > 0)
-            .max_by_key(|t| t.count)
-            .map(|t| (t, *ty))
+        topics.iter().filter(|t| t.supported_type == Some(*ty) && t.count > 0).max_by_key(|t| t.count).map(|t| (t, *ty))
     })
 }
 

@@ -294,6 +294,9 @@ pub struct TopicInfo {
     pub first_log_time_ns: Option<u64>,
     /// Last log time (ns since the epoch).
     pub last_log_time_ns: Option<u64>,
+    /// The type as odocal reads it, `None` when [`read_topic`] cannot read
+    /// it (another type, or an encoding other than `cdr`).
+    pub supported_type: Option<MessageType>,
 }
 
 impl TopicInfo {
@@ -302,14 +305,6 @@ impl TopicInfo {
     pub(crate) fn rate_hz(&self) -> Option<f64> {
         let (a, b) = (self.first_log_time_ns?, self.last_log_time_ns?);
         (self.count >= 2 && b > a).then(|| (self.count - 1) as f64 / ns_to_s(i128::from(b) - i128::from(a)))
-    }
-
-    /// The type as odocal reads it, `None` when [`read_topic`] cannot read it.
-    pub fn supported_type(&self) -> Option<MessageType> {
-        if self.message_encoding != "cdr" {
-            return None;
-        }
-        MessageType::from_ros_name(&self.message_type)
     }
 }
 
@@ -335,6 +330,7 @@ pub fn inspect(path: &Path) -> Result<BagInfo> {
         count: 0,
         first_log_time_ns: None,
         last_log_time_ns: None,
+        supported_type: if k.2 == "cdr" { MessageType::from_ros_name(&k.1) } else { None },
     };
     if let Some(s) = &summary {
         for c in s.channels.values() {
@@ -402,7 +398,7 @@ impl fmt::Display for BagInfo {
         for (i, t) in self.topics.iter().enumerate() {
             let lead = if i == 0 { "Topic information: " } else { "                   " };
             let rate = t.rate_hz().map_or("-".to_string(), |r| format!("{r:.2} Hz"));
-            let note = if t.supported_type().is_some() { "" } else { " (odocal cannot read this type)" };
+            let note = if t.supported_type.is_some() { "" } else { " (odocal cannot read this type)" };
             writeln!(
                 f,
                 "{lead}Topic: {:<w_topic$} | Type: {:<w_type$} | Count: {:>w_count$} | Rate: {rate:>9} | Serialization Format: {}{note}",

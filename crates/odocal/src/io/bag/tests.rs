@@ -500,9 +500,9 @@ fn inspect_lists_topics_counts_rates_and_compression() {
         assert_eq!(joints.count, 50);
         assert_eq!((joints.first_log_time_ns, joints.last_log_time_ns), (Some(5_000), Some(490_005_000)));
         approx::assert_relative_eq!(joints.rate_hz().expect("rate"), 100.0, max_relative = 1e-12);
-        assert_eq!(joints.supported_type(), Some(MessageType::JointState));
+        assert_eq!(joints.supported_type, Some(MessageType::JointState));
         let chatter = info.topics.iter().find(|t| t.topic == "/chatter").expect("chatter");
-        assert_eq!((chatter.supported_type(), chatter.rate_hz()), (None, None));
+        assert_eq!((chatter.supported_type, chatter.rate_hz()), (None, None));
         let text = info.to_string();
         assert!(text.contains("Topic: /chatter      | Type: std_msgs/msg/String                         | Count:  1 | Rate:         - | Serialization Format: cdr (odocal cannot read this type)"), "{text}");
         assert!(text.contains(&format!("Compression:       {label} (")), "{text}");

@@ -90,7 +90,7 @@ use super::manifest::{LateralAccelerationSpec, Manifest, SourceSpec};
 use super::report::{ClockOffsetReport, ImportReport};
 use super::source::Stream;
 use super::{bank, clock, grid, pose, wheels};
-use crate::drive::Signals;
+use crate::drive::{Signals, StreamChunk};
 use crate::error::{Error, Result};
 use condition::Conditioner;
 use engine::Engine;
@@ -114,23 +114,6 @@ impl Default for StreamOptions {
     fn default() -> StreamOptions {
         StreamOptions { warm_up_s: StreamOptions::DEFAULT_WARM_UP_S }
     }
-}
-
-/// Canonical samples of a streamed import, all of one part.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ImportChunk {
-    /// The kept part they belong to (0, 1, …).
-    pub part: usize,
-    /// The index of the first of them among the drive's samples.
-    pub start: usize,
-    /// True when the first of them starts its part.
-    pub starts_part: bool,
-    /// Drive time, s (0 at the drive's origin, as [`import`](super::import)'s).
-    pub t: Vec<f64>,
-    /// The signals, the heading unwrapped over the drive.
-    pub signals: Signals,
-    /// Whether the reference was measured at each sample ([`crate::Drive::reference_measured`]).
-    pub reference_measured: Vec<bool>,
 }
 
 /// Why a manifest cannot be imported as a stream (`None` when it can).
@@ -324,7 +307,7 @@ impl RawStream {
 
     /// Up to `max` (at least 1) canonical samples of one part that are
     /// ready, oldest first; `None` when none is.
-    pub fn take_chunk(&mut self, max: usize) -> Option<ImportChunk> {
+    pub fn take_chunk(&mut self, max: usize) -> Option<StreamChunk> {
         let asm = self.engine.as_mut()?.asm.as_mut()?;
         let part = asm.out.front()?.part;
         let n = asm.out.iter().take(max.max(1)).take_while(|s| s.part == part).count();
@@ -339,7 +322,7 @@ impl RawStream {
         self.last_part = Some(part);
         let start = self.taken;
         self.taken += n;
-        Some(ImportChunk { part, start, starts_part, t, signals, reference_measured: measured })
+        Some(StreamChunk { part, start, starts_part, t, signals, reference_measured: Some(measured) })
     }
 
     /// Samples ready of the oldest part with samples ready, and whether

@@ -5,7 +5,8 @@
 use std::io::BufRead;
 use std::path::PathBuf;
 
-use super::{ImportChunk, RawStream, StreamOptions};
+use super::{RawStream, StreamOptions};
+use crate::drive::StreamChunk;
 use crate::error::{Error, Result};
 use crate::io::import::limits::echo;
 use crate::io::import::manifest::{Manifest, SourceSpec};
@@ -146,7 +147,7 @@ impl ManifestStream {
     ///
     /// # Errors
     /// The whole import's errors about the rows and the drive.
-    pub fn next_chunk(&mut self, max: usize) -> Result<Option<ImportChunk>> {
+    pub fn next_chunk(&mut self, max: usize) -> Result<Option<StreamChunk>> {
         let max = max.max(1);
         loop {
             let (n, closed) = self.raw.front_part();

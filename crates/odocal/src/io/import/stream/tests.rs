@@ -24,7 +24,7 @@ fn streamed(m: &Manifest, opts: StreamOptions, chunk: usize) -> (Drive, ImportRe
             parts.push(s0..s0);
         }
         t.extend(&c.t);
-        mask.extend(&c.reference_measured);
+        mask.extend(c.reference_measured.expect("an import chunk carries the mask"));
         for k in 0..c.t.len() {
             let g = &c.signals;
             sig.push([g.px[k], g.py[k], g.psi[k], g.n_rl[k], g.n_rr[k], g.beta[k], g.a_y[k]]);
