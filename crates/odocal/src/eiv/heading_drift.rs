@@ -133,8 +133,12 @@ pub(super) fn test<'a>(
     let m0 = tied.cost;
     let g = (m[1] - m[0]) / (2.0 * h);
     let c = (m[1] - 2.0 * m0 + m[0]) / (h * h);
-    let newton = if c > 0.0 { g * g / c } else { 0.0 };
-    let score_statistic = newton.max(2.0 * (m0 - m[0].min(m[1]))).max(0.0);
+    let two_sided = opts.research.heading_drift_two_sided;
+    // One-sided: only a heading drift smaller than the tie grants (r < 0,
+    // so g > 0) counts as evidence against the tie.
+    let newton = if c > 0.0 && (two_sided || g > 0.0) { g * g / c } else { 0.0 };
+    let lowest = if two_sided { m[0].min(m[1]) } else { m[0] };
+    let score_statistic = newton.max(2.0 * (m0 - lowest)).max(0.0);
     let mut out = HeadingDriftTest {
         score_statistic,
         likelihood_ratio: None,
@@ -146,7 +150,8 @@ pub(super) fn test<'a>(
     if !(score_statistic >= opts.research.heading_drift_score_gate) {
         return Ok((out, None));
     }
-    let r_max = MAX_RATIO.min(opts.eta_bounds[1] - tied.eta[NoiseSource::PoseDrift.index()]).max(0.0);
+    let upper = if two_sided { MAX_RATIO } else { 0.0 };
+    let r_max = upper.min(opts.eta_bounds[1] - tied.eta[NoiseSource::PoseDrift.index()]).max(0.0);
     let r_min = -MAX_RATIO;
     let first = if c > 0.0 { -g / c } else { -2.0 * g.signum() };
     let mut tried: Vec<(f64, f64)> = vec![(0.0, m0)];

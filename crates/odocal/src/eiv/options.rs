@@ -284,6 +284,11 @@ macro_rules! research_options {
             /// The likelihood ratio above which the separate heading-drift
             /// scale is the result. Default 10.83 (the χ²₁ quantile at 0.1 %).
             $vis heading_drift_lr_threshold: f64,
+            /// Release the heading drift in both directions; by default only
+            /// towards a heading drift smaller than the tie grants (see
+            /// [`HeadingDriftTest`](crate::eiv::HeadingDriftTest) for why).
+            /// Default false.
+            $vis heading_drift_two_sided: bool,
         }
     };
 }
@@ -309,6 +314,7 @@ impl Default for ResearchOptions {
             heading_drift_test: true,
             heading_drift_score_gate: super::HEADING_DRIFT_SCORE_GATE,
             heading_drift_lr_threshold: super::HEADING_DRIFT_LR_THRESHOLD,
+            heading_drift_two_sided: false,
         }
     }
 }
