@@ -71,12 +71,12 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         None => (&tied_prob, tied_opts),
     };
     let (ev, free, theta) = (&fit.ev, fit.free, fit.theta);
-    let unc = uncertainty(&prob, &fit, opts)?;
+    let unc = uncertainty(prob, &fit, opts)?;
     let observability = observability_of(&ev.total.h_theta, &free, fit.unobservable.clone(), opts);
     let follows = opts.research.covariance == CovarianceMode::FollowsTheta;
     let first_order_bias = if follows { first_order_bias(&ev.total, &free) } else { None };
     let mut warnings = fit_warnings(&fit, opts);
-    let diags = window_diagnostics(&prob, &fit, opts, &mut warnings)?;
+    let diags = window_diagnostics(prob, &fit, opts, &mut warnings)?;
     let halves = halves_check(ev, &theta, &free, follows, opts.research.covariance_estimate);
     if let Some(h) = &halves {
         for i in 0..4 {

@@ -147,7 +147,7 @@ pub(super) fn test<'a>(
         eta: tied.eta[NoiseSource::PoseDrift.index()],
         evaluations: evaluations.get(),
     };
-    if !(score_statistic >= opts.research.heading_drift_score_gate) {
+    if score_statistic < opts.research.heading_drift_score_gate {
         return Ok((out, None));
     }
     let upper = if two_sided { MAX_RATIO } else { 0.0 };
@@ -172,7 +172,7 @@ pub(super) fn test<'a>(
         let Ok(pass) = pass else { break };
         let cost = pass.eval.total.merit();
         tried.push((r, cost));
-        if best.as_ref().map_or(true, |(_, c, _)| cost < *c) {
+        if best.as_ref().is_none_or(|(_, c, _)| cost < *c) {
             best = Some((r, cost, SeparateFit { opts: o, prob: p, pass }));
         }
         r = next_ratio(&tried, g).clamp(r_min, r_max);
