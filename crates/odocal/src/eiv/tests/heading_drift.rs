@@ -34,7 +34,7 @@ fn a_tie_that_holds_keeps_the_tied_fit_to_the_bit() {
     assert!(!h.separate && h.score_statistic < HEADING_DRIFT_SCORE_GATE, "{h:?}");
     assert_eq!(h.likelihood_ratio, None);
     assert_eq!(h.evaluations, [0, 2], "two objective-only passes");
-    assert_eq!(h.eta, default.eta[NoiseSource::PoseDrift.index()]);
+    assert_eq!(h.eta.to_bits(), default.eta[NoiseSource::PoseDrift.index()].to_bits());
     assert!(tied.heading_drift.is_none());
     assert_eq!(EivReport { heading_drift: None, timing_s: 0.0, ..default }, EivReport { timing_s: 0.0, ..tied });
 }
@@ -61,7 +61,7 @@ fn a_heading_that_drifts_less_than_the_position_is_tested_and_fitted_separately(
         let expected = EivOptions::default().noise.heading_drift_sigma_rad * (0.5 * h.eta).exp();
         assert!((default.noise.heading_drift_sigma_rad / expected - 1.0).abs() < 1e-12);
     } else {
-        assert_eq!(h.eta, default.eta[NoiseSource::PoseDrift.index()]);
+        assert_eq!(h.eta.to_bits(), default.eta[NoiseSource::PoseDrift.index()].to_bits());
         assert_eq!(EivReport { heading_drift: None, timing_s: 0.0, ..default }, EivReport { timing_s: 0.0, ..tied });
     }
 }
