@@ -21,7 +21,17 @@ use odocal::settings::{Caller, ManifestSettings, Settings};
 use odocal::{Calibration, CalibrationOptions, CalibrationReport, Drive, Holdout, ValidationDrive};
 use odocal_lab::{repo_path, testtrack_manifest, Args, Res, Table, TESTTRACK_RUNS, VAN_MANIFEST};
 
-const USAGE: &str = "crossrun_heading [--skip-van]";
+const USAGE: &str = "crossrun_heading [--skip-van] [--heading-drift-lr T]";
+
+/// The default's heading-drift likelihood-ratio threshold (`--heading-drift-lr`; None: the default).
+static HEADING_DRIFT_LR: std::sync::OnceLock<Option<f64>> = std::sync::OnceLock::new();
+
+/// The heading-drift test of `r`'s EIV fit on stderr.
+fn note_heading_drift(name: &str, r: &CalibrationReport) {
+    if let Some(e) = odocal_lab::report_json::eiv_part(r).and_then(|p| p.eiv) {
+        eprintln!("{name}: heading drift {:?}", e.heading_drift);
+    }
+}
 
 fn main() {
     odocal_lab::main_with(run)
@@ -32,7 +42,10 @@ fn load_with_options(rel: &str) -> Res<(Drive, CalibrationOptions)> {
     let path = repo_path(rel);
     let (drive, report) = odocal::load_drive(&path).map_err(|e| format!("{}: {e}", path.display()))?;
     let manifest = report.as_ref().map(ManifestSettings::of_report).transpose()?;
-    let options = Settings::default().resolve(manifest.as_ref(), Caller::CommandLine)?.options;
+    let mut options = Settings::default().resolve(manifest.as_ref(), Caller::CommandLine)?.options;
+    if let (Some(t), odocal::Method::Eiv(e)) = (HEADING_DRIFT_LR.get().copied().flatten(), &mut options.method) {
+        e.filter.research.heading_drift_lr_threshold = t;
+    }
     Ok((drive, options))
 }
 
@@ -54,6 +67,7 @@ fn testtrack() -> Res<()> {
     for (name, _) in TESTTRACK_RUNS {
         let (drive, opts) = load_with_options(&testtrack_manifest(name))?;
         let r = Calibration::new(&drive, &opts).run()?;
+        note_heading_drift(name, &r);
         runs.push((name, drive, opts, r));
     }
     let mut t = Table::new(&[
@@ -126,6 +140,7 @@ fn van() -> Res<()> {
     {
         let (fit, held) = h.split(&drive)?;
         let r = Calibration::new(&fit, &opts).run()?;
+        note_heading_drift("van half", &r);
         let own = Calibration::new(&held, &opts).run()?.validation.mean_position_error_m;
         let carried = judge(&r, &held, true)?.0;
         let (reest, initial, _) = judge(&r, &held, false)?;
@@ -144,8 +159,9 @@ fn van() -> Res<()> {
 }
 
 fn run() -> Res<()> {
-    let a = Args::parse(USAGE, &["skip-van"])?;
+    let mut a = Args::parse(USAGE, &["skip-van"])?;
     let skip_van = a.flag("skip-van");
+    let _ = HEADING_DRIFT_LR.set(a.opt("heading-drift-lr")?);
     a.finish()?;
     testtrack()?;
     if !skip_van {

@@ -55,7 +55,7 @@ use odocal_lab::{coverage, error_scale, errors, median, Args, Res, Summary, Tabl
 use rayon::prelude::*;
 
 const USAGE: &str = "random_worlds [--worlds 100] [--length-km 12] [--seed 1] [--methods eiv,batch-gn,three-step]
-    [--out DIR] [--threads N]
+    [--out DIR] [--threads N] [--heading-drift-gate G] [--heading-drift-lr T]
 
 World i has world seed S + i (drive seed too); every method runs through odocal::calibrate.";
 
@@ -68,6 +68,8 @@ struct Settings {
     seed: u64,
     methods: Vec<String>,
     out: Option<PathBuf>,
+    /// The default's heading-drift score gate and likelihood-ratio threshold (None: the defaults).
+    heading_drift: (Option<f64>, Option<f64>),
 }
 
 fn settings() -> Res<(Settings, Option<usize>)> {
@@ -78,6 +80,7 @@ fn settings() -> Res<(Settings, Option<usize>)> {
         seed: a.get("seed", 1)?,
         methods: a.list("methods", &METHODS),
         out: a.opt("out")?,
+        heading_drift: (a.opt("heading-drift-gate")?, a.opt("heading-drift-lr")?),
     };
     let threads = a.opt("threads")?;
     a.finish()?;
@@ -88,8 +91,13 @@ fn settings() -> Res<(Settings, Option<usize>)> {
 }
 
 /// The options a user's `calibrate` runs with for `method`.
-fn options(method: &str) -> Res<CalibrationOptions> {
+fn options(method: &str, heading_drift: (Option<f64>, Option<f64>)) -> Res<CalibrationOptions> {
     let mut o = CalibrationOptions { method: Method::from_name(method)?, ..Default::default() };
+    if let Method::Eiv(e) = &mut o.method {
+        let r = &mut e.filter.research;
+        r.heading_drift_score_gate = heading_drift.0.unwrap_or(r.heading_drift_score_gate);
+        r.heading_drift_lr_threshold = heading_drift.1.unwrap_or(r.heading_drift_lr_threshold);
+    }
     if method != "eiv" {
         // `--estimate heading-offset`; the default method estimates δ by itself.
         o.identify.free = o.identify.free.with(Param::HeadingOffset);
@@ -153,8 +161,8 @@ impl HeldOut {
     }
 }
 
-fn run_method(method: &str, drive: &Drive, held: &HeldOut) -> Res<Run> {
-    let opts = options(method)?;
+fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<Run> {
+    let opts = options(method, a.heading_drift)?;
     let t = Instant::now();
     let r: CalibrationReport = calibrate(drive, &opts)?;
     let time_s = t.elapsed().as_secs_f64();
@@ -163,7 +171,12 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut) -> Res<Run> {
     let fallback = eiv.as_ref().map(EivPart::fell_back);
     let eiv_own = match &eiv {
         Some(d) => d.eiv.as_ref().map(|e| {
-            let kinds: Vec<String> = e.warnings.iter().map(finding_kind).collect();
+            let mut kinds: Vec<String> = e.warnings.iter().map(finding_kind).collect();
+            if let Some(h) = &e.heading_drift {
+                // hd:score:LR:r:separate (LR empty where the gate kept the tie).
+                let lr = h.likelihood_ratio.map_or(String::new(), |x| format!("{x:.2}"));
+                kinds.push(format!("hd:{:.2}:{lr}:{:.2}:{}", h.score_statistic, h.log_ratio, h.separate));
+            }
             (e.theta, e.sigma, kinds.join(";"), e.eta)
         }),
         _ => None,
@@ -234,7 +247,7 @@ fn study_world(index: u64, a: &Settings) -> Res<World> {
     } else {
         None
     };
-    let runs = a.methods.iter().map(|m| run_method(m, drive, &held).map_err(|e| e.to_string())).collect();
+    let runs = a.methods.iter().map(|m| run_method(m, drive, &held, a).map_err(|e| e.to_string())).collect();
     Ok(World { index, seed, noise, summary, truth, delta: true_ext.heading_offset, crb, e_p_held_true_m, runs })
 }
 

@@ -770,6 +770,9 @@ impl EivDetail {
                     let _ = writeln!(out, "  known (held at the start): {}", names.join(", "));
                 }
                 let _ = writeln!(out, "  noise, {}: {}", if fixed { "fixed    " } else { "estimated" }, e.noise);
+                if let Some(h) = &e.heading_drift {
+                    let _ = writeln!(out, "  heading drift: {}", heading_drift_line(h));
+                }
                 if e.sigma_noise_estimate.iter().any(|x| *x > 0.0) {
                     // σ with the η term over σ without it, per estimated parameter.
                     let names = ["c_e", "c_d", "t_r", "d"];
@@ -859,6 +862,21 @@ fn theta_in_units(a: &[f64; 4], signed: bool) -> String {
         })
         .collect();
     parts.join(", ")
+}
+
+/// The heading-drift test in one line of the method details.
+fn heading_drift_line(h: &crate::eiv::HeadingDriftTest) -> String {
+    match (h.separate, h.likelihood_ratio) {
+        (true, Some(lr)) => format!(
+            "own scale η_6 = {:.2} (e^{:+.2} × the position drift's; likelihood ratio {lr:.1}, score {:.1})",
+            h.eta, h.log_ratio, h.score_statistic
+        ),
+        (_, Some(lr)) => format!(
+            "tied to the position drift (score {:.1}; separate fit's likelihood ratio {lr:.1} not significant)",
+            h.score_statistic
+        ),
+        (_, None) => format!("tied to the position drift (score {:.1})", h.score_statistic),
+    }
 }
 
 #[cfg(test)]

@@ -7,6 +7,7 @@ use nalgebra::Matrix4;
 
 use super::covariance::{eta_on_theta, fisher_covariance, inflate_to_block, noise_estimate_covariance};
 use super::filter::{self, Mode, WindowSums, NETA};
+use super::heading_drift::{self, HeadingDriftTest, SeparateFit, TiedFit};
 use super::input::make_windows;
 use super::problem::{free_inverse, free_sigma, theta_add, to_array, Evaluation, Problem};
 use super::scoring::scoring_pass;
@@ -61,16 +62,21 @@ pub fn kernel_instruction_set() -> &'static str {
 pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) -> Result<EivReport> {
     let t0 = Instant::now();
     let (windows, opts, q_found) = prepare(input, theta_start, opts)?;
-    let opts = &*opts;
-    let prob = Problem::new(input, windows, opts);
-    let fit = run_passes(&prob, theta_start, opts)?;
+    let tied_opts = &*opts;
+    let tied_prob = Problem::new(input, windows, tied_opts);
+    let fit = run_passes(&tied_prob, theta_start, tied_opts)?;
+    let (fit, heading_drift, separate) = heading_drift_test(&tied_prob, fit, tied_opts)?;
+    let (prob, opts) = match &separate {
+        Some(s) => (&s.prob, &s.opts),
+        None => (&tied_prob, tied_opts),
+    };
     let (ev, free, theta) = (&fit.ev, fit.free, fit.theta);
-    let unc = uncertainty(&prob, &fit, opts)?;
+    let unc = uncertainty(prob, &fit, opts)?;
     let observability = observability_of(&ev.total.h_theta, &free, fit.unobservable.clone(), opts);
     let follows = opts.research.covariance == CovarianceMode::FollowsTheta;
     let first_order_bias = if follows { first_order_bias(&ev.total, &free) } else { None };
     let mut warnings = fit_warnings(&fit, opts);
-    let diags = window_diagnostics(&prob, &fit, opts, &mut warnings)?;
+    let diags = window_diagnostics(prob, &fit, opts, &mut warnings)?;
     let halves = halves_check(ev, &theta, &free, follows, opts.research.covariance_estimate);
     if let Some(h) = &halves {
         for i in 0..4 {
@@ -109,7 +115,8 @@ pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) ->
         eta_theta_sensitivity: eta_on_theta(&ev.total.info, &free, &unc.eta_free),
         eta,
         eta_sigma,
-        evaluations: prob.evaluations.get(),
+        evaluations: evaluations_of(&tied_prob, separate.as_ref()),
+        heading_drift,
         noise: reported_noise(opts, &eta),
         final_cost: ev.total.merit(),
         iterations,
@@ -244,6 +251,60 @@ fn run_passes(prob: &Problem<'_>, theta_start: &Theta, opts: &EivOptions) -> Res
         return Err(Error::Numerical("no EIV pass ran".into()));
     };
     Ok(Fit { theta, eta, eta_sigma, free, unobservable, passes, ev })
+}
+
+/// The heading-drift test after the tied fit ([`super::heading_drift`]):
+/// the fit that is the result (the tied one, or the separate one with its
+/// pass appended), the test and the separate fit's problem and options
+/// when it is the result.
+fn heading_drift_test<'a>(
+    prob: &Problem<'a>,
+    fit: Fit,
+    opts: &EivOptions,
+) -> Result<(Fit, Option<HeadingDriftTest>, Option<Separate<'a>>)> {
+    if !heading_drift::applies(opts) {
+        return Ok((fit, None, None));
+    }
+    let tied = TiedFit {
+        theta: fit.theta,
+        eta: fit.eta,
+        theta_reference: fit.theta_reference(),
+        free: fit.free,
+        cost: fit.ev.total.merit(),
+    };
+    let (test, separate) = heading_drift::test(prob, &tied, opts)?;
+    let Some(SeparateFit { opts: sep_opts, prob: sep_prob, pass }) = separate else {
+        return Ok((fit, Some(test), None));
+    };
+    let mut passes = fit.passes;
+    passes.push(pass.report);
+    let sep = Fit {
+        theta: pass.theta,
+        eta: pass.eta,
+        eta_sigma: pass.eta_sigma,
+        free: fit.free,
+        unobservable: fit.unobservable,
+        passes,
+        ev: pass.eval,
+    };
+    Ok((sep, Some(test), Some(Separate { opts: sep_opts, prob: sep_prob })))
+}
+
+/// The separate heading-drift model's options and problem when its fit is the result.
+struct Separate<'a> {
+    opts: EivOptions,
+    prob: Problem<'a>,
+}
+
+/// The filter passes of the fit: the tied fit's, and the separate fit's
+/// continuation when it is the result (its other passes are the test's).
+fn evaluations_of(tied: &Problem<'_>, separate: Option<&Separate<'_>>) -> [usize; 2] {
+    let mut e = tied.evaluations.get();
+    if let Some(s) = separate {
+        let more = s.prob.evaluations.get();
+        e = [e[0] + more[0], e[1] + more[1]];
+    }
+    e
 }
 
 /// θ's uncertainty at the estimate.

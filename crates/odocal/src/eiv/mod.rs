@@ -216,6 +216,7 @@ mod covariance;
 mod crb;
 pub mod estimate;
 pub(crate) mod filter;
+mod heading_drift;
 mod input;
 mod lattice;
 mod modelling;
@@ -231,6 +232,7 @@ pub(crate) mod tests;
 pub(crate) use bias_correction::first_order_bias;
 #[cfg(test)]
 pub(crate) use bootstrap::{FAIL_EVERY_REPLICATE_SEED, FAIL_ONE_REPLICATE_SEED};
+pub(crate) use heading_drift::{HEADING_DRIFT_LR_THRESHOLD, HEADING_DRIFT_SCORE_GATE};
 pub(crate) use modelling::BIAS_BOOTSTRAP_SMOOTHING_SAMPLES;
 pub(crate) use noise::NOISE_SOURCES;
 pub(crate) use report::PARAMETERS;
@@ -239,6 +241,7 @@ pub use {
     bootstrap::{bootstrap, BootstrapInputs, BootstrapOptions, BootstrapRefit, BootstrapReport},
     crb::cramer_rao_bound,
     estimate::{estimate, kernel_instruction_set},
+    heading_drift::HeadingDriftTest,
     input::{EivInput, Window},
     lattice::quantisation_step_of_readings,
     modelling::{BiasCorrection, FirstOrderBias, HeadingScale, LateralNoise, QuantisationLevel, QuantisationModel},

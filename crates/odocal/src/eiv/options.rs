@@ -273,6 +273,22 @@ macro_rules! research_options {
             /// changes nothing. `eiv_white_bias` in crates/odocal-lab
             /// measures it.
             $vis position_floor_m: f64,
+            /// Test the tie of the heading drift to the pose-drift scale η_4
+            /// after the fit, and fit the heading drift on a scale of its own
+            /// where the test rejects the tie
+            /// ([`HeadingDriftTest`](crate::eiv::HeadingDriftTest)). Default true.
+            $vis heading_drift_test: bool,
+            /// The score statistic from which the separate heading-drift
+            /// scale is fitted. Default 3.84 (the χ²₁ quantile at 5 %).
+            $vis heading_drift_score_gate: f64,
+            /// The likelihood ratio above which the separate heading-drift
+            /// scale is the result. Default 10.83 (the χ²₁ quantile at 0.1 %).
+            $vis heading_drift_lr_threshold: f64,
+            /// Release the heading drift in both directions; by default only
+            /// towards a heading drift smaller than the tie grants (see
+            /// [`HeadingDriftTest`](crate::eiv::HeadingDriftTest) for why).
+            /// Default false.
+            $vis heading_drift_two_sided: bool,
         }
     };
 }
@@ -295,6 +311,10 @@ impl Default for ResearchOptions {
             wheel_noise_scale: WheelNoiseScale::SmoothedFittedInput { half_width_samples: 20 },
             input_jacobian: InputJacobian::FilterShare,
             position_floor_m: DEFAULT_POSITION_FLOOR_M,
+            heading_drift_test: true,
+            heading_drift_score_gate: super::HEADING_DRIFT_SCORE_GATE,
+            heading_drift_lr_threshold: super::HEADING_DRIFT_LR_THRESHOLD,
+            heading_drift_two_sided: false,
         }
     }
 }

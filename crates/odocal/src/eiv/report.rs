@@ -2,7 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{FirstOrderBias, NoiseModel, NoiseSource, Window};
+use super::{FirstOrderBias, HeadingDriftTest, NoiseModel, NoiseSource, Window};
 use crate::model::Theta;
 
 /// One of the four calibrated parameters.
@@ -357,6 +357,12 @@ pub struct EivReport {
     pub eta_sigma: [f64; 6],
     /// Filter passes over the drive: `[with derivatives, objective only]`.
     pub evaluations: [usize; 2],
+    /// The test of the heading drift's tie to the pose-drift scale η_4, and
+    /// whether the result fitted the heading drift on a scale of its own
+    /// (η_6; [`EivReport::noise`] then carries its σ). None where η is not
+    /// estimated or the pose drift is held.
+    #[serde(default)]
+    pub heading_drift: Option<HeadingDriftTest>,
     /// The estimated noise model in physical units.
     pub noise: NoiseModel,
     /// Objective M at the start and the end of the last pass.

@@ -6,6 +6,7 @@ mod crb;
 mod derivatives;
 mod diagnostics;
 mod fingerprints;
+mod heading_drift;
 mod noise_estimation;
 mod scoring;
 mod support;

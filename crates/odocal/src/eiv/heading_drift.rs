@@ -1,0 +1,215 @@
+//! The reference's heading drift on a scale of its own, released from the
+//! pose-drift scale η_4 only where the data say the tie is wrong.
+//!
+//! The filter's pose-drift scale η_4 scales the position drift and the
+//! heading drift together. A reference whose position drifts far more
+//! than its heading (or the reverse) fits η_4 to the position and grants
+//! the heading a drift it does not have, which biases t_r. The separate
+//! model has a seventh scale η_6 for the heading drift; η_6 = η_4 is the
+//! tied model, so the separate model contains it. With `r = η_6 − η_4`,
+//! the separate model at `r` is the tied model with the heading drift's
+//! starting σ multiplied by `exp(r/2)`: the fit of the separate model is a
+//! one-dimensional search over `r` of tied fits.
+//!
+//! After the tied fit (θ̂, η̂, objective M_0), a score test evaluates the
+//! objective at `r = ±1` with θ̂ and η̂ held (two objective-only filter
+//! passes). Where its statistic stays below
+//! [`HEADING_DRIFT_SCORE_GATE`], the tied fit is the result, unchanged to
+//! the bit. Otherwise the separate model is fitted as a continuation from
+//! the tied optimum (each fit a scoring pass started at θ̂, η̂, with the
+//! covariance reference of the tied fit, so that every objective value is
+//! of the same function of (θ, η, r)) at up to [`MAX_SEPARATE_FITS`] values
+//! of `r`; the separate fit is the result when its likelihood ratio
+//! `2 (M_0 − M_r)` exceeds [`HEADING_DRIFT_LR_THRESHOLD`].
+
+use serde::{Deserialize, Serialize};
+
+use super::filter::Mode;
+use super::problem::Problem;
+use super::scoring::{scoring_pass, PassOutcome};
+use super::{CovarianceMode, EivOptions, NoiseSource};
+use crate::error::Result;
+use crate::model::Theta;
+
+/// The score statistic below which the tie is kept without fitting the
+/// separate model: the decrease of 2M that one Newton step in `r` would
+/// give with θ and η held (a lower bound of the likelihood ratio's
+/// quadratic approximation when η_4 is re-fitted too).
+pub(crate) const HEADING_DRIFT_SCORE_GATE: f64 = 3.84;
+
+/// The likelihood ratio `2 (M_tied − M_separate)` above which the separate
+/// heading-drift scale is the result: the χ²₁ quantile at 0.1 %.
+pub(crate) const HEADING_DRIFT_LR_THRESHOLD: f64 = 10.83;
+
+/// Fits of the separate model at most (values of `r` tried).
+const MAX_SEPARATE_FITS: usize = 3;
+
+/// The step in `r` of the score test's differences.
+const SCORE_STEP: f64 = 1.0;
+
+/// Largest |r| tried: the heading drift's variance within e^±6 of the tied one.
+const MAX_RATIO: f64 = 6.0;
+
+/// The test of the heading-drift scale against the pose-drift scale
+/// ([`EivReport::heading_drift`](crate::eiv::EivReport::heading_drift)).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct HeadingDriftTest {
+    /// The score test's statistic at the tied fit: twice the decrease of
+    /// the objective M that a Newton step in `r = η_6 − η_4` would give
+    /// with θ and η held (from M at `r = −1, 0, +1`).
+    pub score_statistic: f64,
+    /// `2 (M_tied − M_separate)` of the best separate fit (None where the
+    /// score statistic kept the tie without fitting it).
+    pub likelihood_ratio: Option<f64>,
+    /// `r = η_6 − η_4` of the best separate fit (0 where none was fitted).
+    pub log_ratio: f64,
+    /// The result uses the separate heading-drift scale.
+    pub separate: bool,
+    /// The heading-drift scale η_6 of the result (η_4 when tied).
+    pub eta: f64,
+    /// Filter passes of the test and the separate fits, `[with
+    /// derivatives, objective only]` (not in [`EivReport::evaluations`](crate::eiv::EivReport::evaluations)).
+    pub evaluations: [usize; 2],
+}
+
+/// What the tied fit ended with.
+pub(super) struct TiedFit {
+    pub(super) theta: Theta,
+    pub(super) eta: [f64; 6],
+    pub(super) theta_reference: Theta,
+    pub(super) free: [bool; 4],
+    pub(super) cost: f64,
+}
+
+/// The separate model's fit chosen as the result: its options (the noise
+/// model with the heading drift's σ scaled), problem and pass.
+pub(super) struct SeparateFit<'a> {
+    pub(super) opts: EivOptions,
+    pub(super) prob: Problem<'a>,
+    pub(super) pass: PassOutcome,
+}
+
+/// Whether the heading-drift test applies: η estimated, the pose drift
+/// free, the heading drift in the model.
+pub(super) fn applies(opts: &EivOptions) -> bool {
+    !opts.fix_noise
+        && !opts.eta_held[NoiseSource::PoseDrift.index()]
+        && opts.noise.heading_drift_sigma_rad > 0.0
+        && opts.research.heading_drift_test
+}
+
+/// `opts` with the heading drift's σ multiplied by `exp(r/2)`.
+fn options_at(opts: &EivOptions, r: f64) -> EivOptions {
+    let mut o = opts.clone();
+    o.noise.heading_drift_sigma_rad *= (0.5 * r).exp();
+    o
+}
+
+/// The problem of `prob` at ratio `r` (its own filter-pass counter).
+fn problem_at<'a>(prob: &Problem<'a>, opts: &EivOptions) -> Problem<'a> {
+    Problem::new(prob.input, prob.windows.clone(), opts)
+}
+
+/// Runs the test after the tied fit and, where the data ask for it, the
+/// separate fit. Returns the test and the separate fit when it is the result.
+pub(super) fn test<'a>(
+    prob: &Problem<'a>,
+    tied: &TiedFit,
+    opts: &EivOptions,
+) -> Result<(HeadingDriftTest, Option<SeparateFit<'a>>)> {
+    let follows = opts.research.covariance == CovarianceMode::FollowsTheta;
+    let evaluations = std::cell::Cell::new([0usize; 2]);
+    let count = |p: &Problem<'_>| {
+        let (e, sum) = (p.evaluations.get(), evaluations.get());
+        evaluations.set([sum[0] + e[0], sum[1] + e[1]]);
+    };
+    let h = SCORE_STEP;
+    let mut m = [0.0; 2];
+    for (k, r) in [-h, h].into_iter().enumerate() {
+        let p = problem_at(prob, &options_at(opts, r));
+        m[k] = p.evaluate(&tied.theta, &tied.theta_reference, &tied.eta, Mode::cost(follows))?.total.merit();
+        count(&p);
+    }
+    let m0 = tied.cost;
+    let g = (m[1] - m[0]) / (2.0 * h);
+    let c = (m[1] - 2.0 * m0 + m[0]) / (h * h);
+    let two_sided = opts.research.heading_drift_two_sided;
+    // One-sided: only a heading drift smaller than the tie grants (r < 0,
+    // so g > 0) counts as evidence against the tie.
+    let newton = if c > 0.0 && (two_sided || g > 0.0) { g * g / c } else { 0.0 };
+    let lowest = if two_sided { m[0].min(m[1]) } else { m[0] };
+    let score_statistic = newton.max(2.0 * (m0 - lowest)).max(0.0);
+    let mut out = HeadingDriftTest {
+        score_statistic,
+        likelihood_ratio: None,
+        log_ratio: 0.0,
+        separate: false,
+        eta: tied.eta[NoiseSource::PoseDrift.index()],
+        evaluations: evaluations.get(),
+    };
+    if score_statistic < opts.research.heading_drift_score_gate {
+        return Ok((out, None));
+    }
+    let upper = if two_sided { MAX_RATIO } else { 0.0 };
+    let r_max = upper.min(opts.eta_bounds[1] - tied.eta[NoiseSource::PoseDrift.index()]).max(0.0);
+    let r_min = -MAX_RATIO;
+    let first = if c > 0.0 { -g / c } else { -2.0 * g.signum() };
+    let mut tried: Vec<(f64, f64)> = vec![(0.0, m0)];
+    let mut best: Option<(f64, f64, SeparateFit<'a>)> = None;
+    let mut r = first.clamp(r_min, r_max);
+    for _ in 0..MAX_SEPARATE_FITS {
+        if tried.iter().any(|(x, _)| (x - r).abs() < 0.1) {
+            break;
+        }
+        let o = options_at(opts, r);
+        let p = problem_at(prob, &o);
+        let (theta0, eta0) = match &best {
+            Some((_, _, s)) => (s.pass.theta, s.pass.eta),
+            None => (tied.theta, tied.eta),
+        };
+        let pass = scoring_pass(&p, theta0, eta0, tied.theta_reference, tied.free, false, &o);
+        count(&p);
+        let Ok(pass) = pass else { break };
+        let cost = pass.eval.total.merit();
+        tried.push((r, cost));
+        if best.as_ref().is_none_or(|(_, c, _)| cost < *c) {
+            best = Some((r, cost, SeparateFit { opts: o, prob: p, pass }));
+        }
+        r = next_ratio(&tried, g).clamp(r_min, r_max);
+    }
+    out.evaluations = evaluations.get();
+    let Some((r, cost, fit)) = best else {
+        return Ok((out, None));
+    };
+    let lr = 2.0 * (m0 - cost);
+    out.likelihood_ratio = Some(lr);
+    out.log_ratio = r;
+    if lr > opts.research.heading_drift_lr_threshold && fit.pass.report.termination.converged() {
+        out.separate = true;
+        out.eta = fit.pass.eta[NoiseSource::PoseDrift.index()] + r;
+        return Ok((out, Some(fit)));
+    }
+    Ok((out, None))
+}
+
+/// The next `r` to fit: the vertex of the parabola through the three
+/// lowest points tried (with two, through both with the slope `g` at 0);
+/// where it opens downwards, twice the best point's `r`.
+fn next_ratio(tried: &[(f64, f64)], g: f64) -> f64 {
+    let mut pts: Vec<(f64, f64)> = tried.to_vec();
+    pts.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let (rb, _) = pts[0];
+    let curvature_vertex = if pts.len() >= 3 {
+        let [(x0, y0), (x1, y1), (x2, y2)] = [pts[0], pts[1], pts[2]];
+        let d = (x0 - x1) * (x0 - x2) * (x1 - x2);
+        let a = (x2 * (y1 - y0) + x1 * (y0 - y2) + x0 * (y2 - y1)) / d;
+        let b = (x2 * x2 * (y0 - y1) + x1 * x1 * (y2 - y0) + x0 * x0 * (y1 - y2)) / d;
+        (a > 0.0 && d.is_finite() && d != 0.0).then(|| -b / (2.0 * a))
+    } else {
+        // M(r) ≈ M_0 + g r + a r² through (r_1, M_1).
+        let (m0, (r1, m1)) = (tried[0].1, tried[1]);
+        let a = (m1 - m0 - g * r1) / (r1 * r1);
+        (a > 0.0).then(|| -g / (2.0 * a))
+    };
+    curvature_vertex.filter(|v| v.is_finite()).unwrap_or(2.0 * rb)
+}

@@ -1,0 +1,67 @@
+//! The heading drift's own scale η_6, released from the pose-drift scale
+//! only where the data reject the tie.
+
+use super::support::*;
+use crate::eiv::*;
+use crate::sim::{simulate, NoiseOptions, SimOptions};
+use crate::Theta;
+
+/// The options with the heading-drift test off (the tied model alone).
+fn tied_only() -> EivOptions {
+    let mut o = EivOptions::default();
+    o.research.heading_drift_test = false;
+    o
+}
+
+/// A fit on `noise` (the paper preset's drive otherwise), `km` long: the
+/// default and the tied model alone, and θ_true.
+fn fits(noise: NoiseOptions, km: f64, seed: u64) -> (EivReport, EivReport, Theta) {
+    let out = simulate(&SimOptions { length_km: km, noise, ..SimOptions::paper(seed) }).expect("sim");
+    let input = input_of(&out.drive);
+    let start = batch_gn_all(&out.drive);
+    let default = estimate(&input, &start, &EivOptions::default()).expect("eiv");
+    let tied = estimate(&input, &start, &tied_only()).expect("eiv");
+    (default, tied, out.sidecar.theta_true)
+}
+
+/// Where the reference's heading drifts as the tied model expects, the
+/// score test keeps the tie: the result is the tied fit's to the bit, and
+/// the test's filter passes are not counted in `evaluations`.
+#[test]
+fn a_tie_that_holds_keeps_the_tied_fit_to_the_bit() {
+    let (default, tied, _) = fits(NoiseOptions::paper(), 3.0, 5);
+    let h = default.heading_drift.clone().expect("the test ran");
+    assert!(!h.separate && h.score_statistic < HEADING_DRIFT_SCORE_GATE, "{h:?}");
+    assert_eq!(h.likelihood_ratio, None);
+    assert_eq!(h.evaluations, [0, 2], "two objective-only passes");
+    assert_eq!(h.eta.to_bits(), default.eta[NoiseSource::PoseDrift.index()].to_bits());
+    assert!(tied.heading_drift.is_none());
+    assert_eq!(EivReport { heading_drift: None, timing_s: 0.0, ..default }, EivReport { timing_s: 0.0, ..tied });
+}
+
+/// A reference whose position drifts by a metre but whose heading barely
+/// drifts: the score test rejects the tie (towards less heading drift) and
+/// the separate model is fitted; it is the result exactly when its
+/// likelihood ratio passes the threshold, and otherwise the tied fit is,
+/// to the bit. (Whether the release helps t_r is measured on random worlds,
+/// docs/validation.md.)
+#[test]
+fn a_heading_that_drifts_less_than_the_position_is_tested_and_fitted_separately() {
+    let noise = NoiseOptions { position_drift_sigma_m: 1.0, heading_drift_sigma_rad: 2e-4, ..NoiseOptions::paper() };
+    let (default, tied, _) = fits(noise, 6.0, 8);
+    let h = default.heading_drift.clone().expect("the test ran");
+    assert!(h.score_statistic >= HEADING_DRIFT_SCORE_GATE, "{h:?}");
+    let lr = h.likelihood_ratio.expect("the separate model was fitted");
+    assert!(h.log_ratio < 0.0, "one-sided: {h:?}");
+    assert!(h.evaluations[0] > 0, "{h:?}");
+    assert_eq!(h.separate, lr > HEADING_DRIFT_LR_THRESHOLD, "{h:?}");
+    if h.separate {
+        assert!((h.eta - default.eta[NoiseSource::PoseDrift.index()] - h.log_ratio).abs() < 1e-12);
+        assert!(default.final_cost < tied.final_cost - 0.5 * HEADING_DRIFT_LR_THRESHOLD);
+        let expected = EivOptions::default().noise.heading_drift_sigma_rad * (0.5 * h.eta).exp();
+        assert!((default.noise.heading_drift_sigma_rad / expected - 1.0).abs() < 1e-12);
+    } else {
+        assert_eq!(h.eta.to_bits(), default.eta[NoiseSource::PoseDrift.index()].to_bits());
+        assert_eq!(EivReport { heading_drift: None, timing_s: 0.0, ..default }, EivReport { timing_s: 0.0, ..tied });
+    }
+}
