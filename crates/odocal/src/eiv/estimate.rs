@@ -7,7 +7,7 @@ use nalgebra::Matrix4;
 
 use super::covariance::{eta_on_theta, fisher_covariance, inflate_to_block, noise_estimate_covariance};
 use super::filter::{self, Mode, WindowSums, NETA};
-use super::heading_drift::{self, HeadingDriftTest, SeparateFit, TiedFit};
+use super::heading_drift::{self, HeadingDriftTest, SeparateFit, SeparateModel, TiedFit};
 use super::input::make_windows;
 use super::problem::{free_inverse, free_sigma, theta_add, to_array, Evaluation, Problem};
 use super::scoring::scoring_pass;
@@ -261,7 +261,7 @@ fn heading_drift_test<'a>(
     prob: &Problem<'a>,
     fit: Fit,
     opts: &EivOptions,
-) -> Result<(Fit, Option<HeadingDriftTest>, Option<Separate<'a>>)> {
+) -> Result<(Fit, Option<HeadingDriftTest>, Option<SeparateModel<'a>>)> {
     if !heading_drift::applies(opts) {
         return Ok((fit, None, None));
     }
@@ -273,7 +273,7 @@ fn heading_drift_test<'a>(
         cost: fit.ev.total.merit(),
     };
     let (test, separate) = heading_drift::test(prob, &tied, opts)?;
-    let Some(SeparateFit { opts: sep_opts, prob: sep_prob, pass }) = separate else {
+    let Some(SeparateFit { model, pass }) = separate else {
         return Ok((fit, Some(test), None));
     };
     let mut passes = fit.passes;
@@ -287,18 +287,12 @@ fn heading_drift_test<'a>(
         passes,
         ev: pass.eval,
     };
-    Ok((sep, Some(test), Some(Separate { opts: sep_opts, prob: sep_prob })))
-}
-
-/// The separate heading-drift model's options and problem when its fit is the result.
-struct Separate<'a> {
-    opts: EivOptions,
-    prob: Problem<'a>,
+    Ok((sep, Some(test), Some(model)))
 }
 
 /// The filter passes of the fit: the tied fit's, and the separate fit's
 /// continuation when it is the result (its other passes are the test's).
-fn evaluations_of(tied: &Problem<'_>, separate: Option<&Separate<'_>>) -> [usize; 2] {
+fn evaluations_of(tied: &Problem<'_>, separate: Option<&SeparateModel<'_>>) -> [usize; 2] {
     let mut e = tied.evaluations.get();
     if let Some(s) = separate {
         let more = s.prob.evaluations.get();

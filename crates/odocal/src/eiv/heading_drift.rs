@@ -81,11 +81,16 @@ pub(super) struct TiedFit {
     pub(super) cost: f64,
 }
 
-/// The separate model's fit chosen as the result: its options (the noise
-/// model with the heading drift's σ scaled), problem and pass.
-pub(super) struct SeparateFit<'a> {
+/// The separate model at a ratio `r`: its options (the noise model with the
+/// heading drift's σ scaled) and problem.
+pub(super) struct SeparateModel<'a> {
     pub(super) opts: EivOptions,
     pub(super) prob: Problem<'a>,
+}
+
+/// The separate model's fit chosen as the result: the model and its pass.
+pub(super) struct SeparateFit<'a> {
+    pub(super) model: SeparateModel<'a>,
     pub(super) pass: PassOutcome,
 }
 
@@ -173,7 +178,7 @@ pub(super) fn test<'a>(
         let cost = pass.eval.total.merit();
         tried.push((r, cost));
         if best.as_ref().is_none_or(|(_, c, _)| cost < *c) {
-            best = Some((r, cost, SeparateFit { opts: o, prob: p, pass }));
+            best = Some((r, cost, SeparateFit { model: SeparateModel { opts: o, prob: p }, pass }));
         }
         r = next_ratio(&tried, g).clamp(r_min, r_max);
     }
