@@ -257,16 +257,16 @@ def test_eiv_equals_cli_json(odocal_bin, drive_csv):
 
 
 def test_known_noise_equals_cli_json(odocal_bin, drive_csv):
-    cli = cli_json(odocal_bin, "calibrate", drive_csv, "--eiv-window", "1500", "--known-noise", "heading-white")
-    report = odocal.calibrate(odocal.Drive.from_csv(drive_csv), eiv_window=1500, known_noise=["heading_white"])
+    cli = cli_json(odocal_bin, "calibrate", drive_csv, "--eiv-window", "1500", "--known-noise", "pose-white")
+    report = odocal.calibrate(odocal.Drive.from_csv(drive_csv), eiv_window=1500, known_noise=["pose_white"])
     d = report.to_dict()
-    assert d["options"]["method"]["filter"]["eta_held"] == [False] * 5 + [True]
+    assert d["options"]["method"]["filter"]["eta_held"] == [False] * 3 + [True] + [False] * 2
     assert _without_eiv_timing(d) == _without_eiv_timing(cli)
     # The EIV account: the same lines as the CLI's terminal output, and in the HTML report.
     details = report.method_details
-    assert details.startswith("EIV: ") and "  known (held at the start): heading_white\n" in details, details
+    assert details.startswith("EIV: ") and "  known (held at the start): pose_white\n" in details, details
     text = subprocess.run(
-        [str(odocal_bin), "calibrate", str(drive_csv), "--eiv-window", "1500", "--known-noise", "heading-white"],
+        [str(odocal_bin), "calibrate", str(drive_csv), "--eiv-window", "1500", "--known-noise", "pose-white"],
         capture_output=True,
         text=True,
     )
@@ -274,9 +274,9 @@ def test_known_noise_equals_cli_json(odocal_bin, drive_csv):
     assert details in text.stdout, (details, text.stdout)
     report.to_html(drive_csv.parent / "eiv.html")
     html = (drive_csv.parent / "eiv.html").read_text()
-    assert "<h2>Method details</h2>" in html and "known (held at the start): heading_white" in html
+    assert "<h2>Method details</h2>" in html and "known (held at the start): pose_white" in html
     assert odocal.calibrate(odocal.Drive.from_csv(drive_csv), "batch-gn").method_details == ""
-    same = odocal.calibrate(odocal.Drive.from_csv(drive_csv), eiv_window=1500, known_noise="heading-white")
+    same = odocal.calibrate(odocal.Drive.from_csv(drive_csv), eiv_window=1500, known_noise="pose-white")
     assert _without_eiv_timing(same.to_dict()) == _without_eiv_timing(d)
     with pytest.raises(odocal.OdocalError, match="invalid noise source 'heading'"):
         odocal.calibrate(odocal.Drive.from_csv(drive_csv), known_noise=["heading"])
