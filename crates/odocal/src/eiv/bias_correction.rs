@@ -40,7 +40,7 @@ use crate::error::{Error, Result};
 /// assert_eq!(eiv::estimate(&input, &out.sidecar.theta_true, &opts)?.theta, report.theta);
 /// # Ok(()) }
 /// ```
-pub fn apply_bias_correction(input: &EivInput<'_>, report: &mut EivReport, opts: &EivOptions) -> Result<()> {
+pub(crate) fn apply_bias_correction(input: &EivInput<'_>, report: &mut EivReport, opts: &EivOptions) -> Result<()> {
     let BiasCorrection::Bootstrap { replicates, seed, all_parameters } = opts.bias_correction else {
         return Ok(());
     };

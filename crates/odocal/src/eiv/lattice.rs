@@ -48,7 +48,7 @@ pub(crate) const MAX_LATTICE_INDEX: f64 = 1e7;
 /// let noisy: Vec<f64> = counted.iter().enumerate().map(|(k, v)| v * (1.0 + 1e-3 * (k as f64).sin())).collect();
 /// assert_eq!(quantisation_step_of_readings(&noisy, &noisy), None);
 /// ```
-pub fn quantisation_step_of_readings(n_rl: &[f64], n_rr: &[f64]) -> Option<f64> {
+pub(crate) fn quantisation_step_of_readings(n_rl: &[f64], n_rr: &[f64]) -> Option<f64> {
     let mut v: Vec<f64> = n_rl.iter().chain(n_rr).map(|x| x.abs()).filter(|x| x.is_finite() && *x > 0.0).collect();
     if v.is_empty() {
         return None;

@@ -179,7 +179,7 @@ impl NoiseModel {
     };
 
     /// The noise model that matches a simulator setting (the "true noise
-    /// model" for [`cramer_rao_bound`](crate::eiv::cramer_rao_bound)). Slip is not represented (it is
+    /// model" for `cramer_rao_bound`). Slip is not represented (it is
     /// absorbed by the common-mode error); the drift time constant is the
     /// position drift's.
     pub fn from_sim(n: &crate::sim::NoiseOptions, sample_time_s: f64) -> Self {
