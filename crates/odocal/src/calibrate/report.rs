@@ -415,7 +415,7 @@ pub(crate) fn next_drive_of(
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum SigmaSource {
-    /// batch-gn's cluster-robust covariance ([`RobustCovariance`]).
+    /// batch-gn's cluster-robust covariance (`RobustCovariance`).
     ClusterRobust,
     /// The 3-step method's step-1 batch spread: the sample covariance of its
     /// plausible batch estimates, scaled to all the data.

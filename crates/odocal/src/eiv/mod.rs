@@ -233,7 +233,6 @@ mod steps;
 #[cfg(test)]
 pub(crate) mod tests;
 
-pub(crate) use bias_correction::apply_bias_correction;
 pub(crate) use bias_correction::first_order_bias;
 #[cfg(test)]
 pub(crate) use bootstrap::{FAIL_EVERY_REPLICATE_SEED, FAIL_ONE_REPLICATE_SEED};
@@ -254,21 +253,24 @@ pub use {
 // The estimator itself, its report and the modelling alternatives of
 // `EivOptions::research`: public with the `research` feature (the studies of
 // crates/odocal-lab), crate-internal (at their defaults) without it.
-#[cfg(not(feature = "research"))]
-pub(crate) use {
+#[cfg(feature = "research")]
+pub use {
+    bias_correction::apply_bias_correction,
     bootstrap::{bootstrap, BootstrapReport},
     crb::cramer_rao_bound,
     estimate::estimate,
     heading_drift::HeadingDriftTest,
     input::{EivInput, Window},
+    lattice::quantisation_step_of_readings,
     modelling::{
         InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
     },
     options::{CovarianceEstimate, CovarianceMode, ResearchOptions},
     report::{CrbReport, EivObservability, EivReport, HalvesCheck, IterationRecord, PassReport, WindowDiagnostics},
 };
-#[cfg(feature = "research")]
-pub use {
+#[cfg(not(feature = "research"))]
+pub(crate) use {
+    bias_correction::apply_bias_correction,
     bootstrap::{bootstrap, BootstrapReport},
     crb::cramer_rao_bound,
     estimate::estimate,
