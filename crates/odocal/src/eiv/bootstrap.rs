@@ -76,7 +76,7 @@ pub enum BootstrapRefit {
     /// range of θ, the replicate is fitted to convergence. A replicate
     /// whose converged fit takes one full step (the usual case from θ̂) gets
     /// the same θ to the bit; elsewhere the later steps are left out. What
-    /// the bias correction ([`EivOptions::correct_bias`]) uses; measured
+    /// the bias correction (`EivOptions::correct_bias`) uses; measured
     /// against converged replicates in docs/performance.md.
     OneStep,
 }

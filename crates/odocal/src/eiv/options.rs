@@ -408,29 +408,34 @@ impl EivOptions {
         o
     }
 
-    /// Subtracts the estimator's own bias from every parameter, estimated by
-    /// a parametric bootstrap of `replicates` re-simulations (seed `seed`;
-    /// an even number: antithetic pairs, [`EivOptions::bootstrap_antithetic`])
-    /// on the smoothed trajectory (`BIAS_BOOTSTRAP_SMOOTHING_SAMPLES`),
-    /// each holding the fitted noise model:
-    /// what the EIV method of `calibrate` applies by default (B = 4), the
-    /// CLI's `--correct-bias B` and Python's `correct_bias=B`, measured in
-    /// [`BiasCorrection`]'s docs.
-    ///
-    /// ```
-    /// use odocal::eiv::{BiasCorrection, EivOptions};
-    /// let mut o = EivOptions::default();
-    /// o.correct_bias(10, 0);
-    /// assert_eq!(o.bias_correction, BiasCorrection::Bootstrap { replicates: 10, seed: 0, all_parameters: true });
-    /// assert!(o.bootstrap_antithetic);
-    /// assert!(o.validate().is_ok());
-    /// o.correct_bias(5, 0); // an odd B cannot be paired
-    /// assert!(o.validate().is_err());
-    /// ```
-    pub fn correct_bias(&mut self, replicates: usize, seed: u64) {
-        self.bias_correction = BiasCorrection::Bootstrap { replicates, seed, all_parameters: true };
-        self.bootstrap_inputs = BootstrapInputs::Smoothed { half_width_samples: BIAS_BOOTSTRAP_SMOOTHING_SAMPLES };
-        self.bootstrap_antithetic = true;
+    research_pub! {
+        /// Subtracts the estimator's own bias from every parameter, estimated by
+        /// a parametric bootstrap of `replicates` re-simulations (seed `seed`;
+        /// an even number: antithetic pairs, [`EivOptions::bootstrap_antithetic`])
+        /// on the smoothed trajectory (`BIAS_BOOTSTRAP_SMOOTHING_SAMPLES`),
+        /// each holding the fitted noise model:
+        /// what the EIV method of `calibrate` applies by default (B = 4), the
+        /// CLI's `--correct-bias B` and Python's `correct_bias=B`, measured in
+        /// [`BiasCorrection`]'s docs. A program asks for it with
+        /// [`EivMethodOptions::correct_bias`](crate::EivMethodOptions::correct_bias).
+        ///
+        /// ```
+        /// # #[cfg(feature = "research")] {
+        /// use odocal::eiv::{BiasCorrection, EivOptions};
+        /// let mut o = EivOptions::default();
+        /// o.correct_bias(10, 0);
+        /// assert_eq!(o.bias_correction, BiasCorrection::Bootstrap { replicates: 10, seed: 0, all_parameters: true });
+        /// assert!(o.bootstrap_antithetic);
+        /// assert!(o.validate().is_ok());
+        /// o.correct_bias(5, 0); // an odd B cannot be paired
+        /// assert!(o.validate().is_err());
+        /// # }
+        /// ```
+        fn correct_bias(&mut self, replicates: usize, seed: u64) {
+            self.bias_correction = BiasCorrection::Bootstrap { replicates, seed, all_parameters: true };
+            self.bootstrap_inputs = BootstrapInputs::Smoothed { half_width_samples: BIAS_BOOTSTRAP_SMOOTHING_SAMPLES };
+            self.bootstrap_antithetic = true;
+        }
     }
 
     research_pub! {
