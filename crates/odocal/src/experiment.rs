@@ -11,7 +11,7 @@
 //!
 //! When the truth and the noise model are known (a simulated drive,
 //! [`ExperimentOptions::noise`]), every θ's error is also read against the
-//! Cramér–Rao bound ([`crate::eiv::cramer_rao_bound`] at θ_true with the
+//! Cramér–Rao bound (`crate::eiv::cramer_rao_bound` at θ_true with the
 //! true noise model): [`Experiment::cramer_rao`] holds σ_CRB and each
 //! [`Scored::error_over_crb`] is (θ − θ_true)/σ_CRB.
 
@@ -74,7 +74,7 @@ pub struct Scored {
 
 /// The Cramér–Rao bound of θ on the experiment's drive: the smallest
 /// standard deviation an unbiased estimator that knows the noise model can
-/// have ([`crate::eiv::cramer_rao_bound`] at θ_true with the true noise
+/// have (`crate::eiv::cramer_rao_bound` at θ_true with the true noise
 /// model, all four parameters free, default EIV windows).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct CramerRao {
@@ -84,7 +84,7 @@ pub struct CramerRao {
     pub sigma_mean_only: Option<Theta>,
     /// σ with the noise scales η unknown too (nuisance parameters; ≥
     /// `sigma`): the fair bound for EIV with η estimated
-    /// ([`crate::eiv::CrbReport::sigma_noise_estimated`]).
+    /// (`crate::eiv::CrbReport::sigma_noise_estimated`).
     pub sigma_noise_estimated: Option<Theta>,
     /// The noise model of the bound.
     pub noise: Option<NoiseModel>,

@@ -43,8 +43,8 @@
 //! The public modules are for programs that run the method's steps or
 //! build their own front end: [`model`] (the equations and their
 //! derivatives), [`segment`] (cutting a drive into segments),
-//! [`identify`] (Gauss-Newton), [`compensate`] (the input-compensation QP),
-//! [`eiv`] (the errors-in-variables estimator), [`sim`] (the simulator),
+//! [`identify`] (the Gauss-Newton options and observability), [`compensate`] (the input-compensation QP),
+//! [`eiv`] (the errors-in-variables options), [`sim`] (the simulator),
 //! [`experiment`] (the paper's §6), [`mod@io`] (ROS 2 bags), [`settings`] (calibration
 //! settings as key–value pairs), [`output`] (atomic writes and output
 //! paths checked against inputs, for a front end's own files), [`online`] (calibration that keeps up with a
@@ -55,15 +55,12 @@
 //!
 //! ```
 //! # fn main() -> Result<(), odocal::Error> {
-//! use odocal::{identify, segment, sim, Theta};
+//! use odocal::{calibrate, sim, BatchGnOptions, CalibrationOptions, Method};
 //! // A noise-free simulated drive: batch Gauss-Newton recovers the true θ.
 //! let sim = sim::simulate(&sim::SimOptions { length_km: 2.0, substeps: 1, ..sim::SimOptions::noise_free(1) })?;
-//! let drive = &sim.drive;
-//! let sel = segment::calibration_segments(drive, &Default::default())?;
-//! let data: Vec<_> = sel.selected.iter().map(|s| segment::SegmentData::new(drive, s)).collect();
-//! let opts = identify::IdentifyOptions { max_iterations: 20, ..Default::default() };
-//! let report = identify::batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &opts)?;
-//! assert!((report.theta.t_r - sim.sidecar.theta_true.t_r).abs() < 1e-9);
+//! let opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions::default()), ..Default::default() };
+//! let report = calibrate(&sim.drive, &opts)?;
+//! assert!((report.theta.t_r - sim.sidecar.theta_true.t_r).abs() < 1e-6);
 //! # Ok(()) }
 //! ```
 //!

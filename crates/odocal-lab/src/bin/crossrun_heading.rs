@@ -54,7 +54,7 @@ fn judge(r: &CalibrationReport, drive: &Drive, carry: bool) -> Res<(f64, f64, f6
     let others = [ValidationDrive { name: "other", drive, reference: None }];
     let v = r.validate_on_drives(&others, carry)?;
     let row = &v.drives[0];
-    let delta = row.extrinsics.as_ref().map_or(0.0, |x| x.value.heading_offset);
+    let delta = row.heading_offset_rad();
     Ok((row.mean_position_error_m, row.initial_mean_position_error_m, delta))
 }
 

@@ -118,7 +118,16 @@ pub struct DriveValidation {
     /// The reference extrinsics this drive used, where they are not all 0
     /// or a stated value was overruled (docs/guide.md, "Several drives of one vehicle").
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub extrinsics: Option<crate::assess::validation_drives::DriveExtrinsics>,
+    pub(crate) extrinsics: Option<crate::assess::validation_drives::DriveExtrinsics>,
+}
+
+impl DriveValidation {
+    /// The heading offset θ was validated with on this drive, rad: the
+    /// carried, stated or re-estimated one (the JSON report's
+    /// `extrinsics` says which); 0 where the drive used no extrinsics.
+    pub fn heading_offset_rad(&self) -> f64 {
+        self.extrinsics.as_ref().map_or(0.0, |x| x.value.heading_offset)
+    }
 }
 
 /// Ē_p of θ and θ_0 on each of several drives, and their means over the

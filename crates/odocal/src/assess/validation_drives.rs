@@ -47,7 +47,7 @@ use crate::model::Theta;
 /// Where a validation drive's value of one extrinsic parameter comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
-pub enum ExtrinsicSource {
+pub(crate) enum ExtrinsicSource {
     /// The calibration's estimate (rule 1).
     Estimated,
     /// The caller's value, e.g. `--lever-arm` (rule 2).
@@ -129,7 +129,7 @@ impl CalibrationExtrinsics {
 
 /// A drive's stated value differs from the one used (see the module docs).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct ExtrinsicConflict {
+pub(crate) struct ExtrinsicConflict {
     /// The parameter.
     pub param: Param,
     /// The drive's manifest's value (m or rad).
@@ -162,7 +162,7 @@ fn fmt_value(p: Param, v: f64) -> String {
 
 /// Where each extrinsic parameter of a validation drive comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub struct ExtrinsicSources {
+pub(crate) struct ExtrinsicSources {
     /// Of `lever_x`.
     pub lever_x: ExtrinsicSource,
     /// Of `lever_y`.
@@ -173,7 +173,7 @@ pub struct ExtrinsicSources {
 
 /// The extrinsics one validation drive used (see the module docs).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct DriveExtrinsics {
+pub(crate) struct DriveExtrinsics {
     /// With the calibrated θ.
     pub value: Extrinsics,
     /// With θ_0.

@@ -126,7 +126,7 @@ pub struct EivMethodOptions {
     /// starting batch Gauss-Newton over all cut segments instead of the EIV
     /// θ. Default true.
     pub fallback: bool,
-    /// A parametric bootstrap of the EIV estimate ([`eiv::bootstrap`](fn@eiv::bootstrap):
+    /// A parametric bootstrap of the EIV estimate (`eiv::bootstrap`:
     /// re-simulate the fitted noise at the fitted θ on the drive's own
     /// inputs, re-fit, B times, seeded) for percentile intervals and the
     /// estimator's own bias. Run only when the EIV θ is the result (not
@@ -249,27 +249,29 @@ pub(crate) struct EivDetail {
     pub bootstrap: Option<Box<eiv::BootstrapReport>>,
 }
 
-/// True for a filter finding of `report` that says the model does not fit
-/// the data: a diverged window, a window's NIS above its band, correlated
-/// innovations in a window whose NIS is not below its band, θ unstable
-/// across halves, a noise scale at its upper clamp, no convergence.
-///
-/// Not failures: `Unobservable` (reported through the observability
-/// fields); a NIS *below* the band, and correlated innovations in such a
-/// window — the innovations are smaller than the noise model allows (a
-/// noise source absent or over-estimated, as on a noise-free drive, where
-/// what is left of the innovations is rounding and is correlated). The
-/// band and the whiteness limits already allow for the measurement floors
-/// (`eiv::InnovationNull`).
-pub fn is_misspecification(w: &EivWarning, report: &EivReport) -> bool {
-    match w {
-        EivWarning::Unobservable { .. } => false,
-        EivWarning::InconsistentInnovations { nis, band, .. } => *nis > band[1],
-        EivWarning::CorrelatedInnovations { window, .. } => {
-            let band = report.windows.iter().find(|d| d.window.index == *window).map(|d| d.nis);
-            !band.is_some_and(|nis| nis < 0.5)
+research_pub! {
+    /// True for a filter finding of `report` that says the model does not fit
+    /// the data: a diverged window, a window's NIS above its band, correlated
+    /// innovations in a window whose NIS is not below its band, θ unstable
+    /// across halves, a noise scale at its upper clamp, no convergence.
+    ///
+    /// Not failures: `Unobservable` (reported through the observability
+    /// fields); a NIS *below* the band, and correlated innovations in such a
+    /// window — the innovations are smaller than the noise model allows (a
+    /// noise source absent or over-estimated, as on a noise-free drive, where
+    /// what is left of the innovations is rounding and is correlated). The
+    /// band and the whiteness limits already allow for the measurement floors
+    /// (`eiv::InnovationNull`).
+    fn is_misspecification(w: &EivWarning, report: &EivReport) -> bool {
+        match w {
+            EivWarning::Unobservable { .. } => false,
+            EivWarning::InconsistentInnovations { nis, band, .. } => *nis > band[1],
+            EivWarning::CorrelatedInnovations { window, .. } => {
+                let band = report.windows.iter().find(|d| d.window.index == *window).map(|d| d.nis);
+                !band.is_some_and(|nis| nis < 0.5)
+            }
+            _ => true,
         }
-        _ => true,
     }
 }
 

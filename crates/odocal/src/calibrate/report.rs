@@ -415,7 +415,7 @@ pub(crate) fn next_drive_of(
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum SigmaSource {
-    /// batch-gn's cluster-robust covariance ([`RobustCovariance`]).
+    /// batch-gn's cluster-robust covariance (`RobustCovariance`).
     ClusterRobust,
     /// The 3-step method's step-1 batch spread: the sample covariance of its
     /// plausible batch estimates, scaled to all the data.
@@ -423,7 +423,7 @@ pub enum SigmaSource {
     /// The model covariance ([`CalibrationReport::covariance`]): EIV's
     /// filter covariance (per parameter the larger of `H_θ⁻¹` and a block
     /// sandwich, plus what estimating the noise levels adds;
-    /// [`crate::eiv::EivReport::covariance`]) (after an EIV fallback the start's cluster-robust σ stands,
+    /// `crate::eiv::EivReport::covariance`) (after an EIV fallback the start's cluster-robust σ stands,
     /// where computed), or batch-gn's / step 3's `σ²(JᵀWJ)⁻¹` when the robust or
     /// batch-spread σ could not be computed (then it understates the
     /// uncertainty under input noise).

@@ -112,22 +112,24 @@ pub(crate) struct InitialStep {
     pub rejected: Vec<RejectedBatch>,
 }
 
-/// One batch Gauss-Newton result of step 1.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct BatchResult {
-    /// First samples of the segments in the batch.
-    pub segment_starts: Vec<usize>,
-    /// The estimate and its validation error.
-    pub score: ThetaScore,
-    /// Gauss-Newton iterations.
-    pub iterations: usize,
-    /// Reciprocal condition number of `JᵀWJ` at the estimate.
-    #[serde(default)]
-    pub rcond: f64,
-    /// The batch's reference extrinsics (estimated or held), when the
-    /// identification involved them.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub extrinsics: Option<Extrinsics>,
+research_pub! {
+    /// One batch Gauss-Newton result of step 1.
+    #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+    struct BatchResult {
+        /// First samples of the segments in the batch.
+        pub segment_starts: Vec<usize>,
+        /// The estimate and its validation error.
+        pub score: ThetaScore,
+        /// Gauss-Newton iterations.
+        pub iterations: usize,
+        /// Reciprocal condition number of `JᵀWJ` at the estimate.
+        #[serde(default)]
+        pub rcond: f64,
+        /// The batch's reference extrinsics (estimated or held), when the
+        /// identification involved them.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pub extrinsics: Option<Extrinsics>,
+    }
 }
 
 /// A step-1 result that failed a plausibility guard.
@@ -231,18 +233,20 @@ fn effective_segments(segments: &[Segment]) -> f64 {
     covered as f64 / k.max(1) as f64
 }
 
-/// Random batches of `size` distinct indices out of `n` (all when n ≤ size).
-pub fn random_batches(n: usize, size: usize, count: usize, seed: u64) -> Vec<Vec<usize>> {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut idx: Vec<usize> = (0..n).collect();
-    (0..count)
-        .map(|_| {
-            idx.shuffle(&mut rng);
-            let mut b: Vec<usize> = idx.iter().copied().take(size.min(n)).collect();
-            b.sort_unstable();
-            b
-        })
-        .collect()
+research_pub! {
+    /// Random batches of `size` distinct indices out of `n` (all when n ≤ size).
+    fn random_batches(n: usize, size: usize, count: usize, seed: u64) -> Vec<Vec<usize>> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut idx: Vec<usize> = (0..n).collect();
+        (0..count)
+            .map(|_| {
+                idx.shuffle(&mut rng);
+                let mut b: Vec<usize> = idx.iter().copied().take(size.min(n)).collect();
+                b.sort_unstable();
+                b
+            })
+            .collect()
+    }
 }
 
 /// Indices of `picks` entries at equal steps through a list of length `n`

@@ -465,13 +465,15 @@ pub enum CompensationWarning {
 }
 
 impl CompensatedInputs {
-    /// Segment data with the compensated wheel rotations.
-    pub fn segment_data<'a>(&'a self, drive: &'a Drive) -> Vec<SegmentData<'a>> {
-        self.segments
-            .iter()
-            .enumerate()
-            .map(|(i, s)| SegmentData::new(drive, s).with_wheels(&self.n_rl[i], &self.n_rr[i]))
-            .collect()
+    research_pub! {
+        /// Segment data with the compensated wheel rotations.
+        fn segment_data<'a>(&'a self, drive: &'a Drive) -> Vec<SegmentData<'a>> {
+            self.segments
+                .iter()
+                .enumerate()
+                .map(|(i, s)| SegmentData::new(drive, s).with_wheels(&self.n_rl[i], &self.n_rr[i]))
+                .collect()
+        }
     }
 }
 

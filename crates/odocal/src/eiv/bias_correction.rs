@@ -9,90 +9,94 @@ use super::problem::{free_inverse, free_sigma, theta_add};
 use super::{BiasCorrection, EivInput, EivOptions, EivReport, FirstOrderBias};
 use crate::error::{Error, Result};
 
-/// Applies `opts.bias_correction` to a fit made without it (nothing for
-/// `BiasCorrection::None`): runs the [`bootstrap`](fn@bootstrap) it names at the fit
-/// (replicates on `opts.bootstrap_inputs`, each holding the fitted noise
-/// model; in antithetic pairs with `opts.bootstrap_antithetic`), subtracts its bias from `report.theta`
-/// (every free parameter or c_e only) and adds the bias's Monte Carlo
-/// covariance to `report.covariance` and `report.sigma`.
-///
-/// [`estimate`](fn@crate::eiv::estimate) calls it at its end; `calibrate` calls it itself after
-/// deciding whether to fall back, so that a fit it replaces by batch
-/// Gauss-Newton costs no bootstrap. `report` must be that of [`estimate`](fn@crate::eiv::estimate)
-/// on `input` with `opts` except for the correction (and with its
-/// `bias_subtracted` zero).
-///
-/// ```
-/// # fn main() -> Result<(), odocal::Error> {
-/// use odocal::{eiv, sim};
-/// let out = sim::simulate(&sim::SimOptions { length_km: 1.0, ..sim::SimOptions::paper(2) })?;
-/// let input = eiv::EivInput::from_drive(&out.drive);
-/// let mut opts = eiv::EivOptions { fix_noise: true, ..Default::default() };
-/// let mut report = eiv::estimate(&input, &out.sidecar.theta_true, &opts)?;
-/// opts.correct_bias(2, 0); // one antithetic pair
-/// eiv::apply_bias_correction(&input, &mut report, &opts)?;
-/// assert_ne!(report.theta, report.theta_uncorrected);
-/// // Each corrected (free) parameter's σ includes the correction's Monte Carlo error.
-/// for (s, free) in report.sigma_bias_correction.iter().zip(report.free) {
-///     assert_eq!(*s > 0.0, free);
-/// }
-/// // The same as asking `estimate` for the correction.
-/// assert_eq!(eiv::estimate(&input, &out.sidecar.theta_true, &opts)?.theta, report.theta);
-/// # Ok(()) }
-/// ```
-pub fn apply_bias_correction(input: &EivInput<'_>, report: &mut EivReport, opts: &EivOptions) -> Result<()> {
-    let BiasCorrection::Bootstrap { replicates, seed, all_parameters } = opts.bias_correction else {
-        return Ok(());
-    };
-    opts.validate()?;
-    if report.bias_subtracted.iter().any(|b| *b != 0.0) {
-        return Err(Error::InvalidOption {
-            field: "bias_correction",
-            reason: "the report was already corrected".into(),
-        });
-    }
-    let t0 = Instant::now();
-    // The fit's own quantisation level (as `estimate` resolved it on the
-    // drive's readings).
-    let opts = &opts.with_resolved_quantisation(report.quantisation_step_from_readings);
-    // The replicates are fitted without correction (their mean estimates
-    // the uncorrected estimator's mean at θ̂), holding the fitted noise model.
-    let inner =
-        EivOptions { bias_correction: BiasCorrection::None, noise: report.noise, fix_noise: true, ..opts.clone() };
-    let boot = bootstrap(
-        input,
-        &*report,
-        &inner,
-        &BootstrapOptions {
-            replicates,
-            seed,
-            true_inputs: opts.bootstrap_inputs,
-            antithetic: opts.bootstrap_antithetic,
-            refit: BootstrapRefit::OneStep,
-            ..Default::default()
-        },
-    )?;
-    let b = boot.bias;
-    report.bias_subtracted = if all_parameters { b } else { [b[0], 0.0, 0.0, 0.0] };
-    report.theta = theta_add(&report.theta, &report.bias_subtracted, -1.0);
-    // The subtracted bias is a mean of B replicates: its Monte Carlo
-    // covariance (replicates' covariance / B) joins θ's.
-    let corrected: [bool; 4] = std::array::from_fn(|i| report.free[i] && (all_parameters || i == 0));
-    let mc = boot.mean_covariance();
-    let mut cov = report.covariance;
-    for i in 0..4 {
-        for j in 0..4 {
-            if corrected[i] && corrected[j] {
-                cov[i][j] += mc[i][j];
+research_pub! {
+    /// Applies `opts.bias_correction` to a fit made without it (nothing for
+    /// `BiasCorrection::None`): runs the [`bootstrap`](fn@bootstrap) it names at the fit
+    /// (replicates on `opts.bootstrap_inputs`, each holding the fitted noise
+    /// model; in antithetic pairs with `opts.bootstrap_antithetic`), subtracts its bias from `report.theta`
+    /// (every free parameter or c_e only) and adds the bias's Monte Carlo
+    /// covariance to `report.covariance` and `report.sigma`.
+    ///
+    /// [`estimate`](fn@crate::eiv::estimate) calls it at its end; `calibrate` calls it itself after
+    /// deciding whether to fall back, so that a fit it replaces by batch
+    /// Gauss-Newton costs no bootstrap. `report` must be that of [`estimate`](fn@crate::eiv::estimate)
+    /// on `input` with `opts` except for the correction (and with its
+    /// `bias_subtracted` zero).
+    ///
+    /// ```
+    /// # fn main() -> Result<(), odocal::Error> {
+    /// # #[cfg(feature = "research")] {
+    /// use odocal::{eiv, sim};
+    /// let out = sim::simulate(&sim::SimOptions { length_km: 1.0, ..sim::SimOptions::paper(2) })?;
+    /// let input = eiv::EivInput::from_drive(&out.drive);
+    /// let mut opts = eiv::EivOptions { fix_noise: true, ..Default::default() };
+    /// let mut report = eiv::estimate(&input, &out.sidecar.theta_true, &opts)?;
+    /// opts.correct_bias(2, 0); // one antithetic pair
+    /// eiv::apply_bias_correction(&input, &mut report, &opts)?;
+    /// assert_ne!(report.theta, report.theta_uncorrected);
+    /// // Each corrected (free) parameter's σ includes the correction's Monte Carlo error.
+    /// for (s, free) in report.sigma_bias_correction.iter().zip(report.free) {
+    ///     assert_eq!(*s > 0.0, free);
+    /// }
+    /// // The same as asking `estimate` for the correction.
+    /// assert_eq!(eiv::estimate(&input, &out.sidecar.theta_true, &opts)?.theta, report.theta);
+    /// # }
+    /// # Ok(()) }
+    /// ```
+    fn apply_bias_correction(input: &EivInput<'_>, report: &mut EivReport, opts: &EivOptions) -> Result<()> {
+        let BiasCorrection::Bootstrap { replicates, seed, all_parameters } = opts.bias_correction else {
+            return Ok(());
+        };
+        opts.validate()?;
+        if report.bias_subtracted.iter().any(|b| *b != 0.0) {
+            return Err(Error::InvalidOption {
+                field: "bias_correction",
+                reason: "the report was already corrected".into(),
+            });
+        }
+        let t0 = Instant::now();
+        // The fit's own quantisation level (as `estimate` resolved it on the
+        // drive's readings).
+        let opts = &opts.with_resolved_quantisation(report.quantisation_step_from_readings);
+        // The replicates are fitted without correction (their mean estimates
+        // the uncorrected estimator's mean at θ̂), holding the fitted noise model.
+        let inner =
+            EivOptions { bias_correction: BiasCorrection::None, noise: report.noise, fix_noise: true, ..opts.clone() };
+        let boot = bootstrap(
+            input,
+            &*report,
+            &inner,
+            &BootstrapOptions {
+                replicates,
+                seed,
+                true_inputs: opts.bootstrap_inputs,
+                antithetic: opts.bootstrap_antithetic,
+                refit: BootstrapRefit::OneStep,
+                ..Default::default()
+            },
+        )?;
+        let b = boot.bias;
+        report.bias_subtracted = if all_parameters { b } else { [b[0], 0.0, 0.0, 0.0] };
+        report.theta = theta_add(&report.theta, &report.bias_subtracted, -1.0);
+        // The subtracted bias is a mean of B replicates: its Monte Carlo
+        // covariance (replicates' covariance / B) joins θ's.
+        let corrected: [bool; 4] = std::array::from_fn(|i| report.free[i] && (all_parameters || i == 0));
+        let mc = boot.mean_covariance();
+        let mut cov = report.covariance;
+        for i in 0..4 {
+            for j in 0..4 {
+                if corrected[i] && corrected[j] {
+                    cov[i][j] += mc[i][j];
+                }
             }
         }
+        report.covariance = cov;
+        report.sigma_bias_correction = free_sigma(&corrected, |i| mc[i][i]);
+        report.bias_replicates_failed = boot.failed;
+        report.sigma = free_sigma(&report.free, |i| cov[i][i]);
+        report.timing_s += t0.elapsed().as_secs_f64();
+        Ok(())
     }
-    report.covariance = cov;
-    report.sigma_bias_correction = free_sigma(&corrected, |i| mc[i][i]);
-    report.bias_replicates_failed = boot.failed;
-    report.sigma = free_sigma(&report.free, |i| cov[i][i]);
-    report.timing_s += t0.elapsed().as_secs_f64();
-    Ok(())
 }
 
 /// The first-order bias of the profile cost's root ([`FirstOrderBias`]):

@@ -38,7 +38,7 @@ use super::{estimate, BiasCorrection, EivInput, EivOptions, EivReport, Innovatio
 use crate::error::{Error, Result};
 use crate::model::{step, Input, State, Theta};
 
-/// Options of [`bootstrap`].
+/// Options of `bootstrap`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct BootstrapOptions {
@@ -63,10 +63,10 @@ pub struct BootstrapOptions {
     pub refit: BootstrapRefit,
 }
 
-/// How [`bootstrap`] re-fits a replicate.
+/// How `bootstrap` re-fits a replicate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub enum BootstrapRefit {
-    /// [`estimate`](fn@estimate) to convergence, from θ̂.
+    /// `estimate` to convergence, from θ̂.
     #[default]
     Converged,
     /// One Fisher-scoring step from θ̂: a single filter pass per replicate
@@ -76,7 +76,7 @@ pub enum BootstrapRefit {
     /// range of θ, the replicate is fitted to convergence. A replicate
     /// whose converged fit takes one full step (the usual case from θ̂) gets
     /// the same θ to the bit; elsewhere the later steps are left out. What
-    /// the bias correction ([`EivOptions::correct_bias`]) uses; measured
+    /// the bias correction (`EivOptions::correct_bias`) uses; measured
     /// against converged replicates in docs/performance.md.
     OneStep,
 }
@@ -152,38 +152,40 @@ pub enum BootstrapInputs {
     },
 }
 
-/// The result of [`bootstrap`].
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct BootstrapReport {
-    /// The estimate being bootstrapped (θ̂).
-    pub theta_hat: Theta,
-    /// θ of every replicate that was fitted, in replicate order.
-    pub replicates: Vec<Theta>,
-    /// Replicates whose fit failed: index and reason.
-    pub failed: Vec<(usize, String)>,
-    /// Mean of the replicates.
-    pub mean: Theta,
-    /// Estimated bias of the estimator, mean − θ̂ (`[c_e, c_d, t_r, d]`).
-    pub bias: [f64; 4],
-    /// Standard deviation of the replicates.
-    pub sd: [f64; 4],
-    /// Coverage of the intervals.
-    pub level: f64,
-    /// Percentile intervals `[q_lo, q_hi]` of the replicates per parameter.
-    /// They are centred on θ̂ + bias: with a biased estimator they miss the
-    /// truth by the bias (use [`BootstrapReport::interval_basic`]).
-    pub interval: [[f64; 2]; 4],
-    /// Basic (reflected) bootstrap intervals `[2θ̂ − q_hi, 2θ̂ − q_lo]`:
-    /// the percentile interval moved by −2·bias, centred on the
-    /// bias-corrected estimate.
-    pub interval_basic: [[f64; 2]; 4],
-    /// The bias-corrected estimate θ̂ − bias.
-    pub theta_corrected: Theta,
-    /// With [`BootstrapOptions::antithetic`]: the mean of each pair whose
-    /// two replicates were both fitted, in pair order ([`BootstrapReport::mean`]
-    /// is their mean). Empty otherwise.
-    #[serde(default)]
-    pub pair_means: Vec<Theta>,
+research_pub! {
+    /// The result of [`bootstrap`].
+    #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+    struct BootstrapReport {
+        /// The estimate being bootstrapped (θ̂).
+        pub theta_hat: Theta,
+        /// θ of every replicate that was fitted, in replicate order.
+        pub replicates: Vec<Theta>,
+        /// Replicates whose fit failed: index and reason.
+        pub failed: Vec<(usize, String)>,
+        /// Mean of the replicates.
+        pub mean: Theta,
+        /// Estimated bias of the estimator, mean − θ̂ (`[c_e, c_d, t_r, d]`).
+        pub bias: [f64; 4],
+        /// Standard deviation of the replicates.
+        pub sd: [f64; 4],
+        /// Coverage of the intervals.
+        pub level: f64,
+        /// Percentile intervals `[q_lo, q_hi]` of the replicates per parameter.
+        /// They are centred on θ̂ + bias: with a biased estimator they miss the
+        /// truth by the bias (use [`BootstrapReport::interval_basic`]).
+        pub interval: [[f64; 2]; 4],
+        /// Basic (reflected) bootstrap intervals `[2θ̂ − q_hi, 2θ̂ − q_lo]`:
+        /// the percentile interval moved by −2·bias, centred on the
+        /// bias-corrected estimate.
+        pub interval_basic: [[f64; 2]; 4],
+        /// The bias-corrected estimate θ̂ − bias.
+        pub theta_corrected: Theta,
+        /// With [`BootstrapOptions::antithetic`]: the mean of each pair whose
+        /// two replicates were both fitted, in pair order ([`BootstrapReport::mean`]
+        /// is their mean). Empty otherwise.
+        #[serde(default)]
+        pub pair_means: Vec<Theta>,
+    }
 }
 
 /// Test-only fault injection (the replicates' fits do not fail on any drive
@@ -201,89 +203,91 @@ fn injected_failure(seed: u64, b: usize) -> Option<Error> {
         .then(|| Error::Numerical(format!("replicate {b}: failure injected by a test")))
 }
 
-/// Parametric bootstrap of an EIV estimate (see the module docs of
-/// `eiv::bootstrap`): `boot.replicates` re-simulations of the fitted noise
-/// model (`report.noise`) at the fitted θ on the drive's own inputs, each
-/// re-fitted with `opts` (the options of the original fit) from θ̂.
-/// Replicates run in parallel; each has its own random stream, so the
-/// report depends only on the inputs and the seed, not on the thread count.
-///
-/// Errors for invalid options or when fewer than two replicates could be fitted.
-pub fn bootstrap(
-    input: &EivInput<'_>,
-    report: &EivReport,
-    opts: &EivOptions,
-    boot: &BootstrapOptions,
-) -> Result<BootstrapReport> {
-    boot.validate()?;
-    input.validate()?;
-    opts.validate()?;
-    report.noise.validate()?;
-    let smoothed = match boot.true_inputs {
-        BootstrapInputs::Measured => None,
-        BootstrapInputs::Smoothed { half_width_samples } => Some(SmoothedInputs::new(input, half_width_samples)),
-    };
-    let theta_hat = report.theta;
-    // The fit's own quantisation level: `FromReadings` resolved as it was on
-    // the drive (`report.quantisation_step_from_readings`), not re-read off
-    // the replicates' readings, which are counted with the fitted step and
-    // so lie on a lattice even where the drive's readings did not.
-    let resolved = opts.with_resolved_quantisation(report.quantisation_step_from_readings);
-    // The replicates' θ is all that is used: no covariance term for η, and
-    // no null pass for the innovation checks (their warnings are not
-    // read).
-    let mut refit = EivOptions {
-        free: report.free,
-        fix_unobservable: false,
-        research: ResearchOptions {
-            noise_estimate_in_covariance: false,
-            innovation_null: InnovationNull::FittedModel,
-            ..resolved.research.clone()
-        },
-        ..resolved
-    };
-    if matches!(refit.bias_correction, BiasCorrection::Bootstrap { .. }) {
-        // No bootstrap inside the bootstrap (B² fits): the replicates are
-        // fitted without it.
-        refit.bias_correction = BiasCorrection::None;
-    }
-    let results: Vec<Result<Theta>> = (0..boot.replicates)
-        .into_par_iter()
-        .map(|b| {
-            // Antithetic: the pair (2j, 2j + 1) shares stream j, the second
-            // with its Gaussian draws negated.
-            let (stream, sign) = if boot.antithetic {
-                ((b / 2) as u64, if b.is_multiple_of(2) { 1.0 } else { -1.0 })
-            } else {
-                (b as u64, 1.0)
-            };
-            #[cfg(test)]
-            if let Some(e) = injected_failure(boot.seed, b) {
-                return Err(e);
-            }
-            let data = replicate(input, smoothed.as_ref(), &theta_hat, &report.noise, boot.seed, stream, sign);
-            let rin = data.input(input);
-            match boot.refit {
-                BootstrapRefit::Converged => estimate(&rin, &theta_hat, &refit).map(|r| r.theta),
-                BootstrapRefit::OneStep => one_step(&rin, &theta_hat, &refit),
-            }
-        })
-        .collect();
-    let pair_means: Vec<Theta> = if boot.antithetic {
-        results
-            .chunks(2)
-            .filter_map(|p| match p {
-                [Ok(a), Ok(b)] => {
-                    let (a, b) = (a.to_array(), b.to_array());
-                    Some(Theta::from_array(std::array::from_fn(|i| 0.5 * (a[i] + b[i]))))
+research_pub! {
+    /// Parametric bootstrap of an EIV estimate (see the module docs of
+    /// `eiv::bootstrap`): `boot.replicates` re-simulations of the fitted noise
+    /// model (`report.noise`) at the fitted θ on the drive's own inputs, each
+    /// re-fitted with `opts` (the options of the original fit) from θ̂.
+    /// Replicates run in parallel; each has its own random stream, so the
+    /// report depends only on the inputs and the seed, not on the thread count.
+    ///
+    /// Errors for invalid options or when fewer than two replicates could be fitted.
+    fn bootstrap(
+        input: &EivInput<'_>,
+        report: &EivReport,
+        opts: &EivOptions,
+        boot: &BootstrapOptions,
+    ) -> Result<BootstrapReport> {
+        boot.validate()?;
+        input.validate()?;
+        opts.validate()?;
+        report.noise.validate()?;
+        let smoothed = match boot.true_inputs {
+            BootstrapInputs::Measured => None,
+            BootstrapInputs::Smoothed { half_width_samples } => Some(SmoothedInputs::new(input, half_width_samples)),
+        };
+        let theta_hat = report.theta;
+        // The fit's own quantisation level: `FromReadings` resolved as it was on
+        // the drive (`report.quantisation_step_from_readings`), not re-read off
+        // the replicates' readings, which are counted with the fitted step and
+        // so lie on a lattice even where the drive's readings did not.
+        let resolved = opts.with_resolved_quantisation(report.quantisation_step_from_readings);
+        // The replicates' θ is all that is used: no covariance term for η, and
+        // no null pass for the innovation checks (their warnings are not
+        // read).
+        let mut refit = EivOptions {
+            free: report.free,
+            fix_unobservable: false,
+            research: ResearchOptions {
+                noise_estimate_in_covariance: false,
+                innovation_null: InnovationNull::FittedModel,
+                ..resolved.research.clone()
+            },
+            ..resolved
+        };
+        if matches!(refit.bias_correction, BiasCorrection::Bootstrap { .. }) {
+            // No bootstrap inside the bootstrap (B² fits): the replicates are
+            // fitted without it.
+            refit.bias_correction = BiasCorrection::None;
+        }
+        let results: Vec<Result<Theta>> = (0..boot.replicates)
+            .into_par_iter()
+            .map(|b| {
+                // Antithetic: the pair (2j, 2j + 1) shares stream j, the second
+                // with its Gaussian draws negated.
+                let (stream, sign) = if boot.antithetic {
+                    ((b / 2) as u64, if b.is_multiple_of(2) { 1.0 } else { -1.0 })
+                } else {
+                    (b as u64, 1.0)
+                };
+                #[cfg(test)]
+                if let Some(e) = injected_failure(boot.seed, b) {
+                    return Err(e);
                 }
-                _ => None,
+                let data = replicate(input, smoothed.as_ref(), &theta_hat, &report.noise, boot.seed, stream, sign);
+                let rin = data.input(input);
+                match boot.refit {
+                    BootstrapRefit::Converged => estimate(&rin, &theta_hat, &refit).map(|r| r.theta),
+                    BootstrapRefit::OneStep => one_step(&rin, &theta_hat, &refit),
+                }
             })
-            .collect()
-    } else {
-        Vec::new()
-    };
-    summarise(results, pair_means, report, boot)
+            .collect();
+        let pair_means: Vec<Theta> = if boot.antithetic {
+            results
+                .chunks(2)
+                .filter_map(|p| match p {
+                    [Ok(a), Ok(b)] => {
+                        let (a, b) = (a.to_array(), b.to_array());
+                        Some(Theta::from_array(std::array::from_fn(|i| 0.5 * (a[i] + b[i]))))
+                    }
+                    _ => None,
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        summarise(results, pair_means, report, boot)
+    }
 }
 
 /// The bootstrap's statistics from the replicates' fits (`results`, in
@@ -350,27 +354,29 @@ fn mean_of(thetas: &[Theta]) -> [f64; 4] {
 }
 
 impl BootstrapReport {
-    /// The covariance of the replicates' mean (their sample covariance over
-    /// the number of replicates fitted; with antithetic pairs the pair
-    /// means' over the number of pairs): the Monte Carlo error of
-    /// [`BootstrapReport::mean`] and so of the bias and the corrected
-    /// estimate. `[c_e, c_d, t_r, d]` order, SI units.
-    ///
-    /// With a single complete antithetic pair the pairs' spread cannot be
-    /// estimated: the replicates' covariance over 2 stands in, the
-    /// plain bootstrap's error for two replicates (an upper bound in the
-    /// usual case that the pair's errors are negatively correlated).
-    pub fn mean_covariance(&self) -> [[f64; 4]; 4] {
-        // The set whose spread is measured, and the number its mean averages.
-        let (set, n) = match self.pair_means.len() {
-            0 => (&self.replicates, self.replicates.len()),
-            1 => (&self.replicates, 2),
-            k => (&self.pair_means, k),
-        };
-        if set.len() < 2 {
-            return [[0.0; 4]; 4];
+    research_pub! {
+        /// The covariance of the replicates' mean (their sample covariance over
+        /// the number of replicates fitted; with antithetic pairs the pair
+        /// means' over the number of pairs): the Monte Carlo error of
+        /// [`BootstrapReport::mean`] and so of the bias and the corrected
+        /// estimate. `[c_e, c_d, t_r, d]` order, SI units.
+        ///
+        /// With a single complete antithetic pair the pairs' spread cannot be
+        /// estimated: the replicates' covariance over 2 stands in, the
+        /// plain bootstrap's error for two replicates (an upper bound in the
+        /// usual case that the pair's errors are negatively correlated).
+        fn mean_covariance(&self) -> [[f64; 4]; 4] {
+            // The set whose spread is measured, and the number its mean averages.
+            let (set, n) = match self.pair_means.len() {
+                0 => (&self.replicates, self.replicates.len()),
+                1 => (&self.replicates, 2),
+                k => (&self.pair_means, k),
+            };
+            if set.len() < 2 {
+                return [[0.0; 4]; 4];
+            }
+            sample_covariance(set, &mean_of(set)).map(|row| row.map(|x| x / n as f64))
         }
-        sample_covariance(set, &mean_of(set)).map(|row| row.map(|x| x / n as f64))
     }
 }
 

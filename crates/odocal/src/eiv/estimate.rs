@@ -51,12 +51,14 @@ pub fn kernel_instruction_set() -> &'static str {
 ///
 /// ```
 /// # fn main() -> Result<(), odocal::Error> {
+/// # #[cfg(feature = "research")] {
 /// use odocal::{eiv, sim, Theta};
 /// let out = sim::simulate(&sim::SimOptions { length_km: 1.0, substeps: 1, ..sim::SimOptions::noise_free(3) })?;
 /// let input = eiv::EivInput::from_drive(&out.drive);
 /// let start = Theta { c_e: 1.951, ..out.sidecar.theta_true };
 /// let report = eiv::estimate(&input, &start, &eiv::EivOptions::default())?;
 /// assert!((report.theta.c_e - 1.95).abs() < 1e-6);
+/// # }
 /// # Ok(()) }
 /// ```
 pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) -> Result<EivReport> {

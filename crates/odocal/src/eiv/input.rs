@@ -6,103 +6,115 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 
-/// The data of a drive as plain slices (all of length N, samples).
-#[derive(Debug, Clone, Copy)]
-pub struct EivInput<'a> {
-    /// Sample time t_s, s.
-    pub sample_time_s: f64,
-    /// Continuous parts of the drive, sample index ranges; windows never span two.
-    pub parts: &'a [Range<usize>],
-    /// Reference x, m.
-    pub px: &'a [f64],
-    /// Reference y, m.
-    pub py: &'a [f64],
-    /// Reference heading, rad, unwrapped.
-    pub psi: &'a [f64],
-    /// Measured rear-left wheel rotation, rev/s.
-    pub n_rl: &'a [f64],
-    /// Measured rear-right wheel rotation, rev/s.
-    pub n_rr: &'a [f64],
-    /// Measured sideslip, rad.
-    pub beta: &'a [f64],
-    /// Measured lateral acceleration, m/s².
-    pub a_y: &'a [f64],
-    /// `true` where the reference pose was really measured (not
-    /// interpolated or held); `None` means every sample.
-    pub reference_measured: Option<&'a [bool]>,
+research_pub! {
+    /// The data of a drive as plain slices (all of length N, samples).
+    #[derive(Debug, Clone, Copy)]
+    struct EivInput<'a> {
+        /// Sample time t_s, s.
+        pub sample_time_s: f64,
+        /// Continuous parts of the drive, sample index ranges; windows never span two.
+        pub parts: &'a [Range<usize>],
+        /// Reference x, m.
+        pub px: &'a [f64],
+        /// Reference y, m.
+        pub py: &'a [f64],
+        /// Reference heading, rad, unwrapped.
+        pub psi: &'a [f64],
+        /// Measured rear-left wheel rotation, rev/s.
+        pub n_rl: &'a [f64],
+        /// Measured rear-right wheel rotation, rev/s.
+        pub n_rr: &'a [f64],
+        /// Measured sideslip, rad.
+        pub beta: &'a [f64],
+        /// Measured lateral acceleration, m/s².
+        pub a_y: &'a [f64],
+        /// `true` where the reference pose was really measured (not
+        /// interpolated or held); `None` means every sample.
+        pub reference_measured: Option<&'a [bool]>,
+    }
 }
 
 impl<'a> EivInput<'a> {
-    /// The columns of a checked [`Drive`](crate::Drive), its parts and its
-    /// reference mask.
-    pub fn from_drive(d: &'a crate::Drive) -> Self {
-        EivInput {
-            sample_time_s: d.sample_time_s(),
-            parts: d.parts(),
-            px: d.px(),
-            py: d.py(),
-            psi: d.psi(),
-            n_rl: d.n_rl(),
-            n_rr: d.n_rr(),
-            beta: d.beta(),
-            a_y: d.a_y(),
-            reference_measured: d.reference_measured(),
+    research_pub! {
+        /// The columns of a checked [`Drive`](crate::Drive), its parts and its
+        /// reference mask.
+        fn from_drive(d: &'a crate::Drive) -> Self {
+            EivInput {
+                sample_time_s: d.sample_time_s(),
+                parts: d.parts(),
+                px: d.px(),
+                py: d.py(),
+                psi: d.psi(),
+                n_rl: d.n_rl(),
+                n_rr: d.n_rr(),
+                beta: d.beta(),
+                a_y: d.a_y(),
+                reference_measured: d.reference_measured(),
+            }
         }
     }
 
-    /// The noise-free truth columns of a simulated drive (its parts and
-    /// reference mask as [`EivInput::from_drive`]): the trajectory along
-    /// which [`cramer_rao_bound`](crate::eiv::cramer_rao_bound) at θ_true is linearised.
-    ///
-    /// Why not the measured columns: the bound's sensitivities
-    /// are the filter's, linearised along the inputs it is given. Along the
-    /// measured wheel rotations the white wheel noise appears as yaw and
-    /// speed excitation the vehicle never had (on `high` about 5 mrad of
-    /// yaw per 25 ms step), and the information about t_r and d, which grows
-    /// with that excitation, is overstated: along the measured inputs the
-    /// bound comes out about half the true one for t_r on `high`
-    /// (`eiv_mismatch` in crates/odocal-lab with `CRB_MEASURED=1` measures it).
-    ///
-    /// # Errors
-    /// [`Error::InvalidDrive`] when the drive carries no truth (a recorded
-    /// drive: its bound cannot be evaluated at the truth).
-    ///
-    /// ```
-    /// use odocal::eiv::EivInput;
-    /// use odocal::sim::{simulate, SimOptions};
-    /// let sim = simulate(&SimOptions { length_km: 0.5, ..SimOptions::paper(1) })?;
-    /// let truth = EivInput::from_drive_truth(&sim.drive)?;
-    /// let measured = EivInput::from_drive(&sim.drive);
-    /// assert_eq!(truth.len(), measured.len());
-    /// assert_ne!(truth.n_rl, measured.n_rl);
-    /// # Ok::<(), odocal::Error>(())
-    /// ```
-    pub fn from_drive_truth(d: &'a crate::Drive) -> Result<Self> {
-        let t = d.truth().ok_or_else(|| Error::InvalidDrive {
-            context: "EIV input".into(),
-            reason: "the drive carries no truth columns (*_true): the bound at the truth needs a simulated drive"
-                .into(),
-        })?;
-        Ok(EivInput {
-            px: &t.px,
-            py: &t.py,
-            psi: &t.psi,
-            n_rl: &t.n_rl,
-            n_rr: &t.n_rr,
-            beta: &t.beta,
-            a_y: &t.a_y,
-            ..EivInput::from_drive(d)
-        })
+    research_pub! {
+        /// The noise-free truth columns of a simulated drive (its parts and
+        /// reference mask as [`EivInput::from_drive`]): the trajectory along
+        /// which [`cramer_rao_bound`](crate::eiv::cramer_rao_bound) at θ_true is linearised.
+        ///
+        /// Why not the measured columns: the bound's sensitivities
+        /// are the filter's, linearised along the inputs it is given. Along the
+        /// measured wheel rotations the white wheel noise appears as yaw and
+        /// speed excitation the vehicle never had (on `high` about 5 mrad of
+        /// yaw per 25 ms step), and the information about t_r and d, which grows
+        /// with that excitation, is overstated: along the measured inputs the
+        /// bound comes out about half the true one for t_r on `high`
+        /// (`eiv_mismatch` in crates/odocal-lab with `CRB_MEASURED=1` measures it).
+        ///
+        /// # Errors
+        /// [`Error::InvalidDrive`] when the drive carries no truth (a recorded
+        /// drive: its bound cannot be evaluated at the truth).
+        ///
+        /// ```
+        /// # #[cfg(feature = "research")] {
+        /// use odocal::eiv::EivInput;
+        /// use odocal::sim::{simulate, SimOptions};
+        /// let sim = simulate(&SimOptions { length_km: 0.5, ..SimOptions::paper(1) })?;
+        /// let truth = EivInput::from_drive_truth(&sim.drive)?;
+        /// let measured = EivInput::from_drive(&sim.drive);
+        /// assert_eq!(truth.len(), measured.len());
+        /// assert_ne!(truth.n_rl, measured.n_rl);
+        /// # }
+        /// # Ok::<(), odocal::Error>(())
+        /// ```
+        fn from_drive_truth(d: &'a crate::Drive) -> Result<Self> {
+            let t = d.truth().ok_or_else(|| Error::InvalidDrive {
+                context: "EIV input".into(),
+                reason: "the drive carries no truth columns (*_true): the bound at the truth needs a simulated drive"
+                    .into(),
+            })?;
+            Ok(EivInput {
+                px: &t.px,
+                py: &t.py,
+                psi: &t.psi,
+                n_rl: &t.n_rl,
+                n_rr: &t.n_rr,
+                beta: &t.beta,
+                a_y: &t.a_y,
+                ..EivInput::from_drive(d)
+            })
+        }
     }
 
-    /// Number of samples.
-    pub fn len(&self) -> usize {
-        self.px.len()
+    research_pub! {
+        /// Number of samples.
+        fn len(&self) -> usize {
+            self.px.len()
+        }
     }
 
-    /// True when there are no samples.
-    pub fn is_empty(&self) -> bool {
-        self.px.is_empty()
+    research_pub! {
+        /// True when there are no samples.
+        fn is_empty(&self) -> bool {
+            self.px.is_empty()
+        }
     }
 
     pub(super) fn validate(&self) -> Result<()> {
@@ -137,18 +149,20 @@ impl<'a> EivInput<'a> {
     }
 }
 
-/// One filter window: steps `start..end` of one part (the state at `start`
-/// is initialised from the reference, the last update is at `end`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Window {
-    /// Index of the window in the drive (window order).
-    pub index: usize,
-    /// Index of the part it belongs to.
-    pub part: usize,
-    /// First sample.
-    pub start: usize,
-    /// Last sample.
-    pub end: usize,
+research_pub! {
+    /// One filter window: steps `start..end` of one part (the state at `start`
+    /// is initialised from the reference, the last update is at `end`).
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    struct Window {
+        /// Index of the window in the drive (window order).
+        pub index: usize,
+        /// Index of the part it belongs to.
+        pub part: usize,
+        /// First sample.
+        pub start: usize,
+        /// Last sample.
+        pub end: usize,
+    }
 }
 
 /// Cuts every part into windows of about `target` steps (equal lengths within a part).

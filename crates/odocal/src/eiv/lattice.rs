@@ -28,67 +28,71 @@ pub(crate) const LATTICE_TOLERANCE_STEPS: f64 = 1e-3;
 /// more than this many steps is indistinguishable from no lattice.
 pub(crate) const MAX_LATTICE_INDEX: f64 = 1e7;
 
-/// The quantisation step q (rev/s) of wheel readings that lie on a common
-/// lattice `k·q` (k whole), or `None` when they do not.
-///
-/// Readings that are zero or not finite are skipped (a standing wheel
-/// counts nothing); both wheels must share the step (they are read by the
-/// same kind of encoder at the same sample time). The lattice is accepted
-/// only with at least `MIN_LATTICE_LEVELS` distinct non-zero levels and
-/// every reading within `LATTICE_TOLERANCE_STEPS` of its lattice point.
-///
-/// ```
-/// use odocal::eiv::quantisation_step_of_readings;
-/// // 512 ticks per revolution read at 100 Hz: q = 100/512 rev/s.
-/// let q = 100.0 / 512.0;
-/// let counted: Vec<f64> = (0..400).map(|k| f64::from(50 + k % 37) * q).collect();
-/// let found = quantisation_step_of_readings(&counted, &counted).unwrap();
-/// assert!((found - q).abs() < 1e-12 * q);
-/// // The same readings with 0.1 % noise added after counting: no lattice.
-/// let noisy: Vec<f64> = counted.iter().enumerate().map(|(k, v)| v * (1.0 + 1e-3 * (k as f64).sin())).collect();
-/// assert_eq!(quantisation_step_of_readings(&noisy, &noisy), None);
-/// ```
-pub fn quantisation_step_of_readings(n_rl: &[f64], n_rr: &[f64]) -> Option<f64> {
-    let mut v: Vec<f64> = n_rl.iter().chain(n_rr).map(|x| x.abs()).filter(|x| x.is_finite() && *x > 0.0).collect();
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f64::total_cmp);
-    let top = v[v.len() - 1];
-    // Distinct levels: readings of one lattice point written through
-    // different arithmetic differ by rounding only.
-    let same = top * 1e-12;
-    let mut levels: Vec<f64> = Vec::new();
-    for &x in &v {
-        match levels.last() {
-            Some(&l) if x - l <= same => {}
-            _ => levels.push(x),
+research_pub! {
+    /// The quantisation step q (rev/s) of wheel readings that lie on a common
+    /// lattice `k·q` (k whole), or `None` when they do not.
+    ///
+    /// Readings that are zero or not finite are skipped (a standing wheel
+    /// counts nothing); both wheels must share the step (they are read by the
+    /// same kind of encoder at the same sample time). The lattice is accepted
+    /// only with at least `MIN_LATTICE_LEVELS` distinct non-zero levels and
+    /// every reading within `LATTICE_TOLERANCE_STEPS` of its lattice point.
+    ///
+    /// ```
+    /// # #[cfg(feature = "research")] {
+    /// use odocal::eiv::quantisation_step_of_readings;
+    /// // 512 ticks per revolution read at 100 Hz: q = 100/512 rev/s.
+    /// let q = 100.0 / 512.0;
+    /// let counted: Vec<f64> = (0..400).map(|k| f64::from(50 + k % 37) * q).collect();
+    /// let found = quantisation_step_of_readings(&counted, &counted).unwrap();
+    /// assert!((found - q).abs() < 1e-12 * q);
+    /// // The same readings with 0.1 % noise added after counting: no lattice.
+    /// let noisy: Vec<f64> = counted.iter().enumerate().map(|(k, v)| v * (1.0 + 1e-3 * (k as f64).sin())).collect();
+    /// assert_eq!(quantisation_step_of_readings(&noisy, &noisy), None);
+    /// # }
+    /// ```
+    fn quantisation_step_of_readings(n_rl: &[f64], n_rr: &[f64]) -> Option<f64> {
+        let mut v: Vec<f64> = n_rl.iter().chain(n_rr).map(|x| x.abs()).filter(|x| x.is_finite() && *x > 0.0).collect();
+        if v.is_empty() {
+            return None;
         }
+        v.sort_by(f64::total_cmp);
+        let top = v[v.len() - 1];
+        // Distinct levels: readings of one lattice point written through
+        // different arithmetic differ by rounding only.
+        let same = top * 1e-12;
+        let mut levels: Vec<f64> = Vec::new();
+        for &x in &v {
+            match levels.last() {
+                Some(&l) if x - l <= same => {}
+                _ => levels.push(x),
+            }
+        }
+        if levels.len() < MIN_LATTICE_LEVELS {
+            return None;
+        }
+        let smallest_gap = levels.windows(2).map(|w| w[1] - w[0]).fold(f64::INFINITY, f64::min);
+        // The smallest level is itself a multiple of q: a gap below it is a
+        // candidate, and so is the level when no gap is smaller.
+        let candidate = smallest_gap.min(levels[0]);
+        if candidate <= 0.0 || top / candidate > MAX_LATTICE_INDEX {
+            return None;
+        }
+        // Least squares q = Σ k·x / Σ k² over the levels, then every reading
+        // (not only the levels) checked against the refined lattice.
+        let (mut kx, mut kk) = (0.0, 0.0);
+        for &x in &levels {
+            let k = (x / candidate).round();
+            kx += k * x;
+            kk += k * k;
+        }
+        let q = kx / kk;
+        let on_lattice = |x: f64| {
+            let r = x / q;
+            (r - r.round()).abs() <= LATTICE_TOLERANCE_STEPS && r.round() >= 1.0
+        };
+        (q.is_finite() && q > 0.0 && v.iter().all(|&x| on_lattice(x))).then_some(q)
     }
-    if levels.len() < MIN_LATTICE_LEVELS {
-        return None;
-    }
-    let smallest_gap = levels.windows(2).map(|w| w[1] - w[0]).fold(f64::INFINITY, f64::min);
-    // The smallest level is itself a multiple of q: a gap below it is a
-    // candidate, and so is the level when no gap is smaller.
-    let candidate = smallest_gap.min(levels[0]);
-    if candidate <= 0.0 || top / candidate > MAX_LATTICE_INDEX {
-        return None;
-    }
-    // Least squares q = Σ k·x / Σ k² over the levels, then every reading
-    // (not only the levels) checked against the refined lattice.
-    let (mut kx, mut kk) = (0.0, 0.0);
-    for &x in &levels {
-        let k = (x / candidate).round();
-        kx += k * x;
-        kk += k * k;
-    }
-    let q = kx / kk;
-    let on_lattice = |x: f64| {
-        let r = x / q;
-        (r - r.round()).abs() <= LATTICE_TOLERANCE_STEPS && r.round() >= 1.0
-    };
-    (q.is_finite() && q > 0.0 && v.iter().all(|&x| on_lattice(x))).then_some(q)
 }
 
 /// [`quantisation_step_of_readings`] of an EIV input's two wheels, over its

@@ -2,9 +2,13 @@
 //! filter that models the noise on the wheel inputs, fitted by Fisher
 //! scoring with exact derivatives.
 //!
-//! Expert API: for programs that run the estimator on their own inputs,
-//! its Cramér–Rao bound or its bootstrap; [`crate::calibrate()`] with
-//! [`crate::Method::Eiv`] runs it with the fallback and the checks.
+//! The public items are the options of [`crate::Method::Eiv`] a user sets
+//! ([`EivOptions`], the noise model, the bias correction and the
+//! bootstrap's options); [`crate::calibrate()`] runs the estimator with the
+//! fallback and the checks. The estimator itself, its report, its
+//! Cramér–Rao bound, its bootstrap and its modelling alternatives are
+//! public with the cargo feature `research` only (the studies of
+//! crates/odocal-lab).
 //!
 //! ## The filter
 //!
@@ -32,7 +36,7 @@
 //! "white input noise" group); they have no scale factor of their own.
 //!
 //! Measurement updates happen only at samples where the reference was really
-//! measured ([`EivInput::reference_measured`]); between them the filter only
+//! measured (`EivInput::reference_measured`); between them the filter only
 //! predicts. Each continuous part of the drive is cut into windows of about
 //! [`EivOptions::window_samples`]; every window starts at `x = ỹ_0, s = 0,
 //! b = 0` with `P_xx = R + Σ_b, P_bb = Σ_b, P_xb = −Σ_b, P_ss = diag(σ²)`.
@@ -57,10 +61,10 @@
 //!   too large — which the corrected score below only partly removes.
 //!
 //! Measured (`study_eiv` in crates/odocal-lab, 12 km, seeds 1–20, error mean ± sd;
-//! CRB σ from [`cramer_rao_bound`], full Fisher information; "known" = the
+//! CRB σ from `cramer_rao_bound`, full Fisher information; "known" = the
 //! simulator's noise model from [`NoiseModel::from_sim`], fixed; "est." =
 //! η estimated from [`NoiseModel::PRODUCTION_CAR`]; "boot" = known minus
-//! the [`bootstrap`](fn@bootstrap) bias, B = 10, seeds 1–20):
+//! the `bootstrap` bias, B = 10, seeds 1–20):
 //!
 //! | preset | batch G-N t_r % | follows, known | follows, est. | CRB | known c_e % | known + boot c_e % | c_e CRB |
 //! |---|---|---|---|---|---|---|---|
@@ -154,12 +158,12 @@
 //! filter to ~1e-13 relative (test
 //! `results_match_the_recorded_results_of_the_unoptimised_filter`).
 //!
-//! Uncertainty is `H_θ⁻¹` at the estimate ([`EivReport::sigma`]), the
+//! Uncertainty is `H_θ⁻¹` at the estimate (`EivReport::sigma`), the
 //! sandwich `H_θ⁻¹ B H_θ⁻¹` (B the outer products of the per-update scores,
-//! [`EivReport::sigma_sandwich`]) and the inverse of the Gaussian Fisher
+//! `EivReport::sigma_sandwich`) and the inverse of the Gaussian Fisher
 //! information with both terms, jointly with the estimated η
-//! ([`EivReport::sigma_fisher`]); observability comes from `H_θ`. The
-//! Cramér–Rao bound ([`cramer_rao_bound`]) is the full Fisher information
+//! (`EivReport::sigma_fisher`); observability comes from `H_θ`. The
+//! Cramér–Rao bound (`cramer_rao_bound`) is the full Fisher information
 //! `Σ (∂ν/∂θ)ᵀS⁻¹(∂ν/∂θ) + ½ tr(S⁻¹∂S/∂θ_i S⁻¹∂S/∂θ_j)` at θ_true with the
 //! true noise model (the covariance following θ); its mean-only part is
 //! reported alongside. The `½ tr` term is information that the size of the
@@ -167,13 +171,13 @@
 //! noise in metres scales with the circumferences, which bounds c_e far
 //! below what the increments alone give (see the study table).
 //!
-//! **Parametric bootstrap** ([`bootstrap`](fn@bootstrap)): B re-simulations of the fitted
+//! **Parametric bootstrap** (`bootstrap`): B re-simulations of the fitted
 //! noise model at θ̂ on the drive's own inputs, re-fitted with the same
 //! options (each replicate seeded on its own, so thread-count independent),
 //! giving percentile and basic intervals, the estimator's bias at θ̂ and the
 //! bias-corrected θ̂ − bias. This is the measured cure of the c_e bias:
 //! [`EivOptions::bias_correction`] = `BiasCorrection::Bootstrap` applies it
-//! inside [`estimate`](fn@estimate) (its table; the analytic alternatives measured
+//! inside `estimate` (its table; the analytic alternatives measured
 //! against it are `FirstOrderBias` and the fitted-input noise scale).
 //!
 //! ## Misspecification
@@ -211,10 +215,10 @@
 //!   TAC 19(6), 1974 (filter sensitivity recursions, Fisher scoring).
 
 mod bias_correction;
-pub mod bootstrap;
+mod bootstrap;
 mod covariance;
 mod crb;
-pub mod estimate;
+mod estimate;
 pub(crate) mod filter;
 mod heading_drift;
 mod input;
@@ -236,35 +240,45 @@ pub(crate) use heading_drift::{HEADING_DRIFT_LR_THRESHOLD, HEADING_DRIFT_SCORE_G
 pub(crate) use modelling::BIAS_BOOTSTRAP_SMOOTHING_SAMPLES;
 pub(crate) use noise::NOISE_SOURCES;
 pub(crate) use report::PARAMETERS;
+// What a user sets (the options, the noise model, the bias correction and
+// the bootstrap's options) and the EIV findings of the calibration's warnings.
 pub use {
-    bias_correction::apply_bias_correction,
-    bootstrap::{bootstrap, BootstrapInputs, BootstrapOptions, BootstrapRefit, BootstrapReport},
-    crb::cramer_rao_bound,
-    estimate::{estimate, kernel_instruction_set},
-    heading_drift::HeadingDriftTest,
-    input::{EivInput, Window},
-    lattice::quantisation_step_of_readings,
+    bootstrap::{BootstrapInputs, BootstrapOptions, BootstrapRefit},
+    estimate::kernel_instruction_set,
     modelling::{BiasCorrection, FirstOrderBias, HeadingScale, LateralNoise, QuantisationLevel, QuantisationModel},
     noise::{NoiseModel, NoiseSource},
     options::EivOptions,
-    report::{
-        CrbReport, EivObservability, EivReport, EivWarning, HalvesCheck, IterationRecord, Parameter, PassReport,
-        PoseComponent, Termination, WindowDiagnostics,
-    },
+    report::{EivWarning, Parameter, PoseComponent, Termination},
 };
-// The modelling alternatives of `EivOptions::research`: public with the
-// `research` feature, crate-internal (at their defaults) without it.
-#[cfg(not(feature = "research"))]
-pub(crate) use {
-    modelling::{
-        InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
-    },
-    options::{CovarianceEstimate, CovarianceMode, ResearchOptions},
-};
+// The estimator itself, its report and the modelling alternatives of
+// `EivOptions::research`: public with the `research` feature (the studies of
+// crates/odocal-lab), crate-internal (at their defaults) without it.
 #[cfg(feature = "research")]
 pub use {
+    bias_correction::apply_bias_correction,
+    bootstrap::{bootstrap, BootstrapReport},
+    crb::cramer_rao_bound,
+    estimate::estimate,
+    heading_drift::HeadingDriftTest,
+    input::{EivInput, Window},
+    lattice::quantisation_step_of_readings,
     modelling::{
         InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
     },
     options::{CovarianceEstimate, CovarianceMode, ResearchOptions},
+    report::{CrbReport, EivObservability, EivReport, HalvesCheck, IterationRecord, PassReport, WindowDiagnostics},
+};
+#[cfg(not(feature = "research"))]
+pub(crate) use {
+    bias_correction::apply_bias_correction,
+    bootstrap::{bootstrap, BootstrapReport},
+    crb::cramer_rao_bound,
+    estimate::estimate,
+    heading_drift::HeadingDriftTest,
+    input::{EivInput, Window},
+    modelling::{
+        InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
+    },
+    options::{CovarianceEstimate, CovarianceMode, ResearchOptions},
+    report::{CrbReport, EivObservability, EivReport, HalvesCheck, IterationRecord, PassReport, WindowDiagnostics},
 };

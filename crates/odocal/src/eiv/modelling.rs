@@ -7,155 +7,165 @@ use serde::{Deserialize, Serialize};
 use super::EivInput;
 use crate::error::{Error, Result};
 
-/// A log-Jacobian term `−Σ_k Σ_w u_w,k·ln(C_w,k(θ)/C_w,k(θ_ref))` added to
-/// the profile cost J of θ (against the c_e bias of the following-θ cost), with C_w,k the
-/// wheel circumference at sample k (3a, 3b; θ_ref the start of the fit) and
-/// weights u ≥ 0 per wheel and sample. Not part of the marginal likelihood
-/// M of the η step. Meant with [`WheelNoiseScale::SmoothedFittedInput`].
-///
-/// Why. A scalar model with exact increments `Δ_k = c·n_k·t_s` and relative
-/// white input noise `ñ_k = n_k(1 + ε_k)` has the exact negative
-/// log-likelihood `½Σ(c/r_k − 1)²/σ² − N·ln c` (r_k = Δ_k/(ñ_k t_s); the
-/// `−N ln c` is the log-Jacobian of the density of ñ at the latent
-/// `n = Δ/(c t_s)`), whose score has zero mean at the true c. The
-/// fitted-input filter has the quadratic part (attenuation `−σ²` without
-/// the Jacobian). With a noisy reference the latent input is only partly
-/// determined by the data: in a linear Gaussian model `y = A(θ)ñ − A(θ)e + v`
-/// the expected score of the quadratic part at the truth is
-/// `Σ_w (∂ln C_w/∂θ)·tr(S⁻¹ A_w Σ_e,w A_wᵀ)`, and
-/// `tr(S⁻¹ A_w Σ_e,w A_wᵀ) = Σ_j (1 − posterior/prior variance of e_j)`
-/// over wheel w's inputs (the smoothed share of each input's noise that
-/// the data remove) `= ∂(Σ_k ln det S_k)/∂λ_w`, λ_w scaling wheel w's
-/// white relative noise variance. So the weight that makes the score
-/// unbiased (to first order in the noise variance) is that share, 1 only
-/// where the increments are exact. That holds only when S does not depend
-/// on the noise: the fitted input scaled from the *measured* rotation
-/// itself has its own c_e bias (`+σ²` on white noise, not `−σ²`), so the
-/// term goes with [`WheelNoiseScale::SmoothedFittedInput`].
-///
-/// Measured (`study_eiv` in crates/odocal-lab, 12 km, seeds 1–20, known
-/// noise; c_e error mean, bias t, RMS/CRB):
-///
-/// | variant | white | coloured | paper | high |
-/// |---|---|---|---|---|
-/// | none (measured input) | +0.0099 %, t 16, 3.7× | +0.098 %, t 17, 5.3× | +0.087 %, t 14, 3.8× | +0.55 %, t 35, 9.4× |
-/// | `SmoothedFittedInput` (±20) + `SmoothedShare` | +0.0006 %, t 0.9, 0.97× | +0.078 %, t 14, 4.3× | +0.011 %, t 1.7, 1.28× | +0.035 %, t 2.0, 1.39× |
-/// | `SmoothedFittedInput` (±20) + `FilterShare` | +0.0004 %, t 0.7, 0.96× | +0.072 %, t 13, 4.0× | +0.010 %, t 1.6, 1.27× | +0.030 %, t 1.8, 1.35× |
-/// | fitted input, unsmoothed, + `Unit` | +0.012 %, t 19 | +0.185 %, t 35 | +0.33 %, t 52 | +2.1 %, t 103 |
-///
-/// t_r, c_d, d unchanged within their spread; the coloured preset (perfect
-/// reference) keeps +0.07 %. `FilterShare` with the smoothed fitted input is
-/// the default ([`EivOptions::research`](crate::eiv::EivOptions::research)).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum InputJacobian {
-    /// No term.
-    #[default]
-    None,
-    /// u = 1 where the wheel turns (the scalar model's exact-increment weight).
-    Unit,
-    /// u = the share of the sample's white relative noise removed by the next
-    /// measurement update, `σ²n̂_w²·f_wᵀS⁻¹f_w` (f_w = ∂f/∂n_w, pose rows;
-    /// filtered, a lower bound of the smoothed share).
-    FilterShare,
-    /// u = w(1 − 2w) with w the filtered share of [`InputJacobian::FilterShare`]:
-    /// the filter's wheel variance `σ²n̂²` is proportional to the *measured*
-    /// rotation, so `S⁻¹` is correlated with the noise it weights; to second
-    /// order that adds `−2w²` per sample to the expected score (scalar model
-    /// with exact increments: w = 1, bias `+σ²` instead of `−σ²`).
-    FilterShareSecondOrder,
-    /// u = the smoothed share per window and wheel,
-    /// `W_w = Σ_k tr(S_k⁻¹ ∂S_k/∂λ_w)` (two more covariance-derivative
-    /// recursions), spread evenly over the window's samples where the wheel
-    /// turns. The weights are held constant in the derivatives.
-    SmoothedShare,
-    /// As [`InputJacobian::SmoothedShare`] over all the relative wheel
-    /// noise: λ_w scales wheel w's white and per-wheel Gauss-Markov
-    /// variance, and half of the common Gauss-Markov share goes to each
-    /// wheel (three more recursions). It **replaces** the coloured-noise
-    /// correction `−Σ m log(1 − ŝ)` in J (that term is about the filtered
-    /// share of the Gauss-Markov noise; M keeps it).
-    SmoothedShareAll,
+research_pub! {
+    /// A log-Jacobian term `−Σ_k Σ_w u_w,k·ln(C_w,k(θ)/C_w,k(θ_ref))` added to
+    /// the profile cost J of θ (against the c_e bias of the following-θ cost), with C_w,k the
+    /// wheel circumference at sample k (3a, 3b; θ_ref the start of the fit) and
+    /// weights u ≥ 0 per wheel and sample. Not part of the marginal likelihood
+    /// M of the η step. Meant with [`WheelNoiseScale::SmoothedFittedInput`].
+    ///
+    /// Why. A scalar model with exact increments `Δ_k = c·n_k·t_s` and relative
+    /// white input noise `ñ_k = n_k(1 + ε_k)` has the exact negative
+    /// log-likelihood `½Σ(c/r_k − 1)²/σ² − N·ln c` (r_k = Δ_k/(ñ_k t_s); the
+    /// `−N ln c` is the log-Jacobian of the density of ñ at the latent
+    /// `n = Δ/(c t_s)`), whose score has zero mean at the true c. The
+    /// fitted-input filter has the quadratic part (attenuation `−σ²` without
+    /// the Jacobian). With a noisy reference the latent input is only partly
+    /// determined by the data: in a linear Gaussian model `y = A(θ)ñ − A(θ)e + v`
+    /// the expected score of the quadratic part at the truth is
+    /// `Σ_w (∂ln C_w/∂θ)·tr(S⁻¹ A_w Σ_e,w A_wᵀ)`, and
+    /// `tr(S⁻¹ A_w Σ_e,w A_wᵀ) = Σ_j (1 − posterior/prior variance of e_j)`
+    /// over wheel w's inputs (the smoothed share of each input's noise that
+    /// the data remove) `= ∂(Σ_k ln det S_k)/∂λ_w`, λ_w scaling wheel w's
+    /// white relative noise variance. So the weight that makes the score
+    /// unbiased (to first order in the noise variance) is that share, 1 only
+    /// where the increments are exact. That holds only when S does not depend
+    /// on the noise: the fitted input scaled from the *measured* rotation
+    /// itself has its own c_e bias (`+σ²` on white noise, not `−σ²`), so the
+    /// term goes with [`WheelNoiseScale::SmoothedFittedInput`].
+    ///
+    /// Measured (`study_eiv` in crates/odocal-lab, 12 km, seeds 1–20, known
+    /// noise; c_e error mean, bias t, RMS/CRB):
+    ///
+    /// | variant | white | coloured | paper | high |
+    /// |---|---|---|---|---|
+    /// | none (measured input) | +0.0099 %, t 16, 3.7× | +0.098 %, t 17, 5.3× | +0.087 %, t 14, 3.8× | +0.55 %, t 35, 9.4× |
+    /// | `SmoothedFittedInput` (±20) + `SmoothedShare` | +0.0006 %, t 0.9, 0.97× | +0.078 %, t 14, 4.3× | +0.011 %, t 1.7, 1.28× | +0.035 %, t 2.0, 1.39× |
+    /// | `SmoothedFittedInput` (±20) + `FilterShare` | +0.0004 %, t 0.7, 0.96× | +0.072 %, t 13, 4.0× | +0.010 %, t 1.6, 1.27× | +0.030 %, t 1.8, 1.35× |
+    /// | fitted input, unsmoothed, + `Unit` | +0.012 %, t 19 | +0.185 %, t 35 | +0.33 %, t 52 | +2.1 %, t 103 |
+    ///
+    /// t_r, c_d, d unchanged within their spread; the coloured preset (perfect
+    /// reference) keeps +0.07 %. `FilterShare` with the smoothed fitted input is
+    /// the default ([`EivOptions::research`](crate::eiv::EivOptions::research)).
+    #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "snake_case")]
+    enum InputJacobian {
+        /// No term.
+        #[default]
+        None,
+        /// u = 1 where the wheel turns (the scalar model's exact-increment weight).
+        Unit,
+        /// u = the share of the sample's white relative noise removed by the next
+        /// measurement update, `σ²n̂_w²·f_wᵀS⁻¹f_w` (f_w = ∂f/∂n_w, pose rows;
+        /// filtered, a lower bound of the smoothed share).
+        FilterShare,
+        /// u = w(1 − 2w) with w the filtered share of [`InputJacobian::FilterShare`]:
+        /// the filter's wheel variance `σ²n̂²` is proportional to the *measured*
+        /// rotation, so `S⁻¹` is correlated with the noise it weights; to second
+        /// order that adds `−2w²` per sample to the expected score (scalar model
+        /// with exact increments: w = 1, bias `+σ²` instead of `−σ²`).
+        FilterShareSecondOrder,
+        /// u = the smoothed share per window and wheel,
+        /// `W_w = Σ_k tr(S_k⁻¹ ∂S_k/∂λ_w)` (two more covariance-derivative
+        /// recursions), spread evenly over the window's samples where the wheel
+        /// turns. The weights are held constant in the derivatives.
+        SmoothedShare,
+        /// As [`InputJacobian::SmoothedShare`] over all the relative wheel
+        /// noise: λ_w scales wheel w's white and per-wheel Gauss-Markov
+        /// variance, and half of the common Gauss-Markov share goes to each
+        /// wheel (three more recursions). It **replaces** the coloured-noise
+        /// correction `−Σ m log(1 − ŝ)` in J (that term is about the filtered
+        /// share of the Gauss-Markov noise; M keeps it).
+        SmoothedShareAll,
+    }
 }
 
-/// The null hypothesis of the per-window innovation checks
-/// ([`EivOptions::innovation_null`](crate::eiv::EivOptions::innovation_null)).
-///
-/// The measurement floors of `R` ([`EivOptions::position_floor_m`](crate::eiv::EivOptions::position_floor_m), 1e-5
-/// rad on the heading) are regularisation: on a perfect reference the data
-/// have no noise at that level, so a filter whose `R` contains the floor
-/// does not fully follow the measurements, and its innovations are
-/// correlated and smaller than `S` by construction (measured on the
-/// `white` preset, 12 km, seed 1: X/Y lag-1 0.63–0.78, NIS/dof 0.50–0.62
-/// in every window of a fit within 0.5 % of θ_true). Such windows are not
-/// misspecified: their statistics are what the fitted model without the
-/// floors predicts.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum InnovationNull {
-    /// The model as fitted, floors included: white innovations (lag-1 0)
-    /// and NIS/dof 1.
-    FittedModel,
-    /// The real noise below the floors is anywhere between none and the
-    /// floor: one more filter pass at the estimate propagates the error
-    /// covariance of the filter (its gain unchanged) when the data have the
-    /// fitted noise without the floors, giving per window the expected
-    /// lag-1 autocorrelation ρ₀ and NIS/dof n₀ of the whitened innovations.
-    /// A window is flagged when its lag-1 is more than
-    /// [`EivOptions::max_lag1`](crate::eiv::EivOptions::max_lag1) above `max(0, ρ₀)` or more than
-    /// [`EivOptions::max_lag1_below`](crate::eiv::EivOptions::max_lag1_below) below `min(0, ρ₀)`, or its
-    /// NIS/dof outside `[lo·min(1, n₀), hi·max(1, n₀)]` (`[lo, hi]` =
-    /// [`EivOptions::nis_band`](crate::eiv::EivOptions::nis_band)). Where the reference has noise well above
-    /// the floors (real logs, the `paper` preset), ρ₀ ≈ 0 and n₀ ≈ 1 and
-    /// the checks are those of [`InnovationNull::FittedModel`].
-    FloorsAsRegularisation,
+research_pub! {
+    /// The null hypothesis of the per-window innovation checks
+    /// ([`EivOptions::innovation_null`](crate::eiv::EivOptions::innovation_null)).
+    ///
+    /// The measurement floors of `R` ([`EivOptions::position_floor_m`](crate::eiv::EivOptions::position_floor_m), 1e-5
+    /// rad on the heading) are regularisation: on a perfect reference the data
+    /// have no noise at that level, so a filter whose `R` contains the floor
+    /// does not fully follow the measurements, and its innovations are
+    /// correlated and smaller than `S` by construction (measured on the
+    /// `white` preset, 12 km, seed 1: X/Y lag-1 0.63–0.78, NIS/dof 0.50–0.62
+    /// in every window of a fit within 0.5 % of θ_true). Such windows are not
+    /// misspecified: their statistics are what the fitted model without the
+    /// floors predicts.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "snake_case")]
+    enum InnovationNull {
+        /// The model as fitted, floors included: white innovations (lag-1 0)
+        /// and NIS/dof 1.
+        FittedModel,
+        /// The real noise below the floors is anywhere between none and the
+        /// floor: one more filter pass at the estimate propagates the error
+        /// covariance of the filter (its gain unchanged) when the data have the
+        /// fitted noise without the floors, giving per window the expected
+        /// lag-1 autocorrelation ρ₀ and NIS/dof n₀ of the whitened innovations.
+        /// A window is flagged when its lag-1 is more than
+        /// [`EivOptions::max_lag1`](crate::eiv::EivOptions::max_lag1) above `max(0, ρ₀)` or more than
+        /// [`EivOptions::max_lag1_below`](crate::eiv::EivOptions::max_lag1_below) below `min(0, ρ₀)`, or its
+        /// NIS/dof outside `[lo·min(1, n₀), hi·max(1, n₀)]` (`[lo, hi]` =
+        /// [`EivOptions::nis_band`](crate::eiv::EivOptions::nis_band)). Where the reference has noise well above
+        /// the floors (real logs, the `paper` preset), ρ₀ ≈ 0 and n₀ ≈ 1 and
+        /// the checks are those of [`InnovationNull::FittedModel`].
+        FloorsAsRegularisation,
+    }
 }
 
-/// Default of [`EivOptions::position_floor_m`](crate::eiv::EivOptions::position_floor_m), m (SPEC §10 states 1 mm,
-/// [`SPEC_POSITION_FLOOR_M`]; see that option for why 5 mm).
-pub const DEFAULT_POSITION_FLOOR_M: f64 = 5e-3;
+research_pub! {
+    /// Default of [`EivOptions::position_floor_m`](crate::eiv::EivOptions::position_floor_m), m (SPEC §10 states 1 mm,
+    /// [`SPEC_POSITION_FLOOR_M`]; see that option for why 5 mm).
+    const DEFAULT_POSITION_FLOOR_M: f64 = 5e-3;
+}
 
-/// The position σ floor of SPEC §10, m.
-pub const SPEC_POSITION_FLOOR_M: f64 = 1e-3;
+research_pub! {
+    /// The position σ floor of SPEC §10, m.
+    const SPEC_POSITION_FLOOR_M: f64 = 1e-3;
+}
 
-/// Which wheel rotation the relative wheel noise (white and Gauss-Markov)
-/// is proportional to in the filter's covariance.
-///
-/// With the covariance following θ the noise in metres is `C(θ)·ñ·σ`: it
-/// grows with the wheel circumference, and the profile cost, which has no
-/// `log det S`, lowers its weighted residuals by a larger c_e (about `+2σ²`
-/// for white noise in a scalar model). The simulator's (and a real wheel's)
-/// relative error is proportional to the *true* rotation; the true rotation
-/// fitted at θ is `n̂ = ñ·C(θ_ref)/C(θ)` (the distance `ñ·C(θ_ref)` held at
-/// the covariance reference), which makes the wheel noise in metres
-/// independent of the circumferences (but not of t_r).
-///
-/// Measured (12 km, 20 seeds, known noise): with the fitted input taken
-/// from ñ itself the c_e bias flips sign, coloured +0.098 → −0.112 %, paper
-/// +0.087 → −0.131 % (t ≈ 20), as a scalar model predicts (`+2σ²` with the
-/// measured input, `−σ²`, attenuation, with the fitted one); t_r, c_d, d
-/// are unchanged within their spread. Smoothed, and with the input
-/// log-Jacobian term ([`InputJacobian`] has the table), the bias is gone:
-/// the default, `SmoothedFittedInput` with ±20 samples.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum WheelNoiseScale {
-    /// σ·ñ, the measured rotation (SPEC §10).
-    #[default]
-    MeasuredInput,
-    /// σ·n̂, `n̂ = n̄·C(θ_ref)/C(θ)` with n̄ the moving average of ñ over
-    /// ±`half_width_samples` (within the filter window), in the noise scale
-    /// and the s-columns of the covariance transition (the mean still uses
-    /// ñ); only with [`CovarianceMode::FollowsTheta`](crate::eiv::CovarianceMode::FollowsTheta),
-    /// θ_ref the start of the fit, batch G-N's θ. With ñ itself the filter's
-    /// variance `σ²ñ_k²` is correlated with the error ε_k it weights (the
-    /// +σ² of a scalar model with exact increments); the average is nearly
-    /// independent of ε_k. Encoder quantisation (an absolute count error) is
-    /// not rescaled.
-    SmoothedFittedInput {
-        /// Half-width K of the moving average, samples (at least 1).
-        half_width_samples: usize,
-    },
+research_pub! {
+    /// Which wheel rotation the relative wheel noise (white and Gauss-Markov)
+    /// is proportional to in the filter's covariance.
+    ///
+    /// With the covariance following θ the noise in metres is `C(θ)·ñ·σ`: it
+    /// grows with the wheel circumference, and the profile cost, which has no
+    /// `log det S`, lowers its weighted residuals by a larger c_e (about `+2σ²`
+    /// for white noise in a scalar model). The simulator's (and a real wheel's)
+    /// relative error is proportional to the *true* rotation; the true rotation
+    /// fitted at θ is `n̂ = ñ·C(θ_ref)/C(θ)` (the distance `ñ·C(θ_ref)` held at
+    /// the covariance reference), which makes the wheel noise in metres
+    /// independent of the circumferences (but not of t_r).
+    ///
+    /// Measured (12 km, 20 seeds, known noise): with the fitted input taken
+    /// from ñ itself the c_e bias flips sign, coloured +0.098 → −0.112 %, paper
+    /// +0.087 → −0.131 % (t ≈ 20), as a scalar model predicts (`+2σ²` with the
+    /// measured input, `−σ²`, attenuation, with the fitted one); t_r, c_d, d
+    /// are unchanged within their spread. Smoothed, and with the input
+    /// log-Jacobian term ([`InputJacobian`] has the table), the bias is gone:
+    /// the default, `SmoothedFittedInput` with ±20 samples.
+    #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "snake_case")]
+    enum WheelNoiseScale {
+        /// σ·ñ, the measured rotation (SPEC §10).
+        #[default]
+        MeasuredInput,
+        /// σ·n̂, `n̂ = n̄·C(θ_ref)/C(θ)` with n̄ the moving average of ñ over
+        /// ±`half_width_samples` (within the filter window), in the noise scale
+        /// and the s-columns of the covariance transition (the mean still uses
+        /// ñ); only with [`CovarianceMode::FollowsTheta`](crate::eiv::CovarianceMode::FollowsTheta),
+        /// θ_ref the start of the fit, batch G-N's θ. With ñ itself the filter's
+        /// variance `σ²ñ_k²` is correlated with the error ε_k it weights (the
+        /// +σ² of a scalar model with exact increments); the average is nearly
+        /// independent of ε_k. Encoder quantisation (an absolute count error) is
+        /// not rescaled.
+        SmoothedFittedInput {
+            /// Half-width K of the moving average, samples (at least 1).
+            half_width_samples: usize,
+        },
+    }
 }
 
 impl WheelNoiseScale {
@@ -194,18 +204,18 @@ impl WheelNoiseScale {
 /// corrected t_r is more spread (RMS/CRB on paper 1.69 → 1.82) and
 /// fresh-drive Ē_p 1–4 cm worse. Antithetic pairs
 /// ([`EivOptions::bootstrap_antithetic`](crate::eiv::EivOptions::bootstrap_antithetic), set by
-/// [`EivOptions::correct_bias`](crate::eiv::EivOptions::correct_bias)), whose means cancel the replicates' odd
+/// `EivOptions::correct_bias`), whose means cancel the replicates' odd
 /// error, remove the same bias with B = 4 (high t_r +0.458 %, t 1.9;
 /// largest |t| 2.8 on paper) and the RMS error falls (t_r on high 5.38 →
 /// 4.01× the bound, paper 1.69 → 1.62×), coverage 93.8 / 96.3 / 97.5 /
 /// 95.0 %. It is the EIV method's default in `calibrate`
 /// (`calibrate::EivMethodOptions::correct_bias`, the CLI's `--correct-bias
-/// B` / `--no-bias-correction`); [`estimate`](fn@crate::eiv::estimate) applies what this field says
+/// B` / `--no-bias-correction`); `estimate` applies what this field says
 /// (default none). The subtracted bias is a mean over the replicates (or
 /// pairs); its Monte Carlo covariance is added to θ's
-/// ([`EivReport::sigma_bias_correction`](crate::eiv::EivReport::sigma_bias_correction)).
+/// (`EivReport::sigma_bias_correction`).
 ///
-/// The replicates hold the fitted noise model ([`EivReport::noise`](crate::eiv::EivReport::noise),
+/// The replicates hold the fitted noise model (`EivReport::noise`,
 /// `fix_noise`): they estimate the bias of θ̂ at the fitted noise. Measured
 /// against replicates that re-estimate the noise (the command above): t_r on
 /// `high` +0.531 % (t 1.9) held, −0.676 % (t −2.4; d t 3.0) re-estimated,
@@ -219,7 +229,7 @@ pub enum BiasCorrection {
     /// The root of the profile cost as is.
     #[default]
     None,
-    /// The parametric [`bootstrap`](fn@crate::eiv::bootstrap) bias (B re-simulations of the fitted
+    /// The parametric `bootstrap` bias (B re-simulations of the fitted
     /// noise at θ̂, each re-fitted without correction) subtracted:
     /// `θ̂ − (mean of the replicates − θ̂)`, for c_e only or for every free
     /// parameter. About B more fits.
@@ -279,7 +289,7 @@ pub struct FirstOrderBias {
 /// +230 %, flagged). Together with [`QuantisationModel::Measurement`] it is
 /// the best combination on every simulated preset with η estimated (paper
 /// t_r −1.2 %, high +4.1 %). With SPEC §10's cost (no input log-Jacobian
-/// term, [`EivOptions::spec`](crate::eiv::EivOptions::spec)) the noise-free straight drive stops at a
+/// term, `EivOptions::spec`) the noise-free straight drive stops at a
 /// second fixed point of the θ/η iteration (c_e −0.057 %, η well above its
 /// lower clamp); with the default cost it does not (c_e to 1e-9). Unless
 /// convergence is also tested on the step that remains after the last
@@ -326,11 +336,11 @@ pub enum QuantisationLevel {
     /// [`EivOptions::noise`](crate::eiv::EivOptions::noise); η_0 scales the white wheel, a_y and β noise only.
     Given,
     /// q read off the wheel readings when they lie on a lattice of counted
-    /// ticks ([`quantisation_step_of_readings`](crate::eiv::quantisation_step_of_readings)) and then held there as with
+    /// ticks (`quantisation_step_of_readings`) and then held there as with
     /// [`QuantisationLevel::Given`]; readings off any lattice (interpolated
     /// ticks, resampled speeds) fall back to
     /// [`QuantisationLevel::ScaledWithWhite`] from the noise model's q.
-    /// [`EivReport::quantisation_step_from_readings`](crate::eiv::EivReport::quantisation_step_from_readings) says which.
+    /// `EivReport::quantisation_step_from_readings` says which.
     FromReadings,
 }
 
@@ -427,31 +437,33 @@ impl std::str::FromStr for LateralNoise {
     }
 }
 
-/// How the filter models the error of the measured sideslip β, a
-/// Gauss-Markov process of σ [`NoiseModel::sideslip_sigma_rad`](crate::eiv::NoiseModel::sideslip_sigma_rad) and time
-/// constant [`NoiseModel::sideslip_time_constant_s`](crate::eiv::NoiseModel::sideslip_time_constant_s) (as the simulator's,
-/// and as a sideslip estimate filtered from the IMU behaves).
-///
-/// The white equivalent puts the noise scales off at the truth on `high`:
-/// it overstates the sideslip error's effect
-/// over the few steps the filter's position innovations span by about the
-/// factor `(1+a)/(1−a)` (80 at τ = 1 s and 40 Hz), and the fit makes up for
-/// it by lowering the drift and position scales and raising the heading
-/// white one (the scoring step from the
-/// truth, 6 drives: drift −0.103, heading white +0.051; with the state
-/// −0.002 and +0.015, as with no sideslip error at all). 10 drives × 12
-/// km of `high`, η estimated: c_e +0.089 → +0.019 %, t_r +1.33 → +0.91 %,
-/// d −0.244 → −0.166 mm/(m/s²).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum SideslipNoise {
-    /// The error is a filter state `e_β` (the true sideslip is `β̃ − e_β`),
-    /// Gauss-Markov like the wheels' coloured errors: one more state.
-    #[default]
-    GaussMarkovState,
-    /// The error taken as white process noise of the long-run variance
-    /// `σ²(1+a)/(1−a)`, `a = exp(−t_s/τ)`.
-    WhiteEquivalent,
+research_pub! {
+    /// How the filter models the error of the measured sideslip β, a
+    /// Gauss-Markov process of σ [`NoiseModel::sideslip_sigma_rad`](crate::eiv::NoiseModel::sideslip_sigma_rad) and time
+    /// constant [`NoiseModel::sideslip_time_constant_s`](crate::eiv::NoiseModel::sideslip_time_constant_s) (as the simulator's,
+    /// and as a sideslip estimate filtered from the IMU behaves).
+    ///
+    /// The white equivalent puts the noise scales off at the truth on `high`:
+    /// it overstates the sideslip error's effect
+    /// over the few steps the filter's position innovations span by about the
+    /// factor `(1+a)/(1−a)` (80 at τ = 1 s and 40 Hz), and the fit makes up for
+    /// it by lowering the drift and position scales and raising the heading
+    /// white one (the scoring step from the
+    /// truth, 6 drives: drift −0.103, heading white +0.051; with the state
+    /// −0.002 and +0.015, as with no sideslip error at all). 10 drives × 12
+    /// km of `high`, η estimated: c_e +0.089 → +0.019 %, t_r +1.33 → +0.91 %,
+    /// d −0.244 → −0.166 mm/(m/s²).
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+    #[serde(rename_all = "snake_case")]
+    enum SideslipNoise {
+        /// The error is a filter state `e_β` (the true sideslip is `β̃ − e_β`),
+        /// Gauss-Markov like the wheels' coloured errors: one more state.
+        #[default]
+        GaussMarkovState,
+        /// The error taken as white process noise of the long-run variance
+        /// `σ²(1+a)/(1−a)`, `a = exp(−t_s/τ)`.
+        WhiteEquivalent,
+    }
 }
 
 /// How the filter models encoder quantisation (q of [`NoiseModel`](crate::eiv::NoiseModel)).

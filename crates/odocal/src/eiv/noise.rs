@@ -179,7 +179,7 @@ impl NoiseModel {
     };
 
     /// The noise model that matches a simulator setting (the "true noise
-    /// model" for [`cramer_rao_bound`](crate::eiv::cramer_rao_bound)). Slip is not represented (it is
+    /// model" for `cramer_rao_bound`). Slip is not represented (it is
     /// absorbed by the common-mode error); the drift time constant is the
     /// position drift's.
     pub fn from_sim(n: &crate::sim::NoiseOptions, sample_time_s: f64) -> Self {
@@ -202,22 +202,24 @@ impl NoiseModel {
         }
     }
 
-    /// The model with each group's standard deviations multiplied by
-    /// `exp(η_j/2)` (variances by `exp(η_j)`).
-    pub fn scaled(&self, eta: &[f64; 6]) -> Self {
-        let f: [f64; 6] = std::array::from_fn(|j| (0.5 * eta[j]).exp());
-        NoiseModel {
-            wheel_white_rel_sigma: self.wheel_white_rel_sigma * f[0],
-            quantisation_step_rev_per_s: self.quantisation_step_rev_per_s * f[0],
-            lateral_acceleration_sigma_m_per_s2: self.lateral_acceleration_sigma_m_per_s2 * f[0],
-            sideslip_sigma_rad: self.sideslip_sigma_rad * f[0],
-            wheel_common_rel_sigma: self.wheel_common_rel_sigma * f[1],
-            wheel_differential_rel_sigma: self.wheel_differential_rel_sigma * f[2],
-            position_white_sigma_m: self.position_white_sigma_m * f[3],
-            heading_white_sigma_rad: self.heading_white_sigma_rad * f[5],
-            position_drift_sigma_m: self.position_drift_sigma_m * f[4],
-            heading_drift_sigma_rad: self.heading_drift_sigma_rad * f[4],
-            ..*self
+    research_pub! {
+        /// The model with each group's standard deviations multiplied by
+        /// `exp(η_j/2)` (variances by `exp(η_j)`).
+        fn scaled(&self, eta: &[f64; 6]) -> Self {
+            let f: [f64; 6] = std::array::from_fn(|j| (0.5 * eta[j]).exp());
+            NoiseModel {
+                wheel_white_rel_sigma: self.wheel_white_rel_sigma * f[0],
+                quantisation_step_rev_per_s: self.quantisation_step_rev_per_s * f[0],
+                lateral_acceleration_sigma_m_per_s2: self.lateral_acceleration_sigma_m_per_s2 * f[0],
+                sideslip_sigma_rad: self.sideslip_sigma_rad * f[0],
+                wheel_common_rel_sigma: self.wheel_common_rel_sigma * f[1],
+                wheel_differential_rel_sigma: self.wheel_differential_rel_sigma * f[2],
+                position_white_sigma_m: self.position_white_sigma_m * f[3],
+                heading_white_sigma_rad: self.heading_white_sigma_rad * f[5],
+                position_drift_sigma_m: self.position_drift_sigma_m * f[4],
+                heading_drift_sigma_rad: self.heading_drift_sigma_rad * f[4],
+                ..*self
+            }
         }
     }
 

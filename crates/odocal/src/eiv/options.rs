@@ -12,56 +12,60 @@ use super::{
 use crate::error::{Error, Result};
 use crate::model::Theta;
 
-/// How the filter's covariance recursion (P, S, K) depends on θ.
-///
-/// SPEC §10 asks for both the profile cost `½ Σ νᵀS(θ)⁻¹ν` with S depending
-/// on θ through `F_n Σ_n F_nᵀ` and for Q held at a reference θ; the two
-/// differ exactly in whether `∂S/∂θ` is zero. See the module docs for the
-/// measured consequences.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum CovarianceMode {
-    /// The covariance recursion is linearised at a reference θ (batch G-N's
-    /// result, then each pass's result): `∂S/∂θ = 0` and θ solves the
-    /// corrected score of the module docs.
-    HeldAtReference,
-    /// The covariance recursion is evaluated at θ: S depends on θ, `∂P/∂θ`
-    /// is propagated exactly, and θ minimises the profile (joint-MAP over
-    /// the latent true inputs; Deming / total least squares) cost.
-    FollowsTheta,
+research_pub! {
+    /// How the filter's covariance recursion (P, S, K) depends on θ.
+    ///
+    /// SPEC §10 asks for both the profile cost `½ Σ νᵀS(θ)⁻¹ν` with S depending
+    /// on θ through `F_n Σ_n F_nᵀ` and for Q held at a reference θ; the two
+    /// differ exactly in whether `∂S/∂θ` is zero. See the module docs for the
+    /// measured consequences.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+    #[serde(rename_all = "snake_case")]
+    enum CovarianceMode {
+        /// The covariance recursion is linearised at a reference θ (batch G-N's
+        /// result, then each pass's result): `∂S/∂θ = 0` and θ solves the
+        /// corrected score of the module docs.
+        HeldAtReference,
+        /// The covariance recursion is evaluated at θ: S depends on θ, `∂P/∂θ`
+        /// is propagated exactly, and θ minimises the profile (joint-MAP over
+        /// the latent true inputs; Deming / total least squares) cost.
+        FollowsTheta,
+    }
 }
 
-/// The covariance of θ reported by [`estimate`](crate::eiv::estimate) ([`EivReport::covariance`](crate::eiv::EivReport::covariance),
-/// [`EivReport::sigma`](crate::eiv::EivReport::sigma)) and used by the halves check.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum CovarianceEstimate {
-    /// `H_θ⁻¹`, the inverse of the scoring metric at the fitted noise model:
-    /// right when the noise model is (the fitted scales of the right
-    /// processes). On the `coloured` preset, η estimated from the
-    /// production-car model (whose common-mode wheel noise has τ_c = 2 s
-    /// against the simulator's 5 s), c_e's σ is 0.0062 % against an actual
-    /// spread of 0.023 % (coverage 35 %), so the halves check rejects 7 of
-    /// 20 good fits. Where the model is right the two agree (the
-    /// simulator's noise model given: mean σ 0.0194 % against the block
-    /// sandwich's 0.0197 %).
-    Model,
-    /// The default.
-    /// Per parameter the larger of the `H_θ⁻¹` σ and the block sandwich σ
-    /// ([`EivReport::sigma_block`](crate::eiv::EivReport::sigma_block)): `C = D H_θ⁻¹ D` with
-    /// `D = diag(max(1, σ_block,i/σ_i))`, so the correlations are the
-    /// model's. The block sandwich sums the per-update θ-scores over 20 s
-    /// blocks (several correlation times of the wheel noise) and so stays
-    /// honest when the noise model's time constants are wrong; the larger
-    /// of the two keeps the model's σ where the blocks are few (a short
-    /// drive) and their estimate noisy. Measured against [`CovarianceEstimate::Model`]
-    /// (12 km, seeds 1–20): `coloured` c_e coverage 35 → 90 %, halves
-    /// fallbacks 7 → 0, what a user gets c_e 2.82× → 1.62× the Cramér–Rao
-    /// bound; `white` identical; on `paper` the halves check does not
-    /// reject two fits with t_r +4.7 and +3.9 % that it rejects with the
-    /// model's σ (it measures spread, not bias).
-    #[default]
-    LargerOfModelAndBlock,
+research_pub! {
+    /// The covariance of θ reported by [`estimate`](crate::eiv::estimate) ([`EivReport::covariance`](crate::eiv::EivReport::covariance),
+    /// [`EivReport::sigma`](crate::eiv::EivReport::sigma)) and used by the halves check.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+    #[serde(rename_all = "snake_case")]
+    enum CovarianceEstimate {
+        /// `H_θ⁻¹`, the inverse of the scoring metric at the fitted noise model:
+        /// right when the noise model is (the fitted scales of the right
+        /// processes). On the `coloured` preset, η estimated from the
+        /// production-car model (whose common-mode wheel noise has τ_c = 2 s
+        /// against the simulator's 5 s), c_e's σ is 0.0062 % against an actual
+        /// spread of 0.023 % (coverage 35 %), so the halves check rejects 7 of
+        /// 20 good fits. Where the model is right the two agree (the
+        /// simulator's noise model given: mean σ 0.0194 % against the block
+        /// sandwich's 0.0197 %).
+        Model,
+        /// The default.
+        /// Per parameter the larger of the `H_θ⁻¹` σ and the block sandwich σ
+        /// ([`EivReport::sigma_block`](crate::eiv::EivReport::sigma_block)): `C = D H_θ⁻¹ D` with
+        /// `D = diag(max(1, σ_block,i/σ_i))`, so the correlations are the
+        /// model's. The block sandwich sums the per-update θ-scores over 20 s
+        /// blocks (several correlation times of the wheel noise) and so stays
+        /// honest when the noise model's time constants are wrong; the larger
+        /// of the two keeps the model's σ where the blocks are few (a short
+        /// drive) and their estimate noisy. Measured against [`CovarianceEstimate::Model`]
+        /// (12 km, seeds 1–20): `coloured` c_e coverage 35 → 90 %, halves
+        /// fallbacks 7 → 0, what a user gets c_e 2.82× → 1.62× the Cramér–Rao
+        /// bound; `white` identical; on `paper` the halves check does not
+        /// reject two fits with t_r +4.7 and +3.9 % that it rejects with the
+        /// model's σ (it measures spread, not bias).
+        #[default]
+        LargerOfModelAndBlock,
+    }
 }
 
 /// Options of the EIV calibration. Defaults follow SPEC §10.
@@ -165,14 +169,14 @@ pub struct EivOptions {
     pub bootstrap_antithetic: bool,
     /// Values at which parameters that the filter names unobservable (with
     /// [`EivOptions::fix_unobservable`]) are held. `None` (the default)
-    /// holds them at the start θ given to [`estimate`](fn@crate::eiv::estimate). `calibrate` passes
+    /// holds them at the start θ given to `estimate`. `calibrate` passes
     /// the calibration's θ_0: the start is batch G-N's estimate, which for
     /// a parameter the data cannot determine can be far off (on the RAV4
     /// drive, t_r = 5.63 m, so the result was rejected as implausible).
     pub hold_unobservable_at: Option<Theta>,
     /// The estimator's modelling alternatives; public with the cargo
     /// feature `research` (the studies of crates/odocal-lab), otherwise
-    /// always their defaults ([`EivOptions::spec`] aside).
+    /// always their defaults (`EivOptions::spec` aside).
     #[serde(flatten)]
     #[cfg_attr(not(feature = "research"), doc(hidden))]
     pub research: ResearchOptions,
@@ -404,46 +408,53 @@ impl EivOptions {
         o
     }
 
-    /// Subtracts the estimator's own bias from every parameter, estimated by
-    /// a parametric bootstrap of `replicates` re-simulations (seed `seed`;
-    /// an even number: antithetic pairs, [`EivOptions::bootstrap_antithetic`])
-    /// on the smoothed trajectory (`BIAS_BOOTSTRAP_SMOOTHING_SAMPLES`),
-    /// each holding the fitted noise model:
-    /// what the EIV method of `calibrate` applies by default (B = 4), the
-    /// CLI's `--correct-bias B` and Python's `correct_bias=B`, measured in
-    /// [`BiasCorrection`]'s docs.
-    ///
-    /// ```
-    /// use odocal::eiv::{BiasCorrection, EivOptions};
-    /// let mut o = EivOptions::default();
-    /// o.correct_bias(10, 0);
-    /// assert_eq!(o.bias_correction, BiasCorrection::Bootstrap { replicates: 10, seed: 0, all_parameters: true });
-    /// assert!(o.bootstrap_antithetic);
-    /// assert!(o.validate().is_ok());
-    /// o.correct_bias(5, 0); // an odd B cannot be paired
-    /// assert!(o.validate().is_err());
-    /// ```
-    pub fn correct_bias(&mut self, replicates: usize, seed: u64) {
-        self.bias_correction = BiasCorrection::Bootstrap { replicates, seed, all_parameters: true };
-        self.bootstrap_inputs = BootstrapInputs::Smoothed { half_width_samples: BIAS_BOOTSTRAP_SMOOTHING_SAMPLES };
-        self.bootstrap_antithetic = true;
+    research_pub! {
+        /// Subtracts the estimator's own bias from every parameter, estimated by
+        /// a parametric bootstrap of `replicates` re-simulations (seed `seed`;
+        /// an even number: antithetic pairs, [`EivOptions::bootstrap_antithetic`])
+        /// on the smoothed trajectory (`BIAS_BOOTSTRAP_SMOOTHING_SAMPLES`),
+        /// each holding the fitted noise model:
+        /// what the EIV method of `calibrate` applies by default (B = 4), the
+        /// CLI's `--correct-bias B` and Python's `correct_bias=B`, measured in
+        /// [`BiasCorrection`]'s docs. A program asks for it with
+        /// [`EivMethodOptions::correct_bias`](crate::EivMethodOptions::correct_bias).
+        ///
+        /// ```
+        /// # #[cfg(feature = "research")] {
+        /// use odocal::eiv::{BiasCorrection, EivOptions};
+        /// let mut o = EivOptions::default();
+        /// o.correct_bias(10, 0);
+        /// assert_eq!(o.bias_correction, BiasCorrection::Bootstrap { replicates: 10, seed: 0, all_parameters: true });
+        /// assert!(o.bootstrap_antithetic);
+        /// assert!(o.validate().is_ok());
+        /// o.correct_bias(5, 0); // an odd B cannot be paired
+        /// assert!(o.validate().is_err());
+        /// # }
+        /// ```
+        fn correct_bias(&mut self, replicates: usize, seed: u64) {
+            self.bias_correction = BiasCorrection::Bootstrap { replicates, seed, all_parameters: true };
+            self.bootstrap_inputs = BootstrapInputs::Smoothed { half_width_samples: BIAS_BOOTSTRAP_SMOOTHING_SAMPLES };
+            self.bootstrap_antithetic = true;
+        }
     }
 
-    /// The defaults with SPEC §10's formulation of the cost and of `R`: the
-    /// relative wheel noise scaled by the measured rotation, no input
-    /// log-Jacobian term, the 1 mm position floor. The Cramér–Rao bound
-    /// ([`cramer_rao_bound`](crate::eiv::cramer_rao_bound), the experiment's
-    /// and the studies') is computed with it, so that it depends on the noise
-    /// model only, not on the estimator's bias corrections.
-    pub fn spec() -> Self {
-        EivOptions {
-            research: ResearchOptions {
-                wheel_noise_scale: WheelNoiseScale::MeasuredInput,
-                input_jacobian: InputJacobian::None,
-                position_floor_m: SPEC_POSITION_FLOOR_M,
-                ..ResearchOptions::default()
-            },
-            ..EivOptions::default()
+    research_pub! {
+        /// The defaults with SPEC §10's formulation of the cost and of `R`: the
+        /// relative wheel noise scaled by the measured rotation, no input
+        /// log-Jacobian term, the 1 mm position floor. The Cramér–Rao bound
+        /// ([`cramer_rao_bound`](crate::eiv::cramer_rao_bound), the experiment's
+        /// and the studies') is computed with it, so that it depends on the noise
+        /// model only, not on the estimator's bias corrections.
+        fn spec() -> Self {
+            EivOptions {
+                research: ResearchOptions {
+                    wheel_noise_scale: WheelNoiseScale::MeasuredInput,
+                    input_jacobian: InputJacobian::None,
+                    position_floor_m: SPEC_POSITION_FLOOR_M,
+                    ..ResearchOptions::default()
+                },
+                ..EivOptions::default()
+            }
         }
     }
 

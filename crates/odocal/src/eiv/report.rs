@@ -207,211 +207,223 @@ impl std::fmt::Display for EivWarning {
     }
 }
 
-/// Observability from the information matrix `H_θ`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct EivObservability {
-    /// Reciprocal condition number of the equilibrated `H_θ` over the free parameters.
-    pub rcond: f64,
-    /// Standard deviation of each parameter over its resolution (∞ when
-    /// singular; 0 for parameters not estimated).
-    pub sigma_over_resolution: [f64; 4],
-    /// Parameters held fixed because the data cannot determine them.
-    pub unobservable: Vec<Parameter>,
-    /// Parameters in a near-collinear combination of the free ones.
-    pub collinear: Vec<Parameter>,
+research_pub! {
+    /// Observability from the information matrix `H_θ`.
+    #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+    struct EivObservability {
+        /// Reciprocal condition number of the equilibrated `H_θ` over the free parameters.
+        pub rcond: f64,
+        /// Standard deviation of each parameter over its resolution (∞ when
+        /// singular; 0 for parameters not estimated).
+        pub sigma_over_resolution: [f64; 4],
+        /// Parameters held fixed because the data cannot determine them.
+        pub unobservable: Vec<Parameter>,
+        /// Parameters in a near-collinear combination of the free ones.
+        pub collinear: Vec<Parameter>,
+    }
 }
 
-/// Per-window consistency numbers.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct WindowDiagnostics {
-    /// The window.
-    pub window: Window,
-    /// Measurement updates.
-    pub updates: usize,
-    /// NIS per degree of freedom, `Σ νᵀS⁻¹ν / (3·updates)` (1 when consistent).
-    pub nis: f64,
-    /// Lag-1 autocorrelation of the whitened innovations `[x, y, ψ]`.
-    pub lag1: [f64; 3],
-    /// Expected NIS per degree of freedom when the data have the fitted
-    /// noise but none of the measurement floors
-    /// (`InnovationNull::FloorsAsRegularisation`; 1 with
-    /// `InnovationNull::FittedModel`).
-    #[serde(default = "one")]
-    pub nis_without_floors: f64,
-    /// Expected lag-1 autocorrelation `[x, y, ψ]` of the whitened
-    /// innovations under the same null (0 with `InnovationNull::FittedModel`).
-    #[serde(default)]
-    pub lag1_without_floors: [f64; 3],
+research_pub! {
+    /// Per-window consistency numbers.
+    #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+    struct WindowDiagnostics {
+        /// The window.
+        pub window: Window,
+        /// Measurement updates.
+        pub updates: usize,
+        /// NIS per degree of freedom, `Σ νᵀS⁻¹ν / (3·updates)` (1 when consistent).
+        pub nis: f64,
+        /// Lag-1 autocorrelation of the whitened innovations `[x, y, ψ]`.
+        pub lag1: [f64; 3],
+        /// Expected NIS per degree of freedom when the data have the fitted
+        /// noise but none of the measurement floors
+        /// (`InnovationNull::FloorsAsRegularisation`; 1 with
+        /// `InnovationNull::FittedModel`).
+        #[serde(default = "one")]
+        pub nis_without_floors: f64,
+        /// Expected lag-1 autocorrelation `[x, y, ψ]` of the whitened
+        /// innovations under the same null (0 with `InnovationNull::FittedModel`).
+        #[serde(default)]
+        pub lag1_without_floors: [f64; 3],
+    }
 }
 
 pub(super) fn one() -> f64 {
     1.0
 }
 
-/// θ re-estimated on each half of the windows (one scoring step from the estimate).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct HalvesCheck {
-    /// θ from the first half.
-    pub first: Theta,
-    /// θ from the second half.
-    pub second: Theta,
-    /// Difference over its standard deviation per parameter (0 for fixed ones).
-    pub z: [f64; 4],
+research_pub! {
+    /// θ re-estimated on each half of the windows (one scoring step from the estimate).
+    #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+    struct HalvesCheck {
+        /// θ from the first half.
+        pub first: Theta,
+        /// θ from the second half.
+        pub second: Theta,
+        /// Difference over its standard deviation per parameter (0 for fixed ones).
+        pub z: [f64; 4],
+    }
 }
 
-/// One accepted scoring iteration.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct IterationRecord {
-    /// θ after the step.
-    pub theta: Theta,
-    /// η after the step.
-    pub eta: [f64; 6],
-    /// The objective M.
-    pub cost: f64,
-    /// `max |step|/σ` of the step.
-    pub step_over_sigma: f64,
-    /// Step length factor after halving (1 = full step).
-    pub step_factor: f64,
+research_pub! {
+    /// One accepted scoring iteration.
+    #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+    struct IterationRecord {
+        /// θ after the step.
+        pub theta: Theta,
+        /// η after the step.
+        pub eta: [f64; 6],
+        /// The objective M.
+        pub cost: f64,
+        /// `max |step|/σ` of the step.
+        pub step_over_sigma: f64,
+        /// Step length factor after halving (1 = full step).
+        pub step_factor: f64,
+    }
 }
 
-/// One scoring pass (covariance held at one reference θ).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct PassReport {
-    /// Reference θ of the covariance recursion.
-    pub theta_reference: Theta,
-    /// θ at the end of the pass.
-    pub theta: Theta,
-    /// Objective at the start and at the end.
-    pub initial_cost: f64,
-    /// Objective at the end.
-    pub final_cost: f64,
-    /// Why it stopped.
-    pub termination: Termination,
-    /// Accepted iterations.
-    pub history: Vec<IterationRecord>,
-    /// `max |Δη_j|/σ_j` of the η scoring step remaining at the end (η not at
-    /// a clamp; `None` when η is fixed or the pass stopped before a step).
-    #[serde(default)]
-    pub eta_step_over_sigma: Option<f64>,
+research_pub! {
+    /// One scoring pass (covariance held at one reference θ).
+    #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+    struct PassReport {
+        /// Reference θ of the covariance recursion.
+        pub theta_reference: Theta,
+        /// θ at the end of the pass.
+        pub theta: Theta,
+        /// Objective at the start and at the end.
+        pub initial_cost: f64,
+        /// Objective at the end.
+        pub final_cost: f64,
+        /// Why it stopped.
+        pub termination: Termination,
+        /// Accepted iterations.
+        pub history: Vec<IterationRecord>,
+        /// `max |Δη_j|/σ_j` of the η scoring step remaining at the end (η not at
+        /// a clamp; `None` when η is fixed or the pass stopped before a step).
+        #[serde(default)]
+        pub eta_step_over_sigma: Option<f64>,
+    }
 }
 
-/// The result of an EIV calibration.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct EivReport {
-    /// The starting θ.
-    pub initial_theta: Theta,
-    /// The estimate.
-    pub theta: Theta,
-    /// Which parameters were estimated.
-    pub free: [bool; 4],
-    /// θ's covariance at the estimate (zero rows for fixed parameters):
-    /// `H_θ⁻¹`, or per parameter raised to the block sandwich's
-    /// (`EivOptions::covariance_estimate`), plus what estimating η adds
-    /// (`EivOptions::noise_estimate_in_covariance`).
-    pub covariance: [[f64; 4]; 4],
-    /// Standard deviations `sqrt(diag covariance)`.
-    pub sigma: [f64; 4],
-    /// Standard deviations of the sandwich `H_θ⁻¹ B H_θ⁻¹`, B the sum of the
-    /// outer products of the per-update θ-scores (robust to a wrong noise scale).
-    pub sigma_sandwich: [f64; 4],
-    /// Standard deviations of the block sandwich `H_θ⁻¹ B_b H_θ⁻¹`, `B_b`
-    /// from the per-update θ-scores summed over 20 s blocks within each
-    /// window (centred, lag-1 Newey–West across neighbouring blocks): robust
-    /// to a wrong noise model *and* to serially correlated scores, which the
-    /// per-update [`EivReport::sigma_sandwich`] is not. NaN with
-    /// fewer than two blocks.
-    pub sigma_block: [f64; 4],
-    /// Standard deviations from the Gaussian Fisher information at the
-    /// estimate with both terms (`½ tr(S⁻¹∂S S⁻¹∂S)` included), jointly
-    /// with the estimated η (θ block of the inverse): the Cramér–Rao form
-    /// of [`cramer_rao_bound`](crate::eiv::cramer_rao_bound) at θ̂ and the fitted noise. Equal to the
-    /// mean-only information with the covariance held. Linearised along the
-    /// measured inputs (a fit has no other), whose noise counts as
-    /// excitation: under heavy wheel noise it understates t_r's and d's σ
-    /// (on the `high` preset t_r's by about half; it covered t_r in 22–25 %
-    /// of drives). A diagnostic; [`EivReport::sigma`] is raised to the block
-    /// sandwich, which measures the scores' actual spread.
-    pub sigma_fisher: [f64; 4],
-    /// The part of θ's σ that estimating η from the drive adds
-    /// (`EivOptions::noise_estimate_in_covariance`): `sqrt(diag A Σ_η Aᵀ)`.
-    /// Included in [`EivReport::covariance`] and [`EivReport::sigma`] when
-    /// that option is on; 0 with a fixed noise model or the option off.
-    #[serde(default)]
-    pub sigma_noise_estimate: [f64; 4],
-    /// `∂θ̂/∂η_j` at the estimate (`[parameter][source]`, in θ's units per
-    /// unit of η; `EivOptions::noise_estimate_in_covariance`): how far θ̂
-    /// moves when a source's variance is e-fold. Zero for sources not
-    /// estimated, with a fixed noise model or with the option off.
-    #[serde(default)]
-    pub theta_eta_sensitivity: [[f64; 6]; 4],
-    /// `∂η̂_j/∂θ_i` at the estimate (`[source][parameter]`, per unit of θ in
-    /// SI), from the expected information of the marginal likelihood M:
-    /// `−I_ηη⁻¹ I_ηθ` over the estimated sources. How the noise estimate
-    /// follows θ; with [`EivReport::theta_eta_sensitivity`] it gives the
-    /// feedback `A B` between θ̂ and η̂. Zero with a fixed noise model.
-    #[serde(default)]
-    pub eta_theta_sensitivity: [[f64; 4]; 6],
-    /// Estimated log-scale factors η (0 with `fix_noise`).
-    pub eta: [f64; 6],
-    /// Standard deviations of η (0 when fixed or at a clamp).
-    pub eta_sigma: [f64; 6],
-    /// Filter passes over the drive: `[with derivatives, objective only]`.
-    pub evaluations: [usize; 2],
-    /// The test of the heading drift's tie to the pose-drift scale η_4, and
-    /// whether the result fitted the heading drift on a scale of its own
-    /// (η_6; [`EivReport::noise`] then carries its σ). None where η is not
-    /// estimated or the pose drift is held.
-    #[serde(default)]
-    pub heading_drift: Option<HeadingDriftTest>,
-    /// The estimated noise model in physical units.
-    pub noise: NoiseModel,
-    /// Objective M at the start and the end of the last pass.
-    pub final_cost: f64,
-    /// Total accepted iterations over all passes.
-    pub iterations: usize,
-    /// Why the last pass stopped.
-    pub termination: Termination,
-    /// Every pass.
-    pub passes: Vec<PassReport>,
-    /// Observability at the estimate.
-    pub observability: EivObservability,
-    /// Per-window consistency.
-    pub windows: Vec<WindowDiagnostics>,
-    /// θ stability across halves (None with fewer than two windows).
-    pub halves: Option<HalvesCheck>,
-    /// Everything that makes the result less trustworthy.
-    pub warnings: Vec<EivWarning>,
-    /// The first-order bias of the profile cost's root at the estimate, a
-    /// diagnostic (None with the covariance held or a singular `H_θ`).
-    pub first_order_bias: Option<FirstOrderBias>,
-    /// The root of the profile cost before any `BiasCorrection`.
-    pub theta_uncorrected: Theta,
-    /// The bias subtracted by [`EivOptions::bias_correction`](crate::eiv::EivOptions::bias_correction) (`theta =
-    /// theta_uncorrected − bias_subtracted`; zeros without a correction).
-    pub bias_subtracted: [f64; 4],
-    /// What the bootstrap of [`EivOptions::bias_correction`](crate::eiv::EivOptions::bias_correction) adds to θ's σ
-    /// (already in [`EivReport::sigma`] and the covariance): the Monte Carlo
-    /// error of the subtracted bias, the replicates' covariance over the
-    /// number of replicates fitted, for the corrected parameters (zeros
-    /// without a correction).
-    #[serde(default)]
-    pub sigma_bias_correction: [f64; 4],
-    /// The bias correction's replicates that could not be fitted: (index,
-    /// error). The bias is then the mean over the complete antithetic pairs
-    /// (or the replicates) that were fitted; empty without a correction or
-    /// when every replicate was fitted.
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub bias_replicates_failed: Vec<(usize, String)>,
-    /// Measurement updates used.
-    pub updates: usize,
-    /// Wall time, s.
-    pub timing_s: f64,
-    /// The quantisation step read off the wheel readings' lattice, rev/s,
-    /// with [`QuantisationLevel::FromReadings`](crate::eiv::QuantisationLevel::FromReadings) (None when the readings lie
-    /// on no lattice or another level was asked for); then also
-    /// [`EivReport::noise`]'s q.
-    #[serde(default)]
-    pub quantisation_step_from_readings: Option<f64>,
+research_pub! {
+    /// The result of an EIV calibration.
+    #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+    struct EivReport {
+        /// The starting θ.
+        pub initial_theta: Theta,
+        /// The estimate.
+        pub theta: Theta,
+        /// Which parameters were estimated.
+        pub free: [bool; 4],
+        /// θ's covariance at the estimate (zero rows for fixed parameters):
+        /// `H_θ⁻¹`, or per parameter raised to the block sandwich's
+        /// (`EivOptions::covariance_estimate`), plus what estimating η adds
+        /// (`EivOptions::noise_estimate_in_covariance`).
+        pub covariance: [[f64; 4]; 4],
+        /// Standard deviations `sqrt(diag covariance)`.
+        pub sigma: [f64; 4],
+        /// Standard deviations of the sandwich `H_θ⁻¹ B H_θ⁻¹`, B the sum of the
+        /// outer products of the per-update θ-scores (robust to a wrong noise scale).
+        pub sigma_sandwich: [f64; 4],
+        /// Standard deviations of the block sandwich `H_θ⁻¹ B_b H_θ⁻¹`, `B_b`
+        /// from the per-update θ-scores summed over 20 s blocks within each
+        /// window (centred, lag-1 Newey–West across neighbouring blocks): robust
+        /// to a wrong noise model *and* to serially correlated scores, which the
+        /// per-update [`EivReport::sigma_sandwich`] is not. NaN with
+        /// fewer than two blocks.
+        pub sigma_block: [f64; 4],
+        /// Standard deviations from the Gaussian Fisher information at the
+        /// estimate with both terms (`½ tr(S⁻¹∂S S⁻¹∂S)` included), jointly
+        /// with the estimated η (θ block of the inverse): the Cramér–Rao form
+        /// of [`cramer_rao_bound`](crate::eiv::cramer_rao_bound) at θ̂ and the fitted noise. Equal to the
+        /// mean-only information with the covariance held. Linearised along the
+        /// measured inputs (a fit has no other), whose noise counts as
+        /// excitation: under heavy wheel noise it understates t_r's and d's σ
+        /// (on the `high` preset t_r's by about half; it covered t_r in 22–25 %
+        /// of drives). A diagnostic; [`EivReport::sigma`] is raised to the block
+        /// sandwich, which measures the scores' actual spread.
+        pub sigma_fisher: [f64; 4],
+        /// The part of θ's σ that estimating η from the drive adds
+        /// (`EivOptions::noise_estimate_in_covariance`): `sqrt(diag A Σ_η Aᵀ)`.
+        /// Included in [`EivReport::covariance`] and [`EivReport::sigma`] when
+        /// that option is on; 0 with a fixed noise model or the option off.
+        #[serde(default)]
+        pub sigma_noise_estimate: [f64; 4],
+        /// `∂θ̂/∂η_j` at the estimate (`[parameter][source]`, in θ's units per
+        /// unit of η; `EivOptions::noise_estimate_in_covariance`): how far θ̂
+        /// moves when a source's variance is e-fold. Zero for sources not
+        /// estimated, with a fixed noise model or with the option off.
+        #[serde(default)]
+        pub theta_eta_sensitivity: [[f64; 6]; 4],
+        /// `∂η̂_j/∂θ_i` at the estimate (`[source][parameter]`, per unit of θ in
+        /// SI), from the expected information of the marginal likelihood M:
+        /// `−I_ηη⁻¹ I_ηθ` over the estimated sources. How the noise estimate
+        /// follows θ; with [`EivReport::theta_eta_sensitivity`] it gives the
+        /// feedback `A B` between θ̂ and η̂. Zero with a fixed noise model.
+        #[serde(default)]
+        pub eta_theta_sensitivity: [[f64; 4]; 6],
+        /// Estimated log-scale factors η (0 with `fix_noise`).
+        pub eta: [f64; 6],
+        /// Standard deviations of η (0 when fixed or at a clamp).
+        pub eta_sigma: [f64; 6],
+        /// Filter passes over the drive: `[with derivatives, objective only]`.
+        pub evaluations: [usize; 2],
+        /// The test of the heading drift's tie to the pose-drift scale η_4, and
+        /// whether the result fitted the heading drift on a scale of its own
+        /// (η_6; [`EivReport::noise`] then carries its σ). None where η is not
+        /// estimated or the pose drift is held.
+        #[serde(default)]
+        pub heading_drift: Option<HeadingDriftTest>,
+        /// The estimated noise model in physical units.
+        pub noise: NoiseModel,
+        /// Objective M at the start and the end of the last pass.
+        pub final_cost: f64,
+        /// Total accepted iterations over all passes.
+        pub iterations: usize,
+        /// Why the last pass stopped.
+        pub termination: Termination,
+        /// Every pass.
+        pub passes: Vec<PassReport>,
+        /// Observability at the estimate.
+        pub observability: EivObservability,
+        /// Per-window consistency.
+        pub windows: Vec<WindowDiagnostics>,
+        /// θ stability across halves (None with fewer than two windows).
+        pub halves: Option<HalvesCheck>,
+        /// Everything that makes the result less trustworthy.
+        pub warnings: Vec<EivWarning>,
+        /// The first-order bias of the profile cost's root at the estimate, a
+        /// diagnostic (None with the covariance held or a singular `H_θ`).
+        pub first_order_bias: Option<FirstOrderBias>,
+        /// The root of the profile cost before any `BiasCorrection`.
+        pub theta_uncorrected: Theta,
+        /// The bias subtracted by [`EivOptions::bias_correction`](crate::eiv::EivOptions::bias_correction) (`theta =
+        /// theta_uncorrected − bias_subtracted`; zeros without a correction).
+        pub bias_subtracted: [f64; 4],
+        /// What the bootstrap of [`EivOptions::bias_correction`](crate::eiv::EivOptions::bias_correction) adds to θ's σ
+        /// (already in [`EivReport::sigma`] and the covariance): the Monte Carlo
+        /// error of the subtracted bias, the replicates' covariance over the
+        /// number of replicates fitted, for the corrected parameters (zeros
+        /// without a correction).
+        #[serde(default)]
+        pub sigma_bias_correction: [f64; 4],
+        /// The bias correction's replicates that could not be fitted: (index,
+        /// error). The bias is then the mean over the complete antithetic pairs
+        /// (or the replicates) that were fitted; empty without a correction or
+        /// when every replicate was fitted.
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        pub bias_replicates_failed: Vec<(usize, String)>,
+        /// Measurement updates used.
+        pub updates: usize,
+        /// Wall time, s.
+        pub timing_s: f64,
+        /// The quantisation step read off the wheel readings' lattice, rev/s,
+        /// with [`QuantisationLevel::FromReadings`](crate::eiv::QuantisationLevel::FromReadings) (None when the readings lie
+        /// on no lattice or another level was asked for); then also
+        /// [`EivReport::noise`]'s q.
+        #[serde(default)]
+        pub quantisation_step_from_readings: Option<f64>,
+    }
 }
 
 impl std::fmt::Display for EivReport {
@@ -432,33 +444,35 @@ impl std::fmt::Display for EivReport {
     }
 }
 
-/// The Cramér–Rao bound of θ for one drive.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct CrbReport {
-    /// θ at which the bound is evaluated (θ_true).
-    pub theta: Theta,
-    /// Which parameters were free.
-    pub free: [bool; 4],
-    /// The Gaussian Fisher information of θ with both terms (4×4):
-    /// `Σ (∂ν/∂θ_i)ᵀS⁻¹(∂ν/∂θ_j) + ½ tr(S⁻¹ ∂S/∂θ_i S⁻¹ ∂S/∂θ_j)`, the
-    /// covariance recursion following θ.
-    pub information: [[f64; 4]; 4],
-    /// Its inverse over the free parameters (zero rows for fixed ones).
-    pub covariance: [[f64; 4]; 4],
-    /// `sqrt(diag)` of the covariance: the smallest standard deviation an
-    /// unbiased estimator can have.
-    pub sigma: [f64; 4],
-    /// The mean-only information `Σ (∂ν/∂θ)ᵀS⁻¹(∂ν/∂θ)` (no `∂S/∂θ` term;
-    /// for comparison).
-    pub information_mean_only: [[f64; 4]; 4],
-    /// `sqrt(diag)` of the inverse of the mean-only information (≥ `sigma`).
-    pub sigma_mean_only: [f64; 4],
-    /// The bound when the noise scales are unknown too: `sqrt(diag)` of the
-    /// θ block of the inverse of the joint Fisher information of θ and the
-    /// log-scales η of the noise sources present in the model (η as
-    /// nuisance parameters; ≥ `sigma`). This is the fair bound for EIV with
-    /// η estimated (the library default): the information that the size of
-    /// the innovations carries about θ (the trace term of `sigma`) is shared
-    /// with η. `None` when the joint matrix is singular.
-    pub sigma_noise_estimated: Option<[f64; 4]>,
+research_pub! {
+    /// The Cramér–Rao bound of θ for one drive.
+    #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+    struct CrbReport {
+        /// θ at which the bound is evaluated (θ_true).
+        pub theta: Theta,
+        /// Which parameters were free.
+        pub free: [bool; 4],
+        /// The Gaussian Fisher information of θ with both terms (4×4):
+        /// `Σ (∂ν/∂θ_i)ᵀS⁻¹(∂ν/∂θ_j) + ½ tr(S⁻¹ ∂S/∂θ_i S⁻¹ ∂S/∂θ_j)`, the
+        /// covariance recursion following θ.
+        pub information: [[f64; 4]; 4],
+        /// Its inverse over the free parameters (zero rows for fixed ones).
+        pub covariance: [[f64; 4]; 4],
+        /// `sqrt(diag)` of the covariance: the smallest standard deviation an
+        /// unbiased estimator can have.
+        pub sigma: [f64; 4],
+        /// The mean-only information `Σ (∂ν/∂θ)ᵀS⁻¹(∂ν/∂θ)` (no `∂S/∂θ` term;
+        /// for comparison).
+        pub information_mean_only: [[f64; 4]; 4],
+        /// `sqrt(diag)` of the inverse of the mean-only information (≥ `sigma`).
+        pub sigma_mean_only: [f64; 4],
+        /// The bound when the noise scales are unknown too: `sqrt(diag)` of the
+        /// θ block of the inverse of the joint Fisher information of θ and the
+        /// log-scales η of the noise sources present in the model (η as
+        /// nuisance parameters; ≥ `sigma`). This is the fair bound for EIV with
+        /// η estimated (the library default): the information that the size of
+        /// the innovations carries about θ (the trace term of `sigma`) is shared
+        /// with η. `None` when the joint matrix is singular.
+        pub sigma_noise_estimated: Option<[f64; 4]>,
+    }
 }

@@ -1,7 +1,12 @@
 //! Gauss-Newton identification of θ (SPEC §4, paper §3).
 //!
-//! Expert API: for programs that run batch Gauss-Newton on segments they
-//! chose ([`crate::segment`]); [`crate::calibrate()`] runs it for every method.
+//! The public items are the options of the Gauss-Newton fits
+//! ([`IdentifyOptions`], set as [`crate::CalibrationOptions::identify`]) and
+//! the observability of an estimate ([`Observability`], in
+//! [`crate::CalibrationReport`]); [`crate::calibrate()`] runs batch
+//! Gauss-Newton for every method. `batch_gauss_newton` itself and its
+//! report are public with the cargo feature `research` only (the studies of
+//! crates/odocal-lab).
 //!
 //! For each segment the model is run from the reference start pose with the
 //! given inputs; the residual `r_k = ỹ_k − ŷ_k(θ)` (heading wrapped) and the
@@ -87,14 +92,14 @@ pub struct IdentifyOptions {
     #[serde(default = "default_extrinsics_resolution")]
     pub extrinsics_resolution: [f64; 3],
     /// Cluster length of the cluster-robust covariance
-    /// ([`IdentifyReport::robust`]), samples: segments starting within this
+    /// (`IdentifyReport::robust`), samples: segments starting within this
     /// many samples of a cluster's first segment join it. It must cover at
     /// least one segment length so that segments which share samples mostly
     /// fall in one cluster. Default 1300 (two default segment lengths).
     #[serde(default = "default_robust_block_steps")]
     pub robust_block_steps: usize,
     /// Fewest clusters for which the cluster-robust covariance is computed
-    /// (else [`IdentifyReport::robust`] is `None`). Its meat is a sum of
+    /// (else `IdentifyReport::robust` is `None`). Its meat is a sum of
     /// `G` cluster scores, of rank at most `G − 1`, and the relative error
     /// of a σ from it is about `1/√(2(G − 1))`; with fewer clusters than
     /// parameters it even claims some combinations are known exactly.
@@ -172,47 +177,49 @@ impl IdentifyOptions {
     }
 }
 
-/// Why the iteration stopped. Reaching the iteration limit is an outcome, not an error.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "reason", rename_all = "snake_case")]
-pub enum Termination {
-    /// `max_iterations` accepted steps were taken.
-    MaxIterations {
-        /// The limit.
-        iterations: usize,
-    },
-    /// The next step gave a θ with a non-finite component; it was rejected.
-    NonFiniteCandidate {
-        /// Cost before it (kept).
-        previous: f64,
-    },
-    /// The next step gave a θ with `c_e ≤ 0` or `t_r ≤ 0`; it was rejected.
-    NonPhysicalCandidate {
-        /// Cost before it (kept).
-        previous: f64,
-    },
-    /// The next step would have increased the weighted cost; it was rejected.
-    CostIncreased {
-        /// Cost after the rejected step.
-        cost: f64,
-        /// Cost before it (kept).
-        previous: f64,
-    },
-    /// The next step changed the cost by no more than round-off (relative
-    /// change at most [`IdentifyOptions::cost_tolerance`]): converged.
-    Converged {
-        /// Relative cost change of the last step tried.
-        rel_change: f64,
-        /// The tolerance.
-        threshold: f64,
-    },
-    /// The relative step fell below the tolerance.
-    StepTolerance {
-        /// The relative step size.
-        rel_step: f64,
-        /// The tolerance.
-        threshold: f64,
-    },
+research_pub! {
+    /// Why the iteration stopped. Reaching the iteration limit is an outcome, not an error.
+    #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+    #[serde(tag = "reason", rename_all = "snake_case")]
+    enum Termination {
+        /// `max_iterations` accepted steps were taken.
+        MaxIterations {
+            /// The limit.
+            iterations: usize,
+        },
+        /// The next step gave a θ with a non-finite component; it was rejected.
+        NonFiniteCandidate {
+            /// Cost before it (kept).
+            previous: f64,
+        },
+        /// The next step gave a θ with `c_e ≤ 0` or `t_r ≤ 0`; it was rejected.
+        NonPhysicalCandidate {
+            /// Cost before it (kept).
+            previous: f64,
+        },
+        /// The next step would have increased the weighted cost; it was rejected.
+        CostIncreased {
+            /// Cost after the rejected step.
+            cost: f64,
+            /// Cost before it (kept).
+            previous: f64,
+        },
+        /// The next step changed the cost by no more than round-off (relative
+        /// change at most [`IdentifyOptions::cost_tolerance`]): converged.
+        Converged {
+            /// Relative cost change of the last step tried.
+            rel_change: f64,
+            /// The tolerance.
+            threshold: f64,
+        },
+        /// The relative step fell below the tolerance.
+        StepTolerance {
+            /// The relative step size.
+            rel_step: f64,
+            /// The tolerance.
+            threshold: f64,
+        },
+    }
 }
 
 impl std::fmt::Display for Termination {
@@ -238,13 +245,15 @@ impl std::fmt::Display for Termination {
     }
 }
 
-/// One accepted iteration.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct IterationRecord {
-    /// θ after the step.
-    pub theta: Theta,
-    /// Weighted cost at that θ.
-    pub cost: f64,
+research_pub! {
+    /// One accepted iteration.
+    #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+    struct IterationRecord {
+        /// θ after the step.
+        pub theta: Theta,
+        /// Weighted cost at that θ.
+        pub cost: f64,
+    }
 }
 
 /// Observability diagnostics of `JᵀWJ` at the estimate.
@@ -262,87 +271,93 @@ pub struct Observability {
     pub unobservable: ParamSet,
 }
 
-/// The cluster-robust ("sandwich") covariance of a batch Gauss-Newton
-/// estimate:
-///
-/// ```text
-/// V = H⁻¹ · G/(G−1) Σ_c (g_c − ḡ)(g_c − ḡ)ᵀ · H⁻¹,   H = JᵀWJ,  g_c = Σ_{s∈c} J_sᵀW r_s
-/// ```
-///
-/// over `G` clusters of consecutive segments
-/// ([`IdentifyOptions::robust_block_steps`] samples each). The model
-/// covariance `σ̂²H⁻¹` assumes independent residuals of one variance; input
-/// noise makes a segment's residuals strongly correlated (the roll-out
-/// integrates it) and overlapping segments share samples, so under the
-/// simulator's paper noise that σ is many times too small. The sandwich
-/// needs only that sums over clusters be roughly independent. It is itself
-/// estimated from `G` cluster scores, so with few clusters it is noisy
-/// (a Student-t with `G − 1` degrees of freedom is the fairer quantile).
-///
-/// It does not know about bias: input noise biases batch Gauss-Newton
-/// (SPEC §10), and an interval around a biased estimate can miss the truth
-/// however honest its width.
-///
-/// ## References
-/// A. C. Cameron, D. L. Miller, "A Practitioner's Guide to Cluster-Robust
-/// Inference", J. Human Resources 50(2), 2015; C. A. Bester, T. G. Conley,
-/// C. B. Hansen, "Inference with dependent data using cluster covariance
-/// estimators", J. Econometrics 165(2), 2011.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct RobustCovariance {
-    /// Covariance of θ `[c_e, c_d, t_r, d]`, 4×4, row-major, zero rows for
-    /// fixed parameters, SI units squared.
-    pub covariance: [[f64; 4]; 4],
-    /// Number of clusters `G`.
-    pub clusters: usize,
-    /// The cluster length used, samples.
-    pub block_steps: usize,
-}
-
-impl RobustCovariance {
-    /// One-σ of θ (square roots of the diagonal).
-    pub fn std_dev(&self) -> Theta {
-        let c = &self.covariance;
-        Theta { c_e: c[0][0].sqrt(), c_d: c[1][1].sqrt(), t_r: c[2][2].sqrt(), d: c[3][3].sqrt() }
+research_pub! {
+    /// The cluster-robust ("sandwich") covariance of a batch Gauss-Newton
+    /// estimate:
+    ///
+    /// ```text
+    /// V = H⁻¹ · G/(G−1) Σ_c (g_c − ḡ)(g_c − ḡ)ᵀ · H⁻¹,   H = JᵀWJ,  g_c = Σ_{s∈c} J_sᵀW r_s
+    /// ```
+    ///
+    /// over `G` clusters of consecutive segments
+    /// ([`IdentifyOptions::robust_block_steps`] samples each). The model
+    /// covariance `σ̂²H⁻¹` assumes independent residuals of one variance; input
+    /// noise makes a segment's residuals strongly correlated (the roll-out
+    /// integrates it) and overlapping segments share samples, so under the
+    /// simulator's paper noise that σ is many times too small. The sandwich
+    /// needs only that sums over clusters be roughly independent. It is itself
+    /// estimated from `G` cluster scores, so with few clusters it is noisy
+    /// (a Student-t with `G − 1` degrees of freedom is the fairer quantile).
+    ///
+    /// It does not know about bias: input noise biases batch Gauss-Newton
+    /// (SPEC §10), and an interval around a biased estimate can miss the truth
+    /// however honest its width.
+    ///
+    /// ## References
+    /// A. C. Cameron, D. L. Miller, "A Practitioner's Guide to Cluster-Robust
+    /// Inference", J. Human Resources 50(2), 2015; C. A. Bester, T. G. Conley,
+    /// C. B. Hansen, "Inference with dependent data using cluster covariance
+    /// estimators", J. Econometrics 165(2), 2011.
+    #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+    struct RobustCovariance {
+        /// Covariance of θ `[c_e, c_d, t_r, d]`, 4×4, row-major, zero rows for
+        /// fixed parameters, SI units squared.
+        pub covariance: [[f64; 4]; 4],
+        /// Number of clusters `G`.
+        pub clusters: usize,
+        /// The cluster length used, samples.
+        pub block_steps: usize,
     }
 }
 
-/// The result of a Gauss-Newton identification.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct IdentifyReport {
-    /// Initial θ.
-    pub initial_theta: Theta,
-    /// Estimated θ.
-    pub theta: Theta,
-    /// Weighted cost at the initial θ.
-    pub initial_cost: f64,
-    /// Weighted cost at the estimate.
-    pub final_cost: f64,
-    /// Accepted iterations.
-    pub iterations: usize,
-    /// Why it stopped.
-    pub termination: Termination,
-    /// Accepted iterations in order.
-    pub history: Vec<IterationRecord>,
-    /// Covariance estimate `σ² (JᵀWJ)⁻¹` of θ (4×4, row-major, zero rows for
-    /// fixed parameters), with `σ² = cost / (m − p)`.
-    pub covariance: [[f64; 4]; 4],
-    /// The cluster-robust covariance of θ beside the model one (see
-    /// [`RobustCovariance`]); `None` when the segments fall in fewer than
-    /// [`IdentifyOptions::robust_min_clusters`] clusters or `JᵀWJ` is singular.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub robust: Option<RobustCovariance>,
-    /// Observability diagnostics.
-    pub observability: Observability,
-    /// Segments used.
-    pub segments: usize,
-    /// Residual poses used (Σ K).
-    pub residual_poses: usize,
-    /// The reference extrinsics (initial, estimate, σ, covariance), when
-    /// the identification involved them (`IdentifyOptions::uses_extrinsics`).
-    /// `history` and `covariance` hold θ only.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub extrinsics: Option<ExtrinsicsEstimate>,
+impl RobustCovariance {
+    research_pub! {
+        /// One-σ of θ (square roots of the diagonal).
+        fn std_dev(&self) -> Theta {
+            let c = &self.covariance;
+            Theta { c_e: c[0][0].sqrt(), c_d: c[1][1].sqrt(), t_r: c[2][2].sqrt(), d: c[3][3].sqrt() }
+        }
+    }
+}
+
+research_pub! {
+    /// The result of a Gauss-Newton identification.
+    #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+    struct IdentifyReport {
+        /// Initial θ.
+        pub initial_theta: Theta,
+        /// Estimated θ.
+        pub theta: Theta,
+        /// Weighted cost at the initial θ.
+        pub initial_cost: f64,
+        /// Weighted cost at the estimate.
+        pub final_cost: f64,
+        /// Accepted iterations.
+        pub iterations: usize,
+        /// Why it stopped.
+        pub termination: Termination,
+        /// Accepted iterations in order.
+        pub history: Vec<IterationRecord>,
+        /// Covariance estimate `σ² (JᵀWJ)⁻¹` of θ (4×4, row-major, zero rows for
+        /// fixed parameters), with `σ² = cost / (m − p)`.
+        pub covariance: [[f64; 4]; 4],
+        /// The cluster-robust covariance of θ beside the model one (see
+        /// [`RobustCovariance`]); `None` when the segments fall in fewer than
+        /// [`IdentifyOptions::robust_min_clusters`] clusters or `JᵀWJ` is singular.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pub robust: Option<RobustCovariance>,
+        /// Observability diagnostics.
+        pub observability: Observability,
+        /// Segments used.
+        pub segments: usize,
+        /// Residual poses used (Σ K).
+        pub residual_poses: usize,
+        /// The reference extrinsics (initial, estimate, σ, covariance), when
+        /// the identification involved them (`IdentifyOptions::uses_extrinsics`).
+        /// `history` and `covariance` hold θ only.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pub extrinsics: Option<ExtrinsicsEstimate>,
+    }
 }
 
 impl std::fmt::Display for IdentifyReport {
@@ -556,67 +571,71 @@ pub(crate) fn observability_of_entries(
     (rcond, sensitivity, unobservable)
 }
 
-/// Batch Gauss-Newton over segments from `theta0` (SPEC §4). With one
-/// segment this is the paper's *pure* Gauss-Newton.
-///
-/// Parameters that the data cannot determine are listed in
-/// [`Observability::unobservable`] of the report; callers decide whether
-/// that is a warning or an error (the CLI warns, naming them).
-///
-/// ```
-/// # fn main() -> Result<(), odocal::Error> {
-/// use odocal::{identify, segment, sim, Theta};
-/// let drive = sim::simulate(&sim::SimOptions { length_km: 2.0, ..sim::SimOptions::noise_free(7) })?.drive;
-/// let sel = segment::calibration_segments(&drive, &Default::default())?;
-/// let data: Vec<_> = sel.selected.iter().map(|s| segment::SegmentData::new(&drive, s)).collect();
-/// let report = identify::batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &Default::default())?;
-/// assert!((report.theta.c_e - 1.95).abs() < 1e-3);
-/// # Ok(()) }
-/// ```
-pub fn batch_gauss_newton(
-    segments: &[SegmentData<'_>],
-    theta0: &Theta,
-    opts: &IdentifyOptions,
-) -> Result<IdentifyReport> {
-    opts.validate()?;
-    theta0.validate()?;
-    if segments.is_empty() {
-        return Err(Error::NoSegments("Gauss-Newton needs at least one segment".into()));
+research_pub! {
+    /// Batch Gauss-Newton over segments from `theta0` (SPEC §4). With one
+    /// segment this is the paper's *pure* Gauss-Newton.
+    ///
+    /// Parameters that the data cannot determine are listed in
+    /// [`Observability::unobservable`] of the report; callers decide whether
+    /// that is a warning or an error (the CLI warns, naming them).
+    ///
+    /// ```
+    /// # fn main() -> Result<(), odocal::Error> {
+    /// # #[cfg(feature = "research")] {
+    /// use odocal::{identify, segment, sim, Theta};
+    /// let drive = sim::simulate(&sim::SimOptions { length_km: 2.0, ..sim::SimOptions::noise_free(7) })?.drive;
+    /// let sel = segment::calibration_segments(&drive, &Default::default())?;
+    /// let data: Vec<_> = sel.selected.iter().map(|s| segment::SegmentData::new(&drive, s)).collect();
+    /// let report = identify::batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &Default::default())?;
+    /// assert!((report.theta.c_e - 1.95).abs() < 1e-3);
+    /// # }
+    /// # Ok(()) }
+    /// ```
+    fn batch_gauss_newton(
+        segments: &[SegmentData<'_>],
+        theta0: &Theta,
+        opts: &IdentifyOptions,
+    ) -> Result<IdentifyReport> {
+        opts.validate()?;
+        theta0.validate()?;
+        if segments.is_empty() {
+            return Err(Error::NoSegments("Gauss-Newton needs at least one segment".into()));
+        }
+        if opts.uses_extrinsics() {
+            return extrinsics::batch_gauss_newton_with_extrinsics(segments, theta0, opts);
+        }
+        let free = opts.free.indices();
+        let problem = ThetaProblem { weights: opts.weights, opts };
+        let scale = Vector4::new(theta0.c_e.abs().max(1.0), 1e-3, theta0.t_r.abs().max(1.0), 1e-3);
+        let out = gauss_newton::run(&problem, segments, &theta0.to_vector(), &free, &scale, opts)?;
+        let ne = out.total;
+        let obs = observability(&ne, opts.free, opts);
+        let cov = gauss_newton::model_covariance(&ne, &free);
+        let robust = gauss_newton::cluster_robust_covariance(&ne, &out.per_segment, segments, &free, opts);
+        Ok(IdentifyReport {
+            initial_theta: *theta0,
+            theta: Theta::from_vector(&out.x),
+            initial_cost: out.initial_cost,
+            final_cost: ne.cost,
+            iterations: out.history.len(),
+            termination: out.termination,
+            history: out
+                .history
+                .iter()
+                .map(|(x, cost)| IterationRecord { theta: Theta::from_vector(x), cost: *cost })
+                .collect(),
+            covariance: to_array4(&cov),
+            robust: robust.map(|(c, clusters)| RobustCovariance {
+                covariance: to_array4(&c),
+                clusters,
+                block_steps: opts.robust_block_steps,
+            }),
+            observability: obs,
+            segments: segments.len(),
+            residual_poses: ne.poses,
+            extrinsics: None,
+        })
     }
-    if opts.uses_extrinsics() {
-        return extrinsics::batch_gauss_newton_with_extrinsics(segments, theta0, opts);
-    }
-    let free = opts.free.indices();
-    let problem = ThetaProblem { weights: opts.weights, opts };
-    let scale = Vector4::new(theta0.c_e.abs().max(1.0), 1e-3, theta0.t_r.abs().max(1.0), 1e-3);
-    let out = gauss_newton::run(&problem, segments, &theta0.to_vector(), &free, &scale, opts)?;
-    let ne = out.total;
-    let obs = observability(&ne, opts.free, opts);
-    let cov = gauss_newton::model_covariance(&ne, &free);
-    let robust = gauss_newton::cluster_robust_covariance(&ne, &out.per_segment, segments, &free, opts);
-    Ok(IdentifyReport {
-        initial_theta: *theta0,
-        theta: Theta::from_vector(&out.x),
-        initial_cost: out.initial_cost,
-        final_cost: ne.cost,
-        iterations: out.history.len(),
-        termination: out.termination,
-        history: out
-            .history
-            .iter()
-            .map(|(x, cost)| IterationRecord { theta: Theta::from_vector(x), cost: *cost })
-            .collect(),
-        covariance: to_array4(&cov),
-        robust: robust.map(|(c, clusters)| RobustCovariance {
-            covariance: to_array4(&c),
-            clusters,
-            block_steps: opts.robust_block_steps,
-        }),
-        observability: obs,
-        segments: segments.len(),
-        residual_poses: ne.poses,
-        extrinsics: None,
-    })
 }
 
 /// [`batch_gauss_newton`] on segments of a drive joined from several

@@ -115,7 +115,7 @@ pub struct ExtrinsicsEstimate {
     /// ([`crate::identify::IdentifyOptions::extrinsics_resolution`]); 0 for held entries.
     pub sensitivity_m: [f64; 3],
     /// The cluster-robust σ and covariance
-    /// ([`crate::identify::RobustCovariance`]), when computed.
+    /// (`crate::identify::RobustCovariance`), when computed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub robust: Option<RobustExtrinsics>,
     /// A joint calibration of several drives ([`crate::Drive::concat`])
