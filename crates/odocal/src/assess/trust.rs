@@ -694,12 +694,13 @@ pub(crate) fn fallback_gap_reasons(
 ) -> Vec<VerdictReason> {
     let base = n.without_gap();
     let excess = n.t_r_above_start[Param::TR.index()];
-    let above = base[Param::TR.index()].filter(|s| *s > 0.0 && free.contains(Param::TR)).and_then(|sigma| {
-        let sigmas = excess / sigma;
-        (sigmas.is_finite() && sigmas > opts.max_fallback_gap_sigmas).then_some(
-            VerdictReason::TrackWidthAboveStart { estimate: theta.t_r, start: theta.t_r - excess, sigma, sigmas },
-        )
-    });
+    let above =
+        base[Param::TR.index()].filter(|s| *s > 0.0 && free.contains(Param::TR)).and_then(|sigma| {
+            let sigmas = excess / sigma;
+            (sigmas.is_finite() && sigmas > opts.max_fallback_gap_sigmas).then_some(
+                VerdictReason::TrackWidthAboveStart { estimate: theta.t_r, start: theta.t_r - excess, sigma, sigmas },
+            )
+        });
     free.intersection(ParamSet::THETA)
         .iter()
         .filter_map(|p| {
@@ -923,7 +924,9 @@ mod tests {
         }
         let n = with(3.1 * s);
         let v = judge(&Evidence { next_drive: Some(&n), ..evidence(&th, &cov) }, &opts);
-        let VerdictReason::TrackWidthAboveStart { estimate, start, sigmas, .. } = &v.reasons[0] else { panic!("{v:?}") };
+        let VerdictReason::TrackWidthAboveStart { estimate, start, sigmas, .. } = &v.reasons[0] else {
+            panic!("{v:?}")
+        };
         assert_eq!(*estimate, th.t_r);
         assert!((start - (th.t_r - 3.1 * s)).abs() < 1e-12, "{start}");
         assert!((sigmas - 3.1).abs() < 1e-9, "{sigmas}");
