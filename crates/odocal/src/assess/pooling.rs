@@ -152,7 +152,7 @@ pub(crate) const NEXT_DRIVE_SIGMA_LABEL: &str = "σ for the next drive: within-d
 /// (SI units; `None` for a parameter held). In JSON `next_drive_sigma`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct NextDriveSigma {
-    /// `√(within² + fallback_gap²/3 + between²)`: the σ that stands for the result.
+    /// `√(within² + fallback_gap²/3 + t_r_above_start² + between²)`: the σ that stands for the result.
     pub sigma: [Option<f64>; 4],
     /// The method's within-drive σ (for a parameter the EIV filter held at
     /// its start's estimate: the start's σ).

@@ -266,7 +266,7 @@ impl CalibrationReport {
     }
 
     /// The 1σ that stands for the result: the σ for the next drive of the
-    /// same vehicle, `√(within-drive² + fallback gap² + between-drive²)`
+    /// same vehicle, `√(within-drive² + fallback gap²/3 + EIV t_r above its start² + between-drive²)`
     /// per parameter ([`crate::pooling`], [`Self::next_drive_sigma`]).
     /// The verdict, the parameter file ([`CalibrationReport::param_file`]),
     /// the HTML report and the CLI's JSON `sigma` all give this σ. A report
