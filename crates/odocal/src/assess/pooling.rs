@@ -394,7 +394,7 @@ mod tests {
         assert!(close(n.t_r_above_start[2], 0.01, 1e-15), "{n:?}");
         assert!(close(n.t_r_above_start[3], 0.01 * 0.8 * 5e-5 / 3e-3, 1e-12), "{n:?}");
         assert!(close(n.t_r_above_start[1], 0.01 * 1e-9 / 9e-6, 1e-12), "{n:?}");
-        assert_eq!(n.t_r_above_start[0], 0.0);
+        assert_eq!(n.t_r_above_start[0].to_bits(), 0f64.to_bits());
         for i in 0..4 {
             let (s, s0) = (n.sigma[i].expect("σ"), base.sigma[i].expect("σ"));
             assert!(close(s, (s0 * s0 + n.t_r_above_start[i].powi(2)).sqrt(), 1e-12), "{i}: {s} {s0}");
@@ -412,7 +412,7 @@ mod tests {
         // A parameter without a σ gets no shift.
         let mut held = NextDriveSigma::one_drive(&theta, [Some(1e-4), None, Some(3e-3), Some(5e-5)], [0.0; 4]);
         held.with_t_r_above_start(0.01, &cov);
-        assert_eq!(held.t_r_above_start[1], 0.0);
+        assert_eq!(held.t_r_above_start[1].to_bits(), 0f64.to_bits());
         assert_eq!(held.sigma[1], None);
     }
 

@@ -927,7 +927,7 @@ mod tests {
         let VerdictReason::TrackWidthAboveStart { estimate, start, sigmas, .. } = &v.reasons[0] else {
             panic!("{v:?}")
         };
-        assert_eq!(*estimate, th.t_r);
+        assert_eq!(estimate.to_bits(), th.t_r.to_bits());
         assert!((start - (th.t_r - 3.1 * s)).abs() < 1e-12, "{start}");
         assert!((sigmas - 3.1).abs() < 1e-9, "{sigmas}");
         assert!(v.reasons[0].to_string().contains("above its batch Gauss-Newton start"), "{}", v.reasons[0]);

@@ -427,7 +427,7 @@ fn eiv_t_r_above_start(detail: &MethodDetail, free: ParamSet) -> Option<(f64, &[
         && e.free[2]
         && !d.start_held.contains(&Param::TR)
         && !start.observability.unobservable.contains(Param::TR);
-    (d.eiv_result == EivOutcome::Eiv && !d.refit && estimated).then(|| (e.theta.t_r - start.theta.t_r, &e.covariance))
+    (d.eiv_result == EivOutcome::Eiv && !d.refit && estimated).then_some((e.theta.t_r - start.theta.t_r, &e.covariance))
 }
 
 /// Which covariance a result's σ comes from ([`CalibrationReport::result_sigma`]).
