@@ -26,11 +26,18 @@ const USAGE: &str = "crossrun_heading [--skip-van] [--heading-drift-lr T]";
 /// The default's heading-drift likelihood-ratio threshold (`--heading-drift-lr`; None: the default).
 static HEADING_DRIFT_LR: std::sync::OnceLock<Option<f64>> = std::sync::OnceLock::new();
 
-/// The heading-drift test of `r`'s EIV fit on stderr.
+/// The heading-drift test of `r`'s EIV fit, its verdict, θ and σ on stderr.
 fn note_heading_drift(name: &str, r: &CalibrationReport) {
-    if let Some(e) = odocal_lab::report_json::eiv_part(r).and_then(|p| p.eiv) {
-        eprintln!("{name}: heading drift {:?}", e.heading_drift);
+    if let Some(p) = odocal_lab::report_json::eiv_part(r) {
+        let start = p.identification.theta.t_r;
+        if let Some(e) = &p.eiv {
+            eprintln!("{name}: heading drift {:?}", e.heading_drift);
+            eprintln!("{name}: {} (refit {}); EIV's t_r {} (free {}), its start's {start}", p.eiv_result, p.refit, e.theta.t_r, e.free[2]);
+        }
     }
+    let reasons: Vec<String> = r.verdict.reasons.iter().map(|x| x.to_string()).collect();
+    eprintln!("{name}: verdict {} [{}]", r.verdict.level, reasons.join(" | "));
+    eprintln!("{name}: θ {:?} σ {:?}", r.theta.to_array(), r.result_sigma().to_array());
 }
 
 fn main() {

@@ -123,6 +123,8 @@ struct Run {
     /// EIV only: the filter's own θ and its 1σ (SI) before any fallback,
     /// its findings (kinds, `;`-separated) and its fitted η.
     eiv_own: Option<(Theta, [f64; 4], String, [f64; 6])>,
+    /// EIV only: the fit's further diagnostics (`eiv_extra`, see [`eiv_extra`]).
+    eiv_extra: String,
     /// The estimated (or held) reference heading offset, rad.
     delta: f64,
     /// Ē_p on the drive's own validation segments, m.
@@ -201,11 +203,42 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<
         accepted_within,
         fallback,
         eiv_own,
+        eiv_extra: eiv.as_ref().map_or(String::new(), eiv_extra),
         delta: ext.heading_offset,
         e_p_fit_m: r.validation.mean_position_error_m,
         e_p_held_m: held.e_p(&r.theta, &ext)?,
         time_s,
     })
+}
+
+/// The EIV fit's further diagnostics as `key=v v v v` groups (SI; `;`-separated):
+/// the start's θ (`start`), the fit's σ of each kind (`block`, `sandwich`,
+/// `fisher`, `noise`, `bias_mc`), the bias subtracted (`bias`), the halves'
+/// z (`halves`), η's σ (`eta_sigma`), the largest and mean window NIS (`nis`),
+/// θ's correlation matrix's t_r–d entry (`rho_td`).
+fn eiv_extra(d: &EivPart) -> String {
+    let v = |a: &[f64]| a.iter().map(|x| format!("{x:.4e}")).collect::<Vec<_>>().join(" ");
+    let mut out = vec![format!("start={}", v(&d.identification.theta.to_array()))];
+    if let Some(e) = &d.eiv {
+        out.push(format!("block={}", v(&e.sigma_block)));
+        out.push(format!("sandwich={}", v(&e.sigma_sandwich)));
+        out.push(format!("fisher={}", v(&e.sigma_fisher)));
+        out.push(format!("noise={}", v(&e.sigma_noise_estimate)));
+        out.push(format!("bias_mc={}", v(&e.sigma_bias_correction)));
+        out.push(format!("bias={}", v(&e.bias_subtracted)));
+        out.push(format!("uncorrected={}", v(&e.theta_uncorrected.to_array())));
+        if let Some(h) = &e.halves {
+            out.push(format!("halves={}", v(&h.z)));
+        }
+        out.push(format!("eta_sigma={}", v(&e.eta_sigma)));
+        let nis: Vec<f64> = e.windows.iter().map(|w| w.nis).filter(|x| x.is_finite()).collect();
+        let mean = nis.iter().sum::<f64>() / nis.len().max(1) as f64;
+        out.push(format!("nis={}", v(&[nis.iter().cloned().fold(f64::NAN, f64::max), mean])));
+        let c = &e.covariance;
+        out.push(format!("rho_td={:.4}", c[2][3] / (c[2][2] * c[3][3]).sqrt()));
+        out.push(format!("iterations={}", e.iterations));
+    }
+    out.join(";")
 }
 
 /// A filter finding's kind, with its detail (component and lag-1, source
@@ -565,7 +598,7 @@ fn write_csvs(dir: &std::path::Path, a: &Settings, worlds: &[World]) -> Res<()> 
         "eiv_own_err_d_mm_per_m_per_s2",
     ]);
     header.extend(["eiv_own_sigma_c_e_pct", "eiv_own_sigma_c_d_mm", "eiv_own_sigma_t_r_pct"]);
-    header.extend(["eiv_own_sigma_d_mm_per_m_per_s2", "eiv_eta", "eiv_findings"]);
+    header.extend(["eiv_own_sigma_d_mm_per_m_per_s2", "eiv_eta", "eiv_findings", "eiv_extra"]);
     let mut r_csv = header.join(",") + "\n";
     for w in worlds {
         for (m, run) in a.methods.iter().zip(&w.runs) {
@@ -598,6 +631,7 @@ fn write_csvs(dir: &std::path::Path, a: &Settings, worlds: &[World]) -> Res<()> 
                             let eta: Vec<String> = eta.iter().map(|e| format!("{e:.2}")).collect();
                             cells.push(eta.join(" "));
                             cells.push(kinds.clone());
+                            cells.push(r.eiv_extra.clone());
                         }
                         None => cells.resize(header.len(), String::new()),
                     }

@@ -12,7 +12,7 @@
 //! JSON `sigma`) is therefore the σ for the next drive, per parameter
 //!
 //! ```text
-//! σ_next = √(σ_within² + gap²/3 + τ²)
+//! σ_next = √(σ_within² + gap²/3 + a² + τ²)
 //! ```
 //!
 //! - `σ_within`: the method's within-drive σ
@@ -28,6 +28,21 @@
 //!   own θ fails a plausibility guard (a diverged filter says nothing about
 //!   the fallback's bias). A gap above 3 σ of the rest makes the verdict
 //!   doubtful ([`crate::TrustOptions::max_fallback_gap_sigmas`]).
+//! - `a`: when the result is EIV's own estimate and its t_r lies above
+//!   its batch Gauss-Newton start's, that excess (for t_r; for the other
+//!   parameters the shift that comes with it, along their regression on
+//!   t_r in EIV's covariance, `a_i = |a_t · C_it / C_tt|`). Batch G-N's
+//!   errors-in-variables bias on t_r points up: noise on the wheel
+//!   rotations shrinks the fitted heading change per wheel difference,
+//!   1/t_r, as in any regression on a noisy regressor. EIV's correction
+//!   of that bias moves t_r down from the start. A t_r above the start is
+//!   not that correction; the truth lies, as far as the errors-in-variables
+//!   argument goes, at or below the start, so the excess is an error the
+//!   filter's own σ does not describe (on random noise worlds, every EIV
+//!   result accepted beyond 3 σ of the σ without `a` had its t_r above its
+//!   start, by 0.4–3.6 %; docs/validation.md). 0 otherwise. An excess above
+//!   3 σ of the rest makes the verdict doubtful
+//!   ([`crate::TrustOptions::max_fallback_gap_sigmas`]).
 //! - `τ`: the between-drive σ. With one drive, the documented prior
 //!   `BETWEEN_DRIVE_PRIOR` (relative floors measured on the test-track
 //!   runs); with several drives
@@ -137,7 +152,7 @@ pub(crate) const NEXT_DRIVE_SIGMA_LABEL: &str = "σ for the next drive: within-d
 /// (SI units; `None` for a parameter held). In JSON `next_drive_sigma`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct NextDriveSigma {
-    /// `√(within² + fallback_gap²/3 + between²)`: the σ that stands for the result.
+    /// `√(within² + fallback_gap²/3 + t_r_above_start² + between²)`: the σ that stands for the result.
     pub sigma: [Option<f64>; 4],
     /// The method's within-drive σ (for a parameter the EIV filter held at
     /// its start's estimate: the start's σ).
@@ -152,6 +167,14 @@ pub struct NextDriveSigma {
     /// fallback's gap to EIV's own estimate. In JSON only when true.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub gap_is_refit: bool,
+    /// When the result is EIV's own estimate (not a refit, not a fallback)
+    /// and its t_r lies above its batch Gauss-Newton start's: the excess
+    /// (t_r's entry) and the shift of every other parameter along its
+    /// regression on t_r in EIV's covariance (`excess · C_it / C_tt`);
+    /// zeros otherwise. Enters as shift² (module docs). In JSON only when
+    /// not all zero.
+    #[serde(default, skip_serializing_if = "all_zero")]
+    pub t_r_above_start: [f64; 4],
     /// The between-drive σ τ.
     pub between_drive: [f64; 4],
     /// Where τ comes from.
@@ -170,6 +193,7 @@ impl NextDriveSigma {
             within_drive,
             fallback_gap,
             gap_is_refit: false,
+            t_r_above_start: [0.0; 4],
             between_drive,
             between_source: BetweenDriveSource::Prior,
             pooled: None,
@@ -178,16 +202,40 @@ impl NextDriveSigma {
         s
     }
 
+    /// With EIV's t_r above its batch Gauss-Newton start's by `excess`:
+    /// [`Self::t_r_above_start`] from EIV's covariance `cov`, and `sigma` again.
+    pub(crate) fn with_t_r_above_start(&mut self, excess: f64, cov: &[[f64; 4]; 4]) {
+        let c_tt = cov[2][2];
+        if !(excess > 0.0 && excess.is_finite() && c_tt > 0.0) {
+            return;
+        }
+        self.t_r_above_start = std::array::from_fn(|i| {
+            let shift = if i == 2 { excess } else { (excess * cov[i][2] / c_tt).abs() };
+            if self.within_drive[i].is_some() && shift.is_finite() {
+                shift
+            } else {
+                0.0
+            }
+        });
+        self.combine();
+    }
+
     /// Sets `sigma` from its parts.
     fn combine(&mut self) {
         self.sigma = std::array::from_fn(|i| {
-            self.within_drive[i]
-                .map(|w| (w * w + self.fallback_gap[i].powi(2) / 3.0 + self.between_drive[i].powi(2)).sqrt())
+            self.within_drive[i].map(|w| {
+                (w * w
+                    + self.fallback_gap[i].powi(2) / 3.0
+                    + self.t_r_above_start[i].powi(2)
+                    + self.between_drive[i].powi(2))
+                .sqrt()
+            })
         });
     }
 
-    /// `sigma` without the fallback gap, `√(within² + between²)`: the σ the
-    /// result would have if its estimator had no errors-in-variables bias.
+    /// `sigma` without the fallback gap and EIV's t_r above its start,
+    /// `√(within² + between²)`: the σ the result would have if its
+    /// estimator had no errors-in-variables bias.
     pub(crate) fn without_gap(&self) -> [Option<f64>; 4] {
         std::array::from_fn(|i| self.within_drive[i].map(|w| (w * w + self.between_drive[i].powi(2)).sqrt()))
     }
@@ -204,6 +252,11 @@ impl NextDriveSigma {
         self.pooled = Some(pooled);
         self.combine();
     }
+}
+
+/// True when every entry is zero (serde's `skip_serializing_if`).
+fn all_zero(a: &[f64; 4]) -> bool {
+    a.iter().all(|x| *x == 0.0)
 }
 
 /// Several drives' separate fits and their random-effects pooling
@@ -324,6 +377,43 @@ mod tests {
             })
             .count();
         assert!(zero > 40, "{zero} of 100 seeds gave τ̂ = 0");
+    }
+
+    /// EIV's t_r above its start enters in full for t_r and along the
+    /// regression on t_r for the others; below its start, or held, nothing.
+    #[test]
+    fn t_r_above_the_start_enters_the_sigma_with_its_regression() {
+        let theta = Theta { c_e: 2.0, c_d: 0.001, t_r: 1.5, d: 0.001 };
+        let within = [Some(1e-4), Some(1e-5), Some(3e-3), Some(5e-5)];
+        // ρ(t_r, d) = −0.8: C_dt = −0.8 · 3e-3 · 5e-5; c_e uncorrelated.
+        let c_dt = -0.8 * 3e-3 * 5e-5;
+        let cov = [[1e-8, 0.0, 0.0, 0.0], [0.0, 1e-10, 1e-9, 0.0], [0.0, 1e-9, 9e-6, c_dt], [0.0, 0.0, c_dt, 2.5e-9]];
+        let base = NextDriveSigma::one_drive(&theta, within, [0.0; 4]);
+        let mut n = base.clone();
+        n.with_t_r_above_start(0.01, &cov);
+        assert!(close(n.t_r_above_start[2], 0.01, 1e-15), "{n:?}");
+        assert!(close(n.t_r_above_start[3], 0.01 * 0.8 * 5e-5 / 3e-3, 1e-12), "{n:?}");
+        assert!(close(n.t_r_above_start[1], 0.01 * 1e-9 / 9e-6, 1e-12), "{n:?}");
+        assert_eq!(n.t_r_above_start[0].to_bits(), 0f64.to_bits());
+        for i in 0..4 {
+            let (s, s0) = (n.sigma[i].expect("σ"), base.sigma[i].expect("σ"));
+            assert!(close(s, (s0 * s0 + n.t_r_above_start[i].powi(2)).sqrt(), 1e-12), "{i}: {s} {s0}");
+        }
+        assert_eq!(n.without_gap(), base.without_gap(), "the σ without it is the base's");
+        let json = serde_json::to_value(&n).expect("json");
+        assert!(json.get("t_r_above_start").is_some());
+        // Below the start, or not finite: nothing changes, nothing in JSON.
+        for excess in [-0.01, 0.0, f64::NAN] {
+            let mut m = base.clone();
+            m.with_t_r_above_start(excess, &cov);
+            assert_eq!(m, base, "{excess}");
+        }
+        assert!(serde_json::to_value(&base).expect("json").get("t_r_above_start").is_none());
+        // A parameter without a σ gets no shift.
+        let mut held = NextDriveSigma::one_drive(&theta, [Some(1e-4), None, Some(3e-3), Some(5e-5)], [0.0; 4]);
+        held.with_t_r_above_start(0.01, &cov);
+        assert_eq!(held.t_r_above_start[1].to_bits(), 0f64.to_bits());
+        assert_eq!(held.sigma[1], None);
     }
 
     #[test]

@@ -33,7 +33,9 @@
 //!   step 3) stopped at its iteration limit while its last step still moved
 //!   a parameter by more than [`TrustOptions::max_final_step_sigmas`] σ,
 //!   or the result is EIV's batch G-N fallback and EIV's own estimate lies
-//!   more than [`TrustOptions::max_fallback_gap_sigmas`] σ from it.
+//!   more than [`TrustOptions::max_fallback_gap_sigmas`] σ from it,
+//!   or the result is EIV's own estimate and its t_r lies that many σ
+//!   above its batch G-N start's ([`VerdictReason::TrackWidthAboveStart`]).
 //!
 //! The large-σ check uses the σ that stands for the result, the σ for the
 //! next drive ([`crate::pooling`]); the cross-split and convergence checks
@@ -293,7 +295,8 @@ pub struct TrustOptions {
     /// then never accepts a fallback whose distance to EIV's estimate is
     /// beyond 3 σ of what it would report without the gap. The same limit
     /// applies to EIV's refit and its batch Gauss-Newton start
-    /// ([`VerdictReason::RefitDisagrees`]).
+    /// ([`VerdictReason::RefitDisagrees`]) and to EIV's t_r above its
+    /// start's ([`VerdictReason::TrackWidthAboveStart`]).
     #[serde(default = "default_max_fallback_gap_sigmas")]
     pub max_fallback_gap_sigmas: f64,
 }
@@ -451,6 +454,22 @@ pub enum VerdictReason {
         /// `gap / sigma`.
         sigmas: f64,
     },
+    /// The result is EIV's own estimate, and its t_r lies above its batch
+    /// Gauss-Newton start's by more than the σ without that excess allows
+    /// (doubtful): batch G-N's errors-in-variables bias on t_r points up,
+    /// so EIV's correction of it moves t_r down; an EIV t_r this far above
+    /// the start is a shift the filter's model does not explain. The σ for
+    /// the next drive includes the excess ([`crate::pooling`]).
+    TrackWidthAboveStart {
+        /// EIV's t_r, m.
+        estimate: f64,
+        /// The batch Gauss-Newton start's t_r, m.
+        start: f64,
+        /// The σ for the next drive without the excess, m.
+        sigma: f64,
+        /// `(estimate − start) / sigma`.
+        sigmas: f64,
+    },
     /// Held-out Ē_p much above the fitting data's (doubtful).
     HeldOutMuchWorse {
         /// Ē_p on the held-out data, m.
@@ -528,6 +547,12 @@ impl std::fmt::Display for VerdictReason {
                 "{param} = {estimate:.6} is EIV's refit (its first fit failed its checks); the batch Gauss-Newton \
                  start lies {gap:.2e} away, {sigmas:.1} × the σ without that gap ({sigma:.2e}): the estimators \
                  disagree (the σ for the next drive includes the gap)"
+            ),
+            VerdictReason::TrackWidthAboveStart { estimate, start, sigma, sigmas } => write!(
+                f,
+                "t_r = {estimate:.6} is EIV's estimate, {sigmas:.1} × the σ without that excess ({sigma:.2e}) above \
+                 its batch Gauss-Newton start's {start:.6}: batch G-N's errors-in-variables bias on t_r points up, \
+                 so the filter's model does not explain this shift (the σ for the next drive includes it)"
             ),
             VerdictReason::HeldOutMuchWorse { held_out_m, fit_m, max_ratio } => {
                 write!(f, "held-out Ē_p {held_out_m:.3} m is more than {max_ratio} × the fitting data's {fit_m:.3} m")
@@ -621,7 +646,9 @@ fn unconverged_step(
 pub(crate) fn is_sigma_reason(r: &VerdictReason) -> bool {
     match r {
         VerdictReason::LargeUncertainty { param, .. } => ParamSet::THETA.contains(*param),
-        VerdictReason::FallbackDisagrees { .. } | VerdictReason::RefitDisagrees { .. } => true,
+        VerdictReason::FallbackDisagrees { .. }
+        | VerdictReason::RefitDisagrees { .. }
+        | VerdictReason::TrackWidthAboveStart { .. } => true,
         _ => false,
     }
 }
@@ -657,7 +684,8 @@ pub(crate) fn sigma_reasons(
 /// lies more than [`TrustOptions::max_fallback_gap_sigmas`] of the σ
 /// without the gap (`√(within² + between²)`) from EIV's own estimate; when
 /// the result is EIV's refit, the parameters the refit moved that far from
-/// its batch Gauss-Newton start.
+/// its batch Gauss-Newton start; when the result is EIV's own estimate,
+/// a t_r that far above its start's ([`VerdictReason::TrackWidthAboveStart`]).
 pub(crate) fn fallback_gap_reasons(
     theta: &Theta,
     free: ParamSet,
@@ -665,6 +693,14 @@ pub(crate) fn fallback_gap_reasons(
     opts: &TrustOptions,
 ) -> Vec<VerdictReason> {
     let base = n.without_gap();
+    let excess = n.t_r_above_start[Param::TR.index()];
+    let above =
+        base[Param::TR.index()].filter(|s| *s > 0.0 && free.contains(Param::TR)).and_then(|sigma| {
+            let sigmas = excess / sigma;
+            (sigmas.is_finite() && sigmas > opts.max_fallback_gap_sigmas).then_some(
+                VerdictReason::TrackWidthAboveStart { estimate: theta.t_r, start: theta.t_r - excess, sigma, sigmas },
+            )
+        });
     free.intersection(ParamSet::THETA)
         .iter()
         .filter_map(|p| {
@@ -680,6 +716,7 @@ pub(crate) fn fallback_gap_reasons(
                 }
             })
         })
+        .chain(above)
         .collect()
 }
 
@@ -859,6 +896,46 @@ mod tests {
         let VerdictReason::RefitDisagrees { param, estimate, .. } = &v.reasons[0] else { panic!("{v:?}") };
         assert_eq!((*param, *estimate), (Param::TR, th.t_r));
         assert!(v.reasons[0].to_string().contains("EIV's refit"), "{}", v.reasons[0]);
+    }
+
+    /// EIV's t_r above its batch G-N start by more than 3 σ (without that
+    /// excess) is doubtful; at 2.9 σ it is not, and below the start nothing.
+    #[test]
+    fn eiv_t_r_far_above_its_start_is_doubtful() {
+        use crate::assess::pooling::NextDriveSigma;
+        let th = Theta { c_e: 2.0, c_d: 0.0, t_r: 1.55, d: 0.0 };
+        let cov: [[f64; 4]; 4] =
+            [[1e-10, 0.0, 0.0, 0.0], [0.0, 1e-12, 0.0, 0.0], [0.0, 0.0, 1e-6, 0.0], [0.0, 0.0, 0.0, 1e-12]];
+        let within = std::array::from_fn(|i| Some(cov[i][i].sqrt()));
+        let opts = TrustOptions::default();
+        let base = NextDriveSigma::one_drive(&th, within, [0.0; 4]);
+        let s = base.without_gap()[2].expect("t_r");
+        let with = |excess: f64| {
+            let mut n = base.clone();
+            n.with_t_r_above_start(excess, &cov);
+            n
+        };
+        for (excess, level) in
+            [(2.9 * s, VerdictLevel::Accepted), (-5.0 * s, VerdictLevel::Accepted), (3.1 * s, VerdictLevel::Doubtful)]
+        {
+            let n = with(excess);
+            let v = judge(&Evidence { next_drive: Some(&n), ..evidence(&th, &cov) }, &opts);
+            assert_eq!(v.level, level, "{excess}: {v:?}");
+        }
+        let n = with(3.1 * s);
+        let v = judge(&Evidence { next_drive: Some(&n), ..evidence(&th, &cov) }, &opts);
+        let VerdictReason::TrackWidthAboveStart { estimate, start, sigmas, .. } = &v.reasons[0] else {
+            panic!("{v:?}")
+        };
+        assert_eq!(estimate.to_bits(), th.t_r.to_bits());
+        assert!((start - (th.t_r - 3.1 * s)).abs() < 1e-12, "{start}");
+        assert!((sigmas - 3.1).abs() < 1e-9, "{sigmas}");
+        assert!(v.reasons[0].to_string().contains("above its batch Gauss-Newton start"), "{}", v.reasons[0]);
+        // sigma_reasons (a σ recomputed) gives the same reason; t_r held gives none.
+        let again = sigma_reasons(&th, &TH0, ParamSet::THETA, &n, &opts);
+        assert!(again.iter().any(|r| matches!(r, VerdictReason::TrackWidthAboveStart { .. })), "{again:?}");
+        let held = sigma_reasons(&th, &TH0, ParamSet::THETA.without(Param::TR), &n, &opts);
+        assert!(held.is_empty(), "{held:?}");
     }
 
     /// An identification report that took `steps` (θ after each step) from

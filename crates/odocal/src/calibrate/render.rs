@@ -382,10 +382,15 @@ fn result_notes(out: &mut String, r: &CalibrationReport, wheel_scale: Option<&st
                 }
             };
             let gap = if n.fallback_gap.iter().any(|g| *g > 0.0) { " ⊕ gap to EIV's own estimate" } else { "" };
+            let above = if n.t_r_above_start.iter().any(|a| *a > 0.0) {
+                " ⊕ EIV's t_r above its batch G-N start"
+            } else {
+                ""
+            };
             let _ = writeln!(
                 out,
                 "  σ of the result (verdict, --params-out, --report, JSON `sigma`): ± 1σ (next drive) = {}\n    \
-                 within-drive ± 1σ ({column}, JSON `sigma_within_drive`){gap} ⊕ between-drive ({between})",
+                 within-drive ± 1σ ({column}, JSON `sigma_within_drive`){gap}{above} ⊕ between-drive ({between})",
                 NEXT_DRIVE_SIGMA_LABEL
             );
         }

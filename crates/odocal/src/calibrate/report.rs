@@ -266,7 +266,7 @@ impl CalibrationReport {
     }
 
     /// The 1σ that stands for the result: the σ for the next drive of the
-    /// same vehicle, `√(within-drive² + fallback gap² + between-drive²)`
+    /// same vehicle, `√(within-drive² + fallback gap²/3 + EIV t_r above its start² + between-drive²)`
     /// per parameter ([`crate::pooling`], [`Self::next_drive_sigma`]).
     /// The verdict, the parameter file ([`CalibrationReport::param_file`]),
     /// the HTML report and the CLI's JSON `sigma` all give this σ. A report
@@ -364,7 +364,8 @@ pub(crate) fn within_sigma_of(detail: &MethodDetail, covariance: &[[f64; 4]; 4],
 /// is not held; one the start named not observable stays at θ_0), after an EIV
 /// fallback the gap to EIV's own estimate when that passes the
 /// plausibility guards (when the result is EIV's refit, the gap to its
-/// batch Gauss-Newton start), and the prior between-drive σ.
+/// batch Gauss-Newton start), when the result is EIV's own estimate its
+/// t_r above its start's, and the prior between-drive σ.
 pub(crate) fn next_drive_of(
     theta: &Theta,
     detail: &MethodDetail,
@@ -408,7 +409,25 @@ pub(crate) fn next_drive_of(
     }
     let mut n = NextDriveSigma::one_drive(theta, w, gap);
     n.gap_is_refit = matches!(detail, MethodDetail::Eiv(d) if d.refit && d.eiv_result == EivOutcome::Eiv);
+    if let Some((excess, cov)) = eiv_t_r_above_start(detail, free) {
+        n.with_t_r_above_start(excess, cov);
+    }
     n
+}
+
+/// When the result is EIV's own estimate (not a refit) with t_r estimated
+/// by it and by its batch Gauss-Newton start: how far EIV's t_r lies above
+/// the start's (negative when below), with EIV's covariance
+/// ([`crate::pooling`], `a`).
+fn eiv_t_r_above_start(detail: &MethodDetail, free: ParamSet) -> Option<(f64, &[[f64; 4]; 4])> {
+    let MethodDetail::Eiv(d) = detail else { return None };
+    let e = d.eiv.as_ref()?;
+    let start = &d.identification;
+    let estimated = free.contains(Param::TR)
+        && e.free[2]
+        && !d.start_held.contains(&Param::TR)
+        && !start.observability.unobservable.contains(Param::TR);
+    (d.eiv_result == EivOutcome::Eiv && !d.refit && estimated).then_some((e.theta.t_r - start.theta.t_r, &e.covariance))
 }
 
 /// Which covariance a result's σ comes from ([`CalibrationReport::result_sigma`]).
