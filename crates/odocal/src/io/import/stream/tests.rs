@@ -195,10 +195,7 @@ fn a_drive_longer_than_the_warm_up_stays_within_the_clock_estimates_tolerance() 
     ];
     let mut compared = 0;
     // The whole import and its fit, once per manifest.
-    let mut whole_of: std::collections::HashMap<
-        &str,
-        (Manifest, crate::io::import::ImportedDrive, ([f64; 4], [f64; 4])),
-    > = std::collections::HashMap::new();
+    let mut whole_of = std::collections::HashMap::new();
     for (rel, warm_up_s) in cases {
         let (m, whole, (a, sa)) = &*whole_of.entry(rel).or_insert_with(|| {
             let m = manifest(rel);
