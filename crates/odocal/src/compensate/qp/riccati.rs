@@ -49,7 +49,7 @@
 
 use nalgebra::{Vector2, Vector3};
 
-use super::{QpError, QpSolution, QpSolver, StageQp, ACTIVE_BOUND_TOL};
+use super::{QpError, QpSolution, QpSolver, StageQp};
 
 /// Options of the structured solver ([`SolverKind::Structured`](super::SolverKind::Structured)).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -208,6 +208,15 @@ fn stage_ab(qp: &StageQp, i: usize) -> (&S2, &[S3; 2]) {
     (&qp.a[i].data.0[0], &qp.b[i].data.0)
 }
 
+/// Relative margin of the infeasibility certificate
+/// (`StructuredSolver::farkas_certificate`): the sums it compares carry a
+/// rounding error below 1e-12 of their magnitude on QPs of 10⁴ stages.
+const INFEASIBILITY_MARGIN: f64 = 1e-9;
+
+/// The first iteration at which a solve that has not reached primal
+/// feasibility looks for an infeasibility certificate.
+const CERTIFICATE_FROM_ITERATION: usize = 4;
+
 /// The Riccati factors of stage i that the vector passes read.
 #[derive(Debug, Clone, Copy, Default)]
 struct StageFactor {
@@ -265,8 +274,8 @@ fn invert_huu(i: usize, h00: f64, h01: f64, h11: f64, free: &S5) -> Result<[S2; 
 ///
 /// Adds `z_{i+1}`'s stage cost `2Q + Σ_z` to the carried cost-to-go `ctg`
 /// of `s_{i+1}`, forms `H_uu = [B; I]ᵀ P [B; I] + Σ_w (+ 2R)` and
-/// `H_us = [(P11 B + P12)ᵀ A, −2R]`, and returns the stage's
-/// factor with the cost-to-go of `s_i`,
+/// `H_us = [(P11 B + P12)ᵀ A, −2R]`, writes the stage's
+/// factor to `out` and returns the cost-to-go of `s_i`,
 /// `blockdiag(AᵀP11A, 2R) − H_usᵀ H_uu⁻¹ H_us` (z_i's stage cost left to
 /// stage i−1). Every product is written out for the sparse `A` and the
 /// diagonal `R`; symmetric blocks are formed from their upper triangle.
@@ -278,7 +287,8 @@ fn factor_stage(
     sigma: &S5,
     free: &S5,
     (a, b): (&S2, &[S3; 2]),
-) -> Result<(StageFactor, CostToGo), QpError> {
+    out: &mut StageFactor,
+) -> Result<CostToGo, QpError> {
     let mut p11 = ctg.p11;
     for j in 0..3 {
         p11[j][j] += q2[j] + sigma[2 + j];
@@ -304,9 +314,9 @@ fn factor_stage(
     // G = gᵀ A.
     let gt = |j: usize| [g[0][j], g[1][j], a[0] * g[0][j] + a[1] * g[1][j] + g[2][j]];
     let gg = [gt(0), gt(1)];
-    let f = StageFactor { p11, p12, hinv, g: gg };
+    *out = StageFactor { p11, p12, hinv, g: gg };
     if i == 0 {
-        return Ok((f, CostToGo::default())); // s_0 = 0: P_0 is never used.
+        return Ok(CostToGo::default()); // s_0 = 0: P_0 is never used.
     }
     // M = H_uu⁻¹ G (2×3).
     let mrow = |j: usize| {
@@ -337,7 +347,7 @@ fn factor_stage(
         [r2[0] - r2[0] * hinv[0][0] * r2[0], -(r2[0] * hinv[0][1] * r2[1])],
         [-(r2[1] * hinv[1][0] * r2[0]), r2[1] - r2[1] * hinv[1][1] * r2[1]],
     ];
-    Ok((f, next))
+    Ok(next)
 }
 
 /// One step of the Riccati vector pass at stage i for the linear term `rt`
@@ -467,6 +477,7 @@ struct Residuals {
 
 impl StructuredSolver {
     /// Fills r_d, r_p, r_lo, r_hi and returns their norms, in one pass.
+    #[inline(always)]
     fn residuals(qp: &StageQp, wk: &mut Work) -> Residuals {
         let k = qp.stages();
         let (q, r) = (&qp.q.data.0[0], &qp.r.data.0[0]);
@@ -540,6 +551,7 @@ impl StructuredSolver {
     }
 
     /// The largest bound multiplier.
+    #[inline(always)]
     fn max_multiplier(wk: &Work) -> f64 {
         let mut m = 0.0;
         for s in &wk.st {
@@ -551,10 +563,48 @@ impl StructuredSolver {
         m
     }
 
+    /// Whether the current dynamics multipliers `y` certify that no point
+    /// of the boxes satisfies the dynamics (Farkas): every such point has
+    /// `vᵀx = yᵀc` for `v = Gᵀy` (`Gx = c` the dynamics), so a `yᵀc` outside
+    /// the range of `vᵀx` over the boxes proves infeasibility. The margin,
+    /// `INFEASIBILITY_MARGIN` times the sums' magnitude, is far above their
+    /// rounding error, so a feasible problem is never certified whatever
+    /// the iterate.
+    #[inline(always)]
+    fn farkas_certificate(qp: &StageQp, wk: &Work) -> Option<f64> {
+        let k = qp.stages();
+        let st = &wk.st[..k];
+        let (mut yc, mut lo_sum, mut hi_sum, mut scale) = (0.0, 0.0, 0.0, 0.0);
+        for i in 0..k {
+            let y = &st[i].y;
+            let ay = if i + 1 < k { at_mul(stage_ab(qp, i + 1).0, &st[i + 1].y) } else { [0.0; 3] };
+            let btl = bt_mul(stage_ab(qp, i).1, y);
+            let v = [-btl[0], -btl[1], y[0] - ay[0], y[1] - ay[1], y[2] - ay[2]];
+            let (wl, wh, zl, zh) = (&qp.w_lo[i], &qp.w_hi[i], &qp.z_lo[i], &qp.z_hi[i]);
+            let lo = [wl[0], wl[1], zl[0], zl[1], zl[2]];
+            let hi = [wh[0], wh[1], zh[0], zh[1], zh[2]];
+            for j in 0..5 {
+                let (a, b) = (v[j] * lo[j], v[j] * hi[j]);
+                lo_sum += a.min(b);
+                hi_sum += a.max(b);
+                scale += a.abs().max(b.abs());
+            }
+            for r in 0..3 {
+                let t = y[r] * qp.c[i][r];
+                yc += t;
+                scale += t.abs();
+            }
+        }
+        let margin = INFEASIBILITY_MARGIN * scale;
+        let gap = (lo_sum - yc).max(yc - hi_sum);
+        (gap > margin && scale.is_finite()).then_some(gap / scale)
+    }
+
     /// Backward pass: the Riccati factorisation of the Newton LQ problem for
     /// the current Σ (shared by predictor and corrector), fused with the
     /// predictor's vector pass (complementarity target `t·μ`, so
     /// `r̃_d = r_d + μ_lo + Σ_lo r_lo − μ_hi − Σ_hi r_hi`).
+    #[inline(always)]
     fn factorize_predict(qp: &StageQp, wk: &mut Work) -> Result<(), QpError> {
         let k = qp.stages();
         let (q2, r2) = (2.0 * qp.q, 2.0 * qp.r);
@@ -575,10 +625,8 @@ impl StructuredSolver {
             }
             s.sigma_z = [sigma[2], sigma[3], sigma[4]];
             let ab = stage_ab(qp, i);
-            let (f, next) = factor_stage(i, &ctg, (q2, r2), &sigma, &s.free, ab)?;
-            s.kff = vector_stage(&f, &s.rt, &s.r_p, ab, r2, (&mut pz, &mut pw));
-            s.factor = f;
-            ctg = next;
+            ctg = factor_stage(i, &ctg, (q2, r2), &sigma, &s.free, ab, &mut s.factor)?;
+            s.kff = vector_stage(&s.factor, &s.rt, &s.r_p, ab, r2, (&mut pz, &mut pw));
         }
         Ok(())
     }
@@ -592,6 +640,7 @@ impl StructuredSolver {
     /// limits α by `−ρ`, the multiplier by `1 + ρ`, and
     /// `Σ (t Δμ + μ Δt) = −Σ t μ = −gap`, so the complementarity after the
     /// step is `(1 − α) gap + α² Σ Δt Δμ`.
+    #[inline(always)]
     fn predict_forward(qp: &StageQp, wk: &mut Work, gap: f64) -> f64 {
         let k = qp.stages();
         let r2 = 2.0 * qp.r;
@@ -623,6 +672,7 @@ impl StructuredSolver {
 
     /// Backward vector pass of the corrector: complementarity target
     /// `t·μ + Δt_aff·Δμ_aff − σμ` (`target` = σμ).
+    #[inline(always)]
     fn correct_backward(qp: &StageQp, wk: &mut Work, target: f64) {
         let k = qp.stages();
         let r2 = 2.0 * qp.r;
@@ -641,6 +691,7 @@ impl StructuredSolver {
     /// Forward pass of the corrector: rolls out the direction, recovers
     /// `Δt`, `Δμ` and returns the largest step `α ≤ 1` keeping slacks and
     /// multipliers non-negative.
+    #[inline(always)]
     fn correct_forward(qp: &StageQp, wk: &mut Work, target: f64) -> f64 {
         let k = qp.stages();
         let r2 = 2.0 * qp.r;
@@ -673,6 +724,7 @@ impl StructuredSolver {
     /// Backward pass: the multiplier step from stationarity in z,
     /// `Δy_k = −(2Q + Σ_z)Δz_k − r̃_z,k + A_{k+1}ᵀ Δy_{k+1}`, and the step of
     /// `alpha` along the whole direction.
+    #[inline(always)]
     fn take_step(qp: &StageQp, wk: &mut Work, alpha: f64) {
         let k = qp.stages();
         let q2 = 2.0 * qp.q;
@@ -836,9 +888,71 @@ impl QpSolver for StructuredSolver {
         // overwrites each buffer before reading it): the compensation runs
         // thousands of same-K solves per thread.
         let mut wk = WORK.with(|c| c.borrow_mut().take()).filter(|w| w.st.len() == k).unwrap_or_else(|| Work::new(k));
-        let result = self.solve_in(qp, warm_start, &mut wk);
+        let result = self.solve_dispatch(qp, warm_start, &mut wk);
         WORK.with(|c| *c.borrow_mut() = Some(wk));
         result
+    }
+}
+
+/// Whether the solver's iteration runs the build compiled for AVX2
+/// ([`StructuredSolver::solve_in_avx2`]): where the running CPU has AVX2
+/// (x86-64), unless the environment variable `ODOCAL_SIMD=baseline` asks
+/// for the build's baseline instruction set. Decided once per process.
+///
+/// Both compile the same Rust code, and Rust never contracts a multiply
+/// and an add into a fused one on its own, so both give results identical
+/// to the bit (test `avx2_build_equals_the_baseline_to_the_bit`); AVX2's
+/// three-operand, four-wide instructions need fewer register copies.
+fn use_avx2() -> bool {
+    static CHOICE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *CHOICE.get_or_init(|| {
+        let forced = std::env::var("ODOCAL_SIMD").is_ok_and(|s| s.eq_ignore_ascii_case("baseline"));
+        #[cfg(target_arch = "x86_64")]
+        {
+            !forced && std::arch::is_x86_feature_detected!("avx2")
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            let _ = forced;
+            false
+        }
+    })
+}
+
+impl StructuredSolver {
+    /// [`StructuredSolver::solve_in`] in the build [`use_avx2`] picks.
+    fn solve_dispatch(
+        &self,
+        qp: &StageQp,
+        warm_start: Option<&QpSolution>,
+        wk: &mut Work,
+    ) -> Result<QpSolution, QpError> {
+        #[cfg(target_arch = "x86_64")]
+        if use_avx2() {
+            // SAFETY: `use_avx2()` is true only when the running CPU reports
+            // AVX2 (`is_x86_feature_detected!`), the feature
+            // `solve_in_avx2` is compiled for.
+            #[allow(unsafe_code)]
+            return unsafe { self.solve_in_avx2(qp, warm_start, wk) };
+        }
+        self.solve_in(qp, warm_start, wk)
+    }
+
+    /// [`StructuredSolver::solve_in`] compiled for AVX2: it and every pass
+    /// of the iteration are inlined (`#[inline(always)]`), so all of them
+    /// are compiled for it.
+    ///
+    /// # Safety
+    /// The running CPU must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn solve_in_avx2(
+        &self,
+        qp: &StageQp,
+        warm_start: Option<&QpSolution>,
+        wk: &mut Work,
+    ) -> Result<QpSolution, QpError> {
+        self.solve_in(qp, warm_start, wk)
     }
 }
 
@@ -848,6 +962,7 @@ thread_local! {
 }
 
 impl StructuredSolver {
+    #[inline(always)]
     fn solve_in(&self, qp: &StageQp, warm_start: Option<&QpSolution>, wk: &mut Work) -> Result<QpSolution, QpError> {
         let opt = &self.options;
         let k = qp.stages();
@@ -877,6 +992,16 @@ impl StructuredSolver {
             }
             // Infeasibility: primal residual stuck while multipliers diverge.
             if !primal_ok {
+                // Feasible instances converge in about 5 iterations; the
+                // certificate (one pass) is looked for from the fourth on.
+                if iteration >= CERTIFICATE_FROM_ITERATION {
+                    if let Some(gap) = Self::farkas_certificate(qp, wk) {
+                        return Err(QpError::Infeasible(format!(
+                            "the dynamics multipliers at iteration {iteration} certify that no input sequence keeps \
+                             the states within their bounds (Farkas gap {gap:.2e} of the sums' magnitude)"
+                        )));
+                    }
+                }
                 let l_max = Self::max_multiplier(wk);
                 if l_max > opt.infeasibility_multiplier * (1.0 + res.grad_scale) {
                     return Err(QpError::Infeasible(format!(
@@ -908,10 +1033,110 @@ impl StructuredSolver {
         QpSolution {
             objective: qp.objective(&w, &z),
             iterations,
-            active_bounds: qp.count_active_bounds(&w, &z, ACTIVE_BOUND_TOL),
             dynamics_duals: Some(wk.st.iter().map(|s| Vector3::new(s.y[0], s.y[1], s.y[2])).collect()),
             w,
             z,
+        }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use rand::{Rng, SeedableRng};
+
+    use super::*;
+    use crate::compensate::qp::random_instance;
+
+    /// A work buffer for `qp` holding the dynamics multipliers `y`.
+    fn work_with_duals(qp: &StageQp, y: &[S3]) -> Work {
+        let mut wk = Work::new(qp.stages());
+        for (s, y) in wk.st.iter_mut().zip(y) {
+            s.y = *y;
+        }
+        wk
+    }
+
+    /// No multipliers whatever certify a feasible problem (the solution of
+    /// which is a feasible point): the certificate's sums and margin hold
+    /// against any `y`, from small to huge.
+    #[test]
+    fn feasible_problems_are_never_certified() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        for seed in 0..6 {
+            let qp = random_instance(seed, 80, 0.9);
+            StructuredSolver::default().solve(&qp, None).unwrap();
+            for scale in [1e-3, 1.0, 1e6, 1e12] {
+                for _ in 0..20 {
+                    let y: Vec<S3> = (0..qp.stages())
+                        .map(|_| [0; 3].map(|_| scale * (rng.random::<f64>() - 0.5)))
+                        .collect();
+                    let gap = StructuredSolver::farkas_certificate(&qp, &work_with_duals(&qp, &y));
+                    assert_eq!(gap, None, "seed {seed}, scale {scale}");
+                }
+            }
+        }
+    }
+
+    /// The build for AVX2 and the baseline one give the same solutions to
+    /// the bit (cold and warm starts, loose and tight boxes, pinned inputs)
+    /// and the same errors.
+    #[test]
+    fn avx2_build_equals_the_baseline_to_the_bit() {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            let solver = StructuredSolver::default();
+            let run = |qp: &StageQp, warm: Option<&QpSolution>, avx2: bool| {
+                let mut wk = Work::new(qp.stages());
+                // SAFETY: the CPU reports AVX2 (checked above).
+                #[allow(unsafe_code)]
+                let r = if avx2 {
+                    unsafe { solver.solve_in_avx2(qp, warm, &mut wk) }
+                } else {
+                    solver.solve_in(qp, warm, &mut wk)
+                };
+                r.map_err(|e| e.to_string())
+            };
+            let mut pinned = random_instance(5, 120, 0.0);
+            for i in 40..60 {
+                pinned.w_lo[i] = nalgebra::Vector2::zeros();
+                pinned.w_hi[i] = nalgebra::Vector2::zeros();
+            }
+            let mut jump = random_instance(30, 40, 0.0);
+            jump.c[15][0] = 20.0;
+            let mut instances: Vec<StageQp> =
+                (0..6).map(|seed| random_instance(seed, 150, [0.0, 0.9, 0.97][seed as usize % 3])).collect();
+            instances.extend([pinned, jump]);
+            for qp in &instances {
+                let cold = run(qp, None, false);
+                assert_eq!(cold, run(qp, None, true));
+                if let Ok(sol) = &cold {
+                    let mut moved = qp.clone();
+                    moved.c.iter_mut().for_each(|c| c[0] += 1e-3);
+                    assert_eq!(run(&moved, Some(sol), false), run(&moved, Some(sol), true));
+                }
+            }
+        }
+    }
+
+    /// A jump of 20 m in the reference that the inputs (about 1 mm per
+    /// step) cannot follow within the ±5 m box: the multiplier of that
+    /// step's x row certifies it by itself, and the solver finds a
+    /// certificate well before its iteration limit.
+    #[test]
+    fn an_unreachable_jump_is_certified() {
+        let mut qp = random_instance(30, 40, 0.0);
+        qp.c[15][0] = 20.0;
+        let mut y = vec![[0.0; 3]; qp.stages()];
+        y[15] = [1.0, 0.0, 0.0];
+        assert!(StructuredSolver::farkas_certificate(&qp, &work_with_duals(&qp, &y)).is_some());
+        // The same multiplier one step earlier sees only that step's
+        // centimetres: no certificate.
+        y.swap(14, 15);
+        assert_eq!(StructuredSolver::farkas_certificate(&qp, &work_with_duals(&qp, &y)), None);
+        match StructuredSolver::default().solve(&qp, None) {
+            Err(QpError::Infeasible(why)) => assert!(why.contains("certify"), "{why}"),
+            other => panic!("expected a certified infeasibility, got {other:?}"),
         }
     }
 }
