@@ -390,6 +390,18 @@ fn rollout_stage(i: usize, f: &StageFactor, kff: &S2, (a, b): (&S2, &[S3; 2]), r
     [u[0], u[1], dz(0), dz(1), dz(2)]
 }
 
+/// The mask of free variables of stage `s` ([`Stage::free`]); all ones
+/// when no variable of the problem is `PINNED`, so that the products with
+/// it fold away.
+#[inline(always)]
+fn free<const PINNED: bool>(s: &Stage) -> S5 {
+    if PINNED {
+        s.free
+    } else {
+        [1.0; 5]
+    }
+}
+
 /// Raises `m` to `r` when `r` is larger (a NaN ratio is skipped).
 #[inline(always)]
 fn raise(m: &mut f64, r: f64) {
@@ -478,7 +490,7 @@ struct Residuals {
 impl StructuredSolver {
     /// Fills r_d, r_p, r_lo, r_hi and returns their norms, in one pass.
     #[inline(always)]
-    fn residuals(qp: &StageQp, wk: &mut Work) -> Residuals {
+    fn residuals<const PINNED: bool>(qp: &StageQp, wk: &mut Work) -> Residuals {
         let k = qp.stages();
         let (q, r) = (&qp.q.data.0[0], &qp.r.data.0[0]);
         let (q2, r2) = ([2.0 * q[0], 2.0 * q[1], 2.0 * q[2]], [2.0 * r[0], 2.0 * r[1]]);
@@ -519,7 +531,7 @@ impl StructuredSolver {
             // of its equality `x = v`.
             let mut primal = res.primal;
             for j in 0..5 {
-                let f = s.free[j];
+                let f = free::<PINNED>(s)[j];
                 s.r_d[j] = (grad[j] + gy[j] - s.l_lo[j] + s.l_hi[j]) * f;
                 s.r_lo[j] = (xi[j] - s.lo[j] - s.t_lo[j]) * f;
                 s.r_hi[j] = (s.hi[j] - xi[j] - s.t_hi[j]) * f;
@@ -605,7 +617,7 @@ impl StructuredSolver {
     /// predictor's vector pass (complementarity target `t·μ`, so
     /// `r̃_d = r_d + μ_lo + Σ_lo r_lo − μ_hi − Σ_hi r_hi`).
     #[inline(always)]
-    fn factorize_predict(qp: &StageQp, wk: &mut Work) -> Result<(), QpError> {
+    fn factorize_predict<const PINNED: bool>(qp: &StageQp, wk: &mut Work) -> Result<(), QpError> {
         let k = qp.stages();
         let (q2, r2) = (2.0 * qp.q, 2.0 * qp.r);
         let (q2, r2) = (&q2.data.0[0], &r2.data.0[0]);
@@ -625,7 +637,7 @@ impl StructuredSolver {
             }
             s.sigma_z = [sigma[2], sigma[3], sigma[4]];
             let ab = stage_ab(qp, i);
-            ctg = factor_stage(i, &ctg, (q2, r2), &sigma, &s.free, ab, &mut s.factor)?;
+            ctg = factor_stage(i, &ctg, (q2, r2), &sigma, &free::<PINNED>(s), ab, &mut s.factor)?;
             s.kff = vector_stage(&s.factor, &s.rt, &s.r_p, ab, r2, (&mut pz, &mut pw));
         }
         Ok(())
@@ -641,7 +653,7 @@ impl StructuredSolver {
     /// `Σ (t Δμ + μ Δt) = −Σ t μ = −gap`, so the complementarity after the
     /// step is `(1 − α) gap + α² Σ Δt Δμ`.
     #[inline(always)]
-    fn predict_forward(qp: &StageQp, wk: &mut Work, gap: f64) -> f64 {
+    fn predict_forward<const PINNED: bool>(qp: &StageQp, wk: &mut Work, gap: f64) -> f64 {
         let k = qp.stages();
         let r2 = 2.0 * qp.r;
         let r2 = &r2.data.0[0];
@@ -654,7 +666,8 @@ impl StructuredSolver {
             for j in 0..5 {
                 let (dtl, dth) = (dx[j] + s.r_lo[j], s.r_hi[j] - dx[j]);
                 let (rho_lo, rho_hi) = (dtl * s.inv_t_lo[j], dth * s.inv_t_hi[j]);
-                let (f_lo, f_hi) = ((1.0 + rho_lo) * s.free[j], (1.0 + rho_hi) * s.free[j]);
+                let f = free::<PINNED>(s)[j];
+                let (f_lo, f_hi) = ((1.0 + rho_lo) * f, (1.0 + rho_hi) * f);
                 raise(&mut m, -rho_lo);
                 raise(&mut m, -rho_hi);
                 raise(&mut m, f_lo);
@@ -692,7 +705,7 @@ impl StructuredSolver {
     /// `Δt`, `Δμ` and returns the largest step `α ≤ 1` keeping slacks and
     /// multipliers non-negative.
     #[inline(always)]
-    fn correct_forward(qp: &StageQp, wk: &mut Work, target: f64) -> f64 {
+    fn correct_forward<const PINNED: bool>(qp: &StageQp, wk: &mut Work, target: f64) -> f64 {
         let k = qp.stages();
         let r2 = 2.0 * qp.r;
         let r2 = &r2.data.0[0];
@@ -706,8 +719,9 @@ impl StructuredSolver {
                 let (dtl, dth) = (dx[j] + s.r_lo[j], s.r_hi[j] - dx[j]);
                 let (ll, lh) = (s.l_lo[j], s.l_hi[j]);
                 // Pinned variables keep slacks and (zero) multipliers unchanged.
-                let dll = -(ll + (s.prod_lo[j] - target + ll * dtl) * s.inv_t_lo[j]) * s.free[j];
-                let dlh = -(lh + (s.prod_hi[j] - target + lh * dth) * s.inv_t_hi[j]) * s.free[j];
+                let f = free::<PINNED>(s)[j];
+                let dll = -(ll + (s.prod_lo[j] - target + ll * dtl) * s.inv_t_lo[j]) * f;
+                let dlh = -(lh + (s.prod_hi[j] - target + lh * dth) * s.inv_t_hi[j]) * f;
                 raise(&mut m, -dtl * s.inv_t_lo[j]);
                 raise(&mut m, -dth * s.inv_t_hi[j]);
                 raise(&mut m, -dll / ll);
@@ -816,7 +830,7 @@ impl StructuredSolver {
             s.l_lo = [0.0; 5];
             s.l_hi = [0.0; 5];
         }
-        Self::residuals(qp, wk); // r_d = ν with zero bound multipliers
+        Self::residuals::<true>(qp, wk); // r_d = ν with zero bound multipliers
         let mu = self.options.warm_start_mu;
         for s in &mut wk.st[..k] {
             for j in 0..5 {
@@ -964,7 +978,6 @@ thread_local! {
 impl StructuredSolver {
     #[inline(always)]
     fn solve_in(&self, qp: &StageQp, warm_start: Option<&QpSolution>, wk: &mut Work) -> Result<QpSolution, QpError> {
-        let opt = &self.options;
         let k = qp.stages();
         self.initialize(qp, wk, warm_start)?;
 
@@ -973,9 +986,23 @@ impl StructuredSolver {
             let amax = |v: &S5| v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
             scale_p = scale_p.max(1.0 + qp.c[i].amax()).max(1.0 + amax(&s.lo)).max(1.0 + amax(&s.hi));
         }
+        if wk.n_free == 5 * k {
+            self.iterate::<false>(qp, wk, scale_p)
+        } else {
+            self.iterate::<true>(qp, wk, scale_p)
+        }
+    }
+
+    /// The interior-point iteration from the initialised `wk`. `PINNED`:
+    /// whether some variable is pinned ([`StructuredOptions::fixed_width`]);
+    /// without, the passes leave out the masks of pinned variables (a
+    /// product with 1, so the results are the same to the bit).
+    #[inline(always)]
+    fn iterate<const PINNED: bool>(&self, qp: &StageQp, wk: &mut Work, scale_p: f64) -> Result<QpSolution, QpError> {
+        let opt = &self.options;
         let mut last_residual = f64::NAN;
         for iteration in 0..=opt.max_iterations {
-            let res = Self::residuals(qp, wk);
+            let res = Self::residuals::<PINNED>(qp, wk);
             last_residual = res.primal.max(res.dual).max(res.dual_z);
             if !(res.primal.is_finite() && res.dual.is_finite() && res.dual_z.is_finite() && res.gap.is_finite()) {
                 return Err(QpError::Numerical(format!("non-finite residuals at iteration {iteration}")));
@@ -1013,14 +1040,14 @@ impl StructuredSolver {
             }
 
             // Predictor (affine scaling): target t·μ = 0.
-            Self::factorize_predict(qp, wk)?;
-            let gap_aff = Self::predict_forward(qp, wk, res.gap);
+            Self::factorize_predict::<PINNED>(qp, wk)?;
+            let gap_aff = Self::predict_forward::<PINNED>(qp, wk, res.gap);
             let sigma_c = (gap_aff / res.gap).clamp(0.0, 1.0).powi(3);
             let target = sigma_c * res.mu;
 
             // Corrector: target t·μ = σμ, with the second-order term.
             Self::correct_backward(qp, wk, target);
-            let alpha = (opt.step_fraction * Self::correct_forward(qp, wk, target)).min(1.0);
+            let alpha = (opt.step_fraction * Self::correct_forward::<PINNED>(qp, wk, target)).min(1.0);
             Self::take_step(qp, wk, alpha);
         }
         Err(QpError::MaxIterations { iterations: opt.max_iterations, residual: last_residual })
