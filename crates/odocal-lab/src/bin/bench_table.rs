@@ -167,9 +167,9 @@ impl Cell {
 }
 
 fn find<'a>(cells: &'a [Cell], method: &str, km: f64, series: bool, threads: usize) -> Option<&'a Cell> {
-    cells.iter().find(|c| {
-        c.method == method && c.km.to_bits() == km.to_bits() && c.series == series && c.threads == threads
-    })
+    cells
+        .iter()
+        .find(|c| c.method == method && c.km.to_bits() == km.to_bits() && c.series == series && c.threads == threads)
 }
 
 /// The run's settings.
@@ -244,7 +244,12 @@ fn copies(km: f64, unit_km: f64) -> Option<usize> {
 
 fn drive_path(plan: &Plan, km: f64, series: bool) -> PathBuf {
     if series {
-        plan.dir.join(format!("drive-{km}km-{}x{}km-seed{}.csv", copies(km, plan.unit_km).unwrap_or(0), plan.unit_km, plan.seed))
+        plan.dir.join(format!(
+            "drive-{km}km-{}x{}km-seed{}.csv",
+            copies(km, plan.unit_km).unwrap_or(0),
+            plan.unit_km,
+            plan.seed
+        ))
     } else {
         plan.dir.join(format!("drive-{km}km-seed{}.csv", plan.seed))
     }
@@ -456,9 +461,11 @@ fn length_table(plan: &Plan, cells: &[Cell]) -> Table {
     let t = plan.length_threads;
     for &km in &plan.lengths {
         for m in METHODS {
-            let (Some(c), Some(b), Some(r)) =
-                (find(cells, m, km, true, t), find(cells, METHODS[0], km, true, t), find(cells, m, REFERENCE_KM, true, t))
-            else {
+            let (Some(c), Some(b), Some(r)) = (
+                find(cells, m, km, true, t),
+                find(cells, METHODS[0], km, true, t),
+                find(cells, m, REFERENCE_KM, true, t),
+            ) else {
                 continue;
             };
             let cpu_per_km = (c.cpu() / km) / (r.cpu() / REFERENCE_KM);

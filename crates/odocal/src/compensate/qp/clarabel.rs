@@ -228,13 +228,7 @@ impl QpSolver for ClarabelSolver {
         let z: Vec<Vector3<f64>> =
             (0..k).map(|i| Vector3::new(x[2 * k + 3 * i], x[2 * k + 3 * i + 1], x[2 * k + 3 * i + 2])).collect();
         let lam = (0..k).map(|i| Vector3::new(sol.z[3 * i], sol.z[3 * i + 1], sol.z[3 * i + 2])).collect();
-        Ok(QpSolution {
-            objective: qp.objective(&w, &z),
-            iterations,
-            dynamics_duals: Some(lam),
-            w,
-            z,
-        })
+        Ok(QpSolution { objective: qp.objective(&w, &z), iterations, dynamics_duals: Some(lam), w, z })
     }
 }
 

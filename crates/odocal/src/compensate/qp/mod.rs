@@ -371,13 +371,7 @@ pub(crate) fn solve_equality_constrained(qp: &StageQp) -> Result<QpSolution, QpE
     let w: Vec<Vector2<f64>> = (0..k).map(|i| Vector2::new(x[wi(i, 0)], x[wi(i, 1)])).collect();
     let z: Vec<Vector3<f64>> = (0..k).map(|i| Vector3::new(x[zi(i, 0)], x[zi(i, 1)], x[zi(i, 2)])).collect();
     let lam = (0..k).map(|i| Vector3::new(x[n + 3 * i], x[n + 3 * i + 1], x[n + 3 * i + 2])).collect();
-    Ok(QpSolution {
-        objective: qp.objective(&w, &z),
-        iterations: 1,
-        dynamics_duals: Some(lam),
-        w,
-        z,
-    })
+    Ok(QpSolution { objective: qp.objective(&w, &z), iterations: 1, dynamics_duals: Some(lam), w, z })
 }
 
 /// Which solver the compensation QP uses; parses from `"structured"` or

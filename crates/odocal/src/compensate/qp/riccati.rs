@@ -1095,9 +1095,8 @@ mod tests {
             StructuredSolver::default().solve(&qp, None).unwrap();
             for scale in [1e-3, 1.0, 1e6, 1e12] {
                 for _ in 0..20 {
-                    let y: Vec<S3> = (0..qp.stages())
-                        .map(|_| [0; 3].map(|_| scale * (rng.random::<f64>() - 0.5)))
-                        .collect();
+                    let y: Vec<S3> =
+                        (0..qp.stages()).map(|_| [0; 3].map(|_| scale * (rng.random::<f64>() - 0.5))).collect();
                     let gap = StructuredSolver::farkas_certificate(&qp, &work_with_duals(&qp, &y));
                     assert_eq!(gap, None, "seed {seed}, scale {scale}");
                 }
