@@ -37,7 +37,8 @@
 //! (Nocedal & Wright, *Numerical Optimization*, §16.6) on the KKT system of
 //! [`crate::compensate::qp`]'s dual convention; steps use one common primal-dual step
 //! length. It stops when the primal residual, the dual residual and the mean
-//! complementarity are all below [`StructuredOptions`]' tolerances.
+//! complementarity are all below [`StructuredOptions`]' tolerances, or when
+//! the dynamics multipliers certify that the problem has no feasible point.
 //!
 //! ## References
 //! - C. V. Rao, S. J. Wright, J. B. Rawlings, "Application of interior-point
@@ -157,8 +158,11 @@ impl StructuredOptions {
 /// method and why it exists). Typically 10–20 iterations; each costs two
 /// O(K) passes over fixed-size stage matrices.
 ///
-/// On an infeasible problem it returns `QpError::Infeasible` with the
-/// stalled primal residual and the diverging multiplier; on
+/// On an infeasible problem it returns `QpError::Infeasible` when its
+/// dynamics multipliers certify the infeasibility (a Farkas certificate,
+/// looked for from the fourth iteration while the primal residual has not
+/// converged) or a bound multiplier diverges while the primal residual
+/// stalls; on
 /// `QpError::MaxIterations` or `QpError::Numerical` a caller may fall
 /// back to [`super::clarabel::ClarabelSolver`].
 #[derive(Debug, Clone, PartialEq, Default)]
