@@ -22,7 +22,13 @@
 //! - **threads**: batch-gn, eiv (the default method) and three-step on the
 //!   24 km drive with 1, 2 and all cores' threads;
 //! - **length**: the same on 6/12/24/48/96 km with 2 threads (or fewer
-//!   cores), with the cost per km and per sample relative to 24 km;
+//!   cores), with the cost per km and per sample relative to 24 km. These
+//!   drives are one simulated drive of `--unit-km` (default 6 km) driven
+//!   again and again (see `repeated`), so that every length has the same
+//!   route, speed profile and samples per km: a simulated route of 96 km is
+//!   not a longer version of the 24 km one (its zones differ, and with them
+//!   its samples per km), which mixes the route's content into a per-km
+//!   comparison;
 //! - **fleet**: `--fleet-drives` runs of the default method on the 12 km
 //!   drive (`--fleet-km`), one thread each, as many processes at once as there are cores,
 //!   against the same runs one after another.
@@ -35,11 +41,11 @@ use std::process::{Child, Command, Stdio};
 use std::time::Instant;
 
 use odocal::sim::{simulate, SimOptions};
-use odocal::{calibrate, CalibrationOptions, Drive, Method};
+use odocal::{calibrate, CalibrationOptions, Drive, DriveBuilder, Method, Signals};
 use odocal_lab::{median, Args, Res, Table};
 
 const USAGE: &str = "bench_table [--quick] [--reps 3] [--seed 1] [--threads 1,2,CORES] [--lengths 6,12,24,48,96] \
-                     [--fleet-drives 2×CORES] [--fleet-km 12] [--out DIR]\n       bench_table --worker DRIVE.csv METHOD THREADS";
+                     [--unit-km 6] [--fleet-drives 2×CORES] [--fleet-km 12] [--out DIR]\n       bench_table --worker DRIVE.csv METHOD THREADS";
 
 /// The methods of the table, by their CLI names; the first is the reference.
 const METHODS: [&str; 3] = ["batch-gn", "eiv", "three-step"];
@@ -135,6 +141,9 @@ fn wait_sample(child: Child, what: &str) -> Res<Sample> {
 struct Cell {
     method: &'static str,
     km: f64,
+    /// A drive of the length series (the unit drive repeated) rather than
+    /// a simulated drive of this length.
+    series: bool,
     threads: usize,
     runs: Vec<Sample>,
 }
@@ -157,8 +166,10 @@ impl Cell {
     }
 }
 
-fn find<'a>(cells: &'a [Cell], method: &str, km: f64, threads: usize) -> Option<&'a Cell> {
-    cells.iter().find(|c| c.method == method && c.km.to_bits() == km.to_bits() && c.threads == threads)
+fn find<'a>(cells: &'a [Cell], method: &str, km: f64, series: bool, threads: usize) -> Option<&'a Cell> {
+    cells
+        .iter()
+        .find(|c| c.method == method && c.km.to_bits() == km.to_bits() && c.series == series && c.threads == threads)
 }
 
 /// The run's settings.
@@ -167,6 +178,7 @@ struct Plan {
     seed: u64,
     threads: Vec<usize>,
     lengths: Vec<f64>,
+    unit_km: f64,
     length_threads: usize,
     fleet_km: f64,
     fleet_drives: usize,
@@ -198,6 +210,10 @@ fn plan() -> Res<Plan> {
         lengths.push(REFERENCE_KM);
     }
     lengths.sort_by(f64::total_cmp);
+    let unit_km: f64 = args.get("unit-km", 6.0)?;
+    if let Some(bad) = lengths.iter().find(|&&km| copies(km, unit_km).is_none()) {
+        return Err(format!("--lengths: {bad} km is not a whole multiple of --unit-km {unit_km}").into());
+    }
     let fleet_drives = args.get("fleet-drives", 2 * cores)?;
     let fleet_km = args.get("fleet-km", if quick { 6.0 } else { 12.0 })?;
     let out: Option<String> = args.opt("out")?;
@@ -210,6 +226,7 @@ fn plan() -> Res<Plan> {
         seed,
         threads,
         lengths,
+        unit_km,
         length_threads: 2.min(cores),
         fleet_km,
         fleet_drives,
@@ -219,22 +236,90 @@ fn plan() -> Res<Plan> {
     })
 }
 
-fn drive_path(plan: &Plan, km: f64) -> PathBuf {
-    plan.dir.join(format!("drive-{km}km-seed{}.csv", plan.seed))
+/// How many drives of `unit_km` make `km` (None unless a whole number ≥ 1).
+fn copies(km: f64, unit_km: f64) -> Option<usize> {
+    let n = (km / unit_km).round();
+    (unit_km > 0.0 && n >= 1.0 && (n * unit_km - km).abs() <= 1e-9 * km).then_some(n as usize)
 }
 
-/// Simulates and writes every drive the plan needs.
+fn drive_path(plan: &Plan, km: f64, series: bool) -> PathBuf {
+    if series {
+        plan.dir.join(format!(
+            "drive-{km}km-{}x{}km-seed{}.csv",
+            copies(km, plan.unit_km).unwrap_or(0),
+            plan.unit_km,
+            plan.seed
+        ))
+    } else {
+        plan.dir.join(format!("drive-{km}km-seed{}.csv", plan.seed))
+    }
+}
+
+/// The drive `unit` driven `copies` times in a row, as one drive. Each
+/// copy is moved rigidly (its reference poses rotated and translated) so
+/// that its true start pose is the previous copy's true end pose, and its
+/// time stamps continue one sample time after the previous copy's last.
+/// A simulated drive starts and ends at a standstill, so a join is the car
+/// standing still for one sample more; the measured reference's noise
+/// restarts there (a step of the size of that noise, about 0.5 m on the
+/// 6 km drive of seed 1). The result has no truth.
+fn repeated(unit: &Drive, copies: usize) -> Res<Drive> {
+    let truth = unit.truth().ok_or("the unit drive has no truth")?;
+    let (m, n, ts) = (unit.measured(), unit.len(), unit.sample_time_s());
+    let period = unit.t()[n - 1] - unit.t()[0] + ts;
+    let mut t = Vec::with_capacity(n * copies);
+    let mut sig = Signals::with_capacity(n * copies);
+    // The rigid move of the current copy: rotation by `rot`, then translation.
+    let (mut rot, mut dx, mut dy) = (0.0f64, 0.0, 0.0);
+    for c in 0..copies {
+        let (s, co) = rot.sin_cos();
+        for i in 0..n {
+            t.push(unit.t()[i] + c as f64 * period);
+            sig.px.push(co * m.px[i] - s * m.py[i] + dx);
+            sig.py.push(s * m.px[i] + co * m.py[i] + dy);
+            sig.psi.push(m.psi[i] + rot);
+        }
+        sig.n_rl.extend_from_slice(&m.n_rl);
+        sig.n_rr.extend_from_slice(&m.n_rr);
+        sig.beta.extend_from_slice(&m.beta);
+        sig.a_y.extend_from_slice(&m.a_y);
+        // The next copy's true start goes where this copy's true end is.
+        let end = (co * truth.px[n - 1] - s * truth.py[n - 1] + dx, s * truth.px[n - 1] + co * truth.py[n - 1] + dy);
+        rot += truth.psi[n - 1] - truth.psi[0];
+        let (s, co) = rot.sin_cos();
+        dx = end.0 - (co * truth.px[0] - s * truth.py[0]);
+        dy = end.1 - (s * truth.px[0] + co * truth.py[0]);
+    }
+    let builder = DriveBuilder {
+        context: format!("{copies} × the unit drive"),
+        t,
+        measured: sig,
+        sample_time_s: Some(ts),
+        ..Default::default()
+    };
+    Ok(builder.build()?)
+}
+
+/// Simulates and writes every drive the plan needs: the reference and
+/// fleet drives as simulated, the length series from the unit drive.
 fn write_drives(plan: &Plan) -> Res<()> {
     std::fs::create_dir_all(&plan.dir)?;
-    let mut kms = plan.lengths.clone();
-    kms.push(plan.fleet_km);
-    kms.sort_by(f64::total_cmp);
-    kms.dedup();
+    let simulated = |km: f64| simulate(&SimOptions { length_km: km, ..SimOptions::paper(plan.seed) });
+    let mut kms = vec![REFERENCE_KM];
+    if plan.fleet_drives > 0 && plan.fleet_km.to_bits() != REFERENCE_KM.to_bits() {
+        kms.push(plan.fleet_km);
+    }
     for km in kms {
-        let path = drive_path(plan, km);
+        let path = drive_path(plan, km, false);
         if !path.exists() {
-            let out = simulate(&SimOptions { length_km: km, ..SimOptions::paper(plan.seed) })?;
-            out.drive.write_csv(&path)?;
+            simulated(km)?.drive.write_csv(&path)?;
+        }
+    }
+    let unit = simulated(plan.unit_km)?.drive;
+    for &km in &plan.lengths {
+        let path = drive_path(plan, km, true);
+        if !path.exists() {
+            repeated(&unit, copies(km, plan.unit_km).ok_or("length not a multiple of the unit")?)?.write_csv(&path)?;
         }
     }
     Ok(())
@@ -243,19 +328,19 @@ fn write_drives(plan: &Plan) -> Res<()> {
 /// The cells of the thread and length tables, each once.
 fn cells(plan: &Plan) -> Vec<Cell> {
     let mut cells: Vec<Cell> = Vec::new();
-    let mut add = |method: &'static str, km: f64, threads: usize| {
-        if find(&cells, method, km, threads).is_none() {
-            cells.push(Cell { method, km, threads, runs: Vec::new() });
+    let mut add = |method: &'static str, km: f64, series: bool, threads: usize| {
+        if find(&cells, method, km, series, threads).is_none() {
+            cells.push(Cell { method, km, series, threads, runs: Vec::new() });
         }
     };
     for &t in &plan.threads {
         for m in METHODS {
-            add(m, REFERENCE_KM, t);
+            add(m, REFERENCE_KM, false, t);
         }
     }
     for &km in &plan.lengths {
         for m in METHODS {
-            add(m, km, plan.length_threads);
+            add(m, km, true, plan.length_threads);
         }
     }
     cells
@@ -300,18 +385,24 @@ fn measure(plan: &Plan, cells: &mut [Cell], fleet: &mut Fleet) -> Res<()> {
     for rep in 0..plan.reps {
         for (i, c) in cells.iter_mut().enumerate() {
             eprint!("\rrepetition {}/{}: {} of {total} cells       ", rep + 1, plan.reps, i + 1);
-            let child = worker_command(&drive_path(plan, c.km), c.method, c.threads)?.spawn()?;
+            let child = worker_command(&drive_path(plan, c.km, c.series), c.method, c.threads)?.spawn()?;
             let sample = wait_sample(child, c.method)?;
             // Every sample as it comes, so an interrupted run leaves its data.
             eprintln!(
-                "\rsample: {} km, {}, {} thread(s): {:.3} s wall, {:.2} s CPU, {:.0} kB peak",
-                c.km, c.method, c.threads, sample.wall, sample.cpu, sample.peak_kb
+                "\rsample: {} km{}, {}, {} thread(s): {:.3} s wall, {:.2} s CPU, {:.0} kB peak",
+                c.km,
+                if c.series { " (series)" } else { "" },
+                c.method,
+                c.threads,
+                sample.wall,
+                sample.cpu,
+                sample.peak_kb
             );
             c.runs.push(sample);
         }
         if plan.fleet_drives > 0 {
             eprint!("\rrepetition {}/{}: fleet                 ", rep + 1, plan.reps);
-            let path = drive_path(plan, plan.fleet_km);
+            let path = drive_path(plan, plan.fleet_km, false);
             fleet.serial.push(fleet_serial(plan, &path)?);
             fleet.parallel.push(fleet_parallel(plan, &path)?);
             eprintln!("\rsample: fleet: {:.2} s serial, {:.2} s parallel", fleet.serial[rep], fleet.parallel[rep]);
@@ -336,7 +427,9 @@ fn thread_table(plan: &Plan, cells: &[Cell]) -> Table {
         let mut row = vec![m.to_string()];
         let mut peak: f64 = 0.0;
         for &t in &plan.threads {
-            let (Some(c), Some(b)) = (find(cells, m, REFERENCE_KM, t), find(cells, METHODS[0], REFERENCE_KM, t)) else {
+            let (Some(c), Some(b)) =
+                (find(cells, m, REFERENCE_KM, false, t), find(cells, METHODS[0], REFERENCE_KM, false, t))
+            else {
                 continue;
             };
             peak = peak.max(c.peak_mb());
@@ -360,18 +453,22 @@ fn length_table(plan: &Plan, cells: &[Cell]) -> Table {
         ">wall",
         ">× batch-gn",
         ">CPU",
-        ">per km vs 24 km",
-        ">per sample vs 24 km",
+        ">CPU per km vs 24 km",
+        ">wall per km vs 24 km",
+        ">wall per sample vs 24 km",
         ">peak RSS",
     ]);
     let t = plan.length_threads;
     for &km in &plan.lengths {
         for m in METHODS {
-            let (Some(c), Some(b), Some(r)) =
-                (find(cells, m, km, t), find(cells, METHODS[0], km, t), find(cells, m, REFERENCE_KM, t))
-            else {
+            let (Some(c), Some(b), Some(r)) = (
+                find(cells, m, km, true, t),
+                find(cells, METHODS[0], km, true, t),
+                find(cells, m, REFERENCE_KM, true, t),
+            ) else {
                 continue;
             };
+            let cpu_per_km = (c.cpu() / km) / (r.cpu() / REFERENCE_KM);
             let per_km = (c.wall() / km) / (r.wall() / REFERENCE_KM);
             let per_sample = (c.wall() / c.samples() as f64) / (r.wall() / r.samples() as f64);
             table.row([
@@ -381,6 +478,7 @@ fn length_table(plan: &Plan, cells: &[Cell]) -> Table {
                 format!("{:.2} s", c.wall()),
                 ratio(c.wall(), b.wall()),
                 format!("{:.2} s", c.cpu()),
+                format!("{cpu_per_km:.2}"),
                 format!("{per_km:.2}"),
                 format!("{per_sample:.2}"),
                 format!("{:.0} MB", c.peak_mb()),
@@ -450,10 +548,17 @@ fn run() -> Res<()> {
     );
     println!(
         "{REFERENCE_KM} km drive ({} samples), by threads:\n",
-        find(&cells, METHODS[0], REFERENCE_KM, plan.threads[0]).map_or(0, Cell::samples)
+        find(&cells, METHODS[0], REFERENCE_KM, false, plan.threads[0]).map_or(0, Cell::samples)
     );
     println!("{}", thread_table(&plan, &cells));
-    println!("by length, {} thread{}:\n", plan.length_threads, if plan.length_threads == 1 { "" } else { "s" });
+    println!(
+        "by length, {} thread{}, each drive the {} km drive of seed {} driven again and again (same route and \
+         samples per km at every length):\n",
+        plan.length_threads,
+        if plan.length_threads == 1 { "" } else { "s" },
+        plan.unit_km,
+        plan.seed
+    );
     println!("{}", length_table(&plan, &cells));
     if plan.fleet_drives > 0 {
         println!("{}", fleet_line(&plan, &fleet));

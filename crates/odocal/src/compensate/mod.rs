@@ -166,8 +166,6 @@ pub(crate) struct Compensation {
     pub qp_iterations: usize,
     /// Objective of the last QP.
     pub objective: f64,
-    /// Bounds active at the last solution.
-    pub active_bounds: usize,
     /// Max absolute input change (rev/s) made by each solve relative to the
     /// previous linearization point.
     pub input_change: Vec<f64>,
@@ -306,7 +304,6 @@ pub(crate) fn compensate_from(
         linearizations: 0,
         qp_iterations: 0,
         objective: f64::NAN,
-        active_bounds: 0,
         input_change: Vec::new(),
         converged: false,
         fallbacks: Vec::new(),
@@ -341,7 +338,6 @@ pub(crate) fn compensate_from(
         out.linearizations += 1;
         out.qp_iterations += sol.iterations;
         out.objective = sol.objective;
-        out.active_bounds = sol.active_bounds;
         let mut change: f64 = 0.0;
         for k in 0..k_steps {
             let a = seg.n_rl[k] + sol.w[k][0];

@@ -161,8 +161,6 @@ pub(crate) struct QpSolution {
     pub objective: f64,
     /// Solver iterations.
     pub iterations: usize,
-    /// Number of bounds active at the solution (within a small tolerance).
-    pub active_bounds: usize,
     /// Dual variables of the dynamics constraints (λ_k, k = 1..K), when the
     /// solver provides them (used for KKT checks and warm starts).
     pub dynamics_duals: Option<Vec<Vector3<f64>>>,
@@ -180,7 +178,17 @@ pub(crate) trait QpSolver: Send + Sync {
 /// bound counts as active in [`QpSolution::active_bounds`]. Interior-point
 /// iterates stop about `tolerance × scale` from an active bound, far inside
 /// this; inactive bounds of realistic instances are ≥ 1e-3 away.
+#[cfg(test)]
 pub(crate) const ACTIVE_BOUND_TOL: f64 = 1e-7;
+
+#[cfg(test)]
+impl QpSolution {
+    /// Number of bounds of `qp` active at the solution (within
+    /// [`ACTIVE_BOUND_TOL`]).
+    pub(crate) fn active_bounds(&self, qp: &StageQp) -> usize {
+        qp.count_active_bounds(&self.w, &self.z, ACTIVE_BOUND_TOL)
+    }
+}
 
 impl StageQp {
     /// Gradient of [`StageQp::objective`] at (w, z): `(∂f/∂w_k, ∂f/∂z_k)`.
@@ -212,6 +220,7 @@ impl StageQp {
 
     /// Number of bounds within `tol` of (w, z) (a variable pinned by an
     /// equal lower and upper bound counts once).
+    #[cfg(test)]
     pub(crate) fn count_active_bounds(&self, w: &[Vector2<f64>], z: &[Vector3<f64>], tol: f64) -> usize {
         let mut n = 0;
         for i in 0..self.stages() {
@@ -362,14 +371,7 @@ pub(crate) fn solve_equality_constrained(qp: &StageQp) -> Result<QpSolution, QpE
     let w: Vec<Vector2<f64>> = (0..k).map(|i| Vector2::new(x[wi(i, 0)], x[wi(i, 1)])).collect();
     let z: Vec<Vector3<f64>> = (0..k).map(|i| Vector3::new(x[zi(i, 0)], x[zi(i, 1)], x[zi(i, 2)])).collect();
     let lam = (0..k).map(|i| Vector3::new(x[n + 3 * i], x[n + 3 * i + 1], x[n + 3 * i + 2])).collect();
-    Ok(QpSolution {
-        objective: qp.objective(&w, &z),
-        iterations: 1,
-        active_bounds: qp.count_active_bounds(&w, &z, ACTIVE_BOUND_TOL),
-        dynamics_duals: Some(lam),
-        w,
-        z,
-    })
+    Ok(QpSolution { objective: qp.objective(&w, &z), iterations: 1, dynamics_duals: Some(lam), w, z })
 }
 
 /// Which solver the compensation QP uses; parses from `"structured"` or

@@ -37,7 +37,8 @@
 //! (Nocedal & Wright, *Numerical Optimization*, §16.6) on the KKT system of
 //! [`crate::compensate::qp`]'s dual convention; steps use one common primal-dual step
 //! length. It stops when the primal residual, the dual residual and the mean
-//! complementarity are all below [`StructuredOptions`]' tolerances.
+//! complementarity are all below [`StructuredOptions`]' tolerances, or when
+//! the dynamics multipliers certify that the problem has no feasible point.
 //!
 //! ## References
 //! - C. V. Rao, S. J. Wright, J. B. Rawlings, "Application of interior-point
@@ -49,7 +50,7 @@
 
 use nalgebra::{Vector2, Vector3};
 
-use super::{QpError, QpSolution, QpSolver, StageQp, ACTIVE_BOUND_TOL};
+use super::{QpError, QpSolution, QpSolver, StageQp};
 
 /// Options of the structured solver ([`SolverKind::Structured`](super::SolverKind::Structured)).
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -157,8 +158,11 @@ impl StructuredOptions {
 /// method and why it exists). Typically 10–20 iterations; each costs two
 /// O(K) passes over fixed-size stage matrices.
 ///
-/// On an infeasible problem it returns `QpError::Infeasible` with the
-/// stalled primal residual and the diverging multiplier; on
+/// On an infeasible problem it returns `QpError::Infeasible` when its
+/// dynamics multipliers certify the infeasibility (a Farkas certificate,
+/// looked for from the fourth iteration while the primal residual has not
+/// converged) or a bound multiplier diverges while the primal residual
+/// stalls; on
 /// `QpError::MaxIterations` or `QpError::Numerical` a caller may fall
 /// back to [`super::clarabel::ClarabelSolver`].
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -207,6 +211,15 @@ fn bt_mul(b: &[S3; 2], v: &S3) -> S2 {
 fn stage_ab(qp: &StageQp, i: usize) -> (&S2, &[S3; 2]) {
     (&qp.a[i].data.0[0], &qp.b[i].data.0)
 }
+
+/// Relative margin of the infeasibility certificate
+/// (`StructuredSolver::farkas_certificate`): the sums it compares carry a
+/// rounding error below 1e-12 of their magnitude on QPs of 10⁴ stages.
+const INFEASIBILITY_MARGIN: f64 = 1e-9;
+
+/// The first iteration at which a solve that has not reached primal
+/// feasibility looks for an infeasibility certificate.
+const CERTIFICATE_FROM_ITERATION: usize = 4;
 
 /// The Riccati factors of stage i that the vector passes read.
 #[derive(Debug, Clone, Copy, Default)]
@@ -265,8 +278,8 @@ fn invert_huu(i: usize, h00: f64, h01: f64, h11: f64, free: &S5) -> Result<[S2; 
 ///
 /// Adds `z_{i+1}`'s stage cost `2Q + Σ_z` to the carried cost-to-go `ctg`
 /// of `s_{i+1}`, forms `H_uu = [B; I]ᵀ P [B; I] + Σ_w (+ 2R)` and
-/// `H_us = [(P11 B + P12)ᵀ A, −2R]`, and returns the stage's
-/// factor with the cost-to-go of `s_i`,
+/// `H_us = [(P11 B + P12)ᵀ A, −2R]`, writes the stage's
+/// factor to `out` and returns the cost-to-go of `s_i`,
 /// `blockdiag(AᵀP11A, 2R) − H_usᵀ H_uu⁻¹ H_us` (z_i's stage cost left to
 /// stage i−1). Every product is written out for the sparse `A` and the
 /// diagonal `R`; symmetric blocks are formed from their upper triangle.
@@ -278,7 +291,8 @@ fn factor_stage(
     sigma: &S5,
     free: &S5,
     (a, b): (&S2, &[S3; 2]),
-) -> Result<(StageFactor, CostToGo), QpError> {
+    out: &mut StageFactor,
+) -> Result<CostToGo, QpError> {
     let mut p11 = ctg.p11;
     for j in 0..3 {
         p11[j][j] += q2[j] + sigma[2 + j];
@@ -304,9 +318,9 @@ fn factor_stage(
     // G = gᵀ A.
     let gt = |j: usize| [g[0][j], g[1][j], a[0] * g[0][j] + a[1] * g[1][j] + g[2][j]];
     let gg = [gt(0), gt(1)];
-    let f = StageFactor { p11, p12, hinv, g: gg };
+    *out = StageFactor { p11, p12, hinv, g: gg };
     if i == 0 {
-        return Ok((f, CostToGo::default())); // s_0 = 0: P_0 is never used.
+        return Ok(CostToGo::default()); // s_0 = 0: P_0 is never used.
     }
     // M = H_uu⁻¹ G (2×3).
     let mrow = |j: usize| {
@@ -337,7 +351,7 @@ fn factor_stage(
         [r2[0] - r2[0] * hinv[0][0] * r2[0], -(r2[0] * hinv[0][1] * r2[1])],
         [-(r2[1] * hinv[1][0] * r2[0]), r2[1] - r2[1] * hinv[1][1] * r2[1]],
     ];
-    Ok((f, next))
+    Ok(next)
 }
 
 /// One step of the Riccati vector pass at stage i for the linear term `rt`
@@ -378,6 +392,18 @@ fn rollout_stage(i: usize, f: &StageFactor, kff: &S2, (a, b): (&S2, &[S3; 2]), r
     let az = a_mul(a, sz);
     let dz = |r: usize| az[r] + (b[0][r] * u[0] + b[1][r] * u[1]) - r_p[r];
     [u[0], u[1], dz(0), dz(1), dz(2)]
+}
+
+/// The mask of free variables of stage `s` ([`Stage::free`]); all ones
+/// when no variable of the problem is `PINNED`, so that the products with
+/// it fold away.
+#[inline(always)]
+fn free<const PINNED: bool>(s: &Stage) -> S5 {
+    if PINNED {
+        s.free
+    } else {
+        [1.0; 5]
+    }
 }
 
 /// Raises `m` to `r` when `r` is larger (a NaN ratio is skipped).
@@ -467,7 +493,8 @@ struct Residuals {
 
 impl StructuredSolver {
     /// Fills r_d, r_p, r_lo, r_hi and returns their norms, in one pass.
-    fn residuals(qp: &StageQp, wk: &mut Work) -> Residuals {
+    #[inline(always)]
+    fn residuals<const PINNED: bool>(qp: &StageQp, wk: &mut Work) -> Residuals {
         let k = qp.stages();
         let (q, r) = (&qp.q.data.0[0], &qp.r.data.0[0]);
         let (q2, r2) = ([2.0 * q[0], 2.0 * q[1], 2.0 * q[2]], [2.0 * r[0], 2.0 * r[1]]);
@@ -508,7 +535,7 @@ impl StructuredSolver {
             // of its equality `x = v`.
             let mut primal = res.primal;
             for j in 0..5 {
-                let f = s.free[j];
+                let f = free::<PINNED>(s)[j];
                 s.r_d[j] = (grad[j] + gy[j] - s.l_lo[j] + s.l_hi[j]) * f;
                 s.r_lo[j] = (xi[j] - s.lo[j] - s.t_lo[j]) * f;
                 s.r_hi[j] = (s.hi[j] - xi[j] - s.t_hi[j]) * f;
@@ -540,6 +567,7 @@ impl StructuredSolver {
     }
 
     /// The largest bound multiplier.
+    #[inline(always)]
     fn max_multiplier(wk: &Work) -> f64 {
         let mut m = 0.0;
         for s in &wk.st {
@@ -551,11 +579,49 @@ impl StructuredSolver {
         m
     }
 
+    /// Whether the current dynamics multipliers `y` certify that no point
+    /// of the boxes satisfies the dynamics (Farkas): every such point has
+    /// `vᵀx = yᵀc` for `v = Gᵀy` (`Gx = c` the dynamics), so a `yᵀc` outside
+    /// the range of `vᵀx` over the boxes proves infeasibility. The margin,
+    /// `INFEASIBILITY_MARGIN` times the sums' magnitude, is far above their
+    /// rounding error, so a feasible problem is never certified whatever
+    /// the iterate.
+    #[inline(always)]
+    fn farkas_certificate(qp: &StageQp, wk: &Work) -> Option<f64> {
+        let k = qp.stages();
+        let st = &wk.st[..k];
+        let (mut yc, mut lo_sum, mut hi_sum, mut scale) = (0.0, 0.0, 0.0, 0.0);
+        for i in 0..k {
+            let y = &st[i].y;
+            let ay = if i + 1 < k { at_mul(stage_ab(qp, i + 1).0, &st[i + 1].y) } else { [0.0; 3] };
+            let btl = bt_mul(stage_ab(qp, i).1, y);
+            let v = [-btl[0], -btl[1], y[0] - ay[0], y[1] - ay[1], y[2] - ay[2]];
+            let (wl, wh, zl, zh) = (&qp.w_lo[i], &qp.w_hi[i], &qp.z_lo[i], &qp.z_hi[i]);
+            let lo = [wl[0], wl[1], zl[0], zl[1], zl[2]];
+            let hi = [wh[0], wh[1], zh[0], zh[1], zh[2]];
+            for j in 0..5 {
+                let (a, b) = (v[j] * lo[j], v[j] * hi[j]);
+                lo_sum += a.min(b);
+                hi_sum += a.max(b);
+                scale += a.abs().max(b.abs());
+            }
+            for r in 0..3 {
+                let t = y[r] * qp.c[i][r];
+                yc += t;
+                scale += t.abs();
+            }
+        }
+        let margin = INFEASIBILITY_MARGIN * scale;
+        let gap = (lo_sum - yc).max(yc - hi_sum);
+        (gap > margin && scale.is_finite()).then_some(gap / scale)
+    }
+
     /// Backward pass: the Riccati factorisation of the Newton LQ problem for
     /// the current Σ (shared by predictor and corrector), fused with the
     /// predictor's vector pass (complementarity target `t·μ`, so
     /// `r̃_d = r_d + μ_lo + Σ_lo r_lo − μ_hi − Σ_hi r_hi`).
-    fn factorize_predict(qp: &StageQp, wk: &mut Work) -> Result<(), QpError> {
+    #[inline(always)]
+    fn factorize_predict<const PINNED: bool>(qp: &StageQp, wk: &mut Work) -> Result<(), QpError> {
         let k = qp.stages();
         let (q2, r2) = (2.0 * qp.q, 2.0 * qp.r);
         let (q2, r2) = (&q2.data.0[0], &r2.data.0[0]);
@@ -575,10 +641,8 @@ impl StructuredSolver {
             }
             s.sigma_z = [sigma[2], sigma[3], sigma[4]];
             let ab = stage_ab(qp, i);
-            let (f, next) = factor_stage(i, &ctg, (q2, r2), &sigma, &s.free, ab)?;
-            s.kff = vector_stage(&f, &s.rt, &s.r_p, ab, r2, (&mut pz, &mut pw));
-            s.factor = f;
-            ctg = next;
+            ctg = factor_stage(i, &ctg, (q2, r2), &sigma, &free::<PINNED>(s), ab, &mut s.factor)?;
+            s.kff = vector_stage(&s.factor, &s.rt, &s.r_p, ab, r2, (&mut pz, &mut pw));
         }
         Ok(())
     }
@@ -592,7 +656,8 @@ impl StructuredSolver {
     /// limits α by `−ρ`, the multiplier by `1 + ρ`, and
     /// `Σ (t Δμ + μ Δt) = −Σ t μ = −gap`, so the complementarity after the
     /// step is `(1 − α) gap + α² Σ Δt Δμ`.
-    fn predict_forward(qp: &StageQp, wk: &mut Work, gap: f64) -> f64 {
+    #[inline(always)]
+    fn predict_forward<const PINNED: bool>(qp: &StageQp, wk: &mut Work, gap: f64) -> f64 {
         let k = qp.stages();
         let r2 = 2.0 * qp.r;
         let r2 = &r2.data.0[0];
@@ -605,7 +670,8 @@ impl StructuredSolver {
             for j in 0..5 {
                 let (dtl, dth) = (dx[j] + s.r_lo[j], s.r_hi[j] - dx[j]);
                 let (rho_lo, rho_hi) = (dtl * s.inv_t_lo[j], dth * s.inv_t_hi[j]);
-                let (f_lo, f_hi) = ((1.0 + rho_lo) * s.free[j], (1.0 + rho_hi) * s.free[j]);
+                let f = free::<PINNED>(s)[j];
+                let (f_lo, f_hi) = ((1.0 + rho_lo) * f, (1.0 + rho_hi) * f);
                 raise(&mut m, -rho_lo);
                 raise(&mut m, -rho_hi);
                 raise(&mut m, f_lo);
@@ -623,6 +689,7 @@ impl StructuredSolver {
 
     /// Backward vector pass of the corrector: complementarity target
     /// `t·μ + Δt_aff·Δμ_aff − σμ` (`target` = σμ).
+    #[inline(always)]
     fn correct_backward(qp: &StageQp, wk: &mut Work, target: f64) {
         let k = qp.stages();
         let r2 = 2.0 * qp.r;
@@ -641,7 +708,8 @@ impl StructuredSolver {
     /// Forward pass of the corrector: rolls out the direction, recovers
     /// `Δt`, `Δμ` and returns the largest step `α ≤ 1` keeping slacks and
     /// multipliers non-negative.
-    fn correct_forward(qp: &StageQp, wk: &mut Work, target: f64) -> f64 {
+    #[inline(always)]
+    fn correct_forward<const PINNED: bool>(qp: &StageQp, wk: &mut Work, target: f64) -> f64 {
         let k = qp.stages();
         let r2 = 2.0 * qp.r;
         let r2 = &r2.data.0[0];
@@ -655,8 +723,9 @@ impl StructuredSolver {
                 let (dtl, dth) = (dx[j] + s.r_lo[j], s.r_hi[j] - dx[j]);
                 let (ll, lh) = (s.l_lo[j], s.l_hi[j]);
                 // Pinned variables keep slacks and (zero) multipliers unchanged.
-                let dll = -(ll + (s.prod_lo[j] - target + ll * dtl) * s.inv_t_lo[j]) * s.free[j];
-                let dlh = -(lh + (s.prod_hi[j] - target + lh * dth) * s.inv_t_hi[j]) * s.free[j];
+                let f = free::<PINNED>(s)[j];
+                let dll = -(ll + (s.prod_lo[j] - target + ll * dtl) * s.inv_t_lo[j]) * f;
+                let dlh = -(lh + (s.prod_hi[j] - target + lh * dth) * s.inv_t_hi[j]) * f;
                 raise(&mut m, -dtl * s.inv_t_lo[j]);
                 raise(&mut m, -dth * s.inv_t_hi[j]);
                 raise(&mut m, -dll / ll);
@@ -673,6 +742,7 @@ impl StructuredSolver {
     /// Backward pass: the multiplier step from stationarity in z,
     /// `Δy_k = −(2Q + Σ_z)Δz_k − r̃_z,k + A_{k+1}ᵀ Δy_{k+1}`, and the step of
     /// `alpha` along the whole direction.
+    #[inline(always)]
     fn take_step(qp: &StageQp, wk: &mut Work, alpha: f64) {
         let k = qp.stages();
         let q2 = 2.0 * qp.q;
@@ -764,7 +834,7 @@ impl StructuredSolver {
             s.l_lo = [0.0; 5];
             s.l_hi = [0.0; 5];
         }
-        Self::residuals(qp, wk); // r_d = ν with zero bound multipliers
+        Self::residuals::<true>(qp, wk); // r_d = ν with zero bound multipliers
         let mu = self.options.warm_start_mu;
         for s in &mut wk.st[..k] {
             for j in 0..5 {
@@ -836,9 +906,71 @@ impl QpSolver for StructuredSolver {
         // overwrites each buffer before reading it): the compensation runs
         // thousands of same-K solves per thread.
         let mut wk = WORK.with(|c| c.borrow_mut().take()).filter(|w| w.st.len() == k).unwrap_or_else(|| Work::new(k));
-        let result = self.solve_in(qp, warm_start, &mut wk);
+        let result = self.solve_dispatch(qp, warm_start, &mut wk);
         WORK.with(|c| *c.borrow_mut() = Some(wk));
         result
+    }
+}
+
+/// Whether the solver's iteration runs the build compiled for AVX2
+/// ([`StructuredSolver::solve_in_avx2`]): where the running CPU has AVX2
+/// (x86-64), unless the environment variable `ODOCAL_SIMD=baseline` asks
+/// for the build's baseline instruction set. Decided once per process.
+///
+/// Both compile the same Rust code, and Rust never contracts a multiply
+/// and an add into a fused one on its own, so both give results identical
+/// to the bit (test `avx2_build_equals_the_baseline_to_the_bit`); AVX2's
+/// three-operand, four-wide instructions need fewer register copies.
+fn use_avx2() -> bool {
+    static CHOICE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *CHOICE.get_or_init(|| {
+        let forced = std::env::var("ODOCAL_SIMD").is_ok_and(|s| s.eq_ignore_ascii_case("baseline"));
+        #[cfg(target_arch = "x86_64")]
+        {
+            !forced && std::arch::is_x86_feature_detected!("avx2")
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            let _ = forced;
+            false
+        }
+    })
+}
+
+impl StructuredSolver {
+    /// [`StructuredSolver::solve_in`] in the build [`use_avx2`] picks.
+    fn solve_dispatch(
+        &self,
+        qp: &StageQp,
+        warm_start: Option<&QpSolution>,
+        wk: &mut Work,
+    ) -> Result<QpSolution, QpError> {
+        #[cfg(target_arch = "x86_64")]
+        if use_avx2() {
+            // SAFETY: `use_avx2()` is true only when the running CPU reports
+            // AVX2 (`is_x86_feature_detected!`), the feature
+            // `solve_in_avx2` is compiled for.
+            #[allow(unsafe_code)]
+            return unsafe { self.solve_in_avx2(qp, warm_start, wk) };
+        }
+        self.solve_in(qp, warm_start, wk)
+    }
+
+    /// [`StructuredSolver::solve_in`] compiled for AVX2: it and every pass
+    /// of the iteration are inlined (`#[inline(always)]`), so all of them
+    /// are compiled for it.
+    ///
+    /// # Safety
+    /// The running CPU must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn solve_in_avx2(
+        &self,
+        qp: &StageQp,
+        warm_start: Option<&QpSolution>,
+        wk: &mut Work,
+    ) -> Result<QpSolution, QpError> {
+        self.solve_in(qp, warm_start, wk)
     }
 }
 
@@ -848,8 +980,8 @@ thread_local! {
 }
 
 impl StructuredSolver {
+    #[inline(always)]
     fn solve_in(&self, qp: &StageQp, warm_start: Option<&QpSolution>, wk: &mut Work) -> Result<QpSolution, QpError> {
-        let opt = &self.options;
         let k = qp.stages();
         self.initialize(qp, wk, warm_start)?;
 
@@ -858,9 +990,23 @@ impl StructuredSolver {
             let amax = |v: &S5| v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
             scale_p = scale_p.max(1.0 + qp.c[i].amax()).max(1.0 + amax(&s.lo)).max(1.0 + amax(&s.hi));
         }
+        if wk.n_free == 5 * k {
+            self.iterate::<false>(qp, wk, scale_p)
+        } else {
+            self.iterate::<true>(qp, wk, scale_p)
+        }
+    }
+
+    /// The interior-point iteration from the initialised `wk`. `PINNED`:
+    /// whether some variable is pinned ([`StructuredOptions::fixed_width`]);
+    /// without, the passes leave out the masks of pinned variables (a
+    /// product with 1, so the results are the same to the bit).
+    #[inline(always)]
+    fn iterate<const PINNED: bool>(&self, qp: &StageQp, wk: &mut Work, scale_p: f64) -> Result<QpSolution, QpError> {
+        let opt = &self.options;
         let mut last_residual = f64::NAN;
         for iteration in 0..=opt.max_iterations {
-            let res = Self::residuals(qp, wk);
+            let res = Self::residuals::<PINNED>(qp, wk);
             last_residual = res.primal.max(res.dual).max(res.dual_z);
             if !(res.primal.is_finite() && res.dual.is_finite() && res.dual_z.is_finite() && res.gap.is_finite()) {
                 return Err(QpError::Numerical(format!("non-finite residuals at iteration {iteration}")));
@@ -877,6 +1023,16 @@ impl StructuredSolver {
             }
             // Infeasibility: primal residual stuck while multipliers diverge.
             if !primal_ok {
+                // Feasible instances converge in about 5 iterations; the
+                // certificate (one pass) is looked for from the fourth on.
+                if iteration >= CERTIFICATE_FROM_ITERATION {
+                    if let Some(gap) = Self::farkas_certificate(qp, wk) {
+                        return Err(QpError::Infeasible(format!(
+                            "the dynamics multipliers at iteration {iteration} certify that no input sequence keeps \
+                             the states within their bounds (Farkas gap {gap:.2e} of the sums' magnitude)"
+                        )));
+                    }
+                }
                 let l_max = Self::max_multiplier(wk);
                 if l_max > opt.infeasibility_multiplier * (1.0 + res.grad_scale) {
                     return Err(QpError::Infeasible(format!(
@@ -888,14 +1044,14 @@ impl StructuredSolver {
             }
 
             // Predictor (affine scaling): target t·μ = 0.
-            Self::factorize_predict(qp, wk)?;
-            let gap_aff = Self::predict_forward(qp, wk, res.gap);
+            Self::factorize_predict::<PINNED>(qp, wk)?;
+            let gap_aff = Self::predict_forward::<PINNED>(qp, wk, res.gap);
             let sigma_c = (gap_aff / res.gap).clamp(0.0, 1.0).powi(3);
             let target = sigma_c * res.mu;
 
             // Corrector: target t·μ = σμ, with the second-order term.
             Self::correct_backward(qp, wk, target);
-            let alpha = (opt.step_fraction * Self::correct_forward(qp, wk, target)).min(1.0);
+            let alpha = (opt.step_fraction * Self::correct_forward::<PINNED>(qp, wk, target)).min(1.0);
             Self::take_step(qp, wk, alpha);
         }
         Err(QpError::MaxIterations { iterations: opt.max_iterations, residual: last_residual })
@@ -908,10 +1064,109 @@ impl StructuredSolver {
         QpSolution {
             objective: qp.objective(&w, &z),
             iterations,
-            active_bounds: qp.count_active_bounds(&w, &z, ACTIVE_BOUND_TOL),
             dynamics_duals: Some(wk.st.iter().map(|s| Vector3::new(s.y[0], s.y[1], s.y[2])).collect()),
             w,
             z,
+        }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)]
+mod tests {
+    use rand::{Rng, SeedableRng};
+
+    use super::*;
+    use crate::compensate::qp::random_instance;
+
+    /// A work buffer for `qp` holding the dynamics multipliers `y`.
+    fn work_with_duals(qp: &StageQp, y: &[S3]) -> Work {
+        let mut wk = Work::new(qp.stages());
+        for (s, y) in wk.st.iter_mut().zip(y) {
+            s.y = *y;
+        }
+        wk
+    }
+
+    /// No multipliers whatever certify a feasible problem (the solution of
+    /// which is a feasible point): the certificate's sums and margin hold
+    /// against any `y`, from small to huge.
+    #[test]
+    fn feasible_problems_are_never_certified() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        for seed in 0..6 {
+            let qp = random_instance(seed, 80, 0.9);
+            StructuredSolver::default().solve(&qp, None).unwrap();
+            for scale in [1e-3, 1.0, 1e6, 1e12] {
+                for _ in 0..20 {
+                    let y: Vec<S3> =
+                        (0..qp.stages()).map(|_| [0; 3].map(|_| scale * (rng.random::<f64>() - 0.5))).collect();
+                    let gap = StructuredSolver::farkas_certificate(&qp, &work_with_duals(&qp, &y));
+                    assert_eq!(gap, None, "seed {seed}, scale {scale}");
+                }
+            }
+        }
+    }
+
+    /// The build for AVX2 and the baseline one give the same solutions to
+    /// the bit (cold and warm starts, loose and tight boxes, pinned inputs)
+    /// and the same errors.
+    #[test]
+    fn avx2_build_equals_the_baseline_to_the_bit() {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            let solver = StructuredSolver::default();
+            let run = |qp: &StageQp, warm: Option<&QpSolution>, avx2: bool| {
+                let mut wk = Work::new(qp.stages());
+                // SAFETY: the CPU reports AVX2 (checked above).
+                #[allow(unsafe_code)]
+                let r = if avx2 {
+                    unsafe { solver.solve_in_avx2(qp, warm, &mut wk) }
+                } else {
+                    solver.solve_in(qp, warm, &mut wk)
+                };
+                r.map_err(|e| e.to_string())
+            };
+            let mut pinned = random_instance(5, 120, 0.0);
+            for i in 40..60 {
+                pinned.w_lo[i] = nalgebra::Vector2::zeros();
+                pinned.w_hi[i] = nalgebra::Vector2::zeros();
+            }
+            let mut jump = random_instance(30, 40, 0.0);
+            jump.c[15][0] = 20.0;
+            let mut instances: Vec<StageQp> =
+                (0..6).map(|seed| random_instance(seed, 150, [0.0, 0.9, 0.97][seed as usize % 3])).collect();
+            instances.extend([pinned, jump]);
+            for qp in &instances {
+                let cold = run(qp, None, false);
+                assert_eq!(cold, run(qp, None, true));
+                if let Ok(sol) = &cold {
+                    let mut moved = qp.clone();
+                    moved.c.iter_mut().for_each(|c| c[0] += 1e-3);
+                    assert_eq!(run(&moved, Some(sol), false), run(&moved, Some(sol), true));
+                }
+            }
+        }
+    }
+
+    /// A jump of 20 m in the reference that the inputs (about 1 mm per
+    /// step) cannot follow within the ±5 m box: the multiplier of that
+    /// step's x row certifies it by itself, and the solver finds a
+    /// certificate well before its iteration limit.
+    #[test]
+    fn an_unreachable_jump_is_certified() {
+        let mut qp = random_instance(30, 40, 0.0);
+        qp.c[15][0] = 20.0;
+        let mut y = vec![[0.0; 3]; qp.stages()];
+        y[15] = [1.0, 0.0, 0.0];
+        assert!(StructuredSolver::farkas_certificate(&qp, &work_with_duals(&qp, &y)).is_some());
+        // The same multiplier one step earlier sees only that step's
+        // centimetres: no certificate.
+        y.swap(14, 15);
+        assert_eq!(StructuredSolver::farkas_certificate(&qp, &work_with_duals(&qp, &y)), None);
+        match StructuredSolver::default().solve(&qp, None) {
+            Err(QpError::Infeasible(why)) => assert!(why.contains("certify"), "{why}"),
+            other => panic!("expected a certified infeasibility, got {other:?}"),
         }
     }
 }
