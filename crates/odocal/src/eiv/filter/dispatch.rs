@@ -1,6 +1,7 @@
 //! Which build of the window loop runs: the one compiled for AVX2 and FMA
-//! (chosen at run time where the CPU has them; the crate's one
-//! `#[allow(unsafe_code)]` call) or the baseline one.
+//! (chosen at run time where the CPU has them; one of the crate's two
+//! `#[allow(unsafe_code)]` calls, the other entering the 3-step QP
+//! solver's AVX2 build) or the baseline one.
 
 use nalgebra::Matrix3;
 
