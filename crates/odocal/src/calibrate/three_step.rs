@@ -261,47 +261,49 @@ pub(crate) fn equal_step_picks(n: usize, picks: usize) -> Vec<usize> {
     (0..picks).map(|i| ((i * (n - 1)) as f64 / (picks - 1) as f64).round() as usize).collect()
 }
 
-/// Batch Gauss-Newton from `theta0` on each batch of `data` (indices into
-/// `data`), each result validated on `validation` (SPEC §6 step 1, and the
-/// same on compensated inputs). Batches run in parallel; results come back in
-/// batch order whatever the thread count. A failed batch is an `Err` in its
-/// place, so callers decide whether to leave it out.
-pub fn score_batches(
-    drive: &Drive,
-    data: &[SegmentData<'_>],
-    batches: &[Vec<usize>],
-    validation: &[Segment],
-    theta0: &Theta,
-    opts: &IdentifyOptions,
-    progress: Option<ProgressFn<'_>>,
-) -> Vec<Result<BatchResult>> {
-    batches
-        .par_iter()
-        .map(|b| {
-            let r = if let Some(&bad) = b.iter().find(|&&i| i >= data.len()) {
-                Err(Error::InvalidOption {
-                    field: "batches",
-                    reason: format!("index {bad} out of range for {} segments", data.len()),
-                })
-            } else {
-                let batch: Vec<SegmentData> = b.iter().map(|&i| data[i]).collect();
-                batch_gauss_newton(&batch, theta0, opts).and_then(|rep| {
-                    // A batch that estimated extrinsics is scored with them.
-                    let ext = rep.extrinsics.as_ref().map_or(opts.extrinsics, |e| e.value);
-                    let v = mean_position_error_with(drive, validation, &rep.theta, &ext)?;
-                    Ok(BatchResult {
-                        segment_starts: b.iter().map(|&i| data[i].start).collect(),
-                        score: ThetaScore { theta: rep.theta, mean_position_error_m: v.mean_position_error_m },
-                        iterations: rep.iterations,
-                        rcond: rep.observability.rcond,
-                        extrinsics: rep.extrinsics.map(|_| ext),
+research_pub! {
+    /// Batch Gauss-Newton from `theta0` on each batch of `data` (indices into
+    /// `data`), each result validated on `validation` (SPEC §6 step 1, and the
+    /// same on compensated inputs). Batches run in parallel; results come back in
+    /// batch order whatever the thread count. A failed batch is an `Err` in its
+    /// place, so callers decide whether to leave it out.
+    fn score_batches(
+        drive: &Drive,
+        data: &[SegmentData<'_>],
+        batches: &[Vec<usize>],
+        validation: &[Segment],
+        theta0: &Theta,
+        opts: &IdentifyOptions,
+        progress: Option<ProgressFn<'_>>,
+    ) -> Vec<Result<BatchResult>> {
+        batches
+            .par_iter()
+            .map(|b| {
+                let r = if let Some(&bad) = b.iter().find(|&&i| i >= data.len()) {
+                    Err(Error::InvalidOption {
+                        field: "batches",
+                        reason: format!("index {bad} out of range for {} segments", data.len()),
                     })
-                })
-            };
-            emit(progress, Progress::Advance(1));
-            r
-        })
-        .collect()
+                } else {
+                    let batch: Vec<SegmentData> = b.iter().map(|&i| data[i]).collect();
+                    batch_gauss_newton(&batch, theta0, opts).and_then(|rep| {
+                        // A batch that estimated extrinsics is scored with them.
+                        let ext = rep.extrinsics.as_ref().map_or(opts.extrinsics, |e| e.value);
+                        let v = mean_position_error_with(drive, validation, &rep.theta, &ext)?;
+                        Ok(BatchResult {
+                            segment_starts: b.iter().map(|&i| data[i].start).collect(),
+                            score: ThetaScore { theta: rep.theta, mean_position_error_m: v.mean_position_error_m },
+                            iterations: rep.iterations,
+                            rcond: rep.observability.rcond,
+                            extrinsics: rep.extrinsics.map(|_| ext),
+                        })
+                    })
+                };
+                emit(progress, Progress::Advance(1));
+                r
+            })
+            .collect()
+    }
 }
 
 /// Pure Gauss-Newton on every segment of `data` alone (a batch of one), each

@@ -38,102 +38,104 @@ pub fn kernel_instruction_set() -> &'static str {
     }
 }
 
-/// Estimates θ (and the noise scales η) by the EIV method of SPEC §10,
-/// starting from `theta_start` (batch Gauss-Newton on all segments).
-///
-/// Two passes of Fisher scoring on the objective M of the module docs;
-/// the covariance recursion of pass i is linearised at the θ that pass
-/// starts from. Returns the estimate with `H_θ⁻¹`, the estimated noise in
-/// physical units, observability and consistency diagnostics, and typed
-/// warnings. Errors only for invalid input, a singular information matrix
-/// (with `fix_unobservable` off) or a numerically failing filter (naming
-/// the window).
-///
-/// ```
-/// # fn main() -> Result<(), odocal::Error> {
-/// # #[cfg(feature = "research")] {
-/// use odocal::{eiv, sim, Theta};
-/// let out = sim::simulate(&sim::SimOptions { length_km: 1.0, substeps: 1, ..sim::SimOptions::noise_free(3) })?;
-/// let input = eiv::EivInput::from_drive(&out.drive);
-/// let start = Theta { c_e: 1.951, ..out.sidecar.theta_true };
-/// let report = eiv::estimate(&input, &start, &eiv::EivOptions::default())?;
-/// assert!((report.theta.c_e - 1.95).abs() < 1e-6);
-/// # }
-/// # Ok(()) }
-/// ```
-pub fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) -> Result<EivReport> {
-    let t0 = Instant::now();
-    let (windows, opts, q_found) = prepare(input, theta_start, opts)?;
-    let tied_opts = &*opts;
-    let tied_prob = Problem::new(input, windows, tied_opts);
-    let fit = run_passes(&tied_prob, theta_start, tied_opts)?;
-    let (fit, heading_drift, separate) = heading_drift_test(&tied_prob, fit, tied_opts)?;
-    let (prob, opts) = match &separate {
-        Some(s) => (&s.prob, &s.opts),
-        None => (&tied_prob, tied_opts),
-    };
-    let (ev, free, theta) = (&fit.ev, fit.free, fit.theta);
-    let unc = uncertainty(prob, &fit, opts)?;
-    let observability = observability_of(&ev.total.h_theta, &free, fit.unobservable.clone(), opts);
-    let follows = opts.research.covariance == CovarianceMode::FollowsTheta;
-    let first_order_bias = if follows { first_order_bias(&ev.total, &free) } else { None };
-    let mut warnings = fit_warnings(&fit, opts);
-    let diags = window_diagnostics(prob, &fit, opts, &mut warnings)?;
-    let halves = halves_check(ev, &theta, &free, follows, opts.research.covariance_estimate);
-    if let Some(h) = &halves {
-        for i in 0..4 {
-            if h.z[i].abs() > opts.max_half_z {
-                warnings.push(EivWarning::UnstableAcrossHalves {
-                    parameter: PARAMETERS[i],
-                    z: h.z[i],
-                    threshold: opts.max_half_z,
-                });
+research_pub! {
+    /// Estimates θ (and the noise scales η) by the EIV method of SPEC §10,
+    /// starting from `theta_start` (batch Gauss-Newton on all segments).
+    ///
+    /// Two passes of Fisher scoring on the objective M of the module docs;
+    /// the covariance recursion of pass i is linearised at the θ that pass
+    /// starts from. Returns the estimate with `H_θ⁻¹`, the estimated noise in
+    /// physical units, observability and consistency diagnostics, and typed
+    /// warnings. Errors only for invalid input, a singular information matrix
+    /// (with `fix_unobservable` off) or a numerically failing filter (naming
+    /// the window).
+    ///
+    /// ```
+    /// # fn main() -> Result<(), odocal::Error> {
+    /// # #[cfg(feature = "research")] {
+    /// use odocal::{eiv, sim, Theta};
+    /// let out = sim::simulate(&sim::SimOptions { length_km: 1.0, substeps: 1, ..sim::SimOptions::noise_free(3) })?;
+    /// let input = eiv::EivInput::from_drive(&out.drive);
+    /// let start = Theta { c_e: 1.951, ..out.sidecar.theta_true };
+    /// let report = eiv::estimate(&input, &start, &eiv::EivOptions::default())?;
+    /// assert!((report.theta.c_e - 1.95).abs() < 1e-6);
+    /// # }
+    /// # Ok(()) }
+    /// ```
+    fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) -> Result<EivReport> {
+        let t0 = Instant::now();
+        let (windows, opts, q_found) = prepare(input, theta_start, opts)?;
+        let tied_opts = &*opts;
+        let tied_prob = Problem::new(input, windows, tied_opts);
+        let fit = run_passes(&tied_prob, theta_start, tied_opts)?;
+        let (fit, heading_drift, separate) = heading_drift_test(&tied_prob, fit, tied_opts)?;
+        let (prob, opts) = match &separate {
+            Some(s) => (&s.prob, &s.opts),
+            None => (&tied_prob, tied_opts),
+        };
+        let (ev, free, theta) = (&fit.ev, fit.free, fit.theta);
+        let unc = uncertainty(prob, &fit, opts)?;
+        let observability = observability_of(&ev.total.h_theta, &free, fit.unobservable.clone(), opts);
+        let follows = opts.research.covariance == CovarianceMode::FollowsTheta;
+        let first_order_bias = if follows { first_order_bias(&ev.total, &free) } else { None };
+        let mut warnings = fit_warnings(&fit, opts);
+        let diags = window_diagnostics(prob, &fit, opts, &mut warnings)?;
+        let halves = halves_check(ev, &theta, &free, follows, opts.research.covariance_estimate);
+        if let Some(h) = &halves {
+            for i in 0..4 {
+                if h.z[i].abs() > opts.max_half_z {
+                    warnings.push(EivWarning::UnstableAcrossHalves {
+                        parameter: PARAMETERS[i],
+                        z: h.z[i],
+                        threshold: opts.max_half_z,
+                    });
+                }
             }
         }
+        let (mut eta, mut eta_sigma) = (fit.eta, fit.eta_sigma);
+        if opts.heading_scale == HeadingScale::TiedToPosition {
+            // The heading white noise was scaled by η_3: report it so.
+            eta[5] = eta[3];
+            eta_sigma[5] = 0.0;
+        }
+        let iterations = fit.passes.iter().map(|p| p.history.len()).sum();
+        let mut report = EivReport {
+            initial_theta: *theta_start,
+            theta,
+            first_order_bias,
+            theta_uncorrected: theta,
+            bias_subtracted: [0.0; 4],
+            sigma_bias_correction: [0.0; 4],
+            bias_replicates_failed: Vec::new(),
+            free,
+            covariance: to_array(&unc.covariance),
+            sigma: unc.sigma,
+            sigma_sandwich: unc.sigma_sandwich,
+            sigma_block: unc.sigma_block,
+            sigma_fisher: unc.sigma_fisher,
+            sigma_noise_estimate: unc.sigma_noise_estimate,
+            theta_eta_sensitivity: unc.theta_eta_sensitivity,
+            eta_theta_sensitivity: eta_on_theta(&ev.total.info, &free, &unc.eta_free),
+            eta,
+            eta_sigma,
+            evaluations: evaluations_of(&tied_prob, separate.as_ref()),
+            heading_drift,
+            noise: reported_noise(opts, &eta),
+            final_cost: ev.total.merit(),
+            iterations,
+            termination: fit.termination(),
+            passes: fit.passes,
+            observability,
+            windows: diags,
+            halves,
+            warnings,
+            updates: fit.ev.total.updates,
+            timing_s: t0.elapsed().as_secs_f64(),
+            quantisation_step_from_readings: q_found,
+        };
+        apply_bias_correction(input, &mut report, opts)?;
+        Ok(report)
     }
-    let (mut eta, mut eta_sigma) = (fit.eta, fit.eta_sigma);
-    if opts.heading_scale == HeadingScale::TiedToPosition {
-        // The heading white noise was scaled by η_3: report it so.
-        eta[5] = eta[3];
-        eta_sigma[5] = 0.0;
-    }
-    let iterations = fit.passes.iter().map(|p| p.history.len()).sum();
-    let mut report = EivReport {
-        initial_theta: *theta_start,
-        theta,
-        first_order_bias,
-        theta_uncorrected: theta,
-        bias_subtracted: [0.0; 4],
-        sigma_bias_correction: [0.0; 4],
-        bias_replicates_failed: Vec::new(),
-        free,
-        covariance: to_array(&unc.covariance),
-        sigma: unc.sigma,
-        sigma_sandwich: unc.sigma_sandwich,
-        sigma_block: unc.sigma_block,
-        sigma_fisher: unc.sigma_fisher,
-        sigma_noise_estimate: unc.sigma_noise_estimate,
-        theta_eta_sensitivity: unc.theta_eta_sensitivity,
-        eta_theta_sensitivity: eta_on_theta(&ev.total.info, &free, &unc.eta_free),
-        eta,
-        eta_sigma,
-        evaluations: evaluations_of(&tied_prob, separate.as_ref()),
-        heading_drift,
-        noise: reported_noise(opts, &eta),
-        final_cost: ev.total.merit(),
-        iterations,
-        termination: fit.termination(),
-        passes: fit.passes,
-        observability,
-        windows: diags,
-        halves,
-        warnings,
-        updates: fit.ev.total.updates,
-        timing_s: t0.elapsed().as_secs_f64(),
-        quantisation_step_from_readings: q_found,
-    };
-    apply_bias_correction(input, &mut report, opts)?;
-    Ok(report)
 }
 
 /// θ after one Fisher-scoring step from `theta_start` with the noise model

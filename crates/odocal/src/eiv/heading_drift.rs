@@ -50,26 +50,28 @@ const SCORE_STEP: f64 = 1.0;
 /// Largest |r| tried: the heading drift's variance within e^±6 of the tied one.
 const MAX_RATIO: f64 = 6.0;
 
-/// The test of the heading-drift scale against the pose-drift scale
-/// ([`EivReport::heading_drift`](crate::eiv::EivReport::heading_drift)).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct HeadingDriftTest {
-    /// The score test's statistic at the tied fit: twice the decrease of
-    /// the objective M that a Newton step in `r = η_6 − η_4` would give
-    /// with θ and η held (from M at `r = −1, 0, +1`).
-    pub score_statistic: f64,
-    /// `2 (M_tied − M_separate)` of the best separate fit (None where the
-    /// score statistic kept the tie without fitting it).
-    pub likelihood_ratio: Option<f64>,
-    /// `r = η_6 − η_4` of the best separate fit (0 where none was fitted).
-    pub log_ratio: f64,
-    /// The result uses the separate heading-drift scale.
-    pub separate: bool,
-    /// The heading-drift scale η_6 of the result (η_4 when tied).
-    pub eta: f64,
-    /// Filter passes of the test and the separate fits, `[with
-    /// derivatives, objective only]` (not in [`EivReport::evaluations`](crate::eiv::EivReport::evaluations)).
-    pub evaluations: [usize; 2],
+research_pub! {
+    /// The test of the heading-drift scale against the pose-drift scale
+    /// ([`EivReport::heading_drift`](crate::eiv::EivReport::heading_drift)).
+    #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+    struct HeadingDriftTest {
+        /// The score test's statistic at the tied fit: twice the decrease of
+        /// the objective M that a Newton step in `r = η_6 − η_4` would give
+        /// with θ and η held (from M at `r = −1, 0, +1`).
+        pub score_statistic: f64,
+        /// `2 (M_tied − M_separate)` of the best separate fit (None where the
+        /// score statistic kept the tie without fitting it).
+        pub likelihood_ratio: Option<f64>,
+        /// `r = η_6 − η_4` of the best separate fit (0 where none was fitted).
+        pub log_ratio: f64,
+        /// The result uses the separate heading-drift scale.
+        pub separate: bool,
+        /// The heading-drift scale η_6 of the result (η_4 when tied).
+        pub eta: f64,
+        /// Filter passes of the test and the separate fits, `[with
+        /// derivatives, objective only]` (not in [`EivReport::evaluations`](crate::eiv::EivReport::evaluations)).
+        pub evaluations: [usize; 2],
+    }
 }
 
 /// What the tied fit ended with.
