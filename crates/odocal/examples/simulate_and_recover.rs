@@ -7,12 +7,12 @@
 //! cargo run --release -p odocal --example simulate_and_recover -- drive.csv   # also write the drive
 //! ```
 
-use odocal::sim::{simulate, NoiseOptions, SimOptions};
+use odocal::sim::{simulate, SimOptions};
 use odocal::{calibrate, mean_position_error, CalibrationOptions, Method, Theta};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     // The paper's city route with its noise (wheel, reference, a_y, β); seed 1.
-    let sim = simulate(&SimOptions { length_km: 6.0, noise: NoiseOptions::paper(), ..SimOptions::paper(1) })?;
+    let sim = simulate(&SimOptions { length_km: 6.0, ..SimOptions::paper(1) })?;
     let (drive, truth) = (&sim.drive, sim.sidecar.theta_true);
     println!("simulated {} km, {} samples; true θ = {truth}", sim.sidecar.settings.length_km, drive.len());
     if let Some(out) = std::env::args().nth(1) {

@@ -8,7 +8,7 @@ use crate::common;
 use std::path::Path;
 
 use common::{calibrate_json, canonical_manifest, odocal, setting_outcome, text};
-use odocal::model::{step, wheel_rotations, Input, State, Theta};
+use odocal::model::{step, Input, State, Theta};
 use odocal::Drive;
 use odocal::Signals;
 
@@ -25,7 +25,10 @@ fn oval() -> Drive {
         let along = (i as f64 * v * t_s) % lap;
         let omega = if along % (lap / 2.0) < straight { 0.0 } else { v / r };
         let a_y = v * omega;
-        let (n_rl, n_rr) = wheel_rotations(v, omega, a_y, &theta);
+        // The model's wheel circumferences, solved for the wheel rotations.
+        let c_rl = theta.c_e + theta.c_d / 2.0 + theta.d * a_y;
+        let c_rr = theta.c_e - theta.c_d / 2.0 - theta.d * a_y;
+        let (n_rl, n_rr) = ((v - omega * theta.t_r / 2.0) / c_rl, (v + omega * theta.t_r / 2.0) / c_rr);
         s.push([x[0], x[1], x[2], n_rl, n_rr, 0.0, a_y]);
         x = step(&x, &Input { n_rl, n_rr, beta: 0.0, a_y }, &theta, t_s);
     }

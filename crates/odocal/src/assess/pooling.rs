@@ -15,8 +15,8 @@
 //! σ_next = √(σ_within² + gap²/3 + a² + τ²)
 //! ```
 //!
-//! - `σ_within`: the method's within-drive σ
-//!   ([`crate::CalibrationReport::within_drive_sigma`]); for a parameter the
+//! - `σ_within`: the method's within-drive σ (the report's
+//!   `sigma_within_drive`); for a parameter the
 //!   EIV filter held at its batch Gauss-Newton start's estimate, the
 //!   start's σ.
 //! - `gap`: when EIV's checks failed and the result is its batch

@@ -122,11 +122,13 @@ pub struct DriveValidation {
 }
 
 impl DriveValidation {
-    /// The heading offset θ was validated with on this drive, rad: the
-    /// carried, stated or re-estimated one (the JSON report's
-    /// `extrinsics` says which); 0 where the drive used no extrinsics.
-    pub fn heading_offset_rad(&self) -> f64 {
-        self.extrinsics.as_ref().map_or(0.0, |x| x.value.heading_offset)
+    research_pub! {
+        /// The heading offset θ was validated with on this drive, rad: the
+        /// carried, stated or re-estimated one (the JSON report's
+        /// `extrinsics` says which); 0 where the drive used no extrinsics.
+        fn heading_offset_rad(&self) -> f64 {
+            self.extrinsics.as_ref().map_or(0.0, |x| x.value.heading_offset)
+        }
     }
 }
 

@@ -130,7 +130,7 @@ impl CalibrationReport {
     /// [`REPORT_SCHEMA_VERSION`](crate::REPORT_SCHEMA_VERSION), and its
     /// settings account): the report's fields; `sigma`, the σ that stands for the result
     /// ([`Self::result_sigma`]), and `sigma_within_drive`
-    /// ([`Self::within_drive_sigma`]); `drives`, the front end's entries of
+    /// (the method's within-drive σ); `drives`, the front end's entries of
     /// the drives (objects with `role`, `path`, `fingerprint`), with a joint
     /// fit's `heading_offset_per_drive`; and, when given, `truth` (a
     /// simulated drive's θ and its mean position error on the validation

@@ -254,15 +254,17 @@ impl CalibrationReport {
         Some(serde_json::Value::Array(rows))
     }
 
-    /// The method's within-drive 1σ: the square roots of the diagonal of
-    /// `Self::result_covariance`, else of the model covariance (EIV's filter
-    /// covariance, or a method's when nothing better was computed), with
-    /// where it comes from. Held parameters (not free, or a zero covariance
-    /// row: not estimated) have none. It says how well this drive
-    /// determines θ, not how far the next drive's θ lies: that is
-    /// [`Self::result_sigma`]. In the CLI's JSON `sigma_within_drive`.
-    pub fn within_drive_sigma(&self) -> ResultSigma {
-        within_sigma_of(&self.detail, &self.covariance, self.options.identify.free)
+    research_pub! {
+        /// The method's within-drive 1σ: the square roots of the diagonal of
+        /// `Self::result_covariance`, else of the model covariance (EIV's filter
+        /// covariance, or a method's when nothing better was computed), with
+        /// where it comes from. Held parameters (not free, or a zero covariance
+        /// row: not estimated) have none. It says how well this drive
+        /// determines θ, not how far the next drive's θ lies: that is
+        /// [`Self::result_sigma`]. In the CLI's JSON `sigma_within_drive`.
+        fn within_drive_sigma(&self) -> ResultSigma {
+            within_sigma_of(&self.detail, &self.covariance, self.options.identify.free)
+        }
     }
 
     /// The 1σ that stands for the result: the σ for the next drive of the
@@ -271,7 +273,7 @@ impl CalibrationReport {
     /// The verdict, the parameter file ([`CalibrationReport::param_file`]),
     /// the HTML report and the CLI's JSON `sigma` all give this σ. A report
     /// without `next_drive_sigma` (written by an older odocal) gives the
-    /// within-drive σ ([`Self::within_drive_sigma`]), labelled so
+    /// method's within-drive σ, labelled so
     /// (`covers`).
     pub fn result_sigma(&self) -> ResultSigma {
         let within = self.within_drive_sigma();

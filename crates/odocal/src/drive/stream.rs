@@ -84,7 +84,7 @@ pub struct DriveStream {
 #[derive(Debug, Clone, PartialEq)]
 pub struct StreamChunk {
     /// The part they belong to (0, 1, …; for a [`DriveStream`] an index
-    /// into [`DriveStream::parts`]).
+    /// into its continuous parts, in time order).
     pub part: usize,
     /// The index of the first of them among the drive's samples.
     pub start: usize,
@@ -174,11 +174,6 @@ impl DriveStream {
     /// True when the drive has no samples (never, for an opened stream).
     pub fn is_empty(&self) -> bool {
         self.len == 0
-    }
-
-    /// Continuous parts as index ranges, as [`Drive::parts`].
-    pub fn parts(&self) -> &[Range<usize>] {
-        &self.parts
     }
 
     /// The drive's fingerprint, equal to [`Drive::fingerprint`] of the drive

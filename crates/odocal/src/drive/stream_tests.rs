@@ -41,7 +41,7 @@ fn write(dir: &tempfile::TempDir, name: &str, text: &[u8]) -> PathBuf {
 /// Every chunk equals the whole drive's samples, bit for bit.
 fn assert_same(stream: &DriveStream, whole: &Drive, size: usize) {
     assert_eq!(stream.len(), whole.len());
-    assert_eq!(stream.parts(), whole.parts());
+    assert_eq!(stream.parts, whole.parts());
     assert_eq!(stream.sample_time_s.to_bits(), whole.sample_time_s.to_bits());
     let t = whole.t();
     assert_eq!(bits(&[stream.time_span_s.0, stream.time_span_s.1]), bits(&[t[0], t[t.len() - 1]]));

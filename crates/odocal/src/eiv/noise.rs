@@ -115,10 +115,12 @@ impl NoiseSource {
         }
     }
 
-    /// The source's index in η (`NOISE_SOURCES` order, as
-    /// [`EivOptions::eta_held`](crate::eiv::EivOptions::eta_held)): the declaration order.
-    pub fn index(self) -> usize {
-        self as usize
+    research_pub! {
+        /// The source's index in η (`NOISE_SOURCES` order, as
+        /// [`EivOptions::eta_held`](crate::eiv::EivOptions::eta_held)): the declaration order.
+        fn index(self) -> usize {
+            self as usize
+        }
     }
 }
 

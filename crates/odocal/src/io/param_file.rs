@@ -68,7 +68,7 @@ impl std::str::FromStr for ParamMapping {
 
 /// One parameter of the file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ParamEntry {
+pub(crate) struct ParamEntry {
     /// Name (`c_e`, …).
     pub name: String,
     /// Value, SI.
@@ -87,7 +87,7 @@ pub struct ParamFile {
     /// ROS node name the parameters belong to. Default `odocal`.
     pub node: String,
     /// The parameters.
-    pub params: Vec<ParamEntry>,
+    pub(crate) params: Vec<ParamEntry>,
     /// The verdict (`accepted`, `doubtful`, `rejected`), when there is one.
     pub verdict: Option<String>,
     /// Reasons for the verdict.
@@ -358,7 +358,6 @@ impl ParamFile {
     /// ParamFile::from_theta(&theta, [Some(2.1e-5), None, Some(3e-3), Some(1e-4)], "drive.csv", "eiv").write(&path)?;
     /// let back = ParamFile::read(&path, None)?;
     /// assert_eq!(back.theta()?, theta);
-    /// assert_eq!(back.params[1].sigma, None); // c_d was held
     /// # std::fs::remove_dir_all(&dir)?;
     /// # Ok::<(), Box<dyn std::error::Error>>(())
     /// ```

@@ -147,7 +147,7 @@ pub struct DriveHeadingOffset {
 impl DriveHeadingOffset {
     /// The 1σ that stands for the value: the cluster-robust one when
     /// computed, else the model one (as [`ExtrinsicsEstimate::result_std_dev`]).
-    pub fn result_std_dev(&self) -> f64 {
+    pub(crate) fn result_std_dev(&self) -> f64 {
         self.robust_std_dev.unwrap_or(self.std_dev)
     }
 }

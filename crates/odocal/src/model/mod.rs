@@ -177,7 +177,7 @@ pub(crate) fn kinematics(u: &Input, theta: &Theta) -> Kinematics {
 /// rate `ω` at lateral acceleration `a_y` under θ: the inverse of (2a, 2b),
 /// `n_rl = (v − ω·t_r/2)/c_rl`, `n_rr = (v + ω·t_r/2)/c_rr`.
 #[inline]
-pub fn wheel_rotations(speed_m_per_s: f64, yaw_rate_rad_per_s: f64, a_y: f64, theta: &Theta) -> (f64, f64) {
+pub(crate) fn wheel_rotations(speed_m_per_s: f64, yaw_rate_rad_per_s: f64, a_y: f64, theta: &Theta) -> (f64, f64) {
     let (c_rl, c_rr) = theta.wheel_circumferences(a_y);
     let half = yaw_rate_rad_per_s * theta.t_r / 2.0;
     ((speed_m_per_s - half) / c_rl, (speed_m_per_s + half) / c_rr)

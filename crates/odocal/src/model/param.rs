@@ -135,7 +135,7 @@ impl std::str::FromStr for Param {
 ///
 /// ```
 /// use odocal::{Param, ParamSet};
-/// let free = ParamSet::THETA.without(Param::D);
+/// let free = ParamSet::from_iter([Param::CE, Param::CD, Param::TR, Param::D]).without(Param::D);
 /// assert_eq!(free.to_string(), "c_e, c_d, t_r");
 /// assert_eq!("c_d,t_r".parse::<ParamSet>().unwrap(), ParamSet::from_iter([Param::CD, Param::TR]));
 /// ```
@@ -145,8 +145,10 @@ pub struct ParamSet(u32);
 impl ParamSet {
     /// No parameter (as `ParamSet::default()`).
     pub(crate) const EMPTY: ParamSet = ParamSet(0);
-    /// The four parameters of θ.
-    pub const THETA: ParamSet = ParamSet(0b1111);
+    research_pub! {
+        /// The four parameters of θ.
+        const THETA: ParamSet = ParamSet(0b1111);
+    }
     /// The reference extrinsics (lever_x, lever_y, heading_offset).
     pub const EXTRINSICS: ParamSet = ParamSet(0b111_0000);
     /// The lever arm (lever_x, lever_y); `lever-arm` in a parsed list.
@@ -157,10 +159,12 @@ impl ParamSet {
         self.0 & (1 << p as u32) != 0
     }
 
-    /// The set with `p` added.
-    #[must_use]
-    pub const fn with(self, p: Param) -> ParamSet {
-        ParamSet(self.0 | 1 << p as u32)
+    research_pub! {
+        /// The set with `p` added.
+        #[must_use]
+        const fn with(self, p: Param) -> ParamSet {
+            ParamSet(self.0 | 1 << p as u32)
+        }
     }
 
     /// The set with `p` removed.
@@ -196,16 +200,20 @@ impl ParamSet {
         self.0 == 0
     }
 
-    /// The parameters in both this set and `other`'s complement.
-    #[must_use]
-    pub const fn difference(self, other: ParamSet) -> ParamSet {
-        ParamSet(self.0 & !other.0)
+    research_pub! {
+        /// The parameters in both this set and `other`'s complement.
+        #[must_use]
+        const fn difference(self, other: ParamSet) -> ParamSet {
+            ParamSet(self.0 & !other.0)
+        }
     }
 
-    /// The parameters in either set.
-    #[must_use]
-    pub const fn union(self, other: ParamSet) -> ParamSet {
-        ParamSet(self.0 | other.0)
+    research_pub! {
+        /// The parameters in either set.
+        #[must_use]
+        const fn union(self, other: ParamSet) -> ParamSet {
+            ParamSet(self.0 | other.0)
+        }
     }
 
     /// The parameters in vector order.

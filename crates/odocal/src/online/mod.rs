@@ -105,17 +105,19 @@ pub struct Chunk<'a> {
 }
 
 impl<'a> Chunk<'a> {
-    /// Samples `range` of a drive.
-    pub fn of(drive: &'a Drive, range: std::ops::Range<usize>) -> Chunk<'a> {
-        let r = range;
-        Chunk {
-            px: &drive.px()[r.clone()],
-            py: &drive.py()[r.clone()],
-            psi: &drive.psi()[r.clone()],
-            n_rl: &drive.n_rl()[r.clone()],
-            n_rr: &drive.n_rr()[r.clone()],
-            beta: &drive.beta()[r.clone()],
-            a_y: &drive.a_y()[r],
+    research_pub! {
+        /// Samples `range` of a drive.
+        fn of(drive: &'a Drive, range: std::ops::Range<usize>) -> Chunk<'a> {
+            let r = range;
+            Chunk {
+                px: &drive.px()[r.clone()],
+                py: &drive.py()[r.clone()],
+                psi: &drive.psi()[r.clone()],
+                n_rl: &drive.n_rl()[r.clone()],
+                n_rr: &drive.n_rr()[r.clone()],
+                beta: &drive.beta()[r.clone()],
+                a_y: &drive.a_y()[r],
+            }
         }
     }
 
@@ -277,15 +279,13 @@ struct Pending {
 ///
 /// ```
 /// # fn main() -> Result<(), odocal::Error> {
-/// use odocal::online::{Calibrator, Chunk, OnlineOptions};
+/// use odocal::online::{Calibrator, OnlineOptions};
 /// use odocal::{sim, Theta};
 /// let out = sim::simulate(&sim::SimOptions { length_km: 3.0, ..sim::SimOptions::noise_free(2) })?;
 /// let d = &out.drive;
 /// let mut cal = Calibrator::new(Theta::PAPER_NOMINAL, None, d.sample_time_s(), OnlineOptions::default())?;
-/// cal.begin_drive();
-/// for start in (0..d.len()).step_by(400) {
-///     cal.push(&Chunk::of(d, start..(start + 400).min(d.len())))?;
-/// }
+/// // The drive in chunks of 400 samples, as they would arrive.
+/// cal.push_drive(d, 400, |_| {})?;
 /// let truth = out.sidecar.theta_true;
 /// assert!((cal.status().theta.c_e - truth.c_e).abs() < 1e-3 * truth.c_e);
 /// # Ok(()) }

@@ -128,7 +128,7 @@ impl VehicleOptions {
 }
 
 /// Measurement errors. Every source has its own field; 0 switches it off.
-/// Defaults are [`NoiseOptions::paper`].
+/// Defaults are the `paper` preset ([`NoiseOptions::by_name`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct NoiseOptions {
@@ -208,49 +208,53 @@ impl Default for NoiseOptions {
 }
 
 impl NoiseOptions {
-    /// No noise at all: every measured column equals its truth column.
-    /// (Time constants keep their paper values; they do not matter.)
-    pub fn off() -> Self {
-        NoiseOptions {
-            wheel_slip_per_m_per_s2: 0.0,
-            wheel_coloured_rel_sigma: 0.0,
-            wheel_coloured_differential_rel_sigma: 0.0,
-            wheel_white_rel_sigma: 0.0,
-            encoder_ticks_per_revolution: 0,
-            position_drift_sigma_m: 0.0,
-            position_white_sigma_m: 0.0,
-            heading_drift_sigma_rad: 0.0,
-            heading_white_sigma_rad: 0.0,
-            lateral_acceleration_white_sigma_m_per_s2: 0.0,
-            sideslip_sigma_rad: 0.0,
-            ..NoiseOptions::paper()
+    research_pub! {
+        /// No noise at all: every measured column equals its truth column.
+        /// (Time constants keep their paper values; they do not matter.)
+        fn off() -> Self {
+            NoiseOptions {
+                wheel_slip_per_m_per_s2: 0.0,
+                wheel_coloured_rel_sigma: 0.0,
+                wheel_coloured_differential_rel_sigma: 0.0,
+                wheel_white_rel_sigma: 0.0,
+                encoder_ticks_per_revolution: 0,
+                position_drift_sigma_m: 0.0,
+                position_white_sigma_m: 0.0,
+                heading_drift_sigma_rad: 0.0,
+                heading_white_sigma_rad: 0.0,
+                lateral_acceleration_white_sigma_m_per_s2: 0.0,
+                sideslip_sigma_rad: 0.0,
+                ..NoiseOptions::paper()
+            }
         }
     }
 
-    /// Noise of the size the paper's data show: about 1 % relative wheel
-    /// rotation error (as on a production car's CAN bus) and a reference
-    /// pose good to a few decimetres.
-    pub fn paper() -> Self {
-        NoiseOptions {
-            wheel_slip_per_m_per_s2: 0.002,
-            wheel_coloured_rel_sigma: 0.002,
-            wheel_coloured_differential_rel_sigma: 0.0002,
-            wheel_coloured_time_constant_s: 5.0,
-            wheel_coloured_differential_time_constant_s: None,
-            wheel_white_rel_sigma: 0.008,
-            encoder_ticks_per_revolution: 2048,
-            position_drift_sigma_m: 0.25,
-            position_drift_time_constant_s: 30.0,
-            position_white_sigma_m: 0.02,
-            heading_drift_sigma_rad: 0.003,
-            heading_drift_time_constant_s: 30.0,
-            heading_white_sigma_rad: 0.0003,
-            heading_bias_rad: 0.0,
-            lateral_acceleration_white_sigma_m_per_s2: 0.05,
-            lateral_acceleration_bias_m_per_s2: 0.0,
-            sideslip_sigma_rad: 0.002,
-            sideslip_time_constant_s: 1.0,
-            sideslip_bias_rad: 0.0,
+    research_pub! {
+        /// Noise of the size the paper's data show: about 1 % relative wheel
+        /// rotation error (as on a production car's CAN bus) and a reference
+        /// pose good to a few decimetres.
+        fn paper() -> Self {
+            NoiseOptions {
+                wheel_slip_per_m_per_s2: 0.002,
+                wheel_coloured_rel_sigma: 0.002,
+                wheel_coloured_differential_rel_sigma: 0.0002,
+                wheel_coloured_time_constant_s: 5.0,
+                wheel_coloured_differential_time_constant_s: None,
+                wheel_white_rel_sigma: 0.008,
+                encoder_ticks_per_revolution: 2048,
+                position_drift_sigma_m: 0.25,
+                position_drift_time_constant_s: 30.0,
+                position_white_sigma_m: 0.02,
+                heading_drift_sigma_rad: 0.003,
+                heading_drift_time_constant_s: 30.0,
+                heading_white_sigma_rad: 0.0003,
+                heading_bias_rad: 0.0,
+                lateral_acceleration_white_sigma_m_per_s2: 0.05,
+                lateral_acceleration_bias_m_per_s2: 0.0,
+                sideslip_sigma_rad: 0.002,
+                sideslip_time_constant_s: 1.0,
+                sideslip_bias_rad: 0.0,
+            }
         }
     }
 
@@ -278,12 +282,14 @@ impl NoiseOptions {
         }
     }
 
-    /// Every source 2.5× the paper preset (encoder resolution a quarter).
-    pub fn high() -> Self {
-        let p = NoiseOptions::paper();
-        NoiseOptions {
-            encoder_ticks_per_revolution: p.encoder_ticks_per_revolution / 4,
-            ..NoiseOptions::paper_scaled(2.5)
+    research_pub! {
+        /// Every source 2.5× the paper preset (encoder resolution a quarter).
+        fn high() -> Self {
+            let p = NoiseOptions::paper();
+            NoiseOptions {
+                encoder_ticks_per_revolution: p.encoder_ticks_per_revolution / 4,
+                ..NoiseOptions::paper_scaled(2.5)
+            }
         }
     }
 
@@ -419,7 +425,7 @@ pub struct SimOptions {
     pub speed: SpeedOptions,
     /// Vehicle (sideslip model). Default `VehicleOptions::default`.
     pub vehicle: VehicleOptions,
-    /// Measurement errors. Default [`NoiseOptions::paper`].
+    /// Measurement errors. Default the `paper` preset ([`NoiseOptions::by_name`]).
     pub noise: NoiseOptions,
     /// Where the pose reference sits on the vehicle: the measured pose is
     /// the reference point `p + R(ψ)·[lever_x, lever_y]` with heading

@@ -151,8 +151,8 @@ impl WorldSummary {
     ///
     /// ```
     /// use odocal::sim::{NoiseOptions, NoiseRegime, WorldSummary};
-    /// assert_eq!(WorldSummary::of(&NoiseOptions::paper()).regime, NoiseRegime::White);
-    /// assert_eq!(WorldSummary::of(&NoiseOptions::off()).regime, NoiseRegime::Quiet);
+    /// assert_eq!(WorldSummary::of(&NoiseOptions::default()).regime, NoiseRegime::White);
+    /// assert_eq!(WorldSummary::of(&NoiseOptions::by_name("off").unwrap()).regime, NoiseRegime::Quiet);
     /// ```
     pub fn of(n: &NoiseOptions) -> WorldSummary {
         let ticks = f64::from(n.encoder_ticks_per_revolution);

@@ -35,7 +35,7 @@ pub struct ImportReport {
     /// Source of the lateral acceleration.
     pub lateral_acceleration: String,
     /// Effect of de-jittering the wheel stream, when it was de-jittered.
-    pub jitter: Option<JitterReport>,
+    pub(crate) jitter: Option<JitterReport>,
     /// What looked wrong but did not stop the import.
     pub warnings: Vec<String>,
     /// The manifest's `[noise]` (the sensor's noise model) as written, when stated.
@@ -70,12 +70,12 @@ pub struct StreamReport {
     /// Mean sample rate, Hz.
     pub mean_rate_hz: f64,
     /// De-jittering, when the stream has a nominal rate.
-    pub dejitter: Option<DejitterReport>,
+    pub(crate) dejitter: Option<DejitterReport>,
 }
 
 /// Time-stamp corrections of a de-jittered stream.
 #[derive(Debug, Clone, Serialize)]
-pub struct DejitterReport {
+pub(crate) struct DejitterReport {
     /// Nominal rate, Hz.
     pub nominal_rate_hz: f64,
     /// RMS stamp correction, ms.
@@ -93,7 +93,7 @@ pub struct DejitterReport {
 /// (|n| > 1 rev/s) of the kept parts, both wheels; it holds real speed changes
 /// too, so it is an upper bound on the noise.
 #[derive(Debug, Clone, Serialize)]
-pub struct JitterReport {
+pub(crate) struct JitterReport {
     /// With the raw stamps, per cent.
     pub wheel_speed_noise_raw_pct: f64,
     /// With the de-jittered stamps, per cent.
