@@ -10,7 +10,7 @@ use nalgebra::{Matrix3, SMatrix, Vector3, Vector4};
 
 use super::dispatch::KernelCalls;
 use super::input_jacobian::InputJacobianState;
-use super::kernels::{h_cols, h_rows, joseph_general};
+use super::kernels::{h_cols, h_rows, joseph_general, mul3, mul3_tn};
 use super::predict::MeanState;
 use super::sums::{WindowSums, SCORE_BLOCK_S};
 use super::window::{Linearisation, WindowSetup};
@@ -95,7 +95,7 @@ impl<const S: usize> Innovation<S> {
         self.logdet = 2.0 * (l[(0, 0)].ln() + l[(1, 1)].ln() + l[(2, 2)].ln());
         self.e = l.solve_lower_triangular(&nu).unwrap_or_else(Vector3::zeros);
         self.sinv_nu = sinv * nu;
-        self.k = self.hp.transpose() * sinv;
+        self.k = mul3_tn(&self.hp, &sinv);
         self.hd = if setup.mode.derivs { h_rows(d) } else { SMatrix::zeros() };
         (self.k1, self.nu, self.r_k, self.s_mat, self.sinv, self.l) = (k1, nu, r_k, s_mat, sinv, l);
         Ok(())
@@ -204,8 +204,8 @@ impl Accumulator {
             return SMatrix::zeros();
         }
         // The mean part of the information, (HD)ᵀ S⁻¹ (HD).
-        let sh = inn.sinv * inn.hd;
-        let mut info = inn.hd.transpose() * sh;
+        let sh = mul3(&inn.sinv, &inn.hd);
+        let mut info = mul3_tn(&inn.hd, &sh);
         self.out.info_mean_theta += info.fixed_view::<4, 4>(0, 0);
         add_trace_information(setup.cols(), work.a, &mut info);
         let out = &mut self.out;
@@ -262,7 +262,7 @@ fn score_columns<const S: usize>(
 ) -> Vector4<f64> {
     let (hd, sinv, sinv_nu) = (&inn.hd, inn.sinv, inn.sinv_nu);
     // Gradient of ½νᵀS⁻¹ν through ν: νᵀS⁻¹ ∂ν = −(HD)ᵀ S⁻¹ ν.
-    let gnu = hd.transpose() * sinv_nu;
+    let gnu = mul3_tn(hd, &sinv_nu);
     out.grad -= gnu;
     out.grad_profile -= gnu;
     let mut g_t = Vector4::<f64>::zeros();
@@ -285,7 +285,7 @@ fn score_columns<const S: usize>(
             out.grad_logdet[jj] += gl;
         }
         // Column of ∂K ν = (∂P⁻Hᵀ − K ∂S) S⁻¹ ν.
-        let col = hdp.transpose() * sinv_nu - inn.k * ds_snu;
+        let col = mul3_tn(hdp, &sinv_nu) - mul3(&inn.k, &ds_snu);
         work.dkn.set_column(jj, &col);
     }
     g_t
@@ -393,10 +393,10 @@ pub(super) fn update_sensitivities<const S: usize, K: KernelCalls>(
     work: &ColumnWork<'_, S>,
 ) {
     if setup.sensitivity_cols() == NP {
-        *d -= inn.k * inn.hd;
+        *d -= mul3(&inn.k, &inn.hd);
     } else {
         // Without η derivatives the η columns of D (and of HD) stay zero.
-        let kh = inn.k * inn.hd.fixed_columns::<4>(0);
+        let kh = mul3(&inn.k, &inn.hd.fixed_columns::<4>(0).into_owned());
         let mut dt = d.fixed_columns_mut::<4>(0);
         dt -= kh;
     }
