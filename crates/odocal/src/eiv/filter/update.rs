@@ -90,8 +90,8 @@ impl<const S: usize> Innovation<S> {
                 setup.window.index
             )));
         };
-        let sinv = chol.inverse();
         let l = chol.l();
+        let sinv = cholesky_inverse(&l);
         self.logdet = 2.0 * (l[(0, 0)].ln() + l[(1, 1)].ln() + l[(2, 2)].ln());
         self.e = l.solve_lower_triangular(&nu).unwrap_or_else(Vector3::zeros);
         self.sinv_nu = sinv * nu;
@@ -113,6 +113,38 @@ impl<const S: usize> Innovation<S> {
             _ => Matrix3::zeros(),
         }
     }
+}
+
+/// `S⁻¹` from the Cholesky factor `L` of S, written out so that it inlines
+/// into the window loop: the operations of nalgebra's
+/// `Cholesky::inverse` on a 3 × 3 matrix in its order (forward
+/// substitution of each column of I with `b_r += −c·L_ri`, back substitution
+/// with the dot products summed from 0), so the same bits.
+#[inline(always)]
+fn cholesky_inverse(l: &Matrix3<f64>) -> Matrix3<f64> {
+    let mut out = Matrix3::<f64>::identity();
+    for j in 0..3 {
+        let mut b = [out[(0, j)], out[(1, j)], out[(2, j)]];
+        // L y = e_j.
+        let c0 = b[0] / l[(0, 0)];
+        b[0] = c0;
+        b[1] += -c0 * l[(1, 0)];
+        b[2] += -c0 * l[(2, 0)];
+        let c1 = b[1] / l[(1, 1)];
+        b[1] = c1;
+        b[2] += -c1 * l[(2, 1)];
+        b[2] /= l[(2, 2)];
+        // Lᵀ x = y.
+        b[2] = (b[2] - 0.0) / l[(2, 2)];
+        let dot1 = 0.0 + l[(2, 1)] * b[2];
+        b[1] = (b[1] - dot1) / l[(1, 1)];
+        let dot0 = 0.0 + l[(1, 0)] * b[1] + l[(2, 0)] * b[2];
+        b[0] = (b[0] - dot0) / l[(0, 0)];
+        for (r, v) in b.into_iter().enumerate() {
+            out[(r, j)] = v;
+        }
+    }
+    out
 }
 
 /// The per-update work arrays of the covariance-derivative columns (only
