@@ -442,3 +442,39 @@ pub(super) fn update_sensitivities<const S: usize, K: KernelCalls>(
         K::joseph_in_place_with(&mut dp[jj], &inn.k, (*dr != Matrix3::zeros()).then_some(dr), &work.hdps[jj]);
     }
 }
+
+#[cfg(test)]
+mod inline_product_tests {
+    //! The written-out products and inverse against nalgebra's, to the bit.
+    use super::*;
+    use crate::eiv::filter::NZ;
+
+    /// A deterministic pseudo-random number in [−1, 1).
+    fn lcg(state: &mut u64) -> f64 {
+        *state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((*state >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+    }
+
+    fn bits<const R: usize, const C: usize>(m: &SMatrix<f64, R, C>) -> Vec<u64> {
+        m.iter().map(|x| x.to_bits()).collect()
+    }
+
+    #[test]
+    fn inline_products_and_inverse_equal_nalgebras_to_the_bit() {
+        let mut st = 7u64;
+        for _ in 0..200 {
+            let k = MZx3::<NZ>::from_fn(|_, _| lcg(&mut st));
+            let hp = M3xZ::<NZ>::from_fn(|_, _| lcg(&mut st));
+            let hd = SMatrix::<f64, 3, NP>::from_fn(|_, _| lcg(&mut st));
+            let a = Matrix3::from_fn(|_, _| lcg(&mut st));
+            let s = a * a.transpose() + Matrix3::from_diagonal_element(1e-3 + lcg(&mut st).abs());
+            let chol = s.cholesky().expect("positive definite");
+            let sinv = chol.inverse();
+            assert_eq!(bits(&cholesky_inverse(&chol.l())), bits(&sinv));
+            assert_eq!(bits(&mul3_tn(&hp, &sinv)), bits(&(hp.transpose() * sinv)));
+            assert_eq!(bits(&mul3(&k, &hd)), bits(&(k * hd)));
+            assert_eq!(bits(&mul3(&k, &a)), bits(&(k * a)));
+            assert_eq!(bits(&mul3_tn(&hd, &mul3(&sinv, &hd))), bits(&(hd.transpose() * (sinv * hd))));
+        }
+    }
+}
