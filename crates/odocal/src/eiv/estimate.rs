@@ -231,6 +231,7 @@ impl Fit {
 /// (there is no reference to update), else `research.passes`, each with the
 /// reference at the previous pass's result. The first pass decides which
 /// parameters are observable.
+#[inline(never)] // a symbol of its own for profiles (docs/performance.md)
 fn run_passes(prob: &Problem<'_>, theta_start: &Theta, opts: &EivOptions) -> Result<Fit> {
     let mut theta = *theta_start;
     let mut eta = [0.0; 6];
@@ -261,6 +262,7 @@ fn run_passes(prob: &Problem<'_>, theta_start: &Theta, opts: &EivOptions) -> Res
 /// the fit that is the result (the tied one, or the separate one with its
 /// pass appended), the test and the separate fit's problem and options
 /// when it is the result.
+#[inline(never)] // a symbol of its own for profiles (docs/performance.md)
 fn heading_drift_test<'a>(
     prob: &Problem<'a>,
     fit: Fit,
@@ -320,6 +322,7 @@ struct Uncertainty {
 }
 
 /// θ's covariance and σ of every kind ([`EivReport::sigma`] and the others).
+#[inline(never)] // a symbol of its own for profiles (docs/performance.md)
 fn uncertainty(prob: &Problem<'_>, fit: &Fit, opts: &EivOptions) -> Result<Uncertainty> {
     let (ev, free) = (&fit.ev, fit.free);
     let cov = free_inverse(&ev.total.h_theta, &free).unwrap_or_else(|| Matrix4::from_element(f64::NAN));
@@ -416,6 +419,7 @@ fn reported_noise(opts: &EivOptions, eta: &[f64; 6]) -> NoiseModel {
 /// [`InnovationNull::FloorsAsRegularisation`] the null comes from one more
 /// (objective-only) filter pass at the estimate, with the recursion of the
 /// floor-free null.
+#[inline(never)] // a symbol of its own for profiles (docs/performance.md)
 fn window_diagnostics(
     prob: &Problem<'_>,
     fit: &Fit,

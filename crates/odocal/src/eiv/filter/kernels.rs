@@ -7,6 +7,41 @@ use nalgebra::{Matrix3, SMatrix};
 
 use super::{M3x2, M3xZ, MZx3, IB, IW, MZ};
 
+/// `A B` for an inner dimension of 3, written out so that it inlines into
+/// the window loop (nalgebra's product is a call there, and in the AVX2
+/// build a call to its baseline code). Each entry is summed as nalgebra
+/// sums it, `(a₀b₀ + a₁b₁) + a₂b₂`: the same bits.
+#[inline(always)]
+pub(super) fn mul3<const R: usize, const C: usize>(
+    a: &SMatrix<f64, R, 3>,
+    b: &SMatrix<f64, 3, C>,
+) -> SMatrix<f64, R, C> {
+    let mut out = SMatrix::<f64, R, C>::zeros();
+    for c in 0..C {
+        let (b0, b1, b2) = (b[(0, c)], b[(1, c)], b[(2, c)]);
+        for r in 0..R {
+            out[(r, c)] = a[(r, 0)] * b0 + a[(r, 1)] * b1 + a[(r, 2)] * b2;
+        }
+    }
+    out
+}
+
+/// `Aᵀ B` for a 3-row `A`, as [`mul3`] sums `A.transpose() * B`.
+#[inline(always)]
+pub(super) fn mul3_tn<const R: usize, const C: usize>(
+    a: &SMatrix<f64, 3, R>,
+    b: &SMatrix<f64, 3, C>,
+) -> SMatrix<f64, R, C> {
+    let mut out = SMatrix::<f64, R, C>::zeros();
+    for c in 0..C {
+        let (b0, b1, b2) = (b[(0, c)], b[(1, c)], b[(2, c)]);
+        for r in 0..R {
+            out[(r, c)] = a[(0, r)] * b0 + a[(1, r)] * b1 + a[(2, r)] * b2;
+        }
+    }
+    out
+}
+
 /// The structured transition of one step,
 /// `F = [[F_x, F_xs, 0, F_xβ, F_xw], [0, diag(a_s), 0, 0, 0], [0, 0, a_b I, 0, 0], [0, 0, 0, a_β, 0],
 /// [0, 0, 0, 0, diag(a_w)]]`, `F_x = I + e_0 f02 e_2ᵀ + e_1 f12 e_2ᵀ`, `F_xβ = −(f02, f12, 0)ᵀ` (the
@@ -280,7 +315,7 @@ pub(super) fn add_kdk<const S: usize>(dst: &mut MZ<S>, k: &MZx3<S>, d: &Matrix3<
 /// The lower triangle of `dst += K D Kᵀ` (down contiguous columns).
 #[inline(always)]
 pub(super) fn add_kdk_lower<const S: usize>(dst: &mut MZ<S>, k: &MZx3<S>, d: &Matrix3<f64>) {
-    let kd = k * d;
+    let kd = mul3(k, d);
     for c in 0..S {
         let (k0, k1, k2) = (k[(c, 0)], k[(c, 1)], k[(c, 2)]);
         for r in c..S {

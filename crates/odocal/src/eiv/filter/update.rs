@@ -10,7 +10,7 @@ use nalgebra::{Matrix3, SMatrix, Vector3, Vector4};
 
 use super::dispatch::KernelCalls;
 use super::input_jacobian::InputJacobianState;
-use super::kernels::{h_cols, h_rows, joseph_general};
+use super::kernels::{h_cols, h_rows, joseph_general, mul3, mul3_tn};
 use super::predict::MeanState;
 use super::sums::{WindowSums, SCORE_BLOCK_S};
 use super::window::{Linearisation, WindowSetup};
@@ -90,12 +90,12 @@ impl<const S: usize> Innovation<S> {
                 setup.window.index
             )));
         };
-        let sinv = chol.inverse();
         let l = chol.l();
+        let sinv = cholesky_inverse(&l);
         self.logdet = 2.0 * (l[(0, 0)].ln() + l[(1, 1)].ln() + l[(2, 2)].ln());
         self.e = l.solve_lower_triangular(&nu).unwrap_or_else(Vector3::zeros);
         self.sinv_nu = sinv * nu;
-        self.k = self.hp.transpose() * sinv;
+        self.k = mul3_tn(&self.hp, &sinv);
         self.hd = if setup.mode.derivs { h_rows(d) } else { SMatrix::zeros() };
         (self.k1, self.nu, self.r_k, self.s_mat, self.sinv, self.l) = (k1, nu, r_k, s_mat, sinv, l);
         Ok(())
@@ -113,6 +113,38 @@ impl<const S: usize> Innovation<S> {
             _ => Matrix3::zeros(),
         }
     }
+}
+
+/// `S⁻¹` from the Cholesky factor `L` of S, written out so that it inlines
+/// into the window loop: the operations of nalgebra's
+/// `Cholesky::inverse` on a 3 × 3 matrix in its order (forward
+/// substitution of each column of I with `b_r += −c·L_ri`, back substitution
+/// with the dot products summed from 0), so the same bits.
+#[inline(always)]
+fn cholesky_inverse(l: &Matrix3<f64>) -> Matrix3<f64> {
+    let mut out = Matrix3::<f64>::identity();
+    for j in 0..3 {
+        let mut b = [out[(0, j)], out[(1, j)], out[(2, j)]];
+        // L y = e_j.
+        let c0 = b[0] / l[(0, 0)];
+        b[0] = c0;
+        b[1] += -c0 * l[(1, 0)];
+        b[2] += -c0 * l[(2, 0)];
+        let c1 = b[1] / l[(1, 1)];
+        b[1] = c1;
+        b[2] += -c1 * l[(2, 1)];
+        b[2] /= l[(2, 2)];
+        // Lᵀ x = y.
+        b[2] = (b[2] - 0.0) / l[(2, 2)];
+        let dot1 = 0.0 + l[(2, 1)] * b[2];
+        b[1] = (b[1] - dot1) / l[(1, 1)];
+        let dot0 = 0.0 + l[(1, 0)] * b[1] + l[(2, 0)] * b[2];
+        b[0] = (b[0] - dot0) / l[(0, 0)];
+        for (r, v) in b.into_iter().enumerate() {
+            out[(r, j)] = v;
+        }
+    }
+    out
 }
 
 /// The per-update work arrays of the covariance-derivative columns (only
@@ -204,8 +236,8 @@ impl Accumulator {
             return SMatrix::zeros();
         }
         // The mean part of the information, (HD)ᵀ S⁻¹ (HD).
-        let sh = inn.sinv * inn.hd;
-        let mut info = inn.hd.transpose() * sh;
+        let sh = mul3(&inn.sinv, &inn.hd);
+        let mut info = mul3_tn(&inn.hd, &sh);
         self.out.info_mean_theta += info.fixed_view::<4, 4>(0, 0);
         add_trace_information(setup.cols(), work.a, &mut info);
         let out = &mut self.out;
@@ -262,7 +294,7 @@ fn score_columns<const S: usize>(
 ) -> Vector4<f64> {
     let (hd, sinv, sinv_nu) = (&inn.hd, inn.sinv, inn.sinv_nu);
     // Gradient of ½νᵀS⁻¹ν through ν: νᵀS⁻¹ ∂ν = −(HD)ᵀ S⁻¹ ν.
-    let gnu = hd.transpose() * sinv_nu;
+    let gnu = mul3_tn(hd, &sinv_nu);
     out.grad -= gnu;
     out.grad_profile -= gnu;
     let mut g_t = Vector4::<f64>::zeros();
@@ -285,7 +317,7 @@ fn score_columns<const S: usize>(
             out.grad_logdet[jj] += gl;
         }
         // Column of ∂K ν = (∂P⁻Hᵀ − K ∂S) S⁻¹ ν.
-        let col = hdp.transpose() * sinv_nu - inn.k * ds_snu;
+        let col = mul3_tn(hdp, &sinv_nu) - mul3(&inn.k, &ds_snu);
         work.dkn.set_column(jj, &col);
     }
     g_t
@@ -393,10 +425,10 @@ pub(super) fn update_sensitivities<const S: usize, K: KernelCalls>(
     work: &ColumnWork<'_, S>,
 ) {
     if setup.sensitivity_cols() == NP {
-        *d -= inn.k * inn.hd;
+        *d -= mul3(&inn.k, &inn.hd);
     } else {
         // Without η derivatives the η columns of D (and of HD) stay zero.
-        let kh = inn.k * inn.hd.fixed_columns::<4>(0);
+        let kh = mul3(&inn.k, &inn.hd.fixed_columns::<4>(0).into_owned());
         let mut dt = d.fixed_columns_mut::<4>(0);
         dt -= kh;
     }
@@ -408,5 +440,41 @@ pub(super) fn update_sensitivities<const S: usize, K: KernelCalls>(
     for &jj in setup.cols() {
         let dr = &work.dr[jj];
         K::joseph_in_place_with(&mut dp[jj], &inn.k, (*dr != Matrix3::zeros()).then_some(dr), &work.hdps[jj]);
+    }
+}
+
+#[cfg(test)]
+mod inline_product_tests {
+    //! The written-out products and inverse against nalgebra's, to the bit.
+    use super::*;
+    use crate::eiv::filter::NZ;
+
+    /// A deterministic pseudo-random number in [−1, 1).
+    fn lcg(state: &mut u64) -> f64 {
+        *state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((*state >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+    }
+
+    fn bits<const R: usize, const C: usize>(m: &SMatrix<f64, R, C>) -> Vec<u64> {
+        m.iter().map(|x| x.to_bits()).collect()
+    }
+
+    #[test]
+    fn inline_products_and_inverse_equal_nalgebras_to_the_bit() {
+        let mut st = 7u64;
+        for _ in 0..200 {
+            let k = MZx3::<NZ>::from_fn(|_, _| lcg(&mut st));
+            let hp = M3xZ::<NZ>::from_fn(|_, _| lcg(&mut st));
+            let hd = SMatrix::<f64, 3, NP>::from_fn(|_, _| lcg(&mut st));
+            let a = Matrix3::from_fn(|_, _| lcg(&mut st));
+            let s = a * a.transpose() + Matrix3::from_diagonal_element(1e-3 + lcg(&mut st).abs());
+            let chol = s.cholesky().expect("positive definite");
+            let sinv = chol.inverse();
+            assert_eq!(bits(&cholesky_inverse(&chol.l())), bits(&sinv));
+            assert_eq!(bits(&mul3_tn(&hp, &sinv)), bits(&(hp.transpose() * sinv)));
+            assert_eq!(bits(&mul3(&k, &hd)), bits(&(k * hd)));
+            assert_eq!(bits(&mul3(&k, &a)), bits(&(k * a)));
+            assert_eq!(bits(&mul3_tn(&hd, &mul3(&sinv, &hd))), bits(&(hd.transpose() * (sinv * hd))));
+        }
     }
 }

@@ -25,7 +25,7 @@ use nalgebra::{Matrix3, Vector3};
 use super::dispatch::KernelCalls;
 use super::dual::Dual;
 use super::input_jacobian::InputJacobianState;
-use super::kernels::Transition;
+use super::kernels::{mul3, Transition};
 use super::predict::{add_initial_count_offset, predict_corrected_score, predict_covariance, MeanState};
 use super::reference::{dvec_of, fitted_input_factors, reference_terms, ReferenceTerms};
 use super::sums::{InnovationRecord, WindowSums};
@@ -586,7 +586,7 @@ pub(super) fn run_window_s<const S: usize, K: KernelCalls>(
             }
             update_sensitivities::<S, K>(&setup, &inn, &mut d, &mut dp, &work);
         }
-        mean.correct(&(inn.k * inn.nu));
+        mean.correct(&mul3(&inn.k, &inn.nu));
         K::joseph_in_place_with(&mut p, &inn.k, Some(&inn.r_k), &inn.hp);
     }
     Ok(acc.finish(&setup, &jacobian))
