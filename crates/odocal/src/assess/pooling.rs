@@ -26,7 +26,10 @@
 //!   estimates bracket it. With the truth anywhere between them (uniform),
 //!   the fallback's error has RMS gap/√3. 0 otherwise, and 0 when EIV's
 //!   own θ fails a plausibility guard (a diverged filter says nothing about
-//!   the fallback's bias). A gap above 3 σ of the rest makes the verdict
+//!   the fallback's bias). When the calibration held noise levels and
+//!   EIV's fit with them held failed, the fit with them estimated stands
+//!   in for EIV's own when it passes the checks and the guards (the data
+//!   contradict the held levels; the verdict's reason says so). A gap above 3 σ of the rest makes the verdict
 //!   doubtful ([`crate::TrustOptions::max_fallback_gap_sigmas`]).
 //! - `a`: when the result is EIV's own estimate and its t_r lies above
 //!   its batch Gauss-Newton start's, that excess (for t_r; for the other
@@ -53,6 +56,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::eiv::NoiseSource;
 use crate::model::Theta;
 
 /// A random-effects pooling of one parameter over several drives
@@ -167,6 +171,12 @@ pub struct NextDriveSigma {
     /// fallback's gap to EIV's own estimate. In JSON only when true.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub gap_is_refit: bool,
+    /// After a fallback from a fit with these noise levels held:
+    /// `fallback_gap` is the gap to EIV's fit with them estimated, which
+    /// passed the checks the held fit failed (the data contradict the held
+    /// levels). In JSON only when not empty.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub gap_released_noise: Vec<NoiseSource>,
     /// When the result is EIV's own estimate (not a refit, not a fallback)
     /// and its t_r lies above its batch Gauss-Newton start's: the excess
     /// (t_r's entry) and the shift of every other parameter along its
@@ -193,6 +203,7 @@ impl NextDriveSigma {
             within_drive,
             fallback_gap,
             gap_is_refit: false,
+            gap_released_noise: Vec::new(),
             t_r_above_start: [0.0; 4],
             between_drive,
             between_source: BetweenDriveSource::Prior,

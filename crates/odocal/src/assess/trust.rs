@@ -44,6 +44,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::assess::pooling::NextDriveSigma;
+use crate::eiv::NoiseSource;
 use crate::error::{Error, Result};
 use crate::identify::{IdentifyReport, Termination};
 use crate::model::extrinsics::{Extrinsics, ExtrinsicsEstimate};
@@ -436,6 +437,12 @@ pub enum VerdictReason {
         sigma: f64,
         /// `gap / sigma`.
         sigmas: f64,
+        /// The noise levels the calibration held, when the estimate the
+        /// gap is measured to is EIV's fit with them estimated: with them
+        /// held EIV's checks failed, with them estimated they pass (the
+        /// data contradict the held levels). In JSON only when not empty.
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        released: Vec<NoiseSource>,
     },
     /// The result is EIV's refit with the noise sources released (its first
     /// fit failed its checks), and the refit lies farther from its batch
@@ -536,7 +543,20 @@ impl std::fmt::Display for VerdictReason {
                  (σ {sigma:.2e}); the data do not agree on {param}",
                 (fit - held_out).abs() / sigma
             ),
-            VerdictReason::FallbackDisagrees { param, fallback, gap, sigma, sigmas } => write!(
+            VerdictReason::FallbackDisagrees { param, fallback, gap, sigma, sigmas, released }
+                if !released.is_empty() =>
+            {
+                let names: Vec<&str> = released.iter().map(|s| s.name()).collect();
+                write!(
+                    f,
+                    "{param} = {fallback:.6} is the batch Gauss-Newton fallback: with the noise level(s) held \
+                     ({}) EIV's checks failed, with them estimated they pass and EIV's estimate lies {gap:.2e} away, \
+                     {sigmas:.1} × the σ without that gap ({sigma:.2e}): the drive contradicts the held level(s), and \
+                     batch G-N's errors-in-variables bias may be as large (the σ for the next drive includes it)",
+                    names.join(", ")
+                )
+            }
+            VerdictReason::FallbackDisagrees { param, fallback, gap, sigma, sigmas, .. } => write!(
                 f,
                 "{param} = {fallback:.6} is the batch Gauss-Newton fallback; EIV's own estimate lies {gap:.2e} away, \
                  {sigmas:.1} × the σ without that gap ({sigma:.2e}): batch G-N's errors-in-variables bias may be as \
@@ -712,7 +732,8 @@ pub(crate) fn fallback_gap_reasons(
                 if n.gap_is_refit {
                     VerdictReason::RefitDisagrees { param: p, estimate: value, gap, sigma, sigmas }
                 } else {
-                    VerdictReason::FallbackDisagrees { param: p, fallback: value, gap, sigma, sigmas }
+                    let released = n.gap_released_noise.clone();
+                    VerdictReason::FallbackDisagrees { param: p, fallback: value, gap, sigma, sigmas, released }
                 }
             })
         })

@@ -215,6 +215,37 @@ pub(crate) enum EivOutcome {
     BatchGnFallback,
 }
 
+/// A fit with noise levels held (`known`, [`EivOptions::eta_held`]) that
+/// failed the checks and fell back, fitted again from the same start with
+/// every level estimated (and, as the first fit, once more with the
+/// sources released when that fit is stuck at a lower clamp or
+/// unconverged). When this fit passes the checks, the data contradict the
+/// held levels, and its θ stands in for EIV's own as the estimate the
+/// fallback is compared with: its gap to the fallback enters the σ for the
+/// next drive and the verdict ([`crate::pooling`]). Without the bias
+/// correction (as EIV's own θ after a fallback).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub(crate) struct HeldNoiseReleased {
+    /// The sources the calibration held.
+    pub held: Vec<NoiseSource>,
+    /// The fit's θ.
+    pub theta: Theta,
+    /// The θ parameters it estimated (`[c_e, c_d, t_r, d]`).
+    pub free: [bool; 4],
+    /// The noise model it estimated, physical units.
+    pub noise: NoiseModel,
+    /// Its findings that say the model does not fit the data
+    /// (`is_misspecification`); none when it passes the checks.
+    pub findings: Vec<EivWarning>,
+}
+
+impl HeldNoiseReleased {
+    /// True when the fit passes the checks.
+    pub(crate) fn passes(&self) -> bool {
+        self.findings.is_empty()
+    }
+}
+
 /// What the EIV method reports. In JSON its fields stand at the top level
 /// of the report (`identification`, `eiv`, `eiv_result`, ...).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -243,6 +274,11 @@ pub(crate) struct EivDetail {
     /// does. In JSON only when true.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub refit: bool,
+    /// After a fallback from a fit with noise levels held (`known`): the
+    /// fit again with every level estimated ([`HeldNoiseReleased`]). In
+    /// JSON only when present.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub held_noise_released: Option<Box<HeldNoiseReleased>>,
     /// The parametric bootstrap, when asked for
     /// ([`EivMethodOptions::bootstrap`]) and the EIV θ is the result.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -467,7 +503,8 @@ impl Estimator for EivMethodOptions {
             (None, _) => None,
         };
         let filter_input = EivInput::from_drive(axle_drive.as_ref().unwrap_or(prep.drive));
-        let (fit, correction_failed, refit) = self.fit(&filter_input, &start.theta, &filter);
+        let start_theta = start.theta;
+        let (fit, correction_failed, refit) = self.fit(&filter_input, &start_theta, &filter);
         emit(progress, Progress::Advance(1));
         let t_eiv = t.elapsed().as_secs_f64();
         let timing = Timing { initial_identification: t_start, final_identification: t_eiv, ..Timing::default() };
@@ -492,9 +529,13 @@ impl Estimator for EivMethodOptions {
             noise_start: self.filter.noise,
             eiv_result: EivOutcome::BatchGnFallback,
             refit,
+            held_noise_released: None,
             bootstrap: None,
         };
         if fall_back {
+            let released = detail.eiv.as_ref().and_then(|_| release_held_noise(&filter_input, &start_theta, &filter));
+            let mut detail = detail;
+            detail.held_noise_released = released.map(Box::new);
             let reason = match &detail.eiv_error {
                 Some(e) => format!("the filter failed: {e}"),
                 None => format!("{} consistency check(s) failed", findings.len()),
@@ -637,6 +678,22 @@ fn refit_with_sources_released(
     };
     let again = eiv::estimate(input, theta, &released).ok()?;
     (!again.warnings.iter().any(|w| is_misspecification(w, &again))).then_some(again)
+}
+
+/// After a fallback from a fit with noise levels held: the fit from
+/// `theta` with every level estimated ([`HeldNoiseReleased`]); `None`
+/// when no level was held (or the whole model was fixed) or the fit
+/// failed with an error.
+fn release_held_noise(input: &EivInput<'_>, theta: &Theta, filter: &EivOptions) -> Option<HeldNoiseReleased> {
+    let held = filter.known_sources();
+    if held.is_empty() || filter.fix_noise {
+        return None;
+    }
+    let released = EivOptions { eta_held: [false; 6], bias_correction: BiasCorrection::None, ..filter.clone() };
+    let first = eiv::estimate(input, theta, &released).ok()?;
+    let fit = refit_with_sources_released(input, theta, &released, &first).unwrap_or(first);
+    let findings = fit.warnings.iter().filter(|w| is_misspecification(w, &fit)).cloned().collect();
+    Some(HeldNoiseReleased { held, theta: fit.theta, free: fit.free, noise: fit.noise, findings })
 }
 
 /// The start: batch G-N over all segments with every free parameter; only
