@@ -177,6 +177,11 @@ pub struct NextDriveSigma {
     /// levels). In JSON only when not empty.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub gap_released_noise: Vec<NoiseSource>,
+    /// After a fallback: why EIV's fit bounds no errors-in-variables bias
+    /// of the fallback, when it does not ([`FallbackUnchecked`]). In JSON
+    /// only when present.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fallback_unchecked: Option<FallbackUnchecked>,
     /// When the result is EIV's own estimate (not a refit, not a fallback)
     /// and its t_r lies above its batch Gauss-Newton start's: the excess
     /// (t_r's entry) and the shift of every other parameter along its
@@ -204,6 +209,7 @@ impl NextDriveSigma {
             fallback_gap,
             gap_is_refit: false,
             gap_released_noise: Vec::new(),
+            fallback_unchecked: None,
             t_r_above_start: [0.0; 4],
             between_drive,
             between_source: BetweenDriveSource::Prior,
@@ -263,6 +269,27 @@ impl NextDriveSigma {
         self.pooled = Some(pooled);
         self.combine();
     }
+}
+
+/// After an EIV fallback, what leaves batch Gauss-Newton's
+/// errors-in-variables bias unchecked: EIV's fit found the drive's wheel
+/// noise heavier than its model allows (a wheel noise scale at its upper
+/// clamp: the bias grows with that noise) or diverged (its θ fails a
+/// plausibility guard: no gap to measure). Either makes the verdict
+/// doubtful ([`crate::assess::trust::VerdictReason::FallbackUnchecked`]);
+/// the σ for the next drive cannot include a bias nothing estimates.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FallbackUnchecked {
+    /// The wheel noise sources whose scale EIV's fit left at its upper clamp.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub clamped: Vec<NoiseSource>,
+    /// EIV's own θ fails a plausibility guard.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub eiv_implausible: bool,
+    /// The noise levels the calibration held (`known`; the drive may
+    /// contradict them).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub held: Vec<NoiseSource>,
 }
 
 /// True when every entry is zero (serde's `skip_serializing_if`).

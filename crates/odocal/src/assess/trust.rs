@@ -444,6 +444,21 @@ pub enum VerdictReason {
         #[serde(default, skip_serializing_if = "Vec::is_empty")]
         released: Vec<NoiseSource>,
     },
+    /// The result is EIV's batch Gauss-Newton fallback, and nothing bounds
+    /// its errors-in-variables bias (doubtful): EIV's fit found the
+    /// drive's wheel noise heavier than its model allows, or diverged
+    /// ([`crate::pooling::FallbackUnchecked`]).
+    FallbackUnchecked {
+        /// The wheel noise sources whose scale EIV's fit left at its upper clamp.
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        clamped: Vec<NoiseSource>,
+        /// EIV's own θ fails a plausibility guard.
+        #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+        eiv_implausible: bool,
+        /// The noise levels the calibration held (`known`).
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        held: Vec<NoiseSource>,
+    },
     /// The result is EIV's refit with the noise sources released (its first
     /// fit failed its checks), and the refit lies farther from its batch
     /// Gauss-Newton start than the σ without that gap allows (doubtful):
@@ -562,6 +577,24 @@ impl std::fmt::Display for VerdictReason {
                  {sigmas:.1} × the σ without that gap ({sigma:.2e}): batch G-N's errors-in-variables bias may be as \
                  large (the σ for the next drive includes it)"
             ),
+            VerdictReason::FallbackUnchecked { clamped, held, .. } => {
+                let names = |v: &[NoiseSource]| v.iter().map(|s| s.name()).collect::<Vec<_>>().join(", ");
+                f.write_str("the result is the batch Gauss-Newton fallback, and EIV's fit ")?;
+                if clamped.is_empty() {
+                    f.write_str("diverged (its θ fails the plausibility guards)")?;
+                } else {
+                    write!(
+                        f,
+                        "found the wheel noise heavier than its model allows ({} at the upper clamp)",
+                        names(clamped)
+                    )?;
+                }
+                f.write_str(": batch G-N's errors-in-variables bias grows with that noise, and no estimate bounds it")?;
+                if !held.is_empty() {
+                    write!(f, "; the noise level(s) held ({}) may not fit this drive", names(held))?;
+                }
+                Ok(())
+            }
             VerdictReason::RefitDisagrees { param, estimate, gap, sigma, sigmas } => write!(
                 f,
                 "{param} = {estimate:.6} is EIV's refit (its first fit failed its checks); the batch Gauss-Newton \
@@ -667,6 +700,7 @@ pub(crate) fn is_sigma_reason(r: &VerdictReason) -> bool {
     match r {
         VerdictReason::LargeUncertainty { param, .. } => ParamSet::THETA.contains(*param),
         VerdictReason::FallbackDisagrees { .. }
+        | VerdictReason::FallbackUnchecked { .. }
         | VerdictReason::RefitDisagrees { .. }
         | VerdictReason::TrackWidthAboveStart { .. } => true,
         _ => false,
@@ -721,6 +755,11 @@ pub(crate) fn fallback_gap_reasons(
                 VerdictReason::TrackWidthAboveStart { estimate: theta.t_r, start: theta.t_r - excess, sigma, sigmas },
             )
         });
+    let unchecked = n.fallback_unchecked.clone().map(|u| VerdictReason::FallbackUnchecked {
+        clamped: u.clamped,
+        eiv_implausible: u.eiv_implausible,
+        held: u.held,
+    });
     free.intersection(ParamSet::THETA)
         .iter()
         .filter_map(|p| {
@@ -738,6 +777,7 @@ pub(crate) fn fallback_gap_reasons(
             })
         })
         .chain(above)
+        .chain(unchecked)
         .collect()
 }
 
@@ -917,6 +957,20 @@ mod tests {
         let VerdictReason::RefitDisagrees { param, estimate, .. } = &v.reasons[0] else { panic!("{v:?}") };
         assert_eq!((*param, *estimate), (Param::TR, th.t_r));
         assert!(v.reasons[0].to_string().contains("EIV's refit"), "{}", v.reasons[0]);
+        // the same gap to EIV's fit with held noise levels released names them
+        let mut released = far.clone();
+        released.gap_released_noise = vec![NoiseSource::HeadingWhite];
+        let v = judge(&Evidence { next_drive: Some(&released), ..evidence(&th, &cov) }, &opts);
+        assert_eq!(v.level, VerdictLevel::Doubtful, "{v:?}");
+        let VerdictReason::FallbackDisagrees { released: names, .. } = &v.reasons[0] else { panic!("{v:?}") };
+        assert_eq!(names, &[NoiseSource::HeadingWhite]);
+        let text = v.reasons[0].to_string();
+        assert!(text.contains("held (heading_white)") && text.contains("contradicts"), "{text}");
+        let json = serde_json::to_value(&v.reasons[0]).expect("json");
+        assert_eq!(json["released"], serde_json::json!(["heading_white"]));
+        // without released levels the JSON has no such field
+        let v = judge(&Evidence { next_drive: Some(&far), ..evidence(&th, &cov) }, &opts);
+        assert!(serde_json::to_value(&v.reasons[0]).expect("json").get("released").is_none());
     }
 
     /// EIV's t_r above its batch G-N start by more than 3 σ (without that

@@ -616,3 +616,39 @@ fn a_fit_that_passes_its_checks_is_no_refit() {
     assert!(serde_json::to_value(d).expect("json").get("refit").is_none());
     assert!(serde_json::to_value(next).expect("json").get("gap_is_refit").is_none());
 }
+
+/// A held noise level the drive contradicts (simulated, seed 3, 3 km,
+/// windows of 1500 samples, the reference heading's white noise held at
+/// the production car's level): EIV's fit with it held fails its checks
+/// (a noise scale at its upper clamp, θ past the plausibility guards), so
+/// the method falls back to batch G-N, whose t_r is 1.8 % off (6 σ of its
+/// σ without the gap). The fit with every level estimated passes, stands
+/// in for EIV's own, and the verdict is doubtful with a reason that names
+/// the held level; the truth lies within 3 σ of the result's σ.
+#[test]
+fn a_held_noise_level_the_drive_contradicts_is_named() {
+    let sim = SimOptions { length_km: 3.0, ..SimOptions::paper(3) };
+    let out = simulate(&sim).expect("sim");
+    let (truth, _) = sim.equivalent_truth();
+    let mut filter = EivOptions { window_samples: 1500, ..Default::default() };
+    filter.hold_known(&[NoiseSource::HeadingWhite]);
+    let opts = CalibrationOptions { method: eiv_method(filter, true), ..Default::default() };
+    let r = calibrate(&out.drive, &opts).expect("calibrate");
+    let d = detail(&r);
+    assert_eq!(d.eiv_result, EivOutcome::BatchGnFallback, "{:?}", r.warnings);
+    let released = d.held_noise_released.as_ref().expect("the fit with the held level released");
+    assert_eq!(released.held, vec![NoiseSource::HeadingWhite]);
+    assert!(released.passes(), "{:?}", released.findings);
+    assert_ne!(r.verdict.level, crate::VerdictLevel::Accepted, "{:?}", r.verdict);
+    let named = r.verdict.reasons.iter().any(|reason| {
+        matches!(reason, VerdictReason::FallbackDisagrees { param: Param::TR, released, .. }
+            if released == &[NoiseSource::HeadingWhite])
+    });
+    assert!(named, "{:?}", r.verdict.reasons);
+    let next = r.next_drive_sigma.as_ref().expect("next-drive σ");
+    assert_eq!(next.fallback_gap[2], (released.theta.t_r - r.theta.t_r).abs());
+    let sigma = r.result_sigma().t_r.expect("t_r σ");
+    assert!((r.theta.t_r - truth.t_r).abs() <= 3.0 * sigma, "{} vs {}, σ {sigma}", r.theta.t_r, truth.t_r);
+    let json = serde_json::to_value(d).expect("json");
+    assert_eq!(json["held_noise_released"]["held"], serde_json::json!(["heading_white"]));
+}

@@ -378,6 +378,7 @@ pub(crate) fn next_drive_of(
     let mut w = within.to_array();
     let mut gap = [0.0; 4];
     let mut released_held = Vec::new();
+    let mut unchecked = None;
     if let MethodDetail::Eiv(d) = detail {
         let start = &d.identification;
         let start_sd = start.robust.as_ref().map_or(start.covariance, |r| r.covariance);
@@ -407,6 +408,9 @@ pub(crate) fn next_drive_of(
         if let (EivOutcome::BatchGnFallback, Some(r)) = (d.eiv_result, released) {
             released_held = r.held.clone();
         }
+        if let (EivOutcome::BatchGnFallback, None, Some(e)) = (d.eiv_result, released, d.eiv.as_ref()) {
+            unchecked = fallback_unchecked(e, eiv.is_none(), opts);
+        }
         if let Some((other, other_free)) = other {
             let (a, b) = (other.to_array(), theta.to_array());
             for i in 0..4 {
@@ -420,10 +424,48 @@ pub(crate) fn next_drive_of(
     let mut n = NextDriveSigma::one_drive(theta, w, gap);
     n.gap_is_refit = matches!(detail, MethodDetail::Eiv(d) if d.refit && d.eiv_result == EivOutcome::Eiv);
     n.gap_released_noise = released_held;
+    n.fallback_unchecked = unchecked;
     if let Some((excess, cov)) = eiv_t_r_above_start(detail, free) {
         n.with_t_r_above_start(excess, cov);
     }
     n
+}
+
+/// After a fallback from EIV's fit `e` (with no passing fit with held
+/// noise levels released): what leaves batch G-N's errors-in-variables
+/// bias unchecked ([`crate::pooling::FallbackUnchecked`]), if anything: a
+/// wheel noise scale at its upper clamp, or EIV's θ failing the guards
+/// (`implausible`).
+fn fallback_unchecked(
+    e: &crate::eiv::EivReport,
+    implausible: bool,
+    opts: &CalibrationOptions,
+) -> Option<crate::pooling::FallbackUnchecked> {
+    use crate::eiv::{EivWarning, NoiseSource};
+    let clamped: Vec<NoiseSource> = e
+        .warnings
+        .iter()
+        .filter_map(|w| match w {
+            EivWarning::NoiseAtUpperClamp { source, .. }
+                if matches!(
+                    source,
+                    NoiseSource::WheelWhite | NoiseSource::WheelCommon | NoiseSource::WheelDifferential
+                ) =>
+            {
+                Some(*source)
+            }
+            _ => None,
+        })
+        .collect();
+    let held = match &opts.method {
+        crate::Method::Eiv(m) => m.filter.known_sources(),
+        _ => Vec::new(),
+    };
+    (!clamped.is_empty() || implausible).then_some(crate::pooling::FallbackUnchecked {
+        clamped,
+        eiv_implausible: implausible,
+        held,
+    })
 }
 
 /// When the result is EIV's own estimate (not a refit) with t_r estimated
