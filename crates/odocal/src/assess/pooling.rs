@@ -271,21 +271,21 @@ impl NextDriveSigma {
     }
 }
 
-/// After an EIV fallback, what leaves batch Gauss-Newton's
-/// errors-in-variables bias unchecked: EIV's fit found the drive's wheel
-/// noise heavier than its model allows (a wheel noise scale at its upper
-/// clamp: the bias grows with that noise) or diverged (its θ fails a
-/// plausibility guard: no gap to measure). Either makes the verdict
-/// doubtful ([`crate::assess::trust::VerdictReason::FallbackUnchecked`]);
-/// the σ for the next drive cannot include a bias nothing estimates.
+/// After an EIV fallback, why batch Gauss-Newton's errors-in-variables
+/// bias is left unchecked: EIV's own θ (and its fit with held noise
+/// levels released, if any) fails a plausibility guard, so no EIV
+/// estimate gives a gap to measure the bias by. On heavy common-mode
+/// wheel noise EIV's fit puts the common-mode scale at its upper clamp
+/// and c_e 9–20 % low (docs/validation.md, "Heavy wheel noise"), while
+/// batch G-N's t_r is off by up to 2.8 %. The verdict is doubtful
+/// ([`crate::assess::trust::VerdictReason::FallbackUnchecked`]); the σ for
+/// the next drive cannot include a bias nothing estimates.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct FallbackUnchecked {
-    /// The wheel noise sources whose scale EIV's fit left at its upper clamp.
+    /// The wheel noise sources whose scale EIV's fit left at its upper
+    /// clamp (the drive's wheel noise is heavier than the model allows).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub clamped: Vec<NoiseSource>,
-    /// EIV's own θ fails a plausibility guard.
-    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
-    pub eiv_implausible: bool,
     /// The noise levels the calibration held (`known`; the drive may
     /// contradict them).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]

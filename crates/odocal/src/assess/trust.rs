@@ -445,16 +445,14 @@ pub enum VerdictReason {
         released: Vec<NoiseSource>,
     },
     /// The result is EIV's batch Gauss-Newton fallback, and nothing bounds
-    /// its errors-in-variables bias (doubtful): EIV's fit found the
-    /// drive's wheel noise heavier than its model allows, or diverged
+    /// its errors-in-variables bias (doubtful): EIV's own estimate (and
+    /// its fit with held noise levels released, if any) fails the
+    /// plausibility guards, so there is no gap to measure
     /// ([`crate::pooling::FallbackUnchecked`]).
     FallbackUnchecked {
         /// The wheel noise sources whose scale EIV's fit left at its upper clamp.
         #[serde(default, skip_serializing_if = "Vec::is_empty")]
         clamped: Vec<NoiseSource>,
-        /// EIV's own θ fails a plausibility guard.
-        #[serde(default, skip_serializing_if = "std::ops::Not::not")]
-        eiv_implausible: bool,
         /// The noise levels the calibration held (`known`).
         #[serde(default, skip_serializing_if = "Vec::is_empty")]
         held: Vec<NoiseSource>,
@@ -579,17 +577,17 @@ impl std::fmt::Display for VerdictReason {
             ),
             VerdictReason::FallbackUnchecked { clamped, held, .. } => {
                 let names = |v: &[NoiseSource]| v.iter().map(|s| s.name()).collect::<Vec<_>>().join(", ");
-                f.write_str("the result is the batch Gauss-Newton fallback, and EIV's fit ")?;
-                if clamped.is_empty() {
-                    f.write_str("diverged (its θ fails the plausibility guards)")?;
-                } else {
+                f.write_str("the result is the batch Gauss-Newton fallback, and EIV's own estimate fails the plausibility guards")?;
+                if !clamped.is_empty() {
                     write!(
                         f,
-                        "found the wheel noise heavier than its model allows ({} at the upper clamp)",
+                        " with the wheel noise heavier than its model allows ({} at the upper clamp)",
                         names(clamped)
                     )?;
                 }
-                f.write_str(": batch G-N's errors-in-variables bias grows with that noise, and no estimate bounds it")?;
+                f.write_str(
+                    ": no estimate bounds batch G-N's errors-in-variables bias, which grows with the wheel noise",
+                )?;
                 if !held.is_empty() {
                     write!(f, "; the noise level(s) held ({}) may not fit this drive", names(held))?;
                 }
@@ -755,11 +753,8 @@ pub(crate) fn fallback_gap_reasons(
                 VerdictReason::TrackWidthAboveStart { estimate: theta.t_r, start: theta.t_r - excess, sigma, sigmas },
             )
         });
-    let unchecked = n.fallback_unchecked.clone().map(|u| VerdictReason::FallbackUnchecked {
-        clamped: u.clamped,
-        eiv_implausible: u.eiv_implausible,
-        held: u.held,
-    });
+    let unchecked =
+        n.fallback_unchecked.clone().map(|u| VerdictReason::FallbackUnchecked { clamped: u.clamped, held: u.held });
     free.intersection(ParamSet::THETA)
         .iter()
         .filter_map(|p| {

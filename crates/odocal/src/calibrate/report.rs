@@ -408,8 +408,8 @@ pub(crate) fn next_drive_of(
         if let (EivOutcome::BatchGnFallback, Some(r)) = (d.eiv_result, released) {
             released_held = r.held.clone();
         }
-        if let (EivOutcome::BatchGnFallback, None, Some(e)) = (d.eiv_result, released, d.eiv.as_ref()) {
-            unchecked = fallback_unchecked(e, eiv.is_none(), opts);
+        if let (EivOutcome::BatchGnFallback, None, None, Some(e)) = (d.eiv_result, released, eiv, d.eiv.as_ref()) {
+            unchecked = Some(fallback_unchecked(e, opts));
         }
         if let Some((other, other_free)) = other {
             let (a, b) = (other.to_array(), theta.to_array());
@@ -431,18 +431,13 @@ pub(crate) fn next_drive_of(
     n
 }
 
-/// After a fallback from EIV's fit `e` (with no passing fit with held
-/// noise levels released): what leaves batch G-N's errors-in-variables
-/// bias unchecked ([`crate::pooling::FallbackUnchecked`]), if anything: a
-/// wheel noise scale at its upper clamp, or EIV's θ failing the guards
-/// (`implausible`).
-fn fallback_unchecked(
-    e: &crate::eiv::EivReport,
-    implausible: bool,
-    opts: &CalibrationOptions,
-) -> Option<crate::pooling::FallbackUnchecked> {
+/// After a fallback from EIV's fit `e` whose θ fails the guards (with no
+/// passing, plausible fit with held noise levels released): the wheel
+/// noise sources at their upper clamp and the levels held
+/// ([`crate::pooling::FallbackUnchecked`]).
+fn fallback_unchecked(e: &crate::eiv::EivReport, opts: &CalibrationOptions) -> crate::pooling::FallbackUnchecked {
     use crate::eiv::{EivWarning, NoiseSource};
-    let clamped: Vec<NoiseSource> = e
+    let clamped = e
         .warnings
         .iter()
         .filter_map(|w| match w {
@@ -461,11 +456,7 @@ fn fallback_unchecked(
         crate::Method::Eiv(m) => m.filter.known_sources(),
         _ => Vec::new(),
     };
-    (!clamped.is_empty() || implausible).then_some(crate::pooling::FallbackUnchecked {
-        clamped,
-        eiv_implausible: implausible,
-        held,
-    })
+    crate::pooling::FallbackUnchecked { clamped, held }
 }
 
 /// When the result is EIV's own estimate (not a refit) with t_r estimated
