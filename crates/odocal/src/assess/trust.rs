@@ -968,6 +968,34 @@ mod tests {
         assert!(serde_json::to_value(&v.reasons[0]).expect("json").get("released").is_none());
     }
 
+    /// A fallback that no EIV estimate checks is doubtful, and its reason
+    /// names the clamped wheel sources and the held levels; it is a σ
+    /// reason (kept when the σ is pooled again).
+    #[test]
+    fn an_unchecked_fallback_is_doubtful() {
+        use crate::assess::pooling::{FallbackUnchecked, NextDriveSigma};
+        let th = Theta { c_e: 2.0, c_d: 0.0, t_r: 1.55, d: 0.0 };
+        let cov: [[f64; 4]; 4] =
+            [[1e-10, 0.0, 0.0, 0.0], [0.0, 1e-12, 0.0, 0.0], [0.0, 0.0, 1e-8, 0.0], [0.0, 0.0, 0.0, 1e-12]];
+        let within = std::array::from_fn(|i| Some(cov[i][i].sqrt()));
+        let opts = TrustOptions::default();
+        let mut n = NextDriveSigma::one_drive(&th, within, [0.0; 4]);
+        let v = judge(&Evidence { next_drive: Some(&n), ..evidence(&th, &cov) }, &opts);
+        assert_eq!(v.level, VerdictLevel::Accepted, "{v:?}");
+        n.fallback_unchecked = Some(FallbackUnchecked { clamped: vec![NoiseSource::WheelCommon], held: Vec::new() });
+        let v = judge(&Evidence { next_drive: Some(&n), ..evidence(&th, &cov) }, &opts);
+        assert_eq!(v.level, VerdictLevel::Doubtful, "{v:?}");
+        assert_eq!(v.reasons.len(), 1, "{v:?}");
+        assert!(is_sigma_reason(&v.reasons[0]));
+        let text = v.reasons[0].to_string();
+        assert!(text.contains("wheel_common at the upper clamp") && !text.contains("held"), "{text}");
+        let json = serde_json::to_value(&v.reasons[0]).expect("json");
+        assert_eq!(json, serde_json::json!({"kind": "fallback_unchecked", "clamped": ["wheel_common"]}));
+        n.fallback_unchecked = Some(FallbackUnchecked { clamped: Vec::new(), held: vec![NoiseSource::HeadingWhite] });
+        let text = judge(&Evidence { next_drive: Some(&n), ..evidence(&th, &cov) }, &opts).reasons[0].to_string();
+        assert!(text.contains("fails the plausibility guards:") && text.contains("held (heading_white)"), "{text}");
+    }
+
     /// EIV's t_r above its batch G-N start by more than 3 σ (without that
     /// excess) is doubtful; at 2.9 σ it is not, and below the start nothing.
     #[test]

@@ -651,4 +651,38 @@ fn a_held_noise_level_the_drive_contradicts_is_named() {
     assert!((r.theta.t_r - truth.t_r).abs() <= 3.0 * sigma, "{} vs {}, σ {sigma}", r.theta.t_r, truth.t_r);
     let json = serde_json::to_value(d).expect("json");
     assert_eq!(json["held_noise_released"]["held"], serde_json::json!(["heading_white"]));
+    // Without a passing fit with the level released, nothing checks the
+    // fallback: EIV's own θ (t_r past its guard) gives no gap, and the
+    // verdict's reason says so, naming the clamped wheel source and the
+    // held level.
+    let own = d.eiv.as_ref().expect("EIV's own fit");
+    assert!(!crate::assess::trust::check_theta(
+        &own.theta,
+        &opts.theta0,
+        r.options.identify.free,
+        None,
+        1.0,
+        &opts.trust.guards
+    )
+    .is_empty());
+    let mut alone = d.clone();
+    alone.held_noise_released = None;
+    let within = crate::calibrate::report::within_sigma_of(
+        &MethodDetail::Eiv(alone.clone()),
+        &r.covariance,
+        r.options.identify.free,
+    );
+    let n = crate::calibrate::report::next_drive_of(
+        &r.theta,
+        &MethodDetail::Eiv(alone),
+        &within,
+        r.options.identify.free,
+        &opts,
+    );
+    assert_eq!(n.fallback_gap, [0.0; 4]);
+    let why = n.fallback_unchecked.as_ref().expect("unchecked");
+    assert_eq!(why.held, vec![NoiseSource::HeadingWhite]);
+    assert!(why.clamped.contains(&NoiseSource::WheelDifferential), "{why:?}");
+    let reasons = crate::assess::trust::fallback_gap_reasons(&r.theta, r.options.identify.free, &n, &opts.trust);
+    assert!(reasons.iter().any(|x| matches!(x, VerdictReason::FallbackUnchecked { .. })), "{reasons:?}");
 }
