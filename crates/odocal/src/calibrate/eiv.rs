@@ -521,7 +521,7 @@ impl Estimator for EivMethodOptions {
             .map(|finding| Warning::EivCheckFailed { finding: finding.clone(), fell_back: fall_back })
             .collect();
         warnings.extend(notes.into_iter().map(|finding| Warning::EivCheckNote { finding }));
-        let detail = EivDetail {
+        let mut detail = EivDetail {
             identification: start,
             start_held,
             eiv: report,
@@ -533,9 +533,9 @@ impl Estimator for EivMethodOptions {
             bootstrap: None,
         };
         if fall_back {
-            let released = detail.eiv.as_ref().and_then(|_| release_held_noise(&filter_input, &start_theta, &filter));
-            let mut detail = detail;
-            detail.held_noise_released = released.map(Box::new);
+            if detail.eiv.is_some() {
+                detail.held_noise_released = release_held_noise(&filter_input, &start_theta, &filter).map(Box::new);
+            }
             let reason = match &detail.eiv_error {
                 Some(e) => format!("the filter failed: {e}"),
                 None => format!("{} consistency check(s) failed", findings.len()),
@@ -875,6 +875,20 @@ impl EivDetail {
                     "BATCH G-N FALLBACK (all segments): the EIV checks failed (see the warnings; with the fallback off, --no-fallback, EIV's θ is kept)",
             }
         );
+        if let Some(r) = &d.held_noise_released {
+            let names: Vec<&str> = r.held.iter().map(|s| s.name()).collect();
+            let verdict = if r.passes() {
+                "passes the checks: the drive contradicts the held level(s)".to_string()
+            } else {
+                format!("fails {} check(s) too", r.findings.len())
+            };
+            let _ = writeln!(
+                out,
+                "  with the held noise level(s) ({}) estimated: {}; {verdict}",
+                names.join(", "),
+                theta_in_units(&r.theta.to_array(), false)
+            );
+        }
         if let Some(b) = &d.bootstrap {
             let _ = writeln!(
                 out,
