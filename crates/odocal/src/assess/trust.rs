@@ -35,7 +35,9 @@
 //!   or the result is EIV's batch G-N fallback and EIV's own estimate lies
 //!   more than [`TrustOptions::max_fallback_gap_sigmas`] σ from it,
 //!   or the result is EIV's own estimate and its t_r lies that many σ
-//!   above its batch G-N start's ([`VerdictReason::TrackWidthAboveStart`]).
+//!   above its batch G-N start's ([`VerdictReason::TrackWidthAboveStart`]),
+//!   or the result is EIV's batch G-N fallback and no plausible EIV
+//!   estimate checks it ([`VerdictReason::FallbackUnchecked`]).
 //!
 //! The large-σ check uses the σ that stands for the result, the σ for the
 //! next drive ([`crate::pooling`]); the cross-split and convergence checks

@@ -34,7 +34,12 @@
 //! so; a filter error (a window whose covariance stops being positive
 //! definite, named in the error) falls back the same way. With the fallback
 //! off, the EIV θ is returned and the verdict is at most doubtful
-//! ([`crate::assess::trust::VerdictReason::Misspecified`]).
+//! ([`crate::assess::trust::VerdictReason::Misspecified`]). A fallback
+//! from a fit with noise levels held (`known`) fits EIV once more with
+//! every level estimated ([`HeldNoiseReleased`]): when that fit passes, the
+//! drive contradicts the held levels and the fallback is measured against
+//! it. A fallback that no plausible EIV estimate checks is doubtful
+//! ([`crate::assess::trust::VerdictReason::FallbackUnchecked`]).
 //!
 //! ## Reference extrinsics (two-stage)
 //! When [`IdentifyOptions::uses_extrinsics`] (a lever arm or heading
