@@ -55,9 +55,10 @@ use odocal_lab::{coverage, error_scale, errors, median, Args, Res, Summary, Tabl
 use rayon::prelude::*;
 
 const USAGE: &str = "random_worlds [--worlds 100] [--length-km 12] [--seed 1] [--methods eiv,batch-gn,three-step]
-    [--out DIR] [--threads N] [--heading-drift-gate G] [--heading-drift-lr T]
+    [--out DIR] [--threads N] [--heading-drift-gate G] [--heading-drift-lr T] [--heavy]
 
-World i has world seed S + i (drive seed too); every method runs through odocal::calibrate.";
+World i has world seed S + i (drive seed too); every method runs through odocal::calibrate.
+--heavy: each world's wheel noise replaced by heavy common-mode coloured noise and slip (heavy_wheels).";
 
 /// The methods the study knows, by their `--method` names.
 const METHODS: [&str; 3] = ["eiv", "batch-gn", "three-step"];
@@ -70,10 +71,12 @@ struct Settings {
     out: Option<PathBuf>,
     /// The default's heading-drift score gate and likelihood-ratio threshold (None: the defaults).
     heading_drift: (Option<f64>, Option<f64>),
+    /// `--heavy`: the worlds' wheel noise replaced ([`heavy_wheels`]).
+    heavy: bool,
 }
 
 fn settings() -> Res<(Settings, Option<usize>)> {
-    let mut a = Args::parse(USAGE, &[])?;
+    let mut a = Args::parse(USAGE, &["heavy"])?;
     let s = Settings {
         worlds: a.get("worlds", 100)?,
         km: a.get("length-km", 12.0)?,
@@ -81,6 +84,7 @@ fn settings() -> Res<(Settings, Option<usize>)> {
         methods: a.list("methods", &METHODS),
         out: a.opt("out")?,
         heading_drift: (a.opt("heading-drift-gate")?, a.opt("heading-drift-lr")?),
+        heavy: a.flag("heavy"),
     };
     let threads = a.opt("threads")?;
     a.finish()?;
@@ -256,9 +260,44 @@ fn finding_kind(w: &odocal::eiv::EivWarning) -> String {
     }
 }
 
+/// A world's wheel noise replaced by heavy common-mode coloured noise and
+/// slip with acceleration, small white wheel noise (`--heavy`; the regime
+/// where batch Gauss-Newton's errors-in-variables bias is large and EIV
+/// may fall back): common-mode σ uniform 2–4 % with τ log-uniform 2–10 s,
+/// slip uniform 1–2 %/(m/s²), white σ uniform 0.05–0.3 %, no
+/// quantisation. The reference's noise stays the random world's. Drawn
+/// from `seed` by SplitMix64 (its own stream: the world's other draws
+/// are unchanged).
+fn heavy_wheels(n: NoiseOptions, seed: u64) -> NoiseOptions {
+    let mut state = seed ^ 0x6865_6176_7977_6865;
+    let mut unit = || {
+        state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^= z >> 31;
+        (z >> 11) as f64 / (1u64 << 53) as f64
+    };
+    NoiseOptions {
+        wheel_coloured_rel_sigma: 0.02 + 0.02 * unit(),
+        wheel_coloured_time_constant_s: 2.0 * 5f64.powf(unit()),
+        wheel_slip_per_m_per_s2: 0.01 + 0.01 * unit(),
+        wheel_white_rel_sigma: 5e-4 + 2.5e-3 * unit(),
+        encoder_ticks_per_revolution: 0,
+        ..n
+    }
+}
+
 fn study_world(index: u64, a: &Settings) -> Res<World> {
     let seed = a.seed + index;
     let (noise, summary) = NoiseOptions::random_world(seed);
+    let (noise, summary) = if a.heavy {
+        let n = heavy_wheels(noise, seed);
+        let s = WorldSummary::of(&n);
+        (n, s)
+    } else {
+        (noise, summary)
+    };
     let sim = SimOptions { length_km: a.km, noise: noise.clone(), ..SimOptions::paper(seed) };
     let out = simulate(&sim)?;
     let drive = &out.drive;
@@ -506,7 +545,8 @@ fn print_tables(a: &Settings, worlds: &[World]) {
     let count = |r: NoiseRegime| worlds.iter().filter(|w| w.summary.regime == r).count();
     let white_only = worlds.iter().filter(|w| w.summary.white_only).count();
     println!(
-        "## Random noise worlds: {} worlds x {} km (world seeds {}..={}), methods {}\n",
+        "## Random noise worlds{}: {} worlds x {} km (world seeds {}..={}), methods {}\n",
+        if a.heavy { " (heavy wheels: --heavy)" } else { "" },
         worlds.len(),
         a.km,
         a.seed,

@@ -26,7 +26,10 @@
 //!   estimates bracket it. With the truth anywhere between them (uniform),
 //!   the fallback's error has RMS gap/√3. 0 otherwise, and 0 when EIV's
 //!   own θ fails a plausibility guard (a diverged filter says nothing about
-//!   the fallback's bias). A gap above 3 σ of the rest makes the verdict
+//!   the fallback's bias). When the calibration held noise levels and
+//!   EIV's fit with them held failed, the fit with them estimated stands
+//!   in for EIV's own when it passes the checks and the guards (the data
+//!   contradict the held levels; the verdict's reason says so). A gap above 3 σ of the rest makes the verdict
 //!   doubtful ([`crate::TrustOptions::max_fallback_gap_sigmas`]).
 //! - `a`: when the result is EIV's own estimate and its t_r lies above
 //!   its batch Gauss-Newton start's, that excess (for t_r; for the other
@@ -53,6 +56,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::eiv::NoiseSource;
 use crate::model::Theta;
 
 /// A random-effects pooling of one parameter over several drives
@@ -167,6 +171,17 @@ pub struct NextDriveSigma {
     /// fallback's gap to EIV's own estimate. In JSON only when true.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub gap_is_refit: bool,
+    /// After a fallback from a fit with these noise levels held:
+    /// `fallback_gap` is the gap to EIV's fit with them estimated, which
+    /// passed the checks the held fit failed (the data contradict the held
+    /// levels). In JSON only when not empty.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub gap_released_noise: Vec<NoiseSource>,
+    /// After a fallback: why EIV's fit bounds no errors-in-variables bias
+    /// of the fallback, when it does not ([`FallbackUnchecked`]). In JSON
+    /// only when present.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fallback_unchecked: Option<FallbackUnchecked>,
     /// When the result is EIV's own estimate (not a refit, not a fallback)
     /// and its t_r lies above its batch Gauss-Newton start's: the excess
     /// (t_r's entry) and the shift of every other parameter along its
@@ -193,6 +208,8 @@ impl NextDriveSigma {
             within_drive,
             fallback_gap,
             gap_is_refit: false,
+            gap_released_noise: Vec::new(),
+            fallback_unchecked: None,
             t_r_above_start: [0.0; 4],
             between_drive,
             between_source: BetweenDriveSource::Prior,
@@ -252,6 +269,27 @@ impl NextDriveSigma {
         self.pooled = Some(pooled);
         self.combine();
     }
+}
+
+/// After an EIV fallback, why batch Gauss-Newton's errors-in-variables
+/// bias is left unchecked: EIV's own θ (and its fit with held noise
+/// levels released, if any) fails a plausibility guard, so no EIV
+/// estimate gives a gap to measure the bias by. On heavy common-mode
+/// wheel noise EIV's fit puts the common-mode scale at its upper clamp
+/// and c_e 9–20 % low (docs/validation.md, "Heavy wheel noise"), while
+/// batch G-N's t_r is off by up to 2.8 %. The verdict is doubtful
+/// ([`crate::assess::trust::VerdictReason::FallbackUnchecked`]); the σ for
+/// the next drive cannot include a bias nothing estimates.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FallbackUnchecked {
+    /// The wheel noise sources whose scale EIV's fit left at its upper
+    /// clamp (the drive's wheel noise is heavier than the model allows).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub clamped: Vec<NoiseSource>,
+    /// The noise levels the calibration held (`known`; the drive may
+    /// contradict them).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub held: Vec<NoiseSource>,
 }
 
 /// True when every entry is zero (serde's `skip_serializing_if`).

@@ -35,7 +35,9 @@
 //!   or the result is EIV's batch G-N fallback and EIV's own estimate lies
 //!   more than [`TrustOptions::max_fallback_gap_sigmas`] σ from it,
 //!   or the result is EIV's own estimate and its t_r lies that many σ
-//!   above its batch G-N start's ([`VerdictReason::TrackWidthAboveStart`]).
+//!   above its batch G-N start's ([`VerdictReason::TrackWidthAboveStart`]),
+//!   or the result is EIV's batch G-N fallback and no plausible EIV
+//!   estimate checks it ([`VerdictReason::FallbackUnchecked`]).
 //!
 //! The large-σ check uses the σ that stands for the result, the σ for the
 //! next drive ([`crate::pooling`]); the cross-split and convergence checks
@@ -44,6 +46,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::assess::pooling::NextDriveSigma;
+use crate::eiv::NoiseSource;
 use crate::error::{Error, Result};
 use crate::identify::{IdentifyReport, Termination};
 use crate::model::extrinsics::{Extrinsics, ExtrinsicsEstimate};
@@ -436,6 +439,25 @@ pub enum VerdictReason {
         sigma: f64,
         /// `gap / sigma`.
         sigmas: f64,
+        /// The noise levels the calibration held, when the estimate the
+        /// gap is measured to is EIV's fit with them estimated: with them
+        /// held EIV's checks failed, with them estimated they pass (the
+        /// data contradict the held levels). In JSON only when not empty.
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        released: Vec<NoiseSource>,
+    },
+    /// The result is EIV's batch Gauss-Newton fallback, and nothing bounds
+    /// its errors-in-variables bias (doubtful): EIV's own estimate (and
+    /// its fit with held noise levels released, if any) fails the
+    /// plausibility guards, so there is no gap to measure
+    /// ([`crate::pooling::FallbackUnchecked`]).
+    FallbackUnchecked {
+        /// The wheel noise sources whose scale EIV's fit left at its upper clamp.
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        clamped: Vec<NoiseSource>,
+        /// The noise levels the calibration held (`known`).
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        held: Vec<NoiseSource>,
     },
     /// The result is EIV's refit with the noise sources released (its first
     /// fit failed its checks), and the refit lies farther from its batch
@@ -536,12 +558,43 @@ impl std::fmt::Display for VerdictReason {
                  (σ {sigma:.2e}); the data do not agree on {param}",
                 (fit - held_out).abs() / sigma
             ),
-            VerdictReason::FallbackDisagrees { param, fallback, gap, sigma, sigmas } => write!(
+            VerdictReason::FallbackDisagrees { param, fallback, gap, sigma, sigmas, released }
+                if !released.is_empty() =>
+            {
+                let names: Vec<&str> = released.iter().map(|s| s.name()).collect();
+                write!(
+                    f,
+                    "{param} = {fallback:.6} is the batch Gauss-Newton fallback: with the noise level(s) held \
+                     ({}) EIV's checks failed, with them estimated they pass and EIV's estimate lies {gap:.2e} away, \
+                     {sigmas:.1} × the σ without that gap ({sigma:.2e}): the drive contradicts the held level(s), and \
+                     batch G-N's errors-in-variables bias may be as large (the σ for the next drive includes it)",
+                    names.join(", ")
+                )
+            }
+            VerdictReason::FallbackDisagrees { param, fallback, gap, sigma, sigmas, .. } => write!(
                 f,
                 "{param} = {fallback:.6} is the batch Gauss-Newton fallback; EIV's own estimate lies {gap:.2e} away, \
                  {sigmas:.1} × the σ without that gap ({sigma:.2e}): batch G-N's errors-in-variables bias may be as \
                  large (the σ for the next drive includes it)"
             ),
+            VerdictReason::FallbackUnchecked { clamped, held, .. } => {
+                let names = |v: &[NoiseSource]| v.iter().map(|s| s.name()).collect::<Vec<_>>().join(", ");
+                f.write_str("the result is the batch Gauss-Newton fallback, and EIV's own estimate fails the plausibility guards")?;
+                if !clamped.is_empty() {
+                    write!(
+                        f,
+                        " with the wheel noise heavier than its model allows ({} at the upper clamp)",
+                        names(clamped)
+                    )?;
+                }
+                f.write_str(
+                    ": no estimate bounds batch G-N's errors-in-variables bias, which grows with the wheel noise",
+                )?;
+                if !held.is_empty() {
+                    write!(f, "; the noise level(s) held ({}) may not fit this drive", names(held))?;
+                }
+                Ok(())
+            }
             VerdictReason::RefitDisagrees { param, estimate, gap, sigma, sigmas } => write!(
                 f,
                 "{param} = {estimate:.6} is EIV's refit (its first fit failed its checks); the batch Gauss-Newton \
@@ -647,6 +700,7 @@ pub(crate) fn is_sigma_reason(r: &VerdictReason) -> bool {
     match r {
         VerdictReason::LargeUncertainty { param, .. } => ParamSet::THETA.contains(*param),
         VerdictReason::FallbackDisagrees { .. }
+        | VerdictReason::FallbackUnchecked { .. }
         | VerdictReason::RefitDisagrees { .. }
         | VerdictReason::TrackWidthAboveStart { .. } => true,
         _ => false,
@@ -701,6 +755,8 @@ pub(crate) fn fallback_gap_reasons(
                 VerdictReason::TrackWidthAboveStart { estimate: theta.t_r, start: theta.t_r - excess, sigma, sigmas },
             )
         });
+    let unchecked =
+        n.fallback_unchecked.clone().map(|u| VerdictReason::FallbackUnchecked { clamped: u.clamped, held: u.held });
     free.intersection(ParamSet::THETA)
         .iter()
         .filter_map(|p| {
@@ -712,11 +768,13 @@ pub(crate) fn fallback_gap_reasons(
                 if n.gap_is_refit {
                     VerdictReason::RefitDisagrees { param: p, estimate: value, gap, sigma, sigmas }
                 } else {
-                    VerdictReason::FallbackDisagrees { param: p, fallback: value, gap, sigma, sigmas }
+                    let released = n.gap_released_noise.clone();
+                    VerdictReason::FallbackDisagrees { param: p, fallback: value, gap, sigma, sigmas, released }
                 }
             })
         })
         .chain(above)
+        .chain(unchecked)
         .collect()
 }
 
@@ -896,6 +954,48 @@ mod tests {
         let VerdictReason::RefitDisagrees { param, estimate, .. } = &v.reasons[0] else { panic!("{v:?}") };
         assert_eq!((*param, *estimate), (Param::TR, th.t_r));
         assert!(v.reasons[0].to_string().contains("EIV's refit"), "{}", v.reasons[0]);
+        // the same gap to EIV's fit with held noise levels released names them
+        let mut released = far.clone();
+        released.gap_released_noise = vec![NoiseSource::HeadingWhite];
+        let v = judge(&Evidence { next_drive: Some(&released), ..evidence(&th, &cov) }, &opts);
+        assert_eq!(v.level, VerdictLevel::Doubtful, "{v:?}");
+        let VerdictReason::FallbackDisagrees { released: names, .. } = &v.reasons[0] else { panic!("{v:?}") };
+        assert_eq!(names, &[NoiseSource::HeadingWhite]);
+        let text = v.reasons[0].to_string();
+        assert!(text.contains("held (heading_white)") && text.contains("contradicts"), "{text}");
+        let json = serde_json::to_value(&v.reasons[0]).expect("json");
+        assert_eq!(json["released"], serde_json::json!(["heading_white"]));
+        // without released levels the JSON has no such field
+        let v = judge(&Evidence { next_drive: Some(&far), ..evidence(&th, &cov) }, &opts);
+        assert!(serde_json::to_value(&v.reasons[0]).expect("json").get("released").is_none());
+    }
+
+    /// A fallback that no EIV estimate checks is doubtful, and its reason
+    /// names the clamped wheel sources and the held levels; it is a σ
+    /// reason (kept when the σ is pooled again).
+    #[test]
+    fn an_unchecked_fallback_is_doubtful() {
+        use crate::assess::pooling::{FallbackUnchecked, NextDriveSigma};
+        let th = Theta { c_e: 2.0, c_d: 0.0, t_r: 1.55, d: 0.0 };
+        let cov: [[f64; 4]; 4] =
+            [[1e-10, 0.0, 0.0, 0.0], [0.0, 1e-12, 0.0, 0.0], [0.0, 0.0, 1e-8, 0.0], [0.0, 0.0, 0.0, 1e-12]];
+        let within = std::array::from_fn(|i| Some(cov[i][i].sqrt()));
+        let opts = TrustOptions::default();
+        let mut n = NextDriveSigma::one_drive(&th, within, [0.0; 4]);
+        let v = judge(&Evidence { next_drive: Some(&n), ..evidence(&th, &cov) }, &opts);
+        assert_eq!(v.level, VerdictLevel::Accepted, "{v:?}");
+        n.fallback_unchecked = Some(FallbackUnchecked { clamped: vec![NoiseSource::WheelCommon], held: Vec::new() });
+        let v = judge(&Evidence { next_drive: Some(&n), ..evidence(&th, &cov) }, &opts);
+        assert_eq!(v.level, VerdictLevel::Doubtful, "{v:?}");
+        assert_eq!(v.reasons.len(), 1, "{v:?}");
+        assert!(is_sigma_reason(&v.reasons[0]));
+        let text = v.reasons[0].to_string();
+        assert!(text.contains("wheel_common at the upper clamp") && !text.contains("held"), "{text}");
+        let json = serde_json::to_value(&v.reasons[0]).expect("json");
+        assert_eq!(json, serde_json::json!({"kind": "fallback_unchecked", "clamped": ["wheel_common"]}));
+        n.fallback_unchecked = Some(FallbackUnchecked { clamped: Vec::new(), held: vec![NoiseSource::HeadingWhite] });
+        let text = judge(&Evidence { next_drive: Some(&n), ..evidence(&th, &cov) }, &opts).reasons[0].to_string();
+        assert!(text.contains("fails the plausibility guards:") && text.contains("held (heading_white)"), "{text}");
     }
 
     /// EIV's t_r above its batch G-N start by more than 3 σ (without that

@@ -34,7 +34,12 @@
 //! so; a filter error (a window whose covariance stops being positive
 //! definite, named in the error) falls back the same way. With the fallback
 //! off, the EIV θ is returned and the verdict is at most doubtful
-//! ([`crate::assess::trust::VerdictReason::Misspecified`]).
+//! ([`crate::assess::trust::VerdictReason::Misspecified`]). A fallback
+//! from a fit with noise levels held (`known`) fits EIV once more with
+//! every level estimated ([`HeldNoiseReleased`]): when that fit passes, the
+//! drive contradicts the held levels and the fallback is measured against
+//! it. A fallback that no plausible EIV estimate checks is doubtful
+//! ([`crate::assess::trust::VerdictReason::FallbackUnchecked`]).
 //!
 //! ## Reference extrinsics (two-stage)
 //! When [`IdentifyOptions::uses_extrinsics`] (a lever arm or heading
@@ -215,6 +220,37 @@ pub(crate) enum EivOutcome {
     BatchGnFallback,
 }
 
+/// A fit with noise levels held (`known`, [`EivOptions::eta_held`]) that
+/// failed the checks and fell back, fitted again from the same start with
+/// every level estimated (and, as the first fit, once more with the
+/// sources released when that fit is stuck at a lower clamp or
+/// unconverged). When this fit passes the checks, the data contradict the
+/// held levels, and its θ stands in for EIV's own as the estimate the
+/// fallback is compared with: its gap to the fallback enters the σ for the
+/// next drive and the verdict ([`crate::pooling`]). Without the bias
+/// correction (as EIV's own θ after a fallback).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub(crate) struct HeldNoiseReleased {
+    /// The sources the calibration held.
+    pub held: Vec<NoiseSource>,
+    /// The fit's θ.
+    pub theta: Theta,
+    /// The θ parameters it estimated (`[c_e, c_d, t_r, d]`).
+    pub free: [bool; 4],
+    /// The noise model it estimated, physical units.
+    pub noise: NoiseModel,
+    /// Its findings that say the model does not fit the data
+    /// (`is_misspecification`); none when it passes the checks.
+    pub findings: Vec<EivWarning>,
+}
+
+impl HeldNoiseReleased {
+    /// True when the fit passes the checks.
+    pub(crate) fn passes(&self) -> bool {
+        self.findings.is_empty()
+    }
+}
+
 /// What the EIV method reports. In JSON its fields stand at the top level
 /// of the report (`identification`, `eiv`, `eiv_result`, ...).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -243,6 +279,11 @@ pub(crate) struct EivDetail {
     /// does. In JSON only when true.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub refit: bool,
+    /// After a fallback from a fit with noise levels held (`known`): the
+    /// fit again with every level estimated ([`HeldNoiseReleased`]). In
+    /// JSON only when present.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub held_noise_released: Option<Box<HeldNoiseReleased>>,
     /// The parametric bootstrap, when asked for
     /// ([`EivMethodOptions::bootstrap`]) and the EIV θ is the result.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -467,7 +508,8 @@ impl Estimator for EivMethodOptions {
             (None, _) => None,
         };
         let filter_input = EivInput::from_drive(axle_drive.as_ref().unwrap_or(prep.drive));
-        let (fit, correction_failed, refit) = self.fit(&filter_input, &start.theta, &filter);
+        let start_theta = start.theta;
+        let (fit, correction_failed, refit) = self.fit(&filter_input, &start_theta, &filter);
         emit(progress, Progress::Advance(1));
         let t_eiv = t.elapsed().as_secs_f64();
         let timing = Timing { initial_identification: t_start, final_identification: t_eiv, ..Timing::default() };
@@ -484,7 +526,7 @@ impl Estimator for EivMethodOptions {
             .map(|finding| Warning::EivCheckFailed { finding: finding.clone(), fell_back: fall_back })
             .collect();
         warnings.extend(notes.into_iter().map(|finding| Warning::EivCheckNote { finding }));
-        let detail = EivDetail {
+        let mut detail = EivDetail {
             identification: start,
             start_held,
             eiv: report,
@@ -492,9 +534,13 @@ impl Estimator for EivMethodOptions {
             noise_start: self.filter.noise,
             eiv_result: EivOutcome::BatchGnFallback,
             refit,
+            held_noise_released: None,
             bootstrap: None,
         };
         if fall_back {
+            if detail.eiv.is_some() {
+                detail.held_noise_released = release_held_noise(&filter_input, &start_theta, &filter).map(Box::new);
+            }
             let reason = match &detail.eiv_error {
                 Some(e) => format!("the filter failed: {e}"),
                 None => format!("{} consistency check(s) failed", findings.len()),
@@ -637,6 +683,22 @@ fn refit_with_sources_released(
     };
     let again = eiv::estimate(input, theta, &released).ok()?;
     (!again.warnings.iter().any(|w| is_misspecification(w, &again))).then_some(again)
+}
+
+/// After a fallback from a fit with noise levels held: the fit from
+/// `theta` with every level estimated ([`HeldNoiseReleased`]); `None`
+/// when no level was held (or the whole model was fixed) or the fit
+/// failed with an error.
+fn release_held_noise(input: &EivInput<'_>, theta: &Theta, filter: &EivOptions) -> Option<HeldNoiseReleased> {
+    let held = filter.known_sources();
+    if held.is_empty() || filter.fix_noise {
+        return None;
+    }
+    let released = EivOptions { eta_held: [false; 6], bias_correction: BiasCorrection::None, ..filter.clone() };
+    let first = eiv::estimate(input, theta, &released).ok()?;
+    let fit = refit_with_sources_released(input, theta, &released, &first).unwrap_or(first);
+    let findings = fit.warnings.iter().filter(|w| is_misspecification(w, &fit)).cloned().collect();
+    Some(HeldNoiseReleased { held, theta: fit.theta, free: fit.free, noise: fit.noise, findings })
 }
 
 /// The start: batch G-N over all segments with every free parameter; only
@@ -818,6 +880,20 @@ impl EivDetail {
                     "BATCH G-N FALLBACK (all segments): the EIV checks failed (see the warnings; with the fallback off, --no-fallback, EIV's θ is kept)",
             }
         );
+        if let Some(r) = &d.held_noise_released {
+            let names: Vec<&str> = r.held.iter().map(|s| s.name()).collect();
+            let verdict = if r.passes() {
+                "passes the checks: the drive contradicts the held level(s)".to_string()
+            } else {
+                format!("fails {} check(s) too", r.findings.len())
+            };
+            let _ = writeln!(
+                out,
+                "  with the held noise level(s) ({}) estimated: {}; {verdict}",
+                names.join(", "),
+                theta_in_units(&r.theta.to_array(), false)
+            );
+        }
         if let Some(b) = &d.bootstrap {
             let _ = writeln!(
                 out,

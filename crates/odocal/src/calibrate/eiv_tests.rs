@@ -616,3 +616,73 @@ fn a_fit_that_passes_its_checks_is_no_refit() {
     assert!(serde_json::to_value(d).expect("json").get("refit").is_none());
     assert!(serde_json::to_value(next).expect("json").get("gap_is_refit").is_none());
 }
+
+/// A held noise level the drive contradicts (simulated, seed 3, 3 km,
+/// windows of 1500 samples, the reference heading's white noise held at
+/// the production car's level): EIV's fit with it held fails its checks
+/// (a noise scale at its upper clamp, θ past the plausibility guards), so
+/// the method falls back to batch G-N, whose t_r is 1.8 % off (6 σ of its
+/// σ without the gap). The fit with every level estimated passes, stands
+/// in for EIV's own, and the verdict is doubtful with a reason that names
+/// the held level; the truth lies within 3 σ of the result's σ.
+#[test]
+fn a_held_noise_level_the_drive_contradicts_is_named() {
+    let sim = SimOptions { length_km: 3.0, ..SimOptions::paper(3) };
+    let out = simulate(&sim).expect("sim");
+    let (truth, _) = sim.equivalent_truth();
+    let mut filter = EivOptions { window_samples: 1500, ..Default::default() };
+    filter.hold_known(&[NoiseSource::HeadingWhite]);
+    let opts = CalibrationOptions { method: eiv_method(filter, true), ..Default::default() };
+    let r = calibrate(&out.drive, &opts).expect("calibrate");
+    let d = detail(&r);
+    assert_eq!(d.eiv_result, EivOutcome::BatchGnFallback, "{:?}", r.warnings);
+    let released = d.held_noise_released.as_ref().expect("the fit with the held level released");
+    assert_eq!(released.held, vec![NoiseSource::HeadingWhite]);
+    assert!(released.passes(), "{:?}", released.findings);
+    assert_ne!(r.verdict.level, crate::VerdictLevel::Accepted, "{:?}", r.verdict);
+    let named = r.verdict.reasons.iter().any(|reason| {
+        matches!(reason, VerdictReason::FallbackDisagrees { param: Param::TR, released, .. }
+            if released == &[NoiseSource::HeadingWhite])
+    });
+    assert!(named, "{:?}", r.verdict.reasons);
+    let next = r.next_drive_sigma.as_ref().expect("next-drive σ");
+    assert_eq!(next.fallback_gap[2], (released.theta.t_r - r.theta.t_r).abs());
+    let sigma = r.result_sigma().t_r.expect("t_r σ");
+    assert!((r.theta.t_r - truth.t_r).abs() <= 3.0 * sigma, "{} vs {}, σ {sigma}", r.theta.t_r, truth.t_r);
+    let json = serde_json::to_value(d).expect("json");
+    assert_eq!(json["held_noise_released"]["held"], serde_json::json!(["heading_white"]));
+    // Without a passing fit with the level released, nothing checks the
+    // fallback: EIV's own θ (t_r past its guard) gives no gap, and the
+    // verdict's reason says so, naming the clamped wheel source and the
+    // held level.
+    let own = d.eiv.as_ref().expect("EIV's own fit");
+    assert!(!crate::assess::trust::check_theta(
+        &own.theta,
+        &opts.theta0,
+        r.options.identify.free,
+        None,
+        1.0,
+        &opts.trust.guards
+    )
+    .is_empty());
+    let mut alone = d.clone();
+    alone.held_noise_released = None;
+    let within = crate::calibrate::report::within_sigma_of(
+        &MethodDetail::Eiv(alone.clone()),
+        &r.covariance,
+        r.options.identify.free,
+    );
+    let n = crate::calibrate::report::next_drive_of(
+        &r.theta,
+        &MethodDetail::Eiv(alone),
+        &within,
+        r.options.identify.free,
+        &opts,
+    );
+    assert_eq!(n.fallback_gap, [0.0; 4]);
+    let why = n.fallback_unchecked.as_ref().expect("unchecked");
+    assert_eq!(why.held, vec![NoiseSource::HeadingWhite]);
+    assert!(why.clamped.contains(&NoiseSource::WheelDifferential), "{why:?}");
+    let reasons = crate::assess::trust::fallback_gap_reasons(&r.theta, r.options.identify.free, &n, &opts.trust);
+    assert!(reasons.iter().any(|x| matches!(x, VerdictReason::FallbackUnchecked { .. })), "{reasons:?}");
+}

@@ -365,7 +365,9 @@ pub(crate) fn within_sigma_of(detail: &MethodDetail, covariance: &[[f64; 4]; 4],
 /// estimated it and found it observable: the value came from there, so it
 /// is not held; one the start named not observable stays at θ_0), after an EIV
 /// fallback the gap to EIV's own estimate when that passes the
-/// plausibility guards (when the result is EIV's refit, the gap to its
+/// plausibility guards (or to EIV's fit with the held noise levels
+/// released, when that passes the checks and the guards:
+/// [`super::eiv::HeldNoiseReleased`]; when the result is EIV's refit, the gap to its
 /// batch Gauss-Newton start), when the result is EIV's own estimate its
 /// t_r above its start's, and the prior between-drive σ.
 pub(crate) fn next_drive_of(
@@ -377,6 +379,8 @@ pub(crate) fn next_drive_of(
 ) -> NextDriveSigma {
     let mut w = within.to_array();
     let mut gap = [0.0; 4];
+    let mut released_held = Vec::new();
+    let mut unchecked = None;
     if let MethodDetail::Eiv(d) = detail {
         let start = &d.identification;
         let start_sd = start.robust.as_ref().map_or(start.covariance, |r| r.covariance);
@@ -389,16 +393,26 @@ pub(crate) fn next_drive_of(
                 *w = Some(v.max(0.0).sqrt());
             }
         }
-        let eiv = d.eiv.as_ref().filter(|e| {
-            crate::assess::trust::check_theta(&e.theta, &opts.theta0, free, None, 1.0, &opts.trust.guards).is_empty()
-        });
-        // The other estimate: EIV's own after a fallback, the batch G-N
-        // start after a refit.
-        let other = match (d.eiv_result, eiv) {
-            (EivOutcome::BatchGnFallback, Some(e)) => Some((e.theta, e.free)),
-            (EivOutcome::Eiv, Some(e)) if d.refit => Some((start.theta, e.free)),
+        let plausible = |t: &Theta| {
+            crate::assess::trust::check_theta(t, &opts.theta0, free, None, 1.0, &opts.trust.guards).is_empty()
+        };
+        let eiv = d.eiv.as_ref().filter(|e| plausible(&e.theta));
+        let released = d.held_noise_released.as_ref().filter(|r| r.passes() && plausible(&r.theta));
+        // The other estimate: after a fallback EIV's fit with the held
+        // noise levels released when it passes the checks, else EIV's
+        // own; the batch G-N start after a refit.
+        let other = match (d.eiv_result, released, eiv) {
+            (EivOutcome::BatchGnFallback, Some(r), _) => Some((r.theta, r.free)),
+            (EivOutcome::BatchGnFallback, None, Some(e)) => Some((e.theta, e.free)),
+            (EivOutcome::Eiv, _, Some(e)) if d.refit => Some((start.theta, e.free)),
             _ => None,
         };
+        if let (EivOutcome::BatchGnFallback, Some(r)) = (d.eiv_result, released) {
+            released_held = r.held.clone();
+        }
+        if let (EivOutcome::BatchGnFallback, None, None, Some(e)) = (d.eiv_result, released, eiv, d.eiv.as_ref()) {
+            unchecked = Some(fallback_unchecked(e, opts));
+        }
         if let Some((other, other_free)) = other {
             let (a, b) = (other.to_array(), theta.to_array());
             for i in 0..4 {
@@ -411,10 +425,40 @@ pub(crate) fn next_drive_of(
     }
     let mut n = NextDriveSigma::one_drive(theta, w, gap);
     n.gap_is_refit = matches!(detail, MethodDetail::Eiv(d) if d.refit && d.eiv_result == EivOutcome::Eiv);
+    n.gap_released_noise = released_held;
+    n.fallback_unchecked = unchecked;
     if let Some((excess, cov)) = eiv_t_r_above_start(detail, free) {
         n.with_t_r_above_start(excess, cov);
     }
     n
+}
+
+/// After a fallback from EIV's fit `e` whose θ fails the guards (with no
+/// passing, plausible fit with held noise levels released): the wheel
+/// noise sources at their upper clamp and the levels held
+/// ([`crate::pooling::FallbackUnchecked`]).
+fn fallback_unchecked(e: &crate::eiv::EivReport, opts: &CalibrationOptions) -> crate::pooling::FallbackUnchecked {
+    use crate::eiv::{EivWarning, NoiseSource};
+    let clamped = e
+        .warnings
+        .iter()
+        .filter_map(|w| match w {
+            EivWarning::NoiseAtUpperClamp { source, .. }
+                if matches!(
+                    source,
+                    NoiseSource::WheelWhite | NoiseSource::WheelCommon | NoiseSource::WheelDifferential
+                ) =>
+            {
+                Some(*source)
+            }
+            _ => None,
+        })
+        .collect();
+    let held = match &opts.method {
+        crate::Method::Eiv(m) => m.filter.known_sources(),
+        _ => Vec::new(),
+    };
+    crate::pooling::FallbackUnchecked { clamped, held }
 }
 
 /// When the result is EIV's own estimate (not a refit) with t_r estimated
