@@ -91,6 +91,18 @@ macro_rules! research_pub {
     };
 }
 
+/// Re-exports a use tree `pub` with feature `research` and crate-internal
+/// without it: one list for the research-only re-exports of a module.
+macro_rules! research_use {
+    ($($tree:tt)*) => {
+        #[cfg(feature = "research")]
+        pub use {$($tree)*};
+        #[cfg(not(feature = "research"))]
+        #[allow(unused_imports)]
+        pub(crate) use {$($tree)*};
+    };
+}
+
 // The modules in layers, lowest first; a module uses only its own subtree
 // and modules of lower layers (tests/architecture.rs checks it). The public
 // ones are expert API, each saying whom it is for; what a user needs to
@@ -111,6 +123,7 @@ pub mod online; // 9
 pub mod output; // 1
 mod progress; // 0
 pub mod sim; // 3
+mod simd; // 0
 
 /// The `schema_version` of every JSON report the `odocal` tool writes
 /// (calibrate, validate, import, experiment). Raised when a field is

@@ -19,6 +19,7 @@ use std::path::{Path, PathBuf};
 const LAYERS: &[(u32, &str)] = &[
     (0, "error"),      // Error, Result, QpError, ParamNames
     (0, "progress"),   // progress events
+    (0, "simd"),       // the instruction-set choice of the AVX2 builds
     (1, "model"),      // θ, the equations, parameters, extrinsics, physical limits
     (1, "output"),     // atomic writes, output paths checked against inputs
     (2, "drive"),      // drives, CSV, concat, segments, plausibility checks

@@ -253,8 +253,7 @@ pub use {
 // The estimator itself, its report and the modelling alternatives of
 // `EivOptions::research`: public with the `research` feature (the studies of
 // crates/odocal-lab), crate-internal (at their defaults) without it.
-#[cfg(feature = "research")]
-pub use {
+research_use! {
     bias_correction::apply_bias_correction,
     bootstrap::{bootstrap, BootstrapReport},
     crb::cramer_rao_bound,
@@ -267,18 +266,4 @@ pub use {
     },
     options::{CovarianceEstimate, CovarianceMode, ResearchOptions},
     report::{CrbReport, EivObservability, EivReport, HalvesCheck, IterationRecord, PassReport, WindowDiagnostics},
-};
-#[cfg(not(feature = "research"))]
-pub(crate) use {
-    bias_correction::apply_bias_correction,
-    bootstrap::{bootstrap, BootstrapReport},
-    crb::cramer_rao_bound,
-    estimate::estimate,
-    heading_drift::HeadingDriftTest,
-    input::{EivInput, Window},
-    modelling::{
-        InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
-    },
-    options::{CovarianceEstimate, CovarianceMode, ResearchOptions},
-    report::{CrbReport, EivObservability, EivReport, HalvesCheck, IterationRecord, PassReport, WindowDiagnostics},
-};
+}

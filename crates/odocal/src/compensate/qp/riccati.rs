@@ -923,18 +923,7 @@ impl QpSolver for StructuredSolver {
 /// three-operand, four-wide instructions need fewer register copies.
 fn use_avx2() -> bool {
     static CHOICE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *CHOICE.get_or_init(|| {
-        let forced = std::env::var("ODOCAL_SIMD").is_ok_and(|s| s.eq_ignore_ascii_case("baseline"));
-        #[cfg(target_arch = "x86_64")]
-        {
-            !forced && std::arch::is_x86_feature_detected!("avx2")
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        {
-            let _ = forced;
-            false
-        }
-    })
+    *CHOICE.get_or_init(|| !crate::simd::baseline_forced() && crate::simd::avx2_available(false))
 }
 
 impl StructuredSolver {

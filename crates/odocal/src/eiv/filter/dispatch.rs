@@ -67,8 +67,7 @@ pub(crate) enum Kernels {
 pub(crate) fn kernels() -> Kernels {
     static CHOICE: std::sync::OnceLock<Kernels> = std::sync::OnceLock::new();
     *CHOICE.get_or_init(|| {
-        let forced = std::env::var("ODOCAL_SIMD").is_ok_and(|s| s.eq_ignore_ascii_case("baseline"));
-        if !forced && avx2_available() {
+        if !crate::simd::baseline_forced() && avx2_available() {
             Kernels::Avx2
         } else {
             Kernels::Baseline
@@ -76,16 +75,10 @@ pub(crate) fn kernels() -> Kernels {
     })
 }
 
-/// Whether the running CPU has AVX2 and FMA.
+/// Whether the running CPU has AVX2 and FMA, which the kernels' AVX2 build
+/// needs.
 pub(crate) fn avx2_available() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
+    crate::simd::avx2_available(true)
 }
 
 /// [`run_window_baseline`] compiled for AVX2 and FMA: the window loop and
