@@ -29,8 +29,9 @@
 //!   the fallback's bias). When the calibration held noise levels and
 //!   EIV's fit with them held failed, the fit with them estimated stands
 //!   in for EIV's own when it passes the checks and the guards (the data
-//!   contradict the held levels; the verdict's reason says so). A gap above 3 σ of the rest makes the verdict
-//!   doubtful ([`crate::TrustOptions::max_fallback_gap_sigmas`]).
+//!   contradict the held levels; the verdict's reason says so). A gap
+//!   above 3 σ of the rest makes the verdict doubtful
+//!   ([`crate::TrustOptions::max_fallback_gap_sigmas`]).
 //! - `a`: when the result is EIV's own estimate and its t_r lies above
 //!   its batch Gauss-Newton start's, that excess (for t_r; for the other
 //!   parameters the shift that comes with it, along their regression on

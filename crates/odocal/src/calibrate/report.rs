@@ -400,19 +400,23 @@ pub(crate) fn next_drive_of(
         let released = d.held_noise_released.as_ref().filter(|r| r.passes() && plausible(&r.theta));
         // The other estimate: after a fallback EIV's fit with the held
         // noise levels released when it passes the checks, else EIV's
-        // own; the batch G-N start after a refit.
-        let other = match (d.eiv_result, released, eiv) {
-            (EivOutcome::BatchGnFallback, Some(r), _) => Some((r.theta, r.free)),
-            (EivOutcome::BatchGnFallback, None, Some(e)) => Some((e.theta, e.free)),
-            (EivOutcome::Eiv, _, Some(e)) if d.refit => Some((start.theta, e.free)),
-            _ => None,
+        // own (neither plausible: the fallback is unchecked); the batch
+        // G-N start after a refit.
+        let other = match d.eiv_result {
+            EivOutcome::BatchGnFallback => {
+                if let Some(r) = released {
+                    released_held = r.held.clone();
+                    Some((r.theta, r.free))
+                } else if let Some(e) = eiv {
+                    Some((e.theta, e.free))
+                } else {
+                    unchecked = d.eiv.as_ref().map(|e| fallback_unchecked(e, opts));
+                    None
+                }
+            }
+            EivOutcome::Eiv if d.refit => eiv.map(|e| (start.theta, e.free)),
+            EivOutcome::Eiv => None,
         };
-        if let (EivOutcome::BatchGnFallback, Some(r)) = (d.eiv_result, released) {
-            released_held = r.held.clone();
-        }
-        if let (EivOutcome::BatchGnFallback, None, None, Some(e)) = (d.eiv_result, released, eiv, d.eiv.as_ref()) {
-            unchecked = Some(fallback_unchecked(e, opts));
-        }
         if let Some((other, other_free)) = other {
             let (a, b) = (other.to_array(), theta.to_array());
             for i in 0..4 {
