@@ -5,8 +5,16 @@
 //! instruction set. Both builds compile the same Rust code and give results
 //! identical to the bit; the choice changes speed only.
 
+/// Whether to run the AVX2 build: the CPU has AVX2 (and FMA when
+/// `with_fma`) and `ODOCAL_SIMD=baseline` (any case) does not ask for the
+/// baseline build. Decided once per process for each of the two answers.
+pub(crate) fn use_avx2(with_fma: bool) -> bool {
+    static CHOICE: [std::sync::OnceLock<bool>; 2] = [std::sync::OnceLock::new(), std::sync::OnceLock::new()];
+    *CHOICE[usize::from(with_fma)].get_or_init(|| !baseline_forced() && avx2_available(with_fma))
+}
+
 /// True when `ODOCAL_SIMD=baseline` (any case) asks for the baseline build.
-pub(crate) fn baseline_forced() -> bool {
+fn baseline_forced() -> bool {
     std::env::var("ODOCAL_SIMD").is_ok_and(|s| s.eq_ignore_ascii_case("baseline"))
 }
 

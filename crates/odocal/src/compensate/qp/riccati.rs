@@ -922,8 +922,7 @@ impl QpSolver for StructuredSolver {
 /// to the bit (test `avx2_build_equals_the_baseline_to_the_bit`); AVX2's
 /// three-operand, four-wide instructions need fewer register copies.
 fn use_avx2() -> bool {
-    static CHOICE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *CHOICE.get_or_init(|| !crate::simd::baseline_forced() && crate::simd::avx2_available(false))
+    crate::simd::use_avx2(false)
 }
 
 impl StructuredSolver {

@@ -65,20 +65,11 @@ pub(crate) enum Kernels {
 /// four-wide registers make the covariance kernels about 1.3× faster
 /// (docs/performance.md).
 pub(crate) fn kernels() -> Kernels {
-    static CHOICE: std::sync::OnceLock<Kernels> = std::sync::OnceLock::new();
-    *CHOICE.get_or_init(|| {
-        if !crate::simd::baseline_forced() && avx2_available() {
-            Kernels::Avx2
-        } else {
-            Kernels::Baseline
-        }
-    })
-}
-
-/// Whether the running CPU has AVX2 and FMA, which the kernels' AVX2 build
-/// needs.
-pub(crate) fn avx2_available() -> bool {
-    crate::simd::avx2_available(true)
+    if crate::simd::use_avx2(true) {
+        Kernels::Avx2
+    } else {
+        Kernels::Baseline
+    }
 }
 
 /// [`run_window_baseline`] compiled for AVX2 and FMA: the window loop and
@@ -86,7 +77,8 @@ pub(crate) fn avx2_available() -> bool {
 /// compiled for them.
 ///
 /// # Safety
-/// The running CPU must support AVX2 and FMA ([`avx2_available`]).
+/// The running CPU must support AVX2 and FMA
+/// ([`crate::simd::avx2_available`]).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 pub(crate) fn run_window_avx2(

@@ -45,9 +45,9 @@ mod window;
 use nalgebra::{SMatrix, SVector};
 
 use super::InputJacobian;
-#[cfg(test)]
-pub(crate) use dispatch::{avx2_available, run_window_avx2, run_window_baseline};
 pub(crate) use dispatch::{kernels, run_window, Kernels};
+#[cfg(test)]
+pub(crate) use dispatch::{run_window_avx2, run_window_baseline};
 #[cfg(test)]
 pub(crate) use sums::InnovationRecord;
 pub(crate) use sums::{BlockScores, WindowSums};

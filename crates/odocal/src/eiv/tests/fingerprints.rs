@@ -192,7 +192,7 @@ fn avx2_kernels_equal_the_baseline_to_the_bit() {
     let th = Theta { c_e: 1.953, c_d: -0.0015, t_r: 1.52, d: 0.0009 };
     let th_ref = Theta { c_e: 1.96, c_d: -0.001, d: 0.0012, ..th };
     let eta = [0.3, -0.5, 0.2, -0.2, 0.4, 0.25];
-    if !filter::avx2_available() {
+    if !crate::simd::avx2_available(true) {
         eprintln!("this CPU has no AVX2 + FMA: only the baseline kernels can run here");
         return;
     }
@@ -212,7 +212,7 @@ fn avx2_kernels_equal_the_baseline_to_the_bit() {
                 let base =
                     filter::run_window_baseline(&input, &w, &th, &th_ref, &v, mode, Some(&mut rb)).expect("window");
                 #[cfg(target_arch = "x86_64")]
-                // SAFETY: `avx2_available()` was checked above.
+                // SAFETY: `avx2_available(true)` (AVX2 and FMA) was checked above.
                 #[allow(unsafe_code)]
                 let avx2 = unsafe { filter::run_window_avx2(&input, &w, &th, &th_ref, &v, mode, Some(&mut ra)) }
                     .expect("window");
