@@ -96,7 +96,6 @@ pub fn calibrate_cmd(a: CalibrateArgs, bars: &Bars) -> Result<Outcome> {
     }
     let others = load_validation_drives(&a.calibration.validate_on)?;
     let fingerprints = distinct_drives(&a.drive, &drives, &others)?;
-    let manifest = ManifestSettings::merge(&manifests)?;
     let first = &a.drive[0];
     let (drive, truth) = if drives.len() == 1 {
         let truth = load_truth(first, &drives[0]).map(|s| s.theta_true);
@@ -110,7 +109,7 @@ pub fn calibrate_cmd(a: CalibrateArgs, bars: &Bars) -> Result<Outcome> {
         drive: &drive,
         input: a.drive.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "),
         source: Some((first.as_path(), wheel_scale.as_deref())),
-        manifest: manifest.as_ref(),
+        manifests: &manifests,
         truth,
         others,
         fingerprints,
@@ -155,7 +154,7 @@ pub fn demo_cmd(a: DemoArgs, bars: &Bars) -> Result<Outcome> {
         drive: &sim.drive,
         input: "simulated drive".into(),
         source: None,
-        manifest: None,
+        manifests: &[],
         truth: Some(sim.sidecar.theta_true),
         others,
         fingerprints,
@@ -220,8 +219,8 @@ struct Job<'a> {
     /// circumference) when the drive came from a manifest; `None` for a
     /// simulated drive.
     source: Option<(&'a Path, Option<&'a str>)>,
-    /// The manifests' calibration settings.
-    manifest: Option<&'a ManifestSettings>,
+    /// The calibration settings of the drives' manifests.
+    manifests: &'a [ManifestSettings],
     /// The true θ, for a simulated drive (or one whose sidecar is bound to it).
     truth: Option<Theta>,
     /// The `--validate-on` drives.
@@ -238,12 +237,12 @@ struct Job<'a> {
 
 /// Calibrates the job's drive and writes every report asked for.
 fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, bars: &Bars) -> Result<Outcome> {
-    let Job { drive, input, source, manifest, truth: truth_theta, others, fingerprints, separate, history } = job;
+    let Job { drive, input, source, manifests, truth: truth_theta, others, fingerprints, separate, history } = job;
     let settings = args.settings()?;
-    let resolved = settings.resolve(manifest, Caller::CommandLine)?;
+    let resolved = settings.resolve(manifests, Caller::CommandLine)?;
     let (opts, account) = (&resolved.options, &resolved.account);
     // The extrinsics the command line gives apply to every validation drive.
-    let given = settings.stated_extrinsics();
+    let given = resolved.given_extrinsics;
     let holdout = holdout(args.holdout, &others)?;
     // The data the report's validation ran on (truth and HTML report).
     let split = holdout.as_ref().map(|h| h.split(drive)).transpose()?;

@@ -11,7 +11,6 @@ use pyo3::types::PyDict;
 
 use odocal::settings::{Caller, ManifestSettings, Resolved, Settings};
 use odocal::Drive;
-use odocal::ParamSet;
 use odocal::ReferenceSpec;
 use odocal::{Holdout, Progress};
 
@@ -30,9 +29,6 @@ struct CalibrationPlan {
     /// The `validate_on` drives one by one (several: Ē_p per drive too),
     /// each with its manifest's `[reference]`.
     validate_on: Vec<(Arc<Drive>, Option<ReferenceSpec>)>,
-    /// The extrinsic parameters the keywords give (`lever_arm`,
-    /// `heading_offset`): they apply to every validation drive.
-    given_extrinsics: ParamSet,
     /// Carry an estimated heading offset to the `validate_on` drives
     /// (`carry_heading_offset=True`) instead of re-estimating each drive's.
     carry_heading_offset: bool,
@@ -77,7 +73,7 @@ fn validation_drives(v: &Bound<'_, PyAny>) -> PyResult<ValidationDrives> {
 fn plan(
     method: Option<&str>,
     kwargs: Option<&Bound<'_, PyDict>>,
-    manifest: Option<&ManifestSettings>,
+    manifests: &[ManifestSettings],
 ) -> PyResult<CalibrationPlan> {
     let mut keys = serde_json::Map::new();
     if let Some(m) = method {
@@ -114,13 +110,12 @@ fn plan(
         }));
     }
     let settings = Settings::from_json(serde_json::Value::Object(keys)).map_err(lib_err)?;
-    let resolved = settings.resolve(manifest, Caller::Python).map_err(lib_err)?;
+    let resolved = settings.resolve(manifests, Caller::Python).map_err(lib_err)?;
     let (validate_on, validate_on_drives) = validate_on.unzip();
     Ok(CalibrationPlan {
         resolved,
         holdout: holdout.or(validate_on),
         validate_on: validate_on_drives.unwrap_or_default(),
-        given_extrinsics: settings.stated_extrinsics(),
         carry_heading_offset,
     })
 }
@@ -151,7 +146,7 @@ fn calibrate_json(
         (true, None) => run.run()?,
         (false, _) => odocal::Calibration {
             validate_on: &validation,
-            given: plan.given_extrinsics,
+            given: plan.resolved.given_extrinsics,
             carry_heading_offset: plan.carry_heading_offset,
             ..run
         }
@@ -199,8 +194,7 @@ pub(crate) fn calibrate<'py>(
     };
     let settings: Vec<ManifestSettings> =
         provs.iter().map(Provenance::settings).collect::<PyResult<Vec<_>>>()?.into_iter().flatten().collect();
-    let manifest = ManifestSettings::merge(&settings).map_err(lib_err)?;
-    let plan = plan(method, options, manifest.as_ref())?;
+    let plan = plan(method, options, &settings)?;
     // Several drives: no single truth (as the CLI); how to read c_e from the first that says.
     let prov = match provs.as_slice() {
         [one] => one.clone(),

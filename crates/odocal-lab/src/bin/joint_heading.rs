@@ -30,7 +30,7 @@ fn load_with_options(rel: &str) -> Res<(Drive, CalibrationOptions)> {
     let path = repo_path(rel);
     let (drive, report) = odocal::load_drive(&path).map_err(|e| format!("{}: {e}", path.display()))?;
     let manifest = report.as_ref().map(ManifestSettings::of_report).transpose()?;
-    let options = Settings::default().resolve(manifest.as_ref(), Caller::CommandLine)?.options;
+    let options = Settings::default().resolve(manifest.as_slice(), Caller::CommandLine)?.options;
     Ok((drive, options))
 }
 

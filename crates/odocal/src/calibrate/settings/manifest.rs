@@ -143,7 +143,7 @@ impl ManifestSettings {
     ///
     /// # Errors
     /// [`Error::InvalidOption`] naming the two manifests that differ.
-    pub fn merge<'a>(all: impl IntoIterator<Item = &'a ManifestSettings>) -> Result<Option<ManifestSettings>> {
+    pub(crate) fn merge<'a>(all: impl IntoIterator<Item = &'a ManifestSettings>) -> Result<Option<ManifestSettings>> {
         let mut out: Option<ManifestSettings> = None;
         for s in all.into_iter().filter(|s| !s.is_empty()) {
             match &out {

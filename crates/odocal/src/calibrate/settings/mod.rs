@@ -139,7 +139,7 @@ settings! {
     /// let both = caller.clone().over(manifest);
     /// assert_eq!(both.fix, caller.fix); // the caller's value wins
     /// assert_eq!(both.segment_length, Some(400));
-    /// let options = both.resolve(None, Caller::Python)?.options;
+    /// let options = both.resolve(&[], Caller::Python)?.options;
     /// assert_eq!(options.segments.length_steps, 400);
     /// # Ok(()) }
     /// ```
@@ -338,10 +338,9 @@ impl Settings {
     }
 
     /// The extrinsic parameters these settings state values of
-    /// (`lever_arm`: lever_x and lever_y, `heading_offset`): given by the
-    /// caller, they apply to every validation drive too
-    /// (docs/guide.md, "Several drives of one vehicle").
-    pub fn stated_extrinsics(&self) -> ParamSet {
+    /// (`lever_arm`: lever_x and lever_y, `heading_offset`;
+    /// [`Resolved::given_extrinsics`]).
+    pub(crate) fn stated_extrinsics(&self) -> ParamSet {
         let mut s = ParamSet::EMPTY;
         if self.lever_arm.is_some() {
             s = s.union(ParamSet::LEVER_ARM);

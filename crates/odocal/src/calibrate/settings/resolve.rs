@@ -230,19 +230,29 @@ pub struct Resolved {
     pub options: CalibrationOptions,
     /// What became of the manifest's settings.
     pub account: SettingsAccount,
+    /// The extrinsic parameters the caller's settings state values of
+    /// (`lever_arm`: lever_x and lever_y, `heading_offset`): they apply to
+    /// every validation drive too (docs/guide.md, "Several drives of one
+    /// vehicle"), where a manifest's apply to its own drive only.
+    pub given_extrinsics: ParamSet,
 }
 
 impl Settings {
     /// The calibration options of these settings, the caller's, over the
-    /// `manifest`'s, over the defaults, and what became of each manifest
-    /// setting. A key the method does not use is an error when the caller
-    /// gives it and ignored (saying so) when the manifest does.
+    /// `manifests`' (those of the drives fitted jointly, which must agree;
+    /// a manifest that states none agrees with any), over the defaults, and what became of
+    /// each manifest setting. A key the method does not use is an error
+    /// when the caller gives it and ignored (saying so) when the manifest
+    /// does.
     ///
     /// # Errors
-    /// [`Error::InvalidFlags`] (command line) or [`Error::InvalidOption`]
-    /// (Python) naming the caller's key of another method; the errors of
-    /// `Settings::to_options`.
-    pub fn resolve(&self, manifest: Option<&ManifestSettings>, caller: Caller) -> Result<Resolved> {
+    /// [`Error::InvalidOption`] naming two manifests that state different
+    /// settings; [`Error::InvalidFlags`] (command line) or
+    /// [`Error::InvalidOption`] (Python) naming the caller's key of another
+    /// method; the errors of `Settings::to_options`.
+    pub fn resolve(&self, manifests: &[ManifestSettings], caller: Caller) -> Result<Resolved> {
+        let merged = ManifestSettings::merge(manifests)?;
+        let manifest = merged.as_ref();
         let stated = manifest.map(|m| m.settings.clone()).unwrap_or_default();
         let method = self.method.clone().or_else(|| stated.method.clone()).unwrap_or_default();
         self.check_method_keys(&method, caller)?;
@@ -277,7 +287,8 @@ impl Settings {
             (None, _) => "the production-car defaults (no --noise-model, no manifest [noise])".into(),
         });
         let options = self.clone().over(used).to_options(caller)?;
-        Ok(Resolved { options, account: SettingsAccount { caller, uses, noise_model_origin } })
+        let account = SettingsAccount { caller, uses, noise_model_origin };
+        Ok(Resolved { options, account, given_extrinsics: self.stated_extrinsics() })
     }
 
     /// The error for the first set of keys these settings state that

@@ -285,7 +285,7 @@ fn outcomes(r: &Resolved) -> Vec<(&str, SettingOutcome)> {
 }
 
 fn resolve(caller: serde_json::Value, m: &ManifestSettings) -> Resolved {
-    json_settings(caller).resolve(Some(m), Caller::CommandLine).expect("resolves")
+    json_settings(caller).resolve(std::slice::from_ref(m), Caller::CommandLine).expect("resolves")
 }
 
 #[test]
@@ -371,6 +371,7 @@ fn the_lateral_noise_and_the_heading_offset_follow_who_states_them() {
     let r = resolve(json!({}), &held);
     assert!(matches!(&r.options.method, Method::Eiv(m) if !m.estimate_heading_offset));
     let r = resolve(json!({"heading_offset": 0.02}), &ManifestSettings::default());
+    assert_eq!(r.given_extrinsics, ParamSet::EMPTY.with(Param::HeadingOffset), "the caller's apply to every drive");
     assert!(matches!(&r.options.method, Method::Eiv(m) if !m.estimate_heading_offset));
     let r = resolve(json!({}), &ManifestSettings::default());
     assert!(matches!(&r.options.method, Method::Eiv(m) if m.estimate_heading_offset));
@@ -442,6 +443,10 @@ fn drives_fitted_jointly_must_agree() {
     };
     let e = ManifestSettings::merge([&a, &other]).expect_err("differ").to_string();
     assert!(e.contains("m.toml and c.toml state different"), "{e}");
+    let e = Settings::default().resolve(&[a.clone(), other], Caller::Python).expect_err("differ").to_string();
+    assert!(e.contains("m.toml and c.toml state different"), "resolve merges them: {e}");
+    let r = Settings::default().resolve(&[none, a.clone(), same], Caller::Python).expect("agree");
+    assert_eq!(r, Settings::default().resolve(std::slice::from_ref(&a), Caller::Python).expect("one"));
     let keep = ManifestSettings { settings: Settings { keep_one_way: Some(false), ..a.settings.clone() }, ..a.clone() };
     assert!(ManifestSettings::merge([&a, &keep]).is_err(), "[calibration] too");
 }
