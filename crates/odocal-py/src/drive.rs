@@ -12,7 +12,6 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList, PyString};
 
 use odocal::settings::ManifestSettings;
-use odocal::settings::{CalibrationTable, NoiseTable};
 use odocal::sim::SimSidecar;
 use odocal::{Drive, DriveBuilder, ExtraColumn, ExtraValues, Signals};
 
@@ -42,20 +41,9 @@ impl Provenance {
     /// back from the import report (so they survive pickling with it).
     pub(crate) fn settings(&self) -> PyResult<Option<ManifestSettings>> {
         let Some(text) = &self.import_report else { return Ok(None) };
-        let bad = |e: serde_json::Error| PyRuntimeError::new_err(format!("import report: {e}"));
-        let v: serde_json::Value = serde_json::from_str(text).map_err(bad)?;
-        let field = |k: &str| v.get(k).filter(|x| !x.is_null()).cloned();
-        let noise: Option<NoiseTable> = field("noise").map(serde_json::from_value).transpose().map_err(bad)?;
-        let calibration: Option<CalibrationTable> =
-            field("calibration").map(serde_json::from_value).transpose().map_err(bad)?;
-        let settings = ManifestSettings::new(
-            field("manifest").map(serde_json::from_value).transpose().map_err(bad)?.unwrap_or_default(),
-            noise.as_ref(),
-            field("reference").map(serde_json::from_value).transpose().map_err(bad)?,
-            calibration.as_ref(),
-        )
-        .map_err(lib_err)?;
-        Ok(Some(settings))
+        let v: serde_json::Value =
+            serde_json::from_str(text).map_err(|e| PyRuntimeError::new_err(format!("import report: {e}")))?;
+        ManifestSettings::of_report_json(&v).map(Some).map_err(lib_err)
     }
 }
 

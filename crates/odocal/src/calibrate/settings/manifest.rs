@@ -89,7 +89,7 @@ impl ManifestSettings {
     ///
     /// # Errors
     /// [`Error::Manifest`] for a bad `[noise]` or `[calibration]` table.
-    pub fn new(
+    pub(crate) fn new(
         manifest: PathBuf,
         noise: Option<&NoiseTable>,
         reference: Option<ReferenceSpec>,
@@ -121,6 +121,27 @@ impl ManifestSettings {
     /// [`Error::Manifest`] for a bad `[noise]` or `[calibration]` table.
     pub fn of_report(r: &ImportReport) -> Result<Self> {
         Self::new(r.manifest.clone(), r.noise.as_ref(), r.reference.clone(), r.calibration.as_ref())
+    }
+
+    /// The calibration settings of an imported manifest from its import
+    /// report as JSON ([`import_report_json`]; the Python package keeps a
+    /// drive's import report so, and a pickled drive carries it).
+    ///
+    /// # Errors
+    /// [`Error::Json`] when `report` is not an import report's JSON;
+    /// [`Error::Manifest`] for a bad `[noise]` or `[calibration]` table.
+    pub fn of_report_json(report: &serde_json::Value) -> Result<Self> {
+        let bad = |source| Error::Json { context: "import report".into(), source };
+        let field = |k: &str| report.get(k).filter(|x| !x.is_null()).cloned();
+        let manifest: PathBuf = match field("manifest") {
+            Some(m) => serde_json::from_value(m).map_err(bad)?,
+            None => PathBuf::new(),
+        };
+        let noise: Option<NoiseTable> = field("noise").map(serde_json::from_value).transpose().map_err(bad)?;
+        let calibration: Option<CalibrationTable> =
+            field("calibration").map(serde_json::from_value).transpose().map_err(bad)?;
+        let reference = field("reference").map(serde_json::from_value).transpose().map_err(bad)?;
+        Self::new(manifest, noise.as_ref(), reference, calibration.as_ref())
     }
 
     /// True when the manifest states none.

@@ -196,6 +196,11 @@ fn noise_and_reference_tables_parse_and_are_carried_on_the_import_report() {
     let reference = serde_json::from_value(json["reference"].clone()).expect("reference");
     let s2 = ManifestSettings::new(path.clone(), Some(&noise), Some(reference), Some(&again)).expect("settings");
     assert_eq!(s2, from_manifest);
+    // So does the JSON the Python package keeps (`import_report_json`).
+    let kept = import_report_json(&report).expect("json");
+    assert_eq!(ManifestSettings::of_report_json(&kept).expect("settings"), s);
+    let e = ManifestSettings::of_report_json(&json!({"noise": 3})).expect_err("not a table").to_string();
+    assert!(e.contains("import report"), "{e}");
 }
 
 #[test]
