@@ -67,11 +67,11 @@ pub fn name_drive(e: odocal::Error, path: &Path) -> odocal::Error {
 /// records this drive's fingerprint; a sidecar of another drive is ignored
 /// with a note on stderr.
 pub fn load_truth(drive_path: &Path, drive: &Drive) -> Option<SimSidecar> {
-    let m = sim::sidecar_for(drive_path, drive);
-    if let Some(note) = &m.note {
+    let (sidecar, note) = sim::sidecar_for(drive_path, drive);
+    if let Some(note) = note {
         eprintln!("note: {note}");
     }
-    m.sidecar
+    sidecar
 }
 
 /// Writes a JSON report with its `schema_version` and, when a manifest

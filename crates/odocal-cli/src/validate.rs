@@ -1,7 +1,7 @@
 //! `odocal validate`: Ē_p of a given θ on a drive's validation segments,
 //! and optionally the reachable minimum of Ē_p.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 use clap::Args;
@@ -69,12 +69,9 @@ pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<()> {
     let mut opts = ValidateOptions::default();
     // A manifest's [reference]: the drive's own mount.
     let stated = settings.as_ref().and_then(|s| s.reference.as_ref()).map(|r| r.extrinsics());
-    if let Some(x) = stated {
-        opts.extrinsics = x;
-    }
-    let extrinsics_from = theta_file_extrinsics(&a, stated.as_ref(), &mut opts);
-    opts.reestimate_heading_offset =
-        !a.carry_heading_offset && a.theta.file.as_ref().is_some_and(|(_, f)| f.estimated_heading_offset());
+    let file = a.theta.file.as_ref();
+    let from_file = opts.set_extrinsics(file.map(|(_, f)| f), stated.as_ref(), a.carry_heading_offset);
+    let extrinsics_from = extrinsics_source(file.map(|(p, _)| p.as_path()), &from_file);
     if let Some(v) = a.validation_length {
         opts.segments.length_steps = v;
         opts.segments.stride_steps = (v / 2).max(1);
@@ -106,13 +103,11 @@ pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<()> {
     Ok(())
 }
 
-/// A parameter file's extrinsics, as `--validate-on` takes a calibration's:
-/// sets them in `opts` and returns where the extrinsics in force came from.
-fn theta_file_extrinsics(a: &ValidateArgs, stated: Option<&odocal::Extrinsics>, opts: &mut ValidateOptions) -> String {
+/// Where the extrinsics in force came from: the `--theta` parameter file
+/// (`path`) for those in `from_file`, the drive's manifest for the rest.
+fn extrinsics_source(path: Option<&Path>, from_file: &[&str]) -> String {
     let manifest = "the drive's manifest [reference]".to_string();
-    let Some((path, f)) = &a.theta.file else { return manifest };
-    let (x, from_file) = f.extrinsics_for_drive(stated);
-    opts.extrinsics = x;
+    let Some(path) = path else { return manifest };
     if from_file.len() == 3 {
         path.display().to_string()
     } else if from_file.is_empty() {

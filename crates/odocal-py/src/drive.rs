@@ -146,10 +146,10 @@ fn signals_from_state(cols: Vec<Vec<u8>>) -> PyResult<Signals> {
 /// drive among them).
 fn read_csv_with_sidecar(path: &std::path::Path) -> odocal::Result<(Drive, Provenance, Vec<String>)> {
     let (drive, mut warnings) = Drive::read_csv(path)?;
-    let sidecar = odocal::sim::sidecar_for(path, &drive);
-    warnings.extend(sidecar.note);
+    let (sidecar, note) = odocal::sim::sidecar_for(path, &drive);
+    warnings.extend(note);
     let source = Some(path.display().to_string());
-    Ok((drive, Provenance { sidecar: sidecar.sidecar, source, ..Default::default() }, warnings))
+    Ok((drive, Provenance { sidecar, source, ..Default::default() }, warnings))
 }
 
 fn read_manifest(path: &std::path::Path) -> odocal::Result<(Drive, Provenance)> {

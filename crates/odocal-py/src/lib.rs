@@ -95,16 +95,9 @@ fn validate<'py>(
         opts.segments.stride_steps = (k / 2).max(1);
     }
     // A manifest's [reference]: the drive's own mount (as `odocal validate`);
-    // a parameter file's estimated extrinsics win (ParamFile::extrinsics_for_drive).
+    // a parameter file's estimated extrinsics win (ValidateOptions::set_extrinsics).
     let stated = drive.get().prov.settings()?.and_then(|s| s.reference).map(|r| r.extrinsics());
-    if let Some(x) = stated {
-        opts.extrinsics = x;
-    }
-    if let Some(f) = &file {
-        opts.extrinsics = f.extrinsics_for_drive(stated.as_ref()).0;
-        // An estimated heading offset is the reference's per-drive bias: fitted on this drive.
-        opts.reestimate_heading_offset = !carry_heading_offset && f.estimated_heading_offset();
-    }
+    opts.set_extrinsics(file.as_ref(), stated.as_ref(), carry_heading_offset);
     let inner = Arc::clone(&drive.get().drive);
     let report =
         py.detach(|| with_threads(threads, || odocal::validate(&inner, &theta, &opts, None)))?.map_err(lib_err)?;

@@ -12,6 +12,7 @@ use super::reachable::{reachable_minimum, ReachableOptions, ReachableReport};
 use crate::drive::segment::{validation_segments, ValidationSegmentOptions};
 use crate::drive::Drive;
 use crate::error::Result;
+use crate::io::param_file::ParamFile;
 use crate::model::extrinsics::Extrinsics;
 use crate::model::Theta;
 use crate::progress::ProgressFn;
@@ -36,6 +37,48 @@ pub struct ValidateOptions {
     /// θ comes from a calibration that estimated δ. Default false (δ as given).
     #[serde(default)]
     pub reestimate_heading_offset: bool,
+}
+
+impl ValidateOptions {
+    /// Sets the reference extrinsics to validate a calibration's θ with on
+    /// a drive, by the rules of docs/guide.md, "Several drives of one
+    /// vehicle": the drive's own mount (`drive_reference`, its manifest's
+    /// `[reference]`), except the extrinsics the calibration estimated (in
+    /// its parameter `file` with a σ), which are the sensor's and hold for
+    /// every drive of the vehicle; without a drive reference, the file's
+    /// values. When the calibration estimated the heading offset, the
+    /// drive's own is re-estimated ([`Self::reestimate_heading_offset`])
+    /// unless `carry_heading_offset`. Returns the names of the extrinsics
+    /// taken from the file.
+    ///
+    /// ```
+    /// use odocal::{Extrinsics, ParamFile, Theta, ValidateOptions};
+    /// let file = ParamFile::from_theta(&Theta::PAPER_NOMINAL, [None; 4], "drive.csv", "eiv");
+    /// let mount = Extrinsics { lever_x: 0.5, ..Extrinsics::ZERO };
+    /// let mut opts = ValidateOptions::default();
+    /// // Extrinsics the calibration did not estimate give way to the drive's own mount.
+    /// assert!(opts.set_extrinsics(Some(&file), Some(&mount), false).is_empty());
+    /// assert_eq!(opts.extrinsics, mount);
+    /// // Without one, the file's values (0 for those it lacks).
+    /// assert_eq!(opts.set_extrinsics(Some(&file), None, false), ["lever_x", "lever_y", "heading_offset"]);
+    /// assert_eq!(opts.extrinsics, Extrinsics::ZERO);
+    /// assert!(!opts.reestimate_heading_offset);
+    /// ```
+    pub fn set_extrinsics(
+        &mut self,
+        file: Option<&ParamFile>,
+        drive_reference: Option<&Extrinsics>,
+        carry_heading_offset: bool,
+    ) -> Vec<&'static str> {
+        if let Some(x) = drive_reference {
+            self.extrinsics = *x;
+        }
+        let Some(f) = file else { return Vec::new() };
+        let (x, from_file) = f.extrinsics_for_drive(drive_reference);
+        self.extrinsics = x;
+        self.reestimate_heading_offset = !carry_heading_offset && f.estimated_heading_offset();
+        from_file
+    }
 }
 
 /// The `validate` report (SPEC §9): Ē_p of θ and, when asked, the reachable

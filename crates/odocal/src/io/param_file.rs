@@ -431,7 +431,7 @@ impl ParamFile {
     /// True when the calibration estimated the reference's heading offset
     /// (it has a σ): validation then re-estimates each drive's own
     /// ([`crate::ValidateOptions::reestimate_heading_offset`]) unless told to carry it.
-    pub fn estimated_heading_offset(&self) -> bool {
+    pub(crate) fn estimated_heading_offset(&self) -> bool {
         self.extrinsics().1.contains(Param::HeadingOffset)
     }
 
@@ -441,7 +441,7 @@ impl ParamFile {
     /// vehicle; a held one gives way to what the drive's own manifest states
     /// (`drive_reference`, its `[reference]`), else the file's value. Also
     /// returns the names of those taken from the file.
-    pub fn extrinsics_for_drive(&self, drive_reference: Option<&Extrinsics>) -> (Extrinsics, Vec<&'static str>) {
+    pub(crate) fn extrinsics_for_drive(&self, drive_reference: Option<&Extrinsics>) -> (Extrinsics, Vec<&'static str>) {
         let (file, estimated) = self.extrinsics();
         let (file, mut v) = (file.to_array(), drive_reference.copied().unwrap_or(Extrinsics::ZERO).to_array());
         let mut from_file = Vec::new();

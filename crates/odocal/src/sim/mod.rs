@@ -85,7 +85,7 @@ use options::invalid;
 pub(crate) use options::SpeedOptions;
 pub use options::{CdStep, DriftOptions, NoiseOptions, SimOptions};
 use route::{build_route, stream, Encoder, GaussMarkov, Route, SpeedProfile, White};
-pub use truth::{sidecar_file, sidecar_for, SidecarMatch};
+pub use truth::{sidecar_file, sidecar_for};
 pub use world::{NoiseRegime, WorldSummary};
 
 /// Grid step of the speed profile along the route, m.
