@@ -277,8 +277,7 @@ fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, ba
         f.node = args.params_node.clone();
         f.mapping = args.params_mapping;
         f.provenance.push(("fingerprint".into(), prints.clone()));
-        let text = if is_stdout(p) { f.to_ros2_yaml() } else { f.text_for(p)? };
-        write_text(p, &text)?;
+        write_text(p, &f.text_for(p)?)?;
     }
     if let Some(p) = &args.report {
         // The drives the segments come from: the --validate-on drives, or

@@ -327,7 +327,7 @@ pub fn render_html(r: &ReportInput<'_>) -> Result<String> {
 }
 
 /// Renders the report and writes it to `path`, atomically
-/// ([`odocal::output::write_atomically`]).
+/// ([`odocal::output::write_text`]).
 ///
 /// # Errors
 /// As [`render_html`], and [`ReportError::Io`].

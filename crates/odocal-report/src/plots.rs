@@ -273,7 +273,7 @@ pub fn figure_svg(title: &str, size: (u32, u32), grid: (usize, usize), panels: &
 }
 
 /// Writes an SVG figure of `rows × cols` panels (row-major) under a title,
-/// atomically ([`odocal::output::write_atomically`]).
+/// atomically ([`odocal::output::write_text`]).
 pub fn figure(path: &Path, title: &str, size: (u32, u32), grid: (usize, usize), panels: &[Panel]) -> Result<()> {
     let mut svg = String::new();
     draw_figure(

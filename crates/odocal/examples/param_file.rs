@@ -25,7 +25,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // `.yaml` writes the ROS 2 `ros__parameters` layout, `.json` JSON.
     let file = report.param_file(fit);
     file.write(Path::new(out))?;
-    println!("{}", file.to_ros2_yaml());
+    print!("{}", std::fs::read_to_string(out)?);
 
     // Read back: the same θ, to the printed precision of the file.
     let back = ParamFile::read(Path::new(out), None)?;

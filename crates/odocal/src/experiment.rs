@@ -211,7 +211,9 @@ pub struct Summary {
     pub median_abs_error_vs_true: Option<Theta>,
 }
 
-/// Fig. 6 numbers: the Table 1 segment, dead reckoning at θ_B,F.
+/// Fig. 6: the Table 1 segment, dead reckoning at θ_B,F; its numbers and
+/// its curves, `(time from the segment start in s, value)` (the curves are
+/// not serialised).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Figure6 {
     /// First sample of the segment.
@@ -226,26 +228,29 @@ pub struct Figure6 {
     pub mean_position_error_measured_m: f64,
     /// Mean position error of dead reckoning with compensated inputs, m.
     pub mean_position_error_compensated_m: f64,
-}
-
-/// Fig. 6 curves, `(time from the segment start in s, value)`.
-#[derive(Debug, Clone, PartialEq, Default)]
-pub struct Figure6Curves {
     /// Measured n_rl, rev/s.
+    #[serde(skip)]
     pub n_rl_measured: Vec<(f64, f64)>,
     /// Compensated n_rl, rev/s.
+    #[serde(skip)]
     pub n_rl_compensated: Vec<(f64, f64)>,
     /// True n_rl (simulated drives), rev/s.
+    #[serde(skip)]
     pub n_rl_true: Option<Vec<(f64, f64)>>,
     /// Measured n_rr, rev/s.
+    #[serde(skip)]
     pub n_rr_measured: Vec<(f64, f64)>,
     /// Compensated n_rr, rev/s.
+    #[serde(skip)]
     pub n_rr_compensated: Vec<(f64, f64)>,
     /// True n_rr, rev/s.
+    #[serde(skip)]
     pub n_rr_true: Option<Vec<(f64, f64)>>,
     /// Dead-reckoning position error with the measured inputs, m.
+    #[serde(skip)]
     pub pos_err_measured: Vec<(f64, f64)>,
     /// Dead-reckoning position error with the compensated inputs, m.
+    #[serde(skip)]
     pub pos_err_compensated: Vec<(f64, f64)>,
 }
 
@@ -321,11 +326,8 @@ pub struct Experiment {
     pub summary_segments_compensated: Summary,
     /// Step 2.
     pub compensation: CompensationStep,
-    /// Fig. 6 numbers.
+    /// Fig. 6.
     pub figure6: Figure6,
-    /// Fig. 6 curves (not serialised).
-    #[serde(skip)]
-    pub figure6_curves: Figure6Curves,
     /// The calibration's warnings.
     pub warnings: Vec<Warning>,
     /// Wall time per stage.
@@ -441,8 +443,7 @@ pub fn run(
     let pick = table1_pick(&det.selected, comp, init, &segs, &batches)?;
     let table1 = table1(&pick, comp, &segs, &batches, &ctx)?;
     // Figure 6: the Table 1 segment, dead reckoning at θ_B,F.
-    let (figure6, figure6_curves) =
-        figure6_data(drive, &segs.comp_data[pick.segment], &segs.raw_data[pick.raw_segment], &r.theta);
+    let figure6 = figure6_data(drive, &segs.comp_data[pick.segment], &segs.raw_data[pick.raw_segment], &r.theta);
 
     Ok(Experiment {
         segments: r.segments,
@@ -466,7 +467,6 @@ pub fn run(
         per_segment: segs.rows,
         compensation: comp.step.clone(),
         figure6,
-        figure6_curves,
         warnings: r.warnings.clone(),
         timing_s: timing,
     })
@@ -697,12 +697,7 @@ fn position_errors(seg: &SegmentData<'_>, theta: &Theta) -> Vec<(f64, f64)> {
         .collect()
 }
 
-fn figure6_data(
-    drive: &Drive,
-    comp: &SegmentData<'_>,
-    raw: &SegmentData<'_>,
-    theta: &Theta,
-) -> (Figure6, Figure6Curves) {
+fn figure6_data(drive: &Drive, comp: &SegmentData<'_>, raw: &SegmentData<'_>, theta: &Theta) -> Figure6 {
     let ts = drive.sample_time_s();
     let series = |v: &[f64]| -> Vec<(f64, f64)> { v.iter().enumerate().map(|(k, &n)| (k as f64 * ts, n)).collect() };
     let (a, k) = (raw.start, raw.steps());
@@ -718,26 +713,22 @@ fn figure6_data(
     let pm = position_errors(raw, theta);
     let pc = position_errors(comp, theta);
     let mean = |v: &[(f64, f64)]| v.iter().map(|p| p.1).sum::<f64>() / v.len().max(1) as f64;
-    (
-        Figure6 {
-            segment_start: a,
-            theta: *theta,
-            rms_measured_input_error_rev_per_s: tl.zip(tr).map(|(l, r)| rms(raw.n_rl, raw.n_rr, l, r)),
-            rms_compensated_input_error_rev_per_s: tl.zip(tr).map(|(l, r)| rms(comp.n_rl, comp.n_rr, l, r)),
-            mean_position_error_measured_m: mean(&pm),
-            mean_position_error_compensated_m: mean(&pc),
-        },
-        Figure6Curves {
-            n_rl_measured: series(raw.n_rl),
-            n_rl_compensated: series(comp.n_rl),
-            n_rl_true: tl.map(series),
-            n_rr_measured: series(raw.n_rr),
-            n_rr_compensated: series(comp.n_rr),
-            n_rr_true: tr.map(series),
-            pos_err_measured: pm,
-            pos_err_compensated: pc,
-        },
-    )
+    Figure6 {
+        segment_start: a,
+        theta: *theta,
+        rms_measured_input_error_rev_per_s: tl.zip(tr).map(|(l, r)| rms(raw.n_rl, raw.n_rr, l, r)),
+        rms_compensated_input_error_rev_per_s: tl.zip(tr).map(|(l, r)| rms(comp.n_rl, comp.n_rr, l, r)),
+        mean_position_error_measured_m: mean(&pm),
+        mean_position_error_compensated_m: mean(&pc),
+        n_rl_measured: series(raw.n_rl),
+        n_rl_compensated: series(comp.n_rl),
+        n_rl_true: tl.map(series),
+        n_rr_measured: series(raw.n_rr),
+        n_rr_compensated: series(comp.n_rr),
+        n_rr_true: tr.map(series),
+        pos_err_measured: pm,
+        pos_err_compensated: pc,
+    }
 }
 
 #[cfg(test)]
@@ -771,7 +762,7 @@ mod tests {
         assert!(e.final_estimate.mean_position_error_m >= e_min - 1e-9, "the minimum is seeded with θ_B,F");
         assert!(e.per_segment.iter().any(|s| s.compensated.is_some()));
         assert_eq!(e.figure6.segment_start, e.table1.segment_start);
-        assert_eq!(e.figure6_curves.pos_err_measured.len(), e.figure6_curves.n_rl_measured.len());
+        assert_eq!(e.figure6.pos_err_measured.len(), e.figure6.n_rl_measured.len());
         let err = e.final_estimate.error_vs_true.expect("truth known");
         assert!(err.c_e.abs() < 0.05, "{err:?}");
         let batch_gn = ExperimentOptions {

@@ -1,11 +1,11 @@
 //! Writing output files safely: every file odocal writes (drive CSVs,
-//! sidecars, reports, parameter files, figures) goes through
-//! [`write_atomically`], and every command checks its output paths against
+//! sidecars, reports, parameter files, figures) is written atomically (a
+//! front end's own text files with [`write_text`]), and every command checks its output paths against
 //! its inputs and each other first ([`check_collisions`]).
 //!
 //! # Atomic writes
 //!
-//! [`write_atomically`] writes to a temporary file in the target's folder
+//! An atomic write ([`write_text`], [`write_text_new`]) writes to a temporary file in the target's folder
 //! (`.NAME.XXXXXX.tmp`), flushes it, syncs it to disk and renames it over
 //! the target. A reader never sees a half-written file: an error (a full
 //! disk, a failing writer) leaves the previous file untouched and removes the
@@ -81,7 +81,7 @@ pub fn is_stdout(path: &Path) -> bool {
 /// # Errors
 /// [`Error::Io`] naming `path`: the folder cannot be written, `path` is a
 /// directory, or `write`, the flush, the sync or the rename failed.
-pub fn write_atomically<F>(path: &Path, write: F) -> Result<()>
+pub(crate) fn write_atomically<F>(path: &Path, write: F) -> Result<()>
 where
     F: FnOnce(&mut dyn Write) -> std::io::Result<()>,
 {
@@ -191,14 +191,25 @@ pub fn remove_temporary_files() {
     }
 }
 
-/// Writes `text` to `path` atomically ([`write_atomically`]), ending it with
-/// a newline when it does not end with one.
+/// Writes `text` to `path`, ending it with a newline when it does not end
+/// with one, atomically: to a temporary file in the same folder, flushed
+/// and synced, then renamed over `path`. When the write (or the disk)
+/// fails, `path` keeps its previous content (or stays absent) and no
+/// temporary file is left behind.
+///
+/// # Errors
+/// [`Error::Io`] naming `path`: the folder cannot be written, `path` is a
+/// directory, or the write, the flush, the sync or the rename failed.
 pub fn write_text(path: &Path, text: &str) -> Result<()> {
     write_atomically(path, |w| write_with_newline(w, text))
 }
 
-/// Writes `text` to a new file at `path` (as [`write_atomically`] does, but
-/// an existing file is never replaced), ending it with a newline.
+/// Writes `text` to a new file at `path` as [`write_text`] does, but never
+/// replaces one: the rename into place fails when `path` exists, also when
+/// it appeared while the file was being written (no check-then-write race).
+///
+/// # Errors
+/// As [`write_text`]; [`Error::Io`] of kind `AlreadyExists` when `path` exists.
 pub fn write_text_new(path: &Path, text: &str) -> Result<()> {
     write_new(path, |w| write_with_newline(w, text))
 }

@@ -3,7 +3,7 @@
 use std::path::Path;
 
 use anyhow::Result;
-use odocal::experiment::{Experiment, Figure6Curves};
+use odocal::experiment::Experiment;
 use odocal_report::plots::{self, figure, HLine, Panel, Series};
 
 use super::PARAMS;
@@ -18,8 +18,8 @@ pub const FIGURES: [&str; 5] = [
 ];
 
 /// Writes Fig. 4–8 into `dir`; returns their file names.
-pub fn write_figures(dir: &Path, e: &Experiment, c: &Figure6Curves) -> Result<Vec<String>> {
-    Ok(vec![fig4(dir, e)?, fig5(dir, e)?, fig6(dir, e, c)?, fig7(dir, e)?, fig8(dir, e)?])
+pub fn write_figures(dir: &Path, e: &Experiment) -> Result<Vec<String>> {
+    Ok(vec![fig4(dir, e)?, fig5(dir, e)?, fig6(dir, e)?, fig7(dir, e)?, fig8(dir, e)?])
 }
 
 /// The θ_true line of a parameter panel.
@@ -132,8 +132,8 @@ fn wheel_panel(title: &str, m: &[(f64, f64)], cc: &[(f64, f64)], tr: &Option<Vec
 }
 
 /// Fig. 6: wheel rotations and dead-reckoning errors on one segment.
-fn fig6(dir: &Path, e: &Experiment, c: &Figure6Curves) -> Result<String> {
-    let name = FIGURES[2];
+fn fig6(dir: &Path, e: &Experiment) -> Result<String> {
+    let (name, c) = (FIGURES[2], &e.figure6);
     let diffs = |x: &[(f64, f64)], t: &[(f64, f64)]| -> Vec<(f64, f64)> {
         x.iter().zip(t).map(|(a, b)| (a.0, a.1 - b.1)).collect()
     };

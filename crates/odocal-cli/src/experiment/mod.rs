@@ -118,7 +118,7 @@ pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
     timing.stages = exp.timing_s.clone();
 
     let t = Instant::now();
-    let figures = figures::write_figures(&a.out, &exp, &exp.figure6_curves)?;
+    let figures = figures::write_figures(&a.out, &exp)?;
     timing.figures = t.elapsed().as_secs_f64();
     timing.total = t_total.elapsed().as_secs_f64();
     let outputs = Outputs { drive: info, figures, timing };

@@ -450,7 +450,7 @@ impl Drive {
     /// `part` when there are several parts, and extra columns). Numbers are
     /// written in full precision (shortest round-trip form), so a write/read
     /// round trip is exact. The file is written atomically
-    /// ([`crate::output::write_atomically`]): an interrupted write leaves
+    /// ([`crate::output`]): an interrupted write leaves
     /// the previous file (or none), never a part of the drive.
     pub fn write_csv(&self, path: impl AsRef<Path>) -> Result<()> {
         crate::output::write_atomically(path.as_ref(), |w| self.write_csv_to(w))

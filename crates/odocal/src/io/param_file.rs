@@ -206,7 +206,7 @@ impl ParamFile {
 
     /// The ROS 2 parameter file (YAML). Numbers are written in shortest
     /// round-trip form, so reading them back gives the same f64.
-    pub fn to_ros2_yaml(&self) -> String {
+    pub(crate) fn to_ros2_yaml(&self) -> String {
         let mut y = String::new();
         let _ = writeln!(y, "# odocal calibration; units: SI (m, m/(m/s^2)); *_sigma = 1 standard deviation");
         let _ = writeln!(y, "{}:", yaml_key(&self.node));
@@ -264,7 +264,7 @@ impl ParamFile {
     }
 
     /// Writes YAML for a `.yaml`/`.yml` path, JSON for `.json`, atomically
-    /// ([`crate::output::write_atomically`]).
+    /// ([`crate::output::write_text`]).
     ///
     /// # Errors
     /// [`Error::InvalidOption`] for another extension, [`Error::Io`].
@@ -272,12 +272,17 @@ impl ParamFile {
         crate::output::write_text(path, &self.text_for(path)?)
     }
 
-    /// The text [`ParamFile::write`] writes to `path`: YAML for a
-    /// `.yaml`/`.yml` path, JSON for `.json`.
+    /// The text [`ParamFile::write`] writes to `path`: the ROS 2 parameter
+    /// file (YAML) for a `.yaml`/`.yml` path and for `-` (stdout, where a
+    /// front end writes it), JSON for `.json`. Numbers are written in
+    /// shortest round-trip form, so reading them back gives the same f64.
     ///
     /// # Errors
     /// [`Error::InvalidOption`] for another extension.
     pub fn text_for(&self, path: &Path) -> Result<String> {
+        if crate::output::is_stdout(path) {
+            return Ok(self.to_ros2_yaml());
+        }
         Ok(match FileFormat::of(path) {
             Some(FileFormat::Yaml) => self.to_ros2_yaml(),
             Some(FileFormat::Json) => {
@@ -776,6 +781,7 @@ mod tests {
         let back = ParamFile::read(&yaml, None).expect("read yaml");
         assert_eq!(back, f);
         assert_eq!(back.to_ros2_yaml(), f.to_ros2_yaml());
+        assert_eq!(f.text_for(Path::new("-")).expect("stdout"), f.to_ros2_yaml(), "stdout gets YAML");
         let json = dir.path().join("odocal.json");
         f.write(&json).expect("write json");
         let mut back = ParamFile::read(&json, None).expect("read json");

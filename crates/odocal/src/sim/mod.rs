@@ -135,7 +135,7 @@ pub struct SimSidecar {
 
 impl SimSidecar {
     /// Writes the sidecar as pretty JSON, atomically
-    /// ([`crate::output::write_atomically`]).
+    /// ([`crate::output::write_text`]).
     pub fn write_json(&self, path: &Path) -> Result<()> {
         let text = serde_json::to_string_pretty(self)
             .map_err(|source| Error::Json { context: format!("writing {}", path.display()), source })?;
