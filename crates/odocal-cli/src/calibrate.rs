@@ -228,7 +228,7 @@ struct Job<'a> {
     /// Each drive's report entry (role, path, fingerprint).
     fingerprints: Vec<serde_json::Value>,
     /// The drives `drive` was joined from, when several (their separate
-    /// fits give the between-drive σ: `CalibrationReport::pool_drives`).
+    /// fits give the between-drive σ: `Calibration::drives`).
     separate: &'a [Drive],
     /// The vehicle and history database to record the result in, and the
     /// drive files (`--vehicle`, `--db`).
@@ -247,14 +247,11 @@ fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, ba
     // The data the report's validation ran on (truth and HTML report).
     let split = holdout.as_ref().map(|h| h.split(drive)).transpose()?;
     let held = split.as_ref().map(|(_, held)| held.as_ref());
-    let mut r = calibrate(drive, holdout.as_ref(), &others, (given, args.carry_heading_offset), opts, bars)
-        .map_err(|e| with_hint(e, source, args, &opts.method, bars))?;
     // Several drives fitted whole (not a half of them held out): the
     // between-drive σ from their separate fits.
-    if separate.len() >= 2 && !matches!(holdout, Some(Holdout::FirstHalf | Holdout::SecondHalf)) {
-        bars.stage("fitting each drive alone for the between-drive σ");
-        r.pool_drives(&separate.iter().collect::<Vec<_>>())?;
-    }
+    let separate: Vec<&Drive> = separate.iter().collect();
+    let r = calibrate(drive, (holdout.as_ref(), &others), (given, args.carry_heading_offset), &separate, opts, bars)
+        .map_err(|e| with_hint(e, source, args, &opts.method, bars))?;
     let wheel_scale = source.and_then(|(_, w)| w);
     bars.finish();
     if let Some((vehicle_db, sources)) = history {
@@ -291,9 +288,7 @@ fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, ba
     }
     let outcome = if r.verdict.level == VerdictLevel::Rejected { Outcome::Rejected } else { Outcome::Done };
     if let Some(p) = json {
-        let mut v = r.to_json(fingerprints, truth_ref, wheel_scale)?;
-        account.add_to_json(&mut v)?;
-        write_json(p, v)?;
+        write_json(p, r.to_json(fingerprints, truth_ref, wheel_scale, Some(account))?)?;
     }
     let on_stdout = [json, args.report.as_deref(), args.params_out.as_deref()].into_iter().flatten().any(is_stdout);
     if on_stdout {
@@ -339,12 +334,13 @@ fn holdout(half: Option<HalfArg>, others: &[OtherDrive]) -> Result<Option<Holdou
 /// Runs the calibration of `drive`, validated on the `holdout` or, with
 /// `--validate-on`, on each other drive (`given`: the extrinsics the
 /// command line states, which apply to each, and whether an estimated
-/// heading offset is carried to them).
+/// heading offset is carried to them); `drives`: those `drive` was joined
+/// from, fitted alone too for the between-drive σ.
 fn calibrate(
     drive: &Drive,
-    holdout: Option<&Holdout>,
-    others: &[OtherDrive],
+    (holdout, others): (Option<&Holdout>, &[OtherDrive]),
     (given, carry_heading_offset): (ParamSet, bool),
+    drives: &[&Drive],
     opts: &CalibrationOptions,
     bars: &Bars,
 ) -> odocal::Result<CalibrationReport> {
@@ -360,7 +356,7 @@ fn calibrate(
             reference: m.as_ref().and_then(|m| m.reference.as_ref()),
         })
         .collect();
-    let run = odocal::Calibration { progress: Some(&cb), ..odocal::Calibration::new(drive, opts) };
+    let run = odocal::Calibration { progress: Some(&cb), drives, ..odocal::Calibration::new(drive, opts) };
     match (validation.is_empty(), holdout) {
         (true, Some(h)) => odocal::Calibration { holdout: Some(h), ..run }.run(),
         (true, None) => run.run(),
@@ -437,16 +433,12 @@ fn print_text_report(
     wheel_scale: Option<&str>,
     account: &SettingsAccount,
 ) -> Result<()> {
-    let text = r.render_text(truth, wheel_scale);
+    let text = r.render_text(truth, wheel_scale, Some(account));
     let (head, rest) = text.split_once('\n').unwrap_or((&text, ""));
     println!("{head}");
     std::io::stdout().flush()?;
     print_warnings(&r.warnings);
     print!("{rest}");
-    if let Some(m) = &r.validate_on {
-        print!("{m}");
-    }
-    print!("{}", account.lines());
     std::io::stdout().flush()?;
     Ok(())
 }

@@ -140,8 +140,10 @@ fn calibrate_json(
         .collect();
     // Validation drives: each with the extrinsics that apply to it (odocal::assess::validation_drives).
     let opts = &plan.resolved.options;
-    let run = odocal::Calibration { progress, ..odocal::Calibration::new(drive, opts) };
-    let mut report = match (validation.is_empty(), &plan.holdout) {
+    // Several drives fitted whole: the between-drive σ from their separate fits (as the CLI).
+    let joined_from: Vec<&Drive> = separate.iter().map(|d| d.as_ref()).collect();
+    let run = odocal::Calibration { progress, drives: &joined_from, ..odocal::Calibration::new(drive, opts) };
+    let report = match (validation.is_empty(), &plan.holdout) {
         (true, Some(h)) => odocal::Calibration { holdout: Some(h), ..run }.run()?,
         (true, None) => run.run()?,
         (false, _) => odocal::Calibration {
@@ -152,10 +154,6 @@ fn calibrate_json(
         }
         .run()?,
     };
-    // Several drives fitted whole: the between-drive σ from their separate fits (as the CLI).
-    if separate.len() >= 2 && !matches!(plan.holdout, Some(Holdout::FirstHalf | Holdout::SecondHalf)) {
-        report.pool_drives(&separate.iter().map(|d| d.as_ref()).collect::<Vec<_>>())?;
-    }
     let scored = held.unwrap_or(drive);
     let truth = match &prov.sidecar {
         Some(side) => {
@@ -164,8 +162,8 @@ fn calibrate_json(
         }
         None => None,
     };
-    let mut v = report.to_json(drives, truth.as_ref().map(|(t, e)| (t, *e)), prov.wheel_scale.as_deref())?;
-    plan.resolved.account.add_to_json(&mut v)?;
+    let truth = truth.as_ref().map(|(t, e)| (t, *e));
+    let mut v = report.to_json(drives, truth, prov.wheel_scale.as_deref(), Some(&plan.resolved.account))?;
     with_schema_version(&mut v);
     Ok(v)
 }

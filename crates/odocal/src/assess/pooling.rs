@@ -50,7 +50,7 @@
 //! - `τ`: the between-drive σ. With one drive, the documented prior
 //!   `BETWEEN_DRIVE_PRIOR` (relative floors measured on the test-track
 //!   runs); with several drives
-//!   ([`crate::CalibrationReport::pool_drives`]), the DerSimonian–Laird
+//!   ([`crate::Calibration::drives`]), the DerSimonian–Laird
 //!   random-effects estimate on the drives' separate fits
 //!   (`dersimonian_laird`), never below the prior (with a handful of
 //!   drives τ̂ is often 0 by chance).

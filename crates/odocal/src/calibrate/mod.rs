@@ -60,7 +60,7 @@ use crate::identify::{
 use crate::model::extrinsics::{Extrinsics, ExtrinsicsEstimate};
 use crate::model::param::{Param, ParamSet};
 use crate::model::Theta;
-use crate::progress::{Progress, ProgressFn};
+use crate::progress::{emit, Progress, ProgressFn};
 
 pub(crate) mod batch_gn;
 pub(crate) mod eiv;
@@ -351,6 +351,12 @@ pub struct Calibration<'a> {
     /// own with θ and the lever arm held (the default, `false`; the heading
     /// offset is the reference's per-drive bias as much as a mount angle).
     pub carry_heading_offset: bool,
+    /// The drives of one vehicle that `drive` was joined from
+    /// ([`Drive::concat`]), when several are fitted jointly: each is also
+    /// fitted alone and the between-drive σ of the result comes from their
+    /// spread ([`CalibrationReport::result_sigma`]; not when a half of the
+    /// joined drive is held out). Default none.
+    pub drives: &'a [&'a Drive],
     /// Receives the stages and their progress.
     pub progress: Option<&'a (dyn Fn(Progress) + Sync)>,
 }
@@ -366,6 +372,7 @@ impl<'a> Calibration<'a> {
             validate_on: &[],
             given: ParamSet::EMPTY,
             carry_heading_offset: false,
+            drives: &[],
             progress: None,
         }
     }
@@ -378,6 +385,19 @@ impl<'a> Calibration<'a> {
     /// joining them ([`Drive::concat`]) and of their validation; both a
     /// hold-out and validation drives: [`Error::InvalidOption`].
     pub fn run(self) -> Result<CalibrationReport> {
+        let mut report = self.run_joint()?;
+        // The separate fits need the drives whole: not with a half held out.
+        let halves = matches!(self.holdout, Some(Holdout::FirstHalf | Holdout::SecondHalf));
+        if self.drives.len() >= 2 && !halves {
+            emit(self.progress, Progress::Stage { name: "fitting each drive alone for the between-drive σ", total: 1 });
+            report.pool_drives(self.drives)?;
+            emit(self.progress, Progress::Advance(1));
+        }
+        Ok(report)
+    }
+
+    /// [`Calibration::run`] without the separate fits of [`Calibration::drives`].
+    fn run_joint(self) -> Result<CalibrationReport> {
         if self.validate_on.is_empty() {
             return match self.holdout {
                 None => calibrate_core(self.drive, None, self.options, self.progress),

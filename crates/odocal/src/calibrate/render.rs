@@ -1,13 +1,15 @@
 //! The calibration report rendered: the text `odocal calibrate` prints
 //! ([`CalibrationReport::render_text`]), the validation drives' block
 //! (`MultiValidation`'s `Display`) and the JSON report
-//! ([`CalibrationReport::to_json`]).
+//! ([`CalibrationReport::to_json`]), each with the account of the
+//! calibration's settings when given.
 
 use std::fmt::Write as _;
 
 use crate::assess::pooling::{BetweenDriveSource, PooledDrives, NEXT_DRIVE_SIGMA_LABEL};
 use crate::assess::trust::{Verdict, VerdictLevel};
 use crate::assess::validate::MultiValidation;
+use crate::calibrate::settings::SettingsAccount;
 use crate::calibrate::{BatchSpread, CalibrationReport, EivDetail, EivOutcome, Method, MethodDetail, SigmaSource};
 use crate::model::extrinsics::ExtrinsicsEstimate;
 use crate::model::param::Param;
@@ -141,7 +143,7 @@ impl CalibrationReport {
     /// use odocal::{calibrate, simulate, CalibrationOptions, Method, SimOptions};
     /// let sim = simulate(&SimOptions { length_km: 4.0, substeps: 1, ..SimOptions::noise_free(1) })?;
     /// let opts = CalibrationOptions { method: Method::from_name("batch-gn")?, ..Default::default() };
-    /// let json = calibrate(&sim.drive, &opts)?.to_json(Vec::new(), None, None)?;
+    /// let json = calibrate(&sim.drive, &opts)?.to_json(Vec::new(), None, None, None)?;
     /// assert_eq!(json["method"], "batch-gn");
     /// assert!(json["sigma"]["c_e"].is_number());
     /// # Ok(()) }
@@ -155,6 +157,7 @@ impl CalibrationReport {
         drives: Vec<serde_json::Value>,
         truth: Option<(&Theta, f64)>,
         wheel_scale: Option<&str>,
+        settings: Option<&SettingsAccount>,
     ) -> crate::Result<serde_json::Value> {
         let json = |source| crate::Error::Json { context: "calibration report".into(), source };
         let mut v = serde_json::to_value(self).map_err(json)?;
@@ -171,6 +174,9 @@ impl CalibrationReport {
             obj.insert("heading_offset_per_drive".into(), per);
         }
         obj.insert("drives".into(), serde_json::Value::Array(drives));
+        if let Some(s) = settings {
+            s.add_to_json(&mut v)?;
+        }
         Ok(v)
     }
 
@@ -180,7 +186,10 @@ impl CalibrationReport {
     /// extrinsics, the verdict, the σ of the result, the validation and the
     /// times. `wheel_scale` says how to read c_e for an imported drive
     /// (ticks per revolution or nominal circumference); it is printed under
-    /// the θ table. The first line is the heading; the warnings
+    /// the θ table. With validation drives, their block follows
+    /// ([`CalibrationReport::validate_on`]); with `settings`, what became of
+    /// the manifests' settings and where the starting noise model came from.
+    /// The first line is the heading; the warnings
     /// ([`CalibrationReport::warnings`]) are not included.
     ///
     /// ```
@@ -188,13 +197,25 @@ impl CalibrationReport {
     /// use odocal::{calibrate, simulate, CalibrationOptions, Method, SimOptions};
     /// let sim = simulate(&SimOptions { length_km: 4.0, substeps: 1, ..SimOptions::noise_free(1) })?;
     /// let opts = CalibrationOptions { method: Method::from_name("batch-gn")?, ..Default::default() };
-    /// let text = calibrate(&sim.drive, &opts)?.render_text(None, None);
+    /// let text = calibrate(&sim.drive, &opts)?.render_text(None, None, None);
     /// assert!(text.starts_with("odocal calibrate — method batch-gn\n"));
     /// assert!(text.contains("verdict: "));
     /// # Ok(()) }
     /// ```
-    pub fn render_text(&self, truth: Option<(&Theta, f64)>, wheel_scale: Option<&str>) -> String {
-        calibration(self, truth, wheel_scale)
+    pub fn render_text(
+        &self,
+        truth: Option<(&Theta, f64)>,
+        wheel_scale: Option<&str>,
+        settings: Option<&SettingsAccount>,
+    ) -> String {
+        let mut text = calibration(self, truth, wheel_scale);
+        if let Some(m) = &self.validate_on {
+            let _ = write!(text, "{m}");
+        }
+        if let Some(s) = settings {
+            text.push_str(&s.lines());
+        }
+        text
     }
 }
 

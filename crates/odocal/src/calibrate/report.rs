@@ -311,7 +311,7 @@ impl CalibrationReport {
     /// # Errors
     /// None from the separate fits (they are left out); an error only when
     /// the report has no next-drive σ ([`Error::InvalidOption`](crate::Error)).
-    pub fn pool_drives(&mut self, drives: &[&crate::Drive]) -> crate::Result<usize> {
+    pub(crate) fn pool_drives(&mut self, drives: &[&crate::Drive]) -> crate::Result<usize> {
         let Some(next) = self.next_drive_sigma.as_mut() else {
             return Err(crate::Error::InvalidOption {
                 field: "next_drive_sigma",

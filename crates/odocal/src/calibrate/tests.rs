@@ -401,3 +401,25 @@ fn the_param_file_has_the_result_sigma_not_the_model_sigma() {
     r.next_drive_sigma = None;
     assert_eq!(r.param_file("drive.csv").params[3].sigma, None);
 }
+
+#[test]
+fn drives_fitted_jointly_give_the_between_drive_sigma_unless_a_half_is_held_out() {
+    use crate::assess::pooling::BetweenDriveSource;
+    let sims: Vec<Drive> =
+        (1..=2).map(|s| simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(s) }).expect("sim").drive).collect();
+    let parts: Vec<&Drive> = sims.iter().collect();
+    let joined = Drive::concat(&parts).expect("concat");
+    let opts = CalibrationOptions { method: Method::BatchGn(Default::default()), ..Default::default() };
+    let source = |r: &CalibrationReport| r.next_drive_sigma.as_ref().map(|n| n.between_source);
+    let alone = Calibration::new(&joined, &opts).run().expect("joint fit");
+    assert_eq!(source(&alone), Some(BetweenDriveSource::Prior));
+    let pooled = Calibration { drives: &parts, ..Calibration::new(&joined, &opts) }.run().expect("pooled");
+    assert_eq!(source(&pooled), Some(BetweenDriveSource::RandomEffects));
+    assert_eq!(pooled.theta, alone.theta, "θ stays the joint fit's");
+    let mut by_hand = alone.clone();
+    assert_eq!(by_hand.pool_drives(&parts).expect("pool"), 2);
+    assert_eq!(pooled.next_drive_sigma, by_hand.next_drive_sigma);
+    let half = Holdout::FirstHalf;
+    let held = Calibration { drives: &parts, holdout: Some(&half), ..Calibration::new(&joined, &opts) };
+    assert_eq!(source(&held.run().expect("held out")), Some(BetweenDriveSource::Prior));
+}

@@ -171,9 +171,9 @@ pub(crate) struct SettingUse {
 
 /// Where a calibration's settings came from: what became of each manifest
 /// setting and which starting noise model method eiv used. The text report
-/// prints [`SettingsAccount::lines`]; the JSON report has the same as
-/// `manifest_settings` and `noise_model_origin`
-/// ([`SettingsAccount::add_to_json`]).
+/// prints it ([`crate::CalibrationReport::render_text`]); the JSON report
+/// has the same as `manifest_settings` and `noise_model_origin`
+/// ([`crate::CalibrationReport::to_json`]).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct SettingsAccount {
     /// Who gave the settings that win over the manifest's.
@@ -191,7 +191,7 @@ pub struct SettingsAccount {
 impl SettingsAccount {
     /// The report's lines on the settings, each ending in a newline ("" when
     /// there is nothing to say).
-    pub fn lines(&self) -> String {
+    pub(crate) fn lines(&self) -> String {
         let mut o = String::new();
         if let Some(n) = &self.noise_model_origin {
             let _ = writeln!(o, "starting noise model: {n}");
@@ -212,7 +212,7 @@ impl SettingsAccount {
     ///
     /// # Errors
     /// [`Error::Json`] if the account does not serialise (it always does).
-    pub fn add_to_json(&self, report: &mut serde_json::Value) -> Result<()> {
+    pub(crate) fn add_to_json(&self, report: &mut serde_json::Value) -> Result<()> {
         let json = |source| Error::Json { context: "settings account".into(), source };
         if let (serde_json::Value::Object(fields), Some(obj)) =
             (serde_json::to_value(self).map_err(json)?, report.as_object_mut())
