@@ -13,11 +13,10 @@
 //!   `[reference]` the extrinsics (`lever_arm`, `heading_offset`,
 //!   `estimate`), `[noise]` the noise model in place (the `noise_model`
 //!   key).
-//! - One precedence rule puts the sources together, `Settings::over`:
-//!   the caller's settings (flags, keywords) over the manifest's over the
-//!   defaults.
-//! - One function maps them to [`CalibrationOptions`],
-//!   [`Settings::resolve`]. A key of another method is an error when the
+//! - One function, [`Settings::resolve`], puts the sources together by one
+//!   precedence rule, the caller's settings (flags, keywords) over the
+//!   manifest's over the defaults, and maps them to
+//!   [`CalibrationOptions`]. A key of another method is an error when the
 //!   caller gives it and ignored, saying so, when a manifest does.
 //! - One account says what became of each manifest setting and where the
 //!   starting noise model came from ([`SettingsAccount`]), for the text and
@@ -95,7 +94,7 @@ macro_rules! settings {
             /// These settings over `lower`: each key these state, else
             /// `lower`'s. The one precedence rule: the caller's settings
             /// over a manifest's over the defaults.
-            pub fn over(self, lower: Settings) -> Settings {
+            pub(crate) fn over(self, lower: Settings) -> Settings {
                 Settings { $( $key: self.$key.or(lower.$key), )* }
             }
 
@@ -121,7 +120,7 @@ macro_rules! settings {
 settings! {
     /// Calibration settings as a manifest, the command line or Python
     /// states them. Every key is optional; `None` means "not stated", and
-    /// the next source's value, else the default, applies (`Settings::over`).
+    /// the next source's value, else the default, applies ([`Settings::resolve`]).
     /// The key is the manifest key and the Python keyword; the flag is the
     /// key in kebab case (`min_yaw_rate`, `--min-yaw-rate`) unless noted.
     ///
@@ -132,14 +131,15 @@ settings! {
     ///
     /// ```
     /// # fn main() -> Result<(), odocal::Error> {
-    /// use odocal::settings::{Caller, Settings};
+    /// use odocal::settings::{Caller, ManifestSettings, Settings};
+    /// use odocal::Param;
     /// let caller = Settings::from_json(serde_json::json!({"method": "batch-gn", "fix": "d"}))?;
-    /// let manifest: Settings = toml::from_str("segment_length = 400\nfix = [\"t_r\"]").expect("toml");
-    /// let both = caller.clone().over(manifest);
-    /// assert_eq!(both.fix, caller.fix); // the caller's value wins
-    /// assert_eq!(both.segment_length, Some(400));
-    /// let options = both.resolve(&[], Caller::Python)?.options;
-    /// assert_eq!(options.segments.length_steps, 400);
+    /// let stated: Settings = toml::from_str("segment_length = 400\nfix = [\"t_r\"]").expect("toml");
+    /// let manifest = ManifestSettings { manifest: "drive.toml".into(), settings: stated, reference: None };
+    /// let options = caller.resolve(&[manifest], Caller::Python)?.options;
+    /// assert_eq!(options.segments.length_steps, 400); // the manifest's
+    /// // The caller's `fix` wins: d is held, t_r free.
+    /// assert!(!options.identify.free.contains(Param::D) && options.identify.free.contains(Param::TR));
     /// # Ok(()) }
     /// ```
     #[derive(Debug, Clone, PartialEq, Default, Deserialize)]
