@@ -34,17 +34,9 @@ pub fn run(a: InspectArgs) -> Result<()> {
     }
     let info = odocal::io::bag::inspect(&a.bag)?;
     print!("{info}");
-    let readable: Vec<_> = info.topics.iter().filter_map(|t| Some((t, t.supported_type?))).collect();
-    if !readable.is_empty() {
-        println!("Manifest columns (format = \"mcap\", topic = ...):");
-        for (t, ty) in readable {
-            println!("  {}: {}", odocal::output::visible(&t.topic), ty.columns().join(", "));
-            if ty == odocal::io::bag::MessageType::JointState && t.count > 0 {
-                // The joint names a manifest's columns need (those of the first message).
-                let joints = odocal::io::bag::joint_names(&a.bag, &t.topic)?;
-                println!("    joints: {}", odocal::output::visible(&joints.join(", ")));
-            }
-        }
+    let columns = info.manifest_columns()?;
+    if !columns.is_empty() {
+        print!("{columns}");
         println!("A draft manifest of the drive: odocal inspect {} --manifest OUT.toml", a.bag.display());
     }
     Ok(())

@@ -65,7 +65,7 @@ impl MessageType {
 
     /// The column names this type yields. For `JointState` they are the
     /// patterns `position.<joint name>` and `velocity.<joint name>`.
-    pub fn columns(self) -> &'static [&'static str] {
+    pub(crate) fn columns(self) -> &'static [&'static str] {
         match self {
             MessageType::JointState => JOINT_COLS,
             MessageType::PoseWithCovarianceStamped => POSE_COLS,

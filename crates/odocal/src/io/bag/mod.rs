@@ -156,7 +156,7 @@ pub fn read_topic(path: &Path, topic: &str, columns: &[&str], time: TimeSource) 
 ///
 /// # Errors
 /// As [`read_topic`].
-pub fn joint_names(path: &Path, topic: &str) -> Result<Vec<String>> {
+pub(crate) fn joint_names(path: &Path, topic: &str) -> Result<Vec<String>> {
     let table = first_message(path, topic)?;
     let names: BTreeSet<&str> = table.joints("position").into_iter().chain(table.joints("velocity")).collect();
     Ok(names.into_iter().map(str::to_string).collect())
@@ -270,6 +270,31 @@ pub struct BagInfo {
 }
 
 impl BagInfo {
+    /// The columns a manifest's MCAP stream can take from each topic odocal
+    /// reads (`  /topic: col, col, …`, names shown with
+    /// [`crate::output::visible`]), under a heading; for a `JointState`
+    /// topic also the joint names its columns need (those of its first
+    /// message, which is read for them). Empty when no topic is readable.
+    ///
+    /// # Errors
+    /// As [`read_topic`], reading a `JointState` topic's first message.
+    pub fn manifest_columns(&self) -> Result<String> {
+        use std::fmt::Write as _;
+        let readable: Vec<_> = self.topics.iter().filter_map(|t| Some((t, t.supported_type?))).collect();
+        if readable.is_empty() {
+            return Ok(String::new());
+        }
+        let mut o = String::from("Manifest columns (format = \"mcap\", topic = ...):\n");
+        for (t, ty) in readable {
+            let _ = writeln!(o, "  {}: {}", crate::output::visible(&t.topic), ty.columns().join(", "));
+            if ty == MessageType::JointState && t.count > 0 {
+                let joints = joint_names(&self.path, &t.topic)?;
+                let _ = writeln!(o, "    joints: {}", crate::output::visible(&joints.join(", ")));
+            }
+        }
+        Ok(o)
+    }
+
     /// Time from the first to the last message (s, log time); 0 without messages.
     pub(crate) fn duration_s(&self) -> f64 {
         match (self.start_log_time_ns, self.end_log_time_ns) {

@@ -513,6 +513,17 @@ fn inspect_lists_topics_counts_rates_and_compression() {
     let info = inspect(&p).expect("inspect");
     assert_eq!((info.compression.clone(), info.chunk_count, info.message_count), (None, None, 131));
     assert!(info.to_string().contains("Compression:       unknown (no summary section)"));
+    // The columns a manifest can take: readable topics only, with the joints.
+    let cols = info.manifest_columns().expect("columns");
+    assert!(cols.starts_with("Manifest columns (format = \"mcap\", topic = ...):\n  /"), "{cols}");
+    assert!(
+        cols.contains(&format!("  /joints: {}\n    joints: ", MessageType::JointState.columns().join(", "))),
+        "{cols}"
+    );
+    assert!(!cols.contains("/chatter"), "{cols}");
+    let unreadable =
+        BagInfo { topics: info.topics.into_iter().filter(|t| t.supported_type.is_none()).collect(), ..info };
+    assert_eq!(unreadable.manifest_columns().expect("none"), "");
 }
 
 /// Encoded messages of every supported type, for the fuzz-ish tests.

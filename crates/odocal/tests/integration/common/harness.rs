@@ -119,8 +119,8 @@ pub fn bag(data: &[u8]) -> Outcome {
                 Err(e) => check_message(e.to_string()),
             };
         }
-        let _ = odocal::io::bag::joint_names(&path, &t.topic);
     }
+    let _ = info.manifest_columns();
     last
 }
 
