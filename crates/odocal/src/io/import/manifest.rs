@@ -46,7 +46,7 @@ pub struct Manifest {
     pub(crate) limits: LimitsSpec,
     /// The sensor's noise (`[noise]`): the starting noise model of
     /// `--method eiv` as written, read by the calibration like a
-    /// `--noise-model` file ([`NoiseTable`]).
+    /// `--noise-model` file (`settings::ManifestSettings` reads it).
     #[serde(default, deserialize_with = "super::settings::noise_table", skip_serializing_if = "Option::is_none")]
     pub noise: Option<NoiseTable>,
     /// The reference sensor's extrinsics (`[reference]`): lever arm,
@@ -54,7 +54,7 @@ pub struct Manifest {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reference: Option<ReferenceSpec>,
     /// Calibration settings (`[calibration]`) as written, read by the
-    /// calibration ([`CalibrationTable`]).
+    /// calibration (`settings::ManifestSettings`).
     #[serde(default, deserialize_with = "super::settings::calibration_table", skip_serializing_if = "Option::is_none")]
     pub calibration: Option<CalibrationTable>,
 }
