@@ -3,11 +3,11 @@
 //! For programs that calibrate as the vehicle drives (a ROS 2 node, a
 //! replay of logs in time order): [`Calibrator::push`] takes the drive's
 //! canonical samples chunk by chunk and keeps θ with its σ at any time, in
-//! memory that does not grow with the drive's length. `odocal follow`
-//! replays drives through it and gates what it writes back ([`gate`]).
-//! [`Calibrator::push_drive`] pushes a drive in memory,
-//! [`Calibrator::push_stream`] a drive CSV read as a stream
-//! ([`crate::DriveStream`]), in the same chunks and with the same results.
+//! memory that does not grow with the drive's length;
+//! [`Calibrator::push_drive`] pushes a drive in memory. [`follow`] (what
+//! `odocal follow` runs; feature `history`) replays drive files through it,
+//! each read as a stream, and writes back to a vehicle's history what the
+//! gates ([`gate`]) pass.
 //!
 //! ## The method: recursive Gauss-Newton over the paper's segments
 //!
@@ -66,10 +66,14 @@ use crate::identify::extrinsics_normal_equations;
 use crate::model::extrinsics::Extrinsics;
 use crate::model::{wrap_angle, Theta};
 
+#[cfg(feature = "history")]
+mod follow;
 pub mod gate;
 mod options;
 
-pub use crate::io::import::stream::{not_streamable, reader::ManifestStream, RawStream, StreamOptions};
+pub use crate::io::import::stream::{RawStream, StreamOptions};
+#[cfg(feature = "history")]
+pub use follow::{follow, FollowEvent, FollowOptions};
 pub use options::{OnlineOptions, RandomWalk};
 
 type Vec5 = SVector<f64, 5>;
@@ -735,7 +739,13 @@ impl Calibrator {
     ///
     /// # Errors
     /// The stream's read errors; [`Calibrator::push`]'s.
-    pub fn push_stream(&mut self, stream: &DriveStream, chunk: usize, mut each: impl FnMut(usize)) -> Result<()> {
+    #[cfg_attr(not(feature = "history"), allow(dead_code))]
+    pub(crate) fn push_stream(
+        &mut self,
+        stream: &DriveStream,
+        chunk: usize,
+        mut each: impl FnMut(usize),
+    ) -> Result<()> {
         self.begin_drive();
         for c in stream.chunks(chunk) {
             let c: StreamChunk = c?;
