@@ -113,7 +113,7 @@ struct Stored {
 ///     Ok::<(), odocal::Error>(())
 /// })?;
 /// assert_eq!(decisions.len(), 1);
-/// assert_eq!(db.decisions("van-1")?.len(), 1);
+/// assert_eq!(db.vehicle("van-1", None)?.decisions.len(), 1);
 /// # Ok(()) }
 /// ```
 ///
@@ -143,7 +143,7 @@ pub fn follow<E: From<Error>>(
         let drive = Replay::open(path, &mut on)?;
         let source = path.display().to_string();
         let fingerprint = drive.fingerprint()?;
-        if db.decisions(vehicle)?.iter().any(|d| d.decision.fingerprint == fingerprint) {
+        if db.decisions(vehicle)?.iter().any(|d| d.fingerprint == fingerprint) {
             on(FollowEvent::Skipped { source, fingerprint })?;
             continue;
         }
