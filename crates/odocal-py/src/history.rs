@@ -61,7 +61,7 @@ impl PyHistory {
     /// The schema version of the file.
     #[getter]
     fn schema_version(&self) -> PyResult<i64> {
-        self.with(|db| db.schema_version())
+        self.with(|db| Ok(db.schema_version))
     }
 
     /// The vehicle's calibrations in recording order, one dict per row

@@ -25,9 +25,9 @@
 //! (per-hour sd of c_e as a fraction, of c_d in m).
 
 use odocal::history::{CalibrationRecord, HistoryRow, VehicleHistory};
-use odocal::online::{Calibrator, Chunk, OnlineOptions};
+use odocal::online::{Calibrator, OnlineOptions};
 use odocal::sim::{simulate, CdStep, DriftOptions, SimOptions};
-use odocal::{Drive, Theta};
+use odocal::{Drive, Signals, Theta};
 use odocal_lab::{Args, Res};
 use rayon::prelude::*;
 
@@ -62,7 +62,10 @@ fn push_first(cal: &mut Calibrator, d: &Drive, n: usize, mut each: impl FnMut(&C
     cal.begin_drive();
     for a in (0..n).step_by(CHUNK) {
         let b = (a + CHUNK).min(n);
-        cal.push(&Chunk::of(d, a..b))?;
+        let m = d.measured();
+        let cols = [&m.px, &m.py, &m.psi, &m.n_rl, &m.n_rr, &m.beta, &m.a_y].map(|c| c[a..b].to_vec());
+        let [px, py, psi, n_rl, n_rr, beta, a_y] = cols;
+        cal.push(None, &Signals { px, py, psi, n_rl, n_rr, beta, a_y })?;
         each(cal, b);
     }
     Ok(())

@@ -293,6 +293,9 @@ impl std::fmt::Display for VehicleHistory {
 pub struct History {
     /// The database file.
     pub path: PathBuf,
+    /// The schema version of the file (after [`History::open`]'s
+    /// migration, this odocal's).
+    pub schema_version: i64,
     conn: Connection,
 }
 
@@ -379,12 +382,8 @@ impl History {
         }
         conn.pragma_update(None, "synchronous", "NORMAL").map_err(&err)?;
         schema::migrate(&mut conn).map_err(|reason| Error::History { path: path.clone(), reason })?;
-        Ok(History { conn, path })
-    }
-
-    /// The schema version of the open file (after migration: this odocal's).
-    pub fn schema_version(&self) -> Result<i64> {
-        self.conn.query_row("PRAGMA user_version", [], |r| r.get(0)).map_err(sql_err(&self.path))
+        let schema_version = conn.query_row("PRAGMA user_version", [], |r| r.get(0)).map_err(&err)?;
+        Ok(History { conn, path, schema_version })
     }
 
     /// Records a calibration, unless the vehicle's history already holds

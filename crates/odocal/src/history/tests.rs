@@ -26,12 +26,12 @@ fn an_empty_file_is_migrated_to_the_current_schema() {
     let path = dir.path().join("h.sqlite");
     std::fs::write(&path, b"").expect("empty file");
     let db = History::open(&path).expect("open");
-    assert_eq!(db.schema_version().expect("version"), schema::SCHEMA_VERSION);
+    assert_eq!(db.schema_version, schema::SCHEMA_VERSION);
     assert!(db.rows("v").expect("rows").is_empty());
     drop(db);
     // Reopening runs no migration again.
     let db = History::open(&path).expect("reopen");
-    assert_eq!(db.schema_version().expect("version"), schema::SCHEMA_VERSION);
+    assert_eq!(db.schema_version, schema::SCHEMA_VERSION);
 }
 
 #[test]

@@ -99,20 +99,16 @@ use engine::Engine;
 #[derive(Debug, Clone, PartialEq)]
 pub struct StreamOptions {
     /// Wheel-stream time over which the clock offset is estimated before
-    /// any sample comes out, s (default [`StreamOptions::DEFAULT_WARM_UP_S`]).
+    /// any sample comes out, s. Default 300: long enough for the clock
+    /// estimate to see several turns and speed changes, short enough that
+    /// the held streams stay small (5 min of a 1 kHz wheel log is 300,000
+    /// rows).
     pub warm_up_s: f64,
-}
-
-impl StreamOptions {
-    /// The default warm-up, s: long enough for the clock estimate to see
-    /// several turns and speed changes, short enough that the held streams
-    /// stay small (5 min of a 1 kHz wheel log is 300,000 rows).
-    pub const DEFAULT_WARM_UP_S: f64 = 300.0;
 }
 
 impl Default for StreamOptions {
     fn default() -> StreamOptions {
-        StreamOptions { warm_up_s: StreamOptions::DEFAULT_WARM_UP_S }
+        StreamOptions { warm_up_s: 300.0 }
     }
 }
 
@@ -265,13 +261,14 @@ impl RawStream {
         self.advance()
     }
 
-    /// Ends every stream and the drive: the last samples come out, and the
-    /// report ([`RawStream::report`]).
+    /// Ends every stream and the drive: the last samples come out. Returns
+    /// what was read, estimated, split and dropped (the whole import's
+    /// report).
     ///
     /// # Errors
     /// The whole import's errors about the drive as a whole: streams that
     /// do not overlap, no part of at least `min_part_s`.
-    pub fn finish(&mut self) -> Result<()> {
+    pub fn finish(&mut self) -> Result<&ImportReport> {
         for (c, _) in self.streams.values_mut() {
             if !c.ended {
                 c.end();
@@ -316,8 +313,7 @@ impl RawStream {
             self.clock.clone().ok_or_else(|| m.error("output.clock_offset", "no clock offset was estimated"))?;
         let mut report = self.make_report(start, end, clock);
         report.jitter = jitter;
-        self.report = Some(report);
-        Ok(())
+        Ok(self.report.insert(report))
     }
 
     /// Up to `max` (at least 1) canonical samples of one part that are
@@ -356,7 +352,8 @@ impl RawStream {
 
     /// What was read, estimated, split and dropped, after
     /// [`RawStream::finish`] (the whole import's report).
-    pub fn report(&self) -> Option<&ImportReport> {
+    #[cfg_attr(not(feature = "history"), allow(dead_code))] // read by `online::follow`
+    pub(crate) fn report(&self) -> Option<&ImportReport> {
         self.report.as_ref()
     }
 
