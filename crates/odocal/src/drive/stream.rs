@@ -65,12 +65,13 @@ pub(crate) struct DriveStream {
     columns: Vec<File>,
 }
 
-/// Canonical samples of a stream, all of one part: of a [`DriveStream`]
-/// or of a streamed import ([`RawStream::take_chunk`](crate::online::RawStream::take_chunk)).
+/// Canonical samples of a stream, all of one part: of a streamed import
+/// ([`RawStream::take_chunk`](crate::online::RawStream::take_chunk)), or
+/// of a drive CSV read as a stream.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StreamChunk {
-    /// The part they belong to (0, 1, …; for a [`DriveStream`] an index
-    /// into its continuous parts, in time order).
+    /// The part they belong to (0, 1, …; an index into the drive's
+    /// continuous parts, in time order).
     pub part: usize,
     /// The index of the first of them among the drive's samples.
     pub start: usize,
@@ -82,8 +83,8 @@ pub struct StreamChunk {
     /// The signals, the heading unwrapped as [`Drive`] unwraps it.
     pub signals: Signals,
     /// Whether the reference was measured at each sample
-    /// ([`Drive::reference_measured`]); `None` from a [`DriveStream`],
-    /// which keeps no such column.
+    /// ([`Drive::reference_measured`]); `None` from a drive CSV read as
+    /// a stream, which keeps no such column.
     pub reference_measured: Option<Vec<bool>>,
 }
 

@@ -232,8 +232,8 @@ impl std::fmt::Display for VehicleHistory {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
             f,
-            "{:>4}  {:<24} {:<10} {:>10} {:>11} {:>9} {:>10}  {:<9} {}",
-            "id", "recorded (UTC)", "method", "c_e", "c_d", "t_r", "d", "verdict", "source"
+            "{:>4}  {:<24} {:<10} {:>10} {:>11} {:>9} {:>10}  {:<9} source",
+            "id", "recorded (UTC)", "method", "c_e", "c_d", "t_r", "d", "verdict"
         )?;
         for r in &self.rows {
             let c = &r.record;
