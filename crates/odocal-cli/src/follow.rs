@@ -6,22 +6,18 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use odocal::history::{CalibrationRecord, Decision, History};
+use odocal::history::History;
 use odocal::online::gate::{Action, GateDecision, Gates};
-use odocal::online::{Calibrator, ManifestStream, OnlineOptions, RandomWalk, StreamOptions};
-use odocal::{Drive, DriveStream, ParamFile, Progress, Theta};
+use odocal::online::{follow, Calibrator, FollowEvent, FollowOptions, OnlineOptions, RandomWalk};
+use odocal::{ParamFile, Theta};
 use serde_json::{json, Value};
 
 use crate::args::ThetaArg;
-use crate::io::load_drive_with_scale;
 use crate::output::{write_text, Files};
 use crate::progress::Bars;
 
-/// The history's `method` of the rows `follow` writes.
+/// The method the parameter files written name.
 const METHOD: &str = "online";
-
-/// Samples per chunk pushed (10 s at 40 Hz).
-const CHUNK: usize = 400;
 
 /// Arguments of `odocal follow`.
 #[derive(Args)]
@@ -136,16 +132,8 @@ impl std::str::FromStr for Four {
     }
 }
 
-/// The parameters in use: θ, its σ, and where they came from.
-struct Stored {
-    theta: Theta,
-    sigma: Option<Theta>,
-    origin: String,
-    /// A recorded calibration (else θ_0, an initial guess).
-    calibrated: bool,
-}
-
-/// Replays the drives and writes what the gates pass.
+/// Replays the drives through the library's `odocal::online::follow` and
+/// prints what it reports; writes each written update to `--params-out`.
 pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
     let mut files = Files::default();
     for p in &a.drive {
@@ -166,210 +154,66 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
     if let Some(p) = a.drive.iter().find(|p| !p.exists()) {
         bail!("{}: no such drive file", p.display());
     }
-    let (opts, gates) = (online_options(&a)?, gates(&a)?);
+    let opts =
+        FollowOptions { theta0: a.theta0.as_ref().map(|t| t.theta), online: online_options(&a)?, gates: gates(&a)? };
     let mut db = History::open(&a.db)?;
-    let mut stored = starting_point(&db, &a)?;
     let quiet_stdout = a.json.as_deref().is_some_and(odocal::output::is_stdout);
-    if !quiet_stdout {
-        println!("vehicle '{}': starting from {} ({})", a.vehicle, stored.theta, stored.origin);
-    }
-    let mut cal: Option<Calibrator> = None;
     let mut entries = Vec::with_capacity(a.drive.len());
-    for path in &a.drive {
-        let drive = Replay::open(path)?;
-        let source = path.display().to_string();
-        let fingerprint = drive.fingerprint()?;
-        if db.decisions(&a.vehicle)?.iter().any(|d| d.decision.fingerprint == fingerprint) {
-            if !quiet_stdout {
-                println!(
-                    "{source}: already followed for vehicle '{}' (fingerprint {}…); skipped",
-                    a.vehicle,
-                    &fingerprint[..12]
-                );
+    follow(&mut db, &a.vehicle, &a.drive, &opts, |event| -> Result<()> {
+        match event {
+            FollowEvent::Start { theta, origin } if !quiet_stdout => {
+                println!("vehicle '{}': starting from {theta} ({origin})", a.vehicle);
             }
-            entries.push(json!({"source": source, "fingerprint": fingerprint, "already_recorded": true,
-                "prequential_mean_position_error_m": null, "updates": []}));
-            continue;
+            FollowEvent::Log(line) => eprintln!("{line}"),
+            FollowEvent::Progress(p) => bars.event(p),
+            FollowEvent::Skipped { source, fingerprint } => {
+                if !quiet_stdout {
+                    println!(
+                        "{source}: already followed for vehicle '{}' (fingerprint {}…); skipped",
+                        a.vehicle,
+                        &fingerprint[..12]
+                    );
+                }
+                entries.push(json!({"source": source, "fingerprint": fingerprint, "already_recorded": true,
+                    "prequential_mean_position_error_m": null, "updates": []}));
+            }
+            FollowEvent::Followed { source, fingerprint, summary, heading_offset_rad, drive_time_s, decision } => {
+                bars.finish();
+                if decision.action == Action::Write {
+                    write_params(&a, &decision, &source, &fingerprint)?;
+                }
+                if !quiet_stdout {
+                    let e = summary.prequential_mean_position_error_m.map_or("-".into(), |e| format!("{e:.3} m"));
+                    println!(
+                        "{source}: prequential Ē_p {e} over {} validation segment(s), {} segment(s) folded; θ = {} ± {}; {}: {}",
+                        summary.validation_segments,
+                        summary.folded_segments,
+                        decision.theta,
+                        decision.sigma,
+                        decision.action,
+                        decision.reasons.join("; ")
+                    );
+                }
+                entries.push(json!({
+                    "source": source,
+                    "fingerprint": fingerprint,
+                    "prequential_mean_position_error_m": summary.prequential_mean_position_error_m,
+                    "stored_mean_position_error_m": summary.stored_mean_position_error_m,
+                    "validation_segments": summary.validation_segments,
+                    "folded_segments": summary.folded_segments,
+                    "samples": summary.samples,
+                    "heading_offset_rad": heading_offset_rad,
+                    "updates": [update_json(&decision, drive_time_s)],
+                }));
+            }
+            _ => {}
         }
-        let c = match cal.as_mut() {
-            Some(c) => c,
-            None => cal.insert(Calibrator::new(stored.theta, stored.sigma, drive.sample_time_s(), opts.clone())?),
-        };
-        if (drive.sample_time_s() - c.status().sample_time_s).abs() > 1e-9 {
-            bail!("{source}: sample time differs from the first drive's");
-        }
-        c.stored = Some(stored.theta);
-        bars.event(Progress::Stage { name: "following", total: drive.len() as u64 });
-        let mut done = 0;
-        drive.push(c, |n| {
-            bars.event(Progress::Advance((n - done) as u64));
-            done = n;
-        })?;
-        bars.finish();
-        let decision = gates.decide(c, &stored.theta, stored.calibrated);
-        let status = c.status();
-        let summary = status.drive;
-        let (t_start_s, t_end_s) = drive.time_span_s();
-        let drive_time_s = t_end_s - t_start_s;
-        db.record_decision(&Decision {
-            vehicle: a.vehicle.clone(),
-            fingerprint: fingerprint.clone(),
-            source: source.clone(),
-            drive_time_s,
-            decision: decision.action.to_string(),
-            reasons: decision.reasons.clone(),
-            theta: decision.theta,
-            sigma: Some(decision.sigma),
-        })?;
-        let delta = status.heading_offset_rad;
-        if decision.action == Action::Write {
-            stored = write_back(&mut db, &a, &decision, (&source, &fingerprint), drive.time_span_s(), delta)?;
-        }
-        if !quiet_stdout {
-            let e = summary.prequential_mean_position_error_m.map_or("-".into(), |e| format!("{e:.3} m"));
-            println!(
-                "{source}: prequential Ē_p {e} over {} validation segment(s), {} segment(s) folded; θ = {} ± {}; {}: {}",
-                summary.validation_segments,
-                summary.folded_segments,
-                decision.theta,
-                decision.sigma,
-                decision.action,
-                decision.reasons.join("; ")
-            );
-        }
-        entries.push(json!({
-            "source": source,
-            "fingerprint": fingerprint,
-            "prequential_mean_position_error_m": summary.prequential_mean_position_error_m,
-            "stored_mean_position_error_m": summary.stored_mean_position_error_m,
-            "validation_segments": summary.validation_segments,
-            "folded_segments": summary.folded_segments,
-            "samples": summary.samples,
-            "heading_offset_rad": delta,
-            "updates": [update_json(&decision, drive_time_s)],
-        }));
-    }
+        Ok(())
+    })?;
     if let Some(p) = &a.json {
         write_text(p, &serde_json::to_string_pretty(&json!({ "drives": entries }))?)?;
     }
     Ok(())
-}
-
-/// A drive to replay: a canonical CSV or a manifest's CSV streams read as a
-/// stream (memory flat in its length; a manifest's samples are kept on
-/// disk), or a manifest the streamed import does not take
-/// (`odocal::online::not_streamable`) imported whole.
-enum Replay {
-    Stream(DriveStream),
-    Whole(Box<Drive>),
-}
-
-impl Replay {
-    /// Opens the drive at `path`, printing what its reader warns about.
-    fn open(path: &std::path::Path) -> Result<Replay> {
-        if odocal::is_manifest_path(path) {
-            let m = odocal::Manifest::from_path(path)?;
-            if let Some(why) = odocal::online::not_streamable(&m) {
-                eprintln!("note: {}: imported whole ({why})", path.display());
-                return Ok(Replay::Whole(Box::new(load_drive_with_scale(path)?.0)));
-            }
-            return match streamed_manifest(path, &m) {
-                Ok(s) => Ok(Replay::Stream(s)),
-                // The whole import's error (or result) is the reference:
-                // the stream judges some whole-drive checks on its warm-up.
-                Err(e) => {
-                    eprintln!("note: {}: imported whole (the streamed import stopped: {e:#})", path.display());
-                    Ok(Replay::Whole(Box::new(load_drive_with_scale(path)?.0)))
-                }
-            };
-        }
-        let stream = DriveStream::open(path)?;
-        for w in &stream.warnings {
-            eprintln!("warning: {w}");
-        }
-        Ok(Replay::Stream(stream))
-    }
-
-    fn fingerprint(&self) -> Result<String> {
-        Ok(match self {
-            Replay::Stream(s) => s.fingerprint()?,
-            Replay::Whole(d) => d.fingerprint(),
-        })
-    }
-
-    fn sample_time_s(&self) -> f64 {
-        match self {
-            Replay::Stream(s) => s.sample_time_s,
-            Replay::Whole(d) => d.sample_time_s(),
-        }
-    }
-
-    fn len(&self) -> usize {
-        match self {
-            Replay::Stream(s) => s.len(),
-            Replay::Whole(d) => d.len(),
-        }
-    }
-
-    /// The first and the last time stamp, s.
-    fn time_span_s(&self) -> (f64, f64) {
-        match self {
-            Replay::Stream(s) => s.time_span_s,
-            Replay::Whole(d) => (d.t().first().copied().unwrap_or(0.0), d.t().last().copied().unwrap_or(0.0)),
-        }
-    }
-
-    /// Pushes the drive as a new drive in chunks of [`CHUNK`] samples.
-    fn push(&self, c: &mut Calibrator, each: impl FnMut(usize)) -> Result<()> {
-        match self {
-            Replay::Stream(s) => c.push_stream(s, CHUNK, each)?,
-            Replay::Whole(d) => c.push_drive(d, CHUNK, each)?,
-        }
-        Ok(())
-    }
-}
-
-/// A manifest imported as a stream ([`ManifestStream`]) into a
-/// [`DriveStream`] (its samples on disk), with the import's warnings shown.
-fn streamed_manifest(path: &std::path::Path, m: &odocal::Manifest) -> Result<DriveStream> {
-    let mut s = ManifestStream::open(m, StreamOptions::default())?;
-    let stream = DriveStream::spool(path, m.sample_time_s(), || {
-        Ok(s.next_chunk(CHUNK)?.map(|c| (c.t, c.signals, c.starts_part)))
-    })?;
-    if let Some(r) = s.raw().report() {
-        eprintln!(
-            "imported {} as a stream: {} samples in {} part(s), {:.2} km, clock offset {:+.4} s from the first {} s",
-            path.display(),
-            r.samples,
-            r.parts.iter().filter(|p| p.kept).count(),
-            r.distance_m / 1e3,
-            r.clock_offset.applied_s,
-            StreamOptions::DEFAULT_WARM_UP_S
-        );
-        for w in &r.warnings {
-            eprintln!("warning: {}: {w}", path.display());
-        }
-    }
-    Ok(stream)
-}
-
-/// The parameters to start from: the vehicle's most recent row in the
-/// history, else `--theta0` (default θ_0).
-fn starting_point(db: &History, a: &FollowArgs) -> Result<Stored> {
-    Ok(match db.rows(&a.vehicle)?.pop() {
-        Some(r) => Stored {
-            theta: r.record.theta,
-            sigma: r.record.sigma,
-            origin: format!("history row {}", r.id),
-            calibrated: true,
-        },
-        None => Stored {
-            theta: a.theta0.as_ref().map_or(Theta::PAPER_INITIAL, |t| t.theta),
-            sigma: None,
-            origin: "θ_0".into(),
-            calibrated: false,
-        },
-    })
 }
 
 /// The online calibrator's options from the command line, checked (by a
@@ -421,32 +265,15 @@ fn gates(a: &FollowArgs) -> Result<Gates> {
     Ok(g)
 }
 
-/// Writes a passed update: a `calibrations` row and the parameter file
-/// (atomically). Returns the new stored parameters.
-fn write_back(
-    db: &mut History,
-    a: &FollowArgs,
-    decision: &GateDecision,
-    (source, fingerprint): (&str, &str),
-    (t_start_s, t_end_s): (f64, f64),
-    heading_offset_rad: f64,
-) -> Result<Stored> {
-    let rec = CalibrationRecord {
-        sources: vec![source.to_string()],
-        t_start_s,
-        t_end_s,
-        sigma: Some(decision.sigma),
-        heading_offset_rad: Some(heading_offset_rad),
-        ..CalibrationRecord::new(&a.vehicle, fingerprint, METHOD, decision.theta)
-    };
-    db.record(&rec)?;
+/// Writes a written update to `--params-out` (atomically), when given.
+fn write_params(a: &FollowArgs, decision: &GateDecision, source: &str, fingerprint: &str) -> Result<()> {
     if let Some(p) = &a.params_out {
         let s = decision.sigma.to_array().map(Some);
         let mut f = ParamFile::from_theta(&decision.theta, s, source, METHOD);
         f.provenance.push(("fingerprint".into(), fingerprint.to_string()));
         write_text(p, &f.text_for(p)?).with_context(|| format!("--params-out {}", p.display()))?;
     }
-    Ok(Stored { theta: decision.theta, sigma: Some(decision.sigma), origin: source.to_string(), calibrated: true })
+    Ok(())
 }
 
 /// A decision in the JSON report.

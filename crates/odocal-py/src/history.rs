@@ -61,19 +61,19 @@ impl PyHistory {
     /// The schema version of the file.
     #[getter]
     fn schema_version(&self) -> PyResult<i64> {
-        self.with(|db| db.schema_version())
+        self.with(|db| Ok(db.schema_version))
     }
 
     /// The vehicle's calibrations in recording order, one dict per row
     /// (the columns of the table `calibrations`; `theta` and `sigma` as dicts).
     fn rows<'py>(&self, py: Python<'py>, vehicle: &str) -> PyResult<Bound<'py, PyAny>> {
-        let rows = self.with(|db| db.rows(vehicle))?;
+        let rows = self.with(|db| db.vehicle(vehicle, None))?.rows;
         to_py(py, &json(&rows)?)
     }
 
     /// The vehicle's most recent row, or None.
     fn latest<'py>(&self, py: Python<'py>, vehicle: &str) -> PyResult<Bound<'py, PyAny>> {
-        let row = self.with(|db| db.rows(vehicle))?.pop();
+        let row = self.with(|db| db.vehicle(vehicle, None))?.rows.pop();
         to_py(py, &json(&row)?)
     }
 
@@ -81,7 +81,7 @@ impl PyHistory {
     /// combined σ: dicts with `parameter`, `from_id`, `from_recorded_at`,
     /// `to_id`, `to_recorded_at`, `change`, `combined_sigma`.
     fn drift<'py>(&self, py: Python<'py>, vehicle: &str) -> PyResult<Bound<'py, PyAny>> {
-        let flags = odocal::history::drift_between(&self.with(|db| db.rows(vehicle))?);
+        let flags = self.with(|db| db.vehicle(vehicle, None))?.drift;
         to_py(py, &json(&flags)?)
     }
 
@@ -90,13 +90,13 @@ impl PyHistory {
     /// "between_drive_sd"}`, or None without rows.
     #[pyo3(signature = (vehicle, ids=None))]
     fn pooled<'py>(&self, py: Python<'py>, vehicle: &str, ids: Option<Vec<i64>>) -> PyResult<Bound<'py, PyAny>> {
-        let p = self.with(|db| db.pooled(vehicle, ids.as_deref()))?;
+        let p = self.with(|db| db.vehicle(vehicle, ids.as_deref()))?.pooled;
         to_py(py, &json(&p)?)
     }
 
     /// The vehicle's logged write-back decisions (table `decisions`), in order.
     fn decisions<'py>(&self, py: Python<'py>, vehicle: &str) -> PyResult<Bound<'py, PyAny>> {
-        let d = self.with(|db| db.decisions(vehicle))?;
+        let d = self.with(|db| db.vehicle(vehicle, None))?.decisions;
         to_py(py, &json(&d)?)
     }
 

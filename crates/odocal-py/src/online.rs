@@ -10,19 +10,12 @@ use serde::de::DeserializeOwned;
 use serde::Serialize;
 
 use odocal::online::gate::Gates;
-use odocal::online::{Calibrator, Chunk, HeadingUnwrap, OnlineOptions};
-use odocal::Theta;
+use odocal::online::{Calibrator, OnlineOptions};
+use odocal::{Signals, Theta};
 
 use crate::convert::{extract_theta, json, to_json, to_py};
 use crate::drive::PyDrive;
 use crate::lib_err;
-
-/// Steps between pushed samples larger than this many sample times are a
-/// gap: a new continuous part starts after them.
-const GAP_STEPS: f64 = 1.5;
-
-/// Relative tolerance of a step against the sample time (as a drive's).
-const STEP_TOLERANCE: f64 = 0.01;
 
 /// `defaults` (a library options struct) with the keys of `given` put over
 /// it, nested tables key by key; an unknown key raises `TypeError` naming it
@@ -68,42 +61,6 @@ type Column<'py> = PyArrayLike1<'py, f64, AllowTypeChange>;
 pub(crate) struct PyCalibrator {
     cal: Calibrator,
     gates: Gates,
-    unwrap: HeadingUnwrap,
-    last_t: Option<f64>,
-}
-
-impl PyCalibrator {
-    /// Checks a chunk's times against the sample time; returns the sample
-    /// indices where a new part starts (after a gap), the first possibly 0.
-    fn part_starts(&self, t: &[f64]) -> PyResult<Vec<usize>> {
-        let ts = self.cal.status().sample_time_s;
-        let mut starts = Vec::new();
-        let mut prev = self.last_t;
-        for (i, &ti) in t.iter().enumerate() {
-            if !ti.is_finite() {
-                return Err(lib_err(odocal::Error::InvalidOption {
-                    field: "t",
-                    reason: format!("sample {i}: time {ti} is not finite"),
-                }));
-            }
-            if let Some(p) = prev {
-                let step = ti - p;
-                if step > GAP_STEPS * ts {
-                    starts.push(i);
-                } else if (step - ts).abs() > STEP_TOLERANCE * ts {
-                    return Err(lib_err(odocal::Error::InvalidOption {
-                        field: "t",
-                        reason: format!(
-                            "sample {i}: step {step} s from the previous sample is not the sample time {ts} s \
-                             (within 1 %) nor a gap (more than {GAP_STEPS} sample times)"
-                        ),
-                    }));
-                }
-            }
-            prev = Some(ti);
-        }
-        Ok(starts)
-    }
 }
 
 #[pymethods]
@@ -127,7 +84,7 @@ impl PyCalibrator {
         let opts: OnlineOptions = overlay(&OnlineOptions::default(), options, "options")?;
         let gates: Gates = overlay(&Gates::default(), gates, "gates")?;
         let cal = Calibrator::new(theta0, sigma0, sample_time_s, opts).map_err(lib_err)?;
-        Ok(PyCalibrator { cal, gates, unwrap: HeadingUnwrap::default(), last_t: None })
+        Ok(PyCalibrator { cal, gates })
     }
 
     /// Takes the next samples of the current drive, in time order: the
@@ -152,53 +109,13 @@ impl PyCalibrator {
         beta: Option<Column<'_>>,
     ) -> PyResult<()> {
         let n = px.as_array().len();
-        let beta = beta.map_or_else(|| vec![0.0; n], |b| b.as_array().to_vec());
-        let mut psi = psi.as_array().to_vec();
-        let cols = [px.as_array().to_vec(), py.as_array().to_vec(), n_rl.as_array().to_vec(), n_rr.as_array().to_vec()];
-        let a_y = a_y.as_array().to_vec();
-        let t = t.map(|t| t.as_array().to_vec());
-        let lengths = [cols[0].len(), cols[1].len(), psi.len(), cols[2].len(), cols[3].len(), beta.len(), a_y.len()];
-        if let Some(bad) =
-            lengths.iter().position(|&l| l != n).or_else(|| t.as_ref().filter(|t| t.len() != n).map(|_| 7))
-        {
-            let names = ["px", "py", "psi", "n_rl", "n_rr", "beta", "a_y", "t"];
-            return Err(lib_err(odocal::Error::InvalidOption {
-                field: "chunk",
-                reason: format!("column {} has a length other than px's ({n})", names[bad]),
-            }));
-        }
-        let starts = match &t {
-            Some(t) => self.part_starts(t)?,
-            None => Vec::new(),
-        };
-        self.unwrap.unwrap(&mut psi);
-        let this = &mut *self;
-        gil.detach(|| {
-            let mut bounds: Vec<usize> = std::iter::once(0).chain(starts.iter().copied()).collect();
-            bounds.push(n);
-            for w in bounds.windows(2) {
-                let r = w[0]..w[1];
-                if starts.contains(&w[0]) {
-                    this.cal.begin_part();
-                }
-                let chunk = Chunk {
-                    px: &cols[0][r.clone()],
-                    py: &cols[1][r.clone()],
-                    psi: &psi[r.clone()],
-                    n_rl: &cols[2][r.clone()],
-                    n_rr: &cols[3][r.clone()],
-                    beta: &beta[r.clone()],
-                    a_y: &a_y[r],
-                };
-                this.cal.push(&chunk)?;
-            }
-            Ok::<(), odocal::Error>(())
-        })
-        .map_err(lib_err)?;
-        if let Some(last) = t.as_ref().and_then(|t| t.last()) {
-            self.last_t = Some(*last);
-        }
-        Ok(())
+        let col = |c: Column<'_>| c.as_array().to_vec();
+        let beta = beta.map_or_else(|| vec![0.0; n], col);
+        let samples =
+            Signals { px: col(px), py: col(py), psi: col(psi), n_rl: col(n_rl), n_rr: col(n_rr), beta, a_y: col(a_y) };
+        let t = t.map(col);
+        let cal = &mut self.cal;
+        gil.detach(|| cal.push(t.as_deref(), &samples)).map_err(lib_err)
     }
 
     /// Pushes a whole `odocal.Drive` as a new drive, part by part, in
@@ -220,18 +137,13 @@ impl PyCalibrator {
             )));
         }
         let cal = &mut self.cal;
-        gil.detach(|| cal.push_drive(&d, chunk, |_| {})).map_err(lib_err)?;
-        self.unwrap = HeadingUnwrap::default();
-        self.last_t = None;
-        Ok(())
+        gil.detach(|| cal.push_drive(&d, chunk, |_| {})).map_err(lib_err)
     }
 
     /// Starts a new drive: the heading offset starts anew, the drive's
     /// counters are cleared; θ and its covariance carry over.
     fn new_drive(&mut self) {
         self.cal.begin_drive();
-        self.unwrap = HeadingUnwrap::default();
-        self.last_t = None;
     }
 
     /// Starts a new continuous part of the current drive (after a gap that

@@ -18,6 +18,8 @@ use crate::lib_err;
 pub(crate) struct PyRawStream {
     raw: RawStream,
     manifest: Manifest,
+    /// The import report, once `finish()` returned it.
+    report: Option<odocal::ImportReport>,
 }
 
 #[pymethods]
@@ -27,14 +29,14 @@ impl PyRawStream {
     /// `warm_up_s` seconds of the wheel stream. Raises `OdocalError` for a
     /// manifest that is not streamed (the reason named) or a bad warm-up.
     #[new]
-    #[pyo3(signature = (manifest, *, warm_up_s=StreamOptions::DEFAULT_WARM_UP_S))]
+    #[pyo3(signature = (manifest, *, warm_up_s=StreamOptions::default().warm_up_s))]
     fn new(
         manifest: std::path::PathBuf,
         #[pyo3(from_py_with = crate::convert::real)] warm_up_s: f64,
     ) -> PyResult<Self> {
         let m = Manifest::from_path(&manifest).map_err(lib_err)?;
         let raw = RawStream::new(&m, StreamOptions { warm_up_s }).map_err(lib_err)?;
-        Ok(PyRawStream { raw, manifest: m })
+        Ok(PyRawStream { raw, manifest: m, report: None })
     }
 
     /// The streams the manifest reads: for each name, its `file`,
@@ -103,7 +105,9 @@ impl PyRawStream {
     /// about the drive (streams that do not overlap, no part long enough).
     fn finish(&mut self, py: Python<'_>) -> PyResult<()> {
         let raw = &mut self.raw;
-        py.detach(|| raw.finish()).map_err(lib_err)
+        let report = py.detach(|| raw.finish().cloned()).map_err(lib_err)?;
+        self.report = Some(report);
+        Ok(())
     }
 
     /// Up to `max` ready samples of one part, oldest first, or None: a dict
@@ -149,7 +153,7 @@ impl PyRawStream {
     /// `ImportReport`), else None.
     #[getter]
     fn report<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyAny>>> {
-        self.raw.report().map(|r| to_py(py, &json(r)?)).transpose()
+        self.report.as_ref().map(|r| to_py(py, &json(r)?)).transpose()
     }
 
     /// Rows and samples the import holds now.

@@ -4,7 +4,7 @@
 //! drift flags marked and the pooled mean drawn; then the rows, the flags
 //! and the pooled estimate as tables.
 
-use odocal::history::{DriftFlag, HistoryRow, Pooled, DRIFT_SIGMAS};
+use odocal::history::{DriftFlag, HistoryRow, Pooled, VehicleHistory, DRIFT_SIGMAS};
 use odocal::model::THETA_NAMES;
 use plotters::prelude::*;
 
@@ -186,15 +186,12 @@ fn pooled_table(p: &Pooled) -> String {
     h
 }
 
-/// The history page of `vehicle`: a plot per parameter (`<figure
+/// The history page of a vehicle: a plot per parameter (`<figure
 /// id="plot-c_e">`, …), the rows, the drift flags and the pooled estimate.
 /// Text from the database (vehicle, sources, methods) is escaped.
-pub fn render_history_html(
-    vehicle: &str,
-    rows: &[HistoryRow],
-    drift: &[DriftFlag],
-    pooled: Option<&Pooled>,
-) -> Result<String> {
+pub fn render_history_html(history: &VehicleHistory) -> Result<String> {
+    let VehicleHistory { vehicle, rows, drift, pooled, .. } = history;
+    let pooled = pooled.as_ref();
     let title = format!("odocal history of vehicle '{}'", esc(vehicle));
     let mut h = format!(
         "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{title}</title>\n<style>\
@@ -228,7 +225,7 @@ pub fn render_history_html(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use odocal::history::{drift_between, pooled_estimate, CalibrationRecord};
+    use odocal::history::CalibrationRecord;
     use odocal::Theta;
 
     fn row(id: i64, c_d: f64) -> HistoryRow {
@@ -249,9 +246,9 @@ mod tests {
     #[test]
     fn one_plot_per_parameter_the_flags_and_escaped_text() {
         let rows = vec![row(1, -2e-3), row(2, -2.01e-3), row(5, -1e-3)];
-        let drift = drift_between(&rows);
-        assert_eq!(drift.len(), 1);
-        let html = render_history_html("<van & co>", &rows, &drift, pooled_estimate(&rows).as_ref()).expect("html");
+        let history = VehicleHistory::of_rows("<van & co>", rows, None);
+        assert_eq!(history.drift.len(), 1);
+        let html = render_history_html(&history).expect("html");
         assert_eq!(html.matches("<svg").count(), 4);
         for name in THETA_NAMES {
             assert!(html.contains(&format!("<figure id=\"plot-{name}\">")), "{name}");
@@ -260,7 +257,7 @@ mod tests {
         assert!(html.contains("&lt;run5&gt;.csv") && !html.contains("<run5>"));
         assert!(html.contains("-1.0000 ± 2.00e-2") && html.contains("-2.0100 ± 2.00e-2"), "{html}");
         assert!(html.contains("class=\"flag\">c_d row id 2"));
-        let empty = render_history_html("v", &[], &[], None).expect("html");
+        let empty = render_history_html(&VehicleHistory::of_rows("v", Vec::new(), None)).expect("html");
         assert!(!empty.contains("<svg") && empty.contains("No calibrations"));
     }
 }

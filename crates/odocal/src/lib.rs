@@ -115,7 +115,7 @@ pub mod eiv; // 5
 mod error; // 0
 pub mod experiment; // 8
 #[cfg(feature = "history")]
-pub mod history; // 9
+pub mod history; // 8
 pub mod identify; // 4
 pub mod io; // 3
 pub mod model; // 1
@@ -145,10 +145,8 @@ pub use progress::Progress;
 // Drives: building, importing, simulating; parameter files. `segment` is
 // an expert module (its docs say for whom).
 pub use drive::{
-    fingerprint::refuse_duplicates,
-    segment,
-    stream::{DriveStream, StreamChunk},
-    Drive, DriveBuilder, ExtraColumn, ExtraValues, Signals,
+    fingerprint::refuse_duplicates, segment, stream::StreamChunk, Drive, DriveBuilder, ExtraColumn, ExtraValues,
+    Signals,
 };
 pub use io::import::{
     import, is_manifest_path, load_drive, manifest::Manifest, report::ImportReport, settings::ReferenceSpec,

@@ -1,10 +1,11 @@
-//! A manifest imported as a stream ([`odocal::online::ManifestStream`]),
-//! kept on disk ([`odocal::DriveStream::spool`]) and replayed through the
-//! online calibrator in memory that does not grow with the drive: the peak
+//! A manifest imported as a stream, kept on disk and replayed through the
+//! online calibrator ([`odocal::online::follow`]) in memory that does not grow with the drive: the peak
 //! heap, counted by this test binary's allocator, of a drive 8 times as
 //! long is within 10 % of the short one's (and the whole import's grows
 //! with it, so the count can tell); with an IMU's a_y, and with a_y from
 //! the wheels corrected for the road bank of two antennas.
+
+#![cfg(feature = "history")]
 
 use std::io::{BufRead, Write};
 use std::path::Path;
@@ -12,9 +13,8 @@ use std::path::Path;
 #[path = "support/memory.rs"]
 mod memory;
 
-use memory::{peak_of, replay_stream, write_drive};
-use odocal::online::{ManifestStream, StreamOptions};
-use odocal::{DriveStream, Manifest};
+use memory::{follow_file, peak_of, write_drive};
+use odocal::Manifest;
 
 /// Two antennas 1.5 m apart across the vehicle of the drive CSV at
 /// `drive`, on a road whose roll goes slowly between ±1.1°: `left.csv`
@@ -96,15 +96,6 @@ convention = "enu"
     std::fs::write(path, text).expect("write manifest");
 }
 
-/// Imports the manifest at `path` as a stream and replays it.
-fn replay(path: &Path) -> usize {
-    let m = Manifest::from_path(path).expect("manifest");
-    let mut s = ManifestStream::open(&m, StreamOptions::default()).expect("stream");
-    let stream = DriveStream::spool(path, 0.025, || Ok(s.next_chunk(400)?.map(|c| (c.t, c.signals, c.starts_part))))
-        .expect("spool");
-    replay_stream(&stream)
-}
-
 // One test in this binary: the counts are the process's.
 #[test]
 fn streamed_manifest_replay_memory_is_flat_in_the_drive_length() {
@@ -125,8 +116,8 @@ fn flat_in_the_drive_length(bank: bool) {
     }
     let whole = |p: &Path| odocal::import(&Manifest::from_path(p).expect("manifest")).expect("import").drive.len();
     let (n_short, n_long) = (whole(&short), whole(&long));
-    let p_short = peak_of(|| assert_eq!(replay(&short), n_short));
-    let p_long = peak_of(|| assert_eq!(replay(&long), n_long));
+    let p_short = peak_of(|| assert_eq!(follow_file(&short), n_short));
+    let p_long = peak_of(|| assert_eq!(follow_file(&long), n_long));
     let w_short = peak_of(|| assert_eq!(whole(&short), n_short));
     let w_long = peak_of(|| assert_eq!(whole(&long), n_long));
     let what = if bank { "a_y from the wheels and the road bank" } else { "an IMU's a_y" };

@@ -1,22 +1,16 @@
-//! A drive CSV read as a stream ([`odocal::DriveStream`]) and replayed
-//! through the online calibrator in memory that does not grow with the
+//! A drive CSV read as a stream and replayed through the online
+//! calibrator ([`odocal::online::follow`]) in memory that does not grow with the
 //! drive: the peak heap, counted by this test binary's allocator, of a
 //! drive 8 times as long is within 10 % of the short one's (and the whole
 //! reader's grows with it, so the count can tell).
 
-use std::path::Path;
+#![cfg(feature = "history")]
 
 #[path = "support/memory.rs"]
 mod memory;
 
-use memory::{peak_of, replay_stream, write_drive};
-use odocal::{Drive, DriveStream};
-
-/// Opens, fingerprints and replays the drive at `path` as a stream.
-fn replay(path: &Path) -> usize {
-    let stream = DriveStream::open(path).expect("stream");
-    replay_stream(&stream)
-}
+use memory::{follow_file, peak_of, write_drive};
+use odocal::Drive;
 
 // One test in this binary: the counts are the process's.
 #[test]
@@ -25,8 +19,8 @@ fn streamed_replay_memory_is_flat_in_the_drive_length() {
     let (short, long) = (dir.path().join("short.csv"), dir.path().join("long.csv"));
     write_drive(&short, 12_000);
     write_drive(&long, 96_000);
-    let p_short = peak_of(|| assert_eq!(replay(&short), 12_000));
-    let p_long = peak_of(|| assert_eq!(replay(&long), 96_000));
+    let p_short = peak_of(|| assert_eq!(follow_file(&short), 12_000));
+    let p_long = peak_of(|| assert_eq!(follow_file(&long), 96_000));
     assert!(
         (p_long as f64) < 1.1 * p_short as f64,
         "peak heap {p_long} B for 96,000 samples against {p_short} B for 12,000"

@@ -15,7 +15,7 @@
 //! c_d steps by `--step-mm` (default 1 mm) 10 minutes in, followed by one
 //! calibrator (as `odocal follow` replays them); each drive's θ and σ at
 //! its end is a history row, and the history's drift flag
-//! ([`odocal::history::drift_between`], a change beyond three combined σ)
+//! ([`odocal::history::VehicleHistory::drift`], a change beyond three combined σ)
 //! is read between the two rows. The control: drive B without the step
 //! (a flag there is a false alarm). `--step-mm` takes a list of step
 //! sizes (one table each, then a summary of the flagged counts);
@@ -24,10 +24,10 @@
 //! `--random-walk-ce F` and `--random-walk-cd M` set the process noise
 //! (per-hour sd of c_e as a fraction, of c_d in m).
 
-use odocal::history::{drift_between, CalibrationRecord, HistoryRow};
-use odocal::online::{Calibrator, Chunk, OnlineOptions};
+use odocal::history::{CalibrationRecord, HistoryRow, VehicleHistory};
+use odocal::online::{Calibrator, OnlineOptions};
 use odocal::sim::{simulate, CdStep, DriftOptions, SimOptions};
-use odocal::{Drive, Theta};
+use odocal::{Drive, Signals, Theta};
 use odocal_lab::{Args, Res};
 use rayon::prelude::*;
 
@@ -62,7 +62,10 @@ fn push_first(cal: &mut Calibrator, d: &Drive, n: usize, mut each: impl FnMut(&C
     cal.begin_drive();
     for a in (0..n).step_by(CHUNK) {
         let b = (a + CHUNK).min(n);
-        cal.push(&Chunk::of(d, a..b))?;
+        let m = d.measured();
+        let cols = [&m.px, &m.py, &m.psi, &m.n_rl, &m.n_rr, &m.beta, &m.a_y].map(|c| c[a..b].to_vec());
+        let [px, py, psi, n_rl, n_rr, beta, a_y] = cols;
+        cal.push(None, &Signals { px, py, psi, n_rl, n_rr, beta, a_y })?;
         each(cal, b);
     }
     Ok(())
@@ -173,7 +176,7 @@ fn step_run(seed: u64, step_m: f64, k: &Knobs) -> Res<StepRun> {
     push_first(&mut cal, &b, nb, |_, _| {})?;
     let st = cal.status();
     let row_b = row(2, st.theta, st.sigma);
-    let flags = drift_between(&[row_a.clone(), row_b.clone()]);
+    let flags = VehicleHistory::of_rows("sim", vec![row_a.clone(), row_b.clone()], None).drift;
     let (sa, sb) = (row_a.record.sigma.map_or(0.0, |s| s.c_d), row_b.record.sigma.map_or(0.0, |s| s.c_d));
     Ok(StepRun {
         change: row_b.record.theta.c_d - row_a.record.theta.c_d,

@@ -19,6 +19,9 @@
 //! reader's order, with its line); memory then grows with the file, as the
 //! whole reader's does.
 
+// Read by `online::follow` (feature `history`) and the tests.
+#![cfg_attr(not(feature = "history"), allow(dead_code))]
+
 use std::fs::File;
 use std::io::{BufRead, BufReader, BufWriter, Read, Write};
 use std::ops::Range;
@@ -43,25 +46,8 @@ const BLOCK: usize = 4096;
 /// ([`DriveStream::chunks`]) with the same values, sample time and parts,
 /// and the same [`fingerprint`](DriveStream::fingerprint), while memory
 /// stays flat in the drive's length (the module's docs say how).
-///
-/// ```
-/// # fn main() -> Result<(), Box<dyn std::error::Error>> {
-/// use odocal::{sim, Drive, DriveStream};
-/// let out = sim::simulate(&sim::SimOptions { length_km: 1.0, ..sim::SimOptions::paper(1) })?;
-/// let dir = tempfile::tempdir()?;
-/// let path = dir.path().join("d.csv");
-/// out.drive.write_csv(&path)?;
-/// let stream = DriveStream::open(&path)?;
-/// assert_eq!(stream.fingerprint()?, Drive::read_csv(&path)?.0.fingerprint());
-/// let mut n = 0;
-/// for chunk in stream.chunks(400) {
-///     n += chunk?.t.len();
-/// }
-/// assert_eq!(n, stream.len());
-/// # Ok(()) }
-/// ```
 #[derive(Debug)]
-pub struct DriveStream {
+pub(crate) struct DriveStream {
     /// The file read (or the source a spooled stream names in messages).
     pub path: PathBuf,
     /// Sample time t_s, s, as [`Drive::sample_time_s`] (the mean step).
@@ -79,12 +65,13 @@ pub struct DriveStream {
     columns: Vec<File>,
 }
 
-/// Canonical samples of a stream, all of one part: of a [`DriveStream`]
-/// or of a streamed import (`online::RawStream`, `online::ManifestStream`).
+/// Canonical samples of a stream, all of one part: of a streamed import
+/// ([`RawStream::take_chunk`](crate::online::RawStream::take_chunk)), or
+/// of a drive CSV read as a stream.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StreamChunk {
-    /// The part they belong to (0, 1, …; for a [`DriveStream`] an index
-    /// into its continuous parts, in time order).
+    /// The part they belong to (0, 1, …; an index into the drive's
+    /// continuous parts, in time order).
     pub part: usize,
     /// The index of the first of them among the drive's samples.
     pub start: usize,
@@ -96,8 +83,8 @@ pub struct StreamChunk {
     /// The signals, the heading unwrapped as [`Drive`] unwraps it.
     pub signals: Signals,
     /// Whether the reference was measured at each sample
-    /// ([`Drive::reference_measured`]); `None` from a [`DriveStream`],
-    /// which keeps no such column.
+    /// ([`Drive::reference_measured`]); `None` from a drive CSV read as
+    /// a stream, which keeps no such column.
     pub reference_measured: Option<Vec<bool>>,
 }
 
@@ -108,7 +95,7 @@ impl DriveStream {
     /// # Errors
     /// [`Drive::read_csv`]'s errors, the same words; [`Error::Io`] when the
     /// temporary files cannot be written.
-    pub fn open(path: impl AsRef<Path>) -> Result<DriveStream> {
+    pub(crate) fn open(path: impl AsRef<Path>) -> Result<DriveStream> {
         let path = path.as_ref();
         match scan(path, &PhysicalLimits::default()) {
             Ok(s) => Ok(s),
@@ -125,7 +112,7 @@ impl DriveStream {
     ///
     /// # Errors
     /// `next`'s; [`Error::Io`] when the temporary files cannot be written.
-    pub fn spool(
+    pub(crate) fn spool(
         path: &Path,
         sample_time_s: f64,
         mut next: impl FnMut() -> Result<Option<(Vec<f64>, Signals, bool)>>,
@@ -167,13 +154,8 @@ impl DriveStream {
     }
 
     /// Number of samples.
-    pub fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         self.len
-    }
-
-    /// True when the drive has no samples (never, for an opened stream).
-    pub fn is_empty(&self) -> bool {
-        self.len == 0
     }
 
     /// The drive's fingerprint, equal to [`Drive::fingerprint`] of the drive
@@ -181,7 +163,7 @@ impl DriveStream {
     ///
     /// # Errors
     /// [`Error::Io`] when the temporary files cannot be read.
-    pub fn fingerprint(&self) -> Result<String> {
+    pub(crate) fn fingerprint(&self) -> Result<String> {
         let mut f = Fingerprinter::new(self.len, &self.parts, self.sample_time_s);
         for k in 0..KEPT {
             let mut a = 0;
@@ -196,7 +178,7 @@ impl DriveStream {
 
     /// The samples in chunks of at most `size` (at least 1), part by part
     /// in time order; a chunk never spans two parts.
-    pub fn chunks(&self, size: usize) -> impl Iterator<Item = Result<StreamChunk>> + '_ {
+    pub(crate) fn chunks(&self, size: usize) -> impl Iterator<Item = Result<StreamChunk>> + '_ {
         StreamChunks { stream: self, size: size.max(1), part: 0, next: 0 }
     }
 

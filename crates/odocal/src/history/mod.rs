@@ -3,7 +3,8 @@
 //!
 //! For programs that keep a vehicle's calibration current: `odocal
 //! calibrate --vehicle ID --db FILE` and `odocal follow` record here, and
-//! `odocal history` reads it. One row of the table `calibrations` per
+//! `odocal history` reads it ([`History::vehicle`]: the rows, drift flags,
+//! pooled estimate and decisions of one vehicle, [`VehicleHistory`]). One row of the table `calibrations` per
 //! recorded drive and method: θ with σ, the verdict, the time span, the
 //! source files, the odocal version and the drive's
 //! [fingerprint](crate::Drive::fingerprint). A drive already recorded for a
@@ -25,7 +26,7 @@
 //! let rec = CalibrationRecord::new("van-1", "ab12", "eiv", Theta::PAPER_NOMINAL);
 //! assert!(matches!(db.record(&rec)?, Recorded::New(_)));
 //! assert!(matches!(db.record(&rec)?, Recorded::AlreadyRecorded(_)));
-//! assert_eq!(db.rows("van-1")?.len(), 1);
+//! assert_eq!(db.vehicle("van-1", None)?.rows.len(), 1);
 //! # Ok(()) }
 //! ```
 
@@ -37,12 +38,12 @@ use serde::{Deserialize, Serialize};
 
 use crate::calibrate::CalibrationReport;
 use crate::error::{Error, Result};
-use crate::model::Theta;
+use crate::model::{Theta, THETA_NAMES};
 
 mod pooled;
 mod schema;
 
-pub use pooled::{drift_between, pooled_estimate, DriftFlag, Pooled, DRIFT_SIGMAS};
+pub use pooled::{DriftFlag, Pooled, DRIFT_SIGMAS};
 
 /// How long a writer waits for another process's transaction to finish.
 const BUSY_TIMEOUT: Duration = Duration::from_secs(30);
@@ -143,9 +144,9 @@ pub enum Recorded {
     AlreadyRecorded(i64),
 }
 
-/// A write-back decision of the online calibration (table `decisions`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct Decision {
+/// A write-back decision of the online calibration, to be logged.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Decision {
     /// The vehicle.
     pub vehicle: String,
     /// The drive's fingerprint.
@@ -164,7 +165,8 @@ pub struct Decision {
     pub sigma: Option<Theta>,
 }
 
-/// A row of the table `decisions`.
+/// A row of the table `decisions`: a write-back decision of the online
+/// calibration ([`crate::online::follow`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DecisionRow {
     /// The row id (increasing in logging order).
@@ -173,9 +175,117 @@ pub struct DecisionRow {
     pub decided_at: String,
     /// The odocal version that decided it.
     pub odocal_version: String,
-    /// The decision.
-    #[serde(flatten)]
-    pub decision: Decision,
+    /// The vehicle.
+    pub vehicle: String,
+    /// The drive's fingerprint.
+    pub fingerprint: String,
+    /// The drive's source (file or manifest).
+    pub source: String,
+    /// Time into the drive, s (from its first sample).
+    pub drive_time_s: f64,
+    /// `written`, `held` or `flagged` (a change too large to write without a person).
+    pub decision: String,
+    /// Why: the gates that held it, or what was written.
+    pub reasons: Vec<String>,
+    /// The proposed θ.
+    pub theta: Theta,
+    /// Its σ.
+    pub sigma: Option<Theta>,
+}
+
+/// A vehicle's history as read ([`History::vehicle`]): its calibrations,
+/// the drift flags between consecutive ones, their pooled estimate and the
+/// logged write-back decisions. Its [`Display`](std::fmt::Display) is the
+/// table `odocal history` prints.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct VehicleHistory {
+    /// The vehicle's identifier.
+    pub vehicle: String,
+    /// Its calibrations in recording order.
+    pub rows: Vec<HistoryRow>,
+    /// Every parameter change between consecutive rows beyond
+    /// [`DRIFT_SIGMAS`] combined σ (pairs where a row has no σ are skipped).
+    pub drift: Vec<DriftFlag>,
+    /// The pooled estimate over the rows asked for (all by default);
+    /// `None` without rows.
+    pub pooled: Option<Pooled>,
+    /// The logged write-back decisions in logging order.
+    pub decisions: Vec<DecisionRow>,
+}
+
+impl VehicleHistory {
+    /// The history of `vehicle` made of `rows` (in recording order): their
+    /// drift flags and the pooled estimate over those with an id in `pool`
+    /// (all when `None`); no decisions.
+    pub fn of_rows(vehicle: &str, rows: Vec<HistoryRow>, pool: Option<&[i64]>) -> VehicleHistory {
+        let drift = pooled::drift_between(&rows);
+        let pooled_rows: Vec<HistoryRow> =
+            rows.iter().filter(|r| pool.is_none_or(|ids| ids.contains(&r.id))).cloned().collect();
+        let pooled = pooled::pooled_estimate(&pooled_rows);
+        VehicleHistory { vehicle: vehicle.to_string(), rows, drift, pooled, decisions: Vec::new() }
+    }
+}
+
+impl std::fmt::Display for VehicleHistory {
+    /// The rows as a table (one line per recorded drive and method), the
+    /// drift flags and the pooled estimate.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "{:>4}  {:<24} {:<10} {:>10} {:>11} {:>9} {:>10}  {:<9} source",
+            "id", "recorded (UTC)", "method", "c_e", "c_d", "t_r", "d", "verdict"
+        )?;
+        for r in &self.rows {
+            let c = &r.record;
+            let sd = c.sigma.map(|s| s.to_array());
+            let cell = |i: usize, v: f64, digits: usize| match sd {
+                Some(s) => format!("{v:.digits$}±{:.1e}", s[i]),
+                None => format!("{v:.digits$}"),
+            };
+            writeln!(
+                f,
+                "{:>4}  {:<24} {:<10} {} {} {} {}  {:<9} {}",
+                r.id,
+                r.recorded_at,
+                c.method,
+                cell(0, c.theta.c_e, 5),
+                cell(1, c.theta.c_d * 1e3, 3) + "mm",
+                cell(2, c.theta.t_r, 3),
+                cell(3, c.theta.d * 1e3, 3) + "mm/g",
+                c.verdict.as_deref().unwrap_or("-"),
+                c.sources.join(", ")
+            )?;
+        }
+        if self.drift.is_empty() {
+            writeln!(f, "\nno drift: consecutive rows agree within 3 combined σ")?;
+        } else {
+            writeln!(f, "\ndrift (|Δ| > 3·sqrt(σ₁² + σ₂²)):")?;
+            for d in &self.drift {
+                writeln!(
+                    f,
+                    "  {} row {} ({}) → row {} ({}): {:+.4e} (combined σ {:.2e}, {:.1}σ)",
+                    d.parameter,
+                    d.from_id,
+                    d.from_recorded_at,
+                    d.to_id,
+                    d.to_recorded_at,
+                    d.change,
+                    d.combined_sigma,
+                    d.change.abs() / d.combined_sigma
+                )?;
+            }
+        }
+        if let Some(p) = &self.pooled {
+            writeln!(f, "\npooled over {} row(s) (inverse-variance mean ± its σ; between-drive sd):", p.rows)?;
+            let (m, s, b) = (p.mean.to_array(), p.sigma_of_mean.to_array(), p.between_drive_sd.to_array());
+            for (i, name) in THETA_NAMES.iter().enumerate() {
+                // One row has no spread between drives.
+                let sd = if b[i].is_finite() { format!("{:.2e}", b[i]) } else { "— (needs two rows)".into() };
+                writeln!(f, "  {name:<4} {:>12.6} ± {:.2e}   between-drive sd {sd}", m[i], s[i])?;
+            }
+        }
+        Ok(())
+    }
 }
 
 /// An open history database.
@@ -183,6 +293,9 @@ pub struct DecisionRow {
 pub struct History {
     /// The database file.
     pub path: PathBuf,
+    /// The schema version of the file (after [`History::open`]'s
+    /// migration, this odocal's).
+    pub schema_version: i64,
     conn: Connection,
 }
 
@@ -233,16 +346,14 @@ fn decision_row(r: &Row<'_>) -> rusqlite::Result<DecisionRow> {
         id: r.get(0)?,
         decided_at: r.get(1)?,
         odocal_version: r.get(2)?,
-        decision: Decision {
-            vehicle: r.get(3)?,
-            fingerprint: r.get(4)?,
-            source: r.get(5)?,
-            reasons: serde_json::from_str(&reasons).unwrap_or_else(|_| vec![reasons.clone()]),
-            drive_time_s: r.get(7)?,
-            decision: r.get(8)?,
-            theta: theta_at(r, 9)?,
-            sigma: sigma_at(r, 13)?,
-        },
+        vehicle: r.get(3)?,
+        fingerprint: r.get(4)?,
+        source: r.get(5)?,
+        reasons: serde_json::from_str(&reasons).unwrap_or_else(|_| vec![reasons.clone()]),
+        drive_time_s: r.get(7)?,
+        decision: r.get(8)?,
+        theta: theta_at(r, 9)?,
+        sigma: sigma_at(r, 13)?,
     })
 }
 
@@ -271,12 +382,8 @@ impl History {
         }
         conn.pragma_update(None, "synchronous", "NORMAL").map_err(&err)?;
         schema::migrate(&mut conn).map_err(|reason| Error::History { path: path.clone(), reason })?;
-        Ok(History { conn, path })
-    }
-
-    /// The schema version of the open file (after migration: this odocal's).
-    pub fn schema_version(&self) -> Result<i64> {
-        self.conn.query_row("PRAGMA user_version", [], |r| r.get(0)).map_err(sql_err(&self.path))
+        let schema_version = conn.query_row("PRAGMA user_version", [], |r| r.get(0)).map_err(&err)?;
+        Ok(History { conn, path, schema_version })
     }
 
     /// Records a calibration, unless the vehicle's history already holds
@@ -332,8 +439,16 @@ impl History {
         Ok(Recorded::AlreadyRecorded(id))
     }
 
+    /// The history of `vehicle`: its calibrations, their drift flags, the
+    /// pooled estimate over those with an id in `pool` (all when `None`)
+    /// and its logged write-back decisions.
+    pub fn vehicle(&self, vehicle: &str, pool: Option<&[i64]>) -> Result<VehicleHistory> {
+        let decisions = self.decisions(vehicle)?;
+        Ok(VehicleHistory { decisions, ..VehicleHistory::of_rows(vehicle, self.rows(vehicle)?, pool) })
+    }
+
     /// The vehicle's calibrations in recording order.
-    pub fn rows(&self, vehicle: &str) -> Result<Vec<HistoryRow>> {
+    pub(crate) fn rows(&self, vehicle: &str) -> Result<Vec<HistoryRow>> {
         let err = sql_err(&self.path);
         let mut st = self
             .conn
@@ -343,16 +458,8 @@ impl History {
         rows.collect::<rusqlite::Result<Vec<_>>>().map_err(&err)
     }
 
-    /// The pooled estimate over the vehicle's rows (those with an id in
-    /// `ids`, or all when `None`): [`pooled_estimate`]. `None` without rows.
-    pub fn pooled(&self, vehicle: &str, ids: Option<&[i64]>) -> Result<Option<Pooled>> {
-        let rows: Vec<HistoryRow> =
-            self.rows(vehicle)?.into_iter().filter(|r| ids.is_none_or(|ids| ids.contains(&r.id))).collect();
-        Ok(pooled_estimate(&rows))
-    }
-
     /// Logs a write-back decision; returns its row id.
-    pub fn record_decision(&mut self, d: &Decision) -> Result<i64> {
+    pub(crate) fn record_decision(&mut self, d: &Decision) -> Result<i64> {
         let err = sql_err(&self.path);
         let reasons = serde_json::to_string(&d.reasons)
             .map_err(|e| Error::History { path: self.path.clone(), reason: format!("reasons: {e}") })?;
@@ -387,7 +494,7 @@ impl History {
     }
 
     /// The vehicle's logged write-back decisions in logging order.
-    pub fn decisions(&self, vehicle: &str) -> Result<Vec<DecisionRow>> {
+    pub(crate) fn decisions(&self, vehicle: &str) -> Result<Vec<DecisionRow>> {
         let err = sql_err(&self.path);
         let mut st = self
             .conn

@@ -31,7 +31,7 @@ pub struct DriftFlag {
 /// Flags every parameter change between consecutive rows (in the order
 /// given) beyond [`DRIFT_SIGMAS`] combined σ. Pairs where either row has
 /// no σ are skipped.
-pub fn drift_between(rows: &[HistoryRow]) -> Vec<DriftFlag> {
+pub(crate) fn drift_between(rows: &[HistoryRow]) -> Vec<DriftFlag> {
     let mut out = Vec::new();
     for w in rows.windows(2) {
         let (a, b) = (&w[0], &w[1]);
@@ -75,7 +75,7 @@ pub struct Pooled {
 }
 
 /// Pools `rows` ([`Pooled`]); `None` without rows.
-pub fn pooled_estimate(rows: &[HistoryRow]) -> Option<Pooled> {
+pub(crate) fn pooled_estimate(rows: &[HistoryRow]) -> Option<Pooled> {
     if rows.is_empty() {
         return None;
     }

@@ -26,12 +26,12 @@ fn an_empty_file_is_migrated_to_the_current_schema() {
     let path = dir.path().join("h.sqlite");
     std::fs::write(&path, b"").expect("empty file");
     let db = History::open(&path).expect("open");
-    assert_eq!(db.schema_version().expect("version"), schema::SCHEMA_VERSION);
+    assert_eq!(db.schema_version, schema::SCHEMA_VERSION);
     assert!(db.rows("v").expect("rows").is_empty());
     drop(db);
     // Reopening runs no migration again.
     let db = History::open(&path).expect("reopen");
-    assert_eq!(db.schema_version().expect("version"), schema::SCHEMA_VERSION);
+    assert_eq!(db.schema_version, schema::SCHEMA_VERSION);
 }
 
 #[test]
@@ -110,7 +110,7 @@ fn drift_is_flagged_beyond_three_combined_sigma() {
     db.record(&record("van", "a", 1.950, 1e-3)).expect("a");
     db.record(&record("van", "b", 1.954, 1e-3)).expect("b"); // 4 mm: not flagged
     db.record(&record("van", "c", 1.960, 1e-3)).expect("c"); // 6 mm: flagged
-    let flags = drift_between(&db.rows("van").expect("rows"));
+    let flags = db.vehicle("van", None).expect("history").drift;
     assert_eq!(flags.len(), 1, "{flags:?}");
     assert_eq!(flags[0].parameter, "c_e");
     assert!((flags[0].change - 0.006).abs() < 1e-12);
@@ -125,15 +125,32 @@ fn pooled_is_the_inverse_variance_mean() {
     let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
     db.record(&record("van", "a", 1.0, 1.0)).expect("a");
     db.record(&record("van", "b", 2.0, 0.5)).expect("b");
-    let p = db.pooled("van", None).expect("pooled").expect("rows");
+    let p = db.vehicle("van", None).expect("history").pooled.expect("rows");
     // Weights 1 and 4: (1 + 8) / 5.
     assert!((p.mean.c_e - 1.8).abs() < 1e-12);
     assert!((p.between_drive_sd.c_e - 0.5f64.sqrt()).abs() < 1e-12);
     // Model se 1/√5 = 0.447 against spread se 0.5: the larger.
     assert!((p.sigma_of_mean.c_e - 0.5).abs() < 1e-12);
     let first = db.rows("van").expect("rows")[0].id;
-    let one = db.pooled("van", Some(&[first])).expect("pooled").expect("rows");
+    let one = db.vehicle("van", Some(&[first])).expect("history").pooled.expect("rows");
     assert_eq!(one.rows, 1);
     assert!((one.mean.c_e - 1.0).abs() < 1e-12 && one.between_drive_sd.c_e.is_nan());
-    assert!(db.pooled("none", None).expect("pooled").is_none());
+    assert!(db.vehicle("none", None).expect("history").pooled.is_none());
+}
+
+#[test]
+fn the_table_lists_each_row_the_drift_and_the_pooled_estimate() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
+    db.record(&record("van", "a", 1.950, 1e-3)).expect("a");
+    let one = db.vehicle("van", None).expect("history").to_string();
+    let lines: Vec<&str> = one.lines().collect();
+    assert!(lines[0].starts_with("  id  recorded (UTC)") && lines[0].ends_with("verdict   source"), "{one}");
+    assert!(lines[1].contains(" eiv ") && lines[1].contains("1.95000±1.0e-3") && lines[1].ends_with("trusted   a.csv"));
+    assert!(one.contains("\nno drift: consecutive rows agree within 3 combined σ\n"), "{one}");
+    assert!(one.contains("pooled over 1 row(s)") && one.contains("— (needs two rows)"), "{one}");
+    db.record(&record("van", "c", 1.960, 1e-3)).expect("c");
+    let two = db.vehicle("van", None).expect("history").to_string();
+    assert!(two.contains("drift (|Δ| > 3·sqrt(σ₁² + σ₂²)):\n  c_e row 1 ("), "{two}");
+    assert!(!two.contains("needs two rows"), "{two}");
 }

@@ -3,11 +3,11 @@
 //! For programs that calibrate as the vehicle drives (a ROS 2 node, a
 //! replay of logs in time order): [`Calibrator::push`] takes the drive's
 //! canonical samples chunk by chunk and keeps θ with its σ at any time, in
-//! memory that does not grow with the drive's length. `odocal follow`
-//! replays drives through it and gates what it writes back ([`gate`]).
-//! [`Calibrator::push_drive`] pushes a drive in memory,
-//! [`Calibrator::push_stream`] a drive CSV read as a stream
-//! ([`crate::DriveStream`]), in the same chunks and with the same results.
+//! memory that does not grow with the drive's length;
+//! [`Calibrator::push_drive`] pushes a drive in memory. [`follow`] (what
+//! `odocal follow` runs; feature `history`) replays drive files through it,
+//! each read as a stream, and writes back to a vehicle's history what the
+//! gates ([`gate`]) pass.
 //!
 //! ## The method: recursive Gauss-Newton over the paper's segments
 //!
@@ -66,10 +66,14 @@ use crate::identify::extrinsics_normal_equations;
 use crate::model::extrinsics::Extrinsics;
 use crate::model::{wrap_angle, Theta};
 
+#[cfg(feature = "history")]
+mod follow;
 pub mod gate;
 mod options;
 
-pub use crate::io::import::stream::{not_streamable, reader::ManifestStream, RawStream, StreamOptions};
+pub use crate::io::import::stream::{RawStream, StreamOptions};
+#[cfg(feature = "history")]
+pub use follow::{follow, FollowEvent, FollowOptions};
 pub use options::{OnlineOptions, RandomWalk};
 
 type Vec5 = SVector<f64, 5>;
@@ -85,9 +89,16 @@ const MIN_RESIDUAL_VARIANCE: f64 = 1e-12;
 /// Weight of a new segment in the running residual variance.
 const RESIDUAL_VARIANCE_GAIN: f64 = 0.1;
 
+/// Steps between pushed samples larger than this many sample times are a
+/// gap ([`Calibrator::push`]): a new continuous part starts after them.
+const GAP_STEPS: f64 = 1.5;
+
+/// Relative tolerance of a step against the sample time (as a drive's).
+const STEP_TOLERANCE: f64 = 0.01;
+
 /// A chunk of canonical samples (the [`Drive`] columns), in time order.
 #[derive(Debug, Clone, Copy)]
-pub struct Chunk<'a> {
+struct Chunk<'a> {
     /// Reference x, m.
     pub px: &'a [f64],
     /// Reference y, m.
@@ -105,26 +116,37 @@ pub struct Chunk<'a> {
 }
 
 impl<'a> Chunk<'a> {
-    research_pub! {
-        /// Samples `range` of a drive.
-        fn of(drive: &'a Drive, range: std::ops::Range<usize>) -> Chunk<'a> {
-            let r = range;
-            Chunk {
-                px: &drive.px()[r.clone()],
-                py: &drive.py()[r.clone()],
-                psi: &drive.psi()[r.clone()],
-                n_rl: &drive.n_rl()[r.clone()],
-                n_rr: &drive.n_rr()[r.clone()],
-                beta: &drive.beta()[r.clone()],
-                a_y: &drive.a_y()[r],
-            }
+    /// Samples `range` of a drive.
+    fn of(drive: &'a Drive, range: std::ops::Range<usize>) -> Chunk<'a> {
+        let r = range;
+        Chunk {
+            px: &drive.px()[r.clone()],
+            py: &drive.py()[r.clone()],
+            psi: &drive.psi()[r.clone()],
+            n_rl: &drive.n_rl()[r.clone()],
+            n_rr: &drive.n_rr()[r.clone()],
+            beta: &drive.beta()[r.clone()],
+            a_y: &drive.a_y()[r],
         }
     }
 
-    /// All samples of `signals` (a [`StreamChunk`]'s).
-    pub(crate) fn of_signals(signals: &'a Signals) -> Chunk<'a> {
+    /// All samples of `signals`.
+    fn of_signals(signals: &'a Signals) -> Chunk<'a> {
         let s = signals;
         Chunk { px: &s.px, py: &s.py, psi: &s.psi, n_rl: &s.n_rl, n_rr: &s.n_rr, beta: &s.beta, a_y: &s.a_y }
+    }
+
+    /// Samples `r` of the chunk.
+    fn range(&self, r: std::ops::Range<usize>) -> Chunk<'a> {
+        Chunk {
+            px: &self.px[r.clone()],
+            py: &self.py[r.clone()],
+            psi: &self.psi[r.clone()],
+            n_rl: &self.n_rl[r.clone()],
+            n_rr: &self.n_rr[r.clone()],
+            beta: &self.beta[r.clone()],
+            a_y: &self.a_y[r],
+        }
     }
 
     fn columns(&self) -> [&'a [f64]; 7] {
@@ -137,14 +159,14 @@ impl<'a> Chunk<'a> {
 /// wrap, with the same arithmetic, so a stream unwrapped chunk by chunk
 /// equals the drive's column bit for bit.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct HeadingUnwrap {
+struct HeadingUnwrap {
     offset: f64,
     prev_raw: Option<f64>,
 }
 
 impl HeadingUnwrap {
     /// Unwraps the next samples in place, continuing from the last chunk.
-    pub fn unwrap(&mut self, psi: &mut [f64]) {
+    fn unwrap(&mut self, psi: &mut [f64]) {
         let two_pi = 2.0 * std::f64::consts::PI;
         for v in psi.iter_mut() {
             let raw = *v;
@@ -314,6 +336,10 @@ pub struct Calibrator {
     /// online estimate only.
     pub stored: Option<Theta>,
     drive: DriveState,
+    /// The heading of [`Calibrator::push`] unwrapped across its pushes.
+    unwrap: HeadingUnwrap,
+    /// The time of the last sample [`Calibrator::push`] took with times.
+    last_t: Option<f64>,
 }
 
 /// Counters of the current drive.
@@ -380,6 +406,8 @@ impl Calibrator {
             track: VecDeque::new(),
             stored: None,
             drive: DriveState::default(),
+            unwrap: HeadingUnwrap::default(),
+            last_t: None,
             opts,
         })
     }
@@ -396,6 +424,8 @@ impl Calibrator {
         }
         self.p[(4, 4)] = self.opts.heading_offset_prior_sd_rad.powi(2);
         self.drive = DriveState::default();
+        self.unwrap = HeadingUnwrap::default();
+        self.last_t = None;
     }
 
     /// Starts a new continuous part of the current drive (after a gap):
@@ -411,10 +441,88 @@ impl Calibrator {
         self.pending.clear();
     }
 
+    /// Takes the next samples of the current drive, in time order, as a
+    /// live system sends them: the [`Drive`] columns, the heading wrapped or
+    /// not (it is unwrapped across pushes as [`Drive`] unwraps a column,
+    /// until [`Calibrator::begin_drive`]), with their times `t` when known.
+    /// With `t`, each step must be the sample time (within 1 %) or a gap of
+    /// more than 1.5 sample times, after which a new continuous part starts
+    /// ([`Calibrator::begin_part`]); without it, the samples follow the
+    /// previous ones. Folds every calibration segment the samples complete
+    /// and scores every validation segment they complete.
+    ///
+    /// # Errors
+    /// [`Error::InvalidOption`] for columns (or `t`) of another length than
+    /// `px`, a value that is not finite, or times that do not fit.
+    pub fn push(&mut self, t: Option<&[f64]>, samples: &Signals) -> Result<()> {
+        let s = samples;
+        let n = s.px.len();
+        let lengths = [s.px.len(), s.py.len(), s.psi.len(), s.n_rl.len(), s.n_rr.len(), s.beta.len(), s.a_y.len()];
+        if let Some(bad) = lengths.iter().position(|&l| l != n).or_else(|| t.filter(|t| t.len() != n).map(|_| 7)) {
+            let names = ["px", "py", "psi", "n_rl", "n_rr", "beta", "a_y", "t"];
+            return Err(Error::InvalidOption {
+                field: "chunk",
+                reason: format!("column {} has a length other than px's ({n})", names[bad]),
+            });
+        }
+        let starts = match t {
+            Some(t) => self.part_starts(t)?,
+            None => Vec::new(),
+        };
+        let mut psi = s.psi.clone();
+        self.unwrap.unwrap(&mut psi);
+        let mut bounds: Vec<usize> = std::iter::once(0).chain(starts.iter().copied()).collect();
+        bounds.push(n);
+        for w in bounds.windows(2) {
+            let r = w[0]..w[1];
+            if starts.contains(&w[0]) {
+                self.begin_part();
+            }
+            let chunk = Chunk { psi: &psi[r.clone()], ..Chunk::of_signals(s).range(r) };
+            self.push_chunk(&chunk)?;
+        }
+        if let Some(last) = t.and_then(|t| t.last()) {
+            self.last_t = Some(*last);
+        }
+        Ok(())
+    }
+
+    /// Checks times against the sample time; returns the sample indices
+    /// where a new part starts (after a gap), the first possibly 0.
+    fn part_starts(&self, t: &[f64]) -> Result<Vec<usize>> {
+        let ts = self.sample_time_s;
+        let mut starts = Vec::new();
+        let mut prev = self.last_t;
+        for (i, &ti) in t.iter().enumerate() {
+            if !ti.is_finite() {
+                return Err(Error::InvalidOption {
+                    field: "t",
+                    reason: format!("sample {i}: time {ti} is not finite"),
+                });
+            }
+            if let Some(p) = prev {
+                let step = ti - p;
+                if step > GAP_STEPS * ts {
+                    starts.push(i);
+                } else if (step - ts).abs() > STEP_TOLERANCE * ts {
+                    return Err(Error::InvalidOption {
+                        field: "t",
+                        reason: format!(
+                            "sample {i}: step {step} s from the previous sample is not the sample time {ts} s \
+                             (within 1 %) nor a gap (more than {GAP_STEPS} sample times)"
+                        ),
+                    });
+                }
+            }
+            prev = Some(ti);
+        }
+        Ok(starts)
+    }
+
     /// Takes the next samples of the current part, in time order; folds
     /// every calibration segment they complete and scores every validation
     /// segment they complete. The columns must have one length.
-    pub fn push(&mut self, chunk: &Chunk<'_>) -> Result<()> {
+    fn push_chunk(&mut self, chunk: &Chunk<'_>) -> Result<()> {
         let cols = chunk.columns();
         let n = cols[0].len();
         if cols.iter().any(|c| c.len() != n) {
@@ -720,7 +828,7 @@ impl Calibrator {
             let mut a = part.start;
             while a < part.end {
                 let b = (a + chunk).min(part.end);
-                self.push(&Chunk::of(drive, a..b))?;
+                self.push_chunk(&Chunk::of(drive, a..b))?;
                 each(b);
                 a = b;
             }
@@ -735,14 +843,20 @@ impl Calibrator {
     ///
     /// # Errors
     /// The stream's read errors; [`Calibrator::push`]'s.
-    pub fn push_stream(&mut self, stream: &DriveStream, chunk: usize, mut each: impl FnMut(usize)) -> Result<()> {
+    #[cfg_attr(not(feature = "history"), allow(dead_code))]
+    pub(crate) fn push_stream(
+        &mut self,
+        stream: &DriveStream,
+        chunk: usize,
+        mut each: impl FnMut(usize),
+    ) -> Result<()> {
         self.begin_drive();
         for c in stream.chunks(chunk) {
             let c: StreamChunk = c?;
             if c.starts_part && c.part > 0 {
                 self.begin_part();
             }
-            self.push(&Chunk::of_signals(&c.signals))?;
+            self.push_chunk(&Chunk::of_signals(&c.signals))?;
             each(c.start + c.t.len());
         }
         Ok(())

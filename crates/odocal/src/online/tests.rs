@@ -70,7 +70,7 @@ fn memory_does_not_grow_with_the_drive() {
         let mut peak = 0;
         cal.begin_drive();
         for a in (0..d.len()).step_by(500) {
-            cal.push(&Chunk::of(&d, a..(a + 500).min(d.len()))).expect("push");
+            cal.push_chunk(&Chunk::of(&d, a..(a + 500).min(d.len()))).expect("push");
             peak = peak.max(cal.buffered_samples());
         }
         assert!(peak <= bound, "{km} km: {peak} samples buffered, bound {bound}");
@@ -119,13 +119,55 @@ fn gates_write_only_a_better_steady_estimate() {
 #[test]
 fn bad_chunks_are_refused() {
     let mut cal = Calibrator::new(Theta::PAPER_INITIAL, None, 0.025, OnlineOptions::default()).expect("cal");
-    let a = [0.0; 3];
-    let b = [0.0; 2];
-    let c = Chunk { px: &a, py: &a, psi: &a, n_rl: &a, n_rr: &a, beta: &a, a_y: &b };
-    assert!(cal.push(&c).is_err());
-    let nan = [0.0, f64::NAN, 0.0];
-    let c = Chunk { n_rl: &nan, a_y: &a, ..c };
-    assert!(cal.push(&c).expect_err("nan").to_string().contains("n_rl"));
+    let a = vec![0.0; 3];
+    let s = Signals {
+        px: a.clone(),
+        py: a.clone(),
+        psi: a.clone(),
+        n_rl: a.clone(),
+        n_rr: a.clone(),
+        beta: a.clone(),
+        a_y: vec![0.0; 2],
+    };
+    assert!(cal.push(None, &s).expect_err("length").to_string().contains("column a_y has a length"));
+    let s = Signals { a_y: a.clone(), ..s };
+    assert!(cal.push(Some(&[0.0, 0.025]), &s).expect_err("t").to_string().contains("column t has a length"));
+    let nan = Signals { n_rl: vec![0.0, f64::NAN, 0.0], ..s.clone() };
+    assert!(cal.push(None, &nan).expect_err("nan").to_string().contains("n_rl"));
+    let e = cal.push(Some(&[0.0, 0.025, 0.06]), &s).expect_err("step").to_string();
+    assert!(e.contains("sample 2: step"), "{e}");
+    assert_eq!(cal.status().drive.samples, 0);
+}
+
+#[test]
+fn pushed_times_find_the_gaps_and_the_heading_is_unwrapped() {
+    let (d, _) = noise_free(3.0, 4);
+    let opts = OnlineOptions::default();
+    let mut reference = Calibrator::new(Theta::PAPER_INITIAL, None, d.sample_time_s(), opts.clone()).expect("cal");
+    reference.push_drive(&d, 400, |_| {}).expect("push");
+    let mut cal = Calibrator::new(Theta::PAPER_INITIAL, None, d.sample_time_s(), opts).expect("cal");
+    let m = d.measured();
+    for a in (0..d.len()).step_by(321) {
+        let r = a..(a + 321).min(d.len());
+        let mut s = m.slice(r.clone());
+        s.psi.iter_mut().for_each(|v| *v = crate::model::wrap_angle(*v));
+        cal.push(Some(&d.t()[r]), &s).expect("push");
+    }
+    let (x, y) = (cal.status(), reference.status());
+    let counts = |s: &Status| (s.drive.samples, s.drive.folded_segments, s.drive.validation_segments);
+    assert_eq!(counts(&x), counts(&y));
+    for (a, b) in x.theta.to_array().iter().zip(y.theta.to_array()) {
+        assert!((a - b).abs() <= 1e-9 * b.abs().max(1.0), "{:?} {:?}", x.theta, y.theta);
+    }
+    // A gap in the times starts a new part: the samples before it no longer
+    // complete a segment with those after.
+    let mut gapped =
+        Calibrator::new(Theta::PAPER_INITIAL, None, d.sample_time_s(), OnlineOptions::default()).expect("cal");
+    let n = 1000;
+    let t: Vec<f64> = d.t()[..n].iter().enumerate().map(|(i, t)| if i < n / 2 { *t } else { t + 60.0 }).collect();
+    gapped.push(Some(&t), &m.slice(0..n)).expect("gap");
+    assert_eq!(gapped.status().drive.samples, n);
+    assert!(gapped.buffered_samples() <= n / 2, "{}", gapped.buffered_samples());
 }
 
 #[test]

@@ -8,8 +8,9 @@ use std::io::Write;
 use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use odocal::online::{Calibrator, OnlineOptions};
-use odocal::{DriveStream, Theta};
+use odocal::history::History;
+use odocal::online::{follow, FollowEvent, FollowOptions};
+use odocal::Theta;
 
 /// The system allocator, counting the bytes held and their peak.
 struct Counting;
@@ -76,15 +77,26 @@ pub fn peak_of(f: impl FnOnce()) -> usize {
     PEAK.load(Ordering::Relaxed) - base
 }
 
-/// Fingerprints `stream` and replays it through the online calibrator in
-/// chunks of 400 samples; the number of samples pushed.
-pub fn replay_stream(stream: &DriveStream) -> usize {
-    assert_eq!(stream.fingerprint().expect("fingerprint").len(), 64);
-    let mut cal = Calibrator::new(Theta::PAPER_NOMINAL, None, stream.sample_time_s, OnlineOptions::default())
-        .expect("calibrator");
+/// Replays the drive file at `path` (a drive CSV or a manifest) through
+/// the online calibrator in chunks of 400 samples, as `odocal follow` does,
+/// with a history beside it; the number of samples pushed. A manifest
+/// must be imported as a stream (not whole).
+pub fn follow_file(path: &Path) -> usize {
+    let mut db = History::open(path.with_extension("sqlite")).expect("history");
+    let opts = FollowOptions { theta0: Some(Theta::PAPER_NOMINAL), ..FollowOptions::default() };
     let mut pushed = 0;
-    cal.push_stream(stream, 400, |n| pushed = n).expect("push");
-    assert_eq!(pushed, stream.len());
-    assert!(cal.status().drive.folded_segments > 0);
+    follow(&mut db, "v", &[path.to_path_buf()], &opts, |e| {
+        match e {
+            FollowEvent::Log(line) => assert!(!line.contains("imported whole"), "{line}"),
+            FollowEvent::Followed { fingerprint, summary, .. } => {
+                assert_eq!(fingerprint.len(), 64);
+                assert!(summary.folded_segments > 0);
+                pushed = summary.samples;
+            }
+            _ => {}
+        }
+        Ok::<(), odocal::Error>(())
+    })
+    .expect("follow");
     pushed
 }

@@ -1,5 +1,5 @@
 //! The import of a manifest's streams as their messages arrive
-//! ([`RawStream`], and [`ManifestStream`] reading the CSV files of a
+//! ([`RawStream`], and `ManifestStream` reading the CSV files of a
 //! manifest incrementally): canonical samples come out as soon as every
 //! stream has passed their time, in memory that does not grow with the
 //! drive.
@@ -99,25 +99,21 @@ use engine::Engine;
 #[derive(Debug, Clone, PartialEq)]
 pub struct StreamOptions {
     /// Wheel-stream time over which the clock offset is estimated before
-    /// any sample comes out, s (default [`StreamOptions::DEFAULT_WARM_UP_S`]).
+    /// any sample comes out, s. Default 300: long enough for the clock
+    /// estimate to see several turns and speed changes, short enough that
+    /// the held streams stay small (5 min of a 1 kHz wheel log is 300,000
+    /// rows).
     pub warm_up_s: f64,
-}
-
-impl StreamOptions {
-    /// The default warm-up, s: long enough for the clock estimate to see
-    /// several turns and speed changes, short enough that the held streams
-    /// stay small (5 min of a 1 kHz wheel log is 300,000 rows).
-    pub const DEFAULT_WARM_UP_S: f64 = 300.0;
 }
 
 impl Default for StreamOptions {
     fn default() -> StreamOptions {
-        StreamOptions { warm_up_s: StreamOptions::DEFAULT_WARM_UP_S }
+        StreamOptions { warm_up_s: 300.0 }
     }
 }
 
 /// Why a manifest cannot be imported as a stream (`None` when it can).
-pub fn not_streamable(m: &Manifest) -> Option<String> {
+pub(crate) fn not_streamable(m: &Manifest) -> Option<String> {
     if let Some((name, s)) = m.streams.iter().find(|(_, s)| !matches!(s.source, SourceSpec::Csv { .. })) {
         return Some(format!("streams.{name} is a {} source, read whole", s.source.format()));
     }
@@ -133,13 +129,28 @@ pub fn not_streamable(m: &Manifest) -> Option<String> {
 /// the warm-up is over. [`RawStream::finish`] ends the drive.
 ///
 /// ```
-/// # fn main() -> Result<(), odocal::Error> {
-/// use odocal::online::{ManifestStream, StreamOptions};
+/// # fn main() -> Result<(), Box<dyn std::error::Error>> {
+/// use odocal::online::{RawStream, StreamOptions};
 /// let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/comma2k19-rav4/manifest.toml");
 /// let manifest = odocal::Manifest::from_path(path.as_ref())?;
-/// let mut stream = ManifestStream::open(&manifest, StreamOptions::default())?;
+/// let mut raw = RawStream::new(&manifest, StreamOptions::default())?;
+/// // Each stream's file row by row, as a live system would send its messages.
+/// let streams: Vec<(String, Vec<String>)> = raw.columns().map(|(n, c)| (n.to_string(), c.to_vec())).collect();
+/// for (name, file) in manifest.stream_files() {
+///     let cols = &streams.iter().find(|(n, _)| *n == name).ok_or("stream")?.1;
+///     let text = std::fs::read_to_string(file)?;
+///     let mut lines = text.lines();
+///     let head: Vec<&str> = lines.next().ok_or("header")?.split(',').collect();
+///     let at = |c: &str| head.iter().position(|h| *h == c).ok_or("column");
+///     let (time, idx) = (at(manifest.time_column(&name).ok_or("time")?)?, cols.iter().map(|c| at(c)).collect::<Result<Vec<_>, _>>()?);
+///     for line in lines {
+///         let f: Vec<f64> = line.split(',').map(str::parse).collect::<Result<_, _>>()?;
+///         raw.push_message(&name, f[time], &idx.iter().map(|&i| f[i]).collect::<Vec<_>>())?;
+///     }
+/// }
+/// raw.finish()?;
 /// let mut samples = 0;
-/// while let Some(chunk) = stream.next_chunk(400)? {
+/// while let Some(chunk) = raw.take_chunk(400) {
 ///     samples += chunk.t.len();
 /// }
 /// assert_eq!(samples, odocal::import(&manifest)?.drive.len());
@@ -166,7 +177,7 @@ impl RawStream {
     ///
     /// # Errors
     /// [`Error::Manifest`] when the manifest asks for what is not streamed
-    /// ([`not_streamable`]) or the warm-up is not a positive number of seconds.
+    /// (a source other than CSV) or the warm-up is not a positive number of seconds.
     pub fn new(manifest: &Manifest, opts: StreamOptions) -> Result<RawStream> {
         if let Some(why) = not_streamable(manifest) {
             return Err(manifest.error(
@@ -250,13 +261,14 @@ impl RawStream {
         self.advance()
     }
 
-    /// Ends every stream and the drive: the last samples come out, and the
-    /// report ([`RawStream::report`]).
+    /// Ends every stream and the drive: the last samples come out. Returns
+    /// what was read, estimated, split and dropped (the whole import's
+    /// report).
     ///
     /// # Errors
     /// The whole import's errors about the drive as a whole: streams that
     /// do not overlap, no part of at least `min_part_s`.
-    pub fn finish(&mut self) -> Result<()> {
+    pub fn finish(&mut self) -> Result<&ImportReport> {
         for (c, _) in self.streams.values_mut() {
             if !c.ended {
                 c.end();
@@ -301,8 +313,7 @@ impl RawStream {
             self.clock.clone().ok_or_else(|| m.error("output.clock_offset", "no clock offset was estimated"))?;
         let mut report = self.make_report(start, end, clock);
         report.jitter = jitter;
-        self.report = Some(report);
-        Ok(())
+        Ok(self.report.insert(report))
     }
 
     /// Up to `max` (at least 1) canonical samples of one part that are
@@ -341,7 +352,8 @@ impl RawStream {
 
     /// What was read, estimated, split and dropped, after
     /// [`RawStream::finish`] (the whole import's report).
-    pub fn report(&self) -> Option<&ImportReport> {
+    #[cfg_attr(not(feature = "history"), allow(dead_code))] // read by `online::follow`
+    pub(crate) fn report(&self) -> Option<&ImportReport> {
         self.report.as_ref()
     }
 

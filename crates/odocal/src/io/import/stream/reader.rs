@@ -2,6 +2,9 @@
 //! stream furthest behind first, so that every stream is read about as far
 //! as the others and the rows held stay few.
 
+// Read by `online::follow` (feature `history`) and the tests.
+#![cfg_attr(not(feature = "history"), allow(dead_code))]
+
 use std::io::BufRead;
 use std::path::PathBuf;
 
@@ -115,7 +118,7 @@ fn csv_error(path: &std::path::Path, e: ::csv::Error) -> Error {
 /// A manifest's CSV streams imported as they are read ([`RawStream`] over
 /// the files): canonical samples chunk by chunk, in memory that does not
 /// grow with the drive.
-pub struct ManifestStream {
+pub(crate) struct ManifestStream {
     raw: RawStream,
     files: Vec<CsvRows>,
     finished: bool,
@@ -132,7 +135,7 @@ impl ManifestStream {
     ///
     /// # Errors
     /// [`RawStream::new`]'s; a file that cannot be opened or lacks a column.
-    pub fn open(manifest: &Manifest, opts: StreamOptions) -> Result<ManifestStream> {
+    pub(crate) fn open(manifest: &Manifest, opts: StreamOptions) -> Result<ManifestStream> {
         let raw = RawStream::new(manifest, opts)?;
         let mut files = Vec::new();
         for (name, cols) in raw.columns() {
@@ -147,7 +150,7 @@ impl ManifestStream {
     ///
     /// # Errors
     /// The whole import's errors about the rows and the drive.
-    pub fn next_chunk(&mut self, max: usize) -> Result<Option<StreamChunk>> {
+    pub(crate) fn next_chunk(&mut self, max: usize) -> Result<Option<StreamChunk>> {
         let max = max.max(1);
         loop {
             let (n, closed) = self.raw.front_part();
@@ -186,7 +189,7 @@ impl ManifestStream {
     }
 
     /// The streamed import underneath.
-    pub fn raw(&self) -> &RawStream {
+    pub(crate) fn raw(&self) -> &RawStream {
         &self.raw
     }
 }

@@ -382,7 +382,7 @@ y = "y"
             take(s);
             most = most.max(s.held());
         }
-        let r = s.finish();
+        let r = s.finish().map(|_| ());
         take(s);
         (most, r, taken)
     }

@@ -1,0 +1,331 @@
+//! Drives replayed in order, as if live, through the online calibrator,
+//! with gated write-back to the vehicle's history (what `odocal follow`
+//! runs): [`follow`].
+
+use std::path::{Path, PathBuf};
+
+use super::gate::{Action, GateDecision, Gates};
+use super::{Calibrator, DriveSummary, OnlineOptions};
+use crate::drive::{Drive, DriveStream};
+use crate::error::{Error, Result};
+use crate::history::{CalibrationRecord, Decision, History};
+use crate::io::import::stream::{self, reader::ManifestStream, StreamOptions};
+use crate::io::import::{is_manifest_path, load_drive, manifest::Manifest};
+use crate::model::Theta;
+use crate::progress::Progress;
+
+/// The history's `method` of the rows [`follow`] writes.
+const METHOD: &str = "online";
+
+/// Samples per chunk pushed (10 s at 40 Hz).
+const CHUNK: usize = 400;
+
+/// Settings of [`follow`].
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FollowOptions {
+    /// θ_0 when the history holds no calibration of the vehicle; `None`:
+    /// the paper's initial θ.
+    pub theta0: Option<Theta>,
+    /// The online calibrator's options.
+    pub online: OnlineOptions,
+    /// The write-back gates' thresholds.
+    pub gates: Gates,
+}
+
+/// What [`follow`] reports as it goes, in order.
+#[derive(Debug, Clone, PartialEq)]
+pub enum FollowEvent {
+    /// Before the first drive: the parameters the replay starts from, and
+    /// where they come from (`history row N`, or `θ_0`).
+    Start {
+        /// The stored θ.
+        theta: Theta,
+        /// Its origin.
+        origin: String,
+    },
+    /// One line about how a drive is read (its reader's warnings, a
+    /// manifest imported as a stream or whole), for a log.
+    Log(String),
+    /// Progress of the current drive's replay.
+    Progress(Progress),
+    /// A drive followed before for the vehicle (its fingerprint is among
+    /// the logged decisions): not replayed.
+    Skipped {
+        /// The drive's file, as given.
+        source: String,
+        /// Its fingerprint.
+        fingerprint: String,
+    },
+    /// A drive replayed: what the calibrator saw, and the gates' decision
+    /// (logged in the history's `decisions`; a write is recorded in
+    /// `calibrations` and becomes the stored θ).
+    Followed {
+        /// The drive's file, as given.
+        source: String,
+        /// Its fingerprint.
+        fingerprint: String,
+        /// What the calibrator saw of the drive.
+        summary: DriveSummary,
+        /// The drive's heading offset δ at its end, rad.
+        heading_offset_rad: f64,
+        /// Time from the drive's first sample to its last, s.
+        drive_time_s: f64,
+        /// The gates' decision.
+        decision: GateDecision,
+    },
+}
+
+/// The parameters in use: θ, its σ, and whether they are a recorded calibration.
+struct Stored {
+    theta: Theta,
+    sigma: Option<Theta>,
+    /// A recorded calibration (else θ_0, an initial guess).
+    calibrated: bool,
+}
+
+/// Replays `drives` (drive CSVs or manifests) in order through one online
+/// calibrator for `vehicle`, starting from the vehicle's most recent row in
+/// `db` (else `opts.theta0`), and writes back what the gates pass.
+///
+/// Each drive is read as a stream when it can be (memory flat in its
+/// length): a drive CSV, or a manifest of CSV streams (its samples kept in
+/// temporary files); another manifest is imported whole. A drive whose
+/// fingerprint is among the vehicle's logged decisions is skipped. After
+/// each drive the gates judge the estimate against the stored θ; the
+/// decision is logged, and a write is recorded as a calibration (method
+/// `online`) that the next drives are judged against. `on` sees every
+/// step ([`FollowEvent`]); an error it returns stops the replay.
+///
+/// ```
+/// # fn main() -> Result<(), odocal::Error> {
+/// use odocal::history::History;
+/// use odocal::online::{follow, FollowEvent, FollowOptions};
+/// use odocal::sim;
+/// let dir = tempfile::tempdir().map_err(|e| odocal::Error::Numerical(e.to_string()))?;
+/// let csv = dir.path().join("a.csv");
+/// sim::simulate(&sim::SimOptions { length_km: 2.0, ..sim::SimOptions::noise_free(1) })?.drive.write_csv(&csv)?;
+/// let mut db = History::open(dir.path().join("van.sqlite"))?;
+/// let mut decisions = Vec::new();
+/// follow(&mut db, "van-1", &[csv], &FollowOptions::default(), |e| {
+///     if let FollowEvent::Followed { decision, .. } = e {
+///         decisions.push(decision.action);
+///     }
+///     Ok::<(), odocal::Error>(())
+/// })?;
+/// assert_eq!(decisions.len(), 1);
+/// assert_eq!(db.vehicle("van-1", None)?.decisions.len(), 1);
+/// # Ok(()) }
+/// ```
+///
+/// # Errors
+/// A drive's read errors; a drive whose sample time is not the first
+/// drive's; the options' ([`Calibrator::new`]); the history's; `on`'s.
+pub fn follow<E: From<Error>>(
+    db: &mut History,
+    vehicle: &str,
+    drives: &[PathBuf],
+    opts: &FollowOptions,
+    mut on: impl FnMut(FollowEvent) -> std::result::Result<(), E>,
+) -> std::result::Result<(), E> {
+    let mut stored = match db.rows(vehicle)?.pop() {
+        Some(r) => {
+            on(FollowEvent::Start { theta: r.record.theta, origin: format!("history row {}", r.id) })?;
+            Stored { theta: r.record.theta, sigma: r.record.sigma, calibrated: true }
+        }
+        None => {
+            let theta = opts.theta0.unwrap_or(Theta::PAPER_INITIAL);
+            on(FollowEvent::Start { theta, origin: "θ_0".into() })?;
+            Stored { theta, sigma: None, calibrated: false }
+        }
+    };
+    let mut cal: Option<Calibrator> = None;
+    for path in drives {
+        let drive = Replay::open(path, &mut on)?;
+        let source = path.display().to_string();
+        let fingerprint = drive.fingerprint()?;
+        if db.decisions(vehicle)?.iter().any(|d| d.fingerprint == fingerprint) {
+            on(FollowEvent::Skipped { source, fingerprint })?;
+            continue;
+        }
+        let c = match cal.as_mut() {
+            Some(c) => c,
+            None => {
+                cal.insert(Calibrator::new(stored.theta, stored.sigma, drive.sample_time_s(), opts.online.clone())?)
+            }
+        };
+        if (drive.sample_time_s() - c.sample_time_s).abs() > 1e-9 {
+            let reason = "sample time differs from the first drive's".into();
+            return Err(Error::InvalidDrive { context: source, reason }.into());
+        }
+        c.stored = Some(stored.theta);
+        on(FollowEvent::Progress(Progress::Stage { name: "following", total: drive.len() as u64 }))?;
+        let mut done = 0;
+        let mut progress = Ok(());
+        drive.push(c, |n| {
+            if progress.is_ok() {
+                progress = on(FollowEvent::Progress(Progress::Advance((n - done) as u64)));
+            }
+            done = n;
+        })?;
+        progress?;
+        let decision = opts.gates.decide(c, &stored.theta, stored.calibrated);
+        let status = c.status();
+        let span = drive.time_span_s();
+        db.record_decision(&Decision {
+            vehicle: vehicle.to_string(),
+            fingerprint: fingerprint.clone(),
+            source: source.clone(),
+            drive_time_s: span.1 - span.0,
+            decision: decision.action.to_string(),
+            reasons: decision.reasons.clone(),
+            theta: decision.theta,
+            sigma: Some(decision.sigma),
+        })?;
+        if decision.action == Action::Write {
+            db.record(&CalibrationRecord {
+                sources: vec![source.clone()],
+                t_start_s: span.0,
+                t_end_s: span.1,
+                sigma: Some(decision.sigma),
+                heading_offset_rad: Some(status.heading_offset_rad),
+                ..CalibrationRecord::new(vehicle, &fingerprint, METHOD, decision.theta)
+            })?;
+            stored = Stored { theta: decision.theta, sigma: Some(decision.sigma), calibrated: true };
+        }
+        on(FollowEvent::Followed {
+            source,
+            fingerprint,
+            summary: status.drive,
+            heading_offset_rad: status.heading_offset_rad,
+            drive_time_s: span.1 - span.0,
+            decision,
+        })?;
+    }
+    Ok(())
+}
+
+/// A drive to replay: a canonical CSV or a manifest's CSV streams read as a
+/// stream (memory flat in its length; a manifest's samples are kept on
+/// disk), or a manifest the streamed import does not take imported whole.
+enum Replay {
+    Stream(DriveStream),
+    Whole(Box<Drive>),
+}
+
+impl Replay {
+    /// Opens the drive at `path`; `on` hears what its reader warns about.
+    fn open<E: From<Error>>(
+        path: &Path,
+        on: &mut impl FnMut(FollowEvent) -> std::result::Result<(), E>,
+    ) -> std::result::Result<Replay, E> {
+        let mut log = |line: String| on(FollowEvent::Log(line));
+        if is_manifest_path(path) {
+            let m = Manifest::from_path(path)?;
+            if let Some(why) = stream::not_streamable(&m) {
+                log(format!("note: {}: imported whole ({why})", path.display()))?;
+                return Ok(Replay::Whole(Box::new(whole(path, &mut log)?)));
+            }
+            let mut lines = Vec::new();
+            return match streamed_manifest(path, &m, &mut lines) {
+                Ok(s) => {
+                    lines.into_iter().try_for_each(&mut log)?;
+                    Ok(Replay::Stream(s))
+                }
+                // The whole import's error (or result) is the reference:
+                // the stream judges some whole-drive checks on its warm-up.
+                Err(e) => {
+                    log(format!("note: {}: imported whole (the streamed import stopped: {e})", path.display()))?;
+                    Ok(Replay::Whole(Box::new(whole(path, &mut log)?)))
+                }
+            };
+        }
+        let stream = DriveStream::open(path)?;
+        for w in &stream.warnings {
+            log(format!("warning: {w}"))?;
+        }
+        Ok(Replay::Stream(stream))
+    }
+
+    fn fingerprint(&self) -> Result<String> {
+        Ok(match self {
+            Replay::Stream(s) => s.fingerprint()?,
+            Replay::Whole(d) => d.fingerprint(),
+        })
+    }
+
+    fn sample_time_s(&self) -> f64 {
+        match self {
+            Replay::Stream(s) => s.sample_time_s,
+            Replay::Whole(d) => d.sample_time_s(),
+        }
+    }
+
+    fn len(&self) -> usize {
+        match self {
+            Replay::Stream(s) => s.len(),
+            Replay::Whole(d) => d.len(),
+        }
+    }
+
+    /// The first and the last time stamp, s.
+    fn time_span_s(&self) -> (f64, f64) {
+        match self {
+            Replay::Stream(s) => s.time_span_s,
+            Replay::Whole(d) => (d.t().first().copied().unwrap_or(0.0), d.t().last().copied().unwrap_or(0.0)),
+        }
+    }
+
+    /// Pushes the drive as a new drive in chunks of [`CHUNK`] samples.
+    fn push(&self, c: &mut Calibrator, each: impl FnMut(usize)) -> Result<()> {
+        match self {
+            Replay::Stream(s) => c.push_stream(s, CHUNK, each),
+            Replay::Whole(d) => c.push_drive(d, CHUNK, each),
+        }
+    }
+}
+
+/// The manifest at `path` imported whole, its import's account logged.
+fn whole<E>(path: &Path, log: &mut impl FnMut(String) -> std::result::Result<(), E>) -> std::result::Result<Drive, E>
+where
+    E: From<Error>,
+{
+    let (drive, report) = load_drive(path)?;
+    log(format!(
+        "imported {}: {} samples in {} part(s), {:.2} km (run `odocal import` for the full import report)",
+        path.display(),
+        drive.len(),
+        drive.parts().len(),
+        drive.distance_m() / 1e3
+    ))?;
+    for w in report.iter().flat_map(|r| &r.warnings) {
+        log(format!("warning: {}: {w}", path.display()))?;
+    }
+    Ok(drive)
+}
+
+/// A manifest imported as a stream ([`ManifestStream`]) into a
+/// [`DriveStream`] (its samples on disk); the import's account and
+/// warnings go to `lines`.
+fn streamed_manifest(path: &Path, m: &Manifest, lines: &mut Vec<String>) -> Result<DriveStream> {
+    let opts = StreamOptions::default();
+    let warm_up_s = opts.warm_up_s;
+    let mut s = ManifestStream::open(m, opts)?;
+    let stream = DriveStream::spool(path, m.sample_time_s(), || {
+        Ok(s.next_chunk(CHUNK)?.map(|c| (c.t, c.signals, c.starts_part)))
+    })?;
+    if let Some(r) = s.raw().report() {
+        lines.push(format!(
+            "imported {} as a stream: {} samples in {} part(s), {:.2} km, clock offset {:+.4} s from the first {} s",
+            path.display(),
+            r.samples,
+            r.parts.iter().filter(|p| p.kept).count(),
+            r.distance_m / 1e3,
+            r.clock_offset.applied_s,
+            warm_up_s
+        ));
+        for w in &r.warnings {
+            lines.push(format!("warning: {}: {w}", path.display()));
+        }
+    }
+    Ok(stream)
+}
