@@ -56,12 +56,14 @@ use rayon::prelude::*;
 
 const USAGE: &str = "random_worlds [--worlds 100] [--length-km 12] [--seed 1] [--methods eiv,batch-gn,three-step]
     [--out DIR] [--threads N] [--heading-drift-gate G] [--heading-drift-lr T] [--heavy]
-    [--eta-max X] [--tau-c S] [--heavy-without slip|common]
+    [--eta-max X] [--tau-c S] [--heavy-without slip|common] [--eta-without-jacobian] [--no-common-jacobian]
 
 World i has world seed S + i (drive seed too); every method runs through odocal::calibrate.
 --heavy: each world's wheel noise replaced by heavy common-mode coloured noise and slip (heavy_wheels).
 --eta-max, --tau-c: the default's upper clamp of the noise scales η and its common-mode time constant τ_c.
---heavy-without slip|common: the heavy worlds without their acceleration slip or their common-mode noise.";
+--heavy-without slip|common: the heavy worlds without their acceleration slip or their common-mode noise.
+--eta-without-jacobian: the default's η step on M without the Gauss-Markov log-Jacobian (coloured_jacobian_in_marginal off).
+--no-common-jacobian: the default without the common-mode state's log-Jacobian in J and M (common_mode_jacobian off).";
 
 /// The methods the study knows, by their `--method` names.
 const METHODS: [&str; 3] = ["eiv", "batch-gn", "three-step"];
@@ -81,10 +83,14 @@ struct Settings {
     /// `--heavy-without`: the heavy worlds without their acceleration slip
     /// (`slip`) or without their common-mode coloured noise (`common`).
     heavy_without: Option<String>,
+    /// `--eta-without-jacobian`: `ResearchOptions::coloured_jacobian_in_marginal` off.
+    eta_without_jacobian: bool,
+    /// `--no-common-jacobian`: `ResearchOptions::common_mode_jacobian` off.
+    no_common_jacobian: bool,
 }
 
 fn settings() -> Res<(Settings, Option<usize>)> {
-    let mut a = Args::parse(USAGE, &["heavy"])?;
+    let mut a = Args::parse(USAGE, &["heavy", "eta-without-jacobian", "no-common-jacobian"])?;
     let s = Settings {
         worlds: a.get("worlds", 100)?,
         km: a.get("length-km", 12.0)?,
@@ -95,6 +101,8 @@ fn settings() -> Res<(Settings, Option<usize>)> {
         heavy: a.flag("heavy"),
         eiv_noise: (a.opt("eta-max")?, a.opt("tau-c")?),
         heavy_without: a.opt("heavy-without")?,
+        eta_without_jacobian: a.flag("eta-without-jacobian"),
+        no_common_jacobian: a.flag("no-common-jacobian"),
     };
     let threads = a.opt("threads")?;
     a.finish()?;
@@ -188,7 +196,11 @@ impl HeldOut {
 }
 
 fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<Run> {
-    let opts = options(method, a.heading_drift, a.eiv_noise)?;
+    let mut opts = options(method, a.heading_drift, a.eiv_noise)?;
+    if let Method::Eiv(e) = &mut opts.method {
+        e.filter.research.coloured_jacobian_in_marginal = !a.eta_without_jacobian;
+        e.filter.research.common_mode_jacobian = !a.no_common_jacobian;
+    }
     let t = Instant::now();
     let r: CalibrationReport = calibrate(drive, &opts)?;
     let time_s = t.elapsed().as_secs_f64();
