@@ -56,11 +56,12 @@ use rayon::prelude::*;
 
 const USAGE: &str = "random_worlds [--worlds 100] [--length-km 12] [--seed 1] [--methods eiv,batch-gn,three-step]
     [--out DIR] [--threads N] [--heading-drift-gate G] [--heading-drift-lr T] [--heavy]
-    [--eta-max X] [--tau-c S] [--heavy-without slip|common] [--eta-without-jacobian] [--no-common-jacobian]
+    [--eta-max X] [--tau-c S] [--tau-drift S] [--heavy-without slip|common] [--eta-without-jacobian] [--no-common-jacobian]
 
 World i has world seed S + i (drive seed too); every method runs through odocal::calibrate.
 --heavy: each world's wheel noise replaced by heavy common-mode coloured noise and slip (heavy_wheels).
---eta-max, --tau-c: the default's upper clamp of the noise scales η and its common-mode time constant τ_c.
+--eta-max, --tau-c, --tau-drift: the default's upper clamp of the noise scales η, its common-mode time constant τ_c
+    and its reference-drift time constant.
 --heavy-without slip|common: the heavy worlds without their acceleration slip or their common-mode noise.
 --eta-without-jacobian: the default's η step on M without the Gauss-Markov log-Jacobian (coloured_jacobian_in_marginal off).
 --no-common-jacobian: the default without the common-mode state's log-Jacobian in J and M (common_mode_jacobian off).";
@@ -80,6 +81,8 @@ struct Settings {
     heavy: bool,
     /// The default's noise-scale upper clamp and common-mode τ_c (None: the defaults).
     eiv_noise: (Option<f64>, Option<f64>),
+    /// The default's reference-drift time constant (None: the default).
+    tau_drift: Option<f64>,
     /// `--heavy-without`: the heavy worlds without their acceleration slip
     /// (`slip`) or without their common-mode coloured noise (`common`).
     heavy_without: Option<String>,
@@ -100,6 +103,7 @@ fn settings() -> Res<(Settings, Option<usize>)> {
         heading_drift: (a.opt("heading-drift-gate")?, a.opt("heading-drift-lr")?),
         heavy: a.flag("heavy"),
         eiv_noise: (a.opt("eta-max")?, a.opt("tau-c")?),
+        tau_drift: a.opt("tau-drift")?,
         heavy_without: a.opt("heavy-without")?,
         eta_without_jacobian: a.flag("eta-without-jacobian"),
         no_common_jacobian: a.flag("no-common-jacobian"),
@@ -200,6 +204,9 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<
     if let Method::Eiv(e) = &mut opts.method {
         e.filter.research.coloured_jacobian_in_marginal = !a.eta_without_jacobian;
         e.filter.research.common_mode_jacobian = !a.no_common_jacobian;
+        if let Some(t) = a.tau_drift {
+            e.filter.noise.drift_time_constant_s = t;
+        }
     }
     let t = Instant::now();
     let r: CalibrationReport = calibrate(drive, &opts)?;
