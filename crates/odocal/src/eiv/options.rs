@@ -293,15 +293,20 @@ macro_rules! research_options {
             /// [`HeadingDriftTest`](crate::eiv::HeadingDriftTest) for why).
             /// Default false.
             $vis heading_drift_two_sided: bool,
-            /// Whether the marginal likelihood M of the η step keeps the
-            /// Gauss-Markov wheel states' log-Jacobian `−Σ m log(1 − ŝ)`
-            /// (the θ cost J keeps it either way). Without it the noise
-            /// scales are fitted on the filter's Gaussian likelihood
-            /// `½ Σ(νᵀS⁻¹ν + log det S)` alone. Default true.
+            /// Whether the objective M (the η step; θ's too with the
+            /// covariance held) keeps the Gauss-Markov wheel states'
+            /// log-Jacobian `−Σ m log(1 − ŝ)` (the profile cost J keeps it
+            /// either way). Without it the noise scales are fitted on the
+            /// filter's Gaussian likelihood `½ Σ(νᵀS⁻¹ν + log det S)` alone.
+            /// Measured on heavy common-mode wheel noise (docs/validation.md,
+            /// "Heavy wheel noise: what puts the common-mode scale at its
+            /// clamp"): fewer fallbacks, no better t_r. Default true.
             $vis coloured_jacobian_in_marginal: bool,
             /// Whether the common-mode wheel state's log-Jacobian
             /// `−Σ m log(1 − ŝ_c)` is in the θ cost J and in M at all (the
-            /// per-wheel states' stays). Default true.
+            /// per-wheel states' stays). Measured on heavy common-mode wheel
+            /// noise (the same section): t_r biased by several per cent
+            /// without it. Default true.
             $vis common_mode_jacobian: bool,
         }
     };

@@ -134,10 +134,9 @@ fn add_correction_gradient<const S: usize>(
     for (row, m) in [(3usize, m[0]), (4, m[1]), (5, m[2])] {
         if m > 0.0 {
             let w = m / one_minus[row - 3];
-            // Columns 4.. are η's: M's gradient, without the term when M leaves it out.
-            let marginal_cols = if in_marginal { NP } else { 4 };
             for c in 0..NP {
-                if c < marginal_cols {
+                // M's gradient, without the term when M leaves it out.
+                if in_marginal {
                     out.grad[c] += w * d[(row, c)];
                 }
                 if !all_sources {
