@@ -214,6 +214,7 @@ fn objective_gradient_matches_central_differences_fitted_input() {
 /// log-Jacobian left out of M, and with the common-mode state's left out
 /// of both; M then differs from the default's by exactly the terms left out.
 #[test]
+#[allow(clippy::float_cmp)] // identity to the bit is the claim
 fn objective_gradient_matches_central_differences_without_log_jacobians() {
     check_objective_gradient_jacobians(true, (true, false), (Held::NONE, false), (false, true));
     check_objective_gradient_jacobians(true, (true, false), (Held::NONE, false), (true, false));
