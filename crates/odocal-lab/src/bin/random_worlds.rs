@@ -56,15 +56,18 @@ use rayon::prelude::*;
 
 const USAGE: &str = "random_worlds [--worlds 100] [--length-km 12] [--seed 1] [--methods eiv,batch-gn,three-step]
     [--out DIR] [--threads N] [--heading-drift-gate G] [--heading-drift-lr T] [--heavy]
-    [--eta-max X] [--tau-c S] [--tau-drift S] [--heavy-without slip|common] [--eta-without-jacobian] [--no-common-jacobian]
+    [--eta-max X] [--tau-c S] [--tau-drift S] [--heavy-without slip|common]
+    [--eta-without-jacobian] [--no-common-jacobian]
 
 World i has world seed S + i (drive seed too); every method runs through odocal::calibrate.
 --heavy: each world's wheel noise replaced by heavy common-mode coloured noise and slip (heavy_wheels).
 --eta-max, --tau-c, --tau-drift: the default's upper clamp of the noise scales η, its common-mode time constant τ_c
     and its reference-drift time constant.
 --heavy-without slip|common: the heavy worlds without their acceleration slip or their common-mode noise.
---eta-without-jacobian: the default's η step on M without the Gauss-Markov log-Jacobian (coloured_jacobian_in_marginal off).
---no-common-jacobian: the default without the common-mode state's log-Jacobian in J and M (common_mode_jacobian off).";
+--eta-without-jacobian: the default's η step on M without the Gauss-Markov log-Jacobian
+    (coloured_jacobian_in_marginal off).
+--no-common-jacobian: the default without the common-mode state's log-Jacobian in J and M
+    (common_mode_jacobian off).";
 
 /// The methods the study knows, by their `--method` names.
 const METHODS: [&str; 3] = ["eiv", "batch-gn", "three-step"];
