@@ -56,9 +56,18 @@ use rayon::prelude::*;
 
 const USAGE: &str = "random_worlds [--worlds 100] [--length-km 12] [--seed 1] [--methods eiv,batch-gn,three-step]
     [--out DIR] [--threads N] [--heading-drift-gate G] [--heading-drift-lr T] [--heavy]
+    [--eta-max X] [--tau-c S] [--tau-drift S] [--heavy-without slip|common]
+    [--eta-without-jacobian] [--no-common-jacobian]
 
 World i has world seed S + i (drive seed too); every method runs through odocal::calibrate.
---heavy: each world's wheel noise replaced by heavy common-mode coloured noise and slip (heavy_wheels).";
+--heavy: each world's wheel noise replaced by heavy common-mode coloured noise and slip (heavy_wheels).
+--eta-max, --tau-c, --tau-drift: the default's upper clamp of the noise scales η, its common-mode time constant τ_c
+    and its reference-drift time constant.
+--heavy-without slip|common: the heavy worlds without their acceleration slip or their common-mode noise.
+--eta-without-jacobian: the default's η step on M without the Gauss-Markov log-Jacobian
+    (coloured_jacobian_in_marginal off).
+--no-common-jacobian: the default without the common-mode state's log-Jacobian in J and M
+    (common_mode_jacobian off).";
 
 /// The methods the study knows, by their `--method` names.
 const METHODS: [&str; 3] = ["eiv", "batch-gn", "three-step"];
@@ -73,10 +82,21 @@ struct Settings {
     heading_drift: (Option<f64>, Option<f64>),
     /// `--heavy`: the worlds' wheel noise replaced ([`heavy_wheels`]).
     heavy: bool,
+    /// The default's noise-scale upper clamp and common-mode τ_c (None: the defaults).
+    eiv_noise: (Option<f64>, Option<f64>),
+    /// The default's reference-drift time constant (None: the default).
+    tau_drift: Option<f64>,
+    /// `--heavy-without`: the heavy worlds without their acceleration slip
+    /// (`slip`) or without their common-mode coloured noise (`common`).
+    heavy_without: Option<String>,
+    /// `--eta-without-jacobian`: `ResearchOptions::coloured_jacobian_in_marginal` off.
+    eta_without_jacobian: bool,
+    /// `--no-common-jacobian`: `ResearchOptions::common_mode_jacobian` off.
+    no_common_jacobian: bool,
 }
 
 fn settings() -> Res<(Settings, Option<usize>)> {
-    let mut a = Args::parse(USAGE, &["heavy"])?;
+    let mut a = Args::parse(USAGE, &["heavy", "eta-without-jacobian", "no-common-jacobian"])?;
     let s = Settings {
         worlds: a.get("worlds", 100)?,
         km: a.get("length-km", 12.0)?,
@@ -85,6 +105,11 @@ fn settings() -> Res<(Settings, Option<usize>)> {
         out: a.opt("out")?,
         heading_drift: (a.opt("heading-drift-gate")?, a.opt("heading-drift-lr")?),
         heavy: a.flag("heavy"),
+        eiv_noise: (a.opt("eta-max")?, a.opt("tau-c")?),
+        tau_drift: a.opt("tau-drift")?,
+        heavy_without: a.opt("heavy-without")?,
+        eta_without_jacobian: a.flag("eta-without-jacobian"),
+        no_common_jacobian: a.flag("no-common-jacobian"),
     };
     let threads = a.opt("threads")?;
     a.finish()?;
@@ -95,9 +120,19 @@ fn settings() -> Res<(Settings, Option<usize>)> {
 }
 
 /// The options a user's `calibrate` runs with for `method`.
-fn options(method: &str, heading_drift: (Option<f64>, Option<f64>)) -> Res<CalibrationOptions> {
+fn options(
+    method: &str,
+    heading_drift: (Option<f64>, Option<f64>),
+    eiv_noise: (Option<f64>, Option<f64>),
+) -> Res<CalibrationOptions> {
     let mut o = CalibrationOptions { method: Method::from_name(method)?, ..Default::default() };
     if let Method::Eiv(e) = &mut o.method {
+        if let Some(x) = eiv_noise.0 {
+            e.filter.eta_bounds[1] = x;
+        }
+        if let Some(t) = eiv_noise.1 {
+            e.filter.noise.wheel_common_time_constant_s = t;
+        }
         let r = &mut e.filter.research;
         r.heading_drift_score_gate = heading_drift.0.unwrap_or(r.heading_drift_score_gate);
         r.heading_drift_lr_threshold = heading_drift.1.unwrap_or(r.heading_drift_lr_threshold);
@@ -168,7 +203,14 @@ impl HeldOut {
 }
 
 fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<Run> {
-    let opts = options(method, a.heading_drift)?;
+    let mut opts = options(method, a.heading_drift, a.eiv_noise)?;
+    if let Method::Eiv(e) = &mut opts.method {
+        e.filter.research.coloured_jacobian_in_marginal = !a.eta_without_jacobian;
+        e.filter.research.common_mode_jacobian = !a.no_common_jacobian;
+        if let Some(t) = a.tau_drift {
+            e.filter.noise.drift_time_constant_s = t;
+        }
+    }
     let t = Instant::now();
     let r: CalibrationReport = calibrate(drive, &opts)?;
     let time_s = t.elapsed().as_secs_f64();
@@ -292,7 +334,13 @@ fn study_world(index: u64, a: &Settings) -> Res<World> {
     let seed = a.seed + index;
     let (noise, summary) = NoiseOptions::random_world(seed);
     let (noise, summary) = if a.heavy {
-        let n = heavy_wheels(noise, seed);
+        let mut n = heavy_wheels(noise, seed);
+        match a.heavy_without.as_deref() {
+            Some("slip") => n.wheel_slip_per_m_per_s2 = 0.0,
+            Some("common") => n.wheel_coloured_rel_sigma = 0.0,
+            Some(x) => return Err(format!("--heavy-without {x}: expected slip or common").into()),
+            None => {}
+        }
         let s = WorldSummary::of(&n);
         (n, s)
     } else {

@@ -297,6 +297,8 @@ impl NoiseModel {
             noise_input_from_reference: false,
             position_floor_m: DEFAULT_POSITION_FLOOR_M,
             null_without_floors: false,
+            coloured_jacobian_in_marginal: true,
+            common_mode_jacobian: true,
         }
     }
 }

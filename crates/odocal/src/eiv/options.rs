@@ -293,6 +293,21 @@ macro_rules! research_options {
             /// [`HeadingDriftTest`](crate::eiv::HeadingDriftTest) for why).
             /// Default false.
             $vis heading_drift_two_sided: bool,
+            /// Whether the objective M (the η step; θ's too with the
+            /// covariance held) keeps the Gauss-Markov wheel states'
+            /// log-Jacobian `−Σ m log(1 − ŝ)` (the profile cost J keeps it
+            /// either way). Without it the noise scales are fitted on the
+            /// filter's Gaussian likelihood `½ Σ(νᵀS⁻¹ν + log det S)` alone.
+            /// Measured on heavy common-mode wheel noise (docs/validation.md,
+            /// "Heavy wheel noise: what puts the common-mode scale at its
+            /// clamp"): fewer fallbacks, no better t_r. Default true.
+            $vis coloured_jacobian_in_marginal: bool,
+            /// Whether the common-mode wheel state's log-Jacobian
+            /// `−Σ m log(1 − ŝ_c)` is in the θ cost J and in M at all (the
+            /// per-wheel states' stays). Measured on heavy common-mode wheel
+            /// noise (the same section): t_r biased by several per cent
+            /// without it. Default true.
+            $vis common_mode_jacobian: bool,
         }
     };
 }
@@ -319,6 +334,8 @@ impl Default for ResearchOptions {
             heading_drift_score_gate: super::HEADING_DRIFT_SCORE_GATE,
             heading_drift_lr_threshold: super::HEADING_DRIFT_LR_THRESHOLD,
             heading_drift_two_sided: false,
+            coloured_jacobian_in_marginal: true,
+            common_mode_jacobian: true,
         }
     }
 }

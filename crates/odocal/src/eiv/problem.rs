@@ -34,6 +34,8 @@ pub(super) struct Problem<'a> {
     pub(super) noise_input_half_width: usize,
     pub(super) input_jacobian: InputJacobian,
     pub(super) position_floor_m: f64,
+    pub(super) coloured_jacobian_in_marginal: bool,
+    pub(super) common_mode_jacobian: bool,
     /// Filter passes over the drive: with derivatives, objective only.
     pub(super) evaluations: std::cell::Cell<[usize; 2]>,
     /// Lean iteration starts in [`scoring_pass`] (always on; off only in the
@@ -57,6 +59,8 @@ impl<'a> Problem<'a> {
             noise_input_half_width: opts.research.wheel_noise_scale.half_width(),
             input_jacobian: opts.research.input_jacobian,
             position_floor_m: opts.research.position_floor_m,
+            coloured_jacobian_in_marginal: opts.research.coloured_jacobian_in_marginal,
+            common_mode_jacobian: opts.research.common_mode_jacobian,
             evaluations: std::cell::Cell::new([0; 2]),
             lean_iterations: true,
         }
@@ -160,6 +164,8 @@ impl Problem<'_> {
         v.input_jacobian = self.input_jacobian;
         v.noise_input_half_width = self.noise_input_half_width;
         v.position_floor_m = self.position_floor_m;
+        v.coloured_jacobian_in_marginal = self.coloured_jacobian_in_marginal;
+        v.common_mode_jacobian = self.common_mode_jacobian;
         v.null_without_floors = null;
         v
     }

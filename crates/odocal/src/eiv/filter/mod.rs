@@ -155,6 +155,11 @@ pub(crate) struct Variances {
     /// noise the data are assumed to have), giving the expected lag-1
     /// correlation and NIS of the innovations ([`WindowSums::lag1_null`]).
     pub null_without_floors: bool,
+    /// The marginal likelihood M (the η step) keeps the Gauss-Markov
+    /// states' log-Jacobian `−Σ m log(1 − ŝ)` (`ResearchOptions::coloured_jacobian_in_marginal`).
+    pub coloured_jacobian_in_marginal: bool,
+    /// The common-mode state's log-Jacobian is in J and M (`ResearchOptions::common_mode_jacobian`).
+    pub common_mode_jacobian: bool,
 }
 
 /// How the filter runs.

@@ -58,7 +58,7 @@ impl MeanState {
         let (v, ts) = (setup.v, setup.ts);
         let (nl, nr, counting, s) = (lin.nl, lin.nr, lin.counting, self.s);
         let m = [
-            f64::from(u8::from(nl != 0.0 || nr != 0.0)),
+            f64::from(u8::from(v.common_mode_jacobian && (nl != 0.0 || nr != 0.0))),
             f64::from(u8::from(nl != 0.0)),
             f64::from(u8::from(nr != 0.0)),
         ];
@@ -71,7 +71,11 @@ impl MeanState {
                 [s[0], s[1], s[2]]
             )));
         }
-        out.correction -= m[0] * one_minus[0].ln() + m[1] * one_minus[1].ln() + m[2] * one_minus[2].ln();
+        let correction = m[0] * one_minus[0].ln() + m[1] * one_minus[1].ln() + m[2] * one_minus[2].ln();
+        out.correction -= correction;
+        if !v.coloured_jacobian_in_marginal {
+            out.correction_profile_only -= correction;
+        }
         // The remainder of the previous count is taken off the measured rate
         // (the new one has mean zero).
         let wsub = [if counting[0] { self.wq[0] } else { 0.0 }, if counting[1] { self.wq[1] } else { 0.0 }];
@@ -82,7 +86,7 @@ impl MeanState {
             a_y: lin.uref.a_y,
         };
         if setup.mode.derivs {
-            add_correction_gradient(out, d, &m, &one_minus, setup.all_sources);
+            add_correction_gradient(out, d, &m, &one_minus, setup.all_sources, v.coloured_jacobian_in_marginal);
             let j = step_jacobians(&self.x, &ueff, setup.theta, ts);
             predict_sensitivities(&j, lin, d, setup.sensitivity_cols());
             self.x = j.next;
@@ -125,12 +129,16 @@ fn add_correction_gradient<const S: usize>(
     m: &[f64; 3],
     one_minus: &[f64; 3],
     all_sources: bool,
+    in_marginal: bool,
 ) {
     for (row, m) in [(3usize, m[0]), (4, m[1]), (5, m[2])] {
         if m > 0.0 {
             let w = m / one_minus[row - 3];
             for c in 0..NP {
-                out.grad[c] += w * d[(row, c)];
+                // M's gradient, without the term when M leaves it out.
+                if in_marginal {
+                    out.grad[c] += w * d[(row, c)];
+                }
                 if !all_sources {
                     out.grad_profile[c] += w * d[(row, c)];
                 }

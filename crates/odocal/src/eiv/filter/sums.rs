@@ -17,6 +17,9 @@ pub(crate) struct WindowSums {
     pub logdet: f64,
     /// −Σ m log(1 − ŝ) (the coloured-noise correction).
     pub correction: f64,
+    /// The part of `correction` that the marginal likelihood M leaves out
+    /// (`Variances::coloured_jacobian_in_marginal` off; 0 otherwise).
+    pub correction_profile_only: f64,
     /// Gradient of `M = ½ quad + ½ logdet + correction` over p.
     pub grad: VP,
     /// Gradient of the profile cost `J = ½ quad + correction` over p.
@@ -173,6 +176,7 @@ impl WindowSums {
             quad: 0.0,
             logdet: 0.0,
             correction: 0.0,
+            correction_profile_only: 0.0,
             grad: VP::zeros(),
             grad_profile: VP::zeros(),
             opg: nalgebra::Matrix4::zeros(),
@@ -203,6 +207,7 @@ impl WindowSums {
         self.quad += o.quad;
         self.logdet += o.logdet;
         self.correction += o.correction;
+        self.correction_profile_only += o.correction_profile_only;
         self.grad += o.grad;
         self.grad_profile += o.grad_profile;
         self.opg += o.opg;
@@ -236,7 +241,7 @@ impl WindowSums {
 
     /// The objective `M = ½ Σ(νᵀS⁻¹ν + log det S) − Σ m log(1 − ŝ)`.
     pub(crate) fn merit(&self) -> f64 {
-        0.5 * (self.quad + self.logdet) + self.correction
+        0.5 * (self.quad + self.logdet) + self.correction - self.correction_profile_only
     }
 
     /// The profile cost `J = ½ Σ νᵀS⁻¹ν − Σ m log(1 − ŝ)` (SPEC §10), plus

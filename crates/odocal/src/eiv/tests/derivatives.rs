@@ -131,7 +131,20 @@ fn check_objective_gradient_with(follows: bool, fitted: bool, counting: bool) {
 /// [`check_objective_gradient_with`]; `given`: the quantisation level given
 /// ([`QuantisationLevel::Given`]); `measurement`: quantisation as measurement
 /// noise ([`QuantisationModel::Measurement`], not with `counting`).
-fn check_objective_gradient_quant(follows: bool, fitted: bool, counting: bool, (given, measurement): (Held, bool)) {
+fn check_objective_gradient_quant(follows: bool, fitted: bool, counting: bool, quant: (Held, bool)) {
+    check_objective_gradient_jacobians(follows, (fitted, counting), quant, (true, true));
+}
+
+/// [`check_objective_gradient_quant`] with the Gauss-Markov log-Jacobian
+/// in M or not (`in_marginal`, `Variances::coloured_jacobian_in_marginal`)
+/// and the common-mode state's in J and M or not (`common`,
+/// `Variances::common_mode_jacobian`).
+fn check_objective_gradient_jacobians(
+    follows: bool,
+    (fitted, counting): (bool, bool),
+    (given, measurement): (Held, bool),
+    (in_marginal, common): (bool, bool),
+) {
     let out = simulate(&SimOptions { length_km: 0.6, ..SimOptions::paper(6) }).expect("sim");
     let input = input_of(&out.drive);
     let w = Window { index: 0, part: 0, start: 0, end: 1500.min(input.len() - 1) };
@@ -143,6 +156,8 @@ fn check_objective_gradient_quant(follows: bool, fitted: bool, counting: bool, (
         v.fitted_input = fitted;
         v.quant_counting = counting;
         v.quant_in_measurement = measurement;
+        v.coloured_jacobian_in_marginal = in_marginal;
+        v.common_mode_jacobian = common;
         v
     };
     let sums = |t: &Theta, e: &[f64; 6]| {
@@ -193,6 +208,33 @@ fn check_objective_gradient_quant(follows: bool, fitted: bool, counting: bool, (
 #[test]
 fn objective_gradient_matches_central_differences_fitted_input() {
     check_objective_gradient_with(true, true, false);
+}
+
+/// ∂M and ∂J against central differences with the Gauss-Markov
+/// log-Jacobian left out of M, and with the common-mode state's left out
+/// of both; M then differs from the default's by exactly the terms left out.
+#[test]
+#[allow(clippy::float_cmp)] // identity to the bit is the claim
+fn objective_gradient_matches_central_differences_without_log_jacobians() {
+    check_objective_gradient_jacobians(true, (true, false), (Held::NONE, false), (false, true));
+    check_objective_gradient_jacobians(true, (true, false), (Held::NONE, false), (true, false));
+    check_objective_gradient_jacobians(false, (false, false), (Held::NONE, false), (false, false));
+    let out = simulate(&SimOptions { length_km: 0.6, ..SimOptions::paper(6) }).expect("sim");
+    let input = input_of(&out.drive);
+    let w = Window { index: 0, part: 0, start: 0, end: 1500.min(input.len() - 1) };
+    let th = Theta { c_e: 1.953, c_d: -0.0015, t_r: 1.52, d: 0.0009 };
+    let eta = [0.3, 1.5, 0.2, -0.2, 0.4, 0.25];
+    let run = |in_marginal: bool| {
+        let mut v = variances_quant(&eta, input.sample_time_s, Held::NONE);
+        v.coloured_jacobian_in_marginal = in_marginal;
+        run_window(&input, &w, &th, &th, &v, filter::Mode::full(true, true), None).expect("window")
+    };
+    let (with, without) = (run(true), run(false));
+    assert!(with.correction.abs() > 0.0, "the term is present here: {}", with.correction);
+    assert_eq!(with.correction_profile_only, 0.0);
+    assert_eq!(without.correction_profile_only, without.correction);
+    assert_eq!(without.merit(), with.merit() - with.correction);
+    assert_eq!((without.profile(), without.grad_profile), (with.profile(), with.grad_profile));
 }
 
 /// The exact counting model of quantisation (remainder states): ∂M, ∂J

@@ -258,6 +258,8 @@ fn eta_step_descends_on_the_noise_free_straight_drive() {
         position_floor_m: opts.research.position_floor_m,
         noise_input_half_width: 0,
         input_jacobian: opts.research.input_jacobian,
+        coloured_jacobian_in_marginal: true,
+        common_mode_jacobian: true,
         evaluations: std::cell::Cell::new([0; 2]),
         lean_iterations: true,
     };
