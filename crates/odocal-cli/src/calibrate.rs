@@ -126,7 +126,10 @@ pub fn demo_cmd(a: DemoArgs, bars: &Bars) -> Result<Outcome> {
         refuse_sidecar_onto_drive("--out", p)?;
     }
     files.output("--out", a.out.as_deref());
-    files.output("the sidecar beside --out (its name with .json)", a.out.as_deref().map(sim::sidecar_path).as_deref());
+    files.output(
+        "the sidecar beside --out (its name with .json)",
+        a.out.as_deref().map(sim::SimSidecar::path_beside).as_deref(),
+    );
     calibration_files(&mut files, &a.calibration, a.json.as_deref())?;
     let o = sim_options(a.sim_seed, a.length_km, &a.noise)?;
     bars.stage("simulating");
@@ -134,7 +137,7 @@ pub fn demo_cmd(a: DemoArgs, bars: &Bars) -> Result<Outcome> {
     bars.finish();
     if let Some(p) = &a.out {
         sim.drive.write_csv(p)?;
-        sim.sidecar.write_json(&sim::sidecar_path(p))?;
+        sim.sidecar.write_beside(p)?;
     }
     let others = load_validation_drives(&a.calibration.validate_on)?;
     let fingerprints = distinct_drives(&[PathBuf::from("simulated drive")], std::slice::from_ref(&sim.drive), &others)?;

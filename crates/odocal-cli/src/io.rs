@@ -67,7 +67,7 @@ pub fn name_drive(e: odocal::Error, path: &Path) -> odocal::Error {
 /// records this drive's fingerprint; a sidecar of another drive is ignored
 /// with a note on stderr.
 pub fn load_truth(drive_path: &Path, drive: &Drive) -> Option<SimSidecar> {
-    let (sidecar, note) = sim::sidecar_for(drive_path, drive);
+    let (sidecar, note) = sim::SimSidecar::for_drive(drive_path, drive);
     if let Some(note) = note {
         eprintln!("note: {note}");
     }

@@ -31,7 +31,7 @@ impl Files {
             return self.manifest(role, path);
         }
         self.input(role, path);
-        if let Some(side) = odocal::sim::sidecar_file(path) {
+        if let Some(side) = odocal::sim::SimSidecar::file_beside(path) {
             self.input(format!("the simulator sidecar of {}", path.display()), &side);
         }
         self
@@ -86,7 +86,7 @@ pub fn refuse_stdout(role: &str, path: &Path, why: &str) -> Result<()> {
 /// Refuses a drive `--out` whose sidecar path (the name with `.json`) is
 /// itself: the truth would replace the drive.
 pub fn refuse_sidecar_onto_drive(role: &str, path: &Path) -> Result<()> {
-    if odocal::sim::sidecar_path(path) == path {
+    if odocal::sim::SimSidecar::path_beside(path) == path {
         bail!(
             "{role} {}: the sidecar (the truth) is written beside the drive CSV under the name with .json, which is \
              this file; give {role} a name ending in .csv",

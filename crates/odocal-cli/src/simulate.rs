@@ -74,7 +74,7 @@ pub fn run(mut a: SimulateArgs, bars: &Bars) -> Result<()> {
     a.theta = a.theta.map(|t| t.resolved(None)).transpose()?;
     refuse_stdout("--out", &a.out, "simulate writes the drive's sidecar (the truth) beside the CSV")?;
     refuse_sidecar_onto_drive("--out", &a.out)?;
-    let side = sim::sidecar_path(&a.out);
+    let side = sim::SimSidecar::path_beside(&a.out);
     let mut files = Files::default();
     if let Some((p, _)) = a.theta.as_ref().and_then(|t| t.file.as_ref()) {
         files.input("the --theta parameter file", p);
@@ -96,7 +96,7 @@ pub fn run(mut a: SimulateArgs, bars: &Bars) -> Result<()> {
     let out = sim::simulate(&o)?;
     bars.finish();
     out.drive.write_csv(&a.out)?;
-    out.sidecar.write_json(&side)?;
+    out.sidecar.write_beside(&a.out)?;
     if a.noise.starts_with("random:") {
         let w = sim::WorldSummary::of(&o.noise);
         println!(

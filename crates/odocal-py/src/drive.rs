@@ -146,7 +146,7 @@ fn signals_from_state(cols: Vec<Vec<u8>>) -> PyResult<Signals> {
 /// drive among them).
 fn read_csv_with_sidecar(path: &std::path::Path) -> odocal::Result<(Drive, Provenance, Vec<String>)> {
     let (drive, mut warnings) = Drive::read_csv(path)?;
-    let (sidecar, note) = odocal::sim::sidecar_for(path, &drive);
+    let (sidecar, note) = odocal::sim::SimSidecar::for_drive(path, &drive);
     warnings.extend(note);
     let source = Some(path.display().to_string());
     Ok((drive, Provenance { sidecar, source, ..Default::default() }, warnings))
@@ -388,7 +388,7 @@ impl PyDrive {
     /// are written atomically; a path that is one of the drive's own files
     /// (its CSV, manifest, stream files, sidecar) is refused.
     fn to_csv(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
-        let side = odocal::sim::sidecar_path(&path);
+        let side = odocal::sim::SimSidecar::path_beside(&path);
         let mut outputs = vec![("to_csv(path)", path.as_path())];
         if self.prov.sidecar.is_some() {
             if side == path {
@@ -406,7 +406,7 @@ impl PyDrive {
         py.detach(move || {
             drive.write_csv(&path)?;
             if let Some(s) = sidecar {
-                s.write_json(&odocal::sim::sidecar_path(&path))?;
+                s.write_beside(&path)?;
             }
             Ok(())
         })

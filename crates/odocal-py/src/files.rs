@@ -33,7 +33,7 @@ pub(crate) fn inputs_of(prov: &Provenance) -> Vec<FileRole> {
         out
     } else {
         let mut out = vec![FileRole { role: format!("the CSV {src} the drive was read from"), path: path.into() }];
-        if let Some(side) = odocal::sim::sidecar_file(path) {
+        if let Some(side) = odocal::sim::SimSidecar::file_beside(path) {
             out.push(FileRole { role: format!("the simulator sidecar of {src}"), path: side });
         }
         out

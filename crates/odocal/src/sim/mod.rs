@@ -67,7 +67,7 @@
 //! [`WorldSummary`] says which kind of wheel noise dominates it
 //! ([`NoiseRegime`]). `odocal simulate --noise random:N` simulates world N.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use rand::Rng;
 use serde::{Deserialize, Serialize};
@@ -85,7 +85,6 @@ use options::invalid;
 pub(crate) use options::SpeedOptions;
 pub use options::{CdStep, DriftOptions, NoiseOptions, SimOptions};
 use route::{build_route, stream, Encoder, GaussMarkov, Route, SpeedProfile, White};
-pub use truth::{sidecar_file, sidecar_for};
 pub use world::{NoiseRegime, WorldSummary};
 
 /// Grid step of the speed profile along the route, m.
@@ -124,7 +123,7 @@ pub struct SimSidecar {
     /// Summary numbers.
     pub stats: SimStats,
     /// The [`Drive::fingerprint`] of the simulated drive: binds the
-    /// sidecar to its CSV ([`sidecar_for`]). `None` when not recorded.
+    /// sidecar to its CSV ([`SimSidecar::for_drive`]). `None` when not recorded.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub drive_fingerprint: Option<String>,
     /// With drifting parameters ([`SimOptions::drift`]): the true θ at the
@@ -134,15 +133,14 @@ pub struct SimSidecar {
 }
 
 impl SimSidecar {
-    /// Writes the sidecar as pretty JSON, atomically
-    /// ([`crate::output::write_text`]).
-    pub fn write_json(&self, path: &Path) -> Result<()> {
+    /// Writes the sidecar as pretty JSON to `path`, atomically.
+    fn write_json(&self, path: &Path) -> Result<()> {
         let text = serde_json::to_string_pretty(self)
             .map_err(|source| Error::Json { context: format!("writing {}", path.display()), source })?;
         crate::output::write_text(path, &text)
     }
 
-    /// Reads a sidecar written by [`SimSidecar::write_json`].
+    /// Reads a sidecar written by [`SimSidecar::write_beside`].
     pub(crate) fn read_json(path: &Path) -> Result<Self> {
         let text = crate::output::limited::read_text_limited(
             path,
@@ -152,11 +150,6 @@ impl SimSidecar {
         .map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
         serde_json::from_str(&text).map_err(|source| Error::Json { context: path.display().to_string(), source })
     }
-}
-
-/// The sidecar path of a drive CSV: `drive.csv` → `drive.json`.
-pub fn sidecar_path(drive_csv: &Path) -> PathBuf {
-    drive_csv.with_extension("json")
 }
 
 /// A simulated drive and its sidecar.
@@ -783,7 +776,7 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("odocal-sim-test-{}", std::process::id()));
         std::fs::create_dir_all(&dir).expect("temp dir");
         let csv = dir.join("drive.csv");
-        let json = sidecar_path(&csv);
+        let json = SimSidecar::path_beside(&csv);
         assert_eq!(json, dir.join("drive.json"));
         out.sidecar.write_json(&json).expect("write sidecar");
         let back = SimSidecar::read_json(&json).expect("read sidecar");
