@@ -414,6 +414,8 @@ fn write_html_report(
     truth: Option<(&Theta, f64)>,
 ) -> Result<()> {
     let val = segment::validation_segments(drive, &opts.validation)?;
+    // The date the calibration's parameter file records.
+    let date = r.param_file(input).provenance.into_iter().find(|(k, _)| k == "date").map(|(_, v)| v);
     let html = odocal_report::ReportInput {
         provenance: vec![
             ("method".into(), r.method.clone()),
@@ -421,7 +423,7 @@ fn write_html_report(
             ("fingerprint".into(), fingerprint.to_string()),
             ("σ of θ".into(), r.result_sigma().covers.to_string()),
             ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
-            ("date".into(), odocal::ParamFile::utc_date_today()),
+            ("date".into(), date.unwrap_or_default()),
         ],
         ..odocal_report::ReportInput::of_calibration(input, r, (drive, &val, starts), truth.map(|t| t.0))
     };

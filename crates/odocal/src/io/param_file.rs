@@ -116,7 +116,7 @@ impl ParamFile {
 
     /// Today's date (UTC) as `YYYY-MM-DD`, from the system clock: the
     /// `date` of a file [`CalibrationReport::param_file`](crate::CalibrationReport::param_file) writes.
-    pub fn utc_date_today() -> String {
+    fn utc_date_today() -> String {
         let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
         let (y, m, d) = civil_from_days((secs / 86_400) as i64);
         format!("{y:04}-{m:02}-{d:02}")
