@@ -144,27 +144,6 @@ pub enum Recorded {
     AlreadyRecorded(i64),
 }
 
-/// A write-back decision of the online calibration, to be logged.
-#[derive(Debug, Clone, PartialEq)]
-pub(crate) struct Decision {
-    /// The vehicle.
-    pub vehicle: String,
-    /// The drive's fingerprint.
-    pub fingerprint: String,
-    /// The drive's source (file or manifest).
-    pub source: String,
-    /// Time into the drive, s (from its first sample).
-    pub drive_time_s: f64,
-    /// `written`, `held` or `flagged` (a change too large to write without a person).
-    pub decision: String,
-    /// Why: the gates that held it, or what was written.
-    pub reasons: Vec<String>,
-    /// The proposed θ.
-    pub theta: Theta,
-    /// Its σ.
-    pub sigma: Option<Theta>,
-}
-
 /// A row of the table `decisions`: a write-back decision of the online
 /// calibration ([`crate::online::follow`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -458,8 +437,9 @@ impl History {
         rows.collect::<rusqlite::Result<Vec<_>>>().map_err(&err)
     }
 
-    /// Logs a write-back decision; returns its row id.
-    pub(crate) fn record_decision(&mut self, d: &Decision) -> Result<i64> {
+    /// Logs a write-back decision; returns its row id. The database sets
+    /// the row's `id`, `decided_at` and `odocal_version` (`d`'s are not read).
+    pub(crate) fn record_decision(&mut self, d: &DecisionRow) -> Result<i64> {
         let err = sql_err(&self.path);
         let reasons = serde_json::to_string(&d.reasons)
             .map_err(|e| Error::History { path: self.path.clone(), reason: format!("reasons: {e}") })?;

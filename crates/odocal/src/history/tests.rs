@@ -77,7 +77,10 @@ fn concurrent_writers_lose_nothing() {
                     // Every thread also records the shared drives "s0".."s4".
                     db.record(&record("van", &format!("t{t}-{i}"), 1.95, 1e-3)).expect("record");
                     db.record(&record("van", &format!("s{}", i % 5), 1.95, 1e-3)).expect("record shared");
-                    db.record_decision(&Decision {
+                    db.record_decision(&DecisionRow {
+                        id: 0,
+                        decided_at: String::new(),
+                        odocal_version: String::new(),
                         vehicle: "van".into(),
                         fingerprint: format!("t{t}"),
                         source: "x".into(),

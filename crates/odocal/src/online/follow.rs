@@ -8,7 +8,7 @@ use super::gate::{Action, GateDecision, Gates};
 use super::{Calibrator, DriveSummary, OnlineOptions};
 use crate::drive::{Drive, DriveStream};
 use crate::error::{Error, Result};
-use crate::history::{CalibrationRecord, Decision, History};
+use crate::history::{CalibrationRecord, DecisionRow, History};
 use crate::io::import::stream::{self, reader::ManifestStream, StreamOptions};
 use crate::io::import::{is_manifest_path, load_drive, manifest::Manifest};
 use crate::model::Theta;
@@ -171,7 +171,11 @@ pub fn follow<E: From<Error>>(
         let decision = opts.gates.decide(c, &stored.theta, stored.calibrated);
         let status = c.status();
         let span = drive.time_span_s();
-        db.record_decision(&Decision {
+        db.record_decision(&DecisionRow {
+            // Set by the database.
+            id: 0,
+            decided_at: String::new(),
+            odocal_version: String::new(),
             vehicle: vehicle.to_string(),
             fingerprint: fingerprint.clone(),
             source: source.clone(),
