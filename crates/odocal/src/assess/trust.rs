@@ -914,15 +914,21 @@ mod tests {
         }
     }
 
+    /// θ, a diagonal covariance with t_r's variance `var_tr`, and the
+    /// within-drive σ it gives: the fallback verdict tests' drive.
+    fn fallback_case(var_tr: f64) -> (Theta, [[f64; 4]; 4], [Option<f64>; 4]) {
+        let th = Theta { c_e: 2.0, c_d: 0.0, t_r: 1.55, d: 0.0 };
+        let cov = [[1e-10, 0.0, 0.0, 0.0], [0.0, 1e-12, 0.0, 0.0], [0.0, 0.0, var_tr, 0.0], [0.0, 0.0, 0.0, 1e-12]];
+        let within = std::array::from_fn(|i| Some(cov[i][i].sqrt()));
+        (th, cov, within)
+    }
+
     /// A fallback whose EIV estimate lies beyond 3 σ (without the gap) is
     /// doubtful, and the large-σ check sees the σ for the next drive.
     #[test]
     fn a_fallback_far_from_eiv_is_doubtful() {
         use crate::assess::pooling::NextDriveSigma;
-        let th = Theta { c_e: 2.0, c_d: 0.0, t_r: 1.55, d: 0.0 };
-        let cov: [[f64; 4]; 4] =
-            [[1e-10, 0.0, 0.0, 0.0], [0.0, 1e-12, 0.0, 0.0], [0.0, 0.0, 1e-8, 0.0], [0.0, 0.0, 0.0, 1e-12]];
-        let within = std::array::from_fn(|i| Some(cov[i][i].sqrt()));
+        let (th, cov, within) = fallback_case(1e-8);
         let opts = TrustOptions::default();
         let none = NextDriveSigma::one_drive(&th, within, [0.0; 4]);
         let v = judge(&Evidence { next_drive: Some(&none), ..evidence(&th, &cov) }, &opts);
@@ -976,10 +982,7 @@ mod tests {
     #[test]
     fn an_unchecked_fallback_is_doubtful() {
         use crate::assess::pooling::{FallbackUnchecked, NextDriveSigma};
-        let th = Theta { c_e: 2.0, c_d: 0.0, t_r: 1.55, d: 0.0 };
-        let cov: [[f64; 4]; 4] =
-            [[1e-10, 0.0, 0.0, 0.0], [0.0, 1e-12, 0.0, 0.0], [0.0, 0.0, 1e-8, 0.0], [0.0, 0.0, 0.0, 1e-12]];
-        let within = std::array::from_fn(|i| Some(cov[i][i].sqrt()));
+        let (th, cov, within) = fallback_case(1e-8);
         let opts = TrustOptions::default();
         let mut n = NextDriveSigma::one_drive(&th, within, [0.0; 4]);
         let v = judge(&Evidence { next_drive: Some(&n), ..evidence(&th, &cov) }, &opts);
@@ -1003,10 +1006,7 @@ mod tests {
     #[test]
     fn eiv_t_r_far_above_its_start_is_doubtful() {
         use crate::assess::pooling::NextDriveSigma;
-        let th = Theta { c_e: 2.0, c_d: 0.0, t_r: 1.55, d: 0.0 };
-        let cov: [[f64; 4]; 4] =
-            [[1e-10, 0.0, 0.0, 0.0], [0.0, 1e-12, 0.0, 0.0], [0.0, 0.0, 1e-6, 0.0], [0.0, 0.0, 0.0, 1e-12]];
-        let within = std::array::from_fn(|i| Some(cov[i][i].sqrt()));
+        let (th, cov, within) = fallback_case(1e-6);
         let opts = TrustOptions::default();
         let base = NextDriveSigma::one_drive(&th, within, [0.0; 4]);
         let s = base.without_gap()[2].expect("t_r");
