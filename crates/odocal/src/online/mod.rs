@@ -456,13 +456,13 @@ impl Calibrator {
     /// `px`, a value that is not finite, or times that do not fit.
     pub fn push(&mut self, t: Option<&[f64]>, samples: &Signals) -> Result<()> {
         let s = samples;
+        let cols = s.columns();
         let n = s.px.len();
-        let lengths = [s.px.len(), s.py.len(), s.psi.len(), s.n_rl.len(), s.n_rr.len(), s.beta.len(), s.a_y.len()];
-        if let Some(bad) = lengths.iter().position(|&l| l != n).or_else(|| t.filter(|t| t.len() != n).map(|_| 7)) {
-            let names = ["px", "py", "psi", "n_rl", "n_rr", "beta", "a_y", "t"];
+        let bad = cols.iter().find(|(_, c)| c.len() != n).map(|(name, _)| *name);
+        if let Some(name) = bad.or_else(|| t.filter(|t| t.len() != n).map(|_| "t")) {
             return Err(Error::InvalidOption {
                 field: "chunk",
-                reason: format!("column {} has a length other than px's ({n})", names[bad]),
+                reason: format!("column {name} has a length other than px's ({n})"),
             });
         }
         let starts = match t {
@@ -471,15 +471,16 @@ impl Calibrator {
         };
         let mut psi = s.psi.clone();
         self.unwrap.unwrap(&mut psi);
-        let mut bounds: Vec<usize> = std::iter::once(0).chain(starts.iter().copied()).collect();
-        bounds.push(n);
-        for w in bounds.windows(2) {
-            let r = w[0]..w[1];
-            if starts.contains(&w[0]) {
+        // Each part's samples, a new part begun at each gap.
+        let mut from = 0;
+        for to in starts.iter().copied().chain([n]) {
+            if starts.contains(&from) {
                 self.begin_part();
             }
+            let r = from..to;
             let chunk = Chunk { psi: &psi[r.clone()], ..Chunk::of_signals(s).range(r) };
             self.push_chunk(&chunk)?;
+            from = to;
         }
         if let Some(last) = t.and_then(|t| t.last()) {
             self.last_t = Some(*last);
