@@ -205,21 +205,30 @@ impl VehicleHistory {
     }
 }
 
+/// Display scale and unit of each θ parameter in the history's table (c_d
+/// and d in mm, as the calibration report shows them): value and σ alike.
+const DISPLAY_UNITS: [(f64, &str); 4] = [(1.0, "m"), (1e3, "mm"), (1.0, "m"), (1e3, "mm/(m/s²)")];
+
 impl std::fmt::Display for VehicleHistory {
     /// The rows as a table (one line per recorded drive and method), the
-    /// drift flags and the pooled estimate.
+    /// drift flags and the pooled estimate, each value and σ in the unit
+    /// its column or line names (c_d in mm, d in mm/(m/s²)).
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
             f,
-            "{:>4}  {:<24} {:<10} {:>10} {:>11} {:>9} {:>10}  {:<9} source",
-            "id", "recorded (UTC)", "method", "c_e", "c_d", "t_r", "d", "verdict"
+            "{:>4}  {:<24} {:<10} {:>14} {:>14} {:>13} {:>14}  {:<9} source",
+            "id", "recorded (UTC)", "method", "c_e (m)", "c_d (mm)", "t_r (m)", "d (mm/(m/s²))", "verdict"
         )?;
         for r in &self.rows {
             let c = &r.record;
-            let sd = c.sigma.map(|s| s.to_array());
-            let cell = |i: usize, v: f64, digits: usize| match sd {
-                Some(s) => format!("{v:.digits$}±{:.1e}", s[i]),
-                None => format!("{v:.digits$}"),
+            let (v, sd) = (c.theta.to_array(), c.sigma.map(|s| s.to_array()));
+            let cell = |i: usize, digits: usize, width: usize| {
+                let scale = DISPLAY_UNITS[i].0;
+                let text = match sd {
+                    Some(s) => format!("{:.digits$}±{:.1e}", v[i] * scale, s[i] * scale),
+                    None => format!("{:.digits$}", v[i] * scale),
+                };
+                format!("{text:>width$}")
             };
             writeln!(
                 f,
@@ -227,10 +236,10 @@ impl std::fmt::Display for VehicleHistory {
                 r.id,
                 r.recorded_at,
                 c.method,
-                cell(0, c.theta.c_e, 5),
-                cell(1, c.theta.c_d * 1e3, 3) + "mm",
-                cell(2, c.theta.t_r, 3),
-                cell(3, c.theta.d * 1e3, 3) + "mm/g",
+                cell(0, 5, 14),
+                cell(1, 3, 14),
+                cell(2, 3, 13),
+                cell(3, 3, 14),
                 c.verdict.as_deref().unwrap_or("-"),
                 c.sources.join(", ")
             )?;
@@ -240,16 +249,18 @@ impl std::fmt::Display for VehicleHistory {
         } else {
             writeln!(f, "\ndrift (|Δ| > 3·sqrt(σ₁² + σ₂²)):")?;
             for d in &self.drift {
+                let (scale, unit) =
+                    THETA_NAMES.iter().position(|n| *n == d.parameter).map_or((1.0, "SI"), |i| DISPLAY_UNITS[i]);
                 writeln!(
                     f,
-                    "  {} row {} ({}) → row {} ({}): {:+.4e} (combined σ {:.2e}, {:.1}σ)",
+                    "  {} row {} ({}) → row {} ({}): {:+.4e} {unit} (combined σ {:.2e} {unit}, {:.1}σ)",
                     d.parameter,
                     d.from_id,
                     d.from_recorded_at,
                     d.to_id,
                     d.to_recorded_at,
-                    d.change,
-                    d.combined_sigma,
+                    d.change * scale,
+                    d.combined_sigma * scale,
                     d.change.abs() / d.combined_sigma
                 )?;
             }
@@ -258,9 +269,15 @@ impl std::fmt::Display for VehicleHistory {
             writeln!(f, "\npooled over {} row(s) (inverse-variance mean ± its σ; between-drive sd):", p.rows)?;
             let (m, s, b) = (p.mean.to_array(), p.sigma_of_mean.to_array(), p.between_drive_sd.to_array());
             for (i, name) in THETA_NAMES.iter().enumerate() {
+                let (scale, unit) = DISPLAY_UNITS[i];
                 // One row has no spread between drives.
-                let sd = if b[i].is_finite() { format!("{:.2e}", b[i]) } else { "— (needs two rows)".into() };
-                writeln!(f, "  {name:<4} {:>12.6} ± {:.2e}   between-drive sd {sd}", m[i], s[i])?;
+                let sd = if b[i].is_finite() { format!("{:.2e}", b[i] * scale) } else { "— (needs two rows)".into() };
+                writeln!(
+                    f,
+                    "  {name:<4} {unit:<10} {:>12.6} ± {:.2e}   between-drive sd {sd}",
+                    m[i] * scale,
+                    s[i] * scale
+                )?;
             }
         }
         Ok(())

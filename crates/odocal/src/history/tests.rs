@@ -142,6 +142,26 @@ fn pooled_is_the_inverse_variance_mean() {
 }
 
 #[test]
+fn the_table_shows_each_sigma_in_its_values_unit() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
+    let sd = Theta { c_e: 1.7e-3, c_d: 3.1e-4, t_r: 4.6e-3, d: 9.8e-5 };
+    db.record(&CalibrationRecord { sigma: Some(sd), ..record("van", "a", 1.95, 1e-3) }).expect("a");
+    let shifted = Theta { c_d: -0.0004, ..theta(1.95) };
+    db.record(&CalibrationRecord { theta: shifted, sigma: Some(sd), ..record("van", "b", 1.95, 1e-3) }).expect("b");
+    let text = db.vehicle("van", None).expect("history").to_string();
+    let lines: Vec<&str> = text.lines().collect();
+    // c_d = -2 mm ± 0.31 mm, d = 0.8 mm/(m/s²) ± 0.098 mm/(m/s²): value and σ in one unit.
+    assert!(lines[0].contains("c_d (mm)") && lines[0].contains("d (mm/(m/s²))"), "{text}");
+    assert!(lines[1].contains("-2.000±3.1e-1") && lines[1].contains("0.800±9.8e-2"), "{text}");
+    assert!(!text.contains("mm/g"), "{text}");
+    // The c_d change of 1.6 mm against a combined σ of 0.44 mm.
+    assert!(text.contains("c_d row 1 (") && text.contains("+1.6000e0 mm (combined σ 4.38e-1 mm, 3.6σ)"), "{text}");
+    let pooled_c_d = format!("  c_d  {:<10} {:>12.6} ± 8.00e-1   between-drive sd 1.13e0\n", "mm", -1.2);
+    assert!(text.contains(&pooled_c_d), "{text}");
+}
+
+#[test]
 fn the_table_lists_each_row_the_drift_and_the_pooled_estimate() {
     let dir = tempfile::tempdir().expect("tempdir");
     let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
