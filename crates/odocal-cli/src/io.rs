@@ -79,13 +79,20 @@ pub fn load_truth(drive_path: &Path, drive: &Drive) -> Option<SimSidecar> {
 pub fn write_json(path: &Path, mut value: serde_json::Value) -> Result<()> {
     if let Some(obj) = value.as_object_mut() {
         obj.insert("schema_version".into(), odocal::REPORT_SCHEMA_VERSION.into());
-        let imported = IMPORT_WARNINGS.lock().map(|w| w.clone()).unwrap_or_default();
+        let imported = import_warnings();
         if !imported.is_empty() {
             obj.insert("import_warnings".into(), imported.into());
         }
     }
     let text = serde_json::to_string_pretty(&value)?;
     crate::output::write_text(path, &text)
+}
+
+/// What the importer warned about for every manifest this command read so
+/// far (`path: warning`): the JSON report's `import_warnings`, listed in the
+/// HTML report before the calibration's warnings.
+pub fn import_warnings() -> Vec<String> {
+    IMPORT_WARNINGS.lock().map(|w| w.clone()).unwrap_or_default()
 }
 
 /// A drive's entry in a JSON report: its role (`calibration`,

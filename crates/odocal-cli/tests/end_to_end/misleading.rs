@@ -138,4 +138,11 @@ fn import_warnings_reach_the_json_reports() {
         assert!(w.iter().any(|w| w.contains(tail) && w.contains("streams.d")), "{w:?}");
         assert!(w.iter().any(|w| w.contains(unused) && w.starts_with(s(&m))), "{w:?}");
     }
+    // The HTML report lists them with the calibration's warnings.
+    let o = odocal(&["calibrate", s(&m), "--report", "-"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let html = stdout(&o);
+    let warnings = &html[html.find("id=\"warnings\"").expect("warnings section")..];
+    assert!(warnings.contains(tail) && warnings.contains("streams.d"), "{warnings}");
+    assert!(warnings.contains("wheels.ticks_per_rev = 100 does not apply"), "{warnings}");
 }
