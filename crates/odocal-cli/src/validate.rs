@@ -71,7 +71,6 @@ pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<()> {
     let stated = settings.as_ref().and_then(|s| s.reference.as_ref()).map(|r| r.extrinsics());
     let file = a.theta.file.as_ref();
     let from_file = opts.set_extrinsics(file.map(|(_, f)| f), stated.as_ref(), a.carry_heading_offset);
-    let extrinsics_from = extrinsics_source(file.map(|(p, _)| p.as_path()), &from_file);
     if let Some(v) = a.validation_length {
         opts.segments.length_steps = v;
         opts.segments.stride_steps = (v / 2).max(1);
@@ -88,6 +87,8 @@ pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<()> {
     let report =
         odocal::validate(&drive, &a.theta.theta, &opts, Some(&cb)).map_err(|e| crate::io::name_drive(e, &a.drive))?;
     bars.finish();
+    let extrinsics_from =
+        extrinsics_source(file.map(|(p, _)| p.as_path()), &from_file, report.heading_offset_fit.is_some());
     if let Some(p) = &a.json {
         let mut v = serde_json::to_value(&report)?;
         if let Some(obj) = v.as_object_mut() {
@@ -104,17 +105,26 @@ pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<()> {
 }
 
 /// Where the extrinsics in force came from: the `--theta` parameter file
-/// (`path`) for those in `from_file`, the drive's manifest for the rest.
-fn extrinsics_source(path: Option<&Path>, from_file: &[&str]) -> String {
+/// (`path`) for those in `from_file`, except a heading offset `reestimated`
+/// on this drive; the drive's manifest for the rest.
+fn extrinsics_source(path: Option<&Path>, from_file: &[&str], reestimated: bool) -> String {
     let manifest = "the drive's manifest [reference]".to_string();
     let Some(path) = path else { return manifest };
-    if from_file.len() == 3 {
-        path.display().to_string()
-    } else if from_file.is_empty() {
-        manifest
-    } else {
-        format!("{} from {}, the rest from the drive's manifest [reference]", from_file.join(", "), path.display())
+    let (kept, refitted): (Vec<&str>, Vec<&str>) =
+        from_file.iter().copied().partition(|n| !(reestimated && *n == "heading_offset"));
+    let mut parts = Vec::new();
+    if kept.len() == 3 {
+        parts.push(path.display().to_string());
+    } else if !kept.is_empty() {
+        parts.push(format!("{} from {}", kept.join(", "), path.display()));
     }
+    if !refitted.is_empty() {
+        parts.push("heading_offset re-estimated on this drive".to_string());
+    }
+    if from_file.len() < 3 {
+        parts.push(if parts.is_empty() { manifest } else { format!("the rest from {manifest}") });
+    }
+    parts.join(", ")
 }
 
 /// The report for humans.

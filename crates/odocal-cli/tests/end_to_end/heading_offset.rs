@@ -56,6 +56,12 @@ fn validation_re_estimates_the_drive_s_own_heading_offset_unless_carried() {
     let own = v["mean_position_error_m"].as_f64().expect("Ē_p");
     assert!(own < 1e-6, "Ē_p with the drive's own δ: {own} m");
     assert!(text.contains("heading offset re-estimated on this drive: 14.2 mrad (calibration's 18.8)"), "{text}");
+    // The line of the extrinsics in force says where the re-estimated δ comes from, not the file.
+    let line = text.lines().find(|l| l.starts_with("reference extrinsics:")).expect("extrinsics line");
+    assert!(
+        line.ends_with(&format!("(lever_x, lever_y from {p}, heading_offset re-estimated on this drive)")),
+        "{text}"
+    );
 
     // Carried: the calibration's δ, which tilts every path of this drive.
     let (v, text) = validate(&[&other, "--theta", p, "--carry-heading-offset"]);
@@ -64,6 +70,7 @@ fn validation_re_estimates_the_drive_s_own_heading_offset_unless_carried() {
     let carried = v["mean_position_error_m"].as_f64().expect("Ē_p");
     assert!(carried > 0.1, "Ē_p with the calibration's δ: {carried} m");
     assert!(!text.contains("re-estimated"), "{text}");
+    assert!(text.contains(&format!("heading offset = 18.8000 mrad ({p})")), "{text}");
 
     // --validate-on: the same per validation drive.
     let base = ["--method", "batch-gn", "--estimate", "heading-offset", "--max-iterations", "30"];
