@@ -86,6 +86,12 @@ pub struct ParamRow {
     pub sigma: Option<f64>,
     /// The truth, SI, when known.
     pub truth: Option<f64>,
+    /// The heading of this row's σ when it is not the table's
+    /// ([`ReportInput::sigma_label`]): the reference extrinsics' σ is their
+    /// cluster-robust or model σ, not θ's σ for the next drive. A row whose
+    /// label differs from the one in force starts a block headed "reference
+    /// extrinsics" with this label over the σ column.
+    pub sigma_label: Option<String>,
 }
 
 impl ParamRow {
@@ -107,6 +113,7 @@ impl ParamRow {
                 calibrated: calibrated.to_array()[i],
                 sigma: sigma.and_then(|s| s[i]),
                 truth: truth.map(|t| t.to_array()[i]),
+                sigma_label: None,
             })
             .collect()
     }
@@ -115,9 +122,11 @@ impl ParamRow {
 impl ParamRow {
     /// Rows for the reference extrinsics (lever arm in m, heading offset in
     /// mrad) with the σ that stands for them
-    /// ([`odocal::ExtrinsicsEstimate::result_std_dev`]); held entries have no σ.
+    /// ([`odocal::ExtrinsicsEstimate::result_std_dev`]), labelled `± 1σ
+    /// (robust)` or `± 1σ (model)` as the text labels it; held entries have no σ.
     pub fn extrinsics_rows(x: &odocal::ExtrinsicsEstimate) -> Vec<ParamRow> {
         let (init, val, sd) = (x.initial.to_array(), x.value.to_array(), x.result_std_dev().to_array());
+        let label = if x.robust.is_some() { "± 1σ (robust)" } else { "± 1σ (model)" };
         odocal::ParamSet::EXTRINSICS
             .iter()
             .enumerate()
@@ -131,6 +140,7 @@ impl ParamRow {
                     calibrated: val[i],
                     sigma: x.free.contains(p).then_some(sd[i]),
                     truth: None,
+                    sigma_label: Some(label.to_string()),
                 }
             })
             .collect()

@@ -162,7 +162,11 @@ where
         if p.equal_aspect { equal_aspect(area, (x_lo, x_hi), (y_lo, y_hi)) } else { (x_lo, x_hi, y_lo, y_hi) };
     let inside = |&(x, y): &(f64, f64)| finite(&(x, y)) && y >= y_lo && y <= y_hi;
     let hidden = all.len() - all.iter().filter(|q| inside(q)).count();
-    let title = if hidden > 0 { format!("{} ({hidden} points off scale)", p.title) } else { p.title.clone() };
+    let title = match hidden {
+        0 => p.title.clone(),
+        1 => format!("{} (1 point off scale)", p.title),
+        n => format!("{} ({n} points off scale)", p.title),
+    };
     let err = |e: DrawingAreaErrorKind<DB::ErrorType>| anyhow_like(format!("drawing '{}': {e:?}", p.title));
     let mut chart = ChartBuilder::on(area)
         .caption(title, ("sans-serif", 18))

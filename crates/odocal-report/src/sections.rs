@@ -84,7 +84,13 @@ pub(crate) fn parameters(h: &mut String, r: &ReportInput<'_>) {
         h.push_str("<th>truth</th><th>error</th>");
     }
     h.push_str("</tr>\n");
+    let mut label = &r.sigma_label;
     for p in &r.params {
+        // Rows whose σ is of another kind (the reference extrinsics') under a heading of their own.
+        if let Some(l) = p.sigma_label.as_ref().filter(|l| *l != label) {
+            let _ = writeln!(h, "<tr><th colspan=\"4\">reference extrinsics</th><th>{}</th></tr>", esc(l));
+            label = l;
+        }
         let f = |v: f64| format!("{:.6}", v * p.scale);
         // "held" only for a parameter that did not move.
         let sigma = match p.sigma {

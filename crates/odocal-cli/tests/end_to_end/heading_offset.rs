@@ -126,6 +126,13 @@ fn the_html_report_shows_the_json_s_mean_position_error_and_sigma() {
     let robust = x["robust"]["std_dev"]["heading_offset"].as_f64();
     let delta_sd = robust.or(x["std_dev"]["heading_offset"].as_f64()).expect("σ of δ");
     assert_eq!(sigma_cell("heading_offset"), format!("{:.6}", delta_sd * 1e3));
+    // θ's σ is the σ for the next drive; the extrinsics' is labelled with its own kind, as in the text.
+    let table = between(&page, "<section id=\"parameters\">", "</table>");
+    let kind = if robust.is_some() { "± 1σ (robust)" } else { "± 1σ (model)" };
+    let (theta_rows, extrinsics_rows) = table.split_at(table.find("<tr><td>lever_x</td>").expect("lever_x row"));
+    assert!(theta_rows.contains("<th>± 1σ (next drive)</th>"), "{table}");
+    assert!(theta_rows.ends_with(&format!("<th>{kind}</th></tr>\n")), "{table}");
+    assert!(!extrinsics_rows.contains("next drive"), "{table}");
 }
 
 /// Two drives calibrated jointly: one θ, each drive's own δ (JSON
