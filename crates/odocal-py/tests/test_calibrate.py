@@ -90,6 +90,14 @@ def test_report_shortcuts(small_drive):
     assert odocal.validate(small_drive, r)["mean_position_error_m"] == r.mean_position_error_m
 
 
+def test_model_sigma_of_a_held_parameter_is_none_as_in_the_text(small_drive):
+    # A held parameter has no model σ: the text prints "held", `sigma` None, never a σ of 0.
+    r = odocal.calibrate(small_drive, "batch-gn", fix=["d"])
+    assert r.covariance[3, 3] == 0.0
+    assert r.model_sigma["d"] is None and r.sigma["d"] is None
+    assert all(r.model_sigma[k] > 0 for k in ("c_e", "c_d", "t_r"))
+
+
 def test_option_errors(small_drive):
     with pytest.raises(TypeError, match="unknown option 'batchez'; options: method, theta0, .*, holdout, validate_on, carry_heading_offset$"):
         odocal.calibrate(small_drive, batchez=3)

@@ -118,10 +118,13 @@ class CalibrationReport:
     @property
     def model_sigma(self) -> dict:
         """The model 1σ of each parameter (square root of the diagonal of
-        :attr:`covariance`), same keys as ``theta``; it assumes white
-        residuals and understates the uncertainty under input noise."""
+        :attr:`covariance`), same keys as ``theta``; ``None`` for a parameter
+        the method did not estimate (its covariance row is zero: held, or
+        kept at the default method's batch Gauss-Newton start; the text
+        report's ``held`` or ``–``). It assumes white residuals and
+        understates the uncertainty under input noise."""
         c = self.covariance
-        return {k: float(np.sqrt(max(c[i, i], 0.0))) for i, k in enumerate(THETA_NAMES)}
+        return {k: float(np.sqrt(c[i, i])) if c[i, i] > 0 else None for i, k in enumerate(THETA_NAMES)}
 
     @property
     def result_sigma(self) -> Optional[dict]:
