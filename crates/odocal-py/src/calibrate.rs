@@ -198,7 +198,7 @@ pub(crate) fn calibrate<'py>(
         [one] => one.clone(),
         many => Provenance { wheel_scale: many.iter().find_map(|p| p.wheel_scale.clone()), ..Default::default() },
     };
-    let value = run_detached(py, progress, |cb| {
+    let mut value = run_detached(py, progress, |cb| {
         with_threads(threads, || calibrate_json(&inner, &prov, &plan, entries, &separate, cb))
     })??
     .map_err(|e| match e {
@@ -207,6 +207,9 @@ pub(crate) fn calibrate<'py>(
         )),
         e => lib_err(e),
     })?;
+    // The manifests' import warnings, calibration drives first, as the CLI's JSON lists them.
+    let validation_provs = validate_on.as_ref().map(crate::drive::provenances).unwrap_or_default();
+    crate::drive::with_import_warnings(&mut value, &[provs, validation_provs].concat());
     let text = serde_json::to_string_pretty(&value).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
     Ok((to_py(py, &value)?, text))
 }

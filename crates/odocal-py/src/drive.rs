@@ -45,6 +45,36 @@ impl Provenance {
             serde_json::from_str(text).map_err(|e| PyRuntimeError::new_err(format!("import report: {e}")))?;
         ManifestSettings::of_report_json(&v).map(Some).map_err(lib_err)
     }
+
+    /// What the import of a manifest warned about, each as `source: warning`
+    /// (the CLI's stderr lines and its JSON's `import_warnings`), read back
+    /// from the import report; empty for other drives.
+    pub(crate) fn import_warnings(&self) -> Vec<String> {
+        let Some(text) = &self.import_report else { return Vec::new() };
+        let v: serde_json::Value = serde_json::from_str(text).unwrap_or_default();
+        let source = self.source.as_deref().unwrap_or("manifest");
+        let warnings = v["warnings"].as_array().map(Vec::as_slice).unwrap_or_default();
+        warnings.iter().filter_map(|w| w.as_str()).map(|w| format!("{source}: {w}")).collect()
+    }
+}
+
+/// The provenance of each drive of a `drive` or `validate_on` argument (one
+/// drive or a list of them), without joining them; empty for anything else.
+pub(crate) fn provenances(v: &Bound<'_, PyAny>) -> Vec<Provenance> {
+    if let Ok(d) = v.cast::<PyDrive>() {
+        return vec![d.get().prov.clone()];
+    }
+    let Ok(items) = v.try_iter() else { return Vec::new() };
+    items.filter_map(|x| x.ok()?.cast::<PyDrive>().ok().map(|d| d.get().prov.clone())).collect()
+}
+
+/// Adds `import_warnings` to a JSON report when the manifests of `provs`
+/// warned, as `odocal calibrate --json` and `odocal validate --json` do.
+pub(crate) fn with_import_warnings(v: &mut serde_json::Value, provs: &[Provenance]) {
+    let imported: Vec<String> = provs.iter().flat_map(Provenance::import_warnings).collect();
+    if let (Some(obj), false) = (v.as_object_mut(), imported.is_empty()) {
+        obj.insert("import_warnings".into(), imported.into());
+    }
 }
 
 /// One drive, or several of one vehicle joined with `Drive::concat`
@@ -252,6 +282,8 @@ impl PyDrive {
     #[staticmethod]
     fn from_manifest(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
         let (drive, prov) = py.detach(|| read_manifest(&path)).map_err(lib_err)?;
+        // What the import warned about (a corrupt row dropped, a clock offset not applied), as the CLI prints it.
+        warn_all(py, &prov.import_warnings())?;
         Ok(PyDrive::new(drive, prov))
     }
 

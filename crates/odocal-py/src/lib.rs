@@ -110,6 +110,7 @@ fn validate<'py>(
         });
         obj.insert("drives".into(), serde_json::Value::Array(vec![entry]));
     }
+    drive::with_import_warnings(&mut v, std::slice::from_ref(&drive.get().prov));
     with_schema_version(&mut v);
     to_py(py, &v)
 }

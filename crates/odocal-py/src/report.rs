@@ -109,6 +109,11 @@ pub(crate) fn _report_html(
     check_against(drives, "to_html(path)", &path)?;
     let value: serde_json::Value = serde_json::from_str(report_json).map_err(not_a_report)?;
     let fingerprint = calibration_fingerprints(&value);
+    // The manifests' import warnings, listed before the calibration's (as the CLI's HTML report).
+    let import_warnings: Vec<String> = value["import_warnings"]
+        .as_array()
+        .map(|w| w.iter().filter_map(|w| w.as_str().map(str::to_string)).collect())
+        .unwrap_or_default();
     let truth: Option<Theta> = value
         .get("truth")
         .and_then(|t| t.get("theta"))
@@ -146,7 +151,7 @@ pub(crate) fn _report_html(
         let scored: &Drive = split.as_ref().map_or(&inner, |(_, h)| h.as_ref());
         let segs =
             odocal::segment::validation_segments(scored, &report.options.validation).map_err(|e| e.to_string())?;
-        let input = odocal_report::ReportInput {
+        let mut input = odocal_report::ReportInput {
             provenance: vec![
                 ("method".into(), report.method.to_string()),
                 ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
@@ -158,6 +163,7 @@ pub(crate) fn _report_html(
             .collect(),
             ..odocal_report::ReportInput::of_calibration(title, &report, (scored, &segs, &starts), truth.as_ref())
         };
+        input.warnings = import_warnings.into_iter().chain(std::mem::take(&mut input.warnings)).collect();
         odocal_report::write_html(&path, &input).map_err(|e| e.to_string())
     })
     .map_err(OdocalError::new_err)

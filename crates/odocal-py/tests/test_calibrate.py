@@ -57,6 +57,23 @@ def test_manifest_equals_cli_json(odocal_bin):
     assert without_timing(report.to_dict()) == without_timing(cli)
 
 
+def test_manifest_import_warnings_as_the_cli(odocal_bin, tmp_path):
+    # A test-track run whose encoder log has a corrupt row: the importer's warning is
+    # a Python warning on loading, and the report's `import_warnings` as in the CLI's JSON.
+    run = REPO / "examples" / "psu-mapping-van-testtrack" / "run-14-45-26.toml"
+    with pytest.warns(UserWarning, match=r"run-14-45-26.toml: streams.encoders: 1 corrupt wheel row"):
+        drive = odocal.Drive.from_manifest(run)
+    cli = cli_json(odocal_bin, "calibrate", run, "--method", "batch-gn")
+    assert cli["import_warnings"] == [f"{run}: {w}" for w in drive.import_report["warnings"]]
+    report = odocal.calibrate(drive, "batch-gn")
+    assert without_timing(report.to_dict()) == without_timing(cli)
+    report.to_html(tmp_path / "r.html")  # the HTML report lists them too, as the CLI's
+    warnings = (tmp_path / "r.html").read_text().split('id="warnings"')[1]
+    assert "run-14-45-26.toml: streams.encoders: 1 corrupt wheel row" in warnings
+    cli = cli_json(odocal_bin, "validate", run, "--theta", "2,0,1.6,0")
+    assert odocal.validate(drive, [2, 0, 1.6, 0]) == cli
+
+
 def test_validate_equals_cli_json(odocal_bin, drive_csv):
     cli = cli_json(odocal_bin, "validate", drive_csv, "--theta", "1.95,-0.002,1.53,0.0008")
     py = odocal.validate(odocal.Drive.from_csv(drive_csv), "1.95,-0.002,1.53,0.0008")
