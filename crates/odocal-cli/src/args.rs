@@ -123,13 +123,13 @@ pub struct CalibrationArgs {
     #[arg(long, help_heading = SEGMENTS, hide_short_help = true)]
     pub keep_one_way: bool,
     /// Calibration segment length K, samples.
-    #[arg(long, help_heading = SEGMENTS, hide_short_help = true)]
+    #[arg(long, help_heading = SEGMENTS, hide_short_help = true, value_parser = samples_at_least::<2>)]
     pub segment_length: Option<usize>,
     /// Calibration segment stride, samples.
-    #[arg(long, help_heading = SEGMENTS, hide_short_help = true)]
+    #[arg(long, help_heading = SEGMENTS, hide_short_help = true, value_parser = samples_at_least::<1>)]
     pub segment_stride: Option<usize>,
     /// Validation segment length K_v, samples.
-    #[arg(long, help_heading = SEGMENTS, hide_short_help = true)]
+    #[arg(long, help_heading = SEGMENTS, hide_short_help = true, value_parser = samples_at_least::<2>)]
     pub validation_length: Option<usize>,
     /// Maximum Gauss-Newton iterations.
     #[arg(long, help_heading = SEGMENTS, hide_short_help = true)]
@@ -386,6 +386,16 @@ fn parse_lever_arm(s: &str) -> Result<[f64; 2]> {
         [x, y] if v.len() == 2 => Ok([x, y]),
         _ => bail!("--lever-arm takes X,Y in metres (x forward, y left), got '{s}'"),
     }
+}
+
+/// A segment length (at least 2 samples: one step) or stride (at least 1)
+/// on the command line: a smaller one is a usage error naming the option.
+pub fn samples_at_least<const MIN: usize>(s: &str) -> std::result::Result<usize, String> {
+    let n: usize = s.parse().map_err(|e| format!("{e}"))?;
+    if n < MIN {
+        return Err(format!("must be at least {MIN} samples, got {n}"));
+    }
+    Ok(n)
 }
 
 /// `--correct-bias B`: an even number of replicates, at least 2 (the

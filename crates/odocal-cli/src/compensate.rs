@@ -31,7 +31,7 @@ pub struct CompensateArgs {
     #[arg(long, default_value = "structured")]
     qp_solver: SolverKind,
     /// Segment length, samples (the drive is cut into consecutive segments).
-    #[arg(long, default_value_t = 650)]
+    #[arg(long, default_value_t = 650, value_parser = crate::args::samples_at_least::<2>)]
     segment_length: usize,
 }
 
@@ -45,9 +45,6 @@ pub fn run(mut a: CompensateArgs, bars: &Bars) -> Result<()> {
     }
     files.output("--out", Some(&a.out)).check()?;
     let drive = load_drive(&a.drive)?;
-    if a.segment_length < 2 {
-        bail!("--segment-length must be at least 2");
-    }
     let segs = segment::cut(&drive, 0, a.segment_length, a.segment_length);
     if segs.is_empty() {
         bail!("{}: too short for one segment of {} steps", a.drive.display(), a.segment_length);

@@ -30,7 +30,7 @@ pub struct ValidateArgs {
     #[arg(long)]
     carry_heading_offset: bool,
     /// Validation segment length K_v, samples (stride K_v/2).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::args::samples_at_least::<2>)]
     validation_length: Option<usize>,
     /// Also search the reachable minimum of Ē_p (global particle swarm over a
     /// box around θ_0, refined by Nelder-Mead).

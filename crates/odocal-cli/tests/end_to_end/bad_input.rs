@@ -160,3 +160,25 @@ fn import_blow_ups_stay_bounded() {
         assert!(!out.exists(), "{name}: no drive written");
     }
 }
+
+/// A segment length or stride too small to cut a segment is a bad command
+/// line naming the option, not the library's field (`length_steps` for
+/// both lengths); the drive is not read.
+#[test]
+fn segment_options_too_small_name_the_option() {
+    let theta = ["--theta", "1.95,0,1.5,0"];
+    for (args, option) in [
+        (vec!["calibrate", "missing.csv", "--validation-length", "1"], "--validation-length <"),
+        (vec!["calibrate", "missing.csv", "--segment-length", "0"], "--segment-length <"),
+        (vec!["calibrate", "missing.csv", "--segment-stride", "0"], "--segment-stride <"),
+        ([&["validate", "missing.csv"][..], &theta, &["--validation-length", "1"]].concat(), "--validation-length <"),
+        (
+            [&["compensate", "missing.csv"][..], &theta, &["--out", "x.csv", "--segment-length", "1"]].concat(),
+            "--segment-length <",
+        ),
+    ] {
+        let o = odocal(&args);
+        assert_fails(&o, 2, &[option, "must be at least"]);
+        assert!(!stderr(&o).contains("length_steps") && !stderr(&o).contains("stride_steps"), "{}", stderr(&o));
+    }
+}
