@@ -39,7 +39,7 @@ impl Default for SegmentOptions {
 impl SegmentOptions {
     /// Checks the options, naming the offending field.
     pub(crate) fn validate(&self) -> Result<()> {
-        check_length_and_stride(self.length_steps, self.stride_steps)?;
+        check_length_and_stride((self.length_steps, self.stride_steps), ("segment_length", "segment_stride"))?;
         if self.min_peak_yaw_rate_rad_per_s.is_nan() || self.min_peak_yaw_rate_rad_per_s < 0.0 {
             return Err(Error::InvalidOption {
                 field: "min_peak_yaw_rate_rad_per_s",
@@ -50,13 +50,18 @@ impl SegmentOptions {
     }
 }
 
-/// Segment length and stride checks shared by both option structs.
-fn check_length_and_stride(length_steps: usize, stride_steps: usize) -> Result<()> {
+/// Segment length and stride checks shared by both option structs, naming
+/// the offending one as the command line, a manifest's `[calibration]` and
+/// Python name it (`names`: the length's and the stride's).
+fn check_length_and_stride(
+    (length_steps, stride_steps): (usize, usize),
+    (length, stride): (&'static str, &'static str),
+) -> Result<()> {
     if length_steps < 2 {
-        return Err(Error::InvalidOption { field: "length_steps", reason: "must be at least 2".into() });
+        return Err(Error::InvalidOption { field: length, reason: "must be at least 2 samples (length_steps)".into() });
     }
     if stride_steps == 0 {
-        return Err(Error::InvalidOption { field: "stride_steps", reason: "must be at least 1".into() });
+        return Err(Error::InvalidOption { field: stride, reason: "must be at least 1 sample (stride_steps)".into() });
     }
     Ok(())
 }
@@ -81,7 +86,7 @@ impl Default for ValidationSegmentOptions {
 impl ValidationSegmentOptions {
     /// Checks the options, naming the offending field.
     pub(crate) fn validate(&self) -> Result<()> {
-        check_length_and_stride(self.length_steps, self.stride_steps)
+        check_length_and_stride((self.length_steps, self.stride_steps), ("validation_length", "validation stride"))
     }
 }
 
@@ -274,6 +279,8 @@ mod tests {
     #[test]
     fn invalid_options_name_the_field() {
         let e = SegmentOptions { stride_steps: 0, ..Default::default() }.validate().expect_err("bad");
-        assert!(e.to_string().contains("stride_steps"));
+        assert!(e.to_string().contains("`segment_stride`") && e.to_string().contains("stride_steps"), "{e}");
+        let e = ValidationSegmentOptions { length_steps: 1, ..Default::default() }.validate().expect_err("bad");
+        assert!(e.to_string().contains("`validation_length`"), "{e}");
     }
 }
