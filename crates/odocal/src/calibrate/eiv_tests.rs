@@ -358,10 +358,11 @@ const VAN: crate::model::extrinsics::Extrinsics =
 
 /// Two-stage: with the reference at the van's mount, EIV
 /// with `--estimate lever-arm,heading-offset` gets the extrinsics from its
-/// batch G-N start (measured error 5e-14), holds them in the filter, and
-/// returns the θ it returns on the same drive with the reference at the
-/// axle (measured: equal to 6e-13 relative; bound 1e-10, the G-N start's
-/// rounding with a margin). That θ is 3.7e-4 (relative, c_e) from θ_true
+/// batch G-N start (measured error 1.7e-10: the start stops at a relative
+/// step of 1e-3, `START_STEP_TOLERANCE`; bound 1e-9), holds them in the
+/// filter, and returns the θ it returns on the same drive with the
+/// reference at the axle (measured: equal to 2.7e-10 relative, what the
+/// start leaves; bound 1e-9). That θ is 3.7e-4 (relative, c_e) from θ_true
 /// with the production-car noise model fixed, mount or not: the filter's
 /// own limit on a noise-free drive with a fixed noise model (1.9e-8 with
 /// the noise estimated, 5× slower; measured on seed 22), so θ_true is
@@ -394,8 +395,8 @@ fn extrinsics_are_estimated_by_the_start_and_held_by_the_filter() {
         max_rel(&r.theta, &truth),
         max_rel(&plain.theta, &truth)
     );
-    assert!(x_err < 1e-10, "{} vs {VAN}", x.value);
-    assert!(max_rel(&r.theta, &at_axle.theta) < 1e-10, "{} vs {}", r.theta, at_axle.theta);
+    assert!(x_err < 1e-9, "{} vs {VAN}", x.value);
+    assert!(max_rel(&r.theta, &at_axle.theta) < 1e-9, "{} vs {}", r.theta, at_axle.theta);
     assert!(max_rel(&r.theta, &truth) < 1e-3, "{} vs {truth}", r.theta);
     assert!(max_rel(&plain.theta, &truth) > 10.0 * max_rel(&r.theta, &truth), "{} vs {}", plain.theta, r.theta);
     assert!(r.validation.mean_position_error_m < plain.validation.mean_position_error_m);
