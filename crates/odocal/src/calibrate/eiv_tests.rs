@@ -358,10 +358,11 @@ const VAN: crate::model::extrinsics::Extrinsics =
 
 /// Two-stage: with the reference at the van's mount, EIV
 /// with `--estimate lever-arm,heading-offset` gets the extrinsics from its
-/// batch G-N start (measured error 5e-14), holds them in the filter, and
-/// returns the θ it returns on the same drive with the reference at the
-/// axle (measured: equal to 6e-13 relative; bound 1e-10, the G-N start's
-/// rounding with a margin). That θ is 3.7e-4 (relative, c_e) from θ_true
+/// batch G-N start (measured error 1.7e-10: the start stops at a relative
+/// step of 1e-3, `START_STEP_TOLERANCE`; bound 1e-9), holds them in the
+/// filter, and returns the θ it returns on the same drive with the
+/// reference at the axle (measured: equal to 2.7e-10 relative, what the
+/// start leaves; bound 1e-9). That θ is 3.7e-4 (relative, c_e) from θ_true
 /// with the production-car noise model fixed, mount or not: the filter's
 /// own limit on a noise-free drive with a fixed noise model (1.9e-8 with
 /// the noise estimated, 5× slower; measured on seed 22), so θ_true is
@@ -394,8 +395,8 @@ fn extrinsics_are_estimated_by_the_start_and_held_by_the_filter() {
         max_rel(&r.theta, &truth),
         max_rel(&plain.theta, &truth)
     );
-    assert!(x_err < 1e-10, "{} vs {VAN}", x.value);
-    assert!(max_rel(&r.theta, &at_axle.theta) < 1e-10, "{} vs {}", r.theta, at_axle.theta);
+    assert!(x_err < 1e-9, "{} vs {VAN}", x.value);
+    assert!(max_rel(&r.theta, &at_axle.theta) < 1e-9, "{} vs {}", r.theta, at_axle.theta);
     assert!(max_rel(&r.theta, &truth) < 1e-3, "{} vs {truth}", r.theta);
     assert!(max_rel(&plain.theta, &truth) > 10.0 * max_rel(&r.theta, &truth), "{} vs {}", plain.theta, r.theta);
     assert!(r.validation.mean_position_error_m < plain.validation.mean_position_error_m);
@@ -685,4 +686,37 @@ fn a_held_noise_level_the_drive_contradicts_is_named() {
     assert!(why.clamped.contains(&NoiseSource::WheelDifferential), "{why:?}");
     let reasons = crate::assess::trust::fallback_gap_reasons(&r.theta, r.options.identify.free, &n, &opts.trust);
     assert!(reasons.iter().any(|x| matches!(x, VerdictReason::FallbackUnchecked { .. })), "{reasons:?}");
+}
+
+/// The default method's θ and σ on a 4 km paper-noise drive (seed 21,
+/// windows of 1 000 samples) against the values it gave with its batch
+/// Gauss-Newton start iterated until the cost stopped falling (1e-12
+/// instead of `START_STEP_TOLERANCE`): θ within 0.1 σ per parameter —
+/// below the bias correction's own Monte Carlo error (the spread of the
+/// corrected θ over bootstrap seeds, 0.11 σ for t_r and d on a paper
+/// drive, docs/performance.md) — and σ within 1 %. Speed-ups of the default
+/// method that move its results are held to this tolerance.
+#[test]
+fn the_default_method_stays_within_its_stated_tolerance_of_the_reference_fit() {
+    let out = simulate(&SimOptions { length_km: 4.0, ..SimOptions::paper(21) }).expect("sim");
+    let filter = EivOptions { window_samples: 1000, ..Default::default() };
+    let opts = CalibrationOptions { method: eiv_method(filter, false), ..Default::default() };
+    let r = calibrate(&out.drive, &opts).expect("eiv");
+    let eiv = detail(&r).eiv.as_ref().expect("EIV report");
+    let theta = r.theta.to_array();
+    let sigma = eiv.sigma;
+    // θ and σ [c_e, c_d, t_r, d] of the reference fit (same drive and options, start to 1e-12).
+    let reference_theta = [1.948151385209702, -0.002167974292693246, 1.53538213525718, 0.0006506076769981885];
+    let reference_sigma = [0.0007692867951920152, 0.00017297342378822826, 0.013096920397102602, 0.00022827122688217068];
+    for i in 0..4 {
+        let dz = (theta[i] - reference_theta[i]) / reference_sigma[i];
+        let ds = sigma[i] / reference_sigma[i] - 1.0;
+        assert!(
+            dz.abs() <= 0.1 && ds.abs() <= 0.01,
+            "parameter {i}: θ {:?} σ {:?}, moved {dz:.4} σ, σ by {:.3} %",
+            theta,
+            sigma,
+            100.0 * ds
+        );
+    }
 }
