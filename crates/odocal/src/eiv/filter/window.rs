@@ -119,8 +119,15 @@ impl<'a, const S: usize> WindowSetup<'a, S> {
         let r_white = Vector3::new(v.pose[0], v.pose[1], v.pose[2]);
         let (h_pos, h_head) = if v.heading_separate { (0.0, v.pose[2]) } else { (v.pose[2], 0.0) };
         let mut base_diag = [1.0; S];
-        base_diag[3..IW]
-            .copy_from_slice(&[v.a_common, v.a_wheel, v.a_wheel, v.a_drift, v.a_drift, v.a_drift, v.a_beta]);
+        base_diag[3..IW].copy_from_slice(&[
+            v.a_common,
+            v.a_wheel,
+            v.a_wheel,
+            v.a_drift,
+            v.a_drift,
+            v.a_drift_heading,
+            v.a_beta,
+        ]);
         let all_sources = v.input_jacobian == InputJacobian::SmoothedShareAll;
         let half = if v.fitted_input && follows { v.noise_input_half_width } else { 0 };
         let (smooth_l, smooth_r) = noise_rotations(input, window, theta_ref, v, half);
@@ -152,7 +159,10 @@ impl<'a, const S: usize> WindowSetup<'a, S> {
                 v.wheel * (1.0 - v.a_wheel * v.a_wheel),
                 v.wheel * (1.0 - v.a_wheel * v.a_wheel),
             ],
-            q_b: std::array::from_fn(|a| v.drift[a] * (1.0 - v.a_drift * v.a_drift)),
+            q_b: std::array::from_fn(|a| {
+                let ad = if a < 2 { v.a_drift } else { v.a_drift_heading };
+                v.drift[a] * (1.0 - ad * ad)
+            }),
             jac_mode: v.input_jacobian,
             all_sources,
             smoothed: all_sources || v.input_jacobian == InputJacobian::SmoothedShare,
@@ -493,13 +503,19 @@ fn initial_covariance<const S: usize>(v: &Variances, r_floor: &[f64; 3]) -> (MZ<
         let (w, dr) = (v.pose[a], v.drift[a]);
         p[(a, a)] = w + r_floor[a] + dr;
         // η_3 scales the position white noise, η_5 the heading white noise.
-        dp[if a < 2 || !v.heading_separate { 7 } else { 9 }][(a, a)] = w;
-        for m in [&mut p, &mut dp[8]] {
-            m[(a + 6, a + 6)] = dr;
-            m[(a, a + 6)] = -dr;
-            m[(a + 6, a)] = -dr;
-        }
-        dp[8][(a, a)] = dr;
+        let white = if a < 2 || !v.heading_separate { 7 } else { 9 };
+        dp[white][(a, a)] = w;
+        // η_4 scales the drift, the heading's with the heading white noise
+        // when `heading_drift_on_white_scale`.
+        let drift = if a == 2 && v.heading_drift_on_white_scale { white } else { 8 };
+        p[(a + 6, a + 6)] = dr;
+        p[(a, a + 6)] = -dr;
+        p[(a + 6, a)] = -dr;
+        let m = &mut dp[drift];
+        m[(a + 6, a + 6)] = dr;
+        m[(a, a + 6)] = -dr;
+        m[(a + 6, a)] = -dr;
+        m[(a, a)] += dr;
     }
     (p, dp)
 }
@@ -550,6 +566,7 @@ pub(super) fn run_window_s<const S: usize, K: KernelCalls>(
     let mut acc = Accumulator::new();
     let mut lin = Linearisation::zero();
     let mut inn = Innovation::zero();
+    let mut centred = CentredCommonJacobian::default();
     for i in window.start..window.end {
         setup.linearise(i, &mut lin);
         // The prediction.
@@ -561,6 +578,9 @@ pub(super) fn run_window_s<const S: usize, K: KernelCalls>(
         }
         if setup.corrected {
             predict_corrected_score(&setup, &lin, &d, &mut xcov);
+        }
+        if v.common_mode_jacobian_centred {
+            centred.add(&lin, &mean, &d, mode.derivs);
         }
         mean.predict(&setup, &lin, &mut d, &mut acc.out)?;
         predict_covariance::<S, K>(&setup, &lin, &mut p, &mut p0, &mut c0, &mut dp, &mut theta_terms);
@@ -589,5 +609,67 @@ pub(super) fn run_window_s<const S: usize, K: KernelCalls>(
         mean.correct(&mul3(&inn.k, &inn.nu));
         K::joseph_in_place_with(&mut p, &inn.k, Some(&inn.r_k), &inn.hp);
     }
+    centred.apply(&setup, &mut acc.out)?;
     Ok(acc.finish(&setup, &jacobian))
+}
+
+/// The window sums of [`Variances::common_mode_jacobian_centred`]: the
+/// turning samples, `Σ m ŝ_c` and `Σ m ∂ŝ_c/∂p` (ŝ_c and its sensitivities
+/// before each prediction, as the log-Jacobian takes them).
+#[derive(Default)]
+struct CentredCommonJacobian {
+    m: f64,
+    s: f64,
+    ds: [f64; NP],
+}
+
+impl CentredCommonJacobian {
+    #[inline(always)]
+    fn add<const S: usize>(&mut self, lin: &Linearisation<S>, mean: &MeanState, d: &DZ<S>, derivs: bool) {
+        if lin.nl == 0.0 && lin.nr == 0.0 {
+            return;
+        }
+        self.m += 1.0;
+        self.s += mean.s[0];
+        if derivs {
+            for (c, ds) in self.ds.iter_mut().enumerate() {
+                *ds += d[(3, c)];
+            }
+        }
+    }
+
+    /// Adds `(Σ m) log(1 − s̄_c)` and its gradient to the window's sums.
+    fn apply<const S: usize>(&self, setup: &WindowSetup<'_, S>, out: &mut WindowSums) -> Result<()> {
+        let v = setup.v;
+        if self.m == 0.0 || !v.common_mode_jacobian {
+            return Ok(());
+        }
+        let one_minus = 1.0 - self.s / self.m;
+        if !(one_minus > 0.0 && one_minus.is_finite()) {
+            return Err(crate::error::Error::Numerical(format!(
+                "EIV filter diverged in window {}: the mean relative wheel error reached 1",
+                setup.window.index
+            )));
+        }
+        let term = self.m * one_minus.ln();
+        out.correction += term;
+        if !v.coloured_jacobian_in_marginal {
+            out.correction_profile_only += term;
+        }
+        if setup.mode.derivs {
+            for (c, ds) in self.ds.iter().enumerate() {
+                let g = -ds / one_minus;
+                if v.coloured_jacobian_in_marginal {
+                    out.grad[c] += g;
+                }
+                if !setup.all_sources {
+                    out.grad_profile[c] += g;
+                }
+                if c < 4 {
+                    out.grad_correction[c] += g;
+                }
+            }
+        }
+        Ok(())
+    }
 }
