@@ -58,7 +58,6 @@ const USAGE: &str = "random_worlds [--worlds 100] [--length-km 12] [--seed 1] [-
     [--out DIR] [--threads N] [--heading-drift-gate G] [--heading-drift-lr T] [--heavy]
     [--eta-max X] [--tau-c S] [--tau-drift S] [--heavy-without slip|common]
     [--eta-without-jacobian] [--no-common-jacobian] [--position-drift-own-scale] [--position-drift-tau S]
-    [--centred-common-jacobian]
 
 World i has world seed S + i (drive seed too); every method runs through odocal::calibrate.
 --heavy: each world's wheel noise replaced by heavy common-mode coloured noise and slip (heavy_wheels).
@@ -72,9 +71,7 @@ World i has world seed S + i (drive seed too); every method runs through odocal:
 --position-drift-own-scale: the default with the pose-drift scale η_4 on the reference's position drift only, the
     heading drift on the heading white noise's scale (position_drift_own_scale).
 --position-drift-tau S: the default with the reference's position drift at correlation time S
-    (position_drift_time_constant_s; the heading drift keeps --tau-drift or the default).
---centred-common-jacobian: the default with the common-mode state's log-Jacobian centred on each window's mean
-    (common_mode_jacobian_centred).";
+    (position_drift_time_constant_s; the heading drift keeps --tau-drift or the default).";
 
 /// The methods the study knows, by their `--method` names.
 const METHODS: [&str; 3] = ["eiv", "batch-gn", "three-step"];
@@ -104,12 +101,10 @@ struct Settings {
     position_drift_own_scale: bool,
     /// `--position-drift-tau`: `ResearchOptions::position_drift_time_constant_s`.
     position_drift_tau: Option<f64>,
-    /// `--centred-common-jacobian`: `ResearchOptions::common_mode_jacobian_centred` on.
-    centred_common_jacobian: bool,
 }
 
 fn settings() -> Res<(Settings, Option<usize>)> {
-    let mut a = Args::parse(USAGE, &["heavy", "eta-without-jacobian", "no-common-jacobian", "position-drift-own-scale", "centred-common-jacobian"])?;
+    let mut a = Args::parse(USAGE, &["heavy", "eta-without-jacobian", "no-common-jacobian", "position-drift-own-scale"])?;
     let s = Settings {
         worlds: a.get("worlds", 100)?,
         km: a.get("length-km", 12.0)?,
@@ -125,7 +120,6 @@ fn settings() -> Res<(Settings, Option<usize>)> {
         no_common_jacobian: a.flag("no-common-jacobian"),
         position_drift_own_scale: a.flag("position-drift-own-scale"),
         position_drift_tau: a.opt("position-drift-tau")?,
-        centred_common_jacobian: a.flag("centred-common-jacobian"),
     };
     let threads = a.opt("threads")?;
     a.finish()?;
@@ -225,7 +219,6 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<
         e.filter.research.common_mode_jacobian = !a.no_common_jacobian;
         e.filter.research.position_drift_own_scale = a.position_drift_own_scale;
         e.filter.research.position_drift_time_constant_s = a.position_drift_tau;
-        e.filter.research.common_mode_jacobian_centred = a.centred_common_jacobian;
         if let Some(t) = a.tau_drift {
             e.filter.noise.drift_time_constant_s = t;
         }

@@ -287,7 +287,6 @@ impl NoiseModel {
             a_drift: gm(self.drift_time_constant_s),
             a_drift_heading: gm(self.drift_time_constant_s),
             heading_drift_on_white_scale: false,
-            common_mode_jacobian_centred: false,
             a_beta,
             quant_scaled: true,
             lateral_scaled: true,

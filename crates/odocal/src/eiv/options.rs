@@ -320,14 +320,6 @@ macro_rules! research_options {
             /// ([`NoiseModel::drift_time_constant_s`], which the heading
             /// drift keeps). Default `None` (both the model's).
             $vis position_drift_time_constant_s: Option<f64>,
-            /// The common-mode wheel state's log-Jacobian centred on each
-            /// window's mean: `−Σ m log(1 − ŝ_c) + (Σ m) log(1 − s̄_c)`. The
-            /// plain term rewards a negative ŝ_c held over the whole window
-            /// (which c_e then follows) by about one unit per sample, against
-            /// a Gauss-Markov prior that resists it only weakly once σ_c is
-            /// large; centred, a shift common to the window earns nothing and
-            /// the term keeps its sample-to-sample part. Default false.
-            $vis common_mode_jacobian_centred: bool,
         }
     };
 }
@@ -358,7 +350,6 @@ impl Default for ResearchOptions {
             common_mode_jacobian: true,
             position_drift_own_scale: false,
             position_drift_time_constant_s: None,
-            common_mode_jacobian_centred: false,
         }
     }
 }

@@ -40,8 +40,6 @@ pub(super) struct Problem<'a> {
     pub(super) position_drift_own_scale: bool,
     /// [`ResearchOptions::position_drift_time_constant_s`](super::ResearchOptions::position_drift_time_constant_s).
     pub(super) position_drift_time_constant_s: Option<f64>,
-    /// [`ResearchOptions::common_mode_jacobian_centred`](super::ResearchOptions::common_mode_jacobian_centred).
-    pub(super) common_mode_jacobian_centred: bool,
     /// Filter passes over the drive: with derivatives, objective only.
     pub(super) evaluations: std::cell::Cell<[usize; 2]>,
     /// Lean iteration starts in [`scoring_pass`] (always on; off only in the
@@ -69,7 +67,6 @@ impl<'a> Problem<'a> {
             common_mode_jacobian: opts.research.common_mode_jacobian,
             position_drift_own_scale: opts.research.position_drift_own_scale,
             position_drift_time_constant_s: opts.research.position_drift_time_constant_s,
-            common_mode_jacobian_centred: opts.research.common_mode_jacobian_centred,
             evaluations: std::cell::Cell::new([0; 2]),
             lean_iterations: true,
         }
@@ -178,7 +175,6 @@ impl Problem<'_> {
         if let Some(tau) = self.position_drift_time_constant_s {
             v.a_drift = (-self.input.sample_time_s / tau).exp();
         }
-        v.common_mode_jacobian_centred = self.common_mode_jacobian_centred;
         v.heading_separate = self.heading_separate;
         v.fitted_input = self.fitted_input;
         v.input_jacobian = self.input_jacobian;

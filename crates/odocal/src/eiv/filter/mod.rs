@@ -126,10 +126,6 @@ pub(crate) struct Variances {
     /// The heading drift is scaled with the heading white noise (η_5, or
     /// η_3 when tied) instead of the pose-drift scale η_4.
     pub heading_drift_on_white_scale: bool,
-    /// The common-mode state's log-Jacobian centred on its window mean:
-    /// `−Σ m log(1 − ŝ_c) + (Σ m) log(1 − s̄_c)`, `s̄_c = Σ m ŝ_c / Σ m`
-    /// (a shift of ŝ_c common to the whole window earns nothing).
-    pub common_mode_jacobian_centred: bool,
     pub a_beta: f64,
     /// Quantisation as measurement noise `R_q` (bounded count error) rather
     /// than as white rate noise in the process ([`super::QuantisationModel`]).

@@ -566,7 +566,6 @@ pub(super) fn run_window_s<const S: usize, K: KernelCalls>(
     let mut acc = Accumulator::new();
     let mut lin = Linearisation::zero();
     let mut inn = Innovation::zero();
-    let mut centred = CentredCommonJacobian::default();
     for i in window.start..window.end {
         setup.linearise(i, &mut lin);
         // The prediction.
@@ -578,9 +577,6 @@ pub(super) fn run_window_s<const S: usize, K: KernelCalls>(
         }
         if setup.corrected {
             predict_corrected_score(&setup, &lin, &d, &mut xcov);
-        }
-        if v.common_mode_jacobian_centred {
-            centred.add(&lin, &mean, &d, mode.derivs);
         }
         mean.predict(&setup, &lin, &mut d, &mut acc.out)?;
         predict_covariance::<S, K>(&setup, &lin, &mut p, &mut p0, &mut c0, &mut dp, &mut theta_terms);
@@ -609,67 +605,5 @@ pub(super) fn run_window_s<const S: usize, K: KernelCalls>(
         mean.correct(&mul3(&inn.k, &inn.nu));
         K::joseph_in_place_with(&mut p, &inn.k, Some(&inn.r_k), &inn.hp);
     }
-    centred.apply(&setup, &mut acc.out)?;
     Ok(acc.finish(&setup, &jacobian))
-}
-
-/// The window sums of [`Variances::common_mode_jacobian_centred`]: the
-/// turning samples, `Σ m ŝ_c` and `Σ m ∂ŝ_c/∂p` (ŝ_c and its sensitivities
-/// before each prediction, as the log-Jacobian takes them).
-#[derive(Default)]
-struct CentredCommonJacobian {
-    m: f64,
-    s: f64,
-    ds: [f64; NP],
-}
-
-impl CentredCommonJacobian {
-    #[inline(always)]
-    fn add<const S: usize>(&mut self, lin: &Linearisation<S>, mean: &MeanState, d: &DZ<S>, derivs: bool) {
-        if lin.nl == 0.0 && lin.nr == 0.0 {
-            return;
-        }
-        self.m += 1.0;
-        self.s += mean.s[0];
-        if derivs {
-            for (c, ds) in self.ds.iter_mut().enumerate() {
-                *ds += d[(3, c)];
-            }
-        }
-    }
-
-    /// Adds `(Σ m) log(1 − s̄_c)` and its gradient to the window's sums.
-    fn apply<const S: usize>(&self, setup: &WindowSetup<'_, S>, out: &mut WindowSums) -> Result<()> {
-        let v = setup.v;
-        if self.m == 0.0 || !v.common_mode_jacobian {
-            return Ok(());
-        }
-        let one_minus = 1.0 - self.s / self.m;
-        if !(one_minus > 0.0 && one_minus.is_finite()) {
-            return Err(crate::error::Error::Numerical(format!(
-                "EIV filter diverged in window {}: the mean relative wheel error reached 1",
-                setup.window.index
-            )));
-        }
-        let term = self.m * one_minus.ln();
-        out.correction += term;
-        if !v.coloured_jacobian_in_marginal {
-            out.correction_profile_only += term;
-        }
-        if setup.mode.derivs {
-            for (c, ds) in self.ds.iter().enumerate() {
-                let g = -ds / one_minus;
-                if v.coloured_jacobian_in_marginal {
-                    out.grad[c] += g;
-                }
-                if !setup.all_sources {
-                    out.grad_profile[c] += g;
-                }
-                if c < 4 {
-                    out.grad_correction[c] += g;
-                }
-            }
-        }
-        Ok(())
-    }
 }

@@ -262,7 +262,6 @@ fn eta_step_descends_on_the_noise_free_straight_drive() {
         common_mode_jacobian: true,
         position_drift_own_scale: false,
         position_drift_time_constant_s: None,
-        common_mode_jacobian_centred: false,
         evaluations: std::cell::Cell::new([0; 2]),
         lean_iterations: true,
     };
