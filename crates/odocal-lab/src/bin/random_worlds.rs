@@ -58,6 +58,7 @@ const USAGE: &str = "random_worlds [--worlds 100] [--length-km 12] [--seed 1] [-
     [--out DIR] [--threads N] [--heading-drift-gate G] [--heading-drift-lr T] [--heavy]
     [--eta-max X] [--tau-c S] [--tau-drift S] [--heavy-without slip|common]
     [--eta-without-jacobian] [--no-common-jacobian] [--position-drift-own-scale] [--position-drift-tau S]
+    [--heading-drift-two-sided]
 
 World i has world seed S + i (drive seed too); every method runs through odocal::calibrate.
 --heavy: each world's wheel noise replaced by heavy common-mode coloured noise and slip (heavy_wheels).
@@ -71,7 +72,9 @@ World i has world seed S + i (drive seed too); every method runs through odocal:
 --position-drift-own-scale: the default with the pose-drift scale η_4 on the reference's position drift only, the
     heading drift on the heading white noise's scale (position_drift_own_scale).
 --position-drift-tau S: the default with the reference's position drift at correlation time S
-    (position_drift_time_constant_s; the heading drift keeps --tau-drift or the default).";
+    (position_drift_time_constant_s; the heading drift keeps --tau-drift or the default).
+--heading-drift-two-sided: the default's heading-drift test releases the heading drift in both directions
+    (heading_drift_two_sided).";
 
 /// The methods the study knows, by their `--method` names.
 const METHODS: [&str; 3] = ["eiv", "batch-gn", "three-step"];
@@ -101,10 +104,12 @@ struct Settings {
     position_drift_own_scale: bool,
     /// `--position-drift-tau`: `ResearchOptions::position_drift_time_constant_s`.
     position_drift_tau: Option<f64>,
+    /// `--heading-drift-two-sided`: `ResearchOptions::heading_drift_two_sided` on.
+    heading_drift_two_sided: bool,
 }
 
 fn settings() -> Res<(Settings, Option<usize>)> {
-    let mut a = Args::parse(USAGE, &["heavy", "eta-without-jacobian", "no-common-jacobian", "position-drift-own-scale"])?;
+    let mut a = Args::parse(USAGE, &["heavy", "eta-without-jacobian", "no-common-jacobian", "position-drift-own-scale", "heading-drift-two-sided"])?;
     let s = Settings {
         worlds: a.get("worlds", 100)?,
         km: a.get("length-km", 12.0)?,
@@ -120,6 +125,7 @@ fn settings() -> Res<(Settings, Option<usize>)> {
         no_common_jacobian: a.flag("no-common-jacobian"),
         position_drift_own_scale: a.flag("position-drift-own-scale"),
         position_drift_tau: a.opt("position-drift-tau")?,
+        heading_drift_two_sided: a.flag("heading-drift-two-sided"),
     };
     let threads = a.opt("threads")?;
     a.finish()?;
@@ -219,6 +225,7 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<
         e.filter.research.common_mode_jacobian = !a.no_common_jacobian;
         e.filter.research.position_drift_own_scale = a.position_drift_own_scale;
         e.filter.research.position_drift_time_constant_s = a.position_drift_tau;
+        e.filter.research.heading_drift_two_sided = a.heading_drift_two_sided;
         if let Some(t) = a.tau_drift {
             e.filter.noise.drift_time_constant_s = t;
         }
