@@ -318,7 +318,9 @@ macro_rules! research_options {
             /// Correlation time of the reference's position drift, s, where
             /// it differs from the heading drift's
             /// ([`NoiseModel::drift_time_constant_s`], which the heading
-            /// drift keeps). Default `None` (both the model's).
+            /// drift keeps). Default `None` (both the model's). The bias
+            /// correction's replicate drives simulate the position drift
+            /// with the model's time constant.
             $vis position_drift_time_constant_s: Option<f64>,
         }
     };
