@@ -21,7 +21,13 @@ use odocal::settings::{Caller, ManifestSettings, Settings};
 use odocal::{Calibration, CalibrationOptions, CalibrationReport, Drive, Holdout, ValidationDrive};
 use odocal_lab::{repo_path, testtrack_manifest, Args, Res, Table, TESTTRACK_RUNS, VAN_MANIFEST};
 
-const USAGE: &str = "crossrun_heading [--skip-van] [--heading-drift-lr T]";
+const USAGE: &str = "crossrun_heading [--skip-van] [--heading-drift-lr T] [--untied-drift]
+
+--untied-drift: the default with the reference drift untied (position_drift_own_scale, the position drift's
+    τ 20 s, heading_drift_two_sided).";
+
+/// `--untied-drift`: the default's research options of the untied reference drift.
+static UNTIED_DRIFT: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
 
 /// The default's heading-drift likelihood-ratio threshold (`--heading-drift-lr`; None: the default).
 static HEADING_DRIFT_LR: std::sync::OnceLock<Option<f64>> = std::sync::OnceLock::new();
@@ -52,6 +58,11 @@ fn load_with_options(rel: &str) -> Res<(Drive, CalibrationOptions)> {
     let mut options = Settings::default().resolve(manifest.as_slice(), Caller::CommandLine)?.options;
     if let (Some(t), odocal::Method::Eiv(e)) = (HEADING_DRIFT_LR.get().copied().flatten(), &mut options.method) {
         e.filter.research.heading_drift_lr_threshold = t;
+    }
+    if let (Some(true), odocal::Method::Eiv(e)) = (UNTIED_DRIFT.get().copied(), &mut options.method) {
+        let r = &mut e.filter.research;
+        (r.position_drift_own_scale, r.position_drift_time_constant_s, r.heading_drift_two_sided) =
+            (true, Some(20.0), true);
     }
     Ok((drive, options))
 }
@@ -166,9 +177,10 @@ fn van() -> Res<()> {
 }
 
 fn run() -> Res<()> {
-    let mut a = Args::parse(USAGE, &["skip-van"])?;
+    let mut a = Args::parse(USAGE, &["skip-van", "untied-drift"])?;
     let skip_van = a.flag("skip-van");
     let _ = HEADING_DRIFT_LR.set(a.opt("heading-drift-lr")?);
+    let _ = UNTIED_DRIFT.set(a.flag("untied-drift"));
     a.finish()?;
     testtrack()?;
     if !skip_van {

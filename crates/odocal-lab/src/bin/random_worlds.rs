@@ -57,7 +57,8 @@ use rayon::prelude::*;
 const USAGE: &str = "random_worlds [--worlds 100] [--length-km 12] [--seed 1] [--methods eiv,batch-gn,three-step]
     [--out DIR] [--threads N] [--heading-drift-gate G] [--heading-drift-lr T] [--heavy]
     [--eta-max X] [--tau-c S] [--tau-drift S] [--heavy-without slip|common]
-    [--eta-without-jacobian] [--no-common-jacobian]
+    [--eta-without-jacobian] [--no-common-jacobian] [--position-drift-own-scale] [--position-drift-tau S]
+    [--heading-drift-two-sided]
 
 World i has world seed S + i (drive seed too); every method runs through odocal::calibrate.
 --heavy: each world's wheel noise replaced by heavy common-mode coloured noise and slip (heavy_wheels).
@@ -67,7 +68,13 @@ World i has world seed S + i (drive seed too); every method runs through odocal:
 --eta-without-jacobian: the default's η step on M without the Gauss-Markov log-Jacobian
     (coloured_jacobian_in_marginal off).
 --no-common-jacobian: the default without the common-mode state's log-Jacobian in J and M
-    (common_mode_jacobian off).";
+    (common_mode_jacobian off).
+--position-drift-own-scale: the default with the pose-drift scale η_4 on the reference's position drift only, the
+    heading drift on the heading white noise's scale (position_drift_own_scale).
+--position-drift-tau S: the default with the reference's position drift at correlation time S
+    (position_drift_time_constant_s; the heading drift keeps --tau-drift or the default).
+--heading-drift-two-sided: the default's heading-drift test releases the heading drift in both directions
+    (heading_drift_two_sided).";
 
 /// The methods the study knows, by their `--method` names.
 const METHODS: [&str; 3] = ["eiv", "batch-gn", "three-step"];
@@ -93,10 +100,16 @@ struct Settings {
     eta_without_jacobian: bool,
     /// `--no-common-jacobian`: `ResearchOptions::common_mode_jacobian` off.
     no_common_jacobian: bool,
+    /// `--position-drift-own-scale`: `ResearchOptions::position_drift_own_scale` on.
+    position_drift_own_scale: bool,
+    /// `--position-drift-tau`: `ResearchOptions::position_drift_time_constant_s`.
+    position_drift_tau: Option<f64>,
+    /// `--heading-drift-two-sided`: `ResearchOptions::heading_drift_two_sided` on.
+    heading_drift_two_sided: bool,
 }
 
 fn settings() -> Res<(Settings, Option<usize>)> {
-    let mut a = Args::parse(USAGE, &["heavy", "eta-without-jacobian", "no-common-jacobian"])?;
+    let mut a = Args::parse(USAGE, &["heavy", "eta-without-jacobian", "no-common-jacobian", "position-drift-own-scale", "heading-drift-two-sided"])?;
     let s = Settings {
         worlds: a.get("worlds", 100)?,
         km: a.get("length-km", 12.0)?,
@@ -110,6 +123,9 @@ fn settings() -> Res<(Settings, Option<usize>)> {
         heavy_without: a.opt("heavy-without")?,
         eta_without_jacobian: a.flag("eta-without-jacobian"),
         no_common_jacobian: a.flag("no-common-jacobian"),
+        position_drift_own_scale: a.flag("position-drift-own-scale"),
+        position_drift_tau: a.opt("position-drift-tau")?,
+        heading_drift_two_sided: a.flag("heading-drift-two-sided"),
     };
     let threads = a.opt("threads")?;
     a.finish()?;
@@ -207,6 +223,9 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<
     if let Method::Eiv(e) = &mut opts.method {
         e.filter.research.coloured_jacobian_in_marginal = !a.eta_without_jacobian;
         e.filter.research.common_mode_jacobian = !a.no_common_jacobian;
+        e.filter.research.position_drift_own_scale = a.position_drift_own_scale;
+        e.filter.research.position_drift_time_constant_s = a.position_drift_tau;
+        e.filter.research.heading_drift_two_sided = a.heading_drift_two_sided;
         if let Some(t) = a.tau_drift {
             e.filter.noise.drift_time_constant_s = t;
         }

@@ -404,6 +404,10 @@ fn fit_warnings(fit: &Fit, opts: &EivOptions) -> Vec<EivWarning> {
 /// lateral noise) as the model states them.
 fn reported_noise(opts: &EivOptions, eta: &[f64; 6]) -> NoiseModel {
     let mut n = opts.noise.scaled(eta);
+    if opts.research.position_drift_own_scale {
+        let heading = if opts.heading_scale == HeadingScale::Separate { eta[5] } else { eta[3] };
+        n.heading_drift_sigma_rad = opts.noise.heading_drift_sigma_rad * (0.5 * heading).exp();
+    }
     if opts.quantisation_level == QuantisationLevel::Given {
         n.quantisation_step_rev_per_s = opts.noise.quantisation_step_rev_per_s;
     }

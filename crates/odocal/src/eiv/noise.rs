@@ -285,6 +285,8 @@ impl NoiseModel {
             a_common: gm(self.wheel_common_time_constant_s),
             a_wheel: gm(self.wheel_differential_time_constant_s),
             a_drift: gm(self.drift_time_constant_s),
+            a_drift_heading: gm(self.drift_time_constant_s),
+            heading_drift_on_white_scale: false,
             a_beta,
             quant_scaled: true,
             lateral_scaled: true,

@@ -308,6 +308,20 @@ macro_rules! research_options {
             /// noise (the same section): t_r biased by several per cent
             /// without it. Default true.
             $vis common_mode_jacobian: bool,
+            /// The pose-drift scale η_4 scales the reference's position
+            /// drift only; the heading drift is scaled with the heading white
+            /// noise (η_5; η_3 with [`HeadingScale::TiedToPosition`]), whose
+            /// sensor it comes from. Tied to the position drift (false), a
+            /// large position drift can only be granted with a heading drift
+            /// the heading data refuse. Default false.
+            $vis position_drift_own_scale: bool,
+            /// Correlation time of the reference's position drift, s, where
+            /// it differs from the heading drift's
+            /// ([`NoiseModel::drift_time_constant_s`], which the heading
+            /// drift keeps). Default `None` (both the model's). The bias
+            /// correction's replicate drives simulate the position drift
+            /// with the model's time constant.
+            $vis position_drift_time_constant_s: Option<f64>,
         }
     };
 }
@@ -336,6 +350,8 @@ impl Default for ResearchOptions {
             heading_drift_two_sided: false,
             coloured_jacobian_in_marginal: true,
             common_mode_jacobian: true,
+            position_drift_own_scale: false,
+            position_drift_time_constant_s: None,
         }
     }
 }
@@ -349,6 +365,9 @@ impl ResearchOptions {
         }
         if !(self.position_floor_m.is_finite() && self.position_floor_m > 0.0) {
             return bad("position_floor_m", "must be positive (it keeps S regular on a perfect reference)");
+        }
+        if self.position_drift_time_constant_s.is_some_and(|t| !(t.is_finite() && t > 0.0)) {
+            return bad("position_drift_time_constant_s", "must be positive");
         }
         if self.wheel_noise_scale == (WheelNoiseScale::SmoothedFittedInput { half_width_samples: 0 }) {
             return bad("wheel_noise_scale", "the smoothed scale needs half_width_samples >= 1");

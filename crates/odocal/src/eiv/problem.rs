@@ -36,6 +36,10 @@ pub(super) struct Problem<'a> {
     pub(super) position_floor_m: f64,
     pub(super) coloured_jacobian_in_marginal: bool,
     pub(super) common_mode_jacobian: bool,
+    /// [`ResearchOptions::position_drift_own_scale`](super::ResearchOptions::position_drift_own_scale).
+    pub(super) position_drift_own_scale: bool,
+    /// [`ResearchOptions::position_drift_time_constant_s`](super::ResearchOptions::position_drift_time_constant_s).
+    pub(super) position_drift_time_constant_s: Option<f64>,
     /// Filter passes over the drive: with derivatives, objective only.
     pub(super) evaluations: std::cell::Cell<[usize; 2]>,
     /// Lean iteration starts in [`scoring_pass`] (always on; off only in the
@@ -61,6 +65,8 @@ impl<'a> Problem<'a> {
             position_floor_m: opts.research.position_floor_m,
             coloured_jacobian_in_marginal: opts.research.coloured_jacobian_in_marginal,
             common_mode_jacobian: opts.research.common_mode_jacobian,
+            position_drift_own_scale: opts.research.position_drift_own_scale,
+            position_drift_time_constant_s: opts.research.position_drift_time_constant_s,
             evaluations: std::cell::Cell::new([0; 2]),
             lean_iterations: true,
         }
@@ -158,6 +164,16 @@ impl Problem<'_> {
             // The long-run variance of the Gauss-Markov error as white noise.
             let a = v.a_beta;
             (v.beta_white, v.beta) = (v.beta * (1.0 + a) / (1.0 - a), 0.0);
+        }
+        if self.position_drift_own_scale {
+            // The heading drift on the heading white noise's scale (e[5] is
+            // η_3 when the heading white noise is tied to the position's).
+            let sigma = self.noise.heading_drift_sigma_rad;
+            v.drift[2] = sigma * sigma * e[5].exp();
+            v.heading_drift_on_white_scale = true;
+        }
+        if let Some(tau) = self.position_drift_time_constant_s {
+            v.a_drift = (-self.input.sample_time_s / tau).exp();
         }
         v.heading_separate = self.heading_separate;
         v.fitted_input = self.fitted_input;

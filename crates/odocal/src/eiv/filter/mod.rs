@@ -120,6 +120,12 @@ pub(crate) struct Variances {
     pub a_common: f64,
     pub a_wheel: f64,
     pub a_drift: f64,
+    /// The heading drift's Gauss-Markov coefficient (`a_drift` unless the
+    /// position drift has its own correlation time).
+    pub a_drift_heading: f64,
+    /// The heading drift is scaled with the heading white noise (η_5, or
+    /// η_3 when tied) instead of the pose-drift scale η_4.
+    pub heading_drift_on_white_scale: bool,
     pub a_beta: f64,
     /// Quantisation as measurement noise `R_q` (bounded count error) rather
     /// than as white rate noise in the process ([`super::QuantisationModel`]).

@@ -94,7 +94,9 @@ impl MeanState {
             self.x = crate::model::step(&self.x, &ueff, setup.theta, ts);
         }
         self.s = Vector3::new(v.a_common * s[0], v.a_wheel * s[1], v.a_wheel * s[2]);
-        self.b *= v.a_drift;
+        self.b[0] *= v.a_drift;
+        self.b[1] *= v.a_drift;
+        self.b[2] *= v.a_drift_heading;
         self.eb *= v.a_beta;
         for w in 0..2 {
             if counting[w] {
@@ -319,11 +321,17 @@ pub(super) fn predict_covariance<const S: usize, K: KernelCalls>(
                 dpj[(5, 5)] += setup.q_s[2];
             }
             8 => {
-                for r in 0..3 {
+                let axes = if v.heading_drift_on_white_scale { 2 } else { 3 };
+                for r in 0..axes {
                     dpj[(r + 6, r + 6)] += setup.q_b[r];
                 }
             }
-            // η_3, η_5: the reference noise enters through R only.
+            // η_3, η_5: the reference white noise enters through R; the
+            // heading drift's process noise too when it is on the heading
+            // white noise's scale.
+            7 | 9 if v.heading_drift_on_white_scale && jj == if v.heading_separate { 9 } else { 7 } => {
+                dpj[(8, 8)] += setup.q_b[2];
+            }
             _ => {}
         }
     }

@@ -119,8 +119,15 @@ impl<'a, const S: usize> WindowSetup<'a, S> {
         let r_white = Vector3::new(v.pose[0], v.pose[1], v.pose[2]);
         let (h_pos, h_head) = if v.heading_separate { (0.0, v.pose[2]) } else { (v.pose[2], 0.0) };
         let mut base_diag = [1.0; S];
-        base_diag[3..IW]
-            .copy_from_slice(&[v.a_common, v.a_wheel, v.a_wheel, v.a_drift, v.a_drift, v.a_drift, v.a_beta]);
+        base_diag[3..IW].copy_from_slice(&[
+            v.a_common,
+            v.a_wheel,
+            v.a_wheel,
+            v.a_drift,
+            v.a_drift,
+            v.a_drift_heading,
+            v.a_beta,
+        ]);
         let all_sources = v.input_jacobian == InputJacobian::SmoothedShareAll;
         let half = if v.fitted_input && follows { v.noise_input_half_width } else { 0 };
         let (smooth_l, smooth_r) = noise_rotations(input, window, theta_ref, v, half);
@@ -152,7 +159,10 @@ impl<'a, const S: usize> WindowSetup<'a, S> {
                 v.wheel * (1.0 - v.a_wheel * v.a_wheel),
                 v.wheel * (1.0 - v.a_wheel * v.a_wheel),
             ],
-            q_b: std::array::from_fn(|a| v.drift[a] * (1.0 - v.a_drift * v.a_drift)),
+            q_b: std::array::from_fn(|a| {
+                let ad = if a < 2 { v.a_drift } else { v.a_drift_heading };
+                v.drift[a] * (1.0 - ad * ad)
+            }),
             jac_mode: v.input_jacobian,
             all_sources,
             smoothed: all_sources || v.input_jacobian == InputJacobian::SmoothedShare,
@@ -493,13 +503,19 @@ fn initial_covariance<const S: usize>(v: &Variances, r_floor: &[f64; 3]) -> (MZ<
         let (w, dr) = (v.pose[a], v.drift[a]);
         p[(a, a)] = w + r_floor[a] + dr;
         // η_3 scales the position white noise, η_5 the heading white noise.
-        dp[if a < 2 || !v.heading_separate { 7 } else { 9 }][(a, a)] = w;
-        for m in [&mut p, &mut dp[8]] {
-            m[(a + 6, a + 6)] = dr;
-            m[(a, a + 6)] = -dr;
-            m[(a + 6, a)] = -dr;
-        }
-        dp[8][(a, a)] = dr;
+        let white = if a < 2 || !v.heading_separate { 7 } else { 9 };
+        dp[white][(a, a)] = w;
+        // η_4 scales the drift, the heading's with the heading white noise
+        // when `heading_drift_on_white_scale`.
+        let drift = if a == 2 && v.heading_drift_on_white_scale { white } else { 8 };
+        p[(a + 6, a + 6)] = dr;
+        p[(a, a + 6)] = -dr;
+        p[(a + 6, a)] = -dr;
+        let m = &mut dp[drift];
+        m[(a + 6, a + 6)] = dr;
+        m[(a, a + 6)] = -dr;
+        m[(a + 6, a)] = -dr;
+        m[(a, a)] += dr;
     }
     (p, dp)
 }

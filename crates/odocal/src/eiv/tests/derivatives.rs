@@ -486,3 +486,88 @@ fn log_jacobian_eta_derivative_matches_finite_differences() {
         assert!((got - fd).amax() <= 1e-5 * scale + 1e-9, "η{j}: exact {got:?} vs central differences {fd:?}");
     }
 }
+
+/// The reference drift untied (the research options
+/// `position_drift_own_scale`, `position_drift_time_constant_s`): the heading
+/// drift on the heading white noise's scale η_5, the position drift alone on
+/// η_4 with its own correlation time. ∂ν, ∂S over η and ∂M, ∂J over θ and η
+/// against central differences, with the heading white noise on its own
+/// scale and tied to the position's (η_3).
+#[test]
+fn derivatives_match_central_differences_position_drift_own_scale() {
+    let out = simulate(&SimOptions { length_km: 0.6, ..SimOptions::paper(5) }).expect("sim");
+    let input = input_of(&out.drive);
+    let w = Window { index: 0, part: 0, start: 0, end: 1200.min(input.len() - 1) };
+    let th = Theta { c_e: 1.953, c_d: -0.0015, t_r: 1.52, d: 0.0009 };
+    let eta = [0.3, -0.5, 0.2, -0.2, 0.4, 0.25];
+    let m = NoiseModel { heading_drift_sigma_rad: 0.004, ..NoiseModel::default() };
+    for separate in [true, false] {
+        let opts = EivOptions {
+            noise: m,
+            heading_scale: if separate { HeadingScale::Separate } else { HeadingScale::TiedToPosition },
+            ..EivOptions::default()
+        };
+        let mut prob = Problem::new(&input, vec![w], &opts);
+        prob.position_drift_own_scale = true;
+        prob.position_drift_time_constant_s = Some(20.0);
+        let v0 = prob.variances(&eta, false);
+        let heading_eta = if separate { eta[5] } else { eta[3] };
+        assert!((v0.drift[2] / (m.heading_drift_sigma_rad.powi(2) * heading_eta.exp()) - 1.0).abs() < 1e-12);
+        assert!(v0.a_drift < v0.a_drift_heading, "the position drift's own, shorter correlation time");
+        let run = |prob: &Problem, t: &Theta, e: &[f64; 6], derivs: bool, rec: Option<&mut Vec<InnovationRecord>>| {
+            let mode = if derivs { filter::Mode::full(true, true) } else { filter::Mode::cost(true) };
+            run_window(&input, &w, t, &th, &prob.variances(e, false), mode, rec).expect("window")
+        };
+        let mut base_rec = Vec::new();
+        let base = run(&prob, &th, &eta, true, Some(&mut base_rec));
+        let picks = [1usize, 2, 10, 300, 700, base_rec.len() - 1];
+        for j in 0..NETA {
+            let h = 1e-4;
+            let (mut ep, mut em) = (eta, eta);
+            ep[j] += h;
+            em[j] -= h;
+            let (mut rp, mut rm) = (Vec::new(), Vec::new());
+            run(&prob, &th, &ep, true, Some(&mut rp));
+            run(&prob, &th, &em, true, Some(&mut rm));
+            let p = 4 + j;
+            let scale_nu = base_rec.iter().map(|r| r.dnu.column(p).amax()).fold(0.0f64, f64::max).max(1e-12);
+            let scale_s = base_rec.iter().map(|r| r.ds[p].amax()).fold(0.0f64, f64::max).max(1e-300);
+            for &k in &picks {
+                let (dnu, ds) = ((rp[k].nu - rm[k].nu) / (2.0 * h), (rp[k].s - rm[k].s) / (2.0 * h));
+                let a = base_rec[k].dnu.column(p).into_owned();
+                assert!((a - dnu).amax() <= FD_REL_TOL * scale_nu, "∂ν/∂η{j} at update {k}: {a} vs {dnu}");
+                let a = base_rec[k].ds[p];
+                assert!((a - ds).amax() <= FD_REL_TOL * scale_s, "∂S/∂η{j} at update {k}: {a} vs {ds}");
+            }
+        }
+        for p in 0..4 + NETA {
+            let (tp, tm, ep, em, h) = if p < 4 {
+                let h = 1e-6 * [th.c_e, 1.0, th.t_r, 1.0][p];
+                (perturb(&th, p, h), perturb(&th, p, -h), eta, eta, h)
+            } else {
+                let h = 1e-5;
+                let (mut ep, mut em) = (eta, eta);
+                ep[p - 4] += h;
+                em[p - 4] -= h;
+                (th, th, ep, em, h)
+            };
+            let (sp, sm) = (run(&prob, &tp, &ep, false, None), run(&prob, &tm, &em, false, None));
+            for (what, fd, g) in [
+                ("M", (sp.merit() - sm.merit()) / (2.0 * h), base.grad[p]),
+                ("J", (sp.profile() - sm.profile()) / (2.0 * h), base.grad_profile[p]),
+            ] {
+                assert!((g - fd).abs() <= 1e-4 * g.abs().max(fd.abs()).max(1e-6), "∂{what}/∂p{p}: {g} vs {fd}");
+            }
+        }
+        // The heading drift responds to the heading white noise's scale, not η_4.
+        let (mut e4, mut eh) = (eta, eta);
+        e4[4] += 1.0;
+        if separate {
+            eh[5] += 1.0;
+        } else {
+            eh[3] += 1.0;
+        }
+        assert!((prob.variances(&e4, false).drift[2] - v0.drift[2]).abs() <= 1e-15 * v0.drift[2]);
+        assert!(prob.variances(&eh, false).drift[2] > v0.drift[2]);
+    }
+}

@@ -260,6 +260,8 @@ fn eta_step_descends_on_the_noise_free_straight_drive() {
         input_jacobian: opts.research.input_jacobian,
         coloured_jacobian_in_marginal: true,
         common_mode_jacobian: true,
+        position_drift_own_scale: false,
+        position_drift_time_constant_s: None,
         evaluations: std::cell::Cell::new([0; 2]),
         lean_iterations: true,
     };
