@@ -109,6 +109,11 @@ fn calibrate_records_a_drive_once() {
     assert!(!odocal(&["calibrate", &a, "--vehicle", "van"]).status.success());
     let o = odocal(&["history", "van", "--db", db_s]);
     assert!(o.status.success() && stdout(&o).contains("batch-gn"), "{}", stdout(&o));
+    // An unknown vehicle is an error naming those the database holds.
+    let o = odocal(&["history", "truck", "--db", db_s, "--json", "-"]);
+    assert_eq!(o.status.code(), Some(1), "{}", stdout(&o));
+    assert!(stdout(&o).is_empty(), "{}", stdout(&o));
+    assert!(stderr(&o).contains("no vehicle 'truck'") && stderr(&o).contains("holds are 'van'"), "{}", stderr(&o));
 }
 
 #[test]
