@@ -141,7 +141,10 @@ impl CalibrationReport {
     /// The method's own account of the fit, in lines as `odocal calibrate`
     /// prints them and the HTML report shows them ("Method details"):
     /// for EIV, `EivDetail::summary` with the sources the options held as
-    /// known; empty for the other methods.
+    /// known; for batch-gn, the fit (segments, iterations, termination,
+    /// rcond) and which σ stands beside the model σ; for the 3-step method
+    /// also step 1 (batch runs, picked estimates) and step 2 (segments
+    /// compensated, QP jobs and failures, solver).
     ///
     /// ```
     /// use odocal::sim::{simulate, SimOptions};
@@ -163,7 +166,7 @@ impl CalibrationReport {
                 };
                 d.summary(&known)
             }
-            _ => String::new(),
+            MethodDetail::BatchGn(_) | MethodDetail::ThreeStep(_) => super::render::fit_lines(self),
         }
     }
 
