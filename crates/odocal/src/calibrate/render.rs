@@ -500,8 +500,12 @@ fn validate_on(m: &MultiValidation) -> String {
         let worse = if d.mean_position_error_m > d.initial_mean_position_error_m { "  worse than θ_0" } else { "" };
         let _ = writeln!(
             out,
-            "  {}: {:.3} / {:.3} ({} segments){worse}",
-            d.name, d.mean_position_error_m, d.initial_mean_position_error_m, d.segments
+            "  {}: {:.3} / {:.3} ({} segment{}){worse}",
+            d.name,
+            d.mean_position_error_m,
+            d.initial_mean_position_error_m,
+            d.segments,
+            if d.segments == 1 { "" } else { "s" }
         );
         if let Some(x) = &d.extrinsics {
             let _ = writeln!(out, "    reference extrinsics: {x}");
@@ -512,8 +516,9 @@ fn validate_on(m: &MultiValidation) -> String {
     }
     let _ = writeln!(
         out,
-        "  mean over {} drives: {:.3} / {:.3}",
+        "  mean over {} drive{}: {:.3} / {:.3}",
         m.drives.len(),
+        if m.drives.len() == 1 { "" } else { "s" },
         m.mean_over_drives_m,
         m.initial_mean_over_drives_m
     );

@@ -194,6 +194,24 @@ fn the_param_file_marks_parameters_not_observable() {
     assert_eq!(crate::ParamFile::read(&plain, None).expect("read").not_observable(), ["t_r"]);
 }
 
+/// The validation drives' lines count in the singular for one.
+#[test]
+fn validation_drive_lines_count_one_in_the_singular() {
+    use crate::assess::validate::{DriveValidation, MultiValidation};
+    let row = |name: &str, segments| DriveValidation {
+        name: name.into(),
+        mean_position_error_m: 0.5,
+        initial_mean_position_error_m: 1.0,
+        segments,
+        extrinsics: None,
+    };
+    let t = Theta::PAPER_INITIAL;
+    let one = MultiValidation::from_rows(t, t, vec![row("a.csv", 1)]).to_string();
+    assert!(one.contains("mean over 1 drive: ") && one.contains("(1 segment)"), "{one}");
+    let two = MultiValidation::from_rows(t, t, vec![row("a.csv", 1), row("b.csv", 7)]).to_string();
+    assert!(two.contains("mean over 2 drives: ") && two.contains("(7 segments)"), "{two}");
+}
+
 #[test]
 fn holdout_splits_at_the_middle_and_other_borrows() {
     let drive = simulate(&SimOptions { length_km: 1.0, ..SimOptions::noise_free(2) }).expect("sim").drive;
