@@ -251,10 +251,10 @@ fn follow_streams_a_shipped_banked_manifest_with_the_whole_imports_samples() {
 }
 
 /// The calibrator's and the gates' settings are flags under their own
-/// headings in `--help` (not in `-h`), and they act.
+/// headings in `--help-all` (not in `-h`/`--help`), and they act.
 #[test]
 fn follow_exposes_the_online_and_gate_settings() {
-    let help = stdout(&odocal(&["follow", "--help"]));
+    let help = stdout(&odocal(&["follow", "--help-all"]));
     let online = help.find("Online calibrator:").expect("heading");
     let gates = help.find("Write-back gates:").expect("heading");
     for flag in ["--sigma-factors", "--random-walk", "--prior-sd", "--information-scale", "--informative-yaw-rate"] {
@@ -266,7 +266,9 @@ fn follow_exposes_the_online_and_gate_settings() {
         assert!(help[gates..online].contains(flag), "{flag} not under its heading:\n{help}");
     }
     assert!(help.contains("1.1,4.6,6.3,4.1"), "{help}");
-    assert!(!stdout(&odocal(&["follow", "-h"])).contains("--sigma-factors"));
+    for short in ["-h", "--help"] {
+        assert!(!stdout(&odocal(&["follow", short])).contains("--sigma-factors"));
+    }
 
     let dir = tempfile::tempdir().expect("tempdir");
     let a = simulated_drive(dir.path(), "a.csv", &["--seed", "9", "--length-km", "2"]);

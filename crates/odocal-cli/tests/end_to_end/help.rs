@@ -140,7 +140,8 @@ fn follow_help_fits_a_screen_and_help_all_has_the_rest() {
         assert!(help.contains("More options (--help-all)"), "{help}");
     }
     let all = stdout(&odocal(&["follow", "--help-all"]));
-    for (heading, flag) in [("Online calibrator:", "--random-walk <CE,CD,TR,D>"), ("Write-back gates:", "--max-sigma <CE,CD,TR,D>")]
+    for (heading, flag) in
+        [("Online calibrator:", "--random-walk <CE,CD,TR,D>"), ("Write-back gates:", "--max-sigma <CE,CD,TR,D>")]
     {
         let at = all.find(heading).unwrap_or_else(|| panic!("{heading} missing:\n{all}"));
         let section = all[at + heading.len()..].lines().skip(1).take_while(|l| l.is_empty() || l.starts_with(' '));
