@@ -393,7 +393,8 @@ impl ParamFile {
     /// whose `ros__parameters` hold `c_e`, or the only node) or odocal's JSON
     /// (`.json`). `c_e`, `c_d`, `t_r` and `d` are required (SI units, checked
     /// like a typed θ); `<name>_sigma` gives a 1σ, `<name>_held: true` marks
-    /// a held parameter; `lever_x`, `lever_y`, `heading_offset`, the verdict
+    /// a held parameter, `<name>_observable: false` one the calibration
+    /// named not observable ([`ParamFile::not_observable`]); `lever_x`, `lever_y`, `heading_offset`, the verdict
     /// and the provenance are read when present; other keys (a consumer's,
     /// e.g. `wheel_separation`) are ignored. Writing the result again gives
     /// the same parameters to the bit. `node` names the ROS 2 node to read
