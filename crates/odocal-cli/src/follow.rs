@@ -12,7 +12,7 @@ use odocal::online::{follow, Calibrator, FollowEvent, FollowOptions, OnlineOptio
 use odocal::{ParamFile, Theta};
 use serde_json::{json, Value};
 
-use crate::args::ThetaArg;
+use crate::args::{HelpArgs, ThetaArg};
 use crate::output::{write_text, Files};
 use crate::progress::Bars;
 
@@ -60,6 +60,8 @@ pub struct FollowArgs {
     min_yaw_rate: Option<f64>,
     #[command(flatten)]
     expert: ExpertArgs,
+    #[command(flatten)]
+    help: HelpArgs,
 }
 
 /// Help heading of the online calibrator's options.
@@ -69,7 +71,7 @@ const GATES: &str = "Write-back gates";
 
 /// The online calibrator's and the gates' settings with documented
 /// defaults (`odocal::online::OnlineOptions`, `odocal::online::gate::Gates`),
-/// shown by `--help`, not `-h`.
+/// shown by `--help-all`, not `-h`/`--help`.
 #[derive(Args)]
 struct ExpertArgs {
     /// Factors on the recursion's sd of c_e,c_d,t_r,d for the σ reported

@@ -43,6 +43,23 @@ pub fn run(a: HistoryArgs) -> Result<()> {
     files.check()?;
     let db = History::open(&a.db)?;
     let h = db.vehicle(&a.vehicle, a.pool.as_deref())?;
+    if h.rows.is_empty() && h.decisions.is_empty() {
+        let known = db.vehicles()?;
+        let echo = |v: &str| format!("'{}'", v.escape_debug());
+        anyhow::bail!(
+            "no vehicle '{}' in {}: {}",
+            a.vehicle.escape_debug(),
+            a.db.display(),
+            if known.is_empty() {
+                "it holds no calibrations (record some with calibrate --vehicle NAME --db FILE, or follow)".to_string()
+            } else {
+                let more = known.len().saturating_sub(20);
+                let names = known.iter().take(20).map(|v| echo(v)).collect::<Vec<_>>().join(", ");
+                let more = if more > 0 { format!(" and {more} more") } else { String::new() };
+                format!("the vehicles it holds are {names}{more}")
+            }
+        );
+    }
     if let Some(p) = &a.report {
         let html = odocal_report::history::render_history_html(&h)?;
         if odocal::output::is_stdout(p) {

@@ -36,6 +36,10 @@ mod validate;
 const MORE_OPTIONS: &str = "More options (--help-all): segments, reference extrinsics, three-step, EIV noise \
                             model, EIV bias correction, parameter file.";
 
+/// The line under `follow --help` that names what `--help-all` adds.
+const FOLLOW_MORE_OPTIONS: &str =
+    "More options (--help-all): the online calibrator's and the write-back gates' settings.";
+
 /// The lines at the end of `calibrate --help-all`.
 const CALIBRATE_NOTES: &str = "A manifest's [calibration], [noise] and [reference] settings apply where no flag \
                                gives them. The results do not depend on --threads.\n\
@@ -114,6 +118,7 @@ enum Command {
     /// Gauss-Newton); at its end the write-back gates decide whether the
     /// estimate replaces the vehicle's stored parameters. Decisions and
     /// written updates go to the history database.
+    #[command(disable_help_flag = true, after_help = FOLLOW_MORE_OPTIONS)]
     Follow(follow::FollowArgs),
     /// A vehicle's calibration history: rows, drift flags, pooled estimate.
     History(history::HistoryArgs),

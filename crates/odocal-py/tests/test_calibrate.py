@@ -308,7 +308,8 @@ def test_known_noise_equals_cli_json(odocal_bin, drive_csv):
     report.to_html(drive_csv.parent / "eiv.html")
     html = (drive_csv.parent / "eiv.html").read_text()
     assert "<h2>Method details</h2>" in html and "known (held at the start): pose_white" in html
-    assert odocal.calibrate(odocal.Drive.from_csv(drive_csv), "batch-gn").method_details == ""
+    gn = odocal.calibrate(odocal.Drive.from_csv(drive_csv), "batch-gn").method_details
+    assert gn.startswith("batch G-N: ") and " it, " in gn, gn
     same = odocal.calibrate(odocal.Drive.from_csv(drive_csv), eiv_window=1500, known_noise="pose-white")
     assert _without_eiv_timing(same.to_dict()) == _without_eiv_timing(d)
     with pytest.raises(odocal.OdocalError, match="invalid noise source 'heading'"):

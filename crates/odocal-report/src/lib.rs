@@ -437,6 +437,29 @@ mod tests {
         assert!(step_one_batches(&eiv).is_empty(), "EIV has no step 1");
     }
 
+    /// batch-gn and the 3-step method fill the method details with their
+    /// account of the fit (as the terminal prints it), not an empty section.
+    #[test]
+    fn batch_gn_and_three_step_have_method_details() {
+        let out = sim::simulate(&sim::SimOptions { length_km: 3.0, ..sim::SimOptions::paper(2) }).expect("sim");
+        let segs = segment::validation_segments(&out.drive, &Default::default()).expect("segments");
+        for (method, want) in [
+            (odocal::Method::BatchGn(Default::default()), ["batch G-N: ", "robust σ: "]),
+            (odocal::Method::ThreeStep(Default::default()), ["step 2: ", "step 3: "]),
+        ] {
+            let opts = odocal::CalibrationOptions { method, ..Default::default() };
+            let r = odocal::calibrate(&out.drive, &opts).expect("calibrate");
+            let input = ReportInput::of_calibration("d.csv", &r, (&out.drive, &segs, &[0]), None);
+            let html = render_html(&input).expect("render");
+            let section = html.split("<section id=\"method\">").nth(1).expect("method section");
+            let section = section.split("</section>").next().expect("section end");
+            for w in want {
+                assert!(section.contains(w), "{}: {w} in {section}", r.method);
+            }
+            assert!(r.render_text(None, None, None).contains(&r.method_details()), "the terminal's lines");
+        }
+    }
+
     #[test]
     fn no_segments_is_an_error() {
         let out = sim::simulate(&sim::SimOptions { length_km: 1.0, ..sim::SimOptions::noise_free(1) }).expect("sim");

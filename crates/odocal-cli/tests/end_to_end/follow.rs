@@ -109,6 +109,11 @@ fn calibrate_records_a_drive_once() {
     assert!(!odocal(&["calibrate", &a, "--vehicle", "van"]).status.success());
     let o = odocal(&["history", "van", "--db", db_s]);
     assert!(o.status.success() && stdout(&o).contains("batch-gn"), "{}", stdout(&o));
+    // An unknown vehicle is an error naming those the database holds.
+    let o = odocal(&["history", "truck", "--db", db_s, "--json", "-"]);
+    assert_eq!(o.status.code(), Some(1), "{}", stdout(&o));
+    assert!(stdout(&o).is_empty(), "{}", stdout(&o));
+    assert!(stderr(&o).contains("no vehicle 'truck'") && stderr(&o).contains("holds are 'van'"), "{}", stderr(&o));
 }
 
 #[test]
@@ -246,10 +251,10 @@ fn follow_streams_a_shipped_banked_manifest_with_the_whole_imports_samples() {
 }
 
 /// The calibrator's and the gates' settings are flags under their own
-/// headings in `--help` (not in `-h`), and they act.
+/// headings in `--help-all` (not in `-h`/`--help`), and they act.
 #[test]
 fn follow_exposes_the_online_and_gate_settings() {
-    let help = stdout(&odocal(&["follow", "--help"]));
+    let help = stdout(&odocal(&["follow", "--help-all"]));
     let online = help.find("Online calibrator:").expect("heading");
     let gates = help.find("Write-back gates:").expect("heading");
     for flag in ["--sigma-factors", "--random-walk", "--prior-sd", "--information-scale", "--informative-yaw-rate"] {
@@ -261,7 +266,9 @@ fn follow_exposes_the_online_and_gate_settings() {
         assert!(help[gates..online].contains(flag), "{flag} not under its heading:\n{help}");
     }
     assert!(help.contains("1.1,4.6,6.3,4.1"), "{help}");
-    assert!(!stdout(&odocal(&["follow", "-h"])).contains("--sigma-factors"));
+    for short in ["-h", "--help"] {
+        assert!(!stdout(&odocal(&["follow", short])).contains("--sigma-factors"));
+    }
 
     let dir = tempfile::tempdir().expect("tempdir");
     let a = simulated_drive(dir.path(), "a.csv", &["--seed", "9", "--length-km", "2"]);

@@ -126,6 +126,29 @@ fn demo_shares_the_calibration_help() {
     assert!(lists(&all, "--fix-noise") && lists(&all, "--sim-seed <SIM_SEED>"), "{all}");
 }
 
+/// `follow --help` fits a screen, as `-h`; `--help-all` adds the online
+/// calibrator's and the gates' expert settings under their headings.
+#[test]
+fn follow_help_fits_a_screen_and_help_all_has_the_rest() {
+    for flag in ["-h", "--help"] {
+        let help = stdout(&odocal(&["follow", flag]));
+        assert!(help.lines().count() <= 30, "more than a screen:\n{help}");
+        for f in ["--vehicle <ID>", "--db <FILE>", "--params-out <FILE>", "--steady-s <S>"] {
+            assert!(lists(&help, f), "{f} missing:\n{help}");
+        }
+        assert!(!lists(&help, "--max-sigma <CE,CD,TR,D>"), "{help}");
+        assert!(help.contains("More options (--help-all)"), "{help}");
+    }
+    let all = stdout(&odocal(&["follow", "--help-all"]));
+    for (heading, flag) in
+        [("Online calibrator:", "--random-walk <CE,CD,TR,D>"), ("Write-back gates:", "--max-sigma <CE,CD,TR,D>")]
+    {
+        let at = all.find(heading).unwrap_or_else(|| panic!("{heading} missing:\n{all}"));
+        let section = all[at + heading.len()..].lines().skip(1).take_while(|l| l.is_empty() || l.starts_with(' '));
+        assert!(lists(&section.collect::<Vec<_>>().join("\n"), flag), "{flag} not under {heading}:\n{all}");
+    }
+}
+
 #[test]
 fn top_level_help_lists_every_subcommand() {
     let o = odocal(&["--help"]);

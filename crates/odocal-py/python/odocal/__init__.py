@@ -183,7 +183,9 @@ class CalibrationReport:
         it: for EIV the filter's windows, iterations and termination, the noise
         model at the start and as estimated (physical units), the σ widening
         for the estimated noise levels and whether the result is the EIV
-        estimate or the batch G-N fallback; empty for the other methods."""
+        estimate or the batch G-N fallback; for batch-gn the fit (segments,
+        iterations, termination, rcond) and which σ stands beside the model σ;
+        for the 3-step method also its steps 1 and 2 (batch runs, QP jobs)."""
         return _odocal._method_details(self._json)
 
     def to_html(self, path: Union[str, "os.PathLike[str]"], title: Optional[str] = None) -> None:

@@ -223,8 +223,9 @@ fn calibration(r: &CalibrationReport, truth: Option<(&Theta, f64)>, wheel_scale:
     let mut out = String::new();
     let _ = writeln!(out, "odocal calibrate — method {}", r.method);
     segments_line(&mut out, r);
-    three_step_lines(&mut out, r);
-    identification_lines(&mut out, r);
+    if eiv_detail(r).is_some() {
+        identification_lines(&mut out, r);
+    }
     out.push_str(&r.method_details());
     out.push('\n');
     out.push_str(&theta_table(&theta_columns(r, truth)));
@@ -289,6 +290,15 @@ fn three_step_lines(out: &mut String, r: &CalibrationReport) {
             c.rms_relative_input_change * 100.0
         );
     }
+}
+
+/// The account of a batch G-N or 3-step fit ([`CalibrationReport::method_details`]):
+/// the 3-step's steps 1 and 2, then the Gauss-Newton fit and its σ.
+pub(super) fn fit_lines(r: &CalibrationReport) -> String {
+    let mut out = String::new();
+    three_step_lines(&mut out, r);
+    identification_lines(&mut out, r);
+    out
 }
 
 /// The Gauss-Newton fit (the three-step's step 3, EIV's start or batch
@@ -490,8 +500,12 @@ fn validate_on(m: &MultiValidation) -> String {
         let worse = if d.mean_position_error_m > d.initial_mean_position_error_m { "  worse than θ_0" } else { "" };
         let _ = writeln!(
             out,
-            "  {}: {:.3} / {:.3} ({} segments){worse}",
-            d.name, d.mean_position_error_m, d.initial_mean_position_error_m, d.segments
+            "  {}: {:.3} / {:.3} ({} segment{}){worse}",
+            d.name,
+            d.mean_position_error_m,
+            d.initial_mean_position_error_m,
+            d.segments,
+            if d.segments == 1 { "" } else { "s" }
         );
         if let Some(x) = &d.extrinsics {
             let _ = writeln!(out, "    reference extrinsics: {x}");
@@ -502,8 +516,9 @@ fn validate_on(m: &MultiValidation) -> String {
     }
     let _ = writeln!(
         out,
-        "  mean over {} drives: {:.3} / {:.3}",
+        "  mean over {} drive{}: {:.3} / {:.3}",
         m.drives.len(),
+        if m.drives.len() == 1 { "" } else { "s" },
         m.mean_over_drives_m,
         m.initial_mean_over_drives_m
     );

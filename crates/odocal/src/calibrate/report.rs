@@ -141,7 +141,10 @@ impl CalibrationReport {
     /// The method's own account of the fit, in lines as `odocal calibrate`
     /// prints them and the HTML report shows them ("Method details"):
     /// for EIV, `EivDetail::summary` with the sources the options held as
-    /// known; empty for the other methods.
+    /// known; for batch-gn, the fit (segments, iterations, termination,
+    /// rcond) and which σ stands beside the model σ; for the 3-step method
+    /// also step 1 (batch runs, picked estimates) and step 2 (segments
+    /// compensated, QP jobs and failures, solver).
     ///
     /// ```
     /// use odocal::sim::{simulate, SimOptions};
@@ -163,7 +166,7 @@ impl CalibrationReport {
                 };
                 d.summary(&known)
             }
-            _ => String::new(),
+            MethodDetail::BatchGn(_) | MethodDetail::ThreeStep(_) => super::render::fit_lines(self),
         }
     }
 
@@ -571,8 +574,11 @@ impl CalibrationReport {
     /// the result ([`CalibrationReport::result_sigma`]: the σ for the next
     /// drive; the same σ as the verdict, the HTML report and the CLI's JSON
     /// `sigma`), `<name>_held` for held parameters, the reference
-    /// extrinsics when the calibration involved them, the verdict with its
-    /// reasons, and provenance (`input`, `method`, `sigma`: which covariance
+    /// extrinsics when the calibration involved them (with their own σ,
+    /// labelled `extrinsics_sigma`, `extrinsics_sigma_covers`:
+    /// [`ParamFile`]'s format), the verdict with its
+    /// reasons, `<name>_observable: false` for a free parameter named not
+    /// observable (by the result or its batch Gauss-Newton start), and provenance (`input`, `method`, `sigma`: which covariance
     /// the within-drive part comes from, `sigma_covers`: what the σ covers,
     /// the odocal version, today's date).
     pub fn param_file(&self, input: &str) -> ParamFile {
@@ -583,6 +589,8 @@ impl CalibrationReport {
         if let Some(x) = &self.extrinsics {
             f.add_extrinsics(x);
         }
+        let start = self.identification().map_or(ParamSet::EMPTY, |s| s.observability.unobservable);
+        f.mark_not_observable(self.observability.unobservable.union(start).intersection(self.options.identify.free));
         f.verdict = Some(self.verdict.level.to_string());
         f.verdict_reasons = self.verdict.reasons.iter().map(|r| r.to_string()).collect();
         f

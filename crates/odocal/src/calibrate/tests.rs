@@ -103,6 +103,115 @@ fn holdout_with_estimated_extrinsics_is_judged_without_panicking() {
     assert!(x.value.to_array().iter().all(|v| v.is_finite()), "{x:?}");
 }
 
+/// The parameter file labels the reference extrinsics' σ with the kind the
+/// text, JSON and HTML give them (cluster-robust or model, within-drive),
+/// apart from θ's σ for the next drive, and reads the label back.
+#[test]
+fn the_param_file_labels_the_extrinsics_sigma_with_its_kind() {
+    let drive = simulate(&SimOptions { length_km: 2.0, ..SimOptions::noise_free(3) }).expect("sim").drive;
+    let free = ParamSet::THETA.union(ParamSet::EMPTY.with(Param::HeadingOffset));
+    let identify = IdentifyOptions { free, ..Default::default() };
+    let opts = CalibrationOptions { method: Method::BatchGn(Default::default()), identify, ..Default::default() };
+    let mut r = calibrate(&drive, &opts).expect("calibrate");
+    let label = |r: &crate::CalibrationReport| {
+        let f = r.param_file("drive.csv");
+        let get = |k: &str| f.provenance.iter().find(|(n, _)| n == k).map(|(_, v)| v.clone());
+        (get("extrinsics_sigma"), get("extrinsics_sigma_covers"), f)
+    };
+    let x = r.extrinsics.clone().expect("extrinsics estimated");
+    let (kind, covers, f) = label(&r);
+    let want = if x.robust.is_some() { "cluster-robust" } else { "model" };
+    assert_eq!(kind.as_deref(), Some(want));
+    assert_eq!(covers.as_deref(), Some("within-drive σ"));
+    let delta = f.params.iter().find(|e| e.name == "heading_offset").expect("δ");
+    assert_eq!(delta.sigma.map(f64::to_bits), Some(x.result_std_dev().heading_offset.to_bits()));
+    // the other kind: a robust σ present or absent relabels the file
+    let other = crate::model::extrinsics::RobustExtrinsics { std_dev: x.std_dev, covariance: x.covariance };
+    r.extrinsics = Some(crate::ExtrinsicsEstimate { robust: x.robust.is_none().then_some(other), ..x });
+    let (kind2, _, f) = label(&r);
+    assert_ne!(kind2, kind);
+    let dir = tempfile::tempdir().expect("tmp");
+    let path = dir.path().join("p.yaml");
+    f.write(&path).expect("write");
+    let back = crate::ParamFile::read(&path, None).expect("read");
+    assert!(back.provenance.contains(&("extrinsics_sigma".into(), kind2.expect("label"))), "{:?}", back.provenance);
+    // no extrinsics estimated: no label
+    r.extrinsics = None;
+    assert_eq!(label(&r).0, None);
+}
+
+/// A straight drive under the default method: the parameters named not
+/// observable (kept at the batch G-N start) carry `<name>_observable:
+/// false` next to their σ in the parameter file, read back in YAML and JSON.
+#[test]
+fn the_param_file_marks_parameters_not_observable() {
+    use crate::drive::Signals;
+    let n = 4000;
+    let ts = 0.025;
+    let sd = crate::eiv::tests::StraightDrive::new(n, ts);
+    let t: Vec<f64> = (0..n).map(|k| k as f64 * ts).collect();
+    let measured = Signals {
+        px: sd.px,
+        py: sd.py,
+        psi: sd.psi,
+        n_rl: sd.n_rl,
+        n_rr: sd.n_rr,
+        beta: sd.zero.clone(),
+        a_y: sd.zero,
+    };
+    let drive = crate::DriveBuilder { t, measured, ..Default::default() }.build().expect("drive");
+    let r = calibrate(&drive, &CalibrationOptions::default()).expect("calibrate");
+    let named = r.observability.unobservable;
+    assert!(named.contains(Param::TR), "{named}");
+    let f = r.param_file("drive.csv");
+    let t_r = f.params.iter().find(|e| e.name == "t_r").expect("t_r");
+    assert!(t_r.not_observable, "{t_r:?}");
+    let c_e = f.params.iter().find(|e| e.name == "c_e").expect("c_e");
+    assert!(!c_e.not_observable);
+    let marked = f.not_observable();
+    assert!(marked.iter().all(|n| named.iter().any(|p| p.name() == *n)), "{marked:?} vs {named}");
+    let dir = tempfile::tempdir().expect("tmp");
+    for name in ["p.yaml", "p.json"] {
+        let path = dir.path().join(name);
+        f.write(&path).expect("write");
+        let text = std::fs::read_to_string(&path).expect("read");
+        assert!(text.contains("t_r_observable") && !text.contains("c_e_observable"), "{text}");
+        let back = crate::ParamFile::read(&path, None).expect("read back");
+        assert_eq!(back.not_observable(), marked);
+        assert_eq!(back.theta().expect("θ"), f.theta().expect("θ"));
+    }
+    let plain = dir.path().join("plain.yaml");
+    std::fs::write(&plain, f.text_for(&plain).expect("yaml").replace("t_r_observable: false", "t_r_observable: 3"))
+        .expect("write");
+    let e = crate::ParamFile::read(&plain, None).expect_err("not a bool");
+    assert!(e.to_string().contains("t_r_observable"), "{e}");
+    // with a σ (the between-drive prior, say) the mark stands beside it
+    let mut g = crate::ParamFile::from_theta(&r.theta, [Some(1e-4), Some(1e-4), Some(4.5e-3), None], "d.csv", "eiv");
+    g.mark_not_observable(ParamSet::EMPTY.with(Param::TR));
+    let y = g.text_for(&plain).expect("yaml");
+    assert!(y.contains("    t_r_sigma: 0.0045\n    t_r_observable: false  # not observable"), "{y}");
+    std::fs::write(&plain, y).expect("write");
+    assert_eq!(crate::ParamFile::read(&plain, None).expect("read").not_observable(), ["t_r"]);
+}
+
+/// The validation drives' lines count in the singular for one.
+#[test]
+fn validation_drive_lines_count_one_in_the_singular() {
+    use crate::assess::validate::{DriveValidation, MultiValidation};
+    let row = |name: &str, segments| DriveValidation {
+        name: name.into(),
+        mean_position_error_m: 0.5,
+        initial_mean_position_error_m: 1.0,
+        segments,
+        extrinsics: None,
+    };
+    let t = Theta::PAPER_INITIAL;
+    let one = MultiValidation::from_rows(t, t, vec![row("a.csv", 1)]).to_string();
+    assert!(one.contains("mean over 1 drive: ") && one.contains("(1 segment)"), "{one}");
+    let two = MultiValidation::from_rows(t, t, vec![row("a.csv", 1), row("b.csv", 7)]).to_string();
+    assert!(two.contains("mean over 2 drives: ") && two.contains("(7 segments)"), "{two}");
+}
+
 #[test]
 fn holdout_splits_at_the_middle_and_other_borrows() {
     let drive = simulate(&SimOptions { length_km: 1.0, ..SimOptions::noise_free(2) }).expect("sim").drive;

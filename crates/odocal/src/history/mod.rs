@@ -443,6 +443,17 @@ impl History {
         Ok(VehicleHistory { decisions, ..VehicleHistory::of_rows(vehicle, self.rows(vehicle)?, pool) })
     }
 
+    /// The vehicles the database holds calibrations or decisions of, sorted.
+    pub fn vehicles(&self) -> Result<Vec<String>> {
+        let err = sql_err(&self.path);
+        let mut st = self
+            .conn
+            .prepare("SELECT vehicle FROM calibrations UNION SELECT vehicle FROM decisions ORDER BY vehicle")
+            .map_err(&err)?;
+        let rows = st.query_map([], |r| r.get::<_, String>(0)).map_err(&err)?;
+        rows.collect::<rusqlite::Result<Vec<_>>>().map_err(&err)
+    }
+
     /// The vehicle's calibrations in recording order.
     pub(crate) fn rows(&self, vehicle: &str) -> Result<Vec<HistoryRow>> {
         let err = sql_err(&self.path);

@@ -62,6 +62,9 @@ fn a_drive_is_recorded_once_per_vehicle_and_method() {
     assert!(rows[0].recorded_at.ends_with('Z') && rows[0].recorded_at.len() == 24, "{}", rows[0].recorded_at);
     assert_eq!(db.rows("van").expect("rows").last().map(|r| r.id), Some(rows[1].id));
     assert!(db.rows("none").expect("rows").is_empty());
+    assert_eq!(db.vehicles().expect("vehicles"), ["car", "van"]);
+    let empty = History::open(dir.path().join("empty.sqlite")).expect("open");
+    assert!(empty.vehicles().expect("vehicles").is_empty());
 }
 
 #[test]

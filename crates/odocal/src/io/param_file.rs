@@ -79,6 +79,10 @@ pub(crate) struct ParamEntry {
     pub unit: String,
     /// What it is.
     pub description: String,
+    /// Named not observable from the calibration's data: its value is the
+    /// start's and its σ is no measure of it (`<name>_observable: false`).
+    #[serde(default)]
+    pub not_observable: bool,
 }
 
 /// The content of a parameter file.
@@ -97,6 +101,10 @@ pub struct ParamFile {
     /// Extra keys for a consumer.
     pub mapping: ParamMapping,
 }
+
+/// What the reference extrinsics' σ in a parameter file covers
+/// (provenance `extrinsics_sigma_covers`).
+pub(crate) const EXTRINSICS_SIGMA_COVERS: &str = "within-drive σ";
 
 const UNITS: [&str; 4] = ["m", "m", "m", "m/(m/s^2)"];
 const DESCRIPTIONS: [&str; 4] = [
@@ -124,6 +132,11 @@ impl ParamFile {
 
     /// Appends the reference extrinsics (`lever_x`, `lever_y` in m,
     /// `heading_offset` in rad) with their 1σ (`None` for held entries).
+    /// Their σ is the one the text, JSON and HTML reports give them: this
+    /// drive's cluster-robust σ when computed, else the model σ, not θ's σ
+    /// for the next drive; when one is estimated the provenance says so
+    /// (`extrinsics_sigma`: `cluster-robust` or `model`,
+    /// `extrinsics_sigma_covers`: `within-drive σ`).
     pub(crate) fn add_extrinsics(&mut self, x: &crate::model::extrinsics::ExtrinsicsEstimate) {
         let (value, sd) = (x.value.to_array(), x.result_std_dev().to_array());
         let what = [
@@ -138,7 +151,13 @@ impl ParamFile {
                 sigma: x.free.contains(p).then_some(sd[i]),
                 unit: what[i].0.into(),
                 description: what[i].1.into(),
+                not_observable: false,
             });
+        }
+        if !x.free.intersection(ParamSet::EXTRINSICS).is_empty() {
+            let kind = if x.robust.is_some() { "cluster-robust" } else { "model" };
+            self.provenance.push(("extrinsics_sigma".into(), kind.into()));
+            self.provenance.push(("extrinsics_sigma_covers".into(), EXTRINSICS_SIGMA_COVERS.into()));
         }
         if !x.per_drive.is_empty() {
             // A joint calibration: heading_offset above is the drives' mean.
@@ -164,6 +183,7 @@ impl ParamFile {
                 sigma: sigma[i],
                 unit: UNITS[i].into(),
                 description: DESCRIPTIONS[i].into(),
+                not_observable: false,
             })
             .collect();
         ParamFile {
@@ -178,6 +198,23 @@ impl ParamFile {
                 ("date".into(), ParamFile::utc_date_today()),
             ],
             mapping: ParamMapping::Odocal,
+        }
+    }
+
+    /// The names of the parameters the calibration named not observable
+    /// from its data (`<name>_observable: false`): their value is the
+    /// start's and their σ (for θ, mostly the between-drive prior) is no
+    /// measure of them.
+    pub fn not_observable(&self) -> Vec<&str> {
+        self.params.iter().filter(|p| p.not_observable).map(|p| p.name.as_str()).collect()
+    }
+
+    /// Marks the parameters of `set` the file holds as not observable.
+    pub(crate) fn mark_not_observable(&mut self, set: ParamSet) {
+        for p in &mut self.params {
+            if set.iter().any(|q| q.name() == p.name) {
+                p.not_observable = true;
+            }
         }
     }
 
@@ -221,6 +258,13 @@ impl ParamFile {
                     let _ = writeln!(y, "    {}_held: true", yaml_key(&p.name));
                 }
             }
+            if p.not_observable {
+                let _ = writeln!(
+                    y,
+                    "    {}_observable: false  # not observable from these data: value and σ not to be trusted",
+                    yaml_key(&p.name)
+                );
+            }
         }
         for (k, v) in self.mapped() {
             let _ = writeln!(y, "    {k}: {}", yaml_f64(v));
@@ -246,6 +290,9 @@ impl ParamFile {
                 Some(s) => params.insert(format!("{}_sigma", p.name), serde_json::json!(s)),
                 None => params.insert(format!("{}_held", p.name), serde_json::json!(true)),
             };
+            if p.not_observable {
+                params.insert(format!("{}_observable", p.name), serde_json::json!(false));
+            }
         }
         for (k, v) in self.mapped() {
             params.insert(k.into(), serde_json::json!(v));
@@ -346,7 +393,8 @@ impl ParamFile {
     /// whose `ros__parameters` hold `c_e`, or the only node) or odocal's JSON
     /// (`.json`). `c_e`, `c_d`, `t_r` and `d` are required (SI units, checked
     /// like a typed θ); `<name>_sigma` gives a 1σ, `<name>_held: true` marks
-    /// a held parameter; `lever_x`, `lever_y`, `heading_offset`, the verdict
+    /// a held parameter, `<name>_observable: false` one the calibration
+    /// named not observable ([`ParamFile::not_observable`]); `lever_x`, `lever_y`, `heading_offset`, the verdict
     /// and the provenance are read when present; other keys (a consumer's,
     /// e.g. `wheel_separation`) are ignored. Writing the result again gives
     /// the same parameters to the bit. `node` names the ROS 2 node to read
@@ -490,12 +538,18 @@ impl ParamFile {
             if let Some(s) = sigma.filter(|s| *s < 0.0) {
                 return Err(format!("key `{name}_sigma`: {s} is negative"));
             }
+            let not_observable = match get(&format!("{name}_observable")) {
+                None | Some(Flat::Bool(true)) => false,
+                Some(Flat::Bool(false)) => true,
+                Some(_) => return Err(format!("key `{name}_observable`: not true or false")),
+            };
             params.push(ParamEntry {
                 name: name.into(),
                 value,
                 sigma,
                 unit: unit.into(),
                 description: description.into(),
+                not_observable,
             });
         }
         let text = |k: &str| match get(k) {
