@@ -7,7 +7,6 @@ use super::*;
 use crate::assess::trust::VerdictReason;
 use crate::assess::warning::Warning;
 use crate::calibrate::{BatchGnOptions, MethodDetail, Timing};
-use crate::drive::Signals;
 use crate::eiv::{EivOptions, EivWarning, NoiseModel};
 use crate::model::Theta;
 use crate::sim::{simulate, NoiseOptions, SimOptions};
@@ -205,21 +204,8 @@ fn held_parameters_stay_at_theta0() {
 /// start holds what the batch check at θ_0 names).
 #[test]
 fn straight_drive_calibrates_c_e_and_names_the_rest() {
-    let n = 4000;
-    let ts = 0.025;
     let th = Theta::SIM_DEFAULT_TRUE;
-    let sd = crate::eiv::tests::StraightDrive::new(n, ts);
-    let t: Vec<f64> = (0..n).map(|k| k as f64 * ts).collect();
-    let signals = Signals {
-        px: sd.px,
-        py: sd.py,
-        psi: sd.psi,
-        n_rl: sd.n_rl,
-        n_rr: sd.n_rr,
-        beta: sd.zero.clone(),
-        a_y: sd.zero,
-    };
-    let drive = crate::DriveBuilder { t, measured: signals, ..Default::default() }.build().expect("drive");
+    let drive = crate::eiv::tests::StraightDrive::new(4000, 0.025).drive();
     let opts = CalibrationOptions { method: eiv_method(EivOptions::default(), true), ..Default::default() };
     let r = calibrate(&drive, &opts).expect("calibrate");
     assert_eq!(detail(&r).eiv_result, EivOutcome::Eiv, "{:?}", r.warnings);

@@ -145,21 +145,7 @@ fn the_param_file_labels_the_extrinsics_sigma_with_its_kind() {
 /// false` next to their σ in the parameter file, read back in YAML and JSON.
 #[test]
 fn the_param_file_marks_parameters_not_observable() {
-    use crate::drive::Signals;
-    let n = 4000;
-    let ts = 0.025;
-    let sd = crate::eiv::tests::StraightDrive::new(n, ts);
-    let t: Vec<f64> = (0..n).map(|k| k as f64 * ts).collect();
-    let measured = Signals {
-        px: sd.px,
-        py: sd.py,
-        psi: sd.psi,
-        n_rl: sd.n_rl,
-        n_rr: sd.n_rr,
-        beta: sd.zero.clone(),
-        a_y: sd.zero,
-    };
-    let drive = crate::DriveBuilder { t, measured, ..Default::default() }.build().expect("drive");
+    let drive = crate::eiv::tests::StraightDrive::new(4000, 0.025).drive();
     let r = calibrate(&drive, &CalibrationOptions::default()).expect("calibrate");
     let named = r.observability.unobservable;
     assert!(named.contains(Param::TR), "{named}");

@@ -171,16 +171,7 @@ fn check_objective_gradient_jacobians(
     let c = cost_only(&th, &eta);
     assert_eq!((c.quad, c.logdet, c.correction), (base.quad, base.logdet, base.correction));
     for p in 0..9 {
-        let (tp, tm, ep, em, h) = if p < 4 {
-            let h = 1e-6 * [th.c_e, 1.0, th.t_r, 1.0][p];
-            (perturb(&th, p, h), perturb(&th, p, -h), eta, eta, h)
-        } else {
-            let h = 1e-5;
-            let (mut ep, mut em) = (eta, eta);
-            ep[p - 4] += h;
-            em[p - 4] -= h;
-            (th, th, ep, em, h)
-        };
+        let (tp, tm, ep, em, h) = perturbed_pair(&th, &eta, p);
         let (sp, sm) = (cost_only(&tp, &ep), cost_only(&tm, &em));
         for (what, fd, g) in [
             ("M", (sp.merit() - sm.merit()) / (2.0 * h), base.grad[p]),
@@ -436,16 +427,7 @@ fn smoothed_fitted_input_gradients_match_central_differences() {
     let plain = run(&th, &eta, filter::Mode::full(true, true), 0);
     assert!((base.quad - plain.quad).abs() > 1e-6 * plain.quad.abs(), "smoothing changed nothing");
     for p in 0..9 {
-        let (tp, tm, ep, em, h) = if p < 4 {
-            let h = 1e-6 * [th.c_e, 1.0, th.t_r, 1.0][p];
-            (perturb(&th, p, h), perturb(&th, p, -h), eta, eta, h)
-        } else {
-            let h = 1e-5;
-            let (mut ep, mut em) = (eta, eta);
-            ep[p - 4] += h;
-            em[p - 4] -= h;
-            (th, th, ep, em, h)
-        };
+        let (tp, tm, ep, em, h) = perturbed_pair(&th, &eta, p);
         let (sp, sm) = (run(&tp, &ep, filter::Mode::cost(true), 20), run(&tm, &em, filter::Mode::cost(true), 20));
         for (what, fd, g) in [
             ("M", (sp.merit() - sm.merit()) / (2.0 * h), base.grad[p]),
@@ -541,16 +523,7 @@ fn derivatives_match_central_differences_position_drift_own_scale() {
             }
         }
         for p in 0..4 + NETA {
-            let (tp, tm, ep, em, h) = if p < 4 {
-                let h = 1e-6 * [th.c_e, 1.0, th.t_r, 1.0][p];
-                (perturb(&th, p, h), perturb(&th, p, -h), eta, eta, h)
-            } else {
-                let h = 1e-5;
-                let (mut ep, mut em) = (eta, eta);
-                ep[p - 4] += h;
-                em[p - 4] -= h;
-                (th, th, ep, em, h)
-            };
+            let (tp, tm, ep, em, h) = perturbed_pair(&th, &eta, p);
             let (sp, sm) = (run(&prob, &tp, &ep, false, None), run(&prob, &tm, &em, false, None));
             for (what, fd, g) in [
                 ("M", (sp.merit() - sm.merit()) / (2.0 * h), base.grad[p]),

@@ -102,6 +102,21 @@ pub(super) fn perturb(th: &Theta, i: usize, h: f64) -> Theta {
     Theta::from_vector(&a)
 }
 
+/// The central-difference pair for unknown `p` of [θ, η] (0–3 θ, 4– η):
+/// (θ₊, θ₋, η₊, η₋, h), with h 1e-6 relative for θ and 1e-5 for η.
+pub(super) fn perturbed_pair(th: &Theta, eta: &[f64; 6], p: usize) -> (Theta, Theta, [f64; 6], [f64; 6], f64) {
+    if p < 4 {
+        let h = 1e-6 * [th.c_e, 1.0, th.t_r, 1.0][p];
+        (perturb(th, p, h), perturb(th, p, -h), *eta, *eta, h)
+    } else {
+        let h = 1e-5;
+        let (mut ep, mut em) = (*eta, *eta);
+        ep[p - 4] += h;
+        em[p - 4] -= h;
+        (*th, *th, ep, em, h)
+    }
+}
+
 /// Central differences with h ~1e-6 relative on a ~1000-step filter: the
 /// truncation error is ~1e-10 relative, round-off amplified by the
 /// recursion stays below ~1e-6 of the column scale.
@@ -161,6 +176,23 @@ impl StraightDrive {
             a_y: &self.zero,
             reference_measured: None,
         }
+    }
+
+    /// The same samples as a [`crate::Drive`] (β and a_y zero), for tests
+    /// that calibrate it end to end.
+    pub(crate) fn drive(self) -> crate::Drive {
+        let n = self.px.len();
+        let t = (0..n).map(|k| k as f64 * self.ts).collect();
+        let measured = crate::drive::Signals {
+            px: self.px,
+            py: self.py,
+            psi: self.psi,
+            n_rl: self.n_rl,
+            n_rr: self.n_rr,
+            beta: self.zero.clone(),
+            a_y: self.zero,
+        };
+        crate::DriveBuilder { t, measured, ..Default::default() }.build().expect("drive")
     }
 }
 
