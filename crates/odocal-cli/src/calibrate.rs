@@ -416,13 +416,7 @@ fn write_html_report(
     let val = segment::validation_segments(drive, &opts.validation)?;
     // The date the calibration's parameter file records.
     let date = r.param_file(input).provenance.into_iter().find(|(k, _)| k == "date").map(|(_, v)| v);
-    let of_calibration =
-        odocal_report::ReportInput::of_calibration(input, r, (drive, &val, starts), truth.map(|t| t.0));
-    // What the import warned about, as on stderr and in the JSON, then the calibration's warnings.
-    let mut warnings = crate::io::import_warnings();
-    warnings.extend(of_calibration.warnings.iter().cloned());
     let html = odocal_report::ReportInput {
-        warnings,
         provenance: vec![
             ("method".into(), r.method.clone()),
             ("input".into(), input.to_string()),
@@ -431,8 +425,10 @@ fn write_html_report(
             ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
             ("date".into(), date.unwrap_or_default()),
         ],
-        ..of_calibration
-    };
+        ..odocal_report::ReportInput::of_calibration(input, r, (drive, &val, starts), truth.map(|t| t.0))
+    }
+    // What the import warned about, as on stderr and in the JSON, before the calibration's warnings.
+    .with_import_warnings(crate::io::import_warnings());
     write_text(path, &odocal_report::render_html(&html)?)
 }
 

@@ -151,7 +151,7 @@ pub(crate) fn _report_html(
         let scored: &Drive = split.as_ref().map_or(&inner, |(_, h)| h.as_ref());
         let segs =
             odocal::segment::validation_segments(scored, &report.options.validation).map_err(|e| e.to_string())?;
-        let mut input = odocal_report::ReportInput {
+        let input = odocal_report::ReportInput {
             provenance: vec![
                 ("method".into(), report.method.to_string()),
                 ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
@@ -162,8 +162,8 @@ pub(crate) fn _report_html(
             .chain(fingerprint.map(|f| ("fingerprint".into(), f)))
             .collect(),
             ..odocal_report::ReportInput::of_calibration(title, &report, (scored, &segs, &starts), truth.as_ref())
-        };
-        input.warnings = import_warnings.into_iter().chain(std::mem::take(&mut input.warnings)).collect();
+        }
+        .with_import_warnings(import_warnings);
         odocal_report::write_html(&path, &input).map_err(|e| e.to_string())
     })
     .map_err(OdocalError::new_err)

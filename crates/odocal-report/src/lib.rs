@@ -254,6 +254,14 @@ impl<'a> ReportInput<'a> {
         }
     }
 
+    /// The input with the import's warnings (`source: warning`, as the CLI
+    /// prints them and the JSON's `import_warnings` holds them) listed
+    /// before the calibration's.
+    pub fn with_import_warnings(mut self, import: Vec<String>) -> Self {
+        self.warnings = import.into_iter().chain(self.warnings).collect();
+        self
+    }
+
     /// The extrinsics `[θ_0's, θ's]` of validation segment `i`.
     fn extrinsics_of(&self, i: usize) -> [Extrinsics; 2] {
         self.segment_extrinsics.get(i).copied().unwrap_or([Extrinsics::ZERO; 2])
