@@ -68,7 +68,8 @@ research_pub! {
         let tied_opts = &*opts;
         let tied_prob = Problem::new(input, windows, tied_opts);
         let fit = run_passes(&tied_prob, theta_start, tied_opts)?;
-        let (fit, heading_drift, separate) = heading_drift_test(&tied_prob, fit, tied_opts)?;
+        let (mut fit, heading_drift, separate) = heading_drift_test(&tied_prob, fit, tied_opts)?;
+        hold_scales_at_clamps(&mut fit.eta_sigma, &fit.eta, tied_opts.eta_bounds);
         let (prob, opts) = match &separate {
             Some(s) => (&s.prob, &s.opts),
             None => (&tied_prob, tied_opts),
@@ -294,6 +295,26 @@ fn heading_drift_test<'a>(
         ev: pass.eval,
     };
     Ok((sep, Some(test), Some(model)))
+}
+
+/// A noise scale the fit ends at a clamp of `bounds` counts as held there:
+/// σ 0, and outside θ's noise-estimate term and the joint Fisher inverse.
+/// The fit keeps a clamped scale in its η step while its score points into
+/// the range, so at the estimate such a scale has a σ exactly when its
+/// score does; but the fit converged with the scale's step within the step
+/// tolerance of that σ, so the estimate is the clamp whichever way the
+/// score points, and at a boundary the Gaussian delta-method term does not
+/// describe the estimate's spread. At the lower clamp (−20, the source
+/// absent) the σ is not small in log units (35.6 for the per-wheel scale on
+/// the 96 km length-series drive, more than the range of η) because the
+/// variance is tiny: as a variance it is `σ_η e^η` = 7.3e-8 of the starting
+/// model's, determined, and its term in θ's σ was 2e-8 of that σ.
+fn hold_scales_at_clamps(eta_sigma: &mut [f64; 6], eta: &[f64; 6], bounds: [f64; 2]) {
+    for (s, e) in eta_sigma.iter_mut().zip(eta) {
+        if *e <= bounds[0] + 1e-9 || *e >= bounds[1] - 1e-9 {
+            *s = 0.0;
+        }
+    }
 }
 
 /// The filter passes of the fit: the tied fit's, and the separate fit's
