@@ -17,6 +17,7 @@ use crate::Theta;
 const EXACT_REL_TOL: f64 = 1e-8;
 
 #[test]
+#[allow(clippy::float_cmp)] // a held scale's zeros are exact
 fn noise_free_recovers_theta_true_and_eta_at_lower_clamp() {
     let out = simulate(&SimOptions { length_km: 6.0, substeps: 1, ..SimOptions::noise_free(11) }).expect("sim");
     let truth = out.sidecar.theta_true;
@@ -31,7 +32,11 @@ fn noise_free_recovers_theta_true_and_eta_at_lower_clamp() {
     }
     for j in 0..NETA {
         assert!(r.eta[j] <= opts.eta_bounds[0] + 1e-9, "η{j} = {} not at the lower clamp; {r}", r.eta[j]);
+        // A scale at its clamp counts as held: no σ, no term in θ's σ.
+        assert_eq!(r.eta_sigma[j], 0.0, "η{j} at its clamp has a σ; {r}");
+        assert!((0..4).all(|i| r.theta_eta_sensitivity[i][j] == 0.0), "η{j} at its clamp in θ's noise term; {r}");
     }
+    assert_eq!(r.sigma_noise_estimate, [0.0; 4], "no scale estimated, no noise-estimate term; {r}");
     assert!(!r.warnings.iter().any(|w| matches!(w, EivWarning::NoiseAtUpperClamp { .. })), "{:?}", r.warnings);
 }
 
