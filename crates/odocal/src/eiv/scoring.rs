@@ -140,9 +140,9 @@ pub(super) fn scoring_pass(
 /// shrinks with the drive's length, so the same path to the estimate ends
 /// with larger ratios (the 96 km length-series drive: 7.61, 0.61, then
 /// 0.017 converged). Near the estimate the scoring iteration shrinks the
-/// step 6–50× per iteration (simulated `paper` and `high` drives, 12–96
-/// km), the shrink growing or staying as it converges; on the test-track
-/// drives 2–12×. Where the guess is wrong the iteration costs the η columns
+/// step 3–55× per iteration (simulated `paper` and `high` drives, 12–96
+/// km), mostly more as it converges; on the test-track drives 2–25×, where
+/// the shrink also falls. Where the guess is wrong the iteration costs the η columns
 /// it did not need (about 0.8 of the lean pass the right guess saves), and
 /// its result is the same.
 const LIKELY_LAST: f64 = 5.0;
