@@ -706,3 +706,36 @@ fn the_default_method_stays_within_its_stated_tolerance_of_the_reference_fit() {
         );
     }
 }
+
+/// A refit that held c_e carries the start's variance of c_e: c_e's
+/// variance is the start's, and each other free parameter gets its share
+/// along its regression on c_e in the first fit's covariance — the
+/// covariance of (c_e, θ_i) when θ_i = b_i c_e + (the refit's own error),
+/// b_i = C_i,c_e / C_c_e,c_e. A held parameter stays at zero.
+#[test]
+fn a_held_scale_carries_the_starts_variance_along_the_regression() {
+    // The refit: c_e, d held; c_d, t_r estimated.
+    let refit = [[0.0; 4], [0.0, 4.0, 1.0, 0.0], [0.0, 1.0, 9.0, 0.0], [0.0; 4]];
+    let free = [false, true, true, false];
+    // The first fit (all free): c_d and t_r regress on c_e with b = 0.5, −2.
+    let first = [[2.0, 1.0, -4.0, 0.3], [1.0, 5.0, 0.0, 0.0], [-4.0, 0.0, 20.0, 0.0], [0.3, 0.0, 0.0, 1.0]];
+    let v = 0.25;
+    let c = carried_covariance(&refit, free, &first, v);
+    assert_eq!(c[0][0], v);
+    assert_eq!(c[1][0], 0.5 * v);
+    assert_eq!(c[0][2], -2.0 * v);
+    assert_eq!(c[1][1], 4.0 + 0.25 * v);
+    assert_eq!(c[2][2], 9.0 + 4.0 * v);
+    assert_eq!(c[1][2], 1.0 - 1.0 * v);
+    assert_eq!(c[3], [0.0; 4], "d is held: no share");
+    // Symmetric.
+    for i in 0..4 {
+        for j in 0..4 {
+            assert_eq!(c[i][j], c[j][i]);
+        }
+    }
+    // No usable regression: c_e's own variance only; no variance: unchanged.
+    let c = carried_covariance(&refit, free, &[[0.0; 4]; 4], v);
+    assert_eq!((c[0][0], c[1][1], c[2][0]), (v, 4.0, 0.0));
+    assert_eq!(carried_covariance(&refit, free, &first, f64::NAN), refit);
+}
