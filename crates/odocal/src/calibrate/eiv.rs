@@ -28,7 +28,12 @@
 //! [`Warning::EivCheckFailed`]. A fit with a finding and a noise scale at
 //! its lower clamp, or unconverged, is first fitted once more with the
 //! sources released (`refit_with_sources_released`); the refit replaces
-//! it when it has no finding. When there is still at least one and
+//! it when it has no finding. With the research option
+//! `clamp_refit_hold_scale` (off by default), a fit that still fails with a
+//! noise scale at its upper clamp is fitted once more with c_e held at the
+//! start's value (`refit_at_clamp`); that refit replaces it when it has no
+//! finding and its t_r is not above the start's, and its covariance carries
+//! the start's σ of c_e (`carried_covariance`). When there is still at least one and
 //! [`EivMethodOptions::fallback`] is on (the default), the report's θ is the
 //! starting batch Gauss-Newton (all cut segments, no yaw-rate selection),
 //! with its covariance and observability, and [`Warning::EivFallback`] says
@@ -682,9 +687,11 @@ pub(crate) struct ClampRefit {
     pub scale_held: bool,
     /// The common-mode wheel noise scale η_1 was held at this value.
     pub common_mode_eta: Option<f64>,
-    /// The first fit's θ, noise scales η and findings.
+    /// The first fit's θ.
     pub first_theta: Theta,
+    /// The first fit's noise scales η.
     pub first_eta: [f64; 6],
+    /// The first fit's findings that say the model does not fit the data.
     pub first_findings: Vec<EivWarning>,
     /// The first fit's covariance (c_e free): the regression of the other
     /// parameters on c_e that the held c_e's σ is carried along.
