@@ -58,7 +58,7 @@ const USAGE: &str = "random_worlds [--worlds 100] [--length-km 12] [--seed 1] [-
     [--out DIR] [--threads N] [--heading-drift-gate G] [--heading-drift-lr T] [--heavy]
     [--eta-max X] [--tau-c S] [--tau-drift S] [--heavy-without slip|common]
     [--eta-without-jacobian] [--no-common-jacobian] [--position-drift-own-scale] [--position-drift-tau S]
-    [--heading-drift-two-sided] [--clamp-refit-hold-scale] [--clamp-refit-common-eta X]
+    [--heading-drift-two-sided] [--no-clamp-refit] [--clamp-refit-common-eta X]
 
 World i has world seed S + i (drive seed too); every method runs through odocal::calibrate.
 --heavy: each world's wheel noise replaced by heavy common-mode coloured noise and slip (heavy_wheels).
@@ -75,8 +75,8 @@ World i has world seed S + i (drive seed too); every method runs through odocal:
     (position_drift_time_constant_s; the heading drift keeps --tau-drift or the default).
 --heading-drift-two-sided: the default's heading-drift test releases the heading drift in both directions
     (heading_drift_two_sided).
---clamp-refit-hold-scale: after a fit that fails with a noise scale at its upper clamp, the default refits with c_e
-    held at the batch G-N start's (clamp_refit_hold_scale).
+--no-clamp-refit: the default without the refit, after a fit that fails with a noise scale at its upper clamp, with
+    c_e held at the batch G-N start's (clamp_refit_hold_scale off).
 --clamp-refit-common-eta X: in that refit, the common-mode wheel noise scale η_1 held at X
     (clamp_refit_common_mode_eta; the refit runs with this alone too).";
 
@@ -110,14 +110,14 @@ struct Settings {
     position_drift_tau: Option<f64>,
     /// `--heading-drift-two-sided`: `ResearchOptions::heading_drift_two_sided` on.
     heading_drift_two_sided: bool,
-    /// `--clamp-refit-hold-scale`: `ResearchOptions::clamp_refit_hold_scale` on.
-    clamp_refit_hold_scale: bool,
+    /// `--no-clamp-refit`: `ResearchOptions::clamp_refit_hold_scale` off.
+    no_clamp_refit: bool,
     /// `--clamp-refit-common-eta`: `ResearchOptions::clamp_refit_common_mode_eta`.
     clamp_refit_common_eta: Option<f64>,
 }
 
 fn settings() -> Res<(Settings, Option<usize>)> {
-    let mut a = Args::parse(USAGE, &["heavy", "eta-without-jacobian", "no-common-jacobian", "position-drift-own-scale", "heading-drift-two-sided", "clamp-refit-hold-scale"])?;
+    let mut a = Args::parse(USAGE, &["heavy", "eta-without-jacobian", "no-common-jacobian", "position-drift-own-scale", "heading-drift-two-sided", "no-clamp-refit"])?;
     let s = Settings {
         worlds: a.get("worlds", 100)?,
         km: a.get("length-km", 12.0)?,
@@ -134,7 +134,7 @@ fn settings() -> Res<(Settings, Option<usize>)> {
         position_drift_own_scale: a.flag("position-drift-own-scale"),
         position_drift_tau: a.opt("position-drift-tau")?,
         heading_drift_two_sided: a.flag("heading-drift-two-sided"),
-        clamp_refit_hold_scale: a.flag("clamp-refit-hold-scale"),
+        no_clamp_refit: a.flag("no-clamp-refit"),
         clamp_refit_common_eta: a.opt("clamp-refit-common-eta")?,
     };
     let threads = a.opt("threads")?;
@@ -236,7 +236,7 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<
         e.filter.research.position_drift_own_scale = a.position_drift_own_scale;
         e.filter.research.position_drift_time_constant_s = a.position_drift_tau;
         e.filter.research.heading_drift_two_sided = a.heading_drift_two_sided;
-        e.filter.research.clamp_refit_hold_scale = a.clamp_refit_hold_scale;
+        e.filter.research.clamp_refit_hold_scale = !a.no_clamp_refit;
         e.filter.research.clamp_refit_common_mode_eta = a.clamp_refit_common_eta;
         if let Some(t) = a.tau_drift {
             e.filter.noise.drift_time_constant_s = t;

@@ -334,7 +334,8 @@ macro_rules! research_options {
             /// up, so a refit above it corrects nothing). Its covariance carries the
             /// start's σ of c_e, and each other parameter's share of it along
             /// its regression on c_e in the first fit's covariance. Default
-            /// false.
+            /// true (docs/validation.md, "Heavy wheel noise: a refit with
+            /// c_e held").
             $vis clamp_refit_hold_scale: bool,
             /// In the refit after a noise scale at its upper clamp (as
             /// [`ResearchOptions::clamp_refit_hold_scale`]), hold the
@@ -373,7 +374,7 @@ impl Default for ResearchOptions {
             common_mode_jacobian: true,
             position_drift_own_scale: false,
             position_drift_time_constant_s: None,
-            clamp_refit_hold_scale: false,
+            clamp_refit_hold_scale: true,
             clamp_refit_common_mode_eta: None,
         }
     }
