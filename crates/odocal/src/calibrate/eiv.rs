@@ -28,9 +28,9 @@
 //! [`Warning::EivCheckFailed`]. A fit with a finding and a noise scale at
 //! its lower clamp, or unconverged, is first fitted once more with the
 //! sources released (`refit_with_sources_released`); the refit replaces
-//! it when it has no finding. With the research option
-//! `clamp_refit_hold_scale` (off by default), a fit that still fails with a
-//! noise scale at its upper clamp is fitted once more with c_e held at the
+//! it when it has no finding. A fit that still fails with a noise scale at
+//! its upper clamp is fitted once more (research option
+//! `clamp_refit_hold_scale`, on by default) with c_e held at the
 //! start's value (`refit_at_clamp`); that refit replaces it when it has no
 //! finding and its t_r is not above the start's, and its covariance carries
 //! the start's σ of c_e (`carried_covariance`). When there is still at least one and
