@@ -30,6 +30,11 @@ pub struct EivPart {
     /// The EIV fit is the refit with the noise sources released.
     #[serde(default)]
     pub refit: bool,
+    /// The refit after a noise scale at its upper clamp
+    /// (`clamp_refit_hold_scale`, `clamp_refit_common_mode_eta`), when it
+    /// is the result: the first fit's θ (`first_theta`) and η (`first_eta`).
+    #[serde(default)]
+    pub clamp_refit: Option<serde_json::Value>,
 }
 
 impl EivPart {

@@ -21,10 +21,15 @@ use odocal::settings::{Caller, ManifestSettings, Settings};
 use odocal::{Calibration, CalibrationOptions, CalibrationReport, Drive, Holdout, ValidationDrive};
 use odocal_lab::{repo_path, testtrack_manifest, Args, Res, Table, TESTTRACK_RUNS, VAN_MANIFEST};
 
-const USAGE: &str = "crossrun_heading [--skip-van] [--heading-drift-lr T] [--untied-drift]
+const USAGE: &str = "crossrun_heading [--skip-van] [--heading-drift-lr T] [--untied-drift] [--no-clamp-refit]
 
 --untied-drift: the default with the reference drift untied (position_drift_own_scale, the position drift's
-    τ 20 s, heading_drift_two_sided).";
+    τ 20 s, heading_drift_two_sided).
+--no-clamp-refit: the default without the refit, after a fit that fails with a noise scale at its upper clamp, with
+    c_e held at the batch G-N start's (clamp_refit_hold_scale off).";
+
+/// `--no-clamp-refit`: `ResearchOptions::clamp_refit_hold_scale` off.
+static CLAMP_REFIT: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
 
 /// `--untied-drift`: the default's research options of the untied reference drift.
 static UNTIED_DRIFT: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
@@ -63,6 +68,9 @@ fn load_with_options(rel: &str) -> Res<(Drive, CalibrationOptions)> {
         let r = &mut e.filter.research;
         (r.position_drift_own_scale, r.position_drift_time_constant_s, r.heading_drift_two_sided) =
             (true, Some(20.0), true);
+    }
+    if let (Some(true), odocal::Method::Eiv(e)) = (CLAMP_REFIT.get().copied(), &mut options.method) {
+        e.filter.research.clamp_refit_hold_scale = false;
     }
     Ok((drive, options))
 }
@@ -177,10 +185,11 @@ fn van() -> Res<()> {
 }
 
 fn run() -> Res<()> {
-    let mut a = Args::parse(USAGE, &["skip-van", "untied-drift"])?;
+    let mut a = Args::parse(USAGE, &["skip-van", "untied-drift", "no-clamp-refit"])?;
     let skip_van = a.flag("skip-van");
     let _ = HEADING_DRIFT_LR.set(a.opt("heading-drift-lr")?);
     let _ = UNTIED_DRIFT.set(a.flag("untied-drift"));
+    let _ = CLAMP_REFIT.set(a.flag("no-clamp-refit"));
     a.finish()?;
     testtrack()?;
     if !skip_van {

@@ -58,7 +58,7 @@ const USAGE: &str = "random_worlds [--worlds 100] [--length-km 12] [--seed 1] [-
     [--out DIR] [--threads N] [--heading-drift-gate G] [--heading-drift-lr T] [--heavy]
     [--eta-max X] [--tau-c S] [--tau-drift S] [--heavy-without slip|common]
     [--eta-without-jacobian] [--no-common-jacobian] [--position-drift-own-scale] [--position-drift-tau S]
-    [--heading-drift-two-sided]
+    [--heading-drift-two-sided] [--no-clamp-refit] [--clamp-refit-common-eta X]
 
 World i has world seed S + i (drive seed too); every method runs through odocal::calibrate.
 --heavy: each world's wheel noise replaced by heavy common-mode coloured noise and slip (heavy_wheels).
@@ -74,7 +74,11 @@ World i has world seed S + i (drive seed too); every method runs through odocal:
 --position-drift-tau S: the default with the reference's position drift at correlation time S
     (position_drift_time_constant_s; the heading drift keeps --tau-drift or the default).
 --heading-drift-two-sided: the default's heading-drift test releases the heading drift in both directions
-    (heading_drift_two_sided).";
+    (heading_drift_two_sided).
+--no-clamp-refit: the default without the refit, after a fit that fails with a noise scale at its upper clamp, with
+    c_e held at the batch G-N start's (clamp_refit_hold_scale off).
+--clamp-refit-common-eta X: in that refit, the common-mode wheel noise scale η_1 held at X
+    (clamp_refit_common_mode_eta; the refit runs with this alone too).";
 
 /// The methods the study knows, by their `--method` names.
 const METHODS: [&str; 3] = ["eiv", "batch-gn", "three-step"];
@@ -106,10 +110,14 @@ struct Settings {
     position_drift_tau: Option<f64>,
     /// `--heading-drift-two-sided`: `ResearchOptions::heading_drift_two_sided` on.
     heading_drift_two_sided: bool,
+    /// `--no-clamp-refit`: `ResearchOptions::clamp_refit_hold_scale` off.
+    no_clamp_refit: bool,
+    /// `--clamp-refit-common-eta`: `ResearchOptions::clamp_refit_common_mode_eta`.
+    clamp_refit_common_eta: Option<f64>,
 }
 
 fn settings() -> Res<(Settings, Option<usize>)> {
-    let mut a = Args::parse(USAGE, &["heavy", "eta-without-jacobian", "no-common-jacobian", "position-drift-own-scale", "heading-drift-two-sided"])?;
+    let mut a = Args::parse(USAGE, &["heavy", "eta-without-jacobian", "no-common-jacobian", "position-drift-own-scale", "heading-drift-two-sided", "no-clamp-refit"])?;
     let s = Settings {
         worlds: a.get("worlds", 100)?,
         km: a.get("length-km", 12.0)?,
@@ -126,6 +134,8 @@ fn settings() -> Res<(Settings, Option<usize>)> {
         position_drift_own_scale: a.flag("position-drift-own-scale"),
         position_drift_tau: a.opt("position-drift-tau")?,
         heading_drift_two_sided: a.flag("heading-drift-two-sided"),
+        no_clamp_refit: a.flag("no-clamp-refit"),
+        clamp_refit_common_eta: a.opt("clamp-refit-common-eta")?,
     };
     let threads = a.opt("threads")?;
     a.finish()?;
@@ -226,6 +236,8 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<
         e.filter.research.position_drift_own_scale = a.position_drift_own_scale;
         e.filter.research.position_drift_time_constant_s = a.position_drift_tau;
         e.filter.research.heading_drift_two_sided = a.heading_drift_two_sided;
+        e.filter.research.clamp_refit_hold_scale = !a.no_clamp_refit;
+        e.filter.research.clamp_refit_common_mode_eta = a.clamp_refit_common_eta;
         if let Some(t) = a.tau_drift {
             e.filter.noise.drift_time_constant_s = t;
         }
@@ -284,6 +296,13 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<
 fn eiv_extra(d: &EivPart) -> String {
     let v = |a: &[f64]| a.iter().map(|x| format!("{x:.4e}")).collect::<Vec<_>>().join(" ");
     let mut out = vec![format!("start={}", v(&d.identification.theta.to_array()))];
+    if let Some(c) = &d.clamp_refit {
+        // The first fit's θ before the refit after a clamp.
+        let first = c.get("first_theta").map_or(String::new(), |t| {
+            ["c_e", "c_d", "t_r", "d"].iter().map(|k| format!("{:.4e}", t[*k].as_f64().unwrap_or(f64::NAN))).collect::<Vec<_>>().join(" ")
+        });
+        out.push(format!("clamp_refit_first={first}"));
+    }
     if let Some(e) = &d.eiv {
         out.push(format!("block={}", v(&e.sigma_block)));
         out.push(format!("sandwich={}", v(&e.sigma_sandwich)));

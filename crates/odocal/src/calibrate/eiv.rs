@@ -28,7 +28,12 @@
 //! [`Warning::EivCheckFailed`]. A fit with a finding and a noise scale at
 //! its lower clamp, or unconverged, is first fitted once more with the
 //! sources released (`refit_with_sources_released`); the refit replaces
-//! it when it has no finding. When there is still at least one and
+//! it when it has no finding. A fit that still fails with a noise scale at
+//! its upper clamp is fitted once more (research option
+//! `clamp_refit_hold_scale`, on by default) with c_e held at the
+//! start's value (`refit_at_clamp`); that refit replaces it when it has no
+//! finding and its t_r is not above the start's, and its covariance carries
+//! the start's σ of c_e (`carried_covariance`). When there is still at least one and
 //! [`EivMethodOptions::fallback`] is on (the default), the report's θ is the
 //! starting batch Gauss-Newton (all cut segments, no yaw-rate selection),
 //! with its covariance and observability, and [`Warning::EivFallback`] says
@@ -280,6 +285,12 @@ pub(crate) struct EivDetail {
     /// does. In JSON only when true.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub refit: bool,
+    /// The EIV fit is the refit after a noise scale at its upper clamp
+    /// (`ResearchOptions::clamp_refit_hold_scale`,
+    /// `clamp_refit_common_mode_eta`; [`ClampRefit`]); `refit` is then true
+    /// too. In JSON only when present.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub clamp_refit: Option<Box<ClampRefit>>,
     /// After a fallback from a fit with noise levels held (`known`): the
     /// fit again with every level estimated ([`HeldNoiseReleased`]). In
     /// JSON only when present.
@@ -512,7 +523,9 @@ impl Estimator for EivMethodOptions {
         };
         let filter_input = EivInput::from_drive(axle_drive.as_ref().unwrap_or(prep.drive));
         let start_theta = start.theta;
-        let (fit, correction_failed, refit) = self.fit(&filter_input, &start_theta, &filter);
+        let start_c_e_variance = start.robust.as_ref().map_or(start.covariance, |r| r.covariance)[0][0];
+        let Fitted { fit, correction_failed, refit, clamp_refit } =
+            self.fit(&filter_input, &start_theta, &filter, start_c_e_variance);
         emit(progress, Progress::Advance(1));
         let t_eiv = t.elapsed().as_secs_f64();
         let timing = Timing { initial_identification: t_start, final_identification: t_eiv, ..Timing::default() };
@@ -537,6 +550,7 @@ impl Estimator for EivMethodOptions {
             noise_start: self.filter.noise,
             eiv_result: EivOutcome::BatchGnFallback,
             refit,
+            clamp_refit,
             held_noise_released: None,
             bootstrap: None,
         };
@@ -607,12 +621,13 @@ impl EivMethodOptions {
     /// is returned as the second value (a warning, not a fallback: the
     /// uncorrected root is the estimate the checks judged); invalid
     /// correction settings are the fit's error.
-    fn fit(
-        &self,
-        input: &EivInput<'_>,
-        theta: &Theta,
-        filter: &EivOptions,
-    ) -> (Result<EivReport>, Option<String>, bool) {
+    ///
+    /// With `ResearchOptions::clamp_refit_hold_scale` (or
+    /// `clamp_refit_common_mode_eta`) a fit that still fails with a noise
+    /// scale at its upper clamp is fitted once more ([`refit_at_clamp`]);
+    /// `start_c_e_variance` is the start's variance of c_e, which a refit
+    /// holding c_e carries.
+    fn fit(&self, input: &EivInput<'_>, theta: &Theta, filter: &EivOptions, start_c_e_variance: f64) -> Fitted {
         let uncorrected = EivOptions { bias_correction: BiasCorrection::None, ..filter.clone() };
         let mut fit = eiv::estimate(input, theta, &uncorrected);
         let mut refit = false;
@@ -622,19 +637,153 @@ impl EivMethodOptions {
                 refit = true;
             }
         }
+        let mut used = filter.clone();
+        let mut clamp_refit = None;
+        if let Ok(r) = &fit {
+            if let Some((again, opts, first)) = refit_at_clamp(input, theta, &uncorrected, r) {
+                fit = Ok(again);
+                refit = true;
+                used = EivOptions { bias_correction: filter.bias_correction, ..opts };
+                clamp_refit = Some(Box::new(first));
+            }
+        }
         let mut correction_failed = None;
         if let Ok(r) = &mut fit {
             let misspecified = r.warnings.iter().any(|w| is_misspecification(w, r));
             if !(self.fallback && misspecified) {
-                match eiv::apply_bias_correction(input, r, filter) {
+                match eiv::apply_bias_correction(input, r, &used) {
                     Ok(()) => {}
                     Err(e @ Error::InvalidOption { .. }) => fit = Err(e),
                     Err(e) => correction_failed = Some(e.to_string()),
                 }
             }
         }
-        (fit, correction_failed, refit)
+        if let (Ok(r), Some(c)) = (&mut fit, &clamp_refit) {
+            if c.scale_held {
+                carry_held_scale(r, &c.first_covariance, start_c_e_variance);
+            }
+        }
+        Fitted { fit, correction_failed, refit, clamp_refit }
     }
+}
+
+/// What [`EivMethodOptions::fit`] returns: the fit (or the filter's
+/// error), a bias correction that could not be computed, whether the fit
+/// is a refit, and the refit after a noise scale at its upper clamp.
+struct Fitted {
+    fit: Result<EivReport>,
+    correction_failed: Option<String>,
+    refit: bool,
+    clamp_refit: Option<Box<ClampRefit>>,
+}
+
+/// The refit after a fit that failed its checks with a noise scale at its
+/// upper clamp (`ResearchOptions::clamp_refit_hold_scale`,
+/// `clamp_refit_common_mode_eta`): what was held, and the first fit. In
+/// JSON only when the refit is the result.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub(crate) struct ClampRefit {
+    /// c_e was held at the start's value.
+    pub scale_held: bool,
+    /// The common-mode wheel noise scale η_1 was held at this value.
+    pub common_mode_eta: Option<f64>,
+    /// The first fit's θ.
+    pub first_theta: Theta,
+    /// The first fit's noise scales η.
+    pub first_eta: [f64; 6],
+    /// The first fit's findings that say the model does not fit the data.
+    pub first_findings: Vec<EivWarning>,
+    /// The first fit's covariance (c_e free): the regression of the other
+    /// parameters on c_e that the held c_e's σ is carried along.
+    pub first_covariance: [[f64; 4]; 4],
+}
+
+/// A fit that failed its checks with a noise scale at its upper clamp,
+/// fitted once more from the same start with c_e held at the start's
+/// value (`ResearchOptions::clamp_refit_hold_scale`) and/or the common-mode
+/// wheel noise scale held at `ResearchOptions::clamp_refit_common_mode_eta`;
+/// the refit, the options it ran with and the first fit, when the refit
+/// passes the checks and its t_r is not above the start's. `None` when neither option is set, the noise model is
+/// fixed, no scale is at its upper clamp, or the refit fails.
+fn refit_at_clamp(
+    input: &EivInput<'_>,
+    theta: &Theta,
+    filter: &EivOptions,
+    first: &EivReport,
+) -> Option<(EivReport, EivOptions, ClampRefit)> {
+    let research = &filter.research;
+    let hold_scale = research.clamp_refit_hold_scale && first.free[0] && first.free[1..].iter().any(|f| *f);
+    let common_eta = research.clamp_refit_common_mode_eta;
+    if filter.fix_noise || !(hold_scale || common_eta.is_some()) {
+        return None;
+    }
+    let clamped = first.warnings.iter().any(|w| matches!(w, EivWarning::NoiseAtUpperClamp { .. }));
+    if !clamped || !first.warnings.iter().any(|w| is_misspecification(w, first)) {
+        return None;
+    }
+    let mut opts = filter.clone();
+    if hold_scale {
+        opts.free[0] = false;
+    }
+    if let Some(eta) = common_eta {
+        opts.noise.wheel_common_rel_sigma *= (0.5 * eta).exp();
+        opts.eta_held[NoiseSource::WheelCommon.index()] = true;
+    }
+    let again = eiv::estimate(input, theta, &opts).ok()?;
+    if again.warnings.iter().any(|w| is_misspecification(w, &again)) {
+        return None;
+    }
+    // Batch G-N's errors-in-variables bias puts its t_r above the truth; a
+    // refit whose t_r lies above the start's is no correction of that bias
+    // (on heavy wheel noise such refits erred by +4 … +10 %).
+    if again.free[2] && again.theta.t_r > theta.t_r {
+        return None;
+    }
+    let first = ClampRefit {
+        scale_held: hold_scale,
+        common_mode_eta: common_eta,
+        first_theta: first.theta,
+        first_eta: first.eta,
+        first_findings: first.warnings.iter().filter(|w| is_misspecification(w, first)).cloned().collect(),
+        first_covariance: first.covariance,
+    };
+    Some((again, opts, first))
+}
+
+/// The covariance of a refit that held c_e at its start's value, with the
+/// start's uncertainty about c_e carried ([`carried_covariance`]), and its
+/// σ (c_e's included).
+fn carry_held_scale(r: &mut EivReport, first: &[[f64; 4]; 4], v: f64) {
+    r.covariance = carried_covariance(&r.covariance, r.free, first, v);
+    r.sigma = std::array::from_fn(|i| if r.free[i] || i == 0 { r.covariance[i][i].max(0.0).sqrt() } else { 0.0 });
+}
+
+/// `cov` (a fit with c_e held; `free` its estimated parameters) with c_e's
+/// variance `v` (the start's) carried: c_e's own variance, and for each
+/// other free parameter its share along its regression on c_e,
+/// `b_i = C_i,c_e / C_c_e,c_e` of `first` (the first fit's covariance, c_e
+/// free): `C + b bᵀ v` with `b_c_e = 1`. The θ of the refit moves with the
+/// held c_e as the first fit's joint distribution says the other
+/// parameters move with c_e. Without a usable regression (c_e's variance
+/// in `first` not positive) only c_e's own variance is added; with `v` not
+/// positive, `cov` is returned as is.
+fn carried_covariance(cov: &[[f64; 4]; 4], free: [bool; 4], first: &[[f64; 4]; 4], v: f64) -> [[f64; 4]; 4] {
+    let mut out = *cov;
+    if !(v.is_finite() && v > 0.0) {
+        return out;
+    }
+    let c00 = first[0][0];
+    let b: [f64; 4] = std::array::from_fn(|i| match i {
+        0 => 1.0,
+        _ if free[i] && c00.is_finite() && c00 > 0.0 && first[i][0].is_finite() => first[i][0] / c00,
+        _ => 0.0,
+    });
+    for (i, row) in out.iter_mut().enumerate() {
+        for (j, c) in row.iter_mut().enumerate() {
+            *c += b[i] * b[j] * v;
+        }
+    }
+    out
 }
 
 /// The lower clamp of the noise scales in the refit of
@@ -890,6 +1039,8 @@ impl EivDetail {
             out,
             "  result: {}",
             match d.eiv_result {
+                EivOutcome::Eiv if d.clamp_refit.as_ref().is_some_and(|c| c.scale_held) => "EIV estimate (refitted with c_e held at the batch G-N start's after a noise scale at its upper clamp; its gap to the start and the start's σ of c_e are in σ)",
+                EivOutcome::Eiv if d.clamp_refit.is_some() => "EIV estimate (refitted with the common-mode wheel noise scale held after it reached its upper clamp; its gap to the batch G-N start is in σ)",
                 EivOutcome::Eiv if d.refit => "EIV estimate (refitted with the noise sources released; its gap to the batch G-N start is in σ)",
                 EivOutcome::Eiv => "EIV estimate",
                 EivOutcome::BatchGnFallback =>

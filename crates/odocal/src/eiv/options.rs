@@ -322,6 +322,28 @@ macro_rules! research_options {
             /// correction's replicate drives simulate the position drift
             /// with the model's time constant.
             $vis position_drift_time_constant_s: Option<f64>,
+            /// After a fit that fails its checks with a noise scale at its
+            /// upper clamp (the runaway of heavy common-mode wheel noise and
+            /// slip: the common-mode scale at its clamp, c_e several per cent
+            /// low), `calibrate`'s EIV method fits once more from the same
+            /// start with c_e held at the start's value (batch Gauss-Newton's
+            /// c_e, which that noise leaves nearly unbiased), the filter
+            /// estimating the other parameters and the noise; the refit is the
+            /// result when it passes the checks and its t_r is not above the
+            /// start's (batch G-N's errors-in-variables bias on t_r points
+            /// up, so a refit above it corrects nothing). Its covariance carries the
+            /// start's σ of c_e, and each other parameter's share of it along
+            /// its regression on c_e in the first fit's covariance. Default
+            /// true (docs/validation.md, "Heavy wheel noise: a refit with
+            /// c_e held").
+            $vis clamp_refit_hold_scale: bool,
+            /// In the refit after a noise scale at its upper clamp (as
+            /// [`ResearchOptions::clamp_refit_hold_scale`]), hold the
+            /// common-mode wheel noise scale η_1 at this value (its variance
+            /// e^η times the starting model's) instead of estimating it.
+            /// The refit runs when this or `clamp_refit_hold_scale` is set.
+            /// Default `None`.
+            $vis clamp_refit_common_mode_eta: Option<f64>,
         }
     };
 }
@@ -352,6 +374,8 @@ impl Default for ResearchOptions {
             common_mode_jacobian: true,
             position_drift_own_scale: false,
             position_drift_time_constant_s: None,
+            clamp_refit_hold_scale: true,
+            clamp_refit_common_mode_eta: None,
         }
     }
 }
@@ -368,6 +392,9 @@ impl ResearchOptions {
         }
         if self.position_drift_time_constant_s.is_some_and(|t| !(t.is_finite() && t > 0.0)) {
             return bad("position_drift_time_constant_s", "must be positive");
+        }
+        if self.clamp_refit_common_mode_eta.is_some_and(|e| !e.is_finite()) {
+            return bad("clamp_refit_common_mode_eta", "must be finite");
         }
         if self.wheel_noise_scale == (WheelNoiseScale::SmoothedFittedInput { half_width_samples: 0 }) {
             return bad("wheel_noise_scale", "the smoothed scale needs half_width_samples >= 1");
