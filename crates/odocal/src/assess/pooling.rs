@@ -517,6 +517,43 @@ mod tests {
         assert_eq!(held.sigma[1], None);
     }
 
+    /// The common-mode term is σ_within · σ_c / 2.5 % per parameter with a
+    /// σ, adds in quadrature, stays out of the σ the gap checks use, and
+    /// is absent for a σ_c that is not finite and positive.
+    #[test]
+    fn the_common_mode_term_scales_the_within_drive_sigma_by_sigma_c() {
+        let theta = Theta { c_e: 2.0, c_d: 0.001, t_r: 1.5, d: 0.001 };
+        let within = [Some(2e-3), Some(1e-5), None, Some(5e-5)];
+        let base = NextDriveSigma::one_drive(&theta, within, [0.0; 4]);
+        let mut n = base.clone();
+        n.with_common_mode(0.05, false);
+        assert_eq!(COMMON_MODE_REFERENCE_SIGMA, 0.025);
+        assert!(close(n.common_mode[0], 4e-3, 1e-15), "{n:?}");
+        assert!(close(n.common_mode[3], 1e-4, 1e-15), "{n:?}");
+        assert_eq!(n.common_mode[2].to_bits(), 0f64.to_bits(), "a held parameter gets none");
+        assert_eq!(n.sigma[2], None);
+        for i in [0, 1, 3] {
+            let (s, s0) = (n.sigma[i].expect("σ"), base.sigma[i].expect("σ"));
+            assert!(close(s, (s0 * s0 + n.common_mode[i].powi(2)).sqrt(), 1e-12), "{i}: {s} {s0}");
+        }
+        // c_e: σ_within 2e-3 and h 4e-3 against a between-drive 7.6e-4.
+        assert!(n.sigma[0].expect("σ") > 2.0 * base.sigma[0].expect("σ"));
+        assert_eq!(n.without_gap(), base.without_gap(), "the gap checks' σ is the base's");
+        let json = serde_json::to_value(&n).expect("json");
+        assert!(json.get("common_mode").is_some() && json.get("wheel_common_rel_sigma").is_some());
+        assert!(json.get("wheel_common_clamped").is_none(), "only when clamped");
+        let mut clamped = base.clone();
+        clamped.with_common_mode(0.04, true);
+        assert!(serde_json::to_value(&clamped).expect("json").get("wheel_common_clamped").is_some());
+        for sigma_c in [0.0, -0.01, f64::NAN, f64::INFINITY] {
+            let mut m = base.clone();
+            m.with_common_mode(sigma_c, true);
+            assert_eq!(m, base, "{sigma_c}");
+        }
+        let json = serde_json::to_value(&base).expect("json");
+        assert!(json.get("common_mode").is_none() && json.get("wheel_common_rel_sigma").is_none());
+    }
+
     #[test]
     fn the_next_drive_sigma_adds_its_parts_in_quadrature() {
         let theta = Theta { c_e: 2.0, c_d: 0.001, t_r: 1.5, d: 0.001 };

@@ -1029,6 +1029,37 @@ mod tests {
         assert!(text.contains("fails the plausibility guards:") && text.contains("held (heading_white)"), "{text}");
     }
 
+    /// EIV's common-mode wheel scale at its upper clamp makes the result
+    /// doubtful (a σ reason); below the clamp the common-mode term widens
+    /// the σ and says nothing; a fallback whose unchecked reason already
+    /// names the clamp gets no second reason.
+    #[test]
+    fn a_common_mode_scale_at_its_clamp_is_doubtful() {
+        use crate::assess::pooling::{FallbackUnchecked, NextDriveSigma};
+        let (th, cov, within) = fallback_case(1e-8);
+        let opts = TrustOptions::default();
+        let base = NextDriveSigma::one_drive(&th, within, [0.0; 4]);
+        let mut below = base.clone();
+        below.with_common_mode(0.039, false);
+        let v = judge(&Evidence { next_drive: Some(&below), ..evidence(&th, &cov) }, &opts);
+        assert_eq!(v.level, VerdictLevel::Accepted, "{v:?}");
+        let mut at = base.clone();
+        at.with_common_mode(0.04, true);
+        let v = judge(&Evidence { next_drive: Some(&at), ..evidence(&th, &cov) }, &opts);
+        assert_eq!(v.level, VerdictLevel::Doubtful, "{v:?}");
+        assert_eq!(v.reasons.len(), 1, "{v:?}");
+        assert!(is_sigma_reason(&v.reasons[0]));
+        let text = v.reasons[0].to_string();
+        assert!(text.contains("upper clamp (σ_c 4.00 %)"), "{text}");
+        let json = serde_json::to_value(&v.reasons[0]).expect("json");
+        assert_eq!(json, serde_json::json!({"kind": "heavy_common_mode_noise", "wheel_common_rel_sigma": 0.04}));
+        assert_eq!(sigma_reasons(&th, &Theta::PAPER_INITIAL, ParamSet::THETA, &at, &opts), v.reasons);
+        at.fallback_unchecked = Some(FallbackUnchecked { clamped: vec![NoiseSource::WheelCommon], held: Vec::new() });
+        let v = judge(&Evidence { next_drive: Some(&at), ..evidence(&th, &cov) }, &opts);
+        assert_eq!(v.reasons.len(), 1, "{v:?}");
+        assert!(matches!(v.reasons[0], VerdictReason::FallbackUnchecked { .. }), "{v:?}");
+    }
+
     /// EIV's t_r above its batch G-N start by more than 3 σ (without that
     /// excess) is doubtful; at 2.9 σ it is not, and below the start nothing.
     #[test]
