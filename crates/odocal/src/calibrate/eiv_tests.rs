@@ -733,7 +733,11 @@ fn heavy_common_mode_drive_sigma_covers_the_truth() {
     for i in 0..4 {
         let s = sigma[i].expect("σ");
         let z = (e[i] - t[i]) / s;
-        eprintln!("parameter {i}: error {:.3e}, σ {s:.3e} (common-mode {:.3e}), z {z:+.2}", e[i] - t[i], n.common_mode[i]);
+        eprintln!(
+            "parameter {i}: error {:.3e}, σ {s:.3e} (common-mode {:.3e}), z {z:+.2}",
+            e[i] - t[i],
+            n.common_mode[i]
+        );
         assert!(z.abs() <= 3.0, "parameter {i}: {z:+.2} σ");
         let without = (s * s - n.common_mode[i].powi(2)).sqrt();
         worst_without = worst_without.max((e[i] - t[i]).abs() / without);
