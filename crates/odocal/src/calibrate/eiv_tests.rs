@@ -146,13 +146,18 @@ fn wrong_noise_model_falls_back_to_batch_gauss_newton() {
     let rs = r.within_drive_sigma();
     assert_eq!(rs.source, crate::calibrate::SigmaSource::ClusterRobust);
     assert_eq!(rs.t_r, Some(robust.covariance[2][2].sqrt()));
-    // The σ that stands for it, for the next drive, adds the gap to EIV's
-    // own estimate (as gap/√3) and the between-drive prior.
+    // The σ that stands for it, for the next drive, adds the common-mode
+    // term of EIV's fitted σ_c, the gap to EIV's own estimate (as gap/√3)
+    // and the between-drive prior.
     let next = r.next_drive_sigma.as_ref().expect("next-drive σ");
     let gap = (unused.theta.t_r - r.theta.t_r).abs();
     assert_eq!(next.fallback_gap[2], gap);
+    assert_eq!(next.wheel_common_rel_sigma, Some(unused.noise.wheel_common_rel_sigma));
+    let h = next.common_mode[2];
+    let h_expected = robust.covariance[2][2].sqrt() * unused.noise.wheel_common_rel_sigma / 0.025;
+    assert!((h - h_expected).abs() <= 1e-12 * h_expected, "{h} vs {h_expected}");
     let t_r = r.result_sigma().t_r.expect("t_r");
-    let expected = (robust.covariance[2][2] + gap * gap / 3.0 + next.between_drive[2].powi(2)).sqrt();
+    let expected = (robust.covariance[2][2] + h * h + gap * gap / 3.0 + next.between_drive[2].powi(2)).sqrt();
     assert!((t_r - expected).abs() <= 1e-12 * expected, "{t_r} vs {expected}");
     let window_finding = r.warnings.iter().any(|w| {
         matches!(
