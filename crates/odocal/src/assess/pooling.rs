@@ -527,7 +527,7 @@ mod tests {
         let base = NextDriveSigma::one_drive(&theta, within, [0.0; 4]);
         let mut n = base.clone();
         n.with_common_mode(0.05, false);
-        assert_eq!(COMMON_MODE_REFERENCE_SIGMA, 0.025);
+        assert_eq!(COMMON_MODE_REFERENCE_SIGMA.to_bits(), 0.025f64.to_bits());
         assert!(close(n.common_mode[0], 4e-3, 1e-15), "{n:?}");
         assert!(close(n.common_mode[3], 1e-4, 1e-15), "{n:?}");
         assert_eq!(n.common_mode[2].to_bits(), 0f64.to_bits(), "a held parameter gets none");
