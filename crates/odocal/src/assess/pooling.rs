@@ -26,8 +26,8 @@
 //!   `COMMON_MODE_REFERENCE_SIGMA` (2.5 %). The filter's common-mode state
 //!   has a fixed correlation time τ_c (2 s); a slower common-mode
 //!   variation carries more power at the long periods that set c_e and t_r
-//!   than that model grants, and its σ does not cover it (on heavy
-//!   common-mode worlds c_e's 95 % interval covered 75–85 %). After a
+//!   than that model grants, and its σ does not cover it (without `h`,
+//!   on heavy common-mode worlds c_e's 95 % interval covers 75–85 %). After a
 //!   fallback, σ_c is the wheel noise EIV's fit met, and batch G-N's
 //!   errors-in-variables bias grows with it. The term grows with the
 //!   fitted σ_c and vanishes with it: h ≤ 0.6 σ_within at ordinary levels
@@ -145,9 +145,10 @@ research_pub! {
     /// for the next drive (module docs): the fitted common-mode wheel-scale
     /// σ at which `h` equals the within-drive σ. Chosen on heavy
     /// common-mode random worlds (lab `random_worlds --heavy`, world seeds
-    /// 1–40, 12 km) as the largest of 1.5, 2, 2.5, 3, 3.5, 4, 5 % whose σ
-    /// covers every parameter in ≥ 95 % of the worlds with none beyond
-    /// 3 σ; docs/validation.md, "Heavy wheel noise: the σ".
+    /// 1–40, 12 km; offline, on the stored results) as the largest of 1.5,
+    /// 2, 2.5, 3, 3.5, 4, 5 % whose σ covers every parameter in ≥ 95 % of
+    /// the worlds with none beyond 3 σ; docs/validation.md, "Heavy wheel
+    /// noise: the σ".
     const COMMON_MODE_REFERENCE_SIGMA: f64 = 0.025;
 }
 
