@@ -12,13 +12,29 @@
 //! JSON `sigma`) is therefore the σ for the next drive, per parameter
 //!
 //! ```text
-//! σ_next = √(σ_within² + gap²/3 + a² + τ²)
+//! σ_next = √(σ_within² + h² + gap²/3 + a² + τ²)
 //! ```
 //!
 //! - `σ_within`: the method's within-drive σ (the report's
 //!   `sigma_within_drive`); for a parameter the
 //!   EIV filter held at its batch Gauss-Newton start's estimate, the
 //!   start's σ.
+//! - `h`: with the EIV method (its own estimate, its refit or its batch
+//!   Gauss-Newton fallback), the common-mode wheel noise the within-drive
+//!   σ leaves out, `h = σ_within · σ_c / σ_ref`: σ_c the common-mode
+//!   wheel-scale σ of EIV's fitted noise model, σ_ref
+//!   `COMMON_MODE_REFERENCE_SIGMA` (2.5 %). The filter's common-mode state
+//!   has a fixed correlation time τ_c (2 s); a slower common-mode
+//!   variation carries more power at the long periods that set c_e and t_r
+//!   than that model grants, and its σ does not cover it (without `h`,
+//!   on heavy common-mode worlds c_e's 95 % interval covers 75–85 %). After a
+//!   fallback, σ_c is the wheel noise EIV's fit met, and batch G-N's
+//!   errors-in-variables bias grows with it. The term grows with the
+//!   fitted σ_c and vanishes with it: h ≤ 0.6 σ_within at ordinary levels
+//!   (σ_c up to 1.5 %), h = σ_within at 2.5 %, 1.6 σ_within at the upper
+//!   clamp (4 %). When σ_c sits at that clamp, the drive's common-mode
+//!   noise is heavier than the model allows and `h` is a lower bound; the
+//!   verdict says so (`heavy_common_mode_noise`).
 //! - `gap`: when EIV's checks failed and the result is its batch
 //!   Gauss-Newton start (the fallback), the distance between EIV's own
 //!   estimate and the fallback's: batch G-N carries an errors-in-variables
@@ -125,6 +141,18 @@ research_pub! {
 }
 
 research_pub! {
+    /// σ_ref of the common-mode term `h = σ_within · σ_c / σ_ref` of the σ
+    /// for the next drive (module docs): the fitted common-mode wheel-scale
+    /// σ at which `h` equals the within-drive σ. Chosen on heavy
+    /// common-mode random worlds (lab `random_worlds --heavy`, world seeds
+    /// 1–40, 12 km; offline, on the stored results) as the largest of 1.5,
+    /// 2, 2.5, 3, 3.5, 4, 5 % whose σ covers every parameter in ≥ 95 % of
+    /// the worlds with none beyond 3 σ; docs/validation.md, "Heavy wheel
+    /// noise: the σ".
+    const COMMON_MODE_REFERENCE_SIGMA: f64 = 0.025;
+}
+
+research_pub! {
     /// The prior between-drive spread ([`BetweenDrivePrior`]).
     const BETWEEN_DRIVE_PRIOR: BetweenDrivePrior =
         BetweenDrivePrior { c_e: 3.8e-4, c_d: 7.5e-5, t_r: 2.9e-3, d: 2.8e-5 };
@@ -157,11 +185,27 @@ pub(crate) const NEXT_DRIVE_SIGMA_LABEL: &str = "σ for the next drive: within-d
 /// (SI units; `None` for a parameter held). In JSON `next_drive_sigma`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct NextDriveSigma {
-    /// `√(within² + fallback_gap²/3 + t_r_above_start² + between²)`: the σ that stands for the result.
+    /// `√(within² + common_mode² + fallback_gap²/3 + t_r_above_start² + between²)`: the σ that stands
+    /// for the result.
     pub sigma: [Option<f64>; 4],
     /// The method's within-drive σ (for a parameter the EIV filter held at
     /// its start's estimate: the start's σ).
     pub within_drive: [Option<f64>; 4],
+    /// With the EIV method, the common-mode wheel noise the within-drive σ
+    /// leaves out, `within · wheel_common_rel_sigma / 0.025` (module docs,
+    /// `h`; `COMMON_MODE_REFERENCE_SIGMA`); zeros otherwise.
+    /// In JSON only when not all zero.
+    #[serde(default, skip_serializing_if = "all_zero")]
+    pub common_mode: [f64; 4],
+    /// The common-mode wheel-scale σ σ_c of EIV's fitted noise model that
+    /// [`Self::common_mode`] comes from (relative). In JSON only when present.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wheel_common_rel_sigma: Option<f64>,
+    /// σ_c sits at its upper clamp: the drive's common-mode wheel noise is
+    /// heavier than EIV's model allows, and [`Self::common_mode`] is a lower
+    /// bound. In JSON only when true.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub wheel_common_clamped: bool,
     /// The gap between the EIV method's two estimates: after an EIV
     /// fallback |EIV's own θ − the fallback's θ|; when the result is EIV's
     /// refit ([`Self::gap_is_refit`]) |the refit's θ − its batch
@@ -207,6 +251,9 @@ impl NextDriveSigma {
         let mut s = NextDriveSigma {
             sigma: [None; 4],
             within_drive,
+            common_mode: [0.0; 4],
+            wheel_common_rel_sigma: None,
+            wheel_common_clamped: false,
             fallback_gap,
             gap_is_refit: false,
             gap_released_noise: Vec::new(),
@@ -238,11 +285,26 @@ impl NextDriveSigma {
         self.combine();
     }
 
+    /// With EIV's fitted common-mode wheel-scale σ `wheel_common_rel_sigma`
+    /// (at its upper clamp when `clamped`): [`Self::common_mode`], and
+    /// `sigma` again. A σ_c that is not finite and positive adds nothing.
+    pub(crate) fn with_common_mode(&mut self, wheel_common_rel_sigma: f64, clamped: bool) {
+        if !(wheel_common_rel_sigma.is_finite() && wheel_common_rel_sigma > 0.0) {
+            return;
+        }
+        let ratio = wheel_common_rel_sigma / COMMON_MODE_REFERENCE_SIGMA;
+        self.common_mode = std::array::from_fn(|i| self.within_drive[i].map_or(0.0, |w| w * ratio));
+        self.wheel_common_rel_sigma = Some(wheel_common_rel_sigma);
+        self.wheel_common_clamped = clamped;
+        self.combine();
+    }
+
     /// Sets `sigma` from its parts.
     fn combine(&mut self) {
         self.sigma = std::array::from_fn(|i| {
             self.within_drive[i].map(|w| {
                 (w * w
+                    + self.common_mode[i].powi(2)
                     + self.fallback_gap[i].powi(2) / 3.0
                     + self.t_r_above_start[i].powi(2)
                     + self.between_drive[i].powi(2))
@@ -251,9 +313,10 @@ impl NextDriveSigma {
         });
     }
 
-    /// `sigma` without the fallback gap and EIV's t_r above its start,
-    /// `√(within² + between²)`: the σ the result would have if its
-    /// estimator had no errors-in-variables bias.
+    /// `sigma` without the fallback gap, EIV's t_r above its start and the
+    /// common-mode term, `√(within² + between²)`: the σ the result would
+    /// have if its estimator had no errors-in-variables bias and the noise
+    /// were as its model says. The gap checks measure against it.
     pub(crate) fn without_gap(&self) -> [Option<f64>; 4] {
         std::array::from_fn(|i| self.within_drive[i].map(|w| (w * w + self.between_drive[i].powi(2)).sqrt()))
     }
@@ -453,6 +516,43 @@ mod tests {
         held.with_t_r_above_start(0.01, &cov);
         assert_eq!(held.t_r_above_start[1].to_bits(), 0f64.to_bits());
         assert_eq!(held.sigma[1], None);
+    }
+
+    /// The common-mode term is σ_within · σ_c / 2.5 % per parameter with a
+    /// σ, adds in quadrature, stays out of the σ the gap checks use, and
+    /// is absent for a σ_c that is not finite and positive.
+    #[test]
+    fn the_common_mode_term_scales_the_within_drive_sigma_by_sigma_c() {
+        let theta = Theta { c_e: 2.0, c_d: 0.001, t_r: 1.5, d: 0.001 };
+        let within = [Some(2e-3), Some(1e-5), None, Some(5e-5)];
+        let base = NextDriveSigma::one_drive(&theta, within, [0.0; 4]);
+        let mut n = base.clone();
+        n.with_common_mode(0.05, false);
+        assert_eq!(COMMON_MODE_REFERENCE_SIGMA.to_bits(), 0.025f64.to_bits());
+        assert!(close(n.common_mode[0], 4e-3, 1e-15), "{n:?}");
+        assert!(close(n.common_mode[3], 1e-4, 1e-15), "{n:?}");
+        assert_eq!(n.common_mode[2].to_bits(), 0f64.to_bits(), "a held parameter gets none");
+        assert_eq!(n.sigma[2], None);
+        for i in [0, 1, 3] {
+            let (s, s0) = (n.sigma[i].expect("σ"), base.sigma[i].expect("σ"));
+            assert!(close(s, (s0 * s0 + n.common_mode[i].powi(2)).sqrt(), 1e-12), "{i}: {s} {s0}");
+        }
+        // c_e: σ_within 2e-3 and h 4e-3 against a between-drive 7.6e-4.
+        assert!(n.sigma[0].expect("σ") > 2.0 * base.sigma[0].expect("σ"));
+        assert_eq!(n.without_gap(), base.without_gap(), "the gap checks' σ is the base's");
+        let json = serde_json::to_value(&n).expect("json");
+        assert!(json.get("common_mode").is_some() && json.get("wheel_common_rel_sigma").is_some());
+        assert!(json.get("wheel_common_clamped").is_none(), "only when clamped");
+        let mut clamped = base.clone();
+        clamped.with_common_mode(0.04, true);
+        assert!(serde_json::to_value(&clamped).expect("json").get("wheel_common_clamped").is_some());
+        for sigma_c in [0.0, -0.01, f64::NAN, f64::INFINITY] {
+            let mut m = base.clone();
+            m.with_common_mode(sigma_c, true);
+            assert_eq!(m, base, "{sigma_c}");
+        }
+        let json = serde_json::to_value(&base).expect("json");
+        assert!(json.get("common_mode").is_none() && json.get("wheel_common_rel_sigma").is_none());
     }
 
     #[test]

@@ -37,7 +37,10 @@
 //!   or the result is EIV's own estimate and its t_r lies that many σ
 //!   above its batch G-N start's ([`VerdictReason::TrackWidthAboveStart`]),
 //!   or the result is EIV's batch G-N fallback and no plausible EIV
-//!   estimate checks it ([`VerdictReason::FallbackUnchecked`]).
+//!   estimate checks it ([`VerdictReason::FallbackUnchecked`]),
+//!   or EIV's fit left its common-mode wheel-noise scale at the upper
+//!   clamp, so the common-mode term of the σ for the next drive is a lower
+//!   bound ([`VerdictReason::HeavyCommonModeNoise`]).
 //!
 //! The large-σ check uses the σ that stands for the result, the σ for the
 //! next drive ([`crate::pooling`]); the cross-split and convergence checks
@@ -492,6 +495,17 @@ pub enum VerdictReason {
         /// `(estimate − start) / sigma`.
         sigmas: f64,
     },
+    /// EIV's fit (the result, or the fit its batch Gauss-Newton fallback
+    /// came from) left the common-mode wheel-noise scale at its upper
+    /// clamp (doubtful): the drive's common-mode wheel noise is heavier
+    /// than the model allows, and the σ for the next drive, whose
+    /// common-mode term grows with the fitted σ_c ([`crate::pooling`]),
+    /// may be too small. Not given when [`VerdictReason::FallbackUnchecked`]
+    /// already names the clamp.
+    HeavyCommonModeNoise {
+        /// The fitted common-mode wheel-scale σ σ_c (relative), at its clamp.
+        wheel_common_rel_sigma: f64,
+    },
     /// Held-out Ē_p much above the fitting data's (doubtful).
     HeldOutMuchWorse {
         /// Ē_p on the held-out data, m.
@@ -607,6 +621,13 @@ impl std::fmt::Display for VerdictReason {
                  its batch Gauss-Newton start's {start:.6}: batch G-N's errors-in-variables bias on t_r points up, \
                  so the filter's model does not explain this shift (the σ for the next drive includes it)"
             ),
+            VerdictReason::HeavyCommonModeNoise { wheel_common_rel_sigma } => write!(
+                f,
+                "EIV's fit left the common-mode wheel noise at its upper clamp (σ_c {:.2} %): the drive's wheel \
+                 scale varies more than the model allows, so the σ for the next drive, which widens with σ_c, may \
+                 still be too small",
+                wheel_common_rel_sigma * 100.0
+            ),
             VerdictReason::HeldOutMuchWorse { held_out_m, fit_m, max_ratio } => {
                 write!(f, "held-out Ē_p {held_out_m:.3} m is more than {max_ratio} × the fitting data's {fit_m:.3} m")
             }
@@ -702,7 +723,8 @@ pub(crate) fn is_sigma_reason(r: &VerdictReason) -> bool {
         VerdictReason::FallbackDisagrees { .. }
         | VerdictReason::FallbackUnchecked { .. }
         | VerdictReason::RefitDisagrees { .. }
-        | VerdictReason::TrackWidthAboveStart { .. } => true,
+        | VerdictReason::TrackWidthAboveStart { .. }
+        | VerdictReason::HeavyCommonModeNoise { .. } => true,
         _ => false,
     }
 }
@@ -757,6 +779,11 @@ pub(crate) fn fallback_gap_reasons(
         });
     let unchecked =
         n.fallback_unchecked.clone().map(|u| VerdictReason::FallbackUnchecked { clamped: u.clamped, held: u.held });
+    let named = n.fallback_unchecked.as_ref().is_some_and(|u| u.clamped.contains(&NoiseSource::WheelCommon));
+    let heavy = n
+        .wheel_common_rel_sigma
+        .filter(|_| n.wheel_common_clamped && !named)
+        .map(|wheel_common_rel_sigma| VerdictReason::HeavyCommonModeNoise { wheel_common_rel_sigma });
     free.intersection(ParamSet::THETA)
         .iter()
         .filter_map(|p| {
@@ -775,6 +802,7 @@ pub(crate) fn fallback_gap_reasons(
         })
         .chain(above)
         .chain(unchecked)
+        .chain(heavy)
         .collect()
 }
 
@@ -999,6 +1027,37 @@ mod tests {
         n.fallback_unchecked = Some(FallbackUnchecked { clamped: Vec::new(), held: vec![NoiseSource::HeadingWhite] });
         let text = judge(&Evidence { next_drive: Some(&n), ..evidence(&th, &cov) }, &opts).reasons[0].to_string();
         assert!(text.contains("fails the plausibility guards:") && text.contains("held (heading_white)"), "{text}");
+    }
+
+    /// EIV's common-mode wheel scale at its upper clamp makes the result
+    /// doubtful (a σ reason); below the clamp the common-mode term widens
+    /// the σ and says nothing; a fallback whose unchecked reason already
+    /// names the clamp gets no second reason.
+    #[test]
+    fn a_common_mode_scale_at_its_clamp_is_doubtful() {
+        use crate::assess::pooling::{FallbackUnchecked, NextDriveSigma};
+        let (th, cov, within) = fallback_case(1e-8);
+        let opts = TrustOptions::default();
+        let base = NextDriveSigma::one_drive(&th, within, [0.0; 4]);
+        let mut below = base.clone();
+        below.with_common_mode(0.039, false);
+        let v = judge(&Evidence { next_drive: Some(&below), ..evidence(&th, &cov) }, &opts);
+        assert_eq!(v.level, VerdictLevel::Accepted, "{v:?}");
+        let mut at = base.clone();
+        at.with_common_mode(0.04, true);
+        let v = judge(&Evidence { next_drive: Some(&at), ..evidence(&th, &cov) }, &opts);
+        assert_eq!(v.level, VerdictLevel::Doubtful, "{v:?}");
+        assert_eq!(v.reasons.len(), 1, "{v:?}");
+        assert!(is_sigma_reason(&v.reasons[0]));
+        let text = v.reasons[0].to_string();
+        assert!(text.contains("upper clamp (σ_c 4.00 %)"), "{text}");
+        let json = serde_json::to_value(&v.reasons[0]).expect("json");
+        assert_eq!(json, serde_json::json!({"kind": "heavy_common_mode_noise", "wheel_common_rel_sigma": 0.04}));
+        assert_eq!(sigma_reasons(&th, &Theta::PAPER_INITIAL, ParamSet::THETA, &at, &opts), v.reasons);
+        at.fallback_unchecked = Some(FallbackUnchecked { clamped: vec![NoiseSource::WheelCommon], held: Vec::new() });
+        let v = judge(&Evidence { next_drive: Some(&at), ..evidence(&th, &cov) }, &opts);
+        assert_eq!(v.reasons.len(), 1, "{v:?}");
+        assert!(matches!(v.reasons[0], VerdictReason::FallbackUnchecked { .. }), "{v:?}");
     }
 
     /// EIV's t_r above its batch G-N start by more than 3 σ (without that

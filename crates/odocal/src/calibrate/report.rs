@@ -437,6 +437,12 @@ pub(crate) fn next_drive_of(
     if let Some((excess, cov)) = eiv_t_r_above_start(detail, free) {
         n.with_t_r_above_start(excess, cov);
     }
+    if let MethodDetail::Eiv(EivDetail { eiv: Some(e), .. }) = detail {
+        let clamped = e.warnings.iter().any(|w| {
+            matches!(w, crate::eiv::EivWarning::NoiseAtUpperClamp { source: crate::eiv::NoiseSource::WheelCommon, .. })
+        });
+        n.with_common_mode(e.noise.wheel_common_rel_sigma, clamped);
+    }
     n
 }
 
