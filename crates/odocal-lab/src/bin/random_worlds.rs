@@ -61,7 +61,7 @@ const USAGE: &str = "random_worlds [--worlds 100] [--length-km 12] [--seed 1] [-
     [--heading-drift-two-sided] [--no-clamp-refit] [--clamp-refit-common-eta X]
 
 World i has world seed S + i (drive seed too); every method runs through odocal::calibrate.
---heavy: each world's wheel noise replaced by heavy common-mode coloured noise and slip (heavy_wheels).
+--heavy: each world's wheel noise replaced by heavy common-mode coloured noise and slip (NoiseOptions::with_heavy_wheels).
 --eta-max, --tau-c, --tau-drift: the default's upper clamp of the noise scales η, its common-mode time constant τ_c
     and its reference-drift time constant.
 --heavy-without slip|common: the heavy worlds without their acceleration slip or their common-mode noise.
@@ -91,7 +91,7 @@ struct Settings {
     out: Option<PathBuf>,
     /// The default's heading-drift score gate and likelihood-ratio threshold (None: the defaults).
     heading_drift: (Option<f64>, Option<f64>),
-    /// `--heavy`: the worlds' wheel noise replaced ([`heavy_wheels`]).
+    /// `--heavy`: the worlds' wheel noise replaced (`NoiseOptions::with_heavy_wheels`).
     heavy: bool,
     /// The default's noise-scale upper clamp and common-mode τ_c (None: the defaults).
     eiv_noise: (Option<f64>, Option<f64>),
@@ -340,39 +340,11 @@ fn finding_kind(w: &odocal::eiv::EivWarning) -> String {
     }
 }
 
-/// A world's wheel noise replaced by heavy common-mode coloured noise and
-/// slip with acceleration, small white wheel noise (`--heavy`; the regime
-/// where batch Gauss-Newton's errors-in-variables bias is large and EIV
-/// may fall back): common-mode σ uniform 2–4 % with τ log-uniform 2–10 s,
-/// slip uniform 1–2 %/(m/s²), white σ uniform 0.05–0.3 %, no
-/// quantisation. The reference's noise stays the random world's. Drawn
-/// from `seed` by SplitMix64 (its own stream: the world's other draws
-/// are unchanged).
-fn heavy_wheels(n: NoiseOptions, seed: u64) -> NoiseOptions {
-    let mut state = seed ^ 0x6865_6176_7977_6865;
-    let mut unit = || {
-        state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^= z >> 31;
-        (z >> 11) as f64 / (1u64 << 53) as f64
-    };
-    NoiseOptions {
-        wheel_coloured_rel_sigma: 0.02 + 0.02 * unit(),
-        wheel_coloured_time_constant_s: 2.0 * 5f64.powf(unit()),
-        wheel_slip_per_m_per_s2: 0.01 + 0.01 * unit(),
-        wheel_white_rel_sigma: 5e-4 + 2.5e-3 * unit(),
-        encoder_ticks_per_revolution: 0,
-        ..n
-    }
-}
-
 fn study_world(index: u64, a: &Settings) -> Res<World> {
     let seed = a.seed + index;
     let (noise, summary) = NoiseOptions::random_world(seed);
     let (noise, summary) = if a.heavy {
-        let mut n = heavy_wheels(noise, seed);
+        let mut n = noise.with_heavy_wheels(seed);
         match a.heavy_without.as_deref() {
             Some("slip") => n.wheel_slip_per_m_per_s2 = 0.0,
             Some("common") => n.wheel_coloured_rel_sigma = 0.0,

@@ -756,7 +756,7 @@ fn a_held_scale_carries_the_starts_variance_along_the_regression() {
 #[test]
 #[ignore = "slow tier, an accuracy claim (~2 min of CPU): cargo test --workspace -- --ignored"]
 fn a_refit_with_the_scale_held_corrects_the_fallbacks_t_r_under_heavy_wheel_noise() {
-    let noise = heavy_wheels(NoiseOptions::random_world(9).0, 9);
+    let noise = NoiseOptions::random_world(9).0.with_heavy_wheels(9);
     let sim = SimOptions { length_km: 12.0, noise, ..SimOptions::paper(9) };
     let out = simulate(&sim).expect("sim");
     let (truth, _) = sim.equivalent_truth();
@@ -794,7 +794,7 @@ fn a_refit_with_the_scale_held_corrects_the_fallbacks_t_r_under_heavy_wheel_nois
 #[ignore = "slow tier, an accuracy claim (~40 s of CPU): cargo test --workspace -- --ignored"]
 fn heavy_common_mode_drive_sigma_covers_the_truth() {
     let seed = 43;
-    let noise = heavy_wheels(NoiseOptions::random_world(seed).0, seed);
+    let noise = NoiseOptions::random_world(seed).0.with_heavy_wheels(seed);
     let sim = SimOptions { length_km: 12.0, noise, ..SimOptions::paper(seed) };
     let out = simulate(&sim).expect("sim");
     let (truth, _) = sim.equivalent_truth();
@@ -819,28 +819,4 @@ fn heavy_common_mode_drive_sigma_covers_the_truth() {
         worst_without = worst_without.max((e[i] - t[i]).abs() / without);
     }
     assert!(worst_without > 3.0, "without the common-mode term the worst error is {worst_without:.2} σ");
-}
-
-/// The lab's `random_worlds --heavy` wheel noise of world `seed`:
-/// common-mode σ uniform 2–4 % with τ log-uniform 2–10 s, slip uniform
-/// 1–2 %/(m/s²), white σ uniform 0.05–0.3 %, no quantisation, drawn by
-/// SplitMix64 on a stream of its own.
-fn heavy_wheels(n: NoiseOptions, seed: u64) -> NoiseOptions {
-    let mut state = seed ^ 0x6865_6176_7977_6865;
-    let mut unit = || {
-        state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^= z >> 31;
-        (z >> 11) as f64 / (1u64 << 53) as f64
-    };
-    NoiseOptions {
-        wheel_coloured_rel_sigma: 0.02 + 0.02 * unit(),
-        wheel_coloured_time_constant_s: 2.0 * 5f64.powf(unit()),
-        wheel_slip_per_m_per_s2: 0.01 + 0.01 * unit(),
-        wheel_white_rel_sigma: 5e-4 + 2.5e-3 * unit(),
-        encoder_ticks_per_revolution: 0,
-        ..n
-    }
 }

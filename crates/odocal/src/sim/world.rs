@@ -237,6 +237,36 @@ impl Draw {
 }
 
 impl NoiseOptions {
+    research_pub! {
+        /// These options with the wheel noise of a heavy common-mode world
+        /// (the lab's `random_worlds --heavy`; the regime where batch
+        /// Gauss-Newton's errors-in-variables bias is large and EIV may fall
+        /// back): common-mode coloured σ uniform 2–4 % with τ log-uniform
+        /// 2–10 s, slip uniform 1–2 %/(m/s²), white σ uniform 0.05–0.3 %, no
+        /// quantisation; the reference's and the other noise unchanged. Drawn
+        /// from `seed` by SplitMix64 on a stream of its own, so a random
+        /// world's other draws do not move.
+        fn with_heavy_wheels(self, seed: u64) -> NoiseOptions {
+            let mut state = seed ^ 0x6865_6176_7977_6865;
+            let mut unit = || {
+                state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+                let mut z = state;
+                z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+                z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+                z ^= z >> 31;
+                (z >> 11) as f64 / (1u64 << 53) as f64
+            };
+            NoiseOptions {
+                wheel_coloured_rel_sigma: 0.02 + 0.02 * unit(),
+                wheel_coloured_time_constant_s: 2.0 * 5f64.powf(unit()),
+                wheel_slip_per_m_per_s2: 0.01 + 0.01 * unit(),
+                wheel_white_rel_sigma: 5e-4 + 2.5e-3 * unit(),
+                encoder_ticks_per_revolution: 0,
+                ..self
+            }
+        }
+    }
+
     /// The random noise world of `seed`, with its summary (the distribution
     /// and the regime rule: the [module doc](crate::sim#random-noise-worlds),
     /// `docs/reference.md`). The same seed gives the same world.
