@@ -298,7 +298,7 @@ macro_rules! research_options {
             /// log-Jacobian `−Σ m log(1 − ŝ)` (the profile cost J keeps it
             /// either way). Without it the noise scales are fitted on the
             /// filter's Gaussian likelihood `½ Σ(νᵀS⁻¹ν + log det S)` alone.
-            /// Measured on heavy common-mode wheel noise (docs/validation.md,
+            /// Measured on heavy common-mode wheel noise (crates/odocal-lab/STUDIES.md,
             /// "Heavy wheel noise: what puts the common-mode scale at its
             /// clamp"): fewer fallbacks, no better t_r. Default true.
             $vis coloured_jacobian_in_marginal: bool,
