@@ -187,9 +187,11 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
                 if !quiet_stdout {
                     let e = summary.prequential_mean_position_error_m.map_or("-".into(), |e| format!("{e:.3} m"));
                     println!(
-                        "{source}: prequential Ē_p {e} over {} validation segment(s), {} segment(s) folded; θ = {} ± {}; {}: {}",
+                        "{source}: prequential Ē_p {e} over {} validation segment{}, {} segment{} folded; θ = {} ± {}; {}: {}",
                         summary.validation_segments,
+                        if summary.validation_segments == 1 { "" } else { "s" },
                         summary.folded_segments,
+                        if summary.folded_segments == 1 { "" } else { "s" },
                         decision.theta,
                         decision.sigma,
                         decision.action,

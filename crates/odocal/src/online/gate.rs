@@ -122,8 +122,9 @@ impl Gates {
             _ if recent.is_empty() => held.push("no validation segment scored on this drive".into()),
             Some(s) if online < s => {}
             Some(s) => held.push(format!(
-                "not better than the stored θ on the last {} validation segment(s): Ē_p {:.3} m against {:.3} m",
+                "not better than the stored θ on the last {} validation segment{}: Ē_p {:.3} m against {:.3} m",
                 recent.len(),
+                if recent.len() == 1 { "" } else { "s" },
                 online / recent.len() as f64,
                 s / recent.len() as f64
             )),
