@@ -234,7 +234,7 @@ def main(argv: Optional[list[str]] = None) -> int:
     wall = time.perf_counter() - t0
     write_table(rows, a.out)
     failed = [r for r in rows if r["status"] != "ok"]
-    print(f"{len(rows)} drive(s) in {wall:.1f} s, {len(failed)} failed; wrote {a.out}")
+    print(f"{len(rows)} drive{'' if len(rows) == 1 else 's'} in {wall:.1f} s, {len(failed)} failed; wrote {a.out}")
     for r in failed:
         print(f"  {r['drive']}: {r['error']}", file=sys.stderr)
     return 0 if not failed else 2
