@@ -29,7 +29,7 @@ const USAGE: &str = "crossrun_heading [--skip-van] [--heading-drift-lr T] [--unt
     c_e held at the batch G-N start's (clamp_refit_hold_scale off).";
 
 /// `--no-clamp-refit`: `ResearchOptions::clamp_refit_hold_scale` off.
-static CLAMP_REFIT: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+static NO_CLAMP_REFIT: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
 
 /// `--untied-drift`: the default's research options of the untied reference drift.
 static UNTIED_DRIFT: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
@@ -69,7 +69,7 @@ fn load_with_options(rel: &str) -> Res<(Drive, CalibrationOptions)> {
         (r.position_drift_own_scale, r.position_drift_time_constant_s, r.heading_drift_two_sided) =
             (true, Some(20.0), true);
     }
-    if let (Some(true), odocal::Method::Eiv(e)) = (CLAMP_REFIT.get().copied(), &mut options.method) {
+    if let (Some(true), odocal::Method::Eiv(e)) = (NO_CLAMP_REFIT.get().copied(), &mut options.method) {
         e.filter.research.clamp_refit_hold_scale = false;
     }
     Ok((drive, options))
@@ -189,7 +189,7 @@ fn run() -> Res<()> {
     let skip_van = a.flag("skip-van");
     let _ = HEADING_DRIFT_LR.set(a.opt("heading-drift-lr")?);
     let _ = UNTIED_DRIFT.set(a.flag("untied-drift"));
-    let _ = CLAMP_REFIT.set(a.flag("no-clamp-refit"));
+    let _ = NO_CLAMP_REFIT.set(a.flag("no-clamp-refit"));
     a.finish()?;
     testtrack()?;
     if !skip_van {

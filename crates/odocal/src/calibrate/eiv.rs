@@ -528,7 +528,7 @@ impl Estimator for EivMethodOptions {
         };
         let filter_input = EivInput::from_drive(axle_drive.as_ref().unwrap_or(prep.drive));
         let start_theta = start.theta;
-        let start_c_e_variance = start.robust.as_ref().map_or(start.covariance, |r| r.covariance)[0][0];
+        let start_c_e_variance = start.robust_or_model_covariance()[0][0];
         let Fitted { fit, correction_failed, refit, clamp_refit } =
             self.fit(&filter_input, &start_theta, &filter, start_c_e_variance);
         emit(progress, Progress::Advance(1));
@@ -642,13 +642,14 @@ impl EivMethodOptions {
                 refit = true;
             }
         }
-        let mut used = filter.clone();
+        // The options of the fit that stands: the refit's after a clamp.
+        let mut refit_options = None;
         let mut clamp_refit = None;
         if let Ok(r) = &fit {
             if let Some((again, opts, first)) = refit_at_clamp(input, theta, &uncorrected, r) {
                 fit = Ok(again);
                 refit = true;
-                used = EivOptions { bias_correction: filter.bias_correction, ..opts };
+                refit_options = Some(EivOptions { bias_correction: filter.bias_correction, ..opts });
                 clamp_refit = Some(Box::new(first));
             }
         }
@@ -656,7 +657,7 @@ impl EivMethodOptions {
         if let Ok(r) = &mut fit {
             let misspecified = r.warnings.iter().any(|w| is_misspecification(w, r));
             if !(self.fallback && misspecified) {
-                match eiv::apply_bias_correction(input, r, &used) {
+                match eiv::apply_bias_correction(input, r, refit_options.as_ref().unwrap_or(filter)) {
                     Ok(()) => {}
                     Err(e @ Error::InvalidOption { .. }) => fit = Err(e),
                     Err(e) => correction_failed = Some(e.to_string()),

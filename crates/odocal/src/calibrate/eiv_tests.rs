@@ -748,7 +748,8 @@ fn a_held_scale_carries_the_starts_variance_along_the_regression() {
 /// Heavy common-mode wheel noise and slip (the lab's `random_worlds
 /// --heavy`, world seed 9, 12 km): EIV's fit puts the common-mode scale
 /// at its upper clamp with c_e far low and the default falls back to batch
-/// G-N, whose t_r is ~2.8 % off. With `clamp_refit_hold_scale` the refit
+/// G-N, whose t_r is ~2.8 % off. With the default (its research option
+/// `clamp_refit_hold_scale` on) the refit
 /// with c_e held at the start's passes its checks, is the result with
 /// c_e at the start's value and c_e's σ the start's, and its t_r lies
 /// below the start's and within 3 σ (the σ for the next drive) of the
@@ -760,10 +761,8 @@ fn a_refit_with_the_scale_held_corrects_the_fallbacks_t_r_under_heavy_wheel_nois
     let sim = SimOptions { length_km: 12.0, noise, ..SimOptions::paper(9) };
     let out = simulate(&sim).expect("sim");
     let (truth, _) = sim.equivalent_truth();
-    let mut method = EivMethodOptions::default();
-    method.filter.research.clamp_refit_hold_scale = true;
-    let opts = CalibrationOptions { method: Method::Eiv(method), ..Default::default() };
-    let r = calibrate(&out.drive, &opts).expect("calibrate");
+    assert!(EivMethodOptions::default().filter.research.clamp_refit_hold_scale);
+    let r = calibrate(&out.drive, &CalibrationOptions::default()).expect("calibrate");
     let d = detail(&r);
     assert_eq!(d.eiv_result, EivOutcome::Eiv, "{:?}", r.warnings);
     let c = d.clamp_refit.as_ref().expect("the refit after the clamp is the result");
@@ -772,7 +771,7 @@ fn a_refit_with_the_scale_held_corrects_the_fallbacks_t_r_under_heavy_wheel_nois
     let start = &d.identification;
     assert_eq!(r.theta.c_e, start.theta.c_e);
     assert!(r.theta.t_r < start.theta.t_r);
-    let start_c_e_sigma = start.robust.as_ref().map_or(start.covariance, |x| x.covariance)[0][0].sqrt();
+    let start_c_e_sigma = start.robust_or_model_covariance()[0][0].sqrt();
     assert_eq!(r.within_drive_sigma().c_e, Some(start_c_e_sigma));
     let sigma = r.result_sigma().to_array();
     for (i, (a, b)) in r.theta.to_array().iter().zip(truth.to_array()).enumerate() {

@@ -386,7 +386,7 @@ pub(crate) fn next_drive_of(
     let mut unchecked = None;
     if let MethodDetail::Eiv(d) = detail {
         let start = &d.identification;
-        let start_sd = start.robust.as_ref().map_or(start.covariance, |r| r.covariance);
+        let start_sd = start.robust_or_model_covariance();
         for (i, w) in w.iter_mut().enumerate() {
             let free_here = Param::from_index(i).is_some_and(|p| {
                 free.contains(p) && !d.start_held.contains(&p) && !start.observability.unobservable.contains(p)

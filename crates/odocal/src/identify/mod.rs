@@ -360,6 +360,14 @@ research_pub! {
     }
 }
 
+impl IdentifyReport {
+    /// The covariance its within-drive σ stands on: the cluster-robust one
+    /// when there is one ([`Self::robust`]), else the model one.
+    pub(crate) fn robust_or_model_covariance(&self) -> [[f64; 4]; 4] {
+        self.robust.as_ref().map_or(self.covariance, |r| r.covariance)
+    }
+}
+
 impl std::fmt::Display for IdentifyReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
