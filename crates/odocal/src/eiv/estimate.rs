@@ -20,22 +20,20 @@ use super::{
 use crate::error::{Error, Result};
 use crate::model::Theta;
 
+research_pub! {
 /// The instruction set the filter's kernels run with in this process:
 /// `"avx2"` where the CPU has AVX2 and FMA (x86-64, detected at run time),
 /// else `"baseline"` (the build's target features, SSE2 on a default x86-64
 /// build). The environment variable `ODOCAL_SIMD=baseline` forces the
 /// baseline; it is read once per process. Both give results
-/// identical to the bit; AVX2 is faster (docs/performance.md).
-///
-/// ```
-/// let set = odocal::eiv::kernel_instruction_set();
-/// assert!(set == "avx2" || set == "baseline");
-/// ```
-pub fn kernel_instruction_set() -> &'static str {
+/// identical to the bit; AVX2 is faster (docs/performance.md). A
+/// benchmark's diagnostic (feature `research`).
+fn kernel_instruction_set() -> &'static str {
     match filter::kernels() {
         filter::Kernels::Avx2 => "avx2",
         filter::Kernels::Baseline => "baseline",
     }
+}
 }
 
 research_pub! {

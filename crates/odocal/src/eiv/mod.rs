@@ -244,8 +244,7 @@ pub(crate) use report::PARAMETERS;
 // the bootstrap's options) and the EIV findings of the calibration's warnings.
 pub use {
     bootstrap::{BootstrapInputs, BootstrapOptions, BootstrapRefit},
-    estimate::kernel_instruction_set,
-    modelling::{BiasCorrection, FirstOrderBias, HeadingScale, LateralNoise, QuantisationLevel, QuantisationModel},
+    modelling::{BiasCorrection, HeadingScale, LateralNoise, QuantisationLevel, QuantisationModel},
     noise::{NoiseModel, NoiseSource},
     options::EivOptions,
     report::{EivWarning, Parameter, PoseComponent, Termination},
@@ -257,12 +256,12 @@ research_use! {
     bias_correction::apply_bias_correction,
     bootstrap::{bootstrap, BootstrapReport},
     crb::cramer_rao_bound,
-    estimate::estimate,
+    estimate::{estimate, kernel_instruction_set},
     heading_drift::HeadingDriftTest,
     input::{EivInput, Window},
     lattice::quantisation_step_of_readings,
     modelling::{
-        InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
+        FirstOrderBias, InnovationNull, InputJacobian, SideslipNoise, WheelNoiseScale, DEFAULT_POSITION_FLOOR_M, SPEC_POSITION_FLOOR_M,
     },
     options::{CovarianceEstimate, CovarianceMode, ResearchOptions},
     report::{CrbReport, EivObservability, EivReport, HalvesCheck, IterationRecord, PassReport, WindowDiagnostics},

@@ -184,7 +184,7 @@ impl WheelNoiseScale {
 /// (`SideslipNoise::WhiteEquivalent`) the fit has a c_e bias of about
 /// +0.1 % under coloured wheel noise, which the bootstrap removes on every
 /// preset (the known noise model fixed, 12 km, 20 seeds, B = 10: c_e t
-/// 14–35 → 0.5–0.8; the analytic first-order correction, [`FirstOrderBias`],
+/// 14–35 → 0.5–0.8; the analytic first-order correction, `FirstOrderBias` (feature `research`),
 /// does not). With the sideslip error a filter state (the default) the fit
 /// has no c_e bias left; what remains under heavy wheel noise is t_r's and
 /// d's. Measured (`study_eiv --km 12 --seeds 20 --methods est --bootstrap
@@ -249,6 +249,7 @@ pub enum BiasCorrection {
 /// inputs as the truth the bootstrap finds no t_r bias).
 pub(crate) const BIAS_BOOTSTRAP_SMOOTHING_SAMPLES: usize = 20;
 
+research_pub! {
 /// The first-order bias of the profile cost's root at the estimate, a
 /// diagnostic (measured as a correction in [`BiasCorrection`]'s table; it
 /// is not one of its options because it failed); SI units, θ order
@@ -264,7 +265,7 @@ pub(crate) const BIAS_BOOTSTRAP_SMOOTHING_SAMPLES: usize = 20;
 /// `b = H_θ⁻¹ (g_logdet − g_corr)` to first order (H_θ the scoring metric
 /// of J), computed from the last filter pass.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct FirstOrderBias {
+struct FirstOrderBias {
     /// `g_logdet = ∂(½ Σ log det S)/∂θ`.
     pub score_logdet: [f64; 4],
     /// `g_corr = ∂(−Σ m log(1 − ŝ))/∂θ`.
@@ -276,6 +277,7 @@ pub struct FirstOrderBias {
     pub bias_logdet_only: [f64; 4],
     /// Each parameter alone, the others held: `(g_logdet − g_corr)_i / H_ii`.
     pub bias_conditional: [f64; 4],
+}
 }
 
 /// Whether the heading white noise of the reference is scaled on its own.

@@ -48,7 +48,7 @@ pub struct Manifest {
     /// `--method eiv` as written, read by the calibration like a
     /// `--noise-model` file (`settings::ManifestSettings` reads it).
     #[serde(default, deserialize_with = "super::settings::noise_table", skip_serializing_if = "Option::is_none")]
-    pub noise: Option<NoiseTable>,
+    pub(crate) noise: Option<NoiseTable>,
     /// The reference sensor's extrinsics (`[reference]`): lever arm,
     /// heading offset and which of them to estimate.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -56,7 +56,7 @@ pub struct Manifest {
     /// Calibration settings (`[calibration]`) as written, read by the
     /// calibration (`settings::ManifestSettings`).
     #[serde(default, deserialize_with = "super::settings::calibration_table", skip_serializing_if = "Option::is_none")]
-    pub calibration: Option<CalibrationTable>,
+    pub(crate) calibration: Option<CalibrationTable>,
 }
 
 /// Physical limits (`[limits]`): an imported signal beyond one is an error

@@ -40,13 +40,13 @@ pub struct ImportReport {
     pub warnings: Vec<String>,
     /// The manifest's `[noise]` (the sensor's noise model) as written, when stated.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub noise: Option<super::NoiseTable>,
+    pub(crate) noise: Option<super::NoiseTable>,
     /// The manifest's `[reference]` (reference extrinsics), when stated.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reference: Option<super::ReferenceSpec>,
     /// The manifest's `[calibration]` (calibration settings) as written, when stated.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub calibration: Option<super::CalibrationTable>,
+    pub(crate) calibration: Option<super::CalibrationTable>,
     /// Wall time of the import, s.
     pub elapsed_s: f64,
 }

@@ -95,12 +95,12 @@ impl ReferenceSpec {
 /// min_yaw_rate = 0.1
 /// ```
 #[derive(Debug, Clone, PartialEq, Default)]
-pub struct CalibrationTable {
+pub(crate) struct CalibrationTable {
     /// The table's keys and values.
-    pub table: toml::Table,
+    pub(crate) table: toml::Table,
     /// The manifest line (1-based) of each key's value, when read from a
     /// manifest's text.
-    pub lines: BTreeMap<String, usize>,
+    pub(crate) lines: BTreeMap<String, usize>,
 }
 
 impl Serialize for CalibrationTable {
@@ -137,12 +137,12 @@ pub(crate) use crate::model::limits::MAX_LEVER_ARM_M;
 /// ([`crate::calibrate::settings`], like a `--noise-model` file). The
 /// importer keeps it uninterpreted, with the line it starts on for messages.
 #[derive(Debug, Clone, PartialEq, Default)]
-pub struct NoiseTable {
+pub(crate) struct NoiseTable {
     /// The table's keys and values.
-    pub table: toml::Table,
+    pub(crate) table: toml::Table,
     /// The manifest line the table starts on (1-based), when read from a
     /// manifest's text.
-    pub line: Option<usize>,
+    pub(crate) line: Option<usize>,
 }
 
 impl Serialize for NoiseTable {
