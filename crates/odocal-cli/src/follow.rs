@@ -6,10 +6,10 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use odocal::history::History;
 use odocal::online::gate::{Action, GateDecision, Gates};
-use odocal::online::{follow, Calibrator, FollowEvent, FollowOptions, OnlineOptions, RandomWalk};
+use odocal::online::{Calibrator, OnlineOptions, RandomWalk};
 use odocal::{ParamFile, Theta};
+use odocal_history::{follow, FollowEvent, FollowOptions, History};
 use serde_json::{json, Value};
 
 use crate::args::{HelpArgs, ThetaArg};
@@ -134,7 +134,7 @@ impl std::str::FromStr for Four {
     }
 }
 
-/// Replays the drives through the library's `odocal::online::follow` and
+/// Replays the drives through the library's `odocal_history::follow` and
 /// prints what it reports; writes each written update to `--params-out`.
 pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
     let mut files = Files::default();

@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::Args;
-use odocal::history::{CalibrationRecord, History, Recorded};
 use odocal::{CalibrationReport, Drive};
+use odocal_history::{CalibrationRecord, History, Recorded};
 
 use crate::output::{write_text, Files};
 

@@ -1,5 +1,5 @@
 //! `odocal.History`: a vehicle's calibration history in an SQLite file
-//! ([`odocal::history::History`]), rows as dicts.
+//! ([`odocal_history::History`]), rows as dicts.
 
 use std::path::PathBuf;
 use std::sync::Mutex;
@@ -8,7 +8,7 @@ use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use odocal::history::{CalibrationRecord, History, Recorded};
+use odocal_history::{CalibrationRecord, History, Recorded};
 
 use crate::convert::{json, to_json, to_py};
 use crate::drive::PyDrive;

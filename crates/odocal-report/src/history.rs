@@ -4,8 +4,8 @@
 //! drift flags marked and the pooled mean drawn; then the rows, the flags
 //! and the pooled estimate as tables.
 
-use odocal::history::{DriftFlag, HistoryRow, Pooled, VehicleHistory, DRIFT_SIGMAS};
 use odocal::model::THETA_NAMES;
+use odocal_history::{DriftFlag, HistoryRow, Pooled, VehicleHistory, DRIFT_SIGMAS};
 use plotters::prelude::*;
 
 use crate::plots::{BLUE, GREY, RED};
@@ -225,8 +225,8 @@ pub fn render_history_html(history: &VehicleHistory) -> Result<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use odocal::history::CalibrationRecord;
     use odocal::Theta;
+    use odocal_history::CalibrationRecord;
 
     fn row(id: i64, c_d: f64) -> HistoryRow {
         let theta = Theta { c_d, ..Theta::SIM_DEFAULT_TRUE };

@@ -245,7 +245,7 @@ pub enum Error {
         reason: String,
     },
     /// The vehicle history database could not be opened, migrated, read or
-    /// written ([`crate::history`]).
+    /// written (the crate odocal-history).
     #[error("{path}: history database: {reason}")]
     History {
         /// The database file.

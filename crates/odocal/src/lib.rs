@@ -47,9 +47,9 @@
 //! [`eiv`] (the errors-in-variables options), [`sim`] (the simulator),
 //! [`experiment`] (the paper's §6), [`mod@io`] (ROS 2 bags), [`settings`] (calibration
 //! settings as key–value pairs), [`output`] (atomic writes and output
-//! paths checked against inputs, for a front end's own files), [`online`] (calibration that keeps up with a
-//! streaming drive) and `history` (a per-vehicle calibration history in
-//! SQLite, feature `history`).
+//! paths checked against inputs, for a front end's own files) and [`online`] (calibration that keeps up with a
+//! streaming drive). The per-vehicle calibration history in SQLite, with
+//! the gated write-back of `odocal follow`, is the crate odocal-history.
 //!
 //! ## Example
 //!
@@ -114,8 +114,6 @@ mod drive; // 2
 pub mod eiv; // 5
 mod error; // 0
 pub mod experiment; // 8
-#[cfg(feature = "history")]
-pub mod history; // 8
 pub mod identify; // 4
 pub mod io; // 3
 pub mod model; // 1

@@ -15,7 +15,7 @@
 //! c_d steps by `--step-mm` (default 1 mm) 10 minutes in, followed by one
 //! calibrator (as `odocal follow` replays them); each drive's θ and σ at
 //! its end is a history row, and the history's drift flag
-//! ([`odocal::history::VehicleHistory::drift`], a change beyond three combined σ)
+//! ([`odocal_history::VehicleHistory::drift`], a change beyond three combined σ)
 //! is read between the two rows. The control: drive B without the step
 //! (a flag there is a false alarm). `--step-mm` takes a list of step
 //! sizes (one table each, then a summary of the flagged counts);
@@ -24,7 +24,7 @@
 //! `--random-walk-ce F` and `--random-walk-cd M` set the process noise
 //! (per-hour sd of c_e as a fraction, of c_d in m).
 
-use odocal::history::{CalibrationRecord, HistoryRow, VehicleHistory};
+use odocal_history::{CalibrationRecord, HistoryRow, VehicleHistory};
 use odocal::online::{Calibrator, OnlineOptions};
 use odocal::sim::{simulate, CdStep, DriftOptions, SimOptions};
 use odocal::{Drive, Signals, Theta};

@@ -19,9 +19,6 @@
 //! reader's order, with its line); memory then grows with the file, as the
 //! whole reader's does.
 
-// Read by `online::follow` (feature `history`) and the tests.
-#![cfg_attr(not(feature = "history"), allow(dead_code))]
-
 use std::fs::File;
 use std::io::{BufRead, BufReader, BufWriter, Read, Write};
 use std::ops::Range;

@@ -4,10 +4,11 @@
 //! replay of logs in time order): [`Calibrator::push`] takes the drive's
 //! canonical samples chunk by chunk and keeps θ with its σ at any time, in
 //! memory that does not grow with the drive's length;
-//! [`Calibrator::push_drive`] pushes a drive in memory. [`follow`] (what
-//! `odocal follow` runs; feature `history`) replays drive files through it,
-//! each read as a stream, and writes back to a vehicle's history what the
-//! gates ([`gate`]) pass.
+//! [`Calibrator::push_drive`] pushes a drive in memory, and [`Replay`] a
+//! drive file read as a stream. The gates ([`gate`]) judge whether an
+//! estimate should replace the stored θ; `odocal follow` (the crate
+//! odocal-history) replays drive files through a calibrator and writes
+//! back to a vehicle's history what the gates pass.
 //!
 //! ## The method: recursive Gauss-Newton over the paper's segments
 //!
@@ -66,15 +67,13 @@ use crate::identify::extrinsics_normal_equations;
 use crate::model::extrinsics::Extrinsics;
 use crate::model::{wrap_angle, Theta};
 
-#[cfg(feature = "history")]
-mod follow;
 pub mod gate;
 mod options;
+mod replay;
 
 pub use crate::io::import::stream::{RawStream, StreamOptions};
-#[cfg(feature = "history")]
-pub use follow::{follow, FollowEvent, FollowOptions};
 pub use options::{OnlineOptions, RandomWalk};
+pub use replay::Replay;
 
 type Vec5 = SVector<f64, 5>;
 type Mat5 = SMatrix<f64, 5, 5>;
@@ -844,7 +843,6 @@ impl Calibrator {
     ///
     /// # Errors
     /// The stream's read errors; [`Calibrator::push`]'s.
-    #[cfg_attr(not(feature = "history"), allow(dead_code))]
     pub(crate) fn push_stream(
         &mut self,
         stream: &DriveStream,

@@ -8,8 +8,7 @@ use std::io::Write;
 use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use odocal::history::History;
-use odocal::online::{follow, FollowEvent, FollowOptions};
+use odocal::online::{Calibrator, OnlineOptions, Replay};
 use odocal::Theta;
 
 /// The system allocator, counting the bytes held and their peak.
@@ -78,25 +77,20 @@ pub fn peak_of(f: impl FnOnce()) -> usize {
 }
 
 /// Replays the drive file at `path` (a drive CSV or a manifest) through
-/// the online calibrator in chunks of 400 samples, as `odocal follow` does,
-/// with a history beside it; the number of samples pushed. A manifest
-/// must be imported as a stream (not whole).
+/// the online calibrator ([`Replay`], what `odocal follow` pushes); the
+/// number of samples pushed. A manifest must be imported as a stream (not
+/// whole).
 pub fn follow_file(path: &Path) -> usize {
-    let mut db = History::open(path.with_extension("sqlite")).expect("history");
-    let opts = FollowOptions { theta0: Some(Theta::PAPER_NOMINAL), ..FollowOptions::default() };
-    let mut pushed = 0;
-    follow(&mut db, "v", &[path.to_path_buf()], &opts, |e| {
-        match e {
-            FollowEvent::Log(line) => assert!(!line.contains("imported whole"), "{line}"),
-            FollowEvent::Followed { fingerprint, summary, .. } => {
-                assert_eq!(fingerprint.len(), 64);
-                assert!(summary.folded_segments > 0);
-                pushed = summary.samples;
-            }
-            _ => {}
-        }
+    let drive = Replay::open(path, |line| {
+        assert!(!line.contains("imported whole"), "{line}");
         Ok::<(), odocal::Error>(())
     })
-    .expect("follow");
-    pushed
+    .expect("open");
+    assert_eq!(drive.fingerprint().expect("fingerprint").len(), 64);
+    let mut cal = Calibrator::new(Theta::PAPER_NOMINAL, None, drive.sample_time_s(), OnlineOptions::default())
+        .expect("calibrator");
+    drive.push_to(&mut cal, |_| {}).expect("push");
+    let summary = cal.status().drive;
+    assert!(summary.folded_segments > 0);
+    summary.samples
 }

@@ -352,7 +352,6 @@ impl RawStream {
 
     /// What was read, estimated, split and dropped, after
     /// [`RawStream::finish`] (the whole import's report).
-    #[cfg_attr(not(feature = "history"), allow(dead_code))] // read by `online::follow`
     pub(crate) fn report(&self) -> Option<&ImportReport> {
         self.report.as_ref()
     }

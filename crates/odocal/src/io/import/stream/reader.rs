@@ -2,9 +2,6 @@
 //! stream furthest behind first, so that every stream is read about as far
 //! as the others and the rows held stay few.
 
-// Read by `online::follow` (feature `history`) and the tests.
-#![cfg_attr(not(feature = "history"), allow(dead_code))]
-
 use std::io::BufRead;
 use std::path::PathBuf;
 

@@ -2,23 +2,16 @@
 //! with gated write-back to the vehicle's history (what `odocal follow`
 //! runs): [`follow`].
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-use super::gate::{Action, GateDecision, Gates};
-use super::{Calibrator, DriveSummary, OnlineOptions};
-use crate::drive::{Drive, DriveStream};
-use crate::error::{Error, Result};
-use crate::history::{CalibrationRecord, DecisionRow, History};
-use crate::io::import::stream::{self, reader::ManifestStream, StreamOptions};
-use crate::io::import::{is_manifest_path, load_drive, manifest::Manifest};
-use crate::model::Theta;
-use crate::progress::Progress;
+use odocal::online::gate::{Action, GateDecision, Gates};
+use odocal::online::{Calibrator, DriveSummary, OnlineOptions, Replay};
+use odocal::{Error, Progress, Theta};
+
+use crate::{CalibrationRecord, DecisionRow, History};
 
 /// The history's `method` of the rows [`follow`] writes.
 const METHOD: &str = "online";
-
-/// Samples per chunk pushed (10 s at 40 Hz).
-const CHUNK: usize = 400;
 
 /// Settings of [`follow`].
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -98,8 +91,7 @@ struct Stored {
 ///
 /// ```
 /// # fn main() -> Result<(), odocal::Error> {
-/// use odocal::history::History;
-/// use odocal::online::{follow, FollowEvent, FollowOptions};
+/// use odocal_history::{follow, FollowEvent, FollowOptions, History};
 /// use odocal::sim;
 /// let dir = tempfile::tempdir().map_err(|e| odocal::Error::Numerical(e.to_string()))?;
 /// let csv = dir.path().join("a.csv");
@@ -140,7 +132,7 @@ pub fn follow<E: From<Error>>(
     };
     let mut cal: Option<Calibrator> = None;
     for path in drives {
-        let drive = Replay::open(path, &mut on)?;
+        let drive = Replay::open(path, |line| on(FollowEvent::Log(line)))?;
         let source = path.display().to_string();
         let fingerprint = drive.fingerprint()?;
         if db.decisions(vehicle)?.iter().any(|d| d.fingerprint == fingerprint) {
@@ -153,7 +145,7 @@ pub fn follow<E: From<Error>>(
                 cal.insert(Calibrator::new(stored.theta, stored.sigma, drive.sample_time_s(), opts.online.clone())?)
             }
         };
-        if (drive.sample_time_s() - c.sample_time_s).abs() > 1e-9 {
+        if (drive.sample_time_s() - c.status().sample_time_s).abs() > 1e-9 {
             let reason = "sample time differs from the first drive's".into();
             return Err(Error::InvalidDrive { context: source, reason }.into());
         }
@@ -161,7 +153,7 @@ pub fn follow<E: From<Error>>(
         on(FollowEvent::Progress(Progress::Stage { name: "following", total: drive.len() as u64 }))?;
         let mut done = 0;
         let mut progress = Ok(());
-        drive.push(c, |n| {
+        drive.push_to(c, |n| {
             if progress.is_ok() {
                 progress = on(FollowEvent::Progress(Progress::Advance((n - done) as u64)));
             }
@@ -206,130 +198,4 @@ pub fn follow<E: From<Error>>(
         })?;
     }
     Ok(())
-}
-
-/// A drive to replay: a canonical CSV or a manifest's CSV streams read as a
-/// stream (memory flat in its length; a manifest's samples are kept on
-/// disk), or a manifest the streamed import does not take imported whole.
-enum Replay {
-    Stream(DriveStream),
-    Whole(Box<Drive>),
-}
-
-impl Replay {
-    /// Opens the drive at `path`; `on` hears what its reader warns about.
-    fn open<E: From<Error>>(
-        path: &Path,
-        on: &mut impl FnMut(FollowEvent) -> std::result::Result<(), E>,
-    ) -> std::result::Result<Replay, E> {
-        let mut log = |line: String| on(FollowEvent::Log(line));
-        if is_manifest_path(path) {
-            let m = Manifest::from_path(path)?;
-            if let Some(why) = stream::not_streamable(&m) {
-                log(format!("note: {}: imported whole ({why})", path.display()))?;
-                return Ok(Replay::Whole(Box::new(whole(path, &mut log)?)));
-            }
-            let mut lines = Vec::new();
-            return match streamed_manifest(path, &m, &mut lines) {
-                Ok(s) => {
-                    lines.into_iter().try_for_each(&mut log)?;
-                    Ok(Replay::Stream(s))
-                }
-                // The whole import's error (or result) is the reference:
-                // the stream judges some whole-drive checks on its warm-up.
-                Err(e) => {
-                    log(format!("note: {}: imported whole (the streamed import stopped: {e})", path.display()))?;
-                    Ok(Replay::Whole(Box::new(whole(path, &mut log)?)))
-                }
-            };
-        }
-        let stream = DriveStream::open(path)?;
-        for w in &stream.warnings {
-            log(format!("warning: {w}"))?;
-        }
-        Ok(Replay::Stream(stream))
-    }
-
-    fn fingerprint(&self) -> Result<String> {
-        Ok(match self {
-            Replay::Stream(s) => s.fingerprint()?,
-            Replay::Whole(d) => d.fingerprint(),
-        })
-    }
-
-    fn sample_time_s(&self) -> f64 {
-        match self {
-            Replay::Stream(s) => s.sample_time_s,
-            Replay::Whole(d) => d.sample_time_s(),
-        }
-    }
-
-    fn len(&self) -> usize {
-        match self {
-            Replay::Stream(s) => s.len(),
-            Replay::Whole(d) => d.len(),
-        }
-    }
-
-    /// The first and the last time stamp, s.
-    fn time_span_s(&self) -> (f64, f64) {
-        match self {
-            Replay::Stream(s) => s.time_span_s,
-            Replay::Whole(d) => (d.t().first().copied().unwrap_or(0.0), d.t().last().copied().unwrap_or(0.0)),
-        }
-    }
-
-    /// Pushes the drive as a new drive in chunks of [`CHUNK`] samples.
-    fn push(&self, c: &mut Calibrator, each: impl FnMut(usize)) -> Result<()> {
-        match self {
-            Replay::Stream(s) => c.push_stream(s, CHUNK, each),
-            Replay::Whole(d) => c.push_drive(d, CHUNK, each),
-        }
-    }
-}
-
-/// The manifest at `path` imported whole, its import's account logged.
-fn whole<E>(path: &Path, log: &mut impl FnMut(String) -> std::result::Result<(), E>) -> std::result::Result<Drive, E>
-where
-    E: From<Error>,
-{
-    let (drive, report) = load_drive(path)?;
-    log(format!(
-        "imported {}: {} samples in {} part(s), {:.2} km (run `odocal import` for the full import report)",
-        path.display(),
-        drive.len(),
-        drive.parts().len(),
-        drive.distance_m() / 1e3
-    ))?;
-    for w in report.iter().flat_map(|r| &r.warnings) {
-        log(format!("warning: {}: {w}", path.display()))?;
-    }
-    Ok(drive)
-}
-
-/// A manifest imported as a stream ([`ManifestStream`]) into a
-/// [`DriveStream`] (its samples on disk); the import's account and
-/// warnings go to `lines`.
-fn streamed_manifest(path: &Path, m: &Manifest, lines: &mut Vec<String>) -> Result<DriveStream> {
-    let opts = StreamOptions::default();
-    let warm_up_s = opts.warm_up_s;
-    let mut s = ManifestStream::open(m, opts)?;
-    let stream = DriveStream::spool(path, m.sample_time_s(), || {
-        Ok(s.next_chunk(CHUNK)?.map(|c| (c.t, c.signals, c.starts_part)))
-    })?;
-    if let Some(r) = s.raw().report() {
-        lines.push(format!(
-            "imported {} as a stream: {} samples in {} part(s), {:.2} km, clock offset {:+.4} s from the first {} s",
-            path.display(),
-            r.samples,
-            r.parts.iter().filter(|p| p.kept).count(),
-            r.distance_m / 1e3,
-            r.clock_offset.applied_s,
-            warm_up_s
-        ));
-        for w in &r.warnings {
-            lines.push(format!("warning: {}: {w}", path.display()));
-        }
-    }
-    Ok(stream)
 }

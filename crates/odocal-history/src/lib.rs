@@ -1,5 +1,4 @@
-//! A per-vehicle history of calibrations in an SQLite file (feature
-//! `history`, on by default).
+//! # odocal-history — a per-vehicle history of calibrations in an SQLite file
 //!
 //! For programs that keep a vehicle's calibration current: `odocal
 //! calibrate --vehicle ID --db FILE` and `odocal follow` record here, and
@@ -7,7 +6,7 @@
 //! pooled estimate and decisions of one vehicle, [`VehicleHistory`]). One row of the table `calibrations` per
 //! recorded drive and method: θ with σ, the verdict, the time span, the
 //! source files, the odocal version and the drive's
-//! [fingerprint](crate::Drive::fingerprint). A drive already recorded for a
+//! [fingerprint](odocal::Drive::fingerprint). A drive already recorded for a
 //! vehicle with the same method is recognised and not counted twice
 //! ([`Recorded::AlreadyRecorded`]). The table `decisions` logs the gated
 //! write-back of `odocal follow`, one row per decision.
@@ -19,7 +18,7 @@
 //!
 //! ```
 //! # fn main() -> Result<(), odocal::Error> {
-//! use odocal::history::{CalibrationRecord, History, Recorded};
+//! use odocal_history::{CalibrationRecord, History, Recorded};
 //! use odocal::Theta;
 //! let dir = tempfile::tempdir().map_err(|e| odocal::Error::Numerical(e.to_string()))?;
 //! let mut db = History::open(dir.path().join("van.sqlite"))?;
@@ -36,13 +35,14 @@ use std::time::Duration;
 use rusqlite::{params, Connection, Row};
 use serde::{Deserialize, Serialize};
 
-use crate::calibrate::CalibrationReport;
-use crate::error::{Error, Result};
-use crate::model::{Theta, THETA_NAMES};
+use odocal::model::THETA_NAMES;
+use odocal::{CalibrationReport, Error, Result, Theta};
 
+mod follow;
 mod pooled;
 mod schema;
 
+pub use follow::{follow, FollowEvent, FollowOptions};
 pub use pooled::{DriftFlag, Pooled, DRIFT_SIGMAS};
 
 /// How long a writer waits for another process's transaction to finish.
@@ -53,7 +53,7 @@ const BUSY_TIMEOUT: Duration = Duration::from_secs(30);
 pub struct CalibrationRecord {
     /// The vehicle's identifier (any text the user chooses).
     pub vehicle: String,
-    /// The drive's [fingerprint](crate::Drive::fingerprint).
+    /// The drive's [fingerprint](odocal::Drive::fingerprint).
     pub fingerprint: String,
     /// The files the drive was read from.
     pub sources: Vec<String>,
@@ -145,7 +145,7 @@ pub enum Recorded {
 }
 
 /// A row of the table `decisions`: a write-back decision of the online
-/// calibration ([`crate::online::follow`]).
+/// calibration ([`follow`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DecisionRow {
     /// The row id (increasing in logging order).

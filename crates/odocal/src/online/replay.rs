@@ -1,0 +1,201 @@
+//! A drive file replayed through the online calibrator as if live
+//! ([`Replay`]): what `odocal follow` pushes, one drive at a time.
+
+use std::path::{Path, PathBuf};
+
+use super::Calibrator;
+use crate::drive::{Drive, DriveStream};
+use crate::error::{Error, Result};
+use crate::io::import::stream::{self, reader::ManifestStream, StreamOptions};
+use crate::io::import::{is_manifest_path, load_drive, manifest::Manifest};
+
+/// Samples per chunk pushed (10 s at 40 Hz).
+const CHUNK: usize = 400;
+
+/// A drive file (a canonical drive CSV or a manifest) opened to be pushed
+/// through a [`Calibrator`] as a new drive, as if it streamed in live.
+///
+/// It is read as a stream when it can be (memory flat in the drive's
+/// length): a drive CSV, or a manifest of CSV streams (its samples kept in
+/// temporary files); another manifest is imported whole. Either way the
+/// calibrator sees the same chunks of [`Replay::push_to`], so the same
+/// results.
+///
+/// ```
+/// # fn main() -> Result<(), odocal::Error> {
+/// use odocal::online::{Calibrator, OnlineOptions, Replay};
+/// use odocal::{sim, Theta};
+/// let dir = tempfile::tempdir().map_err(|e| odocal::Error::Numerical(e.to_string()))?;
+/// let csv = dir.path().join("a.csv");
+/// sim::simulate(&sim::SimOptions { length_km: 2.0, ..sim::SimOptions::noise_free(1) })?.drive.write_csv(&csv)?;
+/// let drive = Replay::open(&csv, |line| { eprintln!("{line}"); Ok::<(), odocal::Error>(()) })?;
+/// let mut cal = Calibrator::new(Theta::PAPER_INITIAL, None, drive.sample_time_s(), OnlineOptions::default())?;
+/// drive.push_to(&mut cal, |_| {})?;
+/// assert_eq!(cal.status().drive.samples, drive.len());
+/// # Ok(()) }
+/// ```
+pub struct Replay {
+    /// The file, as given (the context of errors).
+    path: PathBuf,
+    source: Source,
+}
+
+/// How a [`Replay`] holds its drive.
+enum Source {
+    Stream(DriveStream),
+    Whole(Box<Drive>),
+}
+
+impl Replay {
+    /// Opens the drive at `path`; `log` hears one line about each thing
+    /// its reader reports (its warnings; a manifest imported as a stream or
+    /// whole, and why), and an error `log` returns stops the opening.
+    ///
+    /// # Errors
+    /// The drive's read errors; `log`'s.
+    pub fn open<E: From<Error>>(
+        path: &Path,
+        mut log: impl FnMut(String) -> std::result::Result<(), E>,
+    ) -> std::result::Result<Replay, E> {
+        let source = Source::open(path, &mut log)?;
+        Ok(Replay { path: path.to_path_buf(), source })
+    }
+
+    /// The drive's [fingerprint](Drive::fingerprint).
+    ///
+    /// # Errors
+    /// A streamed drive's read errors.
+    pub fn fingerprint(&self) -> Result<String> {
+        Ok(match &self.source {
+            Source::Stream(s) => s.fingerprint()?,
+            Source::Whole(d) => d.fingerprint(),
+        })
+    }
+
+    /// The drive's sample time, s.
+    pub fn sample_time_s(&self) -> f64 {
+        match &self.source {
+            Source::Stream(s) => s.sample_time_s,
+            Source::Whole(d) => d.sample_time_s(),
+        }
+    }
+
+    /// The number of samples.
+    pub fn len(&self) -> usize {
+        match &self.source {
+            Source::Stream(s) => s.len(),
+            Source::Whole(d) => d.len(),
+        }
+    }
+
+    /// True for a drive without samples.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The first and the last time stamp, s.
+    pub fn time_span_s(&self) -> (f64, f64) {
+        match &self.source {
+            Source::Stream(s) => s.time_span_s,
+            Source::Whole(d) => (d.t().first().copied().unwrap_or(0.0), d.t().last().copied().unwrap_or(0.0)),
+        }
+    }
+
+    /// Pushes the drive through `cal` as a new drive, in chunks of 400
+    /// samples; `each` is called after every chunk with the samples pushed
+    /// so far.
+    ///
+    /// # Errors
+    /// [`Error::InvalidDrive`] when the drive's sample time is not the
+    /// calibrator's; a streamed drive's read errors; [`Calibrator::push`]'s.
+    pub fn push_to(&self, cal: &mut Calibrator, each: impl FnMut(usize)) -> Result<()> {
+        if (self.sample_time_s() - cal.sample_time_s).abs() > 1e-9 {
+            let reason = "sample time differs from the first drive's".into();
+            return Err(Error::InvalidDrive { context: self.path.display().to_string(), reason });
+        }
+        match &self.source {
+            Source::Stream(s) => cal.push_stream(s, CHUNK, each),
+            Source::Whole(d) => cal.push_drive(d, CHUNK, each),
+        }
+    }
+}
+
+impl Source {
+    /// Opens the drive at `path`; `log` hears what its reader warns about.
+    fn open<E: From<Error>>(
+        path: &Path,
+        log: &mut impl FnMut(String) -> std::result::Result<(), E>,
+    ) -> std::result::Result<Source, E> {
+        if is_manifest_path(path) {
+            let m = Manifest::from_path(path)?;
+            if let Some(why) = stream::not_streamable(&m) {
+                log(format!("note: {}: imported whole ({why})", path.display()))?;
+                return Ok(Source::Whole(Box::new(whole(path, log)?)));
+            }
+            let mut lines = Vec::new();
+            return match streamed_manifest(path, &m, &mut lines) {
+                Ok(s) => {
+                    lines.into_iter().try_for_each(&mut *log)?;
+                    Ok(Source::Stream(s))
+                }
+                // The whole import's error (or result) is the reference:
+                // the stream judges some whole-drive checks on its warm-up.
+                Err(e) => {
+                    log(format!("note: {}: imported whole (the streamed import stopped: {e})", path.display()))?;
+                    Ok(Source::Whole(Box::new(whole(path, log)?)))
+                }
+            };
+        }
+        let stream = DriveStream::open(path)?;
+        for w in &stream.warnings {
+            log(format!("warning: {w}"))?;
+        }
+        Ok(Source::Stream(stream))
+    }
+}
+
+/// The manifest at `path` imported whole, its import's account logged.
+fn whole<E>(path: &Path, log: &mut impl FnMut(String) -> std::result::Result<(), E>) -> std::result::Result<Drive, E>
+where
+    E: From<Error>,
+{
+    let (drive, report) = load_drive(path)?;
+    log(format!(
+        "imported {}: {} samples in {} part(s), {:.2} km (run `odocal import` for the full import report)",
+        path.display(),
+        drive.len(),
+        drive.parts().len(),
+        drive.distance_m() / 1e3
+    ))?;
+    for w in report.iter().flat_map(|r| &r.warnings) {
+        log(format!("warning: {}: {w}", path.display()))?;
+    }
+    Ok(drive)
+}
+
+/// A manifest imported as a stream ([`ManifestStream`]) into a
+/// [`DriveStream`] (its samples on disk); the import's account and
+/// warnings go to `lines`.
+fn streamed_manifest(path: &Path, m: &Manifest, lines: &mut Vec<String>) -> Result<DriveStream> {
+    let opts = StreamOptions::default();
+    let warm_up_s = opts.warm_up_s;
+    let mut s = ManifestStream::open(m, opts)?;
+    let stream = DriveStream::spool(path, m.sample_time_s(), || {
+        Ok(s.next_chunk(CHUNK)?.map(|c| (c.t, c.signals, c.starts_part)))
+    })?;
+    if let Some(r) = s.raw().report() {
+        lines.push(format!(
+            "imported {} as a stream: {} samples in {} part(s), {:.2} km, clock offset {:+.4} s from the first {} s",
+            path.display(),
+            r.samples,
+            r.parts.iter().filter(|p| p.kept).count(),
+            r.distance_m / 1e3,
+            r.clock_offset.applied_s,
+            warm_up_s
+        ));
+        for w in &r.warnings {
+            lines.push(format!("warning: {}: {w}", path.display()));
+        }
+    }
+    Ok(stream)
+}
