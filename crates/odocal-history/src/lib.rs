@@ -9,7 +9,11 @@
 //! [fingerprint](odocal::Drive::fingerprint). A drive already recorded for a
 //! vehicle with the same method is recognised and not counted twice
 //! ([`Recorded::AlreadyRecorded`]). The table `decisions` logs the gated
-//! write-back of `odocal follow`, one row per decision.
+//! write-back of `odocal follow` ([`follow`]: drive files replayed through
+//! the library's online calibrator, `odocal::online`), one row per decision.
+//!
+//! A crate of its own on top of the `odocal` library: it compiles SQLite in
+//! (rusqlite, feature `bundled`), which calibrating does not need.
 //!
 //! The file is in WAL mode with a busy timeout, so several processes may
 //! read and write it at once; each write is one transaction. The schema

@@ -107,12 +107,7 @@ pub(crate) fn pooled_estimate(rows: &[HistoryRow]) -> Option<Pooled> {
             }
         }
     }
-    Some(Pooled {
-        rows: rows.len(),
-        mean: theta_of(mean),
-        sigma_of_mean: theta_of(se),
-        between_drive_sd: theta_of(sd),
-    })
+    Some(Pooled { rows: rows.len(), mean: theta_of(mean), sigma_of_mean: theta_of(se), between_drive_sd: theta_of(sd) })
 }
 
 /// θ from `[c_e, c_d, t_r, d]`.
