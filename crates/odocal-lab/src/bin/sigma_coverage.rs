@@ -23,7 +23,7 @@ use odocal::pooling::{PooledDrives, BETWEEN_DRIVE_PRIOR};
 use odocal::{calibrate, Calibration, CalibrationOptions, CalibrationReport, Holdout, Theta};
 use odocal_lab::{load, median, testtrack_runs, Args, Res, Table, PARAMETERS, VAN_MANIFEST};
 
-const USAGE: &str = "sigma_coverage [--no-van]";
+const USAGE: &str = "sigma_coverage [--no-van] [--json-out DIR]";
 
 /// Per parameter: the unit's scale for printing and its name.
 const SHOW: [(f64, &str); 4] = [(1.0, "m"), (1e3, "mm"), (1.0, "m"), (1e3, "mm/(m/s²)")];
@@ -67,8 +67,9 @@ fn sd(x: &[f64]) -> f64 {
 }
 
 fn run() -> Res<()> {
-    let a = Args::parse(USAGE, &["no-van"])?;
+    let mut a = Args::parse(USAGE, &["no-van"])?;
     let van = !a.flag("no-van");
+    let json_out: Option<String> = a.opt("json-out")?;
     a.finish()?;
     let opts = CalibrationOptions::default();
     let runs = testtrack_runs()?;
@@ -76,6 +77,9 @@ fn run() -> Res<()> {
     for (name, d) in &runs {
         let r = calibrate(d, &opts)?;
         eprintln!("{name}: {} ({})", r.verdict.level, r.method);
+        if let Some(dir) = &json_out {
+            write_json(dir, name, &r)?;
+        }
         fits.push(fit(name, &r));
     }
     print_runs(&fits);
@@ -119,7 +123,7 @@ fn run() -> Res<()> {
     );
     print_pooling(&fits);
     if van {
-        van_halves(&opts)?;
+        van_halves(&opts, json_out.as_deref())?;
     }
     Ok(())
 }
@@ -136,6 +140,14 @@ fn print_runs(fits: &[Fit]) {
         t.row(row);
     }
     println!("{t}");
+}
+
+/// Writes the report `r` of run `name` as `DIR/NAME.json` (for offline
+/// study of the σ's parts, JSON `next_drive_sigma`).
+fn write_json(dir: &str, name: &str, r: &CalibrationReport) -> Res<()> {
+    std::fs::create_dir_all(dir)?;
+    std::fs::write(std::path::Path::new(dir).join(format!("{name}.json")), serde_json::to_string_pretty(r)?)?;
+    Ok(())
 }
 
 /// The design runs' spread against the prior the library states.
@@ -188,11 +200,18 @@ fn print_pooling(fits: &[Fit]) {
 }
 
 /// The van's halves: each half's interval against the other half's θ.
-fn van_halves(opts: &CalibrationOptions) -> Res<()> {
+fn van_halves(opts: &CalibrationOptions, json_out: Option<&str>) -> Res<()> {
     let d = load(VAN_MANIFEST)?;
+    let half = |name: &str, holdout: Holdout| -> Res<Fit> {
+        let r = Calibration { holdout: Some(&holdout), ..Calibration::new(&d, opts) }.run()?;
+        if let Some(dir) = json_out {
+            write_json(dir, &format!("van-{}", name.replace(' ', "-")), &r)?;
+        }
+        Ok(fit(name, &r))
+    };
     // Holdout::FirstHalf holds the first half out: the fit is on the second.
-    let second = fit("second half", &Calibration { holdout: Some(&Holdout::FirstHalf), ..Calibration::new(&d, opts) }.run()?);
-    let first = fit("first half", &Calibration { holdout: Some(&Holdout::SecondHalf), ..Calibration::new(&d, opts) }.run()?);
+    let second = half("second half", Holdout::FirstHalf)?;
+    let first = half("first half", Holdout::SecondHalf)?;
     println!("### Highway van (07-11) in halves: each half's 95 % interval against the other half's estimate\n");
     let mut t = Table::new(&["fitted on", "result", "verdict", "c_e", "c_d", "t_r", "d"]);
     for (a, b) in [(&first, &second), (&second, &first)] {
