@@ -377,10 +377,10 @@ impl NextDriveSigma {
     }
 
     /// `sigma` without the fallback gap, EIV's t_r above its start and the
-    /// common-mode term, `√(within² + between²)` (`= max(floor, √(within²
-    /// + τ²))`): the σ the result would
-    /// have if its estimator had no errors-in-variables bias and the noise
-    /// were as its model says. The gap checks measure against it.
+    /// common-mode term, `√(within² + between²)`, that is
+    /// `max(floor, √(within² + τ²))`: the σ the result would have if its
+    /// estimator had no errors-in-variables bias and the noise were as its
+    /// model says. The gap checks measure against it.
     pub(crate) fn without_gap(&self) -> [Option<f64>; 4] {
         std::array::from_fn(|i| self.within_drive[i].map(|w| (w * w + self.between_drive[i].powi(2)).sqrt()))
     }
@@ -653,8 +653,8 @@ mod tests {
         let within = [Some(3e-4), Some(1.4e-4), None, Some(1e-4)];
         let s = NextDriveSigma::one_drive(&theta, within, [4e-4, 0.0, 0.0, 0.0]);
         let (floor, tau) = (BETWEEN_DRIVE_PRIOR.spread(&theta), BETWEEN_DRIVE_PRIOR.between(&theta));
-        assert_eq!(s.between_drive_floor, floor);
-        assert_eq!(s.between_drive_tau, tau);
+        assert_eq!(s.between_drive_floor.map(f64::to_bits), floor.map(f64::to_bits));
+        assert_eq!(s.between_drive_tau.map(f64::to_bits), tau.map(f64::to_bits));
         // c_e: within 3e-4 below the floor 7.6e-4 (τ̂ 0): within ⊕ between
         // is the floor, and the gap adds to it.
         assert!(close(floor[0], 7.6e-4, 1e-12));
@@ -686,6 +686,6 @@ mod tests {
         assert!(m.between_drive[0] > 0.005, "{:?}", m.between_drive);
         assert!(close(m.between_drive[0], m.between_drive_tau[0], 1e-15), "τ of the pooling enters whole");
         assert_eq!(m.between_drive[1].to_bits(), s.between_drive[1].to_bits(), "the prior's τ̂ is a floor");
-        assert_eq!(m.between_drive_floor, floor);
+        assert_eq!(m.between_drive_floor.map(f64::to_bits), floor.map(f64::to_bits));
     }
 }

@@ -242,7 +242,7 @@ fn assert_next_drive_sigma_covers_the_other_runs(t: &CrossRunTable) {
     });
     for (half, runs) in [("design", 0..3), ("confirm", 3..6)] {
         let mut covered = 0;
-        for p in 0..4 {
+        for (p, sd) in sd.iter().enumerate() {
             let mut widths = Vec::new();
             for i in runs.clone() {
                 let pooled = (0..6).filter(|&j| j != i).map(|j| fits[j].theta[p]).sum::<f64>() / 5.0;
@@ -251,7 +251,7 @@ fn assert_next_drive_sigma_covers_the_other_runs(t: &CrossRunTable) {
                 widths.push(1.96 * s);
             }
             widths.sort_by(f64::total_cmp);
-            let ratio = widths[1] / sd[p];
+            let ratio = widths[1] / sd;
             assert!(ratio <= 2.5, "{half} runs, parameter {p}: median half-width {ratio:.2} × the between-run sd");
         }
         assert!(covered >= 10, "{half} runs: {covered} of 12 run × parameter cases covered");
