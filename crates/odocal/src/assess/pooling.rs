@@ -68,12 +68,12 @@
 //!   ([`crate::TrustOptions::max_fallback_gap_sigmas`]).
 //! - `τ`: the between-drive σ, the spread of the drives' true θ. With one
 //!   drive the documented prior `BETWEEN_DRIVE_PRIOR`
-//!   ([`BetweenDrivePrior::between`]); with several drives
+//!   (`BetweenDrivePrior::between`); with several drives
 //!   ([`crate::Calibration::drives`]), the DerSimonian–Laird
 //!   random-effects estimate on the drives' separate fits
 //!   (`dersimonian_laird`), never below the prior's.
 //! - `s`: the floor, the prior's spread of estimates over the runs it was
-//!   measured on ([`BetweenDrivePrior::spread`]). A spread of estimates
+//!   measured on (`BetweenDrivePrior::spread`). A spread of estimates
 //!   holds the runs' within-drive noise (`s² ≈ τ² + σ_w²`), so adding it
 //!   to a drive's σ_within in quadrature would count that noise twice.
 //!   The prior's τ is the method-of-moments `√max(0, s² − σ̄_w²)`, σ̄_w
@@ -285,12 +285,12 @@ pub struct NextDriveSigma {
     /// `√(within² + between²) = max(floor, √(within² + τ²))`.
     pub between_drive: [f64; 4],
     /// The between-drive σ τ: with one drive the prior's
-    /// ([`BetweenDrivePrior::between`]), with several the larger of that
+    /// (`BetweenDrivePrior::between`), with several the larger of that
     /// and their random-effects τ.
     #[serde(default)]
     pub between_drive_tau: [f64; 4],
     /// The floor of the within-drive ⊕ between-drive σ: the prior's spread
-    /// of estimates ([`BetweenDrivePrior::spread`]), which holds the
+    /// of estimates (`BetweenDrivePrior::spread`), which holds the
     /// within-drive noise of the runs it was measured on.
     #[serde(default)]
     pub between_drive_floor: [f64; 4],
