@@ -9,8 +9,9 @@
 //! while the median half-width stays ≤ 2.5 × the observed between-run sd
 //! (sample sd of the six estimates). The between-drive prior
 //! (`odocal::pooling::BETWEEN_DRIVE_PRIOR`) was designed on the three
-//! earliest runs (14-45-26, 15-28-33, 16-06-28: their sd, printed here as
-//! "design spread") and is confirmed on the other three (16-47-33,
+//! earliest runs (14-45-26, 15-28-33, 16-06-28: the sd of their estimates
+//! and their within-drive σ, printed here as "design spread") and is
+//! confirmed on the other three (16-47-33,
 //! 17-45-46, 18-01-26): the table reports both halves separately, and the
 //! same with the within-drive σ (`sigma_within_drive`) for comparison.
 //!
@@ -23,7 +24,7 @@ use odocal::pooling::{PooledDrives, BETWEEN_DRIVE_PRIOR};
 use odocal::{calibrate, Calibration, CalibrationOptions, CalibrationReport, Holdout, Theta};
 use odocal_lab::{load, median, testtrack_runs, Args, Res, Table, PARAMETERS, VAN_MANIFEST};
 
-const USAGE: &str = "sigma_coverage [--no-van]";
+const USAGE: &str = "sigma_coverage [--no-van] [--json-out DIR]";
 
 /// Per parameter: the unit's scale for printing and its name.
 const SHOW: [(f64, &str); 4] = [(1.0, "m"), (1e3, "mm"), (1.0, "m"), (1e3, "mm/(m/s²)")];
@@ -67,8 +68,9 @@ fn sd(x: &[f64]) -> f64 {
 }
 
 fn run() -> Res<()> {
-    let a = Args::parse(USAGE, &["no-van"])?;
+    let mut a = Args::parse(USAGE, &["no-van"])?;
     let van = !a.flag("no-van");
+    let json_out: Option<String> = a.opt("json-out")?;
     a.finish()?;
     let opts = CalibrationOptions::default();
     let runs = testtrack_runs()?;
@@ -76,6 +78,9 @@ fn run() -> Res<()> {
     for (name, d) in &runs {
         let r = calibrate(d, &opts)?;
         eprintln!("{name}: {} ({})", r.verdict.level, r.method);
+        if let Some(dir) = &json_out {
+            write_json(dir, name, &r)?;
+        }
         fits.push(fit(name, &r));
     }
     print_runs(&fits);
@@ -119,7 +124,7 @@ fn run() -> Res<()> {
     );
     print_pooling(&fits);
     if van {
-        van_halves(&opts)?;
+        van_halves(&opts, json_out.as_deref())?;
     }
     Ok(())
 }
@@ -138,28 +143,54 @@ fn print_runs(fits: &[Fit]) {
     println!("{t}");
 }
 
-/// The design runs' spread against the prior the library states.
+/// Writes the report `r` of run `name` as `DIR/NAME.json` (for offline
+/// study of the σ's parts, JSON `next_drive_sigma`).
+fn write_json(dir: &str, name: &str, r: &CalibrationReport) -> Res<()> {
+    std::fs::create_dir_all(dir)?;
+    std::fs::write(std::path::Path::new(dir).join(format!("{name}.json")), serde_json::to_string_pretty(r)?)?;
+    Ok(())
+}
+
+/// The design runs' spread, their within-drive σ and the between-drive σ
+/// net of it, against the prior the library states.
 fn print_design(design: &[Fit]) {
     let sds: [f64; 4] = std::array::from_fn(|i| sd(&design.iter().map(|f| f.theta[i]).collect::<Vec<_>>()));
     let ce = design.iter().map(|f| f.theta[0]).sum::<f64>() / design.len() as f64;
     let tr = design.iter().map(|f| f.theta[2]).sum::<f64>() / design.len() as f64;
     let scale = [ce, ce, tr, tr];
     let rel: [f64; 4] = std::array::from_fn(|i| sds[i] / scale[i]);
+    // RMS of each run's within-drive part, relative to its own θ.
+    let within: [f64; 4] = std::array::from_fn(|i| {
+        let v: Vec<f64> = design
+            .iter()
+            .filter_map(|f| {
+                let own = if i < 2 { f.theta[0] } else { f.theta[2] };
+                f.within_part[i].map(|w| (w / own).powi(2))
+            })
+            .collect();
+        (v.iter().sum::<f64>() / v.len() as f64).sqrt()
+    });
+    let net: [f64; 4] = std::array::from_fn(|i| (rel[i].powi(2) - within[i].powi(2)).max(0.0).sqrt());
     let theta: Vec<Theta> = design.iter().map(|f| Theta::from_array(f.theta)).collect();
     let pooled = PooledDrives::new("eiv".into(), theta, design.iter().map(|f| f.within_part).collect());
     let tau: [f64; 4] = std::array::from_fn(|i| pooled.params[i].map_or(f64::NAN, |p| p.tau / scale[i]));
     let p = BETWEEN_DRIVE_PRIOR;
+    let prior_net: [f64; 4] = std::array::from_fn(|i| {
+        let s = [p.c_e, p.c_d, p.t_r, p.d][i];
+        (s * s - p.within[i] * p.within[i]).max(0.0).sqrt()
+    });
     println!("### Design spread (three earliest runs) and the library's prior\n");
     let mut t = Table::new(&["", "c_e (of c_e)", "c_d (of c_e)", "t_r (of t_r)", "d (of t_r, per m/s²)"]);
-    t.row(std::iter::once("design runs' sd, relative".to_string()).chain(rel.iter().map(|r| format!("{r:.2e}"))));
-    t.row(
-        std::iter::once("design runs' τ (DerSimonian–Laird on their within-drive σ), relative".to_string())
-            .chain(tau.iter().map(|r| format!("{r:.2e}"))),
-    );
-    t.row(
-        std::iter::once("BETWEEN_DRIVE_PRIOR".to_string())
-            .chain([p.c_e, p.c_d, p.t_r, p.d].iter().map(|r| format!("{r:.2e}"))),
-    );
+    let mut row = |label: &str, v: &[f64; 4]| {
+        t.row(std::iter::once(label.to_string()).chain(v.iter().map(|r| format!("{r:.2e}"))));
+    };
+    row("design runs' spread s (sd of the estimates), relative", &rel);
+    row("design runs' within-drive σ σ̄_w (RMS), relative", &within);
+    row("τ̂ = √max(0, s² − σ̄_w²), relative", &net);
+    row("design runs' τ (DerSimonian–Laird on their within-drive σ), relative", &tau);
+    row("BETWEEN_DRIVE_PRIOR: spread (the floor)", &[p.c_e, p.c_d, p.t_r, p.d]);
+    row("BETWEEN_DRIVE_PRIOR: within-drive σ", &p.within);
+    row("BETWEEN_DRIVE_PRIOR: τ̂", &prior_net);
     println!("{t}");
 }
 
@@ -188,11 +219,18 @@ fn print_pooling(fits: &[Fit]) {
 }
 
 /// The van's halves: each half's interval against the other half's θ.
-fn van_halves(opts: &CalibrationOptions) -> Res<()> {
+fn van_halves(opts: &CalibrationOptions, json_out: Option<&str>) -> Res<()> {
     let d = load(VAN_MANIFEST)?;
+    let half = |name: &str, holdout: Holdout| -> Res<Fit> {
+        let r = Calibration { holdout: Some(&holdout), ..Calibration::new(&d, opts) }.run()?;
+        if let Some(dir) = json_out {
+            write_json(dir, &format!("van-{}", name.replace(' ', "-")), &r)?;
+        }
+        Ok(fit(name, &r))
+    };
     // Holdout::FirstHalf holds the first half out: the fit is on the second.
-    let second = fit("second half", &Calibration { holdout: Some(&Holdout::FirstHalf), ..Calibration::new(&d, opts) }.run()?);
-    let first = fit("first half", &Calibration { holdout: Some(&Holdout::SecondHalf), ..Calibration::new(&d, opts) }.run()?);
+    let second = half("second half", Holdout::FirstHalf)?;
+    let first = half("first half", Holdout::SecondHalf)?;
     println!("### Highway van (07-11) in halves: each half's 95 % interval against the other half's estimate\n");
     let mut t = Table::new(&["fitted on", "result", "verdict", "c_e", "c_d", "t_r", "d"]);
     for (a, b) in [(&first, &second), (&second, &first)] {

@@ -12,8 +12,11 @@
 //! JSON `sigma`) is therefore the σ for the next drive, per parameter
 //!
 //! ```text
-//! σ_next = √(σ_within² + h² + gap²/3 + a² + τ²)
+//! σ_next = √(σ_within² + h² + gap²/3 + a² + b²),   b² = max(τ², s² − σ_within²)
 //! ```
+//!
+//! so that `√(σ_within² + b²) = max(s, √(σ_within² + τ²))`: the
+//! within-drive noise counts once.
 //!
 //! - `σ_within`: the method's within-drive σ (the report's
 //!   `sigma_within_drive`); for a parameter the
@@ -63,13 +66,23 @@
 //!   start, by 0.4–3.6 %; docs/validation.md). 0 otherwise. An excess above
 //!   3 σ of the rest makes the verdict doubtful
 //!   ([`crate::TrustOptions::max_fallback_gap_sigmas`]).
-//! - `τ`: the between-drive σ. With one drive, the documented prior
-//!   `BETWEEN_DRIVE_PRIOR` (relative floors measured on the test-track
-//!   runs); with several drives
+//! - `τ`: the between-drive σ, the spread of the drives' true θ. With one
+//!   drive the documented prior `BETWEEN_DRIVE_PRIOR`
+//!   (`BetweenDrivePrior::between`); with several drives
 //!   ([`crate::Calibration::drives`]), the DerSimonian–Laird
 //!   random-effects estimate on the drives' separate fits
-//!   (`dersimonian_laird`), never below the prior (with a handful of
-//!   drives τ̂ is often 0 by chance).
+//!   (`dersimonian_laird`), never below the prior's.
+//! - `s`: the floor, the prior's spread of estimates over the runs it was
+//!   measured on (`BetweenDrivePrior::spread`). A spread of estimates
+//!   holds the runs' within-drive noise (`s² ≈ τ² + σ_w²`), so adding it
+//!   to a drive's σ_within in quadrature would count that noise twice.
+//!   The prior's τ is the method-of-moments `√max(0, s² − σ̄_w²)`, σ̄_w
+//!   the runs' own within-drive σ. Where those runs' σ_within exceeds their
+//!   spread (c_e and d of the test-track runs' EIV estimates) that τ is 0:
+//!   three runs cannot tell between-drive spread from within-drive noise.
+//!   A drive more precise than they were (a batch Gauss-Newton fit, whose
+//!   σ_within is 15–80× below the spread) would then get a σ below the
+//!   spread the runs showed; the floor keeps it at `s`.
 
 use serde::{Deserialize, Serialize};
 
@@ -120,23 +133,33 @@ pub(crate) fn dersimonian_laird(estimates: &[f64], sigmas: &[f64]) -> Option<Ran
 }
 
 research_pub! {
-    /// The prior between-drive σ of one drive, relative: per parameter a
-    /// fraction of a scale of θ (c_e and c_d of c_e, t_r and d of t_r; d's per
-    /// m/s²). Measured as the spread (sample sd) of the default calibration's
-    /// estimates over the three earliest test-track runs of 2024-08-05
-    /// (14-45-26, 15-28-33, 16-06-28), confirmed on the other three
-    /// (docs/validation.md, "Coverage of the reported σ"; lab
-    /// `sigma_coverage`); docs/method.md, "The σ for the next drive".
+    /// The prior for the between-drive σ of one drive, relative: per
+    /// parameter a fraction of a scale of θ (c_e and c_d of c_e, t_r and d
+    /// of t_r; d's per m/s²). Measured on the default calibration of the
+    /// three earliest test-track runs of 2024-08-05 (14-45-26, 15-28-33,
+    /// 16-06-28), confirmed on the other three (docs/validation.md, "The
+    /// next drive: six test-track runs"; lab `sigma_coverage`);
+    /// docs/method.md, "The σ for the next drive".
+    ///
+    /// The spread of the runs' *estimates* holds their within-drive noise:
+    /// `spread² ≈ τ² + within²`. The between-drive σ proper is the
+    /// method-of-moments `τ̂ = √max(0, spread² − within²)`
+    /// ([`Self::between`]), and the spread is a floor on a drive's
+    /// within-drive ⊕ between-drive σ ([`NextDriveSigma`]).
     #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
     struct BetweenDrivePrior {
-        /// σ of c_e over c_e.
+        /// The spread (sample sd) of c_e's estimates, over c_e.
         pub c_e: f64,
-        /// σ of c_d over c_e.
+        /// The spread of c_d's estimates, over c_e.
         pub c_d: f64,
-        /// σ of t_r over t_r.
+        /// The spread of t_r's estimates, over t_r.
         pub t_r: f64,
-        /// σ of d over t_r (per m/s²).
+        /// The spread of d's estimates, over t_r (per m/s²).
         pub d: f64,
+        /// The runs' within-drive σ (root mean square; the within-drive
+        /// part of their σ for the next drive), relative as the spread,
+        /// `[c_e, c_d, t_r, d]`.
+        pub within: [f64; 4],
     }
 }
 
@@ -153,16 +176,36 @@ research_pub! {
 }
 
 research_pub! {
-    /// The prior between-drive spread ([`BetweenDrivePrior`]).
-    const BETWEEN_DRIVE_PRIOR: BetweenDrivePrior =
-        BetweenDrivePrior { c_e: 3.8e-4, c_d: 7.5e-5, t_r: 2.9e-3, d: 2.8e-5 };
+    /// The prior for the between-drive σ ([`BetweenDrivePrior`]): the
+    /// spread rounded up, the within-drive σ rounded down (both err towards
+    /// a larger `τ̂`).
+    const BETWEEN_DRIVE_PRIOR: BetweenDrivePrior = BetweenDrivePrior {
+        c_e: 3.8e-4,
+        c_d: 7.5e-5,
+        t_r: 2.9e-3,
+        d: 2.8e-5,
+        within: [5.6e-4, 3.5e-5, 1.0e-4, 6.2e-5],
+    };
 }
 
 impl BetweenDrivePrior {
-    /// The prior between-drive σ at θ, `[c_e, c_d, t_r, d]` in SI units.
-    pub(crate) fn sigma(&self, theta: &Theta) -> [f64; 4] {
+    /// The spread of the estimates at θ, `[c_e, c_d, t_r, d]` in SI units.
+    pub(crate) fn spread(&self, theta: &Theta) -> [f64; 4] {
         let (ce, tr) = (theta.c_e.abs(), theta.t_r.abs());
         [self.c_e * ce, self.c_d * ce, self.t_r * tr, self.d * tr]
+    }
+
+    /// The between-drive σ at θ, `τ̂ = √max(0, spread² − within²)` per
+    /// parameter (SI units): 0 where the runs' own within-drive σ exceeds
+    /// their spread.
+    pub(crate) fn between(&self, theta: &Theta) -> [f64; 4] {
+        let (ce, tr) = (theta.c_e.abs(), theta.t_r.abs());
+        let scale = [ce, ce, tr, tr];
+        let spread = self.spread(theta);
+        std::array::from_fn(|i| {
+            let w = self.within[i] * scale[i];
+            (spread[i] * spread[i] - w * w).max(0.0).sqrt()
+        })
     }
 }
 
@@ -235,8 +278,22 @@ pub struct NextDriveSigma {
     /// not all zero.
     #[serde(default, skip_serializing_if = "all_zero")]
     pub t_r_above_start: [f64; 4],
-    /// The between-drive σ τ.
+    /// The between-drive part that enters `sigma`,
+    /// `√max(τ², floor² − within²)`: τ ([`Self::between_drive_tau`]), or
+    /// more where the within-drive σ falls short of the floor
+    /// ([`Self::between_drive_floor`]). With it,
+    /// `√(within² + between²) = max(floor, √(within² + τ²))`.
     pub between_drive: [f64; 4],
+    /// The between-drive σ τ: with one drive the prior's
+    /// (`BetweenDrivePrior::between`), with several the larger of that
+    /// and their random-effects τ.
+    #[serde(default)]
+    pub between_drive_tau: [f64; 4],
+    /// The floor of the within-drive ⊕ between-drive σ: the prior's spread
+    /// of estimates (`BetweenDrivePrior::spread`), which holds the
+    /// within-drive noise of the runs it was measured on.
+    #[serde(default)]
+    pub between_drive_floor: [f64; 4],
     /// Where τ comes from.
     pub(crate) between_source: BetweenDriveSource,
     /// With several drives: their separate fits and the pooling.
@@ -247,7 +304,6 @@ pub struct NextDriveSigma {
 impl NextDriveSigma {
     /// The σ for the next drive of one drive's calibration: the prior τ at θ.
     pub(crate) fn one_drive(theta: &Theta, within_drive: [Option<f64>; 4], fallback_gap: [f64; 4]) -> Self {
-        let between_drive = BETWEEN_DRIVE_PRIOR.sigma(theta);
         let mut s = NextDriveSigma {
             sigma: [None; 4],
             within_drive,
@@ -259,7 +315,9 @@ impl NextDriveSigma {
             gap_released_noise: Vec::new(),
             fallback_unchecked: None,
             t_r_above_start: [0.0; 4],
-            between_drive,
+            between_drive: [0.0; 4],
+            between_drive_tau: BETWEEN_DRIVE_PRIOR.between(theta),
+            between_drive_floor: BETWEEN_DRIVE_PRIOR.spread(theta),
             between_source: BetweenDriveSource::Prior,
             pooled: None,
         };
@@ -299,8 +357,13 @@ impl NextDriveSigma {
         self.combine();
     }
 
-    /// Sets `sigma` from its parts.
+    /// Sets `between_drive` and `sigma` from their parts.
     fn combine(&mut self) {
+        self.between_drive = std::array::from_fn(|i| {
+            let (tau, floor, w) = (self.between_drive_tau[i], self.between_drive_floor[i], self.within_drive[i]);
+            let w = w.unwrap_or(0.0);
+            (tau * tau).max(floor * floor - w * w).max(0.0).sqrt()
+        });
         self.sigma = std::array::from_fn(|i| {
             self.within_drive[i].map(|w| {
                 (w * w
@@ -314,19 +377,20 @@ impl NextDriveSigma {
     }
 
     /// `sigma` without the fallback gap, EIV's t_r above its start and the
-    /// common-mode term, `√(within² + between²)`: the σ the result would
-    /// have if its estimator had no errors-in-variables bias and the noise
-    /// were as its model says. The gap checks measure against it.
+    /// common-mode term, `√(within² + between²)`, that is
+    /// `max(floor, √(within² + τ²))`: the σ the result would have if its
+    /// estimator had no errors-in-variables bias and the noise were as its
+    /// model says. The gap checks measure against it.
     pub(crate) fn without_gap(&self) -> [Option<f64>; 4] {
         std::array::from_fn(|i| self.within_drive[i].map(|w| (w * w + self.between_drive[i].powi(2)).sqrt()))
     }
 
     /// With several drives: τ from their random-effects pooling, at least
-    /// the prior.
+    /// the prior's; the floor stays.
     pub(crate) fn with_pooled(&mut self, pooled: PooledDrives) {
         for (i, p) in pooled.params.iter().enumerate() {
             if let Some(p) = p {
-                self.between_drive[i] = self.between_drive[i].max(p.tau);
+                self.between_drive_tau[i] = self.between_drive_tau[i].max(p.tau);
             }
         }
         self.between_source = BetweenDriveSource::RandomEffects;
@@ -537,7 +601,7 @@ mod tests {
             let (s, s0) = (n.sigma[i].expect("σ"), base.sigma[i].expect("σ"));
             assert!(close(s, (s0 * s0 + n.common_mode[i].powi(2)).sqrt(), 1e-12), "{i}: {s} {s0}");
         }
-        // c_e: σ_within 2e-3 and h 4e-3 against a between-drive 7.6e-4.
+        // c_e: σ_within 2e-3 (above the floor 7.6e-4, τ̂ 0) and h 4e-3.
         assert!(n.sigma[0].expect("σ") > 2.0 * base.sigma[0].expect("σ"));
         assert_eq!(n.without_gap(), base.without_gap(), "the gap checks' σ is the base's");
         let json = serde_json::to_value(&n).expect("json");
@@ -555,16 +619,62 @@ mod tests {
         assert!(json.get("common_mode").is_none() && json.get("wheel_common_rel_sigma").is_none());
     }
 
+    /// The prior's τ̂ = √max(0, spread² − within²), worked by hand at θ.
     #[test]
-    fn the_next_drive_sigma_adds_its_parts_in_quadrature() {
+    fn the_prior_between_drive_sigma_takes_the_within_drive_noise_out_of_the_spread() {
         let theta = Theta { c_e: 2.0, c_d: 0.001, t_r: 1.5, d: 0.001 };
-        let s = NextDriveSigma::one_drive(&theta, [Some(3e-4), Some(1e-5), None, Some(2e-5)], [4e-4, 0.0, 0.0, 0.0]);
-        let b = BETWEEN_DRIVE_PRIOR.sigma(&theta);
-        assert!(close(b[0], 2.0 * BETWEEN_DRIVE_PRIOR.c_e, 1e-15));
-        assert!(close(b[3], 1.5 * BETWEEN_DRIVE_PRIOR.d, 1e-15));
-        assert!(close(s.sigma[0].expect("c_e"), (9e-8 + 16e-8 / 3.0 + b[0] * b[0]).sqrt(), 1e-12));
+        let p = BetweenDrivePrior { c_e: 4e-4, c_d: 5e-5, t_r: 3e-3, d: 2e-5, within: [5e-4, 3e-5, 1e-3, 2e-5] };
+        let s = p.spread(&theta);
+        let expected_spread = [8e-4, 1e-4, 4.5e-3, 3e-5];
+        for i in 0..4 {
+            assert!(close(s[i], expected_spread[i], 1e-12), "{i}: {s:?}");
+        }
+        let b = p.between(&theta);
+        // c_e: within 1e-3 above the spread 8e-4; d: within = spread.
+        assert_eq!(b[0].to_bits(), 0f64.to_bits(), "{b:?}");
+        assert_eq!(b[3].to_bits(), 0f64.to_bits(), "{b:?}");
+        assert!(close(b[1], (1e-8f64 - 36e-10).sqrt(), 1e-12), "{b:?}");
+        assert!(close(b[2], (4.5e-3f64.powi(2) - 1.5e-3f64.powi(2)).sqrt(), 1e-12), "{b:?}");
+        // The library's prior: τ̂ of c_e and d is 0 (the runs' EIV σ exceeds
+        // their spread), of c_d and t_r most of the spread.
+        let lib = BETWEEN_DRIVE_PRIOR.between(&theta);
+        assert_eq!((lib[0].to_bits(), lib[3].to_bits()), (0, 0), "{lib:?}");
+        let spread = BETWEEN_DRIVE_PRIOR.spread(&theta);
+        assert!(lib[1] > 0.8 * spread[1] && lib[1] < spread[1], "{lib:?}");
+        assert!(lib[2] > 0.99 * spread[2] && lib[2] < spread[2], "{lib:?}");
+    }
+
+    /// σ_next = √(within² + gap²/3 + b²), b² = max(τ², s² − within²): the
+    /// floor s for a precise drive, the drive's own σ ⊕ τ for a noisy one,
+    /// never within² + s².
+    #[test]
+    fn the_next_drive_sigma_counts_the_within_drive_noise_once() {
+        let theta = Theta { c_e: 2.0, c_d: 0.001, t_r: 1.5, d: 0.001 };
+        let within = [Some(3e-4), Some(1.4e-4), None, Some(1e-4)];
+        let s = NextDriveSigma::one_drive(&theta, within, [4e-4, 0.0, 0.0, 0.0]);
+        let (floor, tau) = (BETWEEN_DRIVE_PRIOR.spread(&theta), BETWEEN_DRIVE_PRIOR.between(&theta));
+        assert_eq!(s.between_drive_floor.map(f64::to_bits), floor.map(f64::to_bits));
+        assert_eq!(s.between_drive_tau.map(f64::to_bits), tau.map(f64::to_bits));
+        // c_e: within 3e-4 below the floor 7.6e-4 (τ̂ 0): within ⊕ between
+        // is the floor, and the gap adds to it.
+        assert!(close(floor[0], 7.6e-4, 1e-12));
+        assert!(close(s.between_drive[0], (floor[0] * floor[0] - 9e-8).sqrt(), 1e-12), "{s:?}");
+        assert!(close(s.sigma[0].expect("c_e"), (floor[0] * floor[0] + 16e-8 / 3.0).sqrt(), 1e-12), "{s:?}");
+        assert!(close(s.without_gap()[0].expect("c_e"), floor[0], 1e-12));
+        // c_d: within 1.4e-4 and τ̂ 1.33e-4 give more than the floor 1.5e-4.
+        assert!(close(s.between_drive[1], tau[1], 1e-15), "{s:?}");
+        assert!(close(s.sigma[1].expect("c_d"), (1.96e-8f64 + tau[1] * tau[1]).sqrt(), 1e-12), "{s:?}");
+        assert!(s.sigma[1].expect("c_d") > floor[1]);
+        // d: within 1e-4 above the floor 4.2e-5, τ̂ 0: the drive's own σ.
+        assert_eq!(s.between_drive[3].to_bits(), 0f64.to_bits(), "{s:?}");
+        assert_eq!(s.sigma[3].map(f64::to_bits), Some(1e-4f64.to_bits()));
         assert_eq!(s.sigma[2], None, "a held parameter has none");
-        assert!(close(s.without_gap()[0].expect("c_e"), (9e-8 + b[0] * b[0]).sqrt(), 1e-12));
+        // Never the double count √(within² + floor²).
+        for i in [0, 1, 3] {
+            let w = within[i].expect("free");
+            let g = s.fallback_gap[i];
+            assert!(s.sigma[i].expect("σ") < (w * w + g * g / 3.0 + floor[i] * floor[i]).sqrt(), "{i}");
+        }
         let mut m = s.clone();
         let p = PooledDrives::new(
             "batch-gn".into(),
@@ -574,6 +684,8 @@ mod tests {
         m.with_pooled(p);
         assert_eq!(m.between_source, BetweenDriveSource::RandomEffects);
         assert!(m.between_drive[0] > 0.005, "{:?}", m.between_drive);
-        assert_eq!(m.between_drive[1].to_bits(), b[1].to_bits(), "the prior is a floor");
+        assert!(close(m.between_drive[0], m.between_drive_tau[0], 1e-15), "τ of the pooling enters whole");
+        assert_eq!(m.between_drive[1].to_bits(), s.between_drive[1].to_bits(), "the prior's τ̂ is a floor");
+        assert_eq!(m.between_drive_floor.map(f64::to_bits), floor.map(f64::to_bits));
     }
 }

@@ -465,11 +465,13 @@ fn the_param_file_has_the_result_sigma_not_the_model_sigma() {
     assert_eq!(s.source, SigmaSource::BatchSpread);
     assert_eq!(s.covers, SigmaCovers::NextDrive);
     assert_eq!(within.covers, SigmaCovers::WithinDrive);
-    let between = crate::pooling::BETWEEN_DRIVE_PRIOR.sigma(&r.theta);
+    let n = r.next_drive_sigma.as_ref().expect("next-drive σ");
+    let (tau, floor) = (n.between_drive_tau, n.between_drive_floor);
     for (i, e) in f.params.iter().enumerate() {
         let sigma = e.sigma.expect("free");
         assert_eq!(within.to_array()[i].map(f64::to_bits), Some(spread[i][i].sqrt().to_bits()), "{}", e.name);
-        let next = (spread[i][i] + between[i] * between[i]).sqrt();
+        // within ⊕ between: the larger of the floor and within ⊕ τ
+        let next = (spread[i][i] + tau[i] * tau[i]).sqrt().max(floor[i]);
         assert!((sigma - next).abs() <= 1e-12 * next, "{}: {sigma} vs {next}", e.name);
         assert_eq!(Some(sigma), s.to_array()[i], "{}", e.name);
         let model = r.covariance[i][i].sqrt();
@@ -487,8 +489,11 @@ fn the_param_file_has_the_result_sigma_not_the_model_sigma() {
     assert_eq!(r.result_sigma().source, SigmaSource::Model);
     let f = r.param_file("drive.csv");
     assert_eq!(r.within_drive_sigma().t_r, Some(r.std_dev().t_r));
-    let b = crate::pooling::BETWEEN_DRIVE_PRIOR.sigma(&r.theta)[2];
+    let n = r.next_drive_sigma.as_ref().expect("next-drive σ");
+    let b = n.between_drive[2];
     assert_eq!(f.params[2].sigma, Some((r.std_dev().t_r.powi(2) + b * b).sqrt()));
+    let (tau, floor) = (n.between_drive_tau[2], n.between_drive_floor[2]);
+    assert!(b >= tau && (r.std_dev().t_r.powi(2) + b * b).sqrt() >= floor * (1.0 - 1e-12), "{n:?}");
     assert!(f.provenance.contains(&("sigma".into(), "model".into())), "{:?}", f.provenance);
     // a zero covariance row means "not estimated" (EIV holds what it cannot determine)
     // (in the within-drive σ, which a report without the next-drive σ gives)
