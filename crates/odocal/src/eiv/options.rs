@@ -351,7 +351,7 @@ macro_rules! research_options {
             /// metric are negligible beside its mean part (the heading rate,
             /// of first order). Default false: the passes leave the column
             /// out (one of their 4–10 covariance derivatives), which moved
-            /// θ by at most 0.002 σ and σ by at most 0.015 %
+            /// θ by at most 0.002 σ and σ by at most 0.03 %
             /// (docs/performance.md). The Cramér–Rao bound propagates it.
             $vis c_d_covariance_derivative: bool,
         }
