@@ -65,6 +65,8 @@ research_pub! {
                 || opts.quantisation_level.step_found(input).is_some(),
             // The CRB uses the information matrix only.
             input_jacobian: InputJacobian::None,
+            // The bound is the model's: every covariance derivative.
+            c_d_covariance_derivative: true,
             ..Problem::new(input, windows, opts)
         };
         let ev = prob.evaluate(theta, theta, &[0.0; 6], Mode::full(true, true))?;

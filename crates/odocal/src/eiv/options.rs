@@ -344,6 +344,16 @@ macro_rules! research_options {
             /// The refit runs when this or `clamp_refit_hold_scale` is set.
             /// Default `None`.
             $vis clamp_refit_common_mode_eta: Option<f64>,
+            /// Propagate the covariance derivative `∂P/∂c_d` in the filter's
+            /// passes. c_d enters the covariance recursion only through the
+            /// wheels' circumferences `c_e ± c_d/2`, a relative change of
+            /// about 1e-3, so the terms through `∂S/∂c_d` in c_d's score and
+            /// metric are negligible beside its mean part (the heading rate,
+            /// of first order). Default false: the passes leave the column
+            /// out (one of their 4–10 covariance derivatives), which moved
+            /// θ by at most 0.002 σ and σ by at most 0.03 %
+            /// (docs/performance.md). The Cramér–Rao bound propagates it.
+            $vis c_d_covariance_derivative: bool,
         }
     };
 }
@@ -376,6 +386,7 @@ impl Default for ResearchOptions {
             position_drift_time_constant_s: None,
             clamp_refit_hold_scale: true,
             clamp_refit_common_mode_eta: None,
+            c_d_covariance_derivative: false,
         }
     }
 }

@@ -18,6 +18,9 @@ pub(super) struct Evaluation {
     pub(super) mode: Mode,
 }
 
+/// [`filter::Mode::theta_skip`]'s bit of c_d ([`Problem::c_d_covariance_derivative`]).
+const C_D_COLUMN: u8 = 1 << 1;
+
 pub(super) struct Problem<'a> {
     pub(super) input: &'a EivInput<'a>,
     pub(super) windows: Vec<Window>,
@@ -45,6 +48,9 @@ pub(super) struct Problem<'a> {
     /// Lean iteration starts in [`scoring_pass`] (always on; off only in the
     /// test that holds them to the full evaluations' results).
     pub(super) lean_iterations: bool,
+    /// [`ResearchOptions::c_d_covariance_derivative`](super::ResearchOptions::c_d_covariance_derivative):
+    /// off, every pass leaves `∂P/∂c_d` out.
+    pub(super) c_d_covariance_derivative: bool,
 }
 
 impl<'a> Problem<'a> {
@@ -69,6 +75,7 @@ impl<'a> Problem<'a> {
             position_drift_time_constant_s: opts.research.position_drift_time_constant_s,
             evaluations: std::cell::Cell::new([0; 2]),
             lean_iterations: true,
+            c_d_covariance_derivative: opts.research.c_d_covariance_derivative,
         }
     }
 }
@@ -112,11 +119,20 @@ impl Problem<'_> {
         let nw = self.windows.len();
         let vars: Vec<filter::Variances> = points.iter().map(|(_, eta, _)| self.variances(eta, null)).collect();
         let (input, windows) = (self.input, &self.windows);
+        let skip = if self.c_d_covariance_derivative { 0 } else { C_D_COLUMN };
         let parts: Vec<Result<WindowSums>> = (0..points.len() * nw)
             .into_par_iter()
             .map(|t| {
                 let (pi, wi) = (t / nw, t % nw);
-                run_window(input, &windows[wi], &points[pi].0, theta_ref, &vars[pi], points[pi].2, None)
+                run_window(
+                    input,
+                    &windows[wi],
+                    &points[pi].0,
+                    theta_ref,
+                    &vars[pi],
+                    points[pi].2.skipping_theta(points[pi].2.theta_skip | skip),
+                    None,
+                )
             })
             .collect();
         let mut out = Vec::with_capacity(points.len());

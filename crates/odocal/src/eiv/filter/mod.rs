@@ -190,6 +190,11 @@ pub(crate) struct Mode {
     /// gradient and information entries are then incomplete; the rest are
     /// the same to the bit).
     pub eta_skip: u8,
+    /// With `theta` and the covariance following θ: θ columns (bit i = θ_i)
+    /// whose covariance derivative `∂P/∂θ_i` is not propagated; their
+    /// gradient and information entries then leave out the terms through
+    /// `∂S/∂θ_i` (the estimator's choice for c_d, [`super::problem::Problem`]).
+    pub theta_skip: u8,
     /// With `derivs`: also the information matrices (`info`, `i_eta`,
     /// `h_theta`, `info_mean_theta`), the outer products of the θ-scores
     /// (`opg`, `blocks`). `false` leaves them incomplete, for an evaluation
@@ -201,20 +206,25 @@ pub(crate) struct Mode {
 impl Mode {
     /// Objective only.
     pub(crate) fn cost(follows_theta: bool) -> Self {
-        Mode { follows_theta, derivs: false, eta: false, theta: false, eta_skip: 0, info: true }
+        Mode { follows_theta, derivs: false, eta: false, theta: false, eta_skip: 0, theta_skip: 0, info: true }
     }
     /// Objective and derivatives (η derivatives when `eta`).
     pub(crate) fn full(follows_theta: bool, eta: bool) -> Self {
-        Mode { follows_theta, derivs: true, eta, theta: true, eta_skip: 0, info: true }
+        Mode { follows_theta, derivs: true, eta, theta: true, eta_skip: 0, theta_skip: 0, info: true }
     }
     /// Objective and the η derivatives only (see [`Mode::theta`]).
     pub(crate) fn eta_only(follows_theta: bool) -> Self {
-        Mode { follows_theta, derivs: true, eta: true, theta: false, eta_skip: 0, info: true }
+        Mode { follows_theta, derivs: true, eta: true, theta: false, eta_skip: 0, theta_skip: 0, info: true }
     }
     /// The same without the covariance derivatives of the η in `skip`
     /// (bit j = η_j; see [`Mode::eta_skip`]).
     pub(crate) fn skipping_eta(self, skip: u8) -> Self {
         Mode { eta_skip: skip, ..self }
+    }
+    /// The same without the covariance derivatives of the θ in `skip`
+    /// (bit i = θ_i; see [`Mode::theta_skip`]).
+    pub(crate) fn skipping_theta(self, skip: u8) -> Self {
+        Mode { theta_skip: skip, ..self }
     }
     /// The same without the information matrices (see [`Mode::info`]).
     pub(crate) fn gradients_only(self) -> Self {

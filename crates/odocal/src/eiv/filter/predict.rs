@@ -387,8 +387,9 @@ fn theta_covariance_terms<const S: usize>(
     } else {
         (&rt.fn_l, &rt.fn_r)
     };
-    for (jt, tt) in theta_terms.iter_mut().enumerate() {
-        theta_term(setup, lin, rt, (fs_l, fs_r), jt, p, tt);
+    // The propagated θ columns only (`Mode::theta_skip`).
+    for &jt in setup.cols().iter().filter(|c| **c < 4) {
+        theta_term(setup, lin, rt, (fs_l, fs_r), jt, p, &mut theta_terms[jt]);
     }
 }
 

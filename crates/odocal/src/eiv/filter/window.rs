@@ -105,7 +105,7 @@ impl<'a, const S: usize> WindowSetup<'a, S> {
         for c in 0..NP {
             let on = mode.derivs
                 && if c < 4 {
-                    theta_cols
+                    theta_cols && (mode.theta_skip >> c) & 1 == 0
                 } else {
                     mode.eta && (c != 9 || v.heading_separate) && (mode.eta_skip >> (c - 4)) & 1 == 0
                 };

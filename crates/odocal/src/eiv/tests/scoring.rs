@@ -269,6 +269,7 @@ fn eta_step_descends_on_the_noise_free_straight_drive() {
         position_drift_time_constant_s: None,
         evaluations: std::cell::Cell::new([0; 2]),
         lean_iterations: true,
+        c_d_covariance_derivative: false,
     };
     let theta = Theta { c_e: 1.9488978137579984, c_d: -0.001998869480161304, t_r: 1.53, d: 0.0008 };
     let eta = [-0.00903020194120505, 0.2628615557666504, 0.75, 0.1370901227620087, -2.5, -2.5];
