@@ -189,19 +189,24 @@ research_pub! {
 }
 
 impl BetweenDrivePrior {
+    /// What the relative values are fractions of at θ, `[c_e, c_d, t_r, d]`:
+    /// |c_e| for c_e and c_d, |t_r| for t_r and d.
+    fn scale(theta: &Theta) -> [f64; 4] {
+        let (ce, tr) = (theta.c_e.abs(), theta.t_r.abs());
+        [ce, ce, tr, tr]
+    }
+
     /// The spread of the estimates at θ, `[c_e, c_d, t_r, d]` in SI units.
     pub(crate) fn spread(&self, theta: &Theta) -> [f64; 4] {
-        let (ce, tr) = (theta.c_e.abs(), theta.t_r.abs());
-        [self.c_e * ce, self.c_d * ce, self.t_r * tr, self.d * tr]
+        let s = Self::scale(theta);
+        [self.c_e * s[0], self.c_d * s[1], self.t_r * s[2], self.d * s[3]]
     }
 
     /// The between-drive σ at θ, `τ̂ = √max(0, spread² − within²)` per
     /// parameter (SI units): 0 where the runs' own within-drive σ exceeds
     /// their spread.
     pub(crate) fn between(&self, theta: &Theta) -> [f64; 4] {
-        let (ce, tr) = (theta.c_e.abs(), theta.t_r.abs());
-        let scale = [ce, ce, tr, tr];
-        let spread = self.spread(theta);
+        let (scale, spread) = (Self::scale(theta), self.spread(theta));
         std::array::from_fn(|i| {
             let w = self.within[i] * scale[i];
             (spread[i] * spread[i] - w * w).max(0.0).sqrt()
