@@ -6,10 +6,10 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use odocal::online::gate::{Action, GateDecision, Gates};
-use odocal::online::{Calibrator, OnlineOptions, RandomWalk};
 use odocal::{ParamFile, Theta};
 use odocal_history::{follow, FollowEvent, FollowOptions, History};
+use odocal_online::gate::{Action, GateDecision, Gates};
+use odocal_online::{Calibrator, OnlineOptions, RandomWalk};
 use serde_json::{json, Value};
 
 use crate::args::{HelpArgs, ThetaArg};
@@ -70,7 +70,7 @@ const ONLINE: &str = "Online calibrator";
 const GATES: &str = "Write-back gates";
 
 /// The online calibrator's and the gates' settings with documented
-/// defaults (`odocal::online::OnlineOptions`, `odocal::online::gate::Gates`),
+/// defaults (`odocal_online::OnlineOptions`, `odocal_online::gate::Gates`),
 /// shown by `--help-all`, not `-h`/`--help`.
 #[derive(Args)]
 struct ExpertArgs {

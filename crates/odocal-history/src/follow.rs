@@ -4,9 +4,10 @@
 
 use std::path::PathBuf;
 
-use odocal::online::gate::{Action, GateDecision, Gates};
-use odocal::online::{Calibrator, DriveSummary, OnlineOptions, Replay};
+use odocal::io::Replay;
 use odocal::{Error, Progress, Theta};
+use odocal_online::gate::{Action, GateDecision, Gates};
+use odocal_online::{Calibrator, DriveSummary, OnlineOptions};
 
 use crate::{CalibrationRecord, DecisionRow, History};
 
@@ -153,7 +154,7 @@ pub fn follow<E: From<Error>>(
         on(FollowEvent::Progress(Progress::Stage { name: "following", total: drive.len() as u64 }))?;
         let mut done = 0;
         let mut progress = Ok(());
-        drive.push_to(c, |n| {
+        c.push_replay(&drive, |n| {
             if progress.is_ok() {
                 progress = on(FollowEvent::Progress(Progress::Advance((n - done) as u64)));
             }

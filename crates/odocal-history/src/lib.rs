@@ -10,7 +10,7 @@
 //! vehicle with the same method is recognised and not counted twice
 //! ([`Recorded::AlreadyRecorded`]). The table `decisions` logs the gated
 //! write-back of `odocal follow` ([`follow`]: drive files replayed through
-//! the library's online calibrator, `odocal::online`), one row per decision.
+//! the online calibrator of the crate odocal-online), one row per decision.
 //!
 //! A crate of its own on top of the `odocal` library: it compiles SQLite in
 //! (rusqlite, feature `bundled`), which calibrating does not need.

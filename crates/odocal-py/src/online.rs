@@ -1,6 +1,6 @@
 //! `odocal.online.Calibrator`: the library's online calibrator
-//! ([`odocal::online::Calibrator`]) fed with numpy arrays, and its
-//! write-back gates ([`odocal::online::gate::Gates`]).
+//! ([`odocal_online::Calibrator`]) fed with numpy arrays, and its
+//! write-back gates ([`odocal_online::gate::Gates`]).
 
 use numpy::{AllowTypeChange, PyArray2, PyArrayLike1};
 use pyo3::exceptions::{PyTypeError, PyValueError};
@@ -9,9 +9,9 @@ use pyo3::types::PyDict;
 use serde::de::DeserializeOwned;
 use serde::Serialize;
 
-use odocal::online::gate::Gates;
-use odocal::online::{Calibrator, OnlineOptions};
 use odocal::{Signals, Theta};
+use odocal_online::gate::Gates;
+use odocal_online::{Calibrator, OnlineOptions};
 
 use crate::convert::{extract_theta, json, to_json, to_py};
 use crate::drive::PyDrive;

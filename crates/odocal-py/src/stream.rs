@@ -1,12 +1,12 @@
 //! `odocal.online.RawStream`: the library's streamed import
-//! ([`odocal::online::RawStream`]) fed message by message from Python, its
+//! ([`odocal::io::RawStream`]) fed message by message from Python, its
 //! canonical samples taken as numpy arrays.
 
 use numpy::{AllowTypeChange, IntoPyArray, PyArray2, PyArrayLike1, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use odocal::online::{RawStream, StreamOptions};
+use odocal::io::{RawStream, StreamOptions};
 use odocal::Manifest;
 
 use crate::convert::{json, to_py};

@@ -45,11 +45,13 @@
 //! derivatives), [`segment`] (cutting a drive into segments),
 //! [`identify`] (the Gauss-Newton options and observability), [`compensate`] (the input-compensation QP),
 //! [`eiv`] (the errors-in-variables options), [`sim`] (the simulator),
-//! [`experiment`] (the paper's §6), [`mod@io`] (ROS 2 bags), [`settings`] (calibration
-//! settings as key–value pairs), [`output`] (atomic writes and output
-//! paths checked against inputs, for a front end's own files) and [`online`] (calibration that keeps up with a
-//! streaming drive). The per-vehicle calibration history in SQLite, with
-//! the gated write-back of `odocal follow`, is the crate odocal-history.
+//! [`experiment`] (the paper's §6), [`mod@io`] (ROS 2 bags, streamed
+//! import, drive files read in chunks), [`settings`] (calibration
+//! settings as key–value pairs) and [`output`] (atomic writes and output
+//! paths checked against inputs, for a front end's own files). Calibration
+//! that keeps up with a streaming drive is the crate odocal-online; the
+//! per-vehicle calibration history in SQLite, with the gated write-back of
+//! `odocal follow`, is the crate odocal-history.
 //!
 //! ## Example
 //!
@@ -117,7 +119,6 @@ pub mod experiment; // 8
 pub mod identify; // 4
 pub mod io; // 3
 pub mod model; // 1
-pub mod online; // 9
 pub mod output; // 1
 mod progress; // 0
 pub mod sim; // 3

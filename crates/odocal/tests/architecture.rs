@@ -31,7 +31,6 @@ const LAYERS: &[(u32, &str)] = &[
     (6, "assess"),     // Ē_p, validation, reachable minimum, verdict, warnings
     (7, "calibrate"),  // the methods, settings, validation on other drives, cross-run
     (8, "experiment"), // the paper's §6 experiment
-    (9, "online"),     // recursive calibration of a streamed drive
 ];
 
 fn layer_of(module: &str) -> Option<u32> {

@@ -25,7 +25,7 @@
 //! (per-hour sd of c_e as a fraction, of c_d in m).
 
 use odocal_history::{CalibrationRecord, HistoryRow, VehicleHistory};
-use odocal::online::{Calibrator, OnlineOptions};
+use odocal_online::{Calibrator, OnlineOptions};
 use odocal::sim::{simulate, CdStep, DriftOptions, SimOptions};
 use odocal::{Drive, Signals, Theta};
 use odocal_lab::{Args, Res};

@@ -38,7 +38,7 @@ impl Default for SegmentOptions {
 
 impl SegmentOptions {
     /// Checks the options, naming the offending field.
-    pub(crate) fn validate(&self) -> Result<()> {
+    pub fn validate(&self) -> Result<()> {
         check_length_and_stride((self.length_steps, self.stride_steps), ("segment_length", "segment_stride"))?;
         if self.min_peak_yaw_rate_rad_per_s.is_nan() || self.min_peak_yaw_rate_rad_per_s < 0.0 {
             return Err(Error::InvalidOption {
@@ -85,7 +85,7 @@ impl Default for ValidationSegmentOptions {
 
 impl ValidationSegmentOptions {
     /// Checks the options, naming the offending field.
-    pub(crate) fn validate(&self) -> Result<()> {
+    pub fn validate(&self) -> Result<()> {
         check_length_and_stride((self.length_steps, self.stride_steps), ("validation_length", "validation stride"))
     }
 }

@@ -63,7 +63,7 @@ pub(crate) struct DriveStream {
 }
 
 /// Canonical samples of a stream, all of one part: of a streamed import
-/// ([`RawStream::take_chunk`](crate::online::RawStream::take_chunk)), or
+/// ([`RawStream::take_chunk`](crate::io::RawStream::take_chunk)), or
 /// of a drive CSV read as a stream.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StreamChunk {

@@ -45,8 +45,10 @@ fn rollout(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics, mut visit: impl
     }
 }
 
-/// Normal equations of one segment at (θ, e) ([`rollout`]).
-pub(crate) fn segment_normal_equations(
+/// Normal equations of one segment at (θ, e) over `[θ, e]`: the rollout
+/// with the reference extrinsics `e`, residuals weighted by `w`
+/// (`[w_px, w_py, w_ψ]`). What a recursive calibrator folds in per segment.
+pub fn segment_normal_equations(
     seg: &SegmentData<'_>,
     theta: &Theta,
     e: &Extrinsics,

@@ -3,7 +3,10 @@
 //! The public items are the options of the Gauss-Newton fits
 //! ([`IdentifyOptions`], set as [`crate::CalibrationOptions::identify`]) and
 //! the observability of an estimate ([`Observability`], in
-//! [`crate::CalibrationReport`]); [`crate::calibrate()`] runs batch
+//! [`crate::CalibrationReport`]), and one segment's normal equations over θ
+//! and the reference extrinsics ([`extrinsics_normal_equations`], what the
+//! online calibrator of the crate odocal-online folds in per segment);
+//! [`crate::calibrate()`] runs batch
 //! Gauss-Newton for every method. `batch_gauss_newton` itself and its
 //! report are public with the cargo feature `research` only (the studies of
 //! crates/odocal-lab).
@@ -41,7 +44,7 @@ mod gauss_newton;
 mod per_drive;
 
 /// Normal equations of one segment over `[θ, lever_x, lever_y, heading_offset]`.
-pub(crate) use extrinsics::segment_normal_equations as extrinsics_normal_equations;
+pub use extrinsics::segment_normal_equations as extrinsics_normal_equations;
 
 /// Options of the Gauss-Newton identification.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -386,7 +389,7 @@ impl std::fmt::Display for IdentifyReport {
 /// over θ (`N = 4`, the default) or over θ and the reference extrinsics
 /// (`N = 7`, [`Extrinsics`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct NormalEquations<const N: usize = 4> {
+pub struct NormalEquations<const N: usize = 4> {
     /// `JᵀWJ`.
     pub jtwj: SMatrix<f64, N, N>,
     /// `JᵀWR`.

@@ -1,6 +1,8 @@
-//! Reading drives and parameters. Public here: the ROS 2 bag reader
-//! ([`bag`], feature `mcap`). Expert API, for programs that read bag topics
-//! as tables or draft manifests (`odocal inspect`); importing a drive is
+//! Reading drives and parameters. Public here, expert API: the ROS 2 bag
+//! reader ([`bag`], feature `mcap`), for programs that read bag topics as
+//! tables or draft manifests (`odocal inspect`); a manifest's raw messages
+//! imported as they arrive ([`RawStream`]); and a drive file read in chunks
+//! as if live ([`Replay`]), for an online calibrator. Importing a drive is
 //! [`crate::load_drive`] / [`crate::import`], parameter files
 //! [`crate::ParamFile`], at the root. Calibration settings a manifest
 //! states are carried as plain data; [`crate::settings`] interprets them.
@@ -9,3 +11,7 @@
 pub mod bag;
 pub(crate) mod import;
 pub(crate) mod param_file;
+mod replay;
+
+pub use import::stream::{RawStream, StreamOptions};
+pub use replay::Replay;

@@ -88,7 +88,7 @@ impl Theta {
     }
 
     /// Checks that θ is usable: all finite, `c_e > 0` and `t_r > 0`.
-    pub(crate) fn validate(&self) -> Result<()> {
+    pub fn validate(&self) -> Result<()> {
         for (name, v) in THETA_NAMES.iter().zip(self.to_array()) {
             if !v.is_finite() {
                 return Err(Error::InvalidTheta(format!("{name} = {v} is not finite")));
@@ -240,17 +240,15 @@ pub fn step_jacobians(x: &State, u: &Input, theta: &Theta, t_s: f64) -> StepJaco
     StepJacobians { next, f_x, f_n, f_theta }
 }
 
-research_pub! {
-    /// Wraps an angle to (−π, π].
-    #[inline]
-    fn wrap_angle(a: f64) -> f64 {
-        let two_pi = 2.0 * std::f64::consts::PI;
-        let mut r = a.rem_euclid(two_pi);
-        if r > std::f64::consts::PI {
-            r -= two_pi;
-        }
-        r
+/// Wraps an angle to (−π, π].
+#[inline]
+pub fn wrap_angle(a: f64) -> f64 {
+    let two_pi = 2.0 * std::f64::consts::PI;
+    let mut r = a.rem_euclid(two_pi);
+    if r > std::f64::consts::PI {
+        r -= two_pi;
     }
+    r
 }
 
 #[cfg(test)]

@@ -130,7 +130,7 @@ pub(crate) fn not_streamable(m: &Manifest) -> Option<String> {
 ///
 /// ```
 /// # fn main() -> Result<(), Box<dyn std::error::Error>> {
-/// use odocal::online::{RawStream, StreamOptions};
+/// use odocal::io::{RawStream, StreamOptions};
 /// let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/comma2k19-rav4/manifest.toml");
 /// let manifest = odocal::Manifest::from_path(path.as_ref())?;
 /// let mut raw = RawStream::new(&manifest, StreamOptions::default())?;

@@ -1,37 +1,39 @@
-//! A drive file replayed through the online calibrator as if live
-//! ([`Replay`]): what `odocal follow` pushes, one drive at a time.
+//! A drive file read in chunks as if it streamed in live ([`Replay`]):
+//! what `odocal follow` pushes through the online calibrator (the crate
+//! odocal-online), one drive at a time.
 
 use std::path::{Path, PathBuf};
 
-use super::Calibrator;
-use crate::drive::{Drive, DriveStream};
+use crate::drive::{Drive, DriveStream, StreamChunk};
 use crate::error::{Error, Result};
 use crate::io::import::stream::{self, reader::ManifestStream, StreamOptions};
 use crate::io::import::{is_manifest_path, load_drive, manifest::Manifest};
 
-/// Samples per chunk pushed (10 s at 40 Hz).
+/// Samples per chunk (10 s at 40 Hz).
 const CHUNK: usize = 400;
 
-/// A drive file (a canonical drive CSV or a manifest) opened to be pushed
-/// through a [`Calibrator`] as a new drive, as if it streamed in live.
+/// A drive file (a canonical drive CSV or a manifest) opened to be read in
+/// chunks of canonical samples, as if it streamed in live: what an online
+/// calibrator (the crate odocal-online) is fed, one drive at a time.
 ///
 /// It is read as a stream when it can be (memory flat in the drive's
 /// length): a drive CSV, or a manifest of CSV streams (its samples kept in
-/// temporary files); another manifest is imported whole. Either way the
-/// calibrator sees the same chunks of [`Replay::push_to`], so the same
-/// results.
+/// temporary files); another manifest is imported whole. Either way
+/// [`Replay::chunks`] hands out the same chunks with the same values.
 ///
 /// ```
 /// # fn main() -> Result<(), odocal::Error> {
-/// use odocal::online::{Calibrator, OnlineOptions, Replay};
-/// use odocal::{sim, Theta};
+/// use odocal::io::Replay;
+/// use odocal::sim;
 /// let dir = tempfile::tempdir().map_err(|e| odocal::Error::Numerical(e.to_string()))?;
 /// let csv = dir.path().join("a.csv");
 /// sim::simulate(&sim::SimOptions { length_km: 2.0, ..sim::SimOptions::noise_free(1) })?.drive.write_csv(&csv)?;
 /// let drive = Replay::open(&csv, |line| { eprintln!("{line}"); Ok::<(), odocal::Error>(()) })?;
-/// let mut cal = Calibrator::new(Theta::PAPER_INITIAL, None, drive.sample_time_s(), OnlineOptions::default())?;
-/// drive.push_to(&mut cal, |_| {})?;
-/// assert_eq!(cal.status().drive.samples, drive.len());
+/// let mut samples = 0;
+/// for chunk in drive.chunks() {
+///     samples += chunk?.t.len();
+/// }
+/// assert_eq!(samples, drive.len());
 /// # Ok(()) }
 /// ```
 pub struct Replay {
@@ -101,23 +103,40 @@ impl Replay {
         }
     }
 
-    /// Pushes the drive through `cal` as a new drive, in chunks of 400
-    /// samples; `each` is called after every chunk with the samples pushed
-    /// so far.
+    /// The file, as given.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The samples in chunks of 400 (10 s at 40 Hz), part by part in time
+    /// order; a chunk never spans two parts. A drive imported whole is cut
+    /// the same way, so the chunks do not depend on how the file was read.
     ///
     /// # Errors
-    /// [`Error::InvalidDrive`] when the drive's sample time is not the
-    /// calibrator's; a streamed drive's read errors; [`Calibrator::push`]'s.
-    pub fn push_to(&self, cal: &mut Calibrator, each: impl FnMut(usize)) -> Result<()> {
-        if (self.sample_time_s() - cal.sample_time_s).abs() > 1e-9 {
-            let reason = "sample time differs from the first drive's".into();
-            return Err(Error::InvalidDrive { context: self.path.display().to_string(), reason });
-        }
+    /// Each chunk: a streamed drive's read errors.
+    pub fn chunks(&self) -> Box<dyn Iterator<Item = Result<StreamChunk>> + '_> {
         match &self.source {
-            Source::Stream(s) => cal.push_stream(s, CHUNK, each),
-            Source::Whole(d) => cal.push_drive(d, CHUNK, each),
+            Source::Stream(s) => Box::new(s.chunks(CHUNK)),
+            Source::Whole(d) => Box::new(whole_chunks(d, CHUNK).map(Ok)),
         }
     }
+}
+
+/// The samples of `drive` in chunks of at most `size`, part by part.
+fn whole_chunks(drive: &Drive, size: usize) -> impl Iterator<Item = StreamChunk> + '_ {
+    drive.parts().iter().enumerate().flat_map(move |(part, r)| {
+        (r.start..r.end).step_by(size).map(move |a| {
+            let b = (a + size).min(r.end);
+            StreamChunk {
+                part,
+                start: a,
+                starts_part: a == r.start,
+                t: drive.t()[a..b].to_vec(),
+                signals: drive.measured().slice(a..b),
+                reference_measured: drive.reference_measured().map(|m| m[a..b].to_vec()),
+            }
+        })
+    })
 }
 
 impl Source {

@@ -1,7 +1,21 @@
 use super::gate::{Action, Gates};
 use super::*;
-use crate::drive::Signals;
-use crate::sim::{simulate, SimOptions};
+use odocal::sim::{simulate, SimOptions};
+use odocal::DriveBuilder;
+
+/// The samples `r` of `s`.
+fn slice(s: &Signals, r: std::ops::Range<usize>) -> Signals {
+    let c = |v: &Vec<f64>| v[r.clone()].to_vec();
+    Signals {
+        px: c(&s.px),
+        py: c(&s.py),
+        psi: c(&s.psi),
+        n_rl: c(&s.n_rl),
+        n_rr: c(&s.n_rr),
+        beta: c(&s.beta),
+        a_y: c(&s.a_y),
+    }
+}
 
 fn noise_free(km: f64, seed: u64) -> (Drive, Theta) {
     let out = simulate(&SimOptions { length_km: km, ..SimOptions::noise_free(seed) }).expect("simulate");
@@ -12,14 +26,9 @@ fn noise_free(km: f64, seed: u64) -> (Drive, Theta) {
 fn with_heading_offset(d: &Drive, delta: f64) -> Drive {
     let m = d.measured();
     let signals = Signals { psi: m.psi.iter().map(|p| p + delta).collect(), ..m.clone() };
-    crate::drive::DriveBuilder {
-        t: d.t().to_vec(),
-        measured: signals,
-        parts: Some(d.parts().to_vec()),
-        ..Default::default()
-    }
-    .build()
-    .expect("drive")
+    DriveBuilder { t: d.t().to_vec(), measured: signals, parts: Some(d.parts().to_vec()), ..Default::default() }
+        .build()
+        .expect("drive")
 }
 
 #[test]
@@ -149,8 +158,8 @@ fn pushed_times_find_the_gaps_and_the_heading_is_unwrapped() {
     let m = d.measured();
     for a in (0..d.len()).step_by(321) {
         let r = a..(a + 321).min(d.len());
-        let mut s = m.slice(r.clone());
-        s.psi.iter_mut().for_each(|v| *v = crate::model::wrap_angle(*v));
+        let mut s = slice(m, r.clone());
+        s.psi.iter_mut().for_each(|v| *v = wrap_angle(*v));
         cal.push(Some(&d.t()[r]), &s).expect("push");
     }
     let (x, y) = (cal.status(), reference.status());
@@ -165,16 +174,22 @@ fn pushed_times_find_the_gaps_and_the_heading_is_unwrapped() {
         Calibrator::new(Theta::PAPER_INITIAL, None, d.sample_time_s(), OnlineOptions::default()).expect("cal");
     let n = 1000;
     let t: Vec<f64> = d.t()[..n].iter().enumerate().map(|(i, t)| if i < n / 2 { *t } else { t + 60.0 }).collect();
-    gapped.push(Some(&t), &m.slice(0..n)).expect("gap");
+    gapped.push(Some(&t), &slice(m, 0..n)).expect("gap");
     assert_eq!(gapped.status().drive.samples, n);
     assert!(gapped.buffered_samples() <= n / 2, "{}", gapped.buffered_samples());
 }
 
 #[test]
 fn a_heading_unwrapped_chunk_by_chunk_equals_the_drive_column() {
-    let raw: Vec<f64> = (0..500).map(|i| crate::model::wrap_angle(0.05 * i as f64 - 1.0)).collect();
-    let mut whole = raw.clone();
-    crate::drive::unwrap_in_place(&mut whole);
+    let raw: Vec<f64> = (0..500).map(|i| wrap_angle(0.05 * i as f64 - 1.0)).collect();
+    // The drive's constructor unwraps its heading column.
+    let mut signals = Signals::with_capacity(raw.len());
+    for (i, psi) in raw.iter().enumerate() {
+        signals.push([i as f64 * 0.3, 0.0, *psi, 5.0, 5.0, 0.0, 0.0]);
+    }
+    let t = (0..raw.len()).map(|i| i as f64 * 0.025).collect();
+    let drive = DriveBuilder { t, measured: signals, ..Default::default() }.build().expect("drive");
+    let whole = drive.measured().psi.clone();
     let mut u = HeadingUnwrap::default();
     let mut chunked = Vec::new();
     for c in raw.chunks(37) {
@@ -218,29 +233,26 @@ fn sigma_is_of_the_size_of_the_error_on_noisy_drives() {
     assert!((1..4).any(|i| (sq[i] / n).sqrt() > 2.5 * own[i] / n), "{sq:?} {own:?}");
 }
 
-/// A drive replayed from its CSV as a stream gives the results of the
-/// drive read whole, bit for bit (the same chunks, parts and sample time).
+/// A drive replayed from its CSV as a stream ([`Replay`]) gives the results
+/// of the drive read whole, bit for bit (the same chunks, parts and sample
+/// time).
 #[test]
 fn a_streamed_drive_gives_the_whole_drives_results() {
     let out = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(11) }).expect("simulate");
     let d = &out.drive;
     let k = d.len() / 2;
     let t: Vec<f64> = d.t().iter().enumerate().map(|(i, &t)| if i < k { t } else { t + 3.0 }).collect();
-    let gapped = crate::drive::DriveBuilder {
-        t,
-        measured: d.measured().clone(),
-        parts: Some(vec![0..k, k..d.len()]),
-        ..Default::default()
-    }
-    .build()
-    .expect("drive");
+    let gapped =
+        DriveBuilder { t, measured: d.measured().clone(), parts: Some(vec![0..k, k..d.len()]), ..Default::default() }
+            .build()
+            .expect("drive");
     let dir = tempfile::tempdir().expect("tmp");
     let p = dir.path().join("d.csv");
     gapped.write_csv(&p).expect("write");
     let whole = Drive::read_csv(&p).expect("whole").0;
-    let stream = crate::drive::DriveStream::open(&p).expect("stream");
+    let stream = Replay::open(&p, |_| Ok::<(), Error>(())).expect("stream");
     let run = |push: &dyn Fn(&mut Calibrator, &mut Vec<usize>)| {
-        let mut cal = Calibrator::new(Theta::PAPER_INITIAL, None, stream.sample_time_s, OnlineOptions::default())
+        let mut cal = Calibrator::new(Theta::PAPER_INITIAL, None, stream.sample_time_s(), OnlineOptions::default())
             .expect("calibrator");
         cal.stored = Some(Theta::PAPER_NOMINAL);
         let mut progress = Vec::new();
@@ -248,7 +260,7 @@ fn a_streamed_drive_gives_the_whole_drives_results() {
         (cal.theta(), cal.sigma(), cal.heading_offset(), cal.drive_summary(), progress)
     };
     let a = run(&|c, p| c.push_drive(&whole, 400, |n| p.push(n)).expect("push"));
-    let b = run(&|c, p| c.push_stream(&stream, 400, |n| p.push(n)).expect("push"));
+    let b = run(&|c, p| c.push_replay(&stream, |n| p.push(n)).expect("push"));
     assert!(a.3.validation_segments > 3 && a.3.folded_segments > 10, "{:?}", a.3);
     assert_eq!(format!("{a:?}"), format!("{b:?}"));
     let to_bits = |th: Theta| th.to_array().map(f64::to_bits);

@@ -4,16 +4,22 @@
 //! replay of logs in time order): [`Calibrator::push`] takes the drive's
 //! canonical samples chunk by chunk and keeps θ with its σ at any time, in
 //! memory that does not grow with the drive's length;
-//! [`Calibrator::push_drive`] pushes a drive in memory, and [`Replay`] a
-//! drive file read as a stream. The gates ([`gate`]) judge whether an
+//! [`Calibrator::push_drive`] pushes a drive in memory, and
+//! [`Calibrator::push_replay`] a drive file read as a stream
+//! ([`odocal::io::Replay`]). The gates ([`gate`]) judge whether an
 //! estimate should replace the stored θ; `odocal follow` (the crate
 //! odocal-history) replays drive files through a calibrator and writes
 //! back to a vehicle's history what the gates pass.
 //!
+//! The crate builds on the library odocal: the segments and their
+//! Gauss-Newton normal equations
+//! ([`odocal::identify::extrinsics_normal_equations`]) are the
+//! calibration's; batch calibration itself does not use this crate.
+//!
 //! ## The method: recursive Gauss-Newton over the paper's segments
 //!
 //! The samples are cut into the calibration's segments as they arrive
-//! (650 steps every 100, [`crate::segment`]). When a segment completes
+//! (650 steps every 100, [`odocal::segment`]). When a segment completes
 //! (and turns enough, when a yaw-rate threshold is set), its dead-reckoning
 //! residual is linearised at the current estimate and folded into an
 //! information-form state over `x = [c_e, c_d, t_r, d, δ]`, `δ` the
@@ -39,7 +45,7 @@
 //! one validation segment and a little more. A new drive resets `δ` (its
 //! mean to 0, its variance to the prior, its correlations with θ to 0).
 //!
-//! The errors-in-variables estimator ([`crate::eiv`]) corrects the bias
+//! The errors-in-variables estimator ([`odocal::eiv`]) corrects the bias
 //! that input noise puts into Gauss-Newton, but it runs a filter and a
 //! smoother over the whole drive per iteration: its memory grows with the
 //! drive and a recursive form of it is not available. The online
@@ -54,26 +60,26 @@
 //! ([`DriveSummary::prequential_mean_position_error_m`]), a held-out error
 //! of the online estimate.
 
+#![forbid(unsafe_code)]
+#![deny(clippy::float_cmp)]
+// Numerical loops index several parallel arrays at once; index loops read like the maths.
+#![allow(clippy::needless_range_loop)]
+
 use std::collections::VecDeque;
 
 use nalgebra::{SMatrix, SVector};
 use serde::{Deserialize, Serialize};
 
-use crate::assess::position_error::segment_position_error_with;
-use crate::drive::segment::SegmentData;
-use crate::drive::{Drive, DriveStream, Signals, StreamChunk};
-use crate::error::{Error, Result};
-use crate::identify::extrinsics_normal_equations;
-use crate::model::extrinsics::Extrinsics;
-use crate::model::{wrap_angle, Theta};
+use odocal::identify::extrinsics_normal_equations;
+use odocal::io::Replay;
+use odocal::model::wrap_angle;
+use odocal::segment::SegmentData;
+use odocal::{segment_position_error_with, Drive, Error, Extrinsics, Result, Signals, StreamChunk, Theta};
 
 pub mod gate;
 mod options;
-mod replay;
 
-pub use crate::io::import::stream::{RawStream, StreamOptions};
 pub use options::{OnlineOptions, RandomWalk};
-pub use replay::Replay;
 
 type Vec5 = SVector<f64, 5>;
 type Mat5 = SMatrix<f64, 5, 5>;
@@ -118,14 +124,15 @@ impl<'a> Chunk<'a> {
     /// Samples `range` of a drive.
     fn of(drive: &'a Drive, range: std::ops::Range<usize>) -> Chunk<'a> {
         let r = range;
+        let m = drive.measured();
         Chunk {
-            px: &drive.px()[r.clone()],
-            py: &drive.py()[r.clone()],
-            psi: &drive.psi()[r.clone()],
-            n_rl: &drive.n_rl()[r.clone()],
-            n_rr: &drive.n_rr()[r.clone()],
-            beta: &drive.beta()[r.clone()],
-            a_y: &drive.a_y()[r],
+            px: &m.px[r.clone()],
+            py: &m.py[r.clone()],
+            psi: &m.psi[r.clone()],
+            n_rl: &m.n_rl[r.clone()],
+            n_rr: &m.n_rr[r.clone()],
+            beta: &m.beta[r.clone()],
+            a_y: &m.a_y[r],
         }
     }
 
@@ -296,11 +303,11 @@ struct Pending {
 }
 
 /// The online calibrator: a recursive Gauss-Newton over the calibration
-/// segments of a stream of samples (the module's docs give the method).
+/// segments of a stream of samples (the crate's docs give the method).
 ///
 /// ```
 /// # fn main() -> Result<(), odocal::Error> {
-/// use odocal::online::{Calibrator, OnlineOptions};
+/// use odocal_online::{Calibrator, OnlineOptions};
 /// use odocal::{sim, Theta};
 /// let out = sim::simulate(&sim::SimOptions { length_km: 3.0, ..sim::SimOptions::noise_free(2) })?;
 /// let d = &out.drive;
@@ -577,7 +584,7 @@ impl Calibrator {
     }
 
     /// The current drive's heading offset from the direction of travel
-    /// (the module's first estimate of δ, before a segment is folded), rad;
+    /// (the calibrator's first estimate of δ, before a segment is folded), rad;
     /// `None` before the vehicle has moved.
     pub(crate) fn course_heading_offset(&self) -> Option<f64> {
         let d = &self.drive;
@@ -655,7 +662,7 @@ impl Calibrator {
     }
 
     /// Folds the calibration segment starting at `start` (if it turns
-    /// enough): the iterated information update of the module's docs.
+    /// enough): the iterated information update of the crate's docs.
     fn fold(&mut self, start: usize) {
         let k = self.opts.segments.length_steps;
         let peak = {
@@ -741,7 +748,8 @@ impl Calibrator {
     /// [`OnlineOptions::sigma_factors`].
     pub(crate) fn sigma(&self) -> Theta {
         let f = self.opts.sigma_factors;
-        Theta::from_array(std::array::from_fn(|i| f[i] * self.p[(i, i)].max(0.0).sqrt()))
+        let sd = |i: usize| f[i] * self.p[(i, i)].max(0.0).sqrt();
+        Theta { c_e: sd(0), c_d: sd(1), t_r: sd(2), d: sd(3) }
     }
 
     /// The covariance of `[c_e, c_d, t_r, d, δ]`, θ's rows and columns
@@ -836,21 +844,22 @@ impl Calibrator {
         Ok(())
     }
 
-    /// Pushes a streamed drive as a new drive, as [`Calibrator::push_drive`]
-    /// pushes the drive read whole: the same chunks, part by part, so the
-    /// same results; `each` is called after every chunk with the samples
-    /// pushed so far.
+    /// Pushes the drive file `replay` as a new drive, in its chunks of 400
+    /// samples ([`Replay::chunks`]); `each` is called after every chunk with
+    /// the samples pushed so far. A file read as a stream and one imported
+    /// whole give the same chunks, so the same results as
+    /// [`Calibrator::push_drive`] with chunks of 400.
     ///
     /// # Errors
-    /// The stream's read errors; [`Calibrator::push`]'s.
-    pub(crate) fn push_stream(
-        &mut self,
-        stream: &DriveStream,
-        chunk: usize,
-        mut each: impl FnMut(usize),
-    ) -> Result<()> {
+    /// [`Error::InvalidDrive`] when the drive's sample time is not the
+    /// calibrator's; a streamed drive's read errors; [`Calibrator::push`]'s.
+    pub fn push_replay(&mut self, replay: &Replay, mut each: impl FnMut(usize)) -> Result<()> {
+        if (replay.sample_time_s() - self.sample_time_s).abs() > 1e-9 {
+            let reason = "sample time differs from the first drive's".into();
+            return Err(Error::InvalidDrive { context: replay.path().display().to_string(), reason });
+        }
         self.begin_drive();
-        for c in stream.chunks(chunk) {
+        for c in replay.chunks() {
             let c: StreamChunk = c?;
             if c.starts_part && c.part > 0 {
                 self.begin_part();

@@ -2,9 +2,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::drive::segment::{SegmentOptions, ValidationSegmentOptions};
-use crate::error::{Error, Result};
-use crate::model::Theta;
+use odocal::segment::{SegmentOptions, ValidationSegmentOptions};
+use odocal::{Error, Result, Theta};
 
 /// How fast the parameters may drift: the standard deviation of a random
 /// walk per parameter after one hour of driving (its variance grows

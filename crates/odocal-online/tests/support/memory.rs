@@ -8,8 +8,9 @@ use std::io::Write;
 use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use odocal::online::{Calibrator, OnlineOptions, Replay};
+use odocal::io::Replay;
 use odocal::Theta;
+use odocal_online::{Calibrator, OnlineOptions};
 
 /// The system allocator, counting the bytes held and their peak.
 struct Counting;
@@ -89,7 +90,7 @@ pub fn follow_file(path: &Path) -> usize {
     assert_eq!(drive.fingerprint().expect("fingerprint").len(), 64);
     let mut cal = Calibrator::new(Theta::PAPER_NOMINAL, None, drive.sample_time_s(), OnlineOptions::default())
         .expect("calibrator");
-    drive.push_to(&mut cal, |_| {}).expect("push");
+    cal.push_replay(&drive, |_| {}).expect("push");
     let summary = cal.status().drive;
     assert!(summary.folded_segments > 0);
     summary.samples

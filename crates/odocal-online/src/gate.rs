@@ -17,7 +17,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::Calibrator;
-use crate::model::{Theta, THETA_NAMES};
+use odocal::model::{Theta, THETA_NAMES};
 
 /// The gates' thresholds.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -1,5 +1,5 @@
 //! A manifest imported as a stream, kept on disk and replayed through the
-//! online calibrator ([`odocal::online::Replay`]) in memory that does not grow with the drive: the peak
+//! online calibrator ([`odocal::io::Replay`]) in memory that does not grow with the drive: the peak
 //! heap, counted by this test binary's allocator, of a drive 8 times as
 //! long is within 10 % of the short one's (and the whole import's grows
 //! with it, so the count can tell); with an IMU's a_y, and with a_y from
