@@ -533,7 +533,7 @@ impl EivOptions {
     }
 
     /// Checks the options, naming the offending field.
-    pub fn validate(&self) -> Result<()> {
+    pub(crate) fn validate(&self) -> Result<()> {
         let bad = |field: &'static str, reason: &str| Err(Error::InvalidOption { field, reason: reason.into() });
         if self.window_samples < 10 {
             return bad("window_samples", "must be at least 10");
