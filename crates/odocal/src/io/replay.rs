@@ -218,3 +218,41 @@ fn streamed_manifest(path: &Path, m: &Manifest, lines: &mut Vec<String>) -> Resu
     }
     Ok(stream)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::drive::DriveBuilder;
+    use crate::sim::{simulate, SimOptions};
+
+    /// A drive imported whole is cut into the chunks a streamed drive
+    /// hands out: the same parts, starts and values, bit for bit, so a
+    /// calibrator fed either sees the same samples.
+    #[test]
+    fn a_drive_read_whole_gives_the_streamed_chunks() {
+        let d = simulate(&SimOptions { length_km: 1.0, ..SimOptions::paper(5) }).expect("simulate").drive;
+        let k = d.len() / 3;
+        let t: Vec<f64> = d.t().iter().enumerate().map(|(i, &t)| if i < k { t } else { t + 2.0 }).collect();
+        let gapped = DriveBuilder {
+            t,
+            measured: d.measured().clone(),
+            parts: Some(vec![0..k, k..d.len()]),
+            ..Default::default()
+        }
+        .build()
+        .expect("drive");
+        let dir = tempfile::tempdir().expect("tmp");
+        let p = dir.path().join("d.csv");
+        gapped.write_csv(&p).expect("write");
+        let whole = Drive::read_csv(&p).expect("whole").0;
+        let stream = DriveStream::open(&p).expect("stream");
+        let a: Vec<StreamChunk> = whole_chunks(&whole, CHUNK).collect();
+        let b: Vec<StreamChunk> = stream.chunks(CHUNK).collect::<Result<_>>().expect("chunks");
+        assert!(a.len() > 2 && a.iter().filter(|c| c.starts_part).count() == 2, "{}", a.len());
+        let bits = |c: &StreamChunk| {
+            let cols = c.signals.columns().map(|(_, v)| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>());
+            (c.part, c.start, c.starts_part, c.t.iter().map(|x| x.to_bits()).collect::<Vec<_>>(), cols)
+        };
+        assert_eq!(a.iter().map(bits).collect::<Vec<_>>(), b.iter().map(bits).collect::<Vec<_>>());
+    }
+}
