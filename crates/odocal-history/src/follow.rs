@@ -146,10 +146,6 @@ pub fn follow<E: From<Error>>(
                 cal.insert(Calibrator::new(stored.theta, stored.sigma, drive.sample_time_s(), opts.online.clone())?)
             }
         };
-        if (drive.sample_time_s() - c.status().sample_time_s).abs() > 1e-9 {
-            let reason = "sample time differs from the first drive's".into();
-            return Err(Error::InvalidDrive { context: source, reason }.into());
-        }
         c.stored = Some(stored.theta);
         on(FollowEvent::Progress(Progress::Stage { name: "following", total: drive.len() as u64 }))?;
         let mut done = 0;

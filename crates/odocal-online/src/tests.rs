@@ -266,3 +266,29 @@ fn a_streamed_drive_gives_the_whole_drives_results() {
     let to_bits = |th: Theta| th.to_array().map(f64::to_bits);
     assert_eq!((to_bits(a.0), to_bits(a.1)), (to_bits(b.0), to_bits(b.1)));
 }
+
+/// A drive file whose sample time differs from the calibrator's is refused
+/// before any sample is pushed, naming the file.
+#[test]
+fn a_replay_at_another_sample_time_is_refused() {
+    let out = simulate(&SimOptions { length_km: 0.5, ..SimOptions::paper(3) }).expect("simulate");
+    let d = &out.drive;
+    let slower = DriveBuilder {
+        t: d.t().iter().map(|t| 2.0 * t).collect(),
+        measured: d.measured().clone(),
+        ..Default::default()
+    }
+    .build()
+    .expect("drive");
+    let dir = tempfile::tempdir().expect("tmp");
+    let p = dir.path().join("slower.csv");
+    slower.write_csv(&p).expect("write");
+    let stream = Replay::open(&p, |_| Ok::<(), Error>(())).expect("stream");
+    assert!((stream.sample_time_s() - 2.0 * d.sample_time_s()).abs() < 1e-9, "{}", stream.sample_time_s());
+    let mut cal =
+        Calibrator::new(Theta::PAPER_INITIAL, None, d.sample_time_s(), OnlineOptions::default()).expect("calibrator");
+    let mut pushed = 0;
+    let e = cal.push_replay(&stream, |n| pushed = n).expect_err("sample time").to_string();
+    assert!(e.contains("sample time differs") && e.contains("slower.csv"), "{e}");
+    assert_eq!((pushed, cal.status().drive.samples), (0, 0));
+}
