@@ -292,7 +292,9 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<
 /// the start's θ (`start`), the fit's σ of each kind (`block`, `sandwich`,
 /// `fisher`, `noise`, `bias_mc`), the bias subtracted (`bias`), the halves'
 /// z (`halves`), η's σ (`eta_sigma`), the largest and mean window NIS (`nis`),
-/// θ's correlation matrix's t_r–d entry (`rho_td`).
+/// θ's correlation matrix's t_r–d entry (`rho_td`), the scoring iterations
+/// and filter passes (`iterations`, `evaluations`), and each parameter's σ
+/// of `H_θ⁻¹` at the estimate over its resolution (`sor`).
 fn eiv_extra(d: &EivPart) -> String {
     let v = |a: &[f64]| a.iter().map(|x| format!("{x:.4e}")).collect::<Vec<_>>().join(" ");
     let mut out = vec![format!("start={}", v(&d.identification.theta.to_array()))];
@@ -321,6 +323,8 @@ fn eiv_extra(d: &EivPart) -> String {
         let c = &e.covariance;
         out.push(format!("rho_td={:.4}", c[2][3] / (c[2][2] * c[3][3]).sqrt()));
         out.push(format!("iterations={}", e.iterations));
+        out.push(format!("evaluations={} {}", e.evaluations[0], e.evaluations[1]));
+        out.push(format!("sor={}", v(&e.observability.sigma_over_resolution)));
     }
     out.join(";")
 }
