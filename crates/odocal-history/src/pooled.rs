@@ -107,10 +107,10 @@ pub(crate) fn pooled_estimate(rows: &[HistoryRow]) -> Option<Pooled> {
             }
         }
     }
-    Some(Pooled { rows: rows.len(), mean: theta_of(mean), sigma_of_mean: theta_of(se), between_drive_sd: theta_of(sd) })
-}
-
-/// θ from `[c_e, c_d, t_r, d]`.
-fn theta_of(a: [f64; 4]) -> Theta {
-    Theta { c_e: a[0], c_d: a[1], t_r: a[2], d: a[3] }
+    Some(Pooled {
+        rows: rows.len(),
+        mean: Theta::from_array(mean),
+        sigma_of_mean: Theta::from_array(se),
+        between_drive_sd: Theta::from_array(sd),
+    })
 }

@@ -748,8 +748,7 @@ impl Calibrator {
     /// [`OnlineOptions::sigma_factors`].
     pub(crate) fn sigma(&self) -> Theta {
         let f = self.opts.sigma_factors;
-        let sd = |i: usize| f[i] * self.p[(i, i)].max(0.0).sqrt();
-        Theta { c_e: sd(0), c_d: sd(1), t_r: sd(2), d: sd(3) }
+        Theta::from_array(std::array::from_fn(|i| f[i] * self.p[(i, i)].max(0.0).sqrt()))
     }
 
     /// The covariance of `[c_e, c_d, t_r, d, δ]`, θ's rows and columns

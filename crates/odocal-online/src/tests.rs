@@ -3,20 +3,6 @@ use super::*;
 use odocal::sim::{simulate, SimOptions};
 use odocal::DriveBuilder;
 
-/// The samples `r` of `s`.
-fn slice(s: &Signals, r: std::ops::Range<usize>) -> Signals {
-    let c = |v: &Vec<f64>| v[r.clone()].to_vec();
-    Signals {
-        px: c(&s.px),
-        py: c(&s.py),
-        psi: c(&s.psi),
-        n_rl: c(&s.n_rl),
-        n_rr: c(&s.n_rr),
-        beta: c(&s.beta),
-        a_y: c(&s.a_y),
-    }
-}
-
 fn noise_free(km: f64, seed: u64) -> (Drive, Theta) {
     let out = simulate(&SimOptions { length_km: km, ..SimOptions::noise_free(seed) }).expect("simulate");
     (out.drive, out.sidecar.theta_true)
@@ -158,7 +144,7 @@ fn pushed_times_find_the_gaps_and_the_heading_is_unwrapped() {
     let m = d.measured();
     for a in (0..d.len()).step_by(321) {
         let r = a..(a + 321).min(d.len());
-        let mut s = slice(m, r.clone());
+        let mut s = m.slice(r.clone());
         s.psi.iter_mut().for_each(|v| *v = wrap_angle(*v));
         cal.push(Some(&d.t()[r]), &s).expect("push");
     }
@@ -174,7 +160,7 @@ fn pushed_times_find_the_gaps_and_the_heading_is_unwrapped() {
         Calibrator::new(Theta::PAPER_INITIAL, None, d.sample_time_s(), OnlineOptions::default()).expect("cal");
     let n = 1000;
     let t: Vec<f64> = d.t()[..n].iter().enumerate().map(|(i, t)| if i < n / 2 { *t } else { t + 60.0 }).collect();
-    gapped.push(Some(&t), &slice(m, 0..n)).expect("gap");
+    gapped.push(Some(&t), &m.slice(0..n)).expect("gap");
     assert_eq!(gapped.status().drive.samples, n);
     assert!(gapped.buffered_samples() <= n / 2, "{}", gapped.buffered_samples());
 }

@@ -63,11 +63,9 @@ impl Theta {
         Theta { c_e: v[0], c_d: v[1], t_r: v[2], d: v[3] }
     }
 
-    research_pub! {
-        /// θ from `[c_e, c_d, t_r, d]`.
-        fn from_array(a: [f64; 4]) -> Self {
-            Theta { c_e: a[0], c_d: a[1], t_r: a[2], d: a[3] }
-        }
+    /// θ from `[c_e, c_d, t_r, d]` (the inverse of [`Theta::to_array`]).
+    pub fn from_array(a: [f64; 4]) -> Self {
+        Theta { c_e: a[0], c_d: a[1], t_r: a[2], d: a[3] }
     }
 
     /// `[c_e, c_d, t_r, d]` as a vector.
