@@ -12,6 +12,11 @@
 //! - `b16`: the default with B = 16 bias-correction replicates;
 //! - `conv`: the default with each bias-correction replicate fitted to
 //!   convergence (`ResearchOptions::bias_correction_refit`);
+//! - `q0`: the default with no quantisation in its wheel-noise model (the
+//!   step given as 0, `QuantisationLevel::Given`);
+//! - `qscaled`: the default with the quantisation step scaled with the
+//!   white wheel noise from the starting model's even where the readings
+//!   lie on a lattice (`QuantisationLevel::ScaledWithWhite`);
 //! - `gn`: `--method batch-gn --estimate heading-offset`.
 //!
 //! Drive variants (`--drives`), each the preset with one group of noise
@@ -31,7 +36,7 @@
 
 use std::fmt::Write as _;
 
-use odocal::eiv::BootstrapRefit;
+use odocal::eiv::{BootstrapRefit, QuantisationLevel};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{calibrate, CalibrationOptions, CorrectBias, Method, Param, Theta};
 use odocal_lab::report_json::{eiv_part, EivPart};
@@ -43,7 +48,7 @@ const USAGE: &str = "eiv_tr_bias [--km 12] [--seeds 40] [--first-seed 1] [--pres
     [--estimators default,gn] [--threads N] [--csv FILE]
 
 drives: full, no-slip, no-heading, no-position, no-lateral, no-quant, no-coloured, no-white, slip-only, off;
-estimators: default (with its uncorrected fit), b16, conv, gn.";
+estimators: default (with its uncorrected fit), b16, conv, q0, qscaled, gn.";
 
 const DRIVES: [&str; 10] = [
     "full",
@@ -57,7 +62,7 @@ const DRIVES: [&str; 10] = [
     "slip-only",
     "off",
 ];
-const ESTIMATORS: [&str; 4] = ["default", "b16", "conv", "gn"];
+const ESTIMATORS: [&str; 6] = ["default", "b16", "conv", "q0", "qscaled", "gn"];
 
 /// `preset` with the sources of drive variant `drive` switched off.
 fn drive_noise(preset: &NoiseOptions, drive: &str) -> NoiseOptions {
@@ -105,6 +110,16 @@ fn options(est: &str) -> Res<CalibrationOptions> {
                     e.correct_bias = Some(CorrectBias { replicates: 16, ..Default::default() });
                 } else {
                     e.filter.research.bias_correction_refit = BootstrapRefit::Converged;
+                }
+            }
+        }
+        "q0" | "qscaled" => {
+            if let Method::Eiv(e) = &mut o.method {
+                if est == "q0" {
+                    e.filter.quantisation_level = QuantisationLevel::Given;
+                    e.filter.noise.quantisation_step_rev_per_s = 0.0;
+                } else {
+                    e.filter.quantisation_level = QuantisationLevel::ScaledWithWhite;
                 }
             }
         }
