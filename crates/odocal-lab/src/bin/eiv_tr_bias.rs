@@ -27,7 +27,8 @@
 //! `no-lateral` (a_y and β noise), `no-quant` (encoder quantisation),
 //! `no-coloured` (common and per-wheel coloured wheel noise), `no-white`
 //! (white wheel noise); `slip-only` (no noise but the slip) and `off` (no
-//! noise). Errors are against `SimOptions::equivalent_truth`.
+//! noise); `drift-tau100`, the reference's position and heading drift at
+//! the filter's correlation time, 100 s. Errors are against `SimOptions::equivalent_truth`.
 //!
 //! Per drive variant and estimator: mean error, bias t = |mean|/(sd/√n)
 //! and RMS per parameter (c_e, t_r in %, c_d in mm, d in mm/(m/s²)) and the
@@ -47,7 +48,8 @@ const USAGE: &str = "eiv_tr_bias [--km 12] [--seeds 40] [--first-seed 1] [--pres
     [--drives full,no-slip,no-heading,no-position,no-lateral,no-quant,no-coloured,no-white]
     [--estimators default,gn] [--threads N] [--csv FILE]
 
-drives: full, no-slip, no-heading, no-position, no-lateral, no-quant, no-coloured, no-white, slip-only, off;
+drives: full, no-slip, no-heading, no-position, no-lateral, no-quant, no-coloured, no-white, slip-only, off,
+    drift-tau100;
 estimators: default (with its uncorrected fit), b16, conv, q0, qscaled, gn.";
 
 const DRIVES: [&str; 10] = [
@@ -87,6 +89,10 @@ fn drive_noise(preset: &NoiseOptions, drive: &str) -> NoiseOptions {
             n.wheel_coloured_differential_rel_sigma = 0.0;
         }
         "no-white" => n.wheel_white_rel_sigma = 0.0,
+        "drift-tau100" => {
+            n.position_drift_time_constant_s = 100.0;
+            n.heading_drift_time_constant_s = 100.0;
+        }
         "slip-only" => {
             n = NoiseOptions { wheel_slip_per_m_per_s2: preset.wheel_slip_per_m_per_s2, ..NoiseOptions::off() }
         }
