@@ -52,7 +52,7 @@ drives: full, no-slip, no-heading, no-position, no-lateral, no-quant, no-coloure
     drift-tau100;
 estimators: default (with its uncorrected fit), b16, conv, q0, qscaled, gn.";
 
-const DRIVES: [&str; 10] = [
+const DRIVES: [&str; 11] = [
     "full",
     "no-slip",
     "no-heading",
@@ -63,6 +63,7 @@ const DRIVES: [&str; 10] = [
     "no-white",
     "slip-only",
     "off",
+    "drift-tau100",
 ];
 const ESTIMATORS: [&str; 6] = ["default", "b16", "conv", "q0", "qscaled", "gn"];
 
