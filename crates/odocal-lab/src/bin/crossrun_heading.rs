@@ -22,11 +22,16 @@ use odocal::{Calibration, CalibrationOptions, CalibrationReport, Drive, Holdout,
 use odocal_lab::{repo_path, testtrack_manifest, Args, Res, Table, TESTTRACK_RUNS, VAN_MANIFEST};
 
 const USAGE: &str = "crossrun_heading [--skip-van] [--heading-drift-lr T] [--untied-drift] [--no-clamp-refit]
+    [--no-bias-correction]
 
 --untied-drift: the default with the reference drift untied (position_drift_own_scale, the position drift's
     τ 20 s, heading_drift_two_sided).
 --no-clamp-refit: the default without the refit, after a fit that fails with a noise scale at its upper clamp, with
-    c_e held at the batch G-N start's (clamp_refit_hold_scale off).";
+    c_e held at the batch G-N start's (clamp_refit_hold_scale off).
+--no-bias-correction: the default without its bias correction (`--no-bias-correction`).";
+
+/// `--no-bias-correction`: the default method's bias correction off.
+static NO_BIAS_CORRECTION: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
 
 /// `--no-clamp-refit`: `ResearchOptions::clamp_refit_hold_scale` off.
 static NO_CLAMP_REFIT: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
@@ -43,7 +48,10 @@ fn note_heading_drift(name: &str, r: &CalibrationReport) {
         let start = p.identification.theta.t_r;
         if let Some(e) = &p.eiv {
             eprintln!("{name}: heading drift {:?}", e.heading_drift);
-            eprintln!("{name}: {} (refit {}); EIV's t_r {} (free {}), its start's {start}", p.eiv_result, p.refit, e.theta.t_r, e.free[2]);
+            eprintln!(
+                "{name}: {} (refit {}); EIV's t_r {} (free {}), its start's {start}",
+                p.eiv_result, p.refit, e.theta.t_r, e.free[2]
+            );
         }
     }
     let reasons: Vec<String> = r.verdict.reasons.iter().map(|x| x.to_string()).collect();
@@ -71,6 +79,10 @@ fn load_with_options(rel: &str) -> Res<(Drive, CalibrationOptions)> {
     }
     if let (Some(true), odocal::Method::Eiv(e)) = (NO_CLAMP_REFIT.get().copied(), &mut options.method) {
         e.filter.research.clamp_refit_hold_scale = false;
+    }
+    if let (Some(true), odocal::Method::Eiv(e)) = (NO_BIAS_CORRECTION.get().copied(), &mut options.method) {
+        e.correct_bias = None;
+        e.filter.bias_correction = odocal::eiv::BiasCorrection::None;
     }
     Ok((drive, options))
 }
@@ -185,11 +197,12 @@ fn van() -> Res<()> {
 }
 
 fn run() -> Res<()> {
-    let mut a = Args::parse(USAGE, &["skip-van", "untied-drift", "no-clamp-refit"])?;
+    let mut a = Args::parse(USAGE, &["skip-van", "untied-drift", "no-clamp-refit", "no-bias-correction"])?;
     let skip_van = a.flag("skip-van");
     let _ = HEADING_DRIFT_LR.set(a.opt("heading-drift-lr")?);
     let _ = UNTIED_DRIFT.set(a.flag("untied-drift"));
     let _ = NO_CLAMP_REFIT.set(a.flag("no-clamp-refit"));
+    let _ = NO_BIAS_CORRECTION.set(a.flag("no-bias-correction"));
     a.finish()?;
     testtrack()?;
     if !skip_van {

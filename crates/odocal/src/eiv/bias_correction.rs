@@ -1,7 +1,7 @@
 //! Corrections of the estimator's own bias (bootstrap, first order).
 
 use super::bootstrap;
-use super::{BootstrapOptions, BootstrapRefit};
+use super::BootstrapOptions;
 use std::time::Instant;
 
 use super::filter::WindowSums;
@@ -71,7 +71,7 @@ research_pub! {
                 seed,
                 true_inputs: opts.bootstrap_inputs,
                 antithetic: opts.bootstrap_antithetic,
-                refit: BootstrapRefit::OneStep,
+                refit: opts.research.bias_correction_refit,
                 ..Default::default()
             },
         )?;

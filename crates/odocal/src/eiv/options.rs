@@ -1,6 +1,6 @@
 //! The options of the EIV calibration and the covariance it reports.
 
-use super::BootstrapInputs;
+use super::{BootstrapInputs, BootstrapRefit};
 
 use serde::{Deserialize, Serialize};
 
@@ -354,6 +354,11 @@ macro_rules! research_options {
             /// θ by at most 0.002 σ and σ by at most 0.03 %
             /// (docs/performance.md). The Cramér–Rao bound propagates it.
             $vis c_d_covariance_derivative: bool,
+            /// How the bias correction ([`EivOptions::correct_bias`]) re-fits
+            /// its replicates. Default [`BootstrapRefit::OneStep`]: one
+            /// scoring step from θ̂, a single filter pass per replicate;
+            /// [`BootstrapRefit::Converged`] fits each to convergence.
+            $vis bias_correction_refit: BootstrapRefit,
         }
     };
 }
@@ -387,6 +392,7 @@ impl Default for ResearchOptions {
             clamp_refit_hold_scale: true,
             clamp_refit_common_mode_eta: None,
             c_d_covariance_derivative: false,
+            bias_correction_refit: BootstrapRefit::OneStep,
         }
     }
 }

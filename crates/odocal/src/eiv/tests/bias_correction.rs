@@ -331,9 +331,10 @@ fn one_step_refit_is_the_converged_fit_where_that_takes_one_full_step() {
 }
 
 /// The default bias correction fits its replicates by one scoring step
-/// ([`BootstrapRefit::OneStep`]); replicates fitted to convergence would
-/// subtract a bias that differs by at most [`ONE_STEP_TOLERANCE_SIGMA`] of
-/// each parameter's σ (paper and high noise, η estimated, 2 km).
+/// ([`BootstrapRefit::OneStep`]); replicates fitted to convergence (as
+/// `ResearchOptions::bias_correction_refit` asks) would subtract a bias
+/// that differs by at most [`ONE_STEP_TOLERANCE_SIGMA`] of each
+/// parameter's σ (paper and high noise, η estimated, 2 km).
 #[test]
 fn one_step_replicates_move_the_correction_by_a_small_fraction_of_sigma() {
     for (noise, seed) in [(crate::sim::NoiseOptions::paper(), 3), (crate::sim::NoiseOptions::high(), 2)] {
@@ -363,6 +364,11 @@ fn one_step_replicates_move_the_correction_by_a_small_fraction_of_sigma() {
         let one_step = bootstrap(&input, &fit, &inner, &BootstrapOptions { refit: BootstrapRefit::OneStep, ..boot })
             .expect("bootstrap");
         assert_eq!(one_step.bias.map(f64::to_bits), r.bias_subtracted.map(f64::to_bits), "seed {seed}");
+        // `bias_correction_refit` switches the correction to the converged replicates.
+        let mut converged_opts = opts.clone();
+        converged_opts.research.bias_correction_refit = BootstrapRefit::Converged;
+        let rc = estimate(&input, &out.sidecar.theta_true, &converged_opts).expect("eiv");
+        assert_eq!(rc.bias_subtracted.map(f64::to_bits), converged.bias.map(f64::to_bits), "seed {seed}");
         for i in (0..4).filter(|i| r.free[*i]) {
             let moved = (one_step.bias[i] - converged.bias[i]).abs() / r.sigma[i];
             eprintln!("seed {seed}, {}: one-step against converged replicates {moved:.4} σ", PARAMETERS[i]);

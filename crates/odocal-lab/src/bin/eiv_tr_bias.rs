@@ -1,0 +1,264 @@
+//! Where the default's residual t_r bias comes from (docs/validation.md,
+//! "Where the default's t_r bias comes from").
+//!
+//! Per seed (`--first-seed` .. + `--seeds`) and drive variant it simulates
+//! one drive of the paper route (`--preset` noise, `--km` long,
+//! `--substeps` substeps) and calibrates it, all through `odocal::calibrate`,
+//! with the estimators of `--estimators`:
+//! - `default`: `calibrate` without options; also gives the row
+//!   `uncorrected`, the same fit without its bias correction (the EIV fit's
+//!   `theta_uncorrected`, or the batch G-N fallback where it fell back:
+//!   the correction runs only on a kept fit);
+//! - `b16`: the default with B = 16 bias-correction replicates;
+//! - `conv`: the default with each bias-correction replicate fitted to
+//!   convergence (`ResearchOptions::bias_correction_refit`);
+//! - `q0`: the default with no quantisation in its wheel-noise model (the
+//!   step given as 0, `QuantisationLevel::Given`);
+//! - `qscaled`: the default with the quantisation step scaled with the
+//!   white wheel noise from the starting model's even where the readings
+//!   lie on a lattice (`QuantisationLevel::ScaledWithWhite`);
+//! - `gn`: `--method batch-gn --estimate heading-offset`.
+//!
+//! Drive variants (`--drives`), each the preset with one group of noise
+//! sources switched off (every source draws from its own stream of the
+//! seed, so the others' realisations are the same): `full`, `no-slip`
+//! (acceleration slip), `no-heading` (reference heading drift and white
+//! noise), `no-position` (reference position drift and white noise),
+//! `no-lateral` (a_y and β noise), `no-quant` (encoder quantisation),
+//! `no-coloured` (common and per-wheel coloured wheel noise), `no-white`
+//! (white wheel noise); `slip-only` (no noise but the slip) and `off` (no
+//! noise); `drift-tau100`, the reference's position and heading drift at
+//! the filter's correlation time, 100 s. Errors are against `SimOptions::equivalent_truth`.
+//!
+//! Per drive variant and estimator: mean error, bias t = |mean|/(sd/√n)
+//! and RMS per parameter (c_e, t_r in %, c_d in mm, d in mm/(m/s²)) and the
+//! fallbacks. `--csv FILE` writes a row per seed, drive and estimator.
+//! Seeds run in parallel (`--threads`); the output does not depend on it.
+
+use std::fmt::Write as _;
+
+use odocal::eiv::{BootstrapRefit, QuantisationLevel};
+use odocal::sim::{simulate, NoiseOptions, SimOptions};
+use odocal::{calibrate, CalibrationOptions, CorrectBias, Method, Param, Theta};
+use odocal_lab::report_json::{eiv_part, EivPart};
+use odocal_lab::{errors, noise_preset, Args, Res, Summary, Table, ERROR_UNITS};
+use rayon::prelude::*;
+
+const USAGE: &str = "eiv_tr_bias [--km 12] [--seeds 40] [--first-seed 1] [--preset paper] [--substeps 10]
+    [--drives full,no-slip,no-heading,no-position,no-lateral,no-quant,no-coloured,no-white]
+    [--estimators default,gn] [--threads N] [--csv FILE]
+
+drives: full, no-slip, no-heading, no-position, no-lateral, no-quant, no-coloured, no-white, slip-only, off,
+    drift-tau100;
+estimators: default (with its uncorrected fit), b16, conv, q0, qscaled, gn.";
+
+const DRIVES: [&str; 11] = [
+    "full",
+    "no-slip",
+    "no-heading",
+    "no-position",
+    "no-lateral",
+    "no-quant",
+    "no-coloured",
+    "no-white",
+    "slip-only",
+    "off",
+    "drift-tau100",
+];
+const ESTIMATORS: [&str; 6] = ["default", "b16", "conv", "q0", "qscaled", "gn"];
+
+/// `preset` with the sources of drive variant `drive` switched off.
+fn drive_noise(preset: &NoiseOptions, drive: &str) -> NoiseOptions {
+    let mut n = preset.clone();
+    match drive {
+        "no-slip" => n.wheel_slip_per_m_per_s2 = 0.0,
+        "no-heading" => {
+            n.heading_drift_sigma_rad = 0.0;
+            n.heading_white_sigma_rad = 0.0;
+        }
+        "no-position" => {
+            n.position_drift_sigma_m = 0.0;
+            n.position_white_sigma_m = 0.0;
+        }
+        "no-lateral" => {
+            n.lateral_acceleration_white_sigma_m_per_s2 = 0.0;
+            n.sideslip_sigma_rad = 0.0;
+        }
+        "no-quant" => n.encoder_ticks_per_revolution = 0,
+        "no-coloured" => {
+            n.wheel_coloured_rel_sigma = 0.0;
+            n.wheel_coloured_differential_rel_sigma = 0.0;
+        }
+        "no-white" => n.wheel_white_rel_sigma = 0.0,
+        "drift-tau100" => {
+            n.position_drift_time_constant_s = 100.0;
+            n.heading_drift_time_constant_s = 100.0;
+        }
+        "slip-only" => {
+            n = NoiseOptions { wheel_slip_per_m_per_s2: preset.wheel_slip_per_m_per_s2, ..NoiseOptions::off() }
+        }
+        "off" => n = NoiseOptions::off(),
+        _ => {}
+    }
+    n
+}
+
+/// The calibration options of estimator `est`.
+fn options(est: &str) -> Res<CalibrationOptions> {
+    let mut o = CalibrationOptions::default();
+    match est {
+        "gn" => {
+            o.method = Method::from_name("batch-gn")?;
+            o.identify.free = o.identify.free.with(Param::HeadingOffset);
+        }
+        "b16" | "conv" => {
+            if let Method::Eiv(e) = &mut o.method {
+                if est == "b16" {
+                    e.correct_bias = Some(CorrectBias { replicates: 16, ..Default::default() });
+                } else {
+                    e.filter.research.bias_correction_refit = BootstrapRefit::Converged;
+                }
+            }
+        }
+        "q0" | "qscaled" => {
+            if let Method::Eiv(e) = &mut o.method {
+                if est == "q0" {
+                    e.filter.quantisation_level = QuantisationLevel::Given;
+                    e.filter.noise.quantisation_step_rev_per_s = 0.0;
+                } else {
+                    e.filter.quantisation_level = QuantisationLevel::ScaledWithWhite;
+                }
+            }
+        }
+        _ => {}
+    }
+    Ok(o)
+}
+
+/// One row: (estimator row name, fell back, θ).
+type Row = (String, bool, Theta);
+
+/// The rows of estimator `est` on `drive`.
+fn run(est: &str, drive: &odocal::Drive) -> Res<Vec<Row>> {
+    let r = calibrate(drive, &options(est)?)?;
+    let part = eiv_part(&r);
+    let fell_back = part.as_ref().is_some_and(EivPart::fell_back);
+    let mut rows = vec![(est.to_string(), fell_back, r.theta)];
+    if est == "default" {
+        let own = part.as_ref().and_then(|p| p.eiv.as_ref()).map(|e| e.theta_uncorrected);
+        let plain = if fell_back { r.theta } else { own.unwrap_or(r.theta) };
+        rows.push(("uncorrected".to_string(), fell_back, plain));
+    }
+    Ok(rows)
+}
+
+struct Settings {
+    km: f64,
+    seeds: u64,
+    first: u64,
+    preset: String,
+    substeps: usize,
+    drives: Vec<String>,
+    estimators: Vec<String>,
+    csv: Option<String>,
+}
+
+/// One seed: per drive variant, its equivalent truth and rows.
+fn seed_rows(s: &Settings, seed: u64) -> Res<Vec<(String, Theta, Vec<Row>)>> {
+    let preset = noise_preset(&s.preset)?;
+    let mut out = Vec::new();
+    for d in &s.drives {
+        let o = SimOptions {
+            length_km: s.km,
+            substeps: s.substeps,
+            noise: drive_noise(&preset, d),
+            ..SimOptions::paper(seed)
+        };
+        let truth = o.equivalent_truth().0;
+        let sim = simulate(&o)?;
+        let mut rows = Vec::new();
+        for e in &s.estimators {
+            rows.extend(run(e, &sim.drive)?);
+        }
+        out.push((d.clone(), truth, rows));
+    }
+    Ok(out)
+}
+
+fn main() {
+    odocal_lab::main_with(|| {
+        let mut a = Args::parse(USAGE, &[])?;
+        let s = Settings {
+            km: a.get("km", 12.0)?,
+            seeds: a.get("seeds", 40)?,
+            first: a.get("first-seed", 1)?,
+            preset: a.get("preset", "paper".to_string())?,
+            substeps: a.get("substeps", 10)?,
+            drives: a.list("drives", &DRIVES[..8]),
+            estimators: a.list("estimators", &["default", "gn"]),
+            csv: a.opt("csv")?,
+        };
+        let threads: Option<usize> = a.opt("threads")?;
+        a.finish()?;
+        if let Some(d) = s.drives.iter().find(|d| !DRIVES.contains(&d.as_str())) {
+            return Err(format!("unknown drive variant '{d}'").into());
+        }
+        if let Some(e) = s.estimators.iter().find(|e| !ESTIMATORS.contains(&e.as_str())) {
+            return Err(format!("unknown estimator '{e}'").into());
+        }
+        if let Some(n) = threads {
+            rayon::ThreadPoolBuilder::new().num_threads(n).build_global()?;
+        }
+        let seeds: Vec<u64> = (s.first..s.first + s.seeds).collect();
+        let per_seed: Vec<Vec<(String, Theta, Vec<Row>)>> = seeds
+            .par_iter()
+            .map(|&seed| {
+                let r = seed_rows(&s, seed).map_err(|e| format!("seed {seed}: {e}"));
+                eprintln!("seed {seed} done");
+                r
+            })
+            .collect::<Result<_, String>>()?;
+        report(&s, &seeds, &per_seed)
+    });
+}
+
+fn report(s: &Settings, seeds: &[u64], per_seed: &[Vec<(String, Theta, Vec<Row>)>]) -> Res<()> {
+    println!(
+        "preset {}, {} km, {} substeps, seeds {}..={}; mean error (t) · RMS; errors against the equivalent truth\n",
+        s.preset,
+        s.km,
+        s.substeps,
+        s.first,
+        s.first + s.seeds - 1
+    );
+    let mut header = vec!["drive", "estimator", "n", "fallbacks"];
+    header.extend(ERROR_UNITS);
+    let mut table = Table::new(&header);
+    let mut csv = String::from("drive,estimator,seed,fallback,e_c_e_pct,e_c_d_mm,e_t_r_pct,e_d\n");
+    for (di, d) in s.drives.iter().enumerate() {
+        let names: Vec<String> = per_seed[0][di].2.iter().map(|r| r.0.clone()).collect();
+        for (ri, name) in names.iter().enumerate() {
+            let mut errs: Vec<[f64; 4]> = Vec::new();
+            let mut fallbacks = 0;
+            for (seed, rows) in seeds.iter().zip(per_seed) {
+                let (_, truth, r) = &rows[di];
+                let e = errors(&r[ri].2, truth);
+                fallbacks += usize::from(r[ri].1);
+                writeln!(csv, "{d},{name},{seed},{},{:.6},{:.6},{:.6},{:.6}", r[ri].1, e[0], e[1], e[2], e[3])?;
+                errs.push(e);
+            }
+            let mut cells = vec![d.clone(), name.clone(), errs.len().to_string(), fallbacks.to_string()];
+            for p in 0..4 {
+                let x: Vec<f64> = errs.iter().map(|e| e[p]).collect();
+                let m = Summary::of(&x);
+                cells.push(format!("{:+.4} ({:.1}) · {:.4}", m.mean, m.t(), m.rms));
+            }
+            table.row(cells);
+        }
+    }
+    println!("{table}");
+    if let Some(p) = &s.csv {
+        std::fs::write(p, csv)?;
+    }
+    Ok(())
+}
