@@ -9,6 +9,7 @@ mod common;
 
 mod bad_input;
 mod bag;
+mod careless;
 mod cli;
 mod data_safety;
 mod eiv;
