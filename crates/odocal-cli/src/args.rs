@@ -103,7 +103,7 @@ pub struct CalibrationArgs {
     /// provenance (with the drives' fingerprints): a ROS 2 parameter file
     /// (.yaml/.yml) or JSON (.json); "-" writes the YAML to stdout instead of
     /// the text report. `--theta0` and `validate --theta` read it back.
-    #[arg(long)]
+    #[arg(long, value_parser = params_out_path)]
     pub params_out: Option<PathBuf>,
     /// Write a self-contained HTML report here ("-": stdout).
     ///
@@ -375,6 +375,21 @@ impl ThetaArg {
                 None => Ok(self.clone()),
             },
         }
+    }
+}
+
+/// A `--params-out` path: its extension names the format (`.yaml`,
+/// `.yml`: a ROS 2 parameter file; `.json`), checked before any work; `-`
+/// writes the YAML to stdout.
+pub fn params_out_path(s: &str) -> std::result::Result<PathBuf, String> {
+    let path = PathBuf::from(s);
+    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        _ if odocal::output::is_stdout(&path) => Ok(path),
+        Some("yaml" | "yml" | "json") => Ok(path),
+        _ => Err("the file name says the format: end it in .yaml or .yml (a ROS 2 parameter file) or .json, or \
+                  give - for the YAML on stdout"
+            .into()),
     }
 }
 

@@ -3,7 +3,13 @@
 //! the option cannot take, exit 1 for an output that cannot be written
 //! where it is asked for.
 
-use crate::common::{odocal, stderr};
+use std::path::Path;
+
+use crate::common::{odocal, simulated_drive, stderr};
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("utf8")
+}
 
 fn assert_fails(args: &[&str], code: i32, needles: &[&str]) -> String {
     let o = odocal(args);
@@ -22,4 +28,18 @@ fn threads_outside_1_to_the_ceiling_are_usage_errors() {
     let with = |n: &'static str| [&["--threads", n][..], &v[..]].concat();
     assert_fails(&with("0"), 2, &["--threads", "must be at least 1"]);
     assert_fails(&with("5000"), 2, &["--threads", "above the ceiling of 1024"]);
+}
+
+/// A `--params-out` whose name gives no format is refused before the
+/// calibration runs, and before `follow` records anything in the history.
+#[test]
+fn a_params_out_without_a_format_is_refused_before_any_work() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let d = simulated_drive(dir.path(), "d.csv", &["--length-km", "1"]);
+    let txt = dir.path().join("odometry.txt");
+    assert_fails(&["calibrate", &d, "--params-out", s(&txt)], 2, &["--params-out", ".yaml", ".json"]);
+    let db = dir.path().join("h.sqlite");
+    assert_fails(&["follow", &d, "--vehicle", "v", "--db", s(&db), "--params-out", s(&txt)], 2, &["--params-out"]);
+    assert!(!db.exists(), "the history was opened before the command line was checked");
+    assert!(!txt.exists());
 }
