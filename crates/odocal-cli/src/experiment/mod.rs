@@ -164,6 +164,7 @@ fn check_out_dir(a: &ExperimentArgs) -> Result<()> {
         }
     }
     let mut files = Files::default();
+    files.creates_folder();
     if let Some(d) = &a.drive {
         files.drive("the --drive", d);
     }

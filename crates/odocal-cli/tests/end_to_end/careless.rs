@@ -43,3 +43,25 @@ fn a_params_out_without_a_format_is_refused_before_any_work() {
     assert!(!db.exists(), "the history was opened before the command line was checked");
     assert!(!txt.exists());
 }
+
+/// An output in a folder that does not exist, or onto a directory, is
+/// named before the work (whose result would be lost), without the name of
+/// a temporary file.
+#[test]
+fn an_output_that_cannot_be_written_is_named_before_any_work() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let d = simulated_drive(dir.path(), "d.csv", &["--length-km", "1"]);
+    let missing = dir.path().join("no-such-folder").join("r.json");
+    let e = assert_fails(&["calibrate", &d, "--json", s(&missing)], 1, &["--json", "no-such-folder does not exist"]);
+    assert!(!e.contains(".r.json."), "the temporary file named: {e}");
+    assert_fails(&["calibrate", &d, "--report", s(dir.path())], 1, &["--report", "is a directory"]);
+    let under_file = Path::new(&d).join("r.yaml");
+    assert_fails(&["calibrate", &d, "--params-out", s(&under_file)], 1, &["d.csv is not a folder"]);
+    let csv = dir.path().join("nowhere").join("x.csv");
+    assert_fails(&["simulate", "--length-km", "1", "--out", s(&csv)], 1, &["--out", "does not exist"]);
+    // experiment creates its folder.
+    let out = dir.path().join("new").join("exp");
+    let o = odocal(&["experiment", "--length-km", "0.5", "--batches", "2", "--out", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(out.join("report.md").exists());
+}
