@@ -58,10 +58,10 @@ pub struct DemoArgs {
     #[arg(long, default_value_t = 1, hide_default_value = true)]
     sim_seed: u64,
     /// Route length, km.
-    #[arg(long, default_value_t = 24.0)]
+    #[arg(long, default_value_t = 24.0, value_parser = crate::simulate::route_length_km)]
     length_km: f64,
     /// paper (default), off, white, high or random:N noise.
-    #[arg(long, default_value = "paper", hide_default_value = true)]
+    #[arg(long, default_value = "paper", hide_default_value = true, value_parser = crate::simulate::noise_preset)]
     noise: String,
     /// Also write the simulated drive here.
     #[arg(long)]

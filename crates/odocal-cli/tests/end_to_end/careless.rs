@@ -65,3 +65,14 @@ fn an_output_that_cannot_be_written_is_named_before_any_work() {
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(out.join("report.md").exists());
 }
+
+#[test]
+fn simulator_flags_are_checked_as_flags() {
+    let out = std::env::temp_dir().join("odocal-never-written.csv");
+    let o = s(&out);
+    assert_fails(&["simulate", "--length-km", "0", "--out", o], 2, &["--length-km", "positive"]);
+    assert_fails(&["simulate", "--noise", "loud", "--out", o], 2, &["--noise", "unknown noise preset 'loud'"]);
+    assert_fails(&["demo", "--noise", "loud"], 2, &["--noise"]);
+    assert_fails(&["experiment", "--length-km", "nan", "--out", o], 2, &["--length-km"]);
+    assert!(!out.exists());
+}
