@@ -20,6 +20,7 @@ mod golden;
 mod heading_offset;
 mod help;
 mod hostile;
+mod html_report;
 mod keep_one_way;
 mod manifest_settings;
 mod misleading;
