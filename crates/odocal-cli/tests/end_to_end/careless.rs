@@ -76,3 +76,11 @@ fn simulator_flags_are_checked_as_flags() {
     assert_fails(&["experiment", "--length-km", "nan", "--out", o], 2, &["--length-km"]);
     assert!(!out.exists());
 }
+
+/// `-` for a drive (stdin) is refused with what to do, not "-: No such
+/// file or directory".
+#[test]
+fn a_drive_from_stdin_is_refused_saying_why() {
+    assert_fails(&["validate", "-", "--theta", "2,0,1.6,0"], 1, &["-: a drive is read from a file, not from stdin"]);
+    assert_fails(&["calibrate", "-"], 1, &["save it first"]);
+}
