@@ -24,7 +24,8 @@ use crate::Outcome;
 pub struct CalibrateArgs {
     /// Drive CSV or manifest (.toml); several are fitted jointly.
     ///
-    /// The drive: a canonical CSV (SPEC §2) or a drive manifest (.toml).
+    /// The drive: a canonical CSV (docs/reference.md, "The drive CSV") or a
+    /// drive manifest (.toml).
     /// Several drives of one vehicle are fitted jointly (segments never span
     /// two drives; their sample times must agree).
     #[arg(required = true, num_args = 1..)]
