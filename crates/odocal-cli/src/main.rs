@@ -124,6 +124,9 @@ enum Command {
     History(history::HistoryArgs),
 }
 
+/// Exit code of a bad command line (clap's for what it parses).
+const EXIT_USAGE: u8 = 2;
+
 /// Exit code of `calibrate` when the verdict is `rejected`.
 const EXIT_REJECTED: u8 = 3;
 
@@ -180,7 +183,12 @@ fn main() -> ExitCode {
         }
         Err(e) => {
             eprintln!("error: {}", one_line(&e));
-            ExitCode::FAILURE
+            // Flags that cannot be used together or as given: a bad command line.
+            if e.chain().any(|c| matches!(c.downcast_ref::<odocal::Error>(), Some(odocal::Error::InvalidFlags(_)))) {
+                ExitCode::from(EXIT_USAGE)
+            } else {
+                ExitCode::FAILURE
+            }
         }
     }
 }

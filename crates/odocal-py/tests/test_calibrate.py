@@ -144,6 +144,10 @@ def test_option_errors(small_drive):
         odocal.calibrate(small_drive, "three-step", qp_solver="osqp")
     with pytest.raises(ValueError, match="threads"):
         odocal.calibrate(small_drive, "batch-gn", threads=0)
+    with pytest.raises(odocal.OdocalError, match=r"`fix`: holds every parameter of θ: .*odocal.validate"):
+        odocal.calibrate(small_drive, "batch-gn", fix="c_e,c_d,t_r,d")
+    with pytest.raises(odocal.OdocalError, match=r"`batches`: = 0: must be at least 1"):
+        odocal.calibrate(small_drive, "three-step", batches=0)
 
 
 def test_default_method_is_eiv(small_drive):

@@ -84,3 +84,17 @@ fn a_drive_from_stdin_is_refused_saying_why() {
     assert_fails(&["validate", "-", "--theta", "2,0,1.6,0"], 1, &["-: a drive is read from a file, not from stdin"]);
     assert_fails(&["calibrate", "-"], 1, &["save it first"]);
 }
+
+/// Flags the calibration settings refuse are usage errors naming the flag,
+/// not the library's field (`free`, `initial_batches`).
+#[test]
+fn refused_calibration_flags_are_usage_errors_naming_the_flag() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let d = simulated_drive(dir.path(), "d.csv", &["--length-km", "1"]);
+    let e = assert_fails(&["calibrate", &d, "--fix", "c_e,c_d,t_r,d"], 2, &["--fix holds every parameter of θ"]);
+    assert!(e.contains("odocal validate --theta") && !e.contains("`free`"), "{e}");
+    let e = assert_fails(&["calibrate", &d, "--method", "three-step", "--batches", "0"], 2, &["--batches = 0"]);
+    assert!(!e.contains("initial_batches"), "{e}");
+    assert_fails(&["calibrate", &d, "--method", "three-step", "--picks", "0"], 2, &["--picks = 0"]);
+    assert_fails(&["calibrate", &d, "--method", "batch-gn", "--eiv-window", "600"], 2, &["--eiv-window applies to"]);
+}
