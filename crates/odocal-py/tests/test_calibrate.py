@@ -130,7 +130,7 @@ def test_option_errors(small_drive):
         odocal.calibrate(small_drive, "batch-gn", segment_length="long")
     with pytest.raises(odocal.OdocalError, match="^invalid option `noise_model`: unknown field.s. wheel_whte"):
         odocal.calibrate(small_drive, noise_model={"wheel_whte_rel_sigma": 0.01})
-    with pytest.raises(odocal.OdocalError, match=r"^invalid option `initial_batches`: must be at least 1$"):
+    with pytest.raises(odocal.OdocalError, match=r"^invalid option `batches`: = 0: must be at least 1$"):
         odocal.calibrate(small_drive, "three-step", batches=0)
     with pytest.raises(odocal.OdocalError, match=r"'newton': use three-step, batch-gn or eiv"):
         odocal.calibrate(small_drive, "newton")
@@ -146,8 +146,6 @@ def test_option_errors(small_drive):
         odocal.calibrate(small_drive, "batch-gn", threads=0)
     with pytest.raises(odocal.OdocalError, match=r"`fix`: holds every parameter of θ: .*odocal.validate"):
         odocal.calibrate(small_drive, "batch-gn", fix="c_e,c_d,t_r,d")
-    with pytest.raises(odocal.OdocalError, match=r"`batches`: = 0: must be at least 1"):
-        odocal.calibrate(small_drive, "three-step", batches=0)
 
 
 def test_default_method_is_eiv(small_drive):
