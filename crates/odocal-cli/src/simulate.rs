@@ -33,8 +33,8 @@ pub struct SimulateArgs {
     #[arg(long, allow_hyphen_values = true)]
     theta: Option<ThetaArg>,
     /// Integration substeps per output sample (1 makes the model exact).
-    #[arg(long)]
-    substeps: Option<usize>,
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..=10_000))]
+    substeps: Option<u16>,
     /// Let c_e drift linearly: its change per hour of driving as a fraction
     /// of its starting value (-0.003: falling 0.3 % an hour). The sidecar
     /// records the drift and θ at the end (theta_true_end).
@@ -104,7 +104,7 @@ pub fn run(mut a: SimulateArgs, bars: &Bars) -> Result<()> {
         o.theta_true = t.theta;
     }
     if let Some(s) = a.substeps {
-        o.substeps = s;
+        o.substeps = s.into();
     }
     if let Some(r) = a.ce_ramp_per_hour {
         o.drift.c_e_relative_per_hour = r;

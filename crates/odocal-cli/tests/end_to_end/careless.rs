@@ -73,6 +73,7 @@ fn simulator_flags_are_checked_as_flags() {
     assert_fails(&["simulate", "--length-km", "0", "--out", o], 2, &["--length-km", "positive"]);
     assert_fails(&["simulate", "--noise", "loud", "--out", o], 2, &["--noise", "unknown noise preset 'loud'"]);
     assert_fails(&["demo", "--noise", "loud"], 2, &["--noise"]);
+    assert_fails(&["simulate", "--substeps", "0", "--out", o], 2, &["--substeps", "1..=10000"]);
     assert_fails(&["experiment", "--length-km", "nan", "--out", o], 2, &["--length-km"]);
     assert!(!out.exists());
 }
