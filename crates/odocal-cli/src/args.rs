@@ -143,7 +143,8 @@ pub struct CalibrationArgs {
     pub estimate: Option<ParamSet>,
     /// Lever arm X,Y (m, x forward, y left) of the pose reference from the
     /// rear-axle centre: held at this value, or the start of --estimate. Default 0,0.
-    #[arg(long, allow_hyphen_values = true, help_heading = EXTRINSICS, hide_short_help = true)]
+    #[arg(long, allow_hyphen_values = true, help_heading = EXTRINSICS, hide_short_help = true,
+          value_parser = lever_arm_text)]
     pub lever_arm: Option<String>,
     /// Heading offset (rad) of the pose reference (reference heading minus
     /// vehicle heading): held, or the start of --estimate. Default 0.
@@ -391,6 +392,11 @@ pub fn params_out_path(s: &str) -> std::result::Result<PathBuf, String> {
                   give - for the YAML on stdout"
             .into()),
     }
+}
+
+/// `--lever-arm X,Y` checked when the command line is parsed (a usage error).
+fn lever_arm_text(s: &str) -> std::result::Result<String, String> {
+    parse_lever_arm(s).map(|_| s.to_string()).map_err(|e| e.to_string())
 }
 
 /// `--lever-arm X,Y`: two numbers, metres.

@@ -92,6 +92,6 @@ fn estimate_hold_and_fix_extrinsics() {
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("--estimate takes lever-arm, heading-offset"));
     let o = odocal(&["calibrate", d, "--lever-arm", "1"]);
-    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("--lever-arm takes X,Y"));
 }
