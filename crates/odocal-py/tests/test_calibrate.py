@@ -146,6 +146,11 @@ def test_option_errors(small_drive):
         odocal.calibrate(small_drive, "batch-gn", threads=0)
     with pytest.raises(odocal.OdocalError, match=r"`fix`: holds every parameter of θ: .*odocal.validate"):
         odocal.calibrate(small_drive, "batch-gn", fix="c_e,c_d,t_r,d")
+    # A negative seed or count: a ValueError saying so, not OverflowError's "can't convert negative int".
+    with pytest.raises(ValueError, match="a seed is a non-negative integer, got -1"):
+        odocal.simulate(seed=-1, length_km=1.0)
+    with pytest.raises(ValueError, match="a count is a non-negative integer, got -2"):
+        odocal.calibrate(small_drive, "batch-gn", threads=-2)
 
 
 def test_default_method_is_eiv(small_drive):
