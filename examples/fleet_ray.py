@@ -175,17 +175,22 @@ def calibrate_fleet(paths: Iterable[str | os.PathLike], method: str = "eiv",
 def write_table(rows: list[dict], out: str | os.PathLike) -> None:
     """Writes the rows as CSV, or as Parquet for a `.parquet` path (pyarrow)."""
     out = Path(out)
+    # Written beside the target and renamed into place: an interrupted run
+    # leaves the previous table or none, never a part of one.
+    tmp = out.with_name(f".{out.name}.tmp")
     if out.suffix.lower() == ".parquet":
         import pyarrow as pa
         import pyarrow.parquet as pq
 
         cols = {k: [r.get(k) if r.get(k) != "" else None for r in rows] for k in FIELDS}
-        pq.write_table(pa.table(cols), out)
+        pq.write_table(pa.table(cols), tmp)
+        os.replace(tmp, out)
         return
-    with out.open("w", newline="") as f:
+    with tmp.open("w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=FIELDS)
         w.writeheader()
         w.writerows(rows)
+    os.replace(tmp, out)
 
 
 def _option(text: str) -> tuple[str, Any]:
@@ -212,7 +217,15 @@ def main(argv: Optional[list[str]] = None) -> int:
     ap.add_argument("--params-dir", help="also write each drive's ROS 2 parameter file here (<drive name>.yaml)")
     a = ap.parse_args(argv)
 
-    paths = find_drives(a.inputs)
+    try:
+        paths = find_drives(a.inputs)
+    except FileNotFoundError as e:
+        ap.error(str(e))
+    out = Path(a.out)
+    same = [p for p in paths if out.exists() and os.path.samefile(out, p)]
+    if same:
+        ap.error(f"--out {a.out} is also the drive {same[0]}: writing the table would destroy it; give --out "
+                 "another path")
     if not paths:
         print("no drives found (looked for *.csv and *.toml)", file=sys.stderr)
         return 1

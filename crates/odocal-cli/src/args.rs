@@ -103,7 +103,7 @@ pub struct CalibrationArgs {
     /// provenance (with the drives' fingerprints): a ROS 2 parameter file
     /// (.yaml/.yml) or JSON (.json); "-" writes the YAML to stdout instead of
     /// the text report. `--theta0` and `validate --theta` read it back.
-    #[arg(long)]
+    #[arg(long, value_parser = params_out_path)]
     pub params_out: Option<PathBuf>,
     /// Write a self-contained HTML report here ("-": stdout).
     ///
@@ -143,7 +143,8 @@ pub struct CalibrationArgs {
     pub estimate: Option<ParamSet>,
     /// Lever arm X,Y (m, x forward, y left) of the pose reference from the
     /// rear-axle centre: held at this value, or the start of --estimate. Default 0,0.
-    #[arg(long, allow_hyphen_values = true, help_heading = EXTRINSICS, hide_short_help = true)]
+    #[arg(long, allow_hyphen_values = true, help_heading = EXTRINSICS, hide_short_help = true,
+          value_parser = lever_arm_text)]
     pub lever_arm: Option<String>,
     /// Heading offset (rad) of the pose reference (reference heading minus
     /// vehicle heading): held, or the start of --estimate. Default 0.
@@ -376,6 +377,26 @@ impl ThetaArg {
             },
         }
     }
+}
+
+/// A `--params-out` path: its extension names the format (`.yaml`,
+/// `.yml`: a ROS 2 parameter file; `.json`), checked before any work; `-`
+/// writes the YAML to stdout.
+pub fn params_out_path(s: &str) -> std::result::Result<PathBuf, String> {
+    let path = PathBuf::from(s);
+    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        _ if odocal::output::is_stdout(&path) => Ok(path),
+        Some("yaml" | "yml" | "json") => Ok(path),
+        _ => Err("the file name says the format: end it in .yaml or .yml (a ROS 2 parameter file) or .json, or \
+                  give - for the YAML on stdout"
+            .into()),
+    }
+}
+
+/// `--lever-arm X,Y` checked when the command line is parsed (a usage error).
+fn lever_arm_text(s: &str) -> std::result::Result<String, String> {
+    parse_lever_arm(s).map(|_| s.to_string()).map_err(|e| e.to_string())
 }
 
 /// `--lever-arm X,Y`: two numbers, metres.

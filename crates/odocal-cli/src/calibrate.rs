@@ -24,7 +24,8 @@ use crate::Outcome;
 pub struct CalibrateArgs {
     /// Drive CSV or manifest (.toml); several are fitted jointly.
     ///
-    /// The drive: a canonical CSV (SPEC §2) or a drive manifest (.toml).
+    /// The drive: a canonical CSV (docs/reference.md, "The drive CSV") or a
+    /// drive manifest (.toml).
     /// Several drives of one vehicle are fitted jointly (segments never span
     /// two drives; their sample times must agree).
     #[arg(required = true, num_args = 1..)]
@@ -58,10 +59,10 @@ pub struct DemoArgs {
     #[arg(long, default_value_t = 1, hide_default_value = true)]
     sim_seed: u64,
     /// Route length, km.
-    #[arg(long, default_value_t = 24.0)]
+    #[arg(long, default_value_t = 24.0, value_parser = crate::simulate::route_length_km)]
     length_km: f64,
     /// paper (default), off, white, high or random:N noise.
-    #[arg(long, default_value = "paper", hide_default_value = true)]
+    #[arg(long, default_value = "paper", hide_default_value = true, value_parser = crate::simulate::noise_preset)]
     noise: String,
     /// Also write the simulated drive here.
     #[arg(long)]

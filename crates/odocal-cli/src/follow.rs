@@ -37,7 +37,7 @@ pub struct FollowArgs {
     #[arg(long, value_name = "FILE")]
     db: PathBuf,
     /// Write each written update to this parameter file (.yaml, .json).
-    #[arg(long, value_name = "FILE")]
+    #[arg(long, value_name = "FILE", value_parser = crate::args::params_out_path)]
     params_out: Option<PathBuf>,
     /// Write the per-drive report as JSON ("-": stdout).
     #[arg(long, value_name = "FILE")]

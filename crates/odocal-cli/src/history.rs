@@ -60,6 +60,20 @@ pub fn run(a: HistoryArgs) -> Result<()> {
             }
         );
     }
+    if let Some(ids) = &a.pool {
+        let missing: Vec<String> =
+            ids.iter().filter(|id| !h.rows.iter().any(|r| r.id == **id)).map(i64::to_string).collect();
+        if !missing.is_empty() {
+            let held: Vec<String> = h.rows.iter().map(|r| r.id.to_string()).collect();
+            anyhow::bail!(
+                "--pool: vehicle '{}' has no row {} in {}; its rows are {}",
+                a.vehicle.escape_debug(),
+                missing.join(", "),
+                a.db.display(),
+                if held.is_empty() { "none".to_string() } else { held.join(", ") }
+            );
+        }
+    }
     if let Some(p) = &a.report {
         let html = odocal_report::history::render_history_html(&h)?;
         if odocal::output::is_stdout(p) {

@@ -22,6 +22,12 @@ pub fn load_drive(path: &Path) -> Result<Drive> {
 /// manifest (e.g. "c_e is metres per 40360 ticks") and the manifest's
 /// calibration settings (`[noise]`, `[reference]`).
 pub fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>, Option<ManifestSettings>)> {
+    if odocal::output::is_stdout(path) {
+        anyhow::bail!(
+            "-: a drive is read from a file, not from stdin (its checks, fingerprint and simulator sidecar need \
+             one): save it first (`… > drive.csv`) and give that path"
+        );
+    }
     let (drive, report) = if odocal::is_manifest_path(path) {
         odocal::load_drive(path)?
     } else {

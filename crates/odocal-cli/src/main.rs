@@ -58,7 +58,7 @@ struct Cli {
     #[arg(long, short, global = true, display_order = 1000)]
     quiet: bool,
     /// Worker threads (default: one per core).
-    #[arg(long, global = true, value_name = "N", display_order = 1000)]
+    #[arg(long, global = true, value_name = "N", display_order = 1000, value_parser = parse_threads)]
     threads: Option<usize>,
     #[command(subcommand)]
     command: Command,
@@ -124,6 +124,9 @@ enum Command {
     History(history::HistoryArgs),
 }
 
+/// Exit code of a bad command line (clap's for what it parses).
+const EXIT_USAGE: u8 = 2;
+
 /// Exit code of `calibrate` when the verdict is `rejected`.
 const EXIT_REJECTED: u8 = 3;
 
@@ -180,7 +183,12 @@ fn main() -> ExitCode {
         }
         Err(e) => {
             eprintln!("error: {}", one_line(&e));
-            ExitCode::FAILURE
+            // Flags that cannot be used together or as given: a bad command line.
+            if e.chain().any(|c| matches!(c.downcast_ref::<odocal::Error>(), Some(odocal::Error::InvalidFlags(_)))) {
+                ExitCode::from(EXIT_USAGE)
+            } else {
+                ExitCode::FAILURE
+            }
         }
     }
 }
@@ -197,6 +205,18 @@ fn closed_pipe(e: &anyhow::Error) -> bool {
         c.downcast_ref::<std::io::Error>().is_some_and(broken)
             || matches!(c.downcast_ref::<odocal::Error>(), Some(odocal::Error::Io { source, .. }) if broken(source))
     })
+}
+
+/// `--threads N`: 1 to the ceiling ([`odocal::settings::MAX_THREADS`]); a
+/// usage error otherwise (leaving the option out gives one thread per core).
+fn parse_threads(s: &str) -> std::result::Result<usize, String> {
+    let max = odocal::settings::MAX_THREADS;
+    let n: u64 = s.parse().map_err(|e| format!("{e}"))?;
+    match usize::try_from(n) {
+        Ok(0) => Err("must be at least 1 (leave --threads out for one thread per core)".into()),
+        Ok(n) if n <= max => Ok(n),
+        _ => Err(format!("{n} is above the ceiling of {max} worker threads")),
+    }
 }
 
 /// The error and its causes on one line, leaving out a cause whose text the
@@ -218,8 +238,6 @@ fn one_line(e: &anyhow::Error) -> String {
 
 fn run(cli: Cli) -> Result<Outcome> {
     if let Some(n) = cli.threads {
-        let max = odocal::settings::MAX_THREADS;
-        anyhow::ensure!(n <= max, "--threads {n} is above the ceiling of {max} worker threads");
         rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("--threads")?;
     }
     let bars = progress::Bars::new(cli.quiet);

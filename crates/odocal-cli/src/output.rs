@@ -14,6 +14,8 @@ use odocal::output::{check_collisions, is_stdout, FileRole};
 pub struct Files {
     inputs: Vec<FileRole>,
     outputs: Vec<FileRole>,
+    /// The command creates its outputs' folder (`experiment --out DIR`).
+    creates_folder: bool,
 }
 
 impl Files {
@@ -57,12 +59,23 @@ impl Files {
         self
     }
 
-    /// Refuses an output that is an input or another output, and two
-    /// outputs on stdout.
+    /// The command creates the folder its outputs go to: it need not exist.
+    pub fn creates_folder(&mut self) -> &mut Self {
+        self.creates_folder = true;
+        self
+    }
+
+    /// Refuses an output that is an input or another output, two outputs
+    /// on stdout, and an output that cannot be written where it is asked
+    /// for (a directory, or in a folder that does not exist), all before
+    /// any work.
     pub fn check(&self) -> Result<()> {
         let stdout: Vec<&str> = self.outputs.iter().filter(|o| is_stdout(&o.path)).map(|o| o.role.as_str()).collect();
         if let [first, second, ..] = stdout[..] {
             bail!("{first} and {second} both go to stdout (-): give one of them a file name");
+        }
+        for o in self.outputs.iter().filter(|o| !is_stdout(&o.path)) {
+            check_writable_place(o, self.creates_folder)?;
         }
         check_collisions(&self.inputs, &self.outputs)?;
         Ok(())
@@ -71,6 +84,28 @@ impl Files {
     /// True when an output goes to stdout (the text report then stays off it).
     pub fn any_stdout(&self) -> bool {
         self.outputs.iter().any(|o| is_stdout(&o.path))
+    }
+}
+
+/// Refuses an output path that is a directory, or whose folder does not
+/// exist or is not a folder (unless the command creates it): the write at
+/// the end of the work would fail.
+fn check_writable_place(o: &FileRole, creates_folder: bool) -> Result<()> {
+    let path = o.path.display();
+    if o.path.is_dir() {
+        bail!("{} {path}: is a directory; give a file name", o.role);
+    }
+    if creates_folder {
+        return Ok(());
+    }
+    let folder = match o.path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => return Ok(()),
+    };
+    match std::fs::metadata(folder) {
+        Ok(m) if m.is_dir() => Ok(()),
+        Ok(_) => bail!("{} {path}: {} is not a folder", o.role, folder.display()),
+        Err(_) => bail!("{} {path}: the folder {} does not exist; create it first", o.role, folder.display()),
     }
 }
 

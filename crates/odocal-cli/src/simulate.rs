@@ -17,7 +17,7 @@ pub struct SimulateArgs {
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Route length, km.
-    #[arg(long, default_value_t = 24.0)]
+    #[arg(long, default_value_t = 24.0, value_parser = route_length_km)]
     length_km: f64,
     /// Output CSV; the sidecar JSON (the truth, bound to the CSV by its
     /// fingerprint) is written beside it, with the extension .json.
@@ -26,15 +26,15 @@ pub struct SimulateArgs {
     /// Noise preset: paper, off, white (white wheel noise only), high, or
     /// random:N, the random noise world of seed N (every source drawn from
     /// a wide range; docs/reference.md, "Random noise worlds").
-    #[arg(long, default_value = "paper")]
+    #[arg(long, default_value = "paper", value_parser = noise_preset)]
     noise: String,
     /// True θ as c_e,c_d,t_r,d in SI units (c_d in m, d in m per m/s²), or a
     /// parameter file (.yaml, .yml, .json, as --params-out writes).
     #[arg(long, allow_hyphen_values = true)]
     theta: Option<ThetaArg>,
     /// Integration substeps per output sample (1 makes the model exact).
-    #[arg(long)]
-    substeps: Option<usize>,
+    #[arg(long, value_parser = clap::value_parser!(u16).range(1..=10_000))]
+    substeps: Option<u16>,
     /// Let c_e drift linearly: its change per hour of driving as a fraction
     /// of its starting value (-0.003: falling 0.3 % an hour). The sidecar
     /// records the drift and θ at the end (theta_true_end).
@@ -44,6 +44,24 @@ pub struct SimulateArgs {
     /// (0.5@1800: +0.5 mm after 30 min).
     #[arg(long, allow_hyphen_values = true, value_name = "MM@SECONDS", value_parser = parse_cd_step)]
     cd_step: Option<CdStep>,
+}
+
+/// `--length-km`: a positive number of kilometres (the simulator's
+/// ceiling is its own check).
+pub fn route_length_km(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(km) if km.is_finite() && km > 0.0 => Ok(km),
+        Ok(km) => Err(format!("must be a positive number of kilometres, got {km}")),
+        Err(e) => Err(e.to_string()),
+    }
+}
+
+/// `--noise`: a preset the simulator knows (`paper`, `random:N`, …).
+pub fn noise_preset(s: &str) -> Result<String, String> {
+    NoiseOptions::by_name(s).map(|_| s.to_string()).map_err(|e| match e {
+        odocal::Error::InvalidOption { reason, .. } => reason,
+        e => e.to_string(),
+    })
 }
 
 /// `MM@SECONDS` of --cd-step.
@@ -86,7 +104,7 @@ pub fn run(mut a: SimulateArgs, bars: &Bars) -> Result<()> {
         o.theta_true = t.theta;
     }
     if let Some(s) = a.substeps {
-        o.substeps = s;
+        o.substeps = s.into();
     }
     if let Some(r) = a.ce_ramp_per_hour {
         o.drift.c_e_relative_per_hour = r;

@@ -182,7 +182,17 @@ fn not_bool(v: &Bound<'_, PyAny>) -> PyResult<()> {
 /// A count argument (`threads=`, `substeps=`, …): an int, not a bool.
 pub(crate) fn count(v: &Bound<'_, PyAny>) -> PyResult<usize> {
     not_bool(v)?;
-    v.extract()
+    v.extract().map_err(|e| negative(v, "a count", e))
+}
+
+/// A negative int where an unsigned one is asked for: a `ValueError` that
+/// says so (`what`: "a seed"), where the conversion's own error is an
+/// `OverflowError` "can't convert negative int to unsigned".
+fn negative(v: &Bound<'_, PyAny>, what: &str, e: PyErr) -> PyErr {
+    match v.extract::<i64>() {
+        Ok(n) if n < 0 => PyValueError::new_err(format!("{what} is a non-negative integer, got {n}")),
+        _ => e,
+    }
 }
 
 /// An optional count argument: None, or an int that is not a bool.
@@ -196,7 +206,7 @@ pub(crate) fn opt_count(v: &Bound<'_, PyAny>) -> PyResult<Option<usize>> {
 /// A seed: an int that is not a bool.
 pub(crate) fn seed(v: &Bound<'_, PyAny>) -> PyResult<u64> {
     not_bool(v)?;
-    v.extract()
+    v.extract().map_err(|e| negative(v, "a seed", e))
 }
 
 /// A real-number argument: an int or float, not a bool (nor a complex).

@@ -267,7 +267,7 @@ impl PyDrive {
         Ok(PyDrive::new(drive, Provenance::default()))
     }
 
-    /// Reads a canonical CSV (SPEC §2). A simulator sidecar beside it
+    /// Reads a canonical CSV (docs/reference.md, "The drive CSV"). A simulator sidecar beside it
     /// (`drive.json` for `drive.csv`) that records this drive's fingerprint
     /// gives the true θ, as in the CLI; a sidecar of another drive is
     /// ignored with a `UserWarning`, as is a last line without a newline.

@@ -130,7 +130,7 @@ def test_option_errors(small_drive):
         odocal.calibrate(small_drive, "batch-gn", segment_length="long")
     with pytest.raises(odocal.OdocalError, match="^invalid option `noise_model`: unknown field.s. wheel_whte"):
         odocal.calibrate(small_drive, noise_model={"wheel_whte_rel_sigma": 0.01})
-    with pytest.raises(odocal.OdocalError, match=r"^invalid option `initial_batches`: must be at least 1$"):
+    with pytest.raises(odocal.OdocalError, match=r"^invalid option `batches`: = 0: must be at least 1$"):
         odocal.calibrate(small_drive, "three-step", batches=0)
     with pytest.raises(odocal.OdocalError, match=r"'newton': use three-step, batch-gn or eiv"):
         odocal.calibrate(small_drive, "newton")
@@ -144,6 +144,13 @@ def test_option_errors(small_drive):
         odocal.calibrate(small_drive, "three-step", qp_solver="osqp")
     with pytest.raises(ValueError, match="threads"):
         odocal.calibrate(small_drive, "batch-gn", threads=0)
+    with pytest.raises(odocal.OdocalError, match=r"`fix`: holds every parameter of θ: .*odocal.validate"):
+        odocal.calibrate(small_drive, "batch-gn", fix="c_e,c_d,t_r,d")
+    # A negative seed or count: a ValueError saying so, not OverflowError's "can't convert negative int".
+    with pytest.raises(ValueError, match="a seed is a non-negative integer, got -1"):
+        odocal.simulate(seed=-1, length_km=1.0)
+    with pytest.raises(ValueError, match="a count is a non-negative integer, got -2"):
+        odocal.calibrate(small_drive, "batch-gn", threads=-2)
 
 
 def test_default_method_is_eiv(small_drive):

@@ -53,6 +53,21 @@ def test_find_drives(fleet_dir):
         fleet.find_drives([fleet_dir / "missing"])
 
 
+def test_command_line_mistakes_end_with_a_message_and_keep_the_inputs(fleet_dir, tmp_path, capsys):
+    fleet = load_example()
+    with pytest.raises(SystemExit) as e:  # a usage error (argparse: exit 2), not a traceback
+        fleet.main([str(fleet_dir / "missing.csv"), "--out", str(tmp_path / "t.csv"), "--serial"])
+    assert e.value.code == 2
+    assert "missing.csv: no such drive or directory" in capsys.readouterr().err
+    drive = fleet_dir / "car1.csv"
+    before = drive.read_bytes()
+    with pytest.raises(SystemExit) as e:  # the table written over an input drive
+        fleet.main([str(drive), "--out", str(drive), "--serial"])
+    assert e.value.code == 2
+    assert "would destroy it" in capsys.readouterr().err
+    assert drive.read_bytes() == before
+
+
 def test_ray_equals_serial(local_ray, fleet_dir, tmp_path):
     fleet = local_ray
     paths = fleet.find_drives([fleet_dir])

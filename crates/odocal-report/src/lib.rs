@@ -7,7 +7,8 @@
 //! 1. the verdict and its reasons, then the parameter table (θ_0,
 //!    calibrated, 1σ or "held", truth when known) and the method's own
 //!    account of the fit (EIV: noise model, σ widening, result);
-//! 2. Ē_p of θ_0 and of the calibrated θ (and of the truth);
+//! 2. Ē_p of θ_0 and of the calibrated θ (and of the truth), and what data
+//!    it was measured on (the calibrated drive, a held-out half, other drives);
 //! 3. the drive as a map: the reference, and dead reckoning with θ_0 and
 //!    with the calibrated θ on a few validation segments;
 //! 4. E_p,s per validation segment for θ_0 and the calibrated θ;
@@ -189,6 +190,11 @@ pub struct ReportInput<'a> {
     /// The σ column's heading: the σ that stands for the result, labelled
     /// once (e.g. `± 1σ (next drive)`). Default `± 1σ`.
     pub sigma_label: String,
+    /// What data Ē_p, the map and the residuals come from, shown at the top
+    /// of the validation section: the first line says it (the calibrated
+    /// drive, its held-out half, or other drives), each further line one
+    /// validation drive. Empty: not said.
+    pub validation_data: Vec<String>,
 }
 
 impl<'a> ReportInput<'a> {
@@ -217,6 +223,7 @@ impl<'a> ReportInput<'a> {
             map_segments: 4,
             segment_extrinsics: Vec::new(),
             sigma_label: "± 1σ".into(),
+            validation_data: Vec::new(),
         }
     }
 
@@ -250,6 +257,7 @@ impl<'a> ReportInput<'a> {
                 odocal::SigmaCovers::NextDrive => "± 1σ (next drive)".into(),
                 odocal::SigmaCovers::WithinDrive => "± 1σ (within drive)".into(),
             },
+            validation_data: validation_data(r),
             ..ReportInput::new(title, drive, segments, r.initial.theta, r.theta)
         }
     }
@@ -266,6 +274,31 @@ impl<'a> ReportInput<'a> {
     fn extrinsics_of(&self, i: usize) -> [Extrinsics; 2] {
         self.segment_extrinsics.get(i).copied().unwrap_or([Extrinsics::ZERO; 2])
     }
+}
+
+/// What a calibration's Ē_p was measured on ([`ReportInput::validation_data`]),
+/// as the text report heads it: held-out data (other drives, one line each,
+/// or a held-out half) or the calibrated drive itself.
+fn validation_data(r: &odocal::CalibrationReport) -> Vec<String> {
+    if let Some(v) = &r.validate_on {
+        let mut lines = vec![format!(
+            "Held-out data, not used for calibration: {} other drive(s) of the vehicle (Ē_p calibrated / θ_0):",
+            v.drives.len()
+        )];
+        lines.extend(v.drives.iter().map(|d| {
+            format!(
+                "{}: {:.3} m / {:.3} m ({} segments)",
+                d.name, d.mean_position_error_m, d.initial_mean_position_error_m, d.segments
+            )
+        }));
+        return lines;
+    }
+    if r.validation.held_out {
+        return vec!["Held-out data, not used for calibration: the half of the drive held out.".into()];
+    }
+    vec!["The calibrated drive itself: Ē_p there flatters the fit; held-out data (a held-out half, or other \
+          drives of the vehicle) is the evidence that counts."
+        .into()]
 }
 
 /// Step 1's batch results of a 3-step calibration, each θ_B with its Ē_p,
@@ -336,7 +369,7 @@ pub fn render_html(r: &ReportInput<'_>) -> Result<String> {
     sections::head(&mut h, r);
     sections::verdict(&mut h, r);
     sections::parameters(&mut h, r);
-    sections::validation(&mut h, &errors)?;
+    sections::validation(&mut h, r, &errors)?;
     sections::map(&mut h, r, &segs, &errors.initial)?;
     sections::batches(&mut h, r)?;
     sections::residuals(&mut h, r, &segs)?;

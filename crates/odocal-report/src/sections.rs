@@ -129,10 +129,21 @@ pub(crate) fn parameters(h: &mut String, r: &ReportInput<'_>) {
 
 /// Sections 2 and 4: Ē_p, and E_p,s per validation segment (drawn here,
 /// next to the numbers).
-pub(crate) fn validation(h: &mut String, e: &SegmentErrors) -> Result<()> {
+pub(crate) fn validation(h: &mut String, r: &ReportInput<'_>, e: &SegmentErrors) -> Result<()> {
     let (e0, e1) = (&e.initial, &e.calibrated);
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
-    h.push_str("<section id=\"validation\">\n<h2>Validation: mean position error Ē_p</h2>\n<table>\n");
+    h.push_str("<section id=\"validation\">\n<h2>Validation: mean position error Ē_p</h2>\n");
+    if let Some((first, drives)) = r.validation_data.split_first() {
+        let _ = writeln!(h, "<p class=\"data\">{}</p>", esc(first));
+        if !drives.is_empty() {
+            h.push_str("<ul>\n");
+            for d in drives {
+                let _ = writeln!(h, "<li>{}</li>", esc(d));
+            }
+            h.push_str("</ul>\n");
+        }
+    }
+    h.push_str("<table>\n");
     let _ = writeln!(h, "<tr><th>θ</th><th>Ē_p (m)</th><th>segments</th></tr>");
     let _ = writeln!(h, "<tr><td>θ_0 (initial)</td><td>{:.3}</td><td>{}</td></tr>", mean(e0), e0.len());
     let _ = writeln!(h, "<tr><td>calibrated</td><td><b>{:.3}</b></td><td>{}</td></tr>", mean(e1), e1.len());

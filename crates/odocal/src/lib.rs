@@ -27,7 +27,7 @@
 //! 3. batch Gauss-Newton with the compensated inputs gives θ_B,F.
 //!
 //! Results are judged by dead-reckoning error on validation segments. The
-//! exact statement, with every default, is the project's SPEC.md.
+//! exact statement is docs/method.md; every default is in docs/reference.md.
 //!
 //! ## The front door
 //!

@@ -45,7 +45,7 @@ fn header(o: &mut String, e: &Experiment, out: &Outputs) {
     );
     let _ = writeln!(
         o,
-        "Ē_p is the mean dead-reckoning position error on the validation segments with the *measured* inputs (SPEC §7). \
+        "Ē_p is the mean dead-reckoning position error on the validation segments with the *measured* inputs (docs/method.md §7). \
          Δ columns are θ − θ_true in mm (c_d, d: mm and mm/(m/s²)); Ē_p,min is the reachable minimum.\n"
     );
 }

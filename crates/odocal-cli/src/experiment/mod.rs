@@ -28,10 +28,10 @@ pub struct ExperimentArgs {
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Simulated route length, km.
-    #[arg(long, default_value_t = 24.0)]
+    #[arg(long, default_value_t = 24.0, value_parser = crate::simulate::route_length_km)]
     pub length_km: f64,
-    /// Noise preset of the simulation: paper, off, white (wheel white noise only) or high.
-    #[arg(long, default_value = "paper")]
+    /// Noise preset of the simulation: paper, off, white (wheel white noise only), high or random:N.
+    #[arg(long, default_value = "paper", value_parser = crate::simulate::noise_preset)]
     pub noise: String,
     /// Run on this drive (canonical CSV) instead of simulating one; the truth
     /// is taken from its sidecar JSON when there is one.
@@ -164,6 +164,7 @@ fn check_out_dir(a: &ExperimentArgs) -> Result<()> {
         }
     }
     let mut files = Files::default();
+    files.creates_folder();
     if let Some(d) = &a.drive {
         files.drive("the --drive", d);
     }

@@ -10,7 +10,16 @@ use common::{odocal, simulated_drive, stderr, stdout};
 
 /// Asserts a failed run with exit code 1 and one error line containing all `needles`.
 fn assert_error(o: &Output, needles: &[&str]) {
-    assert_eq!(o.status.code(), Some(1), "stderr: {}", stderr(o));
+    assert_error_code(o, 1, needles);
+}
+
+/// A flag the settings refuse (of another method, say): a usage error.
+fn assert_usage_error(o: &Output, needles: &[&str]) {
+    assert_error_code(o, 2, needles);
+}
+
+fn assert_error_code(o: &Output, code: i32, needles: &[&str]) {
+    assert_eq!(o.status.code(), Some(code), "stderr: {}", stderr(o));
     let e = stderr(o);
     assert!(e.starts_with("error: "), "{e}");
     assert_eq!(e.trim_end().lines().count(), 1, "one line: {e}");
@@ -307,7 +316,7 @@ fn three_step_flags_are_rejected_with_batch_gn() {
     let d = tempfile::tempdir().expect("tmp");
     let p = write(d.path(), "d.csv", &good_rows(10));
     let o = odocal(&["calibrate", p.to_str().expect("utf8"), "--method", "batch-gn", "--batches", "4"]);
-    assert_error(&o, &["--batches applies to --method three-step only, not to --method batch-gn"]);
+    assert_usage_error(&o, &["--batches applies to --method three-step only, not to --method batch-gn"]);
     let o = odocal(&[
         "calibrate",
         p.to_str().expect("utf8"),
@@ -318,7 +327,7 @@ fn three_step_flags_are_rejected_with_batch_gn() {
         "--qp-solver",
         "clarabel",
     ]);
-    assert_error(&o, &["--picks, --qp-solver apply to --method three-step only"]);
+    assert_usage_error(&o, &["--picks, --qp-solver apply to --method three-step only"]);
     let o = odocal(&["calibrate", p.to_str().expect("utf8"), "--method", "batchgn"]);
     assert_eq!(o.status.code(), Some(2), "clap usage error: {}", stderr(&o));
     assert!(stderr(&o).contains("invalid method 'batchgn': use three-step, batch-gn or eiv"), "{}", stderr(&o));

@@ -226,10 +226,10 @@ fn correct_bias_corrects_every_parameter_with_held_noise() {
         assert!(text(&o.stderr).contains(want), "{extra:?}: {}", text(&o.stderr));
     }
     let o = odocal(&["calibrate", dstr, "--method", "batch-gn", "--correct-bias", "2"]);
-    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(o.status.code(), Some(2));
     assert!(text(&o.stderr).contains("--correct-bias applies to --method eiv only"), "{}", text(&o.stderr));
     let o = odocal(&["calibrate", dstr, "--method", "batch-gn", "--no-bias-correction"]);
-    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(o.status.code(), Some(2));
     assert!(text(&o.stderr).contains("--no-bias-correction applies to --method eiv only"), "{}", text(&o.stderr));
     // Terminal: the correction and its Monte Carlo σ are named (by default).
     let o = odocal(&["calibrate", dstr, "--method", "eiv", "--no-fallback"]);
@@ -251,7 +251,7 @@ fn eiv_flags_belong_to_eiv() {
     std::fs::write(&p, rows).expect("write");
     let csv = p.to_str().expect("utf8");
     let o = odocal(&["calibrate", csv, "--method", "batch-gn", "--fix-noise", "--no-fallback"]);
-    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(o.status.code(), Some(2));
     assert!(
         text(&o.stderr).contains("--fix-noise, --no-fallback apply to --method eiv only, not to --method batch-gn"),
         "{}",

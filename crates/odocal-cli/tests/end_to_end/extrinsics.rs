@@ -87,11 +87,11 @@ fn estimate_hold_and_fix_extrinsics() {
     assert!(p["parameters"]["heading_offset_sigma"].as_f64().is_some(), "{p}");
     assert_eq!(p["parameters"]["lever_x_held"], true, "{p}");
 
-    // Bad flags: one-line errors.
+    // Bad flags: one-line errors; the flags the settings refuse are usage errors.
     let o = odocal(&["calibrate", d, "--estimate", "c_e"]);
-    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("--estimate takes lever-arm, heading-offset"));
     let o = odocal(&["calibrate", d, "--lever-arm", "1"]);
-    assert_eq!(o.status.code(), Some(1));
+    assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("--lever-arm takes X,Y"));
 }

@@ -114,6 +114,15 @@ fn calibrate_records_a_drive_once() {
     assert_eq!(o.status.code(), Some(1), "{}", stdout(&o));
     assert!(stdout(&o).is_empty(), "{}", stdout(&o));
     assert!(stderr(&o).contains("no vehicle 'truck'") && stderr(&o).contains("holds are 'van'"), "{}", stderr(&o));
+    // A row --pool names that the vehicle does not have is an error naming the rows it has.
+    let o = odocal(&["history", "van", "--db", db_s, "--pool", "1,7"]);
+    assert_eq!(o.status.code(), Some(1), "{}", stdout(&o));
+    assert!(
+        stderr(&o).contains("--pool: vehicle 'van' has no row 7") && stderr(&o).contains("rows are 1"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(odocal(&["history", "van", "--db", db_s, "--pool", "1"]).status.success());
 }
 
 #[test]

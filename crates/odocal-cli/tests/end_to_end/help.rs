@@ -170,6 +170,20 @@ fn top_level_help_lists_every_subcommand() {
     }
 }
 
+/// The help texts point only to documents a clone holds (docs/…), never to
+/// a specification outside the repository.
+#[test]
+fn help_texts_cite_only_the_repository_s_documents() {
+    for cmd in ["simulate", "calibrate", "validate", "compensate", "demo", "experiment", "import", "inspect", "follow"]
+    {
+        let o = odocal(&[cmd, "--help-all"]);
+        let o = if o.status.success() { o } else { odocal(&[cmd, "--help"]) };
+        assert!(o.status.success(), "{cmd}: {}", stderr(&o));
+        let help = stdout(&o);
+        assert!(!help.contains("SPEC"), "{cmd} --help cites SPEC, which is not in the repository:\n{help}");
+    }
+}
+
 #[test]
 fn a_usage_error_still_points_to_help() {
     let o = odocal(&["calibrate", "x.csv", "--no-such-flag"]);

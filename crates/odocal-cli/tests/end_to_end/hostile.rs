@@ -70,7 +70,7 @@ fn counts_and_threads_above_their_ceilings_are_refused_before_allocating() {
     refused_within_1gb(&["calibrate", &d, "--method", "three-step", "--batches", huge], &["--batches", "ceiling"]);
     refused_within_1gb(
         &["--threads", "100000", "validate", &d, "--theta", "2,0,1.6,0"],
-        &["--threads 100000", "ceiling"],
+        &["--threads", "100000 is above the ceiling of 1024"],
     );
 }
 

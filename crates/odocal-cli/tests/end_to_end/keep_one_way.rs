@@ -87,6 +87,6 @@ fn keep_one_way_flag_and_manifest_setting_keep_the_turning_selection() {
 
     // The EIV method selects no turning segments: the flag is an error there.
     let o = odocal(&["calibrate", csv.to_str().expect("utf8"), "--method", "eiv", "--keep-one-way"]);
-    assert_eq!(o.status.code(), Some(1), "{}", text(&o.stderr));
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));
     assert!(text(&o.stderr).contains("--keep-one-way applies to"), "{}", text(&o.stderr));
 }

@@ -9,6 +9,7 @@ mod common;
 
 mod bad_input;
 mod bag;
+mod careless;
 mod cli;
 mod data_safety;
 mod eiv;
@@ -19,6 +20,7 @@ mod golden;
 mod heading_offset;
 mod help;
 mod hostile;
+mod html_report;
 mod keep_one_way;
 mod manifest_settings;
 mod misleading;

@@ -419,6 +419,15 @@ impl Drive {
             };
             return Err(Error::InvalidDrive { context: path.display().to_string(), reason: reason.into() });
         }
+        if path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("toml")) {
+            return Err(Error::InvalidDrive {
+                context: path.display().to_string(),
+                reason: "a manifest (.toml), not a canonical drive CSV: import it (calibrate, validate and \
+                         compensate take it as it is; `odocal import FILE --out drive.csv`; Python: \
+                         Drive.from_manifest or Drive.load)"
+                    .into(),
+            });
+        }
         let bytes = crate::output::limited::read_limited(path, crate::output::limited::MAX_DATA_BYTES, "a drive CSV")
             .map_err(|source| Error::io(path, source))?;
         let drive = Self::parse_csv(&bytes, path)?;
@@ -630,6 +639,15 @@ mod tests {
         assert!(warnings[0].contains("line 7, the last line, has no newline"), "{}", warnings[0]);
         let d = tmp_csv(&csv_text(6, 0.025));
         assert!(Drive::read_csv(d.path()).expect("valid").1.is_empty());
+    }
+
+    #[test]
+    fn a_manifest_given_as_a_drive_csv_says_to_import_it() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let m = dir.path().join("drive.toml");
+        std::fs::write(&m, "# a manifest\n[streams.w]\nfile = \"w.csv\"\n").expect("write");
+        let e = Drive::read_csv(&m).expect_err("manifest").to_string();
+        assert!(e.contains("drive.toml: a manifest (.toml), not a canonical drive CSV: import it"), "{e}");
     }
 
     fn tmp_csv(text: &str) -> tempfile::NamedTempFile {

@@ -14,7 +14,7 @@ use crate::calibrate::three_step::ThreeStepOptions;
 use crate::calibrate::{CalibrationOptions, Method};
 use crate::eiv::{BiasCorrection, BootstrapOptions};
 use crate::error::{Error, Result};
-use crate::model::param::ParamSet;
+use crate::model::param::{Param, ParamSet};
 
 /// Who gives the caller's settings, for the words of messages and of the
 /// account.
@@ -328,7 +328,16 @@ impl Settings {
             Method::BatchGn(_) => {}
         }
         self.extrinsics(&mut o, caller)?;
-        for p in self.fix.unwrap_or_default().iter() {
+        let fix = self.fix.unwrap_or_default();
+        if Param::THETA.iter().all(|p| fix.contains(*p)) {
+            let validate = if caller == Caller::CommandLine { "odocal validate --theta" } else { "odocal.validate" };
+            return Err(caller.invalid(
+                "fix",
+                self,
+                format!("holds every parameter of θ: leave at least one free ({validate} judges a θ as it is)"),
+            ));
+        }
+        for p in fix.iter() {
             o.hold(p);
         }
         set(&mut o.identify.max_iterations, &self.max_iterations);
@@ -363,6 +372,12 @@ impl Settings {
             if let Some(v) = v.filter(|v| v > max) {
                 let max = *max;
                 return Err(caller.invalid(key, self, format!("= {v} is above its ceiling of {max}")));
+            }
+        }
+        // The counts of the 3-step method's step 1 need at least one.
+        for (key, v) in [("batches", self.batches), ("batch_size", self.batch_size), ("picks", self.picks)] {
+            if v == Some(0) {
+                return Err(caller.invalid(key, self, "= 0: must be at least 1".into()));
             }
         }
         Ok(())

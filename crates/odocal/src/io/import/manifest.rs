@@ -713,9 +713,26 @@ pub(crate) enum SideslipSpec {
     },
 }
 
+/// What a CSV file given where a manifest belongs is, and what to do.
+const CSV_NOT_MANIFEST: &str = "a CSV file, not a drive manifest (TOML): a drive CSV needs no import (calibrate, \
+     validate and compensate take it as it is; Python: Drive.from_csv or Drive.load); a stream's CSV file is named \
+     by a manifest's [streams.NAME] table (docs/guide.md, \"A multi-stream log: the manifest\")";
+
+/// Whether text that is not TOML starts with a CSV header row: its first
+/// line that is not blank holds commas, no `=` and is no table header or
+/// comment.
+fn looks_like_csv(text: &str) -> bool {
+    let first = text.trim_start_matches('\u{feff}').lines().map(str::trim).find(|l| !l.is_empty());
+    first.is_some_and(|l| l.contains(',') && !l.contains('=') && !l.starts_with('[') && !l.starts_with('#'))
+}
+
 impl Manifest {
     /// Reads and checks a manifest file.
     pub fn from_path(path: &Path) -> Result<Manifest> {
+        let csv_name = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("csv"));
+        if csv_name {
+            return Err(Error::Manifest { path: path.to_path_buf(), reason: CSV_NOT_MANIFEST.into() });
+        }
         let text =
             crate::output::limited::read_text_limited(path, crate::output::limited::MAX_SETTINGS_BYTES, "a manifest")
                 .map_err(|source| Error::Io { path: path.to_path_buf(), source })?;
@@ -726,7 +743,13 @@ impl Manifest {
     /// names the manifest in errors.
     pub fn parse(text: &str, path: &Path) -> Result<Manifest> {
         let err = |reason: String| Error::Manifest { path: path.to_path_buf(), reason };
-        let de = toml::de::Deserializer::parse(text).map_err(|e| err(toml_message(&e, text, None)))?;
+        let de = toml::de::Deserializer::parse(text).map_err(|e| {
+            if looks_like_csv(text) {
+                err(CSV_NOT_MANIFEST.into())
+            } else {
+                err(toml_message(&e, text, None))
+            }
+        })?;
         let mut m: Manifest = serde_path_to_error::deserialize(de).map_err(|e| {
             let key = e.path().to_string();
             err(toml_message(e.inner(), text, Some(key)))
@@ -841,6 +864,22 @@ position = {{ kind = "local", x = "x", y = "y" }}
 "#
         );
         Manifest::parse(&text, Path::new("m.toml")).expect("manifest").pose.quality.expect("quality")
+    }
+
+    /// A drive or stream CSV given where a manifest belongs says what it
+    /// is, by its name or its header row, instead of a TOML syntax error.
+    #[test]
+    fn a_csv_given_as_a_manifest_says_so() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let csv = dir.path().join("drive.csv");
+        std::fs::write(&csv, "t,px,py,psi,n_rl,n_rr,beta,a_y\n0,0,0,0,1,1,0,0\n").expect("write");
+        let by_name = Manifest::from_path(&csv).expect_err("csv").to_string();
+        assert!(by_name.contains("drive.csv: a CSV file, not a drive manifest (TOML)"), "{by_name}");
+        let by_header = Manifest::parse("t,px,py\n0,0,0\n", Path::new("log.txt")).expect_err("csv").to_string();
+        assert!(by_header.starts_with("log.txt: a CSV file, not a drive manifest"), "{by_header}");
+        // A broken manifest keeps its syntax error.
+        let broken = Manifest::parse("[streams.a]\nfile = \n", Path::new("m.toml")).expect_err("toml").to_string();
+        assert!(!broken.contains("a CSV file"), "{broken}");
     }
 
     #[test]

@@ -1,0 +1,101 @@
+//! Careless command lines end before any work with an error that names the
+//! option and says what to give instead: usage errors (exit 2) for a value
+//! the option cannot take, exit 1 for an output that cannot be written
+//! where it is asked for.
+
+use std::path::Path;
+
+use crate::common::{odocal, simulated_drive, stderr};
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("utf8")
+}
+
+fn assert_fails(args: &[&str], code: i32, needles: &[&str]) -> String {
+    let o = odocal(args);
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(code), "{args:?}: {e}");
+    assert!(o.stdout.is_empty(), "{args:?}: stdout {:?}", String::from_utf8_lossy(&o.stdout));
+    for n in needles {
+        assert!(e.contains(n), "{args:?}: '{n}' not in: {e}");
+    }
+    e
+}
+
+#[test]
+fn threads_outside_1_to_the_ceiling_are_usage_errors() {
+    let v = ["validate", "drive.csv", "--theta", "2,0,1.6,0"];
+    let with = |n: &'static str| [&["--threads", n][..], &v[..]].concat();
+    assert_fails(&with("0"), 2, &["--threads", "must be at least 1"]);
+    assert_fails(&with("5000"), 2, &["--threads", "above the ceiling of 1024"]);
+}
+
+/// A `--params-out` whose name gives no format is refused before the
+/// calibration runs, and before `follow` records anything in the history.
+#[test]
+fn a_params_out_without_a_format_is_refused_before_any_work() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let d = simulated_drive(dir.path(), "d.csv", &["--length-km", "1"]);
+    let txt = dir.path().join("odometry.txt");
+    assert_fails(&["calibrate", &d, "--params-out", s(&txt)], 2, &["--params-out", ".yaml", ".json"]);
+    let db = dir.path().join("h.sqlite");
+    assert_fails(&["follow", &d, "--vehicle", "v", "--db", s(&db), "--params-out", s(&txt)], 2, &["--params-out"]);
+    assert!(!db.exists(), "the history was opened before the command line was checked");
+    assert!(!txt.exists());
+}
+
+/// An output in a folder that does not exist, or onto a directory, is
+/// named before the work (whose result would be lost), without the name of
+/// a temporary file.
+#[test]
+fn an_output_that_cannot_be_written_is_named_before_any_work() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let d = simulated_drive(dir.path(), "d.csv", &["--length-km", "1"]);
+    let missing = dir.path().join("no-such-folder").join("r.json");
+    let e = assert_fails(&["calibrate", &d, "--json", s(&missing)], 1, &["--json", "no-such-folder does not exist"]);
+    assert!(!e.contains(".r.json."), "the temporary file named: {e}");
+    assert_fails(&["calibrate", &d, "--report", s(dir.path())], 1, &["--report", "is a directory"]);
+    let under_file = Path::new(&d).join("r.yaml");
+    assert_fails(&["calibrate", &d, "--params-out", s(&under_file)], 1, &["d.csv is not a folder"]);
+    let csv = dir.path().join("nowhere").join("x.csv");
+    assert_fails(&["simulate", "--length-km", "1", "--out", s(&csv)], 1, &["--out", "does not exist"]);
+    // experiment creates its folder.
+    let out = dir.path().join("new").join("exp");
+    let o = odocal(&["experiment", "--length-km", "0.5", "--batches", "2", "--out", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(out.join("report.md").exists());
+}
+
+#[test]
+fn simulator_flags_are_checked_as_flags() {
+    let out = std::env::temp_dir().join("odocal-never-written.csv");
+    let o = s(&out);
+    assert_fails(&["simulate", "--length-km", "0", "--out", o], 2, &["--length-km", "positive"]);
+    assert_fails(&["simulate", "--noise", "loud", "--out", o], 2, &["--noise", "unknown noise preset 'loud'"]);
+    assert_fails(&["demo", "--noise", "loud"], 2, &["--noise"]);
+    assert_fails(&["simulate", "--substeps", "0", "--out", o], 2, &["--substeps", "1..=10000"]);
+    assert_fails(&["experiment", "--length-km", "nan", "--out", o], 2, &["--length-km"]);
+    assert!(!out.exists());
+}
+
+/// `-` for a drive (stdin) is refused with what to do, not "-: No such
+/// file or directory".
+#[test]
+fn a_drive_from_stdin_is_refused_saying_why() {
+    assert_fails(&["validate", "-", "--theta", "2,0,1.6,0"], 1, &["-: a drive is read from a file, not from stdin"]);
+    assert_fails(&["calibrate", "-"], 1, &["save it first"]);
+}
+
+/// Flags the calibration settings refuse are usage errors naming the flag,
+/// not the library's field (`free`, `initial_batches`).
+#[test]
+fn refused_calibration_flags_are_usage_errors_naming_the_flag() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let d = simulated_drive(dir.path(), "d.csv", &["--length-km", "1"]);
+    let e = assert_fails(&["calibrate", &d, "--fix", "c_e,c_d,t_r,d"], 2, &["--fix holds every parameter of θ"]);
+    assert!(e.contains("odocal validate --theta") && !e.contains("`free`"), "{e}");
+    let e = assert_fails(&["calibrate", &d, "--method", "three-step", "--batches", "0"], 2, &["--batches = 0"]);
+    assert!(!e.contains("initial_batches"), "{e}");
+    assert_fails(&["calibrate", &d, "--method", "three-step", "--picks", "0"], 2, &["--picks = 0"]);
+    assert_fails(&["calibrate", &d, "--method", "batch-gn", "--eiv-window", "600"], 2, &["--eiv-window applies to"]);
+}
