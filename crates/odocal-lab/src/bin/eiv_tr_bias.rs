@@ -28,7 +28,10 @@
 //! `no-coloured` (common and per-wheel coloured wheel noise), `no-white`
 //! (white wheel noise); `slip-only` (no noise but the slip) and `off` (no
 //! noise); `drift-tau100`, the reference's position and heading drift at
-//! the filter's correlation time, 100 s. Errors are against `SimOptions::equivalent_truth`.
+//! the filter's correlation time, 100 s; `position-tenth` and
+//! `position-hundredth`, the reference's position drift and white noise at
+//! a tenth and a hundredth of the preset's (an RTK-grade reference).
+//! Errors are against `SimOptions::equivalent_truth`.
 //!
 //! Per drive variant and estimator: mean error, bias t = |mean|/(sd/√n)
 //! and RMS per parameter (c_e, t_r in %, c_d in mm, d in mm/(m/s²)) and the
@@ -49,10 +52,10 @@ const USAGE: &str = "eiv_tr_bias [--km 12] [--seeds 40] [--first-seed 1] [--pres
     [--estimators default,gn] [--threads N] [--csv FILE]
 
 drives: full, no-slip, no-heading, no-position, no-lateral, no-quant, no-coloured, no-white, slip-only, off,
-    drift-tau100;
+    drift-tau100, position-tenth, position-hundredth;
 estimators: default (with its uncorrected fit), b16, conv, q0, qscaled, gn.";
 
-const DRIVES: [&str; 11] = [
+const DRIVES: [&str; 13] = [
     "full",
     "no-slip",
     "no-heading",
@@ -64,6 +67,8 @@ const DRIVES: [&str; 11] = [
     "slip-only",
     "off",
     "drift-tau100",
+    "position-tenth",
+    "position-hundredth",
 ];
 const ESTIMATORS: [&str; 6] = ["default", "b16", "conv", "q0", "qscaled", "gn"];
 
@@ -93,6 +98,11 @@ fn drive_noise(preset: &NoiseOptions, drive: &str) -> NoiseOptions {
         "drift-tau100" => {
             n.position_drift_time_constant_s = 100.0;
             n.heading_drift_time_constant_s = 100.0;
+        }
+        "position-tenth" | "position-hundredth" => {
+            let f = if drive == "position-tenth" { 0.1 } else { 0.01 };
+            n.position_drift_sigma_m *= f;
+            n.position_white_sigma_m *= f;
         }
         "slip-only" => {
             n = NoiseOptions { wheel_slip_per_m_per_s2: preset.wheel_slip_per_m_per_s2, ..NoiseOptions::off() }
