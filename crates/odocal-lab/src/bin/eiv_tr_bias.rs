@@ -17,6 +17,11 @@
 //! - `qscaled`: the default with the quantisation step scaled with the
 //!   white wheel noise from the starting model's even where the readings
 //!   lie on a lattice (`QuantisationLevel::ScaledWithWhite`);
+//! - `twosided`: the default with its heading-drift test two-sided
+//!   (`heading_drift_two_sided`);
+//! - `ownscale`: the default with the pose-drift scale on the position
+//!   drift only (`position_drift_own_scale`);
+//! - `floor2cm`: the default with a 2 cm position floor (`position_floor_m`);
 //! - `gn`: `--method batch-gn --estimate heading-offset`.
 //!
 //! Drive variants (`--drives`), each the preset with one group of noise
@@ -53,7 +58,7 @@ const USAGE: &str = "eiv_tr_bias [--km 12] [--seeds 40] [--first-seed 1] [--pres
 
 drives: full, no-slip, no-heading, no-position, no-lateral, no-quant, no-coloured, no-white, slip-only, off,
     drift-tau100, position-tenth, position-hundredth;
-estimators: default (with its uncorrected fit), b16, conv, q0, qscaled, gn.";
+estimators: default (with its uncorrected fit), b16, conv, q0, qscaled, twosided, ownscale, floor2cm, gn.";
 
 const DRIVES: [&str; 13] = [
     "full",
@@ -70,7 +75,7 @@ const DRIVES: [&str; 13] = [
     "position-tenth",
     "position-hundredth",
 ];
-const ESTIMATORS: [&str; 6] = ["default", "b16", "conv", "q0", "qscaled", "gn"];
+const ESTIMATORS: [&str; 9] = ["default", "b16", "conv", "q0", "qscaled", "floor2cm", "twosided", "ownscale", "gn"];
 
 /// `preset` with the sources of drive variant `drive` switched off.
 fn drive_noise(preset: &NoiseOptions, drive: &str) -> NoiseOptions {
@@ -128,6 +133,21 @@ fn options(est: &str) -> Res<CalibrationOptions> {
                 } else {
                     e.filter.research.bias_correction_refit = BootstrapRefit::Converged;
                 }
+            }
+        }
+        "twosided" => {
+            if let Method::Eiv(e) = &mut o.method {
+                e.filter.research.heading_drift_two_sided = true;
+            }
+        }
+        "ownscale" => {
+            if let Method::Eiv(e) = &mut o.method {
+                e.filter.research.position_drift_own_scale = true;
+            }
+        }
+        "floor2cm" => {
+            if let Method::Eiv(e) = &mut o.method {
+                e.filter.research.position_floor_m = 0.02;
             }
         }
         "q0" | "qscaled" => {
