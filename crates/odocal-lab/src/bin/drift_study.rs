@@ -24,11 +24,11 @@
 //! `--random-walk-ce F` and `--random-walk-cd M` set the process noise
 //! (per-hour sd of c_e as a fraction, of c_d in m).
 
-use odocal_history::{CalibrationRecord, HistoryRow, VehicleHistory};
-use odocal_online::{Calibrator, OnlineOptions};
 use odocal::sim::{simulate, CdStep, DriftOptions, SimOptions};
 use odocal::{Drive, Signals, Theta};
+use odocal_history::{CalibrationRecord, HistoryRow, VehicleHistory};
 use odocal_lab::{Args, Res};
+use odocal_online::{Calibrator, OnlineOptions};
 use rayon::prelude::*;
 
 const USAGE: &str = "drift_study [--seeds N] [--first-seed S] [--ramp-only | --step-only] [--sigma-factors A,B,C,D] [--ramp FRACTION] [--burn-in S] [--step-mm MM[,MM..]]

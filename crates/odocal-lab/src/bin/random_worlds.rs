@@ -117,7 +117,17 @@ struct Settings {
 }
 
 fn settings() -> Res<(Settings, Option<usize>)> {
-    let mut a = Args::parse(USAGE, &["heavy", "eta-without-jacobian", "no-common-jacobian", "position-drift-own-scale", "heading-drift-two-sided", "no-clamp-refit"])?;
+    let mut a = Args::parse(
+        USAGE,
+        &[
+            "heavy",
+            "eta-without-jacobian",
+            "no-common-jacobian",
+            "position-drift-own-scale",
+            "heading-drift-two-sided",
+            "no-clamp-refit",
+        ],
+    )?;
     let s = Settings {
         worlds: a.get("worlds", 100)?,
         km: a.get("length-km", 12.0)?,
@@ -301,7 +311,11 @@ fn eiv_extra(d: &EivPart) -> String {
     if let Some(c) = &d.clamp_refit {
         // The first fit's θ before the refit after a clamp.
         let first = c.get("first_theta").map_or(String::new(), |t| {
-            ["c_e", "c_d", "t_r", "d"].iter().map(|k| format!("{:.4e}", t[*k].as_f64().unwrap_or(f64::NAN))).collect::<Vec<_>>().join(" ")
+            ["c_e", "c_d", "t_r", "d"]
+                .iter()
+                .map(|k| format!("{:.4e}", t[*k].as_f64().unwrap_or(f64::NAN)))
+                .collect::<Vec<_>>()
+                .join(" ")
         });
         out.push(format!("clamp_refit_first={first}"));
     }
