@@ -262,7 +262,11 @@ fn noise_model_files_state_known_sources() {
     assert_eq!(filter.known_sources(), [NoiseSource::PoseWhite, NoiseSource::HeadingWhite]);
     assert_eq!(filter.noise.heading_white_sigma_rad, 0.0003);
     filter.validate().expect("valid with the separate heading scale");
-    let tied = EivOptions { heading_scale: crate::eiv::HeadingScale::TiedToPosition, ..filter.clone() };
+    // Tied to the position noise, the heading's scale is pose_white's: held
+    // with it, refused without it.
+    let mut tied = EivOptions { heading_scale: crate::eiv::HeadingScale::TiedToPosition, ..filter.clone() };
+    tied.validate().expect("valid: pose_white, and with it the heading, held");
+    tied.eta_held[NoiseSource::PoseWhite.index()] = false;
     let e = tied.validate().expect_err("tied heading scale").to_string();
     assert!(e.contains("heading_white is known but its scale is tied to pose_white"), "{e}");
     let e = parse_noise_model("known = [\"heading\"]\n").expect_err("unknown source");

@@ -563,8 +563,9 @@ impl EivOptions {
         if !(self.nis_band[0] >= 0.0 && self.nis_band[1] > self.nis_band[0]) {
             return bad("nis_band", "must be [lower, upper] with 0 <= lower < upper");
         }
-        let heading = NoiseSource::HeadingWhite.index();
-        if self.eta_held[heading] && self.heading_scale == HeadingScale::TiedToPosition && !self.fix_noise {
+        let (heading, pose) = (NoiseSource::HeadingWhite.index(), NoiseSource::PoseWhite.index());
+        let tied = self.heading_scale == HeadingScale::TiedToPosition;
+        if self.eta_held[heading] && !self.eta_held[pose] && tied && !self.fix_noise {
             return bad(
                 "eta_held",
                 "heading_white is known but its scale is tied to pose_white (heading noise `tied`): \

@@ -12,7 +12,7 @@ use super::{ManifestSettings, NoiseModelSetting, Settings};
 use crate::calibrate::eiv::{CorrectBias, EivMethodOptions};
 use crate::calibrate::three_step::ThreeStepOptions;
 use crate::calibrate::{CalibrationOptions, Method};
-use crate::eiv::{BiasCorrection, BootstrapOptions};
+use crate::eiv::{BiasCorrection, BootstrapOptions, HeadingScale, NoiseSource};
 use crate::error::{Error, Result};
 use crate::model::param::{Param, ParamSet};
 
@@ -432,6 +432,16 @@ impl Settings {
         set(&mut e.filter.quantisation_level, &self.quantisation_level);
         set(&mut e.filter.lateral_noise, &self.lateral_noise);
         set(&mut e.filter.heading_scale, &self.heading_noise);
+        let held = |s: NoiseSource| e.filter.eta_held[s.index()];
+        let tied = e.filter.heading_scale == HeadingScale::TiedToPosition;
+        if held(NoiseSource::HeadingWhite) && !held(NoiseSource::PoseWhite) && tied && !e.filter.fix_noise {
+            let tied = caller.name("heading_noise", self);
+            let what = format!(
+                "names heading_white, whose scale {tied} tied shares with pose_white: give the heading its own \
+                 scale (separate) or name pose_white as known too"
+            );
+            return Err(caller.invalid("known_noise", self, what));
+        }
         let seed = self.bootstrap_seed.unwrap_or(0);
         if let Some(b) = self.correct_c_e_bias {
             if self.correct_bias.is_some() {
