@@ -384,13 +384,12 @@ impl ThetaArg {
 /// writes the YAML to stdout.
 pub fn params_out_path(s: &str) -> std::result::Result<PathBuf, String> {
     let path = PathBuf::from(s);
-    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-    match ext.as_deref() {
-        _ if odocal::output::is_stdout(&path) => Ok(path),
-        Some("yaml" | "yml" | "json") => Ok(path),
-        _ => Err("the file name says the format: end it in .yaml or .yml (a ROS 2 parameter file) or .json, or \
+    if odocal::output::is_stdout(&path) || odocal::ParamFile::is_param_file(&path) {
+        Ok(path)
+    } else {
+        Err("the file name says the format: end it in .yaml or .yml (a ROS 2 parameter file) or .json, or \
                   give - for the YAML on stdout"
-            .into()),
+            .into())
     }
 }
 

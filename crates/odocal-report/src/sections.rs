@@ -52,19 +52,25 @@ pub(crate) fn head(h: &mut String, r: &ReportInput<'_>) {
     }
 }
 
+/// `items` as an HTML list, escaped (nothing when there are none).
+fn list(h: &mut String, items: &[String]) {
+    if items.is_empty() {
+        return;
+    }
+    h.push_str("<ul>\n");
+    for item in items {
+        let _ = writeln!(h, "<li>{}</li>", esc(item));
+    }
+    h.push_str("</ul>\n");
+}
+
 /// Section 1: the verdict and its reasons.
 pub(crate) fn verdict(h: &mut String, r: &ReportInput<'_>) {
     h.push_str("<section id=\"verdict\">\n<h2>Verdict</h2>\n");
     match &r.verdict {
         Some((level, reasons)) => {
             let _ = writeln!(h, "<p class=\"verdict {0}\">{0}</p>", esc(level));
-            if !reasons.is_empty() {
-                h.push_str("<ul>\n");
-                for reason in reasons {
-                    let _ = writeln!(h, "<li>{}</li>", esc(reason));
-                }
-                h.push_str("</ul>\n");
-            }
+            list(h, reasons);
         }
         None => h.push_str("<p class=\"verdict none\">no verdict given</p>\n"),
     }
@@ -135,13 +141,7 @@ pub(crate) fn validation(h: &mut String, r: &ReportInput<'_>, e: &SegmentErrors)
     h.push_str("<section id=\"validation\">\n<h2>Validation: mean position error Ē_p</h2>\n");
     if let Some((first, drives)) = r.validation_data.split_first() {
         let _ = writeln!(h, "<p class=\"data\">{}</p>", esc(first));
-        if !drives.is_empty() {
-            h.push_str("<ul>\n");
-            for d in drives {
-                let _ = writeln!(h, "<li>{}</li>", esc(d));
-            }
-            h.push_str("</ul>\n");
-        }
+        list(h, drives);
     }
     h.push_str("<table>\n");
     let _ = writeln!(h, "<tr><th>θ</th><th>Ē_p (m)</th><th>segments</th></tr>");

@@ -457,6 +457,16 @@ impl Default for EivOptions {
 }
 
 impl EivOptions {
+    /// Whether the heading white noise is held as known while its scale is
+    /// tied to the position white noise's, which is estimated: a
+    /// contradiction (with pose_white held too, the tied scale is held with
+    /// it). The noise scales' check and the settings' message share it.
+    pub(crate) fn heading_known_but_tied(&self) -> bool {
+        let held = |s: NoiseSource| self.eta_held[s.index()];
+        let tied = self.heading_scale == HeadingScale::TiedToPosition;
+        held(NoiseSource::HeadingWhite) && !held(NoiseSource::PoseWhite) && tied && !self.fix_noise
+    }
+
     /// Holds the scales of `sources` at the starting model
     /// ([`EivOptions::eta_held`]): their levels in [`EivOptions::noise`] are
     /// known.
@@ -563,9 +573,7 @@ impl EivOptions {
         if !(self.nis_band[0] >= 0.0 && self.nis_band[1] > self.nis_band[0]) {
             return bad("nis_band", "must be [lower, upper] with 0 <= lower < upper");
         }
-        let (heading, pose) = (NoiseSource::HeadingWhite.index(), NoiseSource::PoseWhite.index());
-        let tied = self.heading_scale == HeadingScale::TiedToPosition;
-        if self.eta_held[heading] && !self.eta_held[pose] && tied && !self.fix_noise {
+        if self.heading_known_but_tied() {
             return bad(
                 "eta_held",
                 "heading_white is known but its scale is tied to pose_white (heading noise `tied`): \

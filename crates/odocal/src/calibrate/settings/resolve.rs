@@ -12,7 +12,7 @@ use super::{ManifestSettings, NoiseModelSetting, Settings};
 use crate::calibrate::eiv::{CorrectBias, EivMethodOptions};
 use crate::calibrate::three_step::ThreeStepOptions;
 use crate::calibrate::{CalibrationOptions, Method};
-use crate::eiv::{BiasCorrection, BootstrapOptions, HeadingScale, NoiseSource};
+use crate::eiv::{BiasCorrection, BootstrapOptions};
 use crate::error::{Error, Result};
 use crate::model::param::{Param, ParamSet};
 
@@ -432,9 +432,7 @@ impl Settings {
         set(&mut e.filter.quantisation_level, &self.quantisation_level);
         set(&mut e.filter.lateral_noise, &self.lateral_noise);
         set(&mut e.filter.heading_scale, &self.heading_noise);
-        let held = |s: NoiseSource| e.filter.eta_held[s.index()];
-        let tied = e.filter.heading_scale == HeadingScale::TiedToPosition;
-        if held(NoiseSource::HeadingWhite) && !held(NoiseSource::PoseWhite) && tied && !e.filter.fix_noise {
+        if e.filter.heading_known_but_tied() {
             let tied = caller.name("heading_noise", self);
             let what = format!(
                 "names heading_white, whose scale {tied} tied shares with pose_white: give the heading its own \
