@@ -122,7 +122,7 @@ impl Signals {
     }
 
     /// The samples in `r` as new signals.
-    pub fn slice(&self, r: Range<usize>) -> Signals {
+    pub(crate) fn slice(&self, r: Range<usize>) -> Signals {
         let c = |v: &Vec<f64>| v[r.clone()].to_vec();
         Signals {
             px: c(&self.px),
