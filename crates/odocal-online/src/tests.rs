@@ -20,7 +20,15 @@ fn with_heading_offset(d: &Drive, delta: f64) -> Drive {
 /// The samples `r` of `s`.
 fn slice(s: &Signals, r: std::ops::Range<usize>) -> Signals {
     let c = |v: &Vec<f64>| v[r.clone()].to_vec();
-    Signals { px: c(&s.px), py: c(&s.py), psi: c(&s.psi), n_rl: c(&s.n_rl), n_rr: c(&s.n_rr), beta: c(&s.beta), a_y: c(&s.a_y) }
+    Signals {
+        px: c(&s.px),
+        py: c(&s.py),
+        psi: c(&s.psi),
+        n_rl: c(&s.n_rl),
+        n_rr: c(&s.n_rr),
+        beta: c(&s.beta),
+        a_y: c(&s.a_y),
+    }
 }
 
 #[test]

@@ -234,7 +234,7 @@ pub struct DriveBuilder {
     /// it is kept exactly as given. `None` infers it from the time stamps.
     pub sample_time_s: Option<f64>,
     /// The physical limits the drive is checked against (default
-    /// `PhysicalLimits::default`, the table in `odocal::model::limits`).
+    /// [`PhysicalLimits::default`], the table of [`crate::model::PhysicalLimits`]).
     pub limits: PhysicalLimits,
 }
 

@@ -768,7 +768,7 @@ impl Manifest {
     }
 
     /// The sample time of the imported drive, s (`[output] rate_hz`).
-    pub(crate) fn sample_time_s(&self) -> f64 {
+    pub fn sample_time_s(&self) -> f64 {
         1.0 / self.output.rate_hz
     }
 
