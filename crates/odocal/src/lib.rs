@@ -47,11 +47,22 @@
 //! [`eiv`] (the errors-in-variables options), [`sim`] (the simulator),
 //! [`experiment`] (the paper's §6), [`mod@io`] (ROS 2 bags, streamed
 //! import, drive files read in chunks), [`settings`] (calibration
-//! settings as key–value pairs) and [`output`] (atomic writes and output
-//! paths checked against inputs, for a front end's own files). Calibration
-//! that keeps up with a streaming drive is the crate odocal-online; the
-//! per-vehicle calibration history in SQLite, with the gated write-back of
-//! `odocal follow`, is the crate odocal-history.
+//! settings as key–value pairs), [`pooling`] (the σ for the next drive in
+//! the report) and [`output`] (atomic writes and output paths checked
+//! against inputs, for a front end's own files). Calibration that keeps up
+//! with a streaming drive is the crate odocal-online; the per-vehicle
+//! calibration history in SQLite, with the gated write-back of `odocal
+//! follow`, is the crate odocal-history.
+//!
+//! Each public item is there for a user outside this crate (a program,
+//! the `odocal` tool, the Python package, the crates odocal-online,
+//! -history, -report and -bench, the fuzz targets) or as the type of a
+//! public field or result (the reports' types are their JSON schema). What only the studies in
+//! crates/odocal-lab use (the module `research`, the estimator itself and
+//! its report in [`eiv`], the Gauss-Newton report in [`identify`]) is
+//! public with the feature `research` (off by default) and crate-internal
+//! without it. tests/architecture.rs holds the number of public items to a
+//! budget.
 //!
 //! ## Example
 //!

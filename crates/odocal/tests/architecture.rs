@@ -8,6 +8,13 @@
 //! module of the same layer, and every `super::` in a module's top file
 //! (which would reach the crate root, around the check).
 //!
+//! **Public surface.** The library declares at most [`PUBLIC_ITEM_BUDGET`]
+//! `pub` items (functions, types, constants, modules, re-exports), counted
+//! line by line as `grep -rEn '^\s*pub (fn|struct|enum|trait|type|const|static|mod|use|unsafe fn|async fn)\b'`
+//! over `src/` without the paths and lines that name `tests`. Research-only
+//! items (`research_pub!`, `research_use!`) do not count: without the
+//! feature `research` they are crate-internal.
+//!
 //! **Self-contained.** No source, test, example, manifest, script or doc
 //! refers to data beside the repository (a sibling `shared` folder): everything a clone
 //! needs is in it (`data/`).
@@ -329,6 +336,54 @@ fn modules_use_only_lower_layers() {
         }
     }
     assert!(problems.is_empty(), "module layering broken:\n{}", problems.join("\n"));
+}
+
+// ---- public surface ----
+
+/// The most `pub` items `src/` may declare (module docs: how they are counted).
+const PUBLIC_ITEM_BUDGET: usize = 317;
+
+/// The kinds of item the count looks for after `pub `.
+const PUBLIC_KINDS: [&str; 11] =
+    ["fn", "struct", "enum", "trait", "type", "const", "static", "mod", "use", "unsafe fn", "async fn"];
+
+/// True when `line` declares a `pub` item: `pub ` at its start (after
+/// indentation) followed by one of `PUBLIC_KINDS` as a whole word.
+fn declares_public_item(line: &str) -> bool {
+    let Some(rest) = line.trim_start().strip_prefix("pub ") else { return false };
+    PUBLIC_KINDS.iter().any(|kind| rest.strip_prefix(kind).is_some_and(|after| !after.starts_with(is_ident)))
+}
+
+/// `src/` declares at most `PUBLIC_ITEM_BUDGET` public items, so the
+/// library's public surface does not grow unnoticed: a new item needs a
+/// user outside the crate (the CLI, the Python package, the sibling crates,
+/// the fuzz targets) or goes behind `research_pub!`.
+#[test]
+fn public_items_stay_within_the_budget() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut files = Vec::new();
+    sources(&src, &mut files);
+    let mut items = Vec::new();
+    for file in &files {
+        let rel = file.strip_prefix(&src).expect("under src");
+        if rel.to_string_lossy().contains("tests") {
+            continue;
+        }
+        let text = std::fs::read_to_string(file).expect("read");
+        for (i, line) in text.lines().enumerate() {
+            if declares_public_item(line) && !line.contains("tests") {
+                items.push(format!("src/{}:{}: {}", rel.display(), i + 1, line.trim()));
+            }
+        }
+    }
+    assert!(items.len() > 50, "the count found only {} public items under {}", items.len(), src.display());
+    assert!(
+        items.len() <= PUBLIC_ITEM_BUDGET,
+        "{} public items, above the budget of {PUBLIC_ITEM_BUDGET}: make the new ones `pub(crate)` (or \
+         `research_pub!` when only crates/odocal-lab needs them), or raise the budget with the reason:\n{}",
+        items.len(),
+        items.join("\n")
+    );
 }
 
 // ---- self-contained repository ----

@@ -122,7 +122,7 @@ impl Signals {
     }
 
     /// The samples in `r` as new signals.
-    pub fn slice(&self, r: Range<usize>) -> Signals {
+    pub(crate) fn slice(&self, r: Range<usize>) -> Signals {
         let c = |v: &Vec<f64>| v[r.clone()].to_vec();
         Signals {
             px: c(&self.px),
@@ -234,7 +234,7 @@ pub struct DriveBuilder {
     /// it is kept exactly as given. `None` infers it from the time stamps.
     pub sample_time_s: Option<f64>,
     /// The physical limits the drive is checked against (default
-    /// `PhysicalLimits::default`, the table in `odocal::model::limits`).
+    /// [`PhysicalLimits::default`], the table of [`crate::model::PhysicalLimits`]).
     pub limits: PhysicalLimits,
 }
 
