@@ -53,7 +53,7 @@
 //! `no-heading-drift`, `no-heading-white`: the reference heading's drift or
 //! white noise alone off. Variants join with `+` (`position-tenth+no-slip`:
 //! both changes). With the environment variable `EIV_TR_BIAS_VERBOSE` set,
-//! each EIV fit's t_r, η, heading-drift test and verdict go to stderr.
+//! each EIV fit's t_r, its σ, η, heading-drift test and verdict go to stderr.
 //! Errors are against `SimOptions::equivalent_truth`.
 //!
 //! Per drive variant and estimator: mean error, bias t = |mean|/(sd/√n)
@@ -249,8 +249,9 @@ fn run(est: &str, drive: &odocal::Drive, noise: &NoiseOptions) -> Res<Vec<Row>> 
                 )
             });
             eprintln!(
-                "{est}: t_r {:.5} η [{}] heading drift {:?} verdict {}",
+                "{est}: t_r {:.5} σ {:?} η [{}] heading drift {:?} verdict {}",
                 r.theta.t_r,
+                r.result_sigma().t_r,
                 eta.join(", "),
                 hd,
                 r.verdict.level
