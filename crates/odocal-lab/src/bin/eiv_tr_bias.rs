@@ -27,7 +27,8 @@
 //!   (`NoiseModel::from_sim`, `fix_noise`); `knownstart`: that model as the
 //!   start, the scales estimated;
 //! - `held`: the default with the covariance recursion held at a reference
-//!   θ (`CovarianceMode::HeldAtReference`);
+//!   θ (`CovarianceMode::HeldAtReference`; the wheel noise scaled by the
+//!   measured rotation, `WheelNoiseScale::MeasuredInput`, which it needs);
 //! - `nojac`: the default without the input log-Jacobian term
 //!   (`InputJacobian::None`);
 //! - `floor1mm`: the default with a 1 mm position floor;
@@ -63,7 +64,9 @@
 
 use std::fmt::Write as _;
 
-use odocal::eiv::{BootstrapRefit, CovarianceMode, InputJacobian, LateralNoise, NoiseModel, QuantisationLevel};
+use odocal::eiv::{
+    BootstrapRefit, CovarianceMode, InputJacobian, LateralNoise, NoiseModel, QuantisationLevel, WheelNoiseScale,
+};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{calibrate, CalibrationOptions, CorrectBias, Method, Param, Theta};
 use odocal_lab::report_json::{eiv_part, EivPart};
@@ -177,7 +180,10 @@ fn options(est: &str, noise: &NoiseOptions, ts: f64) -> Res<CalibrationOptions> 
                 e.filter.noise = NoiseModel::from_sim(noise, ts);
                 e.filter.fix_noise = est == "known";
             }
-            "held" => r.covariance = CovarianceMode::HeldAtReference,
+            "held" => {
+                r.covariance = CovarianceMode::HeldAtReference;
+                r.wheel_noise_scale = WheelNoiseScale::MeasuredInput;
+            }
             "nojac" => r.input_jacobian = InputJacobian::None,
             "floor1mm" => r.position_floor_m = 0.001,
             "latstated" => e.filter.lateral_noise = LateralNoise::Stated,
