@@ -22,7 +22,22 @@
 //! - `ownscale`: the default with the pose-drift scale on the position
 //!   drift only (`position_drift_own_scale`);
 //! - `floor2cm`: the default with a 2 cm position floor (`position_floor_m`);
-//! - `gn`: `--method batch-gn --estimate heading-offset`.
+//! - `gn`: `--method batch-gn --estimate heading-offset`;
+//! - `known`: the default with the simulator's noise model given and held
+//!   (`NoiseModel::from_sim`, `fix_noise`); `knownstart`: that model as the
+//!   start, the scales estimated;
+//! - `held`: the default with the covariance recursion held at a reference
+//!   θ (`CovarianceMode::HeldAtReference`; the wheel noise scaled by the
+//!   measured rotation, `WheelNoiseScale::MeasuredInput`, which it needs);
+//! - `nojac`: the default without the input log-Jacobian term
+//!   (`InputJacobian::None`);
+//! - `floor1mm`: the default with a 1 mm position floor;
+//! - `latstated`: the a_y and β noise held at the model's σ
+//!   (`LateralNoise::Stated`) instead of scaled with the white wheel noise;
+//! - `notest`: the default without its heading-drift test;
+//! - `tiedall`: the heading drift tied to the pose-drift scale all the way
+//!   (`heading_drift_min_eta` at the lower η bound);
+//! - `hdmin:X`: the default with `heading_drift_min_eta` X.
 //!
 //! Drive variants (`--drives`), each the preset with one group of noise
 //! sources switched off (every source draws from its own stream of the
@@ -36,6 +51,10 @@
 //! the filter's correlation time, 100 s; `position-tenth` and
 //! `position-hundredth`, the reference's position drift and white noise at
 //! a tenth and a hundredth of the preset's (an RTK-grade reference).
+//! `no-heading-drift`, `no-heading-white`: the reference heading's drift or
+//! white noise alone off. Variants join with `+` (`position-tenth+no-slip`:
+//! both changes). With the environment variable `EIV_TR_BIAS_VERBOSE` set,
+//! each EIV fit's t_r, its σ, η, heading-drift test and verdict go to stderr.
 //! Errors are against `SimOptions::equivalent_truth`.
 //!
 //! Per drive variant and estimator: mean error, bias t = |mean|/(sd/√n)
@@ -45,7 +64,9 @@
 
 use std::fmt::Write as _;
 
-use odocal::eiv::{BootstrapRefit, QuantisationLevel};
+use odocal::eiv::{
+    BootstrapRefit, CovarianceMode, InputJacobian, LateralNoise, NoiseModel, QuantisationLevel, WheelNoiseScale,
+};
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
 use odocal::{calibrate, CalibrationOptions, CorrectBias, Method, Param, Theta};
 use odocal_lab::report_json::{eiv_part, EivPart};
@@ -57,10 +78,12 @@ const USAGE: &str = "eiv_tr_bias [--km 12] [--seeds 40] [--first-seed 1] [--pres
     [--estimators default,gn] [--threads N] [--csv FILE]
 
 drives: full, no-slip, no-heading, no-position, no-lateral, no-quant, no-coloured, no-white, slip-only, off,
-    drift-tau100, position-tenth, position-hundredth;
-estimators: default (with its uncorrected fit), b16, conv, q0, qscaled, twosided, ownscale, floor2cm, gn.";
+    drift-tau100, position-tenth, position-hundredth, no-heading-drift, no-heading-white;
+    variants join with '+' (position-tenth+no-slip);
+estimators: default (with its uncorrected fit), b16, conv, q0, qscaled, twosided, ownscale, floor2cm, gn,
+    known, knownstart, held, nojac, floor1mm, latstated, notest, tiedall, hdmin:X.";
 
-const DRIVES: [&str; 13] = [
+const DRIVES: [&str; 15] = [
     "full",
     "no-slip",
     "no-heading",
@@ -74,11 +97,37 @@ const DRIVES: [&str; 13] = [
     "drift-tau100",
     "position-tenth",
     "position-hundredth",
+    "no-heading-drift",
+    "no-heading-white",
 ];
-const ESTIMATORS: [&str; 9] = ["default", "b16", "conv", "q0", "qscaled", "floor2cm", "twosided", "ownscale", "gn"];
+const ESTIMATORS: [&str; 17] = [
+    "default",
+    "b16",
+    "conv",
+    "q0",
+    "qscaled",
+    "floor2cm",
+    "twosided",
+    "ownscale",
+    "gn",
+    "known",
+    "knownstart",
+    "held",
+    "nojac",
+    "floor1mm",
+    "latstated",
+    "notest",
+    "tiedall",
+];
 
-/// `preset` with the sources of drive variant `drive` switched off.
+/// `preset` changed by drive variant `drive`: one variant, or several
+/// joined by `+` (`position-tenth+no-slip`), applied left to right.
 fn drive_noise(preset: &NoiseOptions, drive: &str) -> NoiseOptions {
+    drive.split('+').fold(preset.clone(), |n, d| one_drive_noise(&n, d))
+}
+
+/// `preset` with the sources of the single drive variant `drive` switched off.
+fn one_drive_noise(preset: &NoiseOptions, drive: &str) -> NoiseOptions {
     let mut n = preset.clone();
     match drive {
         "no-slip" => n.wheel_slip_per_m_per_s2 = 0.0,
@@ -86,6 +135,8 @@ fn drive_noise(preset: &NoiseOptions, drive: &str) -> NoiseOptions {
             n.heading_drift_sigma_rad = 0.0;
             n.heading_white_sigma_rad = 0.0;
         }
+        "no-heading-drift" => n.heading_drift_sigma_rad = 0.0,
+        "no-heading-white" => n.heading_white_sigma_rad = 0.0,
         "no-position" => {
             n.position_drift_sigma_m = 0.0;
             n.position_white_sigma_m = 0.0;
@@ -118,9 +169,30 @@ fn drive_noise(preset: &NoiseOptions, drive: &str) -> NoiseOptions {
     n
 }
 
-/// The calibration options of estimator `est`.
-fn options(est: &str) -> Res<CalibrationOptions> {
+/// The calibration options of estimator `est` on drives simulated with
+/// `noise` at sample time `ts` (s).
+fn options(est: &str, noise: &NoiseOptions, ts: f64) -> Res<CalibrationOptions> {
     let mut o = CalibrationOptions::default();
+    if let Method::Eiv(e) = &mut o.method {
+        let r = &mut e.filter.research;
+        match est {
+            "known" | "knownstart" => {
+                e.filter.noise = NoiseModel::from_sim(noise, ts);
+                e.filter.fix_noise = est == "known";
+            }
+            "held" => {
+                r.covariance = CovarianceMode::HeldAtReference;
+                r.wheel_noise_scale = WheelNoiseScale::MeasuredInput;
+            }
+            "nojac" => r.input_jacobian = InputJacobian::None,
+            "floor1mm" => r.position_floor_m = 0.001,
+            "latstated" => e.filter.lateral_noise = LateralNoise::Stated,
+            "notest" => r.heading_drift_test = false,
+            "tiedall" => r.heading_drift_min_eta = e.filter.eta_bounds[0],
+            _ if est.starts_with("hdmin:") => r.heading_drift_min_eta = est["hdmin:".len()..].parse()?,
+            _ => {}
+        }
+    }
     match est {
         "gn" => {
             o.method = Method::from_name("batch-gn")?;
@@ -169,10 +241,29 @@ fn options(est: &str) -> Res<CalibrationOptions> {
 type Row = (String, bool, Theta);
 
 /// The rows of estimator `est` on `drive`.
-fn run(est: &str, drive: &odocal::Drive) -> Res<Vec<Row>> {
-    let r = calibrate(drive, &options(est)?)?;
+fn run(est: &str, drive: &odocal::Drive, noise: &NoiseOptions) -> Res<Vec<Row>> {
+    let r = calibrate(drive, &options(est, noise, drive.sample_time_s())?)?;
     let part = eiv_part(&r);
     let fell_back = part.as_ref().is_some_and(EivPart::fell_back);
+    if std::env::var_os("EIV_TR_BIAS_VERBOSE").is_some() {
+        if let Some(e) = part.as_ref().and_then(|p| p.eiv.as_ref()) {
+            let eta: Vec<String> = e.eta.iter().map(|x| format!("{x:+.2}")).collect();
+            let hd = e.heading_drift.as_ref().map(|h| {
+                format!(
+                    "score {:.1} lr {:?} r {:+.2} separate {}",
+                    h.score_statistic, h.likelihood_ratio, h.log_ratio, h.separate
+                )
+            });
+            eprintln!(
+                "{est}: t_r {:.5} σ {:?} η [{}] heading drift {:?} verdict {}",
+                r.theta.t_r,
+                r.result_sigma().t_r,
+                eta.join(", "),
+                hd,
+                r.verdict.level
+            );
+        }
+    }
     let mut rows = vec![(est.to_string(), fell_back, r.theta)];
     if est == "default" {
         let own = part.as_ref().and_then(|p| p.eiv.as_ref()).map(|e| e.theta_uncorrected);
@@ -208,7 +299,7 @@ fn seed_rows(s: &Settings, seed: u64) -> Res<Vec<(String, Theta, Vec<Row>)>> {
         let sim = simulate(&o)?;
         let mut rows = Vec::new();
         for e in &s.estimators {
-            rows.extend(run(e, &sim.drive)?);
+            rows.extend(run(e, &sim.drive, &o.noise)?);
         }
         out.push((d.clone(), truth, rows));
     }
@@ -230,10 +321,10 @@ fn main() {
         };
         let threads: Option<usize> = a.opt("threads")?;
         a.finish()?;
-        if let Some(d) = s.drives.iter().find(|d| !DRIVES.contains(&d.as_str())) {
+        if let Some(d) = s.drives.iter().flat_map(|d| d.split('+')).find(|d| !DRIVES.contains(d)) {
             return Err(format!("unknown drive variant '{d}'").into());
         }
-        if let Some(e) = s.estimators.iter().find(|e| !ESTIMATORS.contains(&e.as_str())) {
+        if let Some(e) = s.estimators.iter().find(|e| !ESTIMATORS.contains(&e.as_str()) && !e.starts_with("hdmin:")) {
             return Err(format!("unknown estimator '{e}'").into());
         }
         if let Some(n) = threads {

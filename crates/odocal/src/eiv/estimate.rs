@@ -426,6 +426,9 @@ fn reported_noise(opts: &EivOptions, eta: &[f64; 6]) -> NoiseModel {
     if opts.research.position_drift_own_scale {
         let heading = if opts.heading_scale == HeadingScale::Separate { eta[5] } else { eta[3] };
         n.heading_drift_sigma_rad = opts.noise.heading_drift_sigma_rad * (0.5 * heading).exp();
+    } else if eta[4] < opts.research.heading_drift_min_eta {
+        n.heading_drift_sigma_rad =
+            opts.noise.heading_drift_sigma_rad * (0.5 * opts.research.heading_drift_min_eta).exp();
     }
     if opts.quantisation_level == QuantisationLevel::Given {
         n.quantisation_step_rev_per_s = opts.noise.quantisation_step_rev_per_s;

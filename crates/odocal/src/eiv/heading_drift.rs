@@ -66,7 +66,9 @@ research_pub! {
         pub log_ratio: f64,
         /// The result uses the separate heading-drift scale.
         pub separate: bool,
-        /// The heading-drift scale η_6 of the result (η_4 when tied).
+        /// The heading-drift scale η_6 of the result (when tied η_4, not
+        /// below its floor
+        /// [`ResearchOptions::heading_drift_min_eta`](crate::eiv::ResearchOptions::heading_drift_min_eta)).
         pub eta: f64,
         /// Filter passes of the test and the separate fits, `[with
         /// derivatives, objective only]` (not in [`EivReport::evaluations`](crate::eiv::EivReport::evaluations)).
@@ -103,6 +105,17 @@ pub(super) fn applies(opts: &EivOptions) -> bool {
         && !opts.eta_held[NoiseSource::PoseDrift.index()]
         && opts.noise.heading_drift_sigma_rad > 0.0
         && opts.research.heading_drift_test
+}
+
+/// The tied model's heading-drift scale at pose-drift scale `eta_4`:
+/// `max(η_4, m)`, m its floor
+/// [`ResearchOptions::heading_drift_min_eta`](crate::eiv::ResearchOptions::heading_drift_min_eta).
+fn heading_drift_eta(opts: &EivOptions, eta_4: f64) -> f64 {
+    if !opts.research.position_drift_own_scale {
+        eta_4.max(opts.research.heading_drift_min_eta)
+    } else {
+        eta_4
+    }
 }
 
 /// `opts` with the heading drift's σ multiplied by `exp(r/2)`.
@@ -151,7 +164,7 @@ pub(super) fn test<'a>(
         likelihood_ratio: None,
         log_ratio: 0.0,
         separate: false,
-        eta: tied.eta[NoiseSource::PoseDrift.index()],
+        eta: heading_drift_eta(opts, tied.eta[NoiseSource::PoseDrift.index()]),
         evaluations: evaluations.get(),
     };
     if score_statistic < opts.research.heading_drift_score_gate {
@@ -193,7 +206,7 @@ pub(super) fn test<'a>(
     out.log_ratio = r;
     if lr > opts.research.heading_drift_lr_threshold && fit.pass.report.termination.converged() {
         out.separate = true;
-        out.eta = fit.pass.eta[NoiseSource::PoseDrift.index()] + r;
+        out.eta = heading_drift_eta(opts, fit.pass.eta[NoiseSource::PoseDrift.index()]) + r;
         return Ok((out, Some(fit)));
     }
     Ok((out, None))

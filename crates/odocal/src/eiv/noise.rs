@@ -287,6 +287,7 @@ impl NoiseModel {
             a_drift: gm(self.drift_time_constant_s),
             a_drift_heading: gm(self.drift_time_constant_s),
             heading_drift_on_white_scale: false,
+            heading_drift_held: false,
             a_beta,
             quant_scaled: true,
             lateral_scaled: true,

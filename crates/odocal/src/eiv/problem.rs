@@ -43,6 +43,8 @@ pub(super) struct Problem<'a> {
     pub(super) position_drift_own_scale: bool,
     /// [`ResearchOptions::position_drift_time_constant_s`](super::ResearchOptions::position_drift_time_constant_s).
     pub(super) position_drift_time_constant_s: Option<f64>,
+    /// [`ResearchOptions::heading_drift_min_eta`](super::ResearchOptions::heading_drift_min_eta).
+    pub(super) heading_drift_min_eta: f64,
     /// Filter passes over the drive: with derivatives, objective only.
     pub(super) evaluations: std::cell::Cell<[usize; 2]>,
     /// Lean iteration starts in [`scoring_pass`] (always on; off only in the
@@ -73,6 +75,7 @@ impl<'a> Problem<'a> {
             common_mode_jacobian: opts.research.common_mode_jacobian,
             position_drift_own_scale: opts.research.position_drift_own_scale,
             position_drift_time_constant_s: opts.research.position_drift_time_constant_s,
+            heading_drift_min_eta: opts.research.heading_drift_min_eta,
             evaluations: std::cell::Cell::new([0; 2]),
             lean_iterations: true,
             c_d_covariance_derivative: opts.research.c_d_covariance_derivative,
@@ -187,6 +190,11 @@ impl Problem<'_> {
             let sigma = self.noise.heading_drift_sigma_rad;
             v.drift[2] = sigma * sigma * e[5].exp();
             v.heading_drift_on_white_scale = true;
+        } else if e[4] < self.heading_drift_min_eta {
+            // Below the floor the position drift alone follows η_4.
+            let sigma = self.noise.heading_drift_sigma_rad;
+            v.drift[2] = sigma * sigma * self.heading_drift_min_eta.exp();
+            v.heading_drift_held = true;
         }
         if let Some(tau) = self.position_drift_time_constant_s {
             v.a_drift = (-self.input.sample_time_s / tau).exp();

@@ -126,6 +126,10 @@ pub(crate) struct Variances {
     /// The heading drift is scaled with the heading white noise (η_5, or
     /// η_3 when tied) instead of the pose-drift scale η_4.
     pub heading_drift_on_white_scale: bool,
+    /// The heading drift's variance is held at its floor (no η derivative):
+    /// the pose-drift scale η_4 is below it and scales the position drift
+    /// alone ([`super::ResearchOptions::heading_drift_min_eta`]).
+    pub heading_drift_held: bool,
     pub a_beta: f64,
     /// Quantisation as measurement noise `R_q` (bounded count error) rather
     /// than as white rate noise in the process ([`super::QuantisationModel`]).

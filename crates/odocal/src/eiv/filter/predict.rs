@@ -321,7 +321,7 @@ pub(super) fn predict_covariance<const S: usize, K: KernelCalls>(
                 dpj[(5, 5)] += setup.q_s[2];
             }
             8 => {
-                let axes = if v.heading_drift_on_white_scale { 2 } else { 3 };
+                let axes = if v.heading_drift_on_white_scale || v.heading_drift_held { 2 } else { 3 };
                 for r in 0..axes {
                     dpj[(r + 6, r + 6)] += setup.q_b[r];
                 }

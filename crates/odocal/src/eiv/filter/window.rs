@@ -511,6 +511,9 @@ fn initial_covariance<const S: usize>(v: &Variances, r_floor: &[f64; 3]) -> (MZ<
         p[(a + 6, a + 6)] = dr;
         p[(a, a + 6)] = -dr;
         p[(a + 6, a)] = -dr;
+        if a == 2 && v.heading_drift_held {
+            continue;
+        }
         let m = &mut dp[drift];
         m[(a + 6, a + 6)] = dr;
         m[(a, a + 6)] = -dr;

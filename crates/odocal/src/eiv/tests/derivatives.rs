@@ -544,3 +544,66 @@ fn derivatives_match_central_differences_position_drift_own_scale() {
         assert!(prob.variances(&eh, false).drift[2] > v0.drift[2]);
     }
 }
+
+/// The heading drift held at its floor below it
+/// (`heading_drift_min_eta`, the default): there η_4 scales the position
+/// drift alone; above it the tie holds. ∂ν, ∂S over η and ∂M, ∂J over θ and
+/// η against central differences with η_4 below the floor.
+#[test]
+fn derivatives_match_central_differences_heading_drift_floor() {
+    let out = simulate(&SimOptions { length_km: 0.6, ..SimOptions::paper(5) }).expect("sim");
+    let input = input_of(&out.drive);
+    let w = Window { index: 0, part: 0, start: 0, end: 1200.min(input.len() - 1) };
+    let th = Theta { c_e: 1.953, c_d: -0.0015, t_r: 1.52, d: 0.0009 };
+    let eta = [0.3, -0.5, 0.2, -0.2, -4.0, 0.25];
+    let opts = EivOptions::default();
+    let floor = opts.research.heading_drift_min_eta;
+    assert!(floor > eta[4] && floor < -1.0, "the default this test is about");
+    let m = opts.noise;
+    let prob = Problem::new(&input, vec![w], &opts);
+    let v0 = prob.variances(&eta, false);
+    assert!((v0.drift[2] / (m.heading_drift_sigma_rad.powi(2) * floor.exp()) - 1.0).abs() < 1e-12, "at the floor");
+    assert!((v0.drift[0] / (m.position_drift_sigma_m.powi(2) * eta[4].exp()) - 1.0).abs() < 1e-12);
+    // Above the floor the heading drift follows η_4 (the tie).
+    let mut up = eta;
+    up[4] = -1.0;
+    let v_up = prob.variances(&up, false);
+    assert!((v_up.drift[2] / (m.heading_drift_sigma_rad.powi(2) * up[4].exp()) - 1.0).abs() < 1e-12);
+    assert!(!v_up.heading_drift_held && v0.heading_drift_held);
+    let run = |t: &Theta, e: &[f64; 6], derivs: bool, rec: Option<&mut Vec<InnovationRecord>>| {
+        let mode = if derivs { filter::Mode::full(true, true) } else { filter::Mode::cost(true) };
+        run_window(&input, &w, t, &th, &prob.variances(e, false), mode, rec).expect("window")
+    };
+    let mut base_rec = Vec::new();
+    let base = run(&th, &eta, true, Some(&mut base_rec));
+    let picks = [1usize, 2, 10, 300, 700, base_rec.len() - 1];
+    for j in 0..NETA {
+        let h = 1e-4;
+        let (mut ep, mut em) = (eta, eta);
+        ep[j] += h;
+        em[j] -= h;
+        let (mut rp, mut rm) = (Vec::new(), Vec::new());
+        run(&th, &ep, true, Some(&mut rp));
+        run(&th, &em, true, Some(&mut rm));
+        let p = 4 + j;
+        let scale_nu = base_rec.iter().map(|r| r.dnu.column(p).amax()).fold(0.0f64, f64::max).max(1e-12);
+        let scale_s = base_rec.iter().map(|r| r.ds[p].amax()).fold(0.0f64, f64::max).max(1e-300);
+        for &k in &picks {
+            let (dnu, ds) = ((rp[k].nu - rm[k].nu) / (2.0 * h), (rp[k].s - rm[k].s) / (2.0 * h));
+            let a = base_rec[k].dnu.column(p).into_owned();
+            assert!((a - dnu).amax() <= FD_REL_TOL * scale_nu, "∂ν/∂η{j} at update {k}: {a} vs {dnu}");
+            let a = base_rec[k].ds[p];
+            assert!((a - ds).amax() <= FD_REL_TOL * scale_s, "∂S/∂η{j} at update {k}: {a} vs {ds}");
+        }
+    }
+    for p in 0..4 + NETA {
+        let (tp, tm, ep, em, h) = perturbed_pair(&th, &eta, p);
+        let (sp, sm) = (run(&tp, &ep, false, None), run(&tm, &em, false, None));
+        for (what, fd, g) in [
+            ("M", (sp.merit() - sm.merit()) / (2.0 * h), base.grad[p]),
+            ("J", (sp.profile() - sm.profile()) / (2.0 * h), base.grad_profile[p]),
+        ] {
+            assert!((g - fd).abs() <= 1e-4 * g.abs().max(fd.abs()).max(1e-6), "∂{what}/∂p{p}: {g} vs {fd}");
+        }
+    }
+}

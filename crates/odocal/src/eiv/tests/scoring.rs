@@ -267,6 +267,7 @@ fn eta_step_descends_on_the_noise_free_straight_drive() {
         common_mode_jacobian: true,
         position_drift_own_scale: false,
         position_drift_time_constant_s: None,
+        heading_drift_min_eta: -20.0,
         evaluations: std::cell::Cell::new([0; 2]),
         lean_iterations: true,
         c_d_covariance_derivative: false,
