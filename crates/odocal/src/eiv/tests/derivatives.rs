@@ -496,42 +496,7 @@ fn derivatives_match_central_differences_position_drift_own_scale() {
         let heading_eta = if separate { eta[5] } else { eta[3] };
         assert!((v0.drift[2] / (m.heading_drift_sigma_rad.powi(2) * heading_eta.exp()) - 1.0).abs() < 1e-12);
         assert!(v0.a_drift < v0.a_drift_heading, "the position drift's own, shorter correlation time");
-        let run = |prob: &Problem, t: &Theta, e: &[f64; 6], derivs: bool, rec: Option<&mut Vec<InnovationRecord>>| {
-            let mode = if derivs { filter::Mode::full(true, true) } else { filter::Mode::cost(true) };
-            run_window(&input, &w, t, &th, &prob.variances(e, false), mode, rec).expect("window")
-        };
-        let mut base_rec = Vec::new();
-        let base = run(&prob, &th, &eta, true, Some(&mut base_rec));
-        let picks = [1usize, 2, 10, 300, 700, base_rec.len() - 1];
-        for j in 0..NETA {
-            let h = 1e-4;
-            let (mut ep, mut em) = (eta, eta);
-            ep[j] += h;
-            em[j] -= h;
-            let (mut rp, mut rm) = (Vec::new(), Vec::new());
-            run(&prob, &th, &ep, true, Some(&mut rp));
-            run(&prob, &th, &em, true, Some(&mut rm));
-            let p = 4 + j;
-            let scale_nu = base_rec.iter().map(|r| r.dnu.column(p).amax()).fold(0.0f64, f64::max).max(1e-12);
-            let scale_s = base_rec.iter().map(|r| r.ds[p].amax()).fold(0.0f64, f64::max).max(1e-300);
-            for &k in &picks {
-                let (dnu, ds) = ((rp[k].nu - rm[k].nu) / (2.0 * h), (rp[k].s - rm[k].s) / (2.0 * h));
-                let a = base_rec[k].dnu.column(p).into_owned();
-                assert!((a - dnu).amax() <= FD_REL_TOL * scale_nu, "∂ν/∂η{j} at update {k}: {a} vs {dnu}");
-                let a = base_rec[k].ds[p];
-                assert!((a - ds).amax() <= FD_REL_TOL * scale_s, "∂S/∂η{j} at update {k}: {a} vs {ds}");
-            }
-        }
-        for p in 0..4 + NETA {
-            let (tp, tm, ep, em, h) = perturbed_pair(&th, &eta, p);
-            let (sp, sm) = (run(&prob, &tp, &ep, false, None), run(&prob, &tm, &em, false, None));
-            for (what, fd, g) in [
-                ("M", (sp.merit() - sm.merit()) / (2.0 * h), base.grad[p]),
-                ("J", (sp.profile() - sm.profile()) / (2.0 * h), base.grad_profile[p]),
-            ] {
-                assert!((g - fd).abs() <= 1e-4 * g.abs().max(fd.abs()).max(1e-6), "∂{what}/∂p{p}: {g} vs {fd}");
-            }
-        }
+        assert_window_derivatives(&prob, &input, &w, &th, &eta);
         // The heading drift responds to the heading white noise's scale, not η_4.
         let (mut e4, mut eh) = (eta, eta);
         e4[4] += 1.0;
@@ -570,9 +535,16 @@ fn derivatives_match_central_differences_heading_drift_floor() {
     let v_up = prob.variances(&up, false);
     assert!((v_up.drift[2] / (m.heading_drift_sigma_rad.powi(2) * up[4].exp()) - 1.0).abs() < 1e-12);
     assert!(!v_up.heading_drift_held && v0.heading_drift_held);
+    assert_window_derivatives(&prob, &input, &w, &th, &eta);
+}
+
+/// ∂ν, ∂S over η at a few updates and ∂M, ∂J over θ and η against central
+/// differences, for window `w` of `prob` at (θ, η).
+fn assert_window_derivatives(prob: &Problem, input: &EivInput<'_>, w: &Window, th: &Theta, eta: &[f64; 6]) {
+    let (th, eta) = (*th, *eta);
     let run = |t: &Theta, e: &[f64; 6], derivs: bool, rec: Option<&mut Vec<InnovationRecord>>| {
         let mode = if derivs { filter::Mode::full(true, true) } else { filter::Mode::cost(true) };
-        run_window(&input, &w, t, &th, &prob.variances(e, false), mode, rec).expect("window")
+        run_window(input, w, t, &th, &prob.variances(e, false), mode, rec).expect("window")
     };
     let mut base_rec = Vec::new();
     let base = run(&th, &eta, true, Some(&mut base_rec));
