@@ -17,18 +17,15 @@ fn with_heading_offset(d: &Drive, delta: f64) -> Drive {
         .expect("drive")
 }
 
-/// The samples `r` of `s`.
+/// The samples `r` of `s`, through the public `Signals` API (its columns
+/// and `push` share one order).
 fn slice(s: &Signals, r: std::ops::Range<usize>) -> Signals {
-    let c = |v: &Vec<f64>| v[r.clone()].to_vec();
-    Signals {
-        px: c(&s.px),
-        py: c(&s.py),
-        psi: c(&s.psi),
-        n_rl: c(&s.n_rl),
-        n_rr: c(&s.n_rr),
-        beta: c(&s.beta),
-        a_y: c(&s.a_y),
+    let columns = s.columns();
+    let mut out = Signals::with_capacity(r.len());
+    for i in r {
+        out.push(std::array::from_fn(|k| columns[k].1[i]));
     }
+    out
 }
 
 #[test]
