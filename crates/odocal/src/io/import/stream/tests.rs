@@ -174,9 +174,14 @@ fn a_y_from_the_pose_is_streamed_bit_for_bit() {
     }
 }
 
-/// The calibration (the default method and options) of `d`: θ and σ.
+/// The calibration of `d` by the default method without its bias
+/// correction (the default options otherwise): θ and σ. The clock offset
+/// moves the samples, not the estimator's bias; the correction's replicates
+/// would double the cost of the test.
 fn fit(d: &Drive) -> ([f64; 4], [f64; 4]) {
-    let r = crate::calibrate(d, &crate::CalibrationOptions::default()).expect("calibrate");
+    let method = crate::Method::Eiv(crate::calibrate::EivMethodOptions { correct_bias: None, ..Default::default() });
+    let opts = crate::CalibrationOptions { method, ..Default::default() };
+    let r = crate::calibrate(d, &opts).expect("calibrate");
     (r.theta.to_array(), std::array::from_fn(|i| r.covariance[i][i].sqrt()))
 }
 
@@ -194,8 +199,11 @@ fn a_drive_longer_than_the_warm_up_stays_within_the_clock_estimates_tolerance() 
         ("../../examples/comma2k19-rav4/manifest.toml", 20.0),
     ];
     let mut compared = 0;
-    // The whole import and its fit, once per manifest.
+    // The whole import and its fit, once per manifest; a streamed drive
+    // equal to one fitted before (the same clock estimate from another
+    // warm-up) is not fitted again.
     let mut whole_of = std::collections::HashMap::new();
+    let mut fit_of = std::collections::HashMap::new();
     for (rel, warm_up_s) in cases {
         let (m, whole, (a, sa)) = &*whole_of.entry(rel).or_insert_with(|| {
             let m = manifest(rel);
@@ -207,7 +215,7 @@ fn a_drive_longer_than_the_warm_up_stays_within_the_clock_estimates_tolerance() 
         let corrupt = |r: &ImportReport| r.streams.iter().map(|s| s.corrupt_rows_dropped).sum::<usize>();
         let dtau = r.clock_offset.applied_s - whole.report.clock_offset.applied_s;
         let dorigin = r.time_origin_s - whole.report.time_origin_s;
-        let (b, _) = fit(&d);
+        let (b, _) = *fit_of.entry(d.fingerprint()).or_insert_with(|| fit(&d));
         let in_sigma: Vec<f64> = (0..4).map(|i| (b[i] - a[i]) / sa[i]).collect();
         eprintln!(
             "{rel} warm-up {warm_up_s} s ({} corrupt rows): τ whole {:+.5} s, streamed {:+.5} s (Δ {:+.2} ms, uncertainty {:.2} ms); \
