@@ -26,8 +26,8 @@ cargo test --workspace --no-run --quiet
 # test profile shares (root Cargo.toml): it reuses the test build's
 # artifacts and compiles only pyo3, numpy and the bindings (~1 min), where a
 # release build compiled the whole dependency tree again (4 min on the
-# 2-core machine). Debug assertions and overflow checks stay on, as in
-# `cargo test`. A wheel to install for use: `pip install crates/odocal-py`
+# 2-core machine). The workspace's debug assertions and overflow checks
+# stay on, as in `cargo test`. A wheel to install for use: `pip install crates/odocal-py`
 # (release).
 rm -f target/wheels/odocal-*.whl
 "$venv/bin/maturin" build --profile dev --quiet -m crates/odocal-py/Cargo.toml -o target/wheels
