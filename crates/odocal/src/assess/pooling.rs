@@ -256,9 +256,8 @@ pub struct NextDriveSigma {
     pub wheel_common_clamped: bool,
     /// When the result is EIV's own estimate and its fit held the
     /// reference's heading drift at its floor while the data ask for more
-    /// (the heading-drift test's
-    /// [`upward_at_floor`](crate::eiv::HeadingDriftTest::upward_at_floor)
-    /// statistic above the χ²₁ 0.1 % quantile, 10.83): that statistic.
+    /// (the heading-drift test's `upward_at_floor` statistic, in the EIV
+    /// report's `heading_drift`, above the χ²₁ 0.1 % quantile, 10.83): that statistic.
     /// t_r is then biased up by about 1 % and σ does not cover it
     /// ([`crate::VerdictReason::HeadingDriftAboveFloor`]). In JSON only
     /// when present.

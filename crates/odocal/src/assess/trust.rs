@@ -518,7 +518,7 @@ pub enum VerdictReason {
     /// heading-offset` tells how far it moves.
     HeadingDriftAboveFloor {
         /// The heading-drift test's statistic towards more heading drift
-        /// ([`crate::eiv::HeadingDriftTest::upward_at_floor`]).
+        /// (`upward_at_floor` of the EIV report's `heading_drift`).
         statistic: f64,
     },
     /// Held-out Ē_p much above the fitting data's (doubtful).
