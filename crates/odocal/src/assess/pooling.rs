@@ -254,15 +254,6 @@ pub struct NextDriveSigma {
     /// bound. In JSON only when true.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub wheel_common_clamped: bool,
-    /// When the result is EIV's own estimate and its fit held the
-    /// reference's heading drift at its floor while the data ask for more
-    /// (the heading-drift test's `upward_at_floor` statistic, in the EIV
-    /// report's `heading_drift`, above the χ²₁ 0.1 % quantile, 10.83): that statistic.
-    /// t_r is then biased up by about 1 % and σ does not cover it
-    /// ([`crate::VerdictReason::HeadingDriftAboveFloor`]). In JSON only
-    /// when present.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub heading_drift_above_floor: Option<f64>,
     /// The gap between the EIV method's two estimates: after an EIV
     /// fallback |EIV's own θ − the fallback's θ|; when the result is EIV's
     /// refit ([`Self::gap_is_refit`]) |the refit's θ − its batch
@@ -324,7 +315,6 @@ impl NextDriveSigma {
             common_mode: [0.0; 4],
             wheel_common_rel_sigma: None,
             wheel_common_clamped: false,
-            heading_drift_above_floor: None,
             fallback_gap,
             gap_is_refit: false,
             gap_released_noise: Vec::new(),

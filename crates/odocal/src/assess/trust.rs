@@ -506,21 +506,6 @@ pub enum VerdictReason {
         /// The fitted common-mode wheel-scale σ σ_c (relative), at its clamp.
         wheel_common_rel_sigma: f64,
     },
-    /// The result is EIV's own estimate on a centimetre-grade position
-    /// reference, and the data say the reference's heading drifts more than
-    /// the fit held it to (doubtful): the fit's pose-drift scale, fitted to
-    /// the position, put the heading drift at its floor, and the
-    /// heading-drift test's statistic towards more drift is above the χ²₁
-    /// 0.1 % quantile. On simulated drives of this kind t_r comes out about
-    /// 1 % high, beyond its σ (docs/validation.md, "An RTK-grade position
-    /// reference"). Stating the reference's noise (`--noise-model`,
-    /// `--known-noise`) and comparing with `--method batch-gn --estimate
-    /// heading-offset` tells how far it moves.
-    HeadingDriftAboveFloor {
-        /// The heading-drift test's statistic towards more heading drift
-        /// (`upward_at_floor` of the EIV report's `heading_drift`).
-        statistic: f64,
-    },
     /// Held-out Ē_p much above the fitting data's (doubtful).
     HeldOutMuchWorse {
         /// Ē_p on the held-out data, m.
@@ -643,13 +628,6 @@ impl std::fmt::Display for VerdictReason {
                  still be too small",
                 wheel_common_rel_sigma * 100.0
             ),
-            VerdictReason::HeadingDriftAboveFloor { statistic } => write!(
-                f,
-                "the reference's position is centimetre-grade and its heading drifts more than EIV's fit held it \
-                 to (score statistic {statistic:.1} for more heading drift): t_r may be biased up by about 1 %, \
-                 beyond its σ; state the reference's noise (--noise-model, --known-noise) and compare with \
-                 --method batch-gn --estimate heading-offset"
-            ),
             VerdictReason::HeldOutMuchWorse { held_out_m, fit_m, max_ratio } => {
                 write!(f, "held-out Ē_p {held_out_m:.3} m is more than {max_ratio} × the fitting data's {fit_m:.3} m")
             }
@@ -746,8 +724,7 @@ pub(crate) fn is_sigma_reason(r: &VerdictReason) -> bool {
         | VerdictReason::FallbackUnchecked { .. }
         | VerdictReason::RefitDisagrees { .. }
         | VerdictReason::TrackWidthAboveStart { .. }
-        | VerdictReason::HeavyCommonModeNoise { .. }
-        | VerdictReason::HeadingDriftAboveFloor { .. } => true,
+        | VerdictReason::HeavyCommonModeNoise { .. } => true,
         _ => false,
     }
 }
@@ -807,7 +784,6 @@ pub(crate) fn fallback_gap_reasons(
         .wheel_common_rel_sigma
         .filter(|_| n.wheel_common_clamped && !named)
         .map(|wheel_common_rel_sigma| VerdictReason::HeavyCommonModeNoise { wheel_common_rel_sigma });
-    let heading = n.heading_drift_above_floor.map(|statistic| VerdictReason::HeadingDriftAboveFloor { statistic });
     free.intersection(ParamSet::THETA)
         .iter()
         .filter_map(|p| {
@@ -827,7 +803,6 @@ pub(crate) fn fallback_gap_reasons(
         .chain(above)
         .chain(unchecked)
         .chain(heavy)
-        .chain(heading)
         .collect()
 }
 
@@ -1083,33 +1058,6 @@ mod tests {
         let v = judge(&Evidence { next_drive: Some(&at), ..evidence(&th, &cov) }, &opts);
         assert_eq!(v.reasons.len(), 1, "{v:?}");
         assert!(matches!(v.reasons[0], VerdictReason::FallbackUnchecked { .. }), "{v:?}");
-    }
-
-    /// A heading drift held at its floor that the data ask more of makes
-    /// the result doubtful (a σ reason, not serialised when absent), with
-    /// advice on what to do.
-    #[test]
-    fn a_heading_drift_above_its_floor_is_doubtful() {
-        use crate::assess::pooling::NextDriveSigma;
-        let (th, cov, within) = fallback_case(1e-8);
-        let opts = TrustOptions::default();
-        let mut n = NextDriveSigma::one_drive(&th, within, [0.0; 4]);
-        assert!(serde_json::to_value(&n).expect("json").get("heading_drift_above_floor").is_none());
-        let v = judge(&Evidence { next_drive: Some(&n), ..evidence(&th, &cov) }, &opts);
-        assert_eq!(v.level, VerdictLevel::Accepted, "{v:?}");
-        n.heading_drift_above_floor = Some(725.9);
-        let v = judge(&Evidence { next_drive: Some(&n), ..evidence(&th, &cov) }, &opts);
-        assert_eq!(v.level, VerdictLevel::Doubtful, "{v:?}");
-        assert_eq!(v.reasons.len(), 1, "{v:?}");
-        assert!(is_sigma_reason(&v.reasons[0]));
-        let text = v.reasons[0].to_string();
-        assert!(
-            text.contains("statistic 725.9") && text.contains("--known-noise") && text.contains("batch-gn"),
-            "{text}"
-        );
-        let json = serde_json::to_value(&v.reasons[0]).expect("json");
-        assert_eq!(json, serde_json::json!({"kind": "heading_drift_above_floor", "statistic": 725.9}));
-        assert_eq!(sigma_reasons(&th, &Theta::PAPER_INITIAL, ParamSet::THETA, &n, &opts), v.reasons);
     }
 
     /// EIV's t_r above its batch G-N start by more than 3 σ (without that

@@ -443,13 +443,6 @@ pub(crate) fn next_drive_of(
         });
         n.with_common_mode(e.noise.wheel_common_rel_sigma, clamped);
     }
-    if let MethodDetail::Eiv(EivDetail { eiv: Some(e), eiv_result: EivOutcome::Eiv, .. }) = detail {
-        n.heading_drift_above_floor = e
-            .heading_drift
-            .as_ref()
-            .and_then(|h| h.upward_at_floor)
-            .filter(|s| *s > crate::eiv::HEADING_DRIFT_LR_THRESHOLD);
-    }
     n
 }
 

@@ -77,13 +77,14 @@ research_pub! {
         /// [`ResearchOptions::heading_drift_min_eta`](crate::eiv::ResearchOptions::heading_drift_min_eta),
         /// a centimetre-grade position): the score statistic towards *more*
         /// heading drift than the floor grants, from the same three
-        /// objective values as [`Self::score_statistic`]. The test releases
-        /// only towards less; a large value says the reference's heading
-        /// drifts more than the model holds it to, which biases t_r up
-        /// (docs/validation.md, "An RTK-grade position reference"), and
-        /// makes the verdict doubtful
-        /// ([`VerdictReason::HeadingDriftAboveFloor`](crate::VerdictReason::HeadingDriftAboveFloor)).
-        /// None where η_4 lies above the floor. In JSON only when present.
+        /// objective values as [`Self::score_statistic`] (no extra filter
+        /// pass). A diagnostic: the test releases only towards less, and
+        /// nothing is judged on it. It is 0 on a perfect reference and in
+        /// the hundreds on RTK-grade drives whose t_r the default biases
+        /// up by about 1 %, but as large on random noise worlds whose t_r
+        /// is right (docs/validation.md, "What is left: the drift's
+        /// correlation time, and no guard"). None where η_4 lies above the
+        /// floor. In JSON only when present.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         pub upward_at_floor: Option<f64>,
     }

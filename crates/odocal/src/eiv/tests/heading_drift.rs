@@ -70,8 +70,7 @@ fn a_heading_that_drifts_less_than_the_position_is_tested_and_fitted_separately(
 /// A centimetre-grade position reference (the preset's position drift and
 /// white noise at a tenth) whose heading drifts as the preset's: the fit
 /// puts η_4 below the heading drift's floor, and the test's statistic
-/// towards more heading drift is far above the χ²₁ 0.1 % quantile, which
-/// makes the verdict doubtful (`VerdictReason::HeadingDriftAboveFloor`);
+/// towards more heading drift is far above the χ²₁ 0.1 % quantile, and
 /// the fit itself is not released towards it. (Above the floor there is
 /// no statistic: `a_tie_that_holds_keeps_the_tied_fit_to_the_bit`.)
 #[test]
