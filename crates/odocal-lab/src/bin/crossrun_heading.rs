@@ -22,13 +22,17 @@ use odocal::{Calibration, CalibrationOptions, CalibrationReport, Drive, Holdout,
 use odocal_lab::{repo_path, testtrack_manifest, Args, Res, Table, TESTTRACK_RUNS, VAN_MANIFEST};
 
 const USAGE: &str = "crossrun_heading [--skip-van] [--heading-drift-lr T] [--untied-drift] [--no-clamp-refit]
-    [--no-bias-correction]
+    [--no-bias-correction] [--tau-drift S]
 
 --untied-drift: the default with the reference drift untied (position_drift_own_scale, the position drift's
     τ 20 s, heading_drift_two_sided).
 --no-clamp-refit: the default without the refit, after a fit that fails with a noise scale at its upper clamp, with
     c_e held at the batch G-N start's (clamp_refit_hold_scale off).
---no-bias-correction: the default without its bias correction (`--no-bias-correction`).";
+--no-bias-correction: the default without its bias correction (`--no-bias-correction`).
+--tau-drift: the default with the noise model's drift correlation time (position and heading) S s instead of 100.";
+
+/// `--tau-drift`: the noise model's `drift_time_constant_s` (None: the default's).
+static TAU_DRIFT: std::sync::OnceLock<Option<f64>> = std::sync::OnceLock::new();
 
 /// `--no-bias-correction`: the default method's bias correction off.
 static NO_BIAS_CORRECTION: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
@@ -76,6 +80,9 @@ fn load_with_options(rel: &str) -> Res<(Drive, CalibrationOptions)> {
         let r = &mut e.filter.research;
         (r.position_drift_own_scale, r.position_drift_time_constant_s, r.heading_drift_two_sided) =
             (true, Some(20.0), true);
+    }
+    if let (Some(t), odocal::Method::Eiv(e)) = (TAU_DRIFT.get().copied().flatten(), &mut options.method) {
+        e.filter.noise.drift_time_constant_s = t;
     }
     if let (Some(true), odocal::Method::Eiv(e)) = (NO_CLAMP_REFIT.get().copied(), &mut options.method) {
         e.filter.research.clamp_refit_hold_scale = false;
@@ -203,6 +210,7 @@ fn run() -> Res<()> {
     let _ = UNTIED_DRIFT.set(a.flag("untied-drift"));
     let _ = NO_CLAMP_REFIT.set(a.flag("no-clamp-refit"));
     let _ = NO_BIAS_CORRECTION.set(a.flag("no-bias-correction"));
+    let _ = TAU_DRIFT.set(a.opt("tau-drift")?);
     a.finish()?;
     testtrack()?;
     if !skip_van {

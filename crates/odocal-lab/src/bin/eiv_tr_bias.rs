@@ -37,7 +37,9 @@
 //! - `notest`: the default without its heading-drift test;
 //! - `tiedall`: the heading drift tied to the pose-drift scale all the way
 //!   (`heading_drift_min_eta` at the lower η bound);
-//! - `hdmin:X`: the default with `heading_drift_min_eta` X.
+//! - `hdmin:X`: the default with `heading_drift_min_eta` X;
+//! - `tau:X`: the default with the noise model's drift correlation time
+//!   (`drift_time_constant_s`, position and heading) X s instead of 100.
 //!
 //! Drive variants (`--drives`), each the preset with one group of noise
 //! sources switched off (every source draws from its own stream of the
@@ -68,7 +70,7 @@ use odocal::eiv::{
     BootstrapRefit, CovarianceMode, InputJacobian, LateralNoise, NoiseModel, QuantisationLevel, WheelNoiseScale,
 };
 use odocal::sim::{simulate, NoiseOptions, SimOptions};
-use odocal::{calibrate, CalibrationOptions, CorrectBias, Method, Param, Theta};
+use odocal::{calibrate, CalibrationOptions, CorrectBias, Method, Param, Theta, VerdictLevel};
 use odocal_lab::report_json::{eiv_part, EivPart};
 use odocal_lab::{errors, noise_preset, Args, Res, Summary, Table, ERROR_UNITS};
 use rayon::prelude::*;
@@ -81,7 +83,7 @@ drives: full, no-slip, no-heading, no-position, no-lateral, no-quant, no-coloure
     drift-tau100, position-tenth, position-hundredth, no-heading-drift, no-heading-white;
     variants join with '+' (position-tenth+no-slip);
 estimators: default (with its uncorrected fit), b16, conv, q0, qscaled, twosided, ownscale, floor2cm, gn,
-    known, knownstart, held, nojac, floor1mm, latstated, notest, tiedall, hdmin:X.";
+    known, knownstart, held, nojac, floor1mm, latstated, notest, tiedall, hdmin:X, tau:X.";
 
 const DRIVES: [&str; 15] = [
     "full",
@@ -190,6 +192,7 @@ fn options(est: &str, noise: &NoiseOptions, ts: f64) -> Res<CalibrationOptions> 
             "notest" => r.heading_drift_test = false,
             "tiedall" => r.heading_drift_min_eta = e.filter.eta_bounds[0],
             _ if est.starts_with("hdmin:") => r.heading_drift_min_eta = est["hdmin:".len()..].parse()?,
+            _ if est.starts_with("tau:") => e.filter.noise.drift_time_constant_s = est["tau:".len()..].parse()?,
             _ => {}
         }
     }
@@ -237,8 +240,15 @@ fn options(est: &str, noise: &NoiseOptions, ts: f64) -> Res<CalibrationOptions> 
     Ok(o)
 }
 
-/// One row: (estimator row name, fell back, θ).
-type Row = (String, bool, Theta);
+/// One row: estimator row name, fell back, θ, the result's σ of t_r (as
+/// θ's t_r; NaN where none) and whether the verdict accepted it.
+struct Row {
+    name: String,
+    fell_back: bool,
+    theta: Theta,
+    sigma_t_r: f64,
+    accepted: bool,
+}
 
 /// The rows of estimator `est` on `drive`.
 fn run(est: &str, drive: &odocal::Drive, noise: &NoiseOptions) -> Res<Vec<Row>> {
@@ -250,8 +260,8 @@ fn run(est: &str, drive: &odocal::Drive, noise: &NoiseOptions) -> Res<Vec<Row>> 
             let eta: Vec<String> = e.eta.iter().map(|x| format!("{x:+.2}")).collect();
             let hd = e.heading_drift.as_ref().map(|h| {
                 format!(
-                    "score {:.1} lr {:?} r {:+.2} separate {}",
-                    h.score_statistic, h.likelihood_ratio, h.log_ratio, h.separate
+                    "score {:.1} lr {:?} r {:+.2} separate {} upward at floor {:?}",
+                    h.score_statistic, h.likelihood_ratio, h.log_ratio, h.separate, h.upward_at_floor
                 )
             });
             eprintln!(
@@ -264,11 +274,13 @@ fn run(est: &str, drive: &odocal::Drive, noise: &NoiseOptions) -> Res<Vec<Row>> 
             );
         }
     }
-    let mut rows = vec![(est.to_string(), fell_back, r.theta)];
+    let (sigma_t_r, accepted) = (r.result_sigma().t_r.unwrap_or(f64::NAN), r.verdict.level == VerdictLevel::Accepted);
+    let row = |name: &str, theta: Theta| Row { name: name.to_string(), fell_back, theta, sigma_t_r, accepted };
+    let mut rows = vec![row(est, r.theta)];
     if est == "default" {
         let own = part.as_ref().and_then(|p| p.eiv.as_ref()).map(|e| e.theta_uncorrected);
         let plain = if fell_back { r.theta } else { own.unwrap_or(r.theta) };
-        rows.push(("uncorrected".to_string(), fell_back, plain));
+        rows.push(row("uncorrected", plain));
     }
     Ok(rows)
 }
@@ -324,7 +336,11 @@ fn main() {
         if let Some(d) = s.drives.iter().flat_map(|d| d.split('+')).find(|d| !DRIVES.contains(d)) {
             return Err(format!("unknown drive variant '{d}'").into());
         }
-        if let Some(e) = s.estimators.iter().find(|e| !ESTIMATORS.contains(&e.as_str()) && !e.starts_with("hdmin:")) {
+        if let Some(e) = s
+            .estimators
+            .iter()
+            .find(|e| !ESTIMATORS.contains(&e.as_str()) && !e.starts_with("hdmin:") && !e.starts_with("tau:"))
+        {
             return Err(format!("unknown estimator '{e}'").into());
         }
         if let Some(n) = threads {
@@ -352,23 +368,37 @@ fn report(s: &Settings, seeds: &[u64], per_seed: &[Vec<(String, Theta, Vec<Row>)
         s.first,
         s.first + s.seeds - 1
     );
-    let mut header = vec!["drive", "estimator", "n", "fallbacks"];
+    let mut header = vec!["drive", "estimator", "n", "fallbacks", "accepted (beyond 3σ in t_r)"];
     header.extend(ERROR_UNITS);
     let mut table = Table::new(&header);
-    let mut csv = String::from("drive,estimator,seed,fallback,e_c_e_pct,e_c_d_mm,e_t_r_pct,e_d\n");
+    let mut csv = String::from("drive,estimator,seed,fallback,e_c_e_pct,e_c_d_mm,e_t_r_pct,e_d,z_t_r,accepted\n");
     for (di, d) in s.drives.iter().enumerate() {
-        let names: Vec<String> = per_seed[0][di].2.iter().map(|r| r.0.clone()).collect();
+        let names: Vec<String> = per_seed[0][di].2.iter().map(|r| r.name.clone()).collect();
         for (ri, name) in names.iter().enumerate() {
             let mut errs: Vec<[f64; 4]> = Vec::new();
-            let mut fallbacks = 0;
+            let (mut fallbacks, mut accepted, mut beyond) = (0, 0, 0);
             for (seed, rows) in seeds.iter().zip(per_seed) {
                 let (_, truth, r) = &rows[di];
-                let e = errors(&r[ri].2, truth);
-                fallbacks += usize::from(r[ri].1);
-                writeln!(csv, "{d},{name},{seed},{},{:.6},{:.6},{:.6},{:.6}", r[ri].1, e[0], e[1], e[2], e[3])?;
+                let row = &r[ri];
+                let e = errors(&row.theta, truth);
+                let z = (row.theta.t_r - truth.t_r) / row.sigma_t_r;
+                fallbacks += usize::from(row.fell_back);
+                accepted += usize::from(row.accepted);
+                beyond += usize::from(row.accepted && z.abs() > 3.0);
+                writeln!(
+                    csv,
+                    "{d},{name},{seed},{},{:.6},{:.6},{:.6},{:.6},{z:.3},{}",
+                    row.fell_back, e[0], e[1], e[2], e[3], row.accepted
+                )?;
                 errs.push(e);
             }
-            let mut cells = vec![d.clone(), name.clone(), errs.len().to_string(), fallbacks.to_string()];
+            let mut cells = vec![
+                d.clone(),
+                name.clone(),
+                errs.len().to_string(),
+                fallbacks.to_string(),
+                format!("{accepted} ({beyond})"),
+            ];
             for p in 0..4 {
                 let x: Vec<f64> = errs.iter().map(|e| e[p]).collect();
                 let m = Summary::of(&x);

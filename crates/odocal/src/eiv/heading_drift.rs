@@ -73,6 +73,20 @@ research_pub! {
         /// Filter passes of the test and the separate fits, `[with
         /// derivatives, objective only]` (not in [`EivReport::evaluations`](crate::eiv::EivReport::evaluations)).
         pub evaluations: [usize; 2],
+        /// Where the tie holds the heading drift at its floor (η_4 below
+        /// [`ResearchOptions::heading_drift_min_eta`](crate::eiv::ResearchOptions::heading_drift_min_eta),
+        /// a centimetre-grade position): the score statistic towards *more*
+        /// heading drift than the floor grants, from the same three
+        /// objective values as [`Self::score_statistic`] (no extra filter
+        /// pass). A diagnostic: the test releases only towards less, and
+        /// nothing is judged on it. It is 0 on a perfect reference and in
+        /// the hundreds on RTK-grade drives whose t_r the default biases
+        /// up by about 1 %, but as large on random noise worlds whose t_r
+        /// is right (docs/validation.md, "What is left: the drift's
+        /// correlation time, and no guard"). None where η_4 lies above the
+        /// floor. In JSON only when present.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pub upward_at_floor: Option<f64>,
     }
 }
 
@@ -118,6 +132,14 @@ fn heading_drift_eta(opts: &EivOptions, eta_4: f64) -> f64 {
     }
 }
 
+/// Whether the tied model holds the heading drift at its floor at
+/// pose-drift scale `eta_4`: η_4 below
+/// [`ResearchOptions::heading_drift_min_eta`](crate::eiv::ResearchOptions::heading_drift_min_eta),
+/// the heading drift tied to it.
+fn held_at_floor(opts: &EivOptions, eta_4: f64) -> bool {
+    !opts.research.position_drift_own_scale && eta_4 < opts.research.heading_drift_min_eta
+}
+
 /// `opts` with the heading drift's σ multiplied by `exp(r/2)`.
 fn options_at(opts: &EivOptions, r: f64) -> EivOptions {
     let mut o = opts.clone();
@@ -159,6 +181,10 @@ pub(super) fn test<'a>(
     let newton = if c > 0.0 && (two_sided || g > 0.0) { g * g / c } else { 0.0 };
     let lowest = if two_sided { m[0].min(m[1]) } else { m[0] };
     let score_statistic = newton.max(2.0 * (m0 - lowest)).max(0.0);
+    let upward_at_floor = held_at_floor(opts, tied.eta[NoiseSource::PoseDrift.index()]).then(|| {
+        let newton_up = if c > 0.0 && g < 0.0 { g * g / c } else { 0.0 };
+        newton_up.max(2.0 * (m0 - m[1])).max(0.0)
+    });
     let mut out = HeadingDriftTest {
         score_statistic,
         likelihood_ratio: None,
@@ -166,6 +192,7 @@ pub(super) fn test<'a>(
         separate: false,
         eta: heading_drift_eta(opts, tied.eta[NoiseSource::PoseDrift.index()]),
         evaluations: evaluations.get(),
+        upward_at_floor,
     };
     if score_statistic < opts.research.heading_drift_score_gate {
         return Ok((out, None));

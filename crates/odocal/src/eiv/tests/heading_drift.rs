@@ -34,6 +34,7 @@ fn a_tie_that_holds_keeps_the_tied_fit_to_the_bit() {
     assert!(!h.separate && h.score_statistic < HEADING_DRIFT_SCORE_GATE, "{h:?}");
     assert_eq!(h.likelihood_ratio, None);
     assert_eq!(h.evaluations, [0, 2], "two objective-only passes");
+    assert_eq!(h.upward_at_floor, None, "η_4 above the floor: {h:?}");
     assert_eq!(h.eta.to_bits(), default.eta[NoiseSource::PoseDrift.index()].to_bits());
     assert!(tied.heading_drift.is_none());
     assert_eq!(EivReport { heading_drift: None, timing_s: 0.0, ..default }, EivReport { timing_s: 0.0, ..tied });
@@ -64,4 +65,30 @@ fn a_heading_that_drifts_less_than_the_position_is_tested_and_fitted_separately(
         assert_eq!(h.eta.to_bits(), default.eta[NoiseSource::PoseDrift.index()].to_bits());
         assert_eq!(EivReport { heading_drift: None, timing_s: 0.0, ..default }, EivReport { timing_s: 0.0, ..tied });
     }
+}
+
+/// A centimetre-grade position reference (the preset's position drift and
+/// white noise at a tenth) whose heading drifts as the preset's: the fit
+/// puts η_4 below the heading drift's floor, and the test's statistic
+/// towards more heading drift is far above the χ²₁ 0.1 % quantile, and
+/// the fit itself is not released towards it. (Above the floor there is
+/// no statistic: `a_tie_that_holds_keeps_the_tied_fit_to_the_bit`.)
+#[test]
+fn a_heading_held_at_its_floor_that_drifts_more_is_flagged() {
+    let p = NoiseOptions::paper();
+    let noise = NoiseOptions {
+        position_drift_sigma_m: 0.1 * p.position_drift_sigma_m,
+        position_white_sigma_m: 0.1 * p.position_white_sigma_m,
+        ..p
+    };
+    let out = simulate(&SimOptions { length_km: 3.0, noise, ..SimOptions::paper(1) }).expect("sim");
+    let input = input_of(&out.drive);
+    let start = batch_gn_all(&out.drive);
+    let opts = EivOptions::default();
+    let r = estimate(&input, &start, &opts).expect("eiv");
+    let h = r.heading_drift.clone().expect("the test ran");
+    assert!(r.eta[NoiseSource::PoseDrift.index()] < opts.research.heading_drift_min_eta, "{:?}", r.eta);
+    let up = h.upward_at_floor.expect("held at the floor");
+    assert!(up > 10.0 * HEADING_DRIFT_LR_THRESHOLD, "{h:?}");
+    assert!(!h.separate, "the release stays one-sided: {h:?}");
 }
