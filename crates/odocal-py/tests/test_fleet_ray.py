@@ -18,10 +18,11 @@ try:
 except ImportError as e:  # pragma: no cover - depends on the environment
     pytest.skip(f"ray is not installed ({e}); pip install ray to run the fleet example test", allow_module_level=True)
 
-# -o passes options through. Batch G-N: the test checks the distribution of
-# the calibrations (the same θ, σ and rows as serial calls), which does not
+# Batch G-N (`--method`): the test checks the distribution of the
+# calibrations (the same θ, σ and rows as serial calls), which does not
 # depend on the method, and the fastest method keeps the Ray test short.
-OPTIONS = {"method": "batch-gn", "seed": 3}
+METHOD = "batch-gn"
+OPTIONS = {"seed": 3}  # -o passes options through
 
 
 def load_example():
@@ -74,11 +75,11 @@ def test_command_line_mistakes_end_with_a_message_and_keep_the_inputs(fleet_dir,
 def test_ray_equals_serial(local_ray, fleet_dir, tmp_path):
     fleet = local_ray
     paths = fleet.find_drives([fleet_dir])
-    serial = [odocal.calibrate(odocal.Drive.from_csv(p), **OPTIONS) for p in paths]
+    serial = [odocal.calibrate(odocal.Drive.from_csv(p), METHOD, **OPTIONS) for p in paths]
 
     # The example's command line, unchanged, on the running local Ray.
     out = tmp_path / "fleet.csv"
-    opts = [f"-o{k}={v}" for k, v in OPTIONS.items()]
+    opts = ["--method", METHOD, *(f"-o{k}={v}" for k, v in OPTIONS.items())]
     assert fleet.main([str(fleet_dir), "--out", str(out), *opts]) == 0
     with out.open() as f:
         rows = list(csv.DictReader(f))
@@ -98,7 +99,7 @@ def test_params_dir_holds_each_drives_parameter_file(local_ray, fleet_dir, tmp_p
     paths = fleet.find_drives([fleet_dir])[:2]
     pdir = tmp_path / "params"
     out = tmp_path / "fleet.csv"
-    opts = [f"-o{k}={v}" for k, v in OPTIONS.items()]
+    opts = ["--method", METHOD, *(f"-o{k}={v}" for k, v in OPTIONS.items())]
     assert fleet.main([*map(str, paths), "--out", str(out), "--params-dir", str(pdir), *opts]) == 0
     with out.open() as f:
         rows = list(csv.DictReader(f))
