@@ -9,13 +9,8 @@ set -euo pipefail
 cd "$(dirname "$0")/../.."
 
 venv=${ODOCAL_VENV:-target/venv-py}
-if [ ! -x "$venv/bin/python" ]; then
-  "${PYTHON:-python3}" -m venv "$venv"
-fi
+crates/odocal-py/env.sh
 pip=("$venv/bin/python" -m pip install --quiet --disable-pip-version-check)
-"${pip[@]}" maturin pytest numpy
-# Ray is large and optional: without it the fleet test is skipped, saying why.
-"${pip[@]}" ray || echo "warning: could not install ray; the Ray fleet test will be skipped" >&2
 
 # pytest compares the package's reports with the CLI's JSON, from the binary
 # `cargo test --workspace` builds (test profile, opt-level 2): after README's
@@ -27,8 +22,8 @@ cargo test --workspace --no-run --quiet
 # artifacts and compiles only pyo3, numpy and the bindings (~1 min), where a
 # release build compiled the whole dependency tree again (4 min on the
 # 2-core machine). The workspace's debug assertions and overflow checks
-# stay on, as in `cargo test`. A wheel to install for use: `pip install crates/odocal-py`
-# (release).
+# stay on, as in `cargo test`. A wheel to install for use:
+# `pip install crates/odocal-py` (release).
 rm -f target/wheels/odocal-*.whl
 "$venv/bin/maturin" build --profile dev --quiet -m crates/odocal-py/Cargo.toml -o target/wheels
 "${pip[@]}" --force-reinstall --no-deps target/wheels/odocal-*.whl

@@ -1,5 +1,6 @@
-//! The `heading_drift_above_floor` guard on random noise worlds
-//! (docs/validation.md, "What is left: the drift's correlation time, and a
+//! The heading-drift test's statistic towards more drift at the floor
+//! (`upward_at_floor`, the guard tried and not kept) on random noise worlds
+//! (docs/validation.md, "What is left: the drift's correlation time, and no
 //! guard").
 //!
 //! World i (world seed `--seed` + i, i = 0..`--worlds`) is simulated as in
