@@ -79,6 +79,7 @@ mod columns;
 mod draft;
 mod msg;
 mod records;
+mod zstd;
 #[cfg(test)]
 mod tests;
 
@@ -777,6 +778,9 @@ impl Bag {
         let position = std::cell::Cell::new(0u64);
         let source = Counted { inner: BufReader::new(&mut self.file), read: &position };
         let mut reader = mcap::io::MessageReader::new_with_options(source, opts);
+        reader
+            .add_decompressor(zstd::ChunkDecoder::new(self.record_limit))
+            .map_err(|e| corrupt(format!("the zstd decoder could not be set up: {e}")))?;
         let mut count = 0u64;
         loop {
             // mcap 0.26's linear reader can panic on a damaged file (an
