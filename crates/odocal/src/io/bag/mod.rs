@@ -76,10 +76,10 @@
 //! ```
 
 mod columns;
+mod decompress;
 mod draft;
 mod msg;
 mod records;
-mod zstd;
 #[cfg(test)]
 mod tests;
 
@@ -670,6 +670,8 @@ struct Bag {
     /// The longest record the MCAP reader may read: no longer than the file
     /// or its largest chunk ([`records::check_lengths`]).
     record_limit: usize,
+    /// The compressed chunks in file order, for their decoders.
+    compressed: Vec<records::CompressedChunk>,
 }
 
 impl Bag {
@@ -695,9 +697,9 @@ impl Bag {
             });
         }
         file.seek(std::io::SeekFrom::Start(mcap::MAGIC.len() as u64)).map_err(io)?;
-        let record_limit = records::check_lengths(&mut file, mcap::MAGIC.len() as u64, len)
+        let checked = records::check_lengths(&mut file, mcap::MAGIC.len() as u64, len)
             .map_err(|reason| Error::Bag { path: file_path.clone(), topic: None, reason })?;
-        Ok(Bag { path: file_path, file, len, record_limit })
+        Ok(Bag { path: file_path, file, len, record_limit: checked.record_limit, compressed: checked.compressed })
     }
 
     /// The summary section, when the file has a readable one. A missing or
@@ -778,9 +780,11 @@ impl Bag {
         let position = std::cell::Cell::new(0u64);
         let source = Counted { inner: BufReader::new(&mut self.file), read: &position };
         let mut reader = mcap::io::MessageReader::new_with_options(source, opts);
-        reader
-            .add_decompressor(zstd::ChunkDecoder::new(self.record_limit))
-            .map_err(|e| corrupt(format!("the zstd decoder could not be set up: {e}")))?;
+        for name in ["zstd", "lz4"] {
+            reader
+                .add_decompressor(decompress::ChunkDecoder::new(name, &self.compressed))
+                .map_err(|e| corrupt(format!("the {name} decoder could not be set up: {e}")))?;
+        }
         let mut count = 0u64;
         loop {
             // mcap 0.26's linear reader can panic on a damaged file (an
@@ -814,6 +818,8 @@ impl Bag {
 fn scan_error(e: &mcap::McapError, read: u64, summary: Option<&mcap::Summary>) -> String {
     match e {
         mcap::McapError::Io(io) => format!("reading the MCAP file failed: {io}"),
+        // The chunk decoders' own messages name the chunk (decompress.rs).
+        mcap::McapError::DecompressionError(reason) if reason.starts_with("corrupt MCAP file") => reason.clone(),
         mcap::McapError::BadChunkCrc { saved, calculated } => format!(
             "corrupt MCAP file: {} fails its CRC check (stored {saved:#010x}, computed {calculated:#010x}): its \
              bytes are damaged",

@@ -4,10 +4,13 @@
 //!
 //! The walk reads the opcode and length of each top-level record and seeks
 //! past its body. For a chunk it also reads the chunk header (its declared
-//! uncompressed size, compression and records length); the records of a
-//! chunk are walked the same way, a compressed chunk's after decompressing
-//! it into a buffer of at most its declared uncompressed size (itself
-//! capped). Schema and channel records have their string lengths checked,
+//! uncompressed size, compression and records length); the records of an
+//! uncompressed chunk are walked the same way, and a compressed chunk's
+//! once its decoder has decompressed them into a buffer of at most its
+//! declared uncompressed size (itself capped), before the reader parses
+//! them ([`check_chunk_records`]; the walk lists the compressed chunks for
+//! the decoder, so each is decompressed once). Schema and channel records
+//! have their string lengths checked,
 //! so a topic name declaring 4 GiB in a tiny file is named as such. The
 //! walk also returns a record length limit for the reader: no record may be
 //! longer than the file or than the largest chunk's declared uncompressed
@@ -61,11 +64,33 @@ fn kind(op: u8) -> &'static str {
     }
 }
 
+/// A compressed chunk the walk found: where it is and what it declares, for
+/// the decoder that decompresses it when the reader reaches it
+/// (`decompress::ChunkDecoder`).
+#[derive(Debug, Clone, PartialEq)]
+pub(super) struct CompressedChunk {
+    /// The chunk record's file offset.
+    pub(super) offset: u64,
+    /// Its compression, `zstd` or `lz4`.
+    pub(super) compression: &'static str,
+    /// The uncompressed size it declares (capped).
+    pub(super) uncompressed: u64,
+}
+
+/// What the walk found: the record length limit for the MCAP reader and the
+/// compressed chunks in file order.
+#[derive(Debug)]
+pub(super) struct Checked {
+    pub(super) record_limit: usize,
+    pub(super) compressed: Vec<CompressedChunk>,
+}
+
 /// Reads records from `r` (positioned at file offset `start`, `len` bytes
 /// to its end) and checks their lengths; returns the record length limit
-/// for the MCAP reader, or a message naming the record at fault.
-pub(super) fn check_lengths(r: impl Read + Seek, start: u64, len: u64) -> Result<usize, String> {
-    let mut w = Walk { r: BufReader::new(r), at: start };
+/// for the MCAP reader and the compressed chunks, or a message naming the
+/// record at fault.
+pub(super) fn check_lengths(r: impl Read + Seek, start: u64, len: u64) -> Result<Checked, String> {
+    let mut w = Walk { r: BufReader::new(r), at: start, compressed: Vec::new() };
     let mut limit = len;
     while w.at + 9 <= len {
         let (op, rec_len) = w.record_header(len, "the file")?;
@@ -79,13 +104,30 @@ pub(super) fn check_lengths(r: impl Read + Seek, start: u64, len: u64) -> Result
             break;
         }
     }
-    Ok(usize::try_from(limit).unwrap_or(usize::MAX).min(MAX_RECORD_BYTES))
+    Ok(Checked {
+        record_limit: usize::try_from(limit).unwrap_or(usize::MAX).min(MAX_RECORD_BYTES),
+        compressed: w.compressed,
+    })
+}
+
+/// Checks the records of a compressed chunk once decompressed (`records`;
+/// the chunk at file offset `offset`) as the walk checks the records of an
+/// uncompressed one, before the MCAP reader parses them.
+pub(super) fn check_chunk_records(records: &[u8], offset: u64) -> Result<(), String> {
+    let mut inner = Walk { r: BufReader::new(Cursor::new(records)), at: 0, compressed: Vec::new() };
+    // The inner walk's offsets count from the start of the decompressed
+    // records: say so.
+    inner
+        .chunk_records(records.len() as u64, "the decompressed records")
+        .map_err(|e| format!("{e} (offsets within the decompressed records of the chunk at byte offset {offset})"))
 }
 
 struct Walk<R> {
     r: BufReader<R>,
     /// The file offset of the next byte `r` reads.
     at: u64,
+    /// The compressed chunks met so far.
+    compressed: Vec<CompressedChunk>,
 }
 
 impl<R: Read + Seek> Walk<R> {
@@ -133,8 +175,9 @@ impl<R: Read + Seek> Walk<R> {
         Ok((op, rec_len))
     }
 
-    /// Checks a chunk's header and, when it is uncompressed, its records;
-    /// returns its declared uncompressed size.
+    /// Checks a chunk's header and, when it is uncompressed, its records (a
+    /// compressed chunk is noted for its decoder); returns its declared
+    /// uncompressed size.
     fn chunk(&mut self, rec_len: u64) -> Result<u64, String> {
         let offset = self.at - 9;
         let end = self.at + rec_len;
@@ -185,14 +228,19 @@ impl<R: Read + Seek> Walk<R> {
             let records_end = self.at + records_len;
             self.chunk_records(records_end, &within)?;
         } else {
-            let records = self.decompressed(&name, records_len, uncompressed, &bad)?;
-            let len = records.len() as u64;
-            let mut inner = Walk { r: BufReader::new(Cursor::new(records)), at: 0 };
-            // The inner walk's offsets count from the start of the
-            // decompressed records: say so.
-            inner.chunk_records(len, "the decompressed records").map_err(|e| {
-                format!("{e} (offsets within the decompressed records of the chunk at byte offset {offset})")
-            })?;
+            let compression = match &name[..] {
+                b"zstd" => "zstd",
+                b"lz4" => "lz4",
+                _ => {
+                    return Err(bad(format!(
+                        "uses the compression '{}', which odocal cannot read (zstd, lz4 or none)",
+                        String::from_utf8_lossy(&name)
+                    )))
+                }
+            };
+            // Its records are checked once decompressed, when the reader
+            // reaches it (check_chunk_records).
+            self.compressed.push(CompressedChunk { offset, compression, uncompressed });
         }
         Ok(uncompressed)
     }
@@ -215,55 +263,6 @@ impl<R: Read + Seek> Walk<R> {
             ));
         }
         Ok(())
-    }
-
-    /// Decompresses a chunk's `records_len` bytes of records into at most
-    /// `uncompressed` bytes (more is an error). The walk's offset follows
-    /// the bytes the decoder read; the caller skips to the chunk's end.
-    fn decompressed(
-        &mut self,
-        name: &[u8],
-        records_len: u64,
-        uncompressed: u64,
-        bad: &dyn Fn(String) -> String,
-    ) -> Result<Vec<u8>, String> {
-        let mut compressed = (&mut self.r).take(records_len);
-        let limit = usize::try_from(uncompressed).unwrap_or(usize::MAX);
-        let too_large = || bad(format!("decompresses to more than the {uncompressed} bytes it declares"));
-        let mut out = Vec::new();
-        let read = match name {
-            b"zstd" => {
-                // Read whole: at most MAX_RECORD_BYTES, checked by the caller.
-                let mut packed = Vec::new();
-                match compressed.read_to_end(&mut packed) {
-                    Err(e) => Err(e.to_string()),
-                    Ok(_) => match super::zstd::decode(&packed, limit) {
-                        Ok(records) => {
-                            out = records;
-                            Ok(out.len())
-                        }
-                        Err(super::zstd::DecodeError::TooLarge) => return Err(too_large()),
-                        Err(e) => Err(e.to_string()),
-                    },
-                }
-            }
-            b"lz4" => lz4::Decoder::new(&mut compressed)
-                .and_then(|d| d.take(uncompressed + 1).read_to_end(&mut out))
-                .map_err(|e| e.to_string()),
-            _ => {
-                return Err(bad(format!(
-                    "uses the compression '{}', which odocal cannot read (zstd, lz4 or none)",
-                    String::from_utf8_lossy(name)
-                )))
-            }
-        };
-        let consumed = records_len - compressed.limit();
-        read.map_err(|e| bad(format!("could not be decompressed: {e}")))?;
-        self.at += consumed;
-        if out.len() as u64 > uncompressed {
-            return Err(too_large());
-        }
-        Ok(out)
     }
 
     /// Checks the length-prefixed fields (strings, byte arrays, maps) of a
@@ -433,22 +432,46 @@ mod tests {
         f
     }
 
-    fn walk(f: &[u8]) -> Result<usize, String> {
+    fn walk(f: &[u8]) -> Result<Checked, String> {
         let mut c = Cursor::new(f);
         c.set_position(8);
         check_lengths(c, 8, f.len() as u64)
     }
 
     #[test]
-    fn a_topic_length_inside_a_compressed_chunk_is_checked() {
-        // The honest file walks clean, compressed or not.
-        assert!(walk(&file_with_chunk("zstd", 2)).is_ok());
-        assert!(walk(&file_with_chunk("", 2)).is_ok());
-        // A topic name declaring 4 GiB is refused before the reader sees it.
-        let e = walk(&file_with_chunk("zstd", u32::MAX - 15)).expect_err("a 4 GiB topic name");
-        assert!(e.contains("decompressed records of the chunk at byte offset") && e.contains("topic name"), "{e}");
+    fn a_topic_length_inside_a_chunk_is_checked_compressed_or_not() {
+        // The honest file walks clean, compressed or not; the compressed
+        // chunk is listed for its decoder.
+        let checked = walk(&file_with_chunk("zstd", 2)).expect("walks");
+        let offset = 8 + 9 + 4 + 4 + 4 + 4;
+        let declared = walk(&file_with_chunk("", 2)).expect("walks").compressed;
+        assert!(declared.is_empty());
+        assert_eq!(checked.compressed.len(), 1);
+        assert_eq!((checked.compressed[0].offset, checked.compressed[0].compression), (offset, "zstd"));
+        // A topic name declaring 4 GiB is refused before the reader sees it:
+        // in an uncompressed chunk by the walk, in a compressed one by the
+        // check its decoder runs on the decompressed records.
         let e = walk(&file_with_chunk("", u32::MAX - 15)).expect_err("a 4 GiB topic name");
         assert!(e.contains("topic name"), "{e}");
+        let f = file_with_chunk("zstd", u32::MAX - 15);
+        let c = &walk(&f).expect("the header is sound").compressed[0];
+        let mut d = super::super::decompress::ChunkDecoder::new("zstd", std::slice::from_ref(c));
+        // The chunk's records follow its opcode and length (9 bytes), times,
+        // size and CRC (28), the compression "zstd" (8) and the records' length.
+        let records_len_at = c.offset as usize + 9 + 28 + 8;
+        let records_len = u64::from_le_bytes(f[records_len_at..records_len_at + 8].try_into().expect("8 bytes"));
+        let start = records_len_at + 8;
+        let e = mcap::sans_io::decompressor::Decompressor::decompress(
+            &mut d,
+            &f[start..start + records_len as usize],
+            &mut [0u8; 64],
+        )
+        .expect_err("a 4 GiB topic name");
+        assert!(
+            e.to_string().contains("decompressed records of the chunk at byte offset")
+                && e.to_string().contains("topic name"),
+            "{e}"
+        );
     }
 
     #[test]
