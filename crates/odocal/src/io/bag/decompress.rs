@@ -21,7 +21,10 @@ use ruzstd::decoding::{BlockDecodingStrategy, FrameDecoder};
 
 use super::records::{check_chunk_records, CompressedChunk};
 
-/// Why [`decode`] failed.
+/// The most output [`decode_zstd`] reserves before decoding.
+const MAX_RESERVE: usize = 64 << 20;
+
+/// Why [`decode_zstd`] failed.
 #[derive(Debug)]
 pub(super) enum DecodeError {
     /// The frames hold more than the limit.
@@ -45,7 +48,8 @@ impl std::fmt::Display for DecodeError {
 pub(super) fn decode_zstd(mut input: &[u8], limit: usize) -> Result<Vec<u8>, DecodeError> {
     let corrupt = |e: FrameDecoderError| DecodeError::Corrupt(e.to_string());
     let mut frame = FrameDecoder::new();
-    let mut out = Vec::new();
+    // The caller's limit is the chunk's declared size, itself capped.
+    let mut out = Vec::with_capacity(limit.min(MAX_RESERVE));
     while !input.is_empty() {
         match frame.init(&mut input) {
             Ok(()) => {}
@@ -63,9 +67,7 @@ pub(super) fn decode_zstd(mut input: &[u8], limit: usize) -> Result<Vec<u8>, Dec
             if out.len() + ready > limit {
                 return Err(DecodeError::TooLarge);
             }
-            if let Some(bytes) = frame.collect() {
-                out.extend_from_slice(&bytes);
-            }
+            frame.collect_to_writer(&mut out).map_err(|e| DecodeError::Corrupt(e.to_string()))?;
             if frame.is_finished() {
                 break;
             }
