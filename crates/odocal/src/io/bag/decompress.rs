@@ -5,9 +5,10 @@
 //! of at most the size the chunk declares, checks the records' lengths
 //! (`records::check_chunk_records`) and only then hands them to the reader.
 //! zstd, the compression ROS 2 writes, is decoded by `ruzstd`, in Rust: the
-//! reference C library took longer to compile than any other dependency on
-//! the 2-core machine (about 40 s of CPU), and decodes about 4 × faster; a
-//! bag's import reads each chunk once. lz4 uses the C library (small).
+//! reference C library's build was the longest of the library's
+//! dependencies (about 40 s of CPU on the 2-core machine); it decodes about
+//! 4 × faster, which is why each chunk is decompressed only once. lz4 uses
+//! the C library (small).
 //! Chunks are small (rosbag2 writes 768 KiB), so holding one whole costs no
 //! more memory than the length checks allow.
 
