@@ -20,10 +20,40 @@ use mcap::McapError;
 use ruzstd::decoding::errors::{FrameDecoderError, ReadFrameHeaderError};
 use ruzstd::decoding::{BlockDecodingStrategy, FrameDecoder};
 
-use super::records::{check_chunk_records, CompressedChunk};
+use super::records::{check_chunk_records, CompressedChunk, MAX_COMPRESSED_CHUNK_BYTES};
 
-/// The most output [`decode_zstd`] reserves before decoding.
-const MAX_RESERVE: usize = 64 << 20;
+/// A chunk compression odocal reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Codec {
+    Zstd,
+    Lz4,
+}
+
+impl Codec {
+    /// Every codec, each with its own decoder on the MCAP reader.
+    pub(super) const ALL: [Codec; 2] = [Codec::Zstd, Codec::Lz4];
+
+    /// The codec of a chunk's `compression` field, if odocal reads it.
+    pub(super) fn of_name(name: &[u8]) -> Option<Codec> {
+        Codec::ALL.into_iter().find(|c| c.name().as_bytes() == name)
+    }
+
+    /// The chunk `compression` string.
+    pub(super) fn name(self) -> &'static str {
+        match self {
+            Codec::Zstd => "zstd",
+            Codec::Lz4 => "lz4",
+        }
+    }
+
+    /// Decompresses `input` into at most `limit` bytes.
+    fn decode(self, input: &[u8], limit: usize) -> Result<Vec<u8>, DecodeError> {
+        match self {
+            Codec::Zstd => decode_zstd(input, limit),
+            Codec::Lz4 => decode_lz4(input, limit),
+        }
+    }
+}
 
 /// Why [`decode_zstd`] failed.
 #[derive(Debug)]
@@ -49,8 +79,9 @@ impl std::fmt::Display for DecodeError {
 pub(super) fn decode_zstd(mut input: &[u8], limit: usize) -> Result<Vec<u8>, DecodeError> {
     let corrupt = |e: FrameDecoderError| DecodeError::Corrupt(e.to_string());
     let mut frame = FrameDecoder::new();
-    // The caller's limit is the chunk's declared size, itself capped.
-    let mut out = Vec::with_capacity(limit.min(MAX_RESERVE));
+    // The caller's limit is the chunk's declared size; reserve no more than
+    // the walk lets a compressed chunk declare.
+    let mut out = Vec::with_capacity(limit.min(MAX_COMPRESSED_CHUNK_BYTES as usize));
     while !input.is_empty() {
         match frame.init(&mut input) {
             Ok(()) => {}
@@ -102,8 +133,7 @@ pub(super) fn decode_lz4(input: &[u8], limit: usize) -> Result<Vec<u8>, DecodeEr
 /// at its record length limit, itself at least the largest chunk),
 /// decompresses and checks them, and hands them out as the reader asks.
 pub(super) struct ChunkDecoder {
-    /// `zstd` or `lz4`.
-    name: &'static str,
+    codec: Codec,
     /// The chunks of this compression the length check found, in file
     /// order: the reader decompresses them in that order.
     chunks: VecDeque<CompressedChunk>,
@@ -114,25 +144,21 @@ pub(super) struct ChunkDecoder {
 }
 
 impl ChunkDecoder {
-    /// The decoder of the chunks compressed with `name` among `chunks`.
-    pub(super) fn new(name: &'static str, chunks: &[CompressedChunk]) -> ChunkDecoder {
-        let chunks = chunks.iter().filter(|c| c.compression == name).cloned().collect();
-        ChunkDecoder { name, chunks, decoded: None, given: 0 }
+    /// The decoder of the chunks compressed with `codec` among `chunks`.
+    pub(super) fn new(codec: Codec, chunks: &[CompressedChunk]) -> ChunkDecoder {
+        let chunks = chunks.iter().filter(|c| c.codec == codec).cloned().collect();
+        ChunkDecoder { codec, chunks, decoded: None, given: 0 }
     }
 
     /// Decompresses the next chunk's compressed records `src` and checks
     /// them; the message names the chunk.
     fn decode_next(&mut self, src: &[u8]) -> Result<Vec<u8>, String> {
         let Some(chunk) = self.chunks.pop_front() else {
-            return Err(format!("corrupt MCAP file: a {} chunk that the length check did not find", self.name));
+            return Err(format!("corrupt MCAP file: a {} chunk that the length check did not find", self.codec.name()));
         };
         let (offset, declared) = (chunk.offset, chunk.uncompressed);
         let limit = usize::try_from(declared).unwrap_or(usize::MAX);
-        let decoded = match self.name {
-            "zstd" => decode_zstd(src, limit),
-            _ => decode_lz4(src, limit),
-        };
-        let out = decoded.map_err(|e| match e {
+        let out = self.codec.decode(src, limit).map_err(|e| match e {
             DecodeError::TooLarge => format!(
                 "corrupt MCAP file: the chunk at byte offset {offset} decompresses to more than the {declared} bytes \
                  it declares"
@@ -185,7 +211,7 @@ impl Decompressor for ChunkDecoder {
     }
 
     fn name(&self) -> &'static str {
-        self.name
+        self.codec.name()
     }
 }
 
@@ -237,8 +263,8 @@ mod tests {
         r
     }
 
-    fn chunk(offset: u64, compression: &'static str, uncompressed: usize) -> CompressedChunk {
-        CompressedChunk { offset, compression, uncompressed: uncompressed as u64 }
+    fn chunk(offset: u64, codec: Codec, uncompressed: usize) -> CompressedChunk {
+        CompressedChunk { offset, codec, uncompressed: uncompressed as u64 }
     }
 
     /// Hands out what `d` holds after the first call, in pieces of `buf`.
@@ -256,8 +282,8 @@ mod tests {
     #[test]
     fn the_chunk_decoder_hands_out_each_chunk_in_pieces_in_file_order() {
         let (a, b) = (message_records(100), message_records(7));
-        let chunks = [chunk(8, "zstd", a.len()), chunk(900, "lz4", 0), chunk(2000, "zstd", b.len())];
-        let mut d = ChunkDecoder::new("zstd", &chunks);
+        let chunks = [chunk(8, Codec::Zstd, a.len()), chunk(900, Codec::Lz4, 0), chunk(2000, Codec::Zstd, b.len())];
+        let mut d = ChunkDecoder::new(Codec::Zstd, &chunks);
         assert_eq!(d.name(), "zstd");
         for data in [&a, &b] {
             assert_eq!(d.next_read_size(), usize::MAX, "asks for the whole chunk");
@@ -283,17 +309,17 @@ mod tests {
             (data.len() + 1, "the chunk at byte offset 77 decompresses to 1090 bytes, fewer than the 1091 it declares"),
         ];
         for (declared, message) in cases {
-            let mut d = ChunkDecoder::new("zstd", &[chunk(77, "zstd", declared)]);
+            let mut d = ChunkDecoder::new(Codec::Zstd, &[chunk(77, Codec::Zstd, declared)]);
             let e = d.decompress(&input, &mut buf).expect_err("wrong size");
             assert!(e.to_string().contains(message), "{e}");
         }
         // A record inside declaring more bytes than the chunk holds.
         let mut bad = data.clone();
         bad[1..9].copy_from_slice(&5000u64.to_le_bytes());
-        let mut d = ChunkDecoder::new("zstd", &[chunk(77, "zstd", bad.len())]);
+        let mut d = ChunkDecoder::new(Codec::Zstd, &[chunk(77, Codec::Zstd, bad.len())]);
         let e = d.decompress(&compressed(&bad), &mut buf).expect_err("a record past the chunk");
         assert!(e.to_string().contains("decompressed records of the chunk at byte offset 77"), "{e}");
-        let mut d = ChunkDecoder::new("zstd", &[chunk(77, "zstd", data.len())]);
+        let mut d = ChunkDecoder::new(Codec::Zstd, &[chunk(77, Codec::Zstd, data.len())]);
         let e = d.decompress(b"garbage", &mut buf).expect_err("not zstd");
         assert!(e.to_string().contains("the chunk at byte offset 77 could not be decompressed"), "{e}");
     }
@@ -307,7 +333,7 @@ mod tests {
         done.expect("finishes");
         assert_eq!(decode_lz4(&input, data.len()).expect("decodes"), data);
         assert!(matches!(decode_lz4(&input, data.len() - 1), Err(DecodeError::TooLarge)));
-        let mut d = ChunkDecoder::new("lz4", &[chunk(5, "zstd", 1), chunk(9, "lz4", data.len())]);
+        let mut d = ChunkDecoder::new(Codec::Lz4, &[chunk(5, Codec::Zstd, 1), chunk(9, Codec::Lz4, data.len())]);
         let mut buf = [0u8; 4096];
         let first = d.decompress(&input, &mut buf).expect("decodes");
         assert_eq!(drain(&mut d, buf[..first.wrote].to_vec()), data);

@@ -780,10 +780,10 @@ impl Bag {
         let position = std::cell::Cell::new(0u64);
         let source = Counted { inner: BufReader::new(&mut self.file), read: &position };
         let mut reader = mcap::io::MessageReader::new_with_options(source, opts);
-        for name in ["zstd", "lz4"] {
+        for codec in decompress::Codec::ALL {
             reader
-                .add_decompressor(decompress::ChunkDecoder::new(name, &self.compressed))
-                .map_err(|e| corrupt(format!("the {name} decoder could not be set up: {e}")))?;
+                .add_decompressor(decompress::ChunkDecoder::new(codec, &self.compressed))
+                .map_err(|e| corrupt(format!("the {} decoder could not be set up: {e}", codec.name())))?;
         }
         let mut count = 0u64;
         loop {

@@ -18,6 +18,7 @@
 
 use std::io::{BufReader, Cursor, Read, Seek};
 
+use super::decompress::Codec;
 use super::MAX_RECORD_BYTES;
 
 const HEADER: u8 = 0x01;
@@ -40,7 +41,7 @@ const DATA_END: u8 = 0x0F;
 /// far smaller (rosbag2's default is 768 KiB, the MCAP libraries' 4 MiB or
 /// less). Uncompressed chunks are bytes of the file itself and need no cap
 /// beyond the file's length.
-const MAX_COMPRESSED_CHUNK_BYTES: u64 = 64 << 20;
+pub(super) const MAX_COMPRESSED_CHUNK_BYTES: u64 = 64 << 20;
 
 /// The record kind of an opcode, for messages.
 fn kind(op: u8) -> &'static str {
@@ -71,8 +72,8 @@ fn kind(op: u8) -> &'static str {
 pub(super) struct CompressedChunk {
     /// The chunk record's file offset.
     pub(super) offset: u64,
-    /// Its compression, `zstd` or `lz4`.
-    pub(super) compression: &'static str,
+    /// Its compression.
+    pub(super) codec: Codec,
     /// The uncompressed size it declares (capped).
     pub(super) uncompressed: u64,
 }
@@ -228,19 +229,15 @@ impl<R: Read + Seek> Walk<R> {
             let records_end = self.at + records_len;
             self.chunk_records(records_end, &within)?;
         } else {
-            let compression = match &name[..] {
-                b"zstd" => "zstd",
-                b"lz4" => "lz4",
-                _ => {
-                    return Err(bad(format!(
-                        "uses the compression '{}', which odocal cannot read (zstd, lz4 or none)",
-                        String::from_utf8_lossy(&name)
-                    )))
-                }
+            let Some(codec) = Codec::of_name(&name) else {
+                return Err(bad(format!(
+                    "uses the compression '{}', which odocal cannot read (zstd, lz4 or none)",
+                    String::from_utf8_lossy(&name)
+                )));
             };
             // Its records are checked once decompressed, when the reader
             // reaches it (check_chunk_records).
-            self.compressed.push(CompressedChunk { offset, compression, uncompressed });
+            self.compressed.push(CompressedChunk { offset, codec, uncompressed });
         }
         Ok(uncompressed)
     }
@@ -444,10 +441,9 @@ mod tests {
         // chunk is listed for its decoder.
         let checked = walk(&file_with_chunk("zstd", 2)).expect("walks");
         let offset = 8 + 9 + 4 + 4 + 4 + 4;
-        let declared = walk(&file_with_chunk("", 2)).expect("walks").compressed;
-        assert!(declared.is_empty());
+        assert!(walk(&file_with_chunk("", 2)).expect("walks").compressed.is_empty());
         assert_eq!(checked.compressed.len(), 1);
-        assert_eq!((checked.compressed[0].offset, checked.compressed[0].compression), (offset, "zstd"));
+        assert_eq!((checked.compressed[0].offset, checked.compressed[0].codec), (offset, Codec::Zstd));
         // A topic name declaring 4 GiB is refused before the reader sees it:
         // in an uncompressed chunk by the walk, in a compressed one by the
         // check its decoder runs on the decompressed records.
@@ -455,7 +451,7 @@ mod tests {
         assert!(e.contains("topic name"), "{e}");
         let f = file_with_chunk("zstd", u32::MAX - 15);
         let c = &walk(&f).expect("the header is sound").compressed[0];
-        let mut d = super::super::decompress::ChunkDecoder::new("zstd", std::slice::from_ref(c));
+        let mut d = super::super::decompress::ChunkDecoder::new(Codec::Zstd, std::slice::from_ref(c));
         // The chunk's records follow its opcode and length (9 bytes), times,
         // size and CRC (28), the compression "zstd" (8) and the records' length.
         let records_len_at = c.offset as usize + 9 + 28 + 8;
