@@ -123,7 +123,7 @@ pub(super) fn decode_lz4(input: &[u8], limit: usize) -> Result<Vec<u8>, DecodeEr
     let mut frames = lz4_flex::frame::FrameDecoder::new(input);
     // Each round decodes one frame: the decoder reports the end of the
     // input at each frame's end. A round consumes input or fails (a frame
-    // header is at least 7 bytes), so the loop ends.
+    // starts with a 4-byte magic number), so the loop ends.
     while !frames.get_ref().is_empty() {
         let room = (limit - out.len()) as u64 + 1;
         (&mut frames).take(room).read_to_end(&mut out).map_err(|e| DecodeError::Corrupt(e.to_string()))?;
