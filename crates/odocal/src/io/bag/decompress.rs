@@ -56,7 +56,7 @@ impl Codec {
     }
 }
 
-/// Why [`decode_zstd`] failed.
+/// Why a chunk could not be decompressed ([`decode_zstd`], [`decode_lz4`]).
 #[derive(Debug)]
 pub(super) enum DecodeError {
     /// The frames hold more than the limit.
