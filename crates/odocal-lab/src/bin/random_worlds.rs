@@ -58,7 +58,7 @@ const USAGE: &str = "random_worlds [--worlds 100] [--length-km 12] [--seed 1] [-
     [--out DIR] [--threads N] [--heading-drift-gate G] [--heading-drift-lr T] [--heavy]
     [--eta-max X] [--tau-c S] [--tau-drift S] [--heavy-without slip|common]
     [--eta-without-jacobian] [--no-common-jacobian] [--position-drift-own-scale] [--position-drift-tau S]
-    [--heading-drift-two-sided] [--no-clamp-refit] [--clamp-refit-common-eta X]
+    [--heading-drift-two-sided] [--no-clamp-refit] [--clamp-refit-common-eta X] [--heading-drift-min-eta X]
 
 World i has world seed S + i (drive seed too); every method runs through odocal::calibrate.
 --heavy: each world's wheel noise replaced by heavy common-mode coloured noise and slip (NoiseOptions::with_heavy_wheels).
@@ -78,7 +78,9 @@ World i has world seed S + i (drive seed too); every method runs through odocal:
 --no-clamp-refit: the default without the refit, after a fit that fails with a noise scale at its upper clamp, with
     c_e held at the batch G-N start's (clamp_refit_hold_scale off).
 --clamp-refit-common-eta X: in that refit, the common-mode wheel noise scale η_1 held at X
-    (clamp_refit_common_mode_eta; the refit runs with this alone too).";
+    (clamp_refit_common_mode_eta; the refit runs with this alone too).
+--heading-drift-min-eta X: the floor of the heading drift's tie to the pose-drift scale η_4 (heading_drift_min_eta;
+    -20, the η lower bound, ties it all the way).";
 
 /// The methods the study knows, by their `--method` names.
 const METHODS: [&str; 3] = ["eiv", "batch-gn", "three-step"];
@@ -114,6 +116,9 @@ struct Settings {
     no_clamp_refit: bool,
     /// `--clamp-refit-common-eta`: `ResearchOptions::clamp_refit_common_mode_eta`.
     clamp_refit_common_eta: Option<f64>,
+    /// `--heading-drift-min-eta`: `ResearchOptions::heading_drift_min_eta`
+    /// (the η lower bound, −20, ties the heading drift to η_4 all the way).
+    heading_drift_min_eta: Option<f64>,
 }
 
 fn settings() -> Res<(Settings, Option<usize>)> {
@@ -146,6 +151,7 @@ fn settings() -> Res<(Settings, Option<usize>)> {
         heading_drift_two_sided: a.flag("heading-drift-two-sided"),
         no_clamp_refit: a.flag("no-clamp-refit"),
         clamp_refit_common_eta: a.opt("clamp-refit-common-eta")?,
+        heading_drift_min_eta: a.opt("heading-drift-min-eta")?,
     };
     let threads = a.opt("threads")?;
     a.finish()?;
@@ -248,6 +254,9 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<
         e.filter.research.heading_drift_two_sided = a.heading_drift_two_sided;
         e.filter.research.clamp_refit_hold_scale = !a.no_clamp_refit;
         e.filter.research.clamp_refit_common_mode_eta = a.clamp_refit_common_eta;
+        if let Some(m) = a.heading_drift_min_eta {
+            e.filter.research.heading_drift_min_eta = m;
+        }
         if let Some(t) = a.tau_drift {
             e.filter.noise.drift_time_constant_s = t;
         }

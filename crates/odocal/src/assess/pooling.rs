@@ -12,7 +12,7 @@
 //! JSON `sigma`) is therefore the σ for the next drive, per parameter
 //!
 //! ```text
-//! σ_next = √(σ_within² + h² + gap²/3 + a² + b²),   b² = max(τ², s² − σ_within²)
+//! σ_next = √(σ_within² + h² + gap²/3 + f²/3 + a² + b²),   b² = max(τ², s² − σ_within²)
 //! ```
 //!
 //! so that `√(σ_within² + b²) = max(s, √(σ_within² + τ²))`: the
@@ -65,6 +65,17 @@
 //!   result accepted beyond 3 σ of the σ without `a` had its t_r above its
 //!   start, by 0.4–3.6 %; docs/validation.md). 0 otherwise. An excess above
 //!   3 σ of the rest makes the verdict doubtful
+//!   ([`crate::TrustOptions::max_fallback_gap_sigmas`]).
+//! - `f`: when the result is EIV's own estimate and its fit holds the
+//!   reference's heading drift at its floor (a centimetre-grade position
+//!   reference), the distance between its θ and that of the same fit
+//!   without the floor (both before the bias correction;
+//!   `crate::eiv::HeadingDriftTest::theta_without_floor`). The floor is a
+//!   modelling choice the data do not settle, and on such references t_r
+//!   moves with it by up to a few % (docs/validation.md, "The heading
+//!   drift's floor"); the two fits bracket that choice, and like the
+//!   fallback's gap it enters as f²/3. 0 otherwise. A gap above 3 σ of
+//!   the rest makes the verdict doubtful
 //!   ([`crate::TrustOptions::max_fallback_gap_sigmas`]).
 //! - `τ`: the between-drive σ, the spread of the drives' true θ. With one
 //!   drive the documented prior `BETWEEN_DRIVE_PRIOR`
@@ -233,8 +244,8 @@ pub(crate) const NEXT_DRIVE_SIGMA_LABEL: &str = "σ for the next drive: within-d
 /// (SI units; `None` for a parameter held). In JSON `next_drive_sigma`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct NextDriveSigma {
-    /// `√(within² + common_mode² + fallback_gap²/3 + t_r_above_start² + between²)`: the σ that stands
-    /// for the result.
+    /// `√(within² + common_mode² + fallback_gap²/3 + heading_drift_floor_gap²/3
+    /// + t_r_above_start² + between²)`: the σ that stands for the result.
     pub sigma: [Option<f64>; 4],
     /// The method's within-drive σ (for a parameter the EIV filter held at
     /// its start's estimate: the start's σ).
@@ -283,6 +294,15 @@ pub struct NextDriveSigma {
     /// not all zero.
     #[serde(default, skip_serializing_if = "all_zero")]
     pub t_r_above_start: [f64; 4],
+    /// When the result is EIV's own estimate holding the reference's
+    /// heading drift at its floor: |θ − θ without the floor| (before the
+    /// bias correction; `crate::eiv::HeadingDriftTest::theta_without_floor`),
+    /// zeros otherwise. The floor is a modelling choice, not an estimate;
+    /// with the truth anywhere between the two fits it enters as gap²/3,
+    /// as [`Self::fallback_gap`] does (module docs, `f`). In JSON only when
+    /// not all zero.
+    #[serde(default, skip_serializing_if = "all_zero")]
+    pub heading_drift_floor_gap: [f64; 4],
     /// The between-drive part that enters `sigma`,
     /// `√max(τ², floor² − within²)`: τ ([`Self::between_drive_tau`]), or
     /// more where the within-drive σ falls short of the floor
@@ -320,6 +340,7 @@ impl NextDriveSigma {
             gap_released_noise: Vec::new(),
             fallback_unchecked: None,
             t_r_above_start: [0.0; 4],
+            heading_drift_floor_gap: [0.0; 4],
             between_drive: [0.0; 4],
             between_drive_tau: BETWEEN_DRIVE_PRIOR.between(theta),
             between_drive_floor: BETWEEN_DRIVE_PRIOR.spread(theta),
@@ -341,6 +362,22 @@ impl NextDriveSigma {
             let shift = if i == 2 { excess } else { (excess * cov[i][2] / c_tt).abs() };
             if self.within_drive[i].is_some() && shift.is_finite() {
                 shift
+            } else {
+                0.0
+            }
+        });
+        self.combine();
+    }
+
+    /// With EIV's θ before its bias correction, `theta`, and its fit without
+    /// the heading drift's floor, `without_floor`, over the parameters with a
+    /// within-drive σ: [`Self::heading_drift_floor_gap`], and `sigma` again.
+    pub(crate) fn with_heading_drift_floor(&mut self, theta: &Theta, without_floor: &Theta) {
+        let (a, b) = (theta.to_array(), without_floor.to_array());
+        self.heading_drift_floor_gap = std::array::from_fn(|i| {
+            let g = (a[i] - b[i]).abs();
+            if self.within_drive[i].is_some() && g.is_finite() {
+                g
             } else {
                 0.0
             }
@@ -374,6 +411,7 @@ impl NextDriveSigma {
                 (w * w
                     + self.common_mode[i].powi(2)
                     + self.fallback_gap[i].powi(2) / 3.0
+                    + self.heading_drift_floor_gap[i].powi(2) / 3.0
                     + self.t_r_above_start[i].powi(2)
                     + self.between_drive[i].powi(2))
                 .sqrt()
@@ -381,8 +419,8 @@ impl NextDriveSigma {
         });
     }
 
-    /// `sigma` without the fallback gap, EIV's t_r above its start and the
-    /// common-mode term, `√(within² + between²)`, that is
+    /// `sigma` without the fallback gap, the heading drift's floor gap, EIV's
+    /// t_r above its start and the common-mode term, `√(within² + between²)`, that is
     /// `max(floor, √(within² + τ²))`: the σ the result would have if its
     /// estimator had no errors-in-variables bias and the noise were as its
     /// model says. The gap checks measure against it.
@@ -585,6 +623,33 @@ mod tests {
         held.with_t_r_above_start(0.01, &cov);
         assert_eq!(held.t_r_above_start[1].to_bits(), 0f64.to_bits());
         assert_eq!(held.sigma[1], None);
+    }
+
+    /// The gap to the fit without the heading drift's floor enters as gap²/3
+    /// for every parameter with a σ, stays out of the σ the gap checks use,
+    /// and is absent from JSON where it is zero.
+    #[test]
+    fn the_heading_drift_floor_gap_enters_as_a_third_of_its_square() {
+        let theta = Theta { c_e: 2.0, c_d: 0.001, t_r: 1.5, d: 0.001 };
+        let within = [Some(1e-4), None, Some(3e-3), Some(5e-5)];
+        let base = NextDriveSigma::one_drive(&theta, within, [0.0; 4]);
+        let without = Theta { c_e: 2.0003, c_d: 0.0012, t_r: 1.53, d: 0.0008 };
+        let mut n = base.clone();
+        n.with_heading_drift_floor(&theta, &without);
+        assert_eq!(n.heading_drift_floor_gap[1].to_bits(), 0f64.to_bits(), "c_d has no σ: {n:?}");
+        assert_eq!(n.sigma[1], None);
+        for (i, gap) in [(0, 3e-4), (2, 0.03), (3, 2e-4)] {
+            assert!(close(n.heading_drift_floor_gap[i], gap, 1e-9), "{i}: {n:?}");
+            let (s, s0) = (n.sigma[i].expect("σ"), base.sigma[i].expect("σ"));
+            assert!(close(s, (s0 * s0 + gap * gap / 3.0).sqrt(), 1e-9), "{i}: {s} {s0}");
+        }
+        assert_eq!(n.without_gap(), base.without_gap(), "the σ without it is the base's");
+        assert!(serde_json::to_value(&n).expect("json").get("heading_drift_floor_gap").is_some());
+        assert!(serde_json::to_value(&base).expect("json").get("heading_drift_floor_gap").is_none());
+        // The same θ: no gap, nothing changes.
+        let mut same = base.clone();
+        same.with_heading_drift_floor(&theta, &theta);
+        assert_eq!(same, base);
     }
 
     /// The common-mode term is σ_within · σ_c / 2.5 % per parameter with a

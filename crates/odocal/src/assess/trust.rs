@@ -36,6 +36,9 @@
 //!   more than [`TrustOptions::max_fallback_gap_sigmas`] σ from it,
 //!   or the result is EIV's own estimate and its t_r lies that many σ
 //!   above its batch G-N start's ([`VerdictReason::TrackWidthAboveStart`]),
+//!   or the result is EIV's own estimate holding the reference's heading
+//!   drift at its floor and the fit without the floor lies that many σ
+//!   away ([`VerdictReason::HeadingDriftFloorDisagrees`]),
 //!   or the result is EIV's batch G-N fallback and no plausible EIV
 //!   estimate checks it ([`VerdictReason::FallbackUnchecked`]),
 //!   or EIV's fit left its common-mode wheel-noise scale at the upper
@@ -495,6 +498,25 @@ pub enum VerdictReason {
         /// `(estimate − start) / sigma`.
         sigmas: f64,
     },
+    /// The result is EIV's own estimate holding the reference's heading
+    /// drift at its floor (a centimetre-grade position reference), and the
+    /// same fit without the floor lies farther away than the σ without that
+    /// gap allows (doubtful): the floor is a modelling choice the data do
+    /// not settle, and this parameter depends on it. The σ for the next
+    /// drive includes the gap ([`crate::pooling`], `f`).
+    HeadingDriftFloorDisagrees {
+        /// The parameter.
+        param: Param,
+        /// The result's value, SI.
+        estimate: f64,
+        /// |the fit's − the fit without the floor's| (before the bias
+        /// correction), SI.
+        gap: f64,
+        /// The σ for the next drive without the gap, SI.
+        sigma: f64,
+        /// `gap / sigma`.
+        sigmas: f64,
+    },
     /// EIV's fit (the result, or the fit its batch Gauss-Newton fallback
     /// came from) left the common-mode wheel-noise scale at its upper
     /// clamp (doubtful): the drive's common-mode wheel noise is heavier
@@ -621,6 +643,14 @@ impl std::fmt::Display for VerdictReason {
                  its batch Gauss-Newton start's {start:.6}: batch G-N's errors-in-variables bias on t_r points up, \
                  so the filter's model does not explain this shift (the σ for the next drive includes it)"
             ),
+            VerdictReason::HeadingDriftFloorDisagrees { param, estimate, gap, sigma, sigmas } => write!(
+                f,
+                "{param} = {estimate:.6}: EIV's fit holds the reference's heading drift at its floor \
+                 (a centimetre-grade position), and without the floor {param} moves by {gap:.3e}, {sigmas:.1} × \
+                 the σ without that gap ({sigma:.2e}); the data do not settle the heading drift's level (the σ for \
+                 the next drive includes the gap; stating the reference's heading noise, --noise-model, \
+                 settles it)"
+            ),
             VerdictReason::HeavyCommonModeNoise { wheel_common_rel_sigma } => write!(
                 f,
                 "EIV's fit left the common-mode wheel noise at its upper clamp (σ_c {:.2} %): the drive's wheel \
@@ -724,6 +754,7 @@ pub(crate) fn is_sigma_reason(r: &VerdictReason) -> bool {
         | VerdictReason::FallbackUnchecked { .. }
         | VerdictReason::RefitDisagrees { .. }
         | VerdictReason::TrackWidthAboveStart { .. }
+        | VerdictReason::HeadingDriftFloorDisagrees { .. }
         | VerdictReason::HeavyCommonModeNoise { .. } => true,
         _ => false,
     }
@@ -801,8 +832,31 @@ pub(crate) fn fallback_gap_reasons(
             })
         })
         .chain(above)
+        .chain(floor_gap_reasons(theta, free, n, &base, opts))
         .chain(unchecked)
         .chain(heavy)
+        .collect()
+}
+
+/// The parameters whose gap to the fit without the heading drift's floor
+/// exceeds [`TrustOptions::max_fallback_gap_sigmas`] of `base`, the σ
+/// without the gaps ([`VerdictReason::HeadingDriftFloorDisagrees`]).
+fn floor_gap_reasons(
+    theta: &Theta,
+    free: ParamSet,
+    n: &NextDriveSigma,
+    base: &[Option<f64>; 4],
+    opts: &TrustOptions,
+) -> Vec<VerdictReason> {
+    free.intersection(ParamSet::THETA)
+        .iter()
+        .filter_map(|p| {
+            let (gap, sigma) = (n.heading_drift_floor_gap[p.index()], base[p.index()]?);
+            let sigmas = gap / sigma;
+            (sigma > 0.0 && sigmas.is_finite() && sigmas > opts.max_fallback_gap_sigmas).then(|| {
+                VerdictReason::HeadingDriftFloorDisagrees { param: p, estimate: p.value(theta), gap, sigma, sigmas }
+            })
+        })
         .collect()
 }
 
@@ -1095,6 +1149,36 @@ mod tests {
         assert!(again.iter().any(|r| matches!(r, VerdictReason::TrackWidthAboveStart { .. })), "{again:?}");
         let held = sigma_reasons(&th, &TH0, ParamSet::THETA.without(Param::TR), &n, &opts);
         assert!(held.is_empty(), "{held:?}");
+    }
+
+    /// A gap to the fit without the heading drift's floor of more than 3 σ
+    /// (without that gap) is doubtful, naming the parameter; at 2.9 σ it
+    /// is not.
+    #[test]
+    fn a_fit_that_moves_far_without_the_heading_drift_floor_is_doubtful() {
+        use crate::assess::pooling::NextDriveSigma;
+        let (th, cov, within) = fallback_case(1e-6);
+        let opts = TrustOptions::default();
+        let base = NextDriveSigma::one_drive(&th, within, [0.0; 4]);
+        let s = base.without_gap()[2].expect("t_r");
+        let with = |k: f64| {
+            let mut n = base.clone();
+            n.with_heading_drift_floor(&th, &Theta { t_r: th.t_r - k * s, ..th });
+            n
+        };
+        for (k, level) in [(2.9, VerdictLevel::Accepted), (3.1, VerdictLevel::Doubtful)] {
+            let n = with(k);
+            let v = judge(&Evidence { next_drive: Some(&n), ..evidence(&th, &cov) }, &opts);
+            assert_eq!(v.level, level, "{k}: {v:?}");
+        }
+        let n = with(3.1);
+        let v = judge(&Evidence { next_drive: Some(&n), ..evidence(&th, &cov) }, &opts);
+        let VerdictReason::HeadingDriftFloorDisagrees { param, sigmas, .. } = &v.reasons[0] else { panic!("{v:?}") };
+        assert_eq!(*param, Param::TR);
+        assert!((sigmas - 3.1).abs() < 1e-9, "{sigmas}");
+        assert!(v.reasons[0].to_string().contains("heading drift at its floor"), "{}", v.reasons[0]);
+        let again = sigma_reasons(&th, &TH0, ParamSet::THETA, &n, &opts);
+        assert!(again.iter().any(|r| matches!(r, VerdictReason::HeadingDriftFloorDisagrees { .. })), "{again:?}");
     }
 
     /// An identification report that took `steps` (θ after each step) from

@@ -418,6 +418,11 @@ fn result_notes(out: &mut String, r: &CalibrationReport, wheel_scale: Option<&st
             } else {
                 ""
             };
+            let floor = if n.heading_drift_floor_gap.iter().any(|g| *g > 0.0) {
+                " ⊕ gap to the fit without the heading drift's floor"
+            } else {
+                ""
+            };
             let common = match n.wheel_common_rel_sigma {
                 Some(s) if n.common_mode.iter().any(|h| *h > 0.0) => {
                     format!(" ⊕ common-mode wheel noise (EIV's σ_c {:.2} %)", s * 100.0)
@@ -427,7 +432,7 @@ fn result_notes(out: &mut String, r: &CalibrationReport, wheel_scale: Option<&st
             let _ = writeln!(
                 out,
                 "  σ of the result (verdict, --params-out, --report, JSON `sigma`): ± 1σ (next drive) = {}\n    \
-                 within-drive ± 1σ ({column}, JSON `sigma_within_drive`){common}{gap}{above} ⊕ between-drive \
+                 within-drive ± 1σ ({column}, JSON `sigma_within_drive`){common}{gap}{floor}{above} ⊕ between-drive \
                  ({between})",
                 NEXT_DRIVE_SIGMA_LABEL
             );

@@ -437,6 +437,9 @@ pub(crate) fn next_drive_of(
     if let Some((excess, cov)) = eiv_t_r_above_start(detail, free) {
         n.with_t_r_above_start(excess, cov);
     }
+    if let Some((fit, without_floor)) = eiv_without_heading_drift_floor(detail) {
+        n.with_heading_drift_floor(fit, without_floor);
+    }
     if let MethodDetail::Eiv(EivDetail { eiv: Some(e), .. }) = detail {
         let clamped = e.warnings.iter().any(|w| {
             matches!(w, crate::eiv::EivWarning::NoiseAtUpperClamp { source: crate::eiv::NoiseSource::WheelCommon, .. })
@@ -487,6 +490,16 @@ fn eiv_t_r_above_start(detail: &MethodDetail, free: ParamSet) -> Option<(f64, &[
         && !d.start_held.contains(&Param::TR)
         && !start.observability.unobservable.contains(Param::TR);
     (d.eiv_result == EivOutcome::Eiv && !d.refit && estimated).then_some((e.theta.t_r - start.theta.t_r, &e.covariance))
+}
+
+/// When the result is EIV's own estimate (not a refit) and its fit holds
+/// the reference's heading drift at its floor: its θ before the bias
+/// correction and the same fit's θ without the floor ([`crate::pooling`], `f`).
+fn eiv_without_heading_drift_floor(detail: &MethodDetail) -> Option<(&Theta, &Theta)> {
+    let MethodDetail::Eiv(d) = detail else { return None };
+    let e = d.eiv.as_ref()?;
+    let without = e.heading_drift.as_ref()?.theta_without_floor.as_ref()?;
+    (d.eiv_result == EivOutcome::Eiv && !d.refit).then_some((&e.theta_uncorrected, without))
 }
 
 /// Which covariance a result's σ comes from ([`CalibrationReport::result_sigma`]).

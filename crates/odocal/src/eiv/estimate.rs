@@ -14,8 +14,8 @@ use super::scoring::scoring_pass;
 use super::steps::{observability_of, theta_step};
 use super::{
     apply_bias_correction, first_order_bias, CovarianceEstimate, CovarianceMode, EivInput, EivOptions, EivReport,
-    EivWarning, HalvesCheck, HeadingScale, InnovationNull, LateralNoise, NoiseModel, Parameter, PassReport,
-    PoseComponent, QuantisationLevel, Termination, Window, WindowDiagnostics, NOISE_SOURCES, PARAMETERS,
+    EivWarning, HalvesCheck, HeadingScale, InnovationNull, LateralNoise, NoiseModel, NoiseSource, Parameter,
+    PassReport, PoseComponent, QuantisationLevel, Termination, Window, WindowDiagnostics, NOISE_SOURCES, PARAMETERS,
 };
 use crate::error::{Error, Result};
 use crate::model::Theta;
@@ -66,7 +66,7 @@ research_pub! {
         let tied_opts = &*opts;
         let tied_prob = Problem::new(input, windows, tied_opts);
         let fit = run_passes(&tied_prob, theta_start, tied_opts)?;
-        let (mut fit, heading_drift, separate) = heading_drift_test(&tied_prob, fit, tied_opts)?;
+        let (mut fit, heading_drift, separate) = heading_drift_test(&tied_prob, fit, theta_start, tied_opts)?;
         hold_scales_at_clamps(&mut fit.eta_sigma, &fit.eta, tied_opts.eta_bounds);
         let (prob, opts) = match &separate {
             Some(s) => (&s.prob, &s.opts),
@@ -260,11 +260,14 @@ fn run_passes(prob: &Problem<'_>, theta_start: &Theta, opts: &EivOptions) -> Res
 /// The heading-drift test after the tied fit ([`super::heading_drift`]):
 /// the fit that is the result (the tied one, or the separate one with its
 /// pass appended), the test and the separate fit's problem and options
-/// when it is the result.
+/// when it is the result. Where the tied fit is the result and holds the
+/// heading drift at its floor, the test carries the fit without the floor
+/// from `theta_start` ([`HeadingDriftTest::theta_without_floor`]).
 #[inline(never)] // a symbol of its own for profiles (docs/performance.md)
 fn heading_drift_test<'a>(
     prob: &Problem<'a>,
     fit: Fit,
+    theta_start: &Theta,
     opts: &EivOptions,
 ) -> Result<(Fit, Option<HeadingDriftTest>, Option<SeparateModel<'a>>)> {
     if !heading_drift::applies(opts) {
@@ -277,8 +280,16 @@ fn heading_drift_test<'a>(
         free: fit.free,
         cost: fit.ev.total.merit(),
     };
-    let (test, separate) = heading_drift::test(prob, &tied, opts)?;
+    let (mut test, separate) = heading_drift::test(prob, &tied, opts)?;
     let Some(SeparateFit { model, pass }) = separate else {
+        if heading_drift::held_at_floor(opts, tied.eta[NoiseSource::PoseDrift.index()]) {
+            let o = heading_drift::options_without_floor(opts);
+            let p = Problem::new(prob.input, prob.windows.clone(), &o);
+            let without = run_passes(&p, theta_start, &o).ok().filter(|f| f.termination().converged());
+            test.theta_without_floor = without.map(|f| f.theta);
+            let e = p.evaluations.get();
+            test.evaluations = [test.evaluations[0] + e[0], test.evaluations[1] + e[1]];
+        }
         return Ok((fit, Some(test), None));
     };
     let mut passes = fit.passes;

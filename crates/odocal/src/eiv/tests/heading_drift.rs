@@ -35,6 +35,7 @@ fn a_tie_that_holds_keeps_the_tied_fit_to_the_bit() {
     assert_eq!(h.likelihood_ratio, None);
     assert_eq!(h.evaluations, [0, 2], "two objective-only passes");
     assert_eq!(h.upward_at_floor, None, "η_4 above the floor: {h:?}");
+    assert_eq!(h.theta_without_floor, None, "η_4 above the floor: {h:?}");
     assert_eq!(h.eta.to_bits(), default.eta[NoiseSource::PoseDrift.index()].to_bits());
     assert!(tied.heading_drift.is_none());
     assert_eq!(EivReport { heading_drift: None, timing_s: 0.0, ..default }, EivReport { timing_s: 0.0, ..tied });
@@ -91,4 +92,14 @@ fn a_heading_held_at_its_floor_that_drifts_more_is_flagged() {
     let up = h.upward_at_floor.expect("held at the floor");
     assert!(up > 10.0 * HEADING_DRIFT_LR_THRESHOLD, "{h:?}");
     assert!(!h.separate, "the release stays one-sided: {h:?}");
+    // The fit without the floor is the tied model's fit from the same start
+    // with the heading drift tied all the way down, to the bit, and t_r
+    // moves with the floor.
+    let without = h.theta_without_floor.expect("held at the floor: the fit without it ran");
+    let mut all_the_way = tied_only();
+    all_the_way.research.heading_drift_min_eta = all_the_way.eta_bounds[0];
+    let fresh = estimate(&input, &start, &all_the_way).expect("eiv");
+    assert_eq!(without.to_array().map(f64::to_bits), fresh.theta.to_array().map(f64::to_bits));
+    assert!((without.t_r - r.theta.t_r).abs() > 0.1 * r.sigma[2], "{without:?} {:?}", r.theta);
+    assert!(h.evaluations[0] > 0, "the fit's passes are the test's: {h:?}");
 }
