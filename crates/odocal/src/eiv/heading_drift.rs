@@ -111,9 +111,9 @@ research_pub! {
         /// the same start. The floor is a modelling choice the fit does
         /// not estimate, and θ can depend on it (module docs, "The floor's
         /// alternative"); the σ for the next drive carries the difference.
-        /// None where the heading drift lies above its floor, the separate
-        /// scale is the result, or that fit did not converge. In
-        /// JSON only when present.
+        /// Where that fit stops at its iteration limit, its θ there. None
+        /// where the heading drift lies above its floor, the separate scale
+        /// is the result, or that fit failed. In JSON only when present.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         pub theta_without_floor: Option<Theta>,
     }
