@@ -113,6 +113,7 @@ pub struct CalibrationArgs {
     #[arg(long)]
     pub report: Option<PathBuf>,
     /// Minimum peak yaw rate for a segment to be selected, rad/s.
+    /// Three-step and batch-gn (eiv fits every segment).
     #[arg(long, help_heading = SEGMENTS, hide_short_help = true)]
     pub min_yaw_rate: Option<f64>,
     /// Keep the paper's turning-only segment selection even when every
@@ -150,7 +151,7 @@ pub struct CalibrationArgs {
     /// vehicle heading): held, or the start of --estimate. Default 0.
     #[arg(long, allow_hyphen_values = true, help_heading = EXTRINSICS, hide_short_help = true)]
     pub heading_offset: Option<f64>,
-    /// Seed of the random batches [default: 0].
+    /// Seed of the random batches and of the final fit's random segments [default: 0].
     #[arg(long, help_heading = THREE_STEP, hide_short_help = true)]
     pub seed: Option<u64>,
     /// QP solver for input compensation, structured (default) or clarabel.

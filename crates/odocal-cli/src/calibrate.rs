@@ -461,6 +461,10 @@ fn c_e_only_command(path: &Path, args: &CalibrationArgs, method: &Method) -> Str
             HalfArg::SecondHalf => " --holdout second-half",
         });
     }
-    cmd.push_str(" --fix c_d,t_r,d --min-yaw-rate 0");
+    cmd.push_str(" --fix c_d,t_r,d");
+    // Method eiv fits every segment; the others select turning ones.
+    if !matches!(method, Method::Eiv(_)) {
+        cmd.push_str(" --min-yaw-rate 0");
+    }
     cmd
 }

@@ -221,7 +221,7 @@ fn without_the_feature_parquet_asks_for_it() {
     let e = import(&manifest("parquet/manifest.toml")).expect_err("no parquet reader").to_string();
     assert!(
         e.contains("streams.encoders.format")
-            && e.contains("--features parquet")
+            && e.contains("cargo install --locked --path crates/odocal-cli --features parquet")
             && e.contains("export the table to CSV"),
         "{e}"
     );

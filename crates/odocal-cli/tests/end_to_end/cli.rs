@@ -311,6 +311,24 @@ fn validate_on_another_drive() {
     assert_error(&o, &["--validate-on /nonexistent.csv", "No such file"]);
 }
 
+/// Method eiv (the default) fits every segment and makes no random choice
+/// of its own: the selection's flags and `--seed` are usage errors with it.
+#[test]
+fn selection_and_seed_flags_are_rejected_with_eiv() {
+    let d = tempfile::tempdir().expect("tmp");
+    let p = write(d.path(), "d.csv", &good_rows(10));
+    let p = p.to_str().expect("utf8");
+    let o = odocal(&["calibrate", p, "--min-yaw-rate", "0.2"]);
+    assert_usage_error(
+        &o,
+        &["--min-yaw-rate applies to the segment-selecting methods (three-step, batch-gn), not to --method eiv"],
+    );
+    let o = odocal(&["calibrate", p, "--method", "eiv", "--seed", "2"]);
+    assert_usage_error(&o, &["--seed applies to --method three-step only, not to --method eiv"]);
+    let o = odocal(&["calibrate", p, "--method", "batch-gn", "--seed", "2"]);
+    assert_usage_error(&o, &["--seed applies to --method three-step only, not to --method batch-gn"]);
+}
+
 #[test]
 fn three_step_flags_are_rejected_with_batch_gn() {
     let d = tempfile::tempdir().expect("tmp");

@@ -329,17 +329,19 @@ def calibrate(
     manifest's ``[calibration]`` and, in kebab case, the CLI's flags
     (``--min-yaw-rate`` is ``min_yaw_rate=``); None means the default:
 
-    - ``seed`` (int, 0): seed of the random batches;
-    - ``qp_solver`` (``"structured"`` | ``"clarabel"``);
     - ``theta0``: initial guess (dict, 4 numbers or ``"c_e,c_d,t_r,d"``);
     - ``fix``: parameters held at θ_0 (list of names or ``"c_d,t_r,d"``);
-    - ``min_yaw_rate`` (rad/s), ``segment_length``, ``segment_stride``,
-      ``validation_length`` (samples);
-    - ``keep_one_way`` (bool, False): keep the turning-only selection when
-      every selected segment turns one way (as ``--keep-one-way``; by
-      default the straight segments are added, with a warning);
-    - ``batches``, ``batch_size``, ``picks``: step 1 of the 3-step method;
-    - ``final_segments``: ``"all"`` or a number of random segments;
+    - ``segment_length``, ``segment_stride``, ``validation_length`` (samples);
+    - ``min_yaw_rate`` (rad/s): peak yaw rate for a segment to be selected,
+      and ``keep_one_way`` (bool, False): keep the turning-only selection
+      when every selected segment turns one way (as ``--keep-one-way``; by
+      default the straight segments are added, with a warning): methods
+      ``"batch-gn"`` and ``"three-step"`` only (``"eiv"`` fits every
+      segment);
+    - ``seed`` (int, 0): seed of the random batches and segments,
+      ``qp_solver`` (``"structured"`` | ``"clarabel"``), ``batches``,
+      ``batch_size``, ``picks`` (step 1), ``final_segments`` (``"all"`` or a
+      number of random segments): method ``"three-step"`` only;
     - ``max_iterations``: Gauss-Newton iterations;
     - ``holdout`` (``"first-half"`` | ``"second-half"``: the half held out
       for validation) or ``validate_on`` (another :class:`Drive`, or a list
@@ -372,6 +374,9 @@ def calibrate(
     used is ignored, saying so), and the report says what became of each
     (``"manifest_settings"``) and which noise model method ``"eiv"`` started
     from (``"noise_model_origin"``), as the CLI's JSON does.
+
+    A keyword the method does not use is an error naming it and the
+    methods that use it.
 
     ``threads`` runs the calibration on that many threads (default: all
     cores); the result does not depend on it. ``progress(stage, done,

@@ -34,7 +34,8 @@
 //! preparation, validation, report, JSON and CLI (`--method my-method`) need
 //! no change.
 //!
-//! Every random choice takes [`CalibrationOptions::seed`]; work runs in
+//! Every random choice takes a seed ([`CalibrationOptions::seed`] the
+//! three-step method's, the EIV method's bootstrap its own); work runs in
 //! parallel (rayon) and results are collected in a fixed order, so the
 //! output does not depend on the thread count.
 
@@ -172,7 +173,9 @@ pub struct CalibrationOptions {
     /// Gauss-Newton settings (every identification), including which
     /// parameters are free.
     pub identify: IdentifyOptions,
-    /// Seed of every random choice. Default 0.
+    /// Seed of the three-step method's random choices (the other methods
+    /// make none; method eiv's bootstrap and bias correction have their
+    /// own seed). Default 0.
     pub seed: u64,
     /// Plausibility guards (applied to every step-1 batch and to the final
     /// θ) and the verdict's thresholds.

@@ -596,8 +596,9 @@ impl CalibrationReport {
     /// extrinsics when the calibration involved them (with their own σ,
     /// labelled `extrinsics_sigma`, `extrinsics_sigma_covers`:
     /// [`ParamFile`]'s format), the verdict with its
-    /// reasons, `<name>_observable: false` for a free parameter named not
-    /// observable (by the result or its batch Gauss-Newton start), and provenance (`input`, `method`, `sigma`: which covariance
+    /// reasons, `<name>_observable: false` for a free parameter the result
+    /// names not observable (its `observability`, as the verdict, the text
+    /// and the JSON name them), and provenance (`input`, `method`, `sigma`: which covariance
     /// the within-drive part comes from, `sigma_covers`: what the σ covers,
     /// the odocal version, today's date).
     pub fn param_file(&self, input: &str) -> ParamFile {
@@ -608,8 +609,12 @@ impl CalibrationReport {
         if let Some(x) = &self.extrinsics {
             f.add_extrinsics(x);
         }
-        let start = self.identification().map_or(ParamSet::EMPTY, |s| s.observability.unobservable);
-        f.mark_not_observable(self.observability.unobservable.union(start).intersection(self.options.identify.free));
+        // The result's own check, as the verdict and the reports name it:
+        // for method eiv the filter's (its batch G-N start, fitted with
+        // every parameter free, may name more: c_d beside t_r on a drive
+        // without turns, which the filter determines with t_r held); after
+        // a fallback, the start's.
+        f.mark_not_observable(self.observability.unobservable.intersection(self.options.identify.free));
         f.verdict = Some(self.verdict.level.to_string());
         f.verdict_reasons = self.verdict.reasons.iter().map(|r| r.to_string()).collect();
         f

@@ -180,6 +180,32 @@ fn the_param_file_marks_parameters_not_observable() {
     assert_eq!(crate::ParamFile::read(&plain, None).expect("read").not_observable(), ["t_r"]);
 }
 
+/// The parameter file marks what the result names not observable, as the
+/// verdict, the text and the JSON do, not what method eiv's batch G-N
+/// start named with every parameter free: on the comma2k19 RAV4 drive
+/// (1 km of highway) the start names c_d, t_r and d; the filter holds t_r
+/// and d and determines c_d (about −0.8 mm, σ about 0.05 mm).
+#[test]
+fn the_param_file_marks_what_the_result_names_not_observable() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/comma2k19-rav4/manifest.toml");
+    let (drive, _) = crate::io::import::load_drive(&path).expect("import");
+    let r = calibrate(&drive, &CalibrationOptions::default()).expect("calibrate");
+    let start = r.identification().expect("the start").observability.unobservable;
+    assert!(start.contains(Param::CD), "the start names c_d: {start}");
+    let named = r.observability.unobservable;
+    assert!(named.contains(Param::TR) && !named.contains(Param::CD), "{named}");
+    let sigma = r.covariance[1][1].sqrt();
+    assert!(sigma < 0.1 * r.theta.c_d.abs(), "c_d = {} m determined: σ {sigma} m", r.theta.c_d);
+    let marked = r.param_file("manifest.toml").not_observable().join(",");
+    let want: Vec<&str> = named.intersection(r.options.identify.free).iter().map(|p| p.name()).collect();
+    assert_eq!(marked, want.join(","));
+    let text = r.render_text(None, None, None);
+    assert!(
+        text.contains(&format!("NOT OBSERVABLE from these data (estimates not to be trusted): {}\n", want.join(", "))),
+        "{text}"
+    );
+}
+
 /// The validation drives' lines count in the singular for one.
 #[test]
 fn validation_drive_lines_count_one_in_the_singular() {

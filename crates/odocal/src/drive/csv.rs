@@ -2,6 +2,7 @@
 
 use std::path::Path;
 
+use super::csv_lines::LineCounted;
 use super::{Drive, DriveBuilder, ExtraColumn, ExtraValues, Signals, SIGNAL_NAMES};
 use crate::error::{Error, Result};
 
@@ -94,23 +95,22 @@ fn csv_error(path: &Path, line: u64, column: Option<&str>, reason: String) -> Er
     Error::Csv { path: path.to_path_buf(), line, column: column.map(echo), reason }
 }
 
-/// A CSV reader's error, in words for the common cases.
-fn from_csv(path: &Path, e: ::csv::Error) -> Error {
-    let line = e.position().map(|p| p.line()).unwrap_or(0);
-    let reason = match e.kind() {
-        ::csv::ErrorKind::Utf8 { .. } => "invalid UTF-8 (the file must be UTF-8 text)".to_string(),
-        ::csv::ErrorKind::UnequalLengths { expected_len, len, .. } => {
-            format!("{len} fields, the header has {expected_len}")
-        }
-        _ => e.to_string(),
-    };
-    csv_error(path, line, None, reason)
+/// A CSV reader's error, in words for the common cases; `lines` gives the
+/// line of the record it is about.
+fn from_csv<R>(path: &Path, e: ::csv::Error, lines: &mut LineCounted<R>) -> Error {
+    csv_error(path, lines.line_of(e.position()), None, super::csv_lines::reason(&e))
 }
 
-/// The line number of the last line of `bytes` that is not blank.
+/// The line number of the last line of `bytes` that is not blank (lines
+/// end at `\n`, `\r\n` or a lone `\r`, as for the CSV parser).
 fn last_line(bytes: &[u8]) -> u64 {
     let end = bytes.iter().rposition(|b| !b.is_ascii_whitespace()).map_or(0, |i| i + 1);
-    bytes[..end].iter().filter(|&&b| b == b'\n').count() as u64 + 1
+    let breaks = bytes[..end]
+        .iter()
+        .enumerate()
+        .filter(|&(i, &b)| b == b'\n' || (b == b'\r' && bytes.get(i + 1) != Some(&b'\n')))
+        .count();
+    breaks as u64 + 1
 }
 
 /// A row with too few fields on the last line: says the file looks cut off.
@@ -224,7 +224,7 @@ impl Columns {
     /// Reads every data row; a row with the wrong number of fields, a
     /// non-number or a non-finite number in a column odocal uses, or no row
     /// at all is an error.
-    fn read(rdr: &mut ::csv::Reader<&[u8]>, headers: Vec<String>, path: &Path) -> Result<Columns> {
+    fn read(rdr: &mut ::csv::Reader<LineCounted<&[u8]>>, headers: Vec<String>, path: &Path) -> Result<Columns> {
         let numeric: Vec<bool> = headers
             .iter()
             .map(|h| {
@@ -237,9 +237,8 @@ impl Columns {
         let n = headers.len();
         let mut cols = Columns { headers, numeric, nums: vec![Vec::new(); n], text: vec![None; n], lines: Vec::new() };
         let mut record = ::csv::StringRecord::new();
-        let mut line = 1u64;
-        while rdr.read_record(&mut record).map_err(|e| from_csv(path, e))? {
-            line = record.position().map(|p| p.line()).unwrap_or(line + 1);
+        while rdr.read_record(&mut record).map_err(|e| from_csv(path, e, rdr.get_mut()))? {
+            let line = rdr.get_mut().line_of(record.position());
             if record.len() != n {
                 return Err(csv_error(path, line, None, format!("{} fields, the header has {n}", record.len())));
             }
@@ -447,9 +446,12 @@ impl Drive {
                     .into(),
             });
         }
-        let mut rdr = ::csv::ReaderBuilder::new().has_headers(true).trim(::csv::Trim::All).from_reader(bytes);
-        let headers: Vec<String> =
-            rdr.headers().map_err(|e| from_csv(path, e))?.iter().map(|h| h.to_string()).collect();
+        let mut rdr =
+            ::csv::ReaderBuilder::new().has_headers(true).trim(::csv::Trim::All).from_reader(LineCounted::new(bytes));
+        let headers: Vec<String> = match rdr.headers() {
+            Ok(h) => h.iter().map(|h| h.to_string()).collect(),
+            Err(e) => return Err(from_csv(path, e, rdr.get_mut())),
+        };
         check_header(&headers, path)?;
         let cols = Columns::read(&mut rdr, headers, path).map_err(|e| short_last_row(e, bytes))?;
         cols.into_drive(path)
@@ -589,6 +591,38 @@ mod tests {
         let s = csv_text(5, 0.025).replacen("0.05,0.5", "0.05,abc", 1);
         let m = parse(&s).expect_err("text").to_string();
         assert!(m.contains("line 4") && m.contains("'abc' is not a number"), "{m}");
+    }
+
+    /// The error of `text` with LF, CRLF and lone-CR line endings, then with
+    /// CRLF and two empty lines after line 2 (the line named moves down by
+    /// two); a `§` in `text` becomes the byte 0xFF (not UTF-8).
+    fn errors_at_every_line_ending(text: &str) -> Vec<String> {
+        let blank = text.replacen('\n', "\n\n\n", 2).replacen("\n\n\n", "\n", 1);
+        [text.to_string(), text.replace('\n', "\r\n"), text.replace('\n', "\r"), blank.replace('\n', "\r\n")]
+            .iter()
+            .map(|t| {
+                let bytes: Vec<u8> = t.split('§').map(str::as_bytes).collect::<Vec<_>>().join(&[0xFF_u8][..]);
+                Drive::parse_csv(&bytes, Path::new("d.csv")).expect_err("bad row").to_string()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn errors_name_the_line_for_lf_crlf_and_cr_files() {
+        let s = csv_text(6, 0.025);
+        for (bad, what, line) in [
+            (s.replacen("0.05,0.5", "0.05,NaN", 1), "not finite", 4),
+            (s.replacen("0.05,0.5", "0.05,abc", 1), "is not a number", 4),
+            (s.replacen("0.05,0.5,0,0,5,5,0,0", "0.05,0.5,0", 1), "3 fields, the header has 8", 4),
+            (s.replacen("0.05,", "0.01,", 1), "not strictly increasing", 4),
+            (s.replacen("0.05,0.5,0,0,5,5", "0.05,0.5,0,0,5,§", 1), "invalid UTF-8", 4),
+            (s[..s.len() - 6].to_string(), "the last row is short", 7),
+        ] {
+            for (i, m) in errors_at_every_line_ending(&bad).iter().enumerate() {
+                let want = if i == 3 { line + 2 } else { line };
+                assert!(m.starts_with(&format!("d.csv: line {want}")) && m.contains(what), "ending {i}: {m}");
+            }
+        }
     }
 
     #[test]

@@ -47,6 +47,7 @@
 
 mod concat;
 pub(crate) mod csv;
+pub(crate) mod csv_lines;
 pub(crate) mod fingerprint;
 pub(crate) mod plausibility;
 pub mod segment;

@@ -26,6 +26,7 @@ use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 
 use super::csv::{check_header, not_csv, tail_warning_at, MASK_COLUMN, PART_COLUMN, REQUIRED_COLUMNS, TRUTH_COLUMNS};
+use super::csv_lines::LineCounted;
 use super::fingerprint::Fingerprinter;
 use super::{Drive, Signals, STEP_UNIFORMITY_TOL};
 use crate::error::{Error, Result};
@@ -290,17 +291,20 @@ fn scan(path: &Path, limits: &PhysicalLimits) -> std::result::Result<DriveStream
     if head.starts_with(b"\xEF\xBB\xBF") {
         input.consume(3);
     }
-    let mut rdr = ::csv::ReaderBuilder::new().has_headers(true).trim(::csv::Trim::All).from_reader(input);
+    let mut rdr =
+        ::csv::ReaderBuilder::new().has_headers(true).trim(::csv::Trim::All).from_reader(LineCounted::new(input));
     let headers: Vec<String> = rdr.headers().map_err(|e| refused(&e))?.iter().map(str::to_string).collect();
     check_header(&headers, path).map_err(|e| refused(&e))?;
     let mut scanner = Scanner::new(&headers, *limits)?;
     let mut record = ::csv::StringRecord::new();
-    let mut line = 1u64;
-    while rdr.read_record(&mut record).map_err(|e| refused(&e))? {
-        line = record.position().map(|p| p.line()).unwrap_or(line + 1);
+    let bad_row = |e: ::csv::Error, lines: &mut LineCounted<_>| {
+        Stop::Refused(format!("line {}: {}", lines.line_of(e.position()), super::csv_lines::reason(&e)))
+    };
+    while rdr.read_record(&mut record).map_err(|e| bad_row(e, rdr.get_mut()))? {
+        let line = rdr.get_mut().line_of(record.position());
         scanner.row(&record).map_err(|what| Stop::Refused(format!("line {line}: {what}")))?;
     }
-    let counted = rdr.into_inner().into_inner();
+    let counted = rdr.into_inner().into_inner().into_inner();
     let warnings = tail_warning_at(counted.last_byte, counted.last_line, path).into_iter().collect();
     scanner.finish(path, warnings)
 }

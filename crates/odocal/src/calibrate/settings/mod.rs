@@ -165,15 +165,18 @@ settings! {
         /// instead of estimating them. Default false.
         #[serde(default)]
         pub auto_fix: Option<bool>,
-        /// `seed`: seed of every random choice (the three-step method's
-        /// batches). Default 0.
+        /// `seed`: seed of the three-step method's random choices (its
+        /// batches and the final fit's segments; three-step only: method
+        /// eiv's bootstrap and bias correction take `bootstrap_seed`).
+        /// Default 0.
         #[serde(default)]
         pub seed: Option<u64>,
         /// `max_iterations`: Gauss-Newton iterations. Default 5.
         #[serde(default)]
         pub max_iterations: Option<usize>,
         /// `min_yaw_rate`: peak yaw rate for a segment to be selected,
-        /// rad/s (batch-gn, three-step; eiv uses every segment). Default 0.15.
+        /// rad/s (batch-gn, three-step only: method eiv, its batch G-N
+        /// start and fallback fit every segment). Default 0.15.
         #[serde(default)]
         pub min_yaw_rate: Option<f64>,
         /// `keep_one_way`: keep the turning-only selection when every

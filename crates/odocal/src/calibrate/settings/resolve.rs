@@ -116,13 +116,13 @@ static METHOD_KEYS: [MethodKeys; 4] = [
         },
     },
     MethodKeys {
-        keys: &["batches", "batch_size", "picks", "final_segments", "qp_solver"],
+        keys: &["seed", "batches", "batch_size", "picks", "final_segments", "qp_solver"],
         uses: |m| matches!(m, Method::ThreeStep(_)),
         owner: |c| format!("{} only", c.method("three-step", true)),
         ignored: |_, m| format!("applies to method three-step only, not to {m}"),
     },
     MethodKeys {
-        keys: &["keep_one_way"],
+        keys: &["min_yaw_rate", "keep_one_way"],
         uses: |m| !matches!(m, Method::Eiv(_)),
         owner: |_| "the segment-selecting methods (three-step, batch-gn)".into(),
         ignored: |_, _| "method eiv fits every segment, it does not select turning ones".into(),

@@ -265,6 +265,78 @@ fn noise_errors_name_the_key_and_the_tables_line() {
 }
 
 /// A manifest's noise model and extrinsics.
+/// The methods that use each key: every method, or the ones named.
+fn users(key: &str) -> &'static [&'static str] {
+    const ALL: &[&str] = &["eiv", "batch-gn", "three-step"];
+    match key {
+        "seed" | "batches" | "batch_size" | "picks" | "final_segments" | "qp_solver" => &["three-step"],
+        // Method eiv, its batch G-N start and fallback fit every segment.
+        "min_yaw_rate" | "keep_one_way" => &["batch-gn", "three-step"],
+        "noise_model" | "known_noise" | "fix_noise" | "fallback" | "eiv_window" | "quantisation"
+        | "quantisation_level" | "lateral_noise" | "heading_noise" | "bootstrap" | "bootstrap_seed"
+        | "correct_c_e_bias" | "correct_bias" => &["eiv"],
+        "method" | "theta0" | "fix" | "auto_fix" | "max_iterations" | "segment_length" | "segment_stride"
+        | "validation_length" | "estimate" | "lever_arm" | "heading_offset" => ALL,
+        _ => panic!("key {key}: say which methods use it"),
+    }
+}
+
+/// Every key, given with a method that does not use it, is a usage error
+/// naming the flag (the keyword in Python) and the methods that use it; in
+/// a manifest it is reported ignored. Given with a method that uses it, it
+/// is taken, and a manifest's is reported used.
+#[test]
+fn a_key_is_refused_or_ignored_exactly_where_its_method_does_not_use_it() {
+    let values = json!({
+        "theta0": [2.0, 0.0, 1.6, 0.0], "fix": "d", "auto_fix": true, "seed": 3, "max_iterations": 7,
+        "min_yaw_rate": 0.1, "keep_one_way": true, "segment_length": 400, "segment_stride": 50,
+        "validation_length": 800, "estimate": ["lever-arm"], "lever_arm": [1.0, 0.5], "heading_offset": 0.01,
+        "batches": 9, "batch_size": 8, "picks": 3, "final_segments": 5, "qp_solver": "clarabel",
+        "noise_model": {"wheel_white_rel_sigma": 0.02}, "known_noise": "pose_white", "fix_noise": true,
+        "fallback": false, "eiv_window": 1500, "quantisation": "process", "quantisation_level": "given",
+        "lateral_noise": "stated", "heading_noise": "tied", "bootstrap": 10, "bootstrap_seed": 4,
+        "correct_c_e_bias": 2, "correct_bias": 2
+    });
+    for key in Settings::KEYS.iter().filter(|k| **k != "method") {
+        let value = values.get(*key).unwrap_or_else(|| panic!("a value for {key}")).clone();
+        let stated = json_settings(json!({ *key: value }));
+        let m = ManifestSettings { manifest: "m.toml".into(), settings: stated.clone(), reference: None };
+        for method in ["eiv", "batch-gn", "three-step"] {
+            let caller = Settings { method: Some(method.parse().expect("method")), ..stated.clone() };
+            let flag = Caller::CommandLine.name(key, &caller);
+            let cli = caller.resolve(&[], Caller::CommandLine);
+            let py = caller.resolve(&[], Caller::Python);
+            let from_manifest = json_settings(json!({ "method": method }))
+                .resolve(std::slice::from_ref(&m), Caller::CommandLine)
+                .expect("a manifest's key never fails");
+            let outcome = &from_manifest.account.uses[0].outcome;
+            if users(key).contains(&method) {
+                assert!(cli.is_ok() && py.is_ok(), "{method} uses {key}: {:?}", cli.err());
+                assert_eq!(outcome, &SettingOutcome::Used, "{method}, manifest {key}");
+            } else {
+                let cli = cli.map(|_| ()).expect_err("a usage error").to_string();
+                let owners = users(key).join(", ");
+                assert!(cli.starts_with(&format!("{flag} appl")), "{method}, {key}: {cli}");
+                assert!(users(key).iter().all(|u| cli.contains(u)), "{method}, {key} names {owners}: {cli}");
+                assert!(matches!(cli_error(&caller), Error::InvalidFlags(_)), "{method}, {key}");
+                let py = py.map(|_| ()).expect_err("an error").to_string();
+                assert!(py.starts_with(&format!("invalid option `method`: {key} appl")), "{method}, {key}: {py}");
+                assert!(matches!(outcome, SettingOutcome::Ignored { .. }), "{method}, manifest {key}: {outcome:?}");
+                assert_eq!(
+                    from_manifest.options,
+                    json_settings(json!({ "method": method })).to_options(Caller::Python).expect("defaults"),
+                    "{method} ignores the manifest's {key}"
+                );
+            }
+        }
+    }
+}
+
+/// The error the command line's settings resolve to.
+fn cli_error(s: &Settings) -> Error {
+    s.resolve(&[], Caller::CommandLine).map(|_| ()).expect_err("an error")
+}
+
 fn manifest() -> ManifestSettings {
     let settings = Settings {
         noise_model: Some(NoiseModelSetting::Stated(NoiseSpec {

@@ -263,6 +263,15 @@ impl SourceSpec {
             SourceSpec::Parquet { .. } => "parquet",
         }
     }
+
+    /// The kind of source in words, with its article ("an MCAP"), for messages.
+    pub(crate) fn kind(&self) -> &'static str {
+        match self {
+            SourceSpec::Csv { .. } => "a CSV",
+            SourceSpec::Mcap { .. } => "an MCAP",
+            SourceSpec::Parquet { .. } => "a Parquet",
+        }
+    }
 }
 
 /// Which time of a bag message a `format = "mcap"` stream uses

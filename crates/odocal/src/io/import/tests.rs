@@ -351,6 +351,45 @@ fn backwards_time_names_file_and_line() {
     assert!(m.contains("p.csv: line 7, column 't'") && m.contains("time goes backwards (0.25 after 0.4 s)"), "{m}");
 }
 
+/// The errors of the small case with `p.csv` and `w.csv` edited, converted
+/// to CRLF when asked: the whole import's, then the streamed import's.
+fn whole_and_streamed_errors(
+    crlf: bool,
+    edit_p: impl Fn(String) -> String,
+    edit_w: impl Fn(String) -> String,
+) -> [String; 2] {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = small_case(dir.path());
+    for (file, edit) in [("p.csv", &edit_p as &dyn Fn(String) -> String), ("w.csv", &edit_w)] {
+        let text = edit(std::fs::read_to_string(dir.path().join(file)).expect("read"));
+        let text = if crlf { text.replace('\n', "\r\n") } else { text };
+        std::fs::write(dir.path().join(file), text).expect("write");
+    }
+    let whole = load_drive(&path).map(|_| ()).expect_err("bad row").to_string();
+    let m = Manifest::from_path(&path).expect("manifest");
+    let mut s = stream::reader::ManifestStream::open(&m, stream::StreamOptions { warm_up_s: 20.0 }).expect("open");
+    let streamed = loop {
+        match s.next_chunk(400) {
+            Ok(Some(_)) => {}
+            Ok(None) => panic!("the streamed import took the bad row"),
+            Err(e) => break e.to_string(),
+        }
+    };
+    [whole, streamed]
+}
+
+#[test]
+fn stream_csv_errors_name_the_line_for_lf_and_crlf() {
+    for crlf in [false, true] {
+        for m in whole_and_streamed_errors(crlf, |p| p.replacen("\n0.5,5,", "\n0.5,abc,", 1), |w| w) {
+            assert!(m.contains("p.csv: line 7, column 'x': 'abc' is not a number"), "crlf {crlf}: {m}");
+        }
+        for m in whole_and_streamed_errors(crlf, |p| p, |w| w.replacen("\n0.1,5,5\n", "\n0.1,5\n", 1)) {
+            assert!(m.contains("w.csv: line 12") && m.contains("2 fields, the header has 3"), "crlf {crlf}: {m}");
+        }
+    }
+}
+
 #[test]
 fn no_overlap_is_an_error() {
     let dir = tempfile::tempdir().expect("tempdir");

@@ -6,6 +6,7 @@ use std::io::BufRead;
 use std::path::Path;
 
 use super::{Table, Wanted};
+use crate::drive::csv_lines::{reason, LineCounted};
 use crate::error::{Error, Result};
 use crate::io::import::limits::echo;
 use crate::io::import::manifest::Manifest;
@@ -23,17 +24,18 @@ pub(super) fn read(m: &Manifest, name: &str, path: &Path, time: &str, wanted: &[
     if head.starts_with(b"\xEF\xBB\xBF") {
         buffered.consume(3);
     }
-    let mut rdr = ::csv::ReaderBuilder::new().has_headers(true).trim(::csv::Trim::All).from_reader(buffered);
-    let csv_err = |e: ::csv::Error| match e.kind() {
+    let mut rdr =
+        ::csv::ReaderBuilder::new().has_headers(true).trim(::csv::Trim::All).from_reader(LineCounted::new(buffered));
+    let csv_err = |e: ::csv::Error, lines: &mut LineCounted<_>| match e.kind() {
         ::csv::ErrorKind::Io(io) => cannot_read(io),
-        _ => Error::Csv {
-            path: path.to_path_buf(),
-            line: e.position().map(|p| p.line()).unwrap_or(0),
-            column: None,
-            reason: e.to_string(),
-        },
+        _ => {
+            Error::Csv { path: path.to_path_buf(), line: lines.line_of(e.position()), column: None, reason: reason(&e) }
+        }
     };
-    let headers: Vec<String> = rdr.headers().map_err(csv_err)?.iter().map(str::to_string).collect();
+    let headers: Vec<String> = match rdr.headers() {
+        Ok(h) => h.iter().map(str::to_string).collect(),
+        Err(e) => return Err(csv_err(e, rdr.get_mut())),
+    };
     crate::drive::csv::header_characters(&headers, path)?;
     let mut all: Vec<Wanted> = vec![Wanted { column: time.to_string(), key: format!("streams.{name}.time_column") }];
     all.extend(wanted.iter().cloned());
@@ -58,8 +60,8 @@ pub(super) fn read(m: &Manifest, name: &str, path: &Path, time: &str, wanted: &[
     let mut lines: Vec<u64> = Vec::new();
     let mut record = ::csv::StringRecord::new();
     let mut line = 1u64;
-    while rdr.read_record(&mut record).map_err(csv_err)? {
-        line = record.position().map(|p| p.line()).unwrap_or(line + 1);
+    while rdr.read_record(&mut record).map_err(|e| csv_err(e, rdr.get_mut()))? {
+        line = rdr.get_mut().line_of(record.position());
         for (c, &j) in idx.iter().enumerate() {
             let field = record.get(j).unwrap_or("");
             let v: f64 = field.parse().map_err(|_| Error::Csv {
@@ -77,7 +79,7 @@ pub(super) fn read(m: &Manifest, name: &str, path: &Path, time: &str, wanted: &[
     for (c, w) in all.iter().enumerate().skip(1) {
         columns.insert(w.column.clone(), std::mem::take(&mut data[c]));
     }
-    let last_byte = rdr.get_ref().get_ref().last_byte();
+    let last_byte = rdr.get_ref().get_ref().get_ref().last_byte();
     let warnings = crate::drive::csv::tail_warning_at(last_byte, line, path).into_iter().collect();
     Ok(Table { t_s, columns, source: path.display().to_string(), lines: Some(lines), warnings })
 }

@@ -99,8 +99,8 @@ pub(crate) fn read_table(m: &Manifest, name: &str, wanted: &[Wanted]) -> Result<
         SourceSpec::Parquet { .. } => Err(m.error(
             &format!("streams.{name}.format"),
             "\"parquet\" streams need odocal built with the cargo feature `parquet` (off by default), which this \
-             build lacks; rebuild with `--features parquet` (the CLI: `cargo install --path crates/odocal-cli \
-             --features parquet`) or export the table to CSV",
+             build lacks; rebuild with `--features parquet` (the CLI: `cargo install --locked --path \
+             crates/odocal-cli --features parquet`) or export the table to CSV",
         )),
     }
 }

@@ -115,7 +115,7 @@ impl Default for StreamOptions {
 /// Why a manifest cannot be imported as a stream (`None` when it can).
 pub(crate) fn not_streamable(m: &Manifest) -> Option<String> {
     if let Some((name, s)) = m.streams.iter().find(|(_, s)| !matches!(s.source, SourceSpec::Csv { .. })) {
-        return Some(format!("streams.{name} is a {} source, read whole", s.source.format()));
+        return Some(format!("streams.{name} is {} source, read whole", s.source.kind()));
     }
     None
 }

@@ -6,6 +6,7 @@ use std::io::BufRead;
 use std::path::PathBuf;
 
 use super::{RawStream, StreamOptions};
+use crate::drive::csv_lines::LineCounted;
 use crate::drive::StreamChunk;
 use crate::error::{Error, Result};
 use crate::io::import::limits::echo;
@@ -15,7 +16,7 @@ use crate::io::import::manifest::{Manifest, SourceSpec};
 struct CsvRows {
     name: String,
     path: PathBuf,
-    reader: ::csv::Reader<std::io::BufReader<std::fs::File>>,
+    reader: ::csv::Reader<LineCounted<std::io::BufReader<std::fs::File>>>,
     headers: Vec<String>,
     /// Field index of the time, then of each column.
     idx: Vec<usize>,
@@ -44,9 +45,14 @@ impl CsvRows {
         if head.starts_with(b"\xEF\xBB\xBF") {
             buffered.consume(3);
         }
-        let mut reader = ::csv::ReaderBuilder::new().has_headers(true).trim(::csv::Trim::All).from_reader(buffered);
-        let headers: Vec<String> =
-            reader.headers().map_err(|e| csv_error(&path, e))?.iter().map(str::to_string).collect();
+        let mut reader = ::csv::ReaderBuilder::new()
+            .has_headers(true)
+            .trim(::csv::Trim::All)
+            .from_reader(LineCounted::new(buffered));
+        let headers: Vec<String> = match reader.headers() {
+            Ok(h) => h.iter().map(str::to_string).collect(),
+            Err(e) => return Err(csv_error(&path, e, reader.get_mut())),
+        };
         crate::drive::csv::header_characters(&headers, &path)?;
         let time = spec.time_column.as_deref().unwrap_or_default();
         let mut idx = Vec::new();
@@ -76,11 +82,12 @@ impl CsvRows {
     /// The next row: time (in the stream's unit), values and line; `None`
     /// at the end of the file.
     fn next(&mut self) -> Result<Option<(f64, Vec<f64>, u64)>> {
-        if !self.reader.read_record(&mut self.record).map_err(|e| csv_error(&self.path, e))? {
+        let read = self.reader.read_record(&mut self.record);
+        if !read.map_err(|e| csv_error(&self.path, e, self.reader.get_mut()))? {
             self.ended = true;
             return Ok(None);
         }
-        self.line = self.record.position().map(|p| p.line()).unwrap_or(self.line + 1);
+        self.line = self.reader.get_mut().line_of(self.record.position());
         let mut v = Vec::with_capacity(self.idx.len());
         for &j in &self.idx {
             let field = self.record.get(j).unwrap_or("");
@@ -100,14 +107,15 @@ impl CsvRows {
     }
 }
 
-fn csv_error(path: &std::path::Path, e: ::csv::Error) -> Error {
+/// A CSV reader's error; `lines` gives the line of the record it is about.
+fn csv_error<R>(path: &std::path::Path, e: ::csv::Error, lines: &mut LineCounted<R>) -> Error {
     match e.kind() {
         ::csv::ErrorKind::Io(io) => Error::io(path, std::io::Error::new(io.kind(), io.to_string())),
         _ => Error::Csv {
             path: path.to_path_buf(),
-            line: e.position().map(|p| p.line()).unwrap_or(0),
+            line: lines.line_of(e.position()),
             column: None,
-            reason: e.to_string(),
+            reason: crate::drive::csv_lines::reason(&e),
         },
     }
 }

@@ -96,7 +96,10 @@ fn unsupported_manifests_are_refused_with_the_reason() {
     assert_eq!(not_streamable(&m), None, "a road bank is streamed");
     let m = manifest("../../examples/psu-mapping-van/manifest-mcap.toml");
     let e = RawStream::new(&m, StreamOptions::default()).expect_err("mcap").to_string();
-    assert!(e.contains("cannot be imported as a stream") && e.contains("mcap"), "{e}");
+    assert!(e.contains("cannot be imported as a stream") && e.contains("is an MCAP source, read whole"), "{e}");
+    let m = manifest("tests/data/parquet/manifest.toml");
+    let why = not_streamable(&m).expect("parquet is read whole");
+    assert!(why.ends_with("is a Parquet source, read whole"), "{why}");
 }
 
 /// The heading derived from the track (no `[pose.heading]`; the samples at

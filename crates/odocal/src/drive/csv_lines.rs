@@ -1,0 +1,157 @@
+//! The file line of each CSV record, for any line ending.
+//!
+//! The `csv` crate's positions count `\n` bytes read before a record. A
+//! CRLF file's record begins before the `\n` of the line ending in front of
+//! it, so that count names the line before the record's, and a file of
+//! lone CRs is all "line 1". [`LineCounted`] sits under the CSV reader,
+//! notes where each line that is not empty starts as the bytes go by, and
+//! gives the line of a record from the record's byte offset: the first
+//! such line at or after it (the parser skips empty lines).
+
+use std::collections::VecDeque;
+use std::io::Read;
+
+/// A reader that notes the byte offset and the number of every line that
+/// is not empty. Lines end at `\n`, `\r\n` or a lone `\r`, as for the CSV
+/// parser.
+#[derive(Debug)]
+pub(crate) struct LineCounted<R> {
+    inner: R,
+    /// Bytes read so far.
+    offset: u64,
+    /// The number of the line the next byte is on.
+    line: u64,
+    /// The next byte starts a line.
+    at_start: bool,
+    /// The last byte read was a `\r`.
+    after_cr: bool,
+    /// (offset, line) of the starts of lines that are not empty, from the
+    /// last record asked about on.
+    starts: VecDeque<(u64, u64)>,
+}
+
+impl<R> LineCounted<R> {
+    /// Wraps `inner`, whose first byte is at offset 0 on line 1.
+    pub(crate) fn new(inner: R) -> LineCounted<R> {
+        LineCounted { inner, offset: 0, line: 1, at_start: true, after_cr: false, starts: VecDeque::new() }
+    }
+
+    /// The line of the record that starts at byte `offset` (a `csv`
+    /// position's [`byte`](::csv::Position::byte)). Records are asked
+    /// about in file order: the lines before `offset` are forgotten.
+    pub(crate) fn line_at(&mut self, offset: u64) -> u64 {
+        while self.starts.front().is_some_and(|&(at, _)| at < offset) {
+            self.starts.pop_front();
+        }
+        self.starts.front().map_or(self.line, |&(_, line)| line)
+    }
+
+    /// The line of a `csv` position (the last line read when there is none).
+    pub(crate) fn line_of(&mut self, pos: Option<&::csv::Position>) -> u64 {
+        match pos {
+            Some(p) => self.line_at(p.byte()),
+            None => self.line,
+        }
+    }
+
+    /// The reader underneath.
+    pub(crate) fn get_ref(&self) -> &R {
+        &self.inner
+    }
+
+    /// The reader underneath, taken back.
+    pub(crate) fn into_inner(self) -> R {
+        self.inner
+    }
+
+    fn note(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            match b {
+                b'\n' if self.after_cr => {}
+                b'\n' | b'\r' => {
+                    self.line += 1;
+                    self.at_start = true;
+                }
+                _ if self.at_start => {
+                    self.starts.push_back((self.offset, self.line));
+                    self.at_start = false;
+                }
+                _ => {}
+            }
+            self.after_cr = b == b'\r';
+            self.offset += 1;
+        }
+    }
+}
+
+impl<R: Read> Read for LineCounted<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.note(&buf[..n]);
+        Ok(n)
+    }
+}
+
+/// A CSV reader's error in words, without the reader's own position
+/// (the caller names the line, from [`LineCounted`]).
+pub(crate) fn reason(e: &::csv::Error) -> String {
+    match e.kind() {
+        ::csv::ErrorKind::Utf8 { .. } => "invalid UTF-8 (the file must be UTF-8 text)".to_string(),
+        ::csv::ErrorKind::UnequalLengths { expected_len, len, .. } => {
+            format!("{len} fields, the header has {expected_len}")
+        }
+        _ => e.to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The line of every record of `text` (one field per record, its text
+    /// the line number expected), read in chunks of `chunk` bytes.
+    fn lines(text: &str, chunk: usize) -> Vec<(u64, String)> {
+        struct Chunked<'a>(&'a [u8], usize);
+        impl Read for Chunked<'_> {
+            fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+                let n = self.0.len().min(self.1).min(buf.len());
+                buf[..n].copy_from_slice(&self.0[..n]);
+                self.0 = &self.0[n..];
+                Ok(n)
+            }
+        }
+        let mut rdr = ::csv::ReaderBuilder::new()
+            .has_headers(true)
+            .trim(::csv::Trim::All)
+            .from_reader(LineCounted::new(Chunked(text.as_bytes(), chunk)));
+        let mut out = Vec::new();
+        let mut record = ::csv::StringRecord::new();
+        while rdr.read_record(&mut record).expect("valid CSV") {
+            let line = rdr.get_mut().line_of(record.position());
+            out.push((line, record[0].to_string()));
+        }
+        out
+    }
+
+    fn check(text: &str) {
+        for chunk in [1, 2, 3, 1000] {
+            for (line, want) in lines(text, chunk) {
+                assert_eq!(line.to_string(), want, "chunk {chunk}, text {text:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn every_line_ending_gives_the_line_of_the_record() {
+        let lf = "h\n2\n3\n\n5\n\n\n8\n9";
+        check(lf);
+        check(&lf.replace('\n', "\r\n"));
+        check(&lf.replace('\n', "\r"));
+        check("h\r\n2\n3\r4\r\n\r\n6\n");
+    }
+
+    #[test]
+    fn a_quoted_field_over_lines_counts_its_lines() {
+        check("h,x\n2,\"a\nb\"\n4,y\r\n5,\"c\r\n\r\nd\"\r\n8,z\r\n");
+    }
+}
