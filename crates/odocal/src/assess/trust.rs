@@ -801,13 +801,10 @@ pub(crate) fn fallback_gap_reasons(
 ) -> Vec<VerdictReason> {
     let base = n.without_gap();
     let excess = n.t_r_above_start[Param::TR.index()];
-    let above =
-        base[Param::TR.index()].filter(|s| *s > 0.0 && free.contains(Param::TR)).and_then(|sigma| {
-            let sigmas = excess / sigma;
-            (sigmas.is_finite() && sigmas > opts.max_fallback_gap_sigmas).then_some(
-                VerdictReason::TrackWidthAboveStart { estimate: theta.t_r, start: theta.t_r - excess, sigma, sigmas },
-            )
-        });
+    let above = base[Param::TR.index()].filter(|_| free.contains(Param::TR)).and_then(|sigma| {
+        let sigmas = beyond_limit(excess, sigma, opts)?;
+        Some(VerdictReason::TrackWidthAboveStart { estimate: theta.t_r, start: theta.t_r - excess, sigma, sigmas })
+    });
     let unchecked =
         n.fallback_unchecked.clone().map(|u| VerdictReason::FallbackUnchecked { clamped: u.clamped, held: u.held });
     let named = n.fallback_unchecked.as_ref().is_some_and(|u| u.clamped.contains(&NoiseSource::WheelCommon));
@@ -818,17 +815,14 @@ pub(crate) fn fallback_gap_reasons(
     free.intersection(ParamSet::THETA)
         .iter()
         .filter_map(|p| {
-            let (i, gap) = (p.index(), n.fallback_gap[p.index()]);
-            let sigma = base[i]?;
-            let sigmas = gap / sigma;
-            (sigma > 0.0 && sigmas.is_finite() && sigmas > opts.max_fallback_gap_sigmas).then(|| {
-                let value = p.value(theta);
-                if n.gap_is_refit {
-                    VerdictReason::RefitDisagrees { param: p, estimate: value, gap, sigma, sigmas }
-                } else {
-                    let released = n.gap_released_noise.clone();
-                    VerdictReason::FallbackDisagrees { param: p, fallback: value, gap, sigma, sigmas, released }
-                }
+            let (gap, sigma) = (n.fallback_gap[p.index()], base[p.index()]?);
+            let sigmas = beyond_limit(gap, sigma, opts)?;
+            let value = p.value(theta);
+            Some(if n.gap_is_refit {
+                VerdictReason::RefitDisagrees { param: p, estimate: value, gap, sigma, sigmas }
+            } else {
+                let released = n.gap_released_noise.clone();
+                VerdictReason::FallbackDisagrees { param: p, fallback: value, gap, sigma, sigmas, released }
             })
         })
         .chain(above)
@@ -852,12 +846,17 @@ fn floor_gap_reasons(
         .iter()
         .filter_map(|p| {
             let (gap, sigma) = (n.heading_drift_floor_gap[p.index()], base[p.index()]?);
-            let sigmas = gap / sigma;
-            (sigma > 0.0 && sigmas.is_finite() && sigmas > opts.max_fallback_gap_sigmas).then(|| {
-                VerdictReason::HeadingDriftFloorDisagrees { param: p, estimate: p.value(theta), gap, sigma, sigmas }
-            })
+            let sigmas = beyond_limit(gap, sigma, opts)?;
+            Some(VerdictReason::HeadingDriftFloorDisagrees { param: p, estimate: p.value(theta), gap, sigma, sigmas })
         })
         .collect()
+}
+
+/// `gap / sigma` where it exceeds [`TrustOptions::max_fallback_gap_sigmas`]
+/// (σ positive, the ratio finite): the one test of every gap reason.
+fn beyond_limit(gap: f64, sigma: f64, opts: &TrustOptions) -> Option<f64> {
+    let sigmas = gap / sigma;
+    (sigma > 0.0 && sigmas.is_finite() && sigmas > opts.max_fallback_gap_sigmas).then_some(sigmas)
 }
 
 /// The verdict on a calibration (see the module docs).

@@ -446,8 +446,7 @@ impl Drive {
                     .into(),
             });
         }
-        let mut rdr =
-            ::csv::ReaderBuilder::new().has_headers(true).trim(::csv::Trim::All).from_reader(LineCounted::new(bytes));
+        let mut rdr = super::csv_lines::reader(bytes);
         let headers: Vec<String> = match rdr.headers() {
             Ok(h) => h.iter().map(|h| h.to_string()).collect(),
             Err(e) => return Err(from_csv(path, e, rdr.get_mut())),

@@ -92,6 +92,12 @@ impl<R: Read> Read for LineCounted<R> {
     }
 }
 
+/// The CSV reader every table of the crate is read with: a header row,
+/// fields trimmed, over [`LineCounted`] so that errors name the file line.
+pub(crate) fn reader<R: Read>(inner: R) -> ::csv::Reader<LineCounted<R>> {
+    ::csv::ReaderBuilder::new().has_headers(true).trim(::csv::Trim::All).from_reader(LineCounted::new(inner))
+}
+
 /// A CSV reader's error in words, without the reader's own position
 /// (the caller names the line, from [`LineCounted`]).
 pub(crate) fn reason(e: &::csv::Error) -> String {
@@ -120,10 +126,7 @@ mod tests {
                 Ok(n)
             }
         }
-        let mut rdr = ::csv::ReaderBuilder::new()
-            .has_headers(true)
-            .trim(::csv::Trim::All)
-            .from_reader(LineCounted::new(Chunked(text.as_bytes(), chunk)));
+        let mut rdr = reader(Chunked(text.as_bytes(), chunk));
         let mut out = Vec::new();
         let mut record = ::csv::StringRecord::new();
         while rdr.read_record(&mut record).expect("valid CSV") {

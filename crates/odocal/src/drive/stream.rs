@@ -291,8 +291,7 @@ fn scan(path: &Path, limits: &PhysicalLimits) -> std::result::Result<DriveStream
     if head.starts_with(b"\xEF\xBB\xBF") {
         input.consume(3);
     }
-    let mut rdr =
-        ::csv::ReaderBuilder::new().has_headers(true).trim(::csv::Trim::All).from_reader(LineCounted::new(input));
+    let mut rdr = super::csv_lines::reader(input);
     let headers: Vec<String> = rdr.headers().map_err(|e| refused(&e))?.iter().map(str::to_string).collect();
     check_header(&headers, path).map_err(|e| refused(&e))?;
     let mut scanner = Scanner::new(&headers, *limits)?;

@@ -284,7 +284,7 @@ fn heading_drift_test<'a>(
     let Some(SeparateFit { model, pass }) = separate else {
         if heading_drift::held_at_floor(opts, tied.eta[NoiseSource::PoseDrift.index()]) {
             let o = heading_drift::options_without_floor(opts);
-            let p = Problem::new(prob.input, prob.windows.clone(), &o);
+            let p = heading_drift::problem_at(prob, &o);
             // Its θ where it stopped: converged, or at its iteration limit on
             // the way (the floor's effect is then at least what it reached).
             test.theta_without_floor = run_passes(&p, theta_start, &o).ok().map(|f| f.theta);

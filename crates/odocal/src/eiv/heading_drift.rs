@@ -186,8 +186,8 @@ fn options_at(opts: &EivOptions, r: f64) -> EivOptions {
     o
 }
 
-/// The problem of `prob` at ratio `r` (its own filter-pass counter).
-fn problem_at<'a>(prob: &Problem<'a>, opts: &EivOptions) -> Problem<'a> {
+/// The problem of `prob` under `opts` (its own filter-pass counter).
+pub(super) fn problem_at<'a>(prob: &Problem<'a>, opts: &EivOptions) -> Problem<'a> {
     Problem::new(prob.input, prob.windows.clone(), opts)
 }
 

@@ -24,8 +24,7 @@ pub(super) fn read(m: &Manifest, name: &str, path: &Path, time: &str, wanted: &[
     if head.starts_with(b"\xEF\xBB\xBF") {
         buffered.consume(3);
     }
-    let mut rdr =
-        ::csv::ReaderBuilder::new().has_headers(true).trim(::csv::Trim::All).from_reader(LineCounted::new(buffered));
+    let mut rdr = crate::drive::csv_lines::reader(buffered);
     let csv_err = |e: ::csv::Error, lines: &mut LineCounted<_>| match e.kind() {
         ::csv::ErrorKind::Io(io) => cannot_read(io),
         _ => {

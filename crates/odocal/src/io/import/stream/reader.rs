@@ -45,10 +45,7 @@ impl CsvRows {
         if head.starts_with(b"\xEF\xBB\xBF") {
             buffered.consume(3);
         }
-        let mut reader = ::csv::ReaderBuilder::new()
-            .has_headers(true)
-            .trim(::csv::Trim::All)
-            .from_reader(LineCounted::new(buffered));
+        let mut reader = crate::drive::csv_lines::reader(buffered);
         let headers: Vec<String> = match reader.headers() {
             Ok(h) => h.iter().map(str::to_string).collect(),
             Err(e) => return Err(csv_error(&path, e, reader.get_mut())),
