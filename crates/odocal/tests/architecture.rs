@@ -15,6 +15,11 @@
 //! items (`research_pub!`, `research_use!`) do not count: without the
 //! feature `research` they are crate-internal.
 //!
+//! **Size.** In the product crates (the library, the CLI, the Python
+//! bindings, the report, online and history crates) no function is longer
+//! than 120 lines from `fn` to its closing brace and no source file longer
+//! than 1 000 lines outside its test items.
+//!
 //! **Self-contained.** No source, test, example, manifest, script or doc
 //! refers to data beside the repository (a sibling `shared` folder): everything a clone
 //! needs is in it (`data/`).
@@ -115,13 +120,13 @@ fn is_char_literal(s: &str) -> bool {
     }
 }
 
-/// `code` with every `#[cfg(test)]` item blanked (a `mod tests { … }`, a
-/// test-only function or `use`).
-fn without_test_items(code: &str) -> String {
-    let mut out = code.to_string();
+/// The byte ranges of the `#[cfg(test)]` items in `code` (a `mod tests {
+/// … }`, a test-only function or `use`), from the attribute to the item's end.
+fn test_items(code: &str) -> Vec<std::ops::Range<usize>> {
+    let mut out = Vec::new();
     let mut from = 0;
-    while let Some(at) = out[from..].find("#[cfg(test)]").map(|p| p + from) {
-        let body = &out[at..];
+    while let Some(at) = code[from..].find("#[cfg(test)]").map(|p| p + from) {
+        let body = &code[at..];
         // The item ends at the first `;` before any `{`, or at the `}` matching its first `{`.
         let (semi, brace) = (body.find(';'), body.find('{'));
         let end = match (semi, brace) {
@@ -147,9 +152,18 @@ fn without_test_items(code: &str) -> String {
             }
             (None, None) => body.len(),
         };
-        let blanked: String = body[..end].chars().map(|c| if c == '\n' { '\n' } else { ' ' }).collect();
-        out.replace_range(at..at + end, &blanked);
-        from = at + blanked.len();
+        out.push(at..at + end);
+        from = at + end;
+    }
+    out
+}
+
+/// `code` with every `#[cfg(test)]` item ([`test_items`]) blanked (newlines kept).
+fn without_test_items(code: &str) -> String {
+    let mut out = code.to_string();
+    for range in test_items(code) {
+        let blanked: String = code[range.clone()].chars().map(|c| if c == '\n' { '\n' } else { ' ' }).collect();
+        out.replace_range(range, &blanked);
     }
     out
 }
@@ -450,4 +464,98 @@ fn nothing_refers_to_shared_outside_the_repository() {
         found.len(),
         found.join("\n")
     );
+}
+
+/// The product crates: the library and the layers over it that users run.
+const PRODUCT_CRATES: [&str; 6] =
+    ["odocal", "odocal-cli", "odocal-py", "odocal-report", "odocal-online", "odocal-history"];
+
+/// Longest function (from `fn` to its closing brace) and longest source
+/// file (its lines outside test items), in lines.
+const MAX_FUNCTION_LINES: usize = 120;
+const MAX_FILE_LINES: usize = 1000;
+
+/// Every `fn` with a body in `code` (comments, strings and test items
+/// blanked): its name, first line (1-based) and length in lines, from the
+/// `fn` keyword to the brace that closes its body.
+fn functions(code: &str) -> Vec<(String, usize, usize)> {
+    let mut out = Vec::new();
+    let mut from = 0;
+    while let Some(at) = code[from..].find("fn ").map(|p| p + from) {
+        from = at + 3;
+        if code[..at].chars().next_back().is_some_and(is_ident) {
+            continue;
+        }
+        let name: String = code[from..].trim_start().chars().take_while(|c| is_ident(*c)).collect();
+        // A function pointer type (`fn(f64) -> f64`) has no name.
+        if name.is_empty() {
+            continue;
+        }
+        let rest = &code[from..];
+        let Some(open) = rest.find(['{', ';']).filter(|&i| rest.as_bytes()[i] == b'{') else { continue };
+        let mut depth = 0usize;
+        let mut close = rest.len();
+        for (i, c) in rest[open..].char_indices() {
+            match c {
+                '{' => depth += 1,
+                '}' => {
+                    depth -= 1;
+                    if depth == 0 {
+                        close = open + i;
+                        break;
+                    }
+                }
+                _ => {}
+            }
+        }
+        let first = code[..at].matches('\n').count() + 1;
+        let last = code[..from + close].matches('\n').count() + 1;
+        out.push((name, first, last - first + 1));
+    }
+    out
+}
+
+/// No function over [`MAX_FUNCTION_LINES`] and no file over
+/// [`MAX_FILE_LINES`] lines of code outside tests in the product crates.
+#[test]
+fn functions_and_files_stay_short() {
+    let root = repository_root();
+    let mut long = Vec::new();
+    let mut checked = 0;
+    for krate in PRODUCT_CRATES {
+        let mut files = Vec::new();
+        sources(&root.join("crates").join(krate).join("src"), &mut files);
+        for file in files {
+            let relative = file.strip_prefix(&root).expect("under the root").to_path_buf();
+            if is_test_file(&file) || relative.components().any(|c| c.as_os_str() == "tests") {
+                continue;
+            }
+            let text = std::fs::read_to_string(&file).unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+            let all_code = code_only(&text);
+            let code = without_test_items(&all_code);
+            let test_lines: usize = test_items(&all_code).iter().map(|r| all_code[r.clone()].lines().count()).sum();
+            let lines = text.lines().count() - test_lines;
+            if lines > MAX_FILE_LINES {
+                long.push(format!("{}: {lines} lines outside tests (at most {MAX_FILE_LINES})", relative.display()));
+            }
+            for (name, first, length) in functions(&code) {
+                checked += 1;
+                if length > MAX_FUNCTION_LINES {
+                    long.push(format!(
+                        "{}:{first}: fn {name} is {length} lines (at most {MAX_FUNCTION_LINES})",
+                        relative.display()
+                    ));
+                }
+            }
+        }
+    }
+    assert!(checked > 1000, "only {checked} functions found: the scan is broken");
+    assert!(long.is_empty(), "split these into parts with one idea each:\n{}", long.join("\n"));
+}
+
+#[test]
+fn functions_are_measured_from_fn_to_the_closing_brace() {
+    let code = "fn a() {\n    let f: fn(u8) = g;\n}\ntrait T { fn b(&self); }\nimpl X {\n    pub fn c() -> u8 {\n        { 1 }\n    }\n}\n";
+    let found = functions(code);
+    assert_eq!(found, vec![("a".to_string(), 1, 3), ("c".to_string(), 6, 3)]);
 }
