@@ -305,7 +305,7 @@ pub fn error_scale(truth: &Theta) -> [f64; 4] {
 
 /// `theta − truth` in [`ERROR_UNITS`].
 pub fn errors(theta: &Theta, truth: &Theta) -> [f64; 4] {
-    let (a, b, s) = (theta.to_array(), truth.to_array(), error_scale(truth));
+    let (a, b, s) = (<[_; 4]>::from(theta), <[_; 4]>::from(truth), error_scale(truth));
     std::array::from_fn(|i| (a[i] - b[i]) * s[i])
 }
 

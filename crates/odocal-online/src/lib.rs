@@ -383,13 +383,13 @@ impl Calibrator {
         }
         theta0.validate()?;
         let sd = match sigma0 {
-            Some(s) if s.to_array().iter().all(|v| v.is_finite() && *v > 0.0) => {
+            Some(s) if <[_; 4]>::from(s).iter().all(|v| v.is_finite() && *v > 0.0) => {
                 let f = opts.sigma_factors;
-                std::array::from_fn(|i| s.to_array()[i] / f[i])
+                std::array::from_fn(|i| <[_; 4]>::from(s)[i] / f[i])
             }
             _ => opts.prior_sd(&theta0),
         };
-        let t = theta0.to_array();
+        let t = <[_; 4]>::from(theta0);
         let x = Vec5::from_column_slice(&[t[0], t[1], t[2], t[3], 0.0]);
         let mut p = Mat5::zeros();
         for i in 0..4 {
@@ -748,7 +748,7 @@ impl Calibrator {
     /// [`OnlineOptions::sigma_factors`].
     pub(crate) fn sigma(&self) -> Theta {
         let f = self.opts.sigma_factors;
-        Theta::from_array(std::array::from_fn(|i| f[i] * self.p[(i, i)].max(0.0).sqrt()))
+        Theta::from(std::array::from_fn(|i| f[i] * self.p[(i, i)].max(0.0).sqrt()))
     }
 
     /// The covariance of `[c_e, c_d, t_r, d, δ]`, θ's rows and columns
@@ -769,10 +769,10 @@ impl Calibrator {
     /// within `tolerance` (`[c_e, c_d, t_r, d]`) of its current value, s
     /// (at most the options' `steady_window_s`).
     pub(crate) fn steady_for_s(&self, tolerance: [f64; 4]) -> f64 {
-        let now = self.theta().to_array();
+        let now = <[_; 4]>::from(self.theta());
         let mut since = self.informative_s;
         for (t, theta) in self.track.iter().rev() {
-            let th = theta.to_array();
+            let th = <[_; 4]>::from(theta);
             if (0..4).any(|i| gate::exceeds((th[i] - now[i]).abs(), tolerance[i])) {
                 break;
             }

@@ -60,7 +60,7 @@ fn note_heading_drift(name: &str, r: &CalibrationReport) {
     }
     let reasons: Vec<String> = r.verdict.reasons.iter().map(|x| x.to_string()).collect();
     eprintln!("{name}: verdict {} [{}]", r.verdict.level, reasons.join(" | "));
-    eprintln!("{name}: θ {:?} σ {:?}", r.theta.to_array(), r.result_sigma().to_array());
+    eprintln!("{name}: θ {:?} σ {:?}", <[_; 4]>::from(r.theta), <[_; 4]>::from(r.result_sigma()));
 }
 
 fn main() {

@@ -78,7 +78,7 @@ fn run() -> Res<()> {
             let truth = out.sidecar.theta_true;
             let scale = error_scale(&truth);
             let err = |th: &Theta| -> [f64; 4] {
-                let (a, b) = (th.to_array(), truth.to_array());
+                let (a, b) = (<[_; 4]>::from(th), <[_; 4]>::from(truth));
                 std::array::from_fn(|i| (a[i] - b[i]) * scale[i])
             };
             let sc = |s: &[f64; 4]| -> [f64; 4] { std::array::from_fn(|i| s[i] * scale[i]) };

@@ -204,11 +204,11 @@ fn run() -> Res<()> {
                 ("est-pc-simtau", pc_tau, false),
             ];
             let errs = |t: &Theta| {
-                let (a, b) = (t.to_array(), truth.to_array());
+                let (a, b) = (<[_; 4]>::from(t), <[_; 4]>::from(truth));
                 [(a[0] - b[0]) / b[0] * 100.0, (a[1] - b[1]) * 1e3, (a[2] - b[2]) / b[2] * 100.0, (a[3] - b[3]) * 1e3]
             };
             let err = |t: &Theta| {
-                let (a, b) = (t.to_array(), truth.to_array());
+                let (a, b) = (<[_; 4]>::from(t), <[_; 4]>::from(truth));
                 format!(
                     "c_e {:+.3}% c_d {:+.3}mm t_r {:+.2}% d {:+.3}",
                     (a[0] - b[0]) / b[0] * 100.0,

@@ -268,8 +268,8 @@ fn world_rows(index: u64, seed0: u64, km: f64, methods: &[String]) -> Res<Vec<Ro
             regime: summary.regime.to_string(),
             method: m.clone(),
             err: errors(&r.theta, &truth),
-            sigma: si(r.result_sigma().to_array()),
-            within: si(r.within_drive_sigma().to_array()),
+            sigma: si(<[_; 4]>::from(r.result_sigma())),
+            within: si(<[_; 4]>::from(r.within_drive_sigma())),
             accepted: r.verdict.level == VerdictLevel::Accepted,
             excess_e_p_m: e_p - truth_e_p,
         });

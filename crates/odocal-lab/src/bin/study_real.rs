@@ -178,7 +178,7 @@ fn options(method: &str, q: f64) -> Res<CalibrationOptions> {
 /// The σ that stands for the result, per parameter (`None` = held), as
 /// `--params-out` writes it.
 fn result_sigma(r: &CalibrationReport) -> [Option<f64>; 4] {
-    r.result_sigma().to_array()
+    <[_; 4]>::from(r.result_sigma())
 }
 
 /// EIV: `Some((fell back, reasons))`; `None` for the other methods.

@@ -55,8 +55,9 @@ impl Extrinsics {
         self.to_array().iter().all(|v| *v == 0.0)
     }
 
-    /// `[lever_x, lever_y, heading_offset]`.
-    pub fn to_array(&self) -> [f64; 3] {
+    /// `[lever_x, lever_y, heading_offset]` (outside the crate:
+    /// `<[f64; 3]>::from(extrinsics)`).
+    pub(crate) fn to_array(&self) -> [f64; 3] {
         [self.lever_x, self.lever_y, self.heading_offset]
     }
 
@@ -78,6 +79,20 @@ impl Extrinsics {
             }
         }
         Ok(())
+    }
+}
+
+/// `[lever_x, lever_y, heading_offset]`.
+impl From<Extrinsics> for [f64; 3] {
+    fn from(e: Extrinsics) -> Self {
+        e.to_array()
+    }
+}
+
+/// `[lever_x, lever_y, heading_offset]`.
+impl From<&Extrinsics> for [f64; 3] {
+    fn from(e: &Extrinsics) -> Self {
+        e.to_array()
     }
 }
 

@@ -178,8 +178,8 @@ fn table(opts: &CalibrationOptions, pairs: bool) -> CrossRunTable {
                     own_m: r.validation.mean_position_error_m,
                     initial_own_m: r.initial.mean_position_error_m,
                     others: r.validate_on_drives(&others, false).expect("validation on the other runs"),
-                    theta: r.theta.to_array(),
-                    sigma: r.result_sigma().to_array(),
+                    theta: <[_; 4]>::from(r.theta),
+                    sigma: <[_; 4]>::from(r.result_sigma()),
                 }
             });
             Row { name, fit }
