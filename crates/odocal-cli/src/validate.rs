@@ -139,7 +139,7 @@ fn print_report(a: &ValidateArgs, report: &odocal::ValidateReport, extrinsics_fr
         ),
         None => println!("θ: {}", a.theta.theta),
     }
-    if report.extrinsics != odocal::Extrinsics::ZERO {
+    if report.extrinsics != odocal::Extrinsics::default() {
         println!("reference extrinsics: {} ({extrinsics_from})", report.extrinsics);
     }
     if let Some(fit) = &report.heading_offset_fit {
@@ -151,7 +151,7 @@ fn print_report(a: &ValidateArgs, report: &odocal::ValidateReport, extrinsics_fr
             "reachable minimum: Ē_p {:.4} m at θ = {} ({} evaluations, {:.1} s)",
             rm.mean_position_error_m, rm.theta, rm.evaluations, rm.time_s
         );
-        if report.extrinsics != odocal::Extrinsics::ZERO {
+        if report.extrinsics != odocal::Extrinsics::default() {
             println!("  (the search, too, takes the reference at the extrinsics above)");
         }
         if rm.recentred > 0 {

@@ -149,7 +149,7 @@ pub fn batch_gn_all(drive: &Drive) -> Result<Theta, odocal::Error> {
 pub fn noise_preset(name: &str) -> Result<NoiseOptions, odocal::Error> {
     match name {
         "coloured" => Ok(NoiseOptions::coloured_wheels_only()),
-        _ => NoiseOptions::by_name(name),
+        _ => name.parse::<NoiseOptions>(),
     }
 }
 

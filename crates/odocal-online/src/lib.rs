@@ -646,7 +646,7 @@ impl Calibrator {
     /// `scale` (δ's rows zero when it is not estimated); `None` when not finite.
     fn normal_equations(&self, seg: &SegmentData<'_>, x: &Vec5, scale: f64) -> Option<(Mat5, Vec5, f64)> {
         let theta = Theta { c_e: x[0], c_d: x[1], t_r: x[2], d: x[3] };
-        let e = Extrinsics { heading_offset: x[4], ..Extrinsics::ZERO };
+        let e = Extrinsics { heading_offset: x[4], ..Extrinsics::default() };
         let ne = extrinsics_normal_equations(seg, &theta, &e, &self.opts.weights);
         let dims = if self.opts.heading_offset { 5 } else { 4 };
         let mut h = Mat5::zeros();
@@ -716,7 +716,7 @@ impl Calibrator {
     /// Scores a validation segment that has completed.
     fn score(&mut self, p: &Pending) {
         let seg = self.buf.segment(p.start, self.opts.validation.length_steps, self.sample_time_s);
-        let e = Extrinsics { heading_offset: p.heading_offset, ..Extrinsics::ZERO };
+        let e = Extrinsics { heading_offset: p.heading_offset, ..Extrinsics::default() };
         let prequential_m = segment_position_error_with(&seg, &p.theta, &e);
         let stored_m = self.stored.map(|t| segment_position_error_with(&seg, &t, &e));
         if !prequential_m.is_finite() {

@@ -18,14 +18,10 @@ fn with_heading_offset(d: &Drive, delta: f64) -> Drive {
 }
 
 /// The samples `r` of `s`, through the public `Signals` API (its columns
-/// and `push` share one order).
+/// and its samples share one order).
 fn slice(s: &Signals, r: std::ops::Range<usize>) -> Signals {
     let columns = s.columns();
-    let mut out = Signals::with_capacity(r.len());
-    for i in r {
-        out.push(std::array::from_fn(|k| columns[k].1[i]));
-    }
-    out
+    r.map(|i| std::array::from_fn(|k| columns[k].1[i])).collect()
 }
 
 #[test]
@@ -180,10 +176,8 @@ fn pushed_times_find_the_gaps_and_the_heading_is_unwrapped() {
 fn a_heading_unwrapped_chunk_by_chunk_equals_the_drive_column() {
     let raw: Vec<f64> = (0..500).map(|i| wrap_angle(0.05 * i as f64 - 1.0)).collect();
     // The drive's constructor unwraps its heading column.
-    let mut signals = Signals::with_capacity(raw.len());
-    for (i, psi) in raw.iter().enumerate() {
-        signals.push([i as f64 * 0.3, 0.0, *psi, 5.0, 5.0, 0.0, 0.0]);
-    }
+    let signals: Signals =
+        raw.iter().enumerate().map(|(i, psi)| [i as f64 * 0.3, 0.0, *psi, 5.0, 5.0, 0.0, 0.0]).collect();
     let t = (0..raw.len()).map(|i| i as f64 * 0.025).collect();
     let drive = DriveBuilder { t, measured: signals, ..Default::default() }.build().expect("drive");
     let whole = drive.measured().psi.clone();

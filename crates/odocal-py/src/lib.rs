@@ -136,7 +136,7 @@ fn simulate(
     let mut o = SimOptions {
         seed,
         length_km,
-        noise: NoiseOptions::by_name(noise).map_err(lib_err)?,
+        noise: noise.parse::<NoiseOptions>().map_err(lib_err)?,
         ..SimOptions::paper(seed)
     };
     if let Some(t) = theta {

@@ -129,7 +129,7 @@ impl ParamRow {
         let (init, val, sd) = (<[_; 3]>::from(x.initial), <[_; 3]>::from(x.value), <[_; 3]>::from(x.result_std_dev()));
         let label = if x.robust.is_some() { "± 1σ (robust)" } else { "± 1σ (model)" };
         odocal::ParamSet::EXTRINSICS
-            .iter()
+            .into_iter()
             .enumerate()
             .map(|(i, p)| {
                 let (unit, scale) = if i == 2 { ("mrad", 1e3) } else { ("m", 1.0) };
@@ -273,7 +273,7 @@ impl<'a> ReportInput<'a> {
 
     /// The extrinsics `[θ_0's, θ's]` of validation segment `i`.
     fn extrinsics_of(&self, i: usize) -> [Extrinsics; 2] {
-        self.segment_extrinsics.get(i).copied().unwrap_or([Extrinsics::ZERO; 2])
+        self.segment_extrinsics.get(i).copied().unwrap_or([Extrinsics::default(); 2])
     }
 }
 

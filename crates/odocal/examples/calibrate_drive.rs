@@ -24,7 +24,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // The default method is `eiv`; `batch-gn` and `three-step` (the paper's) are the others.
     let mut options = CalibrationOptions::default();
     if let Some(name) = std::env::args().nth(2) {
-        options.method = Method::from_name(&name)?;
+        options.method = name.parse::<Method>()?;
     }
     let report = calibrate(&drive, &options)?;
 

@@ -21,7 +21,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
 
     for name in ["batch-gn", "three-step", "eiv"] {
-        let options = CalibrationOptions { method: Method::from_name(name)?, ..Default::default() };
+        let options = CalibrationOptions { method: name.parse::<Method>()?, ..Default::default() };
         let report = calibrate(drive, &options)?;
         let sigma = <[_; 4]>::from(report.result_sigma());
         // Error over the reported σ: about ±2 or less for an unbiased estimate with an honest σ.

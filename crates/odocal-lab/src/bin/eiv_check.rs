@@ -72,7 +72,7 @@ fn run() -> Res<()> {
     );
     for preset in &presets {
         for seed in 1..=seeds {
-            let noise = NoiseOptions::by_name(preset)?;
+            let noise = preset.parse::<NoiseOptions>()?;
             let out = simulate(&SimOptions { length_km: km, noise: noise.clone(), ..SimOptions::paper(seed) })?;
             let d = &out.drive;
             let truth = out.sidecar.theta_true;

@@ -70,7 +70,7 @@ fn run() -> Res<()> {
         |s| s.split(',').map(str::to_string).collect(),
     );
     args.finish()?;
-    let noise = NoiseOptions::by_name(&preset)?;
+    let noise = preset.parse::<NoiseOptions>()?;
     let flag = |name: &str| std::env::var_os(name).is_some();
     let (start_true, estimated, crb_known, crb_measured) =
         (flag("START_TRUE"), flag("EST"), flag("CRB_KNOWN"), flag("CRB_MEASURED"));

@@ -186,7 +186,7 @@ fn run() -> Res<()> {
         wheel_white_rel_sigma: sigma,
         position_white_sigma_m: sim_pos,
         heading_white_sigma_rad: sim_head,
-        ..NoiseOptions::by_name("white")?
+        .."white".parse::<NoiseOptions>()?
     };
     let noise = match preset.as_deref() {
         None => noise,

@@ -216,11 +216,11 @@ fn track(method: &str, fix: ParamSet) -> Res<()> {
                     continue;
                 }
             };
-            let ext = r.extrinsics.as_ref().map_or(Extrinsics::ZERO, |x| x.value);
+            let ext = r.extrinsics.as_ref().map_or(Extrinsics::default(), |x| x.value);
             let (mut sum, mut sum0) = (0.0, 0.0);
             for d in drives.iter().enumerate().filter(|(j, _)| *j != i).map(|(_, d)| d) {
                 sum += cross_error(d, &r.theta, &ext)?;
-                sum0 += cross_error(d, &o.theta0, &Extrinsics::ZERO)?;
+                sum0 += cross_error(d, &o.theta0, &Extrinsics::default())?;
             }
             let others = sum / 5.0;
             cross.push(others);

@@ -82,14 +82,14 @@ fn run() -> Res<()> {
     for preset in presets.split(',') {
         for kind in fits.split(',') {
             let joint = kind == "joint";
-            let mount = if joint { MOUNT } else { Extrinsics::ZERO };
+            let mount = if joint { MOUNT } else { Extrinsics::default() };
             let free = if joint { ParamSet::THETA.union(ParamSet::EXTRINSICS) } else { ParamSet::THETA };
             let mut per_block: Vec<Vec<Fit>> = blocks.iter().map(|_| Vec::new()).collect();
             let (mut t_fit, mut segs) = (0.0, 0usize);
             for seed in 1..=seeds {
                 let sim = SimOptions {
                     length_km: km,
-                    noise: NoiseOptions::by_name(preset)?,
+                    noise: preset.parse::<NoiseOptions>()?,
                     reference_mount: mount,
                     ..SimOptions::paper(seed)
                 };

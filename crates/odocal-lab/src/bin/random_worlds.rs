@@ -167,7 +167,7 @@ fn options(
     heading_drift: (Option<f64>, Option<f64>),
     eiv_noise: (Option<f64>, Option<f64>),
 ) -> Res<CalibrationOptions> {
-    let mut o = CalibrationOptions { method: Method::from_name(method)?, ..Default::default() };
+    let mut o = CalibrationOptions { method: method.parse::<Method>()?, ..Default::default() };
     if let Method::Eiv(e) = &mut o.method {
         if let Some(x) = eiv_noise.0 {
             e.filter.eta_bounds[1] = x;
@@ -284,7 +284,7 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<
     let accepted_within = r.verdict.reasons.iter().all(|reason| match reason {
         VerdictReason::FallbackDisagrees { .. } | VerdictReason::RefitDisagrees { .. } => true,
         VerdictReason::LargeUncertainty { param, sigma, fraction } => {
-            let w = ParamSet::THETA.iter().position(|q| q == *param).map_or(f64::NAN, |i| within[i]);
+            let w = ParamSet::THETA.into_iter().position(|q| q == *param).map_or(f64::NAN, |i| within[i]);
             // Not above (NaN counts as not above).
             w.partial_cmp(&(0.1 * sigma / fraction)) != Some(std::cmp::Ordering::Greater)
         }
@@ -378,7 +378,7 @@ fn study_world(index: u64, a: &Settings) -> Res<World> {
             Some(x) => return Err(format!("--heavy-without {x}: expected slip or common").into()),
             None => {}
         }
-        let s = WorldSummary::of(&n);
+        let s = WorldSummary::from(&n);
         (n, s)
     } else {
         (noise, summary)

@@ -66,7 +66,7 @@ const PARTS: [&str; 4] = ["time", "testtrack", "van", "worlds"];
 /// default also gets `--estimate heading-offset` (the default estimates δ
 /// by itself).
 fn with_method(mut o: CalibrationOptions, method: &str) -> Res<CalibrationOptions> {
-    o.method = Method::from_name(method)?;
+    o.method = method.parse::<Method>()?;
     if method != "eiv" {
         o.identify.free = o.identify.free.with(Param::HeadingOffset);
     }
@@ -108,7 +108,7 @@ fn time_part(methods: &[String]) -> Res<Vec<(String, f64)>> {
 fn load_with_options(rel: &str) -> Res<(Drive, CalibrationOptions)> {
     let path = repo_path(rel);
     let (drive, report) = odocal::load_drive(&path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let manifest = report.as_ref().map(ManifestSettings::of_report).transpose()?;
+    let manifest = report.as_ref().map(ManifestSettings::try_from).transpose()?;
     let options = Settings::default().resolve(manifest.as_slice(), Caller::CommandLine)?.options;
     Ok((drive, options))
 }

@@ -393,7 +393,7 @@ fn study_drive(name: &str, seed: u64, a: &Settings) -> Res<DriveResult> {
     let mut runs = BTreeMap::new();
     if seed <= a.three_step_seeds {
         let t = Instant::now();
-        let opts = CalibrationOptions { method: Method::from_name("three-step")?, seed, ..Default::default() };
+        let opts = CalibrationOptions { method: "three-step".parse::<Method>()?, seed, ..Default::default() };
         match calibrate(d, &opts) {
             Ok(r) => {
                 runs.insert(

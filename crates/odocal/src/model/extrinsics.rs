@@ -47,8 +47,9 @@ pub struct Extrinsics {
 }
 
 impl Extrinsics {
-    /// The reference at the rear-axle centre, aligned with the vehicle.
-    pub const ZERO: Extrinsics = Extrinsics { lever_x: 0.0, lever_y: 0.0, heading_offset: 0.0 };
+    /// The reference at the rear-axle centre, aligned with the vehicle (the
+    /// `Default`; outside the crate: `Extrinsics::default()`).
+    pub(crate) const ZERO: Extrinsics = Extrinsics { lever_x: 0.0, lever_y: 0.0, heading_offset: 0.0 };
 
     /// True when every value is exactly 0 (the SPEC's reference).
     pub(crate) fn is_zero(&self) -> bool {

@@ -146,15 +146,24 @@ pub struct WorldSummary {
     pub wheel_common_slip_rel_10s: f64,
 }
 
+/// The summary of any noise settings (a preset's too).
+///
+/// ```
+/// use odocal::sim::{NoiseOptions, NoiseRegime, WorldSummary};
+/// assert_eq!(WorldSummary::from(&NoiseOptions::default()).regime, NoiseRegime::White);
+/// let off: NoiseOptions = "off".parse().unwrap();
+/// assert_eq!(WorldSummary::from(&off).regime, NoiseRegime::Quiet);
+/// ```
+impl From<&NoiseOptions> for WorldSummary {
+    fn from(n: &NoiseOptions) -> WorldSummary {
+        WorldSummary::of(n)
+    }
+}
+
 impl WorldSummary {
-    /// The summary of any noise settings (a preset's too).
-    ///
-    /// ```
-    /// use odocal::sim::{NoiseOptions, NoiseRegime, WorldSummary};
-    /// assert_eq!(WorldSummary::of(&NoiseOptions::default()).regime, NoiseRegime::White);
-    /// assert_eq!(WorldSummary::of(&NoiseOptions::by_name("off").unwrap()).regime, NoiseRegime::Quiet);
-    /// ```
-    pub fn of(n: &NoiseOptions) -> WorldSummary {
+    /// The summary of any noise settings (outside the crate:
+    /// `WorldSummary::from(&noise)`).
+    pub(crate) fn of(n: &NoiseOptions) -> WorldSummary {
         let ticks = f64::from(n.encoder_ticks_per_revolution);
         let revs_per_s = NOMINAL_SPEED_M_PER_S / CIRCUMFERENCE_M;
         // The counting error of one interval: the difference of two

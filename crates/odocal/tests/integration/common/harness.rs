@@ -58,7 +58,7 @@ pub fn csv_drive(data: &[u8]) -> Outcome {
 /// manifest states (its `[noise]` read as a noise model).
 pub fn manifest(data: &[u8]) -> Outcome {
     let Ok(text) = std::str::from_utf8(data) else { return Outcome::Error("not UTF-8".into()) };
-    match Manifest::parse(text, Path::new("fuzz.toml")).and_then(|m| ManifestSettings::of_manifest(&m)) {
+    match Manifest::parse(text, Path::new("fuzz.toml")).and_then(|m| ManifestSettings::try_from(&m)) {
         Ok(_) => Outcome::Parsed,
         Err(e) => check_message(e.to_string()),
     }
