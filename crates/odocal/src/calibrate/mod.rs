@@ -273,7 +273,7 @@ impl Holdout {
     /// each half.
     pub fn split<'a>(&'a self, drive: &'a Drive) -> Result<(Cow<'a, Drive>, Cow<'a, Drive>)> {
         let halves = || -> Result<(Drive, Drive)> {
-            if drive.is_empty() {
+            if drive.t().is_empty() {
                 return Err(Error::InvalidDrive { context: "hold-out".into(), reason: "the drive is empty".into() });
             }
             let (t0, t1) = (drive.t()[0], drive.t()[drive.len() - 1] + drive.sample_time_s());

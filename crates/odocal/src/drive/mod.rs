@@ -465,15 +465,13 @@ fn check_uniform_steps(t: &[f64], parts: &[Range<usize>], ts: f64, nominal: bool
     Ok(())
 }
 
+// A built drive has samples (`DriveBuilder::build` refuses none), so an
+// `is_empty` would always be false.
+#[allow(clippy::len_without_is_empty)]
 impl Drive {
-    /// Number of samples.
+    /// Number of samples (at least one: a drive without samples is not built).
     pub fn len(&self) -> usize {
         self.t.len()
-    }
-
-    /// True when the drive has no samples (never, for a built drive).
-    pub fn is_empty(&self) -> bool {
-        self.t.is_empty()
     }
 
     /// Time stamps, s.

@@ -61,8 +61,8 @@
 //! ## Random noise worlds
 //!
 //! The presets (`NoiseOptions`'s `FromStr`: `paper`, the default, and its relatives) are dominated by
-//! white wheel noise. [`NoiseOptions::random_world`] draws a whole noise
-//! world from wide ranges instead — each source's size, its correlation
+//! white wheel noise. `random:N` (`"random:7".parse::<NoiseOptions>()`)
+//! draws a whole noise world from wide ranges instead — each source's size, its correlation
 //! time, the constant errors — reproducibly from a world seed, and
 //! [`WorldSummary`] says which kind of wheel noise dominates it
 //! ([`NoiseRegime`]). `odocal simulate --noise random:N` simulates world N.

@@ -203,8 +203,21 @@ fn is_zero(v: &f64) -> bool {
 }
 
 /// A preset by name: `off`, `paper`, `white` (white wheel noise only),
-/// `high`, or `random:N`, the random noise world of seed N
-/// ([`NoiseOptions::random_world`]); the CLI's `--noise`.
+/// `high`, or `random:N`, the random noise world of seed N (the
+/// distribution and the regime rule: the [module
+/// doc](crate::sim#random-noise-worlds)); the CLI's `--noise`. The same seed
+/// gives the same world.
+///
+/// ```
+/// # fn main() -> Result<(), odocal::Error> {
+/// use odocal::sim::{simulate, NoiseOptions, SimOptions, WorldSummary};
+/// let noise: NoiseOptions = "random:7".parse()?;
+/// assert_eq!("random:7".parse::<NoiseOptions>()?, noise);
+/// println!("world 7 is {}", WorldSummary::from(&noise).regime);
+/// let out = simulate(&SimOptions { length_km: 1.0, noise, ..SimOptions::paper(1) })?;
+/// assert!(out.drive.len() > 100);
+/// # Ok(()) }
+/// ```
 impl std::str::FromStr for NoiseOptions {
     type Err = Error;
     fn from_str(name: &str) -> Result<Self> {
@@ -332,7 +345,7 @@ impl NoiseOptions {
     /// A preset by name (outside the crate: `"paper".parse::<NoiseOptions>()`,
     /// the `FromStr` impl): `off`, `paper`, `white` (white wheel noise only),
     /// `high`, or `random:N`, the random noise world of seed N
-    /// ([`NoiseOptions::random_world`]).
+    /// (`NoiseOptions::random_world`).
     pub(crate) fn by_name(name: &str) -> Result<Self> {
         match name {
             "off" => Ok(NoiseOptions::off()),
