@@ -68,7 +68,7 @@ pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<()> {
     let (drive, _, settings) = load_drive_with_scale(&a.drive)?;
     let mut opts = ValidateOptions::default();
     // A manifest's [reference]: the drive's own mount.
-    let stated = settings.as_ref().and_then(|s| s.reference.as_ref()).map(|r| r.extrinsics());
+    let stated = settings.as_ref().and_then(|s| s.reference.as_ref()).map(odocal::Extrinsics::from);
     let file = a.theta.file.as_ref();
     let from_file = opts.set_extrinsics(file.map(|(_, f)| f), stated.as_ref(), a.carry_heading_offset);
     if let Some(v) = a.validation_length {

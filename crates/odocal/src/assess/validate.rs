@@ -28,7 +28,7 @@ pub struct ValidateOptions {
     /// of θ are computed against the same reference mount.
     pub reachable: Option<ReachableOptions>,
     /// The pose reference's mount (e.g. the drive manifest's `[reference]`,
-    /// [`crate::io::import::ReferenceSpec::extrinsics`]). Default 0: the axle.
+    /// `Extrinsics::from(&reference)`). Default 0: the axle.
     #[serde(default)]
     pub extrinsics: Extrinsics,
     /// Re-estimate the drive's own heading offset δ with θ and the lever arm

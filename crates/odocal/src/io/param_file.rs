@@ -114,6 +114,17 @@ const DESCRIPTIONS: [&str; 4] = [
     "load-transfer coefficient: circumference change per m/s^2 of lateral acceleration",
 ];
 
+/// θ from the file's `c_e`, `c_d`, `t_r`, `d`, checked for physical sanity.
+///
+/// # Errors
+/// [`Error::InvalidTheta`] when one is missing or the values are absurd.
+impl TryFrom<&ParamFile> for Theta {
+    type Error = Error;
+    fn try_from(file: &ParamFile) -> Result<Theta> {
+        file.theta()
+    }
+}
+
 impl ParamFile {
     /// Whether `path` names a parameter file by its extension (`.yaml`,
     /// `.yml`, `.json`: the files [`ParamFile::write`] writes and
@@ -450,11 +461,9 @@ impl ParamFile {
         Self::from_flat(node, flat).map_err(bad)
     }
 
-    /// θ from the file's `c_e`, `c_d`, `t_r`, `d`, checked for physical sanity.
-    ///
-    /// # Errors
-    /// [`Error::InvalidTheta`] when one is missing or the values are absurd.
-    pub fn theta(&self) -> Result<Theta> {
+    /// θ from the file's `c_e`, `c_d`, `t_r`, `d`, checked for physical
+    /// sanity (outside the crate: `Theta::try_from(&file)`).
+    pub(crate) fn theta(&self) -> Result<Theta> {
         let mut v = [0.0; 4];
         for (i, name) in THETA_NAMES.iter().enumerate() {
             v[i] = self.value(name).ok_or_else(|| Error::InvalidTheta(format!("no `{name}` in the parameter file")))?;

@@ -133,7 +133,7 @@ pub fn params(data: &[u8]) -> Outcome {
     let path = dir.path().join(name);
     std::fs::write(&path, data).expect("write");
     match odocal::ParamFile::read(&path, None) {
-        Ok(f) => match f.theta() {
+        Ok(f) => match odocal::Theta::try_from(&f) {
             Ok(t) => {
                 assert!([t.c_e, t.c_d, t.t_r, t.d].iter().all(|v| v.is_finite()), "{t:?}");
                 Outcome::Parsed
