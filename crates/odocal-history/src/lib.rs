@@ -225,7 +225,7 @@ impl std::fmt::Display for VehicleHistory {
         )?;
         for r in &self.rows {
             let c = &r.record;
-            let (v, sd) = (<[_; 4]>::from(c.theta), c.sigma.map(|s| <[_; 4]>::from(s)));
+            let (v, sd) = (<[_; 4]>::from(c.theta), c.sigma.map(<[f64; 4]>::from));
             let cell = |i: usize, digits: usize, width: usize| {
                 let scale = DISPLAY_UNITS[i].0;
                 let text = match sd {

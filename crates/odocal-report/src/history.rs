@@ -125,7 +125,7 @@ fn rows_table(rows: &[HistoryRow]) -> String {
     );
     for (k, r) in rows.iter().enumerate() {
         let c = &r.record;
-        let (th, sd) = (<[_; 4]>::from(c.theta), c.sigma.map(|s| <[_; 4]>::from(s)));
+        let (th, sd) = (<[_; 4]>::from(c.theta), c.sigma.map(<[f64; 4]>::from));
         let cells: Vec<String> = (0..4).map(|i| cell(th[i], sd.map(|s| s[i]), i)).collect();
         h.push_str(&format!(
             "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td>\

@@ -253,7 +253,7 @@ fn crb_section(o: &mut String, c: &CramerRao, rows: &[(String, Scored)], time_s:
         "| | Δc_e (mm) | Δc_e/σ | Δc_d (mm) | Δc_d/σ | Δt_r (mm) | Δt_r/σ | Δd (mm/(m/s²)) | Δd/σ |\n|---|---|---|---|---|---|---|---|---|"
     );
     let s = <[_; 4]>::from(sigma);
-    let m = c.sigma_mean_only.map(|m| <[_; 4]>::from(m));
+    let m = c.sigma_mean_only.map(<[f64; 4]>::from);
     let _ = writeln!(
         o,
         "| σ_CRB | {:.3} | | {:.4} | | {:.2} | | {:.4} | |",
@@ -272,7 +272,7 @@ fn crb_section(o: &mut String, c: &CramerRao, rows: &[(String, Scored)], time_s:
             m[3] * 1e3
         );
     }
-    if let Some(m) = c.sigma_noise_estimated.map(|m| <[_; 4]>::from(m)) {
+    if let Some(m) = c.sigma_noise_estimated.map(<[f64; 4]>::from) {
         let _ = writeln!(
             o,
             "| σ_CRB, noise scales unknown too | {:.3} | | {:.4} | | {:.2} | | {:.4} | |",

@@ -583,7 +583,7 @@ pub struct ResultSigma {
 
 impl ResultSigma {
     /// `[c_e, c_d, t_r, d]` (outside the crate: `<[Option<f64>; 4]>::from(sigma)`).
-    pub(crate) fn to_array(&self) -> [Option<f64>; 4] {
+    pub(crate) fn to_array(self) -> [Option<f64>; 4] {
         [self.c_e, self.c_d, self.t_r, self.d]
     }
 }

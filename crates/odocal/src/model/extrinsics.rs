@@ -58,7 +58,7 @@ impl Extrinsics {
 
     /// `[lever_x, lever_y, heading_offset]` (outside the crate:
     /// `<[f64; 3]>::from(extrinsics)`).
-    pub(crate) fn to_array(&self) -> [f64; 3] {
+    pub(crate) fn to_array(self) -> [f64; 3] {
         [self.lever_x, self.lever_y, self.heading_offset]
     }
 

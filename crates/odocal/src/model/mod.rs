@@ -76,7 +76,7 @@ impl Theta {
 
     /// `[c_e, c_d, t_r, d]` as an array (outside the crate:
     /// `<[f64; 4]>::from(theta)`).
-    pub(crate) fn to_array(&self) -> [f64; 4] {
+    pub(crate) fn to_array(self) -> [f64; 4] {
         [self.c_e, self.c_d, self.t_r, self.d]
     }
 
