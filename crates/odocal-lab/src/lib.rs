@@ -144,7 +144,7 @@ pub fn batch_gn_all(drive: &Drive) -> Result<Theta, odocal::Error> {
     Ok(batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &opts)?.theta)
 }
 
-/// The simulator's noise presets by name (`NoiseOptions::by_name`) and
+/// The simulator's noise presets by name (`NoiseOptions`'s `FromStr`) and
 /// `coloured` ([`NoiseOptions::coloured_wheels_only`]).
 pub fn noise_preset(name: &str) -> Result<NoiseOptions, odocal::Error> {
     match name {

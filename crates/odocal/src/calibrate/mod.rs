@@ -30,7 +30,7 @@
 //! selection, progress) -> Result<MethodOutcome>`, and `select` when the
 //! method does not fit the turning segments (the default). Then add `Method::MyMethod(MyMethodOptions)` and
 //! `MethodDetail::MyMethod(MyMethodDetail)`, and one arm in
-//! `Method::estimator`, `Method::from_name` and `Method::NAMES` (the tests' list). The shared
+//! `Method::estimator`, `Method::from_name` (`FromStr`) and `Method::NAMES` (the tests' list). The shared
 //! preparation, validation, report, JSON and CLI (`--method my-method`) need
 //! no change.
 //!

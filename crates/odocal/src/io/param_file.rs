@@ -421,7 +421,7 @@ impl ParamFile {
     /// let theta = Theta { c_e: 1.951448, c_d: -0.0021, t_r: 1.5649, d: 0.0008 };
     /// ParamFile::from_theta(&theta, [Some(2.1e-5), None, Some(3e-3), Some(1e-4)], "drive.csv", "eiv").write(&path)?;
     /// let back = ParamFile::read(&path, None)?;
-    /// assert_eq!(back.theta()?, theta);
+    /// assert_eq!(Theta::try_from(&back)?, theta);
     /// # std::fs::remove_dir_all(&dir)?;
     /// # Ok::<(), Box<dyn std::error::Error>>(())
     /// ```

@@ -133,7 +133,7 @@ settings! {
     /// # fn main() -> Result<(), odocal::Error> {
     /// use odocal::settings::{Caller, ManifestSettings, Settings};
     /// use odocal::Param;
-    /// let caller = Settings::from_json(serde_json::json!({"method": "batch-gn", "fix": "d"}))?;
+    /// let caller = Settings::try_from(serde_json::json!({"method": "batch-gn", "fix": "d"}))?;
     /// let stated: Settings = toml::from_str("segment_length = 400\nfix = [\"t_r\"]").expect("toml");
     /// let manifest = ManifestSettings { manifest: "drive.toml".into(), settings: stated, reference: None };
     /// let options = caller.resolve(&[manifest], Caller::Python)?.options;
