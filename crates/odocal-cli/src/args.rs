@@ -344,7 +344,7 @@ impl std::str::FromStr for ThetaArg {
         if odocal::ParamFile::is_param_file(path) {
             // `read` has checked θ (`theta()` cannot fail after it).
             return match odocal::ParamFile::read(path, None) {
-                Ok(f) => Ok(ThetaArg { theta: f.theta()?, file: Some((path.into(), f)), pending: None }),
+                Ok(f) => Ok(ThetaArg { theta: Theta::try_from(&f)?, file: Some((path.into(), f)), pending: None }),
                 Err(e) if e.to_string().contains("--params-node") => {
                     let nan = Theta { c_e: f64::NAN, c_d: f64::NAN, t_r: f64::NAN, d: f64::NAN };
                     Ok(ThetaArg { theta: nan, file: None, pending: Some((path.into(), e.to_string())) })
@@ -369,7 +369,7 @@ impl ThetaArg {
         match (self.path(), node) {
             (Some(path), Some(node)) => {
                 let f = odocal::ParamFile::read(path, Some(node))?;
-                Ok(ThetaArg { theta: f.theta()?, file: Some((path.into(), f)), pending: None })
+                Ok(ThetaArg { theta: Theta::try_from(&f)?, file: Some((path.into(), f)), pending: None })
             }
             (None, Some(_)) => bail!("--params-node names a node of a parameter file, but θ was given as numbers"),
             (_, None) => match &self.pending {

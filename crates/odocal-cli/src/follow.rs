@@ -272,7 +272,7 @@ fn gates(a: &FollowArgs) -> Result<Gates> {
 /// Writes a written update to `--params-out` (atomically), when given.
 fn write_params(a: &FollowArgs, decision: &GateDecision, source: &str, fingerprint: &str) -> Result<()> {
     if let Some(p) = &a.params_out {
-        let s = decision.sigma.to_array().map(Some);
+        let s = <[_; 4]>::from(decision.sigma).map(Some);
         let mut f = ParamFile::from_theta(&decision.theta, s, source, METHOD);
         f.provenance.push(("fingerprint".into(), fingerprint.to_string()));
         write_text(p, &f.text_for(p)?).with_context(|| format!("--params-out {}", p.display()))?;

@@ -30,7 +30,7 @@ pub fn run(a: ImportArgs) -> Result<()> {
     files.output("--out", Some(&a.out)).output("--json", a.json.as_deref()).check()?;
     let m = odocal::Manifest::from_path(&a.manifest)?;
     // The calibration settings are checked too, so a bad one is named now.
-    odocal::settings::ManifestSettings::of_manifest(&m)?;
+    odocal::settings::ManifestSettings::try_from(&m)?;
     let imported = odocal::import(&m)?;
     write_drive(&imported.drive, &a.out)?;
     if let Some(p) = &a.json {

@@ -37,7 +37,7 @@ pub fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>, Opti
         }
         (drive, None)
     };
-    let settings = report.as_ref().map(ManifestSettings::of_report).transpose()?;
+    let settings = report.as_ref().map(ManifestSettings::try_from).transpose()?;
     if let Some(r) = &report {
         eprintln!(
             "imported {}: {} samples in {} part(s), {:.2} km (run `odocal import` for the full import report)",

@@ -58,7 +58,7 @@ pub fn route_length_km(s: &str) -> Result<f64, String> {
 
 /// `--noise`: a preset the simulator knows (`paper`, `random:N`, …).
 pub fn noise_preset(s: &str) -> Result<String, String> {
-    NoiseOptions::by_name(s).map(|_| s.to_string()).map_err(|e| match e {
+    s.parse::<NoiseOptions>().map(|_| s.to_string()).map_err(|e| match e {
         odocal::Error::InvalidOption { reason, .. } => reason,
         e => e.to_string(),
     })
@@ -83,7 +83,7 @@ fn parse_cd_step(s: &str) -> Result<CdStep, String> {
 
 /// The simulator's options for a seed, a route length and a noise preset.
 pub fn sim_options(seed: u64, length_km: f64, noise: &str) -> Result<SimOptions> {
-    let noise = NoiseOptions::by_name(noise)?;
+    let noise = noise.parse::<NoiseOptions>()?;
     Ok(SimOptions { seed, length_km, noise, ..SimOptions::paper(seed) })
 }
 
@@ -116,7 +116,7 @@ pub fn run(mut a: SimulateArgs, bars: &Bars) -> Result<()> {
     out.drive.write_csv(&a.out)?;
     out.sidecar.write_beside(&a.out)?;
     if a.noise.starts_with("random:") {
-        let w = sim::WorldSummary::of(&o.noise);
+        let w = sim::WorldSummary::from(&o.noise);
         println!(
             "noise world {}: {} ({}), wheel error per sample {:.2} % white, {:.2} % common-mode and slip",
             a.noise,

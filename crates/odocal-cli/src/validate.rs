@@ -68,7 +68,7 @@ pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<()> {
     let (drive, _, settings) = load_drive_with_scale(&a.drive)?;
     let mut opts = ValidateOptions::default();
     // A manifest's [reference]: the drive's own mount.
-    let stated = settings.as_ref().and_then(|s| s.reference.as_ref()).map(|r| r.extrinsics());
+    let stated = settings.as_ref().and_then(|s| s.reference.as_ref()).map(odocal::Extrinsics::from);
     let file = a.theta.file.as_ref();
     let from_file = opts.set_extrinsics(file.map(|(_, f)| f), stated.as_ref(), a.carry_heading_offset);
     if let Some(v) = a.validation_length {
@@ -139,7 +139,7 @@ fn print_report(a: &ValidateArgs, report: &odocal::ValidateReport, extrinsics_fr
         ),
         None => println!("θ: {}", a.theta.theta),
     }
-    if report.extrinsics != odocal::Extrinsics::ZERO {
+    if report.extrinsics != odocal::Extrinsics::default() {
         println!("reference extrinsics: {} ({extrinsics_from})", report.extrinsics);
     }
     if let Some(fit) = &report.heading_offset_fit {
@@ -151,7 +151,7 @@ fn print_report(a: &ValidateArgs, report: &odocal::ValidateReport, extrinsics_fr
             "reachable minimum: Ē_p {:.4} m at θ = {} ({} evaluations, {:.1} s)",
             rm.mean_position_error_m, rm.theta, rm.evaluations, rm.time_s
         );
-        if report.extrinsics != odocal::Extrinsics::ZERO {
+        if report.extrinsics != odocal::Extrinsics::default() {
             println!("  (the search, too, takes the reference at the extrinsics above)");
         }
         if rm.recentred > 0 {

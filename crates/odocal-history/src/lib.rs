@@ -108,7 +108,7 @@ impl CalibrationRecord {
         span_s: (f64, f64),
         report: &CalibrationReport,
     ) -> Self {
-        let sigma = match report.result_sigma().to_array() {
+        let sigma = match <[_; 4]>::from(report.result_sigma()) {
             [Some(c_e), Some(c_d), Some(t_r), Some(d)] => Some(Theta { c_e, c_d, t_r, d }),
             _ => None,
         };
@@ -225,7 +225,7 @@ impl std::fmt::Display for VehicleHistory {
         )?;
         for r in &self.rows {
             let c = &r.record;
-            let (v, sd) = (c.theta.to_array(), c.sigma.map(|s| s.to_array()));
+            let (v, sd) = (<[_; 4]>::from(c.theta), c.sigma.map(<[f64; 4]>::from));
             let cell = |i: usize, digits: usize, width: usize| {
                 let scale = DISPLAY_UNITS[i].0;
                 let text = match sd {
@@ -271,7 +271,8 @@ impl std::fmt::Display for VehicleHistory {
         }
         if let Some(p) = &self.pooled {
             writeln!(f, "\npooled over {} row(s) (inverse-variance mean ± its σ; between-drive sd):", p.rows)?;
-            let (m, s, b) = (p.mean.to_array(), p.sigma_of_mean.to_array(), p.between_drive_sd.to_array());
+            let (m, s, b) =
+                (<[_; 4]>::from(p.mean), <[_; 4]>::from(p.sigma_of_mean), <[_; 4]>::from(p.between_drive_sd));
             for (i, name) in THETA_NAMES.iter().enumerate() {
                 let (scale, unit) = DISPLAY_UNITS[i];
                 // One row has no spread between drives.

@@ -37,7 +37,8 @@ pub(crate) fn drift_between(rows: &[HistoryRow]) -> Vec<DriftFlag> {
     for w in rows.windows(2) {
         let (a, b) = (&w[0], &w[1]);
         let (Some(sa), Some(sb)) = (a.record.sigma, b.record.sigma) else { continue };
-        let (ta, tb, sa, sb) = (a.record.theta.to_array(), b.record.theta.to_array(), sa.to_array(), sb.to_array());
+        let (ta, tb, sa, sb) =
+            (<[_; 4]>::from(a.record.theta), <[_; 4]>::from(b.record.theta), <[_; 4]>::from(sa), <[_; 4]>::from(sb));
         for i in 0..4 {
             let change = tb[i] - ta[i];
             let combined = (sa[i] * sa[i] + sb[i] * sb[i]).sqrt();
@@ -83,7 +84,7 @@ pub(crate) fn pooled_estimate(rows: &[HistoryRow]) -> Option<Pooled> {
     let n = rows.len() as f64;
     let (mut mean, mut se, mut sd) = ([0.0; 4], [0.0; 4], [0.0; 4]);
     for i in 0..4 {
-        let values: Vec<f64> = rows.iter().map(|r| r.record.theta.to_array()[i]).collect();
+        let values: Vec<f64> = rows.iter().map(|r| <[_; 4]>::from(r.record.theta)[i]).collect();
         let plain = values.iter().sum::<f64>() / n;
         sd[i] = if rows.len() > 1 {
             (values.iter().map(|v| (v - plain) * (v - plain)).sum::<f64>() / (n - 1.0)).sqrt()
@@ -91,7 +92,7 @@ pub(crate) fn pooled_estimate(rows: &[HistoryRow]) -> Option<Pooled> {
             f64::NAN
         };
         let sigmas: Option<Vec<f64>> =
-            rows.iter().map(|r| r.record.sigma.map(|s| s.to_array()[i]).filter(|s| *s > 0.0)).collect();
+            rows.iter().map(|r| r.record.sigma.map(|s| <[_; 4]>::from(s)[i]).filter(|s| *s > 0.0)).collect();
         let spread_se = sd[i] / n.sqrt();
         match sigmas {
             Some(s) => {
@@ -109,8 +110,8 @@ pub(crate) fn pooled_estimate(rows: &[HistoryRow]) -> Option<Pooled> {
     }
     Some(Pooled {
         rows: rows.len(),
-        mean: Theta::from_array(mean),
-        sigma_of_mean: Theta::from_array(se),
-        between_drive_sd: Theta::from_array(sd),
+        mean: Theta::from(mean),
+        sigma_of_mean: Theta::from(se),
+        between_drive_sd: Theta::from(sd),
     })
 }

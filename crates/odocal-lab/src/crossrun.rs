@@ -295,10 +295,7 @@ mod tests {
     use odocal::Signals;
 
     fn tiny_drive() -> Drive {
-        let mut s = Signals::with_capacity(3);
-        for i in 0..3 {
-            s.push([i as f64 * 0.25, 0.0, 0.0, 5.0, 5.0, 0.0, 0.0]);
-        }
+        let s: Signals = (0..3).map(|i| [i as f64 * 0.25, 0.0, 0.0, 5.0, 5.0, 0.0, 0.0]).collect();
         odocal::DriveBuilder { t: vec![0.0, 0.025, 0.05], measured: s, ..Default::default() }.build().expect("drive")
     }
 

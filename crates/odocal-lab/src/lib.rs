@@ -144,12 +144,12 @@ pub fn batch_gn_all(drive: &Drive) -> Result<Theta, odocal::Error> {
     Ok(batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &opts)?.theta)
 }
 
-/// The simulator's noise presets by name (`NoiseOptions::by_name`) and
+/// The simulator's noise presets by name (`NoiseOptions`'s `FromStr`) and
 /// `coloured` ([`NoiseOptions::coloured_wheels_only`]).
 pub fn noise_preset(name: &str) -> Result<NoiseOptions, odocal::Error> {
     match name {
         "coloured" => Ok(NoiseOptions::coloured_wheels_only()),
-        _ => NoiseOptions::by_name(name),
+        _ => name.parse::<NoiseOptions>(),
     }
 }
 
@@ -305,7 +305,7 @@ pub fn error_scale(truth: &Theta) -> [f64; 4] {
 
 /// `theta − truth` in [`ERROR_UNITS`].
 pub fn errors(theta: &Theta, truth: &Theta) -> [f64; 4] {
-    let (a, b, s) = (theta.to_array(), truth.to_array(), error_scale(truth));
+    let (a, b, s) = (<[_; 4]>::from(theta), <[_; 4]>::from(truth), error_scale(truth));
     std::array::from_fn(|i| (a[i] - b[i]) * s[i])
 }
 

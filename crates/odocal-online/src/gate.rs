@@ -102,7 +102,7 @@ impl Gates {
     /// initial guess, which does not bound the change).
     pub fn decide(&self, cal: &Calibrator, stored: &Theta, calibrated: bool) -> GateDecision {
         let (theta, sigma) = (cal.theta(), cal.sigma());
-        let (th, sd, st) = (theta.to_array(), sigma.to_array(), stored.to_array());
+        let (th, sd, st) = (<[_; 4]>::from(theta), <[_; 4]>::from(sigma), <[_; 4]>::from(stored));
         let mut held = Vec::new();
         let max_sigma =
             [self.max_sigma_c_e_relative * th[0].abs(), self.max_sigma_c_d_m, self.max_sigma_t_r_m, self.max_sigma_d];

@@ -383,13 +383,13 @@ impl Calibrator {
         }
         theta0.validate()?;
         let sd = match sigma0 {
-            Some(s) if s.to_array().iter().all(|v| v.is_finite() && *v > 0.0) => {
+            Some(s) if <[_; 4]>::from(s).iter().all(|v| v.is_finite() && *v > 0.0) => {
                 let f = opts.sigma_factors;
-                std::array::from_fn(|i| s.to_array()[i] / f[i])
+                std::array::from_fn(|i| <[_; 4]>::from(s)[i] / f[i])
             }
             _ => opts.prior_sd(&theta0),
         };
-        let t = theta0.to_array();
+        let t = <[_; 4]>::from(theta0);
         let x = Vec5::from_column_slice(&[t[0], t[1], t[2], t[3], 0.0]);
         let mut p = Mat5::zeros();
         for i in 0..4 {
@@ -646,7 +646,7 @@ impl Calibrator {
     /// `scale` (δ's rows zero when it is not estimated); `None` when not finite.
     fn normal_equations(&self, seg: &SegmentData<'_>, x: &Vec5, scale: f64) -> Option<(Mat5, Vec5, f64)> {
         let theta = Theta { c_e: x[0], c_d: x[1], t_r: x[2], d: x[3] };
-        let e = Extrinsics { heading_offset: x[4], ..Extrinsics::ZERO };
+        let e = Extrinsics { heading_offset: x[4], ..Extrinsics::default() };
         let ne = extrinsics_normal_equations(seg, &theta, &e, &self.opts.weights);
         let dims = if self.opts.heading_offset { 5 } else { 4 };
         let mut h = Mat5::zeros();
@@ -716,7 +716,7 @@ impl Calibrator {
     /// Scores a validation segment that has completed.
     fn score(&mut self, p: &Pending) {
         let seg = self.buf.segment(p.start, self.opts.validation.length_steps, self.sample_time_s);
-        let e = Extrinsics { heading_offset: p.heading_offset, ..Extrinsics::ZERO };
+        let e = Extrinsics { heading_offset: p.heading_offset, ..Extrinsics::default() };
         let prequential_m = segment_position_error_with(&seg, &p.theta, &e);
         let stored_m = self.stored.map(|t| segment_position_error_with(&seg, &t, &e));
         if !prequential_m.is_finite() {
@@ -748,7 +748,7 @@ impl Calibrator {
     /// [`OnlineOptions::sigma_factors`].
     pub(crate) fn sigma(&self) -> Theta {
         let f = self.opts.sigma_factors;
-        Theta::from_array(std::array::from_fn(|i| f[i] * self.p[(i, i)].max(0.0).sqrt()))
+        Theta::from(std::array::from_fn(|i| f[i] * self.p[(i, i)].max(0.0).sqrt()))
     }
 
     /// The covariance of `[c_e, c_d, t_r, d, δ]`, θ's rows and columns
@@ -769,10 +769,10 @@ impl Calibrator {
     /// within `tolerance` (`[c_e, c_d, t_r, d]`) of its current value, s
     /// (at most the options' `steady_window_s`).
     pub(crate) fn steady_for_s(&self, tolerance: [f64; 4]) -> f64 {
-        let now = self.theta().to_array();
+        let now = <[_; 4]>::from(self.theta());
         let mut since = self.informative_s;
         for (t, theta) in self.track.iter().rev() {
-            let th = theta.to_array();
+            let th = <[_; 4]>::from(theta);
             if (0..4).any(|i| gate::exceeds((th[i] - now[i]).abs(), tolerance[i])) {
                 break;
             }

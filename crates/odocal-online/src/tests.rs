@@ -18,14 +18,10 @@ fn with_heading_offset(d: &Drive, delta: f64) -> Drive {
 }
 
 /// The samples `r` of `s`, through the public `Signals` API (its columns
-/// and `push` share one order).
+/// and its samples share one order).
 fn slice(s: &Signals, r: std::ops::Range<usize>) -> Signals {
     let columns = s.columns();
-    let mut out = Signals::with_capacity(r.len());
-    for i in r {
-        out.push(std::array::from_fn(|k| columns[k].1[i]));
-    }
-    out
+    r.map(|i| std::array::from_fn(|k| columns[k].1[i])).collect()
 }
 
 #[test]
@@ -162,7 +158,7 @@ fn pushed_times_find_the_gaps_and_the_heading_is_unwrapped() {
     let (x, y) = (cal.status(), reference.status());
     let counts = |s: &Status| (s.drive.samples, s.drive.folded_segments, s.drive.validation_segments);
     assert_eq!(counts(&x), counts(&y));
-    for (a, b) in x.theta.to_array().iter().zip(y.theta.to_array()) {
+    for (a, b) in <[_; 4]>::from(x.theta).iter().zip(<[_; 4]>::from(y.theta)) {
         assert!((a - b).abs() <= 1e-9 * b.abs().max(1.0), "{:?} {:?}", x.theta, y.theta);
     }
     // A gap in the times starts a new part: the samples before it no longer
@@ -180,10 +176,8 @@ fn pushed_times_find_the_gaps_and_the_heading_is_unwrapped() {
 fn a_heading_unwrapped_chunk_by_chunk_equals_the_drive_column() {
     let raw: Vec<f64> = (0..500).map(|i| wrap_angle(0.05 * i as f64 - 1.0)).collect();
     // The drive's constructor unwraps its heading column.
-    let mut signals = Signals::with_capacity(raw.len());
-    for (i, psi) in raw.iter().enumerate() {
-        signals.push([i as f64 * 0.3, 0.0, *psi, 5.0, 5.0, 0.0, 0.0]);
-    }
+    let signals: Signals =
+        raw.iter().enumerate().map(|(i, psi)| [i as f64 * 0.3, 0.0, *psi, 5.0, 5.0, 0.0, 0.0]).collect();
     let t = (0..raw.len()).map(|i| i as f64 * 0.025).collect();
     let drive = DriveBuilder { t, measured: signals, ..Default::default() }.build().expect("drive");
     let whole = drive.measured().psi.clone();
@@ -214,7 +208,8 @@ fn sigma_is_of_the_size_of_the_error_on_noisy_drives() {
         let mut cal = Calibrator::new(Theta::PAPER_INITIAL, None, d.sample_time_s(), OnlineOptions::default())
             .expect("calibrator");
         cal.push_drive(d, 400, |_| {}).expect("push");
-        let (th, s, t) = (cal.theta().to_array(), cal.sigma().to_array(), out.sidecar.theta_true.to_array());
+        let (th, s, t) =
+            (<[_; 4]>::from(cal.theta()), <[_; 4]>::from(cal.sigma()), <[_; 4]>::from(out.sidecar.theta_true));
         for i in 0..4 {
             sq[i] += (th[i] - t[i]).powi(2);
             sd[i] += s[i];
@@ -260,7 +255,7 @@ fn a_streamed_drive_gives_the_whole_drives_results() {
     let b = run(&|c, p| c.push_replay(&stream, |n| p.push(n)).expect("push"));
     assert!(a.3.validation_segments > 3 && a.3.folded_segments > 10, "{:?}", a.3);
     assert_eq!(format!("{a:?}"), format!("{b:?}"));
-    let to_bits = |th: Theta| th.to_array().map(f64::to_bits);
+    let to_bits = |th: Theta| <[_; 4]>::from(th).map(f64::to_bits);
     assert_eq!((to_bits(a.0), to_bits(a.1)), (to_bits(b.0), to_bits(b.1)));
 }
 

@@ -65,7 +65,7 @@ fn validation_drives(v: &Bound<'_, PyAny>) -> PyResult<ValidationDrives> {
 }
 
 /// The calibration of `method` and the keyword options: the keywords are
-/// the library's settings ([`Settings::from_json`]), over the manifest's
+/// the library's settings (`Settings::try_from`), over the manifest's
 /// ([`Settings::resolve`]); `holdout` and `validate_on` choose where the
 /// report validates. None means "not given", as an absent flag. An unknown
 /// keyword raises `TypeError` naming the known ones; a bad value
@@ -109,7 +109,7 @@ fn plan(
             reason: "give holdout or validate_on, not both".into(),
         }));
     }
-    let settings = Settings::from_json(serde_json::Value::Object(keys)).map_err(lib_err)?;
+    let settings = Settings::try_from(serde_json::Value::Object(keys)).map_err(lib_err)?;
     let resolved = settings.resolve(manifests, Caller::Python).map_err(lib_err)?;
     let (validate_on, validate_on_drives) = validate_on.unzip();
     Ok(CalibrationPlan {

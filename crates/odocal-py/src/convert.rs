@@ -162,7 +162,7 @@ pub(crate) fn refuse_bool_for_number(key: &str, value: &serde_json::Value) -> Py
         return Ok(());
     }
     let alone = serde_json::json!({ key: value });
-    if odocal::settings::Settings::from_json(alone).is_ok() {
+    if odocal::settings::Settings::try_from(alone).is_ok() {
         return Ok(());
     }
     Err(PyTypeError::new_err(format!(

@@ -43,7 +43,7 @@ impl Provenance {
         let Some(text) = &self.import_report else { return Ok(None) };
         let v: serde_json::Value =
             serde_json::from_str(text).map_err(|e| PyRuntimeError::new_err(format!("import report: {e}")))?;
-        ManifestSettings::of_report_json(&v).map(Some).map_err(lib_err)
+        ManifestSettings::try_from(&v).map(Some).map_err(lib_err)
     }
 
     /// What the import of a manifest warned about, each as `source: warning`
@@ -185,7 +185,7 @@ fn read_csv_with_sidecar(path: &std::path::Path) -> odocal::Result<(Drive, Prove
 fn read_manifest(path: &std::path::Path) -> odocal::Result<(Drive, Provenance)> {
     let m = odocal::Manifest::from_path(path)?;
     // The calibration settings are checked too, so a bad one is named now.
-    ManifestSettings::of_manifest(&m)?;
+    ManifestSettings::try_from(&m)?;
     let imported = odocal::import(&m)?;
     let import_report = serde_json::to_string_pretty(&odocal::settings::import_report_json(&imported.report)?)
         .map_err(|source| odocal::Error::Json { context: format!("import report of {}", path.display()), source })?;

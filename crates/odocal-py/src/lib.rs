@@ -81,7 +81,7 @@ fn validate<'py>(
         ));
     }
     let theta = match &file {
-        Some(f) => f.theta().map_err(lib_err)?,
+        Some(f) => odocal::Theta::try_from(f).map_err(lib_err)?,
         None => extract_theta(theta)?,
     };
     // A CalibrationReport as θ: its extrinsics, as a parameter file of it would carry them.
@@ -96,7 +96,7 @@ fn validate<'py>(
     }
     // A manifest's [reference]: the drive's own mount (as `odocal validate`);
     // a parameter file's estimated extrinsics win (ValidateOptions::set_extrinsics).
-    let stated = drive.get().prov.settings()?.and_then(|s| s.reference).map(|r| r.extrinsics());
+    let stated = drive.get().prov.settings()?.and_then(|s| s.reference).map(|r| odocal::Extrinsics::from(&r));
     opts.set_extrinsics(file.as_ref(), stated.as_ref(), carry_heading_offset);
     let inner = Arc::clone(&drive.get().drive);
     let report =
@@ -136,7 +136,7 @@ fn simulate(
     let mut o = SimOptions {
         seed,
         length_km,
-        noise: NoiseOptions::by_name(noise).map_err(lib_err)?,
+        noise: noise.parse::<NoiseOptions>().map_err(lib_err)?,
         ..SimOptions::paper(seed)
     };
     if let Some(t) = theta {

@@ -24,12 +24,12 @@ fn parameter_svg(i: usize, rows: &[HistoryRow], drift: &[DriftFlag], pooled: Opt
         .iter()
         .enumerate()
         .map(|(k, r)| {
-            let v = r.record.theta.to_array()[i] * scale;
-            let s = r.record.sigma.map_or(0.0, |s| s.to_array()[i] * scale);
+            let v = <[_; 4]>::from(r.record.theta)[i] * scale;
+            let s = r.record.sigma.map_or(0.0, |s| <[_; 4]>::from(s)[i] * scale);
             ((k + 1) as f64, v, if s.is_finite() { s } else { 0.0 })
         })
         .collect();
-    let mean = pooled.map(|p| p.mean.to_array()[i] * scale).filter(|m| m.is_finite());
+    let mean = pooled.map(|p| <[_; 4]>::from(p.mean)[i] * scale).filter(|m| m.is_finite());
     let lo = pts.iter().map(|p| p.1 - p.2).chain(mean).fold(f64::INFINITY, f64::min);
     let hi = pts.iter().map(|p| p.1 + p.2).chain(mean).fold(f64::NEG_INFINITY, f64::max);
     let (lo, hi) = if hi > lo { (lo, hi) } else { (lo - 0.5 * lo.abs().max(1e-9), hi + 0.5 * hi.abs().max(1e-9)) };
@@ -125,7 +125,7 @@ fn rows_table(rows: &[HistoryRow]) -> String {
     );
     for (k, r) in rows.iter().enumerate() {
         let c = &r.record;
-        let (th, sd) = (c.theta.to_array(), c.sigma.map(|s| s.to_array()));
+        let (th, sd) = (<[_; 4]>::from(c.theta), c.sigma.map(<[f64; 4]>::from));
         let cells: Vec<String> = (0..4).map(|i| cell(th[i], sd.map(|s| s[i]), i)).collect();
         h.push_str(&format!(
             "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td>\
@@ -171,7 +171,7 @@ fn drift_list(drift: &[DriftFlag]) -> String {
 }
 
 fn pooled_table(p: &Pooled) -> String {
-    let (m, s, b) = (p.mean.to_array(), p.sigma_of_mean.to_array(), p.between_drive_sd.to_array());
+    let (m, s, b) = (<[_; 4]>::from(p.mean), <[_; 4]>::from(p.sigma_of_mean), <[_; 4]>::from(p.between_drive_sd));
     let mut h = format!(
         "<p>Pooled over {} row(s): the inverse-variance mean ± its σ and the between-drive sd.</p>\n\
          <table><tr><th>parameter</th><th>mean ± σ</th><th>between-drive sd</th></tr>\n",

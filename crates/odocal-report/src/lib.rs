@@ -110,10 +110,10 @@ impl ParamRow {
                 name: THETA_NAMES[i].to_string(),
                 unit: units[i].0.to_string(),
                 scale: units[i].1,
-                initial: initial.to_array()[i],
-                calibrated: calibrated.to_array()[i],
+                initial: <[_; 4]>::from(initial)[i],
+                calibrated: <[_; 4]>::from(calibrated)[i],
                 sigma: sigma.and_then(|s| s[i]),
-                truth: truth.map(|t| t.to_array()[i]),
+                truth: truth.map(|t| <[_; 4]>::from(t)[i]),
                 sigma_label: None,
             })
             .collect()
@@ -126,10 +126,10 @@ impl ParamRow {
     /// ([`odocal::ExtrinsicsEstimate::result_std_dev`]), labelled `± 1σ
     /// (robust)` or `± 1σ (model)` as the text labels it; held entries have no σ.
     pub fn extrinsics_rows(x: &odocal::ExtrinsicsEstimate) -> Vec<ParamRow> {
-        let (init, val, sd) = (x.initial.to_array(), x.value.to_array(), x.result_std_dev().to_array());
+        let (init, val, sd) = (<[_; 3]>::from(x.initial), <[_; 3]>::from(x.value), <[_; 3]>::from(x.result_std_dev()));
         let label = if x.robust.is_some() { "± 1σ (robust)" } else { "± 1σ (model)" };
         odocal::ParamSet::EXTRINSICS
-            .iter()
+            .into_iter()
             .enumerate()
             .map(|(i, p)| {
                 let (unit, scale) = if i == 2 { ("mrad", 1e3) } else { ("m", 1.0) };
@@ -241,7 +241,8 @@ impl<'a> ReportInput<'a> {
         truth: Option<&Theta>,
     ) -> Self {
         let r = report;
-        let mut params = ParamRow::theta_rows(&r.initial.theta, &r.theta, Some(r.result_sigma().to_array()), truth);
+        let mut params =
+            ParamRow::theta_rows(&r.initial.theta, &r.theta, Some(<[_; 4]>::from(r.result_sigma())), truth);
         params.extend(r.extrinsics.as_ref().map(ParamRow::extrinsics_rows).unwrap_or_default());
         let batches = step_one_batches(r);
         ReportInput {
@@ -272,7 +273,7 @@ impl<'a> ReportInput<'a> {
 
     /// The extrinsics `[θ_0's, θ's]` of validation segment `i`.
     fn extrinsics_of(&self, i: usize) -> [Extrinsics; 2] {
-        self.segment_extrinsics.get(i).copied().unwrap_or([Extrinsics::ZERO; 2])
+        self.segment_extrinsics.get(i).copied().unwrap_or([Extrinsics::default(); 2])
     }
 }
 

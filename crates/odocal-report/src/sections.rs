@@ -238,17 +238,17 @@ pub(crate) fn batches(h: &mut String, r: &ReportInput<'_>) -> Result<()> {
     let units = [("c_e (m)", 1.0), ("c_d (mm)", 1e3), ("t_r (m)", 1.0), ("d (mm/(m/s²))", 1e3)];
     let panels: Vec<Panel> = (0..4)
         .map(|i| {
-            let pts: Vec<(f64, f64)> = r.batches.iter().map(|(t, e)| (*e, t.to_array()[i] * units[i].1)).collect();
+            let pts: Vec<(f64, f64)> = r.batches.iter().map(|(t, e)| (*e, <[_; 4]>::from(t)[i] * units[i].1)).collect();
             let ys: Vec<f64> = pts.iter().map(|p| p.1).collect();
             let mut hlines = vec![plots::HLine {
                 name: "calibrated".into(),
-                y: r.theta.to_array()[i] * units[i].1,
+                y: <[_; 4]>::from(r.theta)[i] * units[i].1,
                 color: plots::RED,
             }];
             if let Some(t) = r.truth {
                 hlines.push(plots::HLine {
                     name: "truth".into(),
-                    y: t.to_array()[i] * units[i].1,
+                    y: <[_; 4]>::from(t)[i] * units[i].1,
                     color: plots::GREEN,
                 });
             }

@@ -24,7 +24,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // The default method is `eiv`; `batch-gn` and `three-step` (the paper's) are the others.
     let mut options = CalibrationOptions::default();
     if let Some(name) = std::env::args().nth(2) {
-        options.method = Method::from_name(&name)?;
+        options.method = name.parse::<Method>()?;
     }
     let report = calibrate(&drive, &options)?;
 
@@ -32,7 +32,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let sigma = report.result_sigma();
     let names = ["c_e m", "c_d m", "t_r m", "d m/(m/s²)"];
     println!("method {}: θ = {}", report.method, report.theta);
-    for ((name, value), s) in names.iter().zip(report.theta.to_array()).zip(sigma.to_array()) {
+    for ((name, value), s) in names.iter().zip(<[_; 4]>::from(report.theta)).zip(<[_; 4]>::from(sigma)) {
         match s {
             Some(s) => println!("  {name:11} {value:+.6} ± {s:.6} (1σ, {})", sigma.source),
             None => println!("  {name:11} {value:+.6} (held)"),

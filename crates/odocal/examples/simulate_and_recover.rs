@@ -21,9 +21,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
 
     for name in ["batch-gn", "three-step", "eiv"] {
-        let options = CalibrationOptions { method: Method::from_name(name)?, ..Default::default() };
+        let options = CalibrationOptions { method: name.parse::<Method>()?, ..Default::default() };
         let report = calibrate(drive, &options)?;
-        let sigma = report.result_sigma().to_array();
+        let sigma = <[_; 4]>::from(report.result_sigma());
         // Error over the reported σ: about ±2 or less for an unbiased estimate with an honest σ.
         let z: Vec<String> = error(&report.theta, &truth)
             .iter()
@@ -42,6 +42,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
 /// θ − truth, SI.
 fn error(theta: &Theta, truth: &Theta) -> [f64; 4] {
-    let (a, b) = (theta.to_array(), truth.to_array());
+    let (a, b) = (<[f64; 4]>::from(theta), <[f64; 4]>::from(truth));
     std::array::from_fn(|i| a[i] - b[i])
 }

@@ -96,10 +96,11 @@ pub enum Error {
         expected: &'static str,
     },
     /// Parameters cannot be identified from the data.
-    #[error("parameter(s) {params} not observable from these data: {reason}")]
+    #[error("parameter(s) {} not observable from these data: {reason}", params.join(", "))]
     NotObservable {
-        /// The parameters that cannot be identified.
-        params: ParamNames,
+        /// The names of the parameters that cannot be identified, in
+        /// vector order.
+        params: Vec<&'static str>,
         /// Why.
         reason: String,
     },
@@ -300,17 +301,4 @@ pub enum QpError {
     /// The problem data are inconsistent.
     #[error("malformed problem: {0}")]
     Malformed(String),
-}
-
-/// Names of model parameters as an error states them, in order
-/// (`"c_d, t_r, d"`); built from a parameter set
-/// ([`crate::model::param::ParamSet`]).
-#[derive(Debug, Clone, PartialEq, Eq, Default)]
-pub struct ParamNames(pub Vec<&'static str>);
-
-impl std::fmt::Display for ParamNames {
-    /// Names joined by ", ".
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(&self.0.join(", "))
-    }
 }

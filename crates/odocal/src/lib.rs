@@ -189,16 +189,19 @@ pub use assess::{
     warning::Warning,
 };
 
-/// What the studies in crates/odocal-lab use beyond the public API: steps
-/// and diagnostics a study compares (feature `research`, off by default;
-/// not part of the stable API).
-#[cfg(feature = "research")]
-pub mod research {
-    pub use crate::assess::{position_error::mean_position_error_with, reachable::reachable_minimum};
-    pub use crate::calibrate::{
-        calibrate_detailed,
-        eiv::is_misspecification,
-        three_step::{random_batches, score_batches},
-        DetailedCalibration,
-    };
+research_pub! {
+    /// What the studies in crates/odocal-lab use beyond the public API: steps
+    /// and diagnostics a study compares (feature `research`, off by default;
+    /// not part of the stable API).
+    mod research {
+        research_use! {
+            crate::assess::{position_error::mean_position_error_with, reachable::reachable_minimum},
+            crate::calibrate::{
+                calibrate_detailed,
+                eiv::is_misspecification,
+                three_step::{random_batches, score_batches},
+                DetailedCalibration,
+            },
+        }
+    }
 }

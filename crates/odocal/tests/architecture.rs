@@ -29,7 +29,7 @@ use std::path::{Path, PathBuf};
 
 /// The layers, lowest first: `(layer, top-level module)`.
 const LAYERS: &[(u32, &str)] = &[
-    (0, "error"),      // Error, Result, QpError, ParamNames
+    (0, "error"),      // Error, Result, QpError
     (0, "progress"),   // progress events
     (0, "simd"),       // the instruction-set choice of the AVX2 builds
     (1, "model"),      // θ, the equations, parameters, extrinsics, physical limits
@@ -355,7 +355,7 @@ fn modules_use_only_lower_layers() {
 // ---- public surface ----
 
 /// The most `pub` items `src/` may declare (module docs: how they are counted).
-const PUBLIC_ITEM_BUDGET: usize = 317;
+const PUBLIC_ITEM_BUDGET: usize = 292;
 
 /// The kinds of item the count looks for after `pub `.
 const PUBLIC_KINDS: [&str; 11] =

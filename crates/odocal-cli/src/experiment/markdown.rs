@@ -252,8 +252,8 @@ fn crb_section(o: &mut String, c: &CramerRao, rows: &[(String, Scored)], time_s:
         o,
         "| | Δc_e (mm) | Δc_e/σ | Δc_d (mm) | Δc_d/σ | Δt_r (mm) | Δt_r/σ | Δd (mm/(m/s²)) | Δd/σ |\n|---|---|---|---|---|---|---|---|---|"
     );
-    let s = sigma.to_array();
-    let m = c.sigma_mean_only.map(|m| m.to_array());
+    let s = <[_; 4]>::from(sigma);
+    let m = c.sigma_mean_only.map(<[f64; 4]>::from);
     let _ = writeln!(
         o,
         "| σ_CRB | {:.3} | | {:.4} | | {:.2} | | {:.4} | |",
@@ -272,7 +272,7 @@ fn crb_section(o: &mut String, c: &CramerRao, rows: &[(String, Scored)], time_s:
             m[3] * 1e3
         );
     }
-    if let Some(m) = c.sigma_noise_estimated.map(|m| m.to_array()) {
+    if let Some(m) = c.sigma_noise_estimated.map(<[f64; 4]>::from) {
         let _ = writeln!(
             o,
             "| σ_CRB, noise scales unknown too | {:.3} | | {:.4} | | {:.2} | | {:.4} | |",
@@ -284,7 +284,7 @@ fn crb_section(o: &mut String, c: &CramerRao, rows: &[(String, Scored)], time_s:
     }
     for (name, sc) in rows {
         let (Some(d), Some(r)) = (sc.error_vs_true, sc.error_over_crb) else { continue };
-        let (d, r) = (d.to_array(), r.to_array());
+        let (d, r) = (<[_; 4]>::from(d), <[_; 4]>::from(r));
         let _ = writeln!(
             o,
             "| {name} | {:+.3} | {:+.2} | {:+.4} | {:+.2} | {:+.2} | {:+.2} | {:+.4} | {:+.2} |",

@@ -198,7 +198,7 @@ fn read_drive(path: &Path) -> Result<DriveAndTruth> {
 
 /// A simulated drive of the arguments' seed, length and noise preset.
 fn simulate_drive(a: &ExperimentArgs, bars: &Bars) -> Result<DriveAndTruth> {
-    let noise = NoiseOptions::by_name(&a.noise)?;
+    let noise = a.noise.parse::<NoiseOptions>()?;
     let o = SimOptions { seed: a.seed, length_km: a.length_km, noise, ..SimOptions::paper(a.seed) };
     bars.stage("simulating");
     let out = sim::simulate(&o)?;

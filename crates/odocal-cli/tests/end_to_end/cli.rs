@@ -189,7 +189,7 @@ fn simulate_random_noise_world() {
     assert!(stdout(&o).contains("noise world random:7: "), "{}", stdout(&o));
     let side: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(d.path().join("world.json")).expect("sidecar")).expect("json");
-    let (world, _) = ::odocal::sim::NoiseOptions::random_world(7);
+    let world: ::odocal::sim::NoiseOptions = "random:7".parse().expect("world 7");
     let noise: ::odocal::sim::NoiseOptions = serde_json::from_value(side["settings"]["noise"].clone()).expect("noise");
     assert_eq!(noise, world);
     let o = odocal(&["simulate", "--length-km", "1", "--noise", "random:x", "--out", dstr]);

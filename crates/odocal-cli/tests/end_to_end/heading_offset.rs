@@ -14,7 +14,7 @@ use odocal::Extrinsics;
 
 /// A noise-free 3 km drive whose reference heading is turned by `delta`.
 fn drive(dir: &Path, name: &str, seed: u64, delta: f64) -> String {
-    let mount = Extrinsics { heading_offset: delta, ..Extrinsics::ZERO };
+    let mount = Extrinsics { heading_offset: delta, ..Extrinsics::default() };
     let s =
         simulate(&SimOptions { length_km: 3.0, substeps: 1, reference_mount: mount, ..SimOptions::noise_free(seed) })
             .expect("simulate");

@@ -20,7 +20,7 @@ fn oval() -> Drive {
     let lap = 2.0 * straight + 2.0 * std::f64::consts::PI * r;
     let n = (1.3 * lap / v / t_s) as usize;
     let mut x = State::zeros();
-    let mut s = Signals::with_capacity(n);
+    let mut s = Signals::default();
     for i in 0..n {
         let along = (i as f64 * v * t_s) % lap;
         let omega = if along % (lap / 2.0) < straight { 0.0 } else { v / r };
@@ -29,7 +29,7 @@ fn oval() -> Drive {
         let c_rl = theta.c_e + theta.c_d / 2.0 + theta.d * a_y;
         let c_rr = theta.c_e - theta.c_d / 2.0 - theta.d * a_y;
         let (n_rl, n_rr) = ((v - omega * theta.t_r / 2.0) / c_rl, (v + omega * theta.t_r / 2.0) / c_rr);
-        s.push([x[0], x[1], x[2], n_rl, n_rr, 0.0, a_y]);
+        s.extend([[x[0], x[1], x[2], n_rl, n_rr, 0.0, a_y]]);
         x = step(&x, &Input { n_rl, n_rr, beta: 0.0, a_y }, &theta, t_s);
     }
     odocal::DriveBuilder { t: (0..n).map(|i| i as f64 * t_s).collect(), measured: s, ..Default::default() }

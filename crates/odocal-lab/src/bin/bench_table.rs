@@ -70,7 +70,7 @@ fn worker(argv: &[String]) -> Res<()> {
     let threads: usize = threads.parse()?;
     rayon::ThreadPoolBuilder::new().num_threads(threads).build_global()?;
     let (drive, _warnings) = Drive::read_csv(path)?;
-    let opts = CalibrationOptions { method: Method::from_name(method)?, ..Default::default() };
+    let opts = CalibrationOptions { method: method.parse::<Method>()?, ..Default::default() };
     let cpu0 = cpu_seconds()?;
     let t = Instant::now();
     calibrate(&drive, &opts)?;
@@ -268,7 +268,7 @@ fn repeated(unit: &Drive, copies: usize) -> Res<Drive> {
     let (m, n, ts) = (unit.measured(), unit.len(), unit.sample_time_s());
     let period = unit.t()[n - 1] - unit.t()[0] + ts;
     let mut t = Vec::with_capacity(n * copies);
-    let mut sig = Signals::with_capacity(n * copies);
+    let mut sig = Signals::default();
     // The rigid move of the current copy: rotation by `rot`, then translation.
     let (mut rot, mut dx, mut dy) = (0.0f64, 0.0, 0.0);
     for c in 0..copies {

@@ -60,7 +60,7 @@ fn note_heading_drift(name: &str, r: &CalibrationReport) {
     }
     let reasons: Vec<String> = r.verdict.reasons.iter().map(|x| x.to_string()).collect();
     eprintln!("{name}: verdict {} [{}]", r.verdict.level, reasons.join(" | "));
-    eprintln!("{name}: θ {:?} σ {:?}", r.theta.to_array(), r.result_sigma().to_array());
+    eprintln!("{name}: θ {:?} σ {:?}", <[_; 4]>::from(r.theta), <[_; 4]>::from(r.result_sigma()));
 }
 
 fn main() {
@@ -71,7 +71,7 @@ fn main() {
 fn load_with_options(rel: &str) -> Res<(Drive, CalibrationOptions)> {
     let path = repo_path(rel);
     let (drive, report) = odocal::load_drive(&path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let manifest = report.as_ref().map(ManifestSettings::of_report).transpose()?;
+    let manifest = report.as_ref().map(ManifestSettings::try_from).transpose()?;
     let mut options = Settings::default().resolve(manifest.as_slice(), Caller::CommandLine)?.options;
     if let (Some(t), odocal::Method::Eiv(e)) = (HEADING_DRIFT_LR.get().copied().flatten(), &mut options.method) {
         e.filter.research.heading_drift_lr_threshold = t;

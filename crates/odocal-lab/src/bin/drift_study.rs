@@ -122,8 +122,8 @@ fn ramp_run(seed: u64, ramp: f64, k: &Knobs) -> Res<RampRun> {
         if start_s.is_nan() {
             start_s = (b - 1) as f64 * ts;
         }
-        let truth = o.drift.theta_at(&o.theta_true, (b - 1) as f64 * ts).to_array();
-        let (th, s) = (st.theta.to_array(), st.sigma.to_array());
+        let truth = <[_; 4]>::from(o.drift.theta_at(&o.theta_true, (b - 1) as f64 * ts));
+        let (th, s) = (<[_; 4]>::from(st.theta), <[_; 4]>::from(st.sigma));
         for i in 0..4 {
             inside[i] += usize::from((th[i] - truth[i]).abs() <= 2.0 * s[i]);
             trace[i].push((th[i] - truth[i], s[i]));

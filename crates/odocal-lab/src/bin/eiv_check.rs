@@ -72,13 +72,13 @@ fn run() -> Res<()> {
     );
     for preset in &presets {
         for seed in 1..=seeds {
-            let noise = NoiseOptions::by_name(preset)?;
+            let noise = preset.parse::<NoiseOptions>()?;
             let out = simulate(&SimOptions { length_km: km, noise: noise.clone(), ..SimOptions::paper(seed) })?;
             let d = &out.drive;
             let truth = out.sidecar.theta_true;
             let scale = error_scale(&truth);
             let err = |th: &Theta| -> [f64; 4] {
-                let (a, b) = (th.to_array(), truth.to_array());
+                let (a, b) = (<[_; 4]>::from(th), <[_; 4]>::from(truth));
                 std::array::from_fn(|i| (a[i] - b[i]) * scale[i])
             };
             let sc = |s: &[f64; 4]| -> [f64; 4] { std::array::from_fn(|i| s[i] * scale[i]) };

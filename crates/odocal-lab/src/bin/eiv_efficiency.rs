@@ -50,10 +50,10 @@ fn run() -> Res<()> {
         // The replicate world's true inputs are the drive's measured ones
         // (`BootstrapInputs::Measured`), so its bound is linearised along them.
         let crb = cramer_rao_bound(&input, &fit.theta, &fit.noise, &held)?;
-        let hat = fit.theta.to_array();
+        let hat = <[_; 4]>::from(fit.theta);
         let mut sd = [0.0f64; 4];
         for t in &boot.replicates {
-            let a = t.to_array();
+            let a = <[_; 4]>::from(t);
             for i in 0..4 {
                 let e = a[i] - hat[i];
                 err2[i] += e * e;

@@ -82,8 +82,8 @@ fn run() -> Res<()> {
             "noslip" => NoiseOptions { wheel_slip_per_m_per_s2: 0.0, ..NoiseOptions::paper() },
             "nobeta" => NoiseOptions { wheel_slip_per_m_per_s2: 0.0, sideslip_sigma_rad: 0.0, ..NoiseOptions::paper() },
             "quantonly" => NoiseOptions { encoder_ticks_per_revolution: 256, ..NoiseOptions::off() },
-            "quantwhite" => NoiseOptions { encoder_ticks_per_revolution: 256, ..NoiseOptions::by_name("white")? },
-            "white2" => NoiseOptions { wheel_white_rel_sigma: 0.02, ..NoiseOptions::by_name("white")? },
+            "quantwhite" => NoiseOptions { encoder_ticks_per_revolution: 256, .."white".parse::<NoiseOptions>()? },
+            "white2" => NoiseOptions { wheel_white_rel_sigma: 0.02, .."white".parse::<NoiseOptions>()? },
             "coloured" => NoiseOptions::coloured_wheels_only(),
             "noquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::paper() },
             "highnoquant" => NoiseOptions { encoder_ticks_per_revolution: 0, ..NoiseOptions::high() },
@@ -133,7 +133,7 @@ fn run() -> Res<()> {
                 n
             }
             _ if p.starts_with("scale") => NoiseOptions::paper_scaled(p["scale".len()..].parse()?),
-            _ => NoiseOptions::by_name(p)?,
+            _ => p.parse::<NoiseOptions>()?,
         };
         for seed in 1..=seeds {
             let sim =
@@ -204,11 +204,11 @@ fn run() -> Res<()> {
                 ("est-pc-simtau", pc_tau, false),
             ];
             let errs = |t: &Theta| {
-                let (a, b) = (t.to_array(), truth.to_array());
+                let (a, b) = (<[_; 4]>::from(t), <[_; 4]>::from(truth));
                 [(a[0] - b[0]) / b[0] * 100.0, (a[1] - b[1]) * 1e3, (a[2] - b[2]) / b[2] * 100.0, (a[3] - b[3]) * 1e3]
             };
             let err = |t: &Theta| {
-                let (a, b) = (t.to_array(), truth.to_array());
+                let (a, b) = (<[_; 4]>::from(t), <[_; 4]>::from(truth));
                 format!(
                     "c_e {:+.3}% c_d {:+.3}mm t_r {:+.2}% d {:+.3}",
                     (a[0] - b[0]) / b[0] * 100.0,

@@ -35,7 +35,7 @@ fn run() -> Res<()> {
         for seed in 1..=seeds {
             let sim = simulate_preset(p, km, seed)?;
             let d = &sim.drive;
-            let truth = sim.sidecar.theta_true.to_array();
+            let truth = <[_; 4]>::from(sim.sidecar.theta_true);
             let gn = batch_gn_all(d)?;
             let input = EivInput::from_drive(d);
             // One fit with the default options. The σ without the η term is
@@ -50,7 +50,7 @@ fn run() -> Res<()> {
                 research: ResearchOptions { noise_estimate_in_covariance: false, ..Default::default() },
                 ..EivOptions::default()
             };
-            let th = r.theta.to_array();
+            let th = <[_; 4]>::from(r.theta);
             let mut var_prop = [0.0f64; 4];
             let mut sens = Vec::new();
             for j in 0..6 {
@@ -61,7 +61,7 @@ fn run() -> Res<()> {
                     let mut e = [0.0; 6];
                     e[j] = sign * h;
                     let o = EivOptions { noise: r.noise.scaled(&e), fix_noise: true, ..opts.clone() };
-                    Ok(estimate(&input, &r.theta, &o)?.theta.to_array())
+                    Ok(<[_; 4]>::from(estimate(&input, &r.theta, &o)?.theta))
                 };
                 let (a, b) = (fit(1.0)?, fit(-1.0)?);
                 let s: [f64; 4] = std::array::from_fn(|i| (a[i] - b[i]) / (2.0 * h));

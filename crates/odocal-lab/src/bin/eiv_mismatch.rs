@@ -70,7 +70,7 @@ fn run() -> Res<()> {
         |s| s.split(',').map(str::to_string).collect(),
     );
     args.finish()?;
-    let noise = NoiseOptions::by_name(&preset)?;
+    let noise = preset.parse::<NoiseOptions>()?;
     let flag = |name: &str| std::env::var_os(name).is_some();
     let (start_true, estimated, crb_known, crb_measured) =
         (flag("START_TRUE"), flag("EST"), flag("CRB_KNOWN"), flag("CRB_MEASURED"));
@@ -89,7 +89,7 @@ fn run() -> Res<()> {
             let base = SimOptions { length_km: km, noise: noise.clone(), ..SimOptions::paper(seed) };
             let out = simulate(&variant(&base, v)?)?;
             let d = &out.drive;
-            let truth = out.sidecar.theta_true.to_array();
+            let truth = <[_; 4]>::from(out.sidecar.theta_true);
             let input = EivInput::from_drive(d);
             let mut start = batch_gn_all(d)?;
             if start_true {
@@ -110,7 +110,7 @@ fn run() -> Res<()> {
             // CRB_MEASURED: linearised along the measured inputs.
             let crb_input = if crb_measured { input } else { EivInput::from_drive_truth(d)? };
             let crb = cramer_rao_bound(&crb_input, &out.sidecar.theta_true, &true_noise, &crb_opts)?;
-            let t = fit.theta.to_array();
+            let t = <[_; 4]>::from(fit.theta);
             for i in 0..4 {
                 // c_e and t_r relative, c_d and d absolute (as the study prints them).
                 let scale = if i == 1 || i == 3 { 1.0 } else { 1.0 / truth[i].abs() };

@@ -49,8 +49,8 @@ fn methods() -> Res<Vec<(&'static str, Method)>> {
         Method::Eiv(EivMethodOptions { correct_bias: Some(CorrectBias { replicates, seed: 0 }), ..Default::default() })
     };
     Ok(vec![
-        ("batch-gn", Method::from_name("batch-gn")?),
-        ("three-step", Method::from_name("three-step")?),
+        ("batch-gn", "batch-gn".parse::<Method>()?),
+        ("three-step", "three-step".parse::<Method>()?),
         ("eiv-fixed", eiv(true, counting)),
         ("eiv-estimated", eiv(false, counting)),
         ("eiv-fixed-process", eiv(true, process)),

@@ -198,7 +198,7 @@ fn options(est: &str, noise: &NoiseOptions, ts: f64) -> Res<CalibrationOptions> 
     }
     match est {
         "gn" => {
-            o.method = Method::from_name("batch-gn")?;
+            o.method = "batch-gn".parse::<Method>()?;
             o.identify.free = o.identify.free.with(Param::HeadingOffset);
         }
         "b16" | "conv" => {

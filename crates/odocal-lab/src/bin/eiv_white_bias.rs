@@ -86,14 +86,14 @@ fn gn_whitened(
     free: [bool; 4],
     f: &dyn Fn(&Drive, &Theta, &mut Vec<f64>),
 ) -> (Theta, f64, usize) {
-    let mut th = nalgebra::Vector4::from(start.to_array());
+    let mut th = nalgebra::Vector4::from(<[_; 4]>::from(start));
     let hstep = [1e-6, 1e-7, 1e-6, 1e-7];
     let (mut r0, mut rp, mut rm) = (Vec::new(), Vec::new(), Vec::new());
     let mut cost = f64::INFINITY;
     let mut it = 0;
     for _ in 0..30 {
         it += 1;
-        f(d, &Theta::from_array(th.into()), &mut r0);
+        f(d, &Theta::from(<[f64; 4]>::from(th)), &mut r0);
         cost = 0.5 * r0.iter().map(|x| x * x).sum::<f64>();
         let mut jac: Vec<Vec<f64>> = Vec::new();
         let idx: Vec<usize> = (0..4).filter(|i| free[*i]).collect();
@@ -101,8 +101,8 @@ fn gn_whitened(
             let (mut a, mut b) = (th, th);
             a[i] += hstep[i];
             b[i] -= hstep[i];
-            f(d, &Theta::from_array(a.into()), &mut rp);
-            f(d, &Theta::from_array(b.into()), &mut rm);
+            f(d, &Theta::from(<[f64; 4]>::from(a)), &mut rp);
+            f(d, &Theta::from(<[f64; 4]>::from(b)), &mut rm);
             jac.push(rp.iter().zip(&rm).map(|(p, q)| (p - q) / (2.0 * hstep[i])).collect());
         }
         let n = idx.len();
@@ -123,7 +123,7 @@ fn gn_whitened(
             for (a, &i) in idx.iter().enumerate() {
                 t2[i] += fac * step[a];
             }
-            f(d, &Theta::from_array(t2.into()), &mut rp);
+            f(d, &Theta::from(<[f64; 4]>::from(t2)), &mut rp);
             let c2 = 0.5 * rp.iter().map(|x| x * x).sum::<f64>();
             if c2 <= cost {
                 th = t2;
@@ -137,7 +137,7 @@ fn gn_whitened(
             break;
         }
     }
-    (Theta::from_array(th.into()), cost, it)
+    (Theta::from(<[f64; 4]>::from(th)), cost, it)
 }
 
 /// Heading channel alone: `Σ (t_r Δψ_k − x̃_k)² / σ_x,k²`, with
@@ -186,7 +186,7 @@ fn run() -> Res<()> {
         wheel_white_rel_sigma: sigma,
         position_white_sigma_m: sim_pos,
         heading_white_sigma_rad: sim_head,
-        ..NoiseOptions::by_name("white")?
+        .."white".parse::<NoiseOptions>()?
     };
     let noise = match preset.as_deref() {
         None => noise,

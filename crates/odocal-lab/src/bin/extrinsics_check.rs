@@ -137,10 +137,10 @@ fn sim(seeds: u64, km: f64, preset: &str) -> Result<(), odocal::Error> {
         .drive;
         let r = odocal::calibrate(&drive, &options("batch-gn", true, false)?)?;
         let x = r.extrinsics.as_ref().ok_or_else(|| odocal::Error::Numerical("no extrinsics".into()))?;
-        let err: Vec<f64> = x.value.to_array().iter().zip(MOUNT.to_array()).map(|(a, b)| a - b).collect();
-        let sd = x.std_dev.to_array();
+        let err: Vec<f64> = <[_; 3]>::from(x.value).iter().zip(<[_; 3]>::from(MOUNT)).map(|(a, b)| a - b).collect();
+        let sd = <[_; 3]>::from(x.std_dev);
         // The cluster-robust σ (NaN when the drive gives too few clusters).
-        let rs = x.robust.as_ref().map_or([f64::NAN; 3], |b| b.std_dev.to_array());
+        let rs = x.robust.as_ref().map_or([f64::NAN; 3], |b| <[_; 3]>::from(b.std_dev));
         let z = (0..3).map(|i| (err[i] / sd[i]).abs()).fold(0.0, f64::max);
         let zr = (0..3).map(|i| (err[i] / rs[i]).abs()).fold(0.0, f64::max);
         worst = worst.max(z);
@@ -216,11 +216,11 @@ fn track(method: &str, fix: ParamSet) -> Res<()> {
                     continue;
                 }
             };
-            let ext = r.extrinsics.as_ref().map_or(Extrinsics::ZERO, |x| x.value);
+            let ext = r.extrinsics.as_ref().map_or(Extrinsics::default(), |x| x.value);
             let (mut sum, mut sum0) = (0.0, 0.0);
             for d in drives.iter().enumerate().filter(|(j, _)| *j != i).map(|(_, d)| d) {
                 sum += cross_error(d, &r.theta, &ext)?;
-                sum0 += cross_error(d, &o.theta0, &Extrinsics::ZERO)?;
+                sum0 += cross_error(d, &o.theta0, &Extrinsics::default())?;
             }
             let others = sum / 5.0;
             cross.push(others);

@@ -46,18 +46,18 @@ fn fit(r: &IdentifyReport, truth: &Theta, mount: &Extrinsics, joint: bool) -> Fi
     for i in 0..n {
         let (est, want, sm, sr) = if i < 4 {
             (
-                r.theta.to_array()[i],
-                truth.to_array()[i],
+                <[_; 4]>::from(r.theta)[i],
+                <[_; 4]>::from(truth)[i],
                 r.covariance[i][i].sqrt(),
                 rb.map_or(f64::NAN, |b| b.covariance[i][i].sqrt()),
             )
         } else {
             let x = r.extrinsics.as_ref().expect("joint fit has extrinsics");
             (
-                x.value.to_array()[i - 4],
-                mount.to_array()[i - 4],
-                x.std_dev.to_array()[i - 4],
-                x.robust.as_ref().map_or(f64::NAN, |b| b.std_dev.to_array()[i - 4]),
+                <[_; 3]>::from(x.value)[i - 4],
+                <[_; 3]>::from(mount)[i - 4],
+                <[_; 3]>::from(x.std_dev)[i - 4],
+                x.robust.as_ref().map_or(f64::NAN, |b| <[_; 3]>::from(b.std_dev)[i - 4]),
             )
         };
         f.err.push(est - want);
@@ -82,14 +82,14 @@ fn run() -> Res<()> {
     for preset in presets.split(',') {
         for kind in fits.split(',') {
             let joint = kind == "joint";
-            let mount = if joint { MOUNT } else { Extrinsics::ZERO };
+            let mount = if joint { MOUNT } else { Extrinsics::default() };
             let free = if joint { ParamSet::THETA.union(ParamSet::EXTRINSICS) } else { ParamSet::THETA };
             let mut per_block: Vec<Vec<Fit>> = blocks.iter().map(|_| Vec::new()).collect();
             let (mut t_fit, mut segs) = (0.0, 0usize);
             for seed in 1..=seeds {
                 let sim = SimOptions {
                     length_km: km,
-                    noise: NoiseOptions::by_name(preset)?,
+                    noise: preset.parse::<NoiseOptions>()?,
                     reference_mount: mount,
                     ..SimOptions::paper(seed)
                 };

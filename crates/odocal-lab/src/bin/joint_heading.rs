@@ -29,7 +29,7 @@ fn main() {
 fn load_with_options(rel: &str) -> Res<(Drive, CalibrationOptions)> {
     let path = repo_path(rel);
     let (drive, report) = odocal::load_drive(&path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let manifest = report.as_ref().map(ManifestSettings::of_report).transpose()?;
+    let manifest = report.as_ref().map(ManifestSettings::try_from).transpose()?;
     let options = Settings::default().resolve(manifest.as_slice(), Caller::CommandLine)?.options;
     Ok((drive, options))
 }
@@ -81,7 +81,7 @@ fn run() -> Res<()> {
         let joined = Drive::concat(&members)?;
         let shared = with_signals(&joined, joined.measured().clone())?;
         let mut opts = runs[g[0]].2.clone();
-        opts.method = Method::from_name(&method)?;
+        opts.method = method.parse::<Method>()?;
         if method != "eiv" {
             opts.identify.free = opts.identify.free.with(Param::HeadingOffset);
         }

@@ -28,7 +28,7 @@ fn run() -> Res<()> {
     // Bands of ticks counted per sample (measured).
     let bands = [(0.0, 0.5), (0.5, 4.0), (4.0, 32.0), (32.0, f64::INFINITY)];
     for p in &presets {
-        let full = NoiseOptions::by_name(p)?;
+        let full = p.parse::<NoiseOptions>()?;
         let noise = NoiseOptions {
             wheel_white_rel_sigma: full.wheel_white_rel_sigma,
             encoder_ticks_per_revolution: full.encoder_ticks_per_revolution,

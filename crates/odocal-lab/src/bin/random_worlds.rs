@@ -167,7 +167,7 @@ fn options(
     heading_drift: (Option<f64>, Option<f64>),
     eiv_noise: (Option<f64>, Option<f64>),
 ) -> Res<CalibrationOptions> {
-    let mut o = CalibrationOptions { method: Method::from_name(method)?, ..Default::default() };
+    let mut o = CalibrationOptions { method: method.parse::<Method>()?, ..Default::default() };
     if let Method::Eiv(e) = &mut o.method {
         if let Some(x) = eiv_noise.0 {
             e.filter.eta_bounds[1] = x;
@@ -280,11 +280,11 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<
         _ => None,
     };
     let rs = r.result_sigma();
-    let within = r.within_drive_sigma().to_array().map(|s| s.unwrap_or(f64::NAN));
+    let within = <[_; 4]>::from(r.within_drive_sigma()).map(|s| s.unwrap_or(f64::NAN));
     let accepted_within = r.verdict.reasons.iter().all(|reason| match reason {
         VerdictReason::FallbackDisagrees { .. } | VerdictReason::RefitDisagrees { .. } => true,
         VerdictReason::LargeUncertainty { param, sigma, fraction } => {
-            let w = ParamSet::THETA.iter().position(|q| q == *param).map_or(f64::NAN, |i| within[i]);
+            let w = ParamSet::THETA.into_iter().position(|q| q == *param).map_or(f64::NAN, |i| within[i]);
             // Not above (NaN counts as not above).
             w.partial_cmp(&(0.1 * sigma / fraction)) != Some(std::cmp::Ordering::Greater)
         }
@@ -292,7 +292,7 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<
     });
     Ok(Run {
         theta: r.theta,
-        sigma: rs.to_array().map(|s| s.unwrap_or(f64::NAN)),
+        sigma: <[_; 4]>::from(rs).map(|s| s.unwrap_or(f64::NAN)),
         sigma_source: rs.source.to_string(),
         within,
         verdict: r.verdict.level,
@@ -316,7 +316,7 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<
 /// of `H_θ⁻¹` at the estimate over its resolution (`sor`).
 fn eiv_extra(d: &EivPart) -> String {
     let v = |a: &[f64]| a.iter().map(|x| format!("{x:.4e}")).collect::<Vec<_>>().join(" ");
-    let mut out = vec![format!("start={}", v(&d.identification.theta.to_array()))];
+    let mut out = vec![format!("start={}", v(&<[_; 4]>::from(d.identification.theta)))];
     if let Some(c) = &d.clamp_refit {
         // The first fit's θ before the refit after a clamp.
         let first = c.get("first_theta").map_or(String::new(), |t| {
@@ -335,7 +335,7 @@ fn eiv_extra(d: &EivPart) -> String {
         out.push(format!("noise={}", v(&e.sigma_noise_estimate)));
         out.push(format!("bias_mc={}", v(&e.sigma_bias_correction)));
         out.push(format!("bias={}", v(&e.bias_subtracted)));
-        out.push(format!("uncorrected={}", v(&e.theta_uncorrected.to_array())));
+        out.push(format!("uncorrected={}", v(&<[_; 4]>::from(e.theta_uncorrected))));
         if let Some(h) = &e.halves {
             out.push(format!("halves={}", v(&h.z)));
         }
@@ -378,7 +378,7 @@ fn study_world(index: u64, a: &Settings) -> Res<World> {
             Some(x) => return Err(format!("--heavy-without {x}: expected slip or common").into()),
             None => {}
         }
-        let s = WorldSummary::of(&n);
+        let s = WorldSummary::from(&n);
         (n, s)
     } else {
         (noise, summary)

@@ -20,7 +20,7 @@ const USAGE: &str = "real_drift_scales [--floors -2.197,-20]";
 fn load_with_options(rel: &str) -> Res<(Drive, CalibrationOptions)> {
     let path = repo_path(rel);
     let (drive, report) = odocal::load_drive(&path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let manifest = report.as_ref().map(ManifestSettings::of_report).transpose()?;
+    let manifest = report.as_ref().map(ManifestSettings::try_from).transpose()?;
     Ok((drive, Settings::default().resolve(manifest.as_slice(), Caller::CommandLine)?.options))
 }
 

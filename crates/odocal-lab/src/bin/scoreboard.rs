@@ -66,7 +66,7 @@ const PARTS: [&str; 4] = ["time", "testtrack", "van", "worlds"];
 /// default also gets `--estimate heading-offset` (the default estimates δ
 /// by itself).
 fn with_method(mut o: CalibrationOptions, method: &str) -> Res<CalibrationOptions> {
-    o.method = Method::from_name(method)?;
+    o.method = method.parse::<Method>()?;
     if method != "eiv" {
         o.identify.free = o.identify.free.with(Param::HeadingOffset);
     }
@@ -108,7 +108,7 @@ fn time_part(methods: &[String]) -> Res<Vec<(String, f64)>> {
 fn load_with_options(rel: &str) -> Res<(Drive, CalibrationOptions)> {
     let path = repo_path(rel);
     let (drive, report) = odocal::load_drive(&path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let manifest = report.as_ref().map(ManifestSettings::of_report).transpose()?;
+    let manifest = report.as_ref().map(ManifestSettings::try_from).transpose()?;
     let options = Settings::default().resolve(manifest.as_slice(), Caller::CommandLine)?.options;
     Ok((drive, options))
 }
@@ -268,8 +268,8 @@ fn world_rows(index: u64, seed0: u64, km: f64, methods: &[String]) -> Res<Vec<Ro
             regime: summary.regime.to_string(),
             method: m.clone(),
             err: errors(&r.theta, &truth),
-            sigma: si(r.result_sigma().to_array()),
-            within: si(r.within_drive_sigma().to_array()),
+            sigma: si(<[_; 4]>::from(r.result_sigma())),
+            within: si(<[_; 4]>::from(r.within_drive_sigma())),
             accepted: r.verdict.level == VerdictLevel::Accepted,
             excess_e_p_m: e_p - truth_e_p,
         });

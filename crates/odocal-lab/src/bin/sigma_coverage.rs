@@ -53,9 +53,9 @@ fn fit(name: &str, r: &CalibrationReport) -> Fit {
     };
     Fit {
         name: name.to_string(),
-        theta: r.theta.to_array(),
-        next: r.result_sigma().to_array(),
-        within: r.within_drive_sigma().to_array(),
+        theta: <[_; 4]>::from(r.theta),
+        next: <[_; 4]>::from(r.result_sigma()),
+        within: <[_; 4]>::from(r.within_drive_sigma()),
         within_part: r.next_drive_sigma.as_ref().map_or([None; 4], |n| n.within_drive),
         verdict: r.verdict.level.to_string(),
         outcome,
@@ -171,7 +171,7 @@ fn print_design(design: &[Fit]) {
         (v.iter().sum::<f64>() / v.len() as f64).sqrt()
     });
     let net: [f64; 4] = std::array::from_fn(|i| (rel[i].powi(2) - within[i].powi(2)).max(0.0).sqrt());
-    let theta: Vec<Theta> = design.iter().map(|f| Theta::from_array(f.theta)).collect();
+    let theta: Vec<Theta> = design.iter().map(|f| Theta::from(f.theta)).collect();
     let pooled = PooledDrives::new("eiv".into(), theta, design.iter().map(|f| f.within_part).collect());
     let tau: [f64; 4] = std::array::from_fn(|i| pooled.params[i].map_or(f64::NAN, |p| p.tau / scale[i]));
     let p = BETWEEN_DRIVE_PRIOR;
@@ -196,7 +196,7 @@ fn print_design(design: &[Fit]) {
 
 /// DerSimonian–Laird over the six runs with their within-drive σ.
 fn print_pooling(fits: &[Fit]) {
-    let theta: Vec<Theta> = fits.iter().map(|f| Theta::from_array(f.theta)).collect();
+    let theta: Vec<Theta> = fits.iter().map(|f| Theta::from(f.theta)).collect();
     let sigma: Vec<[Option<f64>; 4]> = fits.iter().map(|f| f.within_part).collect();
     let p = PooledDrives::new("eiv".into(), theta, sigma);
     println!("### Random-effects pooling of the six runs (DerSimonian–Laird, within-drive σ)\n");

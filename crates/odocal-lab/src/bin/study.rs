@@ -88,16 +88,16 @@ fn parse_args() -> Res<Settings> {
 }
 
 fn abs_diff(a: &Theta, b: &Theta) -> [f64; 4] {
-    let (a, b) = (a.to_array(), b.to_array());
+    let (a, b) = (<[_; 4]>::from(a), <[_; 4]>::from(b));
     [(a[0] - b[0]).abs(), (a[1] - b[1]).abs(), (a[2] - b[2]).abs(), (a[3] - b[3]).abs()]
 }
 
 fn mean_theta(ts: &[Theta]) -> Theta {
     let mut v = nalgebra::Vector4::zeros();
     for t in ts {
-        v += nalgebra::Vector4::from(t.to_array());
+        v += nalgebra::Vector4::from(<[_; 4]>::from(t));
     }
-    Theta::from_array((v / ts.len().max(1) as f64).into())
+    Theta::from(<[f64; 4]>::from(v / ts.len().max(1) as f64))
 }
 
 /// G-N from θ_0 on random batches of `n` segments of `data` (all when `n` is None).
@@ -284,10 +284,10 @@ fn tables(noise: &str, rs: &[&DriveResult]) -> String {
             .iter()
             .map(|r| {
                 let (a, b, t, z) = (
-                    r.theta_bf_comp_theta0.to_array()[i],
-                    r.theta_bf_comp_true.to_array()[i],
-                    r.theta_true.to_array()[i],
-                    Theta::PAPER_INITIAL.to_array()[i],
+                    <[_; 4]>::from(r.theta_bf_comp_theta0)[i],
+                    <[_; 4]>::from(r.theta_bf_comp_true)[i],
+                    <[_; 4]>::from(r.theta_true)[i],
+                    <[_; 4]>::from(Theta::PAPER_INITIAL)[i],
                 );
                 (a - b) / (z - t)
             })

@@ -341,8 +341,8 @@ fn bootstrap_rows(
             let ab = nalgebra::Matrix4::from_fn(|i, k| (0..6).map(|j| a_s[i][j] * b_s[j][k]).sum::<f64>());
             let bias = nalgebra::Vector4::from(b.bias);
             let fed = (nalgebra::Matrix4::identity() - ab).try_inverse().map_or(bias, |m| m * bias);
-            let u = r.theta.to_array();
-            rows.push((" (all, fed back)", Theta::from_array(std::array::from_fn(|i| u[i] - fed[i]))));
+            let u = <[_; 4]>::from(r.theta);
+            rows.push((" (all, fed back)", Theta::from(std::array::from_fn(|i| u[i] - fed[i]))));
         }
         for (suffix, th) in rows {
             runs.insert(
@@ -364,14 +364,14 @@ fn first_order_rows(
     base: &Run,
 ) -> Res<()> {
     let Some(b) = &fit.first_order_bias else { return Ok(()) };
-    let u = fit.theta_uncorrected.to_array();
+    let u = <[_; 4]>::from(fit.theta_uncorrected);
     for (suffix, shift) in [
         ("+ fo", b.bias),
         ("+ fo c_e", [b.bias[0], 0.0, 0.0, 0.0]),
         ("+ fo c_e cond", [b.bias_conditional[0], 0.0, 0.0, 0.0]),
         ("+ fo logdet c_e", [b.bias_logdet_only[0], 0.0, 0.0, 0.0]),
     ] {
-        let th = Theta::from_array(std::array::from_fn(|i| u[i] - shift[i]));
+        let th = Theta::from(std::array::from_fn(|i| u[i] - shift[i]));
         let run = Run::plain(th, base.sigmas.clone(), judge.ep(&th)?, base.time_s, base.warnings);
         runs.insert(format!("{label} {suffix}"), run);
     }
@@ -393,7 +393,7 @@ fn study_drive(name: &str, seed: u64, a: &Settings) -> Res<DriveResult> {
     let mut runs = BTreeMap::new();
     if seed <= a.three_step_seeds {
         let t = Instant::now();
-        let opts = CalibrationOptions { method: Method::from_name("three-step")?, seed, ..Default::default() };
+        let opts = CalibrationOptions { method: "three-step".parse::<Method>()?, seed, ..Default::default() };
         match calibrate(d, &opts) {
             Ok(r) => {
                 runs.insert(

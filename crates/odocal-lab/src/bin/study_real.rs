@@ -129,9 +129,9 @@ fn options(method: &str, q: f64) -> Res<CalibrationOptions> {
             if rest == "batch-gn-all" {
                 o.segments.min_peak_yaw_rate_rad_per_s = 0.0;
             }
-            Method::from_name("batch-gn")?
+            "batch-gn".parse::<Method>()?
         }
-        "three-step" => Method::from_name("three-step")?,
+        "three-step" => "three-step".parse::<Method>()?,
         "eiv" => eiv(EivOptions::default(), true),
         "eiv-fixed" => eiv(EivOptions { fix_noise: true, ..EivOptions::default() }, true),
         "eiv-hold-heading" => eiv(EivOptions::default(), false),
@@ -178,7 +178,7 @@ fn options(method: &str, q: f64) -> Res<CalibrationOptions> {
 /// The σ that stands for the result, per parameter (`None` = held), as
 /// `--params-out` writes it.
 fn result_sigma(r: &CalibrationReport) -> [Option<f64>; 4] {
-    r.result_sigma().to_array()
+    <[_; 4]>::from(r.result_sigma())
 }
 
 /// EIV: `Some((fell back, reasons))`; `None` for the other methods.
@@ -676,7 +676,7 @@ fn rav4(methods: &[String], md: &mut String) -> Res<Value> {
                 "extrinsics": r.extrinsics.as_ref().map(|e| e.value),
                 "sigma": sigma,
                 "sigma_source": r.result_sigma().source,
-                "unobservable": r.observability.unobservable.iter().map(|p| p.name()).collect::<Vec<_>>(),
+                "unobservable": r.observability.unobservable.into_iter().map(|p| p.name()).collect::<Vec<_>>(),
                 "rcond": r.observability.rcond,
                 "auto_fixed": r.auto_fixed.iter().map(|p| p.name()).collect::<Vec<_>>(),
                 "held": held,

@@ -31,10 +31,10 @@ fn main() {
 fn run() -> Res<()> {
     let mut a = Args::parse(USAGE, &["auto-fix", "keep-one-way", "pairs", "check"])?;
     let mut opts =
-        CalibrationOptions { method: Method::from_name(&a.get("method", "eiv".to_string())?)?, ..Default::default() };
+        CalibrationOptions { method: a.get("method", "eiv".to_string())?.parse::<Method>()?, ..Default::default() };
     opts.segments.min_peak_yaw_rate_rad_per_s = a.get("min-yaw-rate", opts.segments.min_peak_yaw_rate_rad_per_s)?;
     opts.segments.length_steps = a.get("segment-length", opts.segments.length_steps)?;
-    for p in a.get("fix", ParamSet::default())?.iter() {
+    for p in a.get("fix", ParamSet::default())? {
         opts.identify.free = opts.identify.free.without(p);
     }
     opts.auto_fix = a.flag("auto-fix");

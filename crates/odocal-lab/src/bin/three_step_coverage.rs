@@ -40,11 +40,11 @@ fn run() -> Res<()> {
         };
         let r = odocal::calibrate(&s.drive, &opts)?;
         let Some(d) = three_step_part(&r) else { return Err("not a 3-step report".into()) };
-        let truth = s.sidecar.theta_true.to_array();
-        let theta = r.theta.to_array();
+        let truth = <[_; 4]>::from(s.sidecar.theta_true);
+        let theta = <[_; 4]>::from(r.theta);
         err.push(std::array::from_fn(|i| theta[i] - truth[i]));
         let nan = [f64::NAN; 4];
-        let sd = |t: Theta| t.to_array();
+        let sd = |t: Theta| <[_; 4]>::from(t);
         sigma[0].push(sd(r.std_dev()));
         sigma[1].push(d.identification.robust.as_ref().map_or(nan, |b| sd(b.std_dev())));
         sigma[2].push(d.uncertainty.measured_inputs.as_ref().map_or(nan, |b| sd(b.std_dev())));

@@ -28,7 +28,7 @@ pub struct ValidateOptions {
     /// of θ are computed against the same reference mount.
     pub reachable: Option<ReachableOptions>,
     /// The pose reference's mount (e.g. the drive manifest's `[reference]`,
-    /// [`crate::io::import::ReferenceSpec::extrinsics`]). Default 0: the axle.
+    /// `Extrinsics::from(&reference)`). Default 0: the axle.
     #[serde(default)]
     pub extrinsics: Extrinsics,
     /// Re-estimate the drive's own heading offset δ with θ and the lever arm
@@ -54,14 +54,14 @@ impl ValidateOptions {
     /// ```
     /// use odocal::{Extrinsics, ParamFile, Theta, ValidateOptions};
     /// let file = ParamFile::from_theta(&Theta::PAPER_NOMINAL, [None; 4], "drive.csv", "eiv");
-    /// let mount = Extrinsics { lever_x: 0.5, ..Extrinsics::ZERO };
+    /// let mount = Extrinsics { lever_x: 0.5, ..Extrinsics::default() };
     /// let mut opts = ValidateOptions::default();
     /// // Extrinsics the calibration did not estimate give way to the drive's own mount.
     /// assert!(opts.set_extrinsics(Some(&file), Some(&mount), false).is_empty());
     /// assert_eq!(opts.extrinsics, mount);
     /// // Without one, the file's values (0 for those it lacks).
     /// assert_eq!(opts.set_extrinsics(Some(&file), None, false), ["lever_x", "lever_y", "heading_offset"]);
-    /// assert_eq!(opts.extrinsics, Extrinsics::ZERO);
+    /// assert_eq!(opts.extrinsics, Extrinsics::default());
     /// assert!(!opts.reestimate_heading_offset);
     /// ```
     pub fn set_extrinsics(

@@ -134,7 +134,7 @@ use refits::{carry_held_scale, refit_at_clamp, refit_with_sources_released, rele
 #[serde(default)]
 pub struct EivMethodOptions {
     /// The filter and fit settings, including the starting noise model
-    /// ([`EivOptions::noise`], default [`NoiseModel::PRODUCTION_CAR`]) and
+    /// ([`EivOptions::noise`], default a production car's, `NoiseModel::default()`) and
     /// [`EivOptions::fix_noise`]. Its `free` is replaced by the
     /// calibration's free set ([`super::CalibrationOptions::identify`]).
     pub filter: EivOptions,

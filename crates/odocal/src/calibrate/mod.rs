@@ -30,7 +30,7 @@
 //! selection, progress) -> Result<MethodOutcome>`, and `select` when the
 //! method does not fit the turning segments (the default). Then add `Method::MyMethod(MyMethodOptions)` and
 //! `MethodDetail::MyMethod(MyMethodDetail)`, and one arm in
-//! `Method::estimator`, `Method::from_name` and `Method::NAMES` (the tests' list). The shared
+//! `Method::estimator`, `Method::from_name` (`FromStr`) and `Method::NAMES` (the tests' list). The shared
 //! preparation, validation, report, JSON and CLI (`--method my-method`) need
 //! no change.
 //!
@@ -121,8 +121,9 @@ impl Method {
         self.estimator().name()
     }
 
-    /// The named method with its default settings.
-    pub fn from_name(name: &str) -> Result<Method> {
+    /// The named method with its default settings (outside the crate:
+    /// `"eiv".parse::<Method>()`, the `FromStr` impl).
+    pub(crate) fn from_name(name: &str) -> Result<Method> {
         match name.trim() {
             "three-step" => Ok(Method::ThreeStep(ThreeStepOptions::default())),
             "batch-gn" => Ok(Method::BatchGn(BatchGnOptions::default())),
@@ -151,6 +152,8 @@ impl std::fmt::Display for Method {
     }
 }
 
+/// The named method with its default settings: `three-step`, `batch-gn`
+/// or `eiv` (`--method`).
 impl std::str::FromStr for Method {
     type Err = Error;
     fn from_str(s: &str) -> Result<Self> {
@@ -270,7 +273,7 @@ impl Holdout {
     /// each half.
     pub fn split<'a>(&'a self, drive: &'a Drive) -> Result<(Cow<'a, Drive>, Cow<'a, Drive>)> {
         let halves = || -> Result<(Drive, Drive)> {
-            if drive.is_empty() {
+            if drive.t().is_empty() {
                 return Err(Error::InvalidDrive { context: "hold-out".into(), reason: "the drive is empty".into() });
             }
             let (t0, t1) = (drive.t()[0], drive.t()[drive.len() - 1] + drive.sample_time_s());
@@ -316,7 +319,7 @@ pub fn calibrate(drive: &Drive, opts: &CalibrationOptions) -> Result<Calibration
 /// # fn main() -> Result<(), odocal::Error> {
 /// use odocal::{simulate, Calibration, CalibrationOptions, Holdout, Method, Progress, SimOptions};
 /// let drive = simulate(&SimOptions { length_km: 4.0, ..SimOptions::paper(1) })?.drive;
-/// let opts = CalibrationOptions { method: Method::from_name("batch-gn")?, ..Default::default() };
+/// let opts = CalibrationOptions { method: "batch-gn".parse::<Method>()?, ..Default::default() };
 /// let progress = |p: Progress| eprintln!("{p:?}");
 /// let run = Calibration {
 ///     holdout: Some(&Holdout::SecondHalf),
@@ -892,7 +895,7 @@ pub(crate) fn turning_segments(prep: &Prepared<'_>) -> Result<Selection> {
             });
         } else if !free_yaw.is_empty() {
             return Err(Error::NotObservable {
-                params: free_yaw.into(),
+                params: free_yaw.names(),
                 reason: format!(
                     "none of the {} segments turns faster than {} rad/s (the fastest: {peak:.3} rad/s); these \
                      parameters act only through the yaw equation. Hold them at θ_0 (--fix c_d,t_r,d) and \

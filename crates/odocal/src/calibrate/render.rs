@@ -142,7 +142,7 @@ impl CalibrationReport {
     /// # fn main() -> Result<(), odocal::Error> {
     /// use odocal::{calibrate, simulate, CalibrationOptions, Method, SimOptions};
     /// let sim = simulate(&SimOptions { length_km: 4.0, substeps: 1, ..SimOptions::noise_free(1) })?;
-    /// let opts = CalibrationOptions { method: Method::from_name("batch-gn")?, ..Default::default() };
+    /// let opts = CalibrationOptions { method: "batch-gn".parse::<Method>()?, ..Default::default() };
     /// let json = calibrate(&sim.drive, &opts)?.to_json(Vec::new(), None, None, None)?;
     /// assert_eq!(json["method"], "batch-gn");
     /// assert!(json["sigma"]["c_e"].is_number());
@@ -196,7 +196,7 @@ impl CalibrationReport {
     /// # fn main() -> Result<(), odocal::Error> {
     /// use odocal::{calibrate, simulate, CalibrationOptions, Method, SimOptions};
     /// let sim = simulate(&SimOptions { length_km: 4.0, substeps: 1, ..SimOptions::noise_free(1) })?;
-    /// let opts = CalibrationOptions { method: Method::from_name("batch-gn")?, ..Default::default() };
+    /// let opts = CalibrationOptions { method: "batch-gn".parse::<Method>()?, ..Default::default() };
     /// let text = calibrate(&sim.drive, &opts)?.render_text(None, None, None);
     /// assert!(text.starts_with("odocal calibrate — method batch-gn\n"));
     /// assert!(text.contains("verdict: "));

@@ -582,9 +582,16 @@ pub struct ResultSigma {
 }
 
 impl ResultSigma {
-    /// `[c_e, c_d, t_r, d]`.
-    pub fn to_array(&self) -> [Option<f64>; 4] {
+    /// `[c_e, c_d, t_r, d]` (outside the crate: `<[Option<f64>; 4]>::from(sigma)`).
+    pub(crate) fn to_array(self) -> [Option<f64>; 4] {
         [self.c_e, self.c_d, self.t_r, self.d]
+    }
+}
+
+/// `[c_e, c_d, t_r, d]`.
+impl From<ResultSigma> for [Option<f64>; 4] {
+    fn from(sigma: ResultSigma) -> Self {
+        sigma.to_array()
     }
 }
 

@@ -201,7 +201,7 @@ impl BatchSpread {
         if n < 3 || effective_segments <= b {
             return None;
         }
-        let a: Vec<[f64; 4]> = thetas.iter().map(Theta::to_array).collect();
+        let a: Vec<[f64; 4]> = thetas.iter().map(|t| t.to_array()).collect();
         let mean: [f64; 4] = std::array::from_fn(|i| a.iter().map(|x| x[i]).sum::<f64>() / n as f64);
         let factor = b / (effective_segments - b) / (n - 1) as f64;
         let covariance = std::array::from_fn(|i| {

@@ -35,10 +35,7 @@ impl Drive {
     /// # fn main() -> Result<(), Box<dyn std::error::Error>> {
     /// use odocal::{Drive, DriveBuilder, Signals};
     /// let t: Vec<f64> = (0..4).map(|k| k as f64 * 0.1).collect();
-    /// let mut s = Signals::with_capacity(4);
-    /// for k in 0..4 {
-    ///     s.push([k as f64, 0.0, 0.0, 5.0, 5.0, 0.0, 0.0]);
-    /// }
+    /// let s: Signals = (0..4).map(|k| [k as f64, 0.0, 0.0, 5.0, 5.0, 0.0, 0.0]).collect();
     /// let d = DriveBuilder { t, measured: s, ..Default::default() }.build()?;
     /// assert_eq!(d.fingerprint().len(), 64);
     /// let mut csv = Vec::new();

@@ -29,10 +29,8 @@
 //! use odocal::{DriveBuilder, Signals};
 //! let n = 100;
 //! let t: Vec<f64> = (0..n).map(|k| k as f64 * 0.025).collect();
-//! let mut s = Signals::with_capacity(n);
-//! for k in 0..n {
-//!     s.push([k as f64 * 0.25, 0.0, 0.0, 5.0, 5.0, 0.0, 0.0]);
-//! }
+//! // One sample `[px, py, psi, n_rl, n_rr, beta, a_y]` at a time.
+//! let s: Signals = (0..n).map(|k| [k as f64 * 0.25, 0.0, 0.0, 5.0, 5.0, 0.0, 0.0]).collect();
 //! let drive = DriveBuilder { t, measured: s, context: "my arrays".into(), ..Default::default() }.build()?;
 //! assert_eq!(drive.len(), 100);
 //! assert!((drive.sample_time_s() - 0.025).abs() < 1e-12);
@@ -91,15 +89,37 @@ pub struct Signals {
     pub a_y: Vec<f64>,
 }
 
+/// Appends samples `[px, py, psi, n_rl, n_rr, beta, a_y]` (the order of
+/// [`Signals::columns`]).
+impl Extend<[f64; 7]> for Signals {
+    fn extend<I: IntoIterator<Item = [f64; 7]>>(&mut self, samples: I) {
+        for v in samples {
+            self.push(v);
+        }
+    }
+}
+
+/// Signals of samples `[px, py, psi, n_rl, n_rr, beta, a_y]` (the order of
+/// [`Signals::columns`]).
+impl FromIterator<[f64; 7]> for Signals {
+    fn from_iter<I: IntoIterator<Item = [f64; 7]>>(samples: I) -> Self {
+        let samples = samples.into_iter();
+        let mut s = Signals::with_capacity(samples.size_hint().0);
+        s.extend(samples);
+        s
+    }
+}
+
 impl Signals {
     /// Empty signals with room for `n` samples.
-    pub fn with_capacity(n: usize) -> Signals {
+    pub(crate) fn with_capacity(n: usize) -> Signals {
         let v = || Vec::with_capacity(n);
         Signals { px: v(), py: v(), psi: v(), n_rl: v(), n_rr: v(), beta: v(), a_y: v() }
     }
 
-    /// Appends one sample `[px, py, psi, n_rl, n_rr, beta, a_y]`.
-    pub fn push(&mut self, v: [f64; 7]) {
+    /// Appends one sample `[px, py, psi, n_rl, n_rr, beta, a_y]` (outside
+    /// the crate: the `Extend` and `FromIterator` impls).
+    pub(crate) fn push(&mut self, v: [f64; 7]) {
         for (col, x) in self.columns_mut().into_iter().zip(v) {
             col.push(x);
         }
@@ -198,10 +218,7 @@ pub struct Drive {
 /// ```
 /// # fn main() -> Result<(), odocal::Error> {
 /// use odocal::{DriveBuilder, Signals};
-/// let mut s = Signals::with_capacity(4);
-/// for k in 0..4 {
-///     s.push([k as f64 * 0.25, 0.0, 0.0, 5.0, 5.0, 0.0, 0.0]);
-/// }
+/// let s: Signals = (0..4).map(|k| [k as f64 * 0.25, 0.0, 0.0, 5.0, 5.0, 0.0, 0.0]).collect();
 /// let t = vec![0.0, 0.025, 0.05, 0.075];
 /// let drive = DriveBuilder { t, measured: s, part_ids: Some(vec![0, 0, 1, 1]), ..Default::default() }.build()?;
 /// assert_eq!(drive.parts(), &[0..2, 2..4]);
@@ -448,15 +465,13 @@ fn check_uniform_steps(t: &[f64], parts: &[Range<usize>], ts: f64, nominal: bool
     Ok(())
 }
 
+// A built drive has samples (`DriveBuilder::build` refuses none), so an
+// `is_empty` would always be false.
+#[allow(clippy::len_without_is_empty)]
 impl Drive {
-    /// Number of samples.
+    /// Number of samples (at least one: a drive without samples is not built).
     pub fn len(&self) -> usize {
         self.t.len()
-    }
-
-    /// True when the drive has no samples (never, for a built drive).
-    pub fn is_empty(&self) -> bool {
-        self.t.is_empty()
     }
 
     /// Time stamps, s.

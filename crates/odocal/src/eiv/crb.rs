@@ -73,7 +73,11 @@ research_pub! {
         let h: Matrix4<f64> = ev.total.info.fixed_view::<4, 4>(0, 0).into_owned();
         let h_mean = ev.total.info_mean_theta;
         let singular = || Error::NotObservable {
-            params: (0..4).filter(|i| opts.free[*i]).map(|i| crate::model::param::Param::THETA[i]).collect(),
+            params: (0..4)
+                .filter(|i| opts.free[*i])
+                .map(|i| crate::model::param::Param::THETA[i])
+                .collect::<crate::model::param::ParamSet>()
+                .names(),
             reason: "the information matrix is singular; fix some parameters (EivOptions::free)".into(),
         };
         let cov = free_inverse(&h, &opts.free).ok_or_else(singular)?;

@@ -74,6 +74,8 @@ impl std::fmt::Display for NoiseModel {
     }
 }
 
+/// Defaults for a production car: about 1 % relative wheel-rotation error
+/// on the CAN bus and a GNSS/INS reference good to decimetres.
 impl Default for NoiseModel {
     fn default() -> Self {
         NoiseModel::PRODUCTION_CAR
@@ -161,24 +163,28 @@ pub(crate) const NOISE_SOURCES: [NoiseSource; 6] = [
 ];
 
 impl NoiseModel {
-    /// Defaults for a production car: about 1 % relative wheel-rotation
-    /// error on the CAN bus and a GNSS/INS reference good to decimetres.
-    pub const PRODUCTION_CAR: NoiseModel = NoiseModel {
-        wheel_white_rel_sigma: 0.008,
-        quantisation_step_rev_per_s: 0.02,
-        wheel_common_rel_sigma: 0.002,
-        wheel_common_time_constant_s: 2.0,
-        wheel_differential_rel_sigma: 0.0005,
-        wheel_differential_time_constant_s: 0.25,
-        position_white_sigma_m: 0.02,
-        heading_white_sigma_rad: 0.0005,
-        position_drift_sigma_m: 0.25,
-        heading_drift_sigma_rad: 0.003,
-        drift_time_constant_s: 100.0,
-        lateral_acceleration_sigma_m_per_s2: 0.05,
-        sideslip_sigma_rad: 0.002,
-        sideslip_time_constant_s: 1.0,
-    };
+    research_pub! {
+        /// Defaults for a production car: about 1 % relative wheel-rotation
+        /// error on the CAN bus and a GNSS/INS reference good to decimetres
+        /// (the `Default`; outside the crate and the studies:
+        /// `NoiseModel::default()`).
+        const PRODUCTION_CAR: NoiseModel = NoiseModel {
+            wheel_white_rel_sigma: 0.008,
+            quantisation_step_rev_per_s: 0.02,
+            wheel_common_rel_sigma: 0.002,
+            wheel_common_time_constant_s: 2.0,
+            wheel_differential_rel_sigma: 0.0005,
+            wheel_differential_time_constant_s: 0.25,
+            position_white_sigma_m: 0.02,
+            heading_white_sigma_rad: 0.0005,
+            position_drift_sigma_m: 0.25,
+            heading_drift_sigma_rad: 0.003,
+            drift_time_constant_s: 100.0,
+            lateral_acceleration_sigma_m_per_s2: 0.05,
+            sideslip_sigma_rad: 0.002,
+            sideslip_time_constant_s: 1.0,
+        };
+    }
 
     /// The noise model that matches a simulator setting (the "true noise
     /// model" for `cramer_rao_bound`). Slip is not represented (it is

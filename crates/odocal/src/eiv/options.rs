@@ -94,7 +94,8 @@ pub struct EivOptions {
     /// resolution at the start) at their starting value and name them.
     /// Default true.
     pub fix_unobservable: bool,
-    /// The starting noise model. Default [`NoiseModel::PRODUCTION_CAR`].
+    /// The starting noise model. Default a production car's
+    /// (`NoiseModel::default()`).
     pub noise: NoiseModel,
     /// Use [`EivOptions::noise`] as is (do not estimate η). Default false.
     pub fix_noise: bool,

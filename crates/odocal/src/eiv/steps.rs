@@ -10,8 +10,11 @@ use crate::error::{Error, Result};
 /// The scoring step of θ over the free parameters and the standard deviations.
 pub(super) fn theta_step(sums: &WindowSums, free: &[bool; 4], follows: bool) -> Result<([f64; 4], [f64; 4])> {
     let Some(inv) = free_inverse(&sums.h_theta, free) else {
-        let params: crate::error::ParamNames =
-            (0..4).filter(|i| free[*i]).map(|i| crate::model::param::Param::THETA[i]).collect();
+        let params = (0..4)
+            .filter(|i| free[*i])
+            .map(|i| crate::model::param::Param::THETA[i])
+            .collect::<crate::model::param::ParamSet>()
+            .names();
         return Err(Error::NotObservable {
             params,
             reason: "the EIV information matrix H_θ is singular; hold them fixed (EivOptions::free)".into(),

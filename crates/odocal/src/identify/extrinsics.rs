@@ -45,10 +45,9 @@ fn rollout(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics, mut visit: impl
     }
 }
 
-/// Normal equations of one segment at (θ, e) over `[θ, e]`: the rollout
-/// with the reference extrinsics `e`, residuals weighted by `w`
-/// (`[w_px, w_py, w_ψ]`). What a recursive calibrator folds in per segment.
-pub fn segment_normal_equations(
+/// Normal equations of one segment at (θ, e) over `[θ, e]`
+/// ([`super::extrinsics_normal_equations`]).
+pub(super) fn segment_normal_equations(
     seg: &SegmentData<'_>,
     theta: &Theta,
     e: &Extrinsics,
@@ -159,7 +158,7 @@ impl gauss_newton::Problem<N> for JointProblem<'_> {
     fn singular(&self, ne: &NormalEquations<N>) -> Error {
         let weak = self.observability(ne).2;
         Error::NotObservable {
-            params: if weak.is_empty() { self.opts.free } else { weak }.into(),
+            params: if weak.is_empty() { self.opts.free } else { weak }.names(),
             reason: "JᵀWJ is singular at the current θ and extrinsics (the data do not excite these \
                      parameters; a lever arm needs turns); hold them fixed"
                 .into(),

@@ -43,8 +43,18 @@ mod extrinsics;
 mod gauss_newton;
 mod per_drive;
 
-/// Normal equations of one segment over `[θ, lever_x, lever_y, heading_offset]`.
-pub use extrinsics::segment_normal_equations as extrinsics_normal_equations;
+/// Normal equations of one segment at (θ, e) over `[θ, lever_x, lever_y,
+/// heading_offset]`: the rollout with the reference extrinsics `e`,
+/// residuals weighted by `w` (`[w_px, w_py, w_ψ]`). What a recursive
+/// calibrator folds in per segment.
+pub fn extrinsics_normal_equations(
+    seg: &SegmentData<'_>,
+    theta: &Theta,
+    e: &Extrinsics,
+    w: &[f64; 3],
+) -> NormalEquations<7> {
+    extrinsics::segment_normal_equations(seg, theta, e, w)
+}
 
 /// Options of the Gauss-Newton identification.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -696,7 +706,7 @@ impl gauss_newton::Problem<4> for ThetaProblem<'_> {
     fn singular(&self, ne: &NormalEquations) -> Error {
         let weak = observability(ne, self.opts.free, self.opts).unobservable;
         Error::NotObservable {
-            params: if weak.is_empty() { self.opts.free } else { weak }.into(),
+            params: if weak.is_empty() { self.opts.free } else { weak }.names(),
             reason: "JᵀWJ is singular at the current θ (the data do not excite these parameters); \
                      hold them fixed at θ_0"
                 .into(),

@@ -98,7 +98,7 @@ impl gauss_newton::Problem<N> for PerDriveProblem<'_> {
     }
     fn singular(&self, _ne: &NormalEquations<N>) -> Error {
         Error::NotObservable {
-            params: self.opts.free.into(),
+            params: self.opts.free.names(),
             reason: "JᵀWJ is singular at the current θ and extrinsics (the data do not excite these \
                      parameters; a lever arm needs turns, each drive's heading offset a drive long enough \
                      for a segment); hold them fixed"

@@ -114,6 +114,17 @@ const DESCRIPTIONS: [&str; 4] = [
     "load-transfer coefficient: circumference change per m/s^2 of lateral acceleration",
 ];
 
+/// θ from the file's `c_e`, `c_d`, `t_r`, `d`, checked for physical sanity.
+///
+/// # Errors
+/// [`Error::InvalidTheta`] when one is missing or the values are absurd.
+impl TryFrom<&ParamFile> for Theta {
+    type Error = Error;
+    fn try_from(file: &ParamFile) -> Result<Theta> {
+        file.theta()
+    }
+}
+
 impl ParamFile {
     /// Whether `path` names a parameter file by its extension (`.yaml`,
     /// `.yml`, `.json`: the files [`ParamFile::write`] writes and
@@ -410,7 +421,7 @@ impl ParamFile {
     /// let theta = Theta { c_e: 1.951448, c_d: -0.0021, t_r: 1.5649, d: 0.0008 };
     /// ParamFile::from_theta(&theta, [Some(2.1e-5), None, Some(3e-3), Some(1e-4)], "drive.csv", "eiv").write(&path)?;
     /// let back = ParamFile::read(&path, None)?;
-    /// assert_eq!(back.theta()?, theta);
+    /// assert_eq!(Theta::try_from(&back)?, theta);
     /// # std::fs::remove_dir_all(&dir)?;
     /// # Ok::<(), Box<dyn std::error::Error>>(())
     /// ```
@@ -450,11 +461,9 @@ impl ParamFile {
         Self::from_flat(node, flat).map_err(bad)
     }
 
-    /// θ from the file's `c_e`, `c_d`, `t_r`, `d`, checked for physical sanity.
-    ///
-    /// # Errors
-    /// [`Error::InvalidTheta`] when one is missing or the values are absurd.
-    pub fn theta(&self) -> Result<Theta> {
+    /// θ from the file's `c_e`, `c_d`, `t_r`, `d`, checked for physical
+    /// sanity (outside the crate: `Theta::try_from(&file)`).
+    pub(crate) fn theta(&self) -> Result<Theta> {
         let mut v = [0.0; 4];
         for (i, name) in THETA_NAMES.iter().enumerate() {
             v[i] = self.value(name).ok_or_else(|| Error::InvalidTheta(format!("no `{name}` in the parameter file")))?;

@@ -47,16 +47,18 @@ pub struct Extrinsics {
 }
 
 impl Extrinsics {
-    /// The reference at the rear-axle centre, aligned with the vehicle.
-    pub const ZERO: Extrinsics = Extrinsics { lever_x: 0.0, lever_y: 0.0, heading_offset: 0.0 };
+    /// The reference at the rear-axle centre, aligned with the vehicle (the
+    /// `Default`; outside the crate: `Extrinsics::default()`).
+    pub(crate) const ZERO: Extrinsics = Extrinsics { lever_x: 0.0, lever_y: 0.0, heading_offset: 0.0 };
 
     /// True when every value is exactly 0 (the SPEC's reference).
     pub(crate) fn is_zero(&self) -> bool {
         self.to_array().iter().all(|v| *v == 0.0)
     }
 
-    /// `[lever_x, lever_y, heading_offset]`.
-    pub fn to_array(&self) -> [f64; 3] {
+    /// `[lever_x, lever_y, heading_offset]` (outside the crate:
+    /// `<[f64; 3]>::from(extrinsics)`).
+    pub(crate) fn to_array(self) -> [f64; 3] {
         [self.lever_x, self.lever_y, self.heading_offset]
     }
 
@@ -78,6 +80,20 @@ impl Extrinsics {
             }
         }
         Ok(())
+    }
+}
+
+/// `[lever_x, lever_y, heading_offset]`.
+impl From<Extrinsics> for [f64; 3] {
+    fn from(e: Extrinsics) -> Self {
+        e.to_array()
+    }
+}
+
+/// `[lever_x, lever_y, heading_offset]`.
+impl From<&Extrinsics> for [f64; 3] {
+    fn from(e: &Extrinsics) -> Self {
+        e.to_array()
     }
 }
 

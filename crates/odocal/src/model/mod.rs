@@ -63,8 +63,9 @@ impl Theta {
         Theta { c_e: v[0], c_d: v[1], t_r: v[2], d: v[3] }
     }
 
-    /// θ from `[c_e, c_d, t_r, d]` (the inverse of [`Theta::to_array`]).
-    pub fn from_array(a: [f64; 4]) -> Self {
+    /// θ from `[c_e, c_d, t_r, d]` (the inverse of `Theta::to_array`;
+    /// outside the crate: `Theta::from([c_e, c_d, t_r, d])`).
+    pub(crate) fn from_array(a: [f64; 4]) -> Self {
         Theta { c_e: a[0], c_d: a[1], t_r: a[2], d: a[3] }
     }
 
@@ -73,8 +74,9 @@ impl Theta {
         Vector4::new(self.c_e, self.c_d, self.t_r, self.d)
     }
 
-    /// `[c_e, c_d, t_r, d]` as an array.
-    pub fn to_array(&self) -> [f64; 4] {
+    /// `[c_e, c_d, t_r, d]` as an array (outside the crate:
+    /// `<[f64; 4]>::from(theta)`).
+    pub(crate) fn to_array(self) -> [f64; 4] {
         [self.c_e, self.c_d, self.t_r, self.d]
     }
 
@@ -99,6 +101,27 @@ impl Theta {
             return Err(Error::InvalidTheta(format!("t_r = {} m must be positive", self.t_r)));
         }
         Ok(())
+    }
+}
+
+/// θ from `[c_e, c_d, t_r, d]`.
+impl From<[f64; 4]> for Theta {
+    fn from(a: [f64; 4]) -> Self {
+        Theta::from_array(a)
+    }
+}
+
+/// `[c_e, c_d, t_r, d]`.
+impl From<Theta> for [f64; 4] {
+    fn from(theta: Theta) -> Self {
+        theta.to_array()
+    }
+}
+
+/// `[c_e, c_d, t_r, d]`.
+impl From<&Theta> for [f64; 4] {
+    fn from(theta: &Theta) -> Self {
+        theta.to_array()
     }
 }
 

@@ -14,7 +14,7 @@
 
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
-use crate::error::{Error, ParamNames, Result};
+use crate::error::{Error, Result};
 #[cfg(test)]
 use crate::model::extrinsics::Extrinsics;
 use crate::model::Theta;
@@ -216,9 +216,15 @@ impl ParamSet {
         }
     }
 
-    /// The parameters in vector order.
-    pub fn iter(self) -> impl Iterator<Item = Param> {
+    /// The parameters in vector order (outside the crate: `for p in set`,
+    /// the `IntoIterator` impl).
+    pub(crate) fn iter(self) -> impl Iterator<Item = Param> {
         Param::ALL.into_iter().filter(move |p| self.contains(*p))
+    }
+
+    /// The parameters' names in vector order (as an error states them).
+    pub(crate) fn names(self) -> Vec<&'static str> {
+        self.iter().map(Param::name).collect()
     }
 
     /// Vector positions of the parameters, ascending.
@@ -227,21 +233,18 @@ impl ParamSet {
     }
 }
 
+/// The parameters in vector order.
+impl IntoIterator for ParamSet {
+    type Item = Param;
+    type IntoIter = std::vec::IntoIter<Param>;
+    fn into_iter(self) -> Self::IntoIter {
+        self.iter().collect::<Vec<_>>().into_iter()
+    }
+}
+
 impl FromIterator<Param> for ParamSet {
     fn from_iter<I: IntoIterator<Item = Param>>(iter: I) -> Self {
         iter.into_iter().fold(ParamSet::EMPTY, ParamSet::with)
-    }
-}
-
-impl From<ParamSet> for ParamNames {
-    fn from(s: ParamSet) -> Self {
-        ParamNames(s.iter().map(Param::name).collect())
-    }
-}
-
-impl FromIterator<Param> for ParamNames {
-    fn from_iter<I: IntoIterator<Item = Param>>(iter: I) -> Self {
-        ParamSet::from_iter(iter).into()
     }
 }
 

@@ -51,7 +51,7 @@
 //!    heading; a_y gets white noise (IMU), β a Gauss-Markov error (filtered
 //!    estimate); the reference heading, a_y and β can carry a constant
 //!    error too. Each source has its own setting; the `off` preset
-//!    ([`NoiseOptions::by_name`]) makes every measured column equal to its truth column.
+//!    (`"off".parse::<NoiseOptions>()`) makes every measured column equal to its truth column.
 //!
 //! Each noise source draws from its own ChaCha8 stream of the seed, so
 //! switching one source off leaves the route, the truth and the other
@@ -60,9 +60,9 @@
 //!
 //! ## Random noise worlds
 //!
-//! The presets ([`NoiseOptions::by_name`]: `paper`, the default, and its relatives) are dominated by
-//! white wheel noise. [`NoiseOptions::random_world`] draws a whole noise
-//! world from wide ranges instead — each source's size, its correlation
+//! The presets (`NoiseOptions`'s `FromStr`: `paper`, the default, and its relatives) are dominated by
+//! white wheel noise. `random:N` (`"random:7".parse::<NoiseOptions>()`)
+//! draws a whole noise world from wide ranges instead — each source's size, its correlation
 //! time, the constant errors — reproducibly from a world seed, and
 //! [`WorldSummary`] says which kind of wheel noise dominates it
 //! ([`NoiseRegime`]). `odocal simulate --noise random:N` simulates world N.

@@ -128,7 +128,8 @@ impl VehicleOptions {
 }
 
 /// Measurement errors. Every source has its own field; 0 switches it off.
-/// Defaults are the `paper` preset ([`NoiseOptions::by_name`]).
+/// Defaults are the `paper` preset (the presets by name: `NoiseOptions`'s
+/// `FromStr`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct NoiseOptions {
@@ -199,6 +200,29 @@ pub struct NoiseOptions {
 /// stays as it is without the setting).
 fn is_zero(v: &f64) -> bool {
     *v == 0.0
+}
+
+/// A preset by name: `off`, `paper`, `white` (white wheel noise only),
+/// `high`, or `random:N`, the random noise world of seed N (the
+/// distribution and the regime rule: the [module
+/// doc](crate::sim#random-noise-worlds)); the CLI's `--noise`. The same seed
+/// gives the same world.
+///
+/// ```
+/// # fn main() -> Result<(), odocal::Error> {
+/// use odocal::sim::{simulate, NoiseOptions, SimOptions, WorldSummary};
+/// let noise: NoiseOptions = "random:7".parse()?;
+/// assert_eq!("random:7".parse::<NoiseOptions>()?, noise);
+/// println!("world 7 is {}", WorldSummary::from(&noise).regime);
+/// let out = simulate(&SimOptions { length_km: 1.0, noise, ..SimOptions::paper(1) })?;
+/// assert!(out.drive.len() > 100);
+/// # Ok(()) }
+/// ```
+impl std::str::FromStr for NoiseOptions {
+    type Err = Error;
+    fn from_str(name: &str) -> Result<Self> {
+        NoiseOptions::by_name(name)
+    }
 }
 
 impl Default for NoiseOptions {
@@ -318,10 +342,11 @@ impl NoiseOptions {
         }
     }
 
-    /// A preset by name: `off`, `paper`, `white` (white wheel noise only),
+    /// A preset by name (outside the crate: `"paper".parse::<NoiseOptions>()`,
+    /// the `FromStr` impl): `off`, `paper`, `white` (white wheel noise only),
     /// `high`, or `random:N`, the random noise world of seed N
-    /// ([`NoiseOptions::random_world`]).
-    pub fn by_name(name: &str) -> Result<Self> {
+    /// (`NoiseOptions::random_world`).
+    pub(crate) fn by_name(name: &str) -> Result<Self> {
         match name {
             "off" => Ok(NoiseOptions::off()),
             "paper" => Ok(NoiseOptions::paper()),
@@ -425,7 +450,7 @@ pub struct SimOptions {
     pub speed: SpeedOptions,
     /// Vehicle (sideslip model). Default `VehicleOptions::default`.
     pub vehicle: VehicleOptions,
-    /// Measurement errors. Default the `paper` preset ([`NoiseOptions::by_name`]).
+    /// Measurement errors. Default the `paper` preset (`NoiseOptions`'s `FromStr`).
     pub noise: NoiseOptions,
     /// Where the pose reference sits on the vehicle: the measured pose is
     /// the reference point `p + R(ψ)·[lever_x, lever_y]` with heading

@@ -146,15 +146,24 @@ pub struct WorldSummary {
     pub wheel_common_slip_rel_10s: f64,
 }
 
+/// The summary of any noise settings (a preset's too).
+///
+/// ```
+/// use odocal::sim::{NoiseOptions, NoiseRegime, WorldSummary};
+/// assert_eq!(WorldSummary::from(&NoiseOptions::default()).regime, NoiseRegime::White);
+/// let off: NoiseOptions = "off".parse().unwrap();
+/// assert_eq!(WorldSummary::from(&off).regime, NoiseRegime::Quiet);
+/// ```
+impl From<&NoiseOptions> for WorldSummary {
+    fn from(n: &NoiseOptions) -> WorldSummary {
+        WorldSummary::of(n)
+    }
+}
+
 impl WorldSummary {
-    /// The summary of any noise settings (a preset's too).
-    ///
-    /// ```
-    /// use odocal::sim::{NoiseOptions, NoiseRegime, WorldSummary};
-    /// assert_eq!(WorldSummary::of(&NoiseOptions::default()).regime, NoiseRegime::White);
-    /// assert_eq!(WorldSummary::of(&NoiseOptions::by_name("off").unwrap()).regime, NoiseRegime::Quiet);
-    /// ```
-    pub fn of(n: &NoiseOptions) -> WorldSummary {
+    /// The summary of any noise settings (outside the crate:
+    /// `WorldSummary::from(&noise)`).
+    pub(crate) fn of(n: &NoiseOptions) -> WorldSummary {
         let ticks = f64::from(n.encoder_ticks_per_revolution);
         let revs_per_s = NOMINAL_SPEED_M_PER_S / CIRCUMFERENCE_M;
         // The counting error of one interval: the difference of two
@@ -267,64 +276,57 @@ impl NoiseOptions {
         }
     }
 
-    /// The random noise world of `seed`, with its summary (the distribution
-    /// and the regime rule: the [module doc](crate::sim#random-noise-worlds),
-    /// `docs/reference.md`). The same seed gives the same world.
-    ///
-    /// ```
-    /// # fn main() -> Result<(), odocal::Error> {
-    /// use odocal::sim::{simulate, NoiseOptions, SimOptions};
-    /// let (noise, summary) = NoiseOptions::random_world(7);
-    /// assert_eq!(NoiseOptions::random_world(7).0, noise);
-    /// println!("world 7 is {}", summary.regime);
-    /// let out = simulate(&SimOptions { length_km: 1.0, noise, ..SimOptions::paper(1) })?;
-    /// assert!(out.drive.len() > 100);
-    /// # Ok(()) }
-    /// ```
-    pub fn random_world(seed: u64) -> (NoiseOptions, WorldSummary) {
-        let mut d = Draw(stream(seed, WORLD_STREAM));
-        let white_only = d.unit() < WHITE_ONLY_PROBABILITY;
-        let off = if white_only { 0.0 } else { SOURCE_OFF_PROBABILITY };
-        let wheel_white = if white_only { [1e-3, 0.015] } else { [1e-4, 0.015] };
-        let mut n = NoiseOptions {
-            wheel_white_rel_sigma: d.source(off, wheel_white[0], wheel_white[1]),
-            wheel_coloured_rel_sigma: d.source(off, 1e-4, 0.02),
-            wheel_coloured_time_constant_s: d.log_uniform(0.5, 10.0),
-            wheel_coloured_differential_rel_sigma: d.source(off, 1e-5, 1e-3),
-            wheel_coloured_differential_time_constant_s: Some(d.log_uniform(0.5, 10.0)),
-            wheel_slip_per_m_per_s2: d.source(off, 1e-4, 0.01),
-            encoder_ticks_per_revolution: {
-                let (u, bits) = (d.unit(), d.uniform(8.0, 12.0));
-                if u < NO_QUANTISATION_PROBABILITY {
-                    0
-                } else {
-                    bits.exp2().round() as u32
-                }
-            },
-            position_drift_sigma_m: d.source(off, 0.01, 1.0),
-            position_drift_time_constant_s: d.log_uniform(10.0, 120.0),
-            position_white_sigma_m: d.source(off, 1e-3, 0.1),
-            heading_bias_rad: d.uniform(-0.03, 0.03),
-            heading_drift_sigma_rad: d.source(off, 1e-4, 5e-3),
-            heading_drift_time_constant_s: d.log_uniform(10.0, 120.0),
-            heading_white_sigma_rad: d.source(off, 1e-5, 1e-3),
-            lateral_acceleration_white_sigma_m_per_s2: d.source(off, 5e-3, 0.2),
-            lateral_acceleration_bias_m_per_s2: d.uniform(-0.1, 0.1),
-            sideslip_sigma_rad: d.source(off, 1e-4, 5e-3),
-            sideslip_time_constant_s: d.log_uniform(0.3, 3.0),
-            sideslip_bias_rad: d.uniform(-2e-3, 2e-3),
-        };
-        if white_only {
-            let keep = (n.wheel_white_rel_sigma, n.position_white_sigma_m, n.heading_white_sigma_rad);
-            n = NoiseOptions {
-                wheel_white_rel_sigma: keep.0,
-                position_white_sigma_m: keep.1,
-                heading_white_sigma_rad: keep.2,
-                ..NoiseOptions::off()
+    research_pub! {
+        /// The random noise world of `seed`, with its summary (the
+        /// distribution and the regime rule: the [module
+        /// doc](crate::sim#random-noise-worlds), `docs/reference.md`). The
+        /// same seed gives the same world. Outside the crate:
+        /// `"random:7".parse::<NoiseOptions>()` and [`WorldSummary::from`].
+        fn random_world(seed: u64) -> (NoiseOptions, WorldSummary) {
+            let mut d = Draw(stream(seed, WORLD_STREAM));
+            let white_only = d.unit() < WHITE_ONLY_PROBABILITY;
+            let off = if white_only { 0.0 } else { SOURCE_OFF_PROBABILITY };
+            let wheel_white = if white_only { [1e-3, 0.015] } else { [1e-4, 0.015] };
+            let mut n = NoiseOptions {
+                wheel_white_rel_sigma: d.source(off, wheel_white[0], wheel_white[1]),
+                wheel_coloured_rel_sigma: d.source(off, 1e-4, 0.02),
+                wheel_coloured_time_constant_s: d.log_uniform(0.5, 10.0),
+                wheel_coloured_differential_rel_sigma: d.source(off, 1e-5, 1e-3),
+                wheel_coloured_differential_time_constant_s: Some(d.log_uniform(0.5, 10.0)),
+                wheel_slip_per_m_per_s2: d.source(off, 1e-4, 0.01),
+                encoder_ticks_per_revolution: {
+                    let (u, bits) = (d.unit(), d.uniform(8.0, 12.0));
+                    if u < NO_QUANTISATION_PROBABILITY {
+                        0
+                    } else {
+                        bits.exp2().round() as u32
+                    }
+                },
+                position_drift_sigma_m: d.source(off, 0.01, 1.0),
+                position_drift_time_constant_s: d.log_uniform(10.0, 120.0),
+                position_white_sigma_m: d.source(off, 1e-3, 0.1),
+                heading_bias_rad: d.uniform(-0.03, 0.03),
+                heading_drift_sigma_rad: d.source(off, 1e-4, 5e-3),
+                heading_drift_time_constant_s: d.log_uniform(10.0, 120.0),
+                heading_white_sigma_rad: d.source(off, 1e-5, 1e-3),
+                lateral_acceleration_white_sigma_m_per_s2: d.source(off, 5e-3, 0.2),
+                lateral_acceleration_bias_m_per_s2: d.uniform(-0.1, 0.1),
+                sideslip_sigma_rad: d.source(off, 1e-4, 5e-3),
+                sideslip_time_constant_s: d.log_uniform(0.3, 3.0),
+                sideslip_bias_rad: d.uniform(-2e-3, 2e-3),
             };
+            if white_only {
+                let keep = (n.wheel_white_rel_sigma, n.position_white_sigma_m, n.heading_white_sigma_rad);
+                n = NoiseOptions {
+                    wheel_white_rel_sigma: keep.0,
+                    position_white_sigma_m: keep.1,
+                    heading_white_sigma_rad: keep.2,
+                    ..NoiseOptions::off()
+                };
+            }
+            let summary = WorldSummary::of(&n);
+            (n, summary)
         }
-        let summary = WorldSummary::of(&n);
-        (n, summary)
     }
 }
 

@@ -178,8 +178,8 @@ fn table(opts: &CalibrationOptions, pairs: bool) -> CrossRunTable {
                     own_m: r.validation.mean_position_error_m,
                     initial_own_m: r.initial.mean_position_error_m,
                     others: r.validate_on_drives(&others, false).expect("validation on the other runs"),
-                    theta: r.theta.to_array(),
-                    sigma: r.result_sigma().to_array(),
+                    theta: <[_; 4]>::from(r.theta),
+                    sigma: <[_; 4]>::from(r.result_sigma()),
                 }
             });
             Row { name, fit }
@@ -192,7 +192,7 @@ fn table(opts: &CalibrationOptions, pairs: bool) -> CrossRunTable {
 
 /// Batch G-N on every cut segment (no yaw-rate selection).
 fn batch_gn_all_segments() -> CalibrationOptions {
-    let mut opts = CalibrationOptions { method: Method::from_name("batch-gn").expect("method"), ..Default::default() };
+    let mut opts = CalibrationOptions { method: "batch-gn".parse::<Method>().expect("method"), ..Default::default() };
     opts.segments.min_peak_yaw_rate_rad_per_s = 0.0;
     opts
 }
@@ -259,7 +259,7 @@ fn assert_next_drive_sigma_covers_the_other_runs(t: &CrossRunTable) {
 }
 
 fn three_step() -> CalibrationOptions {
-    CalibrationOptions { method: Method::from_name("three-step").expect("method"), ..Default::default() }
+    CalibrationOptions { method: "three-step".parse::<Method>().expect("method"), ..Default::default() }
 }
 
 /// The default method (eiv) meets the criterion, its σ for the next drive

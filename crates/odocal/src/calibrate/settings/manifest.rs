@@ -27,6 +27,42 @@ pub struct ManifestSettings {
     pub reference: Option<ReferenceSpec>,
 }
 
+/// The calibration settings a parsed manifest states.
+///
+/// # Errors
+/// [`Error::Manifest`] for a bad `[noise]` or `[calibration]` table.
+impl TryFrom<&Manifest> for ManifestSettings {
+    type Error = Error;
+    fn try_from(m: &Manifest) -> Result<Self> {
+        ManifestSettings::of_manifest(m)
+    }
+}
+
+/// The calibration settings of an imported manifest.
+///
+/// # Errors
+/// [`Error::Manifest`] for a bad `[noise]` or `[calibration]` table.
+impl TryFrom<&ImportReport> for ManifestSettings {
+    type Error = Error;
+    fn try_from(r: &ImportReport) -> Result<Self> {
+        ManifestSettings::of_report(r)
+    }
+}
+
+/// The calibration settings of an imported manifest from its import
+/// report as JSON ([`import_report_json`]; the Python package keeps a
+/// drive's import report so, and a pickled drive carries it).
+///
+/// # Errors
+/// [`Error::Json`] when the value is not an import report's JSON;
+/// [`Error::Manifest`] for a bad `[noise]` or `[calibration]` table.
+impl TryFrom<&serde_json::Value> for ManifestSettings {
+    type Error = Error;
+    fn try_from(report: &serde_json::Value) -> Result<Self> {
+        ManifestSettings::of_report_json(report)
+    }
+}
+
 /// The keys of [`Settings`] a manifest states in `[reference]`.
 const REFERENCE_KEYS: [&str; 3] = ["lever_arm", "heading_offset", "estimate"];
 
@@ -107,30 +143,22 @@ impl ManifestSettings {
         Ok(ManifestSettings { manifest, settings, reference })
     }
 
-    /// The calibration settings a parsed manifest states.
-    ///
-    /// # Errors
-    /// [`Error::Manifest`] for a bad `[noise]` or `[calibration]` table.
-    pub fn of_manifest(m: &Manifest) -> Result<Self> {
+    /// The calibration settings a parsed manifest states (outside the
+    /// crate: `ManifestSettings::try_from(&manifest)`).
+    pub(crate) fn of_manifest(m: &Manifest) -> Result<Self> {
         Self::new(m.path.clone(), m.noise.as_ref(), m.reference.clone(), m.calibration.as_ref())
     }
 
-    /// The calibration settings of an imported manifest.
-    ///
-    /// # Errors
-    /// [`Error::Manifest`] for a bad `[noise]` or `[calibration]` table.
-    pub fn of_report(r: &ImportReport) -> Result<Self> {
+    /// The calibration settings of an imported manifest (outside the
+    /// crate: `ManifestSettings::try_from(&import_report)`).
+    pub(crate) fn of_report(r: &ImportReport) -> Result<Self> {
         Self::new(r.manifest.clone(), r.noise.as_ref(), r.reference.clone(), r.calibration.as_ref())
     }
 
     /// The calibration settings of an imported manifest from its import
-    /// report as JSON ([`import_report_json`]; the Python package keeps a
-    /// drive's import report so, and a pickled drive carries it).
-    ///
-    /// # Errors
-    /// [`Error::Json`] when `report` is not an import report's JSON;
-    /// [`Error::Manifest`] for a bad `[noise]` or `[calibration]` table.
-    pub fn of_report_json(report: &serde_json::Value) -> Result<Self> {
+    /// report as JSON (outside the crate:
+    /// `ManifestSettings::try_from(&json)`).
+    pub(crate) fn of_report_json(report: &serde_json::Value) -> Result<Self> {
         let bad = |source| Error::Json { context: "import report".into(), source };
         let field = |k: &str| report.get(k).filter(|x| !x.is_null()).cloned();
         let manifest: PathBuf = match field("manifest") {

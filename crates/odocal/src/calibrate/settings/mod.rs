@@ -133,7 +133,7 @@ settings! {
     /// # fn main() -> Result<(), odocal::Error> {
     /// use odocal::settings::{Caller, ManifestSettings, Settings};
     /// use odocal::Param;
-    /// let caller = Settings::from_json(serde_json::json!({"method": "batch-gn", "fix": "d"}))?;
+    /// let caller = Settings::try_from(serde_json::json!({"method": "batch-gn", "fix": "d"}))?;
     /// let stated: Settings = toml::from_str("segment_length = 400\nfix = [\"t_r\"]").expect("toml");
     /// let manifest = ManifestSettings { manifest: "drive.toml".into(), settings: stated, reference: None };
     /// let options = caller.resolve(&[manifest], Caller::Python)?.options;
@@ -307,6 +307,18 @@ pub enum NoiseModelSetting {
     Stated(NoiseSpec),
 }
 
+/// Settings from a JSON object of keys and values (Python's keywords).
+///
+/// # Errors
+/// [`Error::InvalidOption`] naming the key of a bad value, or (field
+/// `settings`) an unknown key, with the known ones.
+impl TryFrom<serde_json::Value> for Settings {
+    type Error = Error;
+    fn try_from(value: serde_json::Value) -> Result<Settings> {
+        Settings::from_json(value)
+    }
+}
+
 impl NoiseModelSetting {
     /// The noise model, read from its file when it names one.
     ///
@@ -326,12 +338,9 @@ impl Settings {
         self.stated().is_empty()
     }
 
-    /// Settings from a JSON object of keys and values (Python's keywords).
-    ///
-    /// # Errors
-    /// [`Error::InvalidOption`] naming the key of a bad value, or (field
-    /// `settings`) an unknown key, with the known ones.
-    pub fn from_json(value: serde_json::Value) -> Result<Settings> {
+    /// Settings from a JSON object of keys and values (outside the crate:
+    /// `Settings::try_from(json)`).
+    pub(crate) fn from_json(value: serde_json::Value) -> Result<Settings> {
         serde_path_to_error::deserialize(value).map_err(|e| {
             let key = e.path().iter().next().map(|s| s.to_string()).unwrap_or_default();
             let field = Settings::KEYS.iter().find(|k| **k == key).copied().unwrap_or("settings");

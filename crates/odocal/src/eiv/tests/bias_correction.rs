@@ -205,7 +205,7 @@ fn antithetic_pairs_average_out_the_replicates_odd_error() {
     assert_eq!(anti.pair_means.len(), 4);
     assert!(plain.pair_means.is_empty());
     let hat = fit.theta.to_array();
-    let pm: Vec<[f64; 4]> = anti.pair_means.iter().map(Theta::to_array).collect();
+    let pm: Vec<[f64; 4]> = anti.pair_means.iter().map(|t| t.to_array()).collect();
     for (j, m) in pm.iter().enumerate() {
         let (a, b) = (anti.replicates[2 * j].to_array(), anti.replicates[2 * j + 1].to_array());
         for i in 0..4 {

@@ -41,6 +41,13 @@ pub struct ReferenceSpec {
     pub estimate: Vec<String>,
 }
 
+/// The stated lever arm and heading offset (0 where not stated).
+impl From<&ReferenceSpec> for Extrinsics {
+    fn from(r: &ReferenceSpec) -> Extrinsics {
+        r.extrinsics()
+    }
+}
+
 impl ReferenceSpec {
     /// The parameters of `estimate`, or the error naming the bad entry.
     pub(crate) fn estimate_set(&self) -> std::result::Result<ParamSet, String> {
@@ -58,8 +65,9 @@ impl ReferenceSpec {
         Ok(set)
     }
 
-    /// The stated lever arm and heading offset (0 where not stated).
-    pub fn extrinsics(&self) -> Extrinsics {
+    /// The stated lever arm and heading offset, 0 where not stated
+    /// (outside the crate: `Extrinsics::from(&reference)`).
+    pub(crate) fn extrinsics(&self) -> Extrinsics {
         let l = self.lever_arm.unwrap_or_default();
         Extrinsics { lever_x: l[0], lever_y: l[1], heading_offset: self.heading_offset.unwrap_or(0.0) }
     }

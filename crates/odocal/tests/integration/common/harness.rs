@@ -34,7 +34,7 @@ fn check_message(m: String) -> Outcome {
 }
 
 fn check_drive(d: &Drive) -> Outcome {
-    assert!(!d.is_empty());
+    assert!(d.len() > 0);
     assert!(d.sample_time_s().is_finite() && d.sample_time_s() > 0.0);
     for (name, c) in d.measured().columns() {
         assert_eq!(c.len(), d.len(), "{name}");
@@ -58,7 +58,7 @@ pub fn csv_drive(data: &[u8]) -> Outcome {
 /// manifest states (its `[noise]` read as a noise model).
 pub fn manifest(data: &[u8]) -> Outcome {
     let Ok(text) = std::str::from_utf8(data) else { return Outcome::Error("not UTF-8".into()) };
-    match Manifest::parse(text, Path::new("fuzz.toml")).and_then(|m| ManifestSettings::of_manifest(&m)) {
+    match Manifest::parse(text, Path::new("fuzz.toml")).and_then(|m| ManifestSettings::try_from(&m)) {
         Ok(_) => Outcome::Parsed,
         Err(e) => check_message(e.to_string()),
     }
@@ -133,7 +133,7 @@ pub fn params(data: &[u8]) -> Outcome {
     let path = dir.path().join(name);
     std::fs::write(&path, data).expect("write");
     match odocal::ParamFile::read(&path, None) {
-        Ok(f) => match f.theta() {
+        Ok(f) => match odocal::Theta::try_from(&f) {
             Ok(t) => {
                 assert!([t.c_e, t.c_d, t.t_r, t.d].iter().all(|v| v.is_finite()), "{t:?}");
                 Outcome::Parsed
