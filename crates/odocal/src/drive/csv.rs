@@ -634,6 +634,26 @@ mod tests {
         assert!(m.contains("uniform") && m.contains("line 6"), "{m}");
     }
 
+    /// One long gap is named at its own line: against the mean step, which
+    /// the gap moves off every other step, the first step would be named.
+    /// Huge times are echoed short.
+    #[test]
+    fn a_gap_is_named_at_its_line_and_huge_times_stay_short() {
+        let with_jump = |jump: f64| {
+            let mut s = String::from("t,px,py,psi,n_rl,n_rr,beta,a_y\n");
+            for i in 0..100 {
+                let t = i as f64 * 0.025 + if i >= 60 { jump } else { 0.0 };
+                s.push_str(&format!("{t},{},0,0,5,5,0,0\n", i as f64 * 0.25));
+            }
+            s
+        };
+        let m = parse(&with_jump(1e6)).expect_err("gap").to_string();
+        assert!(m.contains("line 62") && m.contains("sample step 1000000.025000 s"), "{m}");
+        assert!(m.contains("the median step 0.025000 s") && m.contains("'part' column"), "{m}");
+        let m = parse(&with_jump(1e300)).expect_err("equal times").to_string();
+        assert!(m.contains("line 63") && m.contains("(1e300 after 1e300)") && m.len() < 200, "{m}");
+    }
+
     #[test]
     fn bad_part_ids_name_the_cause() {
         let s = "t,px,py,psi,n_rl,n_rr,beta,a_y,part\n0,0,0,0,1,1,0,0,0\n0.1,0,0,0,1,1,0,0,0.5\n";
