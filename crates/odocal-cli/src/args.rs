@@ -430,3 +430,22 @@ fn parse_even_replicates(s: &str) -> std::result::Result<usize, String> {
     }
     Ok(b)
 }
+
+/// `--vehicle ID`, the key of the vehicle's rows in the history: not
+/// blank, no spaces at either end (`van-1 ` would be a vehicle of its own,
+/// apart from `van-1`) and no control characters. A usage error otherwise.
+pub fn vehicle_id(s: &str) -> std::result::Result<String, String> {
+    if s.trim().is_empty() {
+        return Err("the vehicle's identifier is empty: give the name its history is kept under, e.g. van-1".into());
+    }
+    if s.chars().any(char::is_control) {
+        return Err(format!("'{}' holds a control character: give a plain name, e.g. van-1", s.escape_debug()));
+    }
+    if s.trim() != s {
+        return Err(format!(
+            "'{s}' has a space at an end, which would keep its history apart from '{}': give it without",
+            s.trim()
+        ));
+    }
+    Ok(s.to_string())
+}

@@ -26,7 +26,7 @@ pub struct FollowArgs {
     #[arg(required = true, num_args = 1..)]
     drive: Vec<PathBuf>,
     /// The vehicle's identifier in the history.
-    #[arg(long, value_name = "ID")]
+    #[arg(long, value_name = "ID", value_parser = crate::args::vehicle_id)]
     vehicle: String,
     /// The history database (SQLite; created if missing).
     ///
