@@ -146,3 +146,16 @@ fn a_drive_too_short_for_a_segment_is_named_with_the_option() {
         &[&format!("{d}: no usable segments"), "--validation-length"],
     );
 }
+
+/// `compensate --out -`: the CSV on stdout, the summary on stderr saying
+/// where the drive went (it said "wrote -").
+#[test]
+fn compensate_to_stdout_says_so_on_stderr() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let d = crate::common::simulated_drive(dir.path(), "d.csv", &["--length-km", "1"]);
+    let o = odocal(&["compensate", &d, "--theta", "1.95,-0.002,1.53,0.0008", "--out", "-"]);
+    let e = stderr(&o);
+    assert!(o.status.success(), "{e}");
+    assert!(crate::common::stdout(&o).starts_with("t,px,py,psi,"), "the CSV on stdout");
+    assert!(e.contains("wrote the compensated drive to stdout: ") && !e.contains("wrote -"), "{e}");
+}
