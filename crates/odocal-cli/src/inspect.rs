@@ -29,6 +29,9 @@ pub struct InspectArgs {
 /// Prints the bag's topics, types, counts and rates, then the columns a
 /// manifest can take from each readable topic; or writes a draft manifest.
 pub fn run(a: InspectArgs) -> Result<()> {
+    if is_stdout(&a.bag) {
+        bail!("-: a bag is read from a file, not from stdin (MCAP is read by its index): save it first and give that path");
+    }
     if let Some(out) = &a.manifest {
         return draft(&a.bag, out, a.force);
     }

@@ -159,3 +159,11 @@ fn compensate_to_stdout_says_so_on_stderr() {
     assert!(crate::common::stdout(&o).starts_with("t,px,py,psi,"), "the CSV on stdout");
     assert!(e.contains("wrote the compensated drive to stdout: ") && !e.contains("wrote -"), "{e}");
 }
+
+/// `inspect -` says a bag is read from a file (it said "-: No such file
+/// or directory").
+#[test]
+fn a_bag_from_stdin_is_refused_saying_why() {
+    let e = assert_fails(&["inspect", "-"], 1, &["-: a bag is read from a file, not from stdin", "save it first"]);
+    assert!(!e.contains("No such file"), "{e}");
+}
