@@ -346,7 +346,8 @@ fn missing_file_and_column_errors() {
 /// error naming the file, in the whole import and the streamed one alike.
 #[test]
 fn empty_ambiguous_and_misseparated_headers_are_named() {
-    let cases: [(&dyn Fn(String) -> String, &[&str]); 3] = [
+    type Edit<'a> = &'a dyn Fn(String) -> String;
+    let cases: [(Edit, &[&str]); 3] = [
         (&|_| String::new(), &["w.csv is empty: a stream file starts with a header row"]),
         (&|w| w.replace(',', ";"), &["column 't' not found", "looks separated by ';'"]),
         (&|w| w.replacen("t,left,right", "t,left,left", 1), &["column 'left' is named 2 times", "(columns 2, 3)"]),
