@@ -190,7 +190,17 @@ pub(crate) fn check_header(headers: &[String], path: &Path) -> Result<()> {
     let missing: Vec<String> =
         REQUIRED_COLUMNS.iter().filter(|c| !headers.iter().any(|h| h == *c)).map(|c| c.to_string()).collect();
     if !missing.is_empty() {
-        let hint = if headers.len() == 1 && (headers[0].contains(';') || headers[0].contains('\t')) {
+        let first = headers.first().map(|h| h.trim_start()).unwrap_or_default();
+        // A manifest under another name is read as a CSV by its ending.
+        let hint = if first.starts_with('[') {
+            Some("the file looks like a manifest (TOML): give it a name ending in .toml".to_string())
+        } else if first.starts_with('#') {
+            Some(
+                "the first line is a comment: the canonical CSV starts with its header row (a manifest, TOML, needs \
+                 a name ending in .toml)"
+                    .to_string(),
+            )
+        } else if headers.len() == 1 && (headers[0].contains(';') || headers[0].contains('\t')) {
             Some("the header looks separated by ';' or tabs: the canonical CSV is comma-separated".to_string())
         } else {
             None
@@ -565,6 +575,11 @@ mod tests {
         assert!(m.contains("columns found: t, px, py"), "{m}");
         let m = parse("t;px;py;psi;n_rl;n_rr;beta;a_y\n0;0;0;0;0;0;0;0\n").expect_err("semicolons").to_string();
         assert!(m.contains("separated by ';'"), "{m}");
+        // A manifest given a .csv or .txt name, and a CSV opening with a comment.
+        let m = parse("[output]\nrate_hz = 40\n").expect_err("a manifest").to_string();
+        assert!(m.contains("looks like a manifest (TOML): give it a name ending in .toml"), "{m}");
+        let m = parse("# a drive\nt,px,py,psi,n_rl,n_rr,beta,a_y\n0,0,0,0,0,0,0,0\n").expect_err("comment").to_string();
+        assert!(m.contains("the first line is a comment: the canonical CSV starts with its header row"), "{m}");
     }
 
     #[test]
