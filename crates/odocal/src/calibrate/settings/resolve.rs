@@ -385,10 +385,19 @@ impl Settings {
                 return Some((key, format!("= {v} is above its ceiling of {max}")));
             }
         }
-        // The counts of the 3-step method's step 1 need at least one.
+        // The counts of the 3-step method's step 1 need at least one; the
+        // floors of the EIV window and of a bootstrap (eiv::options and
+        // eiv::bootstrap check them again, naming their own fields).
         for (key, v) in [("batches", self.batches), ("batch_size", self.batch_size), ("picks", self.picks)] {
             if v == Some(0) {
                 return Some((key, "= 0: must be at least 1".into()));
+            }
+        }
+        for (key, v, min, unit) in
+            [("eiv_window", self.eiv_window, 10, "samples"), ("bootstrap", self.bootstrap, 2, "replicates")]
+        {
+            if let Some(v) = v.filter(|v| *v < min) {
+                return Some((key, format!("= {v}: must be at least {min} {unit}")));
             }
         }
         match self.min_yaw_rate {

@@ -148,6 +148,14 @@ fn misplaced_keys_are_named_as_the_caller_gave_them() {
     );
     let s = json_settings(json!({"correct_bias": 3}));
     assert!(s.to_options(Caller::Python).expect_err("odd").to_string().contains("`correct_bias`: must be 0"));
+    // The EIV window's and the bootstrap's floors are named as given, not
+    // by the library's fields (window_samples, replicates).
+    let s = json_settings(json!({"eiv_window": 1}));
+    let cli = s.to_options(Caller::CommandLine).expect_err("window").to_string();
+    assert_eq!(cli, "--eiv-window = 1: must be at least 10 samples");
+    let s = json_settings(json!({"bootstrap": 1}));
+    let py = s.to_options(Caller::Python).expect_err("one replicate").to_string();
+    assert_eq!(py, "invalid option `bootstrap`: = 1: must be at least 2 replicates");
     // A negative minimum yaw rate is named as given, not by the library's field.
     let s = json_settings(json!({"method": "batch-gn", "min_yaw_rate": -1.0}));
     let cli = s.to_options(Caller::CommandLine).expect_err("negative").to_string();
