@@ -400,6 +400,15 @@ impl Settings {
                 return Some((key, format!("= {v}: must be at least {min} {unit}")));
             }
         }
+        // The extrinsics a manifest's [reference] states are checked by the
+        // importer alike; a lever arm in millimetres or a heading offset in
+        // degrees is caught here for the command line and Python.
+        let [lever_x, lever_y] = self.lever_arm.unwrap_or_default();
+        let heading_offset = self.heading_offset.unwrap_or_default();
+        let stated = crate::model::extrinsics::Extrinsics { lever_x, lever_y, heading_offset };
+        if let Err((key, why)) = crate::model::limits::check_extrinsics(&stated) {
+            return Some((if key == "heading_offset" { key } else { "lever_arm" }, format!("= {why}")));
+        }
         match self.min_yaw_rate {
             Some(r) if !(r.is_finite() && r >= 0.0) => {
                 let r = crate::drive::echo_num(r);

@@ -156,6 +156,13 @@ fn misplaced_keys_are_named_as_the_caller_gave_them() {
     let s = json_settings(json!({"bootstrap": 1}));
     let py = s.to_options(Caller::Python).expect_err("one replicate").to_string();
     assert_eq!(py, "invalid option `bootstrap`: = 1: must be at least 2 replicates");
+    // A lever arm or heading offset beyond its plausible range is named as given.
+    let s = json_settings(json!({"lever_arm": [1e300, 0.0]}));
+    let cli = s.to_options(Caller::CommandLine).expect_err("lever arm").to_string();
+    assert_eq!(cli, "--lever-arm = 1e300 m is not within ±20 m (the lever arm is in metres)");
+    let s = json_settings(json!({"heading_offset": 90.0}));
+    let py = s.to_options(Caller::Python).expect_err("degrees").to_string();
+    assert!(py.starts_with("invalid option `heading_offset`: = 90 rad is not within ±π rad"), "{py}");
     // A negative minimum yaw rate is named as given, not by the library's field.
     let s = json_settings(json!({"method": "batch-gn", "min_yaw_rate": -1.0}));
     let cli = s.to_options(Caller::CommandLine).expect_err("negative").to_string();
