@@ -255,7 +255,8 @@ pub struct CalibrationArgs {
     #[arg(long, help_heading = EIV_BIAS, hide_short_help = true)]
     pub no_bias_correction: bool,
     /// ROS node name of the parameter file.
-    #[arg(long, default_value = "odocal", help_heading = PARAM_FILE, hide_short_help = true)]
+    #[arg(long, default_value = "odocal", help_heading = PARAM_FILE, hide_short_help = true,
+          value_parser = ros_node_name)]
     pub params_node: String,
     /// Also write the parameters under a consumer's keys: odocal (none) or
     /// diff_drive_controller (wheel_separation, wheel_radius, radius multipliers).
@@ -445,6 +446,22 @@ pub fn vehicle_id(s: &str) -> std::result::Result<String, String> {
         return Err(format!(
             "'{s}' has a space at an end, which would keep its history apart from '{}': give it without",
             s.trim()
+        ));
+    }
+    Ok(s.to_string())
+}
+
+/// `--params-node NAME`, the node a ROS 2 parameter file is written for:
+/// letters, digits and `_`, with `/` for a namespace and `*` for ROS 2's
+/// wildcards (`/**`). ROS 2 loads no file whose node is empty or holds
+/// other characters (`my-node`, a space), so the write would be wasted.
+pub fn ros_node_name(s: &str) -> std::result::Result<String, String> {
+    let fits = |c: char| c.is_ascii_alphanumeric() || matches!(c, '_' | '/' | '*');
+    if s.is_empty() || !s.chars().all(fits) {
+        return Err(format!(
+            "'{}' is not a ROS 2 node name: give letters, digits and _ (with / for a namespace), e.g. odocal or \
+             /vehicle/odometry",
+            s.escape_debug()
         ));
     }
     Ok(s.to_string())

@@ -167,3 +167,22 @@ fn a_bag_from_stdin_is_refused_saying_why() {
     let e = assert_fails(&["inspect", "-"], 1, &["-: a bag is read from a file, not from stdin", "save it first"]);
     assert!(!e.contains("No such file"), "{e}");
 }
+
+/// `--params-node` that ROS 2 would not load (empty, a dash, a space) is a
+/// usage error before the work; a namespaced name is taken.
+#[test]
+fn a_params_node_ros_2_would_not_load_is_refused() {
+    for node in ["", "my-node", "a b"] {
+        assert_fails(
+            &["calibrate", "d.csv", "--params-out", "p.yaml", "--params-node", node],
+            2,
+            &["--params-node", "is not a ROS 2 node name"],
+        );
+    }
+    let dir = tempfile::tempdir().expect("tmp");
+    let d = crate::common::simulated_drive(dir.path(), "d.csv", &["--length-km", "1"]);
+    let p = dir.path().join("p.yaml");
+    let o = odocal(&["calibrate", &d, "--method", "batch-gn", "--params-out", s(&p), "--params-node", "/van/odometry"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(std::fs::read_to_string(&p).expect("read").contains("/van/odometry:\n  ros__parameters:"));
+}
