@@ -114,7 +114,7 @@ pub struct CalibrationArgs {
     pub report: Option<PathBuf>,
     /// Minimum peak yaw rate for a segment to be selected, rad/s.
     /// Three-step and batch-gn (eiv fits every segment).
-    #[arg(long, help_heading = SEGMENTS, hide_short_help = true)]
+    #[arg(long, help_heading = SEGMENTS, hide_short_help = true, value_parser = yaw_rate)]
     pub min_yaw_rate: Option<f64>,
     /// Keep the paper's turning-only segment selection even when every
     /// selected segment turns the same way (default: the straight segments
@@ -465,4 +465,13 @@ pub fn ros_node_name(s: &str) -> std::result::Result<String, String> {
         ));
     }
     Ok(s.to_string())
+}
+
+/// `--min-yaw-rate R`: a non-negative number of rad/s (0 selects every
+/// segment), checked when the command line is parsed (a usage error).
+pub fn yaw_rate(s: &str) -> std::result::Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(r) if r.is_finite() && r >= 0.0 => Ok(r),
+        _ => Err(format!("'{s}' is not a non-negative number of rad/s (0 selects every segment)")),
+    }
 }

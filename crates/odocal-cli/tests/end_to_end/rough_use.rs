@@ -186,3 +186,20 @@ fn a_params_node_ros_2_would_not_load_is_refused() {
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(std::fs::read_to_string(&p).expect("read").contains("/van/odometry:\n  ros__parameters:"));
 }
+
+/// `--min-yaw-rate nan` is a usage error naming the flag (calibrate said
+/// "invalid option `min_peak_yaw_rate_rad_per_s`" after the import, follow
+/// alike after opening the history).
+#[test]
+fn a_min_yaw_rate_that_is_not_a_rate_is_a_usage_error() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let db = dir.path().join("h.sqlite");
+    for cmd in
+        [&["calibrate", "d.csv", "--method", "batch-gn"][..], &["follow", "d.csv", "--vehicle", "v", "--db", s(&db)]]
+    {
+        let args = [cmd, &["--min-yaw-rate", "nan"][..]].concat();
+        let e = assert_fails(&args, 2, &["--min-yaw-rate", "'nan' is not a non-negative number of rad/s"]);
+        assert!(!e.contains("min_peak"), "{e}");
+    }
+    assert!(!db.exists());
+}
