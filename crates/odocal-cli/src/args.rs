@@ -114,7 +114,7 @@ pub struct CalibrationArgs {
     pub report: Option<PathBuf>,
     /// Minimum peak yaw rate for a segment to be selected, rad/s.
     /// Three-step and batch-gn (eiv fits every segment).
-    #[arg(long, help_heading = SEGMENTS, hide_short_help = true)]
+    #[arg(long, help_heading = SEGMENTS, hide_short_help = true, value_parser = yaw_rate)]
     pub min_yaw_rate: Option<f64>,
     /// Keep the paper's turning-only segment selection even when every
     /// selected segment turns the same way (default: the straight segments
@@ -255,7 +255,8 @@ pub struct CalibrationArgs {
     #[arg(long, help_heading = EIV_BIAS, hide_short_help = true)]
     pub no_bias_correction: bool,
     /// ROS node name of the parameter file.
-    #[arg(long, default_value = "odocal", help_heading = PARAM_FILE, hide_short_help = true)]
+    #[arg(long, default_value = "odocal", help_heading = PARAM_FILE, hide_short_help = true,
+          value_parser = ros_node_name)]
     pub params_node: String,
     /// Also write the parameters under a consumer's keys: odocal (none) or
     /// diff_drive_controller (wheel_separation, wheel_radius, radius multipliers).
@@ -429,4 +430,48 @@ fn parse_even_replicates(s: &str) -> std::result::Result<usize, String> {
         ));
     }
     Ok(b)
+}
+
+/// `--vehicle ID`, the key of the vehicle's rows in the history: not
+/// blank, no spaces at either end (`van-1 ` would be a vehicle of its own,
+/// apart from `van-1`) and no control characters. A usage error otherwise.
+pub fn vehicle_id(s: &str) -> std::result::Result<String, String> {
+    if s.trim().is_empty() {
+        return Err("the vehicle's identifier is empty: give the name its history is kept under, e.g. van-1".into());
+    }
+    if s.chars().any(char::is_control) {
+        return Err(format!("'{}' holds a control character: give a plain name, e.g. van-1", s.escape_debug()));
+    }
+    if s.trim() != s {
+        return Err(format!(
+            "'{s}' has a space at an end, which would keep its history apart from '{}': give it without",
+            s.trim()
+        ));
+    }
+    Ok(s.to_string())
+}
+
+/// `--params-node NAME`, the node a ROS 2 parameter file is written for:
+/// letters, digits and `_`, with `/` for a namespace and `*` for ROS 2's
+/// wildcards (`/**`). ROS 2 loads no file whose node is empty or holds
+/// other characters (`my-node`, a space), so the write would be wasted.
+pub fn ros_node_name(s: &str) -> std::result::Result<String, String> {
+    let fits = |c: char| c.is_ascii_alphanumeric() || matches!(c, '_' | '/' | '*');
+    if s.is_empty() || !s.chars().all(fits) {
+        return Err(format!(
+            "'{}' is not a ROS 2 node name: give letters, digits and _ (with / for a namespace), e.g. odocal or \
+             /vehicle/odometry",
+            s.escape_debug()
+        ));
+    }
+    Ok(s.to_string())
+}
+
+/// `--min-yaw-rate R`: a non-negative number of rad/s (0 selects every
+/// segment), checked when the command line is parsed (a usage error).
+pub fn yaw_rate(s: &str) -> std::result::Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(r) if r.is_finite() && r >= 0.0 => Ok(r),
+        _ => Err(format!("'{s}' is not a non-negative number of rad/s (0 selects every segment)")),
+    }
 }

@@ -41,7 +41,7 @@ pub struct CalibrateArgs {
     ///
     /// One row per drive and method: a drive already recorded for the
     /// vehicle by the same method is recognised and not counted twice.
-    #[arg(long, requires = "db", value_name = "ID")]
+    #[arg(long, requires = "db", value_name = "ID", value_parser = crate::args::vehicle_id)]
     vehicle: Option<String>,
     /// The history database (SQLite; created if missing) for --vehicle.
     #[arg(long, requires = "vehicle", value_name = "FILE")]
@@ -377,14 +377,30 @@ fn with_hint(
     method: &Method,
     bars: &Bars,
 ) -> anyhow::Error {
-    if !matches!(e, odocal::Error::NotObservable { .. }) {
-        return match source {
-            Some((p, _)) => crate::io::name_drive(e, p).into(),
-            None => e.into(),
+    let odocal::Error::NotObservable { params, .. } = &e else {
+        return match (e, source) {
+            // The drives the library joined as "held-out drive", by name.
+            (odocal::Error::InvalidDrive { context, reason }, _)
+                if context == "held-out drive" && !args.validate_on.is_empty() =>
+            {
+                let names: Vec<String> = args.validate_on.iter().map(|p| p.display().to_string()).collect();
+                let context = format!("--validate-on {}", names.join(","));
+                odocal::Error::InvalidDrive { context, reason }.into()
+            }
+            (e, Some((p, _))) => crate::io::name_drive(e, p).into(),
+            (e, None) => e.into(),
         };
-    }
+    };
     bars.finish();
+    // Holding c_d, t_r, d calibrates c_e alone; with c_e or an extrinsic
+    // not observable, that command (or --auto-fix) would fail alike.
+    let yaw_only = params.0.iter().all(|p| ["c_d", "t_r", "d"].contains(p));
     let hint = match source {
+        _ if params.0.contains(&"c_e") => "; c_e follows from the distance driven: check that the vehicle moves in \
+                                           this drive (the wheel speeds and the reference positions)"
+            .to_string(),
+        _ if !yaw_only => format!("; hold them with --fix {}", params.0.join(",")),
+        _ if args.auto_fix => String::new(),
         Some((p, _)) => format!("; run: {} (or add --auto-fix)", c_e_only_command(p, args, method)),
         None => "; or add --auto-fix".into(),
     };

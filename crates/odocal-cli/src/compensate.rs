@@ -74,7 +74,7 @@ pub fn run(mut a: CompensateArgs, bars: &Bars) -> Result<()> {
     write_drive(&drive, &a.out)?;
     let summary = format!(
         "wrote {}: {} of {} segments compensated ({} QP solves, rms input change {:.3} %)",
-        a.out.display(),
+        if is_stdout(&a.out) { "the compensated drive to stdout".into() } else { a.out.display().to_string() },
         comp.step.segments,
         segs.len(),
         comp.step.qp_solves,

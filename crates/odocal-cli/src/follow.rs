@@ -26,7 +26,7 @@ pub struct FollowArgs {
     #[arg(required = true, num_args = 1..)]
     drive: Vec<PathBuf>,
     /// The vehicle's identifier in the history.
-    #[arg(long, value_name = "ID")]
+    #[arg(long, value_name = "ID", value_parser = crate::args::vehicle_id)]
     vehicle: String,
     /// The history database (SQLite; created if missing).
     ///
@@ -56,7 +56,7 @@ pub struct FollowArgs {
     #[arg(long, value_name = "F", help_heading = ONLINE)]
     information_scale: Option<f64>,
     /// Fold only segments whose peak yaw rate exceeds this, rad/s [default: 0, every segment].
-    #[arg(long, value_name = "RAD_PER_S", help_heading = ONLINE)]
+    #[arg(long, value_name = "RAD_PER_S", help_heading = ONLINE, value_parser = crate::args::yaw_rate)]
     min_yaw_rate: Option<f64>,
     #[command(flatten)]
     expert: ExpertArgs,

@@ -29,6 +29,9 @@ pub struct InspectArgs {
 /// Prints the bag's topics, types, counts and rates, then the columns a
 /// manifest can take from each readable topic; or writes a draft manifest.
 pub fn run(a: InspectArgs) -> Result<()> {
+    if is_stdout(&a.bag) {
+        bail!("-: a bag is read from a file, not from stdin (MCAP is read by its index): save it first and give that path");
+    }
     if let Some(out) = &a.manifest {
         return draft(&a.bag, out, a.force);
     }
@@ -59,10 +62,7 @@ fn bag_path_for(bag: &Path, out: Option<&Path>) -> Result<String> {
 
 fn draft(bag: &Path, out: &Path, force: bool) -> Result<()> {
     let to_stdout = is_stdout(out);
-    let exists = || format!("{}: exists; give another name, or --force to replace it", out.display());
-    if !to_stdout && !force && out.symlink_metadata().is_ok() {
-        bail!(exists());
-    }
+    let exists = || format!("--manifest {}: exists; give another name, or --force to replace it", out.display());
     let mut files = Files::default();
     files.input("the bag", bag);
     if let Ok(entries) = std::fs::read_dir(bag) {
@@ -70,7 +70,11 @@ fn draft(bag: &Path, out: &Path, force: bool) -> Result<()> {
             files.input(format!("a file of the bag {}", bag.display()), &e.path());
         }
     }
+    // The bag and a directory first: --force would not help there.
     files.output("--manifest", Some(out)).check()?;
+    if !to_stdout && !force && out.symlink_metadata().is_ok() {
+        bail!(exists());
+    }
     let file = bag_path_for(bag, (!to_stdout).then_some(out))?;
     let text = odocal::io::bag::draft_manifest(bag, &file)?;
     if to_stdout {

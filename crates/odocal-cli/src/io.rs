@@ -59,12 +59,17 @@ pub fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>, Opti
 }
 
 /// An error about "drive" (the library's name for the drive it was given,
-/// e.g. a failed convention check) named by the file the drive was read from.
+/// e.g. a failed convention check), or that it has no usable segments,
+/// named by the file the drive was read from.
 pub fn name_drive(e: odocal::Error, path: &Path) -> odocal::Error {
     match e {
         odocal::Error::InvalidDrive { context, reason } if context == "drive" => {
             odocal::Error::InvalidDrive { context: path.display().to_string(), reason }
         }
+        odocal::Error::NoSegments(why) => odocal::Error::InvalidDrive {
+            context: path.display().to_string(),
+            reason: format!("no usable segments: {why}"),
+        },
         e => e,
     }
 }

@@ -88,8 +88,8 @@ impl Files {
 }
 
 /// Refuses an output path that is a directory, or whose folder does not
-/// exist or is not a folder (unless the command creates it): the write at
-/// the end of the work would fail.
+/// exist, is not a folder or cannot be written in (unless the command
+/// creates it): the write at the end of the work would fail.
 fn check_writable_place(o: &FileRole, creates_folder: bool) -> Result<()> {
     let path = o.path.display();
     if o.path.is_dir() {
@@ -98,14 +98,42 @@ fn check_writable_place(o: &FileRole, creates_folder: bool) -> Result<()> {
     if creates_folder {
         return Ok(());
     }
-    let folder = match o.path.parent() {
+    // A symbolic link is written where it points (odocal::output), so its
+    // target's folder is the one that must take the file.
+    let target = match std::fs::symlink_metadata(&o.path) {
+        Ok(m) if m.file_type().is_symlink() => std::fs::canonicalize(&o.path).unwrap_or_else(|_| o.path.clone()),
+        _ => o.path.clone(),
+    };
+    let folder = match target.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
-        _ => return Ok(()),
+        _ => Path::new("."),
     };
     match std::fs::metadata(folder) {
-        Ok(m) if m.is_dir() => Ok(()),
+        Ok(m) if m.is_dir() => check_folder_takes_files(o, folder),
         Ok(_) => bail!("{} {path}: {} is not a folder", o.role, folder.display()),
         Err(_) => bail!("{} {path}: the folder {} does not exist; create it first", o.role, folder.display()),
+    }
+}
+
+/// Creates and removes a hidden file in `folder`, as the atomic write does
+/// at the end: a folder odocal cannot create files in (no permission, a
+/// read-only file system, `/proc`) is refused before the work.
+fn check_folder_takes_files(o: &FileRole, folder: &Path) -> Result<()> {
+    let probe = folder.join(format!(".odocal-probe.{}.tmp", std::process::id()));
+    match std::fs::OpenOptions::new().write(true).create_new(true).open(&probe) {
+        Ok(_) => {
+            // A probe left behind (the folder lost its permission meanwhile) is harmless.
+            let _ = std::fs::remove_file(&probe);
+            Ok(())
+        }
+        // Another output of this command probes the same folder: it takes files.
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(()),
+        Err(e) => bail!(
+            "{} {}: cannot create a file in the folder {} ({e}); give a folder you can write to",
+            o.role,
+            o.path.display(),
+            folder.display()
+        ),
     }
 }
 

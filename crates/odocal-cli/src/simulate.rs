@@ -111,7 +111,13 @@ pub fn run(mut a: SimulateArgs, bars: &Bars) -> Result<()> {
     }
     o.drift.c_d_step = a.cd_step;
     bars.stage("simulating");
-    let out = sim::simulate(&o)?;
+    // The drift's flags by name, as a usage error.
+    let out = sim::simulate(&o).map_err(|e| match e {
+        odocal::Error::InvalidOption { field: "drift", reason } => {
+            odocal::Error::InvalidFlags(format!("--ce-ramp-per-hour, --cd-step: {reason}"))
+        }
+        e => e,
+    })?;
     bars.finish();
     out.drive.write_csv(&a.out)?;
     out.sidecar.write_beside(&a.out)?;

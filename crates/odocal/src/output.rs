@@ -134,7 +134,14 @@ where
         // What `File::create` gives a new file: 0666 less the umask.
         builder.permissions(std::fs::Permissions::from_mode(0o666));
     }
-    let mut tmp = builder.tempfile_in(&dir).map_err(io)?;
+    let mut tmp = builder.tempfile_in(&dir).map_err(|e| {
+        // tempfile's error ends with the temporary file's random name ("…
+        // at path \"/d/.x.json.eE2tpV.tmp\""), which means nothing to the
+        // user: name the folder instead, with the operating system's reason.
+        let text = e.to_string();
+        let why = text.rsplit_once(" at path ").map_or(text.as_str(), |(why, _)| why);
+        io(std::io::Error::new(e.kind(), format!("cannot create a file in the folder {}: {why}", dir.display())))
+    })?;
     let _in_flight = InFlight::new(tmp.path());
     {
         let mut w = std::io::BufWriter::new(tmp.as_file_mut());

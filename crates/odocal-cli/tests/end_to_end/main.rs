@@ -25,5 +25,6 @@ mod keep_one_way;
 mod manifest_settings;
 mod misleading;
 mod params_out;
+mod rough_use;
 mod silent_wrong;
 mod validate_on_reference;

@@ -82,7 +82,8 @@ pub(crate) fn mean_position_error_by(
     theta.validate()?;
     if segments.is_empty() {
         return Err(Error::NoSegments(format!(
-            "the drive ({} samples) is too short for one validation segment",
+            "the drive ({} samples) is too short for one validation segment: give a longer drive or a shorter \
+             validation_length (--validation-length)",
             drive.len()
         )));
     }

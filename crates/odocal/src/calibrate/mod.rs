@@ -569,7 +569,8 @@ pub(crate) fn calibrate_core(
     let selection = method.select(&prep)?;
     if prep.validation.is_empty() {
         return Err(Error::NoSegments(format!(
-            "the drive ({} samples) is too short for one validation segment of {} steps",
+            "the drive ({} samples) is too short for one validation segment of {} steps: give a longer drive or \
+             a shorter validation_length (--validation-length)",
             drive.len(),
             opts.validation.length_steps
         )));
@@ -862,10 +863,12 @@ pub(crate) fn cut_segments(drive: &Drive, opts: &SegmentOptions) -> Result<crate
     let selection = calibration_segments(drive, opts)?;
     if selection.all.is_empty() {
         return Err(Error::NoSegments(format!(
-            "the drive has {} samples in {} part(s); a calibration segment needs {} steps",
+            "the drive has {} samples in {} part(s); a calibration segment needs {} samples (segment_length {} \
+             steps in one part): give a longer drive or a shorter segment_length (--segment-length)",
             drive.len(),
             drive.parts().len(),
-            opts.length_steps + 1
+            opts.length_steps + 1,
+            opts.length_steps
         )));
     }
     Ok(selection)
@@ -901,7 +904,7 @@ pub(crate) fn turning_segments(prep: &Prepared<'_>) -> Result<Selection> {
                      parameters act only through the yaw equation. Hold them at θ_0 (--fix c_d,t_r,d) and \
                      select every segment (--min-yaw-rate 0) to calibrate c_e alone",
                     selection.all.len(),
-                    opts.segments.min_peak_yaw_rate_rad_per_s
+                    crate::drive::echo_num(opts.segments.min_peak_yaw_rate_rad_per_s)
                 ),
             });
         }

@@ -190,7 +190,17 @@ pub(crate) fn check_header(headers: &[String], path: &Path) -> Result<()> {
     let missing: Vec<String> =
         REQUIRED_COLUMNS.iter().filter(|c| !headers.iter().any(|h| h == *c)).map(|c| c.to_string()).collect();
     if !missing.is_empty() {
-        let hint = if headers.len() == 1 && (headers[0].contains(';') || headers[0].contains('\t')) {
+        let first = headers.first().map(|h| h.trim_start()).unwrap_or_default();
+        // A manifest under another name is read as a CSV by its ending.
+        let hint = if first.starts_with('[') {
+            Some("the file looks like a manifest (TOML): give it a name ending in .toml".to_string())
+        } else if first.starts_with('#') {
+            Some(
+                "the first line is a comment: the canonical CSV starts with its header row (a manifest, TOML, needs \
+                 a name ending in .toml)"
+                    .to_string(),
+            )
+        } else if headers.len() == 1 && (headers[0].contains(';') || headers[0].contains('\t')) {
             Some("the header looks separated by ';' or tabs: the canonical CSV is comma-separated".to_string())
         } else {
             None
@@ -565,6 +575,11 @@ mod tests {
         assert!(m.contains("columns found: t, px, py"), "{m}");
         let m = parse("t;px;py;psi;n_rl;n_rr;beta;a_y\n0;0;0;0;0;0;0;0\n").expect_err("semicolons").to_string();
         assert!(m.contains("separated by ';'"), "{m}");
+        // A manifest given a .csv or .txt name, and a CSV opening with a comment.
+        let m = parse("[output]\nrate_hz = 40\n").expect_err("a manifest").to_string();
+        assert!(m.contains("looks like a manifest (TOML): give it a name ending in .toml"), "{m}");
+        let m = parse("# a drive\nt,px,py,psi,n_rl,n_rr,beta,a_y\n0,0,0,0,0,0,0,0\n").expect_err("comment").to_string();
+        assert!(m.contains("the first line is a comment: the canonical CSV starts with its header row"), "{m}");
     }
 
     #[test]
@@ -632,6 +647,26 @@ mod tests {
         let s = csv_text(6, 0.025).replacen("0.1,", "0.11,", 1);
         let m = parse(&s).expect_err("nonuni").to_string();
         assert!(m.contains("uniform") && m.contains("line 6"), "{m}");
+    }
+
+    /// One long gap is named at its own line: against the mean step, which
+    /// the gap moves off every other step, the first step would be named.
+    /// Huge times are echoed short.
+    #[test]
+    fn a_gap_is_named_at_its_line_and_huge_times_stay_short() {
+        let with_jump = |jump: f64| {
+            let mut s = String::from("t,px,py,psi,n_rl,n_rr,beta,a_y\n");
+            for i in 0..100 {
+                let t = i as f64 * 0.025 + if i >= 60 { jump } else { 0.0 };
+                s.push_str(&format!("{t},{},0,0,5,5,0,0\n", i as f64 * 0.25));
+            }
+            s
+        };
+        let m = parse(&with_jump(1e6)).expect_err("gap").to_string();
+        assert!(m.contains("line 62") && m.contains("sample step 1000000.025000 s"), "{m}");
+        assert!(m.contains("the median step 0.025000 s") && m.contains("'part' column"), "{m}");
+        let m = parse(&with_jump(1e300)).expect_err("equal times").to_string();
+        assert!(m.contains("line 63") && m.contains("(1e300 after 1e300)") && m.len() < 200, "{m}");
     }
 
     #[test]

@@ -59,6 +59,7 @@ pub(crate) use self::stream::{DriveStream, StreamChunk};
 pub(crate) use self::csv::{clip, echo};
 use crate::error::{Error, Result};
 use crate::model::extrinsics::{axle_pose, Extrinsics};
+pub(crate) use crate::model::limits::echo_num;
 use crate::model::limits::PhysicalLimits;
 use crate::model::{Input, State};
 
@@ -414,7 +415,8 @@ fn resolve_parts(
 fn check_increasing(t: &[f64], err: &BuildErrors<'_>) -> Result<()> {
     for i in 1..t.len() {
         if t[i].partial_cmp(&t[i - 1]) != Some(std::cmp::Ordering::Greater) {
-            return Err(err.sample("t", i, format!("time is not strictly increasing ({} after {})", t[i], t[i - 1])));
+            let (now, before) = (echo_num(t[i]), echo_num(t[i - 1]));
+            return Err(err.sample("t", i, format!("time is not strictly increasing ({now} after {before})")));
         }
     }
     Ok(())
@@ -444,25 +446,34 @@ fn sample_time(t: &[f64], parts: &[Range<usize>], nominal: Option<f64>, err: &Bu
 }
 
 /// Every step within a part is within [`STEP_UNIFORMITY_TOL`] of `ts`
-/// (the `nominal` step, or the mean).
+/// (the `nominal` step, or the mean). Against the mean, the error names
+/// the first step off the median step: one long gap moves the mean off
+/// every other step, and the gap is what to fix.
 fn check_uniform_steps(t: &[f64], parts: &[Range<usize>], ts: f64, nominal: bool, err: &BuildErrors<'_>) -> Result<()> {
-    for r in parts {
-        for i in r.start + 1..r.end {
-            let dt = t[i] - t[i - 1];
-            if (dt - ts).abs() > STEP_UNIFORMITY_TOL * ts {
-                return Err(err.sample(
-                    "t",
-                    i,
-                    format!(
-                        "sample step {dt:.6} s differs from the {} step {ts:.6} s by more than 1 %; \
-                         the time must be uniform (resample the log, or mark gaps with a 'part' column)",
-                        if nominal { "nominal" } else { "mean" }
-                    ),
-                ));
-            }
+    let off = |dt: f64, ts: f64| (dt - ts).abs() > STEP_UNIFORMITY_TOL * ts;
+    let steps = || parts.iter().flat_map(|r| r.start + 1..r.end).map(|i| (i, t[i] - t[i - 1]));
+    let Some((i, dt)) = steps().find(|&(_, dt)| off(dt, ts)) else { return Ok(()) };
+    let (i, dt, ts, which) = if nominal {
+        (i, dt, ts, "nominal")
+    } else {
+        let mut all: Vec<f64> = steps().map(|(_, dt)| dt).collect();
+        let mid = all.len() / 2;
+        let median = *all.select_nth_unstable_by(mid, f64::total_cmp).1;
+        match steps().find(|&(_, dt)| off(dt, median)) {
+            Some((j, dj)) if median > 0.0 => (j, dj, median, "median"),
+            _ => (i, dt, ts, "mean"),
         }
-    }
-    Ok(())
+    };
+    let num = |v: f64| if v.abs() >= 1e9 { format!("{v:e}") } else { format!("{v:.6}") };
+    let (dt, ts) = (num(dt), num(ts));
+    Err(err.sample(
+        "t",
+        i,
+        format!(
+            "sample step {dt} s differs from the {which} step {ts} s by more than 1 %; the time must be uniform \
+             (resample the log, or mark gaps with a 'part' column)"
+        ),
+    ))
 }
 
 // A built drive has samples (`DriveBuilder::build` refuses none), so an

@@ -444,7 +444,11 @@ impl Scanner {
             return Ok(());
         }
         if v[0].partial_cmp(&self.prev[0]) != Some(std::cmp::Ordering::Greater) {
-            return Err(format!("time is not strictly increasing ({} after {})", v[0], self.prev[0]));
+            return Err(format!(
+                "time is not strictly increasing ({} after {})",
+                super::echo_num(v[0]),
+                super::echo_num(self.prev[0])
+            ));
         }
         if id != self.part_id {
             self.close_part();

@@ -311,7 +311,7 @@ impl ParamFile {
         let prov: serde_json::Map<String, serde_json::Value> =
             self.provenance.iter().map(|(k, v)| (k.clone(), serde_json::json!(v))).collect();
         serde_json::json!({
-            "schema_version": 1,
+            "schema_version": JSON_SCHEMA_VERSION,
             "node": self.node,
             "parameters": params,
             "units": self.params.iter().map(|p| (p.name.clone(), serde_json::json!(p.unit))).collect::<serde_json::Map<_, _>>(),
@@ -696,11 +696,28 @@ fn refuse_aliases(text: &str) -> std::result::Result<(), String> {
     }
 }
 
+/// The `schema_version` of the JSON parameter files odocal writes and reads.
+const JSON_SCHEMA_VERSION: u64 = 1;
+
 /// The node and its flattened `parameters` of odocal's JSON parameter file
-/// (verdict, reasons and provenance under the same names as in YAML).
+/// (verdict, reasons and provenance under the same names as in YAML). A
+/// file of another `schema_version` (a newer odocal's) is refused: its keys
+/// may mean something else; one without (hand-written) is read.
 fn flat_json(text: &str) -> std::result::Result<(String, Vec<(String, Flat)>), String> {
     use serde_json::Value;
     let v: Value = serde_json::from_str(text).map_err(|e| format!("not JSON: {e}"))?;
+    match v.get("schema_version") {
+        None => {}
+        Some(x) if x.as_u64() == Some(JSON_SCHEMA_VERSION) => {}
+        Some(x) => {
+            let x = crate::drive::echo(&x.to_string());
+            return Err(format!(
+                "schema_version {x}: odocal {} reads parameter files of schema_version {JSON_SCHEMA_VERSION}; \
+                 update odocal to read this file (a newer odocal wrote it?)",
+                env!("CARGO_PKG_VERSION")
+            ));
+        }
+    }
     let Some(params) = v.get("parameters").and_then(Value::as_object) else {
         let hint = if v.get("theta").is_some() {
             " — a `calibrate --json` report? Write the parameter file with `--params-out FILE.yaml`"
@@ -915,6 +932,16 @@ mod tests {
             ("p.yaml", "c_e: 1.95\n", &["no node with `ros__parameters`"]),
             ("p.yaml", "odocal: [unclosed\n", &["not YAML"]),
             ("p.json", "{\"c_e\": 1.95}", &["no `parameters` object"]),
+            (
+                "p.json",
+                "{\"schema_version\": 2, \"parameters\": {\"c_e\": 1.95, \"c_d\": 0, \"t_r\": 1.5, \"d\": 0}}",
+                &["schema_version 2", "reads parameter files of schema_version 1", "update odocal"],
+            ),
+            (
+                "p.yaml",
+                "odocal:\n  ros__parameters:\n    c_e: 1.0e300\n    c_d: 0.0\n    t_r: 1.5\n    d: 0.0\n",
+                &["c_e = 1e300 m is outside 0.05 … 20 m"],
+            ),
             ("r.json", "{\"theta\": {\"c_e\": 1.95}}", &["a `calibrate --json` report?", "--params-out"]),
             ("p.txt", "c_e: 1.95", &["use the .yaml, .yml or .json file"]),
         ] {

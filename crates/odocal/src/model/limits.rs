@@ -117,19 +117,31 @@ pub(crate) fn check_theta(theta: &Theta) -> Result<()> {
     theta.validate()?;
     const SI: &str = "θ is in SI units: c_e, c_d, t_r in metres (2 mm = 0.002), d in metres per m/s²";
     let fail = |what: String| Err(Error::InvalidTheta(format!("{what} ({SI})")));
+    let [c_e, c_d, t_r, d] = [theta.c_e, theta.c_d.abs(), theta.t_r, theta.d.abs()].map(echo_num);
     if !(0.05..=20.0).contains(&theta.c_e) {
-        return fail(format!("c_e = {} m is outside 0.05 … 20 m", theta.c_e));
+        return fail(format!("c_e = {c_e} m is outside 0.05 … 20 m"));
     }
     if !(0.05..=10.0).contains(&theta.t_r) {
-        return fail(format!("t_r = {} m is outside 0.05 … 10 m", theta.t_r));
+        return fail(format!("t_r = {t_r} m is outside 0.05 … 10 m"));
     }
     if theta.c_d.abs() > 0.05 * theta.c_e {
-        return fail(format!("|c_d| = {} m is more than 5 % of c_e = {} m", theta.c_d.abs(), theta.c_e));
+        return fail(format!("|c_d| = {c_d} m is more than 5 % of c_e = {c_e} m"));
     }
     if theta.d.abs() > 0.05 {
-        return fail(format!("|d| = {} m/(m/s²) exceeds 0.05", theta.d.abs()));
+        return fail(format!("|d| = {d} m/(m/s²) exceeds 0.05"));
     }
     Ok(())
+}
+
+/// A number as echoed in a message: in exponent notation outside
+/// 10⁻⁶ … 10⁹ (`1e300`, which Rust prints with 301 digits, stays short),
+/// else as Rust prints it.
+pub(crate) fn echo_num(v: f64) -> String {
+    if v.is_finite() && v != 0.0 && !(1e-6..1e9).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        v.to_string()
+    }
 }
 
 /// Largest plausible lever arm component of the pose reference, m.
@@ -145,13 +157,13 @@ pub(crate) const MAX_LEVER_ARM_M: f64 = 20.0;
 pub(crate) fn check_extrinsics(x: &crate::Extrinsics) -> std::result::Result<(), (&'static str, String)> {
     for (key, v) in [("lever_x", x.lever_x), ("lever_y", x.lever_y)] {
         if !(v.is_finite() && v.abs() <= MAX_LEVER_ARM_M) {
-            let v = if v.abs() >= 1e9 { format!("{v:e}") } else { v.to_string() };
+            let v = echo_num(v);
             return Err((key, format!("{v} m is not within ±{MAX_LEVER_ARM_M} m (the lever arm is in metres)")));
         }
     }
     let h = x.heading_offset;
     if !(h.is_finite() && h.abs() <= std::f64::consts::PI) {
-        let h = if h.abs() >= 1e9 { format!("{h:e}") } else { h.to_string() };
+        let h = echo_num(h);
         return Err(("heading_offset", format!("{h} rad is not within ±π rad (the heading offset is in radians)")));
     }
     Ok(())

@@ -69,6 +69,8 @@ fn a_missing_folder_is_an_error_naming_the_file() {
     let p = d.path().join("no/such/dir/out.csv");
     let e = write_text(&p, "x").expect_err("no folder").to_string();
     assert!(e.contains("out.csv"), "{e}");
+    assert!(e.contains("No such file or directory") && !e.contains(".out.csv."), "the temporary file named: {e}");
+    assert!(e.contains("cannot create a file in the folder"), "{e}");
 }
 
 #[cfg(unix)]

@@ -163,6 +163,26 @@ pub struct SimOutput {
 
 // ---------------------------------------------------------------------------
 
+/// The drift of a drive of `duration_s`: θ at its end usable and, from a
+/// plausible θ, still plausible (a ramp or step the user mistyped, `1e9`
+/// or a c_d step in metres, does not write a drive of a vehicle that cannot
+/// exist); a c_d step within the drive.
+fn check_drift(drift: &DriftOptions, start: &Theta, end: &Theta, duration_s: f64) -> Result<()> {
+    if let Some(step) = drift.c_d_step.filter(|s| s.at_s > duration_s) {
+        let at = crate::drive::echo_num(step.at_s);
+        return Err(invalid(
+            "drift",
+            format!("the c_d step at {at} s comes after the drive's end at {duration_s:.0} s: give a time within it"),
+        ));
+    }
+    let check = if crate::model::limits::check_theta(start).is_ok() {
+        crate::model::limits::check_theta(end)
+    } else {
+        end.validate()
+    };
+    check.map_err(|e| invalid("drift", format!("θ at the end of the drive, {duration_s:.0} s, with the drift: {e}")))
+}
+
 /// Simulates one drive (SPEC §8).
 ///
 /// The same options (seed included) give an identical drive, byte for byte
@@ -195,7 +215,7 @@ pub fn simulate(opts: &SimOptions) -> Result<SimOutput> {
     }
     let theta_end = (!opts.drift.is_zero()).then(|| opts.drift.theta_at(&theta, (n - 1) as f64 * ts));
     if let Some(th) = theta_end {
-        th.validate().map_err(|e| invalid("drift", format!("θ at the end of the drive: {e}")))?;
+        check_drift(&opts.drift, &theta, &th, (n - 1) as f64 * ts)?;
     }
     let truth = integrate_truth(opts, &route, &profile, psi0, n, ts);
     let (measured, wheel_rotation_rel_error_rms) = measure(opts, &truth, ts);
@@ -585,6 +605,29 @@ mod tests {
         assert_eq!(back.settings.drift, o.drift);
         let bad = SimOptions { drift: DriftOptions { c_e_relative_per_hour: f64::NAN, c_d_step: None }, ..o };
         assert!(simulate(&bad).expect_err("a NaN ramp").to_string().contains("drift.c_e_relative_per_hour"));
+    }
+
+    /// A drift that carries a plausible θ out of the plausible region (a
+    /// mistyped ramp, a c_d step in metres) or a c_d step after the drive's
+    /// end is refused, naming the drift.
+    #[test]
+    fn a_drift_beyond_plausible_or_a_step_after_the_end_is_refused() {
+        let o = SimOptions { length_km: 1.0, ..SimOptions::paper(5) };
+        let with = |drift: DriftOptions| SimOptions { drift, ..o.clone() };
+        let ramp = with(DriftOptions { c_e_relative_per_hour: 1e9, c_d_step: None });
+        let e = simulate(&ramp).expect_err("c_e 1e9 × at the end").to_string();
+        assert!(e.contains("drift") && e.contains("θ at the end of the drive") && e.contains("c_e ="), "{e}");
+        let step =
+            with(DriftOptions { c_e_relative_per_hour: 0.0, c_d_step: Some(CdStep { change_m: 1.0, at_s: 10.0 }) });
+        let e = simulate(&step).expect_err("|c_d| of 1 m").to_string();
+        assert!(e.contains("drift") && e.contains("|c_d|"), "{e}");
+        let late =
+            with(DriftOptions { c_e_relative_per_hour: 0.0, c_d_step: Some(CdStep { change_m: 5e-4, at_s: 1e9 }) });
+        let e = simulate(&late).expect_err("a step after the end").to_string();
+        assert!(e.contains("the c_d step at 1e9 s comes after the drive's end"), "{e}");
+        let fine =
+            with(DriftOptions { c_e_relative_per_hour: -0.003, c_d_step: Some(CdStep { change_m: 5e-4, at_s: 10.0 }) });
+        assert!(simulate(&fine).is_ok());
     }
 
     #[test]

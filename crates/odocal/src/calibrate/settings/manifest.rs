@@ -93,6 +93,9 @@ fn read_calibration_table(manifest: &Path, calibration: &CalibrationTable) -> Re
             let key = e.path().iter().next().map(|s| s.to_string()).unwrap_or_default();
             err(&key, e.into_inner().message().to_string())
         })?;
+    if let Some((key, what)) = settings.value_problem() {
+        return Err(err(key, format!("{key} {what}")));
+    }
     for key in settings.stated() {
         if REFERENCE_KEYS.contains(&key) {
             return Err(err(key, "the reference extrinsics belong in [reference]".into()));

@@ -353,8 +353,20 @@ impl Settings {
         Ok(o)
     }
 
-    /// Every count setting at most its ceiling ([`super::COUNT_CEILINGS`]).
+    /// Every count setting at most its ceiling ([`super::COUNT_CEILINGS`]),
+    /// the three-step counts at least 1, the minimum yaw rate a
+    /// non-negative number.
     fn check_ceilings(&self, caller: Caller) -> Result<()> {
+        match self.value_problem() {
+            Some((key, what)) => Err(caller.invalid(key, self, what)),
+            None => Ok(()),
+        }
+    }
+
+    /// The first value out of its range (as `check_ceilings` checks them):
+    /// the key and what is wrong (`= 0: must be at least 1`), for the
+    /// caller's or a manifest's words.
+    pub(crate) fn value_problem(&self) -> Option<(&'static str, String)> {
         let counts: [Option<usize>; 11] = [
             self.max_iterations,
             self.segment_length,
@@ -370,17 +382,43 @@ impl Settings {
         ];
         for ((key, max), v) in super::COUNT_CEILINGS.iter().zip(counts) {
             if let Some(v) = v.filter(|v| v > max) {
-                let max = *max;
-                return Err(caller.invalid(key, self, format!("= {v} is above its ceiling of {max}")));
+                return Some((key, format!("= {v} is above its ceiling of {max}")));
             }
         }
-        // The counts of the 3-step method's step 1 need at least one.
+        // The counts of the 3-step method's step 1 need at least one; the
+        // floors of the EIV window and of a bootstrap (eiv::options and
+        // eiv::bootstrap check them again, naming their own fields).
         for (key, v) in [("batches", self.batches), ("batch_size", self.batch_size), ("picks", self.picks)] {
             if v == Some(0) {
-                return Err(caller.invalid(key, self, "= 0: must be at least 1".into()));
+                return Some((key, "= 0: must be at least 1".into()));
             }
         }
-        Ok(())
+        for (key, v, min, unit) in
+            [("eiv_window", self.eiv_window, 10, "samples"), ("bootstrap", self.bootstrap, 2, "replicates")]
+        {
+            if let Some(v) = v.filter(|v| *v < min) {
+                return Some((key, format!("= {v}: must be at least {min} {unit}")));
+            }
+        }
+        // The extrinsics a manifest's [reference] states are checked by the
+        // importer alike; a lever arm in millimetres or a heading offset in
+        // degrees is caught here for the command line and Python.
+        let [lever_x, lever_y] = self.lever_arm.unwrap_or_default();
+        let heading_offset = self.heading_offset.unwrap_or_default();
+        let stated = crate::model::extrinsics::Extrinsics { lever_x, lever_y, heading_offset };
+        if let Err((key, why)) = crate::model::limits::check_extrinsics(&stated) {
+            return Some((if key == "heading_offset" { key } else { "lever_arm" }, format!("= {why}")));
+        }
+        match self.min_yaw_rate {
+            Some(r) if !(r.is_finite() && r >= 0.0) => {
+                let r = crate::drive::echo_num(r);
+                Some((
+                    "min_yaw_rate",
+                    format!("= {r}: must be a non-negative number of rad/s (0 selects every segment)"),
+                ))
+            }
+            _ => None,
+        }
     }
 
     /// The lever arm and heading offset (a stated heading offset is held

@@ -148,6 +148,27 @@ fn misplaced_keys_are_named_as_the_caller_gave_them() {
     );
     let s = json_settings(json!({"correct_bias": 3}));
     assert!(s.to_options(Caller::Python).expect_err("odd").to_string().contains("`correct_bias`: must be 0"));
+    // The EIV window's and the bootstrap's floors are named as given, not
+    // by the library's fields (window_samples, replicates).
+    let s = json_settings(json!({"eiv_window": 1}));
+    let cli = s.to_options(Caller::CommandLine).expect_err("window").to_string();
+    assert_eq!(cli, "--eiv-window = 1: must be at least 10 samples");
+    let s = json_settings(json!({"bootstrap": 1}));
+    let py = s.to_options(Caller::Python).expect_err("one replicate").to_string();
+    assert_eq!(py, "invalid option `bootstrap`: = 1: must be at least 2 replicates");
+    // A lever arm or heading offset beyond its plausible range is named as given.
+    let s = json_settings(json!({"lever_arm": [1e300, 0.0]}));
+    let cli = s.to_options(Caller::CommandLine).expect_err("lever arm").to_string();
+    assert_eq!(cli, "--lever-arm = 1e300 m is not within ±20 m (the lever arm is in metres)");
+    let s = json_settings(json!({"heading_offset": 90.0}));
+    let py = s.to_options(Caller::Python).expect_err("degrees").to_string();
+    assert!(py.starts_with("invalid option `heading_offset`: = 90 rad is not within ±π rad"), "{py}");
+    // A negative minimum yaw rate is named as given, not by the library's field.
+    let s = json_settings(json!({"method": "batch-gn", "min_yaw_rate": -1.0}));
+    let cli = s.to_options(Caller::CommandLine).expect_err("negative").to_string();
+    assert!(cli.starts_with("--min-yaw-rate = -1: must be a non-negative number"), "{cli}");
+    let py = s.to_options(Caller::Python).expect_err("negative").to_string();
+    assert!(py.starts_with("invalid option `min_yaw_rate`: = -1: must be") && !py.contains("peak"), "{py}");
 }
 
 #[test]
@@ -218,7 +239,7 @@ fn bad_settings_are_errors_naming_the_key() {
     let e = error("\n[reference]\nlever_arm = [1.0]\n");
     assert!(e.contains("reference.lever_arm"), "{e}");
     let e = error("\n[reference]\nlever_arm = [1.0, 1e9]\n");
-    assert!(e.contains("reference.lever_arm: [1, 1000000000] must be finite metres"), "{e}");
+    assert!(e.contains("reference.lever_arm: [1, 1e9] must be finite metres"), "{e}");
     let e = error("\n[reference]\nheading_offset = 7.0\n");
     assert!(e.contains("reference.heading_offset: 7 must be finite radians within ±π"), "{e}");
     let e = error("\n[reference]\nestimate = [\"t_r\"]\n");
@@ -234,6 +255,15 @@ fn bad_settings_are_errors_naming_the_key() {
     assert_eq!(e, "calibration.lever_arm: the reference extrinsics belong in [reference] (line 25)");
     let e = error("\n[calibration]\nnoise_model = \"n.toml\"\n");
     assert_eq!(e, "calibration.noise_model: a manifest states its noise model as the [noise] table (line 25)");
+    // Values out of range are named by the manifest's key, not a flag, and
+    // before the import.
+    let e = error("\n[calibration]\nsegment_length = 1000000000\n");
+    assert_eq!(e, "calibration.segment_length: segment_length = 1000000000 is above its ceiling of 10000000 (line 25)");
+    let e = error("\n[calibration]\nmin_yaw_rate = -1.0\n");
+    assert!(
+        e.starts_with("calibration.min_yaw_rate: min_yaw_rate = -1: must be a non-negative number of rad/s"),
+        "{e}"
+    );
     let e = error("\n[calibration]\nseed = 1\nmethod = \"newton\"\n");
     assert_eq!(e, "calibration.method: invalid method 'newton': use three-step, batch-gn or eiv (line 26)");
 }

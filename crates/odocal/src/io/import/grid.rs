@@ -176,7 +176,7 @@ impl Grid {
                 reason: format!(
                     "no continuous part of at least output.min_part_s = {} s ({} parts, {} gaps); lower \
                      min_part_s or check the gaps",
-                    o.min_part_s,
+                    crate::drive::echo_num(o.min_part_s),
                     parts.len(),
                     gaps.len()
                 ),

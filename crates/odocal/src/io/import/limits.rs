@@ -41,17 +41,8 @@ pub(crate) const MAX_DEJITTER_HALF_WINDOW: usize = 5_000;
 /// before any is read.
 #[cfg(feature = "parquet")]
 pub(crate) const MAX_STREAM_VALUES: usize = 100_000_000;
-/// Characters of a value echoed in a message.
-pub(crate) use crate::drive::echo;
-
-/// A number as echoed in a message (`1e300` stays short).
-pub(crate) fn echo_num(v: f64) -> String {
-    if v.is_finite() && v.abs() >= 1e9 {
-        format!("{v:e}")
-    } else {
-        echo(&v.to_string())
-    }
-}
+/// Characters of a value echoed in a message; a number (`1e300` stays short).
+pub(crate) use crate::drive::{echo, echo_num};
 
 /// `|v| ≤ max` and finite (false for NaN).
 pub(crate) fn within(v: f64, max: f64) -> bool {

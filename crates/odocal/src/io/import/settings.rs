@@ -78,13 +78,20 @@ impl ReferenceSpec {
             if !l.iter().all(|v| v.is_finite() && v.abs() <= MAX_LEVER_ARM_M) {
                 return Err((
                     "reference.lever_arm",
-                    format!("[{}, {}] must be finite metres within ±{MAX_LEVER_ARM_M} m", l[0], l[1]),
+                    format!(
+                        "[{}, {}] must be finite metres within ±{MAX_LEVER_ARM_M} m",
+                        crate::drive::echo_num(l[0]),
+                        crate::drive::echo_num(l[1])
+                    ),
                 ));
             }
         }
         if let Some(h) = self.heading_offset {
             if !(h.is_finite() && h.abs() <= std::f64::consts::PI) {
-                return Err(("reference.heading_offset", format!("{h} must be finite radians within ±π")));
+                return Err((
+                    "reference.heading_offset",
+                    format!("{} must be finite radians within ±π", crate::drive::echo_num(h)),
+                ));
             }
         }
         self.estimate_set().map(|_| ()).map_err(|r| ("reference.estimate", r))

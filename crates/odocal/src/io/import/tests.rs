@@ -341,6 +341,32 @@ fn missing_file_and_column_errors() {
     );
 }
 
+/// A stream file's header: empty, separated by `;`, or naming a column the
+/// manifest reads twice (which of the two to read would be a guess) is an
+/// error naming the file, in the whole import and the streamed one alike.
+#[test]
+fn empty_ambiguous_and_misseparated_headers_are_named() {
+    type Edit<'a> = &'a dyn Fn(String) -> String;
+    let cases: [(Edit, &[&str]); 3] = [
+        (&|_| String::new(), &["w.csv is empty: a stream file starts with a header row"]),
+        (&|w| w.replace(',', ";"), &["column 't' not found", "looks separated by ';'"]),
+        (&|w| w.replacen("t,left,right", "t,left,left", 1), &["column 'left' is named 2 times", "(columns 2, 3)"]),
+    ];
+    for (edit, needles) in cases {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = small_case(dir.path());
+        let w = dir.path().join("w.csv");
+        std::fs::write(&w, edit(std::fs::read_to_string(&w).expect("read"))).expect("write");
+        let whole = load_drive(&path).map(|_| ()).expect_err("bad header").to_string();
+        let m = Manifest::from_path(&path).expect("manifest");
+        let opened = stream::reader::ManifestStream::open(&m, stream::StreamOptions { warm_up_s: 20.0 });
+        let streamed = opened.map(|_| ()).expect_err("bad header").to_string();
+        for e in [whole, streamed] {
+            assert!(needles.iter().all(|n| e.contains(n)), "{needles:?} in: {e}");
+        }
+    }
+}
+
 #[test]
 fn backwards_time_names_file_and_line() {
     let dir = tempfile::tempdir().expect("tempdir");

@@ -40,20 +40,7 @@ pub(super) fn read(m: &Manifest, name: &str, path: &Path, time: &str, wanted: &[
     all.extend(wanted.iter().cloned());
     let mut idx = Vec::new();
     for w in &all {
-        match headers.iter().position(|h| h == &w.column) {
-            Some(j) => idx.push(j),
-            None => {
-                return Err(m.error(
-                    &w.key,
-                    format!(
-                        "column '{}' not found in {}; columns found: {}",
-                        w.column,
-                        path.display(),
-                        list_headers(&headers)
-                    ),
-                ))
-            }
-        }
+        idx.push(header_column(&headers, &w.column, path).map_err(|e| m.error(&w.key, e))?);
     }
     let mut data: Vec<Vec<f64>> = vec![Vec::new(); all.len()];
     let mut lines: Vec<u64> = Vec::new();
@@ -81,6 +68,42 @@ pub(super) fn read(m: &Manifest, name: &str, path: &Path, time: &str, wanted: &[
     let last_byte = rdr.get_ref().get_ref().get_ref().last_byte();
     let warnings = crate::drive::csv::tail_warning_at(last_byte, line, path).into_iter().collect();
     Ok(Table { t_s, columns, source: path.display().to_string(), lines: Some(lines), warnings })
+}
+
+/// The index of `column` in the `headers` of the stream file `path`; else
+/// why not: the file is empty, the column is missing (with the header, and
+/// a hint when it looks separated by `;` or tabs) or named more than once
+/// (which of them to read would be a guess).
+pub(crate) fn header_column(headers: &[String], column: &str, path: &Path) -> std::result::Result<usize, String> {
+    if headers.iter().all(String::is_empty) {
+        return Err(format!("{} is empty: a stream file starts with a header row naming its columns", path.display()));
+    }
+    let at: Vec<usize> = headers.iter().enumerate().filter(|(_, h)| *h == column).map(|(j, _)| j).collect();
+    match at[..] {
+        [j] => Ok(j),
+        [] => {
+            let separator = headers.len() == 1 && (headers[0].contains(';') || headers[0].contains('\t'));
+            Err(format!(
+                "column '{}' not found in {}; columns found: {}{}",
+                echo(column),
+                path.display(),
+                list_headers(headers),
+                if separator {
+                    " (the header looks separated by ';' or tabs: a CSV stream is comma-separated)"
+                } else {
+                    ""
+                }
+            ))
+        }
+        _ => Err(format!(
+            "column '{}' is named {} times in the header of {} (columns {}): which to read would be a guess; name \
+             each column once",
+            echo(column),
+            at.len(),
+            path.display(),
+            at.iter().map(|j| (j + 1).to_string()).collect::<Vec<_>>().join(", ")
+        )),
+    }
 }
 
 /// The header for a message: at most 30 names, each echoed short.

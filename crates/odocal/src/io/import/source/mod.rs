@@ -32,6 +32,7 @@ mod parquet;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+pub(crate) use self::csv::header_column;
 use super::manifest::{Manifest, SourceSpec};
 use super::report::{DejitterReport, StreamReport};
 use super::{limits, signal};
@@ -197,7 +198,11 @@ pub(crate) fn read_stream(m: &Manifest, name: &str, wanted: &[Wanted], warnings:
                 &path,
                 i,
                 &time_column,
-                format!("time goes backwards ({} after {} s); the stream must be sorted by time", time[i], last),
+                format!(
+                    "time goes backwards ({} after {} s); the stream must be sorted by time",
+                    limits::echo_num(time[i]),
+                    limits::echo_num(last)
+                ),
             ));
         }
         if time[i] <= last {

@@ -147,7 +147,11 @@ impl Conditioner {
             if t < last {
                 return Err(self.time_error(
                     line,
-                    format!("time goes backwards ({t} after {last} s); the stream must be sorted by time"),
+                    format!(
+                        "time goes backwards ({} after {} s); the stream must be sorted by time",
+                        crate::drive::echo_num(t),
+                        crate::drive::echo_num(last)
+                    ),
                 ));
             }
             if t <= last {

@@ -296,7 +296,7 @@ impl RawStream {
                 reason: format!(
                     "no continuous part of at least output.min_part_s = {} s ({} parts, {} gaps); lower \
                      min_part_s or check the gaps",
-                    m.output.min_part_s,
+                    crate::drive::echo_num(m.output.min_part_s),
                     asm.parts.len(),
                     asm.gaps.len()
                 ),

@@ -56,10 +56,7 @@ impl CsvRows {
         let wanted = std::iter::once((time.to_string(), format!("streams.{name}.time_column")))
             .chain(cols.iter().map(|c| (c.clone(), format!("streams.{name}"))));
         for (col, key) in wanted {
-            match headers.iter().position(|h| *h == col) {
-                Some(j) => idx.push(j),
-                None => return Err(m.error(&key, format!("column '{}' not found in {}", echo(&col), path.display()))),
-            }
+            idx.push(crate::io::import::source::header_column(&headers, &col, &path).map_err(|e| m.error(&key, e))?);
         }
         Ok(CsvRows {
             name: name.to_string(),

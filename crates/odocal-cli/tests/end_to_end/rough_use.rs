@@ -1,0 +1,205 @@
+//! A careless user's command lines and files: each ends with an error that
+//! names the option, file or key and what to do, before any work where the
+//! problem is in the command line, and never with a misleading hint.
+
+use std::path::Path;
+
+use crate::common::{odocal, stderr};
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("utf8")
+}
+
+fn assert_fails(args: &[&str], code: i32, needles: &[&str]) -> String {
+    let o = odocal(args);
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(code), "{args:?}: {e}");
+    assert!(o.stdout.is_empty(), "{args:?}: stdout {:?}", String::from_utf8_lossy(&o.stdout));
+    for n in needles {
+        assert!(e.contains(n), "{args:?}: '{n}' not in: {e}");
+    }
+    e
+}
+
+/// An output in a folder that exists but takes no files (here `/proc`; a
+/// folder without write permission or on a read-only file system alike) is
+/// named before the work, not after it when the result would be lost: the
+/// drive here is empty, and its error would come first if the work started.
+#[test]
+#[cfg(target_os = "linux")]
+fn an_output_folder_that_takes_no_files_is_named_before_any_work() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let empty = dir.path().join("empty.csv");
+    std::fs::write(&empty, "").expect("write");
+    for option in ["--json", "--report", "--params-out"] {
+        let out = format!("/proc/odocal-never-written.{}", if option == "--report" { "html" } else { "json" });
+        let e = assert_fails(
+            &["calibrate", s(&empty), option, &out],
+            1,
+            &[&format!("{option} {out}: cannot create a file in the folder /proc"), "give a folder you can write to"],
+        );
+        assert!(!e.contains("empty.csv") && !e.contains(".tmp"), "{e}");
+    }
+    let db = dir.path().join("h.sqlite");
+    assert_fails(
+        &["follow", s(&empty), "--vehicle", "v", "--db", s(&db), "--params-out", "/proc/x.yaml"],
+        1,
+        &["--params-out /proc/x.yaml: cannot create a file in the folder /proc"],
+    );
+    assert!(!db.exists(), "the history was created before the outputs were checked");
+}
+
+/// `inspect --manifest` onto the bag itself or onto a folder says so, not
+/// "exists; … --force", which would not help.
+#[test]
+fn a_draft_manifest_onto_the_bag_or_a_folder_does_not_suggest_force() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let bag = dir.path().join("drive.mcap");
+    std::fs::write(&bag, b"not read: the outputs are checked first").expect("write");
+    for (out, needle) in [(s(&bag), "is also the bag"), (s(dir.path()), "is a directory")] {
+        let e = assert_fails(&["inspect", s(&bag), "--manifest", out], 1, &[&format!("--manifest {out}"), needle]);
+        assert!(!e.contains("--force"), "{e}");
+    }
+}
+
+/// A blank vehicle identifier, or one with a space at an end (a vehicle of
+/// its own in the history), is a usage error before the history is opened.
+#[test]
+fn a_blank_or_padded_vehicle_id_is_refused() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let db = dir.path().join("h.sqlite");
+    for (id, needle) in [("", "is empty"), ("  ", "is empty"), ("van-1 ", "a space at an end"), ("van\n1", "control")] {
+        assert_fails(&["calibrate", "d.csv", "--vehicle", id, "--db", s(&db)], 2, &["--vehicle", needle]);
+        assert_fails(&["follow", "d.csv", "--vehicle", id, "--db", s(&db)], 2, &["--vehicle", needle]);
+    }
+    assert!(!db.exists());
+}
+
+/// A drift that would simulate a vehicle that cannot exist (c_e a billion
+/// times larger by the end, a c_d step in metres) or a c_d step after the
+/// drive's end is a usage error naming the flags; nothing is written.
+#[test]
+fn an_implausible_simulated_drift_is_a_usage_error() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("d.csv");
+    let sim = |flag: &'static str, value: &'static str| ["simulate", "--length-km", "1", "--out", s(&out), flag, value];
+    assert_fails(&sim("--ce-ramp-per-hour", "1e9"), 2, &["--ce-ramp-per-hour, --cd-step", "c_e = ", "outside"]);
+    assert_fails(&sim("--cd-step", "1000@10"), 2, &["--cd-step", "|c_d|"]);
+    assert_fails(&sim("--cd-step", "0.5@1e9"), 2, &["the c_d step at 1e9 s comes after the drive's end"]);
+    assert!(!out.exists());
+}
+
+/// A drive in which the vehicle never moves: c_e is not observable, and the
+/// error says to check the drive instead of suggesting a command that holds
+/// c_d, t_r, d (which fails alike) or --auto-fix (already given).
+#[test]
+fn a_drive_that_never_moves_gets_no_command_that_fails_alike() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let still = dir.path().join("still.csv");
+    let rows: String = (0..3000).map(|i| format!("{},0,0,0,0,0,0,0\n", f64::from(i) * 0.025)).collect();
+    std::fs::write(&still, format!("t,px,py,psi,n_rl,n_rr,beta,a_y\n{rows}")).expect("write");
+    for extra in [&[][..], &["--method", "batch-gn", "--auto-fix"][..]] {
+        let args = [&["calibrate", s(&still)][..], extra].concat();
+        let e = assert_fails(&args, 1, &["c_e", "not observable", "check that the vehicle moves"]);
+        assert!(!e.contains("run: odocal") && !e.contains("--auto-fix"), "{e}");
+    }
+}
+
+/// A `--validate-on` drive that fails the checks of its conventions is
+/// named, not called "held-out drive".
+#[test]
+fn a_bad_validation_drive_is_named() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let d = crate::common::simulated_drive(dir.path(), "d.csv", &["--length-km", "2"]);
+    // The same drive with its time doubled: the wheels turn twice too fast for the reference.
+    let text = std::fs::read_to_string(&d).expect("read");
+    let mut lines = text.lines();
+    let mut slow = format!("{}\n", lines.next().expect("header"));
+    for l in lines {
+        let (t, rest) = l.split_once(',').expect("row");
+        slow.push_str(&format!("{},{rest}\n", 2.0 * t.parse::<f64>().expect("t")));
+    }
+    let bad = dir.path().join("slow.csv");
+    std::fs::write(&bad, slow).expect("write");
+    let e = assert_fails(
+        &["calibrate", &d, "--method", "batch-gn", "--validate-on", s(&bad)],
+        1,
+        &[&format!("--validate-on {}: the wheel speed at θ_0", s(&bad))],
+    );
+    assert!(!e.contains("held-out drive"), "{e}");
+}
+
+/// A drive too short for one segment is named, with the option that
+/// shortens the segments.
+#[test]
+fn a_drive_too_short_for_a_segment_is_named_with_the_option() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let d = crate::common::simulated_drive(dir.path(), "d.csv", &["--length-km", "1"]);
+    assert_fails(
+        &["calibrate", &d, "--method", "batch-gn", "--segment-length", "100000"],
+        1,
+        &[&format!("{d}: no usable segments"), "needs 100001 samples", "--segment-length"],
+    );
+    assert_fails(
+        &["validate", &d, "--theta", "2,0,1.6,0", "--validation-length", "100000"],
+        1,
+        &[&format!("{d}: no usable segments"), "--validation-length"],
+    );
+}
+
+/// `compensate --out -`: the CSV on stdout, the summary on stderr saying
+/// where the drive went (it said "wrote -").
+#[test]
+fn compensate_to_stdout_says_so_on_stderr() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let d = crate::common::simulated_drive(dir.path(), "d.csv", &["--length-km", "1"]);
+    let o = odocal(&["compensate", &d, "--theta", "1.95,-0.002,1.53,0.0008", "--out", "-"]);
+    let e = stderr(&o);
+    assert!(o.status.success(), "{e}");
+    assert!(crate::common::stdout(&o).starts_with("t,px,py,psi,"), "the CSV on stdout");
+    assert!(e.contains("wrote the compensated drive to stdout: ") && !e.contains("wrote -"), "{e}");
+}
+
+/// `inspect -` says a bag is read from a file (it said "-: No such file
+/// or directory").
+#[test]
+fn a_bag_from_stdin_is_refused_saying_why() {
+    let e = assert_fails(&["inspect", "-"], 1, &["-: a bag is read from a file, not from stdin", "save it first"]);
+    assert!(!e.contains("No such file"), "{e}");
+}
+
+/// `--params-node` that ROS 2 would not load (empty, a dash, a space) is a
+/// usage error before the work; a namespaced name is taken.
+#[test]
+fn a_params_node_ros_2_would_not_load_is_refused() {
+    for node in ["", "my-node", "a b"] {
+        assert_fails(
+            &["calibrate", "d.csv", "--params-out", "p.yaml", "--params-node", node],
+            2,
+            &["--params-node", "is not a ROS 2 node name"],
+        );
+    }
+    let dir = tempfile::tempdir().expect("tmp");
+    let d = crate::common::simulated_drive(dir.path(), "d.csv", &["--length-km", "1"]);
+    let p = dir.path().join("p.yaml");
+    let o = odocal(&["calibrate", &d, "--method", "batch-gn", "--params-out", s(&p), "--params-node", "/van/odometry"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(std::fs::read_to_string(&p).expect("read").contains("/van/odometry:\n  ros__parameters:"));
+}
+
+/// `--min-yaw-rate nan` is a usage error naming the flag (calibrate said
+/// "invalid option `min_peak_yaw_rate_rad_per_s`" after the import, follow
+/// alike after opening the history).
+#[test]
+fn a_min_yaw_rate_that_is_not_a_rate_is_a_usage_error() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let db = dir.path().join("h.sqlite");
+    for cmd in
+        [&["calibrate", "d.csv", "--method", "batch-gn"][..], &["follow", "d.csv", "--vehicle", "v", "--db", s(&db)]]
+    {
+        let args = [cmd, &["--min-yaw-rate", "nan"][..]].concat();
+        let e = assert_fails(&args, 2, &["--min-yaw-rate", "'nan' is not a non-negative number of rad/s"]);
+        assert!(!e.contains("min_peak"), "{e}");
+    }
+    assert!(!db.exists());
+}
