@@ -394,12 +394,12 @@ fn with_hint(
     bars.finish();
     // Holding c_d, t_r, d calibrates c_e alone; with c_e or an extrinsic
     // not observable, that command (or --auto-fix) would fail alike.
-    let yaw_only = params.0.iter().all(|p| ["c_d", "t_r", "d"].contains(p));
+    let yaw_only = params.iter().all(|p| ["c_d", "t_r", "d"].contains(p));
     let hint = match source {
-        _ if params.0.contains(&"c_e") => "; c_e follows from the distance driven: check that the vehicle moves in \
+        _ if params.contains(&"c_e") => "; c_e follows from the distance driven: check that the vehicle moves in \
                                            this drive (the wheel speeds and the reference positions)"
             .to_string(),
-        _ if !yaw_only => format!("; hold them with --fix {}", params.0.join(",")),
+        _ if !yaw_only => format!("; hold them with --fix {}", params.join(",")),
         _ if args.auto_fix => String::new(),
         Some((p, _)) => format!("; run: {} (or add --auto-fix)", c_e_only_command(p, args, method)),
         None => "; or add --auto-fix".into(),
