@@ -120,6 +120,24 @@ fn is_char_literal(s: &str) -> bool {
     }
 }
 
+/// The byte index of the `}` that closes the `{` at `open` in `code`.
+fn closing_brace(code: &str, open: usize) -> Option<usize> {
+    let mut depth = 0usize;
+    for (i, c) in code[open..].char_indices() {
+        match c {
+            '{' => depth += 1,
+            '}' => {
+                depth -= 1;
+                if depth == 0 {
+                    return Some(open + i);
+                }
+            }
+            _ => {}
+        }
+    }
+    None
+}
+
 /// The byte ranges of the `#[cfg(test)]` items in `code` (a `mod tests {
 /// … }`, a test-only function or `use`), from the attribute to the item's end.
 fn test_items(code: &str) -> Vec<std::ops::Range<usize>> {
@@ -132,24 +150,7 @@ fn test_items(code: &str) -> Vec<std::ops::Range<usize>> {
         let end = match (semi, brace) {
             (Some(s), Some(b)) if s < b => s + 1,
             (Some(s), None) => s + 1,
-            (_, Some(b)) => {
-                let mut depth = 0usize;
-                let mut end = body.len();
-                for (i, c) in body[b..].char_indices() {
-                    match c {
-                        '{' => depth += 1,
-                        '}' => {
-                            depth -= 1;
-                            if depth == 0 {
-                                end = b + i + 1;
-                                break;
-                            }
-                        }
-                        _ => {}
-                    }
-                }
-                end
-            }
+            (_, Some(b)) => closing_brace(body, b).map_or(body.len(), |c| c + 1),
             (None, None) => body.len(),
         };
         out.push(at..at + end);
@@ -493,21 +494,7 @@ fn functions(code: &str) -> Vec<(String, usize, usize)> {
         }
         let rest = &code[from..];
         let Some(open) = rest.find(['{', ';']).filter(|&i| rest.as_bytes()[i] == b'{') else { continue };
-        let mut depth = 0usize;
-        let mut close = rest.len();
-        for (i, c) in rest[open..].char_indices() {
-            match c {
-                '{' => depth += 1,
-                '}' => {
-                    depth -= 1;
-                    if depth == 0 {
-                        close = open + i;
-                        break;
-                    }
-                }
-                _ => {}
-            }
-        }
+        let close = closing_brace(rest, open).unwrap_or(rest.len());
         let first = code[..at].matches('\n').count() + 1;
         let last = code[..from + close].matches('\n').count() + 1;
         out.push((name, first, last - first + 1));

@@ -95,7 +95,6 @@ pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
         bail!("--batches must be at least 1");
     }
     check_out_dir(&a)?;
-    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
 
     let t = Instant::now();
     let (drive, theta_true, noise, info) = match &a.drive {
@@ -117,6 +116,9 @@ pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
     bars.finish();
     timing.stages = exp.timing_s.clone();
 
+    // The folder is made once there is something to put in it: a drive that
+    // cannot be read or an experiment that fails leaves none behind.
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let t = Instant::now();
     let figures = figures::write_figures(&a.out, &exp)?;
     timing.figures = t.elapsed().as_secs_f64();
@@ -151,6 +153,9 @@ const EXPERIMENT_JSON: &str = "experiment.json";
 /// or its sidecar.
 fn check_out_dir(a: &ExperimentArgs) -> Result<()> {
     refuse_stdout("--out", &a.out, "the experiment writes a folder of files")?;
+    if a.out.exists() && !a.out.is_dir() {
+        bail!("--out {}: is a file, not a folder; give a folder for the experiment's files", a.out.display());
+    }
     let names = [REPORT_MD, EXPERIMENT_JSON].into_iter().chain(figures::FIGURES);
     let outputs: Vec<PathBuf> = names.map(|n| a.out.join(n)).collect();
     if !a.force {

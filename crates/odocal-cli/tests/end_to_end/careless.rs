@@ -5,22 +5,7 @@
 
 use std::path::Path;
 
-use crate::common::{odocal, simulated_drive, stderr};
-
-fn s(p: &Path) -> &str {
-    p.to_str().expect("utf8")
-}
-
-fn assert_fails(args: &[&str], code: i32, needles: &[&str]) -> String {
-    let o = odocal(args);
-    let e = stderr(&o);
-    assert_eq!(o.status.code(), Some(code), "{args:?}: {e}");
-    assert!(o.stdout.is_empty(), "{args:?}: stdout {:?}", String::from_utf8_lossy(&o.stdout));
-    for n in needles {
-        assert!(e.contains(n), "{args:?}: '{n}' not in: {e}");
-    }
-    e
-}
+use crate::common::{assert_fails, odocal, s, simulated_drive, stderr};
 
 #[test]
 fn threads_outside_1_to_the_ceiling_are_usage_errors() {

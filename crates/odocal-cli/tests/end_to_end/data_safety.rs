@@ -125,6 +125,22 @@ fn experiment_into_a_folder_with_a_report_is_refused() {
     refused(&["experiment", "--out", "-"], &["--out -"]);
 }
 
+/// `experiment --out` naming a file is refused as a file, and a run that
+/// fails before it has results (here a drive that cannot be read) leaves no
+/// folder behind.
+#[test]
+fn experiment_out_is_a_folder_and_a_failed_run_makes_none() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let file = dir.path().join("sim.csv");
+    std::fs::write(&file, "t\n").expect("seed");
+    refused(&["experiment", "--out", s(&file)], &["is a file, not a folder"]);
+    assert_eq!(read(&file), b"t\n");
+    let out = dir.path().join("new");
+    let missing = dir.path().join("missing.csv");
+    refused(&["experiment", "--drive", s(&missing), "--out", s(&out)], &["missing.csv"]);
+    assert!(!out.exists(), "a failed experiment left {}", out.display());
+}
+
 /// An interrupted `simulate` leaves the previous drive at the final path
 /// (or, when it finished first, the whole new one), never a part of a drive.
 #[cfg(unix)]

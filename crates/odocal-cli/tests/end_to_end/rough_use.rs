@@ -2,24 +2,7 @@
 //! names the option, file or key and what to do, before any work where the
 //! problem is in the command line, and never with a misleading hint.
 
-use std::path::Path;
-
-use crate::common::{odocal, stderr};
-
-fn s(p: &Path) -> &str {
-    p.to_str().expect("utf8")
-}
-
-fn assert_fails(args: &[&str], code: i32, needles: &[&str]) -> String {
-    let o = odocal(args);
-    let e = stderr(&o);
-    assert_eq!(o.status.code(), Some(code), "{args:?}: {e}");
-    assert!(o.stdout.is_empty(), "{args:?}: stdout {:?}", String::from_utf8_lossy(&o.stdout));
-    for n in needles {
-        assert!(e.contains(n), "{args:?}: '{n}' not in: {e}");
-    }
-    e
-}
+use crate::common::{assert_fails, odocal, s, stderr};
 
 /// An output in a folder that exists but takes no files (here `/proc`; a
 /// folder without write permission or on a read-only file system alike) is

@@ -221,7 +221,7 @@ research_pub! {
         boot.validate()?;
         input.validate()?;
         opts.validate()?;
-        report.noise.validate()?;
+        report.noise.validate_fitted()?;
         let smoothed = match boot.true_inputs {
             BootstrapInputs::Measured => None,
             BootstrapInputs::Smoothed { half_width_samples } => Some(SmoothedInputs::new(input, half_width_samples)),

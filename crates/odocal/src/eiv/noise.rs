@@ -5,6 +5,7 @@ use serde::{Deserialize, Serialize};
 use super::filter::Variances;
 use super::{InputJacobian, DEFAULT_POSITION_FLOOR_M};
 use crate::error::{Error, Result};
+use crate::model::limits::echo_num;
 
 /// The noise model of the filter, in physical units. The estimated noise
 /// (`NoiseModel::scaled` by the estimated η) is reported in the same form.
@@ -231,25 +232,48 @@ impl NoiseModel {
         }
     }
 
-    /// Checks the model, naming the offending field.
+    /// Checks a stated model (a user's, or a simulator's true one), naming
+    /// the offending field: every level finite, at least 0 and within its
+    /// ceiling, every time constant positive and at most a day.
     pub(crate) fn validate(&self) -> Result<()> {
+        self.check(true)
+    }
+
+    /// Checks a fitted model (a stated one scaled by `exp(η/2)`, which may
+    /// pass a ceiling the stated one kept): finite and at least 0.
+    pub(crate) fn validate_fitted(&self) -> Result<()> {
+        self.check(false)
+    }
+
+    fn check(&self, ceilings: bool) -> Result<()> {
+        // Each level with its ceiling: beyond it the noise exceeds any signal
+        // the model describes (a wheel error of 100 %, a pose error of a
+        // kilometre or a half-turn, 10 g, a sideslip of a radian), so a value
+        // there is a typo or a unit error, not a noise level.
         let sig = [
-            ("noise.wheel_white_rel_sigma", self.wheel_white_rel_sigma),
-            ("noise.quantisation_step_rev_per_s", self.quantisation_step_rev_per_s),
-            ("noise.wheel_common_rel_sigma", self.wheel_common_rel_sigma),
-            ("noise.wheel_differential_rel_sigma", self.wheel_differential_rel_sigma),
-            ("noise.position_white_sigma_m", self.position_white_sigma_m),
-            ("noise.heading_white_sigma_rad", self.heading_white_sigma_rad),
-            ("noise.position_drift_sigma_m", self.position_drift_sigma_m),
-            ("noise.heading_drift_sigma_rad", self.heading_drift_sigma_rad),
-            ("noise.lateral_acceleration_sigma_m_per_s2", self.lateral_acceleration_sigma_m_per_s2),
-            ("noise.sideslip_sigma_rad", self.sideslip_sigma_rad),
+            ("noise.wheel_white_rel_sigma", self.wheel_white_rel_sigma, 1.0, "1"),
+            ("noise.quantisation_step_rev_per_s", self.quantisation_step_rev_per_s, 1000.0, "1000"),
+            ("noise.wheel_common_rel_sigma", self.wheel_common_rel_sigma, 1.0, "1"),
+            ("noise.wheel_differential_rel_sigma", self.wheel_differential_rel_sigma, 1.0, "1"),
+            ("noise.position_white_sigma_m", self.position_white_sigma_m, 1000.0, "1000"),
+            ("noise.heading_white_sigma_rad", self.heading_white_sigma_rad, std::f64::consts::PI, "π"),
+            ("noise.position_drift_sigma_m", self.position_drift_sigma_m, 1000.0, "1000"),
+            ("noise.heading_drift_sigma_rad", self.heading_drift_sigma_rad, std::f64::consts::PI, "π"),
+            ("noise.lateral_acceleration_sigma_m_per_s2", self.lateral_acceleration_sigma_m_per_s2, 100.0, "100"),
+            ("noise.sideslip_sigma_rad", self.sideslip_sigma_rad, 1.0, "1"),
         ];
-        for (field, v) in sig {
+        for (field, v, max, max_text) in sig {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(Error::InvalidOption { field, reason: format!("must be finite and >= 0, got {v}") });
             }
+            if ceilings && v > max {
+                return Err(Error::InvalidOption {
+                    field,
+                    reason: format!("must be at most {max_text}, got {} (a unit or a typo?)", echo_num(v)),
+                });
+            }
         }
+        // A time constant of up to a day (the drives are hours at most).
         for (field, v) in [
             ("noise.wheel_common_time_constant_s", self.wheel_common_time_constant_s),
             ("noise.wheel_differential_time_constant_s", self.wheel_differential_time_constant_s),
@@ -258,6 +282,12 @@ impl NoiseModel {
         ] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(Error::InvalidOption { field, reason: format!("must be positive, got {v}") });
+            }
+            if ceilings && v > 86_400.0 {
+                return Err(Error::InvalidOption {
+                    field,
+                    reason: format!("must be at most a day (86400 s), got {} s", echo_num(v)),
+                });
             }
         }
         Ok(())

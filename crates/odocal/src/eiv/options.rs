@@ -627,6 +627,9 @@ impl EivOptions {
             }
         }
         self.research.validate()?;
-        self.noise.validate()
+        // The model may be a fitted one (the bias correction's replicates
+        // start from it), so only finiteness here; a user's stated model
+        // meets the ceilings where it is read (`noise_model_from_table`).
+        self.noise.validate_fitted()
     }
 }

@@ -91,3 +91,21 @@ pub fn setting_outcome(r: &Value, key: &str) -> String {
     let u = uses.iter().find(|u| u["key"] == key).unwrap_or_else(|| panic!("no {key} in {uses:?}"));
     u["outcome"].as_str().expect("outcome").to_string()
 }
+
+/// A path as a command-line argument.
+pub fn s(p: &Path) -> &str {
+    p.to_str().expect("utf8")
+}
+
+/// Runs `odocal args`, asserts it exits with `code`, prints nothing on
+/// stdout and says each of `needles` on stderr; returns stderr.
+pub fn assert_fails(args: &[&str], code: i32, needles: &[&str]) -> String {
+    let o = odocal(args);
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(code), "{args:?}: {e}");
+    assert!(o.stdout.is_empty(), "{args:?}: stdout {:?}", String::from_utf8_lossy(&o.stdout));
+    for n in needles {
+        assert!(e.contains(n), "{args:?}: '{n}' not in: {e}");
+    }
+    e
+}
