@@ -385,10 +385,16 @@ impl Settings {
                 return Some((key, format!("= {v} is above its ceiling of {max}")));
             }
         }
-        // The counts of the 3-step method's step 1 need at least one; the
-        // floors of the EIV window and of a bootstrap (eiv::options and
-        // eiv::bootstrap check them again, naming their own fields).
-        for (key, v) in [("batches", self.batches), ("batch_size", self.batch_size), ("picks", self.picks)] {
+        // Gauss-Newton and the counts of the 3-step method's step 1 need at
+        // least one (no iteration is no calibration); the floors of the EIV
+        // window and of a bootstrap (eiv::options and eiv::bootstrap check
+        // them again, naming their own fields).
+        for (key, v) in [
+            ("max_iterations", self.max_iterations),
+            ("batches", self.batches),
+            ("batch_size", self.batch_size),
+            ("picks", self.picks),
+        ] {
             if v == Some(0) {
                 return Some((key, "= 0: must be at least 1".into()));
             }
