@@ -172,6 +172,12 @@ pub(crate) fn header_characters(headers: &[String], path: &Path) -> Result<()> {
     Ok(())
 }
 
+/// A header read as one column that holds `;` or tabs: a file separated
+/// by those rather than commas.
+pub(crate) fn separated_by_semicolons_or_tabs(headers: &[String]) -> bool {
+    headers.len() == 1 && (headers[0].contains(';') || headers[0].contains('\t'))
+}
+
 /// Checks the header: every column named once, no control characters,
 /// every required column present (with a hint when the separator looks
 /// wrong).
@@ -200,7 +206,7 @@ pub(crate) fn check_header(headers: &[String], path: &Path) -> Result<()> {
                  a name ending in .toml)"
                     .to_string(),
             )
-        } else if headers.len() == 1 && (headers[0].contains(';') || headers[0].contains('\t')) {
+        } else if separated_by_semicolons_or_tabs(headers) {
             Some("the header looks separated by ';' or tabs: the canonical CSV is comma-separated".to_string())
         } else {
             None

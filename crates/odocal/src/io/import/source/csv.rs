@@ -82,7 +82,7 @@ pub(crate) fn header_column(headers: &[String], column: &str, path: &Path) -> st
     match at[..] {
         [j] => Ok(j),
         [] => {
-            let separator = headers.len() == 1 && (headers[0].contains(';') || headers[0].contains('\t'));
+            let separator = crate::drive::csv::separated_by_semicolons_or_tabs(headers);
             Err(format!(
                 "column '{}' not found in {}; columns found: {}{}",
                 echo(column),
