@@ -125,7 +125,9 @@ pub fn follow<E: From<Error>>(
     mut on: impl FnMut(FollowEvent) -> std::result::Result<(), E>,
 ) -> std::result::Result<(), E> {
     let (mut stored, origin) = match db.rows(vehicle)?.pop() {
-        Some(r) => (Stored { theta: r.record.theta, sigma: r.record.sigma, calibrated: true }, format!("history row {}", r.id)),
+        Some(r) => {
+            (Stored { theta: r.record.theta, sigma: r.record.sigma, calibrated: true }, format!("history row {}", r.id))
+        }
         None => {
             let theta = opts.theta0.unwrap_or(Theta::PAPER_INITIAL);
             (Stored { theta, sigma: None, calibrated: false }, "θ_0".to_string())

@@ -517,7 +517,8 @@ fn a_bag_cut_anywhere_names_the_cut_and_the_way_out() {
         if let Some(stop) = stop {
             assert!(e.contains(&format!("every MCAP file ({stop} in the file).")), "{e}");
         }
-        let read = read_topic(&cut, "/vehicle/wheel_joint_states", &["position.rear_left_wheel_joint"], TimeSource::LogTime);
+        let read =
+            read_topic(&cut, "/vehicle/wheel_joint_states", &["position.rear_left_wheel_joint"], TimeSource::LogTime);
         assert_eq!(read.expect_err("a cut bag").to_string(), e, "reading a topic says the same");
     }
     // The whole bag still reads.
