@@ -271,7 +271,7 @@ pub(crate) fn table(name: &str, v: &Bound<'_, PyAny>, rows: usize) -> PyResult<n
 /// `ndim` dimensions of (its error `e`): what it got (type and numpy's
 /// shape) and what is `expected`; numpy's message when the shape fits
 /// (values that are not numbers).
-fn not_an_array_of(name: &str, v: &Bound<'_, PyAny>, ndim: usize, expected: &str, e: &PyErr) -> PyErr {
+pub(crate) fn not_an_array_of(name: &str, v: &Bound<'_, PyAny>, ndim: usize, expected: &str, e: &PyErr) -> PyErr {
     let kind = v.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "value".into());
     let shape =
         v.py().import("numpy").and_then(|np| np.call_method1("shape", (v,))).and_then(|s| s.extract::<Vec<usize>>());

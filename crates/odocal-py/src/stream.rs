@@ -9,7 +9,7 @@ use pyo3::types::PyDict;
 use odocal::io::{RawStream, StreamOptions};
 use odocal::Manifest;
 
-use crate::convert::{column, json, table, to_py, Column};
+use crate::convert::{column, json, not_an_array_of, table, to_py, Column};
 use crate::lib_err;
 
 /// The import of a manifest's streams as their messages arrive: canonical
@@ -61,8 +61,13 @@ impl PyRawStream {
     /// (`streams[stream]["columns"]`). Messages of one stream come in time
     /// order. Raises `OdocalError` naming the stream (an unknown one, a
     /// wrong number of values) or the row and column (the whole import's
-    /// checks of the rows).
-    fn push_message(&mut self, py: Python<'_>, stream: &str, t: f64, values: Vec<f64>) -> PyResult<()> {
+    /// checks of the rows), or naming `values` and its shape when it is not
+    /// a 1-D sequence of numbers.
+    fn push_message(&mut self, py: Python<'_>, stream: &str, t: f64, values: &Bound<'_, PyAny>) -> PyResult<()> {
+        let values: Vec<f64> = values.extract().map_err(|e| {
+            let expected = "a 1-D sequence of the stream's column values (streams[stream][\"columns\"])";
+            not_an_array_of("values", values, 1, expected, &e)
+        })?;
         let raw = &mut self.raw;
         py.detach(|| raw.push_message(stream, t, &values)).map_err(lib_err)
     }

@@ -90,6 +90,10 @@ def test_errors_name_the_stream_and_its_columns():
         raw.push_message("encoders", 9.0, [0.0, 0.0])
     with pytest.raises(odocal.OdocalError, match="warm_up_s"):
         odocal.online.RawStream(RUN, warm_up_s=0.0)
+    with pytest.raises(odocal.OdocalError, match=re.escape(
+            "values: got a ndarray of shape (1, 2), where a 1-D sequence of the stream's column values")):
+        raw.push_message("encoders", 10.5, np.zeros((1, 2)))
+    raw.push_message("encoders", 10.5, np.zeros(2))
     # push_messages: t 1-D and values 2-D (lists and ints converted), else the argument named with its shape.
     raw.push_messages("encoders", [11.0, 12.0], [[0, 0], [0, 0]])
     with pytest.raises(odocal.OdocalError, match=re.escape(

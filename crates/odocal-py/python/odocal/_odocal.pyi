@@ -172,7 +172,8 @@ class RawStream:
     def push_message(self, stream: str, t: float, values: Sequence[float]) -> None:
         """One message of ``stream``: time ``t`` in the stream's time unit (before its
         ``time_offset_s``) and the values of its columns. Raises OdocalError naming the
-        stream (unknown, wrong number of values) or the row and column (the import's checks)."""
+        stream (unknown, wrong number of values), the row and column (the import's checks),
+        or ``values`` and its shape when it is not a 1-D sequence of numbers."""
     def push_messages(self, stream: str, t: _ArrayLike, values: _ArrayLike) -> None:
         """Several messages of ``stream``: times (n, 1-D) and values (n × columns, 2-D;
         converted to float64). Raises OdocalError naming the argument and its shape for
