@@ -29,8 +29,12 @@ pub struct FollowOptions {
 /// What [`follow`] reports as it goes, in order.
 #[derive(Debug, Clone, PartialEq)]
 pub enum FollowEvent {
-    /// Before the first drive: the parameters the replay starts from, and
-    /// where they come from (`history row N`, or `θ_0`).
+    /// Once, when the first drive to follow was read and checked (and is
+    /// not one followed before), before it is replayed: the parameters the
+    /// replay starts from, and where they come from (`history row N`, or
+    /// `θ_0`). Not sent when no drive is replayed: a first drive that
+    /// cannot be read stops [`follow`] with its error before any claim of a
+    /// start.
     Start {
         /// The stored θ.
         theta: Theta,
@@ -120,15 +124,13 @@ pub fn follow<E: From<Error>>(
     opts: &FollowOptions,
     mut on: impl FnMut(FollowEvent) -> std::result::Result<(), E>,
 ) -> std::result::Result<(), E> {
-    let mut stored = match db.rows(vehicle)?.pop() {
+    let (mut stored, origin) = match db.rows(vehicle)?.pop() {
         Some(r) => {
-            on(FollowEvent::Start { theta: r.record.theta, origin: format!("history row {}", r.id) })?;
-            Stored { theta: r.record.theta, sigma: r.record.sigma, calibrated: true }
+            (Stored { theta: r.record.theta, sigma: r.record.sigma, calibrated: true }, format!("history row {}", r.id))
         }
         None => {
             let theta = opts.theta0.unwrap_or(Theta::PAPER_INITIAL);
-            on(FollowEvent::Start { theta, origin: "θ_0".into() })?;
-            Stored { theta, sigma: None, calibrated: false }
+            (Stored { theta, sigma: None, calibrated: false }, "θ_0".to_string())
         }
     };
     let mut cal: Option<Calibrator> = None;
@@ -143,7 +145,10 @@ pub fn follow<E: From<Error>>(
         let c = match cal.as_mut() {
             Some(c) => c,
             None => {
-                cal.insert(Calibrator::new(stored.theta, stored.sigma, drive.sample_time_s(), opts.online.clone())?)
+                // The first drive to replay was read and checked: the replay starts.
+                let c = Calibrator::new(stored.theta, stored.sigma, drive.sample_time_s(), opts.online.clone())?;
+                on(FollowEvent::Start { theta: stored.theta, origin: origin.clone() })?;
+                cal.insert(c)
             }
         };
         c.stored = Some(stored.theta);

@@ -222,3 +222,74 @@ pub(crate) fn opt_real(v: &Bound<'_, PyAny>) -> PyResult<Option<f64>> {
     }
     real(v).map(Some)
 }
+
+/// A float64 column, as numpy hands it over.
+pub(crate) type Column<'py> = numpy::PyArrayLike1<'py, f64, numpy::AllowTypeChange>;
+
+/// A column argument `name` (one value per sample): anything numpy makes a
+/// 1-D array of `T` from. Anything else (a 2-D array, a single number,
+/// text) raises `OdocalError` naming the argument, what it got (its type
+/// and numpy's shape) and what is expected: a 1-D array, of `samples`
+/// samples when the length is known from an earlier column (`first`).
+pub(crate) fn column<'py, T>(
+    name: &str,
+    v: &Bound<'py, PyAny>,
+    samples: Option<(usize, &str)>,
+) -> PyResult<numpy::PyArrayLike1<'py, T, numpy::AllowTypeChange>>
+where
+    T: numpy::Element,
+    for<'a> numpy::PyArrayLike1<'py, T, numpy::AllowTypeChange>: FromPyObject<'a, 'py, Error = PyErr>,
+{
+    let e = match v.extract() {
+        Ok(a) => return Ok(a),
+        Err(e) => e,
+    };
+    let expected = match samples {
+        Some((n, first)) => format!("a 1-D array of {n} samples (one value per sample, as {first})"),
+        None => "a 1-D array (one value per sample)".to_string(),
+    };
+    Err(not_an_array_of(name, v, 1, &expected, &e))
+}
+
+/// A table argument `name`: anything numpy makes a 2-D float64 array of,
+/// with `rows` rows (one per time). Anything else raises `OdocalError` as
+/// [`column`] does.
+pub(crate) fn table(name: &str, v: &Bound<'_, PyAny>, rows: usize) -> PyResult<numpy::ndarray::Array2<f64>> {
+    match v.extract::<numpy::PyArrayLike2<'_, f64, numpy::AllowTypeChange>>() {
+        Ok(a) => Ok(a.as_array().to_owned()),
+        Err(e) => Err(not_an_array_of(
+            name,
+            v,
+            2,
+            &format!("a 2-D array of {rows} rows (one per time in t) × the stream's columns"),
+            &e,
+        )),
+    }
+}
+
+/// The error of an argument `name` that numpy could not make an array of
+/// `ndim` dimensions of (its error `e`): what it got (type and numpy's
+/// shape) and what is `expected`; numpy's message when the shape fits
+/// (values that are not numbers).
+pub(crate) fn not_an_array_of(name: &str, v: &Bound<'_, PyAny>, ndim: usize, expected: &str, e: &PyErr) -> PyErr {
+    let kind = v.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "value".into());
+    let shape =
+        v.py().import("numpy").and_then(|np| np.call_method1("shape", (v,))).and_then(|s| s.extract::<Vec<usize>>());
+    crate::OdocalError::new_err(match shape {
+        Ok(s) if s.len() != ndim => {
+            format!("{name}: got a {kind} of shape {}, where {expected} is expected", shape_text(&s))
+        }
+        _ => {
+            let why = e.value(v.py()).str().map(|m| m.to_string()).unwrap_or_else(|_| e.to_string());
+            format!("{name}: {why}; {expected} is expected")
+        }
+    })
+}
+
+/// A shape as numpy prints it: `()`, `(5,)`, `(10, 2)`.
+pub(crate) fn shape_text(s: &[usize]) -> String {
+    match s {
+        [n] => format!("({n},)"),
+        s => format!("({})", s.iter().map(usize::to_string).collect::<Vec<_>>().join(", ")),
+    }
+}

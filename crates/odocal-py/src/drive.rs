@@ -15,7 +15,7 @@ use odocal::settings::ManifestSettings;
 use odocal::sim::SimSidecar;
 use odocal::{Drive, DriveBuilder, ExtraColumn, ExtraValues, Signals};
 
-use crate::convert::{json, to_py};
+use crate::convert::{column, json, to_py, Column};
 use crate::files::{check_outputs, warn_all};
 use crate::lib_err;
 
@@ -119,7 +119,7 @@ impl PyDrive {
     }
 }
 
-fn vec_f64(a: &PyArrayLike1<'_, f64, AllowTypeChange>) -> Vec<f64> {
+fn vec_f64(a: &Column<'_>) -> Vec<f64> {
     a.as_array().to_vec()
 }
 
@@ -202,24 +202,35 @@ impl PyDrive {
     /// zeros; `part` holds per-sample integer ids (a new part starts where
     /// the id changes); `sample_time_s` is the nominal step when known.
     ///
-    /// Raises `OdocalError` naming the column and the sample.
+    /// Raises `OdocalError` naming the column and the sample, or naming the
+    /// argument, its shape and the 1-D array expected for one that is not
+    /// 1-D (a 2-D array, a single number).
     #[staticmethod]
     #[pyo3(signature = (t, px, py, psi, n_rl, n_rr, a_y, beta=None, part=None, sample_time_s=None))]
     #[allow(clippy::too_many_arguments)]
     fn from_arrays(
         gil: Python<'_>,
-        t: PyArrayLike1<'_, f64, AllowTypeChange>,
-        px: PyArrayLike1<'_, f64, AllowTypeChange>,
-        py: PyArrayLike1<'_, f64, AllowTypeChange>,
-        psi: PyArrayLike1<'_, f64, AllowTypeChange>,
-        n_rl: PyArrayLike1<'_, f64, AllowTypeChange>,
-        n_rr: PyArrayLike1<'_, f64, AllowTypeChange>,
-        a_y: PyArrayLike1<'_, f64, AllowTypeChange>,
-        beta: Option<PyArrayLike1<'_, f64, AllowTypeChange>>,
-        part: Option<PyArrayLike1<'_, i64, AllowTypeChange>>,
+        t: &Bound<'_, PyAny>,
+        px: &Bound<'_, PyAny>,
+        py: &Bound<'_, PyAny>,
+        psi: &Bound<'_, PyAny>,
+        n_rl: &Bound<'_, PyAny>,
+        n_rr: &Bound<'_, PyAny>,
+        a_y: &Bound<'_, PyAny>,
+        beta: Option<&Bound<'_, PyAny>>,
+        part: Option<&Bound<'_, PyAny>>,
         #[pyo3(from_py_with = crate::convert::opt_real)] sample_time_s: Option<f64>,
     ) -> PyResult<Self> {
-        let len = |a: &PyArrayLike1<'_, f64, AllowTypeChange>| a.as_array().len();
+        // Each argument a 1-D array (else an error naming it and its shape), as long as t's.
+        let t: Column<'_> = column("t", t, None)?;
+        let n = Some((t.as_array().len(), "t"));
+        let (px, py, psi): (Column<'_>, Column<'_>, Column<'_>) =
+            (column("px", px, n)?, column("py", py, n)?, column("psi", psi, n)?);
+        let (n_rl, n_rr, a_y): (Column<'_>, Column<'_>, Column<'_>) =
+            (column("n_rl", n_rl, n)?, column("n_rr", n_rr, n)?, column("a_y", a_y, n)?);
+        let beta: Option<Column<'_>> = beta.map(|b| column("beta", b, n)).transpose()?;
+        let part: Option<PyArrayLike1<'_, i64, AllowTypeChange>> = part.map(|p| column("part", p, n)).transpose()?;
+        let len = |a: &Column<'_>| a.as_array().len();
         let mut columns = vec![
             ("t", len(&t)),
             ("px", len(&px)),

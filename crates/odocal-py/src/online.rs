@@ -2,7 +2,7 @@
 //! ([`odocal_online::Calibrator`]) fed with numpy arrays, and its
 //! write-back gates ([`odocal_online::gate::Gates`]).
 
-use numpy::{AllowTypeChange, PyArray2, PyArrayLike1};
+use numpy::PyArray2;
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -13,7 +13,7 @@ use odocal::{Signals, Theta};
 use odocal_online::gate::Gates;
 use odocal_online::{Calibrator, OnlineOptions};
 
-use crate::convert::{extract_theta, json, to_json, to_py};
+use crate::convert::{column, extract_theta, json, to_json, to_py, Column};
 use crate::drive::PyDrive;
 use crate::lib_err;
 
@@ -53,8 +53,6 @@ fn merge(base: &mut serde_json::Value, given: serde_json::Value, path: &str) -> 
     Ok(())
 }
 
-type Column<'py> = PyArrayLike1<'py, f64, AllowTypeChange>;
-
 /// The online calibrator: a recursive Gauss-Newton over the calibration
 /// segments of a stream of samples.
 #[pyclass(module = "odocal.online", name = "Calibrator")]
@@ -93,22 +91,31 @@ impl PyCalibrator {
     /// time (within 1 %), or a gap of more than 1.5 sample times, after
     /// which a new continuous part starts; without it, the samples follow
     /// the previous ones. Raises `OdocalError` for columns of different
-    /// lengths, values that are not finite or times that do not fit.
+    /// lengths, values that are not finite, times that do not fit, or an
+    /// argument that is not 1-D (naming it and its shape).
     #[pyo3(signature = (t, px, py, psi, n_rl, n_rr, a_y, beta=None))]
     #[allow(clippy::too_many_arguments)] // one argument per column, as Drive.from_arrays
     fn push(
         &mut self,
         gil: Python<'_>,
-        t: Option<Column<'_>>,
-        px: Column<'_>,
-        py: Column<'_>,
-        psi: Column<'_>,
-        n_rl: Column<'_>,
-        n_rr: Column<'_>,
-        a_y: Column<'_>,
-        beta: Option<Column<'_>>,
+        t: Option<&Bound<'_, PyAny>>,
+        px: &Bound<'_, PyAny>,
+        py: &Bound<'_, PyAny>,
+        psi: &Bound<'_, PyAny>,
+        n_rl: &Bound<'_, PyAny>,
+        n_rr: &Bound<'_, PyAny>,
+        a_y: &Bound<'_, PyAny>,
+        beta: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<()> {
+        // Each argument a 1-D array (else an error naming it and its shape), as long as px's.
+        let px: Column<'_> = column("px", px, None)?;
         let n = px.as_array().len();
+        let k = Some((n, "px"));
+        let t: Option<Column<'_>> = t.map(|t| column("t", t, k)).transpose()?;
+        let (py, psi, n_rl): (Column<'_>, Column<'_>, Column<'_>) =
+            (column("py", py, k)?, column("psi", psi, k)?, column("n_rl", n_rl, k)?);
+        let (n_rr, a_y): (Column<'_>, Column<'_>) = (column("n_rr", n_rr, k)?, column("a_y", a_y, k)?);
+        let beta: Option<Column<'_>> = beta.map(|b| column("beta", b, k)).transpose()?;
         let col = |c: Column<'_>| c.as_array().to_vec();
         let beta = beta.map_or_else(|| vec![0.0; n], col);
         let samples =

@@ -2,14 +2,14 @@
 //! ([`odocal::io::RawStream`]) fed message by message from Python, its
 //! canonical samples taken as numpy arrays.
 
-use numpy::{AllowTypeChange, IntoPyArray, PyArray2, PyArrayLike1, PyArrayMethods, PyUntypedArrayMethods};
+use numpy::IntoPyArray;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use odocal::io::{RawStream, StreamOptions};
 use odocal::Manifest;
 
-use crate::convert::{json, to_py};
+use crate::convert::{column, json, not_an_array_of, table, to_py, Column};
 use crate::lib_err;
 
 /// The import of a manifest's streams as their messages arrive: canonical
@@ -61,30 +61,38 @@ impl PyRawStream {
     /// (`streams[stream]["columns"]`). Messages of one stream come in time
     /// order. Raises `OdocalError` naming the stream (an unknown one, a
     /// wrong number of values) or the row and column (the whole import's
-    /// checks of the rows).
-    fn push_message(&mut self, py: Python<'_>, stream: &str, t: f64, values: Vec<f64>) -> PyResult<()> {
+    /// checks of the rows), or naming `values` and its shape when it is not
+    /// a 1-D sequence of numbers.
+    fn push_message(&mut self, py: Python<'_>, stream: &str, t: f64, values: &Bound<'_, PyAny>) -> PyResult<()> {
+        let values: Vec<f64> = values.extract().map_err(|e| {
+            let expected = "a 1-D sequence of the stream's column values (streams[stream][\"columns\"])";
+            not_an_array_of("values", values, 1, expected, &e)
+        })?;
         let raw = &mut self.raw;
         py.detach(|| raw.push_message(stream, t, &values)).map_err(lib_err)
     }
 
-    /// Several messages of stream `stream` at once: times `t` (n) and
-    /// `values` (n × columns), as `push_message` one by one.
+    /// Several messages of stream `stream` at once: times `t` (n, 1-D) and
+    /// `values` (n × columns, 2-D; anything numpy converts to float64), as
+    /// `push_message` one by one. Another shape raises `OdocalError`
+    /// naming the argument and its shape.
     fn push_messages(
         &mut self,
         py: Python<'_>,
         stream: &str,
-        t: PyArrayLike1<'_, f64, AllowTypeChange>,
-        values: &Bound<'_, PyArray2<f64>>,
+        t: &Bound<'_, PyAny>,
+        values: &Bound<'_, PyAny>,
     ) -> PyResult<()> {
-        let t = t.as_slice()?.to_vec();
-        let shape = values.shape();
-        if shape[0] != t.len() {
+        // A 1-D t and a 2-D values (else an error naming the argument and its shape).
+        let t: Column<'_> = column("t", t, None)?;
+        let t = t.as_array().to_vec();
+        let v = table("values", values, t.len())?;
+        if v.nrows() != t.len() {
             return Err(lib_err(odocal::Error::InvalidOption {
                 field: "values",
-                reason: format!("{} rows of values for {} times (stream '{stream}')", shape[0], t.len()),
+                reason: format!("{} rows of values for {} times (stream '{stream}')", v.nrows(), t.len()),
             }));
         }
-        let v = values.to_owned_array();
         let raw = &mut self.raw;
         py.detach(|| {
             for (i, ti) in t.iter().enumerate() {

@@ -107,9 +107,32 @@ def test_non_uniform_time(small_drive):
 
 
 def test_not_one_dimensional(small_drive):
+    """A column that is not 1-D raises OdocalError naming the argument, its shape and the
+    1-D array of N samples expected (numpy's bare "dimensionality mismatch" named none)."""
     c = columns(small_drive)
-    with pytest.raises(TypeError):
-        _bad(c, px=np.stack([c["px"], c["px"]]))
+    n = len(small_drive)
+    two = np.stack([c["px"], c["px"]])
+    with pytest.raises(odocal.OdocalError, match=re.escape(
+            f"px: got a ndarray of shape (2, {n}), where a 1-D array of {n} samples (one value per sample, "
+            "as t) is expected")):
+        _bad(c, px=two)
+    with pytest.raises(odocal.OdocalError, match=re.escape(f"t: got a ndarray of shape ({n}, 1), where a 1-D array")):
+        _bad(c, t=c["t"][:, None])
+    with pytest.raises(odocal.OdocalError, match=re.escape("a_y: got a float of shape (), where a 1-D array")):
+        _bad(c, a_y=3.0)
+    with pytest.raises(odocal.OdocalError, match=re.escape(f"beta: got a list of shape ({n}, 2)")):
+        _bad(c, beta=[[0.0, 0.0]] * n)
+    with pytest.raises(odocal.OdocalError, match=re.escape(f"part: got a ndarray of shape ({n}, 1)")):
+        from_columns(c, part=np.zeros((n, 1), dtype=np.int64))
+    with pytest.raises(odocal.OdocalError, match="^n_rr: could not convert string to float: 'x'; a 1-D array"):
+        _bad(c, n_rr=["x"] * n)
+    # Lengths that differ and values that are not finite: the library's errors, naming the column.
+    with pytest.raises(odocal.OdocalError, match=f"column py has {n - 1} samples, t has {n}"):
+        _bad(c, py=c["py"][:-1])
+    inf = c["psi"].copy()
+    inf[3] = np.inf
+    with pytest.raises(odocal.OdocalError, match="column 'psi', sample 3: value inf is not finite"):
+        _bad(c, psi=inf)
 
 
 def test_csv_round_trip(small_drive, drive_csv):

@@ -1,6 +1,7 @@
 """odocal.online.Calibrator and odocal.History against the library and the CLI."""
 
 import json
+import re
 import sqlite3
 import subprocess
 
@@ -90,6 +91,12 @@ def test_bad_input_raises_odocal_error(clean_drive):
     t[10:] += 0.3 * clean_drive.sample_time_s
     with pytest.raises(odocal.OdocalError, match="sample 10"):
         cal.push(t, a[:, 1], a[:, 2], a[:, 3], a[:, 4], a[:, 5], a[:, 7])
+    # An argument that is not 1-D: named, with its shape and the length expected (px's).
+    with pytest.raises(odocal.OdocalError, match=re.escape(
+            "py: got a ndarray of shape (500, 2), where a 1-D array of 500 samples (one value per sample, as px)")):
+        cal.push(None, a[:, 1], a[:, 1:3], a[:, 3], a[:, 4], a[:, 5], a[:, 7])
+    with pytest.raises(odocal.OdocalError, match=re.escape("t: got a ndarray of shape (500, 1)")):
+        cal.push(a[:, :1], a[:, 1], a[:, 2], a[:, 3], a[:, 4], a[:, 5], a[:, 7])
     with pytest.raises(TypeError, match="information_scal"):
         odocal.online.Calibrator(information_scal=0.01)
     with pytest.raises(odocal.OdocalError, match="information_scale"):

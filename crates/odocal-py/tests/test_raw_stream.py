@@ -3,6 +3,7 @@ as a live system would, against the whole import of the same manifest."""
 
 import csv
 import heapq
+import re
 
 import numpy as np
 import pytest
@@ -89,3 +90,16 @@ def test_errors_name_the_stream_and_its_columns():
         raw.push_message("encoders", 9.0, [0.0, 0.0])
     with pytest.raises(odocal.OdocalError, match="warm_up_s"):
         odocal.online.RawStream(RUN, warm_up_s=0.0)
+    with pytest.raises(odocal.OdocalError, match=re.escape(
+            "values: got a ndarray of shape (1, 2), where a 1-D sequence of the stream's column values")):
+        raw.push_message("encoders", 10.5, np.zeros((1, 2)))
+    raw.push_message("encoders", 10.5, np.zeros(2))
+    # push_messages: t 1-D and values 2-D (lists and ints converted), else the argument named with its shape.
+    raw.push_messages("encoders", [11.0, 12.0], [[0, 0], [0, 0]])
+    with pytest.raises(odocal.OdocalError, match=re.escape(
+            "values: got a ndarray of shape (4,), where a 2-D array of 2 rows (one per time in t)")):
+        raw.push_messages("encoders", np.array([13.0, 14.0]), np.zeros(4))
+    with pytest.raises(odocal.OdocalError, match=re.escape("t: got a ndarray of shape (2, 1), where a 1-D array")):
+        raw.push_messages("encoders", np.array([[13.0], [14.0]]), np.zeros((2, 2)))
+    with pytest.raises(odocal.OdocalError, match="3 rows of values for 2 times"):
+        raw.push_messages("encoders", [13.0, 14.0], np.zeros((3, 2)))

@@ -195,6 +195,10 @@ pub struct ReportInput<'a> {
     /// drive, its held-out half, or other drives), each further line one
     /// validation drive. Empty: not said.
     pub validation_data: Vec<String>,
+    /// The EIV fit's θ when the default method fell back to batch
+    /// Gauss-Newton: the estimate not used, shown beside θ in a column
+    /// "EIV (unused)" as the text report shows it. `None`: no column.
+    pub eiv_unused: Option<Theta>,
 }
 
 impl<'a> ReportInput<'a> {
@@ -224,6 +228,7 @@ impl<'a> ReportInput<'a> {
             segment_extrinsics: Vec::new(),
             sigma_label: "± 1σ".into(),
             validation_data: Vec::new(),
+            eiv_unused: None,
         }
     }
 
@@ -259,6 +264,7 @@ impl<'a> ReportInput<'a> {
                 odocal::SigmaCovers::WithinDrive => "± 1σ (within drive)".into(),
             },
             validation_data: validation_data(r),
+            eiv_unused: eiv_unused(r),
             ..ReportInput::new(title, drive, segments, r.initial.theta, r.theta)
         }
     }
@@ -315,6 +321,17 @@ fn step_one_batches(r: &odocal::CalibrationReport) -> Vec<(Theta, f64)> {
             Some((theta, b["score"]["mean_position_error_m"].as_f64().unwrap_or(f64::NAN)))
         })
         .collect()
+}
+
+/// The EIV fit's θ of a calibration that fell back to batch Gauss-Newton
+/// (JSON `eiv_result` `"batch-gn-fallback"`, `eiv.theta`), as the text
+/// report's column "EIV (unused)"; `None` otherwise.
+fn eiv_unused(r: &odocal::CalibrationReport) -> Option<Theta> {
+    let v = serde_json::to_value(r).ok()?;
+    if v["eiv_result"] != "batch-gn-fallback" {
+        return None;
+    }
+    serde_json::from_value(v["eiv"]["theta"].clone()).ok()
 }
 
 /// Escapes text for HTML.
@@ -499,7 +516,47 @@ mod tests {
                 assert!(section.contains(w), "{}: {w} in {section}", r.method);
             }
             assert!(r.render_text(None, None, None).contains(&r.method_details()), "the terminal's lines");
+            assert!(!html.contains("EIV (unused)"), "{}: no EIV fit, no column", r.method);
         }
+    }
+
+    /// A default-method calibration that fell back to batch Gauss-Newton
+    /// (a fixed noise model far below the drive's) shows the EIV fit it
+    /// did not use, as the text report's column "EIV (unused)" does.
+    #[test]
+    fn a_fallback_shows_the_unused_eiv_fit_as_the_text_does() {
+        let out = sim::simulate(&sim::SimOptions { length_km: 6.0, ..sim::SimOptions::paper(5) }).expect("sim");
+        let segs = segment::validation_segments(&out.drive, &Default::default()).expect("segments");
+        let tiny = odocal::eiv::NoiseModel {
+            wheel_white_rel_sigma: 1e-4,
+            wheel_common_rel_sigma: 1e-5,
+            wheel_differential_rel_sigma: 1e-5,
+            position_white_sigma_m: 1e-3,
+            position_drift_sigma_m: 1e-3,
+            heading_drift_sigma_rad: 1e-5,
+            ..Default::default()
+        };
+        let filter = odocal::eiv::EivOptions { noise: tiny, fix_noise: true, ..Default::default() };
+        let method = odocal::Method::Eiv(odocal::EivMethodOptions { filter, fallback: true, ..Default::default() });
+        let r = odocal::calibrate(&out.drive, &odocal::CalibrationOptions { method, ..Default::default() })
+            .expect("calibrate");
+        let v = serde_json::to_value(&r).expect("json");
+        assert_eq!(v["eiv_result"], "batch-gn-fallback", "the fit falls back");
+        let text = r.render_text(None, None, None);
+        assert!(text.contains("EIV (unused)"), "{text}");
+        let eiv: Theta = serde_json::from_value(v["eiv"]["theta"].clone()).expect("the EIV fit's θ");
+        let input = ReportInput::of_calibration("d.csv", &r, (&out.drive, &segs, &[0]), None);
+        assert_eq!(input.eiv_unused, Some(eiv));
+        let html = render_html(&input).expect("render");
+        let table = html.split("<section id=\"parameters\">").nth(1).expect("parameters");
+        let table = table.split("</table>").next().expect("table end");
+        assert!(table.contains("<th>EIV (unused)</th>"), "{table}");
+        // Each θ row ends with the EIV value, in the row's unit (t_r in m, d in mm/(m/s²)).
+        for (name, value) in [("t_r", format!("{:.6}", eiv.t_r)), ("d", format!("{:.6}", eiv.d * 1e3))] {
+            let row = table.lines().find(|l| l.starts_with(&format!("<tr><td>{name}</td>"))).expect("row");
+            assert!(row.ends_with(&format!("<td>{value}</td></tr>")), "{row}");
+        }
+        parse_all(html.trim_start_matches("<!DOCTYPE html>\n"));
     }
 
     #[test]

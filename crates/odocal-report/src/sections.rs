@@ -2,7 +2,7 @@
 
 use std::fmt::Write as _;
 
-use odocal::model::step;
+use odocal::model::{step, THETA_NAMES};
 use odocal::segment::SegmentData;
 use odocal::segment_position_error_with;
 
@@ -89,6 +89,9 @@ pub(crate) fn parameters(h: &mut String, r: &ReportInput<'_>) {
     if has_truth {
         h.push_str("<th>truth</th><th>error</th>");
     }
+    if r.eiv_unused.is_some() {
+        h.push_str("<th>EIV (unused)</th>");
+    }
     h.push_str("</tr>\n");
     let mut label = &r.sigma_label;
     for p in &r.params {
@@ -119,6 +122,15 @@ pub(crate) fn parameters(h: &mut String, r: &ReportInput<'_>) {
                     let _ = write!(h, "<td>{}</td><td>{:+.6}</td>", f(t), (p.calibrated - t) * p.scale);
                 }
                 None => h.push_str("<td></td><td></td>"),
+            }
+        }
+        if let Some(e) = &r.eiv_unused {
+            // θ's rows only (the reference extrinsics have no EIV value).
+            match THETA_NAMES.iter().position(|n| *n == p.name).filter(|_| p.sigma_label.is_none()) {
+                Some(i) => {
+                    let _ = write!(h, "<td>{}</td>", f(<[f64; 4]>::from(e)[i]));
+                }
+                None => h.push_str("<td></td>"),
             }
         }
         h.push_str("</tr>\n");

@@ -313,3 +313,28 @@ fn follow_exposes_the_online_and_gate_settings() {
     let o = odocal(&["follow", &a, "--vehicle", "v", "--db", db, "--max-change", "1,1,1,-1"]);
     assert!(stderr(&o).contains("--max-change must be four positive numbers"), "{}", stderr(&o));
 }
+
+/// Nothing claims a start that did not happen: with a first drive that
+/// cannot be read, `follow` prints no "starting from" line, only the
+/// error naming the drive; a good first drive is read before the line,
+/// and a bad second one is named after it.
+#[test]
+fn follow_claims_its_start_only_once_the_first_drive_was_read() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let good = simulated_drive(dir.path(), "good.csv", &["--seed", "3", "--length-km", "1"]);
+    let bad = dir.path().join("bad.csv");
+    std::fs::write(&bad, "t,px,py,psi,n_rl,n_rr,beta,a_y\n0,0,0,0,5,5,0,0\n0.025,0.25,0,0,x,5,0,0\n").expect("write");
+    let (bad_s, db) = (bad.to_str().expect("utf8"), dir.path().join("h.sqlite"));
+    let db_s = db.to_str().expect("utf8");
+    let o = odocal(&["follow", bad_s, &good, "--vehicle", "van", "--db", db_s]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(!stdout(&o).contains("starting from"), "a start claimed before the drive was read: {}", stdout(&o));
+    assert!(stderr(&o).contains(&format!("{bad_s}: line 3, column 'n_rl'")), "{}", stderr(&o));
+    let o = odocal(&["follow", &good, bad_s, "--vehicle", "van", "--db", db_s]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let out = stdout(&o);
+    let start = out.find("vehicle 'van': starting from").expect("the start, after the first drive was read");
+    let followed = out.find(&format!("{good}: prequential")).expect("the good drive followed");
+    assert!(start < followed, "{out}");
+    assert!(stderr(&o).contains(&format!("{bad_s}: line 3")), "{}", stderr(&o));
+}

@@ -45,7 +45,9 @@ class Drive:
         beta (rad, default zeros) and per-sample integer part ids.
 
         Raises OdocalError naming the column and the sample (NaN, a length
-        mismatch, time that does not increase, a non-uniform step, ...)."""
+        mismatch, time that does not increase, a non-uniform step, ...), and
+        naming the argument, its shape and the 1-D array expected for one that
+        is not 1-D (a 2-D array, a single number)."""
     @staticmethod
     def from_csv(path: _Path) -> Drive:
         """Reads a canonical CSV; a simulator sidecar beside it gives the true θ."""
@@ -170,9 +172,12 @@ class RawStream:
     def push_message(self, stream: str, t: float, values: Sequence[float]) -> None:
         """One message of ``stream``: time ``t`` in the stream's time unit (before its
         ``time_offset_s``) and the values of its columns. Raises OdocalError naming the
-        stream (unknown, wrong number of values) or the row and column (the import's checks)."""
-    def push_messages(self, stream: str, t: _ArrayLike, values: npt.NDArray[np.float64]) -> None:
-        """Several messages of ``stream``: times (n) and values (n × columns)."""
+        stream (unknown, wrong number of values), the row and column (the import's checks),
+        or ``values`` and its shape when it is not a 1-D sequence of numbers."""
+    def push_messages(self, stream: str, t: _ArrayLike, values: _ArrayLike) -> None:
+        """Several messages of ``stream``: times (n, 1-D) and values (n × columns, 2-D;
+        converted to float64). Raises OdocalError naming the argument and its shape for
+        another shape."""
     def end_stream(self, stream: str) -> None:
         """No more messages of ``stream`` come."""
     def finish(self) -> None:
@@ -222,7 +227,8 @@ class Calibrator:
     ) -> None:
         """The next samples, in time order, as ``Drive.from_arrays`` takes them (``psi`` is
         unwrapped across chunks). With ``t``: each step the sample time (within 1 %) or a gap
-        of more than 1.5 sample times, after which a new part starts."""
+        of more than 1.5 sample times, after which a new part starts. Raises OdocalError
+        naming the argument and its shape for one that is not 1-D."""
     def push_drive(self, drive: Drive, chunk: int = 400) -> None:
         """A whole drive as a new drive, in chunks."""
     def new_drive(self) -> None:

@@ -676,7 +676,8 @@ struct Bag {
 
 impl Bag {
     /// Opens `path` as an MCAP bag: a file, or a bag directory holding one
-    /// `.mcap` file. Refuses sqlite3 bags and files without the MCAP magic.
+    /// `.mcap` file. Refuses sqlite3 bags, files without the MCAP magic and
+    /// files cut before their end ([`truncated`]).
     fn open(path: &Path) -> Result<Bag> {
         let io = |e: std::io::Error| Error::Io { path: path.to_path_buf(), source: e };
         let file_path = if path.is_dir() { bag_in_dir(path)? } else { path.to_path_buf() };
@@ -697,8 +698,20 @@ impl Bag {
             });
         }
         file.seek(std::io::SeekFrom::Start(mcap::MAGIC.len() as u64)).map_err(io)?;
-        let checked = records::check_lengths(&mut file, mcap::MAGIC.len() as u64, len)
-            .map_err(|reason| Error::Bag { path: file_path.clone(), topic: None, reason })?;
+        let checked = records::check_lengths(&mut file, mcap::MAGIC.len() as u64, len);
+        // Every MCAP file ends with its footer record and the magic again:
+        // without them, and with no damaged record before the end (a record
+        // running past the end is where the cut fell), the file was cut.
+        let mut tail = [0u8; 8];
+        file.seek(std::io::SeekFrom::Start(len.saturating_sub(tail.len() as u64))).map_err(io)?;
+        let n = read_up_to(&mut file, &mut tail).map_err(io)?;
+        let ends_as_mcap = len >= FOOTER_AND_MAGICS && n == tail.len() && tail[..] == *mcap::MAGIC;
+        let cut_record = matches!(&checked, Err(reason) if reason.ends_with("remain in the file"));
+        if !ends_as_mcap && (checked.is_ok() || cut_record) {
+            let reason = truncated(&file_path, len, checked.err());
+            return Err(Error::Bag { path: file_path, topic: None, reason });
+        }
+        let checked = checked.map_err(|reason| Error::Bag { path: file_path.clone(), topic: None, reason })?;
         Ok(Bag { path: file_path, file, len, record_limit: checked.record_limit, compressed: checked.compressed })
     }
 
@@ -811,6 +824,28 @@ impl Bag {
             _ => Ok(()),
         }
     }
+}
+
+/// The fewest bytes of a complete MCAP file: the magic, the footer record
+/// (opcode, length and 20 bytes) and the magic again.
+const FOOTER_AND_MAGICS: u64 = 8 + 1 + 8 + 20 + 8;
+
+/// Why a file of `len` bytes that starts as MCAP but does not end as one
+/// is refused, with where its records stop (`walk`: the record the length
+/// walk found cut, if any), and what to do: the recording was cut, and the
+/// mcap CLI's `recover` copies what it holds into a complete file.
+fn truncated(path: &Path, len: u64, walk: Option<String>) -> String {
+    let stop = match walk {
+        Some(w) => format!(" ({})", w.trim_start_matches("corrupt or truncated MCAP file: ")),
+        None => String::new(),
+    };
+    format!(
+        "truncated MCAP file: it ends after {len} bytes without the footer and closing magic bytes that end every \
+         MCAP file{stop}. The recording was cut (a recorder stopped without closing the bag, or a copy or \
+         download was interrupted): copy the messages it holds into a complete file with the mcap CLI, `mcap \
+         recover {} -o recovered.mcap`, and give that file; or copy or record the drive again",
+        path.display()
+    )
 }
 
 /// The message of a reading error `e` found after `read` bytes of the file,

@@ -481,10 +481,48 @@ fn sqlite_bags_non_mcap_and_truncated_files_are_refused_clearly() {
     let cut = dir.path().join("cut.mcap");
     std::fs::write(&cut, &bytes[..bytes.len() / 2]).expect("write");
     let e = err(&cut, "/joints", &["position.left"]);
-    let cut_message =
-        format!("{}: corrupt or truncated MCAP file: the chunk record (opcode 0x06) at byte offset ", cut.display());
-    assert!(e.starts_with(&cut_message) && e.contains("remain in the file"), "{e}");
+    let cut_message = format!("{}: truncated MCAP file: it ends after {} bytes", cut.display(), bytes.len() / 2);
+    assert!(e.starts_with(&cut_message) && e.contains("the chunk record (opcode 0x06) at byte offset "), "{e}");
     assert_eq!(inspect(&cut).expect_err("truncated").to_string(), e);
+}
+
+/// A real bag cut at any byte — in a chunk, between two records, just
+/// before the closing magic — is refused saying that it ends before its
+/// footer, where the read stopped, and what to do: recover it with the
+/// mcap CLI, or copy or record it again.
+#[test]
+fn a_bag_cut_anywhere_names_the_cut_and_the_way_out() {
+    let slice = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/psu-mapping-van/drive-slice.mcap");
+    let bytes = std::fs::read(&slice).expect("the PSU bag slice");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cut = dir.path().join("cut.mcap");
+    // 247_215: the first chunk (at byte 43, 9 + 247_163 bytes) ends there
+    // and a message index record starts: a cut between two records.
+    for (at, stop) in [
+        (5_000, Some("the chunk record (opcode 0x06) at byte offset 43 declares 247163 bytes, but only 4948 remain")),
+        (247_215, None),
+        (bytes.len() - 8, None),
+        (bytes.len() - 1, None),
+    ] {
+        std::fs::write(&cut, &bytes[..at]).expect("write");
+        let e = inspect(&cut).expect_err("a cut bag").to_string();
+        let head = format!(
+            "{}: truncated MCAP file: it ends after {at} bytes without the footer and closing magic bytes that end \
+             every MCAP file",
+            cut.display()
+        );
+        assert!(e.starts_with(&head), "cut at {at}: {e}");
+        assert!(e.contains(&format!("`mcap recover {} -o recovered.mcap`", cut.display())), "{e}");
+        assert!(e.ends_with("or copy or record the drive again"), "{e}");
+        if let Some(stop) = stop {
+            assert!(e.contains(&format!("every MCAP file ({stop} in the file).")), "{e}");
+        }
+        let read =
+            read_topic(&cut, "/vehicle/wheel_joint_states", &["position.rear_left_wheel_joint"], TimeSource::LogTime);
+        assert_eq!(read.expect_err("a cut bag").to_string(), e, "reading a topic says the same");
+    }
+    // The whole bag still reads.
+    assert!(inspect(&slice).is_ok());
 }
 
 #[test]
