@@ -544,6 +544,20 @@ pub enum VerdictReason {
         /// Checks that failed.
         checks: usize,
     },
+    /// No σ checked against the data stands for the result (doubtful): the
+    /// result is a batch Gauss-Newton fit whose cluster-robust σ needs more
+    /// clusters than the drive has, or a 3-step result with too few
+    /// plausible step-1 batches for their spread. Its model σ assumes
+    /// independent residuals; under input noise the spread of such
+    /// estimates is 5–1000 × that σ, and batch Gauss-Newton's
+    /// errors-in-variables bias is not bounded by it.
+    ModelSigmaOnly {
+        /// Whose σ (`"batch Gauss-Newton"`, `"the EIV fallback's batch
+        /// Gauss-Newton"`, `"the 3-step method"`).
+        stage: String,
+        /// What a checked σ needs, as advice (a longer drive).
+        needs: String,
+    },
     /// The batch Gauss-Newton that gives the result stopped at its
     /// iteration limit while still moving (doubtful): its last accepted
     /// step moved `param` by `step_sigmas` σ, more than
@@ -666,6 +680,11 @@ impl std::fmt::Display for VerdictReason {
                 "{checks} EIV consistency check(s) failed on this θ: the noise model does not fit these data (see the \
                  warnings)"
             ),
+            VerdictReason::ModelSigmaOnly { stage, needs } => write!(
+                f,
+                "only the model σ of {stage} stands for this result: it assumes independent residuals and \
+                 understates the spread of such estimates under input noise, so nothing bounds the error ({needs})"
+            ),
             VerdictReason::NotConverged { stage, iterations, param, step_sigmas } => write!(
                 f,
                 "{stage} stopped at its iteration limit ({iterations}) while still moving: its last step moved \
@@ -717,6 +736,9 @@ pub(crate) struct Evidence<'a> {
     /// The σ for the next drive ([`crate::pooling`]): the large-σ check's
     /// σ, and after an EIV fallback the gap to EIV's own estimate.
     pub next_drive: Option<&'a NextDriveSigma>,
+    /// Whose model σ stands for θ, and what a checked σ needs, when no σ
+    /// checked against the data does ([`VerdictReason::ModelSigmaOnly`]).
+    pub model_sigma_only: Option<(&'a str, String)>,
 }
 
 /// The free θ parameter that moved most, in σ of `covariance`, in the last
@@ -933,6 +955,9 @@ pub(crate) fn judge(e: &Evidence<'_>, opts: &TrustOptions) -> Verdict {
     if e.misspecified > 0 {
         reasons.push(VerdictReason::Misspecified { checks: e.misspecified });
     }
+    if let Some((stage, needs)) = &e.model_sigma_only {
+        reasons.push(VerdictReason::ModelSigmaOnly { stage: stage.to_string(), needs: needs.clone() });
+    }
     if let Some((stage, id)) = e.identification {
         if let Some((param, step_sigmas)) = unconverged_step(id, e.free, e.covariance, opts.max_final_step_sigmas) {
             let iterations = id.iterations;
@@ -992,6 +1017,7 @@ mod tests {
             misspecified: 0,
             identification: None,
             next_drive: None,
+            model_sigma_only: None,
         }
     }
 

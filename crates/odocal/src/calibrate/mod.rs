@@ -618,6 +618,7 @@ pub(crate) fn calibrate_core(
             misspecified: warnings.iter().filter(|w| w.misspecifies_result()).count(),
             identification: result_identification(&outcome.detail),
             next_drive: Some(&next_drive),
+            model_sigma_only: model_sigma_only(&outcome.detail, opts),
         },
         &opts.trust,
     );
@@ -824,6 +825,37 @@ fn outcome_covariance(detail: &MethodDetail) -> Option<&[[f64; 4]; 4]> {
         MethodDetail::Eiv(d) if d.eiv_result == EivOutcome::BatchGnFallback => {
             d.identification.robust.as_ref().map(|r| &r.covariance)
         }
+        MethodDetail::Eiv(_) => None,
+    }
+}
+
+/// Whose model σ stands for the result, and what a σ checked against the
+/// data needs, when [`outcome_covariance`] has none for a method whose
+/// model σ is known to be too small (batch G-N, the 3-step, EIV's
+/// fallback); `None` for EIV's own estimate, whose σ is its filter's.
+fn model_sigma_only(detail: &MethodDetail, opts: &CalibrationOptions) -> Option<(&'static str, String)> {
+    if outcome_covariance(detail).is_some() {
+        return None;
+    }
+    let o = &opts.identify;
+    let robust = || {
+        format!(
+            "its cluster-robust σ needs selected segments in at least {} blocks of {} samples: calibrate on a \
+             longer drive, or on several drives together",
+            o.robust_min_clusters, o.robust_block_steps
+        )
+    };
+    match detail {
+        MethodDetail::BatchGn(_) => Some(("batch Gauss-Newton", robust())),
+        MethodDetail::Eiv(d) if d.eiv_result == EivOutcome::BatchGnFallback => {
+            Some(("the EIV fallback's batch Gauss-Newton", robust()))
+        }
+        MethodDetail::ThreeStep(_) => Some((
+            "the 3-step method",
+            "its σ from the spread of step-1 batch estimates needs more plausible batches: calibrate on a \
+             longer drive, or on several drives together"
+                .to_string(),
+        )),
         MethodDetail::Eiv(_) => None,
     }
 }

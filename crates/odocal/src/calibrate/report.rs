@@ -8,7 +8,7 @@ use super::{
     ThreeStepDetail,
 };
 use crate::assess::pooling::NextDriveSigma;
-use crate::assess::trust::Verdict;
+use crate::assess::trust::{Verdict, VerdictReason};
 use crate::assess::validate::MultiValidation;
 use crate::assess::warning::Warning;
 use crate::compensate::CompensationStep;
@@ -334,7 +334,12 @@ impl CalibrationReport {
         next.with_pooled(crate::pooling::PooledDrives::new("batch-gn".into(), theta, sigma));
         let reasons = std::mem::take(&mut self.verdict.reasons);
         let free = self.options.identify.free;
-        let mut kept: Vec<_> = reasons.into_iter().filter(|r| !crate::assess::trust::is_sigma_reason(r)).collect();
+        // The pooled σ's between-drive part is the drives' measured spread:
+        // a σ checked against the data, so a model σ no longer stands alone.
+        let mut kept: Vec<_> = reasons
+            .into_iter()
+            .filter(|r| !crate::assess::trust::is_sigma_reason(r) && !matches!(r, VerdictReason::ModelSigmaOnly { .. }))
+            .collect();
         kept.extend(crate::assess::trust::sigma_reasons(
             &self.theta,
             &self.initial.theta,

@@ -539,8 +539,14 @@ fn drives_fitted_jointly_give_the_between_drive_sigma_unless_a_half_is_held_out(
     let source = |r: &CalibrationReport| r.next_drive_sigma.as_ref().map(|n| n.between_source);
     let alone = Calibration::new(&joined, &opts).run().expect("joint fit");
     assert_eq!(source(&alone), Some(BetweenDriveSource::Prior));
+    let model_only = |r: &CalibrationReport| {
+        r.verdict.reasons.iter().any(|x| matches!(x, crate::assess::trust::VerdictReason::ModelSigmaOnly { .. }))
+    };
+    assert!(model_only(&alone), "{:?}", alone.verdict);
     let pooled = Calibration { drives: &parts, ..Calibration::new(&joined, &opts) }.run().expect("pooled");
     assert_eq!(source(&pooled), Some(BetweenDriveSource::RandomEffects));
+    // The drives' measured spread checks the pooled σ.
+    assert!(!model_only(&pooled), "{:?}", pooled.verdict);
     assert_eq!(pooled.theta, alone.theta, "θ stays the joint fit's");
     let mut by_hand = alone.clone();
     assert_eq!(by_hand.pool_drives(&parts).expect("pool"), 2);
@@ -548,4 +554,32 @@ fn drives_fitted_jointly_give_the_between_drive_sigma_unless_a_half_is_held_out(
     let half = Holdout::FirstHalf;
     let held = Calibration { drives: &parts, holdout: Some(&half), ..Calibration::new(&joined, &opts) };
     assert_eq!(source(&held.run().expect("held out")), Some(BetweenDriveSource::Prior));
+}
+
+/// A batch G-N result whose only σ is the model's (a 3 km drive: too few
+/// clusters for the cluster-robust σ) is doubtful, saying whose σ it is and
+/// what a checked σ needs; on 12 km the cluster-robust σ stands for it and
+/// the reason is not given. On seed 1 the 3 km fit's t_r is several of
+/// its σ for the next drive off the truth: what the reason guards against.
+#[test]
+fn a_result_with_only_the_model_sigma_is_doubtful() {
+    use crate::assess::trust::VerdictReason;
+    let opts = CalibrationOptions { method: Method::BatchGn(Default::default()), ..Default::default() };
+    let short = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim");
+    let r = calibrate(&short.drive, &opts).expect("batch-gn");
+    assert!(r.robust().is_none());
+    let (truth, _) = SimOptions { length_km: 3.0, ..SimOptions::paper(1) }.equivalent_truth();
+    let sigma = r.result_sigma().t_r.expect("t_r σ");
+    assert!((r.theta.t_r - truth.t_r).abs() > 3.0 * sigma, "{} vs {} (σ {sigma})", r.theta.t_r, truth.t_r);
+    assert_eq!(r.verdict.level, crate::VerdictLevel::Doubtful, "{:?}", r.verdict);
+    let reason = r.verdict.reasons.iter().find(|x| matches!(x, VerdictReason::ModelSigmaOnly { .. }));
+    let Some(VerdictReason::ModelSigmaOnly { stage, .. }) = reason else { panic!("{:?}", r.verdict) };
+    assert_eq!(stage, "batch Gauss-Newton");
+    let text = reason.map(ToString::to_string).unwrap_or_default();
+    assert!(text.contains("longer drive") && text.contains("10 blocks of 1300 samples"), "{text}");
+
+    let long = simulate(&SimOptions { length_km: 12.0, ..SimOptions::paper(1) }).expect("sim");
+    let r = calibrate(&long.drive, &opts).expect("batch-gn");
+    assert!(r.robust().is_some());
+    assert!(!r.verdict.reasons.iter().any(|x| matches!(x, VerdictReason::ModelSigmaOnly { .. })), "{:?}", r.verdict);
 }
