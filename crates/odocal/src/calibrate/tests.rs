@@ -342,7 +342,14 @@ fn every_report_has_a_verdict() {
     let sim = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim");
     let opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
     let r = calibrate(&sim.drive, &opts).expect("batch-gn");
-    assert_eq!(r.verdict.level, crate::assess::trust::VerdictLevel::Accepted, "{:?}", r.verdict);
+    // 3 km: no cluster-robust σ, so doubtful for that alone
+    // (a_result_with_only_the_model_sigma_is_doubtful).
+    assert_eq!(r.verdict.level, crate::assess::trust::VerdictLevel::Doubtful, "{:?}", r.verdict);
+    assert!(
+        matches!(r.verdict.reasons[..], [crate::assess::trust::VerdictReason::ModelSigmaOnly { .. }]),
+        "{:?}",
+        r.verdict
+    );
     // Validated on a drive of another vehicle (θ = [2.1, 1 mm, 1.66, 0]):
     // θ_0 = [2.0, 0, 1.6, 0] is closer in every parameter than the
     // calibrated ≈ [1.95, −2 mm, 1.53, 0.8 mm], so the calibration is rejected.
@@ -542,14 +549,18 @@ fn drives_fitted_jointly_give_the_between_drive_sigma_unless_a_half_is_held_out(
     let model_only = |r: &CalibrationReport| {
         r.verdict.reasons.iter().any(|x| matches!(x, crate::assess::trust::VerdictReason::ModelSigmaOnly { .. }))
     };
-    assert!(model_only(&alone), "{:?}", alone.verdict);
     let pooled = Calibration { drives: &parts, ..Calibration::new(&joined, &opts) }.run().expect("pooled");
     assert_eq!(source(&pooled), Some(BetweenDriveSource::RandomEffects));
-    // The drives' measured spread checks the pooled σ.
-    assert!(!model_only(&pooled), "{:?}", pooled.verdict);
     assert_eq!(pooled.theta, alone.theta, "θ stays the joint fit's");
     let mut by_hand = alone.clone();
+    // The drives' measured spread checks the pooled σ: a model σ no longer
+    // stands alone (the joint 6 km fit has its cluster-robust σ; the
+    // reason is put in by hand).
+    let reason = crate::assess::trust::VerdictReason::ModelSigmaOnly { stage: "batch".into(), needs: "".into() };
+    by_hand.verdict.reasons.push(reason);
+    assert!(model_only(&by_hand));
     assert_eq!(by_hand.pool_drives(&parts).expect("pool"), 2);
+    assert!(!model_only(&by_hand), "{:?}", by_hand.verdict);
     assert_eq!(pooled.next_drive_sigma, by_hand.next_drive_sigma);
     let half = Holdout::FirstHalf;
     let held = Calibration { drives: &parts, holdout: Some(&half), ..Calibration::new(&joined, &opts) };
