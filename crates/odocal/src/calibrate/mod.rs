@@ -55,9 +55,7 @@ use crate::drive::segment::{
 };
 use crate::drive::Drive;
 use crate::error::{Error, Result};
-use crate::identify::{
-    batch_normal_equations, observability, IdentifyOptions, IdentifyReport, Observability, RobustCovariance,
-};
+use crate::identify::{batch_normal_equations, observability, IdentifyOptions, Observability, RobustCovariance};
 use crate::model::extrinsics::{Extrinsics, ExtrinsicsEstimate};
 use crate::model::param::{Param, ParamSet};
 use crate::model::Theta;
@@ -73,6 +71,7 @@ mod turn_sense;
 pub(crate) mod validate_on;
 
 pub(crate) use report::MethodDetail;
+use report::{model_sigma_only, result_identification};
 pub(crate) use report::{CalibrationReport, SigmaSource};
 pub(crate) use report::{SegmentCounts, ThetaScore, Timing, ValidationSummary};
 
@@ -824,51 +823,6 @@ fn outcome_covariance(detail: &MethodDetail) -> Option<&[[f64; 4]; 4]> {
         // A fallback result is the start's batch G-N: its cluster-robust σ.
         MethodDetail::Eiv(d) if d.eiv_result == EivOutcome::BatchGnFallback => {
             d.identification.robust.as_ref().map(|r| &r.covariance)
-        }
-        MethodDetail::Eiv(_) => None,
-    }
-}
-
-/// Whose model σ stands for the result, and what a σ checked against the
-/// data needs, when [`outcome_covariance`] has none for a method whose
-/// model σ is known to be too small (batch G-N, the 3-step, EIV's
-/// fallback); `None` for EIV's own estimate, whose σ is its filter's.
-fn model_sigma_only(detail: &MethodDetail, opts: &CalibrationOptions) -> Option<(&'static str, String)> {
-    if outcome_covariance(detail).is_some() {
-        return None;
-    }
-    let o = &opts.identify;
-    let robust = || {
-        format!(
-            "its cluster-robust σ needs selected segments in at least {} blocks of {} samples: calibrate on a \
-             longer drive, or on several drives together",
-            o.robust_min_clusters, o.robust_block_steps
-        )
-    };
-    match detail {
-        MethodDetail::BatchGn(_) => Some(("batch Gauss-Newton", robust())),
-        MethodDetail::Eiv(d) if d.eiv_result == EivOutcome::BatchGnFallback => {
-            Some(("the EIV fallback's batch Gauss-Newton", robust()))
-        }
-        MethodDetail::ThreeStep(_) => Some((
-            "the 3-step method",
-            "its σ from the spread of step-1 batch estimates needs more plausible batches: calibrate on a \
-             longer drive, or on several drives together"
-                .to_string(),
-        )),
-        MethodDetail::Eiv(_) => None,
-    }
-}
-
-/// The batch Gauss-Newton whose θ is the result, and what to call it in
-/// the verdict; `None` when the EIV filter's θ is the result (its own
-/// convergence is an EIV check, [`crate::eiv::EivWarning`]).
-fn result_identification(detail: &MethodDetail) -> Option<(&'static str, &IdentifyReport)> {
-    match detail {
-        MethodDetail::BatchGn(d) => Some(("batch Gauss-Newton", &d.identification)),
-        MethodDetail::ThreeStep(d) => Some(("the 3-step's final identification", &d.identification)),
-        MethodDetail::Eiv(d) if d.eiv_result == EivOutcome::BatchGnFallback => {
-            Some(("the EIV fallback's batch Gauss-Newton", &d.identification))
         }
         MethodDetail::Eiv(_) => None,
     }

@@ -632,3 +632,48 @@ impl CalibrationReport {
         f
     }
 }
+
+/// Whose model σ stands for the result, and what a σ checked against the
+/// data needs, when [`outcome_covariance`] has none for a method whose
+/// model σ is known to be too small (batch G-N, the 3-step, EIV's
+/// fallback); `None` for EIV's own estimate, whose σ is its filter's.
+pub(super) fn model_sigma_only(detail: &MethodDetail, opts: &CalibrationOptions) -> Option<(&'static str, String)> {
+    if outcome_covariance(detail).is_some() {
+        return None;
+    }
+    let o = &opts.identify;
+    let robust = || {
+        format!(
+            "its cluster-robust σ needs selected segments in at least {} blocks of {} samples: calibrate on a \
+             longer drive, or on several drives together",
+            o.robust_min_clusters, o.robust_block_steps
+        )
+    };
+    match detail {
+        MethodDetail::BatchGn(_) => Some(("batch Gauss-Newton", robust())),
+        MethodDetail::Eiv(d) if d.eiv_result == EivOutcome::BatchGnFallback => {
+            Some(("the EIV fallback's batch Gauss-Newton", robust()))
+        }
+        MethodDetail::ThreeStep(_) => Some((
+            "the 3-step method",
+            "its σ from the spread of step-1 batch estimates needs more plausible batches: calibrate on a \
+             longer drive, or on several drives together"
+                .to_string(),
+        )),
+        MethodDetail::Eiv(_) => None,
+    }
+}
+
+/// The batch Gauss-Newton whose θ is the result, and what to call it in
+/// the verdict; `None` when the EIV filter's θ is the result (its own
+/// convergence is an EIV check, [`crate::eiv::EivWarning`]).
+pub(super) fn result_identification(detail: &MethodDetail) -> Option<(&'static str, &IdentifyReport)> {
+    match detail {
+        MethodDetail::BatchGn(d) => Some(("batch Gauss-Newton", &d.identification)),
+        MethodDetail::ThreeStep(d) => Some(("the 3-step's final identification", &d.identification)),
+        MethodDetail::Eiv(d) if d.eiv_result == EivOutcome::BatchGnFallback => {
+            Some(("the EIV fallback's batch Gauss-Newton", &d.identification))
+        }
+        MethodDetail::Eiv(_) => None,
+    }
+}
