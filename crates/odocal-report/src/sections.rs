@@ -126,7 +126,7 @@ pub(crate) fn parameters(h: &mut String, r: &ReportInput<'_>) {
         }
         if let Some(e) = &r.eiv_unused {
             // θ's rows only (the reference extrinsics have no EIV value).
-            match THETA_NAMES.iter().position(|n| *n == p.name).filter(|_| p.sigma_label.is_none()) {
+            match THETA_NAMES.iter().position(|n| *n == p.name) {
                 Some(i) => {
                     let _ = write!(h, "<td>{}</td>", f(<[f64; 4]>::from(e)[i]));
                 }

@@ -706,12 +706,15 @@ impl Bag {
         file.seek(std::io::SeekFrom::Start(len.saturating_sub(tail.len() as u64))).map_err(io)?;
         let n = read_up_to(&mut file, &mut tail).map_err(io)?;
         let ends_as_mcap = len >= FOOTER_AND_MAGICS && n == tail.len() && tail[..] == *mcap::MAGIC;
-        let cut_record = matches!(&checked, Err(reason) if reason.ends_with("remain in the file"));
-        if !ends_as_mcap && (checked.is_ok() || cut_record) {
-            let reason = truncated(&file_path, len, checked.err());
-            return Err(Error::Bag { path: file_path, topic: None, reason });
-        }
-        let checked = checked.map_err(|reason| Error::Bag { path: file_path.clone(), topic: None, reason })?;
+        let bag_error = |reason| Error::Bag { path: file_path.clone(), topic: None, reason };
+        let checked = match checked {
+            Ok(c) if ends_as_mcap => c,
+            Ok(_) => return Err(bag_error(truncated(&file_path, len, None))),
+            Err(records::LengthError::PastEnd(what)) if !ends_as_mcap => {
+                return Err(bag_error(truncated(&file_path, len, Some(what))))
+            }
+            Err(e) => return Err(bag_error(e.to_string())),
+        };
         Ok(Bag { path: file_path, file, len, record_limit: checked.record_limit, compressed: checked.compressed })
     }
 
@@ -831,14 +834,12 @@ impl Bag {
 const FOOTER_AND_MAGICS: u64 = 8 + 1 + 8 + 20 + 8;
 
 /// Why a file of `len` bytes that starts as MCAP but does not end as one
-/// is refused, with where its records stop (`walk`: the record the length
-/// walk found cut, if any), and what to do: the recording was cut, and the
-/// mcap CLI's `recover` copies what it holds into a complete file.
-fn truncated(path: &Path, len: u64, walk: Option<String>) -> String {
-    let stop = match walk {
-        Some(w) => format!(" ({})", w.trim_start_matches("corrupt or truncated MCAP file: ")),
-        None => String::new(),
-    };
+/// is refused, with where its records stop (`cut`: the record the length
+/// walk found running past the end, if any), and what to do: the recording
+/// was cut, and the mcap CLI's `recover` copies what it holds into a
+/// complete file.
+fn truncated(path: &Path, len: u64, cut: Option<String>) -> String {
+    let stop = cut.map(|what| format!(" ({what})")).unwrap_or_default();
     format!(
         "truncated MCAP file: it ends after {len} bytes without the footer and closing magic bytes that end every \
          MCAP file{stop}. The recording was cut (a recorder stopped without closing the bag, or a copy or \

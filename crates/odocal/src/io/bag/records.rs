@@ -86,21 +86,48 @@ pub(super) struct Checked {
     pub(super) compressed: Vec<CompressedChunk>,
 }
 
+/// Why [`check_lengths`] refused a file.
+#[derive(Debug)]
+pub(super) enum LengthError {
+    /// A record of the file itself declares more bytes than remain in the
+    /// file: where a cut file stops. The record and the bytes left, without
+    /// the "corrupt or truncated" lead of [`LengthError::to_string`].
+    PastEnd(String),
+    /// Any other fault: the message naming the record.
+    Damaged(String),
+}
+
+impl std::fmt::Display for LengthError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            LengthError::PastEnd(what) => write!(f, "{PAST_END_LEAD}{what}"),
+            LengthError::Damaged(reason) => f.write_str(reason),
+        }
+    }
+}
+
+/// The lead of a message about a record that runs past the end of what
+/// holds it.
+const PAST_END_LEAD: &str = "corrupt or truncated MCAP file: ";
+
 /// Reads records from `r` (positioned at file offset `start`, `len` bytes
 /// to its end) and checks their lengths; returns the record length limit
-/// for the MCAP reader and the compressed chunks, or a message naming the
+/// for the MCAP reader and the compressed chunks, or why not, naming the
 /// record at fault.
-pub(super) fn check_lengths(r: impl Read + Seek, start: u64, len: u64) -> Result<Checked, String> {
+pub(super) fn check_lengths(r: impl Read + Seek, start: u64, len: u64) -> Result<Checked, LengthError> {
     let mut w = Walk { r: BufReader::new(r), at: start, compressed: Vec::new() };
     let mut limit = len;
     while w.at + 9 <= len {
-        let (op, rec_len) = w.record_header(len, "the file")?;
-        let body_start = w.at;
-        match op {
-            CHUNK => limit = limit.max(w.chunk(rec_len)?),
-            _ => w.strings(op, rec_len)?,
+        let (offset, op, rec_len) = w.header().map_err(LengthError::Damaged)?;
+        if let Some(what) = past_end(offset, op, rec_len, len - w.at, "the file") {
+            return Err(LengthError::PastEnd(what));
         }
-        w.skip_to(body_start + rec_len)?;
+        let body_start = w.at;
+        let body = match op {
+            CHUNK => w.chunk(rec_len).map(|uncompressed| limit = limit.max(uncompressed)),
+            _ => w.strings(op, rec_len),
+        };
+        body.and_then(|()| w.skip_to(body_start + rec_len)).map_err(LengthError::Damaged)?;
         if op == FOOTER {
             break;
         }
@@ -121,6 +148,18 @@ pub(super) fn check_chunk_records(records: &[u8], offset: u64) -> Result<(), Str
     inner
         .chunk_records(records.len() as u64, "the decompressed records")
         .map_err(|e| format!("{e} (offsets within the decompressed records of the chunk at byte offset {offset})"))
+}
+
+/// For a record at `offset` (opcode `op`) declaring `rec_len` bytes where
+/// `left` remain in `within`: what runs past the end, if it does.
+fn past_end(offset: u64, op: u8, rec_len: u64, left: u64, within: &str) -> Option<String> {
+    (rec_len > left).then(|| {
+        format!(
+            "the {} record (opcode {op:#04x}) at byte offset {offset} declares {rec_len} bytes, but only {left} \
+             remain in {within}",
+            kind(op)
+        )
+    })
 }
 
 struct Walk<R> {
@@ -162,18 +201,19 @@ impl<R: Read + Seek> Walk<R> {
     /// A record's opcode and length, the length checked against the `end`
     /// of what holds it (`within`: "the file" or "its chunk").
     fn record_header(&mut self, end: u64, within: &str) -> Result<(u8, u64), String> {
+        let (offset, op, rec_len) = self.header()?;
+        match past_end(offset, op, rec_len, end - self.at, within) {
+            Some(what) => Err(format!("{PAST_END_LEAD}{what}")),
+            None => Ok((op, rec_len)),
+        }
+    }
+
+    /// The record header at the walk's position: its file offset, opcode
+    /// and declared length.
+    fn header(&mut self) -> Result<(u64, u8, u64), String> {
         let offset = self.at;
         let [op] = self.bytes::<1>()?;
-        let rec_len = self.u64()?;
-        let left = end - self.at;
-        if rec_len > left {
-            return Err(format!(
-                "corrupt or truncated MCAP file: the {} record (opcode {op:#04x}) at byte offset {offset} declares \
-                 {rec_len} bytes, but only {left} remain in {within}",
-                kind(op)
-            ));
-        }
-        Ok((op, rec_len))
+        Ok((offset, op, self.u64()?))
     }
 
     /// Checks a chunk's header and, when it is uncompressed, its records (a
@@ -432,7 +472,7 @@ mod tests {
     fn walk(f: &[u8]) -> Result<Checked, String> {
         let mut c = Cursor::new(f);
         c.set_position(8);
-        check_lengths(c, 8, f.len() as u64)
+        check_lengths(c, 8, f.len() as u64).map_err(|e| e.to_string())
     }
 
     #[test]
