@@ -75,6 +75,14 @@ pub struct CalibrationRecord {
     pub heading_offset_rad: Option<f64>,
     /// The verdict (`trusted`, `check`, `reject`, …), when judged.
     pub verdict: Option<String>,
+    /// Whether `sigma` is the model's alone, checked against nothing in the
+    /// data (the verdict reason `model_sigma_only`: batch Gauss-Newton
+    /// without its cluster-robust σ, on a drive too short for it). Such a σ
+    /// can be several times smaller than the spread of estimates between
+    /// drives, so a change beyond three of it is no evidence of drift by
+    /// itself ([`DriftFlag::model_sigma_only`]). `None` when not known.
+    #[serde(default)]
+    pub sigma_model_only: Option<bool>,
 }
 
 impl CalibrationRecord {
@@ -91,6 +99,7 @@ impl CalibrationRecord {
             sigma: None,
             heading_offset_rad: None,
             verdict: None,
+            sigma_model_only: None,
         }
     }
 }
@@ -119,6 +128,9 @@ impl CalibrationRecord {
             sigma,
             heading_offset_rad: report.extrinsics.as_ref().map(|x| x.value.heading_offset),
             verdict: Some(report.verdict.level.to_string()),
+            sigma_model_only: Some(
+                report.verdict.reasons.iter().any(|r| matches!(r, odocal::VerdictReason::ModelSigmaOnly { .. })),
+            ),
             ..CalibrationRecord::new(vehicle, fingerprint, &report.method, report.theta)
         }
     }
@@ -257,7 +269,7 @@ impl std::fmt::Display for VehicleHistory {
                     THETA_NAMES.iter().position(|n| *n == d.parameter).map_or((1.0, "SI"), |i| DISPLAY_UNITS[i]);
                 writeln!(
                     f,
-                    "  {} row {} ({}) → row {} ({}): {:+.4e} {unit} (combined σ {:.2e} {unit}, {:.1}σ)",
+                    "  {} row {} ({}) → row {} ({}): {:+.4e} {unit} (combined σ {:.2e} {unit}, {:.1}σ){}",
                     d.parameter,
                     d.from_id,
                     d.from_recorded_at,
@@ -265,7 +277,8 @@ impl std::fmt::Display for VehicleHistory {
                     d.to_recorded_at,
                     d.change * scale,
                     d.combined_sigma * scale,
-                    d.change.abs() / d.combined_sigma
+                    d.change.abs() / d.combined_sigma,
+                    if d.model_sigma_only { MODEL_SIGMA_NOTE } else { "" }
                 )?;
             }
         }
@@ -289,6 +302,11 @@ impl std::fmt::Display for VehicleHistory {
     }
 }
 
+/// Appended to a drift flag whose combined σ holds a model-only σ
+/// ([`DriftFlag::model_sigma_only`]).
+pub const MODEL_SIGMA_NOTE: &str =
+    " — a σ of the model alone (verdict reason model_sigma_only): no evidence of drift by itself";
+
 /// An open history database.
 #[derive(Debug)]
 pub struct History {
@@ -306,7 +324,7 @@ fn sql_err(path: &Path) -> impl Fn(rusqlite::Error) -> Error {
 }
 
 const ROW_COLUMNS: &str = "id, recorded_at, odocal_version, vehicle, fingerprint, sources, t_start_s, t_end_s, \
-     method, c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, heading_offset_rad, verdict";
+     method, c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, heading_offset_rad, verdict, sigma_model_only";
 
 fn theta_at(r: &Row<'_>, i: usize) -> rusqlite::Result<Theta> {
     Ok(Theta { c_e: r.get(i)?, c_d: r.get(i + 1)?, t_r: r.get(i + 2)?, d: r.get(i + 3)? })
@@ -337,6 +355,7 @@ fn history_row(r: &Row<'_>) -> rusqlite::Result<HistoryRow> {
             sigma: sigma_at(r, 13)?,
             heading_offset_rad: r.get(17)?,
             verdict: r.get(18)?,
+            sigma_model_only: r.get(19)?,
         },
     })
 }
@@ -402,8 +421,8 @@ impl History {
                 &format!(
                     "INSERT INTO calibrations (vehicle, recorded_at, fingerprint, sources, t_start_s, t_end_s, method, \
                      c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, heading_offset_rad, verdict, \
-                     odocal_version) VALUES (?1, {NOW}, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, \
-                     ?15, ?16, ?17) ON CONFLICT (vehicle, fingerprint, method) DO NOTHING"
+                     odocal_version, sigma_model_only) VALUES (?1, {NOW}, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, \
+                     ?12, ?13, ?14, ?15, ?16, ?17, ?18) ON CONFLICT (vehicle, fingerprint, method) DO NOTHING"
                 ),
                 params![
                     rec.vehicle,
@@ -423,6 +442,7 @@ impl History {
                     rec.heading_offset_rad,
                     rec.verdict,
                     env!("CARGO_PKG_VERSION"),
+                    rec.sigma_model_only,
                 ],
             )
             .map_err(&err)?;

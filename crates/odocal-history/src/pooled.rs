@@ -27,6 +27,12 @@ pub struct DriftFlag {
     pub change: f64,
     /// The combined σ, `sqrt(σ₁² + σ₂²)`.
     pub combined_sigma: f64,
+    /// Either row's σ is the model's alone
+    /// ([`CalibrationRecord::sigma_model_only`](crate::CalibrationRecord::sigma_model_only)):
+    /// the σ is unchecked and can be several times smaller than the spread
+    /// between drives, so the flag is no evidence of drift by itself.
+    #[serde(default)]
+    pub model_sigma_only: bool,
 }
 
 /// Flags every parameter change between consecutive rows (in the order
@@ -51,6 +57,8 @@ pub(crate) fn drift_between(rows: &[HistoryRow]) -> Vec<DriftFlag> {
                     to_recorded_at: b.recorded_at.clone(),
                     change,
                     combined_sigma: combined,
+                    model_sigma_only: a.record.sigma_model_only == Some(true)
+                        || b.record.sigma_model_only == Some(true),
                 });
             }
         }

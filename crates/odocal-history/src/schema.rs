@@ -52,6 +52,9 @@ pub(super) const MIGRATIONS: &[&str] = &[
         odocal_version TEXT NOT NULL
     );
     CREATE INDEX decisions_drive ON decisions (vehicle, fingerprint);",
+    // Version 2: whether a row's σ is the model's alone (1), checked against
+    // the data (0) or not known (NULL, rows recorded before the column).
+    "ALTER TABLE calibrations ADD COLUMN sigma_model_only INTEGER;",
 ];
 
 /// The schema version this odocal writes.

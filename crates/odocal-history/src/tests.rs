@@ -180,3 +180,70 @@ fn the_table_lists_each_row_the_drift_and_the_pooled_estimate() {
     assert!(two.contains("drift (|Δ| > 3·sqrt(σ₁² + σ₂²)):\n  c_e row 1 ("), "{two}");
     assert!(!two.contains("needs two rows"), "{two}");
 }
+
+/// A flag between rows whose σ is the model's alone says it is no evidence
+/// of drift; the same change between rows with checked σ does not.
+#[test]
+fn a_drift_flag_on_a_model_only_sigma_says_so() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
+    let model_only = |fp: &str, c_e: f64, flag: Option<bool>| CalibrationRecord {
+        sigma_model_only: flag,
+        method: "batch-gn".into(),
+        ..record("van", fp, c_e, 1e-4)
+    };
+    db.record(&model_only("a", 1.950, Some(false))).expect("a");
+    db.record(&model_only("b", 1.951, Some(true))).expect("b");
+    db.record(&model_only("c", 1.952, None)).expect("c");
+    db.record(&model_only("d", 1.953, Some(false))).expect("d");
+    let h = db.vehicle("van", None).expect("history");
+    assert_eq!(h.rows[1].record.sigma_model_only, Some(true));
+    assert_eq!(h.rows[2].record.sigma_model_only, None);
+    let flags: Vec<(i64, bool)> = h.drift.iter().map(|f| (f.to_id, f.model_sigma_only)).collect();
+    let ids: Vec<i64> = h.rows.iter().map(|r| r.id).collect();
+    assert_eq!(flags, vec![(ids[1], true), (ids[2], true), (ids[3], false)], "{:?}", h.drift);
+    let text = h.to_string();
+    assert_eq!(text.matches(MODEL_SIGMA_NOTE).count(), 2, "{text}");
+    let json = serde_json::to_value(&h.drift).expect("json");
+    assert_eq!(json[0]["model_sigma_only"], true);
+    assert_eq!(json[2]["model_sigma_only"], false);
+}
+
+/// A version-1 file gains the column on opening; its rows read as not known.
+#[test]
+fn a_version_one_file_is_migrated_and_keeps_its_rows() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("h.sqlite");
+    let conn = Connection::open(&path).expect("open");
+    conn.execute_batch(schema::MIGRATIONS[0]).expect("version 1");
+    conn.pragma_update(None, "user_version", 1).expect("pragma");
+    conn.execute(
+        "INSERT INTO calibrations (vehicle, recorded_at, fingerprint, sources, t_start_s, t_end_s, method, \
+         c_e, c_d, t_r, d, odocal_version) VALUES ('van', '2026-01-01T00:00:00.000Z', 'f', '[]', 0, 1, 'eiv', \
+         1.95, 0, 1.5, 0, '0.2.0')",
+        [],
+    )
+    .expect("row");
+    drop(conn);
+    let db = History::open(&path).expect("migrate");
+    assert_eq!(db.schema_version, 2);
+    let rows = db.rows("van").expect("rows");
+    assert_eq!(rows.len(), 1);
+    assert_eq!(rows[0].record.sigma_model_only, None);
+    assert_eq!(rows[0].record.theta.c_e.to_bits(), 1.95f64.to_bits());
+}
+
+/// `of_report` records whether the σ is the model's alone: batch G-N on a
+/// 3 km drive (no cluster-robust σ) yes, on a 12 km drive no.
+#[test]
+fn a_calibration_records_whether_its_sigma_is_the_models_alone() {
+    let record_of = |km: f64| {
+        let sim = odocal::SimOptions { length_km: km, ..odocal::SimOptions::paper(1) };
+        let drive = odocal::simulate(&sim).expect("sim").drive;
+        let opts = odocal::CalibrationOptions { method: "batch-gn".parse().expect("method"), ..Default::default() };
+        let r = odocal::calibrate(&drive, &opts).expect("calibrate");
+        CalibrationRecord::of_report("van", "f", Vec::new(), (0.0, 1.0), &r).sigma_model_only
+    };
+    assert_eq!(record_of(3.0), Some(true));
+    assert_eq!(record_of(12.0), Some(false));
+}

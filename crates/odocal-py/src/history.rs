@@ -79,7 +79,8 @@ impl PyHistory {
 
     /// Every parameter change between consecutive rows beyond three
     /// combined σ: dicts with `parameter`, `from_id`, `from_recorded_at`,
-    /// `to_id`, `to_recorded_at`, `change`, `combined_sigma`.
+    /// `to_id`, `to_recorded_at`, `change`, `combined_sigma`, `model_sigma_only`
+    /// (either row's σ is the model's alone: no evidence of drift by itself).
     fn drift<'py>(&self, py: Python<'py>, vehicle: &str) -> PyResult<Bound<'py, PyAny>> {
         let flags = self.with(|db| db.vehicle(vehicle, None))?.drift;
         to_py(py, &json(&flags)?)

@@ -148,7 +148,16 @@ fn history_report_plots_each_parameter_with_the_rows() {
     let v: Value = serde_json::from_str(&stdout(&o)).expect("history json");
     let rows = v["rows"].as_array().expect("rows");
     assert_eq!(rows.len(), 2);
+    // 3 km batch G-N fits: no cluster-robust σ, the model's alone; a drift
+    // flag between them says it is no evidence by itself.
+    for f in v["drift"].as_array().expect("drift") {
+        assert_eq!(f["model_sigma_only"], true, "{f}");
+    }
+    let text = stdout(&odocal(&["history", "van <&>", "--db", db_s]));
+    let flags = v["drift"].as_array().expect("drift").len();
+    assert_eq!(text.matches("a σ of the model alone").count(), flags, "{text}");
     for r in rows {
+        assert_eq!(r["sigma_model_only"], true, "{r}");
         let c_e = r["theta"]["c_e"].as_f64().expect("c_e");
         assert!(html.contains(&format!("{c_e:.6}")), "row value {c_e} missing");
         assert!(html.contains(r["recorded_at"].as_str().expect("recorded_at")));
