@@ -83,7 +83,10 @@ struct Stored {
 
 /// Replays `drives` (drive CSVs or manifests) in order through one online
 /// calibrator for `vehicle`, starting from the vehicle's most recent row in
-/// `db` (else `opts.theta0`), and writes back what the gates pass.
+/// `db` (else `opts.theta0`), and writes back what the gates pass. The
+/// row's σ is the recursion's start unless it is the model's alone
+/// ([`CalibrationRecord::sigma_model_only`]); then, as without a σ, the
+/// options' prior sd is.
 ///
 /// Each drive is read as a stream when it can be (memory flat in its
 /// length): a drive CSV, or a manifest of CSV streams (its samples kept in
@@ -125,6 +128,14 @@ pub fn follow<E: From<Error>>(
     mut on: impl FnMut(FollowEvent) -> std::result::Result<(), E>,
 ) -> std::result::Result<(), E> {
     let (mut stored, origin) = match db.rows(vehicle)?.pop() {
+        // A σ of the model alone (a batch G-N fit on a short drive) can be
+        // several times smaller than the spread between drives: as the
+        // recursion's start it would hold θ near the row's, so the
+        // calibrator starts from the options' prior sd instead.
+        Some(r) if r.record.sigma_model_only == Some(true) && r.record.sigma.is_some() => (
+            Stored { theta: r.record.theta, sigma: None, calibrated: true },
+            format!("history row {}; its σ is the model's alone, so the prior's sd", r.id),
+        ),
         Some(r) => {
             (Stored { theta: r.record.theta, sigma: r.record.sigma, calibrated: true }, format!("history row {}", r.id))
         }

@@ -247,3 +247,44 @@ fn a_calibration_records_whether_its_sigma_is_the_models_alone() {
     assert_eq!(record_of(3.0), Some(true));
     assert_eq!(record_of(12.0), Some(false));
 }
+
+/// `follow` from a row whose σ is the model's alone starts the recursion
+/// from the prior's sd, not from that σ: its estimate after a drive is as
+/// uncertain as one started without a σ, and wider than one started from
+/// the same σ checked against the data.
+#[test]
+fn follow_does_not_start_from_a_model_only_sigma() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let csv = dir.path().join("a.csv");
+    let sim = odocal::SimOptions { length_km: 1.0, ..odocal::SimOptions::paper(4) };
+    odocal::simulate(&sim).expect("sim").drive.write_csv(&csv).expect("csv");
+    let truth = Theta::SIM_DEFAULT_TRUE;
+    let tight = Theta { c_e: 1e-6, c_d: 1e-7, t_r: 1e-5, d: 1e-7 };
+    let follow_from = |name: &str, sigma: Option<Theta>, model_only: Option<bool>| {
+        let mut db = History::open(dir.path().join(name)).expect("open");
+        let row = CalibrationRecord {
+            sigma,
+            sigma_model_only: model_only,
+            ..CalibrationRecord::new("van", "start", "batch-gn", truth)
+        };
+        db.record(&row).expect("row");
+        let (mut origin, mut sd) = (String::new(), None);
+        follow(&mut db, "van", std::slice::from_ref(&csv), &FollowOptions::default(), |e| {
+            match e {
+                FollowEvent::Start { origin: o, .. } => origin = o,
+                FollowEvent::Followed { decision, .. } => sd = Some(decision.sigma),
+                _ => {}
+            }
+            Ok::<(), Error>(())
+        })
+        .expect("follow");
+        (origin, sd.expect("followed"))
+    };
+    let (origin, model_only) = follow_from("a.sqlite", Some(tight), Some(true));
+    assert!(origin.contains("its σ is the model's alone"), "{origin}");
+    let (_, checked) = follow_from("b.sqlite", Some(tight), Some(false));
+    let (plain, without) = follow_from("c.sqlite", None, None);
+    assert!(!plain.contains("model's alone"), "{plain}");
+    assert_eq!(model_only, without, "the prior's sd, as without a σ");
+    assert!(model_only.t_r > 10.0 * checked.t_r, "{model_only:?} vs {checked:?}");
+}
