@@ -72,7 +72,9 @@ pub struct Pooled {
     /// Rows pooled.
     pub rows: usize,
     /// Per parameter: the inverse-variance weighted mean `Σ wᵢθᵢ / Σ wᵢ`,
-    /// `wᵢ = 1/σᵢ²`, when every row has a positive σ; else the plain mean.
+    /// `wᵢ = 1/σᵢ²`, when every row has a positive σ that is not the
+    /// model's alone ([`CalibrationRecord::sigma_model_only`](crate::CalibrationRecord::sigma_model_only));
+    /// else the plain mean.
     pub mean: Theta,
     /// The standard error of `mean` from the rows' σ (`1/sqrt(Σ wᵢ)`), or
     /// from the spread (`sd/√n`) for a plain mean; whichever is larger when
@@ -99,8 +101,15 @@ pub(crate) fn pooled_estimate(rows: &[HistoryRow]) -> Option<Pooled> {
         } else {
             f64::NAN
         };
-        let sigmas: Option<Vec<f64>> =
-            rows.iter().map(|r| r.record.sigma.map(|s| <[_; 4]>::from(s)[i]).filter(|s| *s > 0.0)).collect();
+        // A σ of the model alone would weigh its row far above the others
+        // on a σ nothing checked: the rows are pooled as without σ.
+        let sigmas: Option<Vec<f64>> = rows
+            .iter()
+            .map(|r| {
+                let checked = r.record.sigma.filter(|_| r.record.sigma_model_only != Some(true));
+                checked.map(|s| <[_; 4]>::from(s)[i]).filter(|s| *s > 0.0)
+            })
+            .collect();
         let spread_se = sd[i] / n.sqrt();
         match sigmas {
             Some(s) => {

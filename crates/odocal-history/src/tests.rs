@@ -288,3 +288,28 @@ fn follow_does_not_start_from_a_model_only_sigma() {
     assert_eq!(model_only, without, "the prior's sd, as without a σ");
     assert!(model_only.t_r > 10.0 * checked.t_r, "{model_only:?} vs {checked:?}");
 }
+
+/// A row whose σ is the model's alone does not outweigh the others: the
+/// rows are pooled by their plain mean.
+#[test]
+fn a_model_only_sigma_does_not_weigh_the_pooled_estimate() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
+    db.record(&record("van", "a", 1.950, 1e-3)).expect("a");
+    db.record(&record("van", "b", 1.954, 1e-3)).expect("b");
+    let tight = CalibrationRecord {
+        sigma_model_only: Some(true),
+        method: "batch-gn".into(),
+        ..record("van", "c", 1.958, 1e-5)
+    };
+    db.record(&tight).expect("c");
+    let p = db.vehicle("van", None).expect("history").pooled.expect("rows");
+    assert!((p.mean.c_e - 1.954).abs() < 1e-12, "{p:?}");
+    // The same row with its σ checked dominates the inverse-variance mean.
+    let mut db = History::open(dir.path().join("g.sqlite")).expect("open");
+    db.record(&record("van", "a", 1.950, 1e-3)).expect("a");
+    db.record(&record("van", "b", 1.954, 1e-3)).expect("b");
+    db.record(&CalibrationRecord { sigma_model_only: Some(false), ..tight }).expect("c");
+    let p = db.vehicle("van", None).expect("history").pooled.expect("rows");
+    assert!((p.mean.c_e - 1.958).abs() < 1e-5, "{p:?}");
+}
