@@ -143,6 +143,7 @@ def test_history_records_rows_flags_drift_and_pools(tmp_path, small_drive):
     flags = db.drift("van")
     assert [f["parameter"] for f in flags] == ["c_d"]
     assert flags[0]["from_id"] == rows[0]["id"] and flags[0]["to_id"] == rows[1]["id"]
+    assert rows[0]["sigma_model_only"] is None and flags[0]["model_sigma_only"] is False
     p = db.pooled("van")
     assert p["rows"] == 2 and p["between_drive_sd"]["c_d"] > 0
     assert db.pooled("van", ids=[rows[0]["id"]])["rows"] == 1
@@ -154,6 +155,13 @@ def test_history_records_rows_flags_drift_and_pools(tmp_path, small_drive):
     row = db.latest("van")
     assert row["fingerprint"] == small_drive.fingerprint and row["method"] == "batch-gn"
     assert row["theta"] == report.theta and row["verdict"] is not None
+    # Whether the σ is the model's alone is recorded from the verdict.
+    assert row["sigma_model_only"] == ("model_sigma_only" in json.dumps(report.verdict))
+    # A σ of the model alone: a flag it takes part in says so.
+    other = odocal.History(tmp_path / "other.sqlite")
+    other.record({**base, "fingerprint": "a"})
+    other.record({**base, "fingerprint": "b", "theta": moved, "sigma_model_only": True})
+    assert [f["model_sigma_only"] for f in other.drift("van")] == [True]
     with pytest.raises(odocal.OdocalError):
         db.record({"vehicle": "van", "fingerprint": "c"})
 
