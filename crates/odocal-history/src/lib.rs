@@ -73,7 +73,7 @@ pub struct CalibrationRecord {
     pub sigma: Option<Theta>,
     /// The reference's heading offset on this drive, rad, when estimated.
     pub heading_offset_rad: Option<f64>,
-    /// The verdict (`trusted`, `check`, `reject`, …), when judged.
+    /// The verdict (`accepted`, `doubtful`, `rejected`), when judged.
     pub verdict: Option<String>,
     /// Whether `sigma` is the model's alone, checked against nothing in the
     /// data (the verdict reason `model_sigma_only`: batch Gauss-Newton
