@@ -90,12 +90,12 @@ pub(crate) fn not_csv(bytes: &[u8]) -> Option<&'static str> {
     NOT_CSV.iter().find(|(magic, _)| bytes.starts_with(magic)).map(|(_, what)| *what)
 }
 
-/// The error at `line` (and `column`) of the CSV file `path`.
 /// What to do about a cell of a drive's column that holds no finite
 /// number (a gap in the log, a sensor the log lacks).
 const NUMBER_IN_EVERY_CELL: &str = "every cell needs a number: drop the row and mark the gap with a 'part' \
      column, or import the log with a manifest (docs/guide.md)";
 
+/// The error at `line` (and `column`) of the CSV file `path`.
 fn csv_error(path: &Path, line: u64, column: Option<&str>, reason: String) -> Error {
     Error::Csv { path: path.to_path_buf(), line, column: column.map(echo), reason }
 }
