@@ -29,7 +29,7 @@ fn a_file_or_folder_that_is_no_history_says_what_to_give() {
     let text = "t,px,py,psi,n_rl,n_rr,beta,a_y\n".repeat(200);
     std::fs::write(&csv, &text).expect("write");
     for (path, what) in [(&csv, "not an SQLite file"), (&dir.path().to_path_buf(), "a folder, not a file")] {
-        let e = History::open(path).err().expect("not a history").to_string();
+        let e = History::open(path).map(|_| ()).expect_err("not a history").to_string();
         assert!(e.contains(what) && e.contains("the name of a new file to start a history"), "{e}");
     }
     assert_eq!(std::fs::read_to_string(&csv).expect("read"), text);
