@@ -150,7 +150,8 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
         .output("--params-out", a.params_out.as_deref());
     files.check()?;
     if !(a.steady_s.is_finite() && a.steady_s >= 0.0) {
-        bail!("--steady-s must be a non-negative number of seconds, got {}", a.steady_s);
+        let why = format!("--steady-s must be a non-negative number of seconds, got {}", a.steady_s);
+        return Err(odocal::Error::InvalidFlags(why).into());
     }
     // A drive that is not there is named before the history is opened (and created).
     if let Some(p) = a.drive.iter().find(|p| !p.exists()) {
@@ -246,8 +247,45 @@ fn online_options(a: &FollowArgs) -> Result<OnlineOptions> {
     set(&mut o.steady_window_s, e.steady_window_s);
     o.iterations_per_segment = e.iterations_per_segment.unwrap_or(o.iterations_per_segment);
     o.recent_validation_segments = e.recent_validation_segments.unwrap_or(o.recent_validation_segments);
-    Calibrator::new(Theta::PAPER_INITIAL, None, 0.025, o.clone())?;
+    // The library names the option's field (`information_scale`): the
+    // command line names the flag that set it, a usage error.
+    Calibrator::new(Theta::PAPER_INITIAL, None, 0.025, o.clone()).map_err(|err| match err {
+        odocal::Error::InvalidOption { field, reason } => match flag_value(&o, field) {
+            Some((flag, value)) => odocal::Error::InvalidFlags(format!("{flag} = {value}: {reason}")),
+            None => odocal::Error::InvalidOption { field, reason },
+        },
+        err => err,
+    })?;
     Ok(o)
+}
+
+/// The `follow` flag that sets the online option `field`, and its value
+/// as the options hold it (`None` for a field no flag sets).
+fn flag_value(o: &OnlineOptions, field: &str) -> Option<(&'static str, String)> {
+    // Exponent notation outside 1e-6 … 1e9 (`1e300` stays short).
+    let num = |v: f64| {
+        if v.is_finite() && v != 0.0 && !(1e-6..1e9).contains(&v.abs()) {
+            format!("{v:e}")
+        } else {
+            v.to_string()
+        }
+    };
+    let four = |v: [f64; 4]| v.map(num).join(",");
+    let rw = &o.random_walk;
+    let prior = [o.prior_relative_c_e, o.prior_c_d_m, o.prior_relative_t_r, o.prior_d];
+    Some(match field {
+        "prior_relative_c_e" | "prior_c_d_m" | "prior_relative_t_r" | "prior_d" => ("--prior-sd", four(prior)),
+        "random_walk" => ("--random-walk", four([rw.c_e_relative, rw.c_d_m, rw.t_r_m, rw.d])),
+        "sigma_factors" => ("--sigma-factors", four(o.sigma_factors)),
+        "information_scale" => ("--information-scale", num(o.information_scale)),
+        "heading_offset_prior_sd_rad" => ("--heading-offset-prior-sd", num(o.heading_offset_prior_sd_rad)),
+        "informative_yaw_rate_rad_per_s" => ("--informative-yaw-rate", num(o.informative_yaw_rate_rad_per_s)),
+        "steady_window_s" => ("--steady-window-s", num(o.steady_window_s)),
+        "iterations_per_segment" => ("--iterations-per-segment", o.iterations_per_segment.to_string()),
+        "recent_validation_segments" => ("--recent-validation-segments", o.recent_validation_segments.to_string()),
+        "min_peak_yaw_rate_rad_per_s" => ("--min-yaw-rate", num(o.segments.min_peak_yaw_rate_rad_per_s)),
+        _ => return None,
+    })
 }
 
 /// The write-back gates from the command line; every threshold a positive number.
@@ -262,7 +300,8 @@ fn gates(a: &FollowArgs) -> Result<Gates> {
     for (flag, v) in [("--max-sigma", a.expert.max_sigma), ("--max-change", a.expert.max_change)] {
         if let Some(Four(v)) = v {
             if v.iter().any(|x| !(x.is_finite() && *x > 0.0)) {
-                bail!("{flag} must be four positive numbers, got {v:?}");
+                let why = format!("{flag} must be four positive numbers, got {v:?}");
+                return Err(odocal::Error::InvalidFlags(why).into());
             }
         }
     }

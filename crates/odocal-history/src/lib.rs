@@ -323,6 +323,23 @@ fn sql_err(path: &Path) -> impl Fn(rusqlite::Error) -> Error {
     move |e| Error::History { path: path.clone(), reason: e.to_string() }
 }
 
+/// [`sql_err`] for opening: a file that is not an SQLite database (a
+/// drive, a report given as `--db`) says what to give instead.
+fn open_err(path: &Path) -> impl Fn(rusqlite::Error) -> Error {
+    let plain = sql_err(path);
+    let path = path.to_path_buf();
+    move |e| match e {
+        rusqlite::Error::SqliteFailure(f, _) if f.code == rusqlite::ErrorCode::NotADatabase => {
+            Error::History { path: path.clone(), reason: format!("not an SQLite file ({NOT_A_HISTORY})") }
+        }
+        e => plain(e),
+    }
+}
+
+/// What to give instead of a file that is no history database.
+const NOT_A_HISTORY: &str =
+    "give the file that calibrate --vehicle or follow record in, or the name of a new file to start a history";
+
 const ROW_COLUMNS: &str = "id, recorded_at, odocal_version, vehicle, fingerprint, sources, t_start_s, t_end_s, \
      method, c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, heading_offset_rad, verdict, sigma_model_only";
 
@@ -390,7 +407,10 @@ impl History {
     /// written by a newer odocal (a higher schema version) is refused.
     pub fn open(path: impl AsRef<Path>) -> Result<History> {
         let path = path.as_ref().to_path_buf();
-        let err = sql_err(&path);
+        if path.is_dir() {
+            return Err(Error::History { path, reason: format!("a folder, not a file ({NOT_A_HISTORY})") });
+        }
+        let err = open_err(&path);
         let mut conn = Connection::open(&path).map_err(&err)?;
         conn.busy_timeout(BUSY_TIMEOUT).map_err(&err)?;
         // WAL: readers do not block the writer and a crash mid-write leaves

@@ -20,6 +20,21 @@ fn record(vehicle: &str, fp: &str, c_e: f64, s: f64) -> CalibrationRecord {
     }
 }
 
+/// A `--db` that is a drive CSV or a folder is named with what to give
+/// instead, and the file is left as it was.
+#[test]
+fn a_file_or_folder_that_is_no_history_says_what_to_give() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let csv = dir.path().join("drive.csv");
+    let text = "t,px,py,psi,n_rl,n_rr,beta,a_y\n".repeat(200);
+    std::fs::write(&csv, &text).expect("write");
+    for (path, what) in [(&csv, "not an SQLite file"), (&dir.path().to_path_buf(), "a folder, not a file")] {
+        let e = History::open(path).map(|_| ()).expect_err("not a history").to_string();
+        assert!(e.contains(what) && e.contains("the name of a new file to start a history"), "{e}");
+    }
+    assert_eq!(std::fs::read_to_string(&csv).expect("read"), text);
+}
+
 #[test]
 fn an_empty_file_is_migrated_to_the_current_schema() {
     let dir = tempfile::tempdir().expect("tempdir");

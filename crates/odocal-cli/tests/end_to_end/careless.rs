@@ -84,3 +84,32 @@ fn refused_calibration_flags_are_usage_errors_naming_the_flag() {
     assert_fails(&["calibrate", &d, "--method", "three-step", "--picks", "0"], 2, &["--picks = 0"]);
     assert_fails(&["calibrate", &d, "--method", "batch-gn", "--eiv-window", "600"], 2, &["--eiv-window applies to"]);
 }
+
+/// `follow`'s online-calibrator flags out of range are usage errors naming
+/// the flag and the value given, before the history is opened (the
+/// library's check names its field, `information_scale`, which is no flag).
+#[test]
+fn follow_flags_out_of_range_name_the_flag() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let d = simulated_drive(dir.path(), "d.csv", &["--length-km", "1"]);
+    let db = dir.path().join("h.sqlite");
+    let cases: [(&str, &str, &str); 11] = [
+        ("--information-scale", "0", "--information-scale = 0: must be positive"),
+        ("--sigma-factors", "1,0,1,1", "--sigma-factors = 1,0,1,1: must be positive"),
+        ("--random-walk", "nan,0,0,0", "--random-walk = NaN,0,0,0: must be finite and non-negative"),
+        ("--prior-sd", "0.02,0,0.05,2e-3", "--prior-sd = 0.02,0,0.05,0.002: must be positive"),
+        ("--heading-offset-prior-sd", "0", "--heading-offset-prior-sd = 0: must be positive"),
+        ("--informative-yaw-rate", "nan", "--informative-yaw-rate = NaN: must be a non-negative number"),
+        ("--iterations-per-segment", "0", "--iterations-per-segment = 0: must be at least 1"),
+        ("--steady-window-s", "0", "--steady-window-s = 0: must be positive"),
+        ("--recent-validation-segments", "0", "--recent-validation-segments = 0: must be at least 1"),
+        ("--steady-s", "-1", "--steady-s must be a non-negative number of seconds"),
+        ("--max-sigma", "1,1,0,1", "--max-sigma must be four positive numbers"),
+    ];
+    for (flag, value, needle) in cases {
+        let given = format!("{flag}={value}");
+        let e = assert_fails(&["follow", &d, "--vehicle", "v", "--db", s(&db), &given], 2, &[needle]);
+        assert!(!e.contains("invalid option"), "{e}");
+        assert!(!db.exists(), "{flag}: the history was opened before the flags were checked");
+    }
+}

@@ -90,6 +90,11 @@ pub(crate) fn not_csv(bytes: &[u8]) -> Option<&'static str> {
     NOT_CSV.iter().find(|(magic, _)| bytes.starts_with(magic)).map(|(_, what)| *what)
 }
 
+/// What to do about a cell of a drive's column that holds no finite
+/// number (a gap in the log, a sensor the log lacks).
+const NUMBER_IN_EVERY_CELL: &str = "every cell needs a number: drop the row and mark the gap with a 'part' \
+     column, or import the log with a manifest (docs/guide.md)";
+
 /// The error at `line` (and `column`) of the CSV file `path`.
 fn csv_error(path: &Path, line: u64, column: Option<&str>, reason: String) -> Error {
     Error::Csv { path: path.to_path_buf(), line, column: column.map(echo), reason }
@@ -283,9 +288,13 @@ impl Columns {
         let column = Some(self.headers[j].as_str());
         match field.parse::<f64>() {
             Ok(v) if v.is_finite() || !self.numeric[j] => self.nums[j].push(v),
-            Ok(_) => return Err(csv_error(path, line, column, format!("value '{}' is not finite", echo(field)))),
+            Ok(_) => {
+                let why = format!("value '{}' is not finite; {NUMBER_IN_EVERY_CELL}", echo(field));
+                return Err(csv_error(path, line, column, why));
+            }
             Err(_) if self.numeric[j] => {
-                return Err(csv_error(path, line, column, format!("'{}' is not a number", echo(field))))
+                let why = format!("'{}' is not a number; {NUMBER_IN_EVERY_CELL}", echo(field));
+                return Err(csv_error(path, line, column, why));
             }
             Err(_) => {
                 let mut tx: Vec<String> = std::mem::take(&mut self.nums[j]).iter().map(|v| v.to_string()).collect();
@@ -599,7 +608,8 @@ mod tests {
         let big = "x".repeat(10_000);
         let s = csv_text(5, 0.025).replacen("0.05,0.5", &format!("0.05,{big}"), 1);
         let m = parse(&s).expect_err("text").to_string();
-        assert!(m.len() < 200, "{} chars", m.len());
+        // Short but for the advice every cell without a number gets.
+        assert!(m.len() < 200 + NUMBER_IN_EVERY_CELL.len(), "{} chars", m.len());
         assert!(m.contains("… (10000 bytes)"), "{m}");
     }
 
@@ -642,6 +652,11 @@ mod tests {
                 let want = if i == 3 { line + 2 } else { line };
                 assert!(m.starts_with(&format!("d.csv: line {want}")) && m.contains(what), "ending {i}: {m}");
             }
+        }
+        // A cell without a number says what to do about it.
+        for cell in ["NaN", "inf", ""] {
+            let m = parse(&s.replacen("0.05,0.5", &format!("0.05,{cell}"), 1)).expect_err("no number").to_string();
+            assert!(m.ends_with("drop the row and mark the gap with a 'part' column, or import the log with a manifest (docs/guide.md)"), "{m}");
         }
     }
 

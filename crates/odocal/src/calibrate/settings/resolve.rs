@@ -10,7 +10,7 @@ use serde::Serialize;
 
 use super::{ManifestSettings, NoiseModelSetting, Settings};
 use crate::calibrate::eiv::{CorrectBias, EivMethodOptions};
-use crate::calibrate::three_step::ThreeStepOptions;
+use crate::calibrate::three_step::{FinalSegments, ThreeStepOptions};
 use crate::calibrate::{CalibrationOptions, Method};
 use crate::eiv::{BiasCorrection, BootstrapOptions};
 use crate::error::{Error, Result};
@@ -354,7 +354,7 @@ impl Settings {
     }
 
     /// Every count setting at most its ceiling ([`super::COUNT_CEILINGS`]),
-    /// the three-step counts at least 1, the minimum yaw rate a
+    /// the three-step counts (final segments too) at least 1, the minimum yaw rate a
     /// non-negative number.
     fn check_ceilings(&self, caller: Caller) -> Result<()> {
         match self.value_problem() {
@@ -398,6 +398,9 @@ impl Settings {
             if v == Some(0) {
                 return Some((key, "= 0: must be at least 1".into()));
             }
+        }
+        if self.final_segments == Some(FinalSegments::Random(0)) {
+            return Some(("final_segments", "= 0: must be at least 1 (or all)".into()));
         }
         for (key, v, min, unit) in
             [("eiv_window", self.eiv_window, 10, "samples"), ("bootstrap", self.bootstrap, 2, "replicates")]

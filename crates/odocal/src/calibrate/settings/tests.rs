@@ -156,6 +156,9 @@ fn misplaced_keys_are_named_as_the_caller_gave_them() {
     let s = json_settings(json!({"max_iterations": 0}));
     let cli = s.to_options(Caller::CommandLine).expect_err("no iteration").to_string();
     assert_eq!(cli, "--max-iterations = 0: must be at least 1");
+    let s = json_settings(json!({"method": "three-step", "final_segments": 0}));
+    let cli = s.to_options(Caller::CommandLine).expect_err("no final segment").to_string();
+    assert_eq!(cli, "--final-segments = 0: must be at least 1 (or all)");
     let s = json_settings(json!({"bootstrap": 1}));
     let py = s.to_options(Caller::Python).expect_err("one replicate").to_string();
     assert_eq!(py, "invalid option `bootstrap`: = 1: must be at least 2 replicates");
