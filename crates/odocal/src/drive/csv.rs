@@ -93,7 +93,7 @@ pub(crate) fn not_csv(bytes: &[u8]) -> Option<&'static str> {
 /// What to do about a cell of a drive's column that holds no finite
 /// number (a gap in the log, a sensor the log lacks).
 const NUMBER_IN_EVERY_CELL: &str = "every cell needs a number: drop the row and mark the gap with a 'part' \
-     column, or import the log with a manifest (docs/guide.md)";
+     column (docs/reference.md, the drive CSV), or import the log with a manifest (docs/guide.md)";
 
 /// The error at `line` (and `column`) of the CSV file `path`.
 fn csv_error(path: &Path, line: u64, column: Option<&str>, reason: String) -> Error {
@@ -656,7 +656,7 @@ mod tests {
         // A cell without a number says what to do about it.
         for cell in ["NaN", "inf", ""] {
             let m = parse(&s.replacen("0.05,0.5", &format!("0.05,{cell}"), 1)).expect_err("no number").to_string();
-            assert!(m.ends_with("drop the row and mark the gap with a 'part' column, or import the log with a manifest (docs/guide.md)"), "{m}");
+            assert!(m.ends_with("drop the row and mark the gap with a 'part' column (docs/reference.md, the drive CSV), or import the log with a manifest (docs/guide.md)"), "{m}");
         }
     }
 
