@@ -57,7 +57,7 @@ fn list(names: &[String]) -> String {
 /// Files that are sometimes given where a canonical drive CSV belongs, known
 /// by their first bytes: what the file is and what to do instead. (Not CSV
 /// text, they would otherwise fail as "invalid UTF-8" or as missing columns.)
-const NOT_CSV: [(&[u8], &str); 8] = [
+const NOT_CSV: [(&[u8], &str); 9] = [
     (
         b"\x89MCAP0\r\n",
         "a ROS 2 bag (MCAP), not a canonical drive CSV: draft a manifest that names its wheel, pose and IMU topics \
@@ -83,6 +83,11 @@ const NOT_CSV: [(&[u8], &str); 8] = [
     (b"\x28\xb5\x2f\xfd", "zstd-compressed: decompress it first (`zstd -d FILE`)"),
     (b"\xfd7zXZ\0", "xz-compressed: decompress it first (`xz -dk FILE`)"),
     (b"PK\x03\x04", "a zip archive: extract the drive CSV from it first"),
+    (
+        b"{",
+        "a JSON file (a simulated drive's sidecar, a report or a parameter file), not a canonical drive CSV: give \
+         the drive CSV (a sidecar has the drive's name with .json)",
+    ),
 ];
 
 /// What a file is when its first bytes say it is not CSV text ([`NOT_CSV`]).
@@ -653,6 +658,9 @@ mod tests {
                 assert!(m.starts_with(&format!("d.csv: line {want}")) && m.contains(what), "ending {i}: {m}");
             }
         }
+        // A JSON file (the simulator's sidecar given by mistake) says so.
+        let m = parse("{\"theta_true\": {\"c_e\": 2.0}}\n").expect_err("json").to_string();
+        assert!(m.contains("a JSON file") && m.contains("give the drive CSV"), "{m}");
         // A cell without a number says what to do about it.
         for cell in ["NaN", "inf", ""] {
             let m = parse(&s.replacen("0.05,0.5", &format!("0.05,{cell}"), 1)).expect_err("no number").to_string();
