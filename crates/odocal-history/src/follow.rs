@@ -128,16 +128,17 @@ pub fn follow<E: From<Error>>(
     mut on: impl FnMut(FollowEvent) -> std::result::Result<(), E>,
 ) -> std::result::Result<(), E> {
     let (mut stored, origin) = match db.rows(vehicle)?.pop() {
-        // A σ of the model alone (a batch G-N fit on a short drive) can be
-        // several times smaller than the spread between drives: as the
-        // recursion's start it would hold θ near the row's, so the
-        // calibrator starts from the options' prior sd instead.
-        Some(r) if r.record.sigma_model_only == Some(true) && r.record.sigma.is_some() => (
-            Stored { theta: r.record.theta, sigma: None, calibrated: true },
-            format!("history row {}; its σ is the model's alone, so the prior's sd", r.id),
-        ),
         Some(r) => {
-            (Stored { theta: r.record.theta, sigma: r.record.sigma, calibrated: true }, format!("history row {}", r.id))
+            // A σ of the model alone (a batch G-N fit on a short drive) can
+            // be several times smaller than the spread between drives: as
+            // the recursion's start it would hold θ near the row's, so the
+            // calibrator starts from the options' prior sd instead.
+            let sigma = r.record.checked_sigma();
+            let origin = match (sigma, r.record.sigma) {
+                (None, Some(_)) => format!("history row {}; its σ is the model's alone, so the prior's sd", r.id),
+                _ => format!("history row {}", r.id),
+            };
+            (Stored { theta: r.record.theta, sigma, calibrated: true }, origin)
         }
         None => {
             let theta = opts.theta0.unwrap_or(Theta::PAPER_INITIAL);

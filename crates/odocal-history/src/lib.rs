@@ -102,6 +102,13 @@ impl CalibrationRecord {
             sigma_model_only: None,
         }
     }
+
+    /// `sigma` unless it is the model's alone ([`Self::sigma_model_only`]):
+    /// the σ a row is weighed by in the pooled estimate and `follow` starts
+    /// from.
+    pub(crate) fn checked_sigma(&self) -> Option<Theta> {
+        self.sigma.filter(|_| self.sigma_model_only != Some(true))
+    }
 }
 
 impl CalibrationRecord {

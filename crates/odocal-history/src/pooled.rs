@@ -103,13 +103,8 @@ pub(crate) fn pooled_estimate(rows: &[HistoryRow]) -> Option<Pooled> {
         };
         // A σ of the model alone would weigh its row far above the others
         // on a σ nothing checked: the rows are pooled as without σ.
-        let sigmas: Option<Vec<f64>> = rows
-            .iter()
-            .map(|r| {
-                let checked = r.record.sigma.filter(|_| r.record.sigma_model_only != Some(true));
-                checked.map(|s| <[_; 4]>::from(s)[i]).filter(|s| *s > 0.0)
-            })
-            .collect();
+        let sigmas: Option<Vec<f64>> =
+            rows.iter().map(|r| r.record.checked_sigma().map(|s| <[_; 4]>::from(s)[i]).filter(|s| *s > 0.0)).collect();
         let spread_se = sd[i] / n.sqrt();
         match sigmas {
             Some(s) => {
