@@ -331,26 +331,61 @@ mod tests {
         assert!(e.to_string().contains("the chunk at byte offset 77 could not be decompressed"), "{e}");
     }
 
+    /// lz4 frames of `data`: linked blocks with block and content checksums
+    /// as the C library writes them by default, and independent blocks
+    /// without checksums, `lz4_flex`'s default.
+    fn lz4_frames(data: &[u8]) -> Vec<Vec<u8>> {
+        use lz4_flex::frame::{BlockMode, FrameEncoder, FrameInfo};
+        let linked = FrameInfo::new().block_mode(BlockMode::Linked).block_checksums(true).content_checksum(true);
+        [linked, FrameInfo::new()]
+            .into_iter()
+            .map(|info| {
+                let mut enc = FrameEncoder::with_frame_info(info, Vec::new());
+                std::io::Write::write_all(&mut enc, data).expect("compresses");
+                enc.finish().expect("finishes")
+            })
+            .collect()
+    }
+
+    /// `message_records(50)` as one frame of the C lz4 library (liblz4
+    /// 1.10.0, the encoder that compresses ROS 2 bags' lz4 chunks), committed
+    /// (tests/data/compressed-bags/README.md).
+    fn c_lz4_frame() -> Vec<u8> {
+        let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/compressed-bags/records.lz4");
+        std::fs::read(p).expect("the committed lz4 frame")
+    }
+
     #[test]
     fn lz4_chunks_decode_with_the_same_checks() {
         let data = message_records(50);
-        let mut enc = lz4::EncoderBuilder::new().build(Vec::new()).expect("encoder");
-        std::io::Write::write_all(&mut enc, &data).expect("compresses");
-        let (input, done) = enc.finish();
-        done.expect("finishes");
-        assert_eq!(decode_lz4(&input, data.len()).expect("decodes"), data);
-        assert!(matches!(decode_lz4(&input, data.len() - 1), Err(DecodeError::TooLarge)));
-        // Concatenated frames decode to the concatenated data, within the same limit.
-        let twice = [input.as_slice(), input.as_slice()].concat();
-        assert_eq!(decode_lz4(&twice, 2 * data.len()).expect("decodes"), [data.as_slice(), data.as_slice()].concat());
-        assert!(matches!(decode_lz4(&twice, 2 * data.len() - 1), Err(DecodeError::TooLarge)));
-        // A cut frame and bytes that are no frame are errors, not panics.
-        for bad in [&input[..input.len() / 2], &input[..3], b"garbage!".as_slice()] {
-            assert!(matches!(decode_lz4(bad, data.len()), Err(DecodeError::Corrupt(_))), "{} bytes", bad.len());
+        let mut frames = lz4_frames(&data);
+        frames.insert(0, c_lz4_frame());
+        for (which, input) in frames.iter().enumerate() {
+            let ctx = format!("frame {which}");
+            assert_eq!(decode_lz4(input, data.len()).expect(&ctx), data, "{ctx}");
+            assert!(matches!(decode_lz4(input, data.len() - 1), Err(DecodeError::TooLarge)), "{ctx}");
+            // Concatenated frames decode to the concatenated data, within the same limit.
+            let twice = [input.as_slice(), input.as_slice()].concat();
+            assert_eq!(decode_lz4(&twice, 2 * data.len()).expect(&ctx), [data.as_slice(), data.as_slice()].concat());
+            assert!(matches!(decode_lz4(&twice, 2 * data.len() - 1), Err(DecodeError::TooLarge)), "{ctx}");
+            // A cut frame and bytes that are no frame are errors, not panics.
+            for bad in [&input[..input.len() / 2], &input[..3], b"garbage!".as_slice()] {
+                assert!(
+                    matches!(decode_lz4(bad, data.len()), Err(DecodeError::Corrupt(_))),
+                    "{ctx}: {} bytes",
+                    bad.len()
+                );
+            }
+            let mut d = ChunkDecoder::new(Codec::Lz4, &[chunk(5, Codec::Zstd, 1), chunk(9, Codec::Lz4, data.len())]);
+            let mut buf = [0u8; 4096];
+            let first = d.decompress(input, &mut buf).expect(&ctx);
+            assert_eq!(drain(&mut d, buf[..first.wrote].to_vec()), data, "{ctx}");
         }
-        let mut d = ChunkDecoder::new(Codec::Lz4, &[chunk(5, Codec::Zstd, 1), chunk(9, Codec::Lz4, data.len())]);
-        let mut buf = [0u8; 4096];
-        let first = d.decompress(&input, &mut buf).expect("decodes");
-        assert_eq!(drain(&mut d, buf[..first.wrote].to_vec()), data);
+        // The checksums of the C library's frame are checked: a changed byte
+        // of the compressed block (after the 7-byte frame header and the
+        // 4-byte block size) is an error.
+        let mut changed = frames[0].clone();
+        changed[20] ^= 0x40;
+        assert!(matches!(decode_lz4(&changed, data.len()), Err(DecodeError::Corrupt(_))));
     }
 }

@@ -1,6 +1,8 @@
-//! Bags written here with the `mcap` writer (uncompressed, lz4, zstd) and
-//! CDR-encoded with `cdr-encoding`, read back exactly; every error case with
-//! its exact message; malformed input never panics.
+//! Bags written here with the `mcap` writer (uncompressed) and CDR-encoded
+//! with `cdr-encoding`, and the same content compressed with lz4 and zstd by
+//! the C libraries (committed: tests/data/compressed-bags/), read back
+//! exactly; every error case with its exact message; malformed input never
+//! panics.
 
 use super::msg::{self, encode};
 use super::*;
@@ -39,9 +41,12 @@ struct Topic {
     messages: Vec<(u64, Vec<u8>)>,
 }
 
-fn write_bag(path: &Path, compression: Option<mcap::Compression>, summary: bool, topics: &[Topic]) {
+/// Writes `topics` as an uncompressed bag, chunks of 2048 bytes, with or
+/// without a summary section. The committed compressed bags
+/// (tests/data/compressed-bags/) were written with these options.
+fn write_bag(path: &Path, summary: bool, topics: &[Topic]) {
     let opts = mcap::WriteOptions::new()
-        .compression(compression)
+        .compression(None)
         .profile("ros2")
         .chunk_size(Some(2048))
         .emit_summary_records(summary)
@@ -166,23 +171,128 @@ fn all_topics() -> Vec<Topic> {
     v
 }
 
-fn compressions() -> [(&'static str, Option<mcap::Compression>); 3] {
-    [("none", None), ("lz4", Some(mcap::Compression::Lz4)), ("zstd", Some(mcap::Compression::Zstd))]
+/// The chunk compressions of the bags of [`all_topics`] the tests read.
+const COMPRESSIONS: [&str; 3] = ["none", "lz4", "zstd"];
+
+/// The committed bag of [`all_topics`] whose chunks `compression` (`lz4`
+/// or `zstd`) compressed, with or without a summary section.
+fn compressed_bag(compression: &str, summary: bool) -> PathBuf {
+    let name = if summary { format!("{compression}.mcap") } else { format!("{compression}-nosummary.mcap") };
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/compressed-bags").join(name)
 }
 
-fn test_bag(dir: &tempfile::TempDir, name: &str, compression: Option<mcap::Compression>) -> PathBuf {
-    let p = dir.path().join(name);
-    write_bag(&p, compression, true, &all_topics());
-    p
+/// The bag of [`all_topics`] with `compression` (one of [`COMPRESSIONS`])
+/// and with or without a summary: uncompressed, written into `dir`;
+/// compressed, the committed one ([`compressed_bag`]).
+fn test_bag(dir: &tempfile::TempDir, compression: &str, summary: bool) -> PathBuf {
+    if compression == "none" {
+        let p = dir.path().join(format!("none-{summary}.mcap"));
+        write_bag(&p, summary, &all_topics());
+        p
+    } else {
+        compressed_bag(compression, summary)
+    }
+}
+
+/// A message as the bag holds it: topic, schema name, message encoding,
+/// sequence, log and publish times, bytes.
+type RawMessage = (String, String, String, u32, u64, u64, Vec<u8>);
+
+/// Every message of the bag at `p` in file order, read as [`read_topic`]
+/// reads (chunks decompressed by `decompress::ChunkDecoder`, CRCs checked).
+fn raw_messages(p: &Path) -> Vec<RawMessage> {
+    let mut bag = Bag::open(p).expect("opens");
+    let summary = bag.summary();
+    let mut out = Vec::new();
+    bag.scan(summary.as_ref(), |m| {
+        let c = &m.channel;
+        let schema = c.schema.as_ref().map(|s| s.name.clone()).unwrap_or_default();
+        out.push((
+            c.topic.clone(),
+            schema,
+            c.message_encoding.clone(),
+            m.sequence,
+            m.log_time,
+            m.publish_time,
+            m.data.to_vec(),
+        ));
+        Ok(ControlFlow::Continue(()))
+    })
+    .expect("scans");
+    out
+}
+
+/// The committed lz4 and zstd bags hold what the tests' writer writes
+/// uncompressed from [`all_topics`] at test time: the same messages, byte for byte
+/// and in the same order, every column of every readable topic to the bit
+/// on either clock, and the same [`inspect`] but for the compression. A
+/// change to the content builders or to the writer (which the fixtures
+/// would then no longer match), or to the decoders, fails here.
+#[test]
+fn committed_compressed_bags_hold_what_the_tests_write_uncompressed() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    for summary in [true, false] {
+        let plain = test_bag(&dir, "none", summary);
+        let want = raw_messages(&plain);
+        assert_eq!(want.len(), 131);
+        let want_info = inspect(&plain).expect("inspect");
+        for label in ["lz4", "zstd"] {
+            let p = compressed_bag(label, summary);
+            let ctx = format!("{label}, summary {summary}");
+            assert_eq!(raw_messages(&p), want, "{ctx}");
+            // Every column of each readable topic, or the same error (the
+            // IMU's header stamps are all within one second: refused).
+            let mut tables = 0;
+            for t in all_topics() {
+                if MessageType::from_ros_name(t.ty).is_none() {
+                    continue;
+                }
+                for time in [TimeSource::HeaderStamp, TimeSource::LogTime] {
+                    let read = |p: &Path| {
+                        read_topic(p, t.name, &[], time)
+                            .map_err(|e| e.to_string().replace(&p.display().to_string(), "BAG"))
+                    };
+                    let (got, exp) = (read(&p), read(&plain));
+                    let what = format!("{ctx}: {} {time:?}", t.name);
+                    let (Ok(got), Ok(exp)) = (&got, &exp) else {
+                        assert_eq!(got.err(), exp.err(), "{what}");
+                        continue;
+                    };
+                    tables += 1;
+                    assert!(!exp.t_s.is_empty(), "{what}");
+                    assert_eq!(bits(&got.t_s), bits(&exp.t_s), "{what}");
+                    assert_eq!(
+                        got.columns.keys().collect::<Vec<_>>(),
+                        exp.columns.keys().collect::<Vec<_>>(),
+                        "{what}"
+                    );
+                    for (name, col) in &exp.columns {
+                        assert_eq!(bits(&got.columns[name]), bits(col), "{what}: {name}");
+                    }
+                }
+            }
+            assert_eq!(tables, 11, "{ctx}: six readable topics on two clocks, the IMU's stamps refused");
+            let info = inspect(&p).expect(&ctx);
+            let compression = summary.then(|| vec![label.to_string()]);
+            let want_compression = summary.then(|| vec!["none".to_string()]);
+            assert_eq!((&info.compression, &want_info.compression), (&compression, &want_compression), "{ctx}");
+            let chunks = summary.then_some(16);
+            assert_eq!((info.chunk_count, want_info.chunk_count), (chunks, chunks), "{ctx}");
+            assert_eq!(
+                BagInfo { path: plain.clone(), size_bytes: 0, compression: None, ..info },
+                BagInfo { size_bytes: 0, compression: None, ..want_info.clone() },
+                "{ctx}"
+            );
+        }
+    }
 }
 
 #[test]
 fn every_type_reads_back_exactly_with_each_compression() {
     let dir = tempfile::tempdir().expect("tempdir");
-    for (label, comp) in compressions() {
+    for label in COMPRESSIONS {
         for summary in [true, false] {
-            let p = dir.path().join(format!("{label}-{summary}.mcap"));
-            write_bag(&p, comp, summary, &all_topics());
+            let p = test_bag(&dir, label, summary);
             let ctx = format!("{label}, summary {summary}");
 
             let j = read_topic(
@@ -202,7 +312,7 @@ fn every_type_reads_back_exactly_with_each_compression() {
                 (0..50).map(|i| format!("{T0}.{:09}", i * 10_000_000 + 123).parse().expect("f64")).collect();
             assert_eq!(bits(&j.t_s), bits(&t), "{ctx}");
             assert_eq!(j.columns.len(), 3);
-            assert!(j.source.ends_with(&format!("{label}-{summary}.mcap:/joints")), "{}", j.source);
+            assert_eq!(j.source, format!("{}:/joints", p.display()));
 
             let pose = read_topic(&p, "/pose", &[], TimeSource::HeaderStamp).expect(&ctx);
             let odom = read_topic(&p, "/odom", &[], TimeSource::HeaderStamp).expect(&ctx);
@@ -259,7 +369,7 @@ fn every_type_reads_back_exactly_with_each_compression() {
 #[test]
 fn all_joint_columns_come_from_the_first_message() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let p = test_bag(&dir, "b.mcap", None);
+    let p = test_bag(&dir, "none", true);
     let j = read_topic(&p, "/joints", &[], TimeSource::LogTime).expect("read");
     assert_eq!(
         j.columns.keys().collect::<Vec<_>>(),
@@ -284,7 +394,7 @@ fn rows_are_sorted_by_the_chosen_time() {
     // Log times increase; stamps go 0.3, 0.1, 0.2, 0.1 s (out of order by
     // less than a clock step; ties keep file order).
     let messages = vec![(1, mk(3, 30.0)), (2, mk(1, 10.0)), (3, mk(2, 20.0)), (4, mk(1, 11.0))];
-    write_bag(&p, None, true, &[Topic { name: "/p", ty: "geometry_msgs/msg/PoseStamped", encoding: "cdr", messages }]);
+    write_bag(&p, true, &[Topic { name: "/p", ty: "geometry_msgs/msg/PoseStamped", encoding: "cdr", messages }]);
     let t = read_topic(&p, "/p", &["x"], TimeSource::HeaderStamp).expect("read");
     assert_eq!(bits(&t.t_s), bits(&[0.1, 0.1, 0.2, 0.3]));
     assert_eq!(bits(&t.columns["x"]), bits(&[10.0, 11.0, 20.0, 30.0]));
@@ -318,8 +428,7 @@ fn unknown_topic_lists_the_topics_with_summary_or_without() {
                   /joints (sensor_msgs/msg/JointState), /odom (nav_msgs/msg/Odometry), \
                   /pose (geometry_msgs/msg/PoseWithCovarianceStamped), /pose_stamped (geometry_msgs/msg/PoseStamped)";
     for summary in [true, false] {
-        let p = dir.path().join(format!("s{summary}.mcap"));
-        write_bag(&p, Some(mcap::Compression::Zstd), summary, &all_topics());
+        let p = test_bag(&dir, "zstd", summary);
         assert_eq!(
             err(&p, "/wheels", &[]),
             format!("{}: no topic '/wheels' in the bag; its topics: {topics}", p.display())
@@ -330,7 +439,7 @@ fn unknown_topic_lists_the_topics_with_summary_or_without() {
 #[test]
 fn wrong_type_column_and_joint_errors_name_file_topic_and_choices() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let p = test_bag(&dir, "e.mcap", Some(mcap::Compression::Lz4));
+    let p = test_bag(&dir, "lz4", true);
     let d = p.display();
     assert_eq!(
         err(&p, "/chatter", &[]),
@@ -377,7 +486,6 @@ fn short_joint_arrays_non_cdr_and_bad_messages_are_errors() {
     garbled.truncate(20);
     write_bag(
         &p,
-        None,
         true,
         &[
             Topic {
@@ -452,11 +560,11 @@ fn sqlite_bags_non_mcap_and_truncated_files_are_refused_clearly() {
     // A rosbag2 directory with one .mcap is read as that file.
     let mcapdir = dir.path().join("rosbag2_mcap");
     std::fs::create_dir(&mcapdir).expect("mkdir");
-    write_bag(&mcapdir.join("rosbag2_mcap_0.mcap"), None, true, &all_topics());
+    write_bag(&mcapdir.join("rosbag2_mcap_0.mcap"), true, &all_topics());
     let t = read_topic(&mcapdir, "/fix", &["latitude"], TimeSource::HeaderStamp).expect("dir");
     assert_eq!(t.t_s.len(), 10);
     // ... and with two, it is an error naming them.
-    write_bag(&mcapdir.join("rosbag2_mcap_1.mcap"), None, true, &all_topics());
+    write_bag(&mcapdir.join("rosbag2_mcap_1.mcap"), true, &all_topics());
     assert_eq!(
         err(&mcapdir, "/fix", &[]),
         format!(
@@ -476,7 +584,7 @@ fn sqlite_bags_non_mcap_and_truncated_files_are_refused_clearly() {
     let missing = dir.path().join("missing.mcap");
     assert!(err(&missing, "/j", &[]).starts_with(&format!("{}: ", missing.display())));
     // Truncated in the middle of a chunk: an error, for inspect too.
-    let full = test_bag(&dir, "full.mcap", Some(mcap::Compression::Zstd));
+    let full = test_bag(&dir, "zstd", true);
     let bytes = std::fs::read(&full).expect("read");
     let cut = dir.path().join("cut.mcap");
     std::fs::write(&cut, &bytes[..bytes.len() / 2]).expect("write");
@@ -528,8 +636,8 @@ fn a_bag_cut_anywhere_names_the_cut_and_the_way_out() {
 #[test]
 fn inspect_lists_topics_counts_rates_and_compression() {
     let dir = tempfile::tempdir().expect("tempdir");
-    for (label, comp) in compressions() {
-        let p = test_bag(&dir, &format!("{label}.mcap"), comp);
+    for label in COMPRESSIONS {
+        let p = test_bag(&dir, label, true);
         let info = inspect(&p).expect("inspect");
         assert_eq!(info.profile, "ros2");
         assert_eq!(info.compression.as_deref(), Some(&[label.to_string()][..]));
@@ -546,8 +654,7 @@ fn inspect_lists_topics_counts_rates_and_compression() {
         assert!(text.contains(&format!("Compression:       {label} (")), "{text}");
     }
     // No summary: the compression is unknown, the counts are still there.
-    let p = dir.path().join("nosummary.mcap");
-    write_bag(&p, Some(mcap::Compression::Lz4), false, &all_topics());
+    let p = test_bag(&dir, "lz4", false);
     let info = inspect(&p).expect("inspect");
     assert_eq!((info.compression.clone(), info.chunk_count, info.message_count), (None, None, 131));
     assert!(info.to_string().contains("Compression:       unknown (no summary section)"));
@@ -603,7 +710,7 @@ proptest! {
 fn bag_that_made_the_mcap_reader_overflow_gives_an_error() {
     let dir = tempfile::tempdir().expect("tempdir");
     let p = dir.path().join("b.mcap");
-    write_bag(&p, compressions()[0].1, true, &all_topics());
+    write_bag(&p, true, &all_topics());
     let mut bytes = std::fs::read(&p).expect("read");
     let n = bytes.len();
     bytes[((0.14230484594650797 * n as f64) as usize).min(n - 1)] = 3;
@@ -628,8 +735,7 @@ proptest! {
     fn damaged_bag_files_never_panic(comp in 0usize..3, cut in 0.0f64..1.0, flips in proptest::collection::vec((0.0f64..1.0, any::<u8>()), 1..6)) {
         let dir = tempfile::tempdir().expect("tempdir");
         let p = dir.path().join("b.mcap");
-        write_bag(&p, compressions()[comp].1, true, &all_topics());
-        let mut bytes = std::fs::read(&p).expect("read");
+        let mut bytes = std::fs::read(test_bag(&dir, COMPRESSIONS[comp], true)).expect("read");
         let n = bytes.len();
         for (at, b) in flips {
             bytes[((at * n as f64) as usize).min(n - 1)] = b;
@@ -741,12 +847,7 @@ fn invalid_nanosec_and_a_clock_stepping_back_are_named() {
     ];
     for (name, messages, want) in cases {
         let p = dir.path().join(name);
-        write_bag(
-            &p,
-            None,
-            true,
-            &[Topic { name: "/p", ty: "geometry_msgs/msg/PoseStamped", encoding: "cdr", messages }],
-        );
+        write_bag(&p, true, &[Topic { name: "/p", ty: "geometry_msgs/msg/PoseStamped", encoding: "cdr", messages }]);
         let e = err(&p, "/p", &["x"]);
         assert!(e.contains(want) && e.contains("time = \"log\""), "{e}");
         read_topic(&p, "/p", &["x"], TimeSource::LogTime).expect("the log time is fine");
