@@ -9,7 +9,7 @@
 //! [fingerprint](odocal::Drive::fingerprint). A drive already recorded for a
 //! vehicle with the same method is recognised and not counted twice
 //! ([`Recorded::AlreadyRecorded`]). The table `decisions` logs the gated
-//! write-back of `odocal follow` ([`follow`]: drive files replayed through
+//! write-back of `odocal follow` ([`fn@follow`]: drive files replayed through
 //! the online calibrator of the crate odocal-online), one row per decision.
 //!
 //! A crate of its own on top of the `odocal` library: it compiles SQLite in
@@ -168,7 +168,7 @@ pub enum Recorded {
 }
 
 /// A row of the table `decisions`: a write-back decision of the online
-/// calibration ([`follow`]).
+/// calibration ([`fn@follow`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DecisionRow {
     /// The row id (increasing in logging order).

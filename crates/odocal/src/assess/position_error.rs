@@ -9,7 +9,7 @@
 //! ```
 //!
 //! `Ē_p` is the mean over segments. With reference extrinsics
-//! ([[`Extrinsics`](crate::Extrinsics)]) each segment starts from the axle pose the
+//! ([[`Extrinsics`]]) each segment starts from the axle pose the
 //! reference implies and the model's reference point is compared with the
 //! measured one.
 

@@ -88,7 +88,7 @@ pub struct Guards {
     /// parameters at all.
     pub min_rcond: f64,
     /// |lever arm| per axis (x forward, y left) of the pose reference at
-    /// most this, m, when estimated ([[`Extrinsics`](crate::Extrinsics)]). Default 5: an
+    /// most this, m, when estimated ([[`Extrinsics`]]). Default 5: an
     /// antenna or INS farther than 5 m from the rear axle is off a car or
     /// van (the PSU van's antennas sit about 0.9 m from it).
     #[serde(default = "default_lever_arm_abs_m")]

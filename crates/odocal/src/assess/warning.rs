@@ -5,7 +5,7 @@
 //! by `"kind"`) and reads as one sentence through `Display`. Human output can
 //! group them by [`Warning::kind`]: a noisy drive gives hundreds of
 //! [`Warning::CompensationFailed`] and the CLI prints a count and the first
-//! few ([`summarize`]).
+//! few ([`Warning::summarize`]).
 
 use serde::{Deserialize, Serialize};
 

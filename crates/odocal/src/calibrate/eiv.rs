@@ -99,9 +99,9 @@
 //!
 //! ## Uncertainty and observability
 //! The covariance is the filter's at the estimate: per parameter the larger
-//! of `H_θ⁻¹` and a block sandwich (`EivOptions::covariance_estimate`),
+//! of `H_θ⁻¹` and a block sandwich (`ResearchOptions::covariance_estimate`),
 //! plus what estimating the noise scales from the same drive adds
-//! (`EivOptions::noise_estimate_in_covariance`). The reported
+//! (`ResearchOptions::noise_estimate_in_covariance`). The reported
 //! observability has `rcond` and the names (parameters held as not
 //! observable, or in a near-collinear combination) from the same `H_θ`.
 //! `sensitivity_m` (metres per resolution step) is the starting batch

@@ -98,7 +98,7 @@ pub struct CalibrationReport {
     /// Ē_p of the result.
     pub validation: ValidationSummary,
     /// Whether to trust the result: accepted, doubtful or rejected, with
-    /// the reasons ([`Verdict`](crate::Verdict)).
+    /// the reasons ([`Verdict`]).
     pub verdict: Verdict,
     /// θ_0 and its Ē_p.
     pub initial: ThetaScore,
@@ -221,7 +221,7 @@ impl CalibrationReport {
     /// The covariance of θ that stands for the result's uncertainty, the
     /// one the verdict's large-σ and cross-split checks use: batch-gn's
     /// cluster-robust covariance ([`Self::robust`]); the 3-step method's
-    /// step-1 batch spread ([`super::ThreeStepUncertainty::batch_spread`]), since
+    /// step-1 batch spread ([`super::three_step::ThreeStepUncertainty::batch_spread`]), since
     /// step 3's own σ sees only its compensated inputs; `None` otherwise
     /// (then the model covariance is all there is).
     pub(crate) fn result_covariance(&self) -> Option<&[[f64; 4]; 4]> {

@@ -10,7 +10,7 @@
 //!    compensated input is the mean of those.
 //! 3. *Final identification*: batch G-N from θ_0 with the compensated inputs.
 //!
-//! Reference extrinsics ([[`Extrinsics`](crate::Extrinsics)]): steps 1 and 3 estimate (or
+//! Reference extrinsics ([[`Extrinsics`]]): steps 1 and 3 estimate (or
 //! hold) them with θ through the shared identification; step 2's QP does
 //! not estimate them, it tracks the axle poses implied by the picked
 //! batches' mean extrinsics.

@@ -275,7 +275,14 @@ pub(crate) fn compensate_segment_with_fallback(
     compensate_from(seg, theta, solver, fallback, opts, None).map(|(c, _)| c)
 }
 
-/// [`compensate_segment_with_fallback`] with the first QP warm-started
+/// Compensates one segment at θ (SPEC §5): solves, re-linearizes around the
+/// solution and solves again until the inputs settle (at most
+/// `max_linearizations` solves). A QP on which `solver` stops at its
+/// iteration limit or fails numerically is solved again by `fallback`
+/// (typically Clarabel), and the event is recorded in
+/// [`Compensation::fallbacks`]; an infeasible or malformed QP is not retried
+/// (no solver can do better) and is returned as an error for this segment,
+/// which callers leave out with a warning. The first QP is warm-started
 /// from `first_warm` (cold when `None`); also returns the solution of the
 /// first QP, the warm start of the first QP of the same segment at a
 /// nearby θ.

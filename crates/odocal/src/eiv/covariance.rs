@@ -9,13 +9,13 @@ use crate::error::Result;
 use crate::model::Theta;
 
 /// Step in η of the forward difference of the θ-score
-/// (`EivOptions::noise_estimate_in_covariance`): 1e-4, i.e. a 0.01 %
+/// (`ResearchOptions::noise_estimate_in_covariance`): 1e-4, i.e. a 0.01 %
 /// change of the source's variance. The score is smooth in η (one-sided
 /// error ≈ h/2 relative); its sums have ≥ 10 significant digits to spare.
 pub(crate) const ETA_SENSITIVITY_STEP: f64 = 1e-4;
 
 /// The covariance that estimating η adds to θ̂: `A Σ_η Aᵀ` with
-/// `A = −J⁻¹ ∂g_θ/∂η` over the free η ([`EivOptions::noise_estimate_in_covariance`];
+/// `A = −J⁻¹ ∂g_θ/∂η` over the free η ([`ResearchOptions::noise_estimate_in_covariance`](super::ResearchOptions::noise_estimate_in_covariance);
 /// J = ∂g_θ/∂θ, observed), and `A` itself (`[parameter][source]`, zero
 /// columns for the fixed η). `sums` is the evaluation at (θ̂, η̂) (with η
 /// derivatives), `cov` = `H_θ⁻¹` over the free θ (zero rows for the fixed
@@ -152,10 +152,12 @@ fn embedded_inverse(jac: DMatrix<f64>, fidx: &[usize]) -> Option<Matrix4<f64>> {
     Some(m)
 }
 
-/// [`CovarianceEstimate::LargerOfModelAndBlock`]: `cov` (an `H_θ⁻¹`)
-/// with each parameter's σ raised to the block sandwich's where that is
-/// larger, `D cov D` with `D = diag(max(1, σ_block,i/σ_i))`. `cov` itself
-/// with fewer than two blocks.
+/// The covariance of
+/// [`CovarianceEstimate::LargerOfModelAndBlock`](super::CovarianceEstimate::LargerOfModelAndBlock):
+/// `cov` (an `H_θ⁻¹`) with each parameter's σ raised to the block
+/// sandwich's where that is larger, `D cov D` with
+/// `D = diag(max(1, σ_block,i/σ_i))`. `cov` itself with fewer than two
+/// blocks.
 pub(super) fn inflate_to_block(cov: &Matrix4<f64>, blocks: &filter::BlockScores) -> Matrix4<f64> {
     let Some(meat) = blocks.meat() else {
         return *cov;
@@ -174,7 +176,7 @@ pub(super) fn inflate_to_block(cov: &Matrix4<f64>, blocks: &filter::BlockScores)
 
 /// The θ block of the inverse of the joint Fisher information of the free
 /// θ and the estimated η that are not at a clamp (`eta_sigma > 0`).
-/// `∂η̂/∂θ = −I_ηη⁻¹ I_ηθ` over the free η and θ ([`EivReport::eta_theta_sensitivity`]);
+/// `∂η̂/∂θ = −I_ηη⁻¹ I_ηθ` over the free η and θ ([`EivReport::eta_theta_sensitivity`](super::EivReport::eta_theta_sensitivity));
 /// zeros when no η is free or `I_ηη` is singular.
 pub(super) fn eta_on_theta(info: &filter::MP, free: &[bool; 4], eta_free: &[bool; 6]) -> [[f64; 4]; 6] {
     let mut out = [[0.0; 4]; 6];

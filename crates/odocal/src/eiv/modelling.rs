@@ -82,9 +82,9 @@ research_pub! {
 
 research_pub! {
     /// The null hypothesis of the per-window innovation checks
-    /// ([`EivOptions::innovation_null`](crate::eiv::EivOptions::innovation_null)).
+    /// ([`ResearchOptions::innovation_null`](crate::eiv::ResearchOptions::innovation_null)).
     ///
-    /// The measurement floors of `R` ([`EivOptions::position_floor_m`](crate::eiv::EivOptions::position_floor_m), 1e-5
+    /// The measurement floors of `R` ([`ResearchOptions::position_floor_m`](crate::eiv::ResearchOptions::position_floor_m), 1e-5
     /// rad on the heading) are regularisation: on a perfect reference the data
     /// have no noise at that level, so a filter whose `R` contains the floor
     /// does not fully follow the measurements, and its innovations are
@@ -116,7 +116,7 @@ research_pub! {
 }
 
 research_pub! {
-    /// Default of [`EivOptions::position_floor_m`](crate::eiv::EivOptions::position_floor_m), m (SPEC §10 states 1 mm,
+    /// Default of [`ResearchOptions::position_floor_m`](crate::eiv::ResearchOptions::position_floor_m), m (SPEC §10 states 1 mm,
     /// [`SPEC_POSITION_FLOOR_M`]; see that option for why 5 mm).
     const DEFAULT_POSITION_FLOOR_M: f64 = 5e-3;
 }

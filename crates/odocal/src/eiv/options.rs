@@ -34,7 +34,7 @@ research_pub! {
 }
 
 research_pub! {
-    /// The covariance of θ reported by [`estimate`](crate::eiv::estimate) ([`EivReport::covariance`](crate::eiv::EivReport::covariance),
+    /// The covariance of θ reported by [`estimate`](fn@crate::eiv::estimate) ([`EivReport::covariance`](crate::eiv::EivReport::covariance),
     /// [`EivReport::sigma`](crate::eiv::EivReport::sigma)) and used by the halves check.
     #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
     #[serde(rename_all = "snake_case")]
@@ -238,7 +238,7 @@ macro_rules! research_options {
             /// sensitivity recursion through the filter. With the
             /// smoothed-share weights or the covariance held, `∂g_θ/∂η`
             /// comes from one more pass per estimated scale, displaced by
-            /// [`ETA_SENSITIVITY_STEP`](crate::eiv::ETA_SENSITIVITY_STEP) in η,
+            /// 1e-4 in η (`ETA_SENSITIVITY_STEP` of the module `eiv::covariance`),
             /// and only t_r and d are displaced in θ. `A` is [`EivReport::theta_eta_sensitivity`](crate::eiv::EivReport::theta_eta_sensitivity),
             /// the added σ [`EivReport::sigma_noise_estimate`](crate::eiv::EivReport::sigma_noise_estimate).
             /// No effect with [`EivOptions::fix_noise`].

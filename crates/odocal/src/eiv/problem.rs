@@ -47,7 +47,7 @@ pub(super) struct Problem<'a> {
     pub(super) heading_drift_min_eta: f64,
     /// Filter passes over the drive: with derivatives, objective only.
     pub(super) evaluations: std::cell::Cell<[usize; 2]>,
-    /// Lean iteration starts in [`scoring_pass`] (always on; off only in the
+    /// Lean iteration starts in [`scoring_pass`](super::scoring::scoring_pass) (always on; off only in the
     /// test that holds them to the full evaluations' results).
     pub(super) lean_iterations: bool,
     /// [`ResearchOptions::c_d_covariance_derivative`](super::ResearchOptions::c_d_covariance_derivative):
@@ -154,7 +154,7 @@ impl Problem<'_> {
     }
 
     /// Whether the filter's η derivatives give the θ-score's full
-    /// η-dependence (see [`noise_estimate_covariance`]): not with the
+    /// η-dependence (see [`noise_estimate_covariance`](super::covariance::noise_estimate_covariance)): not with the
     /// smoothed-share log-Jacobian weights, whose η-dependence it does not
     /// differentiate.
     pub(super) fn mixed_partials_by_symmetry(&self) -> bool {

@@ -120,7 +120,7 @@ pub enum EivWarning {
     },
     /// A window's NIS per degree of freedom is outside the consistency band
     /// (with `InnovationNull::FloorsAsRegularisation`, the band widened to
-    /// cover the NIS expected without the floors, see `EivOptions::innovation_null`).
+    /// cover the NIS expected without the floors, see `ResearchOptions::innovation_null`).
     InconsistentInnovations {
         /// Window index.
         window: usize,
@@ -132,7 +132,7 @@ pub enum EivWarning {
     /// A window's whitened innovations are correlated from one update to
     /// the next beyond what the noise model explains: the lag-1
     /// autocorrelation is more than `threshold` outside the interval
-    /// between 0 and `expected` (see `EivOptions::innovation_null`;
+    /// between 0 and `expected` (see `ResearchOptions::innovation_null`;
     /// `threshold` is the limit on the side where it left the interval).
     CorrelatedInnovations {
         /// Window index.
@@ -317,8 +317,8 @@ research_pub! {
         pub free: [bool; 4],
         /// θ's covariance at the estimate (zero rows for fixed parameters):
         /// `H_θ⁻¹`, or per parameter raised to the block sandwich's
-        /// (`EivOptions::covariance_estimate`), plus what estimating η adds
-        /// (`EivOptions::noise_estimate_in_covariance`).
+        /// (`ResearchOptions::covariance_estimate`), plus what estimating η adds
+        /// (`ResearchOptions::noise_estimate_in_covariance`).
         pub covariance: [[f64; 4]; 4],
         /// Standard deviations `sqrt(diag covariance)`.
         pub sigma: [f64; 4],
@@ -344,13 +344,13 @@ research_pub! {
         /// sandwich, which measures the scores' actual spread.
         pub sigma_fisher: [f64; 4],
         /// The part of θ's σ that estimating η from the drive adds
-        /// (`EivOptions::noise_estimate_in_covariance`): `sqrt(diag A Σ_η Aᵀ)`.
+        /// (`ResearchOptions::noise_estimate_in_covariance`): `sqrt(diag A Σ_η Aᵀ)`.
         /// Included in [`EivReport::covariance`] and [`EivReport::sigma`] when
         /// that option is on; 0 with a fixed noise model or the option off.
         #[serde(default)]
         pub sigma_noise_estimate: [f64; 4],
         /// `∂θ̂/∂η_j` at the estimate (`[parameter][source]`, in θ's units per
-        /// unit of η; `EivOptions::noise_estimate_in_covariance`): how far θ̂
+        /// unit of η; `ResearchOptions::noise_estimate_in_covariance`): how far θ̂
         /// moves when a source's variance is e-fold. Zero for sources not
         /// estimated, with a fixed noise model or with the option off.
         #[serde(default)]

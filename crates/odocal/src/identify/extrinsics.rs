@@ -1,5 +1,5 @@
 //! Identification of θ with the reference extrinsics
-//! ([[`Extrinsics`](crate::Extrinsics)]): batch Gauss-Newton over the seven-vector
+//! ([[`Extrinsics`]]): batch Gauss-Newton over the seven-vector
 //! `[c_e, c_d, t_r, d, lever_x, lever_y, heading_offset]`.
 
 use nalgebra::{DMatrix, Matrix3, Matrix3x4, SMatrix, SVector, Vector3};

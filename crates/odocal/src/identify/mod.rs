@@ -481,7 +481,7 @@ pub(crate) fn batch_normal_equations(
 /// Gauss-Newton problem on `segments`, evaluated at `theta` without
 /// iterating (the scores are centred, so `theta` need not be that
 /// problem's minimum): e.g. the 3-step result's on the measured inputs
-/// ([`crate::calibrate::ThreeStepUncertainty`]). θ's free entries only;
+/// ([`crate::calibrate::three_step::ThreeStepUncertainty`]). θ's free entries only;
 /// `None` as for [`IdentifyReport::robust`].
 pub(crate) fn robust_covariance_at(
     segments: &[SegmentData<'_>],

@@ -96,7 +96,8 @@ impl Param {
     }
 
     /// This parameter's value in θ; the extrinsics are not part of θ and
-    /// read NaN here (use [`Param::value_in`]).
+    /// read NaN here ([`Extrinsics::get`](crate::Extrinsics::get) reads
+    /// theirs).
     pub(crate) fn value(self, theta: &Theta) -> f64 {
         match self {
             Param::CE => theta.c_e,

@@ -455,7 +455,7 @@ pub struct SimOptions {
     /// Where the pose reference sits on the vehicle: the measured pose is
     /// the reference point `p + R(ψ)·[lever_x, lever_y]` with heading
     /// `ψ + heading_offset` of the true axle pose, plus the reference noise
-    /// ([`Extrinsics`](crate::Extrinsics)); the truth columns stay the axle's. Default 0
+    /// ([`Extrinsics`]); the truth columns stay the axle's. Default 0
     /// (the SPEC's reference; the output, sidecar included, is then
     /// byte-identical to a simulator without this setting).
     #[serde(skip_serializing_if = "Extrinsics::is_zero")]

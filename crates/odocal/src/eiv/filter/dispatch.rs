@@ -21,7 +21,7 @@ use crate::model::Theta;
 /// every innovation and its derivatives are returned.
 ///
 /// Speed: P and every `∂P/∂p_j` are symmetric and are propagated as such
-/// (lower triangle, mirrored; [`propagate`], [`joseph`]); a sensitivity
+/// (lower triangle, mirrored; [`propagate_in_place`], [`joseph_in_place`]); a sensitivity
 /// column whose covariance derivative is identically zero (η_5 when the
 /// heading noise is tied to the position noise) is not propagated; the
 /// θ-gradients of the covariance terms are differentiated only when

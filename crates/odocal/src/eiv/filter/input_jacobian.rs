@@ -1,5 +1,5 @@
 //! The input log-Jacobian term of J
-//! ([`InputJacobian`](crate::eiv::InputJacobian)): per wheel
+//! ([`InputJacobian`]): per wheel
 //! `−Σ u·ln(C(θ)/C(θ_ref))` with the weights u of the chosen mode.
 
 use nalgebra::{Matrix3, Vector3};

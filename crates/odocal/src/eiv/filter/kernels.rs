@@ -57,7 +57,7 @@ pub(super) struct Transition<const S: usize> {
 
 impl<const S: usize> Transition<S> {
     /// Rows 0..3 of `F v` for the vector with entries `v(k)` (the dense rows
-    /// of F; [`propagate`] writes the same sums out column-wise).
+    /// of F; [`propagate_in_place`] writes the same sums out column-wise).
     #[inline(always)]
     pub(super) fn top(&self, v: impl Fn(usize) -> f64) -> [f64; 3] {
         let (fxs, fxw) = (&self.fxs, &self.fxw);
@@ -71,13 +71,9 @@ impl<const S: usize> Transition<S> {
     }
 }
 
-/// `F P Fᵀ` for the structured transition `t` ([`Transition`]) and a
-/// symmetric `P`.
-///
-/// Only the lower triangle is computed (through `W = P F_topᵀ`, S×3, `F_top`
-/// the first three rows of F) and mirrored, so the result is exactly
-/// symmetric. (The filter calls [`propagate_in_place`]; this copy is for the
-/// kernel tests.)
+/// `F P Fᵀ` for the structured transition `t` and a symmetric `P` as a new
+/// matrix: [`propagate_in_place`] on a copy. (The filter calls
+/// [`propagate_in_place`]; this copy is for the kernel tests.)
 #[cfg(test)]
 pub(super) fn propagate<const S: usize>(p: &MZ<S>, t: &Transition<S>) -> MZ<S> {
     let mut out = *p;
@@ -85,7 +81,12 @@ pub(super) fn propagate<const S: usize>(p: &MZ<S>, t: &Transition<S>) -> MZ<S> {
     out
 }
 
-/// [`propagate`] overwriting `p` (no S×S temporary, no copy of the result).
+/// `F P Fᵀ` for the structured transition `t` ([`Transition`]) and a
+/// symmetric `P`, overwriting `p` (no S×S temporary, no copy of the result).
+///
+/// Only the lower triangle is computed (through `W = P F_topᵀ`, S×3, `F_top`
+/// the first three rows of F) and mirrored, so the result is exactly
+/// symmetric.
 ///
 /// Safe in place: the pose rows and columns of the result depend on P only
 /// through `W`, computed first, and every other lower-triangle entry
@@ -174,14 +175,9 @@ pub(super) fn h_cols<const S: usize>(b: &M3xZ<S>) -> Matrix3<f64> {
     out
 }
 
-/// `(I − K H) A (I − K H)ᵀ` for `H = [I₃ 0 I₃]` and a symmetric `A`.
-///
-/// In the factored order of the Joseph form (`X = A − K(HA)`, then
-/// `X − (XHᵀ)Kᵀ`; the expanded `A − KHA − (KHA)ᵀ + K(HAHᵀ)Kᵀ` is
-/// numerically unstable here), but only the entries of X that the lower
-/// triangle of the result needs, and only that triangle, mirrored.
-///
-/// (The filter calls [`joseph_in_place`]; this copy is for the kernel tests.)
+/// `(I − K H) A (I − K H)ᵀ` for `H = [I₃ 0 I₃]` and a symmetric `A` as a
+/// new matrix: [`joseph_in_place`] on a copy, without `d`. (The filter calls
+/// [`joseph_in_place`]; this copy is for the kernel tests.)
 #[cfg(test)]
 pub(super) fn joseph<const S: usize>(a: &MZ<S>, k: &MZx3<S>) -> MZ<S> {
     let mut out = *a;
@@ -189,15 +185,23 @@ pub(super) fn joseph<const S: usize>(a: &MZ<S>, k: &MZx3<S>) -> MZ<S> {
     out
 }
 
-/// [`joseph`] overwriting `a` (no S×S temporaries, no copy of the result).
+/// `(I − K H) A (I − K H)ᵀ` for `H = [I₃ 0 I₃]` and a symmetric `A`,
+/// overwriting `a` (no S×S temporaries, no copy of the result).
+///
+/// In the factored order of the Joseph form (`X = A − K(HA)`, then
+/// `X − (XHᵀ)Kᵀ`; the expanded `A − KHA − (KHA)ᵀ + K(HAHᵀ)Kᵀ` is
+/// numerically unstable here), but only the entries of X that the lower
+/// triangle of the result needs, and only that triangle, mirrored.
 ///
 /// Safe in place: `HA` is taken first; then every entry of X depends on A
 /// only through the same entry, and every lower-triangle entry of the result
 /// on X only through the same entry and `XHᵀ` (taken before them); the upper
 /// triangle is mirrored last.
 ///
-/// With `d`, `K D Kᵀ` is added as well ([`add_kdk`]) before the one mirror:
-/// the same to the bit as [`add_kdk`] after the mirrored Joseph form.
+/// With `d`, `K D Kᵀ` is added as well, to the lower triangle
+/// ([`add_kdk_lower`]) before the one mirror: the same to the bit as adding
+/// it to both triangles after the mirrored Joseph form (the kernel tests'
+/// `add_kdk`).
 #[inline(always)]
 pub(super) fn joseph_in_place<const S: usize>(a: &mut MZ<S>, k: &MZx3<S>, d: Option<&Matrix3<f64>>) {
     // HA (3×S): rows 0..3 plus rows 6..9.
@@ -255,7 +259,8 @@ pub(super) fn joseph_general<const S: usize>(a: &MZ<S>, k: &MZx3<S>) -> MZ<S> {
     x - xh * k.transpose()
 }
 
-/// `F A Fᵀ` as [`propagate`] for any `A` (not only symmetric ones).
+/// `F A Fᵀ` for the structured transition `t` ([`Transition`]) and any `A`,
+/// not only a symmetric one as in [`propagate_in_place`], as a new matrix.
 #[inline(always)]
 pub(super) fn propagate_general<const S: usize>(p: &MZ<S>, t: &Transition<S>) -> MZ<S> {
     // M = F P (row operations).
@@ -283,7 +288,7 @@ pub(super) fn propagate_general<const S: usize>(p: &MZ<S>, t: &Transition<S>) ->
     out
 }
 
-/// `F C` for an S×3 `C` and the structured transition of [`propagate`].
+/// `F C` for an S×3 `C` and the structured transition `t` ([`Transition`]).
 #[inline(always)]
 pub(super) fn propagate_cols<const S: usize>(c: &MZx3<S>, t: &Transition<S>) -> MZx3<S> {
     let mut out = MZx3::<S>::zeros();

@@ -143,7 +143,8 @@ pub(crate) struct Variances {
     pub heading_separate: bool,
     /// The relative wheel noise (white and Gauss-Markov) is scaled by the
     /// fitted true input `ñ·C(θ_ref)/C(θ)` instead of the measured `ñ`
-    /// ([`super::WheelNoiseScale::FittedInput`]).
+    /// ([`super::WheelNoiseScale::SmoothedFittedInput`], with ñ there its
+    /// moving average: `noise_input_half_width`).
     pub fitted_input: bool,
     /// The log-Jacobian term of the relative white wheel noise in J
     /// ([`super::InputJacobian`]).
@@ -154,10 +155,11 @@ pub(crate) struct Variances {
     pub noise_input_half_width: usize,
     /// With `noise_input_half_width > 0`: the rotations come from the
     /// reference's speed and yaw rate (central differences over ±K samples)
-    /// at θ_ref instead of from the moving average of ñ
-    /// ([`super::WheelNoiseScale::ReferenceInput`]).
+    /// at θ_ref instead of from the moving average of ñ. No option selects
+    /// it ([`super::WheelNoiseScale`] has no such variant): every
+    /// construction sets it false.
     pub noise_input_from_reference: bool,
-    /// Floor of the position measurement σ, m ([`super::EivOptions::position_floor_m`]).
+    /// Floor of the position measurement σ, m ([`super::ResearchOptions::position_floor_m`]).
     pub position_floor_m: f64,
     /// Also run the null recursion of the innovation diagnostics: the
     /// covariance of the filter's error when the data follow the model

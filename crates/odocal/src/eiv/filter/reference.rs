@@ -72,7 +72,7 @@ pub(super) fn theta_jacobian_input_derivatives(
 /// The terms of the covariance recursion at one step, evaluated on the
 /// reference (reference heading ψ, measured inputs) at θ, with their
 /// θ-gradients when `N = 4`: `F̄[0,2], F̄[1,2]`, `∂f/∂n_l`, `∂f/∂n_r`,
-/// `∂f/∂a_y` (as [`step_jacobians`] and the module docs).
+/// `∂f/∂a_y` (as [`step_jacobians`](crate::model::step_jacobians) and the module docs).
 pub(super) struct ReferenceTerms<const N: usize> {
     pub(super) f02: Dual<N>,
     pub(super) f12: Dual<N>,

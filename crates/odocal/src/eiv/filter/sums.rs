@@ -51,15 +51,17 @@ pub(crate) struct WindowSums {
     /// Per component: Σ e_k².
     pub e2: [f64; 3],
     /// Per component: Σ E₀[e_k e_{k−1}], the expectation of [`WindowSums::lag1`]
-    /// under the null of [`Variances::null_without_floors`] (zero unless it is on).
+    /// under the null of [`Variances::null_without_floors`](super::Variances::null_without_floors)
+    /// (zero unless it is on).
     pub lag1_null: [f64; 3],
-    /// Per component: Σ E₀[e_k²] under the same null.
+    /// Per component: Σ E₀\[e_k²\] under the same null.
     pub e2_null: [f64; 3],
     /// Σ E₀[νᵀS⁻¹ν] = Σ tr(S⁻¹S₀) under the same null (S₀ the innovation
     /// covariance without the floors, with the filter's gain).
     pub quad_null: f64,
     /// Expected gradient of the profile cost caused by the input noise,
-    /// `Σ_k −tr(S_k⁻¹ H X_k,i Hᵀ)` (the corrected-score term, see [`run_window`]).
+    /// `Σ_k −tr(S_k⁻¹ H X_k,i Hᵀ)` (the corrected-score term,
+    /// [`add_corrected_bias`](super::update::add_corrected_bias)).
     pub bias: nalgebra::Vector4<f64>,
     /// θ-gradient of the coloured-noise correction `−Σ m log(1 − ŝ)` alone.
     pub grad_correction: nalgebra::Vector4<f64>,

@@ -4,8 +4,9 @@
 //! ([`WindowSetup::linearise`], a [`Linearisation`]), the prediction of the
 //! mean and its sensitivities ([`MeanState::predict`]) and of the covariance
 //! and its derivatives over `p = [θ, η]` ([`predict_covariance`]), and where
-//! the reference was measured the measurement update ([`update`]), which
-//! adds the sample's terms to the window's sums ([`Accumulator`]).
+//! the reference was measured the measurement update
+//! ([`update`](super::update)), which adds the sample's terms to the
+//! window's sums ([`Accumulator`]).
 //!
 //! What is fixed over the window lives in a [`WindowSetup`], the mean in a
 //! [`MeanState`], the sums in an [`Accumulator`]. The big arrays of the

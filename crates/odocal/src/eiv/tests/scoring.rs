@@ -175,7 +175,7 @@ fn updates_only_where_the_reference_was_measured() {
     assert_eq!(s.updates, (1..input.len()).filter(|k| k % 4 == 0).count());
 }
 
-/// `EivOptions::position_floor_m` is the position σ floor of R: on a
+/// `ResearchOptions::position_floor_m` is the position σ floor of R: on a
 /// perfect reference (the noise model's position white noise zero) the
 /// position variance of every innovation covariance grows by exactly the
 /// difference of the squared floors against the default 1 mm (heading

@@ -328,7 +328,8 @@ impl<'a> Cdr<'a> {
 /// CDR) without trusting its lengths: every string and array length is
 /// checked against the bytes left in the message before anything is
 /// allocated for it, and a message may name at most [`MAX_JOINTS`] joints.
-/// Reads the same values as the serde decoding of [`JointState`].
+/// Reads the same values as the serde decoding ([`decode`]) of the
+/// test-only `JointState` struct, which the bag tests hold it to.
 pub(crate) fn decode_joints(data: &[u8]) -> Result<Joints<'_>, String> {
     let (head, body) = data
         .split_at_checked(4)

@@ -91,7 +91,8 @@ pub(super) struct Checked {
 pub(super) enum LengthError {
     /// A record of the file itself declares more bytes than remain in the
     /// file: where a cut file stops. The record and the bytes left, without
-    /// the "corrupt or truncated" lead of [`LengthError::to_string`].
+    /// the "corrupt or truncated" lead ([`PAST_END_LEAD`]) that its `Display`
+    /// puts before it.
     PastEnd(String),
     /// Any other fault: the message naming the record.
     Damaged(String),

@@ -8,11 +8,11 @@
 //! | `output.max_clock_offset_s` | [`MAX_CLOCK_OFFSET_S`] = 60 s | larger means a wrong time column, unit or offset |
 //! | clock search work (grid samples × lags) | [`MAX_CORRELATION_WORK`] = 4·10⁹ | seconds, not hours |
 //! | `streams.*.nominal_rate_hz` | [`MAX_NOMINAL_RATE_HZ`] = 100 kHz, and at most [`MAX_NOMINAL_OVER_MEAN_RATE`] × the stream's mean rate | de-jittering assigns one index per nominal period |
-//! | values read from one Parquet stream (declared rows × columns read) | [`MAX_STREAM_VALUES`] = 10⁸ | 800 MB of f64; a CSV stream is bounded by its file's size |
+//! | values read from one Parquet stream (declared rows × columns read) | `MAX_STREAM_VALUES` = 10⁸ (feature `parquet`) | 800 MB of f64; a CSV stream is bounded by its file's size |
 //! | `streams.*.dejitter_window_s` | [`MAX_DEJITTER_WINDOW_S`] = 60 s and [`MAX_DEJITTER_HALF_WINDOW`] = 5,000 samples each side | the local fit costs the window per sample |
 //!
 //! The physical limits (speed, lateral acceleration) are in the manifest's
-//! `[limits]` table ([`super::LimitsSpec`]), because a real vehicle may
+//! `[limits]` table ([`super::manifest::LimitsSpec`]), because a real vehicle may
 //! exceed them.
 
 use super::grid::Span;

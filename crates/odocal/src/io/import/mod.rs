@@ -75,7 +75,7 @@
 //! van's test track), with the sign of the turning direction, and the fit
 //! then puts a direction-dependent term into c_d. `[lateral_acceleration.bank]`
 //! measures φ from two GNSS antennas across the vehicle
-//! ([`BankSpec`]: sin φ = (h_right − h_left + height_offset_m) / baseline_m
+//! ([`BankSpec`](manifest::BankSpec): sin φ = (h_right − h_left + height_offset_m) / baseline_m
 //! where both are of accepted quality, on the pose's clock, smoothed) and
 //! imports f_y instead. Two other effects of the roll are left out,
 //! measured small on the test track: the wheels turn about the road normal

@@ -15,7 +15,7 @@ use crate::model::param::ParamSet;
 
 /// The reference sensor's extrinsics (`[reference]`): where the pose
 /// reference sits on the vehicle and whether to estimate that with θ
-/// (see [`Extrinsics`](crate::Extrinsics)). Every key is optional.
+/// (see [`Extrinsics`]). Every key is optional.
 ///
 /// ```toml
 /// [reference]

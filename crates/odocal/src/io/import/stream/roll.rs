@@ -1,5 +1,5 @@
 //! The road bank's roll as the two antennas' rows arrive, with the
-//! arithmetic of [`bank::roll`](super::super::bank::roll): each accepted
+//! arithmetic of [`bank::roll`]: each accepted
 //! left sample is paired with the right antenna at its stamp as soon as the
 //! right antenna's rows decide the pairing, pairs beyond `max_roll_deg` are
 //! dropped and counted, and the roll goes onto the wheel clock as a track.
