@@ -333,7 +333,6 @@ impl NoiseModel {
             fitted_input: false,
             input_jacobian: InputJacobian::None,
             noise_input_half_width: 0,
-            noise_input_from_reference: false,
             position_floor_m: DEFAULT_POSITION_FLOOR_M,
             null_without_floors: false,
             coloured_jacobian_in_marginal: true,

@@ -153,12 +153,6 @@ pub(crate) struct Variances {
     /// noise is the moving average of ñ over ±this many samples (0: ñ
     /// itself; [`super::WheelNoiseScale::SmoothedFittedInput`]).
     pub noise_input_half_width: usize,
-    /// With `noise_input_half_width > 0`: the rotations come from the
-    /// reference's speed and yaw rate (central differences over ±K samples)
-    /// at θ_ref instead of from the moving average of ñ. No option selects
-    /// it ([`super::WheelNoiseScale`] has no such variant): every
-    /// construction sets it false.
-    pub noise_input_from_reference: bool,
     /// Floor of the position measurement σ, m ([`super::ResearchOptions::position_floor_m`]).
     pub position_floor_m: f64,
     /// Also run the null recursion of the innovation diagnostics: the

@@ -34,7 +34,7 @@ use super::update::{add_corrected_bias, null_moments, update_sensitivities, Accu
 use super::{M3x2, M3xZ, MZx3, Mode, Variances, DZ, HEADING_FLOOR_RAD, IB, IW, MZ, NP};
 use crate::eiv::{EivInput, InputJacobian, Window};
 use crate::error::Result;
-use crate::model::{wrap_angle, Input, Theta};
+use crate::model::{Input, Theta};
 
 /// What stays fixed over one window: its inputs, the pass's settings and
 /// the noise terms that do not depend on the sample.
@@ -131,7 +131,7 @@ impl<'a, const S: usize> WindowSetup<'a, S> {
         ]);
         let all_sources = v.input_jacobian == InputJacobian::SmoothedShareAll;
         let half = if v.fitted_input && follows { v.noise_input_half_width } else { 0 };
-        let (smooth_l, smooth_r) = noise_rotations(input, window, theta_ref, v, half);
+        let (smooth_l, smooth_r) = noise_rotations(input, window, half);
         WindowSetup {
             input,
             window,
@@ -252,54 +252,27 @@ impl<'a, const S: usize> WindowSetup<'a, S> {
 /// The rotations that scale the relative wheel noise with the fitted input
 /// (`half > 0`), per sample of the window: ñ's moving average over ±`half`
 /// samples within the window (nearly independent of the white error of the
-/// sample), or with `noise_input_from_reference` the rotations implied by
-/// the reference at θ_ref. Empty vectors when `half == 0` (ñ itself).
-fn noise_rotations(
-    input: &EivInput<'_>,
-    window: &Window,
-    theta_ref: &Theta,
-    v: &Variances,
-    half: usize,
-) -> (Vec<f64>, Vec<f64>) {
+/// sample). Empty vectors when `half == 0` (ñ itself).
+fn noise_rotations(input: &EivInput<'_>, window: &Window, half: usize) -> (Vec<f64>, Vec<f64>) {
     let (a0, a1) = (window.start, window.end);
     if half == 0 {
         return (Vec::new(), Vec::new());
     }
-    if !v.noise_input_from_reference {
-        let smooth_of = |n: &[f64]| -> Vec<f64> {
-            let mut prefix = Vec::with_capacity(a1 - a0 + 1);
-            prefix.push(0.0);
-            for k in a0..a1 {
-                let last = prefix[prefix.len() - 1];
-                prefix.push(last + n[k]);
-            }
-            (a0..a1)
-                .map(|k| {
-                    let (lo, hi) = (k.saturating_sub(half).max(a0), (k + half + 1).min(a1));
-                    (prefix[hi - a0] - prefix[lo - a0]) / (hi - lo) as f64
-                })
-                .collect()
-        };
-        return (smooth_of(input.n_rl), smooth_of(input.n_rr));
-    }
-    // Speed and yaw rate by central differences over ±K samples (within the
-    // window), C_l n_l = v − ψ̇ t_r/2, C_r n_r = v + ψ̇ t_r/2 (rev/s), with the
-    // sign of the measured rotation (independent of the wheel noise).
-    let ts = input.sample_time_s;
-    let mut l = Vec::with_capacity(a1 - a0);
-    let mut r = Vec::with_capacity(a1 - a0);
-    for k in a0..a1 {
-        let (lo, hi) = (k.saturating_sub(half).max(a0), (k + half).min(a1));
-        let dt = (hi - lo).max(1) as f64 * ts;
-        let speed = (input.px[hi] - input.px[lo]).hypot(input.py[hi] - input.py[lo]) / dt;
-        let yaw_rate = wrap_angle(input.psi[hi] - input.psi[lo]) / dt;
-        let (c_l, c_r) = theta_ref.wheel_circumferences(input.a_y[k]);
-        let nl_ = (speed - 0.5 * yaw_rate * theta_ref.t_r) / c_l;
-        let nr_ = (speed + 0.5 * yaw_rate * theta_ref.t_r) / c_r;
-        l.push(nl_.abs() * input.n_rl[k].signum() * f64::from(u8::from(input.n_rl[k] != 0.0)));
-        r.push(nr_.abs() * input.n_rr[k].signum() * f64::from(u8::from(input.n_rr[k] != 0.0)));
-    }
-    (l, r)
+    let smooth_of = |n: &[f64]| -> Vec<f64> {
+        let mut prefix = Vec::with_capacity(a1 - a0 + 1);
+        prefix.push(0.0);
+        for k in a0..a1 {
+            let last = prefix[prefix.len() - 1];
+            prefix.push(last + n[k]);
+        }
+        (a0..a1)
+            .map(|k| {
+                let (lo, hi) = (k.saturating_sub(half).max(a0), (k + half + 1).min(a1));
+                (prefix[hi - a0] - prefix[lo - a0]) / (hi - lo) as f64
+            })
+            .collect()
+    };
+    (smooth_of(input.n_rl), smooth_of(input.n_rr))
 }
 
 /// The covariance recursion's terms at one sample, linearised along the
