@@ -2,7 +2,7 @@
 //! a known truth: step 3's model σ and cluster-robust σ (both from the
 //! compensated inputs), the cluster-robust σ on the measured inputs at the
 //! 3-step θ, and the scaled spread of step 1's batch estimates
-//! ([`odocal::calibrate::ThreeStepUncertainty`]); docs/validation.md,
+//! (the library's `ThreeStepUncertainty`); docs/validation.md,
 //! "Coverage of the reported σ".
 //!
 //! Defaults: 20 seeds (1..=20), 12 km, preset `paper`, 50 step-1 batches;

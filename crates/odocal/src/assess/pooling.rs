@@ -155,7 +155,7 @@ research_pub! {
     /// The spread of the runs' *estimates* holds their within-drive noise:
     /// `spread² ≈ τ² + within²`. The between-drive σ proper is the
     /// method-of-moments `τ̂ = √max(0, spread² − within²)`
-    /// ([`Self::between`]), and the spread is a floor on a drive's
+    /// (`between`), and the spread is a floor on a drive's
     /// within-drive ⊕ between-drive σ ([`NextDriveSigma`]).
     #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
     struct BetweenDrivePrior {
