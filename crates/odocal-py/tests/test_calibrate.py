@@ -326,28 +326,34 @@ def test_known_noise_equals_cli_json(odocal_bin, drive_csv):
 
 
 def test_correct_bias_equals_cli_json(odocal_bin, drive_csv):
-    """correct_bias=B is --correct-bias B, correct_bias=0 --no-bias-correction, and the default (B = 4) the CLI's:
-    every parameter corrected, σ with the correction's Monte Carlo error."""
+    """correct_bias=B is --correct-bias B, correct_bias_of= --correct-bias-of, correct_bias=0
+    --no-bias-correction, and the default (B = 4, c_e) the CLI's: the named parameters corrected, their σ with
+    the correction's Monte Carlo error."""
     args = ("calibrate", drive_csv, "--eiv-window", "1500", "--no-fallback")
     drive = odocal.Drive.from_csv(drive_csv)
-    cli = cli_json(odocal_bin, *args, "--correct-bias", "2", "--bootstrap-seed", "5")
-    d = odocal.calibrate(drive, eiv_window=1500, fallback=False, correct_bias=2, bootstrap_seed=5).to_dict()
+    cli = cli_json(odocal_bin, *args, "--correct-bias", "2", "--bootstrap-seed", "5", "--correct-bias-of", "c_e,c_d,t_r,d")
+    d = odocal.calibrate(
+        drive, eiv_window=1500, fallback=False, correct_bias=2, bootstrap_seed=5, correct_bias_of=["c_e", "c_d", "t_r", "d"]
+    ).to_dict()
     assert _without_eiv_timing(d) == _without_eiv_timing(cli)
-    assert d["options"]["method"]["correct_bias"] == {"replicates": 2, "seed": 5}
+    assert d["options"]["method"]["correct_bias"] == {"replicates": 2, "seed": 5, "parameters": ["c_e", "c_d", "t_r", "d"]}
     cli_plain = cli_json(odocal_bin, *args, "--no-bias-correction")
     plain = odocal.calibrate(drive, eiv_window=1500, fallback=False, correct_bias=0).to_dict()
     assert _without_eiv_timing(plain) == _without_eiv_timing(cli_plain)
     assert plain["options"]["method"]["correct_bias"] is None
     default = odocal.calibrate(drive, eiv_window=1500, fallback=False, bootstrap_seed=3).to_dict()
     assert _without_eiv_timing(default) == _without_eiv_timing(cli_json(odocal_bin, *args, "--bootstrap-seed", "3"))
-    assert default["options"]["method"]["correct_bias"] == {"replicates": 4, "seed": 3}
-    for c in (d, default):
+    assert default["options"]["method"]["correct_bias"] == {"replicates": 4, "seed": 3, "parameters": ["c_e"]}
+    for c, corrected in ((d, [True] * 4), (default, [True, False, False, False])):
         e, p = c["eiv"], plain["eiv"]
         assert e["theta_uncorrected"] == p["theta"]
         for i, free in enumerate(e["free"]):
-            assert (e["sigma_bias_correction"][i] > 0) == free
-            if free:
+            on = free and corrected[i]
+            assert (e["sigma_bias_correction"][i] > 0) == on
+            if on:
                 assert e["sigma"][i] ** 2 == pytest.approx(p["sigma"][i] ** 2 + e["sigma_bias_correction"][i] ** 2)
+            else:
+                assert (e["theta"][i], e["sigma"][i]) == (p["theta"][i], p["sigma"][i])
     with pytest.raises(odocal.OdocalError, match="bootstrap_seed`: is the seed of the bias correction"):
         odocal.calibrate(drive, eiv_window=1500, correct_bias=0, bootstrap_seed=5)
     with pytest.raises(odocal.OdocalError, match="correct_bias`: must be 0 .no correction. or an even number"):

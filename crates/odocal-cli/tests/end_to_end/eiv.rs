@@ -175,14 +175,14 @@ fn eiv_noise_model_shape_flags_reach_the_options() {
     assert!(text(&o.stderr).contains("possible values: process, measurement, counting"), "{}", text(&o.stderr));
 }
 
-/// The default bias correction (B = 4) and `--correct-bias
-/// B`: every parameter corrected by a bootstrap in antithetic pairs on the
-/// smoothed trajectory whose replicates hold the fitted noise model; θ's σ
-/// carries the correction's Monte Carlo error; `--no-bias-correction`
-/// returns the uncorrected fit; B must be even; not with
-/// `--correct-c-e-bias` nor with another method.
+/// The default bias correction (B = 4, of c_e), `--correct-bias B` and
+/// `--correct-bias-of`: the named parameters corrected by a bootstrap in
+/// antithetic pairs on the smoothed trajectory whose replicates hold the
+/// fitted noise model; their σ carries the correction's Monte Carlo error,
+/// the others' are the uncorrected fit's; `--no-bias-correction` returns
+/// the uncorrected fit; B must be even; neither with another method.
 #[test]
-fn correct_bias_corrects_every_parameter_with_held_noise() {
+fn correct_bias_corrects_the_named_parameters_with_held_noise() {
     let d = tempfile::tempdir().expect("tmp");
     let dstr: &str = &simulated_drive(d.path(), "drive.csv", &["--seed", "6", "--length-km", "2", "--noise", "paper"]);
     let base = ["calibrate", dstr, "--method", "eiv", "--no-fallback", "--json", "-"];
@@ -195,29 +195,39 @@ fn correct_bias_corrects_every_parameter_with_held_noise() {
     assert!(plain["options"]["method"]["correct_bias"].is_null(), "{}", plain["options"]["method"]);
     assert_eq!(plain["eiv"]["bias_subtracted"], serde_json::json!([0.0, 0.0, 0.0, 0.0]));
     let default = run(&[]);
-    assert_eq!(default["options"]["method"]["correct_bias"], serde_json::json!({"replicates": 4, "seed": 0}));
+    let want = serde_json::json!({"replicates": 4, "seed": 0, "parameters": ["c_e"]});
+    assert_eq!(default["options"]["method"]["correct_bias"], want);
     assert_eq!(default["eiv"]["theta_uncorrected"], plain["eiv"]["theta"]);
-    let r = run(&["--correct-bias", "2", "--bootstrap-seed", "7"]);
-    assert_eq!(r["options"]["method"]["correct_bias"], serde_json::json!({"replicates": 2, "seed": 7}));
+    let r = run(&["--correct-bias", "2", "--bootstrap-seed", "7", "--correct-bias-of", "c_e,c_d,t_r,d"]);
+    let want = serde_json::json!({"replicates": 2, "seed": 7, "parameters": ["c_e", "c_d", "t_r", "d"]});
+    assert_eq!(r["options"]["method"]["correct_bias"], want);
     assert_eq!(r["eiv"]["theta_uncorrected"], plain["eiv"]["theta"]);
-    for (name, c) in [("default", &default), ("--correct-bias 2", &r)] {
+    for (name, c, corrected) in [("default", &default, [true, false, false, false]), ("every parameter", &r, [true; 4])]
+    {
         let (e, p) = (&c["eiv"], &plain["eiv"]);
         for i in 0..4 {
-            let free = e["free"][i].as_bool().expect("free");
+            let on = corrected[i] && e["free"][i].as_bool().expect("free");
             let mc = e["sigma_bias_correction"][i].as_f64().expect("mc σ");
             let (s, s0) = (e["sigma"][i].as_f64().expect("σ"), p["sigma"][i].as_f64().expect("σ"));
-            if free {
+            let name_i = ["c_e", "c_d", "t_r", "d"][i];
+            let (t, t0) = (e["theta"][name_i].as_f64().expect("θ"), p["theta"][name_i].as_f64().expect("θ"));
+            if on {
                 assert!(mc > 0.0 && (s * s - s0 * s0 - mc * mc).abs() <= 1e-9 * s * s, "{name} {i}: {s} {s0} {mc}");
                 assert_ne!(e["bias_subtracted"][i].as_f64(), Some(0.0), "{name} {i}: {}", e["bias_subtracted"]);
             } else {
-                assert_eq!(mc.to_bits(), 0.0f64.to_bits(), "{name} {i}: a held parameter has no Monte Carlo σ");
+                assert_eq!(mc.to_bits(), 0.0f64.to_bits(), "{name} {i}: an uncorrected parameter has no Monte Carlo σ");
+                assert_eq!((t.to_bits(), s.to_bits()), (t0.to_bits(), s0.to_bits()), "{name} {i}: the fit's θ and σ");
             }
         }
     }
     assert_ne!(default["eiv"]["bias_subtracted"], r["eiv"]["bias_subtracted"]);
     for (extra, want) in [
-        (&["--correct-bias", "2", "--correct-c-e-bias", "2"][..], "cannot be used with"),
         (&["--correct-bias", "2", "--no-bias-correction"][..], "cannot be used with"),
+        (&["--correct-bias-of", "t_r", "--no-bias-correction"][..], "cannot be used with"),
+        (
+            &["--correct-bias-of", "lever_x"][..],
+            "--correct-bias-of corrects parameters of θ (c_e, c_d, t_r, d), not lever_x",
+        ),
         (
             &["--correct-bias", "3"][..],
             "B must be an even number of at least 2 (the replicates come in antithetic pairs), got 3",

@@ -55,7 +55,7 @@ const EXPERT: [(&str, &[&str]); 6] = [
     ),
     (
         "EIV bias correction and bootstrap (--method eiv):",
-        &["--bootstrap", "--bootstrap-seed", "--correct-c-e-bias", "--correct-bias", "--no-bias-correction"],
+        &["--bootstrap", "--bootstrap-seed", "--correct-bias", "--correct-bias-of", "--no-bias-correction"],
     ),
     ("Parameter file (--params-out):", &["--params-node", "--params-mapping"]),
 ];

@@ -59,6 +59,7 @@ const USAGE: &str = "random_worlds [--worlds 100] [--length-km 12] [--seed 1] [-
     [--eta-max X] [--tau-c S] [--tau-drift S] [--heavy-without slip|common]
     [--eta-without-jacobian] [--no-common-jacobian] [--position-drift-own-scale] [--position-drift-tau S]
     [--heading-drift-two-sided] [--no-clamp-refit] [--clamp-refit-common-eta X] [--heading-drift-min-eta X]
+    [--correct-bias-of PARAMS]
 
 World i has world seed S + i (drive seed too); every method runs through odocal::calibrate.
 --heavy: each world's wheel noise replaced by heavy common-mode coloured noise and slip (NoiseOptions::with_heavy_wheels).
@@ -80,7 +81,9 @@ World i has world seed S + i (drive seed too); every method runs through odocal:
 --clamp-refit-common-eta X: in that refit, the common-mode wheel noise scale η_1 held at X
     (clamp_refit_common_mode_eta; the refit runs with this alone too).
 --heading-drift-min-eta X: the floor of the heading drift's tie to the pose-drift scale η_4 (heading_drift_min_eta;
-    -20, the η lower bound, ties it all the way).";
+    -20, the η lower bound, ties it all the way).
+--correct-bias-of PARAMS: the parameters of θ the default's bias correction corrects (`c_e,c_d,t_r,d`: every one;
+    the default c_e).";
 
 /// The methods the study knows, by their `--method` names.
 const METHODS: [&str; 3] = ["eiv", "batch-gn", "three-step"];
@@ -119,6 +122,9 @@ struct Settings {
     /// `--heading-drift-min-eta`: `ResearchOptions::heading_drift_min_eta`
     /// (the η lower bound, −20, ties the heading drift to η_4 all the way).
     heading_drift_min_eta: Option<f64>,
+    /// `--correct-bias-of`: the parameters the default's bias correction
+    /// corrects (`CorrectBias::parameters`); None: the default's.
+    correct_bias_of: Option<ParamSet>,
 }
 
 fn settings() -> Res<(Settings, Option<usize>)> {
@@ -152,6 +158,7 @@ fn settings() -> Res<(Settings, Option<usize>)> {
         no_clamp_refit: a.flag("no-clamp-refit"),
         clamp_refit_common_eta: a.opt("clamp-refit-common-eta")?,
         heading_drift_min_eta: a.opt("heading-drift-min-eta")?,
+        correct_bias_of: a.opt("correct-bias-of")?,
     };
     let threads = a.opt("threads")?;
     a.finish()?;
@@ -259,6 +266,9 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<
         }
         if let Some(t) = a.tau_drift {
             e.filter.noise.drift_time_constant_s = t;
+        }
+        if let (Some(parameters), Some(c)) = (a.correct_bias_of, &mut e.correct_bias) {
+            c.parameters = parameters;
         }
     }
     let t = Instant::now();

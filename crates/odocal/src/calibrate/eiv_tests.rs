@@ -130,7 +130,7 @@ fn wrong_noise_model_falls_back_to_batch_gauss_newton() {
         ..NoiseModel::PRODUCTION_CAR
     };
     let mut filter = EivOptions { noise: tiny, fix_noise: true, ..Default::default() };
-    filter.correct_bias(2, 1);
+    filter.correct_bias(2, 1, ParamSet::THETA);
     let opts = CalibrationOptions { method: eiv_method(filter.clone(), true), ..Default::default() };
     let r = calibrate(&out.drive, &opts).expect("calibrate");
     let d = detail(&r);
@@ -525,7 +525,8 @@ fn a_failed_bias_correction_keeps_the_uncorrected_fit_and_says_so() {
     assert_eq!(detail(&plain).eiv_result, EivOutcome::Eiv, "{:?}", plain.warnings);
     let kinds = |r: &crate::CalibrationReport| r.warnings.iter().map(|w| w.kind()).collect::<Vec<_>>();
 
-    let failed = run(Some(CorrectBias { replicates: 4, seed: crate::eiv::FAIL_EVERY_REPLICATE_SEED }));
+    let failed =
+        run(Some(CorrectBias { replicates: 4, seed: crate::eiv::FAIL_EVERY_REPLICATE_SEED, ..Default::default() }));
     assert_eq!(detail(&failed).eiv_result, EivOutcome::Eiv, "{:?}", failed.warnings);
     assert_eq!(failed.theta, plain.theta, "the uncorrected fit, to the bit");
     assert_eq!(failed.covariance, plain.covariance);
@@ -537,7 +538,9 @@ fn a_failed_bias_correction_keeps_the_uncorrected_fit_and_says_so() {
     assert!(!kinds(&failed).contains(&"eiv_fallback"), "{:?}", kinds(&failed));
     assert!(!kinds(&plain).iter().any(|k| k.starts_with("eiv_bias_correction")), "{:?}", kinds(&plain));
 
-    let partial = run(Some(CorrectBias { replicates: 4, seed: crate::eiv::FAIL_ONE_REPLICATE_SEED }));
+    // Every parameter corrected, so that each shows the complete pairs' bias.
+    let seed = crate::eiv::FAIL_ONE_REPLICATE_SEED;
+    let partial = run(Some(CorrectBias { replicates: 4, seed, parameters: ParamSet::THETA }));
     assert_eq!(detail(&partial).eiv_result, EivOutcome::Eiv, "{:?}", partial.warnings);
     let e = detail(&partial).eiv.as_ref().expect("the EIV report");
     assert_eq!(e.theta_uncorrected, plain.theta);

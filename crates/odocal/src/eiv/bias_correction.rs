@@ -8,13 +8,14 @@ use super::filter::WindowSums;
 use super::problem::{free_inverse, free_sigma, theta_add};
 use super::{BiasCorrection, EivInput, EivOptions, EivReport, FirstOrderBias};
 use crate::error::{Error, Result};
+use crate::model::param::Param;
 
 research_pub! {
     /// Applies `opts.bias_correction` to a fit made without it (nothing for
     /// `BiasCorrection::None`): runs the [`bootstrap`](fn@bootstrap) it names at the fit
     /// (replicates on `opts.bootstrap_inputs`, each holding the fitted noise
     /// model; in antithetic pairs with `opts.bootstrap_antithetic`), subtracts its bias from `report.theta`
-    /// (every free parameter or c_e only) and adds the bias's Monte Carlo
+    /// (the free parameters of those it names) and adds the bias's Monte Carlo
     /// covariance to `report.covariance` and `report.sigma`.
     ///
     /// [`estimate`](fn@crate::eiv::estimate) calls it at its end; `calibrate` calls it itself after
@@ -31,7 +32,7 @@ research_pub! {
     /// let input = eiv::EivInput::from_drive(&out.drive);
     /// let mut opts = eiv::EivOptions { fix_noise: true, ..Default::default() };
     /// let mut report = eiv::estimate(&input, &out.sidecar.theta_true, &opts)?;
-    /// opts.correct_bias(2, 0); // one antithetic pair
+    /// opts.correct_bias(2, 0, odocal::ParamSet::THETA); // one antithetic pair, every parameter
     /// eiv::apply_bias_correction(&input, &mut report, &opts)?;
     /// assert_ne!(report.theta, report.theta_uncorrected);
     /// // Each corrected (free) parameter's σ includes the correction's Monte Carlo error.
@@ -44,7 +45,7 @@ research_pub! {
     /// # Ok(()) }
     /// ```
     fn apply_bias_correction(input: &EivInput<'_>, report: &mut EivReport, opts: &EivOptions) -> Result<()> {
-        let BiasCorrection::Bootstrap { replicates, seed, all_parameters } = opts.bias_correction else {
+        let BiasCorrection::Bootstrap { replicates, seed, parameters } = opts.bias_correction else {
             return Ok(());
         };
         opts.validate()?;
@@ -76,11 +77,12 @@ research_pub! {
             },
         )?;
         let b = boot.bias;
-        report.bias_subtracted = if all_parameters { b } else { [b[0], 0.0, 0.0, 0.0] };
+        let named: [bool; 4] = std::array::from_fn(|i| parameters.contains(Param::THETA[i]));
+        report.bias_subtracted = std::array::from_fn(|i| if named[i] { b[i] } else { 0.0 });
         report.theta = theta_add(&report.theta, &report.bias_subtracted, -1.0);
         // The subtracted bias is a mean of B replicates: its Monte Carlo
         // covariance (replicates' covariance / B) joins θ's.
-        let corrected: [bool; 4] = std::array::from_fn(|i| report.free[i] && (all_parameters || i == 0));
+        let corrected: [bool; 4] = std::array::from_fn(|i| report.free[i] && named[i]);
         let mc = boot.mean_covariance();
         let mut cov = report.covariance;
         for i in 0..4 {

@@ -239,6 +239,7 @@ pub(crate) use bootstrap::{FAIL_EVERY_REPLICATE_SEED, FAIL_ONE_REPLICATE_SEED};
 pub(crate) use heading_drift::{HEADING_DRIFT_LR_THRESHOLD, HEADING_DRIFT_SCORE_GATE};
 pub(crate) use modelling::BIAS_BOOTSTRAP_SMOOTHING_SAMPLES;
 pub(crate) use noise::NOISE_SOURCES;
+pub(crate) use options::correctable_problem;
 pub(crate) use report::PARAMETERS;
 // What a user sets (the options, the noise model, the bias correction and
 // the bootstrap's options) and the EIV findings of the calibration's warnings.

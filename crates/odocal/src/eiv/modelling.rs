@@ -4,6 +4,8 @@ use super::lattice;
 
 use serde::{Deserialize, Serialize};
 
+use crate::model::param::ParamSet;
+
 use super::EivInput;
 use crate::error::{Error, Result};
 
@@ -231,15 +233,16 @@ pub enum BiasCorrection {
     None,
     /// The parametric `bootstrap` bias (B re-simulations of the fitted
     /// noise at θ̂, each re-fitted without correction) subtracted:
-    /// `θ̂ − (mean of the replicates − θ̂)`, for c_e only or for every free
-    /// parameter. About B more fits.
+    /// `θ̂ − (mean of the replicates − θ̂)`, for the named parameters of θ
+    /// (those of them the fit estimates). About B more fits.
     Bootstrap {
         /// Replicates B (at least 2).
         replicates: usize,
         /// Seed of the replicates' random streams.
         seed: u64,
-        /// Correct every free parameter (otherwise c_e only).
-        all_parameters: bool,
+        /// The parameters of θ corrected (not empty; no extrinsic); the
+        /// others keep the fit's value.
+        parameters: ParamSet,
     },
 }
 

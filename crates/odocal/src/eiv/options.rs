@@ -10,6 +10,7 @@ use super::{
     DEFAULT_POSITION_FLOOR_M, NOISE_SOURCES, SPEC_POSITION_FLOOR_M,
 };
 use crate::error::{Error, Result};
+use crate::model::param::ParamSet;
 use crate::model::Theta;
 
 research_pub! {
@@ -528,8 +529,8 @@ impl EivOptions {
     }
 
     research_pub! {
-        /// Subtracts the estimator's own bias from every parameter, estimated by
-        /// a parametric bootstrap of `replicates` re-simulations (seed `seed`;
+        /// Subtracts the estimator's own bias from the `parameters` of θ,
+        /// estimated by a parametric bootstrap of `replicates` re-simulations (seed `seed`;
         /// an even number: antithetic pairs, [`EivOptions::bootstrap_antithetic`])
         /// on the smoothed trajectory (`BIAS_BOOTSTRAP_SMOOTHING_SAMPLES`),
         /// each holding the fitted noise model:
@@ -541,17 +542,21 @@ impl EivOptions {
         /// ```
         /// # #[cfg(feature = "research")] {
         /// use odocal::eiv::{BiasCorrection, EivOptions};
+        /// use odocal::{Param, ParamSet};
+        /// let c_e: ParamSet = [Param::CE].into_iter().collect();
         /// let mut o = EivOptions::default();
-        /// o.correct_bias(10, 0);
-        /// assert_eq!(o.bias_correction, BiasCorrection::Bootstrap { replicates: 10, seed: 0, all_parameters: true });
+        /// o.correct_bias(10, 0, c_e);
+        /// assert_eq!(o.bias_correction, BiasCorrection::Bootstrap { replicates: 10, seed: 0, parameters: c_e });
         /// assert!(o.bootstrap_antithetic);
         /// assert!(o.validate().is_ok());
-        /// o.correct_bias(5, 0); // an odd B cannot be paired
+        /// o.correct_bias(5, 0, c_e); // an odd B cannot be paired
+        /// assert!(o.validate().is_err());
+        /// o.correct_bias(4, 0, ParamSet::EXTRINSICS); // only θ's parameters are corrected
         /// assert!(o.validate().is_err());
         /// # }
         /// ```
-        fn correct_bias(&mut self, replicates: usize, seed: u64) {
-            self.bias_correction = BiasCorrection::Bootstrap { replicates, seed, all_parameters: true };
+        fn correct_bias(&mut self, replicates: usize, seed: u64, parameters: ParamSet) {
+            self.bias_correction = BiasCorrection::Bootstrap { replicates, seed, parameters };
             self.bootstrap_inputs = BootstrapInputs::Smoothed { half_width_samples: BIAS_BOOTSTRAP_SMOOTHING_SAMPLES };
             self.bootstrap_antithetic = true;
         }
@@ -577,59 +582,74 @@ impl EivOptions {
         }
     }
 
-    /// Checks the options, naming the offending field.
-    pub(crate) fn validate(&self) -> Result<()> {
-        let bad = |field: &'static str, reason: &str| Err(Error::InvalidOption { field, reason: reason.into() });
-        if self.window_samples < 10 {
-            return bad("window_samples", "must be at least 10");
-        }
-        if !self.free.iter().any(|f| *f) {
-            return bad("free", "at least one parameter must be free");
-        }
-        if !(self.step_tolerance.is_finite() && self.step_tolerance > 0.0) {
-            return bad("step_tolerance", "must be positive");
-        }
-        let [lo, hi] = self.eta_bounds;
-        if !(lo.is_finite() && hi.is_finite() && lo <= 0.0 && hi >= 0.0) {
-            return bad("eta_bounds", "must be finite with lower <= 0 <= upper");
-        }
-        if self.resolution.iter().any(|r| !(r.is_finite() && *r > 0.0)) {
-            return bad("resolution", "must be positive");
-        }
-        if !(self.min_rcond.is_finite() && (0.0..1.0).contains(&self.min_rcond)) {
-            return bad("min_rcond", "must be in [0, 1)");
-        }
-        if !(self.nis_band[0] >= 0.0 && self.nis_band[1] > self.nis_band[0]) {
-            return bad("nis_band", "must be [lower, upper] with 0 <= lower < upper");
-        }
-        if self.heading_known_but_tied() {
-            return bad(
-                "eta_held",
-                "heading_white is known but its scale is tied to pose_white (heading noise `tied`): \
-                 use the separate heading scale, or state pose_white as known",
-            );
-        }
-        if let Some(t) = &self.hold_unobservable_at {
-            t.validate().map_err(|e| Error::InvalidOption {
-                field: "hold_unobservable_at",
-                reason: format!("{e}; give a usable θ (or None to hold at the start)"),
-            })?;
-        }
-        if let BiasCorrection::Bootstrap { replicates, .. } = self.bias_correction {
-            if replicates < 2 {
-                return bad("bias_correction", "the bootstrap needs at least 2 replicates");
+    research_pub! {
+        /// Checks the options, naming the offending field.
+        fn validate(&self) -> Result<()> {
+            let bad = |field: &'static str, reason: &str| Err(Error::InvalidOption { field, reason: reason.into() });
+            if self.window_samples < 10 {
+                return bad("window_samples", "must be at least 10");
             }
-            if self.bootstrap_antithetic && !replicates.is_multiple_of(2) {
+            if !self.free.iter().any(|f| *f) {
+                return bad("free", "at least one parameter must be free");
+            }
+            if !(self.step_tolerance.is_finite() && self.step_tolerance > 0.0) {
+                return bad("step_tolerance", "must be positive");
+            }
+            let [lo, hi] = self.eta_bounds;
+            if !(lo.is_finite() && hi.is_finite() && lo <= 0.0 && hi >= 0.0) {
+                return bad("eta_bounds", "must be finite with lower <= 0 <= upper");
+            }
+            if self.resolution.iter().any(|r| !(r.is_finite() && *r > 0.0)) {
+                return bad("resolution", "must be positive");
+            }
+            if !(self.min_rcond.is_finite() && (0.0..1.0).contains(&self.min_rcond)) {
+                return bad("min_rcond", "must be in [0, 1)");
+            }
+            if !(self.nis_band[0] >= 0.0 && self.nis_band[1] > self.nis_band[0]) {
+                return bad("nis_band", "must be [lower, upper] with 0 <= lower < upper");
+            }
+            if self.heading_known_but_tied() {
                 return bad(
-                    "bias_correction",
-                    "antithetic pairs (bootstrap_antithetic) need an even number of replicates",
+                    "eta_held",
+                    "heading_white is known but its scale is tied to pose_white (heading noise `tied`): \
+                     use the separate heading scale, or state pose_white as known",
                 );
             }
+            if let Some(t) = &self.hold_unobservable_at {
+                t.validate().map_err(|e| Error::InvalidOption {
+                    field: "hold_unobservable_at",
+                    reason: format!("{e}; give a usable θ (or None to hold at the start)"),
+                })?;
+            }
+            if let BiasCorrection::Bootstrap { replicates, parameters, .. } = self.bias_correction {
+                if let Some(problem) = correctable_problem(parameters) {
+                    return bad("bias_correction", &problem);
+                }
+                if replicates < 2 {
+                    return bad("bias_correction", "the bootstrap needs at least 2 replicates");
+                }
+                if self.bootstrap_antithetic && !replicates.is_multiple_of(2) {
+                    return bad(
+                        "bias_correction",
+                        "antithetic pairs (bootstrap_antithetic) need an even number of replicates",
+                    );
+                }
+            }
+            self.research.validate()?;
+            // The model may be a fitted one (the bias correction's replicates
+            // start from it), so only finiteness here; a user's stated model
+            // meets the ceilings where it is read (`noise_model_from_table`).
+            self.noise.validate_fitted()
         }
-        self.research.validate()?;
-        // The model may be a fitted one (the bias correction's replicates
-        // start from it), so only finiteness here; a user's stated model
-        // meets the ceilings where it is read (`noise_model_from_table`).
-        self.noise.validate_fitted()
     }
+}
+
+/// What is wrong with `parameters` as the parameters a bias correction
+/// corrects: an extrinsic among them, or none at all.
+pub(crate) fn correctable_problem(parameters: ParamSet) -> Option<String> {
+    let extrinsics = parameters.intersection(ParamSet::EXTRINSICS);
+    if !extrinsics.is_empty() {
+        return Some(format!("corrects parameters of θ (c_e, c_d, t_r, d), not {extrinsics}"));
+    }
+    parameters.is_empty().then(|| "names no parameter to correct (give c_e, c_d, t_r or d)".to_string())
 }

@@ -49,8 +49,8 @@ mod resolve;
 /// | `max_iterations` | 100,000 |
 /// | `segment_length`, `segment_stride`, `validation_length`, `eiv_window` | 10,000,000 samples |
 /// | `batches`, `batch_size`, `picks` | 100,000 |
-/// | `bootstrap`, `correct_c_e_bias`, `correct_bias` | 100,000 replicates |
-pub(crate) const COUNT_CEILINGS: [(&str, usize); 11] = [
+/// | `bootstrap`, `correct_bias` | 100,000 replicates |
+pub(crate) const COUNT_CEILINGS: [(&str, usize); 10] = [
     ("max_iterations", 100_000),
     ("segment_length", 10_000_000),
     ("segment_stride", 10_000_000),
@@ -60,7 +60,6 @@ pub(crate) const COUNT_CEILINGS: [(&str, usize); 11] = [
     ("batch_size", 100_000),
     ("picks", 100_000),
     ("bootstrap", 100_000),
-    ("correct_c_e_bias", 100_000),
     ("correct_bias", 100_000),
 ];
 
@@ -283,17 +282,16 @@ settings! {
         /// correction (eiv only). Default 0.
         #[serde(default)]
         pub bootstrap_seed: Option<u64>,
-        /// `correct_c_e_bias`: correct c_e alone, by a bootstrap with this
-        /// many replicates, instead of every parameter (eiv only; not with
-        /// `correct_bias`). Default none.
-        #[serde(default)]
-        pub correct_c_e_bias: Option<usize>,
-        /// `correct_bias`: replicates B of the bias correction of every
-        /// parameter, an even number; 0 turns it off (flag:
-        /// `--correct-bias B`, `--no-bias-correction` is 0; eiv only).
-        /// Default 4.
+        /// `correct_bias`: replicates B of the bias correction, an even
+        /// number; 0 turns it off (flag: `--correct-bias B`,
+        /// `--no-bias-correction` is 0; eiv only). Default 4.
         #[serde(default)]
         pub correct_bias: Option<usize>,
+        /// `correct_bias_of`: the parameters of θ the bias correction
+        /// subtracts its bias from, `"c_e,t_r"` or a list (eiv only).
+        /// Default c_e.
+        #[serde(default, deserialize_with = "de::param_set")]
+        pub correct_bias_of: Option<ParamSet>,
     }
 }
 

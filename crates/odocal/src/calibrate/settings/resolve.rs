@@ -12,7 +12,8 @@ use super::{ManifestSettings, NoiseModelSetting, Settings};
 use crate::calibrate::eiv::{CorrectBias, EivMethodOptions};
 use crate::calibrate::three_step::{FinalSegments, ThreeStepOptions};
 use crate::calibrate::{CalibrationOptions, Method};
-use crate::eiv::{BiasCorrection, BootstrapOptions};
+use crate::eiv::correctable_problem;
+use crate::eiv::BootstrapOptions;
 use crate::error::{Error, Result};
 use crate::model::param::{Param, ParamSet};
 
@@ -105,8 +106,8 @@ static METHOD_KEYS: [MethodKeys; 4] = [
             "heading_noise",
             "bootstrap",
             "bootstrap_seed",
-            "correct_c_e_bias",
             "correct_bias",
+            "correct_bias_of",
         ],
         uses: |m| matches!(m, Method::Eiv(_)),
         owner: |c| format!("{} only", c.method("eiv", true)),
@@ -367,7 +368,7 @@ impl Settings {
     /// the key and what is wrong (`= 0: must be at least 1`), for the
     /// caller's or a manifest's words.
     pub(crate) fn value_problem(&self) -> Option<(&'static str, String)> {
-        let counts: [Option<usize>; 11] = [
+        let counts: [Option<usize>; 10] = [
             self.max_iterations,
             self.segment_length,
             self.segment_stride,
@@ -377,7 +378,6 @@ impl Settings {
             self.batch_size,
             self.picks,
             self.bootstrap,
-            self.correct_c_e_bias,
             self.correct_bias,
         ];
         for ((key, max), v) in super::COUNT_CEILINGS.iter().zip(counts) {
@@ -488,17 +488,28 @@ impl Settings {
             return Err(caller.invalid("known_noise", self, what));
         }
         let seed = self.bootstrap_seed.unwrap_or(0);
-        if let Some(b) = self.correct_c_e_bias {
-            if self.correct_bias.is_some() {
-                let other = caller.name("correct_bias", self);
-                let what = format!("replaces the bias correction of every parameter: give it without {other}");
-                return Err(caller.invalid("correct_c_e_bias", self, what));
+        self.bias_correction(e, caller, seed)?;
+        if let Some(b) = self.bootstrap {
+            e.bootstrap = Some(BootstrapOptions { replicates: b, seed, ..Default::default() });
+        }
+        Ok(())
+    }
+
+    /// The bias correction's settings (`correct_bias`, `correct_bias_of`,
+    /// the seed) applied to `e`.
+    fn bias_correction(&self, e: &mut EivMethodOptions, caller: Caller, seed: u64) -> Result<()> {
+        let off = if caller == Caller::CommandLine { "--no-bias-correction" } else { "correct_bias=0" };
+        if let Some(parameters) = self.correct_bias_of {
+            if self.correct_bias == Some(0) {
+                let what = format!("names the parameters of the bias correction, which {off} turns off");
+                return Err(caller.invalid("correct_bias_of", self, what));
             }
-            e.filter.bias_correction = BiasCorrection::Bootstrap { replicates: b, seed, all_parameters: false };
+            if let Some(problem) = correctable_problem(parameters) {
+                return Err(caller.invalid("correct_bias_of", self, problem));
+            }
         }
         match self.correct_bias {
-            Some(0) if self.bootstrap_seed.is_some() && self.bootstrap.is_none() && self.correct_c_e_bias.is_none() => {
-                let off = if caller == Caller::CommandLine { "--no-bias-correction" } else { "correct_bias=0" };
+            Some(0) if self.bootstrap_seed.is_some() && self.bootstrap.is_none() => {
                 let what = format!("is the seed of the bias correction, which {off} turns off");
                 return Err(caller.invalid("bootstrap_seed", self, what));
             }
@@ -512,15 +523,15 @@ impl Settings {
                     ),
                 })
             }
-            Some(b) => e.correct_bias = Some(CorrectBias { replicates: b, seed }),
-            None => {
-                if let Some(c) = &mut e.correct_bias {
-                    c.seed = seed;
-                }
+            Some(b) => {
+                let parameters = e.correct_bias.unwrap_or_default().parameters;
+                e.correct_bias = Some(CorrectBias { replicates: b, seed, parameters });
             }
+            None => {}
         }
-        if let Some(b) = self.bootstrap {
-            e.bootstrap = Some(BootstrapOptions { replicates: b, seed, ..Default::default() });
+        if let Some(c) = &mut e.correct_bias {
+            c.seed = seed;
+            c.parameters = self.correct_bias_of.unwrap_or(c.parameters);
         }
         Ok(())
     }

@@ -45,7 +45,7 @@ fn every_key_is_a_field_and_the_precedence_is_key_by_key() {
         "qp_solver": "clarabel", "noise_model": {"wheel_white_rel_sigma": 0.02}, "known_noise": "pose_white",
         "fix_noise": true, "fallback": false, "eiv_window": 1500, "quantisation": "process",
         "quantisation_level": "given", "lateral_noise": "stated", "heading_noise": "tied", "bootstrap": 10,
-        "bootstrap_seed": 4, "correct_c_e_bias": 2, "correct_bias": 2
+        "bootstrap_seed": 4, "correct_bias": 2, "correct_bias_of": "c_e,t_r"
     }));
     assert_eq!(all.stated(), Settings::KEYS, "every key deserializes into its field");
     let none = Settings::default();
@@ -113,6 +113,20 @@ fn the_mapping_matches_the_options_each_key_names() {
     let o = json_settings(json!({"bootstrap_seed": 5})).to_options(Caller::Python).expect("options");
     let Method::Eiv(e) = &o.method else { panic!("eiv") };
     assert_eq!(e.correct_bias.map(|c| (c.replicates, c.seed)), Some((4, 5)), "the default correction, seeded");
+    let c_e: ParamSet = [Param::CE].into_iter().collect();
+    assert_eq!(e.correct_bias.map(|c| c.parameters), Some(c_e), "the default correction is of c_e");
+    // The parameters and the replicates are set apart; either keeps the other's default.
+    let c_e_t_r = c_e.with(Param::TR);
+    for (s, want) in [
+        (json!({"correct_bias_of": "c_e,t_r"}), (4, c_e_t_r)),
+        (json!({"correct_bias_of": ["c_e", "c_d", "t_r", "d"]}), (4, ParamSet::THETA)),
+        (json!({"correct_bias": 6}), (6, c_e)),
+        (json!({"correct_bias": 6, "correct_bias_of": "t_r"}), (6, c_e_t_r.without(Param::CE))),
+    ] {
+        let o = json_settings(s.clone()).to_options(Caller::Python).expect("options");
+        let Method::Eiv(e) = &o.method else { panic!("eiv") };
+        assert_eq!(e.correct_bias.map(|c| (c.replicates, c.parameters)), Some(want), "{s}");
+    }
     assert_eq!(Settings::default().to_options(Caller::CommandLine).expect("defaults"), CalibrationOptions::default());
 }
 
@@ -148,6 +162,18 @@ fn misplaced_keys_are_named_as_the_caller_gave_them() {
     );
     let s = json_settings(json!({"correct_bias": 3}));
     assert!(s.to_options(Caller::Python).expect_err("odd").to_string().contains("`correct_bias`: must be 0"));
+    let s = json_settings(json!({"correct_bias": 0, "correct_bias_of": "t_r"}));
+    let cli = s.to_options(Caller::CommandLine).expect_err("parameters of nothing").to_string();
+    assert_eq!(
+        cli,
+        "--correct-bias-of names the parameters of the bias correction, which --no-bias-correction turns off"
+    );
+    let s = json_settings(json!({"correct_bias_of": "c_e,heading_offset"}));
+    let py = s.to_options(Caller::Python).expect_err("an extrinsic").to_string();
+    assert_eq!(py, "invalid option `correct_bias_of`: corrects parameters of θ (c_e, c_d, t_r, d), not heading_offset");
+    let s = json_settings(json!({"correct_bias_of": ""}));
+    let cli = s.to_options(Caller::CommandLine).expect_err("no parameter").to_string();
+    assert_eq!(cli, "--correct-bias-of names no parameter to correct (give c_e, c_d, t_r or d)");
     // The EIV window's and the bootstrap's floors are named as given, not
     // by the library's fields (window_samples, replicates).
     let s = json_settings(json!({"eiv_window": 1}));
@@ -316,7 +342,7 @@ fn users(key: &str) -> &'static [&'static str] {
         "min_yaw_rate" | "keep_one_way" => &["batch-gn", "three-step"],
         "noise_model" | "known_noise" | "fix_noise" | "fallback" | "eiv_window" | "quantisation"
         | "quantisation_level" | "lateral_noise" | "heading_noise" | "bootstrap" | "bootstrap_seed"
-        | "correct_c_e_bias" | "correct_bias" => &["eiv"],
+        | "correct_bias" | "correct_bias_of" => &["eiv"],
         "method" | "theta0" | "fix" | "auto_fix" | "max_iterations" | "segment_length" | "segment_stride"
         | "validation_length" | "estimate" | "lever_arm" | "heading_offset" => ALL,
         _ => panic!("key {key}: say which methods use it"),
@@ -337,7 +363,7 @@ fn a_key_is_refused_or_ignored_exactly_where_its_method_does_not_use_it() {
         "noise_model": {"wheel_white_rel_sigma": 0.02}, "known_noise": "pose_white", "fix_noise": true,
         "fallback": false, "eiv_window": 1500, "quantisation": "process", "quantisation_level": "given",
         "lateral_noise": "stated", "heading_noise": "tied", "bootstrap": 10, "bootstrap_seed": 4,
-        "correct_c_e_bias": 2, "correct_bias": 2
+        "correct_bias": 2, "correct_bias_of": "c_e,t_r"
     });
     for key in Settings::KEYS.iter().filter(|k| **k != "method") {
         let value = values.get(*key).unwrap_or_else(|| panic!("a value for {key}")).clone();

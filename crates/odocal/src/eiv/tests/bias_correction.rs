@@ -4,6 +4,7 @@ use super::support::*;
 use crate::eiv::estimate::one_step;
 use crate::eiv::filter::NETA;
 use crate::eiv::*;
+use crate::model::param::{Param, ParamSet};
 use crate::sim::{simulate, SimOptions};
 use crate::Error;
 use crate::Theta;
@@ -98,11 +99,13 @@ fn bootstrap_bias_correction_subtracts_the_bootstrap_bias() {
 
     let one_step = BootstrapOptions { replicates: 2, seed: 3, refit: BootstrapRefit::OneStep, ..Default::default() };
     let boot = bootstrap(&input, &plain, &opts, &one_step).expect("bootstrap");
-    for all_parameters in [false, true] {
-        let corr = BiasCorrection::Bootstrap { replicates: 2, seed: 3, all_parameters };
+    let c_e: ParamSet = [Param::CE].into_iter().collect();
+    for parameters in [c_e, c_e.with(Param::TR), ParamSet::THETA] {
+        let corr = BiasCorrection::Bootstrap { replicates: 2, seed: 3, parameters };
         let r = estimate(&input, &start, &EivOptions { bias_correction: corr, ..opts.clone() }).expect("eiv");
         assert_eq!(r.theta_uncorrected, plain.theta);
-        let want = if all_parameters { boot.bias } else { [boot.bias[0], 0.0, 0.0, 0.0] };
+        let named: [bool; 4] = std::array::from_fn(|i| parameters.contains(Param::THETA[i]));
+        let want: [f64; 4] = std::array::from_fn(|i| if named[i] { boot.bias[i] } else { 0.0 });
         assert!(want[0] != 0.0, "the bootstrap found no c_e bias at all: {want:?}");
         assert_eq!(bits(r.bias_subtracted), bits(want));
         // Bit-exact: the correction is one subtraction.
@@ -113,7 +116,7 @@ fn bootstrap_bias_correction_subtracts_the_bootstrap_bias() {
         // subtracted mean (replicates' variance / B); the others are unchanged.
         let mc = boot.mean_covariance();
         for i in 0..4 {
-            let corrected = plain.free[i] && (all_parameters || i == 0);
+            let corrected = plain.free[i] && named[i];
             let want_var = plain.sigma[i].powi(2) + if corrected { mc[i][i] } else { 0.0 };
             assert!(
                 (r.sigma[i].powi(2) - want_var).abs() <= 1e-12 * want_var,
@@ -125,9 +128,16 @@ fn bootstrap_bias_correction_subtracts_the_bootstrap_bias() {
             assert!(!corrected || mc[i][i] > 0.0, "parameter {i}: no Monte Carlo variance");
         }
     }
-    let one = BiasCorrection::Bootstrap { replicates: 1, seed: 0, all_parameters: false };
-    let bad = EivOptions { bias_correction: one, ..opts };
+    let one = BiasCorrection::Bootstrap { replicates: 1, seed: 0, parameters: c_e };
+    let bad = EivOptions { bias_correction: one, ..opts.clone() };
     assert!(matches!(bad.validate(), Err(Error::InvalidOption { field: "bias_correction", .. })));
+    // Only θ's parameters, and at least one of them, can be corrected.
+    for parameters in [ParamSet::default(), ParamSet::EXTRINSICS, c_e.with(Param::HeadingOffset)] {
+        let corr = BiasCorrection::Bootstrap { replicates: 2, seed: 0, parameters };
+        let bad = EivOptions { bias_correction: corr, ..opts.clone() };
+        let err = bad.validate();
+        assert!(matches!(err, Err(Error::InvalidOption { field: "bias_correction", .. })), "{parameters}: {err:?}");
+    }
 }
 
 /// With the noise scales estimated, the bias correction fits the replicates
@@ -165,7 +175,7 @@ fn held_noise_bias_correction_fits_the_replicates_with_the_fitted_noise() {
     };
     let held = EivOptions { noise: plain.noise, fix_noise: true, ..opts.clone() };
     let boot = bootstrap(&input, &plain, &held, &boot_opts).expect("bootstrap");
-    let corr = BiasCorrection::Bootstrap { replicates: 2, seed: 4, all_parameters: true };
+    let corr = BiasCorrection::Bootstrap { replicates: 2, seed: 4, parameters: ParamSet::THETA };
     let r = estimate(&input, &start, &EivOptions { bias_correction: corr, ..opts.clone() }).expect("eiv");
     assert_eq!(r.theta_uncorrected, plain.theta);
     assert_eq!(r.bias_subtracted.map(f64::to_bits), boot.bias.map(f64::to_bits));
@@ -237,11 +247,11 @@ fn antithetic_pairs_average_out_the_replicates_odd_error() {
     let odd = bootstrap(&input, &fit, &opts, &boot_opts(true, 5));
     assert!(matches!(odd, Err(Error::InvalidOption { field: "replicates", .. })), "{odd:?}");
     let mut o = opts.clone();
-    o.correct_bias(5, 4);
+    o.correct_bias(5, 4, ParamSet::THETA);
     assert!(matches!(o.validate(), Err(Error::InvalidOption { field: "bias_correction", .. })));
     // The correction (held noise: here the fixed model, as the fit's) subtracts that bootstrap's bias.
     let mut o = opts.clone();
-    o.correct_bias(8, 4);
+    o.correct_bias(8, 4, ParamSet::THETA);
     assert!(o.bootstrap_antithetic);
     let r = estimate(&input, &start, &o).expect("eiv");
     assert_eq!(r.theta_uncorrected, fit.theta);
@@ -341,7 +351,7 @@ fn one_step_replicates_move_the_correction_by_a_small_fraction_of_sigma() {
         let out = simulate(&SimOptions { length_km: 2.0, noise, ..SimOptions::paper(seed) }).expect("sim");
         let input = input_of(&out.drive);
         let mut opts = EivOptions::default();
-        opts.correct_bias(4, 0);
+        opts.correct_bias(4, 0, ParamSet::THETA);
         let r = estimate(&input, &out.sidecar.theta_true, &opts).expect("eiv");
         // The bootstrap the correction runs, with converged replicates.
         let inner = EivOptions {

@@ -5,6 +5,7 @@ use crate::eiv::input::make_windows;
 use crate::eiv::problem::Problem;
 use crate::eiv::scoring::scoring_pass;
 use crate::eiv::*;
+use crate::model::param::ParamSet;
 use crate::sim::{simulate, NoiseOptions, SimOptions};
 use crate::Theta;
 
@@ -335,7 +336,7 @@ fn leaving_out_the_c_d_covariance_derivative_moves_theta_by_a_small_fraction_of_
     let input = super::support::input_of(&out.drive);
     let start = super::support::batch_gn_all(&out.drive);
     let mut opts = EivOptions::default();
-    opts.correct_bias(4, 0);
+    opts.correct_bias(4, 0, ParamSet::THETA);
     let exact_opts = EivOptions {
         research: ResearchOptions { c_d_covariance_derivative: true, ..opts.research.clone() },
         ..opts.clone()
