@@ -353,7 +353,8 @@ def test_correct_bias_equals_cli_json(odocal_bin, drive_csv):
             if on:
                 assert e["sigma"][i] ** 2 == pytest.approx(p["sigma"][i] ** 2 + e["sigma_bias_correction"][i] ** 2)
             else:
-                assert (e["theta"][i], e["sigma"][i]) == (p["theta"][i], p["sigma"][i])
+                name = ("c_e", "c_d", "t_r", "d")[i]
+                assert (e["theta"][name], e["sigma"][i]) == (p["theta"][name], p["sigma"][i])
     with pytest.raises(odocal.OdocalError, match="bootstrap_seed`: is the seed of the bias correction"):
         odocal.calibrate(drive, eiv_window=1500, correct_bias=0, bootstrap_seed=5)
     with pytest.raises(odocal.OdocalError, match="correct_bias`: must be 0 .no correction. or an even number"):
