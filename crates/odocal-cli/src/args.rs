@@ -239,8 +239,9 @@ pub struct CalibrationArgs {
           value_parser = parse_even_replicates, conflicts_with = "no_bias_correction")]
     pub correct_bias: Option<usize>,
     /// The parameters of θ the bias correction corrects, comma-separated
-    /// [default: c_e]. On simulated drives with random noise it takes c_e's
-    /// error down 2.6-8.4 times and removes none of t_r's or d's; adding
+    /// [default: c_e,c_d]. On simulated drives with random noise it takes
+    /// c_e's error down 2.6-8.4 times, c_d's by a fifth under heavy
+    /// common-mode wheel noise, and removes none of t_r's or d's; adding
     /// t_r helps where the wheel noise is white, as the fitted model's (the
     /// `high` preset: t_r +1.09 % → +0.36 %), and not otherwise
     /// (docs/validation.md).

@@ -327,7 +327,7 @@ def test_known_noise_equals_cli_json(odocal_bin, drive_csv):
 
 def test_correct_bias_equals_cli_json(odocal_bin, drive_csv):
     """correct_bias=B is --correct-bias B, correct_bias_of= --correct-bias-of, correct_bias=0
-    --no-bias-correction, and the default (B = 4, c_e) the CLI's: the named parameters corrected, their σ with
+    --no-bias-correction, and the default (B = 4, c_e and c_d) the CLI's: the named parameters corrected, their σ with
     the correction's Monte Carlo error."""
     args = ("calibrate", drive_csv, "--eiv-window", "1500", "--no-fallback")
     drive = odocal.Drive.from_csv(drive_csv)
@@ -343,8 +343,8 @@ def test_correct_bias_equals_cli_json(odocal_bin, drive_csv):
     assert plain["options"]["method"]["correct_bias"] is None
     default = odocal.calibrate(drive, eiv_window=1500, fallback=False, bootstrap_seed=3).to_dict()
     assert _without_eiv_timing(default) == _without_eiv_timing(cli_json(odocal_bin, *args, "--bootstrap-seed", "3"))
-    assert default["options"]["method"]["correct_bias"] == {"replicates": 4, "seed": 3, "parameters": ["c_e"]}
-    for c, corrected in ((d, [True] * 4), (default, [True, False, False, False])):
+    assert default["options"]["method"]["correct_bias"] == {"replicates": 4, "seed": 3, "parameters": ["c_e", "c_d"]}
+    for c, corrected in ((d, [True] * 4), (default, [True, True, False, False])):
         e, p = c["eiv"], plain["eiv"]
         assert e["theta_uncorrected"] == p["theta"]
         for i, free in enumerate(e["free"]):

@@ -175,7 +175,7 @@ fn eiv_noise_model_shape_flags_reach_the_options() {
     assert!(text(&o.stderr).contains("possible values: process, measurement, counting"), "{}", text(&o.stderr));
 }
 
-/// The default bias correction (B = 4, of c_e), `--correct-bias B` and
+/// The default bias correction (B = 4, of c_e and c_d), `--correct-bias B` and
 /// `--correct-bias-of`: the named parameters corrected by a bootstrap in
 /// antithetic pairs on the smoothed trajectory whose replicates hold the
 /// fitted noise model; their σ carries the correction's Monte Carlo error,
@@ -195,14 +195,14 @@ fn correct_bias_corrects_the_named_parameters_with_held_noise() {
     assert!(plain["options"]["method"]["correct_bias"].is_null(), "{}", plain["options"]["method"]);
     assert_eq!(plain["eiv"]["bias_subtracted"], serde_json::json!([0.0, 0.0, 0.0, 0.0]));
     let default = run(&[]);
-    let want = serde_json::json!({"replicates": 4, "seed": 0, "parameters": ["c_e"]});
+    let want = serde_json::json!({"replicates": 4, "seed": 0, "parameters": ["c_e", "c_d"]});
     assert_eq!(default["options"]["method"]["correct_bias"], want);
     assert_eq!(default["eiv"]["theta_uncorrected"], plain["eiv"]["theta"]);
     let r = run(&["--correct-bias", "2", "--bootstrap-seed", "7", "--correct-bias-of", "c_e,c_d,t_r,d"]);
     let want = serde_json::json!({"replicates": 2, "seed": 7, "parameters": ["c_e", "c_d", "t_r", "d"]});
     assert_eq!(r["options"]["method"]["correct_bias"], want);
     assert_eq!(r["eiv"]["theta_uncorrected"], plain["eiv"]["theta"]);
-    for (name, c, corrected) in [("default", &default, [true, false, false, false]), ("every parameter", &r, [true; 4])]
+    for (name, c, corrected) in [("default", &default, [true, true, false, false]), ("every parameter", &r, [true; 4])]
     {
         let (e, p) = (&c["eiv"], &plain["eiv"]);
         for i in 0..4 {

@@ -83,7 +83,7 @@ World i has world seed S + i (drive seed too); every method runs through odocal:
 --heading-drift-min-eta X: the floor of the heading drift's tie to the pose-drift scale η_4 (heading_drift_min_eta;
     -20, the η lower bound, ties it all the way).
 --correct-bias-of PARAMS: the parameters of θ the default's bias correction corrects (`c_e,c_d,t_r,d`: every one;
-    the default c_e).";
+    the default c_e,c_d).";
 
 /// The methods the study knows, by their `--method` names.
 const METHODS: [&str; 3] = ["eiv", "batch-gn", "three-step"];

@@ -362,9 +362,9 @@ def calibrate(
       ``"stated"``), ``correct_bias`` (B, an even number: replicates of the
       bias correction that is on by default with B = 4 — the estimator's own
       bias, estimated by a bootstrap in antithetic pairs, subtracted from
-      c_e, as ``--correct-bias``; ``0`` turns it off, as
+      c_e and c_d, as ``--correct-bias``; ``0`` turns it off, as
       ``--no-bias-correction``), ``correct_bias_of`` (the parameters it
-      corrects, ``"c_e,t_r"`` or a list; default c_e, as
+      corrects, ``"c_e,t_r"`` or a list; default c_e and c_d, as
       ``--correct-bias-of``), ``bootstrap`` (B: a parametric bootstrap's intervals and
       bias in the report) with ``bootstrap_seed`` (their seed): method
       ``"eiv"`` only, as the CLI's flags.

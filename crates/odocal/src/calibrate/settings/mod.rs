@@ -289,7 +289,7 @@ settings! {
         pub correct_bias: Option<usize>,
         /// `correct_bias_of`: the parameters of θ the bias correction
         /// subtracts its bias from, `"c_e,t_r"` or a list (eiv only).
-        /// Default c_e.
+        /// Default c_e and c_d.
         #[serde(default, deserialize_with = "de::param_set")]
         pub correct_bias_of: Option<ParamSet>,
     }

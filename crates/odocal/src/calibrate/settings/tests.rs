@@ -114,13 +114,14 @@ fn the_mapping_matches_the_options_each_key_names() {
     let Method::Eiv(e) = &o.method else { panic!("eiv") };
     assert_eq!(e.correct_bias.map(|c| (c.replicates, c.seed)), Some((4, 5)), "the default correction, seeded");
     let c_e: ParamSet = [Param::CE].into_iter().collect();
-    assert_eq!(e.correct_bias.map(|c| c.parameters), Some(c_e), "the default correction is of c_e");
+    let c_e_c_d = c_e.with(Param::CD);
+    assert_eq!(e.correct_bias.map(|c| c.parameters), Some(c_e_c_d), "the default correction is of c_e and c_d");
     // The parameters and the replicates are set apart; either keeps the other's default.
     let c_e_t_r = c_e.with(Param::TR);
     for (s, want) in [
         (json!({"correct_bias_of": "c_e,t_r"}), (4, c_e_t_r)),
         (json!({"correct_bias_of": ["c_e", "c_d", "t_r", "d"]}), (4, ParamSet::THETA)),
-        (json!({"correct_bias": 6}), (6, c_e)),
+        (json!({"correct_bias": 6}), (6, c_e_c_d)),
         (json!({"correct_bias": 6, "correct_bias_of": "t_r"}), (6, c_e_t_r.without(Param::CE))),
     ] {
         let o = json_settings(s.clone()).to_options(Caller::Python).expect("options");
