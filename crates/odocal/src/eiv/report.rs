@@ -398,13 +398,14 @@ research_pub! {
         /// The root of the profile cost before any `BiasCorrection`.
         pub theta_uncorrected: Theta,
         /// The bias subtracted by [`EivOptions::bias_correction`](crate::eiv::EivOptions::bias_correction) (`theta =
-        /// theta_uncorrected − bias_subtracted`; zeros without a correction).
+        /// theta_uncorrected − bias_subtracted`; zero for a parameter the
+        /// correction does not name, zeros without a correction).
         pub bias_subtracted: [f64; 4],
         /// What the bootstrap of [`EivOptions::bias_correction`](crate::eiv::EivOptions::bias_correction) adds to θ's σ
         /// (already in [`EivReport::sigma`] and the covariance): the Monte Carlo
         /// error of the subtracted bias, the replicates' covariance over the
-        /// number of replicates fitted, for the corrected parameters (zeros
-        /// without a correction).
+        /// number of replicates fitted, for the corrected parameters (zero for
+        /// the others, zeros without a correction).
         #[serde(default)]
         pub sigma_bias_correction: [f64; 4],
         /// The bias correction's replicates that could not be fitted: (index,
