@@ -46,7 +46,10 @@ fn methods() -> Res<Vec<(&'static str, Method)>> {
         ..Default::default()
     };
     let corrected = |replicates: usize| {
-        Method::Eiv(EivMethodOptions { correct_bias: Some(CorrectBias { replicates, ..Default::default() }), ..Default::default() })
+        Method::Eiv(EivMethodOptions {
+            correct_bias: Some(CorrectBias { replicates, ..Default::default() }),
+            ..Default::default()
+        })
     };
     Ok(vec![
         ("batch-gn", "batch-gn".parse::<Method>()?),

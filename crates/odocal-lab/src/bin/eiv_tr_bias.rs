@@ -204,11 +204,8 @@ fn options(est: &str, noise: &NoiseOptions, ts: f64) -> Res<CalibrationOptions> 
         "b16" | "conv" => {
             if let Method::Eiv(e) = &mut o.method {
                 if est == "b16" {
-                    e.correct_bias = Some(CorrectBias {
-                        replicates: 16,
-                        parameters: odocal::ParamSet::THETA,
-                        ..Default::default()
-                    });
+                    e.correct_bias =
+                        Some(CorrectBias { replicates: 16, parameters: odocal::ParamSet::THETA, ..Default::default() });
                 } else {
                     e.filter.research.bias_correction_refit = BootstrapRefit::Converged;
                 }

@@ -332,7 +332,7 @@ fn bootstrap_rows(
             b.pair_means.len()
         );
         let time_s = time_s + t.elapsed().as_secs_f64();
-        // c_e only corrected (the default) and every parameter (`--correct-bias-of c_e,c_d,t_r,d`).
+        // c_e only corrected (`--correct-bias-of c_e`) and every parameter (`--correct-bias-of c_e,c_d,t_r,d`).
         let mut rows = vec![("", Theta { c_e: b.theta_corrected.c_e, ..r.theta }), (" (all)", b.theta_corrected)];
         if row == "EIV est. + boot held η̂" {
             // The held-noise bias b carried through the θ̂–η̂ feedback,

@@ -142,7 +142,11 @@ fn options(method: &str, q: f64) -> Res<CalibrationOptions> {
             // What the CLI's `--correct-bias 10 --correct-bias-of c_e,c_d,t_r,d`
             // sets (seed 0, antithetic pairs, every parameter).
             Method::Eiv(EivMethodOptions {
-                correct_bias: Some(odocal::CorrectBias { replicates: 10, seed: 0, parameters: odocal::ParamSet::THETA }),
+                correct_bias: Some(odocal::CorrectBias {
+                    replicates: 10,
+                    seed: 0,
+                    parameters: odocal::ParamSet::THETA,
+                }),
                 fallback,
                 ..EivMethodOptions::default()
             })

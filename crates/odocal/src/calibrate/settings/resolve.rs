@@ -523,12 +523,10 @@ impl Settings {
                     ),
                 })
             }
-            Some(b) => {
-                let parameters = e.correct_bias.unwrap_or_default().parameters;
-                e.correct_bias = Some(CorrectBias { replicates: b, seed, parameters });
-            }
+            Some(b) => e.correct_bias.get_or_insert_with(CorrectBias::default).replicates = b,
             None => {}
         }
+        // The seed and the parameters apply to the correction that stands.
         if let Some(c) = &mut e.correct_bias {
             c.seed = seed;
             c.parameters = self.correct_bias_of.unwrap_or(c.parameters);
