@@ -113,12 +113,16 @@ pub fn drive_entry(role: &str, path: &str, fingerprint: &str) -> serde_json::Val
 }
 
 /// Warnings to stderr, grouped by kind: at most [`WARNINGS_PER_KIND`] of
-/// each and a count of the rest (the JSON report lists all).
+/// each and a count of the rest (the JSON report lists all). Those that
+/// inform rather than warn ([`Warning::is_note`]) print as `note:`.
 pub fn print_warnings(warnings: &[Warning]) {
-    let lines = odocal::Warning::summarize(warnings, WARNINGS_PER_KIND);
-    let collapsed = lines.iter().any(|l| l.starts_with('…'));
-    for l in lines {
-        eprintln!("warning: {l}");
+    let (notes, warnings): (Vec<Warning>, Vec<Warning>) = warnings.iter().cloned().partition(Warning::is_note);
+    let mut collapsed = false;
+    for (prefix, list) in [("note", &notes), ("warning", &warnings)] {
+        for l in odocal::Warning::summarize(list, WARNINGS_PER_KIND) {
+            collapsed |= l.starts_with('…');
+            eprintln!("{prefix}: {l}");
+        }
     }
     if collapsed {
         eprintln!("warning: (the --json report lists every warning)");

@@ -255,7 +255,11 @@ impl<'a> ReportInput<'a> {
             truth: truth.copied(),
             verdict: Some((r.verdict.level.to_string(), r.verdict.reasons.iter().map(|x| x.to_string()).collect())),
             batches,
-            warnings: r.warnings.iter().map(|w| w.to_string()).collect(),
+            warnings: r
+                .warnings
+                .iter()
+                .map(|w| if w.is_note() { format!("note: {w}") } else { w.to_string() })
+                .collect(),
             method_details: r.method_details().lines().map(str::to_string).collect(),
             segment_extrinsics: r.validation_extrinsics(starts, segments),
             // The σ that stands for the result, labelled once (as the text's column).

@@ -95,3 +95,20 @@ fn estimate_hold_and_fix_extrinsics() {
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("--lever-arm takes X,Y"));
 }
+
+/// The default method's note that its filter held the extrinsics its start
+/// estimated prints as `note:`, not as a warning; the JSON lists it with
+/// the warnings by kind.
+#[test]
+fn held_extrinsics_print_as_a_note() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let drive = common::simulated_drive(dir.path(), "d.csv", &["--seed", "3", "--length-km", "6", "--substeps", "1"]);
+    let o = odocal(&["calibrate", drive.as_str(), "--json", "-"]);
+    let stderr = String::from_utf8_lossy(&o.stderr).to_string();
+    let report = json(&o);
+    let kinds: Vec<&str> =
+        report["warnings"].as_array().expect("warnings").iter().filter_map(|w| w["kind"].as_str()).collect();
+    assert!(kinds.contains(&"eiv_extrinsics_held"), "{kinds:?}\n{stderr}");
+    assert!(stderr.contains("note: EIV two-stage"), "{stderr}");
+    assert!(!stderr.contains("warning: EIV two-stage"), "{stderr}");
+}

@@ -207,6 +207,15 @@ impl Warning {
         }
     }
 
+    /// True for what informs rather than warns: a statement about how the
+    /// result was made that holds on every such calibration (the EIV filter
+    /// held the reference extrinsics its start estimated) or a check's
+    /// finding that is not a failure. The CLI prints these as `note:`; the
+    /// JSON lists them with the warnings, by kind.
+    pub fn is_note(&self) -> bool {
+        matches!(self, Warning::EivExtrinsicsHeld { .. } | Warning::EivCheckNote { .. })
+    }
+
     /// True for a failed EIV consistency check whose θ is the report's
     /// result (the fallback was off): the verdict counts these.
     pub(crate) fn misspecifies_result(&self) -> bool {
@@ -267,7 +276,7 @@ impl std::fmt::Display for Warning {
             ),
             Warning::EivCheckNote { finding } => write!(
                 f,
-                "EIV note (not a failure): {finding}; the innovations are smaller than the noise model allows (a \
+                "EIV innovation check (not a failure): {finding}; the innovations are smaller than the noise model allows (a \
                  noise source absent or over-estimated)"
             ),
             Warning::EivFallback { reason, segments, eiv_theta } => {
@@ -347,6 +356,19 @@ mod tests {
         assert_eq!(lines[0], "compensation left out: job 0");
         assert_eq!(lines[3], "… and 497 more compensation failed warnings");
         assert_eq!(lines[4], "initial batch 3 left out: singular");
+    }
+
+    #[test]
+    fn notes_are_the_held_extrinsics_and_the_check_notes() {
+        let held = Warning::EivExtrinsicsHeld {
+            extrinsics: crate::model::extrinsics::Extrinsics::default(),
+            estimated: "heading_offset".parse().expect("params"),
+        };
+        assert!(held.is_note());
+        let failed = Warning::BatchFailed { batch: 3, reason: "singular".into() };
+        assert!(!failed.is_note());
+        let fallback = Warning::EivFallback { reason: "1 check failed".into(), segments: 4, eiv_theta: None };
+        assert!(!fallback.is_note());
     }
 
     #[test]
