@@ -362,6 +362,32 @@ pub fn median(v: &[f64]) -> f64 {
     }
 }
 
+/// The white noise of a sampled signal from its first differences: the
+/// median absolute difference / (0.6745·√2) (white noise of σ gives
+/// differences of σ·√2, whose median absolute value is 0.6745 times that;
+/// the median is robust to the signal's own changes between samples).
+/// Zero for fewer than two samples.
+pub fn sample_noise(x: &[f64]) -> f64 {
+    let mut d: Vec<f64> = x.windows(2).map(|w| (w[1] - w[0]).abs()).filter(|v| v.is_finite()).collect();
+    if d.is_empty() {
+        return 0.0;
+    }
+    let mid = d.len() / 2;
+    let (_, m, _) = d.select_nth_unstable_by(mid, f64::total_cmp);
+    *m / (0.6745 * std::f64::consts::SQRT_2)
+}
+
+/// The default method's a_y noise held at `drive`'s own a_y readings'
+/// [`sample_noise`] and β's at the noise model's (`LateralNoise::Stated`),
+/// instead of both scaled with the white wheel noise: the lab flag
+/// `--lateral-from-readings` (crates/odocal-lab/STUDIES.md).
+pub fn lateral_from_readings(options: &mut odocal::CalibrationOptions, drive: &odocal::Drive) {
+    if let odocal::Method::Eiv(e) = &mut options.method {
+        e.filter.noise.lateral_acceleration_sigma_m_per_s2 = sample_noise(&drive.measured().a_y);
+        e.filter.lateral_noise = odocal::eiv::LateralNoise::Stated;
+    }
+}
+
 /// The fraction of `errors` within `z` of their `sigmas` (`|e| ≤ z·σ`),
 /// pairwise: the coverage of the interval ±z·σ (z = 1.96: 95 %).
 pub fn coverage(errors: &[f64], sigmas: &[f64], z: f64) -> f64 {

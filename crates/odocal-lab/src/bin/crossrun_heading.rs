@@ -22,17 +22,22 @@ use odocal::{Calibration, CalibrationOptions, CalibrationReport, Drive, Holdout,
 use odocal_lab::{repo_path, testtrack_manifest, Args, Res, Table, TESTTRACK_RUNS, VAN_MANIFEST};
 
 const USAGE: &str = "crossrun_heading [--skip-van] [--heading-drift-lr T] [--untied-drift] [--no-clamp-refit]
-    [--no-bias-correction] [--tau-drift S]
+    [--no-bias-correction] [--tau-drift S] [--lateral-from-readings]
 
 --untied-drift: the default with the reference drift untied (position_drift_own_scale, the position drift's
     τ 20 s, heading_drift_two_sided).
 --no-clamp-refit: the default without the refit, after a fit that fails with a noise scale at its upper clamp, with
     c_e held at the batch G-N start's (clamp_refit_hold_scale off).
 --no-bias-correction: the default without its bias correction (`--no-bias-correction`).
---tau-drift: the default with the noise model's drift correlation time (position and heading) S s instead of 100.";
+--tau-drift: the default with the noise model's drift correlation time (position and heading) S s instead of 100.
+--lateral-from-readings: the default with a_y's noise held at each drive's a_y readings' sample noise and β's at the
+    noise model's (odocal_lab::lateral_from_readings).";
 
 /// `--tau-drift`: the noise model's `drift_time_constant_s` (None: the default's).
 static TAU_DRIFT: std::sync::OnceLock<Option<f64>> = std::sync::OnceLock::new();
+
+/// `--lateral-from-readings`: `odocal_lab::lateral_from_readings` on every calibration.
+static LATERAL_FROM_READINGS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
 
 /// `--no-bias-correction`: the default method's bias correction off.
 static NO_BIAS_CORRECTION: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
@@ -86,6 +91,9 @@ fn load_with_options(rel: &str) -> Res<(Drive, CalibrationOptions)> {
     }
     if let (Some(true), odocal::Method::Eiv(e)) = (NO_CLAMP_REFIT.get().copied(), &mut options.method) {
         e.filter.research.clamp_refit_hold_scale = false;
+    }
+    if LATERAL_FROM_READINGS.get().copied() == Some(true) {
+        odocal_lab::lateral_from_readings(&mut options, &drive);
     }
     if let (Some(true), odocal::Method::Eiv(e)) = (NO_BIAS_CORRECTION.get().copied(), &mut options.method) {
         e.correct_bias = None;
@@ -204,13 +212,17 @@ fn van() -> Res<()> {
 }
 
 fn run() -> Res<()> {
-    let mut a = Args::parse(USAGE, &["skip-van", "untied-drift", "no-clamp-refit", "no-bias-correction"])?;
+    let mut a = Args::parse(
+        USAGE,
+        &["skip-van", "untied-drift", "no-clamp-refit", "no-bias-correction", "lateral-from-readings"],
+    )?;
     let skip_van = a.flag("skip-van");
     let _ = HEADING_DRIFT_LR.set(a.opt("heading-drift-lr")?);
     let _ = UNTIED_DRIFT.set(a.flag("untied-drift"));
     let _ = NO_CLAMP_REFIT.set(a.flag("no-clamp-refit"));
     let _ = NO_BIAS_CORRECTION.set(a.flag("no-bias-correction"));
     let _ = TAU_DRIFT.set(a.opt("tau-drift")?);
+    let _ = LATERAL_FROM_READINGS.set(a.flag("lateral-from-readings"));
     a.finish()?;
     testtrack()?;
     if !skip_van {

@@ -59,7 +59,7 @@ const USAGE: &str = "random_worlds [--worlds 100] [--length-km 12] [--seed 1] [-
     [--eta-max X] [--tau-c S] [--tau-drift S] [--heavy-without slip|common]
     [--eta-without-jacobian] [--no-common-jacobian] [--position-drift-own-scale] [--position-drift-tau S]
     [--heading-drift-two-sided] [--no-clamp-refit] [--clamp-refit-common-eta X] [--heading-drift-min-eta X]
-    [--correct-bias-of PARAMS]
+    [--correct-bias-of PARAMS] [--lateral-from-readings]
 
 World i has world seed S + i (drive seed too); every method runs through odocal::calibrate.
 --heavy: each world's wheel noise replaced by heavy common-mode coloured noise and slip (NoiseOptions::with_heavy_wheels).
@@ -68,6 +68,9 @@ World i has world seed S + i (drive seed too); every method runs through odocal:
 --heavy-without slip|common: the heavy worlds without their acceleration slip or their common-mode noise.
 --eta-without-jacobian: the default's η step on M without the Gauss-Markov log-Jacobian
     (coloured_jacobian_in_marginal off).
+--lateral-from-readings: the default's a_y noise held at the drive's own a_y readings' sample noise (the
+    median absolute first difference / (0.6745·√2)) and β's at the noise model's, instead of both scaled
+    with the white wheel noise (LateralNoise::Stated).
 --no-common-jacobian: the default without the common-mode state's log-Jacobian in J and M
     (common_mode_jacobian off).
 --position-drift-own-scale: the default with the pose-drift scale η_4 on the reference's position drift only, the
@@ -125,6 +128,8 @@ struct Settings {
     /// `--correct-bias-of`: the parameters the default's bias correction
     /// corrects (`CorrectBias::parameters`); None: the default's.
     correct_bias_of: Option<ParamSet>,
+    /// `--lateral-from-readings`: a_y's noise from the drive's readings, held.
+    lateral_from_readings: bool,
 }
 
 fn settings() -> Res<(Settings, Option<usize>)> {
@@ -137,6 +142,7 @@ fn settings() -> Res<(Settings, Option<usize>)> {
             "position-drift-own-scale",
             "heading-drift-two-sided",
             "no-clamp-refit",
+            "lateral-from-readings",
         ],
     )?;
     let s = Settings {
@@ -158,6 +164,7 @@ fn settings() -> Res<(Settings, Option<usize>)> {
         no_clamp_refit: a.flag("no-clamp-refit"),
         clamp_refit_common_eta: a.opt("clamp-refit-common-eta")?,
         heading_drift_min_eta: a.opt("heading-drift-min-eta")?,
+        lateral_from_readings: a.flag("lateral-from-readings"),
         correct_bias_of: a.opt("correct-bias-of")?,
     };
     let threads = a.opt("threads")?;
@@ -270,6 +277,9 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<
         if let (Some(parameters), Some(c)) = (a.correct_bias_of, &mut e.correct_bias) {
             c.parameters = parameters;
         }
+    }
+    if a.lateral_from_readings {
+        odocal_lab::lateral_from_readings(&mut opts, drive);
     }
     let t = Instant::now();
     let r: CalibrationReport = calibrate(drive, &opts)?;

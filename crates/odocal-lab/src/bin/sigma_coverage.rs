@@ -24,7 +24,10 @@ use odocal::pooling::{PooledDrives, BETWEEN_DRIVE_PRIOR};
 use odocal::{calibrate, Calibration, CalibrationOptions, CalibrationReport, Holdout, Theta};
 use odocal_lab::{load, median, testtrack_runs, Args, Res, Table, PARAMETERS, VAN_MANIFEST};
 
-const USAGE: &str = "sigma_coverage [--no-van] [--json-out DIR]";
+const USAGE: &str = "sigma_coverage [--no-van] [--json-out DIR] [--lateral-from-readings]
+
+--lateral-from-readings: the default with a_y's noise held at each drive's a_y readings' sample noise and β's at the
+    noise model's (odocal_lab::lateral_from_readings).";
 
 /// Per parameter: the unit's scale for printing and its name.
 const SHOW: [(f64, &str); 4] = [(1.0, "m"), (1e3, "mm"), (1.0, "m"), (1e3, "mm/(m/s²)")];
@@ -68,15 +71,23 @@ fn sd(x: &[f64]) -> f64 {
 }
 
 fn run() -> Res<()> {
-    let mut a = Args::parse(USAGE, &["no-van"])?;
+    let mut a = Args::parse(USAGE, &["no-van", "lateral-from-readings"])?;
     let van = !a.flag("no-van");
     let json_out: Option<String> = a.opt("json-out")?;
+    let lateral = a.flag("lateral-from-readings");
     a.finish()?;
     let opts = CalibrationOptions::default();
+    let for_drive = |d: &odocal::Drive| {
+        let mut o = opts.clone();
+        if lateral {
+            odocal_lab::lateral_from_readings(&mut o, d);
+        }
+        o
+    };
     let runs = testtrack_runs()?;
     let mut fits = Vec::new();
     for (name, d) in &runs {
-        let r = calibrate(d, &opts)?;
+        let r = calibrate(d, &for_drive(d))?;
         eprintln!("{name}: {} ({})", r.verdict.level, r.method);
         if let Some(dir) = &json_out {
             write_json(dir, name, &r)?;
@@ -124,7 +135,7 @@ fn run() -> Res<()> {
     );
     print_pooling(&fits);
     if van {
-        van_halves(&opts, json_out.as_deref())?;
+        van_halves(&opts, lateral, json_out.as_deref())?;
     }
     Ok(())
 }
@@ -218,9 +229,16 @@ fn print_pooling(fits: &[Fit]) {
     println!("{t}");
 }
 
-/// The van's halves: each half's interval against the other half's θ.
-fn van_halves(opts: &CalibrationOptions, json_out: Option<&str>) -> Res<()> {
+/// The van's halves: each half's interval against the other half's θ
+/// (with `lateral`, a_y's noise from the whole drive's readings).
+fn van_halves(opts: &CalibrationOptions, lateral: bool, json_out: Option<&str>) -> Res<()> {
     let d = load(VAN_MANIFEST)?;
+    let mut opts = opts.clone();
+    if lateral {
+        // The whole drive's a_y noise for either half.
+        odocal_lab::lateral_from_readings(&mut opts, &d);
+    }
+    let opts = &opts;
     let half = |name: &str, holdout: Holdout| -> Res<Fit> {
         let r = Calibration { holdout: Some(&holdout), ..Calibration::new(&d, opts) }.run()?;
         if let Some(dir) = json_out {
