@@ -15,7 +15,7 @@
 //! 5. the spread of the step-1 estimates θ_B,I (3-step method);
 //! 6. residual time series: the one-step heading residual and the
 //!    dead-reckoning position error along the validation segments;
-//! 7. the warnings.
+//! 7. the warnings and notes.
 //!
 //! [`history::render_history_html`] draws a vehicle's calibration history
 //! (each parameter over the recorded calibrations with its σ and the drift

@@ -356,9 +356,9 @@ fn position_error_panel(r: &ReportInput<'_>, segs: &[SegmentData<'_>]) -> Panel 
     }
 }
 
-/// Section 7: the warnings, and the end of the page.
+/// Section 7: the warnings and notes, and the end of the page.
 pub(crate) fn warnings(h: &mut String, r: &ReportInput<'_>) {
-    h.push_str("<section id=\"warnings\">\n<h2>Warnings</h2>\n");
+    h.push_str("<section id=\"warnings\">\n<h2>Warnings and notes</h2>\n");
     if r.warnings.is_empty() {
         h.push_str("<p>none</p>\n");
     } else {
