@@ -388,6 +388,16 @@ pub fn lateral_from_readings(options: &mut odocal::CalibrationOptions, drive: &o
     }
 }
 
+/// The default method's a_y noise held at `drive`'s own a_y readings'
+/// [`sample_noise`] while β's stays tied to the white wheel noise
+/// (`ResearchOptions::a_y_sigma_held`): the lab flag
+/// `--a-y-held-from-readings` (crates/odocal-lab/STUDIES.md).
+pub fn a_y_held_from_readings(options: &mut odocal::CalibrationOptions, drive: &odocal::Drive) {
+    if let odocal::Method::Eiv(e) = &mut options.method {
+        e.filter.research.a_y_sigma_held = Some(sample_noise(&drive.measured().a_y));
+    }
+}
+
 /// The fraction of `errors` within `z` of their `sigmas` (`|e| ≤ z·σ`),
 /// pairwise: the coverage of the interval ±z·σ (z = 1.96: 95 %).
 pub fn coverage(errors: &[f64], sigmas: &[f64], z: f64) -> f64 {

@@ -22,7 +22,7 @@ use odocal::{Calibration, CalibrationOptions, CalibrationReport, Drive, Holdout,
 use odocal_lab::{repo_path, testtrack_manifest, Args, Res, Table, TESTTRACK_RUNS, VAN_MANIFEST};
 
 const USAGE: &str = "crossrun_heading [--skip-van] [--heading-drift-lr T] [--untied-drift] [--no-clamp-refit]
-    [--no-bias-correction] [--tau-drift S] [--lateral-from-readings]
+    [--no-bias-correction] [--tau-drift S] [--lateral-from-readings] [--a-y-held-from-readings]
 
 --untied-drift: the default with the reference drift untied (position_drift_own_scale, the position drift's
     τ 20 s, heading_drift_two_sided).
@@ -31,13 +31,17 @@ const USAGE: &str = "crossrun_heading [--skip-van] [--heading-drift-lr T] [--unt
 --no-bias-correction: the default without its bias correction (`--no-bias-correction`).
 --tau-drift: the default with the noise model's drift correlation time (position and heading) S s instead of 100.
 --lateral-from-readings: the default with a_y's noise held at each drive's a_y readings' sample noise and β's at the
-    noise model's (odocal_lab::lateral_from_readings).";
+    noise model's (odocal_lab::lateral_from_readings).
+--a-y-held-from-readings: the same for a_y with β's noise still scaled with the white wheel noise.";
 
 /// `--tau-drift`: the noise model's `drift_time_constant_s` (None: the default's).
 static TAU_DRIFT: std::sync::OnceLock<Option<f64>> = std::sync::OnceLock::new();
 
 /// `--lateral-from-readings`: `odocal_lab::lateral_from_readings` on every calibration.
 static LATERAL_FROM_READINGS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+
+/// `--a-y-held-from-readings`: `odocal_lab::a_y_held_from_readings` on every calibration.
+static A_Y_HELD: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
 
 /// `--no-bias-correction`: the default method's bias correction off.
 static NO_BIAS_CORRECTION: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
@@ -94,6 +98,9 @@ fn load_with_options(rel: &str) -> Res<(Drive, CalibrationOptions)> {
     }
     if LATERAL_FROM_READINGS.get().copied() == Some(true) {
         odocal_lab::lateral_from_readings(&mut options, &drive);
+    }
+    if A_Y_HELD.get().copied() == Some(true) {
+        odocal_lab::a_y_held_from_readings(&mut options, &drive);
     }
     if let (Some(true), odocal::Method::Eiv(e)) = (NO_BIAS_CORRECTION.get().copied(), &mut options.method) {
         e.correct_bias = None;
@@ -214,7 +221,14 @@ fn van() -> Res<()> {
 fn run() -> Res<()> {
     let mut a = Args::parse(
         USAGE,
-        &["skip-van", "untied-drift", "no-clamp-refit", "no-bias-correction", "lateral-from-readings"],
+        &[
+            "skip-van",
+            "untied-drift",
+            "no-clamp-refit",
+            "no-bias-correction",
+            "lateral-from-readings",
+            "a-y-held-from-readings",
+        ],
     )?;
     let skip_van = a.flag("skip-van");
     let _ = HEADING_DRIFT_LR.set(a.opt("heading-drift-lr")?);
@@ -223,6 +237,7 @@ fn run() -> Res<()> {
     let _ = NO_BIAS_CORRECTION.set(a.flag("no-bias-correction"));
     let _ = TAU_DRIFT.set(a.opt("tau-drift")?);
     let _ = LATERAL_FROM_READINGS.set(a.flag("lateral-from-readings"));
+    let _ = A_Y_HELD.set(a.flag("a-y-held-from-readings"));
     a.finish()?;
     testtrack()?;
     if !skip_van {

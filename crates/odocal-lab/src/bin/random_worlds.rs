@@ -59,7 +59,7 @@ const USAGE: &str = "random_worlds [--worlds 100] [--length-km 12] [--seed 1] [-
     [--eta-max X] [--tau-c S] [--tau-drift S] [--heavy-without slip|common]
     [--eta-without-jacobian] [--no-common-jacobian] [--position-drift-own-scale] [--position-drift-tau S]
     [--heading-drift-two-sided] [--no-clamp-refit] [--clamp-refit-common-eta X] [--heading-drift-min-eta X]
-    [--correct-bias-of PARAMS] [--lateral-from-readings]
+    [--correct-bias-of PARAMS] [--lateral-from-readings] [--a-y-held-from-readings]
 
 World i has world seed S + i (drive seed too); every method runs through odocal::calibrate.
 --heavy: each world's wheel noise replaced by heavy common-mode coloured noise and slip (NoiseOptions::with_heavy_wheels).
@@ -71,6 +71,8 @@ World i has world seed S + i (drive seed too); every method runs through odocal:
 --lateral-from-readings: the default's a_y noise held at the drive's own a_y readings' sample noise (the
     median absolute first difference / (0.6745·√2)) and β's at the noise model's, instead of both scaled
     with the white wheel noise (LateralNoise::Stated).
+--a-y-held-from-readings: the same for a_y with β's noise still scaled with the white wheel noise
+    (ResearchOptions::a_y_sigma_held).
 --no-common-jacobian: the default without the common-mode state's log-Jacobian in J and M
     (common_mode_jacobian off).
 --position-drift-own-scale: the default with the pose-drift scale η_4 on the reference's position drift only, the
@@ -130,6 +132,8 @@ struct Settings {
     correct_bias_of: Option<ParamSet>,
     /// `--lateral-from-readings`: a_y's noise from the drive's readings, held.
     lateral_from_readings: bool,
+    /// `--a-y-held-from-readings`: a_y's noise from the drive's readings, held; β's tied.
+    a_y_held_from_readings: bool,
 }
 
 fn settings() -> Res<(Settings, Option<usize>)> {
@@ -143,6 +147,7 @@ fn settings() -> Res<(Settings, Option<usize>)> {
             "heading-drift-two-sided",
             "no-clamp-refit",
             "lateral-from-readings",
+            "a-y-held-from-readings",
         ],
     )?;
     let s = Settings {
@@ -165,6 +170,7 @@ fn settings() -> Res<(Settings, Option<usize>)> {
         clamp_refit_common_eta: a.opt("clamp-refit-common-eta")?,
         heading_drift_min_eta: a.opt("heading-drift-min-eta")?,
         lateral_from_readings: a.flag("lateral-from-readings"),
+        a_y_held_from_readings: a.flag("a-y-held-from-readings"),
         correct_bias_of: a.opt("correct-bias-of")?,
     };
     let threads = a.opt("threads")?;
@@ -280,6 +286,9 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<
     }
     if a.lateral_from_readings {
         odocal_lab::lateral_from_readings(&mut opts, drive);
+    }
+    if a.a_y_held_from_readings {
+        odocal_lab::a_y_held_from_readings(&mut opts, drive);
     }
     let t = Instant::now();
     let r: CalibrationReport = calibrate(drive, &opts)?;

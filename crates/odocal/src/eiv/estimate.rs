@@ -449,6 +449,9 @@ fn reported_noise(opts: &EivOptions, eta: &[f64; 6]) -> NoiseModel {
         n.lateral_acceleration_sigma_m_per_s2 = opts.noise.lateral_acceleration_sigma_m_per_s2;
         n.sideslip_sigma_rad = opts.noise.sideslip_sigma_rad;
     }
+    if let Some(sigma) = opts.research.a_y_sigma_held {
+        n.lateral_acceleration_sigma_m_per_s2 = sigma;
+    }
     n
 }
 

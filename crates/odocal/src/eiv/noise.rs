@@ -327,6 +327,7 @@ impl NoiseModel {
             a_beta,
             quant_scaled: true,
             lateral_scaled: true,
+            a_y_scaled: true,
             quant_in_measurement: false,
             quant_counting: false,
             heading_separate: true,

@@ -348,6 +348,10 @@ macro_rules! research_options {
             /// correction's replicate drives simulate the position drift
             /// with the model's time constant.
             $vis position_drift_time_constant_s: Option<f64>,
+            /// a_y's white noise σ held at this value, m/s², while β's
+            /// stays as [`EivOptions::lateral_noise`] says (tied to the
+            /// white wheel noise by default). Default `None`: a_y as β.
+            $vis a_y_sigma_held: Option<f64>,
             /// After a fit that fails its checks with a noise scale at its
             /// upper clamp (the runaway of heavy common-mode wheel noise and
             /// slip: the common-mode scale at its clamp, c_e several per cent
@@ -416,6 +420,7 @@ impl Default for ResearchOptions {
             position_drift_own_scale: false,
             heading_drift_min_eta: HEADING_DRIFT_MIN_ETA,
             position_drift_time_constant_s: None,
+            a_y_sigma_held: None,
             clamp_refit_hold_scale: true,
             clamp_refit_common_mode_eta: None,
             c_d_covariance_derivative: false,

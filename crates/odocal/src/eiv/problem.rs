@@ -32,6 +32,8 @@ pub(super) struct Problem<'a> {
     pub(super) sideslip_white: bool,
     /// a_y and β noise held at the model's σ ([`LateralNoise::Stated`]).
     pub(super) lateral_stated: bool,
+    /// a_y's σ held (`ResearchOptions::a_y_sigma_held`), β's as `lateral_stated` says.
+    pub(super) a_y_sigma_held: Option<f64>,
     pub(super) heading_separate: bool,
     pub(super) fitted_input: bool,
     pub(super) noise_input_half_width: usize,
@@ -66,6 +68,7 @@ impl<'a> Problem<'a> {
             quantisation_given: opts.quantisation_level == QuantisationLevel::Given,
             sideslip_white: opts.research.sideslip_noise == SideslipNoise::WhiteEquivalent,
             lateral_stated: opts.lateral_noise == LateralNoise::Stated,
+            a_y_sigma_held: opts.research.a_y_sigma_held,
             heading_separate: opts.heading_scale == HeadingScale::Separate,
             fitted_input: opts.research.wheel_noise_scale != WheelNoiseScale::MeasuredInput,
             noise_input_half_width: opts.research.wheel_noise_scale.half_width(),
@@ -178,6 +181,9 @@ impl Problem<'_> {
         if self.lateral_stated {
             let unscaled = self.noise.variances(&[0.0; 6], self.input.sample_time_s);
             (v.a_y, v.beta, v.lateral_scaled) = (unscaled.a_y, unscaled.beta, false);
+        }
+        if let Some(sigma) = self.a_y_sigma_held {
+            (v.a_y, v.a_y_scaled) = (sigma * sigma, false);
         }
         if self.sideslip_white {
             // The long-run variance of the Gauss-Markov error as white noise.

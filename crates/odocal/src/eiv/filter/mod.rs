@@ -100,6 +100,9 @@ pub(crate) struct Variances {
     /// η_0 scales the a_y and β variances with the white wheel noise
     /// (otherwise they are held: [`super::LateralNoise::Stated`]).
     pub lateral_scaled: bool,
+    /// η_0 scales the a_y variance (with `lateral_scaled`; false where a_y's
+    /// σ is held on its own, `ResearchOptions::a_y_sigma_held`).
+    pub a_y_scaled: bool,
     /// Stationary variance of s_c, σ_c² · e^{η1}.
     pub common: f64,
     /// Stationary variance of s_l and s_r, σ_w² · e^{η2}.

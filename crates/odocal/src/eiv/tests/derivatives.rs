@@ -267,6 +267,17 @@ fn derivatives_match_central_differences_lateral_noise_stated() {
     check_objective_gradient_quant(false, false, true, (Held::LATERAL, false));
 }
 
+/// a_y's noise held on its own (`ResearchOptions::a_y_sigma_held`) while
+/// η_0 still scales β's: ∂M, ∂J, ∂ν/∂p and ∂S/∂p against central
+/// differences (counting quantisation, covariance following θ; and ∂M, ∂J
+/// with the covariance held).
+#[test]
+fn derivatives_match_central_differences_a_y_held() {
+    check_objective_gradient_quant(true, true, true, (Held::A_Y, false));
+    check_innovation_derivatives_quant(true, true, true, Held::A_Y);
+    check_objective_gradient_quant(false, false, true, (Held::A_Y, false));
+}
+
 #[test]
 fn innovation_derivatives_match_central_differences_fitted_input() {
     check_innovation_derivatives_with(true, true, false);

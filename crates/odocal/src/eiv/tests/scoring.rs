@@ -257,6 +257,7 @@ fn eta_step_descends_on_the_noise_free_straight_drive() {
         quantisation: opts.quantisation,
         quantisation_given: false,
         lateral_stated: false,
+        a_y_sigma_held: None,
         sideslip_white: false,
         heading_separate: true,
         fitted_input: false,

@@ -45,17 +45,20 @@ pub(super) fn records_with(
 }
 
 /// Which variances η_0 leaves alone in a derivative test: the quantisation
-/// ([`QuantisationLevel::Given`]) and a_y and β ([`LateralNoise::Stated`]).
+/// ([`QuantisationLevel::Given`]), a_y and β ([`LateralNoise::Stated`]), or
+/// a_y alone (`ResearchOptions::a_y_sigma_held`).
 #[derive(Clone, Copy)]
 pub(super) struct Held {
     pub(super) quant: bool,
     pub(super) lateral: bool,
+    pub(super) a_y: bool,
 }
 
 impl Held {
-    pub(super) const NONE: Held = Held { quant: false, lateral: false };
-    pub(super) const QUANT: Held = Held { quant: true, lateral: false };
-    pub(super) const LATERAL: Held = Held { quant: false, lateral: true };
+    pub(super) const NONE: Held = Held { quant: false, lateral: false, a_y: false };
+    pub(super) const QUANT: Held = Held { quant: true, lateral: false, a_y: false };
+    pub(super) const LATERAL: Held = Held { quant: false, lateral: true, a_y: false };
+    pub(super) const A_Y: Held = Held { quant: false, lateral: false, a_y: true };
 }
 
 /// [`records_with`]; `given`: the variances η_0 does not scale ([`Held`]).
@@ -81,7 +84,7 @@ pub(super) fn records_quant(
 /// The default model's variances at η; with `given.quant` the quantisation
 /// is held at q²/12, with `given.lateral` a_y and β at the model's σ (as
 /// `Problem::evaluate_with` does for [`QuantisationLevel::Given`] and
-/// [`LateralNoise::Stated`]).
+/// [`LateralNoise::Stated`]), with `given.a_y` a_y alone at 0.07 m/s².
 pub(super) fn variances_quant(eta: &[f64; 6], ts: f64, given: Held) -> filter::Variances {
     let m = NoiseModel::default();
     let mut v = m.variances(eta, ts);
@@ -92,6 +95,10 @@ pub(super) fn variances_quant(eta: &[f64; 6], ts: f64, given: Held) -> filter::V
     if given.lateral {
         let unscaled = m.variances(&[0.0; 6], ts);
         (v.a_y, v.beta, v.lateral_scaled) = (unscaled.a_y, unscaled.beta, false);
+    }
+    if given.a_y {
+        // Held apart from the model's 0.05 m/s², as `Problem::evaluate_with` does.
+        (v.a_y, v.a_y_scaled) = (0.07 * 0.07, false);
     }
     v
 }
