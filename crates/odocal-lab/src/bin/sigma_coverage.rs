@@ -21,7 +21,7 @@
 //! (`odocal::pooling::PooledDrives`, within-drive σ) with its τ.
 
 use odocal::pooling::{PooledDrives, BETWEEN_DRIVE_PRIOR};
-use odocal::{calibrate, Calibration, CalibrationOptions, CalibrationReport, Holdout, Theta};
+use odocal::{calibrate, Calibration, CalibrationOptions, CalibrationReport, Drive, Holdout, Theta};
 use odocal_lab::{load, median, testtrack_runs, Args, Res, Table, PARAMETERS, VAN_MANIFEST};
 
 const USAGE: &str = "sigma_coverage [--no-van] [--json-out DIR] [--lateral-from-readings] [--a-y-held-from-readings]
@@ -79,7 +79,7 @@ fn run() -> Res<()> {
     let a_y_held = a.flag("a-y-held-from-readings");
     a.finish()?;
     let opts = CalibrationOptions::default();
-    let for_drive = |d: &odocal::Drive| {
+    let for_drive = |d: &Drive| {
         let mut o = opts.clone();
         if lateral {
             odocal_lab::lateral_from_readings(&mut o, d);
@@ -140,7 +140,7 @@ fn run() -> Res<()> {
     );
     print_pooling(&fits);
     if van {
-        van_halves(&opts, lateral, json_out.as_deref())?;
+        van_halves(&for_drive, json_out.as_deref())?;
     }
     Ok(())
 }
@@ -234,16 +234,11 @@ fn print_pooling(fits: &[Fit]) {
     println!("{t}");
 }
 
-/// The van's halves: each half's interval against the other half's θ
-/// (with `lateral`, a_y's noise from the whole drive's readings).
-fn van_halves(opts: &CalibrationOptions, lateral: bool, json_out: Option<&str>) -> Res<()> {
+/// The van's halves: each half's interval against the other half's θ,
+/// both halves with the whole drive's options (`for_drive`).
+fn van_halves(for_drive: &dyn Fn(&Drive) -> CalibrationOptions, json_out: Option<&str>) -> Res<()> {
     let d = load(VAN_MANIFEST)?;
-    let mut opts = opts.clone();
-    if lateral {
-        // The whole drive's a_y noise for either half.
-        odocal_lab::lateral_from_readings(&mut opts, &d);
-    }
-    let opts = &opts;
+    let opts = &for_drive(&d);
     let half = |name: &str, holdout: Holdout| -> Res<Fit> {
         let r = Calibration { holdout: Some(&holdout), ..Calibration::new(&d, opts) }.run()?;
         if let Some(dir) = json_out {

@@ -441,11 +441,11 @@ fn process_noise(
     };
     // a_y's white noise; β's Gauss-Markov error is the state e_β (or,
     // with `SideslipNoise::WhiteEquivalent`, white noise: `beta_white`).
-    let q_lateral = f_b * f_b.transpose() * v.beta_white + f_a * f_a.transpose() * v.a_y;
-    let q_x = q_white + q_lateral;
+    let q_beta = f_b * f_b.transpose() * v.beta_white;
+    let q_x = q_white + (q_beta + f_a * f_a.transpose() * v.a_y);
     let q_x_eta0 = match (v.lateral_scaled, v.a_y_scaled) {
         (true, true) => q_x - q_x_quant,
-        (true, false) => q_white - q_x_quant + f_b * f_b.transpose() * v.beta_white,
+        (true, false) => q_white - q_x_quant + q_beta,
         (false, _) => q_white - q_x_quant,
     };
     (q_x, q_x_eta0)
