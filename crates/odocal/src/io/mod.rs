@@ -1,5 +1,5 @@
 //! Reading drives and parameters. Public here, expert API: the ROS 2 bag
-//! reader ([`bag`], feature `mcap`), for programs that read bag topics as
+//! reader (module `bag`, with the default feature `mcap`), for programs that read bag topics as
 //! tables or draft manifests (`odocal inspect`); a manifest's raw messages
 //! imported as they arrive ([`RawStream`]); and a drive file read in chunks
 //! as if live ([`Replay`]), for an online calibrator. Importing a drive is
