@@ -377,24 +377,56 @@ pub fn sample_noise(x: &[f64]) -> f64 {
     *m / (0.6745 * std::f64::consts::SQRT_2)
 }
 
-/// The default method's a_y noise held at `drive`'s own a_y readings'
-/// [`sample_noise`] and β's at the noise model's (`LateralNoise::Stated`),
-/// instead of both scaled with the white wheel noise: the lab flag
-/// `--lateral-from-readings` (crates/odocal-lab/STUDIES.md).
-pub fn lateral_from_readings(options: &mut odocal::CalibrationOptions, drive: &odocal::Drive) {
-    if let odocal::Method::Eiv(e) = &mut options.method {
-        e.filter.noise.lateral_acceleration_sigma_m_per_s2 = sample_noise(&drive.measured().a_y);
-        e.filter.lateral_noise = odocal::eiv::LateralNoise::Stated;
-    }
+/// The usage lines of [`ReadingsNoise`]'s switches, a literal for a tool's
+/// `concat!`ed usage text.
+#[macro_export]
+macro_rules! readings_noise_usage {
+    () => {
+        "--lateral-from-readings: the default with a_y's noise held at each drive's a_y readings' sample noise
+    (the median absolute first difference / (0.6745·√2)) and β's at the noise model's, instead of both scaled
+    with the white wheel noise (LateralNoise::Stated).
+--a-y-held-from-readings: the same for a_y with β's noise still scaled with the white wheel noise
+    (ResearchOptions::a_y_sigma_held)."
+    };
 }
 
-/// The default method's a_y noise held at `drive`'s own a_y readings'
-/// [`sample_noise`] while β's stays tied to the white wheel noise
-/// (`ResearchOptions::a_y_sigma_held`): the lab flag
-/// `--a-y-held-from-readings` (crates/odocal-lab/STUDIES.md).
-pub fn a_y_held_from_readings(options: &mut odocal::CalibrationOptions, drive: &odocal::Drive) {
-    if let odocal::Method::Eiv(e) = &mut options.method {
-        e.filter.research.a_y_sigma_held = Some(sample_noise(&drive.measured().a_y));
+/// The lab's two a_y-noise switches, as every tool that takes them reads
+/// and applies them (crates/odocal-lab/STUDIES.md):
+/// - `--lateral-from-readings`: the default method's a_y noise held at the
+///   drive's own a_y readings' [`sample_noise`] and β's at the noise
+///   model's (`LateralNoise::Stated`), instead of both scaled with the white
+///   wheel noise;
+/// - `--a-y-held-from-readings`: a_y's noise held so while β's stays tied
+///   to the white wheel noise (`ResearchOptions::a_y_sigma_held`).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ReadingsNoise {
+    /// `--lateral-from-readings`.
+    pub lateral: bool,
+    /// `--a-y-held-from-readings`.
+    pub a_y_held: bool,
+}
+
+impl ReadingsNoise {
+    /// The switches' names, for [`Args::parse`].
+    pub const SWITCHES: [&'static str; 2] = ["lateral-from-readings", "a-y-held-from-readings"];
+
+    /// The switches as `a` holds them.
+    pub fn from_args(a: &Args) -> ReadingsNoise {
+        ReadingsNoise { lateral: a.flag(Self::SWITCHES[0]), a_y_held: a.flag(Self::SWITCHES[1]) }
+    }
+
+    /// `options` for `drive` with the switches that are on (the default
+    /// method only; other methods are left as they are).
+    pub fn apply(self, options: &mut odocal::CalibrationOptions, drive: &odocal::Drive) {
+        let odocal::Method::Eiv(e) = &mut options.method else { return };
+        let a_y = sample_noise(&drive.measured().a_y);
+        if self.lateral {
+            e.filter.noise.lateral_acceleration_sigma_m_per_s2 = a_y;
+            e.filter.lateral_noise = odocal::eiv::LateralNoise::Stated;
+        }
+        if self.a_y_held {
+            e.filter.research.a_y_sigma_held = Some(a_y);
+        }
     }
 }
 

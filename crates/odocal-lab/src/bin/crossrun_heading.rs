@@ -19,9 +19,10 @@
 
 use odocal::settings::{Caller, ManifestSettings, Settings};
 use odocal::{Calibration, CalibrationOptions, CalibrationReport, Drive, Holdout, ValidationDrive};
-use odocal_lab::{repo_path, testtrack_manifest, Args, Res, Table, TESTTRACK_RUNS, VAN_MANIFEST};
+use odocal_lab::{repo_path, testtrack_manifest, Args, ReadingsNoise, Res, Table, TESTTRACK_RUNS, VAN_MANIFEST};
 
-const USAGE: &str = "crossrun_heading [--skip-van] [--heading-drift-lr T] [--untied-drift] [--no-clamp-refit]
+const USAGE: &str = concat!(
+    "crossrun_heading [--skip-van] [--heading-drift-lr T] [--untied-drift] [--no-clamp-refit]
     [--no-bias-correction] [--tau-drift S] [--lateral-from-readings] [--a-y-held-from-readings]
 
 --untied-drift: the default with the reference drift untied (position_drift_own_scale, the position drift's
@@ -30,18 +31,15 @@ const USAGE: &str = "crossrun_heading [--skip-van] [--heading-drift-lr T] [--unt
     c_e held at the batch G-N start's (clamp_refit_hold_scale off).
 --no-bias-correction: the default without its bias correction (`--no-bias-correction`).
 --tau-drift: the default with the noise model's drift correlation time (position and heading) S s instead of 100.
---lateral-from-readings: the default with a_y's noise held at each drive's a_y readings' sample noise and β's at the
-    noise model's (odocal_lab::lateral_from_readings).
---a-y-held-from-readings: the same for a_y with β's noise still scaled with the white wheel noise.";
+",
+    odocal_lab::readings_noise_usage!()
+);
 
 /// `--tau-drift`: the noise model's `drift_time_constant_s` (None: the default's).
 static TAU_DRIFT: std::sync::OnceLock<Option<f64>> = std::sync::OnceLock::new();
 
-/// `--lateral-from-readings`: `odocal_lab::lateral_from_readings` on every calibration.
-static LATERAL_FROM_READINGS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-
-/// `--a-y-held-from-readings`: `odocal_lab::a_y_held_from_readings` on every calibration.
-static A_Y_HELD: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+/// `--lateral-from-readings`, `--a-y-held-from-readings`: applied to every calibration.
+static READINGS_NOISE: std::sync::OnceLock<ReadingsNoise> = std::sync::OnceLock::new();
 
 /// `--no-bias-correction`: the default method's bias correction off.
 static NO_BIAS_CORRECTION: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
@@ -96,11 +94,8 @@ fn load_with_options(rel: &str) -> Res<(Drive, CalibrationOptions)> {
     if let (Some(true), odocal::Method::Eiv(e)) = (NO_CLAMP_REFIT.get().copied(), &mut options.method) {
         e.filter.research.clamp_refit_hold_scale = false;
     }
-    if LATERAL_FROM_READINGS.get().copied() == Some(true) {
-        odocal_lab::lateral_from_readings(&mut options, &drive);
-    }
-    if A_Y_HELD.get().copied() == Some(true) {
-        odocal_lab::a_y_held_from_readings(&mut options, &drive);
+    if let Some(r) = READINGS_NOISE.get() {
+        r.apply(&mut options, &drive);
     }
     if let (Some(true), odocal::Method::Eiv(e)) = (NO_BIAS_CORRECTION.get().copied(), &mut options.method) {
         e.correct_bias = None;
@@ -219,25 +214,16 @@ fn van() -> Res<()> {
 }
 
 fn run() -> Res<()> {
-    let mut a = Args::parse(
-        USAGE,
-        &[
-            "skip-van",
-            "untied-drift",
-            "no-clamp-refit",
-            "no-bias-correction",
-            "lateral-from-readings",
-            "a-y-held-from-readings",
-        ],
-    )?;
+    let [lateral, a_y_held] = ReadingsNoise::SWITCHES;
+    let mut a =
+        Args::parse(USAGE, &["skip-van", "untied-drift", "no-clamp-refit", "no-bias-correction", lateral, a_y_held])?;
     let skip_van = a.flag("skip-van");
     let _ = HEADING_DRIFT_LR.set(a.opt("heading-drift-lr")?);
     let _ = UNTIED_DRIFT.set(a.flag("untied-drift"));
     let _ = NO_CLAMP_REFIT.set(a.flag("no-clamp-refit"));
     let _ = NO_BIAS_CORRECTION.set(a.flag("no-bias-correction"));
     let _ = TAU_DRIFT.set(a.opt("tau-drift")?);
-    let _ = LATERAL_FROM_READINGS.set(a.flag("lateral-from-readings"));
-    let _ = A_Y_HELD.set(a.flag("a-y-held-from-readings"));
+    let _ = READINGS_NOISE.set(ReadingsNoise::from_args(&a));
     a.finish()?;
     testtrack()?;
     if !skip_van {

@@ -51,10 +51,13 @@ use odocal::{
     VerdictReason,
 };
 use odocal_lab::report_json::{eiv_part, EivPart};
-use odocal_lab::{coverage, error_scale, errors, median, Args, Res, Summary, Table, ERROR_UNITS, FRESH_SEED_OFFSET};
+use odocal_lab::{
+    coverage, error_scale, errors, median, Args, ReadingsNoise, Res, Summary, Table, ERROR_UNITS, FRESH_SEED_OFFSET,
+};
 use rayon::prelude::*;
 
-const USAGE: &str = "random_worlds [--worlds 100] [--length-km 12] [--seed 1] [--methods eiv,batch-gn,three-step]
+const USAGE: &str = concat!(
+    "random_worlds [--worlds 100] [--length-km 12] [--seed 1] [--methods eiv,batch-gn,three-step]
     [--out DIR] [--threads N] [--heading-drift-gate G] [--heading-drift-lr T] [--heavy]
     [--eta-max X] [--tau-c S] [--tau-drift S] [--heavy-without slip|common]
     [--eta-without-jacobian] [--no-common-jacobian] [--position-drift-own-scale] [--position-drift-tau S]
@@ -68,11 +71,6 @@ World i has world seed S + i (drive seed too); every method runs through odocal:
 --heavy-without slip|common: the heavy worlds without their acceleration slip or their common-mode noise.
 --eta-without-jacobian: the default's η step on M without the Gauss-Markov log-Jacobian
     (coloured_jacobian_in_marginal off).
---lateral-from-readings: the default's a_y noise held at the drive's own a_y readings' sample noise (the
-    median absolute first difference / (0.6745·√2)) and β's at the noise model's, instead of both scaled
-    with the white wheel noise (LateralNoise::Stated).
---a-y-held-from-readings: the same for a_y with β's noise still scaled with the white wheel noise
-    (ResearchOptions::a_y_sigma_held).
 --no-common-jacobian: the default without the common-mode state's log-Jacobian in J and M
     (common_mode_jacobian off).
 --position-drift-own-scale: the default with the pose-drift scale η_4 on the reference's position drift only, the
@@ -88,7 +86,10 @@ World i has world seed S + i (drive seed too); every method runs through odocal:
 --heading-drift-min-eta X: the floor of the heading drift's tie to the pose-drift scale η_4 (heading_drift_min_eta;
     -20, the η lower bound, ties it all the way).
 --correct-bias-of PARAMS: the parameters of θ the default's bias correction corrects (`c_e,c_d,t_r,d`: every one;
-    the default c_e,c_d).";
+    the default c_e,c_d).
+",
+    odocal_lab::readings_noise_usage!()
+);
 
 /// The methods the study knows, by their `--method` names.
 const METHODS: [&str; 3] = ["eiv", "batch-gn", "three-step"];
@@ -130,13 +131,12 @@ struct Settings {
     /// `--correct-bias-of`: the parameters the default's bias correction
     /// corrects (`CorrectBias::parameters`); None: the default's.
     correct_bias_of: Option<ParamSet>,
-    /// `--lateral-from-readings`: a_y's noise from the drive's readings, held.
-    lateral_from_readings: bool,
-    /// `--a-y-held-from-readings`: a_y's noise from the drive's readings, held; β's tied.
-    a_y_held_from_readings: bool,
+    /// `--lateral-from-readings`, `--a-y-held-from-readings`.
+    readings_noise: ReadingsNoise,
 }
 
 fn settings() -> Res<(Settings, Option<usize>)> {
+    let [lateral, a_y_held] = ReadingsNoise::SWITCHES;
     let mut a = Args::parse(
         USAGE,
         &[
@@ -146,8 +146,8 @@ fn settings() -> Res<(Settings, Option<usize>)> {
             "position-drift-own-scale",
             "heading-drift-two-sided",
             "no-clamp-refit",
-            "lateral-from-readings",
-            "a-y-held-from-readings",
+            lateral,
+            a_y_held,
         ],
     )?;
     let s = Settings {
@@ -169,8 +169,7 @@ fn settings() -> Res<(Settings, Option<usize>)> {
         no_clamp_refit: a.flag("no-clamp-refit"),
         clamp_refit_common_eta: a.opt("clamp-refit-common-eta")?,
         heading_drift_min_eta: a.opt("heading-drift-min-eta")?,
-        lateral_from_readings: a.flag("lateral-from-readings"),
-        a_y_held_from_readings: a.flag("a-y-held-from-readings"),
+        readings_noise: ReadingsNoise::from_args(&a),
         correct_bias_of: a.opt("correct-bias-of")?,
     };
     let threads = a.opt("threads")?;
@@ -284,12 +283,7 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<
             c.parameters = parameters;
         }
     }
-    if a.lateral_from_readings {
-        odocal_lab::lateral_from_readings(&mut opts, drive);
-    }
-    if a.a_y_held_from_readings {
-        odocal_lab::a_y_held_from_readings(&mut opts, drive);
-    }
+    a.readings_noise.apply(&mut opts, drive);
     let t = Instant::now();
     let r: CalibrationReport = calibrate(drive, &opts)?;
     let time_s = t.elapsed().as_secs_f64();

@@ -22,13 +22,12 @@
 
 use odocal::pooling::{PooledDrives, BETWEEN_DRIVE_PRIOR};
 use odocal::{calibrate, Calibration, CalibrationOptions, CalibrationReport, Drive, Holdout, Theta};
-use odocal_lab::{load, median, testtrack_runs, Args, Res, Table, PARAMETERS, VAN_MANIFEST};
+use odocal_lab::{load, median, testtrack_runs, Args, ReadingsNoise, Res, Table, PARAMETERS, VAN_MANIFEST};
 
-const USAGE: &str = "sigma_coverage [--no-van] [--json-out DIR] [--lateral-from-readings] [--a-y-held-from-readings]
-
---lateral-from-readings: the default with a_y's noise held at each drive's a_y readings' sample noise and β's at the
-    noise model's (odocal_lab::lateral_from_readings).
---a-y-held-from-readings: the same for a_y with β's noise still scaled with the white wheel noise.";
+const USAGE: &str = concat!(
+    "sigma_coverage [--no-van] [--json-out DIR] [--lateral-from-readings] [--a-y-held-from-readings]\n\n",
+    odocal_lab::readings_noise_usage!()
+);
 
 /// Per parameter: the unit's scale for printing and its name.
 const SHOW: [(f64, &str); 4] = [(1.0, "m"), (1e3, "mm"), (1.0, "m"), (1e3, "mm/(m/s²)")];
@@ -72,21 +71,16 @@ fn sd(x: &[f64]) -> f64 {
 }
 
 fn run() -> Res<()> {
-    let mut a = Args::parse(USAGE, &["no-van", "lateral-from-readings", "a-y-held-from-readings"])?;
+    let [lateral, a_y_held] = ReadingsNoise::SWITCHES;
+    let mut a = Args::parse(USAGE, &["no-van", lateral, a_y_held])?;
     let van = !a.flag("no-van");
     let json_out: Option<String> = a.opt("json-out")?;
-    let lateral = a.flag("lateral-from-readings");
-    let a_y_held = a.flag("a-y-held-from-readings");
+    let readings_noise = ReadingsNoise::from_args(&a);
     a.finish()?;
     let opts = CalibrationOptions::default();
     let for_drive = |d: &Drive| {
         let mut o = opts.clone();
-        if lateral {
-            odocal_lab::lateral_from_readings(&mut o, d);
-        }
-        if a_y_held {
-            odocal_lab::a_y_held_from_readings(&mut o, d);
-        }
+        readings_noise.apply(&mut o, d);
         o
     };
     let runs = testtrack_runs()?;
