@@ -140,7 +140,11 @@ fn short_last_row(e: Error, bytes: &[u8]) -> Error {
 /// The warning for a file whose last line has no newline at its end: fine
 /// for a file made by hand, a sign of a cut-off file otherwise.
 fn tail_warning(bytes: &[u8], path: &Path) -> Option<String> {
-    tail_warning_at(bytes.last().copied(), last_line(bytes), path)
+    // The line count scans the whole file: only for a file that warns.
+    match bytes.last() {
+        None | Some(b'\n') => None,
+        last => tail_warning_at(last.copied(), last_line(bytes), path),
+    }
 }
 
 /// [`tail_warning`] from the file's last byte and the number of its last

@@ -65,22 +65,31 @@ impl<R> LineCounted<R> {
     }
 
     fn note(&mut self, bytes: &[u8]) {
-        for &b in bytes {
+        let mut i = 0;
+        while let Some(&b) = bytes.get(i) {
             match b {
                 b'\n' if self.after_cr => {}
                 b'\n' | b'\r' => {
                     self.line += 1;
                     self.at_start = true;
                 }
-                _ if self.at_start => {
-                    self.starts.push_back((self.offset, self.line));
-                    self.at_start = false;
+                _ => {
+                    if self.at_start {
+                        self.starts.push_back((self.offset + i as u64, self.line));
+                        self.at_start = false;
+                    }
+                    // The rest of the line holds no line ending: skip to the
+                    // next one (a file's bytes are almost all such).
+                    let rest = &bytes[i + 1..];
+                    i += 1 + memchr::memchr2(b'\n', b'\r', rest).unwrap_or(rest.len());
+                    self.after_cr = false;
+                    continue;
                 }
-                _ => {}
             }
             self.after_cr = b == b'\r';
-            self.offset += 1;
+            i += 1;
         }
+        self.offset += bytes.len() as u64;
     }
 }
 
