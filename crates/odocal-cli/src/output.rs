@@ -39,13 +39,20 @@ impl Files {
         self
     }
 
-    /// A manifest the command reads, and every stream file it names.
+    /// A manifest the command reads, every stream file it names and the
+    /// parameter file its `[calibration] theta0` names.
     pub fn manifest(&mut self, role: &str, path: &Path) -> &mut Self {
         self.input(role, path);
         // A manifest that cannot be read fails later, with the importer's message.
         if let Ok(m) = odocal::Manifest::from_path(path) {
             for (stream, file) in m.stream_files() {
                 self.input(format!("stream '{stream}' of the manifest {}", path.display()), &file);
+            }
+            if let Some(file) = m.theta0_file() {
+                self.input(
+                    format!("the [calibration] theta0 parameter file of the manifest {}", path.display()),
+                    &file,
+                );
             }
         }
         self

@@ -17,7 +17,8 @@ use crate::drive::{Provenance, PyDrive};
 use crate::lib_err;
 
 /// The files a drive was read from: its CSV and the simulator sidecar
-/// beside it, or its manifest and every stream file the manifest names.
+/// beside it, or its manifest, every stream file the manifest names and
+/// the parameter file its `[calibration] theta0` names.
 pub(crate) fn inputs_of(prov: &Provenance) -> Vec<FileRole> {
     let Some(src) = &prov.source else { return Vec::new() };
     let path = Path::new(src);
@@ -29,6 +30,12 @@ pub(crate) fn inputs_of(prov: &Provenance) -> Vec<FileRole> {
                     .into_iter()
                     .map(|(s, f)| FileRole { role: format!("stream '{s}' of the manifest {src}"), path: f }),
             );
+            if let Some(f) = m.theta0_file() {
+                out.push(FileRole {
+                    role: format!("the [calibration] theta0 parameter file of the manifest {src}"),
+                    path: f,
+                });
+            }
         }
         out
     } else {

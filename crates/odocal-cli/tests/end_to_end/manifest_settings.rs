@@ -72,3 +72,45 @@ fn manifest_noise_and_reference_settings_are_used_unless_a_flag_is_given() {
     assert_eq!(setting_outcome(&r, "reference.estimate"), "overridden");
     assert_eq!(r["extrinsics"]["free"], serde_json::json!(["lever_x", "lever_y"]), "{}", r["extrinsics"]);
 }
+
+/// `[calibration] theta0` naming a parameter file: the file beside the
+/// manifest is read whatever the working directory (the test runs from the
+/// crate's folder, where no such file is), and it is an input no output may
+/// overwrite.
+#[test]
+fn a_manifest_theta0_file_is_relative_to_the_manifest_and_protected() {
+    let d = tempfile::tempdir().expect("tmp");
+    common::simulated_drive(d.path(), "drive.csv", &["--seed", "4", "--length-km", "2", "--noise", "white"]);
+    // A parameter file with this drive's batch G-N θ: a θ_0 that no default equals.
+    let t0 = d.path().join("t0.yaml");
+    let o = common::odocal(&[
+        "calibrate",
+        common::s(&d.path().join("drive.csv")),
+        "--method",
+        "batch-gn",
+        "--params-out",
+        common::s(&t0),
+    ]);
+    assert!(o.status.success(), "{}", common::stderr(&o));
+    let written = std::fs::read(&t0).expect("t0.yaml");
+    let expected = calibrate_json(&d.path().join("drive.csv"), &["--method", "batch-gn"])["theta"].clone();
+    std::fs::write(
+        d.path().join("manifest.toml"),
+        canonical_manifest("drive.csv", "[calibration]\ntheta0 = \"t0.yaml\"\n"),
+    )
+    .expect("write");
+    assert!(!Path::new("t0.yaml").exists(), "the test needs a working directory without t0.yaml");
+
+    let r = calibrate(d.path(), &["--method", "batch-gn"]);
+    assert_eq!(r["initial"]["theta"], expected, "θ_0 is not the file's: {}", r["initial"]);
+    assert_eq!(setting_outcome(&r, "calibration.theta0"), "used");
+
+    // --params-out onto it is refused before any work, and the file is intact.
+    let e = common::assert_fails(
+        &["calibrate", common::s(&d.path().join("manifest.toml")), "--params-out", common::s(&t0)],
+        1,
+        &["theta0 parameter file"],
+    );
+    assert!(e.contains("t0.yaml"), "{e}");
+    assert_eq!(std::fs::read(&t0).expect("t0.yaml"), written);
+}

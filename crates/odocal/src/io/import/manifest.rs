@@ -769,11 +769,21 @@ impl Manifest {
         if let Some(n) = &mut m.noise {
             n.line = n.line.map(line_of);
         }
+        let base = m.base_dir();
         if let Some(c) = &mut m.calibration {
             c.lines.values_mut().for_each(|at| *at = line_of(*at));
+            resolve_theta0_file(&mut c.table, &base);
         }
         m.check()?;
         Ok(m)
+    }
+
+    /// The parameter file `[calibration] theta0` names, if it names one
+    /// (relative to the manifest's folder, as every file a manifest names):
+    /// an input of the calibration, which no output may overwrite.
+    pub fn theta0_file(&self) -> Option<PathBuf> {
+        let theta0 = self.calibration.as_ref()?.table.get("theta0")?.as_str()?;
+        crate::io::param_file::ParamFile::is_param_file(Path::new(theta0)).then(|| PathBuf::from(theta0))
     }
 
     /// The sample time of the imported drive, s (`[output] rate_hz`).
@@ -815,6 +825,25 @@ impl Manifest {
             }
         }
         out
+    }
+}
+
+/// A `[calibration] theta0` that names a parameter file by a relative
+/// path is made absolute from the manifest's folder `base` (the folder
+/// every file a manifest names is relative to), so that the calibration
+/// reads the file beside the manifest from any working directory, and so
+/// does a later calibration of the drive the import wrote, whose report
+/// carries the table. A path that is not UTF-8 is left as it is.
+fn resolve_theta0_file(table: &mut toml::Table, base: &Path) {
+    let Some(toml::Value::String(theta0)) = table.get_mut("theta0") else { return };
+    let path = Path::new(theta0.as_str());
+    if !crate::io::param_file::ParamFile::is_param_file(path) || path.is_absolute() {
+        return;
+    }
+    let joined = base.join(path);
+    let resolved = std::path::absolute(&joined).unwrap_or(joined);
+    if let Some(text) = resolved.to_str() {
+        *theta0 = text.to_string();
     }
 }
 
