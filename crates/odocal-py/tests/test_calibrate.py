@@ -357,7 +357,7 @@ def test_correct_bias_equals_cli_json(odocal_bin, drive_csv):
                 assert (e["theta"][name], e["sigma"][i]) == (p["theta"][name], p["sigma"][i])
     with pytest.raises(odocal.OdocalError, match="bootstrap_seed`: is the seed of the bias correction"):
         odocal.calibrate(drive, eiv_window=1500, correct_bias=0, bootstrap_seed=5)
-    with pytest.raises(odocal.OdocalError, match="correct_bias`: must be 0 .no correction. or an even number"):
+    with pytest.raises(odocal.OdocalError, match="correct_bias`: = 3: must be 0 .no correction. or an even number"):
         odocal.calibrate(drive, eiv_window=1500, correct_bias=3)
     with pytest.raises(odocal.OdocalError, match="correct_bias applies to method eiv only"):
         odocal.calibrate(drive, "batch-gn", correct_bias=2)

@@ -89,7 +89,9 @@ fn too_few_samples() {
     let o = odocal(&["calibrate", p.to_str().expect("utf8")]);
     assert_error(&o, &["100 samples", "a calibration segment needs 651"]);
     let o = odocal(&["validate", p.to_str().expect("utf8"), "--theta", "2,0,1.6,0"]);
-    assert_error(&o, &["too short for one validation segment"]);
+    assert_error(&o, &["100 samples", "too short for one validation segment", "a part needs at least 1351 samples"]);
+    let o = odocal(&["validate", p.to_str().expect("utf8"), "--theta", "2,0,1.6,0", "--validation-length", "40"]);
+    assert!(o.status.success(), "{}", stderr(&o));
 }
 
 #[test]

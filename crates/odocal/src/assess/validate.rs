@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use super::heading_offset::{fit_heading_offset, with_fit, HeadingOffsetFit};
 use super::position_error::{mean_position_error_with, ValidationReport};
 use super::reachable::{reachable_minimum, ReachableOptions, ReachableReport};
-use crate::drive::segment::{validation_segments, ValidationSegmentOptions};
+use crate::drive::segment::{too_short_for_validation, validation_segments, ValidationSegmentOptions};
 use crate::drive::Drive;
 use crate::error::Result;
 use crate::io::param_file::ParamFile;
@@ -129,6 +129,9 @@ pub fn validate(
 ) -> Result<ValidateReport> {
     crate::drive::plausibility::check_conventions(drive, theta, "drive")?;
     let segs = validation_segments(drive, &opts.segments)?;
+    if segs.is_empty() {
+        return Err(too_short_for_validation("the drive", drive, &opts.segments));
+    }
     let heading_offset_fit = if opts.reestimate_heading_offset && !segs.is_empty() {
         theta.validate()?;
         Some(fit_heading_offset(drive, &segs, theta, &opts.extrinsics)?)

@@ -36,7 +36,7 @@ use serde::{Deserialize, Serialize};
 use super::heading_offset::{fit_heading_offset, with_fit, HeadingOffsetFit};
 use super::position_error::{mean_position_error_by, ValidationReport};
 use super::validate::{DriveValidation, MultiValidation};
-use crate::drive::segment::{validation_segments, Segment, ValidationSegmentOptions};
+use crate::drive::segment::{too_short_for_validation, validation_segments, Segment, ValidationSegmentOptions};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
 use crate::io::import::ReferenceSpec;
@@ -375,12 +375,7 @@ pub(crate) fn validate_drives_with(
     for d in drives {
         let segs = validation_segments(d.drive, segments)?;
         if segs.is_empty() {
-            return Err(Error::NoSegments(format!(
-                "validation drive {} ({} samples) is too short for one validation segment of {} steps",
-                d.name,
-                d.drive.len(),
-                segments.length_steps
-            )));
+            return Err(too_short_for_validation(&format!("validation drive {}", d.name), d.drive, segments));
         }
         let x = fitted_drive_extrinsics(cal, d.reference, d.drive, &segs, theta, theta0)?;
         x.value.validate()?;

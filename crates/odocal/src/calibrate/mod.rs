@@ -51,7 +51,8 @@ use crate::assess::validation_drives::{CalibrationExtrinsics, HeldOutDrives, Val
 use crate::assess::warning::Warning;
 use crate::compensate::CompensatedInputs;
 use crate::drive::segment::{
-    calibration_segments, validation_segments, Segment, SegmentData, SegmentOptions, ValidationSegmentOptions,
+    calibration_segments, too_short_for_validation, validation_segments, Segment, SegmentData, SegmentOptions,
+    ValidationSegmentOptions,
 };
 use crate::drive::Drive;
 use crate::error::{Error, Result};
@@ -567,12 +568,7 @@ pub(crate) fn calibrate_core(
     let prep = Prepared { drive, options: opts, validation: validation_segments(drive, &opts.validation)? };
     let selection = method.select(&prep)?;
     if prep.validation.is_empty() {
-        return Err(Error::NoSegments(format!(
-            "the drive ({} samples) is too short for one validation segment of {} steps: give a longer drive or \
-             a shorter validation_length (--validation-length)",
-            drive.len(),
-            opts.validation.length_steps
-        )));
+        return Err(too_short_for_validation("the drive", drive, &opts.validation));
     }
     let reported = ReportValidation::new(&prep, held_out, held_refs)?;
     let initial_val = reported.initial(opts, selection.free)?;
@@ -711,11 +707,7 @@ impl<'a> ReportValidation<'a> {
             Some(h) => {
                 let segs = validation_segments(h, &opts.validation)?;
                 if segs.is_empty() {
-                    return Err(Error::NoSegments(format!(
-                        "the held-out drive ({} samples) is too short for one validation segment of {} steps",
-                        h.len(),
-                        opts.validation.length_steps
-                    )));
+                    return Err(too_short_for_validation("the held-out drive", h, &opts.validation));
                 }
                 (h, segs)
             }

@@ -121,7 +121,7 @@ fn verdict(v: &Verdict) -> String {
         let _ = writeln!(out, "    - {r}");
     }
     if v.level == VerdictLevel::Rejected {
-        out.push_str("    (do not deploy this calibration; exit code 3)\n");
+        out.push_str("    (do not deploy this calibration)\n");
     }
     out
 }

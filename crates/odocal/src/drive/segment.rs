@@ -143,6 +143,24 @@ pub fn validation_segments(drive: &Drive, opts: &ValidationSegmentOptions) -> Re
     Ok(cut(drive, opts.offset_steps, opts.length_steps, opts.stride_steps))
 }
 
+/// The error for a drive without one validation segment: `what` ("the
+/// drive", "validation drive NAME") with its sample count, how many
+/// samples one part needs (`cut` starts a segment `offset_steps` into a
+/// part and needs a sample after its last step) and what to do.
+pub(crate) fn too_short_for_validation(what: &str, drive: &Drive, opts: &ValidationSegmentOptions) -> Error {
+    let longest = drive.parts().iter().map(|p| p.len()).max().unwrap_or(0);
+    let part = if drive.parts().len() > 1 { format!(", its longest part {longest}") } else { String::new() };
+    Error::NoSegments(format!(
+        "{what} ({} samples{part}) is too short for one validation segment: a part needs at least {} samples \
+         (the segment's {} steps, starting {} samples into the part); give a longer drive or a shorter \
+         validation_length (--validation-length)",
+        drive.len(),
+        opts.offset_steps + opts.length_steps + 1,
+        opts.length_steps,
+        opts.offset_steps
+    ))
+}
+
 /// The data of one segment, borrowed column-wise from a drive, with the
 /// wheel rotations optionally replaced (by compensated ones).
 #[derive(Debug, Clone, Copy)]

@@ -402,6 +402,27 @@ impl Settings {
         if self.final_segments == Some(FinalSegments::Random(0)) {
             return Some(("final_segments", "= 0: must be at least 1 (or all)".into()));
         }
+        // A segment is at least one step between two samples; the options'
+        // check (`drive::segment`) refuses these again, naming no source.
+        for (key, v, min) in [
+            ("segment_length", self.segment_length, 2),
+            ("validation_length", self.validation_length, 2),
+            ("segment_stride", self.segment_stride, 1),
+        ] {
+            if let Some(v) = v.filter(|v| *v < min) {
+                let unit = if min == 1 { "sample" } else { "samples" };
+                return Some((key, format!("= {v}: must be at least {min} {unit}")));
+            }
+        }
+        if let Some(b) = self.correct_bias.filter(|b| !b.is_multiple_of(2)) {
+            return Some((
+                "correct_bias",
+                format!(
+                    "= {b}: must be 0 (no correction) or an even number of at least 2 (the replicates come in \
+                     antithetic pairs)"
+                ),
+            ));
+        }
         for (key, v, min, unit) in
             [("eiv_window", self.eiv_window, 10, "samples"), ("bootstrap", self.bootstrap, 2, "replicates")]
         {

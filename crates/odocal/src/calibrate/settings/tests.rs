@@ -162,7 +162,15 @@ fn misplaced_keys_are_named_as_the_caller_gave_them() {
         "invalid option `bootstrap_seed`: is the seed of the bias correction, which correct_bias=0 turns off"
     );
     let s = json_settings(json!({"correct_bias": 3}));
-    assert!(s.to_options(Caller::Python).expect_err("odd").to_string().contains("`correct_bias`: must be 0"));
+    assert!(s.to_options(Caller::Python).expect_err("odd").to_string().contains("`correct_bias`: = 3: must be 0"));
+    for (key, v, want) in [
+        ("segment_length", 1, "--segment-length = 1: must be at least 2 samples"),
+        ("validation_length", 0, "--validation-length = 0: must be at least 2 samples"),
+        ("segment_stride", 0, "--segment-stride = 0: must be at least 1 sample"),
+    ] {
+        let s = json_settings(json!({ key: v }));
+        assert_eq!(s.to_options(Caller::CommandLine).expect_err(key).to_string(), want);
+    }
     let s = json_settings(json!({"correct_bias": 0, "correct_bias_of": "t_r"}));
     let cli = s.to_options(Caller::CommandLine).expect_err("parameters of nothing").to_string();
     assert_eq!(
@@ -297,6 +305,11 @@ fn bad_settings_are_errors_naming_the_key() {
         e.starts_with("calibration.min_yaw_rate: min_yaw_rate = -1: must be a non-negative number of rad/s"),
         "{e}"
     );
+    let e = error("\n[calibration]\ncorrect_bias = 3\n");
+    assert!(e.starts_with("calibration.correct_bias: correct_bias = 3: must be 0 (no correction) or an even"), "{e}");
+    assert!(e.ends_with("(line 25)"), "{e}");
+    let e = error("\n[calibration]\nsegment_length = 0\n");
+    assert_eq!(e, "calibration.segment_length: segment_length = 0: must be at least 2 samples (line 25)");
     let e = error("\n[calibration]\nseed = 1\nmethod = \"newton\"\n");
     assert_eq!(e, "calibration.method: invalid method 'newton': use three-step, batch-gn or eiv (line 26)");
 }

@@ -9,6 +9,9 @@
 //! | clock search work (grid samples × lags) | [`MAX_CORRELATION_WORK`] = 4·10⁹ | seconds, not hours |
 //! | `streams.*.nominal_rate_hz` | [`MAX_NOMINAL_RATE_HZ`] = 100 kHz, and at most [`MAX_NOMINAL_OVER_MEAN_RATE`] × the stream's mean rate | de-jittering assigns one index per nominal period |
 //! | values read from one Parquet stream (declared rows × columns read) | `MAX_STREAM_VALUES` = 10⁸ (feature `parquet`) | 800 MB of f64; a CSV stream is bounded by its file's size |
+//! | `streams.*.nominal_rate_hz`, from below | at least [`MIN_NOMINAL_OVER_MEAN_RATE`] = 0.5 × the stream's mean rate | a sensor does not sample slower than its samples arrive |
+//! | `streams.*.time_offset_s` | ±[`MAX_TIME_OFFSET_S`] = 10¹⁰ s | covers any two epochs (GNSS, Unix, boot); beyond it the stamps lose their sub-second digits |
+//! | `lateral_acceleration.smoothing_s`, `lateral_acceleration.bank.smoothing_s` | [`MAX_SMOOTHING_S`] = 60 s | the moving average is over seconds; a minute flattens every curve |
 //! | `streams.*.dejitter_window_s` | [`MAX_DEJITTER_WINDOW_S`] = 60 s and [`MAX_DEJITTER_HALF_WINDOW`] = 5,000 samples each side | the local fit costs the window per sample |
 //!
 //! The physical limits (speed, lateral acceleration) are in the manifest's
@@ -33,6 +36,14 @@ pub(crate) const MAX_CORRELATION_WORK: f64 = 4e9;
 pub(crate) const MAX_NOMINAL_RATE_HZ: f64 = 100_000.0;
 /// Highest nominal rate relative to a stream's mean rate.
 pub(crate) const MAX_NOMINAL_OVER_MEAN_RATE: f64 = 20.0;
+/// Lowest nominal stream rate relative to a stream's mean rate: stamps
+/// that jitter or drop samples arrive at about the nominal rate or below.
+pub(crate) const MIN_NOMINAL_OVER_MEAN_RATE: f64 = 0.5;
+/// Largest time offset of a stream, ± s: 317 years, more than any two clock
+/// epochs apart; at 1e10 s an f64 stamp still holds microseconds.
+pub(crate) const MAX_TIME_OFFSET_S: f64 = 1e10;
+/// Longest smoothing window of a derived a_y or of the road's roll, s.
+pub(crate) const MAX_SMOOTHING_S: f64 = 60.0;
 /// Longest de-jitter window, s.
 pub(crate) const MAX_DEJITTER_WINDOW_S: f64 = 60.0;
 /// Most samples each side of the de-jitter window.

@@ -661,6 +661,18 @@ fn search_and_dejitter_settings_beyond_their_limits_are_rejected() {
     // Below the absolute limit but far above the stream's own rate (100 Hz).
     let e = manifest_error(|t| t.replacen("time_column = \"t\"", "time_column = \"t\"\nnominal_rate_hz = 5e3", 1));
     assert!(e.contains("streams.wheels.nominal_rate_hz") && e.contains("mean rate of 100"), "{e}");
+    // Far below it: a sensor does not sample slower than its samples arrive.
+    let e = manifest_error(|t| t.replacen("time_column = \"t\"", "time_column = \"t\"\nnominal_rate_hz = 0.0001", 1));
+    assert!(
+        e.contains("streams.wheels.nominal_rate_hz") && e.contains("less than 0.5 × the stream's mean rate"),
+        "{e}"
+    );
+    // An offset beyond any two epochs is named as the offset, not as stamps that do not advance.
+    let e = manifest_error(|t| t.replacen("time_column = \"t\"", "time_column = \"t\"\ntime_offset_s = 1e20", 1));
+    assert!(e.contains("streams.wheels.time_offset_s") && e.contains("above the limit of 10000000000"), "{e}");
+    // A smoothing of a derived a_y over more than a minute.
+    let e = manifest_error(|t| t + "\n[lateral_acceleration]\nsource = \"from_pose\"\nsmoothing_s = 1e9\n");
+    assert!(e.contains("lateral_acceleration.smoothing_s") && e.contains("above the limit of 60"), "{e}");
 }
 
 #[test]

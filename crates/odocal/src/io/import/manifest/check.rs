@@ -108,9 +108,16 @@ impl Manifest {
                     ));
                 }
             }
+            let key = format!("streams.{name}.time_offset_s");
             if !s.time_offset_s.is_finite() {
-                return Err(self.error(&format!("streams.{name}.time_offset_s"), "must be finite"));
+                return Err(self.error(&key, "must be finite"));
             }
+            self.require_at_most(
+                &key,
+                s.time_offset_s.abs(),
+                limits::MAX_TIME_OFFSET_S,
+                "an offset between two clocks is at most the time between their epochs; check its unit (s)",
+            )?;
         }
         Ok(())
     }
@@ -224,6 +231,12 @@ impl Manifest {
                 if !non_negative(*smoothing_s) {
                     return Err(self.error("lateral_acceleration.smoothing_s", "must be >= 0"));
                 }
+                self.require_at_most(
+                    "lateral_acceleration.smoothing_s",
+                    *smoothing_s,
+                    limits::MAX_SMOOTHING_S,
+                    "a moving average of a few tenths of a second to a second keeps the curves",
+                )?;
                 if let Some(b) = bank {
                     self.check_bank(b)?;
                 }
@@ -261,6 +274,12 @@ impl Manifest {
         if !(non_negative(b.smoothing_s) && b.smoothing_s.is_finite()) {
             return Err(self.error(&format!("{K}.smoothing_s"), format!("must be >= 0, found {}", b.smoothing_s)));
         }
+        self.require_at_most(
+            &format!("{K}.smoothing_s"),
+            b.smoothing_s,
+            limits::MAX_SMOOTHING_S,
+            "a moving average over about a second keeps the curves' roll",
+        )?;
         if !(b.max_roll_deg > 0.0 && b.max_roll_deg <= BankSpec::MAX_ROLL_LIMIT_DEG) {
             return Err(self.error(
                 &format!("{K}.max_roll_deg"),

@@ -242,6 +242,17 @@ pub(crate) fn read_stream(m: &Manifest, name: &str, wanted: &[Wanted], warnings:
                 ),
             ))
         }
+        Some(rate) if rate < limits::MIN_NOMINAL_OVER_MEAN_RATE * mean_rate_hz => {
+            return Err(m.error(
+                &format!("streams.{name}.nominal_rate_hz"),
+                format!(
+                    "{} Hz is less than {} × the stream's mean rate of {mean_rate_hz:.3} Hz: a sensor does not \
+                     sample slower than its samples arrive; give the sensor's sample rate",
+                    limits::echo_num(rate),
+                    limits::MIN_NOMINAL_OVER_MEAN_RATE
+                ),
+            ))
+        }
         Some(rate) => {
             let half = ((spec.dejitter_window_s * rate) / 2.0).round().max(1.0) as usize;
             let d = signal::dejitter(&t_raw, 1.0 / rate, half, m.output.max_gap_s);
