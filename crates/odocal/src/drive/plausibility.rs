@@ -124,10 +124,18 @@ pub(crate) fn check_limits(drive: &Drive, limits: &PhysicalLimits, context: &str
 /// Only samples where the reference moves faster than 2 m/s count; a drive
 /// with too few of them is not judged (returns `Ok`).
 ///
+/// Before those, [`stalled_signal`]: a wheel that reads (almost) nothing
+/// while the reference moves, or a reference that stands still while the
+/// wheels turn, for 2 s or more, and a drive whose reference never moves.
+///
 /// # Errors
-/// [`Error::InvalidDrive`] naming the convention to check.
+/// [`Error::InvalidDrive`] naming the convention to check, or the signal
+/// that stalls and where.
 pub(crate) fn check_conventions(drive: &Drive, theta0: &Theta, context: &str) -> Result<()> {
     use crate::model::{kinematics, wrap_angle};
+    if let Some(reason) = stalled_signal(drive, theta0) {
+        return Err(Error::InvalidDrive { context: context.to_string(), reason });
+    }
     let ts = drive.sample_time_s();
     let (px, py, psi) = (drive.px(), drive.py(), drive.psi());
     let (mut ratios, mut offsets, mut yaw) = (Vec::new(), Vec::new(), Vec::new());
@@ -189,6 +197,139 @@ pub(crate) fn check_conventions(drive: &Drive, theta0: &Theta, context: &str) ->
         return fail(reason.1);
     }
     Ok(())
+}
+
+/// The span over which [`stalled_signal`] compares distances, s.
+const STALL_WINDOW_S: f64 = 1.0;
+/// The shortest stall [`stalled_signal`] reports, s: a wheel or a
+/// reference that lags for a moment is jitter, not a lost signal.
+const STALL_MIN_S: f64 = 2.0;
+/// Speed of the moving side from which a stall counts, m/s.
+const STALL_MIN_SPEED_M_PER_S: f64 = 2.0;
+/// The stalled side covers less than this fraction of the moving side's
+/// distance over each window.
+const STALL_FRACTION: f64 = 0.1;
+
+/// A signal that stalls while the drive moves, in words, or `None`:
+///
+/// - a wheel (`n_rl`, `n_rr`) that covers less than a tenth of the
+///   reference's distance for [`STALL_MIN_S`] or more while the reference
+///   moves faster than 2 m/s (an encoder drop-out logged as zeros, a
+///   disconnected wheel);
+/// - a reference (`px`, `py`) that covers less than a tenth of the wheels'
+///   distance at θ_0 for as long while the wheels turn faster than 2 m/s
+///   (a position held through a GNSS outage);
+/// - a reference that does not move at all while the wheels cover 200 m or
+///   more (a constant or missing position).
+///
+/// Distances are compared over windows of [`STALL_WINDOW_S`] (the
+/// reference's noise over one sample would hide nothing and flag much), each
+/// window within one part; c_d is left out (a wheel's circumference is c_e to
+/// within a few per mille).
+fn stalled_signal(drive: &Drive, theta0: &Theta) -> Option<String> {
+    let ts = drive.sample_time_s();
+    let w = ((STALL_WINDOW_S / ts).round() as usize).max(1);
+    let min_run = ((STALL_MIN_S / ts).round() as usize).max(1);
+    let (px, py, t) = (drive.px(), drive.py(), drive.t());
+    let m = drive.measured();
+    let (mut wheel_total, mut reference_total) = (0.0, 0.0);
+    for part in drive.parts() {
+        // Prefix sums of each wheel's distance at θ_0.
+        let prefix = |n: &[f64]| {
+            let mut acc = vec![0.0; part.len() + 1];
+            for (k, i) in part.clone().enumerate() {
+                acc[k + 1] = acc[k] + theta0.c_e * n[i].abs() * ts;
+            }
+            acc
+        };
+        let (left, right) = (prefix(&m.n_rl), prefix(&m.n_rr));
+        wheel_total += 0.5 * (left[part.len()] + right[part.len()]);
+        reference_total +=
+            (part.start..part.end.saturating_sub(1)).map(|i| (px[i + 1] - px[i]).hypot(py[i + 1] - py[i])).sum::<f64>();
+        if part.len() <= w {
+            continue;
+        }
+        let windows = part.len() - w;
+        let min_distance = STALL_MIN_SPEED_M_PER_S * w as f64 * ts;
+        let reference_distance = |k: usize| {
+            let (a, b) = (part.start + k, part.start + k + w);
+            (px[b] - px[a]).hypot(py[b] - py[a])
+        };
+        // (which signal, its name, stalled in window k)
+        let checks: [(&str, &dyn Fn(usize) -> bool); 3] = [
+            ("n_rl", &|k| {
+                let r = reference_distance(k);
+                r >= min_distance && left[k + w] - left[k] < STALL_FRACTION * r
+            }),
+            ("n_rr", &|k| {
+                let r = reference_distance(k);
+                r >= min_distance && right[k + w] - right[k] < STALL_FRACTION * r
+            }),
+            ("px, py", &|k| {
+                let wheels = 0.5 * (left[k + w] - left[k] + right[k + w] - right[k]);
+                wheels >= min_distance && reference_distance(k) < STALL_FRACTION * wheels
+            }),
+        ];
+        for (name, stalled) in checks {
+            let mut run = 0usize;
+            for k in 0..windows {
+                run = if stalled(k) { run + 1 } else { 0 };
+                // A run of windows spans the run plus one window of samples.
+                if run + w >= min_run && run > 0 && (k + 1 == windows || !stalled(k + 1)) {
+                    let (a, b) = trim_stall(name, drive, theta0, part.start + k + 1 - run, part.start + k + w);
+                    let what = if name == "px, py" {
+                        "the reference position (px, py) stands still while the wheels turn".to_string()
+                    } else {
+                        format!("column '{name}' reads (almost) no rotation while the reference moves")
+                    };
+                    return Some(format!(
+                        "{what}: samples {a}–{b} (t = {:.3} … {:.3} s, {:.1} s); a signal lost there (a drop-out \
+                         logged as zeros or a held value) would be calibrated as data: drop those rows and mark \
+                         the gap with a 'part' column, or import the log with a manifest",
+                        t[a],
+                        t[b],
+                        t[b] - t[a]
+                    ));
+                }
+            }
+        }
+    }
+    if wheel_total >= 200.0 && reference_total < STALL_FRACTION * wheel_total {
+        return Some(format!(
+            "the reference position (px, py) moves {reference_total:.1} m in all while the wheels cover \
+             {wheel_total:.0} m at θ_0: give the reference's position columns (a constant or missing position \
+             cannot be calibrated against)"
+        ));
+    }
+    None
+}
+
+/// The samples of a stall [`stalled_signal`] found in the windows over
+/// samples `a..=b`: from the first to the last sample whose own distance
+/// (the wheel's rotation at θ_0, or the reference's step to the next sample,
+/// counted to that next sample) is below the stall fraction of the moving
+/// side's mean over `a..=b`; `(a, b)` when none is.
+fn trim_stall(name: &str, drive: &Drive, theta0: &Theta, a: usize, b: usize) -> (usize, usize) {
+    let (px, py, ts) = (drive.px(), drive.py(), drive.sample_time_s());
+    let m = drive.measured();
+    let step = |i: usize| (px[i + 1] - px[i]).hypot(py[i + 1] - py[i]);
+    let wheel = |n: &[f64], i: usize| theta0.c_e * n[i].abs() * ts;
+    let mean = |f: &dyn Fn(usize) -> f64| (a..b).map(f).sum::<f64>() / (b - a).max(1) as f64;
+    let stalled: Vec<usize> = match name {
+        "n_rl" | "n_rr" => {
+            let n = if name == "n_rl" { &m.n_rl } else { &m.n_rr };
+            let moving = mean(&step);
+            (a..=b).filter(|&i| wheel(n, i) < STALL_FRACTION * moving).collect()
+        }
+        _ => {
+            let moving = mean(&|i| 0.5 * (wheel(&m.n_rl, i) + wheel(&m.n_rr, i)));
+            (a..b).filter(|&i| step(i) < STALL_FRACTION * moving).flat_map(|i| [i, i + 1]).collect()
+        }
+    };
+    match (stalled.iter().min(), stalled.iter().max()) {
+        (Some(&first), Some(&last)) => (first, last),
+        _ => (a, b),
+    }
 }
 
 /// Smoothing of a_y and of the reference's v·ω for [`lateral_fit`], s.
@@ -402,5 +543,54 @@ mod tests {
         let ned = edit(&|s| s.psi.iter_mut().for_each(|v| *v = std::f64::consts::FRAC_PI_2 - *v));
         let m = check_conventions(&ned, &th, "d").expect_err("ned").to_string();
         assert!(m.contains("direction of travel"), "{m}");
+    }
+
+    #[test]
+    fn a_signal_that_stalls_while_the_drive_moves_is_named() {
+        let sim = crate::sim::simulate(&crate::sim::SimOptions { length_km: 3.0, ..crate::sim::SimOptions::paper(1) })
+            .expect("sim");
+        let d = &sim.drive;
+        let th = Theta::PAPER_INITIAL;
+        assert_eq!(stalled_signal(d, &th), None);
+        let edit = |f: &dyn Fn(&mut Signals)| {
+            let mut s = d.measured().clone();
+            f(&mut s);
+            crate::drive::DriveBuilder { t: d.t().to_vec(), measured: s, ..Default::default() }.build().expect("drive")
+        };
+        // Both wheels logged as zeros for 100 s of driving (the rest of the
+        // drive keeps the median wheel speed right, so no other check sees it).
+        let zeros = edit(&|s| s.n_rl[2000..6000].iter_mut().chain(&mut s.n_rr[2000..6000]).for_each(|v| *v = 0.0));
+        let m = check_conventions(&zeros, &th, "d").expect_err("wheels at zero").to_string();
+        assert!(m.contains("column 'n_rl' reads (almost) no rotation while the reference moves: samples 2000–"), "{m}");
+        // One wheel for 3 s.
+        let one = edit(&|s| s.n_rr[3000..3120].iter_mut().for_each(|v| *v = 0.0));
+        let m = check_conventions(&one, &th, "d").expect_err("one wheel").to_string();
+        assert!(m.contains("column 'n_rr'") && m.contains("samples 3000–3119"), "{m}");
+        // A wheel at zero for 1 s is not reported (shorter than 2 s).
+        let blip = edit(&|s| s.n_rr[3000..3040].iter_mut().for_each(|v| *v = 0.0));
+        assert_eq!(stalled_signal(&blip, &th), None);
+        // A position held for the last 10 s while the wheels turn (held
+        // within the drive, it would jump back at its end, which the
+        // physical limits refuse).
+        let n = d.len();
+        let held = edit(&|s| {
+            let (x, y) = (s.px[n - 400], s.py[n - 400]);
+            s.px[n - 400..].iter_mut().for_each(|v| *v = x);
+            s.py[n - 400..].iter_mut().for_each(|v| *v = y);
+        });
+        let m = check_conventions(&held, &th, "d").expect_err("held").to_string();
+        // Within the held samples, where the wheels also turn at 2 m/s or
+        // faster (the drive ends slowing down), and for longer than 2 s.
+        let range = m.split("turn: samples ").nth(1).and_then(|r| r.split(' ').next()).expect("samples");
+        let (a, b) = range.split_once('–').expect("a–b");
+        let (a, b): (usize, usize) = (a.parse().expect("a"), b.parse().expect("b"));
+        assert!(a >= n - 400 && b < n && b - a >= 80, "{m}");
+        // A reference that never moves.
+        let frozen = edit(&|s| {
+            s.px.iter_mut().for_each(|v| *v = 0.0);
+            s.py.iter_mut().for_each(|v| *v = 0.0);
+        });
+        let m = stalled_signal(&frozen, &th).expect("frozen");
+        assert!(m.contains("(px, py) stands still"), "{m}");
     }
 }
