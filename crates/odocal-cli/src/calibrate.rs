@@ -9,7 +9,8 @@ use clap::Args;
 use odocal::output::is_stdout;
 use odocal::settings::{Caller, ManifestSettings, SettingsAccount};
 use odocal::{
-    segment, sim, CalibrationOptions, CalibrationReport, Drive, Holdout, Method, ParamSet, Theta, VerdictLevel,
+    segment, sim, CalibrationOptions, CalibrationReport, Drive, Extrinsics, Holdout, Method, ParamSet, Theta,
+    VerdictLevel,
 };
 
 use crate::args::{CalibrationArgs, HalfArg, HelpArgs, ThetaArg};
@@ -99,7 +100,7 @@ pub fn calibrate_cmd(a: CalibrateArgs, bars: &Bars) -> Result<Outcome> {
     let fingerprints = distinct_drives(&a.drive, &drives, &others)?;
     let first = &a.drive[0];
     let (drive, truth) = if drives.len() == 1 {
-        let truth = load_truth(first, &drives[0]).map(|s| s.theta_true);
+        let truth = load_truth(first, &drives[0]).map(|s| (s.theta_true, s.settings.reference_mount));
         (drives.swap_remove(0), truth)
     } else {
         let refs: Vec<&Drive> = drives.iter().collect();
@@ -159,7 +160,7 @@ pub fn demo_cmd(a: DemoArgs, bars: &Bars) -> Result<Outcome> {
         input: "simulated drive".into(),
         source: None,
         manifests: &[],
-        truth: Some(sim.sidecar.theta_true),
+        truth: Some((sim.sidecar.theta_true, sim.sidecar.settings.reference_mount)),
         others,
         fingerprints,
         separate: &[],
@@ -225,8 +226,9 @@ struct Job<'a> {
     source: Option<(&'a Path, Option<&'a str>)>,
     /// The calibration settings of the drives' manifests.
     manifests: &'a [ManifestSettings],
-    /// The true θ, for a simulated drive (or one whose sidecar is bound to it).
-    truth: Option<Theta>,
+    /// The true θ and reference mount, for a simulated drive (or one whose
+    /// sidecar is bound to it).
+    truth: Option<(Theta, Extrinsics)>,
     /// The `--validate-on` drives.
     others: Vec<OtherDrive>,
     /// Each drive's report entry (role, path, fingerprint).
@@ -263,13 +265,7 @@ fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, ba
         crate::history::record_calibration(vehicle_db, drive, sources, &prints, &r)?;
     }
     let drive = held.unwrap_or(drive);
-    let truth = match truth_theta {
-        Some(t) => {
-            let val = segment::validation_segments(drive, &opts.validation)?;
-            Some((t, odocal::mean_position_error(drive, &val, &t)?.mean_position_error_m))
-        }
-        None => None,
-    };
+    let truth = truth_theta.map(|(t, mount)| truth_error(drive, &t, &mount, opts).map(|e| (t, e))).transpose()?;
     let truth_ref = truth.as_ref().map(|(t, e)| (t, *e));
     let prints = calibration_fingerprints(&fingerprints);
     if let Some(p) = &args.params_out {
@@ -288,7 +284,8 @@ fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, ba
         } else {
             drive_starts(others.iter().map(|(_, d, _)| d.len()))
         };
-        write_html_report(p, (drive, &starts), &r, opts, (&input, &prints), truth_ref)?;
+        let truth = truth_theta.as_ref().map(|(t, mount)| (t, *mount));
+        write_html_report(p, (drive, &starts), &r, opts, (&input, &prints), truth)?;
     }
     let outcome = if r.verdict.level == VerdictLevel::Rejected { Outcome::Rejected } else { Outcome::Done };
     if let Some(p) = json {
@@ -419,16 +416,23 @@ fn drive_starts(lengths: impl Iterator<Item = usize>) -> Vec<usize> {
         .collect()
 }
 
+/// Ē_p of the true θ on the validation segments of `drive` with the true
+/// reference mount: the truth's row of the text, JSON and HTML reports.
+fn truth_error(drive: &Drive, theta: &Theta, mount: &Extrinsics, opts: &CalibrationOptions) -> Result<f64> {
+    let v = odocal::ValidateOptions { segments: opts.validation.clone(), extrinsics: *mount, ..Default::default() };
+    Ok(odocal::validate(drive, theta, &v, None)?.validation.mean_position_error_m)
+}
+
 /// Writes the HTML report of the calibration (`--report`; `-`: stdout;
 /// `starts`: the first sample of each `--validate-on` drive in `drive`, or
-/// of each calibration drive).
+/// of each calibration drive; `truth`: the true θ and reference mount).
 fn write_html_report(
     path: &Path,
     (drive, starts): (&Drive, &[usize]),
     r: &CalibrationReport,
     opts: &CalibrationOptions,
     (input, fingerprint): (&str, &str),
-    truth: Option<(&Theta, f64)>,
+    truth: Option<(&Theta, Extrinsics)>,
 ) -> Result<()> {
     let val = segment::validation_segments(drive, &opts.validation)?;
     // The date the calibration's parameter file records.
@@ -442,6 +446,7 @@ fn write_html_report(
             ("odocal".into(), env!("CARGO_PKG_VERSION").into()),
             ("date".into(), date.unwrap_or_default()),
         ],
+        truth_extrinsics: truth.map(|t| t.1).unwrap_or_default(),
         ..odocal_report::ReportInput::of_calibration(input, r, (drive, &val, starts), truth.map(|t| t.0))
     }
     // What the import warned about, as on stderr and in the JSON, before the calibration's warnings.

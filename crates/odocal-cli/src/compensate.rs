@@ -1,5 +1,11 @@
 //! `odocal compensate`: a drive with its wheel rotations compensated for a
 //! given θ (the three-step method's input compensation) beside the measured ones.
+//!
+//! The QP models the rear-axle centre, so it tracks the axle poses the
+//! reference implies under the reference extrinsics (docs/method.md,
+//! section 5, as the 3-step method's step 2 does): those `validate` would
+//! use with the same θ on the drive, by the same rules
+//! ([`odocal::ValidateOptions::set_extrinsics`]).
 
 use std::path::PathBuf;
 
@@ -8,10 +14,11 @@ use clap::Args;
 use odocal::compensate::{CompensateOptions, QpOptions, SolverKind};
 use odocal::output::is_stdout;
 use odocal::segment;
-use odocal::{ExtraColumn, ExtraValues};
+use odocal::settings::ManifestSettings;
+use odocal::{Drive, ExtraColumn, ExtraValues, Extrinsics, HeadingOffsetFit, ValidateOptions};
 
 use crate::args::ThetaArg;
-use crate::io::{load_drive, print_warnings};
+use crate::io::{load_drive_with_scale, print_warnings};
 use crate::output::{write_drive, Files};
 use crate::progress::Bars;
 
@@ -20,9 +27,18 @@ use crate::progress::Bars;
 pub struct CompensateArgs {
     /// The drive: a canonical CSV or a drive manifest (.toml).
     drive: PathBuf,
-    /// θ as c_e,c_d,t_r,d (SI), or a parameter file (.yaml, .yml, .json).
+    /// θ as c_e,c_d,t_r,d (SI), or a parameter file (.yaml, .yml, .json) as
+    /// `calibrate --params-out` writes it: its θ and the reference extrinsics
+    /// it estimated, applied as `validate` applies them (held ones give way
+    /// to the drive's manifest [reference]; an estimated heading offset is
+    /// re-estimated on this drive with θ and the lever arm held). The QP
+    /// tracks the rear-axle poses the reference implies under them.
     #[arg(long, allow_hyphen_values = true)]
     theta: ThetaArg,
+    /// Carry the heading offset a parameter file estimated to this drive
+    /// instead of re-estimating the drive's own.
+    #[arg(long)]
+    carry_heading_offset: bool,
     /// Output CSV (the drive plus n_rl_comp, n_rr_comp, compensated
     /// columns; "-" for stdout).
     #[arg(long)]
@@ -44,17 +60,18 @@ pub fn run(mut a: CompensateArgs, bars: &Bars) -> Result<()> {
         files.input("the --theta parameter file", p);
     }
     files.output("--out", Some(&a.out)).check()?;
-    let drive = load_drive(&a.drive)?;
+    let (drive, _, settings) = load_drive_with_scale(&a.drive)?;
     let segs = segment::cut(&drive, 0, a.segment_length, a.segment_length);
     if segs.is_empty() {
         bail!("{}: too short for one segment of {} steps", a.drive.display(), a.segment_length);
     }
+    let (extrinsics, notes) = reference_extrinsics(&a, &drive, settings.as_ref())?;
     let cb = |e| bars.event(e);
     let comp = odocal::compensate::compensate_segments(
         &drive,
         &segs,
         &[a.theta.theta],
-        &CompensateOptions::default(),
+        &CompensateOptions { extrinsics, ..Default::default() },
         &QpOptions { solver: a.qp_solver, ..Default::default() },
         Some(&cb),
     )?;
@@ -81,10 +98,49 @@ pub fn run(mut a: CompensateArgs, bars: &Bars) -> Result<()> {
         comp.step.rms_relative_input_change * 100.0
     );
     // With the CSV on stdout, the summary goes to stderr.
-    if is_stdout(&a.out) {
-        eprintln!("{summary}");
-    } else {
-        println!("{summary}");
+    for line in notes.iter().chain([&summary]) {
+        if is_stdout(&a.out) {
+            eprintln!("{line}");
+        } else {
+            println!("{line}");
+        }
     }
     Ok(())
+}
+
+/// The reference extrinsics the QP tracks the axle under, by `validate`'s
+/// rules: the drive's manifest `[reference]`, except those the `--theta`
+/// parameter file estimated; an estimated heading offset re-estimated on
+/// this drive with θ held unless `--carry-heading-offset`. With the lines
+/// that say which were used and where from (none at the axle).
+fn reference_extrinsics(
+    a: &CompensateArgs,
+    drive: &Drive,
+    settings: Option<&ManifestSettings>,
+) -> Result<(Extrinsics, Vec<String>)> {
+    let stated = settings.and_then(|s| s.reference.as_ref()).map(Extrinsics::from);
+    let file = a.theta.file.as_ref();
+    let mut opts = ValidateOptions::default();
+    let from_file = opts.set_extrinsics(file.map(|(_, f)| f), stated.as_ref(), a.carry_heading_offset);
+    let (extrinsics, fit): (Extrinsics, Option<HeadingOffsetFit>) = if opts.reestimate_heading_offset {
+        let r = odocal::validate(drive, &a.theta.theta, &opts, None).map_err(|e| {
+            anyhow::anyhow!(
+                "{}: re-estimating the drive's heading offset (the --theta file estimated one): {e};                  --carry-heading-offset carries the file's",
+                a.drive.display()
+            )
+        })?;
+        (r.extrinsics, r.heading_offset_fit)
+    } else {
+        (opts.extrinsics, None)
+    };
+    let mut notes = Vec::new();
+    if extrinsics != Extrinsics::default() {
+        let path = file.map(|(p, _)| p.as_path());
+        let from = crate::validate::extrinsics_source(path, &from_file, fit.is_some());
+        notes.push(format!("reference extrinsics: {extrinsics} ({from}); the QP tracks the axle poses they imply"));
+    }
+    if let Some(fit) = fit {
+        notes.push(format!("{fit} (--carry-heading-offset carries the calibration's)"));
+    }
+    Ok((extrinsics, notes))
 }

@@ -13,14 +13,9 @@ use odocal::{Drive, Warning};
 static IMPORT_WARNINGS: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Vec::new());
 
 /// Reads a drive: a canonical CSV, or a `.toml` manifest of a multi-stream log
-/// (its import summary goes to stderr).
-pub fn load_drive(path: &Path) -> Result<Drive> {
-    Ok(load_drive_with_scale(path)?.0)
-}
-
-/// [`load_drive`], also returning how to read c_e when the drive came from a
-/// manifest (e.g. "c_e is metres per 40360 ticks") and the manifest's
-/// calibration settings (`[noise]`, `[reference]`).
+/// (its import summary goes to stderr). Also returns how to read c_e when
+/// the drive came from a manifest (e.g. "c_e is metres per 40360 ticks")
+/// and the manifest's calibration settings (`[noise]`, `[reference]`).
 pub fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>, Option<ManifestSettings>)> {
     if odocal::output::is_stdout(path) {
         anyhow::bail!(

@@ -107,7 +107,7 @@ pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<()> {
 /// Where the extrinsics in force came from: the `--theta` parameter file
 /// (`path`) for those in `from_file`, except a heading offset `reestimated`
 /// on this drive; the drive's manifest for the rest.
-fn extrinsics_source(path: Option<&Path>, from_file: &[&str], reestimated: bool) -> String {
+pub(crate) fn extrinsics_source(path: Option<&Path>, from_file: &[&str], reestimated: bool) -> String {
     let manifest = "the drive's manifest [reference]".to_string();
     let Some(path) = path else { return manifest };
     let (kept, refitted): (Vec<&str>, Vec<&str>) =

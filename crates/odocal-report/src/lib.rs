@@ -93,6 +93,11 @@ pub struct ParamRow {
     /// label differs from the one in force starts a block headed "reference
     /// extrinsics" with this label over the σ column.
     pub sigma_label: Option<String>,
+    /// The data cannot determine this parameter
+    /// ([`odocal::CalibrationReport::observability`]): its σ is shown
+    /// marked "not observable" and the table is followed by the line the
+    /// text report prints, since value and σ are not to be trusted.
+    pub not_observable: bool,
 }
 
 impl ParamRow {
@@ -115,6 +120,7 @@ impl ParamRow {
                 sigma: sigma.and_then(|s| s[i]),
                 truth: truth.map(|t| <[_; 4]>::from(t)[i]),
                 sigma_label: None,
+                not_observable: false,
             })
             .collect()
     }
@@ -142,6 +148,7 @@ impl ParamRow {
                     sigma: x.free.contains(p).then_some(sd[i]),
                     truth: None,
                     sigma_label: Some(label.to_string()),
+                    not_observable: false,
                 }
             })
             .collect()
@@ -170,6 +177,12 @@ pub struct ReportInput<'a> {
     pub theta: Theta,
     /// The true θ, when known (simulated drives).
     pub truth: Option<Theta>,
+    /// The true reference extrinsics that go with [`ReportInput::truth`]
+    /// (a simulated drive's [`odocal::SimOptions::reference_mount`]),
+    /// with which the truth's Ē_p and errors are computed, as the text and
+    /// JSON reports compute them. Default 0: the reference at the rear-axle
+    /// centre, where the simulator puts it unless told otherwise.
+    pub truth_extrinsics: Extrinsics,
     /// Step-1 estimates θ_B,I with their Ē_p (3-step method); empty otherwise.
     pub batches: Vec<(Theta, f64)>,
     /// Warnings, one per line.
@@ -221,6 +234,7 @@ impl<'a> ReportInput<'a> {
             theta0,
             theta,
             truth: None,
+            truth_extrinsics: Extrinsics::default(),
             batches: Vec::new(),
             warnings: Vec::new(),
             method_details: Vec::new(),
@@ -249,6 +263,12 @@ impl<'a> ReportInput<'a> {
         let mut params =
             ParamRow::theta_rows(&r.initial.theta, &r.theta, Some(<[_; 4]>::from(r.result_sigma())), truth);
         params.extend(r.extrinsics.as_ref().map(ParamRow::extrinsics_rows).unwrap_or_default());
+        // The free parameters the data cannot determine, as the parameter
+        // file marks them (`*_observable: false`).
+        let free = r.options.identify.free;
+        for p in r.observability.unobservable.into_iter().filter(|p| free.contains(*p)) {
+            params.iter_mut().filter(|row| row.name == p.name()).for_each(|row| row.not_observable = true);
+        }
         let batches = step_one_batches(r);
         ReportInput {
             params,

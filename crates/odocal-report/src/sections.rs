@@ -10,7 +10,15 @@ use crate::plots::{self, figure_svg, Panel, Series};
 use crate::{dead_reckoning, esc, thin, ReportInput, Result, CSS};
 
 /// E_p,s of each validation segment for θ_0, the calibrated θ and the
-/// truth (the truth with θ's extrinsics), each with its segment's extrinsics.
+/// truth, each with the reference extrinsics the library's validation gives
+/// that row, so that their means are the text's and the JSON's Ē_p bit for
+/// bit: θ_0 with the extrinsics the calibration started from and θ with
+/// the calibrated ones (each segment's [`ReportInput::segment_extrinsics`],
+/// the `initial` and `validation` Ē_p), the truth with the true mount
+/// ([`ReportInput::truth_extrinsics`]). The truth does not take θ's
+/// extrinsics: an estimated heading offset also absorbs the reference's
+/// heading error on this drive, and lending it to the truth would score
+/// the truth with part of the calibration's result.
 pub(crate) struct SegmentErrors {
     /// θ_0's.
     pub initial: Vec<f64>,
@@ -22,15 +30,14 @@ pub(crate) struct SegmentErrors {
 
 impl SegmentErrors {
     pub fn new(r: &ReportInput<'_>, segs: &[SegmentData<'_>]) -> Self {
-        let each = |theta: &odocal::Theta, which: usize| -> Vec<f64> {
-            let error =
-                |(i, s): (usize, &SegmentData<'_>)| segment_position_error_with(s, theta, &r.extrinsics_of(i)[which]);
+        let each = |theta: &odocal::Theta, extrinsics: &dyn Fn(usize) -> odocal::Extrinsics| -> Vec<f64> {
+            let error = |(i, s): (usize, &SegmentData<'_>)| segment_position_error_with(s, theta, &extrinsics(i));
             segs.iter().enumerate().map(error).collect()
         };
         SegmentErrors {
-            initial: each(&r.theta0, 0),
-            calibrated: each(&r.theta, 1),
-            truth: r.truth.map(|t| each(&t, 1)),
+            initial: each(&r.theta0, &|i| r.extrinsics_of(i)[0]),
+            calibrated: each(&r.theta, &|i| r.extrinsics_of(i)[1]),
+            truth: r.truth.map(|t| each(&t, &|_| r.truth_extrinsics)),
         }
     }
 }
@@ -102,11 +109,14 @@ pub(crate) fn parameters(h: &mut String, r: &ReportInput<'_>) {
         }
         let f = |v: f64| format!("{:.6}", v * p.scale);
         // "held" only for a parameter that did not move.
-        let sigma = match p.sigma {
+        let mut sigma = match p.sigma {
             Some(v) => f(v),
             None if p.calibrated.to_bits() == p.initial.to_bits() => "held".into(),
             None => "–".into(),
         };
+        if p.not_observable {
+            sigma.push_str(" (not observable)");
+        }
         let _ = write!(
             h,
             "<tr><td>{}</td><td>{}</td><td>{}</td><td><b>{}</b></td><td>{}</td>",
@@ -135,7 +145,17 @@ pub(crate) fn parameters(h: &mut String, r: &ReportInput<'_>) {
         }
         h.push_str("</tr>\n");
     }
-    h.push_str("</table>\n</section>\n");
+    h.push_str("</table>\n");
+    // The text report's line under its table, with the same words.
+    let unobservable: Vec<&str> = r.params.iter().filter(|p| p.not_observable).map(|p| p.name.as_str()).collect();
+    if !unobservable.is_empty() {
+        let _ = writeln!(
+            h,
+            "<p class=\"unobservable\"><b>NOT OBSERVABLE from these data (estimates not to be trusted): {}</b></p>",
+            esc(&unobservable.join(", "))
+        );
+    }
+    h.push_str("</section>\n");
     if !r.method_details.is_empty() {
         h.push_str("<section id=\"method\">\n<h2>Method details</h2>\n<pre>");
         for line in &r.method_details {

@@ -168,3 +168,59 @@ fn a_joint_calibration_fits_each_drive_s_heading_offset() {
     let text = stdout(&odocal(&args));
     assert!(text.contains("heading offset per drive") && text.contains("drive 2: δ = 14.2000 mrad"), "{text}");
 }
+
+/// The compensated wheel rotations (`n_rl_comp`, then `n_rr_comp`) of
+/// `compensate DRIVE --theta THETA ARGS… --out OUT`, and what it printed.
+fn compensated(drive: &str, theta: &str, args: &[&str], out: &Path) -> (Vec<f64>, String) {
+    let o = odocal(&[&["compensate", drive, "--theta", theta, "--out", out.to_str().expect("utf8")], args].concat());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let csv = std::fs::read_to_string(out).expect("csv");
+    let mut lines = csv.lines().filter(|l| !l.starts_with('#'));
+    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).expect("column");
+    let (rl, rr) = (col("n_rl_comp"), col("n_rr_comp"));
+    let rows: Vec<Vec<f64>> = lines.map(|l| l.split(',').map(|c| c.parse().unwrap_or(f64::NAN)).collect()).collect();
+    let values = rows.iter().map(|r| r[rl]).chain(rows.iter().map(|r| r[rr])).collect();
+    (values, stdout(&o))
+}
+
+/// Largest absolute difference.
+fn max_diff(a: &[f64], b: &[f64]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max)
+}
+
+/// `compensate --theta FILE` applies the file's reference extrinsics as
+/// `validate` does: on a drive whose reference is turned by 18.8 mrad, the
+/// file's heading offset (carried, or re-estimated on the drive) gives
+/// the wheels compensated on the same drive recorded at the axle, and the
+/// bare θ does not.
+#[test]
+fn compensation_applies_the_parameter_file_s_extrinsics() {
+    let d = tempfile::tempdir().expect("tmp");
+    let turned = drive(d.path(), "turned.csv", 35, 0.0188);
+    let axle = drive(d.path(), "axle.csv", 35, 0.0);
+    let params = d.path().join("p.yaml");
+    let p = params.to_str().expect("utf8");
+    let cal = calibrate_json(
+        Path::new(&turned),
+        &["--method", "batch-gn", "--estimate", "heading-offset", "--max-iterations", "30", "--params-out", p],
+    );
+    let t = &cal["theta"];
+    let theta = ["c_e", "c_d", "t_r", "d"].map(|n| t[n].as_f64().expect("θ").to_string()).join(",");
+    let out = d.path().join("out.csv");
+    let (at_axle, _) = compensated(&axle, &theta, &[], &out);
+    let (bare, text) = compensated(&turned, &theta, &[], &out);
+    assert!(!text.contains("reference extrinsics"), "{text}");
+    let (carried, text) = compensated(&turned, p, &["--carry-heading-offset"], &out);
+    assert!(text.contains(&format!("heading offset = 18.8000 mrad ({p})")), "{text}");
+    let (refitted, text) = compensated(&turned, p, &[], &out);
+    assert!(text.contains("heading offset re-estimated on this drive: 18.8 mrad"), "{text}");
+    let off = max_diff(&bare, &at_axle);
+    assert!(off > 1e-3, "the bare θ on the turned drive: {off} rev/s from the axle's");
+    for (name, got) in [("carried", &carried), ("re-estimated", &refitted)] {
+        let diff = max_diff(got, &at_axle);
+        // Equal to round-off (2e-14 and 7e-14 rev/s measured; the bare θ 0.032).
+        assert!(diff < 1e-9, "{name}: {diff} rev/s from the axle's (bare θ: {off})");
+    }
+}

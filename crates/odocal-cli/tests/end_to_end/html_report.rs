@@ -30,3 +30,90 @@ fn the_page_says_what_its_validation_data_is() {
     assert!(other.contains("Held-out data, not used for calibration: 1 other drive(s)"), "{other}");
     assert!(other.contains(&format!("<li>{b}: ")) && other.contains(" segments)</li>"), "{other}");
 }
+
+/// The Ē_p of each row of the page's validation table (θ_0, calibrated,
+/// truth), as shown.
+fn shown_errors(section: &str) -> Vec<(String, String)> {
+    section
+        .lines()
+        .filter_map(|l| {
+            let cells: Vec<&str> = l.strip_prefix("<tr><td>")?.split("</td><td>").collect();
+            let value = cells.get(1)?.trim_start_matches("<b>").trim_end_matches("</b>");
+            Some((cells[0].to_string(), value.to_string()))
+        })
+        .collect()
+}
+
+/// Every Ē_p the page shows is the JSON's (and the text's) for its row,
+/// after a calibration that estimated the reference's heading offset: θ_0
+/// with the extrinsics the calibration started from, the calibrated θ with
+/// the estimate, the truth with the true mount (on a drive simulated with
+/// the reference turned by 18.8 mrad, and on one at the axle; and with
+/// θ_0 equal to the truth, the two rows alike).
+#[test]
+fn every_mean_position_error_on_the_page_is_the_json_s() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let plain = simulated_drive(dir.path(), "plain.csv", &["--length-km", "3", "--seed", "1"]);
+    let mount = odocal::Extrinsics { heading_offset: 0.0188, ..Default::default() };
+    let sim = odocal::sim::simulate(&odocal::SimOptions {
+        length_km: 3.0,
+        reference_mount: mount,
+        ..odocal::SimOptions::paper(4)
+    })
+    .expect("simulate");
+    let mounted = dir.path().join("mounted.csv");
+    sim.drive.write_csv(&mounted).expect("csv");
+    sim.sidecar.write_beside(&mounted).expect("sidecar");
+    let mounted = mounted.to_str().expect("utf8").to_owned();
+    let truth = "1.95,-0.002,1.53,0.0008";
+    let (page, json) = (dir.path().join("r.html"), dir.path().join("r.json"));
+    for args in [vec![plain.as_str()], vec![&mounted], vec![&plain, "--theta0", truth, "--holdout", "first-half"]] {
+        let mut all =
+            vec!["calibrate", "--report", page.to_str().expect("utf8"), "--json", json.to_str().expect("utf8")];
+        all.extend_from_slice(&args);
+        let o = odocal(&all);
+        assert!(o.status.code() == Some(0) || o.status.code() == Some(3), "{}", stderr(&o));
+        let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("json");
+        assert_eq!(v["extrinsics"]["free"], serde_json::json!(["heading_offset"]), "{args:?}: δ estimated");
+        let html = std::fs::read_to_string(&page).expect("page");
+        let section = html.split("<section id=\"validation\">").nth(1).expect("validation section");
+        let section = section.split("</table>").next().expect("table end");
+        let want = |key: &str| format!("{:.3}", v[key]["mean_position_error_m"].as_f64().expect("Ē_p"));
+        let rows = [("θ_0 (initial)", want("initial")), ("calibrated", want("validation")), ("truth", want("truth"))];
+        let shown = shown_errors(section);
+        for (row, value) in &rows {
+            assert!(shown.contains(&(row.to_string(), value.clone())), "{args:?}: {row} {value} in {shown:?}");
+        }
+        let text = crate::common::stdout(&o);
+        for (name, value) in [("θ_0", &rows[0].1), ("calibrated", &rows[1].1), ("truth", &rows[2].1)] {
+            assert!(text.lines().any(|l| l.starts_with(&format!("  {name} ")) && l.ends_with(&format!(" {value} m"))));
+        }
+    }
+}
+
+/// A parameter the data cannot determine is marked in the page's θ table
+/// as the text report marks it: its σ "(not observable)" and the text's
+/// line under the table (one test-track run: t_r and d not observable).
+#[test]
+fn the_page_marks_what_the_data_cannot_determine() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let run = format!("{}/../../examples/psu-mapping-van-testtrack/run-14-45-26.toml", env!("CARGO_MANIFEST_DIR"));
+    let page = dir.path().join("t.html");
+    let o = odocal(&["calibrate", &run, "--report", page.to_str().expect("utf8")]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = crate::common::stdout(&o);
+    let line = "NOT OBSERVABLE from these data (estimates not to be trusted): t_r, d";
+    assert!(text.contains(line), "{text}");
+    let html = std::fs::read_to_string(&page).expect("page");
+    let table = html.split("<section id=\"parameters\">").nth(1).expect("parameters");
+    let table = table.split("</section>").next().expect("section end");
+    assert!(table.contains(&format!("<b>{line}</b>")), "{table}");
+    let row =
+        |name: &str| table.lines().find(|l| l.starts_with(&format!("<tr><td>{name}</td>"))).expect("row").to_string();
+    for name in ["t_r", "d"] {
+        assert!(row(name).ends_with(" (not observable)</td></tr>"), "{}", row(name));
+    }
+    for name in ["c_e", "c_d", "heading_offset"] {
+        assert!(!row(name).contains("not observable"), "{}", row(name));
+    }
+}

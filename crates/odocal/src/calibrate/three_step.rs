@@ -28,7 +28,6 @@ use crate::assess::position_error::mean_position_error_with;
 use crate::assess::trust::{check_theta, GuardViolation, Guards};
 use crate::assess::warning::Warning;
 use crate::compensate::{compensate_segments, CompensateOptions, CompensatedInputs, CompensationStep, QpOptions};
-use crate::drive::axle_reference_drive;
 use crate::drive::segment::{Segment, SegmentData};
 use crate::drive::Drive;
 use crate::error::{Error, Result};
@@ -480,28 +479,21 @@ impl ThreeStepOptions {
                 .collect(),
         };
         let thetas: Vec<Theta> = step1.picked.iter().map(|p| p.theta).collect();
-        let axle_drive = match identify.uses_extrinsics() {
+        let extrinsics = match identify.uses_extrinsics() {
             true => {
                 let e: Vec<[f64; 3]> = step1
                     .picked_batches
                     .iter()
                     .map(|&i| step1.ok[i].extrinsics.unwrap_or(identify.extrinsics).to_array())
                     .collect();
-                let mean = Extrinsics::from_array(std::array::from_fn(|j| {
+                Extrinsics::from_array(std::array::from_fn(|j| {
                     e.iter().map(|a| a[j]).sum::<f64>() / e.len().max(1) as f64
-                }));
-                Some(axle_reference_drive(drive, &mean)?)
+                }))
             }
-            false => None,
+            false => Extrinsics::ZERO,
         };
-        compensate_segments(
-            axle_drive.as_ref().unwrap_or(drive),
-            &final_segs,
-            &thetas,
-            &self.compensate,
-            &self.qp,
-            progress,
-        )
+        let opts = CompensateOptions { extrinsics, ..self.compensate.clone() };
+        compensate_segments(drive, &final_segs, &thetas, &opts, &self.qp, progress)
     }
 
     /// The uncertainty of the result: the robust σ at θ with the measured

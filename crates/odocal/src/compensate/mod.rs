@@ -37,8 +37,9 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::drive::segment::{Segment, SegmentData};
-use crate::drive::Drive;
+use crate::drive::{axle_reference_drive, Drive};
 use crate::error::{Error, Result};
+use crate::model::extrinsics::Extrinsics;
 use crate::model::{step_jacobians, Input, Theta};
 use crate::progress::{Progress, ProgressFn};
 use qp::clarabel::ClarabelSolver;
@@ -114,6 +115,13 @@ pub struct CompensateOptions {
     /// to 0.023σ; it takes 2.8 QP solves per job on the 24 km paper drive,
     /// 3.3 at 1e-4.
     pub input_tolerance_rev_per_s: f64,
+    /// The pose reference's mount (lever arm, heading offset). The QP
+    /// models the rear-axle centre, so with a mount it tracks the axle
+    /// poses the reference implies under it ([`crate::Extrinsics`]); the
+    /// wheels are the same. The 3-step method sets it to its step-1
+    /// batches' mean extrinsics. Default 0: the reference at the axle.
+    #[serde(default, skip_serializing_if = "Extrinsics::is_zero")]
+    pub extrinsics: Extrinsics,
 }
 
 impl Default for CompensateOptions {
@@ -125,6 +133,7 @@ impl Default for CompensateOptions {
             r: [1000.0, 1000.0],
             max_linearizations: 5,
             input_tolerance_rev_per_s: 0.01,
+            extrinsics: Extrinsics::ZERO,
         }
     }
 }
@@ -147,7 +156,7 @@ impl CompensateOptions {
         if self.max_linearizations == 0 {
             return Err(Error::InvalidOption { field: "max_linearizations", reason: "must be at least 1".into() });
         }
-        Ok(())
+        self.extrinsics.validate()
     }
 }
 
@@ -499,6 +508,9 @@ pub fn compensate_segments(
 ) -> Result<CompensatedInputs> {
     opts.validate()?;
     qp.validate()?;
+    // With a mount, the axle poses the reference implies (the QP's model is the axle's).
+    let axle = (!opts.extrinsics.is_zero()).then(|| axle_reference_drive(drive, &opts.extrinsics)).transpose()?;
+    let drive = axle.as_ref().unwrap_or(drive);
     let solver = qp.primary();
     let fallback = qp.fallback();
     let jobs: Vec<(usize, usize)> = (0..segments.len()).flat_map(|s| (0..thetas.len()).map(move |t| (s, t))).collect();
@@ -741,6 +753,36 @@ mod tests {
             let z = (a[i] - b[i]).abs() / s;
             assert!(z <= 0.01, "parameter {i}: {} vs {} differ by {z:.2e} σ", a[i], b[i]);
         }
+    }
+
+    /// With the reference's mount given, a drive whose reference is turned
+    /// and moved is compensated as the same drive recorded at the axle.
+    #[test]
+    fn a_mounted_reference_is_compensated_as_the_axle_it_implies() {
+        use crate::model::extrinsics::Extrinsics;
+        let mount = Extrinsics { lever_x: -0.9, lever_y: 0.1, heading_offset: 0.0188 };
+        let sim = |reference_mount| {
+            let o = SimOptions { length_km: 1.0, substeps: 1, reference_mount, ..SimOptions::noise_free(6) };
+            simulate(&o).expect("sim").drive
+        };
+        let (axle, mounted) = (sim(Extrinsics::ZERO), sim(mount));
+        let segs = cut(&axle, 0, 650, 650);
+        let run = |d: &Drive, extrinsics| {
+            let opts = CompensateOptions { extrinsics, ..Default::default() };
+            compensate_segments(d, &segs, &[Theta::SIM_DEFAULT_TRUE], &opts, &QpOptions::default(), None)
+                .expect("compensates")
+        };
+        let diff = |a: &CompensatedInputs, b: &CompensatedInputs| {
+            a.n_rl
+                .iter()
+                .chain(&a.n_rr)
+                .flatten()
+                .zip(b.n_rl.iter().chain(&b.n_rr).flatten())
+                .fold(0.0, |m, (x, y)| f64::max(m, (x - y).abs()))
+        };
+        let want = run(&axle, Extrinsics::ZERO);
+        assert!(diff(&run(&mounted, mount), &want) < 1e-9);
+        assert!(diff(&run(&mounted, Extrinsics::ZERO), &want) > 1e-3, "the mount matters");
     }
 
     #[test]
