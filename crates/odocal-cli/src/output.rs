@@ -144,11 +144,16 @@ fn check_folder_takes_files(o: &FileRole, folder: &Path) -> Result<()> {
     }
 }
 
-/// Refuses `-` (stdout) for an output that cannot go there (a directory,
-/// a drive with its sidecar), saying why.
+/// Refuses `-` (stdout, also as `/dev/stdout`), a device or a pipe for an
+/// output that needs a file (a drive with its sidecar beside it), saying
+/// why.
 pub fn refuse_stdout(role: &str, path: &Path, why: &str) -> Result<()> {
     if is_stdout(path) {
-        bail!("{role} -: {why}; give a path");
+        bail!("{role} {}: {why}; give a path", path.display());
+    }
+    // A device or a pipe (`/dev/null`) has no folder to put a file beside.
+    if std::fs::metadata(path).is_ok_and(|m| !m.is_file() && !m.is_dir()) {
+        bail!("{role} {}: not a file, and {why}; give a path", path.display());
     }
     Ok(())
 }

@@ -68,9 +68,11 @@ use std::path::{Component, Path, PathBuf};
 
 use crate::error::{Error, Result};
 
-/// True for `-`, which stands for stdout where an output path is asked for.
+/// True for `-`, which stands for stdout where an output path is asked for,
+/// and for `/dev/stdout`, which names the same (Unix): either keeps the
+/// text report off stdout and counts as the one output there.
 pub fn is_stdout(path: &Path) -> bool {
-    path.as_os_str() == "-"
+    path.as_os_str() == "-" || (cfg!(unix) && path.as_os_str() == "/dev/stdout")
 }
 
 /// Writes `path` through `write`, atomically: to a temporary file in the
@@ -108,6 +110,12 @@ where
     F: FnOnce(&mut dyn Write) -> std::io::Result<()>,
 {
     let io = |source| Error::io(path, source);
+    // A device, a FIFO, a socket, also behind links that name no path, such
+    // as `/dev/stdout` on a pipe (`/proc/self/fd/1` → `pipe:[…]`): there is
+    // nothing to replace, and the file is written where it is opened.
+    if std::fs::metadata(path).is_ok_and(|m| !m.is_file() && !m.is_dir()) {
+        return write_in_place(path, write).map_err(io);
+    }
     let target = resolve_link(path);
     match std::fs::metadata(&target) {
         Ok(_) if !replace => {

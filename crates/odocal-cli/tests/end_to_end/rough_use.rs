@@ -186,3 +186,36 @@ fn a_min_yaw_rate_that_is_not_a_rate_is_a_usage_error() {
     }
     assert!(!db.exists());
 }
+
+/// `--json /dev/stdout` with stdout on a pipe (as here, where the test
+/// reads the output) is `--json -`: the JSON alone on stdout. It was
+/// "cannot create a file in the folder /proc/self/fd", the link's folder,
+/// as if it were a file to replace. `/dev/stderr` is written in place.
+#[cfg(target_os = "linux")]
+#[test]
+fn an_output_onto_dev_stdout_or_stderr_on_a_pipe_is_written() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let d = crate::common::simulated_drive(dir.path(), "d.csv", &["--length-km", "2"]);
+    let o = odocal(&["validate", &d, "--theta", "1.95,-0.002,1.53,0.0008", "--json", "/dev/stdout"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("the JSON report alone on stdout");
+    assert!(v["mean_position_error_m"].is_number(), "{v}");
+    let o = odocal(&["validate", &d, "--theta", "1.95,-0.002,1.53,0.0008", "--json", "/dev/stderr"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("\"mean_position_error_m\""), "{}", stderr(&o));
+}
+
+/// `simulate --out /dev/null`: refused before any work, saying why; it
+/// wrote the drive into the device and created a file /dev/null.json for the
+/// sidecar.
+#[cfg(unix)]
+#[test]
+fn a_simulated_drive_onto_a_device_is_refused() {
+    let existed = std::path::Path::new("/dev/null.json").exists();
+    assert_fails(
+        &["simulate", "--length-km", "1", "--out", "/dev/null"],
+        1,
+        &["--out /dev/null: not a file", "sidecar"],
+    );
+    assert_eq!(std::path::Path::new("/dev/null.json").exists(), existed, "no file beside the device");
+}
