@@ -60,7 +60,7 @@ pub struct DemoArgs {
     #[arg(long, default_value_t = 1, hide_default_value = true)]
     sim_seed: u64,
     /// Route length, km.
-    #[arg(long, default_value_t = 24.0, value_parser = crate::simulate::route_length_km)]
+    #[arg(long, default_value_t = 24.0, allow_hyphen_values = true, value_parser = crate::simulate::route_length_km)]
     length_km: f64,
     /// paper (default), off, white, high or random:N noise.
     #[arg(long, default_value = "paper", hide_default_value = true, value_parser = crate::simulate::noise_preset)]
@@ -135,7 +135,7 @@ pub fn demo_cmd(a: DemoArgs, bars: &Bars) -> Result<Outcome> {
     calibration_files(&mut files, &a.calibration, a.json.as_deref())?;
     let o = sim_options(a.sim_seed, a.length_km, &a.noise)?;
     bars.stage("simulating");
-    let sim = sim::simulate(&o)?;
+    let sim = sim::simulate(&o).map_err(crate::simulate::flag_error)?;
     bars.finish();
     if let Some(p) = &a.out {
         sim.drive.write_csv(p)?;

@@ -17,7 +17,7 @@ pub struct SimulateArgs {
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Route length, km.
-    #[arg(long, default_value_t = 24.0, value_parser = route_length_km)]
+    #[arg(long, default_value_t = 24.0, allow_hyphen_values = true, value_parser = route_length_km)]
     length_km: f64,
     /// Output CSV; the sidecar JSON (the truth, bound to the CSV by its
     /// fingerprint) is written beside it, with the extension .json.
@@ -44,6 +44,21 @@ pub struct SimulateArgs {
     /// (0.5@1800: +0.5 mm after 30 min).
     #[arg(long, allow_hyphen_values = true, value_name = "MM@SECONDS", value_parser = parse_cd_step)]
     cd_step: Option<CdStep>,
+}
+
+/// The simulator's errors of the options a flag sets, as usage errors
+/// naming the flag: the route's length, and the drift (`--ce-ramp-per-hour`
+/// or `--cd-step`, whichever is given, or both).
+pub fn flag_error(e: odocal::Error) -> odocal::Error {
+    match e {
+        odocal::Error::InvalidOption { field: "length_km", reason } => {
+            odocal::Error::InvalidFlags(format!("--length-km: {reason}"))
+        }
+        odocal::Error::InvalidOption { field: "drift", reason } => {
+            odocal::Error::InvalidFlags(format!("--ce-ramp-per-hour, --cd-step: {reason}"))
+        }
+        e => e,
+    }
 }
 
 /// `--length-km`: a positive number of kilometres (the simulator's
@@ -111,13 +126,7 @@ pub fn run(mut a: SimulateArgs, bars: &Bars) -> Result<()> {
     }
     o.drift.c_d_step = a.cd_step;
     bars.stage("simulating");
-    // The drift's flags by name, as a usage error.
-    let out = sim::simulate(&o).map_err(|e| match e {
-        odocal::Error::InvalidOption { field: "drift", reason } => {
-            odocal::Error::InvalidFlags(format!("--ce-ramp-per-hour, --cd-step: {reason}"))
-        }
-        e => e,
-    })?;
+    let out = sim::simulate(&o).map_err(flag_error)?;
     bars.finish();
     out.drive.write_csv(&a.out)?;
     out.sidecar.write_beside(&a.out)?;

@@ -219,3 +219,17 @@ fn a_simulated_drive_onto_a_device_is_refused() {
     );
     assert_eq!(std::path::Path::new("/dev/null.json").exists(), existed, "no file beside the device");
 }
+
+/// A route length out of range is a usage error naming the flag, negative
+/// ones included (clap read `-3` as an unknown flag), and so is the
+/// simulator's ceiling (it was exit 1, "invalid option `length_km`").
+#[test]
+fn a_route_length_out_of_range_names_the_flag() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("d.csv");
+    for (km, want) in [("-3", "must be a positive number of kilometres, got -3"), ("1e9", "--length-km: ")] {
+        assert_fails(&["simulate", "--length-km", km, "--out", s(&out)], 2, &[want]);
+        assert_fails(&["demo", "--length-km", km], 2, &[want]);
+    }
+    assert!(!out.exists());
+}
