@@ -234,7 +234,7 @@ mod pose;
 pub(crate) mod report;
 pub(crate) mod settings;
 mod signal;
-mod source;
+pub(crate) mod source;
 pub(crate) mod stream;
 #[cfg(test)]
 pub(crate) mod tests;

@@ -375,6 +375,10 @@ fn backwards_time_names_file_and_line() {
     std::fs::write(dir.path().join("p.csv"), p.replacen("\n0.5,", "\n0.25,", 1)).expect("write");
     let m = load_drive(&path).map(|_| ()).expect_err("backwards").to_string();
     assert!(m.contains("p.csv: line 7, column 't'") && m.contains("time goes backwards (0.25 after 0.4 s)"), "{m}");
+    // One stamp ahead of both neighbours: its own line is named, not the next one's.
+    std::fs::write(dir.path().join("p.csv"), p.replacen("\n0.5,", "\n5.5,", 1)).expect("write");
+    let m = load_drive(&path).map(|_| ()).expect_err("a jump").to_string();
+    assert!(m.contains("p.csv: line 7, column 't'") && m.contains("time jumps ahead to 5.5 s, 5.1 s after"), "{m}");
 }
 
 /// The errors of the small case with `p.csv` and `w.csv` edited, converted

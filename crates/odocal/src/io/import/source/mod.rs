@@ -192,8 +192,14 @@ pub(crate) fn read_stream(m: &Manifest, name: &str, wanted: &[Wanted], warnings:
     let mut keep = vec![true; time.len()];
     let mut repeated = 0;
     let mut last = time[0];
+    // The row of `last`, and the kept stamp before it.
+    let (mut last_i, mut before_last) = (0, None);
     for i in 1..time.len() {
         if time[i] < last {
+            // One stamp ahead of both neighbours is that row's fault, not the next one's.
+            if let Some(jump) = jumped_ahead(before_last, last, time[i]) {
+                return Err(table.row_error(&path, last_i, &time_column, jump));
+            }
             return Err(table.row_error(
                 &path,
                 i,
@@ -209,7 +215,8 @@ pub(crate) fn read_stream(m: &Manifest, name: &str, wanted: &[Wanted], warnings:
             keep[i] = false;
             repeated += 1;
         } else {
-            last = time[i];
+            before_last = Some(last);
+            (last, last_i) = (time[i], i);
         }
     }
     let rows = time.len();
@@ -279,7 +286,22 @@ pub(crate) fn read_stream(m: &Manifest, name: &str, wanted: &[Wanted], warnings:
     Ok(Stream { path, t, t_raw, cols, lines, report })
 }
 
-/// The elements of `v` whose `keep` is true.
+/// The message for a stamp `last` ahead of both its kept neighbours, the
+/// one before (`before`) and the next (`next`, below `last`), where `next`
+/// is not behind `before`: that row's stamp jumped (a corrupt or out-of-order
+/// row), which the next row's "time goes backwards" would blame on the next.
+pub(crate) fn jumped_ahead(before: Option<f64>, last: f64, next: f64) -> Option<String> {
+    let before = before.filter(|b| next >= *b)?;
+    Some(format!(
+        "time jumps ahead to {} s, {} s after the row before it ({} s), and the next row is back at {} s: a corrupt \
+         or out-of-order stamp; fix or drop this row (the stream must be sorted by time)",
+        limits::echo_num(last),
+        limits::echo_num(last - before),
+        limits::echo_num(before),
+        limits::echo_num(next)
+    ))
+}
+
 /// `v` without the rows whose `keep` is false, in place (a stream's
 /// columns can be most of an import's memory).
 fn filter<T>(mut v: Vec<T>, keep: &[bool]) -> Vec<T> {

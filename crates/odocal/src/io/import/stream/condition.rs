@@ -68,6 +68,9 @@ pub(crate) struct Conditioner {
     pub rows: usize,
     repeated: usize,
     last: Option<f64>,
+    /// The line of `last`'s row, and the kept stamp before it.
+    last_line: Option<u64>,
+    before_last: Option<f64>,
     first: Option<f64>,
     /// Rows passed on (after repeated stamps).
     pub kept: usize,
@@ -106,6 +109,8 @@ impl Conditioner {
             rows: 0,
             repeated: 0,
             last: None,
+            last_line: None,
+            before_last: None,
             first: None,
             kept: 0,
             dejitter,
@@ -145,6 +150,9 @@ impl Conditioner {
         let t = t * self.scale + self.offset;
         if let Some(last) = self.last {
             if t < last {
+                if let Some(jump) = crate::io::import::source::jumped_ahead(self.before_last, last, t) {
+                    return Err(self.time_error(self.last_line, jump));
+                }
                 return Err(self.time_error(
                     line,
                     format!(
@@ -159,7 +167,8 @@ impl Conditioner {
                 return Ok(());
             }
         }
-        self.last = Some(t);
+        self.before_last = self.last;
+        (self.last, self.last_line) = (Some(t), line);
         self.first.get_or_insert(t);
         self.kept += 1;
         let row = Row { t, t_raw: t, values, line };
@@ -311,5 +320,32 @@ impl Conditioner {
     /// their raw stamp, or dropped when that does not follow either.
     pub(crate) fn fallbacks(&self) -> u64 {
         self.dejitter.as_ref().map_or(0, |d| d.fallbacks)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Conditioner;
+    use crate::io::import::manifest::Manifest;
+
+    /// A stamp ahead of both its neighbours is named on its own line, as the
+    /// whole import names it (`io::import::source::jumped_ahead`); a stamp
+    /// behind both is named on its line as going backwards.
+    #[test]
+    fn a_stamp_that_jumps_ahead_is_named_on_its_own_line() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let m = Manifest::from_path(&crate::io::import::tests::small_case(dir.path())).expect("manifest");
+        let run = |stamps: &[f64]| {
+            let mut c = Conditioner::new(&m, "pose");
+            for (k, t) in stamps.iter().enumerate() {
+                c.push(*t, vec![0.0; 3], Some(k as u64 + 2))?;
+            }
+            Ok::<_, crate::Error>(())
+        };
+        let e = run(&[0.0, 0.1, 5.5, 0.3, 0.4]).expect_err("jump").to_string();
+        assert!(e.contains("line 4") && e.contains("time jumps ahead to 5.5 s, 5.4 s after the row before it"), "{e}");
+        let e = run(&[0.0, 0.1, 0.2, 0.05, 0.4]).expect_err("backwards").to_string();
+        assert!(e.contains("line 5") && e.contains("time goes backwards (0.05 after 0.2 s)"), "{e}");
+        run(&[0.0, 0.1, 0.1, 0.2]).expect("a repeated stamp is dropped");
     }
 }
