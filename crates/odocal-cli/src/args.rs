@@ -367,12 +367,14 @@ impl ThetaArg {
     pub fn resolved(&self, node: Option<&str>) -> Result<ThetaArg> {
         match (self.path(), node) {
             (Some(path), Some(node)) => {
-                let f = odocal::ParamFile::read(path, Some(node))?;
+                let f = odocal::ParamFile::read(path, Some(node))
+                    .map_err(|e| odocal::Error::InvalidFlags(e.to_string()))?;
                 Ok(ThetaArg { theta: Theta::try_from(&f)?, file: Some((path.into(), f)), pending: None })
             }
             (None, Some(_)) => bail!("--params-node names a node of a parameter file, but θ was given as numbers"),
+            // A usage error, as every other parameter file `--theta` cannot read.
             (_, None) => match &self.pending {
-                Some((_, why)) => bail!("{why}"),
+                Some((_, why)) => Err(odocal::Error::InvalidFlags(why.clone()).into()),
                 None => Ok(self.clone()),
             },
         }

@@ -189,14 +189,18 @@ fn parameter_files_get_the_plausibility_checks_and_must_name_one_node() {
     let heading = write("heading.yaml", &param_file(&[("odocal", "    heading_offset: 1000.0\n")]));
     refused_with(2, &["validate", &d, "--theta", &heading], &["key `heading_offset`", "within ±π rad"]);
     let two = write("two.yaml", &param_file(&[("a", ""), ("b", "    lever_x: 0.5\n")]));
-    refused(&["validate", &d, "--theta", &two], &["several nodes hold odocal's parameters (a, b)", "--params-node"]);
+    refused_with(
+        2,
+        &["validate", &d, "--theta", &two],
+        &["several nodes hold odocal's parameters (a, b)", "--params-node"],
+    );
     let o = odocal(&["validate", &d, "--theta", &two, "--params-node", "b"]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(crate::common::stdout(&o).contains("lever arm = [0.5000, 0.0000] m"), "{}", crate::common::stdout(&o));
-    refused(&["validate", &d, "--theta", &two, "--params-node", "c"], &["no node `c` (nodes: a, b)"]);
+    refused_with(2, &["validate", &d, "--theta", &two, "--params-node", "c"], &["no node `c` (nodes: a, b)"]);
     let docs = write("docs.yaml", &format!("{}---\n{}", param_file(&[("odocal", "")]), param_file(&[("odocal", "")])));
-    refused(&["validate", &d, "--theta", &docs], &["2 YAML documents"]);
-    refused(&["calibrate", &d, "--theta0", &two], &["several nodes", "--theta0-node"]);
+    refused_with(2, &["validate", &d, "--theta", &docs], &["2 YAML documents"]);
+    refused_with(2, &["calibrate", &d, "--theta0", &two], &["several nodes", "--theta0-node"]);
 }
 
 #[test]
