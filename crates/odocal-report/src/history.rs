@@ -173,14 +173,21 @@ fn drift_list(drift: &[DriftFlag]) -> String {
 
 fn pooled_table(p: &Pooled) -> String {
     let (m, s, b) = (<[_; 4]>::from(p.mean), <[_; 4]>::from(p.sigma_of_mean), <[_; 4]>::from(p.between_drive_sd));
+    let aside: Vec<String> = p.set_aside.iter().map(|s| format!("row {} for row {}", s.id, s.by_id)).collect();
+    let aside = if aside.is_empty() {
+        String::new()
+    } else {
+        format!(" Each drive counted once, by its most recent row; set aside: {}.", aside.join(", "))
+    };
     let mut h = format!(
-        "<p>Pooled over {} row(s): the inverse-variance mean ± its σ and the between-drive sd.</p>\n\
+        "<p>Pooled over {} drive(s) in {} row(s): the inverse-variance mean ± its σ and the between-drive sd.{aside}</p>\n\
          <table><tr><th>parameter</th><th>mean ± σ</th><th>between-drive sd</th></tr>\n",
-        p.rows
+        p.drives, p.rows
     );
     for (i, name) in THETA_NAMES.iter().enumerate() {
         let (scale, unit) = UNITS[i];
-        let sd = if b[i].is_finite() { format!("{:.2e} {unit}", b[i] * scale) } else { "— (needs two rows)".into() };
+        let sd =
+            if b[i].is_finite() { format!("{:.2e} {unit}", b[i] * scale) } else { "— (needs two drives)".into() };
         h.push_str(&format!("<tr><td>{name}</td><td>{} {unit}</td><td>{sd}</td></tr>\n", cell(m[i], Some(s[i]), i)));
     }
     h.push_str("</table>\n");
