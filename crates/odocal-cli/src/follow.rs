@@ -33,7 +33,8 @@ pub struct FollowArgs {
     /// The replay starts from the vehicle's last recorded parameters in it
     /// (else --theta0); each drive's write-back decision is logged in its
     /// table `decisions`, each written update in `calibrations`. A drive
-    /// followed before for the vehicle is skipped.
+    /// followed before or calibrated for the vehicle is skipped: replaying
+    /// it would count its samples twice.
     #[arg(long, value_name = "FILE")]
     db: PathBuf,
     /// Write each written update to this parameter file (.yaml, .json;

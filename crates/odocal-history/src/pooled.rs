@@ -65,9 +65,9 @@ pub(crate) fn drives_of(fingerprint: &str) -> impl Iterator<Item = &str> {
 ///
 /// The most recent row stands because a drive calibrated again (by another
 /// method, or jointly with other drives) is a choice made later, and
-/// because it is the row `follow` starts from: the history's pooled
-/// estimate and `follow`'s stored θ agree on which row a drive's stands
-/// for. `--pool IDS` picks other rows.
+/// because `follow` starts from the vehicle's most recent row: the
+/// history's pooled estimate and `follow`'s stored θ agree on which row
+/// stands for a drive. `--pool IDS` picks other rows.
 pub(crate) fn counted_once(rows: &[HistoryRow]) -> (Vec<&HistoryRow>, Vec<SetAside>) {
     let mut holder: std::collections::HashMap<&str, i64> = std::collections::HashMap::new();
     let (mut stand, mut aside) = (Vec::new(), Vec::new());
