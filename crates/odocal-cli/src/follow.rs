@@ -33,10 +33,12 @@ pub struct FollowArgs {
     /// The replay starts from the vehicle's last recorded parameters in it
     /// (else --theta0); each drive's write-back decision is logged in its
     /// table `decisions`, each written update in `calibrations`. A drive
-    /// followed before for the vehicle is skipped.
+    /// followed before or calibrated for the vehicle is skipped: replaying
+    /// it would count its samples twice.
     #[arg(long, value_name = "FILE")]
     db: PathBuf,
-    /// Write each written update to this parameter file (.yaml, .json).
+    /// Write each written update to this parameter file (.yaml, .json;
+    /// "-": the last written update once at the end, as YAML on stdout).
     #[arg(long, value_name = "FILE", value_parser = crate::args::params_out_path)]
     params_out: Option<PathBuf>,
     /// Write the per-drive report as JSON ("-": stdout).
@@ -160,45 +162,66 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
     let opts =
         FollowOptions { theta0: a.theta0.as_ref().map(|t| t.theta), online: online_options(&a)?, gates: gates(&a)? };
     let mut db = History::open(&a.db)?;
-    let quiet_stdout = a.json.as_deref().is_some_and(odocal::output::is_stdout);
+    // With an output on stdout (`--json -`, `--params-out -`) the text
+    // report goes to stderr, so stdout holds that output alone.
+    let params_to_stdout = a.params_out.as_deref().is_some_and(odocal::output::is_stdout);
+    let text_to_stderr = params_to_stdout || a.json.as_deref().is_some_and(odocal::output::is_stdout);
+    let say = |line: String| {
+        if text_to_stderr {
+            eprintln!("{line}");
+        } else {
+            println!("{line}");
+        }
+    };
     let mut entries = Vec::with_capacity(a.drive.len());
+    // The last written update's file, for `--params-out -`.
+    let mut last_written: Option<ParamFile> = None;
     follow(&mut db, &a.vehicle, &a.drive, &opts, |event| -> Result<()> {
         match event {
-            FollowEvent::Start { theta, origin } if !quiet_stdout => {
-                println!("vehicle '{}': starting from {theta} ({origin})", a.vehicle);
+            FollowEvent::Start { theta, origin } => {
+                say(format!("vehicle '{}': starting from {theta} ({origin})", a.vehicle))
             }
             FollowEvent::Log(line) => eprintln!("{line}"),
             FollowEvent::Progress(p) => bars.event(p),
-            FollowEvent::Skipped { source, fingerprint } => {
-                if !quiet_stdout {
-                    println!(
-                        "{source}: already followed for vehicle '{}' (fingerprint {}…); skipped",
-                        a.vehicle,
-                        &fingerprint[..12]
-                    );
-                }
+            FollowEvent::Skipped { source, fingerprint, row } => {
+                let short = &fingerprint[..fingerprint.len().min(12)];
+                say(match &row {
+                    Some((id, method)) => format!(
+                        "{source}: already recorded for vehicle '{}' (row {id}, {method}; fingerprint {short}…); \
+                         skipped: replaying it would count its samples twice",
+                        a.vehicle
+                    ),
+                    None => format!(
+                        "{source}: already followed for vehicle '{}' (fingerprint {short}…); skipped",
+                        a.vehicle
+                    ),
+                });
                 entries.push(json!({"source": source, "fingerprint": fingerprint, "already_recorded": true,
-                    "prequential_mean_position_error_m": null, "updates": []}));
+                    "recorded_row": row.map(|(id, _)| id), "prequential_mean_position_error_m": null, "updates": []}));
             }
             FollowEvent::Followed { source, fingerprint, summary, heading_offset_rad, drive_time_s, decision } => {
                 bars.finish();
                 if decision.action == Action::Write {
-                    write_params(&a, &decision, &source, &fingerprint)?;
+                    let f = param_file(&decision, &source, &fingerprint);
+                    match &a.params_out {
+                        Some(p) if !params_to_stdout => {
+                            write_text(p, &f.text_for(p)?).with_context(|| format!("--params-out {}", p.display()))?;
+                        }
+                        _ => last_written = Some(f),
+                    }
                 }
-                if !quiet_stdout {
-                    let e = summary.prequential_mean_position_error_m.map_or("-".into(), |e| format!("{e:.3} m"));
-                    println!(
-                        "{source}: prequential Ē_p {e} over {} validation segment{}, {} segment{} folded; θ = {} ± {}; {}: {}",
-                        summary.validation_segments,
-                        if summary.validation_segments == 1 { "" } else { "s" },
-                        summary.folded_segments,
-                        if summary.folded_segments == 1 { "" } else { "s" },
-                        decision.theta,
-                        decision.sigma,
-                        decision.action,
-                        decision.reasons.join("; ")
-                    );
-                }
+                let e = summary.prequential_mean_position_error_m.map_or("-".into(), |e| format!("{e:.3} m"));
+                say(format!(
+                    "{source}: prequential Ē_p {e} over {} validation segment{}, {} segment{} folded; θ = {} ± {}; {}: {}",
+                    summary.validation_segments,
+                    if summary.validation_segments == 1 { "" } else { "s" },
+                    summary.folded_segments,
+                    if summary.folded_segments == 1 { "" } else { "s" },
+                    decision.theta,
+                    decision.sigma,
+                    decision.action,
+                    decision.reasons.join("; ")
+                ));
                 entries.push(json!({
                     "source": source,
                     "fingerprint": fingerprint,
@@ -211,12 +234,19 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
                     "updates": [update_json(&decision, drive_time_s)],
                 }));
             }
-            _ => {}
         }
         Ok(())
     })?;
     if let Some(p) = &a.json {
         write_text(p, &serde_json::to_string_pretty(&json!({ "drives": entries }))?)?;
+    }
+    if let (true, Some(p)) = (params_to_stdout, &a.params_out) {
+        // One document, what a file would hold at the end: a stream of
+        // several would not read back as one parameter file.
+        match last_written {
+            Some(f) => write_text(p, &f.text_for(p)?)?,
+            None => eprintln!("--params-out -: no update was written, so nothing on stdout"),
+        }
     }
     Ok(())
 }
@@ -308,15 +338,18 @@ fn gates(a: &FollowArgs) -> Result<Gates> {
     Ok(g)
 }
 
-/// Writes a written update to `--params-out` (atomically), when given.
-fn write_params(a: &FollowArgs, decision: &GateDecision, source: &str, fingerprint: &str) -> Result<()> {
-    if let Some(p) = &a.params_out {
-        let s = <[_; 4]>::from(decision.sigma).map(Some);
-        let mut f = ParamFile::from_theta(&decision.theta, s, source, METHOD);
-        f.provenance.push(("fingerprint".into(), fingerprint.to_string()));
-        write_text(p, &f.text_for(p)?).with_context(|| format!("--params-out {}", p.display()))?;
-    }
-    Ok(())
+/// The parameter file of a written update. Its verdict is `accepted`:
+/// every gate passed (the reasons say how), which is what a file
+/// `calibrate` writes with that verdict says too, so a fleet script that
+/// deploys the files whose `verdict` is `accepted` deploys `follow`'s.
+fn param_file(decision: &GateDecision, source: &str, fingerprint: &str) -> ParamFile {
+    debug_assert_eq!(decision.action, Action::Write);
+    let s = <[_; 4]>::from(decision.sigma).map(Some);
+    let mut f = ParamFile::from_theta(&decision.theta, s, source, METHOD);
+    f.verdict = Some(odocal::VerdictLevel::Accepted.to_string());
+    f.verdict_reasons = decision.reasons.clone();
+    f.provenance.push(("fingerprint".into(), fingerprint.to_string()));
+    f
 }
 
 /// A decision in the JSON report.

@@ -18,7 +18,8 @@ pub struct HistoryArgs {
     /// The history database (SQLite).
     #[arg(long)]
     db: PathBuf,
-    /// Pool only these rows (ids, comma separated) [default: all].
+    /// Pool only these rows (ids, comma separated) [default: all]; of
+    /// several rows of one drive, the most recent given counts.
     #[arg(long, value_delimiter = ',', value_name = "IDS")]
     pool: Option<Vec<i64>>,
     /// Write the rows, drift flags and pooled estimate as JSON ("-": stdout).
@@ -90,6 +91,7 @@ pub fn run(a: HistoryArgs) -> Result<()> {
         let v = serde_json::json!({
             "vehicle": a.vehicle,
             "rows": h.rows,
+            "set_aside": h.set_aside,
             "drift": h.drift,
             "pooled": h.pooled,
         });

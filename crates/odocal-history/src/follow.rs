@@ -46,13 +46,21 @@ pub enum FollowEvent {
     Log(String),
     /// Progress of the current drive's replay.
     Progress(Progress),
-    /// A drive followed before for the vehicle (its fingerprint is among
-    /// the logged decisions): not replayed.
+    /// A drive the vehicle's history holds already: followed before (its
+    /// fingerprint is among the logged decisions) or calibrated (a row of
+    /// `calibrations` holds it, by any method). Not replayed: its samples
+    /// are in the history already, and the parameters the replay starts
+    /// from may have been fitted on them, so replaying it would count them
+    /// twice and judge the write-back against parameters fitted on the
+    /// very segments it validates on.
     Skipped {
         /// The drive's file, as given.
         source: String,
         /// Its fingerprint.
         fingerprint: String,
+        /// The most recent row of `calibrations` holding the drive, with
+        /// its method; `None` for a drive followed before without a write.
+        row: Option<(i64, String)>,
     },
     /// A drive replayed: what the calibrator saw, and the gates' decision
     /// (logged in the history's `decisions`; a write is recorded in
@@ -90,8 +98,10 @@ struct Stored {
 ///
 /// Each drive is read as a stream when it can be (memory flat in its
 /// length): a drive CSV, or a manifest of CSV streams (its samples kept in
-/// temporary files); another manifest is imported whole. A drive whose
-/// fingerprint is among the vehicle's logged decisions is skipped. After
+/// temporary files); another manifest is imported whole. A drive the
+/// vehicle's history holds already (among its logged decisions, or in a
+/// recorded calibration by any method) is skipped
+/// ([`FollowEvent::Skipped`]): replaying it would count its samples twice. After
 /// each drive the gates judge the estimate against the stored θ; the
 /// decision is logged, and a write is recorded as a calibration (method
 /// `online`) that the next drives are judged against. `on` sees every
@@ -150,8 +160,14 @@ pub fn follow<E: From<Error>>(
         let drive = Replay::open(path, |line| on(FollowEvent::Log(line)))?;
         let source = path.display().to_string();
         let fingerprint = drive.fingerprint()?;
-        if db.decisions(vehicle)?.iter().any(|d| d.fingerprint == fingerprint) {
-            on(FollowEvent::Skipped { source, fingerprint })?;
+        let row = db
+            .rows(vehicle)?
+            .into_iter()
+            .rev()
+            .find(|r| crate::pooled::drives_of(&r.record.fingerprint).any(|f| f == fingerprint))
+            .map(|r| (r.id, r.record.method));
+        if row.is_some() || db.decisions(vehicle)?.iter().any(|d| d.fingerprint == fingerprint) {
+            on(FollowEvent::Skipped { source, fingerprint, row })?;
             continue;
         }
         let c = match cal.as_mut() {

@@ -7,8 +7,10 @@
 //! recorded drive and method: θ with σ, the verdict, the time span, the
 //! source files, the odocal version and the drive's
 //! [fingerprint](odocal::Drive::fingerprint). A drive already recorded for a
-//! vehicle with the same method is recognised and not counted twice
-//! ([`Recorded::AlreadyRecorded`]). The table `decisions` logs the gated
+//! vehicle with the same method is recognised and not recorded twice
+//! ([`Recorded::AlreadyRecorded`]); a drive recorded by several methods
+//! keeps a row for each, and the drift flags and the pooled estimate count
+//! it once, by its most recent row ([`SetAside`]). The table `decisions` logs the gated
 //! write-back of `odocal follow` ([`fn@follow`]: drive files replayed through
 //! the online calibrator of the crate odocal-online), one row per decision.
 //!
@@ -47,7 +49,7 @@ mod pooled;
 mod schema;
 
 pub use follow::{follow, FollowEvent, FollowOptions};
-pub use pooled::{DriftFlag, Pooled, DRIFT_SIGMAS};
+pub use pooled::{DriftFlag, Pooled, SetAside, DRIFT_SIGMAS};
 
 /// How long a writer waits for another process's transaction to finish.
 const BUSY_TIMEOUT: Duration = Duration::from_secs(30);
@@ -197,19 +199,25 @@ pub struct DecisionRow {
 
 /// A vehicle's history as read ([`History::vehicle`]): its calibrations,
 /// the drift flags between consecutive ones, their pooled estimate and the
-/// logged write-back decisions. Its [`Display`](std::fmt::Display) is the
-/// table `odocal history` prints.
+/// logged write-back decisions. The drift flags and the pooled estimate
+/// count each drive once: of several rows holding one drive, the most
+/// recent stands and the others are [`SetAside`]. Its
+/// [`Display`](std::fmt::Display) is the table `odocal history` prints.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct VehicleHistory {
     /// The vehicle's identifier.
     pub vehicle: String,
-    /// Its calibrations in recording order.
+    /// Its calibrations in recording order, every row recorded.
     pub rows: Vec<HistoryRow>,
-    /// Every parameter change between consecutive rows beyond
-    /// [`DRIFT_SIGMAS`] combined σ (pairs where a row has no σ are skipped).
+    /// The rows the drift flags leave out: a more recent row holds their
+    /// drive. In recording order.
+    pub set_aside: Vec<SetAside>,
+    /// Every parameter change between consecutive rows (those not set
+    /// aside) beyond [`DRIFT_SIGMAS`] combined σ (pairs where a row has no
+    /// σ are skipped).
     pub drift: Vec<DriftFlag>,
-    /// The pooled estimate over the rows asked for (all by default);
-    /// `None` without rows.
+    /// The pooled estimate over the rows asked for (all by default), each
+    /// drive once; `None` without rows.
     pub pooled: Option<Pooled>,
     /// The logged write-back decisions in logging order.
     pub decisions: Vec<DecisionRow>,
@@ -218,14 +226,38 @@ pub struct VehicleHistory {
 impl VehicleHistory {
     /// The history of `vehicle` made of `rows` (in recording order): their
     /// drift flags and the pooled estimate over those with an id in `pool`
-    /// (all when `None`); no decisions.
+    /// (all when `None`), each drive counted once; no decisions.
     pub fn of_rows(vehicle: &str, rows: Vec<HistoryRow>, pool: Option<&[i64]>) -> VehicleHistory {
-        let drift = pooled::drift_between(&rows);
+        let (standing, set_aside) = pooled::counted_once(&rows);
+        let drift = pooled::drift_between(&standing);
         let pooled_rows: Vec<HistoryRow> =
             rows.iter().filter(|r| pool.is_none_or(|ids| ids.contains(&r.id))).cloned().collect();
         let pooled = pooled::pooled_estimate(&pooled_rows);
-        VehicleHistory { vehicle: vehicle.to_string(), rows, drift, pooled, decisions: Vec::new() }
+        VehicleHistory { vehicle: vehicle.to_string(), rows, set_aside, drift, pooled, decisions: Vec::new() }
     }
+}
+
+/// `rows 4, 5 stand aside for row 6; row 2 for row 3`: each set-aside row
+/// with the row that stands for its drive, grouped by that row.
+fn set_aside_text(set_aside: &[SetAside]) -> String {
+    let mut by: Vec<(i64, Vec<i64>)> = Vec::new();
+    for s in set_aside {
+        match by.iter_mut().find(|(b, _)| *b == s.by_id) {
+            Some((_, ids)) => ids.push(s.id),
+            None => by.push((s.by_id, vec![s.id])),
+        }
+    }
+    by.iter()
+        .map(|(b, ids)| {
+            let list = ids.iter().map(i64::to_string).collect::<Vec<_>>().join(", ");
+            if ids.len() == 1 {
+                format!("row {list} stands aside for row {b}")
+            } else {
+                format!("rows {list} stand aside for row {b}")
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("; ")
 }
 
 /// Display scale and unit of each θ parameter in the history's table (c_d
@@ -267,6 +299,13 @@ impl std::fmt::Display for VehicleHistory {
                 c.sources.join(", ")
             )?;
         }
+        if !self.set_aside.is_empty() {
+            writeln!(
+                f,
+                "\neach drive counted once, by its most recent row: {} (the same drive)",
+                set_aside_text(&self.set_aside)
+            )?;
+        }
         if self.drift.is_empty() {
             writeln!(f, "\nno drift: consecutive rows agree within 3 combined σ")?;
         } else {
@@ -290,13 +329,20 @@ impl std::fmt::Display for VehicleHistory {
             }
         }
         if let Some(p) = &self.pooled {
-            writeln!(f, "\npooled over {} row(s) (inverse-variance mean ± its σ; between-drive sd):", p.rows)?;
+            let aside =
+                if p.set_aside.is_empty() { String::new() } else { format!("; {}", set_aside_text(&p.set_aside)) };
+            writeln!(
+                f,
+                "\npooled over {} drive(s) in {} row(s){aside} (inverse-variance mean ± its σ; between-drive sd):",
+                p.drives, p.rows
+            )?;
             let (m, s, b) =
                 (<[_; 4]>::from(p.mean), <[_; 4]>::from(p.sigma_of_mean), <[_; 4]>::from(p.between_drive_sd));
             for (i, name) in THETA_NAMES.iter().enumerate() {
                 let (scale, unit) = DISPLAY_UNITS[i];
-                // One row has no spread between drives.
-                let sd = if b[i].is_finite() { format!("{:.2e}", b[i] * scale) } else { "— (needs two rows)".into() };
+                // One drive has no spread between drives.
+                let sd =
+                    if b[i].is_finite() { format!("{:.2e}", b[i] * scale) } else { "— (needs two drives)".into() };
                 writeln!(
                     f,
                     "  {name:<4} {unit:<10} {:>12.6} ± {:.2e}   between-drive sd {sd}",

@@ -1,4 +1,5 @@
-//! Drift flags and the pooled estimate over a vehicle's history.
+//! Drift flags and the pooled estimate over a vehicle's history, each
+//! drive counted once.
 
 use serde::{Deserialize, Serialize};
 
@@ -35,13 +36,62 @@ pub struct DriftFlag {
     pub model_sigma_only: bool,
 }
 
+/// A row left out of the drift flags or the pooled estimate because a
+/// more recent row holds its drive (or one of its drives): two rows of one
+/// drive (calibrated by two methods, or once alone and once jointly with
+/// others) are two estimates from the same samples, not two measurements
+/// of the vehicle. Counted twice they would shrink the pooled σ as if the
+/// drive had been driven twice, and a difference between them (the
+/// methods') would be flagged as drift.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SetAside {
+    /// The row left out.
+    pub id: i64,
+    /// The more recent row that stands for its drive.
+    pub by_id: i64,
+}
+
+/// The drives a row's fingerprint names: one, or those of a joint
+/// calibration (comma separated).
+pub(crate) fn drives_of(fingerprint: &str) -> impl Iterator<Item = &str> {
+    fingerprint.split(',').map(str::trim).filter(|f| !f.is_empty())
+}
+
+/// `rows` (in recording order) with each drive counted once: walking from
+/// the most recent row back, a row stands unless a row that stands already
+/// holds one of its drives. Returns the rows that stand, in recording
+/// order, and those set aside (in recording order), each with the row that
+/// stands for its drive.
+///
+/// The most recent row stands because a drive calibrated again (by another
+/// method, or jointly with other drives) is a choice made later, and
+/// because `follow` starts from the vehicle's most recent row: the
+/// history's pooled estimate and `follow`'s stored θ agree on which row
+/// stands for a drive. `--pool IDS` picks other rows.
+pub(crate) fn counted_once(rows: &[HistoryRow]) -> (Vec<&HistoryRow>, Vec<SetAside>) {
+    let mut holder: std::collections::HashMap<&str, i64> = std::collections::HashMap::new();
+    let (mut stand, mut aside) = (Vec::new(), Vec::new());
+    for r in rows.iter().rev() {
+        match drives_of(&r.record.fingerprint).find_map(|f| holder.get(f)) {
+            Some(&by_id) => aside.push(SetAside { id: r.id, by_id }),
+            None => {
+                holder.extend(drives_of(&r.record.fingerprint).map(|f| (f, r.id)));
+                stand.push(r);
+            }
+        }
+    }
+    stand.reverse();
+    aside.reverse();
+    (stand, aside)
+}
+
 /// Flags every parameter change between consecutive rows (in the order
 /// given) beyond [`DRIFT_SIGMAS`] combined σ. Pairs where either row has
 /// no σ are skipped.
-pub(crate) fn drift_between(rows: &[HistoryRow]) -> Vec<DriftFlag> {
+pub(crate) fn drift_between(rows: &[&HistoryRow]) -> Vec<DriftFlag> {
     let mut out = Vec::new();
     for w in rows.windows(2) {
-        let (a, b) = (&w[0], &w[1]);
+        let (a, b) = (w[0], w[1]);
         let (Some(sa), Some(sb)) = (a.record.sigma, b.record.sigma) else { continue };
         let (ta, tb, sa, sb) =
             (<[_; 4]>::from(a.record.theta), <[_; 4]>::from(b.record.theta), <[_; 4]>::from(sa), <[_; 4]>::from(sb));
@@ -66,11 +116,19 @@ pub(crate) fn drift_between(rows: &[HistoryRow]) -> Vec<DriftFlag> {
     out
 }
 
-/// A pooled estimate over several rows of one vehicle's history.
+/// A pooled estimate over several rows of one vehicle's history, each
+/// drive counted once ([`SetAside`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Pooled {
-    /// Rows pooled.
+    /// Rows pooled (those asked for, less those set aside).
     pub rows: usize,
+    /// Drives they hold (a joint calibration holds several).
+    #[serde(default)]
+    pub drives: usize,
+    /// Rows asked for but not pooled: a more recent row asked for holds
+    /// their drive.
+    #[serde(default)]
+    pub set_aside: Vec<SetAside>,
     /// Per parameter: the inverse-variance weighted mean `Σ wᵢθᵢ / Σ wᵢ`,
     /// `wᵢ = 1/σᵢ²`, when every row has a positive σ that is not the
     /// model's alone ([`CalibrationRecord::sigma_model_only`](crate::CalibrationRecord::sigma_model_only));
@@ -86,11 +144,14 @@ pub struct Pooled {
     pub between_drive_sd: Theta,
 }
 
-/// Pools `rows` ([`Pooled`]); `None` without rows.
+/// Pools `rows` (in recording order), each drive once ([`Pooled`],
+/// [`counted_once`]); `None` without rows.
 pub(crate) fn pooled_estimate(rows: &[HistoryRow]) -> Option<Pooled> {
+    let (rows, set_aside) = counted_once(rows);
     if rows.is_empty() {
         return None;
     }
+    let drives = rows.iter().map(|r| drives_of(&r.record.fingerprint).count().max(1)).sum();
     let n = rows.len() as f64;
     let (mut mean, mut se, mut sd) = ([0.0; 4], [0.0; 4], [0.0; 4]);
     for i in 0..4 {
@@ -122,6 +183,8 @@ pub(crate) fn pooled_estimate(rows: &[HistoryRow]) -> Option<Pooled> {
     }
     Some(Pooled {
         rows: rows.len(),
+        drives,
+        set_aside,
         mean: Theta::from(mean),
         sigma_of_mean: Theta::from(se),
         between_drive_sd: Theta::from(sd),

@@ -189,11 +189,11 @@ fn the_table_lists_each_row_the_drift_and_the_pooled_estimate() {
     assert!(lines[0].starts_with("  id  recorded (UTC)") && lines[0].ends_with("verdict   source"), "{one}");
     assert!(lines[1].contains(" eiv ") && lines[1].contains("1.95000±1.0e-3") && lines[1].ends_with("trusted   a.csv"));
     assert!(one.contains("\nno drift: consecutive rows agree within 3 combined σ\n"), "{one}");
-    assert!(one.contains("pooled over 1 row(s)") && one.contains("— (needs two rows)"), "{one}");
+    assert!(one.contains("pooled over 1 drive(s) in 1 row(s) (") && one.contains("— (needs two drives)"), "{one}");
     db.record(&record("van", "c", 1.960, 1e-3)).expect("c");
     let two = db.vehicle("van", None).expect("history").to_string();
     assert!(two.contains("drift (|Δ| > 3·sqrt(σ₁² + σ₂²)):\n  c_e row 1 ("), "{two}");
-    assert!(!two.contains("needs two rows"), "{two}");
+    assert!(!two.contains("needs two drives"), "{two}");
 }
 
 /// A flag between rows whose σ is the model's alone says it is no evidence
@@ -327,4 +327,95 @@ fn a_model_only_sigma_does_not_weigh_the_pooled_estimate() {
     db.record(&CalibrationRecord { sigma_model_only: Some(false), ..tight }).expect("c");
     let p = db.vehicle("van", None).expect("history").pooled.expect("rows");
     assert!((p.mean.c_e - 1.958).abs() < 1e-5, "{p:?}");
+}
+
+/// One drive calibrated by two methods is two estimates from the same
+/// samples, not two drives: the drift flags and the pooled estimate take
+/// its most recent row, the other stands aside (listed, and said), so the
+/// pooled σ does not shrink as if the drive had been driven twice and the
+/// methods' difference is not flagged as drift.
+#[test]
+fn a_drive_recorded_by_several_methods_counts_once() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
+    let a_eiv = db.record(&record("van", "a", 1.950, 1e-3)).expect("a eiv");
+    // The same drive by another method, 10 mm away: 7 combined σ.
+    let a_gn = CalibrationRecord { method: "batch-gn".into(), ..record("van", "a", 1.960, 1e-3) };
+    let a_gn = db.record(&a_gn).expect("a batch-gn");
+    let b = db.record(&record("van", "b", 1.962, 1e-3)).expect("b");
+    let (Recorded::New(a_eiv), Recorded::New(a_gn), Recorded::New(b)) = (a_eiv, a_gn, b) else {
+        panic!("three new rows")
+    };
+    let h = db.vehicle("van", None).expect("history");
+    assert_eq!(h.rows.len(), 3, "every row listed");
+    assert_eq!(h.set_aside, [SetAside { id: a_eiv, by_id: a_gn }]);
+    assert!(h.drift.is_empty(), "no drift between two rows of one drive: {:?}", h.drift);
+    let p = h.pooled.as_ref().expect("pooled");
+    assert_eq!((p.rows, p.drives), (2, 2), "{p:?}");
+    assert_eq!(p.set_aside, [SetAside { id: a_eiv, by_id: a_gn }]);
+    assert!((p.mean.c_e - 1.961).abs() < 1e-12, "{p:?}");
+    // Two drives 2 mm apart: the between-drive sd is theirs alone.
+    assert!((p.between_drive_sd.c_e - 2f64.sqrt() * 1e-3).abs() < 1e-12, "{p:?}");
+    let text = h.to_string();
+    let said = format!("each drive counted once, by its most recent row: row {a_eiv} stands aside for row {a_gn}");
+    assert!(text.contains(&said), "{text}");
+    let pooled = format!("pooled over 2 drive(s) in 2 row(s); row {a_eiv} stands aside for row {a_gn} (");
+    assert!(text.contains(&pooled), "{text}");
+    assert_eq!(text.lines().filter(|l| l.contains(" a.csv")).count(), 2, "{text}");
+    // --pool naming both rows of the drive still pools it once, by the later.
+    let p = db.vehicle("van", Some(&[a_eiv, a_gn])).expect("history").pooled.expect("pooled");
+    assert_eq!((p.rows, p.drives, p.mean.c_e), (1, 1, 1.960), "{p:?}");
+    // --pool naming the earlier row alone pools it.
+    let p = db.vehicle("van", Some(&[a_eiv, b])).expect("history").pooled.expect("pooled");
+    assert_eq!((p.rows, p.drives, p.set_aside.len()), (2, 2, 0), "{p:?}");
+    assert!((p.mean.c_e - 1.956).abs() < 1e-12, "{p:?}");
+}
+
+/// A joint calibration holds each of its drives (its fingerprint names
+/// them, comma separated): the rows of those drives alone recorded before
+/// it stand aside for it, and it counts as its drives.
+#[test]
+fn a_joint_calibration_stands_for_each_of_its_drives() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
+    for (fp, c_e) in [("a", 1.950), ("b", 1.952), ("a, b", 1.951), ("c", 1.953)] {
+        db.record(&record("van", fp, c_e, 1e-3)).expect("row");
+    }
+    let ids: Vec<i64> = db.rows("van").expect("rows").iter().map(|r| r.id).collect();
+    let h = db.vehicle("van", None).expect("history");
+    assert_eq!(h.set_aside, [SetAside { id: ids[0], by_id: ids[2] }, SetAside { id: ids[1], by_id: ids[2] }]);
+    let p = h.pooled.as_ref().expect("pooled");
+    assert_eq!((p.rows, p.drives), (2, 3), "{p:?}");
+    assert!(h.to_string().contains(&format!("rows {}, {} stand aside for row {}", ids[0], ids[1], ids[2])));
+}
+
+/// `follow` does not replay a drive the history holds a calibration of (by
+/// any method): its samples would count twice, in the recursion that
+/// starts from that calibration and in the history. It says which row
+/// holds it and adds nothing.
+#[test]
+fn follow_skips_a_drive_the_history_holds_a_calibration_of() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let csv = dir.path().join("a.csv");
+    let drive = odocal::simulate(&odocal::SimOptions { length_km: 1.0, ..odocal::SimOptions::noise_free(2) })
+        .expect("sim")
+        .drive;
+    drive.write_csv(&csv).expect("csv");
+    let fingerprint = odocal::Drive::read_csv(&csv).expect("read").0.fingerprint();
+    let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
+    // Calibrated jointly with another drive, by EIV.
+    let joint = format!("{}, {fingerprint}", "f".repeat(64));
+    let Recorded::New(id) = db.record(&record("van", &joint, 1.95, 1e-3)).expect("row") else { panic!("new row") };
+    let mut events = Vec::new();
+    follow(&mut db, "van", std::slice::from_ref(&csv), &FollowOptions::default(), |e| {
+        events.push(e);
+        Ok::<(), Error>(())
+    })
+    .expect("follow");
+    assert!(
+        matches!(&events[..], [FollowEvent::Skipped { row: Some((r, m)), .. }] if *r == id && m == "eiv"),
+        "{events:?}"
+    );
+    assert_eq!(db.rows("van").expect("rows").len(), 1);
+    assert_eq!(db.decision_count("van").expect("decisions"), 0);
 }

@@ -78,7 +78,8 @@ impl PyHistory {
     }
 
     /// Every parameter change between consecutive rows beyond three
-    /// combined σ: dicts with `parameter`, `from_id`, `from_recorded_at`,
+    /// combined σ, each drive counted once by its most recent row (as
+    /// `odocal history`): dicts with `parameter`, `from_id`, `from_recorded_at`,
     /// `to_id`, `to_recorded_at`, `change`, `combined_sigma`, `model_sigma_only`
     /// (either row's σ is the model's alone: no evidence of drift by itself).
     fn drift<'py>(&self, py: Python<'py>, vehicle: &str) -> PyResult<Bound<'py, PyAny>> {
@@ -87,8 +88,10 @@ impl PyHistory {
     }
 
     /// The pooled estimate over the vehicle's rows (those with an id in
-    /// `ids`, or all): `{"rows", "mean", "sigma_of_mean",
-    /// "between_drive_sd"}`, or None without rows.
+    /// `ids`, or all), each drive counted once by its most recent row:
+    /// `{"rows", "drives", "set_aside", "mean", "sigma_of_mean",
+    /// "between_drive_sd"}` (`set_aside`: `{"id", "by_id"}` of each row
+    /// left out for a later row of its drive), or None without rows.
     #[pyo3(signature = (vehicle, ids=None))]
     fn pooled<'py>(&self, py: Python<'py>, vehicle: &str, ids: Option<Vec<i64>>) -> PyResult<Bound<'py, PyAny>> {
         let p = self.with(|db| db.vehicle(vehicle, ids.as_deref()))?.pooled;

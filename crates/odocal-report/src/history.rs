@@ -173,14 +173,21 @@ fn drift_list(drift: &[DriftFlag]) -> String {
 
 fn pooled_table(p: &Pooled) -> String {
     let (m, s, b) = (<[_; 4]>::from(p.mean), <[_; 4]>::from(p.sigma_of_mean), <[_; 4]>::from(p.between_drive_sd));
+    let aside: Vec<String> = p.set_aside.iter().map(|s| format!("row {} for row {}", s.id, s.by_id)).collect();
+    let aside = if aside.is_empty() {
+        String::new()
+    } else {
+        format!(" Each drive counted once, by its most recent row; set aside: {}.", aside.join(", "))
+    };
     let mut h = format!(
-        "<p>Pooled over {} row(s): the inverse-variance mean ± its σ and the between-drive sd.</p>\n\
+        "<p>Pooled over {} drive(s) in {} row(s): the inverse-variance mean ± its σ and the between-drive sd.{aside}</p>\n\
          <table><tr><th>parameter</th><th>mean ± σ</th><th>between-drive sd</th></tr>\n",
-        p.rows
+        p.drives, p.rows
     );
     for (i, name) in THETA_NAMES.iter().enumerate() {
         let (scale, unit) = UNITS[i];
-        let sd = if b[i].is_finite() { format!("{:.2e} {unit}", b[i] * scale) } else { "— (needs two rows)".into() };
+        let sd =
+            if b[i].is_finite() { format!("{:.2e} {unit}", b[i] * scale) } else { "— (needs two drives)".into() };
         h.push_str(&format!("<tr><td>{name}</td><td>{} {unit}</td><td>{sd}</td></tr>\n", cell(m[i], Some(s[i]), i)));
     }
     h.push_str("</table>\n");
@@ -239,7 +246,7 @@ mod tests {
             record: CalibrationRecord {
                 sigma: Some(sigma),
                 sources: vec![format!("<run{id}>.csv")],
-                ..CalibrationRecord::new("v", "abcdef0123456789", "online", theta)
+                ..CalibrationRecord::new("v", &format!("drive{id}"), "online", theta)
             },
         }
     }
@@ -258,6 +265,13 @@ mod tests {
         assert!(html.contains("&lt;run5&gt;.csv") && !html.contains("<run5>"));
         assert!(html.contains("-1.0000 ± 2.00e-2") && html.contains("-2.0100 ± 2.00e-2"), "{html}");
         assert!(html.contains("class=\"flag\">c_d row id 2"));
+        assert!(html.contains("Pooled over 3 drive(s) in 3 row(s)"), "{html}");
+        // Rows 1 and 2 of one drive: row 1 is set aside, no flag between them.
+        let mut rows = vec![row(1, -2e-3), row(2, -2.5e-3), row(5, -2.49e-3)];
+        rows[0].record.fingerprint = rows[1].record.fingerprint.clone();
+        let html = render_history_html(&VehicleHistory::of_rows("v", rows, None)).expect("html");
+        assert!(html.contains("Pooled over 2 drive(s) in 2 row(s)") && html.contains("set aside: row 1 for row 2"));
+        assert!(html.contains("No drift"), "{html}");
         let empty = render_history_html(&VehicleHistory::of_rows("v", Vec::new(), None)).expect("html");
         assert!(!empty.contains("<svg") && empty.contains("No calibrations"));
     }

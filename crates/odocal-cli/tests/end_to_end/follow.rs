@@ -51,6 +51,8 @@ fn follow_reports_each_drive_and_a_replay_adds_nothing() {
     assert_eq!(drives[0]["updates"][0]["decision"], "written", "{}", drives[0]);
     let yaml = std::fs::read_to_string(&params).expect("params");
     assert!(yaml.contains("c_e:") && yaml.contains("online"), "{yaml}");
+    // What a fleet script deploys: the update passed every gate.
+    assert!(yaml.contains("    verdict: \"accepted\"\n"), "{yaml}");
     let rows = history_rows(db_s);
     assert!(!rows.is_empty());
     assert!(rows.iter().all(|r| r["method"] == "online"));
@@ -346,4 +348,62 @@ fn follow_claims_its_start_only_once_the_first_drive_was_read() {
     let followed = out.find(&format!("{good}: prequential")).expect("the good drive followed");
     assert!(start < followed, "{out}");
     assert!(stderr(&o).contains(&format!("{bad_s}: line 3")), "{}", stderr(&o));
+}
+
+/// One drive calibrated by two methods is one drive in `history`: both
+/// rows are listed, the earlier stands aside (in the text and the JSON),
+/// the pooled estimate is over one drive and no drift is flagged between
+/// the two methods' estimates of it.
+#[test]
+fn history_counts_a_drive_calibrated_twice_once() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let a = simulated_drive(dir.path(), "a.csv", &["--seed", "8", "--length-km", "3"]);
+    let db = dir.path().join("h.sqlite");
+    let db_s = db.to_str().expect("utf8");
+    for method in ["batch-gn", "three-step"] {
+        let o = odocal(&["calibrate", &a, "--method", method, "--vehicle", "van", "--db", db_s]);
+        assert!(o.status.code() != Some(1), "{}", stderr(&o));
+    }
+    let o = odocal(&["history", "van", "--db", db_s, "--json", "-"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: Value = serde_json::from_str(&stdout(&o)).expect("history json");
+    assert_eq!(v["rows"].as_array().expect("rows").len(), 2, "{v}");
+    assert_eq!(v["set_aside"], serde_json::json!([{"id": 1, "by_id": 2}]), "{v}");
+    assert_eq!(v["drift"], serde_json::json!([]), "{v}");
+    let p = &v["pooled"];
+    assert_eq!((p["rows"].as_u64(), p["drives"].as_u64()), (Some(1), Some(1)), "{p}");
+    assert_eq!(p["mean"], v["rows"][1]["theta"], "the later row's θ: {p}");
+    let text = stdout(&odocal(&["history", "van", "--db", db_s]));
+    assert!(
+        text.contains("row 1 stands aside for row 2") && text.contains("pooled over 1 drive(s) in 1 row(s)"),
+        "{text}"
+    );
+}
+
+/// `--params-out -` keeps stdout for the parameter file alone: the text
+/// report goes to stderr, and of several written updates stdout gets the
+/// last, once (what the file would hold at the end), a file that reads
+/// back. Each written file carries the verdict `accepted`.
+#[test]
+fn follow_params_to_stdout_is_one_parameter_file() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let a = simulated_drive(dir.path(), "a.csv", &["--seed", "1", "--length-km", "4", "--noise", "off"]);
+    let b = simulated_drive(dir.path(), "b.csv", &["--seed", "2", "--length-km", "4", "--noise", "off"]);
+    let db = dir.path().join("h.sqlite");
+    let db_s = db.to_str().expect("utf8");
+    let o = odocal(&["follow", &a, &b, "--vehicle", "van", "--db", db_s, "--params-out", "-"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (out, err) = (stdout(&o), stderr(&o));
+    assert!(err.contains("starting from") && err.contains(&format!("{b}: prequential")), "{err}");
+    assert_eq!(out.matches("ros__parameters:").count(), 1, "{out}");
+    assert!(!out.contains("prequential") && !out.contains("starting from"), "{out}");
+    assert!(out.contains("verdict: \"accepted\"") && out.contains("verdict_reasons: [\"all gates passed"), "{out}");
+    let written = history_rows(db_s);
+    let last = written.last().expect("a written update");
+    let yaml = dir.path().join("p.yaml");
+    std::fs::write(&yaml, &out).expect("write");
+    let o = odocal(&["validate", &b, "--theta", yaml.to_str().expect("utf8")]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let c_e = last["theta"]["c_e"].as_f64().expect("c_e");
+    assert!(out.contains(&format!("c_e: {c_e:?}")), "the last written update: {out}");
 }

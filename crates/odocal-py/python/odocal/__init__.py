@@ -251,7 +251,9 @@ class History(_History):
     may read and write it at once). ``rows(vehicle)``: the table
     ``calibrations`` as a list of dicts; ``drift(vehicle)``: changes between
     consecutive rows beyond three combined σ; ``pooled(vehicle, ids=None)``:
-    the inverse-variance mean with the between-drive sd;
+    the inverse-variance mean with the between-drive sd. Both count each
+    drive once, by its most recent row (a drive calibrated by several
+    methods has a row for each); ``pooled`` names the rows set aside;
     ``decisions(vehicle)``: the write-back decisions of ``odocal follow``;
     ``latest(vehicle)``. Errors raise :class:`OdocalError`.
     """

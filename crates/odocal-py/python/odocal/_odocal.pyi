@@ -146,7 +146,8 @@ def _method_details(report_json: str) -> str: ...
 def read_params(path: _Path, *, params_node: Optional[str] = None) -> dict[str, Any]:
     """A parameter file (ROS 2 YAML or JSON, as ``--params-out`` writes it; the node ``params_node``,
     or the one node holding odocal's parameters) in the JSON file's layout:
-    ``{"schema_version", "node", "parameters", "units", "verdict", "verdict_reasons", "provenance"}``."""
+    ``{"schema_version", "node", "parameters", "units", "verdict", "verdict_reasons", "provenance"}``
+    (``verdict_reasons`` only when there are reasons: a missing key is none)."""
 def _write_params(
     report_json: str,
     path: _Path,

@@ -282,12 +282,20 @@ impl ParamFile {
         }
         if let Some(v) = &self.verdict {
             let _ = writeln!(y, "    verdict: {}", yaml_str(v));
-            let reasons: Vec<String> = self.verdict_reasons.iter().map(|r| yaml_str(r)).collect();
-            let _ = writeln!(y, "    verdict_reasons: [{}]", reasons.join(", "));
+            // ROS 2 types a parameter by its value, and an empty list has
+            // none: rclcpp refuses the file ("No parameter value set"). No
+            // reasons is written as no key, as reading takes it.
+            if !self.verdict_reasons.is_empty() {
+                let reasons: Vec<String> = self.verdict_reasons.iter().map(|r| yaml_str(r)).collect();
+                let _ = writeln!(y, "    verdict_reasons: [{}]", reasons.join(", "));
+            }
         }
-        let _ = writeln!(y, "    provenance:");
-        for (k, v) in &self.provenance {
-            let _ = writeln!(y, "      {}: {}", yaml_key(k), yaml_str(v));
+        // An empty map would be a key without a value, which ROS 2 refuses too.
+        if !self.provenance.is_empty() {
+            let _ = writeln!(y, "    provenance:");
+            for (k, v) in &self.provenance {
+                let _ = writeln!(y, "      {}: {}", yaml_key(k), yaml_str(v));
+            }
         }
         y
     }
@@ -310,15 +318,20 @@ impl ParamFile {
         }
         let prov: serde_json::Map<String, serde_json::Value> =
             self.provenance.iter().map(|(k, v)| (k.clone(), serde_json::json!(v))).collect();
-        serde_json::json!({
+        let mut v = serde_json::json!({
             "schema_version": JSON_SCHEMA_VERSION,
             "node": self.node,
             "parameters": params,
             "units": self.params.iter().map(|p| (p.name.clone(), serde_json::json!(p.unit))).collect::<serde_json::Map<_, _>>(),
             "verdict": self.verdict,
-            "verdict_reasons": self.verdict_reasons,
             "provenance": prov,
-        })
+        });
+        // The keys of the YAML file: `verdict_reasons` only when there are
+        // reasons (an empty list has no ROS 2 type there).
+        if self.verdict.is_some() && !self.verdict_reasons.is_empty() {
+            v["verdict_reasons"] = serde_json::json!(self.verdict_reasons);
+        }
+        v
     }
 
     /// Writes YAML for a `.yaml`/`.yml` path, JSON for `.json`, atomically
@@ -971,6 +984,65 @@ mod tests {
         assert_eq!(p["heading_offset"].as_f64(), Some(-0.0099), "{j}");
         assert_eq!(p["heading_offset_held"], serde_json::json!(true), "{j}");
         assert_eq!(j["units"]["heading_offset"], "rad", "{j}");
+    }
+
+    /// Every value under `ros__parameters` as ROS 2 types it: a list, a
+    /// map or a missing value (`key:`) has no type when empty, and rclcpp
+    /// refuses the whole file. The `(path, problem)` of each such value.
+    fn untyped_ros2_values(text: &str) -> Vec<(String, &'static str)> {
+        use yaml_rust2::Yaml;
+        fn walk(path: &str, y: &Yaml, out: &mut Vec<(String, &'static str)>) {
+            match y {
+                Yaml::Array(a) if a.is_empty() => out.push((path.into(), "an empty list")),
+                Yaml::Hash(h) if h.is_empty() => out.push((path.into(), "an empty map")),
+                Yaml::Null => out.push((path.into(), "no value")),
+                Yaml::Hash(h) => {
+                    for (k, v) in h {
+                        walk(&format!("{path}.{}", k.as_str().unwrap_or("?")), v, out);
+                    }
+                }
+                _ => {}
+            }
+        }
+        let docs = yaml_rust2::YamlLoader::load_from_str(text).expect("valid YAML");
+        let mut out = Vec::new();
+        walk("ros__parameters", &docs[0]["odocal"]["ros__parameters"], &mut out);
+        out
+    }
+
+    /// An accepted result has no verdict reasons: the file leaves the key
+    /// out (ROS 2 cannot type an empty list), in YAML and JSON alike, and
+    /// reads back with none; a file holding `verdict_reasons: []` still reads.
+    #[test]
+    fn no_empty_list_lands_in_ros_parameters() {
+        let mut f = with_extrinsics(sample());
+        f.verdict_reasons.clear();
+        let yaml = f.to_ros2_yaml();
+        assert_eq!(untyped_ros2_values(&yaml), [], "{yaml}");
+        assert!(!yaml.contains("verdict_reasons") && yaml.contains("verdict: \"accepted\""), "{yaml}");
+        let j = f.to_json();
+        assert!(j.get("verdict_reasons").is_none() && j["verdict"] == "accepted", "{j}");
+        let dir = tempfile::tempdir().expect("tempdir");
+        for name in ["p.yaml", "p.json"] {
+            let path = dir.path().join(name);
+            f.write(&path).expect("write");
+            let back = ParamFile::read(&path, None).expect("read");
+            assert_eq!((back.verdict.as_deref(), back.verdict_reasons.len()), (Some("accepted"), 0), "{name}");
+        }
+        // Nothing to say at all: no verdict, no provenance.
+        let mut bare = ParamFile::from_theta(&Theta::PAPER_NOMINAL, [None; 4], "x", "eiv");
+        bare.provenance.clear();
+        assert_eq!(untyped_ros2_values(&bare.to_ros2_yaml()), [], "{}", bare.to_ros2_yaml());
+        // With reasons, the list is written and reads back.
+        let g = sample();
+        assert_eq!(untyped_ros2_values(&g.to_ros2_yaml()), []);
+        let path = dir.path().join("g.yaml");
+        g.write(&path).expect("write");
+        assert_eq!(ParamFile::read(&path, None).expect("read").verdict_reasons, g.verdict_reasons);
+        // A file written with the empty list reads as no reasons.
+        let old = yaml.replace("    verdict: \"accepted\"\n", "    verdict: \"accepted\"\n    verdict_reasons: []\n");
+        let back = read_text("old.yaml", &old).expect("an empty list read");
+        assert!(back.verdict_reasons.is_empty() && back.verdict.as_deref() == Some("accepted"));
     }
 
     #[test]
