@@ -188,9 +188,9 @@ fn a_min_yaw_rate_that_is_not_a_rate_is_a_usage_error() {
 }
 
 /// `--json /dev/stdout` with stdout on a pipe (as here, where the test
-/// reads the output) is `--json -`: the JSON alone on stdout. It was
-/// "cannot create a file in the folder /proc/self/fd", the link's folder,
-/// as if it were a file to replace. `/dev/stderr` is written in place.
+/// reads the output) is `--json -`: the JSON alone on stdout, not a file
+/// to replace in the link's folder `/proc/self/fd`. `/dev/stderr` is
+/// written in place.
 #[cfg(target_os = "linux")]
 #[test]
 fn an_output_onto_dev_stdout_or_stderr_on_a_pipe_is_written() {
@@ -205,9 +205,8 @@ fn an_output_onto_dev_stdout_or_stderr_on_a_pipe_is_written() {
     assert!(stderr(&o).contains("\"mean_position_error_m\""), "{}", stderr(&o));
 }
 
-/// `simulate --out /dev/null`: refused before any work, saying why; it
-/// wrote the drive into the device and created a file /dev/null.json for the
-/// sidecar.
+/// `simulate --out /dev/null`: refused before any work, saying why (the
+/// sidecar has no folder beside a device: no file /dev/null.json).
 #[cfg(unix)]
 #[test]
 fn a_simulated_drive_onto_a_device_is_refused() {
@@ -221,8 +220,8 @@ fn a_simulated_drive_onto_a_device_is_refused() {
 }
 
 /// A route length out of range is a usage error naming the flag, negative
-/// ones included (clap read `-3` as an unknown flag), and so is the
-/// simulator's ceiling (it was exit 1, "invalid option `length_km`").
+/// ones included (not an unknown flag `-3`), and so is the simulator's
+/// ceiling (not the library's "invalid option `length_km`").
 #[test]
 fn a_route_length_out_of_range_names_the_flag() {
     let dir = tempfile::tempdir().expect("tmp");
