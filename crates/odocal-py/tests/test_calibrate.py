@@ -117,7 +117,7 @@ def test_model_sigma_of_a_held_parameter_is_none_as_in_the_text(small_drive):
 
 def test_segment_options_too_small_name_the_keyword(small_drive):
     for key, value in [("segment_length", 1), ("segment_stride", 0), ("validation_length", 1)]:
-        with pytest.raises(odocal.OdocalError, match=f"^invalid option `{key}`: must be at least"):
+        with pytest.raises(odocal.OdocalError, match=f"^invalid option `{key}`: = {value}: must be at least"):
             odocal.calibrate(small_drive, "batch-gn", **{key: value})
     with pytest.raises(odocal.OdocalError, match="^invalid option `validation_length`: must be at least"):
         odocal.validate(small_drive, [1.95, 0, 1.5, 0], validation_length=1)
