@@ -125,7 +125,8 @@ fn reference_extrinsics(
     let (extrinsics, fit): (Extrinsics, Option<HeadingOffsetFit>) = if opts.reestimate_heading_offset {
         let r = odocal::validate(drive, &a.theta.theta, &opts, None).map_err(|e| {
             anyhow::anyhow!(
-                "{}: re-estimating the drive's heading offset (the --theta file estimated one): {e};                  --carry-heading-offset carries the file's",
+                "{}: re-estimating the drive's heading offset (the --theta file estimated one): {e}; \
+                 --carry-heading-offset carries the file's",
                 a.drive.display()
             )
         })?;
