@@ -298,3 +298,27 @@ fn eiv_flags_belong_to_eiv() {
     let help = text(&o.stdout);
     assert!(help.contains("three-step, batch-gn or eiv") && help.contains("--fix-noise"), "{help}");
 }
+
+/// The text names the noise sources at their lower clamp (those the JSON's
+/// η puts below 0 without a σ): on the `white` preset, a perfect reference
+/// and only white wheel noise, every source but the white wheel noise.
+#[test]
+fn the_text_names_the_noise_sources_the_data_show_none_of() {
+    let d = tempfile::tempdir().expect("tmp");
+    let drive =
+        crate::common::simulated_drive(d.path(), "w.csv", &["--seed", "2", "--length-km", "3", "--noise", "white"]);
+    let json = d.path().join("r.json");
+    let o = odocal(&["calibrate", &drive, "--json", json.to_str().expect("utf8")]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).expect("json")).expect("json");
+    let (eta, sigma) = (&r["eiv"]["eta"], &r["eiv"]["eta_sigma"]);
+    let names = ["wheel_white", "wheel_common", "wheel_differential", "pose_white", "pose_drift", "heading_white"];
+    let absent: Vec<&str> = (0..6)
+        .filter(|&j| eta[j].as_f64().expect("η") < 0.0 && sigma[j].as_f64().expect("σ") == 0.0)
+        .map(|j| names[j])
+        .collect();
+    assert_eq!(absent, &names[1..], "{eta} {sigma}");
+    let line =
+        format!("at the lower clamp (the data show none of it, so its level above reads 0): {}", absent.join(", "));
+    assert!(text(&o.stdout).contains(&line), "{}", text(&o.stdout));
+}
