@@ -31,7 +31,7 @@ pub struct FollowArgs {
     /// The history database (SQLite; created if missing).
     ///
     /// The replay starts from the vehicle's last recorded parameters in it
-    /// (else --theta0); each drive's write-back decision is logged in its
+    /// that were not rejected (else --theta0); each drive's write-back decision is logged in its
     /// table `decisions`, each written update in `calibrations`. A drive
     /// followed before or calibrated for the vehicle is skipped: replaying
     /// it would count its samples twice.

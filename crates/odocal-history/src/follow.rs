@@ -91,7 +91,8 @@ struct Stored {
 
 /// Replays `drives` (drive CSVs or manifests) in order through one online
 /// calibrator for `vehicle`, starting from the vehicle's most recent row in
-/// `db` (else `opts.theta0`), and writes back what the gates pass. The
+/// `db` whose verdict is not `rejected` (else `opts.theta0`), and writes
+/// back what the gates pass. The
 /// row's σ is the recursion's start unless it is the model's alone
 /// ([`CalibrationRecord::sigma_model_only`]); then, as without a σ, the
 /// options' prior sd is.
@@ -137,7 +138,9 @@ pub fn follow<E: From<Error>>(
     opts: &FollowOptions,
     mut on: impl FnMut(FollowEvent) -> std::result::Result<(), E>,
 ) -> std::result::Result<(), E> {
-    let (mut stored, origin) = match db.rows(vehicle)?.pop() {
+    // A rejected result is not to be deployed, nor started from.
+    let start = db.rows(vehicle)?.into_iter().rev().find(|r| !crate::pooled::is_rejected(r));
+    let (mut stored, origin) = match start {
         Some(r) => {
             // A σ of the model alone (a batch G-N fit on a short drive) can
             // be several times smaller than the spread between drives: as

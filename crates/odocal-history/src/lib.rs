@@ -35,6 +35,7 @@
 //! # Ok(()) }
 //! ```
 
+use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -213,8 +214,8 @@ pub struct VehicleHistory {
     /// drive. In recording order.
     pub set_aside: Vec<SetAside>,
     /// Every parameter change between consecutive rows (those not set
-    /// aside) beyond [`DRIFT_SIGMAS`] combined σ (pairs where a row has no
-    /// σ are skipped).
+    /// aside, nor rejected) beyond [`DRIFT_SIGMAS`] combined σ (pairs where
+    /// a row has no σ are skipped).
     pub drift: Vec<DriftFlag>,
     /// The pooled estimate over the rows asked for (all by default), each
     /// drive once; `None` without rows.
@@ -228,7 +229,8 @@ impl VehicleHistory {
     /// drift flags and the pooled estimate over those with an id in `pool`
     /// (all when `None`), each drive counted once; no decisions.
     pub fn of_rows(vehicle: &str, rows: Vec<HistoryRow>, pool: Option<&[i64]>) -> VehicleHistory {
-        let (standing, set_aside) = pooled::counted_once(&rows);
+        let judged: Vec<HistoryRow> = rows.iter().filter(|r| !pooled::is_rejected(r)).cloned().collect();
+        let (standing, set_aside) = pooled::counted_once(&judged);
         let drift = pooled::drift_between(&standing);
         let pooled_rows: Vec<HistoryRow> =
             rows.iter().filter(|r| pool.is_none_or(|ids| ids.contains(&r.id))).cloned().collect();
@@ -329,8 +331,17 @@ impl std::fmt::Display for VehicleHistory {
             }
         }
         if let Some(p) = &self.pooled {
-            let aside =
+            let mut aside =
                 if p.set_aside.is_empty() { String::new() } else { format!("; {}", set_aside_text(&p.set_aside)) };
+            if !p.rejected.is_empty() {
+                let ids: Vec<String> = p.rejected.iter().map(i64::to_string).collect();
+                let _ = write!(
+                    aside,
+                    "; not pooled, verdict rejected: row{} {}",
+                    if ids.len() == 1 { "" } else { "s" },
+                    ids.join(", ")
+                );
+            }
             writeln!(
                 f,
                 "\npooled over {} drive(s) in {} row(s){aside} (inverse-variance mean ± its σ; between-drive sd):",

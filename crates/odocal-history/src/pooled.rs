@@ -120,7 +120,7 @@ pub(crate) fn drift_between(rows: &[&HistoryRow]) -> Vec<DriftFlag> {
 /// drive counted once ([`SetAside`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Pooled {
-    /// Rows pooled (those asked for, less those set aside).
+    /// Rows pooled (those asked for, less those set aside or rejected).
     pub rows: usize,
     /// Drives they hold (a joint calibration holds several).
     #[serde(default)]
@@ -129,6 +129,10 @@ pub struct Pooled {
     /// their drive.
     #[serde(default)]
     pub set_aside: Vec<SetAside>,
+    /// Rows asked for but not pooled because their verdict is `rejected`
+    /// (ids, in recording order).
+    #[serde(default)]
+    pub rejected: Vec<i64>,
     /// Per parameter: the inverse-variance weighted mean `Σ wᵢθᵢ / Σ wᵢ`,
     /// `wᵢ = 1/σᵢ²`, when every row has a positive σ that is not the
     /// model's alone ([`CalibrationRecord::sigma_model_only`](crate::CalibrationRecord::sigma_model_only));
@@ -144,10 +148,21 @@ pub struct Pooled {
     pub between_drive_sd: Theta,
 }
 
+/// True for a row whose verdict is `rejected`: a result not to be
+/// deployed (implausible, or its checks failed) is no evidence of the
+/// vehicle's parameters, so it takes no part in the drift flags or the
+/// pooled estimate (it is listed with every row).
+pub(crate) fn is_rejected(r: &HistoryRow) -> bool {
+    r.record.verdict.as_deref() == Some("rejected")
+}
+
 /// Pools `rows` (in recording order), each drive once ([`Pooled`],
-/// [`counted_once`]); `None` without rows.
+/// [`counted_once`]), the rejected ones left out; `None` without a row
+/// that is not rejected.
 pub(crate) fn pooled_estimate(rows: &[HistoryRow]) -> Option<Pooled> {
-    let (rows, set_aside) = counted_once(rows);
+    let rejected: Vec<i64> = rows.iter().filter(|r| is_rejected(r)).map(|r| r.id).collect();
+    let judged: Vec<HistoryRow> = rows.iter().filter(|r| !is_rejected(r)).cloned().collect();
+    let (rows, set_aside) = counted_once(&judged);
     if rows.is_empty() {
         return None;
     }
@@ -185,6 +200,7 @@ pub(crate) fn pooled_estimate(rows: &[HistoryRow]) -> Option<Pooled> {
         rows: rows.len(),
         drives,
         set_aside,
+        rejected,
         mean: Theta::from(mean),
         sigma_of_mean: Theta::from(se),
         between_drive_sd: Theta::from(sd),

@@ -371,6 +371,54 @@ fn a_drive_recorded_by_several_methods_counts_once() {
     assert!((p.mean.c_e - 1.956).abs() < 1e-12, "{p:?}");
 }
 
+/// A rejected result is listed but neither flagged nor pooled, and a
+/// rejected later row of a drive leaves the drive's earlier row standing.
+#[test]
+fn a_rejected_row_is_listed_but_neither_flagged_nor_pooled() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
+    let rejected = |fp: &str, c_e: f64| CalibrationRecord {
+        verdict: Some("rejected".into()),
+        method: "batch-gn".into(),
+        ..record("van", fp, c_e, 1e-4)
+    };
+    let ids: Vec<i64> =
+        [record("van", "a", 1.950, 1e-3), rejected("a", 1.5), record("van", "b", 1.952, 1e-3), rejected("c", 0.9)]
+            .iter()
+            .map(|r| match db.record(r).expect("record") {
+                Recorded::New(id) => id,
+                other => panic!("{other:?}"),
+            })
+            .collect();
+    let h = db.vehicle("van", None).expect("history");
+    assert_eq!(h.rows.len(), 4, "every row listed");
+    assert!(h.set_aside.is_empty() && h.drift.is_empty(), "{:?} {:?}", h.set_aside, h.drift);
+    let p = h.pooled.as_ref().expect("pooled");
+    assert_eq!((p.rows, p.drives, &p.rejected), (2, 2, &vec![ids[1], ids[3]]), "{p:?}");
+    assert!((p.mean.c_e - 1.951).abs() < 1e-12, "{p:?}");
+    let text = h.to_string();
+    assert!(text.contains(&format!("not pooled, verdict rejected: rows {}, {}", ids[1], ids[3])), "{text}");
+    // Only rejected rows: nothing to pool.
+    assert!(db.vehicle("van", Some(&[ids[1], ids[3]])).expect("history").pooled.is_none());
+    // `follow` starts from the most recent row that is not rejected.
+    let csv = dir.path().join("d.csv");
+    odocal::simulate(&odocal::SimOptions { length_km: 1.0, ..odocal::SimOptions::noise_free(3) })
+        .expect("sim")
+        .drive
+        .write_csv(&csv)
+        .expect("csv");
+    let mut start = None;
+    follow(&mut db, "van", std::slice::from_ref(&csv), &FollowOptions::default(), |e| {
+        if let FollowEvent::Start { theta, origin } = e {
+            start = Some((theta, origin));
+        }
+        Ok::<(), Error>(())
+    })
+    .expect("follow");
+    let (theta, origin) = start.expect("a start");
+    assert_eq!((theta.c_e, origin), (1.952, format!("history row {}", ids[2])));
+}
+
 /// A joint calibration holds each of its drives (its fingerprint names
 /// them, comma separated): the rows of those drives alone recorded before
 /// it stand aside for it, and it counts as its drives.

@@ -89,9 +89,11 @@ impl PyHistory {
 
     /// The pooled estimate over the vehicle's rows (those with an id in
     /// `ids`, or all), each drive counted once by its most recent row:
-    /// `{"rows", "drives", "set_aside", "mean", "sigma_of_mean",
+    /// `{"rows", "drives", "set_aside", "rejected", "mean", "sigma_of_mean",
     /// "between_drive_sd"}` (`set_aside`: `{"id", "by_id"}` of each row
-    /// left out for a later row of its drive), or None without rows.
+    /// left out for a later row of its drive; `rejected`: the ids of rows
+    /// left out for their verdict `rejected`), or None without a row that
+    /// is not rejected.
     #[pyo3(signature = (vehicle, ids=None))]
     fn pooled<'py>(&self, py: Python<'py>, vehicle: &str, ids: Option<Vec<i64>>) -> PyResult<Bound<'py, PyAny>> {
         let p = self.with(|db| db.vehicle(vehicle, ids.as_deref()))?.pooled;

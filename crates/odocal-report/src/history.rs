@@ -174,11 +174,15 @@ fn drift_list(drift: &[DriftFlag]) -> String {
 fn pooled_table(p: &Pooled) -> String {
     let (m, s, b) = (<[_; 4]>::from(p.mean), <[_; 4]>::from(p.sigma_of_mean), <[_; 4]>::from(p.between_drive_sd));
     let aside: Vec<String> = p.set_aside.iter().map(|s| format!("row {} for row {}", s.id, s.by_id)).collect();
-    let aside = if aside.is_empty() {
+    let mut aside = if aside.is_empty() {
         String::new()
     } else {
         format!(" Each drive counted once, by its most recent row; set aside: {}.", aside.join(", "))
     };
+    if !p.rejected.is_empty() {
+        let ids: Vec<String> = p.rejected.iter().map(i64::to_string).collect();
+        aside.push_str(&format!(" Not pooled, their verdict rejected: row(s) {}.", ids.join(", ")));
+    }
     let mut h = format!(
         "<p>Pooled over {} drive(s) in {} row(s): the inverse-variance mean ± its σ and the between-drive sd.{aside}</p>\n\
          <table><tr><th>parameter</th><th>mean ± σ</th><th>between-drive sd</th></tr>\n",

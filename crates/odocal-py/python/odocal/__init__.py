@@ -253,7 +253,8 @@ class History(_History):
     consecutive rows beyond three combined σ; ``pooled(vehicle, ids=None)``:
     the inverse-variance mean with the between-drive sd. Both count each
     drive once, by its most recent row (a drive calibrated by several
-    methods has a row for each); ``pooled`` names the rows set aside;
+    methods has a row for each), and leave out rows whose verdict is
+    ``rejected``; ``pooled`` names the rows set aside and those rejected;
     ``decisions(vehicle)``: the write-back decisions of ``odocal follow``;
     ``latest(vehicle)``. Errors raise :class:`OdocalError`.
     """
