@@ -47,17 +47,30 @@ pub struct SimulateArgs {
 }
 
 /// The simulator's errors of the options a flag sets, as usage errors
-/// naming the flag: the route's length, and the drift (`--ce-ramp-per-hour`
-/// or `--cd-step`, whichever is given, or both).
+/// naming the flag: the route's length (`demo` and `simulate`).
 pub fn flag_error(e: odocal::Error) -> odocal::Error {
     match e {
         odocal::Error::InvalidOption { field: "length_km", reason } => {
             odocal::Error::InvalidFlags(format!("--length-km: {reason}"))
         }
-        odocal::Error::InvalidOption { field: "drift", reason } => {
-            odocal::Error::InvalidFlags(format!("--ce-ramp-per-hour, --cd-step: {reason}"))
-        }
         e => e,
+    }
+}
+
+/// [`flag_error`], and the drift's errors naming the drift flags given
+/// (`--ce-ramp-per-hour`, `--cd-step`, or both).
+fn simulate_flag_error(a: &SimulateArgs, e: odocal::Error) -> odocal::Error {
+    match e {
+        odocal::Error::InvalidOption { field: "drift", reason } => {
+            let given: Vec<&str> =
+                [("--ce-ramp-per-hour", a.ce_ramp_per_hour.is_some()), ("--cd-step", a.cd_step.is_some())]
+                    .into_iter()
+                    .filter_map(|(flag, given)| given.then_some(flag))
+                    .collect();
+            let flags = if given.is_empty() { "--ce-ramp-per-hour, --cd-step".to_string() } else { given.join(", ") };
+            odocal::Error::InvalidFlags(format!("{flags}: {reason}"))
+        }
+        e => flag_error(e),
     }
 }
 
@@ -126,7 +139,7 @@ pub fn run(mut a: SimulateArgs, bars: &Bars) -> Result<()> {
     }
     o.drift.c_d_step = a.cd_step;
     bars.stage("simulating");
-    let out = sim::simulate(&o).map_err(flag_error)?;
+    let out = sim::simulate(&o).map_err(|e| simulate_flag_error(&a, e))?;
     bars.finish();
     out.drive.write_csv(&a.out)?;
     out.sidecar.write_beside(&a.out)?;
