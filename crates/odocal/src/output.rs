@@ -110,24 +110,22 @@ where
     F: FnOnce(&mut dyn Write) -> std::io::Result<()>,
 {
     let io = |source| Error::io(path, source);
-    // A device, a FIFO, a socket, also behind links that name no path, such
-    // as `/dev/stdout` on a pipe (`/proc/self/fd/1` → `pipe:[…]`): there is
-    // nothing to replace, and the file is written where it is opened.
-    if std::fs::metadata(path).is_ok_and(|m| !m.is_file() && !m.is_dir()) {
-        return write_in_place(path, write).map_err(io);
-    }
-    let target = resolve_link(path);
-    match std::fs::metadata(&target) {
+    // What `path` names, its links followed by the system: also through a
+    // link that names no path, such as `/dev/stdout` on a pipe
+    // (`/proc/self/fd/1` → `pipe:[…]`), which `resolve_link` cannot follow.
+    match std::fs::metadata(path) {
         Ok(_) if !replace => {
             return Err(io(std::io::Error::new(std::io::ErrorKind::AlreadyExists, "exists; it is not replaced")))
         }
         Ok(m) if m.is_dir() => {
             return Err(io(std::io::Error::new(std::io::ErrorKind::IsADirectory, "is a directory, not a file")))
         }
-        // A device, a FIFO, a socket: there is nothing to replace.
-        Ok(m) if !m.is_file() => return write_in_place(&target, write).map_err(io),
+        // A device, a FIFO, a socket: there is nothing to replace, and the
+        // file is written where it is opened.
+        Ok(m) if !m.is_file() => return write_in_place(path, write).map_err(io),
         _ => {}
     }
+    let target = resolve_link(path);
     let dir = match target.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => PathBuf::from("."),
