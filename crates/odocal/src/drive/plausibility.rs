@@ -229,7 +229,8 @@ const STALL_FRACTION: f64 = 0.1;
 fn stalled_signal(drive: &Drive, theta0: &Theta) -> Option<String> {
     let ts = drive.sample_time_s();
     let w = ((STALL_WINDOW_S / ts).round() as usize).max(1);
-    let min_run = ((STALL_MIN_S / ts).round() as usize).max(1);
+    // A run of windows covers the run plus one window of samples.
+    let min_windows = ((STALL_MIN_S / ts).round() as usize).saturating_sub(w).max(1);
     let (px, py, t) = (drive.px(), drive.py(), drive.t());
     let m = drive.measured();
     let (mut wheel_total, mut reference_total) = (0.0, 0.0);
@@ -238,7 +239,7 @@ fn stalled_signal(drive: &Drive, theta0: &Theta) -> Option<String> {
         let prefix = |n: &[f64]| {
             let mut acc = vec![0.0; part.len() + 1];
             for (k, i) in part.clone().enumerate() {
-                acc[k + 1] = acc[k] + theta0.c_e * n[i].abs() * ts;
+                acc[k + 1] = acc[k] + wheel_distance(theta0, n, i, ts);
             }
             acc
         };
@@ -249,49 +250,40 @@ fn stalled_signal(drive: &Drive, theta0: &Theta) -> Option<String> {
         if part.len() <= w {
             continue;
         }
-        let windows = part.len() - w;
         let min_distance = STALL_MIN_SPEED_M_PER_S * w as f64 * ts;
         let reference_distance = |k: usize| {
             let (a, b) = (part.start + k, part.start + k + w);
             (px[b] - px[a]).hypot(py[b] - py[a])
         };
-        // (which signal, its name, stalled in window k)
-        let checks: [(&str, &dyn Fn(usize) -> bool); 3] = [
-            ("n_rl", &|k| {
-                let r = reference_distance(k);
-                r >= min_distance && left[k + w] - left[k] < STALL_FRACTION * r
-            }),
-            ("n_rr", &|k| {
-                let r = reference_distance(k);
-                r >= min_distance && right[k + w] - right[k] < STALL_FRACTION * r
-            }),
-            ("px, py", &|k| {
+        let wheel_stalled = |acc: &[f64], k: usize| {
+            let r = reference_distance(k);
+            r >= min_distance && acc[k + w] - acc[k] < STALL_FRACTION * r
+        };
+        let checks: [(Stall<'_>, &dyn Fn(usize) -> bool); 3] = [
+            (Stall::Wheel("n_rl", &m.n_rl), &|k| wheel_stalled(&left, k)),
+            (Stall::Wheel("n_rr", &m.n_rr), &|k| wheel_stalled(&right, k)),
+            (Stall::Reference, &|k| {
                 let wheels = 0.5 * (left[k + w] - left[k] + right[k + w] - right[k]);
                 wheels >= min_distance && reference_distance(k) < STALL_FRACTION * wheels
             }),
         ];
-        for (name, stalled) in checks {
-            let mut run = 0usize;
-            for k in 0..windows {
-                run = if stalled(k) { run + 1 } else { 0 };
-                // A run of windows spans the run plus one window of samples.
-                if run + w >= min_run && run > 0 && (k + 1 == windows || !stalled(k + 1)) {
-                    let (a, b) = trim_stall(name, drive, theta0, part.start + k + 1 - run, part.start + k + w);
-                    let what = if name == "px, py" {
-                        "the reference position (px, py) stands still while the wheels turn".to_string()
-                    } else {
-                        format!("column '{name}' reads (almost) no rotation while the reference moves")
-                    };
-                    return Some(format!(
-                        "{what}: samples {a}–{b} (t = {:.3} … {:.3} s, {:.1} s); a signal lost there (a drop-out \
-                         logged as zeros or a held value) would be calibrated as data: drop those rows and mark \
-                         the gap with a 'part' column, or import the log with a manifest",
-                        t[a],
-                        t[b],
-                        t[b] - t[a]
-                    ));
+        for (stall, stalled) in checks {
+            let Some((first, last)) = first_run(part.len() - w, min_windows, stalled) else { continue };
+            let (a, b) = stall.trim(drive, theta0, part.start + first, part.start + last + w);
+            let what = match stall {
+                Stall::Reference => "the reference position (px, py) stands still while the wheels turn".to_string(),
+                Stall::Wheel(column, _) => {
+                    format!("column '{column}' reads (almost) no rotation while the reference moves")
                 }
-            }
+            };
+            return Some(format!(
+                "{what}: samples {a}–{b} (t = {:.3} … {:.3} s, {:.1} s); a signal lost there (a drop-out \
+                 logged as zeros or a held value) would be calibrated as data: drop those rows and mark \
+                 the gap with a 'part' column, or import the log with a manifest",
+                t[a],
+                t[b],
+                t[b] - t[a]
+            ));
         }
     }
     if wheel_total >= 200.0 && reference_total < STALL_FRACTION * wheel_total {
@@ -304,31 +296,61 @@ fn stalled_signal(drive: &Drive, theta0: &Theta) -> Option<String> {
     None
 }
 
-/// The samples of a stall [`stalled_signal`] found in the windows over
-/// samples `a..=b`: from the first to the last sample whose own distance
-/// (the wheel's rotation at θ_0, or the reference's step to the next sample,
-/// counted to that next sample) is below the stall fraction of the moving
-/// side's mean over `a..=b`; `(a, b)` when none is.
-fn trim_stall(name: &str, drive: &Drive, theta0: &Theta, a: usize, b: usize) -> (usize, usize) {
-    let (px, py, ts) = (drive.px(), drive.py(), drive.sample_time_s());
-    let m = drive.measured();
-    let step = |i: usize| (px[i + 1] - px[i]).hypot(py[i + 1] - py[i]);
-    let wheel = |n: &[f64], i: usize| theta0.c_e * n[i].abs() * ts;
-    let mean = |f: &dyn Fn(usize) -> f64| (a..b).map(f).sum::<f64>() / (b - a).max(1) as f64;
-    let stalled: Vec<usize> = match name {
-        "n_rl" | "n_rr" => {
-            let n = if name == "n_rl" { &m.n_rl } else { &m.n_rr };
-            let moving = mean(&step);
-            (a..=b).filter(|&i| wheel(n, i) < STALL_FRACTION * moving).collect()
+/// The distance wheel reading `n[i]` covers over one sample at θ_0.
+fn wheel_distance(theta0: &Theta, n: &[f64], i: usize, ts: f64) -> f64 {
+    theta0.c_e * n[i].abs() * ts
+}
+
+/// The first run of at least `min` consecutive indices in `0..n` for which
+/// `stalled` holds: its first and last index.
+fn first_run(n: usize, min: usize, stalled: &dyn Fn(usize) -> bool) -> Option<(usize, usize)> {
+    let mut start = None;
+    for k in 0..=n {
+        match (k < n && stalled(k), start) {
+            (true, None) => start = Some(k),
+            (false, Some(s)) if k - s >= min => return Some((s, k - 1)),
+            (false, Some(_)) => start = None,
+            _ => {}
         }
-        _ => {
-            let moving = mean(&|i| 0.5 * (wheel(&m.n_rl, i) + wheel(&m.n_rr, i)));
-            (a..b).filter(|&i| step(i) < STALL_FRACTION * moving).flat_map(|i| [i, i + 1]).collect()
+    }
+    None
+}
+
+/// What [`stalled_signal`] found stalled: a wheel (its column and
+/// readings) or the reference position.
+#[derive(Clone, Copy)]
+enum Stall<'a> {
+    Wheel(&'static str, &'a [f64]),
+    Reference,
+}
+
+impl Stall<'_> {
+    /// The samples of a stall found in the windows over samples `a..=b`:
+    /// from the first to the last sample whose own distance (the wheel's
+    /// rotation at θ_0, or the reference's step to the next sample, counted
+    /// to that next sample) is below the stall fraction of the moving side's
+    /// mean over `a..=b`; `(a, b)` when none is.
+    fn trim(self, drive: &Drive, theta0: &Theta, a: usize, b: usize) -> (usize, usize) {
+        let (px, py, ts) = (drive.px(), drive.py(), drive.sample_time_s());
+        let m = drive.measured();
+        let step = |i: usize| (px[i + 1] - px[i]).hypot(py[i + 1] - py[i]);
+        let mean = |f: &dyn Fn(usize) -> f64| (a..b).map(f).sum::<f64>() / (b - a).max(1) as f64;
+        let stalled: Vec<usize> = match self {
+            Stall::Wheel(_, n) => {
+                let moving = mean(&step);
+                (a..=b).filter(|&i| wheel_distance(theta0, n, i, ts) < STALL_FRACTION * moving).collect()
+            }
+            Stall::Reference => {
+                let wheels =
+                    |i| 0.5 * (wheel_distance(theta0, &m.n_rl, i, ts) + wheel_distance(theta0, &m.n_rr, i, ts));
+                let moving = mean(&wheels);
+                (a..b).filter(|&i| step(i) < STALL_FRACTION * moving).flat_map(|i| [i, i + 1]).collect()
+            }
+        };
+        match (stalled.iter().min(), stalled.iter().max()) {
+            (Some(&first), Some(&last)) => (first, last),
+            _ => (a, b),
         }
-    };
-    match (stalled.iter().min(), stalled.iter().max()) {
-        (Some(&first), Some(&last)) => (first, last),
-        _ => (a, b),
     }
 }
 
