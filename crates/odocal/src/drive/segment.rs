@@ -50,6 +50,11 @@ impl SegmentOptions {
     }
 }
 
+/// The shortest segment, samples: one step between two samples.
+pub(crate) const MIN_LENGTH_STEPS: usize = 2;
+/// The smallest stride between segments' starts, samples.
+pub(crate) const MIN_STRIDE_STEPS: usize = 1;
+
 /// Segment length and stride checks shared by both option structs, naming
 /// the offending one as the command line, a manifest's `[calibration]` and
 /// Python name it (`names`: the length's and the stride's).
@@ -57,11 +62,13 @@ fn check_length_and_stride(
     (length_steps, stride_steps): (usize, usize),
     (length, stride): (&'static str, &'static str),
 ) -> Result<()> {
-    if length_steps < 2 {
-        return Err(Error::InvalidOption { field: length, reason: "must be at least 2 samples (length_steps)".into() });
+    if length_steps < MIN_LENGTH_STEPS {
+        let reason = format!("must be at least {MIN_LENGTH_STEPS} samples (length_steps)");
+        return Err(Error::InvalidOption { field: length, reason });
     }
-    if stride_steps == 0 {
-        return Err(Error::InvalidOption { field: stride, reason: "must be at least 1 sample (stride_steps)".into() });
+    if stride_steps < MIN_STRIDE_STEPS {
+        let reason = format!("must be at least {MIN_STRIDE_STEPS} sample (stride_steps)");
+        return Err(Error::InvalidOption { field: stride, reason });
     }
     Ok(())
 }

@@ -402,12 +402,13 @@ impl Settings {
         if self.final_segments == Some(FinalSegments::Random(0)) {
             return Some(("final_segments", "= 0: must be at least 1 (or all)".into()));
         }
-        // A segment is at least one step between two samples; the options'
-        // check (`drive::segment`) refuses these again, naming no source.
+        // The floors of `drive::segment`, whose options' check refuses these
+        // again, naming no source.
+        use crate::drive::segment::{MIN_LENGTH_STEPS, MIN_STRIDE_STEPS};
         for (key, v, min) in [
-            ("segment_length", self.segment_length, 2),
-            ("validation_length", self.validation_length, 2),
-            ("segment_stride", self.segment_stride, 1),
+            ("segment_length", self.segment_length, MIN_LENGTH_STEPS),
+            ("validation_length", self.validation_length, MIN_LENGTH_STEPS),
+            ("segment_stride", self.segment_stride, MIN_STRIDE_STEPS),
         ] {
             if let Some(v) = v.filter(|v| *v < min) {
                 let unit = if min == 1 { "sample" } else { "samples" };
