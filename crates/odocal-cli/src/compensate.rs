@@ -19,7 +19,7 @@ use odocal::{Drive, ExtraColumn, ExtraValues, Extrinsics, HeadingOffsetFit, Vali
 
 use crate::args::ThetaArg;
 use crate::io::{load_drive_with_scale, print_warnings};
-use crate::output::{write_drive, Files};
+use crate::output::{report_line, write_drive, Files};
 use crate::progress::Bars;
 
 /// Arguments of `odocal compensate`.
@@ -99,11 +99,7 @@ pub fn run(mut a: CompensateArgs, bars: &Bars) -> Result<()> {
     );
     // With the CSV on stdout, the summary goes to stderr.
     for line in notes.iter().chain([&summary]) {
-        if is_stdout(&a.out) {
-            eprintln!("{line}");
-        } else {
-            println!("{line}");
-        }
+        report_line(is_stdout(&a.out), line);
     }
     Ok(())
 }

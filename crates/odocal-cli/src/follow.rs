@@ -13,7 +13,7 @@ use odocal_online::{Calibrator, OnlineOptions, RandomWalk};
 use serde_json::{json, Value};
 
 use crate::args::{HelpArgs, ThetaArg};
-use crate::output::{write_text, Files};
+use crate::output::{report_line, write_text, Files};
 use crate::progress::Bars;
 
 /// The method the parameter files written name.
@@ -166,13 +166,7 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
     // report goes to stderr, so stdout holds that output alone.
     let params_to_stdout = a.params_out.as_deref().is_some_and(odocal::output::is_stdout);
     let text_to_stderr = params_to_stdout || a.json.as_deref().is_some_and(odocal::output::is_stdout);
-    let say = |line: String| {
-        if text_to_stderr {
-            eprintln!("{line}");
-        } else {
-            println!("{line}");
-        }
-    };
+    let say = |line: String| report_line(text_to_stderr, &line);
     let mut entries = Vec::with_capacity(a.drive.len());
     // The last written update's file, for `--params-out -`.
     let mut last_written: Option<ParamFile> = None;

@@ -8,7 +8,7 @@ use clap::Args;
 use odocal::output::is_stdout;
 
 use crate::io::write_json;
-use crate::output::{write_drive, Files};
+use crate::output::{report_line, write_drive, Files};
 
 /// Arguments of `odocal import`.
 #[derive(Args)]
@@ -44,11 +44,8 @@ pub fn run(a: ImportArgs) -> Result<()> {
         }
     }
     // With the CSV on stdout, the report goes to stderr.
-    let report = imported.report.to_string();
-    if is_stdout(&a.out) {
-        eprintln!("{}", report.trim_end());
-    } else {
-        println!("{}", report.trim_end());
+    report_line(is_stdout(&a.out), imported.report.to_string().trim_end());
+    if !is_stdout(&a.out) {
         println!("wrote {}", a.out.display());
     }
     Ok(())

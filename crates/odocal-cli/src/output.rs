@@ -144,6 +144,16 @@ fn check_folder_takes_files(o: &FileRole, folder: &Path) -> Result<()> {
     }
 }
 
+/// Prints a line of the text report: on stdout, or on stderr when an
+/// output (`-`) takes stdout, so that stdout holds that output alone.
+pub fn report_line(stdout_taken: bool, line: &str) {
+    if stdout_taken {
+        eprintln!("{line}");
+    } else {
+        println!("{line}");
+    }
+}
+
 /// Refuses `-` (stdout, also as `/dev/stdout`), a device or a pipe for an
 /// output that needs a file (a drive with its sidecar beside it), saying
 /// why.
