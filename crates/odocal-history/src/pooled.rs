@@ -153,7 +153,7 @@ pub struct Pooled {
 /// vehicle's parameters, so it takes no part in the drift flags or the
 /// pooled estimate (it is listed with every row).
 pub(crate) fn is_rejected(r: &HistoryRow) -> bool {
-    r.record.verdict.as_deref() == Some("rejected")
+    r.record.verdict.as_deref().is_some_and(|v| v == odocal::VerdictLevel::Rejected.to_string())
 }
 
 /// Pools `rows` (in recording order), each drive once ([`Pooled`],
