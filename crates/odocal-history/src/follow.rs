@@ -102,7 +102,11 @@ struct Stored {
 /// temporary files); another manifest is imported whole. A drive the
 /// vehicle's history holds already (among its logged decisions, or in a
 /// recorded calibration by any method) is skipped
-/// ([`FollowEvent::Skipped`]): replaying it would count its samples twice. After
+/// ([`FollowEvent::Skipped`]): replaying it would count its samples twice.
+/// Every other drive is judged first as a calibration judges its drive
+/// ([`Replay::check`] at the θ in use): a drive with a lost signal or a
+/// wrong convention stops the replay with an error naming it, before it
+/// reaches the calibrator; the drives before it stay recorded. After
 /// each drive the gates judge the estimate against the stored θ; the
 /// decision is logged, and a write is recorded as a calibration (method
 /// `online`) that the next drives are judged against. `on` sees every
@@ -129,7 +133,7 @@ struct Stored {
 /// ```
 ///
 /// # Errors
-/// A drive's read errors; a drive whose sample time is not the first
+/// A drive's read errors and [`Replay::check`]'s; a drive whose sample time is not the first
 /// drive's; the options' ([`Calibrator::new`]); the history's; `on`'s.
 pub fn follow<E: From<Error>>(
     db: &mut History,
@@ -173,6 +177,10 @@ pub fn follow<E: From<Error>>(
             on(FollowEvent::Skipped { source, fingerprint, row })?;
             continue;
         }
+        // Judged as a calibration judges its drive: a lost signal or a
+        // wrong convention would enter the recursion, and every later
+        // drive's estimate with it.
+        drive.check(&stored.theta)?;
         let c = match cal.as_mut() {
             Some(c) => c,
             None => {

@@ -467,3 +467,40 @@ fn follow_skips_a_drive_the_history_holds_a_calibration_of() {
     assert_eq!(db.rows("van").expect("rows").len(), 1);
     assert_eq!(db.decision_count("van").expect("decisions"), 0);
 }
+
+/// `follow` judges each drive before the calibrator sees it: a wheel
+/// logged as zeros for 100 s of driving stops the replay with an error
+/// naming the file, the column and the samples, after the drive before it
+/// was followed and recorded; the bad drive leaves no decision.
+#[test]
+fn follow_refuses_a_drive_with_a_lost_signal() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let sim = |seed| {
+        odocal::simulate(&odocal::SimOptions { length_km: 3.0, ..odocal::SimOptions::paper(seed) }).expect("sim").drive
+    };
+    let good = dir.path().join("good.csv");
+    sim(1).write_csv(&good).expect("csv");
+    let d = sim(2);
+    let mut s = d.measured().clone();
+    s.n_rl[2000..6000].iter_mut().for_each(|v| *v = 0.0);
+    let lost = dir.path().join("lost.csv");
+    odocal::DriveBuilder { t: d.t().to_vec(), measured: s, ..Default::default() }
+        .build()
+        .expect("drive")
+        .write_csv(&lost)
+        .expect("csv");
+    let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
+    let mut followed = Vec::new();
+    let e = follow(&mut db, "van", &[good, lost.clone()], &FollowOptions::default(), |e| {
+        if let FollowEvent::Followed { source, .. } = e {
+            followed.push(source);
+        }
+        Ok::<(), Error>(())
+    })
+    .expect_err("the lost signal is refused")
+    .to_string();
+    assert!(e.contains(&lost.display().to_string()) && e.contains("column 'n_rl' reads (almost) no rotation"), "{e}");
+    assert!(e.contains("samples 2000–"), "{e}");
+    assert_eq!(followed.len(), 1, "{followed:?}");
+    assert_eq!(db.decision_count("van").expect("decisions"), 1);
+}

@@ -132,8 +132,15 @@ pub(crate) fn check_limits(drive: &Drive, limits: &PhysicalLimits, context: &str
 /// [`Error::InvalidDrive`] naming the convention to check, or the signal
 /// that stalls and where.
 pub(crate) fn check_conventions(drive: &Drive, theta0: &Theta, context: &str) -> Result<()> {
+    check_conventions_from(drive, theta0, context, 0)
+}
+
+/// [`check_conventions`] of a block of a longer drive whose first sample
+/// is the drive's sample `first` (the samples a message names count from
+/// the drive's start).
+pub(crate) fn check_conventions_from(drive: &Drive, theta0: &Theta, context: &str, first: usize) -> Result<()> {
     use crate::model::{kinematics, wrap_angle};
-    if let Some(reason) = stalled_signal(drive, theta0) {
+    if let Some(reason) = stalled_signal(drive, theta0, first) {
         return Err(Error::InvalidDrive { context: context.to_string(), reason });
     }
     let ts = drive.sample_time_s();
@@ -210,6 +217,13 @@ const STALL_MIN_SPEED_M_PER_S: f64 = 2.0;
 /// distance over each window.
 const STALL_FRACTION: f64 = 0.1;
 
+/// Samples two blocks of a drive judged one at a time must share for
+/// every stall [`stalled_signal`] reports in the whole drive to lie whole
+/// in one of them: the shortest stall and a window on either side.
+pub(crate) fn stall_overlap_samples(sample_time_s: f64) -> usize {
+    ((STALL_MIN_S + 2.0 * STALL_WINDOW_S) / sample_time_s).ceil() as usize
+}
+
 /// A signal that stalls while the drive moves, in words, or `None`:
 ///
 /// - a wheel (`n_rl`, `n_rr`) that covers less than a tenth of the
@@ -225,8 +239,8 @@ const STALL_FRACTION: f64 = 0.1;
 /// Distances are compared over windows of [`STALL_WINDOW_S`] (the
 /// reference's noise over one sample would hide nothing and flag much), each
 /// window within one part; c_d is left out (a wheel's circumference is c_e to
-/// within a few per mille).
-fn stalled_signal(drive: &Drive, theta0: &Theta) -> Option<String> {
+/// within a few per mille). Samples are named counting from `offset`.
+fn stalled_signal(drive: &Drive, theta0: &Theta, offset: usize) -> Option<String> {
     let ts = drive.sample_time_s();
     let w = ((STALL_WINDOW_S / ts).round() as usize).max(1);
     // A run of windows covers the run plus one window of samples.
@@ -277,9 +291,11 @@ fn stalled_signal(drive: &Drive, theta0: &Theta) -> Option<String> {
                 }
             };
             return Some(format!(
-                "{what}: samples {a}–{b} (t = {:.3} … {:.3} s, {:.1} s); a signal lost there (a drop-out \
+                "{what}: samples {}–{} (t = {:.3} … {:.3} s, {:.1} s); a signal lost there (a drop-out \
                  logged as zeros or a held value) would be calibrated as data: drop those rows and mark \
                  the gap with a 'part' column, or import the log with a manifest",
+                offset + a,
+                offset + b,
                 t[a],
                 t[b],
                 t[b] - t[a]
@@ -573,7 +589,7 @@ mod tests {
             .expect("sim");
         let d = &sim.drive;
         let th = Theta::PAPER_INITIAL;
-        assert_eq!(stalled_signal(d, &th), None);
+        assert_eq!(stalled_signal(d, &th, 0), None);
         let edit = |f: &dyn Fn(&mut Signals)| {
             let mut s = d.measured().clone();
             f(&mut s);
@@ -590,7 +606,7 @@ mod tests {
         assert!(m.contains("column 'n_rr'") && m.contains("samples 3000–3119"), "{m}");
         // A wheel at zero for 1 s is not reported (shorter than 2 s).
         let blip = edit(&|s| s.n_rr[3000..3040].iter_mut().for_each(|v| *v = 0.0));
-        assert_eq!(stalled_signal(&blip, &th), None);
+        assert_eq!(stalled_signal(&blip, &th, 0), None);
         // A position held for the last 10 s while the wheels turn (held
         // within the drive, it would jump back at its end, which the
         // physical limits refuse).
@@ -612,7 +628,7 @@ mod tests {
             s.px.iter_mut().for_each(|v| *v = 0.0);
             s.py.iter_mut().for_each(|v| *v = 0.0);
         });
-        let m = stalled_signal(&frozen, &th).expect("frozen");
+        let m = stalled_signal(&frozen, &th, 0).expect("frozen");
         assert!(m.contains("(px, py) stands still"), "{m}");
     }
 }

@@ -4,10 +4,12 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::drive::{Drive, DriveStream, StreamChunk};
+use crate::drive::plausibility::{check_conventions, check_conventions_from, stall_overlap_samples};
+use crate::drive::{Drive, DriveBuilder, DriveStream, Signals, StreamChunk};
 use crate::error::{Error, Result};
 use crate::io::import::stream::{self, reader::ManifestStream, StreamOptions};
 use crate::io::import::{is_manifest_path, load_drive, manifest::Manifest};
+use crate::model::Theta;
 
 /// Samples per chunk (10 s at 40 Hz).
 const CHUNK: usize = 400;
@@ -108,6 +110,46 @@ impl Replay {
         &self.path
     }
 
+    /// Judges the drive as a calibration judges its drive before fitting
+    /// it, at θ_0 = `theta0`: a wheel that reads (almost) no rotation while
+    /// the reference moves, or a reference that stands still while the
+    /// wheels turn, for 2 s or more; the wheel speeds' sign and scale, the
+    /// heading's and the yaw rate's convention, a_y's sign and unit. A
+    /// drive read as a stream is judged in blocks of 65 536 samples (27
+    /// minutes at 40 Hz) that share more than the shortest stall's samples,
+    /// so its memory stays flat and a stall anywhere is found; the
+    /// conventions are judged on each block.
+    ///
+    /// # Errors
+    /// [`Error::InvalidDrive`] naming the file and what to check: the
+    /// signal that stalls and its samples (counted from the drive's first),
+    /// or the convention; a streamed drive's read errors.
+    pub fn check(&self, theta0: &Theta) -> Result<()> {
+        self.check_in_blocks(theta0, CHECK_BLOCK)
+    }
+
+    /// [`Replay::check`] with blocks of at most `size` samples (at least
+    /// twice the blocks' overlap).
+    fn check_in_blocks(&self, theta0: &Theta, size: usize) -> Result<()> {
+        let context = self.path.display().to_string();
+        match &self.source {
+            Source::Whole(d) => check_conventions(d, theta0, &context),
+            Source::Stream(s) => {
+                let overlap = stall_overlap_samples(s.sample_time_s);
+                let mut block = Block::default();
+                for chunk in s.chunks(CHUNK) {
+                    let chunk = chunk?;
+                    if !block.t.is_empty() && block.t.len() + chunk.t.len() > size.max(2 * overlap) {
+                        let next = block.tail(overlap);
+                        std::mem::replace(&mut block, next).judge(s.sample_time_s, theta0, &context)?;
+                    }
+                    block.push(chunk);
+                }
+                block.judge(s.sample_time_s, theta0, &context)
+            }
+        }
+    }
+
     /// The samples in chunks of 400 (10 s at 40 Hz), part by part in time
     /// order; a chunk never spans two parts. A drive imported whole is cut
     /// the same way, so the chunks do not depend on how the file was read.
@@ -119,6 +161,62 @@ impl Replay {
             Source::Stream(s) => Box::new(s.chunks(CHUNK)),
             Source::Whole(d) => Box::new(whole_chunks(d, CHUNK).map(Ok)),
         }
+    }
+}
+
+/// Samples of a streamed drive [`Replay::check`] judges at once.
+const CHECK_BLOCK: usize = 1 << 16;
+
+/// Consecutive samples of a streamed drive, with their parts.
+#[derive(Default)]
+struct Block {
+    /// The drive's index of the first sample.
+    first: usize,
+    t: Vec<f64>,
+    signals: Signals,
+    /// The drive's part of each sample.
+    part: Vec<i64>,
+}
+
+impl Block {
+    fn push(&mut self, chunk: StreamChunk) {
+        if self.t.is_empty() {
+            self.first = chunk.start;
+        }
+        self.part.extend(std::iter::repeat_n(chunk.part as i64, chunk.t.len()));
+        self.t.extend(chunk.t);
+        let c = chunk.signals;
+        self.signals
+            .extend((0..c.px.len()).map(|i| [c.px[i], c.py[i], c.psi[i], c.n_rl[i], c.n_rr[i], c.beta[i], c.a_y[i]]));
+    }
+
+    /// The last `n` samples, to start the next block with.
+    fn tail(&self, n: usize) -> Block {
+        let k = self.t.len().saturating_sub(n);
+        Block {
+            first: self.first + k,
+            t: self.t[k..].to_vec(),
+            signals: self.signals.slice(k..self.t.len()),
+            part: self.part[k..].to_vec(),
+        }
+    }
+
+    /// [`check_conventions`] of the block as a drive of its own.
+    fn judge(self, sample_time_s: f64, theta0: &Theta, context: &str) -> Result<()> {
+        if self.t.len() < 2 {
+            return Ok(());
+        }
+        let first = self.first;
+        let drive = DriveBuilder {
+            context: context.to_string(),
+            t: self.t,
+            measured: self.signals,
+            part_ids: Some(self.part),
+            sample_time_s: Some(sample_time_s),
+            ..Default::default()
+        }
+        .build()?;
+        check_conventions_from(&drive, theta0, context, first)
     }
 }
 
@@ -224,6 +322,46 @@ mod tests {
     use super::*;
     use crate::drive::DriveBuilder;
     use crate::sim::{simulate, SimOptions};
+
+    /// A streamed drive is judged as the whole drive is: a stall anywhere,
+    /// across the blocks' boundaries too, is found and named with the
+    /// whole drive's samples, and a consistent drive passes.
+    #[test]
+    fn a_streamed_drive_is_judged_as_the_whole_drive() {
+        let d = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("simulate").drive;
+        let th = Theta::PAPER_INITIAL;
+        let dir = tempfile::tempdir().expect("tmp");
+        let judge = |name: &str, drive: &Drive, size: usize| {
+            let p = dir.path().join(name);
+            drive.write_csv(&p).expect("write");
+            let whole = Drive::read_csv(&p).expect("whole").0;
+            let replay = Replay::open(&p, |_| Ok::<(), Error>(())).expect("open");
+            assert!(matches!(replay.source, Source::Stream(_)));
+            let streamed = replay.check_in_blocks(&th, size).err().map(|e| e.to_string());
+            let whole = check_conventions(&whole, &th, &p.display().to_string()).err().map(|e| e.to_string());
+            (streamed, whole)
+        };
+        for size in [1000, 1 << 16] {
+            let (streamed, whole) = judge("ok.csv", &d, size);
+            assert_eq!((streamed, whole), (None, None));
+        }
+        // One wheel at zero for 3 s (120 samples), within blocks and across
+        // their boundaries: the blocks of at most 1 000 samples, filled by
+        // chunks of 400 and sharing 160, are 0..800, 640..1600, 1440..2400,
+        // 2240..3200, …; without the shared samples a stall across 800,
+        // 1600 or 2400 would leave less than 2 s in either block.
+        for start in [300, 750, 1000, 1550, 1700, 2350] {
+            let mut s = d.measured().clone();
+            s.n_rr[start..start + 120].iter_mut().for_each(|v| *v = 0.0);
+            let stalled = DriveBuilder { t: d.t().to_vec(), measured: s, ..Default::default() }.build().expect("drive");
+            for size in [1000, 1 << 16] {
+                let (streamed, whole) = judge("stall.csv", &stalled, size);
+                let m = streamed.expect("the stall is found");
+                assert!(m.contains(&format!("samples {start}–{}", start + 119)), "{m}");
+                assert_eq!(Some(m), whole);
+            }
+        }
+    }
 
     /// A drive imported whole is cut into the chunks a streamed drive
     /// hands out: the same parts, starts and values, bit for bit, so a
