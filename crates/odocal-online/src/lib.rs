@@ -217,6 +217,15 @@ pub struct DriveSummary {
     pub stored_mean_position_error_m: Option<f64>,
 }
 
+/// θ from one drive's data alone ([`Status::drive_estimate`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct OwnEstimate {
+    /// The estimate.
+    pub theta: Theta,
+    /// Its σ, scaled as [`Status::sigma`] is.
+    pub sigma: Theta,
+}
+
 /// A snapshot of a [`Calibrator`] ([`Calibrator::status`]).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Status {
@@ -247,6 +256,11 @@ pub struct Status {
     pub drive: DriveSummary,
     /// The current drive's most recently scored validation segments, oldest first.
     pub recent_validation: Vec<ValidationScore>,
+    /// θ from the current drive's folded segments alone, without the prior
+    /// the recursion carries from earlier drives (each segment linearised
+    /// where the recursion stood, with its weight): where this drive puts
+    /// θ. `None` until the drive determines every parameter.
+    pub drive_estimate: Option<OwnEstimate>,
 }
 
 /// The sample columns kept for the segments still to complete.
@@ -367,6 +381,11 @@ struct DriveState {
     prequential_sum: f64,
     stored_sum: f64,
     recent: VecDeque<ValidationScore>,
+    /// The drive's own normal equations over `[θ, δ]`, without the prior:
+    /// Σ H_k and Σ (g_k + H_k x_k) of its folded segments, each linearised
+    /// where the recursion stood (`x_k`) with the recursion's weight.
+    own_h: Mat5,
+    own_b: Vec5,
 }
 
 impl Calibrator {
@@ -685,8 +704,11 @@ impl Calibrator {
         let s2 = self.residual_variance.unwrap_or(seg_variance);
         let scale = share / s2;
         let (mut xi, mut lambda) = (x0, lambda0);
+        // This segment's normal equations at x0, for the drive's own estimate.
+        let mut own = None;
         for _ in 0..self.opts.iterations_per_segment {
             let Some((h, g, _)) = self.normal_equations(&seg, &xi, scale) else { break };
+            own.get_or_insert((h, g + h * x0));
             let post = lambda0 + h;
             let Some(step) = post.cholesky().map(|c| c.solve(&(g + h * (xi - x0)))) else { break };
             let cand = x0 + step;
@@ -698,6 +720,10 @@ impl Calibrator {
         let Some(p) = lambda.try_inverse() else { return };
         self.x = xi;
         self.p = 0.5 * (p + p.transpose());
+        if let Some((h, b)) = own {
+            self.drive.own_h += h;
+            self.drive.own_b += b;
+        }
         self.residual_variance = Some(match self.residual_variance {
             None => seg_variance,
             Some(v) => v + RESIDUAL_VARIANCE_GAIN * (seg_variance - v),
@@ -781,6 +807,29 @@ impl Calibrator {
         self.informative_s - since
     }
 
+    /// θ from the current drive's folded segments alone (without the
+    /// prior the recursion carries from earlier drives), with its σ scaled
+    /// as [`Status::sigma`] is: `None` before the drive determines every
+    /// parameter (its normal equations are not positive definite).
+    ///
+    /// The recursion follows a change of the vehicle only as fast as its
+    /// random walk allows; this estimate shows where the drive itself
+    /// puts θ, for the gates' consistency and change checks.
+    pub(crate) fn drive_estimate(&self) -> Option<OwnEstimate> {
+        let d = &self.drive;
+        let dims = if self.opts.heading_offset { 5 } else { 4 };
+        let h = d.own_h.view((0, 0), (dims, dims)).into_owned();
+        let b = d.own_b.rows(0, dims).into_owned();
+        let chol = h.cholesky()?;
+        let x = chol.solve(&b);
+        let cov = chol.inverse();
+        let f = self.opts.sigma_factors;
+        let theta = Theta { c_e: x[0], c_d: x[1], t_r: x[2], d: x[3] };
+        let sigma = Theta::from(std::array::from_fn(|i| f[i] * cov[(i, i)].max(0.0).sqrt()));
+        let finite = <[_; 4]>::from(theta).iter().chain(&<[_; 4]>::from(sigma)).all(|v| v.is_finite());
+        finite.then_some(OwnEstimate { theta, sigma })
+    }
+
     /// The current drive's most recently scored validation segments, oldest first.
     pub(crate) fn recent_validation(&self) -> impl Iterator<Item = &ValidationScore> {
         self.drive.recent.iter()
@@ -819,6 +868,7 @@ impl Calibrator {
             buffered_samples: self.buffered_samples(),
             drive: self.drive_summary(),
             recent_validation: self.drive.recent.iter().copied().collect(),
+            drive_estimate: self.drive_estimate(),
         }
     }
 

@@ -284,3 +284,44 @@ fn a_replay_at_another_sample_time_is_refused() {
     assert!(e.contains("sample time differs") && e.contains("slower.csv"), "{e}");
     assert_eq!((pushed, cal.status().drive.samples), (0, 0));
 }
+
+/// After a step in c_e (a tyre change) the recursion, started from a
+/// calibration's θ and σ, follows only as fast as its random walk allows:
+/// its estimate ends between the stored value and the truth, with a σ
+/// that does not cover the distance left. The drive's own estimate (its
+/// data alone) covers the truth; the gates compare the two, so a step
+/// beyond the change limit is flagged and a smaller one is held, not
+/// written; without a step neither reason appears.
+#[test]
+fn a_step_the_recursion_follows_slowly_is_not_written() {
+    let out = simulate(&SimOptions { length_km: 10.0, ..SimOptions::paper(105) }).expect("simulate");
+    let (d, truth) = (out.drive, out.sidecar.theta_true);
+    // A calibration's reported σ (the default method's on a 24 km drive).
+    let sigma0 = Some(Theta { c_e: 7.4e-4, c_d: 1.7e-4, t_r: 6e-3, d: 6e-5 });
+    let gates = Gates::default();
+    let drive_alone = "this drive alone puts c_e at";
+    let unsettled = "not settled on the drive's data";
+    for step in [0.025, 0.005, 0.0] {
+        let stored = Theta { c_e: truth.c_e / (1.0 + step), ..truth };
+        let mut cal = Calibrator::new(stored, sigma0, d.sample_time_s(), OnlineOptions::default()).expect("cal");
+        cal.stored = Some(stored);
+        cal.push_drive(&d, 1000, |_| {}).expect("push");
+        let (theta, sigma) = (cal.theta(), cal.sigma());
+        let own = cal.drive_estimate().expect("the drive determines θ");
+        assert!((own.theta.c_e - truth.c_e).abs() < 3.0 * own.sigma.c_e, "{own:?} against {truth:?}");
+        let decision = gates.decide(&cal, &stored, true);
+        let says = |what: &str| decision.reasons.iter().any(|r| r.contains(what));
+        if step > 0.0 {
+            // The recursion is short of the truth by more than 3 of its σ.
+            assert!(truth.c_e - theta.c_e > 3.0 * sigma.c_e, "{theta:?} ± {sigma:?}");
+            assert_ne!(decision.action, Action::Write, "step {step}: {:?}", decision.reasons);
+            assert!(says(unsettled), "step {step}: {:?}", decision.reasons);
+        } else {
+            assert!(!says(unsettled) && !says(drive_alone), "{:?}", decision.reasons);
+        }
+        assert_eq!(says(drive_alone), step > 0.01, "step {step}: {:?}", decision.reasons);
+        if step > 0.01 {
+            assert_eq!(decision.action, Action::Flag, "{:?}", decision.reasons);
+        }
+    }
+}
