@@ -360,6 +360,8 @@ pub struct Calibrator {
     unwrap: HeadingUnwrap,
     /// The time of the last sample [`Calibrator::push`] took with times.
     last_t: Option<f64>,
+    /// The last step of the previous push when it was a gap, s.
+    last_gap_s: Option<f64>,
 }
 
 /// Counters of the current drive.
@@ -433,6 +435,7 @@ impl Calibrator {
             drive: DriveState::default(),
             unwrap: HeadingUnwrap::default(),
             last_t: None,
+            last_gap_s: None,
             opts,
         })
     }
@@ -451,6 +454,7 @@ impl Calibrator {
         self.drive = DriveState::default();
         self.unwrap = HeadingUnwrap::default();
         self.last_t = None;
+        self.last_gap_s = None;
     }
 
     /// Starts a new continuous part of the current drive (after a gap):
@@ -478,7 +482,11 @@ impl Calibrator {
     ///
     /// # Errors
     /// [`Error::InvalidOption`] for columns (or `t`) of another length than
-    /// `px`, a value that is not finite, or times that do not fit.
+    /// `px`, or times that do not fit: a step neither the sample time nor a
+    /// gap, or two gaps in a row of one length (samples at another rate than
+    /// `sample_time_s`, which would each start a part and fold nothing);
+    /// [`Error::InvalidSample`] naming the column and the sample (of this
+    /// push) of a value that is not finite.
     pub fn push(&mut self, t: Option<&[f64]>, samples: &Signals) -> Result<()> {
         let s = samples;
         let cols = s.columns();
@@ -490,9 +498,20 @@ impl Calibrator {
                 reason: format!("column {name} has a length other than px's ({n})"),
             });
         }
-        let starts = match t {
+        // A value that is not finite, named by its column and sample (of this push).
+        for (name, col) in cols.iter().chain(t.map(|t| ("t", t)).as_ref()) {
+            if let Some(i) = col.iter().position(|v| !v.is_finite()) {
+                return Err(Error::InvalidSample {
+                    context: "the pushed samples".into(),
+                    column: (*name).to_string(),
+                    sample: i,
+                    reason: format!("{} is not a finite number", col[i]),
+                });
+            }
+        }
+        let (starts, last_gap) = match t {
             Some(t) => self.part_starts(t)?,
-            None => Vec::new(),
+            None => (Vec::new(), None),
         };
         let mut psi = s.psi.clone();
         self.unwrap.unwrap(&mut psi);
@@ -509,16 +528,24 @@ impl Calibrator {
         }
         if let Some(last) = t.and_then(|t| t.last()) {
             self.last_t = Some(*last);
+            self.last_gap_s = last_gap;
         }
         Ok(())
     }
 
     /// Checks times against the sample time; returns the sample indices
-    /// where a new part starts (after a gap), the first possibly 0.
-    fn part_starts(&self, t: &[f64]) -> Result<Vec<usize>> {
+    /// where a new part starts (after a gap), the first possibly 0, and
+    /// the last step when it was a gap.
+    ///
+    /// Two gaps in a row of one length (within 1 %) leave a part of one
+    /// sample between them: not gaps but samples that come at another
+    /// rate than the calibrator was made for, which would each start a
+    /// part and fold nothing.
+    fn part_starts(&self, t: &[f64]) -> Result<(Vec<usize>, Option<f64>)> {
         let ts = self.sample_time_s;
         let mut starts = Vec::new();
         let mut prev = self.last_t;
+        let mut last_gap = self.last_gap_s;
         for (i, &ti) in t.iter().enumerate() {
             if !ti.is_finite() {
                 return Err(Error::InvalidOption {
@@ -529,7 +556,20 @@ impl Calibrator {
             if let Some(p) = prev {
                 let step = ti - p;
                 if step > GAP_STEPS * ts {
+                    if last_gap.is_some_and(|g| (step - g).abs() <= STEP_TOLERANCE * g) {
+                        return Err(Error::InvalidOption {
+                            field: "sample_time_s",
+                            reason: format!(
+                                "sample {i}: the samples come every {step} s, not every {ts} s (the sample \
+                                 time the calibrator was made for): each step would be a gap and nothing \
+                                 would be folded; make the calibrator with sample_time_s = {step}"
+                            ),
+                        });
+                    }
                     starts.push(i);
+                    last_gap = Some(step);
+                    prev = Some(ti);
+                    continue;
                 } else if (step - ts).abs() > STEP_TOLERANCE * ts {
                     return Err(Error::InvalidOption {
                         field: "t",
@@ -541,8 +581,9 @@ impl Calibrator {
                 }
             }
             prev = Some(ti);
+            last_gap = None;
         }
-        Ok(starts)
+        Ok((starts, last_gap))
     }
 
     /// Takes the next samples of the current part, in time order; folds

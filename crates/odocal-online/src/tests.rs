@@ -135,10 +135,24 @@ fn bad_chunks_are_refused() {
     let s = Signals { a_y: a.clone(), ..s };
     assert!(cal.push(Some(&[0.0, 0.025]), &s).expect_err("t").to_string().contains("column t has a length"));
     let nan = Signals { n_rl: vec![0.0, f64::NAN, 0.0], ..s.clone() };
-    assert!(cal.push(None, &nan).expect_err("nan").to_string().contains("n_rl"));
+    let e = cal.push(None, &nan).expect_err("nan").to_string();
+    assert!(e.contains("column 'n_rl', sample 1: NaN is not a finite number"), "{e}");
     let e = cal.push(Some(&[0.0, 0.025, 0.06]), &s).expect_err("step").to_string();
     assert!(e.contains("sample 2: step"), "{e}");
     assert_eq!(cal.status().drive.samples, 0);
+    // Samples at 20 Hz pushed into a calibrator made for 40 Hz: every step
+    // would be a gap and nothing would fold. Refused at the second gap in a
+    // row, across pushes too; one gap alone is a gap.
+    let e = cal.push(Some(&[0.0, 0.05, 0.1]), &s).expect_err("rate").to_string();
+    assert!(e.contains("sample 2: the samples come every 0.05") && e.contains("sample_time_s = 0.05"), "{e}");
+    let two = Signals { px: vec![0.0; 2], ..slice(&s, 0..2) };
+    cal.push(Some(&[0.0, 0.025]), &two).expect("regular");
+    cal.push(Some(&[0.5, 0.525]), &two).expect("one gap");
+    cal.push(Some(&[1.0, 1.025]), &two).expect("two gaps apart");
+    let mut slow = Calibrator::new(Theta::PAPER_INITIAL, None, 0.025, OnlineOptions::default()).expect("cal");
+    slow.push(Some(&[0.0, 0.05]), &two).expect("one gap");
+    let e = slow.push(Some(&[0.1, 0.15]), &two).expect_err("rate across pushes").to_string();
+    assert!(e.contains("sample 0: the samples come every"), "{e}");
 }
 
 #[test]
