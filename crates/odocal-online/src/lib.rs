@@ -505,7 +505,7 @@ impl Calibrator {
                     context: "the pushed samples".into(),
                     column: (*name).to_string(),
                     sample: i,
-                    reason: format!("{} is not a finite number", col[i]),
+                    reason: format!("value {} is not finite", col[i]),
                 });
             }
         }

@@ -136,7 +136,7 @@ fn bad_chunks_are_refused() {
     assert!(cal.push(Some(&[0.0, 0.025]), &s).expect_err("t").to_string().contains("column t has a length"));
     let nan = Signals { n_rl: vec![0.0, f64::NAN, 0.0], ..s.clone() };
     let e = cal.push(None, &nan).expect_err("nan").to_string();
-    assert!(e.contains("column 'n_rl', sample 1: NaN is not a finite number"), "{e}");
+    assert!(e.contains("column 'n_rl', sample 1: value NaN is not finite"), "{e}");
     let e = cal.push(Some(&[0.0, 0.025, 0.06]), &s).expect_err("step").to_string();
     assert!(e.contains("sample 2: step"), "{e}");
     assert_eq!(cal.status().drive.samples, 0);
