@@ -63,6 +63,17 @@ fn validation_re_estimates_the_drive_s_own_heading_offset_unless_carried() {
         "{text}"
     );
 
+    // The library, as docs/guide.md ("The Rust library") and the example
+    // `param_file` use it, judges the file as the CLI does.
+    let file = odocal::ParamFile::read(&params, None).expect("read");
+    let theta = odocal::Theta::try_from(&file).expect("θ");
+    let mut vopts = odocal::ValidateOptions::default();
+    vopts.set_extrinsics(Some(&file), None, false);
+    let (other_drive, _) = odocal::load_drive(Path::new(&other)).expect("load");
+    let lib = odocal::validate(&other_drive, &theta, &vopts, None).expect("validate");
+    assert_eq!(lib.validation.mean_position_error_m.to_bits(), own.to_bits());
+    assert_eq!(lib.extrinsics.heading_offset.to_bits(), fit_d.to_bits());
+
     // Carried: the calibration's δ, which tilts every path of this drive.
     let (v, text) = validate(&[&other, "--theta", p, "--carry-heading-offset"]);
     assert!(v["heading_offset_fit"].is_null(), "{v}");
