@@ -14,7 +14,7 @@ use odocal::{
 };
 
 use crate::args::{CalibrationArgs, HalfArg, HelpArgs, ThetaArg};
-use crate::io::{drive_entry, load_drive_with_scale, load_truth, print_warnings, write_json};
+use crate::io::{drive_entry, load_drive_with_scale, load_truth, print_warnings, truth_of, write_json};
 use crate::output::{refuse_sidecar_onto_drive, refuse_stdout, write_text, Files};
 use crate::progress::Bars;
 use crate::simulate::sim_options;
@@ -100,7 +100,7 @@ pub fn calibrate_cmd(a: CalibrateArgs, bars: &Bars) -> Result<Outcome> {
     let fingerprints = distinct_drives(&a.drive, &drives, &others)?;
     let first = &a.drive[0];
     let (drive, truth) = if drives.len() == 1 {
-        let truth = load_truth(first, &drives[0]).map(|s| (s.theta_true, s.settings.reference_mount));
+        let truth = load_truth(first, &drives[0]).as_ref().map(truth_of);
         (drives.swap_remove(0), truth)
     } else {
         let refs: Vec<&Drive> = drives.iter().collect();
@@ -160,7 +160,7 @@ pub fn demo_cmd(a: DemoArgs, bars: &Bars) -> Result<Outcome> {
         input: "simulated drive".into(),
         source: None,
         manifests: &[],
-        truth: Some((sim.sidecar.theta_true, sim.sidecar.settings.reference_mount)),
+        truth: Some(truth_of(&sim.sidecar)),
         others,
         fingerprints,
         separate: &[],
