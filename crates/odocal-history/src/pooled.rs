@@ -92,7 +92,7 @@ pub(crate) fn counted_once(rows: &[HistoryRow]) -> (Vec<&HistoryRow>, Vec<SetAsi
 /// pairs where either row has no σ for it are skipped.
 pub(crate) fn drift_between(rows: &[&HistoryRow]) -> Vec<DriftFlag> {
     let mut out = Vec::new();
-    for i in 0..4 {
+    for (i, name) in THETA_NAMES.iter().enumerate() {
         let measured: Vec<&HistoryRow> = rows.iter().copied().filter(|r| r.record.measured(i)).collect();
         for w in measured.windows(2) {
             let (a, b) = (w[0], w[1]);
@@ -103,7 +103,7 @@ pub(crate) fn drift_between(rows: &[&HistoryRow]) -> Vec<DriftFlag> {
             let combined = sa.hypot(sb);
             if change.abs() > DRIFT_SIGMAS * combined {
                 out.push(DriftFlag {
-                    parameter: THETA_NAMES[i].to_string(),
+                    parameter: name.to_string(),
                     from_id: a.id,
                     from_recorded_at: a.recorded_at.clone(),
                     to_id: b.id,
