@@ -142,31 +142,7 @@ pub fn follow<E: From<Error>>(
     opts: &FollowOptions,
     mut on: impl FnMut(FollowEvent) -> std::result::Result<(), E>,
 ) -> std::result::Result<(), E> {
-    // A rejected result is not to be deployed, nor started from.
-    let start = db.rows(vehicle)?.into_iter().rev().find(|r| !crate::pooled::is_rejected(r));
-    let (mut stored, origin) = match start {
-        Some(r) => {
-            // A σ of the model alone (a batch G-N fit on a short drive) can
-            // be several times smaller than the spread between drives: as
-            // the recursion's start it would hold θ near the row's, so the
-            // calibrator starts from the options' prior sd instead.
-            // The recursion needs a σ for every parameter: a row with a
-            // parameter held (or without σ) starts from the prior's sd.
-            let sigma = r.record.checked_sigma().all();
-            let origin = match (sigma, r.record.sigma.all()) {
-                (None, Some(_)) => format!("history row {}; its σ is the model's alone, so the prior's sd", r.id),
-                (None, None) if r.record.sigma != crate::ParamSigma::default() => {
-                    format!("history row {}; not every parameter has a σ, so the prior's sd", r.id)
-                }
-                _ => format!("history row {}", r.id),
-            };
-            (Stored { theta: r.record.theta, sigma, calibrated: true }, origin)
-        }
-        None => {
-            let theta = opts.theta0.unwrap_or(Theta::PAPER_INITIAL);
-            (Stored { theta, sigma: None, calibrated: false }, "θ_0".to_string())
-        }
-    };
+    let (mut stored, origin) = start(db, vehicle, opts)?;
     let mut cal: Option<Calibrator> = None;
     let mut started = false;
     for path in drives {
@@ -259,4 +235,34 @@ pub fn follow<E: From<Error>>(
         })?;
     }
     Ok(())
+}
+
+/// The parameters the replay starts from, and where they come from: the
+/// vehicle's most recent row whose verdict is not `rejected`, else θ_0.
+fn start(db: &History, vehicle: &str, opts: &FollowOptions) -> Result<(Stored, String), Error> {
+    // A rejected result is not to be deployed, nor started from.
+    let start = db.rows(vehicle)?.into_iter().rev().find(|r| !crate::pooled::is_rejected(r));
+    Ok(match start {
+        Some(r) => {
+            // A σ of the model alone (a batch G-N fit on a short drive) can
+            // be several times smaller than the spread between drives: as
+            // the recursion's start it would hold θ near the row's, so the
+            // calibrator starts from the options' prior sd instead.
+            // The recursion needs a σ for every parameter: a row with a
+            // parameter held (or without σ) starts from the prior's sd.
+            let sigma = r.record.checked_sigma().all();
+            let origin = match (sigma, r.record.sigma.all()) {
+                (None, Some(_)) => format!("history row {}; its σ is the model's alone, so the prior's sd", r.id),
+                (None, None) if r.record.sigma != crate::ParamSigma::default() => {
+                    format!("history row {}; not every parameter has a σ, so the prior's sd", r.id)
+                }
+                _ => format!("history row {}", r.id),
+            };
+            (Stored { theta: r.record.theta, sigma, calibrated: true }, origin)
+        }
+        None => {
+            let theta = opts.theta0.unwrap_or(Theta::PAPER_INITIAL);
+            (Stored { theta, sigma: None, calibrated: false }, "θ_0".to_string())
+        }
+    })
 }

@@ -450,6 +450,13 @@ impl std::fmt::Display for VehicleHistory {
                 )?;
             }
         }
+        self.fmt_pooled(f)
+    }
+}
+
+impl VehicleHistory {
+    /// The pooled estimate's lines of the table (or why nothing is pooled).
+    fn fmt_pooled(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         if let Some(p) = &self.pooled {
             let mut aside =
                 if p.set_aside.is_empty() { String::new() } else { format!("; {}", set_aside_text(&p.set_aside)) };
