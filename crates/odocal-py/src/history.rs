@@ -89,11 +89,14 @@ impl PyHistory {
 
     /// The pooled estimate over the vehicle's rows (those with an id in
     /// `ids`, or all), each drive counted once by its most recent row:
-    /// `{"rows", "drives", "set_aside", "rejected", "mean", "sigma_of_mean",
-    /// "between_drive_sd"}` (`set_aside`: `{"id", "by_id"}` of each row
-    /// left out for a later row of its drive; `rejected`: the ids of rows
-    /// left out for their verdict `rejected`), or None without a row that
-    /// is not rejected.
+    /// `{"rows", "drives", "set_aside", "rejected", "online", "not_measured",
+    /// "mean", "sigma_of_mean", "between_drive_sd"}` (`set_aside`: `{"id",
+    /// "by_id"}` of each row left out for a later row of its drive;
+    /// `rejected`: the ids of rows left out for their verdict `rejected`;
+    /// `online`: the ids of the online running estimates, not pooled;
+    /// `not_measured`: `{"id", "parameter", "why"}` of each parameter a row
+    /// held or found not observable, left out of that parameter's pool; a
+    /// parameter no row measured has `None`), or None without a row to pool.
     #[pyo3(signature = (vehicle, ids=None))]
     fn pooled<'py>(&self, py: Python<'py>, vehicle: &str, ids: Option<Vec<i64>>) -> PyResult<Bound<'py, PyAny>> {
         let p = self.with(|db| db.vehicle(vehicle, ids.as_deref()))?.pooled;

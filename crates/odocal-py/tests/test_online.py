@@ -130,7 +130,7 @@ def test_options_and_gates_reach_the_library(clean_drive):
 def test_history_records_rows_flags_drift_and_pools(tmp_path, small_drive):
     db = odocal.History(tmp_path / "van.sqlite")
     assert db.schema_version >= 1
-    base = {"vehicle": "van", "method": "online", "theta": {"c_e": 0.97, "c_d": 1e-4, "t_r": 1.5, "d": 0.0},
+    base = {"vehicle": "van", "method": "eiv", "theta": {"c_e": 0.97, "c_d": 1e-4, "t_r": 1.5, "d": 0.0},
             "sigma": {"c_e": 1e-4, "c_d": 1e-5, "t_r": 1e-3, "d": 1e-5}}
     first = db.record({**base, "fingerprint": "a"})
     assert first["new"] is True

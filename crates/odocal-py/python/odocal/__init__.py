@@ -254,7 +254,10 @@ class History(_History):
     the inverse-variance mean with the between-drive sd. Both count each
     drive once, by its most recent row (a drive calibrated by several
     methods has a row for each), and leave out rows whose verdict is
-    ``rejected``; ``pooled`` names the rows set aside and those rejected;
+    ``rejected`` and each parameter a row held or found not observable
+    (``held``, ``unobservable``); ``pooled`` leaves out the ``online`` rows
+    of ``follow`` too (running estimates, each holding the drives before
+    it) and names the rows set aside, rejected and online;
     ``decisions(vehicle)``: the write-back decisions of ``odocal follow``;
     ``latest(vehicle)``. Errors raise :class:`OdocalError`.
     """
