@@ -30,7 +30,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // Read back: the same θ, to the printed precision of the file.
     let back = ParamFile::read(Path::new(out), None)?;
     let theta = odocal::Theta::try_from(&back)?;
-    println!("read back θ = {theta} (calibrated: {})", report.theta);
+    println!("read back θ: {theta} (calibrated: {})", report.theta);
 
     // Use it: dead-reckoning error on another drive of the same vehicle.
     let (other_drive, _) = load_drive(Path::new(other))?;
