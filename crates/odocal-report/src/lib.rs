@@ -367,7 +367,8 @@ fn validation_data(r: &odocal::CalibrationReport) -> Vec<String> {
             v.drives.len()
         )];
         lines.extend(v.drives.iter().map(|d| {
-            let extrinsics = d.reference_extrinsics().map(|x| format!("; reference extrinsics: {x}")).unwrap_or_default();
+            let extrinsics =
+                d.reference_extrinsics().map(|x| format!("; reference extrinsics: {x}")).unwrap_or_default();
             format!(
                 "{}: {:.3} m / {:.3} m ({} segments){extrinsics}",
                 d.name, d.mean_position_error_m, d.initial_mean_position_error_m, d.segments

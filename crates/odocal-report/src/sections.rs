@@ -246,13 +246,12 @@ pub(crate) fn map(h: &mut String, r: &ReportInput<'_>, segs: &[SegmentData<'_>],
     }
     let of = if several { format!(" of {} drives", r.drives()) } else { String::new() };
     // Each segment shown numbered at its start, as the line under the map lists them.
-    let labels = order
-        .iter()
-        .enumerate()
-        .map(|(j, &i)| (segs[i].px[0], segs[i].py[0], format!("{}", j + 1)))
-        .collect();
+    let labels = order.iter().enumerate().map(|(j, &i)| (segs[i].px[0], segs[i].py[0], format!("{}", j + 1))).collect();
     let map = Panel {
-        title: format!("reference and dead reckoning on the {} validation segments{of} where θ_0 is worst", order.len()),
+        title: format!(
+            "reference and dead reckoning on the {} validation segments{of} where θ_0 is worst",
+            order.len()
+        ),
         x_label: "x (m)".into(),
         y_label: "y (m)".into(),
         series: map_series,

@@ -949,14 +949,10 @@ pub(crate) fn hold_unobservable(
     let mut held = Vec::new();
     loop {
         let o = observability(&ne, free, identify);
-        let pick = o
-            .unobservable
-            .iter()
-            .filter(|&p| p != Param::CE && free.contains(p))
-            .min_by(|&a, &b| {
-                let s = |p: Param| o.sensitivity_m.map_or(0.0, |s| s[p.index()]);
-                s(a).total_cmp(&s(b))
-            });
+        let pick = o.unobservable.iter().filter(|&p| p != Param::CE && free.contains(p)).min_by(|&a, &b| {
+            let s = |p: Param| o.sensitivity_m.map_or(0.0, |s| s[p.index()]);
+            s(a).total_cmp(&s(b))
+        });
         match pick {
             Some(p) => {
                 free.remove(p);

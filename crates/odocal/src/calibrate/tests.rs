@@ -214,8 +214,8 @@ fn the_param_file_marks_what_the_result_names_not_observable() {
 /// warning; neither would the rcond of the two parameters the filter kept.
 #[test]
 fn the_warning_quotes_the_numbers_that_named_t_r_and_d() {
-    let path =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/psu-mapping-van-testtrack/run-14-45-26.toml");
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../examples/psu-mapping-van-testtrack/run-14-45-26.toml");
     let (drive, _) = crate::io::import::load_drive(&path).expect("import");
     let r = calibrate(&drive, &CalibrationOptions::default()).expect("calibrate");
     assert!(r.identification().expect("the start").observability.unobservable.is_empty());

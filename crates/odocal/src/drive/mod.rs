@@ -331,18 +331,17 @@ impl DriveBuilder {
         if let Some(tr) = truth.as_mut() {
             unwrap_in_place(&mut tr.psi);
         }
-        let drive =
-            Drive {
-                t,
-                measured,
-                truth,
-                reference_measured,
-                extra,
-                parts,
-                sample_time_s: ts,
-                drive_starts: vec![0],
-                drive_time_shifts_s: vec![0.0],
-            };
+        let drive = Drive {
+            t,
+            measured,
+            truth,
+            reference_measured,
+            extra,
+            parts,
+            sample_time_s: ts,
+            drive_starts: vec![0],
+            drive_time_shifts_s: vec![0.0],
+        };
         plausibility::check_limits(&drive, &limits, &context)?;
         Ok(drive)
     }

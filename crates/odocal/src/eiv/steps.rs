@@ -253,7 +253,13 @@ pub(super) fn observability_of(
         }
     }
     let collinear = (0..4).filter(|i| weak[*i]).map(|i| PARAMETERS[i]).collect();
-    EivObservability { rcond, sigma_over_resolution: ratio, start_sigma_over_resolution: start, unobservable, collinear }
+    EivObservability {
+        rcond,
+        sigma_over_resolution: ratio,
+        start_sigma_over_resolution: start,
+        unobservable,
+        collinear,
+    }
 }
 
 /// The observability decision at the first pass's start, from `h`
