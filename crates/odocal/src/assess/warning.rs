@@ -30,12 +30,12 @@ pub enum Warning {
         /// The parameters.
         params: ParamSet,
         /// Batch Gauss-Newton: RMS pose change per resolution step of each θ
-        /// parameter, m ([`crate::Observability::sensitivity_m`]).
+        /// parameter, m ([`crate::identify::Observability::sensitivity_m`]).
         #[serde(default, skip_serializing_if = "Option::is_none")]
         sensitivity_m: Option<[f64; 4]>,
         /// EIV: each θ parameter's σ over its resolution at the filter's
         /// start; above 1 the filter held it
-        /// ([`crate::Observability::sigma_over_resolution`]).
+        /// ([`crate::identify::Observability::sigma_over_resolution`]).
         #[serde(default, skip_serializing_if = "Option::is_none")]
         sigma_over_resolution: Option<[f64; 4]>,
         /// Reciprocal condition number of the equilibrated information over
