@@ -348,6 +348,11 @@ impl<'a> ReportInput<'a> {
         }
     }
 
+    /// The index of the drive sample `i` of [`ReportInput::drive`] came from.
+    fn drive_of(&self, i: usize) -> usize {
+        self.drive.drive_starts().partition_point(|&b| b <= i).saturating_sub(1)
+    }
+
     /// The samples of drive `k` in [`ReportInput::drive`].
     fn drive_samples(&self, k: usize) -> std::ops::Range<usize> {
         let starts = self.drive.drive_starts();

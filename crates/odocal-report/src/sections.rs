@@ -277,7 +277,7 @@ fn segments_shown(r: &ReportInput<'_>, starts: &[usize]) -> String {
         .map(|(j, &s)| {
             let t = drive.own_time_s(s);
             if several {
-                format!("{}: {} at {t:.1} s", j + 1, r.drive_label(drive.drive_of_sample(s)))
+                format!("{}: {} at {t:.1} s", j + 1, r.drive_label(r.drive_of(s)))
             } else {
                 format!("{}: {t:.1} s", j + 1)
             }
@@ -293,7 +293,7 @@ fn segment_axis_label(r: &ReportInput<'_>) -> String {
     if r.drives() == 1 {
         return "validation segment".into();
     }
-    let drive_of: Vec<usize> = r.validation_segments.iter().map(|s| r.drive.drive_of_sample(s.start)).collect();
+    let drive_of: Vec<usize> = r.validation_segments.iter().map(|s| r.drive_of(s.start)).collect();
     let ranges: Vec<String> = (0..r.drives())
         .filter_map(|k| {
             let first = drive_of.iter().position(|&d| d == k)?;

@@ -277,7 +277,7 @@ impl std::fmt::Display for Warning {
                          {rcond:.1e}",
                         s[0], s[1], s[2], s[3]
                     )?,
-                    (None, None) => write!(f, "rcond {rcond:.1e}")?,
+                    (None, None) => write!(f, "a near-collinear combination: rcond {rcond:.1e} < {min_rcond:.0e}")?,
                 }
                 write!(
                     f,

@@ -781,8 +781,10 @@ fn result_warnings(
     let mut warnings = selection.to_vec();
     warnings.extend(method);
     if !o.unobservable.is_empty() {
-        let (stage, min_rcond) = match (&opts.method, o.sigma_over_resolution) {
-            (Method::Eiv(m), Some(_)) => ("EIV filter", m.filter.min_rcond),
+        // An EIV result carries the filter's observability, without batch
+        // G-N's sensitivities (its fallback carries the start's, with them).
+        let (stage, min_rcond) = match (&opts.method, o.sensitivity_m) {
+            (Method::Eiv(m), None) => ("EIV filter", m.filter.min_rcond),
             _ => ("final identification", opts.identify.min_rcond),
         };
         warnings.push(Warning::Unobservable {

@@ -569,7 +569,7 @@ impl Drive {
     }
     /// The index (into [`Drive::drive_starts`]) of the drive that sample
     /// `i` came from.
-    pub fn drive_of_sample(&self, i: usize) -> usize {
+    pub(crate) fn drive_of_sample(&self, i: usize) -> usize {
         self.drive_starts.partition_point(|&b| b <= i).saturating_sub(1)
     }
     /// The time of sample `i` on the clock of the drive it came from: its

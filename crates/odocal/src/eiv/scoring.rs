@@ -231,8 +231,8 @@ impl<'p> Pass<'p> {
         let start_mode = if lean { Mode::full(follows, false) } else { full };
         let mut theta = theta0;
         let mut ev = prob.evaluate(&theta, &theta_ref, &eta0, start_mode)?;
-        let (free, unobservable, start_ratios) = if check_observability {
-            let (free, held, ratios) = fix_unobservable(&ev.total.h_theta, &free0, opts.fix_unobservable, opts);
+        let (free, unobservable, start_ratios) = if check_observability && opts.fix_unobservable {
+            let (free, held, ratios) = fix_unobservable(&ev.total.h_theta, &free0, opts);
             (free, held, Some(ratios))
         } else {
             (free0, Vec::new(), None)

@@ -263,16 +263,15 @@ pub(super) fn observability_of(
 }
 
 /// The observability decision at the first pass's start, from `h`
-/// (`H_θ` at the start's θ and the starting noise model): each free
-/// parameter's σ over its resolution, and with `hold` the parameters whose
-/// ratio exceeds 1 held fixed, one at a time (worst first, the others'
-/// ratios recomputed after each; the last free parameter is never held).
-/// Returns the reduced mask, the names held and the ratios that decided:
-/// a held parameter's when it was held, a free one's after the holds.
+/// (`H_θ` at the start's θ and the starting noise model): the free
+/// parameters whose σ exceeds their resolution held fixed, one at a time
+/// (worst first, the others' ratios recomputed after each; the last free
+/// parameter is never held). Returns the reduced mask, the names held and
+/// the ratios that decided: a held parameter's when it was held, a free
+/// one's after the holds (0 for parameters not free).
 pub(super) fn fix_unobservable(
     h: &Matrix4<f64>,
     free: &[bool; 4],
-    hold: bool,
     opts: &EivOptions,
 ) -> ([bool; 4], Vec<Parameter>, [f64; 4]) {
     let mut free = *free;
@@ -291,7 +290,7 @@ pub(super) fn fix_unobservable(
             }
         }
         match worst {
-            Some((i, _)) if hold && free.iter().filter(|f| **f).count() > 1 => {
+            Some((i, _)) if free.iter().filter(|f| **f).count() > 1 => {
                 free[i] = false;
                 fixed.push(PARAMETERS[i]);
             }

@@ -293,7 +293,8 @@ pub struct Observability {
     /// information at its start, the ratio that decided it: above 1 the
     /// filter held the parameter at its start's value and names it (0 for
     /// parameters not estimated; `EivObservability::start_sigma_over_resolution`).
-    /// `None` for batch Gauss-Newton.
+    /// `None` for batch Gauss-Newton, and for an EIV filter told not to
+    /// hold parameters (`EivOptions::fix_unobservable` off).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sigma_over_resolution: Option<[f64; 4]>,
     /// Parameters that are not observable from these data (alone or in a
