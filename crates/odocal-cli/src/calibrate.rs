@@ -286,7 +286,9 @@ fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, ba
             drive_starts(others.iter().map(|(_, d, _)| d.len()))
         };
         let truth = truth_theta.as_ref().map(|(t, mount)| (t, *mount));
-        outputs.push((p, html_report((drive, &starts), &r, opts, (&input, &prints), truth)?));
+        // The calibration's own drives by their files, when the segments are theirs.
+        let own: Vec<String> = if others.is_empty() { drive_paths(&fingerprints, "calibration") } else { Vec::new() };
+        outputs.push((p, html_report((drive, &starts, own), &r, opts, (&input, &prints), truth)?));
     }
     let outcome = if r.verdict.level == VerdictLevel::Rejected { Outcome::Rejected } else { Outcome::Done };
     if let Some(p) = json {
@@ -428,11 +430,19 @@ fn truth_error(drive: &Drive, theta: &Theta, mount: &Extrinsics, opts: &Calibrat
     Ok(odocal::validate(drive, theta, &v, None)?.validation.mean_position_error_m)
 }
 
+/// The paths of the drives of `role` in the report entries `entries`
+/// ([`drive_entry`]), in order.
+fn drive_paths(entries: &[serde_json::Value], role: &str) -> Vec<String> {
+    entries.iter().filter(|e| e["role"] == role).filter_map(|e| e["path"].as_str().map(str::to_string)).collect()
+}
+
 /// The HTML report of the calibration (`--report`;
 /// `starts`: the first sample of each `--validate-on` drive in `drive`, or
-/// of each calibration drive; `truth`: the true θ and reference mount).
+/// of each calibration drive; `names`: the calibration drives' names when
+/// the segments are theirs (the `--validate-on` drives' come with the
+/// report); `truth`: the true θ and reference mount).
 fn html_report(
-    (drive, starts): (&Drive, &[usize]),
+    (drive, starts, names): (&Drive, &[usize], Vec<String>),
     r: &CalibrationReport,
     opts: &CalibrationOptions,
     (input, fingerprint): (&str, &str),
@@ -441,7 +451,9 @@ fn html_report(
     let val = segment::validation_segments(drive, &opts.validation)?;
     // The date the calibration's parameter file records.
     let date = r.param_file(input).provenance.into_iter().find(|(k, _)| k == "date").map(|(_, v)| v);
+    let base = odocal_report::ReportInput::of_calibration(input, r, (drive, &val, starts), truth.map(|t| t.0));
     let html = odocal_report::ReportInput {
+        drive_names: if names.len() == drive.drive_starts().len() { names } else { base.drive_names.clone() },
         provenance: vec![
             ("method".into(), r.method.clone()),
             ("input".into(), input.to_string()),
@@ -451,7 +463,7 @@ fn html_report(
             ("date".into(), date.unwrap_or_default()),
         ],
         truth_extrinsics: truth.map(|t| t.1).unwrap_or_default(),
-        ..odocal_report::ReportInput::of_calibration(input, r, (drive, &val, starts), truth.map(|t| t.0))
+        ..base
     }
     // What the import warned about, as on stderr and in the JSON, before the calibration's warnings.
     .with_import_warnings(crate::io::import_warnings());

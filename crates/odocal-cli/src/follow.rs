@@ -207,13 +207,12 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
                 }
                 let e = summary.prequential_mean_position_error_m.map_or("-".into(), |e| format!("{e:.3} m"));
                 say(format!(
-                    "{source}: prequential Ē_p {e} over {} validation segment{}, {} segment{} folded; θ = {} ± {}; {}: {}",
+                    "{source}: prequential Ē_p {e} over {} validation segment{}, {} segment{} folded; {}; {}: {}",
                     summary.validation_segments,
                     if summary.validation_segments == 1 { "" } else { "s" },
                     summary.folded_segments,
                     if summary.folded_segments == 1 { "" } else { "s" },
-                    decision.theta,
-                    decision.sigma,
+                    decision.theta.display_with_sigma(&decision.sigma),
                     decision.action,
                     decision.reasons.join("; ")
                 ));

@@ -148,7 +148,7 @@ fn print_report(a: &ValidateArgs, report: &odocal::ValidateReport, extrinsics_fr
     println!("mean position error Ē_p: {:.4} m over {} validation segments", r.mean_position_error_m, r.segments);
     if let Some(rm) = &report.reachable_minimum {
         println!(
-            "reachable minimum: Ē_p {:.4} m at θ = {} ({} evaluations, {:.1} s)",
+            "reachable minimum: Ē_p {:.4} m at {} ({} evaluations, {:.1} s)",
             rm.mean_position_error_m, rm.theta, rm.evaluations, rm.time_s
         );
         if report.extrinsics != odocal::Extrinsics::default() {

@@ -262,6 +262,6 @@ impl PyCalibrator {
 
     fn __repr__(&self) -> String {
         let s = self.cal.status();
-        format!("<odocal.online.Calibrator θ = {} ± {}>", s.theta, s.sigma)
+        format!("<odocal.online.Calibrator {}>", s.theta.display_with_sigma(&s.sigma))
     }
 }

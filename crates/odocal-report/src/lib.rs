@@ -10,11 +10,13 @@
 //! 2. Ē_p of θ_0 and of the calibrated θ (and of the truth), and what data
 //!    it was measured on (the calibrated drive, a held-out half, other drives);
 //! 3. the drive as a map: the reference, and dead reckoning with θ_0 and
-//!    with the calibrated θ on a few validation segments;
+//!    with the calibrated θ on a few validation segments, each named by
+//!    its start time (and its drive, when the validation ran on several);
 //! 4. E_p,s per validation segment for θ_0 and the calibrated θ;
 //! 5. the spread of the step-1 estimates θ_B,I (3-step method);
 //! 6. residual time series: the one-step heading residual and the
-//!    dead-reckoning position error along the validation segments;
+//!    dead-reckoning position error along the validation segments, one
+//!    figure per drive on that drive's own clock;
 //! 7. the warnings and notes.
 //!
 //! [`history::render_history_html`] draws a vehicle's calibration history
@@ -167,8 +169,15 @@ pub struct ReportInput<'a> {
     pub verdict: Option<(String, Vec<String>)>,
     /// The parameter table.
     pub params: Vec<ParamRow>,
-    /// The drive.
+    /// The drive the validation segments come from; joined from several
+    /// ([`Drive::concat`]), each drive's segments are named by it and timed
+    /// on its own clock ([`Drive::own_time_s`]), and its residuals drawn
+    /// apart.
     pub drive: &'a Drive,
+    /// The names of the drives [`ReportInput::drive`] was joined from, one
+    /// per [`Drive::drive_starts`] (e.g. their files). Empty or short:
+    /// `drive 1`, `drive 2`, … for those without one.
+    pub drive_names: Vec<String>,
     /// The validation segments.
     pub validation_segments: &'a [Segment],
     /// The initial θ_0.
@@ -230,6 +239,7 @@ impl<'a> ReportInput<'a> {
             verdict: None,
             params: ParamRow::theta_rows(&theta0, &theta, None, None),
             drive,
+            drive_names: Vec::new(),
             validation_segments,
             theta0,
             theta,
@@ -251,8 +261,9 @@ impl<'a> ReportInput<'a> {
     /// sample of each drive joined in it), with the true θ when known: the
     /// parameter table with the σ that stands for the result (and the
     /// reference extrinsics when estimated), the verdict, the step-1
-    /// estimates, the warnings, the method's account and each segment's
-    /// extrinsics. The provenance lines are the caller's.
+    /// estimates, the warnings, the method's account, each segment's
+    /// extrinsics and the validation drives' names. The provenance lines
+    /// (and the names of a joint calibration's own drives) are the caller's.
     pub fn of_calibration(
         title: impl Into<String>,
         report: &odocal::CalibrationReport,
@@ -289,6 +300,12 @@ impl<'a> ReportInput<'a> {
             },
             validation_data: validation_data(r),
             eiv_unused: eiv_unused(r),
+            drive_names: r
+                .validate_on
+                .as_ref()
+                .filter(|v| v.drives.len() == drive.drive_starts().len())
+                .map(|v| v.drives.iter().map(|d| d.name.clone()).collect())
+                .unwrap_or_default(),
             ..ReportInput::new(title, drive, segments, r.initial.theta, r.theta)
         }
     }
@@ -305,6 +322,43 @@ impl<'a> ReportInput<'a> {
     fn extrinsics_of(&self, i: usize) -> [Extrinsics; 2] {
         self.segment_extrinsics.get(i).copied().unwrap_or([Extrinsics::default(); 2])
     }
+
+    /// How many drives [`ReportInput::drive`] was joined from.
+    fn drives(&self) -> usize {
+        self.drive.drive_starts().len().max(1)
+    }
+
+    /// The name of drive `k` ([`ReportInput::drive_names`]).
+    fn drive_name(&self, k: usize) -> String {
+        self.drive_names.get(k).cloned().unwrap_or_else(|| format!("drive {}", k + 1))
+    }
+
+    /// The name of drive `k` for figures and the lines under them: its
+    /// file's name without the folders, unless another drive's is the same.
+    fn drive_label(&self, k: usize) -> String {
+        let short = |k: usize| -> String {
+            let name = self.drive_name(k);
+            std::path::Path::new(&name).file_name().and_then(|f| f.to_str()).map_or(name.clone(), str::to_string)
+        };
+        let mine = short(k);
+        if (0..self.drives()).filter(|&j| j != k).any(|j| short(j) == mine) {
+            self.drive_name(k)
+        } else {
+            mine
+        }
+    }
+
+    /// The index of the drive sample `i` of [`ReportInput::drive`] came from.
+    fn drive_of(&self, i: usize) -> usize {
+        self.drive.drive_starts().partition_point(|&b| b <= i).saturating_sub(1)
+    }
+
+    /// The samples of drive `k` in [`ReportInput::drive`].
+    fn drive_samples(&self, k: usize) -> std::ops::Range<usize> {
+        let starts = self.drive.drive_starts();
+        let start = starts.get(k).copied().unwrap_or(0);
+        start..starts.get(k + 1).copied().unwrap_or(self.drive.len())
+    }
 }
 
 /// What a calibration's Ē_p was measured on ([`ReportInput::validation_data`]),
@@ -313,12 +367,15 @@ impl<'a> ReportInput<'a> {
 fn validation_data(r: &odocal::CalibrationReport) -> Vec<String> {
     if let Some(v) = &r.validate_on {
         let mut lines = vec![format!(
-            "Held-out data, not used for calibration: {} other drive(s) of the vehicle (Ē_p calibrated / θ_0):",
+            "Held-out data, not used for calibration: {} other drive(s) of the vehicle (Ē_p calibrated / θ_0; \
+             each with the reference extrinsics that apply to it on that drive, θ_0's where they differ from θ's):",
             v.drives.len()
         )];
         lines.extend(v.drives.iter().map(|d| {
+            let extrinsics =
+                d.reference_extrinsics().map(|x| format!("; reference extrinsics: {x}")).unwrap_or_default();
             format!(
-                "{}: {:.3} m / {:.3} m ({} segments)",
+                "{}: {:.3} m / {:.3} m ({} segments){extrinsics}",
                 d.name, d.mean_position_error_m, d.initial_mean_position_error_m, d.segments
             )
         }));

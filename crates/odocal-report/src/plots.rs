@@ -73,6 +73,9 @@ pub struct Panel {
     pub y_range: Option<(f64, f64)>,
     /// Same scale on both axes (a map).
     pub equal_aspect: bool,
+    /// Text at data points `(x, y)` (e.g. numbers naming a map's segments);
+    /// those outside the panel are left out.
+    pub labels: Vec<(f64, f64, String)>,
 }
 
 /// Colours used throughout (colour-blind friendly Okabe-Ito palette): blue.
@@ -215,6 +218,12 @@ where
             }
         }
     }
+    let shown = p.labels.iter().filter(|(x, y, _)| (x_lo..=x_hi).contains(x) && (y_lo..=y_hi).contains(y));
+    chart
+        .draw_series(shown.map(|(x, y, text)| {
+            Text::new(text.clone(), (*x, *y), ("sans-serif", 20).into_font().style(FontStyle::Bold))
+        }))
+        .map_err(err)?;
     // The legend goes into the corner that covers the fewest points.
     let in_corner = |left: bool, top: bool| {
         all.iter()

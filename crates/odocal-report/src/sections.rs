@@ -12,10 +12,13 @@ use crate::{dead_reckoning, esc, thin, ReportInput, Result, CSS};
 /// E_p,s of each validation segment for θ_0, the calibrated θ and the
 /// truth, each with the reference extrinsics the library's validation gives
 /// that row, so that their means are the text's and the JSON's Ē_p bit for
-/// bit: θ_0 with the extrinsics the calibration started from and θ with
-/// the calibrated ones (each segment's [`ReportInput::segment_extrinsics`],
-/// the `initial` and `validation` Ē_p), the truth with the true mount
-/// ([`ReportInput::truth_extrinsics`]). The truth does not take θ's
+/// bit (each segment's [`ReportInput::segment_extrinsics`], the `initial`
+/// and `validation` Ē_p): θ with the calibrated extrinsics, θ_0 with those
+/// the calibration started from — except that on a validation drive whose
+/// heading offset is re-estimated, each of θ and θ_0 takes the one fitted
+/// on that drive for it (JSON `validate_on.drives[].extrinsics.value` and
+/// `.initial`), so that both are judged at their best heading offset; the
+/// truth with the true mount ([`ReportInput::truth_extrinsics`]). The truth does not take θ's
 /// extrinsics: an estimated heading offset also absorbs the reference's
 /// heading error on this drive, and lending it to the truth would score
 /// the truth with part of the calibration's result.
@@ -188,7 +191,7 @@ pub(crate) fn validation(h: &mut String, r: &ReportInput<'_>, e: &SegmentErrors)
         "</table>\n<p>The calibrated θ dead-reckons better than θ_0 on {better} of {} validation segments.</p>",
         e0.len()
     );
-    let idx = |v: &[f64]| v.iter().enumerate().map(|(i, &e)| (i as f64, e)).collect::<Vec<_>>();
+    let idx = |v: &[f64]| v.iter().enumerate().map(|(i, &e)| ((i + 1) as f64, e)).collect::<Vec<_>>();
     let mut series =
         vec![Series::points("θ_0", idx(e0), plots::ORANGE), Series::points("calibrated", idx(e1), plots::BLUE)];
     if let Some(et) = &e.truth {
@@ -196,7 +199,7 @@ pub(crate) fn validation(h: &mut String, r: &ReportInput<'_>, e: &SegmentErrors)
     }
     let panel = Panel {
         title: "E_p,s per validation segment".into(),
-        x_label: "validation segment".into(),
+        x_label: segment_axis_label(r),
         y_label: "E_p,s (m)".into(),
         series,
         y_range: plots::robust_range(&[e0.clone(), e1.clone()].concat(), &[0.0]),
@@ -208,10 +211,12 @@ pub(crate) fn validation(h: &mut String, r: &ReportInput<'_>, e: &SegmentErrors)
 }
 
 /// Section 3: the drive as a map, the reference and dead reckoning with θ_0
-/// and the calibrated θ on the validation segments where θ_0 is worst.
+/// and the calibrated θ on the validation segments where θ_0 is worst;
+/// each segment shown named by its drive and timed on that drive's clock.
 pub(crate) fn map(h: &mut String, r: &ReportInput<'_>, segs: &[SegmentData<'_>], e0: &[f64]) -> Result<()> {
     let drive = r.drive;
-    h.push_str("<section id=\"map\">\n<h2>The drive</h2>\n");
+    let several = r.drives() > 1;
+    let _ = writeln!(h, "<section id=\"map\">\n<h2>{}</h2>", if several { "The drives" } else { "The drive" });
     let mut map_series = Vec::new();
     for p in drive.parts() {
         let pts: Vec<(f64, f64)> = (p.start..p.end).map(|i| (drive.measured().px[i], drive.measured().py[i])).collect();
@@ -239,25 +244,64 @@ pub(crate) fn map(h: &mut String, r: &ReportInput<'_>, segs: &[SegmentData<'_>],
             plots::BLUE,
         ));
     }
+    let of = if several { format!(" of {} drives", r.drives()) } else { String::new() };
+    // Each segment shown numbered at its start, as the line under the map lists them.
+    let labels = order.iter().enumerate().map(|(j, &i)| (segs[i].px[0], segs[i].py[0], format!("{}", j + 1))).collect();
     let map = Panel {
-        title: format!("reference and dead reckoning on the {} validation segments where θ_0 is worst", order.len()),
+        title: format!(
+            "reference and dead reckoning on the {} validation segments{of} where θ_0 is worst",
+            order.len()
+        ),
         x_label: "x (m)".into(),
         y_label: "y (m)".into(),
         series: map_series,
         equal_aspect: true,
+        labels,
         ..Default::default()
     };
     h.push_str(&figure_svg("Map", (900, 700), (1, 1), &[map])?);
-    let _ = writeln!(
-        h,
-        "<p>Segments shown (start time, s): {}.</p>\n</section>",
-        order
-            .iter()
-            .map(|&i| format!("{:.1}", drive.t()[r.validation_segments[i].start]))
-            .collect::<Vec<_>>()
-            .join(", ")
-    );
+    let starts: Vec<usize> = order.iter().map(|&i| r.validation_segments[i].start).collect();
+    let _ = writeln!(h, "<p>{}</p>\n</section>", esc(&segments_shown(r, &starts)));
     Ok(())
+}
+
+/// The line under the map: the segments shown (first samples `starts`, in
+/// time order) by the numbers the map gives them, each with its start time
+/// and, with several drives, its drive, timed on that drive's own clock.
+fn segments_shown(r: &ReportInput<'_>, starts: &[usize]) -> String {
+    let drive = r.drive;
+    let several = r.drives() > 1;
+    let each: Vec<String> = starts
+        .iter()
+        .enumerate()
+        .map(|(j, &s)| {
+            let t = drive.own_time_s(s);
+            if several {
+                format!("{}: {} at {t:.1} s", j + 1, r.drive_label(r.drive_of(s)))
+            } else {
+                format!("{}: {t:.1} s", j + 1)
+            }
+        })
+        .collect();
+    let what = if several { "drive and start time on that drive's own clock" } else { "start time" };
+    format!("Segments shown, numbered on the map ({what}): {}.", each.join("; "))
+}
+
+/// The x-axis label of the per-segment errors: the segments are numbered
+/// from 1 in time order; with several drives, which numbers are whose.
+fn segment_axis_label(r: &ReportInput<'_>) -> String {
+    if r.drives() == 1 {
+        return "validation segment".into();
+    }
+    let drive_of: Vec<usize> = r.validation_segments.iter().map(|s| r.drive_of(s.start)).collect();
+    let ranges: Vec<String> = (0..r.drives())
+        .filter_map(|k| {
+            let first = drive_of.iter().position(|&d| d == k)?;
+            let last = drive_of.iter().rposition(|&d| d == k)?;
+            Some(format!("{} {}–{}", r.drive_label(k), first + 1, last + 1))
+        })
+        .collect();
+    format!("validation segment ({})", ranges.join(", "))
 }
 
 /// Section 5: the spread of the step-1 estimates θ_B,I (3-step method);
@@ -302,73 +346,102 @@ pub(crate) fn batches(h: &mut String, r: &ReportInput<'_>) -> Result<()> {
 }
 
 /// Section 6: residual time series, the one-step yaw-rate residual and the
-/// dead-reckoning position error along the validation segments.
+/// dead-reckoning position error along the validation segments; with
+/// several drives one figure per drive, on that drive's own clock (their
+/// times are not one axis).
 pub(crate) fn residuals(h: &mut String, r: &ReportInput<'_>, segs: &[SegmentData<'_>]) -> Result<()> {
     h.push_str("<section id=\"residuals\">\n<h2>Residuals</h2>\n");
-    let p1 = yaw_rate_residual_panel(r);
-    let p2 = position_error_panel(r, segs);
-    h.push_str(&figure_svg("Residuals over the drive", (900, 640), (2, 1), &[p1, p2])?);
+    if r.drives() == 1 {
+        let panels = [yaw_rate_residual_panel(r, 0), position_error_panel(r, segs, 0)];
+        h.push_str(&figure_svg("Residuals over the drive", (900, 640), (2, 1), &panels)?);
+    } else {
+        for k in 0..r.drives() {
+            let panels = [yaw_rate_residual_panel(r, k), position_error_panel(r, segs, k)];
+            let title = format!("Residuals on {}", r.drive_label(k));
+            h.push_str(&figure_svg(&title, (900, 640), (2, 1), &panels)?);
+        }
+    }
     h.push_str("</section>\n");
     Ok(())
 }
 
-/// The yaw-rate residual, reference − model one step ahead, for θ_0 and the
-/// calibrated θ, in 5 s means.
-fn yaw_rate_residual_panel(r: &ReportInput<'_>) -> Panel {
+/// The time axis label of drive `k`'s residuals.
+fn time_label(r: &ReportInput<'_>, k: usize) -> String {
+    if r.drives() == 1 {
+        "t (s)".into()
+    } else {
+        format!("t on {}'s clock (s)", r.drive_label(k))
+    }
+}
+
+/// The yaw-rate residual on drive `k`, reference − model one step ahead,
+/// for θ_0 and the calibrated θ, in 5 s means within each part (a line per
+/// part: no line across a gap).
+fn yaw_rate_residual_panel(r: &ReportInput<'_>, k: usize) -> Panel {
     let drive = r.drive;
     let ts = drive.sample_time_s();
-    let mut heading = Vec::new();
-    let mut heading0 = Vec::new();
-    for p in drive.parts() {
+    let samples = r.drive_samples(k);
+    // Means over 5 s make a systematic yaw-rate error visible above the wheel noise.
+    let w = ((5.0 / ts).round() as usize).max(1);
+    let smooth = |v: &[(f64, f64)]| -> Vec<(f64, f64)> {
+        v.chunks(w).map(|c| (c[0].0, c.iter().map(|p| p.1).sum::<f64>() / c.len() as f64)).collect()
+    };
+    let (mut series, mut ys) = (Vec::new(), Vec::new());
+    for p in drive.parts().iter().filter(|p| samples.contains(&p.start)) {
+        let mut heading = Vec::new();
+        let mut heading0 = Vec::new();
         for i in p.start..p.end.saturating_sub(1) {
             let x = drive.pose(i);
             let u = drive.input(i);
             let r1 = drive.measured().psi[i + 1] - step(&x, &u, &r.theta, ts)[2];
             let r0 = drive.measured().psi[i + 1] - step(&x, &u, &r.theta0, ts)[2];
-            heading.push((drive.t()[i], r1 / ts));
-            heading0.push((drive.t()[i], r0 / ts));
+            heading.push((drive.own_time_s(i), r1 / ts));
+            heading0.push((drive.own_time_s(i), r0 / ts));
         }
+        let (hs, hs0) = (smooth(&heading), smooth(&heading0));
+        ys.extend(hs.iter().chain(&hs0).map(|p| p.1));
+        let first = series.is_empty();
+        series.push(Series::line(if first { "θ_0" } else { "" }, hs0, plots::ORANGE));
+        series.push(Series::line(if first { "calibrated" } else { "" }, hs, plots::BLUE));
     }
-    // Means over 5 s make a systematic yaw-rate error visible above the wheel noise.
-    let smooth = |v: &[(f64, f64)]| -> Vec<(f64, f64)> {
-        let w = ((5.0 / ts).round() as usize).max(1);
-        v.chunks(w).map(|c| (c[0].0, c.iter().map(|p| p.1).sum::<f64>() / c.len() as f64)).collect()
-    };
-    let (hs, hs0) = (smooth(&heading), smooth(&heading0));
-    let ys: Vec<f64> = hs.iter().chain(&hs0).map(|p| p.1).collect();
     Panel {
         title: "yaw-rate residual: reference − model one step ahead (5 s means)".into(),
-        x_label: "t (s)".into(),
+        x_label: time_label(r, k),
         y_label: "rad/s".into(),
         y_range: plots::robust_range(&ys, &[0.0]),
-        series: vec![Series::line("θ_0", hs0, plots::ORANGE), Series::line("calibrated", hs, plots::BLUE)],
+        series,
         ..Default::default()
     }
 }
 
-/// The dead-reckoning position error along each validation segment for θ_0
-/// and the calibrated θ.
-fn position_error_panel(r: &ReportInput<'_>, segs: &[SegmentData<'_>]) -> Panel {
+/// The dead-reckoning position error along each validation segment of
+/// drive `k` for θ_0 and the calibrated θ.
+fn position_error_panel(r: &ReportInput<'_>, segs: &[SegmentData<'_>], k: usize) -> Panel {
     let drive = r.drive;
+    let samples = r.drive_samples(k);
     let mut pos_series = Vec::new();
     let mut ys = Vec::new();
     for (j, (s, seg)) in r.validation_segments.iter().zip(segs).enumerate() {
+        if !samples.contains(&s.start) {
+            continue;
+        }
         let [e0, e1] = r.extrinsics_of(j);
         let (a, b) = (dead_reckoning(seg, &r.theta0, &e0), dead_reckoning(seg, &r.theta, &e1));
         let err_of = |d: &[(f64, f64)]| -> Vec<(f64, f64)> {
             d.iter()
                 .enumerate()
-                .map(|(k, p)| (drive.t()[s.start + k], (seg.px[k] - p.0).hypot(seg.py[k] - p.1)))
+                .map(|(k, p)| (drive.own_time_s(s.start + k), (seg.px[k] - p.0).hypot(seg.py[k] - p.1)))
                 .collect()
         };
         let (e_a, e_b) = (err_of(&a), err_of(&b));
         ys.extend(e_a.iter().chain(&e_b).map(|p| p.1));
-        pos_series.push(Series::line(if j == 0 { "θ_0" } else { "" }, thin(e_a, 200), plots::ORANGE));
-        pos_series.push(Series::line(if j == 0 { "calibrated" } else { "" }, thin(e_b, 200), plots::BLUE));
+        let first = pos_series.is_empty();
+        pos_series.push(Series::line(if first { "θ_0" } else { "" }, thin(e_a, 200), plots::ORANGE));
+        pos_series.push(Series::line(if first { "calibrated" } else { "" }, thin(e_b, 200), plots::BLUE));
     }
     Panel {
         title: "dead-reckoning position error along each validation segment".into(),
-        x_label: "t (s)".into(),
+        x_label: time_label(r, k),
         y_label: "m".into(),
         y_range: Some((0.0, 1.05 * ys.iter().copied().filter(|v| v.is_finite()).fold(1e-3, f64::max))),
         series: pos_series,

@@ -31,7 +31,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // The σ that stands for the result (the verdict and the parameter file use it).
     let sigma = report.result_sigma();
     let names = ["c_e m", "c_d m", "t_r m", "d m/(m/s²)"];
-    println!("method {}: θ = {}", report.method, report.theta);
+    println!("method {}: θ: {}", report.method, report.theta);
     for ((name, value), s) in names.iter().zip(<[_; 4]>::from(report.theta)).zip(<[_; 4]>::from(sigma)) {
         match s {
             Some(s) => println!("  {name:11} {value:+.6} ± {s:.6} (1σ, {})", sigma.source),

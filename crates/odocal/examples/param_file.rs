@@ -28,7 +28,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // Read back: the same θ, to the printed precision of the file.
     let back = ParamFile::read(Path::new(out), None)?;
     let theta = odocal::Theta::try_from(&back)?;
-    println!("read back θ = {theta} (calibrated: {})", report.theta);
+    println!("read back θ: {theta} (calibrated: {})", report.theta);
 
     // Use it as `odocal validate OTHER --theta OUT` does: dead-reckoning
     // error on another drive of the same vehicle, with the extrinsics the

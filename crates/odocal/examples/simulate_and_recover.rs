@@ -14,7 +14,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // The paper's city route with its noise (wheel, reference, a_y, β); seed 1.
     let sim = simulate(&SimOptions { length_km: 6.0, ..SimOptions::paper(1) })?;
     let (drive, truth) = (&sim.drive, sim.sidecar.theta_true);
-    println!("simulated {} km, {} samples; true θ = {truth}", sim.sidecar.settings.length_km, drive.len());
+    println!("simulated {} km, {} samples; true θ: {truth}", sim.sidecar.settings.length_km, drive.len());
     if let Some(out) = std::env::args().nth(1) {
         drive.write_csv(&out)?; // the CSV that `odocal calibrate` and `load_drive` read
         println!("wrote {out}");
@@ -30,7 +30,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .zip(sigma)
             .map(|(e, s)| s.map_or("held".into(), |s| format!("{:+.1}", e / s)))
             .collect();
-        println!("{name:10} θ = {}  error/σ [c_e, c_d, t_r, d] = [{}]", report.theta, z.join(", "));
+        println!("{name:10} θ: {}  error/σ [c_e, c_d, t_r, d] = [{}]", report.theta, z.join(", "));
     }
 
     // Dead reckoning with the true θ: the floor that noise leaves on Ē_p.

@@ -66,6 +66,7 @@ fn fig4(dir: &Path, e: &Experiment) -> Result<String> {
         (1, 1),
         &[Panel {
             equal_aspect: false,
+            labels: Vec::new(),
             title: "raw inputs, from θ_0".into(),
             x_label: "rank of batch result".into(),
             y_label: "Ē_p (m)".into(),
@@ -95,6 +96,7 @@ fn fig5(dir: &Path, e: &Experiment) -> Result<String> {
         .iter()
         .map(|(p, unit, f)| Panel {
             equal_aspect: false,
+            labels: Vec::new(),
             title: p.to_string(),
             x_label: "pick (1 = lowest Ē_p)".into(),
             y_label: format!("{p} ({unit})"),
@@ -122,6 +124,7 @@ fn wheel_panel(title: &str, m: &[(f64, f64)], cc: &[(f64, f64)], tr: &Option<Vec
     }
     Panel {
         equal_aspect: false,
+        labels: Vec::new(),
         title: title.into(),
         x_label: "time from segment start (s)".into(),
         y_label: "wheel rotation (rev/s)".into(),
@@ -144,6 +147,7 @@ fn fig6(dir: &Path, e: &Experiment) -> Result<String> {
     if let Some(t) = &c.n_rl_true {
         panels.push(Panel {
             equal_aspect: false,
+            labels: Vec::new(),
             title: "n_rl input error against the truth".into(),
             x_label: "time from segment start (s)".into(),
             y_label: "n_rl − n_rl,true (rev/s)".into(),
@@ -157,6 +161,7 @@ fn fig6(dir: &Path, e: &Experiment) -> Result<String> {
     }
     panels.push(Panel {
         equal_aspect: false,
+        labels: Vec::new(),
         title: "dead-reckoning position error at θ_B,F".into(),
         x_label: "time from segment start (s)".into(),
         y_label: "position error (m)".into(),
@@ -197,6 +202,7 @@ fn fig7(dir: &Path, e: &Experiment) -> Result<String> {
             let keep: Vec<f64> = hl.iter().map(|h| h.y).collect();
             Panel {
                 equal_aspect: false,
+                labels: Vec::new(),
                 title: p.to_string(),
                 x_label: "selected segment index".into(),
                 y_label: format!("{p} ({unit})"),
@@ -244,6 +250,7 @@ fn fig8(dir: &Path, e: &Experiment) -> Result<String> {
     let panels = vec![
         Panel {
             equal_aspect: false,
+            labels: Vec::new(),
             title: "per segment (G-N on one segment)".into(),
             x_label: "selected segment index".into(),
             y_label: "Ē_p (m)".into(),
@@ -256,6 +263,7 @@ fn fig8(dir: &Path, e: &Experiment) -> Result<String> {
         },
         Panel {
             equal_aspect: false,
+            labels: Vec::new(),
             title: format!("per batch (N = {}), sorted", e.batch_size),
             x_label: "rank of batch result".into(),
             y_label: "Ē_p (m)".into(),

@@ -118,6 +118,21 @@ fn bad_theta_argument() {
     assert!(stderr(&o).contains("t_r = -1 m must be positive"), "{}", stderr(&o));
 }
 
+/// θ's text names each parameter itself, so a line that embeds it does not
+/// label it again (`at θ = c_e = …`).
+#[test]
+fn validate_prints_the_reachable_minimums_theta_once() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = simulated_drive(dir.path(), "d.csv", &["--seed", "2", "--length-km", "2"]);
+    let o = odocal(&["validate", &d, "--theta", "1.95,-0.002,1.53,0.0008", "--reachable-minimum", "--seed", "3"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = stdout(&o);
+    let line = text.lines().find(|l| l.starts_with("reachable minimum: ")).expect("the reachable minimum");
+    assert!(line.contains(" m at c_e = ") && line.contains(", d = "), "{line}");
+    assert!(!line.contains("θ ="), "{line}");
+    assert!(text.lines().any(|l| l.starts_with("θ: c_e = 1.950000 m")), "{text}");
+}
+
 #[test]
 fn straight_drive_reports_unobservable_parameters() {
     let d = tempfile::tempdir().expect("tmp");

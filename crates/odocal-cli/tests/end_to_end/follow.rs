@@ -31,6 +31,14 @@ fn follow_reports_each_drive_and_a_replay_adds_nothing() {
     let first: Vec<String> = args(&json);
     let o = odocal(&first.iter().map(String::as_str).collect::<Vec<_>>());
     assert!(o.status.success(), "{}", stderr(&o));
+    // Each drive's line gives θ once, each value with its σ.
+    let text = stdout(&o);
+    let lines: Vec<&str> = text.lines().filter(|l| l.contains("prequential Ē_p")).collect();
+    assert_eq!(lines.len(), 2, "{text}");
+    for l in lines {
+        assert!(l.contains(" folded; c_e = ") && l.contains(" ± ") && l.contains(", d = "), "{l}");
+        assert!(!l.contains("θ =") && !l.contains("± c_e"), "{l}");
+    }
     let v = json_file(&json);
     let obj = v.as_object().expect("object");
     assert_eq!(obj.keys().collect::<Vec<_>>(), vec!["drives"]);

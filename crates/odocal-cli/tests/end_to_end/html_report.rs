@@ -117,3 +117,73 @@ fn the_page_marks_what_the_data_cannot_determine() {
         assert!(!row(name).contains("not observable"), "{}", row(name));
     }
 }
+
+/// Validated on two other drives (the README tour's command), the page
+/// names each segment's drive and times it on that drive's own clock; the
+/// residuals are drawn per drive; each drive's line gives the heading
+/// offsets its θ_0 and θ rows used, as the JSON does.
+#[test]
+fn the_page_names_each_validation_drive_and_its_own_time() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let e = format!("{}/../../examples/psu-mapping-van-testtrack", env!("CARGO_MANIFEST_DIR"));
+    let run = |name: &str| format!("{e}/run-{name}.toml");
+    let held = [run("15-28-33"), run("17-45-46")];
+    let (page, json) = (dir.path().join("r.html"), dir.path().join("r.json"));
+    let validate_on = held.join(",");
+    let o = odocal(&[
+        "calibrate",
+        &run("14-45-26"),
+        &run("16-47-33"),
+        "--validate-on",
+        &validate_on,
+        "--report",
+        page.to_str().expect("utf8"),
+        "--json",
+        json.to_str().expect("utf8"),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let html = std::fs::read_to_string(&page).expect("page");
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("json");
+    let section = |id: &str| -> String {
+        let s = html.split(&format!("<section id=\"{id}\">")).nth(1).expect("section");
+        s.split("</section>").next().expect("section end").to_string()
+    };
+    // The map: each segment shown by its drive, at a time within that drive.
+    let map = section("map");
+    assert!(map.contains("<h2>The drives</h2>"), "{map}");
+    let line = map.lines().find(|l| l.starts_with("<p>Segments shown, numbered on the map")).expect("the list");
+    let list = line.split("): ").nth(1).expect("entries").trim_end_matches(".</p>");
+    let entries: Vec<&str> = list.split("; ").collect();
+    assert_eq!(entries.len(), 4, "{line}");
+    for (j, entry) in entries.iter().enumerate() {
+        let (name, t) = entry
+            .strip_prefix(&format!("{}: ", j + 1))
+            .and_then(|x| x.strip_suffix(" s"))
+            .and_then(|x| x.split_once(" at "))
+            .unwrap_or_else(|| panic!("{entry}"));
+        let path = held.iter().find(|p| p.ends_with(name)).unwrap_or_else(|| panic!("{name} is not a drive"));
+        let (drive, _) = odocal::load_drive(std::path::Path::new(path)).expect("the drive");
+        let t: f64 = t.parse().expect("a time");
+        let (first, last) = (drive.t()[0], drive.t()[drive.len() - 1]);
+        assert!(first - 0.05 <= t && t <= last, "{entry}: the drive runs {first} … {last} s");
+    }
+    // The residuals: a figure per drive, each on its own clock.
+    let residuals = section("residuals");
+    for name in ["run-15-28-33.toml", "run-17-45-46.toml"] {
+        assert!(residuals.contains(&format!("Residuals on {name}")), "{name}");
+        assert!(residuals.contains(&format!("t on {name}&apos;s clock (s)")), "{name}");
+    }
+    assert!(!residuals.contains("Residuals over the drive"));
+    // Each drive's line: the heading offsets θ and θ_0 were judged with, the JSON's.
+    let validation = section("validation");
+    for (d, path) in v["validate_on"]["drives"].as_array().expect("drives").iter().zip(&held) {
+        let x = &d["extrinsics"];
+        assert_eq!(x["source"]["heading_offset"], "reestimated", "{d}");
+        let mrad = |e: &serde_json::Value| format!("{:+.2} mrad", e["heading_offset"].as_f64().expect("δ") * 1e3);
+        let item = validation.lines().find(|l| l.starts_with(&format!("<li>{path}: "))).expect("the drive's line");
+        assert!(item.contains(&format!("heading offset {} [re-estimated on this drive;", mrad(&x["value"]))), "{item}");
+        assert!(item.contains(&format!("θ_0&#39;s: heading offset {} [re-estimated", mrad(&x["initial"]))), "{item}");
+        let e = |k: &str| format!("{:.3} m", d[k].as_f64().expect("Ē_p"));
+        assert!(item.contains(&format!(": {} / {} (", e("mean_position_error_m"), e("initial_mean_position_error_m"))));
+    }
+}

@@ -100,7 +100,7 @@ pub(crate) fn mean_position_error_by(
         .collect();
     let mean = per_segment_m.iter().sum::<f64>() / per_segment_m.len() as f64;
     if !mean.is_finite() {
-        return Err(Error::Numerical(format!("validation error is not finite at θ = {theta}")));
+        return Err(Error::Numerical(format!("validation error is not finite at {theta}")));
     }
     Ok(ValidationReport { theta: *theta, mean_position_error_m: mean, segments: segments.len(), per_segment_m })
 }

@@ -1220,7 +1220,7 @@ mod tests {
             history,
             covariance: [[0.0; 4]; 4],
             robust: None,
-            observability: Observability { rcond: 0.07, sensitivity_m: [1.0; 4], unobservable: ParamSet::EMPTY },
+            observability: Observability::of_batch(0.07, [1.0; 4], ParamSet::EMPTY),
             segments: 10,
             residual_poses: 100,
             extrinsics: None,

@@ -168,6 +168,19 @@ pub struct DriveValidation {
 }
 
 impl DriveValidation {
+    /// The reference extrinsics θ and θ_0 were validated with on this
+    /// drive, in the words of the text report's line `reference
+    /// extrinsics:` (θ's, then θ_0's where they differ, each with where it
+    /// comes from), then any conflicts; `None` where the drive used none.
+    pub fn reference_extrinsics(&self) -> Option<String> {
+        let x = self.extrinsics.as_ref()?;
+        let mut s = x.to_string();
+        for c in &x.conflicts {
+            s.push_str(&format!("; CONFLICT: {c}"));
+        }
+        Some(s)
+    }
+
     research_pub! {
         /// The heading offset θ was validated with on this drive, rad: the
         /// carried, stated or re-estimated one (the JSON report's

@@ -171,12 +171,14 @@ pub(crate) struct ExtrinsicSources {
     pub heading_offset: ExtrinsicSource,
 }
 
-/// The extrinsics one validation drive used (see the module docs).
+/// The extrinsics one validation drive used (see the module docs). The
+/// text shows θ's, then θ_0's where they differ.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub(crate) struct DriveExtrinsics {
     /// With the calibrated θ.
     pub value: Extrinsics,
-    /// With θ_0.
+    /// With θ_0: the calibration's start of an estimated parameter, and a
+    /// re-estimated heading offset fitted on the drive for θ_0, as for θ.
     pub initial: Extrinsics,
     /// Where each comes from.
     pub source: ExtrinsicSources,
@@ -203,7 +205,25 @@ impl std::fmt::Display for DriveExtrinsics {
         if let Some(fit) = &self.heading_offset_fit {
             write!(f, "; calibration's {:+.2} mrad", fit.calibration * 1e3)?;
         }
-        f.write_str("]")
+        f.write_str("]")?;
+        // θ_0's Ē_p on the drive, where its values differ from θ's.
+        let v0 = &self.initial;
+        let differs = |a: f64, b: f64| a.to_bits() != b.to_bits();
+        let mut initial = Vec::new();
+        if differs(v0.lever_x, v.lever_x) || differs(v0.lever_y, v.lever_y) {
+            initial.push(format!("lever arm ({:+.3}, {:+.3}) m [the calibration's start]", v0.lever_x, v0.lever_y));
+        }
+        if differs(v0.heading_offset, v.heading_offset) {
+            let from = match s.heading_offset {
+                ExtrinsicSource::Reestimated => "re-estimated on this drive for θ_0",
+                _ => "the calibration's start",
+            };
+            initial.push(format!("heading offset {:+.2} mrad [{from}]", v0.heading_offset * 1e3));
+        }
+        if !initial.is_empty() {
+            write!(f, "; θ_0's: {}", initial.join(", "))?;
+        }
+        Ok(())
     }
 }
 
@@ -510,6 +530,25 @@ mod tests {
             assert_eq!(x.heading_offset_fit.map(|f| f.calibration), Some(0.0188));
             assert!(row.mean_position_error_m < 1e-6, "{}: {}", row.name, row.mean_position_error_m);
             assert!(x.to_string().contains("[re-estimated on this drive; calibration's +18.80 mrad]"), "{x}");
+        }
+        // θ_0's Ē_p on each drive takes the lever arm the calibration
+        // started from and a heading offset fitted on the drive for θ_0 (as
+        // θ's is for θ), and the text says which.
+        let theta0 = Theta::PAPER_INITIAL;
+        let m0 = validate_drives_with(&drives, &theta, &theta0, &cal, &opts).expect("validate");
+        for (row, d) in m0.drives.iter().zip(&drives) {
+            let x = row.extrinsics.as_ref().expect("extrinsics");
+            let segs = validation_segments(d.drive, &opts).expect("segments");
+            let fit0 = fit_heading_offset(d.drive, &segs, &theta0, &Extrinsics::ZERO).expect("fit for θ_0");
+            assert_eq!(x.initial, with_fit(&Extrinsics::ZERO, &fit0));
+            let e0 = mean_position_error_by(d.drive, &segs, &theta0, |_| x.initial).expect("Ē_p");
+            assert_eq!(row.initial_mean_position_error_m.to_bits(), e0.mean_position_error_m.to_bits());
+            let want = format!(
+                "; θ_0's: lever arm (+0.000, +0.000) m [the calibration's start], heading offset {:+.2} mrad \
+                 [re-estimated on this drive for θ_0]",
+                x.initial.heading_offset * 1e3
+            );
+            assert!(x.to_string().ends_with(&want), "{x}");
         }
         // The joined held-out drives: each segment with its own drive's fitted δ.
         let held = HeldOutDrives::new(&drives, ParamSet::EMPTY).expect("join");

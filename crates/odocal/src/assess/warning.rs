@@ -24,14 +24,25 @@ pub enum Warning {
     /// (alone, or in a near-collinear combination): their estimates are not
     /// to be trusted.
     Unobservable {
-        /// Which identification (`"final identification"`).
+        /// Which check named them: `"final identification"` (batch
+        /// Gauss-Newton's `JᵀWJ`) or `"EIV filter"` (its `H_θ`).
         stage: String,
         /// The parameters.
         params: ParamSet,
-        /// RMS pose change per resolution step of each θ parameter, m.
-        sensitivity_m: [f64; 4],
-        /// Reciprocal condition number of the equilibrated `JᵀWJ`.
+        /// Batch Gauss-Newton: RMS pose change per resolution step of each θ
+        /// parameter, m ([`crate::identify::Observability::sensitivity_m`]).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        sensitivity_m: Option<[f64; 4]>,
+        /// EIV: each θ parameter's σ over its resolution at the filter's
+        /// start; above 1 the filter held it
+        /// ([`crate::identify::Observability::sigma_over_resolution`]).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        sigma_over_resolution: Option<[f64; 4]>,
+        /// Reciprocal condition number of the equilibrated information over
+        /// the parameters estimated.
         rcond: f64,
+        /// The rcond below which a combination's parameters are named.
+        min_rcond: f64,
     },
     /// `auto_fix`: no segment turns enough, so the yaw-only parameters were
     /// held at θ_0 and every segment was used.
@@ -231,16 +242,57 @@ impl Warning {
     }
 }
 
+/// The EIV filter's reasons for naming `params`, with the numbers that
+/// decided: the σ over resolution at its start (above 1: held at the
+/// start's value), and for a parameter it kept estimating, the rcond of
+/// the combination it is in.
+fn unobservable_by_filter(
+    f: &mut std::fmt::Formatter<'_>,
+    params: ParamSet,
+    ratio: &[f64; 4],
+    rcond: f64,
+    min_rcond: f64,
+) -> std::fmt::Result {
+    let names = |held: bool| -> Vec<&str> {
+        params.into_iter().filter(|p| p.index() < 4 && (ratio[p.index()] > 1.0) == held).map(|p| p.name()).collect()
+    };
+    let (held, collinear) = (names(true), names(false));
+    write!(
+        f,
+        "the filter's σ / resolution at its start, [c_e, c_d, t_r, d] = [{:.2}, {:.2}, {:.2}, {:.2}]",
+        ratio[0], ratio[1], ratio[2], ratio[3]
+    )?;
+    if !held.is_empty() {
+        write!(f, ", is above 1 for {}: held at the batch G-N start's values", held.join(", "))?;
+    }
+    if collinear.is_empty() {
+        write!(f, "; rcond {rcond:.1e} over the parameters estimated")
+    } else {
+        write!(f, "; {} in a near-collinear combination: rcond {rcond:.1e} < {min_rcond:.0e}", collinear.join(", "))
+    }
+}
+
 impl std::fmt::Display for Warning {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Warning::Unobservable { stage, params, sensitivity_m: s, rcond } => write!(
-                f,
-                "{stage}: {params} not observable from these data (sensitivity [c_e, c_d, t_r, d] = [{:.3}, {:.3}, \
-                 {:.3}, {:.3}] m per resolution step, rcond {rcond:.1e}); their estimates are not to be trusted — \
-                 hold them fixed at θ_0 (--fix) or use a drive with more turns",
-                s[0], s[1], s[2], s[3]
-            ),
+            Warning::Unobservable { stage, params, sensitivity_m, sigma_over_resolution, rcond, min_rcond } => {
+                write!(f, "{stage}: {params} not observable from these data (")?;
+                match (sigma_over_resolution, sensitivity_m) {
+                    (Some(r), _) => unobservable_by_filter(f, *params, r, *rcond, *min_rcond)?,
+                    (None, Some(s)) => write!(
+                        f,
+                        "sensitivity [c_e, c_d, t_r, d] = [{:.3}, {:.3}, {:.3}, {:.3}] m per resolution step, rcond \
+                         {rcond:.1e}",
+                        s[0], s[1], s[2], s[3]
+                    )?,
+                    (None, None) => write!(f, "a near-collinear combination: rcond {rcond:.1e} < {min_rcond:.0e}")?,
+                }
+                write!(
+                    f,
+                    "); their estimates are not to be trusted — hold them fixed at θ_0 (--fix) or use a drive with \
+                     more turns"
+                )
+            }
             Warning::AutoFixNoTurns { params, segments, min_peak_yaw_rate_rad_per_s, peak_yaw_rate_rad_per_s } => {
                 write!(
                     f,

@@ -107,10 +107,15 @@
 //! of `H_θ⁻¹` and a block sandwich (`ResearchOptions::covariance_estimate`),
 //! plus what estimating the noise scales from the same drive adds
 //! (`ResearchOptions::noise_estimate_in_covariance`). The reported
-//! observability has `rcond` and the names (parameters held as not
-//! observable, or in a near-collinear combination) from the same `H_θ`.
-//! `sensitivity_m` (metres per resolution step) is the starting batch
-//! Gauss-Newton's, as `H_θ` is in whitened innovation units.
+//! observability is the filter's own, with the numbers that decided it:
+//! `sigma_over_resolution`, each parameter's σ over its resolution from
+//! `H_θ` at the filter's start (the start's θ and the starting noise
+//! model), above 1 for a parameter it held at the start's value; `rcond`
+//! of the final `H_θ` over the parameters it estimated, below the filter's
+//! `min_rcond` for a near-collinear combination it names. Batch
+//! Gauss-Newton's `sensitivity_m` is not given beside them: it belongs to
+//! the start's check (the JSON's `identification.observability`), which may
+//! name none.
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -798,7 +803,8 @@ fn eiv_outcome(
     let o = &r.observability;
     let observability = Observability {
         rcond: o.rcond,
-        sensitivity_m: detail.identification.observability.sensitivity_m,
+        sensitivity_m: None,
+        sigma_over_resolution: o.start_sigma_over_resolution,
         unobservable: param_set(&o.unobservable).iter().chain(param_set(&o.collinear).iter()).collect(),
     };
     MethodOutcome {

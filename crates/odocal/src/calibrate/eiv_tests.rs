@@ -225,6 +225,22 @@ fn straight_drive_calibrates_c_e_and_names_the_rest() {
     assert!(!named.contains(Param::CE));
     assert!(r.verdict.reasons.iter().any(|x| matches!(x, VerdictReason::Unobservable { .. })), "{:?}", r.verdict);
     assert!(r.warnings.iter().any(|w| matches!(w, Warning::Unobservable { .. })));
+    // The observability and its warning quote the filter's numbers, not
+    // the start's sensitivity: the ratio of each parameter it held is above 1.
+    let o = &r.observability;
+    let ratio = o.sigma_over_resolution.expect("the filter's ratios");
+    assert_eq!(o.sensitivity_m, None, "{o:?}");
+    let filter = detail(&r).eiv.as_ref().map(|e| e.observability.clone()).expect("the filter's report");
+    assert_eq!(filter.start_sigma_over_resolution, Some(ratio));
+    assert_eq!(o.rcond.to_bits(), filter.rcond.to_bits());
+    for p in filter.unobservable {
+        let i = crate::eiv::PARAMETERS.iter().position(|q| *q == p).expect("a θ parameter");
+        assert!(ratio[i] > 1.0, "{p} held at σ/resolution {}", ratio[i]);
+    }
+    assert!(ratio[0] <= 1.0, "c_e estimated: {ratio:?}");
+    let w = r.warnings.iter().find(|w| matches!(w, Warning::Unobservable { .. })).expect("warning").to_string();
+    assert!(w.starts_with("EIV filter: ") && w.contains("the filter's σ / resolution at its start"), "{w}");
+    assert!(!w.contains("sensitivity"), "{w}");
 }
 
 #[test]

@@ -591,7 +591,7 @@ pub(crate) fn calibrate_core(
         outcome = method.run(&prep, &selection, progress)?;
     }
     let initial_val = reported.initial(opts, selection.free)?;
-    let warnings = result_warnings(&selection.warnings, outcome.warnings, &outcome.observability);
+    let warnings = result_warnings(&selection.warnings, outcome.warnings, &outcome.observability, opts);
     let extrinsics = if opts.identify.uses_extrinsics() { method_extrinsics(&outcome.detail) } else { None };
     let ext = extrinsics.as_ref().map_or(opts.identify.extrinsics, |e| e.value);
     let t = Instant::now();
@@ -784,17 +784,32 @@ fn own_error(
     }
 }
 
-/// The selection's warnings, the method's, and one when the final
-/// identification left parameters unobservable.
-fn result_warnings(selection: &[Warning], method: Vec<Warning>, o: &Observability) -> Vec<Warning> {
+/// The selection's warnings, the method's, and one when the result's
+/// observability check (the final identification's, or the EIV filter's
+/// when its θ is the result) left parameters unobservable, with that
+/// check's numbers.
+fn result_warnings(
+    selection: &[Warning],
+    method: Vec<Warning>,
+    o: &Observability,
+    opts: &CalibrationOptions,
+) -> Vec<Warning> {
     let mut warnings = selection.to_vec();
     warnings.extend(method);
     if !o.unobservable.is_empty() {
+        // An EIV result carries the filter's observability, without batch
+        // G-N's sensitivities (its fallback carries the start's, with them).
+        let (stage, min_rcond) = match (&opts.method, o.sensitivity_m) {
+            (Method::Eiv(m), None) => ("EIV filter", m.filter.min_rcond),
+            _ => ("final identification", opts.identify.min_rcond),
+        };
         warnings.push(Warning::Unobservable {
-            stage: "final identification".into(),
+            stage: stage.into(),
             params: o.unobservable,
             sensitivity_m: o.sensitivity_m,
+            sigma_over_resolution: o.sigma_over_resolution,
             rcond: o.rcond,
+            min_rcond,
         });
     }
     warnings
@@ -952,11 +967,10 @@ pub(crate) fn hold_unobservable(
     let mut held = Vec::new();
     loop {
         let o = observability(&ne, free, identify);
-        let pick = o
-            .unobservable
-            .iter()
-            .filter(|&p| p != Param::CE && free.contains(p))
-            .min_by(|&a, &b| o.sensitivity_m[a.index()].total_cmp(&o.sensitivity_m[b.index()]));
+        let pick = o.unobservable.iter().filter(|&p| p != Param::CE && free.contains(p)).min_by(|&a, &b| {
+            let s = |p: Param| o.sensitivity_m.map_or(0.0, |s| s[p.index()]);
+            s(a).total_cmp(&s(b))
+        });
         match pick {
             Some(p) => {
                 free.remove(p);

@@ -206,6 +206,35 @@ fn the_param_file_marks_what_the_result_names_not_observable() {
     );
 }
 
+/// A counter-clockwise test-track run: the default method names t_r and d
+/// not observable, and says by which numbers. The filter held them: their
+/// σ from its information at its start is above their resolution (t_r's
+/// about 3.3 times). The batch G-N start names none (its check, on the
+/// poses' sensitivity, passes), so its sensitivities would not explain the
+/// warning; neither would the rcond of the two parameters the filter kept.
+#[test]
+fn the_warning_quotes_the_numbers_that_named_t_r_and_d() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../examples/psu-mapping-van-testtrack/run-14-45-26.toml");
+    let (drive, _) = crate::io::import::load_drive(&path).expect("import");
+    let r = calibrate(&drive, &CalibrationOptions::default()).expect("calibrate");
+    assert!(r.identification().expect("the start").observability.unobservable.is_empty());
+    assert_eq!(r.observability.unobservable, ParamSet::EMPTY.with(Param::TR).with(Param::D));
+    let ratio = r.observability.sigma_over_resolution.expect("the filter's ratios");
+    assert!(ratio[2] > 2.0 && ratio[3] > 1.0 && ratio[0] < 1.0 && ratio[1] < 1.0, "{ratio:?}");
+    let w = r.warnings.iter().find(|w| w.kind() == "unobservable").expect("the warning").to_string();
+    let want = format!(
+        "EIV filter: t_r, d not observable from these data (the filter's σ / resolution at its start, [c_e, c_d, \
+         t_r, d] = [{:.2}, {:.2}, {:.2}, {:.2}], is above 1 for t_r, d: held at the batch G-N start's values; \
+         rcond",
+        ratio[0], ratio[1], ratio[2], ratio[3]
+    );
+    assert!(w.starts_with(&want), "{w}");
+    let json = serde_json::to_value(&r).expect("json");
+    assert_eq!(json["observability"]["sigma_over_resolution"][2].as_f64(), Some(ratio[2]));
+    assert!(json["observability"].get("sensitivity_m").is_none(), "{}", json["observability"]);
+}
+
 /// The validation drives' lines count in the singular for one.
 #[test]
 fn validation_drive_lines_count_one_in_the_singular() {

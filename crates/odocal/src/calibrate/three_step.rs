@@ -657,7 +657,7 @@ mod forced_divergence_tests {
                         ..
                     }
             )),
-            "{:?} at θ = {}",
+            "{:?} at {}",
             rej.violations,
             init.batches[0].score.theta
         );

@@ -20,7 +20,8 @@ impl Drive {
     /// within a part enter the model). The truth is kept when every drive
     /// has it, the reference mask when any has it (samples of a drive
     /// without one count as measured); extra columns are dropped. The
-    /// sample time is the first drive's.
+    /// sample time is the first drive's. Each sample's time on its own
+    /// drive's clock stays known ([`Drive::own_time_s`]).
     ///
     /// # Errors
     /// [`Error::InvalidDrive`] when `drives` is empty or a drive's sample
@@ -60,6 +61,7 @@ impl Drive {
         let mut mask = any_mask.then(|| Vec::with_capacity(n));
         let mut parts = Vec::new();
         let mut starts = Vec::new();
+        let mut shifts = Vec::new();
         for d in drives {
             let offset = match (t.last(), d.t.first()) {
                 (Some(&last), Some(&start)) if start <= last => last + CONCAT_GAP_S - start,
@@ -67,6 +69,7 @@ impl Drive {
             };
             let base = t.len();
             starts.extend(d.drive_starts.iter().map(|s| base + s));
+            shifts.extend(d.drive_time_shifts_s.iter().map(|s| s + offset));
             t.extend(d.t.iter().map(|v| v + offset));
             append(&mut measured, &d.measured);
             if let (Some(all), Some(tr)) = (truth.as_mut(), d.truth.as_ref()) {
@@ -94,6 +97,7 @@ impl Drive {
         }
         .build()?;
         joined.drive_starts = starts;
+        joined.drive_time_shifts_s = shifts;
         Ok(joined)
     }
 }
@@ -143,6 +147,28 @@ mod tests {
             validation_segments(&j, &ValidationSegmentOptions { length_steps: 40, stride_steps: 20, offset_steps: 0 })
                 .expect("segments");
         assert!(v.iter().all(|s| s.start + s.steps < 100 || s.start >= 100));
+    }
+
+    /// Each sample keeps the time its own drive gave it, through a shift, a
+    /// second join and a split.
+    #[test]
+    fn each_sample_keeps_its_own_drives_time() {
+        let a = drive(100, 0.0, 0.025, vec![0..100]);
+        let b = drive(80, 1.0, 0.025, vec![0..80]);
+        let c = drive(60, 500.0, 0.025, vec![0..60]);
+        let ab = Drive::concat(&[&a, &b]).expect("join");
+        let abc = Drive::concat(&[&ab, &c]).expect("join again");
+        assert_eq!(abc.drive_starts(), &[0, 100, 180]);
+        let own: Vec<f64> = a.t().iter().chain(b.t()).chain(c.t()).copied().collect();
+        for (i, want) in own.iter().enumerate() {
+            approx::assert_relative_eq!(abc.own_time_s(i), *want, max_relative = 1e-12);
+        }
+        assert_eq!(abc.drive_of_sample(150), 1);
+        // The second half of the joined drive starts inside b.
+        let (_, late) = abc.split_at_time(abc.t()[150]).expect("split");
+        assert_eq!(late.drive_starts(), &[0, 30]);
+        approx::assert_relative_eq!(late.own_time_s(0), b.t()[50], max_relative = 1e-12);
+        approx::assert_relative_eq!(late.own_time_s(30), 500.0);
     }
 
     #[test]

@@ -209,6 +209,9 @@ pub struct Drive {
     /// The first sample of each drive this one was joined from
     /// ([`Drive::concat`]); `[0]` for one drive.
     drive_starts: Vec<usize>,
+    /// What [`Drive::concat`] added to each of those drives' time stamps
+    /// (one per `drive_starts`); `[0]` for one drive.
+    drive_time_shifts_s: Vec<f64>,
 }
 
 /// The checked constructor of a [`Drive`]: the time and the measured
@@ -328,8 +331,17 @@ impl DriveBuilder {
         if let Some(tr) = truth.as_mut() {
             unwrap_in_place(&mut tr.psi);
         }
-        let drive =
-            Drive { t, measured, truth, reference_measured, extra, parts, sample_time_s: ts, drive_starts: vec![0] };
+        let drive = Drive {
+            t,
+            measured,
+            truth,
+            reference_measured,
+            extra,
+            parts,
+            sample_time_s: ts,
+            drive_starts: vec![0],
+            drive_time_shifts_s: vec![0.0],
+        };
         plausibility::check_limits(&drive, &limits, &context)?;
         Ok(drive)
     }
@@ -560,6 +572,14 @@ impl Drive {
     pub(crate) fn drive_of_sample(&self, i: usize) -> usize {
         self.drive_starts.partition_point(|&b| b <= i).saturating_sub(1)
     }
+    /// The time of sample `i` on the clock of the drive it came from: its
+    /// time stamp less the shift [`Drive::concat`] gave that drive's stamps
+    /// to follow the previous drive (the stamp itself for a drive that was
+    /// not joined, or not shifted). What that drive's own file and import
+    /// report call the sample's time.
+    pub fn own_time_s(&self, i: usize) -> f64 {
+        self.t[i] - self.drive_time_shifts_s.get(self.drive_of_sample(i)).copied().unwrap_or(0.0)
+    }
     /// Sample time t_s, s.
     pub fn sample_time_s(&self) -> f64 {
         self.sample_time_s
@@ -676,14 +696,15 @@ impl Drive {
             ..Default::default()
         }
         .build()?;
-        // The joined drives that reach into `r`, from where they do.
-        d.drive_starts = self
-            .drive_starts
-            .iter()
-            .enumerate()
-            .filter(|(i, &s)| s < r.end && self.drive_starts.get(i + 1).is_none_or(|&next| next > r.start))
-            .map(|(_, &s)| s.max(r.start) - r.start)
+        // The joined drives that reach into `r`, from where they do, with their shifts.
+        let reach: Vec<usize> = (0..self.drive_starts.len())
+            .filter(|&i| {
+                self.drive_starts[i] < r.end && self.drive_starts.get(i + 1).is_none_or(|&next| next > r.start)
+            })
             .collect();
+        d.drive_starts = reach.iter().map(|&i| self.drive_starts[i].max(r.start) - r.start).collect();
+        d.drive_time_shifts_s =
+            reach.iter().map(|&i| self.drive_time_shifts_s.get(i).copied().unwrap_or(0.0)).collect();
         Ok(d)
     }
 }
@@ -737,6 +758,7 @@ pub(crate) fn axle_reference_drive_by(drive: &Drive, e: impl Fn(usize) -> Extrin
     }
     .build()?;
     d.drive_starts.clone_from(&drive.drive_starts);
+    d.drive_time_shifts_s.clone_from(&drive.drive_time_shifts_s);
     Ok(d)
 }
 

@@ -74,7 +74,7 @@ research_pub! {
         };
         let (ev, free, theta) = (&fit.ev, fit.free, fit.theta);
         let unc = uncertainty(prob, &fit, opts)?;
-        let observability = observability_of(&ev.total.h_theta, &free, fit.unobservable.clone(), opts);
+        let observability = observability_of(&ev.total.h_theta, &free, (fit.unobservable.clone(), fit.start_ratios), opts);
         let follows = opts.research.covariance == CovarianceMode::FollowsTheta;
         let first_order_bias = if follows { first_order_bias(&ev.total, &free) } else { None };
         let mut warnings = fit_warnings(&fit, opts);
@@ -206,6 +206,8 @@ struct Fit {
     eta_sigma: [f64; 6],
     free: [bool; 4],
     unobservable: Vec<Parameter>,
+    /// The ratios that decided `unobservable` ([`EivObservability::start_sigma_over_resolution`]).
+    start_ratios: Option<[f64; 4]>,
     passes: Vec<PassReport>,
     /// The last pass's evaluation at the estimate.
     ev: Evaluation,
@@ -236,6 +238,7 @@ fn run_passes(prob: &Problem<'_>, theta_start: &Theta, opts: &EivOptions) -> Res
     let mut eta = [0.0; 6];
     let mut free = opts.free;
     let mut unobservable = Vec::new();
+    let mut start_ratios = None;
     let mut passes = Vec::new();
     let mut last: Option<(Evaluation, [f64; 6])> = None;
     let r = &opts.research;
@@ -244,6 +247,7 @@ fn run_passes(prob: &Problem<'_>, theta_start: &Theta, opts: &EivOptions) -> Res
         let out = scoring_pass(prob, theta, eta, theta, free, pass == 0, opts)?;
         if pass == 0 {
             unobservable = out.unobservable.clone();
+            start_ratios = out.start_ratios;
             free = out.free;
         }
         theta = out.theta;
@@ -254,7 +258,7 @@ fn run_passes(prob: &Problem<'_>, theta_start: &Theta, opts: &EivOptions) -> Res
     let Some((ev, eta_sigma)) = last else {
         return Err(Error::Numerical("no EIV pass ran".into()));
     };
-    Ok(Fit { theta, eta, eta_sigma, free, unobservable, passes, ev })
+    Ok(Fit { theta, eta, eta_sigma, free, unobservable, start_ratios, passes, ev })
 }
 
 /// The heading-drift test after the tied fit ([`super::heading_drift`]):
@@ -301,6 +305,7 @@ fn heading_drift_test<'a>(
         eta_sigma: pass.eta_sigma,
         free: fit.free,
         unobservable: fit.unobservable,
+        start_ratios: fit.start_ratios,
         passes,
         ev: pass.eval,
     };

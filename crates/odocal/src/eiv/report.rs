@@ -216,7 +216,17 @@ research_pub! {
         /// Standard deviation of each parameter over its resolution (∞ when
         /// singular; 0 for parameters not estimated).
         pub sigma_over_resolution: [f64; 4],
-        /// Parameters held fixed because the data cannot determine them.
+        /// The ratios that decided [`EivObservability::unobservable`]: σ
+        /// over resolution from `H_θ` at the first pass's start (the start's
+        /// θ, the starting noise model), a held parameter's when it was held
+        /// (above 1), a free one's after the holds (0 for parameters not
+        /// free). `None` when the check did not run (on later passes, or
+        /// with [`EivOptions::fix_unobservable`](crate::eiv::EivOptions::fix_unobservable) off).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pub start_sigma_over_resolution: Option<[f64; 4]>,
+        /// Parameters held fixed because the data cannot determine them:
+        /// σ over resolution above 1 at the start
+        /// ([`EivObservability::start_sigma_over_resolution`]).
         pub unobservable: Vec<Parameter>,
         /// Parameters in a near-collinear combination of the free ones.
         pub collinear: Vec<Parameter>,

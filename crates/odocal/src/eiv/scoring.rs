@@ -16,6 +16,9 @@ pub(super) struct PassOutcome {
     pub(super) report: PassReport,
     pub(super) free: [bool; 4],
     pub(super) unobservable: Vec<Parameter>,
+    /// The σ-over-resolution ratios that decided `unobservable` (the first
+    /// pass only).
+    pub(super) start_ratios: Option<[f64; 4]>,
     pub(super) eta_sigma: [f64; 6],
 }
 
@@ -174,6 +177,7 @@ struct Pass<'p> {
     theta_ref: Theta,
     free: [bool; 4],
     unobservable: Vec<Parameter>,
+    start_ratios: Option<[f64; 4]>,
     follows: bool,
     eta_derivs: bool,
     /// The mode of a full evaluation, and of an iteration's start (lean or full).
@@ -227,10 +231,11 @@ impl<'p> Pass<'p> {
         let start_mode = if lean { Mode::full(follows, false) } else { full };
         let mut theta = theta0;
         let mut ev = prob.evaluate(&theta, &theta_ref, &eta0, start_mode)?;
-        let (free, unobservable) = if check_observability && opts.fix_unobservable {
-            fix_unobservable(&ev.total.h_theta, &free0, opts)
+        let (free, unobservable, start_ratios) = if check_observability && opts.fix_unobservable {
+            let (free, held, ratios) = fix_unobservable(&ev.total.h_theta, &free0, opts);
+            (free, held, Some(ratios))
         } else {
-            (free0, Vec::new())
+            (free0, Vec::new(), None)
         };
         if let Some(held) = opts.hold_unobservable_at.filter(|_| free != free0) {
             let (mut a, h) = (theta.to_array(), held.to_array());
@@ -247,6 +252,7 @@ impl<'p> Pass<'p> {
             theta_ref,
             free,
             unobservable,
+            start_ratios,
             follows,
             eta_derivs,
             full,
@@ -569,6 +575,7 @@ impl<'p> Pass<'p> {
             eta_step_over_sigma: self.eta_last,
         };
         let (theta, eta, free, eta_sigma) = (self.theta, self.eta, self.free, self.eta_sigma);
-        Ok(PassOutcome { theta, eta, eval: self.ev, report, free, unobservable: self.unobservable, eta_sigma })
+        let (unobservable, start_ratios) = (self.unobservable, self.start_ratios);
+        Ok(PassOutcome { theta, eta, eval: self.ev, report, free, unobservable, start_ratios, eta_sigma })
     }
 }

@@ -211,11 +211,13 @@ pub(super) fn eta_add(eta: &[f64; 6], step: &[f64; 6], lambda: f64, bounds: [f64
     std::array::from_fn(|j| (eta[j] + lambda * step[j]).clamp(bounds[0], bounds[1]))
 }
 
-/// Observability from `H_θ` over `free`: σ/resolution, rcond, collinear names.
+/// Observability from `H_θ` over `free`: σ/resolution, rcond, collinear
+/// names; with the names held at the start and the ratios that decided them
+/// (`start`: [`fix_unobservable`]'s).
 pub(super) fn observability_of(
     h: &Matrix4<f64>,
     free: &[bool; 4],
-    unobservable: Vec<Parameter>,
+    (unobservable, start): (Vec<Parameter>, Option<[f64; 4]>),
     opts: &EivOptions,
 ) -> EivObservability {
     let idx: Vec<usize> = (0..4).filter(|i| free[*i]).collect();
@@ -251,14 +253,30 @@ pub(super) fn observability_of(
         }
     }
     let collinear = (0..4).filter(|i| weak[*i]).map(|i| PARAMETERS[i]).collect();
-    EivObservability { rcond, sigma_over_resolution: ratio, unobservable, collinear }
+    EivObservability {
+        rcond,
+        sigma_over_resolution: ratio,
+        start_sigma_over_resolution: start,
+        unobservable,
+        collinear,
+    }
 }
 
-/// Holds fixed, one at a time (worst first), the free parameters whose σ
-/// exceeds their resolution. Returns the reduced mask and the names.
-pub(super) fn fix_unobservable(h: &Matrix4<f64>, free: &[bool; 4], opts: &EivOptions) -> ([bool; 4], Vec<Parameter>) {
+/// The observability decision at the first pass's start, from `h`
+/// (`H_θ` at the start's θ and the starting noise model): the free
+/// parameters whose σ exceeds their resolution held fixed, one at a time
+/// (worst first, the others' ratios recomputed after each; the last free
+/// parameter is never held). Returns the reduced mask, the names held and
+/// the ratios that decided: a held parameter's when it was held, a free
+/// one's after the holds (0 for parameters not free).
+pub(super) fn fix_unobservable(
+    h: &Matrix4<f64>,
+    free: &[bool; 4],
+    opts: &EivOptions,
+) -> ([bool; 4], Vec<Parameter>, [f64; 4]) {
     let mut free = *free;
     let mut fixed = Vec::new();
+    let mut ratios = [0.0; 4];
     loop {
         let inv = free_inverse(h, &free);
         let mut worst: Option<(usize, f64)> = None;
@@ -266,6 +284,7 @@ pub(super) fn fix_unobservable(h: &Matrix4<f64>, free: &[bool; 4], opts: &EivOpt
             let r = inv.map_or(f64::INFINITY, |m| m[(i, i)].max(0.0).sqrt() / opts.resolution[i]);
             // With a singular matrix rank the diagonal of H itself.
             let r = if r.is_finite() { r } else { 1.0 / (h[(i, i)].max(0.0).sqrt() * opts.resolution[i]).max(1e-300) };
+            ratios[i] = r;
             if r > 1.0 && worst.is_none_or(|(_, w)| r > w) {
                 worst = Some((i, r));
             }
@@ -279,5 +298,5 @@ pub(super) fn fix_unobservable(h: &Matrix4<f64>, free: &[bool; 4], opts: &EivOpt
         }
     }
     fixed.sort_by_key(|p| PARAMETERS.iter().position(|q| q == p));
-    (free, fixed)
+    (free, fixed, ratios)
 }

@@ -273,7 +273,7 @@ pub(crate) fn joint_report<const N: usize>(
             clusters,
             block_steps: opts.robust_block_steps,
         }),
-        observability: Observability { rcond, sensitivity_m: [sens[0], sens[1], sens[2], sens[3]], unobservable },
+        observability: Observability::of_batch(rcond, [sens[0], sens[1], sens[2], sens[3]], unobservable),
         segments: segments.len(),
         residual_poses: ne.poses,
         extrinsics: Some(estimate),

@@ -269,19 +269,44 @@ research_pub! {
     }
 }
 
-/// Observability diagnostics of `JᵀWJ` at the estimate.
+/// Observability diagnostics: which parameters the data cannot determine,
+/// with the numbers of the check that decided it. Batch Gauss-Newton (and
+/// the 3-step method's final identification) checks `JᵀWJ` at its estimate
+/// and fills [`Observability::sensitivity_m`]; the EIV filter checks its
+/// information matrix `H_θ` and fills [`Observability::sigma_over_resolution`]
+/// instead (`crate::eiv::EivObservability`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Observability {
-    /// Reciprocal condition number of the equilibrated `D^{-½} JᵀWJ D^{-½}`
-    /// over the free parameters (1 is perfect, near 0 means collinear columns).
+    /// Reciprocal condition number of the equilibrated information
+    /// (`D^{-½} JᵀWJ D^{-½}`, or the EIV filter's `H_θ`) over the
+    /// parameters estimated (1 is perfect, near 0 means collinear columns);
+    /// below [`IdentifyOptions::min_rcond`] (the EIV filter's own
+    /// `min_rcond`) the parameters of the weak combination are named.
     pub rcond: f64,
-    /// RMS change of the predicted poses (weighted metres per residual pose)
-    /// when each parameter moves by its resolution (`[c_e, c_d, t_r, d]`;
-    /// 0 for fixed parameters).
-    pub sensitivity_m: [f64; 4],
+    /// Batch Gauss-Newton: RMS change of the predicted poses (weighted
+    /// metres per residual pose) when each parameter moves by its
+    /// resolution (`[c_e, c_d, t_r, d]`; 0 for fixed parameters). `None`
+    /// for an EIV result.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sensitivity_m: Option<[f64; 4]>,
+    /// EIV: each parameter's σ over its resolution from the filter's
+    /// information at its start, the ratio that decided it: above 1 the
+    /// filter held the parameter at its start's value and names it (0 for
+    /// parameters not estimated; `EivObservability::start_sigma_over_resolution`).
+    /// `None` for batch Gauss-Newton, and for an EIV filter told not to
+    /// hold parameters (`EivOptions::fix_unobservable` off).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sigma_over_resolution: Option<[f64; 4]>,
     /// Parameters that are not observable from these data (alone or in a
     /// combination): their estimate is not to be trusted.
     pub unobservable: ParamSet,
+}
+
+impl Observability {
+    /// Batch Gauss-Newton's diagnostics (no EIV ratios).
+    pub(crate) fn of_batch(rcond: f64, sensitivity_m: [f64; 4], unobservable: ParamSet) -> Observability {
+        Observability { rcond, sensitivity_m: Some(sensitivity_m), sigma_over_resolution: None, unobservable }
+    }
 }
 
 research_pub! {
@@ -509,7 +534,7 @@ pub(crate) fn observability(ne: &NormalEquations, free: ParamSet, opts: &Identif
     let jtwj = nalgebra::DMatrix::from_fn(4, 4, |i, j| ne.jtwj[(i, j)]);
     let (rcond, s, unobservable) =
         observability_of(&jtwj, ne.poses, free.intersection(ParamSet::THETA), &opts.resolution, opts);
-    Observability { rcond, sensitivity_m: [s[0], s[1], s[2], s[3]], unobservable }
+    Observability::of_batch(rcond, [s[0], s[1], s[2], s[3]], unobservable)
 }
 
 /// The observability check on a `JᵀWJ` over the first `jtwj.nrows()`
@@ -822,7 +847,7 @@ mod tests {
     fn collinear_parameters_are_named_even_when_each_is_sensitive() {
         let opts = IdentifyOptions::default();
         let o = observability(&normal_equations(true), ParamSet::THETA, &opts);
-        assert!(o.sensitivity_m.iter().all(|s| *s > opts.min_sensitivity_m), "{o:?}");
+        assert!(o.sensitivity_m.is_some_and(|s| s.iter().all(|s| *s > opts.min_sensitivity_m)), "{o:?}");
         assert!(o.rcond < opts.min_rcond, "{o:?}");
         assert_eq!(o.unobservable, ParamSet::from_iter([Param::CD, Param::D]));
     }

@@ -125,6 +125,10 @@ impl From<&Theta> for [f64; 4] {
     }
 }
 
+/// Each parameter named with its value and unit: `c_e = 1.950000 m, c_d =
+/// -2.0000 mm, t_r = 1.530000 m, d = 0.8000 mm/(m/s²)`. It names the
+/// parameters itself, so text around it introduces it without a `θ =`
+/// (`at c_e = …`, `θ: c_e = …`, `θ_0 (c_e = …)`).
 impl std::fmt::Display for Theta {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
@@ -134,6 +138,49 @@ impl std::fmt::Display for Theta {
             self.c_d * 1e3,
             self.t_r,
             self.d * 1e3
+        )
+    }
+}
+
+impl Theta {
+    /// θ with a 1σ `sigma` beside each value, in the units and digits of
+    /// θ's `Display`.
+    ///
+    /// ```
+    /// use odocal::Theta;
+    /// let th = Theta { c_e: 1.95, c_d: -0.002, t_r: 1.53, d: 0.0008 };
+    /// let s = Theta { c_e: 3e-4, c_d: 1e-4, t_r: 4e-3, d: 5e-5 };
+    /// assert_eq!(
+    ///     th.display_with_sigma(&s).to_string(),
+    ///     "c_e = 1.950000 ± 0.000300 m, c_d = -2.0000 ± 0.1000 mm, t_r = 1.530000 ± 0.004000 m, \
+    ///      d = 0.8000 ± 0.0500 mm/(m/s²)"
+    /// );
+    /// ```
+    pub fn display_with_sigma<'a>(&'a self, sigma: &'a Theta) -> impl std::fmt::Display + 'a {
+        ThetaWithSigma { theta: self, sigma }
+    }
+}
+
+/// [`Theta::display_with_sigma`].
+struct ThetaWithSigma<'a> {
+    theta: &'a Theta,
+    sigma: &'a Theta,
+}
+
+impl std::fmt::Display for ThetaWithSigma<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (t, s) = (self.theta, self.sigma);
+        write!(
+            f,
+            "c_e = {:.6} ± {:.6} m, c_d = {:.4} ± {:.4} mm, t_r = {:.6} ± {:.6} m, d = {:.4} ± {:.4} mm/(m/s²)",
+            t.c_e,
+            s.c_e,
+            t.c_d * 1e3,
+            s.c_d * 1e3,
+            t.t_r,
+            s.t_r,
+            t.d * 1e3,
+            s.d * 1e3
         )
     }
 }

@@ -183,17 +183,31 @@ pub(crate) fn conventions(m: &Manifest, x: &Resampled<'_>, theta0: &Theta, warni
     let y = YawMoments::of(&ww, &wr, &moving);
     let (va, vb, c) = (y.va, y.vb, y.c);
     let corr = y.cov / (va * vb).sqrt();
-    if !within(MIN_YAW_CORRELATION, corr.abs()) || !(va / c).sqrt().is_finite() || (va / c).sqrt() < TURNING_RAD_PER_S {
-        warnings.push(format!(
-            "heading unit and convention not checked: the drive turns too little (RMS wheel yaw rate {:.3} rad/s, \
-             needs {TURNING_RAD_PER_S}) or the yaw rates correlate too little (r = {corr:.2}, needs \
-             {MIN_YAW_CORRELATION})",
-            (va / c).sqrt()
-        ));
+    if let Some(why) = heading_check_refused((va / c).sqrt(), corr) {
+        warnings.push(format!("heading unit and convention not checked: {why}"));
         return Ok(());
     }
     let r = corr.signum() * (vb / va).sqrt();
     heading_convention(m, r, warnings)
+}
+
+/// Why the heading check cannot judge a drive whose wheels' RMS yaw rate
+/// is `rms_yaw_rate` (rad/s) and whose two yaw rates correlate with `r`:
+/// each condition that fails, with its number (a NaN fails); `None` when
+/// both hold.
+fn heading_check_refused(rms_yaw_rate: f64, r: f64) -> Option<String> {
+    let turns = rms_yaw_rate.is_finite() && rms_yaw_rate >= TURNING_RAD_PER_S;
+    let correlate = r.abs() >= MIN_YAW_CORRELATION;
+    let mut failed = Vec::new();
+    if !turns {
+        failed.push(format!(
+            "the drive turns too little (RMS wheel yaw rate {rms_yaw_rate:.3} rad/s, needs {TURNING_RAD_PER_S})"
+        ));
+    }
+    if !correlate {
+        failed.push(format!("the yaw rates correlate too little (|r| = {:.2}, needs {MIN_YAW_CORRELATION})", r.abs()));
+    }
+    (!failed.is_empty()).then(|| failed.join(" and "))
 }
 
 /// Each wheel's speed over the (unsigned) reference speed while moving:
@@ -356,5 +370,26 @@ pub(crate) fn lateral_convention(m: &Manifest, d: &crate::Drive) -> Result<()> {
         }
         Some((LateralProblem::Scale, reason)) => Err(m.error("lateral_acceleration.column", reason)),
         None => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The heading check's refusal names only the conditions that failed,
+    /// each with its number.
+    #[test]
+    fn a_refused_heading_check_names_only_what_failed() {
+        assert_eq!(heading_check_refused(0.05, 0.9), None);
+        assert_eq!(heading_check_refused(0.05, -0.9), None, "the sign is judged afterwards");
+        let straight = heading_check_refused(0.004, 0.85).expect("turns too little");
+        assert_eq!(straight, "the drive turns too little (RMS wheel yaw rate 0.004 rad/s, needs 0.02)");
+        let noisy = heading_check_refused(0.05, -0.31).expect("correlates too little");
+        assert_eq!(noisy, "the yaw rates correlate too little (|r| = 0.31, needs 0.7)");
+        let both = heading_check_refused(0.004, 0.31).expect("both");
+        assert!(both.contains("turns too little") && both.contains(" and the yaw rates correlate"), "{both}");
+        let nan = heading_check_refused(f64::NAN, f64::NAN).expect("NaN fails");
+        assert!(nan.contains("turns too little") && nan.contains("correlate too little"), "{nan}");
     }
 }

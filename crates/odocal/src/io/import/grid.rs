@@ -145,18 +145,9 @@ impl Grid {
         let mut parts = Vec::new();
         let mut kept = Vec::new();
         for (r, ok) in &runs {
-            let (t0, t1) = (r.start as f64 * h, (r.end - 1) as f64 * h);
             if *ok {
                 let keep = r.len() >= min_samples;
-                parts.push(PartRecord {
-                    t_start_s: t0,
-                    t_end_s: t1,
-                    samples: r.len(),
-                    kept: keep,
-                    dropped_because: (!keep).then(|| {
-                        format!("{:.2} s is shorter than output.min_part_s = {} s", r.len() as f64 * h, o.min_part_s)
-                    }),
-                });
+                parts.push(PartRecord::new(r.clone(), h, keep, o.min_part_s));
                 if keep {
                     kept.push(r.clone());
                 }
@@ -167,7 +158,7 @@ impl Grid {
                         reasons.push(v.clone());
                     }
                 }
-                gaps.push(GapRecord { t_start_s: t0, t_end_s: t1 + h, reasons });
+                gaps.push(GapRecord { t_start_s: r.start as f64 * h, t_end_s: r.end as f64 * h, reasons });
             }
         }
         if kept.is_empty() {

@@ -84,7 +84,7 @@ fn kinematic(
                 }
             }
             signal::smooth_parts(&mut a, x.kept, *smoothing_s, h);
-            (a, format!("from wheels: v·ω of the model at θ_0 = {theta0}, smoothed over {smoothing_s} s"))
+            (a, format!("from wheels: v·ω of the model at θ_0 ({theta0}), smoothed over {smoothing_s} s"))
         }
         LateralAccelerationSpec::FromPose { smoothing_s, .. } => {
             let mut a = vec![0.0; n_grid];

@@ -133,23 +133,30 @@ pub struct ClockOffsetReport {
     pub mode: String,
 }
 
-/// An interval without valid samples.
+/// An interval without valid samples, measured as a part is
+/// ([`PartRecord`]): each invalid sample stands for one output step.
 #[derive(Debug, Clone, Serialize)]
 pub struct GapRecord {
-    /// Start, s (relative to the origin).
+    /// Start: the first invalid sample's time, s (relative to the origin).
     pub t_start_s: f64,
-    /// End, s.
+    /// End: the last invalid sample's time plus one output step, where the
+    /// next part starts, s.
     pub t_end_s: f64,
     /// Why (the distinct reasons of the invalid samples).
     pub reasons: Vec<String>,
 }
 
-/// A continuous run of valid samples.
+/// A continuous run of valid samples. Its duration is its samples times
+/// the output step (each sample stands for one step): `t_end_s −
+/// t_start_s`, the duration `output.min_part_s` is compared with and the
+/// kept parts' durations add up to [`ImportReport::duration_s`]. A part
+/// ends where the next gap starts. The text gives times and durations to
+/// the millisecond, which at 40 Hz (a 25 ms step) is exact.
 #[derive(Debug, Clone, Serialize)]
 pub struct PartRecord {
-    /// Start, s (relative to the origin).
+    /// Start: the first sample's time, s (relative to the origin).
     pub t_start_s: f64,
-    /// End, s.
+    /// End: the last sample's time plus one output step, s.
     pub t_end_s: f64,
     /// Samples.
     pub samples: usize,
@@ -157,6 +164,22 @@ pub struct PartRecord {
     pub kept: bool,
     /// Why it was dropped.
     pub dropped_because: Option<String>,
+}
+
+impl PartRecord {
+    /// The part of output samples `samples` (indices from the origin, step
+    /// `h`), kept or dropped as shorter than `min_part_s`.
+    pub(crate) fn new(samples: std::ops::Range<usize>, h: f64, kept: bool, min_part_s: f64) -> PartRecord {
+        let duration = samples.len() as f64 * h;
+        PartRecord {
+            t_start_s: samples.start as f64 * h,
+            t_end_s: samples.end as f64 * h,
+            samples: samples.len(),
+            kept,
+            dropped_because: (!kept)
+                .then(|| format!("{duration:.3} s is shorter than output.min_part_s = {min_part_s} s")),
+        }
+    }
 }
 
 impl std::fmt::Display for ImportReport {
@@ -218,10 +241,10 @@ impl std::fmt::Display for ImportReport {
             self.time_origin_s, self.common_span_s[0], self.common_span_s[1]
         )?;
         for g in &self.gaps {
-            writeln!(f, "  gap   {:9.2} … {:9.2} s: {}", g.t_start_s, g.t_end_s, g.reasons.join("; "))?;
+            writeln!(f, "  gap   {:10.3} … {:10.3} s: {}", g.t_start_s, g.t_end_s, g.reasons.join("; "))?;
         }
         for p in &self.parts {
-            write!(f, "  part  {:9.2} … {:9.2} s, {:6} samples", p.t_start_s, p.t_end_s, p.samples)?;
+            write!(f, "  part  {:10.3} … {:10.3} s, {:6} samples", p.t_start_s, p.t_end_s, p.samples)?;
             match &p.dropped_because {
                 Some(why) => writeln!(f, ", dropped: {why}")?,
                 None => writeln!(f, ", kept")?,

@@ -450,6 +450,29 @@ fn quality_rejection_splits_and_short_parts_are_dropped() {
     assert_eq!(d.parts().len(), r.parts.iter().filter(|p| p.kept).count());
     // No sample of the drive lies within a rejected stretch.
     assert!(d.t().iter().all(|t| !(0.9..1.1).contains(t)));
+    spans_agree_with_durations(&r);
+}
+
+/// Every part's span is its samples × the output step, the duration its
+/// drop reason and the kept total state; parts and gaps tile the time
+/// axis (each ends where the next starts).
+fn spans_agree_with_durations(r: &ImportReport) {
+    let h = 1.0 / r.output_rate_hz;
+    for p in &r.parts {
+        let span = p.t_end_s - p.t_start_s;
+        assert!((span - p.samples as f64 * h).abs() < 1e-9, "{span} s against {} samples: {r}", p.samples);
+        if let Some(why) = &p.dropped_because {
+            assert!(why.starts_with(&format!("{span:.3} s is shorter")), "{why} against {span} s: {r}");
+        }
+    }
+    let kept: f64 = r.parts.iter().filter(|p| p.kept).map(|p| p.t_end_s - p.t_start_s).sum();
+    assert!((kept - r.duration_s).abs() < 1e-6, "{kept} against {}: {r}", r.duration_s);
+    let mut spans: Vec<[f64; 2]> = r.parts.iter().map(|p| [p.t_start_s, p.t_end_s]).collect();
+    spans.extend(r.gaps.iter().map(|g| [g.t_start_s, g.t_end_s]));
+    spans.sort_by(|a, b| a[0].total_cmp(&b[0]));
+    for w in spans.windows(2) {
+        assert_eq!(w[0][1].to_bits(), w[1][0].to_bits(), "{w:?}: {r}");
+    }
 }
 
 #[test]
@@ -560,6 +583,11 @@ fn rav4_slice_imports() {
     // Nearly straight: |a_y| stays small, and is left-positive on average ~0.
     let mean_ay = d.a_y().iter().sum::<f64>() / d.len() as f64;
     assert!(mean_ay.abs() < 1.0, "{mean_ay}");
+    // Too straight for the heading check; its yaw rates correlate well
+    // enough, and the warning names only what failed.
+    let w = r.warnings.iter().find(|w| w.starts_with("heading unit and convention not checked")).expect("{r}");
+    assert!(w.contains("the drive turns too little (RMS wheel yaw rate 0.00"), "{w}");
+    assert!(!w.contains("correlate"), "{w}");
 }
 
 #[test]

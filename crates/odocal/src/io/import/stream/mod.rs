@@ -537,7 +537,7 @@ impl RawStream {
                     format!("IMU column '{column}' of stream '{stream}' × {sign:+}, mean over each output interval")
                 }
                 LateralAccelerationSpec::FromWheels { smoothing_s, .. } => self.with_bank(format!(
-                    "from wheels: v·ω of the model at θ_0 = {theta0}, smoothed over {smoothing_s} s"
+                    "from wheels: v·ω of the model at θ_0 ({theta0}), smoothed over {smoothing_s} s"
                 )),
                 LateralAccelerationSpec::FromPose { smoothing_s, .. } => self.with_bank(format!(
                     "from pose: speed × yaw rate of the reference, smoothed over {smoothing_s} s (feeds the \

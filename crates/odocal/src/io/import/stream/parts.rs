@@ -320,26 +320,17 @@ impl Assembler {
     pub(crate) fn close_run(&mut self, m: &Manifest) -> Result<()> {
         let Some((k0, ok)) = self.run_start.take() else { return Ok(()) };
         let h = self.h;
-        let (t0, t1) = (k0 as f64 * h, (k0 + self.run_len - 1) as f64 * h);
         let len = std::mem::take(&mut self.run_len);
         if !ok {
             self.gaps.push(GapRecord {
-                t_start_s: t0,
-                t_end_s: t1 + h,
+                t_start_s: k0 as f64 * h,
+                t_end_s: (k0 + len) as f64 * h,
                 reasons: std::mem::take(&mut self.gap_reasons),
             });
             return Ok(());
         }
         let keep = self.pipe.is_some();
-        self.parts.push(PartRecord {
-            t_start_s: t0,
-            t_end_s: t1,
-            samples: len,
-            kept: keep,
-            dropped_because: (!keep).then(|| {
-                format!("{:.2} s is shorter than output.min_part_s = {} s", len as f64 * h, m.output.min_part_s)
-            }),
-        });
+        self.parts.push(PartRecord::new(k0..k0 + len, h, keep, m.output.min_part_s));
         self.run.clear();
         if let Some(mut p) = self.pipe.take() {
             if let Some(s) = p.a_y_from_pose(None, h) {

@@ -70,6 +70,12 @@ fn a_drive_within_the_warm_up_is_the_whole_import_bit_for_bit() {
         assert_eq!(r.samples, whole.report.samples);
         assert_eq!(r.parts.len(), whole.report.parts.len());
         assert_eq!(r.gaps.len(), whole.report.gaps.len());
+        let spans = |r: &ImportReport| -> Vec<(u64, u64, Option<String>)> {
+            let parts = r.parts.iter().map(|p| (p.t_start_s, p.t_end_s, p.dropped_because.clone()));
+            let gaps = r.gaps.iter().map(|g| (g.t_start_s, g.t_end_s, None));
+            parts.chain(gaps).map(|(a, b, why)| (a.to_bits(), b.to_bits(), why)).collect()
+        };
+        assert_eq!(spans(&r), spans(&whole.report), "{rel}: the parts' and gaps' spans");
         assert_eq!(r.distance_m.to_bits(), whole.drive.distance_m().to_bits());
         assert_eq!(jitter_bits(&r), jitter_bits(&whole.report), "{rel}: the jitter report");
         // the road bank's roll: its pairs, glitches and statistics
