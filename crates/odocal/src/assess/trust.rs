@@ -558,6 +558,45 @@ pub enum VerdictReason {
         /// What a checked σ needs, as advice (a longer drive).
         needs: String,
     },
+    /// Estimated reference extrinsics whose σ is the model's alone
+    /// (doubtful): no cluster-robust σ of them checks it against the data.
+    /// The model σ assumes independent residuals; on the PSU test-track
+    /// van the 3-step's model σ of lever_x was 100–300 × below the spread
+    /// of the methods' estimates. Not given when
+    /// [`VerdictReason::ModelSigmaOnly`] already names the whole result.
+    ExtrinsicsModelSigmaOnly {
+        /// The estimated extrinsics.
+        params: ParamSet,
+        /// Whose model σ (`"the 3-step method"`, `"batch Gauss-Newton"`,
+        /// `"EIV's batch Gauss-Newton start"`).
+        stage: String,
+        /// What a checked σ needs, as advice.
+        needs: String,
+    },
+    /// The reference heading offset δ was held (not estimated) by a method
+    /// that otherwise lets θ absorb it (batch Gauss-Newton, the 3-step),
+    /// and δ fitted together with θ on the calibration drive lies more
+    /// than 3 of its σ from the held value, and that fit moves a free θ
+    /// parameter by more than its σ for the next drive (doubtful): the held
+    /// δ biases θ by as much as its stated uncertainty.
+    HeadingOffsetHeld {
+        /// The drive (index into [`crate::Drive::drive_starts`]) when
+        /// several were calibrated together; `None` for one drive.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        drive: Option<usize>,
+        /// The δ the calibration held, rad.
+        held: f64,
+        /// δ fitted together with θ on the drive's calibration segments, rad.
+        fitted: f64,
+        /// Its σ (cluster-robust where computed, else the model's), rad.
+        sigma: f64,
+        /// The free θ parameter that moves most when δ is fitted too.
+        param: Param,
+        /// Its move, SI.
+        shift: f64,
+        /// The move over the result's σ of `param`.
+        shift_sigmas: f64,
+    },
     /// The batch Gauss-Newton that gives the result stopped at its
     /// iteration limit while still moving (doubtful): its last accepted
     /// step moved `param` by `step_sigmas` σ, more than
@@ -685,6 +724,24 @@ impl std::fmt::Display for VerdictReason {
                 "only the model σ of {stage} stands for this result: it assumes independent residuals and \
                  understates the spread of such estimates under input noise, so nothing bounds the error ({needs})"
             ),
+            VerdictReason::ExtrinsicsModelSigmaOnly { params, stage, needs } => write!(
+                f,
+                "the σ of {params} is the model σ of {stage} alone: it assumes independent residuals and \
+                 understates the spread of such estimates under input noise, so nothing bounds their error ({needs})"
+            ),
+            VerdictReason::HeadingOffsetHeld { drive, held, fitted, sigma, param, shift, shift_sigmas } => {
+                let on = drive.map_or("the drive".to_string(), |k| format!("drive {k}"));
+                write!(
+                    f,
+                    "the reference heading offset was held at {:.2} mrad, but fitted with θ on {on} it is \
+                     {:.2} mrad ({:.0} × its σ {:.3} mrad away), and {param} then moves by {shift:.3e} \
+                     ({shift_sigmas:.1} × its σ): θ absorbs the offset (add --estimate heading-offset)",
+                    held * 1e3,
+                    fitted * 1e3,
+                    (fitted - held).abs() / sigma,
+                    sigma * 1e3
+                )
+            }
             VerdictReason::NotConverged { stage, iterations, param, step_sigmas } => write!(
                 f,
                 "{stage} stopped at its iteration limit ({iterations}) while still moving: its last step moved \
@@ -739,6 +796,10 @@ pub(crate) struct Evidence<'a> {
     /// Whose model σ stands for θ, and what a checked σ needs, when no σ
     /// checked against the data does ([`VerdictReason::ModelSigmaOnly`]).
     pub model_sigma_only: Option<(&'a str, String)>,
+    /// Whose model σ stands for the estimated extrinsics, and what a
+    /// checked σ needs, when no cluster-robust σ of them does
+    /// ([`VerdictReason::ExtrinsicsModelSigmaOnly`]).
+    pub extrinsics_model_sigma_only: Option<(&'a str, String)>,
 }
 
 /// The free θ parameter that moved most, in σ of `covariance`, in the last
@@ -958,6 +1019,17 @@ pub(crate) fn judge(e: &Evidence<'_>, opts: &TrustOptions) -> Verdict {
     if let Some((stage, needs)) = &e.model_sigma_only {
         reasons.push(VerdictReason::ModelSigmaOnly { stage: stage.to_string(), needs: needs.clone() });
     }
+    if let (Some(x), Some((stage, needs)), None) = (e.extrinsics, &e.extrinsics_model_sigma_only, &e.model_sigma_only)
+    {
+        let params = x.free.intersection(e.free);
+        if !params.is_empty() && x.robust.is_none() {
+            reasons.push(VerdictReason::ExtrinsicsModelSigmaOnly {
+                params,
+                stage: stage.to_string(),
+                needs: needs.clone(),
+            });
+        }
+    }
     if let Some((stage, id)) = e.identification {
         if let Some((param, step_sigmas)) = unconverged_step(id, e.free, e.covariance, opts.max_final_step_sigmas) {
             let iterations = id.iterations;
@@ -1018,6 +1090,7 @@ mod tests {
             identification: None,
             next_drive: None,
             model_sigma_only: None,
+            extrinsics_model_sigma_only: None,
         }
     }
 
@@ -1293,6 +1366,43 @@ mod tests {
         let est = ExtrinsicsEstimate { value: van, free, ..ExtrinsicsEstimate::held(Extrinsics::ZERO) };
         let e = Evidence { free: ParamSet::THETA.union(free), extrinsics: Some(&est), ..evidence(&th, &cov) };
         assert_eq!(judge(&e, &TrustOptions::default()).level, VerdictLevel::Accepted);
+    }
+
+    /// Estimated extrinsics without a cluster-robust σ: doubtful, naming
+    /// them; not when a robust σ checks them, nor when θ's own model-only
+    /// reason already names the whole result.
+    #[test]
+    fn extrinsics_with_only_a_model_sigma_are_doubtful() {
+        let th = Theta { c_e: 1.95, c_d: -0.002, t_r: 1.53, d: 0.0008 };
+        let cov = [[1e-8, 0.0, 0.0, 0.0], [0.0, 1e-11, 0.0, 0.0], [0.0, 0.0, 1e-7, 0.0], [0.0, 0.0, 0.0, 1e-11]];
+        let free = ParamSet::EMPTY.with(Param::LeverX).with(Param::HeadingOffset);
+        let van = Extrinsics { lever_x: -0.9, lever_y: 0.0, heading_offset: 0.015 };
+        let est = ExtrinsicsEstimate { value: van, free, ..ExtrinsicsEstimate::held(Extrinsics::ZERO) };
+        let opts = TrustOptions::default();
+        let model = Some(("the 3-step method", "hold them".to_string()));
+        let e = Evidence {
+            free: ParamSet::THETA.union(free),
+            extrinsics: Some(&est),
+            extrinsics_model_sigma_only: model.clone(),
+            ..evidence(&th, &cov)
+        };
+        let v = judge(&e, &opts);
+        assert_eq!(v.level, VerdictLevel::Doubtful, "{v:?}");
+        let VerdictReason::ExtrinsicsModelSigmaOnly { params, stage, .. } = &v.reasons[0] else { panic!("{v:?}") };
+        assert_eq!((*params, stage.as_str()), (free, "the 3-step method"));
+        assert!(v.reasons[0].to_string().starts_with("the σ of lever_x, heading_offset is the model σ of the 3-step"));
+        let robust = crate::model::extrinsics::RobustExtrinsics { std_dev: Extrinsics::ZERO, covariance: [[0.0; 3]; 3] };
+        let checked = ExtrinsicsEstimate { robust: Some(robust), ..est.clone() };
+        assert_eq!(judge(&Evidence { extrinsics: Some(&checked), ..e }, &opts).level, VerdictLevel::Accepted);
+        let e = Evidence {
+            free: ParamSet::THETA.union(free),
+            extrinsics: Some(&est),
+            extrinsics_model_sigma_only: model,
+            model_sigma_only: Some(("batch Gauss-Newton", String::new())),
+            ..evidence(&th, &cov)
+        };
+        let v = judge(&e, &opts);
+        assert!(matches!(v.reasons[..], [VerdictReason::ModelSigmaOnly { .. }]), "{v:?}");
     }
 
     #[test]

@@ -64,6 +64,7 @@ use crate::progress::{emit, Progress, ProgressFn};
 
 pub(crate) mod batch_gn;
 pub(crate) mod eiv;
+mod held_offset;
 mod render;
 pub(crate) mod report;
 pub mod settings;
@@ -72,7 +73,7 @@ mod turn_sense;
 pub(crate) mod validate_on;
 
 pub(crate) use report::MethodDetail;
-use report::{model_sigma_only, result_identification};
+use report::{extrinsics_model_sigma_only, model_sigma_only, result_identification};
 pub(crate) use report::{CalibrationReport, SigmaSource};
 pub(crate) use report::{SegmentCounts, ThetaScore, Timing, ValidationSummary};
 
@@ -592,7 +593,7 @@ pub(crate) fn calibrate_core(
     };
     let within = report::within_sigma_of(&outcome.detail, &outcome.covariance, selection.free);
     let next_drive = report::next_drive_of(&outcome.theta, &outcome.detail, &within, selection.free, opts);
-    let verdict = judge(
+    let mut verdict = judge(
         &Evidence {
             theta: &outcome.theta,
             theta0: &opts.theta0,
@@ -614,9 +615,22 @@ pub(crate) fn calibrate_core(
             identification: result_identification(&outcome.detail),
             next_drive: Some(&next_drive),
             model_sigma_only: model_sigma_only(&outcome.detail, opts),
+            extrinsics_model_sigma_only: extrinsics_model_sigma_only(&outcome.detail, opts, extrinsics.as_ref()),
         },
         &opts.trust,
     );
+    let held_offset = held_offset::held_heading_offset_reasons(
+        drive,
+        &selection.segments,
+        &outcome.theta,
+        &ext,
+        &selection.identify(opts),
+        &next_drive.sigma,
+        &outcome.detail,
+    );
+    if !held_offset.is_empty() {
+        verdict = crate::assess::trust::Verdict::from_reasons(verdict.reasons.into_iter().chain(held_offset).collect());
+    }
     let timing = Timing {
         setup,
         validation: t.elapsed().as_secs_f64(),

@@ -301,16 +301,17 @@ mod tests {
     }
 
     /// Joined drives: a block restarts at each drive's first segment, so
-    /// swapping two drives gives the same clusters (the same sizes, each
-    /// drive's segments grouped alike).
+    /// swapping two drives gives each drive the same clusters.
     #[test]
     fn clusters_restart_at_each_drive() {
-        // Drive A: samples 0..1000, drive B: 1000.. . A block of 650 from
-        // A's segment at 600 would take B's segments at 1000 and 1100.
+        // Drive A (1000 samples): segments at 0 and 600; drive B (800
+        // samples): at 0, 100 and 700. A block is 650 samples.
         let (id, g) = clusters(&[(0, 0), (0, 600), (1000, 1000), (1000, 1100), (1000, 1700)], 650);
-        assert_eq!((id, g), (vec![0, 1, 2, 2, 3], 4));
-        // B first (samples 0..800), then A (800..).
-        let (id2, g2) = clusters(&[(0, 0), (0, 100), (0, 700), (800, 800), (800, 1400)], 650);
-        assert_eq!((id2, g2), (vec![0, 0, 1, 2, 3], 4));
+        assert_eq!((id, g), (vec![0, 0, 1, 1, 2], 3));
+        // B first: B's segment at 700 and A's at 800 (A's first) are 100
+        // samples apart but in separate blocks, as are A's two segments
+        // when A came first.
+        let (id, g) = clusters(&[(0, 0), (0, 100), (0, 700), (800, 800), (800, 1400)], 650);
+        assert_eq!((id, g), (vec![0, 0, 1, 2, 2], 3));
     }
 }
