@@ -562,8 +562,9 @@ pub enum VerdictReason {
     /// (doubtful): no cluster-robust σ of them checks it against the data.
     /// The model σ assumes independent residuals; on the PSU test-track
     /// van the 3-step's model σ of lever_x was 100–300 × below the spread
-    /// of the methods' estimates. Not given when
-    /// [`VerdictReason::ModelSigmaOnly`] already names the whole result.
+    /// of the methods' estimates. Given beside
+    /// [`VerdictReason::ModelSigmaOnly`] too: pooling several drives'
+    /// θ removes that one, and checks θ's σ only.
     ExtrinsicsModelSigmaOnly {
         /// The estimated extrinsics.
         params: ParamSet,
@@ -1019,8 +1020,7 @@ pub(crate) fn judge(e: &Evidence<'_>, opts: &TrustOptions) -> Verdict {
     if let Some((stage, needs)) = &e.model_sigma_only {
         reasons.push(VerdictReason::ModelSigmaOnly { stage: stage.to_string(), needs: needs.clone() });
     }
-    if let (Some(x), Some((stage, needs)), None) = (e.extrinsics, &e.extrinsics_model_sigma_only, &e.model_sigma_only)
-    {
+    if let (Some(x), Some((stage, needs))) = (e.extrinsics, &e.extrinsics_model_sigma_only) {
         let params = x.free.intersection(e.free);
         if !params.is_empty() && x.robust.is_none() {
             reasons.push(VerdictReason::ExtrinsicsModelSigmaOnly {
@@ -1369,8 +1369,8 @@ mod tests {
     }
 
     /// Estimated extrinsics without a cluster-robust σ: doubtful, naming
-    /// them; not when a robust σ checks them, nor when θ's own model-only
-    /// reason already names the whole result.
+    /// them, beside θ's own model-only reason too; not when a robust σ
+    /// checks them.
     #[test]
     fn extrinsics_with_only_a_model_sigma_are_doubtful() {
         let th = Theta { c_e: 1.95, c_d: -0.002, t_r: 1.53, d: 0.0008 };
@@ -1391,7 +1391,8 @@ mod tests {
         let VerdictReason::ExtrinsicsModelSigmaOnly { params, stage, .. } = &v.reasons[0] else { panic!("{v:?}") };
         assert_eq!((*params, stage.as_str()), (free, "the 3-step method"));
         assert!(v.reasons[0].to_string().starts_with("the σ of lever_x, heading_offset is the model σ of the 3-step"));
-        let robust = crate::model::extrinsics::RobustExtrinsics { std_dev: Extrinsics::ZERO, covariance: [[0.0; 3]; 3] };
+        let robust =
+            crate::model::extrinsics::RobustExtrinsics { std_dev: Extrinsics::ZERO, covariance: [[0.0; 3]; 3] };
         let checked = ExtrinsicsEstimate { robust: Some(robust), ..est.clone() };
         assert_eq!(judge(&Evidence { extrinsics: Some(&checked), ..e }, &opts).level, VerdictLevel::Accepted);
         let e = Evidence {
@@ -1402,7 +1403,13 @@ mod tests {
             ..evidence(&th, &cov)
         };
         let v = judge(&e, &opts);
-        assert!(matches!(v.reasons[..], [VerdictReason::ModelSigmaOnly { .. }]), "{v:?}");
+        assert!(
+            matches!(
+                v.reasons[..],
+                [VerdictReason::ModelSigmaOnly { .. }, VerdictReason::ExtrinsicsModelSigmaOnly { .. }]
+            ),
+            "{v:?}"
+        );
     }
 
     #[test]

@@ -12,7 +12,8 @@
 //! heading-offset` would). The result is doubtful when the fitted δ lies
 //! more than [`MIN_OFFSET_SIGMAS`] of its σ (cluster-robust where
 //! computed) from the held value and the free fit moves a free θ parameter
-//! by more than [`MAX_SHIFT_SIGMAS`] of its σ for the next drive: holding
+//! by more than [`MAX_SHIFT_SIGMAS`] of its σ for the next drive (after a
+//! joint calibration, the σ with the drives' measured spread): holding
 //! δ then biases θ by as much as θ's stated uncertainty. The first test
 //! alone would flag offsets of a few tenths of a milliradian that the σ of
 //! a long drive resolves but that move θ by far less than its σ; the second

@@ -336,10 +336,23 @@ impl CalibrationReport {
         let free = self.options.identify.free;
         // The pooled σ's between-drive part is the drives' measured spread:
         // a σ checked against the data, so a model σ no longer stands alone.
-        let mut kept: Vec<_> = reasons
-            .into_iter()
-            .filter(|r| !crate::assess::trust::is_sigma_reason(r) && !matches!(r, VerdictReason::ModelSigmaOnly { .. }))
-            .collect();
+        let mut kept: Vec<_> =
+            reasons
+                .into_iter()
+                .filter(|r| {
+                    !crate::assess::trust::is_sigma_reason(r) && !matches!(r, VerdictReason::ModelSigmaOnly { .. })
+                })
+                .filter_map(|r| match r {
+                    // θ's move with δ fitted, against the new σ.
+                    VerdictReason::HeadingOffsetHeld { drive, held, fitted, sigma, param, shift, .. } => {
+                        let shift_sigmas = shift.abs() / next.sigma[param.index()]?;
+                        (shift_sigmas > super::held_offset::MAX_SHIFT_SIGMAS).then_some(
+                            VerdictReason::HeadingOffsetHeld { drive, held, fitted, sigma, param, shift, shift_sigmas },
+                        )
+                    }
+                    r => Some(r),
+                })
+                .collect();
         kept.extend(crate::assess::trust::sigma_reasons(
             &self.theta,
             &self.initial.theta,

@@ -613,7 +613,8 @@ fn a_held_heading_offset_that_moves_theta_is_doubtful() {
     let opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
     let off = drive(0.015);
     let r = calibrate(&off, &opts).expect("batch-gn, δ held");
-    let Some(VerdictReason::HeadingOffsetHeld { drive: None, held: h, fitted, sigma, param, shift_sigmas, .. }) = held(&r)
+    let Some(VerdictReason::HeadingOffsetHeld { drive: None, held: h, fitted, sigma, param, shift_sigmas, .. }) =
+        held(&r)
     else {
         panic!("{:?}", r.verdict)
     };

@@ -296,7 +296,8 @@ mod tests {
         let (a, b) = (drive(51, 3.1, 0.012, false), drive(52, 2.3, -0.004, false));
         let ab = Drive::concat(&[&a, &b]).expect("join");
         let ba = Drive::concat(&[&b, &a]).expect("join");
-        let theta_only = CalibrationOptions { identify: IdentifyOptions { max_iterations: 30, ..Default::default() }, ..batch_gn() };
+        let theta_only =
+            CalibrationOptions { identify: IdentifyOptions { max_iterations: 30, ..Default::default() }, ..batch_gn() };
         for opts in [theta_only, batch_gn()] {
             let (r1, r2) = (calibrate(&ab, &opts).expect("a, b"), calibrate(&ba, &opts).expect("b, a"));
             let (c1, c2) = (r1.robust().expect("robust σ, a then b"), r2.robust().expect("robust σ, b then a"));
