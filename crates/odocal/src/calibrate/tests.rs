@@ -619,7 +619,7 @@ fn a_held_heading_offset_that_moves_theta_is_doubtful() {
         panic!("{:?}", r.verdict)
     };
     assert_eq!(r.verdict.level, crate::assess::trust::VerdictLevel::Doubtful);
-    assert_eq!(h, 0.0);
+    assert_eq!(h.to_bits(), 0f64.to_bits(), "δ held at 0");
     assert!(fitted > 0.005 && fitted < 0.02 && fitted > 3.0 * sigma, "fitted δ {fitted}, σ {sigma}");
     assert!(shift_sigmas > 1.0, "{param} moves {shift_sigmas} σ");
     let text = held(&r).expect("reason").to_string();
