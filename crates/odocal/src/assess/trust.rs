@@ -12,42 +12,8 @@
 //!
 //! ## Verdict
 //! [`Verdict`] sums up a calibration as `accepted`, `doubtful` or
-//! `rejected`, with typed [`VerdictReason`]s:
-//! - *rejected*: the final θ fails a guard, or its Ē_p on the validation (or
-//!   held-out) data is above θ_0's (dead reckoning gets worse);
-//! - *doubtful*: a free parameter is not observable, lies in the outer tenth
-//!   of its guard region, has a σ above [`TrustOptions::max_sigma_fraction`]
-//!   of its guard half-width (the σ of
-//!   [`crate::CalibrationReport::result_covariance`]: batch-gn's
-//!   cluster-robust σ, the 3-step's step-1 batch spread; else the model σ;
-//!   so also in the cross-split check), or the held-out Ē_p is more than
-//!   [`TrustOptions::max_held_out_ratio`] times the Ē_p on the fitting data,
-//!   or θ fitted on the held-out data differs from θ fitted on the fitting
-//!   data by more than [`TrustOptions::max_split_sigmas`] of their combined σ
-//!   and more than [`TrustOptions::min_split_fraction`] of the guard
-//!   half-width (*cross-split consistency*: two halves of one drive, or two
-//!   drives of one vehicle, should give one θ).
-//!   or (EIV with its fallback off) the filter's consistency checks failed
-//!   on the returned θ ([`crate::Warning::EivCheckFailed`]), or the batch
-//!   Gauss-Newton that gives θ (batch-gn, the EIV fallback, the 3-step's
-//!   step 3) stopped at its iteration limit while its last step still moved
-//!   a parameter by more than [`TrustOptions::max_final_step_sigmas`] σ,
-//!   or the result is EIV's batch G-N fallback and EIV's own estimate lies
-//!   more than [`TrustOptions::max_fallback_gap_sigmas`] σ from it,
-//!   or the result is EIV's own estimate and its t_r lies that many σ
-//!   above its batch G-N start's ([`VerdictReason::TrackWidthAboveStart`]),
-//!   or the result is EIV's own estimate holding the reference's heading
-//!   drift at its floor and the fit without the floor lies that many σ
-//!   away ([`VerdictReason::HeadingDriftFloorDisagrees`]),
-//!   or the result is EIV's batch G-N fallback and no plausible EIV
-//!   estimate checks it ([`VerdictReason::FallbackUnchecked`]),
-//!   or EIV's fit left its common-mode wheel-noise scale at the upper
-//!   clamp, so the common-mode term of the σ for the next drive is a lower
-//!   bound ([`VerdictReason::HeavyCommonModeNoise`]).
-//!
-//! The large-σ check uses the σ that stands for the result, the σ for the
-//! next drive ([`crate::pooling`]); the cross-split and convergence checks
-//! the method's within-drive σ.
+//! `rejected`, with typed [`VerdictReason`]s: which and when, in
+//! [`crate::assess`] ("The verdict").
 
 use serde::{Deserialize, Serialize};
 
@@ -558,44 +524,35 @@ pub enum VerdictReason {
         /// What a checked σ needs, as advice (a longer drive).
         needs: String,
     },
-    /// Estimated reference extrinsics whose σ is the model's alone
-    /// (doubtful): no cluster-robust σ of them checks it against the data.
-    /// The model σ assumes independent residuals; on the PSU test-track
-    /// van the 3-step's model σ of lever_x was 100–300 × below the spread
-    /// of the methods' estimates. Given beside
-    /// [`VerdictReason::ModelSigmaOnly`] too: pooling several drives'
-    /// θ removes that one, and checks θ's σ only.
+    /// Estimated reference extrinsics whose σ is the model's alone, no
+    /// cluster-robust σ checking it (doubtful; beside
+    /// [`VerdictReason::ModelSigmaOnly`] too, which pooling drives removes).
     ExtrinsicsModelSigmaOnly {
         /// The estimated extrinsics.
         params: ParamSet,
-        /// Whose model σ (`"the 3-step method"`, `"batch Gauss-Newton"`,
-        /// `"EIV's batch Gauss-Newton start"`).
+        /// Whose model σ.
         stage: String,
         /// What a checked σ needs, as advice.
         needs: String,
     },
-    /// The reference heading offset δ was held (not estimated) by a method
-    /// that otherwise lets θ absorb it (batch Gauss-Newton, the 3-step),
-    /// and δ fitted together with θ on the calibration drive lies more
-    /// than 3 of its σ from the held value, and that fit moves a free θ
-    /// parameter by more than its σ for the next drive (doubtful): the held
-    /// δ biases θ by as much as its stated uncertainty.
+    /// δ held by batch G-N or the 3-step, yet δ fitted with θ on a drive
+    /// lies over 3 of its σ from it and moves a free θ parameter by over
+    /// its σ for the next drive (doubtful; `crate::calibrate::held_offset`).
     HeadingOffsetHeld {
-        /// The drive (index into [`crate::Drive::drive_starts`]) when
-        /// several were calibrated together; `None` for one drive.
+        /// The drive ([`crate::Drive::drive_starts`]) of a joint calibration.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         drive: Option<usize>,
-        /// The δ the calibration held, rad.
+        /// The held δ, rad.
         held: f64,
-        /// δ fitted together with θ on the drive's calibration segments, rad.
+        /// δ fitted with θ on the drive's calibration segments, rad.
         fitted: f64,
-        /// Its σ (cluster-robust where computed, else the model's), rad.
+        /// Its σ (cluster-robust where computed), rad.
         sigma: f64,
-        /// The free θ parameter that moves most when δ is fitted too.
+        /// The free θ parameter that moves most with δ fitted.
         param: Param,
         /// Its move, SI.
         shift: f64,
-        /// The move over the result's σ of `param`.
+        /// The move over its σ for the next drive.
         shift_sigmas: f64,
     },
     /// The batch Gauss-Newton that gives the result stopped at its
@@ -730,19 +687,7 @@ impl std::fmt::Display for VerdictReason {
                 "the σ of {params} is the model σ of {stage} alone: it assumes independent residuals and \
                  understates the spread of such estimates under input noise, so nothing bounds their error ({needs})"
             ),
-            VerdictReason::HeadingOffsetHeld { drive, held, fitted, sigma, param, shift, shift_sigmas } => {
-                let on = drive.map_or("the drive".to_string(), |k| format!("drive {k}"));
-                write!(
-                    f,
-                    "the reference heading offset was held at {:.2} mrad, but fitted with θ on {on} it is \
-                     {:.2} mrad ({:.0} × its σ {:.3} mrad away), and {param} then moves by {shift:.3e} \
-                     ({shift_sigmas:.1} × its σ): θ absorbs the offset (add --estimate heading-offset)",
-                    held * 1e3,
-                    fitted * 1e3,
-                    (fitted - held).abs() / sigma,
-                    sigma * 1e3
-                )
-            }
+            VerdictReason::HeadingOffsetHeld { .. } => held_offset_text(self, f),
             VerdictReason::NotConverged { stage, iterations, param, step_sigmas } => write!(
                 f,
                 "{stage} stopped at its iteration limit ({iterations}) while still moving: its last step moved \
@@ -750,6 +695,24 @@ impl std::fmt::Display for VerdictReason {
             ),
         }
     }
+}
+
+/// [`VerdictReason::HeadingOffsetHeld`]'s text.
+fn held_offset_text(r: &VerdictReason, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+    let VerdictReason::HeadingOffsetHeld { drive, held, fitted, sigma, param, shift, shift_sigmas } = r else {
+        return Ok(());
+    };
+    write!(
+        f,
+        "the reference heading offset was held at {:.2} mrad, but fitted with θ on {} it is {:.2} mrad ({:.0} × its \
+         σ {:.3} mrad away), and {param} then moves by {shift:.3e} ({shift_sigmas:.1} × its σ): θ absorbs the \
+         offset (add --estimate heading-offset)",
+        held * 1e3,
+        drive.map_or("the drive".to_string(), |k| format!("drive {k}")),
+        fitted * 1e3,
+        (fitted - held).abs() / sigma,
+        sigma * 1e3
+    )
 }
 
 /// The verdict on a calibration: the most severe level of its reasons.
@@ -797,9 +760,7 @@ pub(crate) struct Evidence<'a> {
     /// Whose model σ stands for θ, and what a checked σ needs, when no σ
     /// checked against the data does ([`VerdictReason::ModelSigmaOnly`]).
     pub model_sigma_only: Option<(&'a str, String)>,
-    /// Whose model σ stands for the estimated extrinsics, and what a
-    /// checked σ needs, when no cluster-robust σ of them does
-    /// ([`VerdictReason::ExtrinsicsModelSigmaOnly`]).
+    /// As `model_sigma_only`, for the estimated extrinsics ([`VerdictReason::ExtrinsicsModelSigmaOnly`]).
     pub extrinsics_model_sigma_only: Option<(&'a str, String)>,
 }
 
@@ -1021,13 +982,9 @@ pub(crate) fn judge(e: &Evidence<'_>, opts: &TrustOptions) -> Verdict {
         reasons.push(VerdictReason::ModelSigmaOnly { stage: stage.to_string(), needs: needs.clone() });
     }
     if let (Some(x), Some((stage, needs))) = (e.extrinsics, &e.extrinsics_model_sigma_only) {
-        let params = x.free.intersection(e.free);
+        let (params, stage, needs) = (x.free.intersection(e.free), stage.to_string(), needs.clone());
         if !params.is_empty() && x.robust.is_none() {
-            reasons.push(VerdictReason::ExtrinsicsModelSigmaOnly {
-                params,
-                stage: stage.to_string(),
-                needs: needs.clone(),
-            });
+            reasons.push(VerdictReason::ExtrinsicsModelSigmaOnly { params, stage, needs });
         }
     }
     if let Some((stage, id)) = e.identification {

@@ -22,7 +22,7 @@
 //! drive θ was fitted on, θ has already absorbed most of the offset.
 
 use crate::assess::trust::VerdictReason;
-use crate::drive::segment::{Segment, SegmentData};
+use crate::drive::segment::SegmentData;
 use crate::drive::Drive;
 use crate::identify::{batch_gauss_newton, IdentifyOptions};
 use crate::model::extrinsics::Extrinsics;
@@ -30,6 +30,7 @@ use crate::model::param::{Param, ParamSet};
 use crate::model::Theta;
 
 use super::report::MethodDetail;
+use super::{CalibrationOptions, Selection};
 
 /// The fitted δ must lie more than this many of its σ from the held value.
 pub(crate) const MIN_OFFSET_SIGMAS: f64 = 3.0;
@@ -42,13 +43,13 @@ pub(crate) const MAX_SHIFT_SIGMAS: f64 = 1.0;
 /// is then left out rather than failing the calibration).
 pub(super) fn held_heading_offset_reasons(
     drive: &Drive,
-    segments: &[Segment],
-    theta: &Theta,
+    selection: &Selection,
+    (theta, detail): (&Theta, &MethodDetail),
     held: &Extrinsics,
-    identify: &IdentifyOptions,
+    opts: &CalibrationOptions,
     sigma_next: &[Option<f64>; 4],
-    detail: &MethodDetail,
 ) -> Vec<VerdictReason> {
+    let (segments, identify) = (&selection.segments, &selection.identify(opts));
     if !matches!(detail, MethodDetail::BatchGn(_) | MethodDetail::ThreeStep(_))
         || identify.free.contains(Param::HeadingOffset)
     {

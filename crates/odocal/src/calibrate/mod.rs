@@ -593,7 +593,7 @@ pub(crate) fn calibrate_core(
     };
     let within = report::within_sigma_of(&outcome.detail, &outcome.covariance, selection.free);
     let next_drive = report::next_drive_of(&outcome.theta, &outcome.detail, &within, selection.free, opts);
-    let mut verdict = judge(
+    let verdict = judge(
         &Evidence {
             theta: &outcome.theta,
             theta0: &opts.theta0,
@@ -619,18 +619,15 @@ pub(crate) fn calibrate_core(
         },
         &opts.trust,
     );
-    let held_offset = held_offset::held_heading_offset_reasons(
+    let held = held_offset::held_heading_offset_reasons(
         drive,
-        &selection.segments,
-        &outcome.theta,
+        &selection,
+        (&outcome.theta, &outcome.detail),
         &ext,
-        &selection.identify(opts),
+        opts,
         &next_drive.sigma,
-        &outcome.detail,
     );
-    if !held_offset.is_empty() {
-        verdict = crate::assess::trust::Verdict::from_reasons(verdict.reasons.into_iter().chain(held_offset).collect());
-    }
+    let verdict = crate::assess::trust::Verdict::from_reasons(verdict.reasons.into_iter().chain(held).collect());
     let timing = Timing {
         setup,
         validation: t.elapsed().as_secs_f64(),
