@@ -285,6 +285,7 @@ impl Buffer {
         let c = &self.cols;
         SegmentData {
             start,
+            drive_start: 0,
             sample_time_s,
             px: &c[0][a..=a + steps],
             py: &c[1][a..=a + steps],

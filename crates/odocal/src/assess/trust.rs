@@ -12,42 +12,8 @@
 //!
 //! ## Verdict
 //! [`Verdict`] sums up a calibration as `accepted`, `doubtful` or
-//! `rejected`, with typed [`VerdictReason`]s:
-//! - *rejected*: the final θ fails a guard, or its Ē_p on the validation (or
-//!   held-out) data is above θ_0's (dead reckoning gets worse);
-//! - *doubtful*: a free parameter is not observable, lies in the outer tenth
-//!   of its guard region, has a σ above [`TrustOptions::max_sigma_fraction`]
-//!   of its guard half-width (the σ of
-//!   [`crate::CalibrationReport::result_covariance`]: batch-gn's
-//!   cluster-robust σ, the 3-step's step-1 batch spread; else the model σ;
-//!   so also in the cross-split check), or the held-out Ē_p is more than
-//!   [`TrustOptions::max_held_out_ratio`] times the Ē_p on the fitting data,
-//!   or θ fitted on the held-out data differs from θ fitted on the fitting
-//!   data by more than [`TrustOptions::max_split_sigmas`] of their combined σ
-//!   and more than [`TrustOptions::min_split_fraction`] of the guard
-//!   half-width (*cross-split consistency*: two halves of one drive, or two
-//!   drives of one vehicle, should give one θ).
-//!   or (EIV with its fallback off) the filter's consistency checks failed
-//!   on the returned θ ([`crate::Warning::EivCheckFailed`]), or the batch
-//!   Gauss-Newton that gives θ (batch-gn, the EIV fallback, the 3-step's
-//!   step 3) stopped at its iteration limit while its last step still moved
-//!   a parameter by more than [`TrustOptions::max_final_step_sigmas`] σ,
-//!   or the result is EIV's batch G-N fallback and EIV's own estimate lies
-//!   more than [`TrustOptions::max_fallback_gap_sigmas`] σ from it,
-//!   or the result is EIV's own estimate and its t_r lies that many σ
-//!   above its batch G-N start's ([`VerdictReason::TrackWidthAboveStart`]),
-//!   or the result is EIV's own estimate holding the reference's heading
-//!   drift at its floor and the fit without the floor lies that many σ
-//!   away ([`VerdictReason::HeadingDriftFloorDisagrees`]),
-//!   or the result is EIV's batch G-N fallback and no plausible EIV
-//!   estimate checks it ([`VerdictReason::FallbackUnchecked`]),
-//!   or EIV's fit left its common-mode wheel-noise scale at the upper
-//!   clamp, so the common-mode term of the σ for the next drive is a lower
-//!   bound ([`VerdictReason::HeavyCommonModeNoise`]).
-//!
-//! The large-σ check uses the σ that stands for the result, the σ for the
-//! next drive ([`crate::pooling`]); the cross-split and convergence checks
-//! the method's within-drive σ.
+//! `rejected`, with typed [`VerdictReason`]s: which and when, in
+//! [`crate::assess`] ("The verdict").
 
 use serde::{Deserialize, Serialize};
 
@@ -558,6 +524,37 @@ pub enum VerdictReason {
         /// What a checked σ needs, as advice (a longer drive).
         needs: String,
     },
+    /// Estimated reference extrinsics whose σ is the model's alone, no
+    /// cluster-robust σ checking it (doubtful; beside
+    /// [`VerdictReason::ModelSigmaOnly`] too, which pooling drives removes).
+    ExtrinsicsModelSigmaOnly {
+        /// The estimated extrinsics.
+        params: ParamSet,
+        /// Whose model σ.
+        stage: String,
+        /// What a checked σ needs, as advice.
+        needs: String,
+    },
+    /// δ held by batch G-N or the 3-step, yet δ fitted with θ on a drive
+    /// lies over 3 of its σ from it and moves a free θ parameter by over
+    /// its σ for the next drive (doubtful; `crate::calibrate::held_offset`).
+    HeadingOffsetHeld {
+        /// The drive ([`crate::Drive::drive_starts`]) of a joint calibration.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        drive: Option<usize>,
+        /// The held δ, rad.
+        held: f64,
+        /// δ fitted with θ on the drive's calibration segments, rad.
+        fitted: f64,
+        /// Its σ (cluster-robust where computed), rad.
+        sigma: f64,
+        /// The free θ parameter that moves most with δ fitted.
+        param: Param,
+        /// Its move, SI.
+        shift: f64,
+        /// The move over its σ for the next drive.
+        shift_sigmas: f64,
+    },
     /// The batch Gauss-Newton that gives the result stopped at its
     /// iteration limit while still moving (doubtful): its last accepted
     /// step moved `param` by `step_sigmas` σ, more than
@@ -685,6 +682,12 @@ impl std::fmt::Display for VerdictReason {
                 "only the model σ of {stage} stands for this result: it assumes independent residuals and \
                  understates the spread of such estimates under input noise, so nothing bounds the error ({needs})"
             ),
+            VerdictReason::ExtrinsicsModelSigmaOnly { params, stage, needs } => write!(
+                f,
+                "the σ of {params} is the model σ of {stage} alone: it assumes independent residuals and \
+                 understates the spread of such estimates under input noise, so nothing bounds their error ({needs})"
+            ),
+            VerdictReason::HeadingOffsetHeld { .. } => held_offset_text(self, f),
             VerdictReason::NotConverged { stage, iterations, param, step_sigmas } => write!(
                 f,
                 "{stage} stopped at its iteration limit ({iterations}) while still moving: its last step moved \
@@ -692,6 +695,24 @@ impl std::fmt::Display for VerdictReason {
             ),
         }
     }
+}
+
+/// [`VerdictReason::HeadingOffsetHeld`]'s text.
+fn held_offset_text(r: &VerdictReason, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+    let VerdictReason::HeadingOffsetHeld { drive, held, fitted, sigma, param, shift, shift_sigmas } = r else {
+        return Ok(());
+    };
+    write!(
+        f,
+        "the reference heading offset was held at {:.2} mrad, but fitted with θ on {} it is {:.2} mrad ({:.0} × its \
+         σ {:.3} mrad away), and {param} then moves by {shift:.3e} ({shift_sigmas:.1} × its σ): θ absorbs the \
+         offset (add --estimate heading-offset)",
+        held * 1e3,
+        drive.map_or("the drive".to_string(), |k| format!("drive {k}")),
+        fitted * 1e3,
+        (fitted - held).abs() / sigma,
+        sigma * 1e3
+    )
 }
 
 /// The verdict on a calibration: the most severe level of its reasons.
@@ -739,6 +760,8 @@ pub(crate) struct Evidence<'a> {
     /// Whose model σ stands for θ, and what a checked σ needs, when no σ
     /// checked against the data does ([`VerdictReason::ModelSigmaOnly`]).
     pub model_sigma_only: Option<(&'a str, String)>,
+    /// As `model_sigma_only`, for the estimated extrinsics ([`VerdictReason::ExtrinsicsModelSigmaOnly`]).
+    pub extrinsics_model_sigma_only: Option<(&'a str, String)>,
 }
 
 /// The free θ parameter that moved most, in σ of `covariance`, in the last
@@ -958,6 +981,12 @@ pub(crate) fn judge(e: &Evidence<'_>, opts: &TrustOptions) -> Verdict {
     if let Some((stage, needs)) = &e.model_sigma_only {
         reasons.push(VerdictReason::ModelSigmaOnly { stage: stage.to_string(), needs: needs.clone() });
     }
+    if let (Some(x), Some((stage, needs))) = (e.extrinsics, &e.extrinsics_model_sigma_only) {
+        let (params, stage, needs) = (x.free.intersection(e.free), stage.to_string(), needs.clone());
+        if !params.is_empty() && x.robust.is_none() {
+            reasons.push(VerdictReason::ExtrinsicsModelSigmaOnly { params, stage, needs });
+        }
+    }
     if let Some((stage, id)) = e.identification {
         if let Some((param, step_sigmas)) = unconverged_step(id, e.free, e.covariance, opts.max_final_step_sigmas) {
             let iterations = id.iterations;
@@ -1018,6 +1047,7 @@ mod tests {
             identification: None,
             next_drive: None,
             model_sigma_only: None,
+            extrinsics_model_sigma_only: None,
         }
     }
 
@@ -1293,6 +1323,50 @@ mod tests {
         let est = ExtrinsicsEstimate { value: van, free, ..ExtrinsicsEstimate::held(Extrinsics::ZERO) };
         let e = Evidence { free: ParamSet::THETA.union(free), extrinsics: Some(&est), ..evidence(&th, &cov) };
         assert_eq!(judge(&e, &TrustOptions::default()).level, VerdictLevel::Accepted);
+    }
+
+    /// Estimated extrinsics without a cluster-robust σ: doubtful, naming
+    /// them, beside θ's own model-only reason too; not when a robust σ
+    /// checks them.
+    #[test]
+    fn extrinsics_with_only_a_model_sigma_are_doubtful() {
+        let th = Theta { c_e: 1.95, c_d: -0.002, t_r: 1.53, d: 0.0008 };
+        let cov = [[1e-8, 0.0, 0.0, 0.0], [0.0, 1e-11, 0.0, 0.0], [0.0, 0.0, 1e-7, 0.0], [0.0, 0.0, 0.0, 1e-11]];
+        let free = ParamSet::EMPTY.with(Param::LeverX).with(Param::HeadingOffset);
+        let van = Extrinsics { lever_x: -0.9, lever_y: 0.0, heading_offset: 0.015 };
+        let est = ExtrinsicsEstimate { value: van, free, ..ExtrinsicsEstimate::held(Extrinsics::ZERO) };
+        let opts = TrustOptions::default();
+        let model = Some(("the 3-step method", "hold them".to_string()));
+        let e = Evidence {
+            free: ParamSet::THETA.union(free),
+            extrinsics: Some(&est),
+            extrinsics_model_sigma_only: model.clone(),
+            ..evidence(&th, &cov)
+        };
+        let v = judge(&e, &opts);
+        assert_eq!(v.level, VerdictLevel::Doubtful, "{v:?}");
+        let VerdictReason::ExtrinsicsModelSigmaOnly { params, stage, .. } = &v.reasons[0] else { panic!("{v:?}") };
+        assert_eq!((*params, stage.as_str()), (free, "the 3-step method"));
+        assert!(v.reasons[0].to_string().starts_with("the σ of lever_x, heading_offset is the model σ of the 3-step"));
+        let robust =
+            crate::model::extrinsics::RobustExtrinsics { std_dev: Extrinsics::ZERO, covariance: [[0.0; 3]; 3] };
+        let checked = ExtrinsicsEstimate { robust: Some(robust), ..est.clone() };
+        assert_eq!(judge(&Evidence { extrinsics: Some(&checked), ..e }, &opts).level, VerdictLevel::Accepted);
+        let e = Evidence {
+            free: ParamSet::THETA.union(free),
+            extrinsics: Some(&est),
+            extrinsics_model_sigma_only: model,
+            model_sigma_only: Some(("batch Gauss-Newton", String::new())),
+            ..evidence(&th, &cov)
+        };
+        let v = judge(&e, &opts);
+        assert!(
+            matches!(
+                v.reasons[..],
+                [VerdictReason::ModelSigmaOnly { .. }, VerdictReason::ExtrinsicsModelSigmaOnly { .. }]
+            ),
+            "{v:?}"
+        );
     }
 
     #[test]

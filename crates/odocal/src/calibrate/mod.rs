@@ -64,6 +64,7 @@ use crate::progress::{emit, Progress, ProgressFn};
 
 pub(crate) mod batch_gn;
 pub(crate) mod eiv;
+mod held_offset;
 mod render;
 pub(crate) mod report;
 pub mod settings;
@@ -72,7 +73,7 @@ mod turn_sense;
 pub(crate) mod validate_on;
 
 pub(crate) use report::MethodDetail;
-use report::{model_sigma_only, result_identification};
+use report::{extrinsics_model_sigma_only, model_sigma_only, result_identification};
 pub(crate) use report::{CalibrationReport, SigmaSource};
 pub(crate) use report::{SegmentCounts, ThetaScore, Timing, ValidationSummary};
 
@@ -630,9 +631,19 @@ pub(crate) fn calibrate_core(
             identification: result_identification(&outcome.detail),
             next_drive: Some(&next_drive),
             model_sigma_only: model_sigma_only(&outcome.detail, opts),
+            extrinsics_model_sigma_only: extrinsics_model_sigma_only(&outcome.detail, opts, extrinsics.as_ref()),
         },
         &opts.trust,
     );
+    let held = held_offset::held_heading_offset_reasons(
+        drive,
+        &selection,
+        (&outcome.theta, &outcome.detail),
+        &ext,
+        opts,
+        &next_drive.sigma,
+    );
+    let verdict = crate::assess::trust::Verdict::from_reasons(verdict.reasons.into_iter().chain(held).collect());
     let timing = Timing {
         setup,
         validation: t.elapsed().as_secs_f64(),

@@ -336,10 +336,23 @@ impl CalibrationReport {
         let free = self.options.identify.free;
         // The pooled σ's between-drive part is the drives' measured spread:
         // a σ checked against the data, so a model σ no longer stands alone.
-        let mut kept: Vec<_> = reasons
-            .into_iter()
-            .filter(|r| !crate::assess::trust::is_sigma_reason(r) && !matches!(r, VerdictReason::ModelSigmaOnly { .. }))
-            .collect();
+        let mut kept: Vec<_> =
+            reasons
+                .into_iter()
+                .filter(|r| {
+                    !crate::assess::trust::is_sigma_reason(r) && !matches!(r, VerdictReason::ModelSigmaOnly { .. })
+                })
+                .filter_map(|r| match r {
+                    // θ's move with δ fitted, against the new σ.
+                    VerdictReason::HeadingOffsetHeld { drive, held, fitted, sigma, param, shift, .. } => {
+                        let shift_sigmas = shift.abs() / next.sigma[param.index()]?;
+                        (shift_sigmas > super::held_offset::MAX_SHIFT_SIGMAS).then_some(
+                            VerdictReason::HeadingOffsetHeld { drive, held, fitted, sigma, param, shift, shift_sigmas },
+                        )
+                    }
+                    r => Some(r),
+                })
+                .collect();
         kept.extend(crate::assess::trust::sigma_reasons(
             &self.theta,
             &self.initial.theta,
@@ -662,6 +675,42 @@ pub(super) fn model_sigma_only(detail: &MethodDetail, opts: &CalibrationOptions)
         )),
         MethodDetail::Eiv(_) => None,
     }
+}
+
+/// Whose model σ stands for the estimated extrinsics `x`, and what a σ
+/// checked against the data needs, when they have no cluster-robust σ
+/// ([`crate::VerdictReason::ExtrinsicsModelSigmaOnly`]): always for the
+/// 3-step (its batch spread covers θ alone, and step 3's cluster-robust σ
+/// does not stand for its result), for batch G-N and EIV (whose extrinsics
+/// are its batch G-N start's) when that fit had too few clusters. `None`
+/// with no extrinsics estimated.
+pub(super) fn extrinsics_model_sigma_only(
+    detail: &MethodDetail,
+    opts: &CalibrationOptions,
+    x: Option<&ExtrinsicsEstimate>,
+) -> Option<(&'static str, String)> {
+    let x = x?;
+    if x.free.is_empty() || x.robust.is_some() {
+        return None;
+    }
+    let o = &opts.identify;
+    let robust = || {
+        format!(
+            "a cluster-robust σ needs selected segments in at least {} blocks of {} samples: calibrate on a longer \
+             drive, or on several drives together",
+            o.robust_min_clusters, o.robust_block_steps
+        )
+    };
+    Some(match detail {
+        MethodDetail::ThreeStep(_) => (
+            "the 3-step method",
+            "its batch-spread σ covers θ alone: estimate the extrinsics with eiv or batch-gn, whose cluster-robust \
+             σ checks them, or hold them at measured values"
+                .to_string(),
+        ),
+        MethodDetail::BatchGn(_) => ("batch Gauss-Newton", robust()),
+        MethodDetail::Eiv(_) => ("EIV's batch Gauss-Newton start", robust()),
+    })
 }
 
 /// The batch Gauss-Newton whose θ is the result, and what to call it in

@@ -623,3 +623,62 @@ fn a_result_with_only_the_model_sigma_is_doubtful() {
     assert!(r.robust().is_some());
     assert!(!r.verdict.reasons.iter().any(|x| matches!(x, VerdictReason::ModelSigmaOnly { .. })), "{:?}", r.verdict);
 }
+
+/// A paper-noise drive whose reference heading reads 15 mrad off (the PSU
+/// test-track van's reference reads 14–23 mrad): batch G-N holding δ at 0
+/// lets c_d absorb it, and the verdict names the fitted offset; with δ
+/// estimated, or with no offset, the check is silent.
+#[test]
+fn a_held_heading_offset_that_moves_theta_is_doubtful() {
+    use crate::assess::trust::VerdictReason;
+    let drive = |bias: f64| {
+        let mut o = SimOptions { length_km: 8.0, ..SimOptions::paper(5) };
+        o.noise.heading_bias_rad = bias;
+        simulate(&o).expect("sim").drive
+    };
+    let held = |r: &CalibrationReport| {
+        r.verdict.reasons.iter().find(|x| matches!(x, VerdictReason::HeadingOffsetHeld { .. })).cloned()
+    };
+    let opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
+    let off = drive(0.015);
+    let r = calibrate(&off, &opts).expect("batch-gn, δ held");
+    let Some(VerdictReason::HeadingOffsetHeld { drive: None, held: h, fitted, sigma, param, shift_sigmas, .. }) =
+        held(&r)
+    else {
+        panic!("{:?}", r.verdict)
+    };
+    assert_eq!(r.verdict.level, crate::assess::trust::VerdictLevel::Doubtful);
+    assert_eq!(h.to_bits(), 0f64.to_bits(), "δ held at 0");
+    assert!(fitted > 0.005 && fitted < 0.02 && fitted > 3.0 * sigma, "fitted δ {fitted}, σ {sigma}");
+    assert!(shift_sigmas > 1.0, "{param} moves {shift_sigmas} σ");
+    let text = held(&r).expect("reason").to_string();
+    assert!(text.contains("add --estimate heading-offset"), "{text}");
+    let mut free = opts.clone();
+    free.identify.free = ParamSet::THETA.with(Param::HeadingOffset);
+    let r = calibrate(&off, &free).expect("batch-gn, δ estimated");
+    assert!(held(&r).is_none(), "{:?}", r.verdict);
+    let r = calibrate(&drive(0.0), &opts).expect("batch-gn, no offset");
+    assert!(held(&r).is_none(), "{:?}", r.verdict);
+}
+
+/// The 3-step with the lever arm estimated: its batch spread covers θ
+/// alone, so the lever arm's σ is its final identification's model σ,
+/// and the verdict says so.
+#[test]
+fn three_step_extrinsics_with_a_model_sigma_only_are_doubtful() {
+    use crate::assess::trust::VerdictReason;
+    let mount = crate::model::extrinsics::Extrinsics { lever_x: -0.9, lever_y: 0.05, heading_offset: 0.0 };
+    let sim = simulate(&SimOptions { length_km: 6.0, reference_mount: mount, ..SimOptions::paper(2) }).expect("sim");
+    let mut opts = CalibrationOptions { method: Method::ThreeStep(ThreeStepOptions::default()), ..Default::default() };
+    opts.identify.free = ParamSet::THETA.with(Param::LeverX).with(Param::LeverY);
+    let r = calibrate(&sim.drive, &opts).expect("three-step");
+    let x = r.extrinsics.as_ref().expect("extrinsics");
+    assert!(x.robust.is_none());
+    let reason = r.verdict.reasons.iter().find(|x| matches!(x, VerdictReason::ExtrinsicsModelSigmaOnly { .. }));
+    let theta_model_only = r.verdict.reasons.iter().any(|x| matches!(x, VerdictReason::ModelSigmaOnly { .. }));
+    assert!(!theta_model_only, "θ has its batch-spread σ: {:?}", r.verdict);
+    let Some(VerdictReason::ExtrinsicsModelSigmaOnly { params, stage, .. }) = reason else { panic!("{:?}", r.verdict) };
+    assert_eq!(*params, ParamSet::EMPTY.with(Param::LeverX).with(Param::LeverY));
+    assert_eq!(stage, "the 3-step method");
+    assert_ne!(r.verdict.level, crate::assess::trust::VerdictLevel::Accepted);
+}

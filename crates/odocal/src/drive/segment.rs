@@ -174,6 +174,11 @@ pub(crate) fn too_short_for_validation(what: &str, drive: &Drive, opts: &Validat
 pub struct SegmentData<'a> {
     /// Index of the first sample in the drive.
     pub start: usize,
+    /// First sample of the drive this segment comes from, when drives were
+    /// joined ([`Drive::drive_starts`]; 0 for a drive that was not): the
+    /// cluster-robust σ's blocks restart there, so they never span two
+    /// drives and do not depend on the drives' order.
+    pub drive_start: usize,
     /// Sample time, s.
     pub sample_time_s: f64,
     /// Rear-left wheel rotation, rev/s, K values.
@@ -198,6 +203,7 @@ impl<'a> SegmentData<'a> {
         let (a, k) = (seg.start, seg.steps);
         SegmentData {
             start: a,
+            drive_start: drive.drive_starts()[drive.drive_of_sample(a)],
             sample_time_s: drive.sample_time_s(),
             n_rl: &drive.n_rl()[a..a + k],
             n_rr: &drive.n_rr()[a..a + k],

@@ -325,9 +325,11 @@ mod tests {
         let x = r.extrinsics.as_ref().expect("extrinsics in the report");
         assert!((x.value.lever_x - VAN.lever_x).abs() < 1e-8, "{}", x.value);
         assert!(r.validation.mean_position_error_m < 1e-6, "{}", r.validation.mean_position_error_m);
-        // 3 km: too short for the cluster-robust σ, the one reason for doubt.
+        // 3 km: too short for the cluster-robust σ, of θ and of the
+        // extrinsics, the one reason for doubt.
+        use crate::assess::trust::VerdictReason::{ExtrinsicsModelSigmaOnly, ModelSigmaOnly};
         assert!(
-            matches!(r.verdict.reasons[..], [crate::assess::trust::VerdictReason::ModelSigmaOnly { .. }]),
+            matches!(r.verdict.reasons[..], [ModelSigmaOnly { .. }, ExtrinsicsModelSigmaOnly { .. }]),
             "{:?}",
             r.verdict
         );

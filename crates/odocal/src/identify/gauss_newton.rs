@@ -163,18 +163,22 @@ pub(crate) fn model_covariance<const N: usize>(ne: &NormalEquations<N>, free: &[
 }
 
 /// Groups segments into clusters for [`cluster_robust_covariance`]:
-/// segments sorted by start sample; a new cluster begins at the first
-/// segment starting `block_steps` or more after the current cluster's first
-/// segment. Returns the cluster index of each segment (input order) and
-/// the number of clusters.
-pub(crate) fn clusters(starts: &[usize], block_steps: usize) -> (Vec<usize>, usize) {
+/// segments sorted by (drive start, start sample); a new cluster begins at
+/// the first segment of another drive ([`SegmentData::drive_start`]) and at
+/// the first segment starting `block_steps` or more after the current
+/// cluster's first segment. Blocks thus restart at each drive's start, so
+/// a joint calibration's clusters do not depend on the drives' order.
+/// Takes `(drive_start, start)` of each segment; returns the cluster index
+/// of each segment (input order) and the number of clusters.
+pub(crate) fn clusters(starts: &[(usize, usize)], block_steps: usize) -> (Vec<usize>, usize) {
     let mut order: Vec<usize> = (0..starts.len()).collect();
     order.sort_by_key(|&i| (starts[i], i));
     let mut id = vec![0; starts.len()];
-    let (mut g, mut first) = (0usize, None::<usize>);
+    let (mut g, mut first) = (0usize, None::<(usize, usize)>);
     for &i in &order {
+        let (drive, start) = starts[i];
         match first {
-            Some(f) if starts[i] < f + block_steps.max(1) => {}
+            Some((fd, f)) if fd == drive && start < f + block_steps.max(1) => {}
             Some(_) => {
                 g += 1;
                 first = Some(starts[i]);
@@ -207,7 +211,7 @@ pub(crate) fn cluster_robust_covariance<const N: usize>(
     free: &[usize],
     opts: &IdentifyOptions,
 ) -> Option<(SMatrix<f64, N, N>, usize)> {
-    let starts: Vec<usize> = segments.iter().map(|s| s.start).collect();
+    let starts: Vec<(usize, usize)> = segments.iter().map(|s| (s.drive_start, s.start)).collect();
     let (id, g) = clusters(&starts, opts.robust_block_steps);
     if g < opts.robust_min_clusters.max(2) {
         return None;
@@ -286,12 +290,28 @@ mod tests {
 
     #[test]
     fn clusters_start_a_new_block_every_block_steps() {
-        let (id, g) = clusters(&[0, 100, 200, 700, 800, 1400, 5000], 650);
+        let one = |v: &[usize]| v.iter().map(|&s| (0, s)).collect::<Vec<_>>();
+        let (id, g) = clusters(&one(&[0, 100, 200, 700, 800, 1400, 5000]), 650);
         assert_eq!(id, vec![0, 0, 0, 1, 1, 2, 3]);
         assert_eq!(g, 4);
         // Unsorted input: cluster by start, reported in input order.
-        let (id, g) = clusters(&[800, 0, 700, 100], 650);
+        let (id, g) = clusters(&one(&[800, 0, 700, 100]), 650);
         assert_eq!((id, g), (vec![1, 0, 1, 0], 2));
         assert_eq!(clusters(&[], 650), (vec![], 0));
+    }
+
+    /// Joined drives: a block restarts at each drive's first segment, so
+    /// swapping two drives gives each drive the same clusters.
+    #[test]
+    fn clusters_restart_at_each_drive() {
+        // Drive A (1000 samples): segments at 0 and 600; drive B (800
+        // samples): at 0, 100 and 700. A block is 650 samples.
+        let (id, g) = clusters(&[(0, 0), (0, 600), (1000, 1000), (1000, 1100), (1000, 1700)], 650);
+        assert_eq!((id, g), (vec![0, 0, 1, 1, 2], 3));
+        // B first: B's segment at 700 and A's at 800 (A's first) are 100
+        // samples apart but in separate blocks, as are A's two segments
+        // when A came first.
+        let (id, g) = clusters(&[(0, 0), (0, 100), (0, 700), (800, 800), (800, 1400)], 650);
+        assert_eq!((id, g), (vec![0, 0, 1, 2, 2], 3));
     }
 }

@@ -878,7 +878,7 @@ mod tests {
         let opts = IdentifyOptions::default();
         let r = batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &opts).expect("identify");
         let rb = r.robust.as_ref().expect("12 km give enough clusters");
-        let starts: Vec<usize> = data.iter().map(|s| s.start).collect();
+        let starts: Vec<(usize, usize)> = data.iter().map(|s| (s.drive_start, s.start)).collect();
         assert_eq!(rb.clusters, gauss_newton::clusters(&starts, opts.robust_block_steps).1);
         assert!(rb.clusters >= opts.robust_min_clusters, "{}", rb.clusters);
         for i in 0..4 {
