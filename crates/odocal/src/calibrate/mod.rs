@@ -550,6 +550,26 @@ research_pub! {
     }
 }
 
+/// Runs `method`; with auto-fix, what the fit finds not observable where the
+/// check at θ_0 passed (EIV's on a one-way loop) is held and it runs again.
+fn run_with_auto_fix(
+    method: &dyn Estimator,
+    prep: &Prepared<'_>,
+    selection: &mut Selection,
+    progress: Option<ProgressFn<'_>>,
+) -> Result<MethodOutcome> {
+    let outcome = method.run(prep, selection, progress)?;
+    let named: Vec<Param> =
+        outcome.observability.unobservable.iter().filter(|p| *p != Param::CE && selection.free.contains(*p)).collect();
+    if !prep.options.auto_fix || named.is_empty() {
+        return Ok(outcome);
+    }
+    named.iter().for_each(|p| selection.free.remove(*p));
+    selection.auto_fixed.extend(named.iter().copied());
+    selection.warnings.push(Warning::AutoFixRefit { params: named });
+    method.run(prep, selection, progress)
+}
+
 /// [`calibrate_detailed`]; with held-out drives that each have their own
 /// extrinsics ([docs/guide.md, "Several drives of one vehicle"]), the held-out Ē_p gives every
 /// segment its drive's.
@@ -577,20 +597,7 @@ pub(crate) fn calibrate_core(
     let reported = ReportValidation::new(&prep, held_out, held_refs)?;
     let setup = t_start.elapsed().as_secs_f64();
 
-    let mut outcome = method.run(&prep, &selection, progress)?;
-    // Auto-fix holds what the fit itself finds not observable (the
-    // selection's check at θ_0 can pass where the fit's does not: EIV's
-    // on a drive that turns one way), and fits again.
-    let named: Vec<Param> =
-        outcome.observability.unobservable.iter().filter(|p| *p != Param::CE && selection.free.contains(*p)).collect();
-    if opts.auto_fix && !named.is_empty() {
-        for p in &named {
-            selection.free.remove(*p);
-        }
-        selection.auto_fixed.extend(named.iter().copied());
-        selection.warnings.push(Warning::AutoFixRefit { params: named });
-        outcome = method.run(&prep, &selection, progress)?;
-    }
+    let outcome = run_with_auto_fix(method, &prep, &mut selection, progress)?;
     let initial_val = reported.initial(opts, selection.free)?;
     let warnings = result_warnings(&selection.warnings, outcome.warnings, &outcome.observability, opts);
     let extrinsics = if opts.identify.uses_extrinsics() { method_extrinsics(&outcome.detail) } else { None };
