@@ -12,7 +12,7 @@ use odocal_online::{Calibrator, DriveSummary, OnlineOptions};
 use crate::{CalibrationRecord, DecisionRow, History};
 
 /// The history's `method` of the rows [`follow`] writes.
-const METHOD: &str = "online";
+pub(crate) const METHOD: &str = "online";
 
 /// Settings of [`follow`].
 #[derive(Debug, Clone, Default, PartialEq)]

@@ -504,3 +504,47 @@ fn follow_refuses_a_drive_with_a_lost_signal() {
     assert_eq!(followed.len(), 1, "{followed:?}");
     assert_eq!(db.decision_count("van").expect("decisions"), 1);
 }
+
+/// A record the CLI could not have made (a blank vehicle, an unknown
+/// method, θ beyond the physical limits, a σ that is no σ) is refused
+/// before anything is written.
+#[test]
+fn a_record_is_checked_before_it_is_written() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
+    let good = record("van", "fp1", 1.95, 1e-3);
+    let cases = [
+        (
+            CalibrationRecord { vehicle: " ".into(), ..good.clone() },
+            "invalid option `vehicle`: the vehicle's identifier is empty",
+        ),
+        (CalibrationRecord { vehicle: "van ".into(), ..good.clone() }, "has a space at an end"),
+        (CalibrationRecord { vehicle: "a\nb".into(), ..good.clone() }, "'a\\nb' holds a control character"),
+        (
+            CalibrationRecord { method: "foo".into(), ..good.clone() },
+            "invalid option `method`: 'foo' is not a method of odocal's: eiv, three-step, batch-gn, online",
+        ),
+        (CalibrationRecord { method: " eiv".into(), ..good.clone() }, "' eiv' is not a method"),
+        (CalibrationRecord { theta: theta(2000.0), ..good.clone() }, "c_e = 2000 m is outside 0.05 … 20 m"),
+        (
+            CalibrationRecord { theta: Theta { t_r: f64::NAN, ..theta(1.95) }, ..good.clone() },
+            "t_r = NaN is not finite",
+        ),
+        (
+            CalibrationRecord { sigma: sigma(1e-3).map(|s| Theta { d: -1e-4, ..s }), ..good.clone() },
+            "invalid option `sigma`: d = -0.0001",
+        ),
+        (CalibrationRecord { sigma: sigma(f64::NAN), ..good.clone() }, "c_e = NaN: a standard deviation"),
+    ];
+    for (rec, want) in cases {
+        let e = db.record(&rec).expect_err(want).to_string();
+        assert!(e.contains(want), "{e}");
+    }
+    assert!(db.vehicles().expect("vehicles").is_empty(), "nothing written");
+    for method in METHODS {
+        assert!(matches!(
+            db.record(&CalibrationRecord { method: method.into(), ..good.clone() }),
+            Ok(Recorded::New(_))
+        ));
+    }
+}

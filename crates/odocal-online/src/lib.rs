@@ -369,6 +369,14 @@ struct DriveState {
     recent: VecDeque<ValidationScore>,
 }
 
+/// How errors name the samples of [`Calibrator::push`].
+const PUSHED: &str = "pushed samples";
+
+/// The error of sample `i` (its index in the push) of the pushed column `column`.
+fn pushed_sample(column: &str, i: usize, reason: String) -> Error {
+    Error::InvalidSample { context: PUSHED.into(), column: column.into(), sample: i, reason }
+}
+
 impl Calibrator {
     /// A calibrator starting at `theta0` with sd `sigma0` (`None`: the
     /// options' prior), for samples every `sample_time_s` seconds.
@@ -457,19 +465,29 @@ impl Calibrator {
     /// previous ones. Folds every calibration segment the samples complete
     /// and scores every validation segment they complete.
     ///
+    /// Every sample is checked before any is taken, so a refused push
+    /// leaves the calibrator as it was.
+    ///
     /// # Errors
-    /// [`Error::InvalidOption`] for columns (or `t`) of another length than
-    /// `px`, a value that is not finite, or times that do not fit.
+    /// [`Error::InvalidDrive`] for columns (or `t`) of another length than
+    /// `px`; [`Error::InvalidSample`] naming the column and the sample (its
+    /// index in this push) for a value that is not finite or a time that
+    /// does not fit.
     pub fn push(&mut self, t: Option<&[f64]>, samples: &Signals) -> Result<()> {
         let s = samples;
         let cols = s.columns();
         let n = s.px.len();
-        let bad = cols.iter().find(|(_, c)| c.len() != n).map(|(name, _)| *name);
-        if let Some(name) = bad.or_else(|| t.filter(|t| t.len() != n).map(|_| "t")) {
-            return Err(Error::InvalidOption {
-                field: "chunk",
-                reason: format!("column {name} has a length other than px's ({n})"),
+        let bad = cols.iter().map(|(name, c)| (*name, c.len())).chain(t.map(|t| ("t", t.len()))).find(|c| c.1 != n);
+        if let Some((name, len)) = bad {
+            return Err(Error::InvalidDrive {
+                context: PUSHED.into(),
+                reason: format!("column {name} has {len} samples, px has {n}"),
             });
+        }
+        for (name, c) in &cols {
+            if let Some(i) = c.iter().position(|v| !v.is_finite()) {
+                return Err(pushed_sample(name, i, format!("value {} is not finite", c[i])));
+            }
         }
         let starts = match t {
             Some(t) => self.part_starts(t)?,
@@ -502,23 +520,21 @@ impl Calibrator {
         let mut prev = self.last_t;
         for (i, &ti) in t.iter().enumerate() {
             if !ti.is_finite() {
-                return Err(Error::InvalidOption {
-                    field: "t",
-                    reason: format!("sample {i}: time {ti} is not finite"),
-                });
+                return Err(pushed_sample("t", i, format!("value {ti} is not finite")));
             }
             if let Some(p) = prev {
                 let step = ti - p;
                 if step > GAP_STEPS * ts {
                     starts.push(i);
                 } else if (step - ts).abs() > STEP_TOLERANCE * ts {
-                    return Err(Error::InvalidOption {
-                        field: "t",
-                        reason: format!(
-                            "sample {i}: step {step} s from the previous sample is not the sample time {ts} s \
-                             (within 1 %) nor a gap (more than {GAP_STEPS} sample times)"
+                    return Err(pushed_sample(
+                        "t",
+                        i,
+                        format!(
+                            "step {step} s from the previous sample is not the sample time {ts} s (within 1 %) nor \
+                             a gap (more than {GAP_STEPS} sample times)"
                         ),
-                    });
+                    ));
                 }
             }
             prev = Some(ti);

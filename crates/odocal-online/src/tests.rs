@@ -131,13 +131,24 @@ fn bad_chunks_are_refused() {
         beta: a.clone(),
         a_y: vec![0.0; 2],
     };
-    assert!(cal.push(None, &s).expect_err("length").to_string().contains("column a_y has a length"));
+    let e = cal.push(None, &s).expect_err("length").to_string();
+    assert_eq!(e, "pushed samples: column a_y has 2 samples, px has 3");
     let s = Signals { a_y: a.clone(), ..s };
-    assert!(cal.push(Some(&[0.0, 0.025]), &s).expect_err("t").to_string().contains("column t has a length"));
+    let e = cal.push(Some(&[0.0, 0.025]), &s).expect_err("t").to_string();
+    assert_eq!(e, "pushed samples: column t has 2 samples, px has 3");
+    // The column and the sample at fault, as a drive made from arrays names them.
     let nan = Signals { n_rl: vec![0.0, f64::NAN, 0.0], ..s.clone() };
-    assert!(cal.push(None, &nan).expect_err("nan").to_string().contains("n_rl"));
+    let e = cal.push(None, &nan).expect_err("nan").to_string();
+    assert_eq!(e, "pushed samples: column 'n_rl', sample 1: value NaN is not finite");
+    let e = cal.push(Some(&[0.0, f64::INFINITY, 0.05]), &s).expect_err("t inf").to_string();
+    assert_eq!(e, "pushed samples: column 't', sample 1: value inf is not finite");
     let e = cal.push(Some(&[0.0, 0.025, 0.06]), &s).expect_err("step").to_string();
-    assert!(e.contains("sample 2: step"), "{e}");
+    assert!(e.starts_with("pushed samples: column 't', sample 2: step"), "{e}");
+    assert_eq!(cal.status().drive.samples, 0);
+    // A value that is not finite after a gap: nothing of the push is taken.
+    let late = Signals { px: vec![0.0, 0.0, f64::NAN], ..s.clone() };
+    let e = cal.push(Some(&[0.0, 0.025, 10.0]), &late).expect_err("after the gap").to_string();
+    assert!(e.contains("column 'px', sample 2"), "{e}");
     assert_eq!(cal.status().drive.samples, 0);
 }
 
