@@ -10,7 +10,7 @@ use pyo3::types::PyDict;
 
 use odocal_history::{CalibrationRecord, History, Recorded};
 
-use crate::convert::{json, to_json, to_py};
+use crate::convert::{json, sigma_from_json, to_json, to_py};
 use crate::drive::PyDrive;
 use crate::lib_err;
 use crate::report::report_from_json;
@@ -27,6 +27,13 @@ impl PyHistory {
         let mut db = self.db.lock().map_err(|_| PyRuntimeError::new_err("the history is poisoned by a panic"))?;
         f(&mut db).map_err(lib_err)
     }
+}
+
+/// The fields of a record (`History.record`'s dict), as the table's
+/// columns name them.
+fn record_fields() -> PyResult<Vec<String>> {
+    let example = CalibrationRecord::new("", "", "", odocal::Theta::PAPER_INITIAL);
+    Ok(json(&example)?.as_object().map(|m| m.keys().cloned().collect()).unwrap_or_default())
 }
 
 /// A record's outcome as `{"id": …, "new": bool}`.
@@ -151,7 +158,20 @@ impl PyHistory {
     /// `History.record`.
     fn _record_dict<'py>(&self, py: Python<'py>, record: &Bound<'_, PyDict>) -> PyResult<Bound<'py, PyDict>> {
         let mut v = to_json(record.as_any(), "record")?;
+        let invalid = |reason: String| lib_err(odocal::Error::InvalidOption { field: "record", reason });
         if let Some(m) = v.as_object_mut() {
+            // The table's fields only: a misspelt optional one (`sigmaa`) would be dropped unnoticed.
+            let known = record_fields()?;
+            if let Some(k) = m.keys().find(|k| !known.contains(k)) {
+                return Err(invalid(format!("unknown key '{k}'; a record has {}", known.join(", "))));
+            }
+            // θ and σ read as every θ and σ argument (a dict of the four, or four numbers; no other key).
+            if let Some(t) = m.get_mut("theta") {
+                *t = json(&odocal::settings::theta_from_json(t.take()).map_err(lib_err)?)?;
+            }
+            if let Some(s) = m.get_mut("sigma").filter(|s| !s.is_null()) {
+                *s = json(&sigma_from_json(s.take(), "record: sigma")?)?;
+            }
             let defaults = [("sources", serde_json::json!([])), ("t_start_s", 0.0.into()), ("t_end_s", 0.0.into())];
             for (k, d) in defaults {
                 m.entry(k).or_insert(d);
