@@ -92,9 +92,9 @@ pub struct CalibrationArgs {
     /// Hold what the data cannot determine at θ_0.
     ///
     /// The parameters the observability check names as not determined by
-    /// the data; they are held instead of
-    /// estimated. With no turning segment, c_d, t_r, d are held and every
-    /// segment is used.
+    /// the data (at θ_0, or in the fit: then it runs again with them
+    /// held) are held instead of estimated. With no turning segment, c_d,
+    /// t_r, d are held and every segment is used.
     #[arg(long)]
     pub auto_fix: bool,
     /// Write θ and 1σ to a ROS 2 .yaml or a .json ("-": YAML to stdout).

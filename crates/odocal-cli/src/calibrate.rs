@@ -14,8 +14,8 @@ use odocal::{
 };
 
 use crate::args::{CalibrationArgs, HalfArg, HelpArgs, ThetaArg};
-use crate::io::{drive_entry, load_drive_with_scale, load_truth, print_warnings, write_json};
-use crate::output::{refuse_sidecar_onto_drive, refuse_stdout, write_text, Files};
+use crate::io::{drive_entry, json_text, load_drive_with_scale, load_truth, print_warnings, truth_of};
+use crate::output::{refuse_sidecar_onto_drive, refuse_stdout, write_texts, Files};
 use crate::progress::Bars;
 use crate::simulate::sim_options;
 use crate::Outcome;
@@ -100,7 +100,7 @@ pub fn calibrate_cmd(a: CalibrateArgs, bars: &Bars) -> Result<Outcome> {
     let fingerprints = distinct_drives(&a.drive, &drives, &others)?;
     let first = &a.drive[0];
     let (drive, truth) = if drives.len() == 1 {
-        let truth = load_truth(first, &drives[0]).map(|s| (s.theta_true, s.settings.reference_mount));
+        let truth = load_truth(first, &drives[0]).as_ref().map(truth_of);
         (drives.swap_remove(0), truth)
     } else {
         let refs: Vec<&Drive> = drives.iter().collect();
@@ -160,7 +160,7 @@ pub fn demo_cmd(a: DemoArgs, bars: &Bars) -> Result<Outcome> {
         input: "simulated drive".into(),
         source: None,
         manifests: &[],
-        truth: Some((sim.sidecar.theta_true, sim.sidecar.settings.reference_mount)),
+        truth: Some(truth_of(&sim.sidecar)),
         others,
         fingerprints,
         separate: &[],
@@ -260,21 +260,22 @@ fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, ba
         .map_err(|e| with_hint(e, source, args, &opts.method, bars))?;
     let wheel_scale = source.and_then(|(_, w)| w);
     bars.finish();
-    if let Some((vehicle_db, sources)) = history {
-        let prints = calibration_fingerprints(&fingerprints);
-        crate::history::record_calibration(vehicle_db, drive, sources, &prints, &r)?;
-    }
+    let whole = drive;
     let drive = held.unwrap_or(drive);
     let truth = truth_theta.map(|(t, mount)| truth_error(drive, &t, &mount, opts).map(|e| (t, e))).transpose()?;
     let truth_ref = truth.as_ref().map(|(t, e)| (t, *e));
     let prints = calibration_fingerprints(&fingerprints);
+    // Every output is rendered, then all are written as one, then the
+    // history records the calibration: a failure or an interruption
+    // leaves no output out of step with the others or with the history.
+    let mut outputs: Vec<(&Path, String)> = Vec::new();
     if let Some(p) = &args.params_out {
         // The σ that stands for the result (the verdict's, the JSON's `sigma`).
         let mut f = r.param_file(&input);
         f.node = args.params_node.clone();
         f.mapping = args.params_mapping;
         f.provenance.push(("fingerprint".into(), prints.clone()));
-        write_text(p, &f.text_for(p)?)?;
+        outputs.push((p, f.text_for(p)?));
     }
     if let Some(p) = &args.report {
         // The drives the segments come from: the --validate-on drives, or
@@ -285,11 +286,15 @@ fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, ba
             drive_starts(others.iter().map(|(_, d, _)| d.len()))
         };
         let truth = truth_theta.as_ref().map(|(t, mount)| (t, *mount));
-        write_html_report(p, (drive, &starts), &r, opts, (&input, &prints), truth)?;
+        outputs.push((p, html_report((drive, &starts), &r, opts, (&input, &prints), truth)?));
     }
     let outcome = if r.verdict.level == VerdictLevel::Rejected { Outcome::Rejected } else { Outcome::Done };
     if let Some(p) = json {
-        write_json(p, r.to_json(fingerprints, truth_ref, wheel_scale, Some(account))?)?;
+        outputs.push((p, json_text(r.to_json(fingerprints, truth_ref, wheel_scale, Some(account))?)?));
+    }
+    write_texts(&outputs)?;
+    if let Some((vehicle_db, sources)) = history {
+        crate::history::record_calibration(vehicle_db, whole, sources, &prints, &r)?;
     }
     let on_stdout = [json, args.report.as_deref(), args.params_out.as_deref()].into_iter().flatten().any(is_stdout);
     if on_stdout {
@@ -423,17 +428,16 @@ fn truth_error(drive: &Drive, theta: &Theta, mount: &Extrinsics, opts: &Calibrat
     Ok(odocal::validate(drive, theta, &v, None)?.validation.mean_position_error_m)
 }
 
-/// Writes the HTML report of the calibration (`--report`; `-`: stdout;
+/// The HTML report of the calibration (`--report`;
 /// `starts`: the first sample of each `--validate-on` drive in `drive`, or
 /// of each calibration drive; `truth`: the true θ and reference mount).
-fn write_html_report(
-    path: &Path,
+fn html_report(
     (drive, starts): (&Drive, &[usize]),
     r: &CalibrationReport,
     opts: &CalibrationOptions,
     (input, fingerprint): (&str, &str),
     truth: Option<(&Theta, Extrinsics)>,
-) -> Result<()> {
+) -> Result<String> {
     let val = segment::validation_segments(drive, &opts.validation)?;
     // The date the calibration's parameter file records.
     let date = r.param_file(input).provenance.into_iter().find(|(k, _)| k == "date").map(|(_, v)| v);
@@ -451,7 +455,7 @@ fn write_html_report(
     }
     // What the import warned about, as on stderr and in the JSON, before the calibration's warnings.
     .with_import_warnings(crate::io::import_warnings());
-    write_text(path, &odocal_report::render_html(&html)?)
+    Ok(odocal_report::render_html(&html)?)
 }
 
 /// The report for humans: the heading first, then the warnings (stderr),

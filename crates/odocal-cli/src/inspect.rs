@@ -84,7 +84,7 @@ fn draft(bag: &Path, out: &Path, force: bool) -> Result<()> {
             odocal::output::write_text(out, &text)?;
         } else {
             // Created only if still absent: a file that appeared meanwhile is kept.
-            odocal::output::write_text_new(out, &text).map_err(|e| match &e {
+            odocal::output::write_texts(&[(out, &text)], false).map_err(|e| match &e {
                 odocal::Error::Io { source, .. } if source.kind() == std::io::ErrorKind::AlreadyExists => {
                     anyhow::anyhow!(exists())
                 }

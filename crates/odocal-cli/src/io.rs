@@ -80,9 +80,25 @@ pub fn load_truth(drive_path: &Path, drive: &Drive) -> Option<SimSidecar> {
     sidecar
 }
 
-/// Writes a JSON report with its `schema_version` and, when a manifest
-/// read for it warned, its `import_warnings` ("-": stdout), atomically.
-pub fn write_json(path: &Path, mut value: serde_json::Value) -> Result<()> {
+/// The true θ and the reference's true extrinsics of a simulated drive, as
+/// the measured signals show them: the mount, plus the reference's
+/// constant heading bias and the sideslip's constant bias, which act on
+/// the data exactly as a heading offset of the mount does (so the truth's
+/// Ē_p is the truth's best, as a calibration's is with its own δ).
+pub fn truth_of(s: &SimSidecar) -> (odocal::Theta, odocal::Extrinsics) {
+    let (mut mount, noise) = (s.settings.reference_mount, &s.settings.noise);
+    mount.heading_offset += noise.heading_bias_rad + noise.sideslip_bias_rad;
+    (s.theta_true, mount)
+}
+
+/// Writes a JSON report ([`json_text`]) to `path` ("-": stdout), atomically.
+pub fn write_json(path: &Path, value: serde_json::Value) -> Result<()> {
+    crate::output::write_text(path, &json_text(value)?)
+}
+
+/// A JSON report's text, with its `schema_version` and, when a manifest
+/// read for it warned, its `import_warnings`.
+pub fn json_text(mut value: serde_json::Value) -> Result<String> {
     if let Some(obj) = value.as_object_mut() {
         obj.insert("schema_version".into(), odocal::REPORT_SCHEMA_VERSION.into());
         let imported = import_warnings();
@@ -90,8 +106,7 @@ pub fn write_json(path: &Path, mut value: serde_json::Value) -> Result<()> {
             obj.insert("import_warnings".into(), imported.into());
         }
     }
-    let text = serde_json::to_string_pretty(&value)?;
-    crate::output::write_text(path, &text)
+    Ok(serde_json::to_string_pretty(&value)?)
 }
 
 /// What the importer warned about for every manifest this command read so

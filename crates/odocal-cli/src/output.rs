@@ -197,6 +197,20 @@ pub fn write_text(path: &Path, text: &str) -> Result<()> {
     Ok(())
 }
 
+/// Writes several outputs as one ([`odocal::output::write_texts`]): none
+/// is in place before every file is written, so a failed write (a full
+/// disk) leaves every file as it was; the one on stdout (`-`), if any, is
+/// printed after the files are in place.
+pub fn write_texts(files: &[(&Path, String)]) -> Result<()> {
+    let (to_stdout, to_files): (Vec<_>, Vec<_>) = files.iter().partition(|(p, _)| is_stdout(p));
+    let to_files: Vec<(&Path, &str)> = to_files.iter().map(|(p, t)| (*p, t.as_str())).collect();
+    odocal::output::write_texts(&to_files, true)?;
+    for (p, text) in to_stdout {
+        write_text(p, text)?;
+    }
+    Ok(())
+}
+
 /// Writes a drive CSV to `path` atomically, or to stdout for `-`.
 pub fn write_drive(drive: &odocal::Drive, path: &Path) -> Result<()> {
     if is_stdout(path) {

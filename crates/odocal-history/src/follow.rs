@@ -191,7 +191,7 @@ pub fn follow<E: From<Error>>(
             }
         };
         c.stored = Some(stored.theta);
-        on(FollowEvent::Progress(Progress::Stage { name: "following", total: drive.len() as u64 }))?;
+        on(FollowEvent::Progress(Progress::Stage { name: "following", total: drive.samples() as u64 }))?;
         let mut done = 0;
         let mut progress = Ok(());
         c.push_replay(&drive, |n| {

@@ -7,10 +7,19 @@
 //!    current value for [`Gates::steady_s`] of informative driving (folded,
 //!    turning segments: idling and straight driving do not count);
 //! 3. **bounded change**: each parameter moved from the stored value by at
-//!    most its limit; a larger change is *flagged* for a person instead of
-//!    written. A stored θ that is only an initial guess (no calibration
-//!    recorded yet) is not a bound;
-//! 4. **held-out**: on the drive's most recent validation segments the
+//!    most its limit, and the drive's own estimate (its data alone, without
+//!    the recursion's prior; [`Status::drive_estimate`](crate::Status::drive_estimate))
+//!    does not put it beyond that limit by more than 3 of its σ; a larger
+//!    change is *flagged* for a person instead of written. The recursion
+//!    follows a change only as fast as its random walk allows, so after a
+//!    step (a tyre change) its estimate can lie well within the limit while
+//!    the drive's data lie far beyond. A stored θ that is only an initial
+//!    guess (no calibration recorded yet) is not a bound;
+//! 4. **settled**: each parameter of the estimate lies within 3 σ of the
+//!    drive's own estimate (σ of the two combined): an estimate still on its way from the
+//!    stored θ to what the drive shows is not written, nor is its σ, which
+//!    would not cover the distance left;
+//! 5. **held-out**: on the drive's most recent validation segments the
 //!    online estimate (the θ known when each started) dead-reckons better
 //!    than the stored θ.
 
@@ -136,10 +145,41 @@ impl Gates {
             self.max_change_t_r_m,
             self.max_change_d,
         ];
-        let flagged: Vec<String> = (0..4)
+        let mut flagged: Vec<String> = (0..4)
             .filter(|&i| calibrated && exceeds((th[i] - st[i]).abs(), max_change[i]))
             .map(|i| format!("{} changes by {:.3e}, beyond {:.3e}", THETA_NAMES[i], th[i] - st[i], max_change[i]))
             .collect();
+        let mut unsettled = Vec::new();
+        if let Some(own) = cal.drive_estimate() {
+            let (ot, os) = (<[_; 4]>::from(own.theta), <[_; 4]>::from(own.sigma));
+            for i in 0..4 {
+                let change = ot[i] - st[i];
+                if calibrated && change.abs() > max_change[i] + OWN_SIGMAS * os[i] {
+                    flagged.push(format!(
+                        "this drive alone puts {} at {:.6e} ± {:.1e}, {change:+.3e} from the stored value, beyond \
+                         {:.3e}: a change the recursion follows only slowly",
+                        THETA_NAMES[i], ot[i], os[i], max_change[i]
+                    ));
+                }
+                // Both σ: the recursion's estimate follows its latest
+                // segments more than the drive's own weighs them all.
+                let apart = (th[i] - ot[i]).abs() / sd[i].hypot(os[i]);
+                if apart.is_nan() || apart > OWN_SIGMAS {
+                    unsettled.push(format!(
+                        "{} {:.6e} lies {apart:.1} σ from this drive's own estimate {:.6e} ± {:.1e} (σ of both): \
+                         not settled on the drive's data",
+                        THETA_NAMES[i], th[i], ot[i], os[i]
+                    ));
+                }
+            }
+        }
+        // An unsettled estimate is held, unless the drive shows a change a
+        // person should look at (then the reasons tell both).
+        if flagged.is_empty() {
+            held.append(&mut unsettled);
+        } else {
+            flagged.append(&mut unsettled);
+        }
         let (action, reasons) = if !held.is_empty() {
             (Action::Hold, held.into_iter().chain(flagged).collect())
         } else if !flagged.is_empty() {
@@ -155,6 +195,11 @@ impl Gates {
         GateDecision { action, reasons, theta, sigma }
     }
 }
+
+/// How many of the drive's own σ the estimate may lie from the drive's own
+/// estimate, and the drive's own estimate beyond a change limit before
+/// it is flagged.
+const OWN_SIGMAS: f64 = 3.0;
 
 /// True when `v` is above `limit` or not a number.
 pub(crate) fn exceeds(v: f64, limit: f64) -> bool {

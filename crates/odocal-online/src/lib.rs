@@ -217,6 +217,15 @@ pub struct DriveSummary {
     pub stored_mean_position_error_m: Option<f64>,
 }
 
+/// θ from one drive's data alone ([`Status::drive_estimate`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct OwnEstimate {
+    /// The estimate.
+    pub theta: Theta,
+    /// Its σ, scaled as [`Status::sigma`] is.
+    pub sigma: Theta,
+}
+
 /// A snapshot of a [`Calibrator`] ([`Calibrator::status`]).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Status {
@@ -247,6 +256,11 @@ pub struct Status {
     pub drive: DriveSummary,
     /// The current drive's most recently scored validation segments, oldest first.
     pub recent_validation: Vec<ValidationScore>,
+    /// θ from the current drive's folded segments alone, without the prior
+    /// the recursion carries from earlier drives (each segment linearised
+    /// where the recursion stood, with its weight): where this drive puts
+    /// θ. `None` until the drive determines every parameter.
+    pub drive_estimate: Option<OwnEstimate>,
 }
 
 /// The sample columns kept for the segments still to complete.
@@ -346,6 +360,8 @@ pub struct Calibrator {
     unwrap: HeadingUnwrap,
     /// The time of the last sample [`Calibrator::push`] took with times.
     last_t: Option<f64>,
+    /// The last step of the previous push when it was a gap, s.
+    last_gap_s: Option<f64>,
 }
 
 /// Counters of the current drive.
@@ -367,14 +383,11 @@ struct DriveState {
     prequential_sum: f64,
     stored_sum: f64,
     recent: VecDeque<ValidationScore>,
-}
-
-/// How errors name the samples of [`Calibrator::push`].
-const PUSHED: &str = "pushed samples";
-
-/// The error of sample `i` (its index in the push) of the pushed column `column`.
-fn pushed_sample(column: &str, i: usize, reason: String) -> Error {
-    Error::InvalidSample { context: PUSHED.into(), column: column.into(), sample: i, reason }
+    /// The drive's own normal equations over `[θ, δ]`, without the prior:
+    /// Σ H_k and Σ (g_k + H_k x_k) of its folded segments, each linearised
+    /// where the recursion stood (`x_k`) with the recursion's weight.
+    own_h: Mat5,
+    own_b: Vec5,
 }
 
 impl Calibrator {
@@ -422,6 +435,7 @@ impl Calibrator {
             drive: DriveState::default(),
             unwrap: HeadingUnwrap::default(),
             last_t: None,
+            last_gap_s: None,
             opts,
         })
     }
@@ -440,6 +454,7 @@ impl Calibrator {
         self.drive = DriveState::default();
         self.unwrap = HeadingUnwrap::default();
         self.last_t = None;
+        self.last_gap_s = None;
     }
 
     /// Starts a new continuous part of the current drive (after a gap):
@@ -465,33 +480,39 @@ impl Calibrator {
     /// previous ones. Folds every calibration segment the samples complete
     /// and scores every validation segment they complete.
     ///
-    /// Every sample is checked before any is taken, so a refused push
-    /// leaves the calibrator as it was.
-    ///
     /// # Errors
     /// [`Error::InvalidDrive`] for columns (or `t`) of another length than
-    /// `px`; [`Error::InvalidSample`] naming the column and the sample (its
-    /// index in this push) for a value that is not finite or a time that
-    /// does not fit.
+    /// `px`; [`Error::InvalidOption`] for times that do not fit: a step
+    /// neither the sample time nor a gap, or two gaps in a row of one
+    /// length (samples at another rate than `sample_time_s`, which would
+    /// each start a part and fold nothing);
+    /// [`Error::InvalidSample`] naming the column and the sample (of this
+    /// push) of a value that is not finite.
     pub fn push(&mut self, t: Option<&[f64]>, samples: &Signals) -> Result<()> {
         let s = samples;
         let cols = s.columns();
         let n = s.px.len();
-        let bad = cols.iter().map(|(name, c)| (*name, c.len())).chain(t.map(|t| ("t", t.len()))).find(|c| c.1 != n);
-        if let Some((name, len)) = bad {
+        let mut lengths = cols.iter().map(|(name, c)| (*name, c.len())).chain(t.map(|t| ("t", t.len())));
+        if let Some((name, len)) = lengths.find(|c| c.1 != n) {
             return Err(Error::InvalidDrive {
-                context: PUSHED.into(),
+                context: "the pushed samples".into(),
                 reason: format!("column {name} has {len} samples, px has {n}"),
             });
         }
-        for (name, c) in &cols {
-            if let Some(i) = c.iter().position(|v| !v.is_finite()) {
-                return Err(pushed_sample(name, i, format!("value {} is not finite", c[i])));
+        // A value that is not finite, named by its column and sample (of this push).
+        for (name, col) in cols.iter().chain(t.map(|t| ("t", t)).as_ref()) {
+            if let Some(i) = col.iter().position(|v| !v.is_finite()) {
+                return Err(Error::InvalidSample {
+                    context: "the pushed samples".into(),
+                    column: (*name).to_string(),
+                    sample: i,
+                    reason: format!("value {} is not finite", col[i]),
+                });
             }
         }
-        let starts = match t {
+        let (starts, last_gap) = match t {
             Some(t) => self.part_starts(t)?,
-            None => Vec::new(),
+            None => (Vec::new(), None),
         };
         let mut psi = s.psi.clone();
         self.unwrap.unwrap(&mut psi);
@@ -508,38 +529,62 @@ impl Calibrator {
         }
         if let Some(last) = t.and_then(|t| t.last()) {
             self.last_t = Some(*last);
+            self.last_gap_s = last_gap;
         }
         Ok(())
     }
 
     /// Checks times against the sample time; returns the sample indices
-    /// where a new part starts (after a gap), the first possibly 0.
-    fn part_starts(&self, t: &[f64]) -> Result<Vec<usize>> {
+    /// where a new part starts (after a gap), the first possibly 0, and
+    /// the last step when it was a gap.
+    ///
+    /// Two gaps in a row of one length (within 1 %) leave a part of one
+    /// sample between them: not gaps but samples that come at another
+    /// rate than the calibrator was made for, which would each start a
+    /// part and fold nothing.
+    fn part_starts(&self, t: &[f64]) -> Result<(Vec<usize>, Option<f64>)> {
         let ts = self.sample_time_s;
         let mut starts = Vec::new();
         let mut prev = self.last_t;
+        let mut last_gap = self.last_gap_s;
         for (i, &ti) in t.iter().enumerate() {
             if !ti.is_finite() {
-                return Err(pushed_sample("t", i, format!("value {ti} is not finite")));
+                return Err(Error::InvalidOption {
+                    field: "t",
+                    reason: format!("sample {i}: time {ti} is not finite"),
+                });
             }
             if let Some(p) = prev {
                 let step = ti - p;
                 if step > GAP_STEPS * ts {
+                    if last_gap.is_some_and(|g| (step - g).abs() <= STEP_TOLERANCE * g) {
+                        return Err(Error::InvalidOption {
+                            field: "sample_time_s",
+                            reason: format!(
+                                "sample {i}: the samples come every {step} s, not every {ts} s (the sample \
+                                 time the calibrator was made for): each step would be a gap and nothing \
+                                 would be folded; make the calibrator with sample_time_s = {step}"
+                            ),
+                        });
+                    }
                     starts.push(i);
+                    last_gap = Some(step);
+                    prev = Some(ti);
+                    continue;
                 } else if (step - ts).abs() > STEP_TOLERANCE * ts {
-                    return Err(pushed_sample(
-                        "t",
-                        i,
-                        format!(
-                            "step {step} s from the previous sample is not the sample time {ts} s (within 1 %) nor \
-                             a gap (more than {GAP_STEPS} sample times)"
+                    return Err(Error::InvalidOption {
+                        field: "t",
+                        reason: format!(
+                            "sample {i}: step {step} s from the previous sample is not the sample time {ts} s \
+                             (within 1 %) nor a gap (more than {GAP_STEPS} sample times)"
                         ),
-                    ));
+                    });
                 }
             }
             prev = Some(ti);
+            last_gap = None;
         }
-        Ok(starts)
+        Ok((starts, last_gap))
     }
 
     /// Takes the next samples of the current part, in time order; folds
@@ -701,8 +746,11 @@ impl Calibrator {
         let s2 = self.residual_variance.unwrap_or(seg_variance);
         let scale = share / s2;
         let (mut xi, mut lambda) = (x0, lambda0);
+        // This segment's normal equations at x0, for the drive's own estimate.
+        let mut own = None;
         for _ in 0..self.opts.iterations_per_segment {
             let Some((h, g, _)) = self.normal_equations(&seg, &xi, scale) else { break };
+            own.get_or_insert((h, g + h * x0));
             let post = lambda0 + h;
             let Some(step) = post.cholesky().map(|c| c.solve(&(g + h * (xi - x0)))) else { break };
             let cand = x0 + step;
@@ -714,6 +762,10 @@ impl Calibrator {
         let Some(p) = lambda.try_inverse() else { return };
         self.x = xi;
         self.p = 0.5 * (p + p.transpose());
+        if let Some((h, b)) = own {
+            self.drive.own_h += h;
+            self.drive.own_b += b;
+        }
         self.residual_variance = Some(match self.residual_variance {
             None => seg_variance,
             Some(v) => v + RESIDUAL_VARIANCE_GAIN * (seg_variance - v),
@@ -797,6 +849,29 @@ impl Calibrator {
         self.informative_s - since
     }
 
+    /// θ from the current drive's folded segments alone (without the
+    /// prior the recursion carries from earlier drives), with its σ scaled
+    /// as [`Status::sigma`] is: `None` before the drive determines every
+    /// parameter (its normal equations are not positive definite).
+    ///
+    /// The recursion follows a change of the vehicle only as fast as its
+    /// random walk allows; this estimate shows where the drive itself
+    /// puts θ, for the gates' consistency and change checks.
+    pub(crate) fn drive_estimate(&self) -> Option<OwnEstimate> {
+        let d = &self.drive;
+        let dims = if self.opts.heading_offset { 5 } else { 4 };
+        let h = d.own_h.view((0, 0), (dims, dims)).into_owned();
+        let b = d.own_b.rows(0, dims).into_owned();
+        let chol = h.cholesky()?;
+        let x = chol.solve(&b);
+        let cov = chol.inverse();
+        let f = self.opts.sigma_factors;
+        let theta = Theta { c_e: x[0], c_d: x[1], t_r: x[2], d: x[3] };
+        let sigma = Theta::from(std::array::from_fn(|i| f[i] * cov[(i, i)].max(0.0).sqrt()));
+        let finite = <[_; 4]>::from(theta).iter().chain(&<[_; 4]>::from(sigma)).all(|v| v.is_finite());
+        finite.then_some(OwnEstimate { theta, sigma })
+    }
+
     /// The current drive's most recently scored validation segments, oldest first.
     pub(crate) fn recent_validation(&self) -> impl Iterator<Item = &ValidationScore> {
         self.drive.recent.iter()
@@ -835,6 +910,7 @@ impl Calibrator {
             buffered_samples: self.buffered_samples(),
             drive: self.drive_summary(),
             recent_validation: self.drive.recent.iter().copied().collect(),
+            drive_estimate: self.drive_estimate(),
         }
     }
 

@@ -9,9 +9,7 @@
 
 use std::path::Path;
 
-use odocal::segment::validation_segments;
-use odocal::ParamFile;
-use odocal::{calibrate, load_drive, mean_position_error, CalibrationOptions};
+use odocal::{calibrate, load_drive, validate, CalibrationOptions, ParamFile, ValidateOptions};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
@@ -32,10 +30,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let theta = odocal::Theta::try_from(&back)?;
     println!("read back θ = {theta} (calibrated: {})", report.theta);
 
-    // Use it: dead-reckoning error on another drive of the same vehicle.
+    // Use it as `odocal validate OTHER --theta OUT` does: dead-reckoning
+    // error on another drive of the same vehicle, with the extrinsics the
+    // calibration estimated (they hold for the vehicle) and the other
+    // drive's own heading offset re-estimated with θ held (the reference's
+    // heading bias changes from drive to drive).
     let (other_drive, _) = load_drive(Path::new(other))?;
-    let segments = validation_segments(&other_drive, &Default::default())?;
-    let v = mean_position_error(&other_drive, &segments, &theta)?;
-    println!("Ē_p on {other}: {:.2} m over {} segments", v.mean_position_error_m, v.segments);
+    let mut opts = ValidateOptions::default();
+    opts.set_extrinsics(Some(&back), None, false);
+    let v = validate(&other_drive, &theta, &opts, None)?;
+    let delta = v.extrinsics.heading_offset * 1e3;
+    println!(
+        "Ē_p on {other}: {:.2} m over {} segments (its heading offset {delta:.1} mrad)",
+        v.validation.mean_position_error_m, v.validation.segments
+    );
     Ok(())
 }

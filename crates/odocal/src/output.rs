@@ -5,7 +5,7 @@
 //!
 //! # Atomic writes
 //!
-//! An atomic write ([`write_text`], [`write_text_new`]) writes to a temporary file in the target's folder
+//! An atomic write ([`write_text`], [`write_texts`]) writes to a temporary file in the target's folder
 //! (`.NAME.XXXXXX.tmp`), flushes it, syncs it to disk and renames it over
 //! the target. A reader never sees a half-written file: an error (a full
 //! disk, a failing writer) leaves the previous file untouched and removes the
@@ -97,6 +97,7 @@ where
 /// # Errors
 /// As [`write_atomically`]; [`Error::Io`] of kind `AlreadyExists` when
 /// `path` exists.
+#[cfg(test)]
 pub(crate) fn write_new<F>(path: &Path, write: F) -> Result<()>
 where
     F: FnOnce(&mut dyn Write) -> std::io::Result<()>,
@@ -109,63 +110,112 @@ fn write_file<F>(path: &Path, write: F, replace: bool) -> Result<()>
 where
     F: FnOnce(&mut dyn Write) -> std::io::Result<()>,
 {
-    let io = |source| Error::io(path, source);
-    // What `path` names, its links followed by the system: also through a
-    // link that names no path, such as `/dev/stdout` on a pipe
-    // (`/proc/self/fd/1` → `pipe:[…]`), which `resolve_link` cannot follow.
-    match std::fs::metadata(path) {
-        Ok(_) if !replace => {
-            return Err(io(std::io::Error::new(std::io::ErrorKind::AlreadyExists, "exists; it is not replaced")))
+    match Staged::open(path, replace)? {
+        Staged::InPlace(path) => write_in_place(&path, write).map_err(|e| Error::io(&path, e)),
+        Staged::Temporary(mut t) => {
+            t.fill(write)?;
+            t.persist(replace)
         }
-        Ok(m) if m.is_dir() => {
-            return Err(io(std::io::Error::new(std::io::ErrorKind::IsADirectory, "is a directory, not a file")))
+    }
+}
+
+/// Where a write goes before it is in place.
+enum Staged {
+    /// A special file (a device, a FIFO, a socket), written where it is
+    /// opened: there is nothing to replace.
+    InPlace(PathBuf),
+    /// A temporary file beside the target, renamed over it when complete.
+    Temporary(TemporaryFile),
+}
+
+/// A temporary file beside `target`, listed in [`IN_FLIGHT`] while it lives.
+struct TemporaryFile {
+    /// The path as given (the context of errors).
+    path: PathBuf,
+    /// The file a symbolic link at `path` points to, else `path`.
+    target: PathBuf,
+    dir: PathBuf,
+    tmp: tempfile::NamedTempFile,
+    _in_flight: InFlight,
+}
+
+impl Staged {
+    /// Checks `path` and opens its temporary file (or names the special
+    /// file to write in place).
+    fn open(path: &Path, replace: bool) -> Result<Staged> {
+        let io = |source| Error::io(path, source);
+        // What `path` names, its links followed by the system: also through a
+        // link that names no path, such as `/dev/stdout` on a pipe
+        // (`/proc/self/fd/1` → `pipe:[…]`), which `resolve_link` cannot follow.
+        match std::fs::metadata(path) {
+            Ok(_) if !replace => {
+                return Err(io(std::io::Error::new(std::io::ErrorKind::AlreadyExists, "exists; it is not replaced")))
+            }
+            Ok(m) if m.is_dir() => {
+                return Err(io(std::io::Error::new(std::io::ErrorKind::IsADirectory, "is a directory, not a file")))
+            }
+            Ok(m) if !m.is_file() => return Ok(Staged::InPlace(path.to_path_buf())),
+            _ => {}
         }
-        // A device, a FIFO, a socket: there is nothing to replace, and the
-        // file is written where it is opened.
-        Ok(m) if !m.is_file() => return write_in_place(path, write).map_err(io),
-        _ => {}
+        let target = resolve_link(path);
+        let dir = match target.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        let name = target.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let prefix = format!(".{name}.");
+        let mut builder = tempfile::Builder::new();
+        builder.prefix(&prefix).suffix(".tmp");
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            // What `File::create` gives a new file: 0666 less the umask.
+            builder.permissions(std::fs::Permissions::from_mode(0o666));
+        }
+        let tmp = builder.tempfile_in(&dir).map_err(|e| {
+            // tempfile's error ends with the temporary file's random name ("…
+            // at path \"/d/.x.json.eE2tpV.tmp\""), which means nothing to the
+            // user: name the folder instead, with the operating system's reason.
+            let text = e.to_string();
+            let why = text.rsplit_once(" at path ").map_or(text.as_str(), |(why, _)| why);
+            io(std::io::Error::new(e.kind(), format!("cannot create a file in the folder {}: {why}", dir.display())))
+        })?;
+        let _in_flight = InFlight::new(tmp.path());
+        Ok(Staged::Temporary(TemporaryFile { path: path.to_path_buf(), target, dir, tmp, _in_flight }))
     }
-    let target = resolve_link(path);
-    let dir = match target.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let name = target.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let prefix = format!(".{name}.");
-    let mut builder = tempfile::Builder::new();
-    builder.prefix(&prefix).suffix(".tmp");
-    #[cfg(unix)]
+}
+
+impl TemporaryFile {
+    /// Writes the content through `write`, flushed and synced to disk.
+    fn fill<F>(&mut self, write: F) -> Result<()>
+    where
+        F: FnOnce(&mut dyn Write) -> std::io::Result<()>,
     {
-        use std::os::unix::fs::PermissionsExt;
-        // What `File::create` gives a new file: 0666 less the umask.
-        builder.permissions(std::fs::Permissions::from_mode(0o666));
+        let io = |source| Error::io(&self.path, source);
+        {
+            let mut w = std::io::BufWriter::new(self.tmp.as_file_mut());
+            write(&mut w).map_err(io)?;
+            w.flush().map_err(io)?;
+        }
+        self.tmp.as_file().sync_all().map_err(io)
     }
-    let mut tmp = builder.tempfile_in(&dir).map_err(|e| {
-        // tempfile's error ends with the temporary file's random name ("…
-        // at path \"/d/.x.json.eE2tpV.tmp\""), which means nothing to the
-        // user: name the folder instead, with the operating system's reason.
-        let text = e.to_string();
-        let why = text.rsplit_once(" at path ").map_or(text.as_str(), |(why, _)| why);
-        io(std::io::Error::new(e.kind(), format!("cannot create a file in the folder {}: {why}", dir.display())))
-    })?;
-    let _in_flight = InFlight::new(tmp.path());
-    {
-        let mut w = std::io::BufWriter::new(tmp.as_file_mut());
-        write(&mut w).map_err(io)?;
-        w.flush().map_err(io)?;
+
+    /// Renames the temporary file over the target (`replace`) or to it
+    /// when it does not exist.
+    fn persist(self, replace: bool) -> Result<()> {
+        let io = |source| Error::io(&self.path, source);
+        if let Ok(m) = std::fs::metadata(&self.target) {
+            // A replaced file keeps its permissions.
+            std::fs::set_permissions(self.tmp.path(), m.permissions()).map_err(io)?;
+        }
+        if replace {
+            self.tmp.persist(&self.target).map_err(|e| io(e.error))?;
+        } else {
+            self.tmp.persist_noclobber(&self.target).map_err(|e| io(e.error))?;
+        }
+        sync_dir(&self.dir);
+        Ok(())
     }
-    tmp.as_file().sync_all().map_err(io)?;
-    if let Ok(m) = std::fs::metadata(&target) {
-        // A replaced file keeps its permissions.
-        std::fs::set_permissions(tmp.path(), m.permissions()).map_err(io)?;
-    }
-    if replace {
-        tmp.persist(&target).map_err(|e| io(e.error))?;
-    } else {
-        tmp.persist_noclobber(&target).map_err(|e| io(e.error))?;
-    }
-    sync_dir(&dir);
-    Ok(())
 }
 
 /// The temporary files being written now ([`remove_temporary_files`]).
@@ -217,14 +267,37 @@ pub fn write_text(path: &Path, text: &str) -> Result<()> {
     write_atomically(path, |w| write_with_newline(w, text))
 }
 
-/// Writes `text` to a new file at `path` as [`write_text`] does, but never
-/// replaces one: the rename into place fails when `path` exists, also when
-/// it appeared while the file was being written (no check-then-write race).
+/// Writes several files as one: each text to its path as [`write_text`]
+/// writes one (`replace`), or to a new file that is never replaced
+/// ([`Error::Io`] of kind `AlreadyExists` when it exists, also when it
+/// appeared during the write), but none is renamed into place before every
+/// one is written and synced. A write that fails (a full disk, a folder
+/// that cannot be written) leaves every path as it was. A special file
+/// (`/dev/null`, a FIFO) is written directly, after the others are in
+/// place.
 ///
 /// # Errors
-/// As [`write_text`]; [`Error::Io`] of kind `AlreadyExists` when `path` exists.
-pub fn write_text_new(path: &Path, text: &str) -> Result<()> {
-    write_new(path, |w| write_with_newline(w, text))
+/// [`Error::Io`] naming the path whose write, flush, sync or rename failed.
+pub fn write_texts(files: &[(&Path, &str)], replace: bool) -> Result<()> {
+    let mut staged = Vec::with_capacity(files.len());
+    for (path, text) in files {
+        let mut s = Staged::open(path, replace)?;
+        if let Staged::Temporary(t) = &mut s {
+            t.fill(|w| write_with_newline(w, text))?;
+        }
+        staged.push((s, *text));
+    }
+    let mut in_place = Vec::new();
+    for (s, text) in staged {
+        match s {
+            Staged::Temporary(t) => t.persist(replace)?,
+            Staged::InPlace(p) => in_place.push((p, text)),
+        }
+    }
+    for (p, text) in in_place {
+        write_in_place(&p, |w| write_with_newline(w, text)).map_err(|e| Error::io(&p, e))?;
+    }
+    Ok(())
 }
 
 fn write_with_newline(w: &mut dyn Write, text: &str) -> std::io::Result<()> {

@@ -63,6 +63,17 @@ fn validation_re_estimates_the_drive_s_own_heading_offset_unless_carried() {
         "{text}"
     );
 
+    // The library, as docs/guide.md ("The Rust library") and the example
+    // `param_file` use it, judges the file as the CLI does.
+    let file = odocal::ParamFile::read(&params, None).expect("read");
+    let theta = odocal::Theta::try_from(&file).expect("θ");
+    let mut vopts = odocal::ValidateOptions::default();
+    vopts.set_extrinsics(Some(&file), None, false);
+    let (other_drive, _) = odocal::load_drive(Path::new(&other)).expect("load");
+    let lib = odocal::validate(&other_drive, &theta, &vopts, None).expect("validate");
+    assert_eq!(lib.validation.mean_position_error_m.to_bits(), own.to_bits());
+    assert_eq!(lib.extrinsics.heading_offset.to_bits(), fit_d.to_bits());
+
     // Carried: the calibration's δ, which tilts every path of this drive.
     let (v, text) = validate(&[&other, "--theta", p, "--carry-heading-offset"]);
     assert!(v["heading_offset_fit"].is_null(), "{v}");
@@ -223,4 +234,25 @@ fn compensation_applies_the_parameter_file_s_extrinsics() {
         // Equal to round-off (2e-14 and 7e-14 rev/s measured; the bare θ 0.032).
         assert!(diff < 1e-9, "{name}: {diff} rev/s from the axle's (bare θ: {off})");
     }
+}
+
+/// The truth's row dead-reckons with the true θ and the reference's true
+/// heading offset as the data show it: the mount's plus the reference's
+/// constant heading bias (a random noise world's `heading_bias_rad`). On
+/// a drive whose only error is that bias the truth's Ē_p is round-off, as
+/// the calibration's is with its estimated δ.
+#[test]
+fn the_truth_row_carries_the_reference_s_heading_bias() {
+    let d = tempfile::tempdir().expect("tmp");
+    let off: odocal::sim::NoiseOptions = "off".parse().expect("preset");
+    let noise = odocal::sim::NoiseOptions { heading_bias_rad: 0.02, ..off };
+    let s =
+        simulate(&SimOptions { length_km: 3.0, substeps: 1, noise, ..SimOptions::noise_free(33) }).expect("simulate");
+    let p = d.path().join("biased.csv");
+    s.drive.write_csv(&p).expect("write");
+    s.sidecar.write_beside(&p).expect("sidecar");
+    let v = calibrate_json(&p, &["--method", "batch-gn", "--estimate", "heading-offset", "--max-iterations", "30"]);
+    let truth = v["truth"]["mean_position_error_m"].as_f64().expect("truth Ē_p");
+    let own = v["validation"]["mean_position_error_m"].as_f64().expect("Ē_p");
+    assert!(truth < 1e-6 && own < 1e-6, "truth {truth} m, calibrated {own} m");
 }

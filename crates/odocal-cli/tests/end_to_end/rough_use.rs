@@ -235,3 +235,23 @@ fn a_route_length_out_of_range_names_the_flag() {
     }
     assert!(!out.exists());
 }
+
+/// `--auto-fix` holds what the fit itself finds not observable: on a
+/// test-track run that turns one way the check at θ_0 passes, but the
+/// default method's fit names t_r and d; they are held at θ_0 and the run
+/// fitted again, so the result no longer carries them as estimates it
+/// calls untrustworthy.
+#[test]
+fn auto_fix_holds_what_the_fit_finds_not_observable() {
+    let run = format!("{}/../../examples/psu-mapping-van-testtrack/run-14-45-26.toml", env!("CARGO_MANIFEST_DIR"));
+    let plain = crate::common::calibrate_json(std::path::Path::new(&run), &[]);
+    assert_eq!(plain["observability"]["unobservable"], serde_json::json!(["t_r", "d"]), "{}", plain["observability"]);
+    let fixed = crate::common::calibrate_json(std::path::Path::new(&run), &["--auto-fix"]);
+    assert_eq!(fixed["auto_fixed"], serde_json::json!(["t_r", "d"]), "{}", fixed["auto_fixed"]);
+    assert_eq!(fixed["observability"]["unobservable"], serde_json::json!([]), "{}", fixed["observability"]);
+    assert_eq!(fixed["theta"]["t_r"].as_f64(), Some(1.6));
+    assert_eq!(fixed["theta"]["d"].as_f64(), Some(0.0));
+    let codes: Vec<&str> =
+        fixed["warnings"].as_array().expect("warnings").iter().filter_map(|w| w["kind"].as_str()).collect();
+    assert!(codes.contains(&"auto_fix_refit"), "{codes:?}");
+}

@@ -52,6 +52,13 @@ pub enum Warning {
         /// Selected segments the check ran on.
         segments: usize,
     },
+    /// With auto-fix: the fit found these parameters not observable (its
+    /// own check, after the selection's at θ_0 passed), so they were held
+    /// at θ_0 and the calibration ran again.
+    AutoFixRefit {
+        /// The parameters held.
+        params: Vec<Param>,
+    },
     /// Every selected calibration segment turns the same way, which makes
     /// c_d and t_r nearly collinear: every cut segment was used instead
     /// (the straight ones separate them; see
@@ -192,6 +199,7 @@ impl Warning {
             Warning::Unobservable { .. } => "unobservable",
             Warning::AutoFixNoTurns { .. } => "auto_fix_no_turns",
             Warning::AutoFixUnobservable { .. } => "auto_fix_unobservable",
+            Warning::AutoFixRefit { .. } => "auto_fix_refit",
             Warning::OneWayTurns { .. } => "one_way_turns",
             Warning::BatchFailed { .. } => "batch_failed",
             Warning::BatchRejected { .. } => "batch_rejected",
@@ -251,6 +259,15 @@ impl std::fmt::Display for Warning {
                 write!(
                     f,
                     "auto-fix: {} held at θ_0 (not observable from the {segments} selected segments at θ_0)",
+                    names.join(", ")
+                )
+            }
+            Warning::AutoFixRefit { params } => {
+                let names: Vec<&str> = params.iter().map(|p| p.name()).collect();
+                write!(
+                    f,
+                    "auto-fix: {} held at θ_0 and the calibration run again (the fit found them not observable, \
+                     where the check at θ_0 did not)",
                     names.join(", ")
                 )
             }

@@ -190,7 +190,10 @@ pub struct CalibrationOptions {
     /// every segment is used; otherwise the observability check
     /// (`crate::identify::observability`) runs on the selected segments at
     /// θ_0 and the named parameter with the smallest sensitivity is held,
-    /// repeatedly, until none is named (c_e is never held). What was held is
+    /// repeatedly, until none is named (c_e is never held). When the fit's
+    /// own check names parameters the one at θ_0 passed (the default
+    /// method's, on a drive that turns one way), they are held too and the
+    /// method runs again ([`crate::Warning::AutoFixRefit`]). What was held is
     /// listed in [`CalibrationReport::auto_fixed`].
     #[serde(default)]
     pub auto_fix: bool,
@@ -566,15 +569,28 @@ pub(crate) fn calibrate_core(
         crate::drive::plausibility::check_conventions(h, &opts.theta0, "held-out drive")?;
     }
     let prep = Prepared { drive, options: opts, validation: validation_segments(drive, &opts.validation)? };
-    let selection = method.select(&prep)?;
+    let mut selection = method.select(&prep)?;
     if prep.validation.is_empty() {
         return Err(too_short_for_validation("the drive", drive, &opts.validation));
     }
     let reported = ReportValidation::new(&prep, held_out, held_refs)?;
-    let initial_val = reported.initial(opts, selection.free)?;
     let setup = t_start.elapsed().as_secs_f64();
 
-    let outcome = method.run(&prep, &selection, progress)?;
+    let mut outcome = method.run(&prep, &selection, progress)?;
+    // Auto-fix holds what the fit itself finds not observable (the
+    // selection's check at θ_0 can pass where the fit's does not: EIV's
+    // on a drive that turns one way), and fits again.
+    let named: Vec<Param> =
+        outcome.observability.unobservable.iter().filter(|p| *p != Param::CE && selection.free.contains(*p)).collect();
+    if opts.auto_fix && !named.is_empty() {
+        for p in &named {
+            selection.free.remove(*p);
+        }
+        selection.auto_fixed.extend(named.iter().copied());
+        selection.warnings.push(Warning::AutoFixRefit { params: named });
+        outcome = method.run(&prep, &selection, progress)?;
+    }
+    let initial_val = reported.initial(opts, selection.free)?;
     let warnings = result_warnings(&selection.warnings, outcome.warnings, &outcome.observability);
     let extrinsics = if opts.identify.uses_extrinsics() { method_extrinsics(&outcome.detail) } else { None };
     let ext = extrinsics.as_ref().map_or(opts.identify.extrinsics, |e| e.value);

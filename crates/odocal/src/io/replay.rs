@@ -35,7 +35,7 @@ const CHUNK: usize = 400;
 /// for chunk in drive.chunks() {
 ///     samples += chunk?.t.len();
 /// }
-/// assert_eq!(samples, drive.len());
+/// assert_eq!(samples, drive.samples());
 /// # Ok(()) }
 /// ```
 pub struct Replay {
@@ -84,17 +84,13 @@ impl Replay {
         }
     }
 
-    /// The number of samples.
-    pub fn len(&self) -> usize {
+    /// The number of samples: at least two (a drive with fewer is refused
+    /// when opened).
+    pub fn samples(&self) -> usize {
         match &self.source {
             Source::Stream(s) => s.len(),
             Source::Whole(d) => d.len(),
         }
-    }
-
-    /// True for a drive without samples.
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
     }
 
     /// The first and the last time stamp, s.

@@ -227,9 +227,9 @@ proptest! {
 fn a_new_file_never_replaces_one() {
     let d = tmp();
     let p = d.path().join("m.toml");
-    write_text_new(&p, "draft").expect("new");
+    write_texts(&[(&p, "draft")], false).expect("new");
     assert_eq!(std::fs::read_to_string(&p).expect("read"), "draft\n");
-    let e = write_text_new(&p, "again").expect_err("exists");
+    let e = write_texts(&[(&p, "again")], false).expect_err("exists");
     assert!(matches!(&e, Error::Io { source, .. } if source.kind() == std::io::ErrorKind::AlreadyExists), "{e}");
     let q = d.path().join("n.toml");
     let e = write_new(&q, |w| {
@@ -241,4 +241,25 @@ fn a_new_file_never_replaces_one() {
     assert_eq!(std::fs::read_to_string(&q).expect("read"), "the user's file\n");
     assert_eq!(std::fs::read_to_string(&p).expect("read"), "draft\n");
     assert!(others(d.path(), &["m.toml", "n.toml"]).is_empty());
+}
+
+/// Several files written as one: when one of them cannot be written, none
+/// is replaced (the files before it keep their content) and no temporary
+/// file is left; when all can, all are.
+#[test]
+fn several_files_are_written_as_one() {
+    let d = tmp();
+    let (a, b) = (d.path().join("a.yaml"), d.path().join("b.json"));
+    std::fs::write(&a, "old a\n").expect("a");
+    std::fs::write(&b, "old b\n").expect("b");
+    let missing = d.path().join("no-such-folder").join("r.html");
+    let e = write_texts(&[(&a, "new a"), (&b, "new b"), (&missing, "page")], true).expect_err("folder");
+    assert!(e.to_string().contains("no-such-folder"), "{e}");
+    assert_eq!(std::fs::read_to_string(&a).expect("a"), "old a\n");
+    assert_eq!(std::fs::read_to_string(&b).expect("b"), "old b\n");
+    assert!(others(d.path(), &["a.yaml", "b.json"]).is_empty());
+    write_texts(&[(&a, "new a"), (&b, "new b")], true).expect("both");
+    assert_eq!(std::fs::read_to_string(&a).expect("a"), "new a\n");
+    assert_eq!(std::fs::read_to_string(&b).expect("b"), "new b\n");
+    assert!(others(d.path(), &["a.yaml", "b.json"]).is_empty());
 }
