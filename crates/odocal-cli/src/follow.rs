@@ -178,6 +178,7 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
             FollowEvent::Log(line) => eprintln!("{line}"),
             FollowEvent::Progress(p) => bars.event(p),
             FollowEvent::Skipped { source, fingerprint, row } => {
+                bars.finish();
                 let short = &fingerprint[..fingerprint.len().min(12)];
                 say(match &row {
                     Some((id, method)) => format!(

@@ -9,10 +9,7 @@ use odocal::{Error, Progress, Theta};
 use odocal_online::gate::{Action, GateDecision, Gates};
 use odocal_online::{Calibrator, DriveSummary, OnlineOptions};
 
-use crate::{CalibrationRecord, DecisionRow, History};
-
-/// The history's `method` of the rows [`follow`] writes.
-pub(crate) const METHOD: &str = "online";
+use crate::{CalibrationRecord, DecisionRow, History, ONLINE as METHOD};
 
 /// Settings of [`follow`].
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -52,7 +49,10 @@ pub enum FollowEvent {
     /// are in the history already, and the parameters the replay starts
     /// from may have been fitted on them, so replaying it would count them
     /// twice and judge the write-back against parameters fitted on the
-    /// very segments it validates on.
+    /// very segments it validates on. Also a drive another run (a
+    /// concurrent `follow` of the vehicle) logged while this one replayed
+    /// it: then nothing is logged or written for it, and the calibrator is
+    /// as it was before the drive.
     Skipped {
         /// The drive's file, as given.
         source: String,
@@ -142,27 +142,9 @@ pub fn follow<E: From<Error>>(
     opts: &FollowOptions,
     mut on: impl FnMut(FollowEvent) -> std::result::Result<(), E>,
 ) -> std::result::Result<(), E> {
-    // A rejected result is not to be deployed, nor started from.
-    let start = db.rows(vehicle)?.into_iter().rev().find(|r| !crate::pooled::is_rejected(r));
-    let (mut stored, origin) = match start {
-        Some(r) => {
-            // A σ of the model alone (a batch G-N fit on a short drive) can
-            // be several times smaller than the spread between drives: as
-            // the recursion's start it would hold θ near the row's, so the
-            // calibrator starts from the options' prior sd instead.
-            let sigma = r.record.checked_sigma();
-            let origin = match (sigma, r.record.sigma) {
-                (None, Some(_)) => format!("history row {}; its σ is the model's alone, so the prior's sd", r.id),
-                _ => format!("history row {}", r.id),
-            };
-            (Stored { theta: r.record.theta, sigma, calibrated: true }, origin)
-        }
-        None => {
-            let theta = opts.theta0.unwrap_or(Theta::PAPER_INITIAL);
-            (Stored { theta, sigma: None, calibrated: false }, "θ_0".to_string())
-        }
-    };
+    let (mut stored, origin) = start(db, vehicle, opts)?;
     let mut cal: Option<Calibrator> = None;
+    let mut started = false;
     for path in drives {
         let drive = Replay::open(path, |line| on(FollowEvent::Log(line)))?;
         let source = path.display().to_string();
@@ -181,12 +163,18 @@ pub fn follow<E: From<Error>>(
         // wrong convention would enter the recursion, and every later
         // drive's estimate with it.
         drive.check(&stored.theta)?;
+        // The calibrator as it was before the drive: restored when another
+        // run logs the drive first, so the drive counts once.
+        let before = cal.clone();
         let c = match cal.as_mut() {
             Some(c) => c,
             None => {
                 // The first drive to replay was read and checked: the replay starts.
                 let c = Calibrator::new(stored.theta, stored.sigma, drive.sample_time_s(), opts.online.clone())?;
-                on(FollowEvent::Start { theta: stored.theta, origin: origin.clone() })?;
+                if !started {
+                    on(FollowEvent::Start { theta: stored.theta, origin: origin.clone() })?;
+                    started = true;
+                }
                 cal.insert(c)
             }
         };
@@ -204,7 +192,7 @@ pub fn follow<E: From<Error>>(
         let decision = opts.gates.decide(c, &stored.theta, stored.calibrated);
         let status = c.status();
         let span = drive.time_span_s();
-        db.record_decision(&DecisionRow {
+        let logged = db.record_decision(&DecisionRow {
             // Set by the database.
             id: 0,
             decided_at: String::new(),
@@ -218,13 +206,21 @@ pub fn follow<E: From<Error>>(
             theta: decision.theta,
             sigma: Some(decision.sigma),
         })?;
+        if logged.is_none() {
+            // A concurrent run followed the drive while this one replayed it.
+            cal = before;
+            on(FollowEvent::Skipped { source, fingerprint, row: None })?;
+            continue;
+        }
         if decision.action == Action::Write {
             db.record(&CalibrationRecord {
                 sources: vec![source.clone()],
                 t_start_s: span.0,
                 t_end_s: span.1,
-                sigma: Some(decision.sigma),
+                sigma: decision.sigma.into(),
                 heading_offset_rad: Some(status.heading_offset_rad),
+                // Written only when every gate passed: what its parameter file says.
+                verdict: Some(odocal::VerdictLevel::Accepted.to_string()),
                 ..CalibrationRecord::new(vehicle, &fingerprint, METHOD, decision.theta)
             })?;
             stored = Stored { theta: decision.theta, sigma: Some(decision.sigma), calibrated: true };
@@ -239,4 +235,34 @@ pub fn follow<E: From<Error>>(
         })?;
     }
     Ok(())
+}
+
+/// The parameters the replay starts from, and where they come from: the
+/// vehicle's most recent row whose verdict is not `rejected`, else θ_0.
+fn start(db: &History, vehicle: &str, opts: &FollowOptions) -> Result<(Stored, String), Error> {
+    // A rejected result is not to be deployed, nor started from.
+    let start = db.rows(vehicle)?.into_iter().rev().find(|r| !crate::pooled::is_rejected(r));
+    Ok(match start {
+        Some(r) => {
+            // A σ of the model alone (a batch G-N fit on a short drive) can
+            // be several times smaller than the spread between drives: as
+            // the recursion's start it would hold θ near the row's, so the
+            // calibrator starts from the options' prior sd instead.
+            // The recursion needs a σ for every parameter: a row with a
+            // parameter held (or without σ) starts from the prior's sd.
+            let sigma = r.record.checked_sigma().all();
+            let origin = match (sigma, r.record.sigma.all()) {
+                (None, Some(_)) => format!("history row {}; its σ is the model's alone, so the prior's sd", r.id),
+                (None, None) if r.record.sigma != crate::ParamSigma::default() => {
+                    format!("history row {}; not every parameter has a σ, so the prior's sd", r.id)
+                }
+                _ => format!("history row {}", r.id),
+            };
+            (Stored { theta: r.record.theta, sigma, calibrated: true }, origin)
+        }
+        None => {
+            let theta = opts.theta0.unwrap_or(Theta::PAPER_INITIAL);
+            (Stored { theta, sigma: None, calibrated: false }, "θ_0".to_string())
+        }
+    })
 }

@@ -50,7 +50,10 @@ mod pooled;
 mod schema;
 
 pub use follow::{follow, FollowEvent, FollowOptions};
-pub use pooled::{DriftFlag, Pooled, SetAside, DRIFT_SIGMAS};
+pub use pooled::{DriftFlag, NotMeasured, Pooled, SetAside, DRIFT_SIGMAS};
+
+/// The parameters of θ in vector order `[c_e, c_d, t_r, d]`.
+const THETA_PARAMS: [odocal::Param; 4] = [odocal::Param::CE, odocal::Param::CD, odocal::Param::TR, odocal::Param::D];
 
 /// How long a writer waits for another process's transaction to finish.
 const BUSY_TIMEOUT: Duration = Duration::from_secs(30);
@@ -72,8 +75,21 @@ pub struct CalibrationRecord {
     pub method: String,
     /// The estimate.
     pub theta: Theta,
-    /// Its standard deviation, when known.
-    pub sigma: Option<Theta>,
+    /// Its standard deviation, per parameter: `None` for a parameter
+    /// without one (held at θ_0, or a method without σ).
+    #[serde(default, deserialize_with = "sigma_or_null")]
+    pub sigma: ParamSigma,
+    /// The parameters held at θ_0 (`c_e`, `c_d`, `t_r`, `d`): fixed by the
+    /// user (`--fix`) or by auto-fix. Their value is the start's, not a
+    /// measurement, so it takes no part in that parameter's drift flags and
+    /// pooled estimate. Empty for a row of a file that did not record it.
+    #[serde(default)]
+    pub held: Vec<String>,
+    /// The free parameters the calibration found not observable from its
+    /// drive: their value is not to be trusted, so, as a held one, it takes
+    /// no part in that parameter's drift flags and pooled estimate.
+    #[serde(default)]
+    pub unobservable: Vec<String>,
     /// The reference's heading offset on this drive, rad, when estimated.
     pub heading_offset_rad: Option<f64>,
     /// The verdict (`accepted`, `doubtful`, `rejected`), when judged.
@@ -99,7 +115,9 @@ impl CalibrationRecord {
             t_end_s: 0.0,
             method: method.to_string(),
             theta,
-            sigma: None,
+            sigma: ParamSigma::default(),
+            held: Vec::new(),
+            unobservable: Vec::new(),
             heading_offset_rad: None,
             verdict: None,
             sigma_model_only: None,
@@ -110,7 +128,7 @@ impl CalibrationRecord {
     /// vehicle's identifier ([`check_vehicle_id`]), a method of odocal's
     /// ([`METHODS`]), θ within the physical limits
     /// ([`Theta::check_physical_limits`]), each σ finite and not
-    /// negative.
+    /// negative, `held` and `unobservable` naming parameters of θ.
     ///
     /// # Errors
     /// [`Error::InvalidOption`] naming the field, or [`Error::InvalidTheta`].
@@ -123,13 +141,22 @@ impl CalibrationRecord {
             });
         }
         self.theta.check_physical_limits()?;
-        if let Some(s) = &self.sigma {
-            if let Some((name, v)) =
-                THETA_NAMES.iter().zip(<[f64; 4]>::from(s)).find(|(_, v)| !v.is_finite() || *v < 0.0)
-            {
+        let sigma = <[Option<f64>; 4]>::from(self.sigma);
+        let bad = THETA_NAMES
+            .iter()
+            .zip(sigma)
+            .find_map(|(name, v)| v.filter(|v| !v.is_finite() || *v < 0.0).map(|v| (name, v)));
+        if let Some((name, v)) = bad {
+            return Err(Error::InvalidOption {
+                field: "sigma",
+                reason: format!("{name} = {v}: a standard deviation is a finite number, not negative"),
+            });
+        }
+        for (field, names) in [("held", &self.held), ("unobservable", &self.unobservable)] {
+            if let Some(p) = names.iter().find(|p| !THETA_NAMES.contains(&p.as_str())) {
                 return Err(Error::InvalidOption {
-                    field: "sigma",
-                    reason: format!("{name} = {v}: a standard deviation is a finite number, not negative"),
+                    field,
+                    reason: format!("'{}' is not a parameter of θ: c_e, c_d, t_r or d", p.escape_debug()),
                 });
             }
         }
@@ -139,17 +166,95 @@ impl CalibrationRecord {
     /// `sigma` unless it is the model's alone ([`Self::sigma_model_only`]):
     /// the σ a row is weighed by in the pooled estimate and `follow` starts
     /// from.
-    pub(crate) fn checked_sigma(&self) -> Option<Theta> {
-        self.sigma.filter(|_| self.sigma_model_only != Some(true))
+    pub(crate) fn checked_sigma(&self) -> ParamSigma {
+        if self.sigma_model_only == Some(true) {
+            ParamSigma::default()
+        } else {
+            self.sigma
+        }
     }
+
+    /// True when parameter `i` (`[c_e, c_d, t_r, d]`) was measured: neither
+    /// held nor named not observable.
+    pub fn measured(&self, i: usize) -> bool {
+        let name = THETA_NAMES[i];
+        !self.held.iter().chain(&self.unobservable).any(|p| p == name)
+    }
+
+    /// Why parameter `i` is no measurement (`held`, `not observable`), or
+    /// `None` for a measured one.
+    pub fn not_measured(&self, i: usize) -> Option<&'static str> {
+        let name = THETA_NAMES[i];
+        if self.held.iter().any(|p| p == name) {
+            Some("held")
+        } else if self.unobservable.iter().any(|p| p == name) {
+            Some("not observable")
+        } else {
+            None
+        }
+    }
+}
+
+/// One standard deviation per parameter of θ, SI units; `None` for a
+/// parameter without one. In JSON `{"c_e": …, "c_d": …, "t_r": …, "d": null}`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct ParamSigma {
+    /// 1σ of c_e, m.
+    #[serde(default)]
+    pub c_e: Option<f64>,
+    /// 1σ of c_d, m.
+    #[serde(default)]
+    pub c_d: Option<f64>,
+    /// 1σ of t_r, m.
+    #[serde(default)]
+    pub t_r: Option<f64>,
+    /// 1σ of d, m per m/s².
+    #[serde(default)]
+    pub d: Option<f64>,
+}
+
+impl ParamSigma {
+    /// Every parameter's σ, when each has one.
+    pub fn all(self) -> Option<Theta> {
+        match <[_; 4]>::from(self) {
+            [Some(c_e), Some(c_d), Some(t_r), Some(d)] => Some(Theta { c_e, c_d, t_r, d }),
+            _ => None,
+        }
+    }
+}
+
+/// `[c_e, c_d, t_r, d]`.
+impl From<ParamSigma> for [Option<f64>; 4] {
+    fn from(s: ParamSigma) -> Self {
+        [s.c_e, s.c_d, s.t_r, s.d]
+    }
+}
+
+/// From `[c_e, c_d, t_r, d]`.
+impl From<[Option<f64>; 4]> for ParamSigma {
+    fn from([c_e, c_d, t_r, d]: [Option<f64>; 4]) -> Self {
+        ParamSigma { c_e, c_d, t_r, d }
+    }
+}
+
+/// A σ for every parameter.
+impl From<Theta> for ParamSigma {
+    fn from(s: Theta) -> Self {
+        <[f64; 4]>::from(s).map(Some).into()
+    }
+}
+
+/// A σ of `null` (no σ at all) reads as one without any parameter's.
+fn sigma_or_null<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<ParamSigma, D::Error> {
+    Ok(Option::<ParamSigma>::deserialize(d)?.unwrap_or_default())
 }
 
 impl CalibrationRecord {
     /// The record of an offline calibration: θ, the σ that stands for the
-    /// result (when every parameter has one), the estimated heading offset
-    /// and the verdict of `report`; `fingerprint` names the calibration
-    /// drive(s), `sources` their files and `span_s` their first and last
-    /// sample time.
+    /// result (each parameter's that has one), the parameters held and those
+    /// named not observable, the estimated heading offset and the verdict
+    /// of `report`; `fingerprint` names the calibration drive(s), `sources`
+    /// their files and `span_s` their first and last sample time.
     pub fn of_report(
         vehicle: &str,
         fingerprint: &str,
@@ -157,11 +262,16 @@ impl CalibrationRecord {
         span_s: (f64, f64),
         report: &CalibrationReport,
     ) -> Self {
-        let sigma = match <[_; 4]>::from(report.result_sigma()) {
-            [Some(c_e), Some(c_d), Some(t_r), Some(d)] => Some(Theta { c_e, c_d, t_r, d }),
-            _ => None,
+        let sigma = ParamSigma::from(<[_; 4]>::from(report.result_sigma()));
+        let free = report.options.identify.free;
+        let names = |keep: &dyn Fn(odocal::Param) -> bool| -> Vec<String> {
+            THETA_PARAMS.iter().filter(|p| keep(**p)).map(|p| p.name().to_string()).collect()
         };
+        let held = names(&|p| !free.contains(p));
+        let unobservable = names(&|p| free.contains(p) && report.observability.unobservable.contains(p));
         CalibrationRecord {
+            held,
+            unobservable,
             sources,
             t_start_s: span_s.0,
             t_end_s: span_s.1,
@@ -178,7 +288,7 @@ impl CalibrationRecord {
 
 /// The methods a row of `calibrations` records: the offline methods of
 /// `odocal calibrate` and `online`, the calibrator `odocal follow` runs.
-pub const METHODS: [&str; 4] = ["eiv", "three-step", "batch-gn", follow::METHOD];
+pub const METHODS: [&str; 4] = ["eiv", "three-step", "batch-gn", ONLINE];
 
 /// Checks a vehicle's identifier, the key of its rows (`--vehicle ID`,
 /// Python's `History.record`): not blank, no space at either end (`van-1 `
@@ -319,6 +429,16 @@ fn set_aside_text(set_aside: &[SetAside]) -> String {
         .join("; ")
 }
 
+/// `row 3` or `rows 3, 5`.
+fn rows_text(ids: &[i64]) -> String {
+    let list: Vec<String> = ids.iter().map(i64::to_string).collect();
+    format!("row{} {}", if ids.len() == 1 { "" } else { "s" }, list.join(", "))
+}
+
+/// The method of the rows `odocal follow` writes: running estimates of the
+/// online calibrator, each holding the drives followed before it.
+pub const ONLINE: &str = "online";
+
 /// Display scale and unit of each θ parameter in the history's table (c_d
 /// and d in mm, as the calibration report shows them): value and σ alike.
 const DISPLAY_UNITS: [(f64, &str); 4] = [(1.0, "m"), (1e3, "mm"), (1.0, "m"), (1e3, "mm/(m/s²)")];
@@ -335,12 +455,14 @@ impl std::fmt::Display for VehicleHistory {
         )?;
         for r in &self.rows {
             let c = &r.record;
-            let (v, sd) = (<[_; 4]>::from(c.theta), c.sigma.map(<[f64; 4]>::from));
+            let (v, sd) = (<[_; 4]>::from(c.theta), <[_; 4]>::from(c.sigma));
             let cell = |i: usize, digits: usize, width: usize| {
                 let scale = DISPLAY_UNITS[i].0;
-                let text = match sd {
-                    Some(s) => format!("{:.digits$}±{:.1e}", v[i] * scale, s[i] * scale),
-                    None => format!("{:.digits$}", v[i] * scale),
+                let text = match (c.not_measured(i), sd[i]) {
+                    (Some("held"), _) => format!("{:.digits$} held", v[i] * scale),
+                    (Some(_), _) => format!("{:.digits$} unobs.", v[i] * scale),
+                    (None, Some(s)) => format!("{:.digits$}±{:.1e}", v[i] * scale, s * scale),
+                    (None, None) => format!("{:.digits$}", v[i] * scale),
                 };
                 format!("{text:>width$}")
             };
@@ -356,6 +478,13 @@ impl std::fmt::Display for VehicleHistory {
                 cell(3, 3, 14),
                 c.verdict.as_deref().unwrap_or("-"),
                 c.sources.join(", ")
+            )?;
+        }
+        if self.rows.iter().any(|r| (0..4).any(|i| r.record.not_measured(i).is_some())) {
+            writeln!(
+                f,
+                "held: held at θ_0; unobs.: not observable from the row's drive; neither is a measurement, so \
+                 neither counts in that parameter's drift flags or pooled estimate"
             )?;
         }
         if !self.set_aside.is_empty() {
@@ -387,17 +516,21 @@ impl std::fmt::Display for VehicleHistory {
                 )?;
             }
         }
+        self.fmt_pooled(f)
+    }
+}
+
+impl VehicleHistory {
+    /// The pooled estimate's lines of the table (or why nothing is pooled).
+    fn fmt_pooled(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         if let Some(p) = &self.pooled {
             let mut aside =
                 if p.set_aside.is_empty() { String::new() } else { format!("; {}", set_aside_text(&p.set_aside)) };
             if !p.rejected.is_empty() {
-                let ids: Vec<String> = p.rejected.iter().map(i64::to_string).collect();
-                let _ = write!(
-                    aside,
-                    "; not pooled, verdict rejected: row{} {}",
-                    if ids.len() == 1 { "" } else { "s" },
-                    ids.join(", ")
-                );
+                let _ = write!(aside, "; not pooled, verdict rejected: {}", rows_text(&p.rejected));
+            }
+            if !p.online.is_empty() {
+                let _ = write!(aside, "; not pooled, online running estimates: {}", rows_text(&p.online));
             }
             writeln!(
                 f,
@@ -408,16 +541,37 @@ impl std::fmt::Display for VehicleHistory {
                 (<[_; 4]>::from(p.mean), <[_; 4]>::from(p.sigma_of_mean), <[_; 4]>::from(p.between_drive_sd));
             for (i, name) in THETA_NAMES.iter().enumerate() {
                 let (scale, unit) = DISPLAY_UNITS[i];
+                let left_out: Vec<String> = p
+                    .not_measured
+                    .iter()
+                    .filter(|n| n.parameter == *name)
+                    .map(|n| format!("row {} {}", n.id, n.why))
+                    .collect();
+                let left_out =
+                    if left_out.is_empty() { String::new() } else { format!("; not pooled: {}", left_out.join(", ")) };
+                if !m[i].is_finite() {
+                    writeln!(
+                        f,
+                        "  {name:<4} {unit:<10} {:>12} — no measured row (held or not observable in every row pooled){left_out}",
+                        "-"
+                    )?;
+                    continue;
+                }
                 // One drive has no spread between drives.
                 let sd =
                     if b[i].is_finite() { format!("{:.2e}", b[i] * scale) } else { "— (needs two drives)".into() };
-                writeln!(
-                    f,
-                    "  {name:<4} {unit:<10} {:>12.6} ± {:.2e}   between-drive sd {sd}",
-                    m[i] * scale,
-                    s[i] * scale
-                )?;
+                let se =
+                    if s[i].is_finite() { format!("{:.2e}", s[i] * scale) } else { "— (one row, without σ)".into() };
+                writeln!(f, "  {name:<4} {unit:<10} {:>12.6} ± {se}   between-drive sd {sd}{left_out}", m[i] * scale)?;
             }
+        } else if let Some(last) = self.rows.iter().rev().find(|r| r.record.method == ONLINE && !pooled::is_rejected(r))
+        {
+            writeln!(
+                f,
+                "\nnothing pooled: the rows are online running estimates, each holding the drives before it; \
+                 the most recent, row {}, is the estimate over every drive followed",
+                last.id
+            )?;
         }
         Ok(())
     }
@@ -462,18 +616,23 @@ const NOT_A_HISTORY: &str =
     "give the file that calibrate --vehicle or follow record in, or the name of a new file to start a history";
 
 const ROW_COLUMNS: &str = "id, recorded_at, odocal_version, vehicle, fingerprint, sources, t_start_s, t_end_s, \
-     method, c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, heading_offset_rad, verdict, sigma_model_only";
+     method, c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, heading_offset_rad, verdict, sigma_model_only, \
+     held, unobservable";
 
 fn theta_at(r: &Row<'_>, i: usize) -> rusqlite::Result<Theta> {
     Ok(Theta { c_e: r.get(i)?, c_d: r.get(i + 1)?, t_r: r.get(i + 2)?, d: r.get(i + 3)? })
 }
 
-fn sigma_at(r: &Row<'_>, i: usize) -> rusqlite::Result<Option<Theta>> {
+fn sigma_at(r: &Row<'_>, i: usize) -> rusqlite::Result<ParamSigma> {
     let v: [Option<f64>; 4] = [r.get(i)?, r.get(i + 1)?, r.get(i + 2)?, r.get(i + 3)?];
-    Ok(match v {
-        [Some(c_e), Some(c_d), Some(t_r), Some(d)] => Some(Theta { c_e, c_d, t_r, d }),
-        _ => None,
-    })
+    Ok(v.into())
+}
+
+/// A column of parameter names (`t_r,d`); NULL (not recorded) and empty
+/// text name none.
+fn names_at(r: &Row<'_>, i: usize) -> rusqlite::Result<Vec<String>> {
+    let v: Option<String> = r.get(i)?;
+    Ok(v.unwrap_or_default().split(',').map(str::trim).filter(|p| !p.is_empty()).map(String::from).collect())
 }
 
 fn history_row(r: &Row<'_>) -> rusqlite::Result<HistoryRow> {
@@ -494,6 +653,8 @@ fn history_row(r: &Row<'_>) -> rusqlite::Result<HistoryRow> {
             heading_offset_rad: r.get(17)?,
             verdict: r.get(18)?,
             sigma_model_only: r.get(19)?,
+            held: names_at(r, 20)?,
+            unobservable: names_at(r, 21)?,
         },
     })
 }
@@ -511,12 +672,12 @@ fn decision_row(r: &Row<'_>) -> rusqlite::Result<DecisionRow> {
         drive_time_s: r.get(7)?,
         decision: r.get(8)?,
         theta: theta_at(r, 9)?,
-        sigma: sigma_at(r, 13)?,
+        sigma: sigma_at(r, 13)?.all(),
     })
 }
 
 fn sigma_params(s: &Option<Theta>) -> [Option<f64>; 4] {
-    s.map_or([None; 4], |s| [Some(s.c_e), Some(s.c_d), Some(s.t_r), Some(s.d)])
+    s.map_or([None; 4], |s| ParamSigma::from(s).into())
 }
 
 /// The current time in the database's format (UTC, milliseconds).
@@ -560,15 +721,16 @@ impl History {
         let err = sql_err(&self.path);
         let sources = serde_json::to_string(&rec.sources)
             .map_err(|e| Error::History { path: self.path.clone(), reason: format!("source names: {e}") })?;
-        let s = sigma_params(&rec.sigma);
+        let s = <[_; 4]>::from(rec.sigma);
         let n = self
             .conn
             .execute(
                 &format!(
                     "INSERT INTO calibrations (vehicle, recorded_at, fingerprint, sources, t_start_s, t_end_s, method, \
                      c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, heading_offset_rad, verdict, \
-                     odocal_version, sigma_model_only) VALUES (?1, {NOW}, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, \
-                     ?12, ?13, ?14, ?15, ?16, ?17, ?18) ON CONFLICT (vehicle, fingerprint, method) DO NOTHING"
+                     odocal_version, sigma_model_only, held, unobservable) VALUES (?1, {NOW}, ?2, ?3, ?4, ?5, ?6, \
+                     ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17, ?18, ?19, ?20) \
+                     ON CONFLICT (vehicle, fingerprint, method) DO NOTHING"
                 ),
                 params![
                     rec.vehicle,
@@ -589,6 +751,8 @@ impl History {
                     rec.verdict,
                     env!("CARGO_PKG_VERSION"),
                     rec.sigma_model_only,
+                    rec.held.join(","),
+                    rec.unobservable.join(","),
                 ],
             )
             .map_err(&err)?;
@@ -636,19 +800,25 @@ impl History {
         rows.collect::<rusqlite::Result<Vec<_>>>().map_err(&err)
     }
 
-    /// Logs a write-back decision; returns its row id. The database sets
-    /// the row's `id`, `decided_at` and `odocal_version` (`d`'s are not read).
-    pub(crate) fn record_decision(&mut self, d: &DecisionRow) -> Result<i64> {
+    /// Logs a write-back decision unless the vehicle's decisions hold one
+    /// for the drive (same fingerprint) already; returns the new row's id,
+    /// or `None` when another run (a concurrent `follow`) logged the drive
+    /// first. The check and the insert are one statement, so of two
+    /// writers one logs the drive. The database sets the row's `id`,
+    /// `decided_at` and `odocal_version` (`d`'s are not read).
+    pub(crate) fn record_decision(&mut self, d: &DecisionRow) -> Result<Option<i64>> {
         let err = sql_err(&self.path);
         let reasons = serde_json::to_string(&d.reasons)
             .map_err(|e| Error::History { path: self.path.clone(), reason: format!("reasons: {e}") })?;
         let s = sigma_params(&d.sigma);
-        self.conn
+        let n = self
+            .conn
             .execute(
                 &format!(
                     "INSERT INTO decisions (vehicle, decided_at, fingerprint, source, drive_time_s, decision, \
                      reasons, c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, odocal_version) \
-                     VALUES (?1, {NOW}, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15)"
+                     SELECT ?1, {NOW}, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15 \
+                     WHERE NOT EXISTS (SELECT 1 FROM decisions WHERE vehicle = ?1 AND fingerprint = ?2)"
                 ),
                 params![
                     d.vehicle,
@@ -669,7 +839,7 @@ impl History {
                 ],
             )
             .map_err(&err)?;
-        Ok(self.conn.last_insert_rowid())
+        Ok((n == 1).then(|| self.conn.last_insert_rowid()))
     }
 
     /// The vehicle's logged write-back decisions in logging order.

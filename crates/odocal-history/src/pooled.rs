@@ -86,21 +86,24 @@ pub(crate) fn counted_once(rows: &[HistoryRow]) -> (Vec<&HistoryRow>, Vec<SetAsi
 }
 
 /// Flags every parameter change between consecutive rows (in the order
-/// given) beyond [`DRIFT_SIGMAS`] combined σ. Pairs where either row has
-/// no σ are skipped.
+/// given) beyond [`DRIFT_SIGMAS`] combined σ. A parameter is compared
+/// between the consecutive rows that measured it (neither held nor named
+/// not observable, [`CalibrationRecord::measured`](crate::CalibrationRecord::measured));
+/// pairs where either row has no σ for it are skipped.
 pub(crate) fn drift_between(rows: &[&HistoryRow]) -> Vec<DriftFlag> {
     let mut out = Vec::new();
-    for w in rows.windows(2) {
-        let (a, b) = (w[0], w[1]);
-        let (Some(sa), Some(sb)) = (a.record.sigma, b.record.sigma) else { continue };
-        let (ta, tb, sa, sb) =
-            (<[_; 4]>::from(a.record.theta), <[_; 4]>::from(b.record.theta), <[_; 4]>::from(sa), <[_; 4]>::from(sb));
-        for i in 0..4 {
-            let change = tb[i] - ta[i];
-            let combined = (sa[i] * sa[i] + sb[i] * sb[i]).sqrt();
+    for (i, name) in THETA_NAMES.iter().enumerate() {
+        let measured: Vec<&HistoryRow> = rows.iter().copied().filter(|r| r.record.measured(i)).collect();
+        for w in measured.windows(2) {
+            let (a, b) = (w[0], w[1]);
+            let (Some(sa), Some(sb)) = (<[_; 4]>::from(a.record.sigma)[i], <[_; 4]>::from(b.record.sigma)[i]) else {
+                continue;
+            };
+            let change = <[_; 4]>::from(b.record.theta)[i] - <[_; 4]>::from(a.record.theta)[i];
+            let combined = sa.hypot(sb);
             if change.abs() > DRIFT_SIGMAS * combined {
                 out.push(DriftFlag {
-                    parameter: THETA_NAMES[i].to_string(),
+                    parameter: name.to_string(),
                     from_id: a.id,
                     from_recorded_at: a.recorded_at.clone(),
                     to_id: b.id,
@@ -113,6 +116,8 @@ pub(crate) fn drift_between(rows: &[&HistoryRow]) -> Vec<DriftFlag> {
             }
         }
     }
+    // In recording order of the later row, then parameter order.
+    out.sort_by_key(|f| (f.to_id, THETA_NAMES.iter().position(|n| *n == f.parameter)));
     out
 }
 
@@ -133,19 +138,48 @@ pub struct Pooled {
     /// (ids, in recording order).
     #[serde(default)]
     pub rejected: Vec<i64>,
-    /// Per parameter: the inverse-variance weighted mean `Σ wᵢθᵢ / Σ wᵢ`,
-    /// `wᵢ = 1/σᵢ²`, when every row has a positive σ that is not the
-    /// model's alone ([`CalibrationRecord::sigma_model_only`](crate::CalibrationRecord::sigma_model_only));
-    /// else the plain mean.
+    /// Rows asked for but not pooled because they are online running
+    /// estimates (method `online`, written by `odocal follow`): each holds
+    /// the drives followed before it and the row its recursion started
+    /// from, so pooling it with them, or with the other online rows of its
+    /// sequence, would count those drives several times (ids, in recording
+    /// order). They are listed and drift-flagged; the most recent stands for
+    /// the drives it followed.
+    #[serde(default)]
+    pub online: Vec<i64>,
+    /// The pooled rows' parameters that are no measurement (held at θ_0,
+    /// or named not observable): each left out of that parameter's pool.
+    #[serde(default)]
+    pub not_measured: Vec<NotMeasured>,
+    /// Per parameter, over the pooled rows that measured it: the
+    /// inverse-variance weighted mean `Σ wᵢθᵢ / Σ wᵢ`, `wᵢ = 1/σᵢ²`, when
+    /// each of them has a positive σ that is not the model's alone
+    /// ([`CalibrationRecord::sigma_model_only`](crate::CalibrationRecord::sigma_model_only));
+    /// else the plain mean. NaN (JSON `null`) for a parameter no pooled
+    /// row measured.
     pub mean: Theta,
     /// The standard error of `mean` from the rows' σ (`1/sqrt(Σ wᵢ)`), or
     /// from the spread (`sd/√n`) for a plain mean; whichever is larger when
     /// both are known, since a between-drive spread beyond the σ means the
-    /// σ alone understate it. NaN for a single row without σ.
+    /// σ alone understate it. NaN (JSON `null`) for a single measured row
+    /// without σ, or none.
     pub sigma_of_mean: Theta,
-    /// The between-drive standard deviation: the sample sd of the rows'
-    /// θ (n − 1 in the denominator); NaN for a single row.
+    /// The between-drive standard deviation: the sample sd of the measured
+    /// rows' θ (n − 1 in the denominator); NaN (JSON `null`) for fewer
+    /// than two.
     pub between_drive_sd: Theta,
+}
+
+/// A parameter of a pooled row that is no measurement, and so left out of
+/// that parameter's pool and drift flags.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NotMeasured {
+    /// The row.
+    pub id: i64,
+    /// `c_e`, `c_d`, `t_r` or `d`.
+    pub parameter: String,
+    /// `held` (at θ_0) or `not observable`.
+    pub why: String,
 }
 
 /// True for a row whose verdict is `rejected`: a result not to be
@@ -156,20 +190,39 @@ pub(crate) fn is_rejected(r: &HistoryRow) -> bool {
     r.record.verdict.as_deref().is_some_and(|v| v == odocal::VerdictLevel::Rejected.to_string())
 }
 
+/// True for a row `odocal follow` wrote: an online running estimate
+/// ([`Pooled::online`]).
+pub(crate) fn is_online(r: &HistoryRow) -> bool {
+    r.record.method == crate::ONLINE
+}
+
 /// Pools `rows` (in recording order), each drive once ([`Pooled`],
-/// [`counted_once`]), the rejected ones left out; `None` without a row
-/// that is not rejected.
+/// [`counted_once`]), the rejected and the online ones left out, each
+/// parameter over the rows that measured it; `None` without a row to pool.
 pub(crate) fn pooled_estimate(rows: &[HistoryRow]) -> Option<Pooled> {
     let rejected: Vec<i64> = rows.iter().filter(|r| is_rejected(r)).map(|r| r.id).collect();
-    let judged: Vec<HistoryRow> = rows.iter().filter(|r| !is_rejected(r)).cloned().collect();
-    let (rows, set_aside) = counted_once(&judged);
-    if rows.is_empty() {
+    let online: Vec<i64> = rows.iter().filter(|r| !is_rejected(r) && is_online(r)).map(|r| r.id).collect();
+    let judged: Vec<HistoryRow> = rows.iter().filter(|r| !is_rejected(r) && !is_online(r)).cloned().collect();
+    let (all_rows, set_aside) = counted_once(&judged);
+    if all_rows.is_empty() {
         return None;
     }
-    let drives = rows.iter().map(|r| drives_of(&r.record.fingerprint).count().max(1)).sum();
-    let n = rows.len() as f64;
-    let (mut mean, mut se, mut sd) = ([0.0; 4], [0.0; 4], [0.0; 4]);
+    let drives = all_rows.iter().map(|r| drives_of(&r.record.fingerprint).count().max(1)).sum();
+    let mut not_measured = Vec::new();
+    for r in &all_rows {
+        for (i, name) in THETA_NAMES.iter().enumerate() {
+            if let Some(why) = r.record.not_measured(i) {
+                not_measured.push(NotMeasured { id: r.id, parameter: name.to_string(), why: why.to_string() });
+            }
+        }
+    }
+    let (mut mean, mut se, mut sd) = ([f64::NAN; 4], [f64::NAN; 4], [f64::NAN; 4]);
     for i in 0..4 {
+        let rows: Vec<&HistoryRow> = all_rows.iter().copied().filter(|r| r.record.measured(i)).collect();
+        if rows.is_empty() {
+            continue;
+        }
+        let n = rows.len() as f64;
         let values: Vec<f64> = rows.iter().map(|r| <[_; 4]>::from(r.record.theta)[i]).collect();
         let plain = values.iter().sum::<f64>() / n;
         sd[i] = if rows.len() > 1 {
@@ -180,7 +233,7 @@ pub(crate) fn pooled_estimate(rows: &[HistoryRow]) -> Option<Pooled> {
         // A σ of the model alone would weigh its row far above the others
         // on a σ nothing checked: the rows are pooled as without σ.
         let sigmas: Option<Vec<f64>> =
-            rows.iter().map(|r| r.record.checked_sigma().map(|s| <[_; 4]>::from(s)[i]).filter(|s| *s > 0.0)).collect();
+            rows.iter().map(|r| <[_; 4]>::from(r.record.checked_sigma())[i].filter(|s| *s > 0.0)).collect();
         let spread_se = sd[i] / n.sqrt();
         match sigmas {
             Some(s) => {
@@ -197,10 +250,12 @@ pub(crate) fn pooled_estimate(rows: &[HistoryRow]) -> Option<Pooled> {
         }
     }
     Some(Pooled {
-        rows: rows.len(),
+        rows: all_rows.len(),
         drives,
         set_aside,
         rejected,
+        online,
+        not_measured,
         mean: Theta::from(mean),
         sigma_of_mean: Theta::from(se),
         between_drive_sd: Theta::from(sd),

@@ -55,6 +55,13 @@ pub(super) const MIGRATIONS: &[&str] = &[
     // Version 2: whether a row's σ is the model's alone (1), checked against
     // the data (0) or not known (NULL, rows recorded before the column).
     "ALTER TABLE calibrations ADD COLUMN sigma_model_only INTEGER;",
+    // Version 3: the parameters held at θ_0 and those named not observable
+    // (comma-separated names; NULL for rows recorded before the columns:
+    // not known). A row of `follow` holds an update every write-back gate
+    // passed, the verdict its parameter file gives.
+    "ALTER TABLE calibrations ADD COLUMN held TEXT;
+    ALTER TABLE calibrations ADD COLUMN unobservable TEXT;
+    UPDATE calibrations SET verdict = 'accepted' WHERE method = 'online' AND verdict IS NULL;",
 ];
 
 /// The schema version this odocal writes.

@@ -4,8 +4,8 @@ fn theta(c_e: f64) -> Theta {
     Theta { c_e, c_d: -0.002, t_r: 1.53, d: 0.0008 }
 }
 
-fn sigma(s: f64) -> Option<Theta> {
-    Some(Theta { c_e: s, c_d: s, t_r: s, d: s })
+fn sigma(s: f64) -> ParamSigma {
+    Theta { c_e: s, c_d: s, t_r: s, d: s }.into()
 }
 
 fn record(vehicle: &str, fp: &str, c_e: f64, s: f64) -> CalibrationRecord {
@@ -95,20 +95,24 @@ fn concurrent_writers_lose_nothing() {
                     // Every thread also records the shared drives "s0".."s4".
                     db.record(&record("van", &format!("t{t}-{i}"), 1.95, 1e-3)).expect("record");
                     db.record(&record("van", &format!("s{}", i % 5), 1.95, 1e-3)).expect("record shared");
-                    db.record_decision(&DecisionRow {
-                        id: 0,
-                        decided_at: String::new(),
-                        odocal_version: String::new(),
-                        vehicle: "van".into(),
-                        fingerprint: format!("t{t}"),
-                        source: "x".into(),
-                        drive_time_s: i as f64,
-                        decision: "held".into(),
-                        reasons: vec!["sigma".into()],
-                        theta: theta(1.95),
-                        sigma: None,
-                    })
-                    .expect("decision");
+                    // Every thread also decides on the shared drives: one
+                    // decision each is logged, by whichever thread is first.
+                    for fingerprint in [format!("t{t}-{i}"), format!("s{}", i % 5)] {
+                        db.record_decision(&DecisionRow {
+                            id: 0,
+                            decided_at: String::new(),
+                            odocal_version: String::new(),
+                            vehicle: "van".into(),
+                            fingerprint,
+                            source: "x".into(),
+                            drive_time_s: i as f64,
+                            decision: "held".into(),
+                            reasons: vec!["sigma".into()],
+                            theta: theta(1.95),
+                            sigma: None,
+                        })
+                        .expect("decision");
+                    }
                 }
             })
         })
@@ -118,7 +122,7 @@ fn concurrent_writers_lose_nothing() {
     }
     let db = History::open(&path).expect("open");
     assert_eq!(db.rows("van").expect("rows").len(), 4 * 25 + 5);
-    assert_eq!(db.decision_count("van").expect("count"), 100);
+    assert_eq!(db.decision_count("van").expect("count"), 100 + 5);
     let check: String = db.conn.query_row("PRAGMA integrity_check", [], |r| r.get(0)).expect("check");
     assert_eq!(check, "ok");
 }
@@ -164,9 +168,9 @@ fn the_table_shows_each_sigma_in_its_values_unit() {
     let dir = tempfile::tempdir().expect("tempdir");
     let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
     let sd = Theta { c_e: 1.7e-3, c_d: 3.1e-4, t_r: 4.6e-3, d: 9.8e-5 };
-    db.record(&CalibrationRecord { sigma: Some(sd), ..record("van", "a", 1.95, 1e-3) }).expect("a");
+    db.record(&CalibrationRecord { sigma: sd.into(), ..record("van", "a", 1.95, 1e-3) }).expect("a");
     let shifted = Theta { c_d: -0.0004, ..theta(1.95) };
-    db.record(&CalibrationRecord { theta: shifted, sigma: Some(sd), ..record("van", "b", 1.95, 1e-3) }).expect("b");
+    db.record(&CalibrationRecord { theta: shifted, sigma: sd.into(), ..record("van", "b", 1.95, 1e-3) }).expect("b");
     let text = db.vehicle("van", None).expect("history").to_string();
     let lines: Vec<&str> = text.lines().collect();
     // c_d = -2 mm ± 0.31 mm, d = 0.8 mm/(m/s²) ± 0.098 mm/(m/s²): value and σ in one unit.
@@ -241,7 +245,7 @@ fn a_version_one_file_is_migrated_and_keeps_its_rows() {
     .expect("row");
     drop(conn);
     let db = History::open(&path).expect("migrate");
-    assert_eq!(db.schema_version, 2);
+    assert_eq!(db.schema_version, schema::SCHEMA_VERSION);
     let rows = db.rows("van").expect("rows");
     assert_eq!(rows.len(), 1);
     assert_eq!(rows[0].record.sigma_model_only, None);
@@ -278,7 +282,7 @@ fn follow_does_not_start_from_a_model_only_sigma() {
     let follow_from = |name: &str, sigma: Option<Theta>, model_only: Option<bool>| {
         let mut db = History::open(dir.path().join(name)).expect("open");
         let row = CalibrationRecord {
-            sigma,
+            sigma: sigma.map_or_else(ParamSigma::default, ParamSigma::from),
             sigma_model_only: model_only,
             ..CalibrationRecord::new("van", "start", "batch-gn", truth)
         };
@@ -505,6 +509,191 @@ fn follow_refuses_a_drive_with_a_lost_signal() {
     assert_eq!(db.decision_count("van").expect("decisions"), 1);
 }
 
+/// A row with `d` held keeps the σ of the parameters it measured; its `d`
+/// (θ_0's value, no measurement) is listed but takes no part in `d`'s
+/// drift flags or pooled estimate, and a parameter no pooled row measured
+/// has no pooled value. No value prints as NaN.
+#[test]
+fn a_held_parameter_keeps_the_others_sigma_and_is_not_pooled() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
+    let held = CalibrationRecord {
+        theta: Theta { d: 0.0, ..theta(1.950) },
+        sigma: ParamSigma { d: None, ..sigma(1e-4) },
+        held: vec!["d".into()],
+        ..record("van", "a", 1.950, 1e-4)
+    };
+    let Recorded::New(a) = db.record(&held).expect("a") else { panic!("new") };
+    let measured = CalibrationRecord { theta: Theta { d: 7e-4, ..theta(1.9502) }, ..record("van", "b", 1.9502, 1e-4) };
+    let Recorded::New(b) = db.record(&measured).expect("b") else { panic!("new") };
+    let h = db.vehicle("van", None).expect("history");
+    assert_eq!(h.rows[0].record, held, "σ and held read back per parameter");
+    assert_eq!(h.rows[0].record.sigma.c_e, Some(1e-4));
+    // 0.7 mm/(m/s²) between θ_0's 0 and a measurement of σ 0.1: no drift.
+    assert!(h.drift.is_empty(), "{:?}", h.drift);
+    let p = h.pooled.as_ref().expect("pooled");
+    assert!((p.mean.d - 7e-4).abs() < 1e-15, "d pooled over the row that measured it: {p:?}");
+    assert!((p.sigma_of_mean.d - 1e-4).abs() < 1e-15, "{p:?}");
+    assert!(p.between_drive_sd.d.is_nan(), "one measured row");
+    assert!((p.mean.c_e - 1.9501).abs() < 1e-12, "c_e pooled over both: {p:?}");
+    assert_eq!(p.not_measured, [NotMeasured { id: a, parameter: "d".into(), why: "held".into() }]);
+    let text = h.to_string();
+    assert!(text.contains(" 0.000 held ") && text.contains("held: held at θ_0"), "{text}");
+    assert!(text.contains(&format!("not pooled: row {a} held")), "{text}");
+    assert!(!text.contains("NaN"), "{text}");
+    // The held row alone: d has no pooled value, and says so.
+    let h = db.vehicle("van", Some(&[a])).expect("history");
+    let p = h.pooled.as_ref().expect("pooled");
+    assert!(p.mean.d.is_nan() && (p.mean.c_e - 1.950).abs() < 1e-12, "{p:?}");
+    let text = h.to_string();
+    assert!(text.contains("— no measured row (held or not observable in every row pooled)"), "{text}");
+    assert!(!text.contains("NaN"), "{text}");
+    // A single row without σ: no σ of the mean, said in words.
+    let mut db = History::open(dir.path().join("g.sqlite")).expect("open");
+    db.record(&CalibrationRecord::new("van", "c", "eiv", theta(1.95))).expect("c");
+    let text = db.vehicle("van", None).expect("history").to_string();
+    assert!(text.contains("± — (one row, without σ)") && !text.contains("NaN"), "{text}");
+    let _ = b;
+}
+
+/// A parameter named not observable is left out as a held one is.
+#[test]
+fn an_unobservable_parameter_is_not_pooled() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
+    let unobs = CalibrationRecord {
+        theta: Theta { t_r: 1.6, ..theta(1.950) },
+        unobservable: vec!["t_r".into()],
+        ..record("van", "a", 1.950, 1e-3)
+    };
+    let Recorded::New(a) = db.record(&unobs).expect("a") else { panic!("new") };
+    db.record(&record("van", "b", 1.950, 1e-3)).expect("b");
+    let h = db.vehicle("van", None).expect("history");
+    assert_eq!(h.rows[0].record.unobservable, ["t_r"]);
+    let p = h.pooled.as_ref().expect("pooled");
+    assert!((p.mean.t_r - 1.53).abs() < 1e-12, "{p:?}");
+    assert_eq!(p.not_measured, [NotMeasured { id: a, parameter: "t_r".into(), why: "not observable".into() }]);
+    assert!(h.to_string().contains(" 1.600 unobs."), "{h}");
+}
+
+/// `of_report` of a calibration with `d` held stores the σ of the three
+/// free parameters and marks `d` held.
+#[test]
+fn a_calibration_with_a_held_parameter_records_the_others_sigma() {
+    let sim = odocal::SimOptions { length_km: 3.0, ..odocal::SimOptions::paper(1) };
+    let drive = odocal::simulate(&sim).expect("sim").drive;
+    let mut opts = odocal::CalibrationOptions { method: "batch-gn".parse().expect("method"), ..Default::default() };
+    opts.identify.free = "c_e,c_d,t_r".parse().expect("free");
+    let r = odocal::calibrate(&drive, &opts).expect("calibrate");
+    let rec = CalibrationRecord::of_report("van", "f", Vec::new(), (0.0, 1.0), &r);
+    assert_eq!(rec.held, ["d"]);
+    let s = rec.sigma;
+    assert!(s.c_e.is_some() && s.c_d.is_some() && s.t_r.is_some() && s.d.is_none(), "{s:?}");
+}
+
+/// A version-2 file gains the columns of held and unobservable parameters
+/// on opening: its rows read as measured, and its online rows (updates
+/// every write-back gate passed) as accepted.
+#[test]
+fn a_version_two_file_is_migrated_and_keeps_its_rows() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("h.sqlite");
+    let conn = Connection::open(&path).expect("open");
+    conn.execute_batch(schema::MIGRATIONS[0]).expect("version 1");
+    conn.execute_batch(schema::MIGRATIONS[1]).expect("version 2");
+    conn.pragma_update(None, "user_version", 2).expect("pragma");
+    for (fp, method) in [("a", "eiv"), ("b", "online")] {
+        conn.execute(
+            "INSERT INTO calibrations (vehicle, recorded_at, fingerprint, sources, t_start_s, t_end_s, method, \
+             c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, odocal_version) VALUES ('van', \
+             '2026-01-01T00:00:00.000Z', ?1, '[]', 0, 1, ?2, 1.95, 0, 1.5, 0, 1e-3, 1e-4, 1e-2, 1e-4, '0.2.0')",
+            params![fp, method],
+        )
+        .expect("row");
+    }
+    drop(conn);
+    let db = History::open(&path).expect("migrate");
+    assert_eq!(db.schema_version, 3);
+    let rows = db.rows("van").expect("rows");
+    assert_eq!(rows.len(), 2);
+    assert!(rows.iter().all(|r| r.record.held.is_empty() && r.record.unobservable.is_empty()));
+    assert_eq!(rows[0].record.sigma, ParamSigma::from(Theta { c_e: 1e-3, c_d: 1e-4, t_r: 1e-2, d: 1e-4 }));
+    assert_eq!(rows[0].record.verdict, None);
+    assert_eq!(rows[1].record.verdict.as_deref(), Some("accepted"));
+}
+
+/// Online rows are running estimates, each holding the drives before it:
+/// listed and drift-flagged, but not pooled with the offline calibrations
+/// (or with each other); with online rows alone nothing is pooled, and the
+/// most recent is named as the estimate.
+#[test]
+fn online_rows_are_listed_but_not_pooled() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
+    let online = |fp: &str, c_e: f64| CalibrationRecord { method: ONLINE.into(), ..record("van", fp, c_e, 1e-4) };
+    let ids: Vec<i64> = [record("van", "a", 1.950, 1e-3), online("b", 1.951), online("c", 1.9525)]
+        .iter()
+        .map(|r| match db.record(r).expect("record") {
+            Recorded::New(id) => id,
+            other => panic!("{other:?}"),
+        })
+        .collect();
+    let h = db.vehicle("van", None).expect("history");
+    let p = h.pooled.as_ref().expect("pooled");
+    assert_eq!((p.rows, p.drives, &p.online), (1, 1, &vec![ids[1], ids[2]]), "{p:?}");
+    assert!((p.mean.c_e - 1.950).abs() < 1e-12, "{p:?}");
+    // 1.5 mm between the online rows against a combined σ of 0.14 mm: flagged.
+    assert_eq!(h.drift.iter().map(|f| f.to_id).collect::<Vec<_>>(), [ids[2]], "{:?}", h.drift);
+    let text = h.to_string();
+    assert!(text.contains(&format!("not pooled, online running estimates: rows {}, {}", ids[1], ids[2])), "{text}");
+    let h = db.vehicle("van", Some(&ids[1..])).expect("history");
+    assert!(h.pooled.is_none());
+    let text = h.to_string();
+    assert!(text.contains("nothing pooled: the rows are online running estimates"), "{text}");
+    assert!(text.contains(&format!("the most recent, row {}, is the estimate", ids[2])), "{text}");
+}
+
+/// Two `follow` runs of one vehicle on one database at once: each drive is
+/// decided once (the second run to finish a drive skips it), and every
+/// online row `follow` writes says `accepted`.
+#[test]
+fn concurrent_follows_decide_each_drive_once() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let drives: Vec<std::path::PathBuf> = (1..=2)
+        .map(|seed| {
+            let csv = dir.path().join(format!("d{seed}.csv"));
+            odocal::simulate(&odocal::SimOptions { length_km: 1.5, ..odocal::SimOptions::noise_free(seed) })
+                .expect("sim")
+                .drive
+                .write_csv(&csv)
+                .expect("csv");
+            csv
+        })
+        .collect();
+    let path = dir.path().join("h.sqlite");
+    History::open(&path).expect("create");
+    let runs: Vec<_> = (0..2)
+        .map(|_| {
+            let (path, drives) = (path.clone(), drives.clone());
+            std::thread::spawn(move || {
+                let mut db = History::open(&path).expect("open");
+                follow(&mut db, "van", &drives, &FollowOptions::default(), |_| Ok::<(), Error>(())).expect("follow");
+            })
+        })
+        .collect();
+    for r in runs {
+        r.join().expect("run");
+    }
+    let db = History::open(&path).expect("open");
+    let decisions = db.decisions("van").expect("decisions");
+    let mut prints: Vec<&str> = decisions.iter().map(|d| d.fingerprint.as_str()).collect();
+    prints.sort_unstable();
+    prints.dedup();
+    assert_eq!((decisions.len(), prints.len()), (2, 2), "{decisions:?}");
+    let rows = db.rows("van").expect("rows");
+    assert!(rows.iter().all(|r| r.record.verdict.as_deref() == Some("accepted")), "{rows:?}");
+}
+
 /// A record the CLI could not have made (a blank vehicle, an unknown
 /// method, θ beyond the physical limits, a σ that is no σ) is refused
 /// before anything is written.
@@ -531,10 +720,18 @@ fn a_record_is_checked_before_it_is_written() {
             "t_r = NaN is not finite",
         ),
         (
-            CalibrationRecord { sigma: sigma(1e-3).map(|s| Theta { d: -1e-4, ..s }), ..good.clone() },
+            CalibrationRecord { sigma: ParamSigma { d: Some(-1e-4), ..sigma(1e-3) }, ..good.clone() },
             "invalid option `sigma`: d = -0.0001",
         ),
         (CalibrationRecord { sigma: sigma(f64::NAN), ..good.clone() }, "c_e = NaN: a standard deviation"),
+        (
+            CalibrationRecord { held: vec!["x".into()], ..good.clone() },
+            "invalid option `held`: 'x' is not a parameter of θ",
+        ),
+        (
+            CalibrationRecord { unobservable: vec!["lever_x".into()], ..good.clone() },
+            "invalid option `unobservable`: 'lever_x' is not a parameter of θ",
+        ),
     ];
     for (rec, want) in cases {
         let e = db.record(&rec).expect_err(want).to_string();

@@ -150,7 +150,7 @@ pub(crate) fn extract_sigma(v: &Bound<'_, PyAny>, what: &str) -> PyResult<Theta>
 }
 
 /// [`extract_sigma`] of a value already JSON.
-pub(crate) fn sigma_from_json(json: serde_json::Value, what: &str) -> PyResult<Theta> {
+fn sigma_from_json(json: serde_json::Value, what: &str) -> PyResult<Theta> {
     use serde_json::Value;
     const NAMES: [&str; 4] = ["c_e", "c_d", "t_r", "d"];
     let values: Vec<Value> = match json {

@@ -10,7 +10,7 @@ use pyo3::types::PyDict;
 
 use odocal_history::{CalibrationRecord, History, Recorded};
 
-use crate::convert::{json, sigma_from_json, to_json, to_py};
+use crate::convert::{json, to_json, to_py};
 use crate::drive::PyDrive;
 use crate::lib_err;
 use crate::report::report_from_json;
@@ -34,6 +34,23 @@ impl PyHistory {
 fn record_fields() -> PyResult<Vec<String>> {
     let example = CalibrationRecord::new("", "", "", odocal::Theta::PAPER_INITIAL);
     Ok(json(&example)?.as_object().map(|m| m.keys().cloned().collect()).unwrap_or_default())
+}
+
+/// A record's `sigma` as the table's `ParamSigma` reads it: a dict of
+/// `c_e`, `c_d`, `t_r`, `d` (`None`, or a key left out, for a parameter
+/// without σ) or four values; a key other than the four is refused (it
+/// would be dropped unnoticed). The values are the library's to check.
+fn record_sigma(v: serde_json::Value) -> Result<serde_json::Value, String> {
+    use odocal::model::THETA_NAMES;
+    use serde_json::Value;
+    match v {
+        Value::Object(m) => match m.keys().find(|k| !THETA_NAMES.contains(&k.as_str())) {
+            Some(k) => Err(format!("sigma: unknown key '{k}': σ has c_e, c_d, t_r and d")),
+            None => Ok(Value::Object(m)),
+        },
+        Value::Array(a) if a.len() == 4 => Ok(THETA_NAMES.iter().map(|n| n.to_string()).zip(a).collect()),
+        other => Ok(other),
+    }
 }
 
 /// A record's outcome as `{"id": …, "new": bool}`.
@@ -96,11 +113,14 @@ impl PyHistory {
 
     /// The pooled estimate over the vehicle's rows (those with an id in
     /// `ids`, or all), each drive counted once by its most recent row:
-    /// `{"rows", "drives", "set_aside", "rejected", "mean", "sigma_of_mean",
-    /// "between_drive_sd"}` (`set_aside`: `{"id", "by_id"}` of each row
-    /// left out for a later row of its drive; `rejected`: the ids of rows
-    /// left out for their verdict `rejected`), or None without a row that
-    /// is not rejected.
+    /// `{"rows", "drives", "set_aside", "rejected", "online", "not_measured",
+    /// "mean", "sigma_of_mean", "between_drive_sd"}` (`set_aside`: `{"id",
+    /// "by_id"}` of each row left out for a later row of its drive;
+    /// `rejected`: the ids of rows left out for their verdict `rejected`;
+    /// `online`: the ids of the online running estimates, not pooled;
+    /// `not_measured`: `{"id", "parameter", "why"}` of each parameter a row
+    /// held or found not observable, left out of that parameter's pool; a
+    /// parameter no row measured has `None`), or None without a row to pool.
     #[pyo3(signature = (vehicle, ids=None))]
     fn pooled<'py>(&self, py: Python<'py>, vehicle: &str, ids: Option<Vec<i64>>) -> PyResult<Bound<'py, PyAny>> {
         let p = self.with(|db| db.vehicle(vehicle, ids.as_deref()))?.pooled;
@@ -153,9 +173,10 @@ impl PyHistory {
     }
 
     /// Records a row given as a dict of the table's fields (`vehicle`,
-    /// `fingerprint`, `method`, `theta`; optional `sigma`, `sources`,
-    /// `t_start_s`, `t_end_s`, `heading_offset_rad`, `verdict`). Use
-    /// `History.record`.
+    /// `fingerprint`, `method`, `theta`; optional `sigma`, `held`,
+    /// `unobservable`, `sources`, `t_start_s`, `t_end_s`,
+    /// `heading_offset_rad`, `verdict`, `sigma_model_only`; another key is
+    /// refused). Use `History.record`.
     fn _record_dict<'py>(&self, py: Python<'py>, record: &Bound<'_, PyDict>) -> PyResult<Bound<'py, PyDict>> {
         let mut v = to_json(record.as_any(), "record")?;
         let invalid = |reason: String| lib_err(odocal::Error::InvalidOption { field: "record", reason });
@@ -165,12 +186,12 @@ impl PyHistory {
             if let Some(k) = m.keys().find(|k| !known.contains(k)) {
                 return Err(invalid(format!("unknown key '{k}'; a record has {}", known.join(", "))));
             }
-            // θ and σ read as every θ and σ argument (a dict of the four, or four numbers; no other key).
+            // θ read as every θ argument (a dict of the four, or four numbers; no other key).
             if let Some(t) = m.get_mut("theta") {
                 *t = json(&odocal::settings::theta_from_json(t.take()).map_err(lib_err)?)?;
             }
-            if let Some(s) = m.get_mut("sigma").filter(|s| !s.is_null()) {
-                *s = json(&sigma_from_json(s.take(), "record: sigma")?)?;
+            if let Some(s) = m.get_mut("sigma") {
+                *s = record_sigma(s.take()).map_err(invalid)?;
             }
             let defaults = [("sources", serde_json::json!([])), ("t_start_s", 0.0.into()), ("t_end_s", 0.0.into())];
             for (k, d) in defaults {

@@ -154,7 +154,7 @@ def test_options_and_gates_reach_the_library(clean_drive):
 def test_history_records_rows_flags_drift_and_pools(tmp_path, small_drive):
     db = odocal.History(tmp_path / "van.sqlite")
     assert db.schema_version >= 1
-    base = {"vehicle": "van", "method": "online", "theta": {"c_e": 0.97, "c_d": 1e-4, "t_r": 1.5, "d": 0.0},
+    base = {"vehicle": "van", "method": "eiv", "theta": {"c_e": 0.97, "c_d": 1e-4, "t_r": 1.5, "d": 0.0},
             "sigma": {"c_e": 1e-4, "c_d": 1e-5, "t_r": 1e-3, "d": 1e-5}}
     first = db.record({**base, "fingerprint": "a"})
     assert first["new"] is True
@@ -207,6 +207,8 @@ def test_history_checks_a_record_as_the_cli_does(tmp_path, small_drive, odocal_b
         ({**base, "sigma": {"c_e": 1e-3, "c_d": 1e-4, "t_r": float("nan"), "d": 1e-4}}, "not a finite number"),
         ({**base, "sigma": {"c_e": 1e-3, "c_d": -1e-4, "t_r": 1e-3, "d": 1e-4}},
          "c_d = -0.0001: a standard deviation is a finite number, not negative"),
+        ({**base, "sigma": {"c_e": 1e-3, "c_d": 1e-4, "t_r": 1e-3, "dd": 1e-4}}, "sigma: unknown key 'dd'"),
+        ({**base, "held": ["x"]}, r"^invalid option `held`: 'x' is not a parameter of θ"),
     ]
     for record, message in cases:
         with pytest.raises(odocal.OdocalError, match=message):
@@ -217,6 +219,9 @@ def test_history_checks_a_record_as_the_cli_does(tmp_path, small_drive, odocal_b
     assert db.rows("van") == [] and db.rows(" ") == [] and db.rows("") == []
     assert db.record(base)["new"] is True
     assert db.record(report, vehicle="van")["new"] is True
+    held_d = {**base, "fingerprint": "b", "held": ["d"], "sigma": {"c_e": 1e-3, "c_d": 1e-4, "t_r": 1e-3, "d": None}}
+    assert db.record(held_d)["new"] is True
+    assert db.rows("van")[-1]["sigma"]["d"] is None and db.rows("van")[-1]["held"] == ["d"]
     # The CLI refuses the same vehicle with the same words.
     csv = tmp_path / "d.csv"
     small_drive.to_csv(csv)

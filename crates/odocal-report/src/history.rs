@@ -5,7 +5,7 @@
 //! and the pooled estimate as tables.
 
 use odocal::model::THETA_NAMES;
-use odocal_history::{DriftFlag, HistoryRow, Pooled, VehicleHistory, DRIFT_SIGMAS, MODEL_SIGMA_NOTE};
+use odocal_history::{DriftFlag, HistoryRow, Pooled, VehicleHistory, DRIFT_SIGMAS, MODEL_SIGMA_NOTE, ONLINE};
 use plotters::prelude::*;
 
 use crate::plots::{BLUE, GREY, RED};
@@ -25,7 +25,7 @@ fn parameter_svg(i: usize, rows: &[HistoryRow], drift: &[DriftFlag], pooled: Opt
         .enumerate()
         .map(|(k, r)| {
             let v = <[_; 4]>::from(r.record.theta)[i] * scale;
-            let s = r.record.sigma.map_or(0.0, |s| <[_; 4]>::from(s)[i] * scale);
+            let s = <[_; 4]>::from(r.record.sigma)[i].map_or(0.0, |s| s * scale);
             ((k + 1) as f64, v, if s.is_finite() { s } else { 0.0 })
         })
         .collect();
@@ -112,10 +112,18 @@ fn parameter_svg(i: usize, rows: &[HistoryRow], drift: &[DriftFlag], pooled: Opt
 fn cell(v: f64, s: Option<f64>, i: usize) -> String {
     let (scale, _) = UNITS[i];
     let d = if i == 0 || i == 2 { 6 } else { 4 };
-    match s {
+    match s.filter(|s| s.is_finite()) {
         Some(s) => format!("{:.d$} ± {:.2e}", v * scale, s * scale),
         None => format!("{:.d$}", v * scale),
     }
+}
+
+/// The drives a row's fingerprint names (a joint calibration's, comma
+/// separated), each by its first 12 characters.
+fn short_fingerprints(fingerprint: &str) -> String {
+    let short: Vec<&str> =
+        fingerprint.split(',').map(str::trim).filter(|f| !f.is_empty()).map(|f| f.get(..12).unwrap_or(f)).collect();
+    short.join(", ")
 }
 
 fn rows_table(rows: &[HistoryRow]) -> String {
@@ -125,8 +133,13 @@ fn rows_table(rows: &[HistoryRow]) -> String {
     );
     for (k, r) in rows.iter().enumerate() {
         let c = &r.record;
-        let (th, sd) = (<[_; 4]>::from(c.theta), c.sigma.map(<[f64; 4]>::from));
-        let cells: Vec<String> = (0..4).map(|i| cell(th[i], sd.map(|s| s[i]), i)).collect();
+        let (th, sd) = (<[_; 4]>::from(c.theta), <[_; 4]>::from(c.sigma));
+        let cells: Vec<String> = (0..4)
+            .map(|i| match c.not_measured(i) {
+                Some(why) => format!("{} ({why})", cell(th[i], None, i)),
+                None => cell(th[i], sd[i], i),
+            })
+            .collect();
         h.push_str(&format!(
             "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td>\
              <td>{}</td><td>{}</td><td><code>{}</code></td></tr>\n",
@@ -140,7 +153,7 @@ fn rows_table(rows: &[HistoryRow]) -> String {
             cells[3],
             esc(c.verdict.as_deref().unwrap_or("-")),
             esc(&c.sources.join(", ")),
-            esc(c.fingerprint.get(..12).unwrap_or(&c.fingerprint)),
+            esc(&short_fingerprints(&c.fingerprint)),
         ));
     }
     h.push_str("</table>\n");
@@ -183,6 +196,13 @@ fn pooled_table(p: &Pooled) -> String {
         let ids: Vec<String> = p.rejected.iter().map(i64::to_string).collect();
         aside.push_str(&format!(" Not pooled, their verdict rejected: row(s) {}.", ids.join(", ")));
     }
+    if !p.online.is_empty() {
+        let ids: Vec<String> = p.online.iter().map(i64::to_string).collect();
+        aside.push_str(&format!(
+            " Not pooled, online running estimates (each holds the drives followed before it): row(s) {}.",
+            ids.join(", ")
+        ));
+    }
     let mut h = format!(
         "<p>Pooled over {} drive(s) in {} row(s): the inverse-variance mean ± its σ and the between-drive sd.{aside}</p>\n\
          <table><tr><th>parameter</th><th>mean ± σ</th><th>between-drive sd</th></tr>\n",
@@ -192,7 +212,16 @@ fn pooled_table(p: &Pooled) -> String {
         let (scale, unit) = UNITS[i];
         let sd =
             if b[i].is_finite() { format!("{:.2e} {unit}", b[i] * scale) } else { "— (needs two drives)".into() };
-        h.push_str(&format!("<tr><td>{name}</td><td>{} {unit}</td><td>{sd}</td></tr>\n", cell(m[i], Some(s[i]), i)));
+        let left_out: Vec<String> =
+            p.not_measured.iter().filter(|n| n.parameter == *name).map(|n| format!("row {} {}", n.id, n.why)).collect();
+        let left_out =
+            if left_out.is_empty() { String::new() } else { format!(" (not pooled: {})", esc(&left_out.join(", "))) };
+        let value = if m[i].is_finite() {
+            format!("{} {unit}", cell(m[i], Some(s[i]), i))
+        } else {
+            "— no measured row (held or not observable in every row pooled)".to_string()
+        };
+        h.push_str(&format!("<tr><td>{name}</td><td>{value}{left_out}</td><td>{sd}</td></tr>\n"));
     }
     h.push_str("</table>\n");
     h
@@ -225,6 +254,15 @@ pub fn render_history_html(history: &VehicleHistory) -> Result<String> {
         if let Some(p) = pooled {
             h.push_str("</section>\n<section id=\"pooled\"><h2>Pooled estimate</h2>\n");
             h.push_str(&pooled_table(p));
+        } else if let Some(last) =
+            rows.iter().rev().find(|r| r.record.method == ONLINE && r.record.verdict.as_deref() != Some("rejected"))
+        {
+            h.push_str("</section>\n<section id=\"pooled\"><h2>Pooled estimate</h2>\n");
+            h.push_str(&format!(
+                "<p>Nothing pooled: the rows are online running estimates, each holding the drives followed before \
+                 it; the most recent, row id {}, is the estimate over every drive followed.</p>\n",
+                last.id
+            ));
         }
         h.push_str("</section>\n<section id=\"rows\"><h2>Recorded calibrations</h2>\n");
         h.push_str(&rows_table(rows));
@@ -248,9 +286,9 @@ mod tests {
             recorded_at: format!("2026-11-2{id}T10:00:00.000Z"),
             odocal_version: "0".into(),
             record: CalibrationRecord {
-                sigma: Some(sigma),
+                sigma: sigma.into(),
                 sources: vec![format!("<run{id}>.csv")],
-                ..CalibrationRecord::new("v", &format!("drive{id}"), "online", theta)
+                ..CalibrationRecord::new("v", &format!("drive{id}"), "eiv", theta)
             },
         }
     }
@@ -278,5 +316,27 @@ mod tests {
         assert!(html.contains("No drift"), "{html}");
         let empty = render_history_html(&VehicleHistory::of_rows("v", Vec::new(), None)).expect("html");
         assert!(!empty.contains("<svg") && empty.contains("No calibrations"));
+    }
+
+    /// A joint calibration's row names each of its drives; a held
+    /// parameter is marked and has no σ; a parameter no pooled row
+    /// measured has no pooled value, and no cell says NaN.
+    #[test]
+    fn a_joint_row_names_every_drive_and_a_held_parameter_is_marked() {
+        let mut joint = row(1, -2e-3);
+        joint.record.fingerprint = format!("{}, {}, {}", "a".repeat(64), "b".repeat(64), "c".repeat(64));
+        joint.record.held = vec!["d".into()];
+        joint.record.sigma.d = None;
+        let html = render_history_html(&VehicleHistory::of_rows("v", vec![joint], None)).expect("html");
+        let short = format!("{}, {}, {}", "a".repeat(12), "b".repeat(12), "c".repeat(12));
+        assert!(html.contains(&format!("<code>{short}</code>")), "{html}");
+        assert!(html.contains("0.8000 (held)"), "{html}");
+        assert!(html.contains("— no measured row") && html.contains("not pooled: row 1 held"), "{html}");
+        assert!(!html.contains("NaN"), "{html}");
+        // Online rows alone: nothing pooled, the most recent named.
+        let mut online = vec![row(1, -2e-3), row(2, -2e-3)];
+        online.iter_mut().for_each(|r| r.record.method = ONLINE.into());
+        let html = render_history_html(&VehicleHistory::of_rows("v", online, None)).expect("html");
+        assert!(html.contains("Nothing pooled") && html.contains("row id 2, is the estimate"), "{html}");
     }
 }

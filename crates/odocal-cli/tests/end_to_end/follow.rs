@@ -56,6 +56,8 @@ fn follow_reports_each_drive_and_a_replay_adds_nothing() {
     let rows = history_rows(db_s);
     assert!(!rows.is_empty());
     assert!(rows.iter().all(|r| r["method"] == "online"));
+    // The history says what the parameter file says.
+    assert!(rows.iter().all(|r| r["verdict"] == "accepted"), "{rows:?}");
 
     // The same drives again: nothing new.
     let json2 = dir.path().join("f2.json");
@@ -406,4 +408,36 @@ fn follow_params_to_stdout_is_one_parameter_file() {
     assert!(o.status.success(), "{}", stderr(&o));
     let c_e = last["theta"]["c_e"].as_f64().expect("c_e");
     assert!(out.contains(&format!("c_e: {c_e:?}")), "the last written update: {out}");
+}
+
+/// A calibration with `d` held is recorded with the σ of c_e, c_d and t_r
+/// and `d` marked held; `history` leaves its `d` (θ_0's) out of d's pooled
+/// estimate, which is the other row's measurement, and prints no NaN.
+#[test]
+fn history_keeps_each_sigma_and_pools_no_held_value() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let db = dir.path().join("h.sqlite");
+    let db_s = db.to_str().expect("utf8");
+    for (name, seed, fix) in [("a.csv", "1", Some("d")), ("b.csv", "2", None)] {
+        let d = simulated_drive(dir.path(), name, &["--seed", seed, "--length-km", "4"]);
+        let mut args = vec!["calibrate", &d, "--method", "batch-gn", "--vehicle", "van", "--db", db_s];
+        if let Some(p) = fix {
+            args.extend(["--fix", p]);
+        }
+        let o = odocal(&args);
+        assert!(o.status.code() != Some(1), "{}", stderr(&o));
+    }
+    let o = odocal(&["history", "van", "--db", db_s, "--json", "-"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: Value = serde_json::from_str(&stdout(&o)).expect("history json");
+    let rows = v["rows"].as_array().expect("rows");
+    assert_eq!(rows[0]["held"], serde_json::json!(["d"]), "{}", rows[0]);
+    for p in ["c_e", "c_d", "t_r"] {
+        assert!(rows[0]["sigma"][p].as_f64().is_some_and(|s| s > 0.0), "{p}: {}", rows[0]);
+    }
+    assert!(rows[0]["sigma"]["d"].is_null(), "{}", rows[0]);
+    assert_eq!(v["pooled"]["mean"]["d"], rows[1]["theta"]["d"], "{}", v["pooled"]);
+    let text = stdout(&odocal(&["history", "van", "--db", db_s]));
+    assert!(text.contains(" held ") && text.contains("not pooled: row 1 held"), "{text}");
+    assert!(!text.contains("NaN"), "{text}");
 }

@@ -151,7 +151,7 @@ fn row(id: i64, theta: Theta, sigma: Theta) -> HistoryRow {
         id,
         recorded_at: format!("drive {id}"),
         odocal_version: String::new(),
-        record: CalibrationRecord { sigma: Some(sigma), ..CalibrationRecord::new("sim", "", "online", theta) },
+        record: CalibrationRecord { sigma: sigma.into(), ..CalibrationRecord::new("sim", "", "online", theta) },
     }
 }
 
@@ -177,7 +177,7 @@ fn step_run(seed: u64, step_m: f64, k: &Knobs) -> Res<StepRun> {
     let st = cal.status();
     let row_b = row(2, st.theta, st.sigma);
     let flags = VehicleHistory::of_rows("sim", vec![row_a.clone(), row_b.clone()], None).drift;
-    let (sa, sb) = (row_a.record.sigma.map_or(0.0, |s| s.c_d), row_b.record.sigma.map_or(0.0, |s| s.c_d));
+    let (sa, sb) = (row_a.record.sigma.c_d.unwrap_or(0.0), row_b.record.sigma.c_d.unwrap_or(0.0));
     Ok(StepRun {
         change: row_b.record.theta.c_d - row_a.record.theta.c_d,
         combined: (sa * sa + sb * sb).sqrt(),

@@ -279,7 +279,10 @@ class History(_History):
     the inverse-variance mean with the between-drive sd. Both count each
     drive once, by its most recent row (a drive calibrated by several
     methods has a row for each), and leave out rows whose verdict is
-    ``rejected``; ``pooled`` names the rows set aside and those rejected;
+    ``rejected`` and each parameter a row held or found not observable
+    (``held``, ``unobservable``); ``pooled`` leaves out the ``online`` rows
+    of ``follow`` too (running estimates, each holding the drives before
+    it) and names the rows set aside, rejected and online;
     ``decisions(vehicle)``: the write-back decisions of ``odocal follow``;
     ``latest(vehicle)``. Errors raise :class:`OdocalError`.
     """
@@ -299,18 +302,21 @@ class History(_History):
         ``odocal calibrate --vehicle --db`` records them; the time span from
         the report's drive) or a dict of the table's fields (``vehicle``,
         ``fingerprint``, ``method``, ``theta``; optional ``sigma``,
-        ``sources``, ``t_start_s``, ``t_end_s``, ``heading_offset_rad``,
-        ``verdict``; another key raises :class:`OdocalError` naming it;
-        ``theta`` and ``sigma`` a dict of ``c_e``, ``c_d``, ``t_r``, ``d``
-        or four numbers). Returns ``{"id": row id, "new": False when it was
+        ``held``, ``unobservable``, ``sources``, ``t_start_s``,
+        ``t_end_s``, ``heading_offset_rad``, ``verdict``,
+        ``sigma_model_only``; another key raises :class:`OdocalError`
+        naming it; ``theta`` a dict of ``c_e``, ``c_d``, ``t_r``, ``d`` or
+        four numbers, ``sigma`` the same with ``None`` for a parameter
+        without σ). Returns ``{"id": row id, "new": False when it was
         already recorded}``.
 
         The library checks every record before writing it, as ``odocal
         calibrate --vehicle`` does: the vehicle not blank, without a space
         at either end or a control character; the method one of ``eiv``,
         ``three-step``, ``batch-gn``, ``online``; θ within the physical
-        limits of every θ argument; σ finite and not negative. A record
-        that fails raises :class:`OdocalError` and writes nothing.
+        limits of every θ argument; σ finite and not negative; ``held`` and
+        ``unobservable`` naming parameters of θ. A record that fails raises
+        :class:`OdocalError` and writes nothing.
         """
         if isinstance(report, CalibrationReport):
             if vehicle is None:
