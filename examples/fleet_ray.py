@@ -10,8 +10,11 @@ directory of them. Each drive is calibrated by `odocal.calibrate` in its own
 Ray task, on the node where the task runs (the task receives the path, so
 the drives must be readable there: a shared file system or object store);
 the rows come back in input order and are written as CSV or, for a
-`.parquet` path, Parquet (needs pyarrow). A drive that fails gives a row
-with `status = error` and the library's message instead of stopping the run.
+`.parquet` path, Parquet (needs pyarrow). A drive that fails (a bad drive,
+or a bad value of an `-o` option) gives a row with `status = error` and the
+library's message instead of stopping the run; an `-o` name that
+`odocal.calibrate` does not take stops it before any drive is calibrated
+(exit 2, as argparse's usage errors).
 The σ columns are the σ that stands for each result (the verdict's, as
 `--params-out` and the JSON `sigma` give; `sigma_source` names it; empty for
 a held parameter). With `--params-dir DIR` each calibrated drive's parameter
@@ -203,6 +206,25 @@ def _option(text: str) -> tuple[str, Any]:
         return key.strip(), value
 
 
+#: Options with a flag of their own: `-o` would give them twice.
+OWN_FLAGS = {"method": "--method", "threads": "--cpus-per-task", "progress": None}
+
+
+def check_options(options: dict) -> Optional[str]:
+    """What is wrong with the `-o` options' names (None: nothing), checked
+    before any drive is calibrated: an unknown name would fail every drive
+    alike. Their values are checked per drive (an error row)."""
+    import odocal
+
+    for key in options:
+        if key in OWN_FLAGS:
+            flag = OWN_FLAGS[key]
+            return f"-o {key}: " + (f"give it as {flag}" if flag else "not an option of this script")
+        if key not in odocal.CALIBRATE_OPTIONS:
+            return f"-o {key}: not an option of odocal.calibrate; options: {', '.join(odocal.CALIBRATE_OPTIONS)}"
+    return None
+
+
 def main(argv: Optional[list[str]] = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("inputs", nargs="+", help="drives (CSV or .toml manifest) or directories of them")
@@ -216,6 +238,10 @@ def main(argv: Optional[list[str]] = None) -> int:
     ap.add_argument("--serial", action="store_true", help="no Ray: calibrate one drive after the other here")
     ap.add_argument("--params-dir", help="also write each drive's ROS 2 parameter file here (<drive name>.yaml)")
     a = ap.parse_args(argv)
+    options = dict(a.option)
+    problem = check_options(options)
+    if problem:
+        ap.error(problem)
 
     try:
         paths = find_drives(a.inputs)
@@ -237,7 +263,6 @@ def main(argv: Optional[list[str]] = None) -> int:
                   file=sys.stderr)
             return 1
         Path(a.params_dir).mkdir(parents=True, exist_ok=True)
-    options = dict(a.option)
     t0 = time.perf_counter()
     if a.serial:
         rows = calibrate_serial(paths, a.method, options, params_dir=a.params_dir)

@@ -432,39 +432,27 @@ fn parse_even_replicates(s: &str) -> std::result::Result<usize, String> {
     Ok(b)
 }
 
-/// `--vehicle ID`, the key of the vehicle's rows in the history: not
-/// blank, no spaces at either end (`van-1 ` would be a vehicle of its own,
-/// apart from `van-1`) and no control characters. A usage error otherwise.
+/// `--vehicle ID`, the key of the vehicle's rows in the history, checked
+/// as the history checks every record ([`odocal_history::check_vehicle_id`]):
+/// a usage error otherwise.
 pub fn vehicle_id(s: &str) -> std::result::Result<String, String> {
-    if s.trim().is_empty() {
-        return Err("the vehicle's identifier is empty: give the name its history is kept under, e.g. van-1".into());
-    }
-    if s.chars().any(char::is_control) {
-        return Err(format!("'{}' holds a control character: give a plain name, e.g. van-1", s.escape_debug()));
-    }
-    if s.trim() != s {
-        return Err(format!(
-            "'{s}' has a space at an end, which would keep its history apart from '{}': give it without",
-            s.trim()
-        ));
-    }
-    Ok(s.to_string())
+    odocal_history::check_vehicle_id(s).map(|()| s.to_string()).map_err(reason)
 }
 
-/// `--params-node NAME`, the node a ROS 2 parameter file is written for:
-/// letters, digits and `_`, with `/` for a namespace and `*` for ROS 2's
-/// wildcards (`/**`). ROS 2 loads no file whose node is empty or holds
-/// other characters (`my-node`, a space), so the write would be wasted.
+/// `--params-node NAME`, the node a ROS 2 parameter file is written for,
+/// checked as every parameter file's node is
+/// ([`odocal::ParamFile::check_node_name`]): a usage error otherwise.
 pub fn ros_node_name(s: &str) -> std::result::Result<String, String> {
-    let fits = |c: char| c.is_ascii_alphanumeric() || matches!(c, '_' | '/' | '*');
-    if s.is_empty() || !s.chars().all(fits) {
-        return Err(format!(
-            "'{}' is not a ROS 2 node name: give letters, digits and _ (with / for a namespace), e.g. odocal or \
-             /vehicle/odometry",
-            s.escape_debug()
-        ));
+    odocal::ParamFile::check_node_name(s).map(|()| s.to_string()).map_err(reason)
+}
+
+/// What is wrong with a flag's value, as clap prints it after the flag:
+/// the library's reason without its `invalid option` prefix.
+fn reason(e: odocal::Error) -> String {
+    match e {
+        odocal::Error::InvalidOption { reason, .. } => reason,
+        e => e.to_string(),
     }
-    Ok(s.to_string())
 }
 
 /// `--min-yaw-rate R`: a non-negative number of rad/s (0 selects every

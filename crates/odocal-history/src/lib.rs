@@ -124,6 +124,45 @@ impl CalibrationRecord {
         }
     }
 
+    /// Checks the record before it is written ([`History::record`]): the
+    /// vehicle's identifier ([`check_vehicle_id`]), a method of odocal's
+    /// ([`METHODS`]), θ within the physical limits
+    /// ([`Theta::check_physical_limits`]), each σ finite and not
+    /// negative, `held` and `unobservable` naming parameters of θ.
+    ///
+    /// # Errors
+    /// [`Error::InvalidOption`] naming the field, or [`Error::InvalidTheta`].
+    pub fn check(&self) -> Result<()> {
+        check_vehicle_id(&self.vehicle)?;
+        if !METHODS.contains(&self.method.as_str()) {
+            return Err(Error::InvalidOption {
+                field: "method",
+                reason: format!("'{}' is not a method of odocal's: {}", self.method.escape_debug(), METHODS.join(", ")),
+            });
+        }
+        self.theta.check_physical_limits()?;
+        let sigma = <[Option<f64>; 4]>::from(self.sigma);
+        let bad = THETA_NAMES
+            .iter()
+            .zip(sigma)
+            .find_map(|(name, v)| v.filter(|v| !v.is_finite() || *v < 0.0).map(|v| (name, v)));
+        if let Some((name, v)) = bad {
+            return Err(Error::InvalidOption {
+                field: "sigma",
+                reason: format!("{name} = {v}: a standard deviation is a finite number, not negative"),
+            });
+        }
+        for (field, names) in [("held", &self.held), ("unobservable", &self.unobservable)] {
+            if let Some(p) = names.iter().find(|p| !THETA_NAMES.contains(&p.as_str())) {
+                return Err(Error::InvalidOption {
+                    field,
+                    reason: format!("'{}' is not a parameter of θ: c_e, c_d, t_r or d", p.escape_debug()),
+                });
+            }
+        }
+        Ok(())
+    }
+
     /// `sigma` unless it is the model's alone ([`Self::sigma_model_only`]):
     /// the σ a row is weighed by in the pooled estimate and `follow` starts
     /// from.
@@ -245,6 +284,33 @@ impl CalibrationRecord {
             ..CalibrationRecord::new(vehicle, fingerprint, &report.method, report.theta)
         }
     }
+}
+
+/// The methods a row of `calibrations` records: the offline methods of
+/// `odocal calibrate` and `online`, the calibrator `odocal follow` runs.
+pub const METHODS: [&str; 4] = ["eiv", "three-step", "batch-gn", ONLINE];
+
+/// Checks a vehicle's identifier, the key of its rows (`--vehicle ID`,
+/// Python's `History.record`): not blank, no space at either end (`van-1 `
+/// would be a vehicle of its own, apart from `van-1`) and no control
+/// characters.
+///
+/// # Errors
+/// [`Error::InvalidOption`] (field `vehicle`) saying what to give.
+pub fn check_vehicle_id(id: &str) -> Result<()> {
+    let reason = if id.trim().is_empty() {
+        "the vehicle's identifier is empty: give the name its history is kept under, e.g. van-1".to_string()
+    } else if id.chars().any(char::is_control) {
+        format!("'{}' holds a control character: give a plain name, e.g. van-1", id.escape_debug())
+    } else if id.trim() != id {
+        format!(
+            "'{id}' has a space at an end, which would keep its history apart from '{}': give it without",
+            id.trim()
+        )
+    } else {
+        return Ok(());
+    };
+    Err(Error::InvalidOption { field: "vehicle", reason })
 }
 
 /// A row of the table `calibrations`.
@@ -646,7 +712,12 @@ impl History {
     /// the same drive (fingerprint) calibrated by the same method
     /// ([`Recorded::AlreadyRecorded`]). One transaction; safe with other
     /// writers.
+    ///
+    /// # Errors
+    /// [`CalibrationRecord::check`]'s, before anything is written;
+    /// [`Error::History`] for the database's.
     pub fn record(&mut self, rec: &CalibrationRecord) -> Result<Recorded> {
+        rec.check()?;
         let err = sql_err(&self.path);
         let sources = serde_json::to_string(&rec.sources)
             .map_err(|e| Error::History { path: self.path.clone(), reason: format!("source names: {e}") })?;

@@ -693,3 +693,55 @@ fn concurrent_follows_decide_each_drive_once() {
     let rows = db.rows("van").expect("rows");
     assert!(rows.iter().all(|r| r.record.verdict.as_deref() == Some("accepted")), "{rows:?}");
 }
+
+/// A record the CLI could not have made (a blank vehicle, an unknown
+/// method, θ beyond the physical limits, a σ that is no σ) is refused
+/// before anything is written.
+#[test]
+fn a_record_is_checked_before_it_is_written() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
+    let good = record("van", "fp1", 1.95, 1e-3);
+    let cases = [
+        (
+            CalibrationRecord { vehicle: " ".into(), ..good.clone() },
+            "invalid option `vehicle`: the vehicle's identifier is empty",
+        ),
+        (CalibrationRecord { vehicle: "van ".into(), ..good.clone() }, "has a space at an end"),
+        (CalibrationRecord { vehicle: "a\nb".into(), ..good.clone() }, "'a\\nb' holds a control character"),
+        (
+            CalibrationRecord { method: "foo".into(), ..good.clone() },
+            "invalid option `method`: 'foo' is not a method of odocal's: eiv, three-step, batch-gn, online",
+        ),
+        (CalibrationRecord { method: " eiv".into(), ..good.clone() }, "' eiv' is not a method"),
+        (CalibrationRecord { theta: theta(2000.0), ..good.clone() }, "c_e = 2000 m is outside 0.05 … 20 m"),
+        (
+            CalibrationRecord { theta: Theta { t_r: f64::NAN, ..theta(1.95) }, ..good.clone() },
+            "t_r = NaN is not finite",
+        ),
+        (
+            CalibrationRecord { sigma: ParamSigma { d: Some(-1e-4), ..sigma(1e-3) }, ..good.clone() },
+            "invalid option `sigma`: d = -0.0001",
+        ),
+        (CalibrationRecord { sigma: sigma(f64::NAN), ..good.clone() }, "c_e = NaN: a standard deviation"),
+        (
+            CalibrationRecord { held: vec!["x".into()], ..good.clone() },
+            "invalid option `held`: 'x' is not a parameter of θ",
+        ),
+        (
+            CalibrationRecord { unobservable: vec!["lever_x".into()], ..good.clone() },
+            "invalid option `unobservable`: 'lever_x' is not a parameter of θ",
+        ),
+    ];
+    for (rec, want) in cases {
+        let e = db.record(&rec).expect_err(want).to_string();
+        assert!(e.contains(want), "{e}");
+    }
+    assert!(db.vehicles().expect("vehicles").is_empty(), "nothing written");
+    for method in METHODS {
+        assert!(matches!(
+            db.record(&CalibrationRecord { method: method.into(), ..good.clone() }),
+            Ok(Recorded::New(_))
+        ));
+    }
+}

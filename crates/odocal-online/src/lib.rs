@@ -482,21 +482,22 @@ impl Calibrator {
     /// and scores every validation segment they complete.
     ///
     /// # Errors
-    /// [`Error::InvalidOption`] for columns (or `t`) of another length than
-    /// `px`, or times that do not fit: a step neither the sample time nor a
-    /// gap, or two gaps in a row of one length (samples at another rate than
-    /// `sample_time_s`, which would each start a part and fold nothing);
+    /// [`Error::InvalidDrive`] for columns (or `t`) of another length than
+    /// `px`; [`Error::InvalidOption`] for times that do not fit: a step
+    /// neither the sample time nor a gap, or two gaps in a row of one
+    /// length (samples at another rate than `sample_time_s`, which would
+    /// each start a part and fold nothing);
     /// [`Error::InvalidSample`] naming the column and the sample (of this
     /// push) of a value that is not finite.
     pub fn push(&mut self, t: Option<&[f64]>, samples: &Signals) -> Result<()> {
         let s = samples;
         let cols = s.columns();
         let n = s.px.len();
-        let bad = cols.iter().find(|(_, c)| c.len() != n).map(|(name, _)| *name);
-        if let Some(name) = bad.or_else(|| t.filter(|t| t.len() != n).map(|_| "t")) {
-            return Err(Error::InvalidOption {
-                field: "chunk",
-                reason: format!("column {name} has a length other than px's ({n})"),
+        let mut lengths = cols.iter().map(|(name, c)| (*name, c.len())).chain(t.map(|t| ("t", t.len())));
+        if let Some((name, len)) = lengths.find(|c| c.1 != n) {
+            return Err(Error::InvalidDrive {
+                context: "the pushed samples".into(),
+                reason: format!("column {name} has {len} samples, px has {n}"),
             });
         }
         // A value that is not finite, named by its column and sample (of this push).

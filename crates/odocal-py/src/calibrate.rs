@@ -37,6 +37,12 @@ struct CalibrationPlan {
 /// The keywords of `odocal.calibrate` besides the calibration settings.
 const RUN_KEYWORDS: [&str; 3] = ["holdout", "validate_on", "carry_heading_offset"];
 
+/// Every option `odocal.calibrate` takes as a keyword (`odocal.CALIBRATE_OPTIONS`):
+/// the library's settings, then [`RUN_KEYWORDS`].
+pub(crate) fn options() -> Vec<&'static str> {
+    Settings::KEYS.iter().chain(&RUN_KEYWORDS).copied().collect()
+}
+
 /// The half of the drive `holdout=` holds out.
 pub(crate) fn parse_holdout(s: &str) -> PyResult<Holdout> {
     match s {
@@ -89,16 +95,19 @@ fn plan(
             "holdout" => holdout = Some(parse_holdout(&v.extract::<String>()?)?),
             "validate_on" => validate_on = Some(validation_drives(&v)?),
             "carry_heading_offset" => carry_heading_offset = v.extract::<bool>()?,
+            // A seed as `simulate`'s: an int 0 … 2^64 − 1, the range named.
+            k @ ("seed" | "bootstrap_seed") => {
+                keys.insert(key.clone(), crate::convert::seed_of(&v, k)?.into());
+            }
             k if Settings::KEYS.contains(&k) => {
                 let value = to_json(&v, k)?;
                 crate::convert::refuse_bool_for_number(k, &value)?;
                 keys.insert(key, value);
             }
             _ => {
-                let known: Vec<&str> = Settings::KEYS.iter().chain(&RUN_KEYWORDS).copied().collect();
                 return Err(PyTypeError::new_err(format!(
                     "calibrate() got an unknown option '{key}'; options: {}",
-                    known.join(", ")
+                    options().join(", ")
                 )));
             }
         }
@@ -177,7 +186,7 @@ pub(crate) fn calibrate<'py>(
     drive: &Bound<'py, PyAny>,
     method: Option<&str>,
     progress: Option<Py<PyAny>>,
-    #[pyo3(from_py_with = crate::convert::opt_count)] threads: Option<usize>,
+    #[pyo3(from_py_with = crate::convert::opt_threads)] threads: Option<usize>,
     options: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<(Bound<'py, PyAny>, String)> {
     let validate_on = options.map(|o| o.get_item("validate_on")).transpose()?.flatten();

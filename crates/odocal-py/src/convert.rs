@@ -1,13 +1,13 @@
 //! Values between Python and the library: JSON reports as Python objects,
 //! Python values as JSON (keyword options, θ), parameter-file paths.
 
-use pyo3::exceptions::{PyRuntimeError, PyTypeError, PyValueError};
+use pyo3::exceptions::{PyRuntimeError, PyTypeError};
 use pyo3::prelude::*;
-use pyo3::types::{PyBool, PyDict, PyFloat, PyList, PyString};
+use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyList, PyString};
 
 use odocal::model::Theta;
 
-use crate::lib_err;
+use crate::{lib_err, OdocalError};
 
 /// A value serialised for Python (through [`to_py`]).
 pub(crate) fn json<T: serde::Serialize>(v: &T) -> PyResult<serde_json::Value> {
@@ -46,7 +46,7 @@ pub(crate) fn to_py<'py>(py: Python<'py>, v: &serde_json::Value) -> PyResult<Bou
 fn float(f: f64, what: &str) -> PyResult<serde_json::Value> {
     serde_json::Number::from_f64(f)
         .map(serde_json::Value::Number)
-        .ok_or_else(|| PyValueError::new_err(format!("{what}: {f} is not a finite number")))
+        .ok_or_else(|| OdocalError::new_err(format!("{what}: {f} is not a finite number")))
 }
 
 /// A Python value as JSON, as the library reads keyword options: None,
@@ -87,6 +87,12 @@ pub(crate) fn to_json(v: &Bound<'_, PyAny>, what: &str) -> PyResult<serde_json::
     }
     if let Ok(u) = v.extract::<u64>() {
         return Ok(u.into());
+    }
+    if v.cast::<PyInt>().is_ok() {
+        // Beyond 64 bits: as a float it would lose its digits unnoticed.
+        return Err(OdocalError::new_err(format!(
+            "{what}: {v} is beyond the integers odocal takes (−2^63 … 2^64 − 1)"
+        )));
     }
     if let Ok(f) = v.extract::<f64>() {
         return float(f, what);
@@ -129,6 +135,52 @@ pub(crate) fn extract_theta(v: &Bound<'_, PyAny>) -> PyResult<Theta> {
         )));
     }
     odocal::settings::theta_from_json(json).map_err(lib_err)
+}
+
+/// The σ of θ (`sigma0=`): a dict `{"c_e", "c_d", "t_r", "d"}` or four
+/// numbers, each finite and not negative; no physical limits (a σ is
+/// small). `OdocalError` naming a key other than the four, a missing one
+/// or a bad value.
+pub(crate) fn extract_sigma(v: &Bound<'_, PyAny>, what: &str) -> PyResult<Theta> {
+    let json = to_json(v, what)?;
+    if let Some(at) = theta_bool(&json) {
+        return Err(PyTypeError::new_err(format!("{what}: {at} is a bool, not a number; give numbers")));
+    }
+    sigma_from_json(json, what)
+}
+
+/// [`extract_sigma`] of a value already JSON.
+fn sigma_from_json(json: serde_json::Value, what: &str) -> PyResult<Theta> {
+    use serde_json::Value;
+    const NAMES: [&str; 4] = ["c_e", "c_d", "t_r", "d"];
+    let values: Vec<Value> = match json {
+        Value::Array(a) if a.len() == 4 => a,
+        Value::Object(mut m) => {
+            if let Some(k) = m.keys().find(|k| !NAMES.contains(&k.as_str())) {
+                return Err(OdocalError::new_err(format!("{what}: unknown key '{k}': σ has c_e, c_d, t_r and d")));
+            }
+            let values = NAMES.iter().map(|n| m.remove(*n).ok_or(*n)).collect::<Result<Vec<_>, _>>();
+            values.map_err(|n| OdocalError::new_err(format!("{what}: missing {n}: σ has c_e, c_d, t_r and d")))?
+        }
+        other => {
+            return Err(OdocalError::new_err(format!(
+                "{what}: got {other}, where a dict of c_e, c_d, t_r, d or four numbers is expected"
+            )))
+        }
+    };
+    let mut sd = [0.0; 4];
+    for (i, x) in values.iter().enumerate() {
+        match x.as_f64() {
+            Some(f) if f >= 0.0 => sd[i] = f,
+            _ => {
+                return Err(OdocalError::new_err(format!(
+                    "{what}: {} = {x}: a standard deviation is a finite number, not negative",
+                    NAMES[i]
+                )))
+            }
+        }
+    }
+    Ok(Theta::from(sd))
 }
 
 /// Where θ's JSON holds a bool: `c_e = True` (a dict's key or a list's
@@ -179,20 +231,21 @@ fn not_bool(v: &Bound<'_, PyAny>) -> PyResult<()> {
     Ok(())
 }
 
-/// A count argument (`threads=`, `substeps=`, …): an int, not a bool.
+/// A count argument (`substeps=`, `chunk=`, …): an int, not a bool.
 pub(crate) fn count(v: &Bound<'_, PyAny>) -> PyResult<usize> {
     not_bool(v)?;
-    v.extract().map_err(|e| negative(v, "a count", e))
+    v.extract().map_err(|e| out_of_range(v, "a count is an integer 0 … 2^64 − 1", e))
 }
 
-/// A negative int where an unsigned one is asked for: a `ValueError` that
-/// says so (`what`: "a seed"), where the conversion's own error is an
-/// `OverflowError` "can't convert negative int to unsigned".
-fn negative(v: &Bound<'_, PyAny>, what: &str, e: PyErr) -> PyErr {
-    match v.extract::<i64>() {
-        Ok(n) if n < 0 => PyValueError::new_err(format!("{what} is a non-negative integer, got {n}")),
-        _ => e,
+/// An int where another range of ints is asked for (negative, or beyond
+/// 64 bits): `OdocalError` saying what is asked for (`range`), where the
+/// conversion's own error is an `OverflowError` ("can't convert negative
+/// int to unsigned"). Anything else keeps the conversion's error `e`.
+fn out_of_range(v: &Bound<'_, PyAny>, range: &str, e: PyErr) -> PyErr {
+    if v.cast::<PyInt>().is_ok() || v.extract::<i64>().is_ok() {
+        return OdocalError::new_err(format!("{range}, got {v}"));
     }
+    e
 }
 
 /// An optional count argument: None, or an int that is not a bool.
@@ -203,10 +256,45 @@ pub(crate) fn opt_count(v: &Bound<'_, PyAny>) -> PyResult<Option<usize>> {
     count(v).map(Some)
 }
 
-/// A seed: an int that is not a bool.
-pub(crate) fn seed(v: &Bound<'_, PyAny>) -> PyResult<u64> {
+/// The `threads=` argument: None (all cores) or 1 … `MAX_THREADS`, an
+/// int that is not a bool; `OdocalError` for another int.
+pub(crate) fn opt_threads(v: &Bound<'_, PyAny>) -> PyResult<Option<usize>> {
+    if v.is_none() {
+        return Ok(None);
+    }
     not_bool(v)?;
-    v.extract().map_err(|e| negative(v, "a seed", e))
+    let max = odocal::settings::MAX_THREADS;
+    let range = format!("threads is a number of worker threads, 1 … {max}");
+    match v.extract::<usize>() {
+        Ok(n) if (1..=max).contains(&n) => Ok(Some(n)),
+        Ok(n) => Err(OdocalError::new_err(format!("{range}, got {n}"))),
+        Err(e) => Err(out_of_range(v, &range, e)),
+    }
+}
+
+/// What a seed is, for messages (the library's words for `seed=` of
+/// `calibrate`).
+const SEED_RANGE: &str = "a seed, an integer 0 … 2^64 − 1 (18446744073709551615)";
+
+/// A seed (`seed=` of `simulate` and `calibrate`, `bootstrap_seed=`;
+/// `key` names it): an int 0 … 2^64 − 1 that is not a bool.
+/// `OdocalError` for another number, saying the range.
+pub(crate) fn seed_of(v: &Bound<'_, PyAny>, key: &str) -> PyResult<u64> {
+    if v.is_instance_of::<PyBool>() {
+        return Err(PyTypeError::new_err(format!("{key}: a number is needed here, not the bool {v}")));
+    }
+    v.extract().map_err(|e| {
+        if v.cast::<PyInt>().is_ok() || v.extract::<f64>().is_ok() {
+            OdocalError::new_err(format!("{key} = {v} is not {SEED_RANGE}"))
+        } else {
+            e
+        }
+    })
+}
+
+/// The `seed=` argument of `simulate`.
+pub(crate) fn seed(v: &Bound<'_, PyAny>) -> PyResult<u64> {
+    seed_of(v, "seed")
 }
 
 /// A real-number argument: an int or float, not a bool (nor a complex).

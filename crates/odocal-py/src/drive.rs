@@ -6,7 +6,7 @@ use std::ops::Range;
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use numpy::{AllowTypeChange, IntoPyArray, PyArray1, PyArray2, PyArrayLike1};
+use numpy::{AllowTypeChange, IntoPyArray, PyArray1, PyArray2, PyArrayLike1, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyKeyError, PyRuntimeError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyList, PyString};
@@ -128,17 +128,65 @@ fn vec_f64(a: &Column<'_>) -> Vec<f64> {
 /// array raises instead of exhausting the memory.
 const MAX_ARRAY_SAMPLES: usize = 50_000_000;
 
-/// Every column at most [`MAX_ARRAY_SAMPLES`] long, before any is copied:
-/// `ValueError` naming the column otherwise (unequal lengths are the
-/// library's error, after the copy).
-fn check_array_lengths(columns: &[(&str, usize)]) -> PyResult<()> {
-    match columns.iter().find(|(_, len)| *len > MAX_ARRAY_SAMPLES) {
-        Some((name, n)) => Err(PyValueError::new_err(format!(
-            "{name} has {n} samples, more than the {MAX_ARRAY_SAMPLES} a drive from arrays may hold; split the drive"
+/// Every argument at most [`MAX_ARRAY_SAMPLES`] long, measured before
+/// numpy converts any (an int32 array of 50 million samples would become
+/// 400 MB of float64 per column first): `OdocalError` naming the argument
+/// otherwise. The length is a numpy array's first dimension or Python's
+/// `len()`; an argument without one is left to the conversion's errors
+/// (unequal lengths are the library's error, after the copy).
+fn check_array_lengths(args: &[(&str, Option<&Bound<'_, PyAny>>)]) -> PyResult<()> {
+    for (name, v) in args {
+        let Some(v) = v else { continue };
+        let len = match v.cast::<numpy::PyUntypedArray>() {
+            Ok(a) => a.shape().first().copied(),
+            Err(_) => v.len().ok(),
+        };
+        if let Some(n) = len.filter(|n| *n > MAX_ARRAY_SAMPLES) {
+            return Err(crate::OdocalError::new_err(format!(
+                "{name} has {n} samples, more than the {MAX_ARRAY_SAMPLES} a drive from arrays may hold; split the \
+                 drive"
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// The `part` argument of `Drive.from_arrays` as ids, read as the CSV's
+/// `part` column is: integers (numpy's integer arrays as they are; floats
+/// only when whole and within 0 … 10^15, else `OdocalError` naming the
+/// sample). Negative ids are the library's error (`DriveBuilder`), as
+/// for the CSV. Bools and anything else that is no number are refused.
+fn part_ids(v: &Bound<'_, PyAny>, samples: (usize, &str)) -> PyResult<Vec<i64>> {
+    let array = v.py().import("numpy")?.call_method1("asarray", (v,))?;
+    let kind: String = array.getattr("dtype")?.getattr("kind")?.extract()?;
+    match kind.as_str() {
+        "i" | "u" => {
+            let ids: PyArrayLike1<'_, i64, AllowTypeChange> = column("part", &array, Some(samples))?;
+            Ok(ids.as_array().to_vec())
+        }
+        "f" => {
+            let ids: Column<'_> = column("part", &array, Some(samples))?;
+            let ids = ids.as_array();
+            if let Some(i) = ids.iter().position(|v| v.fract() != 0.0 || !(0.0..=1e15).contains(v)) {
+                return Err(lib_err(odocal::Error::InvalidSample {
+                    context: ARRAYS.into(),
+                    column: "part".into(),
+                    sample: i,
+                    reason: format!("part id {} is not a non-negative integer (parts are numbered 0, 1, 2, …)", ids[i]),
+                }));
+            }
+            Ok(ids.iter().map(|v| *v as i64).collect())
+        }
+        _ => Err(crate::OdocalError::new_err(format!(
+            "part: got an array of numpy dtype {}, where integer part ids (0, 1, 2, …; a new part where the id \
+             changes) are expected",
+            array.getattr("dtype")?.str()?
         ))),
-        None => Ok(()),
     }
 }
+
+/// How errors name a drive made from arrays.
+const ARRAYS: &str = "numpy arrays";
 
 fn f64_bytes(v: &[f64]) -> Vec<u8> {
     v.iter().flat_map(|x| x.to_le_bytes()).collect()
@@ -199,8 +247,10 @@ impl PyDrive {
     /// Makes a drive from 1-D arrays (anything numpy converts to float64),
     /// checked by the library: equal lengths, finite values, strictly
     /// increasing and uniform time (within 1 % per part). `beta` defaults to
-    /// zeros; `part` holds per-sample integer ids (a new part starts where
-    /// the id changes); `sample_time_s` is the nominal step when known.
+    /// zeros; `part` holds per-sample part ids, non-negative integers as
+    /// the CSV's `part` column (a new part starts where the id changes);
+    /// `sample_time_s` is the nominal step when known. An argument longer
+    /// than [`MAX_ARRAY_SAMPLES`] is refused before any is converted.
     ///
     /// Raises `OdocalError` naming the column and the sample, or naming the
     /// argument, its shape and the 1-D array expected for one that is not
@@ -221,6 +271,18 @@ impl PyDrive {
         part: Option<&Bound<'_, PyAny>>,
         #[pyo3(from_py_with = crate::convert::opt_real)] sample_time_s: Option<f64>,
     ) -> PyResult<Self> {
+        // No argument longer than a drive from arrays may be, before numpy converts any.
+        check_array_lengths(&[
+            ("t", Some(t)),
+            ("px", Some(px)),
+            ("py", Some(py)),
+            ("psi", Some(psi)),
+            ("n_rl", Some(n_rl)),
+            ("n_rr", Some(n_rr)),
+            ("a_y", Some(a_y)),
+            ("beta", beta),
+            ("part", part),
+        ])?;
         // Each argument a 1-D array (else an error naming it and its shape), as long as t's.
         let t: Column<'_> = column("t", t, None)?;
         let n = Some((t.as_array().len(), "t"));
@@ -229,24 +291,7 @@ impl PyDrive {
         let (n_rl, n_rr, a_y): (Column<'_>, Column<'_>, Column<'_>) =
             (column("n_rl", n_rl, n)?, column("n_rr", n_rr, n)?, column("a_y", a_y, n)?);
         let beta: Option<Column<'_>> = beta.map(|b| column("beta", b, n)).transpose()?;
-        let part: Option<PyArrayLike1<'_, i64, AllowTypeChange>> = part.map(|p| column("part", p, n)).transpose()?;
-        let len = |a: &Column<'_>| a.as_array().len();
-        let mut columns = vec![
-            ("t", len(&t)),
-            ("px", len(&px)),
-            ("py", len(&py)),
-            ("psi", len(&psi)),
-            ("n_rl", len(&n_rl)),
-            ("n_rr", len(&n_rr)),
-            ("a_y", len(&a_y)),
-        ];
-        if let Some(b) = &beta {
-            columns.push(("beta", len(b)));
-        }
-        if let Some(p) = &part {
-            columns.push(("part", p.as_array().len()));
-        }
-        check_array_lengths(&columns)?;
+        let part = part.map(|p| part_ids(p, (t.as_array().len(), "t"))).transpose()?;
         let t = vec_f64(&t);
         let beta = match beta {
             Some(b) => vec_f64(&b),
@@ -261,11 +306,10 @@ impl PyDrive {
             beta,
             a_y: vec_f64(&a_y),
         };
-        let part = part.map(|p| p.as_array().to_vec());
         let drive = gil
             .detach(move || {
                 let b = DriveBuilder {
-                    context: "numpy arrays".into(),
+                    context: ARRAYS.into(),
                     t,
                     measured: signals,
                     part_ids: part,
@@ -435,7 +479,7 @@ impl PyDrive {
         let mut outputs = vec![("to_csv(path)", path.as_path())];
         if self.prov.sidecar.is_some() {
             if side == path {
-                return Err(PyValueError::new_err(format!(
+                return Err(crate::OdocalError::new_err(format!(
                     "{}: the sidecar of a simulated drive is written beside the CSV under the name with .json, \
                      which is this file; give a name ending in .csv",
                     path.display()

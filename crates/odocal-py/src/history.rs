@@ -29,6 +29,30 @@ impl PyHistory {
     }
 }
 
+/// The fields of a record (`History.record`'s dict), as the table's
+/// columns name them.
+fn record_fields() -> PyResult<Vec<String>> {
+    let example = CalibrationRecord::new("", "", "", odocal::Theta::PAPER_INITIAL);
+    Ok(json(&example)?.as_object().map(|m| m.keys().cloned().collect()).unwrap_or_default())
+}
+
+/// A record's `sigma` as the table's `ParamSigma` reads it: a dict of
+/// `c_e`, `c_d`, `t_r`, `d` (`None`, or a key left out, for a parameter
+/// without σ) or four values; a key other than the four is refused (it
+/// would be dropped unnoticed). The values are the library's to check.
+fn record_sigma(v: serde_json::Value) -> Result<serde_json::Value, String> {
+    use odocal::model::THETA_NAMES;
+    use serde_json::Value;
+    match v {
+        Value::Object(m) => match m.keys().find(|k| !THETA_NAMES.contains(&k.as_str())) {
+            Some(k) => Err(format!("sigma: unknown key '{k}': σ has c_e, c_d, t_r and d")),
+            None => Ok(Value::Object(m)),
+        },
+        Value::Array(a) if a.len() == 4 => Ok(THETA_NAMES.iter().map(|n| n.to_string()).zip(a).collect()),
+        other => Ok(other),
+    }
+}
+
 /// A record's outcome as `{"id": …, "new": bool}`.
 fn recorded<'py>(py: Python<'py>, r: Recorded) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
@@ -149,12 +173,26 @@ impl PyHistory {
     }
 
     /// Records a row given as a dict of the table's fields (`vehicle`,
-    /// `fingerprint`, `method`, `theta`; optional `sigma`, `sources`,
-    /// `t_start_s`, `t_end_s`, `heading_offset_rad`, `verdict`). Use
-    /// `History.record`.
+    /// `fingerprint`, `method`, `theta`; optional `sigma`, `held`,
+    /// `unobservable`, `sources`, `t_start_s`, `t_end_s`,
+    /// `heading_offset_rad`, `verdict`, `sigma_model_only`; another key is
+    /// refused). Use `History.record`.
     fn _record_dict<'py>(&self, py: Python<'py>, record: &Bound<'_, PyDict>) -> PyResult<Bound<'py, PyDict>> {
         let mut v = to_json(record.as_any(), "record")?;
+        let invalid = |reason: String| lib_err(odocal::Error::InvalidOption { field: "record", reason });
         if let Some(m) = v.as_object_mut() {
+            // The table's fields only: a misspelt optional one (`sigmaa`) would be dropped unnoticed.
+            let known = record_fields()?;
+            if let Some(k) = m.keys().find(|k| !known.contains(k)) {
+                return Err(invalid(format!("unknown key '{k}'; a record has {}", known.join(", "))));
+            }
+            // θ read as every θ argument (a dict of the four, or four numbers; no other key).
+            if let Some(t) = m.get_mut("theta") {
+                *t = json(&odocal::settings::theta_from_json(t.take()).map_err(lib_err)?)?;
+            }
+            if let Some(s) = m.get_mut("sigma") {
+                *s = record_sigma(s.take()).map_err(invalid)?;
+            }
             let defaults = [("sources", serde_json::json!([])), ("t_start_s", 0.0.into()), ("t_end_s", 0.0.into())];
             for (k, d) in defaults {
                 m.entry(k).or_insert(d);

@@ -68,7 +68,7 @@ fn validate<'py>(
     drive: &Bound<'py, PyDrive>,
     theta: &Bound<'py, PyAny>,
     #[pyo3(from_py_with = convert::opt_count)] validation_length: Option<usize>,
-    #[pyo3(from_py_with = convert::opt_count)] threads: Option<usize>,
+    #[pyo3(from_py_with = convert::opt_threads)] threads: Option<usize>,
     report_json: Option<&str>,
     carry_heading_offset: bool,
     params_node: Option<&str>,
@@ -76,7 +76,7 @@ fn validate<'py>(
     // A parameter file is read once: its θ (checked by `read`) and extrinsics.
     let file = params_file_arg(theta, params_node)?;
     if params_node.is_some() && file.is_none() {
-        return Err(pyo3::exceptions::PyValueError::new_err(
+        return Err(OdocalError::new_err(
             "params_node names a node of a parameter file, but theta is not the path of one",
         ));
     }
@@ -167,5 +167,6 @@ fn _odocal(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(report::_write_params, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("COLUMNS", COLUMNS.to_vec())?;
+    m.add("CALIBRATE_OPTIONS", pyo3::types::PyTuple::new(m.py(), calibrate::options())?)?;
     Ok(())
 }

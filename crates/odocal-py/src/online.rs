@@ -3,7 +3,7 @@
 //! write-back gates ([`odocal_online::gate::Gates`]).
 
 use numpy::PyArray2;
-use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use serde::de::DeserializeOwned;
@@ -13,9 +13,9 @@ use odocal::{Signals, Theta};
 use odocal_online::gate::Gates;
 use odocal_online::{Calibrator, OnlineOptions};
 
-use crate::convert::{column, extract_theta, json, to_json, to_py, Column};
+use crate::convert::{column, extract_sigma, extract_theta, json, to_json, to_py, Column};
 use crate::drive::PyDrive;
-use crate::lib_err;
+use crate::{lib_err, OdocalError};
 
 /// `defaults` (a library options struct) with the keys of `given` put over
 /// it, nested tables key by key; an unknown key raises `TypeError` naming it
@@ -78,7 +78,7 @@ impl PyCalibrator {
         options: Option<&Bound<'_, PyDict>>,
     ) -> PyResult<Self> {
         let theta0 = theta0.map(extract_theta).transpose()?.unwrap_or(Theta::PAPER_INITIAL);
-        let sigma0 = sigma0.map(extract_theta).transpose()?;
+        let sigma0 = sigma0.map(|s| extract_sigma(s, "sigma0")).transpose()?;
         let opts: OnlineOptions = overlay(&OnlineOptions::default(), options, "options")?;
         let gates: Gates = overlay(&Gates::default(), gates, "gates")?;
         let cal = Calibrator::new(theta0, sigma0, sample_time_s, opts).map_err(lib_err)?;
@@ -137,7 +137,7 @@ impl PyCalibrator {
         let d = std::sync::Arc::clone(&drive.get().drive);
         let ts = self.cal.status().sample_time_s;
         if (d.sample_time_s() - ts).abs() > 1e-9 {
-            return Err(PyValueError::new_err(format!(
+            return Err(OdocalError::new_err(format!(
                 "the drive's sample time {} s is not the calibrator's {} s",
                 d.sample_time_s(),
                 ts
@@ -255,7 +255,7 @@ impl PyCalibrator {
             None => self
                 .cal
                 .stored
-                .ok_or_else(|| PyValueError::new_err("no stored θ: give stored= or set calibrator.stored first"))?,
+                .ok_or_else(|| OdocalError::new_err("no stored θ: give stored= or set calibrator.stored first"))?,
         };
         to_py(py, &json(&self.gates.decide(&self.cal, &stored, calibrated))?)
     }

@@ -12,7 +12,7 @@ use odocal::Holdout;
 
 use crate::calibrate::parse_holdout;
 use crate::convert::to_py;
-use crate::drive::{drives_arg, PyDrive};
+use crate::drive::{drives_arg, provenances, Provenance, PyDrive};
 use crate::files::{calibration_fingerprints, check_outputs};
 use crate::{lib_err, OdocalError};
 
@@ -52,29 +52,65 @@ pub(crate) fn read_params<'py>(
 /// `odocal calibrate --params-out` does: YAML for `.yaml`/`.yml`, JSON for
 /// `.json` (library `CalibrationReport::param_file`).
 ///
-/// `drives` are the drives of the calibration: a path that is one of their
-/// files is refused. The provenance gains the calibration drives'
-/// fingerprints (the report's `drives`).
+/// `drives` are the drives of the report (calibration and validation): a
+/// path that is one of their files is refused. `input` (the provenance's;
+/// `None`: [`input_names`] of the `calibration` drives, else of the
+/// report's). The provenance gains the calibration drives' fingerprints
+/// (the report's `drives`). The node is checked by the library
+/// (`ParamFile::check_node_name`, as the CLI's `--params-node`).
 #[pyfunction]
-#[pyo3(signature = (report_json, path, *, input, node, mapping, drives=None))]
+#[pyo3(signature = (report_json, path, *, input=None, node, mapping, drives=None, calibration=None))]
+#[allow(clippy::too_many_arguments)] // one argument per Python keyword
 pub(crate) fn _write_params(
     report_json: &str,
     path: PathBuf,
-    input: &str,
+    input: Option<&str>,
     node: &str,
     mapping: &str,
     drives: Option<&Bound<'_, PyAny>>,
+    calibration: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<()> {
     check_against(drives, "write_params(path)", &path)?;
     let value: serde_json::Value = serde_json::from_str(report_json).map_err(not_a_report)?;
     let fingerprints = calibration_fingerprints(&value);
-    let mut f = serde_json::from_value::<odocal::CalibrationReport>(value).map_err(not_a_report)?.param_file(input);
+    let input = match (input, calibration.map(provenances).unwrap_or_default()) {
+        (Some(i), _) => i.to_string(),
+        (None, provs) if !provs.is_empty() => input_names(&provs),
+        (None, _) => report_input(&value),
+    };
+    let mut f = serde_json::from_value::<odocal::CalibrationReport>(value).map_err(not_a_report)?.param_file(&input);
     f.node = node.to_string();
     f.mapping = mapping.parse().map_err(lib_err)?;
     if let Some(fp) = fingerprints {
         f.provenance.push(("fingerprint".into(), fp));
     }
     f.write(&path).map_err(lib_err)
+}
+
+/// How a parameter file's `provenance.input` names the calibration
+/// drives, as `odocal calibrate --params-out` names its drive files: each
+/// drive's file, `simulated drive` for one of `odocal.simulate` (as `odocal
+/// demo`'s), `python` for one made from arrays; comma separated.
+fn input_names(drives: &[Provenance]) -> String {
+    let name = |p: &Provenance| match (&p.source, &p.sidecar) {
+        (Some(s), _) => s.clone(),
+        (None, Some(_)) => "simulated drive".to_string(),
+        (None, None) => "python".to_string(),
+    };
+    drives.iter().map(name).collect::<Vec<_>>().join(", ")
+}
+
+/// [`input_names`] from a report's JSON `drives` alone (a report without
+/// its drives): each calibration drive's path, `python` for one without.
+fn report_input(report: &serde_json::Value) -> String {
+    let entries = report["drives"].as_array().map(Vec::as_slice).unwrap_or_default();
+    let names: Vec<&str> =
+        entries.iter().filter(|e| e["role"] == "calibration").map(|e| e["path"].as_str().unwrap_or("python")).collect();
+    if names.is_empty() {
+        "python".to_string()
+    } else {
+        names.join(", ")
+    }
 }
 
 /// Refuses an output `path` that is a file of one of `drives` (a list of

@@ -4,18 +4,18 @@
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::exceptions::PyRuntimeError;
 use pyo3::prelude::*;
 
 use odocal::Progress;
 
-/// Runs `f` with `threads` rayon threads (the global pool when None).
+/// Runs `f` with `threads` rayon threads (the global pool when None);
+/// `threads` as `convert::opt_threads` checks it.
 pub(crate) fn with_threads<T: Send>(threads: Option<usize>, f: impl FnOnce() -> T + Send) -> PyResult<T> {
     match threads {
         None => Ok(f()),
-        Some(0) => Err(PyValueError::new_err("threads must be at least 1")),
-        Some(n) if n > odocal::settings::MAX_THREADS => Err(PyValueError::new_err(format!(
-            "threads = {n} is above the ceiling of {} worker threads",
+        Some(n) if n == 0 || n > odocal::settings::MAX_THREADS => Err(crate::OdocalError::new_err(format!(
+            "threads is a number of worker threads, 1 … {}, got {n}",
             odocal::settings::MAX_THREADS
         ))),
         Some(n) => {

@@ -1,6 +1,7 @@
 """calibrate / validate: the CLI's JSON, options, threads, progress and the GIL."""
 
 import json
+import re
 import subprocess
 import sys
 import threading
@@ -142,15 +143,88 @@ def test_option_errors(small_drive):
         odocal.calibrate(small_drive, theta0={"c_e": 2.0, "c_d": 0.0, "t_r": -1.0, "d": 0.0})
     with pytest.raises(odocal.OdocalError, match="invalid QP solver .osqp.: use structured or clarabel"):
         odocal.calibrate(small_drive, "three-step", qp_solver="osqp")
-    with pytest.raises(ValueError, match="threads"):
+    with pytest.raises(odocal.OdocalError, match="threads"):
         odocal.calibrate(small_drive, "batch-gn", threads=0)
     with pytest.raises(odocal.OdocalError, match=r"`fix`: holds every parameter of θ: .*odocal.validate"):
         odocal.calibrate(small_drive, "batch-gn", fix="c_e,c_d,t_r,d")
-    # A negative seed or count: a ValueError saying so, not OverflowError's "can't convert negative int".
-    with pytest.raises(ValueError, match="a seed is a non-negative integer, got -1"):
+    # A negative seed or count: an OdocalError saying so, not OverflowError's "can't convert negative int".
+    with pytest.raises(odocal.OdocalError, match="seed = -1 is not a seed, an integer 0 … 2"):
         odocal.simulate(seed=-1, length_km=1.0)
-    with pytest.raises(ValueError, match="a count is a non-negative integer, got -2"):
+    with pytest.raises(odocal.OdocalError, match="threads is a number of worker threads, 1 … 1024, got -2"):
         odocal.calibrate(small_drive, "batch-gn", threads=-2)
+    with pytest.raises(odocal.OdocalError, match="a count is an integer 0 … 2\\^64 − 1, got -3"):
+        odocal.simulate(length_km=1.0, substeps=-3)
+
+
+def test_an_option_of_another_method_is_named_as_the_option(small_drive):
+    """The option at fault is the one named in the prefix, not the method the caller chose."""
+    with pytest.raises(odocal.OdocalError,
+                       match="^invalid option `batches`: batches applies to method three-step only, not to eiv$"):
+        odocal.calibrate(small_drive, batches=5)
+    with pytest.raises(odocal.OdocalError, match="^invalid option `min_yaw_rate`: min_yaw_rate applies to the "
+                                                 "segment-selecting methods"):
+        odocal.calibrate(small_drive, min_yaw_rate=0.1)
+    with pytest.raises(odocal.OdocalError, match="^invalid option `fix_noise`: fix_noise, fallback apply to method "
+                                                 "eiv only, not to batch-gn$"):
+        odocal.calibrate(small_drive, "batch-gn", fix_noise=True, fallback=False)
+
+
+def test_errors_of_values_are_odocal_errors(small_drive):
+    """Every bad value raises OdocalError (a ValueError), as the docs say."""
+    nan = float("nan")
+    cases = [
+        lambda: odocal.calibrate(small_drive, "batch-gn", threads=0),
+        lambda: odocal.calibrate(small_drive, "batch-gn", threads=-1),
+        lambda: odocal.calibrate(small_drive, "batch-gn", threads=1025),
+        lambda: odocal.validate(small_drive, "2,0,1.6,0", threads=1025),
+        lambda: odocal.calibrate(small_drive, "batch-gn", theta0=[nan, 0.0, 1.6, 0.0]),
+        lambda: odocal.validate(small_drive, [nan, 0.0, 1.6, 0.0]),
+        lambda: odocal.simulate(seed=-1, length_km=0.5),
+        lambda: odocal.validate(small_drive, [2.0, 0.0, 1.6, 0.0], validation_length=-1),
+        lambda: odocal.validate(small_drive, [2.0, 0.0, 1.6, 0.0], params_node="odocal"),
+        lambda: odocal.online.Calibrator().decide(),
+        lambda: odocal.online.Calibrator(sample_time_s=0.01).push_drive(small_drive),
+    ]
+    for case in cases:
+        with pytest.raises(odocal.OdocalError):
+            case()
+    with pytest.raises(odocal.OdocalError, match="^threads is a number of worker threads, 1 … 1024, got 1025"):
+        odocal.calibrate(small_drive, "batch-gn", threads=1025)
+    with pytest.raises(odocal.OdocalError, match="^θ: NaN is not a finite number$"):
+        odocal.validate(small_drive, [nan, 0.0, 1.6, 0.0])
+
+
+def test_a_seed_is_an_integer_of_64_bits(small_drive):
+    """A seed beyond 64 bits, negative or a fraction is refused naming the range, as simulate's seed is."""
+    three_step = {k: v for k, v in QUICK.items() if k != "seed"}
+    for bad in (2**64, -1, 1.5, 2**70):
+        message = "^" + re.escape(f"seed = {bad} is not a seed, an integer 0 … 2^64 − 1 (18446744073709551615)")
+        with pytest.raises(odocal.OdocalError, match=message):
+            odocal.calibrate(small_drive, "three-step", seed=bad, **three_step)
+        with pytest.raises(odocal.OdocalError, match=message):
+            odocal.simulate(seed=bad, length_km=0.5)
+    with pytest.raises(odocal.OdocalError, match=re.escape("bootstrap_seed = -1 is not a seed")):
+        odocal.calibrate(small_drive, bootstrap=2, bootstrap_seed=-1)
+    assert len(odocal.simulate(seed=2**64 - 1, length_km=0.5)) > 0
+    # Beyond 64 bits elsewhere: refused as such, not turned into a float.
+    with pytest.raises(odocal.OdocalError, match="max_iterations: 18446744073709551616 is beyond the integers"):
+        odocal.calibrate(small_drive, "batch-gn", max_iterations=2**64)
+
+
+def test_theta0_takes_a_report_and_is_checked_as_every_theta(small_drive):
+    """theta0 takes a CalibrationReport (its θ), as validate does; a dict is checked as the other forms of θ:
+    a key other than the four and a value beyond the physical limits are refused."""
+    first = odocal.calibrate(small_drive, "batch-gn")
+    again = odocal.calibrate(small_drive, "batch-gn", theta0=first)
+    assert again.initial["theta"] == first.theta
+    assert again.theta == odocal.calibrate(small_drive, "batch-gn", theta0=first.theta).theta
+    with pytest.raises(odocal.OdocalError, match="^invalid option `theta0`: .*unknown key 'x': θ has c_e, c_d, t_r and d"):
+        odocal.calibrate(small_drive, "batch-gn", theta0={**first.theta, "x": 1.0})
+    huge = {"c_e": 2000.0, "c_d": 0.0, "t_r": 1.6, "d": 0.0}
+    with pytest.raises(odocal.OdocalError, match="c_e = 2000 m is outside 0.05 … 20 m"):
+        odocal.calibrate(small_drive, "batch-gn", theta0=huge)
+    with pytest.raises(odocal.OdocalError, match="c_e = 2000 m is outside 0.05 … 20 m"):
+        odocal.validate(small_drive, huge)
 
 
 def test_default_method_is_eiv(small_drive):
@@ -369,7 +443,7 @@ def test_params_files_round_trip_and_equal_the_cli(odocal_bin, drive_csv, tmp_pa
     report = odocal.calibrate(drive, eiv_window=1500)
     for name in ("p.yaml", "p.json"):
         ours, theirs = tmp_path / ("py-" + name), tmp_path / ("cli-" + name)
-        report.write_params(ours, input=str(drive_csv))
+        report.write_params(ours)  # provenance.input: the drive's file, as the CLI's
         out = subprocess.run(
             [str(odocal_bin), "calibrate", str(drive_csv), "--eiv-window", "1500", "--params-out", str(theirs)],
             capture_output=True,

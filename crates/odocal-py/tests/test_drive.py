@@ -2,6 +2,7 @@
 
 import pickle
 import re
+import tracemalloc
 
 import numpy as np
 import pytest
@@ -175,10 +176,65 @@ def test_manifest():
 
 
 def test_from_arrays_refuses_a_huge_size_before_copying():
-    """A huge column raises ValueError before anything is copied (a zero-stride view costs no memory)."""
+    """A huge column raises OdocalError before anything is copied (a zero-stride view costs no memory)."""
     big = np.broadcast_to(0.0, (60_000_000,))
-    with pytest.raises(ValueError, match="more than the 50000000 a drive from arrays may hold"):
+    with pytest.raises(odocal.OdocalError, match="^t has 60000000 samples, more than the 50000000 a drive from"):
         odocal.Drive.from_arrays(big, big, big, big, big, big, big)
+
+
+def test_from_arrays_checks_the_size_before_numpy_converts():
+    """An int32 column numpy would first convert to float64 (400 MB for 50,000,001 samples) is measured
+    before the conversion: refused with no copy made (numpy reports its buffers to tracemalloc)."""
+    big = np.broadcast_to(np.int32(0), (50_000_001,))  # a zero-stride view: no memory of its own
+    view = np.broadcast_to(0.0, (50_000_001,))  # float64: numpy would not copy it
+    small = np.zeros(10)
+    tracemalloc.start()
+    try:
+        with pytest.raises(odocal.OdocalError, match="^t has 50000001 samples, more than the 50000000"):
+            odocal.Drive.from_arrays(big, view, view, view, view, view, view)
+        # Any argument (part too), before any is converted.
+        with pytest.raises(odocal.OdocalError, match="^part has 50000001 samples"):
+            odocal.Drive.from_arrays(small, small, small, small, small, small, small, part=big)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 20e6, f"{peak / 1e6:.0f} MB allocated before refusing"
+
+
+def test_tracemalloc_sees_numpy_conversions():
+    """The check above can fail: a conversion of an int32 array to float64 shows in tracemalloc's peak."""
+    a = np.zeros(2_000_000, dtype=np.int32)
+    tracemalloc.start()
+    try:
+        np.asarray(a, dtype=np.float64)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak >= 16e6
+
+
+def test_part_ids_are_whole_non_negative_numbers():
+    """Part ids are read as the CSV's `part` column: whole numbers 0, 1, 2, … (floats only when whole);
+    a fraction, a negative id or a bool is refused naming the sample, not truncated or taken."""
+    n = 200
+    t = np.arange(n) * 0.025
+    x = np.arange(n) * 0.25
+    z = np.zeros(n)
+
+    def make(part):
+        return odocal.Drive.from_arrays(t, x, z, z, [5.0] * n, [5.0] * n, z, part=part)
+
+    assert make([0.0] * 120 + [1.0] * 80).parts == [(0, 120), (120, 200)]
+    assert make(np.array([3] * 120 + [2] * 80, dtype=np.uint8)).parts == [(0, 120), (120, 200)]
+    for part, shown in [([0.5] * n, "0.5"), ([0] * 120 + [1.5] * 80, "1.5"), ([0] * 120 + [-1] * 80, "-1"),
+                        ([0.0] * 120 + [-1.0] * 80, "-1"), ([0.0] * 120 + [np.nan] * 80, "NaN")]:
+        sample = 0 if shown == "0.5" else 120
+        with pytest.raises(odocal.OdocalError, match=re.escape(
+                f"numpy arrays: column 'part', sample {sample}: part id {shown} is not a non-negative integer "
+                "(parts are numbered 0, 1, 2, …)")):
+            make(part)
+    with pytest.raises(odocal.OdocalError, match="part: got an array of numpy dtype bool, where integer part ids"):
+        make([True] * 120 + [False] * 80)
 
 
 def test_complex_numbers_and_extra_theta_keys_are_refused(small_drive):
@@ -186,7 +242,7 @@ def test_complex_numbers_and_extra_theta_keys_are_refused(small_drive):
         odocal.validate(small_drive, [2 + 0j, 0.0, 1.6, 0.0])
     with pytest.raises(odocal.OdocalError, match="unknown key 'lever'"):
         odocal.validate(small_drive, {"c_e": 2.0, "c_d": 0.0, "t_r": 1.6, "d": 0.0, "lever": 1.0})
-    with pytest.raises(ValueError, match="threads = 100000 is above the ceiling"):
+    with pytest.raises(odocal.OdocalError, match="threads is a number of worker threads, 1 … 1024, got 100000"):
         odocal.validate(small_drive, "2,0,1.6,0", threads=100000)
 
 

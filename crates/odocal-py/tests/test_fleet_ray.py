@@ -70,6 +70,20 @@ def test_command_line_mistakes_end_with_a_message_and_keep_the_inputs(fleet_dir,
     assert e.value.code == 2
     assert "would destroy it" in capsys.readouterr().err
     assert drive.read_bytes() == before
+    # An option odocal.calibrate does not take, or one with a flag of its own: a usage error before any
+    # drive is calibrated, and no table.
+    out = tmp_path / "t.csv"
+    for option, message in [("badopt=1", "-o badopt: not an option of odocal.calibrate; options: method, theta0"),
+                            ("method=eiv", "-o method: give it as --method"),
+                            ("threads=2", "-o threads: give it as --cpus-per-task")]:
+        with pytest.raises(SystemExit) as e:
+            fleet.main([str(drive), "--out", str(out), "--serial", "-o", option])
+        assert e.value.code == 2
+        assert message in capsys.readouterr().err
+        assert not out.exists()
+    # A bad value of a known option: an error row, the run goes on.
+    assert fleet.main([str(drive), "--out", str(out), "--serial", "--method", "batch-gn", "-o", "fix=t_x"]) == 2
+    assert "error" in out.read_text() and "t_x" in out.read_text()
 
 
 def test_ray_equals_serial(local_ray, fleet_dir, tmp_path):

@@ -81,16 +81,25 @@ def test_a_gap_in_time_starts_a_new_part(clean_drive):
 def test_bad_input_raises_odocal_error(clean_drive):
     a = clean_drive.to_numpy()[:500]
     cal = odocal.online.Calibrator(sample_time_s=clean_drive.sample_time_s)
-    with pytest.raises(odocal.OdocalError, match="length"):
+    with pytest.raises(odocal.OdocalError, match="^the pushed samples: column py has 499 samples, px has 500$"):
         cal.push(a[:, 0], a[:, 1], a[:-1, 2], a[:, 3], a[:, 4], a[:, 5], a[:, 7])
     bad = a[:, 4].copy()
     bad[7] = np.nan
-    with pytest.raises(odocal.OdocalError, match="n_rl"):
+    # The column and the sample at fault, as Drive.from_arrays names them.
+    with pytest.raises(odocal.OdocalError, match=r"^the pushed samples: column 'n_rl', sample 7: value NaN is not finite$"):
         cal.push(None, a[:, 1], a[:, 2], a[:, 3], bad, a[:, 5], a[:, 7])
     t = a[:, 0].copy()
     t[10:] += 0.3 * clean_drive.sample_time_s
-    with pytest.raises(odocal.OdocalError, match="sample 10"):
+    with pytest.raises(odocal.OdocalError, match=r"sample 10: step"):
         cal.push(t, a[:, 1], a[:, 2], a[:, 3], a[:, 4], a[:, 5], a[:, 7])
+    # A value that is not finite after a gap in t: nothing of the push is taken.
+    gap = a[:, 0].copy()
+    gap[300:] += 10.0
+    late = a[:, 1].copy()
+    late[450] = np.inf
+    with pytest.raises(odocal.OdocalError, match=r"column 'px', sample 450: value inf is not finite"):
+        cal.push(gap, late, a[:, 2], a[:, 3], a[:, 4], a[:, 5], a[:, 7])
+    assert cal.summary["samples"] == 0
     # An argument that is not 1-D: named, with its shape and the length expected (px's).
     with pytest.raises(odocal.OdocalError, match=re.escape(
             "py: got a ndarray of shape (500, 2), where a 1-D array of 500 samples (one value per sample, as px)")):
@@ -103,8 +112,23 @@ def test_bad_input_raises_odocal_error(clean_drive):
         odocal.online.Calibrator(information_scale=-1.0)
     with pytest.raises(odocal.OdocalError, match="sample_time_s"):
         odocal.online.Calibrator(sample_time_s=0.0)
-    with pytest.raises(ValueError, match="stored"):
+    with pytest.raises(odocal.OdocalError, match="no stored θ"):
         cal.decide()
+
+
+def test_sigma0_is_a_sigma_not_a_theta(clean_drive):
+    """sigma0 takes a history row's σ (small, no physical limits of θ) as a dict or four numbers."""
+    small = {"c_e": 8e-4, "c_d": 1.5e-4, "t_r": 8e-3, "d": 1e-4}
+    by_dict = odocal.online.Calibrator(sigma0=small, sample_time_s=clean_drive.sample_time_s)
+    by_list = odocal.online.Calibrator(sigma0=list(small.values()), sample_time_s=clean_drive.sample_time_s)
+    assert by_dict.sigma == by_list.sigma
+    assert by_dict.sigma["c_e"] < odocal.online.Calibrator().sigma["c_e"]
+    with pytest.raises(odocal.OdocalError, match="sigma0: unknown key 'ce'"):
+        odocal.online.Calibrator(sigma0={**small, "ce": 1e-3})
+    with pytest.raises(odocal.OdocalError, match="sigma0: missing d"):
+        odocal.online.Calibrator(sigma0={k: v for k, v in small.items() if k != "d"})
+    with pytest.raises(odocal.OdocalError, match="sigma0: t_r = -0.008: a standard deviation is a finite number"):
+        odocal.online.Calibrator(sigma0={**small, "t_r": -8e-3})
 
 
 def test_options_and_gates_reach_the_library(clean_drive):
@@ -164,6 +188,46 @@ def test_history_records_rows_flags_drift_and_pools(tmp_path, small_drive):
     assert [f["model_sigma_only"] for f in other.drift("van")] == [True]
     with pytest.raises(odocal.OdocalError):
         db.record({"vehicle": "van", "fingerprint": "c"})
+
+
+def test_history_checks_a_record_as_the_cli_does(tmp_path, small_drive, odocal_bin):
+    """The library's checks of every record (the vehicle as `--vehicle` takes it, the method, θ within the
+    physical limits, σ) and, for a dict, its keys: nothing is written for a record refused."""
+    db = odocal.History(tmp_path / "van.sqlite")
+    base = {"vehicle": "van", "fingerprint": "a", "method": "eiv",
+            "theta": {"c_e": 1.95, "c_d": 0.0, "t_r": 1.5, "d": 0.0}}
+    cases = [
+        ({**base, "vehicle": " "}, r"^invalid option `vehicle`: the vehicle's identifier is empty"),
+        ({**base, "vehicle": "van "}, "has a space at an end"),
+        ({**base, "method": "foo"}, r"'foo' is not a method of odocal's: eiv, three-step, batch-gn, online$"),
+        ({**base, "theta": {**base["theta"], "c_e": 2000.0}}, "c_e = 2000 m is outside 0.05 … 20 m"),
+        ({**base, "theta": {**base["theta"], "x": 1.0}}, "unknown key 'x'"),
+        ({**base, "sigmaa": {"c_e": 1e-3, "c_d": 1e-4, "t_r": 1e-3, "d": 1e-4}},
+         r"^invalid option `record`: unknown key 'sigmaa'; a record has .*sigma,"),
+        ({**base, "sigma": {"c_e": 1e-3, "c_d": 1e-4, "t_r": float("nan"), "d": 1e-4}}, "not a finite number"),
+        ({**base, "sigma": {"c_e": 1e-3, "c_d": -1e-4, "t_r": 1e-3, "d": 1e-4}},
+         "c_d = -0.0001: a standard deviation is a finite number, not negative"),
+        ({**base, "sigma": {"c_e": 1e-3, "c_d": 1e-4, "t_r": 1e-3, "dd": 1e-4}}, "sigma: unknown key 'dd'"),
+        ({**base, "held": ["x"]}, r"^invalid option `held`: 'x' is not a parameter of θ"),
+    ]
+    for record, message in cases:
+        with pytest.raises(odocal.OdocalError, match=message):
+            db.record(record)
+    report = odocal.calibrate(small_drive, method="batch-gn")
+    with pytest.raises(odocal.OdocalError, match="the vehicle's identifier is empty"):
+        db.record(report, vehicle="")
+    assert db.rows("van") == [] and db.rows(" ") == [] and db.rows("") == []
+    assert db.record(base)["new"] is True
+    assert db.record(report, vehicle="van")["new"] is True
+    held_d = {**base, "fingerprint": "b", "held": ["d"], "sigma": {"c_e": 1e-3, "c_d": 1e-4, "t_r": 1e-3, "d": None}}
+    assert db.record(held_d)["new"] is True
+    assert db.rows("van")[-1]["sigma"]["d"] is None and db.rows("van")[-1]["held"] == ["d"]
+    # The CLI refuses the same vehicle with the same words.
+    csv = tmp_path / "d.csv"
+    small_drive.to_csv(csv)
+    out = subprocess.run([str(odocal_bin), "calibrate", str(csv), "--method", "batch-gn", "--vehicle", " ", "--db",
+                          str(tmp_path / "cli.sqlite")], capture_output=True, text=True)
+    assert out.returncode == 2 and "the vehicle's identifier is empty" in out.stderr, out.stderr
 
 
 def test_history_refuses_a_file_that_is_not_one(tmp_path):

@@ -4,6 +4,7 @@ its own drive only."""
 
 import hashlib
 import shutil
+import subprocess
 import warnings
 
 import numpy as np
@@ -63,6 +64,46 @@ def test_report_names_the_drives_and_params_carry_the_fingerprint(tmp_path, driv
     assert odocal.read_params(tmp_path / "p.yaml")["provenance"]["fingerprint"] == d.fingerprint
     v = odocal.validate(d, r)
     assert v["drives"][0]["fingerprint"] == d.fingerprint
+
+
+def test_params_name_the_drives_they_come_from(tmp_path, small_drive, drive_csv):
+    """provenance.input names the calibration drives as the CLI's --params-out does: a drive read from a file by
+    its path (a joint fit: each, comma separated), a simulated one as such, "python" only for arrays."""
+
+    def input_of(report, **kw):
+        report.write_params(tmp_path / "p.yaml", **kw)
+        return odocal.read_params(tmp_path / "p.yaml")["provenance"]["input"]
+
+    d = odocal.Drive.from_csv(drive_csv)
+    assert input_of(odocal.calibrate(d, "batch-gn")) == str(drive_csv)
+    assert input_of(odocal.calibrate(small_drive, "batch-gn")) == "simulated drive"
+    a = small_drive.to_numpy()
+    arrays = odocal.Drive.from_arrays(a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4], a[:, 5], a[:, 7], beta=a[:, 6])
+    assert input_of(odocal.calibrate(arrays, "batch-gn")) == "python"
+    other = tmp_path / "other.csv"
+    odocal.simulate(seed=4, length_km=3.0).to_csv(other)
+    joint = odocal.calibrate([d, odocal.Drive.from_csv(other)], "batch-gn")
+    assert input_of(joint) == f"{drive_csv}, {other}"
+    assert input_of(joint, input="fleet run 7") == "fleet run 7"
+
+
+def test_write_params_refuses_a_node_ros_2_cannot_load(tmp_path, drive_csv, odocal_bin):
+    """The node is checked as the CLI's --params-out node (the library's check): nothing is written."""
+    r = odocal.calibrate(odocal.Drive.from_csv(drive_csv), "batch-gn")
+    for bad in ["bad node!", "", "a:b", "x\ny", "my-node"]:
+        for name in ["bn.yaml", "bn.json"]:
+            with pytest.raises(odocal.OdocalError, match="^invalid option `node`: .* is not a ROS 2 node name: give"):
+                r.write_params(tmp_path / name, node=bad)
+            assert not (tmp_path / name).exists(), (bad, name)
+    r.write_params(tmp_path / "ok.yaml", node="/vehicle/odometry")
+    assert odocal.read_params(tmp_path / "ok.yaml")["node"] == "/vehicle/odometry"
+    with pytest.raises(odocal.OdocalError) as e:
+        r.write_params(tmp_path / "bn.yaml", node="bad node!")
+    out = subprocess.run([str(odocal_bin), "calibrate", str(drive_csv), "--method", "batch-gn", "--params-out",
+                          str(tmp_path / "cli.yaml"), "--params-node", "bad node!"], capture_output=True, text=True)
+    assert out.returncode == 2 and not (tmp_path / "cli.yaml").exists()
+    reason = str(e.value).split(": ", 1)[1]
+    assert reason in out.stderr, (reason, out.stderr)
 
 
 def test_outputs_onto_the_drives_files_are_refused(tmp_path, drive_csv):

@@ -356,7 +356,7 @@ fn modules_use_only_lower_layers() {
 // ---- public surface ----
 
 /// The most `pub` items `src/` may declare (module docs: how they are counted).
-const PUBLIC_ITEM_BUDGET: usize = 297;
+const PUBLIC_ITEM_BUDGET: usize = 299;
 
 /// The kinds of item the count looks for after `pub `.
 const PUBLIC_KINDS: [&str; 11] =

@@ -33,6 +33,7 @@ from ._odocal import History as _History
 from . import online
 
 __all__ = [
+    "CALIBRATE_OPTIONS",
     "COLUMNS",
     "THETA_NAMES",
     "CalibrationReport",
@@ -49,6 +50,12 @@ __all__ = [
 
 #: The parameter names, in vector order.
 THETA_NAMES = ("c_e", "c_d", "t_r", "d")
+
+#: The keyword options :func:`calibrate` takes: the library's calibration
+#: settings (``method`` among them), then ``holdout``, ``validate_on`` and
+#: ``carry_heading_offset``; e.g. to check a command line's options before
+#: a long run.
+CALIBRATE_OPTIONS: tuple = _odocal.CALIBRATE_OPTIONS
 
 ThetaLike = Union[Mapping[str, float], Sequence[float], str, "os.PathLike[str]", "CalibrationReport"]
 ProgressCallback = Callable[[str, int, int], Any]
@@ -197,7 +204,7 @@ class CalibrationReport:
         :func:`calibrate` keep it); ``title`` defaults to "odocal calibration".
         """
         if self._drive is None:
-            raise ValueError("this report has no drive to draw (make it with odocal.calibrate)")
+            raise OdocalError("this report has no drive to draw (make it with odocal.calibrate)")
         _odocal._report_html(
             self._drive, self._json, os.fspath(path), title=title, drives=self._input_drives(), **self._scored_on
         )
@@ -212,26 +219,44 @@ class CalibrationReport:
                 out.extend(d)
         return out
 
+    def _calibration_drives(self) -> list:
+        """The calibration drives, one by one (none for a report without them)."""
+        d = self._drive
+        if d is None:
+            return []
+        return [d] if isinstance(d, Drive) else list(d)
+
     def write_params(
         self,
         path: Union[str, "os.PathLike[str]"],
         *,
-        input: str = "python",
+        input: Optional[str] = None,
         node: str = "odocal",
         mapping: str = "odocal",
     ) -> None:
         """Writes the parameter file ``odocal calibrate --params-out`` writes:
         a ROS 2 parameter file for ``.yaml``/``.yml`` (``ros__parameters``
-        under ``node``), JSON for ``.json``; θ with the σ that stands for the
-        result (``result_sigma``; ``<name>_held: true`` for held ones), the
-        reference extrinsics, the verdict and provenance (``input`` names the
-        data; ``fingerprint`` the calibration drives' :attr:`Drive.fingerprint`).
+        under ``node``, a ROS 2 node name as ``--params-node`` takes it:
+        letters, digits and ``_``, ``/`` for a namespace), JSON for
+        ``.json``; θ with the σ that stands for the result (``result_sigma``;
+        ``<name>_held: true`` for held ones), the reference extrinsics, the
+        verdict and provenance: ``input`` names the calibration drives (by
+        default each drive's file, as the CLI's; ``"simulated drive"`` for
+        one of :func:`simulate`, ``"python"`` for one made from arrays;
+        comma separated), ``fingerprint`` their :attr:`Drive.fingerprint`.
         ``mapping="diff_drive_controller"`` adds that controller's keys.
         :func:`read_params` and every θ argument read it back. The file is
-        written atomically; a path that is a file of the report's drives (a
-        CSV, manifest, stream file or sidecar) raises :class:`OdocalError`."""
+        written atomically; a node that is no ROS 2 node name, or a path
+        that is a file of the report's drives (a CSV, manifest, stream file
+        or sidecar), raises :class:`OdocalError` and writes nothing."""
         _odocal._write_params(
-            self._json, os.fspath(path), input=input, node=node, mapping=mapping, drives=self._input_drives()
+            self._json,
+            os.fspath(path),
+            input=input,
+            node=node,
+            mapping=mapping,
+            drives=self._input_drives(),
+            calibration=self._calibration_drives(),
         )
 
     def __repr__(self) -> str:
@@ -277,9 +302,21 @@ class History(_History):
         ``odocal calibrate --vehicle --db`` records them; the time span from
         the report's drive) or a dict of the table's fields (``vehicle``,
         ``fingerprint``, ``method``, ``theta``; optional ``sigma``,
-        ``sources``, ``t_start_s``, ``t_end_s``, ``heading_offset_rad``,
-        ``verdict``). Returns ``{"id": row id, "new": False when it was
+        ``held``, ``unobservable``, ``sources``, ``t_start_s``,
+        ``t_end_s``, ``heading_offset_rad``, ``verdict``,
+        ``sigma_model_only``; another key raises :class:`OdocalError`
+        naming it; ``theta`` a dict of ``c_e``, ``c_d``, ``t_r``, ``d`` or
+        four numbers, ``sigma`` the same with ``None`` for a parameter
+        without σ). Returns ``{"id": row id, "new": False when it was
         already recorded}``.
+
+        The library checks every record before writing it, as ``odocal
+        calibrate --vehicle`` does: the vehicle not blank, without a space
+        at either end or a control character; the method one of ``eiv``,
+        ``three-step``, ``batch-gn``, ``online``; θ within the physical
+        limits of every θ argument; σ finite and not negative; ``held`` and
+        ``unobservable`` naming parameters of θ. A record that fails raises
+        :class:`OdocalError` and writes nothing.
         """
         if isinstance(report, CalibrationReport):
             if vehicle is None:
@@ -335,7 +372,9 @@ def calibrate(
     manifest's ``[calibration]`` and, in kebab case, the CLI's flags
     (``--min-yaw-rate`` is ``min_yaw_rate=``); None means the default:
 
-    - ``theta0``: initial guess (dict, 4 numbers or ``"c_e,c_d,t_r,d"``);
+    - ``theta0``: initial guess (dict of ``c_e``, ``c_d``, ``t_r``, ``d``,
+      4 numbers, ``"c_e,c_d,t_r,d"``, a parameter file or a
+      :class:`CalibrationReport`, whose θ it takes);
     - ``fix``: parameters held at θ_0 (list of names or ``"c_d,t_r,d"``);
     - ``segment_length``, ``segment_stride``, ``validation_length`` (samples);
     - ``min_yaw_rate`` (rad/s): peak yaw rate for a segment to be selected,
@@ -344,7 +383,7 @@ def calibrate(
       default the straight segments are added, with a warning): methods
       ``"batch-gn"`` and ``"three-step"`` only (``"eiv"`` fits every
       segment);
-    - ``seed`` (int, 0): seed of the random batches and segments,
+    - ``seed`` (int 0 … 2^64 − 1, 0): seed of the random batches and segments,
       ``qp_solver`` (``"structured"`` | ``"clarabel"``), ``batches``,
       ``batch_size``, ``picks`` (step 1), ``final_segments`` (``"all"`` or a
       number of random segments): method ``"three-step"`` only;
@@ -399,8 +438,11 @@ def calibrate(
 
     Raises :class:`OdocalError` (a ``ValueError``) with the library's
     message naming the option for bad options, or for data the method cannot
-    use; ``TypeError`` for an unknown option, naming the known ones.
+    use; ``TypeError`` for an unknown option, naming the known ones
+    (:data:`CALIBRATE_OPTIONS`).
     """
+    if options.get("theta0") is not None:
+        options["theta0"] = _theta_arg(options["theta0"])
     report, text = _odocal.calibrate(drive, method, progress=progress, threads=threads, **options)
     scored_on = {k: options[k] for k in ("holdout", "validate_on") if options.get(k) is not None}
     return CalibrationReport(report, text, drive, scored_on)

@@ -9,10 +9,14 @@ import numpy.typing as npt
 __version__: str
 #: Columns of ``Drive.to_numpy()``, in order.
 COLUMNS: list[str]
+#: The keyword options ``calibrate`` takes (the library's settings, then holdout, validate_on,
+#: carry_heading_offset).
+CALIBRATE_OPTIONS: tuple[str, ...]
 
 _ArrayLike = npt.ArrayLike
 _Path = Union[str, PathLike[str]]
 _ThetaLike = Union[Mapping[str, float], Sequence[float], str]
+_SigmaLike = Union[Mapping[str, float], Sequence[float]]
 
 class OdocalError(ValueError):
     """An error of the odocal library (bad data, a bad option, a calibration
@@ -42,12 +46,15 @@ class Drive:
         """Makes a drive from 1-D arrays (converted to float64): time t (s),
         reference pose px, py (m), psi (rad), rear wheel speeds n_rl, n_rr
         (rev/s), lateral acceleration a_y (m/s², positive left), sideslip
-        beta (rad, default zeros) and per-sample integer part ids.
+        beta (rad, default zeros) and per-sample part ids (non-negative
+        integers, as the CSV's ``part`` column; whole floats are taken).
 
         Raises OdocalError naming the column and the sample (NaN, a length
-        mismatch, time that does not increase, a non-uniform step, ...), and
-        naming the argument, its shape and the 1-D array expected for one that
-        is not 1-D (a 2-D array, a single number)."""
+        mismatch, time that does not increase, a non-uniform step, a part id
+        that is a fraction or negative, ...), naming the argument, its shape
+        and the 1-D array expected for one that is not 1-D (a 2-D array, a
+        single number), and naming an argument of more than 50,000,000
+        samples before any is converted."""
     @staticmethod
     def from_csv(path: _Path) -> Drive:
         """Reads a canonical CSV; a simulator sidecar beside it gives the true θ."""
@@ -129,7 +136,8 @@ def simulate(
     theta: Optional[_ThetaLike] = None,
     substeps: Optional[int] = None,
 ) -> Drive:
-    """Simulates a drive with known true θ (noise: paper, off, white or high)."""
+    """Simulates a drive with known true θ (noise: paper, off, white or high); ``seed`` is an
+    integer 0 … 2^64 − 1."""
 
 def _drive_from_state(state: dict[str, Any]) -> Drive: ...
 def _report_html(
@@ -152,10 +160,11 @@ def _write_params(
     report_json: str,
     path: _Path,
     *,
-    input: str,
+    input: Optional[str] = None,
     node: str,
     mapping: str,
     drives: Optional[Sequence[Drive]] = None,
+    calibration: Optional[Sequence[Drive]] = None,
 ) -> None: ...
 
 class RawStream:
@@ -204,14 +213,15 @@ class Calibrator:
     def __init__(
         self,
         theta0: Optional[_ThetaLike] = None,
-        sigma0: Optional[_ThetaLike] = None,
+        sigma0: Optional[_SigmaLike] = None,
         sample_time_s: float = 0.025,
         *,
         gates: Optional[Mapping[str, Any]] = None,
         **options: Any,
     ) -> None:
         """``theta0`` (default: the paper's initial θ) with sd ``sigma0`` (default: the
-        options' prior); ``options`` are the library's ``OnlineOptions`` fields
+        options' prior; a dict of ``c_e``, ``c_d``, ``t_r``, ``d`` or four numbers, each finite
+        and not negative, as a history row's ``sigma``); ``options`` are the library's ``OnlineOptions`` fields
         (``information_scale``, ``random_walk={"c_e_relative": …}``, ``segments={…}``, …),
         ``gates`` the write-back gates' fields (``steady_s``, ``max_sigma_c_e_relative``, …).
         An unknown key raises TypeError naming the known ones; a bad value OdocalError."""
@@ -229,7 +239,9 @@ class Calibrator:
         """The next samples, in time order, as ``Drive.from_arrays`` takes them (``psi`` is
         unwrapped across chunks). With ``t``: each step the sample time (within 1 %) or a gap
         of more than 1.5 sample times, after which a new part starts. Raises OdocalError
-        naming the argument and its shape for one that is not 1-D."""
+        naming the argument and its shape for one that is not 1-D, and naming the column and
+        the sample (its index in this push) for a value that is not finite or a time that
+        does not fit; a refused push takes no sample."""
     def push_drive(self, drive: Drive, chunk: int = 400) -> None:
         """A whole drive as a new drive, in chunks."""
     def new_drive(self) -> None:
@@ -266,7 +278,8 @@ class Calibrator:
     @property
     def gates(self) -> dict[str, Any]: ...
     def decide(self, stored: Optional[_ThetaLike] = None, calibrated: bool = True) -> dict[str, Any]:
-        """The gates' decision: ``{"action": "write" | "hold" | "flag", "reasons", "theta", "sigma"}``."""
+        """The gates' decision: ``{"action": "write" | "hold" | "flag", "reasons", "theta", "sigma"}``.
+        Raises OdocalError without ``stored`` when ``stored`` was never set."""
 
 class History:
     """A vehicle's calibration history (SQLite); use ``odocal.History``."""

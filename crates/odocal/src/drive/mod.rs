@@ -245,7 +245,8 @@ pub struct DriveBuilder {
     pub reference_measured: Option<Vec<bool>>,
     /// Extra columns carried along with the drive.
     pub extra: Vec<ExtraColumn>,
-    /// Per-sample part ids: a new part starts wherever the id changes.
+    /// Per-sample part ids, non-negative integers as a CSV's `part`
+    /// column holds them: a new part starts wherever the id changes.
     /// Give this or [`parts`](DriveBuilder::parts), not both; neither
     /// makes one part.
     pub part_ids: Option<Vec<i64>>,
@@ -380,7 +381,7 @@ fn check_signals(sig: &Signals, suffix: &str, n: usize, err: &BuildErrors<'_>) -
 }
 
 /// The parts as index ranges: one part; a new part wherever the id
-/// changes; or the given ranges, which must be non-empty, consecutive and
+/// (non-negative) changes; or the given ranges, which must be non-empty, consecutive and
 /// cover the `n` samples.
 fn resolve_parts(
     ids: Option<Vec<i64>>,
@@ -394,6 +395,14 @@ fn resolve_parts(
         (Some(ids), None) => {
             if ids.len() != n {
                 return Err(err.invalid(format!("column part has {} samples, t has {n}", ids.len())));
+            }
+            // As the CSV's `part` column: ids are 0, 1, 2, ….
+            if let Some(i) = ids.iter().position(|id| *id < 0) {
+                return Err(err.sample(
+                    "part",
+                    i,
+                    format!("part id {} is not a non-negative integer (parts are numbered 0, 1, 2, …)", ids[i]),
+                ));
             }
             let mut parts = Vec::new();
             let mut start = 0;
@@ -842,6 +851,19 @@ mod tests {
         assert!(d.is_reference_measured(4) && !d.is_reference_measured(5));
         let w = d.window(0.1, 1.0).expect("window");
         assert!(w.is_reference_measured(0) && !w.is_reference_measured(1));
+    }
+
+    #[test]
+    fn negative_part_ids_are_refused_as_the_csv_refuses_them() {
+        let ids = vec![0, 0, 0, 0, 0, -1, -1, -1, -1, -1];
+        let e = DriveBuilder { t: times(10), measured: signals(10), part_ids: Some(ids), ..Default::default() }
+            .build()
+            .expect_err("negative")
+            .to_string();
+        assert_eq!(
+            e,
+            "drive: column 'part', sample 5: part id -1 is not a non-negative integer (parts are numbered 0, 1, 2, …)"
+        );
     }
 
     #[test]

@@ -338,9 +338,33 @@ impl ParamFile {
     /// ([`crate::output::write_text`]).
     ///
     /// # Errors
-    /// [`Error::InvalidOption`] for another extension, [`Error::Io`].
+    /// [`Error::InvalidOption`] for another extension or a node that is no
+    /// ROS 2 node name ([`ParamFile::check_node_name`]), [`Error::Io`].
     pub fn write(&self, path: &Path) -> Result<()> {
         crate::output::write_text(path, &self.text_for(path)?)
+    }
+
+    /// Checks `name` as the node of a parameter file (the CLI's
+    /// `--params-node`, Python's `write_params(node=)`): letters, digits
+    /// and `_`, with `/` for a namespace and `*` for ROS 2's wildcards
+    /// (`/**`). ROS 2 loads no file whose node is empty or holds other
+    /// characters (`my-node`, a space), so a write would be wasted.
+    ///
+    /// # Errors
+    /// [`Error::InvalidOption`] (field `node`) saying what to give.
+    pub fn check_node_name(name: &str) -> Result<()> {
+        let fits = |c: char| c.is_ascii_alphanumeric() || matches!(c, '_' | '/' | '*');
+        if name.is_empty() || !name.chars().all(fits) {
+            return Err(Error::InvalidOption {
+                field: "node",
+                reason: format!(
+                    "'{}' is not a ROS 2 node name: give letters, digits and _ (with / for a namespace), e.g. \
+                     odocal or /vehicle/odometry",
+                    name.escape_debug()
+                ),
+            });
+        }
+        Ok(())
     }
 
     /// The text [`ParamFile::write`] writes to `path`: the ROS 2 parameter
@@ -349,8 +373,10 @@ impl ParamFile {
     /// shortest round-trip form, so reading them back gives the same f64.
     ///
     /// # Errors
-    /// [`Error::InvalidOption`] for another extension.
+    /// [`Error::InvalidOption`] for another extension or a node that is no
+    /// ROS 2 node name ([`ParamFile::check_node_name`]).
     pub fn text_for(&self, path: &Path) -> Result<String> {
+        ParamFile::check_node_name(&self.node)?;
         if crate::output::is_stdout(path) {
             return Ok(self.to_ros2_yaml());
         }
@@ -816,6 +842,25 @@ fn civil_from_days(z: i64) -> (i64, u32, u32) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_node_ros_2_cannot_load_is_not_written() {
+        for good in ["odocal", "/vehicle/odometry", "/**", "node_2"] {
+            ParamFile::check_node_name(good).expect(good);
+        }
+        let dir = tempfile::tempdir().expect("dir");
+        for bad in ["bad node!", "", "a:b", "x\ny", "my-node"] {
+            let f = ParamFile { node: bad.into(), ..sample() };
+            for name in ["p.yaml", "p.json"] {
+                let path = dir.path().join(name);
+                let e = f.write(&path).expect_err(bad).to_string();
+                assert!(e.starts_with("invalid option `node`: '") && e.contains("is not a ROS 2 node name"), "{e}");
+                assert!(!path.exists(), "{bad}: {name} written");
+            }
+        }
+        let e = ParamFile::check_node_name("x\ny").expect_err("newline").to_string();
+        assert!(e.contains("'x\\ny'"), "echoed escaped: {e}");
+    }
 
     #[test]
     fn civil_dates() {

@@ -102,6 +102,18 @@ impl Theta {
         }
         Ok(())
     }
+
+    /// Checks θ against the physical limits every θ a user gives is held
+    /// to (`--theta`, a parameter file, Python's θ arguments, a recorded
+    /// history row): c_e within 0.05 … 20 m, t_r within 0.05 … 10 m, |c_d|
+    /// at most 5 % of c_e, |d| at most 0.05 m per m/s².
+    ///
+    /// # Errors
+    /// [`Error::InvalidTheta`] naming the parameter, with a hint that θ is
+    /// in SI units.
+    pub fn check_physical_limits(&self) -> Result<()> {
+        limits::check_theta(self)
+    }
 }
 
 /// θ from `[c_e, c_d, t_r, d]`.

@@ -2,6 +2,7 @@
 //! command line takes it, and the lists, numbers and tables TOML and JSON
 //! give. A bad value's message is the library's parser's.
 
+use std::collections::BTreeMap;
 use std::fmt;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
@@ -16,7 +17,7 @@ use crate::eiv::NoiseSource;
 use crate::error::{Error, Result};
 use crate::io::param_file::ParamFile;
 use crate::model::param::ParamSet;
-use crate::model::Theta;
+use crate::model::{Theta, THETA_NAMES};
 
 /// A value given as text and parsed by the library (`FromStr`): a method,
 /// a solver, a quantisation model…
@@ -149,8 +150,23 @@ impl<'de> Visitor<'de> for ThetaVisitor {
         theta_from_numbers(&v).map_err(de::Error::custom)
     }
     fn visit_map<A: MapAccess<'de>>(self, map: A) -> std::result::Result<Theta, A::Error> {
-        Theta::deserialize(de::value::MapAccessDeserializer::new(map))
+        let fields = BTreeMap::<String, f64>::deserialize(de::value::MapAccessDeserializer::new(map))?;
+        theta_from_fields(&fields).map_err(de::Error::custom)
     }
+}
+
+/// θ from a table of its four parameters, checked as `--theta` is: a key
+/// other than `c_e`, `c_d`, `t_r`, `d` (a typo such as `ce`) is refused,
+/// naming it, as is a missing one.
+fn theta_from_fields(fields: &BTreeMap<String, f64>) -> Result<Theta> {
+    if let Some(k) = fields.keys().find(|k| !THETA_NAMES.contains(&k.as_str())) {
+        return Err(Error::InvalidTheta(format!("unknown key '{}': θ has c_e, c_d, t_r and d", crate::drive::echo(k))));
+    }
+    let missing: Vec<&str> = THETA_NAMES.iter().copied().filter(|n| !fields.contains_key(*n)).collect();
+    if !missing.is_empty() {
+        return Err(Error::InvalidTheta(format!("missing {}: θ has c_e, c_d, t_r and d", missing.join(", "))));
+    }
+    theta_from_numbers(&THETA_NAMES.map(|n| fields[n]))
 }
 
 /// θ_0 in any of the forms of [`ThetaVisitor`].
@@ -160,27 +176,47 @@ pub(super) fn theta<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<Opti
 
 /// θ from JSON in the forms the `theta0` setting takes (`"c_e,c_d,t_r,d"`,
 /// four numbers, an object of the four, or the path of a parameter file),
-/// checked (`Theta::validate`).
+/// each checked as `--theta` is (finite, within the physical limits of
+/// [`Theta::check_physical_limits`]; an object's key other than the four
+/// is refused).
 ///
 /// # Errors
 /// [`Error::InvalidTheta`] for a value of another form, else the parser's
 /// or the check's error.
 pub fn theta_from_json(value: serde_json::Value) -> Result<Theta> {
     let bad = |e: serde_json::Error| Error::InvalidTheta(format!("{e}; give {THETA_FORMS}"));
-    let theta = match value {
+    Ok(match value {
         serde_json::Value::String(s) => theta_from_text(&s)?,
         v @ serde_json::Value::Array(_) => theta_from_numbers(&serde_json::from_value::<Vec<f64>>(v).map_err(bad)?)?,
-        serde_json::Value::Object(m) => {
-            if let Some(k) = m.keys().find(|k| !["c_e", "c_d", "t_r", "d"].contains(&k.as_str())) {
-                return Err(Error::InvalidTheta(format!(
-                    "unknown key '{}': θ has c_e, c_d, t_r and d",
-                    crate::drive::echo(k)
-                )));
-            }
-            serde_json::from_value(serde_json::Value::Object(m)).map_err(bad)?
+        v @ serde_json::Value::Object(_) => {
+            theta_from_fields(&serde_json::from_value::<BTreeMap<String, f64>>(v).map_err(bad)?)?
         }
         v => return Err(Error::InvalidTheta(format!("{v}: give {THETA_FORMS}"))),
-    };
-    theta.validate()?;
-    Ok(theta)
+    })
 }
+
+/// A seed: an integer 0 … 2⁶⁴ − 1 (`seed`, `bootstrap_seed`). Anything
+/// else (a negative number, a fraction, a number beyond 2⁶⁴ − 1 that JSON
+/// carries as a float) is refused saying so.
+pub(super) fn seed<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<Option<u64>, D::Error> {
+    struct V;
+    impl Visitor<'_> for V {
+        type Value = u64;
+        fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+            f.write_str(SEED_RANGE)
+        }
+        fn visit_u64<E: de::Error>(self, v: u64) -> std::result::Result<u64, E> {
+            Ok(v)
+        }
+        fn visit_i64<E: de::Error>(self, v: i64) -> std::result::Result<u64, E> {
+            u64::try_from(v).map_err(|_| E::custom(format!("{v} is not {SEED_RANGE}")))
+        }
+        fn visit_f64<E: de::Error>(self, v: f64) -> std::result::Result<u64, E> {
+            Err(E::custom(format!("{} is not {SEED_RANGE}", crate::model::limits::echo_num(v))))
+        }
+    }
+    d.deserialize_any(V).map(Some)
+}
+
+/// What a seed is, for messages.
+const SEED_RANGE: &str = "a seed, an integer 0 … 2^64 − 1 (18446744073709551615)";

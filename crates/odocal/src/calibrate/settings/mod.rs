@@ -168,7 +168,7 @@ settings! {
         /// batches and the final fit's segments; three-step only: method
         /// eiv's bootstrap and bias correction take `bootstrap_seed`).
         /// Default 0.
-        #[serde(default)]
+        #[serde(default, deserialize_with = "de::seed")]
         pub seed: Option<u64>,
         /// `max_iterations`: Gauss-Newton iterations. Default 5.
         #[serde(default)]
@@ -280,7 +280,7 @@ settings! {
         pub bootstrap: Option<usize>,
         /// `bootstrap_seed`: seed of the bootstrap and of the bias
         /// correction (eiv only). Default 0.
-        #[serde(default)]
+        #[serde(default, deserialize_with = "de::seed")]
         pub bootstrap_seed: Option<u64>,
         /// `correct_bias`: replicates B of the bias correction, an even
         /// number; 0 turns it off (flag: `--correct-bias B`,

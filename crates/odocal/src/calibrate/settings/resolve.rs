@@ -61,13 +61,15 @@ impl Caller {
     }
 
     /// The error for the caller's `keys`, which the chosen method does not
-    /// use: `what` says which methods do.
+    /// use: `what` says which methods do. Python's names the first key as
+    /// the option at fault (the method is the caller's choice, the key the
+    /// mistake).
     fn misplaced(self, keys: &[&'static str], settings: &Settings, what: String) -> Error {
         let names: Vec<String> = keys.iter().map(|k| self.name(k, settings)).collect();
         let text = format!("{} appl{} to {what}", names.join(", "), if keys.len() == 1 { "ies" } else { "y" });
-        match self {
-            Caller::CommandLine => Error::InvalidFlags(text),
-            Caller::Python => Error::InvalidOption { field: "method", reason: text },
+        match (self, keys.first()) {
+            (Caller::Python, Some(first)) => Error::InvalidOption { field: first, reason: text },
+            _ => Error::InvalidFlags(text),
         }
     }
 

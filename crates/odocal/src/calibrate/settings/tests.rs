@@ -91,6 +91,46 @@ fn bad_values_and_keys_name_the_key() {
 }
 
 #[test]
+fn a_theta_table_is_checked_as_the_other_forms() {
+    let e = |v| Settings::from_json(v).expect_err("bad").to_string();
+    let paper = json!({"c_e": 2.0, "c_d": 0.0, "t_r": 1.6, "d": 0.0});
+    assert_eq!(theta_from_json(paper.clone()).expect("θ"), Theta::PAPER_INITIAL);
+    let mut typo = paper.clone();
+    typo["x"] = json!(1.0);
+    let m = theta_from_json(typo.clone()).expect_err("unknown key").to_string();
+    assert!(m.contains("unknown key 'x'"), "{m}");
+    assert!(e(json!({ "theta0": typo })).contains("unknown key 'x'"), "the setting alike");
+    let toml_typo: std::result::Result<Settings, _> =
+        toml::from_str("theta0 = {c_e = 2.0, c_d = 0, t_r = 1.6, d = 0, x = 1}");
+    assert!(toml_typo.expect_err("manifest").to_string().contains("unknown key 'x'"));
+    let missing = json!({"c_e": 2.0, "c_d": 0.0, "t_r": 1.6});
+    assert!(theta_from_json(missing).expect_err("missing").to_string().contains("missing d"));
+    // The physical limits, as for "c_e,c_d,t_r,d" and four numbers.
+    let huge = json!({"c_e": 2000.0, "c_d": 0.0, "t_r": 1.6, "d": 0.0});
+    let m = theta_from_json(huge.clone()).expect_err("c_e 2000 m").to_string();
+    assert!(m.contains("c_e = 2000 m is outside 0.05 … 20 m"), "{m}");
+    assert!(e(json!({ "theta0": huge })).contains("is outside 0.05 … 20 m"), "the setting alike");
+}
+
+#[test]
+fn a_seed_is_an_integer_of_64_bits() {
+    let e = |v| Settings::from_json(v).expect_err("bad").to_string();
+    let s = json_settings(json!({"seed": u64::MAX, "bootstrap_seed": 7}));
+    assert_eq!((s.seed, s.bootstrap_seed), (Some(u64::MAX), Some(7)));
+    for (v, got) in [(json!(-1), "-1"), (json!(1.8446744073709552e19), "1.8446744073709552e19"), (json!(0.5), "0.5")] {
+        for key in ["seed", "bootstrap_seed"] {
+            let m = e(json!({ key: v.clone() }));
+            assert_eq!(
+                m,
+                format!("invalid option `{key}`: {got} is not a seed, an integer 0 … 2^64 − 1 (18446744073709551615)")
+            );
+        }
+    }
+    let toml_negative: std::result::Result<Settings, _> = toml::from_str("seed = -3");
+    assert!(toml_negative.expect_err("negative").to_string().contains("-3 is not a seed"));
+}
+
+#[test]
 fn the_mapping_matches_the_options_each_key_names() {
     let s = json_settings(json!({
         "method": "three-step", "batches": 9, "batch_size": 8, "picks": 3, "final_segments": 5, "qp_solver": "clarabel",
@@ -137,7 +177,10 @@ fn misplaced_keys_are_named_as_the_caller_gave_them() {
     let cli = s.to_options(Caller::CommandLine).expect_err("three-step keys").to_string();
     assert_eq!(cli, "--batches, --picks apply to --method three-step only, not to --method batch-gn");
     let py = s.to_options(Caller::Python).expect_err("three-step keys").to_string();
-    assert_eq!(py, "invalid option `method`: batches, picks apply to method three-step only, not to batch-gn");
+    assert_eq!(py, "invalid option `batches`: batches, picks apply to method three-step only, not to batch-gn");
+    let s = json_settings(json!({"min_yaw_rate": 0.1}));
+    let py = s.to_options(Caller::Python).expect_err("eiv selects no segments").to_string();
+    assert!(py.starts_with("invalid option `min_yaw_rate`: min_yaw_rate applies to the segment-selecting"), "{py}");
     let s = json_settings(json!({"method": "batch-gn", "fix_noise": true, "fallback": false, "correct_bias": 0}));
     let cli = s.to_options(Caller::CommandLine).expect_err("eiv keys").to_string();
     assert_eq!(
@@ -402,7 +445,7 @@ fn a_key_is_refused_or_ignored_exactly_where_its_method_does_not_use_it() {
                 assert!(users(key).iter().all(|u| cli.contains(u)), "{method}, {key} names {owners}: {cli}");
                 assert!(matches!(cli_error(&caller), Error::InvalidFlags(_)), "{method}, {key}");
                 let py = py.map(|_| ()).expect_err("an error").to_string();
-                assert!(py.starts_with(&format!("invalid option `method`: {key} appl")), "{method}, {key}: {py}");
+                assert!(py.starts_with(&format!("invalid option `{key}`: {key} appl")), "{method}, {key}: {py}");
                 assert!(matches!(outcome, SettingOutcome::Ignored { .. }), "{method}, manifest {key}: {outcome:?}");
                 assert_eq!(
                     from_manifest.options,
