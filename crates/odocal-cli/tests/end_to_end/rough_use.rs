@@ -239,7 +239,7 @@ fn a_route_length_out_of_range_names_the_flag() {
 /// `--auto-fix` holds what the fit itself finds not observable: on a
 /// test-track run that turns one way the check at θ_0 passes, but the
 /// default method's fit names t_r and d; they are held at θ_0 and the run
-/// fitted again, so the result no longer carries them as estimates it
+/// fitted again, so the result does not carry them as estimates it
 /// calls untrustworthy.
 #[test]
 fn auto_fix_holds_what_the_fit_finds_not_observable() {
