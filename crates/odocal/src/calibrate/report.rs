@@ -683,14 +683,17 @@ pub(super) fn model_sigma_only(detail: &MethodDetail, opts: &CalibrationOptions)
 /// 3-step (its batch spread covers θ alone, and step 3's cluster-robust σ
 /// does not stand for its result), for batch G-N and EIV (whose extrinsics
 /// are its batch G-N start's) when that fit had too few clusters. `None`
-/// with no extrinsics estimated.
+/// without an estimated lever arm: the heading offset alone is the
+/// reference's, re-estimated on every drive the result is validated on,
+/// so its σ does not travel with θ as the lever arm's does.
 pub(super) fn extrinsics_model_sigma_only(
     detail: &MethodDetail,
     opts: &CalibrationOptions,
     x: Option<&ExtrinsicsEstimate>,
 ) -> Option<(&'static str, String)> {
     let x = x?;
-    if x.free.is_empty() || x.robust.is_some() {
+    let lever_arm = x.free.contains(Param::LeverX) || x.free.contains(Param::LeverY);
+    if !lever_arm || x.robust.is_some() {
         return None;
     }
     let o = &opts.identify;
