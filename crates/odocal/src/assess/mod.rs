@@ -54,4 +54,5 @@ pub(crate) mod reachable;
 pub(crate) mod trust;
 pub(crate) mod validate;
 pub(crate) mod validation_drives;
+mod verdict_text;
 pub(crate) mod warning;

@@ -63,8 +63,10 @@ use crate::model::Theta;
 use crate::progress::{emit, Progress, ProgressFn};
 
 pub(crate) mod batch_gn;
+mod checks;
 pub(crate) mod eiv;
 mod held_offset;
+pub(crate) mod input_noise;
 mod render;
 pub(crate) mod report;
 pub mod settings;
@@ -642,15 +644,8 @@ pub(crate) fn calibrate_core(
         },
         &opts.trust,
     );
-    let held = held_offset::held_heading_offset_reasons(
-        drive,
-        &selection,
-        (&outcome.theta, &outcome.detail),
-        &ext,
-        opts,
-        &next_drive.sigma,
-    );
-    let verdict = crate::assess::trust::Verdict::from_reasons(verdict.reasons.into_iter().chain(held).collect());
+    let checks = checks::method_reasons(drive, &selection, (&outcome.theta, &outcome.detail), &ext, opts, &next_drive);
+    let verdict = crate::assess::trust::Verdict::from_reasons(verdict.reasons.into_iter().chain(checks).collect());
     let timing = Timing {
         setup,
         validation: t.elapsed().as_secs_f64(),

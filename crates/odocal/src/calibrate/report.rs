@@ -350,6 +350,20 @@ impl CalibrationReport {
                             VerdictReason::HeadingOffsetHeld { drive, held, fitted, sigma, param, shift, shift_sigmas },
                         )
                     }
+                    // The predicted bias, against the new σ: the drives'
+                    // spread does not contain a bias they share.
+                    VerdictReason::InputNoiseBias { param, estimate, bias, wheel_white_rel_sigma, .. } => {
+                        let sigma = next.sigma[param.index()]?;
+                        let sigmas = bias.abs() / sigma;
+                        (sigmas > super::input_noise::MAX_BIAS_SIGMAS).then_some(VerdictReason::InputNoiseBias {
+                            param,
+                            estimate,
+                            bias,
+                            sigma,
+                            sigmas,
+                            wheel_white_rel_sigma,
+                        })
+                    }
                     r => Some(r),
                 })
                 .collect();

@@ -371,11 +371,17 @@ fn every_report_has_a_verdict() {
     let sim = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim");
     let opts = CalibrationOptions { method: Method::BatchGn(BatchGnOptions {}), ..Default::default() };
     let r = calibrate(&sim.drive, &opts).expect("batch-gn");
-    // 3 km: no cluster-robust σ, so doubtful for that alone
-    // (a_result_with_only_the_model_sigma_is_doubtful).
+    // 3 km: no cluster-robust σ (a_result_with_only_the_model_sigma_is_doubtful),
+    // and the paper's wheel noise biases t_r beyond its σ (calibrate::input_noise).
     assert_eq!(r.verdict.level, crate::assess::trust::VerdictLevel::Doubtful, "{:?}", r.verdict);
     assert!(
-        matches!(r.verdict.reasons[..], [crate::assess::trust::VerdictReason::ModelSigmaOnly { .. }]),
+        matches!(
+            r.verdict.reasons[..],
+            [
+                crate::assess::trust::VerdictReason::ModelSigmaOnly { .. },
+                crate::assess::trust::VerdictReason::InputNoiseBias { param: crate::Param::TR, .. }
+            ]
+        ),
         "{:?}",
         r.verdict
     );

@@ -124,6 +124,18 @@ pub(crate) fn batch_gauss_newton_with_extrinsics(
     }))
 }
 
+/// θ after one step of [`batch_gauss_newton_with_extrinsics`] from
+/// `theta0` and `opts.extrinsics` ([`gauss_newton::one_step`]).
+pub(crate) fn one_step(segments: &[SegmentData<'_>], theta0: &Theta, opts: &IdentifyOptions) -> Option<Theta> {
+    let x = gauss_newton::one_step(
+        &JointProblem { opts },
+        segments,
+        &join(theta0, &opts.extrinsics),
+        &opts.free.indices(),
+    )?;
+    Some(split(&x).0)
+}
+
 /// The joint θ-and-extrinsics problem of the Gauss-Newton loop.
 struct JointProblem<'a> {
     opts: &'a IdentifyOptions,

@@ -144,6 +144,29 @@ pub(crate) fn run<const N: usize, P: Problem<N>>(
     Ok(Outcome { x, initial_cost, history, termination, total: ne, per_segment: parts })
 }
 
+/// One Gauss-Newton step from `x` over the `free` entries, without step
+/// acceptance: `x` plus the solution of the normal equations there (one
+/// pass over the segments). None when the cost is not finite or the free
+/// block is singular.
+pub(crate) fn one_step<const N: usize, P: Problem<N>>(
+    p: &P,
+    segments: &[SegmentData<'_>],
+    x: &SVector<f64, N>,
+    free: &[usize],
+) -> Option<SVector<f64, N>> {
+    let (ne, _) = batch(p, segments, x);
+    if !ne.cost.is_finite() {
+        return None;
+    }
+    let (a, b) = reduce(&ne.jtwj, &ne.jtwr, free);
+    let dx = a.cholesky()?.solve(&b);
+    let mut next = *x;
+    for (i, &fi) in free.iter().enumerate() {
+        next[fi] += dx[i];
+    }
+    Some(next)
+}
+
 /// The model covariance `σ̂² (JᵀWJ)⁻¹` over the free entries (zero rows and
 /// columns elsewhere), `σ̂² = cost / (m − p)` with `m = 3·poses` residuals
 /// and `p` free parameters; zero when the free block is singular.
@@ -287,6 +310,37 @@ pub(crate) fn joint_report<const N: usize>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// One step of [`one_step`] is the loop's first accepted iterate (θ
+    /// alone, with the extrinsics, with a heading offset per drive), and
+    /// from the loop's converged estimate it stays there.
+    #[test]
+    fn one_step_is_the_loops_first_step() {
+        use crate::drive::segment::{calibration_segments, SegmentOptions};
+        use crate::identify::{batch_gauss_newton_drives, gauss_newton_step_drives};
+        use crate::model::param::Param;
+        use crate::model::Theta;
+        use crate::sim::{simulate, SimOptions};
+        let a = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) }).expect("sim").drive;
+        let b = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(2) }).expect("sim").drive;
+        let joined = crate::Drive::concat(&[&a, &b]).expect("concat");
+        let sel = calibration_segments(&joined, &SegmentOptions::default()).expect("segments");
+        let data: Vec<SegmentData<'_>> = sel.selected.iter().map(|s| SegmentData::new(&joined, s)).collect();
+        let theta_only = IdentifyOptions::default();
+        let with_offset = IdentifyOptions { free: theta_only.free.with(Param::HeadingOffset), ..theta_only.clone() };
+        for (opts, starts) in [(&theta_only, &[0][..]), (&with_offset, &[0][..]), (&with_offset, joined.drive_starts())]
+        {
+            let first = IdentifyOptions { max_iterations: 1, ..opts.clone() };
+            let loop1 = batch_gauss_newton_drives(&data, starts, &Theta::PAPER_INITIAL, &first).expect("loop");
+            let step = gauss_newton_step_drives(&data, starts, &Theta::PAPER_INITIAL, opts).expect("step");
+            assert_eq!(<[f64; 4]>::from(step), <[f64; 4]>::from(loop1.theta), "{starts:?}");
+        }
+        let fit = batch_gauss_newton_drives(&data, &[0], &Theta::PAPER_INITIAL, &theta_only).expect("fit");
+        let again = gauss_newton_step_drives(&data, &[0], &fit.theta, &theta_only).expect("step");
+        for (x, y) in <[f64; 4]>::from(again).iter().zip(<[f64; 4]>::from(fit.theta)) {
+            assert!((x - y).abs() <= 1e-9 * y.abs().max(1e-3), "{x} against {y}");
+        }
+    }
 
     #[test]
     fn clusters_start_a_new_block_every_block_steps() {

@@ -704,6 +704,27 @@ pub(crate) fn batch_gauss_newton_drives(
     per_drive::batch_gauss_newton_per_drive(segments, &drives, theta0, opts)
 }
 
+/// θ after the first step [`batch_gauss_newton_drives`] takes from
+/// `theta0` (and `opts.extrinsics`), without step acceptance: one pass
+/// over the segments. None when the step cannot be taken.
+pub(crate) fn gauss_newton_step_drives(
+    segments: &[SegmentData<'_>],
+    drive_starts: &[usize],
+    theta0: &Theta,
+    opts: &IdentifyOptions,
+) -> Option<Theta> {
+    let drives = per_drive::Drives { starts: drive_starts };
+    if drives.per_drive(segments, opts) {
+        return per_drive::one_step(segments, &drives, theta0, opts);
+    }
+    if opts.uses_extrinsics() {
+        return extrinsics::one_step(segments, theta0, opts);
+    }
+    let problem = ThetaProblem { weights: opts.weights, opts };
+    let x = gauss_newton::one_step(&problem, segments, &theta0.to_vector(), &opts.free.indices())?;
+    Some(Theta::from_vector(&x))
+}
+
 /// The top-left 4×4 (θ) block of an N×N matrix as arrays.
 pub(crate) fn to_array4<const N: usize>(m: &SMatrix<f64, N, N>) -> [[f64; 4]; 4] {
     std::array::from_fn(|i| std::array::from_fn(|j| m[(i, j)]))

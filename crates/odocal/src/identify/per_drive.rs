@@ -66,6 +66,46 @@ fn slot(i: usize, k: usize) -> usize {
     }
 }
 
+/// The start vector (every drive's δ at `opts.extrinsics`') and the free
+/// entries (θ and lever arm as `opts.free` says, the δ of each drive with
+/// segments) of a per-drive fit.
+fn start(
+    segments: &[SegmentData<'_>],
+    drives: &Drives<'_>,
+    theta0: &Theta,
+    opts: &IdentifyOptions,
+) -> (VecN, Vec<usize>) {
+    let mut free: Vec<usize> = opts.free.indices().into_iter().filter(|&i| i < 6).collect();
+    free.extend(
+        (0..drives.starts.len().min(MAX_DRIVES)).filter(|&k| segments.iter().any(|s| drives.of(s) == k)).map(|k| 6 + k),
+    );
+    let e0 = opts.extrinsics;
+    let mut x0 = VecN::zeros();
+    for (i, v) in theta0.to_array().iter().chain(&[e0.lever_x, e0.lever_y]).enumerate() {
+        x0[i] = *v;
+    }
+    for k in 0..MAX_DRIVES {
+        x0[6 + k] = e0.heading_offset;
+    }
+    (x0, free)
+}
+
+/// θ after one step of [`batch_gauss_newton_per_drive`] from `theta0`
+/// ([`gauss_newton::one_step`]); None with more than [`MAX_DRIVES`] drives.
+pub(crate) fn one_step(
+    segments: &[SegmentData<'_>],
+    drives: &Drives<'_>,
+    theta0: &Theta,
+    opts: &IdentifyOptions,
+) -> Option<Theta> {
+    if drives.starts.len() > MAX_DRIVES {
+        return None;
+    }
+    let (x0, free) = start(segments, drives, theta0, opts);
+    let x = gauss_newton::one_step(&PerDriveProblem { opts, drives }, segments, &x0, &free)?;
+    Some(theta_and_extrinsics(&x, 0).0)
+}
+
 struct PerDriveProblem<'a> {
     opts: &'a IdentifyOptions,
     drives: &'a Drives<'a>,
@@ -134,16 +174,8 @@ pub(crate) fn batch_gauss_newton_per_drive(
         });
     }
     let used: Vec<bool> = (0..d).map(|k| segments.iter().any(|s| drives.of(s) == k)).collect();
-    let mut free: Vec<usize> = opts.free.indices().into_iter().filter(|&i| i < 6).collect();
-    free.extend((0..d).filter(|&k| used[k]).map(|k| 6 + k));
+    let (x0, free) = start(segments, drives, theta0, opts);
     let e0 = opts.extrinsics;
-    let mut x0 = VecN::zeros();
-    for (i, v) in theta0.to_array().iter().chain(&[e0.lever_x, e0.lever_y]).enumerate() {
-        x0[i] = *v;
-    }
-    for k in 0..MAX_DRIVES {
-        x0[6 + k] = e0.heading_offset;
-    }
     let mut scale = VecN::from_element(1e-3);
     (scale[0], scale[2], scale[4], scale[5]) = (theta0.c_e.abs().max(1.0), theta0.t_r.abs().max(1.0), 1.0, 1.0);
     let problem = PerDriveProblem { opts, drives };
