@@ -200,7 +200,7 @@ pub(crate) fn same_samples(a: &Drive, b: &Drive) -> Option<String> {
         };
         (pose && wheels).then(|| {
             format!(
-                "{n} samples {shift}: the reference path within {} mm and {} mrad, each wheel's rotation within {} %",
+                "{n} samples, {shift}: the reference path within {} mm and {} mrad, each wheel's rotation within {} %",
                 SAME_POSITION_M * 1e3,
                 SAME_HEADING_RAD * 1e3,
                 SAME_ROTATION_RELATIVE * 1e2
@@ -308,7 +308,7 @@ mod tests {
             let b = read_another_way(&a, skip, 1.0);
             assert_ne!(a.fingerprint(), b.fingerprint());
             let how = same_samples(&a, &b).expect("the same samples");
-            assert!(how.starts_with(&format!("{} samples ", 400 - skip)), "{how}");
+            assert!(how.starts_with(&format!("{} samples, ", 400 - skip)), "{how}");
             let e = refuse_duplicates(&[("a.csv", &a), ("the --validate-on drive b.toml", &b)])
                 .expect_err("the same samples")
                 .to_string();
