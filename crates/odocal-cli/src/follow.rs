@@ -170,10 +170,15 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
     let mut entries = Vec::with_capacity(a.drive.len());
     // The last written update's file, for `--params-out -`.
     let mut last_written: Option<ParamFile> = None;
+    // Where the recursion started, and the drives it followed in order: a
+    // written estimate rests on all of them, and its file names them.
+    let mut start = String::new();
+    let mut followed: Vec<(String, String)> = Vec::new();
     follow(&mut db, &a.vehicle, &a.drive, &opts, |event| -> Result<()> {
         match event {
             FollowEvent::Start { theta, origin } => {
-                say(format!("vehicle '{}': starting from {theta} ({origin})", a.vehicle))
+                say(format!("vehicle '{}': starting from {theta} ({origin})", a.vehicle));
+                start = origin;
             }
             FollowEvent::Log(line) => eprintln!("{line}"),
             FollowEvent::Progress(p) => bars.event(p),
@@ -196,8 +201,9 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
             }
             FollowEvent::Followed { source, fingerprint, summary, heading_offset_rad, drive_time_s, decision } => {
                 bars.finish();
+                followed.push((source.clone(), fingerprint.clone()));
                 if decision.action == Action::Write {
-                    let f = param_file(&decision, &source, &fingerprint);
+                    let f = param_file(&decision, &followed, &start);
                     match &a.params_out {
                         Some(p) if !params_to_stdout => {
                             write_text(p, &f.text_for(p)?).with_context(|| format!("--params-out {}", p.display()))?;
@@ -336,13 +342,23 @@ fn gates(a: &FollowArgs) -> Result<Gates> {
 /// every gate passed (the reasons say how), which is what a file
 /// `calibrate` writes with that verdict says too, so a fleet script that
 /// deploys the files whose `verdict` is `accepted` deploys `follow`'s.
-fn param_file(decision: &GateDecision, source: &str, fingerprint: &str) -> ParamFile {
+///
+/// The estimate rests on every drive the recursion followed (`followed`:
+/// source and fingerprint, in order) and on where it started (`start`: a
+/// history row or θ_0): the provenance names the drives as `calibrate`
+/// names a joint calibration's (`input` and `fingerprint` comma separated,
+/// `drives` their number) and the start as `start`.
+fn param_file(decision: &GateDecision, followed: &[(String, String)], start: &str) -> ParamFile {
     debug_assert_eq!(decision.action, Action::Write);
     let s = <[_; 4]>::from(decision.sigma).map(Some);
-    let mut f = ParamFile::from_theta(&decision.theta, s, source, METHOD);
+    let sources: Vec<&str> = followed.iter().map(|(s, _)| s.as_str()).collect();
+    let prints: Vec<&str> = followed.iter().map(|(_, f)| f.as_str()).collect();
+    let mut f = ParamFile::from_theta(&decision.theta, s, &sources.join(", "), METHOD);
     f.verdict = Some(odocal::VerdictLevel::Accepted.to_string());
     f.verdict_reasons = decision.reasons.clone();
-    f.provenance.push(("fingerprint".into(), fingerprint.to_string()));
+    f.provenance.push(("fingerprint".into(), prints.join(", ")));
+    f.provenance.push(("drives".into(), followed.len().to_string()));
+    f.provenance.push(("start".into(), start.to_string()));
     f
 }
 

@@ -218,6 +218,15 @@ impl PyCalibrator {
         to_py(py, &json(&self.cal.status().recent_validation)?)
     }
 
+    /// θ from the current drive's folded segments alone, without the prior
+    /// carried from earlier drives (what the gates compare the estimate
+    /// with): `{"theta": {...}, "sigma": {...}}`, `sigma` scaled as the
+    /// calibrator's; `None` until the drive determines every parameter.
+    #[getter]
+    fn drive_estimate<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        to_py(py, &json(&self.cal.status().drive_estimate)?)
+    }
+
     /// The parameters in use, compared with the online θ on each
     /// validation segment and by the gates (`None`: none).
     #[getter]

@@ -151,6 +151,32 @@ def test_options_and_gates_reach_the_library(clean_drive):
     assert cal.decide(calibrated=False)["action"] in ("write", "hold")
 
 
+def test_drive_estimate_is_the_drives_own_the_gates_compare_with(clean_drive):
+    """After a step in c_e the recursion lags; the drive's own estimate is at the truth,
+    the value the gates' reason names, and None before and after the drive."""
+    truth = clean_drive.theta_true
+    stored = {**truth, "c_e": truth["c_e"] / 1.025}
+    small = {"c_e": 7.4e-4, "c_d": 1.7e-4, "t_r": 6e-3, "d": 6e-5}
+    cal = odocal.online.Calibrator(stored, small, sample_time_s=clean_drive.sample_time_s)
+    assert cal.drive_estimate is None
+    cal.stored = stored
+    cal.push_drive(clean_drive)
+    own = cal.drive_estimate
+    assert set(own) == {"theta", "sigma"}
+    assert set(own["theta"]) == set(own["sigma"]) == {"c_e", "c_d", "t_r", "d"}
+    assert abs(own["theta"]["c_e"] / truth["c_e"] - 1) < 1e-4
+    assert 0 < own["sigma"]["c_e"] < 1e-3 * truth["c_e"]
+    # The recursion is short of it: its prior holds it near the stored value.
+    assert truth["c_e"] - cal.theta["c_e"] > 3 * cal.sigma["c_e"]
+    reasons = cal.decide()["reasons"]
+    alone = [r for r in reasons if r.startswith("this drive alone puts c_e at")]
+    assert len(alone) == 1, reasons
+    named = float(alone[0].split(" at ")[1].split(" ")[0])
+    assert named == pytest.approx(own["theta"]["c_e"], rel=1e-6)
+    cal.new_drive()
+    assert cal.drive_estimate is None
+
+
 def test_history_records_rows_flags_drift_and_pools(tmp_path, small_drive):
     db = odocal.History(tmp_path / "van.sqlite")
     assert db.schema_version >= 1

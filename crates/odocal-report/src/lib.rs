@@ -379,6 +379,16 @@ fn validation_data(r: &odocal::CalibrationReport) -> Vec<String> {
                 d.name, d.mean_position_error_m, d.initial_mean_position_error_m, d.segments
             )
         }));
+        if v.drives.len() > 1 {
+            // Not the table's Ē_p: there each segment weighs the same.
+            lines.push(format!(
+                "Mean of the {} drives' Ē_p (each drive weighs the same): {:.3} m / {:.3} m; the table's Ē_p is \
+                 over all their segments (each segment weighs the same).",
+                v.drives.len(),
+                v.mean_over_drives_m,
+                v.initial_mean_over_drives_m
+            ));
+        }
         return lines;
     }
     if r.validation.held_out {

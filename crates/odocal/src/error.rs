@@ -176,6 +176,23 @@ pub enum Error {
         /// Their fingerprint.
         fingerprint: String,
     },
+    /// The same data given twice under different fingerprints: imported
+    /// another way (a manifest and a CSV, times shifted, values rounded),
+    /// its samples agree with another drive's ([`crate::refuse_duplicates`]).
+    #[error("{second} holds the same samples as {first} ({how}; fingerprints {}… and {}…: the same data read \
+             another way): give each drive once; a drive counted twice shrinks σ as if it were new data, and a \
+             copy of the calibration data is no validation",
+            fingerprints.1.get(..12).unwrap_or(&fingerprints.1), fingerprints.0.get(..12).unwrap_or(&fingerprints.0))]
+    SameSamples {
+        /// The first drive, by role and name.
+        first: String,
+        /// The drive that repeats it.
+        second: String,
+        /// How their samples agree.
+        how: String,
+        /// The fingerprints of `first` and `second`.
+        fingerprints: (String, String),
+    },
     /// A ROS 2 bag has no topic of the requested name.
     #[error("{path}: no topic '{topic}' in the bag; its topics: {}", fmt_topics(available))]
     BagTopicNotFound {

@@ -490,7 +490,18 @@ fn several_drives_jointly_and_validation_on_several() {
     let out = stdout(&o2);
     assert!(out.contains("validation drives (Ē_p calibrated / θ_0, m):"), "{out}");
     assert!(out.contains(&format!("  {}: {e1:.3} / ", s[1])), "{out}");
-    assert!(out.contains("  mean over 2 drives: "), "{out}");
+    // The mean of the drives' Ē_p and the mean over their segments (the
+    // report's held-out Ē_p), each labelled, each as the JSON has it.
+    let (n, ep) = (
+        r["validation"]["segments"].as_u64().expect("n"),
+        r["validation"]["mean_position_error_m"].as_f64().expect("Ē_p"),
+    );
+    assert!(out.contains(&format!("  mean of the 2 drives' Ē_p (each drive weighs the same): {mean:.3} / ")), "{out}");
+    let over =
+        format!("  mean over their {n} segments (each segment weighs the same; the Ē_p of the report): {ep:.3} / ");
+    assert!(out.contains(&over), "{out}");
+    assert!(out.contains(&format!("mean position error Ē_p on {n} validation segments of held-out data")), "{out}");
+    assert!(out.contains(&format!("  calibrated   {ep:>9.3} m")), "{out}");
 
     // Two drives fitted jointly: more segments than either alone.
     let one = odocal(&["calibrate", s[0], "--method", "batch-gn", "--json", "-"]);

@@ -247,6 +247,70 @@ fn a_manifest_and_the_csv_it_imports_to_have_one_fingerprint() {
     refused(&["calibrate", s(&csv), s(&manifest), "--method", "batch-gn"], &["is the same drive as"]);
 }
 
+/// The same samples read another way have another fingerprint (a
+/// manifest over the drive CSV averages the wheel speeds over its output
+/// interval and drops the last sample; another CSV counts time from
+/// another origin, orders its columns otherwise and rounds the pose to
+/// 0.1 mm): still not held-out evidence, nor a second drive.
+#[test]
+fn the_same_samples_imported_another_way_are_refused() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let d = simulated_drive(dir.path(), "d.csv", &["--seed", "4", "--length-km", "2", "--noise", "off"]);
+    let manifest = dir.path().join("d.toml");
+    let toml = "[output]\nrate_hz = 40.0\nclock_offset = 0.0\nmin_part_s = 10.0\n\n\
+        [streams.log]\nfile = \"d.csv\"\ntime_column = \"t\"\n\n\
+        [wheels]\nstream = \"log\"\nsignal = \"rev_per_s\"\n\
+        rear_left = { column = \"n_rl\" }\nrear_right = { column = \"n_rr\" }\n\n\
+        [pose]\nstream = \"log\"\n\n[pose.position]\nkind = \"local\"\nx = \"px\"\ny = \"py\"\n\n\
+        [pose.heading]\ncolumn = \"psi\"\nconvention = \"enu\"\nunit = \"rad\"\n\n\
+        [lateral_acceleration]\nsource = \"imu\"\nstream = \"log\"\ncolumn = \"a_y\"\n\n\
+        [sideslip]\nsource = \"zero\"\n";
+    std::fs::write(&manifest, toml).expect("manifest");
+    // Columns reversed, an extra one, time from another origin, the pose rounded.
+    let text = std::fs::read_to_string(&d).expect("drive");
+    let mut rows = text.lines().map(|l| l.split(',').collect::<Vec<_>>());
+    let header = rows.next().expect("header");
+    let col = |name: &str| header.iter().position(|h| *h == name).expect("column");
+    let keep = ["t", "px", "py", "psi", "n_rl", "n_rr", "beta", "a_y"].map(col);
+    let mut out = String::from("note,a_y,beta,n_rr,n_rl,psi,py,px,t\n");
+    for r in rows {
+        let v = keep.map(|k| r[k].parse::<f64>().expect("number"));
+        let (t, pose) = (v[0] + 1000.0, [v[1], v[2], v[3]].map(|x| format!("{x:.4}")));
+        out.push_str(&format!("7,{},{},{},{},{},{},{},{t}\n", v[7], v[6], v[5], v[4], pose[2], pose[1], pose[0]));
+    }
+    let other = dir.path().join("other.csv");
+    std::fs::write(&other, out).expect("write");
+    let prints: Vec<String> = [d.as_str(), s(&manifest), s(&other)]
+        .iter()
+        .map(|p| {
+            let o = odocal(&["validate", p, "--theta", "1.95,0,1.6,0", "--json", "-"]);
+            assert!(o.status.success(), "{}", stderr(&o));
+            let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
+            v["drives"][0]["fingerprint"].as_str().expect("fingerprint").to_string()
+        })
+        .collect();
+    assert!(prints[0] != prints[1] && prints[0] != prints[2], "{prints:?}");
+    for copy in [s(&manifest), s(&other)] {
+        refused(
+            &["calibrate", &d, "--method", "batch-gn", "--validate-on", copy],
+            &[
+                "the --validate-on drive",
+                "holds the same samples as",
+                "the reference path within 1 mm",
+                "no validation",
+            ],
+        );
+        refused(
+            &["calibrate", &d, copy, "--method", "batch-gn"],
+            &["drive 2 (", "holds the same samples as drive 1 ("],
+        );
+    }
+    // Another drive is not: the check does not refuse what differs.
+    let e = simulated_drive(dir.path(), "e.csv", &["--seed", "5", "--length-km", "2", "--noise", "off"]);
+    let o = odocal(&["calibrate", &d, "--method", "batch-gn", "--validate-on", &e]);
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
 #[test]
 fn a_sidecar_is_the_truth_of_its_own_drive_only() {
     let dir = tempfile::tempdir().expect("tmp");

@@ -449,3 +449,29 @@ fn history_keeps_each_sigma_and_pools_no_held_value() {
     assert!(text.contains(" held ") && text.contains("not pooled: row 1 held"), "{text}");
     assert!(!text.contains("NaN"), "{text}");
 }
+
+/// A written update rests on every drive the recursion followed: its
+/// parameter file names them all, in order, as `calibrate` names a joint
+/// fit's drives (`input` and `fingerprint` comma separated), counts them,
+/// and says where the recursion started.
+#[test]
+fn follow_params_name_every_drive_the_update_rests_on() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let a = simulated_drive(dir.path(), "a.csv", &["--seed", "1", "--length-km", "4", "--noise", "off"]);
+    let b = simulated_drive(dir.path(), "b.csv", &["--seed", "2", "--length-km", "4", "--noise", "off"]);
+    let (db, json, params) = (dir.path().join("h.sqlite"), dir.path().join("f.json"), dir.path().join("p.json"));
+    let path = |p: &std::path::Path| p.to_str().expect("utf8").to_owned();
+    let (db_s, json_s, params_s) = (path(&db), path(&json), path(&params));
+    let o =
+        odocal(&["follow", &a, &b, "--vehicle", "van", "--db", &db_s, "--json", &json_s, "--params-out", &params_s]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let drives = json_file(&json)["drives"].as_array().expect("drives").clone();
+    assert_eq!(drives[1]["updates"][0]["decision"], "written", "{}", drives[1]);
+    let prints: Vec<&str> = drives.iter().map(|d| d["fingerprint"].as_str().expect("fingerprint")).collect();
+    let prov = json_file(&params)["provenance"].clone();
+    assert_eq!(prov["input"].as_str(), Some(format!("{a}, {b}").as_str()), "{prov}");
+    assert_eq!(prov["fingerprint"].as_str(), Some(prints.join(", ").as_str()), "{prov}");
+    assert_eq!(prov["drives"].as_str(), Some("2"), "{prov}");
+    assert_eq!(prov["start"].as_str(), Some("θ_0"), "{prov}");
+    assert_eq!(prov["method"].as_str(), Some("online"), "{prov}");
+}

@@ -186,4 +186,15 @@ fn the_page_names_each_validation_drive_and_its_own_time() {
         let e = |k: &str| format!("{:.3} m", d[k].as_f64().expect("Ē_p"));
         assert!(item.contains(&format!(": {} / {} (", e("mean_position_error_m"), e("initial_mean_position_error_m"))));
     }
+    // Two means of the held-out Ē_p, each named by what weighs the same:
+    // the drives' (the JSON's `mean_over_drives_m`) and the table's, over
+    // the segments (`validation.mean_position_error_m`).
+    let f = |x: &serde_json::Value| x.as_f64().expect("Ē_p");
+    let (mean, initial) =
+        (f(&v["validate_on"]["mean_over_drives_m"]), f(&v["validate_on"]["initial_mean_over_drives_m"]));
+    let drives = format!("Ē_p (each drive weighs the same): {mean:.3} m / {initial:.3} m;");
+    assert!(validation.contains(&drives), "{validation}");
+    assert!(validation.contains("is over all their segments (each segment weighs the same)."), "{validation}");
+    let ep = f(&v["validation"]["mean_position_error_m"]);
+    assert!(validation.contains(&format!("{ep:.3}")), "the table's Ē_p {ep:.3}: {validation}");
 }

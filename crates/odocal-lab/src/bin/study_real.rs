@@ -42,8 +42,8 @@ use std::time::Instant;
 
 use odocal::eiv::{EivOptions, NoiseModel, QuantisationLevel};
 use odocal::{
-    calibrate, CalibrationOptions, CalibrationReport, EivMethodOptions, Holdout, Method, ParamSet, ValidationDrive,
-    VerdictLevel, Warning,
+    calibrate, CalibrationOptions, CalibrationReport, EivMethodOptions, Holdout, Method, ParamSet, SigmaCovers,
+    ValidationDrive, VerdictLevel, Warning,
 };
 use odocal_lab::crossrun::{CrossRunFit, CrossRunRow, CrossRunTable, CROSS_RUN_OWN_FIT_RATIO};
 use odocal_lab::report_json::eiv_part;
@@ -658,7 +658,15 @@ fn rav4(methods: &[String], md: &mut String) -> Res<Value> {
             md.push_str(&format!(
                 "| {m} | {label} | {:.5} ± {} | {} | {} | {} | {:.2} / {:.2} | {} | {wall:.1} |\n",
                 r.theta.c_e,
-                sigma[0].map_or("held".into(), |s| format!("{s:.5} ({})", r.result_sigma().source)),
+                // The within-drive σ labelled by its source; the result's σ
+                // (for the next drive: within ⊕ between) beside it.
+                match (r.within_drive_sigma().c_e, sigma[0]) {
+                    (Some(w), Some(s)) if r.result_sigma().covers == SigmaCovers::NextDrive => {
+                        format!("{w:.5} ({}; next drive {s:.5})", r.result_sigma().source)
+                    }
+                    (_, Some(s)) => format!("{s:.5} ({})", r.result_sigma().source),
+                    (_, None) => "held".into(),
+                },
                 if r.observability.unobservable.is_empty() {
                     "none".into()
                 } else {

@@ -271,6 +271,12 @@ class Calibrator:
     @property
     def recent_validation(self) -> list[dict[str, Any]]: ...
     @property
+    def drive_estimate(self) -> Optional[dict[str, dict[str, float]]]:
+        """θ from the current drive's folded segments alone, without the prior carried from
+        earlier drives (what the write-back gates compare the estimate with):
+        ``{"theta": {...}, "sigma": {...}}``, ``sigma`` scaled as ``Calibrator.sigma``;
+        None until the drive determines every parameter."""
+    @property
     def stored(self) -> Optional[dict[str, float]]:
         """The parameters in use (compared on each validation segment and by the gates)."""
     @stored.setter

@@ -208,6 +208,18 @@ pub struct MultiValidation {
 }
 
 impl MultiValidation {
+    /// The number of validation segments of all the drives, and the mean
+    /// over them of E_p,s of θ and of θ_0 (each segment weighs the same,
+    /// as in the calibration's Ē_p on the held-out data; each drive's
+    /// Ē_p weighted by its segments), m.
+    pub(crate) fn mean_over_segments(&self) -> (usize, f64, f64) {
+        let n: usize = self.drives.iter().map(|d| d.segments).sum();
+        let weighted = |f: fn(&DriveValidation) -> f64| {
+            self.drives.iter().map(|d| d.segments as f64 * f(d)).sum::<f64>() / n.max(1) as f64
+        };
+        (n, weighted(|d| d.mean_position_error_m), weighted(|d| d.initial_mean_position_error_m))
+    }
+
     /// The rows and their means over the drives.
     pub(crate) fn from_rows(theta: Theta, theta0: Theta, drives: Vec<DriveValidation>) -> Self {
         let n = drives.len().max(1) as f64;

@@ -526,14 +526,24 @@ fn validate_on(m: &MultiValidation) -> String {
             }
         }
     }
-    let _ = writeln!(
-        out,
-        "  mean over {} drive{}: {:.3} / {:.3}",
-        m.drives.len(),
-        if m.drives.len() == 1 { "" } else { "s" },
-        m.mean_over_drives_m,
-        m.initial_mean_over_drives_m
-    );
+    // Two means of several drives, each labelled by what weighs the same:
+    // the drives' (a short drive counts as much as a long one) and the
+    // segments' (the report's Ē_p on the held-out data). One drive's line
+    // is both.
+    if m.drives.len() > 1 {
+        let n = m.drives.len();
+        let _ = writeln!(
+            out,
+            "  mean of the {n} drives' Ē_p (each drive weighs the same): {:.3} / {:.3}",
+            m.mean_over_drives_m, m.initial_mean_over_drives_m
+        );
+        let (segments, calibrated, initial) = m.mean_over_segments();
+        let _ = writeln!(
+            out,
+            "  mean over their {segments} segments (each segment weighs the same; the Ē_p of the report): \
+             {calibrated:.3} / {initial:.3}"
+        );
+    }
     out
 }
 

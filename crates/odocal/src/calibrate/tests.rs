@@ -248,9 +248,35 @@ fn validation_drive_lines_count_one_in_the_singular() {
     };
     let t = Theta::PAPER_INITIAL;
     let one = MultiValidation::from_rows(t, t, vec![row("a.csv", 1)]).to_string();
-    assert!(one.contains("mean over 1 drive: ") && one.contains("(1 segment)"), "{one}");
+    assert!(one.contains("(1 segment)") && !one.contains("mean"), "{one}");
     let two = MultiValidation::from_rows(t, t, vec![row("a.csv", 1), row("b.csv", 7)]).to_string();
-    assert!(two.contains("mean over 2 drives: ") && two.contains("(7 segments)"), "{two}");
+    assert!(two.contains("mean of the 2 drives' Ē_p (each drive weighs the same): ") && two.contains("(7 segments)"));
+}
+
+/// Several validation drives: the mean of their Ē_p and the mean over
+/// their segments (the report's Ē_p) differ when the drives have
+/// different numbers of segments; each is printed under its own label.
+#[test]
+fn validation_drive_means_are_labelled_by_what_weighs_the_same() {
+    use crate::assess::validate::{DriveValidation, MultiValidation};
+    let row = |name: &str, e: f64, segments| DriveValidation {
+        name: name.into(),
+        mean_position_error_m: e,
+        initial_mean_position_error_m: 2.0 * e,
+        segments,
+        extrinsics: None,
+    };
+    let t = Theta::PAPER_INITIAL;
+    let m = MultiValidation::from_rows(t, t, vec![row("a.csv", 1.0, 1), row("b.csv", 2.0, 3)]);
+    assert_eq!(m.mean_over_segments(), (4, 1.75, 3.5));
+    let text = m.to_string();
+    assert!(text.contains("  mean of the 2 drives' Ē_p (each drive weighs the same): 1.500 / 3.000\n"), "{text}");
+    assert!(
+        text.contains(
+            "  mean over their 4 segments (each segment weighs the same; the Ē_p of the report): 1.750 / 3.500\n"
+        ),
+        "{text}"
+    );
 }
 
 #[test]

@@ -102,10 +102,17 @@ impl Fingerprinter {
 
 /// Refuses a drive given twice: `drives` are `(name, drive)` pairs (the
 /// name as errors show it, e.g. "the --validate-on drive b.csv"); two with
-/// the same [`Drive::fingerprint`] are an error naming both.
+/// the same [`Drive::fingerprint`] are an error naming both, and so are two
+/// whose samples agree though their fingerprints differ (the same data
+/// imported another way): the same sample time, as many samples within 2,
+/// the reference path the same sample for sample (positions within 1 mm,
+/// headings within 1 mrad, after a shift of at most 2 samples) and each
+/// rear wheel's rotation within 0.5 %.
 ///
 /// # Errors
-/// [`Error::DuplicateDrive`] naming the first drive and the one that repeats it.
+/// [`Error::DuplicateDrive`] naming the first drive and the one that
+/// repeats it; [`Error::SameSamples`] for the same samples under another
+/// fingerprint.
 pub fn refuse_duplicates(drives: &[(&str, &Drive)]) -> Result<Vec<String>> {
     let prints: Vec<String> = drives.iter().map(|(_, d)| d.fingerprint()).collect();
     for (k, fp) in prints.iter().enumerate() {
@@ -116,8 +123,90 @@ pub fn refuse_duplicates(drives: &[(&str, &Drive)]) -> Result<Vec<String>> {
                 fingerprint: fp.clone(),
             });
         }
+        for first in 0..k {
+            if let Some(how) = same_samples(drives[first].1, drives[k].1) {
+                return Err(Error::SameSamples {
+                    first: drives[first].0.to_string(),
+                    second: drives[k].0.to_string(),
+                    how,
+                    fingerprints: (prints[first].clone(), fp.clone()),
+                });
+            }
+        }
     }
     Ok(prints)
+}
+
+/// Reference positions that differ by at most this much are the same, m:
+/// above a CSV's rounding to the millimetre, far below what separates two
+/// drives' paths.
+const SAME_POSITION_M: f64 = 1e-3;
+/// Headings that differ by at most this much (modulo 2π) are the same, rad.
+const SAME_HEADING_RAD: f64 = 1e-3;
+/// The largest shift, in samples, between two imports of the same data (a
+/// manifest's import may start or end a sample later than a CSV of it).
+const MAX_SHIFT: usize = 2;
+/// Two imports of the same drive's wheel rotation differ by less than this
+/// fraction of it (a manifest averages wheel speeds over its output
+/// interval, which moves rotation by a sample's worth at the ends).
+const SAME_ROTATION_RELATIVE: f64 = 5e-3;
+
+/// Whether `a` and `b` hold the same samples, whatever their fingerprints:
+/// the same sample time (within 10⁻⁶), as many samples within
+/// [`MAX_SHIFT`] at either end, the reference path the same sample for
+/// sample after a shift of at most [`MAX_SHIFT`] samples (positions
+/// within 1 mm, headings within 1 mrad), and each rear wheel's rotation
+/// over the samples both hold the same within 0.5 %. Times are not
+/// compared (a CSV may count them from another origin), nor the columns
+/// an import derives (β, a_y). Returns how they agree, for the error.
+pub(crate) fn same_samples(a: &Drive, b: &Drive) -> Option<String> {
+    let (ha, hb) = (a.sample_time_s(), b.sample_time_s());
+    // A vehicle standing still has no path to tell one drive from another.
+    let moves = |d: &Drive| d.distance_m() > 1.0;
+    if (ha - hb).abs() > 1e-6 * ha.abs().max(hb.abs())
+        || a.len().abs_diff(b.len()) > 2 * MAX_SHIFT
+        || !(moves(a) && moves(b))
+    {
+        return None;
+    }
+    (0..=2 * MAX_SHIFT).find_map(|k| {
+        // b's sample i + shift is a's sample i (shift in -MAX_SHIFT..=MAX_SHIFT).
+        let (a0, b0) = if k < MAX_SHIFT { (MAX_SHIFT - k, 0) } else { (0, k - MAX_SHIFT) };
+        let n = a.len().saturating_sub(a0).min(b.len().saturating_sub(b0));
+        if n < 2 || n + 2 * MAX_SHIFT < a.len().max(b.len()) {
+            return None;
+        }
+        let (ra, rb) = (a0..a0 + n, b0..b0 + n);
+        let within = |x: &[f64], y: &[f64], tol: f64, d: fn(f64, f64) -> f64| {
+            x[ra.clone()].iter().zip(&y[rb.clone()]).all(|(&u, &v)| d(u, v) <= tol)
+        };
+        let diff = |u: f64, v: f64| (u - v).abs();
+        // Modulo 2π: two imports may unwrap the heading from another turn.
+        let angle = |u: f64, v: f64| {
+            use std::f64::consts::{PI, TAU};
+            ((u - v + PI).rem_euclid(TAU) - PI).abs()
+        };
+        let pose = within(a.px(), b.px(), SAME_POSITION_M, diff)
+            && within(a.py(), b.py(), SAME_POSITION_M, diff)
+            && within(a.psi(), b.psi(), SAME_HEADING_RAD, angle);
+        let rotation = |x: &[f64], y: &[f64]| {
+            let (p, q) = (x[ra.clone()].iter().sum::<f64>(), y[rb.clone()].iter().sum::<f64>());
+            (p - q).abs() <= SAME_ROTATION_RELATIVE * p.abs().max(q.abs())
+        };
+        let wheels = rotation(a.n_rl(), b.n_rl()) && rotation(a.n_rr(), b.n_rr());
+        let shift = match k as i64 - MAX_SHIFT as i64 {
+            0 => "sample for sample".to_string(),
+            s => format!("shifted by {s} sample{}", if s.abs() == 1 { "" } else { "s" }),
+        };
+        (pose && wheels).then(|| {
+            format!(
+                "{n} samples, {shift}: the reference path within {} mm and {} mrad, each wheel's rotation within {} %",
+                SAME_POSITION_M * 1e3,
+                SAME_HEADING_RAD * 1e3,
+                SAME_ROTATION_RELATIVE * 1e2
+            )
+        })
+    })
 }
 
 #[cfg(test)]
@@ -196,5 +285,41 @@ mod tests {
             .expect_err("dup")
             .to_string();
         assert!(e.starts_with("the --validate-on drive c.csv is the same drive as a.csv"), "{e}");
+    }
+
+    /// `drive` with its time moved, its pose rounded to 0.1 mm and its
+    /// first `skip` samples dropped, the wheels scaled by `wheels`.
+    fn read_another_way(d: &Drive, skip: usize, wheels: f64) -> Drive {
+        let m = d.measured();
+        let s: Signals = (skip..d.len())
+            .map(|i| {
+                let r = |x: f64| (x * 1e4).round() / 1e4;
+                [r(m.px[i]), r(m.py[i]), r(m.psi[i]), wheels * m.n_rl[i], wheels * m.n_rr[i], m.beta[i], m.a_y[i]]
+            })
+            .collect();
+        let t = d.t()[skip..].iter().map(|t| t + 1000.0).collect();
+        crate::drive::DriveBuilder { t, measured: s, ..Default::default() }.build().expect("valid")
+    }
+
+    #[test]
+    fn the_same_samples_under_another_fingerprint_are_named() {
+        let a = drive(400, 0.0);
+        for skip in [0, 1, 2] {
+            let b = read_another_way(&a, skip, 1.0);
+            assert_ne!(a.fingerprint(), b.fingerprint());
+            let how = same_samples(&a, &b).expect("the same samples");
+            assert!(how.starts_with(&format!("{} samples, ", 400 - skip)), "{how}");
+            let e = refuse_duplicates(&[("a.csv", &a), ("the --validate-on drive b.toml", &b)])
+                .expect_err("the same samples")
+                .to_string();
+            assert!(e.starts_with("the --validate-on drive b.toml holds the same samples as a.csv ("), "{e}");
+            assert!(e.contains(&b.fingerprint()[..12]) && e.contains(&a.fingerprint()[..12]), "{e}");
+        }
+        assert!(same_samples(&a, &read_another_way(&a, 0, 1.0)).expect("same").contains("sample for sample"));
+        // More than a few samples apart, other wheel rotation, another path: another drive.
+        assert_eq!(same_samples(&a, &read_another_way(&a, 5, 1.0)), None);
+        assert_eq!(same_samples(&a, &read_another_way(&a, 0, 1.01)), None);
+        assert_eq!(same_samples(&a, &drive(400, 0.01)), None);
+        assert!(refuse_duplicates(&[("a.csv", &a), ("b.csv", &drive(400, 0.01))]).is_ok());
     }
 }
