@@ -198,6 +198,7 @@ research_pub! {
             crate::assess::{position_error::mean_position_error_with, reachable::reachable_minimum},
             crate::calibrate::{
                 calibrate_detailed,
+                input_noise::{simex_bias, wheel_white_noise},
                 eiv::is_misspecification,
                 three_step::{random_batches, score_batches},
                 DetailedCalibration,

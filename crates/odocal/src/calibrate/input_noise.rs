@@ -101,87 +101,91 @@ pub(super) fn input_noise_bias_reason(
     })
 }
 
-/// σ_w, the white relative noise of each wheel's rotation, from the
-/// heading's random walk against the reference over the segments (module
-/// docs, step 1). None when the segments hold too few windows or no
-/// accumulating noise shows.
-pub(crate) fn wheel_white_noise(data: &[SegmentData<'_>], theta: &Theta) -> Option<f64> {
-    let dt = data.first()?.sample_time_s;
-    let mut rows: Vec<(f64, f64)> = Vec::new();
-    for window_s in WINDOWS_S {
-        let len = ((window_s / dt).round() as usize).max(1);
-        let start = rows.len();
-        for s in data {
-            let k = s.n_rl.len().min(s.n_rr.len()).min(s.a_y.len()).min(s.psi.len().saturating_sub(1));
-            for i in (0..k / len).map(|w| w * len) {
-                let (mut turn, mut x) = (0.0, 0.0);
-                for j in i..i + len {
-                    let (c_rl, c_rr) = theta.wheel_circumferences(s.a_y[j]);
-                    let (left, right) = (s.n_rl[j] * c_rl, s.n_rr[j] * c_rr);
-                    turn += (right - left) / theta.t_r * dt;
-                    x += 2.0 * (0.5 * (left + right) * dt / theta.t_r).powi(2);
-                }
-                let r = wrap_angle(turn - (s.psi[i + len] - s.psi[i]));
-                if r.is_finite() && x.is_finite() {
-                    rows.push((x, r));
+research_pub! {
+    /// σ_w, the white relative noise of each wheel's rotation, from the
+    /// heading's random walk against the reference over the segments (module
+    /// docs, step 1). None when the segments hold too few windows or no
+    /// accumulating noise shows.
+    fn wheel_white_noise(data: &[SegmentData<'_>], theta: &Theta) -> Option<f64> {
+        let dt = data.first()?.sample_time_s;
+        let mut rows: Vec<(f64, f64)> = Vec::new();
+        for window_s in WINDOWS_S {
+            let len = ((window_s / dt).round() as usize).max(1);
+            let start = rows.len();
+            for s in data {
+                let k = s.n_rl.len().min(s.n_rr.len()).min(s.a_y.len()).min(s.psi.len().saturating_sub(1));
+                for i in (0..k / len).map(|w| w * len) {
+                    let (mut turn, mut x) = (0.0, 0.0);
+                    for j in i..i + len {
+                        let (c_rl, c_rr) = theta.wheel_circumferences(s.a_y[j]);
+                        let (left, right) = (s.n_rl[j] * c_rl, s.n_rr[j] * c_rr);
+                        turn += (right - left) / theta.t_r * dt;
+                        x += 2.0 * (0.5 * (left + right) * dt / theta.t_r).powi(2);
+                    }
+                    let r = wrap_angle(turn - (s.psi[i + len] - s.psi[i]));
+                    if r.is_finite() && x.is_finite() {
+                        rows.push((x, r));
+                    }
                 }
             }
+            // Each length's mean residual (a heading rate the fit left) is not noise.
+            let n = rows.len() - start;
+            let mean = rows[start..].iter().map(|p| p.1).sum::<f64>() / n.max(1) as f64;
+            rows[start..].iter_mut().for_each(|p| p.1 = (p.1 - mean).powi(2));
         }
-        // Each length's mean residual (a heading rate the fit left) is not noise.
-        let n = rows.len() - start;
-        let mean = rows[start..].iter().map(|p| p.1).sum::<f64>() / n.max(1) as f64;
-        rows[start..].iter_mut().for_each(|p| p.1 = (p.1 - mean).powi(2));
+        if rows.len() < MIN_WINDOWS {
+            return None;
+        }
+        let n = rows.len() as f64;
+        let (mx, my) = rows.iter().fold((0.0, 0.0), |a, p| (a.0 + p.0 / n, a.1 + p.1 / n));
+        let (sxx, sxy) = rows.iter().fold((0.0, 0.0), |a, p| (a.0 + (p.0 - mx).powi(2), a.1 + (p.0 - mx) * (p.1 - my)));
+        let slope = sxy / sxx;
+        (slope > 0.0 && slope.is_finite()).then(|| slope.sqrt())
     }
-    if rows.len() < MIN_WINDOWS {
-        return None;
-    }
-    let n = rows.len() as f64;
-    let (mx, my) = rows.iter().fold((0.0, 0.0), |a, p| (a.0 + p.0 / n, a.1 + p.1 / n));
-    let (sxx, sxy) = rows.iter().fold((0.0, 0.0), |a, p| (a.0 + (p.0 - mx).powi(2), a.1 + (p.0 - mx) * (p.1 - my)));
-    let slope = sxy / sxx;
-    (slope > 0.0 && slope.is_finite()).then(|| slope.sqrt())
 }
 
-/// The predicted bias of θ (module docs, step 2): the mean refit on the
-/// wheel rotations with white relative noise `sigma_w` added less the
-/// refit on them unchanged. None when a refit fails.
-fn simex_bias(
-    data: &[SegmentData<'_>],
-    drive_starts: &[usize],
-    theta: &Theta,
-    identify: &IdentifyOptions,
-    sigma_w: f64,
-    seed: u64,
-) -> Option<[f64; 4]> {
-    let refit = |d: &[SegmentData<'_>]| gauss_newton_step_drives(d, drive_starts, theta, identify);
-    // The draws come from one stream in a fixed order, so the result does
-    // not depend on how many threads run the refits.
-    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ STREAM);
-    let mut draw = |n: usize| (0..n).map(|_| rng.sample::<f64, _>(StandardNormal)).collect::<Vec<f64>>();
-    let draws: Vec<Vec<(Vec<f64>, Vec<f64>)>> =
-        (0..PAIRS).map(|_| data.iter().map(|s| (draw(s.n_rl.len()), draw(s.n_rr.len()))).collect()).collect();
-    let runs: Vec<(usize, f64)> = (0..PAIRS).flat_map(|k| [(k, 1.0), (k, -1.0)]).collect();
-    let (base, shifted) = rayon::join(
-        || refit(data),
-        || {
-            runs.par_iter()
-                .map(|&(k, sign)| {
-                    let scale = |n: &[f64], e: &[f64]| -> Vec<f64> {
-                        n.iter().zip(e).map(|(n, e)| n * (1.0 + sign * sigma_w * e)).collect()
-                    };
-                    let wheels: Vec<(Vec<f64>, Vec<f64>)> =
-                        data.iter().zip(&draws[k]).map(|(s, (l, r))| (scale(s.n_rl, l), scale(s.n_rr, r))).collect();
-                    let noisy: Vec<SegmentData<'_>> =
-                        data.iter().zip(&wheels).map(|(s, (l, r))| SegmentData { n_rl: l, n_rr: r, ..*s }).collect();
-                    refit(&noisy).map(<[f64; 4]>::from)
-                })
-                .collect::<Option<Vec<[f64; 4]>>>()
-        },
-    );
-    let base = <[f64; 4]>::from(base?);
-    let shifted = shifted?;
-    let bias = std::array::from_fn(|i| shifted.iter().map(|t| t[i] - base[i]).sum::<f64>() / shifted.len() as f64);
-    Some(bias)
+research_pub! {
+    /// The predicted bias of θ (module docs, step 2): the mean refit on the
+    /// wheel rotations with white relative noise `sigma_w` added less the
+    /// refit on them unchanged. None when a refit fails.
+    fn simex_bias(
+        data: &[SegmentData<'_>],
+        drive_starts: &[usize],
+        theta: &Theta,
+        identify: &IdentifyOptions,
+        sigma_w: f64,
+        seed: u64,
+    ) -> Option<[f64; 4]> {
+        let refit = |d: &[SegmentData<'_>]| gauss_newton_step_drives(d, drive_starts, theta, identify);
+        // The draws come from one stream in a fixed order, so the result does
+        // not depend on how many threads run the refits.
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ STREAM);
+        let mut draw = |n: usize| (0..n).map(|_| rng.sample::<f64, _>(StandardNormal)).collect::<Vec<f64>>();
+        let draws: Vec<Vec<(Vec<f64>, Vec<f64>)>> =
+            (0..PAIRS).map(|_| data.iter().map(|s| (draw(s.n_rl.len()), draw(s.n_rr.len()))).collect()).collect();
+        let runs: Vec<(usize, f64)> = (0..PAIRS).flat_map(|k| [(k, 1.0), (k, -1.0)]).collect();
+        let (base, shifted) = rayon::join(
+            || refit(data),
+            || {
+                runs.par_iter()
+                    .map(|&(k, sign)| {
+                        let scale = |n: &[f64], e: &[f64]| -> Vec<f64> {
+                            n.iter().zip(e).map(|(n, e)| n * (1.0 + sign * sigma_w * e)).collect()
+                        };
+                        let wheels: Vec<(Vec<f64>, Vec<f64>)> =
+                            data.iter().zip(&draws[k]).map(|(s, (l, r))| (scale(s.n_rl, l), scale(s.n_rr, r))).collect();
+                        let noisy: Vec<SegmentData<'_>> =
+                            data.iter().zip(&wheels).map(|(s, (l, r))| SegmentData { n_rl: l, n_rr: r, ..*s }).collect();
+                        refit(&noisy).map(<[f64; 4]>::from)
+                    })
+                    .collect::<Option<Vec<[f64; 4]>>>()
+            },
+        );
+        let base = <[f64; 4]>::from(base?);
+        let shifted = shifted?;
+        let bias = std::array::from_fn(|i| shifted.iter().map(|t| t[i] - base[i]).sum::<f64>() / shifted.len() as f64);
+        Some(bias)
+    }
 }
 
 #[cfg(test)]

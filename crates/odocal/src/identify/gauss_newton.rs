@@ -333,7 +333,11 @@ mod tests {
             let first = IdentifyOptions { max_iterations: 1, ..opts.clone() };
             let loop1 = batch_gauss_newton_drives(&data, starts, &Theta::PAPER_INITIAL, &first).expect("loop");
             let step = gauss_newton_step_drives(&data, starts, &Theta::PAPER_INITIAL, opts).expect("step");
-            assert_eq!(<[f64; 4]>::from(step), <[f64; 4]>::from(loop1.theta), "{starts:?}");
+            assert_eq!(
+                <[f64; 4]>::from(step).map(f64::to_bits),
+                <[f64; 4]>::from(loop1.theta).map(f64::to_bits),
+                "{starts:?}"
+            );
         }
         let fit = batch_gauss_newton_drives(&data, &[0], &Theta::PAPER_INITIAL, &theta_only).expect("fit");
         let again = gauss_newton_step_drives(&data, &[0], &fit.theta, &theta_only).expect("step");
