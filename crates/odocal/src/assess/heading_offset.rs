@@ -31,8 +31,14 @@ pub struct HeadingOffsetFit {
     pub value: f64,
     /// The δ the fit started from (the calibration's), rad.
     pub calibration: f64,
-    /// Model 1σ of the fitted δ, rad.
+    /// 1σ of the fitted δ, rad: cluster-robust when the drive has enough
+    /// segments for it ([`IdentifyOptions::robust_min_clusters`]), else the
+    /// model σ, which assumes independent residuals and understates it
+    /// (`robust` says which).
     pub std_dev: f64,
+    /// True when `std_dev` is the cluster-robust σ.
+    #[serde(default)]
+    pub robust: bool,
     /// Segments fitted on.
     pub segments: usize,
 }
@@ -68,8 +74,15 @@ pub(crate) fn fit_heading_offset(
     };
     let r = batch_gauss_newton(&data, theta, &opts)?;
     let x = r.extrinsics.as_ref().map_or(*e, |x| x.value);
-    let std_dev = r.extrinsics.as_ref().map_or(0.0, |x| x.std_dev.heading_offset);
-    Ok(HeadingOffsetFit { value: x.heading_offset, calibration: e.heading_offset, std_dev, segments: data.len() })
+    let robust = r.extrinsics.as_ref().and_then(|x| x.robust.as_ref()).map(|r| r.std_dev.heading_offset);
+    let model = r.extrinsics.as_ref().map_or(0.0, |x| x.std_dev.heading_offset);
+    Ok(HeadingOffsetFit {
+        value: x.heading_offset,
+        calibration: e.heading_offset,
+        std_dev: robust.unwrap_or(model),
+        robust: robust.is_some(),
+        segments: data.len(),
+    })
 }
 
 /// `e` with the heading offset of `fit`.
@@ -95,5 +108,29 @@ mod tests {
         assert_eq!(fit.calibration.to_bits(), 0.0188f64.to_bits());
         assert_eq!(fit.segments, segs.len());
         assert_eq!(fit.to_string(), "heading offset re-estimated on this drive: 14.2 mrad (calibration's 18.8)");
+    }
+
+    /// On a drive with enough validation segments the fit's σ is the
+    /// cluster-robust one, several times the model σ on paper noise, whose
+    /// residuals are not independent.
+    #[test]
+    fn the_fits_sigma_is_cluster_robust_where_the_drive_allows() {
+        use crate::sim::{simulate, SimOptions};
+        let s = simulate(&SimOptions { length_km: 8.0, ..SimOptions::paper(4) }).expect("simulate");
+        let segs = validation_segments(&s.drive, &Default::default()).expect("segments");
+        let zero = Extrinsics::default();
+        let fit = fit_heading_offset(&s.drive, &segs, &s.sidecar.theta_true, &zero).expect("fit");
+        let data: Vec<SegmentData<'_>> = segs.iter().map(|x| SegmentData::new(&s.drive, x)).collect();
+        let opts = IdentifyOptions { free: ParamSet::EMPTY.with(Param::HeadingOffset), ..Default::default() };
+        let r = batch_gauss_newton(&data, &s.sidecar.theta_true, &opts).expect("fit");
+        let x = r.extrinsics.expect("extrinsics");
+        let robust = x.robust.expect("enough segments for the robust σ").std_dev.heading_offset;
+        assert!(fit.robust && fit.std_dev.to_bits() == robust.to_bits(), "{fit:?}");
+        assert!(
+            fit.std_dev > 2.0 * x.std_dev.heading_offset,
+            "{} against the model's {}",
+            fit.std_dev,
+            x.std_dev.heading_offset
+        );
     }
 }
