@@ -468,7 +468,8 @@ def validate(
     ``[reference]``), as ``odocal validate --theta FILE`` does. A heading offset the
     calibration estimated is the reference's per-drive bias: this drive's own is
     re-estimated with θ and the lever arm held (``heading_offset_fit``: ``value``,
-    ``calibration``, ``std_dev`` in rad, ``segments``) unless ``carry_heading_offset=True``,
+    ``calibration``, ``std_dev`` in rad — cluster-robust when ``robust`` —, ``segments``) unless
+    ``carry_heading_offset=True``,
     which carries the calibration's (on the calibration's own drive that gives its own Ē_p).
     ``params_node`` names the node of a parameter file that holds several nodes'
     parameters (such a file is refused without it).
