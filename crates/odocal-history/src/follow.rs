@@ -192,37 +192,42 @@ pub fn follow<E: From<Error>>(
         let decision = opts.gates.decide(c, &stored.theta, stored.calibrated);
         let status = c.status();
         let span = drive.time_span_s();
-        let logged = db.record_decision(&DecisionRow {
-            // Set by the database.
-            id: 0,
-            decided_at: String::new(),
-            odocal_version: String::new(),
-            vehicle: vehicle.to_string(),
-            fingerprint: fingerprint.clone(),
-            source: source.clone(),
-            drive_time_s: span.1 - span.0,
-            decision: decision.action.to_string(),
-            reasons: decision.reasons.clone(),
-            theta: decision.theta,
-            sigma: Some(decision.sigma),
-        })?;
+        let written = (decision.action == Action::Write).then(|| CalibrationRecord {
+            sources: vec![source.clone()],
+            t_start_s: span.0,
+            t_end_s: span.1,
+            sigma: decision.sigma.into(),
+            heading_offset_rad: Some(status.heading_offset_rad),
+            // Written only when every gate passed: what its parameter file says.
+            verdict: Some(odocal::VerdictLevel::Accepted.to_string()),
+            ..CalibrationRecord::new(vehicle, &fingerprint, METHOD, decision.theta)
+        });
+        // The decision and its calibration row in one transaction: a
+        // decision `written` without its row would skip the drive for ever.
+        let logged = db.record_followed(
+            &DecisionRow {
+                // Set by the database.
+                id: 0,
+                decided_at: String::new(),
+                odocal_version: String::new(),
+                vehicle: vehicle.to_string(),
+                fingerprint: fingerprint.clone(),
+                source: source.clone(),
+                drive_time_s: span.1 - span.0,
+                decision: decision.action.to_string(),
+                reasons: decision.reasons.clone(),
+                theta: decision.theta,
+                sigma: Some(decision.sigma),
+            },
+            written.as_ref(),
+        )?;
         if logged.is_none() {
             // A concurrent run followed the drive while this one replayed it.
             cal = before;
             on(FollowEvent::Skipped { source, fingerprint, row: None })?;
             continue;
         }
-        if decision.action == Action::Write {
-            db.record(&CalibrationRecord {
-                sources: vec![source.clone()],
-                t_start_s: span.0,
-                t_end_s: span.1,
-                sigma: decision.sigma.into(),
-                heading_offset_rad: Some(status.heading_offset_rad),
-                // Written only when every gate passed: what its parameter file says.
-                verdict: Some(odocal::VerdictLevel::Accepted.to_string()),
-                ..CalibrationRecord::new(vehicle, &fingerprint, METHOD, decision.theta)
-            })?;
+        if written.is_some() {
             stored = Stored { theta: decision.theta, sigma: Some(decision.sigma), calibrated: true };
         }
         on(FollowEvent::Followed {

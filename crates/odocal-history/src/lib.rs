@@ -694,6 +694,14 @@ impl History {
         }
         let err = open_err(&path);
         let mut conn = Connection::open(&path).map_err(&err)?;
+        // SQLite opens a file it may not write read-only, and would fail
+        // at the first write, after the work: refused here, before it.
+        if conn.is_readonly(rusqlite::MAIN_DB).map_err(&err)? {
+            return Err(Error::History {
+                path,
+                reason: "cannot be written (read-only, or no permission): give a file you can write to".into(),
+            });
+        }
         conn.busy_timeout(BUSY_TIMEOUT).map_err(&err)?;
         // WAL: readers do not block the writer and a crash mid-write leaves
         // the last committed state. Setting it needs a moment of exclusive
@@ -708,6 +716,53 @@ impl History {
         Ok(History { conn, path, schema_version })
     }
 
+    /// Opens the history at `path` to read it, changing nothing: neither
+    /// the file nor its schema (a file of an older schema is read from a
+    /// copy in memory, migrated there). A file that is not there, that is
+    /// empty or that is no history database (an SQLite file without its
+    /// tables) is refused, as is one written by a newer odocal.
+    ///
+    /// # Errors
+    /// [`Error::History`] naming the file and what to give.
+    pub fn open_read_only(path: impl AsRef<Path>) -> Result<History> {
+        let path = path.as_ref().to_path_buf();
+        let refuse = |reason: String| Error::History { path: path.clone(), reason };
+        match std::fs::metadata(&path) {
+            Ok(m) if m.is_dir() => return Err(refuse(format!("a folder, not a file ({NOT_A_HISTORY})"))),
+            Ok(m) if m.len() == 0 => {
+                return Err(refuse(format!("an empty file, not a history database ({NOT_A_HISTORY})")))
+            }
+            Ok(_) => {}
+            Err(e) => return Err(refuse(format!("cannot be read: {e}"))),
+        }
+        let err = open_err(&path);
+        let flags = rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY | rusqlite::OpenFlags::SQLITE_OPEN_NO_MUTEX;
+        let conn = Connection::open_with_flags(&path, flags).map_err(&err)?;
+        conn.busy_timeout(BUSY_TIMEOUT).map_err(&err)?;
+        let version: i64 = conn.query_row("PRAGMA user_version", [], |r| r.get(0)).map_err(&err)?;
+        let tables: i64 = conn
+            .query_row(
+                "SELECT COUNT(*) FROM sqlite_master WHERE type = 'table' AND name IN ('calibrations', 'decisions')",
+                [],
+                |r| r.get(0),
+            )
+            .map_err(&err)?;
+        if version == 0 || tables < 2 {
+            return Err(refuse(format!("an SQLite file without a history's tables ({NOT_A_HISTORY})")));
+        }
+        schema::check_not_newer(version).map_err(&refuse)?;
+        if version == schema::SCHEMA_VERSION {
+            return Ok(History { conn, path, schema_version: version });
+        }
+        // An older schema: migrated in a copy, the file left as it is.
+        let mut copy = Connection::open_in_memory().map_err(&err)?;
+        rusqlite::backup::Backup::new(&conn, &mut copy)
+            .and_then(|b| b.run_to_completion(256, Duration::ZERO, None))
+            .map_err(&err)?;
+        schema::migrate(&mut copy).map_err(&refuse)?;
+        Ok(History { conn: copy, path, schema_version: schema::SCHEMA_VERSION })
+    }
+
     /// Records a calibration, unless the vehicle's history already holds
     /// the same drive (fingerprint) calibrated by the same method
     /// ([`Recorded::AlreadyRecorded`]). One transaction; safe with other
@@ -717,57 +772,7 @@ impl History {
     /// [`CalibrationRecord::check`]'s, before anything is written;
     /// [`Error::History`] for the database's.
     pub fn record(&mut self, rec: &CalibrationRecord) -> Result<Recorded> {
-        rec.check()?;
-        let err = sql_err(&self.path);
-        let sources = serde_json::to_string(&rec.sources)
-            .map_err(|e| Error::History { path: self.path.clone(), reason: format!("source names: {e}") })?;
-        let s = <[_; 4]>::from(rec.sigma);
-        let n = self
-            .conn
-            .execute(
-                &format!(
-                    "INSERT INTO calibrations (vehicle, recorded_at, fingerprint, sources, t_start_s, t_end_s, method, \
-                     c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, heading_offset_rad, verdict, \
-                     odocal_version, sigma_model_only, held, unobservable) VALUES (?1, {NOW}, ?2, ?3, ?4, ?5, ?6, \
-                     ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17, ?18, ?19, ?20) \
-                     ON CONFLICT (vehicle, fingerprint, method) DO NOTHING"
-                ),
-                params![
-                    rec.vehicle,
-                    rec.fingerprint,
-                    sources,
-                    rec.t_start_s,
-                    rec.t_end_s,
-                    rec.method,
-                    rec.theta.c_e,
-                    rec.theta.c_d,
-                    rec.theta.t_r,
-                    rec.theta.d,
-                    s[0],
-                    s[1],
-                    s[2],
-                    s[3],
-                    rec.heading_offset_rad,
-                    rec.verdict,
-                    env!("CARGO_PKG_VERSION"),
-                    rec.sigma_model_only,
-                    rec.held.join(","),
-                    rec.unobservable.join(","),
-                ],
-            )
-            .map_err(&err)?;
-        if n == 1 {
-            return Ok(Recorded::New(self.conn.last_insert_rowid()));
-        }
-        let id = self
-            .conn
-            .query_row(
-                "SELECT id FROM calibrations WHERE vehicle = ?1 AND fingerprint = ?2 AND method = ?3",
-                params![rec.vehicle, rec.fingerprint, rec.method],
-                |r| r.get(0),
-            )
-            .map_err(&err)?;
-        Ok(Recorded::AlreadyRecorded(id))
+        insert_record(&self.conn, &self.path, rec)
     }
 
     /// The history of `vehicle`: its calibrations, their drift flags, the
@@ -801,45 +806,30 @@ impl History {
     }
 
     /// Logs a write-back decision unless the vehicle's decisions hold one
-    /// for the drive (same fingerprint) already; returns the new row's id,
-    /// or `None` when another run (a concurrent `follow`) logged the drive
-    /// first. The check and the insert are one statement, so of two
-    /// writers one logs the drive. The database sets the row's `id`,
-    /// `decided_at` and `odocal_version` (`d`'s are not read).
-    pub(crate) fn record_decision(&mut self, d: &DecisionRow) -> Result<Option<i64>> {
+    /// for the drive (same fingerprint) already and, when the decision is
+    /// logged and `written` is given, records that calibration
+    /// ([`Self::record`]), in one transaction: an error or an interruption
+    /// between the two leaves neither, so no decision says `written`
+    /// without its row in `calibrations`. Returns the decision's id, or
+    /// `None` when another run (a concurrent `follow`) logged the drive
+    /// first; then nothing is written. The check and the insert are one
+    /// statement, so of two writers one logs the drive. The database sets
+    /// the decision's `id`, `decided_at` and `odocal_version` (`d`'s are
+    /// not read).
+    pub(crate) fn record_followed(
+        &mut self,
+        d: &DecisionRow,
+        written: Option<&CalibrationRecord>,
+    ) -> Result<Option<i64>> {
         let err = sql_err(&self.path);
-        let reasons = serde_json::to_string(&d.reasons)
-            .map_err(|e| Error::History { path: self.path.clone(), reason: format!("reasons: {e}") })?;
-        let s = sigma_params(&d.sigma);
-        let n = self
-            .conn
-            .execute(
-                &format!(
-                    "INSERT INTO decisions (vehicle, decided_at, fingerprint, source, drive_time_s, decision, \
-                     reasons, c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, odocal_version) \
-                     SELECT ?1, {NOW}, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15 \
-                     WHERE NOT EXISTS (SELECT 1 FROM decisions WHERE vehicle = ?1 AND fingerprint = ?2)"
-                ),
-                params![
-                    d.vehicle,
-                    d.fingerprint,
-                    d.source,
-                    d.drive_time_s,
-                    d.decision,
-                    reasons,
-                    d.theta.c_e,
-                    d.theta.c_d,
-                    d.theta.t_r,
-                    d.theta.d,
-                    s[0],
-                    s[1],
-                    s[2],
-                    s[3],
-                    env!("CARGO_PKG_VERSION"),
-                ],
-            )
-            .map_err(&err)?;
-        Ok((n == 1).then(|| self.conn.last_insert_rowid()))
+        // Dropped without a commit on any error: rolled back.
+        let tx = self.conn.transaction_with_behavior(rusqlite::TransactionBehavior::Immediate).map_err(&err)?;
+        let id = insert_decision(&tx, &self.path, d)?;
+        if let (Some(_), Some(rec)) = (id, written) {
+            insert_record(&tx, &self.path, rec)?;
+        }
+        tx.commit().map_err(&err)?;
+        Ok(id)
     }
 
     /// The vehicle's logged write-back decisions in logging order.
@@ -864,6 +854,95 @@ impl History {
             .query_row("SELECT COUNT(*) FROM decisions WHERE vehicle = ?1", params![vehicle], |r| r.get(0))
             .map_err(sql_err(&self.path))
     }
+}
+
+/// Inserts a calibration on `conn` (a connection or a transaction): [`History::record`].
+fn insert_record(conn: &Connection, path: &Path, rec: &CalibrationRecord) -> Result<Recorded> {
+    rec.check()?;
+    let err = sql_err(path);
+    let sources = serde_json::to_string(&rec.sources)
+        .map_err(|e| Error::History { path: path.to_path_buf(), reason: format!("source names: {e}") })?;
+    let s = <[_; 4]>::from(rec.sigma);
+    let n = conn
+        .execute(
+            &format!(
+                "INSERT INTO calibrations (vehicle, recorded_at, fingerprint, sources, t_start_s, t_end_s, method, \
+                 c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, heading_offset_rad, verdict, \
+                 odocal_version, sigma_model_only, held, unobservable) VALUES (?1, {NOW}, ?2, ?3, ?4, ?5, ?6, \
+                 ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17, ?18, ?19, ?20) \
+                 ON CONFLICT (vehicle, fingerprint, method) DO NOTHING"
+            ),
+            params![
+                rec.vehicle,
+                rec.fingerprint,
+                sources,
+                rec.t_start_s,
+                rec.t_end_s,
+                rec.method,
+                rec.theta.c_e,
+                rec.theta.c_d,
+                rec.theta.t_r,
+                rec.theta.d,
+                s[0],
+                s[1],
+                s[2],
+                s[3],
+                rec.heading_offset_rad,
+                rec.verdict,
+                env!("CARGO_PKG_VERSION"),
+                rec.sigma_model_only,
+                rec.held.join(","),
+                rec.unobservable.join(","),
+            ],
+        )
+        .map_err(&err)?;
+    if n == 1 {
+        return Ok(Recorded::New(conn.last_insert_rowid()));
+    }
+    let id = conn
+        .query_row(
+            "SELECT id FROM calibrations WHERE vehicle = ?1 AND fingerprint = ?2 AND method = ?3",
+            params![rec.vehicle, rec.fingerprint, rec.method],
+            |r| r.get(0),
+        )
+        .map_err(&err)?;
+    Ok(Recorded::AlreadyRecorded(id))
+}
+
+/// Inserts a decision on `conn` (a connection or a transaction): [`History::record_followed`].
+fn insert_decision(conn: &Connection, path: &Path, d: &DecisionRow) -> Result<Option<i64>> {
+    let err = sql_err(path);
+    let reasons = serde_json::to_string(&d.reasons)
+        .map_err(|e| Error::History { path: path.to_path_buf(), reason: format!("reasons: {e}") })?;
+    let s = sigma_params(&d.sigma);
+    let n = conn
+        .execute(
+            &format!(
+                "INSERT INTO decisions (vehicle, decided_at, fingerprint, source, drive_time_s, decision, \
+                 reasons, c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, odocal_version) \
+                 SELECT ?1, {NOW}, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15 \
+                 WHERE NOT EXISTS (SELECT 1 FROM decisions WHERE vehicle = ?1 AND fingerprint = ?2)"
+            ),
+            params![
+                d.vehicle,
+                d.fingerprint,
+                d.source,
+                d.drive_time_s,
+                d.decision,
+                reasons,
+                d.theta.c_e,
+                d.theta.c_d,
+                d.theta.t_r,
+                d.theta.d,
+                s[0],
+                s[1],
+                s[2],
+                s[3],
+                env!("CARGO_PKG_VERSION"),
+            ],
+        )
+        .map_err(&err)?;
+    Ok((n == 1).then(|| conn.last_insert_rowid()))
 }
 
 /// Switches the connection to WAL mode. Two processes opening a new file at
