@@ -100,7 +100,7 @@ struct ExpertArgs {
     /// exceeds this, rad/s [default: 0.15].
     #[arg(long, value_name = "RAD_PER_S", help_heading = ONLINE, hide_short_help = true)]
     informative_yaw_rate: Option<f64>,
-    /// Gauss-Newton iterations per folded segment [default: 2].
+    /// Gauss-Newton iterations per folded segment, 1 to 100 [default: 2].
     #[arg(long, value_name = "N", help_heading = ONLINE, hide_short_help = true)]
     iterations_per_segment: Option<usize>,
     /// Informative driving over which θ's track is kept for the steadiness gate, s [default: 120].
