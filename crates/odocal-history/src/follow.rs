@@ -94,8 +94,10 @@ struct Stored {
 /// `db` whose verdict is not `rejected` (else `opts.theta0`), and writes
 /// back what the gates pass. The
 /// row's σ is the recursion's start unless it is the model's alone
-/// ([`CalibrationRecord::sigma_model_only`]); then, as without a σ, the
-/// options' prior sd is.
+/// ([`CalibrationRecord::sigma_model_only`]), a parameter has none (held)
+/// or the row names a parameter not observable
+/// ([`CalibrationRecord::unobservable`], whose σ is no measure of it); then,
+/// as without a σ (a fresh start from θ_0), the options' prior sd is.
 ///
 /// Each drive is read as a stream when it can be (memory flat in its
 /// length): a drive CSV, or a manifest of CSV streams (its samples kept in
@@ -255,8 +257,16 @@ fn start(db: &History, vehicle: &str, opts: &FollowOptions) -> Result<(Stored, S
             // calibrator starts from the options' prior sd instead.
             // The recursion needs a σ for every parameter: a row with a
             // parameter held (or without σ) starts from the prior's sd.
-            let sigma = r.record.checked_sigma().all();
+            // A parameter the row found not observable has a σ that is
+            // no measure of it: the recursion starts as without a σ.
+            let unobservable = &r.record.unobservable;
+            let sigma = r.record.checked_sigma().all().filter(|_| unobservable.is_empty());
             let origin = match (sigma, r.record.sigma.all()) {
+                (None, Some(_)) if !unobservable.is_empty() => format!(
+                    "history row {}; {} not observable in it, so the prior's sd",
+                    r.id,
+                    unobservable.join(", ")
+                ),
                 (None, Some(_)) => format!("history row {}; its σ is the model's alone, so the prior's sd", r.id),
                 (None, None) if r.record.sigma != crate::ParamSigma::default() => {
                     format!("history row {}; not every parameter has a σ, so the prior's sd", r.id)

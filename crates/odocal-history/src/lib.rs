@@ -443,6 +443,41 @@ pub const ONLINE: &str = "online";
 /// and d in mm, as the calibration report shows them): value and σ alike.
 const DISPLAY_UNITS: [(f64, &str); 4] = [(1.0, "m"), (1e3, "mm"), (1.0, "m"), (1e3, "mm/(m/s²)")];
 
+impl VehicleHistory {
+    /// When the rows are online running estimates alone (nothing pooled),
+    /// what the most recent of them is, in words: the estimate `follow`
+    /// continues from, and how many drives followed after it were held or
+    /// flagged (their data are not in it). Which drives a running estimate
+    /// holds is not recorded (a run's held drives are dropped with it; a
+    /// concurrent run starts from an older row), so no more is said.
+    /// `None` when something is pooled or no online row stands.
+    pub fn running_estimate(&self) -> Option<String> {
+        if self.pooled.is_some() {
+            return None;
+        }
+        let last = self.rows.iter().rev().find(|r| r.record.method == ONLINE && !pooled::is_rejected(r))?;
+        // After the row's own decision when the decisions hold it, else
+        // after its time of recording.
+        let own = self.decisions.iter().find(|d| d.fingerprint == last.record.fingerprint && d.decision == "written");
+        let after = self
+            .decisions
+            .iter()
+            .filter(|d| d.decision != "written")
+            .filter(|d| own.map_or(d.decided_at >= last.recorded_at, |o| d.id > o.id))
+            .count();
+        let unwritten = match after {
+            0 => String::new(),
+            1 => "; 1 drive followed after it was held or flagged, and its data are not in it".to_string(),
+            n => format!("; {n} drives followed after it were held or flagged, and their data are not in it"),
+        };
+        Some(format!(
+            "the rows are online running estimates, each holding drives followed before it; the most recent, \
+             row {}, is the estimate follow continues from{unwritten}",
+            last.id
+        ))
+    }
+}
+
 impl std::fmt::Display for VehicleHistory {
     /// The rows as a table (one line per recorded drive and method), the
     /// drift flags and the pooled estimate, each value and σ in the unit
@@ -564,14 +599,8 @@ impl VehicleHistory {
                     if s[i].is_finite() { format!("{:.2e}", s[i] * scale) } else { "— (one row, without σ)".into() };
                 writeln!(f, "  {name:<4} {unit:<10} {:>12.6} ± {se}   between-drive sd {sd}{left_out}", m[i] * scale)?;
             }
-        } else if let Some(last) = self.rows.iter().rev().find(|r| r.record.method == ONLINE && !pooled::is_rejected(r))
-        {
-            writeln!(
-                f,
-                "\nnothing pooled: the rows are online running estimates, each holding the drives before it; \
-                 the most recent, row {}, is the estimate over every drive followed",
-                last.id
-            )?;
+        } else if let Some(note) = self.running_estimate() {
+            writeln!(f, "\nnothing pooled: {note}")?;
         }
         Ok(())
     }

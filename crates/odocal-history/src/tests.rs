@@ -653,7 +653,43 @@ fn online_rows_are_listed_but_not_pooled() {
     assert!(h.pooled.is_none());
     let text = h.to_string();
     assert!(text.contains("nothing pooled: the rows are online running estimates"), "{text}");
-    assert!(text.contains(&format!("the most recent, row {}, is the estimate", ids[2])), "{text}");
+    assert!(
+        text.contains(&format!("the most recent, row {}, is the estimate follow continues from\n", ids[2])),
+        "{text}"
+    );
+    assert!(!text.contains("every drive followed"), "{text}");
+}
+
+/// After held drives (whose data `follow` drops) the most recent online
+/// row is not called the estimate over every drive followed: the text says
+/// how many drives followed after it are not in it.
+#[test]
+fn held_drives_after_the_last_online_row_are_named_as_not_in_it() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
+    let decision = |fp: &str, action: &str| DecisionRow {
+        id: 0,
+        decided_at: String::new(),
+        odocal_version: String::new(),
+        vehicle: "van".into(),
+        fingerprint: fp.into(),
+        source: format!("{fp}.csv"),
+        drive_time_s: 60.0,
+        decision: action.into(),
+        reasons: vec![],
+        theta: theta(1.95),
+        sigma: None,
+    };
+    let online = |fp: &str| CalibrationRecord { method: ONLINE.into(), ..record("van", fp, 1.95, 1e-4) };
+    db.record_followed(&decision("a", "held"), None).expect("a");
+    db.record_followed(&decision("b", "written"), Some(&online("b"))).expect("b");
+    let text = db.vehicle("van", None).expect("history").to_string();
+    assert!(text.contains("is the estimate follow continues from\n"), "{text}");
+    db.record_followed(&decision("c", "held"), None).expect("c");
+    db.record_followed(&decision("d", "flagged"), None).expect("d");
+    let text = db.vehicle("van", None).expect("history").to_string();
+    assert!(text.contains("2 drives followed after it were held or flagged, and their data are not in it"), "{text}");
+    assert!(!text.contains("every drive followed"), "{text}");
 }
 
 /// Two `follow` runs of one vehicle on one database at once: each drive is
@@ -831,4 +867,44 @@ fn reading_a_history_changes_nothing() {
     let db = History::open_read_only(&path).expect("read only");
     assert_eq!(db.rows("van").expect("rows").len(), 1);
     assert!(db.conn.is_readonly(rusqlite::MAIN_DB).expect("flag"));
+}
+
+/// `follow` from a row that names a parameter not observable starts the
+/// recursion from the prior's sd, as without a σ: that parameter's σ is no
+/// measure of it.
+#[test]
+fn follow_does_not_start_from_the_sigma_of_a_parameter_not_observable() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let csv = dir.path().join("a.csv");
+    let sim = odocal::SimOptions { length_km: 1.0, ..odocal::SimOptions::paper(4) };
+    odocal::simulate(&sim).expect("sim").drive.write_csv(&csv).expect("csv");
+    let truth = Theta::SIM_DEFAULT_TRUE;
+    let tight = Theta { c_e: 1e-6, c_d: 1e-7, t_r: 1e-5, d: 1e-7 };
+    let follow_from = |name: &str, sigma: Option<Theta>, unobservable: &[&str]| {
+        let mut db = History::open(dir.path().join(name)).expect("open");
+        let row = CalibrationRecord {
+            sigma: sigma.map_or_else(ParamSigma::default, ParamSigma::from),
+            sigma_model_only: Some(false),
+            unobservable: unobservable.iter().map(|p| p.to_string()).collect(),
+            ..CalibrationRecord::new("van", "start", "eiv", truth)
+        };
+        db.record(&row).expect("row");
+        let (mut origin, mut sd) = (String::new(), None);
+        follow(&mut db, "van", std::slice::from_ref(&csv), &FollowOptions::default(), |e| {
+            match e {
+                FollowEvent::Start { origin: o, .. } => origin = o,
+                FollowEvent::Followed { decision, .. } => sd = Some(decision.sigma),
+                _ => {}
+            }
+            Ok::<(), Error>(())
+        })
+        .expect("follow");
+        (origin, sd.expect("followed"))
+    };
+    let (origin, unobservable) = follow_from("a.sqlite", Some(tight), &["t_r"]);
+    assert!(origin.contains("t_r not observable in it, so the prior's sd"), "{origin}");
+    let (_, observed) = follow_from("b.sqlite", Some(tight), &[]);
+    let (_, without) = follow_from("c.sqlite", None, &[]);
+    assert_eq!(unobservable, without, "the prior's sd, as without a σ");
+    assert!(unobservable.t_r > 10.0 * observed.t_r, "{unobservable:?} vs {observed:?}");
 }

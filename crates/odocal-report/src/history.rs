@@ -254,15 +254,9 @@ pub fn render_history_html(history: &VehicleHistory) -> Result<String> {
         if let Some(p) = pooled {
             h.push_str("</section>\n<section id=\"pooled\"><h2>Pooled estimate</h2>\n");
             h.push_str(&pooled_table(p));
-        } else if let Some(last) =
-            rows.iter().rev().find(|r| r.record.method == ONLINE && r.record.verdict.as_deref() != Some("rejected"))
-        {
+        } else if let Some(note) = history.running_estimate() {
             h.push_str("</section>\n<section id=\"pooled\"><h2>Pooled estimate</h2>\n");
-            h.push_str(&format!(
-                "<p>Nothing pooled: the rows are online running estimates, each holding the drives followed before \
-                 it; the most recent, row id {}, is the estimate over every drive followed.</p>\n",
-                last.id
-            ));
+            h.push_str(&format!("<p>Nothing pooled: {}.</p>\n", esc(&note)));
         }
         h.push_str("</section>\n<section id=\"rows\"><h2>Recorded calibrations</h2>\n");
         h.push_str(&rows_table(rows));
@@ -337,6 +331,9 @@ mod tests {
         let mut online = vec![row(1, -2e-3), row(2, -2e-3)];
         online.iter_mut().for_each(|r| r.record.method = ONLINE.into());
         let html = render_history_html(&VehicleHistory::of_rows("v", online, None)).expect("html");
-        assert!(html.contains("Nothing pooled") && html.contains("row id 2, is the estimate"), "{html}");
+        assert!(
+            html.contains("Nothing pooled") && html.contains("row 2, is the estimate follow continues from"),
+            "{html}"
+        );
     }
 }
