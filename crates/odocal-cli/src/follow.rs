@@ -47,8 +47,9 @@ pub struct FollowArgs {
     /// θ_0 when the history holds none: c_e,c_d,t_r,d (SI) or a parameter file.
     #[arg(long, allow_hyphen_values = true)]
     theta0: Option<ThetaArg>,
-    /// Informative driving (s) over which θ must stay within one σ before
-    /// an update is written.
+    /// Informative driving (s) over which each parameter of θ must stay
+    /// within its --max-sigma threshold of its current value before an
+    /// update is written.
     #[arg(long, default_value_t = 10.0, value_name = "S", help_heading = GATES)]
     steady_s: f64,
     /// Weight of one segment's normal equations [default: 0.005].
@@ -139,6 +140,7 @@ impl std::str::FromStr for Four {
 /// Replays the drives through the library's `odocal_history::follow` and
 /// prints what it reports; writes each written update to `--params-out`.
 pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
+    crate::output::refuse_stdout("--db", &a.db, "the history is a database file")?;
     let mut files = Files::default();
     for p in &a.drive {
         files.drive("a drive being followed", p);

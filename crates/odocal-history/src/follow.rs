@@ -262,11 +262,9 @@ fn start(db: &History, vehicle: &str, opts: &FollowOptions) -> Result<(Stored, S
             let unobservable = &r.record.unobservable;
             let sigma = r.record.checked_sigma().all().filter(|_| unobservable.is_empty());
             let origin = match (sigma, r.record.sigma.all()) {
-                (None, Some(_)) if !unobservable.is_empty() => format!(
-                    "history row {}; {} not observable in it, so the prior's sd",
-                    r.id,
-                    unobservable.join(", ")
-                ),
+                (None, Some(_)) if !unobservable.is_empty() => {
+                    format!("history row {}; {} not observable in it, so the prior's sd", r.id, unobservable.join(", "))
+                }
                 (None, Some(_)) => format!("history row {}; its σ is the model's alone, so the prior's sd", r.id),
                 (None, None) if r.record.sigma != crate::ParamSigma::default() => {
                     format!("history row {}; not every parameter has a σ, so the prior's sd", r.id)

@@ -765,10 +765,7 @@ impl History {
             Err(e) => return Err(refuse(format!("cannot be read: {e}"))),
         }
         let err = open_err(&path);
-        let flags = rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY | rusqlite::OpenFlags::SQLITE_OPEN_NO_MUTEX;
-        let conn = Connection::open_with_flags(&path, flags).map_err(&err)?;
-        conn.busy_timeout(BUSY_TIMEOUT).map_err(&err)?;
-        let version: i64 = conn.query_row("PRAGMA user_version", [], |r| r.get(0)).map_err(&err)?;
+        let (conn, version) = read_only_connection(&path).map_err(&err)?;
         let tables: i64 = conn
             .query_row(
                 "SELECT COUNT(*) FROM sqlite_master WHERE type = 'table' AND name IN ('calibrations', 'decisions')",
@@ -882,6 +879,40 @@ impl History {
         self.conn
             .query_row("SELECT COUNT(*) FROM decisions WHERE vehicle = ?1", params![vehicle], |r| r.get(0))
             .map_err(sql_err(&self.path))
+    }
+}
+
+/// A read-only connection to `path` and its schema version. A file in WAL
+/// mode needs its `-shm` file to be read; in a folder the reader cannot
+/// create it in (another user's history), the file is read as immutable
+/// instead: as it is at the moment, without the WAL of a writer at work.
+fn read_only_connection(path: &Path) -> rusqlite::Result<(Connection, i64)> {
+    use rusqlite::OpenFlags;
+    let flags = OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX;
+    let open = |conn: rusqlite::Result<Connection>| -> rusqlite::Result<(Connection, i64)> {
+        let conn = conn?;
+        conn.busy_timeout(BUSY_TIMEOUT)?;
+        let version = conn.query_row("PRAGMA user_version", [], |r| r.get(0))?;
+        Ok((conn, version))
+    };
+    match open(Connection::open_with_flags(path, flags)) {
+        Err(rusqlite::Error::SqliteFailure(e, _))
+            if matches!(e.code, rusqlite::ErrorCode::ReadOnly | rusqlite::ErrorCode::CannotOpen) =>
+        {
+            use std::os::unix::ffi::OsStrExt;
+            // A URI: every byte but the unreserved ones and `/` escaped.
+            let mut uri = String::from("file:");
+            for &b in path.as_os_str().as_bytes() {
+                if b.is_ascii_alphanumeric() || b"-._~/".contains(&b) {
+                    uri.push(char::from(b));
+                } else {
+                    uri.push_str(&format!("%{b:02X}"));
+                }
+            }
+            uri.push_str("?immutable=1");
+            open(Connection::open_with_flags(uri, flags | OpenFlags::SQLITE_OPEN_URI))
+        }
+        other => other,
     }
 }
 

@@ -5,7 +5,7 @@
 //! and the pooled estimate as tables.
 
 use odocal::model::THETA_NAMES;
-use odocal_history::{DriftFlag, HistoryRow, Pooled, VehicleHistory, DRIFT_SIGMAS, MODEL_SIGMA_NOTE, ONLINE};
+use odocal_history::{DriftFlag, HistoryRow, Pooled, VehicleHistory, DRIFT_SIGMAS, MODEL_SIGMA_NOTE};
 use plotters::prelude::*;
 
 use crate::plots::{BLUE, GREY, RED};
@@ -270,7 +270,7 @@ pub fn render_history_html(history: &VehicleHistory) -> Result<String> {
 mod tests {
     use super::*;
     use odocal::Theta;
-    use odocal_history::CalibrationRecord;
+    use odocal_history::{CalibrationRecord, ONLINE};
 
     fn row(id: i64, c_d: f64) -> HistoryRow {
         let theta = Theta { c_d, ..Theta::SIM_DEFAULT_TRUE };

@@ -27,7 +27,9 @@ use std::ops::Range;
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 
-use super::csv::{check_header, csv_error, not_csv, tail_warning_at, MASK_COLUMN, PART_COLUMN, REQUIRED_COLUMNS, TRUTH_COLUMNS};
+use super::csv::{
+    check_header, csv_error, not_csv, tail_warning_at, MASK_COLUMN, PART_COLUMN, REQUIRED_COLUMNS, TRUTH_COLUMNS,
+};
 use super::csv_lines::LineCounted;
 use super::fingerprint::Fingerprinter;
 use super::{Drive, Signals, STEP_UNIFORMITY_TOL};
