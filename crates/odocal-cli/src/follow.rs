@@ -163,7 +163,7 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
     }
     let opts =
         FollowOptions { theta0: a.theta0.as_ref().map(|t| t.theta), online: online_options(&a)?, gates: gates(&a)? };
-    let mut db = History::open(&a.db)?;
+    let mut db = History::open_to_write(&a.db)?;
     // With an output on stdout (`--json -`, `--params-out -`) the text
     // report goes to stderr, so stdout holds that output alone.
     let params_to_stdout = a.params_out.as_deref().is_some_and(odocal::output::is_stdout);

@@ -112,7 +112,7 @@ pub fn run(a: HistoryArgs) -> Result<()> {
 pub fn check_db(db: &Path) -> Result<()> {
     crate::output::refuse_stdout("--db", db, "the history is a database file")?;
     if db.exists() {
-        History::open(db)?;
+        History::open_to_write(db)?;
     }
     Ok(())
 }
@@ -126,7 +126,7 @@ pub fn record_calibration(
     fingerprint: &str,
     r: &CalibrationReport,
 ) -> Result<()> {
-    let mut h = History::open(db)?;
+    let mut h = History::open_to_write(db)?;
     let t = drive.t();
     let span = (t.first().copied().unwrap_or(0.0), t.last().copied().unwrap_or(0.0));
     let names = sources.iter().map(|p| p.display().to_string()).collect();

@@ -723,14 +723,6 @@ impl History {
         }
         let err = open_err(&path);
         let mut conn = Connection::open(&path).map_err(&err)?;
-        // SQLite opens a file it may not write read-only, and would fail
-        // at the first write, after the work: refused here, before it.
-        if conn.is_readonly(rusqlite::MAIN_DB).map_err(&err)? {
-            return Err(Error::History {
-                path,
-                reason: "cannot be written (read-only, or no permission): give a file you can write to".into(),
-            });
-        }
         conn.busy_timeout(BUSY_TIMEOUT).map_err(&err)?;
         // WAL: readers do not block the writer and a crash mid-write leaves
         // the last committed state. Setting it needs a moment of exclusive
@@ -743,6 +735,25 @@ impl History {
         schema::migrate(&mut conn).map_err(|reason| Error::History { path: path.clone(), reason })?;
         let schema_version = conn.query_row("PRAGMA user_version", [], |r| r.get(0)).map_err(&err)?;
         Ok(History { conn, path, schema_version })
+    }
+
+    /// [`History::open`] for a program that will write (`follow`,
+    /// `calibrate --db`): a file SQLite can open only read-only (no
+    /// permission, a read-only file system), which [`History::open`] takes
+    /// for reading and which would fail at the first write, after the
+    /// work, is refused at once.
+    ///
+    /// # Errors
+    /// [`History::open`]'s; [`Error::History`] for a file that cannot be written.
+    pub fn open_to_write(path: impl AsRef<Path>) -> Result<History> {
+        let db = History::open(path)?;
+        if db.conn.is_readonly(rusqlite::MAIN_DB).map_err(sql_err(&db.path))? {
+            return Err(Error::History {
+                path: db.path,
+                reason: "cannot be written (read-only, or no permission): give a file you can write to".into(),
+            });
+        }
+        Ok(db)
     }
 
     /// Opens the history at `path` to read it, changing nothing: neither
