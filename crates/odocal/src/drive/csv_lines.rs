@@ -18,7 +18,8 @@ use std::io::Read;
 pub(crate) const MAX_LINE_BYTES: u64 = 1 << 20;
 
 /// Why a table's bytes are no CSV text, and on which line: a line longer
-/// than [`MAX_LINE_BYTES`], or a NUL byte. Carried through the CSV reader
+/// than [`MAX_LINE_BYTES`], or a NUL byte after the header line (one in
+/// the header is named by the header's check, with its column). Carried through the CSV reader
 /// as an I/O error ([`not_text`] finds it).
 #[derive(Debug)]
 pub(crate) struct NotText {
@@ -100,7 +101,8 @@ impl<R> LineCounted<R> {
     }
 
     /// Notes the line starts in `bytes`; a line longer than
-    /// [`MAX_LINE_BYTES`] or a NUL byte is an error ([`NotText`]).
+    /// [`MAX_LINE_BYTES`] or a NUL byte after the header line is an error
+    /// ([`NotText`]).
     fn note(&mut self, bytes: &[u8]) -> std::io::Result<()> {
         let mut i = 0;
         while let Some(&b) = bytes.get(i) {
@@ -111,7 +113,10 @@ impl<R> LineCounted<R> {
                     self.at_start = true;
                     self.line_len = 0;
                 }
-                0 => return Err(self.not_text("a NUL byte: binary data, not CSV text; is this a CSV file?".into())),
+                // The header's own check names a NUL in a column's name.
+                0 if self.line > 1 => {
+                    return Err(self.not_text("a NUL byte: binary data, not CSV text; is this a CSV file?".into()))
+                }
                 _ => {
                     if self.at_start {
                         self.starts.push_back((self.offset + i as u64, self.line));
