@@ -85,6 +85,10 @@ pub fn calibrate_cmd(a: CalibrateArgs, bars: &Bars) -> Result<Outcome> {
     for p in &a.drive {
         files.drive("the drive being calibrated", p);
     }
+    if let Some(db) = &a.db {
+        // `-`, a file that is no history or cannot be written: named before the work.
+        crate::history::check_db(db)?;
+    }
     files.output("--db", a.db.as_deref());
     calibration_files(&mut files, &a.calibration, a.json.as_deref())?;
     let mut drives = Vec::with_capacity(a.drive.len());

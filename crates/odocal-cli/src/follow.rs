@@ -47,8 +47,9 @@ pub struct FollowArgs {
     /// θ_0 when the history holds none: c_e,c_d,t_r,d (SI) or a parameter file.
     #[arg(long, allow_hyphen_values = true)]
     theta0: Option<ThetaArg>,
-    /// Informative driving (s) over which θ must stay within one σ before
-    /// an update is written.
+    /// Informative driving (s) over which each parameter of θ must stay
+    /// within its --max-sigma threshold of its current value before an
+    /// update is written.
     #[arg(long, default_value_t = 10.0, value_name = "S", help_heading = GATES)]
     steady_s: f64,
     /// Weight of one segment's normal equations [default: 0.005].
@@ -100,7 +101,7 @@ struct ExpertArgs {
     /// exceeds this, rad/s [default: 0.15].
     #[arg(long, value_name = "RAD_PER_S", help_heading = ONLINE, hide_short_help = true)]
     informative_yaw_rate: Option<f64>,
-    /// Gauss-Newton iterations per folded segment [default: 2].
+    /// Gauss-Newton iterations per folded segment, 1 to 100 [default: 2].
     #[arg(long, value_name = "N", help_heading = ONLINE, hide_short_help = true)]
     iterations_per_segment: Option<usize>,
     /// Informative driving over which θ's track is kept for the steadiness gate, s [default: 120].
@@ -139,6 +140,7 @@ impl std::str::FromStr for Four {
 /// Replays the drives through the library's `odocal_history::follow` and
 /// prints what it reports; writes each written update to `--params-out`.
 pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
+    crate::output::refuse_stdout("--db", &a.db, "the history is a database file")?;
     let mut files = Files::default();
     for p in &a.drive {
         files.drive("a drive being followed", p);
@@ -161,7 +163,7 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
     }
     let opts =
         FollowOptions { theta0: a.theta0.as_ref().map(|t| t.theta), online: online_options(&a)?, gates: gates(&a)? };
-    let mut db = History::open(&a.db)?;
+    let mut db = History::open_to_write(&a.db)?;
     // With an output on stdout (`--json -`, `--params-out -`) the text
     // report goes to stderr, so stdout holds that output alone.
     let params_to_stdout = a.params_out.as_deref().is_some_and(odocal::output::is_stdout);

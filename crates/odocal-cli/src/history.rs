@@ -42,7 +42,8 @@ pub fn run(a: HistoryArgs) -> Result<()> {
         .output("--json", a.json.as_deref())
         .output("--report", a.report.as_deref());
     files.check()?;
-    let db = History::open(&a.db)?;
+    // A read: the file is neither created, migrated nor changed.
+    let db = History::open_read_only(&a.db)?;
     let h = db.vehicle(&a.vehicle, a.pool.as_deref())?;
     if h.rows.is_empty() && h.decisions.is_empty() {
         let known = db.vehicles()?;
@@ -77,15 +78,10 @@ pub fn run(a: HistoryArgs) -> Result<()> {
     }
     if let Some(p) = &a.report {
         let html = odocal_report::history::render_history_html(&h)?;
-        if odocal::output::is_stdout(p) {
-            if a.json.as_deref().is_some_and(odocal::output::is_stdout) {
-                anyhow::bail!("--report - and --json -: only one of them can go to stdout");
-            }
-            write_text(p, &html)?;
-            return Ok(());
-        }
         write_text(p, &html).with_context(|| format!("--report {}", p.display()))?;
-        eprintln!("wrote {}", p.display());
+        if !odocal::output::is_stdout(p) {
+            eprintln!("wrote {}", p.display());
+        }
     }
     if let Some(p) = &a.json {
         let v = serde_json::json!({
@@ -96,15 +92,28 @@ pub fn run(a: HistoryArgs) -> Result<()> {
             "pooled": h.pooled,
         });
         write_text(p, &serde_json::to_string_pretty(&v)?)?;
-        if odocal::output::is_stdout(p) {
-            return Ok(());
-        }
+    }
+    // An output on stdout (`--report -`, `--json -`) is stdout's alone.
+    if files.any_stdout() {
+        return Ok(());
     }
     if h.rows.is_empty() {
         println!("no calibrations of vehicle '{}' in {}", a.vehicle, a.db.display());
         return Ok(());
     }
     print!("{h}");
+    Ok(())
+}
+
+/// Refuses a `--db` that cannot be a history written to (`-`, a device,
+/// a file that is no history database, one that cannot be written), before
+/// any work: opened (and migrated) when it exists; a new file is created
+/// when the calibration is recorded.
+pub fn check_db(db: &Path) -> Result<()> {
+    crate::output::refuse_stdout("--db", db, "the history is a database file")?;
+    if db.exists() {
+        History::open_to_write(db)?;
+    }
     Ok(())
 }
 
@@ -117,12 +126,13 @@ pub fn record_calibration(
     fingerprint: &str,
     r: &CalibrationReport,
 ) -> Result<()> {
-    let mut h = History::open(db)?;
+    let mut h = History::open_to_write(db)?;
     let t = drive.t();
     let span = (t.first().copied().unwrap_or(0.0), t.last().copied().unwrap_or(0.0));
     let names = sources.iter().map(|p| p.display().to_string()).collect();
     let rec = CalibrationRecord::of_report(vehicle, fingerprint, names, span, r);
-    match h.record(&rec).with_context(|| format!("recording in {}", db.display()))? {
+    // The history's errors name the file.
+    match h.record(&rec)? {
         Recorded::New(id) => eprintln!("recorded in {} as row {id} of vehicle '{vehicle}'", db.display()),
         Recorded::AlreadyRecorded(id) => eprintln!(
             "already recorded: {} holds this drive calibrated by {} for vehicle '{vehicle}' (row {id}); nothing added",

@@ -94,8 +94,10 @@ struct Stored {
 /// `db` whose verdict is not `rejected` (else `opts.theta0`), and writes
 /// back what the gates pass. The
 /// row's σ is the recursion's start unless it is the model's alone
-/// ([`CalibrationRecord::sigma_model_only`]); then, as without a σ, the
-/// options' prior sd is.
+/// ([`CalibrationRecord::sigma_model_only`]), a parameter has none (held)
+/// or the row names a parameter not observable
+/// ([`CalibrationRecord::unobservable`], whose σ is no measure of it); then,
+/// as without a σ (a fresh start from θ_0), the options' prior sd is.
 ///
 /// Each drive is read as a stream when it can be (memory flat in its
 /// length): a drive CSV, or a manifest of CSV streams (its samples kept in
@@ -192,37 +194,42 @@ pub fn follow<E: From<Error>>(
         let decision = opts.gates.decide(c, &stored.theta, stored.calibrated);
         let status = c.status();
         let span = drive.time_span_s();
-        let logged = db.record_decision(&DecisionRow {
-            // Set by the database.
-            id: 0,
-            decided_at: String::new(),
-            odocal_version: String::new(),
-            vehicle: vehicle.to_string(),
-            fingerprint: fingerprint.clone(),
-            source: source.clone(),
-            drive_time_s: span.1 - span.0,
-            decision: decision.action.to_string(),
-            reasons: decision.reasons.clone(),
-            theta: decision.theta,
-            sigma: Some(decision.sigma),
-        })?;
+        let written = (decision.action == Action::Write).then(|| CalibrationRecord {
+            sources: vec![source.clone()],
+            t_start_s: span.0,
+            t_end_s: span.1,
+            sigma: decision.sigma.into(),
+            heading_offset_rad: Some(status.heading_offset_rad),
+            // Written only when every gate passed: what its parameter file says.
+            verdict: Some(odocal::VerdictLevel::Accepted.to_string()),
+            ..CalibrationRecord::new(vehicle, &fingerprint, METHOD, decision.theta)
+        });
+        // The decision and its calibration row in one transaction: a
+        // decision `written` without its row would skip the drive for ever.
+        let logged = db.record_followed(
+            &DecisionRow {
+                // Set by the database.
+                id: 0,
+                decided_at: String::new(),
+                odocal_version: String::new(),
+                vehicle: vehicle.to_string(),
+                fingerprint: fingerprint.clone(),
+                source: source.clone(),
+                drive_time_s: span.1 - span.0,
+                decision: decision.action.to_string(),
+                reasons: decision.reasons.clone(),
+                theta: decision.theta,
+                sigma: Some(decision.sigma),
+            },
+            written.as_ref(),
+        )?;
         if logged.is_none() {
             // A concurrent run followed the drive while this one replayed it.
             cal = before;
             on(FollowEvent::Skipped { source, fingerprint, row: None })?;
             continue;
         }
-        if decision.action == Action::Write {
-            db.record(&CalibrationRecord {
-                sources: vec![source.clone()],
-                t_start_s: span.0,
-                t_end_s: span.1,
-                sigma: decision.sigma.into(),
-                heading_offset_rad: Some(status.heading_offset_rad),
-                // Written only when every gate passed: what its parameter file says.
-                verdict: Some(odocal::VerdictLevel::Accepted.to_string()),
-                ..CalibrationRecord::new(vehicle, &fingerprint, METHOD, decision.theta)
-            })?;
+        if written.is_some() {
             stored = Stored { theta: decision.theta, sigma: Some(decision.sigma), calibrated: true };
         }
         on(FollowEvent::Followed {
@@ -250,8 +257,14 @@ fn start(db: &History, vehicle: &str, opts: &FollowOptions) -> Result<(Stored, S
             // calibrator starts from the options' prior sd instead.
             // The recursion needs a σ for every parameter: a row with a
             // parameter held (or without σ) starts from the prior's sd.
-            let sigma = r.record.checked_sigma().all();
+            // A parameter the row found not observable has a σ that is
+            // no measure of it: the recursion starts as without a σ.
+            let unobservable = &r.record.unobservable;
+            let sigma = r.record.checked_sigma().all().filter(|_| unobservable.is_empty());
             let origin = match (sigma, r.record.sigma.all()) {
+                (None, Some(_)) if !unobservable.is_empty() => {
+                    format!("history row {}; {} not observable in it, so the prior's sd", r.id, unobservable.join(", "))
+                }
                 (None, Some(_)) => format!("history row {}; its σ is the model's alone, so the prior's sd", r.id),
                 (None, None) if r.record.sigma != crate::ParamSigma::default() => {
                     format!("history row {}; not every parameter has a σ, so the prior's sd", r.id)

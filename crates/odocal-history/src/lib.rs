@@ -48,6 +48,9 @@ use odocal::{CalibrationReport, Error, Result, Theta};
 mod follow;
 mod pooled;
 mod schema;
+mod store;
+
+use store::{insert_decision, insert_record, read_only_connection};
 
 pub use follow::{follow, FollowEvent, FollowOptions};
 pub use pooled::{DriftFlag, NotMeasured, Pooled, SetAside, DRIFT_SIGMAS};
@@ -443,6 +446,41 @@ pub const ONLINE: &str = "online";
 /// and d in mm, as the calibration report shows them): value and σ alike.
 const DISPLAY_UNITS: [(f64, &str); 4] = [(1.0, "m"), (1e3, "mm"), (1.0, "m"), (1e3, "mm/(m/s²)")];
 
+impl VehicleHistory {
+    /// When the rows are online running estimates alone (nothing pooled),
+    /// what the most recent of them is, in words: the estimate `follow`
+    /// continues from, and how many drives followed after it were held or
+    /// flagged (their data are not in it). Which drives a running estimate
+    /// holds is not recorded (a run's held drives are dropped with it; a
+    /// concurrent run starts from an older row), so no more is said.
+    /// `None` when something is pooled or no online row stands.
+    pub fn running_estimate(&self) -> Option<String> {
+        if self.pooled.is_some() {
+            return None;
+        }
+        let last = self.rows.iter().rev().find(|r| r.record.method == ONLINE && !pooled::is_rejected(r))?;
+        // After the row's own decision when the decisions hold it, else
+        // after its time of recording.
+        let own = self.decisions.iter().find(|d| d.fingerprint == last.record.fingerprint && d.decision == "written");
+        let after = self
+            .decisions
+            .iter()
+            .filter(|d| d.decision != "written")
+            .filter(|d| own.map_or(d.decided_at >= last.recorded_at, |o| d.id > o.id))
+            .count();
+        let unwritten = match after {
+            0 => String::new(),
+            1 => "; 1 drive followed after it was held or flagged, and its data are not in it".to_string(),
+            n => format!("; {n} drives followed after it were held or flagged, and their data are not in it"),
+        };
+        Some(format!(
+            "the rows are online running estimates, each holding drives followed before it; the most recent, \
+             row {}, is the estimate follow continues from{unwritten}",
+            last.id
+        ))
+    }
+}
+
 impl std::fmt::Display for VehicleHistory {
     /// The rows as a table (one line per recorded drive and method), the
     /// drift flags and the pooled estimate, each value and σ in the unit
@@ -564,14 +602,8 @@ impl VehicleHistory {
                     if s[i].is_finite() { format!("{:.2e}", s[i] * scale) } else { "— (one row, without σ)".into() };
                 writeln!(f, "  {name:<4} {unit:<10} {:>12.6} ± {se}   between-drive sd {sd}{left_out}", m[i] * scale)?;
             }
-        } else if let Some(last) = self.rows.iter().rev().find(|r| r.record.method == ONLINE && !pooled::is_rejected(r))
-        {
-            writeln!(
-                f,
-                "\nnothing pooled: the rows are online running estimates, each holding the drives before it; \
-                 the most recent, row {}, is the estimate over every drive followed",
-                last.id
-            )?;
+        } else if let Some(note) = self.running_estimate() {
+            writeln!(f, "\nnothing pooled: {note}")?;
         }
         Ok(())
     }
@@ -708,6 +740,69 @@ impl History {
         Ok(History { conn, path, schema_version })
     }
 
+    /// [`History::open`] for a program that will write (`follow`,
+    /// `calibrate --db`): a file SQLite can open only read-only (no
+    /// permission, a read-only file system), which [`History::open`] takes
+    /// for reading and which would fail at the first write, after the
+    /// work, is refused at once.
+    ///
+    /// # Errors
+    /// [`History::open`]'s; [`Error::History`] for a file that cannot be written.
+    pub fn open_to_write(path: impl AsRef<Path>) -> Result<History> {
+        let db = History::open(path)?;
+        if db.conn.is_readonly(rusqlite::MAIN_DB).map_err(sql_err(&db.path))? {
+            return Err(Error::History {
+                path: db.path,
+                reason: "cannot be written (read-only, or no permission): give a file you can write to".into(),
+            });
+        }
+        Ok(db)
+    }
+
+    /// Opens the history at `path` to read it, changing nothing: neither
+    /// the file nor its schema (a file of an older schema is read from a
+    /// copy in memory, migrated there). A file that is not there, that is
+    /// empty or that is no history database (an SQLite file without its
+    /// tables) is refused, as is one written by a newer odocal.
+    ///
+    /// # Errors
+    /// [`Error::History`] naming the file and what to give.
+    pub fn open_read_only(path: impl AsRef<Path>) -> Result<History> {
+        let path = path.as_ref().to_path_buf();
+        let refuse = |reason: String| Error::History { path: path.clone(), reason };
+        match std::fs::metadata(&path) {
+            Ok(m) if m.is_dir() => return Err(refuse(format!("a folder, not a file ({NOT_A_HISTORY})"))),
+            Ok(m) if m.len() == 0 => {
+                return Err(refuse(format!("an empty file, not a history database ({NOT_A_HISTORY})")))
+            }
+            Ok(_) => {}
+            Err(e) => return Err(refuse(format!("cannot be read: {e}"))),
+        }
+        let err = open_err(&path);
+        let (conn, version) = read_only_connection(&path).map_err(&err)?;
+        let tables: i64 = conn
+            .query_row(
+                "SELECT COUNT(*) FROM sqlite_master WHERE type = 'table' AND name IN ('calibrations', 'decisions')",
+                [],
+                |r| r.get(0),
+            )
+            .map_err(&err)?;
+        if version == 0 || tables < 2 {
+            return Err(refuse(format!("an SQLite file without a history's tables ({NOT_A_HISTORY})")));
+        }
+        schema::check_not_newer(version).map_err(&refuse)?;
+        if version == schema::SCHEMA_VERSION {
+            return Ok(History { conn, path, schema_version: version });
+        }
+        // An older schema: migrated in a copy, the file left as it is.
+        let mut copy = Connection::open_in_memory().map_err(&err)?;
+        rusqlite::backup::Backup::new(&conn, &mut copy)
+            .and_then(|b| b.run_to_completion(256, Duration::ZERO, None))
+            .map_err(&err)?;
+        schema::migrate(&mut copy).map_err(&refuse)?;
+        Ok(History { conn: copy, path, schema_version: schema::SCHEMA_VERSION })
+    }
+
     /// Records a calibration, unless the vehicle's history already holds
     /// the same drive (fingerprint) calibrated by the same method
     /// ([`Recorded::AlreadyRecorded`]). One transaction; safe with other
@@ -717,57 +812,7 @@ impl History {
     /// [`CalibrationRecord::check`]'s, before anything is written;
     /// [`Error::History`] for the database's.
     pub fn record(&mut self, rec: &CalibrationRecord) -> Result<Recorded> {
-        rec.check()?;
-        let err = sql_err(&self.path);
-        let sources = serde_json::to_string(&rec.sources)
-            .map_err(|e| Error::History { path: self.path.clone(), reason: format!("source names: {e}") })?;
-        let s = <[_; 4]>::from(rec.sigma);
-        let n = self
-            .conn
-            .execute(
-                &format!(
-                    "INSERT INTO calibrations (vehicle, recorded_at, fingerprint, sources, t_start_s, t_end_s, method, \
-                     c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, heading_offset_rad, verdict, \
-                     odocal_version, sigma_model_only, held, unobservable) VALUES (?1, {NOW}, ?2, ?3, ?4, ?5, ?6, \
-                     ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17, ?18, ?19, ?20) \
-                     ON CONFLICT (vehicle, fingerprint, method) DO NOTHING"
-                ),
-                params![
-                    rec.vehicle,
-                    rec.fingerprint,
-                    sources,
-                    rec.t_start_s,
-                    rec.t_end_s,
-                    rec.method,
-                    rec.theta.c_e,
-                    rec.theta.c_d,
-                    rec.theta.t_r,
-                    rec.theta.d,
-                    s[0],
-                    s[1],
-                    s[2],
-                    s[3],
-                    rec.heading_offset_rad,
-                    rec.verdict,
-                    env!("CARGO_PKG_VERSION"),
-                    rec.sigma_model_only,
-                    rec.held.join(","),
-                    rec.unobservable.join(","),
-                ],
-            )
-            .map_err(&err)?;
-        if n == 1 {
-            return Ok(Recorded::New(self.conn.last_insert_rowid()));
-        }
-        let id = self
-            .conn
-            .query_row(
-                "SELECT id FROM calibrations WHERE vehicle = ?1 AND fingerprint = ?2 AND method = ?3",
-                params![rec.vehicle, rec.fingerprint, rec.method],
-                |r| r.get(0),
-            )
-            .map_err(&err)?;
-        Ok(Recorded::AlreadyRecorded(id))
+        insert_record(&self.conn, &self.path, rec)
     }
 
     /// The history of `vehicle`: its calibrations, their drift flags, the
@@ -801,45 +846,30 @@ impl History {
     }
 
     /// Logs a write-back decision unless the vehicle's decisions hold one
-    /// for the drive (same fingerprint) already; returns the new row's id,
-    /// or `None` when another run (a concurrent `follow`) logged the drive
-    /// first. The check and the insert are one statement, so of two
-    /// writers one logs the drive. The database sets the row's `id`,
-    /// `decided_at` and `odocal_version` (`d`'s are not read).
-    pub(crate) fn record_decision(&mut self, d: &DecisionRow) -> Result<Option<i64>> {
+    /// for the drive (same fingerprint) already and, when the decision is
+    /// logged and `written` is given, records that calibration
+    /// ([`Self::record`]), in one transaction: an error or an interruption
+    /// between the two leaves neither, so no decision says `written`
+    /// without its row in `calibrations`. Returns the decision's id, or
+    /// `None` when another run (a concurrent `follow`) logged the drive
+    /// first; then nothing is written. The check and the insert are one
+    /// statement, so of two writers one logs the drive. The database sets
+    /// the decision's `id`, `decided_at` and `odocal_version` (`d`'s are
+    /// not read).
+    pub(crate) fn record_followed(
+        &mut self,
+        d: &DecisionRow,
+        written: Option<&CalibrationRecord>,
+    ) -> Result<Option<i64>> {
         let err = sql_err(&self.path);
-        let reasons = serde_json::to_string(&d.reasons)
-            .map_err(|e| Error::History { path: self.path.clone(), reason: format!("reasons: {e}") })?;
-        let s = sigma_params(&d.sigma);
-        let n = self
-            .conn
-            .execute(
-                &format!(
-                    "INSERT INTO decisions (vehicle, decided_at, fingerprint, source, drive_time_s, decision, \
-                     reasons, c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, odocal_version) \
-                     SELECT ?1, {NOW}, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15 \
-                     WHERE NOT EXISTS (SELECT 1 FROM decisions WHERE vehicle = ?1 AND fingerprint = ?2)"
-                ),
-                params![
-                    d.vehicle,
-                    d.fingerprint,
-                    d.source,
-                    d.drive_time_s,
-                    d.decision,
-                    reasons,
-                    d.theta.c_e,
-                    d.theta.c_d,
-                    d.theta.t_r,
-                    d.theta.d,
-                    s[0],
-                    s[1],
-                    s[2],
-                    s[3],
-                    env!("CARGO_PKG_VERSION"),
-                ],
-            )
-            .map_err(&err)?;
-        Ok((n == 1).then(|| self.conn.last_insert_rowid()))
+        // Dropped without a commit on any error: rolled back.
+        let tx = self.conn.transaction_with_behavior(rusqlite::TransactionBehavior::Immediate).map_err(&err)?;
+        let id = insert_decision(&tx, &self.path, d)?;
+        if let (Some(_), Some(rec)) = (id, written) {
+            insert_record(&tx, &self.path, rec)?;
+        }
+        tx.commit().map_err(&err)?;
+        Ok(id)
     }
 
     /// The vehicle's logged write-back decisions in logging order.

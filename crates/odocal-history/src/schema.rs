@@ -67,6 +67,17 @@ pub(super) const MIGRATIONS: &[&str] = &[
 /// The schema version this odocal writes.
 pub(super) const SCHEMA_VERSION: i64 = MIGRATIONS.len() as i64;
 
+/// Refuses a schema version above this odocal's: the file was written by
+/// a newer odocal. `Err` holds the reason.
+pub(super) fn check_not_newer(version: i64) -> Result<(), String> {
+    if version > SCHEMA_VERSION {
+        return Err(format!(
+            "schema version {version} is newer than this odocal's ({SCHEMA_VERSION}): use a newer odocal"
+        ));
+    }
+    Ok(())
+}
+
 /// Brings the database to [`SCHEMA_VERSION`], each migration in its own
 /// immediate transaction (so two processes opening a new file at once
 /// migrate it once). `Err` holds the reason.
@@ -74,11 +85,7 @@ pub(super) fn migrate(conn: &mut Connection) -> Result<(), String> {
     loop {
         let tx = conn.transaction_with_behavior(TransactionBehavior::Immediate).map_err(|e| e.to_string())?;
         let version: i64 = tx.query_row("PRAGMA user_version", [], |r| r.get(0)).map_err(|e| e.to_string())?;
-        if version > SCHEMA_VERSION {
-            return Err(format!(
-                "schema version {version} is newer than this odocal's ({SCHEMA_VERSION}): use a newer odocal"
-            ));
-        }
+        check_not_newer(version)?;
         if version == SCHEMA_VERSION {
             return Ok(());
         }

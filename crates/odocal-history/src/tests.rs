@@ -98,19 +98,22 @@ fn concurrent_writers_lose_nothing() {
                     // Every thread also decides on the shared drives: one
                     // decision each is logged, by whichever thread is first.
                     for fingerprint in [format!("t{t}-{i}"), format!("s{}", i % 5)] {
-                        db.record_decision(&DecisionRow {
-                            id: 0,
-                            decided_at: String::new(),
-                            odocal_version: String::new(),
-                            vehicle: "van".into(),
-                            fingerprint,
-                            source: "x".into(),
-                            drive_time_s: i as f64,
-                            decision: "held".into(),
-                            reasons: vec!["sigma".into()],
-                            theta: theta(1.95),
-                            sigma: None,
-                        })
+                        db.record_followed(
+                            &DecisionRow {
+                                id: 0,
+                                decided_at: String::new(),
+                                odocal_version: String::new(),
+                                vehicle: "van".into(),
+                                fingerprint,
+                                source: "x".into(),
+                                drive_time_s: i as f64,
+                                decision: "held".into(),
+                                reasons: vec!["sigma".into()],
+                                theta: theta(1.95),
+                                sigma: None,
+                            },
+                            None,
+                        )
                         .expect("decision");
                     }
                 }
@@ -650,7 +653,43 @@ fn online_rows_are_listed_but_not_pooled() {
     assert!(h.pooled.is_none());
     let text = h.to_string();
     assert!(text.contains("nothing pooled: the rows are online running estimates"), "{text}");
-    assert!(text.contains(&format!("the most recent, row {}, is the estimate", ids[2])), "{text}");
+    assert!(
+        text.contains(&format!("the most recent, row {}, is the estimate follow continues from\n", ids[2])),
+        "{text}"
+    );
+    assert!(!text.contains("every drive followed"), "{text}");
+}
+
+/// After held drives (whose data `follow` drops) the most recent online
+/// row is not called the estimate over every drive followed: the text says
+/// how many drives followed after it are not in it.
+#[test]
+fn held_drives_after_the_last_online_row_are_named_as_not_in_it() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
+    let decision = |fp: &str, action: &str| DecisionRow {
+        id: 0,
+        decided_at: String::new(),
+        odocal_version: String::new(),
+        vehicle: "van".into(),
+        fingerprint: fp.into(),
+        source: format!("{fp}.csv"),
+        drive_time_s: 60.0,
+        decision: action.into(),
+        reasons: vec![],
+        theta: theta(1.95),
+        sigma: None,
+    };
+    let online = |fp: &str| CalibrationRecord { method: ONLINE.into(), ..record("van", fp, 1.95, 1e-4) };
+    db.record_followed(&decision("a", "held"), None).expect("a");
+    db.record_followed(&decision("b", "written"), Some(&online("b"))).expect("b");
+    let text = db.vehicle("van", None).expect("history").to_string();
+    assert!(text.contains("is the estimate follow continues from\n"), "{text}");
+    db.record_followed(&decision("c", "held"), None).expect("c");
+    db.record_followed(&decision("d", "flagged"), None).expect("d");
+    let text = db.vehicle("van", None).expect("history").to_string();
+    assert!(text.contains("2 drives followed after it were held or flagged, and their data are not in it"), "{text}");
+    assert!(!text.contains("every drive followed"), "{text}");
 }
 
 /// Two `follow` runs of one vehicle on one database at once: each drive is
@@ -744,4 +783,128 @@ fn a_record_is_checked_before_it_is_written() {
             Ok(Recorded::New(_))
         ));
     }
+}
+
+/// A written decision and its calibration row are one transaction: when
+/// the row cannot be inserted (here a trigger aborts every insert into
+/// `calibrations`), the decision is not logged either, so the drive is
+/// not taken for followed and a later run decides it again.
+#[test]
+fn a_written_decision_is_not_logged_without_its_calibration_row() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
+    db.conn
+        .execute_batch(
+            "CREATE TRIGGER no_rows BEFORE INSERT ON calibrations BEGIN SELECT RAISE(ABORT, 'injected'); END;",
+        )
+        .expect("trigger");
+    let decision = DecisionRow {
+        id: 0,
+        decided_at: String::new(),
+        odocal_version: String::new(),
+        vehicle: "van".into(),
+        fingerprint: "fp".into(),
+        source: "fp.csv".into(),
+        drive_time_s: 60.0,
+        decision: "written".into(),
+        reasons: vec!["every gate passed".into()],
+        theta: theta(1.95),
+        sigma: Some(Theta { c_e: 1e-4, c_d: 1e-4, t_r: 1e-3, d: 1e-4 }),
+    };
+    let rec = CalibrationRecord { method: ONLINE.into(), ..record("van", "fp", 1.95, 1e-4) };
+    let e = db.record_followed(&decision, Some(&rec)).expect_err("the row's insert fails");
+    assert!(e.to_string().contains("injected"), "{e}");
+    assert_eq!(db.decision_count("van").expect("count"), 0, "a decision without its row");
+    assert!(db.rows("van").expect("rows").is_empty());
+    // Without the failure both are written.
+    db.conn.execute_batch("DROP TRIGGER no_rows;").expect("drop");
+    assert!(db.record_followed(&decision, Some(&rec)).expect("written").is_some());
+    assert_eq!((db.decision_count("van").expect("count"), db.rows("van").expect("rows").len()), (1, 1));
+}
+
+/// Reading a history changes nothing: an empty file and an SQLite file
+/// without a history's tables are refused and left as they were, a history
+/// of this schema is read in place, one of an older schema from a migrated
+/// copy (the file keeps its version and bytes).
+#[test]
+fn reading_a_history_changes_nothing() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let empty = dir.path().join("empty.sqlite");
+    std::fs::write(&empty, b"").expect("empty");
+    let e = History::open_read_only(&empty).map(|_| ()).expect_err("empty").to_string();
+    assert!(e.contains("an empty file, not a history database"), "{e}");
+    assert_eq!(std::fs::metadata(&empty).expect("meta").len(), 0);
+    let other = dir.path().join("other.sqlite");
+    Connection::open(&other).expect("open").execute_batch("CREATE TABLE t (x);").expect("table");
+    let before = std::fs::read(&other).expect("read");
+    let e = History::open_read_only(&other).map(|_| ()).expect_err("no history").to_string();
+    assert!(e.contains("without a history's tables"), "{e}");
+    assert_eq!(std::fs::read(&other).expect("read"), before);
+    let missing = dir.path().join("missing.sqlite");
+    assert!(History::open_read_only(&missing).is_err());
+    assert!(!missing.exists());
+    // A version-1 file: read through a migrated copy, left at version 1.
+    let old = dir.path().join("old.sqlite");
+    let conn = Connection::open(&old).expect("open");
+    conn.execute_batch(schema::MIGRATIONS[0]).expect("version 1");
+    conn.pragma_update(None, "user_version", 1).expect("pragma");
+    conn.execute(
+        "INSERT INTO calibrations (vehicle, recorded_at, fingerprint, sources, t_start_s, t_end_s, method, \
+         c_e, c_d, t_r, d, odocal_version) VALUES ('van', '2026-01-01T00:00:00.000Z', 'f', '[]', 0, 1, 'eiv', \
+         1.95, 0, 1.5, 0, '0.2.0')",
+        [],
+    )
+    .expect("row");
+    drop(conn);
+    let before = std::fs::read(&old).expect("read");
+    let db = History::open_read_only(&old).expect("read only");
+    assert_eq!(db.vehicle("van", None).expect("history").rows.len(), 1);
+    drop(db);
+    assert_eq!(std::fs::read(&old).expect("read"), before);
+    // A current history is read in place.
+    let path = dir.path().join("h.sqlite");
+    History::open(&path).expect("create").record(&record("van", "a", 1.95, 1e-3)).expect("record");
+    let db = History::open_read_only(&path).expect("read only");
+    assert_eq!(db.rows("van").expect("rows").len(), 1);
+    assert!(db.conn.is_readonly(rusqlite::MAIN_DB).expect("flag"));
+}
+
+/// `follow` from a row that names a parameter not observable starts the
+/// recursion from the prior's sd, as without a σ: that parameter's σ is no
+/// measure of it.
+#[test]
+fn follow_does_not_start_from_the_sigma_of_a_parameter_not_observable() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let csv = dir.path().join("a.csv");
+    let sim = odocal::SimOptions { length_km: 1.0, ..odocal::SimOptions::paper(4) };
+    odocal::simulate(&sim).expect("sim").drive.write_csv(&csv).expect("csv");
+    let truth = Theta::SIM_DEFAULT_TRUE;
+    let tight = Theta { c_e: 1e-6, c_d: 1e-7, t_r: 1e-5, d: 1e-7 };
+    let follow_from = |name: &str, sigma: Option<Theta>, unobservable: &[&str]| {
+        let mut db = History::open(dir.path().join(name)).expect("open");
+        let row = CalibrationRecord {
+            sigma: sigma.map_or_else(ParamSigma::default, ParamSigma::from),
+            sigma_model_only: Some(false),
+            unobservable: unobservable.iter().map(|p| p.to_string()).collect(),
+            ..CalibrationRecord::new("van", "start", "eiv", truth)
+        };
+        db.record(&row).expect("row");
+        let (mut origin, mut sd) = (String::new(), None);
+        follow(&mut db, "van", std::slice::from_ref(&csv), &FollowOptions::default(), |e| {
+            match e {
+                FollowEvent::Start { origin: o, .. } => origin = o,
+                FollowEvent::Followed { decision, .. } => sd = Some(decision.sigma),
+                _ => {}
+            }
+            Ok::<(), Error>(())
+        })
+        .expect("follow");
+        (origin, sd.expect("followed"))
+    };
+    let (origin, unobservable) = follow_from("a.sqlite", Some(tight), &["t_r"]);
+    assert!(origin.contains("t_r not observable in it, so the prior's sd"), "{origin}");
+    let (_, observed) = follow_from("b.sqlite", Some(tight), &[]);
+    let (_, without) = follow_from("c.sqlite", None, &[]);
+    assert_eq!(unobservable, without, "the prior's sd, as without a σ");
+    assert!(unobservable.t_r > 10.0 * observed.t_r, "{unobservable:?} vs {observed:?}");
 }

@@ -79,7 +79,7 @@ use odocal::{segment_position_error_with, Drive, Error, Extrinsics, Result, Sign
 pub mod gate;
 mod options;
 
-pub use options::{OnlineOptions, RandomWalk};
+pub use options::{OnlineOptions, RandomWalk, MAX_ITERATIONS_PER_SEGMENT};
 
 type Vec5 = SVector<f64, 5>;
 type Mat5 = SMatrix<f64, 5, 5>;

@@ -77,7 +77,8 @@ pub struct OnlineOptions {
     /// The heading offset's sd at the start of a drive, rad. Default 0.05.
     pub heading_offset_prior_sd_rad: f64,
     /// Gauss-Newton iterations per folded segment (an iterated update:
-    /// each re-linearises at the previous iterate). Default 2.
+    /// each re-linearises at the previous iterate). Default 2; at most
+    /// [`MAX_ITERATIONS_PER_SEGMENT`].
     pub iterations_per_segment: usize,
     /// The weight of one segment's normal equations. Stride / length (0.15
     /// by default) would count each sample once, as if residuals were
@@ -109,6 +110,12 @@ pub struct OnlineOptions {
     /// gate, s. Default 120.
     pub steady_window_s: f64,
 }
+
+/// The most Gauss-Newton iterations per folded segment
+/// ([`OnlineOptions::iterations_per_segment`]): an update from the previous
+/// iterate settles in a few, and every iteration costs a segment's
+/// Jacobian, so a count beyond this only makes a replay run for days.
+pub const MAX_ITERATIONS_PER_SEGMENT: usize = 100;
 
 impl Default for OnlineOptions {
     fn default() -> Self {
@@ -167,8 +174,11 @@ impl OnlineOptions {
         if self.weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) {
             return Err(Error::InvalidOption { field: "weights", reason: "must be finite and non-negative".into() });
         }
-        if self.iterations_per_segment == 0 {
-            return Err(Error::InvalidOption { field: "iterations_per_segment", reason: "must be at least 1".into() });
+        if !(1..=MAX_ITERATIONS_PER_SEGMENT).contains(&self.iterations_per_segment) {
+            return Err(Error::InvalidOption {
+                field: "iterations_per_segment",
+                reason: format!("must be at least 1 and at most {MAX_ITERATIONS_PER_SEGMENT}"),
+            });
         }
         if !(self.information_scale.is_finite() && self.information_scale > 0.0) {
             return Err(Error::InvalidOption { field: "information_scale", reason: "must be positive".into() });

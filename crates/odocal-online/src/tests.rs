@@ -341,3 +341,23 @@ fn a_step_the_recursion_follows_slowly_is_not_written() {
         }
     }
 }
+
+/// `iterations_per_segment` is a count with a ceiling, as the offline
+/// counts have: 0 and more than [`MAX_ITERATIONS_PER_SEGMENT`] are refused
+/// naming the field, the ceiling itself is taken.
+#[test]
+fn iterations_per_segment_has_a_ceiling() {
+    let with = |n: usize| {
+        let opts = OnlineOptions { iterations_per_segment: n, ..OnlineOptions::default() };
+        Calibrator::new(Theta::PAPER_INITIAL, None, 0.025, opts)
+    };
+    assert!(with(crate::MAX_ITERATIONS_PER_SEGMENT).is_ok());
+    for n in [0, crate::MAX_ITERATIONS_PER_SEGMENT + 1, 100_000_000] {
+        match with(n) {
+            Err(Error::InvalidOption { field: "iterations_per_segment", reason }) => {
+                assert!(reason.contains("at most 100"), "{reason}")
+            }
+            other => panic!("{n}: {other:?}"),
+        }
+    }
+}

@@ -5,7 +5,7 @@
 //! and the pooled estimate as tables.
 
 use odocal::model::THETA_NAMES;
-use odocal_history::{DriftFlag, HistoryRow, Pooled, VehicleHistory, DRIFT_SIGMAS, MODEL_SIGMA_NOTE, ONLINE};
+use odocal_history::{DriftFlag, HistoryRow, Pooled, VehicleHistory, DRIFT_SIGMAS, MODEL_SIGMA_NOTE};
 use plotters::prelude::*;
 
 use crate::plots::{BLUE, GREY, RED};
@@ -254,15 +254,9 @@ pub fn render_history_html(history: &VehicleHistory) -> Result<String> {
         if let Some(p) = pooled {
             h.push_str("</section>\n<section id=\"pooled\"><h2>Pooled estimate</h2>\n");
             h.push_str(&pooled_table(p));
-        } else if let Some(last) =
-            rows.iter().rev().find(|r| r.record.method == ONLINE && r.record.verdict.as_deref() != Some("rejected"))
-        {
+        } else if let Some(note) = history.running_estimate() {
             h.push_str("</section>\n<section id=\"pooled\"><h2>Pooled estimate</h2>\n");
-            h.push_str(&format!(
-                "<p>Nothing pooled: the rows are online running estimates, each holding the drives followed before \
-                 it; the most recent, row id {}, is the estimate over every drive followed.</p>\n",
-                last.id
-            ));
+            h.push_str(&format!("<p>Nothing pooled: {}.</p>\n", esc(&note)));
         }
         h.push_str("</section>\n<section id=\"rows\"><h2>Recorded calibrations</h2>\n");
         h.push_str(&rows_table(rows));
@@ -276,7 +270,7 @@ pub fn render_history_html(history: &VehicleHistory) -> Result<String> {
 mod tests {
     use super::*;
     use odocal::Theta;
-    use odocal_history::CalibrationRecord;
+    use odocal_history::{CalibrationRecord, ONLINE};
 
     fn row(id: i64, c_d: f64) -> HistoryRow {
         let theta = Theta { c_d, ..Theta::SIM_DEFAULT_TRUE };
@@ -337,6 +331,9 @@ mod tests {
         let mut online = vec![row(1, -2e-3), row(2, -2e-3)];
         online.iter_mut().for_each(|r| r.record.method = ONLINE.into());
         let html = render_history_html(&VehicleHistory::of_rows("v", online, None)).expect("html");
-        assert!(html.contains("Nothing pooled") && html.contains("row id 2, is the estimate"), "{html}");
+        assert!(
+            html.contains("Nothing pooled") && html.contains("row 2, is the estimate follow continues from"),
+            "{html}"
+        );
     }
 }

@@ -475,3 +475,50 @@ fn follow_params_name_every_drive_the_update_rests_on() {
     assert_eq!(prov["start"].as_str(), Some("θ_0"), "{prov}");
     assert_eq!(prov["method"].as_str(), Some("online"), "{prov}");
 }
+
+/// `--db` that cannot be a history written to is refused before the work:
+/// `-` (no file named `-` is created), a file that is no history database
+/// (`calibrate` writes no `--json` and names the file once). `history`
+/// changes no file: an empty one is refused and stays empty. `history
+/// --report - --json FILE` writes both.
+#[test]
+fn history_files_are_checked_before_the_work_and_read_without_a_change() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let a = simulated_drive(dir.path(), "a.csv", &["--seed", "4", "--length-km", "3"]);
+    let cwd = tempfile::tempdir().expect("cwd");
+    for args in [
+        vec!["follow", a.as_str(), "--vehicle", "van", "--db", "-"],
+        vec!["calibrate", a.as_str(), "--method", "batch-gn", "--vehicle", "van", "--db", "-"],
+    ] {
+        let o = crate::common::odocal_in(cwd.path(), &args);
+        assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+        assert!(stderr(&o).contains("--db -: the history is a database file"), "{}", stderr(&o));
+        assert!(!cwd.path().join("-").exists(), "{args:?} created a file named -");
+    }
+    let bad = dir.path().join("bad.sqlite");
+    std::fs::write(&bad, "not a database\n".repeat(100)).expect("write");
+    let json = dir.path().join("r.json");
+    let (bad_s, json_s) = (bad.to_str().expect("utf8"), json.to_str().expect("utf8"));
+    let o = odocal(&["calibrate", &a, "--method", "batch-gn", "--vehicle", "van", "--db", bad_s, "--json", json_s]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert_eq!(stderr(&o).matches("bad.sqlite").count(), 1, "{}", stderr(&o));
+    assert!(!json.exists(), "the work ran before the history was checked");
+    // `history` on an empty file: refused, the file left empty.
+    let empty = dir.path().join("empty.sqlite");
+    std::fs::write(&empty, b"").expect("empty");
+    let o = odocal(&["history", "van", "--db", empty.to_str().expect("utf8")]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("an empty file, not a history database"), "{}", stderr(&o));
+    assert_eq!(std::fs::metadata(&empty).expect("meta").len(), 0);
+    // A history read is left as it was, and both outputs are written.
+    let db = dir.path().join("h.sqlite");
+    let db_s = db.to_str().expect("utf8");
+    let o = odocal(&["calibrate", &a, "--method", "batch-gn", "--vehicle", "van", "--db", db_s]);
+    assert!(o.status.code() != Some(1), "{}", stderr(&o));
+    let before = std::fs::read(&db).expect("db");
+    let o = odocal(&["history", "van", "--db", db_s, "--report", "-", "--json", json_s]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).starts_with("<!DOCTYPE html>"), "{}", stdout(&o));
+    assert_eq!(json_file(&json)["rows"].as_array().expect("rows").len(), 1);
+    assert_eq!(std::fs::read(&db).expect("db"), before, "history changed the file");
+}

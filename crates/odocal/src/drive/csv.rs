@@ -101,13 +101,16 @@ const NUMBER_IN_EVERY_CELL: &str = "every cell needs a number: drop the row and 
      column (docs/reference.md, the drive CSV), or import the log with a manifest (docs/guide.md)";
 
 /// The error at `line` (and `column`) of the CSV file `path`.
-fn csv_error(path: &Path, line: u64, column: Option<&str>, reason: String) -> Error {
+pub(crate) fn csv_error(path: &Path, line: u64, column: Option<&str>, reason: String) -> Error {
     Error::Csv { path: path.to_path_buf(), line, column: column.map(echo), reason }
 }
 
 /// A CSV reader's error, in words for the common cases; `lines` gives the
 /// line of the record it is about.
-fn from_csv<R>(path: &Path, e: ::csv::Error, lines: &mut LineCounted<R>) -> Error {
+pub(crate) fn from_csv<R>(path: &Path, e: ::csv::Error, lines: &mut LineCounted<R>) -> Error {
+    if let Some(t) = super::csv_lines::not_text(&e) {
+        return csv_error(path, t.line, None, t.reason.clone());
+    }
     csv_error(path, lines.line_of(e.position()), None, super::csv_lines::reason(&e))
 }
 

@@ -11,6 +11,40 @@
 use std::collections::VecDeque;
 use std::io::Read;
 
+/// The longest line a CSV table may hold, in bytes: far beyond any drive
+/// row (a few hundred bytes), short enough that a file that is no CSV (one
+/// long line, binary data) is refused before the reader's record buffer
+/// grows with it (memory in proportion to the longest line).
+pub(crate) const MAX_LINE_BYTES: u64 = 1 << 20;
+
+/// Why a table's bytes are no CSV text, and on which line: a line longer
+/// than [`MAX_LINE_BYTES`], or a NUL byte after the header line (one in
+/// the header is named by the header's check, with its column). Carried through the CSV reader
+/// as an I/O error ([`not_text`] finds it).
+#[derive(Debug)]
+pub(crate) struct NotText {
+    /// The file line.
+    pub(crate) line: u64,
+    /// What is wrong, in words.
+    pub(crate) reason: String,
+}
+
+impl std::fmt::Display for NotText {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "line {}: {}", self.line, self.reason)
+    }
+}
+
+impl std::error::Error for NotText {}
+
+/// The [`NotText`] a CSV reader's error carries, if any.
+pub(crate) fn not_text(e: &::csv::Error) -> Option<&NotText> {
+    match e.kind() {
+        ::csv::ErrorKind::Io(io) => io.get_ref()?.downcast_ref::<NotText>(),
+        _ => None,
+    }
+}
+
 /// A reader that notes the byte offset and the number of every line that
 /// is not empty. Lines end at `\n`, `\r\n` or a lone `\r`, as for the CSV
 /// parser.
@@ -28,12 +62,14 @@ pub(crate) struct LineCounted<R> {
     /// (offset, line) of the starts of lines that are not empty, from the
     /// last record asked about on.
     starts: VecDeque<(u64, u64)>,
+    /// Bytes of the current line read so far.
+    line_len: u64,
 }
 
 impl<R> LineCounted<R> {
     /// Wraps `inner`, whose first byte is at offset 0 on line 1.
     pub(crate) fn new(inner: R) -> LineCounted<R> {
-        LineCounted { inner, offset: 0, line: 1, at_start: true, after_cr: false, starts: VecDeque::new() }
+        LineCounted { inner, offset: 0, line: 1, at_start: true, after_cr: false, starts: VecDeque::new(), line_len: 0 }
     }
 
     /// The line of the record that starts at byte `offset` (a `csv`
@@ -64,7 +100,10 @@ impl<R> LineCounted<R> {
         self.inner
     }
 
-    fn note(&mut self, bytes: &[u8]) {
+    /// Notes the line starts in `bytes`; a line longer than
+    /// [`MAX_LINE_BYTES`] or a NUL byte after the header line is an error
+    /// ([`NotText`]).
+    fn note(&mut self, bytes: &[u8]) -> std::io::Result<()> {
         let mut i = 0;
         while let Some(&b) = bytes.get(i) {
             match b {
@@ -72,6 +111,11 @@ impl<R> LineCounted<R> {
                 b'\n' | b'\r' => {
                     self.line += 1;
                     self.at_start = true;
+                    self.line_len = 0;
+                }
+                // The header's own check names a NUL in a column's name.
+                0 if self.line > 1 => {
+                    return Err(self.not_text("a NUL byte: binary data, not CSV text; is this a CSV file?".into()))
                 }
                 _ => {
                     if self.at_start {
@@ -81,7 +125,16 @@ impl<R> LineCounted<R> {
                     // The rest of the line holds no line ending: skip to the
                     // next one (a file's bytes are almost all such).
                     let rest = &bytes[i + 1..];
-                    i += 1 + memchr::memchr2(b'\n', b'\r', rest).unwrap_or(rest.len());
+                    let run = memchr::memchr3(b'\n', b'\r', 0, rest).unwrap_or(rest.len());
+                    self.line_len += 1 + run as u64;
+                    if self.line_len > MAX_LINE_BYTES {
+                        return Err(self.not_text(format!(
+                            "the line is longer than {} MiB ({MAX_LINE_BYTES} bytes), the limit of a CSV line; \
+                             is this a CSV file?",
+                            MAX_LINE_BYTES >> 20
+                        )));
+                    }
+                    i += 1 + run;
                     self.after_cr = false;
                     continue;
                 }
@@ -90,13 +143,18 @@ impl<R> LineCounted<R> {
             i += 1;
         }
         self.offset += bytes.len() as u64;
+        Ok(())
+    }
+
+    fn not_text(&self, reason: String) -> std::io::Error {
+        std::io::Error::new(std::io::ErrorKind::InvalidData, NotText { line: self.line, reason })
     }
 }
 
 impl<R: Read> Read for LineCounted<R> {
     fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
         let n = self.inner.read(buf)?;
-        self.note(&buf[..n]);
+        self.note(&buf[..n])?;
         Ok(n)
     }
 }

@@ -17,7 +17,9 @@
 //! A file the stream refuses is read whole once more, so that its error is
 //! the whole reader's, word for word (the first problem of the file in the
 //! reader's order, with its line); memory then grows with the file, as the
-//! whole reader's does.
+//! whole reader's does. A line longer than the CSV line limit (1 MiB) or a
+//! NUL byte (a file that is no CSV text) is the error at once, with its
+//! line: memory stays within that limit however long the line.
 
 use std::fs::File;
 use std::io::{BufRead, BufReader, BufWriter, Read, Write};
@@ -25,7 +27,9 @@ use std::ops::Range;
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 
-use super::csv::{check_header, not_csv, tail_warning_at, MASK_COLUMN, PART_COLUMN, REQUIRED_COLUMNS, TRUTH_COLUMNS};
+use super::csv::{
+    check_header, csv_error, not_csv, tail_warning_at, MASK_COLUMN, PART_COLUMN, REQUIRED_COLUMNS, TRUTH_COLUMNS,
+};
 use super::csv_lines::LineCounted;
 use super::fingerprint::Fingerprinter;
 use super::{Drive, Signals, STEP_UNIFORMITY_TOL};
@@ -292,12 +296,20 @@ fn scan(path: &Path, limits: &PhysicalLimits) -> std::result::Result<DriveStream
         input.consume(3);
     }
     let mut rdr = super::csv_lines::reader(input);
-    let headers: Vec<String> = rdr.headers().map_err(|e| refused(&e))?.iter().map(str::to_string).collect();
+    // A line too long or a NUL byte is the error as it is: the whole
+    // reader would hold the file (and say the same).
+    let not_text = |e: &::csv::Error| {
+        super::csv_lines::not_text(e).map(|t| Stop::Error(csv_error(path, t.line, None, t.reason.clone())))
+    };
+    let headers: Vec<String> =
+        rdr.headers().map_err(|e| not_text(&e).unwrap_or_else(|| refused(&e)))?.iter().map(str::to_string).collect();
     check_header(&headers, path).map_err(|e| refused(&e))?;
     let mut scanner = Scanner::new(&headers, *limits)?;
     let mut record = ::csv::StringRecord::new();
     let bad_row = |e: ::csv::Error, lines: &mut LineCounted<_>| {
-        Stop::Refused(format!("line {}: {}", lines.line_of(e.position()), super::csv_lines::reason(&e)))
+        not_text(&e).unwrap_or_else(|| {
+            Stop::Refused(format!("line {}: {}", lines.line_of(e.position()), super::csv_lines::reason(&e)))
+        })
     };
     while rdr.read_record(&mut record).map_err(|e| bad_row(e, rdr.get_mut()))? {
         let line = rdr.get_mut().line_of(record.position());

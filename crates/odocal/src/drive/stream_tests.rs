@@ -209,3 +209,31 @@ fn unwrap_matches_the_whole_column() {
     let streamed: Vec<f64> = raw.iter().map(|&v| u.next(v)).collect();
     assert_eq!(bits(&streamed), bits(&whole));
 }
+
+/// A good drive followed by one line longer than the CSV line limit, or by
+/// NUL bytes, is refused by the stream and by the whole reader with the
+/// line named, before the reader's record buffer grows with the line.
+#[test]
+fn a_line_too_long_or_a_nul_byte_is_refused_with_its_line() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = simulate(&SimOptions { length_km: 0.3, ..SimOptions::noise_free(3) }).expect("sim").drive;
+    let mut good = Vec::new();
+    d.write_csv_to(&mut good).expect("csv");
+    let lines = good.iter().filter(|&&b| b == b'\n').count() as u64;
+    let long_line = [good.as_slice(), &vec![b'7'; 3 << 20], b"\n"].concat();
+    let nul = [good.as_slice(), &vec![0u8; 3 << 20]].concat();
+    let only_nul = vec![0u8; 3 << 20];
+    for (name, bytes, line, what) in [
+        ("long.csv", long_line, lines + 1, "longer than 1 MiB"),
+        ("nul.csv", nul, lines + 1, "a NUL byte"),
+        ("only_nul.csv", only_nul, 1, "longer than 1 MiB"),
+    ] {
+        let p = write(&dir, name, &bytes);
+        let whole = Drive::read_csv(&p).map(|_| ()).expect_err("whole").to_string();
+        let streamed = DriveStream::open(&p).map(|_| ()).expect_err("stream").to_string();
+        let want = format!("{}: line {line}: ", p.display());
+        for e in [&whole, &streamed] {
+            assert!(e.starts_with(&want) && e.contains(what) && e.contains("is this a CSV file?"), "{e}");
+        }
+    }
+}

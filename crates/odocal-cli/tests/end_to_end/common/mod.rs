@@ -12,6 +12,11 @@ pub fn odocal(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_odocal")).args(args).arg("--quiet").output().expect("run odocal")
 }
 
+/// [`odocal`] run in the folder `dir`.
+pub fn odocal_in(dir: &std::path::Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_odocal")).current_dir(dir).args(args).arg("--quiet").output().expect("run odocal")
+}
+
 /// Bytes of stdout or stderr as text (lossy).
 pub fn text(b: &[u8]) -> String {
     String::from_utf8_lossy(b).into_owned()
