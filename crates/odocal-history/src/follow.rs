@@ -91,8 +91,9 @@ struct Stored {
 
 /// Replays `drives` (drive CSVs or manifests) in order through one online
 /// calibrator for `vehicle`, starting from the vehicle's most recent row in
-/// `db` whose verdict is not `rejected` (else `opts.theta0`), and writes
-/// back what the gates pass. The
+/// `db` whose verdict is not `rejected` and names no bias beyond its σ
+/// ([`crate::BIAS_REASONS`]; else `opts.theta0`), and writes back what the
+/// gates pass. The
 /// row's σ is the recursion's start unless it is the model's alone
 /// ([`CalibrationRecord::sigma_model_only`]), a parameter has none (held)
 /// or the row names a parameter not observable
@@ -202,6 +203,7 @@ pub fn follow<E: From<Error>>(
             heading_offset_rad: Some(status.heading_offset_rad),
             // Written only when every gate passed: what its parameter file says.
             verdict: Some(odocal::VerdictLevel::Accepted.to_string()),
+            reasons: Some(Vec::new()),
             ..CalibrationRecord::new(vehicle, &fingerprint, METHOD, decision.theta)
         });
         // The decision and its calibration row in one transaction: a
@@ -245,11 +247,28 @@ pub fn follow<E: From<Error>>(
 }
 
 /// The parameters the replay starts from, and where they come from: the
-/// vehicle's most recent row whose verdict is not `rejected`, else θ_0.
+/// vehicle's most recent row whose verdict is not `rejected` and names no
+/// bias beyond its σ ([`crate::BIAS_REASONS`]), else θ_0. The origin
+/// names the more recent biased rows passed over.
 fn start(db: &History, vehicle: &str, opts: &FollowOptions) -> Result<(Stored, String), Error> {
-    // A rejected result is not to be deployed, nor started from.
-    let start = db.rows(vehicle)?.into_iter().rev().find(|r| !crate::pooled::is_rejected(r));
-    Ok(match start {
+    // A rejected result is not to be deployed, nor started from; a biased
+    // one would carry its bias, with a σ that does not hold it, into every
+    // later drive's estimate.
+    let rows = db.rows(vehicle)?;
+    let start = rows.iter().rev().find(|r| !crate::pooled::is_rejected(r) && !crate::pooled::is_biased(r));
+    let passed: Vec<String> = rows
+        .iter()
+        .rev()
+        .take_while(|r| start.is_none_or(|s| s.id != r.id))
+        .filter(|r| !crate::pooled::is_rejected(r) && crate::pooled::is_biased(r))
+        .map(|r| format!("row {} ({})", r.id, r.record.bias_reasons().join(", ")))
+        .collect();
+    let passed = if passed.is_empty() {
+        String::new()
+    } else {
+        format!("; not started from, the verdict names a bias beyond its σ: {}", passed.join(", "))
+    };
+    let (stored, origin) = match start {
         Some(r) => {
             // A σ of the model alone (a batch G-N fit on a short drive) can
             // be several times smaller than the spread between drives: as
@@ -277,5 +296,6 @@ fn start(db: &History, vehicle: &str, opts: &FollowOptions) -> Result<(Stored, S
             let theta = opts.theta0.unwrap_or(Theta::PAPER_INITIAL);
             (Stored { theta, sigma: None, calibrated: false }, "θ_0".to_string())
         }
-    })
+    };
+    Ok((stored, origin + &passed))
 }

@@ -53,7 +53,7 @@ mod store;
 use store::{insert_decision, insert_record, read_only_connection};
 
 pub use follow::{follow, FollowEvent, FollowOptions};
-pub use pooled::{DriftFlag, NotMeasured, Pooled, SetAside, DRIFT_SIGMAS};
+pub use pooled::{Biased, DriftFlag, NotMeasured, Pooled, SetAside, BIAS_REASONS, DRIFT_SIGMAS};
 
 /// The parameters of θ in vector order `[c_e, c_d, t_r, d]`.
 const THETA_PARAMS: [odocal::Param; 4] = [odocal::Param::CE, odocal::Param::CD, odocal::Param::TR, odocal::Param::D];
@@ -105,6 +105,14 @@ pub struct CalibrationRecord {
     /// itself ([`DriftFlag::model_sigma_only`]). `None` when not known.
     #[serde(default)]
     pub sigma_model_only: Option<bool>,
+    /// The verdict's reason kinds (the JSON `kind`s of the calibration
+    /// report's verdict reasons, e.g. `input_noise_bias`); empty for a
+    /// verdict without reasons, `None` when not known (rows recorded
+    /// without them). A row whose reasons name a bias of its estimate
+    /// beyond its σ ([`BIAS_REASONS`]) is not pooled ([`Pooled::biased`])
+    /// nor started from by [`fn@follow`].
+    #[serde(default)]
+    pub reasons: Option<Vec<String>>,
 }
 
 impl CalibrationRecord {
@@ -124,6 +132,7 @@ impl CalibrationRecord {
             heading_offset_rad: None,
             verdict: None,
             sigma_model_only: None,
+            reasons: None,
         }
     }
 
@@ -131,7 +140,8 @@ impl CalibrationRecord {
     /// vehicle's identifier ([`check_vehicle_id`]), a method of odocal's
     /// ([`METHODS`]), θ within the physical limits
     /// ([`Theta::check_physical_limits`]), each σ finite and not
-    /// negative, `held` and `unobservable` naming parameters of θ.
+    /// negative, `held` and `unobservable` naming parameters of θ, each
+    /// of `reasons` a kind's name (letters, digits and `_`).
     ///
     /// # Errors
     /// [`Error::InvalidOption`] naming the field, or [`Error::InvalidTheta`].
@@ -163,6 +173,13 @@ impl CalibrationRecord {
                 });
             }
         }
+        let is_kind = |k: &str| !k.is_empty() && k.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
+        if let Some(k) = self.reasons.iter().flatten().find(|k| !is_kind(k)) {
+            return Err(Error::InvalidOption {
+                field: "reasons",
+                reason: format!("'{}' is not a verdict reason's kind (letters, digits and _)", k.escape_debug()),
+            });
+        }
         Ok(())
     }
 
@@ -175,6 +192,14 @@ impl CalibrationRecord {
         } else {
             self.sigma
         }
+    }
+
+    /// The kinds among [`Self::reasons`] that name a bias of the estimate
+    /// beyond its σ ([`BIAS_REASONS`]), in [`BIAS_REASONS`]' order; empty
+    /// when none is named or the reasons are not known.
+    pub fn bias_reasons(&self) -> Vec<&'static str> {
+        let named = |k: &&str| self.reasons.iter().flatten().any(|r| r == k);
+        BIAS_REASONS.iter().copied().filter(named).collect()
     }
 
     /// True when parameter `i` (`[c_e, c_d, t_r, d]`) was measured: neither
@@ -283,6 +308,15 @@ impl CalibrationRecord {
             verdict: Some(report.verdict.level.to_string()),
             sigma_model_only: Some(
                 report.verdict.reasons.iter().any(|r| matches!(r, odocal::VerdictReason::ModelSigmaOnly { .. })),
+            ),
+            // The JSON `kind` of each reason (its serde tag).
+            reasons: Some(
+                report
+                    .verdict
+                    .reasons
+                    .iter()
+                    .filter_map(|r| serde_json::to_value(r).ok()?.get("kind")?.as_str().map(String::from))
+                    .collect(),
             ),
             ..CalibrationRecord::new(vehicle, fingerprint, &report.method, report.theta)
         }
@@ -432,6 +466,12 @@ fn set_aside_text(set_aside: &[SetAside]) -> String {
         .join("; ")
 }
 
+/// `not pooled, the verdict names a bias beyond its σ: row 4 (input_noise_bias)`.
+fn biased_text(biased: &[pooled::Biased]) -> String {
+    let list: Vec<String> = biased.iter().map(|b| format!("row {} ({})", b.id, b.reasons.join(", "))).collect();
+    format!("not pooled, the verdict names a bias beyond its σ: {}", list.join(", "))
+}
+
 /// `row 3` or `rows 3, 5`.
 fn rows_text(ids: &[i64]) -> String {
     let list: Vec<String> = ids.iter().map(i64::to_string).collect();
@@ -570,6 +610,9 @@ impl VehicleHistory {
             if !p.online.is_empty() {
                 let _ = write!(aside, "; not pooled, online running estimates: {}", rows_text(&p.online));
             }
+            if !p.biased.is_empty() {
+                let _ = write!(aside, "; {}", biased_text(&p.biased));
+            }
             writeln!(
                 f,
                 "\npooled over {} drive(s) in {} row(s){aside} (inverse-variance mean ± its σ; between-drive sd):",
@@ -604,6 +647,11 @@ impl VehicleHistory {
             }
         } else if let Some(note) = self.running_estimate() {
             writeln!(f, "\nnothing pooled: {note}")?;
+        } else {
+            let biased = pooled::biased(&self.rows);
+            if !biased.is_empty() {
+                writeln!(f, "\nnothing pooled; {}", biased_text(&biased))?;
+            }
         }
         Ok(())
     }
@@ -649,7 +697,7 @@ const NOT_A_HISTORY: &str =
 
 const ROW_COLUMNS: &str = "id, recorded_at, odocal_version, vehicle, fingerprint, sources, t_start_s, t_end_s, \
      method, c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, heading_offset_rad, verdict, sigma_model_only, \
-     held, unobservable";
+     held, unobservable, reasons";
 
 fn theta_at(r: &Row<'_>, i: usize) -> rusqlite::Result<Theta> {
     Ok(Theta { c_e: r.get(i)?, c_d: r.get(i + 1)?, t_r: r.get(i + 2)?, d: r.get(i + 3)? })
@@ -687,6 +735,9 @@ fn history_row(r: &Row<'_>) -> rusqlite::Result<HistoryRow> {
             sigma_model_only: r.get(19)?,
             held: names_at(r, 20)?,
             unobservable: names_at(r, 21)?,
+            reasons: r
+                .get::<_, Option<String>>(22)?
+                .map(|v| v.split(',').map(str::trim).filter(|k| !k.is_empty()).map(String::from).collect()),
         },
     })
 }

@@ -10,6 +10,14 @@ use odocal::Theta;
 /// Combined-σ multiple beyond which a change between two rows is flagged.
 pub const DRIFT_SIGMAS: f64 = 3.0;
 
+/// The verdict reason kinds that name a bias of the estimate beyond its
+/// σ: `input_noise_bias` (batch Gauss-Newton's errors-in-variables bias,
+/// shared by every drive of the vehicle) and `heading_offset_held` (a held
+/// heading offset that shifts θ). Pooling such rows would shrink the
+/// pooled σ while their bias stays, so they are listed but not pooled
+/// ([`Pooled::biased`]), and `follow` does not start from them.
+pub const BIAS_REASONS: [&str; 2] = ["input_noise_bias", "heading_offset_held"];
+
 /// A parameter that changed between two consecutive rows by more than
 /// [`DRIFT_SIGMAS`] combined σ: `|θ₂ − θ₁| > 3·sqrt(σ₁² + σ₂²)`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -125,7 +133,8 @@ pub(crate) fn drift_between(rows: &[&HistoryRow]) -> Vec<DriftFlag> {
 /// drive counted once ([`SetAside`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Pooled {
-    /// Rows pooled (those asked for, less those set aside or rejected).
+    /// Rows pooled (those asked for, less those set aside, rejected,
+    /// online or biased).
     pub rows: usize,
     /// Drives they hold (a joint calibration holds several).
     #[serde(default)]
@@ -147,6 +156,11 @@ pub struct Pooled {
     /// the drives it followed.
     #[serde(default)]
     pub online: Vec<i64>,
+    /// Rows asked for but not pooled because their verdict names a bias of
+    /// the estimate beyond its σ ([`BIAS_REASONS`]), in recording order.
+    /// They are listed and drift-flagged as other rows.
+    #[serde(default)]
+    pub biased: Vec<Biased>,
     /// The pooled rows' parameters that are no measurement (held at θ_0,
     /// or named not observable): each left out of that parameter's pool.
     #[serde(default)]
@@ -168,6 +182,24 @@ pub struct Pooled {
     /// rows' θ (n − 1 in the denominator); NaN (JSON `null`) for fewer
     /// than two.
     pub between_drive_sd: Theta,
+}
+
+/// A row left out of the pooled estimate because its verdict names a bias
+/// of its estimate beyond its σ ([`BIAS_REASONS`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Biased {
+    /// The row.
+    pub id: i64,
+    /// The verdict reason kinds among [`BIAS_REASONS`] it names.
+    pub reasons: Vec<String>,
+}
+
+impl Biased {
+    /// The row's entry when its verdict names a bias beyond its σ.
+    pub(crate) fn of(r: &HistoryRow) -> Option<Biased> {
+        let reasons = r.record.bias_reasons();
+        (!reasons.is_empty()).then(|| Biased { id: r.id, reasons: reasons.into_iter().map(String::from).collect() })
+    }
 }
 
 /// A parameter of a pooled row that is no measurement, and so left out of
@@ -196,13 +228,28 @@ pub(crate) fn is_online(r: &HistoryRow) -> bool {
     r.record.method == crate::ONLINE
 }
 
+/// True for a row whose verdict names a bias beyond its σ ([`BIAS_REASONS`]).
+pub(crate) fn is_biased(r: &HistoryRow) -> bool {
+    !r.record.bias_reasons().is_empty()
+}
+
+/// The rows among `rows` (in recording order) neither rejected nor online
+/// whose verdict names a bias beyond its σ ([`Pooled::biased`]).
+pub(crate) fn biased(rows: &[HistoryRow]) -> Vec<Biased> {
+    rows.iter().filter(|r| !is_rejected(r) && !is_online(r)).filter_map(Biased::of).collect()
+}
+
 /// Pools `rows` (in recording order), each drive once ([`Pooled`],
-/// [`counted_once`]), the rejected and the online ones left out, each
-/// parameter over the rows that measured it; `None` without a row to pool.
+/// [`counted_once`]), the rejected, the online and the biased ones left
+/// out (before each drive is counted once: a biased row does not set aside
+/// an unbiased row of its drive), each parameter over the rows that
+/// measured it; `None` without a row to pool.
 pub(crate) fn pooled_estimate(rows: &[HistoryRow]) -> Option<Pooled> {
     let rejected: Vec<i64> = rows.iter().filter(|r| is_rejected(r)).map(|r| r.id).collect();
     let online: Vec<i64> = rows.iter().filter(|r| !is_rejected(r) && is_online(r)).map(|r| r.id).collect();
-    let judged: Vec<HistoryRow> = rows.iter().filter(|r| !is_rejected(r) && !is_online(r)).cloned().collect();
+    let biased = biased(rows);
+    let judged: Vec<HistoryRow> =
+        rows.iter().filter(|r| !is_rejected(r) && !is_online(r) && !is_biased(r)).cloned().collect();
     let (all_rows, set_aside) = counted_once(&judged);
     if all_rows.is_empty() {
         return None;
@@ -255,6 +302,7 @@ pub(crate) fn pooled_estimate(rows: &[HistoryRow]) -> Option<Pooled> {
         set_aside,
         rejected,
         online,
+        biased,
         not_measured,
         mean: Theta::from(mean),
         sigma_of_mean: Theta::from(se),

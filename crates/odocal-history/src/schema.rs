@@ -62,6 +62,10 @@ pub(super) const MIGRATIONS: &[&str] = &[
     "ALTER TABLE calibrations ADD COLUMN held TEXT;
     ALTER TABLE calibrations ADD COLUMN unobservable TEXT;
     UPDATE calibrations SET verdict = 'accepted' WHERE method = 'online' AND verdict IS NULL;",
+    // Version 4: the verdict's reason kinds (comma-separated, e.g.
+    // `input_noise_bias,model_sigma_only`; empty for none; NULL for rows
+    // recorded before the column: not known).
+    "ALTER TABLE calibrations ADD COLUMN reasons TEXT;",
 ];
 
 /// The schema version this odocal writes.

@@ -55,8 +55,8 @@ pub(crate) fn insert_record(conn: &Connection, path: &Path, rec: &CalibrationRec
             &format!(
                 "INSERT INTO calibrations (vehicle, recorded_at, fingerprint, sources, t_start_s, t_end_s, method, \
                  c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, heading_offset_rad, verdict, \
-                 odocal_version, sigma_model_only, held, unobservable) VALUES (?1, {NOW}, ?2, ?3, ?4, ?5, ?6, \
-                 ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17, ?18, ?19, ?20) \
+                 odocal_version, sigma_model_only, held, unobservable, reasons) VALUES (?1, {NOW}, ?2, ?3, ?4, ?5, \
+                 ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17, ?18, ?19, ?20, ?21) \
                  ON CONFLICT (vehicle, fingerprint, method) DO NOTHING"
             ),
             params![
@@ -80,6 +80,7 @@ pub(crate) fn insert_record(conn: &Connection, path: &Path, rec: &CalibrationRec
                 rec.sigma_model_only,
                 rec.held.join(","),
                 rec.unobservable.join(","),
+                rec.reasons.as_ref().map(|k| k.join(",")),
             ],
         )
         .map_err(&err)?;

@@ -264,7 +264,19 @@ fn a_calibration_records_whether_its_sigma_is_the_models_alone() {
         let drive = odocal::simulate(&sim).expect("sim").drive;
         let opts = odocal::CalibrationOptions { method: "batch-gn".parse().expect("method"), ..Default::default() };
         let r = odocal::calibrate(&drive, &opts).expect("calibrate");
-        CalibrationRecord::of_report("van", "f", Vec::new(), (0.0, 1.0), &r).sigma_model_only
+        let rec = CalibrationRecord::of_report("van", "f", Vec::new(), (0.0, 1.0), &r);
+        // The verdict's reason kinds, as its JSON names them.
+        let kinds: Vec<String> = serde_json::to_value(&r.verdict.reasons)
+            .expect("json")
+            .as_array()
+            .expect("reasons")
+            .iter()
+            .map(|x| x["kind"].as_str().expect("kind").to_string())
+            .collect();
+        assert_eq!(rec.reasons.as_ref(), Some(&kinds));
+        let named = kinds.iter().any(|k| k == "model_sigma_only");
+        assert_eq!(rec.sigma_model_only, Some(named));
+        rec.sigma_model_only
     };
     assert_eq!(record_of(3.0), Some(true));
     assert_eq!(record_of(12.0), Some(false));
@@ -616,7 +628,7 @@ fn a_version_two_file_is_migrated_and_keeps_its_rows() {
     }
     drop(conn);
     let db = History::open(&path).expect("migrate");
-    assert_eq!(db.schema_version, 3);
+    assert_eq!(db.schema_version, schema::SCHEMA_VERSION);
     let rows = db.rows("van").expect("rows");
     assert_eq!(rows.len(), 2);
     assert!(rows.iter().all(|r| r.record.held.is_empty() && r.record.unobservable.is_empty()));
@@ -907,4 +919,141 @@ fn follow_does_not_start_from_the_sigma_of_a_parameter_not_observable() {
     let (_, without) = follow_from("c.sqlite", None, &[]);
     assert_eq!(unobservable, without, "the prior's sd, as without a σ");
     assert!(unobservable.t_r > 10.0 * observed.t_r, "{unobservable:?} vs {observed:?}");
+}
+
+/// A batch-gn row whose verdict names `input_noise_bias` (or
+/// `heading_offset_held`) is listed and drift-flagged but not pooled: the
+/// EIV row of its drive stands for the drive in the pool, the text and the
+/// JSON name the row and its reason; a row whose reasons are not known is
+/// pooled.
+#[test]
+fn a_row_whose_verdict_names_a_bias_is_listed_but_not_pooled() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
+    let gn = |fp: &str, c_e: f64, kind: &str| CalibrationRecord {
+        method: "batch-gn".into(),
+        verdict: Some("doubtful".into()),
+        reasons: Some(vec!["model_sigma_only".into(), kind.into()]),
+        ..record("van", fp, c_e, 1e-4)
+    };
+    let unknown = record("van", "a", 1.950, 1e-3);
+    assert_eq!(unknown.reasons, None);
+    let ids: Vec<i64> = [unknown, gn("a", 1.960, "input_noise_bias"), gn("b", 1.990, "heading_offset_held")]
+        .iter()
+        .map(|r| match db.record(r).expect("record") {
+            Recorded::New(id) => id,
+            other => panic!("{other:?}"),
+        })
+        .collect();
+    let rows = db.rows("van").expect("rows");
+    assert_eq!(rows[0].record.reasons, None, "not known");
+    assert_eq!(
+        rows[1].record.reasons.as_deref(),
+        Some(&["model_sigma_only".to_string(), "input_noise_bias".into()][..])
+    );
+    let h = db.vehicle("van", None).expect("history");
+    let p = h.pooled.as_ref().expect("pooled");
+    assert_eq!((p.rows, p.drives), (1, 1), "{p:?}");
+    assert_eq!(p.mean.c_e.to_bits(), 1.950f64.to_bits(), "the EIV row alone: {p:?}");
+    let biased: Vec<(i64, Vec<String>)> = p.biased.iter().map(|b| (b.id, b.reasons.clone())).collect();
+    assert_eq!(
+        biased,
+        vec![(ids[1], vec!["input_noise_bias".to_string()]), (ids[2], vec!["heading_offset_held".to_string()])]
+    );
+    // Drift flags consider the rows as usual.
+    assert!(h.drift.iter().any(|d| d.from_id == ids[1] && d.to_id == ids[2] && d.parameter == "c_e"), "{:?}", h.drift);
+    let text = h.to_string();
+    let named = format!(
+        "not pooled, the verdict names a bias beyond its σ: row {} (input_noise_bias), row {} (heading_offset_held)",
+        ids[1], ids[2]
+    );
+    assert!(text.contains(&named), "{text}");
+    let json = serde_json::to_value(p).expect("json");
+    assert_eq!(json["biased"][0], serde_json::json!({"id": ids[1], "reasons": ["input_noise_bias"]}));
+    // The biased rows alone: nothing pooled, and the text says why.
+    let only = db.vehicle("van", Some(&ids[1..])).expect("history");
+    assert!(only.pooled.is_none());
+    assert!(only.to_string().contains("nothing pooled; not pooled, the verdict names a bias"), "{only}");
+    // A kind is one name: a comma would split it.
+    let bad = CalibrationRecord { reasons: Some(vec!["a,b".into()]), ..record("van", "z", 1.95, 1e-3) };
+    assert!(db.record(&bad).expect_err("refused").to_string().contains("reasons"));
+}
+
+/// `follow` does not start from a row whose verdict names a bias beyond
+/// its σ: it starts from the most recent row without one and its start
+/// line names the rows passed over.
+#[test]
+fn follow_does_not_start_from_a_biased_row() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
+    let eiv = CalibrationRecord { reasons: Some(Vec::new()), ..record("van", "a", 1.950, 1e-3) };
+    let gn = CalibrationRecord {
+        method: "batch-gn".into(),
+        verdict: Some("doubtful".into()),
+        reasons: Some(vec!["input_noise_bias".into()]),
+        ..record("van", "a", 1.960, 1e-4)
+    };
+    let (Recorded::New(first), Recorded::New(second)) = (db.record(&eiv).expect("eiv"), db.record(&gn).expect("gn"))
+    else {
+        panic!("not new");
+    };
+    let csv = dir.path().join("d.csv");
+    odocal::simulate(&odocal::SimOptions { length_km: 1.0, ..odocal::SimOptions::noise_free(3) })
+        .expect("sim")
+        .drive
+        .write_csv(&csv)
+        .expect("csv");
+    let mut start = None;
+    follow(&mut db, "van", std::slice::from_ref(&csv), &FollowOptions::default(), |e| {
+        if let FollowEvent::Start { theta, origin } = e {
+            start = Some((theta, origin));
+        }
+        Ok::<(), Error>(())
+    })
+    .expect("follow");
+    let (theta, origin) = start.expect("a start");
+    assert_eq!(theta.c_e.to_bits(), 1.950f64.to_bits());
+    assert_eq!(
+        origin,
+        format!(
+            "history row {first}; not started from, the verdict names a bias beyond its σ: row {second} (input_noise_bias)"
+        )
+    );
+}
+
+/// A file of schema version 3 is migrated on opening (and read from a
+/// migrated copy by `open_read_only`): its rows' reasons are not known
+/// (`NULL`), so they are pooled as before.
+#[test]
+fn a_version_three_file_is_migrated_and_pooled_as_before() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("h.sqlite");
+    let conn = Connection::open(&path).expect("open");
+    for sql in &schema::MIGRATIONS[..3] {
+        conn.execute_batch(sql).expect("migration");
+    }
+    conn.pragma_update(None, "user_version", 3).expect("pragma");
+    for (fp, method, c_e) in [("a", "eiv", 1.950), ("a", "batch-gn", 1.960), ("b", "batch-gn", 1.962)] {
+        conn.execute(
+            "INSERT INTO calibrations (vehicle, recorded_at, fingerprint, sources, t_start_s, t_end_s, method, \
+             c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, verdict, odocal_version, held, \
+             unobservable) VALUES ('van', '2026-01-01T00:00:00.000Z', ?1, '[]', 0, 1, ?2, ?3, 0, 1.5, 0, 1e-3, \
+             1e-4, 1e-2, 1e-4, 'doubtful', '0.3.0', '', '')",
+            params![fp, method, c_e],
+        )
+        .expect("row");
+    }
+    drop(conn);
+    let read = History::open_read_only(&path).expect("read");
+    let before = read.vehicle("van", None).expect("history");
+    drop(read);
+    let db = History::open(&path).expect("migrate");
+    assert_eq!(db.schema_version, schema::SCHEMA_VERSION);
+    let h = db.vehicle("van", None).expect("history");
+    assert_eq!(before, h);
+    assert!(h.rows.iter().all(|r| r.record.reasons.is_none()), "not known");
+    let p = h.pooled.as_ref().expect("pooled");
+    assert!(p.biased.is_empty());
+    assert_eq!((p.rows, p.drives), (2, 2), "{p:?}");
+    assert!((p.mean.c_e - 1.961).abs() < 1e-12, "{p:?}");
 }
