@@ -203,6 +203,10 @@ fn pooled_table(p: &Pooled) -> String {
             ids.join(", ")
         ));
     }
+    if !p.biased.is_empty() {
+        let rows: Vec<String> = p.biased.iter().map(|b| format!("row {} ({})", b.id, b.reasons.join(", "))).collect();
+        aside.push_str(&format!(" Not pooled, the verdict names a bias beyond its σ: {}.", rows.join(", ")));
+    }
     let mut h = format!(
         "<p>Pooled over {} drive(s) in {} row(s): the inverse-variance mean ± its σ and the between-drive sd.{aside}</p>\n\
          <table><tr><th>parameter</th><th>mean ± σ</th><th>between-drive sd</th></tr>\n",
@@ -333,6 +337,18 @@ mod tests {
         let html = render_history_html(&VehicleHistory::of_rows("v", online, None)).expect("html");
         assert!(
             html.contains("Nothing pooled") && html.contains("row 2, is the estimate follow continues from"),
+            "{html}"
+        );
+    }
+
+    #[test]
+    fn a_row_whose_verdict_names_a_bias_is_named_as_not_pooled() {
+        let mut rows = vec![row(1, -2e-3), row(2, -2e-3)];
+        rows[1].record.reasons = Some(vec!["input_noise_bias".into()]);
+        let html = render_history_html(&VehicleHistory::of_rows("v", rows, None)).expect("html");
+        assert!(
+            html.contains("Pooled over 1 drive(s) in 1 row(s)")
+                && html.contains("Not pooled, the verdict names a bias beyond its σ: row 2 (input_noise_bias)."),
             "{html}"
         );
     }
