@@ -256,13 +256,15 @@ fn start(db: &History, vehicle: &str, opts: &FollowOptions) -> Result<(Stored, S
     // later drive's estimate.
     let rows = db.rows(vehicle)?;
     let start = rows.iter().rev().find(|r| !crate::pooled::is_rejected(r) && !crate::pooled::is_biased(r));
-    let passed: Vec<String> = rows
+    // The biased rows more recent than the start, in recording order.
+    let mut passed: Vec<String> = rows
         .iter()
         .rev()
         .take_while(|r| start.is_none_or(|s| s.id != r.id))
         .filter(|r| !crate::pooled::is_rejected(r) && crate::pooled::is_biased(r))
         .map(|r| format!("row {} ({})", r.id, r.record.bias_reasons().join(", ")))
         .collect();
+    passed.reverse();
     let passed = if passed.is_empty() {
         String::new()
     } else {
