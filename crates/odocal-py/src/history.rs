@@ -113,11 +113,14 @@ impl PyHistory {
 
     /// The pooled estimate over the vehicle's rows (those with an id in
     /// `ids`, or all), each drive counted once by its most recent row:
-    /// `{"rows", "drives", "set_aside", "rejected", "online", "not_measured",
-    /// "mean", "sigma_of_mean", "between_drive_sd"}` (`set_aside`: `{"id",
-    /// "by_id"}` of each row left out for a later row of its drive;
-    /// `rejected`: the ids of rows left out for their verdict `rejected`;
-    /// `online`: the ids of the online running estimates, not pooled;
+    /// `{"rows", "drives", "set_aside", "rejected", "online", "biased",
+    /// "not_measured", "mean", "sigma_of_mean", "between_drive_sd"}`
+    /// (`set_aside`: `{"id", "by_id"}` of each row left out for a later row
+    /// of its drive; `rejected`: the ids of rows left out for their verdict
+    /// `rejected`; `online`: the ids of the online running estimates, not
+    /// pooled; `biased`: `{"id", "reasons"}` of each row left out because
+    /// its verdict names a bias beyond its σ, `input_noise_bias` or
+    /// `heading_offset_held`;
     /// `not_measured`: `{"id", "parameter", "why"}` of each parameter a row
     /// held or found not observable, left out of that parameter's pool; a
     /// parameter no row measured has `None`), or None without a row to pool.
@@ -175,8 +178,8 @@ impl PyHistory {
     /// Records a row given as a dict of the table's fields (`vehicle`,
     /// `fingerprint`, `method`, `theta`; optional `sigma`, `held`,
     /// `unobservable`, `sources`, `t_start_s`, `t_end_s`,
-    /// `heading_offset_rad`, `verdict`, `sigma_model_only`; another key is
-    /// refused). Use `History.record`.
+    /// `heading_offset_rad`, `verdict`, `sigma_model_only`, `reasons`;
+    /// another key is refused). Use `History.record`.
     fn _record_dict<'py>(&self, py: Python<'py>, record: &Bound<'_, PyDict>) -> PyResult<Bound<'py, PyDict>> {
         let mut v = to_json(record.as_any(), "record")?;
         let invalid = |reason: String| lib_err(odocal::Error::InvalidOption { field: "record", reason });

@@ -207,6 +207,9 @@ def test_history_records_rows_flags_drift_and_pools(tmp_path, small_drive):
     assert row["theta"] == report.theta and row["verdict"] is not None
     # Whether the σ is the model's alone is recorded from the verdict.
     assert row["sigma_model_only"] == ("model_sigma_only" in json.dumps(report.verdict))
+    # The verdict's reason kinds are recorded with the row; rows given as dicts without them: not known.
+    assert row["reasons"] == [x["kind"] for x in report.verdict["reasons"]]
+    assert rows[0]["reasons"] is None and db.pooled("van")["biased"] == []
     # A σ of the model alone: a flag it takes part in says so.
     other = odocal.History(tmp_path / "other.sqlite")
     other.record({**base, "fingerprint": "a"})

@@ -298,13 +298,15 @@ class History(_History):
         holds the same drive (fingerprint) calibrated by the same method.
 
         ``report`` is a :class:`CalibrationReport` (θ, its σ, verdict,
-        method and the calibration drives' fingerprints and files, as
+        method, the verdict's reason kinds and the calibration drives'
+        fingerprints and files, as
         ``odocal calibrate --vehicle --db`` records them; the time span from
         the report's drive) or a dict of the table's fields (``vehicle``,
         ``fingerprint``, ``method``, ``theta``; optional ``sigma``,
         ``held``, ``unobservable``, ``sources``, ``t_start_s``,
         ``t_end_s``, ``heading_offset_rad``, ``verdict``,
-        ``sigma_model_only``; another key raises :class:`OdocalError`
+        ``sigma_model_only``, ``reasons`` (a list of verdict reason kinds);
+        another key raises :class:`OdocalError`
         naming it; ``theta`` a dict of ``c_e``, ``c_d``, ``t_r``, ``d`` or
         four numbers, ``sigma`` the same with ``None`` for a parameter
         without σ). Returns ``{"id": row id, "new": False when it was
