@@ -428,7 +428,8 @@ fn history_keeps_each_sigma_and_pools_no_held_value() {
     let db_s = db.to_str().expect("utf8");
     for (name, seed, fix) in [("a.csv", "1", Some("d")), ("b.csv", "2", None)] {
         let d = simulated_drive(dir.path(), name, &["--seed", seed, "--length-km", "4"]);
-        let mut args = vec!["calibrate", &d, "--method", "batch-gn", "--vehicle", "van", "--db", db_s];
+        // EIV: a batch-gn row would name input_noise_bias on these drives and not be pooled at all.
+        let mut args = vec!["calibrate", &d, "--vehicle", "van", "--db", db_s];
         if let Some(p) = fix {
             args.extend(["--fix", p]);
         }
@@ -448,6 +449,36 @@ fn history_keeps_each_sigma_and_pools_no_held_value() {
     let text = stdout(&odocal(&["history", "van", "--db", db_s]));
     assert!(text.contains(" held ") && text.contains("not pooled: row 1 held"), "{text}");
     assert!(!text.contains("NaN"), "{text}");
+}
+
+/// `calibrate --vehicle --db` records the verdict's reason kinds; a
+/// batch-gn row naming `input_noise_bias` is listed but not pooled, so the
+/// drive's EIV row stands for it in the pool, and the text names the row.
+#[test]
+fn history_does_not_pool_a_row_whose_verdict_names_a_bias() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let db = dir.path().join("h.sqlite");
+    let db_s = db.to_str().expect("utf8");
+    let d = simulated_drive(dir.path(), "a.csv", &["--seed", "2", "--length-km", "4"]);
+    for method in ["eiv", "batch-gn"] {
+        let o = odocal(&["calibrate", &d, "--method", method, "--vehicle", "van", "--db", db_s]);
+        assert!(o.status.code() != Some(1), "{}", stderr(&o));
+    }
+    let o = odocal(&["history", "van", "--db", db_s, "--json", "-"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: Value = serde_json::from_str(&stdout(&o)).expect("history json");
+    let rows = v["rows"].as_array().expect("rows");
+    assert!(rows[1]["reasons"].as_array().expect("reasons").iter().any(|k| k == "input_noise_bias"), "{}", rows[1]);
+    assert!(rows[0]["reasons"].as_array().is_some_and(|k| !k.iter().any(|k| k == "input_noise_bias")), "{}", rows[0]);
+    assert_eq!(
+        v["pooled"]["biased"],
+        serde_json::json!([{"id": 2, "reasons": ["input_noise_bias"]}]),
+        "{}",
+        v["pooled"]
+    );
+    assert_eq!(v["pooled"]["mean"]["c_e"], rows[0]["theta"]["c_e"], "{}", v["pooled"]);
+    let text = stdout(&odocal(&["history", "van", "--db", db_s]));
+    assert!(text.contains("not pooled, the verdict names a bias beyond its σ: row 2 (input_noise_bias)"), "{text}");
 }
 
 /// A written update rests on every drive the recursion followed: its
