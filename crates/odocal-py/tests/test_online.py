@@ -209,7 +209,10 @@ def test_history_records_rows_flags_drift_and_pools(tmp_path, small_drive):
     assert row["sigma_model_only"] == ("model_sigma_only" in json.dumps(report.verdict))
     # The verdict's reason kinds are recorded with the row; rows given as dicts without them: not known.
     assert row["reasons"] == [x["kind"] for x in report.verdict["reasons"]]
-    assert rows[0]["reasons"] is None and db.pooled("van")["biased"] == []
+    assert rows[0]["reasons"] is None
+    # A row naming a bias beyond its σ is not pooled, and `pooled` names it.
+    bias = [k for k in ("input_noise_bias", "heading_offset_held") if k in row["reasons"]]
+    assert db.pooled("van")["biased"] == ([{"id": row["id"], "reasons": bias}] if bias else [])
     # A σ of the model alone: a flag it takes part in says so.
     other = odocal.History(tmp_path / "other.sqlite")
     other.record({**base, "fingerprint": "a"})
