@@ -581,7 +581,7 @@ impl std::fmt::Display for VehicleHistory {
                     THETA_NAMES.iter().position(|n| *n == d.parameter).map_or((1.0, "SI"), |i| DISPLAY_UNITS[i]);
                 writeln!(
                     f,
-                    "  {} row {} ({}) → row {} ({}): {:+.4e} {unit} (combined σ {:.2e} {unit}, {:.1}σ){}",
+                    "  {} row {} ({}) → row {} ({}): {:+.4e} {unit} (combined σ {:.2e} {unit}, {:.1}σ){}{}",
                     d.parameter,
                     d.from_id,
                     d.from_recorded_at,
@@ -590,7 +590,8 @@ impl std::fmt::Display for VehicleHistory {
                     d.change * scale,
                     d.combined_sigma * scale,
                     d.change.abs() / d.combined_sigma,
-                    if d.model_sigma_only { MODEL_SIGMA_NOTE } else { "" }
+                    if d.model_sigma_only { MODEL_SIGMA_NOTE } else { "" },
+                    if d.biased { BIASED_NOTE } else { "" }
                 )?;
             }
         }
@@ -661,6 +662,11 @@ impl VehicleHistory {
 /// ([`DriftFlag::model_sigma_only`]).
 pub const MODEL_SIGMA_NOTE: &str =
     " — a σ of the model alone (verdict reason model_sigma_only): no evidence of drift by itself";
+
+/// Appended to a drift flag between rows one of which names a bias of its
+/// estimate beyond its σ ([`DriftFlag::biased`]).
+pub const BIASED_NOTE: &str =
+    " — a row whose verdict names a bias beyond its σ (not pooled): the change may be that bias, not drift";
 
 /// An open history database.
 #[derive(Debug)]

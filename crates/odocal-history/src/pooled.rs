@@ -42,6 +42,12 @@ pub struct DriftFlag {
     /// between drives, so the flag is no evidence of drift by itself.
     #[serde(default)]
     pub model_sigma_only: bool,
+    /// Either row's verdict names a bias of its estimate beyond its σ
+    /// ([`BIAS_REASONS`]): the change may be that bias (one method's
+    /// against another's), not the vehicle's, so the flag is no evidence
+    /// of drift by itself.
+    #[serde(default)]
+    pub biased: bool,
 }
 
 /// A row left out of the drift flags or the pooled estimate because a
@@ -120,6 +126,7 @@ pub(crate) fn drift_between(rows: &[&HistoryRow]) -> Vec<DriftFlag> {
                     combined_sigma: combined,
                     model_sigma_only: a.record.sigma_model_only == Some(true)
                         || b.record.sigma_model_only == Some(true),
+                    biased: !a.record.bias_reasons().is_empty() || !b.record.bias_reasons().is_empty(),
                 });
             }
         }

@@ -224,6 +224,7 @@ fn a_drift_flag_on_a_model_only_sigma_says_so() {
     let flags: Vec<(i64, bool)> = h.drift.iter().map(|f| (f.to_id, f.model_sigma_only)).collect();
     let ids: Vec<i64> = h.rows.iter().map(|r| r.id).collect();
     assert_eq!(flags, vec![(ids[1], true), (ids[2], true), (ids[3], false)], "{:?}", h.drift);
+    assert!(h.drift.iter().all(|f| !f.biased), "no row names a bias: {:?}", h.drift);
     let text = h.to_string();
     assert_eq!(text.matches(MODEL_SIGMA_NOTE).count(), 2, "{text}");
     let json = serde_json::to_value(&h.drift).expect("json");
@@ -960,9 +961,12 @@ fn a_row_whose_verdict_names_a_bias_is_listed_but_not_pooled() {
         biased,
         vec![(ids[1], vec!["input_noise_bias".to_string()]), (ids[2], vec!["heading_offset_held".to_string()])]
     );
-    // Drift flags consider the rows as usual.
+    // Drift flags consider the rows as usual, each marked: its change may
+    // be the bias.
     assert!(h.drift.iter().any(|d| d.from_id == ids[1] && d.to_id == ids[2] && d.parameter == "c_e"), "{:?}", h.drift);
+    assert!(!h.drift.is_empty() && h.drift.iter().all(|d| d.biased), "{:?}", h.drift);
     let text = h.to_string();
+    assert_eq!(text.matches(crate::BIASED_NOTE).count(), h.drift.len(), "{text}");
     let named = format!(
         "not pooled, the verdict names a bias beyond its σ: row {} (input_noise_bias), row {} (heading_offset_held)",
         ids[1], ids[2]

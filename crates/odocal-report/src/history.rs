@@ -5,7 +5,7 @@
 //! and the pooled estimate as tables.
 
 use odocal::model::THETA_NAMES;
-use odocal_history::{DriftFlag, HistoryRow, Pooled, VehicleHistory, DRIFT_SIGMAS, MODEL_SIGMA_NOTE};
+use odocal_history::{DriftFlag, HistoryRow, Pooled, VehicleHistory, BIASED_NOTE, DRIFT_SIGMAS, MODEL_SIGMA_NOTE};
 use plotters::prelude::*;
 
 use crate::plots::{BLUE, GREY, RED};
@@ -169,7 +169,7 @@ fn drift_list(drift: &[DriftFlag]) -> String {
         let i = THETA_NAMES.iter().position(|n| *n == f.parameter).unwrap_or(0);
         let (scale, unit) = UNITS[i];
         h.push_str(&format!(
-            "<li class=\"flag\">{} row id {} ({}) → id {} ({}): {:+.4e} {unit} ({:.1} σ){}</li>\n",
+            "<li class=\"flag\">{} row id {} ({}) → id {} ({}): {:+.4e} {unit} ({:.1} σ){}{}</li>\n",
             esc(&f.parameter),
             f.from_id,
             esc(&f.from_recorded_at),
@@ -177,7 +177,8 @@ fn drift_list(drift: &[DriftFlag]) -> String {
             esc(&f.to_recorded_at),
             f.change * scale,
             f.change.abs() / f.combined_sigma,
-            if f.model_sigma_only { esc(MODEL_SIGMA_NOTE) } else { String::new() }
+            if f.model_sigma_only { esc(MODEL_SIGMA_NOTE) } else { String::new() },
+            if f.biased { esc(BIASED_NOTE) } else { String::new() }
         ));
     }
     h.push_str("</ul>\n");
