@@ -29,6 +29,7 @@ use crate::model::extrinsics::Extrinsics;
 use crate::model::param::{Param, ParamSet};
 use crate::model::Theta;
 
+use super::checks::largest_against_sigma;
 use super::report::MethodDetail;
 use super::{CalibrationOptions, Selection};
 
@@ -79,15 +80,8 @@ pub(super) fn held_heading_offset_reasons(
                 return None;
             }
             let base = fit(&data, free)?.theta;
-            let (param, shift, shift_sigmas) = free
-                .iter()
-                .filter_map(|p| {
-                    let s = sigma_next[p.index()].filter(|s| *s > 0.0 && s.is_finite())?;
-                    let shift = p.value(&joint.theta) - p.value(&base);
-                    Some((p, shift, shift.abs() / s))
-                })
-                .filter(|(_, _, r)| r.is_finite())
-                .max_by(|a, b| a.2.total_cmp(&b.2))?;
+            let shift = |p: Param| p.value(&joint.theta) - p.value(&base);
+            let (param, shift, _, shift_sigmas) = largest_against_sigma(free, sigma_next, shift)?;
             (shift_sigmas > MAX_SHIFT_SIGMAS).then_some(VerdictReason::HeadingOffsetHeld {
                 drive: (starts.len() > 1).then_some(k),
                 held: held.heading_offset,

@@ -44,9 +44,9 @@ use crate::drive::segment::SegmentData;
 use crate::drive::Drive;
 use crate::identify::{gauss_newton_step_drives, IdentifyOptions};
 use crate::model::extrinsics::Extrinsics;
-use crate::model::param::ParamSet;
 use crate::model::{wrap_angle, Theta};
 
+use super::checks::largest_against_sigma;
 use super::report::MethodDetail;
 use super::{CalibrationOptions, Selection};
 
@@ -80,17 +80,7 @@ pub(super) fn input_noise_bias_reason(
     let sigma_w = wheel_white_noise(&data, theta)?;
     let identify = IdentifyOptions { extrinsics: *extrinsics, ..selection.identify(opts) };
     let bias = simex_bias(&data, drive.drive_starts(), theta, &identify, sigma_w, opts.seed)?;
-    let (param, b, sigma, sigmas) = selection
-        .free
-        .intersection(ParamSet::THETA)
-        .iter()
-        .filter_map(|p| {
-            let s = sigma_next[p.index()].filter(|s| *s > 0.0 && s.is_finite())?;
-            let b = bias[p.index()];
-            Some((p, b, s, b.abs() / s))
-        })
-        .filter(|r| r.3.is_finite())
-        .max_by(|a, b| a.3.total_cmp(&b.3))?;
+    let (param, b, sigma, sigmas) = largest_against_sigma(selection.free, sigma_next, |p| bias[p.index()])?;
     (sigmas > MAX_BIAS_SIGMAS).then_some(VerdictReason::InputNoiseBias {
         param,
         estimate: param.value(theta),
