@@ -44,7 +44,7 @@ use crate::drive::segment::SegmentData;
 use crate::drive::Drive;
 use crate::identify::{gauss_newton_step_drives, IdentifyOptions};
 use crate::model::extrinsics::Extrinsics;
-use crate::model::{wrap_angle, Theta};
+use crate::model::{kinematics, wrap_angle, Theta};
 
 use super::checks::largest_against_sigma;
 use super::report::MethodDetail;
@@ -103,14 +103,12 @@ research_pub! {
             let len = ((window_s / dt).round() as usize).max(1);
             let start = rows.len();
             for s in data {
-                let k = s.n_rl.len().min(s.n_rr.len()).min(s.a_y.len()).min(s.psi.len().saturating_sub(1));
-                for i in (0..k / len).map(|w| w * len) {
+                for i in (0..s.steps() / len).map(|w| w * len) {
                     let (mut turn, mut x) = (0.0, 0.0);
                     for j in i..i + len {
-                        let (c_rl, c_rr) = theta.wheel_circumferences(s.a_y[j]);
-                        let (left, right) = (s.n_rl[j] * c_rl, s.n_rr[j] * c_rr);
-                        turn += (right - left) / theta.t_r * dt;
-                        x += 2.0 * (0.5 * (left + right) * dt / theta.t_r).powi(2);
+                        let k = kinematics(&s.input(j), theta);
+                        turn += k.yaw_rate_rad_per_s * dt;
+                        x += 2.0 * (k.speed_m_per_s * dt / theta.t_r).powi(2);
                     }
                     let r = wrap_angle(turn - (s.psi[i + len] - s.psi[i]));
                     if r.is_finite() && x.is_finite() {
@@ -165,7 +163,7 @@ research_pub! {
                         let wheels: Vec<(Vec<f64>, Vec<f64>)> =
                             data.iter().zip(&draws[k]).map(|(s, (l, r))| (scale(s.n_rl, l), scale(s.n_rr, r))).collect();
                         let noisy: Vec<SegmentData<'_>> =
-                            data.iter().zip(&wheels).map(|(s, (l, r))| SegmentData { n_rl: l, n_rr: r, ..*s }).collect();
+                            data.iter().zip(&wheels).map(|(s, (l, r))| s.with_wheels(l, r)).collect();
                         refit(&noisy).map(<[f64; 4]>::from)
                     })
                     .collect::<Option<Vec<[f64; 4]>>>()
