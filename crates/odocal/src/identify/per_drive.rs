@@ -173,7 +173,6 @@ pub(crate) fn batch_gauss_newton_per_drive(
             ),
         });
     }
-    let used: Vec<bool> = (0..d).map(|k| segments.iter().any(|s| drives.of(s) == k)).collect();
     let (x0, free) = start(segments, drives, theta0, opts);
     let e0 = opts.extrinsics;
     let mut scale = VecN::from_element(1e-3);
@@ -186,7 +185,8 @@ pub(crate) fn batch_gauss_newton_per_drive(
     resolution.resize(n, opts.extrinsics_resolution[2]);
     let jtwj = DMatrix::from_fn(n, n, |i, j| ne.jtwj[(i, j)]);
     let observability = observability_of_entries(&jtwj, ne.poses, &free, &resolution, opts);
-    let offsets: Vec<usize> = (0..d).filter(|&k| used[k]).collect();
+    // The drives with segments: those whose δ `start` made free.
+    let offsets: Vec<usize> = free.iter().filter(|&&i| i >= 6).map(|&i| i - 6).collect();
     Ok(gauss_newton::joint_report(segments, theta0, &out, &free, observability, opts, |cov, robust, sens| {
         let condensed = |c: &MatN| condense(c, &offsets);
         let cov7 = condensed(cov);
