@@ -130,7 +130,12 @@ pub fn record_calibration(
     let t = drive.t();
     let span = (t.first().copied().unwrap_or(0.0), t.last().copied().unwrap_or(0.0));
     let names = sources.iter().map(|p| p.display().to_string()).collect();
-    let rec = CalibrationRecord::of_report(vehicle, fingerprint, names, span, r);
+    let mut rec = CalibrationRecord::of_report(vehicle, fingerprint, names, span, r);
+    // The files' digests, by which `follow` and the pooled estimate know
+    // the same data imported another way; none for a drive read from
+    // standard input.
+    let digests: Option<Vec<String>> = sources.iter().map(|p| odocal_history::source_digest(p).ok()).collect();
+    rec.source_digest = digests.map(|d| d.join(","));
     // The history's errors name the file.
     match h.record(&rec)? {
         Recorded::New(id) => eprintln!("recorded in {} as row {id} of vehicle '{vehicle}'", db.display()),

@@ -9,6 +9,7 @@ use odocal::{Error, Progress, Theta};
 use odocal_online::gate::{Action, GateDecision, Gates};
 use odocal_online::{Calibrator, DriveSummary, OnlineOptions};
 
+use crate::source::{held_by_decision, held_by_record, same_data};
 use crate::{CalibrationRecord, DecisionRow, History, ONLINE as METHOD};
 
 /// Settings of [`follow`].
@@ -45,7 +46,11 @@ pub enum FollowEvent {
     Progress(Progress),
     /// A drive the vehicle's history holds already: followed before (its
     /// fingerprint is among the logged decisions) or calibrated (a row of
-    /// `calibrations` holds it, by any method). Not replayed: its samples
+    /// `calibrations` holds it, by any method), or the same recorded data
+    /// imported another way (the same files over overlapping times,
+    /// [`source_digest`](crate::source_digest): a manifest that
+    /// `calibrate` imported whole and `follow` streams, whose estimated
+    /// clock offsets differ). Not replayed: its samples
     /// are in the history already, and the parameters the replay starts
     /// from may have been fitted on them, so replaying it would count them
     /// twice and judge the write-back against parameters fitted on the
@@ -104,7 +109,8 @@ struct Stored {
 /// length): a drive CSV, or a manifest of CSV streams (its samples kept in
 /// temporary files); another manifest is imported whole. A drive the
 /// vehicle's history holds already (among its logged decisions, or in a
-/// recorded calibration by any method) is skipped
+/// recorded calibration by any method; by its fingerprint, or by its
+/// [`source_digest`](crate::source_digest) and time span) is skipped
 /// ([`FollowEvent::Skipped`]): replaying it would count its samples twice.
 /// Every other drive is judged first as a calibration judges its drive
 /// ([`Replay::check`] at the θ in use): a drive with a lost signal or a
@@ -152,13 +158,23 @@ pub fn follow<E: From<Error>>(
         let drive = Replay::open(path, |line| on(FollowEvent::Log(line)))?;
         let source = path.display().to_string();
         let fingerprint = drive.fingerprint()?;
+        let digest = crate::source_digest(path)?;
+        let span = drive.time_span_s();
+        // The same samples, or the same files over the same time imported
+        // another way (a manifest imported whole by `calibrate`).
+        let here = vec![(digest.as_str(), Some(span))];
         let row = db
             .rows(vehicle)?
             .into_iter()
             .rev()
-            .find(|r| crate::pooled::drives_of(&r.record.fingerprint).any(|f| f == fingerprint))
+            .find(|r| {
+                crate::pooled::drives_of(&r.record.fingerprint).any(|f| f == fingerprint)
+                    || same_data(&held_by_record(&r.record), &here)
+            })
             .map(|r| (r.id, r.record.method));
-        if row.is_some() || db.decisions(vehicle)?.iter().any(|d| d.fingerprint == fingerprint) {
+        let decided =
+            |d: &DecisionRow| d.fingerprint == fingerprint || same_data(&held_by_decision(d), &here);
+        if row.is_some() || db.decisions(vehicle)?.iter().any(decided) {
             on(FollowEvent::Skipped { source, fingerprint, row })?;
             continue;
         }
@@ -194,9 +210,9 @@ pub fn follow<E: From<Error>>(
         progress?;
         let decision = opts.gates.decide(c, &stored.theta, stored.calibrated);
         let status = c.status();
-        let span = drive.time_span_s();
         let written = (decision.action == Action::Write).then(|| CalibrationRecord {
             sources: vec![source.clone()],
+            source_digest: Some(digest.clone()),
             t_start_s: span.0,
             t_end_s: span.1,
             sigma: decision.sigma.into(),
@@ -217,6 +233,8 @@ pub fn follow<E: From<Error>>(
                 vehicle: vehicle.to_string(),
                 fingerprint: fingerprint.clone(),
                 source: source.clone(),
+                source_digest: Some(digest.clone()),
+                t_start_s: Some(span.0),
                 drive_time_s: span.1 - span.0,
                 decision: decision.action.to_string(),
                 reasons: decision.reasons.clone(),

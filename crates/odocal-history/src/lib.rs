@@ -48,11 +48,13 @@ use odocal::{CalibrationReport, Error, Result, Theta};
 mod follow;
 mod pooled;
 mod schema;
+mod source;
 mod store;
 
 use store::{insert_decision, insert_record, read_only_connection};
 
 pub use follow::{follow, FollowEvent, FollowOptions};
+pub use source::source_digest;
 pub use pooled::{Biased, DriftFlag, NotMeasured, Pooled, SetAside, BIAS_REASONS, DRIFT_SIGMAS};
 
 /// The parameters of θ in vector order `[c_e, c_d, t_r, d]`.
@@ -70,6 +72,13 @@ pub struct CalibrationRecord {
     pub fingerprint: String,
     /// The files the drive was read from.
     pub sources: Vec<String>,
+    /// The drive's [source digest](source_digest), a hash of the files it
+    /// was read from, one per drive as in `fingerprint` (comma separated):
+    /// with the time span it tells the same recorded data imported another
+    /// way. `None` when not known (a drive made from arrays, or a row
+    /// recorded before the column).
+    #[serde(default)]
+    pub source_digest: Option<String>,
     /// First and last sample time of the drive, s.
     pub t_start_s: f64,
     /// Last sample time, s.
@@ -122,6 +131,7 @@ impl CalibrationRecord {
             vehicle: vehicle.to_string(),
             fingerprint: fingerprint.to_string(),
             sources: Vec::new(),
+            source_digest: None,
             t_start_s: 0.0,
             t_end_s: 0.0,
             method: method.to_string(),
@@ -390,6 +400,14 @@ pub struct DecisionRow {
     pub fingerprint: String,
     /// The drive's source (file or manifest).
     pub source: String,
+    /// The drive's [source digest](source_digest); `None` when not known
+    /// (a decision logged before the column).
+    #[serde(default)]
+    pub source_digest: Option<String>,
+    /// Time of the drive's first sample, s on its own clock; `None` when
+    /// not known (a decision logged before the column).
+    #[serde(default)]
+    pub t_start_s: Option<f64>,
     /// Time into the drive, s (from its first sample).
     pub drive_time_s: f64,
     /// `written`, `held` or `flagged` (a change too large to write without a person).
@@ -703,7 +721,7 @@ const NOT_A_HISTORY: &str =
 
 const ROW_COLUMNS: &str = "id, recorded_at, odocal_version, vehicle, fingerprint, sources, t_start_s, t_end_s, \
      method, c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, heading_offset_rad, verdict, sigma_model_only, \
-     held, unobservable, reasons";
+     held, unobservable, reasons, source_digest";
 
 fn theta_at(r: &Row<'_>, i: usize) -> rusqlite::Result<Theta> {
     Ok(Theta { c_e: r.get(i)?, c_d: r.get(i + 1)?, t_r: r.get(i + 2)?, d: r.get(i + 3)? })
@@ -744,6 +762,7 @@ fn history_row(r: &Row<'_>) -> rusqlite::Result<HistoryRow> {
             reasons: r
                 .get::<_, Option<String>>(22)?
                 .map(|v| v.split(',').map(str::trim).filter(|k| !k.is_empty()).map(String::from).collect()),
+            source_digest: r.get(23)?,
         },
     })
 }
@@ -762,6 +781,8 @@ fn decision_row(r: &Row<'_>) -> rusqlite::Result<DecisionRow> {
         decision: r.get(8)?,
         theta: theta_at(r, 9)?,
         sigma: sigma_at(r, 13)?.all(),
+        source_digest: r.get(17)?,
+        t_start_s: r.get(18)?,
     })
 }
 
@@ -936,7 +957,8 @@ impl History {
             .conn
             .prepare(
                 "SELECT id, decided_at, odocal_version, vehicle, fingerprint, source, reasons, drive_time_s, \
-                 decision, c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d FROM decisions \
+                 decision, c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, source_digest, t_start_s \
+                 FROM decisions \
                  WHERE vehicle = ?1 ORDER BY id",
             )
             .map_err(&err)?;

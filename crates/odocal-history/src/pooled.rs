@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::HistoryRow;
+use crate::source::{held_by_record, same_data, Held};
 use odocal::model::THETA_NAMES;
 use odocal::Theta;
 
@@ -73,9 +74,10 @@ pub(crate) fn drives_of(fingerprint: &str) -> impl Iterator<Item = &str> {
 
 /// `rows` (in recording order) with each drive counted once: walking from
 /// the most recent row back, a row stands unless a row that stands already
-/// holds one of its drives. Returns the rows that stand, in recording
-/// order, and those set aside (in recording order), each with the row that
-/// stands for its drive.
+/// holds one of its drives (the same fingerprint, or the same files over
+/// overlapping times: [`crate::source_digest`]). Returns the rows that
+/// stand, in recording order, and those set aside (in recording order),
+/// each with the row that stands for its drive.
 ///
 /// The most recent row stands because a drive calibrated again (by another
 /// method, or jointly with other drives) is a choice made later, and
@@ -84,12 +86,19 @@ pub(crate) fn drives_of(fingerprint: &str) -> impl Iterator<Item = &str> {
 /// stands for a drive. `--pool IDS` picks other rows.
 pub(crate) fn counted_once(rows: &[HistoryRow]) -> (Vec<&HistoryRow>, Vec<SetAside>) {
     let mut holder: std::collections::HashMap<&str, i64> = std::collections::HashMap::new();
+    // The data each standing row holds, by source digest.
+    let mut held: Vec<(Held<'_>, i64)> = Vec::new();
     let (mut stand, mut aside) = (Vec::new(), Vec::new());
     for r in rows.iter().rev() {
-        match drives_of(&r.record.fingerprint).find_map(|f| holder.get(f)) {
-            Some(&by_id) => aside.push(SetAside { id: r.id, by_id }),
+        let data = held_by_record(&r.record);
+        let by = drives_of(&r.record.fingerprint)
+            .find_map(|f| holder.get(f).copied())
+            .or_else(|| held.iter().find(|(h, _)| same_data(h, &data)).map(|(_, id)| *id));
+        match by {
+            Some(by_id) => aside.push(SetAside { id: r.id, by_id }),
             None => {
                 holder.extend(drives_of(&r.record.fingerprint).map(|f| (f, r.id)));
+                held.push((data, r.id));
                 stand.push(r);
             }
         }

@@ -66,6 +66,13 @@ pub(super) const MIGRATIONS: &[&str] = &[
     // `input_noise_bias,model_sigma_only`; empty for none; NULL for rows
     // recorded before the column: not known).
     "ALTER TABLE calibrations ADD COLUMN reasons TEXT;",
+    // Version 5: the drives' source digests (a hash of the files read, one
+    // per drive, comma-separated) and a decision's first sample time, so
+    // the same data imported another way is known; NULL for rows recorded
+    // before the columns: not known.
+    "ALTER TABLE calibrations ADD COLUMN source_digest TEXT;
+    ALTER TABLE decisions ADD COLUMN source_digest TEXT;
+    ALTER TABLE decisions ADD COLUMN t_start_s REAL;",
 ];
 
 /// The schema version this odocal writes.

@@ -55,8 +55,8 @@ pub(crate) fn insert_record(conn: &Connection, path: &Path, rec: &CalibrationRec
             &format!(
                 "INSERT INTO calibrations (vehicle, recorded_at, fingerprint, sources, t_start_s, t_end_s, method, \
                  c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, heading_offset_rad, verdict, \
-                 odocal_version, sigma_model_only, held, unobservable, reasons) VALUES (?1, {NOW}, ?2, ?3, ?4, ?5, \
-                 ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17, ?18, ?19, ?20, ?21) \
+                 odocal_version, sigma_model_only, held, unobservable, reasons, source_digest) VALUES (?1, {NOW}, \
+                 ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17, ?18, ?19, ?20, ?21, ?22) \
                  ON CONFLICT (vehicle, fingerprint, method) DO NOTHING"
             ),
             params![
@@ -81,6 +81,7 @@ pub(crate) fn insert_record(conn: &Connection, path: &Path, rec: &CalibrationRec
                 rec.held.join(","),
                 rec.unobservable.join(","),
                 rec.reasons.as_ref().map(|k| k.join(",")),
+                rec.source_digest,
             ],
         )
         .map_err(&err)?;
@@ -107,8 +108,9 @@ pub(crate) fn insert_decision(conn: &Connection, path: &Path, d: &DecisionRow) -
         .execute(
             &format!(
                 "INSERT INTO decisions (vehicle, decided_at, fingerprint, source, drive_time_s, decision, \
-                 reasons, c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, odocal_version) \
-                 SELECT ?1, {NOW}, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15 \
+                 reasons, c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, odocal_version, \
+                 source_digest, t_start_s) \
+                 SELECT ?1, {NOW}, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17 \
                  WHERE NOT EXISTS (SELECT 1 FROM decisions WHERE vehicle = ?1 AND fingerprint = ?2)"
             ),
             params![
@@ -127,6 +129,8 @@ pub(crate) fn insert_decision(conn: &Connection, path: &Path, d: &DecisionRow) -
                 s[2],
                 s[3],
                 env!("CARGO_PKG_VERSION"),
+                d.source_digest,
+                d.t_start_s,
             ],
         )
         .map_err(&err)?;

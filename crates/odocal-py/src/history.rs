@@ -170,14 +170,19 @@ impl PyHistory {
             let t = d.get().drive.t();
             (t.first().copied().unwrap_or(0.0), t.last().copied().unwrap_or(0.0))
         });
-        let rec = CalibrationRecord::of_report(vehicle, &fingerprint, sources, span, &report);
+        let mut rec = CalibrationRecord::of_report(vehicle, &fingerprint, sources, span, &report);
+        // The files' digests (`History.record`'s docs), when every drive was read from a file that is there.
+        let digests: Option<Vec<String>> = (!rec.sources.is_empty())
+            .then(|| rec.sources.iter().map(|p| odocal_history::source_digest(p.as_ref()).ok()).collect())
+            .flatten();
+        rec.source_digest = digests.map(|d| d.join(","));
         let r = self.with(|db| db.record(&rec))?;
         recorded(py, r)
     }
 
     /// Records a row given as a dict of the table's fields (`vehicle`,
     /// `fingerprint`, `method`, `theta`; optional `sigma`, `held`,
-    /// `unobservable`, `sources`, `t_start_s`, `t_end_s`,
+    /// `unobservable`, `sources`, `source_digest`, `t_start_s`, `t_end_s`,
     /// `heading_offset_rad`, `verdict`, `sigma_model_only`, `reasons`;
     /// another key is refused). Use `History.record`.
     fn _record_dict<'py>(&self, py: Python<'py>, record: &Bound<'_, PyDict>) -> PyResult<Bound<'py, PyDict>> {

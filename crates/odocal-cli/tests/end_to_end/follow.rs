@@ -553,3 +553,27 @@ fn history_files_are_checked_before_the_work_and_read_without_a_change() {
     assert_eq!(json_file(&json)["rows"].as_array().expect("rows").len(), 1);
     assert_eq!(std::fs::read(&db).expect("db"), before, "history changed the file");
 }
+
+/// The highway van's manifest (`clock_offset = "auto"`) imported whole by
+/// `calibrate` and as a stream by `follow` gives two fingerprints (the
+/// stream decides the clock offset on its first 300 s): `follow` knows the
+/// drive by its files and time all the same, and skips it.
+#[test]
+fn follow_skips_a_manifest_calibrate_imported_whole() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let m = format!("{}/../../examples/psu-mapping-van/manifest.toml", env!("CARGO_MANIFEST_DIR"));
+    let path = |name: &str| dir.path().join(name).to_str().expect("utf8").to_owned();
+    let (db, json) = (path("h.sqlite"), path("f.json"));
+    let o = odocal(&["calibrate", &m, "--method", "batch-gn", "--vehicle", "van", "--db", &db]);
+    assert!(stderr(&o).contains("recorded in"), "{}", stderr(&o));
+    let o = odocal(&["follow", &m, "--vehicle", "van", "--db", &db, "--json", &json]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("as a stream"), "{}", stderr(&o));
+    assert!(stdout(&o).contains("already recorded"), "{}", stdout(&o));
+    let followed = &json_file(std::path::Path::new(&json))["drives"][0];
+    assert_eq!(followed["already_recorded"], true, "{followed}");
+    let rows = history_rows(&db);
+    assert_eq!(rows.len(), 1);
+    assert_ne!(rows[0]["fingerprint"], followed["fingerprint"], "the test needs two fingerprints");
+    assert_eq!(rows[0]["source_digest"].as_str().map(str::len), Some(64), "{}", rows[0]);
+}

@@ -299,11 +299,13 @@ class History(_History):
 
         ``report`` is a :class:`CalibrationReport` (θ, its σ, verdict,
         method, the verdict's reason kinds and the calibration drives'
-        fingerprints and files, as
+        fingerprints and files with the files' source digest, as
         ``odocal calibrate --vehicle --db`` records them; the time span from
         the report's drive) or a dict of the table's fields (``vehicle``,
         ``fingerprint``, ``method``, ``theta``; optional ``sigma``,
-        ``held``, ``unobservable``, ``sources``, ``t_start_s``,
+        ``held``, ``unobservable``, ``sources``, ``source_digest`` (a hash
+        of the drive's files: ``odocal follow`` skips a drive whose files
+        and time a row holds, however it was imported), ``t_start_s``,
         ``t_end_s``, ``heading_offset_rad``, ``verdict``,
         ``sigma_model_only``, ``reasons`` (a list of verdict reason kinds);
         another key raises :class:`OdocalError`
