@@ -222,6 +222,17 @@ def test_history_records_rows_flags_drift_and_pools(tmp_path, small_drive):
         db.record({"vehicle": "van", "fingerprint": "c"})
 
 
+def test_history_records_the_source_digest_of_a_drive_read_from_a_file(tmp_path, small_drive, drive_csv):
+    """A drive read from a file records its files' source digest (the CLI's
+    `calibrate --db` records the same); a drive made in memory has none."""
+    db = odocal.History(tmp_path / "h.sqlite")
+    db.record(odocal.calibrate(odocal.Drive.from_csv(drive_csv), method="batch-gn"), vehicle="van")
+    db.record(odocal.calibrate(small_drive, method="batch-gn", fix=["d"]), vehicle="mem")
+    digest = db.rows("van")[-1]["source_digest"]
+    assert isinstance(digest, str) and len(digest) == 64, digest
+    assert db.rows("mem")[-1]["source_digest"] is None
+
+
 def test_history_checks_a_record_as_the_cli_does(tmp_path, small_drive, odocal_bin):
     """The library's checks of every record (the vehicle as `--vehicle` takes it, the method, θ within the
     physical limits, σ) and, for a dict, its keys: nothing is written for a record refused."""
