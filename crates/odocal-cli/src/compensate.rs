@@ -54,6 +54,10 @@ pub struct CompensateArgs {
 /// Compensates every segment and writes the drive with the new columns.
 pub fn run(mut a: CompensateArgs, bars: &Bars) -> Result<()> {
     a.theta = a.theta.resolved(None)?;
+    crate::args::check_counts(odocal::settings::Settings {
+        segment_length: Some(a.segment_length),
+        ..Default::default()
+    })?;
     let mut files = Files::default();
     files.drive("the drive being compensated", &a.drive);
     if let Some((p, _)) = &a.theta.file {

@@ -29,7 +29,7 @@ pub struct ValidateArgs {
     /// to drive).
     #[arg(long)]
     carry_heading_offset: bool,
-    /// Validation segment length K_v, samples (stride K_v/2).
+    /// Validation segment length K_v, samples (stride K_v/2) [default: 1300].
     #[arg(long, value_parser = crate::args::samples_at_least::<2>)]
     validation_length: Option<usize>,
     /// Also search the reachable minimum of Ē_p (global particle swarm over a
@@ -56,6 +56,10 @@ pub struct ValidateArgs {
 pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<()> {
     a.theta = a.theta.resolved(a.params_node.as_deref())?;
     a.theta0 = a.theta0.map(|t| t.resolved(a.params_node.as_deref())).transpose()?;
+    crate::args::check_counts(odocal::settings::Settings {
+        validation_length: a.validation_length,
+        ..Default::default()
+    })?;
     let mut files = Files::default();
     files.drive("the drive being validated", &a.drive);
     if let Some((p, _)) = &a.theta.file {
