@@ -140,6 +140,9 @@ fn reference_extrinsics(
         let from = crate::validate::extrinsics_source(path, &from_file, fit.is_some());
         notes.push(format!("reference extrinsics: {extrinsics} ({from}); the QP tracks the axle poses they imply"));
     }
+    if let Some(w) = fit.as_ref().and_then(crate::validate::heading_offset_warning) {
+        eprintln!("warning: {w}");
+    }
     if let Some(fit) = fit {
         notes.push(format!("{fit} (--carry-heading-offset carries the calibration's)"));
     }

@@ -156,3 +156,39 @@ fn demo_help_names_the_calibrate_options_it_lacks() {
     let o = odocal(&["demo", "--db", "h.db"]);
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
 }
+
+/// A parameter file of a simulated car's θ whose calibration estimated a
+/// heading offset of `delta` rad.
+fn param_file(dir: &Path, name: &str, delta: f64) -> String {
+    let p = dir.join(name);
+    let text = format!(
+        "odocal:\n  ros__parameters:\n    c_e: 1.948\n    c_d: -0.0018\n    t_r: 1.53\n    d: 0.0007\n    \
+         lever_x: 0.0\n    lever_x_held: true\n    lever_y: 0.0\n    lever_y_held: true\n    \
+         heading_offset: {delta}\n    heading_offset_sigma: 0.001\n"
+    );
+    std::fs::write(&p, text).expect("write");
+    s(&p).to_owned()
+}
+
+#[test]
+fn an_implausible_re_estimated_heading_offset_is_warned_about() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let van = format!("{}/../odocal/tests/data/psu-mapping-van/manifest.toml", env!("CARGO_MANIFEST_DIR"));
+    let sim_car = param_file(dir.path(), "car.yaml", 0.0);
+    let c = dir.path().join("c.csv");
+    // The simulated car's θ on the van: the offset soaks up ~250 mrad.
+    let o = odocal(&["compensate", &van, "--theta", &sim_car, "--out", s(&c)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("beyond the plausible ±100 mrad"), "{}", stderr(&o));
+    assert!(stderr(&o).contains("another vehicle's"), "{}", stderr(&o));
+    // On a simulated drive the re-estimate is a few mrad: no warning …
+    let d = simulated_drive(dir.path(), "d.csv", &["--length-km", "5", "--seed", "9"]);
+    let o = odocal(&["validate", &d, "--theta", &sim_car]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!stderr(&o).contains("warning: the heading offset"), "{}", stderr(&o));
+    // … unless the file's offset is many cluster-robust σ away.
+    let far = param_file(dir.path(), "far.yaml", 0.09);
+    let o = odocal(&["validate", &d, "--theta", &far]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("times its cluster-robust σ"), "{}", stderr(&o));
+}
