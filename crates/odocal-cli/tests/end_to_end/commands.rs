@@ -192,3 +192,15 @@ fn an_implausible_re_estimated_heading_offset_is_warned_about() {
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stderr(&o).contains("times its cluster-robust σ"), "{}", stderr(&o));
 }
+
+#[test]
+fn a_drift_that_changes_nothing_is_no_drift() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let plain = simulated_drive(dir.path(), "plain.csv", &["--length-km", "1"]);
+    let zero =
+        simulated_drive(dir.path(), "zero.csv", &["--length-km", "1", "--cd-step", "0@0", "--ce-ramp-per-hour", "0"]);
+    let read = |p: &str| std::fs::read(p).expect("read");
+    assert_eq!(read(&plain), read(&zero), "the drive differs");
+    let sidecar = std::fs::read_to_string(dir.path().join("zero.json")).expect("sidecar");
+    assert!(!sidecar.contains("\"drift\"") && !sidecar.contains("theta_true_end"), "{sidecar}");
+}
