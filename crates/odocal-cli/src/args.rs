@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Result};
 use clap::{ArgAction, Args};
 use odocal::compensate::SolverKind;
-use odocal::settings::{NoiseModelSetting, Settings};
+use odocal::settings::{Caller, NoiseModelSetting, Settings};
 use odocal::{FinalSegments, Method, ParamSet, Theta};
 
 /// Help heading of the segment and Gauss-Newton options.
@@ -371,7 +371,10 @@ impl ThetaArg {
                     .map_err(|e| odocal::Error::InvalidFlags(e.to_string()))?;
                 Ok(ThetaArg { theta: Theta::try_from(&f)?, file: Some((path.into(), f)), pending: None })
             }
-            (None, Some(_)) => bail!("--params-node names a node of a parameter file, but θ was given as numbers"),
+            (None, Some(_)) => Err(odocal::Error::InvalidFlags(
+                "--params-node names a node of a parameter file, but θ was given as numbers".into(),
+            )
+            .into()),
             // A usage error, as every other parameter file `--theta` cannot read.
             (_, None) => match &self.pending {
                 Some((_, why)) => Err(odocal::Error::InvalidFlags(why.clone()).into()),
@@ -408,6 +411,14 @@ fn parse_lever_arm(s: &str) -> Result<[f64; 2]> {
         [x, y] if v.len() == 2 => Ok([x, y]),
         _ => bail!("--lever-arm takes X,Y in metres (x forward, y left), got '{s}'"),
     }
+}
+
+/// The counts `settings` states checked as `calibrate` checks its flags:
+/// each at most its ceiling (and the three-step counts at least 1), a
+/// usage error naming the flag (`--batches = 0: must be at least 1`).
+pub fn check_counts(settings: Settings) -> Result<()> {
+    settings.resolve(&[], Caller::CommandLine)?;
+    Ok(())
 }
 
 /// A segment length (at least 2 samples: one step) or stride (at least 1)

@@ -54,6 +54,10 @@ pub struct CompensateArgs {
 /// Compensates every segment and writes the drive with the new columns.
 pub fn run(mut a: CompensateArgs, bars: &Bars) -> Result<()> {
     a.theta = a.theta.resolved(None)?;
+    crate::args::check_counts(odocal::settings::Settings {
+        segment_length: Some(a.segment_length),
+        ..Default::default()
+    })?;
     let mut files = Files::default();
     files.drive("the drive being compensated", &a.drive);
     if let Some((p, _)) = &a.theta.file {
@@ -135,6 +139,9 @@ fn reference_extrinsics(
         let path = file.map(|(p, _)| p.as_path());
         let from = crate::validate::extrinsics_source(path, &from_file, fit.is_some());
         notes.push(format!("reference extrinsics: {extrinsics} ({from}); the QP tracks the axle poses they imply"));
+    }
+    if let Some(w) = fit.as_ref().and_then(crate::validate::heading_offset_warning) {
+        eprintln!("warning: {w}");
     }
     if let Some(fit) = fit {
         notes.push(format!("{fit} (--carry-heading-offset carries the calibration's)"));

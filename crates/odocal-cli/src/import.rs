@@ -25,6 +25,12 @@ pub struct ImportArgs {
 
 /// Imports the log, writes the CSV and prints (or writes) the import report.
 pub fn run(a: ImportArgs) -> Result<()> {
+    if is_stdout(&a.manifest) {
+        anyhow::bail!(
+            "-: a manifest is read from a file, not from stdin (its stream files are found beside it): give the \
+             manifest's path"
+        );
+    }
     let mut files = Files::default();
     files.manifest("the manifest being imported", &a.manifest);
     files.output("--out", Some(&a.out)).output("--json", a.json.as_deref()).check()?;

@@ -60,6 +60,18 @@ fn bag_path_for(bag: &Path, out: Option<&Path>) -> Result<String> {
     Ok(bag.display().to_string())
 }
 
+/// `s` as one word of a POSIX shell command line: as it is when it holds
+/// only characters no shell treats specially, else in single quotes (a
+/// quote inside written `'\''`).
+fn shell_word(s: &str) -> String {
+    let plain = |c: char| c.is_ascii_alphanumeric() || "-_./+,:@%=".contains(c);
+    if !s.is_empty() && s.chars().all(plain) {
+        s.to_string()
+    } else {
+        format!("'{}'", s.replace('\'', "'\\''"))
+    }
+}
+
 fn draft(bag: &Path, out: &Path, force: bool) -> Result<()> {
     let to_stdout = is_stdout(out);
     let exists = || format!("--manifest {}: exists; give another name, or --force to replace it", out.display());
@@ -94,7 +106,7 @@ fn draft(bag: &Path, out: &Path, force: bool) -> Result<()> {
         println!(
             "wrote {} (check the lines marked CHECK, then: odocal import {} --out drive.csv)",
             out.display(),
-            out.display()
+            shell_word(&out.display().to_string())
         );
     }
     Ok(())

@@ -92,8 +92,9 @@ enum Command {
     Compensate(compensate::CompensateArgs),
     /// Simulate a drive, calibrate it and compare with the truth.
     ///
-    /// The calibration takes calibrate's options. It is not one to deploy: the
-    /// demo exits with 0 whatever the verdict.
+    /// The calibration takes calibrate's options except --db and --vehicle
+    /// (the demo records no history). It is not one to deploy: the demo
+    /// exits with 0 whatever the verdict.
     #[command(disable_help_flag = true, after_help = MORE_OPTIONS)]
     Demo(calibrate::DemoArgs),
     /// The paper's §6 on a drive: report.md, SVG figures, experiment.json.

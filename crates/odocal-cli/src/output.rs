@@ -79,7 +79,11 @@ impl Files {
     pub fn check(&self) -> Result<()> {
         let stdout: Vec<&str> = self.outputs.iter().filter(|o| is_stdout(&o.path)).map(|o| o.role.as_str()).collect();
         if let [first, second, ..] = stdout[..] {
-            bail!("{first} and {second} both go to stdout (-): give one of them a file name");
+            // A bad command line: a usage error.
+            return Err(odocal::Error::InvalidFlags(format!(
+                "{first} and {second} both go to stdout (-): give one of them a file name"
+            ))
+            .into());
         }
         for o in self.outputs.iter().filter(|o| !is_stdout(&o.path)) {
             check_writable_place(o, self.creates_folder)?;

@@ -38,7 +38,7 @@ pub struct SimulateArgs {
     /// Let c_e drift linearly: its change per hour of driving as a fraction
     /// of its starting value (-0.003: falling 0.3 % an hour). The sidecar
     /// records the drift and θ at the end (theta_true_end).
-    #[arg(long, allow_hyphen_values = true, value_name = "FRACTION")]
+    #[arg(long, allow_hyphen_values = true, value_name = "FRACTION", value_parser = finite_number)]
     ce_ramp_per_hour: Option<f64>,
     /// A step of c_d: MM millimetres added from SECONDS into the drive on
     /// (0.5@1800: +0.5 mm after 30 min).
@@ -61,6 +61,12 @@ pub fn flag_error(e: odocal::Error) -> odocal::Error {
 /// (`--ce-ramp-per-hour`, `--cd-step`, or both).
 fn simulate_flag_error(a: &SimulateArgs, e: odocal::Error) -> odocal::Error {
     match e {
+        odocal::Error::InvalidOption { field, reason } if field.starts_with("drift.c_e") => {
+            odocal::Error::InvalidFlags(format!("--ce-ramp-per-hour: {reason}"))
+        }
+        odocal::Error::InvalidOption { field, reason } if field.starts_with("drift.c_d") => {
+            odocal::Error::InvalidFlags(format!("--cd-step: {reason}"))
+        }
         odocal::Error::InvalidOption { field: "drift", reason } => {
             let given: Vec<&str> =
                 [("--ce-ramp-per-hour", a.ce_ramp_per_hour.is_some()), ("--cd-step", a.cd_step.is_some())]
@@ -84,8 +90,28 @@ pub fn route_length_km(s: &str) -> Result<f64, String> {
     }
 }
 
+/// A finite number (`nan` and `inf` are refused when the command line is parsed).
+fn finite_number(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(x) if x.is_finite() => Ok(x),
+        Ok(x) => Err(format!("must be a finite number, got {x}")),
+        Err(e) => Err(e.to_string()),
+    }
+}
+
 /// `--noise`: a preset the simulator knows (`paper`, `random:N`, …).
+/// The world seed of `random:N` is written as given, without spaces (the
+/// preset is named by it in the sidecar and the reports), and at most
+/// 2^64 − 1.
 pub fn noise_preset(s: &str) -> Result<String, String> {
+    if let Some(seed) = s.strip_prefix("random:") {
+        if seed != seed.trim() || seed.is_empty() {
+            return Err(format!("'{s}': write the world seed right after 'random:', without spaces (random:5)"));
+        }
+        if seed.bytes().all(|b| b.is_ascii_digit()) && seed.parse::<u64>().is_err() {
+            return Err(format!("'{s}': the world seed is above the largest, {}", u64::MAX));
+        }
+    }
     s.parse::<NoiseOptions>().map(|_| s.to_string()).map_err(|e| match e {
         odocal::Error::InvalidOption { reason, .. } => reason,
         e => e.to_string(),

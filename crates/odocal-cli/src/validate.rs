@@ -29,7 +29,7 @@ pub struct ValidateArgs {
     /// to drive).
     #[arg(long)]
     carry_heading_offset: bool,
-    /// Validation segment length K_v, samples (stride K_v/2).
+    /// Validation segment length K_v, samples (stride K_v/2) [default: 1300].
     #[arg(long, value_parser = crate::args::samples_at_least::<2>)]
     validation_length: Option<usize>,
     /// Also search the reachable minimum of Ē_p (global particle swarm over a
@@ -56,6 +56,10 @@ pub struct ValidateArgs {
 pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<()> {
     a.theta = a.theta.resolved(a.params_node.as_deref())?;
     a.theta0 = a.theta0.map(|t| t.resolved(a.params_node.as_deref())).transpose()?;
+    crate::args::check_counts(odocal::settings::Settings {
+        validation_length: a.validation_length,
+        ..Default::default()
+    })?;
     let mut files = Files::default();
     files.drive("the drive being validated", &a.drive);
     if let Some((p, _)) = &a.theta.file {
@@ -87,6 +91,9 @@ pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<()> {
     let report =
         odocal::validate(&drive, &a.theta.theta, &opts, Some(&cb)).map_err(|e| crate::io::name_drive(e, &a.drive))?;
     bars.finish();
+    if let Some(w) = report.heading_offset_fit.as_ref().and_then(heading_offset_warning) {
+        eprintln!("warning: {w}");
+    }
     let extrinsics_from =
         extrinsics_source(file.map(|(p, _)| p.as_path()), &from_file, report.heading_offset_fit.is_some());
     if let Some(p) = &a.json {
@@ -102,6 +109,46 @@ pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<()> {
     }
     print_report(&a, &report, &extrinsics_from);
     Ok(())
+}
+
+/// How many of its cluster-robust σ a re-estimated heading offset may lie
+/// from the parameter file's before [`heading_offset_warning`] says so.
+const HEADING_OFFSET_SIGMAS: f64 = 4.0;
+
+/// A warning when the heading offset re-estimated on this drive is not
+/// believable as the drive's own: beyond the plausible range the verdict
+/// guards an estimated one with ([`odocal::Guards::heading_offset_abs_rad`]),
+/// or more than [`HEADING_OFFSET_SIGMAS`] of its cluster-robust σ from the
+/// parameter file's (the model σ understates it, so it is not used).
+pub(crate) fn heading_offset_warning(fit: &odocal::HeadingOffsetFit) -> Option<String> {
+    let limit = odocal::Guards::default().heading_offset_abs_rad;
+    let what = format!(
+        "the heading offset re-estimated on this drive, {:.1} mrad ({:.1}°),",
+        fit.value * 1e3,
+        fit.value.to_degrees()
+    );
+    let off = (fit.value - fit.calibration).abs();
+    let check = "check that the --theta file is this vehicle's and that this drive's reference heading has the \
+                 calibration drive's convention and unit (manifest [pose] heading)";
+    if !fit.value.is_finite() || fit.value.abs() > limit {
+        Some(format!(
+            "{what} is beyond the plausible ±{:.0} mrad of a reference's mount and heading bias: θ may be another \
+             vehicle's, or the heading of another convention or unit; {check}",
+            limit * 1e3
+        ))
+    } else if fit.robust && off > HEADING_OFFSET_SIGMAS * fit.std_dev {
+        Some(format!(
+            "{what} is {:.1} mrad from the parameter file's {:.1} mrad, {:.0} times its cluster-robust σ ({:.1} \
+             mrad): the reference was mounted or set up otherwise on this drive, or θ is another vehicle's, or \
+             the heading of another convention; {check}",
+            off * 1e3,
+            fit.calibration * 1e3,
+            off / fit.std_dev,
+            fit.std_dev * 1e3
+        ))
+    } else {
+        None
+    }
 }
 
 /// Where the extrinsics in force came from: the `--theta` parameter file

@@ -1,10 +1,8 @@
 //! The SVG figures of `odocal experiment`: the paper's Fig. 4–8.
 
-use std::path::Path;
-
 use anyhow::Result;
 use odocal::experiment::Experiment;
-use odocal_report::plots::{self, figure, HLine, Panel, Series};
+use odocal_report::plots::{self, figure_svg, HLine, Panel, Series};
 
 use super::PARAMS;
 
@@ -17,9 +15,13 @@ pub const FIGURES: [&str; 5] = [
     "fig8_errors.svg",
 ];
 
-/// Writes Fig. 4–8 into `dir`; returns their file names.
-pub fn write_figures(dir: &Path, e: &Experiment) -> Result<Vec<String>> {
-    Ok(vec![fig4(dir, e)?, fig5(dir, e)?, fig6(dir, e)?, fig7(dir, e)?, fig8(dir, e)?])
+/// A figure's file name and its SVG text.
+pub type Figure = (&'static str, String);
+
+/// Fig. 4–8: their file names and SVG texts (written with the report's
+/// other files, as one).
+pub fn render_figures(e: &Experiment) -> Result<Vec<Figure>> {
+    Ok(vec![fig4(e)?, fig5(e)?, fig6(e)?, fig7(e)?, fig8(e)?])
 }
 
 /// The θ_true line of a parameter panel.
@@ -53,14 +55,13 @@ fn final_and_truth_lines(e: &Experiment, f: fn(&odocal::Theta) -> f64) -> Vec<HL
 }
 
 /// Fig. 4: sorted Ē_p of the batch calibrations.
-fn fig4(dir: &Path, e: &Experiment) -> Result<String> {
+fn fig4(e: &Experiment) -> Result<Figure> {
     let mut sorted: Vec<(usize, f64)> =
         e.batches.iter().enumerate().map(|(i, b)| (i, b.raw.mean_position_error_m)).collect();
     sorted.sort_by(|x, y| x.1.total_cmp(&y.1));
     let rank = |i: usize| sorted.iter().position(|s| s.0 == i).map_or(f64::NAN, |r| (r + 1) as f64);
     let name = FIGURES[0];
-    figure(
-        &dir.join(name),
+    let svg = figure_svg(
         &format!("Fig. 4: sorted Ē_p of {} batch G-N calibrations (N = {})", e.batches.len(), e.batch_size),
         (900, 520),
         (1, 1),
@@ -86,11 +87,11 @@ fn fig4(dir: &Path, e: &Experiment) -> Result<String> {
             y_range: None,
         }],
     )?;
-    Ok(name.to_string())
+    Ok((name, svg))
 }
 
 /// Fig. 5: the picked θ_B,I.
-fn fig5(dir: &Path, e: &Experiment) -> Result<String> {
+fn fig5(e: &Experiment) -> Result<Figure> {
     let name = FIGURES[1];
     let panels: Vec<Panel> = PARAMS
         .iter()
@@ -109,8 +110,8 @@ fn fig5(dir: &Path, e: &Experiment) -> Result<String> {
             y_range: None,
         })
         .collect();
-    figure(&dir.join(name), "Fig. 5: the picked initial estimates θ_B,I", (1000, 760), (2, 2), &panels)?;
-    Ok(name.to_string())
+    let svg = figure_svg("Fig. 5: the picked initial estimates θ_B,I", (1000, 760), (2, 2), &panels)?;
+    Ok((name, svg))
 }
 
 /// A Fig. 6 panel of one wheel's rotations: measured, compensated and true.
@@ -135,7 +136,7 @@ fn wheel_panel(title: &str, m: &[(f64, f64)], cc: &[(f64, f64)], tr: &Option<Vec
 }
 
 /// Fig. 6: wheel rotations and dead-reckoning errors on one segment.
-fn fig6(dir: &Path, e: &Experiment) -> Result<String> {
+fn fig6(e: &Experiment) -> Result<Figure> {
     let (name, c) = (FIGURES[2], &e.figure6);
     let diffs = |x: &[(f64, f64)], t: &[(f64, f64)]| -> Vec<(f64, f64)> {
         x.iter().zip(t).map(|(a, b)| (a.0, a.1 - b.1)).collect()
@@ -173,18 +174,17 @@ fn fig6(dir: &Path, e: &Experiment) -> Result<String> {
         y_range: None,
     });
     let rows = panels.len().div_ceil(2);
-    figure(
-        &dir.join(name),
+    let svg = figure_svg(
         &format!("Fig. 6: input compensation on the segment at sample {}", e.figure6.segment_start),
         (1100, 380 * rows as u32),
         (rows, 2),
         &panels,
     )?;
-    Ok(name.to_string())
+    Ok((name, svg))
 }
 
 /// Fig. 7: per-segment θ, raw vs compensated.
-fn fig7(dir: &Path, e: &Experiment) -> Result<String> {
+fn fig7(e: &Experiment) -> Result<Figure> {
     let name = FIGURES[3];
     let panels: Vec<Panel> = PARAMS
         .iter()
@@ -215,18 +215,12 @@ fn fig7(dir: &Path, e: &Experiment) -> Result<String> {
             }
         })
         .collect();
-    figure(
-        &dir.join(name),
-        "Fig. 7: per-segment G-N estimates, raw vs compensated inputs",
-        (1100, 780),
-        (2, 2),
-        &panels,
-    )?;
-    Ok(name.to_string())
+    let svg = figure_svg("Fig. 7: per-segment G-N estimates, raw vs compensated inputs", (1100, 780), (2, 2), &panels)?;
+    Ok((name, svg))
 }
 
 /// Fig. 8: Ē_p per segment and per batch, raw vs compensated.
-fn fig8(dir: &Path, e: &Experiment) -> Result<String> {
+fn fig8(e: &Experiment) -> Result<Figure> {
     let name = FIGURES[4];
     let seg_raw: Vec<(f64, f64)> = e
         .per_segment
@@ -275,6 +269,6 @@ fn fig8(dir: &Path, e: &Experiment) -> Result<String> {
             y_range: None,
         },
     ];
-    figure(&dir.join(name), "Fig. 8: validation error Ē_p, raw vs compensated inputs", (1100, 480), (1, 2), &panels)?;
-    Ok(name.to_string())
+    let svg = figure_svg("Fig. 8: validation error Ē_p, raw vs compensated inputs", (1100, 480), (1, 2), &panels)?;
+    Ok((name, svg))
 }

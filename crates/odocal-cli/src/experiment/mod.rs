@@ -11,6 +11,7 @@ use clap::Args;
 use odocal::compensate::{QpOptions, SolverKind};
 use odocal::eiv::NoiseModel;
 use odocal::experiment::{self, Experiment, ExperimentOptions, ExperimentTiming};
+use odocal::settings::Settings;
 use odocal::sim::{self, NoiseOptions, SimOptions};
 use odocal::{CalibrationOptions, Drive, Method, ReachableOptions, Theta, ThreeStepOptions};
 use serde::Serialize;
@@ -91,9 +92,7 @@ type DriveAndTruth = (Drive, Option<Theta>, Option<NoiseModel>, DriveInfo);
 pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
     let t_total = Instant::now();
     let mut timing = Timing::default();
-    if a.batches == 0 {
-        bail!("--batches must be at least 1");
-    }
+    check_counts(&a)?;
     check_out_dir(&a)?;
 
     let t = Instant::now();
@@ -112,22 +111,27 @@ pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
     let reachable = ReachableOptions { seed: a.seed, ..ReachableOptions::around(&calibration.theta0) };
     let cb = |e| bars.event(e);
     let opts = ExperimentOptions { calibration, reachable, noise };
-    let exp = experiment::run(&drive, theta_true.as_ref(), &opts, Some(&cb))?;
+    let exp = experiment::run(&drive, theta_true.as_ref(), &opts, Some(&cb)).map_err(own_hints)?;
     bars.finish();
     timing.stages = exp.timing_s.clone();
 
-    // The folder is made once there is something to put in it: a drive that
-    // cannot be read or an experiment that fails leaves none behind.
-    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let t = Instant::now();
-    let figures = figures::write_figures(&a.out, &exp)?;
+    let svgs = figures::render_figures(&exp)?;
     timing.figures = t.elapsed().as_secs_f64();
     timing.total = t_total.elapsed().as_secs_f64();
+    let figures = svgs.iter().map(|(name, _)| name.to_string()).collect();
     let outputs = Outputs { drive: info, figures, timing };
-
-    let json_path = write_json(&a.out, &exp, &outputs)?;
-    let md_path = a.out.join(REPORT_MD);
-    odocal::output::write_text(&md_path, &markdown::report_md(&exp, &outputs))?;
+    let (json_path, md_path) = (a.out.join(EXPERIMENT_JSON), a.out.join(REPORT_MD));
+    let mut files: Vec<(PathBuf, String)> = svgs.into_iter().map(|(name, svg)| (a.out.join(name), svg)).collect();
+    files.push((json_path.clone(), json_text(&exp, &outputs)?));
+    files.push((md_path.clone(), markdown::report_md(&exp, &outputs)));
+    // The folder is made once there is something to put in it: a drive that
+    // cannot be read or an experiment that fails leaves none behind. The
+    // files are written as one: a failed write leaves those of an earlier
+    // experiment there (--force) as they were.
+    std::fs::create_dir_all(&a.out).with_context(|| format!("--out {}: cannot create the folder", a.out.display()))?;
+    let files: Vec<(&Path, &str)> = files.iter().map(|(p, t)| (p.as_path(), t.as_str())).collect();
+    odocal::output::write_texts(&files, true)?;
 
     for l in odocal::Warning::summarize(&exp.warnings, SHOWN_WARNINGS) {
         eprintln!("warning: {l}");
@@ -147,6 +151,40 @@ pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
 const REPORT_MD: &str = "report.md";
 /// The JSON's file name in `--out`.
 const EXPERIMENT_JSON: &str = "experiment.json";
+
+/// The library's errors with the hints `experiment` can follow: it has
+/// no `--fix`, `--min-yaw-rate` or `--validation-length` (it runs the
+/// paper's settings), so those hints become a longer or turning drive, or
+/// `calibrate`.
+fn own_hints(e: odocal::Error) -> anyhow::Error {
+    const FIX_HINT: &str = "Hold them at θ_0 (--fix c_d,t_r,d) and select every segment (--min-yaw-rate 0) to \
+                            calibrate c_e alone";
+    const LENGTH_HINT: &str = "give a longer drive or a shorter validation_length (--validation-length)";
+    match e {
+        odocal::Error::NotObservable { params, reason } if reason.contains(FIX_HINT) => {
+            let reason = reason.replace(
+                FIX_HINT,
+                "experiment runs the paper's settings, which estimate them: give a drive that turns (another \
+                 --drive, or none to simulate one), or calibrate c_e alone with `odocal calibrate DRIVE --fix \
+                 c_d,t_r,d --min-yaw-rate 0`",
+            );
+            odocal::Error::NotObservable { params, reason }.into()
+        }
+        odocal::Error::NoSegments(reason) if reason.contains(LENGTH_HINT) => {
+            let hint = "give a longer drive (a longer --length-km, or another --drive); experiment's validation \
+                        segments are the paper's";
+            odocal::Error::NoSegments(reason.replace(LENGTH_HINT, hint)).into()
+        }
+        e => e.into(),
+    }
+}
+
+/// `--batches` checked as `calibrate` checks it: at least 1 and at most
+/// its ceiling, a usage error naming the flag.
+fn check_counts(a: &ExperimentArgs) -> Result<()> {
+    let method = Some(Method::ThreeStep(ThreeStepOptions::default()));
+    crate::args::check_counts(Settings { method, batches: Some(a.batches), ..Default::default() })
+}
 
 /// Refuses an `--out` that is stdout, or that holds an experiment's files
 /// already (unless `--force`), and outputs that would overwrite the drive
@@ -206,7 +244,7 @@ fn simulate_drive(a: &ExperimentArgs, bars: &Bars) -> Result<DriveAndTruth> {
     let noise = a.noise.parse::<NoiseOptions>()?;
     let o = SimOptions { seed: a.seed, length_km: a.length_km, noise, ..SimOptions::paper(a.seed) };
     bars.stage("simulating");
-    let out = sim::simulate(&o)?;
+    let out = sim::simulate(&o).map_err(crate::simulate::flag_error)?;
     bars.finish();
     let s = &out.sidecar.stats;
     let info = DriveInfo {
@@ -222,10 +260,9 @@ fn simulate_drive(a: &ExperimentArgs, bars: &Bars) -> Result<DriveAndTruth> {
     Ok((out.drive, Some(out.sidecar.theta_true), Some(noise), info))
 }
 
-/// Writes `experiment.json`: the library's numbers with the drive, the
-/// figures and the timing; returns its path.
-fn write_json(dir: &Path, exp: &Experiment, outputs: &Outputs) -> Result<PathBuf> {
-    let json_path = dir.join(EXPERIMENT_JSON);
+/// The text of `experiment.json`: the library's numbers with the drive,
+/// the figures and the timing.
+fn json_text(exp: &Experiment, outputs: &Outputs) -> Result<String> {
     let mut json = serde_json::to_value(exp)?;
     if let Some(obj) = json.as_object_mut() {
         obj.insert("schema_version".into(), odocal::REPORT_SCHEMA_VERSION.into());
@@ -233,9 +270,7 @@ fn write_json(dir: &Path, exp: &Experiment, outputs: &Outputs) -> Result<PathBuf
         obj.insert("figures".into(), serde_json::to_value(&outputs.figures)?);
         obj.insert("timing_s".into(), serde_json::to_value(&outputs.timing)?);
     }
-    let text = serde_json::to_string_pretty(&json)?;
-    odocal::output::write_text(&json_path, &text)?;
-    Ok(json_path)
+    Ok(serde_json::to_string_pretty(&json)?)
 }
 
 /// Warnings of one kind printed on stderr (report.md lists all).

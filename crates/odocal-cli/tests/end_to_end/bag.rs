@@ -200,3 +200,24 @@ fn sqlite_bag_gets_the_convert_hint() {
     );
     assert_import_error(&m, &msg);
 }
+
+/// The import command `inspect --manifest` suggests runs as printed, in a
+/// shell, whatever the characters of the draft's path.
+#[test]
+fn inspect_suggests_an_import_command_a_shell_runs() {
+    let d = tempfile::tempdir().expect("tmp");
+    let weird = d.path().join("we\"ird\\dir #x 'q'");
+    std::fs::create_dir(&weird).expect("dir");
+    let bag = weird.join("van.mcap");
+    std::fs::copy(slice(), &bag).expect("copy");
+    let out = weird.join("draft.toml");
+    let s = |p: &Path| p.to_str().expect("utf8").to_string();
+    let o = odocal(&["inspect", &s(&bag), "--manifest", &s(&out)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let printed = String::from_utf8_lossy(&o.stdout).into_owned();
+    let command = printed.split("then: ").nth(1).and_then(|c| c.trim_end().strip_suffix(')')).expect("a command");
+    let command = command.replacen("odocal", &format!("'{}' -q", env!("CARGO_BIN_EXE_odocal")), 1);
+    let o = std::process::Command::new("sh").current_dir(d.path()).args(["-c", &command]).output().expect("sh");
+    assert!(o.status.success(), "{command}: {}", String::from_utf8_lossy(&o.stderr));
+    assert!(d.path().join("drive.csv").exists());
+}

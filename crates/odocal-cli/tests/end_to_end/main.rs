@@ -11,6 +11,7 @@ mod bad_input;
 mod bag;
 mod careless;
 mod cli;
+mod commands;
 mod data_safety;
 mod eiv;
 mod experiment;

@@ -396,9 +396,9 @@ pub struct DriftOptions {
 }
 
 impl DriftOptions {
-    /// True when nothing drifts.
+    /// True when nothing drifts (a step of 0 changes nothing).
     pub(crate) fn is_zero(&self) -> bool {
-        self.c_e_relative_per_hour == 0.0 && self.c_d_step.is_none()
+        self.c_e_relative_per_hour == 0.0 && self.c_d_step.is_none_or(|s| s.change_m == 0.0)
     }
 
     research_pub! {
