@@ -493,8 +493,25 @@ fn follow_params_name_every_drive_the_update_rests_on() {
     let (db, json, params) = (dir.path().join("h.sqlite"), dir.path().join("f.json"), dir.path().join("p.json"));
     let path = |p: &std::path::Path| p.to_str().expect("utf8").to_owned();
     let (db_s, json_s, params_s) = (path(&db), path(&json), path(&params));
-    let o =
-        odocal(&["follow", &a, &b, "--vehicle", "van", "--db", &db_s, "--json", &json_s, "--params-out", &params_s]);
+    // Turning segments only: the default threshold 0 also folds the
+    // noise-free drives' exactly straight stretches, after which the second
+    // drive's update is no better than the first's on its last validation
+    // segments (0.8 mm against 0.3 mm) and is held, not written.
+    let o = odocal(&[
+        "follow",
+        &a,
+        &b,
+        "--vehicle",
+        "van",
+        "--db",
+        &db_s,
+        "--json",
+        &json_s,
+        "--params-out",
+        &params_s,
+        "--min-yaw-rate",
+        "1e-6",
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let drives = json_file(&json)["drives"].as_array().expect("drives").clone();
     assert_eq!(drives[1]["updates"][0]["decision"], "written", "{}", drives[1]);
