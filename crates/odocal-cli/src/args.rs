@@ -112,8 +112,8 @@ pub struct CalibrationArgs {
     /// instead of the text report.
     #[arg(long)]
     pub report: Option<PathBuf>,
-    /// Minimum peak yaw rate for a segment to be selected, rad/s.
-    /// Three-step and batch-gn (eiv fits every segment).
+    /// Minimum peak yaw rate for a segment to be selected, rad/s (0: every
+    /// segment). Three-step and batch-gn (eiv fits every segment).
     #[arg(long, help_heading = SEGMENTS, hide_short_help = true, value_parser = yaw_rate)]
     pub min_yaw_rate: Option<f64>,
     /// Keep the paper's turning-only segment selection even when every
@@ -133,7 +133,7 @@ pub struct CalibrationArgs {
     #[arg(long, help_heading = SEGMENTS, hide_short_help = true, value_parser = samples_at_least::<2>)]
     pub validation_length: Option<usize>,
     /// Maximum Gauss-Newton iterations.
-    #[arg(long, help_heading = SEGMENTS, hide_short_help = true)]
+    #[arg(long, help_heading = SEGMENTS, hide_short_help = true, value_parser = whole::<usize>)]
     pub max_iterations: Option<usize>,
     /// Also estimate the pose reference's extrinsics with θ: lever-arm
     /// and/or heading-offset (or lever_x, lever_y, heading_offset). The
@@ -152,19 +152,19 @@ pub struct CalibrationArgs {
     #[arg(long, allow_hyphen_values = true, help_heading = EXTRINSICS, hide_short_help = true)]
     pub heading_offset: Option<f64>,
     /// Seed of the random batches and of the final fit's random segments [default: 0].
-    #[arg(long, help_heading = THREE_STEP, hide_short_help = true)]
+    #[arg(long, help_heading = THREE_STEP, hide_short_help = true, value_parser = whole::<u64>)]
     pub seed: Option<u64>,
     /// QP solver for input compensation, structured (default) or clarabel.
     #[arg(long, help_heading = THREE_STEP, hide_short_help = true)]
     pub qp_solver: Option<SolverKind>,
     /// Number of random batches of the first fit.
-    #[arg(long, help_heading = THREE_STEP, hide_short_help = true)]
+    #[arg(long, help_heading = THREE_STEP, hide_short_help = true, value_parser = whole::<usize>)]
     pub batches: Option<usize>,
     /// Segments per batch of the first fit.
-    #[arg(long, help_heading = THREE_STEP, hide_short_help = true)]
+    #[arg(long, help_heading = THREE_STEP, hide_short_help = true, value_parser = whole::<usize>)]
     pub batch_size: Option<usize>,
     /// Number of batch estimates θ_B,I picked to start the compensation from.
-    #[arg(long, help_heading = THREE_STEP, hide_short_help = true)]
+    #[arg(long, help_heading = THREE_STEP, hide_short_help = true, value_parser = whole::<usize>)]
     pub picks: Option<usize>,
     /// Segments of the final fit: "all" selected segments or a number of random ones.
     #[arg(long, help_heading = THREE_STEP, hide_short_help = true)]
@@ -189,7 +189,7 @@ pub struct CalibrationArgs {
     #[arg(long, help_heading = EIV_NOISE, hide_short_help = true)]
     pub no_fallback: bool,
     /// Filter window length, samples.
-    #[arg(long, help_heading = EIV_NOISE, hide_short_help = true)]
+    #[arg(long, help_heading = EIV_NOISE, hide_short_help = true, value_parser = whole::<usize>)]
     pub eiv_window: Option<usize>,
     /// How encoder quantisation enters the noise model: process (a white
     /// rate noise that accumulates), measurement (a pose noise) or counting
@@ -222,11 +222,11 @@ pub struct CalibrationArgs {
     /// Parametric bootstrap with B replicates (re-simulate the fitted noise,
     /// re-fit B times): percentile intervals and the estimator's own bias in
     /// the report; about B extra fits of time.
-    #[arg(long, value_name = "B", help_heading = EIV_BIAS, hide_short_help = true)]
+    #[arg(long, value_name = "B", help_heading = EIV_BIAS, hide_short_help = true, value_parser = whole::<usize>)]
     pub bootstrap: Option<usize>,
     /// Seed of the bootstrap's replicates (--bootstrap, and the bias
     /// correction) [default: 0].
-    #[arg(long, help_heading = EIV_BIAS, hide_short_help = true)]
+    #[arg(long, help_heading = EIV_BIAS, hide_short_help = true, value_parser = whole::<u64>)]
     pub bootstrap_seed: Option<u64>,
     /// Replicates B of the bias correction that is on by default (B = 4):
     /// the estimator's own bias, estimated by a parametric bootstrap of B
@@ -421,10 +421,28 @@ pub fn check_counts(settings: Settings) -> Result<()> {
     Ok(())
 }
 
+/// True for a negative number (`-1`, `-0.5`): what a count cannot be.
+fn negative(s: &str) -> bool {
+    s.trim().strip_prefix('-').is_some_and(|r| r.parse::<f64>().is_ok_and(|v| v > 0.0))
+}
+
+/// A count or a seed on the command line (a whole number, 0 or more): a
+/// negative one is a usage error saying so, another that does not parse
+/// gives the parser's reason.
+pub fn whole<T: std::str::FromStr<Err = std::num::ParseIntError>>(s: &str) -> std::result::Result<T, String> {
+    s.parse().map_err(|e| if negative(s) { format!("must be 0 or more, got {s}") } else { format!("{e}") })
+}
+
 /// A segment length (at least 2 samples: one step) or stride (at least 1)
 /// on the command line: a smaller one is a usage error naming the option.
 pub fn samples_at_least<const MIN: usize>(s: &str) -> std::result::Result<usize, String> {
-    let n: usize = s.parse().map_err(|e| format!("{e}"))?;
+    let n: usize = s.parse().map_err(|e| {
+        if negative(s) {
+            format!("must be at least {MIN} samples, got {s}")
+        } else {
+            format!("{e}")
+        }
+    })?;
     if n < MIN {
         return Err(format!("must be at least {MIN} samples, got {n}"));
     }
@@ -434,7 +452,13 @@ pub fn samples_at_least<const MIN: usize>(s: &str) -> std::result::Result<usize,
 /// `--correct-bias B`: an even number of replicates, at least 2 (the
 /// bootstrap's replicates come in antithetic pairs).
 fn parse_even_replicates(s: &str) -> std::result::Result<usize, String> {
-    let b: usize = s.parse().map_err(|e| format!("{e}"))?;
+    let b: usize = s.parse().map_err(|e| {
+        if negative(s) {
+            format!("B must be an even number of at least 2, got {s}")
+        } else {
+            format!("{e}")
+        }
+    })?;
     if b < 2 || !b.is_multiple_of(2) {
         return Err(format!(
             "B must be an even number of at least 2 (the replicates come in antithetic pairs), got {b}"

@@ -57,7 +57,7 @@ pub struct DemoArgs {
     /// Seed of the simulated drive [default: 1].
     ///
     /// `--seed` seeds the calibration's random batches.
-    #[arg(long, default_value_t = 1, hide_default_value = true)]
+    #[arg(long, default_value_t = 1, hide_default_value = true, value_parser = crate::args::whole::<u64>)]
     sim_seed: u64,
     /// Route length, km.
     #[arg(long, default_value_t = 24.0, allow_hyphen_values = true, value_parser = crate::simulate::route_length_km)]

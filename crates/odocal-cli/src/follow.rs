@@ -58,7 +58,7 @@ pub struct FollowArgs {
     /// (steadier, slower to follow a change).
     #[arg(long, value_name = "F", help_heading = ONLINE)]
     information_scale: Option<f64>,
-    /// Fold only segments whose peak yaw rate exceeds this, rad/s [default: 0, every segment].
+    /// Fold only segments whose peak yaw rate is at least this, rad/s [default: 0, every segment].
     #[arg(long, value_name = "RAD_PER_S", help_heading = ONLINE, value_parser = crate::args::yaw_rate)]
     min_yaw_rate: Option<f64>,
     #[command(flatten)]
@@ -82,42 +82,42 @@ struct ExpertArgs {
     ///
     /// The factors that make ±2σ cover the truth 90 % of the time on
     /// simulated drives (docs/validation.md); θ's updates do not use them.
-    #[arg(long, value_name = "F,F,F,F", help_heading = ONLINE, hide_short_help = true)]
+    #[arg(long, allow_hyphen_values = true, value_name = "F,F,F,F", help_heading = ONLINE, hide_short_help = true)]
     sigma_factors: Option<Four>,
     /// The parameters' random walk: sd after one hour of driving of
     /// c_e (fraction), c_d (m), t_r (m), d (m/(m/s²)) [default: 7e-4,2.5e-4,5e-3,2.5e-4].
     ///
     /// How fast θ may drift; 0 holds a parameter constant.
-    #[arg(long, value_name = "CE,CD,TR,D", help_heading = ONLINE, hide_short_help = true)]
+    #[arg(long, allow_hyphen_values = true, value_name = "CE,CD,TR,D", help_heading = ONLINE, hide_short_help = true)]
     random_walk: Option<Four>,
     /// θ's sd when the history holds no σ for the vehicle: c_e (fraction),
     /// c_d (m), t_r (fraction), d (m/(m/s²)) [default: 0.02,5e-3,0.05,2e-3].
-    #[arg(long, value_name = "CE,CD,TR,D", help_heading = ONLINE, hide_short_help = true)]
+    #[arg(long, allow_hyphen_values = true, value_name = "CE,CD,TR,D", help_heading = ONLINE, hide_short_help = true)]
     prior_sd: Option<Four>,
     /// The reference heading offset's sd at the start of each drive, rad [default: 0.05].
     #[arg(long, value_name = "RAD", help_heading = ONLINE, hide_short_help = true)]
     heading_offset_prior_sd: Option<f64>,
     /// A folded segment is informative driving when its peak yaw rate
-    /// exceeds this, rad/s [default: 0.15].
+    /// is at least this, rad/s [default: 0.15].
     #[arg(long, value_name = "RAD_PER_S", help_heading = ONLINE, hide_short_help = true)]
     informative_yaw_rate: Option<f64>,
     /// Gauss-Newton iterations per folded segment, 1 to 100 [default: 2].
-    #[arg(long, value_name = "N", help_heading = ONLINE, hide_short_help = true)]
+    #[arg(long, value_name = "N", help_heading = ONLINE, hide_short_help = true, value_parser = crate::args::whole::<usize>)]
     iterations_per_segment: Option<usize>,
     /// Informative driving over which θ's track is kept for the steadiness gate, s [default: 120].
     #[arg(long, value_name = "S", help_heading = ONLINE, hide_short_help = true)]
     steady_window_s: Option<f64>,
     /// Validation segments of the held-out gate (the drive's most recent) [default: 3].
-    #[arg(long, value_name = "N", help_heading = ONLINE, hide_short_help = true)]
+    #[arg(long, value_name = "N", help_heading = ONLINE, hide_short_help = true, value_parser = crate::args::whole::<usize>)]
     recent_validation_segments: Option<usize>,
     /// Largest σ written of c_e (fraction), c_d (m), t_r (m), d (m/(m/s²))
     /// [default: 1e-3,1e-3,0.02,1e-3].
-    #[arg(long, value_name = "CE,CD,TR,D", help_heading = GATES, hide_short_help = true)]
+    #[arg(long, allow_hyphen_values = true, value_name = "CE,CD,TR,D", help_heading = GATES, hide_short_help = true)]
     max_sigma: Option<Four>,
     /// Largest change from the stored calibration written without a person
     /// (larger ones are flagged): c_e (fraction), c_d (m), t_r (m), d
     /// (m/(m/s²)) [default: 0.01,5e-3,0.05,5e-3].
-    #[arg(long, value_name = "CE,CD,TR,D", help_heading = GATES, hide_short_help = true)]
+    #[arg(long, allow_hyphen_values = true, value_name = "CE,CD,TR,D", help_heading = GATES, hide_short_help = true)]
     max_change: Option<Four>,
 }
 
@@ -139,6 +139,9 @@ impl std::str::FromStr for Four {
 
 /// Replays the drives through the library's `odocal_history::follow` and
 /// prints what it reports; writes each written update to `--params-out`.
+/// An error at a drive stops the replay: the drives before it stay
+/// recorded in the history, and `--json` (and `--params-out -`) still
+/// get what was done, the JSON with the error and the drive it stopped at.
 pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
     crate::output::refuse_stdout("--db", &a.db, "the history is a database file")?;
     let mut files = Files::default();
@@ -168,53 +171,97 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
     // report goes to stderr, so stdout holds that output alone.
     let params_to_stdout = a.params_out.as_deref().is_some_and(odocal::output::is_stdout);
     let text_to_stderr = params_to_stdout || a.json.as_deref().is_some_and(odocal::output::is_stdout);
-    let say = |line: String| report_line(text_to_stderr, &line);
-    let mut entries = Vec::with_capacity(a.drive.len());
-    // The last written update's file, for `--params-out -`.
-    let mut last_written: Option<ParamFile> = None;
-    // Where the recursion started, and the drives it followed in order: a
-    // written estimate rests on all of them, and its file names them.
-    let mut start = String::new();
-    let mut followed: Vec<(String, String)> = Vec::new();
-    follow(&mut db, &a.vehicle, &a.drive, &opts, |event| -> Result<()> {
+    let mut r = Replayed {
+        a: &a,
+        bars,
+        text_to_stderr,
+        params_to_stdout,
+        entries: Vec::with_capacity(a.drive.len()),
+        handled: 0,
+        failed_at: None,
+        last_written: None,
+        start: String::new(),
+        followed: Vec::new(),
+    };
+    let error = follow(&mut db, &a.vehicle, &a.drive, &opts, |event| r.on(event)).err();
+    // The drive the replay stopped at: the one being handled when its
+    // report failed, else the one after those handled.
+    let stopped = r.failed_at.unwrap_or(r.handled);
+    let wrote = r.write_outputs(error.as_ref().map(|e| (stopped, crate::one_line(e))));
+    match error {
+        Some(e) => {
+            if let Err(w) = wrote {
+                eprintln!("warning: {}", crate::one_line(&w));
+            }
+            Err(e)
+        }
+        None => wrote,
+    }
+}
+
+/// What [`run`] keeps of the replay as it goes: the text report's
+/// settings, the JSON report's entries and the written updates.
+struct Replayed<'a> {
+    a: &'a FollowArgs,
+    bars: &'a Bars,
+    /// The text report goes to stderr (an output is on stdout).
+    text_to_stderr: bool,
+    /// `--params-out -`.
+    params_to_stdout: bool,
+    /// One per drive handled, in order (the JSON's `drives`).
+    entries: Vec<Value>,
+    /// The drives handled (skipped or followed): each is reported once.
+    handled: usize,
+    /// The index of the drive whose report failed (a parameter file not
+    /// written), when one did.
+    failed_at: Option<usize>,
+    /// The last written update's file, for `--params-out -`.
+    last_written: Option<ParamFile>,
+    /// Where the recursion started.
+    start: String,
+    /// The drives the recursion followed, in order (source, fingerprint):
+    /// a written estimate rests on all of them, and its file names them.
+    followed: Vec<(String, String)>,
+}
+
+impl Replayed<'_> {
+    fn say(&self, line: String) {
+        report_line(self.text_to_stderr, &line);
+    }
+
+    /// Reports one event of the replay.
+    fn on(&mut self, event: FollowEvent) -> Result<()> {
+        let a = self.a;
+        let vehicle = &a.vehicle;
         match event {
             FollowEvent::Start { theta, origin } => {
-                say(format!("vehicle '{}': starting from {theta} ({origin})", a.vehicle));
-                start = origin;
+                self.say(format!("vehicle '{vehicle}': starting from {theta} ({origin})"));
+                self.start = origin;
             }
             FollowEvent::Log(line) => eprintln!("{line}"),
-            FollowEvent::Progress(p) => bars.event(p),
+            FollowEvent::Progress(p) => self.bars.event(p),
             FollowEvent::Skipped { source, fingerprint, row } => {
-                bars.finish();
+                self.handled += 1;
+                self.bars.finish();
                 let short = &fingerprint[..fingerprint.len().min(12)];
-                say(match &row {
+                self.say(match &row {
                     Some((id, method)) => format!(
-                        "{source}: already recorded for vehicle '{}' (row {id}, {method}; fingerprint {short}…); \
-                         skipped: replaying it would count its samples twice",
-                        a.vehicle
+                        "{source}: already recorded for vehicle '{vehicle}' (row {id}, {method}; fingerprint \
+                         {short}…); skipped: replaying it would count its samples twice"
                     ),
-                    None => format!(
-                        "{source}: already followed for vehicle '{}' (fingerprint {short}…); skipped",
-                        a.vehicle
-                    ),
+                    None => {
+                        format!("{source}: already followed for vehicle '{vehicle}' (fingerprint {short}…); skipped")
+                    }
                 });
-                entries.push(json!({"source": source, "fingerprint": fingerprint, "already_recorded": true,
+                self.entries.push(json!({"source": source, "fingerprint": fingerprint, "already_recorded": true,
                     "recorded_row": row.map(|(id, _)| id), "prequential_mean_position_error_m": null, "updates": []}));
             }
             FollowEvent::Followed { source, fingerprint, summary, heading_offset_rad, drive_time_s, decision } => {
-                bars.finish();
-                followed.push((source.clone(), fingerprint.clone()));
-                if decision.action == Action::Write {
-                    let f = param_file(&decision, &followed, &start);
-                    match &a.params_out {
-                        Some(p) if !params_to_stdout => {
-                            write_text(p, &f.text_for(p)?).with_context(|| format!("--params-out {}", p.display()))?;
-                        }
-                        _ => last_written = Some(f),
-                    }
-                }
+                self.handled += 1;
+                self.bars.finish();
+                self.followed.push((source.clone(), fingerprint.clone()));
                 let e = summary.prequential_mean_position_error_m.map_or("-".into(), |e| format!("{e:.3} m"));
-                say(format!(
+                self.say(format!(
                     "{source}: prequential Ē_p {e} over {} validation segment{}, {} segment{} folded; {}; {}: {}",
                     summary.validation_segments,
                     if summary.validation_segments == 1 { "" } else { "s" },
@@ -224,7 +271,7 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
                     decision.action,
                     decision.reasons.join("; ")
                 ));
-                entries.push(json!({
+                self.entries.push(json!({
                     "source": source,
                     "fingerprint": fingerprint,
                     "prequential_mean_position_error_m": summary.prequential_mean_position_error_m,
@@ -235,22 +282,55 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
                     "heading_offset_rad": heading_offset_rad,
                     "updates": [update_json(&decision, drive_time_s)],
                 }));
+                if decision.action == Action::Write {
+                    let f = param_file(&decision, &self.followed, &self.start);
+                    match &a.params_out {
+                        Some(p) if !self.params_to_stdout => {
+                            // The drive is recorded: the JSON reports it, and the replay stops at it.
+                            let written = f.text_for(p).map_err(anyhow::Error::from).and_then(|text| {
+                                write_text(p, &text).with_context(|| format!("--params-out {}", p.display()))
+                            });
+                            if written.is_err() {
+                                self.failed_at = Some(self.handled - 1);
+                            }
+                            written?;
+                        }
+                        _ => self.last_written = Some(f),
+                    }
+                }
             }
         }
         Ok(())
-    })?;
-    if let Some(p) = &a.json {
-        write_text(p, &serde_json::to_string_pretty(&json!({ "drives": entries }))?)?;
     }
-    if let (true, Some(p)) = (params_to_stdout, &a.params_out) {
-        // One document, what a file would hold at the end: a stream of
-        // several would not read back as one parameter file.
-        match last_written {
-            Some(f) => write_text(p, &f.text_for(p)?)?,
-            None => eprintln!("--params-out -: no update was written, so nothing on stdout"),
+
+    /// Writes `--json` and `--params-out -` at the end of the replay: on
+    /// `error` (the index of the drive it stopped at, and the message) the
+    /// JSON also when some drive was handled, with the error.
+    fn write_outputs(&mut self, error: Option<(usize, String)>) -> Result<()> {
+        let a = self.a;
+        // Before any drive was handled nothing was done: no output.
+        if error.is_some() && self.entries.is_empty() {
+            return Ok(());
         }
+        if let Some(p) = &a.json {
+            let mut doc = json!({ "drives": self.entries });
+            if let Some((i, message)) = &error {
+                let drive = a.drive.get(*i).map(|d| d.display().to_string());
+                let number = drive.as_ref().map(|_| i + 1);
+                doc["error"] = json!({ "drive": drive, "drive_number": number, "message": message });
+            }
+            write_text(p, &serde_json::to_string_pretty(&doc)?)?;
+        }
+        if let (true, Some(p)) = (self.params_to_stdout, &a.params_out) {
+            // One document, what a file would hold at the end: a stream of
+            // several would not read back as one parameter file.
+            match self.last_written.take() {
+                Some(f) => write_text(p, &f.text_for(p)?)?,
+                None => eprintln!("--params-out -: no update was written, so nothing on stdout"),
+            }
+        }
+        Ok(())
     }
-    Ok(())
 }
 
 /// The online calibrator's options from the command line, checked (by a

@@ -15,7 +15,7 @@
 use std::process::ExitCode;
 
 use anyhow::{Context, Result};
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 mod args;
 mod calibrate;
@@ -174,7 +174,7 @@ fn main() -> ExitCode {
         std::process::exit(EXIT_INTERRUPTED);
     });
     quiet_on_closed_pipe();
-    let cli = Cli::parse();
+    let cli = Cli::from_arg_matches(&command().get_matches()).unwrap_or_else(|e| e.format(&mut command()).exit());
     match run(cli) {
         Ok(Outcome::Done) => ExitCode::SUCCESS,
         Ok(Outcome::Rejected) => ExitCode::from(EXIT_REJECTED),
@@ -192,6 +192,21 @@ fn main() -> ExitCode {
             }
         }
     }
+}
+
+/// The command line: [`Cli`] with every option that takes a value taking a
+/// negative number as one (`--steady-s -1`), so a value out of its range
+/// gets the option's own message (`must be …`), not clap's advice to pass
+/// it after `--`.
+fn command() -> clap::Command {
+    negative_numbers(Cli::command())
+}
+
+/// `cmd` and its subcommands, each of their options that takes a value
+/// set to take a negative number (`Arg::allow_negative_numbers`).
+fn negative_numbers(cmd: clap::Command) -> clap::Command {
+    cmd.mut_args(|a| if a.get_action().takes_values() { a.allow_negative_numbers(true) } else { a })
+        .mut_subcommands(negative_numbers)
 }
 
 /// Whether writing failed because the reader of stdout has gone (an
@@ -212,9 +227,16 @@ fn closed_pipe(e: &anyhow::Error) -> bool {
 /// usage error otherwise (leaving the option out gives one thread per core).
 fn parse_threads(s: &str) -> std::result::Result<usize, String> {
     let max = odocal::settings::MAX_THREADS;
-    let n: u64 = s.parse().map_err(|e| format!("{e}"))?;
+    let at_least_one = "must be at least 1 (leave --threads out for one thread per core)";
+    let n: u64 = match s.parse() {
+        Ok(n) => n,
+        Err(_) if s.trim().strip_prefix('-').is_some_and(|r| r.parse::<f64>().is_ok()) => {
+            return Err(format!("{at_least_one}, got {s}"))
+        }
+        Err(e) => return Err(format!("{e}")),
+    };
     match usize::try_from(n) {
-        Ok(0) => Err("must be at least 1 (leave --threads out for one thread per core)".into()),
+        Ok(0) => Err(at_least_one.into()),
         Ok(n) if n <= max => Ok(n),
         _ => Err(format!("{n} is above the ceiling of {max} worker threads")),
     }

@@ -14,7 +14,7 @@ use crate::progress::Bars;
 #[derive(Args)]
 pub struct SimulateArgs {
     /// Random seed.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = crate::args::whole::<u64>)]
     seed: u64,
     /// Route length, km.
     #[arg(long, default_value_t = 24.0, allow_hyphen_values = true, value_parser = route_length_km)]

@@ -41,7 +41,7 @@ pub struct ValidateArgs {
     #[arg(long, allow_hyphen_values = true)]
     theta0: Option<ThetaArg>,
     /// Seed of the reachable-minimum search.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, value_parser = crate::args::whole::<u64>)]
     seed: u64,
     /// The node of the --theta (and --theta0) parameter file to read, when
     /// it holds several nodes' parameters or several YAML documents.

@@ -10,7 +10,7 @@ use odocal_online::gate::{Action, GateDecision, Gates};
 use odocal_online::{Calibrator, DriveSummary, OnlineOptions};
 
 use crate::source::{held_by_decision, held_by_record, same_data};
-use crate::{CalibrationRecord, DecisionRow, History, ONLINE as METHOD};
+use crate::{CalibrationRecord, DecisionRow, History, HistoryRow, ONLINE as METHOD};
 
 /// Settings of [`follow`].
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -97,7 +97,7 @@ struct Stored {
 /// Replays `drives` (drive CSVs or manifests) in order through one online
 /// calibrator for `vehicle`, starting from the vehicle's most recent row in
 /// `db` whose verdict is not `rejected` and names no bias beyond its σ
-/// ([`crate::BIAS_REASONS`]; else `opts.theta0`), and writes back what the
+/// ([`start_row`]; else `opts.theta0`), and writes back what the
 /// gates pass. The
 /// row's σ is the recursion's start unless it is the model's alone
 /// ([`CalibrationRecord::sigma_model_only`]), a parameter has none (held)
@@ -263,16 +263,23 @@ pub fn follow<E: From<Error>>(
     Ok(())
 }
 
+/// The row [`follow`] starts from among a vehicle's `rows` (in recording
+/// order): the most recent whose verdict is not `rejected` and names no
+/// bias beyond its σ ([`crate::BIAS_REASONS`]); `None` when no row is
+/// such (then `follow` starts from θ_0). A rejected result is not to be
+/// deployed, nor started from; a biased one would carry its bias, with a
+/// σ that does not hold it, into every later estimate.
+pub fn start_row(rows: &[HistoryRow]) -> Option<&HistoryRow> {
+    rows.iter().rev().find(|r| !crate::pooled::is_rejected(r) && !crate::pooled::is_biased(r))
+}
+
 /// The parameters the replay starts from, and where they come from: the
 /// vehicle's most recent row whose verdict is not `rejected` and names no
 /// bias beyond its σ ([`crate::BIAS_REASONS`]), else θ_0. The origin
 /// names the more recent biased rows passed over.
 fn start(db: &History, vehicle: &str, opts: &FollowOptions) -> Result<(Stored, String), Error> {
-    // A rejected result is not to be deployed, nor started from; a biased
-    // one would carry its bias, with a σ that does not hold it, into every
-    // later drive's estimate.
     let rows = db.rows(vehicle)?;
-    let start = rows.iter().rev().find(|r| !crate::pooled::is_rejected(r) && !crate::pooled::is_biased(r));
+    let start = start_row(&rows);
     // The biased rows more recent than the start, in recording order.
     let mut passed: Vec<String> = rows
         .iter()

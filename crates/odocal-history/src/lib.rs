@@ -45,6 +45,7 @@ use serde::{Deserialize, Serialize};
 use odocal::model::THETA_NAMES;
 use odocal::{CalibrationReport, Error, Result, Theta};
 
+mod cell;
 mod follow;
 mod pooled;
 mod schema;
@@ -53,7 +54,7 @@ mod store;
 
 use store::{insert_decision, insert_record, read_only_connection};
 
-pub use follow::{follow, FollowEvent, FollowOptions};
+pub use follow::{follow, start_row, FollowEvent, FollowOptions};
 pub use pooled::{Biased, DriftFlag, NotMeasured, Pooled, SetAside, BIAS_REASONS, DRIFT_SIGMAS};
 pub use source::source_digest;
 
@@ -919,8 +920,8 @@ impl History {
             .conn
             .prepare(&format!("SELECT {ROW_COLUMNS} FROM calibrations WHERE vehicle = ?1 ORDER BY id"))
             .map_err(&err)?;
-        let rows = st.query_map(params![vehicle], history_row).map_err(&err)?;
-        rows.collect::<rusqlite::Result<Vec<_>>>().map_err(&err)
+        let rows = st.query_map(params![vehicle], cell::checked("calibrations", history_row)).map_err(&err)?;
+        cell::collect(rows, &self.path, err)
     }
 
     /// Logs a write-back decision unless the vehicle's decisions hold one
@@ -962,8 +963,8 @@ impl History {
                  WHERE vehicle = ?1 ORDER BY id",
             )
             .map_err(&err)?;
-        let rows = st.query_map(params![vehicle], decision_row).map_err(&err)?;
-        rows.collect::<rusqlite::Result<Vec<_>>>().map_err(&err)
+        let rows = st.query_map(params![vehicle], cell::checked("decisions", decision_row)).map_err(&err)?;
+        cell::collect(rows, &self.path, err)
     }
 
     /// The number of decisions logged for the vehicle.

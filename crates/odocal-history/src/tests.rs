@@ -1067,3 +1067,61 @@ fn a_version_three_file_is_migrated_and_pooled_as_before() {
     assert_eq!((p.rows, p.drives), (2, 2), "{p:?}");
     assert!((p.mean.c_e - 1.961).abs() < 1e-12, "{p:?}");
 }
+
+/// A hand-edited row whose numeric column holds text is named by the file,
+/// the table, the row (its id, vehicle and drive) and the column, with
+/// what to do; in `calibrations` and in `decisions`.
+#[test]
+fn a_cell_that_does_not_read_names_its_row_and_column() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("h.sqlite");
+    let mut db = History::open(&path).expect("open");
+    db.record(&record("van", "fp-a", 1.95, 1e-4)).expect("a");
+    let Recorded::New(id) = db.record(&record("van", "0123456789abcdef", 1.96, 1e-4)).expect("b") else {
+        panic!("a new row")
+    };
+    let conn = Connection::open(&path).expect("open with rusqlite");
+    conn.execute("UPDATE calibrations SET c_e = 'abc' WHERE id = ?1", params![id]).expect("edit");
+    let e = db.vehicle("van", None).expect_err("text in c_e").to_string();
+    let path_text = path.display().to_string();
+    for part in [
+        path_text.as_str(),
+        &format!("row {id} of table calibrations (vehicle 'van', drive 0123456789ab…)"),
+        "column c_e holds the text 'abc', where a number is expected",
+        &format!("DELETE FROM calibrations WHERE id = {id}"),
+    ] {
+        assert!(e.contains(part), "{part:?} not in: {e}");
+    }
+    assert!(!e.contains("index"), "{e}");
+    // `follow` reads the rows for its start: the same error.
+    let drive = dir.path().join("d.csv");
+    std::fs::write(&drive, "t\n").expect("write");
+    let f = crate::follow(&mut db, "van", &[drive], &FollowOptions::default(), |_| Ok::<(), Error>(()));
+    assert_eq!(f.expect_err("the bad row").to_string(), e);
+    // Another vehicle's rows still read.
+    assert!(db.vehicle("bus", None).is_ok());
+
+    conn.execute("UPDATE calibrations SET c_e = 1.95 WHERE id = ?1", params![id]).expect("mend");
+    let decision = DecisionRow {
+        id: 0,
+        decided_at: String::new(),
+        odocal_version: String::new(),
+        vehicle: "van".into(),
+        fingerprint: "fp-c".into(),
+        source: "c.csv".into(),
+        source_digest: None,
+        t_start_s: None,
+        drive_time_s: 60.0,
+        decision: "held".into(),
+        reasons: vec![],
+        theta: theta(1.95),
+        sigma: None,
+    };
+    let did = db.record_followed(&decision, None).expect("decision").expect("logged");
+    conn.execute("UPDATE decisions SET drive_time_s = 'soon' WHERE id = ?1", params![did]).expect("edit");
+    let e = db.vehicle("van", None).expect_err("text in drive_time_s").to_string();
+    assert!(
+        e.contains(&format!("row {did} of table decisions (vehicle 'van', drive fp-c): column drive_time_s")),
+        "{e}"
+    );
+}

@@ -246,7 +246,7 @@ pub struct Status {
     /// The sample time the calibrator was made for, s.
     pub sample_time_s: f64,
     /// Informative driving so far: the new samples (stride × sample time)
-    /// of every folded segment that turned more than the options'
+    /// of every folded segment whose peak yaw rate reached the options'
     /// `informative_yaw_rate_rad_per_s`, s.
     pub informative_time_s: f64,
     /// Samples held in the buffer: bounded by the longest segment and its
@@ -726,7 +726,9 @@ impl Calibrator {
             let psi = self.buf.segment(start, k, self.sample_time_s).psi;
             psi.windows(2).map(|w| (w[1] - w[0]).abs()).fold(0.0, f64::max) / self.sample_time_s
         };
-        if peak <= self.opts.segments.min_peak_yaw_rate_rad_per_s {
+        // The calibration's rule (`odocal::segment::calibration_segments`):
+        // a peak at the threshold turns enough, so 0 folds every segment.
+        if peak < self.opts.segments.min_peak_yaw_rate_rad_per_s {
             return;
         }
         self.add_process_noise(start + k);
@@ -767,7 +769,7 @@ impl Calibrator {
             Some(v) => v + RESIDUAL_VARIANCE_GAIN * (seg_variance - v),
         });
         self.drive.folded += 1;
-        if peak <= self.opts.informative_yaw_rate_rad_per_s {
+        if peak < self.opts.informative_yaw_rate_rad_per_s {
             return;
         }
         self.informative_s += self.opts.segments.stride_steps as f64 * self.sample_time_s;

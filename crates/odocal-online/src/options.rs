@@ -43,14 +43,14 @@ impl RandomWalk {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct OnlineOptions {
     /// The calibration segments: each segment of the stream whose peak yaw
-    /// rate exceeds the threshold is folded in when it completes. Default:
+    /// rate reaches the threshold (is at least it) is folded in when it completes. Default:
     /// the calibration's length and stride (650 steps every 100) and every
     /// segment folded (threshold 0), as the default method's batch
     /// Gauss-Newton uses every cut segment: turning-only segments leave
     /// c_d and the heading offset confounded on drives that turn one way.
     pub segments: SegmentOptions,
     /// A folded segment counts as informative driving (for the steadiness
-    /// gate) when its peak yaw rate exceeds this, rad/s. Default 0.15 (the
+    /// gate) when its peak yaw rate is at least this, rad/s. Default 0.15 (the
     /// calibration's selection threshold).
     pub informative_yaw_rate_rad_per_s: f64,
     /// The validation segments of the prequential error. Default: the

@@ -1,5 +1,6 @@
 use super::gate::{Action, Gates};
 use super::*;
+use odocal::segment::SegmentOptions;
 use odocal::sim::{simulate, SimOptions};
 use odocal::DriveBuilder;
 
@@ -359,5 +360,50 @@ fn iterations_per_segment_has_a_ceiling() {
             }
             other => panic!("{n}: {other:?}"),
         }
+    }
+}
+
+/// A perfectly straight drive (every segment's peak yaw rate 0): the
+/// default threshold 0 folds each of its segments, as the calibration's
+/// selection picks each (one rule: a peak at the threshold reaches it), and
+/// an informative threshold of 0 counts each as informative driving. On a
+/// turning drive the online fold and the selection agree at a threshold
+/// equal to a segment's own peak.
+#[test]
+fn a_threshold_of_zero_folds_every_segment_of_a_straight_drive() {
+    let (n, c_e) = (3000, 1.95);
+    let signals: Signals = (0..n).map(|i| [i as f64 * 0.25, 0.0, 0.0, 10.0 / c_e, 10.0 / c_e, 0.0, 0.0]).collect();
+    let t = (0..n).map(|i| i as f64 * 0.025).collect();
+    let straight = DriveBuilder { t, measured: signals, ..Default::default() }.build().expect("drive");
+    let folded = |d: &Drive, opts: OnlineOptions| {
+        let mut cal = Calibrator::new(Theta::PAPER_INITIAL, None, d.sample_time_s(), opts).expect("calibrator");
+        cal.push_drive(d, 400, |_| {}).expect("push");
+        (cal.drive_summary().folded_segments, cal.status().informative_time_s, cal.theta())
+    };
+    let selected = |d: &Drive, opts: &OnlineOptions| {
+        odocal::segment::calibration_segments(d, &opts.segments).expect("segments").selected.len()
+    };
+    let every = OnlineOptions { informative_yaw_rate_rad_per_s: 0.0, ..OnlineOptions::default() };
+    let (count, informative, theta) = folded(&straight, every.clone());
+    assert!(count > 10, "{count} segments folded");
+    assert_eq!(count, selected(&straight, &every));
+    assert!(informative > 0.0, "{informative}");
+    assert!((theta.c_e - c_e).abs() < 1e-3 * c_e, "{theta}");
+    let informative_default = folded(&straight, OnlineOptions::default()).1;
+    assert!(informative_default <= 0.0, "informative at the default 0.15 rad/s: {informative_default} s");
+    let above = OnlineOptions {
+        segments: SegmentOptions { min_peak_yaw_rate_rad_per_s: 1e-9, ..OnlineOptions::default().segments },
+        ..OnlineOptions::default()
+    };
+    assert_eq!(folded(&straight, above).0, 0);
+
+    let (turning, _) = noise_free(3.0, 2);
+    let all = odocal::segment::calibration_segments(&turning, &every.segments).expect("segments").all;
+    for peak in [all[3].peak_yaw_rate_rad_per_s, 0.15] {
+        let opts = OnlineOptions {
+            segments: SegmentOptions { min_peak_yaw_rate_rad_per_s: peak, ..OnlineOptions::default().segments },
+            ..OnlineOptions::default()
+        };
+        assert_eq!(folded(&turning, opts.clone()).0, selected(&turning, &opts), "threshold {peak}");
     }
 }

@@ -95,9 +95,14 @@ impl PyHistory {
         to_py(py, &json(&rows)?)
     }
 
-    /// The vehicle's most recent row, or None.
-    fn latest<'py>(&self, py: Python<'py>, vehicle: &str) -> PyResult<Bound<'py, PyAny>> {
-        let row = self.with(|db| db.vehicle(vehicle, None))?.rows.pop();
+    /// The row to start from: the vehicle's most recent row whose verdict
+    /// is not `rejected` and names no bias beyond its σ (`input_noise_bias`,
+    /// `heading_offset_held`), the row `odocal follow` starts from; or None.
+    /// With `usable_only=False`, the most recent row whatever its verdict.
+    #[pyo3(signature = (vehicle, *, usable_only=true))]
+    fn latest<'py>(&self, py: Python<'py>, vehicle: &str, usable_only: bool) -> PyResult<Bound<'py, PyAny>> {
+        let mut rows = self.with(|db| db.vehicle(vehicle, None))?.rows;
+        let row = if usable_only { odocal_history::start_row(&rows).cloned() } else { rows.pop() };
         to_py(py, &json(&row)?)
     }
 

@@ -202,7 +202,7 @@ def test_history_records_rows_flags_drift_and_pools(tmp_path, small_drive):
     r = db.record(report, vehicle="van")
     assert r["new"] is True
     assert db.record(report, vehicle="van")["new"] is False
-    row = db.latest("van")
+    row = db.latest("van", usable_only=False)
     assert row["fingerprint"] == small_drive.fingerprint and row["method"] == "batch-gn"
     assert row["theta"] == report.theta and row["verdict"] is not None
     # Whether the σ is the model's alone is recorded from the verdict.
@@ -231,6 +231,35 @@ def test_history_records_the_source_digest_of_a_drive_read_from_a_file(tmp_path,
     digest = db.rows("van")[-1]["source_digest"]
     assert isinstance(digest, str) and len(digest) == 64, digest
     assert db.rows("mem")[-1]["source_digest"] is None
+
+
+def test_latest_is_the_row_follow_starts_from(tmp_path, drive_csv, odocal_bin):
+    """`latest` passes over rejected rows and those whose verdict names a bias beyond its σ, as `odocal
+    follow` does when it picks its start; `usable_only=False` gives the most recent row whatever its verdict."""
+    path = tmp_path / "van.sqlite"
+    db = odocal.History(path)
+    assert db.latest("van") is None and db.latest("van", usable_only=False) is None
+    base = {"vehicle": "van", "method": "eiv", "theta": {"c_e": 1.95, "c_d": -2e-3, "t_r": 1.53, "d": 8e-4},
+            "sigma": {"c_e": 1e-4, "c_d": 1e-5, "t_r": 1e-3, "d": 1e-5}}
+    usable = db.record({**base, "fingerprint": "a", "verdict": "accepted", "reasons": []})["id"]
+    db.record({**base, "fingerprint": "b", "verdict": "rejected", "reasons": []})
+    db.record({**base, "fingerprint": "c", "method": "batch-gn", "verdict": "doubtful",
+               "reasons": ["model_sigma_only", "input_noise_bias"]})
+    last = db.record({**base, "fingerprint": "d", "verdict": "accepted", "reasons": ["heading_offset_held"]})["id"]
+    assert db.latest("van")["id"] == usable
+    assert db.latest("van", usable_only=False)["id"] == last
+    with pytest.raises(TypeError):
+        db.latest("van", False)  # a keyword, not a position
+    # The CLI's follow starts from the same row.
+    out = subprocess.run([str(odocal_bin), "follow", str(drive_csv), "--vehicle", "van", "--db", str(path)],
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert f"(history row {usable};" in out.stdout, out.stdout
+    # Rejected or biased only: no row to start from, as follow's θ_0.
+    only = odocal.History(tmp_path / "only.sqlite")
+    only.record({**base, "fingerprint": "b", "verdict": "rejected"})
+    only.record({**base, "fingerprint": "c", "reasons": ["input_noise_bias"]})
+    assert only.latest("van") is None and only.latest("van", usable_only=False)["fingerprint"] == "c"
 
 
 def test_history_checks_a_record_as_the_cli_does(tmp_path, small_drive, odocal_bin):

@@ -23,7 +23,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let sel = calibration_segments(&imported.drive, &Default::default())?;
     let val = validation_segments(&imported.drive, &Default::default())?;
     println!(
-        "segments (SPEC defaults): {} cut, {} selected (peak yaw rate > 0.15 rad/s); {} validation segments",
+        "segments (SPEC defaults): {} cut, {} selected (peak yaw rate ≥ 0.15 rad/s); {} validation segments",
         sel.all.len(),
         sel.selected.len(),
         val.len()

@@ -141,6 +141,72 @@ fn straight_drive_reports_unobservable_parameters() {
     assert_error(&o, &["c_d, t_r, d not observable", "none of the", "--fix"]);
 }
 
+/// The command the error above gives works on a perfectly straight drive:
+/// `--min-yaw-rate 0` selects every segment (each with a peak yaw rate of
+/// 0), and c_e alone is calibrated.
+#[test]
+fn min_yaw_rate_zero_calibrates_c_e_on_a_straight_drive() {
+    let d = tempfile::tempdir().expect("tmp");
+    let p = write(d.path(), "d.csv", &good_rows(3000));
+    let args = ["calibrate", p.to_str().expect("utf8"), "--method", "batch-gn", "--fix", "c_d,t_r,d"];
+    let o = odocal(&[&args[..], &["--min-yaw-rate", "0", "--json", "-"]].concat());
+    assert!(o.status.success(), "stderr: {}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("json");
+    let (cut, selected) = (&v["segments"]["cut"], &v["segments"]["selected"]);
+    assert!(cut.as_u64().is_some_and(|n| n > 0) && selected == cut, "{}", v["segments"]);
+    // 0.25 m per sample on 5 rev/s at 40 Hz: 2 m per revolution.
+    let c_e = v["theta"]["c_e"].as_f64().expect("c_e");
+    assert!((c_e - 2.0).abs() < 1e-6, "c_e = {c_e}");
+}
+
+/// A negative number given to a numeric option is taken as its value, so
+/// the option's own range message names it (a usage error), not clap's
+/// advice to pass it after `--`; on every subcommand that has such options.
+#[test]
+fn a_negative_number_gets_the_options_own_range_message() {
+    let d = tempfile::tempdir().expect("tmp");
+    let p = write(d.path(), "d.csv", &good_rows(100));
+    let (p, db) = (p.to_str().expect("utf8"), d.path().join("h.sqlite"));
+    let out = d.path().join("s.csv");
+    let (db, out) = (db.to_str().expect("utf8"), out.to_str().expect("utf8"));
+    let follow = ["follow", p, "--vehicle", "van", "--db", db];
+    let cases: Vec<(Vec<&str>, &str)> = vec![
+        (vec!["calibrate", p, "--min-yaw-rate", "-1"], "'-1' is not a non-negative number of rad/s"),
+        (
+            vec!["calibrate", p, "--segment-length", "-5"],
+            "--segment-length <SEGMENT_LENGTH>': must be at least 2 samples, got -5",
+        ),
+        (vec!["calibrate", p, "--batches", "-3"], "--batches <BATCHES>': must be 0 or more, got -3"),
+        (vec!["calibrate", p, "--correct-bias", "-2"], "B must be an even number of at least 2, got -2"),
+        (
+            vec!["calibrate", p, "--threads", "-2"],
+            "must be at least 1 (leave --threads out for one thread per core), got -2",
+        ),
+        (vec!["demo", "--sim-seed", "-1"], "--sim-seed <SIM_SEED>': must be 0 or more, got -1"),
+        (
+            vec!["validate", p, "--theta", "2,0,1.6,0", "--validation-length", "-1"],
+            "must be at least 2 samples, got -1",
+        ),
+        (vec!["compensate", p, "--theta", "2,0,1.6,0", "--out", out, "--segment-length", "-650"], "got -650"),
+        (vec!["simulate", "--out", out, "--seed", "-1"], "--seed <SEED>': must be 0 or more, got -1"),
+        (vec!["simulate", "--out", out, "--substeps", "-4"], "-4 is not in 1..=10000"),
+        ([&follow[..], &["--steady-s", "-1"]].concat(), "--steady-s must be a non-negative number of seconds, got -1"),
+        ([&follow[..], &["--min-yaw-rate", "-0.5"]].concat(), "'-0.5' is not a non-negative number of rad/s"),
+        ([&follow[..], &["--information-scale", "-1"]].concat(), "--information-scale = -1"),
+        ([&follow[..], &["--iterations-per-segment", "-1"]].concat(), "must be 0 or more, got -1"),
+        ([&follow[..], &["--max-sigma", "-1,1,1,1"]].concat(), "--max-sigma must be four positive numbers"),
+        ([&follow[..], &["--random-walk", "-1,0,0,0"]].concat(), "--random-walk = -1,0,0,0"),
+    ];
+    for (args, message) in cases {
+        let o = odocal(&args);
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {e}");
+        assert!(!e.contains("to pass '-"), "{args:?}: {e}");
+        assert!(e.contains(message), "{args:?}: expected '{message}' in: {e}");
+    }
+    assert!(!std::path::Path::new(db).exists() && !std::path::Path::new(out).exists(), "nothing written");
+}
+
 #[test]
 fn simulate_calibrate_validate_contract_and_determinism() {
     let d = tempfile::tempdir().expect("tmp");

@@ -284,7 +284,11 @@ class History(_History):
     of ``follow`` too (running estimates, each holding the drives before
     it) and names the rows set aside, rejected and online;
     ``decisions(vehicle)``: the write-back decisions of ``odocal follow``;
-    ``latest(vehicle)``. Errors raise :class:`OdocalError`.
+    ``latest(vehicle, usable_only=True)``: the row to start from, the one
+    ``odocal follow`` starts from (the most recent whose verdict is not
+    ``rejected`` and names no bias beyond its σ, ``input_noise_bias`` or
+    ``heading_offset_held``), or with ``usable_only=False`` the most recent
+    row whatever its verdict. Errors raise :class:`OdocalError`.
     """
 
     def record(

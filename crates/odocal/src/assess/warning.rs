@@ -296,8 +296,8 @@ impl std::fmt::Display for Warning {
             Warning::AutoFixNoTurns { params, segments, min_peak_yaw_rate_rad_per_s, peak_yaw_rate_rad_per_s } => {
                 write!(
                     f,
-                    "auto-fix: {params} held at θ_0 and all {segments} segments used: none turns faster than \
-                     {min_peak_yaw_rate_rad_per_s} rad/s (the fastest: {peak_yaw_rate_rad_per_s:.3} rad/s), so only \
+                    "auto-fix: {params} held at θ_0 and all {segments} segments used: none turns at \
+                     {min_peak_yaw_rate_rad_per_s} rad/s or faster (the fastest: {peak_yaw_rate_rad_per_s:.3} rad/s), so only \
                      c_e is observable"
                 )
             }

@@ -7,7 +7,7 @@
 //!    drive itself or held-out data, [`Holdout`]);
 //! 2. the method's own *selection* of the data it fits and of the
 //!    parameters it can estimate: the segment-based methods cut calibration
-//!    segments, keep those turning faster than the threshold and apply the
+//!    segments, keep those turning at least as fast as the threshold and apply the
 //!    observability rules ([`CalibrationOptions::auto_fix`]); a method that
 //!    fits whole drive parts is not held to the yaw-rate rule;
 //! 3. the method's *estimate*, then the shared validation of the result
@@ -897,7 +897,7 @@ pub(crate) fn cut_segments(drive: &Drive, opts: &SegmentOptions) -> Result<crate
 }
 
 /// The segment-based methods' selection (SPEC §3, §6): calibration segments
-/// turning faster than the threshold; with none, an error naming the
+/// turning at least as fast as the threshold; with none, an error naming the
 /// yaw-only parameters, or (auto-fix) those held and every segment used;
 /// with auto-fix, parameters the observability check names at θ_0 held.
 pub(crate) fn turning_segments(prep: &Prepared<'_>) -> Result<Selection> {
@@ -922,7 +922,7 @@ pub(crate) fn turning_segments(prep: &Prepared<'_>) -> Result<Selection> {
             return Err(Error::NotObservable {
                 params: free_yaw.names(),
                 reason: format!(
-                    "none of the {} segments turns faster than {} rad/s (the fastest: {peak:.3} rad/s); these \
+                    "none of the {} segments turns at {} rad/s or faster (the fastest: {peak:.3} rad/s); these \
                      parameters act only through the yaw equation. Hold them at θ_0 (--fix c_d,t_r,d) and \
                      select every segment (--min-yaw-rate 0) to calibrate c_e alone",
                     selection.all.len(),

@@ -258,7 +258,7 @@ fn segments_line(out: &mut String, r: &CalibrationReport) {
     } else {
         let _ = writeln!(
             out,
-            "segments: {} cut, {} selected (peak yaw rate > {} rad/s), {} validation",
+            "segments: {} cut, {} selected (peak yaw rate ≥ {} rad/s), {} validation",
             r.segments.cut, r.segments.selected, r.options.segments.min_peak_yaw_rate_rad_per_s, r.segments.validation
         );
     }

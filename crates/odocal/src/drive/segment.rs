@@ -26,7 +26,8 @@ pub struct SegmentOptions {
     /// First start, in samples from the start of each part. Default 0.
     pub offset_steps: usize,
     /// A segment is selected when its peak absolute yaw rate (from the
-    /// reference heading) exceeds this, rad/s. Default 0.15.
+    /// reference heading) is at least this, rad/s: 0 selects every
+    /// segment, a straight one too. Default 0.15.
     pub min_peak_yaw_rate_rad_per_s: f64,
 }
 
@@ -131,7 +132,7 @@ pub fn cut(drive: &Drive, offset: usize, length: usize, stride: usize) -> Vec<Se
 pub struct SegmentSelection {
     /// Every segment cut.
     pub all: Vec<Segment>,
-    /// The segments whose peak yaw rate exceeds the threshold.
+    /// The segments whose peak yaw rate reaches the threshold (is at least it).
     pub selected: Vec<Segment>,
 }
 
@@ -140,7 +141,7 @@ pub fn calibration_segments(drive: &Drive, opts: &SegmentOptions) -> Result<Segm
     opts.validate()?;
     let all = cut(drive, opts.offset_steps, opts.length_steps, opts.stride_steps);
     let selected =
-        all.iter().copied().filter(|s| s.peak_yaw_rate_rad_per_s > opts.min_peak_yaw_rate_rad_per_s).collect();
+        all.iter().copied().filter(|s| s.peak_yaw_rate_rad_per_s >= opts.min_peak_yaw_rate_rad_per_s).collect();
     Ok(SegmentSelection { all, selected })
 }
 
@@ -296,6 +297,30 @@ mod tests {
             assert_eq!(sel.selected.contains(s), turns, "{s:?}");
         }
         assert!(!sel.selected.is_empty());
+    }
+
+    /// A threshold is reached by a peak equal to it: 0 selects every
+    /// segment of a perfectly straight drive (peak yaw rate 0), and a
+    /// turning segment is selected at its own peak, not above it.
+    #[test]
+    fn a_peak_at_the_threshold_is_selected() {
+        let straight = drive(1500, 1500);
+        let every = SegmentOptions { min_peak_yaw_rate_rad_per_s: 0.0, ..Default::default() };
+        let sel = calibration_segments(&straight, &every).expect("valid");
+        assert!(!sel.all.is_empty() && sel.all.iter().all(|s| s.peak_yaw_rate_rad_per_s == 0.0), "{:?}", sel.all);
+        assert_eq!(sel.selected, sel.all);
+        let turning = drive(1500, 700);
+        let all = calibration_segments(&turning, &every).expect("valid").all;
+        let peak = all.iter().map(|s| s.peak_yaw_rate_rad_per_s).fold(0.0, f64::max);
+        let at = |threshold: f64| {
+            let opts = SegmentOptions { min_peak_yaw_rate_rad_per_s: threshold, ..Default::default() };
+            calibration_segments(&turning, &opts).expect("valid").selected
+        };
+        let at_peak: Vec<Segment> =
+            all.iter().copied().filter(|s| s.peak_yaw_rate_rad_per_s.to_bits() == peak.to_bits()).collect();
+        assert!(!at_peak.is_empty());
+        assert_eq!(at(peak), at_peak);
+        assert!(at(peak.next_up()).is_empty());
     }
 
     #[test]
