@@ -88,3 +88,29 @@ fn identify_options_out_of_range_are_refused() {
         }
     }
 }
+
+/// The guide's recipe for a manifest's calibration settings: the import
+/// report's `[calibration]` and `[reference]`, resolved over the defaults,
+/// reach the options `calibrate` is given.
+#[test]
+fn a_manifests_settings_reach_the_options_through_resolve() {
+    use odocal::settings::{Caller, ManifestSettings, Settings};
+    let src = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/comma2k19-rav4");
+    let dir = tempfile::tempdir().expect("tmp");
+    for e in std::fs::read_dir(&src).expect("data") {
+        let e = e.expect("entry");
+        std::fs::copy(e.path(), dir.path().join(e.file_name())).expect("copy");
+    }
+    let manifest = dir.path().join("manifest.toml");
+    let mut text = std::fs::read_to_string(&manifest).expect("manifest");
+    text.push_str("\n[reference]\nlever_arm = [0.5, 0.0]\n\n[calibration]\nmethod = \"batch-gn\"\nsegment_length = 400\n");
+    std::fs::write(&manifest, text).expect("write");
+    let (_, import_report) = odocal::load_drive(&manifest).expect("load");
+    let manifests: Vec<ManifestSettings> =
+        import_report.as_ref().map(ManifestSettings::try_from).transpose().expect("settings").into_iter().collect();
+    let opts = Settings::default().resolve(&manifests, Caller::CommandLine).expect("resolve").options;
+    assert_eq!(opts.method.to_string(), "batch-gn");
+    assert_eq!(opts.segments.length_steps, 400);
+    assert_eq!(opts.identify.extrinsics.lever_x, 0.5);
+    assert_ne!(opts, CalibrationOptions::default());
+}
