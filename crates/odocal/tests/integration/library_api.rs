@@ -70,7 +70,8 @@ fn theta0_outside_the_physical_limits_is_refused() {
 #[test]
 fn identify_options_out_of_range_are_refused() {
     let d = drive();
-    let cases: [(&str, fn(&mut odocal::identify::IdentifyOptions)); 7] = [
+    type Set = fn(&mut odocal::identify::IdentifyOptions);
+    let cases: [(&str, Set); 7] = [
         ("max_iterations", |o| o.max_iterations = 0),
         ("max_iterations", |o| o.max_iterations = 100_001),
         ("step_tolerance", |o| o.step_tolerance = f64::NAN),
@@ -103,7 +104,9 @@ fn a_manifests_settings_reach_the_options_through_resolve() {
     }
     let manifest = dir.path().join("manifest.toml");
     let mut text = std::fs::read_to_string(&manifest).expect("manifest");
-    text.push_str("\n[reference]\nlever_arm = [0.5, 0.0]\n\n[calibration]\nmethod = \"batch-gn\"\nsegment_length = 400\n");
+    text.push_str(
+        "\n[reference]\nlever_arm = [0.5, 0.0]\n\n[calibration]\nmethod = \"batch-gn\"\nsegment_length = 400\n",
+    );
     std::fs::write(&manifest, text).expect("write");
     let (_, import_report) = odocal::load_drive(&manifest).expect("load");
     let manifests: Vec<ManifestSettings> =
@@ -111,6 +114,6 @@ fn a_manifests_settings_reach_the_options_through_resolve() {
     let opts = Settings::default().resolve(&manifests, Caller::CommandLine).expect("resolve").options;
     assert_eq!(opts.method.to_string(), "batch-gn");
     assert_eq!(opts.segments.length_steps, 400);
-    assert_eq!(opts.identify.extrinsics.lever_x, 0.5);
+    assert!((opts.identify.extrinsics.lever_x - 0.5).abs() < 1e-12, "{:?}", opts.identify.extrinsics);
     assert_ne!(opts, CalibrationOptions::default());
 }
