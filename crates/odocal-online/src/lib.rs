@@ -397,13 +397,26 @@ impl Calibrator {
     /// `sigma0` is a reported σ (as [`Status::sigma`] gives it): the
     /// recursion starts from it divided by the options' `sigma_factors`,
     /// so a calibrator restarted from another's θ and σ continues its
-    /// recursion.
+    /// recursion. A σ of 0 (all four, or some) stands for "not known": the
+    /// options' prior is used for all four, as with `None`.
+    ///
+    /// # Errors
+    /// [`Error::InvalidOption`] naming the field: invalid options, a sample
+    /// time that is not a positive number, a `sigma0` with a negative or
+    /// non-finite component; θ_0 not finite and positive.
     pub fn new(theta0: Theta, sigma0: Option<Theta>, sample_time_s: f64, opts: OnlineOptions) -> Result<Calibrator> {
         opts.validate()?;
         if !(sample_time_s.is_finite() && sample_time_s > 0.0) {
             return Err(Error::InvalidOption { field: "sample_time_s", reason: "must be positive".into() });
         }
         theta0.validate()?;
+        if let Some(s) = sigma0 {
+            let named = ["c_e", "c_d", "t_r", "d"].into_iter().zip(<[f64; 4]>::from(s));
+            if let Some((name, v)) = named.into_iter().find(|(_, v)| !(v.is_finite() && *v >= 0.0)) {
+                let reason = format!("{name} = {v}: a σ must be a finite number, 0 or more");
+                return Err(Error::InvalidOption { field: "sigma0", reason });
+            }
+        }
         let sd = match sigma0 {
             Some(s) if <[_; 4]>::from(s).iter().all(|v| v.is_finite() && *v > 0.0) => {
                 let f = opts.sigma_factors;
@@ -915,9 +928,24 @@ impl Calibrator {
     /// Pushes a whole drive as a new drive, part by part, in chunks of
     /// `chunk` samples; `each` is called after every chunk with the samples
     /// pushed so far.
+    ///
+    /// # Errors
+    /// [`Error::InvalidDrive`] when the drive's sample time is not the
+    /// calibrator's; [`Error::InvalidOption`] (`chunk`) for a chunk of 0
+    /// samples; both before any sample is pushed. [`Calibrator::push`]'s.
     pub fn push_drive(&mut self, drive: &Drive, chunk: usize, mut each: impl FnMut(usize)) -> Result<()> {
+        if (drive.sample_time_s() - self.sample_time_s).abs() > 1e-9 {
+            let reason = format!(
+                "sample time {} s differs from the calibrator's {} s",
+                drive.sample_time_s(),
+                self.sample_time_s
+            );
+            return Err(Error::InvalidDrive { context: "push_drive".into(), reason });
+        }
+        if chunk == 0 {
+            return Err(Error::InvalidOption { field: "chunk", reason: "must be at least 1 sample".into() });
+        }
         self.begin_drive();
-        let chunk = chunk.max(1);
         for (i, part) in drive.parts().iter().enumerate() {
             if i > 0 {
                 self.begin_part();

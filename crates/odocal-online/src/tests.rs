@@ -407,3 +407,55 @@ fn a_threshold_of_zero_folds_every_segment_of_a_straight_drive() {
         assert_eq!(folded(&turning, opts.clone()).0, selected(&turning, &opts), "threshold {peak}");
     }
 }
+
+/// Segment counts above their ceiling are refused when the calibrator is
+/// made, naming the field, rather than overflowing when a drive is pushed.
+#[test]
+fn segment_offsets_above_their_ceiling_are_refused() {
+    let mut opts = OnlineOptions::default();
+    opts.segments.offset_steps = usize::MAX;
+    let e = Calibrator::new(Theta::PAPER_INITIAL, None, 0.025, opts).err();
+    assert!(matches!(e, Some(Error::InvalidOption { field: "segment_offset", .. })), "{e:?}");
+    let mut opts = OnlineOptions::default();
+    opts.validation.offset_steps = usize::MAX;
+    let e = Calibrator::new(Theta::PAPER_INITIAL, None, 0.025, opts).err();
+    assert!(matches!(e, Some(Error::InvalidOption { field: "validation_offset", .. })), "{e:?}");
+}
+
+/// A drive whose sample time is not the calibrator's is refused, as a
+/// replay is, and so is a chunk of no samples; nothing is pushed.
+#[test]
+fn a_drive_at_another_sample_time_or_in_empty_chunks_is_refused() {
+    let (d, _) = noise_free(0.5, 3);
+    let mut cal = Calibrator::new(Theta::PAPER_NOMINAL, None, 2.0 * d.sample_time_s(), OnlineOptions::default())
+        .expect("calibrator");
+    let mut pushed = 0;
+    let e = cal.push_drive(&d, 400, |n| pushed = n).expect_err("sample time");
+    assert!(matches!(e, Error::InvalidDrive { .. }) && e.to_string().contains("sample time"), "{e}");
+    assert_eq!((pushed, cal.status().drive.samples), (0, 0));
+    let mut cal =
+        Calibrator::new(Theta::PAPER_NOMINAL, None, d.sample_time_s(), OnlineOptions::default()).expect("calibrator");
+    let e = cal.push_drive(&d, 0, |n| pushed = n).expect_err("chunk 0");
+    assert!(matches!(e, Error::InvalidOption { field: "chunk", .. }), "{e}");
+    assert_eq!((pushed, cal.status().drive.samples), (0, 0));
+}
+
+/// A starting σ with a negative or non-finite component is refused naming
+/// `sigma0`; one of zeros stands for "not known" (the options' prior).
+#[test]
+fn a_bad_starting_sigma_is_refused() {
+    let new = |s: Theta| Calibrator::new(Theta::PAPER_INITIAL, Some(s), 0.025, OnlineOptions::default());
+    for bad in [
+        Theta { c_e: -1.0, c_d: 1e-3, t_r: 1e-2, d: 1e-4 },
+        Theta { c_e: 1e-3, c_d: f64::NAN, t_r: 1e-2, d: 1e-4 },
+        Theta { c_e: 1e-3, c_d: 1e-3, t_r: f64::INFINITY, d: 1e-4 },
+    ] {
+        match new(bad) {
+            Err(Error::InvalidOption { field: "sigma0", reason }) => assert!(reason.contains("σ"), "{reason}"),
+            other => panic!("{bad:?}: {:?}", other.map(|c| c.status())),
+        }
+    }
+    let zeros = new(Theta { c_e: 0.0, c_d: 0.0, t_r: 0.0, d: 0.0 }).expect("zeros").status();
+    let prior = Calibrator::new(Theta::PAPER_INITIAL, None, 0.025, OnlineOptions::default()).expect("none").status();
+    assert_eq!(zeros.sigma, prior.sigma);
+}

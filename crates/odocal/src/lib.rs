@@ -38,6 +38,24 @@
 //! [`CalibrationReport`] with its [`Verdict`], [`validate()`] for a θ on a
 //! drive, [`ParamFile`] to write and read the result, and [`Error`].
 //!
+//! [`calibrate()`] uses only the options it is given. A manifest's
+//! `[noise]`, `[reference]` and `[calibration]` tables, which `odocal
+//! calibrate` applies, reach them through [`settings`]:
+//!
+//! ```
+//! # fn main() -> Result<(), odocal::Error> {
+//! use odocal::settings::{Caller, ManifestSettings, Settings};
+//! let manifest = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/comma2k19-rav4/manifest.toml");
+//! let (drive, import_report) = odocal::load_drive(manifest.as_ref())?;
+//! // None for a drive CSV: the defaults.
+//! let manifests: Vec<ManifestSettings> =
+//!     import_report.as_ref().map(ManifestSettings::try_from).transpose()?.into_iter().collect();
+//! let opts = Settings::default().resolve(&manifests, Caller::CommandLine)?.options;
+//! # let _ = (drive, opts);
+//! // odocal::calibrate(&drive, &opts)?
+//! # Ok(()) }
+//! ```
+//!
 //! ## Expert modules
 //!
 //! The public modules are for programs that run the method's steps or

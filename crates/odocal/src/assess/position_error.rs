@@ -109,6 +109,13 @@ pub(crate) fn mean_position_error_by(
 /// model's reference pose): the segment starts from the axle pose the
 /// reference implies, and the model's reference point is compared with the
 /// measured one. With `e` all 0 it is the plain E_p,s (SPEC §7), bit for bit.
+///
+/// A segment of 0 steps has no error to average: the result is NaN (check
+/// [`Segment::steps`](crate::segment::Segment::steps) first; the segments
+/// [`crate::segment::cut`] gives have at least one step), where
+/// [`mean_position_error`] refuses a non-finite Ē_p with
+/// [`Error::Numerical`]. Non-finite inputs likewise give a non-finite value,
+/// not an error.
 pub fn segment_position_error_with(seg: &SegmentData<'_>, theta: &Theta, e: &Extrinsics) -> f64 {
     let mut x = axle_pose(&seg.reference(0), e);
     let mut sum = 0.0;

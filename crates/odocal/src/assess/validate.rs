@@ -114,26 +114,31 @@ pub struct ValidateReport {
 /// # Ok(()) }
 /// ```
 ///
-/// The drive's wheel, heading and lateral-acceleration conventions are
-/// checked first, at θ, as `calibrate` checks them at θ_0.
+/// θ is checked first ([`Theta::validate`]: finite, c_e and t_r positive),
+/// then the options, then the drive's wheel, heading and
+/// lateral-acceleration conventions at θ, as `calibrate` checks them at θ_0.
 ///
 /// # Errors
-/// [`Error::InvalidDrive`](crate::Error::InvalidDrive) for a convention
-/// the drive breaks; invalid options or θ, a drive too short for one
-/// validation segment, non-finite errors.
+/// [`Error::InvalidTheta`](crate::Error::InvalidTheta) for a θ that is not
+/// finite or has c_e or t_r not positive;
+/// [`Error::InvalidOption`](crate::Error::InvalidOption) naming an invalid
+/// option; [`Error::InvalidDrive`](crate::Error::InvalidDrive) for a
+/// convention the drive breaks; a drive too short for one validation
+/// segment, non-finite errors.
 pub fn validate(
     drive: &Drive,
     theta: &Theta,
     opts: &ValidateOptions,
     progress: Option<ProgressFn<'_>>,
 ) -> Result<ValidateReport> {
-    crate::drive::plausibility::check_conventions(drive, theta, "drive")?;
+    theta.validate()?;
+    opts.segments.validate()?;
+    crate::drive::plausibility::check_conventions_at_theta(drive, theta, "drive")?;
     let segs = validation_segments(drive, &opts.segments)?;
     if segs.is_empty() {
         return Err(too_short_for_validation("the drive", drive, &opts.segments));
     }
     let heading_offset_fit = if opts.reestimate_heading_offset && !segs.is_empty() {
-        theta.validate()?;
         Some(fit_heading_offset(drive, &segs, theta, &opts.extrinsics)?)
     } else {
         None

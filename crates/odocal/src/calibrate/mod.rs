@@ -169,7 +169,9 @@ impl std::str::FromStr for Method {
 pub struct CalibrationOptions {
     /// The method and its own settings. Default eiv.
     pub method: Method,
-    /// Initial guess θ_0. Default the paper's `[2.0, 0, 1.6, 0]`.
+    /// Initial guess θ_0. Default the paper's `[2.0, 0, 1.6, 0]`. Within
+    /// [`Theta::check_physical_limits`], else [`Error::InvalidTheta`]
+    /// naming `theta0`, before the drive is looked at.
     pub theta0: Theta,
     /// Calibration segments (segment-based methods). Default K = 650,
     /// stride 100, yaw rate > 0.15 rad/s.
@@ -226,9 +228,12 @@ impl Default for CalibrationOptions {
 }
 
 impl CalibrationOptions {
-    /// Checks all options, naming the offending field.
+    /// Checks all options, naming the offending field (θ_0 first).
     pub(crate) fn validate(&self) -> Result<()> {
-        self.theta0.validate()?;
+        self.theta0.check_physical_limits().map_err(|e| match e {
+            Error::InvalidTheta(m) => Error::InvalidTheta(format!("theta0 (θ_0): {m}")),
+            e => e,
+        })?;
         self.segments.validate()?;
         self.validation.validate()?;
         self.identify.validate()?;

@@ -90,8 +90,12 @@ pub struct CalibrationReport {
     pub method: String,
     /// The calibrated θ.
     pub theta: Theta,
-    /// Covariance of θ (4×4, row-major, zero rows for parameters not
-    /// estimated), SI units squared.
+    /// The method's within-drive model covariance of θ (4×4, row-major,
+    /// zero rows for parameters not estimated), SI units squared: how well
+    /// this drive's data determine θ under the model, not how far the
+    /// result may be off on the next drive. The σ that stands for the
+    /// result (the verdict's, the parameter file's, the CLI's JSON `sigma`)
+    /// is [`CalibrationReport::result_sigma`].
     pub covariance: [[f64; 4]; 4],
     /// Observability of the parameters at the estimate.
     pub observability: Observability,
@@ -108,7 +112,10 @@ pub struct CalibrationReport {
     pub segments: SegmentCounts,
     /// The reference sensor's extrinsics (lever arm, heading offset:
     /// initial and estimated values, σ, covariance) when the calibration
-    /// involved them (`crate::identify::IdentifyOptions::uses_extrinsics`); validation
+    /// involved them (some extrinsics free in
+    /// [`IdentifyOptions::free`](crate::identify::IdentifyOptions::free), or
+    /// [`IdentifyOptions::extrinsics`](crate::identify::IdentifyOptions::extrinsics)
+    /// not all 0); validation
     /// (and θ_0's Ē_p, at the initial values) then compares the model's
     /// reference point with the measured one. Absent otherwise. For `eiv`
     /// they are its batch Gauss-Newton start's estimate and σ, held by the

@@ -73,7 +73,11 @@ pub struct ThreeStepOptions {
     pub initial_batches: usize,
     /// Step 1: segments per batch N. Default 10.
     pub initial_batch_size: usize,
-    /// Step 1: number of θ_B,I picked at equal steps through the sorted list. Default 5.
+    /// Step 1: number of θ_B,I picked at equal steps through the sorted
+    /// list of plausible batch results. Default 5. Indices are rounded, so
+    /// more picks than that list holds (e.g. more than `initial_batches`)
+    /// take some results more than once, each a compensation and a final
+    /// fit of its own: they weigh more, and the run takes longer.
     pub picks: usize,
     /// Step 3: segments of the final identification. Default all selected.
     pub final_segments: FinalSegments,

@@ -15,6 +15,28 @@ pub(crate) const MASK_COLUMN: &str = "ref_measured";
 /// Optional column: integer part ids.
 pub(crate) const PART_COLUMN: &str = "part";
 
+/// Why `name` cannot name an extra column, or `None`: a CSV written with
+/// it must read back as the same drive, so it is not empty, has no control
+/// character and no white space at either end (the reader trims fields), and
+/// is not the name of a column the reader takes itself (the required
+/// columns, the truth columns, `ref_measured`, `part`).
+pub(crate) fn extra_name_problem(name: &str) -> Option<&'static str> {
+    if name.is_empty() {
+        Some("is empty")
+    } else if name.chars().any(char::is_control) {
+        Some("has a control character")
+    } else if name.trim() != name {
+        Some("starts or ends with white space")
+    } else if REQUIRED_COLUMNS.contains(&name)
+        || TRUTH_COLUMNS.contains(&name)
+        || [MASK_COLUMN, PART_COLUMN].contains(&name)
+    {
+        Some("is reserved: the drive CSV's own columns (t, px, py, psi, n_rl, n_rr, beta, a_y, their *_true, ref_measured, part) cannot be extra columns")
+    } else {
+        None
+    }
+}
+
 /// Longest echo of a field in an error message, characters.
 pub(crate) const ECHO_CHARS: usize = 40;
 

@@ -78,13 +78,16 @@ pub struct Signals {
     pub px: Vec<f64>,
     /// Reference y position, m.
     pub py: Vec<f64>,
-    /// Reference heading, rad (unwrapped by the constructor).
+    /// Reference heading, rad, counter-clockwise from the x axis (east in
+    /// ENU), pointing forward (unwrapped by the constructor).
     pub psi: Vec<f64>,
     /// Rear-left wheel rotation speed, rev/s.
     pub n_rl: Vec<f64>,
     /// Rear-right wheel rotation speed, rev/s.
     pub n_rr: Vec<f64>,
-    /// Sideslip angle, rad (0 when unknown).
+    /// Sideslip angle, rad (0 when unknown): the direction of travel
+    /// minus the heading, positive when the velocity points to the left of
+    /// the heading (counter-clockwise, as ψ); the model moves along ψ + β.
     pub beta: Vec<f64>,
     /// Lateral acceleration, m/s², positive to the left.
     pub a_y: Vec<f64>,
@@ -243,7 +246,11 @@ pub struct DriveBuilder {
     /// Per-sample flag: true where the reference pose was really measured
     /// (not interpolated or held). `None` means every sample is measured.
     pub reference_measured: Option<Vec<bool>>,
-    /// Extra columns carried along with the drive.
+    /// Extra columns carried along with the drive, each named once; a name
+    /// may not be empty, hold a control character or white space at either
+    /// end, or be one of the drive CSV's own columns (`t`, `px`, …, the
+    /// `*_true` columns, `ref_measured`, `part`), so that the drive's CSV
+    /// reads back as the same drive.
     pub extra: Vec<ExtraColumn>,
     /// Per-sample part ids, non-negative integers as a CSV's `part`
     /// column holds them: a new part starts wherever the id changes.
@@ -287,7 +294,8 @@ impl DriveBuilder {
     /// # Errors
     /// [`Error::InvalidSample`] naming the column and sample index, or
     /// [`Error::InvalidDrive`] for whole-drive problems (no samples, too few
-    /// to infer t_s, bad part ranges).
+    /// to infer t_s, bad part ranges, an extra column's name that is
+    /// reserved, repeated, empty or has control characters).
     pub fn build(self) -> Result<Drive> {
         let DriveBuilder {
             context,
@@ -319,7 +327,13 @@ impl DriveBuilder {
                 return Err(err.invalid(format!("column ref_measured has {} samples, t has {n}", m.len())));
             }
         }
-        for c in &extra {
+        for (k, c) in extra.iter().enumerate() {
+            if let Some(problem) = csv::extra_name_problem(&c.name) {
+                return Err(err.invalid(format!("extra column '{}' {problem}", csv::echo(&c.name))));
+            }
+            if extra[..k].iter().any(|e| e.name == c.name) {
+                return Err(err.invalid(format!("extra column '{}' is given twice", csv::echo(&c.name))));
+            }
             if c.values.len() != n {
                 return Err(err.invalid(format!("column {} has {} samples, t has {n}", c.name, c.values.len())));
             }
@@ -617,8 +631,17 @@ impl Drive {
     /// the same name.
     ///
     /// # Errors
-    /// [`Error::InvalidDrive`] when its length differs from the drive's.
+    /// [`Error::InvalidDrive`] when its length differs from the drive's, or
+    /// its name is empty, has a control character or white space at either
+    /// end, or is one of the drive CSV's own columns (`t`, `px`, …, the
+    /// `*_true` columns, `ref_measured`, `part`).
     pub fn with_extra(mut self, column: ExtraColumn) -> Result<Drive> {
+        if let Some(problem) = csv::extra_name_problem(&column.name) {
+            return Err(Error::InvalidDrive {
+                context: format!("extra column '{}'", csv::echo(&column.name)),
+                reason: format!("the name {problem}"),
+            });
+        }
         if column.values.len() != self.len() {
             return Err(Error::InvalidDrive {
                 context: format!("extra column {}", column.name),
@@ -898,6 +921,33 @@ mod tests {
         assert!(d.split_at_time(-1.0).is_err());
         let (a, _) = d.split_at_time(0.025).expect("one sample keeps the parent's t_s");
         assert_eq!((a.len(), a.sample_time_s()), (1, d.sample_time_s()));
+    }
+
+    /// An extra column whose name the CSV round trip would not give back
+    /// (a standard column's, `part`, a repeated, empty or control-character
+    /// name) is refused naming it, by `build` and by `with_extra`; one that
+    /// passes round-trips.
+    #[test]
+    fn extra_column_names_that_break_the_csv_are_refused() {
+        let column = |name: &str| ExtraColumn { name: name.into(), values: ExtraValues::Numbers(vec![1.0; 10]) };
+        let build = |extra: Vec<ExtraColumn>| {
+            DriveBuilder { t: times(10), measured: signals(10), extra, ..Default::default() }.build()
+        };
+        for name in ["px", "part", "ref_measured", "n_rl_true", "t", "", "a\nb", " x", "x\t"] {
+            let e = build(vec![column(name)]).expect_err(name).to_string();
+            assert!(e.contains("extra column '"), "{name:?}: {e}");
+            let plain = build(Vec::new()).expect("plain");
+            let e = plain.with_extra(column(name)).expect_err(name).to_string();
+            assert!(e.contains("extra column '"), "{name:?}: {e}");
+        }
+        let e = build(vec![column("x"), column("x")]).expect_err("twice").to_string();
+        assert!(e.contains("extra column 'x' is given twice"), "{e}");
+        let d = build(vec![column("x"), column("pX")]).expect("fine");
+        let dir = tempfile::tempdir().expect("tmp");
+        let p = dir.path().join("d.csv");
+        d.write_csv(&p).expect("write");
+        let (back, _) = Drive::read_csv(&p).expect("read back");
+        assert_eq!((back.extra(), back.parts()), (d.extra(), d.parts()));
     }
 
     #[test]

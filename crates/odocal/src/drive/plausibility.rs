@@ -132,15 +132,26 @@ pub(crate) fn check_limits(drive: &Drive, limits: &PhysicalLimits, context: &str
 /// [`Error::InvalidDrive`] naming the convention to check, or the signal
 /// that stalls and where.
 pub(crate) fn check_conventions(drive: &Drive, theta0: &Theta, context: &str) -> Result<()> {
-    check_conventions_from(drive, theta0, context, 0)
+    conventions(drive, (theta0, "θ_0"), context, 0)
+}
+
+/// [`check_conventions`] at the θ `validate` is given, the messages
+/// calling it θ.
+pub(crate) fn check_conventions_at_theta(drive: &Drive, theta: &Theta, context: &str) -> Result<()> {
+    conventions(drive, (theta, "θ"), context, 0)
 }
 
 /// [`check_conventions`] of a block of a longer drive whose first sample
 /// is the drive's sample `first` (the samples a message names count from
 /// the drive's start).
 pub(crate) fn check_conventions_from(drive: &Drive, theta0: &Theta, context: &str, first: usize) -> Result<()> {
+    conventions(drive, (theta0, "θ_0"), context, first)
+}
+
+/// [`check_conventions_from`] at `theta`, which the messages call `name`.
+fn conventions(drive: &Drive, (theta0, name): (&Theta, &str), context: &str, first: usize) -> Result<()> {
     use crate::model::{kinematics, wrap_angle};
-    if let Some(reason) = stalled_signal(drive, theta0, first) {
+    if let Some(reason) = stalled_signal(drive, (theta0, name), first) {
         return Err(Error::InvalidDrive { context: context.to_string(), reason });
     }
     let ts = drive.sample_time_s();
@@ -179,8 +190,8 @@ pub(crate) fn check_conventions_from(drive: &Drive, theta0: &Theta, context: &st
     }
     if !(0.5..=2.0).contains(&ratio) {
         return fail(format!(
-            "the wheel speed at θ_0 is {ratio:.3} × the reference speed (median): one wheel's sign flipped, wheel \
-             speeds not in rev/s, or the c_e it is judged at far off (calibrate's θ_0, validate's θ)"
+            "the wheel speed at {name} is {ratio:.3} × the reference speed (median): one wheel's sign flipped, wheel \
+             speeds not in rev/s, or the c_e of {name} far off"
         ));
     }
     let offset = median(&mut offsets);
@@ -240,7 +251,7 @@ pub(crate) fn stall_overlap_samples(sample_time_s: f64) -> usize {
 /// reference's noise over one sample would hide nothing and flag much), each
 /// window within one part; c_d is left out (a wheel's circumference is c_e to
 /// within a few per mille). Samples are named counting from `offset`.
-fn stalled_signal(drive: &Drive, theta0: &Theta, offset: usize) -> Option<String> {
+fn stalled_signal(drive: &Drive, (theta0, name): (&Theta, &str), offset: usize) -> Option<String> {
     let ts = drive.sample_time_s();
     let w = ((STALL_WINDOW_S / ts).round() as usize).max(1);
     // A run of windows covers the run plus one window of samples.
@@ -305,7 +316,7 @@ fn stalled_signal(drive: &Drive, theta0: &Theta, offset: usize) -> Option<String
     if wheel_total >= 200.0 && reference_total < STALL_FRACTION * wheel_total {
         return Some(format!(
             "the reference position (px, py) moves {reference_total:.1} m in all while the wheels cover \
-             {wheel_total:.0} m at θ_0: give the reference's position columns (a constant or missing position \
+             {wheel_total:.0} m at {name}: give the reference's position columns (a constant or missing position \
              cannot be calibrated against)"
         ));
     }
@@ -589,7 +600,7 @@ mod tests {
             .expect("sim");
         let d = &sim.drive;
         let th = Theta::PAPER_INITIAL;
-        assert_eq!(stalled_signal(d, &th, 0), None);
+        assert_eq!(stalled_signal(d, (&th, "θ_0"), 0), None);
         let edit = |f: &dyn Fn(&mut Signals)| {
             let mut s = d.measured().clone();
             f(&mut s);
@@ -606,7 +617,7 @@ mod tests {
         assert!(m.contains("column 'n_rr'") && m.contains("samples 3000–3119"), "{m}");
         // A wheel at zero for 1 s is not reported (shorter than 2 s).
         let blip = edit(&|s| s.n_rr[3000..3040].iter_mut().for_each(|v| *v = 0.0));
-        assert_eq!(stalled_signal(&blip, &th, 0), None);
+        assert_eq!(stalled_signal(&blip, (&th, "θ_0"), 0), None);
         // A position held for the last 10 s while the wheels turn (held
         // within the drive, it would jump back at its end, which the
         // physical limits refuse).
@@ -628,7 +639,7 @@ mod tests {
             s.px.iter_mut().for_each(|v| *v = 0.0);
             s.py.iter_mut().for_each(|v| *v = 0.0);
         });
-        let m = stalled_signal(&frozen, &th, 0).expect("frozen");
+        let m = stalled_signal(&frozen, (&th, "θ_0"), 0).expect("frozen");
         assert!(m.contains("(px, py) stands still"), "{m}");
     }
 }

@@ -24,6 +24,7 @@ pub struct SegmentOptions {
     /// Steps between the starts of consecutive segments. Default 100.
     pub stride_steps: usize,
     /// First start, in samples from the start of each part. Default 0.
+    /// Each of the three counts is at most 10,000,000.
     pub offset_steps: usize,
     /// A segment is selected when its peak absolute yaw rate (from the
     /// reference heading) is at least this, rad/s: 0 selects every
@@ -40,7 +41,10 @@ impl Default for SegmentOptions {
 impl SegmentOptions {
     /// Checks the options, naming the offending field.
     pub fn validate(&self) -> Result<()> {
-        check_length_and_stride((self.length_steps, self.stride_steps), ("segment_length", "segment_stride"))?;
+        check_counts(
+            (self.length_steps, self.stride_steps, self.offset_steps),
+            ("segment_length", "segment_stride", "segment_offset"),
+        )?;
         if self.min_peak_yaw_rate_rad_per_s.is_nan() || self.min_peak_yaw_rate_rad_per_s < 0.0 {
             return Err(Error::InvalidOption {
                 field: "min_peak_yaw_rate_rad_per_s",
@@ -56,20 +60,36 @@ pub(crate) const MIN_LENGTH_STEPS: usize = 2;
 /// The smallest stride between segments' starts, samples.
 pub(crate) const MIN_STRIDE_STEPS: usize = 1;
 
-/// Segment length and stride checks shared by both option structs, naming
-/// the offending one as the command line, a manifest's `[calibration]` and
-/// Python name it (`names`: the length's and the stride's).
-fn check_length_and_stride(
-    (length_steps, stride_steps): (usize, usize),
-    (length, stride): (&'static str, &'static str),
+/// The most steps a segment's length, stride or offset may count (the
+/// ceiling of `segment_length`, `segment_stride` and `validation_length`
+/// wherever they are given).
+pub(crate) const MAX_STEPS: usize = 10_000_000;
+
+/// Segment length, stride and offset checks shared by both option structs,
+/// naming the offending one as the command line, a manifest's
+/// `[calibration]` and Python name it (`names`: the length's, the stride's
+/// and the offset's).
+fn check_counts(
+    (length_steps, stride_steps, offset_steps): (usize, usize, usize),
+    (length, stride, offset): (&'static str, &'static str, &'static str),
 ) -> Result<()> {
     if length_steps < MIN_LENGTH_STEPS {
-        let reason = format!("must be at least {MIN_LENGTH_STEPS} samples (length_steps)");
+        let reason = format!("must be at least {MIN_LENGTH_STEPS} steps (length_steps)");
         return Err(Error::InvalidOption { field: length, reason });
     }
     if stride_steps < MIN_STRIDE_STEPS {
-        let reason = format!("must be at least {MIN_STRIDE_STEPS} sample (stride_steps)");
+        let reason = format!("must be at least {MIN_STRIDE_STEPS} step (stride_steps)");
         return Err(Error::InvalidOption { field: stride, reason });
+    }
+    for (field, name, v) in [
+        (length, "length_steps", length_steps),
+        (stride, "stride_steps", stride_steps),
+        (offset, "offset_steps", offset_steps),
+    ] {
+        if v > MAX_STEPS {
+            let reason = format!("= {v} is above its ceiling of {MAX_STEPS} steps ({name})");
+            return Err(Error::InvalidOption { field, reason });
+        }
     }
     Ok(())
 }
@@ -81,7 +101,8 @@ pub struct ValidationSegmentOptions {
     pub length_steps: usize,
     /// Steps between starts. Default 650.
     pub stride_steps: usize,
-    /// First start within each part, samples. Default 50.
+    /// First start within each part, samples. Default 50. Each of the three
+    /// counts is at most 10,000,000.
     pub offset_steps: usize,
 }
 
@@ -94,7 +115,10 @@ impl Default for ValidationSegmentOptions {
 impl ValidationSegmentOptions {
     /// Checks the options, naming the offending field.
     pub fn validate(&self) -> Result<()> {
-        check_length_and_stride((self.length_steps, self.stride_steps), ("validation_length", "validation stride"))
+        check_counts(
+            (self.length_steps, self.stride_steps, self.offset_steps),
+            ("validation_length", "validation stride", "validation_offset"),
+        )
     }
 }
 
@@ -109,19 +133,22 @@ pub struct Segment {
     pub peak_yaw_rate_rad_per_s: f64,
 }
 
-/// Cuts segments of `length` steps every `stride` samples from `offset` in every part.
+/// Cuts segments of `length` steps every `stride` samples from `offset` in
+/// every part: none where the offset or length reach past a part (whatever
+/// their size) or `length` or `stride` is 0.
 pub fn cut(drive: &Drive, offset: usize, length: usize, stride: usize) -> Vec<Segment> {
     let mut out = Vec::new();
     if length == 0 || stride == 0 {
         return out;
     }
     for part in drive.parts() {
-        let mut i0 = part.start + offset;
-        while i0 + length < part.end {
+        let Some(mut i0) = part.start.checked_add(offset) else { continue };
+        while i0.checked_add(length).is_some_and(|end| end < part.end) {
             let peak = (i0..i0 + length).map(|k| (drive.psi()[k + 1] - drive.psi()[k]).abs()).fold(0.0, f64::max)
                 / drive.sample_time_s();
             out.push(Segment { start: i0, steps: length, peak_yaw_rate_rad_per_s: peak });
-            i0 += stride;
+            let Some(next) = i0.checked_add(stride) else { break };
+            i0 = next;
         }
     }
     out
@@ -163,7 +190,7 @@ pub(crate) fn too_short_for_validation(what: &str, drive: &Drive, opts: &Validat
          (the segment's {} steps, starting {} samples into the part); give a longer drive or a shorter \
          validation_length (--validation-length)",
         drive.len(),
-        opts.offset_steps + opts.length_steps + 1,
+        opts.offset_steps.saturating_add(opts.length_steps).saturating_add(1),
         opts.length_steps,
         opts.offset_steps
     ))
@@ -338,5 +365,36 @@ mod tests {
         assert!(e.to_string().contains("`segment_stride`") && e.to_string().contains("stride_steps"), "{e}");
         let e = ValidationSegmentOptions { length_steps: 1, ..Default::default() }.validate().expect_err("bad");
         assert!(e.to_string().contains("`validation_length`"), "{e}");
+        assert!(e.to_string().contains("2 steps"), "{e}");
+    }
+
+    #[test]
+    fn counts_above_their_ceiling_are_refused_naming_the_field() {
+        for (o, field) in [
+            (SegmentOptions { offset_steps: usize::MAX, ..Default::default() }, "segment_offset"),
+            (SegmentOptions { length_steps: usize::MAX, ..Default::default() }, "segment_length"),
+            (SegmentOptions { stride_steps: MAX_STEPS + 1, ..Default::default() }, "segment_stride"),
+        ] {
+            let e = o.validate().expect_err("above the ceiling");
+            assert!(matches!(e, Error::InvalidOption { field: f, .. } if f == field), "{e}");
+            assert!(e.to_string().contains("ceiling of 10000000"), "{e}");
+        }
+        let v = ValidationSegmentOptions { offset_steps: usize::MAX, ..Default::default() };
+        let e = v.validate().expect_err("above the ceiling");
+        assert!(matches!(e, Error::InvalidOption { field: "validation_offset", .. }), "{e}");
+        let v = ValidationSegmentOptions { length_steps: usize::MAX, ..Default::default() };
+        assert!(matches!(v.validate(), Err(Error::InvalidOption { field: "validation_length", .. })));
+        assert!(SegmentOptions { offset_steps: MAX_STEPS, ..Default::default() }.validate().is_ok());
+    }
+
+    #[test]
+    fn cut_never_wraps_around() {
+        let d = drive_with_parts(2000, 5000, vec![0..900, 900..2000]);
+        assert!(cut(&d, usize::MAX, 650, 100).is_empty());
+        assert!(cut(&d, usize::MAX - 1000, 650, 100).is_empty());
+        assert!(cut(&d, 0, usize::MAX, 100).is_empty());
+        // the last start's stride overflows: the cut stops there
+        let s = cut(&d, 0, 650, usize::MAX);
+        assert_eq!(s.iter().map(|s| s.start).collect::<Vec<_>>(), vec![0, 900]);
     }
 }

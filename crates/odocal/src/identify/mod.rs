@@ -59,18 +59,20 @@ pub fn extrinsics_normal_equations(
 /// Options of the Gauss-Newton identification.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct IdentifyOptions {
-    /// Maximum number of Gauss-Newton iterations i_max. Default 5 (paper).
+    /// Maximum number of Gauss-Newton iterations i_max, 1 … 100,000.
+    /// Default 5 (paper).
     pub max_iterations: usize,
     /// Residual weights `[w_px, w_py, w_ψ]` per sample. Default `[1, 1, 40²]`.
     pub weights: [f64; 3],
     /// Which parameters are estimated; the others stay at their initial
     /// value. Default: all four of θ (`["c_e", "c_d", "t_r", "d"]` in JSON).
     pub free: ParamSet,
-    /// Stop when the relative step `‖Δθ/θ_scale‖∞` falls below this. Default 1e-12.
+    /// Stop when the relative step `‖Δθ/θ_scale‖∞` falls below this (a
+    /// finite number, 0 or more). Default 1e-12.
     pub step_tolerance: f64,
     /// A step whose relative cost change `|ΔC|/C` is at most this counts as
     /// converged (the cost is flat to round-off) rather than as a cost
-    /// increase. Default 1e-12.
+    /// increase (a finite number, 0 or more). Default 1e-12.
     pub cost_tolerance: f64,
     /// Parameter resolutions used by the observability check, `[c_e, c_d,
     /// t_r, d]` in SI units. Default `[0.01 m, 0.001 m, 0.015 m, 0.0005
@@ -78,7 +80,7 @@ pub struct IdentifyOptions {
     pub resolution: [f64; 4],
     /// A parameter (or combination) is *not observable* when moving it by
     /// its resolution changes the predicted poses by less than this RMS,
-    /// in weighted metres. Default 0.01 m.
+    /// in weighted metres (a finite number, 0 or more). Default 0.01 m.
     pub min_sensitivity_m: f64,
     /// Parameters that make up (|component| > 0.3) an eigenvector of the
     /// equilibrated `JᵀWJ` whose eigenvalue is below this fraction of the
@@ -123,6 +125,10 @@ pub struct IdentifyOptions {
     pub robust_min_clusters: usize,
 }
 
+/// The most Gauss-Newton iterations [`IdentifyOptions::max_iterations`]
+/// may ask for (the ceiling of `max_iterations` wherever it is given).
+pub(crate) const MAX_ITERATIONS: usize = 100_000;
+
 fn default_robust_block_steps() -> usize {
     1300
 }
@@ -157,6 +163,22 @@ impl Default for IdentifyOptions {
 impl IdentifyOptions {
     /// Checks the options, naming the offending field.
     pub(crate) fn validate(&self) -> Result<()> {
+        if !(1..=MAX_ITERATIONS).contains(&self.max_iterations) {
+            let reason = format!("= {} is outside 1 … {MAX_ITERATIONS}", self.max_iterations);
+            return Err(Error::InvalidOption { field: "max_iterations", reason });
+        }
+        for (field, v) in [
+            ("step_tolerance", self.step_tolerance),
+            ("cost_tolerance", self.cost_tolerance),
+            ("min_sensitivity_m", self.min_sensitivity_m),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(Error::InvalidOption {
+                    field,
+                    reason: format!("= {v}: must be a finite number, 0 or more"),
+                });
+            }
+        }
         if self.weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) {
             return Err(Error::InvalidOption { field: "weights", reason: "must be finite and non-negative".into() });
         }

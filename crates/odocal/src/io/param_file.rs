@@ -338,8 +338,11 @@ impl ParamFile {
     /// ([`crate::output::write_text`]).
     ///
     /// # Errors
-    /// [`Error::InvalidOption`] for another extension or a node that is no
-    /// ROS 2 node name ([`ParamFile::check_node_name`]), [`Error::Io`].
+    /// [`Error::ParamFile`] naming the path for another extension or for
+    /// values [`ParamFile::read`] would refuse (a value or σ not finite, a
+    /// negative σ, θ or the extrinsics outside their physical limits: nothing
+    /// is written); [`Error::InvalidOption`] for a node that is no ROS 2 node
+    /// name ([`ParamFile::check_node_name`]); [`Error::Io`].
     pub fn write(&self, path: &Path) -> Result<()> {
         crate::output::write_text(path, &self.text_for(path)?)
     }
@@ -373,10 +376,11 @@ impl ParamFile {
     /// shortest round-trip form, so reading them back gives the same f64.
     ///
     /// # Errors
-    /// [`Error::InvalidOption`] for another extension or a node that is no
-    /// ROS 2 node name ([`ParamFile::check_node_name`]).
+    /// As [`ParamFile::write`], but for [`Error::Io`].
     pub fn text_for(&self, path: &Path) -> Result<String> {
         ParamFile::check_node_name(&self.node)?;
+        let bad = |reason: String| Error::ParamFile { path: path.to_path_buf(), reason };
+        self.check_values().map_err(|r| bad(format!("not written, it would not read back: {r}")))?;
         if crate::output::is_stdout(path) {
             return Ok(self.to_ros2_yaml());
         }
@@ -388,12 +392,7 @@ impl ParamFile {
                 s.push('\n');
                 s
             }
-            None => {
-                return Err(Error::InvalidOption {
-                    field: "params_out",
-                    reason: format!("{}: use a .yaml, .yml or .json file name", path.display()),
-                })
-            }
+            None => return Err(bad("the file name says the format: use a .yaml, .yml or .json file name".into())),
         })
     }
 }
@@ -622,9 +621,27 @@ impl ParamFile {
         let mapping =
             if get("wheel_separation").is_some() { ParamMapping::DiffDriveController } else { ParamMapping::Odocal };
         let f = ParamFile { node, params, verdict, verdict_reasons, provenance, mapping };
-        f.theta().map_err(|e| e.to_string())?;
-        crate::model::limits::check_extrinsics(&f.extrinsics().0).map_err(|(k, r)| format!("key `{k}`: {r}"))?;
+        f.check_values()?;
         Ok(f)
+    }
+
+    /// The rules [`ParamFile::read`] holds a file's values to, which
+    /// [`ParamFile::write`] holds them to too: every value and σ a finite
+    /// number, no σ negative, θ within the physical limits
+    /// ([`Theta::check_physical_limits`]), the extrinsics within theirs.
+    fn check_values(&self) -> std::result::Result<(), String> {
+        for p in &self.params {
+            if !p.value.is_finite() {
+                return Err(format!("key `{}`: {} is not a finite number", p.name, p.value));
+            }
+            match p.sigma {
+                Some(s) if !s.is_finite() => return Err(format!("key `{}_sigma`: {s} is not a finite number", p.name)),
+                Some(s) if s < 0.0 => return Err(format!("key `{}_sigma`: {s} is negative", p.name)),
+                _ => {}
+            }
+        }
+        self.theta().map_err(|e| e.to_string())?;
+        crate::model::limits::check_extrinsics(&self.extrinsics().0).map_err(|(k, r)| format!("key `{k}`: {r}"))
     }
 }
 
@@ -1099,7 +1116,32 @@ mod tests {
         let dir = tempfile::tempdir().expect("tmp");
         f.write(&dir.path().join("p.yaml")).expect("yaml");
         f.write(&dir.path().join("p.json")).expect("json");
-        let e = f.write(&dir.path().join("p.txt")).expect_err("txt").to_string();
-        assert!(e.contains(".yaml, .yml or .json"), "{e}");
+        let e = f.write(&dir.path().join("p.txt")).expect_err("txt");
+        assert!(matches!(e, Error::ParamFile { .. }), "{e:?}");
+        let e = e.to_string();
+        assert!(e.contains(".yaml, .yml or .json") && e.contains("p.txt") && !e.contains("params_out"), "{e}");
+    }
+
+    /// A file `read` would refuse is not written: a θ or σ that is not
+    /// finite, a negative σ, a θ outside the physical limits.
+    #[test]
+    fn values_read_would_refuse_are_not_written() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let th = Theta::PAPER_NOMINAL;
+        let ok = [Some(1e-4); 4];
+        for (theta, sigma, key) in [
+            (Theta { c_e: f64::NAN, ..th }, ok, "key `c_e`: NaN is not a finite number"),
+            (th, [Some(-1.0), None, None, None], "key `c_e_sigma`: -1 is negative"),
+            (th, [None, Some(f64::INFINITY), None, None], "key `c_d_sigma`: inf is not a finite number"),
+            (Theta { c_e: 1e6, ..th }, ok, "c_e = 1000000 m is outside"),
+        ] {
+            let f = ParamFile::from_theta(&theta, sigma, "x", "eiv");
+            for name in ["p.yaml", "p.json"] {
+                let p = dir.path().join(name);
+                let e = f.write(&p).expect_err(key).to_string();
+                assert!(e.contains(key) && e.contains(name), "{e}");
+                assert!(!p.exists());
+            }
+        }
     }
 }

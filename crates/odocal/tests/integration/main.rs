@@ -15,6 +15,7 @@ mod bag_import;
 mod bag_psu;
 mod golden;
 mod import_regression;
+mod library_api;
 mod real_slices;
 mod testtrack_crossrun;
 mod testtrack_import;

@@ -51,10 +51,10 @@ mod resolve;
 /// | `batches`, `batch_size`, `picks` | 100,000 |
 /// | `bootstrap`, `correct_bias` | 100,000 replicates |
 pub(crate) const COUNT_CEILINGS: [(&str, usize); 10] = [
-    ("max_iterations", 100_000),
-    ("segment_length", 10_000_000),
-    ("segment_stride", 10_000_000),
-    ("validation_length", 10_000_000),
+    ("max_iterations", crate::identify::MAX_ITERATIONS),
+    ("segment_length", crate::drive::segment::MAX_STEPS),
+    ("segment_stride", crate::drive::segment::MAX_STEPS),
+    ("validation_length", crate::drive::segment::MAX_STEPS),
     ("eiv_window", 10_000_000),
     ("batches", 100_000),
     ("batch_size", 100_000),
