@@ -172,8 +172,7 @@ pub fn follow<E: From<Error>>(
                     || same_data(&held_by_record(&r.record), &here)
             })
             .map(|r| (r.id, r.record.method));
-        let decided =
-            |d: &DecisionRow| d.fingerprint == fingerprint || same_data(&held_by_decision(d), &here);
+        let decided = |d: &DecisionRow| d.fingerprint == fingerprint || same_data(&held_by_decision(d), &here);
         if row.is_some() || db.decisions(vehicle)?.iter().any(decided) {
             on(FollowEvent::Skipped { source, fingerprint, row })?;
             continue;

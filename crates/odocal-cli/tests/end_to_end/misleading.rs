@@ -145,4 +145,11 @@ fn import_warnings_reach_the_json_reports() {
     let warnings = &html[html.find("id=\"warnings\"").expect("warnings section")..];
     assert!(warnings.contains(tail) && warnings.contains("streams.d"), "{warnings}");
     assert!(warnings.contains("wheels.ticks_per_rev = 100 does not apply"), "{warnings}");
+    // `import` sends them to stderr too: stdout holds the report alone.
+    let o = odocal(&["import", s(&m), "--out", s(&dir.path().join("o.csv"))]);
+    let (out, e) = (stdout(&o), stderr(&o));
+    assert!(o.status.success(), "{e}");
+    assert!(out.contains("import of") && !out.contains("warning"), "{out}");
+    assert!(e.contains(tail), "{e}");
+    assert!(e.lines().any(|l| l.starts_with("warning: ") && l.contains(unused)), "{e}");
 }
