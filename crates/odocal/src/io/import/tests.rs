@@ -309,6 +309,23 @@ fn small_case_imports_and_derives_heading() {
     assert!(r.to_string().contains("1 of 1 parts kept"), "{r}");
 }
 
+/// Every fixed-length array refuses more values as it refuses fewer,
+/// naming the key.
+#[test]
+fn fixed_length_arrays_refuse_extra_values() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = dir.path();
+    for (theta0, got) in [("[2.0, 0.0, 1.6, 0.0, 5.0]", 5), ("[2.0, 0.0, 1.6]", 3)] {
+        let m = error_of(d, |t| t.replace("clock_offset = 0.0", &format!("clock_offset = 0.0\ntheta0 = {theta0}")));
+        assert!(m.contains(&format!("output.theta0: expected 4 values c_e, c_d, t_r, d, got {got}")), "{m}");
+    }
+    let m = error_of(d, |t| t + "\n[reference]\nlever_arm = [0.5, 0.0, 7.0]\n");
+    assert!(m.contains("reference.lever_arm: expected 2 values x, y, got 3"), "{m}");
+    let origin = "position = { kind = \"lat_lon\", lat = \"x\", lon = \"y\", origin = [0.0, 0.0, 0.0, 1.0] }";
+    let m = error_of(d, |t| t.replace("position = { kind = \"local\", x = \"x\", y = \"y\" }", origin));
+    assert!(m.contains("pose.position") && m.contains("expected 3 values lat_deg, lon_deg, h_m, got 4"), "{m}");
+}
+
 #[test]
 fn manifest_errors_name_key_and_file() {
     let dir = tempfile::tempdir().expect("tempdir");
