@@ -366,6 +366,14 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
     let jitter = wheels::jitter_report(m, &streams[&m.wheels.stream], &g.t, h, &kept, &s.n_rl, &s.n_rr)?;
     let d = s.assemble(m, h, &kept, &a_y, &measured)?;
     checks::lateral_convention(m, &d)?;
+    // The drive checks calibrate and validate make (among them the heading
+    // against the direction of travel), at θ_0: a heading in the wrong unit
+    // can pass the yaw-rate checks above on a drive that turns too little
+    // for them.
+    if let Err(Error::InvalidDrive { reason, .. }) = crate::drive::plausibility::check_conventions(&d, &theta0, "drive")
+    {
+        warnings.push(format!("calibrate and validate will refuse this drive (at output.theta0): {reason}"));
+    }
 
     let report = ImportReport {
         manifest: m.path.clone(),
@@ -393,7 +401,9 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
 
 /// The budgets, checked before anything is allocated from the spans: the
 /// wheel and pose streams overlap, and the clock-offset search grid over
-/// the wheel span and its correlation stay within their limits.
+/// the wheel span and, for `"auto"`, its correlation stay within their
+/// limits (a fixed offset's estimate, only reported, is skipped instead:
+/// [`clock::align`]).
 fn check_budgets(m: &Manifest, wheel_t: &[f64], pose_t: &[f64], h: f64) -> Result<()> {
     let wheel_span = grid::Span::of(&format!("streams.{}", m.wheels.stream), wheel_t);
     limits::check_overlap(m, &wheel_span, &grid::Span::of(&format!("streams.{} (pose)", m.pose.stream), pose_t))?;
@@ -403,7 +413,10 @@ fn check_budgets(m: &Manifest, wheel_t: &[f64], pose_t: &[f64], h: f64) -> Resul
         &format!("{} (the clock-offset search grid)", wheel_span.name),
         wheel_span.end - wheel_span.start,
     )?;
-    limits::check_correlation(m, clock_samples as usize)
+    match m.output.clock_offset {
+        ClockOffset::Auto => limits::check_correlation(m, clock_samples as usize),
+        ClockOffset::Seconds(_) => Ok(()),
+    }
 }
 
 /// The bank's roll when the manifest derives a_y with one, shifted by the
