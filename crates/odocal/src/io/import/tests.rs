@@ -330,6 +330,41 @@ fn auto_refuses_a_low_or_flat_correlation_peak() {
     assert!(yaw(0.8).expect("cross-check").contains("yaw-rate cross-check gives +0.5000 s"));
 }
 
+/// Rows repeating a stamp with other values are named (stream, file, first
+/// line); more than 10 % of a stream's rows repeating a stamp is warned
+/// about; identical repeats below that are only counted.
+#[test]
+fn repeated_stamps_with_other_values_are_named() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = small_case(dir.path());
+    let w = dir.path().join("w.csv");
+    let clean = std::fs::read_to_string(&w).expect("read");
+    let repeats =
+        |r: &ImportReport| r.warnings.iter().filter(|w| w.contains("repeat the stamp")).cloned().collect::<Vec<_>>();
+    // One identical repeat: counted, no warning.
+    std::fs::write(&w, clean.replacen("2,5,5\n", "2,5,5\n2,5,5\n", 1)).expect("write");
+    let r = load_drive(&path).expect("import").1.expect("report");
+    assert_eq!(r.streams.iter().map(|s| s.repeated_stamps_dropped).sum::<usize>(), 1);
+    assert!(repeats(&r).is_empty(), "{:?}", r.warnings);
+    // One repeat with other values: named.
+    std::fs::write(&w, clean.replacen("2,5,5\n", "2,5,5\n2,15,15\n", 1)).expect("write");
+    let r = load_drive(&path).expect("import").1.expect("report");
+    let found = repeats(&r);
+    assert_eq!(found.len(), 1, "{found:?}");
+    assert!(found[0].starts_with("streams.wheels: 1 row(s) of") && found[0].contains("w.csv"), "{found:?}");
+    assert!(found[0].contains("first: line 203 at 2 s, column 'left' = 15 against 5 at line 202"), "{found:?}");
+    // Every second row doubled: a third of the rows dropped.
+    let doubled: String = clean
+        .lines()
+        .enumerate()
+        .map(|(i, l)| if i % 2 == 1 { format!("{l}\n{l}\n") } else { format!("{l}\n") })
+        .collect();
+    std::fs::write(&w, doubled).expect("write");
+    let r = load_drive(&path).expect("import").1.expect("report");
+    let found = repeats(&r);
+    assert!(found.iter().any(|w| w.contains("200 of the 600 rows") && w.contains("(33 %)")), "{found:?}");
+}
+
 /// A one-sample wheel-speed glitch, which averages out below the output
 /// speed check, is named with its stream, file and line.
 #[test]
