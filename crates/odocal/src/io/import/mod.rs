@@ -9,7 +9,9 @@
 //!
 //! 1. **Streams** are read (only the columns needed), their time converted to
 //!    seconds and shifted by `time_offset_s`. Time that goes backwards is an
-//!    error; repeated stamps are dropped (and counted). A stream with a
+//!    error; repeated stamps are dropped (and counted; a warning names rows
+//!    repeating a stamp with other values, and more than 10 % of a stream's
+//!    rows repeating one). A stream with a
 //!    `nominal_rate_hz` is *de-jittered*: each sample gets an integer index
 //!    and its stamp is replaced by a local least-squares line `t = t0 + k·T`
 //!    (±`dejitter_window_s`/2), because encoder counts are sampled on the
@@ -27,13 +29,16 @@
 //! 4. **Clock offset** τ (pose time + τ = wheel time) is estimated by
 //!    cross-correlating the wheel speed at θ_0 with the speed differenced from
 //!    the pose, over ±`max_clock_offset_s`, with sub-sample resolution from a
-//!    parabola through the correlation peak. It is always reported, with the
-//!    peak's sharpness (curvature) and the second-best peak. With
+//!    parabola through the correlation peak. It is reported, with the
+//!    peak's sharpness (curvature) and the second-best peak (for a fixed
+//!    offset, skipped with a note when the search would exceed the
+//!    correlation budget). With
 //!    `clock_offset = "auto"` it is applied unless it is not clearly better
 //!    than the manifest's offset (the streams' `time_offset_s` alone): speed
-//!    correlation below 0.5, a second peak within 0.02 of the best, or the
-//!    yaw-rate cross-check (correlation ≥ 0.8) more than one output sample
-//!    away; then 0 s is added and the report warns. A number fixes it.
+//!    correlation below 0.9, a peak uncertainty above 1 s, a second peak
+//!    within 0.02 of the best, or the yaw-rate cross-check (correlation ≥
+//!    0.8) more than one output sample away; then 0 s is added and the
+//!    report warns. A number fixes it.
 //! 5. **Gaps**: a wheel, pose or IMU gap longer than `max_gap_s`, or pose
 //!    samples of rejected quality, make the affected output samples invalid;
 //!    the valid samples form the continuous parts of the drive
