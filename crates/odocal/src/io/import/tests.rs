@@ -342,12 +342,12 @@ fn repeated_stamps_with_other_values_are_named() {
     let repeats =
         |r: &ImportReport| r.warnings.iter().filter(|w| w.contains("repeat the stamp")).cloned().collect::<Vec<_>>();
     // One identical repeat: counted, no warning.
-    std::fs::write(&w, clean.replacen("2,5,5\n", "2,5,5\n2,5,5\n", 1)).expect("write");
+    std::fs::write(&w, clean.replacen("\n2,5,5\n", "\n2,5,5\n2,5,5\n", 1)).expect("write");
     let r = load_drive(&path).expect("import").1.expect("report");
     assert_eq!(r.streams.iter().map(|s| s.repeated_stamps_dropped).sum::<usize>(), 1);
     assert!(repeats(&r).is_empty(), "{:?}", r.warnings);
     // One repeat with other values: named.
-    std::fs::write(&w, clean.replacen("2,5,5\n", "2,5,5\n2,15,15\n", 1)).expect("write");
+    std::fs::write(&w, clean.replacen("\n2,5,5\n", "\n2,5,5\n2,15,15\n", 1)).expect("write");
     let r = load_drive(&path).expect("import").1.expect("report");
     let found = repeats(&r);
     assert_eq!(found.len(), 1, "{found:?}");
@@ -380,7 +380,7 @@ fn an_impossible_wheel_speed_sample_is_named() {
     let clean = std::fs::read_to_string(&w).expect("read");
     // One wheel 30 m/s from the other; both above limits.max_speed_m_per_s.
     for (bad, what) in [("2,5,20", "rear_right ('right') 40.00 m/s"), ("2,60,60", "rear_left ('left') 120.00 m/s")] {
-        std::fs::write(&w, clean.replacen("2,5,5\n", &format!("{bad}\n"), 1)).expect("write");
+        std::fs::write(&w, clean.replacen("\n2,5,5\n", &format!("\n{bad}\n"), 1)).expect("write");
         let (_, r) = load_drive(&path).expect("a glitch warns");
         let r = r.expect("report");
         let found = r.warnings.iter().find(|w| w.contains("impossible wheel speed"));
