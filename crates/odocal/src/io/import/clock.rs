@@ -94,14 +94,31 @@ pub(super) const MIN_YAW_CHECK_CORRELATION: f64 = 0.8;
 /// correlation reaches [`MIN_YAW_CHECK_CORRELATION`]) disagrees by more
 /// than one output sample `h`.
 pub(crate) fn doubt(est: Option<Correlation>, yaw: Option<Correlation>, h: f64) -> Option<String> {
+    doubt_with(est, yaw, h, MIN_CLOCK_CORRELATION, MAX_CLOCK_UNCERTAINTY_S)
+}
+
+/// Lowest speed correlation at which an estimate at the edge of its search
+/// is searched again over a wider range ([`searched`]); the wider
+/// estimate must pass [`doubt`].
+const MIN_EDGE_CORRELATION: f64 = 0.5;
+
+/// [`doubt`] with the correlation floor `min_corr` and the widest peak
+/// uncertainty `max_uncertainty_s`.
+fn doubt_with(
+    est: Option<Correlation>,
+    yaw: Option<Correlation>,
+    h: f64,
+    min_corr: f64,
+    max_uncertainty_s: f64,
+) -> Option<String> {
     let Some(c) = est else {
         return Some("no moving wheel and pose data overlap within ±max_clock_offset_s".into());
     };
-    if c.peak.is_nan() || c.peak < MIN_CLOCK_CORRELATION {
-        return Some(format!("the speed correlation {:.3} is below {MIN_CLOCK_CORRELATION}", c.peak));
+    if c.peak.is_nan() || c.peak < min_corr {
+        return Some(format!("the speed correlation {:.3} is below {min_corr}", c.peak));
     }
-    if let Some(u) = uncertainty_s(&c).filter(|u| *u > MAX_CLOCK_UNCERTAINTY_S) {
-        return Some(format!("the correlation peak is too flat: ± {u:.3} s is wider than {MAX_CLOCK_UNCERTAINTY_S} s"));
+    if let Some(u) = uncertainty_s(&c).filter(|u| *u > max_uncertainty_s) {
+        return Some(format!("the correlation peak is too flat: ± {u:.3} s is wider than {max_uncertainty_s} s"));
     }
     if let Some((t2, r2)) = c.second {
         if r2 >= c.peak - MIN_PEAK_MARGIN {
@@ -209,8 +226,9 @@ fn at_edge(c: &Correlation, range_s: f64, h: f64) -> bool {
     c.offset_s.abs() >= range_s - (0.05 * range_s).max(2.0 * h)
 }
 
-/// The `"auto"` estimate: over ±`max_clock_offset_s`; when that one would
-/// be applied but lies [`at_edge`], once more over the widened range (a
+/// The `"auto"` estimate: over ±`max_clock_offset_s`; when that one lies
+/// [`at_edge`] with a speed correlation of [`MIN_EDGE_CORRELATION`] or more
+/// and no other doubt, once more over the widened range (a
 /// warning says so), and an error naming `output.clock_offset` when the
 /// widened estimate is at its edge too or not clear.
 fn searched(
@@ -224,7 +242,12 @@ fn searched(
     let range = m.output.max_clock_offset_s;
     let first = estimate(w, pose, h, theta0, range);
     let edge = match first.0 {
-        Some(c) if doubt(first.0, first.1, h).is_none() && at_edge(&c, range, h) => c.offset_s,
+        Some(c)
+            if doubt_with(first.0, first.1, h, MIN_EDGE_CORRELATION, f64::INFINITY).is_none()
+                && at_edge(&c, range, h) =>
+        {
+            c.offset_s
+        }
         _ => return Ok(first),
     };
     let wide = (WIDEN_FACTOR * range).clamp(WIDE_CLOCK_OFFSET_S, super::limits::MAX_CLOCK_OFFSET_S);

@@ -301,7 +301,8 @@ fn drop_repeats(
             keep[i] = false;
             repeated += 1;
             let pair = |v: &Vec<f64>| Some((*v.get(i)?, *v.get(last_i)?));
-            let differs = |(a, b): (f64, f64)| a != b && !(a.is_nan() && b.is_nan());
+            // Differ by any amount (two NaN, or a NaN and a number, do not count).
+            let differs = |(a, b): (f64, f64)| (a - b).abs() > 0.0;
             let other = table.columns.iter().find_map(|(c, v)| pair(v).filter(|p| differs(*p)).map(|p| (c, p)));
             if let Some((c, (v, u))) = other {
                 differing += 1;
