@@ -351,7 +351,10 @@ impl std::str::FromStr for ThetaArg {
                 Err(e) => Err(e),
             };
         }
-        Ok(ThetaArg { theta: s.parse()?, file: None, pending: None })
+        // Four numbers, else (text naming an existing file) the settings'
+        // reading of θ text says the file's name lacks a parameter file's extension.
+        let theta = odocal::settings::theta_from_json(serde_json::Value::String(s.into()))?;
+        Ok(ThetaArg { theta, file: None, pending: None })
     }
 }
 

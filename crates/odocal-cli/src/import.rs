@@ -39,6 +39,10 @@ pub fn run(a: ImportArgs) -> Result<()> {
     odocal::settings::ManifestSettings::try_from(&m)?;
     let imported = odocal::import(&m)?;
     write_drive(&imported.drive, &a.out)?;
+    // Warnings go to stderr, whichever outputs take stdout.
+    for w in &imported.report.warnings {
+        eprintln!("warning: {w}");
+    }
     if let Some(p) = &a.json {
         let mut v = odocal::settings::import_report_json(&imported.report)?;
         if let Some(obj) = v.as_object_mut() {
@@ -49,8 +53,11 @@ pub fn run(a: ImportArgs) -> Result<()> {
             return Ok(());
         }
     }
-    // With the CSV on stdout, the report goes to stderr.
-    report_line(is_stdout(&a.out), imported.report.to_string().trim_end());
+    // With the CSV on stdout, the report goes to stderr; its warnings went
+    // to stderr above.
+    let mut report = imported.report;
+    report.warnings.clear();
+    report_line(is_stdout(&a.out), report.to_string().trim_end());
     if !is_stdout(&a.out) {
         println!("wrote {}", a.out.display());
     }

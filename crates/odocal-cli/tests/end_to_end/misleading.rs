@@ -108,6 +108,27 @@ fn a_nul_in_a_csv_header_is_named_as_the_cause() {
     assert!(!e.contains("not found"), "{e}");
 }
 
+/// A θ argument naming an existing file without a parameter file's
+/// extension (a YAML file named `.txt`, a drive CSV) says so, not that it
+/// is not four numbers.
+#[test]
+fn a_theta_file_without_a_parameter_extension_is_named() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let d = simulated_drive(dir.path(), "d.csv", &["--length-km", "1"]);
+    let p = dir.path().join("p.txt");
+    std::fs::write(&p, "c_e: 2.0\nc_d: 0.0\nt_r: 1.6\nd: 0.0\n").expect("write");
+    for theta in [s(&p), d.as_str()] {
+        let o = odocal(&["validate", &d, "--theta", theta]);
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(2), "{e}");
+        assert!(e.contains("is a file, but its name does not end in .yaml, .yml or .json"), "{e}");
+        assert!(!e.contains("comma-separated"), "{e}");
+    }
+    // Text that names no file is read as four numbers.
+    let e = stderr(&odocal(&["validate", &d, "--theta", "p.txt"]));
+    assert!(e.contains("expected 4 comma-separated values"), "{e}");
+}
+
 /// A manifest whose CSV stream lacks its final newline: the importer warns,
 /// and calibrate and validate show the warning on stderr and in the JSON
 /// report's `import_warnings`. A key the wheel signal does not use is
@@ -145,4 +166,11 @@ fn import_warnings_reach_the_json_reports() {
     let warnings = &html[html.find("id=\"warnings\"").expect("warnings section")..];
     assert!(warnings.contains(tail) && warnings.contains("streams.d"), "{warnings}");
     assert!(warnings.contains("wheels.ticks_per_rev = 100 does not apply"), "{warnings}");
+    // `import` sends them to stderr too: stdout holds the report alone.
+    let o = odocal(&["import", s(&m), "--out", s(&dir.path().join("o.csv"))]);
+    let (out, e) = (stdout(&o), stderr(&o));
+    assert!(o.status.success(), "{e}");
+    assert!(out.contains("import of") && !out.contains("warning"), "{out}");
+    assert!(e.contains(tail), "{e}");
+    assert!(e.lines().any(|l| l.starts_with("warning: ") && l.contains(unused)), "{e}");
 }

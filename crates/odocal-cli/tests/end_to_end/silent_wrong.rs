@@ -100,9 +100,9 @@ fn a_clock_offset_at_the_edge_of_its_search_is_searched_wider_or_refused() {
     // The pose 3 s early: the ±2 s search ends at its edge; ±10 s finds it.
     let m = shifted("-2.895");
     let o = odocal(&["import", s(&m), "--out", s(&dir.path().join("a.csv"))]);
-    let out = crate::common::stdout(&o);
-    assert!(o.status.success(), "{}", stderr(&o));
-    assert!(out.contains("lay at the edge of the search (±2 s), so ±10 s was searched: +3.07"), "{out}");
+    let e = stderr(&o);
+    assert!(o.status.success(), "{e}");
+    assert!(e.contains("lay at the edge of the search (±2 s), so ±10 s was searched: +3.07"), "{e}");
     // 15 s off: at the edge of ±10 s too.
     refused(
         &["import", s(&shifted("15.105")), "--out", s(&dir.path().join("b.csv"))],

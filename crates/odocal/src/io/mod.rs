@@ -9,6 +9,7 @@
 
 #[cfg(feature = "mcap")]
 pub mod bag;
+pub(crate) mod exact;
 pub(crate) mod import;
 pub(crate) mod param_file;
 mod replay;

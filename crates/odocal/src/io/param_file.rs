@@ -133,6 +133,20 @@ impl ParamFile {
         FileFormat::of(path).is_some()
     }
 
+    /// The error for θ text `s` that is not four numbers: when it names an
+    /// existing file, that its name lacks a parameter file's extension,
+    /// else `parse_error` as it is.
+    pub(crate) fn named_file_error(s: &str, parse_error: Error) -> Error {
+        if !Path::new(s).is_file() {
+            return parse_error;
+        }
+        Error::InvalidTheta(format!(
+            "'{s}' is a file, but its name does not end in .yaml, .yml or .json, the extensions of a parameter \
+             file (a `--params-out` file): give it one of them (e.g. copy it to a .yaml name), or give θ as \
+             c_e,c_d,t_r,d (SI units)"
+        ))
+    }
+
     /// Today's date (UTC) as `YYYY-MM-DD`, from the system clock: the
     /// `date` of a file [`CalibrationReport::param_file`](crate::CalibrationReport::param_file) writes.
     fn utc_date_today() -> String {

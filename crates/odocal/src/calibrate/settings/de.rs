@@ -114,7 +114,7 @@ fn theta_from_text(v: &str) -> Result<Theta> {
         // `read` has checked θ.
         return ParamFile::read(path, None)?.theta();
     }
-    v.parse()
+    v.parse().map_err(|e| ParamFile::named_file_error(v, e))
 }
 
 /// θ from four numbers, checked as `--theta` is.

@@ -204,7 +204,7 @@ settings! {
         /// centre, m, x forward, y left (flag: `--lever-arm X,Y`): held, or
         /// the start of `estimate`. A manifest states it in `[reference]`.
         /// Default `[0, 0]`.
-        #[serde(default)]
+        #[serde(default, deserialize_with = "crate::io::exact::lever_arm")]
         pub lever_arm: Option<[f64; 2]>,
         /// `heading_offset`: reference heading minus vehicle heading, rad:
         /// held, or the start of `estimate` (method eiv then holds it

@@ -78,10 +78,8 @@ fn bad_values_and_keys_name_the_key() {
         e(json!({"method": "newton"})),
         "invalid option `method`: invalid method 'newton': use three-step, batch-gn or eiv"
     );
-    assert_eq!(
-        e(json!({"lever_arm": [1.0]})),
-        "invalid option `lever_arm`: invalid length 1, expected an array of length 2"
-    );
+    assert_eq!(e(json!({"lever_arm": [1.0]})), "invalid option `lever_arm`: expected 2 values x, y, got 1");
+    assert_eq!(e(json!({"lever_arm": [1.0, 0.0, 7.0]})), "invalid option `lever_arm`: expected 2 values x, y, got 3");
     assert!(e(json!({"batches": "x"})).starts_with("invalid option `batches`: invalid type: string"));
     assert!(e(json!({"theta0": [1, 2]})).contains("expected 4 values c_e, c_d, t_r, d, got 2"));
     assert!(e(json!({"batchez": 3})).starts_with("invalid option `settings`: unknown field `batchez`, expected one of"));

@@ -72,8 +72,14 @@ pub(crate) fn estimate(
     (signal::cross_correlate(&vw, &on_grid(&vp), h, max_lag), signal::cross_correlate(&ww, &on_grid(&wp), h, max_lag))
 }
 
-/// Lowest speed correlation at which `"auto"` applies its estimate.
-pub(super) const MIN_CLOCK_CORRELATION: f64 = 0.5;
+/// Lowest speed correlation at which `"auto"` applies its estimate (the
+/// shipped examples' applied estimates reach 0.994 or more).
+pub(super) const MIN_CLOCK_CORRELATION: f64 = 0.9;
+/// Widest peak uncertainty (the ± of the peak's sharpness,
+/// [`ClockOffsetReport::uncertainty_s`]) at which `"auto"` applies its
+/// estimate, s (the shipped examples' applied estimates have ± 0.65 s or
+/// less).
+pub(super) const MAX_CLOCK_UNCERTAINTY_S: f64 = 1.0;
 /// A second correlation peak within this of the best makes the estimate
 /// ambiguous.
 pub(super) const MIN_PEAK_MARGIN: f64 = 0.02;
@@ -82,16 +88,37 @@ pub(super) const MIN_YAW_CHECK_CORRELATION: f64 = 0.8;
 
 /// Why the speed estimate is not clearly better than the manifest's offset
 /// (the streams' `time_offset_s` alone), or `None` when it is: the speed
-/// correlation is below [`MIN_CLOCK_CORRELATION`], a second peak comes
-/// within [`MIN_PEAK_MARGIN`] of it, or the yaw-rate cross-check (when its
+/// correlation is below [`MIN_CLOCK_CORRELATION`], its peak uncertainty is
+/// wider than [`MAX_CLOCK_UNCERTAINTY_S`], a second peak comes within
+/// [`MIN_PEAK_MARGIN`] of it, or the yaw-rate cross-check (when its
 /// correlation reaches [`MIN_YAW_CHECK_CORRELATION`]) disagrees by more
 /// than one output sample `h`.
 pub(crate) fn doubt(est: Option<Correlation>, yaw: Option<Correlation>, h: f64) -> Option<String> {
+    doubt_with(est, yaw, h, MIN_CLOCK_CORRELATION, MAX_CLOCK_UNCERTAINTY_S)
+}
+
+/// Lowest speed correlation at which an estimate at the edge of its search
+/// is searched again over a wider range ([`searched`]); the wider
+/// estimate must pass [`doubt`].
+const MIN_EDGE_CORRELATION: f64 = 0.5;
+
+/// [`doubt`] with the correlation floor `min_corr` and the widest peak
+/// uncertainty `max_uncertainty_s`.
+fn doubt_with(
+    est: Option<Correlation>,
+    yaw: Option<Correlation>,
+    h: f64,
+    min_corr: f64,
+    max_uncertainty_s: f64,
+) -> Option<String> {
     let Some(c) = est else {
         return Some("no moving wheel and pose data overlap within ±max_clock_offset_s".into());
     };
-    if c.peak.is_nan() || c.peak < MIN_CLOCK_CORRELATION {
-        return Some(format!("the speed correlation {:.3} is below {MIN_CLOCK_CORRELATION}", c.peak));
+    if c.peak.is_nan() || c.peak < min_corr {
+        return Some(format!("the speed correlation {:.3} is below {min_corr}", c.peak));
+    }
+    if let Some(u) = uncertainty_s(&c).filter(|u| *u > max_uncertainty_s) {
+        return Some(format!("the correlation peak is too flat: ± {u:.3} s is wider than {max_uncertainty_s} s"));
     }
     if let Some((t2, r2)) = c.second {
         if r2 >= c.peak - MIN_PEAK_MARGIN {
@@ -115,7 +142,9 @@ pub(crate) fn doubt(est: Option<Correlation>, yaw: Option<Correlation>, h: f64) 
 /// Estimates the offset, decides which offset to apply (for `"auto"`, the
 /// estimate unless [`doubt`] finds it not clearly better than the
 /// manifest's, then 0 s on top of the streams' `time_offset_s`, with a
-/// warning; a number is applied as given), and reports both. An `"auto"`
+/// warning; a number is applied as given), and reports both. A number's
+/// estimate, only reported, is skipped (the report says why) when its
+/// search would exceed the correlation budget. An `"auto"`
 /// estimate at the edge of its search ([`searched`]) is searched again over
 /// a wider range, once, and refused when it stays at the edge.
 pub(crate) fn align(
@@ -127,11 +156,25 @@ pub(crate) fn align(
     warnings: &mut Vec<String>,
 ) -> Result<ClockOffsetReport> {
     let o = &m.output;
+    let grid_samples = ((w.t[w.t.len() - 1] - w.t[0]) / h).floor().max(0.0) as usize;
+    let work = super::limits::correlation_work(o.max_clock_offset_s, o.rate_hz, grid_samples);
+    let fixed_over_budget =
+        matches!(o.clock_offset, ClockOffset::Seconds(_)) && work > super::limits::MAX_CORRELATION_WORK;
     let (est, est_yaw) = match o.clock_offset {
         ClockOffset::Auto => searched(m, w, pose, h, theta0, warnings)?,
+        ClockOffset::Seconds(_) if fixed_over_budget => (None, None),
         ClockOffset::Seconds(_) => estimate(w, pose, h, theta0, o.max_clock_offset_s),
     };
-    let doubt = doubt(est, est_yaw, h);
+    let not_estimated = fixed_over_budget.then(|| {
+        format!(
+            "searching ±{} s at {} Hz over {grid_samples} samples would take {work:.2e} multiply-adds, above the \
+             budget of {:e}; lower output.max_clock_offset_s to have the offset estimated",
+            o.max_clock_offset_s,
+            o.rate_hz,
+            super::limits::MAX_CORRELATION_WORK
+        )
+    });
+    let doubt = (!fixed_over_budget).then(|| doubt(est, est_yaw, h)).flatten();
     let applied = match (o.clock_offset, &doubt) {
         (ClockOffset::Seconds(v), _) => v,
         (ClockOffset::Auto, None) => est.map_or(0.0, |c| c.offset_s),
@@ -149,18 +192,25 @@ pub(crate) fn align(
         correlation: est.map(|c| c.peak),
         correlation_pairs: est.map(|c| c.pairs),
         peak_curvature_per_s2: est.map(|c| c.curvature).filter(|v| v.is_finite()),
-        uncertainty_s: est.map(|c| (2.0 * (1.0 - c.peak) / c.curvature).sqrt()).filter(|v| v.is_finite()),
+        uncertainty_s: est.as_ref().and_then(uncertainty_s),
         second_peak_s: est.and_then(|c| c.second).map(|s| s.0),
         second_peak_correlation: est.and_then(|c| c.second).map(|s| s.1),
         yaw_rate_estimate_s: est_yaw.map(|c| c.offset_s),
         yaw_rate_correlation: est_yaw.map(|c| c.peak),
         applied_s: applied,
         doubt,
+        not_estimated,
         mode: match o.clock_offset {
             ClockOffset::Auto => "auto".into(),
             ClockOffset::Seconds(_) => "fixed".into(),
         },
     })
+}
+
+/// Half-width of the offsets the peak of `c` cannot tell apart from its
+/// top, `sqrt(2·(1 − r)/curvature)`, s, when finite.
+fn uncertainty_s(c: &Correlation) -> Option<f64> {
+    Some((2.0 * (1.0 - c.peak) / c.curvature).sqrt()).filter(|v| v.is_finite())
 }
 
 /// The widened search range for an estimate at the edge of the manifest's:
@@ -176,8 +226,9 @@ fn at_edge(c: &Correlation, range_s: f64, h: f64) -> bool {
     c.offset_s.abs() >= range_s - (0.05 * range_s).max(2.0 * h)
 }
 
-/// The `"auto"` estimate: over ±`max_clock_offset_s`; when that one would
-/// be applied but lies [`at_edge`], once more over the widened range (a
+/// The `"auto"` estimate: over ±`max_clock_offset_s`; when that one lies
+/// [`at_edge`] with a speed correlation of [`MIN_EDGE_CORRELATION`] or more
+/// and no other doubt, once more over the widened range (a
 /// warning says so), and an error naming `output.clock_offset` when the
 /// widened estimate is at its edge too or not clear.
 fn searched(
@@ -191,7 +242,12 @@ fn searched(
     let range = m.output.max_clock_offset_s;
     let first = estimate(w, pose, h, theta0, range);
     let edge = match first.0 {
-        Some(c) if doubt(first.0, first.1, h).is_none() && at_edge(&c, range, h) => c.offset_s,
+        Some(c)
+            if doubt_with(first.0, first.1, h, MIN_EDGE_CORRELATION, f64::INFINITY).is_none()
+                && at_edge(&c, range, h) =>
+        {
+            c.offset_s
+        }
         _ => return Ok(first),
     };
     let wide = (WIDEN_FACTOR * range).clamp(WIDE_CLOCK_OFFSET_S, super::limits::MAX_CLOCK_OFFSET_S);

@@ -98,6 +98,7 @@ pub(crate) struct OutputSpec {
     /// θ_0 = `[c_e, c_d, t_r, d]` (SI) used to turn wheel rotation into speed
     /// and yaw rate where the import needs them (clock offset, a_y
     /// `from_wheels`). Default the paper's `[2.0, 0, 1.6, 0]`.
+    #[serde(deserialize_with = "crate::io::exact::theta")]
     pub(crate) theta0: [f64; 4],
 }
 
@@ -484,7 +485,7 @@ pub(crate) enum PositionSpec {
         #[serde(default)]
         alt: Option<String>,
         /// ENU origin `[lat_deg, lon_deg, h_m]`; default the first accepted sample.
-        #[serde(default)]
+        #[serde(default, deserialize_with = "crate::io::exact::origin")]
         origin: Option<[f64; 3]>,
     },
 }

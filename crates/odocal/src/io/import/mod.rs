@@ -9,7 +9,9 @@
 //!
 //! 1. **Streams** are read (only the columns needed), their time converted to
 //!    seconds and shifted by `time_offset_s`. Time that goes backwards is an
-//!    error; repeated stamps are dropped (and counted). A stream with a
+//!    error; repeated stamps are dropped (and counted; a warning names rows
+//!    repeating a stamp with other values, and more than 10 % of a stream's
+//!    rows repeating one). A stream with a
 //!    `nominal_rate_hz` is *de-jittered*: each sample gets an integer index
 //!    and its stamp is replaced by a local least-squares line `t = t0 + k·T`
 //!    (±`dejitter_window_s`/2), because encoder counts are sampled on the
@@ -27,13 +29,16 @@
 //! 4. **Clock offset** τ (pose time + τ = wheel time) is estimated by
 //!    cross-correlating the wheel speed at θ_0 with the speed differenced from
 //!    the pose, over ±`max_clock_offset_s`, with sub-sample resolution from a
-//!    parabola through the correlation peak. It is always reported, with the
-//!    peak's sharpness (curvature) and the second-best peak. With
+//!    parabola through the correlation peak. It is reported, with the
+//!    peak's sharpness (curvature) and the second-best peak (for a fixed
+//!    offset, skipped with a note when the search would exceed the
+//!    correlation budget). With
 //!    `clock_offset = "auto"` it is applied unless it is not clearly better
 //!    than the manifest's offset (the streams' `time_offset_s` alone): speed
-//!    correlation below 0.5, a second peak within 0.02 of the best, or the
-//!    yaw-rate cross-check (correlation ≥ 0.8) more than one output sample
-//!    away; then 0 s is added and the report warns. A number fixes it.
+//!    correlation below 0.9, a peak uncertainty above 1 s, a second peak
+//!    within 0.02 of the best, or the yaw-rate cross-check (correlation ≥
+//!    0.8) more than one output sample away; then 0 s is added and the
+//!    report warns. A number fixes it.
 //! 5. **Gaps**: a wheel, pose or IMU gap longer than `max_gap_s`, or pose
 //!    samples of rejected quality, make the affected output samples invalid;
 //!    the valid samples form the continuous parts of the drive
@@ -366,6 +371,14 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
     let jitter = wheels::jitter_report(m, &streams[&m.wheels.stream], &g.t, h, &kept, &s.n_rl, &s.n_rr)?;
     let d = s.assemble(m, h, &kept, &a_y, &measured)?;
     checks::lateral_convention(m, &d)?;
+    // The drive checks calibrate and validate make (among them the heading
+    // against the direction of travel), at θ_0: a heading in the wrong unit
+    // can pass the yaw-rate checks above on a drive that turns too little
+    // for them.
+    if let Err(Error::InvalidDrive { reason, .. }) = crate::drive::plausibility::check_conventions(&d, &theta0, "drive")
+    {
+        warnings.push(format!("calibrate and validate will refuse this drive (at output.theta0): {reason}"));
+    }
 
     let report = ImportReport {
         manifest: m.path.clone(),
@@ -393,7 +406,9 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
 
 /// The budgets, checked before anything is allocated from the spans: the
 /// wheel and pose streams overlap, and the clock-offset search grid over
-/// the wheel span and its correlation stay within their limits.
+/// the wheel span and, for `"auto"`, its correlation stay within their
+/// limits (a fixed offset's estimate, only reported, is skipped instead:
+/// [`clock::align`]).
 fn check_budgets(m: &Manifest, wheel_t: &[f64], pose_t: &[f64], h: f64) -> Result<()> {
     let wheel_span = grid::Span::of(&format!("streams.{}", m.wheels.stream), wheel_t);
     limits::check_overlap(m, &wheel_span, &grid::Span::of(&format!("streams.{} (pose)", m.pose.stream), pose_t))?;
@@ -403,7 +418,10 @@ fn check_budgets(m: &Manifest, wheel_t: &[f64], pose_t: &[f64], h: f64) -> Resul
         &format!("{} (the clock-offset search grid)", wheel_span.name),
         wheel_span.end - wheel_span.start,
     )?;
-    limits::check_correlation(m, clock_samples as usize)
+    match m.output.clock_offset {
+        ClockOffset::Auto => limits::check_correlation(m, clock_samples as usize),
+        ClockOffset::Seconds(_) => Ok(()),
+    }
 }
 
 /// The bank's roll when the manifest derives a_y with one, shifted by the

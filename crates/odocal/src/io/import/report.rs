@@ -129,6 +129,10 @@ pub struct ClockOffsetReport {
     pub applied_s: f64,
     /// Why `"auto"` did not apply its estimate (see the import docs), if so.
     pub doubt: Option<String>,
+    /// Why a fixed offset's estimate was skipped (its search would exceed
+    /// the correlation budget), if it was.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub(crate) not_estimated: Option<String>,
     /// `"auto"` or `"fixed"`.
     pub mode: String,
 }
@@ -214,6 +218,9 @@ impl std::fmt::Display for ImportReport {
                 e, c.applied_s, c.mode
             )?,
             _ => writeln!(f, "  clock offset: not estimated, applied {:+.4} s ({})", c.applied_s, c.mode)?,
+        }
+        if let Some(why) = &c.not_estimated {
+            writeln!(f, "  clock offset estimate skipped: {why}")?;
         }
         if let Some(k) = c.peak_curvature_per_s2 {
             write!(f, "  clock offset peak sharpness {k:.3} /s²")?;

@@ -29,7 +29,7 @@ pub struct ReferenceSpec {
     /// Lever arm `[x, y]` of the reference point from the rear-axle centre,
     /// m (x forward, y left): held at this value, or the start of the
     /// estimate. Default none (0, 0).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "crate::io::exact::lever_arm")]
     pub lever_arm: Option<[f64; 2]>,
     /// Reference heading minus vehicle heading, rad: held, or the start of
     /// the estimate. Default none (0).

@@ -309,6 +309,162 @@ fn small_case_imports_and_derives_heading() {
     assert!(r.to_string().contains("1 of 1 parts kept"), "{r}");
 }
 
+/// `"auto"` does not apply a low or flat correlation peak (a false peak
+/// from an offset beyond the search: correlation 0.776, ± 2.4 s), and
+/// applies the shipped examples' (the highway van's ± 0.50 s, a test-track
+/// run's ± 0.65 s at 0.9947).
+#[test]
+fn auto_refuses_a_low_or_flat_correlation_peak() {
+    let c =
+        |offset_s, peak, curvature| super::signal::Correlation { offset_s, peak, pairs: 2000, curvature, second: None };
+    let d = |c| super::clock::doubt(Some(c), None, 0.025);
+    let false_peak = d(c(2.7753, 0.7759, 0.081)).expect("low correlation");
+    assert!(false_peak.contains("the speed correlation 0.776 is below 0.9"), "{false_peak}");
+    let flat = d(c(2.7753, 0.95, 0.081)).expect("flat peak");
+    assert!(flat.contains("too flat: ± 1.111 s is wider than 1 s"), "{flat}");
+    assert_eq!(d(c(0.1408, 0.9998, 0.0016)), None);
+    assert_eq!(d(c(-0.0996, 0.9947, 0.025)), None);
+    // The yaw-rate cross-check counts from a correlation of 0.8.
+    let yaw = |peak| super::clock::doubt(Some(c(0.0, 0.9998, 0.09)), Some(c(0.5, peak, 0.09)), 0.025);
+    assert_eq!(yaw(0.79), None);
+    assert!(yaw(0.8).expect("cross-check").contains("yaw-rate cross-check gives +0.5000 s"));
+}
+
+/// Rows repeating a stamp with other values are named (stream, file, first
+/// line); more than 10 % of a stream's rows repeating a stamp is warned
+/// about; identical repeats below that are only counted.
+#[test]
+fn repeated_stamps_with_other_values_are_named() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = small_case(dir.path());
+    let w = dir.path().join("w.csv");
+    let clean = std::fs::read_to_string(&w).expect("read");
+    let repeats =
+        |r: &ImportReport| r.warnings.iter().filter(|w| w.contains("repeat the stamp")).cloned().collect::<Vec<_>>();
+    // One identical repeat: counted, no warning.
+    std::fs::write(&w, clean.replacen("\n2,5,5\n", "\n2,5,5\n2,5,5\n", 1)).expect("write");
+    let r = load_drive(&path).expect("import").1.expect("report");
+    assert_eq!(r.streams.iter().map(|s| s.repeated_stamps_dropped).sum::<usize>(), 1);
+    assert!(repeats(&r).is_empty(), "{:?}", r.warnings);
+    // One repeat with other values: named.
+    std::fs::write(&w, clean.replacen("\n2,5,5\n", "\n2,5,5\n2,15,15\n", 1)).expect("write");
+    let r = load_drive(&path).expect("import").1.expect("report");
+    let found = repeats(&r);
+    assert_eq!(found.len(), 1, "{found:?}");
+    assert!(found[0].starts_with("streams.wheels: 1 row(s) of") && found[0].contains("w.csv"), "{found:?}");
+    assert!(found[0].contains("first: line 203 at 2 s, column 'left' = 15 against 5 at line 202"), "{found:?}");
+    // Every second row doubled: a third of the rows dropped.
+    let doubled: String = clean
+        .lines()
+        .enumerate()
+        .map(|(i, l)| if i % 2 == 1 { format!("{l}\n{l}\n") } else { format!("{l}\n") })
+        .collect();
+    std::fs::write(&w, doubled).expect("write");
+    let r = load_drive(&path).expect("import").1.expect("report");
+    let found = repeats(&r);
+    assert!(found.iter().any(|w| w.contains("200 of the 600 rows") && w.contains("(33 %)")), "{found:?}");
+}
+
+/// A one-sample wheel-speed glitch, which averages out below the output
+/// speed check, is named with its stream, file and line.
+#[test]
+fn an_impossible_wheel_speed_sample_is_named() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = small_case(dir.path());
+    // a_y from the straight pose: the wheels' yaw rate at the glitch is not judged.
+    let manifest = std::fs::read_to_string(&path).expect("read");
+    std::fs::write(&path, manifest + "\n[lateral_acceleration]\nsource = \"from_pose\"\n").expect("write");
+    let (_, r) = load_drive(&path).expect("clean");
+    assert!(!r.expect("report").warnings.iter().any(|w| w.contains("impossible wheel speed")));
+    let w = dir.path().join("w.csv");
+    let clean = std::fs::read_to_string(&w).expect("read");
+    // One wheel 30 m/s from the other; both above limits.max_speed_m_per_s.
+    for (bad, what) in [("2,5,20", "rear_right ('right') 40.00 m/s"), ("2,60,60", "rear_left ('left') 120.00 m/s")] {
+        std::fs::write(&w, clean.replacen("\n2,5,5\n", &format!("\n{bad}\n"), 1)).expect("write");
+        let (_, r) = load_drive(&path).expect("a glitch warns");
+        let r = r.expect("report");
+        let found = r.warnings.iter().find(|w| w.contains("impossible wheel speed"));
+        let found = found.unwrap_or_else(|| panic!("{:?}", r.warnings));
+        assert!(found.starts_with("streams.wheels: 1 row(s) of") && found.contains("w.csv"), "{found}");
+        assert!(found.contains("first line 202 (t = 2.000 s)") && found.contains(what), "{found}");
+    }
+}
+
+/// A heading in radians declared in degrees, on a drive too straight for
+/// the yaw-rate checks, gets the warning calibrate's refusal would give.
+#[test]
+fn a_heading_in_the_wrong_unit_is_warned_at_import() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = small_case(dir.path());
+    let (mut w, mut p) = (String::from("t,left,right\n"), String::from("t,x,y,q,h\n"));
+    for i in 0..1000 {
+        writeln!(w, "{},5,5", i as f64 / 100.0).expect("write");
+    }
+    for i in 0..100 {
+        writeln!(p, "{},0,{i},1,{}", i as f64 / 10.0, std::f64::consts::FRAC_PI_2).expect("write");
+    }
+    std::fs::write(dir.path().join("w.csv"), w).expect("write");
+    std::fs::write(dir.path().join("p.csv"), p).expect("write");
+    let text = std::fs::read_to_string(&path).expect("read");
+    let with_unit = |unit: &str| {
+        let heading = format!("[pose.heading]\ncolumn = \"h\"\nconvention = \"enu\"\nunit = \"{unit}\"\n");
+        std::fs::write(&path, format!("{text}\n{heading}")).expect("write");
+        let (_, r) = load_drive(&path).expect("import");
+        r.expect("report").warnings
+    };
+    let refused = |w: &Vec<String>| w.iter().any(|w| w.contains("calibrate and validate will refuse this drive"));
+    assert!(!refused(&with_unit("rad")), "{:?}", with_unit("rad"));
+    let w = with_unit("deg");
+    assert!(refused(&w) && w.iter().any(|w| w.contains("the heading differs from the direction of travel")), "{w:?}");
+}
+
+/// A fixed clock offset's estimate, only reported, is skipped with a note
+/// when its search would exceed the correlation budget; `"auto"` is still
+/// refused there.
+#[test]
+fn a_fixed_offset_skips_an_estimate_beyond_the_budget() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = small_case(dir.path());
+    // 100 s at 500 Hz: a ±60 s search is 6·10⁹ multiply-adds.
+    let (mut w, mut p) = (String::from("t,left,right\n"), String::from("t,x,y,q\n"));
+    for i in 0..10_000 {
+        writeln!(w, "{},5,5", i as f64 / 100.0).expect("write");
+    }
+    for i in 0..1000 {
+        writeln!(p, "{},{i},0,1", i as f64 / 10.0).expect("write");
+    }
+    std::fs::write(dir.path().join("w.csv"), w).expect("write");
+    std::fs::write(dir.path().join("p.csv"), p).expect("write");
+    let text = std::fs::read_to_string(&path)
+        .expect("read")
+        .replace("min_part_s = 1.0", "min_part_s = 1.0\nrate_hz = 500.0\nmax_clock_offset_s = 60.0");
+    std::fs::write(&path, &text).expect("write");
+    let (_, r) = load_drive(&path).expect("a fixed offset imports");
+    let t = r.expect("report").to_string();
+    assert!(t.contains("clock offset: not estimated, applied +0.0000 s (fixed)"), "{t}");
+    assert!(t.contains("clock offset estimate skipped: searching ±60 s at 500 Hz"), "{t}");
+    std::fs::write(&path, text.replace("clock_offset = 0.0", "clock_offset = \"auto\"")).expect("write");
+    let e = load_drive(&path).expect_err("auto over budget").to_string();
+    assert!(e.contains("output.max_clock_offset_s") && e.contains("above the budget"), "{e}");
+}
+
+/// Every fixed-length array refuses more values as it refuses fewer,
+/// naming the key.
+#[test]
+fn fixed_length_arrays_refuse_extra_values() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = dir.path();
+    for (theta0, got) in [("[2.0, 0.0, 1.6, 0.0, 5.0]", 5), ("[2.0, 0.0, 1.6]", 3)] {
+        let m = error_of(d, |t| t.replace("clock_offset = 0.0", &format!("clock_offset = 0.0\ntheta0 = {theta0}")));
+        assert!(m.contains(&format!("output.theta0: expected 4 values c_e, c_d, t_r, d, got {got}")), "{m}");
+    }
+    let m = error_of(d, |t| t + "\n[reference]\nlever_arm = [0.5, 0.0, 7.0]\n");
+    assert!(m.contains("reference.lever_arm: expected 2 values x, y, got 3"), "{m}");
+    let origin = "position = { kind = \"lat_lon\", lat = \"x\", lon = \"y\", origin = [0.0, 0.0, 0.0, 1.0] }";
+    let m = error_of(d, |t| t.replace("position = { kind = \"local\", x = \"x\", y = \"y\" }", origin));
+    assert!(m.contains("pose.position") && m.contains("expected 3 values lat_deg, lon_deg, h_m, got 4"), "{m}");
+}
+
 #[test]
 fn manifest_errors_name_key_and_file() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -873,7 +1029,7 @@ fn clock_estimate_is_doubted_when_not_clearly_better() {
     let h = 0.025;
     assert!(clock::doubt(Some(corr(0.1, 0.99, Some((1.0, 0.5)))), None, h).is_none());
     let d = clock::doubt(Some(corr(-1.09, 0.004, None)), None, h).expect("low correlation");
-    assert!(d.contains("0.004 is below 0.5"), "{d}");
+    assert!(d.contains("0.004 is below 0.9"), "{d}");
     let d = clock::doubt(Some(corr(0.1, 0.95, Some((0.9, 0.94)))), None, h).expect("ambiguous");
     assert!(d.contains("second correlation peak at +0.900 s"), "{d}");
     // A confident yaw-rate cross-check more than a sample away doubts it; a

@@ -122,6 +122,7 @@ impl Wheels {
     /// import's memory.
     pub(super) fn new(m: &Manifest, s: &Stream, warnings: &mut Vec<String>) -> Result<(Wheels, Option<Stream>)> {
         let w = &m.wheels;
+        speed_glitches(m, s, warnings);
         let cum_l = wheel_revolutions(m, s, &w.rear_left, "wheels.rear_left")?;
         let cum_r = wheel_revolutions(m, s, &w.rear_right, "wheels.rear_right")?;
         let keep = corrupt_rows(m, &s.t, &cum_l, &cum_r);
@@ -151,6 +152,54 @@ impl Wheels {
         let cum_r = wheel_revolutions(m, &stream, &w.rear_right, "wheels.rear_right")?;
         Ok((Wheels { cum_l, cum_r }, Some(stream)))
     }
+}
+
+/// Most a rear wheel's speed can differ from the other's, m/s: the track
+/// (1.6 m) times the yaw rate, which the steering (a turn radius of 4 m
+/// or more) and the grip (15 m/s²) hold to about 3 m/s.
+pub(super) const MAX_WHEEL_SPEED_DIFFERENCE_M_PER_S: f64 = 10.0;
+
+/// A wheel stream of speeds (`rev_per_s`, `rad_per_s`, `m_per_s`) with a
+/// row where a wheel's speed at θ_0 is impossible (above
+/// `limits.max_speed_m_per_s`, or more than
+/// [`MAX_WHEEL_SPEED_DIFFERENCE_M_PER_S`] from the other wheel's) gets a
+/// warning naming the first such row: a one-sample glitch averages out
+/// below the output speed check, but the calibration still fits it.
+fn speed_glitches(m: &Manifest, s: &Stream, warnings: &mut Vec<String>) {
+    let w = &m.wheels;
+    let c_e = m.output.theta0[0];
+    let per_rev = match w.signal {
+        WheelSignal::RevPerS => 1.0,
+        WheelSignal::RadPerS => std::f64::consts::TAU,
+        WheelSignal::MPerS => w.circumference_m.unwrap_or(1.0),
+        _ => return,
+    };
+    let speed = |wheel: &WheelColumn| -> Vec<f64> {
+        s.col(&wheel.column).iter().map(|v| wheel.sign * v / per_rev * c_e).collect()
+    };
+    let (l, r) = (speed(&w.rear_left), speed(&w.rear_right));
+    let vmax = m.limits.max_speed_m_per_s;
+    let bad =
+        |i: usize| l[i].abs() > vmax || r[i].abs() > vmax || (l[i] - r[i]).abs() > MAX_WHEEL_SPEED_DIFFERENCE_M_PER_S;
+    let rows: Vec<usize> = (0..l.len().min(r.len())).filter(|&i| bad(i)).collect();
+    let Some(&i) = rows.first() else { return };
+    let at = match &s.lines {
+        Some(lines) => format!("line {}", lines[i]),
+        None => format!("row {i}"),
+    };
+    warnings.push(format!(
+        "streams.{}: {} row(s) of {} hold an impossible wheel speed, first {at} (t = {:.3} s): rear_left ('{}') \
+         {:.2} m/s, rear_right ('{}') {:.2} m/s at θ_0, above limits.max_speed_m_per_s = {vmax} or more than \
+         {MAX_WHEEL_SPEED_DIFFERENCE_M_PER_S} m/s apart: a glitch the calibration would fit; fix or drop the row(s)",
+        w.stream,
+        rows.len(),
+        s.path.display(),
+        s.t[i],
+        w.rear_left.column,
+        l[i],
+        w.rear_right.column,
+        r[i]
+    ));
 }
 
 /// `keep[i]` false for the corrupt rows (see [`Wheels::new`]).

@@ -188,37 +188,7 @@ pub(crate) fn read_stream(m: &Manifest, name: &str, wanted: &[Wanted], warnings:
         }
         *t = *t * scale + spec.time_offset_s;
     }
-    // Backwards time is an error; repeated stamps are dropped.
-    let mut keep = vec![true; time.len()];
-    let mut repeated = 0;
-    let mut last = time[0];
-    // The row of `last`, and the kept stamp before it.
-    let (mut last_i, mut before_last) = (0, None);
-    for i in 1..time.len() {
-        if time[i] < last {
-            // One stamp ahead of both neighbours is that row's fault, not the next one's.
-            if let Some(jump) = jumped_ahead(before_last, last, time[i]) {
-                return Err(table.row_error(&path, last_i, &time_column, jump));
-            }
-            return Err(table.row_error(
-                &path,
-                i,
-                &time_column,
-                format!(
-                    "time goes backwards ({} after {} s); the stream must be sorted by time",
-                    limits::echo_num(time[i]),
-                    limits::echo_num(last)
-                ),
-            ));
-        }
-        if time[i] <= last {
-            keep[i] = false;
-            repeated += 1;
-        } else {
-            before_last = Some(last);
-            (last, last_i) = (time[i], i);
-        }
-    }
+    let (keep, repeated) = drop_repeats(&table, &time, &path, &time_column, &format!("streams.{name}"), warnings)?;
     let rows = time.len();
     let t_raw = filter(time, &keep);
     let lines = table.lines.map(|l| filter(l, &keep));
@@ -284,6 +254,96 @@ pub(crate) fn read_stream(m: &Manifest, name: &str, wanted: &[Wanted], warnings:
         dejitter,
     };
     Ok(Stream { path, t, t_raw, cols, lines, report })
+}
+
+/// Above this fraction of a stream's rows dropped as repeated stamps, a
+/// warning says so.
+const MAX_REPEATED_FRACTION: f64 = 0.1;
+
+/// Which rows of `time` to keep (the first of each stamp) and how many
+/// repeat a stamp; time that goes backwards is an error. A warning names
+/// the first row that repeats a stamp with other values than the row it
+/// repeats, and says when more than [`MAX_REPEATED_FRACTION`] of the rows
+/// repeat a stamp.
+fn drop_repeats(
+    table: &Table,
+    time: &[f64],
+    path: &Path,
+    time_column: &str,
+    stream: &str,
+    warnings: &mut Vec<String>,
+) -> Result<(Vec<bool>, usize)> {
+    let mut keep = vec![true; time.len()];
+    let mut repeated = 0;
+    let mut last = time[0];
+    // The row of `last`, and the kept stamp before it.
+    let (mut last_i, mut before_last) = (0, None);
+    // Rows repeating a stamp with other values, and the first of them.
+    let (mut differing, mut first_differing) = (0, None);
+    for i in 1..time.len() {
+        if time[i] < last {
+            // One stamp ahead of both neighbours is that row's fault, not the next one's.
+            if let Some(jump) = jumped_ahead(before_last, last, time[i]) {
+                return Err(table.row_error(path, last_i, time_column, jump));
+            }
+            return Err(table.row_error(
+                path,
+                i,
+                time_column,
+                format!(
+                    "time goes backwards ({} after {} s); the stream must be sorted by time",
+                    limits::echo_num(time[i]),
+                    limits::echo_num(last)
+                ),
+            ));
+        }
+        if time[i] <= last {
+            keep[i] = false;
+            repeated += 1;
+            let pair = |v: &Vec<f64>| Some((*v.get(i)?, *v.get(last_i)?));
+            // Differ by any amount (two NaN, or a NaN and a number, do not count).
+            let differs = |(a, b): (f64, f64)| (a - b).abs() > 0.0;
+            let other = table.columns.iter().find_map(|(c, v)| pair(v).filter(|p| differs(*p)).map(|p| (c, p)));
+            if let Some((c, (v, u))) = other {
+                differing += 1;
+                first_differing.get_or_insert_with(|| (i, c.clone(), v, u, last_i));
+            }
+        } else {
+            before_last = Some(last);
+            (last, last_i) = (time[i], i);
+        }
+    }
+    let at = |i: usize| match &table.lines {
+        Some(lines) => format!("line {}", lines[i]),
+        None => format!("row {i}"),
+    };
+    let file = path.display();
+    if let Some((i, c, v, u, j)) = first_differing {
+        warnings.push(format!(
+            "{stream}: {differing} row(s) of {file} repeat the stamp of the row before with other values, dropped \
+             (first: {} at {} s, column '{c}' = {} against {} at {}): the first row of each stamp is kept; check \
+             the time column '{time_column}' (its unit, its resolution) and that the rows are not duplicated \
+             readings",
+            at(i),
+            limits::echo_num(time[i]),
+            limits::echo_num(v),
+            limits::echo_num(u),
+            at(j)
+        ));
+    }
+    if repeated as f64 > MAX_REPEATED_FRACTION * time.len() as f64 {
+        let first = keep.iter().position(|k| !k).unwrap_or(0);
+        warnings.push(format!(
+            "{stream}: {repeated} of the {} rows of {file} ({:.0} %) repeat the stamp of the row before and were \
+             dropped (first: {} at {} s): the time column '{time_column}' may be too coarse (its unit?) or the \
+             stream's rows duplicated",
+            time.len(),
+            100.0 * repeated as f64 / time.len() as f64,
+            at(first),
+            limits::echo_num(time[first])
+        ));
+    }
+    Ok((keep, repeated))
 }
 
 /// The message for a stamp `last` ahead of both its kept neighbours, the
