@@ -429,23 +429,26 @@ fn negative(s: &str) -> bool {
     s.trim().strip_prefix('-').is_some_and(|r| r.parse::<f64>().is_ok_and(|v| v > 0.0))
 }
 
+/// `s` as a whole number: a negative one is the error `on_negative` gives,
+/// another that does not parse the parser's reason.
+fn parse_whole<T: std::str::FromStr<Err = std::num::ParseIntError>>(
+    s: &str,
+    on_negative: impl FnOnce() -> String,
+) -> std::result::Result<T, String> {
+    s.parse().map_err(|e| if negative(s) { on_negative() } else { format!("{e}") })
+}
+
 /// A count or a seed on the command line (a whole number, 0 or more): a
 /// negative one is a usage error saying so, another that does not parse
 /// gives the parser's reason.
 pub fn whole<T: std::str::FromStr<Err = std::num::ParseIntError>>(s: &str) -> std::result::Result<T, String> {
-    s.parse().map_err(|e| if negative(s) { format!("must be 0 or more, got {s}") } else { format!("{e}") })
+    parse_whole(s, || format!("must be 0 or more, got {s}"))
 }
 
 /// A segment length (at least 2 samples: one step) or stride (at least 1)
 /// on the command line: a smaller one is a usage error naming the option.
 pub fn samples_at_least<const MIN: usize>(s: &str) -> std::result::Result<usize, String> {
-    let n: usize = s.parse().map_err(|e| {
-        if negative(s) {
-            format!("must be at least {MIN} samples, got {s}")
-        } else {
-            format!("{e}")
-        }
-    })?;
+    let n: usize = parse_whole(s, || format!("must be at least {MIN} samples, got {s}"))?;
     if n < MIN {
         return Err(format!("must be at least {MIN} samples, got {n}"));
     }
@@ -455,13 +458,7 @@ pub fn samples_at_least<const MIN: usize>(s: &str) -> std::result::Result<usize,
 /// `--correct-bias B`: an even number of replicates, at least 2 (the
 /// bootstrap's replicates come in antithetic pairs).
 fn parse_even_replicates(s: &str) -> std::result::Result<usize, String> {
-    let b: usize = s.parse().map_err(|e| {
-        if negative(s) {
-            format!("B must be an even number of at least 2, got {s}")
-        } else {
-            format!("{e}")
-        }
-    })?;
+    let b: usize = parse_whole(s, || format!("B must be an even number of at least 2, got {s}"))?;
     if b < 2 || !b.is_multiple_of(2) {
         return Err(format!(
             "B must be an even number of at least 2 (the replicates come in antithetic pairs), got {b}"

@@ -134,8 +134,7 @@ pub fn record_calibration(
     // The files' digests, by which `follow` and the pooled estimate know
     // the same data imported another way; none for a drive read from
     // standard input.
-    let digests: Option<Vec<String>> = sources.iter().map(|p| odocal_history::source_digest(p).ok()).collect();
-    rec.source_digest = digests.map(|d| d.join(","));
+    rec.source_digest = odocal_history::source_digests(sources);
     // The history's errors name the file.
     match h.record(&rec)? {
         Recorded::New(id) => eprintln!("recorded in {} as row {id} of vehicle '{vehicle}'", db.display()),

@@ -56,7 +56,7 @@ use store::{insert_decision, insert_record, read_only_connection};
 
 pub use follow::{follow, start_row, FollowEvent, FollowOptions};
 pub use pooled::{Biased, DriftFlag, NotMeasured, Pooled, SetAside, BIAS_REASONS, DRIFT_SIGMAS};
-pub use source::source_digest;
+pub use source::{source_digest, source_digests};
 
 /// The parameters of θ in vector order `[c_e, c_d, t_r, d]`.
 const THETA_PARAMS: [odocal::Param; 4] = [odocal::Param::CE, odocal::Param::CD, odocal::Param::TR, odocal::Param::D];

@@ -49,6 +49,18 @@ pub fn source_digest(path: &Path) -> Result<String> {
     Ok(hex(&h.finalize()))
 }
 
+/// The [`source_digest`]s of a calibration's drive files, comma separated
+/// in their order (as a record's `fingerprint` names its drives): `None`
+/// when no file is given or one cannot be read (a drive read from
+/// standard input or made from arrays).
+pub fn source_digests<P: AsRef<Path>>(paths: &[P]) -> Option<String> {
+    if paths.is_empty() {
+        return None;
+    }
+    let digests: Option<Vec<String>> = paths.iter().map(|p| source_digest(p.as_ref()).ok()).collect();
+    digests.map(|d| d.join(","))
+}
+
 /// The SHA-256 of the file at `path`, read in pieces.
 fn file_hash(path: &Path) -> Result<[u8; 32]> {
     let io = |source| Error::Io { path: path.to_path_buf(), source };

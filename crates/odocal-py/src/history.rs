@@ -177,10 +177,7 @@ impl PyHistory {
         });
         let mut rec = CalibrationRecord::of_report(vehicle, &fingerprint, sources, span, &report);
         // The files' digests (`History.record`'s docs), when every drive was read from a file that is there.
-        let digests: Option<Vec<String>> = (!rec.sources.is_empty())
-            .then(|| rec.sources.iter().map(|p| odocal_history::source_digest(p.as_ref()).ok()).collect())
-            .flatten();
-        rec.source_digest = digests.map(|d| d.join(","));
+        rec.source_digest = odocal_history::source_digests(&rec.sources);
         let r = self.with(|db| db.record(&rec))?;
         recorded(py, r)
     }
