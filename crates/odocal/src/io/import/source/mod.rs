@@ -63,14 +63,30 @@ pub(crate) struct Table {
     pub warnings: Vec<String>,
 }
 
+/// Where row `i` of a stream is, for messages: `line L`, its file line,
+/// where the format has lines (CSV), else `row i`, counting from 0.
+pub(crate) fn row_label(lines: Option<&[u64]>, i: usize) -> String {
+    match lines.and_then(|l| l.get(i)) {
+        Some(line) => format!("line {line}"),
+        None => format!("row {i}"),
+    }
+}
+
 impl Table {
-    /// Where row `i` is, for messages: `line L` or `row i`.
+    /// Where row `i` is, for messages: `line L` or `row i` ([`row_label`]).
+    pub(crate) fn row_label(&self, i: usize) -> String {
+        row_label(self.lines.as_deref(), i)
+    }
+
+    /// An error about row `i` of column `column`: the file line where the
+    /// format has lines, else [`Table::row_label`].
     fn row_error(&self, file: &Path, i: usize, column: &str, reason: String) -> Error {
         match &self.lines {
             Some(lines) => Error::Csv { path: file.to_path_buf(), line: lines[i], column: Some(column.into()), reason },
-            None => {
-                Error::InvalidDrive { context: self.source.clone(), reason: format!("row {i}, '{column}': {reason}") }
-            }
+            None => Error::InvalidDrive {
+                context: self.source.clone(),
+                reason: format!("{}, '{column}': {reason}", self.row_label(i)),
+            },
         }
     }
 }
@@ -143,6 +159,11 @@ impl Stream {
         self.cols.get(name).map(Vec::as_slice).unwrap_or(&[])
     }
 
+    /// Where row `i` is, for messages: `line L` or `row i` ([`row_label`]).
+    pub(crate) fn row_label(&self, i: usize) -> String {
+        row_label(self.lines.as_deref(), i)
+    }
+
     /// An error about row `i` of column `column`: the file line where the
     /// format has lines, else the row and its time.
     pub(super) fn error_at(&self, i: usize, column: Option<&str>, reason: impl Into<String>) -> Error {
@@ -157,7 +178,8 @@ impl Stream {
             None => Error::InvalidDrive {
                 context: self.path.display().to_string(),
                 reason: format!(
-                    "row {i} (t = {:.3} s){}: {reason}",
+                    "{} (t = {:.3} s){}: {reason}",
+                    self.row_label(i),
                     self.t.get(i).copied().unwrap_or(f64::NAN),
                     column.map(|c| format!(", column '{c}'")).unwrap_or_default()
                 ),
@@ -313,10 +335,6 @@ fn drop_repeats(
             (last, last_i) = (time[i], i);
         }
     }
-    let at = |i: usize| match &table.lines {
-        Some(lines) => format!("line {}", lines[i]),
-        None => format!("row {i}"),
-    };
     let file = path.display();
     if let Some((i, c, v, u, j)) = first_differing {
         warnings.push(format!(
@@ -324,11 +342,11 @@ fn drop_repeats(
              (first: {} at {} s, column '{c}' = {} against {} at {}): the first row of each stamp is kept; check \
              the time column '{time_column}' (its unit, its resolution) and that the rows are not duplicated \
              readings",
-            at(i),
+            table.row_label(i),
             limits::echo_num(time[i]),
             limits::echo_num(v),
             limits::echo_num(u),
-            at(j)
+            table.row_label(j)
         ));
     }
     if repeated as f64 > MAX_REPEATED_FRACTION * time.len() as f64 {
@@ -339,7 +357,7 @@ fn drop_repeats(
              stream's rows duplicated",
             time.len(),
             100.0 * repeated as f64 / time.len() as f64,
-            at(first),
+            table.row_label(first),
             limits::echo_num(time[first])
         ));
     }
