@@ -120,7 +120,7 @@ fn theta_from_text(v: &str) -> Result<Theta> {
 /// θ from four numbers, checked as `--theta` is.
 fn theta_from_numbers(v: &[f64]) -> Result<Theta> {
     let [c_e, c_d, t_r, d] = v[..] else {
-        return Err(Error::InvalidTheta(format!("expected 4 values c_e, c_d, t_r, d, got {}", v.len())));
+        return Err(Error::InvalidTheta(crate::io::exact::count_message(4, crate::io::exact::THETA_VALUES, v.len())));
     };
     let theta = Theta { c_e, c_d, t_r, d };
     crate::model::limits::check_theta(&theta)?;
