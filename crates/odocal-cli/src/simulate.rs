@@ -99,19 +99,9 @@ fn finite_number(s: &str) -> Result<f64, String> {
     }
 }
 
-/// `--noise`: a preset the simulator knows (`paper`, `random:N`, …).
-/// The world seed of `random:N` is written as given, without spaces (the
-/// preset is named by it in the sidecar and the reports), and at most
-/// 2^64 − 1.
+/// `--noise`: a preset the simulator knows (`paper`, `random:N`, …), as
+/// the library parses it.
 pub fn noise_preset(s: &str) -> Result<String, String> {
-    if let Some(seed) = s.strip_prefix("random:") {
-        if seed != seed.trim() || seed.is_empty() {
-            return Err(format!("'{s}': write the world seed right after 'random:', without spaces (random:5)"));
-        }
-        if seed.bytes().all(|b| b.is_ascii_digit()) && seed.parse::<u64>().is_err() {
-            return Err(format!("'{s}': the world seed is above the largest, {}", u64::MAX));
-        }
-    }
     s.parse::<NoiseOptions>().map(|_| s.to_string()).map_err(|e| match e {
         odocal::Error::InvalidOption { reason, .. } => reason,
         e => e.to_string(),

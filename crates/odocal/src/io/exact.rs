@@ -5,16 +5,25 @@
 use serde::de::Error as _;
 use serde::{Deserialize, Deserializer};
 
+/// What the four numbers of θ are, in order.
+pub(crate) const THETA_VALUES: &str = "c_e, c_d, t_r, d";
+
+/// The message for `got` numbers where exactly `n` are wanted, `names`
+/// saying what they are: `expected 4 values c_e, c_d, t_r, d, got 3`.
+pub(crate) fn count_message(n: usize, names: &str, got: usize) -> String {
+    format!("expected {n} values {names}, got {got}")
+}
+
 /// Exactly `N` numbers, `names` saying what they are.
 fn exact<'de, D: Deserializer<'de>, const N: usize>(d: D, names: &str) -> Result<[f64; N], D::Error> {
     let v = Vec::<f64>::deserialize(d)?;
     let n = v.len();
-    v.try_into().map_err(|_| D::Error::custom(format!("expected {N} values {names}, got {n}")))
+    v.try_into().map_err(|_| D::Error::custom(count_message(N, names, n)))
 }
 
 /// θ `[c_e, c_d, t_r, d]`.
 pub(crate) fn theta<'de, D: Deserializer<'de>>(d: D) -> Result<[f64; 4], D::Error> {
-    exact(d, "c_e, c_d, t_r, d")
+    exact(d, THETA_VALUES)
 }
 
 /// A lever arm `[x, y]`.

@@ -206,7 +206,8 @@ fn is_zero(v: &f64) -> bool {
 /// `high`, or `random:N`, the random noise world of seed N (the
 /// distribution and the regime rule: the [module
 /// doc](crate::sim#random-noise-worlds)); the CLI's `--noise`. The same seed
-/// gives the same world.
+/// gives the same world. N is written right after `random:`, without
+/// spaces, 0 … 2^64 − 1.
 ///
 /// ```
 /// # fn main() -> Result<(), odocal::Error> {
@@ -353,13 +354,7 @@ impl NoiseOptions {
             "white" => Ok(NoiseOptions::white_wheel_only()),
             "high" => Ok(NoiseOptions::high()),
             other => match other.strip_prefix("random:") {
-                Some(seed) => match seed.trim().parse::<u64>() {
-                    Ok(seed) => Ok(NoiseOptions::random_world(seed).0),
-                    Err(_) => Err(Error::InvalidOption {
-                        field: "noise",
-                        reason: format!("'{other}': the world seed after 'random:' must be a whole number ≥ 0"),
-                    }),
-                },
+                Some(seed) => random_world_seed(other, seed).map(|seed| NoiseOptions::random_world(seed).0),
                 None => Err(Error::InvalidOption {
                     field: "noise",
                     reason: format!(
@@ -369,6 +364,22 @@ impl NoiseOptions {
             },
         }
     }
+}
+
+/// The world seed `seed` of the preset `name` (`random:N`): written right
+/// after `random:`, without spaces (the preset is named by its text in the
+/// sidecar and the reports), a whole number 0 … 2^64 − 1.
+fn random_world_seed(name: &str, seed: &str) -> Result<u64> {
+    let reason = if seed.is_empty() || seed != seed.trim() {
+        format!("'{name}': write the world seed right after 'random:', without spaces (random:5)")
+    } else if let Ok(seed) = seed.parse::<u64>() {
+        return Ok(seed);
+    } else if seed.bytes().all(|b| b.is_ascii_digit()) {
+        format!("'{name}': the world seed is above the largest, {}", u64::MAX)
+    } else {
+        format!("'{name}': the world seed after 'random:' must be a whole number ≥ 0")
+    };
+    Err(Error::InvalidOption { field: "noise", reason })
 }
 
 /// A step change of `c_d` during a drive (a tyre change, a pressure loss).

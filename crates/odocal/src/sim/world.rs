@@ -342,11 +342,18 @@ mod tests {
         assert_eq!(sa, sb);
         assert_ne!(NoiseOptions::random_world(4).0, a);
         assert_eq!(NoiseOptions::by_name("random:3").expect("world"), a);
-        assert_eq!(NoiseOptions::by_name("random: 3").expect("world"), a);
-        for bad in ["random:", "random:x", "random:-1"] {
+        for bad in ["random:", "random:x", "random:-1", "random:18446744073709551616"] {
             let e = NoiseOptions::by_name(bad).expect_err(bad);
             assert!(e.to_string().contains("random:"), "{e}");
         }
+        // The seed as written names the world in the sidecar: no spaces,
+        // as the command line has it.
+        for spaced in ["random: 3", "random:3 ", "random:\t3"] {
+            let e = NoiseOptions::by_name(spaced).expect_err(spaced).to_string();
+            assert!(e.contains("without spaces (random:5)"), "{e}");
+        }
+        let e = NoiseOptions::by_name("random:18446744073709551616").expect_err("above").to_string();
+        assert!(e.contains("the world seed is above the largest, 18446744073709551615"), "{e}");
     }
 
     /// Whether `v` is 0 or within `[lo, hi]` (with rounding slack).

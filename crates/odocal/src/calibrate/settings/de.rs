@@ -65,6 +65,42 @@ pub(super) fn noise_sources<'de, D: Deserializer<'de>>(
     text.split(',').map(|n| n.trim().parse()).collect::<Result<Vec<_>>>().map(Some).map_err(de::Error::custom)
 }
 
+/// A count (`batches`, `segment_length`, …): a whole number 0 or more,
+/// written without a decimal point or exponent. A float (`1e3`, `50.0`)
+/// or a negative number is refused saying a whole number is wanted.
+pub(super) fn whole<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<Option<usize>, D::Error> {
+    d.deserialize_any(Whole).map(Some)
+}
+
+/// The visitor of [`whole`].
+struct Whole;
+
+impl Visitor<'_> for Whole {
+    type Value = usize;
+    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        f.write_str(WHOLE)
+    }
+    fn visit_u64<E: de::Error>(self, v: u64) -> std::result::Result<usize, E> {
+        usize::try_from(v).map_err(|_| E::custom(format!("{v} is too large for {WHOLE}")))
+    }
+    fn visit_i64<E: de::Error>(self, v: i64) -> std::result::Result<usize, E> {
+        usize::try_from(v).map_err(|_| E::custom(format!("{v} is not {WHOLE}")))
+    }
+    fn visit_f64<E: de::Error>(self, v: f64) -> std::result::Result<usize, E> {
+        let shown = crate::model::limits::echo_num(v);
+        if v.fract() == 0.0 && (0.0..9.007_199_254_740_992e15).contains(&v) {
+            return Err(E::custom(format!(
+                "{shown} is written as a float (with a decimal point or an exponent): {WHOLE} is wanted, \
+                 write it as {v:.0}"
+            )));
+        }
+        Err(E::custom(format!("{shown} is not {WHOLE}")))
+    }
+}
+
+/// What a count is, for messages.
+const WHOLE: &str = "a whole number (0, 1, 2, …)";
+
 /// `"all"`, a number of segments, or that number as text.
 pub(super) fn final_segments<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<Option<FinalSegments>, D::Error> {
     struct V;
@@ -83,6 +119,9 @@ pub(super) fn final_segments<'de, D: Deserializer<'de>>(d: D) -> std::result::Re
             usize::try_from(v)
                 .map(FinalSegments::Random)
                 .map_err(|_| E::invalid_value(de::Unexpected::Signed(v), &self))
+        }
+        fn visit_f64<E: de::Error>(self, v: f64) -> std::result::Result<FinalSegments, E> {
+            Whole.visit_f64(v).map(FinalSegments::Random)
         }
     }
     d.deserialize_any(V).map(Some)
@@ -120,7 +159,7 @@ fn theta_from_text(v: &str) -> Result<Theta> {
 /// θ from four numbers, checked as `--theta` is.
 fn theta_from_numbers(v: &[f64]) -> Result<Theta> {
     let [c_e, c_d, t_r, d] = v[..] else {
-        return Err(Error::InvalidTheta(format!("expected 4 values c_e, c_d, t_r, d, got {}", v.len())));
+        return Err(Error::InvalidTheta(crate::io::exact::count_message(4, crate::io::exact::THETA_VALUES, v.len())));
     };
     let theta = Theta { c_e, c_d, t_r, d };
     crate::model::limits::check_theta(&theta)?;

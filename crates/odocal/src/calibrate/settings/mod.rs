@@ -171,7 +171,7 @@ settings! {
         #[serde(default, deserialize_with = "de::seed")]
         pub seed: Option<u64>,
         /// `max_iterations`: Gauss-Newton iterations. Default 5.
-        #[serde(default)]
+        #[serde(default, deserialize_with = "de::whole")]
         pub max_iterations: Option<usize>,
         /// `min_yaw_rate`: peak yaw rate for a segment to be selected,
         /// rad/s (batch-gn, three-step only: method eiv, its batch G-N
@@ -184,14 +184,14 @@ settings! {
         #[serde(default)]
         pub keep_one_way: Option<bool>,
         /// `segment_length`: calibration segment length K, samples. Default 650.
-        #[serde(default)]
+        #[serde(default, deserialize_with = "de::whole")]
         pub segment_length: Option<usize>,
         /// `segment_stride`: calibration segment stride, samples. Default 100.
-        #[serde(default)]
+        #[serde(default, deserialize_with = "de::whole")]
         pub segment_stride: Option<usize>,
         /// `validation_length`: validation segment length K_v, samples
         /// (stride K_v/2). Default 1300.
-        #[serde(default)]
+        #[serde(default, deserialize_with = "de::whole")]
         pub validation_length: Option<usize>,
         /// `estimate`: reference extrinsics estimated with θ, starting from
         /// `lever_arm` and `heading_offset`: `"lever-arm"`,
@@ -213,14 +213,14 @@ settings! {
         #[serde(default)]
         pub heading_offset: Option<f64>,
         /// `batches`: step 1's random batches (three-step only). Default 50.
-        #[serde(default)]
+        #[serde(default, deserialize_with = "de::whole")]
         pub batches: Option<usize>,
         /// `batch_size`: segments per batch of step 1 (three-step only). Default 10.
-        #[serde(default)]
+        #[serde(default, deserialize_with = "de::whole")]
         pub batch_size: Option<usize>,
         /// `picks`: batch estimates θ_B,I picked to start the compensation
         /// from (three-step only). Default 5.
-        #[serde(default)]
+        #[serde(default, deserialize_with = "de::whole")]
         pub picks: Option<usize>,
         /// `final_segments`: segments of step 3, `"all"` or a number of
         /// random ones (three-step only). Default all.
@@ -253,7 +253,7 @@ settings! {
         #[serde(default)]
         pub fallback: Option<bool>,
         /// `eiv_window`: filter window, samples (eiv only). Default 6000.
-        #[serde(default)]
+        #[serde(default, deserialize_with = "de::whole")]
         pub eiv_window: Option<usize>,
         /// `quantisation`: how encoder quantisation enters the noise model,
         /// `"process"`, `"measurement"` or `"counting"` (eiv only). Default counting.
@@ -276,7 +276,7 @@ settings! {
         /// `bootstrap`: also run a parametric bootstrap with this many
         /// replicates, for percentile intervals and the estimator's bias
         /// (eiv only). Default none.
-        #[serde(default)]
+        #[serde(default, deserialize_with = "de::whole")]
         pub bootstrap: Option<usize>,
         /// `bootstrap_seed`: seed of the bootstrap and of the bias
         /// correction (eiv only). Default 0.
@@ -285,7 +285,7 @@ settings! {
         /// `correct_bias`: replicates B of the bias correction, an even
         /// number; 0 turns it off (flag: `--correct-bias B`,
         /// `--no-bias-correction` is 0; eiv only). Default 4.
-        #[serde(default)]
+        #[serde(default, deserialize_with = "de::whole")]
         pub correct_bias: Option<usize>,
         /// `correct_bias_of`: the parameters of θ the bias correction
         /// subtracts its bias from, `"c_e,t_r"` or a list (eiv only).

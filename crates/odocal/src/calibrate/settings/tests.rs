@@ -353,6 +353,49 @@ fn bad_settings_are_errors_naming_the_key() {
     assert_eq!(e, "calibration.segment_length: segment_length = 0: must be at least 2 samples (line 25)");
     let e = error("\n[calibration]\nseed = 1\nmethod = \"newton\"\n");
     assert_eq!(e, "calibration.method: invalid method 'newton': use three-step, batch-gn or eiv (line 26)");
+    // A count written as a float is named, saying a whole number is wanted.
+    let e = error("\n[calibration]\nbatches = 1e3\n");
+    assert_eq!(
+        e,
+        "calibration.batches: 1000 is written as a float (with a decimal point or an exponent): a whole number \
+         (0, 1, 2, …) is wanted, write it as 1000 (line 25)"
+    );
+    let e = error("\n[calibration]\nfinal_segments = 2.5\n");
+    assert_eq!(e, "calibration.final_segments: 2.5 is not a whole number (0, 1, 2, …) (line 25)");
+}
+
+/// Every count of the settings takes a whole number and refuses a float
+/// or a negative number by its key, saying a whole number is wanted.
+#[test]
+fn a_count_is_a_whole_number() {
+    let e = |v| Settings::from_json(v).expect_err("bad").to_string();
+    for key in [
+        "max_iterations",
+        "segment_length",
+        "segment_stride",
+        "validation_length",
+        "batches",
+        "batch_size",
+        "picks",
+        "eiv_window",
+        "bootstrap",
+        "correct_bias",
+        "final_segments",
+    ] {
+        assert_eq!(
+            e(json!({ key: 1e3 })),
+            format!(
+                "invalid option `{key}`: 1000 is written as a float (with a decimal point or an exponent): a whole \
+                 number (0, 1, 2, …) is wanted, write it as 1000"
+            )
+        );
+        if key != "final_segments" {
+            assert_eq!(e(json!({ key: -2 })), format!("invalid option `{key}`: -2 is not a whole number (0, 1, 2, …)"));
+        }
+        let toml_settings: Settings = toml::from_str(&format!("{key} = 4")).expect("a whole number");
+        assert_ne!(toml_settings, Settings::default(), "{key}");
+    }
+    assert!(e(json!({"batches": "x"})).starts_with("invalid option `batches`: invalid type: string"));
 }
 
 #[test]

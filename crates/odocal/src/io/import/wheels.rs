@@ -130,14 +130,8 @@ impl Wheels {
         if dropped.is_empty() {
             return Ok((Wheels { cum_l, cum_r }, None));
         }
-        let at: Vec<String> = dropped
-            .iter()
-            .take(3)
-            .map(|&i| match &s.lines {
-                Some(l) => format!("line {} (t = {:.3} s)", l[i], s.t[i]),
-                None => format!("row {i} (t = {:.3} s)", s.t[i]),
-            })
-            .collect();
+        let at: Vec<String> =
+            dropped.iter().take(3).map(|&i| format!("{} (t = {:.3} s)", s.row_label(i), s.t[i])).collect();
         warnings.push(format!(
             "streams.{}: {} corrupt wheel row(s) dropped (a count jump beyond limits.max_speed_m_per_s that \
              returns), at {}{}",
@@ -183,10 +177,7 @@ fn speed_glitches(m: &Manifest, s: &Stream, warnings: &mut Vec<String>) {
         |i: usize| l[i].abs() > vmax || r[i].abs() > vmax || (l[i] - r[i]).abs() > MAX_WHEEL_SPEED_DIFFERENCE_M_PER_S;
     let rows: Vec<usize> = (0..l.len().min(r.len())).filter(|&i| bad(i)).collect();
     let Some(&i) = rows.first() else { return };
-    let at = match &s.lines {
-        Some(lines) => format!("line {}", lines[i]),
-        None => format!("row {i}"),
-    };
+    let at = s.row_label(i);
     warnings.push(format!(
         "streams.{}: {} row(s) of {} hold an impossible wheel speed, first {at} (t = {:.3} s): rear_left ('{}') \
          {:.2} m/s, rear_right ('{}') {:.2} m/s at θ_0, above limits.max_speed_m_per_s = {vmax} or more than \

@@ -63,14 +63,36 @@ pub(crate) struct Table {
     pub warnings: Vec<String>,
 }
 
+/// Where row `i` of a stream is, for messages: `line L`, its file line,
+/// where the format has lines (CSV), else `row i`, counting from 0.
+pub(crate) fn row_label(lines: Option<&[u64]>, i: usize) -> String {
+    row_label_at(lines.and_then(|l| l.get(i)).copied(), i)
+}
+
+/// Where row `i` is, for messages, when its file line is `line`: `line L`
+/// where it has one, else `row i` ([`row_label`]).
+pub(crate) fn row_label_at(line: Option<u64>, i: usize) -> String {
+    match line {
+        Some(line) => format!("line {line}"),
+        None => format!("row {i}"),
+    }
+}
+
 impl Table {
-    /// Where row `i` is, for messages: `line L` or `row i`.
+    /// Where row `i` is, for messages: `line L` or `row i` ([`row_label`]).
+    pub(crate) fn row_label(&self, i: usize) -> String {
+        row_label(self.lines.as_deref(), i)
+    }
+
+    /// An error about row `i` of column `column`: the file line where the
+    /// format has lines, else [`Table::row_label`].
     fn row_error(&self, file: &Path, i: usize, column: &str, reason: String) -> Error {
         match &self.lines {
             Some(lines) => Error::Csv { path: file.to_path_buf(), line: lines[i], column: Some(column.into()), reason },
-            None => {
-                Error::InvalidDrive { context: self.source.clone(), reason: format!("row {i}, '{column}': {reason}") }
-            }
+            None => Error::InvalidDrive {
+                context: self.source.clone(),
+                reason: format!("{}, '{column}': {reason}", self.row_label(i)),
+            },
         }
     }
 }
@@ -143,6 +165,11 @@ impl Stream {
         self.cols.get(name).map(Vec::as_slice).unwrap_or(&[])
     }
 
+    /// Where row `i` is, for messages: `line L` or `row i` ([`row_label`]).
+    pub(crate) fn row_label(&self, i: usize) -> String {
+        row_label(self.lines.as_deref(), i)
+    }
+
     /// An error about row `i` of column `column`: the file line where the
     /// format has lines, else the row and its time.
     pub(super) fn error_at(&self, i: usize, column: Option<&str>, reason: impl Into<String>) -> Error {
@@ -157,7 +184,8 @@ impl Stream {
             None => Error::InvalidDrive {
                 context: self.path.display().to_string(),
                 reason: format!(
-                    "row {i} (t = {:.3} s){}: {reason}",
+                    "{} (t = {:.3} s){}: {reason}",
+                    self.row_label(i),
                     self.t.get(i).copied().unwrap_or(f64::NAN),
                     column.map(|c| format!(", column '{c}'")).unwrap_or_default()
                 ),
@@ -260,6 +288,66 @@ pub(crate) fn read_stream(m: &Manifest, name: &str, wanted: &[Wanted], warnings:
 /// warning says so.
 const MAX_REPEATED_FRACTION: f64 = 0.1;
 
+/// The first row that repeats the stamp of the row before with other
+/// values: where it is and its stamp (s), the first column (by name) that
+/// differs, its value there and in the row it repeats, and where that row is.
+#[derive(Debug, Clone)]
+pub(crate) struct DifferingRepeat {
+    pub at: String,
+    pub t: f64,
+    pub column: String,
+    pub value: f64,
+    pub other: f64,
+    pub other_at: String,
+}
+
+/// The warning about the `count` rows of stream `stream` (`streams.NAME`)
+/// in `file` that repeat the stamp of the row before with other values,
+/// `first` the first of them.
+pub(crate) fn differing_repeats_warning(
+    stream: &str,
+    count: usize,
+    file: &Path,
+    first: &DifferingRepeat,
+    time_column: &str,
+) -> String {
+    format!(
+        "{stream}: {count} row(s) of {} repeat the stamp of the row before with other values, dropped (first: {} \
+         at {} s, column '{}' = {} against {} at {}): the first row of each stamp is kept; check the time column \
+         '{time_column}' (its unit, its resolution) and that the rows are not duplicated readings",
+        file.display(),
+        first.at,
+        limits::echo_num(first.t),
+        first.column,
+        limits::echo_num(first.value),
+        limits::echo_num(first.other),
+        first.other_at
+    )
+}
+
+/// The warning when more than [`MAX_REPEATED_FRACTION`] of the `rows` of
+/// stream `stream` in `file` repeat a stamp (`repeated` of them, the first
+/// where and at what stamp, s); `None` below it.
+pub(crate) fn many_repeats_warning(
+    stream: &str,
+    repeated: usize,
+    rows: usize,
+    file: &Path,
+    (at, t): (&str, f64),
+    time_column: &str,
+) -> Option<String> {
+    (repeated as f64 > MAX_REPEATED_FRACTION * rows as f64).then(|| {
+        format!(
+            "{stream}: {repeated} of the {rows} rows of {} ({:.0} %) repeat the stamp of the row before and were \
+             dropped (first: {at} at {} s): the time column '{time_column}' may be too coarse (its unit?) or the \
+             stream's rows duplicated",
+            file.display(),
+            100.0 * repeated as f64 / rows as f64,
+            limits::echo_num(t)
+        )
+    })
+}
+
 /// Which rows of `time` to keep (the first of each stamp) and how many
 /// repeat a stamp; time that goes backwards is an error. A warning names
 /// the first row that repeats a stamp with other values than the row it
@@ -313,35 +401,14 @@ fn drop_repeats(
             (last, last_i) = (time[i], i);
         }
     }
-    let at = |i: usize| match &table.lines {
-        Some(lines) => format!("line {}", lines[i]),
-        None => format!("row {i}"),
-    };
-    let file = path.display();
-    if let Some((i, c, v, u, j)) = first_differing {
-        warnings.push(format!(
-            "{stream}: {differing} row(s) of {file} repeat the stamp of the row before with other values, dropped \
-             (first: {} at {} s, column '{c}' = {} against {} at {}): the first row of each stamp is kept; check \
-             the time column '{time_column}' (its unit, its resolution) and that the rows are not duplicated \
-             readings",
-            at(i),
-            limits::echo_num(time[i]),
-            limits::echo_num(v),
-            limits::echo_num(u),
-            at(j)
-        ));
+    if let Some((i, column, value, other, j)) = first_differing {
+        let first =
+            DifferingRepeat { at: table.row_label(i), t: time[i], column, value, other, other_at: table.row_label(j) };
+        warnings.push(differing_repeats_warning(stream, differing, path, &first, time_column));
     }
-    if repeated as f64 > MAX_REPEATED_FRACTION * time.len() as f64 {
-        let first = keep.iter().position(|k| !k).unwrap_or(0);
-        warnings.push(format!(
-            "{stream}: {repeated} of the {} rows of {file} ({:.0} %) repeat the stamp of the row before and were \
-             dropped (first: {} at {} s): the time column '{time_column}' may be too coarse (its unit?) or the \
-             stream's rows duplicated",
-            time.len(),
-            100.0 * repeated as f64 / time.len() as f64,
-            at(first),
-            limits::echo_num(time[first])
-        ));
+    if let Some(first) = keep.iter().position(|k| !k) {
+        let at = table.row_label(first);
+        warnings.extend(many_repeats_warning(stream, repeated, time.len(), path, (&at, time[first]), time_column));
     }
     Ok((keep, repeated))
 }

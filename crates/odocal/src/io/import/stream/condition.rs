@@ -8,6 +8,7 @@ use std::path::PathBuf;
 
 use super::super::manifest::Manifest;
 use super::super::report::{DejitterReport, StreamReport};
+use super::super::source::{differing_repeats_warning, many_repeats_warning, row_label_at, DifferingRepeat};
 use crate::error::{Error, Result};
 
 /// A message after conditioning: the stamp the import uses, the stamp
@@ -67,9 +68,22 @@ pub(crate) struct Conditioner {
     /// Rows received.
     pub rows: usize,
     repeated: usize,
+    /// The column names, in the order of a row's values, and their
+    /// positions in name order (the order the whole import compares them in).
+    columns: Vec<String>,
+    by_name: Vec<usize>,
+    /// The values of `last`'s row.
+    last_values: Vec<f64>,
+    /// Rows repeating a stamp with other values, and the first of them.
+    differing: usize,
+    first_differing: Option<DifferingRepeat>,
+    /// Where the first row repeating a stamp is, and its stamp.
+    first_repeat: Option<(String, f64)>,
     last: Option<f64>,
-    /// The line of `last`'s row, and the kept stamp before it.
+    /// The line and the row (counting from 0) of `last`'s row, and the
+    /// kept stamp before it.
     last_line: Option<u64>,
+    last_row: usize,
     before_last: Option<f64>,
     first: Option<f64>,
     /// Rows passed on (after repeated stamps).
@@ -84,8 +98,9 @@ pub(crate) struct Conditioner {
 }
 
 impl Conditioner {
-    /// The conditioning of stream `name` of `m`.
-    pub(crate) fn new(m: &Manifest, name: &str) -> Conditioner {
+    /// The conditioning of stream `name` of `m`, whose rows hold the
+    /// values of `columns`.
+    pub(crate) fn new(m: &Manifest, name: &str, columns: &[String]) -> Conditioner {
         let spec = &m.streams[name];
         let dejitter = spec.nominal_rate_hz.map(|rate| Dejitter {
             period_s: 1.0 / rate,
@@ -108,8 +123,19 @@ impl Conditioner {
             time_column: spec.time_column.clone().unwrap_or_else(|| "time".into()),
             rows: 0,
             repeated: 0,
+            columns: columns.to_vec(),
+            by_name: {
+                let mut order: Vec<usize> = (0..columns.len()).collect();
+                order.sort_by(|&a, &b| columns[a].cmp(&columns[b]));
+                order
+            },
+            last_values: Vec::new(),
+            differing: 0,
+            first_differing: None,
+            first_repeat: None,
             last: None,
             last_line: None,
+            last_row: 0,
             before_last: None,
             first: None,
             kept: 0,
@@ -163,12 +189,13 @@ impl Conditioner {
                 ));
             }
             if t <= last {
-                self.repeated += 1;
+                self.repeated_stamp(t, &values, line);
                 return Ok(());
             }
         }
         self.before_last = self.last;
-        (self.last, self.last_line) = (Some(t), line);
+        (self.last, self.last_line, self.last_row) = (Some(t), line, self.rows - 1);
+        self.last_values.clone_from(&values);
         self.first.get_or_insert(t);
         self.kept += 1;
         let row = Row { t, t_raw: t, values, line };
@@ -180,6 +207,58 @@ impl Conditioner {
             }
         }
         Ok(())
+    }
+
+    /// Counts the current row, at stamp `t` (s), which repeats the stamp
+    /// of the last row kept, and notes it when it is the first, or the
+    /// first to hold other values than that row.
+    fn repeated_stamp(&mut self, t: f64, values: &[f64], line: Option<u64>) {
+        self.repeated += 1;
+        let at = || row_label_at(line, self.rows - 1);
+        if self.first_repeat.is_none() {
+            self.first_repeat = Some((at(), t));
+        }
+        let pair = |c: usize| Some((*values.get(c)?, *self.last_values.get(c)?));
+        // Differ by any amount (two NaN, or a NaN and a number, do not count).
+        let differs = |(a, b): (f64, f64)| (a - b).abs() > 0.0;
+        let Some((c, (value, other))) =
+            self.by_name.iter().find_map(|&c| pair(c).filter(|p| differs(*p)).map(|p| (c, p)))
+        else {
+            return;
+        };
+        self.differing += 1;
+        if self.first_differing.is_none() {
+            self.first_differing = Some(DifferingRepeat {
+                at: at(),
+                t,
+                column: self.columns[c].clone(),
+                value,
+                other,
+                other_at: row_label_at(self.last_line, self.last_row),
+            });
+        }
+    }
+
+    /// The warnings about the stream's repeated stamps, the whole import's:
+    /// the rows that repeat a stamp with other values, and more than a
+    /// tenth of the rows repeating a stamp. For the stream read so far.
+    pub(crate) fn repeat_warnings(&self) -> Vec<String> {
+        let stream = format!("streams.{}", self.name);
+        let mut out = Vec::new();
+        if let Some(first) = &self.first_differing {
+            out.push(differing_repeats_warning(&stream, self.differing, &self.path, first, &self.time_column));
+        }
+        if let Some((at, t)) = &self.first_repeat {
+            out.extend(many_repeats_warning(
+                &stream,
+                self.repeated,
+                self.rows,
+                &self.path,
+                (at, *t),
+                &self.time_column,
+            ));
+        }
+        out
     }
 
     /// The stream has ended: fits the rows still in the window.
@@ -336,7 +415,7 @@ mod tests {
         let dir = tempfile::tempdir().expect("tempdir");
         let m = Manifest::from_path(&crate::io::import::tests::small_case(dir.path())).expect("manifest");
         let run = |stamps: &[f64]| {
-            let mut c = Conditioner::new(&m, "pose");
+            let mut c = Conditioner::new(&m, "pose", &[]);
             for (k, t) in stamps.iter().enumerate() {
                 c.push(*t, vec![0.0; 3], Some(k as u64 + 2))?;
             }

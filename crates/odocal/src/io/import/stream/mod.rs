@@ -196,7 +196,7 @@ impl RawStream {
                     cols.push(w.column);
                 }
             }
-            streams.insert(name.clone(), (Conditioner::new(manifest, &name), cols));
+            streams.insert(name.clone(), (Conditioner::new(manifest, &name, &cols), cols));
         }
         Ok(RawStream {
             m: manifest.clone(),
@@ -493,6 +493,7 @@ impl RawStream {
         let (m, h) = (&self.m, self.h);
         let mut warnings = self.warnings.clone();
         for (c, _) in self.streams.values() {
+            warnings.extend(c.repeat_warnings());
             if c.fallbacks() > 0 {
                 warnings.push(format!(
                     "streams.{}: {} de-jittered stamp(s) did not follow the previous one and kept their raw stamp \

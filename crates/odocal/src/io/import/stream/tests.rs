@@ -519,3 +519,31 @@ fn a_stream_with_a_wrong_convention_is_refused_as_the_whole_import_refuses_it() 
         assert!(prefix.contains(key), "{rel}, a 120 s warm-up: {prefix}");
     }
 }
+
+/// Repeated stamps are warned about as the whole import warns about them,
+/// with the same text, once per stream: rows repeating a stamp with other
+/// values, and more than a tenth of a stream's rows repeating a stamp.
+#[test]
+fn repeated_stamps_are_warned_about_as_the_whole_import_warns() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = crate::io::import::tests::small_case(dir.path());
+    let w = dir.path().join("w.csv");
+    let clean = std::fs::read_to_string(&w).expect("read");
+    let doubled: String = clean
+        .lines()
+        .enumerate()
+        .map(|(i, l)| if i % 2 == 1 { format!("{l}\n{l}\n") } else { format!("{l}\n") })
+        .collect();
+    let repeats =
+        |r: &ImportReport| r.warnings.iter().filter(|w| w.contains("repeat the stamp")).cloned().collect::<Vec<_>>();
+    for (text, count) in [(clean.replacen("\n2,5,5\n", "\n2,5,5\n2,15,15\n", 1), 1), (doubled, 1)] {
+        std::fs::write(&w, text).expect("write");
+        let m = Manifest::from_path(&path).expect("manifest");
+        let whole = crate::io::import::import(&m).expect("import");
+        let (_, r) = streamed(&m, StreamOptions::default(), 64);
+        let found = repeats(&r);
+        assert_eq!(found.len(), count, "{found:?}");
+        assert_eq!(found, repeats(&whole.report));
+        assert!(found[0].starts_with("streams.wheels: "), "{found:?}");
+    }
+}
