@@ -288,6 +288,13 @@ pub(crate) fn read_stream(m: &Manifest, name: &str, wanted: &[Wanted], warnings:
 /// warning says so.
 const MAX_REPEATED_FRACTION: f64 = 0.1;
 
+/// Whether a row that repeats a stamp holds another value than the row it
+/// repeats, for one column's pair of values: they differ by any amount
+/// (two NaN, or a NaN and a number, do not count).
+pub(crate) fn values_differ((a, b): (f64, f64)) -> bool {
+    (a - b).abs() > 0.0
+}
+
 /// The first row that repeats the stamp of the row before with other
 /// values: where it is and its stamp (s), the first column (by name) that
 /// differs, its value there and in the row it repeats, and where that row is.
@@ -389,9 +396,7 @@ fn drop_repeats(
             keep[i] = false;
             repeated += 1;
             let pair = |v: &Vec<f64>| Some((*v.get(i)?, *v.get(last_i)?));
-            // Differ by any amount (two NaN, or a NaN and a number, do not count).
-            let differs = |(a, b): (f64, f64)| (a - b).abs() > 0.0;
-            let other = table.columns.iter().find_map(|(c, v)| pair(v).filter(|p| differs(*p)).map(|p| (c, p)));
+            let other = table.columns.iter().find_map(|(c, v)| pair(v).filter(|p| values_differ(*p)).map(|p| (c, p)));
             if let Some((c, (v, u))) = other {
                 differing += 1;
                 first_differing.get_or_insert_with(|| (i, c.clone(), v, u, last_i));

@@ -8,7 +8,9 @@ use std::path::PathBuf;
 
 use super::super::manifest::Manifest;
 use super::super::report::{DejitterReport, StreamReport};
-use super::super::source::{differing_repeats_warning, many_repeats_warning, row_label_at, DifferingRepeat};
+use super::super::source::{
+    differing_repeats_warning, many_repeats_warning, row_label_at, values_differ, DifferingRepeat,
+};
 use crate::error::{Error, Result};
 
 /// A message after conditioning: the stamp the import uses, the stamp
@@ -219,10 +221,8 @@ impl Conditioner {
             self.first_repeat = Some((at(), t));
         }
         let pair = |c: usize| Some((*values.get(c)?, *self.last_values.get(c)?));
-        // Differ by any amount (two NaN, or a NaN and a number, do not count).
-        let differs = |(a, b): (f64, f64)| (a - b).abs() > 0.0;
         let Some((c, (value, other))) =
-            self.by_name.iter().find_map(|&c| pair(c).filter(|p| differs(*p)).map(|p| (c, p)))
+            self.by_name.iter().find_map(|&c| pair(c).filter(|p| values_differ(*p)).map(|p| (c, p)))
         else {
             return;
         };
