@@ -86,6 +86,27 @@ pub enum FollowEvent {
     },
 }
 
+/// Clock readings from this value on (2001-09-09 in Unix time) are taken
+/// for Unix time. Only two such clocks say which drive came first: a
+/// logger's clock since boot does not.
+const UNIX_TIME_FROM_S: f64 = 1e9;
+
+/// The warning when `source` (first stamp `start_s` on its clock) was
+/// recorded before `previous` (first stamp `previous_start_s`), which was
+/// followed before it: `None` when it was not, or when either clock does
+/// not read as Unix time ([`UNIX_TIME_FROM_S`]).
+fn order_warning(source: &str, start_s: f64, previous: &str, previous_start_s: f64) -> Option<String> {
+    let unix = |t: f64| t.is_finite() && t >= UNIX_TIME_FROM_S;
+    (unix(start_s) && unix(previous_start_s) && start_s < previous_start_s).then(|| {
+        format!(
+            "warning: {source} was recorded {:.0} s before {previous}, which was followed before it (first stamps \
+             {start_s:.3} and {previous_start_s:.3} s): follow replays drives in the order given, and the parameters \
+             it writes lean on the drives given last; give the drives in the order they were driven",
+            previous_start_s - start_s
+        )
+    })
+}
+
 /// The parameters in use: θ, its σ, and whether they are a recorded calibration.
 struct Stored {
     theta: Theta,
@@ -154,26 +175,15 @@ pub fn follow<E: From<Error>>(
     let (mut stored, origin) = start(db, vehicle, opts)?;
     let mut cal: Option<Calibrator> = None;
     let mut started = false;
+    // The last drive followed, and its first stamp on its clock.
+    let mut previous: Option<(String, f64)> = None;
     for path in drives {
         let drive = Replay::open(path, |line| on(FollowEvent::Log(line)))?;
         let source = path.display().to_string();
         let fingerprint = drive.fingerprint()?;
         let digest = crate::source_digest(path)?;
         let span = drive.time_span_s();
-        // The same samples, or the same files over the same time imported
-        // another way (a manifest imported whole by `calibrate`).
-        let here = vec![(digest.as_str(), Some(span))];
-        let row = db
-            .rows(vehicle)?
-            .into_iter()
-            .rev()
-            .find(|r| {
-                crate::pooled::drives_of(&r.record.fingerprint).any(|f| f == fingerprint)
-                    || same_data(&held_by_record(&r.record), &here)
-            })
-            .map(|r| (r.id, r.record.method));
-        let decided = |d: &DecisionRow| d.fingerprint == fingerprint || same_data(&held_by_decision(d), &here);
-        if row.is_some() || db.decisions(vehicle)?.iter().any(decided) {
+        if let Some(row) = held_already(db, vehicle, &fingerprint, &digest, span)? {
             on(FollowEvent::Skipped { source, fingerprint, row })?;
             continue;
         }
@@ -181,6 +191,12 @@ pub fn follow<E: From<Error>>(
         // wrong convention would enter the recursion, and every later
         // drive's estimate with it.
         drive.check(&stored.theta)?;
+        let clock_start_s = drive.clock_span_s().map(|(a, _)| a);
+        if let (Some((p, p_start)), Some(start)) = (&previous, clock_start_s) {
+            if let Some(w) = order_warning(&source, start, p, *p_start) {
+                on(FollowEvent::Log(w))?;
+            }
+        }
         // The calibrator as it was before the drive: restored when another
         // run logs the drive first, so the drive counts once.
         let before = cal.clone();
@@ -251,6 +267,9 @@ pub fn follow<E: From<Error>>(
         if written.is_some() {
             stored = Stored { theta: decision.theta, sigma: Some(decision.sigma), calibrated: true };
         }
+        if let Some(start) = clock_start_s {
+            previous = Some((source.clone(), start));
+        }
         on(FollowEvent::Followed {
             source,
             fingerprint,
@@ -261,6 +280,32 @@ pub fn follow<E: From<Error>>(
         })?;
     }
     Ok(())
+}
+
+/// Whether the vehicle's history holds the drive already: the same
+/// samples (`fingerprint`), or the same files over the same time imported
+/// another way (`digest` and `span`: a manifest imported whole by
+/// `calibrate`). `Some` with the most recent calibration row holding it
+/// (and its method), or `Some(None)` when only a logged decision does.
+fn held_already(
+    db: &History,
+    vehicle: &str,
+    fingerprint: &str,
+    digest: &str,
+    span: (f64, f64),
+) -> Result<Option<Option<(i64, String)>>, Error> {
+    let here = vec![(digest, Some(span))];
+    let row = db
+        .rows(vehicle)?
+        .into_iter()
+        .rev()
+        .find(|r| {
+            crate::pooled::drives_of(&r.record.fingerprint).any(|f| f == fingerprint)
+                || same_data(&held_by_record(&r.record), &here)
+        })
+        .map(|r| (r.id, r.record.method));
+    let decided = |d: &DecisionRow| d.fingerprint == fingerprint || same_data(&held_by_decision(d), &here);
+    Ok((row.is_some() || db.decisions(vehicle)?.iter().any(decided)).then_some(row))
 }
 
 /// The row [`follow`] starts from among a vehicle's `rows` (in recording
@@ -324,4 +369,27 @@ fn start(db: &History, vehicle: &str, opts: &FollowOptions) -> Result<(Stored, S
         }
     };
     Ok((stored, origin + &passed))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A drive recorded before the one followed before it is named, with
+    /// both first stamps; one recorded after, at the same time, or on a
+    /// clock that is not Unix time (since boot, or not a number) is not.
+    #[test]
+    fn a_drive_recorded_before_the_previous_one_is_named() {
+        let (a, b) = (1_722_883_530.268, 1_722_886_117.343);
+        let w = order_warning("run-14.toml", a, "run-15.toml", b).expect("out of order");
+        for part in ["run-14.toml was recorded 2587 s before run-15.toml", "1722883530.268", "1722886117.343"] {
+            assert!(w.contains(part), "{part}: {w}");
+        }
+        assert_eq!(order_warning("run-15.toml", b, "run-14.toml", a), None);
+        assert_eq!(order_warning("run-15.toml", b, "run-15b.toml", b), None);
+        assert_eq!(order_warning("boot.toml", 120.0, "boot-2.toml", 3600.0), None);
+        assert!(order_warning("unix.toml", a, "later.toml", b * 2.0).is_some());
+        assert_eq!(order_warning("unix.toml", a, "boot.toml", 3600.0), None);
+        assert_eq!(order_warning("nan.toml", f64::NAN, "run-15.toml", b), None);
+    }
 }

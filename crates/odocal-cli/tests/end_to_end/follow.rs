@@ -640,3 +640,24 @@ fn follow_json_reports_the_drives_recorded_before_an_error() {
     assert!(o.status.success(), "{}", stderr(&o));
     assert_eq!(json_file(&json).as_object().expect("object").keys().collect::<Vec<_>>(), vec!["drives"]);
 }
+
+/// Two shipped test-track runs given against the order they were driven
+/// are followed, with a warning naming both and their clocks' first
+/// stamps; in the order driven there is none.
+#[test]
+fn follow_warns_of_drives_given_out_of_the_order_driven() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let run =
+        |name: &str| format!("{}/../../examples/psu-mapping-van-testtrack/run-{name}.toml", env!("CARGO_MANIFEST_DIR"));
+    let (early, late) = (run("14-45-26"), run("15-28-33"));
+    let db = |name: &str| dir.path().join(name).to_str().expect("utf8").to_owned();
+    let o = odocal(&["follow", &late, &early, "--vehicle", "van", "--db", &db("a.sqlite")]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let err = stderr(&o);
+    let warning = err.lines().find(|l| l.contains("was recorded")).unwrap_or_else(|| panic!("no warning: {err}"));
+    assert!(warning.starts_with(&format!("warning: {early} was recorded 2587 s before {late}")), "{warning}");
+    assert!(warning.contains("give the drives in the order they were driven"), "{warning}");
+    let o = odocal(&["follow", &early, &late, "--vehicle", "van", "--db", &db("b.sqlite")]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!stderr(&o).contains("was recorded"), "{}", stderr(&o));
+}

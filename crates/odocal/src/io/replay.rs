@@ -42,6 +42,9 @@ pub struct Replay {
     /// The file, as given (the context of errors).
     path: PathBuf,
     source: Source,
+    /// The wheel-clock time of the drive's t = 0 when it was imported from
+    /// a manifest (`ImportReport::time_origin_s`).
+    origin_s: Option<f64>,
 }
 
 /// How a [`Replay`] holds its drive.
@@ -61,8 +64,8 @@ impl Replay {
         path: &Path,
         mut log: impl FnMut(String) -> std::result::Result<(), E>,
     ) -> std::result::Result<Replay, E> {
-        let source = Source::open(path, &mut log)?;
-        Ok(Replay { path: path.to_path_buf(), source })
+        let (source, origin_s) = Source::open(path, &mut log)?;
+        Ok(Replay { path: path.to_path_buf(), source, origin_s })
     }
 
     /// The drive's [fingerprint](Drive::fingerprint).
@@ -99,6 +102,16 @@ impl Replay {
             Source::Stream(s) => s.time_span_s,
             Source::Whole(d) => (d.t().first().copied().unwrap_or(0.0), d.t().last().copied().unwrap_or(0.0)),
         }
+    }
+
+    /// The first and the last time stamp on the recording's own clock (the
+    /// wheel stream's, Unix time for most loggers), s, when the drive was
+    /// imported from a manifest; `None` for a drive CSV, whose times are as
+    /// written (an imported or simulated drive's start at 0). Drives of one
+    /// vehicle compare by it: which was driven first.
+    pub fn clock_span_s(&self) -> Option<(f64, f64)> {
+        let (a, b) = self.time_span_s();
+        self.origin_s.map(|o| (o + a, o + b))
     }
 
     /// The file, as given.
@@ -235,27 +248,29 @@ fn whole_chunks(drive: &Drive, size: usize) -> impl Iterator<Item = StreamChunk>
 
 impl Source {
     /// Opens the drive at `path`; `log` hears what its reader warns about.
+    /// The drive at `path` and, for a manifest, the wheel-clock time of
+    /// its t = 0.
     fn open<E: From<Error>>(
         path: &Path,
         log: &mut impl FnMut(String) -> std::result::Result<(), E>,
-    ) -> std::result::Result<Source, E> {
+    ) -> std::result::Result<(Source, Option<f64>), E> {
         if is_manifest_path(path) {
             let m = Manifest::from_path(path)?;
             if let Some(why) = stream::not_streamable(&m) {
                 log(format!("note: {}: imported whole ({why})", path.display()))?;
-                return Ok(Source::Whole(Box::new(whole(path, log)?)));
+                return whole(path, log);
             }
             let mut lines = Vec::new();
             return match streamed_manifest(path, &m, &mut lines) {
-                Ok(s) => {
+                Ok((s, origin_s)) => {
                     lines.into_iter().try_for_each(&mut *log)?;
-                    Ok(Source::Stream(s))
+                    Ok((Source::Stream(s), origin_s))
                 }
                 // The whole import's error (or result) is the reference:
                 // the stream judges some whole-drive checks on its warm-up.
                 Err(e) => {
                     log(format!("note: {}: imported whole (the streamed import stopped: {e})", path.display()))?;
-                    Ok(Source::Whole(Box::new(whole(path, log)?)))
+                    whole(path, log)
                 }
             };
         }
@@ -263,12 +278,16 @@ impl Source {
         for w in &stream.warnings {
             log(format!("warning: {w}"))?;
         }
-        Ok(Source::Stream(stream))
+        Ok((Source::Stream(stream), None))
     }
 }
 
-/// The manifest at `path` imported whole, its import's account logged.
-fn whole<E>(path: &Path, log: &mut impl FnMut(String) -> std::result::Result<(), E>) -> std::result::Result<Drive, E>
+/// The manifest at `path` imported whole, its import's account logged,
+/// with the wheel-clock time of its t = 0.
+fn whole<E>(
+    path: &Path,
+    log: &mut impl FnMut(String) -> std::result::Result<(), E>,
+) -> std::result::Result<(Source, Option<f64>), E>
 where
     E: From<Error>,
 {
@@ -283,20 +302,21 @@ where
     for w in report.iter().flat_map(|r| &r.warnings) {
         log(format!("warning: {}: {w}", path.display()))?;
     }
-    Ok(drive)
+    Ok((Source::Whole(Box::new(drive)), report.map(|r| r.time_origin_s)))
 }
 
 /// A manifest imported as a stream ([`ManifestStream`]) into a
-/// [`DriveStream`] (its samples on disk); the import's account and
-/// warnings go to `lines`.
-fn streamed_manifest(path: &Path, m: &Manifest, lines: &mut Vec<String>) -> Result<DriveStream> {
+/// [`DriveStream`] (its samples on disk), with the wheel-clock time of its
+/// t = 0; the import's account and warnings go to `lines`.
+fn streamed_manifest(path: &Path, m: &Manifest, lines: &mut Vec<String>) -> Result<(DriveStream, Option<f64>)> {
     let opts = StreamOptions::default();
     let warm_up_s = opts.warm_up_s;
     let mut s = ManifestStream::open(m, opts)?;
     let stream = DriveStream::spool(path, m.sample_time_s(), || {
         Ok(s.next_chunk(CHUNK)?.map(|c| (c.t, c.signals, c.starts_part)))
     })?;
-    if let Some(r) = s.raw().report() {
+    let report = s.raw().report();
+    if let Some(r) = report {
         lines.push(format!(
             "imported {} as a stream: {} samples in {} part(s), {:.2} km, clock offset {:+.4} s from the first {} s",
             path.display(),
@@ -310,7 +330,7 @@ fn streamed_manifest(path: &Path, m: &Manifest, lines: &mut Vec<String>) -> Resu
             lines.push(format!("warning: {}: {w}", path.display()));
         }
     }
-    Ok(stream)
+    Ok((stream, report.map(|r| r.time_origin_s)))
 }
 
 #[cfg(test)]
