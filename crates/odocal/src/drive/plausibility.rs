@@ -263,11 +263,11 @@ fn clock_lag(drive: &Drive, theta0: &Theta) -> Option<String> {
     if c.offset_s.abs() <= MAX_CLOCK_LAG_S.max(2.0 * ts) {
         return None;
     }
-    let (who, by) = if c.offset_s > 0.0 { ("lag", c.offset_s) } else { ("lead", -c.offset_s) };
+    let (who, by, to) = if c.offset_s > 0.0 { ("lag", c.offset_s, "earlier") } else { ("lead", -c.offset_s, "later") };
     Some(format!(
         "the wheel speeds {who} the reference's by {by:.3} s (speed cross-correlation {:.3} at that offset): the wheel \
-         and reference clocks are offset; shift column 't' of one of them by the offset, or import the streams with a \
-         manifest, whose output.clock_offset = \"auto\" aligns them",
+         and reference clocks are offset; move n_rl and n_rr {by:.3} s {to} against px, py, psi, or import the \
+         streams with a manifest, whose output.clock_offset = \"auto\" aligns them",
         c.peak
     ))
 }
