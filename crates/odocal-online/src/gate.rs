@@ -77,8 +77,9 @@ pub enum Action {
     Write,
     /// A gate held it: keep the stored parameters.
     Hold,
-    /// The other gates passed but the change is beyond its limit: a person
-    /// should look before it is written.
+    /// The change is beyond its limit (the estimate's, with the other gates
+    /// passed, or the drive's own estimate's, whatever the other gates
+    /// say): a person should look before it is written.
     Flag,
 }
 
@@ -150,11 +151,13 @@ impl Gates {
             .map(|i| format!("{} changes by {:.3e}, beyond {:.3e}", THETA_NAMES[i], th[i] - st[i], max_change[i]))
             .collect();
         let mut unsettled = Vec::new();
+        let mut shown = false;
         if let Some(own) = cal.drive_estimate() {
             let (ot, os) = (<[_; 4]>::from(own.theta), <[_; 4]>::from(own.sigma));
             for i in 0..4 {
                 let change = ot[i] - st[i];
                 if calibrated && change.abs() > max_change[i] + OWN_SIGMAS * os[i] {
+                    shown = true;
                     flagged.push(format!(
                         "this drive alone puts {} at {:.6e} ± {:.1e}, {change:+.3e} from the stored value, beyond \
                          {:.3e}: a change the recursion follows only slowly",
@@ -180,7 +183,12 @@ impl Gates {
         } else {
             flagged.append(&mut unsettled);
         }
-        let (action, reasons) = if !held.is_empty() {
+        // A change the drive's own data show beyond its limit is flagged
+        // for a person even when another gate holds the update (its
+        // reasons follow): held, it would pass unnoticed.
+        let (action, reasons) = if shown {
+            (Action::Flag, flagged.into_iter().chain(held).collect())
+        } else if !held.is_empty() {
             (Action::Hold, held.into_iter().chain(flagged).collect())
         } else if !flagged.is_empty() {
             (Action::Flag, flagged)

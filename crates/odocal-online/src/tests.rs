@@ -343,6 +343,25 @@ fn a_step_the_recursion_follows_slowly_is_not_written() {
     }
 }
 
+/// A change the drive's own data show beyond the limit is flagged even
+/// when another gate (here the steady time) holds the update, and the
+/// reasons name both.
+#[test]
+fn a_change_the_drive_shows_is_flagged_when_another_gate_holds() {
+    let out = simulate(&SimOptions { length_km: 10.0, ..SimOptions::paper(105) }).expect("simulate");
+    let (d, truth) = (out.drive, out.sidecar.theta_true);
+    let sigma0 = Some(Theta { c_e: 7.4e-4, c_d: 1.7e-4, t_r: 6e-3, d: 6e-5 });
+    let stored = Theta { c_e: truth.c_e / 1.025, ..truth };
+    let mut cal = Calibrator::new(stored, sigma0, d.sample_time_s(), OnlineOptions::default()).expect("cal");
+    cal.stored = Some(stored);
+    cal.push_drive(&d, 1000, |_| {}).expect("push");
+    let gates = Gates { steady_s: 1e6, ..Gates::default() };
+    let decision = gates.decide(&cal, &stored, true);
+    let says = |what: &str| decision.reasons.iter().any(|r| r.contains(what));
+    assert_eq!(decision.action, Action::Flag, "{:?}", decision.reasons);
+    assert!(says("this drive alone puts c_e at") && says("steady for"), "{:?}", decision.reasons);
+}
+
 /// `iterations_per_segment` is a count with a ceiling, as the offline
 /// counts have: 0 and more than [`MAX_ITERATIONS_PER_SEGMENT`] are refused
 /// naming the field, the ceiling itself is taken.

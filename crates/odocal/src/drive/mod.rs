@@ -44,6 +44,7 @@
 //! ```
 
 mod concat;
+pub(crate) mod correlate;
 pub(crate) mod csv;
 pub(crate) mod csv_lines;
 pub(crate) mod fingerprint;
