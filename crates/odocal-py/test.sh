@@ -13,9 +13,9 @@ crates/odocal-py/env.sh
 pip=("$venv/bin/python" -m pip install --quiet --disable-pip-version-check)
 
 # pytest compares the package's reports with the CLI's JSON, from the binary
-# `cargo test --workspace` builds (test profile, opt-level 2): after README's
-# test command this is a no-op, where a release build of the CLI took 3 min
-# of CI. Floating point is the same at every opt-level (no fast-math).
+# the test build builds (test profile, opt-level 2): after the Rust half of
+# README's test command this is a no-op, where a release build of the CLI
+# took 3 min of CI. Floating point is the same at every opt-level (no fast-math).
 cargo test --workspace --no-run --quiet
 # The wheel under test is built with the dev profile, whose settings the
 # test profile shares (root Cargo.toml): it reuses the test build's
