@@ -29,6 +29,10 @@ pub struct ValidateArgs {
     /// to drive).
     #[arg(long)]
     carry_heading_offset: bool,
+    /// Skip the drive's own fit (batch G-N on this drive, started from θ)
+    /// and with it the verdict on whether θ fits the drive.
+    #[arg(long)]
+    no_drive_fit: bool,
     /// Validation segment length K_v, samples (stride K_v/2) [default: 1300].
     #[arg(long, value_parser = crate::args::samples_at_least::<2>)]
     validation_length: Option<usize>,
@@ -70,7 +74,7 @@ pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<()> {
     }
     files.output("--json", a.json.as_deref()).check()?;
     let (drive, _, settings) = load_drive_with_scale(&a.drive)?;
-    let mut opts = ValidateOptions::default();
+    let mut opts = ValidateOptions { fit_drive: !a.no_drive_fit, ..ValidateOptions::default() };
     // A manifest's [reference]: the drive's own mount.
     let stated = settings.as_ref().and_then(|s| s.reference.as_ref()).map(odocal::Extrinsics::from);
     let file = a.theta.file.as_ref();
@@ -92,6 +96,9 @@ pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<()> {
         odocal::validate(&drive, &a.theta.theta, &opts, Some(&cb)).map_err(|e| crate::io::name_drive(e, &a.drive))?;
     bars.finish();
     if let Some(w) = report.heading_offset_fit.as_ref().and_then(heading_offset_warning) {
+        eprintln!("warning: {w}");
+    }
+    if let Some(w) = drive_fit_warning(&report) {
         eprintln!("warning: {w}");
     }
     let extrinsics_from =
@@ -193,6 +200,9 @@ fn print_report(a: &ValidateArgs, report: &odocal::ValidateReport, extrinsics_fr
         println!("{fit} (--carry-heading-offset carries the calibration's)");
     }
     println!("mean position error Ē_p: {:.4} m over {} validation segments", r.mean_position_error_m, r.segments);
+    if let Some(line) = verdict_line(&a.theta.theta, report) {
+        println!("{line}");
+    }
     if let Some(rm) = &report.reachable_minimum {
         println!(
             "reachable minimum: Ē_p {:.4} m at {} ({} evaluations, {:.1} s)",
@@ -212,4 +222,42 @@ fn print_report(a: &ValidateArgs, report: &odocal::ValidateReport, extrinsics_fr
             );
         }
     }
+}
+
+/// The verdict line: whether θ fits the drive as well as θ fitted on it,
+/// and the fit; `None` when the drive was not fitted.
+fn verdict_line(theta: &Theta, report: &odocal::ValidateReport) -> Option<String> {
+    if let Some(e) = &report.drive_fit_error {
+        return Some(format!("verdict: NOT JUDGED, the drive could not be fitted: {e}"));
+    }
+    let f = report.drive_fit.as_ref()?;
+    let word = if f.fits { "FITS" } else { "DOES NOT FIT" };
+    Some(format!(
+        "verdict: θ {word} this drive: Ē_p {:.2} × that of θ fitted on it ({:.4} m; {})",
+        f.ratio,
+        f.mean_position_error_m,
+        change(theta, &f.theta)
+    ))
+}
+
+/// How θ fitted on the drive differs from the given θ, per parameter.
+fn change(theta: &Theta, fit: &Theta) -> String {
+    format!(
+        "fitted c_e {:+.3} %, c_d {:+.2} mm, t_r {:+.2} %, d {:+.2} mm/(m/s²)",
+        (fit.c_e / theta.c_e - 1.0) * 100.0,
+        (fit.c_d - theta.c_d) * 1e3,
+        (fit.t_r / theta.t_r - 1.0) * 100.0,
+        (fit.d - theta.d) * 1e3
+    )
+}
+
+/// A warning when θ does not fit the drive: what it means and what to do.
+fn drive_fit_warning(report: &odocal::ValidateReport) -> Option<String> {
+    let f = report.drive_fit.as_ref().filter(|f| !f.fits)?;
+    Some(format!(
+        "θ does not fit this drive: its Ē_p, {:.4} m, is {:.2} times that of θ fitted on the drive ({:.4} m): \
+         the vehicle may have changed (tyres, load), θ may be another vehicle's, or this drive's data may differ \
+         from the calibration's (units, mount); recalibrate on this drive or check its inputs",
+        report.validation.mean_position_error_m, f.ratio, f.mean_position_error_m
+    ))
 }

@@ -58,9 +58,11 @@ fn lib_err(e: odocal::Error) -> PyErr {
 /// `mean_position_error_m`, `segments` and `per_segment_m`. When θ comes
 /// from a calibration that estimated the heading offset, the drive's own
 /// is re-estimated with θ held (`heading_offset_fit`) unless
-/// `carry_heading_offset=True`.
+/// `carry_heading_offset=True`. `drive_fit` holds θ fitted on the drive
+/// and the verdict `fits`: θ's Ē_p is at most 1.6 times the fit's
+/// (`fit_drive=False` skips it).
 #[pyfunction]
-#[pyo3(signature = (drive, theta, *, validation_length=None, threads=None, report_json=None, carry_heading_offset=false, params_node=None))]
+#[pyo3(signature = (drive, theta, *, validation_length=None, threads=None, report_json=None, carry_heading_offset=false, params_node=None, fit_drive=true))]
 // One argument per Python keyword: pyo3 maps them by name.
 #[allow(clippy::too_many_arguments)]
 fn validate<'py>(
@@ -72,6 +74,7 @@ fn validate<'py>(
     report_json: Option<&str>,
     carry_heading_offset: bool,
     params_node: Option<&str>,
+    fit_drive: bool,
 ) -> PyResult<Bound<'py, PyAny>> {
     // A parameter file is read once: its θ (checked by `read`) and extrinsics.
     let file = params_file_arg(theta, params_node)?;
@@ -89,7 +92,7 @@ fn validate<'py>(
         Some(j) => Some(report_from_json(j)?.param_file("")),
         None => file,
     };
-    let mut opts = odocal::ValidateOptions::default();
+    let mut opts = odocal::ValidateOptions { fit_drive, ..odocal::ValidateOptions::default() };
     if let Some(k) = validation_length {
         opts.segments.length_steps = k;
         opts.segments.stride_steps = (k / 2).max(1);

@@ -187,6 +187,7 @@ pub use sim::{simulate, NoiseOptions, SimOptions, SimOutput, SimSidecar};
 pub use calibrate::{
     batch_gn::BatchGnOptions,
     calibrate,
+    drive_fit::validate,
     eiv::{CorrectBias, EivMethodOptions},
     report::{
         CalibrationReport, ResultSigma, SegmentCounts, SigmaCovers, SigmaSource, ThetaScore, Timing, ValidationSummary,
@@ -202,7 +203,7 @@ pub use assess::{
     position_error::{dead_reckoned_reference, mean_position_error, segment_position_error_with, ValidationReport},
     reachable::{ReachableOptions, ReachableReport},
     trust::{GuardViolation, Guards, TrustOptions, Verdict, VerdictLevel, VerdictReason},
-    validate::{validate, DriveValidation, MultiValidation, ValidateOptions, ValidateReport},
+    validate::{DriveFit, DriveValidation, MultiValidation, ValidateOptions, ValidateReport},
     validation_drives::ValidationDrive,
     warning::Warning,
 };

@@ -29,3 +29,4 @@ mod params_out;
 mod rough_use;
 mod silent_wrong;
 mod validate_on_reference;
+mod validate_verdict;

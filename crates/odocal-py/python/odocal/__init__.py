@@ -464,6 +464,7 @@ def validate(
     threads: Optional[int] = None,
     carry_heading_offset: bool = False,
     params_node: Optional[str] = None,
+    fit_drive: bool = True,
 ) -> dict:
     """Mean position error Ē_p of ``theta`` by dead reckoning on the validation segments of ``drive``.
 
@@ -481,6 +482,13 @@ def validate(
     which carries the calibration's (on the calibration's own drive that gives its own Ē_p).
     ``params_node`` names the node of a parameter file that holds several nodes'
     parameters (such a file is refused without it).
+
+    The verdict, ``drive_fit``: θ fitted on this drive by batch Gauss-Newton started from
+    ``theta`` (``theta``, ``heading_offset_rad`` when re-estimated, ``mean_position_error_m``),
+    ``ratio`` (Ē_p of ``theta`` over the fit's) and ``fits`` (the ratio is at most 1.6): a
+    ``theta`` that does not fit points at a changed vehicle, another vehicle's parameters or
+    inputs that differ from the calibration's. ``drive_fit_error`` says why a drive could not
+    be fitted; ``fit_drive=False`` skips the fit.
     """
     report_json = theta._json if isinstance(theta, CalibrationReport) else None
     return _odocal.validate(
@@ -491,4 +499,5 @@ def validate(
         report_json=report_json,
         carry_heading_offset=carry_heading_offset,
         params_node=params_node,
+        fit_drive=fit_drive,
     )

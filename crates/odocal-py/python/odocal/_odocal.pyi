@@ -122,11 +122,13 @@ def validate(
     report_json: Optional[str] = None,
     carry_heading_offset: bool = False,
     params_node: Optional[str] = None,
+    fit_drive: bool = True,
 ) -> dict[str, Any]:
     """Ē_p of θ on the validation segments of the drive (with ``report_json``, the extrinsics
     that report's calibration estimated). A heading offset the calibration estimated is
     re-estimated on this drive with θ held (``heading_offset_fit``) unless
-    ``carry_heading_offset``."""
+    ``carry_heading_offset``. ``fit_drive``: θ fitted on the drive and the verdict
+    (``drive_fit``)."""
 
 def simulate(
     seed: int = 0,

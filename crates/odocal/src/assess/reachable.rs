@@ -135,7 +135,7 @@ pub struct ReachableOptions {
     /// `Ē_p(θ)` of the search compares the model's antenna position with
     /// the reference, as `crate::assess::position_error::mean_position_error_with` does,
     /// so the minimum is comparable with a validation on the same mount.
-    /// [`validate`](crate::assess::validate::validate()) sets it from [`crate::ValidateOptions::extrinsics`].
+    /// [`validate`](crate::validate()) sets it from [`crate::ValidateOptions::extrinsics`].
     /// Default 0: the reference at the rear-axle centre.
     #[serde(default)]
     pub extrinsics: Extrinsics,
@@ -587,7 +587,7 @@ mod tests {
     /// appears to beat the "reachable minimum".
     #[test]
     fn the_search_uses_the_reference_mount_of_the_validation() {
-        use crate::assess::validate::{validate, ValidateOptions};
+        use crate::assess::validate::{validate_theta as validate, ValidateOptions};
         use crate::sim::{simulate, SimOptions};
         let mount = Extrinsics { lever_x: -0.9, lever_y: 0.3, heading_offset: -0.01 };
         let sim = SimOptions { length_km: 2.0, substeps: 1, reference_mount: mount, ..SimOptions::noise_free(3) };

@@ -64,6 +64,7 @@ use crate::progress::{emit, Progress, ProgressFn};
 
 pub(crate) mod batch_gn;
 mod checks;
+pub(crate) mod drive_fit;
 pub(crate) mod eiv;
 mod held_offset;
 pub(crate) mod input_noise;

@@ -1,0 +1,83 @@
+//! `validate`'s verdict: θ fitted on the validation drive itself, and
+//! whether the given θ's Ē_p is within 1.6 times the fit's. Two shipped
+//! test-track runs of one afternoon: one run's parameters fit the other;
+//! the same parameters with t_r 5 % wider do not.
+
+use crate::common;
+
+use std::path::Path;
+
+use common::{odocal, stderr, stdout};
+
+fn run(name: &str) -> String {
+    format!("{}/../../examples/psu-mapping-van-testtrack/run-{name}.toml", env!("CARGO_MANIFEST_DIR"))
+}
+
+/// `validate ARGS`, as text (stdout, stderr) and as JSON.
+fn validate(args: &[&str]) -> (String, String, serde_json::Value) {
+    let mut all = vec!["validate"];
+    all.extend_from_slice(args);
+    let text = odocal(&all);
+    assert!(text.status.success(), "{}", stderr(&text));
+    let json = odocal(&[all.as_slice(), &["--json", "-"]].concat());
+    assert!(json.status.success(), "{}", stderr(&json));
+    (stdout(&text), stderr(&text), serde_json::from_slice(&json.stdout).expect("json"))
+}
+
+/// The parameter file at `from` with its t_r multiplied by `factor`, at `to`.
+fn with_t_r_scaled(from: &Path, to: &Path, factor: f64) -> f64 {
+    let text = std::fs::read_to_string(from).expect("params");
+    let mut t_r = f64::NAN;
+    let edited: Vec<String> = text
+        .lines()
+        .map(|l| match l.trim_start().strip_prefix("t_r: ") {
+            Some(rest) => {
+                let v: f64 = rest.split_whitespace().next().expect("value").parse().expect("number");
+                t_r = v * factor;
+                format!("    t_r: {t_r}")
+            }
+            None => l.to_string(),
+        })
+        .collect();
+    std::fs::write(to, edited.join("\n") + "\n").expect("write");
+    t_r
+}
+
+#[test]
+fn a_theta_from_another_run_fits_and_one_with_t_r_off_does_not() {
+    let d = tempfile::tempdir().expect("tmp");
+    let params = d.path().join("p.yaml");
+    let p = params.to_str().expect("utf8");
+    let cal = odocal(&["calibrate", &run("14-45-26"), "--params-out", p, "-q"]);
+    assert!(cal.status.success(), "{}", stderr(&cal));
+    let other = run("15-28-33");
+
+    let (text, err, v) = validate(&[&other, "--theta", p]);
+    let fit = &v["drive_fit"];
+    let ratio = fit["ratio"].as_f64().expect("ratio");
+    assert_eq!(fit["fits"], serde_json::json!(true), "{v}");
+    assert!(ratio < 1.6, "ratio {ratio}");
+    let given = v["mean_position_error_m"].as_f64().expect("Ē_p");
+    let own = fit["mean_position_error_m"].as_f64().expect("fit's Ē_p");
+    assert!((given / own - ratio).abs() < 1e-12, "{given} / {own} vs {ratio}");
+    assert!(fit["heading_offset_rad"].as_f64().is_some(), "the fit re-estimates δ: {fit}");
+    assert!(text.contains("verdict: θ FITS this drive"), "{text}");
+    assert!(!err.contains("does not fit"), "{err}");
+
+    let wide = d.path().join("wide.yaml");
+    let t_r = with_t_r_scaled(&params, &wide, 1.05);
+    let (text, err, v) = validate(&[&other, "--theta", wide.to_str().expect("utf8")]);
+    let fit = &v["drive_fit"];
+    assert_eq!(fit["fits"], serde_json::json!(false), "{v}");
+    assert!(fit["ratio"].as_f64().expect("ratio") > 1.6, "{fit}");
+    // The fit moves t_r back towards the run's own.
+    let fitted = fit["theta"]["t_r"].as_f64().expect("fitted t_r");
+    assert!(fitted < t_r / 1.03, "fitted t_r {fitted} against the given {t_r}");
+    assert!(text.contains("verdict: θ DOES NOT FIT this drive"), "{text}");
+    assert!(err.contains("warning: θ does not fit this drive"), "{err}");
+
+    // --no-drive-fit: no fit, no verdict.
+    let (text, _, v) = validate(&[&other, "--theta", p, "--no-drive-fit"]);
+    assert!(v.get("drive_fit").is_none() && v.get("drive_fit_error").is_none(), "{v}");
+    assert!(!text.contains("verdict:"), "{text}");
+}
