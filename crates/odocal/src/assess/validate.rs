@@ -139,11 +139,11 @@ pub(crate) const FIT_FLOOR_M: f64 = 0.01;
 /// segments started from the given θ, with the heading offset re-estimated
 /// where validation re-estimates it and the other extrinsics held, and Ē_p
 /// of its θ on the same validation segments. A θ *fits* the drive when its
-/// Ē_p is at most [`FIT_RATIO`] times the fit's (or within [`FIT_FLOOR_M`]
-/// of it). θ carried from another drive of the same vehicle gave up to
-/// 1.51 times the drive's own fit on the 30 pairs of shipped test-track
-/// runs and up to 1.09 on simulated pairs, where t_r 3 % or c_d 2 mm off
-/// gave 1.7 to 12 on the test track. A θ that does not fit points at a
+/// Ē_p is at most 1.6 times the fit's (or within 1 cm of it). θ carried
+/// from another drive of the same vehicle gave up to 1.51 times the
+/// drive's own fit on the 30 pairs of shipped test-track runs and up to
+/// 1.09 on simulated pairs, where t_r 3 % or c_d 2 mm off gave 1.7 to 12
+/// on the test track. A θ that does not fit points at a
 /// changed vehicle, another vehicle's θ, or a drive whose data differ from
 /// the calibration's (docs/guide.md, "Does θ fit another drive?").
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

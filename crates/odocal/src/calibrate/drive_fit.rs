@@ -149,6 +149,6 @@ mod tests {
         assert!(!DriveFit::judge(t, None, 1.0, 1.61).fits);
         assert!(DriveFit::judge(t, None, 0.001, 0.011).fits);
         assert!(!DriveFit::judge(t, None, 0.001, 0.012).fits);
-        assert_eq!(DriveFit::judge(t, None, 2.0, 1.0).ratio, 0.5);
+        assert_eq!(DriveFit::judge(t, None, 2.0, 1.0).ratio.to_bits(), 0.5f64.to_bits());
     }
 }
