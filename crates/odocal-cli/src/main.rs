@@ -3,7 +3,8 @@
 //! Human-readable output goes to stdout, progress bars and warnings to
 //! stderr; errors are one line on stderr and exit code 1 (2 for usage
 //! errors). `calibrate` exits with [`EXIT_REJECTED`] when the verdict is
-//! `rejected` (the report is still written). Interrupted (Ctrl-C, SIGTERM,
+//! `rejected`, and `validate` when θ does not fit the drive (the report is
+//! still written). Interrupted (Ctrl-C, SIGTERM,
 //! SIGHUP), it removes the temporary file of an output being written and
 //! exits with 130.
 //!
@@ -80,10 +81,13 @@ enum Command {
         after_long_help = CALIBRATE_NOTES
     )]
     Calibrate(calibrate::CalibrateArgs),
-    /// Validate a θ (c_e,c_d,t_r,d or a parameter file) on a drive: Ē_p.
+    /// Validate a θ (c_e,c_d,t_r,d or a parameter file) on a drive: Ē_p and a verdict.
     ///
     /// The mean position error Ē_p of dead reckoning with θ on the validation
-    /// segments of a drive CSV or manifest; optionally the reachable minimum.
+    /// segments of a drive CSV or manifest, and whether θ fits the drive:
+    /// its Ē_p within 1.6 times that of θ fitted on the drive (batch G-N
+    /// from θ and from θ_0); optionally the reachable minimum. Exit code 3 when θ does
+    /// not fit (the report is still printed and written).
     Validate(validate::ValidateArgs),
     /// Write a drive's wheel rotations compensated for a θ beside them.
     ///
@@ -128,14 +132,16 @@ enum Command {
 /// Exit code of a bad command line (clap's for what it parses).
 const EXIT_USAGE: u8 = 2;
 
-/// Exit code of `calibrate` when the verdict is `rejected`.
+/// Exit code of `calibrate` when the verdict is `rejected`, and of
+/// `validate` when θ does not fit the drive.
 const EXIT_REJECTED: u8 = 3;
 
 /// How a successful command ends.
 enum Outcome {
     /// Exit code 0.
     Done,
-    /// The calibration was rejected: exit code [`EXIT_REJECTED`].
+    /// The calibration was rejected, or θ does not fit the drive
+    /// validated on: exit code [`EXIT_REJECTED`].
     Rejected,
 }
 
@@ -268,7 +274,7 @@ fn run(cli: Cli) -> Result<Outcome> {
     match cli.command {
         Command::Simulate(a) => done(simulate::run(a, &bars)),
         Command::Calibrate(a) => calibrate::calibrate_cmd(a, &bars),
-        Command::Validate(a) => done(validate::run(a, &bars)),
+        Command::Validate(a) => validate::run(a, &bars),
         Command::Compensate(a) => done(compensate::run(a, &bars)),
         // The demo shows a calibration; it is not one to deploy.
         Command::Demo(a) => calibrate::demo_cmd(a, &bars).map(|_| Outcome::Done),

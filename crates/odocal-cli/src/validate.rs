@@ -12,6 +12,7 @@ use crate::args::ThetaArg;
 use crate::io::{drive_entry, load_drive_with_scale, write_json};
 use crate::output::Files;
 use crate::progress::Bars;
+use crate::Outcome;
 
 /// Arguments of `odocal validate`.
 #[derive(Args)]
@@ -29,8 +30,9 @@ pub struct ValidateArgs {
     /// to drive).
     #[arg(long)]
     carry_heading_offset: bool,
-    /// Skip the drive's own fit (batch G-N on this drive, started from θ)
-    /// and with it the verdict on whether θ fits the drive.
+    /// Skip the drive's own fit (batch G-N on this drive, started from θ
+    /// and from θ_0) and with it the verdict on whether θ fits the drive
+    /// (exit code 3 when it does not).
     #[arg(long)]
     no_drive_fit: bool,
     /// Validation segment length K_v, samples (stride K_v/2) [default: 1300].
@@ -56,8 +58,9 @@ pub struct ValidateArgs {
     json: Option<PathBuf>,
 }
 
-/// Validates θ and prints (or writes) the report.
-pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<()> {
+/// Validates θ and prints (or writes) the report: [`Outcome::Rejected`]
+/// when θ does not fit the drive.
+pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<Outcome> {
     a.theta = a.theta.resolved(a.params_node.as_deref())?;
     a.theta0 = a.theta0.map(|t| t.resolved(a.params_node.as_deref())).transpose()?;
     crate::args::check_counts(odocal::settings::Settings {
@@ -101,6 +104,10 @@ pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<()> {
     if let Some(w) = drive_fit_warning(&report) {
         eprintln!("warning: {w}");
     }
+    let outcome = match &report.drive_fit {
+        Some(f) if !f.fits => Outcome::Rejected,
+        _ => Outcome::Done,
+    };
     let extrinsics_from =
         extrinsics_source(file.map(|(p, _)| p.as_path()), &from_file, report.heading_offset_fit.is_some());
     if let Some(p) = &a.json {
@@ -111,11 +118,11 @@ pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<()> {
         }
         write_json(p, v)?;
         if is_stdout(p) {
-            return Ok(());
+            return Ok(outcome);
         }
     }
     print_report(&a, &report, &extrinsics_from);
-    Ok(())
+    Ok(outcome)
 }
 
 /// How many of its cluster-robust σ a re-estimated heading offset may lie

@@ -24,7 +24,8 @@ def without_timing(d):
 
 def cli_json(odocal_bin, *args):
     out = subprocess.run([str(odocal_bin), *map(str, args), "--json", "-"], capture_output=True, text=True)
-    assert out.returncode == 0, out.stderr
+    # 3: a rejected calibration, or a θ that does not fit the drive validated on; the JSON is written either way.
+    assert out.returncode in (0, 3), out.stderr
     return json.loads(out.stdout)
 
 
@@ -80,6 +81,18 @@ def test_validate_equals_cli_json(odocal_bin, drive_csv):
     py = odocal.validate(odocal.Drive.from_csv(drive_csv), "1.95,-0.002,1.53,0.0008")
     assert py == cli
     assert odocal.validate(odocal.Drive.from_csv(drive_csv), [1.95, -0.002, 1.53, 0.0008]) == cli
+
+
+def test_validate_judges_theta_against_the_drive_s_own_fit(small_drive):
+    """drive_fit: the drive's own θ fits it, c_d 3 mm off does not; fit_drive=False leaves it out."""
+    r = odocal.calibrate(small_drive, "batch-gn")
+    fit = odocal.validate(small_drive, r)["drive_fit"]
+    assert fit["fits"] and fit["ratio"] <= 1.6, fit
+    t = r.theta
+    wide = odocal.validate(small_drive, [t["c_e"], t["c_d"] + 0.003, t["t_r"], t["d"]])
+    assert not wide["drive_fit"]["fits"] and wide["drive_fit"]["ratio"] > 1.6, wide["drive_fit"]
+    assert wide["mean_position_error_m"] == pytest.approx(wide["drive_fit"]["ratio"] * wide["drive_fit"]["mean_position_error_m"])
+    assert "drive_fit" not in odocal.validate(small_drive, r, fit_drive=False)
 
 
 def test_report_shortcuts(small_drive):

@@ -356,9 +356,9 @@ fn modules_use_only_lower_layers() {
 // ---- public surface ----
 
 /// The most `pub` items `src/` may declare (module docs: how they are
-/// counted). The last one in is `Replay::clock_span_s`, which `follow` in
-/// odocal-history needs to tell which of two drives was driven first.
-const PUBLIC_ITEM_BUDGET: usize = 300;
+/// counted). The last one in is `DriveFit`, `validate`'s verdict on
+/// whether θ fits the drive, a field of its report.
+const PUBLIC_ITEM_BUDGET: usize = 301;
 
 /// The kinds of item the count looks for after `pub `.
 const PUBLIC_KINDS: [&str; 11] =

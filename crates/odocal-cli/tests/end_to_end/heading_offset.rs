@@ -23,14 +23,20 @@ fn drive(dir: &Path, name: &str, seed: u64, delta: f64) -> String {
     p.to_str().expect("utf8").to_owned()
 }
 
-fn validate(args: &[&str]) -> (serde_json::Value, String) {
+/// `validate ARGS` as JSON and as text, each exiting with `code` (3: θ
+/// does not fit the drive).
+fn validate_exiting(code: i32, args: &[&str]) -> (serde_json::Value, String) {
     let mut all = vec!["validate"];
     all.extend_from_slice(args);
     let json = odocal(&[all.as_slice(), &["--json", "-"]].concat());
-    assert!(json.status.success(), "{}", stderr(&json));
+    assert_eq!(json.status.code(), Some(code), "{}", stderr(&json));
     let text = odocal(&all);
-    assert!(text.status.success(), "{}", stderr(&text));
+    assert_eq!(text.status.code(), Some(code), "{}", stderr(&text));
     (serde_json::from_slice(&json.stdout).expect("json"), stdout(&text))
+}
+
+fn validate(args: &[&str]) -> (serde_json::Value, String) {
+    validate_exiting(0, args)
 }
 
 #[test]
@@ -74,8 +80,11 @@ fn validation_re_estimates_the_drive_s_own_heading_offset_unless_carried() {
     assert_eq!(lib.validation.mean_position_error_m.to_bits(), own.to_bits());
     assert_eq!(lib.extrinsics.heading_offset.to_bits(), fit_d.to_bits());
 
-    // Carried: the calibration's δ, which tilts every path of this drive.
-    let (v, text) = validate(&[&other, "--theta", p, "--carry-heading-offset"]);
+    // Carried: the calibration's δ, which tilts every path of this drive;
+    // θ with it does not fit the drive, whose own fit (θ free, δ carried)
+    // bends θ to make up for part of the tilt.
+    let (v, text) = validate_exiting(3, &[&other, "--theta", p, "--carry-heading-offset"]);
+    assert_eq!(v["drive_fit"]["fits"], serde_json::json!(false), "{v}");
     assert!(v["heading_offset_fit"].is_null(), "{v}");
     assert_eq!(v["extrinsics"]["heading_offset"].as_f64(), Some(delta));
     let carried = v["mean_position_error_m"].as_f64().expect("Ē_p");

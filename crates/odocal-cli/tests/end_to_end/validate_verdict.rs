@@ -13,14 +13,15 @@ fn run(name: &str) -> String {
     format!("{}/../../examples/psu-mapping-van-testtrack/run-{name}.toml", env!("CARGO_MANIFEST_DIR"))
 }
 
-/// `validate ARGS`, as text (stdout, stderr) and as JSON.
-fn validate(args: &[&str]) -> (String, String, serde_json::Value) {
+/// `validate ARGS`, as text (stdout, stderr) and as JSON, each exiting
+/// with `code` (0, or 3 when θ does not fit).
+fn validate(args: &[&str], code: i32) -> (String, String, serde_json::Value) {
     let mut all = vec!["validate"];
     all.extend_from_slice(args);
     let text = odocal(&all);
-    assert!(text.status.success(), "{}", stderr(&text));
+    assert_eq!(text.status.code(), Some(code), "{}", stderr(&text));
     let json = odocal(&[all.as_slice(), &["--json", "-"]].concat());
-    assert!(json.status.success(), "{}", stderr(&json));
+    assert_eq!(json.status.code(), Some(code), "{}", stderr(&json));
     (stdout(&text), stderr(&text), serde_json::from_slice(&json.stdout).expect("json"))
 }
 
@@ -48,11 +49,11 @@ fn a_theta_from_another_run_fits_and_one_with_t_r_off_does_not() {
     let d = tempfile::tempdir().expect("tmp");
     let params = d.path().join("p.yaml");
     let p = params.to_str().expect("utf8");
-    let cal = odocal(&["calibrate", &run("14-45-26"), "--params-out", p, "-q"]);
+    let cal = odocal(&["calibrate", &run("14-45-26"), "--params-out", p]);
     assert!(cal.status.success(), "{}", stderr(&cal));
     let other = run("15-28-33");
 
-    let (text, err, v) = validate(&[&other, "--theta", p]);
+    let (text, err, v) = validate(&[&other, "--theta", p], 0);
     let fit = &v["drive_fit"];
     let ratio = fit["ratio"].as_f64().expect("ratio");
     assert_eq!(fit["fits"], serde_json::json!(true), "{v}");
@@ -66,7 +67,7 @@ fn a_theta_from_another_run_fits_and_one_with_t_r_off_does_not() {
 
     let wide = d.path().join("wide.yaml");
     let t_r = with_t_r_scaled(&params, &wide, 1.05);
-    let (text, err, v) = validate(&[&other, "--theta", wide.to_str().expect("utf8")]);
+    let (text, err, v) = validate(&[&other, "--theta", wide.to_str().expect("utf8")], 3);
     let fit = &v["drive_fit"];
     assert_eq!(fit["fits"], serde_json::json!(false), "{v}");
     assert!(fit["ratio"].as_f64().expect("ratio") > 1.6, "{fit}");
@@ -76,8 +77,8 @@ fn a_theta_from_another_run_fits_and_one_with_t_r_off_does_not() {
     assert!(text.contains("verdict: θ DOES NOT FIT this drive"), "{text}");
     assert!(err.contains("warning: θ does not fit this drive"), "{err}");
 
-    // --no-drive-fit: no fit, no verdict.
-    let (text, _, v) = validate(&[&other, "--theta", p, "--no-drive-fit"]);
+    // --no-drive-fit: no fit, no verdict, exit code 0.
+    let (text, _, v) = validate(&[&other, "--theta", wide.to_str().expect("utf8"), "--no-drive-fit"], 0);
     assert!(v.get("drive_fit").is_none() && v.get("drive_fit_error").is_none(), "{v}");
     assert!(!text.contains("verdict:"), "{text}");
 }
