@@ -1,6 +1,6 @@
 //! Writes a calibration as a ROS 2 parameter file, reads it back and uses
 //! the θ it holds: the round trip of `odocal calibrate --params-out` and
-//! `odocal validate --params`.
+//! `odocal validate --theta FILE`, with its verdict.
 //!
 //! ```sh
 //! cargo run --release -p odocal --example param_file -- examples/psu-mapping-van-testtrack/run-14-45-26.toml \
@@ -44,5 +44,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "Ē_p on {other}: {:.2} m over {} segments (its heading offset {delta:.1} mrad)",
         v.validation.mean_position_error_m, v.validation.segments
     );
+    // The verdict: θ fits the drive when its Ē_p is within 1.6 times that of
+    // θ fitted on the drive itself.
+    match (&v.drive_fit, &v.drive_fit_error) {
+        (Some(f), _) => {
+            println!("θ {} the drive: Ē_p {:.2} × its own fit's", if f.fits { "fits" } else { "does not fit" }, f.ratio)
+        }
+        (None, Some(why)) => println!("not judged: {why}"),
+        (None, None) => {}
+    }
     Ok(())
 }
