@@ -430,7 +430,14 @@ fn drive_starts(lengths: impl Iterator<Item = usize>) -> Vec<usize> {
 /// Ē_p of the true θ on the validation segments of `drive` with the true
 /// reference mount: the truth's row of the text, JSON and HTML reports.
 fn truth_error(drive: &Drive, theta: &Theta, mount: &Extrinsics, opts: &CalibrationOptions) -> Result<f64> {
-    let v = odocal::ValidateOptions { segments: opts.validation.clone(), extrinsics: *mount, ..Default::default() };
+    // Ē_p alone: the truth needs no verdict (the drive's own fit would cost
+    // two more calibrations).
+    let v = odocal::ValidateOptions {
+        segments: opts.validation.clone(),
+        extrinsics: *mount,
+        fit_drive: false,
+        ..Default::default()
+    };
     Ok(odocal::validate(drive, theta, &v, None)?.validation.mean_position_error_m)
 }
 

@@ -120,7 +120,9 @@ fn reference_extrinsics(
 ) -> Result<(Extrinsics, Vec<String>)> {
     let stated = settings.and_then(|s| s.reference.as_ref()).map(Extrinsics::from);
     let file = a.theta.file.as_ref();
-    let mut opts = ValidateOptions::default();
+    // The heading offset alone: no verdict on θ (the drive's own fit would
+    // cost two calibrations).
+    let mut opts = ValidateOptions { fit_drive: false, ..ValidateOptions::default() };
     let from_file = opts.set_extrinsics(file.map(|(_, f)| f), stated.as_ref(), a.carry_heading_offset);
     let (extrinsics, fit): (Extrinsics, Option<HeadingOffsetFit>) = if opts.reestimate_heading_offset {
         let r = odocal::validate(drive, &a.theta.theta, &opts, None).map_err(|e| {
