@@ -82,3 +82,31 @@ fn a_theta_from_another_run_fits_and_one_with_t_r_off_does_not() {
     assert!(v.get("drive_fit").is_none() && v.get("drive_fit_error").is_none(), "{v}");
     assert!(!text.contains("verdict:"), "{text}");
 }
+
+/// A shipped manifest under `examples/`.
+fn example(rel: &str) -> String {
+    format!("{}/../../examples/{rel}", env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The RAV4 log hardly turns: the fit holds c_d, t_r and d at θ, the
+/// parameters the drive cannot determine, and fits c_e, so the drive is
+/// judged. On the highway van, batch G-N with the default settings (the
+/// turning segments only) fits far worse than θ: a failed fit is no
+/// evidence for θ, so there is no verdict and the reason is named.
+#[test]
+fn a_drive_that_hardly_turns_is_judged_and_a_failed_fit_is_named() {
+    let (text, _, v) = validate(&[&example("comma2k19-rav4/manifest.toml"), "--theta", "2,0,1.6,0"], 0);
+    let fit = &v["drive_fit"];
+    assert!(fit.is_object(), "{v}");
+    assert_eq!(fit["theta"]["t_r"].as_f64(), Some(1.6), "{fit}");
+    assert_eq!(fit["theta"]["c_d"].as_f64(), Some(0.0), "{fit}");
+    assert_ne!(fit["theta"]["c_e"].as_f64(), Some(2.0), "{fit}");
+    assert!(text.contains("verdict: θ FITS this drive"), "{text}");
+
+    let theta = "1.999172,0.000881,1.562928,0.000865";
+    let (text, _, v) = validate(&[&example("psu-mapping-van/manifest.toml"), "--theta", theta], 0);
+    assert!(v.get("drive_fit").is_none(), "{v}");
+    let why = v["drive_fit_error"].as_str().expect("drive_fit_error");
+    assert!(why.contains("does not fit this drive") && why.contains("more than 1.6 times θ's"), "{why}");
+    assert!(text.contains("verdict: NOT JUDGED"), "{text}");
+}

@@ -487,8 +487,8 @@ def validate(
     ``theta`` and from the paper's θ_0, the better of the two (``theta``, ``heading_offset_rad`` when re-estimated, ``mean_position_error_m``),
     ``ratio`` (Ē_p of ``theta`` over the fit's) and ``fits`` (the ratio is at most 1.6): a
     ``theta`` that does not fit points at a changed vehicle, another vehicle's parameters or
-    inputs that differ from the calibration's. ``drive_fit_error`` says why a drive could not
-    be fitted; ``fit_drive=False`` skips the fit.
+    inputs that differ from the calibration's. ``drive_fit_error`` says why a drive has no
+    verdict (no plausible fit, or one far worse than ``theta``); ``fit_drive=False`` skips it.
     """
     report_json = theta._json if isinstance(theta, CalibrationReport) else None
     return _odocal.validate(

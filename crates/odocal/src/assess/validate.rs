@@ -137,9 +137,10 @@ pub(crate) const FIT_RATIO: f64 = 1.6;
 pub(crate) const FIT_FLOOR_M: f64 = 0.01;
 
 /// The drive's own fit: batch Gauss-Newton on the drive's calibration
-/// segments started from the given θ, with the heading offset re-estimated
-/// where validation re-estimates it and the other extrinsics held, and Ē_p
-/// of its θ on the same validation segments. A θ *fits* the drive when its
+/// segments started from the given θ and from the paper's θ_0 (the better
+/// counts), with the heading offset re-estimated where validation
+/// re-estimates it, the other extrinsics and what the drive cannot
+/// determine held, and Ē_p of its θ on the same validation segments. A θ *fits* the drive when its
 /// Ē_p is at most 1.6 times the fit's (or within 1 cm of it). θ carried
 /// from another drive of the same vehicle gave up to 1.51 times the
 /// drive's own fit on the 30 pairs of shipped test-track runs and up to

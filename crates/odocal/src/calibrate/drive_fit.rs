@@ -6,7 +6,7 @@ use super::batch_gn::BatchGnOptions;
 use super::{calibrate, CalibrationOptions, Method};
 use crate::assess::position_error::mean_position_error_with;
 use crate::assess::trust::VerdictReason;
-use crate::assess::validate::{validate_theta, DriveFit, ValidateOptions, ValidateReport};
+use crate::assess::validate::{validate_theta, DriveFit, ValidateOptions, ValidateReport, FIT_RATIO};
 use crate::drive::segment::validation_segments;
 use crate::drive::Drive;
 use crate::error::Result;
@@ -71,9 +71,12 @@ pub fn validate(
 /// a θ already at the drive's optimum it takes no step (and is named
 /// "did not move"), and from a θ far off its first step can raise the
 /// cost. Batch G-N rather than the default method: it is the reference the
-/// other methods are judged against, and a fraction of their cost. A fit
-/// whose Ē_p is above θ's stands: θ fits the drive better than its own
-/// fit. Why there is no verdict when neither fit is plausible.
+/// other methods are judged against, and a fraction of their cost. The
+/// parameters a drive cannot determine are held at the start
+/// ([`CalibrationOptions::auto_fix`]). A fit whose Ē_p is a little above
+/// θ's stands (θ fits the drive better than its own fit), but one beyond
+/// [`FIT_RATIO`] times θ's is a failed fit, not evidence for θ. Why there
+/// is no verdict when neither fit is plausible or the better one failed.
 fn drive_fit(
     drive: &Drive,
     theta: &Theta,
@@ -83,17 +86,31 @@ fn drive_fit(
     let mut starts = vec![("θ", *theta), ("θ_0", Theta::PAPER_INITIAL)];
     starts.retain(|(_, t)| t.check_physical_limits().is_ok());
     let mut best: Option<DriveFit> = None;
-    let mut why = Vec::new();
+    let mut why: Vec<(Vec<&str>, String)> = Vec::new();
     for (name, start) in starts {
         match fit_from(drive, &start, opts, given_m) {
             Ok(fit) if best.as_ref().is_none_or(|b| fit.mean_position_error_m < b.mean_position_error_m) => {
                 best = Some(fit)
             }
             Ok(_) => {}
-            Err(e) => why.push(format!("from {name}: {e}")),
+            Err(e) => match why.iter_mut().find(|(_, w)| *w == e) {
+                Some((names, _)) => names.push(name),
+                None => why.push((vec![name], e)),
+            },
         }
     }
-    best.ok_or_else(|| format!("batch G-N on this drive {}", why.join("; ")))
+    let Some(fit) = best else {
+        let why: Vec<String> = why.iter().map(|(names, w)| format!("from {}: {w}", names.join(" and "))).collect();
+        return Err(format!("batch G-N on this drive {}", why.join("; ")));
+    };
+    if fit.ratio * FIT_RATIO < 1.0 {
+        return Err(format!(
+            "θ fitted on this drive gives {:.4} m, more than {FIT_RATIO} times θ's {given_m:.4} m: batch G-N with \
+             the default settings does not fit this drive (calibrate it with its own settings and compare)",
+            fit.mean_position_error_m
+        ));
+    }
+    Ok(fit)
 }
 
 /// Batch Gauss-Newton on `drive` from `start` (module docs of
@@ -114,6 +131,9 @@ fn fit_from(
         theta0: *start,
         validation: opts.segments.clone(),
         identify: IdentifyOptions { free, extrinsics: opts.extrinsics, ..IdentifyOptions::default() },
+        // A drive that does not resolve every parameter (one that hardly
+        // turns) is still fitted in those it resolves, the others held.
+        auto_fix: true,
         ..CalibrationOptions::default()
     };
     let r = calibrate(drive, &fit).map_err(|e| e.to_string())?;
