@@ -96,6 +96,7 @@ convention = "enu"
 
 // One test in this binary: the counts are the process's.
 #[test]
+#[ignore = "slow tier, a memory claim (three manifest replays, ~8 s): cargo test --workspace -- --ignored"]
 fn streamed_manifest_replay_memory_is_flat_in_the_drive_length() {
     for bank in [false, true] {
         flat_in_the_drive_length(bank);

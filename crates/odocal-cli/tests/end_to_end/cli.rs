@@ -480,6 +480,7 @@ fn rejected_calibration_exits_3_and_still_writes_the_report() {
 /// 1.12–2.08 m: rejected as implausible. Holding out the second half gives
 /// 26.0 m against 73.1 m (t_r 1.218 m), doubtful.
 #[test]
+#[ignore = "slow tier, a real-data claim (four calibrations of the van, ~5 s): cargo test --workspace -- --ignored"]
 fn shipped_van_log_is_improved_or_rejected_on_both_half_splits() {
     let m = format!("{}/../../examples/psu-mapping-van/manifest.toml", env!("CARGO_MANIFEST_DIR"));
     let mut rejected = Vec::new();

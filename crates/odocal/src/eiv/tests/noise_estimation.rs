@@ -147,6 +147,7 @@ fn held_noise_scale_stays_at_the_starting_model() {
 /// inflated) plus `A Σ_η Aᵀ`, θ itself unchanged; a fixed noise model adds
 /// nothing.
 #[test]
+#[ignore = "slow tier, an accuracy claim against refits (~4 s): cargo test --workspace -- --ignored"]
 fn noise_estimate_sensitivity_matches_refits_and_widens_sigma() {
     let noise = NoiseOptions::high();
     let out = simulate(&SimOptions { length_km: 4.0, noise, ..SimOptions::paper(2) }).expect("sim");

@@ -198,6 +198,7 @@ fn fit(d: &Drive) -> ([f64; 4], [f64; 4]) {
 /// samples on the whole import's time base, and what the difference does to
 /// the calibration.
 #[test]
+#[ignore = "slow tier, a tolerance claim on six real manifests (~12 s): cargo test --workspace -- --ignored"]
 fn a_drive_longer_than_the_warm_up_stays_within_the_clock_estimates_tolerance() {
     let cases = [
         ("../../examples/psu-mapping-van/manifest.toml", 60.0),
