@@ -4,10 +4,8 @@
 
 use super::batch_gn::BatchGnOptions;
 use super::{calibrate, CalibrationOptions, Method};
-use crate::assess::position_error::mean_position_error_with;
 use crate::assess::trust::VerdictReason;
 use crate::assess::validate::{validate_theta, DriveFit, ValidateOptions, ValidateReport, FIT_RATIO};
-use crate::drive::segment::validation_segments;
 use crate::drive::Drive;
 use crate::error::Result;
 use crate::identify::IdentifyOptions;
@@ -147,11 +145,11 @@ fn fit_from(
     if !implausible.is_empty() {
         return Err(implausible.join("; "));
     }
+    // The calibration validated its θ on this drive's validation segments
+    // (`validation` is `opts.segments`) with the extrinsics it fitted: Ē_p
+    // of the fit on the segments θ's Ē_p was taken on.
     let extrinsics = r.extrinsics.as_ref().map_or(opts.extrinsics, |x| x.value);
-    let own = validation_segments(drive, &opts.segments)
-        .and_then(|segs| mean_position_error_with(drive, &segs, &r.theta, &extrinsics))
-        .map_err(|e| e.to_string())?
-        .mean_position_error_m;
+    let own = r.validation.mean_position_error_m;
     let heading_offset_rad = opts.reestimate_heading_offset.then_some(extrinsics.heading_offset);
     Ok(DriveFit::judge(r.theta, heading_offset_rad, own, given_m))
 }
