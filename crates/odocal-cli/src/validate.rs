@@ -240,8 +240,9 @@ fn verdict_line(theta: &Theta, report: &odocal::ValidateReport) -> Option<String
     let f = report.drive_fit.as_ref()?;
     let word = if f.fits { "FITS" } else { "DOES NOT FIT" };
     Some(format!(
-        "verdict: θ {word} this drive: Ē_p {:.2} × that of θ fitted on it ({:.4} m; {})",
+        "verdict: θ {word} this drive: Ē_p {:.2} × that of θ fitted on it by {} ({:.4} m; {})",
         f.ratio,
+        f.method,
         f.mean_position_error_m,
         change(theta, &f.theta)
     ))

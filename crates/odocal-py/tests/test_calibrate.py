@@ -87,7 +87,7 @@ def test_validate_judges_theta_against_the_drive_s_own_fit(small_drive):
     """drive_fit: the drive's own θ fits it, c_d 3 mm off does not; fit_drive=False leaves it out."""
     r = odocal.calibrate(small_drive, "batch-gn")
     fit = odocal.validate(small_drive, r)["drive_fit"]
-    assert fit["fits"] and fit["ratio"] <= 1.6, fit
+    assert fit["fits"] and fit["ratio"] <= 1.6 and fit["method"] == "batch-gn", fit
     t = r.theta
     wide = odocal.validate(small_drive, [t["c_e"], t["c_d"] + 0.003, t["t_r"], t["d"]])
     assert not wide["drive_fit"]["fits"] and wide["drive_fit"]["ratio"] > 1.6, wide["drive_fit"]

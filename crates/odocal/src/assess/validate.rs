@@ -155,6 +155,11 @@ pub struct DriveFit {
     /// The heading offset fitted with it, rad, when re-estimated.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub heading_offset_rad: Option<f64>,
+    /// The method that fitted it: `batch-gn`, or what the default method
+    /// ended as (`eiv`, or its `batch-gn` fallback) when batch G-N alone
+    /// did not fit the drive.
+    #[serde(default)]
+    pub method: String,
     /// Ē_p of the fitted θ on the validation segments, m.
     pub mean_position_error_m: f64,
     /// Ē_p of the given θ over that of the fitted θ.
@@ -164,11 +169,18 @@ pub struct DriveFit {
 }
 
 impl DriveFit {
-    /// The fit `theta` (with `heading_offset_rad`) whose Ē_p is `own_m`,
-    /// judged against Ē_p `given_m` of the given θ.
-    pub(crate) fn judge(theta: Theta, heading_offset_rad: Option<f64>, own_m: f64, given_m: f64) -> DriveFit {
+    /// The fit `theta` (with `heading_offset_rad`, by `method`) whose Ē_p
+    /// is `own_m`, judged against Ē_p `given_m` of the given θ.
+    pub(crate) fn judge(
+        theta: Theta,
+        heading_offset_rad: Option<f64>,
+        method: &str,
+        own_m: f64,
+        given_m: f64,
+    ) -> DriveFit {
         let fits = given_m <= (FIT_RATIO * own_m).max(own_m + FIT_FLOOR_M);
-        DriveFit { theta, heading_offset_rad, mean_position_error_m: own_m, ratio: given_m / own_m, fits }
+        let method = method.to_string();
+        DriveFit { theta, heading_offset_rad, method, mean_position_error_m: own_m, ratio: given_m / own_m, fits }
     }
 }
 

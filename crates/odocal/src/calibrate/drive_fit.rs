@@ -68,25 +68,30 @@ pub fn validate(
 /// Ē_p. Two starts, because one fit alone can stop where it started: from
 /// a θ already at the drive's optimum it takes no step (and is named
 /// "did not move"), and from a θ far off its first step can raise the
-/// cost. Batch G-N rather than the default method: it is the reference the
-/// other methods are judged against, and a fraction of their cost. The
-/// parameters a drive cannot determine are held at the start
-/// ([`CalibrationOptions::auto_fix`]). A fit whose Ē_p is a little above
-/// θ's stands (θ fits the drive better than its own fit), but one beyond
-/// [`FIT_RATIO`] times θ's is a failed fit, not evidence for θ. Why there
-/// is no verdict when neither fit is plausible or the better one failed.
+/// cost. Batch G-N first: it is the reference the other methods are judged
+/// against, and a fraction of their cost. The parameters a drive cannot
+/// determine are held at the start ([`CalibrationOptions::auto_fix`]).
+///
+/// A fit whose Ē_p is a little above θ's stands (θ fits the drive better
+/// than its own fit), but one beyond [`FIT_RATIO`] times θ's is a failed
+/// fit, not evidence for θ. When batch G-N fails so (or gives nothing
+/// plausible), the drive is fitted the way `calibrate` fits it by default
+/// (the default method from θ_0): a drive whose noise batch G-N cannot
+/// average out (the highway van: 112 m against the default's 20 m) is
+/// still judged. Why there is no verdict when that fails as well.
 fn drive_fit(
     drive: &Drive,
     theta: &Theta,
     opts: &ValidateOptions,
     given_m: f64,
 ) -> std::result::Result<DriveFit, String> {
+    let batch_gn = Method::BatchGn(BatchGnOptions::default());
     let mut starts = vec![("θ", *theta), ("θ_0", Theta::PAPER_INITIAL)];
     starts.retain(|(_, t)| t.check_physical_limits().is_ok());
     let mut best: Option<DriveFit> = None;
     let mut why: Vec<(Vec<&str>, String)> = Vec::new();
     for (name, start) in starts {
-        match fit_from(drive, &start, opts, given_m) {
+        match fit_from(drive, &start, &batch_gn, opts, given_m) {
             Ok(fit) if best.as_ref().is_none_or(|b| fit.mean_position_error_m < b.mean_position_error_m) => {
                 best = Some(fit)
             }
@@ -97,26 +102,42 @@ fn drive_fit(
             },
         }
     }
-    let Some(fit) = best else {
-        let why: Vec<String> = why.iter().map(|(names, w)| format!("from {}: {w}", names.join(" and "))).collect();
-        return Err(format!("batch G-N on this drive {}", why.join("; ")));
+    let batch_gn_failed = match best {
+        Some(fit) if !failed(&fit) => return Ok(fit),
+        Some(fit) => failed_fit(&fit, given_m),
+        None => {
+            let why: Vec<String> = why.iter().map(|(names, w)| format!("from {}: {w}", names.join(" and "))).collect();
+            format!("batch G-N on this drive {}", why.join("; "))
+        }
     };
-    if fit.ratio * FIT_RATIO < 1.0 {
-        return Err(format!(
-            "θ fitted on this drive gives {:.4} m, more than {FIT_RATIO} times θ's {given_m:.4} m: batch G-N with \
-             the default settings does not fit this drive (calibrate it with its own settings and compare)",
-            fit.mean_position_error_m
-        ));
+    let default = Method::default();
+    match fit_from(drive, &Theta::PAPER_INITIAL, &default, opts, given_m) {
+        Ok(fit) if !failed(&fit) => Ok(fit),
+        Ok(fit) => Err(format!("{batch_gn_failed}; the default method ({default}) {}", failed_fit(&fit, given_m))),
+        Err(e) => Err(format!("{batch_gn_failed}; the default method ({default}) from θ_0: {e}")),
     }
-    Ok(fit)
 }
 
-/// Batch Gauss-Newton on `drive` from `start` (module docs of
-/// [`drive_fit`]), judged against `given_m`; the reason when the fit is
-/// implausible or fails.
+/// A fit more than [`FIT_RATIO`] times worse than the given θ: it did not
+/// find the drive's optimum.
+fn failed(fit: &DriveFit) -> bool {
+    fit.ratio * FIT_RATIO < 1.0
+}
+
+/// Why a failed fit is no evidence.
+fn failed_fit(fit: &DriveFit, given_m: f64) -> String {
+    format!(
+        "{} gives {:.4} m, more than {FIT_RATIO} times θ's {given_m:.4} m, and does not fit this drive",
+        fit.method, fit.mean_position_error_m
+    )
+}
+
+/// `method` on `drive` from `start` (module docs of [`drive_fit`]), judged
+/// against `given_m`; the reason when the fit is implausible or fails.
 fn fit_from(
     drive: &Drive,
     start: &Theta,
+    method: &Method,
     opts: &ValidateOptions,
     given_m: f64,
 ) -> std::result::Result<DriveFit, String> {
@@ -125,7 +146,7 @@ fn fit_from(
         free = free.with(Param::HeadingOffset);
     }
     let fit = CalibrationOptions {
-        method: Method::BatchGn(BatchGnOptions::default()),
+        method: method.clone(),
         theta0: *start,
         validation: opts.segments.clone(),
         identify: IdentifyOptions { free, extrinsics: opts.extrinsics, ..IdentifyOptions::default() },
@@ -151,7 +172,7 @@ fn fit_from(
     let extrinsics = r.extrinsics.as_ref().map_or(opts.extrinsics, |x| x.value);
     let own = r.validation.mean_position_error_m;
     let heading_offset_rad = opts.reestimate_heading_offset.then_some(extrinsics.heading_offset);
-    Ok(DriveFit::judge(r.theta, heading_offset_rad, own, given_m))
+    Ok(DriveFit::judge(r.theta, heading_offset_rad, &r.method, own, given_m))
 }
 
 #[cfg(test)]
@@ -173,6 +194,7 @@ mod tests {
         assert!(fit.fits, "{fit:?}");
         assert!(fit.mean_position_error_m < 1e-6, "{fit:?}");
         assert_eq!(fit.heading_offset_rad, None);
+        assert_eq!(fit.method, "batch-gn");
 
         let wide = Theta { t_r: truth.t_r * 1.03, ..truth };
         let r = validate(&out.drive, &wide, &opts, None).expect("validate");
@@ -205,10 +227,22 @@ mod tests {
     #[test]
     fn a_theta_fits_within_the_ratio_or_the_floor() {
         let t = Theta::PAPER_NOMINAL;
-        assert!(DriveFit::judge(t, None, 1.0, 1.6).fits);
-        assert!(!DriveFit::judge(t, None, 1.0, 1.61).fits);
-        assert!(DriveFit::judge(t, None, 0.001, 0.011).fits);
-        assert!(!DriveFit::judge(t, None, 0.001, 0.012).fits);
-        assert_eq!(DriveFit::judge(t, None, 2.0, 1.0).ratio.to_bits(), 0.5f64.to_bits());
+        assert!(DriveFit::judge(t, None, "batch-gn", 1.0, 1.6).fits);
+        assert!(!DriveFit::judge(t, None, "batch-gn", 1.0, 1.61).fits);
+        assert!(DriveFit::judge(t, None, "batch-gn", 0.001, 0.011).fits);
+        assert!(!DriveFit::judge(t, None, "batch-gn", 0.001, 0.012).fits);
+        assert_eq!(DriveFit::judge(t, None, "batch-gn", 2.0, 1.0).ratio.to_bits(), 0.5f64.to_bits());
+    }
+
+    /// A fit more than 1.6 times worse than θ failed (it sends `validate`
+    /// on to the default method), and its reason names the method.
+    #[test]
+    fn a_fit_far_worse_than_theta_failed() {
+        let t = Theta::PAPER_NOMINAL;
+        assert!(!failed(&DriveFit::judge(t, None, "batch-gn", 1.5, 1.0)));
+        let far = DriveFit::judge(t, None, "batch-gn", 1.61, 1.0);
+        assert!(failed(&far));
+        let why = failed_fit(&far, 1.0);
+        assert!(why.starts_with("batch-gn gives 1.6100 m, more than 1.6 times"), "{why}");
     }
 }
