@@ -101,6 +101,9 @@ pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<Outcome> {
     if let Some(w) = report.heading_offset_fit.as_ref().and_then(heading_offset_warning) {
         eprintln!("warning: {w}");
     }
+    if let Some(why) = report.drive_fit.as_ref().and_then(|f| f.batch_gn_failure.as_ref()) {
+        eprintln!("note: the verdict's fit is the default method's: {why}");
+    }
     if let Some(w) = drive_fit_warning(&report) {
         eprintln!("warning: {w}");
     }

@@ -90,7 +90,7 @@ fn example(rel: &str) -> String {
 
 /// The RAV4 log hardly turns: the fit holds c_d, t_r and d at θ, the
 /// parameters the drive cannot determine, and fits c_e, so the drive is
-/// judged. On the highway van, batch G-N (the turning segments only) fits
+/// judged; the van's θ does not fit it. On the highway van, batch G-N (the turning segments only) fits
 /// far worse than θ, which is no evidence for θ; the default method fits
 /// the drive instead and the JSON names it.
 #[test]
@@ -103,14 +103,32 @@ fn a_drive_that_hardly_turns_is_judged_and_so_is_one_batch_gn_fails_on() {
     assert_ne!(fit["theta"]["c_e"].as_f64(), Some(2.0), "{fit}");
     assert!(text.contains("verdict: θ FITS this drive"), "{text}");
 
+    // The van's θ and estimated heading offset (its default calibration)
+    // on the RAV4, δ re-estimated: batch G-N on the few turning segments
+    // fails (18.8 m against θ's 7.5 m), the default method's fit (2.26 m)
+    // shows θ is another vehicle's.
+    let d = tempfile::tempdir().expect("tmp");
+    let van = d.path().join("van.yaml");
+    let params = "odocal:\n  ros__parameters:\n    c_e: 1.995758\n    c_d: 0.000271\n    t_r: 1.771362\n    \
+                  d: 0.001064\n    heading_offset: 0.0336\n    heading_offset_sigma: 0.012\n";
+    std::fs::write(&van, params).expect("write");
+    let (text, _, v) = validate(&[&example("comma2k19-rav4/manifest.toml"), "--theta", van.to_str().expect("utf8")], 3);
+    let fit = &v["drive_fit"];
+    assert_eq!(fit["method"].as_str(), Some("eiv"), "{fit}");
+    assert!(fit["ratio"].as_f64().expect("ratio") > 2.0, "{fit}");
+    assert!(text.contains("verdict: θ DOES NOT FIT this drive"), "{text}");
+
     // Batch G-N fails on the highway van (4 times worse than θ from the
     // test track); the default method fits it and the verdict stands on
     // that fit.
     let theta = "1.999172,0.000881,1.562928,0.000865";
-    let (text, _, v) = validate(&[&example("psu-mapping-van/manifest.toml"), "--theta", theta], 0);
+    let (text, err, v) = validate(&[&example("psu-mapping-van/manifest.toml"), "--theta", theta], 0);
     assert!(v.get("drive_fit_error").is_none(), "{v}");
     let fit = &v["drive_fit"];
     assert_eq!(fit["method"].as_str(), Some("eiv"), "{fit}");
+    let why = fit["batch_gn_failure"].as_str().expect("batch_gn_failure");
+    assert!(why.starts_with("batch-gn gives") && why.contains("more than 1.6 times θ's"), "{why}");
+    assert!(err.contains(&format!("note: the verdict's fit is the default method's: {why}")), "{err}");
     let ratio = fit["ratio"].as_f64().expect("ratio");
     assert!((1.0..1.6).contains(&ratio), "{fit}");
     assert!(text.contains("verdict: θ FITS this drive") && text.contains("fitted on it by eiv"), "{text}");

@@ -486,7 +486,8 @@ def validate(
     The verdict, ``drive_fit``: θ fitted on this drive by batch Gauss-Newton started from
     ``theta`` and from the paper's θ_0, the better of the two, or by the default method from θ_0
     when batch Gauss-Newton fails on the drive (``theta``, ``heading_offset_rad`` when
-    re-estimated, ``method``, ``mean_position_error_m``),
+    re-estimated, ``method``, ``batch_gn_failure`` when the default method fitted it,
+    ``mean_position_error_m``),
     ``ratio`` (Ē_p of ``theta`` over the fit's) and ``fits`` (the ratio is at most 1.6): a
     ``theta`` that does not fit points at a changed vehicle, another vehicle's parameters or
     inputs that differ from the calibration's. ``drive_fit_error`` says why a drive has no

@@ -138,7 +138,8 @@ pub(crate) const FIT_FLOOR_M: f64 = 0.01;
 
 /// The drive's own fit: batch Gauss-Newton on the drive's calibration
 /// segments started from the given θ and from the paper's θ_0 (the better
-/// counts), with the heading offset re-estimated where validation
+/// counts), or the default method from θ_0 where batch Gauss-Newton fails
+/// on the drive ([`DriveFit::batch_gn_failure`]), with the heading offset re-estimated where validation
 /// re-estimates it, the other extrinsics and what the drive cannot
 /// determine held, and Ē_p of its θ on the same validation segments. A θ *fits* the drive when its
 /// Ē_p is at most 1.6 times the fit's (or within 1 cm of it). θ carried
@@ -160,6 +161,10 @@ pub struct DriveFit {
     /// did not fit the drive.
     #[serde(default)]
     pub method: String,
+    /// Why batch G-N's fit was not used, when the default method fitted
+    /// the drive instead.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub batch_gn_failure: Option<String>,
     /// Ē_p of the fitted θ on the validation segments, m.
     pub mean_position_error_m: f64,
     /// Ē_p of the given θ over that of the fitted θ.
@@ -180,7 +185,15 @@ impl DriveFit {
     ) -> DriveFit {
         let fits = given_m <= (FIT_RATIO * own_m).max(own_m + FIT_FLOOR_M);
         let method = method.to_string();
-        DriveFit { theta, heading_offset_rad, method, mean_position_error_m: own_m, ratio: given_m / own_m, fits }
+        DriveFit {
+            theta,
+            heading_offset_rad,
+            method,
+            batch_gn_failure: None,
+            mean_position_error_m: own_m,
+            ratio: given_m / own_m,
+            fits,
+        }
     }
 }
 

@@ -112,7 +112,7 @@ fn drive_fit(
     };
     let default = Method::default();
     match fit_from(drive, &Theta::PAPER_INITIAL, &default, opts, given_m) {
-        Ok(fit) if !failed(&fit) => Ok(fit),
+        Ok(fit) if !failed(&fit) => Ok(DriveFit { batch_gn_failure: Some(batch_gn_failed), ..fit }),
         Ok(fit) => Err(format!("{batch_gn_failed}; the default method ({default}) {}", failed_fit(&fit, given_m))),
         Err(e) => Err(format!("{batch_gn_failed}; the default method ({default}) from θ_0: {e}")),
     }
@@ -195,6 +195,7 @@ mod tests {
         assert!(fit.mean_position_error_m < 1e-6, "{fit:?}");
         assert_eq!(fit.heading_offset_rad, None);
         assert_eq!(fit.method, "batch-gn");
+        assert_eq!(fit.batch_gn_failure, None);
 
         let wide = Theta { t_r: truth.t_r * 1.03, ..truth };
         let r = validate(&out.drive, &wide, &opts, None).expect("validate");
