@@ -39,7 +39,8 @@ pub struct ValidateOptions {
     pub reestimate_heading_offset: bool,
     /// Also fit θ on the drive itself and judge the given θ against that
     /// fit ([`ValidateReport::drive_fit`]): two batch G-N calibrations of
-    /// the drive. Default true; false for Ē_p alone.
+    /// the drive, and one by the default method where they fail. Default
+    /// true; false for Ē_p alone.
     #[serde(default = "yes")]
     pub fit_drive: bool,
 }
