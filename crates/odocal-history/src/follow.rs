@@ -96,8 +96,7 @@ const UNIX_TIME_FROM_S: f64 = 1e9;
 /// followed before it: `None` when it was not, or when either clock does
 /// not read as Unix time ([`UNIX_TIME_FROM_S`]).
 fn order_warning(source: &str, start_s: f64, previous: &str, previous_start_s: f64) -> Option<String> {
-    let unix = |t: f64| t.is_finite() && t >= UNIX_TIME_FROM_S;
-    (unix(start_s) && unix(previous_start_s) && start_s < previous_start_s).then(|| {
+    (unix_time(start_s) && unix_time(previous_start_s) && start_s < previous_start_s).then(|| {
         format!(
             "warning: {source} was recorded {:.0} s before {previous}, which was followed before it (first stamps \
              {start_s:.3} and {previous_start_s:.3} s): follow replays drives in the order given, and the parameters \
@@ -105,6 +104,11 @@ fn order_warning(source: &str, start_s: f64, previous: &str, previous_start_s: f
             previous_start_s - start_s
         )
     })
+}
+
+/// A clock reading that reads as Unix time ([`UNIX_TIME_FROM_S`]).
+fn unix_time(t: f64) -> bool {
+    t.is_finite() && t >= UNIX_TIME_FROM_S
 }
 
 /// The parameters in use: θ, its σ, and whether they are a recorded calibration.
@@ -175,8 +179,9 @@ pub fn follow<E: From<Error>>(
     let (mut stored, origin) = start(db, vehicle, opts)?;
     let mut cal: Option<Calibrator> = None;
     let mut started = false;
-    // The last drive followed, and its first stamp on its clock.
-    let mut previous: Option<(String, f64)> = None;
+    // The last drive followed, and its first stamp on its clock: at first
+    // the last one an earlier run logged with a Unix-time stamp.
+    let mut previous: Option<(String, f64)> = db.last_clock_start(vehicle)?;
     for path in drives {
         let drive = Replay::open(path, |line| on(FollowEvent::Log(line)))?;
         let source = path.display().to_string();
@@ -191,7 +196,7 @@ pub fn follow<E: From<Error>>(
         // wrong convention would enter the recursion, and every later
         // drive's estimate with it.
         drive.check(&stored.theta)?;
-        let clock_start_s = drive.clock_span_s().map(|(a, _)| a);
+        let clock_start_s = drive.clock_span_s().map(|(a, _)| a).filter(|&t| unix_time(t));
         if let (Some((p, p_start)), Some(start)) = (&previous, clock_start_s) {
             if let Some(w) = order_warning(&source, start, p, *p_start) {
                 on(FollowEvent::Log(w))?;
@@ -250,6 +255,7 @@ pub fn follow<E: From<Error>>(
                 source: source.clone(),
                 source_digest: Some(digest.clone()),
                 t_start_s: Some(span.0),
+                clock_start_s,
                 drive_time_s: span.1 - span.0,
                 decision: decision.action.to_string(),
                 reasons: decision.reasons.clone(),

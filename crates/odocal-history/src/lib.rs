@@ -38,7 +38,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use rusqlite::{params, Connection, Row};
+use rusqlite::{params, Connection, OptionalExtension, Row};
 use serde::{Deserialize, Serialize};
 
 use odocal::model::THETA_NAMES;
@@ -409,6 +409,11 @@ pub struct DecisionRow {
     /// not known (a decision logged before the column).
     #[serde(default)]
     pub t_start_s: Option<f64>,
+    /// The drive's first stamp on the logger's clock, s, when that clock
+    /// reads as Unix time (which tells the order drives were recorded in);
+    /// `None` otherwise, or for a decision logged before the column.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub clock_start_s: Option<f64>,
     /// Time into the drive, s (from its first sample).
     pub drive_time_s: f64,
     /// `written`, `held` or `flagged` (a change too large to write without a person).
@@ -573,6 +578,7 @@ fn decision_row(r: &Row<'_>) -> rusqlite::Result<DecisionRow> {
         sigma: sigma_at(r, 13)?.all(),
         source_digest: r.get(17)?,
         t_start_s: r.get(18)?,
+        clock_start_s: r.get(19)?,
     })
 }
 
@@ -747,13 +753,27 @@ impl History {
             .conn
             .prepare(
                 "SELECT id, decided_at, odocal_version, vehicle, fingerprint, source, reasons, drive_time_s, \
-                 decision, c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, source_digest, t_start_s \
-                 FROM decisions \
+                 decision, c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, source_digest, t_start_s, \
+                 clock_start_s FROM decisions \
                  WHERE vehicle = ?1 ORDER BY id",
             )
             .map_err(&err)?;
         let rows = st.query_map(params![vehicle], cell::checked("decisions", decision_row)).map_err(&err)?;
         cell::collect(rows, &self.path, err)
+    }
+
+    /// The source and Unix-time first stamp of the vehicle's last logged
+    /// decision that has one ([`DecisionRow::clock_start_s`]).
+    pub(crate) fn last_clock_start(&self, vehicle: &str) -> Result<Option<(String, f64)>> {
+        self.conn
+            .query_row(
+                "SELECT source, clock_start_s FROM decisions WHERE vehicle = ?1 AND clock_start_s IS NOT NULL \
+                 ORDER BY id DESC LIMIT 1",
+                params![vehicle],
+                |r| Ok((r.get(0)?, r.get(1)?)),
+            )
+            .optional()
+            .map_err(sql_err(&self.path))
     }
 
     /// The number of decisions logged for the vehicle.

@@ -73,6 +73,11 @@ pub(super) const MIGRATIONS: &[&str] = &[
     "ALTER TABLE calibrations ADD COLUMN source_digest TEXT;
     ALTER TABLE decisions ADD COLUMN source_digest TEXT;
     ALTER TABLE decisions ADD COLUMN t_start_s REAL;",
+    // Version 6: a decision's drive's first stamp on the logger's clock
+    // when that clock reads as Unix time, so a later `follow` run can tell
+    // a drive recorded before the last one followed; NULL when the clock
+    // says nothing about order or for rows recorded before the column.
+    "ALTER TABLE decisions ADD COLUMN clock_start_s REAL;",
 ];
 
 /// The schema version this odocal writes.

@@ -109,8 +109,8 @@ pub(crate) fn insert_decision(conn: &Connection, path: &Path, d: &DecisionRow) -
             &format!(
                 "INSERT INTO decisions (vehicle, decided_at, fingerprint, source, drive_time_s, decision, \
                  reasons, c_e, c_d, t_r, d, sigma_c_e, sigma_c_d, sigma_t_r, sigma_d, odocal_version, \
-                 source_digest, t_start_s) \
-                 SELECT ?1, {NOW}, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17 \
+                 source_digest, t_start_s, clock_start_s) \
+                 SELECT ?1, {NOW}, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17, ?18 \
                  WHERE NOT EXISTS (SELECT 1 FROM decisions WHERE vehicle = ?1 AND fingerprint = ?2)"
             ),
             params![
@@ -131,6 +131,7 @@ pub(crate) fn insert_decision(conn: &Connection, path: &Path, d: &DecisionRow) -
                 env!("CARGO_PKG_VERSION"),
                 d.source_digest,
                 d.t_start_s,
+                d.clock_start_s,
             ],
         )
         .map_err(&err)?;

@@ -643,7 +643,8 @@ fn follow_json_reports_the_drives_recorded_before_an_error() {
 
 /// Two shipped test-track runs given against the order they were driven
 /// are followed, with a warning naming both and their clocks' first
-/// stamps; in the order driven there is none.
+/// stamps, in one `follow` run or in two; in the order driven there is
+/// none.
 #[test]
 fn follow_warns_of_drives_given_out_of_the_order_driven() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -660,4 +661,10 @@ fn follow_warns_of_drives_given_out_of_the_order_driven() {
     let o = odocal(&["follow", &early, &late, "--vehicle", "van", "--db", &db("b.sqlite")]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(!stderr(&o).contains("was recorded"), "{}", stderr(&o));
+    // Across runs: the history keeps the last drive's first stamp.
+    let o = odocal(&["follow", &late, "--vehicle", "van", "--db", &db("c.sqlite")]);
+    assert!(o.status.success() && !stderr(&o).contains("was recorded"), "{}", stderr(&o));
+    let o = odocal(&["follow", &early, "--vehicle", "van", "--db", &db("c.sqlite")]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains(&format!("warning: {early} was recorded 2587 s before {late}")), "{}", stderr(&o));
 }
