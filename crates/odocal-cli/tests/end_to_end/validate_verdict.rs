@@ -125,11 +125,14 @@ fn a_drive_that_hardly_turns_is_judged_and_so_is_one_batch_gn_fails_on() {
     let (text, err, v) = validate(&[&example("psu-mapping-van/manifest.toml"), "--theta", theta], 0);
     assert!(v.get("drive_fit_error").is_none(), "{v}");
     let fit = &v["drive_fit"];
-    assert_eq!(fit["method"].as_str(), Some("eiv"), "{fit}");
+    assert_eq!(fit["method"].as_str(), Some("eiv (batch-gn fallback)"), "{fit}");
     let why = fit["batch_gn_failure"].as_str().expect("batch_gn_failure");
     assert!(why.starts_with("batch-gn gives") && why.contains("more than 1.6 times θ's"), "{why}");
     assert!(err.contains(&format!("note: the verdict's fit is the default method's: {why}")), "{err}");
     let ratio = fit["ratio"].as_f64().expect("ratio");
     assert!((1.0..1.6).contains(&ratio), "{fit}");
-    assert!(text.contains("verdict: θ FITS this drive") && text.contains("fitted on it by eiv"), "{text}");
+    assert!(
+        text.contains("verdict: θ FITS this drive") && text.contains("fitted on it by eiv (batch-gn fallback)"),
+        "{text}"
+    );
 }

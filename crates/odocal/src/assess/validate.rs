@@ -157,9 +157,10 @@ pub struct DriveFit {
     /// The heading offset fitted with it, rad, when re-estimated.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub heading_offset_rad: Option<f64>,
-    /// The method that fitted it: `batch-gn`, or what the default method
-    /// ended as (`eiv`, or its `batch-gn` fallback) when batch G-N alone
-    /// did not fit the drive.
+    /// The method that fitted it: `batch-gn`, or the default method's
+    /// outcome (`eiv`, or `eiv (batch-gn fallback)` when its checks failed
+    /// and its batch G-N start on every segment stands) when batch G-N
+    /// alone did not fit the drive.
     #[serde(default)]
     pub method: String,
     /// Why batch G-N's fit was not used, when the default method fitted

@@ -3,7 +3,8 @@
 //! drive ([`DriveFit`]).
 
 use super::batch_gn::BatchGnOptions;
-use super::{calibrate, CalibrationOptions, Method};
+use super::eiv::EivOutcome;
+use super::{calibrate, CalibrationOptions, Method, MethodDetail};
 use crate::assess::trust::VerdictReason;
 use crate::assess::validate::{validate_theta, DriveFit, ValidateOptions, ValidateReport, FIT_RATIO};
 use crate::drive::Drive;
@@ -172,7 +173,13 @@ fn fit_from(
     let extrinsics = r.extrinsics.as_ref().map_or(opts.extrinsics, |x| x.value);
     let own = r.validation.mean_position_error_m;
     let heading_offset_rad = opts.reestimate_heading_offset.then_some(extrinsics.heading_offset);
-    Ok(DriveFit::judge(r.theta, heading_offset_rad, &r.method, own, given_m))
+    let method = match &r.detail {
+        MethodDetail::Eiv(d) if d.eiv_result == EivOutcome::BatchGnFallback => {
+            format!("{} (batch-gn fallback)", r.method)
+        }
+        _ => r.method.clone(),
+    };
+    Ok(DriveFit::judge(r.theta, heading_offset_rad, &method, own, given_m))
 }
 
 #[cfg(test)]
