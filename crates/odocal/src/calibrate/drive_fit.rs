@@ -77,9 +77,10 @@ pub fn validate(
 /// than its own fit), but one beyond [`FIT_RATIO`] times θ's is a failed
 /// fit, not evidence for θ. When batch G-N fails so (or gives nothing
 /// plausible), the drive is fitted the way `calibrate` fits it by default
-/// (the default method from θ_0): a drive whose noise batch G-N cannot
-/// average out (the highway van: 112 m against the default's 20 m) is
-/// still judged. Why there is no verdict when that fails as well.
+/// (the default method from θ_0, on every segment): a drive that hardly
+/// turns, whose few turning segments are all batch G-N's default settings
+/// fit on, is still judged (the highway van: 112 m against the default's
+/// 20 m). Why there is no verdict when that fails as well.
 fn drive_fit(
     drive: &Drive,
     theta: &Theta,
