@@ -115,7 +115,7 @@ fn drive_fit(
     let default = Method::default();
     match fit_from(drive, &Theta::PAPER_INITIAL, &default, opts, given_m) {
         Ok(fit) if !failed(&fit) => Ok(DriveFit { batch_gn_failure: Some(batch_gn_failed), ..fit }),
-        Ok(fit) => Err(format!("{batch_gn_failed}; the default method ({default}) {}", failed_fit(&fit, given_m))),
+        Ok(fit) => Err(format!("{batch_gn_failed}; the default method: {}", failed_fit(&fit, given_m))),
         Err(e) => Err(format!("{batch_gn_failed}; the default method ({default}) from θ_0: {e}")),
     }
 }
