@@ -31,8 +31,9 @@ pub struct ValidateArgs {
     #[arg(long)]
     carry_heading_offset: bool,
     /// Skip the drive's own fit (batch G-N on this drive, started from θ
-    /// and from θ_0) and with it the verdict on whether θ fits the drive
-    /// (exit code 3 when it does not).
+    /// and from θ_0, or the default method where batch G-N fails) and with
+    /// it the verdict on whether θ fits the drive (exit code 3 when it
+    /// does not).
     #[arg(long)]
     no_drive_fit: bool,
     /// Validation segment length K_v, samples (stride K_v/2) [default: 1300].
