@@ -86,8 +86,8 @@ enum Command {
     /// The mean position error Ē_p of dead reckoning with θ on the validation
     /// segments of a drive CSV or manifest, and whether θ fits the drive:
     /// its Ē_p within 1.6 times that of θ fitted on the drive (batch G-N
-    /// from θ and from θ_0, or the default method from θ_0 where batch G-N
-    /// fails); optionally the reachable minimum. Exit code 3 when θ does
+    /// from θ and from θ_0, or the default method from θ_0 where batch G-N's
+    /// fit is worse than θ); optionally the reachable minimum. Exit code 3 when θ does
     /// not fit (the report is still printed and written).
     Validate(validate::ValidateArgs),
     /// Write a drive's wheel rotations compensated for a θ beside them.

@@ -104,19 +104,26 @@ fn a_drive_that_hardly_turns_is_judged_and_so_is_one_batch_gn_fails_on() {
     assert!(text.contains("verdict: θ FITS this drive"), "{text}");
 
     // The van's θ and estimated heading offset (its default calibration)
-    // on the RAV4, δ re-estimated: batch G-N on the few turning segments
-    // fails (18.8 m against θ's 7.5 m), the default method's fit (2.26 m)
-    // shows θ is another vehicle's.
+    // on the RAV4, δ re-estimated. Batch G-N on the few turning segments
+    // fails (18.8 m against θ's 7.5 m) or, with δ starting at 0, ends
+    // worse than θ (9.6 m), which alone would call θ a fit; the default
+    // method's fit (2.26 m) shows θ is another vehicle's.
     let d = tempfile::tempdir().expect("tmp");
     let van = d.path().join("van.yaml");
-    let params = "odocal:\n  ros__parameters:\n    c_e: 1.995758\n    c_d: 0.000271\n    t_r: 1.771362\n    \
-                  d: 0.001064\n    heading_offset: 0.0336\n    heading_offset_sigma: 0.012\n";
-    std::fs::write(&van, params).expect("write");
-    let (text, _, v) = validate(&[&example("comma2k19-rav4/manifest.toml"), "--theta", van.to_str().expect("utf8")], 3);
-    let fit = &v["drive_fit"];
-    assert_eq!(fit["method"].as_str(), Some("eiv"), "{fit}");
-    assert!(fit["ratio"].as_f64().expect("ratio") > 2.0, "{fit}");
-    assert!(text.contains("verdict: θ DOES NOT FIT this drive"), "{text}");
+    for (delta, why) in [("0.0336", "more than 1.6 times θ's"), ("0.0", "more than θ's")] {
+        let params = format!(
+            "odocal:\n  ros__parameters:\n    c_e: 1.995758\n    c_d: 0.000271\n    t_r: 1.771362\n    \
+             d: 0.001064\n    heading_offset: {delta}\n    heading_offset_sigma: 0.012\n"
+        );
+        std::fs::write(&van, params).expect("write");
+        let rav4 = example("comma2k19-rav4/manifest.toml");
+        let (text, _, v) = validate(&[&rav4, "--theta", van.to_str().expect("utf8")], 3);
+        let fit = &v["drive_fit"];
+        assert_eq!(fit["method"].as_str(), Some("eiv"), "δ {delta}: {fit}");
+        assert!(fit["ratio"].as_f64().expect("ratio") > 2.0, "δ {delta}: {fit}");
+        assert!(fit["batch_gn_failure"].as_str().is_some_and(|w| w.contains(why)), "δ {delta}: {fit}");
+        assert!(text.contains("verdict: θ DOES NOT FIT this drive"), "{text}");
+    }
 
     // Batch G-N fails on the highway van (4 times worse than θ from the
     // test track); the default method fits it and the verdict stands on

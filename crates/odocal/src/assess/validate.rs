@@ -139,8 +139,9 @@ pub(crate) const FIT_FLOOR_M: f64 = 0.01;
 
 /// The drive's own fit: batch Gauss-Newton on the drive's calibration
 /// segments started from the given θ and from the paper's θ_0 (the better
-/// counts), or the default method from θ_0 where batch Gauss-Newton fails
-/// on the drive ([`DriveFit::batch_gn_failure`]), with the heading offset re-estimated where validation
+/// counts), or the default method from θ_0 where batch Gauss-Newton's fit
+/// fails or is worse than θ and the default's is better
+/// ([`DriveFit::batch_gn_failure`]), with the heading offset re-estimated where validation
 /// re-estimates it, the other extrinsics and what the drive cannot
 /// determine held, and Ē_p of its θ on the same validation segments. A θ *fits* the drive when its
 /// Ē_p is at most 1.6 times the fit's (or within 1 cm of it). θ carried
@@ -159,12 +160,12 @@ pub struct DriveFit {
     pub heading_offset_rad: Option<f64>,
     /// The method that fitted it: `batch-gn`, or the default method's
     /// outcome (`eiv`, or `eiv (batch-gn fallback)` when its checks failed
-    /// and its batch G-N start on every segment stands) when batch G-N
-    /// alone did not fit the drive.
+    /// and its batch G-N start on every segment stands) when batch G-N's
+    /// fit failed or was worse than θ and the default's was better.
     #[serde(default)]
     pub method: String,
-    /// Why batch G-N's fit was not used, when the default method fitted
-    /// the drive instead.
+    /// Why batch G-N's fit was not used (it failed, or was worse than θ),
+    /// when the default method's fit counts instead.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub batch_gn_failure: Option<String>,
     /// Ē_p of the fitted θ on the validation segments, m.
