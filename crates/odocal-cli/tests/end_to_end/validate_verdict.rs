@@ -90,9 +90,9 @@ fn example(rel: &str) -> String {
 
 /// The RAV4 log hardly turns: the fit holds c_d, t_r and d at θ, the
 /// parameters the drive cannot determine, and fits c_e, so the drive is
-/// judged; the van's θ does not fit it. On the highway van, batch G-N (the turning segments only) fits
-/// far worse than θ, which is no evidence for θ; the default method fits
-/// the drive instead and the JSON names it.
+/// judged; the van's θ does not fit it. On the highway van, batch G-N (the
+/// turning segments only) fits far worse than θ, which is no evidence for
+/// θ; the default method fits the drive instead and the JSON names it.
 #[test]
 fn a_drive_that_hardly_turns_is_judged_and_so_is_one_batch_gn_fails_on() {
     let (text, _, v) = validate(&[&example("comma2k19-rav4/manifest.toml"), "--theta", "2,0,1.6,0"], 0);

@@ -484,10 +484,10 @@ def validate(
     parameters (such a file is refused without it).
 
     The verdict, ``drive_fit``: θ fitted on this drive by batch Gauss-Newton started from
-    ``theta`` and from the paper's θ_0, the better of the two, or by the default method from θ_0
-    when batch Gauss-Newton's fit fails or is worse than ``theta`` and the default's is better (``theta``, ``heading_offset_rad`` when
-    re-estimated, ``method``, ``batch_gn_failure`` when the default method fitted it,
-    ``mean_position_error_m``),
+    ``theta`` and from the paper's θ_0, the better of the two, or by the default method from
+    θ_0 when batch Gauss-Newton's fit fails or is worse than ``theta`` and the default's is
+    better (``theta``, ``heading_offset_rad`` when re-estimated, ``method``,
+    ``batch_gn_failure`` when the default method fitted it, ``mean_position_error_m``),
     ``ratio`` (Ē_p of ``theta`` over the fit's) and ``fits`` (the ratio is at most 1.6): a
     ``theta`` that does not fit points at a changed vehicle, another vehicle's parameters or
     inputs that differ from the calibration's. ``drive_fit_error`` says why a drive has no

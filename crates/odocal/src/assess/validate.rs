@@ -39,8 +39,8 @@ pub struct ValidateOptions {
     pub reestimate_heading_offset: bool,
     /// Also fit θ on the drive itself and judge the given θ against that
     /// fit ([`ValidateReport::drive_fit`]): two batch G-N calibrations of
-    /// the drive, and one by the default method where they fail. Default
-    /// true; false for Ē_p alone.
+    /// the drive, and one by the default method where their fit fails or
+    /// is worse than θ. Default true; false for Ē_p alone.
     #[serde(default = "yes")]
     pub fit_drive: bool,
 }
@@ -137,6 +137,14 @@ pub(crate) const FIT_RATIO: f64 = 1.6;
 /// θ and of the fit differ by rounding).
 pub(crate) const FIT_FLOOR_M: f64 = 0.01;
 
+/// Ē_p `worse_m` lies beyond the verdict's line from Ē_p `better_m`: more
+/// than [`FIT_RATIO`] times it and more than [`FIT_FLOOR_M`] above it. θ
+/// does not fit when its Ē_p lies beyond the line from the fit's; a fit
+/// has failed when its Ē_p lies beyond the line from θ's.
+pub(crate) fn beyond_the_line(worse_m: f64, better_m: f64) -> bool {
+    worse_m > (FIT_RATIO * better_m).max(better_m + FIT_FLOOR_M)
+}
+
 /// The drive's own fit: batch Gauss-Newton on the drive's calibration
 /// segments started from the given θ and from the paper's θ_0 (the better
 /// counts), or the default method from θ_0 where batch Gauss-Newton's fit
@@ -186,7 +194,7 @@ impl DriveFit {
         own_m: f64,
         given_m: f64,
     ) -> DriveFit {
-        let fits = given_m <= (FIT_RATIO * own_m).max(own_m + FIT_FLOOR_M);
+        let fits = !beyond_the_line(given_m, own_m);
         let method = method.to_string();
         DriveFit {
             theta,

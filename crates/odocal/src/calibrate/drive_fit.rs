@@ -6,7 +6,9 @@ use super::batch_gn::BatchGnOptions;
 use super::eiv::EivOutcome;
 use super::{calibrate, CalibrationOptions, Method, MethodDetail};
 use crate::assess::trust::VerdictReason;
-use crate::assess::validate::{validate_theta, DriveFit, ValidateOptions, ValidateReport, FIT_FLOOR_M, FIT_RATIO};
+use crate::assess::validate::{
+    beyond_the_line, validate_theta, DriveFit, ValidateOptions, ValidateReport, FIT_FLOOR_M, FIT_RATIO,
+};
 use crate::drive::Drive;
 use crate::error::Result;
 use crate::identify::IdentifyOptions;
@@ -140,12 +142,12 @@ fn worse(fit: &DriveFit, given_m: f64) -> bool {
     fit.mean_position_error_m > given_m + FIT_FLOOR_M
 }
 
-/// A fit more than [`FIT_RATIO`] times worse than the given θ and by more
-/// than [`FIT_FLOOR_M`] (the rule [`DriveFit::fits`] applies the other
-/// way round): it did not find the drive's optimum. Within the floor,
+/// A fit whose Ē_p lies beyond the verdict's line from θ's
+/// ([`beyond_the_line`], the rule by which θ does not fit, the other way
+/// round): it did not find the drive's optimum. Within the 1 cm floor,
 /// where a noise-free drive's Ē_p are rounding, no fit has failed.
 fn failed(fit: &DriveFit, given_m: f64) -> bool {
-    fit.mean_position_error_m > (FIT_RATIO * given_m).max(given_m + FIT_FLOOR_M)
+    beyond_the_line(fit.mean_position_error_m, given_m)
 }
 
 /// Why a failed fit is no evidence.
