@@ -35,8 +35,10 @@ pub struct CompensateArgs {
     /// tracks the rear-axle poses the reference implies under them.
     #[arg(long, allow_hyphen_values = true)]
     theta: ThetaArg,
-    /// Carry the heading offset a parameter file estimated to this drive
-    /// instead of re-estimating the drive's own.
+    /// Hold the heading offset as given (a parameter file's estimate, else
+    /// the drive's manifest [reference] value, else 0) instead of
+    /// re-estimating the drive's own with θ held (done where the file's
+    /// calibration estimated one or θ is given as numbers).
     #[arg(long)]
     carry_heading_offset: bool,
     /// Output CSV (the drive plus n_rl_comp, n_rr_comp, compensated
@@ -110,8 +112,9 @@ pub fn run(mut a: CompensateArgs, bars: &Bars) -> Result<()> {
 
 /// The reference extrinsics the QP tracks the axle under, by `validate`'s
 /// rules: the drive's manifest `[reference]`, except those the `--theta`
-/// parameter file estimated; an estimated heading offset re-estimated on
-/// this drive with θ held unless `--carry-heading-offset`. With the lines
+/// parameter file estimated; the heading offset re-estimated on this drive
+/// from there with θ held (an estimated one, or any for θ given as
+/// numbers) unless `--carry-heading-offset`. With the lines
 /// that say which were used and where from (none at the axle).
 fn reference_extrinsics(
     a: &CompensateArgs,
@@ -124,11 +127,11 @@ fn reference_extrinsics(
     // cost two calibrations).
     let mut opts = ValidateOptions { fit_drive: false, ..ValidateOptions::default() };
     let from_file = opts.set_extrinsics(file.map(|(_, f)| f), stated.as_ref(), a.carry_heading_offset);
+    let start = crate::validate::OffsetStart::of(&from_file, stated.is_some());
     let (extrinsics, fit): (Extrinsics, Option<HeadingOffsetFit>) = if opts.reestimate_heading_offset {
         let r = odocal::validate(drive, &a.theta.theta, &opts, None).map_err(|e| {
             anyhow::anyhow!(
-                "{}: re-estimating the drive's heading offset (the --theta file estimated one): {e}; \
-                 --carry-heading-offset carries the file's",
+                "{}: re-estimating the drive's heading offset: {e}; --carry-heading-offset holds it as given",
                 a.drive.display()
             )
         })?;
@@ -139,14 +142,14 @@ fn reference_extrinsics(
     let mut notes = Vec::new();
     if extrinsics != Extrinsics::default() {
         let path = file.map(|(p, _)| p.as_path());
-        let from = crate::validate::extrinsics_source(path, &from_file, fit.is_some());
+        let from = crate::validate::extrinsics_source(path, &from_file, fit.is_some(), stated.is_some());
         notes.push(format!("reference extrinsics: {extrinsics} ({from}); the QP tracks the axle poses they imply"));
     }
-    if let Some(w) = fit.as_ref().and_then(crate::validate::heading_offset_warning) {
+    if let Some(w) = fit.as_ref().and_then(|f| crate::validate::heading_offset_warning(f, start)) {
         eprintln!("warning: {w}");
     }
     if let Some(fit) = fit {
-        notes.push(format!("{fit} (--carry-heading-offset carries the calibration's)"));
+        notes.push(start.describe(&fit));
     }
     Ok((extrinsics, notes))
 }

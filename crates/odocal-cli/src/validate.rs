@@ -24,10 +24,12 @@ pub struct ValidateArgs {
     /// it estimated (held ones give way to the drive's manifest [reference]).
     #[arg(long, allow_hyphen_values = true)]
     theta: ThetaArg,
-    /// Carry the heading offset a parameter file estimated to this drive.
-    /// By default the drive's own heading offset is re-estimated with θ and
-    /// the lever arm held (the reference's heading bias changes from drive
-    /// to drive).
+    /// Hold the heading offset as given: a parameter file's estimate,
+    /// carried to this drive, else the drive's manifest [reference] value,
+    /// else 0. By default the drive's own heading offset is re-estimated
+    /// from there with θ and the lever arm held where the file's calibration
+    /// estimated one or θ is given as numbers (the reference's heading bias
+    /// changes from drive to drive).
     #[arg(long)]
     carry_heading_offset: bool,
     /// Skip the drive's own fit (batch G-N on this drive, started from θ
@@ -83,6 +85,7 @@ pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<Outcome> {
     let stated = settings.as_ref().and_then(|s| s.reference.as_ref()).map(odocal::Extrinsics::from);
     let file = a.theta.file.as_ref();
     let from_file = opts.set_extrinsics(file.map(|(_, f)| f), stated.as_ref(), a.carry_heading_offset);
+    let start = OffsetStart::of(&from_file, stated.is_some());
     if let Some(v) = a.validation_length {
         opts.segments.length_steps = v;
         opts.segments.stride_steps = (v / 2).max(1);
@@ -99,7 +102,7 @@ pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<Outcome> {
     let report =
         odocal::validate(&drive, &a.theta.theta, &opts, Some(&cb)).map_err(|e| crate::io::name_drive(e, &a.drive))?;
     bars.finish();
-    if let Some(w) = report.heading_offset_fit.as_ref().and_then(heading_offset_warning) {
+    if let Some(w) = report.heading_offset_fit.as_ref().and_then(|f| heading_offset_warning(f, start)) {
         eprintln!("warning: {w}");
     }
     if let Some(why) = report.drive_fit.as_ref().and_then(|f| f.batch_gn_failure.as_ref()) {
@@ -112,8 +115,8 @@ pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<Outcome> {
         Some(f) if !f.fits => Outcome::Rejected,
         _ => Outcome::Done,
     };
-    let extrinsics_from =
-        extrinsics_source(file.map(|(p, _)| p.as_path()), &from_file, report.heading_offset_fit.is_some());
+    let reestimated = report.heading_offset_fit.is_some();
+    let extrinsics_from = extrinsics_source(file.map(|(p, _)| p.as_path()), &from_file, reestimated, stated.is_some());
     if let Some(p) = &a.json {
         let mut v = serde_json::to_value(&report)?;
         if let Some(obj) = v.as_object_mut() {
@@ -125,20 +128,68 @@ pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<Outcome> {
             return Ok(outcome);
         }
     }
-    print_report(&a, &report, &extrinsics_from);
+    print_report(&a, &report, &extrinsics_from, start);
     Ok(outcome)
 }
 
+/// Where the heading offset that a drive's own is re-estimated from came
+/// from ([`ValidateOptions::set_extrinsics`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum OffsetStart {
+    /// The `--theta` parameter file (its estimate, or its held value on a
+    /// drive whose manifest states no reference).
+    File,
+    /// The drive's manifest `[reference]`.
+    Manifest,
+    /// Neither states one: 0.
+    Zero,
+}
+
+impl OffsetStart {
+    /// From the extrinsics taken from the file (`from_file`) and whether
+    /// the drive's manifest states a reference.
+    pub(crate) fn of(from_file: &[&str], manifest: bool) -> OffsetStart {
+        if from_file.contains(&"heading_offset") {
+            OffsetStart::File
+        } else if manifest {
+            OffsetStart::Manifest
+        } else {
+            OffsetStart::Zero
+        }
+    }
+
+    /// The line that says what the drive's heading offset was re-estimated
+    /// from and what `--carry-heading-offset` would hold instead.
+    pub(crate) fn describe(self, fit: &odocal::HeadingOffsetFit) -> String {
+        match self {
+            OffsetStart::File => format!("{fit} (--carry-heading-offset carries the calibration's)"),
+            OffsetStart::Manifest => format!(
+                "heading offset re-estimated on this drive: {:.1} mrad (the drive's manifest states {:.1}; \
+                 --carry-heading-offset holds that)",
+                fit.value * 1e3,
+                fit.calibration * 1e3
+            ),
+            OffsetStart::Zero => format!(
+                "heading offset re-estimated on this drive: {:.1} mrad (from 0: neither θ nor the drive states one; \
+                 --carry-heading-offset holds 0)",
+                fit.value * 1e3
+            ),
+        }
+    }
+}
+
 /// How many of its cluster-robust σ a re-estimated heading offset may lie
-/// from the parameter file's before [`heading_offset_warning`] says so.
+/// from a stated one before [`heading_offset_warning`] says so.
 const HEADING_OFFSET_SIGMAS: f64 = 4.0;
 
 /// A warning when the heading offset re-estimated on this drive is not
 /// believable as the drive's own: beyond the plausible range the verdict
 /// guards an estimated one with ([`odocal::Guards::heading_offset_abs_rad`]),
 /// or more than [`HEADING_OFFSET_SIGMAS`] of its cluster-robust σ from the
-/// parameter file's (the model σ understates it, so it is not used).
-pub(crate) fn heading_offset_warning(fit: &odocal::HeadingOffsetFit) -> Option<String> {
+/// one the parameter file or the drive's manifest states (the model σ
+/// understates it, so it is not used). A fit from 0, where neither states
+/// one, is judged by the range alone.
+pub(crate) fn heading_offset_warning(fit: &odocal::HeadingOffsetFit, start: OffsetStart) -> Option<String> {
     let limit = odocal::Guards::default().heading_offset_abs_rad;
     let what = format!(
         "the heading offset re-estimated on this drive, {:.1} mrad ({:.1}°),",
@@ -146,17 +197,30 @@ pub(crate) fn heading_offset_warning(fit: &odocal::HeadingOffsetFit) -> Option<S
         fit.value.to_degrees()
     );
     let off = (fit.value - fit.calibration).abs();
-    let check = "check that the --theta file is this vehicle's and that this drive's reference heading has the \
-                 calibration drive's convention and unit (manifest [pose] heading)";
+    let check = match start {
+        OffsetStart::File => {
+            "check that the --theta file is this vehicle's and that this drive's reference heading has the \
+             calibration drive's convention and unit (manifest [pose] heading)"
+        }
+        OffsetStart::Manifest | OffsetStart::Zero => {
+            "check that θ is this vehicle's and this drive's reference heading's convention and unit (manifest \
+             [pose] heading)"
+        }
+    };
+    let stated = match start {
+        OffsetStart::File => "the parameter file's",
+        OffsetStart::Manifest => "the drive's manifest's",
+        OffsetStart::Zero => "",
+    };
     if !fit.value.is_finite() || fit.value.abs() > limit {
         Some(format!(
             "{what} is beyond the plausible ±{:.0} mrad of a reference's mount and heading bias: θ may be another \
              vehicle's, or the heading of another convention or unit; {check}",
             limit * 1e3
         ))
-    } else if fit.robust && off > HEADING_OFFSET_SIGMAS * fit.std_dev {
+    } else if start != OffsetStart::Zero && fit.robust && off > HEADING_OFFSET_SIGMAS * fit.std_dev {
         Some(format!(
-            "{what} is {:.1} mrad from the parameter file's {:.1} mrad, {:.0} times its cluster-robust σ ({:.1} \
+            "{what} is {:.1} mrad from {stated} {:.1} mrad, {:.0} times its cluster-robust σ ({:.1} \
              mrad): the reference was mounted or set up otherwise on this drive, or θ is another vehicle's, or \
              the heading of another convention; {check}",
             off * 1e3,
@@ -171,29 +235,35 @@ pub(crate) fn heading_offset_warning(fit: &odocal::HeadingOffsetFit) -> Option<S
 
 /// Where the extrinsics in force came from: the `--theta` parameter file
 /// (`path`) for those in `from_file`, except a heading offset `reestimated`
-/// on this drive; the drive's manifest for the rest.
-pub(crate) fn extrinsics_source(path: Option<&Path>, from_file: &[&str], reestimated: bool) -> String {
-    let manifest = "the drive's manifest [reference]".to_string();
-    let Some(path) = path else { return manifest };
-    let (kept, refitted): (Vec<&str>, Vec<&str>) =
-        from_file.iter().copied().partition(|n| !(reestimated && *n == "heading_offset"));
+/// on this drive; the drive's manifest (when it states a reference,
+/// `manifest`) for the rest.
+pub(crate) fn extrinsics_source(path: Option<&Path>, from_file: &[&str], reestimated: bool, manifest: bool) -> String {
+    let manifest_text = "the drive's manifest [reference]".to_string();
+    let Some(path) = path else {
+        return match (reestimated, manifest) {
+            (true, true) => format!("heading_offset re-estimated on this drive, the rest from {manifest_text}"),
+            (true, false) => "heading_offset re-estimated on this drive".to_string(),
+            (false, _) => manifest_text,
+        };
+    };
+    let kept: Vec<&str> = from_file.iter().copied().filter(|n| !(reestimated && *n == "heading_offset")).collect();
     let mut parts = Vec::new();
     if kept.len() == 3 {
         parts.push(path.display().to_string());
     } else if !kept.is_empty() {
         parts.push(format!("{} from {}", kept.join(", "), path.display()));
     }
-    if !refitted.is_empty() {
+    if reestimated {
         parts.push("heading_offset re-estimated on this drive".to_string());
     }
     if from_file.len() < 3 {
-        parts.push(if parts.is_empty() { manifest } else { format!("the rest from {manifest}") });
+        parts.push(if parts.is_empty() { manifest_text } else { format!("the rest from {manifest_text}") });
     }
     parts.join(", ")
 }
 
 /// The report for humans.
-fn print_report(a: &ValidateArgs, report: &odocal::ValidateReport, extrinsics_from: &str) {
+fn print_report(a: &ValidateArgs, report: &odocal::ValidateReport, extrinsics_from: &str, start: OffsetStart) {
     let r = &report.validation;
     match &a.theta.file {
         Some((path, f)) => println!(
@@ -208,7 +278,7 @@ fn print_report(a: &ValidateArgs, report: &odocal::ValidateReport, extrinsics_fr
         println!("reference extrinsics: {} ({extrinsics_from})", report.extrinsics);
     }
     if let Some(fit) = &report.heading_offset_fit {
-        println!("{fit} (--carry-heading-offset carries the calibration's)");
+        println!("{}", start.describe(fit));
     }
     println!("mean position error Ē_p: {:.4} m over {} validation segments", r.mean_position_error_m, r.segments);
     if let Some(line) = verdict_line(&a.theta.theta, report) {
@@ -244,10 +314,10 @@ fn verdict_line(theta: &Theta, report: &odocal::ValidateReport) -> Option<String
     let f = report.drive_fit.as_ref()?;
     let word = if f.fits { "FITS" } else { "DOES NOT FIT" };
     Some(format!(
-        "verdict: θ {word} this drive: Ē_p {:.2} × that of θ fitted on it by {} ({:.4} m; {})",
+        "verdict: θ {word} this drive: Ē_p {:.2} × the {:.4} m of θ fitted on it by {}; {}",
         f.ratio,
-        f.method,
         f.mean_position_error_m,
+        f.method,
         change(theta, &f.theta)
     ))
 }

@@ -55,9 +55,9 @@ fn lib_err(e: odocal::Error) -> PyErr {
 
 /// Mean position error Ē_p of θ on the validation segments of `drive`
 /// (the CLI's `validate --json`): a dict with `theta`,
-/// `mean_position_error_m`, `segments` and `per_segment_m`. When θ comes
-/// from a calibration that estimated the heading offset, the drive's own
-/// is re-estimated with θ held (`heading_offset_fit`) unless
+/// `mean_position_error_m`, `segments` and `per_segment_m`. The drive's
+/// heading offset is re-estimated with θ held (`heading_offset_fit`) where
+/// the calibration estimated one or θ is numbers, unless
 /// `carry_heading_offset=True`. `drive_fit` holds θ fitted on the drive
 /// and the verdict `fits`: θ's Ē_p is at most 1.6 times the fit's
 /// (`fit_drive=False` skips it).

@@ -252,7 +252,9 @@ fn simulate_calibrate_validate_contract_and_determinism() {
     assert_eq!(r["validation"], r2["validation"]);
 
     let th = format!("{},{},{},{}", r["theta"]["c_e"], r["theta"]["c_d"], r["theta"]["t_r"], r["theta"]["d"]);
-    let o = odocal(&["validate", dstr, "--theta", &th, "--json", "-"]);
+    // With the heading offset held as the calibration held it (validate
+    // re-estimates the drive's own by default).
+    let o = odocal(&["validate", dstr, "--theta", &th, "--carry-heading-offset", "--json", "-"]);
     assert!(o.status.success(), "{}", stderr(&o));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
     assert!(v["mean_position_error_m"].is_f64() && v["segments"].is_u64() && v["theta"]["c_e"].is_f64());
@@ -379,9 +381,9 @@ fn validate_on_another_drive() {
     assert!(o.status.success(), "{}", stderr(&o));
     let r: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
     assert_eq!(r["validation"]["held_out"], true);
-    // The reported Ē_p is that of drive b: validate agrees.
+    // The reported Ē_p is that of drive b: validate agrees (δ held as batch G-N held it).
     let th = format!("{},{},{},{}", r["theta"]["c_e"], r["theta"]["c_d"], r["theta"]["t_r"], r["theta"]["d"]);
-    let v = odocal(&["validate", bstr, "--theta", &th, "--json", "-"]);
+    let v = odocal(&["validate", bstr, "--theta", &th, "--carry-heading-offset", "--json", "-"]);
     let v: serde_json::Value = serde_json::from_slice(&v.stdout).expect("json");
     let diff = (v["mean_position_error_m"].as_f64().expect("e")
         - r["validation"]["mean_position_error_m"].as_f64().expect("e"))
@@ -547,9 +549,9 @@ fn several_drives_jointly_and_validation_on_several() {
         (per[0]["mean_position_error_m"].as_f64().expect("e"), per[1]["mean_position_error_m"].as_f64().expect("e"));
     let mean = r["validate_on"]["mean_over_drives_m"].as_f64().expect("mean");
     assert!((mean - (e1 + e2) / 2.0).abs() < 1e-12, "{mean} {e1} {e2}");
-    // Each drive's Ē_p is what `validate` gives on it.
+    // Each drive's Ē_p is what `validate` gives on it, δ held as batch G-N held it.
     let th = format!("{},{},{},{}", r["theta"]["c_e"], r["theta"]["c_d"], r["theta"]["t_r"], r["theta"]["d"]);
-    let v = odocal(&["validate", s[2], "--theta", &th, "--json", "-"]);
+    let v = odocal(&["validate", s[2], "--theta", &th, "--carry-heading-offset", "--json", "-"]);
     let v: serde_json::Value = serde_json::from_slice(&v.stdout).expect("json");
     assert!((v["mean_position_error_m"].as_f64().expect("e") - e2).abs() < 1e-9);
     let o2 = odocal(&["calibrate", s[0], "--method", "batch-gn", "--validate-on", s[1], "--validate-on", s[2]]);

@@ -88,7 +88,20 @@ fn current(dir: &Path) -> Value {
         run_json(&["calibrate", d, "--method", "three-step", "--batches", "6", "--final-segments", "8", "--json", "-"]);
     let held = run_json(&["calibrate", d, "--method", "batch-gn", "--holdout", "first-half", "--json", "-"]);
     let th = theta_arg(&ts["theta"]);
-    let val = run_json(&["validate", d, "--theta", &th, "--reachable-minimum", "--seed", "3", "--json", "-"]);
+    // δ held as given (0), as the file was written: `validate` re-estimates
+    // the drive's own by default.
+    let val = run_json(&[
+        "validate",
+        d,
+        "--theta",
+        &th,
+        "--carry-heading-offset",
+        "--reachable-minimum",
+        "--seed",
+        "3",
+        "--json",
+        "-",
+    ]);
     for (name, v) in [("batch-gn", &gn), ("three-step", &ts), ("hold-out", &held), ("validate", &val)] {
         assert_eq!(v["schema_version"], 1, "{name} report: schema_version");
     }

@@ -213,8 +213,9 @@ fn max_diff(a: &[f64], b: &[f64]) -> f64 {
 /// `compensate --theta FILE` applies the file's reference extrinsics as
 /// `validate` does: on a drive whose reference is turned by 18.8 mrad, the
 /// file's heading offset (carried, or re-estimated on the drive) gives
-/// the wheels compensated on the same drive recorded at the axle, and the
-/// bare θ does not.
+/// the wheels compensated on the same drive recorded at the axle; so does
+/// the bare θ, whose drive's heading offset is re-estimated from 0, and
+/// with it held at 0 it does not.
 #[test]
 fn compensation_applies_the_parameter_file_s_extrinsics() {
     let d = tempfile::tempdir().expect("tmp");
@@ -230,15 +231,17 @@ fn compensation_applies_the_parameter_file_s_extrinsics() {
     let theta = ["c_e", "c_d", "t_r", "d"].map(|n| t[n].as_f64().expect("θ").to_string()).join(",");
     let out = d.path().join("out.csv");
     let (at_axle, _) = compensated(&axle, &theta, &[], &out);
-    let (bare, text) = compensated(&turned, &theta, &[], &out);
+    let (bare, text) = compensated(&turned, &theta, &["--carry-heading-offset"], &out);
     assert!(!text.contains("reference extrinsics"), "{text}");
+    let (bare_refitted, text) = compensated(&turned, &theta, &[], &out);
+    assert!(text.contains("heading offset re-estimated on this drive: 18.8 mrad (from 0: neither"), "{text}");
     let (carried, text) = compensated(&turned, p, &["--carry-heading-offset"], &out);
     assert!(text.contains(&format!("heading offset = 18.8000 mrad ({p})")), "{text}");
     let (refitted, text) = compensated(&turned, p, &[], &out);
     assert!(text.contains("heading offset re-estimated on this drive: 18.8 mrad"), "{text}");
     let off = max_diff(&bare, &at_axle);
     assert!(off > 1e-3, "the bare θ on the turned drive: {off} rev/s from the axle's");
-    for (name, got) in [("carried", &carried), ("re-estimated", &refitted)] {
+    for (name, got) in [("carried", &carried), ("re-estimated", &refitted), ("bare, re-estimated", &bare_refitted)] {
         let diff = max_diff(got, &at_axle);
         // Equal to round-off (2e-14 and 7e-14 rev/s measured; the bare θ 0.032).
         assert!(diff < 1e-9, "{name}: {diff} rev/s from the axle's (bare θ: {off})");

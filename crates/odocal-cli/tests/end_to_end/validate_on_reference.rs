@@ -63,10 +63,12 @@ fn a_validation_drive_applies_its_own_reference() {
     assert!((held(&with) - e_with).abs() < 1e-9 * e_with, "one drive: the same segments");
     assert!(held(&with) < held(&without));
 
-    // `odocal validate` on the manifest applies its [reference] too: the same Ē_p.
+    // `odocal validate` on the manifest applies its [reference] too, held
+    // as batch G-N held it: the same Ē_p.
     let t = &with["theta"];
     let theta = format!("{},{},{},{}", t["c_e"], t["c_d"], t["t_r"], t["d"]);
-    let o = odocal(&["validate", toml.to_str().expect("utf8"), "--theta", &theta, "--json", "-"]);
+    let args = ["validate", toml.to_str().expect("utf8"), "--theta", &theta, "--carry-heading-offset"];
+    let o = odocal(&[&args[..], &["--json", "-"]].concat());
     assert!(o.status.success(), "{}", text(&o.stderr));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
     assert_eq!(v["extrinsics"]["lever_x"], -0.9, "{v}");
@@ -79,7 +81,8 @@ fn a_validation_drive_applies_its_own_reference() {
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
     assert_eq!(v["reachable_minimum"]["extrinsics"], v["extrinsics"], "{v}");
     assert!(v["reachable_minimum"]["mean_position_error_m"].as_f64().expect("minimum") <= e, "{v}");
-    let o = odocal(&["validate", bare.to_str().expect("utf8"), "--theta", &theta, "--json", "-"]);
+    let bare = bare.to_str().expect("utf8");
+    let o = odocal(&["validate", bare, "--theta", &theta, "--carry-heading-offset", "--json", "-"]);
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("json");
     assert!(v["extrinsics"].is_null(), "{v}");
     assert!((v["mean_position_error_m"].as_f64().expect("Ē_p") - e_without).abs() < 1e-9 * e_without);

@@ -65,6 +65,20 @@ fn a_theta_from_another_run_fits_and_one_with_t_r_off_does_not() {
     assert!(text.contains("verdict: θ FITS this drive"), "{text}");
     assert!(!err.contains("does not fit"), "{err}");
 
+    // The same θ typed in: the drive's heading offset is re-estimated from
+    // 0 to the same value, and so are Ē_p and the verdict. Held at 0, the
+    // reference's 23 mrad heading bias on this run is charged to θ.
+    let t = &v["theta"];
+    let typed = ["c_e", "c_d", "t_r", "d"].map(|n| t[n].as_f64().expect("θ").to_string()).join(",");
+    let (text, _, w) = validate(&[&other, "--theta", &typed], 0);
+    let (a, b) = (w["heading_offset_fit"]["value"].as_f64(), v["heading_offset_fit"]["value"].as_f64());
+    assert!(a.zip(b).is_some_and(|(a, b)| (a - b).abs() < 1e-6 && a > 0.015), "δ {a:?} against {b:?}");
+    let typed_m = w["mean_position_error_m"].as_f64().expect("Ē_p");
+    assert!((typed_m - given).abs() < 1e-6 * given, "typed θ {typed_m} m against the file's {given} m");
+    assert!(text.contains("verdict: θ FITS this drive"), "{text}");
+    let (_, _, held) = validate(&[&other, "--theta", &typed, "--carry-heading-offset"], 3);
+    assert!(held["mean_position_error_m"].as_f64().expect("Ē_p") > 2.0 * given, "{held}");
+
     let wide = d.path().join("wide.yaml");
     let t_r = with_t_r_scaled(&params, &wide, 1.05);
     let (text, err, v) = validate(&[&other, "--theta", wide.to_str().expect("utf8")], 3);
@@ -95,13 +109,26 @@ fn example(rel: &str) -> String {
 /// θ; the default method fits the drive instead and the JSON names it.
 #[test]
 fn a_drive_that_hardly_turns_is_judged_and_so_is_one_batch_gn_fails_on() {
-    let (text, _, v) = validate(&[&example("comma2k19-rav4/manifest.toml"), "--theta", "2,0,1.6,0"], 0);
+    // θ_0 with the heading offset held at 0: batch G-N fits the few
+    // turning segments, holding what they do not resolve (t_r, c_d), and
+    // ends near θ_0.
+    let rav4 = example("comma2k19-rav4/manifest.toml");
+    let (text, _, v) = validate(&[&rav4, "--theta", "2,0,1.6,0", "--carry-heading-offset"], 0);
     let fit = &v["drive_fit"];
     assert!(fit.is_object(), "{v}");
     assert_eq!(fit["theta"]["t_r"].as_f64(), Some(1.6), "{fit}");
     assert_eq!(fit["theta"]["c_d"].as_f64(), Some(0.0), "{fit}");
     assert_ne!(fit["theta"]["c_e"].as_f64(), Some(2.0), "{fit}");
     assert!(text.contains("verdict: θ FITS this drive"), "{text}");
+    // With the drive's heading offset re-estimated (the default), batch
+    // G-N's fit from θ_0 fails and the default method's shows θ_0 is not
+    // the RAV4's (c_e about 1 % longer than its own).
+    let (text, _, v) = validate(&[&rav4, "--theta", "2,0,1.6,0"], 3);
+    let fit = &v["drive_fit"];
+    assert_eq!(fit["method"].as_str(), Some("eiv"), "{fit}");
+    assert!(fit["ratio"].as_f64().expect("ratio") > 2.0, "{fit}");
+    assert!(fit["theta"]["c_e"].as_f64().expect("c_e") > 2.01, "{fit}");
+    assert!(text.contains("(from 0: neither θ nor the drive states one; --carry-heading-offset holds 0)"), "{text}");
 
     // The van's θ and estimated heading offset (its default calibration)
     // on the RAV4, δ re-estimated. Batch G-N on the few turning segments

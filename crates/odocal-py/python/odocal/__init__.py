@@ -474,12 +474,13 @@ def validate(
     (``.yaml``, ``.yml``, ``.json``, as :meth:`CalibrationReport.write_params` and
     ``--params-out`` write it). With a report or a file, the reference extrinsics its
     calibration estimated are used too (held ones give way to the drive's manifest
-    ``[reference]``), as ``odocal validate --theta FILE`` does. A heading offset the
-    calibration estimated is the reference's per-drive bias: this drive's own is
-    re-estimated with θ and the lever arm held (``heading_offset_fit``: ``value``,
-    ``calibration``, ``std_dev`` in rad — cluster-robust when ``robust`` —, ``segments``) unless
-    ``carry_heading_offset=True``,
-    which carries the calibration's (on the calibration's own drive that gives its own Ē_p).
+    ``[reference]``), as ``odocal validate --theta FILE`` does. The heading offset is the
+    reference's per-drive bias: this drive's own is re-estimated with θ and the lever arm
+    held where the calibration estimated one or ``theta`` is numbers, starting from the
+    calibration's estimate, else the drive's manifest value, else 0 (``heading_offset_fit``: ``value``, ``calibration`` — the start —,
+    ``std_dev`` in rad — cluster-robust when ``robust`` —, ``segments``) unless
+    ``carry_heading_offset=True``, which holds that start (on the calibration's own drive
+    that gives its own Ē_p).
     ``params_node`` names the node of a parameter file that holds several nodes'
     parameters (such a file is refused without it).
 

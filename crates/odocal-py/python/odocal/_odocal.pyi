@@ -125,9 +125,9 @@ def validate(
     fit_drive: bool = True,
 ) -> dict[str, Any]:
     """Ē_p of θ on the validation segments of the drive (with ``report_json``, the extrinsics
-    that report's calibration estimated). A heading offset the calibration estimated is
-    re-estimated on this drive with θ held (``heading_offset_fit``) unless
-    ``carry_heading_offset``. ``fit_drive``: θ fitted on the drive and the verdict
+    that report's calibration estimated). The drive's heading offset is re-estimated with θ
+    held (``heading_offset_fit``) where the calibration estimated one or ``theta`` is numbers,
+    unless ``carry_heading_offset``. ``fit_drive``: θ fitted on the drive and the verdict
     (``drive_fit``)."""
 
 def simulate(

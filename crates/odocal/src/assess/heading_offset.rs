@@ -29,7 +29,9 @@ const MAX_ITERATIONS: usize = 20;
 pub struct HeadingOffsetFit {
     /// δ fitted on this drive, rad.
     pub value: f64,
-    /// The δ the fit started from (the calibration's), rad.
+    /// The δ the fit started from, rad: the calibration's (a parameter
+    /// file's estimate), else the drive's manifest `[reference]` value or
+    /// the file's held one, else 0.
     pub calibration: f64,
     /// 1σ of the fitted δ, rad: cluster-robust when the drive has enough
     /// segments for it ([`IdentifyOptions::robust_min_clusters`]), else the

@@ -33,8 +33,11 @@ pub struct ValidateOptions {
     pub extrinsics: Extrinsics,
     /// Re-estimate the drive's own heading offset δ with θ and the lever arm
     /// held ([`ValidateReport::heading_offset_fit`]), starting from
-    /// [`ValidateOptions::extrinsics`]. The CLI and Python set it whenever
-    /// θ comes from a calibration that estimated δ. Default false (δ as given).
+    /// [`ValidateOptions::extrinsics`]. δ is the reference's heading bias as
+    /// much as its mount angle, and it changes from drive to drive, so the
+    /// CLI and Python set it for a calibration's estimated δ and for a θ
+    /// without one, unless told to hold δ as given
+    /// ([`ValidateOptions::set_extrinsics`]). Default false (δ as given).
     #[serde(default)]
     pub reestimate_heading_offset: bool,
     /// Also fit θ on the drive itself and judge the given θ against that
@@ -62,16 +65,19 @@ impl Default for ValidateOptions {
 }
 
 impl ValidateOptions {
-    /// Sets the reference extrinsics to validate a calibration's θ with on
-    /// a drive, by the rules of docs/guide.md, "Several drives of one
-    /// vehicle": the drive's own mount (`drive_reference`, its manifest's
-    /// `[reference]`), except the extrinsics the calibration estimated (in
-    /// its parameter `file` with a σ), which are the sensor's and hold for
-    /// every drive of the vehicle; without a drive reference, the file's
-    /// values. When the calibration estimated the heading offset, the
-    /// drive's own is re-estimated ([`Self::reestimate_heading_offset`])
-    /// unless `carry_heading_offset`. Returns the names of the extrinsics
-    /// taken from the file.
+    /// Sets the reference extrinsics to validate θ with on a drive, by the
+    /// rules of docs/guide.md, "Several drives of one vehicle": the drive's
+    /// own mount (`drive_reference`, its manifest's `[reference]`), except
+    /// the extrinsics a calibration estimated (in its parameter `file` with a
+    /// σ), which are the sensor's and hold for every drive of the vehicle;
+    /// without a drive reference, the file's values. The drive's own heading
+    /// offset is then re-estimated from there
+    /// ([`Self::reestimate_heading_offset`]) unless `carry_heading_offset`
+    /// holds it as given, or the file's calibration held it (as it would on
+    /// this drive): the reference's heading bias changes from drive to drive,
+    /// so a calibration's estimate is no value for another drive, and a θ
+    /// without a file says nothing of it. Returns the names of the
+    /// extrinsics taken from the file.
     ///
     /// ```
     /// use odocal::{Extrinsics, ParamFile, Theta, ValidateOptions};
@@ -84,6 +90,12 @@ impl ValidateOptions {
     /// // Without one, the file's values (0 for those it lacks).
     /// assert_eq!(opts.set_extrinsics(Some(&file), None, false), ["lever_x", "lever_y", "heading_offset"]);
     /// assert_eq!(opts.extrinsics, Extrinsics::default());
+    /// // This calibration held the heading offset: so does validation.
+    /// assert!(!opts.reestimate_heading_offset);
+    /// // A θ without a file: the drive's heading offset is re-estimated,
+    /// // unless it is to be held as given.
+    /// assert!(opts.set_extrinsics(None, Some(&mount), false).is_empty() && opts.reestimate_heading_offset);
+    /// opts.set_extrinsics(None, Some(&mount), true);
     /// assert!(!opts.reestimate_heading_offset);
     /// ```
     pub fn set_extrinsics(
@@ -92,13 +104,13 @@ impl ValidateOptions {
         drive_reference: Option<&Extrinsics>,
         carry_heading_offset: bool,
     ) -> Vec<&'static str> {
+        self.reestimate_heading_offset = !carry_heading_offset && file.is_none_or(ParamFile::estimated_heading_offset);
         if let Some(x) = drive_reference {
             self.extrinsics = *x;
         }
         let Some(f) = file else { return Vec::new() };
         let (x, from_file) = f.extrinsics_for_drive(drive_reference);
         self.extrinsics = x;
-        self.reestimate_heading_offset = !carry_heading_offset && f.estimated_heading_offset();
         from_file
     }
 }

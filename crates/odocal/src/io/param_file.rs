@@ -544,7 +544,7 @@ impl ParamFile {
 
     /// True when the calibration estimated the reference's heading offset
     /// (it has a σ): validation then re-estimates each drive's own
-    /// ([`crate::ValidateOptions::reestimate_heading_offset`]) unless told to carry it.
+    /// ([`crate::ValidateOptions::set_extrinsics`]) unless told to carry it.
     pub(crate) fn estimated_heading_offset(&self) -> bool {
         self.extrinsics().1.contains(Param::HeadingOffset)
     }
