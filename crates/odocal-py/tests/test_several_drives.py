@@ -241,10 +241,14 @@ def test_validate_on_applies_the_drives_own_reference(odocal_bin, csvs, tmp_path
         for row in d["validate_on"]["drives"]:
             row.pop("name")
     assert without_timing(r) == without_timing(cli)
-    # validate() applies the drive's [reference] too, as `odocal validate` does.
-    v = odocal.validate(odocal.Drive.from_manifest(manifest), r["theta"])
+    # validate() applies the drive's [reference] too, as `odocal validate` does
+    # (its heading offset held as batch G-N held it; θ as numbers re-estimates it).
+    v = odocal.validate(odocal.Drive.from_manifest(manifest), r["theta"], carry_heading_offset=True)
     assert v["extrinsics"] == {"lever_x": -0.9, "lever_y": 0.3, "heading_offset": -0.01}
     assert v["mean_position_error_m"] == pytest.approx(r["validate_on"]["drives"][0]["mean_position_error_m"], rel=1e-9)
+    refit = odocal.validate(odocal.Drive.from_manifest(manifest), r["theta"])
+    assert refit["heading_offset_fit"]["calibration"] == -0.01
+    assert refit["extrinsics"]["lever_x"] == -0.9 and refit["extrinsics"]["heading_offset"] != -0.01
     # A keyword's heading offset wins for every drive: a conflict, reported.
     r = odocal.calibrate(fit, "batch-gn", heading_offset=0.0, validate_on=odocal.Drive.from_manifest(manifest))
     x = r.to_dict()["validate_on"]["drives"][0]["extrinsics"]
