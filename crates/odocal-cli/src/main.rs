@@ -87,8 +87,9 @@ enum Command {
     /// segments of a drive CSV or manifest, and whether θ fits the drive:
     /// its Ē_p within 1.6 times that of θ fitted on the drive (batch G-N
     /// from θ and from θ_0, or the default method from θ_0 where batch G-N's
-    /// fit is worse than θ); optionally the reachable minimum. Exit code 3 when θ does
-    /// not fit (the report is still printed and written).
+    /// fit is worse than θ or held what the drive does not determine);
+    /// optionally the reachable minimum. Exit code 3 when θ does not fit (the
+    /// report is still printed and written).
     Validate(validate::ValidateArgs),
     /// Write a drive's wheel rotations compensated for a θ beside them.
     ///

@@ -34,8 +34,8 @@ pub struct ValidateArgs {
     carry_heading_offset: bool,
     /// Skip the drive's own fit (batch G-N on this drive, started from θ
     /// and from θ_0, or the default method where batch G-N's fit is worse
-    /// than θ) and with it the verdict on whether θ fits the drive (exit
-    /// code 3 when it does not).
+    /// than θ or held what the drive does not determine) and with it the
+    /// verdict on whether θ fits the drive (exit code 3 when it does not).
     #[arg(long)]
     no_drive_fit: bool,
     /// Validation segment length K_v, samples (stride K_v/2) [default: 1300].

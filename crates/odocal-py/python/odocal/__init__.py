@@ -486,7 +486,8 @@ def validate(
 
     The verdict, ``drive_fit``: θ fitted on this drive by batch Gauss-Newton started from
     ``theta`` and from the paper's θ_0, the better of the two, or by the default method from
-    θ_0 when batch Gauss-Newton's fit fails or is worse than ``theta`` and the default's is
+    θ_0 when batch Gauss-Newton's fit fails, is worse than ``theta`` or held parameters the
+    drive does not determine, and the default's is
     better (``theta``, ``heading_offset_rad`` when re-estimated, ``method``,
     ``batch_gn_failure`` when the default method fitted it, ``mean_position_error_m``),
     ``ratio`` (Ē_p of ``theta`` over the fit's) and ``fits`` (the ratio is at most 1.6): a

@@ -42,8 +42,9 @@ pub struct ValidateOptions {
     pub reestimate_heading_offset: bool,
     /// Also fit θ on the drive itself and judge the given θ against that
     /// fit ([`ValidateReport::drive_fit`]): two batch G-N calibrations of
-    /// the drive, and one by the default method where their fit fails or
-    /// is worse than θ. Default true; false for Ē_p alone.
+    /// the drive, and one by the default method where their fit fails, is
+    /// worse than θ or held parameters the drive does not determine.
+    /// Default true; false for Ē_p alone.
     #[serde(default = "yes")]
     pub fit_drive: bool,
 }
@@ -160,7 +161,8 @@ pub(crate) fn beyond_the_line(worse_m: f64, better_m: f64) -> bool {
 /// The drive's own fit: batch Gauss-Newton on the drive's calibration
 /// segments started from the given θ and from the paper's θ_0 (the better
 /// counts), or the default method from θ_0 where batch Gauss-Newton's fit
-/// fails or is worse than θ and the default's is better
+/// fails, is worse than θ or held parameters of θ the drive does not
+/// determine, and the default's is better
 /// ([`DriveFit::batch_gn_failure`]), with the heading offset re-estimated where validation
 /// re-estimates it, the other extrinsics and what the drive cannot
 /// determine held, and Ē_p of its θ on the same validation segments. A θ *fits* the drive when its
@@ -181,11 +183,13 @@ pub struct DriveFit {
     /// The method that fitted it: `batch-gn`, or the default method's
     /// outcome (`eiv`, or `eiv (batch-gn fallback)` when its checks failed
     /// and its batch G-N start on every segment stands) when batch G-N's
-    /// fit failed or was worse than θ and the default's was better.
+    /// fit failed, was worse than θ or held parameters the drive does not
+    /// determine, and the default's was better.
     #[serde(default)]
     pub method: String,
-    /// Why batch G-N's fit was not used (it failed, or was worse than θ),
-    /// when the default method's fit counts instead.
+    /// Why batch G-N's fit was not used (it failed, was worse than θ, or
+    /// held parameters the drive does not determine), when the default
+    /// method's fit counts instead.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub batch_gn_failure: Option<String>,
     /// Ē_p of the fitted θ on the validation segments, m.

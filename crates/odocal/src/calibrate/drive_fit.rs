@@ -77,15 +77,17 @@ pub fn validate(
 ///
 /// A fit whose Ē_p is more than 1 cm above θ's found nothing better than
 /// θ, and such a fit can only make θ look good; one beyond [`FIT_RATIO`]
-/// times θ's is a failed fit, no evidence at all. Then (and when batch G-N
+/// times θ's is a failed fit, no evidence at all; one that held parameters
+/// of θ the drive does not determine fitted the rest on the few turning
+/// segments batch G-N uses, and ends near any θ. Then (and when batch G-N
 /// gives nothing plausible) the drive is also fitted the way `calibrate`
 /// fits it by default (the default method from θ_0, on every segment), and
-/// the better of the plausible fits counts: a drive that hardly turns,
-/// whose few turning segments are all batch G-N's default settings fit on,
-/// is judged on what the drive shows (the highway van: batch G-N 112 m
+/// the better of the plausible fits counts: a drive that hardly turns is
+/// judged on what the drive shows (the highway van: batch G-N 112 m
 /// against the default's 20 m; the RAV4 with another vehicle's θ: 9.6 m,
-/// worse than θ's 7.5 m, against the default's 2.3 m). Why there is no
-/// verdict when no fit is left.
+/// worse than θ's 7.5 m, or with its δ held 18.8 m against θ's 26.0 m,
+/// against the default's 2.3 m). Why there is no verdict when no fit is
+/// left.
 fn drive_fit(
     drive: &Drive,
     theta: &Theta,
@@ -95,11 +97,11 @@ fn drive_fit(
     let batch_gn = Method::BatchGn(BatchGnOptions::default());
     let mut starts = vec![("θ", *theta), ("θ_0", Theta::PAPER_INITIAL)];
     starts.retain(|(_, t)| t.check_physical_limits().is_ok());
-    let mut best: Option<DriveFit> = None;
+    let mut best: Option<(DriveFit, Vec<Param>)> = None;
     let mut why: Vec<(Vec<&str>, String)> = Vec::new();
     for (name, start) in starts {
         match fit_from(drive, &start, &batch_gn, opts, given_m) {
-            Ok(fit) if best.as_ref().is_none_or(|b| fit.mean_position_error_m < b.mean_position_error_m) => {
+            Ok(fit) if best.as_ref().is_none_or(|b| fit.0.mean_position_error_m < b.0.mean_position_error_m) => {
                 best = Some(fit)
             }
             Ok(_) => {}
@@ -112,19 +114,24 @@ fn drive_fit(
     // Batch G-N's fit stands unless it is worse than θ itself: a fit that
     // found nothing better than θ can only make θ look good.
     let (kept, batch_gn_failed) = match best {
-        Some(fit) if !worse(&fit, given_m) => return Ok(fit),
-        Some(fit) if !failed(&fit, given_m) => {
+        Some((fit, held)) if !worse(&fit, given_m) && held.is_empty() => return Ok(fit),
+        Some((fit, held)) if !worse(&fit, given_m) => {
+            let names: Vec<&str> = held.iter().map(|p| p.name()).collect();
+            let why = format!("{} held {}, which this drive does not determine", fit.method, names.join(", "));
+            (Some(fit), why)
+        }
+        Some((fit, _)) if !failed(&fit, given_m) => {
             let why = format!("{} gives {:.4} m, more than θ's {given_m:.4} m", fit.method, fit.mean_position_error_m);
             (Some(fit), why)
         }
-        Some(fit) => (None, failed_fit(&fit, given_m)),
+        Some((fit, _)) => (None, failed_fit(&fit, given_m)),
         None => {
             let why: Vec<String> = why.iter().map(|(names, w)| format!("from {}: {w}", names.join(" and "))).collect();
             (None, format!("batch G-N on this drive {}", why.join("; ")))
         }
     };
     let default = Method::default();
-    match (fit_from(drive, &Theta::PAPER_INITIAL, &default, opts, given_m), kept) {
+    match (fit_from(drive, &Theta::PAPER_INITIAL, &default, opts, given_m).map(|f| f.0), kept) {
         (Ok(fit), kept)
             if !failed(&fit, given_m)
                 && kept.as_ref().is_none_or(|k| fit.mean_position_error_m < k.mean_position_error_m) =>
@@ -159,14 +166,16 @@ fn failed_fit(fit: &DriveFit, given_m: f64) -> String {
 }
 
 /// `method` on `drive` from `start` (module docs of [`drive_fit`]), judged
-/// against `given_m`; the reason when the fit is implausible or fails.
+/// against `given_m`, with the parameters of θ it held because the drive
+/// does not determine them; the reason when the fit is implausible or
+/// fails.
 fn fit_from(
     drive: &Drive,
     start: &Theta,
     method: &Method,
     opts: &ValidateOptions,
     given_m: f64,
-) -> std::result::Result<DriveFit, String> {
+) -> std::result::Result<(DriveFit, Vec<Param>), String> {
     let mut free = ParamSet::THETA;
     if opts.reestimate_heading_offset {
         free = free.with(Param::HeadingOffset);
@@ -204,7 +213,8 @@ fn fit_from(
         }
         _ => r.method.clone(),
     };
-    Ok(DriveFit::judge(r.theta, heading_offset_rad, &method, own, given_m))
+    let held = r.auto_fixed.iter().copied().filter(|p| ParamSet::THETA.contains(*p)).collect();
+    Ok((DriveFit::judge(r.theta, heading_offset_rad, &method, own, given_m), held))
 }
 
 #[cfg(test)]
