@@ -74,6 +74,13 @@ fn a_validation_drive_applies_its_own_reference() {
     assert_eq!(v["extrinsics"]["lever_x"], -0.9, "{v}");
     let e = v["mean_position_error_m"].as_f64().expect("Ē_p");
     assert!((e - e_with).abs() < 1e-9 * e_with, "validate {e} m, validate-on {e_with} m");
+    // Without the flag, the typed θ's drive re-estimates its heading offset
+    // from the manifest's −10 mrad, the lever arm kept.
+    let o = odocal(&args[..4]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let out = text(&o.stdout);
+    assert!(out.contains("(the drive's manifest states -10.0; --carry-heading-offset holds that)"), "{out}");
+    assert!(out.contains("heading_offset re-estimated on this drive, the rest from the drive's manifest [reference]"));
     // Its reachable-minimum search takes the same mount, so it is never above Ē_p of θ.
     let args = ["validate", toml.to_str().expect("utf8"), "--theta", &theta, "--reachable-minimum"];
     let o = odocal(&[&args[..], &["--json", "-"]].concat());
