@@ -38,6 +38,11 @@ pub(crate) const MIN_OFFSET_SIGMAS: f64 = 3.0;
 /// θ fitted with δ free must move a free parameter by more than
 /// this many of its σ for the next drive.
 pub(crate) const MAX_SHIFT_SIGMAS: f64 = 1.0;
+/// The relative step (`‖Δθ/θ_scale‖∞`) at which the check's fits stop: they
+/// start from the result, and the check compares shifts against σ with
+/// thresholds of 1 and 3, so the last per-mille of a step does not decide
+/// it (the EIV start stops at the same tolerance).
+const STEP_TOLERANCE: f64 = 1e-3;
 
 /// The reasons of the check (module docs), one per drive whose held δ
 /// matters; none for EIV, with δ estimated, or when a fit fails (the check
@@ -59,7 +64,8 @@ pub(super) fn held_heading_offset_reasons(
     let starts = drive.drive_starts();
     let free = identify.free.intersection(ParamSet::THETA);
     let fit = |data: &[SegmentData<'_>], free: ParamSet| {
-        let o = IdentifyOptions { free, extrinsics: *held, ..identify.clone() };
+        let step_tolerance = identify.step_tolerance.max(STEP_TOLERANCE);
+        let o = IdentifyOptions { free, extrinsics: *held, step_tolerance, ..identify.clone() };
         batch_gauss_newton(data, theta, &o).ok()
     };
     (0..starts.len())
