@@ -97,7 +97,7 @@ fn drive_fit(
     let batch_gn = Method::BatchGn(BatchGnOptions::default());
     let mut starts = vec![("θ", *theta), ("θ_0", Theta::PAPER_INITIAL)];
     starts.retain(|(_, t)| t.check_physical_limits().is_ok());
-    let mut best: Option<(DriveFit, Vec<Param>)> = None;
+    let mut best: Option<(DriveFit, ParamSet)> = None;
     let mut why: Vec<(Vec<&str>, String)> = Vec::new();
     for (name, start) in starts {
         match fit_from(drive, &start, &batch_gn, opts, given_m) {
@@ -116,8 +116,7 @@ fn drive_fit(
     let (kept, batch_gn_failed) = match best {
         Some((fit, held)) if !worse(&fit, given_m) && held.is_empty() => return Ok(fit),
         Some((fit, held)) if !worse(&fit, given_m) => {
-            let names: Vec<&str> = held.iter().map(|p| p.name()).collect();
-            let why = format!("{} held {}, which this drive does not determine", fit.method, names.join(", "));
+            let why = format!("{} held {held}, which this drive does not determine", fit.method);
             (Some(fit), why)
         }
         Some((fit, _)) if !failed(&fit, given_m) => {
@@ -175,7 +174,7 @@ fn fit_from(
     method: &Method,
     opts: &ValidateOptions,
     given_m: f64,
-) -> std::result::Result<(DriveFit, Vec<Param>), String> {
+) -> std::result::Result<(DriveFit, ParamSet), String> {
     let mut free = ParamSet::THETA;
     if opts.reestimate_heading_offset {
         free = free.with(Param::HeadingOffset);
@@ -213,7 +212,7 @@ fn fit_from(
         }
         _ => r.method.clone(),
     };
-    let held = r.auto_fixed.iter().copied().filter(|p| ParamSet::THETA.contains(*p)).collect();
+    let held = r.auto_fixed.iter().copied().collect::<ParamSet>().intersection(ParamSet::THETA);
     Ok((DriveFit::judge(r.theta, heading_offset_rad, &method, own, given_m), held))
 }
 
