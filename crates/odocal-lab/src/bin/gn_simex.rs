@@ -13,7 +13,12 @@
 //! `gn_simex [SEEDS 20] [KM 12] [PRESETS paper,white,coloured,high]`;
 //! `gn_simex real`: the repository's real drives (`--method batch-gn
 //! --estimate heading-offset`), the estimated wheel noise and the
-//! predicted bias over the σ for the next drive.
+//! predicted bias over the σ for the next drive;
+//! `gn_simex worlds [FIRST 1] [N 100] [KM 12]`: random noise worlds (as
+//! `random_worlds` drives them), the coverage of the reported 95 %
+//! interval, the results accepted beyond 3σ, and per world beyond 3σ its
+//! error and predicted bias over σ (docs/validation.md, "Batch G-N's σ:
+//! the jackknife over clusters").
 
 use odocal::identify::IdentifyOptions;
 use odocal::research::{calibrate_detailed, simex_bias, wheel_white_noise};
@@ -21,7 +26,8 @@ use odocal::segment::SegmentData;
 use odocal::{CalibrationOptions, Method, VerdictLevel, VerdictReason};
 use odocal_lab::{simulate_preset, Args, Res, Summary, Table};
 
-const USAGE: &str = "gn_simex [SEEDS 20] [KM 12] [PRESETS paper,white,coloured,high]";
+const USAGE: &str =
+    "gn_simex [SEEDS 20] [KM 12] [PRESETS paper,white,coloured,high] | gn_simex real | gn_simex worlds [FIRST 1] [N 100] [KM 12]";
 
 const NAMES: [&str; 4] = ["c_e", "c_d", "t_r", "d"];
 
@@ -85,6 +91,65 @@ fn real() -> Res<()> {
     Ok(())
 }
 
+/// Random noise worlds FIRST..FIRST+N (`random_worlds`' drives): per world
+/// whose batch G-N result (`--estimate heading-offset`) is accepted with
+/// some parameter beyond 3σ of the equivalent truth, its error and the
+/// predicted bias over σ, and the estimated against the simulated σ_w.
+fn worlds(first: u64, n: u64, km: f64) -> Res<()> {
+    use odocal::sim::{simulate, NoiseOptions, SimOptions};
+    let mut o = CalibrationOptions { method: Method::BatchGn(Default::default()), ..Default::default() };
+    o.identify.free = o.identify.free.with(odocal::Param::HeadingOffset);
+    let mut table = Table::new(&["world", "regime", "σ_w est / sim", "error / σ", "predicted / σ", "verdict"]);
+    let (mut worlds, mut covered, mut accepted_beyond, mut width) = (0usize, [0usize; 4], 0usize, vec![Vec::new(); 4]);
+    for seed in first..first + n {
+        let (noise, summary) = NoiseOptions::random_world(seed);
+        let sim = SimOptions { length_km: km, noise: noise.clone(), ..SimOptions::paper(seed) };
+        let drive = simulate(&sim)?.drive;
+        let (truth, _) = sim.equivalent_truth();
+        let detailed = calibrate_detailed(&drive, None, &o, None)?;
+        let r = &detailed.report;
+        let sigma: [Option<f64>; 4] = r.result_sigma().into();
+        let s = sigma.map(|s| s.unwrap_or(f64::NAN));
+        let (theta, truth) = (<[f64; 4]>::from(r.theta), <[f64; 4]>::from(truth));
+        let err: [f64; 4] = std::array::from_fn(|i| (theta[i] - truth[i]) / s[i]);
+        worlds += 1;
+        for i in 0..4 {
+            covered[i] += usize::from(err[i].abs() <= 1.96);
+            width[i].push(s[i].ln());
+        }
+        let beyond = err.iter().any(|e| e.abs() > 3.0);
+        accepted_beyond += usize::from(beyond && r.verdict.level == VerdictLevel::Accepted);
+        if !beyond {
+            continue;
+        }
+        let data: Vec<SegmentData> = detailed.selected.iter().map(|x| SegmentData::new(&drive, x)).collect();
+        let est = wheel_white_noise(&data, &r.theta);
+        let mut io = o.identify.clone();
+        if let Some(x) = &r.extrinsics {
+            io.extrinsics = x.value;
+        }
+        let bias = est.and_then(|e| simex_bias(&data, drive.drive_starts(), &r.theta, &io, e, o.seed));
+        let f = |v: [f64; 4]| v.iter().map(|x| format!("{x:+.1}")).collect::<Vec<_>>().join(" ");
+        table.row([
+            seed.to_string(),
+            summary.regime.to_string(),
+            format!("{:.3} / {:.3} %", est.unwrap_or(0.0) * 100.0, noise.wheel_white_rel_sigma * 100.0),
+            f(err),
+            bias.map_or("–".into(), |b| f(std::array::from_fn(|i| b[i] / s[i]))),
+            format!("{}", r.verdict.level),
+        ]);
+    }
+    print!("{table}");
+    let cov: Vec<String> = covered.iter().map(|c| format!("{:.0} %", 100.0 * *c as f64 / worlds as f64)).collect();
+    let geo: Vec<String> = width.iter().map(|w| format!("{:.4e}", Summary::of(w).mean.exp())).collect();
+    println!(
+        "{worlds} worlds; coverage of ±1.96σ (c_e, c_d, t_r, d): {}; accepted beyond 3σ: {accepted_beyond}; geometric mean σ: {}",
+        cov.join(", "),
+        geo.join(", ")
+    );
+    Ok(())
+}
+
 fn main() {
     odocal_lab::main_with(run)
 }
@@ -93,6 +158,9 @@ fn run() -> Res<()> {
     let args = Args::parse(USAGE, &[])?;
     if args.positional().first().map(String::as_str) == Some("real") {
         return real();
+    }
+    if args.positional().first().map(String::as_str) == Some("worlds") {
+        return worlds(args.pos(1, 1)?, args.pos(2, 100)?, args.pos(3, 12.0)?);
     }
     let seeds: u64 = args.pos(0, 20)?;
     let km: f64 = args.pos(1, 12.0)?;

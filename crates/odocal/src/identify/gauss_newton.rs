@@ -213,20 +213,30 @@ pub(crate) fn clusters(starts: &[(usize, usize)], block_steps: usize) -> (Vec<us
     (id, if starts.is_empty() { 0 } else { g + 1 })
 }
 
-/// The cluster-robust ("sandwich") covariance over the free entries,
+/// The cluster-robust covariance over the free entries: the
+/// delete-one-cluster jackknife of the estimate (the "CV3" estimator of
+/// MacKinnon, Nielsen and Webb, J. Econometrics 2023), each refit one
+/// Gauss-Newton step from the estimate,
 ///
 /// ```text
-/// V = H⁻¹ · G/(G−1) Σ_c (g_c − ḡ)(g_c − ḡ)ᵀ · H⁻¹,   H = JᵀWJ,  g_c = Σ_{s∈c} J_sᵀW r_s
+/// Δ_c = (H − H_c)⁻¹ g_c,   V = (G−1)/G Σ_c (Δ_c − Δ̄)(Δ_c − Δ̄)ᵀ,
+/// H = JᵀWJ,  H_c, g_c = Σ_{s∈c} J_sᵀW J_s, J_sᵀW r_s
 /// ```
 ///
-/// with the clusters of [`clusters`] (`G` of them; ḡ their mean, which is
-/// the gradient over G and 0 at a converged estimate). Unlike the model
-/// covariance it does not assume independent, equally scaled residuals:
-/// a segment's residuals integrate the same input noise, and overlapping
-/// segments share samples, so only sums over long stretches of the drive
-/// are close to independent. Clusters are
-/// [`IdentifyOptions::robust_block_steps`] long; `None` with fewer than
-/// [`IdentifyOptions::robust_min_clusters`] of them or a singular free block.
+/// with the clusters of [`clusters`] (`G` of them; Δ̄ the mean of the
+/// Δ_c). Unlike the model covariance it does not assume independent,
+/// equally scaled residuals: a segment's residuals integrate the same
+/// input noise, and overlapping segments share samples, so only sums over
+/// long stretches of the drive are close to independent. Unlike the
+/// sandwich `H⁻¹ · G/(G−1) Σ_c g_c g_cᵀ · H⁻¹`, which it approaches when every
+/// cluster holds a small share of the information, it widens a parameter
+/// that a few clusters determine (the load transfer d, from the few
+/// turns with large lateral acceleration), where the sandwich, summing a
+/// few large squared scores, runs short. When some `H − H_c` is singular
+/// (one cluster alone determines a direction) the sandwich stands in.
+/// Clusters are [`IdentifyOptions::robust_block_steps`] long; `None` with
+/// fewer than [`IdentifyOptions::robust_min_clusters`] of them or a
+/// singular free block.
 pub(crate) fn cluster_robust_covariance<const N: usize>(
     total: &NormalEquations<N>,
     per_segment: &[NormalEquations<N>],
@@ -246,16 +256,18 @@ pub(crate) fn cluster_robust_covariance<const N: usize>(
             scores[id[s]][i] += ne.jtwr[fi];
         }
     }
-    let mean = scores.iter().fold(DVector::zeros(p), |acc, v| acc + v) / g as f64;
-    let mut meat = DMatrix::<f64>::zeros(p, p);
-    for v in &scores {
-        let c = v - &mean;
-        meat += &c * c.transpose();
+    let mut information = vec![DMatrix::<f64>::zeros(p, p); g];
+    for (s, ne) in per_segment.iter().enumerate() {
+        information[id[s]] += reduce(&ne.jtwj, &ne.jtwr, free).0;
     }
-    meat *= g as f64 / (g - 1) as f64;
     let (a, _) = reduce(&total.jtwj, &total.jtwr, free);
-    let inv = a.try_inverse()?;
-    let v = &inv * meat * &inv;
+    let inv = a.clone().try_inverse()?;
+    let deleted: Option<Vec<DVector<f64>>> =
+        scores.iter().zip(&information).map(|(score, h)| (&a - h).try_inverse().map(|m| m * score)).collect();
+    let v = match deleted {
+        Some(deltas) => spread(&deltas) * ((g - 1) as f64 / g as f64),
+        None => &inv * spread(&scores) * (g as f64 / (g - 1) as f64) * &inv,
+    };
     let mut cov = SMatrix::<f64, N, N>::zeros();
     for (i, &fi) in free.iter().enumerate() {
         for (j, &fj) in free.iter().enumerate() {
@@ -264,6 +276,16 @@ pub(crate) fn cluster_robust_covariance<const N: usize>(
         }
     }
     Some((cov, g))
+}
+
+/// `Σ (v − v̄)(v − v̄)ᵀ` over `vs` (all of one length).
+fn spread(vs: &[DVector<f64>]) -> DMatrix<f64> {
+    let p = vs.first().map_or(0, |v| v.len());
+    let mean = vs.iter().fold(DVector::zeros(p), |acc, v| acc + v) / vs.len().max(1) as f64;
+    vs.iter().fold(DMatrix::zeros(p, p), |acc, v| {
+        let c = v - &mean;
+        acc + &c * c.transpose()
+    })
 }
 
 /// The report of a fit of θ with the reference extrinsics, whose vector

@@ -934,6 +934,37 @@ mod tests {
         assert_eq!(r2.covariance, r.covariance, "the model covariance does not depend on the robust options");
     }
 
+    /// The cluster-robust covariance is the jackknife of the estimate over
+    /// its clusters: refitting to convergence without each cluster in turn
+    /// and taking `(G−1)/G Σ (θ_(−c) − θ̄)(θ_(−c) − θ̄)ᵀ` gives the σ it
+    /// reports to within 5 % (2.2 % on c_e, 0.3 % or less on the others: its
+    /// refits are one Gauss-Newton step each).
+    #[test]
+    fn robust_covariance_is_the_jackknife_over_clusters() {
+        use crate::sim::{simulate, SimOptions};
+        let d = simulate(&SimOptions { length_km: 6.0, ..SimOptions::paper(5) }).expect("simulate").drive;
+        let sel = crate::drive::segment::calibration_segments(&d, &Default::default()).expect("segments");
+        let data: Vec<SegmentData> = sel.selected.iter().map(|s| SegmentData::new(&d, s)).collect();
+        let opts = IdentifyOptions::default();
+        let r = batch_gauss_newton(&data, &Theta::PAPER_INITIAL, &opts).expect("identify");
+        let rb = r.robust.as_ref().expect("6 km give enough clusters");
+        let starts: Vec<(usize, usize)> = data.iter().map(|s| (s.drive_start, s.start)).collect();
+        let (id, g) = gauss_newton::clusters(&starts, opts.robust_block_steps);
+        let refits: Vec<[f64; 4]> = (0..g)
+            .map(|c| {
+                let kept: Vec<SegmentData> = data.iter().zip(&id).filter(|(_, &k)| k != c).map(|(s, _)| *s).collect();
+                <[f64; 4]>::from(batch_gauss_newton(&kept, &r.theta, &opts).expect("refit").theta)
+            })
+            .collect();
+        for i in 0..4 {
+            let mean = refits.iter().map(|t| t[i]).sum::<f64>() / g as f64;
+            let jackknife =
+                (refits.iter().map(|t| (t[i] - mean).powi(2)).sum::<f64>() * (g - 1) as f64 / g as f64).sqrt();
+            let reported = rb.covariance[i][i].sqrt();
+            assert!((reported / jackknife - 1.0).abs() < 0.05, "θ[{i}]: {reported:.4e} against refits {jackknife:.4e}");
+        }
+    }
+
     #[test]
     fn min_rcond_is_validated() {
         let e = IdentifyOptions { min_rcond: 1.5, ..Default::default() }.validate().expect_err("bad");
