@@ -332,22 +332,27 @@ impl Observability {
 }
 
 research_pub! {
-    /// The cluster-robust ("sandwich") covariance of a batch Gauss-Newton
-    /// estimate:
+    /// The cluster-robust covariance of a batch Gauss-Newton estimate: the
+    /// delete-one-cluster jackknife,
     ///
     /// ```text
-    /// V = H⁻¹ · G/(G−1) Σ_c (g_c − ḡ)(g_c − ḡ)ᵀ · H⁻¹,   H = JᵀWJ,  g_c = Σ_{s∈c} J_sᵀW r_s
+    /// V = (G−1)/G Σ_c (Δ_c − Δ̄)(Δ_c − Δ̄)ᵀ,   Δ_c = (H − H_c)⁻¹ g_c,
+    /// H = JᵀWJ,  H_c, g_c = Σ_{s∈c} J_sᵀW J_s, J_sᵀW r_s
     /// ```
     ///
     /// over `G` clusters of consecutive segments
-    /// ([`IdentifyOptions::robust_block_steps`] samples each). The model
-    /// covariance `σ̂²H⁻¹` assumes independent residuals of one variance; input
-    /// noise makes a segment's residuals strongly correlated (the roll-out
-    /// integrates it) and overlapping segments share samples, so under the
-    /// simulator's paper noise that σ is many times too small. The sandwich
-    /// needs only that sums over clusters be roughly independent. It is itself
-    /// estimated from `G` cluster scores, so with few clusters it is noisy
-    /// (a Student-t with `G − 1` degrees of freedom is the fairer quantile).
+    /// ([`IdentifyOptions::robust_block_steps`] samples each), Δ_c the
+    /// one-step refit without cluster c. The model covariance `σ̂²H⁻¹`
+    /// assumes independent residuals of one variance; input noise makes a
+    /// segment's residuals strongly correlated (the roll-out integrates it)
+    /// and overlapping segments share samples, so under the simulator's
+    /// paper noise that σ is many times too small. The jackknife needs only
+    /// that sums over clusters be roughly independent, and unlike the
+    /// sandwich `H⁻¹ · G/(G−1) Σ_c g_c g_cᵀ · H⁻¹` (its first-order form,
+    /// which stands in when some `H − H_c` is singular) it does not run
+    /// short for a parameter that a few clusters determine. It is itself
+    /// estimated from `G` clusters, so with few of them it is noisy (a
+    /// Student-t with `G − 1` degrees of freedom is the fairer quantile).
     ///
     /// It does not know about bias: input noise biases batch Gauss-Newton
     /// (SPEC §10), and an interval around a biased estimate can miss the truth
@@ -355,7 +360,9 @@ research_pub! {
     ///
     /// ## References
     /// A. C. Cameron, D. L. Miller, "A Practitioner's Guide to Cluster-Robust
-    /// Inference", J. Human Resources 50(2), 2015; C. A. Bester, T. G. Conley,
+    /// Inference", J. Human Resources 50(2), 2015; J. G. MacKinnon, M. Ø.
+    /// Nielsen, M. D. Webb, "Cluster-robust inference: A guide to empirical
+    /// practice", J. Econometrics 232(2), 2023; C. A. Bester, T. G. Conley,
     /// C. B. Hansen, "Inference with dependent data using cluster covariance
     /// estimators", J. Econometrics 165(2), 2011.
     #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
