@@ -197,4 +197,18 @@ fn the_page_names_each_validation_drive_and_its_own_time() {
     assert!(validation.contains("is over all their segments (each segment weighs the same)."), "{validation}");
     let ep = f(&v["validation"]["mean_position_error_m"]);
     assert!(validation.contains(&format!("{ep:.3}")), "the table's Ē_p {ep:.3}: {validation}");
+    // The result fell back to batch G-N: the text's θ table shows its
+    // cluster-robust σ, the JSON's `sigma_within_drive`, beside the σ for
+    // the next drive, the JSON's `sigma`.
+    assert_eq!(v["sigma"]["source"], "cluster-robust", "{}", v["sigma"]);
+    let text = crate::common::stdout(&o);
+    let header = text.lines().find(|l| l.contains("θ_0    calibrated")).expect("the θ table");
+    assert!(header.contains("± 1σ (model) ± 1σ (robust) ± 1σ (next drive)  EIV (unused)"), "{header}");
+    for (name, scale, digits) in [("c_e", 1.0, 6), ("c_d", 1e3, 4), ("t_r", 1.0, 6), ("d", 1e3, 4)] {
+        let row = text.lines().find(|l| l.starts_with(&format!("  {name:<4} "))).expect("the row");
+        let cells: Vec<&str> = row.split_whitespace().collect();
+        let cell = |x: &serde_json::Value| format!("{:.digits$}", f(x) * scale);
+        assert_eq!(cells[5], cell(&v["sigma_within_drive"][name]), "{name}: {row}");
+        assert_eq!(cells[6], cell(&v["sigma"][name]), "{name}: {row}");
+    }
 }

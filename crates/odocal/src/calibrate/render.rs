@@ -368,8 +368,11 @@ fn theta_columns(r: &CalibrationReport, truth: Option<(&Theta, f64)>) -> Vec<(&'
         None => f64::NAN,
     });
     cols.push(("± 1σ (model)", Some(Theta { c_e: sigma[0], c_d: sigma[1], t_r: sigma[2], d: sigma[3] })));
-    // The cluster-robust σ (residuals correlated along and across segments).
-    if let Some(rb) = r.robust() {
+    // The cluster-robust σ (residuals correlated along and across segments):
+    // batch-gn's, or that of the default's batch G-N fallback, whose
+    // within-drive σ it is.
+    let fallback = eiv_detail(r).filter(|d| d.eiv_result == EivOutcome::BatchGnFallback);
+    if let Some(rb) = r.robust().or_else(|| fallback.and_then(|d| d.identification.robust.as_ref())) {
         let sd = rb.std_dev().to_array();
         let s: [f64; 4] = std::array::from_fn(|i| if sigma[i].is_finite() { sd[i] } else { sigma[i] });
         cols.push(("± 1σ (robust)", Some(Theta { c_e: s[0], c_d: s[1], t_r: s[2], d: s[3] })));
