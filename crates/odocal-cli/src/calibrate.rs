@@ -92,15 +92,25 @@ pub fn calibrate_cmd(a: CalibrateArgs, bars: &Bars) -> Result<Outcome> {
     files.output("--db", a.db.as_deref());
     calibration_files(&mut files, &a.calibration, a.json.as_deref())?;
     let mut drives = Vec::with_capacity(a.drive.len());
-    let mut wheel_scale = None;
+    // The first drive that states a wheel scale, by name: θ is shared, so
+    // every drive must count wheel revolutions alike.
+    let mut wheel_scale: Option<(String, String)> = None;
     let mut manifests = Vec::new();
     for p in &a.drive {
         let (d, w, m) = load_drive_with_scale(p)?;
-        wheel_scale = wheel_scale.or(w);
+        let named = w.map(|w| (p.display().to_string(), w));
+        if let (Some((a, x)), Some((b, y))) = (&wheel_scale, &named) {
+            if let Some(why) = odocal::wheel_scale_mismatch((a, Some(x)), (b, Some(y))) {
+                anyhow::bail!("one θ cannot be calibrated on drives that count wheel revolutions differently: {why}");
+            }
+        }
+        wheel_scale = wheel_scale.or(named);
         manifests.extend(m);
         drives.push(d);
     }
-    let others = load_validation_drives(&a.calibration.validate_on)?;
+    let calibration_scale = wheel_scale.as_ref().map(|(p, w)| (p.as_str(), w.as_str()));
+    let others = load_validation_drives(&a.calibration.validate_on, calibration_scale)?;
+    let wheel_scale = wheel_scale.map(|(_, w)| w);
     let fingerprints = distinct_drives(&a.drive, &drives, &others)?;
     let first = &a.drive[0];
     let (drive, truth) = if drives.len() == 1 {
@@ -145,7 +155,7 @@ pub fn demo_cmd(a: DemoArgs, bars: &Bars) -> Result<Outcome> {
         sim.drive.write_csv(p)?;
         sim.sidecar.write_beside(p)?;
     }
-    let others = load_validation_drives(&a.calibration.validate_on)?;
+    let others = load_validation_drives(&a.calibration.validate_on, None)?;
     let fingerprints = distinct_drives(&[PathBuf::from("simulated drive")], std::slice::from_ref(&sim.drive), &others)?;
     if !files.any_stdout() {
         let s = &sim.sidecar.stats;
@@ -279,6 +289,10 @@ fn run_calibration(job: Job<'_>, args: &CalibrationArgs, json: Option<&Path>, ba
         f.node = args.params_node.clone();
         f.mapping = args.params_mapping;
         f.provenance.push(("fingerprint".into(), prints.clone()));
+        // What c_e, c_d and d are per: `validate` compares it with a drive's.
+        if let Some(w) = wheel_scale {
+            f.provenance.push(("wheel_scale".into(), w.to_string()));
+        }
         outputs.push((p, f.text_for(p)?));
     }
     if let Some(p) = &args.report {
@@ -319,12 +333,20 @@ fn calibration_fingerprints(entries: &[serde_json::Value]) -> String {
     prints.join(", ")
 }
 
-/// Reads the `--validate-on` drives.
-fn load_validation_drives(paths: &[PathBuf]) -> Result<Vec<OtherDrive>> {
+/// Reads the `--validate-on` drives, which must count wheel revolutions as
+/// the calibration's drives do (`calibration`: the first of those that
+/// states a wheel scale, and the scale).
+fn load_validation_drives(paths: &[PathBuf], calibration: Option<(&str, &str)>) -> Result<Vec<OtherDrive>> {
     let mut others = Vec::with_capacity(paths.len());
     for p in paths {
-        let (d, _, m) = load_drive_with_scale(p).with_context(|| format!("--validate-on {}", p.display()))?;
-        others.push((p.display().to_string(), d, m));
+        let (d, w, m) = load_drive_with_scale(p).with_context(|| format!("--validate-on {}", p.display()))?;
+        let name = p.display().to_string();
+        if let Some(why) =
+            calibration.and_then(|(c, x)| odocal::wheel_scale_mismatch((c, Some(x)), (&name, w.as_deref())))
+        {
+            anyhow::bail!("--validate-on {name}: θ would be judged in another unit: {why}");
+        }
+        others.push((name, d, m));
     }
     Ok(others)
 }

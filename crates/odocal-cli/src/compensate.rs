@@ -66,7 +66,10 @@ pub fn run(mut a: CompensateArgs, bars: &Bars) -> Result<()> {
         files.input("the --theta parameter file", p);
     }
     files.output("--out", Some(&a.out)).check()?;
-    let (drive, _, settings) = load_drive_with_scale(&a.drive)?;
+    let (drive, scale, settings) = load_drive_with_scale(&a.drive)?;
+    if let Some(w) = crate::validate::wheel_scale_warning(a.theta.file.as_ref(), scale.as_deref(), &a.drive) {
+        eprintln!("warning: {w}");
+    }
     let segs = segment::cut(&drive, 0, a.segment_length, a.segment_length);
     if segs.is_empty() {
         bail!("{}: too short for one segment of {} steps", a.drive.display(), a.segment_length);

@@ -79,7 +79,10 @@ pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<Outcome> {
         files.input("the --theta0 parameter file", p);
     }
     files.output("--json", a.json.as_deref()).check()?;
-    let (drive, _, settings) = load_drive_with_scale(&a.drive)?;
+    let (drive, scale, settings) = load_drive_with_scale(&a.drive)?;
+    if let Some(w) = wheel_scale_warning(a.theta.file.as_ref(), scale.as_deref(), &a.drive) {
+        eprintln!("warning: {w}");
+    }
     let mut opts = ValidateOptions { fit_drive: !a.no_drive_fit, ..ValidateOptions::default() };
     // A manifest's [reference]: the drive's own mount.
     let stated = settings.as_ref().and_then(|s| s.reference.as_ref()).map(odocal::Extrinsics::from);
@@ -331,6 +334,23 @@ fn change(theta: &Theta, fit: &Theta) -> String {
         (fit.t_r / theta.t_r - 1.0) * 100.0,
         (fit.d - theta.d) * 1e3
     )
+}
+
+/// A warning when θ's parameter file was calibrated on drives that count
+/// wheel revolutions otherwise than `drive` (its provenance `wheel_scale`
+/// against the drive's import): θ's c_e, c_d and d then mean other units.
+pub(crate) fn wheel_scale_warning(
+    file: Option<&(PathBuf, odocal::ParamFile)>,
+    drive_scale: Option<&str>,
+    drive: &Path,
+) -> Option<String> {
+    let (path, f) = file?;
+    let theta_scale = f.provenance.iter().find(|(k, _)| k == "wheel_scale").map(|(_, v)| v.as_str());
+    let why = odocal::wheel_scale_mismatch(
+        (&format!("θ's parameter file {}", path.display()), theta_scale),
+        (&drive.display().to_string(), drive_scale),
+    )?;
+    Some(format!("{why}; θ is judged here as it stands"))
 }
 
 /// A warning when θ does not fit the drive: what it means and what to do.

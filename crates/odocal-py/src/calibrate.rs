@@ -192,6 +192,19 @@ pub(crate) fn calibrate<'py>(
     let validate_on = options.map(|o| o.get_item("validate_on")).transpose()?.flatten();
     let entries = distinct_drives(py, drive, validate_on.as_ref())?;
     let (inner, provs) = drives_arg(drive, "drive")?;
+    // One θ for drives that count wheel revolutions alike, judged on such drives.
+    if let Some(why) = crate::drive::wheel_scale_conflict(None, &provs, "drive") {
+        return Err(OdocalError::new_err(format!(
+            "one θ cannot be calibrated on drives that count wheel revolutions differently: {why}"
+        )));
+    }
+    if let Some(v) = &validate_on {
+        let first =
+            provs.iter().find_map(|p| p.wheel_scale.as_deref().map(|w| (p.source.as_deref().unwrap_or("drive"), w)));
+        if let Some(why) = crate::drive::wheel_scale_conflict(first, &crate::drive::provenances(v), "validate_on") {
+            return Err(OdocalError::new_err(format!("validate_on: θ would be judged in another unit: {why}")));
+        }
+    }
     let separate: Vec<Arc<Drive>> = match drive.cast::<PyDrive>() {
         Ok(_) => Vec::new(),
         Err(_) => drive

@@ -87,6 +87,22 @@ fn validate<'py>(
         Some(f) => odocal::Theta::try_from(f).map_err(lib_err)?,
         None => extract_theta(theta)?,
     };
+    // What θ's c_e is per (a report's `wheel_scale`, a parameter file's
+    // provenance) against the drive's: warned about, as `odocal validate` does.
+    let theta_scale = match (report_json, &file) {
+        (Some(j), _) => serde_json::from_str::<serde_json::Value>(j)
+            .ok()
+            .and_then(|v| v.get("wheel_scale").and_then(|w| w.as_str()).map(str::to_string)),
+        (None, Some(f)) => f.provenance.iter().find(|(k, _)| k == "wheel_scale").map(|(_, v)| v.clone()),
+        (None, None) => None,
+    };
+    let prov = &drive.get().prov;
+    if let Some(why) = odocal::wheel_scale_mismatch(
+        ("θ's calibration", theta_scale.as_deref()),
+        (prov.source.as_deref().unwrap_or("the drive"), prov.wheel_scale.as_deref()),
+    ) {
+        files::warn_all(py, &[format!("{why}; θ is judged here as it stands")])?;
+    }
     // A CalibrationReport as θ: its extrinsics, as a parameter file of it would carry them.
     let file = match report_json {
         Some(j) => Some(report_from_json(j)?.param_file("")),

@@ -73,6 +73,7 @@ pub(crate) fn _write_params(
     check_against(drives, "write_params(path)", &path)?;
     let value: serde_json::Value = serde_json::from_str(report_json).map_err(not_a_report)?;
     let fingerprints = calibration_fingerprints(&value);
+    let wheel_scale = value.get("wheel_scale").and_then(|w| w.as_str()).map(str::to_string);
     let input = match (input, calibration.map(provenances).unwrap_or_default()) {
         (Some(i), _) => i.to_string(),
         (None, provs) if !provs.is_empty() => input_names(&provs),
@@ -83,6 +84,10 @@ pub(crate) fn _write_params(
     f.mapping = mapping.parse().map_err(lib_err)?;
     if let Some(fp) = fingerprints {
         f.provenance.push(("fingerprint".into(), fp));
+    }
+    // What c_e, c_d and d are per, as `odocal calibrate --params-out` writes it.
+    if let Some(w) = wheel_scale {
+        f.provenance.push(("wheel_scale".into(), w));
     }
     f.write(&path).map_err(lib_err)
 }

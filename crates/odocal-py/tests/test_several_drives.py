@@ -3,6 +3,7 @@
 import json
 import pickle
 import subprocess
+import warnings
 
 import numpy as np
 import pytest
@@ -285,3 +286,37 @@ def test_a_joint_calibration_reports_each_drive_s_heading_offset(odocal_bin, csv
     ]
     assert [p["value"] for p in per] == [p["value"] for p in r["extrinsics"]["per_drive"]]
     assert r["extrinsics"]["value"]["heading_offset"] == pytest.approx(np.mean([p["value"] for p in per]), abs=1e-15)
+
+
+def test_drives_that_count_wheel_revolutions_otherwise_are_not_mixed(tmp_path):
+    """c_e is per model revolution, which the manifest defines: drives that
+    count revolutions otherwise are not calibrated or validated together, the
+    parameter file records the scale, and validate warns across scales."""
+    from conftest import REPO
+
+    runs = REPO / "examples" / "psu-mapping-van-testtrack"
+    text = (runs / "run-15-28-33.toml").read_text()
+    assert "ticks_per_rev = 40460.0" in text
+    other = tmp_path / "other.toml"
+    other.write_text(
+        text.replace('"../../data', f'"{REPO}/data').replace("ticks_per_rev = 40460.0", "ticks_per_rev = 40360.0")
+    )
+    with pytest.warns(UserWarning):
+        own = odocal.Drive.from_manifest(runs / "run-14-45-26.toml")
+    same = odocal.Drive.from_manifest(runs / "run-15-28-33.toml")
+    otherwise = odocal.Drive.from_manifest(other)
+    with pytest.raises(odocal.OdocalError, match="count wheel revolutions differently"):
+        odocal.calibrate([own, otherwise], "batch-gn")
+    with pytest.raises(odocal.OdocalError, match="judged in another unit"):
+        odocal.calibrate(own, "batch-gn", validate_on=otherwise)
+    report = odocal.calibrate(own, "batch-gn")
+    params = tmp_path / "p.yaml"
+    report.write_params(params)
+    assert 'wheel_scale: "ticks, one model revolution = ticks_per_rev = 40460 ticks' in params.read_text()
+    with pytest.warns(UserWarning, match="counts wheel revolutions as"):
+        odocal.validate(otherwise, str(params))
+    with pytest.warns(UserWarning, match="counts wheel revolutions as"):
+        odocal.validate(otherwise, report)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        odocal.validate(same, str(params))

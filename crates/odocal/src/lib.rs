@@ -178,7 +178,7 @@ pub use drive::{
 };
 pub use io::import::{
     import, is_manifest_path, load_drive, manifest::Manifest, report::ImportReport, settings::ReferenceSpec,
-    ImportedDrive,
+    wheel_scale_mismatch, ImportedDrive,
 };
 pub use io::param_file::{ParamFile, ParamMapping};
 pub use sim::{simulate, NoiseOptions, SimOptions, SimOutput, SimSidecar};

@@ -234,3 +234,39 @@ fn validate_refuses_negated_wheel_signs_as_calibrate_does() {
     );
     refused(&["calibrate", s(&both)], &["the wheels turn backwards"]);
 }
+
+/// c_e, c_d and d are per model revolution, which a manifest defines (e.g.
+/// `ticks_per_rev`): drives that count revolutions otherwise are refused as
+/// one calibration or as its validation drives, a parameter file records
+/// its scale, and `validate` with it on such a drive warns.
+#[test]
+fn drives_that_count_wheel_revolutions_otherwise_are_not_mixed() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let root = format!("{}/../..", env!("CARGO_MANIFEST_DIR"));
+    let e = format!("{root}/examples/psu-mapping-van-testtrack");
+    let own = format!("{e}/run-14-45-26.toml");
+    let text = std::fs::read_to_string(format!("{e}/run-15-28-33.toml")).expect("manifest");
+    assert!(text.contains("ticks_per_rev = 40460.0"), "the shipped scale");
+    let other = dir.path().join("other.toml");
+    std::fs::write(
+        &other,
+        text.replace("\"../../data", &format!("\"{root}/data"))
+            .replace("ticks_per_rev = 40460.0", "ticks_per_rev = 40360.0"),
+    )
+    .expect("write");
+    let needles = ["count wheel revolutions differently", "40460 ticks", "40360 ticks", "ticks_per_rev"];
+    refused(&["calibrate", &own, s(&other)], &needles);
+    refused(&["calibrate", &own, "--validate-on", s(&other)], &["judged in another unit", "40360 ticks"]);
+    let params = dir.path().join("p.yaml");
+    let o = odocal(&["calibrate", &own, "--params-out", s(&params)]);
+    assert!(o.status.code() != Some(1), "{}", stderr(&o));
+    let file = std::fs::read_to_string(&params).expect("params");
+    assert!(file.contains("wheel_scale: \"ticks, one model revolution = ticks_per_rev = 40460 ticks"), "{file}");
+    let warned = |drive: &str| {
+        let o = odocal(&["validate", drive, "--theta", s(&params)]);
+        assert!(o.status.code() != Some(1), "{}", stderr(&o));
+        stderr(&o).contains("counts wheel revolutions as")
+    };
+    assert!(warned(s(&other)), "another scale is warned about");
+    assert!(!warned(&format!("{e}/run-15-28-33.toml")), "the same scale is not");
+}

@@ -399,7 +399,10 @@ def calibrate(
     - ``holdout`` (``"first-half"`` | ``"second-half"``: the half held out
       for validation) or ``validate_on`` (another :class:`Drive`, or a list
       of them: Ē_p over all of them, and per drive in the report's
-      ``"validate_on"``, named ``validate_on[i]``);
+      ``"validate_on"``, named ``validate_on[i]``). The drives, and the
+      ``validate_on`` drives, must count wheel revolutions alike (their
+      manifests' ``[wheels]`` scale, e.g. ``ticks_per_rev``: c_e, c_d and d
+      are per model revolution); others raise :class:`OdocalError`;
     - ``auto_fix`` (bool): hold the parameters the data cannot determine;
     - ``estimate`` (``"lever-arm,heading-offset"`` or a list),
       ``lever_arm`` (``[x, y]``, m), ``heading_offset`` (rad): the reference
@@ -482,7 +485,8 @@ def validate(
     ``carry_heading_offset=True``, which holds that start (on the calibration's own drive
     that gives its own Ē_p).
     ``params_node`` names the node of a parameter file that holds several nodes'
-    parameters (such a file is refused without it).
+    parameters (such a file is refused without it). A ``UserWarning`` says when the
+    report's or the file's wheel scale (what c_e, c_d and d are per) is not the drive's.
 
     The verdict, ``drive_fit``: θ fitted on this drive by batch Gauss-Newton started from
     ``theta`` and from the paper's θ_0, the better of the two, or by the default method from

@@ -301,6 +301,31 @@ pub fn load_drive(path: &Path) -> Result<(Drive, Option<ImportReport>)> {
     }
 }
 
+/// Whether two drives (or θ's calibration and a drive) count wheel
+/// revolutions alike: their wheel scales ([`ImportReport::wheel_scale`],
+/// what one model revolution is, e.g. "ticks_per_rev = 40460 ticks") and
+/// the names to use for each. c_e, c_d and d are per model revolution, so
+/// across scales they mean other units (ticks_per_rev 40460 against 40360
+/// is 0.25 % in c_e). `None` when the scales agree or either is unknown (a
+/// canonical CSV states none); otherwise what differs and what to do.
+///
+/// ```
+/// let (a, b) = ("ticks: c_e is metres per 40460 ticks", "ticks: c_e is metres per 40360 ticks");
+/// assert!(odocal::wheel_scale_mismatch(("a.toml", Some(a)), ("b.toml", Some(b))).is_some());
+/// assert!(odocal::wheel_scale_mismatch(("a.toml", Some(a)), ("b.toml", Some(a))).is_none());
+/// assert!(odocal::wheel_scale_mismatch(("a.toml", Some(a)), ("b.csv", None)).is_none());
+/// ```
+pub fn wheel_scale_mismatch((a, a_scale): (&str, Option<&str>), (b, b_scale): (&str, Option<&str>)) -> Option<String> {
+    let (x, y) = (a_scale?, b_scale?);
+    (x != y).then(|| {
+        format!(
+            "{a} counts wheel revolutions as \"{x}\" and {b} as \"{y}\": c_e, c_d and d are per model revolution, so \
+             they mean other units on the two; give both manifests the same [wheels] scale (the same ticks_per_rev \
+             for the same encoder)"
+        )
+    })
+}
+
 /// Imports a drive described by a manifest: reads the streams, estimates the
 /// clock offset, resamples to the output rate and splits at gaps.
 ///
