@@ -334,18 +334,20 @@ fn calibration_fingerprints(entries: &[serde_json::Value]) -> String {
 }
 
 /// Reads the `--validate-on` drives, which must count wheel revolutions as
-/// the calibration's drives do (`calibration`: the first of those that
-/// states a wheel scale, and the scale).
+/// the calibration's drives do and as each other (`calibration`: the first
+/// of those that states a wheel scale, and the scale).
 fn load_validation_drives(paths: &[PathBuf], calibration: Option<(&str, &str)>) -> Result<Vec<OtherDrive>> {
     let mut others = Vec::with_capacity(paths.len());
+    let mut seen = calibration.map(|(c, x)| (c.to_string(), x.to_string()));
     for p in paths {
         let (d, w, m) = load_drive_with_scale(p).with_context(|| format!("--validate-on {}", p.display()))?;
         let name = p.display().to_string();
         if let Some(why) =
-            calibration.and_then(|(c, x)| odocal::wheel_scale_mismatch((c, Some(x)), (&name, w.as_deref())))
+            seen.as_ref().and_then(|(c, x)| odocal::wheel_scale_mismatch((c, Some(x)), (&name, w.as_deref())))
         {
             anyhow::bail!("--validate-on {name}: θ would be judged in another unit: {why}");
         }
+        seen = seen.or_else(|| w.map(|w| (name.clone(), w)));
         others.push((name, d, m));
     }
     Ok(others)
