@@ -257,6 +257,12 @@ fn drives_that_count_wheel_revolutions_otherwise_are_not_mixed() {
     let needles = ["count wheel revolutions differently", "40460 ticks", "40360 ticks", "ticks_per_rev"];
     refused(&["calibrate", &own, s(&other)], &needles);
     refused(&["calibrate", &own, "--validate-on", s(&other)], &["judged in another unit", "40360 ticks"]);
+    // A CSV states no scale; the --validate-on drives must still agree with each other.
+    let csv = dir.path().join("own.csv");
+    let o = odocal(&["import", &own, "--out", s(&csv)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let both = format!("{e}/run-15-28-33.toml,{}", s(&other));
+    refused(&["calibrate", s(&csv), "--validate-on", &both], &["judged in another unit", "40360 ticks"]);
     let params = dir.path().join("p.yaml");
     let o = odocal(&["calibrate", &own, "--params-out", s(&params)]);
     assert!(o.status.code() != Some(1), "{}", stderr(&o));
