@@ -261,7 +261,7 @@ fn drives_that_count_wheel_revolutions_otherwise_are_not_mixed() {
     let csv = dir.path().join("own.csv");
     let o = odocal(&["import", &own, "--out", s(&csv)]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let both = format!("{e}/run-15-28-33.toml,{}", s(&other));
+    let both = format!("{e}/run-16-06-28.toml,{}", s(&other));
     refused(&["calibrate", s(&csv), "--validate-on", &both], &["judged in another unit", "40360 ticks"]);
     let params = dir.path().join("p.yaml");
     let o = odocal(&["calibrate", &own, "--params-out", s(&params)]);
