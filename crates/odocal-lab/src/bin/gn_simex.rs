@@ -17,7 +17,7 @@
 //! `gn_simex worlds [FIRST 1] [N 100] [KM 12]`: random noise worlds (as
 //! `random_worlds` drives them), the coverage of the reported 95 %
 //! interval, the results accepted beyond 3σ, and per world beyond 3σ its
-//! error and predicted bias over σ (docs/validation.md, "Batch G-N's σ:
+//! error and predicted bias over σ (docs/validation.md, "Batch Gauss-Newton's σ:
 //! the jackknife over clusters").
 
 use odocal::identify::IdentifyOptions;
