@@ -1,7 +1,7 @@
 //! The verdict's check of batch Gauss-Newton's errors-in-variables bias
 //! (`input_noise_bias`, odocal's `calibrate::input_noise`) on simulated
-//! drives with a known truth (docs/validation.md, "Batch G-N's input-noise
-//! bias").
+//! drives with a known truth (docs/validation.md, "Batch Gauss-Newton's
+//! input-noise bias").
 //!
 //! Per preset, over seeds 1..=SEEDS of KM km: `odocal calibrate --method
 //! batch-gn` as a user runs it; per parameter the mean error over the σ

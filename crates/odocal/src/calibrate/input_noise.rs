@@ -30,8 +30,8 @@
 //! The result is doubtful when the predicted bias of a free parameter
 //! exceeds [`MAX_BIAS_SIGMAS`] of its σ for the next drive. EIV (the
 //! default method) models this noise, and is not checked. On simulated
-//! drives with known noise (docs/validation.md, "Batch G-N's input-noise
-//! bias") the predicted t_r bias averaged the batch G-N error's mean to
+//! drives with known noise (docs/validation.md, "Batch Gauss-Newton's
+//! input-noise bias") the predicted t_r bias averaged the batch G-N error's mean to
 //! within its scatter on every noise preset.
 
 use rand::{Rng, SeedableRng};
