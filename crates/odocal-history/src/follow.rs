@@ -119,6 +119,22 @@ struct Stored {
     calibrated: bool,
 }
 
+/// Refuses `drive` (at `source`) when it counts wheel revolutions
+/// otherwise than the first drive that stated a scale (`first`, which the
+/// first such drive sets): θ is one vehicle's, in one unit.
+fn same_wheel_scale(first: &mut Option<(String, String)>, source: &str, drive: &Replay) -> Result<(), Error> {
+    if let Some(why) =
+        first.as_ref().and_then(|(a, x)| odocal::wheel_scale_mismatch((a, Some(x)), (source, drive.wheel_scale())))
+    {
+        let reason = format!("one θ cannot follow drives that count wheel revolutions differently: {why}");
+        return Err(Error::InvalidDrive { context: source.to_string(), reason });
+    }
+    if first.is_none() {
+        *first = drive.wheel_scale().map(|w| (source.to_string(), w.to_string()));
+    }
+    Ok(())
+}
+
 /// Replays `drives` (drive CSVs or manifests) in order through one online
 /// calibrator for `vehicle`, starting from the vehicle's most recent row in
 /// `db` whose verdict is not `rejected` and names no bias beyond its σ
@@ -168,7 +184,8 @@ struct Stored {
 ///
 /// # Errors
 /// A drive's read errors and [`Replay::check`]'s; a drive whose sample time is not the first
-/// drive's; the options' ([`Calibrator::new`]); the history's; `on`'s.
+/// drive's, or that counts wheel revolutions otherwise ([`Replay::wheel_scale`]); the options'
+/// ([`Calibrator::new`]); the history's; `on`'s.
 pub fn follow<E: From<Error>>(
     db: &mut History,
     vehicle: &str,
@@ -182,9 +199,11 @@ pub fn follow<E: From<Error>>(
     // The last drive followed, and its first stamp on its clock: at first
     // the last one an earlier run logged with a Unix-time stamp.
     let mut previous: Option<(String, f64)> = db.last_clock_start(vehicle)?;
+    let mut scale: Option<(String, String)> = None; // the first stated wheel scale
     for path in drives {
         let drive = Replay::open(path, |line| on(FollowEvent::Log(line)))?;
         let source = path.display().to_string();
+        same_wheel_scale(&mut scale, &source, &drive)?;
         let fingerprint = drive.fingerprint()?;
         let digest = crate::source_digest(path)?;
         let span = drive.time_span_s();

@@ -237,8 +237,9 @@ fn validate_refuses_negated_wheel_signs_as_calibrate_does() {
 
 /// c_e, c_d and d are per model revolution, which a manifest defines (e.g.
 /// `ticks_per_rev`): drives that count revolutions otherwise are refused as
-/// one calibration or as its validation drives, a parameter file records
-/// its scale, and `validate` with it on such a drive warns.
+/// one calibration, as its validation drives and as drives followed
+/// together, a parameter file records its scale, and `validate` with it on
+/// such a drive warns.
 #[test]
 fn drives_that_count_wheel_revolutions_otherwise_are_not_mixed() {
     let dir = tempfile::tempdir().expect("tmp");
@@ -263,6 +264,12 @@ fn drives_that_count_wheel_revolutions_otherwise_are_not_mixed() {
     assert!(o.status.success(), "{}", stderr(&o));
     let both = format!("{e}/run-16-06-28.toml,{}", s(&other));
     refused(&["calibrate", s(&csv), "--validate-on", &both], &["judged in another unit", "40360 ticks"]);
+    // Followed as one vehicle: refused at the drive that differs.
+    let db = dir.path().join("v.sqlite");
+    refused(
+        &["follow", &own, s(&other), "--vehicle", "van", "--db", s(&db)],
+        &["cannot follow drives that count wheel revolutions differently", "40360 ticks"],
+    );
     let params = dir.path().join("p.yaml");
     let o = odocal(&["calibrate", &own, "--params-out", s(&params)]);
     assert!(o.status.code() != Some(1), "{}", stderr(&o));

@@ -8,7 +8,7 @@ use crate::drive::plausibility::{check_conventions, check_conventions_from, stal
 use crate::drive::{Drive, DriveBuilder, DriveStream, Signals, StreamChunk};
 use crate::error::{Error, Result};
 use crate::io::import::stream::{self, reader::ManifestStream, StreamOptions};
-use crate::io::import::{is_manifest_path, load_drive, manifest::Manifest};
+use crate::io::import::{is_manifest_path, load_drive, manifest::Manifest, wheel_scale};
 use crate::model::Theta;
 
 /// Samples per chunk (10 s at 40 Hz).
@@ -45,6 +45,9 @@ pub struct Replay {
     /// The wheel-clock time of the drive's t = 0 when it was imported from
     /// a manifest (`ImportReport::time_origin_s`).
     origin_s: Option<f64>,
+    /// What one model revolution is, for a manifest
+    /// (`ImportReport::wheel_scale`).
+    wheel_scale: Option<String>,
 }
 
 /// How a [`Replay`] holds its drive.
@@ -64,8 +67,16 @@ impl Replay {
         path: &Path,
         mut log: impl FnMut(String) -> std::result::Result<(), E>,
     ) -> std::result::Result<Replay, E> {
-        let (source, origin_s) = Source::open(path, &mut log)?;
-        Ok(Replay { path: path.to_path_buf(), source, origin_s })
+        let (source, origin_s, wheel_scale) = Source::open(path, &mut log)?;
+        Ok(Replay { path: path.to_path_buf(), source, origin_s, wheel_scale })
+    }
+
+    /// What one model revolution is when the drive was imported from a
+    /// manifest (as [`crate::ImportReport::wheel_scale`]), so what c_e, c_d
+    /// and d are per; `None` for a drive CSV. Drives followed as one
+    /// vehicle must agree ([`crate::wheel_scale_mismatch`]).
+    pub fn wheel_scale(&self) -> Option<&str> {
+        self.wheel_scale.as_deref()
     }
 
     /// The drive's [fingerprint](Drive::fingerprint).
@@ -249,36 +260,38 @@ fn whole_chunks(drive: &Drive, size: usize) -> impl Iterator<Item = StreamChunk>
 impl Source {
     /// Opens the drive at `path`; `log` hears what its reader warns about.
     /// The drive at `path` and, for a manifest, the wheel-clock time of
-    /// its t = 0.
+    /// its t = 0 and its wheel scale.
     fn open<E: From<Error>>(
         path: &Path,
         log: &mut impl FnMut(String) -> std::result::Result<(), E>,
-    ) -> std::result::Result<(Source, Option<f64>), E> {
+    ) -> std::result::Result<(Source, Option<f64>, Option<String>), E> {
         if is_manifest_path(path) {
             let m = Manifest::from_path(path)?;
+            let scale = Some(wheel_scale(&m));
             if let Some(why) = stream::not_streamable(&m) {
                 log(format!("note: {}: imported whole ({why})", path.display()))?;
-                return whole(path, log);
+                return whole(path, log).map(|(s, o)| (s, o, scale));
             }
             let mut lines = Vec::new();
-            return match streamed_manifest(path, &m, &mut lines) {
+            let (source, origin_s) = match streamed_manifest(path, &m, &mut lines) {
                 Ok((s, origin_s)) => {
                     lines.into_iter().try_for_each(&mut *log)?;
-                    Ok((Source::Stream(s), origin_s))
+                    (Source::Stream(s), origin_s)
                 }
                 // The whole import's error (or result) is the reference:
                 // the stream judges some whole-drive checks on its warm-up.
                 Err(e) => {
                     log(format!("note: {}: imported whole (the streamed import stopped: {e})", path.display()))?;
-                    whole(path, log)
+                    whole(path, log)?
                 }
             };
+            return Ok((source, origin_s, scale));
         }
         let stream = DriveStream::open(path)?;
         for w in &stream.warnings {
             log(format!("warning: {w}"))?;
         }
-        Ok((Source::Stream(stream), None))
+        Ok((Source::Stream(stream), None, None))
     }
 }
 

@@ -255,6 +255,7 @@ pub(crate) use manifest::{ClockOffset, LateralAccelerationSpec, PositionSpec, Si
 pub(crate) use report::ImportReport;
 pub(crate) use settings::ReferenceSpec;
 pub(crate) use settings::{CalibrationTable, NoiseTable};
+pub(crate) use wheels::wheel_scale;
 
 use crate::drive::{Drive, DriveBuilder, Signals};
 use crate::error::{Error, Result};
