@@ -243,7 +243,8 @@ class CalibrationReport:
         verdict and provenance: ``input`` names the calibration drives (by
         default each drive's file, as the CLI's; ``"simulated drive"`` for
         one of :func:`simulate`, ``"python"`` for one made from arrays;
-        comma separated), ``fingerprint`` their :attr:`Drive.fingerprint`.
+        comma separated), ``fingerprint`` their :attr:`Drive.fingerprint`,
+        ``wheel_scale`` (drives from manifests) what c_e, c_d and d are per.
         ``mapping="diff_drive_controller"`` adds that controller's keys.
         :func:`read_params` and every θ argument read it back. The file is
         written atomically; a node that is no ROS 2 node name, or a path
