@@ -256,7 +256,15 @@ impl Replayed<'_> {
                 self.entries.push(json!({"source": source, "fingerprint": fingerprint, "already_recorded": true,
                     "recorded_row": row.map(|(id, _)| id), "prequential_mean_position_error_m": null, "updates": []}));
             }
-            FollowEvent::Followed { source, fingerprint, summary, heading_offset_rad, drive_time_s, decision } => {
+            FollowEvent::Followed {
+                source,
+                fingerprint,
+                summary,
+                heading_offset_rad,
+                drive_time_s,
+                decision,
+                wheel_scale,
+            } => {
                 self.handled += 1;
                 self.bars.finish();
                 self.followed.push((source.clone(), fingerprint.clone()));
@@ -283,7 +291,7 @@ impl Replayed<'_> {
                     "updates": [update_json(&decision, drive_time_s)],
                 }));
                 if decision.action == Action::Write {
-                    let f = param_file(&decision, &self.followed, &self.start);
+                    let f = param_file(&decision, &self.followed, &self.start, wheel_scale.as_deref());
                     match &a.params_out {
                         Some(p) if !self.params_to_stdout => {
                             // The drive is recorded: the JSON reports it, and the replay stops at it.
@@ -429,8 +437,14 @@ fn gates(a: &FollowArgs) -> Result<Gates> {
 /// source and fingerprint, in order) and on where it started (`start`: a
 /// history row or θ_0): the provenance names the drives as `calibrate`
 /// names a joint calibration's (`input` and `fingerprint` comma separated,
-/// `drives` their number) and the start as `start`.
-fn param_file(decision: &GateDecision, followed: &[(String, String)], start: &str) -> ParamFile {
+/// `drives` their number) and the start as `start`; `wheel_scale` is what
+/// c_e, c_d and d are per (the followed drives share it).
+fn param_file(
+    decision: &GateDecision,
+    followed: &[(String, String)],
+    start: &str,
+    wheel_scale: Option<&str>,
+) -> ParamFile {
     debug_assert_eq!(decision.action, Action::Write);
     let s = <[_; 4]>::from(decision.sigma).map(Some);
     let sources: Vec<&str> = followed.iter().map(|(s, _)| s.as_str()).collect();
@@ -441,6 +455,9 @@ fn param_file(decision: &GateDecision, followed: &[(String, String)], start: &st
     f.provenance.push(("fingerprint".into(), prints.join(", ")));
     f.provenance.push(("drives".into(), followed.len().to_string()));
     f.provenance.push(("start".into(), start.to_string()));
+    if let Some(w) = wheel_scale {
+        f.provenance.push(("wheel_scale".into(), w.to_string()));
+    }
     f
 }
 

@@ -83,6 +83,9 @@ pub enum FollowEvent {
         drive_time_s: f64,
         /// The gates' decision.
         decision: GateDecision,
+        /// What one model revolution is ([`Replay::wheel_scale`]): what the
+        /// estimate's c_e, c_d and d are per.
+        wheel_scale: Option<String>,
     },
 }
 
@@ -194,8 +197,7 @@ pub fn follow<E: From<Error>>(
     mut on: impl FnMut(FollowEvent) -> std::result::Result<(), E>,
 ) -> std::result::Result<(), E> {
     let (mut stored, origin) = start(db, vehicle, opts)?;
-    let mut cal: Option<Calibrator> = None;
-    let mut started = false;
+    let (mut cal, mut started): (Option<Calibrator>, bool) = (None, false);
     // The last drive followed, and its first stamp on its clock: at first
     // the last one an earlier run logged with a Unix-time stamp.
     let mut previous: Option<(String, f64)> = db.last_clock_start(vehicle)?;
@@ -302,6 +304,7 @@ pub fn follow<E: From<Error>>(
             heading_offset_rad: status.heading_offset_rad,
             drive_time_s: span.1 - span.0,
             decision,
+            wheel_scale: drive.wheel_scale().map(str::to_string),
         })?;
     }
     Ok(())

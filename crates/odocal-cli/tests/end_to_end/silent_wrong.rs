@@ -270,6 +270,13 @@ fn drives_that_count_wheel_revolutions_otherwise_are_not_mixed() {
         &["follow", &own, s(&other), "--vehicle", "van", "--db", s(&db)],
         &["cannot follow drives that count wheel revolutions differently", "40360 ticks"],
     );
+    // What follow writes carries its scale too.
+    let followed = dir.path().join("f.yaml");
+    let fresh = dir.path().join("f.sqlite");
+    let o = odocal(&["follow", &own, "--vehicle", "van", "--db", s(&fresh), "--params-out", s(&followed)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let file = std::fs::read_to_string(&followed).expect("follow wrote an update");
+    assert!(file.contains("wheel_scale: \"ticks, one model revolution = ticks_per_rev = 40460 ticks"), "{file}");
     let params = dir.path().join("p.yaml");
     let o = odocal(&["calibrate", &own, "--params-out", s(&params)]);
     assert!(o.status.code() != Some(1), "{}", stderr(&o));
