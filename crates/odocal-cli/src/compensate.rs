@@ -67,7 +67,8 @@ pub fn run(mut a: CompensateArgs, bars: &Bars) -> Result<()> {
     }
     files.output("--out", Some(&a.out)).check()?;
     let (drive, scale, settings) = load_drive_with_scale(&a.drive)?;
-    if let Some(w) = crate::validate::wheel_scale_warning(a.theta.file.as_ref(), scale.as_deref(), &a.drive) {
+    let use_ = "the wheels are compensated with θ as it stands";
+    if let Some(w) = crate::validate::wheel_scale_warning(a.theta.file.as_ref(), scale.as_deref(), &a.drive, use_) {
         eprintln!("warning: {w}");
     }
     let segs = segment::cut(&drive, 0, a.segment_length, a.segment_length);

@@ -267,6 +267,15 @@ impl Replayed<'_> {
             } => {
                 self.handled += 1;
                 self.bars.finish();
+                // θ_0 from a parameter file of another wheel scale: said once, at the first drive.
+                if self.followed.is_empty() && self.start == "θ_0" {
+                    let theta0 = a.theta0.as_ref().and_then(|t| t.file.as_ref());
+                    let use_ = "the recursion started from θ_0 as it stands";
+                    let drive = std::path::Path::new(&source);
+                    if let Some(w) = crate::validate::wheel_scale_warning(theta0, wheel_scale.as_deref(), drive, use_) {
+                        eprintln!("warning: {w}");
+                    }
+                }
                 self.followed.push((source.clone(), fingerprint.clone()));
                 let e = summary.prequential_mean_position_error_m.map_or("-".into(), |e| format!("{e:.3} m"));
                 self.say(format!(

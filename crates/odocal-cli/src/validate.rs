@@ -80,7 +80,9 @@ pub fn run(mut a: ValidateArgs, bars: &Bars) -> Result<Outcome> {
     }
     files.output("--json", a.json.as_deref()).check()?;
     let (drive, scale, settings) = load_drive_with_scale(&a.drive)?;
-    if let Some(w) = wheel_scale_warning(a.theta.file.as_ref(), scale.as_deref(), &a.drive) {
+    if let Some(w) =
+        wheel_scale_warning(a.theta.file.as_ref(), scale.as_deref(), &a.drive, "θ is judged here as it stands")
+    {
         eprintln!("warning: {w}");
     }
     let mut opts = ValidateOptions { fit_drive: !a.no_drive_fit, ..ValidateOptions::default() };
@@ -338,11 +340,13 @@ fn change(theta: &Theta, fit: &Theta) -> String {
 
 /// A warning when θ's parameter file was calibrated on drives that count
 /// wheel revolutions otherwise than `drive` (its provenance `wheel_scale`
-/// against the drive's import): θ's c_e, c_d and d then mean other units.
+/// against the drive's import): θ's c_e, c_d and d then mean other units;
+/// `use_` says what is done with θ all the same.
 pub(crate) fn wheel_scale_warning(
     file: Option<&(PathBuf, odocal::ParamFile)>,
     drive_scale: Option<&str>,
     drive: &Path,
+    use_: &str,
 ) -> Option<String> {
     let (path, f) = file?;
     let theta_scale = f.provenance.iter().find(|(k, _)| k == "wheel_scale").map(|(_, v)| v.as_str());
@@ -350,7 +354,7 @@ pub(crate) fn wheel_scale_warning(
         (&format!("θ's parameter file {}", path.display()), theta_scale),
         (&drive.display().to_string(), drive_scale),
     )?;
-    Some(format!("{why}; θ is judged here as it stands"))
+    Some(format!("{why}; {use_}"))
 }
 
 /// A warning when θ does not fit the drive: what it means and what to do.

@@ -282,6 +282,11 @@ fn drives_that_count_wheel_revolutions_otherwise_are_not_mixed() {
     assert!(o.status.code() != Some(1), "{}", stderr(&o));
     let file = std::fs::read_to_string(&params).expect("params");
     assert!(file.contains("wheel_scale: \"ticks, one model revolution = ticks_per_rev = 40460 ticks"), "{file}");
+    // follow from θ_0 in a parameter file of another scale: warned at the first drive.
+    let db = dir.path().join("theta0.sqlite");
+    let o = odocal(&["follow", s(&other), "--vehicle", "van", "--db", s(&db), "--theta0", s(&params)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("the recursion started from θ_0 as it stands"), "{}", stderr(&o));
     let warned = |drive: &str| {
         let o = odocal(&["validate", drive, "--theta", s(&params)]);
         assert!(o.status.code() != Some(1), "{}", stderr(&o));
