@@ -244,24 +244,18 @@ pub(crate) fn heading_offset_warning(fit: &odocal::HeadingOffsetFit, start: Offs
 /// `manifest`) for the rest.
 pub(crate) fn extrinsics_source(path: Option<&Path>, from_file: &[&str], reestimated: bool, manifest: bool) -> String {
     let manifest_text = "the drive's manifest [reference]".to_string();
-    let Some(path) = path else {
-        return match (reestimated, manifest) {
-            (true, true) => format!("heading_offset re-estimated on this drive, the rest from {manifest_text}"),
-            (true, false) => "heading_offset re-estimated on this drive".to_string(),
-            (false, _) => manifest_text,
-        };
-    };
     let kept: Vec<&str> = from_file.iter().copied().filter(|n| !(reestimated && *n == "heading_offset")).collect();
     let mut parts = Vec::new();
-    if kept.len() == 3 {
-        parts.push(path.display().to_string());
-    } else if !kept.is_empty() {
-        parts.push(format!("{} from {}", kept.join(", "), path.display()));
+    match path {
+        Some(p) if kept.len() == 3 => parts.push(p.display().to_string()),
+        Some(p) if !kept.is_empty() => parts.push(format!("{} from {}", kept.join(", "), p.display())),
+        _ => {}
     }
     if reestimated {
         parts.push("heading_offset re-estimated on this drive".to_string());
     }
-    if from_file.len() < 3 {
+    // The rest is the manifest's; with nothing else to name, the manifest.
+    if from_file.len() < 3 && (manifest || parts.is_empty()) {
         parts.push(if parts.is_empty() { manifest_text } else { format!("the rest from {manifest_text}") });
     }
     parts.join(", ")
