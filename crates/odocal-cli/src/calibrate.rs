@@ -98,18 +98,13 @@ pub fn calibrate_cmd(a: CalibrateArgs, bars: &Bars) -> Result<Outcome> {
     let mut manifests = Vec::new();
     for p in &a.drive {
         let (d, w, m) = load_drive_with_scale(p)?;
-        let named = w.map(|w| (p.display().to_string(), w));
-        if let (Some((a, x)), Some((b, y))) = (&wheel_scale, &named) {
-            if let Some(why) = odocal::wheel_scale_mismatch((a, Some(x)), (b, Some(y))) {
-                anyhow::bail!("one θ cannot be calibrated on drives that count wheel revolutions differently: {why}");
-            }
+        if let Some(why) = odocal::wheel_scale_mismatch(&mut wheel_scale, &p.display().to_string(), w.as_deref()) {
+            anyhow::bail!("one θ cannot be calibrated on drives that count wheel revolutions differently: {why}");
         }
-        wheel_scale = wheel_scale.or(named);
         manifests.extend(m);
         drives.push(d);
     }
-    let calibration_scale = wheel_scale.as_ref().map(|(p, w)| (p.as_str(), w.as_str()));
-    let others = load_validation_drives(&a.calibration.validate_on, calibration_scale)?;
+    let others = load_validation_drives(&a.calibration.validate_on, wheel_scale.clone())?;
     let wheel_scale = wheel_scale.map(|(_, w)| w);
     let fingerprints = distinct_drives(&a.drive, &drives, &others)?;
     let first = &a.drive[0];
@@ -334,20 +329,16 @@ fn calibration_fingerprints(entries: &[serde_json::Value]) -> String {
 }
 
 /// Reads the `--validate-on` drives, which must count wheel revolutions as
-/// the calibration's drives do and as each other (`calibration`: the first
-/// of those that states a wheel scale, and the scale).
-fn load_validation_drives(paths: &[PathBuf], calibration: Option<(&str, &str)>) -> Result<Vec<OtherDrive>> {
+/// the calibration's drives do and as each other (`seen`: the first of the
+/// calibration's drives that states a wheel scale, and the scale).
+fn load_validation_drives(paths: &[PathBuf], mut seen: Option<(String, String)>) -> Result<Vec<OtherDrive>> {
     let mut others = Vec::with_capacity(paths.len());
-    let mut seen = calibration.map(|(c, x)| (c.to_string(), x.to_string()));
     for p in paths {
         let (d, w, m) = load_drive_with_scale(p).with_context(|| format!("--validate-on {}", p.display()))?;
         let name = p.display().to_string();
-        if let Some(why) =
-            seen.as_ref().and_then(|(c, x)| odocal::wheel_scale_mismatch((c, Some(x)), (&name, w.as_deref())))
-        {
+        if let Some(why) = odocal::wheel_scale_mismatch(&mut seen, &name, w.as_deref()) {
             anyhow::bail!("--validate-on {name}: θ would be judged in another unit: {why}");
         }
-        seen = seen.or_else(|| w.map(|w| (name.clone(), w)));
         others.push((name, d, m));
     }
     Ok(others)

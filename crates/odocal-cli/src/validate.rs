@@ -343,11 +343,9 @@ pub(crate) fn wheel_scale_warning(
     use_: &str,
 ) -> Option<String> {
     let (path, f) = file?;
-    let theta_scale = f.provenance.iter().find(|(k, _)| k == "wheel_scale").map(|(_, v)| v.as_str());
-    let why = odocal::wheel_scale_mismatch(
-        (&format!("θ's parameter file {}", path.display()), theta_scale),
-        (&drive.display().to_string(), drive_scale),
-    )?;
+    let theta_scale = f.provenance.iter().find(|(k, _)| k == "wheel_scale").map(|(_, v)| v.clone());
+    let mut first = theta_scale.map(|w| (format!("θ's parameter file {}", path.display()), w));
+    let why = odocal::wheel_scale_mismatch(&mut first, &drive.display().to_string(), drive_scale)?;
     Some(format!("{why}; {use_}"))
 }
 

@@ -126,16 +126,13 @@ struct Stored {
 /// otherwise than the first drive that stated a scale (`first`, which the
 /// first such drive sets): θ is one vehicle's, in one unit.
 fn same_wheel_scale(first: &mut Option<(String, String)>, source: &str, drive: &Replay) -> Result<(), Error> {
-    if let Some(why) =
-        first.as_ref().and_then(|(a, x)| odocal::wheel_scale_mismatch((a, Some(x)), (source, drive.wheel_scale())))
-    {
-        let reason = format!("one θ cannot follow drives that count wheel revolutions differently: {why}");
-        return Err(Error::InvalidDrive { context: source.to_string(), reason });
+    match odocal::wheel_scale_mismatch(first, source, drive.wheel_scale()) {
+        Some(why) => {
+            let reason = format!("one θ cannot follow drives that count wheel revolutions differently: {why}");
+            Err(Error::InvalidDrive { context: source.to_string(), reason })
+        }
+        None => Ok(()),
     }
-    if first.is_none() {
-        *first = drive.wheel_scale().map(|w| (source.to_string(), w.to_string()));
-    }
-    Ok(())
 }
 
 /// Replays `drives` (drive CSVs or manifests) in order through one online

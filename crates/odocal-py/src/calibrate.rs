@@ -199,8 +199,9 @@ pub(crate) fn calibrate<'py>(
         )));
     }
     if let Some(v) = &validate_on {
-        let first =
-            provs.iter().find_map(|p| p.wheel_scale.as_deref().map(|w| (p.source.as_deref().unwrap_or("drive"), w)));
+        let first = provs
+            .iter()
+            .find_map(|p| p.wheel_scale.clone().map(|w| (p.source.clone().unwrap_or_else(|| "drive".to_string()), w)));
         if let Some(why) = crate::drive::wheel_scale_conflict(first, &crate::drive::provenances(v), "validate_on") {
             return Err(OdocalError::new_err(format!("validate_on: θ would be judged in another unit: {why}")));
         }

@@ -68,23 +68,18 @@ pub(crate) fn provenances(v: &Bound<'_, PyAny>) -> Vec<Provenance> {
     items.filter_map(|x| x.ok()?.cast::<PyDrive>().ok().map(|d| d.get().prov.clone())).collect()
 }
 
-/// The first two of `provs` (named `what[i]` or by their files) that
-/// count wheel revolutions otherwise ([`odocal::wheel_scale_mismatch`]),
-/// after `first`, a wheel scale they must all share when given.
-pub(crate) fn wheel_scale_conflict(first: Option<(&str, &str)>, provs: &[Provenance], what: &str) -> Option<String> {
-    let mut seen = first.map(|(n, w)| (n.to_string(), w.to_string()));
-    for (i, p) in provs.iter().enumerate() {
-        let Some(w) = &p.wheel_scale else { continue };
+/// The first of `provs` (named by their files, or `what[i]`) that counts
+/// wheel revolutions otherwise than `first` or the drives before it
+/// ([`odocal::wheel_scale_mismatch`]): what differs.
+pub(crate) fn wheel_scale_conflict(
+    mut first: Option<(String, String)>,
+    provs: &[Provenance],
+    what: &str,
+) -> Option<String> {
+    provs.iter().enumerate().find_map(|(i, p)| {
         let name = p.source.clone().unwrap_or_else(|| format!("{what}[{i}]"));
-        if let Some((a, x)) = &seen {
-            if let Some(why) = odocal::wheel_scale_mismatch((a, Some(x)), (&name, Some(w))) {
-                return Some(why);
-            }
-        } else {
-            seen = Some((name, w.clone()));
-        }
-    }
-    None
+        odocal::wheel_scale_mismatch(&mut first, &name, p.wheel_scale.as_deref())
+    })
 }
 
 /// Adds `import_warnings` to a JSON report when the manifests of `provs`

@@ -97,10 +97,9 @@ fn validate<'py>(
         (None, None) => None,
     };
     let prov = &drive.get().prov;
-    if let Some(why) = odocal::wheel_scale_mismatch(
-        ("θ's calibration", theta_scale.as_deref()),
-        (prov.source.as_deref().unwrap_or("the drive"), prov.wheel_scale.as_deref()),
-    ) {
+    let mut first = theta_scale.map(|w| ("θ's calibration".to_string(), w));
+    let name = prov.source.as_deref().unwrap_or("the drive");
+    if let Some(why) = odocal::wheel_scale_mismatch(&mut first, name, prov.wheel_scale.as_deref()) {
         files::warn_all(py, &[format!("{why}; θ is judged here as it stands")])?;
     }
     // A CalibrationReport as θ: its extrinsics, as a parameter file of it would carry them.

@@ -302,25 +302,33 @@ pub fn load_drive(path: &Path) -> Result<(Drive, Option<ImportReport>)> {
     }
 }
 
-/// Whether two drives (or θ's calibration and a drive) count wheel
-/// revolutions alike: their wheel scales ([`ImportReport::wheel_scale`],
-/// what one model revolution is, e.g. "ticks_per_rev = 40460 ticks") and
-/// the names to use for each. c_e, c_d and d are per model revolution, so
+/// Whether drive `name` counts wheel revolutions as the drives before it
+/// (or θ's calibration) do: `first` holds the first of them that stated a
+/// wheel scale ([`ImportReport::wheel_scale`], what one model revolution
+/// is, e.g. "ticks_per_rev = 40460 ticks"), by name, and the first drive
+/// that states one sets it. c_e, c_d and d are per model revolution, so
 /// across scales they mean other units (ticks_per_rev 40460 against 40360
 /// is 0.25 % in c_e). `None` when the scales agree or either is unknown (a
 /// canonical CSV states none); otherwise what differs and what to do.
 ///
 /// ```
 /// let (a, b) = ("ticks: c_e is metres per 40460 ticks", "ticks: c_e is metres per 40360 ticks");
-/// assert!(odocal::wheel_scale_mismatch(("a.toml", Some(a)), ("b.toml", Some(b))).is_some());
-/// assert!(odocal::wheel_scale_mismatch(("a.toml", Some(a)), ("b.toml", Some(a))).is_none());
-/// assert!(odocal::wheel_scale_mismatch(("a.toml", Some(a)), ("b.csv", None)).is_none());
+/// let mut first = None;
+/// assert!(odocal::wheel_scale_mismatch(&mut first, "drive.csv", None).is_none());
+/// assert!(odocal::wheel_scale_mismatch(&mut first, "a.toml", Some(a)).is_none());
+/// assert!(odocal::wheel_scale_mismatch(&mut first, "a2.toml", Some(a)).is_none());
+/// assert!(odocal::wheel_scale_mismatch(&mut first, "b.toml", Some(b)).is_some_and(|w| w.starts_with("a.toml")));
+/// assert_eq!(first, Some(("a.toml".to_string(), a.to_string())));
 /// ```
-pub fn wheel_scale_mismatch((a, a_scale): (&str, Option<&str>), (b, b_scale): (&str, Option<&str>)) -> Option<String> {
-    let (x, y) = (a_scale?, b_scale?);
+pub fn wheel_scale_mismatch(first: &mut Option<(String, String)>, name: &str, scale: Option<&str>) -> Option<String> {
+    let y = scale?;
+    let Some((a, x)) = first.as_ref() else {
+        *first = Some((name.to_string(), y.to_string()));
+        return None;
+    };
     (x != y).then(|| {
         format!(
-            "{a} counts wheel revolutions as \"{x}\" and {b} as \"{y}\": c_e, c_d and d are per model revolution, so \
+            "{a} counts wheel revolutions as \"{x}\" and {name} as \"{y}\": c_e, c_d and d are per model revolution, so \
              they mean other units on the two; give both manifests the same [wheels] scale (the same ticks_per_rev \
              for the same encoder)"
         )
