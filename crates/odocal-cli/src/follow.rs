@@ -182,6 +182,7 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
         last_written: None,
         start: String::new(),
         followed: Vec::new(),
+        wheel_scale: None,
     };
     let error = follow(&mut db, &a.vehicle, &a.drive, &opts, |event| r.on(event)).err();
     // The drive the replay stopped at: the one being handled when its
@@ -222,6 +223,9 @@ struct Replayed<'a> {
     /// The drives the recursion followed, in order (source, fingerprint):
     /// a written estimate rests on all of them, and its file names them.
     followed: Vec<(String, String)>,
+    /// The first wheel scale a followed drive stated (they share it; a
+    /// drive CSV states none): what a written estimate's c_e is per.
+    wheel_scale: Option<String>,
 }
 
 impl Replayed<'_> {
@@ -277,6 +281,7 @@ impl Replayed<'_> {
                     }
                 }
                 self.followed.push((source.clone(), fingerprint.clone()));
+                self.wheel_scale = self.wheel_scale.take().or(wheel_scale);
                 let e = summary.prequential_mean_position_error_m.map_or("-".into(), |e| format!("{e:.3} m"));
                 self.say(format!(
                     "{source}: prequential Ē_p {e} over {} validation segment{}, {} segment{} folded; {}; {}: {}",
@@ -300,7 +305,7 @@ impl Replayed<'_> {
                     "updates": [update_json(&decision, drive_time_s)],
                 }));
                 if decision.action == Action::Write {
-                    let f = param_file(&decision, &self.followed, &self.start, wheel_scale.as_deref());
+                    let f = param_file(&decision, &self.followed, &self.start, self.wheel_scale.as_deref());
                     match &a.params_out {
                         Some(p) if !self.params_to_stdout => {
                             // The drive is recorded: the JSON reports it, and the replay stops at it.

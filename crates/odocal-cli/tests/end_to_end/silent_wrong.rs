@@ -282,6 +282,16 @@ fn drives_that_count_wheel_revolutions_otherwise_are_not_mixed() {
     assert!(o.status.code() != Some(1), "{}", stderr(&o));
     let file = std::fs::read_to_string(&params).expect("params");
     assert!(file.contains("wheel_scale: \"ticks, one model revolution = ticks_per_rev = 40460 ticks"), "{file}");
+    // An update written at a drive CSV (which states no scale) after a
+    // manifest's rests on both: it carries the manifest's scale.
+    let later = dir.path().join("later.csv");
+    let o = odocal(&["import", &format!("{e}/run-16-06-28.toml"), "--out", s(&later)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let both_db = dir.path().join("both.sqlite");
+    let o = odocal(&["follow", &own, s(&later), "--vehicle", "van", "--db", s(&both_db), "--params-out", s(&followed)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let file = std::fs::read_to_string(&followed).expect("follow wrote an update");
+    assert!(file.contains("later.csv") && file.contains("ticks_per_rev = 40460 ticks"), "{file}");
     // follow from θ_0 in a parameter file of another scale: warned at the first drive.
     let db = dir.path().join("theta0.sqlite");
     let o = odocal(&["follow", s(&other), "--vehicle", "van", "--db", s(&db), "--theta0", s(&params)]);
