@@ -11,7 +11,7 @@ use super::heading_drift::{self, HeadingDriftTest, SeparateFit, SeparateModel, T
 use super::input::make_windows;
 use super::problem::{free_inverse, free_sigma, theta_add, to_array, Evaluation, Problem};
 use super::scoring::scoring_pass;
-use super::steps::{observability_of, theta_step};
+use super::steps::{observability_of, reentering_sources, theta_step};
 use super::{
     apply_bias_correction, first_order_bias, CovarianceEstimate, CovarianceMode, EivInput, EivOptions, EivReport,
     EivWarning, HalvesCheck, HeadingScale, InnovationNull, LateralNoise, NoiseModel, NoiseSource, Parameter,
@@ -66,6 +66,7 @@ research_pub! {
         let tied_opts = &*opts;
         let tied_prob = Problem::new(input, windows, tied_opts);
         let fit = run_passes(&tied_prob, theta_start, tied_opts)?;
+        let fit = release_clamped(&tied_prob, fit, tied_opts)?;
         let (mut fit, heading_drift, separate) = heading_drift_test(&tied_prob, fit, theta_start, tied_opts)?;
         hold_scales_at_clamps(&mut fit.eta_sigma, &fit.eta, tied_opts.eta_bounds);
         let (prob, opts) = match &separate {
@@ -261,6 +262,42 @@ fn run_passes(prob: &Problem<'_>, theta_start: &Theta, opts: &EivOptions) -> Res
     Ok(Fit { theta, eta, eta_sigma, free, unobservable, start_ratios, passes, ev })
 }
 
+/// The fit again from its estimate with the noise sources released that
+/// sit at their lower clamp while its score says the data hold them
+/// ([`reentering_sources`]: each restarts at its one-step estimate), kept
+/// when it lowers the marginal likelihood M. A source that the first
+/// scoring steps sent to the clamp, from a starting model far from the
+/// drive's, cannot come back on its own (its information is then e^−20 of
+/// the start's); held there, the other scales absorb it and θ with them (a
+/// reference drifting slower than the model's τ under white wheel noise:
+/// t_r 5.3 σ low, test `a_scale_sent_to_its_lower_clamp_early_comes_back`).
+/// Released, a source may go back to the clamp; the fit with the lower M
+/// is the estimate, the other's pass stays in the report.
+fn release_clamped(prob: &Problem<'_>, fit: Fit, opts: &EivOptions) -> Result<Fit> {
+    if opts.fix_noise || fit.ev.mode != Mode::full(opts.research.covariance == CovarianceMode::FollowsTheta, true) {
+        return Ok(fit);
+    }
+    let released = reentering_sources(&fit.ev.total, &fit.eta, opts.eta_bounds, &opts.eta_held);
+    if released.is_empty() {
+        return Ok(fit);
+    }
+    let mut eta = fit.eta;
+    for (j, to) in released {
+        eta[j] = to;
+    }
+    let out = scoring_pass(prob, fit.theta, eta, fit.theta_reference(), fit.free, false, opts)?;
+    let mut passes = fit.passes;
+    passes.push(out.report);
+    if out.eval.total.merit() < fit.ev.total.merit() {
+        Ok(Fit { theta: out.theta, eta: out.eta, eta_sigma: out.eta_sigma, passes, ev: out.eval, ..fit })
+    } else {
+        // The released fit is worse: the estimate stays, after its passes.
+        let last = passes.remove(passes.len() - 2);
+        passes.push(last);
+        Ok(Fit { passes, ..fit })
+    }
+}
+
 /// The heading-drift test after the tied fit ([`super::heading_drift`]):
 /// the fit that is the result (the tied one, or the separate one with its
 /// pass appended), the test and the separate fit's problem and options
@@ -291,7 +328,8 @@ fn heading_drift_test<'a>(
             let p = heading_drift::problem_at(prob, &o);
             // Its θ where it stopped: converged, or at its iteration limit on
             // the way (the floor's effect is then at least what it reached).
-            test.theta_without_floor = run_passes(&p, theta_start, &o).ok().map(|f| f.theta);
+            test.theta_without_floor =
+                run_passes(&p, theta_start, &o).and_then(|f| release_clamped(&p, f, &o)).ok().map(|f| f.theta);
             let e = p.evaluations.get();
             test.evaluations = [test.evaluations[0] + e[0], test.evaluations[1] + e[1]];
         }

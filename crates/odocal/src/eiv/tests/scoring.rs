@@ -308,3 +308,42 @@ fn final_step_check_converges_at_the_iteration_limit() {
     assert!(r.termination.converged(), "{r}");
     assert_eq!(r.theta, full.theta);
 }
+
+/// A source at its lower clamp is released at the end of a fit when its
+/// score points into the range by more than `REENTRY_SCORE_Z`, at its
+/// one-step estimate (here η = −20 + ln(1 + 0.35·e^20) ≈ ln 0.35); not with a
+/// weaker score, a one-step estimate below `REENTRY_MIN_ETA`, or held.
+#[test]
+fn a_source_at_its_lower_clamp_is_released_when_its_score_says_so() {
+    use crate::eiv::filter::WindowSums;
+    use crate::eiv::steps::{reentering_sources, REENTRY_MIN_ETA, REENTRY_SCORE_Z};
+    let bounds = EivOptions::default().eta_bounds;
+    let mut eta = [0.0; NETA];
+    eta[4] = bounds[0];
+    // Source 4 at the clamp with information i44 and score z; the others
+    // interior, with no score.
+    let sums = |z: f64, i44: f64| {
+        let mut s = WindowSums::zero();
+        for j in 0..NETA {
+            s.i_eta[(j, j)] = 100.0;
+        }
+        s.i_eta[(4, 4)] = i44;
+        s.grad[4 + 4] = -z * i44.sqrt();
+        s
+    };
+    let at_clamp = 100.0 * (2.0 * bounds[0]).exp();
+    let z = REENTRY_SCORE_Z + 0.5;
+    let released = reentering_sources(&sums(z, at_clamp), &eta, bounds, &[false; NETA]);
+    assert_eq!(released.len(), 1, "{released:?}");
+    assert_eq!(released[0].0, 4);
+    assert!((released[0].1 - (z / 10.0).ln()).abs() < 1e-6, "{released:?}");
+    let weaker = reentering_sources(&sums(REENTRY_SCORE_Z - 0.5, at_clamp), &eta, bounds, &[false; NETA]);
+    assert!(weaker.is_empty(), "{weaker:?}");
+    // A one-step estimate 2 below REENTRY_MIN_ETA.
+    let i44 = (z * (bounds[0] - REENTRY_MIN_ETA + 2.0).exp()).powi(2);
+    let low = reentering_sources(&sums(z, i44), &eta, bounds, &[false; NETA]);
+    assert!(low.is_empty(), "{low:?}");
+    let mut held = [false; NETA];
+    held[4] = true;
+    assert!(reentering_sources(&sums(z, at_clamp), &eta, bounds, &held).is_empty());
+}
