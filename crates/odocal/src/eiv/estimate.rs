@@ -265,14 +265,14 @@ fn run_passes(prob: &Problem<'_>, theta_start: &Theta, opts: &EivOptions) -> Res
 /// The fit again from its estimate with the noise sources released that
 /// sit at their lower clamp while its score says the data hold them
 /// ([`reentering_sources`]: each restarts at its one-step estimate), kept
-/// when it lowers the marginal likelihood M. A source that the first
+/// when it converges and lowers the marginal likelihood M. A source that the first
 /// scoring steps sent to the clamp, from a starting model far from the
 /// drive's, cannot come back on its own (its information is then e^−20 of
 /// the start's); held there, the other scales absorb it and θ with them (a
 /// reference drifting slower than the model's τ under white wheel noise:
 /// t_r 5.3 σ low, test `a_scale_sent_to_its_lower_clamp_early_comes_back`).
-/// Released, a source may go back to the clamp; the fit with the lower M
-/// is the estimate, the other's pass stays in the report.
+/// Released, a source may go back to the clamp; the converged fit with
+/// the lower M is the estimate, the other's pass stays in the report.
 fn release_clamped(prob: &Problem<'_>, fit: Fit, opts: &EivOptions) -> Result<Fit> {
     if opts.fix_noise || fit.ev.mode != Mode::full(opts.research.covariance == CovarianceMode::FollowsTheta, true) {
         return Ok(fit);
@@ -285,10 +285,14 @@ fn release_clamped(prob: &Problem<'_>, fit: Fit, opts: &EivOptions) -> Result<Fi
     for (j, to) in released {
         eta[j] = to;
     }
-    let out = scoring_pass(prob, fit.theta, eta, fit.theta_reference(), fit.free, false, opts)?;
+    // A released fit that fails numerically leaves the estimate as it was.
+    let Ok(out) = scoring_pass(prob, fit.theta, eta, fit.theta_reference(), fit.free, false, opts) else {
+        return Ok(fit);
+    };
+    let better = out.report.termination.converged() && out.eval.total.merit() < fit.ev.total.merit();
     let mut passes = fit.passes;
     passes.push(out.report);
-    if out.eval.total.merit() < fit.ev.total.merit() {
+    if better {
         Ok(Fit { theta: out.theta, eta: out.eta, eta_sigma: out.eta_sigma, passes, ev: out.eval, ..fit })
     } else {
         // The released fit is worse: the estimate stays, after its passes.
