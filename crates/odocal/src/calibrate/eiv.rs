@@ -850,18 +850,7 @@ impl EivDetail {
                     let _ = writeln!(out, "  known (held at the start): {}", names.join(", "));
                 }
                 let _ = writeln!(out, "  noise, {}: {}", if fixed { "fixed    " } else { "estimated" }, e.noise);
-                // A scale at its lower clamp (below 0, without a σ) is a source the data show none of.
-                let absent: Vec<&str> = (0..e.eta.len())
-                    .filter(|&j| e.eta[j] < 0.0 && e.eta_sigma[j] == 0.0)
-                    .map(|j| eiv::NOISE_SOURCES[j].name())
-                    .collect();
-                if !absent.is_empty() {
-                    let _ = writeln!(
-                        out,
-                        "  at the lower clamp (the data show none of it, so its level above reads 0): {}",
-                        absent.join(", ")
-                    );
-                }
+                super::render::clamp_lines(&mut out, e);
                 if let Some(h) = &e.heading_drift {
                     let _ = writeln!(out, "  heading drift: {}", heading_drift_line(h));
                 }

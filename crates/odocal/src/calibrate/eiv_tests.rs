@@ -876,3 +876,33 @@ fn an_rtk_grade_position_reference_keeps_a_heading_drift() {
     assert!(tied > 3.0, "the tie all the way biases t_r: {tied:+.2} %");
     assert!(floored.abs() < 0.5 * tied, "the floor takes most of it off: {floored:+.2} % vs {tied:+.2} %");
 }
+
+/// The method details name the noise sources released from their lower
+/// clamp and whether the fit from there is the estimate, as the EIV
+/// report holds them: on a drive whose reference drifts slowly (τ 200 s)
+/// under white wheel and heading noise (`a_scale_sent_to_its_lower_clamp_early_comes_back`).
+#[test]
+fn the_details_name_the_released_noise_sources() {
+    let noise = NoiseOptions {
+        wheel_white_rel_sigma: 0.002,
+        position_white_sigma_m: 0.02,
+        position_drift_sigma_m: 0.2,
+        position_drift_time_constant_s: 200.0,
+        heading_white_sigma_rad: 3e-4,
+        heading_drift_sigma_rad: 1e-3,
+        heading_drift_time_constant_s: 200.0,
+        lateral_acceleration_white_sigma_m_per_s2: 0.05,
+        sideslip_sigma_rad: 1e-3,
+        ..NoiseOptions::off()
+    };
+    let out = simulate(&SimOptions { length_km: 6.0, noise, ..SimOptions::paper(4) }).expect("sim");
+    let r = calibrate(&out.drive, &CalibrationOptions::default()).expect("calibrate");
+    let eiv = detail(&r).eiv.as_ref().expect("the EIV fit ran");
+    assert!(eiv.released.contains(&crate::eiv::NoiseSource::PoseDrift), "{:?}", eiv.released);
+    let names: Vec<&str> = eiv.released.iter().map(|s| s.name()).collect();
+    let line = format!("released from the lower clamp (its score says the data hold it): {}; ", names.join(", "));
+    let details = r.method_details();
+    assert!(details.contains(&line), "{line}\nnot in\n{details}");
+    let outcome = if eiv.release_kept { "the estimate (lower M)" } else { "the estimate stays" };
+    assert!(details.contains(outcome), "{details}");
+}

@@ -557,3 +557,33 @@ fn three_step_spread(r: &CalibrationReport) -> Option<&BatchSpread> {
         _ => None,
     }
 }
+
+/// The lines on the noise scales at their lower clamp: those the data show
+/// none of, and those released from it at the end of the fit.
+pub(super) fn clamp_lines(out: &mut String, e: &crate::eiv::EivReport) {
+    // A scale at its lower clamp (below 0, without a σ) is a source the data show none of.
+    let absent: Vec<&str> = (0..e.eta.len())
+        .filter(|&j| e.eta[j] < 0.0 && e.eta_sigma[j] == 0.0)
+        .map(|j| crate::eiv::NOISE_SOURCES[j].name())
+        .collect();
+    if !absent.is_empty() {
+        let _ = writeln!(
+            out,
+            "  at the lower clamp (the data show none of it, so its level above reads 0): {}",
+            absent.join(", ")
+        );
+    }
+    if !e.released.is_empty() {
+        let names: Vec<&str> = e.released.iter().map(|s| s.name()).collect();
+        let outcome = if e.release_kept {
+            "the fit from there is the estimate (lower M)"
+        } else {
+            "the fit from there was not better; the estimate stays"
+        };
+        let _ = writeln!(
+            out,
+            "  released from the lower clamp (its score says the data hold it): {}; {outcome}",
+            names.join(", ")
+        );
+    }
+}

@@ -120,6 +120,8 @@ research_pub! {
             eta_sigma,
             evaluations: evaluations_of(&tied_prob, separate.as_ref()),
             heading_drift,
+            released: fit.released.0.clone(),
+            release_kept: fit.released.1,
             noise: reported_noise(opts, &eta),
             final_cost: ev.total.merit(),
             iterations,
@@ -212,6 +214,9 @@ struct Fit {
     passes: Vec<PassReport>,
     /// The last pass's evaluation at the estimate.
     ev: Evaluation,
+    /// The sources released from their lower clamp at the end of the fit
+    /// ([`release_clamped`]) and whether the released fit is the estimate.
+    released: (Vec<NoiseSource>, bool),
 }
 
 impl Fit {
@@ -259,7 +264,7 @@ fn run_passes(prob: &Problem<'_>, theta_start: &Theta, opts: &EivOptions) -> Res
     let Some((ev, eta_sigma)) = last else {
         return Err(Error::Numerical("no EIV pass ran".into()));
     };
-    Ok(Fit { theta, eta, eta_sigma, free, unobservable, start_ratios, passes, ev })
+    Ok(Fit { theta, eta, eta_sigma, free, unobservable, start_ratios, passes, ev, released: (Vec::new(), false) })
 }
 
 /// The fit again from its estimate with the noise sources released that
@@ -282,9 +287,10 @@ fn release_clamped(prob: &Problem<'_>, fit: Fit, opts: &EivOptions) -> Result<Fi
         return Ok(fit);
     }
     let mut eta = fit.eta;
-    for (j, to) in released {
+    for &(j, to) in &released {
         eta[j] = to;
     }
+    let sources: Vec<NoiseSource> = released.iter().map(|(j, _)| NOISE_SOURCES[*j]).collect();
     // A released fit that fails numerically leaves the estimate as it was.
     let Ok(out) = scoring_pass(prob, fit.theta, eta, fit.theta_reference(), fit.free, false, opts) else {
         return Ok(fit);
@@ -293,12 +299,13 @@ fn release_clamped(prob: &Problem<'_>, fit: Fit, opts: &EivOptions) -> Result<Fi
     let mut passes = fit.passes;
     passes.push(out.report);
     if better {
-        Ok(Fit { theta: out.theta, eta: out.eta, eta_sigma: out.eta_sigma, passes, ev: out.eval, ..fit })
+        let released = (sources, true);
+        Ok(Fit { theta: out.theta, eta: out.eta, eta_sigma: out.eta_sigma, passes, ev: out.eval, released, ..fit })
     } else {
         // The released fit is worse: the estimate stays, after its passes.
         let last = passes.remove(passes.len() - 2);
         passes.push(last);
-        Ok(Fit { passes, ..fit })
+        Ok(Fit { passes, released: (sources, false), ..fit })
     }
 }
 
@@ -350,6 +357,7 @@ fn heading_drift_test<'a>(
         start_ratios: fit.start_ratios,
         passes,
         ev: pass.eval,
+        released: fit.released,
     };
     Ok((sep, Some(test), Some(model)))
 }

@@ -384,6 +384,15 @@ research_pub! {
         /// estimated or the pose drift is held.
         #[serde(default)]
         pub heading_drift: Option<HeadingDriftTest>,
+        /// The noise sources released from their lower clamp at the end of
+        /// the fit, where the score test of the clamp said the data hold them
+        /// (docs/method.md, "Released scales"); empty where none was.
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        pub released: Vec<NoiseSource>,
+        /// Whether the fit from the estimate with [`EivReport::released`]
+        /// released is the estimate (it converged with a lower M).
+        #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+        pub release_kept: bool,
         /// The estimated noise model in physical units.
         pub noise: NoiseModel,
         /// Objective M at the start and the end of the last pass.

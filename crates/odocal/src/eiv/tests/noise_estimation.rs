@@ -291,6 +291,12 @@ fn a_scale_sent_to_its_lower_clamp_early_comes_back() {
     let lower = opts.eta_bounds[0];
     let drift = NoiseSource::PoseDrift.index();
     assert!(fit.eta[drift] > lower + 1.0, "pose drift held at its clamp: η {:?}\n{fit}", fit.eta);
+    assert!(
+        fit.released.contains(&NoiseSource::PoseDrift) && fit.release_kept,
+        "{:?} {}",
+        fit.released,
+        fit.release_kept
+    );
     let truth = out.sidecar.theta_true;
     let z = (fit.theta.t_r - truth.t_r) / fit.sigma[2];
     assert!(z.abs() < 3.0, "t_r {:.6} against {:.6}: {z:+.2} σ\n{fit}", fit.theta.t_r, truth.t_r);
