@@ -883,18 +883,7 @@ fn an_rtk_grade_position_reference_keeps_a_heading_drift() {
 /// under white wheel and heading noise (`a_scale_sent_to_its_lower_clamp_early_comes_back`).
 #[test]
 fn the_details_name_the_released_noise_sources() {
-    let noise = NoiseOptions {
-        wheel_white_rel_sigma: 0.002,
-        position_white_sigma_m: 0.02,
-        position_drift_sigma_m: 0.2,
-        position_drift_time_constant_s: 200.0,
-        heading_white_sigma_rad: 3e-4,
-        heading_drift_sigma_rad: 1e-3,
-        heading_drift_time_constant_s: 200.0,
-        lateral_acceleration_white_sigma_m_per_s2: 0.05,
-        sideslip_sigma_rad: 1e-3,
-        ..NoiseOptions::off()
-    };
+    let noise = crate::eiv::tests::slow_drift_noise();
     let out = simulate(&SimOptions { length_km: 6.0, noise, ..SimOptions::paper(4) }).expect("sim");
     let r = calibrate(&out.drive, &CalibrationOptions::default()).expect("calibrate");
     let eiv = detail(&r).eiv.as_ref().expect("the EIV fit ran");

@@ -11,4 +11,4 @@ mod noise_estimation;
 mod scoring;
 mod support;
 
-pub(crate) use support::StraightDrive;
+pub(crate) use support::{slow_drift_noise, StraightDrive};

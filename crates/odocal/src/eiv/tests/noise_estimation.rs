@@ -271,18 +271,7 @@ fn noise_estimate_term_by_symmetry_matches_displaced_eta() {
 /// (η −1.18) and t_r 1.9 σ low.
 #[test]
 fn a_scale_sent_to_its_lower_clamp_early_comes_back() {
-    let noise = NoiseOptions {
-        wheel_white_rel_sigma: 0.002,
-        position_white_sigma_m: 0.02,
-        position_drift_sigma_m: 0.2,
-        position_drift_time_constant_s: 200.0,
-        heading_white_sigma_rad: 3e-4,
-        heading_drift_sigma_rad: 1e-3,
-        heading_drift_time_constant_s: 200.0,
-        lateral_acceleration_white_sigma_m_per_s2: 0.05,
-        sideslip_sigma_rad: 1e-3,
-        ..NoiseOptions::off()
-    };
+    let noise = slow_drift_noise();
     let out = simulate(&SimOptions { length_km: 6.0, noise, ..SimOptions::paper(4) }).expect("sim");
     let input = input_of(&out.drive);
     let start = batch_gn_all(&out.drive);

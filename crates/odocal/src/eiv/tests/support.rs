@@ -217,3 +217,23 @@ pub(super) fn separate_counting_white_drive() -> (crate::sim::SimOutput, EivOpti
     };
     (out, opts)
 }
+
+/// White wheel noise (0.2 %) and a reference whose drift is slower (τ 200
+/// s) than the filter's model (100 s), with white position and heading
+/// noise and a_y and β noise: a drive of this kind sends the pose drift to
+/// its lower clamp in the first scoring steps.
+pub(crate) fn slow_drift_noise() -> crate::sim::NoiseOptions {
+    use crate::sim::NoiseOptions;
+    NoiseOptions {
+        wheel_white_rel_sigma: 0.002,
+        position_white_sigma_m: 0.02,
+        position_drift_sigma_m: 0.2,
+        position_drift_time_constant_s: 200.0,
+        heading_white_sigma_rad: 3e-4,
+        heading_drift_sigma_rad: 1e-3,
+        heading_drift_time_constant_s: 200.0,
+        lateral_acceleration_white_sigma_m_per_s2: 0.05,
+        sideslip_sigma_rad: 1e-3,
+        ..NoiseOptions::off()
+    }
+}
