@@ -270,10 +270,10 @@ fn run_passes(prob: &Problem<'_>, theta_start: &Theta, opts: &EivOptions) -> Res
 /// The fit again from its estimate with the noise sources released that
 /// sit at their lower clamp while its score says the data hold them
 /// ([`reentering_sources`]: each restarts at its one-step estimate), kept
-/// when it converges and lowers the marginal likelihood M. A source that the first
-/// scoring steps sent to the clamp, from a starting model far from the
-/// drive's, cannot come back on its own (its information is then e^−20 of
-/// the start's); held there, the other scales absorb it and θ with them (a
+/// when it converges and lowers M (the negative log marginal likelihood).
+/// A source that the first scoring steps sent to the clamp, from a starting
+/// model far from the drive's, cannot come back on its own (its variance
+/// is then e^−20 of the start's, its information e^−40); held there, the other scales absorb it and θ with them (a
 /// reference drifting slower than the model's τ under white wheel noise:
 /// t_r 5.3 σ low, test `a_scale_sent_to_its_lower_clamp_early_comes_back`).
 /// Released, a source may go back to the clamp; the converged fit with
@@ -297,14 +297,13 @@ fn release_clamped(prob: &Problem<'_>, fit: Fit, opts: &EivOptions) -> Result<Fi
     };
     let better = out.report.termination.converged() && out.eval.total.merit() < fit.ev.total.merit();
     let mut passes = fit.passes;
-    passes.push(out.report);
     if better {
+        passes.push(out.report);
         let released = (sources, true);
         Ok(Fit { theta: out.theta, eta: out.eta, eta_sigma: out.eta_sigma, passes, ev: out.eval, released, ..fit })
     } else {
-        // The released fit is worse: the estimate stays, after its passes.
-        let last = passes.remove(passes.len() - 2);
-        passes.push(last);
+        // The estimate stays; its own pass stays the last.
+        passes.insert(passes.len() - 1, out.report);
         Ok(Fit { passes, released: (sources, false), ..fit })
     }
 }

@@ -140,9 +140,9 @@
 //! At the end of the fit a source at its lower clamp whose score test says
 //! the data hold it (z = `−∂M/∂η_j / √I_jj` > 3) and whose one-step
 //! estimate is at least −10 is released: the fit runs again from its
-//! estimate with the source there, and the one with the lower M is kept
-//! (a source sent to the clamp by an early step cannot return on its own:
-//! its information there is e^−40 of the start's).
+//! estimate with the source there, and that fit is kept when it converges
+//! with a lower M (a source sent to the clamp by an early step cannot
+//! return on its own: its information there is e^−40 of the start's).
 //!
 //! Speed. The filter's cost is the covariance recursion and its
 //! derivatives: per sample, P and up to 10 `∂P/∂p_j` (4 θ with the

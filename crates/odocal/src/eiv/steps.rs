@@ -117,8 +117,8 @@ pub(super) const REENTRY_MIN_ETA: f64 = -10.0;
 /// steps sent to the clamp early, where θ and the other scales were still
 /// far from their estimates (a source whose data show it absent, `d ≤ −1`,
 /// goes to the clamp in one step), otherwise stays there whatever the data
-/// say later: its variance, and so its information, is then e^−20 of the
-/// start's, and the step's ridge swallows it. Returned: the sources whose
+/// say later: its variance is then e^−20 of the start's and its
+/// information e^−40, which the step's ridge swallows. Returned: the sources whose
 /// score z exceeds [`REENTRY_SCORE_Z`] and whose one-step estimate (the
 /// others held), `η_j + ln(1 + d_j)` with `d_j = −g_j/I_jj`, is at least
 /// [`REENTRY_MIN_ETA`], each with that estimate.
