@@ -85,6 +85,9 @@ pub(super) struct WindowSetup<'a, const S: usize> {
     /// window (empty when they are the measured ones).
     smooth_l: Vec<f64>,
     smooth_r: Vec<f64>,
+    /// With counting quantisation, per sample of the window and wheel:
+    /// whether the wheel turns ([`turning_wheels`]; empty otherwise).
+    turning: Vec<[bool; 2]>,
 }
 
 impl<'a, const S: usize> WindowSetup<'a, S> {
@@ -132,6 +135,7 @@ impl<'a, const S: usize> WindowSetup<'a, S> {
         let all_sources = v.input_jacobian == InputJacobian::SmoothedShareAll;
         let half = if v.fitted_input && follows { v.noise_input_half_width } else { 0 };
         let (smooth_l, smooth_r) = noise_rotations(input, window, half);
+        let turning = if v.quant_counting { turning_wheels(input, window) } else { Vec::new() };
         WindowSetup {
             input,
             window,
@@ -169,6 +173,7 @@ impl<'a, const S: usize> WindowSetup<'a, S> {
             smoothed: all_sources || v.input_jacobian == InputJacobian::SmoothedShare,
             smooth_l,
             smooth_r,
+            turning,
         }
     }
 
@@ -229,8 +234,10 @@ impl<'a, const S: usize> WindowSetup<'a, S> {
         // the new remainder w_k is fresh (F row 0, variance q²/12) and enters
         // the pose with +∂f/∂n_w (Q_xw = ∂f/∂n_w·q²/12). Where a wheel counts
         // nothing (standstill) the remainder is carried over unchanged: no
-        // error, no new draw (F row 1).
-        let counting = [v.quant_counting && nl != 0.0, v.quant_counting && nr != 0.0];
+        // error, no new draw (F row 1). A wheel that counts nothing between
+        // counts is turning slower than a tick per sample ([`turning_wheels`]):
+        // its remainder grows, and is drawn as when it counts.
+        let counting = if v.quant_counting { self.turning[i - self.window.start] } else { [false; 2] };
         lin.diag = self.base_diag;
         lin.fxw_ref = M3x2::zeros();
         for (w, f_w) in [fn_l, fn_r].into_iter().enumerate() {
@@ -239,10 +246,13 @@ impl<'a, const S: usize> WindowSetup<'a, S> {
                 lin.fxw_ref.set_column(w, &(-f_w));
             }
         }
-        let (wl, wr) = white_variances(v, self.fitted, (nl, nr), (nls, nrs), &gw);
+        // Where the wheels' quantisation enters: the remainders' pose share
+        // where counting, else (rate noise) where the wheel turns.
+        let quant_on = if v.quant_counting { counting } else { [nl != 0.0, nr != 0.0] };
+        let (wl, wr) = white_variances(v, self.fitted, (nl, nr), (nls, nrs), &gw, quant_on);
         lin.r_q = measurement_quantisation(v, &fn_l, &fn_r, lin.rt.as_ref(), &mut lin.r_q_theta);
         let f_b = Vector3::new(rv.f02, rv.f12, 0.0);
-        (lin.q_x, lin.q_x_eta0) = process_noise(v, (nl, nr), (wl, wr), (&fn_l, &fn_r, &f_a, &f_b));
+        (lin.q_x, lin.q_x_eta0) = process_noise(v, quant_on, (wl, wr), (&fn_l, &fn_r, &f_a, &f_b));
         (lin.i, lin.nl, lin.nr, lin.nls, lin.nrs, lin.uref) = (i, nl, nr, nls, nrs, uref);
         (lin.f02, lin.f12, lin.fn_l, lin.fn_r, lin.f_a, lin.f_b) = (rv.f02, rv.f12, fn_l, fn_r, f_a, f_b);
         (lin.gw, lin.counting, lin.wl, lin.wr) = (gw, counting, wl, wr);
@@ -355,6 +365,50 @@ impl<const S: usize> Linearisation<S> {
     }
 }
 
+/// The longest run of samples, s, in which a wheel that counts nothing
+/// between counts is taken as turning rather than standing.
+pub(crate) const CREEP_MAX_GAP_S: f64 = 1.0;
+
+/// Per sample of `window` and wheel: whether the wheel turns. A wheel that
+/// counts ticks turns; one that counts nothing turns when its run of empty
+/// samples (within the window's part) is shorter than [`CREEP_MAX_GAP_S`].
+///
+/// A wheel creeping at less than a tick per sample counts nothing for a
+/// few samples and then a tick: its rotation goes on in the empty samples
+/// and its count's remainder grows there, as it does when it counts. Taken
+/// as standing (no rotation, no error), the creep's rotation lands in the
+/// sample of the next tick at once, a heading step of a tick's worth where
+/// the reference sees a smooth turn, and the fit answers it by damping
+/// every step: a wider track. On the lab's second simulator, whose stops
+/// creep (500-tick encoders), that leaned t_r by +2.4 % (8 drives); drawn
+/// as counting samples the lean is gone (−0.03 %). A longer run is a
+/// standstill.
+fn turning_wheels(input: &EivInput<'_>, window: &Window) -> Vec<[bool; 2]> {
+    let part = input.parts.get(window.part).cloned().unwrap_or(0..input.len());
+    let max_gap = (CREEP_MAX_GAP_S / input.sample_time_s).ceil() as usize;
+    let mut out = vec![[true; 2]; window.end - window.start];
+    for (w, n) in [input.n_rl, input.n_rr].into_iter().enumerate() {
+        let (lo, hi) = (window.start.saturating_sub(max_gap).max(part.start), (window.end + max_gap).min(part.end));
+        let mut k = lo;
+        while k < hi {
+            if n[k] != 0.0 {
+                k += 1;
+                continue;
+            }
+            let run_start = k;
+            while k < hi && n[k] == 0.0 {
+                k += 1;
+            }
+            // A run cut by the scan's margin is at least `max_gap` long.
+            let standing = k - run_start >= max_gap;
+            for j in run_start.max(window.start)..k.min(window.end) {
+                out[j - window.start][w] = !standing;
+            }
+        }
+    }
+    out
+}
+
 /// White rate variances of the wheels (rev/s)².
 ///
 /// White relative noise accumulates into the pose (process noise).
@@ -375,19 +429,21 @@ fn white_variances(
     (nl, nr): (f64, f64),
     (nls, nrs): (f64, f64),
     gw: &[Dual<4>; 2],
+    quant_on: [bool; 2],
 ) -> (f64, f64) {
     if fitted {
-        let white = |n: f64, ns: f64, g: f64| {
-            let q = if v.quant_in_measurement || n == 0.0 { 0.0 } else { v.quant };
+        let white = |ns: f64, g: f64, on: bool| {
+            let q = if v.quant_in_measurement || !on { 0.0 } else { v.quant };
             v.white_rel * ns * ns * g * g + q
         };
-        (white(nl, nls, gw[0].v), white(nr, nrs, gw[1].v))
+        (white(nls, gw[0].v, quant_on[0]), white(nrs, gw[1].v, quant_on[1]))
     } else if v.quant_in_measurement {
         (v.white_rel * nl * nl, v.white_rel * nr * nr)
     } else {
-        // Quantisation as white rate noise where the wheel turns.
-        let white = |n: f64| if n == 0.0 { 0.0 } else { v.white_rel * n * n + v.quant };
-        (white(nl), white(nr))
+        // Quantisation as white rate noise (or the counting remainder's
+        // pose share) where the wheel turns.
+        let white = |n: f64, on: bool| if on { v.white_rel * n * n + v.quant } else { 0.0 };
+        (white(nl, quant_on[0]), white(nr, quant_on[1]))
     }
 }
 
@@ -426,7 +482,7 @@ fn measurement_quantisation(
 #[inline(always)]
 fn process_noise(
     v: &Variances,
-    (nl, nr): (f64, f64),
+    quant_on: [bool; 2],
     (wl, wr): (f64, f64),
     (fn_l, fn_r, f_a, f_b): (&Vector3<f64>, &Vector3<f64>, &Vector3<f64>, &Vector3<f64>),
 ) -> (Matrix3<f64>, Matrix3<f64>) {
@@ -436,8 +492,8 @@ fn process_noise(
     let q_x_quant = if v.quant_scaled || v.quant_in_measurement {
         Matrix3::zeros()
     } else {
-        let q_of = |n: f64| if n == 0.0 { 0.0 } else { v.quant };
-        fn_l * fn_l.transpose() * q_of(nl) + fn_r * fn_r.transpose() * q_of(nr)
+        let q_of = |on: bool| if on { v.quant } else { 0.0 };
+        fn_l * fn_l.transpose() * q_of(quant_on[0]) + fn_r * fn_r.transpose() * q_of(quant_on[1])
     };
     // a_y's white noise; β's Gauss-Markov error is the state e_β (or,
     // with `SideslipNoise::WhiteEquivalent`, white noise: `beta_white`).
