@@ -644,3 +644,54 @@ pub(super) fn run_window_s<const S: usize, K: KernelCalls>(
     }
     Ok(acc.finish(&setup, &jacobian))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Empty runs shorter than [`CREEP_MAX_GAP_S`] turn, longer ones stand,
+    /// measured across the window's edges but not its part's.
+    #[test]
+    fn an_empty_run_turns_when_short_and_stands_when_long() {
+        let ts = 0.025;
+        let gap = (CREEP_MAX_GAP_S / ts).ceil() as usize;
+        // Left: a tick, a short empty run, a tick, a long one, a tick. Right: always counting.
+        let mut n_rl = vec![0.08];
+        n_rl.extend(vec![0.0; 5]);
+        n_rl.push(0.08);
+        n_rl.extend(vec![0.0; gap]);
+        n_rl.push(0.08);
+        let len = n_rl.len();
+        let n_rr = vec![0.16; len];
+        let zero = vec![0.0; len];
+        let parts = [0..len];
+        let input = EivInput {
+            sample_time_s: ts,
+            parts: &parts,
+            px: &zero,
+            py: &zero,
+            psi: &zero,
+            n_rl: &n_rl,
+            n_rr: &n_rr,
+            beta: &zero,
+            a_y: &zero,
+            reference_measured: None,
+        };
+        let whole = turning_wheels(&input, &Window { index: 0, part: 0, start: 0, end: len });
+        let left: Vec<bool> = whole.iter().map(|t| t[0]).collect();
+        assert!(left[..7].iter().all(|t| *t), "the short run turns");
+        assert!(left[7..7 + gap].iter().all(|t| !*t), "the long run stands");
+        assert!(left[len - 1]);
+        assert!(whole.iter().all(|t| t[1]), "the counting wheel turns");
+        // A window that starts inside the long run sees its whole length.
+        let part = turning_wheels(&input, &Window { index: 1, part: 0, start: 10, end: len });
+        assert_eq!(part.iter().map(|t| t[0]).collect::<Vec<_>>(), left[10..]);
+        // The part's start ends a run: a part that begins in the second half
+        // of the long run holds a run shorter than the gap, which turns.
+        let start = 7 + gap / 2;
+        let parts = [start..len];
+        let cut = EivInput { parts: &parts, ..input };
+        let w = turning_wheels(&cut, &Window { index: 0, part: 0, start, end: len });
+        assert!(w.iter().all(|t| t[0]), "{w:?}");
+    }
+}

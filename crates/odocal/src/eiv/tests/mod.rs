@@ -3,6 +3,7 @@
 mod bias_correction;
 mod covariance;
 mod crb;
+mod creep;
 mod derivatives;
 mod diagnostics;
 mod fingerprints;
