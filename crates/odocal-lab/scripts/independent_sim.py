@@ -78,7 +78,7 @@ def curvature_profile(rng, length_m, ds):
 
 def speed_profile(kappa, vmax, stops, ds, a_lat=2.5, a_acc=1.3, a_dec=1.8):
     """Speed over arc length within the lateral and longitudinal limits,
-    0.3 m/s at the stops (the dwell is added in time)."""
+    0.3 m/s at the stops (the dwell is added in time, creeping)."""
     v = np.minimum(vmax, np.sqrt(a_lat / np.maximum(np.abs(kappa), 1e-9)))
     v[stops] = 0.3
     v[0] = v[-1] = 0.3
@@ -114,7 +114,9 @@ def simulate(seed, length_km, level, substeps, ts=0.025, overrides=()):
     ds = 0.1
     kappa, vmax, stops = curvature_profile(rng, length_km * 1000.0, ds)
     v_s = speed_profile(kappa, vmax, stops, ds)
-    # Time along the path (trapezoid of ds/v), plus a dwell at each stop.
+    # Time along the path (trapezoid of ds/v), plus a dwell at each stop,
+    # spent on the path's next 0.1 m: the car creeps up (1-5 cm/s), as in
+    # a queue, and does not stand.
     dt_s = 2 * ds / (v_s[1:] + v_s[:-1])
     dwell = np.zeros_like(dt_s)
     for k in stops:
