@@ -169,6 +169,20 @@ impl StraightDrive {
         StraightDrive { ts, parts: [0..n], px, py, psi, n_rl: vec![n_rl; n], n_rr: vec![n_rr; n], zero: vec![0.0; n] }
     }
 
+    /// Signals of `ts`-second samples as one drive (β and a_y zero), for
+    /// drives other than the straight one.
+    pub(crate) fn from_columns(
+        ts: f64,
+        px: Vec<f64>,
+        py: Vec<f64>,
+        psi: Vec<f64>,
+        n_rl: Vec<f64>,
+        n_rr: Vec<f64>,
+    ) -> Self {
+        let n = px.len();
+        StraightDrive { ts, parts: [0..n], px, py, psi, n_rl, n_rr, zero: vec![0.0; n] }
+    }
+
     /// The drive as one part, β and a_y zero, the reference measured everywhere.
     pub(crate) fn input(&self) -> EivInput<'_> {
         EivInput {
