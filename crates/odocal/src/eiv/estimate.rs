@@ -11,7 +11,7 @@ use super::heading_drift::{self, HeadingDriftTest, SeparateFit, SeparateModel, T
 use super::input::make_windows;
 use super::problem::{free_inverse, free_sigma, theta_add, to_array, Evaluation, Problem};
 use super::scoring::scoring_pass;
-use super::steps::{observability_of, reentering_sources, theta_step};
+use super::steps::{at_lower_clamp, at_upper_clamp, observability_of, reentering_sources, theta_step};
 use super::{
     apply_bias_correction, first_order_bias, CovarianceEstimate, CovarianceMode, EivInput, EivOptions, EivReport,
     EivWarning, HalvesCheck, HeadingScale, InnovationNull, LateralNoise, NoiseModel, NoiseSource, Parameter,
@@ -375,7 +375,7 @@ fn heading_drift_test<'a>(
 /// model's, determined, and its term in θ's σ was 2e-8 of that σ.
 fn hold_scales_at_clamps(eta_sigma: &mut [f64; 6], eta: &[f64; 6], bounds: [f64; 2]) {
     for (s, e) in eta_sigma.iter_mut().zip(eta) {
-        if *e <= bounds[0] + 1e-9 || *e >= bounds[1] - 1e-9 {
+        if at_lower_clamp(*e, bounds) || at_upper_clamp(*e, bounds) {
             *s = 0.0;
         }
     }
@@ -476,7 +476,7 @@ fn fit_warnings(fit: &Fit, opts: &EivOptions) -> Vec<EivWarning> {
     }
     if !opts.fix_noise {
         for j in 0..NETA {
-            if fit.eta[j] >= opts.eta_bounds[1] - 1e-9 {
+            if at_upper_clamp(fit.eta[j], opts.eta_bounds) {
                 warnings.push(EivWarning::NoiseAtUpperClamp { source: NOISE_SOURCES[j], eta: fit.eta[j] });
             }
         }

@@ -47,18 +47,30 @@ pub(super) fn score_norm(sums: &WindowSums, free: &[bool; 4], follows: bool) -> 
     }
 }
 
+/// How close to a bound η counts as at its clamp.
+const CLAMP_TOLERANCE: f64 = 1e-9;
+
+/// True when `eta` sits at its lower clamp (`bounds[0]`).
+pub(super) fn at_lower_clamp(eta: f64, bounds: [f64; 2]) -> bool {
+    eta <= bounds[0] + CLAMP_TOLERANCE
+}
+
+/// True when `eta` sits at its upper clamp (`bounds[1]`).
+pub(super) fn at_upper_clamp(eta: f64, bounds: [f64; 2]) -> bool {
+    eta >= bounds[1] - CLAMP_TOLERANCE
+}
+
 /// The scoring step of η (log-transformed, clamped; see the module docs)
 /// and its standard deviations. A source at its lower clamp whose score
 /// points down stays there.
 pub(super) fn eta_step(sums: &WindowSums, eta: &[f64; 6], bounds: [f64; 2], held: &[bool; 6]) -> EtaStep {
-    let tol = 1e-9;
     let g: [f64; 6] = std::array::from_fn(|j| sums.grad[4 + j]);
     // A noise source with no effect on the data has zero information: leave it.
     let scale = (0..NETA).map(|j| sums.i_eta[(j, j)]).fold(0.0f64, f64::max);
     let mut idx = Vec::new();
     for j in 0..NETA {
-        let at_lo = eta[j] <= bounds[0] + tol && g[j] > 0.0;
-        let at_hi = eta[j] >= bounds[1] - tol && g[j] < 0.0;
+        let at_lo = at_lower_clamp(eta[j], bounds) && g[j] > 0.0;
+        let at_hi = at_upper_clamp(eta[j], bounds) && g[j] < 0.0;
         let no_info = sums.i_eta[(j, j)] <= 1e-12 * scale.max(f64::MIN_POSITIVE);
         if !(at_lo || at_hi || no_info || held[j]) {
             idx.push(j);
@@ -131,9 +143,8 @@ pub(super) fn reentering_sources(
     (0..NETA)
         .filter_map(|j| {
             let (g, i_jj) = (sums.grad[4 + j], sums.i_eta[(j, j)]);
-            let at_clamp = eta[j] <= bounds[0] + 1e-9;
             let holds = i_jj > 0.0 && -g / i_jj.sqrt() > REENTRY_SCORE_Z;
-            if held[j] || !at_clamp || !holds {
+            if held[j] || !at_lower_clamp(eta[j], bounds) || !holds {
                 return None;
             }
             let to = (eta[j] + (1.0 - g / i_jj).ln()).min(bounds[1]);
@@ -172,7 +183,6 @@ pub(super) fn eta_descent_step(
     bounds: [f64; 2],
     mut idx: Vec<usize>,
 ) -> [f64; 6] {
-    let tol = 1e-9;
     loop {
         let mut step = [0.0; 6];
         let p = idx.len();
@@ -189,7 +199,7 @@ pub(super) fn eta_descent_step(
         let d = chol.solve(&b);
         let outward = (0..p).find(|&i| {
             let j = idx[i];
-            (eta[j] <= bounds[0] + tol && d[i] < 0.0) || (eta[j] >= bounds[1] - tol && d[i] > 0.0)
+            (at_lower_clamp(eta[j], bounds) && d[i] < 0.0) || (at_upper_clamp(eta[j], bounds) && d[i] > 0.0)
         });
         if let Some(i) = outward {
             idx.remove(i);
