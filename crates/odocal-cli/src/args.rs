@@ -201,7 +201,8 @@ pub struct CalibrationArgs {
     /// The quantisation step q: scaled (estimated with the white wheel noise
     /// from the noise model's q), given (the noise model's q, held) or
     /// from-readings (read off the wheel readings when they lie on the
-    /// lattice of counted ticks, else scaled). Default: the library's
+    /// lattice of counted ticks; readings on none carry no quantisation,
+    /// q = 0). Default: the library's
     /// (`EivOptions::quantisation_level`).
     #[arg(long, value_name = "LEVEL", help_heading = EIV_NOISE, hide_short_help = true,
           value_parser = library_enum::<odocal::eiv::QuantisationLevel>(&["scaled", "given", "from-readings"]))]

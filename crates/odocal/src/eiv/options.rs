@@ -518,17 +518,13 @@ impl EivOptions {
 
     /// These options with [`QuantisationLevel::FromReadings`] replaced by what
     /// it resolves to where the readings gave the step `found`: `Given` at
-    /// that step, or `ScaledWithWhite` for `None`. Other levels are kept.
+    /// that step, or `Given` at a step of zero (no quantisation) for `None`.
+    /// Other levels are kept.
     pub(crate) fn with_resolved_quantisation(&self, found: Option<f64>) -> EivOptions {
         let mut o = self.clone();
         if o.quantisation_level == QuantisationLevel::FromReadings {
-            match found {
-                Some(q) => {
-                    o.quantisation_level = QuantisationLevel::Given;
-                    o.noise.quantisation_step_rev_per_s = q;
-                }
-                None => o.quantisation_level = QuantisationLevel::ScaledWithWhite,
-            }
+            o.quantisation_level = QuantisationLevel::Given;
+            o.noise.quantisation_step_rev_per_s = found.unwrap_or(0.0);
         }
         o
     }

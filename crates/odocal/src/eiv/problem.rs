@@ -173,7 +173,9 @@ impl Problem<'_> {
         }
         let mut v = self.noise.variances(&e, self.input.sample_time_s);
         v.quant_in_measurement = self.quantisation == QuantisationModel::Measurement;
-        v.quant_counting = self.quantisation == QuantisationModel::Counting;
+        // A given step of zero is no quantisation: no remainder states.
+        let no_quantisation = self.quantisation_given && self.noise.quantisation_step_rev_per_s == 0.0;
+        v.quant_counting = self.quantisation == QuantisationModel::Counting && !no_quantisation;
         if self.quantisation_given {
             v.quant = self.noise.quantisation_step_rev_per_s * self.noise.quantisation_step_rev_per_s / 12.0;
             v.quant_scaled = false;

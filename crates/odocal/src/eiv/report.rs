@@ -440,7 +440,8 @@ research_pub! {
         /// The quantisation step read off the wheel readings' lattice, rev/s,
         /// with [`QuantisationLevel::FromReadings`](crate::eiv::QuantisationLevel::FromReadings) (None when the readings lie
         /// on no lattice or another level was asked for); then also
-        /// [`EivReport::noise`]'s q.
+        /// [`EivReport::noise`]'s q, which is 0 where `FromReadings` found
+        /// no lattice.
         #[serde(default)]
         pub quantisation_step_from_readings: Option<f64>,
     }

@@ -271,9 +271,8 @@ fn antithetic_pairs_average_out_the_replicates_odd_error() {
 
 /// A bootstrap of a `FromReadings` fit refits its replicates at the level
 /// the fit resolved to on the drive, not at one re-read off the replicates'
-/// readings: those are counted with the fitted step, so they lie on a
-/// lattice even where the drive's did not (white wheel noise, no encoder:
-/// the fit scales q; without the fix the replicates held it).
+/// readings (white wheel noise, no encoder: the fit models no
+/// quantisation, and so do its replicates, as with a step given as zero).
 #[test]
 fn bootstrap_refits_at_the_quantisation_level_of_the_fit() {
     let opts =
@@ -284,14 +283,15 @@ fn bootstrap_refits_at_the_quantisation_level_of_the_fit() {
     assert_eq!(fit.quantisation_level, QuantisationLevel::FromReadings);
     let r = estimate(&input, &out.sidecar.theta_true, &fit).expect("eiv");
     assert_eq!(r.quantisation_step_from_readings, None, "no lattice in white-noise readings");
-    assert!(r.noise.quantisation_step_rev_per_s > 1e-3, "the replicates are counted: {:?}", r.noise);
+    assert!(r.noise.quantisation_step_rev_per_s == 0.0, "no lattice, no quantisation: {:?}", r.noise);
     let boot = BootstrapOptions { replicates: 2, seed: 4, ..Default::default() };
     let replicates = |o: &EivOptions| bootstrap(&input, &r, o, &boot).expect("bootstrap").replicates;
     let from_readings = replicates(&fit);
+    let no_step = NoiseModel { quantisation_step_rev_per_s: 0.0, ..fit.noise };
+    let given = EivOptions { quantisation_level: QuantisationLevel::Given, noise: no_step, ..fit.clone() };
+    assert_eq!(from_readings, replicates(&given));
     let scaled = EivOptions { quantisation_level: QuantisationLevel::ScaledWithWhite, ..fit.clone() };
-    assert_eq!(from_readings, replicates(&scaled));
-    let given = EivOptions { quantisation_level: QuantisationLevel::Given, noise: r.noise, ..fit.clone() };
-    assert_ne!(from_readings, replicates(&given), "the test cannot tell the levels apart");
+    assert_ne!(from_readings, replicates(&scaled), "the test cannot tell the levels apart");
 }
 
 /// `BootstrapInputs::Smoothed`: the replicate worlds run on the moving

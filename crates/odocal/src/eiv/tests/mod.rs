@@ -3,12 +3,12 @@
 mod bias_correction;
 mod covariance;
 mod crb;
-mod creep;
 mod derivatives;
 mod diagnostics;
 mod fingerprints;
 mod heading_drift;
 mod noise_estimation;
+mod quantisation;
 mod scoring;
 mod support;
 
