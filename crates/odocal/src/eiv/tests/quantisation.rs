@@ -23,19 +23,12 @@ const TS: f64 = 0.025;
 /// Integrated with the model's own step, so the only model error is the
 /// creep's.
 fn creep_drive(cycles: usize, seed: u64, counted: bool) -> StraightDrive {
-    let cycle = [(10.0, 8.0, 0.25), (10.0, 8.0, 0.0), (10.0, 8.0, -0.25), (4.0, 0.04, 0.02)];
-    drive(&cycle, cycles, seed, counted)
-}
-
-/// A drive of `cycles` repetitions of `cycle` (seconds, speed m/s, yaw
-/// rate rad/s), as [`creep_drive`] describes.
-fn drive(cycle: &[(f64, f64, f64)], cycles: usize, seed: u64, counted: bool) -> StraightDrive {
     let th = Theta::SIM_DEFAULT_TRUE;
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut gauss = move || -> f64 { rng.sample(StandardNormal) };
     let mut motion = Vec::new();
     for _ in 0..cycles {
-        for &(secs, v, omega) in cycle {
+        for (secs, v, omega) in [(10.0, 8.0, 0.25), (10.0, 8.0, 0.0), (10.0, 8.0, -0.25), (4.0, 0.04, 0.02)] {
             motion.extend(std::iter::repeat_n((v, omega), (secs / TS) as usize));
         }
     }
@@ -114,8 +107,8 @@ fn a_creeping_wheel_does_not_widen_the_track() {
 }
 
 /// Rates read off no lattice of ticks carry no quantisation error, and
-/// `FromReadings` models none there: q = 0, the filter without its
-/// remainder states, θ to the bit that of a step given as zero. A step
+/// `FromReadings` models none there: q = 0, θ to the bit that of a step
+/// given as zero. A step
 /// scaled with the white wheel noise instead (the production car's
 /// q/σ_white) would be an absolute rate noise the readings do not have
 /// (on the lab's second simulator it leaned t_r by −0.36 % under heavy
