@@ -21,7 +21,8 @@
 //! without it the filter runs the first 10 states). The true
 //! wheel rotations are `n_w = ñ_w·(1 − s_c − s_w) − e_w` with white
 //! `e_w ~ N(0, (σ_white·ñ_w)² + q²/12·[w turns])` (a wheel turns where it
-//! counts, and in runs of empty samples shorter than a second: it creeps); the pose propagates with
+//! counts, and in runs of empty samples shorter than one tick's time at
+//! 0.002 rev/s, at least a second: it creeps); the pose propagates with
 //! the model step f at these effective inputs. a_y and β are noisy inputs:
 //!
 //! ```text

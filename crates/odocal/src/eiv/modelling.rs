@@ -509,9 +509,10 @@ pub enum QuantisationModel {
     /// input error. The filter carries `w_{k−1}` of each wheel as a state
     /// (two states more): the step takes it off the measured rate, the new
     /// remainder enters as process noise shared by the pose and the state.
-    /// Where a wheel stands (counts nothing for a second or more) the
-    /// remainder is carried over (no error, no new draw); in a shorter empty
-    /// run the wheel creeps and the sample counts as one that ticks. Scaled
+    /// Where a wheel stands (counts nothing for as long as a tick takes at
+    /// 0.002 rev/s, at least a second) the remainder is carried over (no
+    /// error, no new draw); in a shorter empty run the wheel creeps and the
+    /// sample counts as one that ticks. Scaled
     /// by η_0 like the other models. With the
     /// separate heading scale and the noise model known it is the best of the
     /// three (20 seeds × 12 km, t_r paper +0.17 %, high +0.66 %; its

@@ -135,7 +135,11 @@ impl<'a, const S: usize> WindowSetup<'a, S> {
         let all_sources = v.input_jacobian == InputJacobian::SmoothedShareAll;
         let half = if v.fitted_input && follows { v.noise_input_half_width } else { 0 };
         let (smooth_l, smooth_r) = noise_rotations(input, window, half);
-        let turning = if v.quant_counting { turning_wheels(input, window) } else { Vec::new() };
+        let turning = if v.quant_counting {
+            turning_wheels(input, window, creep_max_gap_s(v, input.sample_time_s))
+        } else {
+            Vec::new()
+        };
         WindowSetup {
             input,
             window,
@@ -365,13 +369,34 @@ impl<const S: usize> Linearisation<S> {
     }
 }
 
-/// The longest run of samples, s, in which a wheel that counts nothing
-/// between counts is taken as turning rather than standing.
+/// The shortest run of empty samples, s, in which a wheel that counts
+/// nothing between counts is taken as standing rather than turning, for
+/// encoders of [`CREEP_MIN_RATE_REV_PER_S`]'s resolution or finer.
 pub(crate) const CREEP_MAX_GAP_S: f64 = 1.0;
+
+/// The slowest creep, rev/s, told from a standstill (4 mm/s on a 2 m
+/// wheel): a coarser encoder counts a tick of it less often than every
+/// [`CREEP_MAX_GAP_S`], and its empty runs stand only from one tick's time
+/// at this rate ([`creep_max_gap_s`]).
+pub(crate) const CREEP_MIN_RATE_REV_PER_S: f64 = 0.002;
+
+/// The run of empty samples, s, from which a counting wheel stands: the
+/// time one tick takes at [`CREEP_MIN_RATE_REV_PER_S`], at least
+/// [`CREEP_MAX_GAP_S`]. The tick is the given quantisation step's (`v.quant`
+/// = q²/12, q in rev/s, a tick q·t_s rev); with a step scaled by η_0 (which
+/// moves between passes) the mask keeps [`CREEP_MAX_GAP_S`].
+pub(crate) fn creep_max_gap_s(v: &Variances, sample_time_s: f64) -> f64 {
+    if v.quant_scaled || v.quant <= 0.0 {
+        return CREEP_MAX_GAP_S;
+    }
+    let tick_rev = (12.0 * v.quant).sqrt() * sample_time_s;
+    (tick_rev / CREEP_MIN_RATE_REV_PER_S).max(CREEP_MAX_GAP_S)
+}
 
 /// Per sample of `window` and wheel: whether the wheel turns. A wheel that
 /// counts ticks turns; one that counts nothing turns when its run of empty
-/// samples (within the window's part) is shorter than [`CREEP_MAX_GAP_S`].
+/// samples (within the window's part) is shorter than `max_gap_s`
+/// ([`creep_max_gap_s`]).
 ///
 /// A wheel creeping at less than a tick per sample counts nothing for a
 /// few samples and then a tick: its rotation goes on in the empty samples
@@ -383,9 +408,9 @@ pub(crate) const CREEP_MAX_GAP_S: f64 = 1.0;
 /// creep (500-tick encoders), that leaned t_r by +2.4 % (8 drives); drawn
 /// as counting samples the lean is gone (−0.03 %). A longer run is a
 /// standstill.
-fn turning_wheels(input: &EivInput<'_>, window: &Window) -> Vec<[bool; 2]> {
+fn turning_wheels(input: &EivInput<'_>, window: &Window, max_gap_s: f64) -> Vec<[bool; 2]> {
     let part = input.parts.get(window.part).cloned().unwrap_or(0..input.len());
-    let max_gap = (CREEP_MAX_GAP_S / input.sample_time_s).ceil() as usize;
+    let max_gap = (max_gap_s / input.sample_time_s).ceil() as usize;
     let mut out = vec![[true; 2]; window.end - window.start];
     for (w, n) in [input.n_rl, input.n_rr].into_iter().enumerate() {
         let (lo, hi) = (window.start.saturating_sub(max_gap).max(part.start), (window.end + max_gap).min(part.end));
@@ -649,6 +674,25 @@ pub(super) fn run_window_s<const S: usize, K: KernelCalls>(
 mod tests {
     use super::*;
 
+    /// A counting wheel stands from one tick's time at the slowest creep
+    /// (at least a second): 5 s for a 100-tick encoder at 40 Hz, a second
+    /// for 500 ticks and finer, and a second with a step scaled by η_0.
+    #[test]
+    fn the_standing_run_is_a_tick_at_the_slowest_creep() {
+        let ts = 0.025;
+        let with_ticks = |ticks: f64, scaled: bool| {
+            let mut v = crate::eiv::NoiseModel::PRODUCTION_CAR.variances(&[0.0; 6], ts);
+            let q = 1.0 / (ticks * ts);
+            (v.quant, v.quant_scaled) = (q * q / 12.0, scaled);
+            creep_max_gap_s(&v, ts)
+        };
+        assert!((with_ticks(100.0, false) - 5.0).abs() < 1e-9);
+        assert!((with_ticks(250.0, false) - 2.0).abs() < 1e-9);
+        assert!((with_ticks(500.0, false) - CREEP_MAX_GAP_S).abs() < 1e-9);
+        assert!((with_ticks(4096.0, false) - CREEP_MAX_GAP_S).abs() < 1e-9);
+        assert!((with_ticks(100.0, true) - CREEP_MAX_GAP_S).abs() < 1e-9);
+    }
+
     /// Empty runs shorter than [`CREEP_MAX_GAP_S`] turn, longer ones stand,
     /// measured across the window's edges but not its part's.
     #[test]
@@ -677,21 +721,21 @@ mod tests {
             a_y: &zero,
             reference_measured: None,
         };
-        let whole = turning_wheels(&input, &Window { index: 0, part: 0, start: 0, end: len });
+        let whole = turning_wheels(&input, &Window { index: 0, part: 0, start: 0, end: len }, CREEP_MAX_GAP_S);
         let left: Vec<bool> = whole.iter().map(|t| t[0]).collect();
         assert!(left[..7].iter().all(|t| *t), "the short run turns");
         assert!(left[7..7 + gap].iter().all(|t| !*t), "the long run stands");
         assert!(left[len - 1]);
         assert!(whole.iter().all(|t| t[1]), "the counting wheel turns");
         // A window that starts inside the long run sees its whole length.
-        let part = turning_wheels(&input, &Window { index: 1, part: 0, start: 10, end: len });
+        let part = turning_wheels(&input, &Window { index: 1, part: 0, start: 10, end: len }, CREEP_MAX_GAP_S);
         assert_eq!(part.iter().map(|t| t[0]).collect::<Vec<_>>(), left[10..]);
         // The part's start ends a run: a part that begins in the second half
         // of the long run holds a run shorter than the gap, which turns.
         let start = 7 + gap / 2;
         let parts = [start..len];
         let cut = EivInput { parts: &parts, ..input };
-        let w = turning_wheels(&cut, &Window { index: 0, part: 0, start, end: len });
+        let w = turning_wheels(&cut, &Window { index: 0, part: 0, start, end: len }, CREEP_MAX_GAP_S);
         assert!(w.iter().all(|t| t[0]), "{w:?}");
     }
 }
