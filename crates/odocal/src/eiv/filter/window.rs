@@ -410,7 +410,9 @@ pub(crate) fn creep_max_gap_s(v: &Variances, sample_time_s: f64) -> f64 {
 /// standstill.
 fn turning_wheels(input: &EivInput<'_>, window: &Window, max_gap_s: f64) -> Vec<[bool; 2]> {
     let part = input.parts.get(window.part).cloned().unwrap_or(0..input.len());
-    let max_gap = (max_gap_s / input.sample_time_s).ceil() as usize;
+    // A run length that is a whole number of samples but for rounding (a
+    // step read back from q²/12) is that number.
+    let max_gap = (max_gap_s / input.sample_time_s * (1.0 - 1e-12)).ceil() as usize;
     let mut out = vec![[true; 2]; window.end - window.start];
     for (w, n) in [input.n_rl, input.n_rr].into_iter().enumerate() {
         let (lo, hi) = (window.start.saturating_sub(max_gap).max(part.start), (window.end + max_gap).min(part.end));
