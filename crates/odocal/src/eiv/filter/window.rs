@@ -386,7 +386,7 @@ pub(crate) const CREEP_MIN_RATE_REV_PER_S: f64 = 0.002;
 /// = q²/12, q in rev/s, a tick q·t_s rev); with a step scaled by η_0 (which
 /// moves between passes) the mask keeps [`CREEP_MAX_GAP_S`].
 pub(crate) fn creep_max_gap_s(v: &Variances, sample_time_s: f64) -> f64 {
-    if v.quant_scaled || v.quant <= 0.0 {
+    if v.quant_scaled {
         return CREEP_MAX_GAP_S;
     }
     let tick_rev = (12.0 * v.quant).sqrt() * sample_time_s;
