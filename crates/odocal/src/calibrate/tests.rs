@@ -5,7 +5,7 @@ use super::*;
 use crate::compensate::QpOptions;
 use crate::compensate::SolverKind;
 use crate::drive::segment::{
-    calibration_segments, validation_segments, Segment, SegmentOptions, ValidationSegmentOptions,
+    calibration_segments, validation_segments, Segment, SegmentData, SegmentOptions, ValidationSegmentOptions,
 };
 use crate::identify::IdentifyOptions;
 use crate::model::param::ParamSet;
