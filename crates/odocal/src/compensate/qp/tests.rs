@@ -216,9 +216,9 @@ fn random_instance_is_reproducible_and_realistic() {
 }
 
 /// Standstill: the measured wheel rotation is 0, so the ±5 % input box has
-/// zero width. The structured solver used to squeeze such inputs between two
-/// slacks that cannot both stay positive and hit its iteration limit; it now
-/// pins them. Same optimum as Clarabel, cold and warm.
+/// zero width. Squeezed between two slacks that cannot both stay positive,
+/// such inputs would hold the structured solver at its iteration limit; it
+/// pins them instead. Same optimum as Clarabel, cold and warm.
 #[test]
 fn zero_width_input_boxes_are_pinned() {
     for (seed, tight) in [(21, 0.0), (22, 0.9)] {
