@@ -377,16 +377,7 @@ pub fn import(m: &Manifest) -> Result<ImportedDrive> {
     let s = OnGrid::resample(m, &streams, &wheels, &pose, &g.t, h);
     let measured = g.measured(&pose.t);
     let grid::Parts { gaps, parts, kept } = g.parts(m)?;
-    let resampled = checks::Resampled {
-        h,
-        origin_s: start,
-        kept: &kept,
-        n_rl: &s.n_rl,
-        n_rr: &s.n_rr,
-        px: &s.px,
-        py: &s.py,
-        psi: &s.psi,
-    };
+    let resampled = s.for_checks(h, start, &kept);
     checks::wheel_speeds(m, &resampled, &theta0)?;
     checks::conventions(m, &resampled, &theta0, &mut warnings)?;
     let inputs = lateral::Inputs {
@@ -493,6 +484,21 @@ struct OnGrid {
 }
 
 impl OnGrid {
+    /// The signals the checks read, on the kept parts of a grid of step `h`
+    /// that starts at `origin_s` on the wheel clock.
+    fn for_checks<'a>(&'a self, h: f64, origin_s: f64, kept: &'a [Range<usize>]) -> checks::Resampled<'a> {
+        checks::Resampled {
+            h,
+            origin_s,
+            kept,
+            n_rl: &self.n_rl,
+            n_rr: &self.n_rr,
+            px: &self.px,
+            py: &self.py,
+            psi: &self.psi,
+        }
+    }
+
     /// Resamples: wheel rotations as rates over each step, the pose
     /// interpolated, the sideslip from its source.
     fn resample(

@@ -39,16 +39,7 @@ pub(crate) fn check_conventions(m: &Manifest, p: &Prefix<'_>, h: f64, warnings: 
     let g = marked_grid(m, (start, end, h), p.streams, &wheel_bad, p.pose, p.roll);
     let s = OnGrid::resample(m, p.streams, p.wheels, p.pose, &g.t, h);
     let Ok(grid::Parts { kept, .. }) = g.parts(m) else { return Ok(()) };
-    let resampled = checks::Resampled {
-        h,
-        origin_s: start,
-        kept: &kept,
-        n_rl: &s.n_rl,
-        n_rr: &s.n_rr,
-        px: &s.px,
-        py: &s.py,
-        psi: &s.psi,
-    };
+    let resampled = s.for_checks(h, start, &kept);
     // The wheel speeds first, as the whole import judges them.
     checks::wheel_speeds(m, &resampled, &theta0)?;
     checks::conventions(m, &resampled, &theta0, warnings)?;
