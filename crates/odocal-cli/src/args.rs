@@ -207,9 +207,10 @@ pub struct CalibrationArgs {
     #[arg(long, value_name = "LEVEL", help_heading = EIV_NOISE, hide_short_help = true,
           value_parser = library_enum::<odocal::eiv::QuantisationLevel>(&["scaled", "given", "from-readings"]))]
     pub quantisation_level: Option<odocal::eiv::QuantisationLevel>,
-    /// The a_y and β noise scaled with the white wheel noise (tied) or held
-    /// at the noise model's σ (stated: the IMU's and the sideslip source's
-    /// noise, e.g. from `--noise-model`). Default: the library's
+    /// The a_y and β noise scaled with the white wheel noise (tied; a_y's σ
+    /// never below the white noise of its own readings) or held at the noise
+    /// model's σ (stated: the IMU's and the sideslip source's noise, e.g.
+    /// from `--noise-model`). Default: the library's
     /// (`EivOptions::lateral_noise`).
     #[arg(long, value_name = "SCALE", help_heading = EIV_NOISE, hide_short_help = true,
           value_parser = library_enum::<odocal::eiv::LateralNoise>(&["tied", "stated"]))]

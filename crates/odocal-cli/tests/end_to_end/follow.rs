@@ -477,7 +477,9 @@ fn history_does_not_pool_a_row_whose_verdict_names_a_bias() {
         "{}",
         v["pooled"]
     );
-    assert_eq!(v["pooled"]["mean"]["c_e"], rows[0]["theta"]["c_e"], "{}", v["pooled"]);
+    // One drive pooled: its own c_e, to the rounding of the weighted mean.
+    let (pooled, own) = (v["pooled"]["mean"]["c_e"].as_f64(), rows[0]["theta"]["c_e"].as_f64());
+    assert!(pooled.zip(own).is_some_and(|(p, o)| (p - o).abs() <= 1e-12 * o.abs()), "{}", v["pooled"]);
     let text = stdout(&odocal(&["history", "van", "--db", db_s]));
     assert!(text.contains("not pooled, the verdict names a bias beyond its σ: row 2 (input_noise_bias)"), "{text}");
 }

@@ -58,7 +58,7 @@ research_pub! {
         let t0 = Instant::now();
         // The fit's own quantisation level (as `estimate` resolved it on the
         // drive's readings).
-        let opts = &opts.with_resolved_quantisation(report.quantisation_step_from_readings);
+        let opts = &opts.with_resolved_readings(report.quantisation_step_from_readings, report.a_y_noise_floor);
         // The replicates are fitted without correction (their mean estimates
         // the uncorrected estimator's mean at θ̂), holding the fitted noise model.
         let inner =

@@ -230,8 +230,9 @@ research_pub! {
         // The fit's own quantisation level: `FromReadings` resolved as it was on
         // the drive (`report.quantisation_step_from_readings`), not re-read off
         // the replicates' readings, which are counted with the fitted step and
-        // so lie on a lattice even where the drive's readings did not.
-        let resolved = opts.with_resolved_quantisation(report.quantisation_step_from_readings);
+        // so lie on a lattice even where the drive's readings did not; and
+        // a_y's noise floor the drive's (`report.a_y_noise_floor`).
+        let resolved = opts.with_resolved_readings(report.quantisation_step_from_readings, report.a_y_noise_floor);
         // The replicates' θ is all that is used: no covariance term for η, and
         // no null pass for the innovation checks (their warnings are not
         // read).

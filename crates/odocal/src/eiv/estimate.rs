@@ -134,6 +134,7 @@ research_pub! {
             updates: fit.ev.total.updates,
             timing_s: t0.elapsed().as_secs_f64(),
             quantisation_step_from_readings: q_found,
+            a_y_noise_floor: opts.research.a_y_sigma_floor,
         };
         apply_bias_correction(input, &mut report, opts)?;
         Ok(report)
@@ -194,8 +195,9 @@ fn prepare<'o>(
         return Err(Error::NoSegments("EIV needs a drive part of at least two samples".into()));
     }
     let q_found = opts.quantisation_level.step_found(input);
-    let opts = if opts.quantisation_level == QuantisationLevel::FromReadings {
-        Cow::Owned(opts.with_resolved_quantisation(q_found))
+    let a_y_floor = opts.reads_a_y_floor().then(|| input.a_y_sample_noise());
+    let opts = if opts.quantisation_level == QuantisationLevel::FromReadings || a_y_floor.is_some() {
+        Cow::Owned(opts.with_resolved_readings(q_found, a_y_floor))
     } else {
         Cow::Borrowed(opts)
     };
@@ -505,6 +507,11 @@ fn reported_noise(opts: &EivOptions, eta: &[f64; 6]) -> NoiseModel {
     }
     if let Some(sigma) = opts.research.a_y_sigma_held {
         n.lateral_acceleration_sigma_m_per_s2 = sigma;
+    }
+    if let Some(floor) = opts.research.a_y_sigma_floor {
+        if opts.lateral_noise == LateralNoise::TiedToWheelWhite && opts.research.a_y_sigma_held.is_none() {
+            n.lateral_acceleration_sigma_m_per_s2 = n.lateral_acceleration_sigma_m_per_s2.max(floor);
+        }
     }
     n
 }

@@ -421,7 +421,9 @@ impl std::str::FromStr for QuantisationLevel {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum LateralNoise {
-    /// η_0 scales a_y and β noise with the white wheel noise.
+    /// η_0 scales a_y and β noise with the white wheel noise, a_y's σ never
+    /// below the white noise of the drive's own a_y readings
+    /// (`EivReport::a_y_noise_floor`).
     #[default]
     TiedToWheelWhite,
     /// a_y and β noise held at [`NoiseModel::lateral_acceleration_sigma_m_per_s2`](crate::eiv::NoiseModel::lateral_acceleration_sigma_m_per_s2)

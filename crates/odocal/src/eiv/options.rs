@@ -352,6 +352,19 @@ macro_rules! research_options {
             /// stays as [`EivOptions::lateral_noise`] says (tied to the
             /// white wheel noise by default). Default `None`: a_y as β.
             $vis a_y_sigma_held: Option<f64>,
+            /// With a_y's noise tied to the white wheel noise
+            /// ([`LateralNoise::TiedToWheelWhite`]), a_y's σ is never below
+            /// the white noise of the drive's own a_y readings (their
+            /// sample noise, `EivReport::a_y_noise_floor`): a fit whose
+            /// wheels are clean would otherwise take a noisy a_y as exact,
+            /// and d, which multiplies a_y, toward 0. Default true
+            /// (docs/validation.md, "a_y's noise floor").
+            $vis a_y_floor_from_readings: bool,
+            /// The floor of a_y's σ, m/s², where it is given rather than
+            /// read off the readings (the bias correction's replicates hold
+            /// the drive's). Default `None`: read off the readings when
+            /// [`ResearchOptions::a_y_floor_from_readings`].
+            $vis a_y_sigma_floor: Option<f64>,
             /// After a fit that fails its checks with a noise scale at its
             /// upper clamp (the runaway of heavy common-mode wheel noise and
             /// slip: the common-mode scale at its clamp, c_e several per cent
@@ -421,6 +434,8 @@ impl Default for ResearchOptions {
             heading_drift_min_eta: HEADING_DRIFT_MIN_ETA,
             position_drift_time_constant_s: None,
             a_y_sigma_held: None,
+            a_y_floor_from_readings: true,
+            a_y_sigma_floor: None,
             clamp_refit_hold_scale: true,
             clamp_refit_common_mode_eta: None,
             c_d_covariance_derivative: false,
@@ -444,6 +459,12 @@ impl ResearchOptions {
         }
         if self.position_drift_time_constant_s.is_some_and(|t| !(t.is_finite() && t > 0.0)) {
             return bad("position_drift_time_constant_s", "must be positive");
+        }
+        if self.a_y_sigma_held.is_some_and(|v| !(v.is_finite() && v >= 0.0)) {
+            return bad("a_y_sigma_held", "must be finite and not negative");
+        }
+        if self.a_y_sigma_floor.is_some_and(|v| !(v.is_finite() && v >= 0.0)) {
+            return bad("a_y_sigma_floor", "must be finite and not negative");
         }
         if self.clamp_refit_common_mode_eta.is_some_and(|e| !e.is_finite()) {
             return bad("clamp_refit_common_mode_eta", "must be finite");
@@ -525,6 +546,29 @@ impl EivOptions {
         if o.quantisation_level == QuantisationLevel::FromReadings {
             o.quantisation_level = QuantisationLevel::Given;
             o.noise.quantisation_step_rev_per_s = found.unwrap_or(0.0);
+        }
+        o
+    }
+
+    /// Whether a_y's σ has a floor read off the readings
+    /// ([`ResearchOptions::a_y_floor_from_readings`]): with the tie to the
+    /// white wheel noise, a_y's σ neither held nor given a floor.
+    pub(crate) fn reads_a_y_floor(&self) -> bool {
+        self.research.a_y_floor_from_readings
+            && self.lateral_noise == LateralNoise::TiedToWheelWhite
+            && self.research.a_y_sigma_held.is_none()
+            && self.research.a_y_sigma_floor.is_none()
+    }
+
+    /// These options with the readings' findings given: the quantisation
+    /// step ([`EivOptions::with_resolved_quantisation`]) and a_y's noise
+    /// floor `a_y_floor` where one was read. What a fit of other data as
+    /// if it were this drive holds (the bias correction's replicates, a
+    /// bootstrap).
+    pub(crate) fn with_resolved_readings(&self, found: Option<f64>, a_y_floor: Option<f64>) -> EivOptions {
+        let mut o = self.with_resolved_quantisation(found);
+        if a_y_floor.is_some() && o.reads_a_y_floor() {
+            o.research.a_y_sigma_floor = a_y_floor;
         }
         o
     }

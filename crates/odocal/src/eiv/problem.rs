@@ -34,6 +34,8 @@ pub(super) struct Problem<'a> {
     pub(super) lateral_stated: bool,
     /// a_y's σ held (`ResearchOptions::a_y_sigma_held`), β's as `lateral_stated` says.
     pub(super) a_y_sigma_held: Option<f64>,
+    /// a_y's σ never below this while tied (`ResearchOptions::a_y_sigma_floor`), m/s².
+    pub(super) a_y_sigma_floor: f64,
     pub(super) heading_separate: bool,
     pub(super) fitted_input: bool,
     pub(super) noise_input_half_width: usize,
@@ -69,6 +71,7 @@ impl<'a> Problem<'a> {
             sideslip_white: opts.research.sideslip_noise == SideslipNoise::WhiteEquivalent,
             lateral_stated: opts.lateral_noise == LateralNoise::Stated,
             a_y_sigma_held: opts.research.a_y_sigma_held,
+            a_y_sigma_floor: opts.research.a_y_sigma_floor.unwrap_or(0.0),
             heading_separate: opts.heading_scale == HeadingScale::Separate,
             fitted_input: opts.research.wheel_noise_scale != WheelNoiseScale::MeasuredInput,
             noise_input_half_width: opts.research.wheel_noise_scale.half_width(),
@@ -186,6 +189,12 @@ impl Problem<'_> {
         }
         if let Some(sigma) = self.a_y_sigma_held {
             (v.a_y, v.a_y_scaled) = (sigma * sigma, false);
+        }
+        // Tied to the white wheel noise, a_y's variance is held at its floor
+        // where η_0 would take it lower (it then does not follow η_0).
+        let floor = self.a_y_sigma_floor * self.a_y_sigma_floor;
+        if v.lateral_scaled && v.a_y_scaled && v.a_y < floor {
+            (v.a_y, v.a_y_scaled) = (floor, false);
         }
         if self.sideslip_white {
             // The long-run variance of the Gauss-Markov error as white noise.

@@ -444,6 +444,13 @@ research_pub! {
         /// no lattice.
         #[serde(default)]
         pub quantisation_step_from_readings: Option<f64>,
+        /// The floor of a_y's σ, m/s², the white noise of the drive's own
+        /// a_y readings: with a_y's noise tied to the white wheel noise, the
+        /// fit never grants a_y less (then also [`EivReport::noise`]'s
+        /// `lateral_acceleration_sigma_m_per_s2`). None with a_y's noise
+        /// stated or held.
+        #[serde(default)]
+        pub a_y_noise_floor: Option<f64>,
     }
 }
 

@@ -359,7 +359,7 @@ fn one_step_replicates_move_the_correction_by_a_small_fraction_of_sigma() {
             bias_correction: BiasCorrection::None,
             noise: r.noise,
             fix_noise: true,
-            ..opts.with_resolved_quantisation(r.quantisation_step_from_readings)
+            ..opts.with_resolved_readings(r.quantisation_step_from_readings, r.a_y_noise_floor)
         };
         let boot = BootstrapOptions {
             replicates: 4,

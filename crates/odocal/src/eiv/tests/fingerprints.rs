@@ -85,7 +85,7 @@ const RECORDED: [Recorded; 5] = [
 /// heading tied to the position scale, quantisation as process noise, the η
 /// step undamped, no null pass of the innovation checks, the σ of H_θ⁻¹
 /// alone without the noise-estimate term, the sideslip error as white
-/// noise, 10 iterations), spelt out so that a change of the defaults does
+/// noise, 10 iterations, a_y's noise without a floor), spelt out so that a change of the defaults does
 /// not change the cases.
 fn recorded_base_options() -> EivOptions {
     let spec = EivOptions::spec();
@@ -102,6 +102,7 @@ fn recorded_base_options() -> EivOptions {
             noise_estimate_in_covariance: false,
             sideslip_noise: SideslipNoise::WhiteEquivalent,
             c_d_covariance_derivative: true,
+            a_y_floor_from_readings: false,
             ..spec.research.clone()
         },
         ..spec
