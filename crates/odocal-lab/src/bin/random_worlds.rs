@@ -62,7 +62,7 @@ const USAGE: &str = concat!(
     [--eta-max X] [--tau-c S] [--tau-drift S] [--heavy-without slip|common]
     [--eta-without-jacobian] [--no-common-jacobian] [--position-drift-own-scale] [--position-drift-tau S]
     [--heading-drift-two-sided] [--no-clamp-refit] [--clamp-refit-common-eta X] [--heading-drift-min-eta X]
-    [--correct-bias-of PARAMS] [--lateral-from-readings] [--a-y-held-from-readings]
+    [--correct-bias-of PARAMS] [--lateral-from-readings] [--a-y-held-from-readings] [--no-a-y-floor]
 
 World i has world seed S + i (drive seed too); every method runs through odocal::calibrate.
 --heavy: each world's wheel noise replaced by heavy common-mode coloured noise and slip (NoiseOptions::with_heavy_wheels).
@@ -81,6 +81,7 @@ World i has world seed S + i (drive seed too); every method runs through odocal:
     (heading_drift_two_sided).
 --no-clamp-refit: the default without the refit, after a fit that fails with a noise scale at its upper clamp, with
     c_e held at the batch G-N start's (clamp_refit_hold_scale off).
+--no-a-y-floor: the default without the floor of a_y's σ at its readings' white noise (a_y_floor_from_readings off).
 --clamp-refit-common-eta X: in that refit, the common-mode wheel noise scale η_1 held at X
     (clamp_refit_common_mode_eta; the refit runs with this alone too).
 --heading-drift-min-eta X: the floor of the heading drift's tie to the pose-drift scale η_4 (heading_drift_min_eta;
@@ -123,6 +124,8 @@ struct Settings {
     heading_drift_two_sided: bool,
     /// `--no-clamp-refit`: `ResearchOptions::clamp_refit_hold_scale` off.
     no_clamp_refit: bool,
+    /// `--no-a-y-floor`: `ResearchOptions::a_y_floor_from_readings` off.
+    no_a_y_floor: bool,
     /// `--clamp-refit-common-eta`: `ResearchOptions::clamp_refit_common_mode_eta`.
     clamp_refit_common_eta: Option<f64>,
     /// `--heading-drift-min-eta`: `ResearchOptions::heading_drift_min_eta`
@@ -146,6 +149,7 @@ fn settings() -> Res<(Settings, Option<usize>)> {
             "position-drift-own-scale",
             "heading-drift-two-sided",
             "no-clamp-refit",
+            "no-a-y-floor",
             lateral,
             a_y_held,
         ],
@@ -167,6 +171,7 @@ fn settings() -> Res<(Settings, Option<usize>)> {
         position_drift_tau: a.opt("position-drift-tau")?,
         heading_drift_two_sided: a.flag("heading-drift-two-sided"),
         no_clamp_refit: a.flag("no-clamp-refit"),
+        no_a_y_floor: a.flag("no-a-y-floor"),
         clamp_refit_common_eta: a.opt("clamp-refit-common-eta")?,
         heading_drift_min_eta: a.opt("heading-drift-min-eta")?,
         readings_noise: ReadingsNoise::from_args(&a),
@@ -272,6 +277,7 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<
         e.filter.research.position_drift_time_constant_s = a.position_drift_tau;
         e.filter.research.heading_drift_two_sided = a.heading_drift_two_sided;
         e.filter.research.clamp_refit_hold_scale = !a.no_clamp_refit;
+        e.filter.research.a_y_floor_from_readings = !a.no_a_y_floor;
         e.filter.research.clamp_refit_common_mode_eta = a.clamp_refit_common_eta;
         if let Some(m) = a.heading_drift_min_eta {
             e.filter.research.heading_drift_min_eta = m;
