@@ -362,21 +362,6 @@ pub fn median(v: &[f64]) -> f64 {
     }
 }
 
-/// The white noise of a sampled signal from its first differences: the
-/// median absolute difference / (0.6745·√2) (white noise of σ gives
-/// differences of σ·√2, whose median absolute value is 0.6745 times that;
-/// the median is robust to the signal's own changes between samples).
-/// Zero for fewer than two samples.
-pub fn sample_noise(x: &[f64]) -> f64 {
-    let mut d: Vec<f64> = x.windows(2).map(|w| (w[1] - w[0]).abs()).filter(|v| v.is_finite()).collect();
-    if d.is_empty() {
-        return 0.0;
-    }
-    let mid = d.len() / 2;
-    let (_, m, _) = d.select_nth_unstable_by(mid, f64::total_cmp);
-    *m / (0.6745 * std::f64::consts::SQRT_2)
-}
-
 /// The usage lines of [`ReadingsNoise`]'s switches, a literal for a tool's
 /// `concat!`ed usage text.
 #[macro_export]
@@ -393,7 +378,9 @@ macro_rules! readings_noise_usage {
 /// The lab's two a_y-noise switches, as every tool that takes them reads
 /// and applies them (crates/odocal-lab/STUDIES.md):
 /// - `--lateral-from-readings`: the default method's a_y noise held at the
-///   drive's own a_y readings' [`sample_noise`] and β's at the noise
+///   drive's own a_y readings' white noise
+///   ([`EivInput::a_y_sample_noise`](odocal::eiv::EivInput::a_y_sample_noise),
+///   within each part) and β's at the noise
 ///   model's (`LateralNoise::Stated`), instead of both scaled with the white
 ///   wheel noise;
 /// - `--a-y-held-from-readings`: a_y's noise held so while β's stays tied
@@ -419,7 +406,7 @@ impl ReadingsNoise {
     /// method only; other methods are left as they are).
     pub fn apply(self, options: &mut odocal::CalibrationOptions, drive: &odocal::Drive) {
         let odocal::Method::Eiv(e) = &mut options.method else { return };
-        let a_y = sample_noise(&drive.measured().a_y);
+        let a_y = odocal::eiv::EivInput::from_drive(drive).a_y_sample_noise();
         if self.lateral {
             e.filter.noise.lateral_acceleration_sigma_m_per_s2 = a_y;
             e.filter.lateral_noise = odocal::eiv::LateralNoise::Stated;

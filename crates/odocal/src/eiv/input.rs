@@ -117,26 +117,28 @@ impl<'a> EivInput<'a> {
         }
     }
 
-    /// The white noise of the a_y readings, m/s², from their first
-    /// differences within each part: the median absolute difference /
-    /// (0.6745·√2). White noise of σ gives differences of σ·√2, whose
-    /// median absolute value is 0.6745 times that; the median passes over
-    /// the signal's own changes between samples, which are small at a
-    /// vehicle's sample rates. Zero without two samples in a part.
-    pub(super) fn a_y_sample_noise(&self) -> f64 {
-        let mut d: Vec<f64> = self
-            .parts
-            .iter()
-            .filter_map(|p| self.a_y.get(p.clone()))
-            .flat_map(|a| a.windows(2).map(|w| (w[1] - w[0]).abs()))
-            .filter(|x| x.is_finite())
-            .collect();
-        if d.is_empty() {
-            return 0.0;
+    research_pub! {
+        /// The white noise of the a_y readings, m/s², from their first
+        /// differences within each part: the median absolute difference /
+        /// (0.6745·√2). White noise of σ gives differences of σ·√2, whose
+        /// median absolute value is 0.6745 times that; the median passes over
+        /// the signal's own changes between samples, which are small at a
+        /// vehicle's sample rates. Zero without two samples in a part.
+        fn a_y_sample_noise(&self) -> f64 {
+            let mut d: Vec<f64> = self
+                .parts
+                .iter()
+                .filter_map(|p| self.a_y.get(p.clone()))
+                .flat_map(|a| a.windows(2).map(|w| (w[1] - w[0]).abs()))
+                .filter(|x| x.is_finite())
+                .collect();
+            if d.is_empty() {
+                return 0.0;
+            }
+            let mid = d.len() / 2;
+            let (_, m, _) = d.select_nth_unstable_by(mid, f64::total_cmp);
+            *m / (0.6745 * std::f64::consts::SQRT_2)
         }
-        let mid = d.len() / 2;
-        let (_, m, _) = d.select_nth_unstable_by(mid, f64::total_cmp);
-        *m / (0.6745 * std::f64::consts::SQRT_2)
     }
 
     pub(super) fn validate(&self) -> Result<()> {
