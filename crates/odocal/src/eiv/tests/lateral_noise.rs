@@ -97,5 +97,5 @@ fn a_noisy_a_y_beside_clean_wheels_keeps_d() {
     let (without, r_off) = z_d(&off);
     assert!(r_off.a_y_noise_floor.is_none());
     assert!(with_floor.abs() < 2.0, "d {with_floor:+.2} σ with the floor");
-    assert!(without < -4.0, "d {without:+.2} σ without the floor: the drive no longer shows what the floor cures");
+    assert!(without < -4.0, "d {without:+.2} σ without the floor: the drive does not show what the floor cures");
 }
