@@ -1,6 +1,6 @@
 //! Coverage of batch Gauss-Newton's 95 % intervals: the model σ
-//! (`σ̂²(JᵀWJ)⁻¹`, [`odocal::IdentifyReport::covariance`]) against the
-//! cluster-robust σ ([`odocal::RobustCovariance`]), over simulated drives
+//! (`σ̂²(JᵀWJ)⁻¹`, [`odocal::identify::IdentifyReport::covariance`]) against the
+//! cluster-robust σ ([`odocal::identify::RobustCovariance`]), over simulated drives
 //! with a known truth (docs/validation.md, "Coverage of the reported σ" and
 //! "Reference extrinsics").
 //!

@@ -18,7 +18,7 @@
 //!
 //! Parts (`--parts`, default the first three):
 //! - `testtrack`: the six test-track runs of 2024-08-05: calibrate on one
-//!   run, Ē_p on the other five ([`odocal::calibrate::crossrun`]'s table
+//!   run, Ē_p on the other five (`testtrack_crossrun`'s table
 //!   and criteria), verdict counts, and for EIV how many fits fell back to
 //!   batch G-N;
 //! - `van`: the highway van fitted on one half, Ē_p on the held-out other
