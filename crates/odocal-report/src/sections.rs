@@ -2,7 +2,7 @@
 
 use std::fmt::Write as _;
 
-use odocal::model::{step, THETA_NAMES};
+use odocal::model::{step, Input, State, THETA_NAMES};
 use odocal::segment::SegmentData;
 use odocal::segment_position_error_with;
 
@@ -390,11 +390,12 @@ fn yaw_rate_residual_panel(r: &ReportInput<'_>, k: usize) -> Panel {
     for p in drive.parts().iter().filter(|p| samples.contains(&p.start)) {
         let mut heading = Vec::new();
         let mut heading0 = Vec::new();
+        let m = drive.measured();
         for i in p.start..p.end.saturating_sub(1) {
-            let x = drive.pose(i);
-            let u = drive.input(i);
-            let r1 = drive.measured().psi[i + 1] - step(&x, &u, &r.theta, ts)[2];
-            let r0 = drive.measured().psi[i + 1] - step(&x, &u, &r.theta0, ts)[2];
+            let x = State::new(m.px[i], m.py[i], m.psi[i]);
+            let u = Input { n_rl: m.n_rl[i], n_rr: m.n_rr[i], beta: m.beta[i], a_y: m.a_y[i] };
+            let r1 = m.psi[i + 1] - step(&x, &u, &r.theta, ts)[2];
+            let r0 = m.psi[i + 1] - step(&x, &u, &r.theta0, ts)[2];
             heading.push((drive.own_time_s(i), r1 / ts));
             heading0.push((drive.own_time_s(i), r0 / ts));
         }

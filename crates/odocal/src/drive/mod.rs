@@ -611,13 +611,13 @@ impl Drive {
 
     /// Reference pose at sample `i`.
     #[inline]
-    pub fn pose(&self, i: usize) -> State {
+    pub(crate) fn pose(&self, i: usize) -> State {
         State::new(self.measured.px[i], self.measured.py[i], self.measured.psi[i])
     }
 
     /// Measured inputs at sample `i`.
     #[inline]
-    pub fn input(&self, i: usize) -> Input {
+    pub(crate) fn input(&self, i: usize) -> Input {
         let m = &self.measured;
         Input { n_rl: m.n_rl[i], n_rr: m.n_rr[i], beta: m.beta[i], a_y: m.a_y[i] }
     }

@@ -230,7 +230,8 @@ impl ParamFile {
     /// from its data (`<name>_observable: false`): their value is the
     /// start's and their σ (for θ, mostly the between-drive prior) is no
     /// measure of them.
-    pub fn not_observable(&self) -> Vec<&str> {
+    #[cfg(test)]
+    pub(crate) fn not_observable(&self) -> Vec<&str> {
         self.params.iter().filter(|p| p.not_observable).map(|p| p.name.as_str()).collect()
     }
 

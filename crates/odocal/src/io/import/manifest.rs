@@ -787,9 +787,11 @@ impl Manifest {
         crate::io::param_file::ParamFile::is_param_file(Path::new(theta0)).then(|| PathBuf::from(theta0))
     }
 
-    /// The sample time of the imported drive, s (`[output] rate_hz`).
-    pub fn sample_time_s(&self) -> f64 {
-        1.0 / self.output.rate_hz
+    research_pub! {
+        /// The sample time of the imported drive, s (`[output] rate_hz`).
+        fn sample_time_s(&self) -> f64 {
+            1.0 / self.output.rate_hz
+        }
     }
 
     /// The time column of stream `stream` (`streams.<stream>.time_column`;
