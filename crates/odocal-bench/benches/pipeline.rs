@@ -1,7 +1,8 @@
 //! Benchmarks of the calibration pipeline on seeded simulated drives.
 //!
 //! `cargo bench -p odocal-bench --bench pipeline` — groups:
-//! - `model`: one model step with all Jacobians;
+//! - `model`: one model step with all Jacobians (with `--features research`:
+//!   the Jacobians are research-visible in the library);
 //! - `simulate`: the default 24 km paper-noise drive;
 //! - `validate`: Ē_p of one θ on all validation segments of the 24 km drive;
 //! - `three_step`: the full default 3-step calibration on 6/12/24/48 km
@@ -16,7 +17,7 @@ use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use odocal::eiv::EivOptions;
-use odocal::model::{step_jacobians, Input, State, Theta};
+use odocal::model::Theta;
 use odocal::segment::{validation_segments, ValidationSegmentOptions};
 use odocal::sim::{simulate, SimOptions};
 use odocal::EivMethodOptions;
@@ -26,13 +27,19 @@ fn drive(km: f64) -> odocal::Drive {
     simulate(&SimOptions { length_km: km, ..SimOptions::paper(1) }).expect("simulate").drive
 }
 
+#[cfg(feature = "research")]
 fn bench_model(c: &mut Criterion) {
+    use odocal::model::{step_jacobians, Input, State};
     let x = State::new(10.0, -3.0, 0.3);
     let u = Input { n_rl: 5.1, n_rr: 5.3, beta: 0.01, a_y: 1.2 };
     c.bench_function("model/step_jacobians", |b| {
         b.iter(|| step_jacobians(black_box(&x), black_box(&u), black_box(&Theta::SIM_DEFAULT_TRUE), 0.025))
     });
 }
+
+/// Without `research` the model's Jacobians are crate-internal: no `model` group.
+#[cfg(not(feature = "research"))]
+fn bench_model(_: &mut Criterion) {}
 
 fn bench_simulate(c: &mut Criterion) {
     let mut g = c.benchmark_group("simulate");

@@ -131,10 +131,12 @@ impl ParamRow {
 impl ParamRow {
     /// Rows for the reference extrinsics (lever arm in m, heading offset in
     /// mrad) with the σ that stands for them
-    /// ([`odocal::ExtrinsicsEstimate::result_std_dev`]), labelled `± 1σ
-    /// (robust)` or `± 1σ (model)` as the text labels it; held entries have no σ.
+    /// (the cluster-robust σ when it was computed, else the model σ),
+    /// labelled `± 1σ (robust)` or `± 1σ (model)` as the text labels it;
+    /// held entries have no σ.
     pub fn extrinsics_rows(x: &odocal::ExtrinsicsEstimate) -> Vec<ParamRow> {
-        let (init, val, sd) = (<[_; 3]>::from(x.initial), <[_; 3]>::from(x.value), <[_; 3]>::from(x.result_std_dev()));
+        let sd = x.robust.as_ref().map_or(x.std_dev, |r| r.std_dev);
+        let (init, val, sd) = (<[_; 3]>::from(x.initial), <[_; 3]>::from(x.value), <[_; 3]>::from(sd));
         let label = if x.robust.is_some() { "± 1σ (robust)" } else { "± 1σ (model)" };
         odocal::ParamSet::EXTRINSICS
             .into_iter()

@@ -181,7 +181,7 @@ pub struct RobustExtrinsics {
 impl ExtrinsicsEstimate {
     /// The 1σ that stands for the estimate: the cluster-robust σ when it
     /// was computed (as for θ's result σ), else the model σ; 0 for held entries.
-    pub fn result_std_dev(&self) -> Extrinsics {
+    pub(crate) fn result_std_dev(&self) -> Extrinsics {
         self.robust.as_ref().map_or(self.std_dev, |r| r.std_dev)
     }
 

@@ -13,8 +13,8 @@
 //! p_x' = p_x + v·t_s·cos φ   p_y' = p_y + v·t_s·sin φ   ψ' = ψ + ω·t_s
 //! ```
 //!
-//! Every derivative the method needs is analytic ([`step_jacobians`]) and
-//! tested against central finite differences.
+//! Every derivative the method needs is analytic (`step_jacobians`,
+//! research-visible) and tested against central finite differences.
 
 use nalgebra::{Matrix3, Matrix3x2, Matrix3x4, Vector3, Vector4};
 use serde::{Deserialize, Serialize};
@@ -272,52 +272,56 @@ pub fn step(x: &State, u: &Input, theta: &Theta, t_s: f64) -> State {
     Vector3::new(x[0] + k.speed_m_per_s * t_s * c, x[1] + k.speed_m_per_s * t_s * s, x[2] + k.yaw_rate_rad_per_s * t_s)
 }
 
-/// The next state and the analytic Jacobians of one model step.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct StepJacobians {
-    /// The next state `f(x, u, θ)`.
-    pub next: State,
-    /// `∂f/∂x`, 3×3.
-    pub f_x: Matrix3<f64>,
-    /// `∂f/∂[n_rl, n_rr]`, 3×2.
-    pub f_n: Matrix3x2<f64>,
-    /// `∂f/∂θ`, 3×4 (columns c_e, c_d, t_r, d).
-    pub f_theta: Matrix3x4<f64>,
+research_pub! {
+    /// The next state and the analytic Jacobians of one model step.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    struct StepJacobians {
+        /// The next state `f(x, u, θ)`.
+        pub next: State,
+        /// `∂f/∂x`, 3×3.
+        pub f_x: Matrix3<f64>,
+        /// `∂f/∂[n_rl, n_rr]`, 3×2.
+        pub f_n: Matrix3x2<f64>,
+        /// `∂f/∂θ`, 3×4 (columns c_e, c_d, t_r, d).
+        pub f_theta: Matrix3x4<f64>,
+    }
 }
 
-/// One model step with all analytic Jacobians (state, wheel rotations, θ).
-#[inline]
-pub fn step_jacobians(x: &State, u: &Input, theta: &Theta, t_s: f64) -> StepJacobians {
-    let (c_rl, c_rr) = theta.wheel_circumferences(u.a_y);
-    let v = (u.n_rl * c_rl + u.n_rr * c_rr) / 2.0;
-    let num = u.n_rr * c_rr - u.n_rl * c_rl;
-    let omega = num / theta.t_r;
-    let phi = x[2] + omega * t_s / 2.0 + u.beta;
-    let (s, c) = phi.sin_cos();
-    let next = Vector3::new(x[0] + v * t_s * c, x[1] + v * t_s * s, x[2] + omega * t_s);
+research_pub! {
+    /// One model step with all analytic Jacobians (state, wheel rotations, θ).
+    #[inline]
+    fn step_jacobians(x: &State, u: &Input, theta: &Theta, t_s: f64) -> StepJacobians {
+        let (c_rl, c_rr) = theta.wheel_circumferences(u.a_y);
+        let v = (u.n_rl * c_rl + u.n_rr * c_rr) / 2.0;
+        let num = u.n_rr * c_rr - u.n_rl * c_rl;
+        let omega = num / theta.t_r;
+        let phi = x[2] + omega * t_s / 2.0 + u.beta;
+        let (s, c) = phi.sin_cos();
+        let next = Vector3::new(x[0] + v * t_s * c, x[1] + v * t_s * s, x[2] + omega * t_s);
 
-    let f_x = Matrix3::new(1.0, 0.0, -v * t_s * s, 0.0, 1.0, v * t_s * c, 0.0, 0.0, 1.0);
+        let f_x = Matrix3::new(1.0, 0.0, -v * t_s * s, 0.0, 1.0, v * t_s * c, 0.0, 0.0, 1.0);
 
-    // Chain rule through (v, ω): ∂p_x' = t_s (c ∂v − v s t_s/2 ∂ω), etc.
-    let row = |dv: f64, domega: f64| -> Vector3<f64> {
-        let dphi = domega * t_s / 2.0;
-        Vector3::new(t_s * (c * dv - v * s * dphi), t_s * (s * dv + v * c * dphi), t_s * domega)
-    };
-    let f_n = Matrix3x2::from_columns(&[row(c_rl / 2.0, -c_rl / theta.t_r), row(c_rr / 2.0, c_rr / theta.t_r)]);
+        // Chain rule through (v, ω): ∂p_x' = t_s (c ∂v − v s t_s/2 ∂ω), etc.
+        let row = |dv: f64, domega: f64| -> Vector3<f64> {
+            let dphi = domega * t_s / 2.0;
+            Vector3::new(t_s * (c * dv - v * s * dphi), t_s * (s * dv + v * c * dphi), t_s * domega)
+        };
+        let f_n = Matrix3x2::from_columns(&[row(c_rl / 2.0, -c_rl / theta.t_r), row(c_rr / 2.0, c_rr / theta.t_r)]);
 
-    // ∂c_rl/∂θ = [1, 1/2, 0, a_y], ∂c_rr/∂θ = [1, −1/2, 0, −a_y].
-    let dcrl = [1.0, 0.5, 0.0, u.a_y];
-    let dcrr = [1.0, -0.5, 0.0, -u.a_y];
-    let mut f_theta = Matrix3x4::zeros();
-    for j in 0..4 {
-        let dv = (u.n_rl * dcrl[j] + u.n_rr * dcrr[j]) / 2.0;
-        let mut domega = (u.n_rr * dcrr[j] - u.n_rl * dcrl[j]) / theta.t_r;
-        if j == 2 {
-            domega -= num / (theta.t_r * theta.t_r);
+        // ∂c_rl/∂θ = [1, 1/2, 0, a_y], ∂c_rr/∂θ = [1, −1/2, 0, −a_y].
+        let dcrl = [1.0, 0.5, 0.0, u.a_y];
+        let dcrr = [1.0, -0.5, 0.0, -u.a_y];
+        let mut f_theta = Matrix3x4::zeros();
+        for j in 0..4 {
+            let dv = (u.n_rl * dcrl[j] + u.n_rr * dcrr[j]) / 2.0;
+            let mut domega = (u.n_rr * dcrr[j] - u.n_rl * dcrl[j]) / theta.t_r;
+            if j == 2 {
+                domega -= num / (theta.t_r * theta.t_r);
+            }
+            f_theta.set_column(j, &row(dv, domega));
         }
-        f_theta.set_column(j, &row(dv, domega));
+        StepJacobians { next, f_x, f_n, f_theta }
     }
-    StepJacobians { next, f_x, f_n, f_theta }
 }
 
 /// Wraps an angle to (−π, π].
