@@ -12,7 +12,6 @@
 //!   fixed and EIV with it estimated (the method's default), side by side on
 //!   12/24/48 km (`eiv_speed` in crates/odocal-lab is the quicker way to iterate).
 
-use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
@@ -30,6 +29,7 @@ fn drive(km: f64) -> odocal::Drive {
 #[cfg(feature = "research")]
 fn bench_model(c: &mut Criterion) {
     use odocal::model::{step_jacobians, Input, State};
+    use std::hint::black_box;
     let x = State::new(10.0, -3.0, 0.3);
     let u = Input { n_rl: 5.1, n_rr: 5.3, beta: 0.01, a_y: 1.2 };
     c.bench_function("model/step_jacobians", |b| {
