@@ -129,7 +129,7 @@ pub fn print_warnings(warnings: &[Warning]) {
     let (notes, warnings): (Vec<Warning>, Vec<Warning>) = warnings.iter().cloned().partition(Warning::is_note);
     let mut collapsed = false;
     for (prefix, list) in [("note", &notes), ("warning", &warnings)] {
-        for l in odocal::Warning::summarize(list, WARNINGS_PER_KIND) {
+        for l in summarize(list, WARNINGS_PER_KIND) {
             collapsed |= l.starts_with('…');
             eprintln!("{prefix}: {l}");
         }
@@ -139,5 +139,50 @@ pub fn print_warnings(warnings: &[Warning]) {
     }
 }
 
+/// The kind of a warning: its JSON `"kind"`.
+fn kind(w: &Warning) -> String {
+    serde_json::to_value(w).ok().and_then(|v| v["kind"].as_str().map(String::from)).unwrap_or_default()
+}
+
+/// Lines for a human reader: warnings grouped by kind (in order of first
+/// appearance), at most `per_kind` of each, then `"… and N more <kind>
+/// warnings"` for the rest.
+pub fn summarize(warnings: &[Warning], per_kind: usize) -> Vec<String> {
+    let kinds: Vec<String> = warnings.iter().map(kind).collect();
+    let mut order: Vec<&str> = Vec::new();
+    for k in &kinds {
+        if !order.contains(&k.as_str()) {
+            order.push(k);
+        }
+    }
+    let mut out = Vec::new();
+    for k in order {
+        let of_kind: Vec<&Warning> = warnings.iter().zip(&kinds).filter(|(_, wk)| *wk == k).map(|(w, _)| w).collect();
+        out.extend(of_kind.iter().take(per_kind).map(|w| w.to_string()));
+        if of_kind.len() > per_kind {
+            out.push(format!("… and {} more {} warnings", of_kind.len() - per_kind, k.replace('_', " ")));
+        }
+    }
+    out
+}
+
 /// Warnings of one kind printed before the rest are counted.
 const WARNINGS_PER_KIND: usize = 3;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn repeated_warnings_collapse_to_a_count() {
+        let mut w: Vec<Warning> = (0..500)
+            .map(|i| Warning::CompensationFailed { segment_start: i * 100, reason: format!("job {i}") })
+            .collect();
+        w.insert(1, Warning::BatchFailed { batch: 3, reason: "singular".into() });
+        let lines = summarize(&w, 3);
+        assert_eq!(lines.len(), 5, "{lines:?}");
+        assert_eq!(lines[0], "compensation left out: job 0");
+        assert_eq!(lines[3], "… and 497 more compensation failed warnings");
+        assert_eq!(lines[4], "initial batch 3 left out: singular");
+    }
+}

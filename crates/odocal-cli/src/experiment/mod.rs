@@ -133,7 +133,7 @@ pub fn run(a: ExperimentArgs, bars: &Bars) -> Result<()> {
     let files: Vec<(&Path, &str)> = files.iter().map(|(p, t)| (p.as_path(), t.as_str())).collect();
     odocal::output::write_texts(&files, true)?;
 
-    for l in odocal::Warning::summarize(&exp.warnings, SHOWN_WARNINGS) {
+    for l in crate::io::summarize(&exp.warnings, SHOWN_WARNINGS) {
         eprintln!("warning: {l}");
     }
     println!(

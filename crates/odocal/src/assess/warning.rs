@@ -387,45 +387,9 @@ impl std::fmt::Display for Warning {
     }
 }
 
-impl Warning {
-    /// Lines for a human reader: warnings grouped by kind (in order of first
-    /// appearance), at most `per_kind` of each, then `"… and N more <kind>
-    /// warnings"` for the rest.
-    pub fn summarize(warnings: &[Warning], per_kind: usize) -> Vec<String> {
-        let mut kinds: Vec<&'static str> = Vec::new();
-        for w in warnings {
-            if !kinds.contains(&w.kind()) {
-                kinds.push(w.kind());
-            }
-        }
-        let mut out = Vec::new();
-        for k in kinds {
-            let of_kind: Vec<&Warning> = warnings.iter().filter(|w| w.kind() == k).collect();
-            out.extend(of_kind.iter().take(per_kind).map(|w| w.to_string()));
-            if of_kind.len() > per_kind {
-                out.push(format!("… and {} more {} warnings", of_kind.len() - per_kind, k.replace('_', " ")));
-            }
-        }
-        out
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn repeated_warnings_collapse_to_a_count() {
-        let mut w: Vec<Warning> = (0..500)
-            .map(|i| Warning::CompensationFailed { segment_start: i * 100, reason: format!("job {i}") })
-            .collect();
-        w.insert(1, Warning::BatchFailed { batch: 3, reason: "singular".into() });
-        let lines = Warning::summarize(&w, 3);
-        assert_eq!(lines.len(), 5, "{lines:?}");
-        assert_eq!(lines[0], "compensation left out: job 0");
-        assert_eq!(lines[3], "… and 497 more compensation failed warnings");
-        assert_eq!(lines[4], "initial batch 3 left out: singular");
-    }
 
     #[test]
     fn notes_are_the_held_extrinsics_and_the_check_notes() {
