@@ -204,7 +204,8 @@ impl From<CompensationWarning> for Warning {
 }
 
 impl Warning {
-    /// A short name of the kind of warning (the JSON `"kind"`), for grouping.
+    /// A short name of the kind of warning (the JSON `"kind"`).
+    #[cfg(test)]
     pub(crate) fn kind(&self) -> &'static str {
         match self {
             Warning::Unobservable { .. } => "unobservable",

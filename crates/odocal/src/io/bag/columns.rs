@@ -5,7 +5,7 @@ use super::msg;
 /// A ROS 2 message type odocal can turn into columns.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 #[non_exhaustive]
-pub enum MessageType {
+pub(crate) enum MessageType {
     /// `sensor_msgs/msg/JointState`: `position.<joint>` (rad or m),
     /// `velocity.<joint>` (rad/s or m/s).
     JointState,

@@ -83,10 +83,9 @@ mod records;
 #[cfg(test)]
 mod tests;
 
-pub use columns::MessageType;
 pub use draft::draft_manifest;
 
-use columns::{Column, Decoded, JointField};
+use columns::{Column, Decoded, JointField, MessageType};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::fmt;
 use std::fs::File;
@@ -322,7 +321,7 @@ pub struct TopicInfo {
     pub last_log_time_ns: Option<u64>,
     /// The type as odocal reads it, `None` when [`read_topic`] cannot read
     /// it (another type, or an encoding other than `cdr`).
-    pub supported_type: Option<MessageType>,
+    pub(crate) supported_type: Option<MessageType>,
 }
 
 impl TopicInfo {
