@@ -3,9 +3,9 @@
 //!
 //! Each [`Warning`] carries its numbers as fields (in the JSON report, tagged
 //! by `"kind"`) and reads as one sentence through `Display`. Human output can
-//! group them by [`Warning::kind`]: a noisy drive gives hundreds of
+//! group them by that kind: a noisy drive gives hundreds of
 //! [`Warning::CompensationFailed`] and the CLI prints a count and the first
-//! few ([`Warning::summarize`]).
+//! few.
 
 use serde::{Deserialize, Serialize};
 

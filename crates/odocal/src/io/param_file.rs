@@ -458,7 +458,7 @@ impl ParamFile {
     /// (`.json`). `c_e`, `c_d`, `t_r` and `d` are required (SI units, checked
     /// like a typed θ); `<name>_sigma` gives a 1σ, `<name>_held: true` marks
     /// a held parameter, `<name>_observable: false` one the calibration
-    /// named not observable ([`ParamFile::not_observable`]); `lever_x`, `lever_y`, `heading_offset`, the verdict
+    /// named not observable; `lever_x`, `lever_y`, `heading_offset`, the verdict
     /// and the provenance are read when present; other keys (a consumer's,
     /// e.g. `wheel_separation`) are ignored. Writing the result again gives
     /// the same parameters to the bit. `node` names the ROS 2 node to read
