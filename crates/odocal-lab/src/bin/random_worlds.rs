@@ -63,6 +63,7 @@ const USAGE: &str = concat!(
     [--eta-without-jacobian] [--no-common-jacobian] [--position-drift-own-scale] [--position-drift-tau S]
     [--heading-drift-two-sided] [--no-clamp-refit] [--clamp-refit-common-eta X] [--heading-drift-min-eta X]
     [--correct-bias-of PARAMS] [--lateral-from-readings] [--a-y-held-from-readings] [--no-a-y-floor]
+    [--time-constant-choice]
 
 World i has world seed S + i (drive seed too); every method runs through odocal::calibrate.
 --heavy: each world's wheel noise replaced by heavy common-mode coloured noise and slip (NoiseOptions::with_heavy_wheels).
@@ -82,6 +83,8 @@ World i has world seed S + i (drive seed too); every method runs through odocal:
 --no-clamp-refit: the default without the refit, after a fit that fails with a noise scale at its upper clamp, with
     c_e held at the batch G-N start's (clamp_refit_hold_scale off).
 --no-a-y-floor: the default without the floor of a_y's σ at its readings' white noise (a_y_floor_from_readings off).
+--time-constant-choice: the default with a slow wheel-noise model (τ_c × 10, τ_w × 20) tried where a noise source
+    ends at its lower clamp, the fit with the lower M kept (choose_time_constants on).
 --clamp-refit-common-eta X: in that refit, the common-mode wheel noise scale η_1 held at X
     (clamp_refit_common_mode_eta; the refit runs with this alone too).
 --heading-drift-min-eta X: the floor of the heading drift's tie to the pose-drift scale η_4 (heading_drift_min_eta;
@@ -126,6 +129,8 @@ struct Settings {
     no_clamp_refit: bool,
     /// `--no-a-y-floor`: `ResearchOptions::a_y_floor_from_readings` off.
     no_a_y_floor: bool,
+    /// `--time-constant-choice`: `ResearchOptions::choose_time_constants` on.
+    time_constant_choice: bool,
     /// `--clamp-refit-common-eta`: `ResearchOptions::clamp_refit_common_mode_eta`.
     clamp_refit_common_eta: Option<f64>,
     /// `--heading-drift-min-eta`: `ResearchOptions::heading_drift_min_eta`
@@ -150,6 +155,7 @@ fn settings() -> Res<(Settings, Option<usize>)> {
             "heading-drift-two-sided",
             "no-clamp-refit",
             "no-a-y-floor",
+            "time-constant-choice",
             lateral,
             a_y_held,
         ],
@@ -172,6 +178,7 @@ fn settings() -> Res<(Settings, Option<usize>)> {
         heading_drift_two_sided: a.flag("heading-drift-two-sided"),
         no_clamp_refit: a.flag("no-clamp-refit"),
         no_a_y_floor: a.flag("no-a-y-floor"),
+        time_constant_choice: a.flag("time-constant-choice"),
         clamp_refit_common_eta: a.opt("clamp-refit-common-eta")?,
         heading_drift_min_eta: a.opt("heading-drift-min-eta")?,
         readings_noise: ReadingsNoise::from_args(&a),
@@ -278,6 +285,7 @@ fn run_method(method: &str, drive: &Drive, held: &HeldOut, a: &Settings) -> Res<
         e.filter.research.heading_drift_two_sided = a.heading_drift_two_sided;
         e.filter.research.clamp_refit_hold_scale = !a.no_clamp_refit;
         e.filter.research.a_y_floor_from_readings = !a.no_a_y_floor;
+        e.filter.research.choose_time_constants = a.time_constant_choice;
         e.filter.research.clamp_refit_common_mode_eta = a.clamp_refit_common_eta;
         if let Some(m) = a.heading_drift_min_eta {
             e.filter.research.heading_drift_min_eta = m;

@@ -380,6 +380,21 @@ macro_rules! research_options {
             /// true (docs/validation.md, "Heavy wheel noise: a refit with
             /// c_e held").
             $vis clamp_refit_hold_scale: bool,
+            /// Where the fit leaves a noise source at its lower clamp, fit
+            /// the drive once more with the wheel noise's correlation times
+            /// slow (the starting model's common-mode τ_c × 10, per-wheel
+            /// τ_w × 20: 20 s and 5 s from the production car's defaults)
+            /// and keep the fit with the lower M (`EivReport::time_constant_costs`).
+            /// Default false: on the second simulator's `paper` drives,
+            /// whose wheel noise has those correlation times, it cuts t_r's
+            /// RMS error by a third (0.62 → 0.43 % on the 20 drives it was
+            /// designed on, 0.62 → 0.52 % on 20 others), but on its `heavy`
+            /// drives and on odocal's random noise worlds M prefers the slow
+            /// model where it is wrong (random worlds 1–100: c_e RMS 0.048 →
+            /// 0.159 %, t_r 0.57 → 0.72 %); docs/validation.md, "The wheel
+            /// noise's correlation times". No effect with
+            /// [`EivOptions::fix_noise`].
+            $vis choose_time_constants: bool,
             /// In the refit after a noise scale at its upper clamp (as
             /// [`ResearchOptions::clamp_refit_hold_scale`]), hold the
             /// common-mode wheel noise scale η_1 at this value (its variance
@@ -437,6 +452,7 @@ impl Default for ResearchOptions {
             a_y_floor_from_readings: true,
             a_y_sigma_floor: None,
             clamp_refit_hold_scale: true,
+            choose_time_constants: false,
             clamp_refit_common_mode_eta: None,
             c_d_covariance_derivative: false,
             bias_correction_refit: BootstrapRefit::OneStep,

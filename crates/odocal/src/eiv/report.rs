@@ -451,6 +451,14 @@ research_pub! {
         /// stated or held.
         #[serde(default)]
         pub a_y_noise_floor: Option<f64>,
+        /// The wheel noise's correlation times tried and the M each fit
+        /// reached, `[τ_c s, τ_w s, M]`: the starting model's and the slow
+        /// one's ([`ResearchOptions::choose_time_constants`](crate::eiv::ResearchOptions::choose_time_constants));
+        /// the estimate's are [`EivReport::noise`]'s. Empty where the
+        /// choice was not made (the default; noise held; no source at its
+        /// lower clamp), and then not written to JSON.
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        pub time_constant_costs: Vec<[f64; 3]>,
     }
 }
 

@@ -290,3 +290,64 @@ fn a_scale_sent_to_its_lower_clamp_early_comes_back() {
     let z = (fit.theta.t_r - truth.t_r) / fit.sigma[2];
     assert!(z.abs() < 3.0, "t_r {:.6} against {:.6}: {z:+.2} σ\n{fit}", fit.theta.t_r, truth.t_r);
 }
+
+/// The second simulator's `paper` wheel noise (common-mode 0.3 % at τ
+/// 20 s, per-wheel 0.05 % at 5 s, slip 0.3 %/(m/s²), 500-tick encoders)
+/// under the slowly drifting reference of [`slow_drift_noise`].
+fn slow_wheel_noise() -> NoiseOptions {
+    NoiseOptions {
+        wheel_coloured_rel_sigma: 0.003,
+        wheel_coloured_time_constant_s: 20.0,
+        wheel_coloured_differential_rel_sigma: 0.0005,
+        wheel_coloured_differential_time_constant_s: Some(5.0),
+        wheel_slip_per_m_per_s2: 0.003,
+        encoder_ticks_per_revolution: 500,
+        ..slow_drift_noise()
+    }
+}
+
+/// The slow model (research option `choose_time_constants`, off by
+/// default) is tried where the fit leaves a noise source at its lower
+/// clamp, and is the estimate where its M is lower: on this 8 km drive of
+/// slow wheel noise the per-wheel noise ends at its clamp under the
+/// production car's correlation times (2 s, 0.25 s); the slow model's fit
+/// (20 s, 5 s) reaches a lower M and its correlation times are the
+/// reported noise model's; t_r and d stay within 3 σ of the truth, while
+/// c_e, uncorrected, ends 3.5 σ low (the common-mode noise, slow and
+/// large, takes part of the scale: why the option is off, docs/validation.md).
+/// On the drive of seed 1 no source is at its clamp and nothing is tried.
+#[test]
+// The correlation times are the model's and 10 or 20 times them, exact in binary.
+#[allow(clippy::float_cmp)]
+fn the_slow_wheel_noise_model_is_chosen_by_m() {
+    let fit = |seed: u64, choose: bool| {
+        let out = simulate(&SimOptions { length_km: 8.0, noise: slow_wheel_noise(), ..SimOptions::paper(seed) })
+            .expect("sim");
+        let input = input_of(&out.drive);
+        let mut opts = EivOptions { bias_correction: BiasCorrection::None, ..EivOptions::default() };
+        opts.research.choose_time_constants = choose;
+        (estimate(&input, &batch_gn_all(&out.drive), &opts).expect("eiv"), out.sidecar.theta_true)
+    };
+    let (fast, _) = fit(2, false);
+    let lower = EivOptions::default().eta_bounds[0];
+    assert!(fast.eta.iter().any(|e| *e <= lower + 1e-9), "a source at its clamp: η {:?}", fast.eta);
+    assert!(fast.time_constant_costs.is_empty());
+    assert_eq!(fast.noise.wheel_common_time_constant_s, 2.0);
+    let (chosen, truth) = fit(2, true);
+    let costs = &chosen.time_constant_costs;
+    assert_eq!(costs.len(), 2, "{costs:?}");
+    assert_eq!((costs[0][0], costs[0][1]), (2.0, 0.25));
+    assert_eq!((costs[1][0], costs[1][1]), (20.0, 5.0));
+    // M before the heading-drift test: the slow model's is the lower.
+    assert!(costs[1][2] < costs[0][2], "{costs:?}");
+    assert_eq!(chosen.noise.wheel_common_time_constant_s, 20.0);
+    assert_eq!(chosen.noise.wheel_differential_time_constant_s, 5.0);
+    let (est, tru) = (chosen.theta.to_array(), truth.to_array());
+    for i in 2..4 {
+        let z = (est[i] - tru[i]) / chosen.sigma[i];
+        assert!(z.abs() < 3.0, "θ_{i}: {z:+.2} σ\n{chosen}");
+    }
+    let (untried, _) = fit(1, true);
+    assert!(untried.time_constant_costs.is_empty(), "{:?} at η {:?}", untried.time_constant_costs, untried.eta);
+    assert_eq!(untried.noise.wheel_differential_time_constant_s, 0.25);
+}
