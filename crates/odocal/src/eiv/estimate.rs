@@ -63,10 +63,10 @@ research_pub! {
     fn estimate(input: &EivInput<'_>, theta_start: &Theta, opts: &EivOptions) -> Result<EivReport> {
         let t0 = Instant::now();
         let (windows, opts, q_found) = prepare(input, theta_start, opts)?;
-        let start_prob = Problem::new(input, windows.clone(), &opts);
+        let start_prob = Problem::new(input, windows, &opts);
         let fit = run_passes(&start_prob, theta_start, &opts)?;
         let fit = release_clamped(&start_prob, fit, &opts)?;
-        let (fit, slow, time_constant_costs) = choose_time_constants(input, windows, fit, &opts)?;
+        let (fit, slow, time_constant_costs) = choose_time_constants(&start_prob, fit, &opts)?;
         let (tied_prob, tied_opts) = match &slow {
             Some((p, o)) => (p, o),
             None => (&start_prob, &*opts),
@@ -328,8 +328,9 @@ const SLOW_DIFFERENTIAL_TIME_FACTOR: f64 = 20.0;
 /// tried only where `fit` leaves a noise source that is not held at its
 /// lower clamp (the symptom of a model that cannot place some noise: on
 /// the second simulator's drives the heading's white noise or the
-/// per-wheel noise, with t_r off by up to 1.5 %). The slow model's scoring pass starts at `fit`'s estimate, with every
-/// noise source `fit` left at its lower clamp back at its starting level
+/// per-wheel noise, with t_r off by up to 1.5 %). The slow model's
+/// problem has `start`'s input and windows. Its scoring pass starts at
+/// `fit`'s estimate, with those sources back at their starting level
 /// (a source absent under the fast model may be the one the slow model
 /// needs, and from the clamp it cannot return); where that pass stops at
 /// its iteration limit, one more pass continues from where it stopped (its
@@ -344,13 +345,12 @@ const SLOW_DIFFERENTIAL_TIME_FACTOR: f64 = 20.0;
 /// is the estimate, and the `[τ_c, τ_w, M]` of both fits
 /// ([`EivReport::time_constant_costs`]).
 fn choose_time_constants<'a>(
-    input: &'a EivInput<'a>,
-    windows: Vec<Window>,
+    start: &Problem<'a>,
     fit: Fit,
     opts: &EivOptions,
 ) -> Result<(Fit, Option<SlowModel<'a>>, Vec<[f64; 3]>)> {
-    let clamped = (0..NETA).any(|j| !opts.eta_held[j] && at_lower_clamp(fit.eta[j], opts.eta_bounds));
-    if opts.fix_noise || !opts.research.choose_time_constants || !clamped {
+    let clamped = |j: usize| !opts.eta_held[j] && at_lower_clamp(fit.eta[j], opts.eta_bounds);
+    if opts.fix_noise || !opts.research.choose_time_constants || !(0..NETA).any(clamped) {
         return Ok((fit, None, Vec::new()));
     }
     let row =
@@ -358,11 +358,10 @@ fn choose_time_constants<'a>(
     let mut slow_opts = opts.clone();
     slow_opts.noise.wheel_common_time_constant_s *= SLOW_COMMON_TIME_FACTOR;
     slow_opts.noise.wheel_differential_time_constant_s *= SLOW_DIFFERENTIAL_TIME_FACTOR;
-    let prob = Problem::new(input, windows, &slow_opts);
+    let prob = Problem::new(start.input, start.windows.clone(), &slow_opts);
     let first = row(opts, fit.ev.total.merit());
     let runaway = |eta: &[f64; 6]| eta.iter().any(|e| at_upper_clamp(*e, opts.eta_bounds));
-    let eta0: [f64; 6] =
-        std::array::from_fn(|j| if at_lower_clamp(fit.eta[j], opts.eta_bounds) { 0.0 } else { fit.eta[j] });
+    let eta0: [f64; 6] = std::array::from_fn(|j| if clamped(j) { 0.0 } else { fit.eta[j] });
     let theta_ref = fit.theta_reference();
     // A slow fit that fails numerically leaves the estimate as it was.
     let Ok(mut out) = scoring_pass(&prob, fit.theta, eta0, theta_ref, fit.free, false, &slow_opts) else {
@@ -596,10 +595,8 @@ fn reported_noise(opts: &EivOptions, eta: &[f64; 6]) -> NoiseModel {
     if let Some(sigma) = opts.research.a_y_sigma_held {
         n.lateral_acceleration_sigma_m_per_s2 = sigma;
     }
-    if let Some(floor) = opts.research.a_y_sigma_floor {
-        if opts.lateral_noise == LateralNoise::TiedToWheelWhite && opts.research.a_y_sigma_held.is_none() {
-            n.lateral_acceleration_sigma_m_per_s2 = n.lateral_acceleration_sigma_m_per_s2.max(floor);
-        }
+    if let Some(floor) = opts.research.a_y_sigma_floor.filter(|_| opts.a_y_tied()) {
+        n.lateral_acceleration_sigma_m_per_s2 = n.lateral_acceleration_sigma_m_per_s2.max(floor);
     }
     n
 }

@@ -566,14 +566,18 @@ impl EivOptions {
         o
     }
 
+    /// Whether a_y's σ follows the white wheel noise's scale η_0
+    /// ([`LateralNoise::TiedToWheelWhite`], a_y's σ not held): where a
+    /// floor on it applies.
+    pub(crate) fn a_y_tied(&self) -> bool {
+        self.lateral_noise == LateralNoise::TiedToWheelWhite && self.research.a_y_sigma_held.is_none()
+    }
+
     /// Whether a_y's σ has a floor read off the readings
-    /// ([`ResearchOptions::a_y_floor_from_readings`]): with the tie to the
-    /// white wheel noise, a_y's σ neither held nor given a floor.
+    /// ([`ResearchOptions::a_y_floor_from_readings`]): a_y tied
+    /// ([`EivOptions::a_y_tied`]) and not given a floor.
     pub(crate) fn reads_a_y_floor(&self) -> bool {
-        self.research.a_y_floor_from_readings
-            && self.lateral_noise == LateralNoise::TiedToWheelWhite
-            && self.research.a_y_sigma_held.is_none()
-            && self.research.a_y_sigma_floor.is_none()
+        self.research.a_y_floor_from_readings && self.a_y_tied() && self.research.a_y_sigma_floor.is_none()
     }
 
     /// These options with the readings' findings given: the quantisation
