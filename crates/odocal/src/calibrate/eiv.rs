@@ -87,7 +87,7 @@
 //! error that is odd in the noise and keeps the bias), each re-fitted with
 //! that noise model held, by one scoring step from the fit
 //! (`eiv::BootstrapRefit::OneStep`: within 0.1 σ of replicates fitted to
-//! convergence, docs/performance.md). Their σ includes the correction's Monte Carlo
+//! convergence, crates/odocal-lab/PERFORMANCE.md). Their σ includes the correction's Monte Carlo
 //! error. It runs after the checks, only for a fit that is kept, at
 //! 1.3–1.5× the time of the uncorrected fit. Why c_e and c_d
 //! (docs/validation.md, "The bias correction: c_e and c_d"): on random
@@ -713,7 +713,7 @@ struct Fitted {
 /// most 3.4e-4 of its own σ and the EIV θ by 1e-4 of its σ on that drive.
 /// The filter iterates from it anyway, and the start's iteration count does
 /// not grow with the drive's length, as it does at 1e-12, which only
-/// rounding meets (docs/performance.md).
+/// rounding meets (crates/odocal-lab/PERFORMANCE.md).
 const START_STEP_TOLERANCE: f64 = 1e-3;
 
 /// The start: batch G-N over all segments with every free parameter; only

@@ -705,7 +705,7 @@ fn a_held_noise_level_the_drive_contradicts_is_named() {
 /// instead of `START_STEP_TOLERANCE`): θ within 0.1 σ per parameter —
 /// below the bias correction's own Monte Carlo error (the spread of the
 /// corrected θ over bootstrap seeds, 0.11 σ for t_r and d on a paper
-/// drive, docs/performance.md) — and σ within 1 %. Speed-ups of the default
+/// drive, crates/odocal-lab/PERFORMANCE.md) — and σ within 1 %. Speed-ups of the default
 /// method that move its results are held to this tolerance.
 #[test]
 fn the_default_method_stays_within_its_stated_tolerance_of_the_reference_fit() {

@@ -77,7 +77,7 @@ pub enum BootstrapRefit {
     /// whose converged fit takes one full step (the usual case from θ̂) gets
     /// the same θ to the bit; elsewhere the later steps are left out. What
     /// the bias correction (`EivOptions::correct_bias`) uses; measured
-    /// against converged replicates in docs/performance.md.
+    /// against converged replicates in crates/odocal-lab/PERFORMANCE.md.
     OneStep,
 }
 

@@ -161,7 +161,7 @@
 //! columns only), with the noise fixed 1 + iterations (3); the η term of
 //! the covariance one more per free parameter (4). The bias correction's
 //! replicates take one pass each (one scoring step from the estimate,
-//! [`BootstrapRefit::OneStep`]). docs/performance.md has the timings
+//! [`BootstrapRefit::OneStep`]). docs/performance.md and crates/odocal-lab/PERFORMANCE.md have the timings
 //! (`eiv_speed` in crates/odocal-lab). Results agree with the straightforward dense
 //! filter to ~1e-13 relative (test
 //! `results_match_the_recorded_results_of_the_unoptimised_filter`).

@@ -248,7 +248,7 @@ macro_rules! research_options {
             /// the heading white-noise scale η_5, whose own σ there is
             /// 0.04–0.12, so the σ at a fixed η understates t_r's by up to
             /// 1.8×. It costs about a quarter of the fit's time
-            /// (docs/performance.md). Default true; the bootstrap's replicate
+            /// (crates/odocal-lab/PERFORMANCE.md). Default true; the bootstrap's replicate
             /// fits, which use only θ, turn it off.
             $vis noise_estimate_in_covariance: bool,
             /// How the filter models the error of the measured sideslip β.
@@ -410,7 +410,7 @@ macro_rules! research_options {
             /// of first order). Default false: the passes leave the column
             /// out (one of their 4–10 covariance derivatives), which moved
             /// θ by at most 0.002 σ and σ by at most 0.03 %
-            /// (docs/performance.md). The Cramér–Rao bound propagates it.
+            /// (crates/odocal-lab/PERFORMANCE.md). The Cramér–Rao bound propagates it.
             $vis c_d_covariance_derivative: bool,
             /// How the bias correction ([`EivOptions::correct_bias`]) re-fits
             /// its replicates. Default [`BootstrapRefit::OneStep`]: one
