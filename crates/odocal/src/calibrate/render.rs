@@ -561,16 +561,26 @@ fn three_step_spread(r: &CalibrationReport) -> Option<&BatchSpread> {
 /// The lines on the noise scales at their lower clamp: those the data show
 /// none of, and those released from it at the end of the fit.
 pub(super) fn clamp_lines(out: &mut String, e: &crate::eiv::EivReport) {
-    // A scale at its lower clamp (below 0, without a σ) is a source the data show none of.
-    let absent: Vec<&str> = (0..e.eta.len())
-        .filter(|&j| e.eta[j] < 0.0 && e.eta_sigma[j] == 0.0)
-        .map(|j| crate::eiv::NOISE_SOURCES[j].name())
-        .collect();
+    // A scale at its lower clamp (below 0, without a σ) is a source the data
+    // show none of, but for the heading's white noise where its readings'
+    // own noise is its floor: then the level above is that floor's.
+    let heading = crate::eiv::NoiseSource::HeadingWhite.index();
+    let floored = |j: usize| j == heading && e.heading_noise_floor.is_some();
+    let clamped = |j: usize| e.eta[j] < 0.0 && e.eta_sigma[j] == 0.0;
+    let absent: Vec<&str> =
+        (0..e.eta.len()).filter(|&j| clamped(j) && !floored(j)).map(|j| crate::eiv::NOISE_SOURCES[j].name()).collect();
     if !absent.is_empty() {
         let _ = writeln!(
             out,
             "  at the lower clamp (the data show none of it, so its level above reads 0): {}",
             absent.join(", ")
+        );
+    }
+    if let Some(floor) = e.heading_noise_floor.filter(|_| clamped(heading)) {
+        let _ = writeln!(
+            out,
+            "  at the lower clamp, the heading's white noise is its readings' own ({:.3} mrad, its level above): heading_white",
+            floor * 1e3
         );
     }
     if !e.released.is_empty() {

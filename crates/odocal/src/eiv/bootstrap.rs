@@ -231,8 +231,11 @@ research_pub! {
         // the drive (`report.quantisation_step_from_readings`), not re-read off
         // the replicates' readings, which are counted with the fitted step and
         // so lie on a lattice even where the drive's readings did not; and
-        // a_y's noise floor the drive's (`report.a_y_noise_floor`).
-        let resolved = opts.with_resolved_readings(report.quantisation_step_from_readings, report.a_y_noise_floor);
+        // a_y's noise floor and the heading readings' white noise the drive's
+        // (`report.a_y_noise_floor`, `report.heading_noise_floor`).
+        let resolved = opts
+            .with_resolved_readings(report.quantisation_step_from_readings, report.a_y_noise_floor)
+            .with_heading_floor(report.heading_noise_floor);
         // The replicates' θ is all that is used: no covariance term for η, and
         // no null pass for the innovation checks (their warnings are not
         // read).

@@ -139,6 +139,7 @@ research_pub! {
             timing_s: t0.elapsed().as_secs_f64(),
             quantisation_step_from_readings: q_found,
             a_y_noise_floor: opts.research.a_y_sigma_floor,
+            heading_noise_floor: opts.research.heading_white_sigma_floor.filter(|_| opts.heading_floor_given()),
             time_constant_costs,
         };
         apply_bias_correction(input, &mut report, opts)?;
@@ -201,11 +202,16 @@ fn prepare<'o>(
     }
     let q_found = opts.quantisation_level.step_found(input);
     let a_y_floor = opts.reads_a_y_floor().then(|| input.a_y_sample_noise());
-    let opts = if opts.quantisation_level == QuantisationLevel::FromReadings || a_y_floor.is_some() {
-        Cow::Owned(opts.with_resolved_readings(q_found, a_y_floor))
-    } else {
-        Cow::Borrowed(opts)
-    };
+    // Below R's own heading floor the readings' noise changes nothing.
+    let heading_floor =
+        opts.reads_heading_floor().then(|| input.heading_sample_noise()).filter(|f| *f > filter::HEADING_FLOOR_RAD);
+    let opts =
+        if opts.quantisation_level == QuantisationLevel::FromReadings || a_y_floor.is_some() || heading_floor.is_some()
+        {
+            Cow::Owned(opts.with_resolved_readings(q_found, a_y_floor).with_heading_floor(heading_floor))
+        } else {
+            Cow::Borrowed(opts)
+        };
     Ok((windows, opts, q_found))
 }
 
@@ -349,7 +355,10 @@ fn choose_time_constants<'a>(
     fit: Fit,
     opts: &EivOptions,
 ) -> Result<(Fit, Option<SlowModel<'a>>, Vec<[f64; 3]>)> {
-    let clamped = |j: usize| !opts.eta_held[j] && at_lower_clamp(fit.eta[j], opts.eta_bounds);
+    // The heading's white noise at its clamp with the readings' noise as its
+    // floor is at that floor, not at none: no runaway's symptom.
+    let floored = |j: usize| j == NoiseSource::HeadingWhite.index() && opts.heading_floor_given();
+    let clamped = |j: usize| !opts.eta_held[j] && !floored(j) && at_lower_clamp(fit.eta[j], opts.eta_bounds);
     if opts.fix_noise || !opts.research.choose_time_constants || !(0..NETA).any(clamped) {
         return Ok((fit, None, Vec::new()));
     }
@@ -597,6 +606,9 @@ fn reported_noise(opts: &EivOptions, eta: &[f64; 6]) -> NoiseModel {
     }
     if let Some(floor) = opts.research.a_y_sigma_floor.filter(|_| opts.a_y_tied()) {
         n.lateral_acceleration_sigma_m_per_s2 = n.lateral_acceleration_sigma_m_per_s2.max(floor);
+    }
+    if let Some(floor) = opts.research.heading_white_sigma_floor.filter(|_| opts.heading_floor_given()) {
+        n.heading_white_sigma_rad = n.heading_white_sigma_rad.hypot(floor);
     }
     n
 }

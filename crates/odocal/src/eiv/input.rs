@@ -118,6 +118,53 @@ impl<'a> EivInput<'a> {
     }
 
     research_pub! {
+        /// The white noise of the reference heading's readings, rad: the
+        /// smaller of the robust scales of their second and of their third
+        /// divided differences in time, over the samples where the
+        /// reference was measured (all samples without
+        /// `reference_measured`), within each part. Each divided difference
+        /// is normalised by the root sum of squares of its coefficients, so
+        /// white noise of σ gives differences of σ, whose median absolute
+        /// value is 0.6745 σ. A vehicle's heading is smooth over a few
+        /// reference samples, so the motion's share is small at a
+        /// reference's rates (it grows with the time between samples; the
+        /// smaller of the two orders keeps what remains low). A reference
+        /// that is smoothed, or interpolated between its samples, gives a
+        /// lower value. Zero without four measured samples in a part.
+        fn heading_sample_noise(&self) -> f64 {
+            let ts = self.sample_time_s;
+            let measured = |i: usize| self.reference_measured.is_none_or(|m| m.get(i).copied().unwrap_or(false));
+            let (mut second, mut third) = (Vec::new(), Vec::new());
+            for part in self.parts {
+                let idx: Vec<usize> = part.clone().filter(|&i| i < self.psi.len() && measured(i)).collect();
+                for w in idx.windows(4) {
+                    let t: [f64; 4] = std::array::from_fn(|j| w[j] as f64 * ts);
+                    // Headings relative to the first, wrapped into (−π, π].
+                    let y: [f64; 4] = std::array::from_fn(|j| wrap_angle(self.psi[w[j]] - self.psi[w[0]]));
+                    if let Some(v) = normalised_divided_difference(&t[..3], &y[..3]) {
+                        second.push(v.abs());
+                    }
+                    if let Some(v) = normalised_divided_difference(&t, &y) {
+                        third.push(v.abs());
+                    }
+                }
+            }
+            let scale = |d: &mut Vec<f64>| -> Option<f64> {
+                if d.is_empty() {
+                    return None;
+                }
+                let mid = d.len() / 2;
+                let (_, m, _) = d.select_nth_unstable_by(mid, f64::total_cmp);
+                Some(*m / 0.6745)
+            };
+            match (scale(&mut second), scale(&mut third)) {
+                (Some(a), Some(b)) => a.min(b),
+                _ => 0.0,
+            }
+        }
+    }
+
+    research_pub! {
         /// The white noise of the a_y readings, m/s², from their first
         /// differences within each part: the median absolute difference /
         /// (0.6745·√2). White noise of σ gives differences of σ·√2, whose
@@ -207,4 +254,28 @@ pub(super) fn make_windows(parts: &[Range<usize>], target: usize) -> Vec<Window>
         }
     }
     out
+}
+
+/// An angle wrapped into (−π, π].
+fn wrap_angle(a: f64) -> f64 {
+    use std::f64::consts::{PI, TAU};
+    let r = a.rem_euclid(TAU);
+    if r > PI {
+        r - TAU
+    } else {
+        r
+    }
+}
+
+/// The divided difference `y[t_0, …, t_k]` of the points `(t_i, y_i)`
+/// divided by the root sum of squares of its coefficients on the `y_i`
+/// (`Σ_i c_i y_i` with `c_i = 1/Π_{m≠i}(t_i − t_m)`): white noise of σ on
+/// the `y_i` gives it a standard deviation of σ. `None` for repeated times
+/// or a non-finite value.
+fn normalised_divided_difference(t: &[f64], y: &[f64]) -> Option<f64> {
+    let c: Vec<f64> =
+        (0..t.len()).map(|i| 1.0 / (0..t.len()).filter(|&m| m != i).map(|m| t[i] - t[m]).product::<f64>()).collect();
+    let norm = c.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let v = c.iter().zip(y).map(|(c, y)| c * y).sum::<f64>() / norm;
+    v.is_finite().then_some(v)
 }

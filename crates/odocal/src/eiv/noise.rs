@@ -310,6 +310,7 @@ impl NoiseModel {
                 // η_5 when the heading has its own scale (see `Problem::evaluate`).
                 sq(self.heading_white_sigma_rad) * e[5],
             ],
+            heading_white_floor: 0.0,
             drift: [
                 sq(self.position_drift_sigma_m) * e[4],
                 sq(self.position_drift_sigma_m) * e[4],

@@ -365,6 +365,19 @@ macro_rules! research_options {
             /// the drive's). Default `None`: read off the readings when
             /// [`ResearchOptions::a_y_floor_from_readings`].
             $vis a_y_sigma_floor: Option<f64>,
+            /// Where the reference heading's white noise is estimated, its
+            /// variance is the white noise of the drive's own heading
+            /// readings (their sample noise, `EivReport::heading_noise_floor`)
+            /// plus what the scale η_5 (η_3 when tied) fits: a fit would
+            /// otherwise take the heading as exact where the wheels' noise
+            /// explains its scatter, which leans d and t_r (docs/validation.md,
+            /// "The heading's noise floor"). Default true.
+            $vis heading_floor_from_readings: bool,
+            /// The reference heading's white noise from the readings, rad,
+            /// where it is given rather than read off them (a bootstrap's
+            /// replicates hold the drive's). Default `None`: read off the
+            /// readings when [`ResearchOptions::heading_floor_from_readings`].
+            $vis heading_white_sigma_floor: Option<f64>,
             /// After a fit that fails its checks with a noise scale at its
             /// upper clamp (the runaway of heavy common-mode wheel noise and
             /// slip: the common-mode scale at its clamp, c_e several per cent
@@ -451,6 +464,8 @@ impl Default for ResearchOptions {
             a_y_sigma_held: None,
             a_y_floor_from_readings: true,
             a_y_sigma_floor: None,
+            heading_floor_from_readings: true,
+            heading_white_sigma_floor: None,
             clamp_refit_hold_scale: true,
             choose_time_constants: false,
             clamp_refit_common_mode_eta: None,
@@ -481,6 +496,9 @@ impl ResearchOptions {
         }
         if self.a_y_sigma_floor.is_some_and(|v| !(v.is_finite() && v >= 0.0)) {
             return bad("a_y_sigma_floor", "must be finite and not negative");
+        }
+        if self.heading_white_sigma_floor.is_some_and(|v| !(v.is_finite() && v >= 0.0)) {
+            return bad("heading_white_sigma_floor", "must be finite and not negative");
         }
         if self.clamp_refit_common_mode_eta.is_some_and(|e| !e.is_finite()) {
             return bad("clamp_refit_common_mode_eta", "must be finite");
@@ -578,6 +596,40 @@ impl EivOptions {
     /// ([`EivOptions::a_y_tied`]) and not given a floor.
     pub(crate) fn reads_a_y_floor(&self) -> bool {
         self.research.a_y_floor_from_readings && self.a_y_tied() && self.research.a_y_sigma_floor.is_none()
+    }
+
+    /// Whether the reference heading's white noise is estimated, so that
+    /// the readings' own white noise is part of its variance: the noise is
+    /// not held ([`EivOptions::fix_noise`]), the heading's scale not known
+    /// ([`EivOptions::eta_held`]), nor tied to a known position scale.
+    pub(crate) fn heading_floor_applies(&self) -> bool {
+        let held = |s: NoiseSource| self.eta_held[s.index()];
+        let tied = self.heading_scale == HeadingScale::TiedToPosition;
+        !self.fix_noise && !held(NoiseSource::HeadingWhite) && !(tied && held(NoiseSource::PoseWhite))
+    }
+
+    /// Whether the heading's white noise has the readings' as its floor:
+    /// it applies ([`EivOptions::heading_floor_applies`]) and was given.
+    pub(crate) fn heading_floor_given(&self) -> bool {
+        self.heading_floor_applies() && self.research.heading_white_sigma_floor.is_some()
+    }
+
+    /// Whether the heading's white noise is read off its readings
+    /// ([`ResearchOptions::heading_floor_from_readings`]): it applies
+    /// ([`EivOptions::heading_floor_applies`]) and is not given.
+    pub(crate) fn reads_heading_floor(&self) -> bool {
+        self.research.heading_floor_from_readings
+            && self.heading_floor_applies()
+            && self.research.heading_white_sigma_floor.is_none()
+    }
+
+    /// These options with the heading readings' white noise `floor` given
+    /// where one was read and it applies.
+    pub(crate) fn with_heading_floor(mut self, floor: Option<f64>) -> EivOptions {
+        if floor.is_some() && self.reads_heading_floor() {
+            self.research.heading_white_sigma_floor = floor;
+        }
+        self
     }
 
     /// These options with the readings' findings given: the quantisation

@@ -36,6 +36,10 @@ pub(super) struct Problem<'a> {
     pub(super) a_y_sigma_held: Option<f64>,
     /// a_y's σ never below this while tied (`ResearchOptions::a_y_sigma_floor`), m/s².
     pub(super) a_y_sigma_floor: f64,
+    /// The reference heading readings' white noise, rad, part of the
+    /// heading's white-noise variance where it is estimated
+    /// (`ResearchOptions::heading_white_sigma_floor`).
+    pub(super) heading_white_floor: f64,
     pub(super) heading_separate: bool,
     pub(super) fitted_input: bool,
     pub(super) noise_input_half_width: usize,
@@ -72,6 +76,11 @@ impl<'a> Problem<'a> {
             lateral_stated: opts.lateral_noise == LateralNoise::Stated,
             a_y_sigma_held: opts.research.a_y_sigma_held,
             a_y_sigma_floor: opts.research.a_y_sigma_floor.unwrap_or(0.0),
+            heading_white_floor: opts
+                .research
+                .heading_white_sigma_floor
+                .filter(|_| opts.heading_floor_applies())
+                .unwrap_or(0.0),
             heading_separate: opts.heading_scale == HeadingScale::Separate,
             fitted_input: opts.research.wheel_noise_scale != WheelNoiseScale::MeasuredInput,
             noise_input_half_width: opts.research.wheel_noise_scale.half_width(),
@@ -196,6 +205,7 @@ impl Problem<'_> {
         if v.lateral_scaled && v.a_y_scaled && v.a_y < floor {
             (v.a_y, v.a_y_scaled) = (floor, false);
         }
+        v.heading_white_floor = self.heading_white_floor * self.heading_white_floor;
         if self.sideslip_white {
             // The long-run variance of the Gauss-Markov error as white noise.
             let a = v.a_beta;

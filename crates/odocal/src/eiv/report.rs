@@ -451,6 +451,13 @@ research_pub! {
         /// stated or held.
         #[serde(default)]
         pub a_y_noise_floor: Option<f64>,
+        /// The white noise of the reference heading's readings, rad, where
+        /// the heading's white noise is estimated: part of its variance,
+        /// the scale fitting only what lies above it, so
+        /// [`EivReport::noise`]'s `heading_white_sigma_rad` is never below
+        /// it. None with the noise held or the heading's level known.
+        #[serde(default)]
+        pub heading_noise_floor: Option<f64>,
         /// The wheel noise's correlation times tried and the M each fit
         /// reached, `[τ_c s, τ_w s, M]`: the starting model's and the slow
         /// one's ([`ResearchOptions::choose_time_constants`](crate::eiv::ResearchOptions::choose_time_constants));

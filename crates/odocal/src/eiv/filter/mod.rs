@@ -109,6 +109,9 @@ pub(crate) struct Variances {
     pub wheel: f64,
     /// Pose white variances `[σ_p²·e^{η3}, σ_p²·e^{η3}, σ_ψ²·e^{η5}]` (floors not included).
     pub pose: [f64; 3],
+    /// The reference heading readings' white-noise variance, rad², added
+    /// to the heading's white variance `pose[2]` in R (no η derivative).
+    pub heading_white_floor: f64,
     /// Drift stationary variances `[σ_d², σ_d², σ_dψ²] · e^{η4}`.
     pub drift: [f64; 3],
     /// Lateral acceleration variance (fixed), (m/s²)².

@@ -120,7 +120,9 @@ impl<'a, const S: usize> WindowSetup<'a, S> {
         }
         let pf2 = v.position_floor_m * v.position_floor_m;
         let r_floor = [pf2, pf2, HEADING_FLOOR_RAD * HEADING_FLOOR_RAD];
-        let r_white = Vector3::new(v.pose[0], v.pose[1], v.pose[2]);
+        // The heading readings' own white noise is noise of the data (in
+        // the null too), with no η derivative.
+        let r_white = Vector3::new(v.pose[0], v.pose[1], v.pose[2] + v.heading_white_floor);
         let (h_pos, h_head) = if v.heading_separate { (0.0, v.pose[2]) } else { (v.pose[2], 0.0) };
         let mut base_diag = [1.0; S];
         base_diag[3..IW].copy_from_slice(&[
@@ -562,7 +564,8 @@ fn initial_covariance<const S: usize>(v: &Variances, r_floor: &[f64; 3]) -> (MZ<
     }
     for a in 0..3 {
         let (w, dr) = (v.pose[a], v.drift[a]);
-        p[(a, a)] = w + r_floor[a] + dr;
+        let readings = if a == 2 { v.heading_white_floor } else { 0.0 };
+        p[(a, a)] = w + readings + r_floor[a] + dr;
         // η_3 scales the position white noise, η_5 the heading white noise.
         let white = if a < 2 || !v.heading_separate { 7 } else { 9 };
         dp[white][(a, a)] = w;

@@ -103,6 +103,7 @@ fn recorded_base_options() -> EivOptions {
             sideslip_noise: SideslipNoise::WhiteEquivalent,
             c_d_covariance_derivative: true,
             a_y_floor_from_readings: false,
+            heading_floor_from_readings: false,
             ..spec.research.clone()
         },
         ..spec

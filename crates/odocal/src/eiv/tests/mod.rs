@@ -7,6 +7,7 @@ mod derivatives;
 mod diagnostics;
 mod fingerprints;
 mod heading_drift;
+mod heading_noise;
 mod lateral_noise;
 mod noise_estimation;
 mod quantisation;

@@ -259,6 +259,7 @@ fn eta_step_descends_on_the_noise_free_straight_drive() {
         lateral_stated: false,
         a_y_sigma_held: None,
         a_y_sigma_floor: 0.0,
+        heading_white_floor: 0.0,
         sideslip_white: false,
         heading_separate: true,
         fitted_input: false,
