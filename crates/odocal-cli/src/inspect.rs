@@ -4,9 +4,9 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::output::is_stdout;
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use odocal::output::is_stdout;
 
 use crate::output::Files;
 
