@@ -189,7 +189,7 @@ pub struct ReportInput<'a> {
     /// The true θ, when known (simulated drives).
     pub truth: Option<Theta>,
     /// The true reference extrinsics that go with [`ReportInput::truth`]
-    /// (a simulated drive's [`odocal::SimOptions::reference_mount`]),
+    /// (a simulated drive's [`odocal::sim::SimOptions::reference_mount`]),
     /// with which the truth's Ē_p and errors are computed, as the text and
     /// JSON reports compute them. Default 0: the reference at the rear-axle
     /// centre, where the simulator puts it unless told otherwise.
