@@ -355,7 +355,7 @@ impl std::str::FromStr for ThetaArg {
         }
         // Four numbers, else (text naming an existing file) the settings'
         // reading of θ text says the file's name lacks a parameter file's extension.
-        let theta = odocal::settings::theta_from_json(serde_json::Value::String(s.into()))?;
+        let theta = odocal::Theta::try_from(serde_json::Value::String(s.into()))?;
         Ok(ThetaArg { theta, file: None, pending: None })
     }
 }
@@ -394,7 +394,7 @@ impl ThetaArg {
 /// writes the YAML to stdout.
 pub fn params_out_path(s: &str) -> std::result::Result<PathBuf, String> {
     let path = PathBuf::from(s);
-    if odocal::output::is_stdout(&path) || odocal::ParamFile::is_param_file(&path) {
+    if crate::output::is_stdout(&path) || odocal::ParamFile::is_param_file(&path) {
         Ok(path)
     } else {
         Err("the file name says the format: end it in .yaml or .yml (a ROS 2 parameter file) or .json, or \

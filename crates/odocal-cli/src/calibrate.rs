@@ -4,9 +4,9 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
+use crate::output::is_stdout;
 use anyhow::{Context, Result};
 use clap::Args;
-use odocal::output::is_stdout;
 use odocal::settings::{Caller, ManifestSettings, SettingsAccount};
 use odocal::{
     segment, sim, CalibrationOptions, CalibrationReport, Drive, Extrinsics, Holdout, Method, ParamSet, Theta,

@@ -9,10 +9,10 @@
 
 use std::path::PathBuf;
 
+use crate::output::is_stdout;
 use anyhow::{bail, Result};
 use clap::Args;
 use odocal::compensate::{CompensateOptions, QpOptions, SolverKind};
-use odocal::output::is_stdout;
 use odocal::segment;
 use odocal::settings::ManifestSettings;
 use odocal::{Drive, ExtraColumn, ExtraValues, Extrinsics, HeadingOffsetFit, ValidateOptions};

@@ -169,8 +169,8 @@ pub fn run(a: FollowArgs, bars: &Bars) -> Result<()> {
     let mut db = History::open_to_write(&a.db)?;
     // With an output on stdout (`--json -`, `--params-out -`) the text
     // report goes to stderr, so stdout holds that output alone.
-    let params_to_stdout = a.params_out.as_deref().is_some_and(odocal::output::is_stdout);
-    let text_to_stderr = params_to_stdout || a.json.as_deref().is_some_and(odocal::output::is_stdout);
+    let params_to_stdout = a.params_out.as_deref().is_some_and(crate::output::is_stdout);
+    let text_to_stderr = params_to_stdout || a.json.as_deref().is_some_and(crate::output::is_stdout);
     let mut r = Replayed {
         a: &a,
         bars,

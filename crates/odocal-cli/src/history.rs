@@ -79,7 +79,7 @@ pub fn run(a: HistoryArgs) -> Result<()> {
     if let Some(p) = &a.report {
         let html = odocal_report::history::render_history_html(&h)?;
         write_text(p, &html).with_context(|| format!("--report {}", p.display()))?;
-        if !odocal::output::is_stdout(p) {
+        if !crate::output::is_stdout(p) {
             eprintln!("wrote {}", p.display());
         }
     }

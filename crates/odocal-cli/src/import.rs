@@ -3,9 +3,9 @@
 
 use std::path::PathBuf;
 
+use crate::output::is_stdout;
 use anyhow::Result;
 use clap::Args;
-use odocal::output::is_stdout;
 
 use crate::io::write_json;
 use crate::output::{report_line, write_drive, Files};

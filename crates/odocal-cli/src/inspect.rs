@@ -4,9 +4,9 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::output::is_stdout;
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use odocal::output::is_stdout;
 
 use crate::output::Files;
 
@@ -88,7 +88,7 @@ fn draft(bag: &Path, out: &Path, force: bool) -> Result<()> {
         bail!(exists());
     }
     let file = bag_path_for(bag, (!to_stdout).then_some(out))?;
-    let text = odocal::io::bag::draft_manifest(bag, &file)?;
+    let text = odocal::io::bag::inspect(bag)?.draft_manifest(&file)?;
     if to_stdout {
         print!("{text}");
     } else {

@@ -17,7 +17,7 @@ static IMPORT_WARNINGS: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Ve
 /// the drive came from a manifest (e.g. "c_e is metres per 40360 ticks")
 /// and the manifest's calibration settings (`[noise]`, `[reference]`).
 pub fn load_drive_with_scale(path: &Path) -> Result<(Drive, Option<String>, Option<ManifestSettings>)> {
-    if odocal::output::is_stdout(path) {
+    if crate::output::is_stdout(path) {
         anyhow::bail!(
             "-: a drive is read from a file, not from stdin (its checks, fingerprint and simulator sidecar need \
              one): save it first (`… > drive.csv`) and give that path"

@@ -7,7 +7,7 @@ use std::io::Write;
 use std::path::Path;
 
 use anyhow::{bail, Result};
-use odocal::output::{check_collisions, is_stdout, FileRole};
+use odocal::output::{check_collisions, FileRole};
 
 /// The inputs and outputs of one command, by role.
 #[derive(Default)]
@@ -146,6 +146,13 @@ fn check_folder_takes_files(o: &FileRole, folder: &Path) -> Result<()> {
             folder.display()
         ),
     }
+}
+
+/// True for `-`, which stands for stdout where an output path is asked for,
+/// and for `/dev/stdout`, which names the same (Unix): either keeps the
+/// text report off stdout and counts as the one output there.
+pub fn is_stdout(path: &Path) -> bool {
+    path.as_os_str() == "-" || (cfg!(unix) && path.as_os_str() == "/dev/stdout")
 }
 
 /// Prints a line of the text report: on stdout, or on stderr when an

@@ -3,9 +3,9 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::output::is_stdout;
 use anyhow::Result;
 use clap::Args;
-use odocal::output::is_stdout;
 use odocal::{Theta, ValidateOptions};
 
 use crate::args::ThetaArg;

@@ -304,7 +304,7 @@ impl CalibrationRecord {
         let sigma = ParamSigma::from(<[_; 4]>::from(report.result_sigma()));
         let free = report.options.identify.free;
         let names = |keep: &dyn Fn(odocal::Param) -> bool| -> Vec<String> {
-            THETA_PARAMS.iter().filter(|p| keep(**p)).map(|p| p.name().to_string()).collect()
+            THETA_PARAMS.iter().filter(|p| keep(**p)).map(|p| p.to_string()).collect()
         };
         let held = names(&|p| !free.contains(p));
         let unobservable = names(&|p| free.contains(p) && report.observability.unobservable.contains(p));

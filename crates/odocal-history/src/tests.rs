@@ -264,8 +264,8 @@ fn a_version_one_file_is_migrated_and_keeps_its_rows() {
 #[test]
 fn a_calibration_records_whether_its_sigma_is_the_models_alone() {
     let record_of = |km: f64| {
-        let sim = odocal::SimOptions { length_km: km, ..odocal::SimOptions::paper(1) };
-        let drive = odocal::simulate(&sim).expect("sim").drive;
+        let sim = odocal::sim::SimOptions { length_km: km, ..odocal::sim::SimOptions::paper(1) };
+        let drive = odocal::sim::simulate(&sim).expect("sim").drive;
         let opts = odocal::CalibrationOptions { method: "batch-gn".parse().expect("method"), ..Default::default() };
         let r = odocal::calibrate(&drive, &opts).expect("calibrate");
         let rec = CalibrationRecord::of_report("van", "f", Vec::new(), (0.0, 1.0), &r);
@@ -294,8 +294,8 @@ fn a_calibration_records_whether_its_sigma_is_the_models_alone() {
 fn follow_does_not_start_from_a_model_only_sigma() {
     let dir = tempfile::tempdir().expect("tempdir");
     let csv = dir.path().join("a.csv");
-    let sim = odocal::SimOptions { length_km: 1.0, ..odocal::SimOptions::paper(4) };
-    odocal::simulate(&sim).expect("sim").drive.write_csv(&csv).expect("csv");
+    let sim = odocal::sim::SimOptions { length_km: 1.0, ..odocal::sim::SimOptions::paper(4) };
+    odocal::sim::simulate(&sim).expect("sim").drive.write_csv(&csv).expect("csv");
     let truth = Theta::SIM_DEFAULT_TRUE;
     let tight = Theta { c_e: 1e-6, c_d: 1e-7, t_r: 1e-5, d: 1e-7 };
     let follow_from = |name: &str, sigma: Option<Theta>, model_only: Option<bool>| {
@@ -425,7 +425,7 @@ fn a_rejected_row_is_listed_but_neither_flagged_nor_pooled() {
     assert!(db.vehicle("van", Some(&[ids[1], ids[3]])).expect("history").pooled.is_none());
     // `follow` starts from the most recent row that is not rejected.
     let csv = dir.path().join("d.csv");
-    odocal::simulate(&odocal::SimOptions { length_km: 1.0, ..odocal::SimOptions::noise_free(3) })
+    odocal::sim::simulate(&odocal::sim::SimOptions { length_km: 1.0, ..odocal::sim::SimOptions::noise_free(3) })
         .expect("sim")
         .drive
         .write_csv(&csv)
@@ -468,9 +468,10 @@ fn a_joint_calibration_stands_for_each_of_its_drives() {
 fn follow_skips_a_drive_the_history_holds_a_calibration_of() {
     let dir = tempfile::tempdir().expect("tempdir");
     let csv = dir.path().join("a.csv");
-    let drive = odocal::simulate(&odocal::SimOptions { length_km: 1.0, ..odocal::SimOptions::noise_free(2) })
-        .expect("sim")
-        .drive;
+    let drive =
+        odocal::sim::simulate(&odocal::sim::SimOptions { length_km: 1.0, ..odocal::sim::SimOptions::noise_free(2) })
+            .expect("sim")
+            .drive;
     drive.write_csv(&csv).expect("csv");
     let fingerprint = odocal::Drive::read_csv(&csv).expect("read").0.fingerprint();
     let mut db = History::open(dir.path().join("h.sqlite")).expect("open");
@@ -499,7 +500,9 @@ fn follow_skips_a_drive_the_history_holds_a_calibration_of() {
 fn follow_refuses_a_drive_with_a_lost_signal() {
     let dir = tempfile::tempdir().expect("tempdir");
     let sim = |seed| {
-        odocal::simulate(&odocal::SimOptions { length_km: 3.0, ..odocal::SimOptions::paper(seed) }).expect("sim").drive
+        odocal::sim::simulate(&odocal::sim::SimOptions { length_km: 3.0, ..odocal::sim::SimOptions::paper(seed) })
+            .expect("sim")
+            .drive
     };
     let good = dir.path().join("good.csv");
     sim(1).write_csv(&good).expect("csv");
@@ -599,8 +602,8 @@ fn an_unobservable_parameter_is_not_pooled() {
 /// free parameters and marks `d` held.
 #[test]
 fn a_calibration_with_a_held_parameter_records_the_others_sigma() {
-    let sim = odocal::SimOptions { length_km: 3.0, ..odocal::SimOptions::paper(1) };
-    let drive = odocal::simulate(&sim).expect("sim").drive;
+    let sim = odocal::sim::SimOptions { length_km: 3.0, ..odocal::sim::SimOptions::paper(1) };
+    let drive = odocal::sim::simulate(&sim).expect("sim").drive;
     let mut opts = odocal::CalibrationOptions { method: "batch-gn".parse().expect("method"), ..Default::default() };
     opts.identify.free = "c_e,c_d,t_r".parse().expect("free");
     let r = odocal::calibrate(&drive, &opts).expect("calibrate");
@@ -720,11 +723,14 @@ fn concurrent_follows_decide_each_drive_once() {
     let drives: Vec<std::path::PathBuf> = (1..=2)
         .map(|seed| {
             let csv = dir.path().join(format!("d{seed}.csv"));
-            odocal::simulate(&odocal::SimOptions { length_km: 1.5, ..odocal::SimOptions::noise_free(seed) })
-                .expect("sim")
-                .drive
-                .write_csv(&csv)
-                .expect("csv");
+            odocal::sim::simulate(&odocal::sim::SimOptions {
+                length_km: 1.5,
+                ..odocal::sim::SimOptions::noise_free(seed)
+            })
+            .expect("sim")
+            .drive
+            .write_csv(&csv)
+            .expect("csv");
             csv
         })
         .collect();
@@ -898,8 +904,8 @@ fn reading_a_history_changes_nothing() {
 fn follow_does_not_start_from_the_sigma_of_a_parameter_not_observable() {
     let dir = tempfile::tempdir().expect("tempdir");
     let csv = dir.path().join("a.csv");
-    let sim = odocal::SimOptions { length_km: 1.0, ..odocal::SimOptions::paper(4) };
-    odocal::simulate(&sim).expect("sim").drive.write_csv(&csv).expect("csv");
+    let sim = odocal::sim::SimOptions { length_km: 1.0, ..odocal::sim::SimOptions::paper(4) };
+    odocal::sim::simulate(&sim).expect("sim").drive.write_csv(&csv).expect("csv");
     let truth = Theta::SIM_DEFAULT_TRUE;
     let tight = Theta { c_e: 1e-6, c_d: 1e-7, t_r: 1e-5, d: 1e-7 };
     let follow_from = |name: &str, sigma: Option<Theta>, unobservable: &[&str]| {
@@ -1011,7 +1017,7 @@ fn follow_does_not_start_from_a_biased_row() {
         panic!("not new");
     };
     let csv = dir.path().join("d.csv");
-    odocal::simulate(&odocal::SimOptions { length_km: 1.0, ..odocal::SimOptions::noise_free(3) })
+    odocal::sim::simulate(&odocal::sim::SimOptions { length_km: 1.0, ..odocal::sim::SimOptions::noise_free(3) })
         .expect("sim")
         .drive
         .write_csv(&csv)

@@ -72,7 +72,6 @@ use serde::{Deserialize, Serialize};
 
 use odocal::identify::extrinsics_normal_equations;
 use odocal::io::Replay;
-use odocal::model::wrap_angle;
 use odocal::segment::SegmentData;
 use odocal::{segment_position_error_with, Drive, Error, Extrinsics, Result, Signals, StreamChunk, Theta};
 
@@ -986,6 +985,16 @@ impl Calibrator {
         }
         Ok(())
     }
+}
+
+/// Wraps an angle to (−π, π].
+fn wrap_angle(a: f64) -> f64 {
+    let two_pi = 2.0 * std::f64::consts::PI;
+    let mut r = a.rem_euclid(two_pi);
+    if r > std::f64::consts::PI {
+        r -= two_pi;
+    }
+    r
 }
 
 #[cfg(test)]

@@ -134,7 +134,7 @@ pub(crate) fn extract_theta(v: &Bound<'_, PyAny>) -> PyResult<Theta> {
             "θ: {at} is a bool, not a number (True and False are not values of θ); give numbers"
         )));
     }
-    odocal::settings::theta_from_json(json).map_err(lib_err)
+    odocal::Theta::try_from(json).map_err(lib_err)
 }
 
 /// The σ of θ (`sigma0=`): a dict `{"c_e", "c_d", "t_r", "d"}` or four

@@ -198,7 +198,7 @@ impl PyHistory {
             }
             // θ read as every θ argument (a dict of the four, or four numbers; no other key).
             if let Some(t) = m.get_mut("theta") {
-                *t = json(&odocal::settings::theta_from_json(t.take()).map_err(lib_err)?)?;
+                *t = json(&odocal::Theta::try_from(t.take()).map_err(lib_err)?)?;
             }
             if let Some(s) = m.get_mut("sigma") {
                 *s = record_sigma(s.take()).map_err(invalid)?;

@@ -144,7 +144,7 @@ impl ParamRow {
             .map(|(i, p)| {
                 let (unit, scale) = if i == 2 { ("mrad", 1e3) } else { ("m", 1.0) };
                 ParamRow {
-                    name: p.name().to_string(),
+                    name: p.to_string(),
                     unit: unit.to_string(),
                     scale,
                     initial: init[i],
@@ -189,7 +189,7 @@ pub struct ReportInput<'a> {
     /// The true θ, when known (simulated drives).
     pub truth: Option<Theta>,
     /// The true reference extrinsics that go with [`ReportInput::truth`]
-    /// (a simulated drive's [`odocal::SimOptions::reference_mount`]),
+    /// (a simulated drive's [`odocal::sim::SimOptions::reference_mount`]),
     /// with which the truth's Ē_p and errors are computed, as the text and
     /// JSON reports compute them. Default 0: the reference at the rear-axle
     /// centre, where the simulator puts it unless told otherwise.
@@ -280,7 +280,7 @@ impl<'a> ReportInput<'a> {
         // file marks them (`*_observable: false`).
         let free = r.options.identify.free;
         for p in r.observability.unobservable.into_iter().filter(|p| free.contains(*p)) {
-            params.iter_mut().filter(|row| row.name == p.name()).for_each(|row| row.not_observable = true);
+            params.iter_mut().filter(|row| row.name == p.to_string()).for_each(|row| row.not_observable = true);
         }
         let batches = step_one_batches(r);
         ReportInput {

@@ -33,7 +33,7 @@
 //!
 //! The crate root holds what a program needs: a [`Drive`] (read with
 //! [`load_drive`] or [`import`], built with [`DriveBuilder`], or
-//! [`simulate`]d), [`calibrate()`] (or [`Calibration`] for held-out data,
+//! simulated with [`sim::simulate`]), [`calibrate()`] (or [`Calibration`] for held-out data,
 //! validation drives and progress) with [`CalibrationOptions`] and the
 //! [`CalibrationReport`] with its [`Verdict`], [`validate()`] for a θ on a
 //! drive, [`ParamFile`] to write and read the result, and [`Error`].
@@ -170,7 +170,7 @@ pub use model::{
     param::ParamSet, Theta,
 };
 pub use progress::Progress;
-// Drives: building, importing, simulating; parameter files. `segment` is
+// Drives: building and importing; parameter files. `segment` is
 // an expert module (its docs say for whom).
 pub use drive::{
     fingerprint::refuse_duplicates, segment, stream::StreamChunk, Drive, DriveBuilder, ExtraColumn, ExtraValues,
@@ -181,7 +181,6 @@ pub use io::import::{
     wheel_scale_mismatch, ImportedDrive,
 };
 pub use io::param_file::{ParamFile, ParamMapping};
-pub use sim::{simulate, NoiseOptions, SimOptions, SimOutput, SimSidecar};
 // Calibration: the entry points, the options, the report. `settings` is an
 // expert module.
 pub use calibrate::{

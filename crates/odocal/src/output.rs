@@ -69,9 +69,9 @@ use std::path::{Component, Path, PathBuf};
 use crate::error::{Error, Result};
 
 /// True for `-`, which stands for stdout where an output path is asked for,
-/// and for `/dev/stdout`, which names the same (Unix): either keeps the
-/// text report off stdout and counts as the one output there.
-pub fn is_stdout(path: &Path) -> bool {
+/// and for `/dev/stdout`, which names the same (Unix): never a file to
+/// compare or to write atomically.
+pub(crate) fn is_stdout(path: &Path) -> bool {
     path.as_os_str() == "-" || (cfg!(unix) && path.as_os_str() == "/dev/stdout")
 }
 

@@ -55,10 +55,10 @@ fn every_mean_position_error_on_the_page_is_the_json_s() {
     let dir = tempfile::tempdir().expect("tmp");
     let plain = simulated_drive(dir.path(), "plain.csv", &["--length-km", "3", "--seed", "1"]);
     let mount = odocal::Extrinsics { heading_offset: 0.0188, ..Default::default() };
-    let sim = odocal::sim::simulate(&odocal::SimOptions {
+    let sim = odocal::sim::simulate(&odocal::sim::SimOptions {
         length_km: 3.0,
         reference_mount: mount,
-        ..odocal::SimOptions::paper(4)
+        ..odocal::sim::SimOptions::paper(4)
     })
     .expect("simulate");
     let mounted = dir.path().join("mounted.csv");

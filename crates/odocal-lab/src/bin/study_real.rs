@@ -646,9 +646,9 @@ fn rav4(methods: &[String], md: &mut String) -> Res<Value> {
             };
             let wall = t.elapsed().as_secs_f64();
             let sigma = result_sigma(&r);
-            let mut held: Vec<String> = r.auto_fixed.iter().map(|p| p.name().to_string()).collect();
+            let mut held: Vec<String> = r.auto_fixed.iter().map(|p| p.to_string()).collect();
             if let Some(d) = eiv_part(&r) {
-                held.extend(d.start_held.iter().map(|p| format!("{} (start)", p.name())));
+                held.extend(d.start_held.iter().map(|p| format!("{p} (start)")));
             }
             let fb = eiv_fallback(&r);
             if let Some((row, v)) = eiv_detail_row(m, label, &r) {
@@ -689,9 +689,9 @@ fn rav4(methods: &[String], md: &mut String) -> Res<Value> {
                 "extrinsics": r.extrinsics.as_ref().map(|e| e.value),
                 "sigma": sigma,
                 "sigma_source": r.result_sigma().source,
-                "unobservable": r.observability.unobservable.into_iter().map(|p| p.name()).collect::<Vec<_>>(),
+                "unobservable": r.observability.unobservable.into_iter().map(|p| p.to_string()).collect::<Vec<_>>(),
                 "rcond": r.observability.rcond,
-                "auto_fixed": r.auto_fixed.iter().map(|p| p.name()).collect::<Vec<_>>(),
+                "auto_fixed": r.auto_fixed.iter().map(|p| p.to_string()).collect::<Vec<_>>(),
                 "held": held,
                 "verdict": verdict_json(&r),
                 "mean_position_error_m": r.validation.mean_position_error_m,

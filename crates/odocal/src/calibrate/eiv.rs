@@ -463,9 +463,8 @@ fn mask(free: ParamSet) -> [bool; 4] {
     std::array::from_fn(|i| Param::from_index(i).is_some_and(|p| free.contains(p)))
 }
 
-fn param_set<T: std::fmt::Display>(params: &[T]) -> ParamSet {
-    // eiv::Parameter displays as the θ name.
-    params.iter().filter_map(|p| p.to_string().parse::<Param>().ok()).collect()
+fn param_set(params: &[Param]) -> ParamSet {
+    params.iter().copied().collect()
 }
 
 impl Estimator for EivMethodOptions {

@@ -312,7 +312,7 @@ impl Holdout {
 ///
 /// ```
 /// # fn main() -> Result<(), odocal::Error> {
-/// use odocal::{calibrate, simulate, CalibrationOptions, Method, SimOptions, ThreeStepOptions};
+/// use odocal::{calibrate, CalibrationOptions, Method, ThreeStepOptions, sim::{simulate, SimOptions}};
 /// let drive = simulate(&SimOptions { length_km: 3.0, ..SimOptions::paper(1) })?.drive;
 /// let method = Method::ThreeStep(ThreeStepOptions { initial_batches: 8, ..Default::default() });
 /// let report = calibrate(&drive, &CalibrationOptions { method, ..Default::default() })?;
@@ -330,7 +330,7 @@ pub fn calibrate(drive: &Drive, opts: &CalibrationOptions) -> Result<Calibration
 ///
 /// ```
 /// # fn main() -> Result<(), odocal::Error> {
-/// use odocal::{simulate, Calibration, CalibrationOptions, Holdout, Method, Progress, SimOptions};
+/// use odocal::{Calibration, CalibrationOptions, Holdout, Method, Progress, sim::{simulate, SimOptions}};
 /// let drive = simulate(&SimOptions { length_km: 4.0, ..SimOptions::paper(1) })?.drive;
 /// let opts = CalibrationOptions { method: "batch-gn".parse::<Method>()?, ..Default::default() };
 /// let progress = |p: Progress| eprintln!("{p:?}");

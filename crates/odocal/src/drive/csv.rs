@@ -453,7 +453,7 @@ impl Drive {
     ///
     /// ```
     /// # fn main() -> Result<(), Box<dyn std::error::Error>> {
-    /// use odocal::{simulate, Drive, SimOptions};
+    /// use odocal::{Drive, sim::{simulate, SimOptions}};
     /// let drive = simulate(&SimOptions { length_km: 0.5, ..SimOptions::paper(1) })?.drive;
     /// let dir = tempfile::tempdir()?;
     /// let path = dir.path().join("drive.csv");

@@ -14,10 +14,11 @@ use super::scoring::scoring_pass;
 use super::steps::{at_lower_clamp, at_upper_clamp, observability_of, reentering_sources, theta_step};
 use super::{
     apply_bias_correction, first_order_bias, CovarianceEstimate, CovarianceMode, EivInput, EivOptions, EivReport,
-    EivWarning, HalvesCheck, HeadingScale, InnovationNull, LateralNoise, NoiseModel, NoiseSource, Parameter,
-    PassReport, PoseComponent, QuantisationLevel, Termination, Window, WindowDiagnostics, NOISE_SOURCES, PARAMETERS,
+    EivWarning, HalvesCheck, HeadingScale, InnovationNull, LateralNoise, NoiseModel, NoiseSource, PassReport,
+    PoseComponent, QuantisationLevel, Termination, Window, WindowDiagnostics, NOISE_SOURCES, PARAMETERS,
 };
 use crate::error::{Error, Result};
+use crate::model::param::Param;
 use crate::model::Theta;
 
 research_pub! {
@@ -221,7 +222,7 @@ struct Fit {
     eta: [f64; 6],
     eta_sigma: [f64; 6],
     free: [bool; 4],
-    unobservable: Vec<Parameter>,
+    unobservable: Vec<Param>,
     /// The ratios that decided `unobservable` ([`EivObservability::start_sigma_over_resolution`]).
     start_ratios: Option<[f64; 4]>,
     passes: Vec<PassReport>,

@@ -256,7 +256,7 @@ pub use {
     modelling::{BiasCorrection, HeadingScale, LateralNoise, QuantisationLevel, QuantisationModel},
     noise::{NoiseModel, NoiseSource},
     options::EivOptions,
-    report::{EivWarning, Parameter, PoseComponent, Termination},
+    report::{EivWarning, PoseComponent, Termination},
 };
 // The estimator itself, its report and the modelling alternatives of
 // `EivOptions::research`: public with the `research` feature (the studies of

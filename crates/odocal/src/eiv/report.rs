@@ -3,34 +3,11 @@
 use serde::{Deserialize, Serialize};
 
 use super::{FirstOrderBias, HeadingDriftTest, NoiseModel, NoiseSource, Window};
+use crate::model::param::Param;
 use crate::model::Theta;
 
-/// One of the four calibrated parameters.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub enum Parameter {
-    /// c_e.
-    #[serde(rename = "c_e")]
-    CE,
-    /// c_d.
-    #[serde(rename = "c_d")]
-    CD,
-    /// t_r.
-    #[serde(rename = "t_r")]
-    TR,
-    /// d.
-    #[serde(rename = "d")]
-    D,
-}
-
-/// The parameters in θ order.
-pub(crate) const PARAMETERS: [Parameter; 4] = [Parameter::CE, Parameter::CD, Parameter::TR, Parameter::D];
-
-impl std::fmt::Display for Parameter {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let i = PARAMETERS.iter().position(|p| p == self).unwrap_or(0);
-        f.write_str(crate::model::THETA_NAMES[i])
-    }
-}
+/// The parameters of θ in θ order.
+pub(crate) const PARAMETERS: [Param; 4] = Param::THETA;
 
 /// Why a scoring pass stopped. Reaching the iteration limit is an outcome, not an error.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -151,7 +128,7 @@ pub enum EivWarning {
     /// θ from the two halves of the windows differs by more than its uncertainty allows.
     UnstableAcrossHalves {
         /// The parameter.
-        parameter: Parameter,
+        parameter: Param,
         /// Difference over its standard deviation.
         z: f64,
         /// The limit.
@@ -165,7 +142,7 @@ pub enum EivWarning {
     /// Parameters the data cannot determine; held at their starting value.
     Unobservable {
         /// The parameters.
-        parameters: Vec<Parameter>,
+        parameters: Vec<Param>,
     },
 }
 
@@ -227,9 +204,9 @@ research_pub! {
         /// Parameters held fixed because the data cannot determine them:
         /// σ over resolution above 1 at the start
         /// ([`EivObservability::start_sigma_over_resolution`]).
-        pub unobservable: Vec<Parameter>,
+        pub unobservable: Vec<Param>,
         /// Parameters in a near-collinear combination of the free ones.
-        pub collinear: Vec<Parameter>,
+        pub collinear: Vec<Param>,
     }
 }
 

@@ -5,8 +5,9 @@ use super::problem::{theta_add, Evaluation, Problem};
 use super::steps::{
     damp_eta_step, eta_add, eta_step, fix_unobservable, score_norm, secant_eta_factor, theta_step, EtaStep,
 };
-use super::{CovarianceMode, EivOptions, IterationRecord, Parameter, PassReport, Termination};
+use super::{CovarianceMode, EivOptions, IterationRecord, PassReport, Termination};
 use crate::error::Result;
+use crate::model::param::Param;
 use crate::model::Theta;
 
 pub(super) struct PassOutcome {
@@ -15,7 +16,7 @@ pub(super) struct PassOutcome {
     pub(super) eval: Evaluation,
     pub(super) report: PassReport,
     pub(super) free: [bool; 4],
-    pub(super) unobservable: Vec<Parameter>,
+    pub(super) unobservable: Vec<Param>,
     /// The σ-over-resolution ratios that decided `unobservable` (the first
     /// pass only).
     pub(super) start_ratios: Option<[f64; 4]>,
@@ -176,7 +177,7 @@ struct Pass<'p> {
     opts: &'p EivOptions,
     theta_ref: Theta,
     free: [bool; 4],
-    unobservable: Vec<Parameter>,
+    unobservable: Vec<Param>,
     start_ratios: Option<[f64; 4]>,
     follows: bool,
     eta_derivs: bool,

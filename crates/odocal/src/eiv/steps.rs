@@ -4,8 +4,9 @@ use nalgebra::{DMatrix, DVector, Matrix4, SymmetricEigen};
 
 use super::filter::{WindowSums, NETA};
 use super::problem::free_inverse;
-use super::{EivObservability, EivOptions, Parameter, PARAMETERS};
+use super::{EivObservability, EivOptions, PARAMETERS};
 use crate::error::{Error, Result};
+use crate::model::param::Param;
 
 /// The scoring step of θ over the free parameters and the standard deviations.
 pub(super) fn theta_step(sums: &WindowSums, free: &[bool; 4], follows: bool) -> Result<([f64; 4], [f64; 4])> {
@@ -270,7 +271,7 @@ pub(super) fn eta_add(eta: &[f64; 6], step: &[f64; 6], lambda: f64, bounds: [f64
 pub(super) fn observability_of(
     h: &Matrix4<f64>,
     free: &[bool; 4],
-    (unobservable, start): (Vec<Parameter>, Option<[f64; 4]>),
+    (unobservable, start): (Vec<Param>, Option<[f64; 4]>),
     opts: &EivOptions,
 ) -> EivObservability {
     let idx: Vec<usize> = (0..4).filter(|i| free[*i]).collect();
@@ -326,7 +327,7 @@ pub(super) fn fix_unobservable(
     h: &Matrix4<f64>,
     free: &[bool; 4],
     opts: &EivOptions,
-) -> ([bool; 4], Vec<Parameter>, [f64; 4]) {
+) -> ([bool; 4], Vec<Param>, [f64; 4]) {
     let mut free = *free;
     let mut fixed = Vec::new();
     let mut ratios = [0.0; 4];

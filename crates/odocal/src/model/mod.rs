@@ -324,15 +324,17 @@ research_pub! {
     }
 }
 
-/// Wraps an angle to (−π, π].
-#[inline]
-pub fn wrap_angle(a: f64) -> f64 {
-    let two_pi = 2.0 * std::f64::consts::PI;
-    let mut r = a.rem_euclid(two_pi);
-    if r > std::f64::consts::PI {
-        r -= two_pi;
+research_pub! {
+    /// Wraps an angle to (−π, π].
+    #[inline]
+    fn wrap_angle(a: f64) -> f64 {
+        let two_pi = 2.0 * std::f64::consts::PI;
+        let mut r = a.rem_euclid(two_pi);
+        if r > std::f64::consts::PI {
+            r -= two_pi;
+        }
+        r
     }
-    r
 }
 
 #[cfg(test)]

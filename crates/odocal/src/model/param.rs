@@ -55,8 +55,9 @@ impl Param {
     pub(crate) const ALL: [Param; 7] =
         [Param::CE, Param::CD, Param::TR, Param::D, Param::LeverX, Param::LeverY, Param::HeadingOffset];
 
-    /// The name used in reports and on the command line (`"c_e"`, …).
-    pub const fn name(self) -> &'static str {
+    /// The name used in reports and on the command line (`"c_e"`, …; outside
+    /// the crate: `Display`).
+    pub(crate) const fn name(self) -> &'static str {
         match self {
             Param::CE => "c_e",
             Param::CD => "c_d",

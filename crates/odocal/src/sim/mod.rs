@@ -1,8 +1,8 @@
 //! The drive simulator (SPEC §8): city and suburb routes with a known true θ.
 //!
-//! Expert API beyond [`crate::simulate`] and [`crate::SimOptions`] (at the
-//! root): the route, speed, vehicle and noise settings and the sidecar file,
-//! for studies on drives with a known θ.
+//! [`simulate`] with [`SimOptions`] makes a drive; the route, speed,
+//! vehicle and noise settings and the sidecar file are here too, for
+//! studies on drives with a known θ.
 //!
 //! Real logs of wheel rotations with a GNSS/INS reference rarely are public,
 //! and they never carry the true parameters. [`simulate`] makes drives that

@@ -2,7 +2,11 @@
 //! their range are refused with an error naming what is wrong, never a
 //! panic or a silently wrong result.
 
-use odocal::{calibrate, simulate, validate, CalibrationOptions, Drive, Error, SimOptions, Theta, ValidateOptions};
+use odocal::{
+    calibrate,
+    sim::{simulate, SimOptions},
+    validate, CalibrationOptions, Drive, Error, Theta, ValidateOptions,
+};
 
 fn drive() -> Drive {
     simulate(&SimOptions { length_km: 1.0, ..SimOptions::noise_free(1) }).expect("simulate").drive

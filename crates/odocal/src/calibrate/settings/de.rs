@@ -213,25 +213,31 @@ pub(super) fn theta<'de, D: Deserializer<'de>>(d: D) -> std::result::Result<Opti
     d.deserialize_any(ThetaVisitor).map(Some)
 }
 
-/// θ from JSON in the forms the `theta0` setting takes (`"c_e,c_d,t_r,d"`,
-/// four numbers, an object of the four, or the path of a parameter file),
-/// each checked as `--theta` is (finite, within the physical limits of
+/// θ from JSON in the forms the `theta0` setting, `--theta` and Python's
+/// θ arguments take (`"c_e,c_d,t_r,d"`, four numbers, an object of the
+/// four, or the path of a parameter file), each checked as `--theta` is
+/// (finite, within the physical limits of
 /// [`Theta::check_physical_limits`]; an object's key other than the four
 /// is refused).
 ///
 /// # Errors
 /// [`Error::InvalidTheta`] for a value of another form, else the parser's
 /// or the check's error.
-pub fn theta_from_json(value: serde_json::Value) -> Result<Theta> {
-    let bad = |e: serde_json::Error| Error::InvalidTheta(format!("{e}; give {THETA_FORMS}"));
-    Ok(match value {
-        serde_json::Value::String(s) => theta_from_text(&s)?,
-        v @ serde_json::Value::Array(_) => theta_from_numbers(&serde_json::from_value::<Vec<f64>>(v).map_err(bad)?)?,
-        v @ serde_json::Value::Object(_) => {
-            theta_from_fields(&serde_json::from_value::<BTreeMap<String, f64>>(v).map_err(bad)?)?
-        }
-        v => return Err(Error::InvalidTheta(format!("{v}: give {THETA_FORMS}"))),
-    })
+impl TryFrom<serde_json::Value> for Theta {
+    type Error = Error;
+    fn try_from(value: serde_json::Value) -> Result<Theta> {
+        let bad = |e: serde_json::Error| Error::InvalidTheta(format!("{e}; give {THETA_FORMS}"));
+        Ok(match value {
+            serde_json::Value::String(s) => theta_from_text(&s)?,
+            v @ serde_json::Value::Array(_) => {
+                theta_from_numbers(&serde_json::from_value::<Vec<f64>>(v).map_err(bad)?)?
+            }
+            v @ serde_json::Value::Object(_) => {
+                theta_from_fields(&serde_json::from_value::<BTreeMap<String, f64>>(v).map_err(bad)?)?
+            }
+            v => return Err(Error::InvalidTheta(format!("{v}: give {THETA_FORMS}"))),
+        })
+    }
 }
 
 /// A seed: an integer 0 … 2⁶⁴ − 1 (`seed`, `bootstrap_seed`). Anything

@@ -68,7 +68,6 @@ pub const MAX_THREADS: usize = 1024;
 #[cfg(test)]
 mod tests;
 
-pub use de::theta_from_json;
 pub use manifest::{import_report_json, ManifestSettings};
 pub use resolve::{Caller, Resolved, SettingsAccount};
 

@@ -83,29 +83,29 @@ fn bad_values_and_keys_name_the_key() {
     assert!(e(json!({"batches": "x"})).starts_with("invalid option `batches`: invalid type: string"));
     assert!(e(json!({"theta0": [1, 2]})).contains("expected 4 values c_e, c_d, t_r, d, got 2"));
     assert!(e(json!({"batchez": 3})).starts_with("invalid option `settings`: unknown field `batchez`, expected one of"));
-    assert_eq!(theta_from_json(json!("2.0,0,1.6,0")).expect("θ"), Theta::PAPER_INITIAL);
-    assert!(theta_from_json(json!([2.0, 0.0, -1.0, 0.0])).is_err(), "checked");
-    assert!(theta_from_json(json!(true)).expect_err("form").to_string().contains("give θ as"));
+    assert_eq!(Theta::try_from(json!("2.0,0,1.6,0")).expect("θ"), Theta::PAPER_INITIAL);
+    assert!(Theta::try_from(json!([2.0, 0.0, -1.0, 0.0])).is_err(), "checked");
+    assert!(Theta::try_from(json!(true)).expect_err("form").to_string().contains("give θ as"));
 }
 
 #[test]
 fn a_theta_table_is_checked_as_the_other_forms() {
     let e = |v| Settings::from_json(v).expect_err("bad").to_string();
     let paper = json!({"c_e": 2.0, "c_d": 0.0, "t_r": 1.6, "d": 0.0});
-    assert_eq!(theta_from_json(paper.clone()).expect("θ"), Theta::PAPER_INITIAL);
+    assert_eq!(Theta::try_from(paper.clone()).expect("θ"), Theta::PAPER_INITIAL);
     let mut typo = paper.clone();
     typo["x"] = json!(1.0);
-    let m = theta_from_json(typo.clone()).expect_err("unknown key").to_string();
+    let m = Theta::try_from(typo.clone()).expect_err("unknown key").to_string();
     assert!(m.contains("unknown key 'x'"), "{m}");
     assert!(e(json!({ "theta0": typo })).contains("unknown key 'x'"), "the setting alike");
     let toml_typo: std::result::Result<Settings, _> =
         toml::from_str("theta0 = {c_e = 2.0, c_d = 0, t_r = 1.6, d = 0, x = 1}");
     assert!(toml_typo.expect_err("manifest").to_string().contains("unknown key 'x'"));
     let missing = json!({"c_e": 2.0, "c_d": 0.0, "t_r": 1.6});
-    assert!(theta_from_json(missing).expect_err("missing").to_string().contains("missing d"));
+    assert!(Theta::try_from(missing).expect_err("missing").to_string().contains("missing d"));
     // The physical limits, as for "c_e,c_d,t_r,d" and four numbers.
     let huge = json!({"c_e": 2000.0, "c_d": 0.0, "t_r": 1.6, "d": 0.0});
-    let m = theta_from_json(huge.clone()).expect_err("c_e 2000 m").to_string();
+    let m = Theta::try_from(huge.clone()).expect_err("c_e 2000 m").to_string();
     assert!(m.contains("c_e = 2000 m is outside 0.05 … 20 m"), "{m}");
     assert!(e(json!({ "theta0": huge })).contains("is outside 0.05 … 20 m"), "the setting alike");
 }

@@ -8,6 +8,7 @@ use crate::eiv::problem::Problem;
 use crate::eiv::steps::eta_add;
 use crate::eiv::steps::eta_step;
 use crate::eiv::*;
+use crate::model::param::Param;
 use crate::sim::{simulate, NoiseOptions, SimOptions};
 use crate::Theta;
 
@@ -143,8 +144,8 @@ fn straight_drive_calibrates_c_e_and_names_the_rest() {
     let start = Theta { c_e: 1.96, ..th };
     let r = estimate(&input, &start, &EivOptions::default()).expect("eiv");
     assert!((r.theta.c_e - th.c_e).abs() < 1e-6, "{r}");
-    assert!(r.observability.unobservable.contains(&Parameter::TR), "{:?}", r.observability);
-    assert!(r.observability.unobservable.contains(&Parameter::D), "{:?}", r.observability);
+    assert!(r.observability.unobservable.contains(&Param::TR), "{:?}", r.observability);
+    assert!(r.observability.unobservable.contains(&Param::D), "{:?}", r.observability);
     assert!(!r.free[2] && !r.free[3] && r.free[0]);
     assert!(r.warnings.iter().any(|w| matches!(w, EivWarning::Unobservable { .. })));
 

@@ -83,8 +83,6 @@ mod records;
 #[cfg(test)]
 mod tests;
 
-pub use draft::draft_manifest;
-
 use columns::{Column, Decoded, JointField, MessageType};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::fmt;
