@@ -605,7 +605,8 @@ impl EivOptions {
     pub(crate) fn heading_floor_applies(&self) -> bool {
         let held = |s: NoiseSource| self.eta_held[s.index()];
         let tied = self.heading_scale == HeadingScale::TiedToPosition;
-        !self.fix_noise && !held(NoiseSource::HeadingWhite) && !(tied && held(NoiseSource::PoseWhite))
+        let held_with_position = tied && held(NoiseSource::PoseWhite);
+        !(self.fix_noise || held(NoiseSource::HeadingWhite) || held_with_position)
     }
 
     /// Whether the heading's white noise has the readings' as its floor:
