@@ -183,8 +183,14 @@ fn noise_estimate_sensitivity_matches_refits_and_widens_sigma() {
     let refit = |sign: f64| {
         let mut e = [0.0; 6];
         e[j] = sign * h;
+        let mut noise = r.noise.scaled(&e);
+        if let Some(floor) = r.heading_noise_floor.filter(|_| j == NoiseSource::HeadingWhite.index()) {
+            // η_5 scales the heading's white variance above its readings' own.
+            let above = r.noise.heading_white_sigma_rad.powi(2) - floor * floor;
+            noise.heading_white_sigma_rad = (floor * floor + above * (sign * h).exp()).sqrt();
+        }
         let o = EivOptions {
-            noise: r.noise.scaled(&e),
+            noise,
             fix_noise: true,
             free: r.free,
             fix_unobservable: false,
