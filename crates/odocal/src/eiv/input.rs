@@ -5,6 +5,7 @@ use std::ops::Range;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
+use crate::model::wrap_angle;
 
 research_pub! {
     /// The data of a drive as plain slices (all of length N, samples).
@@ -149,16 +150,8 @@ impl<'a> EivInput<'a> {
                     }
                 }
             }
-            let scale = |d: &mut Vec<f64>| -> Option<f64> {
-                if d.is_empty() {
-                    return None;
-                }
-                let mid = d.len() / 2;
-                let (_, m, _) = d.select_nth_unstable_by(mid, f64::total_cmp);
-                Some(*m / 0.6745)
-            };
-            match (scale(&mut second), scale(&mut third)) {
-                (Some(a), Some(b)) => a.min(b),
+            match (upper_median(&mut second), upper_median(&mut third)) {
+                (Some(a), Some(b)) => a.min(b) / 0.6745,
                 _ => 0.0,
             }
         }
@@ -179,12 +172,7 @@ impl<'a> EivInput<'a> {
                 .flat_map(|a| a.windows(2).map(|w| (w[1] - w[0]).abs()))
                 .filter(|x| x.is_finite())
                 .collect();
-            if d.is_empty() {
-                return 0.0;
-            }
-            let mid = d.len() / 2;
-            let (_, m, _) = d.select_nth_unstable_by(mid, f64::total_cmp);
-            *m / (0.6745 * std::f64::consts::SQRT_2)
+            upper_median(&mut d).map_or(0.0, |m| m / (0.6745 * std::f64::consts::SQRT_2))
         }
     }
 
@@ -256,15 +244,15 @@ pub(super) fn make_windows(parts: &[Range<usize>], target: usize) -> Vec<Window>
     out
 }
 
-/// An angle wrapped into (−π, π].
-fn wrap_angle(a: f64) -> f64 {
-    use std::f64::consts::{PI, TAU};
-    let r = a.rem_euclid(TAU);
-    if r > PI {
-        r - TAU
-    } else {
-        r
+/// The middle value of `d` (the upper one of an even count; `d` reordered);
+/// `None` when empty.
+fn upper_median(d: &mut [f64]) -> Option<f64> {
+    if d.is_empty() {
+        return None;
     }
+    let mid = d.len() / 2;
+    let (_, m, _) = d.select_nth_unstable_by(mid, f64::total_cmp);
+    Some(*m)
 }
 
 /// The divided difference `y[t_0, …, t_k]` of the points `(t_i, y_i)`
